@@ -1,0 +1,925 @@
+"""The robot, the particle filters (SIR, APF, RPF), an exact grid filter, and `run_model`.
+
+State-space model (lab-spec.md; the paper's equations (1)-(3)):
+    x_k = x_{k-1} + L (cos th, sin th),   th ~ U(th0_k - Delta/2, th0_k + Delta/2)     (1)
+    z_k = |x_k - nearest station| + v_k,  v_k ~ N(0, sigma^2)                          (2)
+    p(z_k | x_k) = N(z_k; distance to the nearest station, sigma^2), times 0.5 outside the free area (3)
+The filters follow Arulampalam, Maskell, Gordon, Clapp (2002), Algorithms 4 (SIR), 5 (APF), 6 (RPF).
+Weights live in the log domain; every random draw comes from a seeded `numpy.random.Generator`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+import time
+import warnings
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Annotated, Any
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from draw import Maze, open_view
+
+# -- the model's constants (the paper keeps them here, to be changed by the student) -------------
+ROBOT_SPEED = 0.2  # L, the step length in map units
+MAX_STRAIGHT_STEPS = 32  # the robot picks a new heading after this many straight steps (paper: 10 or 32)
+OUTSIDE_PENALTY = 0.5  # likelihood factor for particles outside the free area (refinement 1)
+RPF_THRESHOLD = 0.2  # RPF regularises when ESS < N_T = RPF_THRESHOLD * N_S (refinement 5)
+CONFIDENCE_RADIUS = 1.0  # the estimate is "confident" when CONFIDENCE_SHARE of the mass lies this close
+CONFIDENCE_SHARE = 0.95
+CONVERGENCE_RADIUS = 0.5  # a run has converged from the step after which its error stays below this
+DEFAULT_PARTICLE_COUNT = 1500
+DEFAULT_STEPS = 200
+GRID_RESOLUTION = 0.02  # cell size of GridBayesFilter, map units (divides 1, so cells never straddle walls)
+DEFAULT_PARAMETERS_PATH = Path("model_parameters") / "model_parameters.json"
+SCENARIO_FORMAT_VERSION = 1
+# exp(x) is 0 in float64 below this: when the filter's whole predictive likelihood p(z_k | z_1:k-1)
+# is that small no particle explains z_k, and the filter starts again from the prior.
+LOG_UNDERFLOW = math.log(np.finfo(float).tiny)
+LAB_SIGMA_RANGE = (0.2, 0.8)  # the lab's recommended ranges: outside them we warn, not refuse
+LAB_DELTA_RANGE = (0.05, 0.6)
+
+
+# -- the model -------------------------------------------------------------------------------------
+def sample_headings(compass_angle: float, delta: float, count: int, rng: np.random.Generator) -> np.ndarray:
+    """Headings actually taken, th ~ U(th0 - Delta/2, th0 + Delta/2), shape (count,), radians."""
+    return compass_angle + delta * (rng.random(count) - 0.5)
+
+
+def move(positions: np.ndarray, headings: np.ndarray, speed: float = ROBOT_SPEED) -> np.ndarray:
+    """Equation (1): one step of length `speed` along `headings`; positions (N, 2) -> (N, 2)."""
+    return positions + speed * np.column_stack([np.cos(headings), np.sin(headings)])
+
+
+def log_likelihood(
+    z: float, positions: np.ndarray, world: Maze, sigma: float, outside_penalty: float = OUTSIDE_PENALTY
+) -> np.ndarray:
+    """Equation (3) in logs, with refinement 1: log p(z | x) for positions (N, 2) -> (N,).
+
+    The Gaussian's constant -log(sigma sqrt(2 pi)) is kept so that sums of these are true log-likelihoods.
+    """
+    residual = (z - world.distance_to_nearest_station(positions)) / sigma
+    log_p = -0.5 * residual**2 - math.log(sigma * math.sqrt(2 * math.pi))
+    return np.where(world.is_free(positions[:, 0], positions[:, 1]), log_p, log_p + math.log(outside_penalty))
+
+
+# -- weights ---------------------------------------------------------------------------------------
+def log_sum_exp(log_w: np.ndarray) -> float:
+    """log(sum(exp(log_w))) without overflow or underflow; -inf when every entry is -inf."""
+    top = np.max(log_w)
+    if not np.isfinite(top):
+        return float(top)
+    return float(top + np.log(np.sum(np.exp(log_w - top))))
+
+
+def normalise_log_weights(log_w: np.ndarray) -> np.ndarray:
+    """Log weights shifted so that their exponentials sum to one."""
+    return log_w - log_sum_exp(log_w)
+
+
+def effective_sample_size(weights: np.ndarray) -> float:
+    """N_eff = 1 / sum(W_i^2) for normalised weights W (Arulampalam et al., eq. 51)."""
+    return float(1.0 / np.sum(weights**2))
+
+
+# -- resampling: plain functions, normalised weights W (N,) -> ancestor indices (M,) ---------------
+def _inverse_cdf(sorted_uniforms: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Indices i with cumsum(W)[i-1] <= u < cumsum(W)[i] for sorted uniforms u in [0, 1)."""
+    cumulative = np.cumsum(weights)
+    cumulative[-1] = 1.0  # guard against round-off leaving the last bin short of 1
+    return np.searchsorted(cumulative, sorted_uniforms, side="right")
+
+
+def multinomial_resample(weights: np.ndarray, rng: np.random.Generator, count: int | None = None) -> np.ndarray:
+    """M independent draws from the categorical distribution W."""
+    count = len(weights) if count is None else count
+    return _inverse_cdf(np.sort(rng.random(count)), weights)
+
+
+def stratified_resample(weights: np.ndarray, rng: np.random.Generator, count: int | None = None) -> np.ndarray:
+    """One uniform draw in each of the M strata [m/M, (m+1)/M)."""
+    count = len(weights) if count is None else count
+    return _inverse_cdf((np.arange(count) + rng.random(count)) / count, weights)
+
+
+def systematic_resample(weights: np.ndarray, rng: np.random.Generator, count: int | None = None) -> np.ndarray:
+    """One uniform offset shared by the M strata: the lowest-variance scheme, used by default."""
+    count = len(weights) if count is None else count
+    return _inverse_cdf((np.arange(count) + rng.random()) / count, weights)
+
+
+def residual_resample(weights: np.ndarray, rng: np.random.Generator, count: int | None = None) -> np.ndarray:
+    """floor(M W_i) copies of each particle, the remaining draws multinomial on the remainders."""
+    count = len(weights) if count is None else count
+    copies = np.floor(count * weights).astype(np.int64)
+    deterministic = np.repeat(np.arange(len(weights)), copies)
+    left = count - len(deterministic)
+    if left == 0:
+        return deterministic
+    remainder = count * weights - copies
+    return np.concatenate([deterministic, multinomial_resample(remainder / remainder.sum(), rng, left)])
+
+
+RESAMPLING_SCHEMES: dict[str, Callable[..., np.ndarray]] = {
+    "systematic": systematic_resample,
+    "stratified": stratified_resample,
+    "multinomial": multinomial_resample,
+    "residual": residual_resample,
+}
+
+
+def resampling_scheme(name: str) -> Callable[..., np.ndarray]:
+    """The resampling function called `name` (systematic, stratified, multinomial, residual)."""
+    try:
+        return RESAMPLING_SCHEMES[name.lower()]
+    except KeyError:
+        raise ValueError(f"unknown resampling scheme {name!r}; choose one of {', '.join(RESAMPLING_SCHEMES)}") from None
+
+
+# -- parameter checks ------------------------------------------------------------------------------
+def check_model_parameters(sigma: float, delta: float) -> tuple[float, float]:
+    """Refuse impossible sigma/delta with a clear message; warn outside the lab's recommended ranges."""
+    sigma, delta = _finite_number("sigma", sigma), _finite_number("delta", delta)
+    if sigma <= 0:
+        raise ValueError(f"sigma must be > 0 (the measurement noise's standard deviation), got {sigma}")
+    if not 0 <= delta <= 2 * math.pi:
+        raise ValueError(f"delta must be in [0, 2*pi] (the compass error's full width, radians), got {delta}")
+    for name, value, (low, high) in (("sigma", sigma, LAB_SIGMA_RANGE), ("delta", delta, LAB_DELTA_RANGE)):
+        if not low <= value <= high:
+            warnings.warn(f"{name} = {value} is outside the lab's range [{low}, {high}]", stacklevel=3)
+    return sigma, delta
+
+
+def _finite_number(name: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ValueError(f"{name} must be a number, got {value!r}")
+    if not math.isfinite(value):
+        raise ValueError(f"{name} must be finite, got {value}")
+    return float(value)
+
+
+def _as_point(name: str, value: Any) -> tuple[float, float]:
+    try:
+        x, y = value
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a pair (x, y), got {value!r}") from None
+    return _finite_number(f"{name} x", x), _finite_number(f"{name} y", y)
+
+
+def _as_points(name: str, value: Any) -> np.ndarray:
+    """An (N, 2) float array of finite points with N >= 1, or a clear ValueError."""
+    try:
+        points = np.array(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a list of (x, y) pairs") from None
+    if points.ndim != 2 or points.shape[1] != 2 or len(points) == 0:
+        raise ValueError(f"{name} must be a non-empty list of (x, y) pairs, got shape {points.shape}")
+    if not np.isfinite(points).all():
+        raise ValueError(f"{name} contains a value that is not finite")
+    return points
+
+
+# -- the robot -------------------------------------------------------------------------------------
+class Robot:
+    """The lost robot: it wanders the maze (or replays recorded angles) and measures its distance.
+
+    Without angles it wanders as the paper says: it keeps a compass heading th0 and takes th0 plus
+    U(-delta/2, delta/2) each step, and picks a new uniform heading when the next step would hit a
+    wall or leave the maze, or after `max_straight_steps` straight steps. Every step it takes (and
+    every measurement) is recorded, so a second run of the same robot replays the first exactly.
+    """
+
+    def __init__(
+        self,
+        sigma: float,
+        delta: float,
+        position: Sequence[float],
+        actual_angles: Sequence[float] | None = None,
+        compass_angles: Sequence[float] | None = None,
+        measurements: Sequence[float] | None = None,
+        rng: np.random.Generator | None = None,
+        *,
+        max_straight_steps: int = MAX_STRAIGHT_STEPS,
+        speed: float = ROBOT_SPEED,
+    ):
+        self.sigma, self.delta = check_model_parameters(sigma, delta)
+        self.initial_position = _as_point("robot position", position)
+        if (actual_angles is None) != (compass_angles is None):
+            raise ValueError("give both actual_angles and compass_angles, or neither")
+        self.actual_angles = [_finite_number("actual angle", a) for a in actual_angles or []]
+        self.compass_angles = [_finite_number("compass angle", a) for a in compass_angles or []]
+        if len(self.actual_angles) != len(self.compass_angles):
+            raise ValueError(
+                f"actual_angles has {len(self.actual_angles)} entries but compass_angles has {len(self.compass_angles)}"
+            )
+        self.measurements = [_finite_number("measurement", z) for z in measurements or []]
+        if measurements is not None and len(self.measurements) != len(self.actual_angles):
+            raise ValueError(
+                f"measurements has {len(self.measurements)} entries, one per step ({len(self.actual_angles)}) expected"
+            )
+        if max_straight_steps < 1:
+            raise ValueError(f"max_straight_steps must be >= 1, got {max_straight_steps}")
+        self.max_straight_steps = max_straight_steps
+        self.speed = speed
+        self.rng_given = rng is not None
+        self.rng = rng if rng is not None else np.random.default_rng()
+        self.reset()
+
+    def reset(self) -> None:
+        """Back to the initial position, before step 1; recorded angles and measurements are kept."""
+        self.x, self.y = self.initial_position
+        self.steps_taken = 0
+        self.heading: float | None = None  # the last actual angle, for drawing
+        self._compass: float | None = None  # the wandering compass heading th0
+        self._straight = 0
+
+    @property
+    def position(self) -> tuple[float, float]:
+        return self.x, self.y
+
+    @property
+    def recorded_steps(self) -> int:
+        """How many steps the robot can replay from its recorded angles."""
+        return len(self.actual_angles)
+
+    def step(self, world: Maze) -> tuple[float, float]:
+        """Move one step, then measure: (compass angle th0_k the filters use, measured distance z_k)."""
+        k = self.steps_taken
+        if k == len(self.actual_angles):
+            compass, actual = self._choose_heading(world)
+            self.compass_angles.append(compass)
+            self.actual_angles.append(actual)
+        self.heading = self.actual_angles[k]
+        self.x += self.speed * math.cos(self.heading)  # equation (1), in float64 scalars:
+        self.y += self.speed * math.sin(self.heading)  # a replay retraces the path bit for bit
+        self.steps_taken = k + 1
+        if k == len(self.measurements):
+            self.measurements.append(self.measure(world))
+        return self.compass_angles[k], self.measurements[k]
+
+    def measure(self, world: Maze) -> float:
+        """Equation (2): a fresh noisy distance to the nearest station, N(distance, sigma^2)."""
+        return float(world.distance_to_nearest_station(self.x, self.y) + self.rng.normal(0.0, self.sigma))
+
+    def _choose_heading(self, world: Maze, tries: int = 1000) -> tuple[float, float]:
+        """The wandering rule: keep th0 unless the step would leave the free area or ran too long."""
+        for _ in range(tries):
+            if self._compass is None or self._straight >= self.max_straight_steps:
+                self._compass, self._straight = float(self.rng.uniform(0.0, 2 * math.pi)), 0
+            actual = float(sample_headings(self._compass, self.delta, 1, self.rng)[0])
+            dx, dy = self.speed * math.cos(actual), self.speed * math.sin(actual)
+            # The midpoint check keeps the robot from cutting the corner of a wall block.
+            if world.is_free(self.x + dx, self.y + dy) and world.is_free(self.x + dx / 2, self.y + dy / 2):
+                self._straight += 1
+                return self._compass, actual
+            self._compass = None
+        raise RuntimeError(f"the robot at {self.position} found no free direction in {tries} tries")
+
+
+# -- the filters -----------------------------------------------------------------------------------
+class ParticleFilter:
+    """Weighted particles {x_i, W_i} approximating the posterior p(x_k | z_1:k).
+
+    Arulampalam's algorithms end each step by resampling; here each step starts by resampling the
+    previous posterior, the same sequence of operations, so that between steps the filter holds the
+    weighted posterior that the estimate, the ESS and the drawing read.
+    """
+
+    name = "ParticleFilter"
+
+    def __init__(
+        self,
+        world: Maze,
+        sigma: float,
+        delta: float,
+        particles: np.ndarray,
+        rng: np.random.Generator | None = None,
+        *,
+        resampling: str = "systematic",
+        outside_penalty: float = OUTSIDE_PENALTY,
+        speed: float = ROBOT_SPEED,
+    ):
+        self.world, self.sigma, self.delta = world, sigma, delta
+        self.rng = rng if rng is not None else np.random.default_rng()
+        self.resample = resampling_scheme(resampling)
+        self.outside_penalty, self.speed = outside_penalty, speed
+        self.positions = _as_points("particles", particles)  # (N, 2)
+        self.count = len(self.positions)
+        self.headings = np.zeros(self.count)  # each particle's last motion angle, for drawing
+        self.log_weights = np.full(self.count, -math.log(self.count))
+        self.steps_done = 0
+        self.reinitialised_at: list[int] = []  # steps at which no particle explained z and we restarted
+
+    # what a step does, in the paper's words
+    def step(self, compass_angle: float, z: float) -> None:
+        raise NotImplementedError
+
+    def propagate(self, positions: np.ndarray, compass_angle: float) -> tuple[np.ndarray, np.ndarray]:
+        """Draw x_k ~ p(x_k | x_{k-1}): uniform on the arc of radius L around th0 (headings too)."""
+        headings = sample_headings(compass_angle, self.delta, len(positions), self.rng)
+        return move(positions, headings, self.speed), headings
+
+    def likelihood(self, z: float, positions: np.ndarray) -> np.ndarray:
+        """log p(z_k | x) of equation (3) with the outside penalty, shape (N,)."""
+        return log_likelihood(z, positions, self.world, self.sigma, self.outside_penalty)
+
+    # the weighted posterior
+    @property
+    def weights(self) -> np.ndarray:
+        return np.exp(self.log_weights)
+
+    @property
+    def ess(self) -> float:
+        return effective_sample_size(self.weights)
+
+    @property
+    def estimate(self) -> np.ndarray:
+        """The posterior mean sum_i W_i x_i, shape (2,)."""
+        return self.weights @ self.positions
+
+    @property
+    def is_confident(self) -> bool:
+        """At least 95% of the weight lies within distance 1 of the estimate (the paper's green circle)."""
+        near = np.hypot(*(self.positions - self.estimate).T) <= CONFIDENCE_RADIUS
+        return bool(self.weights[near].sum() >= CONFIDENCE_SHARE)
+
+    # shared bookkeeping
+    def _set_weights(self, log_w: np.ndarray, z: float) -> None:
+        """Normalise new log weights; if their total underflows, no particle explains z: restart."""
+        total = log_sum_exp(log_w)
+        if total < LOG_UNDERFLOW or np.isnan(total):
+            self._reinitialise(z)
+        else:
+            self.log_weights = log_w - total
+
+    def _reinitialise(self, z: float) -> None:
+        """Start again from the prior (uniform over the free area), weighted by the current z."""
+        self.reinitialised_at.append(self.steps_done + 1)
+        self.positions = self.world.random_free_places(self.count, self.rng)
+        log_w = self.likelihood(z, self.positions)
+        total = log_sum_exp(log_w)
+        self.log_weights = log_w - total if total >= LOG_UNDERFLOW else np.full(self.count, -math.log(self.count))
+
+
+class SIRParticleFilter(ParticleFilter):
+    """Sampling importance resampling (bootstrap filter), Arulampalam et al. Algorithm 4."""
+
+    name = "SIRParticleFilter"
+
+    def step(self, compass_angle: float, z: float) -> None:
+        ancestors = self.resample(self.weights, self.rng)  # RESAMPLE (end of Alg. 4, previous step)
+        x, headings = self.propagate(self.positions[ancestors], compass_angle)  # x_k^i ~ p(x_k | x_{k-1}^i)
+        self.positions, self.headings = x, headings
+        self._set_weights(self.likelihood(z, x), z)  # w_k^i = p(z_k | x_k^i), then normalise
+        self.steps_done += 1
+
+
+class AuxiliaryParticleFilter(ParticleFilter):
+    """Auxiliary particle filter, Arulampalam et al. Algorithm 5, with refinement 2:
+    the auxiliary point mu_i is one draw from the transition p(x_k | x_{k-1}^i)."""
+
+    name = "AuxiliaryParticleFilter"
+
+    def step(self, compass_angle: float, z: float) -> None:
+        mu, _ = self.propagate(self.positions, compass_angle)  # mu_k^i ~ p(x_k | x_{k-1}^i)
+        log_mu_likelihood = self.likelihood(z, mu)
+        first_stage = self.log_weights + log_mu_likelihood  # w_k^i ∝ p(z_k | mu_k^i) w_{k-1}^i
+        if log_sum_exp(first_stage) < LOG_UNDERFLOW:
+            self._reinitialise(z)
+        else:
+            ancestors = self.resample(np.exp(normalise_log_weights(first_stage)), self.rng)  # i^j
+            x, headings = self.propagate(self.positions[ancestors], compass_angle)  # x_k^j ~ p(x_k | x_{k-1}^{i^j})
+            self.positions, self.headings = x, headings
+            second_stage = self.likelihood(z, x) - log_mu_likelihood[ancestors]  # p(z|x^j) / p(z|mu^{i^j})
+            self._set_weights(second_stage, z)
+        self.steps_done += 1
+
+
+class RegularizedParticleFilter(ParticleFilter):
+    """Regularised particle filter, Arulampalam et al. Algorithm 6, with refinements 3-5: the prior
+    as proposal, a 2-D Gaussian kernel, and regularisation when N_eff < N_T = threshold * N_S."""
+
+    name = "RegularizedParticleFilter"
+
+    def __init__(self, *args: Any, threshold: float = RPF_THRESHOLD, **kwargs: Any):
+        super().__init__(*args, **kwargs)
+        if not 0 < threshold <= 1:
+            raise ValueError(f"the RPF threshold must be in (0, 1] (N_T = threshold * N_S), got {threshold}")
+        self.threshold = threshold
+        self.regularised_at: list[int] = []
+
+    @property
+    def bandwidth(self) -> float:
+        """h_opt = A N^(-1/(n+4)), A = (4/(n+2))^(1/(n+4)), for the Gaussian kernel in n = 2 dimensions."""
+        n = 2
+        return (4 / (n + 2)) ** (1 / (n + 4)) * self.count ** (-1 / (n + 4))
+
+    def step(self, compass_angle: float, z: float) -> None:
+        if self.ess < self.threshold * self.count:  # IF N_eff < N_T (end of Alg. 6, previous step)
+            self.regularise()
+        x, headings = self.propagate(self.positions, compass_angle)  # x_k^i ~ q = p(x_k | x_{k-1}^i)
+        self.positions, self.headings = x, headings
+        self._set_weights(self.log_weights + self.likelihood(z, x), z)  # w_k^i ∝ w_{k-1}^i p(z_k | x_k^i)
+        self.steps_done += 1
+
+    def regularise(self) -> None:
+        """Resample, then jitter each particle by h_opt D eps, eps ~ N(0, I_2), D D^T = S."""
+        weights = self.weights
+        centred = self.positions - weights @ self.positions
+        covariance = (weights[:, None] * centred).T @ centred  # S_k, the weighted empirical covariance
+        D = np.linalg.cholesky(covariance + 1e-12 * np.eye(2))  # D_k D_k^T = S_k (tiny ridge: S may be 0)
+        ancestors = self.resample(weights, self.rng)
+        eps = self.rng.standard_normal((self.count, 2))
+        self.positions = self.positions[ancestors] + self.bandwidth * eps @ D.T
+        self.headings = self.headings[ancestors]
+        self.log_weights = np.full(self.count, -math.log(self.count))
+        self.regularised_at.append(self.steps_done)
+
+
+class GridBayesFilter:
+    """The exact Bayes filter of the same model on a fine grid: the accuracy limit of the particle filters.
+
+    The density lives on cells of size `resolution` covering the map plus a `margin` (mass that leaves
+    it is dropped). Prediction convolves it with the arc kernel p(x_k | x_{k-1}) (an FFT convolution);
+    the update multiplies by equation (3) with the outside penalty, evaluated at the cell centres.
+    """
+
+    name = "GridBayesFilter"
+
+    def __init__(
+        self,
+        world: Maze,
+        sigma: float,
+        delta: float,
+        particles: np.ndarray | None = None,
+        rng: np.random.Generator | None = None,
+        *,
+        resolution: float = GRID_RESOLUTION,
+        margin: float = 1.0,
+        outside_penalty: float = OUTSIDE_PENALTY,
+        speed: float = ROBOT_SPEED,
+        **_: Any,
+    ):
+        del particles  # the exact filter starts from the exact prior, not from a sample of it
+        self.world, self.sigma, self.delta, self.speed = world, sigma, delta, speed
+        self.rng = rng if rng is not None else np.random.default_rng()
+        self.resolution = resolution
+        self.origin = -margin
+        nx = round((world.width + 2 * margin) / resolution)
+        ny = round((world.height + 2 * margin) / resolution)
+        centres_x = self.origin + (np.arange(nx) + 0.5) * resolution
+        centres_y = self.origin + (np.arange(ny) + 0.5) * resolution
+        gx, gy = np.meshgrid(centres_x, centres_y)  # row j is y, column i is x
+        self.positions = np.column_stack([gx.ravel(), gy.ravel()])  # (M, 2) cell centres
+        self.shape = (ny, nx)
+        self.free = world.is_free(gx, gy)
+        self._log_likelihood_constant = np.where(self.free, 0.0, math.log(outside_penalty))
+        self._distance = world.distance_to_nearest_station(self.positions).reshape(self.shape)
+        self.density = self._prior()
+        self.headings = np.zeros(len(self.positions))
+        self.steps_done = 0
+        self.reinitialised_at: list[int] = []
+
+    def _prior(self) -> np.ndarray:
+        return self.free / self.free.sum()
+
+    def step(self, compass_angle: float, z: float) -> None:
+        self.density = self.predict(self.density, compass_angle)  # p(x_k | z_1:k-1), Chapman-Kolmogorov
+        self.update(z)  # p(x_k | z_1:k) ∝ p(z_k | x_k) p(x_k | z_1:k-1)
+        self.steps_done += 1
+
+    def predict(self, density: np.ndarray, compass_angle: float) -> np.ndarray:
+        """Convolve with the arc kernel of this step's compass angle (linear, not circular, FFT)."""
+        kernel = arc_kernel(compass_angle, self.delta, self.speed, self.resolution)
+        return np.clip(fft_convolve_same(density, kernel), 0.0, None)
+
+    def update(self, z: float) -> None:
+        log_lik = -0.5 * ((z - self._distance) / self.sigma) ** 2 + self._log_likelihood_constant
+        posterior = self._weighted(self.density, log_lik)
+        if posterior is None:  # no cell explains z: restart from the prior, as the particle filters do
+            self.reinitialised_at.append(self.steps_done + 1)
+            posterior = self._weighted(self._prior(), log_lik)
+        self.density = self._prior() if posterior is None else posterior
+
+    @staticmethod
+    def _weighted(density: np.ndarray, log_lik: np.ndarray) -> np.ndarray | None:
+        """density x exp(log_lik), normalised; None when that product's total underflows."""
+        support = density > 0
+        top = log_lik[support].max()
+        posterior = np.where(support, density * np.exp(np.where(support, log_lik - top, 0.0)), 0.0)
+        total = posterior.sum()
+        if not total > 0 or math.log(total) + top < LOG_UNDERFLOW:
+            return None
+        return posterior / total
+
+    @property
+    def log_weights(self) -> np.ndarray:
+        with np.errstate(divide="ignore"):
+            return np.log(self.density.ravel())
+
+    @property
+    def weights(self) -> np.ndarray:
+        return self.density.ravel()
+
+    @property
+    def count(self) -> int:
+        return len(self.positions)
+
+    @property
+    def ess(self) -> float:
+        """Not a sample, so no effective sample size: NaN."""
+        return math.nan
+
+    estimate = ParticleFilter.estimate
+    is_confident = ParticleFilter.is_confident
+
+    def posterior_std(self) -> float:
+        """Root of the trace of the posterior covariance (map units): how spread the belief is."""
+        centred = self.positions - self.estimate
+        return float(np.sqrt(self.weights @ (centred**2).sum(axis=1)))
+
+
+def arc_kernel(compass_angle: float, delta: float, speed: float, resolution: float) -> np.ndarray:
+    """The transition density on the grid: the arc of radius `speed` spanning `delta` around
+    `compass_angle`, spread bilinearly over cells so that its mean is exact. Shape (2R+1, 2R+1),
+    centred on the origin cell, rows along y; sums to one."""
+    radius = math.ceil(speed / resolution) + 1
+    samples = max(16, math.ceil(4 * speed * delta / resolution))
+    angles = compass_angle + delta * ((np.arange(samples) + 0.5) / samples - 0.5)
+    fx = radius + speed * np.cos(angles) / resolution
+    fy = radius + speed * np.sin(angles) / resolution
+    ix, iy = np.floor(fx).astype(int), np.floor(fy).astype(int)
+    tx, ty = fx - ix, fy - iy
+    kernel = np.zeros((2 * radius + 1, 2 * radius + 1))
+    for dy, wy in ((0, 1 - ty), (1, ty)):
+        for dx, wx in ((0, 1 - tx), (1, tx)):
+            np.add.at(kernel, (iy + dy, ix + dx), wy * wx / samples)
+    return kernel
+
+
+def fft_convolve_same(image: np.ndarray, kernel: np.ndarray) -> np.ndarray:
+    """Linear 2-D convolution of `image` with an odd-sized centred `kernel`, cropped to image's shape."""
+    ky, kx = kernel.shape
+    shape = (_fast_fft_length(image.shape[0] + ky - 1), _fast_fft_length(image.shape[1] + kx - 1))
+    spectrum = np.fft.rfft2(image, shape) * np.fft.rfft2(kernel, shape)
+    full = np.fft.irfft2(spectrum, shape)
+    return full[ky // 2 : ky // 2 + image.shape[0], kx // 2 : kx // 2 + image.shape[1]]
+
+
+def _fast_fft_length(n: int) -> int:
+    """The smallest 2^a 3^b 5^c >= n (FFTs of such lengths are fast)."""
+    best = 2 ** math.ceil(math.log2(n))
+    power5 = 1
+    while power5 < best:
+        power35 = power5
+        while power35 < best:
+            candidate = power35
+            while candidate < n:
+                candidate *= 2
+            best = min(best, candidate)
+            power35 *= 3
+        power5 *= 5
+    return best
+
+
+FILTERS: dict[str, type] = {
+    "SIRParticleFilter": SIRParticleFilter,
+    "AuxiliaryParticleFilter": AuxiliaryParticleFilter,
+    "RegularizedParticleFilter": RegularizedParticleFilter,
+    "GridBayesFilter": GridBayesFilter,
+}
+SHORT_NAMES = {
+    "sir": "SIRParticleFilter",
+    "apf": "AuxiliaryParticleFilter",
+    "rpf": "RegularizedParticleFilter",
+    "grid": "GridBayesFilter",
+}
+
+
+def resolve_filter(name: str | type) -> type:
+    """The filter class for a class name, a short name (sir/apf/rpf/grid) or the paper's spaced name
+    ("SIR Particle Filter"), case-insensitive."""
+    if isinstance(name, type):
+        return name
+    key = "".join(str(name).split()).lower()
+    for full in FILTERS:
+        if key in (full.lower(), full.lower().replace("particlefilter", "")):
+            return FILTERS[full]
+    if key in SHORT_NAMES:
+        return FILTERS[SHORT_NAMES[key]]
+    valid = ", ".join([*FILTERS, *SHORT_NAMES])
+    raise ValueError(f"unknown filtering algorithm {name!r}; valid names: {valid}")
+
+
+# -- saved scenarios -------------------------------------------------------------------------------
+FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
+Point = tuple[FiniteFloat, FiniteFloat]
+
+
+class Scenario(BaseModel):
+    """A saved run (lab step 9): the paper's four keys, the measurements, and metadata."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    format_version: int = Field(SCENARIO_FORMAT_VERSION, ge=1)
+    init_robot_pos: Point
+    init_particles_pos: list[Point] = Field(min_length=1)
+    robot_actual_angles: list[FiniteFloat]
+    robot_compass_angles: list[FiniteFloat]
+    robot_measurements: list[FiniteFloat] | None = None
+    maze: list[list[int]] | None = None
+    sigma: FiniteFloat | None = Field(None, gt=0)
+    delta: FiniteFloat | None = Field(None, ge=0, le=2 * math.pi)
+    seed: int | None = None
+    steps: int | None = Field(None, ge=1)
+    filtering_algorithm: str | None = None
+
+    @model_validator(mode="after")
+    def _consistent(self) -> Scenario:
+        if self.format_version > SCENARIO_FORMAT_VERSION:
+            raise ValueError(
+                f"format_version {self.format_version} is newer than this program reads ({SCENARIO_FORMAT_VERSION})"
+            )
+        steps = len(self.robot_actual_angles)
+        if len(self.robot_compass_angles) != steps:
+            raise ValueError(
+                f"robot_actual_angles has {steps} entries but robot_compass_angles has {len(self.robot_compass_angles)}"
+            )
+        if self.robot_measurements is not None and len(self.robot_measurements) != steps:
+            raise ValueError(f"robot_measurements has {len(self.robot_measurements)} entries, {steps} expected")
+        if self.steps is not None and self.steps != steps:
+            raise ValueError(f"steps is {self.steps} but there are {steps} angles")
+        if self.maze is not None:
+            Maze(self.maze, source="the scenario's maze")
+        return self
+
+    def world(self) -> Maze | None:
+        """The maze stored in the scenario, if any."""
+        return None if self.maze is None else Maze(self.maze, source="the scenario's maze")
+
+    def robot(self, sigma: float | None = None, delta: float | None = None, **kwargs: Any) -> Robot:
+        """A Robot that replays this scenario's path (and measurements, if stored)."""
+        sigma = self.sigma if sigma is None else sigma
+        delta = self.delta if delta is None else delta
+        if sigma is None or delta is None:
+            raise ValueError("the scenario stores no sigma/delta: give them")
+        return Robot(
+            sigma,
+            delta,
+            self.init_robot_pos,
+            actual_angles=self.robot_actual_angles,
+            compass_angles=self.robot_compass_angles,
+            measurements=self.robot_measurements,
+            **kwargs,
+        )
+
+    def to_json(self) -> str:
+        """Json with the paper's keys first, one particle per line (readable, and diff-able)."""
+        data = self.model_dump(exclude_none=True)
+        lines = []
+        for key, value in data.items():
+            if key in ("init_particles_pos", "maze"):
+                inner = ",\n".join(f"    {json.dumps(list(item))}" for item in value)
+                lines.append(f'  "{key}": [\n{inner}\n  ]')
+            else:
+                lines.append(f'  "{key}": {json.dumps(value)}')
+        return "{\n" + ",\n".join(lines) + "\n}\n"
+
+
+class ScenarioError(ValueError):
+    """A scenario file that cannot be used; the message is one line naming the file and the problem."""
+
+
+def save_scenario(scenario: Scenario, path: str | Path = DEFAULT_PARAMETERS_PATH) -> Path:
+    """Write the scenario as json, atomically (a reader never sees half a file). Returns the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_text_atomically(path, scenario.to_json())
+    return path
+
+
+def load_scenario(path: str | Path = DEFAULT_PARAMETERS_PATH) -> Scenario:
+    """Read and validate a scenario json file (a file with only the paper's four keys is fine)."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ScenarioError(f"{path}: no such scenario file") from None
+    except (OSError, UnicodeDecodeError) as error:
+        raise ScenarioError(f"{path}: cannot be read ({error})") from None
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as error:
+        raise ScenarioError(f"{path}:{error.lineno}: not valid json ({error.msg})") from None
+    try:
+        return Scenario.model_validate(data)
+    except ValidationError as error:
+        raise ScenarioError(f"{path}: {describe_validation_error(error)}") from None
+
+
+def describe_validation_error(error: ValidationError) -> str:
+    """The first problem of a pydantic error, on one line: 'where: what' (and how many more)."""
+    first = error.errors()[0]
+    where = ".".join(str(part) for part in first["loc"]) or "the file"
+    more = len(error.errors()) - 1
+    return f"{where}: {first['msg']}" + (f" (and {more} more problem(s))" if more else "")
+
+
+def write_text_atomically(path: str | Path, text: str) -> None:
+    """Write `text` to `path` whole or not at all: a temporary file in the same folder, then rename."""
+    path = Path(path)
+    handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(handle, "w", encoding="utf-8") as stream:
+            stream.write(text)
+            stream.flush()
+            os.fsync(stream.fileno())
+        os.replace(temporary, path)
+    except BaseException:
+        Path(temporary).unlink(missing_ok=True)
+        raise
+
+
+# -- running the model -----------------------------------------------------------------------------
+@dataclass
+class RunResult:
+    """Everything one run produced, per step k = 1..steps (arrays of length `steps`)."""
+
+    filter_name: str
+    true_positions: np.ndarray  # (steps, 2), after the robot's move of step k
+    estimates: np.ndarray  # (steps, 2), the posterior mean after the update with z_k
+    ess: np.ndarray  # (steps,), NaN for the grid filter
+    confident: np.ndarray  # (steps,) bool
+    step_seconds: np.ndarray  # (steps,), the filter's own time per step
+    reinitialised_at: list[int]
+    scenario: Scenario
+    extras: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def errors(self) -> np.ndarray:
+        """Distance between estimate and truth per step (map units)."""
+        return np.hypot(*(self.estimates - self.true_positions).T)
+
+    @property
+    def converged_at(self) -> int | None:
+        """The first step from which the error stays below CONVERGENCE_RADIUS, or None."""
+        return convergence_step(self.errors)
+
+    def as_pairs(self) -> list[tuple[tuple[float, float], tuple[float, float]]]:
+        """The paper's result: one ((x_true, y_true), (x_est, y_est)) per step, plain floats."""
+        return [
+            ((float(t[0]), float(t[1])), (float(e[0]), float(e[1])))
+            for t, e in zip(self.true_positions, self.estimates, strict=True)
+        ]
+
+
+def convergence_step(errors: np.ndarray, radius: float = CONVERGENCE_RADIUS) -> int | None:
+    """The first step (1-based) after which every error is below `radius`; None if the last is not."""
+    outside = np.flatnonzero(np.asarray(errors) >= radius)
+    if len(outside) == 0:
+        return 1
+    return None if outside[-1] == len(errors) - 1 else int(outside[-1]) + 2
+
+
+def new_seed() -> int:
+    """A fresh random seed, recorded so that any run can be repeated."""
+    return int(np.random.SeedSequence().entropy % 2**63)
+
+
+def simulate(
+    robot: Robot,
+    world: Maze,
+    sigma: float,
+    delta: float,
+    particle_count: int | None = None,
+    steps: int | None = None,
+    init_particles_pos: Sequence[Sequence[float]] | np.ndarray | None = None,
+    filtering_algorithm: str | type = "SIRParticleFilter",
+    *,
+    seed: int | None = None,
+    visualize: Any = False,
+    on_step: Callable[[int, Robot, Any], None] | None = None,
+    **filter_options: Any,
+) -> RunResult:
+    """Run one filter on the robot's walk and return the full `RunResult` (what run_model summarises).
+
+    Step k: the robot moves with its actual angle k and measures z_k; the filter predicts with
+    compass angle k and updates with z_k; `on_step(k, robot, filter)` is called after each step.
+    `seed` seeds the robot (unless it has its own rng), the
+    initial particles and the filter; the same seed gives the same result bit for bit.
+    """
+    sigma, delta = check_model_parameters(sigma, delta)
+    filter_class = resolve_filter(filtering_algorithm)
+    seed = new_seed() if seed is None else int(seed)
+    robot_rng, particles_rng, filter_rng = np.random.default_rng(seed).spawn(3)
+    if init_particles_pos is not None:
+        particles = _as_points("init_particles_pos", init_particles_pos)
+    else:
+        count = DEFAULT_PARTICLE_COUNT if particle_count is None else particle_count
+        if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 1:
+            raise ValueError(f"particle_count must be a whole number >= 1, got {count!r}")
+        particles = world.random_free_places(int(count), particles_rng)
+    if steps is None:
+        steps = robot.recorded_steps or DEFAULT_STEPS
+    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
+        raise ValueError(f"steps must be a whole number >= 1, got {steps!r}")
+
+    robot.reset()
+    if not robot.rng_given:
+        robot.rng = robot_rng
+    filt = filter_class(world, sigma, delta, particles, filter_rng, **filter_options)
+    view = open_view(visualize, world, filter_class.name)
+    true_positions, estimates = np.empty((steps, 2)), np.empty((steps, 2))
+    ess, confident, seconds = np.empty(steps), np.empty(steps, dtype=bool), np.empty(steps)
+    try:
+        for k in range(steps):
+            compass_angle, z = robot.step(world)
+            started = time.perf_counter()
+            filt.step(compass_angle, z)
+            seconds[k] = time.perf_counter() - started
+            true_positions[k], estimates[k] = robot.position, filt.estimate
+            ess[k], confident[k] = filt.ess, filt.is_confident
+            view.log_step(k + 1, robot.position, robot.heading, filt)
+            if on_step is not None:
+                on_step(k + 1, robot, filt)
+    finally:
+        view.close()
+    scenario = Scenario(
+        init_robot_pos=robot.initial_position,
+        init_particles_pos=particles.tolist(),
+        robot_actual_angles=robot.actual_angles[:steps],
+        robot_compass_angles=robot.compass_angles[:steps],
+        robot_measurements=robot.measurements[:steps],
+        maze=world.as_lists(),
+        sigma=sigma,
+        delta=delta,
+        seed=seed,
+        steps=steps,
+        filtering_algorithm=filter_class.name,
+    )
+    return RunResult(
+        filter_class.name, true_positions, estimates, ess, confident, seconds, list(filt.reinitialised_at), scenario
+    )
+
+
+def run_model(
+    robot: Robot,
+    world: Maze,
+    sigma: float,
+    delta: float,
+    particle_count: int | None = None,
+    steps: int | None = None,
+    save_parameters: bool = False,
+    init_particles_pos: Sequence[Sequence[float]] | np.ndarray | None = None,
+    filtering_algorithm: str | type = "SIRParticleFilter",
+    *,
+    seed: int | None = None,
+    visualize: Any = True,
+    parameters_path: str | Path = DEFAULT_PARAMETERS_PATH,
+    **filter_options: Any,
+) -> list[tuple[tuple[float, float], tuple[float, float]]]:
+    """The paper's entry point: run a filter and return [((x_true, y_true), (x_est, y_est)), ...].
+
+    With `init_particles_pos` the particle count follows from it, and with a robot that replays
+    angles the step count follows from them. `save_parameters=True` saves the scenario (the paper's
+    model_parameters.json, in `parameters_path`) so the filters can be compared on identical data.
+    """
+    result = simulate(
+        robot,
+        world,
+        sigma,
+        delta,
+        particle_count,
+        steps,
+        init_particles_pos,
+        filtering_algorithm,
+        seed=seed,
+        visualize=visualize,
+        **filter_options,
+    )
+    if save_parameters:
+        save_scenario(result.scenario, parameters_path)
+    return result.as_pairs()
+
+
+__all__ = [
+    "AuxiliaryParticleFilter",
+    "GridBayesFilter",
+    "ParticleFilter",
+    "RegularizedParticleFilter",
+    "Robot",
+    "RunResult",
+    "SIRParticleFilter",
+    "Scenario",
+    "ScenarioError",
+    "load_scenario",
+    "run_model",
+    "save_scenario",
+    "simulate",
+]

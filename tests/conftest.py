@@ -1,0 +1,33 @@
+"""Shared fixtures: the shipped mazes and a seeded robot walk on the paper's maze."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))  # the lab's modules live at the top level, as in the paper
+
+from draw import Maze  # noqa: E402
+
+MAZES = sorted((ROOT / "mazes").glob("*.txt"))
+PAPER_MAZE = (
+    (2, 0, 1, 0, 0),
+    (0, 0, 0, 0, 1),
+    (1, 1, 1, 0, 0),
+    (1, 0, 0, 0, 0),
+    (0, 0, 2, 0, 1),
+)
+
+
+@pytest.fixture
+def paper_world() -> Maze:
+    return Maze(PAPER_MAZE)
+
+
+@pytest.fixture
+def rng() -> np.random.Generator:
+    return np.random.default_rng(12345)

@@ -1,0 +1,60 @@
+"""The command line: the demo, `run`, and one-line errors with exit code 2."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+from conftest import ROOT
+
+from main import main
+
+
+def test_run_prints_a_summary(capsys):
+    assert main(["run", "--steps", "30", "--particles", "300", "--seed", "1", "--quiet"]) == 0
+    assert "SIRParticleFilter: final error" in capsys.readouterr().out
+
+
+def test_run_saves_and_replays_a_scenario(tmp_path, capsys):
+    path = tmp_path / "s.json"
+    args = ["run", "--maze", "paper_5x5", "--steps", "25", "--particles", "200", "--seed", "2", "--quiet"]
+    assert main([*args, "--save-scenario", str(path)]) == 0
+    assert path.exists()
+    assert main([*args, "--save-scenario", str(path)]) == 2  # exists: refused without --force
+    assert "use --force" in capsys.readouterr().err
+    for name in ["apf", "rpf", "grid"]:
+        assert main(["run", "--scenario", str(path), "--filter", name, "--quiet"]) == 0
+    assert main(["run", "--scenario", str(path), "--maze", "maze_10x10", "--quiet"]) == 2
+    assert "differs" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["run", "--particles", "0"], "--particles"),
+        (["run", "--steps", "-3"], "--steps"),
+        (["run", "--sigma", "abc"], "--sigma"),
+        (["run", "--sigma", "-1"], "sigma must be > 0"),
+        (["run", "--delta", "9"], "delta must be in [0, 2*pi]"),
+        (["run", "--maze", "no_such_maze"], "no such maze file"),
+        (["run", "--filter", "kalman"], "valid names"),
+        (["run", "--scenario", "missing.json"], "no such scenario file"),
+        (["run", "--save-scenario", "/no/such/folder/x.json"], "does not exist"),
+        (["run", "--bogus"], "No such option"),
+    ],
+)
+def test_bad_arguments_get_one_line_and_exit_code_2(capsys, args, message):
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1 and "Traceback" not in err
+
+
+def test_python_main_py_runs_the_demo(tmp_path):
+    env = {"PATH": "/usr/bin:/bin", "HOME": str(tmp_path)}
+    done = subprocess.run(
+        [sys.executable, str(ROOT / "main.py")], cwd=tmp_path, capture_output=True, text=True, timeout=300, env=env
+    )
+    assert done.returncode == 0, done.stderr
+    assert "SIRParticleFilter: final error" in done.stdout
+    assert "step  200/200" in done.stdout
