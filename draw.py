@@ -249,19 +249,43 @@ class _NearestStationLookup:
 
 
 # -- drawing -------------------------------------------------------------------------------------
+# `visualize` (run_model's argument and the CLI's --viewer/--rrd/--web/--no-viz) takes:
+#   True or "auto"  the native viewer when a display exists, else an .rrd file (path printed)
+#   "viewer"        spawn the native viewer        "web"  serve the web viewer on 127.0.0.1
+#   a str/Path      save the recording to that .rrd file
+#   False / None    draw nothing                   a view object (has log_step/close): draw into it
 class NullView:
     """A view that draws nothing: what `run_model(..., visualize=False)` uses."""
 
-    def log_step(self, step: int, robot_position: Sequence[float], robot_heading: float, state: Any) -> None:
-        """Draw one step (nothing here)."""
+    def log_step(self, step: int, robot_position: Sequence[float], robot_heading: float | None, state: Any) -> None:
+        """Draw step `step`: the robot (position, heading) and the filter `state` (its particles,
+        weights, headings, estimate, ESS, confidence)."""
 
     def close(self) -> None:
-        """Finish drawing (nothing here)."""
+        """Finish drawing (flush and close the recording)."""
 
 
-def open_view(visualize: Any, world: Maze, filter_name: str) -> NullView:
-    """The view a run draws to. The Rerun viewer is wired in here; until then every run draws nothing."""
+def open_view(visualize: Any, world: Maze, filter_name: str) -> Any:
+    """The view one run draws to (see the `visualize` values above)."""
+    if hasattr(visualize, "log_step"):
+        return visualize
     return NullView()
+
+
+class NullComparison:
+    """All filters of one scenario in one recording (compare): one view per filter."""
+
+    def view_for(self, filter_name: str) -> Any:
+        """The view that the run of `filter_name` draws to."""
+        return NullView()
+
+    def close(self) -> None:
+        """Finish the recording."""
+
+
+def open_comparison(visualize: Any, world: Maze, filter_names: Sequence[str]) -> Any:
+    """A recording for comparing `filter_names` side by side (see the `visualize` values above)."""
+    return NullComparison()
 
 
 def heading_vectors(angles: np.ndarray, length: float) -> np.ndarray:
@@ -275,8 +299,10 @@ __all__ = [
     "WALL",
     "Maze",
     "MazeError",
+    "NullComparison",
     "NullView",
     "heading_vectors",
+    "open_comparison",
     "open_view",
     "parse_maze_text",
 ]

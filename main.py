@@ -38,6 +38,24 @@ app = typer.Typer(
 )
 
 
+# Where a run is drawn: these four options sit on every command that runs filters.
+ViewerOption = Annotated[bool, typer.Option("--viewer", help="open the native Rerun viewer (default with a display)")]
+RrdOption = Annotated[Path | None, typer.Option("--rrd", help="save the Rerun recording to this file")]
+WebOption = Annotated[bool, typer.Option("--web", help="serve the web viewer on 127.0.0.1")]
+NoVizOption = Annotated[bool, typer.Option("--no-viz", help="draw nothing")]
+
+
+def visualization(viewer: bool, rrd: Path | None, web: bool, no_viz: bool) -> Any:
+    """The `visualize` argument of run_model for the command-line options (see draw.py)."""
+    if sum([viewer, rrd is not None, web, no_viz]) > 1:
+        raise UserError("choose one of --viewer, --rrd, --web and --no-viz")
+    if no_viz:
+        return False
+    if rrd is not None:
+        return rrd
+    return "viewer" if viewer else "web" if web else True
+
+
 class UserError(Exception):
     """An input problem reported as one line on stderr with exit code 2."""
 
@@ -90,10 +108,17 @@ def check_output_path(path: Path, force: bool) -> None:
 
 
 @app.callback(invoke_without_command=True)
-def demo(ctx: typer.Context) -> None:
+def demo(
+    ctx: typer.Context,
+    viewer: ViewerOption = False,
+    rrd: RrdOption = None,
+    web: WebOption = False,
+    no_viz: NoVizOption = False,
+) -> None:
     """The paper's example: a lost robot, the SIR filter, 1500 particles, 200 steps."""
     if ctx.invoked_subcommand is not None:
         return
+    visualize = visualization(viewer, rrd, web, no_viz)
     world = load_maze(DEFAULT_MAZE)
     seed = int(np.random.SeedSequence().entropy % 2**31)
     robot = Robot(DEFAULT_SIGMA, DEFAULT_DELTA, world.random_free_place(np.random.default_rng(seed)))
@@ -109,7 +134,7 @@ def demo(ctx: typer.Context) -> None:
         DEFAULT_PARTICLE_COUNT,
         DEFAULT_STEPS,
         seed=seed,
-        visualize=True,
+        visualize=visualize,
         on_step=progress_printer(DEFAULT_STEPS),
     )
     typer.echo(summarise(result))
@@ -130,8 +155,13 @@ def run(
     save_scenario_path: Annotated[Path | None, typer.Option("--save-scenario", help="save the run as json")] = None,
     force: Annotated[bool, typer.Option(help="replace an existing output file")] = False,
     quiet: Annotated[bool, typer.Option(help="no per-step progress")] = False,
+    viewer: ViewerOption = False,
+    rrd: RrdOption = None,
+    web: WebOption = False,
+    no_viz: NoVizOption = False,
 ) -> None:
     """Run one filter: on a fresh lost robot, or replaying a saved scenario (--scenario)."""
+    visualize = visualization(viewer, rrd, web, no_viz)
     if save_scenario_path is not None:
         check_output_path(save_scenario_path, force)
     if scenario is not None:
@@ -154,7 +184,7 @@ def run(
         init_particles,
         filter_name,
         seed=seed,
-        visualize=True,
+        visualize=visualize,
         on_step=None if quiet else progress_printer(total),
     )
     typer.echo(summarise(result))
