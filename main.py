@@ -14,14 +14,24 @@ import numpy as np
 import typer
 
 from draw import Maze, MazeError
+from kidnapping import recovery_steps
 from particle_filter import (
+    ALPHA_FAST,
+    ALPHA_SLOW,
     DEFAULT_PARTICLE_COUNT,
     DEFAULT_STEPS,
+    KLD_EPSILON,
+    KLD_QUANTILE,
+    RESAMPLING_SCHEMES,
+    KLDSampling,
+    ParticleFilter,
+    Recovery,
     Robot,
     RunResult,
     Scenario,
     ScenarioError,
     load_scenario,
+    resolve_filter,
     save_scenario,
     simulate,
 )
@@ -155,6 +165,22 @@ def run(
     save_scenario_path: Annotated[Path | None, typer.Option("--save-scenario", help="save the run as json")] = None,
     force: Annotated[bool, typer.Option(help="replace an existing output file")] = False,
     quiet: Annotated[bool, typer.Option(help="no per-step progress")] = False,
+    resampling: Annotated[str, typer.Option(help=f"resampling scheme: {', '.join(RESAMPLING_SCHEMES)}")] = "systematic",
+    kidnap_at: Annotated[
+        int | None, typer.Option(min=1, help="kidnap the robot at this step (carried to a random free place)")
+    ] = None,
+    recovery: Annotated[bool, typer.Option(help="augmented MCL: inject uniform particles when lost")] = False,
+    sensor_resetting: Annotated[
+        bool, typer.Option(help="augmented MCL injecting particles that match the measurement")
+    ] = False,
+    alpha_slow: Annotated[float, typer.Option(help="recovery: rate of the long-term likelihood average")] = ALPHA_SLOW,
+    alpha_fast: Annotated[float, typer.Option(help="recovery: rate of the short-term likelihood average")] = ALPHA_FAST,
+    kld: Annotated[bool, typer.Option(help="KLD-sampling: adapt the particle count (--particles is the most)")] = False,
+    kld_epsilon: Annotated[float, typer.Option(help="KLD-sampling: error bound epsilon")] = KLD_EPSILON,
+    kld_z: Annotated[
+        float | None,
+        typer.Option(help=f"KLD-sampling: normal quantile z_(1-delta) [default: {KLD_QUANTILE:.3f}, for 99%]"),
+    ] = None,
     viewer: ViewerOption = False,
     rrd: RrdOption = None,
     web: WebOption = False,
@@ -162,6 +188,9 @@ def run(
 ) -> None:
     """Run one filter: on a fresh lost robot, or replaying a saved scenario (--scenario)."""
     visualize = visualization(viewer, rrd, web, no_viz)
+    options = filter_options(filter_name, resampling, recovery, sensor_resetting, alpha_slow, alpha_fast, kld)
+    if kld:
+        options["kld"] = KLDSampling(epsilon=kld_epsilon, z=KLD_QUANTILE if kld_z is None else kld_z)
     if save_scenario_path is not None:
         check_output_path(save_scenario_path, force)
     if scenario is not None:
@@ -186,10 +215,52 @@ def run(
         seed=seed,
         visualize=visualize,
         on_step=None if quiet else progress_printer(total),
+        kidnap_at=kidnap_at,
+        **options,
     )
     typer.echo(summarise(result))
+    for line in (kidnap_report(result), particle_count_report(result) if kld else None):
+        if line:
+            typer.echo(line)
     if save_scenario_path is not None:
         typer.echo(f"scenario saved to {save_scenario(result.scenario, save_scenario_path)}")
+
+
+def filter_options(
+    filter_name: str,
+    resampling: str,
+    recovery: bool,
+    sensor_resetting: bool,
+    alpha_slow: float,
+    alpha_fast: float,
+    kld: bool,
+) -> dict[str, Any]:
+    """The particle filters' options from the command line; refused for the grid filter."""
+    if not issubclass(resolve_filter(filter_name), ParticleFilter):
+        if recovery or sensor_resetting or kld or resampling != "systematic":
+            raise UserError("--resampling, --recovery, --sensor-resetting and --kld apply to particle filters only")
+        return {}
+    options: dict[str, Any] = {"resampling": resampling}
+    if recovery or sensor_resetting:
+        options["recovery"] = Recovery("sensor" if sensor_resetting else "augmented", alpha_slow, alpha_fast)
+    return options
+
+
+def kidnap_report(result: RunResult) -> str | None:
+    """Where the robot was carried, and when (if ever) the filter found it again."""
+    scenario = result.scenario
+    if scenario.kidnap_at is None:
+        return None
+    x, y = scenario.kidnap_position
+    steps = recovery_steps(result)
+    found = f"re-localised {steps} steps later" if steps is not None else "not re-localised by the end"
+    return f"kidnapped at step {scenario.kidnap_at} to ({x:.2f}, {y:.2f}): {found}"
+
+
+def particle_count_report(result: RunResult) -> str:
+    """The particle count per step (KLD-sampling): mean, least and most."""
+    counts = result.extras["particle_count"]
+    return f"particle count: mean {counts.mean():.0f}, least {counts.min()}, most {counts.max()}"
 
 
 def from_scenario(

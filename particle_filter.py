@@ -19,6 +19,7 @@ import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from statistics import NormalDist
 from typing import Annotated, Any
 
 import numpy as np
@@ -38,7 +39,8 @@ DEFAULT_PARTICLE_COUNT = 1500
 DEFAULT_STEPS = 200
 GRID_RESOLUTION = 0.02  # cell size of GridBayesFilter, map units (divides 1, so cells never straddle walls)
 DEFAULT_PARAMETERS_PATH = Path("model_parameters") / "model_parameters.json"
-SCENARIO_FORMAT_VERSION = 1
+SCENARIO_FORMAT_VERSION = 2  # the newest scenario format this program reads and writes
+KIDNAP_FORMAT_VERSION = 2  # scenarios with a kidnapping are version 2; all others stay version 1
 # exp(x) is 0 in float64 below this: when the filter's whole predictive likelihood p(z_k | z_1:k-1)
 # is that small no particle explains z_k, and the filter starts again from the prior.
 LOG_UNDERFLOW = math.log(np.finfo(float).tiny)
@@ -172,6 +174,13 @@ def _as_point(name: str, value: Any) -> tuple[float, float]:
     return _finite_number(f"{name} x", x), _finite_number(f"{name} y", y)
 
 
+def _step_number(name: str, value: Any) -> int:
+    """A whole step number >= 1, or a clear ValueError."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise ValueError(f"{name} must be a step number >= 1, got {value!r}")
+    return int(value)
+
+
 def _as_points(name: str, value: Any) -> np.ndarray:
     """An (N, 2) float array of finite points with N >= 1, or a clear ValueError."""
     try:
@@ -207,6 +216,8 @@ class Robot:
         *,
         max_straight_steps: int = MAX_STRAIGHT_STEPS,
         speed: float = ROBOT_SPEED,
+        kidnap_at: int | None = None,
+        kidnap_position: Sequence[float] | None = None,
     ):
         self.sigma, self.delta = check_model_parameters(sigma, delta)
         self.initial_position = _as_point("robot position", position)
@@ -229,7 +240,30 @@ class Robot:
         self.speed = speed
         self.rng_given = rng is not None
         self.rng = rng if rng is not None else np.random.default_rng()
+        self.kidnap_at: int | None = None
+        self.kidnap_position: tuple[float, float] | None = None
+        if (kidnap_at is None) != (kidnap_position is None):
+            raise ValueError("give both kidnap_at and kidnap_position, or neither")
+        if kidnap_at is not None:  # recorded angles given with a kidnapping were walked with the jump
+            self.kidnap_at, self.kidnap_position = (
+                _step_number("kidnap_at", kidnap_at),
+                _as_point("kidnap position", kidnap_position),
+            )
         self.reset()
+
+    def kidnap(self, step: int, position: Sequence[float]) -> None:
+        """Carry the robot to `position` at step `step` (1-based), before that step's move.
+
+        Step K then reads: put the robot down at `position`, move it with actual angle K, measure z_K.
+        A walk already recorded up to step K was walked without the jump, so it cannot be kidnapped.
+        """
+        step, position = _step_number("kidnap_at", step), _as_point("kidnap position", position)
+        if step <= self.recorded_steps and (step, position) != (self.kidnap_at, self.kidnap_position):
+            raise ValueError(
+                f"the robot replays {self.recorded_steps} steps recorded without this kidnapping (step {step}); "
+                "kidnap a robot before it walks that far"
+            )
+        self.kidnap_at, self.kidnap_position = step, position
 
     def reset(self) -> None:
         """Back to the initial position, before step 1; recorded angles and measurements are kept."""
@@ -251,6 +285,8 @@ class Robot:
     def step(self, world: Maze) -> tuple[float, float]:
         """Move one step, then measure: (compass angle th0_k the filters use, measured distance z_k)."""
         k = self.steps_taken
+        if k + 1 == self.kidnap_at:
+            self.x, self.y = self.kidnap_position  # the kidnapping: picked up and put down elsewhere
         if k == len(self.actual_angles):
             compass, actual = self._choose_heading(world)
             self.compass_angles.append(compass)
@@ -282,13 +318,267 @@ class Robot:
         raise RuntimeError(f"the robot at {self.position} found no free direction in {tries} tries")
 
 
+# -- recovery from kidnapping and adaptive sample size: options of every particle filter, off by default
+ALPHA_SLOW, ALPHA_FAST = 0.001, 0.1  # decay rates of the likelihood averages (Thrun et al., Table 8.3)
+RECOVERY_MODES = ("augmented", "sensor")
+KLD_BIN_SIZE = 0.25  # KLD-sampling counts occupied squares of this side (map units)
+KLD_EPSILON = 0.05  # epsilon: the bound on the KL distance between the sample and the binned posterior
+KLD_QUANTILE = NormalDist().inv_cdf(0.99)  # z_{1-delta}, the upper normal quantile for delta = 0.01: 2.326
+KLD_MIN_COUNT = 100
+SENSOR_RESET_BATCHES = 20  # rejection sampling gives up after this many batches (the rest are uniform)
+
+
+@dataclass(frozen=True)
+class Recovery:
+    """Recovery from kidnapping: augmented MCL (Thrun et al., "Probabilistic Robotics", Table 8.3).
+
+    The filter keeps w_slow and w_fast, exponential averages (rates alpha_slow < alpha_fast) of w_avg,
+    its estimate of the predictive likelihood p(z_k | z_1:k-1). When resampling it replaces each
+    particle, with probability max(0, 1 - w_fast / w_slow), by a draw from the free area: uniform
+    (mode "augmented") or matched to the last measurement (mode "sensor": sensor resetting, Lenser and
+    Veloso 2000, see `measurement_matched_places`).
+    """
+
+    mode: str = "augmented"
+    alpha_slow: float = ALPHA_SLOW
+    alpha_fast: float = ALPHA_FAST
+
+    def __post_init__(self) -> None:
+        if self.mode not in RECOVERY_MODES:
+            raise ValueError(f"unknown recovery {self.mode!r}; choose one of {', '.join(RECOVERY_MODES)}")
+        slow, fast = _finite_number("alpha_slow", self.alpha_slow), _finite_number("alpha_fast", self.alpha_fast)
+        if not 0 < slow < fast <= 1:
+            raise ValueError(
+                f"recovery needs 0 < alpha_slow < alpha_fast <= 1, got alpha_slow {slow}, alpha_fast {fast}"
+            )
+
+
+def recovery_options(
+    recovery: bool | str | Recovery | None, alpha_slow: float = ALPHA_SLOW, alpha_fast: float = ALPHA_FAST
+) -> Recovery | None:
+    """The Recovery a filter option asks for: None/False (off), True ("augmented"), a mode name, a Recovery."""
+    if recovery is None or recovery is False:
+        return None
+    if isinstance(recovery, Recovery):
+        return recovery
+    if recovery is True:
+        recovery = "augmented"
+    if not isinstance(recovery, str):
+        raise ValueError(f"recovery must be True, False, {' or '.join(RECOVERY_MODES)}, got {recovery!r}")
+    return Recovery(recovery.lower(), alpha_slow, alpha_fast)
+
+
+def kld_sample_size(bins: Any, epsilon: float = KLD_EPSILON, z: float = KLD_QUANTILE) -> np.ndarray:
+    """Fox (2003), eq. 13: the sample size that keeps the KL distance between the sample's binned
+    estimate and the binned posterior below epsilon with probability 1 - delta, for k occupied bins:
+        n = (k-1)/(2 eps) (1 - 2/(9(k-1)) + sqrt(2/(9(k-1))) z_{1-delta})^3   (0 for k <= 1)."""
+    k_minus_1 = np.asarray(bins, dtype=float) - 1
+    safe = np.maximum(k_minus_1, 1.0)
+    c = 2 / (9 * safe)
+    return np.where(k_minus_1 >= 1, safe / (2 * epsilon) * (1 - c + np.sqrt(c) * z) ** 3, 0.0)
+
+
+@dataclass(frozen=True)
+class KLDSampling:
+    """KLD-sampling options (Fox 2003): resample until the count n reaches the bound of `kld_sample_size`
+    for the k bins (squares of side `bin_size`) the new particles occupy, within [min_count, max_count].
+    `z` is the normal quantile z_{1-delta} (2.326 for delta = 0.01), not the probability 1 - delta;
+    max_count None means the filter's initial particle count."""
+
+    epsilon: float = KLD_EPSILON
+    z: float = KLD_QUANTILE
+    bin_size: float = KLD_BIN_SIZE
+    min_count: int = KLD_MIN_COUNT
+    max_count: int | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("epsilon", "z", "bin_size"):
+            if not _finite_number(f"KLD {name}", getattr(self, name)) > 0:
+                raise ValueError(f"KLD {name} must be > 0, got {getattr(self, name)}")
+        if self.z < 1:
+            warnings.warn(
+                f"KLD z = {self.z} looks like a probability; z is the normal quantile z_(1-delta), "
+                f"e.g. {KLD_QUANTILE:.3f} for delta = 0.01",
+                stacklevel=3,
+            )
+        _step_number("KLD min_count", self.min_count)
+        if self.max_count is not None and _step_number("KLD max_count", self.max_count) < self.min_count:
+            raise ValueError(f"KLD max_count {self.max_count} is below min_count {self.min_count}")
+
+    def required_count(self, bins: Any) -> np.ndarray:
+        """max(min_count, ceil(n_chi(k))): Fox's stopping count for k occupied bins."""
+        return np.maximum(self.min_count, np.ceil(kld_sample_size(bins, self.epsilon, self.z))).astype(np.int64)
+
+
+def kld_options(kld: bool | KLDSampling | None) -> KLDSampling | None:
+    """The KLDSampling a filter option asks for: None/False (off), True (the defaults), or a KLDSampling."""
+    if kld is None or kld is False:
+        return None
+    if kld is True:
+        return KLDSampling()
+    if isinstance(kld, KLDSampling):
+        return kld
+    raise ValueError(f"kld must be True, False or a KLDSampling, got {kld!r}")
+
+
+Move = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]  # ancestors or points -> (positions, headings)
+
+
+def kld_resample(
+    weights: np.ndarray,
+    move: Move,
+    options: KLDSampling,
+    resample: Callable[..., np.ndarray],
+    rng: np.random.Generator,
+    max_count: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """KLD-sampling (Fox 2003, Table 1) in batches: draw ancestors from W, move them, and stop at the first
+    sample n with n >= required_count(k), k the bins occupied by samples 1..n, or at max_count.
+    Returns (ancestors, positions, headings). Each batch is shuffled so that cutting a stratified or
+    systematic batch short still keeps every ancestor with the same probability."""
+    least = min(options.min_count, max_count)
+    occupied = np.empty(0, dtype=np.int64)  # sorted keys of the occupied bins
+    parts, drawn, target = [], 0, least
+    while True:
+        batch = min(max(target - drawn, drawn, 64), max_count - drawn)  # at least doubles: O(log n) batches
+        ancestors = rng.permutation(resample(weights, rng, batch))
+        positions, headings = move(ancestors)
+        keys, first = np.unique(_bin_keys(positions, options.bin_size), return_index=True)
+        new = np.zeros(batch, dtype=bool)
+        new[first[~np.isin(keys, occupied, assume_unique=True)]] = True
+        bins = len(occupied) + np.cumsum(new)  # occupied bins after each sample of the batch
+        enough = drawn + np.arange(1, batch + 1) >= np.maximum(least, options.required_count(bins))
+        stop = int(np.argmax(enough)) + 1 if enough.any() else batch
+        parts.append((ancestors[:stop], positions[:stop], headings[:stop]))
+        drawn += stop
+        if enough.any() or drawn >= max_count:
+            break
+        occupied = np.union1d(occupied, keys)
+        target = int(options.required_count(len(occupied)))
+    ancestors, positions, headings = (np.concatenate(part) for part in zip(*parts, strict=True))
+    return ancestors, positions, headings
+
+
+def _bin_keys(positions: np.ndarray, size: float) -> np.ndarray:
+    """One int64 key per point for its bin, the size x size square containing it, shape (N,)."""
+    cells = np.floor(positions / size).astype(np.int64)
+    return cells[:, 0] * (1 << 32) + cells[:, 1]
+
+
+def measurement_matched_places(world: Maze, z: float, sigma: float, count: int, rng: np.random.Generator) -> np.ndarray:
+    """`count` free points with density proportional to p(z | x) on the free area (sensor resetting),
+    shape (count, 2): rejection sampling from the uniform law, accepting x with probability
+    p(z | x) / max p = exp(-(z - d(x))^2 / (2 sigma^2)). Points still missing after
+    SENSOR_RESET_BATCHES batches (when no free point explains z) are drawn uniformly."""
+    found, missing = [], count
+    for _ in range(SENSOR_RESET_BATCHES):
+        candidates = world.random_free_places(max(4 * missing, 256), rng)
+        log_accept = log_likelihood(z, candidates, world, sigma) + math.log(sigma * math.sqrt(2 * math.pi))
+        accepted = candidates[np.log(rng.random(len(candidates))) < log_accept][:missing]
+        found.append(accepted)
+        missing -= len(accepted)
+        if missing == 0:
+            break
+    else:
+        found.append(world.random_free_places(missing, rng))
+    return np.concatenate(found)
+
+
+class RecoveryAndKLD:
+    """The resampling options of a ParticleFilter (mixed into it): recovery and KLD-sampling.
+
+    `draw_particles` is the filter's resampling: with both options off it is exactly
+    `resample` + the filter's move, with no extra draw from its generator, so the paper's filters are
+    unchanged. Needs the filter's world, sigma, rng, resample, count.
+    """
+
+    def _init_options(
+        self, recovery: bool | str | Recovery | None, alpha_slow: float, alpha_fast: float, kld: Any
+    ) -> None:
+        self.recovery = recovery_options(recovery, alpha_slow, alpha_fast)
+        self.kld = kld_options(kld)
+        self.max_count = self.count if self.kld is None or self.kld.max_count is None else self.kld.max_count
+        self.log_w_slow = self.log_w_fast = -math.inf  # log w_slow, log w_fast: set by the first w_avg
+        self.last_z: float | None = None
+        self._injected: np.ndarray | None = None
+        self._injected_step = 0
+
+    @property
+    def injection_probability(self) -> float:
+        """max(0, 1 - w_fast / w_slow); 0 without recovery or before the first measurement."""
+        if self.recovery is None or self.last_z is None or self.log_w_slow == -math.inf:
+            return 0.0
+        return max(0.0, 1.0 - math.exp(self.log_w_fast - self.log_w_slow))
+
+    @property
+    def injected(self) -> np.ndarray | None:
+        """Which particles this step's resampling replaced by injected draws (bool, (N,)), or None."""
+        return self._injected if self._injected_step == self.steps_done else None
+
+    def track_likelihood(self, log_w_avg: float, z: float) -> None:
+        """w_slow += alpha_slow (w_avg - w_slow), w_fast likewise; in logs, w <- (1 - a) w + a w_avg.
+
+        Both start at the first w_avg (as ROS AMCL does; Table 8.3 leaves them open): from zero,
+        w_slow would take ~1/alpha_slow steps to reach the likelihood's level and hold back recovery.
+        """
+        if self.recovery is None:
+            return
+        slow, fast = self.recovery.alpha_slow, self.recovery.alpha_fast
+        if self.last_z is None:
+            self.log_w_slow = self.log_w_fast = float(log_w_avg)
+        else:
+            self.log_w_slow = float(np.logaddexp(math.log1p(-slow) + self.log_w_slow, math.log(slow) + log_w_avg))
+            self.log_w_fast = float(np.logaddexp(_log1m(fast) + self.log_w_fast, math.log(fast) + log_w_avg))
+        self.last_z = z
+
+    def draw_particles(
+        self, weights: np.ndarray, move: Move, move_injected: Move
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+        """Resample (N fixed, or KLD-sized) and `move` the ancestors; then, with recovery, replace each
+        particle with probability `injection_probability` by an injected point passed through
+        `move_injected`. Returns (positions, headings, ancestors, injected mask or None)."""
+        if self.kld is None:
+            ancestors = self.resample(weights, self.rng)
+            positions, headings = move(ancestors)
+        else:
+            ancestors, positions, headings = kld_resample(
+                weights, move, self.kld, self.resample, self.rng, self.max_count
+            )
+        self.count = len(positions)
+        injected = self._inject(positions, headings, move_injected)
+        self._injected, self._injected_step = injected, self.steps_done + 1
+        return positions, headings, ancestors, injected
+
+    def _inject(self, positions: np.ndarray, headings: np.ndarray, move_injected: Move) -> np.ndarray | None:
+        """Replace particles in place with probability `injection_probability`; the mask, or None."""
+        probability = self.injection_probability
+        if probability == 0:
+            return None
+        injected = self.rng.random(len(positions)) < probability
+        count = int(injected.sum())
+        if count:
+            if self.recovery.mode == "sensor" and self.last_z is not None:
+                places = measurement_matched_places(self.world, self.last_z, self.sigma, count, self.rng)
+            else:
+                places = self.world.random_free_places(count, self.rng)
+            positions[injected], headings[injected] = move_injected(places)
+        return injected
+
+
+def _log1m(a: float) -> float:
+    """log(1 - a), -inf for a = 1."""
+    return math.log1p(-a) if a < 1 else -math.inf
+
+
 # -- the filters -----------------------------------------------------------------------------------
-class ParticleFilter:
+class ParticleFilter(RecoveryAndKLD):
     """Weighted particles {x_i, W_i} approximating the posterior p(x_k | z_1:k).
 
     Arulampalam's algorithms end each step by resampling; here each step starts by resampling the
     previous posterior, the same sequence of operations, so that between steps the filter holds the
     weighted posterior that the estimate, the ESS and the drawing read.
+    Options beyond the paper (off by default): `recovery` (True, "augmented" or "sensor", with
+    `alpha_slow`, `alpha_fast`) and `kld` (True or a KLDSampling); see RecoveryAndKLD.
     """
 
     name = "ParticleFilter"
@@ -304,6 +594,10 @@ class ParticleFilter:
         resampling: str = "systematic",
         outside_penalty: float = OUTSIDE_PENALTY,
         speed: float = ROBOT_SPEED,
+        recovery: bool | str | Recovery | None = None,
+        alpha_slow: float = ALPHA_SLOW,
+        alpha_fast: float = ALPHA_FAST,
+        kld: bool | KLDSampling | None = None,
     ):
         self.world, self.sigma, self.delta = world, sigma, delta
         self.rng = rng if rng is not None else np.random.default_rng()
@@ -315,6 +609,7 @@ class ParticleFilter:
         self.log_weights = np.full(self.count, -math.log(self.count))
         self.steps_done = 0
         self.reinitialised_at: list[int] = []  # steps at which no particle explained z and we restarted
+        self._init_options(recovery, alpha_slow, alpha_fast, kld)
 
     # what a step does, in the paper's words
     def step(self, compass_angle: float, z: float) -> None:
@@ -324,6 +619,14 @@ class ParticleFilter:
         """Draw x_k ~ p(x_k | x_{k-1}): uniform on the arc of radius L around th0 (headings too)."""
         headings = sample_headings(compass_angle, self.delta, len(positions), self.rng)
         return move(positions, headings, self.speed), headings
+
+    def motion(self, compass_angle: float) -> tuple[Move, Move]:
+        """This step's transition, for resampled ancestors and for injected points (draw_particles)."""
+
+        def points(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            return self.propagate(positions, compass_angle)
+
+        return (lambda ancestors: points(self.positions[ancestors])), points
 
     def likelihood(self, z: float, positions: np.ndarray) -> np.ndarray:
         """log p(z_k | x) of equation (3) with the outside penalty, shape (N,)."""
@@ -361,6 +664,8 @@ class ParticleFilter:
     def _reinitialise(self, z: float) -> None:
         """Start again from the prior (uniform over the free area), weighted by the current z."""
         self.reinitialised_at.append(self.steps_done + 1)
+        if self.kld is not None:  # the prior is as spread as a belief gets: the most particles
+            self.count, self.headings = self.max_count, np.zeros(self.max_count)
         self.positions = self.world.random_free_places(self.count, self.rng)
         log_w = self.likelihood(z, self.positions)
         total = log_sum_exp(log_w)
@@ -373,10 +678,13 @@ class SIRParticleFilter(ParticleFilter):
     name = "SIRParticleFilter"
 
     def step(self, compass_angle: float, z: float) -> None:
-        ancestors = self.resample(self.weights, self.rng)  # RESAMPLE (end of Alg. 4, previous step)
-        x, headings = self.propagate(self.positions[ancestors], compass_angle)  # x_k^i ~ p(x_k | x_{k-1}^i)
+        # RESAMPLE (end of Alg. 4, previous step), then x_k^i ~ p(x_k | x_{k-1}^i)
+        x, headings, _, _ = self.draw_particles(self.weights, *self.motion(compass_angle))
         self.positions, self.headings = x, headings
-        self._set_weights(self.likelihood(z, x), z)  # w_k^i = p(z_k | x_k^i), then normalise
+        log_lik = self.likelihood(z, x)
+        self._set_weights(log_lik, z)  # w_k^i = p(z_k | x_k^i), then normalise
+        if self.recovery is not None:  # w_avg = the mean of p(z_k | x_k^i) over the resampled particles
+            self.track_likelihood(log_sum_exp(log_lik) - math.log(len(x)), z)
         self.steps_done += 1
 
 
@@ -390,14 +698,28 @@ class AuxiliaryParticleFilter(ParticleFilter):
         mu, _ = self.propagate(self.positions, compass_angle)  # mu_k^i ~ p(x_k | x_{k-1}^i)
         log_mu_likelihood = self.likelihood(z, mu)
         first_stage = self.log_weights + log_mu_likelihood  # w_k^i ∝ p(z_k | mu_k^i) w_{k-1}^i
-        if log_sum_exp(first_stage) < LOG_UNDERFLOW:
+        log_first_total = log_sum_exp(first_stage)  # log F, F = sum_i W_{k-1}^i p(z_k | mu_k^i)
+        if log_first_total < LOG_UNDERFLOW:
             self._reinitialise(z)
+            self.track_likelihood(log_first_total, z)
         else:
-            ancestors = self.resample(np.exp(normalise_log_weights(first_stage)), self.rng)  # i^j
-            x, headings = self.propagate(self.positions[ancestors], compass_angle)  # x_k^j ~ p(x_k | x_{k-1}^{i^j})
+            # i^j ~ the first stage, then x_k^j ~ p(x_k | x_{k-1}^{i^j})
+            x, headings, ancestors, injected = self.draw_particles(
+                np.exp(first_stage - log_first_total), *self.motion(compass_angle)
+            )
             self.positions, self.headings = x, headings
-            second_stage = self.likelihood(z, x) - log_mu_likelihood[ancestors]  # p(z|x^j) / p(z|mu^{i^j})
-            self._set_weights(second_stage, z)
+            log_lik = self.likelihood(z, x)
+            second_stage = log_lik - log_mu_likelihood[ancestors]  # p(z|x^j) / p(z|mu^{i^j})
+            if self.recovery is None:
+                self._set_weights(second_stage, z)
+            else:
+                # On the scale of p(z_k | z_1:k-1): F p(z|x^j) / p(z|mu^{i^j}), whose mean is Pitt and
+                # Shephard's estimate of it; an injected particle has no ancestor and carries p(z|x^j).
+                log_w = second_stage + log_first_total
+                if injected is not None:
+                    log_w = np.where(injected, log_lik, log_w)
+                self._set_weights(log_w, z)
+                self.track_likelihood(log_sum_exp(log_w) - math.log(len(x)), z)
         self.steps_done += 1
 
 
@@ -425,7 +747,10 @@ class RegularizedParticleFilter(ParticleFilter):
             self.regularise()
         x, headings = self.propagate(self.positions, compass_angle)  # x_k^i ~ q = p(x_k | x_{k-1}^i)
         self.positions, self.headings = x, headings
-        self._set_weights(self.log_weights + self.likelihood(z, x), z)  # w_k^i ∝ w_{k-1}^i p(z_k | x_k^i)
+        log_w = self.log_weights + self.likelihood(z, x)  # w_k^i ∝ w_{k-1}^i p(z_k | x_k^i)
+        if self.recovery is not None:  # W_{k-1} is normalised: w_avg = sum_i W_{k-1}^i p(z_k | x_k^i)
+            self.track_likelihood(log_sum_exp(log_w), z)
+        self._set_weights(log_w, z)
         self.steps_done += 1
 
     def regularise(self) -> None:
@@ -434,10 +759,16 @@ class RegularizedParticleFilter(ParticleFilter):
         centred = self.positions - weights @ self.positions
         covariance = (weights[:, None] * centred).T @ centred  # S_k, the weighted empirical covariance
         D = np.linalg.cholesky(covariance + 1e-12 * np.eye(2))  # D_k D_k^T = S_k (tiny ridge: S may be 0)
-        ancestors = self.resample(weights, self.rng)
-        eps = self.rng.standard_normal((self.count, 2))
-        self.positions = self.positions[ancestors] + self.bandwidth * eps @ D.T
-        self.headings = self.headings[ancestors]
+        h = self.bandwidth
+
+        def jitter(ancestors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # x^{i*} + h D eps
+            eps = self.rng.standard_normal((len(ancestors), 2))
+            return self.positions[ancestors] + h * eps @ D.T, self.headings[ancestors]
+
+        # RESAMPLE and jitter; injected points (recovery) are not jittered: the step's move follows
+        self.positions, self.headings, _, _ = self.draw_particles(
+            weights, jitter, lambda points: (points, np.zeros(len(points)))
+        )
         self.log_weights = np.full(self.count, -math.log(self.count))
         self.regularised_at.append(self.steps_done)
 
@@ -623,11 +954,16 @@ Point = tuple[FiniteFloat, FiniteFloat]
 
 
 class Scenario(BaseModel):
-    """A saved run (lab step 9): the paper's four keys, the measurements, and metadata."""
+    """A saved run (lab step 9): the paper's four keys, the measurements, and metadata.
+
+    Version 2 adds the kidnapping (kidnap_at, kidnap_position: at step kidnap_at the robot is put down
+    at kidnap_position before that step's move). A scenario is written with the lowest version that
+    holds it, so files without a kidnapping stay version 1 and older readers still read them.
+    """
 
     model_config = ConfigDict(extra="forbid")
 
-    format_version: int = Field(SCENARIO_FORMAT_VERSION, ge=1)
+    format_version: int = Field(1, ge=1)
     init_robot_pos: Point
     init_particles_pos: list[Point] = Field(min_length=1)
     robot_actual_angles: list[FiniteFloat]
@@ -639,6 +975,16 @@ class Scenario(BaseModel):
     seed: int | None = None
     steps: int | None = Field(None, ge=1)
     filtering_algorithm: str | None = None
+    kidnap_at: int | None = Field(None, ge=1)
+    kidnap_position: Point | None = None
+
+    @model_validator(mode="before")
+    @classmethod
+    def _lowest_version(cls, data: Any) -> Any:
+        """Without an explicit format_version, the lowest that holds the data."""
+        if isinstance(data, dict) and "format_version" not in data:
+            data = {**data, "format_version": KIDNAP_FORMAT_VERSION if data.get("kidnap_at") is not None else 1}
+        return data
 
     @model_validator(mode="after")
     def _consistent(self) -> Scenario:
@@ -646,6 +992,12 @@ class Scenario(BaseModel):
             raise ValueError(
                 f"format_version {self.format_version} is newer than this program reads ({SCENARIO_FORMAT_VERSION})"
             )
+        if (self.kidnap_at is None) != (self.kidnap_position is None):
+            raise ValueError("kidnap_at and kidnap_position come together: give both or neither")
+        if self.kidnap_at is not None and self.format_version < KIDNAP_FORMAT_VERSION:
+            raise ValueError(f"a kidnapping needs format_version {KIDNAP_FORMAT_VERSION}, got {self.format_version}")
+        if self.kidnap_at is not None and self.kidnap_at > len(self.robot_actual_angles):
+            raise ValueError(f"kidnap_at {self.kidnap_at} is after the last step ({len(self.robot_actual_angles)})")
         steps = len(self.robot_actual_angles)
         if len(self.robot_compass_angles) != steps:
             raise ValueError(
@@ -676,6 +1028,8 @@ class Scenario(BaseModel):
             actual_angles=self.robot_actual_angles,
             compass_angles=self.robot_compass_angles,
             measurements=self.robot_measurements,
+            kidnap_at=self.kidnap_at,
+            kidnap_position=self.kidnap_position,
             **kwargs,
         )
 
@@ -805,6 +1159,7 @@ def simulate(
     seed: int | None = None,
     visualize: Any = False,
     on_step: Callable[[int, Robot, Any], None] | None = None,
+    kidnap_at: int | None = None,
     **filter_options: Any,
 ) -> RunResult:
     """Run one filter on the robot's walk and return the full `RunResult` (what run_model summarises).
@@ -813,11 +1168,15 @@ def simulate(
     compass angle k and updates with z_k; `on_step(k, robot, filter)` is called after each step.
     `seed` seeds the robot (unless it has its own rng), the
     initial particles and the filter; the same seed gives the same result bit for bit.
+    `kidnap_at=K`: at step K, before its move, the robot is carried to a free place drawn from the
+    seed (see Robot.kidnap); a robot that replays a kidnapping keeps it. The scenario stores it.
+    result.extras["particle_count"] holds the particle count per step (it varies with KLD-sampling).
     """
     sigma, delta = check_model_parameters(sigma, delta)
     filter_class = resolve_filter(filtering_algorithm)
     seed = new_seed() if seed is None else int(seed)
-    robot_rng, particles_rng, filter_rng = np.random.default_rng(seed).spawn(3)
+    # spawn(4)'s first three streams are spawn(3)'s: runs without kidnapping are unchanged
+    robot_rng, particles_rng, filter_rng, kidnap_rng = np.random.default_rng(seed).spawn(4)
     if init_particles_pos is not None:
         particles = _as_points("init_particles_pos", init_particles_pos)
     else:
@@ -829,6 +1188,8 @@ def simulate(
         steps = robot.recorded_steps or DEFAULT_STEPS
     if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
         raise ValueError(f"steps must be a whole number >= 1, got {steps!r}")
+    if kidnap_at is not None:
+        plan_kidnapping(robot, world, kidnap_at, steps, kidnap_rng)
 
     robot.reset()
     if not robot.rng_given:
@@ -837,6 +1198,7 @@ def simulate(
     view = open_view(visualize, world, filter_class.name)
     true_positions, estimates = np.empty((steps, 2)), np.empty((steps, 2))
     ess, confident, seconds = np.empty(steps), np.empty(steps, dtype=bool), np.empty(steps)
+    counts = np.empty(steps, dtype=np.int64)
     try:
         for k in range(steps):
             compass_angle, z = robot.step(world)
@@ -844,7 +1206,7 @@ def simulate(
             filt.step(compass_angle, z)
             seconds[k] = time.perf_counter() - started
             true_positions[k], estimates[k] = robot.position, filt.estimate
-            ess[k], confident[k] = filt.ess, filt.is_confident
+            ess[k], confident[k], counts[k] = filt.ess, filt.is_confident, filt.count
             view.log_step(k + 1, robot.position, robot.heading, filt)
             if on_step is not None:
                 on_step(k + 1, robot, filt)
@@ -862,10 +1224,38 @@ def simulate(
         seed=seed,
         steps=steps,
         filtering_algorithm=filter_class.name,
+        **_kidnapping_fields(robot, steps),
     )
     return RunResult(
-        filter_class.name, true_positions, estimates, ess, confident, seconds, list(filt.reinitialised_at), scenario
+        filter_class.name,
+        true_positions,
+        estimates,
+        ess,
+        confident,
+        seconds,
+        list(filt.reinitialised_at),
+        scenario,
+        extras={"particle_count": counts},
     )
+
+
+def plan_kidnapping(robot: Robot, world: Maze, kidnap_at: int, steps: int, rng: np.random.Generator) -> None:
+    """Kidnap `robot` at step `kidnap_at` to a free place drawn from `rng`, unless it already replays
+    that kidnapping; a different recorded kidnapping, or one after the last step, is refused."""
+    kidnap_at = _step_number("kidnap_at", kidnap_at)
+    if kidnap_at > steps:
+        raise ValueError(f"kidnap_at {kidnap_at} is after the last step ({steps})")
+    if robot.kidnap_at is None:
+        robot.kidnap(kidnap_at, world.random_free_place(rng))
+    elif robot.kidnap_at != kidnap_at:
+        raise ValueError(f"the robot replays a kidnapping at step {robot.kidnap_at}, not at step {kidnap_at}")
+
+
+def _kidnapping_fields(robot: Robot, steps: int) -> dict[str, Any]:
+    """The scenario's kidnap_at and kidnap_position, if the robot was kidnapped within `steps`."""
+    if robot.kidnap_at is None or robot.kidnap_at > steps:
+        return {}
+    return {"kidnap_at": robot.kidnap_at, "kidnap_position": robot.kidnap_position}
 
 
 def run_model(
@@ -882,6 +1272,7 @@ def run_model(
     seed: int | None = None,
     visualize: Any = True,
     parameters_path: str | Path = DEFAULT_PARAMETERS_PATH,
+    kidnap_at: int | None = None,
     **filter_options: Any,
 ) -> list[tuple[tuple[float, float], tuple[float, float]]]:
     """The paper's entry point: run a filter and return [((x_true, y_true), (x_est, y_est)), ...].
@@ -889,6 +1280,8 @@ def run_model(
     With `init_particles_pos` the particle count follows from it, and with a robot that replays
     angles the step count follows from them. `save_parameters=True` saves the scenario (the paper's
     model_parameters.json, in `parameters_path`) so the filters can be compared on identical data.
+    `kidnap_at=K` kidnaps the robot at step K; filter options such as `resampling=`, `recovery=`
+    and `kld=` pass through to the filter (see ParticleFilter).
     """
     result = simulate(
         robot,
@@ -901,6 +1294,7 @@ def run_model(
         filtering_algorithm,
         seed=seed,
         visualize=visualize,
+        kidnap_at=kidnap_at,
         **filter_options,
     )
     if save_parameters:
@@ -911,7 +1305,9 @@ def run_model(
 __all__ = [
     "AuxiliaryParticleFilter",
     "GridBayesFilter",
+    "KLDSampling",
     "ParticleFilter",
+    "Recovery",
     "RegularizedParticleFilter",
     "Robot",
     "RunResult",
