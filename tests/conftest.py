@@ -31,3 +31,13 @@ def paper_world() -> Maze:
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(12345)
+
+
+@pytest.fixture(autouse=True)
+def _no_viewer_and_recordings_in_tmp(tmp_path, monkeypatch):
+    """Runs that draw by default (run_model, the CLI) never open a viewer during the tests, and
+    their default recordings go to a temporary folder, not into the working tree."""
+    import draw
+
+    monkeypatch.setattr(draw, "has_display", lambda: False)
+    monkeypatch.setattr(draw, "RECORDINGS_DIR", tmp_path / "recordings")
