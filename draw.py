@@ -19,8 +19,7 @@ import sys
 import time
 import urllib.parse
 import uuid
-from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -274,6 +273,7 @@ class _NearestStationLookup:
 #   False / None    draw nothing                   a view object (has log_step/close): draw into it
 #   Visualization(target, max_drawn=...)  any of the above, drawing at most max_drawn particles
 DEFAULT_MAX_DRAWN = 5000  # particles drawn per step at most; the filter keeps all of them
+VIEWER_PORT = 9876  # the native viewer's gRPC port, rerun's default: later runs reuse its window
 RECORDINGS_DIR = Path("recordings")  # where runs without a display are saved, relative to the cwd
 APPLICATION_ID = "maze_particle_filter_lab"
 MAP = "/map"  # everything drawn in the map frame lives under this entity
@@ -532,19 +532,22 @@ class Recording:
             target.send_blueprint(blueprint, make_active=False, make_default=True)
             recording = cls(target, owned=False)
         else:
-            recording = cls._to(resolve_target(target, label), world, blueprint, label)
+            recording = cls._to(resolve_target(target, label), blueprint, label)
         log_maze(recording.stream, world)
         return recording
 
     @classmethod
-    def _to(cls, target: str | Path, world: Maze, blueprint: Any, label: str) -> Recording:
+    def _to(cls, target: str | Path, blueprint: Any, label: str) -> Recording:
         import rerun as rr
 
         stream = rr.RecordingStream(APPLICATION_ID, recording_id=str(uuid.uuid4()))
         if target == "viewer":
-            with analytics_off_in_started_processes():
-                rr.spawn(executable_path=viewer_executable(), recording=stream, default_blueprint=blueprint)
-            return cls(stream)
+            try:
+                stream.connect_grpc(native_viewer(), default_blueprint=blueprint)
+                return cls(stream)
+            except RuntimeError as error:  # e.g. a display that the viewer cannot open
+                target = default_recording_path(label)
+                print(f"{error}: the recording goes to {target} instead")
         if target == "notebook":
             stream.notebook_show(blueprint=blueprint, height=700)
             return cls(stream)
@@ -579,7 +582,10 @@ class Recording:
         if self.closed:
             return
         self.closed = True
-        self.stream.flush()
+        try:
+            self.stream.flush()
+        except RuntimeError as error:  # a viewer closed during the run: say so, do not crash the run
+            print(f"The viewer did not receive the whole run ({error})")
         if not self.owned:
             return
         self.stream.disconnect()
@@ -685,43 +691,72 @@ def viewer_executable() -> str:
     return found
 
 
-@contextmanager
-def analytics_off_in_started_processes() -> Iterator[None]:
-    """Rerun's viewer turns its usage analytics off when the variable CI is set: set it for the
-    processes started inside this block (they inherit it), then put the environment back."""
-    before = os.environ.get("CI")
-    os.environ["CI"] = before if before is not None else "1"
-    try:
-        yield
-    finally:
-        if before is None:
-            os.environ.pop("CI", None)
+def rerun_environment() -> dict[str, str]:
+    """The environment of the Rerun processes this program starts: ours plus CI, the variable that
+    makes Rerun's viewer and server turn their usage analytics off (its only other switch is a
+    config file, `rerun analytics disable`). Our own environment is left as it is."""
+    return {**os.environ, "CI": os.environ.get("CI", "1")}
+
+
+def start_rerun(
+    arguments: list[str], ports: Sequence[int], *, detached: bool, settle: float = 0.0, timeout: float = 15.0
+) -> Any:
+    """Start the `rerun` binary with `arguments` and wait until it listens on every port of `ports`
+    (127.0.0.1) and is still running `settle` seconds later (a viewer serves before it opens its
+    window); a process that exits or stays silent raises RuntimeError at once, not after minutes."""
+    process = subprocess.Popen(
+        [viewer_executable(), *arguments],
+        env=rerun_environment(),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=detached,  # a detached viewer outlives this program (and its Ctrl-C)
+    )
+    deadline = time.monotonic() + timeout
+    while not all(listening(port) for port in ports):
+        if process.poll() is not None or time.monotonic() > deadline:
+            stop_process(process)
+            raise RuntimeError(f"the Rerun viewer did not start (exit code {process.returncode})")
+        time.sleep(0.05)
+    time.sleep(settle)
+    if process.poll() is not None:
+        raise RuntimeError(f"the Rerun viewer did not start (exit code {process.returncode})")
+    return process
+
+
+def native_viewer() -> str:
+    """The gRPC address of a native viewer on 127.0.0.1:VIEWER_PORT: the one already running there
+    (as rerun's own spawn does, runs share its window), else a new detached one."""
+    if not listening(VIEWER_PORT):
+        start_rerun(["--bind", "127.0.0.1", "--port", str(VIEWER_PORT), "--expect-data-soon"], [VIEWER_PORT],
+                    detached=True, settle=1.0)  # fmt: skip
+    return f"rerun+http://127.0.0.1:{VIEWER_PORT}/proxy"
+
+
+def stop_process(process: Any) -> None:
+    """End a process we started: politely, then for sure."""
+    if process.poll() is None:
+        process.terminate()
+        try:
+            process.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()
 
 
 class WebServer:
     """The web viewer and its gRPC proxy, served by the `rerun` binary on 127.0.0.1 only."""
 
-    def __init__(self, process: subprocess.Popen, grpc_port: int, web_port: int):
+    def __init__(self, process: Any, grpc_port: int, web_port: int):
         self.process, self.grpc_port, self.web_port = process, grpc_port, web_port
         self.grpc_url = f"rerun+http://127.0.0.1:{grpc_port}/proxy"
         self.url = f"http://127.0.0.1:{web_port}/?url={urllib.parse.quote(self.grpc_url, safe='')}"
 
     @classmethod
-    def start(cls, timeout: float = 10.0) -> WebServer:
-        """Start `rerun --serve-web` bound to 127.0.0.1 on two free ports; wait until it listens."""
+    def start(cls) -> WebServer:
+        """Start `rerun --serve-web` bound to 127.0.0.1 on two free ports; return once it listens."""
         grpc_port, web_port = free_port(), free_port()
-        command = [viewer_executable(), "--serve-web", "--bind", "127.0.0.1"]
-        command += ["--port", str(grpc_port), "--web-viewer-port", str(web_port)]
-        with analytics_off_in_started_processes():
-            process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        server = cls(process, grpc_port, web_port)
-        deadline = time.monotonic() + timeout
-        while not (listening(grpc_port) and listening(web_port)):
-            if process.poll() is not None or time.monotonic() > deadline:
-                server.stop()
-                raise RuntimeError(f"the Rerun web viewer did not start on ports {grpc_port} and {web_port}")
-            time.sleep(0.05)
-        return server
+        arguments = ["--serve-web", "--bind", "127.0.0.1", "--port", str(grpc_port), "--web-viewer-port", str(web_port)]
+        return cls(start_rerun(arguments, [grpc_port, web_port], detached=False), grpc_port, web_port)
 
     def serve_until_interrupted(self, already_interrupted: bool = False) -> None:
         """Keep serving (the server holds the recording) until Ctrl-C, then stop cleanly."""
@@ -735,14 +770,8 @@ class WebServer:
             self.stop()
 
     def stop(self) -> None:
-        """End the server process (politely, then for sure)."""
-        if self.process.poll() is None:
-            self.process.terminate()
-            try:
-                self.process.wait(timeout=5)
-            except subprocess.TimeoutExpired:
-                self.process.kill()
-                self.process.wait()
+        """End the server process."""
+        stop_process(self.process)
 
 
 def free_port() -> int:

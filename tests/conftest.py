@@ -41,3 +41,16 @@ def _no_viewer_and_recordings_in_tmp(tmp_path, monkeypatch):
 
     monkeypatch.setattr(draw, "has_display", lambda: False)
     monkeypatch.setattr(draw, "RECORDINGS_DIR", tmp_path / "recordings")
+
+
+def pytest_addoption(parser):
+    parser.addoption("--rendering", action="store_true", help="also run the headless-viewer rendering checks")
+
+
+def pytest_collection_modifyitems(config, items):
+    if config.getoption("--rendering"):
+        return
+    skip = pytest.mark.skip(reason="renders in the headless viewer: run with --rendering")
+    for item in items:
+        if "rendering" in item.keywords:
+            item.add_marker(skip)

@@ -320,7 +320,7 @@ def test_the_web_viewer_binds_localhost_and_ctrl_c_ends_it_cleanly(world, monkey
     (server,) = servers
     assert server.url.startswith(f"http://127.0.0.1:{server.web_port}/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A")
     assert server.process.poll() is not None  # interrupted mid-run: stopped at once, no waiting
-    assert "--bind" in server.process.args and "127.0.0.1" in server.process.args
+    assert server.process.args[1:4] == ["--serve-web", "--bind", "127.0.0.1"]
     (path,) = draw.RECORDINGS_DIR.glob("*.rrd")  # the copy on disk holds the steps done
     assert steps_of(load(path)["/map/robot"]) == [1, 2, 3]
     assert "Serving the web viewer at http://127.0.0.1:" in capsys.readouterr().out
@@ -357,16 +357,27 @@ def _ctrl_c_once(wait):
     return wrapped
 
 
-def test_analytics_are_off_in_the_processes_we_start_and_the_environment_is_restored(monkeypatch):
+def test_the_rerun_processes_we_start_have_analytics_off_and_ours_is_left_alone(monkeypatch):
     monkeypatch.delenv("CI", raising=False)
-    show = [sys.executable, "-c", "import os; print(os.environ.get('CI'))"]
-    with draw.analytics_off_in_started_processes():
-        assert subprocess.run(show, capture_output=True, text=True, check=True).stdout.strip() == "1"
-    assert "CI" not in os.environ
+    assert draw.rerun_environment()["CI"] == "1" and "CI" not in os.environ
     monkeypatch.setenv("CI", "true")
-    with draw.analytics_off_in_started_processes():
-        assert os.environ["CI"] == "true"
-    assert os.environ["CI"] == "true"
+    assert draw.rerun_environment()["CI"] == "true"
+
+
+def test_a_viewer_that_cannot_open_falls_back_to_a_file_at_once(world, monkeypatch, capsys):
+    """A display that is set but unusable: the viewer exits, and the run is saved instead (no waiting)."""
+    import time
+
+    monkeypatch.setattr(draw, "has_display", lambda: True)
+    monkeypatch.setattr(draw, "VIEWER_PORT", draw.free_port())
+    monkeypatch.setenv("DISPLAY", ":424242")  # no such X server
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    started = time.monotonic()
+    recorded_run(world, "viewer", steps=2)
+    assert time.monotonic() - started < 10
+    assert "the Rerun viewer did not start" in capsys.readouterr().out
+    (path,) = draw.RECORDINGS_DIR.glob("*.rrd")
+    assert steps_of(load(path)["/map/robot"]) == [1, 2]
 
 
 # -- the command line ------------------------------------------------------------------------------
@@ -397,3 +408,38 @@ def test_the_demo_without_a_display_writes_a_recording_and_says_where(tmp_path):
     rec = load(path)
     assert steps_of(rec["/map/robot"]) == list(range(1, 201))
     assert len(rec["/map/sir_particle_filter/particles"][200]["Arrows2D:origins"]) == 1500
+
+
+# -- rendering (optional: pytest --rendering -k rendered; needs a Vulkan driver, e.g. Mesa's lavapipe) -----
+@pytest.mark.rendering
+def test_the_rendered_recording_shows_the_upright_maze(tmp_path, world):
+    """The headless viewer renders a saved run; in the PNG the maze is a white square whose black
+    share is the wall share of the paper's maze (9 of 25 cells), walls where the map puts them."""
+    import time
+
+    from PIL import Image
+    from rerun.experimental import ViewerClient
+
+    path, png = tmp_path / "run.rrd", tmp_path / "run.png"
+    recorded_run(world, path, steps=5)
+    client = ViewerClient.spawn(headless=True, port=draw.free_port(), hide_welcome_screen=True,
+                                executable_path=draw.viewer_executable())  # fmt: skip
+    with client:
+        client.open(str(path))
+        client.set_time("step", sequence=5, play_state="paused")
+        time.sleep(1.0)
+        client.save_screenshot(str(png))
+        client.quit()
+    pixels = np.asarray(Image.open(png).convert("RGB")).astype(int)
+    white = (pixels >= 250).all(axis=2)
+    # the maze's rows and columns hold long runs of white; the viewer's text only short ones
+    rows = np.flatnonzero(white.sum(axis=1) > white.sum(axis=1).max() / 4)
+    cols = np.flatnonzero(white.sum(axis=0) > white.sum(axis=0).max() / 4)
+    top, bottom, left, right = rows.min(), rows.max() + 1, cols.min(), cols.max() + 1
+    assert abs((bottom - top) / (right - left) - 1) < 0.05  # a square maze, drawn square
+    maze = pixels[top:bottom, left:right]
+    black = (maze <= 5).all(axis=2)
+    assert 0.30 < black.mean() < 0.40  # 9/25 = 0.36 of the maze is wall, filled black
+    cell = (bottom - top) / world.height
+    # upright: the top-left cell (row 0, column 0) is a station block (black), the cell right of it free
+    assert black[int(cell / 2), int(cell / 2)] and not black[int(cell / 2), int(1.5 * cell)]
