@@ -502,7 +502,7 @@ def comparison_blueprint(world: Maze, filter_names: Sequence[str]) -> Any:
             rrb.TextDocumentView(name="step", origin="/title"),
             rrb.Horizontal(*[map_view(world, name) for name in filter_names]),
             rrb.TimeSeriesView(name=SERIES_TITLES["error"], origin="/metrics/error"),
-            row_shares=[1, 8, 4],
+            row_shares=[1.5, 8, 4],
         )
     )
 
