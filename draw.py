@@ -7,7 +7,20 @@ Cell values: 0 empty, 1 wall, 2 wall with a station at each of its four corners.
 
 from __future__ import annotations
 
+import importlib.util
+import math
+import os
+import re
+import shlex
+import shutil
+import socket
+import subprocess
+import sys
+import time
+import urllib.parse
+import uuid
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -250,10 +263,41 @@ class _NearestStationLookup:
 
 # -- drawing -------------------------------------------------------------------------------------
 # `visualize` (run_model's argument and the CLI's --viewer/--rrd/--web/--no-viz) takes:
-#   True or "auto"  the native viewer when a display exists, else an .rrd file (path printed)
-#   "viewer"        spawn the native viewer        "web"  serve the web viewer on 127.0.0.1
-#   a str/Path      save the recording to that .rrd file
+#   True or "auto"  the notebook viewer inside Jupyter, else the native viewer when a display
+#                   exists, else an .rrd file in recordings/ (the path is printed)
+#   "viewer"        spawn the native viewer (falls back to a file, saying so, without a display)
+#   "web"           serve the web viewer on 127.0.0.1 (and save a file); Ctrl-C stops serving
+#   "notebook"      the viewer inline in a Jupyter notebook (needs the `notebook` extra)
+#   a str/Path      save the recording to that .rrd file (any other string is a path)
+#   an rr.RecordingStream   log into the caller's own recording (it stays open)
 #   False / None    draw nothing                   a view object (has log_step/close): draw into it
+#   Visualization(target, max_drawn=...)  any of the above, drawing at most max_drawn particles
+DEFAULT_MAX_DRAWN = 5000  # particles drawn per step at most; the filter keeps all of them
+VIEWER_PORT = 9876  # the native viewer's gRPC port, rerun's default: later runs reuse its window
+RECORDINGS_DIR = Path("recordings")  # where runs without a display are saved, relative to the cwd
+APPLICATION_ID = "maze_particle_filter_lab"
+MAP = "/map"  # everything drawn in the map frame lives under this entity
+FREE_COLOR, WALL_COLOR = (255, 255, 255), (0, 0, 0)
+STATION_COLOR, ROBOT_COLOR = (0, 200, 255), (0, 170, 0)
+ESTIMATE_COLOR, CONFIDENT_COLOR = (128, 128, 128), (0, 200, 0)
+FILTER_COLORS = ((214, 39, 40), (31, 119, 180), (255, 127, 14), (44, 160, 44), (148, 103, 189), (140, 86, 75))
+PARTICLE_ARROW_LENGTH, ROBOT_ARROW_LENGTH = 0.15, 0.5  # map units
+STATION_RADIUS, ROBOT_RADIUS, PARTICLE_ARROW_RADIUS, CELL_DOT_RADIUS = 0.08, 0.12, 0.008, 0.03
+SERIES = ("error", "ess", "confident")  # the time series under /metrics/<series>/<filter>
+
+
+@dataclass(frozen=True)
+class Visualization:
+    """A `visualize` value with options: where to draw (`target`, see above) and how much."""
+
+    target: Any = True
+    max_drawn: int = DEFAULT_MAX_DRAWN
+
+    def __post_init__(self) -> None:
+        if isinstance(self.max_drawn, bool) or not isinstance(self.max_drawn, (int, np.integer)) or self.max_drawn < 1:
+            raise ValueError(f"max_drawn must be a whole number >= 1, got {self.max_drawn!r}")
+
+
 class NullView:
     """A view that draws nothing: what `run_model(..., visualize=False)` uses."""
 
@@ -269,7 +313,12 @@ def open_view(visualize: Any, world: Maze, filter_name: str) -> Any:
     """The view one run draws to (see the `visualize` values above)."""
     if hasattr(visualize, "log_step"):
         return visualize
-    return NullView()
+    options = visualize if isinstance(visualize, Visualization) else Visualization(visualize)
+    if options.target is None or options.target is False:
+        return NullView()
+    blueprint = run_blueprint(world, filter_name)
+    recording = Recording.open(options.target, world, blueprint, label=entity_name(filter_name))
+    return RunView(recording, filter_name, FILTER_COLORS[0], options.max_drawn, owns_recording=True)
 
 
 class NullComparison:
@@ -285,7 +334,458 @@ class NullComparison:
 
 def open_comparison(visualize: Any, world: Maze, filter_names: Sequence[str]) -> Any:
     """A recording for comparing `filter_names` side by side (see the `visualize` values above)."""
-    return NullComparison()
+    options = visualize if isinstance(visualize, Visualization) else Visualization(visualize)
+    if options.target is None or options.target is False:
+        return NullComparison()
+    names = list(dict.fromkeys(filter_names))
+    if not names:
+        raise ValueError("a comparison needs at least one filter")
+    recording = Recording.open(options.target, world, comparison_blueprint(world, names), label="compare")
+    return Comparison(recording, names, options.max_drawn)
+
+
+class Comparison:
+    """All filters of one scenario in one recording: one `RunView` per filter, the robot drawn once."""
+
+    def __init__(self, recording: Recording, filter_names: Sequence[str], max_drawn: int):
+        self.recording = recording
+        self.views = {
+            name: RunView(recording, name, FILTER_COLORS[i % len(FILTER_COLORS)], max_drawn, owns_recording=False)
+            for i, name in enumerate(filter_names)
+        }
+
+    def view_for(self, filter_name: str) -> RunView:
+        """The view that the run of `filter_name` draws to (one of the names the comparison was opened with)."""
+        if filter_name not in self.views:
+            raise ValueError(f"{filter_name!r} is not in this comparison ({', '.join(self.views)})")
+        return self.views[filter_name]
+
+    def close(self) -> None:
+        """Finish the recording (file complete, viewer flushed, web viewer served until Ctrl-C)."""
+        self.recording.close()
+
+
+# -- what one run draws ----------------------------------------------------------------------------
+def entity_name(filter_name: str) -> str:
+    """A filter's name as an entity-path part: "SIRParticleFilter" -> "sir_particle_filter"."""
+    spaced = re.sub(r"(?<=[a-z0-9])(?=[A-Z])|(?<=[A-Z])(?=[A-Z][a-z])", "_", str(filter_name).strip())
+    return re.sub(r"[^a-z0-9]+", "_", spaced.lower()).strip("_") or "filter"
+
+
+def weight_colors(weights: np.ndarray) -> np.ndarray:
+    """RGB colours from blue (weight 0) to red (the largest weight), linear in w / max w, shape (N, 3)."""
+    top = weights.max() if len(weights) else 0.0
+    t = weights / top if top > 0 else np.zeros_like(weights)
+    return np.column_stack([255 * t, np.zeros_like(t), 255 * (1 - t)]).astype(np.uint8)
+
+
+def drawn_particles(state: Any, max_drawn: int) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
+    """What is drawn of a filter's posterior: positions (M, 2), headings (M,) or None, weights (M,).
+
+    A particle filter: all N particles when N <= max_drawn, else max_drawn of them at evenly spaced
+    indices (deterministic: drawing never draws from the filter's random stream). A grid density
+    (GridBayesFilter, whose cells are not a sample): the cells hit by a systematic pick of max_drawn
+    points of its mass, each cell once, so the dots show where the probability is.
+    """
+    weights = np.asarray(state.weights)
+    positions = np.asarray(state.positions)
+    if hasattr(state, "density"):
+        cumulative = np.cumsum(weights)
+        targets = (np.arange(max_drawn) + 0.5) / max_drawn * cumulative[-1]
+        cells = np.unique(np.minimum(np.searchsorted(cumulative, targets), len(weights) - 1))
+        return positions[cells], None, weights[cells]
+    if len(positions) <= max_drawn:
+        return positions, np.asarray(state.headings), weights
+    picked = np.linspace(0, len(positions) - 1, max_drawn).round().astype(np.int64)
+    return positions[picked], np.asarray(state.headings)[picked], weights[picked]
+
+
+class RunView:
+    """One filter's run drawn into a Rerun recording: its particles, estimate and time series."""
+
+    def __init__(
+        self, recording: Recording, filter_name: str, color: Sequence[int], max_drawn: int, *, owns_recording: bool
+    ):
+        import rerun as rr
+
+        from particle_filter import CONFIDENCE_RADIUS  # imported here: particle_filter imports this module
+
+        self.recording, self.name, self.max_drawn = recording, filter_name, max_drawn
+        self.owns_recording = owns_recording
+        self.path = f"{MAP}/{entity_name(filter_name)}"
+        self.metric = entity_name(filter_name)
+        self.confidence_radius = CONFIDENCE_RADIUS
+        for series in SERIES:
+            recording.stream.log(
+                f"/metrics/{series}/{self.metric}",
+                rr.SeriesLines(names=filter_name, colors=color, widths=2),
+                static=True,
+            )
+
+    def log_step(self, step: int, robot_position: Sequence[float], robot_heading: float | None, state: Any) -> None:
+        """Draw step `step`: the robot (once per recording), the particles coloured by weight,
+        the estimate's circle (green when confident), and the error, ESS and confidence series."""
+        import rerun as rr
+
+        stream = self.recording.stream
+        stream.set_time("step", sequence=step)
+        self.recording.log_robot(step, robot_position, robot_heading)
+        positions, headings, weights = drawn_particles(state, self.max_drawn)
+        colors = weight_colors(weights)
+        if headings is None:
+            stream.log(f"{self.path}/particles", rr.Points2D(positions, colors=colors, radii=CELL_DOT_RADIUS))
+        else:
+            vectors = heading_vectors(headings, PARTICLE_ARROW_LENGTH)
+            arrows = rr.Arrows2D(origins=positions, vectors=vectors, colors=colors, radii=PARTICLE_ARROW_RADIUS)
+            stream.log(f"{self.path}/particles", arrows)
+        estimate, confident = np.asarray(state.estimate, dtype=float), bool(state.is_confident)
+        circle = rr.Ellipses2D(
+            centers=[estimate],
+            half_sizes=[[self.confidence_radius] * 2],
+            colors=CONFIDENT_COLOR if confident else ESTIMATE_COLOR,
+            line_radii=0.03,
+        )
+        stream.log(f"{self.path}/estimate", circle)
+        error = float(np.hypot(*(estimate - np.asarray(robot_position, dtype=float))))
+        stream.log(f"/metrics/error/{self.metric}", rr.Scalars(error))
+        ess = float(state.ess)
+        if not math.isnan(ess):  # the grid filter is not a sample: no ESS
+            stream.log(f"/metrics/ess/{self.metric}", rr.Scalars(ess))
+        stream.log(f"/metrics/confident/{self.metric}", rr.Scalars(float(confident)))
+
+    def close(self) -> None:
+        """Finish the recording if this run owns it (a comparison's views leave it open)."""
+        if self.owns_recording:
+            self.recording.close()
+        else:
+            self.recording.stream.flush()
+
+
+# -- layouts ---------------------------------------------------------------------------------------
+def map_view(world: Maze, filter_name: str) -> Any:
+    """A 2-D view of the maze, the robot and one filter's particles and estimate, the whole map in sight."""
+    import rerun.blueprint as rrb
+
+    margin = 0.5
+    return rrb.Spatial2DView(
+        name=filter_name,
+        origin="/",
+        contents=[f"{MAP}/maze", f"{MAP}/stations", f"{MAP}/robot/**", f"{MAP}/{entity_name(filter_name)}/**"],
+        visual_bounds=rrb.VisualBounds2D(
+            x_range=[-margin, world.width + margin], y_range=[-margin, world.height + margin]
+        ),
+    )
+
+
+def run_blueprint(world: Maze, filter_name: str) -> Any:
+    """One run: the step number over the maze view; the error, ESS and confidence series beside it."""
+    import rerun.blueprint as rrb
+
+    series = [rrb.TimeSeriesView(name=SERIES_TITLES[s], origin=f"/metrics/{s}") for s in SERIES]
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Vertical(
+                rrb.TextDocumentView(name="step", origin="/title"), map_view(world, filter_name), row_shares=[1, 9]
+            ),
+            rrb.Vertical(*series),
+            column_shares=[3, 2],
+        )
+    )
+
+
+def comparison_blueprint(world: Maze, filter_names: Sequence[str]) -> Any:
+    """The lab's comparison: one maze view per filter side by side, every filter's error below."""
+    import rerun.blueprint as rrb
+
+    return rrb.Blueprint(
+        rrb.Vertical(
+            rrb.TextDocumentView(name="step", origin="/title"),
+            rrb.Horizontal(*[map_view(world, name) for name in filter_names]),
+            rrb.TimeSeriesView(name=SERIES_TITLES["error"], origin="/metrics/error"),
+            row_shares=[1.5, 8, 4],
+        )
+    )
+
+
+SERIES_TITLES = {
+    "error": "error |estimate - truth|",
+    "ess": "effective sample size",
+    "confident": "confident (95% within the circle)",
+}
+
+
+# -- recordings and where they go ------------------------------------------------------------------
+class Recording:
+    """A Rerun recording of the lab: its stream, where it goes, and the robot and maze drawn once."""
+
+    def __init__(self, stream: Any, *, path: Path | None = None, server: WebServer | None = None, owned: bool = True):
+        self.stream, self.path, self.server, self.owned = stream, path, server, owned
+        self.robot_steps: set[int] = set()
+        self.closed = False
+
+    @classmethod
+    def open(cls, target: Any, world: Maze, blueprint: Any, *, label: str) -> Recording:
+        """A recording going where `target` says (see the `visualize` values), with the maze logged."""
+        import rerun as rr
+
+        if isinstance(target, rr.RecordingStream):
+            target.send_blueprint(blueprint, make_active=False, make_default=True)
+            recording = cls(target, owned=False)
+        else:
+            recording = cls._to(resolve_target(target, label), blueprint, label)
+        log_maze(recording.stream, world)
+        return recording
+
+    @classmethod
+    def _to(cls, target: str | Path, blueprint: Any, label: str) -> Recording:
+        import rerun as rr
+
+        stream = rr.RecordingStream(APPLICATION_ID, recording_id=str(uuid.uuid4()))
+        if target == "viewer":
+            try:
+                stream.connect_grpc(native_viewer(), default_blueprint=blueprint)
+                return cls(stream)
+            except RuntimeError as error:  # e.g. a display that the viewer cannot open
+                target = default_recording_path(label)
+                print(f"{error}: the recording goes to {target} instead")
+        if target == "notebook":
+            stream.notebook_show(blueprint=blueprint, height=700)
+            return cls(stream)
+        path = default_recording_path(label) if target == "web" else Path(target)
+        partial = partial_path(path)
+        if target == "web":
+            server = WebServer.start()
+            stream.set_sinks(rr.GrpcSink(server.grpc_url), rr.FileSink(partial), default_blueprint=blueprint)
+            print(f"Serving the web viewer at {server.url}")
+            return cls(stream, path=path, server=server)
+        stream.save(partial, default_blueprint=blueprint)
+        return cls(stream, path=path)
+
+    def log_robot(self, step: int, position: Sequence[float], heading: float | None) -> None:
+        """The robot (a green dot and its heading) and the step number, once per step of the recording:
+        every filter of a comparison replays the same robot."""
+        import rerun as rr
+
+        if step in self.robot_steps:
+            return
+        self.robot_steps.add(step)
+        self.stream.log(f"{MAP}/robot", rr.Points2D([position], colors=ROBOT_COLOR, radii=ROBOT_RADIUS))
+        if heading is not None:
+            vector = heading_vectors(np.array([heading]), ROBOT_ARROW_LENGTH)
+            arrow = rr.Arrows2D(origins=[position], vectors=vector, colors=ROBOT_COLOR, radii=0.04)
+            self.stream.log(f"{MAP}/robot/heading", arrow)
+        self.stream.log("/title", rr.TextDocument(f"### Step {step}", media_type=rr.MediaType.MARKDOWN))
+
+    def close(self) -> None:
+        """Flush; a file is completed and moved into place and its path printed; a web viewer is
+        served until Ctrl-C. A caller's own recording is only flushed."""
+        if self.closed:
+            return
+        self.closed = True
+        try:
+            self.stream.flush()
+        except RuntimeError as error:  # a viewer closed during the run: say so, do not crash the run
+            print(f"The viewer did not receive the whole run ({error})")
+        if not self.owned:
+            return
+        self.stream.disconnect()
+        if self.path is not None:
+            os.replace(partial_path(self.path), self.path)
+            print(f"Recording saved to {self.path}; open it with: rerun {shlex.quote(str(self.path))}")
+        if self.server is not None:
+            # close() runs in simulate's `finally`: a run being interrupted stops serving at once.
+            self.server.serve_until_interrupted(already_interrupted=sys.exc_info()[0] is not None)
+
+
+def resolve_target(target: Any, label: str = "run") -> str | Path:
+    """The place a `visualize` value means: "viewer", "web", "notebook" or a file path; without a
+    display, a file named after `label` in RECORDINGS_DIR (and a line saying so)."""
+    if target is True or target == "auto":
+        if in_jupyter() and notebook_viewer_installed():
+            return "notebook"
+        if has_display():
+            return "viewer"
+        path = default_recording_path(label)
+        print(f"No display found (DISPLAY and WAYLAND_DISPLAY unset): the recording goes to {path}")
+        return path
+    if target == "viewer" and not has_display():
+        path = default_recording_path(label)
+        print(f"No display found (DISPLAY and WAYLAND_DISPLAY unset): saving to {path} instead of opening the viewer")
+        return path
+    if target == "notebook" and not notebook_viewer_installed():
+        raise ValueError("visualize='notebook' needs rerun's notebook viewer: pip install -e '.[notebook]'")
+    if target in ("viewer", "web", "notebook"):
+        return target
+    if isinstance(target, (str, Path)):
+        path = Path(target)
+        if path.is_dir():
+            raise ValueError(f"{path} is a folder, not an .rrd file")
+        if not path.parent.is_dir():
+            raise ValueError(f"{path.parent} does not exist: cannot write {path.name} there")
+        return path
+    raise ValueError(
+        f"visualize must be True, False, 'viewer', 'web', 'notebook', an .rrd path or a view, got {target!r}"
+    )
+
+
+def log_maze(stream: Any, world: Maze) -> None:
+    """The static map: walls black and free cells white (an image, one pixel per cell), stations as
+    cyan dots, all under MAP, whose transform turns the map frame (y up) into the view's (y down)."""
+    import rerun as rr
+
+    stream.log(MAP, rr.Transform3D(translation=[0, world.height, 0], scale=[1, -1, 1]), static=True)
+    stream.log(f"{MAP}/maze", rr.Image(maze_image(world), draw_order=-10.0), static=True)
+    stream.log(f"{MAP}/stations", rr.Points2D(world.stations, colors=STATION_COLOR, radii=STATION_RADIUS), static=True)
+
+
+def maze_image(world: Maze) -> np.ndarray:
+    """RGB image of the maze, shape (H, W, 3): pixel (row j, column i) is the cell covering
+    x in [i, i+1), y in [j, j+1) of the map frame, so grid row H-1-j."""
+    walls = world.grid[::-1] != EMPTY
+    return np.where(walls[..., None], np.uint8(WALL_COLOR), np.uint8(FREE_COLOR)).astype(np.uint8)
+
+
+def default_recording_path(label: str) -> Path:
+    """recordings/<label>-<date>-<time>.rrd in the current folder, made unique; the folder is created."""
+    RECORDINGS_DIR.mkdir(parents=True, exist_ok=True)
+    stem = f"{label}-{time.strftime('%Y%m%d-%H%M%S')}"
+    path, n = RECORDINGS_DIR / f"{stem}.rrd", 1
+    while path.exists() or partial_path(path).exists():
+        n += 1
+        path = RECORDINGS_DIR / f"{stem}-{n}.rrd"
+    return path
+
+
+def partial_path(path: Path) -> Path:
+    """Where a recording is written until it is complete (then renamed to `path`: never half a file)."""
+    return path.with_name(f".{path.name}.partial")
+
+
+def has_display() -> bool:
+    """Whether a native viewer window can open: always on macOS and Windows, else DISPLAY or WAYLAND_DISPLAY."""
+    return sys.platform in ("darwin", "win32") or bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+def in_jupyter() -> bool:
+    """Whether this runs in a Jupyter kernel (where the viewer can be shown inline)."""
+    ipython = sys.modules.get("IPython")
+    shell = ipython.get_ipython() if ipython is not None else None
+    return type(shell).__name__ == "ZMQInteractiveShell"
+
+
+def notebook_viewer_installed() -> bool:
+    """Whether rerun's notebook viewer (the `notebook` extra) is installed."""
+    return importlib.util.find_spec("rerun_notebook") is not None
+
+
+def viewer_executable() -> str:
+    """The `rerun` viewer shipped in the rerun-sdk wheel, found without PATH (an unactivated venv works)."""
+    spec = importlib.util.find_spec("rerun_cli")
+    if spec is not None and spec.origin is not None:
+        binary = Path(spec.origin).with_name("rerun.exe" if os.name == "nt" else "rerun")
+        if binary.exists():
+            return str(binary)
+    found = shutil.which("rerun")
+    if found is None:
+        raise RuntimeError("the Rerun viewer (shipped with rerun-sdk) was not found; reinstall rerun-sdk")
+    return found
+
+
+def rerun_environment() -> dict[str, str]:
+    """The environment of the Rerun processes this program starts: ours plus CI, the variable that
+    makes Rerun's viewer and server turn their usage analytics off (its only other switch is a
+    config file, `rerun analytics disable`). Our own environment is left as it is."""
+    return {**os.environ, "CI": os.environ.get("CI", "1")}
+
+
+def start_rerun(
+    arguments: list[str], ports: Sequence[int], *, detached: bool, settle: float = 0.0, timeout: float = 15.0
+) -> Any:
+    """Start the `rerun` binary with `arguments` and wait until it listens on every port of `ports`
+    (127.0.0.1) and is still running `settle` seconds later (a viewer serves before it opens its
+    window); a process that exits or stays silent raises RuntimeError at once, not after minutes."""
+    process = subprocess.Popen(
+        [viewer_executable(), *arguments],
+        env=rerun_environment(),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=detached,  # a detached viewer outlives this program (and its Ctrl-C)
+    )
+    deadline = time.monotonic() + timeout
+    while not all(listening(port) for port in ports):
+        if process.poll() is not None or time.monotonic() > deadline:
+            stop_process(process)
+            raise RuntimeError(f"the Rerun viewer did not start (exit code {process.returncode})")
+        time.sleep(0.05)
+    time.sleep(settle)
+    if process.poll() is not None:
+        raise RuntimeError(f"the Rerun viewer did not start (exit code {process.returncode})")
+    return process
+
+
+def native_viewer() -> str:
+    """The gRPC address of a native viewer on 127.0.0.1:VIEWER_PORT: the one already running there
+    (as rerun's own spawn does, runs share its window), else a new detached one."""
+    if not listening(VIEWER_PORT):
+        start_rerun(["--bind", "127.0.0.1", "--port", str(VIEWER_PORT), "--expect-data-soon"], [VIEWER_PORT],
+                    detached=True, settle=1.0)  # fmt: skip
+    return f"rerun+http://127.0.0.1:{VIEWER_PORT}/proxy"
+
+
+def stop_process(process: Any) -> None:
+    """End a process we started: politely, then for sure."""
+    if process.poll() is None:
+        process.terminate()
+        try:
+            process.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()
+
+
+class WebServer:
+    """The web viewer and its gRPC proxy, served by the `rerun` binary on 127.0.0.1 only."""
+
+    def __init__(self, process: Any, grpc_port: int, web_port: int):
+        self.process, self.grpc_port, self.web_port = process, grpc_port, web_port
+        self.grpc_url = f"rerun+http://127.0.0.1:{grpc_port}/proxy"
+        self.url = f"http://127.0.0.1:{web_port}/?url={urllib.parse.quote(self.grpc_url, safe='')}"
+
+    @classmethod
+    def start(cls) -> WebServer:
+        """Start `rerun --serve-web` bound to 127.0.0.1 on two free ports; return once it listens."""
+        grpc_port, web_port = free_port(), free_port()
+        arguments = ["--serve-web", "--bind", "127.0.0.1", "--port", str(grpc_port), "--web-viewer-port", str(web_port)]
+        return cls(start_rerun(arguments, [grpc_port, web_port], detached=False), grpc_port, web_port)
+
+    def serve_until_interrupted(self, already_interrupted: bool = False) -> None:
+        """Keep serving (the server holds the recording) until Ctrl-C, then stop cleanly."""
+        try:
+            if not already_interrupted:
+                print(f"The web viewer is at {self.url}; press Ctrl-C to stop serving.")
+                self.process.wait()
+        except KeyboardInterrupt:
+            print("Stopped serving the web viewer.")
+        finally:
+            self.stop()
+
+    def stop(self) -> None:
+        """End the server process."""
+        stop_process(self.process)
+
+
+def free_port() -> int:
+    """A TCP port that is free on 127.0.0.1 right now."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def listening(port: int) -> bool:
+    """Whether something accepts connections on 127.0.0.1:`port`."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+        probe.settimeout(0.2)
+        return probe.connect_ex(("127.0.0.1", port)) == 0
 
 
 def heading_vectors(angles: np.ndarray, length: float) -> np.ndarray:
@@ -294,13 +794,18 @@ def heading_vectors(angles: np.ndarray, length: float) -> np.ndarray:
 
 
 __all__ = [
+    "DEFAULT_MAX_DRAWN",
     "EMPTY",
     "STATION_WALL",
     "WALL",
+    "Comparison",
     "Maze",
     "MazeError",
     "NullComparison",
     "NullView",
+    "Recording",
+    "RunView",
+    "Visualization",
     "heading_vectors",
     "open_comparison",
     "open_view",

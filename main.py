@@ -13,7 +13,7 @@ from typing import Annotated, Any
 import numpy as np
 import typer
 
-from draw import Maze, MazeError
+from draw import DEFAULT_MAX_DRAWN, Maze, MazeError, Visualization
 from kidnapping import recovery_steps
 from particle_filter import (
     ALPHA_FAST,
@@ -53,17 +53,19 @@ ViewerOption = Annotated[bool, typer.Option("--viewer", help="open the native Re
 RrdOption = Annotated[Path | None, typer.Option("--rrd", help="save the Rerun recording to this file")]
 WebOption = Annotated[bool, typer.Option("--web", help="serve the web viewer on 127.0.0.1")]
 NoVizOption = Annotated[bool, typer.Option("--no-viz", help="draw nothing")]
+MaxDrawnOption = Annotated[
+    int, typer.Option("--max-drawn", min=1, help="draw at most this many particles per step (all are filtered)")
+]
 
 
-def visualization(viewer: bool, rrd: Path | None, web: bool, no_viz: bool) -> Any:
+def visualization(viewer: bool, rrd: Path | None, web: bool, no_viz: bool, max_drawn: int = DEFAULT_MAX_DRAWN) -> Any:
     """The `visualize` argument of run_model for the command-line options (see draw.py)."""
     if sum([viewer, rrd is not None, web, no_viz]) > 1:
         raise UserError("choose one of --viewer, --rrd, --web and --no-viz")
     if no_viz:
         return False
-    if rrd is not None:
-        return rrd
-    return "viewer" if viewer else "web" if web else True
+    target = rrd if rrd is not None else "viewer" if viewer else "web" if web else True
+    return Visualization(target, max_drawn)
 
 
 class UserError(Exception):
@@ -124,11 +126,15 @@ def demo(
     rrd: RrdOption = None,
     web: WebOption = False,
     no_viz: NoVizOption = False,
+    max_drawn: MaxDrawnOption = DEFAULT_MAX_DRAWN,
+    force: Annotated[bool, typer.Option(help="replace an existing --rrd file")] = False,
 ) -> None:
     """The paper's example: a lost robot, the SIR filter, 1500 particles, 200 steps."""
     if ctx.invoked_subcommand is not None:
         return
-    visualize = visualization(viewer, rrd, web, no_viz)
+    visualize = visualization(viewer, rrd, web, no_viz, max_drawn)
+    if rrd is not None:
+        check_output_path(rrd, force)
     world = load_maze(DEFAULT_MAZE)
     seed = int(np.random.SeedSequence().entropy % 2**31)
     robot = Robot(DEFAULT_SIGMA, DEFAULT_DELTA, world.random_free_place(np.random.default_rng(seed)))
@@ -163,7 +169,7 @@ def run(
     start_seed: Annotated[int | None, typer.Option(help="seed of the robot's start position")] = None,
     scenario: Annotated[Path | None, typer.Option(help="replay a saved scenario json")] = None,
     save_scenario_path: Annotated[Path | None, typer.Option("--save-scenario", help="save the run as json")] = None,
-    force: Annotated[bool, typer.Option(help="replace an existing output file")] = False,
+    force: Annotated[bool, typer.Option(help="replace existing output files (--save-scenario, --rrd)")] = False,
     quiet: Annotated[bool, typer.Option(help="no per-step progress")] = False,
     resampling: Annotated[str, typer.Option(help=f"resampling scheme: {', '.join(RESAMPLING_SCHEMES)}")] = "systematic",
     kidnap_at: Annotated[
@@ -185,14 +191,16 @@ def run(
     rrd: RrdOption = None,
     web: WebOption = False,
     no_viz: NoVizOption = False,
+    max_drawn: MaxDrawnOption = DEFAULT_MAX_DRAWN,
 ) -> None:
     """Run one filter: on a fresh lost robot, or replaying a saved scenario (--scenario)."""
-    visualize = visualization(viewer, rrd, web, no_viz)
+    visualize = visualization(viewer, rrd, web, no_viz, max_drawn)
     options = filter_options(filter_name, resampling, recovery, sensor_resetting, alpha_slow, alpha_fast, kld)
     if kld:
         options["kld"] = KLDSampling(epsilon=kld_epsilon, z=KLD_QUANTILE if kld_z is None else kld_z)
-    if save_scenario_path is not None:
-        check_output_path(save_scenario_path, force)
+    for path in (save_scenario_path, rrd):
+        if path is not None:
+            check_output_path(path, force)
     if scenario is not None:
         world, robot, sigma, delta, init_particles = from_scenario(load_scenario(scenario), maze, sigma, delta)
         particles_arg, steps_arg = None, None

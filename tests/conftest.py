@@ -31,3 +31,26 @@ def paper_world() -> Maze:
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(12345)
+
+
+@pytest.fixture(autouse=True)
+def _no_viewer_and_recordings_in_tmp(tmp_path, monkeypatch):
+    """Runs that draw by default (run_model, the CLI) never open a viewer during the tests, and
+    their default recordings go to a temporary folder, not into the working tree."""
+    import draw
+
+    monkeypatch.setattr(draw, "has_display", lambda: False)
+    monkeypatch.setattr(draw, "RECORDINGS_DIR", tmp_path / "recordings")
+
+
+def pytest_addoption(parser):
+    parser.addoption("--rendering", action="store_true", help="also run the headless-viewer rendering checks")
+
+
+def pytest_collection_modifyitems(config, items):
+    if config.getoption("--rendering"):
+        return
+    skip = pytest.mark.skip(reason="renders in the headless viewer: run with --rendering")
+    for item in items:
+        if "rendering" in item.keywords:
+            item.add_marker(skip)
