@@ -209,7 +209,7 @@ def compare(
     maze: Annotated[str | None, typer.Option(help="the maze, if the scenario stores none")] = None,
     sigma: Annotated[float | None, typer.Option(help="override the scenario's sigma")] = None,
     delta: Annotated[float | None, typer.Option(help="override the scenario's delta")] = None,
-    seed: Annotated[int | None, typer.Option(help="seed of the filters' draws [default: the scenario's]")] = None,
+    seed: Annotated[int | None, typer.Option(help="seed of the filters' draws (default: the scenario's)")] = None,
     csv_path: Annotated[
         Path | None, typer.Option("--csv", help="per-step errors: a row per step, a column per filter")
     ] = None,
@@ -245,7 +245,7 @@ def compare(
 @app.command()
 def study(
     maze: Annotated[
-        str | None, typer.Option(help=f"maze files or names, comma-separated [default: {DEFAULT_MAZE}]")
+        str | None, typer.Option(help=f"maze files or names, comma-separated (default: {DEFAULT_MAZE})")
     ] = None,
     maze_size: Annotated[
         str | None, typer.Option(help="generated mazes ROWSxCOLUMNS, comma-separated (a new maze every run)")
@@ -259,7 +259,7 @@ def study(
     runs: Annotated[int, typer.Option(min=1, help="seeded runs per setting")] = 30,
     steps: Annotated[int, typer.Option(min=1, help="steps per run")] = DEFAULT_STEPS,
     seed: Annotated[int | None, typer.Option(help="root seed of the study (every run's seed derives from it)")] = None,
-    workers: Annotated[int | None, typer.Option(min=1, help="processes [default: all cores]")] = None,
+    workers: Annotated[int | None, typer.Option(min=1, help="processes (default: all cores)")] = None,
     csv_path: Annotated[Path | None, typer.Option("--csv", help="one row per run and filter")] = None,
     plot: Annotated[
         Path | None, typer.Option(help="final error against the varied parameter (.png; plot extra)")
@@ -335,7 +335,7 @@ app.add_typer(maze_app, name="maze")
 def maze_generate(
     size: Annotated[str, typer.Option(help="ROWSxCOLUMNS")] = "10x10",
     stations: Annotated[
-        int | None, typer.Option(min=1, help="station blocks [default: one per 25 cells]", show_default=False)
+        int | None, typer.Option(min=1, help="station blocks (default: one per 25 cells)", show_default=False)
     ] = None,
     walls: Annotated[float, typer.Option(help="share of the cells that are walls")] = maze_generator.DEFAULT_WALL_SHARE,
     seed: Annotated[int | None, typer.Option(help="the same seed gives the same maze")] = None,
