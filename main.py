@@ -2,17 +2,24 @@
 
 python main.py                 the paper's example: a lost robot, SIR, 1500 particles, 200 steps
 python main.py run --help      one run, with any maze, filter and parameters, or a saved scenario
+python main.py compare --help  every filter on one saved scenario: a table, a CSV, the lab's figure
+python main.py study --help    a Monte Carlo parameter study over seeded runs, on all cores
+python main.py maze --help     random connected mazes (generate) and a look at any maze (show)
 """
 
 from __future__ import annotations
 
 import sys
+import time
 from pathlib import Path
 from typing import Annotated, Any
 
 import numpy as np
 import typer
 
+import draw
+import experiments
+import maze_generator
 from draw import DEFAULT_MAX_DRAWN, Maze, MazeError, Visualization
 from kidnapping import recovery_steps
 from particle_filter import (
@@ -23,6 +30,7 @@ from particle_filter import (
     KLD_EPSILON,
     KLD_QUANTILE,
     RESAMPLING_SCHEMES,
+    RPF_THRESHOLD,
     KLDSampling,
     ParticleFilter,
     Recovery,
@@ -31,9 +39,11 @@ from particle_filter import (
     Scenario,
     ScenarioError,
     load_scenario,
+    new_seed,
     resolve_filter,
     save_scenario,
     simulate,
+    write_text_atomically,
 )
 
 MAZES_DIR = Path(__file__).resolve().parent / "mazes"
@@ -94,7 +104,7 @@ def summarise(result: RunResult) -> str:
     when = f"converged at step {converged} (error < 0.5 from then on)" if converged else "not converged"
     return (
         f"{result.filter_name}: final error {errors[-1]:.3f}, mean error over the last 20% "
-        f"{errors[-max(1, len(errors) // 5) :].mean():.3f}; {when}; "
+        f"{experiments.final_error(errors):.3f}; {when}; "
         f"{1e3 * result.step_seconds.mean():.2f} ms per step; seed {result.scenario.seed}"
     )
 
@@ -269,6 +279,224 @@ def particle_count_report(result: RunResult) -> str:
     """The particle count per step (KLD-sampling): mean, least and most."""
     counts = result.extras["particle_count"]
     return f"particle count: mean {counts.mean():.0f}, least {counts.min()}, most {counts.max()}"
+
+
+@app.command()
+def compare(
+    scenario: Annotated[Path, typer.Argument(help="a saved scenario json (run --save-scenario)", show_default=False)],
+    filters: Annotated[str, typer.Option(help="comma-separated filters: sir, apf, rpf, grid")] = "sir,apf,rpf",
+    maze: Annotated[str | None, typer.Option(help="the maze, if the scenario stores none")] = None,
+    sigma: Annotated[float | None, typer.Option(help="override the scenario's sigma")] = None,
+    delta: Annotated[float | None, typer.Option(help="override the scenario's delta")] = None,
+    seed: Annotated[int | None, typer.Option(help="seed of the filters' draws (default: the scenario's)")] = None,
+    csv_path: Annotated[
+        Path | None, typer.Option("--csv", help="per-step errors: a row per step, a column per filter")
+    ] = None,
+    plot: Annotated[Path | None, typer.Option(help="the lab's figure, error against step (.png; plot extra)")] = None,
+    force: Annotated[bool, typer.Option(help="replace existing output files")] = False,
+    viewer: ViewerOption = False,
+    rrd: RrdOption = None,
+    web: WebOption = False,
+    no_viz: NoVizOption = False,
+    max_drawn: MaxDrawnOption = DEFAULT_MAX_DRAWN,
+) -> None:
+    """Lab steps 12-13: every filter on the same saved scenario (start, particles, angles, measurements)."""
+    visualize = visualization(viewer, rrd, web, no_viz, max_drawn)
+    check_outputs(csv_path, plot, force, rrd)
+    stored = load_scenario(scenario)
+    world, robot, sigma, delta, particles = from_scenario(stored, maze, sigma, delta)
+    seed = seed if seed is not None else stored.seed if stored.seed is not None else new_seed()
+    names = experiments.parse_filters(filters)
+    typer.echo(
+        f"{scenario.name}: {len(particles)} particles, {robot.recorded_steps} steps, "
+        f"sigma {sigma:g}, delta {delta:g}, seed {seed}"
+    )
+    results = experiments.compare_filters(world, robot, sigma, delta, particles, names, seed=seed, visualize=visualize)
+    typer.echo(experiments.comparison_table(results))
+    if csv_path is not None:
+        write_text_atomically(csv_path, experiments.errors_csv(results))
+        typer.echo(f"per-step errors written to {csv_path}")
+    if plot is not None:
+        title = f"Localisation error: {scenario.name} (sigma {sigma:g}, delta {delta:g}, {len(particles)} particles)"
+        experiments.plot_errors(results, plot, title)
+        typer.echo(f"figure written to {plot}")
+
+
+@app.command()
+def study(
+    maze: Annotated[
+        str | None, typer.Option(help=f"maze files or names, comma-separated (default: {DEFAULT_MAZE})")
+    ] = None,
+    maze_size: Annotated[
+        str | None, typer.Option(help="generated mazes ROWSxCOLUMNS, comma-separated (a new maze every run)")
+    ] = None,
+    stations: Annotated[str | None, typer.Option(help="station blocks of the generated mazes, comma-separated")] = None,
+    sigma: Annotated[str, typer.Option(help="measurement noise std, comma-separated values")] = str(DEFAULT_SIGMA),
+    delta: Annotated[str, typer.Option(help="compass error width (radians), comma-separated")] = str(DEFAULT_DELTA),
+    particles: Annotated[str, typer.Option(help="particle counts N_S, comma-separated")] = str(DEFAULT_PARTICLE_COUNT),
+    threshold: Annotated[str, typer.Option(help="RPF threshold N_T / N_S, comma-separated")] = str(RPF_THRESHOLD),
+    filters: Annotated[str, typer.Option(help="comma-separated filters: sir, apf, rpf, grid")] = "sir,apf,rpf",
+    runs: Annotated[int, typer.Option(min=1, help="seeded runs per setting")] = 30,
+    steps: Annotated[int, typer.Option(min=1, help="steps per run")] = DEFAULT_STEPS,
+    seed: Annotated[int | None, typer.Option(help="root seed of the study (every run's seed derives from it)")] = None,
+    workers: Annotated[int | None, typer.Option(min=1, help="processes (default: all cores)")] = None,
+    csv_path: Annotated[Path | None, typer.Option("--csv", help="one row per run and filter")] = None,
+    plot: Annotated[
+        Path | None, typer.Option(help="final error against the varied parameter (.png; plot extra)")
+    ] = None,
+    force: Annotated[bool, typer.Option(help="replace existing output files")] = False,
+    viewer: ViewerOption = False,
+    rrd: RrdOption = None,
+    web: WebOption = False,
+    no_viz: NoVizOption = False,
+    max_drawn: MaxDrawnOption = DEFAULT_MAX_DRAWN,
+) -> None:
+    """Lab step 14: a Monte Carlo study. Every combination of the comma-separated values is a setting;
+    each setting gets R seeded runs, and in each run every filter sees the same scenario.
+
+    The table gives per setting and filter the mean final error (the mean error over the last 20% of
+    the steps) with the 95% t-interval for that mean, the share of runs that converged (error below
+    0.5 from some step on), the median convergence step of those runs, and the time per step.
+    Nothing is drawn by default; --viewer, --rrd or --web draw the study's first run (all its filters).
+    """
+    visualize = visualization(viewer, rrd, web, no_viz, max_drawn) if viewer or web or rrd is not None else False
+    check_outputs(csv_path, plot, force, rrd)
+    names = experiments.parse_filters(filters)
+    settings = experiments.study_settings(
+        study_mazes(maze, maze_size, stations),
+        parse_list(sigma, float, "--sigma"),
+        parse_list(delta, float, "--delta"),
+        parse_list(particles, int, "--particles"),
+        parse_list(threshold, float, "--threshold"),
+    )
+    seed = new_seed() if seed is None else seed
+    tasks = experiments.study_tasks(settings, names, runs, steps, seed)
+    workers = workers or experiments.default_workers()
+    varied = experiments.varied_parameters(settings)
+    typer.echo(
+        f"Study: {len(settings)} setting(s) x {runs} runs x {len(names)} filters, seed {seed}, {workers} worker(s)\n"
+        f"{experiments.describe_setting(settings[0], steps, runs)}"
+        + (f"; varied: {', '.join(varied)}" if varied else "")
+    )
+    started = time.perf_counter()
+    outcome = experiments.run_study(tasks, workers, visualize=visualize, progress=True)
+    seconds = time.perf_counter() - started
+    if csv_path is not None:
+        write_text_atomically(csv_path, experiments.study_csv(outcome.records))
+    for failure in outcome.failures:
+        typer.echo(f"error: {failure.describe()}", err=True)
+    finished = len({(r.setting, r.run) for r in outcome.records})
+    if outcome.interrupted:
+        saved = f"; they are in {csv_path}" if csv_path is not None else ""
+        typer.echo(f"interrupted after {finished} of {len(tasks)} runs{saved}", err=True)
+        raise KeyboardInterrupt
+    summaries = experiments.summarise_study(outcome.records, settings)
+    typer.echo(experiments.study_table(summaries, varied))
+    typer.echo(f"{finished} runs in {seconds:.1f} s wall time")
+    if csv_path is not None:
+        typer.echo(f"one row per run and filter written to {csv_path}")
+    if plot is not None and summaries:
+        what = ", ".join(varied) or "the setting"
+        where = "" if "maze" in varied else f" on {settings[0].maze.label}"
+        title = (
+            f"Final error against {what}{where}\n({runs} runs per point, "
+            f"{experiments.CONFIDENCE_LEVEL:.0%} t-intervals for the mean)"
+        )
+        experiments.plot_study(summaries, varied or ["maze"], plot, title)
+        typer.echo(f"figure written to {plot}")
+    if outcome.failures:
+        raise typer.Exit(1)
+
+
+maze_app = typer.Typer(no_args_is_help=True, help="Random connected mazes (generate) and a look at any maze (show).")
+app.add_typer(maze_app, name="maze")
+
+
+@maze_app.command("generate")
+def maze_generate(
+    size: Annotated[str, typer.Option(help="ROWSxCOLUMNS")] = "10x10",
+    stations: Annotated[
+        int | None, typer.Option(min=1, help="station blocks (default: one per 25 cells)", show_default=False)
+    ] = None,
+    walls: Annotated[float, typer.Option(help="share of the cells that are walls")] = maze_generator.DEFAULT_WALL_SHARE,
+    seed: Annotated[int | None, typer.Option(help="the same seed gives the same maze")] = None,
+    out: Annotated[Path | None, typer.Option(help="write the maze file here (default: print it)")] = None,
+    force: Annotated[bool, typer.Option(help="replace an existing file")] = False,
+) -> None:
+    """A random maze whose free area is connected, in the mazes/ file format."""
+    if out is not None:
+        check_output_path(out, force)
+    rows, columns = maze_generator.parse_size(size)
+    stations = maze_generator.default_station_count(rows, columns) if stations is None else stations
+    seed = new_seed() if seed is None else seed
+    world = maze_generator.generate_maze(rows, columns, stations, np.random.default_rng(seed), walls)
+    command = f"python main.py maze generate --size {rows}x{columns} --stations {stations} --seed {seed}"
+    if walls != maze_generator.DEFAULT_WALL_SHARE:
+        command += f" --walls {walls:g}"
+    text = maze_generator.maze_file_text(world, command)
+    if out is None:
+        typer.echo(text, nl=False)
+    else:
+        write_text_atomically(out, text)
+        typer.echo(f"{maze_generator.describe_maze(world)}; written to {out}")
+
+
+@maze_app.command("show")
+def maze_show(
+    path: Annotated[str, typer.Argument(help="a maze file, or a name in mazes/", show_default=False)],
+    viewer: ViewerOption = False,
+    rrd: RrdOption = None,
+    web: WebOption = False,
+    no_viz: NoVizOption = False,
+) -> None:
+    """Print a maze as text ('##' wall, '[]' station block, '. ' free); --viewer/--rrd/--web also log it to Rerun."""
+    visualize = visualization(viewer, rrd, web, no_viz) if viewer or web or rrd is not None else False
+    world = load_maze(path)
+    typer.echo(maze_generator.maze_picture(world), nl=False)
+    typer.echo(f"{world.source}: {maze_generator.describe_maze(world)}")
+    if visualize:
+        draw.open_view(visualize, world, "maze").close()  # opening a view logs the maze
+
+
+def parse_list(text: str, kind: type, option: str) -> list:
+    """'0.2,0.4' -> [0.2, 0.4] (of `kind`), or a one-line error naming the option."""
+    try:
+        values = [kind(part) for part in text.split(",") if part.strip()]
+    except ValueError:
+        raise UserError(f"{option} takes comma-separated {kind.__name__} values, got {text!r}") from None
+    if not values:
+        raise UserError(f"{option} is empty")
+    return list(dict.fromkeys(values))
+
+
+def study_mazes(files: str | None, sizes: str | None, stations: str | None) -> list[experiments.MazeChoice]:
+    """The study's mazes: the files, then every generated size x station count."""
+    mazes = (
+        [
+            experiments.MazeChoice.from_maze(find_maze(name).stem, load_maze(name))
+            for name in parse_list(files, str, "--maze")
+        ]
+        if files is not None
+        else []
+    )
+    if sizes is not None or stations is not None:
+        for rows, columns in (maze_generator.parse_size(s) for s in parse_list(sizes or "10x10", str, "--maze-size")):
+            counts = (
+                parse_list(stations, int, "--stations")
+                if stations
+                else [maze_generator.default_station_count(rows, columns)]
+            )
+            mazes += [experiments.MazeChoice.generated(rows, columns, count) for count in counts]
+    return mazes or [experiments.MazeChoice.from_maze(DEFAULT_MAZE, load_maze(DEFAULT_MAZE))]
+
+
+def check_outputs(csv_path: Path | None, plot: Path | None, force: bool, rrd: Path | None = None) -> None:
+    """Check the output paths, and that matplotlib is there for --plot, before any run starts."""
+    for path in (csv_path, plot, rrd):
+        if path is not None:
+            check_output_path(path, force)
+    if plot is not None:
+        experiments.pyplot()
 
 
 def from_scenario(

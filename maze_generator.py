@@ -1,0 +1,178 @@
+"""Random mazes for studies of maze size and station count: `generate_maze(rows, columns, stations, rng)`.
+
+The algorithm: start from an empty grid and visit the cells in a random order, turning a cell into a
+wall when it keeps the free area connected, until the wanted share of walls is reached. A cell can
+become a wall without disconnecting anything when its free 4-neighbours are joined to one another
+through its ring of 8 neighbours (a "simple" cell in digital topology): every path through the cell
+can then go round it. The test is local, so each step costs O(1), and the free area is 4-connected
+by construction. (It is sufficient, not necessary: should too few walls fit for the stations, an exact
+global test adds the rest.) Finally `stations` walls, those beside the free area first, become
+station blocks (2).
+"""
+
+from __future__ import annotations
+
+import re
+from collections import deque
+from collections.abc import Callable
+
+import numpy as np
+
+from draw import EMPTY, STATION_WALL, WALL, Maze
+
+DEFAULT_WALL_SHARE = 0.3  # share of the cells that become walls (station blocks included)
+CELLS_PER_STATION_BLOCK = 25  # the default station count: one block per this many cells
+# The ring of 8 neighbours in cyclic order (N, NE, E, SE, S, SW, W, NW): consecutive entries are
+# 4-adjacent, so a run of free ring cells is a 4-connected path round the centre.
+_RING = ((-1, 0), (-1, 1), (0, 1), (1, 1), (1, 0), (1, -1), (0, -1), (-1, -1))
+_EDGE_NEIGHBOURS = (0, 2, 4, 6)  # the positions of N, E, S, W in _RING
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    """'20x20' (rows x columns) -> (20, 20); a clear ValueError otherwise."""
+    match = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", text)
+    if match is None:
+        raise ValueError(f"maze size {text!r} is not ROWSxCOLUMNS, e.g. 20x20")
+    rows, columns = int(match[1]), int(match[2])
+    if rows < 1 or columns < 1 or rows * columns < 2:
+        raise ValueError(f"maze size {text!r} is too small: it needs room for a free cell and a station block")
+    return rows, columns
+
+
+def default_station_count(rows: int, columns: int) -> int:
+    """One station block per CELLS_PER_STATION_BLOCK cells, at least one."""
+    return max(1, round(rows * columns / CELLS_PER_STATION_BLOCK))
+
+
+def generate_maze(
+    rows: int, columns: int, stations: int, rng: np.random.Generator, wall_share: float = DEFAULT_WALL_SHARE
+) -> Maze:
+    """A random rows x columns maze with `stations` station blocks and a 4-connected free area.
+
+    About `wall_share` of the cells become walls (fewer if no more can be added without cutting the
+    free area); at least one cell stays free. The same generator state gives the same maze.
+    """
+    if stations < 1:
+        raise ValueError(f"a maze needs at least one station block, got --stations {stations}")
+    if not 0 <= wall_share < 1:
+        raise ValueError(f"the wall share must be in [0, 1), got {wall_share}")
+    if stations >= rows * columns:
+        raise ValueError(f"{stations} station blocks do not fit in a {rows}x{columns} maze with a free cell")
+    grid = np.full((rows, columns), EMPTY, dtype=np.int8)
+    walls = _add_walls(grid, max(stations, round(wall_share * rows * columns)), rng, _can_become_wall)
+    if walls < stations:  # rare: only free cycles are left, which the local test cannot open
+        walls += _add_walls(grid, stations - walls, rng, _keeps_free_area_connected)
+    _place_stations(grid, stations, rng)
+    return Maze(grid, source=f"generated {rows}x{columns} maze")
+
+
+def _add_walls(
+    grid: np.ndarray, wanted: int, rng: np.random.Generator, allowed: Callable[[np.ndarray, int, int], bool]
+) -> int:
+    """Turn up to `wanted` free cells into walls, in random order, where `allowed`; returns how many.
+
+    A cell refused early may be allowed once its neighbours changed, so the passes repeat until
+    `wanted` is reached or a pass adds nothing.
+    """
+    added = 0
+    while added < wanted:
+        before = added
+        for index in rng.permutation(np.flatnonzero(grid.ravel() == EMPTY)):
+            r, c = divmod(int(index), grid.shape[1])
+            if added < wanted and allowed(grid, r, c):
+                grid[r, c] = WALL
+                added += 1
+        if added == before:
+            break
+    return added
+
+
+def _keeps_free_area_connected(grid: np.ndarray, r: int, c: int) -> bool:
+    """The exact (global, slower) test: is the free area still connected with (r, c) a wall?"""
+    if int((grid == EMPTY).sum()) < 2:
+        return False
+    grid[r, c] = WALL
+    try:
+        return free_area_is_connected(grid)
+    finally:
+        grid[r, c] = EMPTY
+
+
+def _can_become_wall(grid: np.ndarray, r: int, c: int) -> bool:
+    """Whether the free cell (r, c) can become a wall with the rest of the free area still connected.
+
+    True when its free 4-neighbours all lie in one run of free cells of its 8-neighbour ring (cells
+    beyond the border count as walls); a free cell with no free 4-neighbour is the last free cell.
+    """
+    rows, columns = grid.shape
+    ring = [0 <= r + dr < rows and 0 <= c + dc < columns and grid[r + dr, c + dc] == EMPTY for dr, dc in _RING]
+    edge_free = [i for i in _EDGE_NEIGHBOURS if ring[i]]
+    if not edge_free:
+        return False
+    if all(ring):
+        return True
+    start = ring.index(False)  # walk the ring from a blocked cell, labelling its runs of free cells
+    run_of, run = {}, 0
+    for step in range(1, 9):
+        i = (start + step) % 8
+        if ring[i]:
+            run_of[i] = run
+        elif ring[(i - 1) % 8]:
+            run += 1
+    return len({run_of[i] for i in edge_free}) == 1
+
+
+def _place_stations(grid: np.ndarray, stations: int, rng: np.random.Generator) -> None:
+    """Turn `stations` walls into station blocks, preferring walls beside the free area."""
+    free = np.pad(grid == EMPTY, 1)
+    beside_free = free[:-2, 1:-1] | free[2:, 1:-1] | free[1:-1, :-2] | free[1:-1, 2:]
+    preferred = np.argwhere((grid == WALL) & beside_free)
+    others = np.argwhere((grid == WALL) & ~beside_free)
+    chosen = preferred[rng.permutation(len(preferred))[:stations]]
+    if len(chosen) < stations:
+        chosen = np.concatenate([chosen, others[rng.permutation(len(others))[: stations - len(chosen)]]])
+    grid[chosen[:, 0], chosen[:, 1]] = STATION_WALL
+
+
+def free_area_is_connected(grid: np.ndarray) -> bool:
+    """Whether the free cells (0) of a grid form one 4-connected region (a breadth-first search)."""
+    free = np.asarray(grid) == EMPTY
+    cells = np.argwhere(free)
+    if len(cells) == 0:
+        return False
+    seen = np.zeros_like(free)
+    queue = deque([tuple(cells[0])])
+    seen[tuple(cells[0])] = True
+    while queue:
+        r, c = queue.popleft()
+        for nr, nc in ((r - 1, c), (r + 1, c), (r, c - 1), (r, c + 1)):
+            if 0 <= nr < free.shape[0] and 0 <= nc < free.shape[1] and free[nr, nc] and not seen[nr, nc]:
+                seen[nr, nc] = True
+                queue.append((nr, nc))
+    return int(seen.sum()) == len(cells)
+
+
+def maze_file_text(world: Maze, command: str) -> str:
+    """The maze in the mazes/ file format, headed by a comment saying how to make it again."""
+    blocks = int((world.grid == STATION_WALL).sum())
+    header = (
+        f"# A generated {world.height}x{world.width} maze with {blocks} station blocks and a connected free area.\n"
+        f"# Made by: {command}\n"
+    )
+    return header + world.to_text()
+
+
+def maze_picture(world: Maze) -> str:
+    """The maze drawn in text, two characters per cell: '##' wall, '[]' station block, '. ' free."""
+    symbols = {EMPTY: ". ", WALL: "##", STATION_WALL: "[]"}
+    return "".join("".join(symbols[v] for v in row).rstrip() + "\n" for row in world.grid.tolist())
+
+
+def describe_maze(world: Maze) -> str:
+    """Size, free cells, station blocks and stations, and whether the free area is connected."""
+    blocks = int((world.grid == STATION_WALL).sum())
+    connected = "connected" if free_area_is_connected(world.grid) else "NOT connected"
+    return (
+        f"{world.height}x{world.width}, {len(world.free_cells)} free cells ({connected}), "
+        f"{blocks} station blocks, {len(world.stations)} stations"
+    )

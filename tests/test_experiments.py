@@ -1,0 +1,274 @@
+"""compare and study: identical inputs for every filter, the CSV files, the study's statistics."""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import os
+import signal
+import statistics
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+from conftest import PAPER_MAZE, ROOT
+
+import experiments
+from draw import Maze
+from experiments import (
+    CSV_COLUMNS,
+    MazeChoice,
+    RunRecord,
+    compare_filters,
+    final_error,
+    run_study,
+    student_t_quantile,
+    study_settings,
+    study_tasks,
+    summarise_study,
+    t_interval,
+)
+from main import from_scenario, main
+from particle_filter import Robot, convergence_step, load_scenario, save_scenario, simulate
+
+FILTERS = ["SIRParticleFilter", "AuxiliaryParticleFilter", "RegularizedParticleFilter"]
+# With 2 degrees of freedom Student's t has F(t) = 1/2 + t / (2 sqrt(2 + t^2)), so F(t) = q at
+# t = (2q - 1) / sqrt(2 q (1 - q)): the 97.5% quantile in closed form.
+T_975_DF2 = 0.95 / math.sqrt(2 * 0.975 * 0.025)
+
+
+@pytest.fixture
+def scenario_path(tmp_path, paper_world):
+    """A saved 40-step, 200-particle scenario on the paper's maze."""
+    robot = Robot(0.3, 0.5, paper_world.random_free_place(np.random.default_rng(4)))
+    result = simulate(robot, paper_world, 0.3, 0.5, 200, 40, seed=4)
+    return save_scenario(result.scenario, tmp_path / "scenario.json")
+
+
+def read_csv(path) -> list[dict[str, str]]:
+    return list(csv.DictReader(io.StringIO(path.read_text())))
+
+
+# -- compare ---------------------------------------------------------------------------------------
+@pytest.mark.parametrize("keep_measurements", [True, False])
+def test_compare_gives_every_filter_the_same_inputs(scenario_path, keep_measurements):
+    """Same start, particles, true path and measurements for all four filters; with a file holding
+    only the paper's four keys the first run draws the measurements and the others replay them."""
+    stored = load_scenario(scenario_path)
+    if not keep_measurements:
+        stored = stored.model_copy(update={"robot_measurements": None})
+    world, robot, sigma, delta, particles = from_scenario(stored, None, None, None)
+    results = compare_filters(world, robot, sigma, delta, particles, [*FILTERS, "GridBayesFilter"], seed=9)
+    assert list(results) == [*FILTERS, "GridBayesFilter"]
+    first = results["SIRParticleFilter"]
+    if keep_measurements:
+        assert first.scenario.robot_measurements == stored.robot_measurements
+    for result in results.values():
+        assert np.array_equal(result.true_positions, first.true_positions)
+        assert result.scenario.robot_measurements == first.scenario.robot_measurements
+        assert result.scenario.robot_compass_angles == stored.robot_compass_angles
+        assert result.scenario.init_particles_pos == stored.init_particles_pos
+        assert len(result.errors) == 40
+
+
+def test_compare_writes_the_table_csv_and_figure(scenario_path, tmp_path, capsys):
+    table, figure = tmp_path / "errors.csv", tmp_path / "errors.png"
+    args = ["compare", str(scenario_path), "--filters", "sir,apf,rpf,grid", "--no-viz"]
+    assert main([*args, "--csv", str(table), "--plot", str(figure)]) == 0
+    out = capsys.readouterr().out
+    for header in ["mean error", "last 20% error", "converged at", "mean ESS", "ms/step", "GridBayesFilter"]:
+        assert header in out
+    rows = read_csv(table)
+    assert list(rows[0]) == ["step", *FILTERS, "GridBayesFilter"]
+    assert [int(r["step"]) for r in rows] == list(range(1, 41))
+    assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert main([*args, "--csv", str(table)]) == 2  # exists: refused without --force
+    assert "use --force" in capsys.readouterr().err
+
+
+def test_compare_errors_match_a_plain_replay(scenario_path, tmp_path):
+    """The CSV holds the errors of `simulate` replaying the scenario with the same seed."""
+    table = tmp_path / "e.csv"
+    assert (
+        main(["compare", str(scenario_path), "--filters", "apf", "--seed", "5", "--csv", str(table), "--no-viz"]) == 0
+    )
+    stored = load_scenario(scenario_path)
+    result = simulate(
+        stored.robot(), stored.world(), 0.3, 0.5, init_particles_pos=stored.init_particles_pos, seed=5,
+        filtering_algorithm="apf",
+    )  # fmt: skip
+    column = [float(r["AuxiliaryParticleFilter"]) for r in read_csv(table)]
+    assert column == result.errors.tolist()
+
+
+def test_plot_without_matplotlib_says_how_to_install_it(scenario_path, tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "matplotlib", None)  # import matplotlib now raises ImportError
+    assert main(["compare", str(scenario_path), "--plot", str(tmp_path / "x.png"), "--no-viz"]) == 2
+    err = capsys.readouterr().err
+    assert 'pip install -e ".[plot]"' in err and err.count("\n") == 1
+    assert main(["study", "--runs", "1", "--plot", str(tmp_path / "y.png")]) == 2
+
+
+# -- study: seeds, CSV, statistics -----------------------------------------------------------------
+def tiny_tasks(runs: int = 3, seed: int = 11):
+    """2 sigmas x 2 filters x `runs` runs of 30 steps with 150 particles on the paper's maze."""
+    settings = study_settings([MazeChoice.from_maze("paper", Maze(PAPER_MAZE))], [0.3, 0.6], [0.5], [150], [0.2])
+    return settings, study_tasks(settings, FILTERS[:2], runs, 30, seed)
+
+
+def test_study_csv_has_a_row_per_run_and_filter(tmp_path, capsys):
+    table = tmp_path / "study.csv"
+    args = ["study", "--maze", "paper_5x5", "--sigma", "0.3,0.6", "--delta", "0.2,0.5", "--filters", "sir,rpf"]
+    assert main([*args, "--runs", "3", "--steps", "25", "--particles", "100", "--seed", "1", "--csv", str(table)]) == 0
+    rows = read_csv(table)
+    assert list(rows[0]) == CSV_COLUMNS == [
+        "setting", "run", "seed", "maze", "maze_seed", "stations", "sigma", "delta", "particles", "threshold",
+        "steps", "filter", "final_error", "mean_error", "converged_at", "mean_ess", "ms_per_step",
+    ]  # fmt: skip
+    assert len(rows) == 4 * 3 * 2  # settings x runs x filters
+    assert {(r["sigma"], r["delta"]) for r in rows} == {("0.3", "0.2"), ("0.3", "0.5"), ("0.6", "0.2"), ("0.6", "0.5")}
+    assert {r["stations"] for r in rows} == {"2"} and {r["maze_seed"] for r in rows} == {""}
+    out = capsys.readouterr().out
+    assert "95% CI of mean" in out and "median conv. step" in out and "sigma" in out and "delta" in out
+
+
+def test_every_filter_of_a_run_sees_the_same_scenario():
+    """Run 1 replayed by hand: start from default_rng(seed), particles and walk from simulate(seed=seed);
+    the study's figures for both filters are those of that one scenario."""
+    _, tasks = tiny_tasks(runs=1)
+    records = experiments.run_task(tasks[0])
+    world = Maze(PAPER_MAZE)
+    robot = Robot(0.3, 0.5, world.random_free_place(np.random.default_rng(tasks[0].seed)))
+    sir = simulate(robot, world, 0.3, 0.5, 150, 30, seed=tasks[0].seed)
+    apf = simulate(robot, world, 0.3, 0.5, None, None, sir.scenario.init_particles_pos, "apf", seed=tasks[0].seed)
+    assert np.array_equal(sir.true_positions, apf.true_positions)
+    assert [r.final_error for r in records] == [final_error(sir.errors), final_error(apf.errors)]
+    assert [r.converged_at for r in records] == [convergence_step(sir.errors), convergence_step(apf.errors)]
+
+
+def test_run_seeds_do_not_depend_on_the_setting_or_the_workers():
+    _, tasks = tiny_tasks()
+    assert [t.seed for t in tasks[:3]] == [t.seed for t in tasks[3:]]  # run r: the same seed in each setting
+    assert len({t.seed for t in tasks[:3]}) == 3
+    one, two = run_study(tasks, workers=1), run_study(tasks, workers=2)
+    strip = [(r.setting, r.run, r.filter, r.final_error, r.converged_at, r.mean_ess) for r in one.records]
+    assert strip == [(r.setting, r.run, r.filter, r.final_error, r.converged_at, r.mean_ess) for r in two.records]
+    assert len(one.records) == 2 * 3 * 2 and not one.failures and not one.interrupted
+
+
+def test_study_statistics_on_a_tiny_seeded_study():
+    """The table's figures recomputed by hand from the run records of a tiny seeded study: the mean,
+    the t-interval mean -/+ t_{0.975, n-1} s / sqrt(n) with T_975_DF2 (closed form for n - 1 = 2),
+    the converged share and the median convergence step of the converged runs."""
+    settings, tasks = tiny_tasks()
+    outcome = run_study(tasks, workers=1)
+    summaries = summarise_study(outcome.records, settings)
+    assert [(s.setting_index, s.filter) for s in summaries] == [(i, f) for i in (1, 2) for f in FILTERS[:2]]
+    for s in summaries:
+        mine = [r for r in outcome.records if (r.setting, r.filter) == (s.setting_index, s.filter)]
+        finals = np.array([r.final_error for r in mine])
+        mean, sd = finals.sum() / 3, math.sqrt(((finals - finals.sum() / 3) ** 2).sum() / 2)
+        half = T_975_DF2 * sd / math.sqrt(3)
+        assert s.runs == 3
+        assert s.mean_final_error == pytest.approx(mean, rel=1e-12)
+        assert s.interval == pytest.approx((mean - half, mean + half), rel=1e-9, abs=1e-12)
+        steps = sorted(r.converged_at for r in mine if r.converged_at is not None)
+        assert s.converged_share == len(steps) / 3
+        assert s.median_convergence_step == (statistics.median(steps) if steps else None)
+
+
+def record(final: float, converged: int | None, run: int) -> RunRecord:
+    return RunRecord(1, run, run, "m", None, 1, 0.3, 0.5, 10, 0.2, 10, "SIR", final, final, converged, 5.0, 1.0)
+
+
+def test_summary_of_known_numbers():
+    """Final errors 0.1, 0.2, 0.6: mean 0.3, s = sqrt((0.04 + 0.01 + 0.09) / 2) = sqrt(0.07), half width
+    T_975_DF2 sqrt(0.07 / 3) = 0.6572...; converged at 5, never, 9: share 2/3, median 7."""
+    settings = study_settings([MazeChoice("m", grid=((0, 2),))], [0.3], [0.5], [10], [0.2])
+    records = [record(0.1, 5, 1), record(0.2, None, 2), record(0.6, 9, 3)]
+    (summary,) = summarise_study(records, settings)
+    half = T_975_DF2 * math.sqrt(0.07 / 3)
+    assert summary.mean_final_error == pytest.approx(0.3)
+    assert summary.interval == pytest.approx((0.3 - half, 0.3 + half))
+    assert summary.converged_share == pytest.approx(2 / 3)
+    assert summary.median_convergence_step == 7
+    assert all(math.isnan(v) for v in t_interval([0.4]))  # one run: no interval
+
+
+@pytest.mark.parametrize(
+    ("df", "quantile"),  # t_{0.975, df} from statistical tables, 10 significant digits
+    [(1, 12.70620474), (2, 4.302652730), (3, 3.182446305), (4, 2.776445105), (9, 2.262157163), (29, 2.045229642),
+     (100, 1.983971519)],
+)  # fmt: skip
+def test_student_t_quantile_matches_the_tables(df, quantile):
+    assert student_t_quantile(0.95, df) == pytest.approx(quantile, rel=1e-9)
+    assert student_t_quantile(0.95, 2) == pytest.approx(T_975_DF2, rel=1e-11)
+
+
+def test_final_error_is_the_mean_of_the_last_fifth():
+    assert final_error(np.arange(10.0)) == 8.5  # the last 2 of 10 steps
+    assert final_error(np.array([3.0, 1.0])) == 1.0  # at least one step
+
+
+# -- study: faults ---------------------------------------------------------------------------------
+def test_a_crashing_run_is_reported_with_its_seed_and_the_others_kept(tmp_path, capsys, monkeypatch):
+    real = experiments.run_task
+
+    def crash_on_run_2(task, visualize=False):
+        if task.run == 2:
+            raise RuntimeError("boom")
+        return real(task, visualize)
+
+    monkeypatch.setattr(experiments, "run_task", crash_on_run_2)
+    table = tmp_path / "s.csv"
+    args = ["study", "--maze", "paper_5x5", "--runs", "3", "--steps", "10", "--particles", "50", "--filters", "sir"]
+    assert main([*args, "--seed", "3", "--workers", "1", "--csv", str(table)]) == 1
+    err = capsys.readouterr().err
+    seed = study_tasks(*tiny_tasks()[:1], ["sir"], 3, 10, 3)[1].seed
+    assert f"run 2 of setting 1 (seed {seed}) failed: RuntimeError: boom" in err
+    assert [r["run"] for r in read_csv(table)] == ["1", "3"]
+
+
+def test_ctrl_c_keeps_the_finished_runs_and_exits_130(tmp_path, capsys, monkeypatch):
+    real = experiments.run_task
+
+    def interrupt_on_run_3(task, visualize=False):
+        if task.run == 3:
+            raise KeyboardInterrupt
+        return real(task, visualize)
+
+    monkeypatch.setattr(experiments, "run_task", interrupt_on_run_3)
+    table = tmp_path / "s.csv"
+    args = ["study", "--maze", "paper_5x5", "--runs", "5", "--steps", "10", "--particles", "50", "--filters", "sir,apf"]
+    assert main([*args, "--workers", "1", "--csv", str(table)]) == 130
+    assert "interrupted after 2 of 5 runs" in capsys.readouterr().err
+    assert [(r["run"], r["filter"]) for r in read_csv(table)] == [
+        (run, name) for run in ("1", "2") for name in FILTERS[:2]
+    ]
+
+
+def test_ctrl_c_on_the_process_pool_keeps_the_finished_runs(tmp_path):
+    """A real SIGINT to the whole process group (what Ctrl-C sends) while two workers run a long study:
+    exit code 130, and the CSV holds whole runs only (every filter of each finished run)."""
+    table = tmp_path / "s.csv"
+    command = [sys.executable, str(ROOT / "main.py"), "study", "--maze", "paper_5x5", "--runs", "100000", "--steps", "20"]
+    command += ["--particles", "100", "--filters", "sir,apf", "--workers", "2", "--csv", str(table)]
+    process = subprocess.Popen(
+        command,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+    time.sleep(4)
+    os.killpg(process.pid, signal.SIGINT)
+    _, err = process.communicate(timeout=60)
+    assert process.returncode == 130, err
+    assert "interrupted after" in err and "Traceback" not in err
+    rows = read_csv(table)
+    runs = {r["run"] for r in rows}
+    assert len(rows) == 2 * len(runs) < 2 * 100000
