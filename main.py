@@ -9,8 +9,10 @@ python main.py maze --help     random connected mazes (generate) and a look at a
 
 from __future__ import annotations
 
+import os
 import sys
 import time
+import warnings
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -127,6 +129,10 @@ def check_output_path(path: Path, force: bool) -> None:
         raise UserError(f"{path} exists; use --force to replace it")
     if not path.parent.exists():
         raise UserError(f"{path.parent} does not exist: cannot write {path.name} there")
+    if not os.access(path.parent, os.W_OK):
+        raise UserError(f"{path.parent} is not writable: cannot write {path.name} there")
+    if path.is_dir():
+        raise UserError(f"{path} is a folder, not a file")
 
 
 @app.callback(invoke_without_command=True)
@@ -515,8 +521,19 @@ def from_scenario(
     return world, robot, sigma, delta, scenario.init_particles_pos
 
 
+_warned: set[str] = set()
+
+
+def warn_in_one_line(message: Warning | str, category: type[Warning], *_args: Any, **_kwargs: Any) -> None:
+    """Warnings (e.g. sigma outside the lab's range) as one line on stderr, each once, no source lines."""
+    if str(message) not in _warned:
+        _warned.add(str(message))
+        typer.echo(f"warning: {message}", err=True)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; problems with the input end as one line on stderr and exit code 2."""
+    warnings.showwarning = warn_in_one_line
     try:
         code = app(args=argv, standalone_mode=False)
     except typer.TyperException as error:  # typer's usage errors: bad option, bad value, missing argument

@@ -1146,6 +1146,37 @@ def convergence_step(errors: np.ndarray, radius: float = CONVERGENCE_RADIUS) -> 
     return None if outside[-1] == len(errors) - 1 else int(outside[-1]) + 2
 
 
+BYTES_PER_PARTICLE = 400  # arrays a particle needs during a step, temporaries included (generous)
+
+
+def check_memory_for(particle_count: int) -> None:
+    """Refuse, before allocating, a particle count whose arrays would not fit in the available memory."""
+    needed = particle_count * BYTES_PER_PARTICLE
+    available = _available_memory()
+    if available is not None and needed > 0.8 * available:
+        raise ValueError(
+            f"particle_count {particle_count} needs about {needed / 2**30:.1f} GiB, "
+            f"but only {available / 2**30:.1f} GiB of memory is available"
+        )
+
+
+def _available_memory() -> int | None:
+    """Bytes of physical memory available now, where the system tells (None elsewhere)."""
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (AttributeError, ValueError, OSError):
+        return None
+
+
+def check_start(world: Maze, robot_position: tuple[float, float], particles: np.ndarray) -> None:
+    """The robot must start in the free area; particles may lie anywhere (but we say so)."""
+    if not world.is_free(*robot_position):
+        raise ValueError(f"the robot's start {robot_position} is not in the free area of the maze ({world.source})")
+    outside = int((~world.is_free(particles[:, 0], particles[:, 1])).sum())
+    if outside:
+        warnings.warn(f"{outside} of the {len(particles)} initial particles lie outside the free area", stacklevel=3)
+
+
 def new_seed() -> int:
     """A fresh random seed, recorded so that any run can be repeated."""
     return int(np.random.SeedSequence().entropy % 2**63)
@@ -1188,7 +1219,9 @@ def simulate(
         count = DEFAULT_PARTICLE_COUNT if particle_count is None else particle_count
         if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 1:
             raise ValueError(f"particle_count must be a whole number >= 1, got {count!r}")
+        check_memory_for(int(count))
         particles = world.random_free_places(int(count), particles_rng)
+    check_start(world, robot.initial_position, particles)
     if steps is None:
         steps = robot.recorded_steps or DEFAULT_STEPS
     if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:

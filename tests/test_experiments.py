@@ -254,7 +254,17 @@ def test_ctrl_c_on_the_process_pool_keeps_the_finished_runs(tmp_path):
     """A real SIGINT to the whole process group (what Ctrl-C sends) while two workers run a long study:
     exit code 130, and the CSV holds whole runs only (every filter of each finished run)."""
     table = tmp_path / "s.csv"
-    command = [sys.executable, str(ROOT / "main.py"), "study", "--maze", "paper_5x5", "--runs", "100000", "--steps", "20"]
+    command = [
+        sys.executable,
+        str(ROOT / "main.py"),
+        "study",
+        "--maze",
+        "paper_5x5",
+        "--runs",
+        "100000",
+        "--steps",
+        "20",
+    ]
     command += ["--particles", "100", "--filters", "sir,apf", "--workers", "2", "--csv", str(table)]
     process = subprocess.Popen(
         command,
