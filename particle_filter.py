@@ -44,17 +44,39 @@ SCENARIO_FORMAT_VERSION = 1
 LOG_UNDERFLOW = math.log(np.finfo(float).tiny)
 LAB_SIGMA_RANGE = (0.2, 0.8)  # the lab's recommended ranges: outside them we warn, not refuse
 LAB_DELTA_RANGE = (0.05, 0.6)
+# Particle positions and headings are float32 (half the memory traffic of float64; the map is at most
+# a few hundred units, where float32 resolves 1e-5). The robot's own path stays float64 and exact.
+PARTICLE_DTYPE = np.float32
 
 
 # -- the model -------------------------------------------------------------------------------------
-def sample_headings(compass_angle: float, delta: float, count: int, rng: np.random.Generator) -> np.ndarray:
+def sample_headings(
+    compass_angle: float, delta: float, count: int, rng: np.random.Generator, dtype: type = np.float64
+) -> np.ndarray:
     """Headings actually taken, th ~ U(th0 - Delta/2, th0 + Delta/2), shape (count,), radians."""
-    return compass_angle + delta * (rng.random(count) - 0.5)
+    headings = rng.random(count, dtype=dtype)
+    headings -= 0.5
+    headings *= delta
+    headings += float(compass_angle)
+    return headings
 
 
 def move(positions: np.ndarray, headings: np.ndarray, speed: float = ROBOT_SPEED) -> np.ndarray:
-    """Equation (1): one step of length `speed` along `headings`; positions (N, 2) -> (N, 2)."""
-    return positions + speed * np.column_stack([np.cos(headings), np.sin(headings)])
+    """Equation (1): one step of length `speed` along `headings`; positions (N, 2) -> (N, 2) in their
+    dtype, stored column by column (order F) so that the x and y columns are contiguous."""
+    moved = np.empty(positions.shape, positions.dtype, order="F")
+    moved[:, 0] = positions[:, 0] + speed * np.cos(headings)
+    moved[:, 1] = positions[:, 1] + speed * np.sin(headings)
+    return moved
+
+
+def take_particles(points: np.ndarray, indices: np.ndarray) -> np.ndarray:
+    """points[indices] for points (N, 2), gathered column by column into order-F storage
+    (fancy-indexing the rows of an (N, 2) array is several times slower)."""
+    taken = np.empty((len(indices), 2), points.dtype, order="F")
+    for column in range(2):
+        np.take(points[:, column], indices, out=taken[:, column])
+    return taken
 
 
 def log_likelihood(
@@ -64,9 +86,16 @@ def log_likelihood(
 
     The Gaussian's constant -log(sigma sqrt(2 pi)) is kept so that sums of these are true log-likelihoods.
     """
-    residual = (z - world.distance_to_nearest_station(positions)) / sigma
-    log_p = -0.5 * residual**2 - math.log(sigma * math.sqrt(2 * math.pi))
-    return np.where(world.is_free(positions[:, 0], positions[:, 1]), log_p, log_p + math.log(outside_penalty))
+    distance, free = world.station_distances_and_free(positions[:, 0], positions[:, 1])
+    residual = distance  # (d - z) / sigma, computed in place: the sign does not matter once squared
+    residual -= float(z)
+    residual /= sigma
+    log_p = residual
+    log_p *= residual
+    log_p *= -0.5
+    norm = math.log(sigma * math.sqrt(2 * math.pi))
+    log_p += np.where(free, log_p.dtype.type(-norm), log_p.dtype.type(math.log(outside_penalty) - norm))
+    return log_p
 
 
 # -- weights ---------------------------------------------------------------------------------------
@@ -85,7 +114,32 @@ def normalise_log_weights(log_w: np.ndarray) -> np.ndarray:
 
 def effective_sample_size(weights: np.ndarray) -> float:
     """N_eff = 1 / sum(W_i^2) for normalised weights W (Arulampalam et al., eq. 51)."""
-    return float(1.0 / np.sum(weights**2))
+    return float(1.0 / np.sum(weights * weights))
+
+
+# -- weighted summaries: numpy's pairwise sums, not BLAS (threaded BLAS stalls on a busy machine) -----
+def weighted_mean(weights: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """sum_i W_i x_i for normalised weights (N,) and points (N, 2), as float64 (2,)."""
+    w = weights.astype(points.dtype, copy=False)
+    return np.array([np.sum(w * points[:, 0]), np.sum(w * points[:, 1])], dtype=float)
+
+
+def weighted_covariance(weights: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """sum_i W_i (x_i - mean)(x_i - mean)^T, float64 (2, 2)."""
+    mean = weighted_mean(weights, points)
+    dx, dy = points[:, 0] - mean[0], points[:, 1] - mean[1]  # float64: the spread may be tiny
+    xx, xy, yy = np.sum(weights * dx * dx), np.sum(weights * dx * dy), np.sum(weights * dy * dy)
+    return np.array([[xx, xy], [xy, yy]])
+
+
+def mass_within(weights: np.ndarray, points: np.ndarray, centre: np.ndarray, radius: float) -> float:
+    """The total weight of the points (N, 2) at most `radius` from `centre`."""
+    dx = points[:, 0] - points.dtype.type(centre[0])
+    dy = points[:, 1] - points.dtype.type(centre[1])
+    dx *= dx
+    dy *= dy
+    dx += dy
+    return float(np.sum(weights, where=dx <= radius * radius))
 
 
 # -- resampling: plain functions, normalised weights W (N,) -> ancestor indices (M,) ---------------
@@ -109,9 +163,27 @@ def stratified_resample(weights: np.ndarray, rng: np.random.Generator, count: in
 
 
 def systematic_resample(weights: np.ndarray, rng: np.random.Generator, count: int | None = None) -> np.ndarray:
-    """One uniform offset shared by the M strata: the lowest-variance scheme, used by default."""
+    """One uniform offset U shared by the M strata: the lowest-variance scheme, used by default.
+
+    The points u_m = (m + U) / M below cumsum(W)[i] number ceil(M cumsum(W)[i] - U), so ancestor i gets
+    the difference of two such counts: O(N) counting instead of a binary search per point.
+    """
     count = len(weights) if count is None else count
-    return _inverse_cdf((np.arange(count) + rng.random()) / count, weights)
+    below = np.empty(len(weights) + 1)  # below[i + 1]: how many points lie below cumsum(W)[i]
+    below[0] = 0.0
+    np.cumsum(weights, out=below[1:])  # float64 whatever the weights' dtype: the strata are 1/M wide
+    below *= count
+    below -= rng.random()
+    np.ceil(below, out=below)
+    ends = below.astype(np.int64)
+    ends[0], ends[-1] = 0, count  # the last guards against round-off leaving cumsum(W) short of 1
+    return _ancestors_from_counts(np.clip(ends, 0, count), count)
+
+
+def _ancestors_from_counts(ends: np.ndarray, count: int) -> np.ndarray:
+    """Ancestor indices (count,), sorted: particle i repeated ends[i + 1] - ends[i] times."""
+    starts = np.bincount(ends[1:-1], minlength=count)[:count]  # how many particles end before point m
+    return np.cumsum(starts)
 
 
 def residual_resample(weights: np.ndarray, rng: np.random.Generator, count: int | None = None) -> np.ndarray:
@@ -289,6 +361,10 @@ class ParticleFilter:
     Arulampalam's algorithms end each step by resampling; here each step starts by resampling the
     previous posterior, the same sequence of operations, so that between steps the filter holds the
     weighted posterior that the estimate, the ESS and the drawing read.
+
+    `positions` (N, 2) and `headings` (N,) are float32 (PARTICLE_DTYPE), `log_weights` (N,) float64.
+    The filter replaces these arrays rather than writing into them; to change them, assign new arrays
+    (the weights, estimate, ESS and confidence are computed once per assignment and cached).
     """
 
     name = "ParticleFilter"
@@ -309,10 +385,12 @@ class ParticleFilter:
         self.rng = rng if rng is not None else np.random.default_rng()
         self.resample = resampling_scheme(resampling)
         self.outside_penalty, self.speed = outside_penalty, speed
-        self.positions = _as_points("particles", particles)  # (N, 2)
+        self.positions = np.asfortranarray(_as_points("particles", particles), dtype=PARTICLE_DTYPE)  # (N, 2)
         self.count = len(self.positions)
-        self.headings = np.zeros(self.count)  # each particle's last motion angle, for drawing
+        self.headings = np.zeros(self.count, dtype=PARTICLE_DTYPE)  # each particle's last motion angle
         self.log_weights = np.full(self.count, -math.log(self.count))
+        self._summary_of: tuple[np.ndarray, np.ndarray] | None = None  # the arrays _summary describes
+        self._summary: dict[str, Any] = {}
         self.steps_done = 0
         self.reinitialised_at: list[int] = []  # steps at which no particle explained z and we restarted
 
@@ -322,7 +400,7 @@ class ParticleFilter:
 
     def propagate(self, positions: np.ndarray, compass_angle: float) -> tuple[np.ndarray, np.ndarray]:
         """Draw x_k ~ p(x_k | x_{k-1}): uniform on the arc of radius L around th0 (headings too)."""
-        headings = sample_headings(compass_angle, self.delta, len(positions), self.rng)
+        headings = sample_headings(compass_angle, self.delta, len(positions), self.rng, positions.dtype)
         return move(positions, headings, self.speed), headings
 
     def likelihood(self, z: float, positions: np.ndarray) -> np.ndarray:
@@ -332,22 +410,36 @@ class ParticleFilter:
     # the weighted posterior
     @property
     def weights(self) -> np.ndarray:
-        return np.exp(self.log_weights)
+        """The normalised weights W_i = exp(log w_i), shape (N,)."""
+        return self._cached("weights", lambda: np.exp(self.log_weights))
 
     @property
     def ess(self) -> float:
-        return effective_sample_size(self.weights)
+        return self._cached("ess", lambda: effective_sample_size(self.weights))
 
     @property
     def estimate(self) -> np.ndarray:
         """The posterior mean sum_i W_i x_i, shape (2,)."""
-        return self.weights @ self.positions
+        return self._cached("estimate", lambda: weighted_mean(self.weights, self.positions)).copy()
 
     @property
     def is_confident(self) -> bool:
         """At least 95% of the weight lies within distance 1 of the estimate (the paper's green circle)."""
-        near = np.hypot(*(self.positions - self.estimate).T) <= CONFIDENCE_RADIUS
-        return bool(self.weights[near].sum() >= CONFIDENCE_SHARE)
+        return (
+            self._cached(
+                "confident", lambda: mass_within(self.weights, self.positions, self.estimate, CONFIDENCE_RADIUS)
+            )
+            >= CONFIDENCE_SHARE
+        )
+
+    def _cached(self, name: str, compute: Callable[[], Any]) -> Any:
+        """`compute()`, remembered until `positions` or `log_weights` is assigned a new array."""
+        described = self._summary_of
+        if described is None or described[0] is not self.positions or described[1] is not self.log_weights:
+            self._summary_of, self._summary = (self.positions, self.log_weights), {}
+        if name not in self._summary:
+            self._summary[name] = compute()
+        return self._summary[name]
 
     # shared bookkeeping
     def _set_weights(self, log_w: np.ndarray, z: float) -> None:
@@ -356,15 +448,18 @@ class ParticleFilter:
         if total < LOG_UNDERFLOW or np.isnan(total):
             self._reinitialise(z)
         else:
-            self.log_weights = log_w - total
+            self.log_weights = np.subtract(log_w, total, dtype=float)
 
     def _reinitialise(self, z: float) -> None:
         """Start again from the prior (uniform over the free area), weighted by the current z."""
         self.reinitialised_at.append(self.steps_done + 1)
-        self.positions = self.world.random_free_places(self.count, self.rng)
+        self.positions = np.asfortranarray(self.world.random_free_places(self.count, self.rng), dtype=PARTICLE_DTYPE)
         log_w = self.likelihood(z, self.positions)
         total = log_sum_exp(log_w)
-        self.log_weights = log_w - total if total >= LOG_UNDERFLOW else np.full(self.count, -math.log(self.count))
+        uniform = total < LOG_UNDERFLOW
+        self.log_weights = (
+            np.full(self.count, -math.log(self.count)) if uniform else np.subtract(log_w, total, dtype=float)
+        )
 
 
 class SIRParticleFilter(ParticleFilter):
@@ -374,7 +469,9 @@ class SIRParticleFilter(ParticleFilter):
 
     def step(self, compass_angle: float, z: float) -> None:
         ancestors = self.resample(self.weights, self.rng)  # RESAMPLE (end of Alg. 4, previous step)
-        x, headings = self.propagate(self.positions[ancestors], compass_angle)  # x_k^i ~ p(x_k | x_{k-1}^i)
+        x, headings = self.propagate(
+            take_particles(self.positions, ancestors), compass_angle
+        )  # x_k^i ~ p(x_k | x_{k-1}^i)
         self.positions, self.headings = x, headings
         self._set_weights(self.likelihood(z, x), z)  # w_k^i = p(z_k | x_k^i), then normalise
         self.steps_done += 1
@@ -394,9 +491,11 @@ class AuxiliaryParticleFilter(ParticleFilter):
             self._reinitialise(z)
         else:
             ancestors = self.resample(np.exp(normalise_log_weights(first_stage)), self.rng)  # i^j
-            x, headings = self.propagate(self.positions[ancestors], compass_angle)  # x_k^j ~ p(x_k | x_{k-1}^{i^j})
+            x, headings = self.propagate(
+                take_particles(self.positions, ancestors), compass_angle
+            )  # x_k^j ~ p(x_k | x_{k-1}^{i^j})
             self.positions, self.headings = x, headings
-            second_stage = self.likelihood(z, x) - log_mu_likelihood[ancestors]  # p(z|x^j) / p(z|mu^{i^j})
+            second_stage = self.likelihood(z, x) - log_mu_likelihood.take(ancestors)  # p(z|x^j) / p(z|mu^{i^j})
             self._set_weights(second_stage, z)
         self.steps_done += 1
 
@@ -431,15 +530,24 @@ class RegularizedParticleFilter(ParticleFilter):
     def regularise(self) -> None:
         """Resample, then jitter each particle by h_opt D eps, eps ~ N(0, I_2), D D^T = S."""
         weights = self.weights
-        centred = self.positions - weights @ self.positions
-        covariance = (weights[:, None] * centred).T @ centred  # S_k, the weighted empirical covariance
+        covariance = weighted_covariance(weights, self.positions)  # S_k, the weighted empirical covariance
         D = np.linalg.cholesky(covariance + 1e-12 * np.eye(2))  # D_k D_k^T = S_k (tiny ridge: S may be 0)
         ancestors = self.resample(weights, self.rng)
-        eps = self.rng.standard_normal((self.count, 2))
-        self.positions = self.positions[ancestors] + self.bandwidth * eps @ D.T
-        self.headings = self.headings[ancestors]
+        eps = self.rng.standard_normal((self.count, 2), dtype=PARTICLE_DTYPE)
+        self.positions = take_particles(self.positions, ancestors) + gaussian_jitter(eps, self.bandwidth * D)
+        self.headings = self.headings.take(ancestors)
         self.log_weights = np.full(self.count, -math.log(self.count))
         self.regularised_at.append(self.steps_done)
+
+
+def gaussian_jitter(eps: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """eps @ scale.T for standard normal eps (N, 2) and a lower-triangular scale (2, 2), in eps's dtype:
+    the kernel's draws, written out (a BLAS matmul would start threads for two columns)."""
+    jitter = np.empty(eps.shape, eps.dtype, order="F")
+    a, c, d = (eps.dtype.type(v) for v in (scale[0, 0], scale[1, 0], scale[1, 1]))
+    jitter[:, 0] = a * eps[:, 0]
+    jitter[:, 1] = c * eps[:, 0] + d * eps[:, 1]
+    return jitter
 
 
 class GridBayesFilter:
@@ -536,8 +644,15 @@ class GridBayesFilter:
         """Not a sample, so no effective sample size: NaN."""
         return math.nan
 
-    estimate = ParticleFilter.estimate
-    is_confident = ParticleFilter.is_confident
+    @property
+    def estimate(self) -> np.ndarray:
+        """The posterior mean over the cell centres, shape (2,)."""
+        return weighted_mean(self.weights, self.positions)
+
+    @property
+    def is_confident(self) -> bool:
+        """At least 95% of the mass lies within distance 1 of the estimate (as for the particle filters)."""
+        return mass_within(self.weights, self.positions, self.estimate, CONFIDENCE_RADIUS) >= CONFIDENCE_SHARE
 
     def posterior_std(self) -> float:
         """Root of the trace of the posterior covariance (map units): how spread the belief is."""
