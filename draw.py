@@ -235,6 +235,9 @@ class _NearestStationLookup:
         ambiguous = np.flatnonzero(counts > 1)
         self.row = np.full(len(counts), -1, dtype=np.int32)  # each cell's row of `_all`, -1: one candidate
         self.row[ambiguous] = np.arange(len(ambiguous))
+        # The nearest station to a point beyond the table is the nearest to the point where the segment
+        # between them crosses the table's border, so it is a candidate of a border cell.
+        self._border = np.unique(candidates.reshape(self.ny, self.nx, -1)[_border_of(self.ny, self.nx)])
         self._first = candidates[:, 0]  # (C,) station indices
         self._all = candidates[ambiguous]  # (A, K) station indices, padded by repeats
         self._tables: dict[np.dtype, _StationTables] = {}
@@ -250,7 +253,7 @@ class _NearestStationLookup:
             d2[ambiguous] = _nearest_candidate(tables, rows[ambiguous], x[ambiguous], y[ambiguous])
         free = self.free.take(cells)
         if len(beyond):
-            d2[beyond] = _brute_force_squared_distances(tables.stations, x[beyond], y[beyond])
+            d2[beyond] = _brute_force_squared_distances(tables.border, x[beyond], y[beyond])
             free[beyond] = False
         return np.sqrt(d2, out=d2), free
 
@@ -277,7 +280,7 @@ class _NearestStationLookup:
             xy = self.stations.astype(dtype)
             first, every = xy[self._first], xy[self._all]
             columns_x, columns_y = every[..., 0].T.copy(), every[..., 1].T.copy()  # (K, A): candidate k of each row
-            self._tables[dtype] = _StationTables(first[:, 0], first[:, 1], columns_x, columns_y, xy)
+            self._tables[dtype] = _StationTables(first[:, 0], first[:, 1], columns_x, columns_y, xy[self._border])
         return self._tables[dtype]
 
 
@@ -287,13 +290,20 @@ _NO_POINTS = np.empty(0, dtype=np.intp)
 @dataclass(frozen=True)
 class _StationTables:
     """Coordinates of each lookup cell's first candidate (C,), of the ambiguous cells' candidates
-    (K, A: row k holds every ambiguous cell's k-th candidate), and of all stations (B, 2), in one dtype."""
+    (K, A: row k holds every ambiguous cell's k-th candidate), and of the border cells' candidates (b, 2)."""
 
     first_x: np.ndarray
     first_y: np.ndarray
     all_x: np.ndarray
     all_y: np.ndarray
-    stations: np.ndarray
+    border: np.ndarray
+
+
+def _border_of(ny: int, nx: int) -> np.ndarray:
+    """(ny, nx) mask of the outermost ring of cells."""
+    ring = np.ones((ny, nx), dtype=bool)
+    ring[1:-1, 1:-1] = False
+    return ring
 
 
 def _lookup_subdivisions(width: int, height: int) -> int:
@@ -330,7 +340,7 @@ def _squared_distances(sx: np.ndarray, sy: np.ndarray, x: np.ndarray, y: np.ndar
 
 
 def _brute_force_squared_distances(stations: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Squared distance to the nearest of all stations (B, 2), for the rare points beyond the table."""
+    """Squared distance to the nearest of `stations` (b, 2), for the rare points beyond the table."""
     out = np.empty(len(x), dtype=x.dtype)
     for start in range(0, len(x), 1024):  # chunks bound the (chunk, B) temporary
         part = slice(start, start + 1024)

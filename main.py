@@ -2,6 +2,7 @@
 
 python main.py                 the paper's example: a lost robot, SIR, 1500 particles, 200 steps
 python main.py run --help      one run, with any maze, filter and parameters, or a saved scenario
+python main.py bench [--quick] the filters' speed against a plain numpy reference step
 """
 
 from __future__ import annotations
@@ -190,6 +191,16 @@ def run(
     typer.echo(summarise(result))
     if save_scenario_path is not None:
         typer.echo(f"scenario saved to {save_scenario(result.scenario, save_scenario_path)}")
+
+
+@app.command()
+def bench(
+    quick: Annotated[bool, typer.Option(help="fewer sizes and steps: about half a minute")] = False,
+) -> None:
+    """Measure the filters' speed (particle-steps per second) against a plain numpy reference step."""
+    from benchmark import run_benchmark  # only this command needs it
+
+    run_benchmark(load_maze(DEFAULT_MAZE), quick=quick, echo=typer.echo)
 
 
 def from_scenario(
