@@ -21,6 +21,7 @@ import urllib.parse
 import uuid
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -28,9 +29,15 @@ import numpy as np
 
 EMPTY, WALL, STATION_WALL = 0, 1, 2
 MAZE_FILE_LIMIT_BYTES = 1_000_000  # a maze file larger than this is refused, not read
-# Points up to this many cells beyond the map's border use the fast nearest-station lookup;
+# Points up to this many map units beyond the map's border use the fast nearest-station lookup;
 # points farther out (rare: particles only drift out by a step length at a time) use brute force.
-_LOOKUP_MARGIN_CELLS = 2
+_LOOKUP_MARGIN = 2
+# Lookup cells per map unit, a power of two (so x * scale and its floor are exact): the finer the
+# cells, the fewer have more than one candidate station (at 4, about one in five on the shipped mazes).
+_LOOKUP_SUBDIVISIONS = 4
+_LOOKUP_MAX_CELLS = 2**22  # a larger map gets coarser lookup cells (flat indices stay exact in float32)
+_LOOKUP_TILE = 8  # the table is built in square tiles of this many lookup cells a side
+_LOOKUP_TOLERANCE = 1e-9  # map units: candidate tests keep near-ties (rounding cannot drop the nearest)
 
 
 class MazeError(ValueError):
@@ -49,7 +56,6 @@ class Maze:
         self.height, self.width = self.grid.shape
         self.stations = _station_corners(self.grid)
         self.free_cells = _free_cell_origins(self.grid)
-        self._lookup = _NearestStationLookup(self.stations, self.width, self.height)
 
     # -- loading ---------------------------------------------------------------------------------
     @classmethod
@@ -65,6 +71,11 @@ class Maze:
     def as_lists(self) -> list[list[int]]:
         """The grid as a list of lists of ints (for json)."""
         return self.grid.tolist()
+
+    @cached_property
+    def _lookup(self) -> _NearestStationLookup:
+        """The nearest-station table, built on first use (a few ms; about a second for 100 x 100)."""
+        return _NearestStationLookup(self.stations, self.grid)
 
     # -- geometry --------------------------------------------------------------------------------
     @property
@@ -112,6 +123,11 @@ class Maze:
         flat = points.reshape(-1, 2)
         distances = self._lookup.distances(flat).reshape(points.shape[:-1])
         return float(distances) if distances.ndim == 0 else distances
+
+    def station_distances_and_free(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Distance to the nearest station and the free flag of each point, both from one cell lookup:
+        x, y of shape (N,) and one float dtype (float32 particles are computed in float32)."""
+        return self._lookup.locate(x, y)
 
     def __repr__(self) -> str:
         return f"Maze({self.height}x{self.width}, {len(self.stations)} stations, source={self.source!r})"
@@ -210,55 +226,207 @@ def _free_cell_origins(grid: np.ndarray) -> np.ndarray:
 
 
 class _NearestStationLookup:
-    """Nearest-station distances from per-cell candidate lists, so the cost does not grow with B.
+    """Nearest-station distances and free flags from one table lookup per point: cost flat in B.
 
-    For each unit cell (of the map plus a margin) keep only the stations that can be nearest to some
-    point of that cell: station s is kept when its least distance to the cell is at most the smallest,
-    over all stations t, of the greatest distance from the cell to t. That superset is exact.
+    The map plus a margin is cut into square lookup cells of side 1/scale. Each cell keeps the
+    stations that can be nearest to some point of it (`_candidate_stations`): the first candidate,
+    used for every point, and, for the minority of cells near a boundary between two stations'
+    regions, a padded row of all its candidates. The same cell index gives the point's free flag.
+    Queries run in the points' float dtype (float32 particles, float64 for the exact public API).
     """
 
-    def __init__(self, stations: np.ndarray, width: int, height: int):
+    def __init__(self, stations: np.ndarray, grid: np.ndarray):
+        height, width = grid.shape
+        self.scale = _lookup_subdivisions(width, height)
+        self.offset = _LOOKUP_MARGIN * self.scale  # lookup-cell index of x = 0 (and of y = 0)
+        self.nx = (width + 2 * _LOOKUP_MARGIN) * self.scale
+        self.ny = (height + 2 * _LOOKUP_MARGIN) * self.scale
         self.stations = stations
-        self.margin = _LOOKUP_MARGIN_CELLS
-        self.x0 = self.y0 = -self.margin
-        self.nx, self.ny = width + 2 * self.margin, height + 2 * self.margin
-        self.candidates = self._candidate_table()  # (ny * nx, K) station indices, padded by repeats
+        self.free = _lookup_cells_free(grid, self.scale, _LOOKUP_MARGIN).ravel()  # (C,) bool
+        candidates, counts = _candidate_stations(stations, self.nx, self.ny, self.offset, self.scale)
+        ambiguous = np.flatnonzero(counts > 1)
+        self.row = np.full(len(counts), -1, dtype=np.int32)  # each cell's row of `_all`, -1: one candidate
+        self.row[ambiguous] = np.arange(len(ambiguous))
+        # The nearest station to a point beyond the table is the nearest to the point where the segment
+        # between them crosses the table's border, so it is a candidate of a border cell.
+        self._border = np.unique(candidates.reshape(self.ny, self.nx, -1)[_border_of(self.ny, self.nx)])
+        self._first = candidates[:, 0]  # (C,) station indices
+        self._all = candidates[ambiguous]  # (A, K) station indices, padded by repeats
+        self._tables: dict[np.dtype, _StationTables] = {}
 
-    def _candidate_table(self) -> np.ndarray:
-        ix, iy = np.meshgrid(np.arange(self.nx), np.arange(self.ny))
-        lo = np.column_stack([ix.ravel() + self.x0, iy.ravel() + self.y0]).astype(float)  # (C, 2)
-        hi = lo + 1.0
-        s = self.stations[None, :, :]  # (1, B, 2)
-        nearest_gap = np.maximum(np.maximum(lo[:, None] - s, s - hi[:, None]), 0.0)
-        farthest_gap = np.maximum(np.abs(s - lo[:, None]), np.abs(s - hi[:, None]))
-        d_min = np.hypot(nearest_gap[..., 0], nearest_gap[..., 1])  # (C, B)
-        d_max = np.hypot(farthest_gap[..., 0], farthest_gap[..., 1])
-        keep = d_min <= d_max.min(axis=1, keepdims=True) + 1e-9
-        width = int(keep.sum(axis=1).max())
-        # Sort each cell's kept stations first, then pad with its first candidate (harmless repeat).
-        order = np.argsort(~keep, axis=1, kind="stable")[:, :width]
-        counts = keep.sum(axis=1)
-        pad = np.arange(width)[None, :] >= counts[:, None]
-        return np.where(pad, order[:, :1], order)
+    def locate(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(distance to the nearest station, free flag) for points x, y of shape (N,), in x's dtype."""
+        tables = self._station_tables(x.dtype)
+        cells, beyond = self._cells(x, y)
+        d2 = _squared_distances(tables.first_x.take(cells), tables.first_y.take(cells), x, y)
+        rows = self.row.take(cells)
+        ambiguous = np.flatnonzero(rows >= 0)
+        if len(ambiguous):
+            d2[ambiguous] = _nearest_candidate(tables, rows[ambiguous], x[ambiguous], y[ambiguous])
+        free = self.free.take(cells)
+        if len(beyond):
+            d2[beyond] = _brute_force_squared_distances(tables.border, x[beyond], y[beyond])
+            free[beyond] = False
+        return np.sqrt(d2, out=d2), free
 
     def distances(self, points: np.ndarray) -> np.ndarray:
         """Distance to the nearest station for points of shape (N, 2)."""
-        cx = np.floor(points[:, 0]).astype(np.int64) - self.x0
-        cy = np.floor(points[:, 1]).astype(np.int64) - self.y0
-        near = (cx >= 0) & (cx < self.nx) & (cy >= 0) & (cy < self.ny)
-        out = np.empty(len(points))
-        if near.all():
-            out[:] = self._near_distances(points, cy * self.nx + cx)
-        else:
-            out[near] = self._near_distances(points[near], (cy * self.nx + cx)[near])
-            far = points[~near]
-            out[~near] = np.sqrt(((far[:, None, :] - self.stations[None]) ** 2).sum(-1)).min(axis=1)
-        return out
+        return self.locate(points[:, 0], points[:, 1])[0]
 
-    def _near_distances(self, points: np.ndarray, cells: np.ndarray) -> np.ndarray:
-        cand = self.stations[self.candidates[cells]]  # (N, K, 2)
-        d2 = ((cand - points[:, None, :]) ** 2).sum(-1)
-        return np.sqrt(d2.min(axis=1))
+    def _cells(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Each point's flat lookup-cell index (N,), and the indices of the points beyond the table."""
+        ix = np.floor(x * self.scale)  # exact: the scale is a power of two
+        iy = np.floor(y * self.scale)
+        ix += self.offset
+        iy += self.offset
+        inside = ix.min() >= 0 and iy.min() >= 0 and ix.max() < self.nx and iy.max() < self.ny
+        beyond = _NO_POINTS if inside else np.flatnonzero((ix < 0) | (ix >= self.nx) | (iy < 0) | (iy >= self.ny))
+        ix[beyond] = iy[beyond] = 0  # any cell: their answers are replaced
+        iy *= self.nx
+        iy += ix  # whole numbers below 2**24 (see _lookup_subdivisions), exact even in float32
+        return iy.astype(np.intp), beyond
+
+    def _station_tables(self, dtype: np.dtype) -> _StationTables:
+        """The candidates' coordinates in `dtype`, made once per dtype."""
+        if dtype not in self._tables:
+            xy = self.stations.astype(dtype)
+            first, every = xy[self._first], xy[self._all]
+            columns_x, columns_y = every[..., 0].T.copy(), every[..., 1].T.copy()  # (K, A): candidate k of each row
+            self._tables[dtype] = _StationTables(first[:, 0], first[:, 1], columns_x, columns_y, xy[self._border])
+        return self._tables[dtype]
+
+
+_NO_POINTS = np.empty(0, dtype=np.intp)
+
+
+@dataclass(frozen=True)
+class _StationTables:
+    """Coordinates of each lookup cell's first candidate (C,), of the ambiguous cells' candidates
+    (K, A: row k holds every ambiguous cell's k-th candidate), and of the border cells' candidates (b, 2)."""
+
+    first_x: np.ndarray
+    first_y: np.ndarray
+    all_x: np.ndarray
+    all_y: np.ndarray
+    border: np.ndarray
+
+
+def _border_of(ny: int, nx: int) -> np.ndarray:
+    """(ny, nx) mask of the outermost ring of cells."""
+    ring = np.ones((ny, nx), dtype=bool)
+    ring[1:-1, 1:-1] = False
+    return ring
+
+
+def _lookup_subdivisions(width: int, height: int) -> int:
+    """Lookup cells per map unit: _LOOKUP_SUBDIVISIONS, halved while the table would exceed
+    _LOOKUP_MAX_CELLS (which keeps flat cell indices exact in float32)."""
+    scale = _LOOKUP_SUBDIVISIONS
+    while scale > 1 and (width + 2 * _LOOKUP_MARGIN) * (height + 2 * _LOOKUP_MARGIN) * scale**2 > _LOOKUP_MAX_CELLS:
+        scale //= 2
+    return scale
+
+
+def _lookup_cells_free(grid: np.ndarray, scale: int, margin: int) -> np.ndarray:
+    """Free flags of the lookup cells, shape (ny, nx), row j covering y in [j/scale - margin, ...)."""
+    free_up = np.pad(grid[::-1] == EMPTY, margin, constant_values=False)  # row 0 is y in [-margin, ...)
+    return np.repeat(np.repeat(free_up, scale, axis=0), scale, axis=1)
+
+
+def _nearest_candidate(tables: _StationTables, rows: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Squared distance from each point to the nearest candidate of its ambiguous cell (row of the table)."""
+    nearest = _squared_distances(tables.all_x[0].take(rows), tables.all_y[0].take(rows), x, y)
+    for candidate_x, candidate_y in zip(tables.all_x[1:], tables.all_y[1:], strict=True):
+        np.minimum(nearest, _squared_distances(candidate_x.take(rows), candidate_y.take(rows), x, y), out=nearest)
+    return nearest
+
+
+def _squared_distances(sx: np.ndarray, sy: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """(sx - x)^2 + (sy - y)^2, broadcast, in as few temporary arrays as possible."""
+    dx = sx - x
+    dx *= dx
+    dy = sy - y
+    dy *= dy
+    dx += dy
+    return dx
+
+
+def _brute_force_squared_distances(stations: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Squared distance to the nearest of `stations` (b, 2), for the rare points beyond the table."""
+    out = np.empty(len(x), dtype=x.dtype)
+    for start in range(0, len(x), 1024):  # chunks bound the (chunk, B) temporary
+        part = slice(start, start + 1024)
+        out[part] = _squared_distances(stations[:, 0], stations[:, 1], x[part, None], y[part, None]).min(axis=1)
+    return out
+
+
+def _candidate_stations(
+    stations: np.ndarray, nx: int, ny: int, offset: int, scale: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """For every lookup cell (flat index j * nx + i), the stations that can be nearest to a point of it,
+    nearest to the cell's centre first: (C, K) station indices padded by repeating the first, and the
+    counts (C,). Built tile by tile, each tile's cells choosing among the tile's own candidates."""
+    size = 1 / scale
+    tiles = []
+    for j0 in range(0, ny, _LOOKUP_TILE):
+        for i0 in range(0, nx, _LOOKUP_TILE):
+            ii, jj = np.meshgrid(np.arange(i0, min(i0 + _LOOKUP_TILE, nx)), np.arange(j0, min(j0 + _LOOKUP_TILE, ny)))
+            lo_x, lo_y = (ii.ravel() - offset) * size, (jj.ravel() - offset) * size
+            tile = (lo_x[:1], lo_y[:1], lo_x[-1:] + size - lo_x[:1], lo_y[-1:] + size - lo_y[:1])
+            near = np.flatnonzero(_possibly_nearest(stations, *tile)[0])
+            order, counts = _cell_candidates(stations[near], lo_x, lo_y, size)
+            tiles.append(((jj * nx + ii).ravel(), near[order], counts))
+    width = max(int(counts.max()) for _, _, counts in tiles)
+    table = np.empty((nx * ny, width), dtype=np.intp)
+    all_counts = np.empty(nx * ny, dtype=np.intp)
+    for cells, candidates, counts in tiles:
+        candidates = candidates[:, :width]
+        candidates = np.where(np.arange(candidates.shape[1]) < counts[:, None], candidates, candidates[:, :1])
+        table[cells] = np.pad(candidates, ((0, 0), (0, width - candidates.shape[1])), mode="edge")
+        all_counts[cells] = counts
+    return table, all_counts
+
+
+def _cell_candidates(
+    stations: np.ndarray, lo_x: np.ndarray, lo_y: np.ndarray, size: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Which of `stations` (K, 2) can be nearest to some point of each square cell (lower-left corner
+    lo_x, lo_y, side `size`): each row of the (c, K) order lists them first, nearest the centre first.
+
+    A station is dropped when it is farther from the whole cell than another station can ever be
+    (`_possibly_nearest`), or when one other station is nearer at all four corners: the points nearer
+    to that one form a half-plane, so it is then nearer on the whole (convex) cell.
+    """
+    possible = _possibly_nearest(stations, lo_x, lo_y, size, size)  # (c, K)
+    counts = possible.sum(axis=1)
+    shortlist = np.argsort(~possible, axis=1, kind="stable")[:, : counts.max()]  # (c, w), possible ones first
+    real = np.arange(shortlist.shape[1]) < counts[:, None]
+    shortlist = np.where(real, shortlist, shortlist[:, :1])  # pad with a real candidate: it beats no one wrongly
+    sx, sy = stations[shortlist, 0][:, None, :], stations[shortlist, 1][:, None, :]  # (c, 1, w)
+    corners_x = lo_x[:, None, None] + np.array([0, size, 0, size])[:, None]  # (c, 4, 1)
+    corners_y = lo_y[:, None, None] + np.array([0, 0, size, size])[:, None]
+    d = np.hypot(corners_x - sx, corners_y - sy)  # (c, 4, w)
+    # beaten[c, s, t]: candidate t is nearer than candidate s at every corner of cell c
+    beaten = (d[:, :, None, :] < d[:, :, :, None] - _LOOKUP_TOLERANCE).all(axis=1)
+    keep = real & ~beaten.any(axis=2)
+    centre = np.hypot(lo_x[:, None] + size / 2 - sx[:, 0], lo_y[:, None] + size / 2 - sy[:, 0])
+    order = np.lexsort((centre, ~keep))  # along the last axis: kept first, then by distance to the centre
+    return np.take_along_axis(shortlist, order, axis=1), keep.sum(axis=1)
+
+
+def _possibly_nearest(
+    stations: np.ndarray, lo_x: np.ndarray, lo_y: np.ndarray, size_x: np.ndarray | float, size_y: np.ndarray | float
+) -> np.ndarray:
+    """(c, K) mask: station k's least distance to box c is at most the smallest, over all stations,
+    greatest distance to box c (otherwise that other station is nearer everywhere in the box)."""
+    lo_x, lo_y = lo_x[:, None], lo_y[:, None]
+    hi_x, hi_y = lo_x + np.asarray(size_x)[..., None], lo_y + np.asarray(size_y)[..., None]
+    sx, sy = stations[:, 0], stations[:, 1]
+    least = np.hypot(np.maximum(np.maximum(lo_x - sx, sx - hi_x), 0), np.maximum(np.maximum(lo_y - sy, sy - hi_y), 0))
+    greatest = np.hypot(
+        np.maximum(np.abs(sx - lo_x), np.abs(sx - hi_x)), np.maximum(np.abs(sy - lo_y), np.abs(sy - hi_y))
+    )
+    return least <= greatest.min(axis=1, keepdims=True) + _LOOKUP_TOLERANCE
 
 
 # -- drawing -------------------------------------------------------------------------------------

@@ -5,6 +5,8 @@ python main.py run --help      one run, with any maze, filter and parameters, or
 python main.py compare --help  every filter on one saved scenario: a table, a CSV, the lab's figure
 python main.py study --help    a Monte Carlo parameter study over seeded runs, on all cores
 python main.py maze --help     random connected mazes (generate) and a look at any maze (show)
+
+python main.py bench [--quick] the filters' speed against a plain numpy reference step
 """
 
 from __future__ import annotations
@@ -503,6 +505,16 @@ def check_outputs(csv_path: Path | None, plot: Path | None, force: bool, rrd: Pa
             check_output_path(path, force)
     if plot is not None:
         experiments.pyplot()
+
+
+@app.command()
+def bench(
+    quick: Annotated[bool, typer.Option(help="fewer sizes and steps: about half a minute")] = False,
+) -> None:
+    """Measure the filters' speed (particle-steps per second) against a plain numpy reference step."""
+    from benchmark import run_benchmark  # only this command needs it
+
+    run_benchmark(load_maze(DEFAULT_MAZE), quick=quick, echo=typer.echo)
 
 
 def from_scenario(

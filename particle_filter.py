@@ -46,17 +46,39 @@ KIDNAP_FORMAT_VERSION = 2  # scenarios with a kidnapping are version 2; all othe
 LOG_UNDERFLOW = math.log(np.finfo(float).tiny)
 LAB_SIGMA_RANGE = (0.2, 0.8)  # the lab's recommended ranges: outside them we warn, not refuse
 LAB_DELTA_RANGE = (0.05, 0.6)
+# Particle positions and headings are float32 (half the memory traffic of float64; the map is at most
+# a few hundred units, where float32 resolves 1e-5). The robot's own path stays float64 and exact.
+PARTICLE_DTYPE = np.float32
 
 
 # -- the model -------------------------------------------------------------------------------------
-def sample_headings(compass_angle: float, delta: float, count: int, rng: np.random.Generator) -> np.ndarray:
+def sample_headings(
+    compass_angle: float, delta: float, count: int, rng: np.random.Generator, dtype: type = np.float64
+) -> np.ndarray:
     """Headings actually taken, th ~ U(th0 - Delta/2, th0 + Delta/2), shape (count,), radians."""
-    return compass_angle + delta * (rng.random(count) - 0.5)
+    headings = rng.random(count, dtype=dtype)
+    headings -= 0.5
+    headings *= delta
+    headings += float(compass_angle)
+    return headings
 
 
 def move(positions: np.ndarray, headings: np.ndarray, speed: float = ROBOT_SPEED) -> np.ndarray:
-    """Equation (1): one step of length `speed` along `headings`; positions (N, 2) -> (N, 2)."""
-    return positions + speed * np.column_stack([np.cos(headings), np.sin(headings)])
+    """Equation (1): one step of length `speed` along `headings`; positions (N, 2) -> (N, 2) in their
+    dtype, stored column by column (order F) so that the x and y columns are contiguous."""
+    moved = np.empty(positions.shape, positions.dtype, order="F")
+    moved[:, 0] = positions[:, 0] + speed * np.cos(headings)
+    moved[:, 1] = positions[:, 1] + speed * np.sin(headings)
+    return moved
+
+
+def take_particles(points: np.ndarray, indices: np.ndarray) -> np.ndarray:
+    """points[indices] for points (N, 2), gathered column by column into order-F storage
+    (fancy-indexing the rows of an (N, 2) array is several times slower)."""
+    taken = np.empty((len(indices), 2), points.dtype, order="F")
+    for column in range(2):
+        np.take(points[:, column], indices, out=taken[:, column])
+    return taken
 
 
 def log_likelihood(
@@ -66,9 +88,16 @@ def log_likelihood(
 
     The Gaussian's constant -log(sigma sqrt(2 pi)) is kept so that sums of these are true log-likelihoods.
     """
-    residual = (z - world.distance_to_nearest_station(positions)) / sigma
-    log_p = -0.5 * residual**2 - math.log(sigma * math.sqrt(2 * math.pi))
-    return np.where(world.is_free(positions[:, 0], positions[:, 1]), log_p, log_p + math.log(outside_penalty))
+    distance, free = world.station_distances_and_free(positions[:, 0], positions[:, 1])
+    residual = distance  # (d - z) / sigma, computed in place: the sign does not matter once squared
+    residual -= float(z)
+    residual /= sigma
+    log_p = residual
+    log_p *= residual
+    log_p *= -0.5
+    norm = math.log(sigma * math.sqrt(2 * math.pi))
+    log_p += np.where(free, log_p.dtype.type(-norm), log_p.dtype.type(math.log(outside_penalty) - norm))
+    return log_p
 
 
 # -- weights ---------------------------------------------------------------------------------------
@@ -87,7 +116,32 @@ def normalise_log_weights(log_w: np.ndarray) -> np.ndarray:
 
 def effective_sample_size(weights: np.ndarray) -> float:
     """N_eff = 1 / sum(W_i^2) for normalised weights W (Arulampalam et al., eq. 51)."""
-    return float(1.0 / np.sum(weights**2))
+    return float(1.0 / np.sum(weights * weights))
+
+
+# -- weighted summaries: numpy's pairwise sums, not BLAS (threaded BLAS stalls on a busy machine) -----
+def weighted_mean(weights: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """sum_i W_i x_i for normalised weights (N,) and points (N, 2), as float64 (2,)."""
+    w = weights.astype(points.dtype, copy=False)
+    return np.array([np.sum(w * points[:, 0]), np.sum(w * points[:, 1])], dtype=float)
+
+
+def weighted_covariance(weights: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """sum_i W_i (x_i - mean)(x_i - mean)^T, float64 (2, 2)."""
+    mean = weighted_mean(weights, points)
+    dx, dy = points[:, 0] - mean[0], points[:, 1] - mean[1]  # float64: the spread may be tiny
+    xx, xy, yy = np.sum(weights * dx * dx), np.sum(weights * dx * dy), np.sum(weights * dy * dy)
+    return np.array([[xx, xy], [xy, yy]])
+
+
+def mass_within(weights: np.ndarray, points: np.ndarray, centre: np.ndarray, radius: float) -> float:
+    """The total weight of the points (N, 2) at most `radius` from `centre`."""
+    dx = points[:, 0] - points.dtype.type(centre[0])
+    dy = points[:, 1] - points.dtype.type(centre[1])
+    dx *= dx
+    dy *= dy
+    dx += dy
+    return float(np.sum(weights, where=dx <= radius * radius))
 
 
 # -- resampling: plain functions, normalised weights W (N,) -> ancestor indices (M,) ---------------
@@ -111,9 +165,27 @@ def stratified_resample(weights: np.ndarray, rng: np.random.Generator, count: in
 
 
 def systematic_resample(weights: np.ndarray, rng: np.random.Generator, count: int | None = None) -> np.ndarray:
-    """One uniform offset shared by the M strata: the lowest-variance scheme, used by default."""
+    """One uniform offset U shared by the M strata: the lowest-variance scheme, used by default.
+
+    The points u_m = (m + U) / M below cumsum(W)[i] number ceil(M cumsum(W)[i] - U), so ancestor i gets
+    the difference of two such counts: O(N) counting instead of a binary search per point.
+    """
     count = len(weights) if count is None else count
-    return _inverse_cdf((np.arange(count) + rng.random()) / count, weights)
+    below = np.empty(len(weights) + 1)  # below[i + 1]: how many points lie below cumsum(W)[i]
+    below[0] = 0.0
+    np.cumsum(weights, out=below[1:])  # float64 whatever the weights' dtype: the strata are 1/M wide
+    below *= count
+    below -= rng.random()
+    np.ceil(below, out=below)
+    ends = below.astype(np.int64)
+    ends[0], ends[-1] = 0, count  # the last guards against round-off leaving cumsum(W) short of 1
+    return _ancestors_from_counts(np.clip(ends, 0, count), count)
+
+
+def _ancestors_from_counts(ends: np.ndarray, count: int) -> np.ndarray:
+    """Ancestor indices (count,), sorted: particle i repeated ends[i + 1] - ends[i] times."""
+    starts = np.bincount(ends[1:-1], minlength=count)[:count]  # how many particles end before point m
+    return np.cumsum(starts)
 
 
 def residual_resample(weights: np.ndarray, rng: np.random.Generator, count: int | None = None) -> np.ndarray:
@@ -579,6 +651,10 @@ class ParticleFilter(RecoveryAndKLD):
     weighted posterior that the estimate, the ESS and the drawing read.
     Options beyond the paper (off by default): `recovery` (True, "augmented" or "sensor", with
     `alpha_slow`, `alpha_fast`) and `kld` (True or a KLDSampling); see RecoveryAndKLD.
+
+    `positions` (N, 2) and `headings` (N,) are float32 (PARTICLE_DTYPE), `log_weights` (N,) float64.
+    The filter replaces these arrays rather than writing into them; to change them, assign new arrays
+    (the weights, estimate, ESS and confidence are computed once per assignment and cached).
     """
 
     name = "ParticleFilter"
@@ -603,10 +679,12 @@ class ParticleFilter(RecoveryAndKLD):
         self.rng = rng if rng is not None else np.random.default_rng()
         self.resample = resampling_scheme(resampling)
         self.outside_penalty, self.speed = outside_penalty, speed
-        self.positions = _as_points("particles", particles)  # (N, 2)
+        self.positions = np.asfortranarray(_as_points("particles", particles), dtype=PARTICLE_DTYPE)  # (N, 2)
         self.count = len(self.positions)
-        self.headings = np.zeros(self.count)  # each particle's last motion angle, for drawing
+        self.headings = np.zeros(self.count, dtype=PARTICLE_DTYPE)  # each particle's last motion angle
         self.log_weights = np.full(self.count, -math.log(self.count))
+        self._summary_of: tuple[np.ndarray, np.ndarray] | None = None  # the arrays _summary describes
+        self._summary: dict[str, Any] = {}
         self.steps_done = 0
         self.reinitialised_at: list[int] = []  # steps at which no particle explained z and we restarted
         self._init_options(recovery, alpha_slow, alpha_fast, kld)
@@ -617,7 +695,7 @@ class ParticleFilter(RecoveryAndKLD):
 
     def propagate(self, positions: np.ndarray, compass_angle: float) -> tuple[np.ndarray, np.ndarray]:
         """Draw x_k ~ p(x_k | x_{k-1}): uniform on the arc of radius L around th0 (headings too)."""
-        headings = sample_headings(compass_angle, self.delta, len(positions), self.rng)
+        headings = sample_headings(compass_angle, self.delta, len(positions), self.rng, positions.dtype)
         return move(positions, headings, self.speed), headings
 
     def motion(self, compass_angle: float) -> tuple[Move, Move]:
@@ -626,7 +704,7 @@ class ParticleFilter(RecoveryAndKLD):
         def points(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             return self.propagate(positions, compass_angle)
 
-        return (lambda ancestors: points(self.positions[ancestors])), points
+        return (lambda ancestors: points(take_particles(self.positions, ancestors))), points
 
     def likelihood(self, z: float, positions: np.ndarray) -> np.ndarray:
         """log p(z_k | x) of equation (3) with the outside penalty, shape (N,)."""
@@ -635,22 +713,36 @@ class ParticleFilter(RecoveryAndKLD):
     # the weighted posterior
     @property
     def weights(self) -> np.ndarray:
-        return np.exp(self.log_weights)
+        """The normalised weights W_i = exp(log w_i), shape (N,)."""
+        return self._cached("weights", lambda: np.exp(self.log_weights))
 
     @property
     def ess(self) -> float:
-        return effective_sample_size(self.weights)
+        return self._cached("ess", lambda: effective_sample_size(self.weights))
 
     @property
     def estimate(self) -> np.ndarray:
         """The posterior mean sum_i W_i x_i, shape (2,)."""
-        return self.weights @ self.positions
+        return self._cached("estimate", lambda: weighted_mean(self.weights, self.positions)).copy()
 
     @property
     def is_confident(self) -> bool:
         """At least 95% of the weight lies within distance 1 of the estimate (the paper's green circle)."""
-        near = np.hypot(*(self.positions - self.estimate).T) <= CONFIDENCE_RADIUS
-        return bool(self.weights[near].sum() >= CONFIDENCE_SHARE)
+        return (
+            self._cached(
+                "confident", lambda: mass_within(self.weights, self.positions, self.estimate, CONFIDENCE_RADIUS)
+            )
+            >= CONFIDENCE_SHARE
+        )
+
+    def _cached(self, name: str, compute: Callable[[], Any]) -> Any:
+        """`compute()`, remembered until `positions` or `log_weights` is assigned a new array."""
+        described = self._summary_of
+        if described is None or described[0] is not self.positions or described[1] is not self.log_weights:
+            self._summary_of, self._summary = (self.positions, self.log_weights), {}
+        if name not in self._summary:
+            self._summary[name] = compute()
+        return self._summary[name]
 
     # shared bookkeeping
     def _set_weights(self, log_w: np.ndarray, z: float) -> None:
@@ -659,17 +751,20 @@ class ParticleFilter(RecoveryAndKLD):
         if total < LOG_UNDERFLOW or np.isnan(total):
             self._reinitialise(z)
         else:
-            self.log_weights = log_w - total
+            self.log_weights = np.subtract(log_w, total, dtype=float)
 
     def _reinitialise(self, z: float) -> None:
         """Start again from the prior (uniform over the free area), weighted by the current z."""
         self.reinitialised_at.append(self.steps_done + 1)
         if self.kld is not None:  # the prior is as spread as a belief gets: the most particles
-            self.count, self.headings = self.max_count, np.zeros(self.max_count)
-        self.positions = self.world.random_free_places(self.count, self.rng)
+            self.count, self.headings = self.max_count, np.zeros(self.max_count, dtype=PARTICLE_DTYPE)
+        self.positions = np.asfortranarray(self.world.random_free_places(self.count, self.rng), dtype=PARTICLE_DTYPE)
         log_w = self.likelihood(z, self.positions)
         total = log_sum_exp(log_w)
-        self.log_weights = log_w - total if total >= LOG_UNDERFLOW else np.full(self.count, -math.log(self.count))
+        uniform = total < LOG_UNDERFLOW
+        self.log_weights = (
+            np.full(self.count, -math.log(self.count)) if uniform else np.subtract(log_w, total, dtype=float)
+        )
 
 
 class SIRParticleFilter(ParticleFilter):
@@ -709,7 +804,7 @@ class AuxiliaryParticleFilter(ParticleFilter):
             )
             self.positions, self.headings = x, headings
             log_lik = self.likelihood(z, x)
-            second_stage = log_lik - log_mu_likelihood[ancestors]  # p(z|x^j) / p(z|mu^{i^j})
+            second_stage = log_lik - log_mu_likelihood.take(ancestors)  # p(z|x^j) / p(z|mu^{i^j})
             if self.recovery is None:
                 self._set_weights(second_stage, z)
             else:
@@ -756,21 +851,32 @@ class RegularizedParticleFilter(ParticleFilter):
     def regularise(self) -> None:
         """Resample, then jitter each particle by h_opt D eps, eps ~ N(0, I_2), D D^T = S."""
         weights = self.weights
-        centred = self.positions - weights @ self.positions
-        covariance = (weights[:, None] * centred).T @ centred  # S_k, the weighted empirical covariance
+        covariance = weighted_covariance(weights, self.positions)  # S_k, the weighted empirical covariance
         D = np.linalg.cholesky(covariance + 1e-12 * np.eye(2))  # D_k D_k^T = S_k (tiny ridge: S may be 0)
         h = self.bandwidth
 
         def jitter(ancestors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # x^{i*} + h D eps
-            eps = self.rng.standard_normal((len(ancestors), 2))
-            return self.positions[ancestors] + h * eps @ D.T, self.headings[ancestors]
+            eps = self.rng.standard_normal((len(ancestors), 2), dtype=PARTICLE_DTYPE)
+            return take_particles(self.positions, ancestors) + gaussian_jitter(eps, h * D), self.headings.take(
+                ancestors
+            )
 
         # RESAMPLE and jitter; injected points (recovery) are not jittered: the step's move follows
         self.positions, self.headings, _, _ = self.draw_particles(
-            weights, jitter, lambda points: (points, np.zeros(len(points)))
+            weights, jitter, lambda points: (points, np.zeros(len(points), dtype=PARTICLE_DTYPE))
         )
         self.log_weights = np.full(self.count, -math.log(self.count))
         self.regularised_at.append(self.steps_done)
+
+
+def gaussian_jitter(eps: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """eps @ scale.T for standard normal eps (N, 2) and a lower-triangular scale (2, 2), in eps's dtype:
+    the kernel's draws, written out (a BLAS matmul would start threads for two columns)."""
+    jitter = np.empty(eps.shape, eps.dtype, order="F")
+    a, c, d = (eps.dtype.type(v) for v in (scale[0, 0], scale[1, 0], scale[1, 1]))
+    jitter[:, 0] = a * eps[:, 0]
+    jitter[:, 1] = c * eps[:, 0] + d * eps[:, 1]
+    return jitter
 
 
 class GridBayesFilter:
@@ -813,6 +919,7 @@ class GridBayesFilter:
         self._log_likelihood_constant = np.where(self.free, 0.0, math.log(outside_penalty))
         self._distance = world.distance_to_nearest_station(self.positions).reshape(self.shape)
         self.density = self._prior()
+        self._last_arc: tuple[float, np.ndarray, np.ndarray] | None = None
         self.headings = np.zeros(len(self.positions))
         self.steps_done = 0
         self.reinitialised_at: list[int] = []
@@ -827,8 +934,17 @@ class GridBayesFilter:
 
     def predict(self, density: np.ndarray, compass_angle: float) -> np.ndarray:
         """Convolve with the arc kernel of this step's compass angle (linear, not circular, FFT)."""
-        kernel = arc_kernel(compass_angle, self.delta, self.speed, self.resolution)
-        return np.clip(fft_convolve_same(density, kernel), 0.0, None)
+        kernel, spectrum = self._arc(compass_angle)
+        return np.clip(fft_convolve_same(density, kernel, spectrum), 0.0, None)
+
+    def _arc(self, compass_angle: float) -> tuple[np.ndarray, np.ndarray]:
+        """The arc kernel of this compass angle and its FFT, kept while the angle repeats (the robot
+        holds a compass heading for up to MAX_STRAIGHT_STEPS steps)."""
+        if self._last_arc is None or self._last_arc[0] != compass_angle:
+            kernel = arc_kernel(compass_angle, self.delta, self.speed, self.resolution)
+            spectrum = np.fft.rfft2(kernel, fft_shape(self.shape, kernel.shape))
+            self._last_arc = (compass_angle, kernel, spectrum)
+        return self._last_arc[1], self._last_arc[2]
 
     def update(self, z: float) -> None:
         log_lik = -0.5 * ((z - self._distance) / self.sigma) ** 2 + self._log_likelihood_constant
@@ -867,8 +983,15 @@ class GridBayesFilter:
         """Not a sample, so no effective sample size: NaN."""
         return math.nan
 
-    estimate = ParticleFilter.estimate
-    is_confident = ParticleFilter.is_confident
+    @property
+    def estimate(self) -> np.ndarray:
+        """The posterior mean over the cell centres, shape (2,)."""
+        return weighted_mean(self.weights, self.positions)
+
+    @property
+    def is_confident(self) -> bool:
+        """At least 95% of the mass lies within distance 1 of the estimate (as for the particle filters)."""
+        return mass_within(self.weights, self.positions, self.estimate, CONFIDENCE_RADIUS) >= CONFIDENCE_SHARE
 
     def posterior_std(self) -> float:
         """Root of the trace of the posterior covariance (map units): how spread the belief is."""
@@ -894,29 +1017,28 @@ def arc_kernel(compass_angle: float, delta: float, speed: float, resolution: flo
     return kernel
 
 
-def fft_convolve_same(image: np.ndarray, kernel: np.ndarray) -> np.ndarray:
-    """Linear 2-D convolution of `image` with an odd-sized centred `kernel`, cropped to image's shape."""
+def fft_convolve_same(image: np.ndarray, kernel: np.ndarray, kernel_spectrum: np.ndarray | None = None) -> np.ndarray:
+    """Linear 2-D convolution of `image` with an odd-sized centred `kernel`, cropped to image's shape.
+    `kernel_spectrum`, if given, is `np.fft.rfft2(kernel, fft_shape(image.shape, kernel.shape))`."""
     ky, kx = kernel.shape
-    shape = (_fast_fft_length(image.shape[0] + ky - 1), _fast_fft_length(image.shape[1] + kx - 1))
-    spectrum = np.fft.rfft2(image, shape) * np.fft.rfft2(kernel, shape)
-    full = np.fft.irfft2(spectrum, shape)
+    shape = fft_shape(image.shape, kernel.shape)
+    if kernel_spectrum is None:
+        kernel_spectrum = np.fft.rfft2(kernel, shape)
+    full = np.fft.irfft2(np.fft.rfft2(image, shape) * kernel_spectrum, shape)
     return full[ky // 2 : ky // 2 + image.shape[0], kx // 2 : kx // 2 + image.shape[1]]
 
 
+def fft_shape(image_shape: tuple[int, ...], kernel_shape: tuple[int, ...]) -> tuple[int, int]:
+    """The padded size of a linear (not circular) FFT convolution of image and kernel, fast lengths."""
+    return _fast_fft_length(image_shape[0] + kernel_shape[0] - 1), _fast_fft_length(
+        image_shape[1] + kernel_shape[1] - 1
+    )
+
+
 def _fast_fft_length(n: int) -> int:
-    """The smallest 2^a 3^b 5^c >= n (FFTs of such lengths are fast)."""
-    best = 2 ** math.ceil(math.log2(n))
-    power5 = 1
-    while power5 < best:
-        power35 = power5
-        while power35 < best:
-            candidate = power35
-            while candidate < n:
-                candidate *= 2
-            best = min(best, candidate)
-            power35 *= 3
-        power5 *= 5
-    return best
+    """The smallest 2^a, 3 * 2^a or 5 * 2^a >= n: numpy's FFT is fastest on such lengths (640 takes a
+    third of the time of 625 = 5^4)."""
+    return min(odd * 2 ** max(0, math.ceil(math.log2(n / odd))) for odd in (1, 3, 5))
 
 
 FILTERS: dict[str, type] = {

@@ -16,9 +16,7 @@ from particle_filter import (
     KLD_QUANTILE,
     RESAMPLING_SCHEMES,
     ROBOT_SPEED,
-    AuxiliaryParticleFilter,
     KLDSampling,
-    RegularizedParticleFilter,
     Robot,
     Scenario,
     ScenarioError,
@@ -28,7 +26,6 @@ from particle_filter import (
     load_scenario,
     log_likelihood,
     measurement_matched_places,
-    normalise_log_weights,
     run_model,
     save_scenario,
     simulate,
@@ -39,72 +36,6 @@ PARTICLE_FILTERS = ["sir", "apf", "rpf"]
 
 
 # -- the default path is the paper's, bit for bit ----------------------------------------------------
-class PaperSIR(SIRParticleFilter):
-    """SIR's step as it was before the recovery and KLD options existed."""
-
-    def step(self, compass_angle, z):
-        ancestors = self.resample(self.weights, self.rng)
-        x, headings = self.propagate(self.positions[ancestors], compass_angle)
-        self.positions, self.headings = x, headings
-        self._set_weights(self.likelihood(z, x), z)
-        self.steps_done += 1
-
-
-class PaperAPF(AuxiliaryParticleFilter):
-    """The APF's step as it was before the options existed."""
-
-    def step(self, compass_angle, z):
-        mu, _ = self.propagate(self.positions, compass_angle)
-        log_mu_likelihood = self.likelihood(z, mu)
-        first_stage = self.log_weights + log_mu_likelihood
-        ancestors = self.resample(np.exp(normalise_log_weights(first_stage)), self.rng)
-        x, headings = self.propagate(self.positions[ancestors], compass_angle)
-        self.positions, self.headings = x, headings
-        self._set_weights(self.likelihood(z, x) - log_mu_likelihood[ancestors], z)
-        self.steps_done += 1
-
-
-class PaperRPF(RegularizedParticleFilter):
-    """The RPF's regularisation and step as they were before the options existed."""
-
-    def step(self, compass_angle, z):
-        if self.ess < self.threshold * self.count:
-            self.regularise()
-        x, headings = self.propagate(self.positions, compass_angle)
-        self.positions, self.headings = x, headings
-        self._set_weights(self.log_weights + self.likelihood(z, x), z)
-        self.steps_done += 1
-
-    def regularise(self):
-        weights = self.weights
-        centred = self.positions - weights @ self.positions
-        covariance = (weights[:, None] * centred).T @ centred
-        D = np.linalg.cholesky(covariance + 1e-12 * np.eye(2))
-        ancestors = self.resample(weights, self.rng)
-        eps = self.rng.standard_normal((self.count, 2))
-        self.positions = self.positions[ancestors] + self.bandwidth * eps @ D.T
-        self.headings = self.headings[ancestors]
-        self.log_weights = np.full(self.count, -math.log(self.count))
-        self.regularised_at.append(self.steps_done)
-
-
-@pytest.mark.parametrize(("name", "paper"), [("sir", PaperSIR), ("apf", PaperAPF), ("rpf", PaperRPF)])
-@pytest.mark.parametrize("scheme", ["systematic", "residual"])
-def test_without_the_options_each_filter_is_the_papers_bit_for_bit(paper_world, name, paper, scheme):
-    """The options must not touch the default path: same draws from the generator, same arithmetic."""
-
-    def run(algorithm):
-        robot = Robot(0.3, 0.5, (3.5, 1.5))
-        return simulate(
-            robot, paper_world, 0.3, 0.5, 300, 40, filtering_algorithm=algorithm, seed=31, resampling=scheme
-        )
-
-    now, before = run(name), run(paper)
-    np.testing.assert_array_equal(now.estimates, before.estimates)
-    np.testing.assert_array_equal(now.ess, before.ess)
-    np.testing.assert_array_equal(now.extras["particle_count"], np.full(40, 300))
-
-
 def test_the_kidnap_stream_leaves_the_other_streams_unchanged():
     """simulate spawns four streams where it spawned three: the first three must be the same."""
     for old, new in zip(np.random.default_rng(8).spawn(3), np.random.default_rng(8).spawn(4)[:3], strict=True):

@@ -139,3 +139,18 @@ def test_any_grid_gives_a_maze_or_a_clear_error(rows):
 
 def test_mazes_folder_is_where_the_tests_expect():
     assert (ROOT / "mazes" / "paper_5x5.txt").exists()
+
+
+@pytest.mark.parametrize("path", MAZES, ids=lambda p: p.stem)
+def test_float32_lookup_gives_the_free_flag_and_the_distance(path, rng):
+    """The particles' float32 lookup: its free flag is is_free's for the very same float32 points, and
+    its distance matches brute force up to float32 rounding (relative 6e-8 of coordinates below 30,
+    a few ulps through the subtraction, squares and root: 1e-5 map units is ample)."""
+    world = Maze.from_file(path)
+    points = (rng.uniform(-5, 5, (20_000, 2)) + rng.uniform(0, 1, (20_000, 2)) * [world.width, world.height]).astype(
+        np.float32
+    )
+    distance, free = world.station_distances_and_free(points[:, 0], points[:, 1])
+    assert distance.dtype == np.float32
+    np.testing.assert_array_equal(free, world.is_free(points[:, 0].astype(float), points[:, 1].astype(float)))
+    np.testing.assert_allclose(distance, brute_force_distance(world, points.astype(float)), rtol=0, atol=1e-5)

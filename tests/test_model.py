@@ -166,3 +166,17 @@ def test_effective_sample_size_limits():
 def test_unknown_resampling_scheme_lists_the_valid_ones():
     with pytest.raises(ValueError, match="systematic"):
         resampling_scheme("magic")
+
+
+def test_systematic_resampling_counts_equal_the_inverse_cdf_definition():
+    """The O(N) count of systematic resampling must pick, for every point u_m = (m + U) / N, the index i
+    with cumsum(W)[i-1] <= u_m < cumsum(W)[i]: the binary search of the definition, for the same U."""
+    rng = np.random.default_rng(21)
+    for n in (1, 7, 1000):
+        weights = rng.random(n) ** 4
+        weights[rng.random(n) < 0.3] = 0.0  # particles with no weight get no offspring
+        weights = weights / weights.sum() if weights.sum() > 0 else np.full(n, 1 / n)
+        offset = np.random.default_rng(n).random()
+        expected = np.searchsorted(np.cumsum(weights), (np.arange(n) + offset) / n, side="right")
+        fast = resampling_scheme("systematic")(weights, np.random.default_rng(n))
+        np.testing.assert_array_equal(fast, expected)

@@ -1,0 +1,231 @@
+"""The speed benchmark (`python main.py bench`): particle-steps per second of the filters, and of a
+plain numpy reference step measured in the same run, on a small and a large maze.
+
+A row times `steps` steps of one filter on a recorded walk, after a few warm-up steps (which also let
+the particles start to gather, as in a real run); each step includes reading the estimate, the ESS and
+the confidence, as `simulate` does. The time is the median step. Peak memory is measured separately
+with tracemalloc (every numpy array counts): the filter's creation and two of its steps.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import platform
+import statistics
+import time
+import tracemalloc
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from draw import EMPTY, STATION_WALL, WALL, Maze
+from particle_filter import (
+    OUTSIDE_PENALTY,
+    ROBOT_SPEED,
+    GridBayesFilter,
+    Robot,
+    resolve_filter,
+    simulate,
+)
+
+BENCH_SIGMA, BENCH_DELTA = 0.3, 0.5
+BENCH_FILTERS = ("sir", "apf", "rpf")
+FULL_COUNTS = (1_000, 10_000, 100_000, 1_000_000)
+QUICK_COUNTS = (1_000, 100_000, 1_000_000)
+LARGE_MAZE_SIZE = 100
+LARGE_MAZE_CELLS = {EMPTY: 0.75, WALL: 0.17, STATION_WALL: 0.08}  # about 2,700 stations at 100 x 100
+REFERENCE_LIMIT = 2.5e7  # the reference step is skipped when N x B exceeds this (its matrix needs N x B x 24 bytes)
+
+
+@dataclass(frozen=True)
+class BenchRow:
+    """One measurement: a filter (or the reference step) at N particles on one maze."""
+
+    maze: str
+    filter_name: str
+    particles: int
+    seconds_per_step: float
+    peak_bytes: int | None
+
+    @property
+    def particle_steps_per_second(self) -> float:
+        return self.particles / self.seconds_per_step
+
+
+def large_maze(size: int = LARGE_MAZE_SIZE, seed: int = 5) -> Maze:
+    """A seeded random size x size maze: each cell free, wall or station block with LARGE_MAZE_CELLS' odds."""
+    rng = np.random.default_rng(seed)
+    kinds, odds = zip(*LARGE_MAZE_CELLS.items(), strict=True)
+    return Maze(rng.choice(kinds, size=(size, size), p=odds), source=f"generated {size}x{size}")
+
+
+def record_walk(world: Maze, steps: int, seed: int = 1) -> list[tuple[float, float]]:
+    """The (compass angle, measurement) of each step of a seeded lost robot's walk."""
+    rng = np.random.default_rng(seed)
+    robot = Robot(BENCH_SIGMA, BENCH_DELTA, world.random_free_place(rng), rng=rng)
+    return [robot.step(world) for _ in range(steps)]
+
+
+def time_steps(step: Callable[[float, float], None], walk: list[tuple[float, float]], warmup: int) -> float:
+    """The median time of one step (seconds) over the walk, after `warmup` untimed steps."""
+    times = []
+    for k, (compass_angle, z) in enumerate(walk):
+        started = time.perf_counter()
+        step(compass_angle, z)
+        if k >= warmup:
+            times.append(time.perf_counter() - started)
+    return statistics.median(times)
+
+
+def filter_stepper(name: str, world: Maze, particles: int, seed: int = 2) -> Callable[[float, float], None]:
+    """A step of a fresh filter, followed by the reads `simulate` makes (estimate, ESS, confidence)."""
+    rng = np.random.default_rng(seed)
+    filt = resolve_filter(name)(world, BENCH_SIGMA, BENCH_DELTA, world.random_free_places(particles, rng), rng)
+
+    def step(compass_angle: float, z: float) -> None:
+        filt.step(compass_angle, z)
+        _ = filt.estimate, filt.ess, filt.is_confident
+
+    return step
+
+
+def reference_stepper(world: Maze, particles: int, seed: int = 2) -> Callable[[float, float], None]:
+    """The textbook SIR step in plain numpy, for comparison: float64 (N, 2) particles, resampling by a
+    binary search per particle, and the nearest station from the full N x B distance matrix."""
+    rng = np.random.default_rng(seed)
+    state = {"x": world.random_free_places(particles, rng), "w": np.full(particles, 1 / particles)}
+    log_penalty = math.log(OUTSIDE_PENALTY)
+
+    def step(compass_angle: float, z: float) -> None:
+        x, w = state["x"], state["w"]
+        ancestors = np.searchsorted(np.cumsum(w), (np.arange(particles) + rng.random()) / particles)
+        headings = compass_angle + BENCH_DELTA * (rng.random(particles) - 0.5)
+        x = x[np.minimum(ancestors, particles - 1)] + ROBOT_SPEED * np.column_stack(
+            [np.cos(headings), np.sin(headings)]
+        )
+        d = np.sqrt(((x[:, None, :] - world.stations[None, :, :]) ** 2).sum(axis=2)).min(axis=1)  # (N, B) matrix
+        log_w = -0.5 * ((z - d) / BENCH_SIGMA) ** 2 + np.where(world.is_free(x[:, 0], x[:, 1]), 0.0, log_penalty)
+        w = np.exp(log_w - log_w.max())
+        w /= w.sum()
+        state["x"], state["w"] = x, w
+        _ = w @ x, 1 / np.sum(w**2)
+
+    return step
+
+
+def peak_memory(make_step: Callable[[], Callable[[float, float], None]], walk: list[tuple[float, float]]) -> int:
+    """Peak bytes allocated (tracemalloc) while creating the stepper and running two steps."""
+    tracemalloc.start()
+    try:
+        step = make_step()
+        for compass_angle, z in walk[:2]:
+            step(compass_angle, z)
+        return tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+
+
+def measure(
+    maze_name: str, world: Maze, counts: tuple[int, ...], steps: int, warmup: int, walk_seed: int = 1
+) -> Iterator[BenchRow]:
+    """The rows of one maze: every filter at every N, then the reference step where it is affordable."""
+    walk = record_walk(world, warmup + steps, walk_seed)
+    world.station_distances_and_free(np.zeros(1, np.float32), np.zeros(1, np.float32))  # build the float32 tables
+    for n in counts:
+        for name in BENCH_FILTERS:
+            peak = peak_memory(lambda name=name, n=n: filter_stepper(name, world, n), walk)
+            seconds = time_steps(filter_stepper(name, world, n), walk, warmup)
+            yield BenchRow(maze_name, resolve_filter(name).name, n, seconds, peak)
+        if n * len(world.stations) <= REFERENCE_LIMIT:
+            reference_walk = walk[: warmup + max(3, steps // 4)]
+            peak = peak_memory(lambda n=n: reference_stepper(world, n), walk)
+            yield BenchRow(maze_name, "reference", n, time_steps(reference_stepper(world, n), reference_walk, 1), peak)
+
+
+def grid_filter_ms(world: Maze, steps: int) -> float:
+    """Median milliseconds per step of GridBayesFilter at its default resolution (with its reads)."""
+    walk = record_walk(world, steps + 2)
+    grid = GridBayesFilter(world, BENCH_SIGMA, BENCH_DELTA)
+
+    def step(compass_angle: float, z: float) -> None:
+        grid.step(compass_angle, z)
+        _ = grid.estimate, grid.is_confident
+
+    return 1e3 * time_steps(step, walk, 2)
+
+
+def small_run_ms(world: Maze, particles: int = 1500, steps: int = 200) -> tuple[float, float]:
+    """A whole `simulate` run of SIR at the lab's N: (wall-clock ms per step, the filter's own ms per step)."""
+    robot = Robot(BENCH_SIGMA, BENCH_DELTA, world.random_free_place(np.random.default_rng(3)))
+    started = time.perf_counter()
+    result = simulate(robot, world, BENCH_SIGMA, BENCH_DELTA, particles, steps, seed=3)
+    return 1e3 * (time.perf_counter() - started) / steps, 1e3 * float(np.mean(result.step_seconds))
+
+
+def big_run_seconds(world: Maze, particles: int = 1_000_000, steps: int = 200) -> tuple[float, float]:
+    """A whole `simulate` run of SIR with a million particles: (seconds, final error in map units)."""
+    robot = Robot(BENCH_SIGMA, BENCH_DELTA, world.random_free_place(np.random.default_rng(4)))
+    started = time.perf_counter()
+    result = simulate(robot, world, BENCH_SIGMA, BENCH_DELTA, particles, steps, seed=4)
+    return time.perf_counter() - started, float(result.errors[-1])
+
+
+def cpu_model() -> str:
+    """The CPU's model name from /proc/cpuinfo (Linux), else what platform knows."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as info:
+            for line in info:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def format_table(rows: list[BenchRow]) -> str:
+    """The rows as a text table, each filter's speed also as a multiple of the reference step's."""
+    reference = {(r.maze, r.particles): r.particle_steps_per_second for r in rows if r.filter_name == "reference"}
+    lines = [
+        f"{'maze':<22} {'filter':<26} {'N':>9} {'M p-steps/s':>12} {'ms/step':>9} {'peak MB':>8} {'x reference':>12}",
+    ]
+    for r in rows:
+        base = reference.get((r.maze, r.particles))
+        ratio = f"{r.particle_steps_per_second / base:11.1f}x" if base and r.filter_name != "reference" else ""
+        peak = f"{r.peak_bytes / 2**20:8.1f}" if r.peak_bytes is not None else f"{'':8}"
+        lines.append(
+            f"{r.maze:<22} {r.filter_name:<26} {r.particles:>9,} {r.particle_steps_per_second / 1e6:12.2f} "
+            f"{1e3 * r.seconds_per_step:9.2f} {peak} {ratio:>12}"
+        )
+    return "\n".join(lines)
+
+
+def run_benchmark(small: Maze, quick: bool = False, echo: Callable[[str], None] = print) -> list[BenchRow]:
+    """Measure and print everything; `quick` takes about half a minute, the full run a few minutes."""
+    counts, steps, warmup = (QUICK_COUNTS, 8, 4) if quick else (FULL_COUNTS, 30, 10)
+    large = large_maze()
+    echo(
+        f"CPU: {cpu_model()}, {os.cpu_count()} cores; numpy {np.__version__}; "
+        f"median of {steps} steps after {warmup} warm-up steps; peak memory by tracemalloc (filter + 2 steps)"
+    )
+    for label, world in (("small", small), ("large", large)):
+        echo(f"{label}: {Path(world.source).name}, {world.height}x{world.width}, {len(world.stations)} stations")
+    rows: list[BenchRow] = []
+    for name, world in (("small " + _size(small), small), ("large " + _size(large), large)):
+        rows += measure(name, world, counts, steps, warmup)
+    echo(format_table(rows))
+    echo(
+        f"GridBayesFilter on the small maze (resolution 0.02): {grid_filter_ms(small, 10 if quick else 30):.1f} ms/step"
+    )
+    total_ms, filter_ms = small_run_ms(small, steps=50 if quick else 200)
+    echo(f"simulate(), SIR, N = 1,500 on the small maze: {total_ms:.2f} ms/step, of which the filter {filter_ms:.2f}")
+    if not quick:
+        seconds, error = big_run_seconds(small)
+        echo(f"simulate(), SIR, N = 1,000,000, 200 steps on the small maze: {seconds:.1f} s (final error {error:.3f})")
+    return rows
+
+
+def _size(world: Maze) -> str:
+    return f"{world.height}x{world.width}"

@@ -1,0 +1,26 @@
+"""The benchmark's parts on tiny sizes (its figures are printed by `python main.py bench`, not tested)."""
+
+from __future__ import annotations
+
+from conftest import PAPER_MAZE
+
+import benchmark
+from draw import Maze
+
+
+def test_large_maze_is_seeded_and_has_thousands_of_stations():
+    first, second = benchmark.large_maze(), benchmark.large_maze()
+    assert (first.grid == second.grid).all()
+    assert first.grid.shape == (100, 100) and len(first.stations) >= 2000
+
+
+def test_measure_gives_every_filter_and_the_reference_and_a_table():
+    world = Maze(PAPER_MAZE)
+    rows = list(benchmark.measure("paper", world, (300,), steps=2, warmup=1))
+    names = [row.filter_name for row in rows]
+    assert names == ["SIRParticleFilter", "AuxiliaryParticleFilter", "RegularizedParticleFilter", "reference"]
+    assert all(row.seconds_per_step > 0 and row.peak_bytes > 0 for row in rows)
+    table = benchmark.format_table(rows)
+    assert len(table.splitlines()) == 1 + len(rows)
+    ratios = [line.endswith("x") for line in table.splitlines()[1:]]
+    assert ratios == [True, True, True, False]  # each filter's speed as a multiple of the reference step's
