@@ -6,6 +6,9 @@ study: settings (the product of the varied parameters) x R seeded runs; in each 
     the same scenario. `run_study` runs them on all cores, `summarise_study` gives per setting and
     filter the mean final error with its 95% t-interval, the converged share and the median
     convergence step; `study_csv` and `plot_study` write them out.
+Both can kidnap the robot (`kidnap_at`) and turn on recovery and KLD-sampling in the particle filters;
+their tables then add the share of runs that re-localise, the median steps to recover (kidnapping.py's
+`relocalised` and `recovery_steps`) and the mean particle count.
 
 Figures of one run (used by both):
     final error       the mean error over the last FINAL_SHARE (20%) of the steps: robust to one unlucky step;
@@ -34,9 +37,13 @@ import numpy as np
 
 import draw
 from draw import STATION_WALL, Maze
+from kidnapping import RECOVERY_VARIANTS, recovery_steps, relocalised, walk_until
 from maze_generator import generate_maze
 from particle_filter import (
     CONVERGENCE_RADIUS,
+    KLDSampling,
+    ParticleFilter,
+    Recovery,
     RegularizedParticleFilter,
     Robot,
     RunResult,
@@ -73,11 +80,25 @@ def parse_filters(text: str) -> list[str]:
 
 
 # -- several filters on one scenario ---------------------------------------------------------------
-def filter_options(filter_name: str, threshold: float | None) -> dict[str, Any]:
-    """Constructor options of one filter: the RPF threshold N_T / N_S goes to the RPF only."""
-    if threshold is not None and resolve_filter(filter_name) is RegularizedParticleFilter:
-        return {"threshold": threshold}
-    return {}
+def filter_options(
+    filter_name: str,
+    threshold: float | None,
+    recovery: bool | str | Recovery | None = None,
+    kld: bool | KLDSampling | None = None,
+) -> dict[str, Any]:
+    """Constructor options of one filter: the RPF threshold N_T / N_S goes to the RPF only, recovery
+    and KLD-sampling to the particle filters only (the exact grid filter needs neither)."""
+    filter_class = resolve_filter(filter_name)
+    options: dict[str, Any] = {}
+    if threshold is not None and filter_class is RegularizedParticleFilter:
+        options["threshold"] = threshold
+    if issubclass(filter_class, ParticleFilter):
+        options.update(recovery=recovery, kld=kld)
+    return options
+
+
+def is_particle_filter(filter_name: str) -> bool:
+    return issubclass(resolve_filter(filter_name), ParticleFilter)
 
 
 def run_filters(
@@ -93,12 +114,16 @@ def run_filters(
     steps: int | None = None,
     threshold: float | None = None,
     comparison: Any = None,
+    kidnap_at: int | None = None,
+    recovery: bool | str | Recovery | None = None,
+    kld: bool | KLDSampling | None = None,
 ) -> dict[str, RunResult]:
     """Run every filter on the same scenario: the robot's walk, measurements and initial particles.
 
     The first run records the walk and measurements (if the robot has none) and draws the particles
-    (if none are given); every later filter replays exactly those. Each filter's random draws come
-    from `seed`, and with `comparison` (draw.open_comparison) each run draws into its own view.
+    (if none are given); every later filter replays exactly those, the kidnapping (`kidnap_at`, its
+    place drawn from `seed`) included. Each filter's random draws come from `seed`, and with
+    `comparison` (draw.open_comparison) each run draws into its own view.
     """
     results: dict[str, RunResult] = {}
     for name in filter_names:
@@ -113,7 +138,8 @@ def run_filters(
             name,
             seed=seed,
             visualize=False if comparison is None else comparison.view_for(name),
-            **filter_options(name, threshold),
+            kidnap_at=kidnap_at,
+            **filter_options(name, threshold, recovery, kld),
         )
         if particles is None:
             particles = np.array(result.scenario.init_particles_pos)
@@ -132,34 +158,66 @@ def compare_filters(
     *,
     seed: int,
     visualize: Any = False,
+    kidnap_at: int | None = None,
+    recovery: bool | str | Recovery | None = None,
+    kld: bool | KLDSampling | None = None,
 ) -> dict[str, RunResult]:
-    """Lab steps 12-13: every filter on one saved scenario, drawn side by side in one recording."""
+    """Lab steps 12-13: every filter on one saved scenario, drawn side by side in one recording.
+
+    `kidnap_at=K` on a scenario recorded without a kidnapping replays its walk up to step K - 1; then
+    the robot is carried to a free place drawn from `seed` and walks on, every filter seeing the same."""
+    steps = robot.recorded_steps
+    if kidnap_at is not None and robot.kidnap_at is None:
+        robot = walk_until(robot, kidnap_at)
     comparison = draw.open_comparison(visualize, world, list(filter_names))
     try:
         return run_filters(
-            world, robot, sigma, delta, filter_names, seed=seed, particles=particles, comparison=comparison
+            world,
+            robot,
+            sigma,
+            delta,
+            filter_names,
+            seed=seed,
+            particles=particles,
+            steps=steps,
+            comparison=comparison,
+            kidnap_at=kidnap_at,
+            recovery=recovery,
+            kld=kld,
         )
     finally:
         comparison.close()
 
 
-def comparison_table(results: dict[str, RunResult]) -> str:
-    """Per filter: mean error, final error, convergence step, mean ESS and milliseconds per step."""
+def comparison_table(results: dict[str, RunResult], kld: bool = False) -> str:
+    """Per filter: mean error, final error, convergence step, mean ESS and milliseconds per step; with a
+    kidnapping, whether the filter re-localised and in how many steps; with `kld`, the mean particle count."""
+    kidnapped = any(result.scenario.kidnap_at is not None for result in results.values())
     headers = ["filter", "mean error", f"last {FINAL_SHARE:.0%} error", "converged at", "mean ESS", "ms/step"]
+    headers += ["re-localised", "steps to recover"] * kidnapped + ["mean N"] * kld
     rows = []
     for name, result in results.items():
         converged = result.converged_at
-        rows.append(
-            [
-                name,
-                f"{result.errors.mean():.3f}",
-                f"{final_error(result.errors):.3f}",
-                "never" if converged is None else f"step {converged}",
-                _number(mean_ess(result), "{:.0f}"),
-                f"{1e3 * result.step_seconds.mean():.2f}",
-            ]
-        )
+        row = [
+            name,
+            f"{result.errors.mean():.3f}",
+            f"{final_error(result.errors):.3f}",
+            "never" if converged is None else f"step {converged}",
+            _number(mean_ess(result), "{:.0f}"),
+            f"{1e3 * result.step_seconds.mean():.2f}",
+        ]
+        if kidnapped:
+            steps = recovery_steps(result)
+            row += ["yes" if relocalised(result) else "no", "never" if steps is None else str(steps)]
+        if kld:
+            row.append(f"{mean_particle_count(result):.0f}" if is_particle_filter(name) else "-")
+        rows.append(row)
     return format_table(headers, rows)
+
+
+def mean_particle_count(result: RunResult) -> float:
+    """The particle count averaged over the steps (it varies with KLD-sampling)."""
+    return float(np.mean(result.extras["particle_count"]))
 
 
 def errors_csv(results: dict[str, RunResult]) -> str:
@@ -223,12 +281,13 @@ class StudySetting:
     delta: float
     particles: int
     threshold: float  # the RPF's N_T / N_S
+    recovery: str = "none"  # a kidnapping.RECOVERY_VARIANTS name, for the particle filters
 
     def value(self, parameter: str) -> Any:
         return self.maze.label if parameter == "maze" else getattr(self, parameter)
 
 
-STUDY_PARAMETERS = ("maze", "sigma", "delta", "particles", "threshold")
+STUDY_PARAMETERS = ("maze", "sigma", "delta", "particles", "threshold", "recovery")
 
 
 def study_settings(
@@ -237,8 +296,12 @@ def study_settings(
     deltas: Sequence[float],
     particle_counts: Sequence[int],
     thresholds: Sequence[float],
+    recoveries: Sequence[str] = ("none",),
 ) -> list[StudySetting]:
     """Every combination of the given values (the first parameter varies slowest), each checked."""
+    for recovery in recoveries:
+        if recovery not in RECOVERY_VARIANTS:
+            raise ValueError(f"unknown recovery {recovery!r}; choose from {', '.join(RECOVERY_VARIANTS)}")
     for count in particle_counts:
         if count < 1:
             raise ValueError(f"particle counts must be >= 1, got {count}")
@@ -247,7 +310,8 @@ def study_settings(
             raise ValueError(f"the RPF threshold must be in (0, 1] (N_T = threshold * N_S), got {threshold}")
     for sigma, delta in itertools.product(dict.fromkeys(sigmas), dict.fromkeys(deltas)):
         check_model_parameters(sigma, delta)  # refuses impossible values, warns once outside the lab's ranges
-    return [StudySetting(*values) for values in itertools.product(mazes, sigmas, deltas, particle_counts, thresholds)]
+    combinations = itertools.product(mazes, sigmas, deltas, particle_counts, thresholds, recoveries)
+    return [StudySetting(*values) for values in combinations]
 
 
 def varied_parameters(settings: Sequence[StudySetting]) -> list[str]:
@@ -266,6 +330,8 @@ class RunTask:
     maze_seed: int | None  # seeds a generated maze (as `maze generate --seed`); None for a maze file
     filters: tuple[str, ...]
     steps: int
+    kidnap_at: int | None = None  # kidnap the robot at this step (its place drawn from `seed`)
+    kld: bool = False  # KLD-sampling in the particle filters
 
 
 def run_seeds(root_seed: int, runs: int) -> list[tuple[int, int]]:
@@ -279,14 +345,25 @@ def run_seeds(root_seed: int, runs: int) -> list[tuple[int, int]]:
 
 
 def study_tasks(
-    settings: Sequence[StudySetting], filters: Sequence[str], runs: int, steps: int, root_seed: int
+    settings: Sequence[StudySetting],
+    filters: Sequence[str],
+    runs: int,
+    steps: int,
+    root_seed: int,
+    *,
+    kidnap_at: int | None = None,
+    kld: bool = False,
 ) -> list[RunTask]:
     """One task per setting and run, in order."""
     if runs < 1 or steps < 1:
         raise ValueError(f"runs and steps must be >= 1, got {runs} runs and {steps} steps")
+    if kidnap_at is not None and not 1 <= kidnap_at <= steps:
+        raise ValueError(f"kidnap_at must be a step from 1 to {steps}, got {kidnap_at}")
     seeds = run_seeds(root_seed, runs)
     return [
-        RunTask(i, setting, r, seed, maze_seed if setting.maze.grid is None else None, tuple(filters), steps)
+        RunTask(
+            i, setting, r, seed, maze_seed if setting.maze.grid is None else None, tuple(filters), steps, kidnap_at, kld
+        )
         for i, setting in enumerate(settings, start=1)
         for r, (seed, maze_seed) in enumerate(seeds, start=1)
     ]
@@ -313,6 +390,11 @@ class RunRecord:
     converged_at: int | None  # convergence_step of the errors; None: never
     mean_ess: float  # NaN for the grid filter
     ms_per_step: float
+    recovery: str = "none"
+    kidnap_at: int | None = None
+    relocalised: bool | None = None  # kidnapping.relocalised; None without a kidnapping
+    steps_to_recover: int | None = None  # kidnapping.recovery_steps; None: never, or no kidnapping
+    mean_particle_count: float = math.nan  # over the steps (KLD-sampling varies it)
 
 
 @dataclass
@@ -348,6 +430,9 @@ def run_task(task: RunTask, visualize: Any = False) -> list[RunRecord]:
                 steps=task.steps,
                 threshold=s.threshold,
                 comparison=comparison,
+                kidnap_at=task.kidnap_at,
+                recovery=RECOVERY_VARIANTS[s.recovery],
+                kld=task.kld,
             )
     finally:
         if comparison is not None:
@@ -372,9 +457,20 @@ def run_task(task: RunTask, visualize: Any = False) -> list[RunRecord]:
             convergence_step(result.errors),
             mean_ess(result),
             1e3 * float(result.step_seconds.mean()),
+            s.recovery,
+            task.kidnap_at,
+            *kidnap_figures(result),
+            mean_particle_count(result),
         )
         for name, result in results.items()
     ]
+
+
+def kidnap_figures(result: RunResult) -> tuple[bool | None, int | None]:
+    """(re-localised, steps to recover) of a run with a kidnapping; (None, None) without one."""
+    if result.scenario.kidnap_at is None:
+        return None, None
+    return relocalised(result), recovery_steps(result)
 
 
 def run_task_safely(task: RunTask) -> list[RunRecord] | RunFailure:
@@ -535,6 +631,9 @@ class StudySummary:
     converged_share: float  # share of the runs with a convergence step
     median_convergence_step: float | None  # median over the converged runs; None if none converged
     ms_per_step: float
+    relocalised_share: float | None = None  # share of the runs re-localised; None without a kidnapping
+    median_steps_to_recover: float | None = None  # median over the runs that recovered; None if none did
+    mean_particle_count: float = math.nan
 
 
 def student_t_two_sided(t: float, df: int) -> float:
@@ -600,21 +699,35 @@ def summarise_study(records: Sequence[RunRecord], settings: Sequence[StudySettin
                 len(converged) / len(group),
                 statistics.median(converged) if converged else None,
                 statistics.fmean(r.ms_per_step for r in group),
+                *recovery_summary(group),
+                statistics.fmean(r.mean_particle_count for r in group),
             )
         )
     return summaries
 
 
-def describe_setting(setting: StudySetting, steps: int, runs: int) -> str:
+def recovery_summary(group: Sequence[RunRecord]) -> tuple[float | None, float | None]:
+    """(share of the runs that re-localised, median steps to recover over the runs that recovered);
+    None for both without a kidnapping, None for the median when no run recovered."""
+    if any(r.relocalised is None for r in group):
+        return None, None
+    recovered = [r.steps_to_recover for r in group if r.steps_to_recover is not None]
+    return sum(r.relocalised for r in group) / len(group), statistics.median(recovered) if recovered else None
+
+
+def describe_setting(setting: StudySetting, steps: int, runs: int, kidnap_at: int | None = None) -> str:
     """The fixed parameters of a study in one line."""
+    kidnapping = "" if kidnap_at is None else f", kidnapped at step {kidnap_at}, recovery {setting.recovery}"
     return (
         f"maze {setting.maze.label}, sigma {setting.sigma:g}, delta {setting.delta:g}, {setting.particles} particles, "
-        f"RPF N_T = {setting.threshold:g} N_S, {steps} steps, {runs} runs per setting"
+        f"RPF N_T = {setting.threshold:g} N_S, {steps} steps{kidnapping}, {runs} runs per setting"
     )
 
 
-def study_table(summaries: Sequence[StudySummary], varied: Sequence[str]) -> str:
-    """A row per setting and filter: the varied parameters, then the statistics."""
+def study_table(summaries: Sequence[StudySummary], varied: Sequence[str], kld: bool = False) -> str:
+    """A row per setting and filter: the varied parameters, then the statistics; with a kidnapping the
+    re-localised share and median steps to recover, with `kld` the mean particle count."""
+    kidnapped = any(s.relocalised_share is not None for s in summaries)
     headers = [
         *varied,
         "filter",
@@ -624,22 +737,27 @@ def study_table(summaries: Sequence[StudySummary], varied: Sequence[str]) -> str
         "converged",
         "median conv. step",
         "ms/step",
+        *(["re-localised", "median steps to recover"] if kidnapped else []),
+        *(["mean N"] if kld else []),
     ]
     rows = []
     for s in summaries:
         low, high = s.interval
-        rows.append(
-            [
-                *(_format_value(s.setting.value(p)) for p in varied),
-                s.filter,
-                str(s.runs),
-                f"{s.mean_final_error:.3f}",
-                "-" if math.isnan(low) else f"[{low:.3f}, {high:.3f}]",
-                f"{s.converged_share:.0%}",
-                "-" if s.median_convergence_step is None else f"{s.median_convergence_step:g}",
-                f"{s.ms_per_step:.2f}",
-            ]
-        )
+        row = [
+            *(_format_value(s.setting.value(p)) for p in varied),
+            s.filter,
+            str(s.runs),
+            f"{s.mean_final_error:.3f}",
+            "-" if math.isnan(low) else f"[{low:.3f}, {high:.3f}]",
+            f"{s.converged_share:.0%}",
+            _optional(s.median_convergence_step, "{:g}"),
+            f"{s.ms_per_step:.2f}",
+        ]
+        if kidnapped:
+            row += [_optional(s.relocalised_share, "{:.0%}"), _optional(s.median_steps_to_recover, "{:g}")]
+        if kld:
+            row.append(f"{s.mean_particle_count:.0f}" if is_particle_filter(s.filter) else "-")
+        rows.append(row)
     return format_table(headers, rows)
 
 
@@ -659,7 +777,7 @@ def study_csv(records: Sequence[RunRecord]) -> str:
 def plot_study(summaries: Sequence[StudySummary], varied: Sequence[str], path: Path, title: str) -> None:
     """Mean final error with its t-interval against the varied parameter, a line per filter."""
     plt = pyplot()
-    numeric = len(varied) == 1 and varied[0] != "maze"
+    numeric = len(varied) == 1 and varied[0] in _PARAMETER_LABELS
     names = list(dict.fromkeys(s.filter for s in summaries))
     positions = {i: (s.setting.value(varied[0]) if numeric else n) for n, (i, s) in enumerate(_first_of(summaries))}
     spread = (max(positions.values()) - min(positions.values()) or 1) if numeric else 4
@@ -745,6 +863,10 @@ def format_table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
 
 def _number(value: float, spec: str) -> str:
     return "-" if math.isnan(value) else spec.format(value)
+
+
+def _optional(value: float | None, spec: str) -> str:
+    return "-" if value is None else spec.format(value)
 
 
 def _format_value(value: Any) -> str:

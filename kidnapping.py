@@ -43,6 +43,25 @@ class KidnapOutcome:
     mean_particle_count: float
 
 
+def walk_until(robot: Robot, kidnap_at: int) -> Robot:
+    """A copy of `robot` replaying only the steps before `kidnap_at` (angles and measurements), so that it
+    can be kidnapped there: a recorded walk after the jump would retrace the old place's path."""
+    if isinstance(kidnap_at, bool) or not isinstance(kidnap_at, int) or kidnap_at < 1:
+        raise ValueError(f"kidnap_at must be a step number >= 1, got {kidnap_at!r}")
+    keep = kidnap_at - 1
+    return Robot(
+        robot.sigma,
+        robot.delta,
+        robot.initial_position,
+        actual_angles=robot.actual_angles[:keep],
+        compass_angles=robot.compass_angles[:keep],
+        measurements=robot.measurements[:keep] if robot.measurements else None,
+        rng=robot.rng if robot.rng_given else None,
+        max_straight_steps=robot.max_straight_steps,
+        speed=robot.speed,
+    )
+
+
 def recovery_steps(result: RunResult) -> int | None:
     """R - K: R the first step from which the error stays below CONVERGENCE_RADIUS, K the kidnap step."""
     kidnap_at = result.scenario.kidnap_at

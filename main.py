@@ -268,8 +268,15 @@ def filter_options(
         return {}
     options: dict[str, Any] = {"resampling": resampling}
     if recovery or sensor_resetting:
-        options["recovery"] = Recovery("sensor" if sensor_resetting else "augmented", alpha_slow, alpha_fast)
+        options["recovery"] = recovery_option(recovery, sensor_resetting, alpha_slow, alpha_fast)
     return options
+
+
+def recovery_option(recovery: bool, sensor_resetting: bool, alpha_slow: float, alpha_fast: float) -> Recovery | None:
+    """--recovery (augmented MCL) or --sensor-resetting, with the rates; None for neither."""
+    if not (recovery or sensor_resetting):
+        return None
+    return Recovery("sensor" if sensor_resetting else "augmented", alpha_slow, alpha_fast)
 
 
 def kidnap_report(result: RunResult) -> str | None:
@@ -302,13 +309,27 @@ def compare(
     ] = None,
     plot: Annotated[Path | None, typer.Option(help="the lab's figure, error against step (.png; plot extra)")] = None,
     force: Annotated[bool, typer.Option(help="replace existing output files")] = False,
+    kidnap_at: Annotated[
+        int | None,
+        typer.Option(min=1, help="kidnap the robot at this step: the walk before it is replayed, then new"),
+    ] = None,
+    recovery: Annotated[bool, typer.Option(help="augmented MCL in the particle filters")] = False,
+    sensor_resetting: Annotated[bool, typer.Option(help="augmented MCL with sensor resetting")] = False,
+    alpha_slow: Annotated[float, typer.Option(help="recovery: rate of the long-term likelihood average")] = ALPHA_SLOW,
+    alpha_fast: Annotated[float, typer.Option(help="recovery: rate of the short-term likelihood average")] = ALPHA_FAST,
+    kld: Annotated[
+        bool, typer.Option(help="KLD-sampling in the particle filters (the scenario's count is the most)")
+    ] = False,
     viewer: ViewerOption = False,
     rrd: RrdOption = None,
     web: WebOption = False,
     no_viz: NoVizOption = False,
     max_drawn: MaxDrawnOption = DEFAULT_MAX_DRAWN,
 ) -> None:
-    """Lab steps 12-13: every filter on the same saved scenario (start, particles, angles, measurements)."""
+    """Lab steps 12-13: every filter on the same saved scenario (start, particles, angles, measurements).
+
+    A kidnapping (stored in the scenario, or --kidnap-at) adds to the table whether each filter
+    re-localised (mean error below 0.5 over the last 30 steps) and the steps it took to recover."""
     visualize = visualization(viewer, rrd, web, no_viz, max_drawn)
     check_outputs(csv_path, plot, force, rrd)
     stored = load_scenario(scenario)
@@ -319,8 +340,24 @@ def compare(
         f"{scenario.name}: {len(particles)} particles, {robot.recorded_steps} steps, "
         f"sigma {sigma:g}, delta {delta:g}, seed {seed}"
     )
-    results = experiments.compare_filters(world, robot, sigma, delta, particles, names, seed=seed, visualize=visualize)
-    typer.echo(experiments.comparison_table(results))
+    results = experiments.compare_filters(
+        world,
+        robot,
+        sigma,
+        delta,
+        particles,
+        names,
+        seed=seed,
+        visualize=visualize,
+        kidnap_at=kidnap_at,
+        recovery=recovery_option(recovery, sensor_resetting, alpha_slow, alpha_fast),
+        kld=kld,
+    )
+    kidnapping = next(iter(results.values())).scenario
+    if kidnapping.kidnap_at is not None:
+        x, y = kidnapping.kidnap_position
+        typer.echo(f"kidnapped at step {kidnapping.kidnap_at} to ({x:.2f}, {y:.2f})")
+    typer.echo(experiments.comparison_table(results, kld=kld))
     if csv_path is not None:
         write_text_atomically(csv_path, experiments.errors_csv(results))
         typer.echo(f"per-step errors written to {csv_path}")
@@ -344,6 +381,11 @@ def study(
     particles: Annotated[str, typer.Option(help="particle counts N_S, comma-separated")] = str(DEFAULT_PARTICLE_COUNT),
     threshold: Annotated[str, typer.Option(help="RPF threshold N_T / N_S, comma-separated")] = str(RPF_THRESHOLD),
     filters: Annotated[str, typer.Option(help="comma-separated filters: sir, apf, rpf, grid")] = "sir,apf,rpf",
+    kidnap_at: Annotated[int | None, typer.Option(min=1, help="kidnap the robot at this step in every run")] = None,
+    recovery: Annotated[
+        str, typer.Option(help="recovery of the particle filters, comma-separated: none, augmented, sensor")
+    ] = "none",
+    kld: Annotated[bool, typer.Option(help="KLD-sampling in the particle filters (--particles is the most)")] = False,
     runs: Annotated[int, typer.Option(min=1, help="seeded runs per setting")] = 30,
     steps: Annotated[int, typer.Option(min=1, help="steps per run")] = DEFAULT_STEPS,
     seed: Annotated[int | None, typer.Option(help="root seed of the study (every run's seed derives from it)")] = None,
@@ -364,8 +406,10 @@ def study(
 
     The table gives per setting and filter the mean final error (the mean error over the last 20% of
     the steps) with the 95% t-interval for that mean, the share of runs that converged (error below
-    0.5 from some step on), the median convergence step of those runs, and the time per step.
-    Nothing is drawn by default; --viewer, --rrd or --web draw the study's first run (all its filters).
+    0.5 from some step on), the median convergence step of those runs, and the time per step; with
+    --kidnap-at, the share of runs that re-localised and the median steps to recover; with --kld, the
+    mean particle count. Nothing is drawn by default; --viewer, --rrd or --web draw the study's first
+    run (all its filters).
     """
     visualize = visualization(viewer, rrd, web, no_viz, max_drawn) if viewer or web or rrd is not None else False
     check_outputs(csv_path, plot, force, rrd)
@@ -376,14 +420,15 @@ def study(
         parse_list(delta, float, "--delta"),
         parse_list(particles, int, "--particles"),
         parse_list(threshold, float, "--threshold"),
+        parse_list(recovery, str, "--recovery"),
     )
     seed = new_seed() if seed is None else seed
-    tasks = experiments.study_tasks(settings, names, runs, steps, seed)
+    tasks = experiments.study_tasks(settings, names, runs, steps, seed, kidnap_at=kidnap_at, kld=kld)
     workers = workers or experiments.default_workers()
     varied = experiments.varied_parameters(settings)
     typer.echo(
         f"Study: {len(settings)} setting(s) x {runs} runs x {len(names)} filters, seed {seed}, {workers} worker(s)\n"
-        f"{experiments.describe_setting(settings[0], steps, runs)}"
+        f"{experiments.describe_setting(settings[0], steps, runs, kidnap_at)}"
         + (f"; varied: {', '.join(varied)}" if varied else "")
     )
     started = time.perf_counter()
@@ -399,7 +444,7 @@ def study(
         typer.echo(f"interrupted after {finished} of {len(tasks)} runs{saved}", err=True)
         raise KeyboardInterrupt
     summaries = experiments.summarise_study(outcome.records, settings)
-    typer.echo(experiments.study_table(summaries, varied))
+    typer.echo(experiments.study_table(summaries, varied, kld=kld))
     typer.echo(f"{finished} runs in {seconds:.1f} s wall time")
     if csv_path is not None:
         typer.echo(f"one row per run and filter written to {csv_path}")

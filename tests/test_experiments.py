@@ -31,8 +31,9 @@ from experiments import (
     summarise_study,
     t_interval,
 )
+from kidnapping import DEFAULT_WINDOW, recovery_steps, relocalised
 from main import from_scenario, main
-from particle_filter import Robot, convergence_step, load_scenario, save_scenario, simulate
+from particle_filter import CONVERGENCE_RADIUS, Robot, convergence_step, load_scenario, save_scenario, simulate
 
 FILTERS = ["SIRParticleFilter", "AuxiliaryParticleFilter", "RegularizedParticleFilter"]
 # With 2 degrees of freedom Student's t has F(t) = 1/2 + t / (2 sqrt(2 + t^2)), so F(t) = q at
@@ -127,6 +128,7 @@ def test_study_csv_has_a_row_per_run_and_filter(tmp_path, capsys):
     assert list(rows[0]) == CSV_COLUMNS == [
         "setting", "run", "seed", "maze", "maze_seed", "stations", "sigma", "delta", "particles", "threshold",
         "steps", "filter", "final_error", "mean_error", "converged_at", "mean_ess", "ms_per_step",
+        "recovery", "kidnap_at", "relocalised", "steps_to_recover", "mean_particle_count",
     ]  # fmt: skip
     assert len(rows) == 4 * 3 * 2  # settings x runs x filters
     assert {(r["sigma"], r["delta"]) for r in rows} == {("0.3", "0.2"), ("0.3", "0.5"), ("0.6", "0.2"), ("0.6", "0.5")}
@@ -282,3 +284,101 @@ def test_ctrl_c_on_the_process_pool_keeps_the_finished_runs(tmp_path):
     rows = read_csv(table)
     runs = {r["run"] for r in rows}
     assert len(rows) == 2 * len(runs) < 2 * 100000
+
+
+# -- kidnapping in compare and study ---------------------------------------------------------------
+def test_compare_kidnaps_every_filter_alike_after_the_replayed_walk(scenario_path):
+    """--kidnap-at 20 on a scenario without one: steps 1-19 replay the stored walk and measurements,
+    then every filter sees the same jump and the same new walk."""
+    stored = load_scenario(scenario_path)
+    world, robot, sigma, delta, particles = from_scenario(stored, None, None, None)
+    results = compare_filters(world, robot, sigma, delta, particles, FILTERS, seed=9, kidnap_at=20, recovery="sensor")
+    first = results["SIRParticleFilter"].scenario
+    assert first.kidnap_at == 20 and first.robot_actual_angles[:19] == stored.robot_actual_angles[:19]
+    assert first.robot_measurements[:19] == stored.robot_measurements[:19]
+    for result in results.values():
+        assert len(result.errors) == 40
+        assert (result.scenario.kidnap_position, result.scenario.robot_actual_angles) == (
+            first.kidnap_position,
+            first.robot_actual_angles,
+        )
+
+
+def test_compare_reports_a_stored_kidnapping_without_a_flag(tmp_path, paper_world, capsys):
+    path = tmp_path / "k.json"
+    args = ["run", "--maze", "paper_5x5", "--steps", "50", "--particles", "300", "--seed", "3", "--quiet", "--no-viz"]
+    assert main([*args, "--kidnap-at", "20", "--save-scenario", str(path)]) == 0
+    capsys.readouterr()
+    assert main(["compare", str(path), "--no-viz", "--filters", "sir,grid"]) == 0
+    out = capsys.readouterr().out
+    assert "kidnapped at step 20" in out and "re-localised" in out and "steps to recover" in out
+    assert "mean N" not in out
+    assert main(["compare", str(path), "--no-viz", "--sensor-resetting", "--kld"]) == 0
+    assert "mean N" in capsys.readouterr().out
+    assert main(["compare", str(path), "--no-viz", "--kidnap-at", "10"]) == 2  # not the stored kidnapping
+
+
+def kidnap_record(relocalised: bool, steps: int | None, run: int) -> RunRecord:
+    return RunRecord(1, run, run, "m", None, 1, 0.3, 0.5, 10, 0.2, 10, "SIR", 0.1, 0.1, None, 5.0, 1.0,
+                     "sensor", 5, relocalised, steps, 400.0 + run)  # fmt: skip
+
+
+def test_recovery_summary_of_known_numbers():
+    """Re-localised in runs 1, 2 and 4 of 5: share 3/5. Steps to recover 10, 40, never, 20, 31 (a run can
+    recover late, after the window's start, and still not count as re-localised): median of the four
+    that recovered, (20 + 31) / 2 = 25.5. Mean particle count (401 + ... + 405) / 5 = 403."""
+    settings = study_settings([MazeChoice("m", grid=((0, 2),))], [0.3], [0.5], [10], [0.2], ["sensor"])
+    records = [kidnap_record(True, 10, 1), kidnap_record(True, 40, 2), kidnap_record(False, None, 3),
+               kidnap_record(True, 20, 4), kidnap_record(False, 31, 5)]  # fmt: skip
+    (summary,) = summarise_study(records, settings)
+    assert summary.relocalised_share == pytest.approx(3 / 5)
+    assert summary.median_steps_to_recover == 25.5
+    assert summary.mean_particle_count == pytest.approx(403)
+    (lost,) = summarise_study([kidnap_record(False, None, r) for r in (1, 2)], settings)
+    assert (lost.relocalised_share, lost.median_steps_to_recover) == (0, None)
+
+
+def test_a_kidnapped_study_reports_relocalisation_computed_by_hand(capsys):
+    """A tiny seeded study (recovery none and sensor, 3 runs, kidnapped at step 40 of 90): each record's
+    figures are those of run 1 replayed by hand, and the table's share and median are recomputed from
+    the records' errors: re-localised = mean error over the last DEFAULT_WINDOW steps below
+    CONVERGENCE_RADIUS, steps to recover = R - 40, R the first step from which the error stays below it."""
+    world = Maze(PAPER_MAZE)
+    settings = study_settings([MazeChoice.from_maze("paper", world)], [0.3], [0.5], [300], [0.2], ["none", "sensor"])
+    tasks = study_tasks(settings, ["sir", "apf"], 3, 90, 5, kidnap_at=40)
+    outcome = run_study(tasks, workers=1)
+    task = tasks[3]  # setting 2 (sensor), run 1
+    robot = Robot(0.3, 0.5, world.random_free_place(np.random.default_rng(task.seed)))
+    sir = simulate(robot, world, 0.3, 0.5, 300, 90, seed=task.seed, kidnap_at=40, recovery="sensor")
+    errors = sir.errors
+    by_hand = errors[-DEFAULT_WINDOW:].mean() < CONVERGENCE_RADIUS
+    stay = [k for k in range(40, 91) if (errors[k - 1 :] < CONVERGENCE_RADIUS).all()]
+    record = next(r for r in outcome.records if (r.setting, r.run, r.filter) == (2, 1, "SIRParticleFilter"))
+    assert (record.relocalised, record.steps_to_recover) == (by_hand, stay[0] - 40 if stay else None)
+    assert (record.relocalised, record.steps_to_recover) == (relocalised(sir), recovery_steps(sir))
+    assert (record.recovery, record.kidnap_at, record.mean_particle_count) == ("sensor", 40, 300.0)
+    summaries = summarise_study(outcome.records, settings)
+    for s in summaries:
+        mine = [r for r in outcome.records if (r.setting, r.filter) == (s.setting_index, s.filter)]
+        recovered = sorted(r.steps_to_recover for r in mine if r.steps_to_recover is not None)
+        assert s.relocalised_share == sum(r.relocalised for r in mine) / 3
+        assert s.median_steps_to_recover == (statistics.median(recovered) if recovered else None)
+    table = experiments.study_table(summaries, ["recovery"])
+    assert "re-localised" in table and "median steps to recover" in table
+    plain_settings, plain_tasks = tiny_tasks(runs=1)
+    plain = summarise_study(run_study(plain_tasks, workers=1).records, plain_settings)
+    assert "re-localised" not in experiments.study_table(plain, ["sigma"])  # no kidnapping, no such columns
+
+
+def test_study_varies_recovery_from_the_command_line(tmp_path, capsys):
+    table = tmp_path / "k.csv"
+    args = ["study", "--maze", "paper_5x5", "--runs", "2", "--steps", "40", "--particles", "150", "--seed", "2"]
+    args += ["--kidnap-at", "20", "--recovery", "none,augmented,sensor", "--kld", "--csv", str(table)]
+    assert main([*args, "--filters", "sir,grid", "--workers", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "re-localised" in out and "median steps to recover" in out and "mean N" in out
+    rows = read_csv(table)
+    assert [r["recovery"] for r in rows[::4]] == ["none", "augmented", "sensor"]
+    assert {r["kidnap_at"] for r in rows} == {"20"} and {r["relocalised"] for r in rows} <= {"True", "False"}
+    assert main([*args[:-2], "--recovery", "sometimes"]) == 2
+    assert "unknown recovery 'sometimes'" in capsys.readouterr().err
