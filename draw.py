@@ -448,6 +448,8 @@ MAP = "/map"  # everything drawn in the map frame lives under this entity
 FREE_COLOR, WALL_COLOR = (255, 255, 255), (0, 0, 0)
 STATION_COLOR, ROBOT_COLOR = (0, 200, 255), (0, 170, 0)
 ESTIMATE_COLOR, CONFIDENT_COLOR = (128, 128, 128), (0, 200, 0)
+INJECTED_COLOR = (255, 190, 0)  # particles injected by recovery this step (weights are drawn blue..red)
+KIDNAP_COLOR = (230, 0, 200)  # the jump of a kidnapped robot
 FILTER_COLORS = ((214, 39, 40), (31, 119, 180), (255, 127, 14), (44, 160, 44), (148, 103, 189), (140, 86, 75))
 PARTICLE_ARROW_LENGTH, ROBOT_ARROW_LENGTH = 0.15, 0.5  # map units
 STATION_RADIUS, ROBOT_RADIUS, PARTICLE_ARROW_RADIUS, CELL_DOT_RADIUS = 0.08, 0.12, 0.008, 0.03
@@ -475,6 +477,16 @@ class NullView:
 
     def close(self) -> None:
         """Finish drawing (flush and close the recording)."""
+
+    def expect_kidnapping(self, step: int, position: Sequence[float]) -> None:
+        """The robot will be carried to `position` at step `step`: draw the jump then."""
+
+
+def expect_kidnapping(view: Any, step: int | None, position: Sequence[float] | None) -> None:
+    """Tell `view` of a planned kidnapping, if there is one and the view draws it (a caller's own
+    view need not)."""
+    if step is not None and position is not None and hasattr(view, "expect_kidnapping"):
+        view.expect_kidnapping(step, position)
 
 
 def open_view(visualize: Any, world: Maze, filter_name: str) -> Any:
@@ -562,10 +574,25 @@ def drawn_particles(state: Any, max_drawn: int) -> tuple[np.ndarray, np.ndarray 
         targets = (np.arange(max_drawn) + 0.5) / max_drawn * cumulative[-1]
         cells = np.unique(np.minimum(np.searchsorted(cumulative, targets), len(weights) - 1))
         return positions[cells], None, weights[cells]
-    if len(positions) <= max_drawn:
-        return positions, np.asarray(state.headings), weights
-    picked = np.linspace(0, len(positions) - 1, max_drawn).round().astype(np.int64)
+    picked = drawn_indices(len(positions), max_drawn)
     return positions[picked], np.asarray(state.headings)[picked], weights[picked]
+
+
+def drawn_indices(count: int, max_drawn: int) -> slice | np.ndarray:
+    """Which of `count` particles are drawn: all, or max_drawn at evenly spaced indices."""
+    if count <= max_drawn:
+        return slice(None)
+    return np.linspace(0, count - 1, max_drawn).round().astype(np.int64)
+
+
+def particle_colors(state: Any, weights: np.ndarray, max_drawn: int) -> np.ndarray:
+    """The drawn particles' colours (M, 3): by weight (`weight_colors`), and INJECTED_COLOR for those
+    that recovery injected this step (`state.injected`, a mask over all N particles, or None)."""
+    colors = weight_colors(weights)
+    injected = getattr(state, "injected", None)
+    if injected is not None:
+        colors[np.asarray(injected)[drawn_indices(len(injected), max_drawn)]] = INJECTED_COLOR
+    return colors
 
 
 class RunView:
@@ -583,6 +610,8 @@ class RunView:
         self.path = f"{MAP}/{entity_name(filter_name)}"
         self.metric = entity_name(filter_name)
         self.confidence_radius = CONFIDENCE_RADIUS
+        self.color = color
+        self.count_series_styled = False
         for series in SERIES:
             recording.stream.log(
                 f"/metrics/{series}/{self.metric}",
@@ -590,16 +619,21 @@ class RunView:
                 static=True,
             )
 
+    def expect_kidnapping(self, step: int, position: Sequence[float]) -> None:
+        """The robot will be carried to `position` at step `step`: its recording draws the jump."""
+        self.recording.kidnapping = (step, (float(position[0]), float(position[1])))
+
     def log_step(self, step: int, robot_position: Sequence[float], robot_heading: float | None, state: Any) -> None:
-        """Draw step `step`: the robot (once per recording), the particles coloured by weight,
-        the estimate's circle (green when confident), and the error, ESS and confidence series."""
+        """Draw step `step`: the robot (once per recording), the particles coloured by weight (the
+        injected ones apart), the estimate's circle (green when confident), and the error, ESS and
+        confidence series; with KLD-sampling, the particle count beside the ESS."""
         import rerun as rr
 
         stream = self.recording.stream
         stream.set_time("step", sequence=step)
         self.recording.log_robot(step, robot_position, robot_heading)
         positions, headings, weights = drawn_particles(state, self.max_drawn)
-        colors = weight_colors(weights)
+        colors = particle_colors(state, weights, self.max_drawn)
         if headings is None:
             stream.log(f"{self.path}/particles", rr.Points2D(positions, colors=colors, radii=CELL_DOT_RADIUS))
         else:
@@ -620,6 +654,19 @@ class RunView:
         if not math.isnan(ess):  # the grid filter is not a sample: no ESS
             stream.log(f"/metrics/ess/{self.metric}", rr.Scalars(ess))
         stream.log(f"/metrics/confident/{self.metric}", rr.Scalars(float(confident)))
+        if getattr(state, "kld", None) is not None:
+            self.log_particle_count(int(state.count))
+
+    def log_particle_count(self, count: int) -> None:
+        """The particle count N of this step (KLD-sampling varies it), in the ESS panel: ESS <= N."""
+        import rerun as rr
+
+        path = f"/metrics/ess/{self.metric}/particle_count"
+        if not self.count_series_styled:
+            self.count_series_styled = True
+            style = rr.SeriesLines(names=f"{self.name} N", colors=self.color, widths=1)
+            self.recording.stream.log(path, style, static=True)
+        self.recording.stream.log(path, rr.Scalars(float(count)))
 
     def close(self) -> None:
         """Finish the recording if this run owns it (a comparison's views leave it open)."""
@@ -677,7 +724,7 @@ def comparison_blueprint(world: Maze, filter_names: Sequence[str]) -> Any:
 
 SERIES_TITLES = {
     "error": "error |estimate - truth|",
-    "ess": "effective sample size",
+    "ess": "effective sample size (and N with KLD-sampling)",
     "confident": "confident (95% within the circle)",
 }
 
@@ -689,6 +736,8 @@ class Recording:
     def __init__(self, stream: Any, *, path: Path | None = None, server: WebServer | None = None, owned: bool = True):
         self.stream, self.path, self.server, self.owned = stream, path, server, owned
         self.robot_steps: set[int] = set()
+        self.last_robot_position: tuple[float, float] | None = None
+        self.kidnapping: tuple[int, tuple[float, float]] | None = None  # (step, place), see expect_kidnapping
         self.closed = False
 
     @classmethod
@@ -742,7 +791,24 @@ class Recording:
             vector = heading_vectors(np.array([heading]), ROBOT_ARROW_LENGTH)
             arrow = rr.Arrows2D(origins=[position], vectors=vector, colors=ROBOT_COLOR, radii=0.04)
             self.stream.log(f"{MAP}/robot/heading", arrow)
-        self.stream.log("/title", rr.TextDocument(f"### Step {step}", media_type=rr.MediaType.MARKDOWN))
+        title = f"### Step {step}"
+        if self.kidnapping is not None and self.kidnapping[0] == step:
+            self.log_kidnapping(step, self.kidnapping[1])
+            title += ": the robot is kidnapped"
+        self.stream.log("/title", rr.TextDocument(title, media_type=rr.MediaType.MARKDOWN))
+        self.last_robot_position = (float(position[0]), float(position[1]))
+
+    def log_kidnapping(self, step: int, place: tuple[float, float]) -> None:
+        """The jump of step `step`: a line from where the robot was to `place`, where it was put down
+        (it stays drawn from that step on), and a ring at `place`."""
+        import rerun as rr
+
+        label = f"kidnapped at step {step}"
+        if self.last_robot_position is not None:
+            jump = rr.LineStrips2D([[self.last_robot_position, place]], colors=KIDNAP_COLOR, radii=0.03, labels=label)
+            self.stream.log(f"{MAP}/robot/kidnapping", jump)
+        ring = rr.Ellipses2D(centers=[place], half_sizes=[[0.25, 0.25]], colors=KIDNAP_COLOR, line_radii=0.03)
+        self.stream.log(f"{MAP}/robot/kidnapping/place", ring)
 
     def close(self) -> None:
         """Flush; a file is completed and moved into place and its path printed; a web viewer is

@@ -25,7 +25,7 @@ from typing import Annotated, Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from draw import Maze, open_view
+from draw import Maze, expect_kidnapping, open_view
 
 # -- the model's constants (the paper keeps them here, to be changed by the student) -------------
 ROBOT_SPEED = 0.2  # L, the step length in map units
@@ -1356,6 +1356,7 @@ def simulate(
         robot.rng = robot_rng
     filt = filter_class(world, sigma, delta, particles, filter_rng, **filter_options)
     view = open_view(visualize, world, filter_class.name)
+    expect_kidnapping(view, robot.kidnap_at, robot.kidnap_position)
     true_positions, estimates = np.empty((steps, 2)), np.empty((steps, 2))
     ess, confident, seconds = np.empty(steps), np.empty(steps, dtype=bool), np.empty(steps)
     counts = np.empty(steps, dtype=np.int64)

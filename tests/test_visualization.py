@@ -22,6 +22,8 @@ import draw
 from draw import (
     CONFIDENT_COLOR,
     ESTIMATE_COLOR,
+    INJECTED_COLOR,
+    KIDNAP_COLOR,
     PARTICLE_ARROW_LENGTH,
     ROBOT_ARROW_LENGTH,
     STATION_COLOR,
@@ -232,6 +234,48 @@ def test_the_grid_filter_draws_at_most_max_drawn_cells_where_its_mass_is(tmp_pat
         heavy = positions[weights >= 1 / 400]
         drawn = {tuple(np.round(c, 4)) for c in cells}
         assert all(tuple(np.round(p, 4)) in drawn for p in heavy)
+
+
+def test_a_kidnapping_shows_the_jump_the_injected_particles_and_the_particle_count(tmp_path, world):
+    """Kidnapped at step 8 with sensor resetting and KLD-sampling: at step 8 a line joins the robot's
+    place at step 7 to where it was put down, the title says so; every particle that recovery injected
+    is drawn in INJECTED_COLOR and no other is; the count series is the filter's count per step."""
+    path = tmp_path / "kidnap.rrd"
+    injected: dict[int, np.ndarray | None] = {}
+
+    def keep(k, robot, filt):
+        injected[k] = None if filt.injected is None else filt.injected.copy()
+
+    robot = Robot(0.3, 0.5, (3.5, 1.5))
+    result = simulate(robot, world, 0.3, 0.5, 400, 25, seed=3, visualize=path, on_step=keep, kidnap_at=8,
+                      recovery="sensor", kld=True)  # fmt: skip
+    rec = load(path)
+    jump = rec["/map/robot/kidnapping"]
+    assert steps_of(jump) == [8]
+    expected = [result.true_positions[6], result.scenario.kidnap_position]
+    np.testing.assert_allclose(jump[8]["LineStrips2D:strips"], [expected], atol=FLOAT32_ATOL)
+    assert [rgb(c) for c in jump[8]["LineStrips2D:colors"]] == [KIDNAP_COLOR]
+    assert steps_of(rec["/map/robot/kidnapping/place"]) == [8]
+    assert rec["/title"][8]["TextDocument:text"] == ["### Step 8: the robot is kidnapped"]
+    assert rec["/title"][9]["TextDocument:text"] == ["### Step 9"]
+
+    slug = entity_name("SIRParticleFilter")
+    assert any(mask is not None and mask.any() for mask in injected.values())  # the test sees an injection
+    for k, mask in injected.items():
+        colors = [rgb(c) for c in rec[f"/map/{slug}/particles"][k]["Arrows2D:colors"]]
+        drawn_injected = np.array([c == INJECTED_COLOR for c in colors])
+        assert len(colors) == result.extras["particle_count"][k - 1]
+        np.testing.assert_array_equal(drawn_injected, np.zeros(len(colors), bool) if mask is None else mask)
+
+    count = rec[f"/metrics/ess/{slug}/particle_count"]
+    assert count["static"]["SeriesLines:names"] == ["SIRParticleFilter N"]
+    assert [count[k]["Scalars:scalars"][0] for k in steps_of(count)] == result.extras["particle_count"].tolist()
+
+
+def test_without_kld_no_particle_count_is_drawn(tmp_path, world):
+    path = tmp_path / "run.rrd"
+    recorded_run(world, path, steps=3)
+    assert not any(entity.endswith("/particle_count") for entity in load(path))
 
 
 # -- the comparison --------------------------------------------------------------------------------
