@@ -398,22 +398,37 @@ KLD_EPSILON = 0.05  # epsilon: the bound on the KL distance between the sample a
 KLD_QUANTILE = NormalDist().inv_cdf(0.99)  # z_{1-delta}, the upper normal quantile for delta = 0.01: 2.326
 KLD_MIN_COUNT = 100
 SENSOR_RESET_BATCHES = 20  # rejection sampling gives up after this many batches (the rest are uniform)
+# Sensor resetting injects while w_fast is below this share of the likelihood expected when localised
+# (`localised_likelihood`): 0.5 lies over 5 standard deviations of w_fast below its localised level.
+SENSOR_RESET_LEVEL = 0.5
+
+
+def localised_likelihood(sigma: float) -> float:
+    """E[p(z | x)] at the robot's own place x: E_v[N(v; 0, sigma^2)] for v ~ N(0, sigma^2) is
+    1 / (2 sqrt(pi) sigma), the mean likelihood of a filter whose belief sits on the robot (1/units)."""
+    return 1.0 / (2.0 * math.sqrt(math.pi) * sigma)
 
 
 @dataclass(frozen=True)
 class Recovery:
-    """Recovery from kidnapping: augmented MCL (Thrun et al., "Probabilistic Robotics", Table 8.3).
+    """Recovery from kidnapping: augmented MCL (Thrun et al., "Probabilistic Robotics", Table 8.3) and
+    sensor resetting (Lenser and Veloso 2000).
 
     The filter keeps w_slow and w_fast, exponential averages (rates alpha_slow < alpha_fast) of w_avg,
-    its estimate of the predictive likelihood p(z_k | z_1:k-1). When resampling it replaces each
-    particle, with probability max(0, 1 - w_fast / w_slow), by a draw from the free area: uniform
-    (mode "augmented") or matched to the last measurement (mode "sensor": sensor resetting, Lenser and
-    Veloso 2000, see `measurement_matched_places`).
+    its estimate of the predictive likelihood p(z_k | z_1:k-1), and replaces each particle, with an
+    injection probability, by a draw from the free area:
+    - "augmented": probability max(0, 1 - w_fast / w_slow), uniform draws;
+    - "sensor": probability max(0, 1 - w_fast / (reset_level * localised_likelihood(sigma))), as Lenser
+      and Veloso's N (1 - p_avg / p_threshold) with the model's own threshold and w_fast for p_avg, and
+      draws matched to the last measurement (`measurement_matched_places`). The learned w_slow is no
+      reference here: it starts at the lost filter's likelihood and, at alpha_slow = 0.001, takes
+      thousands of steps to learn the localised one, so w_fast seldom falls below it after a kidnapping.
     """
 
     mode: str = "augmented"
     alpha_slow: float = ALPHA_SLOW
     alpha_fast: float = ALPHA_FAST
+    reset_level: float = SENSOR_RESET_LEVEL
 
     def __post_init__(self) -> None:
         if self.mode not in RECOVERY_MODES:
@@ -423,6 +438,14 @@ class Recovery:
             raise ValueError(
                 f"recovery needs 0 < alpha_slow < alpha_fast <= 1, got alpha_slow {slow}, alpha_fast {fast}"
             )
+        if not 0 < _finite_number("reset_level", self.reset_level) <= 1:
+            raise ValueError(f"recovery needs 0 < reset_level <= 1, got {self.reset_level}")
+
+    def log_reference(self, log_w_slow: float, sigma: float) -> float:
+        """log of the likelihood level below which w_fast means "lost": w_slow, or the sensor's level."""
+        if self.mode == "sensor":
+            return math.log(self.reset_level * localised_likelihood(sigma))
+        return log_w_slow
 
 
 def recovery_options(
@@ -577,10 +600,10 @@ class RecoveryAndKLD:
 
     @property
     def injection_probability(self) -> float:
-        """max(0, 1 - w_fast / w_slow); 0 without recovery or before the first measurement."""
+        """max(0, 1 - w_fast / reference) (see Recovery); 0 without recovery or before the first measurement."""
         if self.recovery is None or self.last_z is None or self.log_w_slow == -math.inf:
             return 0.0
-        return max(0.0, 1.0 - math.exp(self.log_w_fast - self.log_w_slow))
+        return max(0.0, 1.0 - math.exp(self.log_w_fast - self.recovery.log_reference(self.log_w_slow, self.sigma)))
 
     @property
     def injected(self) -> np.ndarray | None:
@@ -620,6 +643,15 @@ class RecoveryAndKLD:
         injected = self._inject(positions, headings, move_injected)
         self._injected, self._injected_step = injected, self.steps_done + 1
         return positions, headings, ancestors, injected
+
+    def inject_without_resampling(self, move_injected: Move) -> None:
+        """Replace particles with probability `injection_probability`, each injected point keeping the
+        weight of the particle it replaces: the selection ignores the weights, so the set represents the
+        same mixture (1 - p) belief + p injection as injecting at a resampling."""
+        positions, headings = self.positions.copy(order="F"), self.headings.copy()
+        injected = self._inject(positions, headings, move_injected)
+        self._injected, self._injected_step = injected, self.steps_done + 1
+        self.positions, self.headings = positions, headings
 
     def _inject(self, positions: np.ndarray, headings: np.ndarray, move_injected: Move) -> np.ndarray | None:
         """Replace particles in place with probability `injection_probability`; the mask, or None."""
@@ -840,6 +872,8 @@ class RegularizedParticleFilter(ParticleFilter):
     def step(self, compass_angle: float, z: float) -> None:
         if self.ess < self.threshold * self.count:  # IF N_eff < N_T (end of Alg. 6, previous step)
             self.regularise()
+        elif self.injection_probability > 0:  # recovery: lost, though the weights have not degenerated
+            self.inject_without_resampling(_unmoved)
         x, headings = self.propagate(self.positions, compass_angle)  # x_k^i ~ q = p(x_k | x_{k-1}^i)
         self.positions, self.headings = x, headings
         log_w = self.log_weights + self.likelihood(z, x)  # w_k^i ∝ w_{k-1}^i p(z_k | x_k^i)
@@ -862,11 +896,14 @@ class RegularizedParticleFilter(ParticleFilter):
             )
 
         # RESAMPLE and jitter; injected points (recovery) are not jittered: the step's move follows
-        self.positions, self.headings, _, _ = self.draw_particles(
-            weights, jitter, lambda points: (points, np.zeros(len(points), dtype=PARTICLE_DTYPE))
-        )
+        self.positions, self.headings, _, _ = self.draw_particles(weights, jitter, _unmoved)
         self.log_weights = np.full(self.count, -math.log(self.count))
         self.regularised_at.append(self.steps_done)
+
+
+def _unmoved(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Injected points as they are (the RPF's step moves them next), with zero headings."""
+    return points, np.zeros(len(points), dtype=PARTICLE_DTYPE)
 
 
 def gaussian_jitter(eps: np.ndarray, scale: np.ndarray) -> np.ndarray:
@@ -1202,7 +1239,8 @@ def load_scenario(path: str | Path = DEFAULT_PARAMETERS_PATH) -> Scenario:
 def describe_validation_error(error: ValidationError) -> str:
     """The first problem of a pydantic error, on one line: 'where: what' (and how many more)."""
     first = error.errors()[0]
-    where = ".".join(str(part) for part in first["loc"]) or "the file"
+    parts = (str(part) for part in first["loc"])  # a key may hold a newline: quote those, to keep one line
+    where = ".".join(part if part.isprintable() else repr(part) for part in parts) or "the file"
     more = len(error.errors()) - 1
     return f"{where}: {first['msg']}" + (f" (and {more} more problem(s))" if more else "")
 

@@ -16,7 +16,10 @@ from particle_filter import (
     KLD_QUANTILE,
     RESAMPLING_SCHEMES,
     ROBOT_SPEED,
+    SENSOR_RESET_LEVEL,
     KLDSampling,
+    Recovery,
+    RegularizedParticleFilter,
     Robot,
     Scenario,
     ScenarioError,
@@ -24,6 +27,7 @@ from particle_filter import (
     kld_resample,
     kld_sample_size,
     load_scenario,
+    localised_likelihood,
     log_likelihood,
     measurement_matched_places,
     run_model,
@@ -165,6 +169,45 @@ def test_recovery_injects_particles_only_when_the_likelihood_falls(paper_world, 
              recovery=mode, on_step=watch)  # fmt: skip
     assert sum(injected[k] for k in range(40, 61)) > 0
     assert all(np.isfinite(list(injected.values())))
+
+
+def test_the_localised_likelihood_is_the_mean_likelihood_at_the_robot(rng):
+    """E[N(v; 0, s^2)] over v ~ N(0, s^2), by Monte Carlo with n = 200,000 draws. The summand's variance is
+    E[N^2] - E[N]^2 with E[N^2] = E[exp(-v^2 / s^2)] / (2 pi s^2) = 1 / (2 sqrt(3) pi s^2): the mean lies
+    within 5 standard errors of 1 / (2 sqrt(pi) s)."""
+    sigma, n = 0.3, 200_000
+    v = rng.normal(0.0, sigma, n)
+    density = np.exp(-0.5 * (v / sigma) ** 2) / (sigma * math.sqrt(2 * math.pi))
+    expected = 1 / (2 * math.sqrt(math.pi) * sigma)
+    sd = math.sqrt(1 / (2 * math.sqrt(3) * math.pi * sigma**2) - expected**2)
+    assert localised_likelihood(sigma) == pytest.approx(expected, rel=1e-15)
+    assert abs(density.mean() - expected) < 5 * sd / math.sqrt(n)
+
+
+@pytest.mark.parametrize(("share", "probability"), [(0.25, 0.75), (0.5, 0.5), (1.0, 0.0), (2.0, 0.0)])
+def test_sensor_resetting_injects_by_how_far_w_fast_is_below_the_localised_level(paper_world, share, probability):
+    """Lenser and Veloso's 1 - p_avg / p_threshold with p_avg = w_fast and p_threshold = SENSOR_RESET_LEVEL
+    times the localised likelihood: w_fast at `share` of that threshold gives max(0, 1 - share)."""
+    filt = SIRParticleFilter(paper_world, 0.3, 0.5, paper_world.random_free_places(10), recovery="sensor")
+    filt.track_likelihood(-50.0, 1.0)  # w_slow: a lost filter's level, which the sensor mode ignores
+    filt.log_w_fast = math.log(share * SENSOR_RESET_LEVEL * localised_likelihood(0.3))
+    assert filt.injection_probability == pytest.approx(probability, abs=1e-12)
+    with pytest.raises(ValueError, match="0 < reset_level <= 1"):
+        Recovery("sensor", reset_level=1.5)
+
+
+def test_a_lost_rpf_injects_without_resampling_and_keeps_the_weights(paper_world):
+    """With weights far from degenerate (ESS = N) the RPF does not resample, yet a lost filter injects:
+    the replaced particles keep their weights, the others stay where they were."""
+    particles = paper_world.random_free_places(400, np.random.default_rng(1))
+    filt = RegularizedParticleFilter(paper_world, 0.3, 0.5, particles, np.random.default_rng(2), recovery="sensor")
+    filt.track_likelihood(math.log(1e-3 * localised_likelihood(0.3)), 1.0)  # w_fast far below the level
+    before, weights = filt.positions.copy(), filt.log_weights
+    filt.inject_without_resampling(lambda points: (points, np.zeros(len(points), np.float32)))
+    injected = filt._injected  # the mask of the step about to run (`injected` shows it once the step is done)
+    assert injected is not None and 0.9 * 400 < injected.sum() <= 400  # probability 1 - 1e-3 / 0.5
+    np.testing.assert_array_equal(filt.positions[~injected], before[~injected])
+    assert filt.log_weights is weights and filt.regularised_at == []
 
 
 def test_sensor_resetting_draws_points_with_density_proportional_to_the_likelihood(paper_world, rng):
