@@ -91,12 +91,24 @@ class Maze:
 
     def is_free(self, x: Any, y: Any) -> bool | np.ndarray:
         """True where (x, y) lies in [0, W) x [0, H) in a cell of type 0; vectorised over arrays."""
+        if _is_scalar(x) and _is_scalar(y):  # the robot's wall checks, several a step
+            return self._free_at(float(x), float(y))
         x = np.asarray(x, dtype=float)
         y = np.asarray(y, dtype=float)
         inside = (x >= 0) & (x < self.width) & (y >= 0) & (y < self.height)
         row, col = self.cell_of(np.where(inside, x, 0.0), np.where(inside, y, 0.0))
         free = inside & (self.grid[row, col] == EMPTY)
         return bool(free) if free.ndim == 0 else free
+
+    def _free_at(self, x: float, y: float) -> bool:
+        """`is_free` for one point, in plain floats."""
+        if not (0 <= x < self.width and 0 <= y < self.height):
+            return False
+        return self._free_rows[self.height - 1 - math.floor(y)][math.floor(x)]
+
+    @cached_property
+    def _free_rows(self) -> list[list[bool]]:
+        return (self.grid == EMPTY).tolist()
 
     def random_free_place(self, rng: np.random.Generator | None = None) -> tuple[float, float]:
         """One point drawn uniformly from the free area, as (x, y)."""
@@ -118,6 +130,8 @@ class Maze:
         Call as `distance_to_nearest_station(x, y)` with scalars or arrays of one shape, or with a
         single array of points of shape (..., 2).
         """
+        if y is not None and _is_scalar(x) and _is_scalar(y):  # the robot's measurement, once a step
+            return self._lookup.distance_at(float(x), float(y))
         points = np.asarray(x, dtype=float) if y is None else np.stack(np.broadcast_arrays(x, y), -1)
         points = np.asarray(points, dtype=float)
         flat = points.reshape(-1, 2)
@@ -231,7 +245,8 @@ class _NearestStationLookup:
     The map plus a margin is cut into square lookup cells of side 1/scale. Each cell keeps the
     stations that can be nearest to some point of it (`_candidate_stations`): the first candidate,
     used for every point, and, for the minority of cells near a boundary between two stations'
-    regions, a padded row of all its candidates. The same cell index gives the point's free flag.
+    regions, a padded row of all its candidates. Per point, two gathers do the common work: the
+    first candidate's (x, y) pair from one packed table, and the cell's kind (free? ambiguous?), one byte.
     Queries run in the points' float dtype (float32 particles, float64 for the exact public API).
     """
 
@@ -242,9 +257,10 @@ class _NearestStationLookup:
         self.nx = (width + 2 * _LOOKUP_MARGIN) * self.scale
         self.ny = (height + 2 * _LOOKUP_MARGIN) * self.scale
         self.stations = stations
-        self.free = _lookup_cells_free(grid, self.scale, _LOOKUP_MARGIN).ravel()  # (C,) bool
+        free = _lookup_cells_free(grid, self.scale, _LOOKUP_MARGIN).ravel()  # (C,) bool
         candidates, counts = _candidate_stations(stations, self.nx, self.ny, self.offset, self.scale)
         ambiguous = np.flatnonzero(counts > 1)
+        self.kind = _cell_kinds(free, counts > 1)  # (C,) int8
         self.row = np.full(len(counts), -1, dtype=np.int32)  # each cell's row of `_all`, -1: one candidate
         self.row[ambiguous] = np.arange(len(ambiguous))
         # The nearest station to a point beyond the table is the nearest to the point where the segment
@@ -258,16 +274,31 @@ class _NearestStationLookup:
         """(distance to the nearest station, free flag) for points x, y of shape (N,), in x's dtype."""
         tables = self._station_tables(x.dtype)
         cells, beyond = self._cells(x, y)
-        d2 = _squared_distances(tables.first_x.take(cells), tables.first_y.take(cells), x, y)
-        rows = self.row.take(cells)
-        ambiguous = np.flatnonzero(rows >= 0)
+        first = tables.first.take(cells, axis=0)  # (N, 2): one gather for both coordinates
+        d2 = _squared_distances(first[:, 0], first[:, 1], x, y)
+        del first
+        kinds = self.kind.take(cells)
+        ambiguous = np.flatnonzero(kinds >= _AMBIGUOUS)
         if len(ambiguous):
-            d2[ambiguous] = _nearest_candidate(tables, rows[ambiguous], x[ambiguous], y[ambiguous])
-        free = self.free.take(cells)
+            rows = self.row.take(cells.take(ambiguous))
+            d2[ambiguous] = _nearest_candidate(tables, rows, x.take(ambiguous), y.take(ambiguous))
+        free = np.bitwise_and(kinds, _FREE, out=kinds).view(bool)
         if len(beyond):
             d2[beyond] = _brute_force_squared_distances(tables.border, x[beyond], y[beyond])
             free[beyond] = False
         return np.sqrt(d2, out=d2), free
+
+    def distance_at(self, x: float, y: float) -> float:
+        """`locate`'s distance for one float64 point, in plain floats (the same IEEE operations, so the
+        same value), without the cost of numpy calls on arrays of one."""
+        ix, iy = math.floor(x * self.scale) + self.offset, math.floor(y * self.scale) + self.offset
+        if not (0 <= ix < self.nx and 0 <= iy < self.ny):
+            return float(self.distances(np.array([[x, y]]))[0])
+        cell = iy * self.nx + ix
+        row = self.row[cell]
+        candidates = self._all[row] if row >= 0 else self._first[cell : cell + 1]
+        nearest = min(_squared_distance(self.stations[i], x, y) for i in candidates.tolist())
+        return math.sqrt(nearest)
 
     def distances(self, points: np.ndarray) -> np.ndarray:
         """Distance to the nearest station for points of shape (N, 2)."""
@@ -290,22 +321,27 @@ class _NearestStationLookup:
         """The candidates' coordinates in `dtype`, made once per dtype."""
         if dtype not in self._tables:
             xy = self.stations.astype(dtype)
-            first, every = xy[self._first], xy[self._all]
+            every = xy[self._all]
             columns_x, columns_y = every[..., 0].T.copy(), every[..., 1].T.copy()  # (K, A): candidate k of each row
-            self._tables[dtype] = _StationTables(first[:, 0], first[:, 1], columns_x, columns_y, xy[self._border])
+            self._tables[dtype] = _StationTables(xy[self._first], columns_x, columns_y, xy[self._border])
         return self._tables[dtype]
 
 
 _NO_POINTS = np.empty(0, dtype=np.intp)
+_FREE, _AMBIGUOUS = 1, 2  # bits of a lookup cell's kind
+
+
+def _cell_kinds(free: np.ndarray, ambiguous: np.ndarray) -> np.ndarray:
+    """Each lookup cell's kind, int8 (C,): _FREE if free, plus _AMBIGUOUS if it has several candidates."""
+    return (free * _FREE + ambiguous * _AMBIGUOUS).astype(np.int8)
 
 
 @dataclass(frozen=True)
 class _StationTables:
-    """Coordinates of each lookup cell's first candidate (C,), of the ambiguous cells' candidates
+    """Coordinates of each lookup cell's first candidate (C, 2), of the ambiguous cells' candidates
     (K, A: row k holds every ambiguous cell's k-th candidate), and of the border cells' candidates (b, 2)."""
 
-    first_x: np.ndarray
-    first_y: np.ndarray
+    first: np.ndarray
     all_x: np.ndarray
     all_y: np.ndarray
     border: np.ndarray
@@ -349,6 +385,17 @@ def _squared_distances(sx: np.ndarray, sy: np.ndarray, x: np.ndarray, y: np.ndar
     dy *= dy
     dx += dy
     return dx
+
+
+def _squared_distance(station: np.ndarray, x: float, y: float) -> float:
+    """(sx - x)^2 + (sy - y)^2 in plain floats, in `_squared_distances`' order of operations."""
+    sx, sy = station.tolist()
+    dx, dy = sx - x, sy - y
+    return dx * dx + dy * dy
+
+
+def _is_scalar(value: Any) -> bool:
+    return isinstance(value, (float, int, np.floating, np.integer)) and not isinstance(value, bool)
 
 
 def _brute_force_squared_distances(stations: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:

@@ -18,6 +18,7 @@ Figures of one run (used by both):
 from __future__ import annotations
 
 import csv
+import functools
 import io
 import itertools
 import math
@@ -267,9 +268,16 @@ class MazeChoice:
     def world(self, maze_seed: int | None) -> Maze:
         """The maze of one run: the file's grid, or the generated maze of `maze_seed`."""
         if self.grid is not None:
-            return Maze(self.grid, source=self.label)
+            return _maze_of(self.grid, self.label)
         assert self.size is not None and self.stations is not None
         return generate_maze(*self.size, self.stations, np.random.default_rng(maze_seed))
+
+
+@functools.lru_cache(maxsize=8)
+def _maze_of(grid: tuple[tuple[int, ...], ...], label: str) -> Maze:
+    """The Maze of a file's grid, built once per process: its nearest-station table then serves every
+    run of the study that uses it (a Maze does not change once built)."""
+    return Maze(grid, source=label)
 
 
 @dataclass(frozen=True)

@@ -67,8 +67,10 @@ def move(positions: np.ndarray, headings: np.ndarray, speed: float = ROBOT_SPEED
     """Equation (1): one step of length `speed` along `headings`; positions (N, 2) -> (N, 2) in their
     dtype, stored column by column (order F) so that the x and y columns are contiguous."""
     moved = np.empty(positions.shape, positions.dtype, order="F")
-    moved[:, 0] = positions[:, 0] + speed * np.cos(headings)
-    moved[:, 1] = positions[:, 1] + speed * np.sin(headings)
+    for column, direction in ((0, np.cos), (1, np.sin)):
+        step = direction(headings)
+        step *= speed
+        np.add(positions[:, column], step, out=moved[:, column])
     return moved
 
 
@@ -103,10 +105,16 @@ def log_likelihood(
 # -- weights ---------------------------------------------------------------------------------------
 def log_sum_exp(log_w: np.ndarray) -> float:
     """log(sum(exp(log_w))) without overflow or underflow; -inf when every entry is -inf."""
-    top = np.max(log_w)
+    top = log_w.max()  # the array methods skip np.max's dispatch: a few us a call, which counts at small N
     if not np.isfinite(top):
         return float(top)
-    return float(top + np.log(np.sum(np.exp(log_w - top))))
+    shifted = np.subtract(log_w, top)
+    return float(top + np.log(np.exp(shifted, out=shifted).sum()))
+
+
+def _exp_in_place(values: np.ndarray) -> np.ndarray:
+    """exp(values), written over `values` (a temporary of the caller's): no second array."""
+    return np.exp(values, out=values)
 
 
 def normalise_log_weights(log_w: np.ndarray) -> np.ndarray:
@@ -116,14 +124,14 @@ def normalise_log_weights(log_w: np.ndarray) -> np.ndarray:
 
 def effective_sample_size(weights: np.ndarray) -> float:
     """N_eff = 1 / sum(W_i^2) for normalised weights W (Arulampalam et al., eq. 51)."""
-    return float(1.0 / np.sum(weights * weights))
+    return float(1.0 / (weights * weights).sum())
 
 
 # -- weighted summaries: numpy's pairwise sums, not BLAS (threaded BLAS stalls on a busy machine) -----
 def weighted_mean(weights: np.ndarray, points: np.ndarray) -> np.ndarray:
     """sum_i W_i x_i for normalised weights (N,) and points (N, 2), as float64 (2,)."""
     w = weights.astype(points.dtype, copy=False)
-    return np.array([np.sum(w * points[:, 0]), np.sum(w * points[:, 1])], dtype=float)
+    return np.array([(w * points[:, 0]).sum(), (w * points[:, 1]).sum()], dtype=float)
 
 
 def weighted_covariance(weights: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -141,7 +149,7 @@ def mass_within(weights: np.ndarray, points: np.ndarray, centre: np.ndarray, rad
     dx *= dx
     dy *= dy
     dx += dy
-    return float(np.sum(weights, where=dx <= radius * radius))
+    return float(weights.sum(where=dx <= radius * radius))
 
 
 # -- resampling: plain functions, normalised weights W (N,) -> ancestor indices (M,) ---------------
@@ -179,7 +187,7 @@ def systematic_resample(weights: np.ndarray, rng: np.random.Generator, count: in
     np.ceil(below, out=below)
     ends = below.astype(np.int64)
     ends[0], ends[-1] = 0, count  # the last guards against round-off leaving cumsum(W) short of 1
-    return _ancestors_from_counts(np.clip(ends, 0, count), count)
+    return _ancestors_from_counts(np.minimum(ends, count, out=ends), count)  # ends >= 0 already
 
 
 def _ancestors_from_counts(ends: np.ndarray, count: int) -> np.ndarray:
@@ -832,7 +840,7 @@ class AuxiliaryParticleFilter(ParticleFilter):
         else:
             # i^j ~ the first stage, then x_k^j ~ p(x_k | x_{k-1}^{i^j})
             x, headings, ancestors, injected = self.draw_particles(
-                np.exp(first_stage - log_first_total), *self.motion(compass_angle)
+                _exp_in_place(first_stage - log_first_total), *self.motion(compass_angle)
             )
             self.positions, self.headings = x, headings
             log_lik = self.likelihood(z, x)
