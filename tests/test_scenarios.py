@@ -119,7 +119,8 @@ def test_a_file_with_only_the_papers_four_keys_loads_and_runs(tmp_path, paper_wo
         actual_angles=scenario.robot_actual_angles,
         compass_angles=scenario.robot_compass_angles,
     )
-    result = simulate(robot, paper_world, 0.3, 0.5, init_particles_pos=scenario.init_particles_pos, seed=0)
+    with pytest.warns(UserWarning, match="1 of the 3 initial particles lie outside the free area"):
+        result = simulate(robot, paper_world, 0.3, 0.5, init_particles_pos=scenario.init_particles_pos, seed=0)
     assert len(result.errors) == 3 and result.scenario.robot_measurements is not None
 
 
