@@ -18,8 +18,11 @@ import warnings
 from pathlib import Path
 from typing import Annotated, Any
 
-import numpy as np
-import typer
+try:
+    import numpy as np
+    import typer
+except ModuleNotFoundError as missing:  # run before installing: say what to do, not a traceback
+    sys.exit(f'error: {missing.name} is not installed; install the lab first: pip install -e ".[test]" (see README.md)')
 
 import draw
 import experiments
@@ -63,6 +66,11 @@ app = typer.Typer(
 
 
 # Where a run is drawn: these four options sit on every command that runs filters.
+# Recovery from a kidnapping (augmented MCL): the same options on run and compare.
+RecoveryOption = Annotated[bool, typer.Option(help="augmented MCL: inject uniform particles when lost")]
+SensorResettingOption = Annotated[bool, typer.Option(help="augmented MCL injecting particles that match z")]
+AlphaSlowOption = Annotated[float, typer.Option(help="recovery: rate of the long-term likelihood average")]
+AlphaFastOption = Annotated[float, typer.Option(help="recovery: rate of the short-term likelihood average")]
 ViewerOption = Annotated[bool, typer.Option("--viewer", help="open the native Rerun viewer (default with a display)")]
 RrdOption = Annotated[Path | None, typer.Option("--rrd", help="save the Rerun recording to this file")]
 WebOption = Annotated[bool, typer.Option("--web", help="serve the web viewer on 127.0.0.1")]
@@ -193,12 +201,10 @@ def run(
     kidnap_at: Annotated[
         int | None, typer.Option(min=1, help="kidnap the robot at this step (carried to a random free place)")
     ] = None,
-    recovery: Annotated[bool, typer.Option(help="augmented MCL: inject uniform particles when lost")] = False,
-    sensor_resetting: Annotated[
-        bool, typer.Option(help="augmented MCL injecting particles that match the measurement")
-    ] = False,
-    alpha_slow: Annotated[float, typer.Option(help="recovery: rate of the long-term likelihood average")] = ALPHA_SLOW,
-    alpha_fast: Annotated[float, typer.Option(help="recovery: rate of the short-term likelihood average")] = ALPHA_FAST,
+    recovery: RecoveryOption = False,
+    sensor_resetting: SensorResettingOption = False,
+    alpha_slow: AlphaSlowOption = ALPHA_SLOW,
+    alpha_fast: AlphaFastOption = ALPHA_FAST,
     kld: Annotated[bool, typer.Option(help="KLD-sampling: adapt the particle count (--particles is the most)")] = False,
     kld_epsilon: Annotated[float, typer.Option(help="KLD-sampling: error bound epsilon")] = KLD_EPSILON,
     kld_z: Annotated[
@@ -313,10 +319,10 @@ def compare(
         int | None,
         typer.Option(min=1, help="kidnap the robot at this step: the walk before it is replayed, then new"),
     ] = None,
-    recovery: Annotated[bool, typer.Option(help="augmented MCL in the particle filters")] = False,
-    sensor_resetting: Annotated[bool, typer.Option(help="augmented MCL with sensor resetting")] = False,
-    alpha_slow: Annotated[float, typer.Option(help="recovery: rate of the long-term likelihood average")] = ALPHA_SLOW,
-    alpha_fast: Annotated[float, typer.Option(help="recovery: rate of the short-term likelihood average")] = ALPHA_FAST,
+    recovery: RecoveryOption = False,
+    sensor_resetting: SensorResettingOption = False,
+    alpha_slow: AlphaSlowOption = ALPHA_SLOW,
+    alpha_fast: AlphaFastOption = ALPHA_FAST,
     kld: Annotated[
         bool, typer.Option(help="KLD-sampling in the particle filters (the scenario's count is the most)")
     ] = False,
