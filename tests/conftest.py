@@ -2,16 +2,14 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))  # the lab's modules live at the top level, as in the paper
+from mazelab.maze import Maze
 
-from draw import Maze  # noqa: E402
+ROOT = Path(__file__).resolve().parent.parent
 
 MAZES = sorted((ROOT / "mazes").glob("*.txt"))
 PAPER_MAZE = (
@@ -37,10 +35,10 @@ def rng() -> np.random.Generator:
 def _no_viewer_and_recordings_in_tmp(tmp_path, monkeypatch):
     """Runs that draw by default (run_model, the CLI) never open a viewer during the tests, and
     their default recordings go to a temporary folder, not into the working tree."""
-    import draw
+    from mazelab.viz import targets
 
-    monkeypatch.setattr(draw, "has_display", lambda: False)
-    monkeypatch.setattr(draw, "RECORDINGS_DIR", tmp_path / "recordings")
+    monkeypatch.setattr(targets, "has_display", lambda: False)
+    monkeypatch.setattr(targets, "RECORDINGS_DIR", tmp_path / "recordings")
 
 
 def pytest_addoption(parser):

@@ -8,8 +8,8 @@ import math
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from draw import Maze, MazeError, parse_maze_text
-from particle_filter import Scenario, ScenarioError, load_scenario
+from mazelab.maze import Maze, MazeError, parse_maze_text
+from mazelab.scenario import Scenario, ScenarioError, load_scenario
 
 VALID = {
     "format_version": 1,

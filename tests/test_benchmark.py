@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from conftest import PAPER_MAZE
 
-import benchmark
-from draw import Maze
+from mazelab import bench as benchmark
+from mazelab.maze import Maze
 
 
 def test_large_maze_is_seeded_and_has_thousands_of_stations():

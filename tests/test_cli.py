@@ -8,7 +8,7 @@ import sys
 import pytest
 from conftest import ROOT
 
-from main import main
+from mazelab.cli.app import main
 
 
 def test_run_prints_a_summary(capsys):

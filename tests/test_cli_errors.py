@@ -8,7 +8,7 @@ import os
 import pytest
 from conftest import PAPER_MAZE
 
-from main import main
+from mazelab.cli.app import main
 
 SCENARIO = {
     "init_robot_pos": [3.5, 1.5],

@@ -16,24 +16,21 @@ import numpy as np
 import pytest
 from conftest import PAPER_MAZE, ROOT
 
-import experiments
-from draw import Maze
-from experiments import (
-    CSV_COLUMNS,
-    MazeChoice,
-    RunRecord,
-    compare_filters,
-    final_error,
-    run_study,
-    student_t_quantile,
-    study_settings,
-    study_tasks,
-    summarise_study,
-    t_interval,
-)
-from kidnapping import DEFAULT_WINDOW, recovery_steps, relocalised
-from main import from_scenario, main
-from particle_filter import CONVERGENCE_RADIUS, Robot, convergence_step, load_scenario, save_scenario, simulate
+from mazelab.cli.app import from_scenario, main
+from mazelab.experiments import study as experiments
+from mazelab.experiments.compare import compare_filters
+from mazelab.experiments.executor import run_study
+from mazelab.experiments.kidnapping import DEFAULT_WINDOW, recovery_steps, relocalised
+from mazelab.experiments.runs import final_error
+from mazelab.experiments.stats import student_t_quantile, t_interval
+from mazelab.experiments.study import MazeChoice, RunRecord, study_settings, study_tasks
+from mazelab.experiments.summary import CSV_COLUMNS, study_table, summarise_study
+from mazelab.lab import simulate
+from mazelab.maze import Maze
+from mazelab.model import CONVERGENCE_RADIUS
+from mazelab.robot import Robot
+from mazelab.scenario import load_scenario, save_scenario
+from mazelab.simulation import convergence_step
 
 FILTERS = ["SIRParticleFilter", "AuxiliaryParticleFilter", "RegularizedParticleFilter"]
 # With 2 degrees of freedom Student's t has F(t) = 1/2 + t / (2 sqrt(2 + t^2)), so F(t) = q at
@@ -363,11 +360,11 @@ def test_a_kidnapped_study_reports_relocalisation_computed_by_hand(capsys):
         recovered = sorted(r.steps_to_recover for r in mine if r.steps_to_recover is not None)
         assert s.relocalised_share == sum(r.relocalised for r in mine) / 3
         assert s.median_steps_to_recover == (statistics.median(recovered) if recovered else None)
-    table = experiments.study_table(summaries, ["recovery"])
+    table = study_table(summaries, ["recovery"])
     assert "re-localised" in table and "median steps to recover" in table
     plain_settings, plain_tasks = tiny_tasks(runs=1)
     plain = summarise_study(run_study(plain_tasks, workers=1).records, plain_settings)
-    assert "re-localised" not in experiments.study_table(plain, ["sigma"])  # no kidnapping, no such columns
+    assert "re-localised" not in study_table(plain, ["sigma"])  # no kidnapping, no such columns
 
 
 def test_study_varies_recovery_from_the_command_line(tmp_path, capsys):

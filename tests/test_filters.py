@@ -7,20 +7,12 @@ import math
 import numpy as np
 import pytest
 
-from particle_filter import (
-    GRID_RESOLUTION,
-    LOG_UNDERFLOW,
-    ROBOT_SPEED,
-    AuxiliaryParticleFilter,
-    GridBayesFilter,
-    RegularizedParticleFilter,
-    Robot,
-    SIRParticleFilter,
-    arc_kernel,
-    fft_convolve_same,
-    resolve_filter,
-    simulate,
-)
+from mazelab.filters import AuxiliaryParticleFilter, RegularizedParticleFilter, SIRParticleFilter
+from mazelab.grid_filter import GRID_RESOLUTION, GridBayesFilter, arc_kernel, fft_convolve_same
+from mazelab.lab import simulate
+from mazelab.model import LOG_UNDERFLOW, ROBOT_SPEED
+from mazelab.registry import resolve_filter
+from mazelab.robot import Robot
 
 PARTICLE_FILTERS = ["sir", "apf", "rpf"]
 

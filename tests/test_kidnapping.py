@@ -9,32 +9,23 @@ import numpy as np
 import pytest
 from conftest import ROOT
 
-from draw import Maze
-from kidnapping import recovery_steps, recovery_trial
-from main import main
-from particle_filter import (
+from mazelab.cli.app import main
+from mazelab.experiments.kidnapping import recovery_steps, recovery_trial
+from mazelab.filters import RegularizedParticleFilter, SIRParticleFilter
+from mazelab.lab import run_model, simulate
+from mazelab.maze import Maze
+from mazelab.model import ROBOT_SPEED, log_likelihood
+from mazelab.recovery import SENSOR_RESET_LEVEL, Recovery, localised_likelihood, measurement_matched_places
+from mazelab.resampling import (
     KLD_QUANTILE,
     RESAMPLING_SCHEMES,
-    ROBOT_SPEED,
-    SENSOR_RESET_LEVEL,
     KLDSampling,
-    Recovery,
-    RegularizedParticleFilter,
-    Robot,
-    Scenario,
-    ScenarioError,
-    SIRParticleFilter,
     kld_resample,
     kld_sample_size,
-    load_scenario,
-    localised_likelihood,
-    log_likelihood,
-    measurement_matched_places,
-    run_model,
-    save_scenario,
-    simulate,
     systematic_resample,
 )
+from mazelab.robot import Robot
+from mazelab.scenario import Scenario, ScenarioError, load_scenario, save_scenario
 
 PARTICLE_FILTERS = ["sir", "apf", "rpf"]
 

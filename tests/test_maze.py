@@ -8,7 +8,7 @@ from conftest import MAZES, PAPER_MAZE, ROOT
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from draw import Maze, MazeError, parse_maze_text
+from mazelab.maze import Maze, MazeError, parse_maze_text
 
 
 def brute_force_distance(world: Maze, points: np.ndarray) -> np.ndarray:

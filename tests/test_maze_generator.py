@@ -7,9 +7,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from draw import EMPTY, STATION_WALL, Maze
-from main import main
-from maze_generator import free_area_is_connected, generate_maze, maze_picture, parse_size
+from mazelab.cli.app import main
+from mazelab.maze import EMPTY, STATION_WALL, Maze
+from mazelab.maze_generator import free_area_is_connected, generate_maze, maze_picture, parse_size
 
 
 def flood_fill_size(grid: np.ndarray) -> int:

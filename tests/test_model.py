@@ -9,19 +9,11 @@ import numpy as np
 import pytest
 from conftest import MAZES
 
-from draw import Maze
-from particle_filter import (
-    MAX_STRAIGHT_STEPS,
-    OUTSIDE_PENALTY,
-    RESAMPLING_SCHEMES,
-    ROBOT_SPEED,
-    Robot,
-    effective_sample_size,
-    log_likelihood,
-    move,
-    resampling_scheme,
-    sample_headings,
-)
+from mazelab.maze import Maze
+from mazelab.model import MAX_STRAIGHT_STEPS, OUTSIDE_PENALTY, ROBOT_SPEED, log_likelihood, move, sample_headings
+from mazelab.resampling import RESAMPLING_SCHEMES, resampling_scheme
+from mazelab.robot import Robot
+from mazelab.weights import effective_sample_size
 
 
 def test_move_is_equation_one():

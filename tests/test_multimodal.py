@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 from conftest import ROOT
 
-from draw import Maze
-from particle_filter import GridBayesFilter, Robot
+from mazelab.grid_filter import GridBayesFilter
+from mazelab.maze import Maze
+from mazelab.robot import Robot
 
 
 def test_twin_rooms_posterior_stays_split_between_the_rooms():

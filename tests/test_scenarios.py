@@ -8,14 +8,9 @@ import os
 import numpy as np
 import pytest
 
-from particle_filter import (
-    Scenario,
-    ScenarioError,
-    load_scenario,
-    save_scenario,
-    simulate,
-    write_text_atomically,
-)
+from mazelab.atomic import write_text_atomically
+from mazelab.lab import simulate
+from mazelab.scenario import Scenario, ScenarioError, load_scenario, save_scenario
 
 PAPER_KEYS = ["init_robot_pos", "init_particles_pos", "robot_actual_angles", "robot_compass_angles"]
 

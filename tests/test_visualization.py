@@ -18,8 +18,15 @@ import rerun as rr
 from conftest import PAPER_MAZE, ROOT
 from rerun.chunk import RrdReader
 
-import draw
-from draw import (
+from mazelab.cli.app import main
+from mazelab.grid_filter import GRID_RESOLUTION
+from mazelab.lab import simulate
+from mazelab.maze import Maze
+from mazelab.model import CONFIDENCE_RADIUS
+from mazelab.robot import Robot
+from mazelab.viz import processes, targets
+from mazelab.viz.recording import heading_vectors
+from mazelab.viz.style import (
     CONFIDENT_COLOR,
     ESTIMATE_COLOR,
     INJECTED_COLOR,
@@ -27,14 +34,10 @@ from draw import (
     PARTICLE_ARROW_LENGTH,
     ROBOT_ARROW_LENGTH,
     STATION_COLOR,
-    Maze,
-    Visualization,
     entity_name,
-    heading_vectors,
-    open_comparison,
 )
-from main import main
-from particle_filter import CONFIDENCE_RADIUS, GRID_RESOLUTION, Robot, simulate
+from mazelab.viz.targets import Visualization
+from mazelab.viz.views import open_comparison
 
 FILTERS = ["SIRParticleFilter", "AuxiliaryParticleFilter", "RegularizedParticleFilter"]
 # positions are logged as float32: on a map of at most 10 units that keeps ~1e-6 of them
@@ -319,15 +322,15 @@ def test_the_comparison_shows_each_filter_side_by_side_and_every_error_below(tmp
 # -- where it goes ---------------------------------------------------------------------------------
 def test_without_a_display_a_run_is_saved_in_recordings_and_says_where(world, capsys):
     recorded_run(world, True, steps=2)
-    (path,) = draw.RECORDINGS_DIR.glob("*.rrd")
+    (path,) = targets.RECORDINGS_DIR.glob("*.rrd")
     assert path.name.startswith("sir_particle_filter-")
     out = capsys.readouterr().out
     assert "No display found" in out and f"open it with: rerun {path}" in out
     assert steps_of(load(path)["/map/robot"]) == [1, 2]
     recorded_run(world, "viewer", steps=1)  # asked for the viewer: falls back to a file, saying so
-    assert len(list(draw.RECORDINGS_DIR.glob("*.rrd"))) == 2
+    assert len(list(targets.RECORDINGS_DIR.glob("*.rrd"))) == 2
     assert "instead of opening the viewer" in capsys.readouterr().out
-    assert not list(draw.RECORDINGS_DIR.glob(".*partial"))  # complete files only
+    assert not list(targets.RECORDINGS_DIR.glob(".*partial"))  # complete files only
 
 
 def test_a_callers_own_recording_gets_the_run_and_stays_open(tmp_path, world):
@@ -352,8 +355,8 @@ def test_bad_targets_are_one_clear_error(tmp_path, world):
 
 def test_the_web_viewer_binds_localhost_and_ctrl_c_ends_it_cleanly(world, monkeypatch, capsys):
     servers = []
-    start = draw.WebServer.start
-    monkeypatch.setattr(draw.WebServer, "start", classmethod(lambda cls: servers.append(start()) or servers[-1]))
+    start = processes.WebServer.start
+    monkeypatch.setattr(processes.WebServer, "start", classmethod(lambda cls: servers.append(start()) or servers[-1]))
 
     def interrupt(k, robot, filt):
         if k == 3:
@@ -365,14 +368,14 @@ def test_the_web_viewer_binds_localhost_and_ctrl_c_ends_it_cleanly(world, monkey
     assert server.url.startswith(f"http://127.0.0.1:{server.web_port}/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A")
     assert server.process.poll() is not None  # interrupted mid-run: stopped at once, no waiting
     assert server.process.args[1:4] == ["--serve-web", "--bind", "127.0.0.1"]
-    (path,) = draw.RECORDINGS_DIR.glob("*.rrd")  # the copy on disk holds the steps done
+    (path,) = targets.RECORDINGS_DIR.glob("*.rrd")  # the copy on disk holds the steps done
     assert steps_of(load(path)["/map/robot"]) == [1, 2, 3]
     assert "Serving the web viewer at http://127.0.0.1:" in capsys.readouterr().out
 
 
 def test_after_a_web_run_the_viewer_is_served_until_ctrl_c(world, monkeypatch, capsys):
     servers = []
-    start = draw.WebServer.start
+    start = processes.WebServer.start
 
     def start_and_interrupt_the_wait(cls):
         server = start()
@@ -380,7 +383,7 @@ def test_after_a_web_run_the_viewer_is_served_until_ctrl_c(world, monkeypatch, c
         servers.append(server)
         return server
 
-    monkeypatch.setattr(draw.WebServer, "start", classmethod(start_and_interrupt_the_wait))
+    monkeypatch.setattr(processes.WebServer, "start", classmethod(start_and_interrupt_the_wait))
     simulate(Robot(0.3, 0.5, (3.5, 1.5)), world, 0.3, 0.5, 100, 4, seed=1, visualize="web")
     (server,) = servers
     assert server.process.poll() is not None
@@ -403,24 +406,24 @@ def _ctrl_c_once(wait):
 
 def test_the_rerun_processes_we_start_have_analytics_off_and_ours_is_left_alone(monkeypatch):
     monkeypatch.delenv("CI", raising=False)
-    assert draw.rerun_environment()["CI"] == "1" and "CI" not in os.environ
+    assert processes.rerun_environment()["CI"] == "1" and "CI" not in os.environ
     monkeypatch.setenv("CI", "true")
-    assert draw.rerun_environment()["CI"] == "true"
+    assert processes.rerun_environment()["CI"] == "true"
 
 
 def test_a_viewer_that_cannot_open_falls_back_to_a_file_at_once(world, monkeypatch, capsys):
     """A display that is set but unusable: the viewer exits, and the run is saved instead (no waiting)."""
     import time
 
-    monkeypatch.setattr(draw, "has_display", lambda: True)
-    monkeypatch.setattr(draw, "VIEWER_PORT", draw.free_port())
+    monkeypatch.setattr(targets, "has_display", lambda: True)
+    monkeypatch.setattr(processes, "VIEWER_PORT", processes.free_port())
     monkeypatch.setenv("DISPLAY", ":424242")  # no such X server
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
     started = time.monotonic()
     recorded_run(world, "viewer", steps=2)
     assert time.monotonic() - started < 10
     assert "the Rerun viewer did not start" in capsys.readouterr().out
-    (path,) = draw.RECORDINGS_DIR.glob("*.rrd")
+    (path,) = targets.RECORDINGS_DIR.glob("*.rrd")
     assert steps_of(load(path)["/map/robot"]) == [1, 2]
 
 
@@ -466,8 +469,8 @@ def test_the_rendered_recording_shows_the_upright_maze(tmp_path, world):
 
     path, png = tmp_path / "run.rrd", tmp_path / "run.png"
     recorded_run(world, path, steps=5)
-    client = ViewerClient.spawn(headless=True, port=draw.free_port(), hide_welcome_screen=True,
-                                executable_path=draw.viewer_executable())  # fmt: skip
+    client = ViewerClient.spawn(headless=True, port=processes.free_port(), hide_welcome_screen=True,
+                                executable_path=processes.viewer_executable())  # fmt: skip
     with client:
         client.open(str(path))
         client.set_time("step", sequence=5, play_state="paused")

@@ -7,7 +7,7 @@ which the error stays below CONVERGENCE_RADIUS to the end (`convergence_step` of
 kidnapping on; None when the last error is not below it). The same seed gives every filter and
 recovery variant the same walk, kidnapping and initial particles, so the table compares like with like.
 
-    python kidnapping.py [runs]    the recovery table on mazes/maze_10x10.txt (40 runs by default)
+    python -m mazelab.experiments.kidnapping [runs]    the recovery table on mazes/maze_10x10.txt (40 runs by default)
 """
 
 from __future__ import annotations
@@ -23,8 +23,10 @@ from typing import Any
 
 import numpy as np
 
-from draw import Maze
-from particle_filter import CONVERGENCE_RADIUS, Robot, RunResult, convergence_step, simulate
+from mazelab.maze import Maze
+from mazelab.model import CONVERGENCE_RADIUS
+from mazelab.robot import Robot
+from mazelab.simulation import RunResult, convergence_step, simulate
 
 RECOVERY_VARIANTS = {"none": None, "augmented": "augmented", "sensor": "sensor"}  # table label -> recovery=
 DEFAULT_WINDOW = 30  # re-localised: mean error over this many final steps below CONVERGENCE_RADIUS
@@ -191,3 +193,17 @@ if __name__ == "__main__":
     maze = Maze.from_file(Path(__file__).resolve().parent / "mazes" / "maze_10x10.txt")
     count = int(sys.argv[1]) if len(sys.argv) > 1 else 40
     print(format_recovery_table(recovery_table(maze, runs=count, workers=2)))
+
+
+__all__ = [
+    "DEFAULT_WINDOW",
+    "RECOVERY_VARIANTS",
+    "KidnapOutcome",
+    "RecoveryRow",
+    "format_recovery_table",
+    "recovery_steps",
+    "recovery_table",
+    "recovery_trial",
+    "relocalised",
+    "walk_until",
+]

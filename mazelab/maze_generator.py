@@ -18,7 +18,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from draw import EMPTY, STATION_WALL, WALL, Maze
+from mazelab.maze import EMPTY, STATION_WALL, WALL, Maze
 
 DEFAULT_WALL_SHARE = 0.3  # share of the cells that become walls (station blocks included)
 CELLS_PER_STATION_BLOCK = 25  # the default station count: one block per this many cells
@@ -176,3 +176,16 @@ def describe_maze(world: Maze) -> str:
         f"{world.height}x{world.width}, {len(world.free_cells)} free cells ({connected}), "
         f"{blocks} station blocks, {len(world.stations)} stations"
     )
+
+
+__all__ = [
+    "CELLS_PER_STATION_BLOCK",
+    "DEFAULT_WALL_SHARE",
+    "default_station_count",
+    "describe_maze",
+    "free_area_is_connected",
+    "generate_maze",
+    "maze_file_text",
+    "maze_picture",
+    "parse_size",
+]

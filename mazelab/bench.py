@@ -21,15 +21,12 @@ from pathlib import Path
 
 import numpy as np
 
-from draw import EMPTY, STATION_WALL, WALL, Maze
-from particle_filter import (
-    OUTSIDE_PENALTY,
-    ROBOT_SPEED,
-    GridBayesFilter,
-    Robot,
-    resolve_filter,
-    simulate,
-)
+from mazelab.grid_filter import GridBayesFilter
+from mazelab.maze import EMPTY, STATION_WALL, WALL, Maze
+from mazelab.model import OUTSIDE_PENALTY, ROBOT_SPEED
+from mazelab.registry import resolve_filter
+from mazelab.robot import Robot
+from mazelab.simulation import simulate
 
 BENCH_SIGMA, BENCH_DELTA = 0.3, 0.5
 BENCH_FILTERS = ("sir", "apf", "rpf")
@@ -229,3 +226,29 @@ def run_benchmark(small: Maze, quick: bool = False, echo: Callable[[str], None] 
 
 def _size(world: Maze) -> str:
     return f"{world.height}x{world.width}"
+
+
+__all__ = [
+    "BENCH_DELTA",
+    "BENCH_FILTERS",
+    "BENCH_SIGMA",
+    "FULL_COUNTS",
+    "LARGE_MAZE_CELLS",
+    "LARGE_MAZE_SIZE",
+    "QUICK_COUNTS",
+    "REFERENCE_LIMIT",
+    "BenchRow",
+    "big_run_seconds",
+    "cpu_model",
+    "filter_stepper",
+    "format_table",
+    "grid_filter_ms",
+    "large_maze",
+    "measure",
+    "peak_memory",
+    "record_walk",
+    "reference_stepper",
+    "run_benchmark",
+    "small_run_ms",
+    "time_steps",
+]

@@ -1,0 +1,457 @@
+"""The command-line interface (typer): `python main.py ...` or `mazelab ...` from any folder.
+
+mazelab                 the paper's example: a lost robot, SIR, 1500 particles, 200 steps
+mazelab run --help      one run, with any maze, filter and parameters, or a saved scenario
+mazelab compare --help  every filter on one saved scenario: a table, a CSV, the lab's figure
+mazelab study --help    a Monte Carlo parameter study over seeded runs, on all cores
+mazelab maze --help     random connected mazes (generate) and a look at any maze (show)
+mazelab bench [--quick] the filters' speed against a plain numpy reference step
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+import warnings
+from pathlib import Path
+from typing import Annotated, Any
+
+import numpy as np
+import typer
+
+from mazelab import maze_generator
+from mazelab.atomic import write_text_atomically
+from mazelab.cli.maze import maze_app
+from mazelab.cli.options import (
+    DEFAULT_DELTA,
+    DEFAULT_SIGMA,
+    AlphaFastOption,
+    AlphaSlowOption,
+    MaxDrawnOption,
+    NoVizOption,
+    RecoveryOption,
+    RrdOption,
+    SensorResettingOption,
+    UserError,
+    ViewerOption,
+    WebOption,
+    check_output_path,
+    check_outputs,
+    parse_list,
+    visualization,
+    warn_in_one_line,
+)
+from mazelab.cli.reports import kidnap_report, particle_count_report, progress_printer, summarise
+from mazelab.experiments.compare import compare_filters, comparison_table, errors_csv, plot_errors
+from mazelab.experiments.executor import default_workers, run_study
+from mazelab.experiments.runs import parse_filters
+from mazelab.experiments.stats import CONFIDENCE_LEVEL
+from mazelab.experiments.study import MazeChoice, study_settings, study_tasks, varied_parameters
+from mazelab.experiments.summary import describe_setting, plot_study, study_csv, study_table, summarise_study
+from mazelab.filters import ParticleFilter
+from mazelab.lab import simulate
+from mazelab.maze import Maze, MazeError
+from mazelab.mazes import DEFAULT_MAZE, find_maze, load_maze
+from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, RPF_THRESHOLD
+from mazelab.recovery import ALPHA_FAST, ALPHA_SLOW, Recovery
+from mazelab.registry import resolve_filter
+from mazelab.resampling import KLD_EPSILON, KLD_QUANTILE, RESAMPLING_SCHEMES, KLDSampling
+from mazelab.robot import Robot
+from mazelab.scenario import Scenario, ScenarioError, load_scenario, save_scenario
+from mazelab.simulation import new_seed
+from mazelab.viz.style import DEFAULT_MAX_DRAWN
+
+app = typer.Typer(
+    add_completion=False,
+    no_args_is_help=False,
+    pretty_exceptions_enable=False,
+    help="A robot lost in a maze, found by particle filters. Without a command: the paper's example.",
+)
+
+
+@app.callback(invoke_without_command=True)
+def demo(
+    ctx: typer.Context,
+    viewer: ViewerOption = False,
+    rrd: RrdOption = None,
+    web: WebOption = False,
+    no_viz: NoVizOption = False,
+    max_drawn: MaxDrawnOption = DEFAULT_MAX_DRAWN,
+    force: Annotated[bool, typer.Option(help="replace an existing --rrd file")] = False,
+) -> None:
+    """The paper's example: a lost robot, the SIR filter, 1500 particles, 200 steps."""
+    if ctx.invoked_subcommand is not None:
+        return
+    visualize = visualization(viewer, rrd, web, no_viz, max_drawn)
+    if rrd is not None:
+        check_output_path(rrd, force)
+    world = load_maze(DEFAULT_MAZE)
+    seed = int(np.random.SeedSequence().entropy % 2**31)
+    robot = Robot(DEFAULT_SIGMA, DEFAULT_DELTA, world.random_free_place(np.random.default_rng(seed)))
+    typer.echo(
+        f"A robot is lost in {find_maze(DEFAULT_MAZE).name} ({world.height}x{world.width}, "
+        f"{len(world.stations)} stations); SIR with {DEFAULT_PARTICLE_COUNT} particles looks for it."
+    )
+    result = simulate(
+        robot,
+        world,
+        DEFAULT_SIGMA,
+        DEFAULT_DELTA,
+        DEFAULT_PARTICLE_COUNT,
+        DEFAULT_STEPS,
+        seed=seed,
+        visualize=visualize,
+        on_step=progress_printer(DEFAULT_STEPS),
+    )
+    typer.echo(summarise(result))
+    typer.echo(f"Repeat this run: python main.py run --seed {seed} --start-seed {seed}")
+
+
+@app.command()
+def run(
+    maze: Annotated[str | None, typer.Option(help=f"maze file, or a name in mazes/ [default: {DEFAULT_MAZE}]")] = None,
+    filter_name: Annotated[str, typer.Option("--filter", help="sir, apf, rpf or grid (or a class name)")] = "sir",
+    particles: Annotated[int, typer.Option(min=1, help="particle count N_S")] = DEFAULT_PARTICLE_COUNT,
+    steps: Annotated[int, typer.Option(min=1, help="number of steps")] = DEFAULT_STEPS,
+    sigma: Annotated[float | None, typer.Option(help="measurement noise std [0.2, 0.8]")] = None,
+    delta: Annotated[float | None, typer.Option(help="compass error width, radians [0.05, 0.6]")] = None,
+    seed: Annotated[int | None, typer.Option(help="seed of the run (robot, particles, filter)")] = None,
+    start_seed: Annotated[int | None, typer.Option(help="seed of the robot's start position")] = None,
+    scenario: Annotated[Path | None, typer.Option(help="replay a saved scenario json")] = None,
+    save_scenario_path: Annotated[Path | None, typer.Option("--save-scenario", help="save the run as json")] = None,
+    force: Annotated[bool, typer.Option(help="replace existing output files (--save-scenario, --rrd)")] = False,
+    quiet: Annotated[bool, typer.Option(help="no per-step progress")] = False,
+    resampling: Annotated[str, typer.Option(help=f"resampling scheme: {', '.join(RESAMPLING_SCHEMES)}")] = "systematic",
+    kidnap_at: Annotated[
+        int | None, typer.Option(min=1, help="kidnap the robot at this step (carried to a random free place)")
+    ] = None,
+    recovery: RecoveryOption = False,
+    sensor_resetting: SensorResettingOption = False,
+    alpha_slow: AlphaSlowOption = ALPHA_SLOW,
+    alpha_fast: AlphaFastOption = ALPHA_FAST,
+    kld: Annotated[bool, typer.Option(help="KLD-sampling: adapt the particle count (--particles is the most)")] = False,
+    kld_epsilon: Annotated[float, typer.Option(help="KLD-sampling: error bound epsilon")] = KLD_EPSILON,
+    kld_z: Annotated[
+        float | None,
+        typer.Option(help=f"KLD-sampling: normal quantile z_(1-delta) [default: {KLD_QUANTILE:.3f}, for 99%]"),
+    ] = None,
+    viewer: ViewerOption = False,
+    rrd: RrdOption = None,
+    web: WebOption = False,
+    no_viz: NoVizOption = False,
+    max_drawn: MaxDrawnOption = DEFAULT_MAX_DRAWN,
+) -> None:
+    """Run one filter: on a fresh lost robot, or replaying a saved scenario (--scenario)."""
+    visualize = visualization(viewer, rrd, web, no_viz, max_drawn)
+    options = filter_options(filter_name, resampling, recovery, sensor_resetting, alpha_slow, alpha_fast, kld)
+    if kld:
+        options["kld"] = KLDSampling(epsilon=kld_epsilon, z=KLD_QUANTILE if kld_z is None else kld_z)
+    for path in (save_scenario_path, rrd):
+        if path is not None:
+            check_output_path(path, force)
+    if scenario is not None:
+        world, robot, sigma, delta, init_particles = from_scenario(load_scenario(scenario), maze, sigma, delta)
+        particles_arg, steps_arg = None, None
+    else:
+        world = load_maze(maze or DEFAULT_MAZE)
+        sigma = DEFAULT_SIGMA if sigma is None else sigma
+        delta = DEFAULT_DELTA if delta is None else delta
+        robot = Robot(sigma, delta, world.random_free_place(np.random.default_rng(start_seed)))
+        init_particles, particles_arg, steps_arg = None, particles, steps
+    total = steps_arg or robot.recorded_steps
+    result = simulate(
+        robot,
+        world,
+        sigma,
+        delta,
+        particles_arg,
+        steps_arg,
+        init_particles,
+        filter_name,
+        seed=seed,
+        visualize=visualize,
+        on_step=None if quiet else progress_printer(total),
+        kidnap_at=kidnap_at,
+        **options,
+    )
+    typer.echo(summarise(result))
+    for line in (kidnap_report(result), particle_count_report(result) if kld else None):
+        if line:
+            typer.echo(line)
+    if save_scenario_path is not None:
+        typer.echo(f"scenario saved to {save_scenario(result.scenario, save_scenario_path)}")
+
+
+def filter_options(
+    filter_name: str,
+    resampling: str,
+    recovery: bool,
+    sensor_resetting: bool,
+    alpha_slow: float,
+    alpha_fast: float,
+    kld: bool,
+) -> dict[str, Any]:
+    """The particle filters' options from the command line; refused for the grid filter."""
+    if not issubclass(resolve_filter(filter_name), ParticleFilter):
+        if recovery or sensor_resetting or kld or resampling != "systematic":
+            raise UserError("--resampling, --recovery, --sensor-resetting and --kld apply to particle filters only")
+        return {}
+    options: dict[str, Any] = {"resampling": resampling}
+    if recovery or sensor_resetting:
+        options["recovery"] = recovery_option(recovery, sensor_resetting, alpha_slow, alpha_fast)
+    return options
+
+
+def recovery_option(recovery: bool, sensor_resetting: bool, alpha_slow: float, alpha_fast: float) -> Recovery | None:
+    """--recovery (augmented MCL) or --sensor-resetting, with the rates; None for neither."""
+    if not (recovery or sensor_resetting):
+        return None
+    return Recovery("sensor" if sensor_resetting else "augmented", alpha_slow, alpha_fast)
+
+
+@app.command()
+def compare(
+    scenario: Annotated[Path, typer.Argument(help="a saved scenario json (run --save-scenario)", show_default=False)],
+    filters: Annotated[str, typer.Option(help="comma-separated filters: sir, apf, rpf, grid")] = "sir,apf,rpf",
+    maze: Annotated[str | None, typer.Option(help="the maze, if the scenario stores none")] = None,
+    sigma: Annotated[float | None, typer.Option(help="override the scenario's sigma")] = None,
+    delta: Annotated[float | None, typer.Option(help="override the scenario's delta")] = None,
+    seed: Annotated[int | None, typer.Option(help="seed of the filters' draws (default: the scenario's)")] = None,
+    csv_path: Annotated[
+        Path | None, typer.Option("--csv", help="per-step errors: a row per step, a column per filter")
+    ] = None,
+    plot: Annotated[Path | None, typer.Option(help="the lab's figure, error against step (.png; plot extra)")] = None,
+    force: Annotated[bool, typer.Option(help="replace existing output files")] = False,
+    kidnap_at: Annotated[
+        int | None,
+        typer.Option(min=1, help="kidnap the robot at this step: the walk before it is replayed, then new"),
+    ] = None,
+    recovery: RecoveryOption = False,
+    sensor_resetting: SensorResettingOption = False,
+    alpha_slow: AlphaSlowOption = ALPHA_SLOW,
+    alpha_fast: AlphaFastOption = ALPHA_FAST,
+    kld: Annotated[
+        bool, typer.Option(help="KLD-sampling in the particle filters (the scenario's count is the most)")
+    ] = False,
+    viewer: ViewerOption = False,
+    rrd: RrdOption = None,
+    web: WebOption = False,
+    no_viz: NoVizOption = False,
+    max_drawn: MaxDrawnOption = DEFAULT_MAX_DRAWN,
+) -> None:
+    """Lab steps 12-13: every filter on the same saved scenario (start, particles, angles, measurements).
+
+    A kidnapping (stored in the scenario, or --kidnap-at) adds to the table whether each filter
+    re-localised (mean error below 0.5 over the last 30 steps) and the steps it took to recover."""
+    visualize = visualization(viewer, rrd, web, no_viz, max_drawn)
+    check_outputs(csv_path, plot, force, rrd)
+    stored = load_scenario(scenario)
+    world, robot, sigma, delta, particles = from_scenario(stored, maze, sigma, delta)
+    seed = seed if seed is not None else stored.seed if stored.seed is not None else new_seed()
+    names = parse_filters(filters)
+    typer.echo(
+        f"{scenario.name}: {len(particles)} particles, {robot.recorded_steps} steps, "
+        f"sigma {sigma:g}, delta {delta:g}, seed {seed}"
+    )
+    results = compare_filters(
+        world,
+        robot,
+        sigma,
+        delta,
+        particles,
+        names,
+        seed=seed,
+        visualize=visualize,
+        kidnap_at=kidnap_at,
+        recovery=recovery_option(recovery, sensor_resetting, alpha_slow, alpha_fast),
+        kld=kld,
+    )
+    kidnapping = next(iter(results.values())).scenario
+    if kidnapping.kidnap_at is not None:
+        x, y = kidnapping.kidnap_position
+        typer.echo(f"kidnapped at step {kidnapping.kidnap_at} to ({x:.2f}, {y:.2f})")
+    typer.echo(comparison_table(results, kld=kld))
+    if csv_path is not None:
+        write_text_atomically(csv_path, errors_csv(results))
+        typer.echo(f"per-step errors written to {csv_path}")
+    if plot is not None:
+        title = f"Localisation error: {scenario.name} (sigma {sigma:g}, delta {delta:g}, {len(particles)} particles)"
+        plot_errors(results, plot, title)
+        typer.echo(f"figure written to {plot}")
+
+
+@app.command()
+def study(
+    maze: Annotated[
+        str | None, typer.Option(help=f"maze files or names, comma-separated (default: {DEFAULT_MAZE})")
+    ] = None,
+    maze_size: Annotated[
+        str | None, typer.Option(help="generated mazes ROWSxCOLUMNS, comma-separated (a new maze every run)")
+    ] = None,
+    stations: Annotated[str | None, typer.Option(help="station blocks of the generated mazes, comma-separated")] = None,
+    sigma: Annotated[str, typer.Option(help="measurement noise std, comma-separated values")] = str(DEFAULT_SIGMA),
+    delta: Annotated[str, typer.Option(help="compass error width (radians), comma-separated")] = str(DEFAULT_DELTA),
+    particles: Annotated[str, typer.Option(help="particle counts N_S, comma-separated")] = str(DEFAULT_PARTICLE_COUNT),
+    threshold: Annotated[str, typer.Option(help="RPF threshold N_T / N_S, comma-separated")] = str(RPF_THRESHOLD),
+    filters: Annotated[str, typer.Option(help="comma-separated filters: sir, apf, rpf, grid")] = "sir,apf,rpf",
+    kidnap_at: Annotated[int | None, typer.Option(min=1, help="kidnap the robot at this step in every run")] = None,
+    recovery: Annotated[
+        str, typer.Option(help="recovery of the particle filters, comma-separated: none, augmented, sensor")
+    ] = "none",
+    kld: Annotated[bool, typer.Option(help="KLD-sampling in the particle filters (--particles is the most)")] = False,
+    runs: Annotated[int, typer.Option(min=1, help="seeded runs per setting")] = 30,
+    steps: Annotated[int, typer.Option(min=1, help="steps per run")] = DEFAULT_STEPS,
+    seed: Annotated[int | None, typer.Option(help="root seed of the study (every run's seed derives from it)")] = None,
+    workers: Annotated[int | None, typer.Option(min=1, help="processes (default: all cores)")] = None,
+    csv_path: Annotated[Path | None, typer.Option("--csv", help="one row per run and filter")] = None,
+    plot: Annotated[
+        Path | None, typer.Option(help="final error against the varied parameter (.png; plot extra)")
+    ] = None,
+    force: Annotated[bool, typer.Option(help="replace existing output files")] = False,
+    viewer: ViewerOption = False,
+    rrd: RrdOption = None,
+    web: WebOption = False,
+    no_viz: NoVizOption = False,
+    max_drawn: MaxDrawnOption = DEFAULT_MAX_DRAWN,
+) -> None:
+    """Lab step 14: a Monte Carlo study. Every combination of the comma-separated values is a setting;
+    each setting gets R seeded runs, and in each run every filter sees the same scenario.
+
+    The table gives per setting and filter the mean final error (the mean error over the last 20% of
+    the steps) with the 95% t-interval for that mean, the share of runs that converged (error below
+    0.5 from some step on), the median convergence step of those runs, and the time per step; with
+    --kidnap-at, the share of runs that re-localised and the median steps to recover; with --kld, the
+    mean particle count. Nothing is drawn by default; --viewer, --rrd or --web draw the study's first
+    run (all its filters).
+    """
+    visualize = visualization(viewer, rrd, web, no_viz, max_drawn) if viewer or web or rrd is not None else False
+    check_outputs(csv_path, plot, force, rrd)
+    names = parse_filters(filters)
+    settings = study_settings(
+        study_mazes(maze, maze_size, stations),
+        parse_list(sigma, float, "--sigma"),
+        parse_list(delta, float, "--delta"),
+        parse_list(particles, int, "--particles"),
+        parse_list(threshold, float, "--threshold"),
+        parse_list(recovery, str, "--recovery"),
+    )
+    seed = new_seed() if seed is None else seed
+    tasks = study_tasks(settings, names, runs, steps, seed, kidnap_at=kidnap_at, kld=kld)
+    workers = workers or default_workers()
+    varied = varied_parameters(settings)
+    typer.echo(
+        f"Study: {len(settings)} setting(s) x {runs} runs x {len(names)} filters, seed {seed}, {workers} worker(s)\n"
+        f"{describe_setting(settings[0], steps, runs, kidnap_at)}"
+        + (f"; varied: {', '.join(varied)}" if varied else "")
+    )
+    started = time.perf_counter()
+    outcome = run_study(tasks, workers, visualize=visualize, progress=True)
+    seconds = time.perf_counter() - started
+    if csv_path is not None:
+        write_text_atomically(csv_path, study_csv(outcome.records))
+    for failure in outcome.failures:
+        typer.echo(f"error: {failure.describe()}", err=True)
+    finished = len({(r.setting, r.run) for r in outcome.records})
+    if outcome.interrupted:
+        saved = f"; they are in {csv_path}" if csv_path is not None else ""
+        typer.echo(f"interrupted after {finished} of {len(tasks)} runs{saved}", err=True)
+        raise KeyboardInterrupt
+    summaries = summarise_study(outcome.records, settings)
+    typer.echo(study_table(summaries, varied, kld=kld))
+    typer.echo(f"{finished} runs in {seconds:.1f} s wall time")
+    if csv_path is not None:
+        typer.echo(f"one row per run and filter written to {csv_path}")
+    if plot is not None and summaries:
+        what = ", ".join(varied) or "the setting"
+        where = "" if "maze" in varied else f" on {settings[0].maze.label}"
+        title = (
+            f"Final error against {what}{where}\n({runs} runs per point, "
+            f"{CONFIDENCE_LEVEL:.0%} t-intervals for the mean)"
+        )
+        plot_study(summaries, varied or ["maze"], plot, title)
+        typer.echo(f"figure written to {plot}")
+    if outcome.failures:
+        raise typer.Exit(1)
+
+
+app.add_typer(maze_app, name="maze")
+
+
+def study_mazes(files: str | None, sizes: str | None, stations: str | None) -> list[MazeChoice]:
+    """The study's mazes: the files, then every generated size x station count."""
+    mazes = (
+        [MazeChoice.from_maze(find_maze(name).stem, load_maze(name)) for name in parse_list(files, str, "--maze")]
+        if files is not None
+        else []
+    )
+    if sizes is not None or stations is not None:
+        for rows, columns in (maze_generator.parse_size(s) for s in parse_list(sizes or "10x10", str, "--maze-size")):
+            counts = (
+                parse_list(stations, int, "--stations")
+                if stations
+                else [maze_generator.default_station_count(rows, columns)]
+            )
+            mazes += [MazeChoice.generated(rows, columns, count) for count in counts]
+    return mazes or [MazeChoice.from_maze(DEFAULT_MAZE, load_maze(DEFAULT_MAZE))]
+
+
+@app.command()
+def bench(
+    quick: Annotated[bool, typer.Option(help="fewer sizes and steps: about half a minute")] = False,
+) -> None:
+    """Measure the filters' speed (particle-steps per second) against a plain numpy reference step."""
+    from mazelab.bench import run_benchmark  # only this command needs it
+
+    run_benchmark(load_maze(DEFAULT_MAZE), quick=quick, echo=typer.echo)
+
+
+def from_scenario(
+    scenario: Scenario, maze: str | None, sigma: float | None, delta: float | None
+) -> tuple[Maze, Robot, float, float, list]:
+    """World, robot, sigma, delta and particles of a saved scenario; flags override stored values."""
+    stored = scenario.world()
+    world = stored if stored is not None else load_maze(maze or DEFAULT_MAZE)
+    if stored is not None and maze is not None:
+        given = load_maze(maze)
+        if not np.array_equal(given.grid, stored.grid):
+            raise UserError(f"the scenario's maze differs from {given.source}; leave out --maze to use the stored one")
+    sigma = sigma if sigma is not None else scenario.sigma if scenario.sigma is not None else DEFAULT_SIGMA
+    delta = delta if delta is not None else scenario.delta if scenario.delta is not None else DEFAULT_DELTA
+    robot = scenario.robot(sigma, delta)
+    return world, robot, sigma, delta, scenario.init_particles_pos
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the CLI; problems with the input end as one line on stderr and exit code 2."""
+    warnings.showwarning = warn_in_one_line
+    try:
+        code = app(args=argv, standalone_mode=False)
+    except typer.TyperException as error:  # typer's usage errors: bad option, bad value, missing argument
+        typer.echo(f"error: {error.format_message()}", err=True)
+        return 2
+    except (UserError, MazeError, ScenarioError, ValueError) as error:
+        typer.echo(f"error: {error}", err=True)
+        return 2
+    except (KeyboardInterrupt, typer.Abort):
+        typer.echo("interrupted", err=True)
+        return 130
+    return code if isinstance(code, int) else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
+
+
+__all__ = [
+    "app",
+    "bench",
+    "compare",
+    "demo",
+    "filter_options",
+    "from_scenario",
+    "main",
+    "recovery_option",
+    "run",
+    "study",
+    "study_mazes",
+]

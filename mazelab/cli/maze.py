@@ -1,0 +1,70 @@
+"""`mazelab maze generate` and `mazelab maze show`: random connected mazes, and a look at any maze."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import numpy as np
+import typer
+
+from mazelab import maze_generator
+from mazelab.atomic import write_text_atomically
+from mazelab.cli.options import NoVizOption, RrdOption, ViewerOption, WebOption, check_output_path, visualization
+from mazelab.mazes import load_maze
+from mazelab.simulation import new_seed
+from mazelab.viz.views import open_view
+
+maze_app = typer.Typer(no_args_is_help=True, help="Random connected mazes (generate) and a look at any maze (show).")
+
+
+@maze_app.command("generate")
+def maze_generate(
+    size: Annotated[str, typer.Option(help="ROWSxCOLUMNS")] = "10x10",
+    stations: Annotated[
+        int | None, typer.Option(min=1, help="station blocks (default: one per 25 cells)", show_default=False)
+    ] = None,
+    walls: Annotated[float, typer.Option(help="share of the cells that are walls")] = maze_generator.DEFAULT_WALL_SHARE,
+    seed: Annotated[int | None, typer.Option(help="the same seed gives the same maze")] = None,
+    out: Annotated[Path | None, typer.Option(help="write the maze file here (default: print it)")] = None,
+    force: Annotated[bool, typer.Option(help="replace an existing file")] = False,
+) -> None:
+    """A random maze whose free area is connected, in the mazes/ file format."""
+    if out is not None:
+        check_output_path(out, force)
+    rows, columns = maze_generator.parse_size(size)
+    stations = maze_generator.default_station_count(rows, columns) if stations is None else stations
+    seed = new_seed() if seed is None else seed
+    world = maze_generator.generate_maze(rows, columns, stations, np.random.default_rng(seed), walls)
+    command = f"python main.py maze generate --size {rows}x{columns} --stations {stations} --seed {seed}"
+    if walls != maze_generator.DEFAULT_WALL_SHARE:
+        command += f" --walls {walls:g}"
+    text = maze_generator.maze_file_text(world, command)
+    if out is None:
+        typer.echo(text, nl=False)
+    else:
+        write_text_atomically(out, text)
+        typer.echo(f"{maze_generator.describe_maze(world)}; written to {out}")
+
+
+@maze_app.command("show")
+def maze_show(
+    path: Annotated[str, typer.Argument(help="a maze file, or a name in mazes/", show_default=False)],
+    viewer: ViewerOption = False,
+    rrd: RrdOption = None,
+    web: WebOption = False,
+    no_viz: NoVizOption = False,
+) -> None:
+    """Print a maze as text ('##' wall, '[]' station block, '. ' free); --viewer/--rrd/--web also log it to Rerun."""
+    visualize = visualization(viewer, rrd, web, no_viz) if viewer or web or rrd is not None else False
+    world = load_maze(path)
+    typer.echo(maze_generator.maze_picture(world), nl=False)
+    typer.echo(f"{world.source}: {maze_generator.describe_maze(world)}")
+    if visualize:
+        open_view(visualize, world, "maze").close()  # opening a view logs the maze
+
+
+__all__ = [
+    "maze_generate",
+    "maze_show",
+]

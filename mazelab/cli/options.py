@@ -1,0 +1,108 @@
+"""What the commands share: the drawing and recovery options, output-path checks, list parsing, and
+the one-line errors and warnings of the command line."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from mazelab.experiments.tables import pyplot
+from mazelab.viz.style import DEFAULT_MAX_DRAWN
+from mazelab.viz.targets import Visualization
+
+DEFAULT_SIGMA, DEFAULT_DELTA = 0.3, 0.5
+
+
+# Where a run is drawn: these four options sit on every command that runs filters.
+# Recovery from a kidnapping (augmented MCL): the same options on run and compare.
+RecoveryOption = Annotated[bool, typer.Option(help="augmented MCL: inject uniform particles when lost")]
+SensorResettingOption = Annotated[bool, typer.Option(help="augmented MCL injecting particles that match z")]
+AlphaSlowOption = Annotated[float, typer.Option(help="recovery: rate of the long-term likelihood average")]
+AlphaFastOption = Annotated[float, typer.Option(help="recovery: rate of the short-term likelihood average")]
+ViewerOption = Annotated[bool, typer.Option("--viewer", help="open the native Rerun viewer (default with a display)")]
+RrdOption = Annotated[Path | None, typer.Option("--rrd", help="save the Rerun recording to this file")]
+WebOption = Annotated[bool, typer.Option("--web", help="serve the web viewer on 127.0.0.1")]
+NoVizOption = Annotated[bool, typer.Option("--no-viz", help="draw nothing")]
+MaxDrawnOption = Annotated[
+    int, typer.Option("--max-drawn", min=1, help="draw at most this many particles per step (all are filtered)")
+]
+
+
+def visualization(viewer: bool, rrd: Path | None, web: bool, no_viz: bool, max_drawn: int = DEFAULT_MAX_DRAWN) -> Any:
+    """The `visualize` argument of run_model for the command-line options (see draw.py)."""
+    if sum([viewer, rrd is not None, web, no_viz]) > 1:
+        raise UserError("choose one of --viewer, --rrd, --web and --no-viz")
+    if no_viz:
+        return False
+    target = rrd if rrd is not None else "viewer" if viewer else "web" if web else True
+    return Visualization(target, max_drawn)
+
+
+class UserError(Exception):
+    """An input problem reported as one line on stderr with exit code 2."""
+
+
+def check_output_path(path: Path, force: bool) -> None:
+    """Refuse to overwrite an existing file without --force, or to write into a missing folder."""
+    if path.exists() and not force:
+        raise UserError(f"{path} exists; use --force to replace it")
+    if not path.parent.exists():
+        raise UserError(f"{path.parent} does not exist: cannot write {path.name} there")
+    if not os.access(path.parent, os.W_OK):
+        raise UserError(f"{path.parent} is not writable: cannot write {path.name} there")
+    if path.is_dir():
+        raise UserError(f"{path} is a folder, not a file")
+
+
+def parse_list(text: str, kind: type, option: str) -> list:
+    """'0.2,0.4' -> [0.2, 0.4] (of `kind`), or a one-line error naming the option."""
+    try:
+        values = [kind(part) for part in text.split(",") if part.strip()]
+    except ValueError:
+        raise UserError(f"{option} takes comma-separated {kind.__name__} values, got {text!r}") from None
+    if not values:
+        raise UserError(f"{option} is empty")
+    return list(dict.fromkeys(values))
+
+
+def check_outputs(csv_path: Path | None, plot: Path | None, force: bool, rrd: Path | None = None) -> None:
+    """Check the output paths, and that matplotlib is there for --plot, before any run starts."""
+    for path in (csv_path, plot, rrd):
+        if path is not None:
+            check_output_path(path, force)
+    if plot is not None:
+        pyplot()
+
+
+_warned: set[str] = set()
+
+
+def warn_in_one_line(message: Warning | str, category: type[Warning], *_args: Any, **_kwargs: Any) -> None:
+    """Warnings (e.g. sigma outside the lab's range) as one line on stderr, each once, no source lines."""
+    if str(message) not in _warned:
+        _warned.add(str(message))
+        typer.echo(f"warning: {message}", err=True)
+
+
+__all__ = [
+    "DEFAULT_DELTA",
+    "DEFAULT_SIGMA",
+    "AlphaFastOption",
+    "AlphaSlowOption",
+    "MaxDrawnOption",
+    "NoVizOption",
+    "RecoveryOption",
+    "RrdOption",
+    "SensorResettingOption",
+    "UserError",
+    "ViewerOption",
+    "WebOption",
+    "check_output_path",
+    "check_outputs",
+    "parse_list",
+    "visualization",
+    "warn_in_one_line",
+]

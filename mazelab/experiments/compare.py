@@ -1,0 +1,132 @@
+"""Comparing the filters on one scenario (lab steps 12-13): every filter replays the same saved
+scenario (start, initial particles, angles, measurements); `compare_filters` returns their RunResults,
+`comparison_table`, `errors_csv` and `plot_errors` report them."""
+
+from __future__ import annotations
+
+import csv
+import io
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mazelab.experiments.kidnapping import recovery_steps, relocalised, walk_until
+from mazelab.experiments.runs import (
+    FINAL_SHARE,
+    final_error,
+    is_particle_filter,
+    mean_ess,
+    mean_particle_count,
+    run_filters,
+)
+from mazelab.experiments.tables import format_number, format_table, pyplot, save_figure
+from mazelab.maze import Maze
+from mazelab.model import CONVERGENCE_RADIUS
+from mazelab.recovery import Recovery
+from mazelab.resampling import KLDSampling
+from mazelab.robot import Robot
+from mazelab.simulation import RunResult
+from mazelab.viz.views import open_comparison
+
+
+def compare_filters(
+    world: Maze,
+    robot: Robot,
+    sigma: float,
+    delta: float,
+    particles: Sequence[Sequence[float]],
+    filter_names: Sequence[str],
+    *,
+    seed: int,
+    visualize: Any = False,
+    kidnap_at: int | None = None,
+    recovery: bool | str | Recovery | None = None,
+    kld: bool | KLDSampling | None = None,
+) -> dict[str, RunResult]:
+    """Lab steps 12-13: every filter on one saved scenario, drawn side by side in one recording.
+
+    `kidnap_at=K` on a scenario recorded without a kidnapping replays its walk up to step K - 1; then
+    the robot is carried to a free place drawn from `seed` and walks on, every filter seeing the same."""
+    steps = robot.recorded_steps
+    if kidnap_at is not None and robot.kidnap_at is None:
+        robot = walk_until(robot, kidnap_at)
+    comparison = open_comparison(visualize, world, list(filter_names))
+    try:
+        return run_filters(
+            world,
+            robot,
+            sigma,
+            delta,
+            filter_names,
+            seed=seed,
+            particles=particles,
+            steps=steps,
+            comparison=comparison,
+            kidnap_at=kidnap_at,
+            recovery=recovery,
+            kld=kld,
+        )
+    finally:
+        comparison.close()
+
+
+def comparison_table(results: dict[str, RunResult], kld: bool = False) -> str:
+    """Per filter: mean error, final error, convergence step, mean ESS and milliseconds per step; with a
+    kidnapping, whether the filter re-localised and in how many steps; with `kld`, the mean particle count."""
+    kidnapped = any(result.scenario.kidnap_at is not None for result in results.values())
+    headers = ["filter", "mean error", f"last {FINAL_SHARE:.0%} error", "converged at", "mean ESS", "ms/step"]
+    headers += ["re-localised", "steps to recover"] * kidnapped + ["mean N"] * kld
+    rows = []
+    for name, result in results.items():
+        converged = result.converged_at
+        row = [
+            name,
+            f"{result.errors.mean():.3f}",
+            f"{final_error(result.errors):.3f}",
+            "never" if converged is None else f"step {converged}",
+            format_number(mean_ess(result), "{:.0f}"),
+            f"{1e3 * result.step_seconds.mean():.2f}",
+        ]
+        if kidnapped:
+            steps = recovery_steps(result)
+            row += ["yes" if relocalised(result) else "no", "never" if steps is None else str(steps)]
+        if kld:
+            row.append(f"{mean_particle_count(result):.0f}" if is_particle_filter(name) else "-")
+        rows.append(row)
+    return format_table(headers, rows)
+
+
+def errors_csv(results: dict[str, RunResult]) -> str:
+    """Per-step errors as CSV: a `step` column (1..steps), then one column per filter."""
+    names = list(results)
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(["step", *names])
+    columns = [results[name].errors for name in names]
+    for k, row in enumerate(zip(*columns, strict=True), start=1):
+        writer.writerow([k, *(repr(float(e)) for e in row)])
+    return buffer.getvalue()
+
+
+def plot_errors(results: dict[str, RunResult], path: Path, title: str) -> None:
+    """The lab's figure: error against step, one line per filter, saved to `path` (png, pdf or svg)."""
+    plt = pyplot()
+    figure, axes = plt.subplots(figsize=(8, 4.5), layout="constrained")
+    for name, result in results.items():
+        axes.plot(np.arange(1, len(result.errors) + 1), result.errors, label=name, linewidth=1.2)
+    axes.axhline(CONVERGENCE_RADIUS, color="grey", linestyle="--", linewidth=0.8, label="convergence radius")
+    axes.set(title=title, xlabel="step k", ylabel="error |estimate - true position| (map units)")
+    axes.set_ylim(bottom=0)
+    axes.grid(alpha=0.3)
+    axes.legend()
+    save_figure(figure, path)
+
+
+__all__ = [
+    "compare_filters",
+    "comparison_table",
+    "errors_csv",
+    "plot_errors",
+]

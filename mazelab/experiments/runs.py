@@ -1,0 +1,138 @@
+"""Several filters on one robot walk, and the figures of one run.
+
+Figures of one run:
+    final error       the mean error over the last FINAL_SHARE (20%) of the steps: robust to one unlucky step;
+    convergence step  `convergence_step`: the step from which the error stays below CONVERGENCE_RADIUS.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from mazelab.experiments.kidnapping import recovery_steps, relocalised
+from mazelab.filters import ParticleFilter, RegularizedParticleFilter
+from mazelab.maze import Maze
+from mazelab.recovery import Recovery
+from mazelab.registry import resolve_filter
+from mazelab.resampling import KLDSampling
+from mazelab.robot import Robot
+from mazelab.simulation import RunResult, simulate
+
+FINAL_SHARE = 0.2  # the final error is the mean error over this share of the last steps
+
+
+def final_error(errors: np.ndarray, share: float = FINAL_SHARE) -> float:
+    """Mean error over the last `share` of the steps (at least one step), map units."""
+    errors = np.asarray(errors, dtype=float)
+    return float(errors[-max(1, int(len(errors) * share)) :].mean())
+
+
+def mean_ess(result: RunResult) -> float:
+    """Mean effective sample size over the steps; NaN for the grid filter, which has none."""
+    return math.nan if np.isnan(result.ess).all() else float(np.nanmean(result.ess))
+
+
+def parse_filters(text: str) -> list[str]:
+    """'sir,apf,rpf' -> the filters' class names, in order, without repeats."""
+    names = [resolve_filter(part.strip()).name for part in text.split(",") if part.strip()]
+    if not names:
+        raise ValueError("--filters is empty; give e.g. sir,apf,rpf")
+    return list(dict.fromkeys(names))
+
+
+# -- several filters on one scenario ---------------------------------------------------------------
+def filter_options(
+    filter_name: str,
+    threshold: float | None,
+    recovery: bool | str | Recovery | None = None,
+    kld: bool | KLDSampling | None = None,
+) -> dict[str, Any]:
+    """Constructor options of one filter: the RPF threshold N_T / N_S goes to the RPF only, recovery
+    and KLD-sampling to the particle filters only (the exact grid filter needs neither)."""
+    filter_class = resolve_filter(filter_name)
+    options: dict[str, Any] = {}
+    if threshold is not None and filter_class is RegularizedParticleFilter:
+        options["threshold"] = threshold
+    if issubclass(filter_class, ParticleFilter):
+        options.update(recovery=recovery, kld=kld)
+    return options
+
+
+def is_particle_filter(filter_name: str) -> bool:
+    return issubclass(resolve_filter(filter_name), ParticleFilter)
+
+
+def run_filters(
+    world: Maze,
+    robot: Robot,
+    sigma: float,
+    delta: float,
+    filter_names: Sequence[str],
+    *,
+    seed: int,
+    particles: Sequence[Sequence[float]] | np.ndarray | None = None,
+    particle_count: int | None = None,
+    steps: int | None = None,
+    threshold: float | None = None,
+    comparison: Any = None,
+    kidnap_at: int | None = None,
+    recovery: bool | str | Recovery | None = None,
+    kld: bool | KLDSampling | None = None,
+) -> dict[str, RunResult]:
+    """Run every filter on the same scenario: the robot's walk, measurements and initial particles.
+
+    The first run records the walk and measurements (if the robot has none) and draws the particles
+    (if none are given); every later filter replays exactly those, the kidnapping (`kidnap_at`, its
+    place drawn from `seed`) included. Each filter's random draws come from `seed`, and with
+    `comparison` (open_comparison) each run draws into its own view.
+    """
+    results: dict[str, RunResult] = {}
+    for name in filter_names:
+        result = simulate(
+            robot,
+            world,
+            sigma,
+            delta,
+            particle_count,
+            steps,
+            particles,
+            name,
+            seed=seed,
+            view=None if comparison is None else comparison.view_for(name),
+            kidnap_at=kidnap_at,
+            **filter_options(name, threshold, recovery, kld),
+        )
+        if particles is None:
+            particles = np.array(result.scenario.init_particles_pos)
+        steps = len(result.errors)
+        results[result.filter_name] = result
+    return results
+
+
+def mean_particle_count(result: RunResult) -> float:
+    """The particle count averaged over the steps (it varies with KLD-sampling)."""
+    return float(np.mean(result.extras["particle_count"]))
+
+
+def kidnap_figures(result: RunResult) -> tuple[bool | None, int | None]:
+    """(re-localised, steps to recover) of a run with a kidnapping; (None, None) without one."""
+    if result.scenario.kidnap_at is None:
+        return None, None
+    return relocalised(result), recovery_steps(result)
+
+
+__all__ = [
+    "FINAL_SHARE",
+    "filter_options",
+    "final_error",
+    "is_particle_filter",
+    "kidnap_figures",
+    "mean_ess",
+    "mean_particle_count",
+    "parse_filters",
+    "run_filters",
+]

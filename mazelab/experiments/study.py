@@ -1,0 +1,307 @@
+"""A Monte Carlo study (lab step 14): settings (the product of the varied parameters) x R seeded runs;
+in each run every filter sees the same scenario. A RunTask is one run; run_task gives a RunRecord per
+filter (a row of the study's CSV)."""
+
+from __future__ import annotations
+
+import functools
+import itertools
+import math
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from mazelab.experiments.kidnapping import RECOVERY_VARIANTS, recovery_steps, relocalised
+from mazelab.experiments.runs import final_error, mean_ess, mean_particle_count, run_filters
+from mazelab.maze import STATION_WALL, Maze
+from mazelab.maze_generator import generate_maze
+from mazelab.model import check_model_parameters
+from mazelab.robot import Robot
+from mazelab.simulation import RunResult, convergence_step
+from mazelab.viz.views import open_comparison
+
+
+# -- a study: settings, runs and seeds -------------------------------------------------------------
+@dataclass(frozen=True)
+class MazeChoice:
+    """A study's maze: a file's grid, or a size and station count generated anew in every run."""
+
+    label: str
+    grid: tuple[tuple[int, ...], ...] | None = None
+    size: tuple[int, int] | None = None  # (rows, columns) of a generated maze
+    stations: int | None = None  # station blocks of a generated maze
+
+    @classmethod
+    def from_maze(cls, label: str, world: Maze) -> MazeChoice:
+        return cls(label, grid=tuple(map(tuple, world.as_lists())))
+
+    @classmethod
+    def generated(cls, rows: int, columns: int, stations: int) -> MazeChoice:
+        return cls(f"random {rows}x{columns}, {stations} stations", size=(rows, columns), stations=stations)
+
+    def world(self, maze_seed: int | None) -> Maze:
+        """The maze of one run: the file's grid, or the generated maze of `maze_seed`."""
+        if self.grid is not None:
+            return _maze_of(self.grid, self.label)
+        assert self.size is not None and self.stations is not None
+        return generate_maze(*self.size, self.stations, np.random.default_rng(maze_seed))
+
+
+@functools.lru_cache(maxsize=8)
+def _maze_of(grid: tuple[tuple[int, ...], ...], label: str) -> Maze:
+    """The Maze of a file's grid, built once per process: its nearest-station table then serves every
+    run of the study that uses it (a Maze does not change once built)."""
+    return Maze(grid, source=label)
+
+
+@dataclass(frozen=True)
+class StudySetting:
+    """One combination of the studied parameters."""
+
+    maze: MazeChoice
+    sigma: float
+    delta: float
+    particles: int
+    threshold: float  # the RPF's N_T / N_S
+    recovery: str = "none"  # a kidnapping.RECOVERY_VARIANTS name, for the particle filters
+
+    def value(self, parameter: str) -> Any:
+        return self.maze.label if parameter == "maze" else getattr(self, parameter)
+
+
+STUDY_PARAMETERS = ("maze", "sigma", "delta", "particles", "threshold", "recovery")
+
+
+def study_settings(
+    mazes: Sequence[MazeChoice],
+    sigmas: Sequence[float],
+    deltas: Sequence[float],
+    particle_counts: Sequence[int],
+    thresholds: Sequence[float],
+    recoveries: Sequence[str] = ("none",),
+) -> list[StudySetting]:
+    """Every combination of the given values (the first parameter varies slowest), each checked."""
+    for recovery in recoveries:
+        if recovery not in RECOVERY_VARIANTS:
+            raise ValueError(f"unknown recovery {recovery!r}; choose from {', '.join(RECOVERY_VARIANTS)}")
+    for count in particle_counts:
+        if count < 1:
+            raise ValueError(f"particle counts must be >= 1, got {count}")
+    for threshold in thresholds:
+        if not 0 < threshold <= 1:
+            raise ValueError(f"the RPF threshold must be in (0, 1] (N_T = threshold * N_S), got {threshold}")
+    for sigma, delta in itertools.product(dict.fromkeys(sigmas), dict.fromkeys(deltas)):
+        check_model_parameters(sigma, delta)  # refuses impossible values, warns once outside the lab's ranges
+    combinations = itertools.product(mazes, sigmas, deltas, particle_counts, thresholds, recoveries)
+    return [StudySetting(*values) for values in combinations]
+
+
+def varied_parameters(settings: Sequence[StudySetting]) -> list[str]:
+    """The parameters that take more than one value across the settings."""
+    return [p for p in STUDY_PARAMETERS if len({s.value(p) for s in settings}) > 1]
+
+
+@dataclass(frozen=True)
+class RunTask:
+    """Run `run` of setting `setting_index`: the seeds that fix its scenario, and what to run."""
+
+    setting_index: int  # 1-based
+    setting: StudySetting
+    run: int  # 1-based
+    seed: int  # seeds the start (default_rng(seed)) and simulate(seed=seed), as `run --seed S --start-seed S`
+    maze_seed: int | None  # seeds a generated maze (as `maze generate --seed`); None for a maze file
+    filters: tuple[str, ...]
+    steps: int
+    kidnap_at: int | None = None  # kidnap the robot at this step (its place drawn from `seed`)
+    kld: bool = False  # KLD-sampling in the particle filters
+
+
+def run_seeds(root_seed: int, runs: int) -> list[tuple[int, int]]:
+    """(seed, maze seed) of runs 1..R, children of one root SeedSequence.
+
+    Run r has the same seeds in every setting (common random numbers: settings differ by their
+    parameters, not by their luck), and no seed depends on the number of workers.
+    """
+    children = np.random.SeedSequence(root_seed).spawn(runs)
+    return [tuple(int(v >> np.uint64(1)) for v in child.generate_state(2, np.uint64)) for child in children]
+
+
+def study_tasks(
+    settings: Sequence[StudySetting],
+    filters: Sequence[str],
+    runs: int,
+    steps: int,
+    root_seed: int,
+    *,
+    kidnap_at: int | None = None,
+    kld: bool = False,
+) -> list[RunTask]:
+    """One task per setting and run, in order."""
+    if runs < 1 or steps < 1:
+        raise ValueError(f"runs and steps must be >= 1, got {runs} runs and {steps} steps")
+    if kidnap_at is not None and not 1 <= kidnap_at <= steps:
+        raise ValueError(f"kidnap_at must be a step from 1 to {steps}, got {kidnap_at}")
+    seeds = run_seeds(root_seed, runs)
+    return [
+        RunTask(
+            i, setting, r, seed, maze_seed if setting.maze.grid is None else None, tuple(filters), steps, kidnap_at, kld
+        )
+        for i, setting in enumerate(settings, start=1)
+        for r, (seed, maze_seed) in enumerate(seeds, start=1)
+    ]
+
+
+@dataclass
+class RunRecord:
+    """One filter in one run of a study: a row of the study's CSV."""
+
+    setting: int
+    run: int
+    seed: int
+    maze: str
+    maze_seed: int | None
+    stations: int  # station blocks (cells of type 2) of the run's maze
+    sigma: float
+    delta: float
+    particles: int
+    threshold: float
+    steps: int
+    filter: str
+    final_error: float  # mean error over the last FINAL_SHARE of the steps
+    mean_error: float
+    converged_at: int | None  # convergence_step of the errors; None: never
+    mean_ess: float  # NaN for the grid filter
+    ms_per_step: float
+    recovery: str = "none"
+    kidnap_at: int | None = None
+    relocalised: bool | None = None  # kidnapping.relocalised; None without a kidnapping
+    steps_to_recover: int | None = None  # kidnapping.recovery_steps; None: never, or no kidnapping
+    mean_particle_count: float = math.nan  # over the steps (KLD-sampling varies it)
+
+
+@dataclass
+class RunFailure:
+    """A run that raised: which one, its seeds, and the error on one line."""
+
+    task: RunTask
+    message: str
+
+    def describe(self) -> str:
+        t = self.task
+        maze_seed = "" if t.maze_seed is None else f", maze seed {t.maze_seed}"
+        return f"run {t.run} of setting {t.setting_index} (seed {t.seed}{maze_seed}) failed: {self.message}"
+
+
+def run_task(task: RunTask, visualize: Any = False) -> list[RunRecord]:
+    """One run of a study: one scenario, every filter on it; a record per filter."""
+    s = task.setting
+    world = s.maze.world(task.maze_seed)
+    robot = Robot(s.sigma, s.delta, world.random_free_place(np.random.default_rng(task.seed)))
+    comparison = open_comparison(visualize, world, list(task.filters)) if visualize else None
+    try:
+        with warnings.catch_warnings():  # the range warnings were shown once, by study_settings
+            warnings.simplefilter("ignore", UserWarning)
+            results = run_filters(
+                world,
+                robot,
+                s.sigma,
+                s.delta,
+                task.filters,
+                seed=task.seed,
+                particle_count=s.particles,
+                steps=task.steps,
+                threshold=s.threshold,
+                comparison=comparison,
+                kidnap_at=task.kidnap_at,
+                recovery=RECOVERY_VARIANTS[s.recovery],
+                kld=task.kld,
+            )
+    finally:
+        if comparison is not None:
+            comparison.close()
+    stations = int((world.grid == STATION_WALL).sum())
+    return [
+        RunRecord(
+            task.setting_index,
+            task.run,
+            task.seed,
+            s.maze.label,
+            task.maze_seed,
+            stations,
+            s.sigma,
+            s.delta,
+            s.particles,
+            s.threshold,
+            task.steps,
+            name,
+            final_error(result.errors),
+            float(result.errors.mean()),
+            convergence_step(result.errors),
+            mean_ess(result),
+            1e3 * float(result.step_seconds.mean()),
+            s.recovery,
+            task.kidnap_at,
+            *kidnap_figures(result),
+            mean_particle_count(result),
+        )
+        for name, result in results.items()
+    ]
+
+
+def kidnap_figures(result: RunResult) -> tuple[bool | None, int | None]:
+    """(re-localised, steps to recover) of a run with a kidnapping; (None, None) without one."""
+    if result.scenario.kidnap_at is None:
+        return None, None
+    return relocalised(result), recovery_steps(result)
+
+
+def run_task_safely(task: RunTask) -> list[RunRecord] | RunFailure:
+    """`run_task`, with an exception turned into a RunFailure so that the other runs go on."""
+    try:
+        return run_task(task)
+    except Exception as error:
+        return RunFailure(task, f"{type(error).__name__}: {error}")
+
+
+@dataclass
+class StudyOutcome:
+    """What a study produced: a record per finished run and filter, the failed runs, and whether
+    the user interrupted it (then the records are the runs that finished before)."""
+
+    records: list[RunRecord] = field(default_factory=list)
+    failures: list[RunFailure] = field(default_factory=list)
+    interrupted: bool = False
+    tasks: int = 0
+
+    def add(self, outcome: list[RunRecord] | RunFailure) -> None:
+        if isinstance(outcome, RunFailure):
+            self.failures.append(outcome)
+        else:
+            self.records.extend(outcome)
+
+    def sort(self) -> None:
+        """Records in (setting, run, filter order) order, whatever order the workers finished in."""
+        order = {name: i for i, name in enumerate(dict.fromkeys(r.filter for r in self.records))}
+        self.records.sort(key=lambda r: (r.setting, r.run, order[r.filter]))
+        self.failures.sort(key=lambda f: (f.task.setting_index, f.task.run))
+
+
+__all__ = [
+    "STUDY_PARAMETERS",
+    "MazeChoice",
+    "RunFailure",
+    "RunRecord",
+    "RunTask",
+    "StudyOutcome",
+    "StudySetting",
+    "kidnap_figures",
+    "run_seeds",
+    "run_task",
+    "run_task_safely",
+    "study_settings",
+    "study_tasks",
+    "varied_parameters",
+]

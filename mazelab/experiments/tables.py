@@ -1,0 +1,77 @@
+"""Output helpers of the experiments: plain-text tables, CSV cells, and figures saved atomically."""
+
+from __future__ import annotations
+
+import io
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from mazelab.atomic import write_bytes_atomically
+
+PLOT_INSTALL_HINT = 'plotting needs matplotlib: pip install -e ".[plot]"'
+
+
+def pyplot() -> Any:
+    """matplotlib.pyplot on the Agg backend (no display needed), or a one-line install hint."""
+    try:
+        import matplotlib
+    except ImportError:
+        raise ValueError(PLOT_INSTALL_HINT) from None
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def save_figure(figure: Any, path: Path) -> None:
+    """Save a matplotlib figure atomically in the format of the path's suffix, then close it."""
+    buffer = io.BytesIO()
+    try:
+        figure.savefig(buffer, format=path.suffix.lstrip(".").lower() or "png", dpi=150)
+    finally:
+        pyplot().close(figure)
+    write_bytes_atomically(path, buffer.getvalue())
+
+
+def format_table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    """A plain-text table: the first column left-aligned, the others right-aligned."""
+    widths = [max(len(str(cell)) for cell in column) for column in zip(headers, *rows, strict=True)]
+
+    def line(cells: Sequence[str]) -> str:
+        return "  ".join(
+            str(c).ljust(w) if i == 0 else str(c).rjust(w) for i, (c, w) in enumerate(zip(cells, widths, strict=True))
+        ).rstrip()
+
+    return "\n".join([line(headers), line(["-" * w for w in widths]), *map(line, rows)])
+
+
+def format_number(value: float, spec: str) -> str:
+    return "-" if math.isnan(value) else spec.format(value)
+
+
+def format_optional(value: float | None, spec: str) -> str:
+    return "-" if value is None else spec.format(value)
+
+
+def format_value(value: Any) -> str:
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
+def csv_cell(value: Any) -> Any:
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return ""
+    return repr(value) if isinstance(value, float) else value
+
+
+__all__ = [
+    "PLOT_INSTALL_HINT",
+    "csv_cell",
+    "format_number",
+    "format_optional",
+    "format_table",
+    "format_value",
+    "pyplot",
+    "save_figure",
+]

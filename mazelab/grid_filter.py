@@ -1,0 +1,186 @@
+"""The exact Bayes filter of the lab's model on a fine grid: the accuracy limit of the particle filters,
+and the oracle the tests and the accuracy table measure them against."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from mazelab.maze import Maze
+from mazelab.model import CONFIDENCE_RADIUS, CONFIDENCE_SHARE, LOG_UNDERFLOW, OUTSIDE_PENALTY, ROBOT_SPEED
+from mazelab.weights import mass_within, weighted_mean
+
+GRID_RESOLUTION = 0.02  # cell size of GridBayesFilter, map units (divides 1, so cells never straddle walls)
+
+
+class GridBayesFilter:
+    """The exact Bayes filter of the same model on a fine grid: the accuracy limit of the particle filters.
+
+    The density lives on cells of size `resolution` covering the map plus a `margin` (mass that leaves
+    it is dropped). Prediction convolves it with the arc kernel p(x_k | x_{k-1}) (an FFT convolution);
+    the update multiplies by equation (3) with the outside penalty, evaluated at the cell centres.
+    """
+
+    name = "GridBayesFilter"
+
+    def __init__(
+        self,
+        world: Maze,
+        sigma: float,
+        delta: float,
+        particles: np.ndarray | None = None,
+        rng: np.random.Generator | None = None,
+        *,
+        resolution: float = GRID_RESOLUTION,
+        margin: float = 1.0,
+        outside_penalty: float = OUTSIDE_PENALTY,
+        speed: float = ROBOT_SPEED,
+        **_: Any,
+    ):
+        del particles  # the exact filter starts from the exact prior, not from a sample of it
+        self.world, self.sigma, self.delta, self.speed = world, sigma, delta, speed
+        self.rng = rng if rng is not None else np.random.default_rng()
+        self.resolution = resolution
+        self.origin = -margin
+        nx = round((world.width + 2 * margin) / resolution)
+        ny = round((world.height + 2 * margin) / resolution)
+        centres_x = self.origin + (np.arange(nx) + 0.5) * resolution
+        centres_y = self.origin + (np.arange(ny) + 0.5) * resolution
+        gx, gy = np.meshgrid(centres_x, centres_y)  # row j is y, column i is x
+        self.positions = np.column_stack([gx.ravel(), gy.ravel()])  # (M, 2) cell centres
+        self.shape = (ny, nx)
+        self.free = world.is_free(gx, gy)
+        self._log_likelihood_constant = np.where(self.free, 0.0, math.log(outside_penalty))
+        self._distance = world.distance_to_nearest_station(self.positions).reshape(self.shape)
+        self.density = self._prior()
+        self._last_arc: tuple[float, np.ndarray, np.ndarray] | None = None
+        self.headings = np.zeros(len(self.positions))
+        self.steps_done = 0
+        self.reinitialised_at: list[int] = []
+
+    def _prior(self) -> np.ndarray:
+        return self.free / self.free.sum()
+
+    def step(self, compass_angle: float, z: float) -> None:
+        self.density = self.predict(self.density, compass_angle)  # p(x_k | z_1:k-1), Chapman-Kolmogorov
+        self.update(z)  # p(x_k | z_1:k) ∝ p(z_k | x_k) p(x_k | z_1:k-1)
+        self.steps_done += 1
+
+    def predict(self, density: np.ndarray, compass_angle: float) -> np.ndarray:
+        """Convolve with the arc kernel of this step's compass angle (linear, not circular, FFT)."""
+        kernel, spectrum = self._arc(compass_angle)
+        return np.clip(fft_convolve_same(density, kernel, spectrum), 0.0, None)
+
+    def _arc(self, compass_angle: float) -> tuple[np.ndarray, np.ndarray]:
+        """The arc kernel of this compass angle and its FFT, kept while the angle repeats (the robot
+        holds a compass heading for up to MAX_STRAIGHT_STEPS steps)."""
+        if self._last_arc is None or self._last_arc[0] != compass_angle:
+            kernel = arc_kernel(compass_angle, self.delta, self.speed, self.resolution)
+            spectrum = np.fft.rfft2(kernel, fft_shape(self.shape, kernel.shape))
+            self._last_arc = (compass_angle, kernel, spectrum)
+        return self._last_arc[1], self._last_arc[2]
+
+    def update(self, z: float) -> None:
+        log_lik = -0.5 * ((z - self._distance) / self.sigma) ** 2 + self._log_likelihood_constant
+        posterior = self._weighted(self.density, log_lik)
+        if posterior is None:  # no cell explains z: restart from the prior, as the particle filters do
+            self.reinitialised_at.append(self.steps_done + 1)
+            posterior = self._weighted(self._prior(), log_lik)
+        self.density = self._prior() if posterior is None else posterior
+
+    @staticmethod
+    def _weighted(density: np.ndarray, log_lik: np.ndarray) -> np.ndarray | None:
+        """density x exp(log_lik), normalised; None when that product's total underflows."""
+        support = density > 0
+        top = log_lik[support].max()
+        posterior = np.where(support, density * np.exp(np.where(support, log_lik - top, 0.0)), 0.0)
+        total = posterior.sum()
+        if not total > 0 or math.log(total) + top < LOG_UNDERFLOW:
+            return None
+        return posterior / total
+
+    @property
+    def log_weights(self) -> np.ndarray:
+        with np.errstate(divide="ignore"):
+            return np.log(self.density.ravel())
+
+    @property
+    def weights(self) -> np.ndarray:
+        return self.density.ravel()
+
+    @property
+    def count(self) -> int:
+        return len(self.positions)
+
+    @property
+    def ess(self) -> float:
+        """Not a sample, so no effective sample size: NaN."""
+        return math.nan
+
+    @property
+    def estimate(self) -> np.ndarray:
+        """The posterior mean over the cell centres, shape (2,)."""
+        return weighted_mean(self.weights, self.positions)
+
+    @property
+    def is_confident(self) -> bool:
+        """At least 95% of the mass lies within distance 1 of the estimate (as for the particle filters)."""
+        return mass_within(self.weights, self.positions, self.estimate, CONFIDENCE_RADIUS) >= CONFIDENCE_SHARE
+
+    def posterior_std(self) -> float:
+        """Root of the trace of the posterior covariance (map units): how spread the belief is."""
+        centred = self.positions - self.estimate
+        return float(np.sqrt(self.weights @ (centred**2).sum(axis=1)))
+
+
+def arc_kernel(compass_angle: float, delta: float, speed: float, resolution: float) -> np.ndarray:
+    """The transition density on the grid: the arc of radius `speed` spanning `delta` around
+    `compass_angle`, spread bilinearly over cells so that its mean is exact. Shape (2R+1, 2R+1),
+    centred on the origin cell, rows along y; sums to one."""
+    radius = math.ceil(speed / resolution) + 1
+    samples = max(16, math.ceil(4 * speed * delta / resolution))
+    angles = compass_angle + delta * ((np.arange(samples) + 0.5) / samples - 0.5)
+    fx = radius + speed * np.cos(angles) / resolution
+    fy = radius + speed * np.sin(angles) / resolution
+    ix, iy = np.floor(fx).astype(int), np.floor(fy).astype(int)
+    tx, ty = fx - ix, fy - iy
+    kernel = np.zeros((2 * radius + 1, 2 * radius + 1))
+    for dy, wy in ((0, 1 - ty), (1, ty)):
+        for dx, wx in ((0, 1 - tx), (1, tx)):
+            np.add.at(kernel, (iy + dy, ix + dx), wy * wx / samples)
+    return kernel
+
+
+def fft_convolve_same(image: np.ndarray, kernel: np.ndarray, kernel_spectrum: np.ndarray | None = None) -> np.ndarray:
+    """Linear 2-D convolution of `image` with an odd-sized centred `kernel`, cropped to image's shape.
+    `kernel_spectrum`, if given, is `np.fft.rfft2(kernel, fft_shape(image.shape, kernel.shape))`."""
+    ky, kx = kernel.shape
+    shape = fft_shape(image.shape, kernel.shape)
+    if kernel_spectrum is None:
+        kernel_spectrum = np.fft.rfft2(kernel, shape)
+    full = np.fft.irfft2(np.fft.rfft2(image, shape) * kernel_spectrum, shape)
+    return full[ky // 2 : ky // 2 + image.shape[0], kx // 2 : kx // 2 + image.shape[1]]
+
+
+def fft_shape(image_shape: tuple[int, ...], kernel_shape: tuple[int, ...]) -> tuple[int, int]:
+    """The padded size of a linear (not circular) FFT convolution of image and kernel, fast lengths."""
+    return _fast_fft_length(image_shape[0] + kernel_shape[0] - 1), _fast_fft_length(
+        image_shape[1] + kernel_shape[1] - 1
+    )
+
+
+def _fast_fft_length(n: int) -> int:
+    """The smallest 2^a, 3 * 2^a or 5 * 2^a >= n: numpy's FFT is fastest on such lengths (640 takes a
+    third of the time of 625 = 5^4)."""
+    return min(odd * 2 ** max(0, math.ceil(math.log2(n / odd))) for odd in (1, 3, 5))
+
+
+__all__ = [
+    "GRID_RESOLUTION",
+    "GridBayesFilter",
+    "arc_kernel",
+    "fft_convolve_same",
+    "fft_shape",
+]

@@ -1,0 +1,264 @@
+"""The nearest station and the free flag of any point, from one table lookup per point (cost flat in
+the station count): what the likelihood of every particle needs each step."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+# Points up to this many map units beyond the map's border use the fast nearest-station lookup;
+# points farther out (rare: particles only drift out by a step length at a time) use brute force.
+_LOOKUP_MARGIN = 2
+# Lookup cells per map unit, a power of two (so x * scale and its floor are exact): the finer the
+# cells, the fewer have more than one candidate station (at 4, about one in five on the shipped mazes).
+_LOOKUP_SUBDIVISIONS = 4
+_LOOKUP_MAX_CELLS = 2**22  # a larger map gets coarser lookup cells (flat indices stay exact in float32)
+_LOOKUP_TILE = 8  # the table is built in square tiles of this many lookup cells a side
+_LOOKUP_TOLERANCE = 1e-9  # map units: candidate tests keep near-ties (rounding cannot drop the nearest)
+
+
+class NearestStationLookup:
+    """Nearest-station distances and free flags from one table lookup per point: cost flat in B.
+
+    The map plus a margin is cut into square lookup cells of side 1/scale. Each cell keeps the
+    stations that can be nearest to some point of it (`_candidate_stations`): the first candidate,
+    used for every point, and, for the minority of cells near a boundary between two stations'
+    regions, a padded row of all its candidates. Per point, two gathers do the common work: the
+    first candidate's (x, y) pair from one packed table, and the cell's kind (free? ambiguous?), one byte.
+    Queries run in the points' float dtype (float32 particles, float64 for the exact public API).
+    """
+
+    def __init__(self, stations: np.ndarray, free_grid: np.ndarray):
+        """stations (B, 2) in map coordinates; free_grid (H, W) bool, the maze's free cells, row 0 on top."""
+        height, width = free_grid.shape
+        self.scale = _lookup_subdivisions(width, height)
+        self.offset = _LOOKUP_MARGIN * self.scale  # lookup-cell index of x = 0 (and of y = 0)
+        self.nx = (width + 2 * _LOOKUP_MARGIN) * self.scale
+        self.ny = (height + 2 * _LOOKUP_MARGIN) * self.scale
+        self.stations = stations
+        free = _lookup_cells_free(free_grid, self.scale, _LOOKUP_MARGIN).ravel()  # (C,) bool
+        candidates, counts = _candidate_stations(stations, self.nx, self.ny, self.offset, self.scale)
+        ambiguous = np.flatnonzero(counts > 1)
+        self.kind = _cell_kinds(free, counts > 1)  # (C,) int8
+        self.row = np.full(len(counts), -1, dtype=np.int32)  # each cell's row of `_all`, -1: one candidate
+        self.row[ambiguous] = np.arange(len(ambiguous))
+        # The nearest station to a point beyond the table is the nearest to the point where the segment
+        # between them crosses the table's border, so it is a candidate of a border cell.
+        self._border = np.unique(candidates.reshape(self.ny, self.nx, -1)[_border_of(self.ny, self.nx)])
+        self._first = candidates[:, 0]  # (C,) station indices
+        self._all = candidates[ambiguous]  # (A, K) station indices, padded by repeats
+        self._tables: dict[np.dtype, _StationTables] = {}
+
+    def locate(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(distance to the nearest station, free flag) for points x, y of shape (N,), in x's dtype."""
+        tables = self._station_tables(x.dtype)
+        cells, beyond = self._cells(x, y)
+        first = tables.first.take(cells, axis=0)  # (N, 2): one gather for both coordinates
+        d2 = _squared_distances(first[:, 0], first[:, 1], x, y)
+        del first
+        kinds = self.kind.take(cells)
+        ambiguous = np.flatnonzero(kinds >= _AMBIGUOUS)
+        if len(ambiguous):
+            rows = self.row.take(cells.take(ambiguous))
+            d2[ambiguous] = _nearest_candidate(tables, rows, x.take(ambiguous), y.take(ambiguous))
+        free = np.bitwise_and(kinds, _FREE, out=kinds).view(bool)
+        if len(beyond):
+            d2[beyond] = _brute_force_squared_distances(tables.border, x[beyond], y[beyond])
+            free[beyond] = False
+        return np.sqrt(d2, out=d2), free
+
+    def distance_at(self, x: float, y: float) -> float:
+        """`locate`'s distance for one float64 point, in plain floats (the same IEEE operations, so the
+        same value), without the cost of numpy calls on arrays of one."""
+        ix, iy = math.floor(x * self.scale) + self.offset, math.floor(y * self.scale) + self.offset
+        if not (0 <= ix < self.nx and 0 <= iy < self.ny):
+            return float(self.distances(np.array([[x, y]]))[0])
+        cell = iy * self.nx + ix
+        row = self.row[cell]
+        candidates = self._all[row] if row >= 0 else self._first[cell : cell + 1]
+        nearest = min(_squared_distance(self.stations[i], x, y) for i in candidates.tolist())
+        return math.sqrt(nearest)
+
+    def distances(self, points: np.ndarray) -> np.ndarray:
+        """Distance to the nearest station for points of shape (N, 2)."""
+        return self.locate(points[:, 0], points[:, 1])[0]
+
+    def _cells(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Each point's flat lookup-cell index (N,), and the indices of the points beyond the table."""
+        ix = np.floor(x * self.scale)  # exact: the scale is a power of two
+        iy = np.floor(y * self.scale)
+        ix += self.offset
+        iy += self.offset
+        inside = ix.min() >= 0 and iy.min() >= 0 and ix.max() < self.nx and iy.max() < self.ny
+        beyond = _NO_POINTS if inside else np.flatnonzero((ix < 0) | (ix >= self.nx) | (iy < 0) | (iy >= self.ny))
+        ix[beyond] = iy[beyond] = 0  # any cell: their answers are replaced
+        iy *= self.nx
+        iy += ix  # whole numbers below 2**24 (see _lookup_subdivisions), exact even in float32
+        return iy.astype(np.intp), beyond
+
+    def _station_tables(self, dtype: np.dtype) -> _StationTables:
+        """The candidates' coordinates in `dtype`, made once per dtype."""
+        if dtype not in self._tables:
+            xy = self.stations.astype(dtype)
+            every = xy[self._all]
+            columns_x, columns_y = every[..., 0].T.copy(), every[..., 1].T.copy()  # (K, A): candidate k of each row
+            self._tables[dtype] = _StationTables(xy[self._first], columns_x, columns_y, xy[self._border])
+        return self._tables[dtype]
+
+
+_NO_POINTS = np.empty(0, dtype=np.intp)
+_FREE, _AMBIGUOUS = 1, 2  # bits of a lookup cell's kind
+
+
+def _cell_kinds(free: np.ndarray, ambiguous: np.ndarray) -> np.ndarray:
+    """Each lookup cell's kind, int8 (C,): _FREE if free, plus _AMBIGUOUS if it has several candidates."""
+    return (free * _FREE + ambiguous * _AMBIGUOUS).astype(np.int8)
+
+
+@dataclass(frozen=True)
+class _StationTables:
+    """Coordinates of each lookup cell's first candidate (C, 2), of the ambiguous cells' candidates
+    (K, A: row k holds every ambiguous cell's k-th candidate), and of the border cells' candidates (b, 2)."""
+
+    first: np.ndarray
+    all_x: np.ndarray
+    all_y: np.ndarray
+    border: np.ndarray
+
+
+def _border_of(ny: int, nx: int) -> np.ndarray:
+    """(ny, nx) mask of the outermost ring of cells."""
+    ring = np.ones((ny, nx), dtype=bool)
+    ring[1:-1, 1:-1] = False
+    return ring
+
+
+def _lookup_subdivisions(width: int, height: int) -> int:
+    """Lookup cells per map unit: _LOOKUP_SUBDIVISIONS, halved while the table would exceed
+    _LOOKUP_MAX_CELLS (which keeps flat cell indices exact in float32)."""
+    scale = _LOOKUP_SUBDIVISIONS
+    while scale > 1 and (width + 2 * _LOOKUP_MARGIN) * (height + 2 * _LOOKUP_MARGIN) * scale**2 > _LOOKUP_MAX_CELLS:
+        scale //= 2
+    return scale
+
+
+def _lookup_cells_free(free_grid: np.ndarray, scale: int, margin: int) -> np.ndarray:
+    """Free flags of the lookup cells, shape (ny, nx), row j covering y in [j/scale - margin, ...)."""
+    free_up = np.pad(free_grid[::-1], margin, constant_values=False)  # row 0 is y in [-margin, ...)
+    return np.repeat(np.repeat(free_up, scale, axis=0), scale, axis=1)
+
+
+def _nearest_candidate(tables: _StationTables, rows: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Squared distance from each point to the nearest candidate of its ambiguous cell (row of the table)."""
+    nearest = _squared_distances(tables.all_x[0].take(rows), tables.all_y[0].take(rows), x, y)
+    for candidate_x, candidate_y in zip(tables.all_x[1:], tables.all_y[1:], strict=True):
+        np.minimum(nearest, _squared_distances(candidate_x.take(rows), candidate_y.take(rows), x, y), out=nearest)
+    return nearest
+
+
+def _squared_distances(sx: np.ndarray, sy: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """(sx - x)^2 + (sy - y)^2, broadcast, in as few temporary arrays as possible."""
+    dx = sx - x
+    dx *= dx
+    dy = sy - y
+    dy *= dy
+    dx += dy
+    return dx
+
+
+def _squared_distance(station: np.ndarray, x: float, y: float) -> float:
+    """(sx - x)^2 + (sy - y)^2 in plain floats, in `_squared_distances`' order of operations."""
+    sx, sy = station.tolist()
+    dx, dy = sx - x, sy - y
+    return dx * dx + dy * dy
+
+
+def is_scalar(value: Any) -> bool:
+    return isinstance(value, (float, int, np.floating, np.integer)) and not isinstance(value, bool)
+
+
+def _brute_force_squared_distances(stations: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Squared distance to the nearest of `stations` (b, 2), for the rare points beyond the table."""
+    out = np.empty(len(x), dtype=x.dtype)
+    for start in range(0, len(x), 1024):  # chunks bound the (chunk, B) temporary
+        part = slice(start, start + 1024)
+        out[part] = _squared_distances(stations[:, 0], stations[:, 1], x[part, None], y[part, None]).min(axis=1)
+    return out
+
+
+def _candidate_stations(
+    stations: np.ndarray, nx: int, ny: int, offset: int, scale: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """For every lookup cell (flat index j * nx + i), the stations that can be nearest to a point of it,
+    nearest to the cell's centre first: (C, K) station indices padded by repeating the first, and the
+    counts (C,). Built tile by tile, each tile's cells choosing among the tile's own candidates."""
+    size = 1 / scale
+    tiles = []
+    for j0 in range(0, ny, _LOOKUP_TILE):
+        for i0 in range(0, nx, _LOOKUP_TILE):
+            ii, jj = np.meshgrid(np.arange(i0, min(i0 + _LOOKUP_TILE, nx)), np.arange(j0, min(j0 + _LOOKUP_TILE, ny)))
+            lo_x, lo_y = (ii.ravel() - offset) * size, (jj.ravel() - offset) * size
+            tile = (lo_x[:1], lo_y[:1], lo_x[-1:] + size - lo_x[:1], lo_y[-1:] + size - lo_y[:1])
+            near = np.flatnonzero(_possibly_nearest(stations, *tile)[0])
+            order, counts = _cell_candidates(stations[near], lo_x, lo_y, size)
+            tiles.append(((jj * nx + ii).ravel(), near[order], counts))
+    width = max(int(counts.max()) for _, _, counts in tiles)
+    table = np.empty((nx * ny, width), dtype=np.intp)
+    all_counts = np.empty(nx * ny, dtype=np.intp)
+    for cells, candidates, counts in tiles:
+        candidates = candidates[:, :width]
+        candidates = np.where(np.arange(candidates.shape[1]) < counts[:, None], candidates, candidates[:, :1])
+        table[cells] = np.pad(candidates, ((0, 0), (0, width - candidates.shape[1])), mode="edge")
+        all_counts[cells] = counts
+    return table, all_counts
+
+
+def _cell_candidates(
+    stations: np.ndarray, lo_x: np.ndarray, lo_y: np.ndarray, size: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Which of `stations` (K, 2) can be nearest to some point of each square cell (lower-left corner
+    lo_x, lo_y, side `size`): each row of the (c, K) order lists them first, nearest the centre first.
+
+    A station is dropped when it is farther from the whole cell than another station can ever be
+    (`_possibly_nearest`), or when one other station is nearer at all four corners: the points nearer
+    to that one form a half-plane, so it is then nearer on the whole (convex) cell.
+    """
+    possible = _possibly_nearest(stations, lo_x, lo_y, size, size)  # (c, K)
+    counts = possible.sum(axis=1)
+    shortlist = np.argsort(~possible, axis=1, kind="stable")[:, : counts.max()]  # (c, w), possible ones first
+    real = np.arange(shortlist.shape[1]) < counts[:, None]
+    shortlist = np.where(real, shortlist, shortlist[:, :1])  # pad with a real candidate: it beats no one wrongly
+    sx, sy = stations[shortlist, 0][:, None, :], stations[shortlist, 1][:, None, :]  # (c, 1, w)
+    corners_x = lo_x[:, None, None] + np.array([0, size, 0, size])[:, None]  # (c, 4, 1)
+    corners_y = lo_y[:, None, None] + np.array([0, 0, size, size])[:, None]
+    d = np.hypot(corners_x - sx, corners_y - sy)  # (c, 4, w)
+    # beaten[c, s, t]: candidate t is nearer than candidate s at every corner of cell c
+    beaten = (d[:, :, None, :] < d[:, :, :, None] - _LOOKUP_TOLERANCE).all(axis=1)
+    keep = real & ~beaten.any(axis=2)
+    centre = np.hypot(lo_x[:, None] + size / 2 - sx[:, 0], lo_y[:, None] + size / 2 - sy[:, 0])
+    order = np.lexsort((centre, ~keep))  # along the last axis: kept first, then by distance to the centre
+    return np.take_along_axis(shortlist, order, axis=1), keep.sum(axis=1)
+
+
+def _possibly_nearest(
+    stations: np.ndarray, lo_x: np.ndarray, lo_y: np.ndarray, size_x: np.ndarray | float, size_y: np.ndarray | float
+) -> np.ndarray:
+    """(c, K) mask: station k's least distance to box c is at most the smallest, over all stations,
+    greatest distance to box c (otherwise that other station is nearer everywhere in the box)."""
+    lo_x, lo_y = lo_x[:, None], lo_y[:, None]
+    hi_x, hi_y = lo_x + np.asarray(size_x)[..., None], lo_y + np.asarray(size_y)[..., None]
+    sx, sy = stations[:, 0], stations[:, 1]
+    least = np.hypot(np.maximum(np.maximum(lo_x - sx, sx - hi_x), 0), np.maximum(np.maximum(lo_y - sy, sy - hi_y), 0))
+    greatest = np.hypot(
+        np.maximum(np.abs(sx - lo_x), np.abs(sx - hi_x)), np.maximum(np.abs(sy - lo_y), np.abs(sy - hi_y))
+    )
+    return least <= greatest.min(axis=1, keepdims=True) + _LOOKUP_TOLERANCE
+
+
+__all__ = [
+    "NearestStationLookup",
+    "is_scalar",
+]

@@ -1,0 +1,232 @@
+"""The maze of the lab: its grid, maze files, free area and stations.
+
+Map frame (a convention the paper leaves open, fixed here): maze row 0 is the top row; the cell in
+row r, column c of an H x W maze covers x in [c, c+1), y in [H-1-r, H-r), so the map spans
+[0, W] x [0, H] with y pointing up.
+Cell values: 0 empty, 1 wall, 2 wall with a station at each of its four corners.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from functools import cached_property
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mazelab.lookup import NearestStationLookup, is_scalar
+
+EMPTY, WALL, STATION_WALL = 0, 1, 2
+MAZE_FILE_LIMIT_BYTES = 1_000_000  # a maze file larger than this is refused, not read
+
+
+class MazeError(ValueError):
+    """A maze map or maze file that cannot be used; the message names the problem (and file:line)."""
+
+
+class Maze:
+    """A rectangular maze of 0/1/2 cells: free area, walls, stations and nearest-station distances.
+
+    `maze_map` is any rectangular nested sequence (tuple of tuples, list of lists, numpy array).
+    """
+
+    def __init__(self, maze_map: Sequence[Sequence[int]] | np.ndarray, *, source: str = "maze map"):
+        self.grid = _validate_grid(maze_map, source)
+        self.source = source
+        self.height, self.width = self.grid.shape
+        self.stations = _station_corners(self.grid)
+        self.free_cells = _free_cell_origins(self.grid)
+
+    # -- loading ---------------------------------------------------------------------------------
+    @classmethod
+    def from_file(cls, path: str | Path) -> Maze:
+        """Read a maze text file: one row per line, cells 0/1/2 (spaces optional), '#' comments."""
+        path = Path(path)
+        return cls(parse_maze_text(_read_maze_file(path), source=str(path)), source=str(path))
+
+    def to_text(self) -> str:
+        """The maze in the file format of `from_file` (one row per line, cells separated by spaces)."""
+        return "".join(" ".join(str(v) for v in row) + "\n" for row in self.grid.tolist())
+
+    def as_lists(self) -> list[list[int]]:
+        """The grid as a list of lists of ints (for json)."""
+        return self.grid.tolist()
+
+    @cached_property
+    def _lookup(self) -> NearestStationLookup:
+        """The nearest-station table, built on first use (a few ms; about a second for 100 x 100)."""
+        return NearestStationLookup(self.stations, self.grid == EMPTY)
+
+    # -- geometry --------------------------------------------------------------------------------
+    @property
+    def free_area(self) -> float:
+        """Area of the free space in square map units (each free cell is 1 x 1)."""
+        return float(len(self.free_cells))
+
+    def cell_of(self, x: Any, y: Any) -> tuple[np.ndarray, np.ndarray]:
+        """(row, column) indices of the cells containing the points; may lie outside the grid."""
+        col = np.floor(np.asarray(x, dtype=float)).astype(np.int64)
+        row = self.height - 1 - np.floor(np.asarray(y, dtype=float)).astype(np.int64)
+        return row, col
+
+    def is_free(self, x: Any, y: Any) -> bool | np.ndarray:
+        """True where (x, y) lies in [0, W) x [0, H) in a cell of type 0; vectorised over arrays."""
+        if is_scalar(x) and is_scalar(y):  # the robot's wall checks, several a step
+            return self._free_at(float(x), float(y))
+        x = np.asarray(x, dtype=float)
+        y = np.asarray(y, dtype=float)
+        inside = (x >= 0) & (x < self.width) & (y >= 0) & (y < self.height)
+        row, col = self.cell_of(np.where(inside, x, 0.0), np.where(inside, y, 0.0))
+        free = inside & (self.grid[row, col] == EMPTY)
+        return bool(free) if free.ndim == 0 else free
+
+    def _free_at(self, x: float, y: float) -> bool:
+        """`is_free` for one point, in plain floats."""
+        if not (0 <= x < self.width and 0 <= y < self.height):
+            return False
+        return self._free_rows[self.height - 1 - math.floor(y)][math.floor(x)]
+
+    @cached_property
+    def _free_rows(self) -> list[list[bool]]:
+        return (self.grid == EMPTY).tolist()
+
+    def random_free_place(self, rng: np.random.Generator | None = None) -> tuple[float, float]:
+        """One point drawn uniformly from the free area, as (x, y)."""
+        x, y = self.random_free_places(1, rng)[0]
+        return float(x), float(y)
+
+    def random_free_places(self, count: int, rng: np.random.Generator | None = None) -> np.ndarray:
+        """`count` points drawn uniformly from the free area, shape (count, 2).
+
+        Every free cell has area 1, so a uniform cell then a uniform offset inside it is uniform.
+        """
+        rng = np.random.default_rng() if rng is None else rng
+        cells = self.free_cells[rng.integers(len(self.free_cells), size=count)]
+        return cells + rng.random((count, 2))
+
+    def distance_to_nearest_station(self, x: Any, y: Any | None = None) -> float | np.ndarray:
+        """Euclidean distance from each point to its nearest station (map units).
+
+        Call as `distance_to_nearest_station(x, y)` with scalars or arrays of one shape, or with a
+        single array of points of shape (..., 2).
+        """
+        if y is not None and is_scalar(x) and is_scalar(y):  # the robot's measurement, once a step
+            return self._lookup.distance_at(float(x), float(y))
+        points = np.asarray(x, dtype=float) if y is None else np.stack(np.broadcast_arrays(x, y), -1)
+        points = np.asarray(points, dtype=float)
+        flat = points.reshape(-1, 2)
+        distances = self._lookup.distances(flat).reshape(points.shape[:-1])
+        return float(distances) if distances.ndim == 0 else distances
+
+    def station_distances_and_free(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Distance to the nearest station and the free flag of each point, both from one cell lookup:
+        x, y of shape (N,) and one float dtype (float32 particles are computed in float32)."""
+        return self._lookup.locate(x, y)
+
+    def __repr__(self) -> str:
+        return f"Maze({self.height}x{self.width}, {len(self.stations)} stations, source={self.source!r})"
+
+
+# -- validation and parsing ----------------------------------------------------------------------
+def _validate_grid(maze_map: Any, source: str) -> np.ndarray:
+    """Check the map is rectangular, non-empty, of 0/1/2 with a free cell and a station."""
+    if isinstance(maze_map, np.ndarray):
+        rows = maze_map.tolist() if maze_map.ndim == 2 else None
+        if rows is None:
+            raise MazeError(f"{source}: a maze must be 2-D, got an array of {maze_map.ndim} dimension(s)")
+    else:
+        try:
+            rows = [list(row) for row in maze_map]
+        except TypeError:
+            raise MazeError(f"{source}: a maze must be a nested sequence of rows of 0/1/2") from None
+    if not rows or not rows[0]:
+        raise MazeError(f"{source}: the maze is empty")
+    width = len(rows[0])
+    for r, row in enumerate(rows):
+        if len(row) != width:
+            raise MazeError(f"{source}: row {r + 1} has {len(row)} cells, row 1 has {width}: not rectangular")
+        for c, value in enumerate(row):
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value not in (0, 1, 2):
+                raise MazeError(f"{source}: row {r + 1}, column {c + 1} is {value!r}; cells must be 0, 1 or 2")
+    grid = np.array(rows, dtype=np.int8)
+    if not (grid == EMPTY).any():
+        raise MazeError(f"{source}: the maze has no free cell (0)")
+    if not (grid == STATION_WALL).any():
+        raise MazeError(f"{source}: the maze has no station block (2)")
+    return grid
+
+
+def _read_maze_file(path: Path) -> str:
+    """The text of a maze file, refusing missing, unreadable, binary or enormous files clearly."""
+    try:
+        size = path.stat().st_size
+        if path.is_dir():
+            raise MazeError(f"{path}: is a folder, not a maze file")
+        if size > MAZE_FILE_LIMIT_BYTES:
+            raise MazeError(f"{path}: {size} bytes is too large for a maze file (limit {MAZE_FILE_LIMIT_BYTES})")
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise MazeError(f"{path}: no such maze file") from None
+    except PermissionError:
+        raise MazeError(f"{path}: not readable (permission denied)") from None
+    except OSError as error:
+        raise MazeError(f"{path}: cannot be read ({error.strerror or error})") from None
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError:
+        raise MazeError(f"{path}: not a text file (not UTF-8)") from None
+
+
+def parse_maze_text(text: str, source: str = "maze text") -> list[list[int]]:
+    """Parse the maze file format: a row per line of 0/1/2, spaces or commas optional, '#' comments."""
+    rows: list[list[int]] = []
+    for number, line in enumerate(text.splitlines(), start=1):
+        content = line.split("#", 1)[0].replace(",", " ")
+        cells = "".join(content.split())
+        if not cells:
+            continue
+        bad = next((ch for ch in cells if ch not in "012"), None)
+        if bad is not None:
+            raise MazeError(f"{source}:{number}: {bad!r} is not a maze cell; use 0 (free), 1 (wall), 2 (station)")
+        row = [int(ch) for ch in cells]
+        if rows and len(row) != len(rows[0]):
+            raise MazeError(
+                f"{source}:{number}: {len(row)} cells where the first row has {len(rows[0])}: not rectangular"
+            )
+        rows.append(row)
+    if not rows:
+        raise MazeError(f"{source}: the maze is empty (no rows of 0/1/2)")
+    return rows
+
+
+# -- derived geometry ----------------------------------------------------------------------------
+def _station_corners(grid: np.ndarray) -> np.ndarray:
+    """The four corners of every type-2 cell in map coordinates, each point once, shape (B, 2)."""
+    height = grid.shape[0]
+    rows, cols = np.nonzero(grid == STATION_WALL)
+    corners = {
+        (int(c + dx), int(height - 1 - r + dy))
+        for r, c in zip(rows, cols, strict=True)
+        for dx in (0, 1)
+        for dy in (0, 1)
+    }
+    return np.array(sorted(corners), dtype=float)
+
+
+def _free_cell_origins(grid: np.ndarray) -> np.ndarray:
+    """Lower-left corners (x, y) of the free cells, shape (F, 2)."""
+    rows, cols = np.nonzero(grid == EMPTY)
+    return np.column_stack([cols, grid.shape[0] - 1 - rows]).astype(float)
+
+
+__all__ = [
+    "EMPTY",
+    "MAZE_FILE_LIMIT_BYTES",
+    "STATION_WALL",
+    "WALL",
+    "Maze",
+    "MazeError",
+    "parse_maze_text",
+]

@@ -1,0 +1,130 @@
+"""The state-space model, the one source of truth (the paper's equations (1)-(3)):
+
+    x_k = x_{k-1} + L (cos th, sin th),   th ~ U(th0_k - Delta/2, th0_k + Delta/2)     (1)
+    z_k = |x_k - nearest station| + v_k,  v_k ~ N(0, sigma^2)                          (2)
+    p(z_k | x_k) = N(z_k; distance to the nearest station, sigma^2), times 0.5 outside the free area (3)
+
+The constants are the paper's (L = ROBOT_SPEED, the outside penalty, the RPF's N_T / N_S) and the
+lab's (the green circle's radius, the convergence radius); the station geometry is the maze's
+(mazelab.maze). Change a constant here and every filter, test and command follows.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from mazelab.checks import finite_number
+
+if TYPE_CHECKING:
+    from mazelab.maze import Maze
+
+# -- the model's constants (the paper keeps them here, to be changed by the student) -------------
+ROBOT_SPEED = 0.2  # L, the step length in map units
+MAX_STRAIGHT_STEPS = 32  # the robot picks a new heading after this many straight steps (paper: 10 or 32)
+OUTSIDE_PENALTY = 0.5  # likelihood factor for particles outside the free area (refinement 1)
+RPF_THRESHOLD = 0.2  # RPF regularises when ESS < N_T = RPF_THRESHOLD * N_S (refinement 5)
+CONFIDENCE_RADIUS = 1.0  # the estimate is "confident" when CONFIDENCE_SHARE of the mass lies this close
+CONFIDENCE_SHARE = 0.95
+CONVERGENCE_RADIUS = 0.5  # a run has converged from the step after which its error stays below this
+DEFAULT_PARTICLE_COUNT = 1500
+DEFAULT_STEPS = 200
+
+
+# exp(x) is 0 in float64 below this: when the filter's whole predictive likelihood p(z_k | z_1:k-1)
+# is that small no particle explains z_k, and the filter starts again from the prior.
+LOG_UNDERFLOW = math.log(np.finfo(float).tiny)
+LAB_SIGMA_RANGE = (0.2, 0.8)  # the lab's recommended ranges: outside them we warn, not refuse
+LAB_DELTA_RANGE = (0.05, 0.6)
+# Particle positions and headings are float32 (half the memory traffic of float64; the map is at most
+# a few hundred units, where float32 resolves 1e-5). The robot's own path stays float64 and exact.
+PARTICLE_DTYPE = np.float32
+
+
+# -- the model -------------------------------------------------------------------------------------
+def sample_headings(
+    compass_angle: float, delta: float, count: int, rng: np.random.Generator, dtype: type = np.float64
+) -> np.ndarray:
+    """Headings actually taken, th ~ U(th0 - Delta/2, th0 + Delta/2), shape (count,), radians."""
+    headings = rng.random(count, dtype=dtype)
+    headings -= 0.5
+    headings *= delta
+    headings += float(compass_angle)
+    return headings
+
+
+def move(positions: np.ndarray, headings: np.ndarray, speed: float = ROBOT_SPEED) -> np.ndarray:
+    """Equation (1): one step of length `speed` along `headings`; positions (N, 2) -> (N, 2) in their
+    dtype, stored column by column (order F) so that the x and y columns are contiguous."""
+    moved = np.empty(positions.shape, positions.dtype, order="F")
+    for column, direction in ((0, np.cos), (1, np.sin)):
+        step = direction(headings)
+        step *= speed
+        np.add(positions[:, column], step, out=moved[:, column])
+    return moved
+
+
+def take_particles(points: np.ndarray, indices: np.ndarray) -> np.ndarray:
+    """points[indices] for points (N, 2), gathered column by column into order-F storage
+    (fancy-indexing the rows of an (N, 2) array is several times slower)."""
+    taken = np.empty((len(indices), 2), points.dtype, order="F")
+    for column in range(2):
+        np.take(points[:, column], indices, out=taken[:, column])
+    return taken
+
+
+def log_likelihood(
+    z: float, positions: np.ndarray, world: Maze, sigma: float, outside_penalty: float = OUTSIDE_PENALTY
+) -> np.ndarray:
+    """Equation (3) in logs, with refinement 1: log p(z | x) for positions (N, 2) -> (N,).
+
+    The Gaussian's constant -log(sigma sqrt(2 pi)) is kept so that sums of these are true log-likelihoods.
+    """
+    distance, free = world.station_distances_and_free(positions[:, 0], positions[:, 1])
+    residual = distance  # (d - z) / sigma, computed in place: the sign does not matter once squared
+    residual -= float(z)
+    residual /= sigma
+    log_p = residual
+    log_p *= residual
+    log_p *= -0.5
+    norm = math.log(sigma * math.sqrt(2 * math.pi))
+    log_p += np.where(free, log_p.dtype.type(-norm), log_p.dtype.type(math.log(outside_penalty) - norm))
+    return log_p
+
+
+def check_model_parameters(sigma: float, delta: float) -> tuple[float, float]:
+    """Refuse impossible sigma/delta with a clear message; warn outside the lab's recommended ranges."""
+    sigma, delta = finite_number("sigma", sigma), finite_number("delta", delta)
+    if sigma <= 0:
+        raise ValueError(f"sigma must be > 0 (the measurement noise's standard deviation), got {sigma}")
+    if not 0 <= delta <= 2 * math.pi:
+        raise ValueError(f"delta must be in [0, 2*pi] (the compass error's full width, radians), got {delta}")
+    for name, value, (low, high) in (("sigma", sigma, LAB_SIGMA_RANGE), ("delta", delta, LAB_DELTA_RANGE)):
+        if not low <= value <= high:
+            warnings.warn(f"{name} = {value} is outside the lab's range [{low}, {high}]", stacklevel=3)
+    return sigma, delta
+
+
+__all__ = [
+    "CONFIDENCE_RADIUS",
+    "CONFIDENCE_SHARE",
+    "CONVERGENCE_RADIUS",
+    "DEFAULT_PARTICLE_COUNT",
+    "DEFAULT_STEPS",
+    "LAB_DELTA_RANGE",
+    "LAB_SIGMA_RANGE",
+    "LOG_UNDERFLOW",
+    "MAX_STRAIGHT_STEPS",
+    "OUTSIDE_PENALTY",
+    "PARTICLE_DTYPE",
+    "ROBOT_SPEED",
+    "RPF_THRESHOLD",
+    "check_model_parameters",
+    "log_likelihood",
+    "move",
+    "sample_headings",
+    "take_particles",
+]

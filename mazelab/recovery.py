@@ -1,0 +1,212 @@
+"""Recovery from kidnapping (augmented MCL, sensor resetting) and the resampling options that every
+particle filter mixes in (RecoveryAndKLD): off by default, so the paper's filters are unchanged."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from mazelab.checks import finite_number
+from mazelab.maze import Maze
+from mazelab.model import log_likelihood
+from mazelab.resampling import Move, kld_options, kld_resample
+
+ALPHA_SLOW, ALPHA_FAST = 0.001, 0.1  # decay rates of the likelihood averages (Thrun et al., Table 8.3)
+RECOVERY_MODES = ("augmented", "sensor")
+
+
+SENSOR_RESET_BATCHES = 20  # rejection sampling gives up after this many batches (the rest are uniform)
+# Sensor resetting injects while w_fast is below this share of the likelihood expected when localised
+# (`localised_likelihood`): 0.5 lies over 5 standard deviations of w_fast below its localised level.
+SENSOR_RESET_LEVEL = 0.5
+
+
+def localised_likelihood(sigma: float) -> float:
+    """E[p(z | x)] at the robot's own place x: E_v[N(v; 0, sigma^2)] for v ~ N(0, sigma^2) is
+    1 / (2 sqrt(pi) sigma), the mean likelihood of a filter whose belief sits on the robot (1/units)."""
+    return 1.0 / (2.0 * math.sqrt(math.pi) * sigma)
+
+
+@dataclass(frozen=True)
+class Recovery:
+    """Recovery from kidnapping: augmented MCL (Thrun et al., "Probabilistic Robotics", Table 8.3) and
+    sensor resetting (Lenser and Veloso 2000).
+
+    The filter keeps w_slow and w_fast, exponential averages (rates alpha_slow < alpha_fast) of w_avg,
+    its estimate of the predictive likelihood p(z_k | z_1:k-1), and replaces each particle, with an
+    injection probability, by a draw from the free area:
+    - "augmented": probability max(0, 1 - w_fast / w_slow), uniform draws;
+    - "sensor": probability max(0, 1 - w_fast / (reset_level * localised_likelihood(sigma))), as Lenser
+      and Veloso's N (1 - p_avg / p_threshold) with the model's own threshold and w_fast for p_avg, and
+      draws matched to the last measurement (`measurement_matched_places`). The learned w_slow is no
+      reference here: it starts at the lost filter's likelihood and, at alpha_slow = 0.001, takes
+      thousands of steps to learn the localised one, so w_fast seldom falls below it after a kidnapping.
+    """
+
+    mode: str = "augmented"
+    alpha_slow: float = ALPHA_SLOW
+    alpha_fast: float = ALPHA_FAST
+    reset_level: float = SENSOR_RESET_LEVEL
+
+    def __post_init__(self) -> None:
+        if self.mode not in RECOVERY_MODES:
+            raise ValueError(f"unknown recovery {self.mode!r}; choose one of {', '.join(RECOVERY_MODES)}")
+        slow, fast = finite_number("alpha_slow", self.alpha_slow), finite_number("alpha_fast", self.alpha_fast)
+        if not 0 < slow < fast <= 1:
+            raise ValueError(
+                f"recovery needs 0 < alpha_slow < alpha_fast <= 1, got alpha_slow {slow}, alpha_fast {fast}"
+            )
+        if not 0 < finite_number("reset_level", self.reset_level) <= 1:
+            raise ValueError(f"recovery needs 0 < reset_level <= 1, got {self.reset_level}")
+
+    def log_reference(self, log_w_slow: float, sigma: float) -> float:
+        """log of the likelihood level below which w_fast means "lost": w_slow, or the sensor's level."""
+        if self.mode == "sensor":
+            return math.log(self.reset_level * localised_likelihood(sigma))
+        return log_w_slow
+
+
+def recovery_options(
+    recovery: bool | str | Recovery | None, alpha_slow: float = ALPHA_SLOW, alpha_fast: float = ALPHA_FAST
+) -> Recovery | None:
+    """The Recovery a filter option asks for: None/False (off), True ("augmented"), a mode name, a Recovery."""
+    if recovery is None or recovery is False:
+        return None
+    if isinstance(recovery, Recovery):
+        return recovery
+    if recovery is True:
+        recovery = "augmented"
+    if not isinstance(recovery, str):
+        raise ValueError(f"recovery must be True, False, {' or '.join(RECOVERY_MODES)}, got {recovery!r}")
+    return Recovery(recovery.lower(), alpha_slow, alpha_fast)
+
+
+def measurement_matched_places(world: Maze, z: float, sigma: float, count: int, rng: np.random.Generator) -> np.ndarray:
+    """`count` free points with density proportional to p(z | x) on the free area (sensor resetting),
+    shape (count, 2): rejection sampling from the uniform law, accepting x with probability
+    p(z | x) / max p = exp(-(z - d(x))^2 / (2 sigma^2)). Points still missing after
+    SENSOR_RESET_BATCHES batches (when no free point explains z) are drawn uniformly."""
+    found, missing = [], count
+    for _ in range(SENSOR_RESET_BATCHES):
+        candidates = world.random_free_places(max(4 * missing, 256), rng)
+        log_accept = log_likelihood(z, candidates, world, sigma) + math.log(sigma * math.sqrt(2 * math.pi))
+        accepted = candidates[np.log(rng.random(len(candidates))) < log_accept][:missing]
+        found.append(accepted)
+        missing -= len(accepted)
+        if missing == 0:
+            break
+    else:
+        found.append(world.random_free_places(missing, rng))
+    return np.concatenate(found)
+
+
+class RecoveryAndKLD:
+    """The resampling options of a ParticleFilter (mixed into it): recovery and KLD-sampling.
+
+    `draw_particles` is the filter's resampling: with both options off it is exactly
+    `resample` + the filter's move, with no extra draw from its generator, so the paper's filters are
+    unchanged. Needs the filter's world, sigma, rng, resample, count.
+    """
+
+    def _init_options(
+        self, recovery: bool | str | Recovery | None, alpha_slow: float, alpha_fast: float, kld: Any
+    ) -> None:
+        self.recovery = recovery_options(recovery, alpha_slow, alpha_fast)
+        self.kld = kld_options(kld)
+        self.max_count = self.count if self.kld is None or self.kld.max_count is None else self.kld.max_count
+        self.log_w_slow = self.log_w_fast = -math.inf  # log w_slow, log w_fast: set by the first w_avg
+        self.last_z: float | None = None
+        self._injected: np.ndarray | None = None
+        self._injected_step = 0
+
+    @property
+    def injection_probability(self) -> float:
+        """max(0, 1 - w_fast / reference) (see Recovery); 0 without recovery or before the first measurement."""
+        if self.recovery is None or self.last_z is None or self.log_w_slow == -math.inf:
+            return 0.0
+        return max(0.0, 1.0 - math.exp(self.log_w_fast - self.recovery.log_reference(self.log_w_slow, self.sigma)))
+
+    @property
+    def injected(self) -> np.ndarray | None:
+        """Which particles this step's resampling replaced by injected draws (bool, (N,)), or None."""
+        return self._injected if self._injected_step == self.steps_done else None
+
+    def track_likelihood(self, log_w_avg: float, z: float) -> None:
+        """w_slow += alpha_slow (w_avg - w_slow), w_fast likewise; in logs, w <- (1 - a) w + a w_avg.
+
+        Both start at the first w_avg (as ROS AMCL does; Table 8.3 leaves them open): from zero,
+        w_slow would take ~1/alpha_slow steps to reach the likelihood's level and hold back recovery.
+        """
+        if self.recovery is None:
+            return
+        slow, fast = self.recovery.alpha_slow, self.recovery.alpha_fast
+        if self.last_z is None:
+            self.log_w_slow = self.log_w_fast = float(log_w_avg)
+        else:
+            self.log_w_slow = float(np.logaddexp(math.log1p(-slow) + self.log_w_slow, math.log(slow) + log_w_avg))
+            self.log_w_fast = float(np.logaddexp(_log1m(fast) + self.log_w_fast, math.log(fast) + log_w_avg))
+        self.last_z = z
+
+    def draw_particles(
+        self, weights: np.ndarray, move: Move, move_injected: Move
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+        """Resample (N fixed, or KLD-sized) and `move` the ancestors; then, with recovery, replace each
+        particle with probability `injection_probability` by an injected point passed through
+        `move_injected`. Returns (positions, headings, ancestors, injected mask or None)."""
+        if self.kld is None:
+            ancestors = self.resample(weights, self.rng)
+            positions, headings = move(ancestors)
+        else:
+            ancestors, positions, headings = kld_resample(
+                weights, move, self.kld, self.resample, self.rng, self.max_count
+            )
+        self.count = len(positions)
+        injected = self._inject(positions, headings, move_injected)
+        self._injected, self._injected_step = injected, self.steps_done + 1
+        return positions, headings, ancestors, injected
+
+    def inject_without_resampling(self, move_injected: Move) -> None:
+        """Replace particles with probability `injection_probability`, each injected point keeping the
+        weight of the particle it replaces: the selection ignores the weights, so the set represents the
+        same mixture (1 - p) belief + p injection as injecting at a resampling."""
+        positions, headings = self.positions.copy(order="F"), self.headings.copy()
+        injected = self._inject(positions, headings, move_injected)
+        self._injected, self._injected_step = injected, self.steps_done + 1
+        self.positions, self.headings = positions, headings
+
+    def _inject(self, positions: np.ndarray, headings: np.ndarray, move_injected: Move) -> np.ndarray | None:
+        """Replace particles in place with probability `injection_probability`; the mask, or None."""
+        probability = self.injection_probability
+        if probability == 0:
+            return None
+        injected = self.rng.random(len(positions)) < probability
+        count = int(injected.sum())
+        if count:
+            if self.recovery.mode == "sensor" and self.last_z is not None:
+                places = measurement_matched_places(self.world, self.last_z, self.sigma, count, self.rng)
+            else:
+                places = self.world.random_free_places(count, self.rng)
+            positions[injected], headings[injected] = move_injected(places)
+        return injected
+
+
+def _log1m(a: float) -> float:
+    """log(1 - a), -inf for a = 1."""
+    return math.log1p(-a) if a < 1 else -math.inf
+
+
+__all__ = [
+    "ALPHA_FAST",
+    "ALPHA_SLOW",
+    "RECOVERY_MODES",
+    "SENSOR_RESET_BATCHES",
+    "SENSOR_RESET_LEVEL",
+    "Recovery",
+    "RecoveryAndKLD",
+    "localised_likelihood",
+    "measurement_matched_places",
+    "recovery_options",
+]

@@ -1,0 +1,208 @@
+"""Resampling schemes as plain functions, normalised weights W (N,) -> ancestor indices (M,), and
+KLD-sampling (Fox 2003), which chooses M as it resamples."""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
+from statistics import NormalDist
+from typing import Any
+
+import numpy as np
+
+from mazelab.checks import finite_number, step_number
+
+
+# -- resampling: plain functions, normalised weights W (N,) -> ancestor indices (M,) ---------------
+def _inverse_cdf(sorted_uniforms: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Indices i with cumsum(W)[i-1] <= u < cumsum(W)[i] for sorted uniforms u in [0, 1)."""
+    cumulative = np.cumsum(weights)
+    cumulative[-1] = 1.0  # guard against round-off leaving the last bin short of 1
+    return np.searchsorted(cumulative, sorted_uniforms, side="right")
+
+
+def multinomial_resample(weights: np.ndarray, rng: np.random.Generator, count: int | None = None) -> np.ndarray:
+    """M independent draws from the categorical distribution W."""
+    count = len(weights) if count is None else count
+    return _inverse_cdf(np.sort(rng.random(count)), weights)
+
+
+def stratified_resample(weights: np.ndarray, rng: np.random.Generator, count: int | None = None) -> np.ndarray:
+    """One uniform draw in each of the M strata [m/M, (m+1)/M)."""
+    count = len(weights) if count is None else count
+    return _inverse_cdf((np.arange(count) + rng.random(count)) / count, weights)
+
+
+def systematic_resample(weights: np.ndarray, rng: np.random.Generator, count: int | None = None) -> np.ndarray:
+    """One uniform offset U shared by the M strata: the lowest-variance scheme, used by default.
+
+    The points u_m = (m + U) / M below cumsum(W)[i] number ceil(M cumsum(W)[i] - U), so ancestor i gets
+    the difference of two such counts: O(N) counting instead of a binary search per point.
+    """
+    count = len(weights) if count is None else count
+    below = np.empty(len(weights) + 1)  # below[i + 1]: how many points lie below cumsum(W)[i]
+    below[0] = 0.0
+    np.cumsum(weights, out=below[1:])  # float64 whatever the weights' dtype: the strata are 1/M wide
+    below *= count
+    below -= rng.random()
+    np.ceil(below, out=below)
+    ends = below.astype(np.int64)
+    ends[0], ends[-1] = 0, count  # the last guards against round-off leaving cumsum(W) short of 1
+    return _ancestors_from_counts(np.minimum(ends, count, out=ends), count)  # ends >= 0 already
+
+
+def _ancestors_from_counts(ends: np.ndarray, count: int) -> np.ndarray:
+    """Ancestor indices (count,), sorted: particle i repeated ends[i + 1] - ends[i] times."""
+    starts = np.bincount(ends[1:-1], minlength=count)[:count]  # how many particles end before point m
+    return np.cumsum(starts)
+
+
+def residual_resample(weights: np.ndarray, rng: np.random.Generator, count: int | None = None) -> np.ndarray:
+    """floor(M W_i) copies of each particle, the remaining draws multinomial on the remainders."""
+    count = len(weights) if count is None else count
+    copies = np.floor(count * weights).astype(np.int64)
+    deterministic = np.repeat(np.arange(len(weights)), copies)
+    left = count - len(deterministic)
+    if left == 0:
+        return deterministic
+    remainder = count * weights - copies
+    return np.concatenate([deterministic, multinomial_resample(remainder / remainder.sum(), rng, left)])
+
+
+RESAMPLING_SCHEMES: dict[str, Callable[..., np.ndarray]] = {
+    "systematic": systematic_resample,
+    "stratified": stratified_resample,
+    "multinomial": multinomial_resample,
+    "residual": residual_resample,
+}
+
+
+def resampling_scheme(name: str) -> Callable[..., np.ndarray]:
+    """The resampling function called `name` (systematic, stratified, multinomial, residual)."""
+    try:
+        return RESAMPLING_SCHEMES[name.lower()]
+    except KeyError:
+        raise ValueError(f"unknown resampling scheme {name!r}; choose one of {', '.join(RESAMPLING_SCHEMES)}") from None
+
+
+KLD_BIN_SIZE = 0.25  # KLD-sampling counts occupied squares of this side (map units)
+KLD_EPSILON = 0.05  # epsilon: the bound on the KL distance between the sample and the binned posterior
+KLD_QUANTILE = NormalDist().inv_cdf(0.99)  # z_{1-delta}, the upper normal quantile for delta = 0.01: 2.326
+KLD_MIN_COUNT = 100
+
+
+def kld_sample_size(bins: Any, epsilon: float = KLD_EPSILON, z: float = KLD_QUANTILE) -> np.ndarray:
+    """Fox (2003), eq. 13: the sample size that keeps the KL distance between the sample's binned
+    estimate and the binned posterior below epsilon with probability 1 - delta, for k occupied bins:
+        n = (k-1)/(2 eps) (1 - 2/(9(k-1)) + sqrt(2/(9(k-1))) z_{1-delta})^3   (0 for k <= 1)."""
+    k_minus_1 = np.asarray(bins, dtype=float) - 1
+    safe = np.maximum(k_minus_1, 1.0)
+    c = 2 / (9 * safe)
+    return np.where(k_minus_1 >= 1, safe / (2 * epsilon) * (1 - c + np.sqrt(c) * z) ** 3, 0.0)
+
+
+@dataclass(frozen=True)
+class KLDSampling:
+    """KLD-sampling options (Fox 2003): resample until the count n reaches the bound of `kld_sample_size`
+    for the k bins (squares of side `bin_size`) the new particles occupy, within [min_count, max_count].
+    `z` is the normal quantile z_{1-delta} (2.326 for delta = 0.01), not the probability 1 - delta;
+    max_count None means the filter's initial particle count."""
+
+    epsilon: float = KLD_EPSILON
+    z: float = KLD_QUANTILE
+    bin_size: float = KLD_BIN_SIZE
+    min_count: int = KLD_MIN_COUNT
+    max_count: int | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("epsilon", "z", "bin_size"):
+            if not finite_number(f"KLD {name}", getattr(self, name)) > 0:
+                raise ValueError(f"KLD {name} must be > 0, got {getattr(self, name)}")
+        if self.z < 1:
+            warnings.warn(
+                f"KLD z = {self.z} looks like a probability; z is the normal quantile z_(1-delta), "
+                f"e.g. {KLD_QUANTILE:.3f} for delta = 0.01",
+                stacklevel=3,
+            )
+        step_number("KLD min_count", self.min_count)
+        if self.max_count is not None and step_number("KLD max_count", self.max_count) < self.min_count:
+            raise ValueError(f"KLD max_count {self.max_count} is below min_count {self.min_count}")
+
+    def required_count(self, bins: Any) -> np.ndarray:
+        """max(min_count, ceil(n_chi(k))): Fox's stopping count for k occupied bins."""
+        return np.maximum(self.min_count, np.ceil(kld_sample_size(bins, self.epsilon, self.z))).astype(np.int64)
+
+
+def kld_options(kld: bool | KLDSampling | None) -> KLDSampling | None:
+    """The KLDSampling a filter option asks for: None/False (off), True (the defaults), or a KLDSampling."""
+    if kld is None or kld is False:
+        return None
+    if kld is True:
+        return KLDSampling()
+    if isinstance(kld, KLDSampling):
+        return kld
+    raise ValueError(f"kld must be True, False or a KLDSampling, got {kld!r}")
+
+
+Move = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]  # ancestors or points -> (positions, headings)
+
+
+def kld_resample(
+    weights: np.ndarray,
+    move: Move,
+    options: KLDSampling,
+    resample: Callable[..., np.ndarray],
+    rng: np.random.Generator,
+    max_count: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """KLD-sampling (Fox 2003, Table 1) in batches: draw ancestors from W, move them, and stop at the first
+    sample n with n >= required_count(k), k the bins occupied by samples 1..n, or at max_count.
+    Returns (ancestors, positions, headings). Each batch is shuffled so that cutting a stratified or
+    systematic batch short still keeps every ancestor with the same probability."""
+    least = min(options.min_count, max_count)
+    occupied = np.empty(0, dtype=np.int64)  # sorted keys of the occupied bins
+    parts, drawn, target = [], 0, least
+    while True:
+        batch = min(max(target - drawn, drawn, 64), max_count - drawn)  # at least doubles: O(log n) batches
+        ancestors = rng.permutation(resample(weights, rng, batch))
+        positions, headings = move(ancestors)
+        keys, first = np.unique(_bin_keys(positions, options.bin_size), return_index=True)
+        new = np.zeros(batch, dtype=bool)
+        new[first[~np.isin(keys, occupied, assume_unique=True)]] = True
+        bins = len(occupied) + np.cumsum(new)  # occupied bins after each sample of the batch
+        enough = drawn + np.arange(1, batch + 1) >= np.maximum(least, options.required_count(bins))
+        stop = int(np.argmax(enough)) + 1 if enough.any() else batch
+        parts.append((ancestors[:stop], positions[:stop], headings[:stop]))
+        drawn += stop
+        if enough.any() or drawn >= max_count:
+            break
+        occupied = np.union1d(occupied, keys)
+        target = int(options.required_count(len(occupied)))
+    ancestors, positions, headings = (np.concatenate(part) for part in zip(*parts, strict=True))
+    return ancestors, positions, headings
+
+
+def _bin_keys(positions: np.ndarray, size: float) -> np.ndarray:
+    """One int64 key per point for its bin, the size x size square containing it, shape (N,)."""
+    cells = np.floor(positions / size).astype(np.int64)
+    return cells[:, 0] * (1 << 32) + cells[:, 1]
+
+
+__all__ = [
+    "KLD_BIN_SIZE",
+    "KLD_EPSILON",
+    "KLD_MIN_COUNT",
+    "KLD_QUANTILE",
+    "RESAMPLING_SCHEMES",
+    "KLDSampling",
+    "Move",
+    "kld_options",
+    "kld_resample",
+    "kld_sample_size",
+    "multinomial_resample",
+    "resampling_scheme",
+    "residual_resample",
+    "stratified_resample",
+    "systematic_resample",
+]

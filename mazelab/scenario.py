@@ -1,0 +1,174 @@
+"""Saved scenarios (lab step 9): the pydantic model of the json file, and saving and loading it.
+
+A file with only the paper's four keys (init_robot_pos, init_particles_pos, robot_actual_angles,
+robot_compass_angles) loads; the program writes the measurements and metadata too.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Annotated, Any
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from mazelab.atomic import write_text_atomically
+from mazelab.maze import Maze
+from mazelab.robot import Robot
+
+DEFAULT_PARAMETERS_PATH = Path("model_parameters") / "model_parameters.json"
+SCENARIO_FORMAT_VERSION = 2  # the newest scenario format this program reads and writes
+KIDNAP_FORMAT_VERSION = 2  # scenarios with a kidnapping are version 2; all others stay version 1
+
+
+# -- saved scenarios -------------------------------------------------------------------------------
+FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
+Point = tuple[FiniteFloat, FiniteFloat]
+
+
+class Scenario(BaseModel):
+    """A saved run (lab step 9): the paper's four keys, the measurements, and metadata.
+
+    Version 2 adds the kidnapping (kidnap_at, kidnap_position: at step kidnap_at the robot is put down
+    at kidnap_position before that step's move). A scenario is written with the lowest version that
+    holds it, so files without a kidnapping stay version 1 and older readers still read them.
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    format_version: int = Field(1, ge=1)
+    init_robot_pos: Point
+    init_particles_pos: list[Point] = Field(min_length=1)
+    robot_actual_angles: list[FiniteFloat]
+    robot_compass_angles: list[FiniteFloat]
+    robot_measurements: list[FiniteFloat] | None = None
+    maze: list[list[int]] | None = None
+    sigma: FiniteFloat | None = Field(None, gt=0)
+    delta: FiniteFloat | None = Field(None, ge=0, le=2 * math.pi)
+    seed: int | None = None
+    steps: int | None = Field(None, ge=1)
+    filtering_algorithm: str | None = None
+    kidnap_at: int | None = Field(None, ge=1)
+    kidnap_position: Point | None = None
+
+    @model_validator(mode="before")
+    @classmethod
+    def _lowest_version(cls, data: Any) -> Any:
+        """Without an explicit format_version, the lowest that holds the data."""
+        if isinstance(data, dict) and "format_version" not in data:
+            data = {**data, "format_version": KIDNAP_FORMAT_VERSION if data.get("kidnap_at") is not None else 1}
+        return data
+
+    @model_validator(mode="after")
+    def _consistent(self) -> Scenario:
+        if self.format_version > SCENARIO_FORMAT_VERSION:
+            raise ValueError(
+                f"format_version {self.format_version} is newer than this program reads ({SCENARIO_FORMAT_VERSION})"
+            )
+        if (self.kidnap_at is None) != (self.kidnap_position is None):
+            raise ValueError("kidnap_at and kidnap_position come together: give both or neither")
+        if self.kidnap_at is not None and self.format_version < KIDNAP_FORMAT_VERSION:
+            raise ValueError(f"a kidnapping needs format_version {KIDNAP_FORMAT_VERSION}, got {self.format_version}")
+        if self.kidnap_at is not None and self.kidnap_at > len(self.robot_actual_angles):
+            raise ValueError(f"kidnap_at {self.kidnap_at} is after the last step ({len(self.robot_actual_angles)})")
+        steps = len(self.robot_actual_angles)
+        if len(self.robot_compass_angles) != steps:
+            raise ValueError(
+                f"robot_actual_angles has {steps} entries but robot_compass_angles has {len(self.robot_compass_angles)}"
+            )
+        if self.robot_measurements is not None and len(self.robot_measurements) != steps:
+            raise ValueError(f"robot_measurements has {len(self.robot_measurements)} entries, {steps} expected")
+        if self.steps is not None and self.steps != steps:
+            raise ValueError(f"steps is {self.steps} but there are {steps} angles")
+        if self.maze is not None:
+            Maze(self.maze, source="the scenario's maze")
+        return self
+
+    def world(self) -> Maze | None:
+        """The maze stored in the scenario, if any."""
+        return None if self.maze is None else Maze(self.maze, source="the scenario's maze")
+
+    def robot(self, sigma: float | None = None, delta: float | None = None, **kwargs: Any) -> Robot:
+        """A Robot that replays this scenario's path (and measurements, if stored)."""
+        sigma = self.sigma if sigma is None else sigma
+        delta = self.delta if delta is None else delta
+        if sigma is None or delta is None:
+            raise ValueError("the scenario stores no sigma/delta: give them")
+        return Robot(
+            sigma,
+            delta,
+            self.init_robot_pos,
+            actual_angles=self.robot_actual_angles,
+            compass_angles=self.robot_compass_angles,
+            measurements=self.robot_measurements,
+            kidnap_at=self.kidnap_at,
+            kidnap_position=self.kidnap_position,
+            **kwargs,
+        )
+
+    def to_json(self) -> str:
+        """Json with the paper's keys first, one particle per line (readable, and diff-able)."""
+        data = self.model_dump(exclude_none=True)
+        lines = []
+        for key, value in data.items():
+            if key in ("init_particles_pos", "maze"):
+                inner = ",\n".join(f"    {json.dumps(list(item))}" for item in value)
+                lines.append(f'  "{key}": [\n{inner}\n  ]')
+            else:
+                lines.append(f'  "{key}": {json.dumps(value)}')
+        return "{\n" + ",\n".join(lines) + "\n}\n"
+
+
+class ScenarioError(ValueError):
+    """A scenario file that cannot be used; the message is one line naming the file and the problem."""
+
+
+def save_scenario(scenario: Scenario, path: str | Path = DEFAULT_PARAMETERS_PATH) -> Path:
+    """Write the scenario as json, atomically (a reader never sees half a file). Returns the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_text_atomically(path, scenario.to_json())
+    return path
+
+
+def load_scenario(path: str | Path = DEFAULT_PARAMETERS_PATH) -> Scenario:
+    """Read and validate a scenario json file (a file with only the paper's four keys is fine)."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ScenarioError(f"{path}: no such scenario file") from None
+    except (OSError, UnicodeDecodeError) as error:
+        raise ScenarioError(f"{path}: cannot be read ({error})") from None
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as error:
+        raise ScenarioError(f"{path}:{error.lineno}: not valid json ({error.msg})") from None
+    try:
+        return Scenario.model_validate(data)
+    except ValidationError as error:
+        raise ScenarioError(f"{path}: {describe_validation_error(error)}") from None
+
+
+def describe_validation_error(error: ValidationError) -> str:
+    """The first problem of a pydantic error, on one line: 'where: what' (and how many more)."""
+    first = error.errors()[0]
+    parts = (str(part) for part in first["loc"])  # a key may hold a newline: quote those, to keep one line
+    where = ".".join(part if part.isprintable() else repr(part) for part in parts) or "the file"
+    more = len(error.errors()) - 1
+    return f"{where}: {first['msg']}" + (f" (and {more} more problem(s))" if more else "")
+
+
+__all__ = [
+    "DEFAULT_PARAMETERS_PATH",
+    "KIDNAP_FORMAT_VERSION",
+    "SCENARIO_FORMAT_VERSION",
+    "FiniteFloat",
+    "Point",
+    "Scenario",
+    "ScenarioError",
+    "describe_validation_error",
+    "load_scenario",
+    "save_scenario",
+]

@@ -1,0 +1,264 @@
+"""The simulation loop: one filter on one robot walk, step by step, kept as arrays in a RunResult.
+
+Step k: the robot moves with its actual angle k and measures z_k; the filter predicts with compass
+angle k and updates with z_k. The loop draws into a view object its caller hands it (anything with
+log_step and close); it never imports the viewer (mazelab.lab joins the two).
+"""
+
+from __future__ import annotations
+
+import os
+import time
+import warnings
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from mazelab.checks import as_points, step_number
+from mazelab.maze import Maze
+from mazelab.model import CONVERGENCE_RADIUS, DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, check_model_parameters
+from mazelab.registry import resolve_filter
+from mazelab.robot import Robot
+from mazelab.scenario import Scenario
+
+
+@dataclass
+class RunResult:
+    """Everything one run produced, per step k = 1..steps (arrays of length `steps`)."""
+
+    filter_name: str
+    true_positions: np.ndarray  # (steps, 2), after the robot's move of step k
+    estimates: np.ndarray  # (steps, 2), the posterior mean after the update with z_k
+    ess: np.ndarray  # (steps,), NaN for the grid filter
+    confident: np.ndarray  # (steps,) bool
+    step_seconds: np.ndarray  # (steps,), the filter's own time per step
+    reinitialised_at: list[int]
+    scenario: Scenario
+    extras: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def errors(self) -> np.ndarray:
+        """Distance between estimate and truth per step (map units)."""
+        return np.hypot(*(self.estimates - self.true_positions).T)
+
+    @property
+    def converged_at(self) -> int | None:
+        """The first step from which the error stays below CONVERGENCE_RADIUS, or None."""
+        return convergence_step(self.errors)
+
+    def as_pairs(self) -> list[tuple[tuple[float, float], tuple[float, float]]]:
+        """The paper's result: one ((x_true, y_true), (x_est, y_est)) per step, plain floats."""
+        return [
+            ((float(t[0]), float(t[1])), (float(e[0]), float(e[1])))
+            for t, e in zip(self.true_positions, self.estimates, strict=True)
+        ]
+
+
+def convergence_step(errors: np.ndarray, radius: float = CONVERGENCE_RADIUS) -> int | None:
+    """The first step (1-based) after which every error is below `radius`; None if the last is not."""
+    outside = np.flatnonzero(np.asarray(errors) >= radius)
+    if len(outside) == 0:
+        return 1
+    return None if outside[-1] == len(errors) - 1 else int(outside[-1]) + 2
+
+
+BYTES_PER_PARTICLE = 400  # arrays a particle needs during a step, temporaries included (generous)
+
+
+def check_memory_for(particle_count: int) -> None:
+    """Refuse, before allocating, a particle count whose arrays would not fit in the available memory."""
+    needed = particle_count * BYTES_PER_PARTICLE
+    available = _available_memory()
+    if available is not None and needed > 0.8 * available:
+        raise ValueError(
+            f"particle_count {particle_count} needs about {needed / 2**30:.1f} GiB, "
+            f"but only {available / 2**30:.1f} GiB of memory is available"
+        )
+
+
+def _available_memory() -> int | None:
+    """Bytes of physical memory available now, where the system tells (None elsewhere)."""
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (AttributeError, ValueError, OSError):
+        return None
+
+
+def check_start(world: Maze, robot_position: tuple[float, float], particles: np.ndarray) -> None:
+    """The robot must start in the free area; particles may lie anywhere (but we say so)."""
+    if not world.is_free(*robot_position):
+        raise ValueError(f"the robot's start {robot_position} is not in the free area of the maze ({world.source})")
+    outside = int((~world.is_free(particles[:, 0], particles[:, 1])).sum())
+    if outside:
+        warnings.warn(f"{outside} of the {len(particles)} initial particles lie outside the free area", stacklevel=3)
+
+
+def new_seed() -> int:
+    """A fresh random seed, recorded so that any run can be repeated."""
+    return int(np.random.SeedSequence().entropy % 2**63)
+
+
+class NullView:
+    """A view that draws nothing: what a run without drawing uses."""
+
+    def log_step(self, step: int, robot_position: Sequence[float], robot_heading: float | None, state: Any) -> None:
+        """Draw step `step`: the robot (position, heading) and the filter `state` (its particles,
+        weights, headings, estimate, ESS, confidence)."""
+
+    def close(self) -> None:
+        """Finish drawing (flush and close the recording)."""
+
+    def expect_kidnapping(self, step: int, position: Sequence[float]) -> None:
+        """The robot will be carried to `position` at step `step`: draw the jump then."""
+
+
+def open_run_view(view: Any, world: Maze, filter_name: str) -> Any:
+    """The view a run draws into: `view` itself, NullView for None, or what a view-opening function returns."""
+    if view is None or view is False:
+        return NullView()
+    if hasattr(view, "log_step"):
+        return view
+    if callable(view):
+        return view(world, filter_name)
+    raise ValueError(f"view must be None, a view (with log_step and close) or a function returning one, got {view!r}")
+
+
+def expect_kidnapping(view: Any, step: int | None, position: Sequence[float] | None) -> None:
+    """Tell `view` of a planned kidnapping, if there is one and the view draws it (a caller's own
+    view need not)."""
+    if step is not None and position is not None and hasattr(view, "expect_kidnapping"):
+        view.expect_kidnapping(step, position)
+
+
+def simulate(
+    robot: Robot,
+    world: Maze,
+    sigma: float,
+    delta: float,
+    particle_count: int | None = None,
+    steps: int | None = None,
+    init_particles_pos: Sequence[Sequence[float]] | np.ndarray | None = None,
+    filtering_algorithm: str | type = "SIRParticleFilter",
+    *,
+    seed: int | None = None,
+    view: Any = None,
+    on_step: Callable[[int, Robot, Any], None] | None = None,
+    kidnap_at: int | None = None,
+    **filter_options: Any,
+) -> RunResult:
+    """Run one filter on the robot's walk and return the full `RunResult` (what run_model summarises).
+
+    Step k: the robot moves with its actual angle k and measures z_k; the filter predicts with
+    compass angle k and updates with z_k; `on_step(k, robot, filter)` is called after each step.
+    `seed` seeds the robot (unless it has its own rng), the
+    initial particles and the filter; the same seed gives the same result bit for bit.
+    `kidnap_at=K`: at step K, before its move, the robot is carried to a free place drawn from the
+    seed (see Robot.kidnap); a robot that replays a kidnapping keeps it. The scenario stores it.
+    result.extras["particle_count"] holds the particle count per step (it varies with KLD-sampling).
+    `view` is what the run draws into: None (nothing), a view (`log_step`, `close`), or a function
+    `(world, filter_name) -> view`, called once the inputs are checked (mazelab.lab passes Rerun's).
+    """
+    sigma, delta = check_model_parameters(sigma, delta)
+    filter_class = resolve_filter(filtering_algorithm)
+    seed = new_seed() if seed is None else int(seed)
+    # spawn(4)'s first three streams are spawn(3)'s: runs without kidnapping are unchanged
+    robot_rng, particles_rng, filter_rng, kidnap_rng = np.random.default_rng(seed).spawn(4)
+    if init_particles_pos is not None:
+        particles = as_points("init_particles_pos", init_particles_pos)
+    else:
+        count = DEFAULT_PARTICLE_COUNT if particle_count is None else particle_count
+        if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 1:
+            raise ValueError(f"particle_count must be a whole number >= 1, got {count!r}")
+        check_memory_for(int(count))
+        particles = world.random_free_places(int(count), particles_rng)
+    check_start(world, robot.initial_position, particles)
+    if steps is None:
+        steps = robot.recorded_steps or DEFAULT_STEPS
+    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
+        raise ValueError(f"steps must be a whole number >= 1, got {steps!r}")
+    if kidnap_at is not None:
+        plan_kidnapping(robot, world, kidnap_at, steps, kidnap_rng)
+
+    robot.reset()
+    if not robot.rng_given:
+        robot.rng = robot_rng
+    filt = filter_class(world, sigma, delta, particles, filter_rng, **filter_options)
+    view = open_run_view(view, world, filter_class.name)
+    expect_kidnapping(view, robot.kidnap_at, robot.kidnap_position)
+    true_positions, estimates = np.empty((steps, 2)), np.empty((steps, 2))
+    ess, confident, seconds = np.empty(steps), np.empty(steps, dtype=bool), np.empty(steps)
+    counts = np.empty(steps, dtype=np.int64)
+    try:
+        for k in range(steps):
+            compass_angle, z = robot.step(world)
+            started = time.perf_counter()
+            filt.step(compass_angle, z)
+            seconds[k] = time.perf_counter() - started
+            true_positions[k], estimates[k] = robot.position, filt.estimate
+            ess[k], confident[k], counts[k] = filt.ess, filt.is_confident, filt.count
+            view.log_step(k + 1, robot.position, robot.heading, filt)
+            if on_step is not None:
+                on_step(k + 1, robot, filt)
+    finally:
+        view.close()
+    scenario = Scenario(
+        init_robot_pos=robot.initial_position,
+        init_particles_pos=particles.tolist(),
+        robot_actual_angles=robot.actual_angles[:steps],
+        robot_compass_angles=robot.compass_angles[:steps],
+        robot_measurements=robot.measurements[:steps],
+        maze=world.as_lists(),
+        sigma=sigma,
+        delta=delta,
+        seed=seed,
+        steps=steps,
+        filtering_algorithm=filter_class.name,
+        **_kidnapping_fields(robot, steps),
+    )
+    return RunResult(
+        filter_class.name,
+        true_positions,
+        estimates,
+        ess,
+        confident,
+        seconds,
+        list(filt.reinitialised_at),
+        scenario,
+        extras={"particle_count": counts},
+    )
+
+
+def plan_kidnapping(robot: Robot, world: Maze, kidnap_at: int, steps: int, rng: np.random.Generator) -> None:
+    """Kidnap `robot` at step `kidnap_at` to a free place drawn from `rng`, unless it already replays
+    that kidnapping; a different recorded kidnapping, or one after the last step, is refused."""
+    kidnap_at = step_number("kidnap_at", kidnap_at)
+    if kidnap_at > steps:
+        raise ValueError(f"kidnap_at {kidnap_at} is after the last step ({steps})")
+    if robot.kidnap_at is None:
+        robot.kidnap(kidnap_at, world.random_free_place(rng))
+    elif robot.kidnap_at != kidnap_at:
+        raise ValueError(f"the robot replays a kidnapping at step {robot.kidnap_at}, not at step {kidnap_at}")
+
+
+def _kidnapping_fields(robot: Robot, steps: int) -> dict[str, Any]:
+    """The scenario's kidnap_at and kidnap_position, if the robot was kidnapped within `steps`."""
+    if robot.kidnap_at is None or robot.kidnap_at > steps:
+        return {}
+    return {"kidnap_at": robot.kidnap_at, "kidnap_position": robot.kidnap_position}
+
+
+__all__ = [
+    "BYTES_PER_PARTICLE",
+    "NullView",
+    "RunResult",
+    "check_memory_for",
+    "check_start",
+    "convergence_step",
+    "expect_kidnapping",
+    "new_seed",
+    "open_run_view",
+    "plan_kidnapping",
+    "simulate",
+]

@@ -1,0 +1,70 @@
+"""The viewer layouts: one run, and the comparison of several filters side by side."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+from mazelab.maze import Maze
+from mazelab.viz.style import MAP, SERIES, entity_name
+
+
+# -- layouts ---------------------------------------------------------------------------------------
+def map_view(world: Maze, filter_name: str) -> Any:
+    """A 2-D view of the maze, the robot and one filter's particles and estimate, the whole map in sight."""
+    import rerun.blueprint as rrb
+
+    margin = 0.5
+    return rrb.Spatial2DView(
+        name=filter_name,
+        origin="/",
+        contents=[f"{MAP}/maze", f"{MAP}/stations", f"{MAP}/robot/**", f"{MAP}/{entity_name(filter_name)}/**"],
+        visual_bounds=rrb.VisualBounds2D(
+            x_range=[-margin, world.width + margin], y_range=[-margin, world.height + margin]
+        ),
+    )
+
+
+def run_blueprint(world: Maze, filter_name: str) -> Any:
+    """One run: the step number over the maze view; the error, ESS and confidence series beside it."""
+    import rerun.blueprint as rrb
+
+    series = [rrb.TimeSeriesView(name=SERIES_TITLES[s], origin=f"/metrics/{s}") for s in SERIES]
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Vertical(
+                rrb.TextDocumentView(name="step", origin="/title"), map_view(world, filter_name), row_shares=[1, 9]
+            ),
+            rrb.Vertical(*series),
+            column_shares=[3, 2],
+        )
+    )
+
+
+def comparison_blueprint(world: Maze, filter_names: Sequence[str]) -> Any:
+    """The lab's comparison: one maze view per filter side by side, every filter's error below."""
+    import rerun.blueprint as rrb
+
+    return rrb.Blueprint(
+        rrb.Vertical(
+            rrb.TextDocumentView(name="step", origin="/title"),
+            rrb.Horizontal(*[map_view(world, name) for name in filter_names]),
+            rrb.TimeSeriesView(name=SERIES_TITLES["error"], origin="/metrics/error"),
+            row_shares=[1.5, 8, 4],
+        )
+    )
+
+
+SERIES_TITLES = {
+    "error": "error |estimate - truth|",
+    "ess": "effective sample size (and N with KLD-sampling)",
+    "confident": "confident (95% within the circle)",
+}
+
+
+__all__ = [
+    "SERIES_TITLES",
+    "comparison_blueprint",
+    "map_view",
+    "run_blueprint",
+]

@@ -1,0 +1,105 @@
+"""Where a recording goes: the `visualize` values, the display check, and recording file names."""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mazelab.viz.style import DEFAULT_MAX_DRAWN
+
+RECORDINGS_DIR = Path("recordings")  # where runs without a display are saved, relative to the cwd
+
+
+@dataclass(frozen=True)
+class Visualization:
+    """A `visualize` value with options: where to draw (`target`, see above) and how much."""
+
+    target: Any = True
+    max_drawn: int = DEFAULT_MAX_DRAWN
+
+    def __post_init__(self) -> None:
+        if isinstance(self.max_drawn, bool) or not isinstance(self.max_drawn, (int, np.integer)) or self.max_drawn < 1:
+            raise ValueError(f"max_drawn must be a whole number >= 1, got {self.max_drawn!r}")
+
+
+def resolve_target(target: Any, label: str = "run") -> str | Path:
+    """The place a `visualize` value means: "viewer", "web", "notebook" or a file path; without a
+    display, a file named after `label` in RECORDINGS_DIR (and a line saying so)."""
+    if target is True or target == "auto":
+        if in_jupyter() and notebook_viewer_installed():
+            return "notebook"
+        if has_display():
+            return "viewer"
+        path = default_recording_path(label)
+        print(f"No display found (DISPLAY and WAYLAND_DISPLAY unset): the recording goes to {path}")
+        return path
+    if target == "viewer" and not has_display():
+        path = default_recording_path(label)
+        print(f"No display found (DISPLAY and WAYLAND_DISPLAY unset): saving to {path} instead of opening the viewer")
+        return path
+    if target == "notebook" and not notebook_viewer_installed():
+        raise ValueError("visualize='notebook' needs rerun's notebook viewer: pip install -e '.[notebook]'")
+    if target in ("viewer", "web", "notebook"):
+        return target
+    if isinstance(target, (str, Path)):
+        path = Path(target)
+        if path.is_dir():
+            raise ValueError(f"{path} is a folder, not an .rrd file")
+        if not path.parent.is_dir():
+            raise ValueError(f"{path.parent} does not exist: cannot write {path.name} there")
+        return path
+    raise ValueError(
+        f"visualize must be True, False, 'viewer', 'web', 'notebook', an .rrd path or a view, got {target!r}"
+    )
+
+
+def default_recording_path(label: str) -> Path:
+    """recordings/<label>-<date>-<time>.rrd in the current folder, made unique; the folder is created."""
+    RECORDINGS_DIR.mkdir(parents=True, exist_ok=True)
+    stem = f"{label}-{time.strftime('%Y%m%d-%H%M%S')}"
+    path, n = RECORDINGS_DIR / f"{stem}.rrd", 1
+    while path.exists() or partial_path(path).exists():
+        n += 1
+        path = RECORDINGS_DIR / f"{stem}-{n}.rrd"
+    return path
+
+
+def partial_path(path: Path) -> Path:
+    """Where a recording is written until it is complete (then renamed to `path`: never half a file)."""
+    return path.with_name(f".{path.name}.partial")
+
+
+def has_display() -> bool:
+    """Whether a native viewer window can open: always on macOS and Windows, else DISPLAY or WAYLAND_DISPLAY."""
+    return sys.platform in ("darwin", "win32") or bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+def in_jupyter() -> bool:
+    """Whether this runs in a Jupyter kernel (where the viewer can be shown inline)."""
+    ipython = sys.modules.get("IPython")
+    shell = ipython.get_ipython() if ipython is not None else None
+    return type(shell).__name__ == "ZMQInteractiveShell"
+
+
+def notebook_viewer_installed() -> bool:
+    """Whether rerun's notebook viewer (the `notebook` extra) is installed."""
+    return importlib.util.find_spec("rerun_notebook") is not None
+
+
+__all__ = [
+    "RECORDINGS_DIR",
+    "Visualization",
+    "default_recording_path",
+    "has_display",
+    "in_jupyter",
+    "notebook_viewer_installed",
+    "partial_path",
+    "resolve_target",
+]

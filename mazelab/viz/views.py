@@ -1,0 +1,233 @@
+"""What one run draws: particles coloured by weight, the estimate's circle, the series; and the
+views that a run (open_view) or a comparison of filters (open_comparison) draws into.
+
+`visualize` (run_model's argument and the CLI's --viewer/--rrd/--web/--no-viz) takes:
+  True or "auto"  the notebook viewer inside Jupyter, else the native viewer when a display
+                  exists, else an .rrd file in recordings/ (the path is printed)
+  "viewer"        spawn the native viewer (falls back to a file, saying so, without a display)
+  "web"           serve the web viewer on 127.0.0.1 (and save a file); Ctrl-C stops serving
+  "notebook"      the viewer inline in a Jupyter notebook (needs the `notebook` extra)
+  a str/Path      save the recording to that .rrd file (any other string is a path)
+  an rr.RecordingStream   log into the caller's own recording (it stays open)
+  False / None    draw nothing                   a view object (has log_step/close): draw into it
+  Visualization(target, max_drawn=...)  any of the above, drawing at most max_drawn particles
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from mazelab.maze import Maze
+from mazelab.model import CONFIDENCE_RADIUS
+from mazelab.simulation import NullView
+from mazelab.viz.blueprints import comparison_blueprint, run_blueprint
+from mazelab.viz.recording import Recording, heading_vectors
+from mazelab.viz.style import (
+    CELL_DOT_RADIUS,
+    CONFIDENT_COLOR,
+    ESTIMATE_COLOR,
+    FILTER_COLORS,
+    INJECTED_COLOR,
+    MAP,
+    PARTICLE_ARROW_LENGTH,
+    PARTICLE_ARROW_RADIUS,
+    SERIES,
+    entity_name,
+)
+from mazelab.viz.targets import Visualization
+
+
+def open_view(visualize: Any, world: Maze, filter_name: str) -> Any:
+    """The view one run draws to (see the `visualize` values above)."""
+    if hasattr(visualize, "log_step"):
+        return visualize
+    options = visualize if isinstance(visualize, Visualization) else Visualization(visualize)
+    if options.target is None or options.target is False:
+        return NullView()
+    blueprint = run_blueprint(world, filter_name)
+    recording = Recording.open(options.target, world, blueprint, label=entity_name(filter_name))
+    return RunView(recording, filter_name, FILTER_COLORS[0], options.max_drawn, owns_recording=True)
+
+
+class NullComparison:
+    """All filters of one scenario in one recording (compare): one view per filter."""
+
+    def view_for(self, filter_name: str) -> Any:
+        """The view that the run of `filter_name` draws to."""
+        return NullView()
+
+    def close(self) -> None:
+        """Finish the recording."""
+
+
+def open_comparison(visualize: Any, world: Maze, filter_names: Sequence[str]) -> Any:
+    """A recording for comparing `filter_names` side by side (see the `visualize` values above)."""
+    options = visualize if isinstance(visualize, Visualization) else Visualization(visualize)
+    if options.target is None or options.target is False:
+        return NullComparison()
+    names = list(dict.fromkeys(filter_names))
+    if not names:
+        raise ValueError("a comparison needs at least one filter")
+    recording = Recording.open(options.target, world, comparison_blueprint(world, names), label="compare")
+    return Comparison(recording, names, options.max_drawn)
+
+
+class Comparison:
+    """All filters of one scenario in one recording: one `RunView` per filter, the robot drawn once."""
+
+    def __init__(self, recording: Recording, filter_names: Sequence[str], max_drawn: int):
+        self.recording = recording
+        self.views = {
+            name: RunView(recording, name, FILTER_COLORS[i % len(FILTER_COLORS)], max_drawn, owns_recording=False)
+            for i, name in enumerate(filter_names)
+        }
+
+    def view_for(self, filter_name: str) -> RunView:
+        """The view that the run of `filter_name` draws to (one of the names the comparison was opened with)."""
+        if filter_name not in self.views:
+            raise ValueError(f"{filter_name!r} is not in this comparison ({', '.join(self.views)})")
+        return self.views[filter_name]
+
+    def close(self) -> None:
+        """Finish the recording (file complete, viewer flushed, web viewer served until Ctrl-C)."""
+        self.recording.close()
+
+
+# -- what one run draws ----------------------------------------------------------------------------
+def weight_colors(weights: np.ndarray) -> np.ndarray:
+    """RGB colours from blue (weight 0) to red (the largest weight), linear in w / max w, shape (N, 3)."""
+    top = weights.max() if len(weights) else 0.0
+    t = weights / top if top > 0 else np.zeros_like(weights)
+    return np.column_stack([255 * t, np.zeros_like(t), 255 * (1 - t)]).astype(np.uint8)
+
+
+def drawn_particles(state: Any, max_drawn: int) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
+    """What is drawn of a filter's posterior: positions (M, 2), headings (M,) or None, weights (M,).
+
+    A particle filter: all N particles when N <= max_drawn, else max_drawn of them at evenly spaced
+    indices (deterministic: drawing never draws from the filter's random stream). A grid density
+    (GridBayesFilter, whose cells are not a sample): the cells hit by a systematic pick of max_drawn
+    points of its mass, each cell once, so the dots show where the probability is.
+    """
+    weights = np.asarray(state.weights)
+    positions = np.asarray(state.positions)
+    if hasattr(state, "density"):
+        cumulative = np.cumsum(weights)
+        targets = (np.arange(max_drawn) + 0.5) / max_drawn * cumulative[-1]
+        cells = np.unique(np.minimum(np.searchsorted(cumulative, targets), len(weights) - 1))
+        return positions[cells], None, weights[cells]
+    picked = drawn_indices(len(positions), max_drawn)
+    return positions[picked], np.asarray(state.headings)[picked], weights[picked]
+
+
+def drawn_indices(count: int, max_drawn: int) -> slice | np.ndarray:
+    """Which of `count` particles are drawn: all, or max_drawn at evenly spaced indices."""
+    if count <= max_drawn:
+        return slice(None)
+    return np.linspace(0, count - 1, max_drawn).round().astype(np.int64)
+
+
+def particle_colors(state: Any, weights: np.ndarray, max_drawn: int) -> np.ndarray:
+    """The drawn particles' colours (M, 3): by weight (`weight_colors`), and INJECTED_COLOR for those
+    that recovery injected this step (`state.injected`, a mask over all N particles, or None)."""
+    colors = weight_colors(weights)
+    injected = getattr(state, "injected", None)
+    if injected is not None:
+        colors[np.asarray(injected)[drawn_indices(len(injected), max_drawn)]] = INJECTED_COLOR
+    return colors
+
+
+class RunView:
+    """One filter's run drawn into a Rerun recording: its particles, estimate and time series."""
+
+    def __init__(
+        self, recording: Recording, filter_name: str, color: Sequence[int], max_drawn: int, *, owns_recording: bool
+    ):
+        import rerun as rr
+
+        self.recording, self.name, self.max_drawn = recording, filter_name, max_drawn
+        self.owns_recording = owns_recording
+        self.path = f"{MAP}/{entity_name(filter_name)}"
+        self.metric = entity_name(filter_name)
+        self.confidence_radius = CONFIDENCE_RADIUS
+        self.color = color
+        self.count_series_styled = False
+        for series in SERIES:
+            recording.stream.log(
+                f"/metrics/{series}/{self.metric}",
+                rr.SeriesLines(names=filter_name, colors=color, widths=2),
+                static=True,
+            )
+
+    def expect_kidnapping(self, step: int, position: Sequence[float]) -> None:
+        """The robot will be carried to `position` at step `step`: its recording draws the jump."""
+        self.recording.kidnapping = (step, (float(position[0]), float(position[1])))
+
+    def log_step(self, step: int, robot_position: Sequence[float], robot_heading: float | None, state: Any) -> None:
+        """Draw step `step`: the robot (once per recording), the particles coloured by weight (the
+        injected ones apart), the estimate's circle (green when confident), and the error, ESS and
+        confidence series; with KLD-sampling, the particle count beside the ESS."""
+        import rerun as rr
+
+        stream = self.recording.stream
+        stream.set_time("step", sequence=step)
+        self.recording.log_robot(step, robot_position, robot_heading)
+        positions, headings, weights = drawn_particles(state, self.max_drawn)
+        colors = particle_colors(state, weights, self.max_drawn)
+        if headings is None:
+            stream.log(f"{self.path}/particles", rr.Points2D(positions, colors=colors, radii=CELL_DOT_RADIUS))
+        else:
+            vectors = heading_vectors(headings, PARTICLE_ARROW_LENGTH)
+            arrows = rr.Arrows2D(origins=positions, vectors=vectors, colors=colors, radii=PARTICLE_ARROW_RADIUS)
+            stream.log(f"{self.path}/particles", arrows)
+        estimate, confident = np.asarray(state.estimate, dtype=float), bool(state.is_confident)
+        circle = rr.Ellipses2D(
+            centers=[estimate],
+            half_sizes=[[self.confidence_radius] * 2],
+            colors=CONFIDENT_COLOR if confident else ESTIMATE_COLOR,
+            line_radii=0.03,
+        )
+        stream.log(f"{self.path}/estimate", circle)
+        error = float(np.hypot(*(estimate - np.asarray(robot_position, dtype=float))))
+        stream.log(f"/metrics/error/{self.metric}", rr.Scalars(error))
+        ess = float(state.ess)
+        if not math.isnan(ess):  # the grid filter is not a sample: no ESS
+            stream.log(f"/metrics/ess/{self.metric}", rr.Scalars(ess))
+        stream.log(f"/metrics/confident/{self.metric}", rr.Scalars(float(confident)))
+        if getattr(state, "kld", None) is not None:
+            self.log_particle_count(int(state.count))
+
+    def log_particle_count(self, count: int) -> None:
+        """The particle count N of this step (KLD-sampling varies it), in the ESS panel: ESS <= N."""
+        import rerun as rr
+
+        path = f"/metrics/ess/{self.metric}/particle_count"
+        if not self.count_series_styled:
+            self.count_series_styled = True
+            style = rr.SeriesLines(names=f"{self.name} N", colors=self.color, widths=1)
+            self.recording.stream.log(path, style, static=True)
+        self.recording.stream.log(path, rr.Scalars(float(count)))
+
+    def close(self) -> None:
+        """Finish the recording if this run owns it (a comparison's views leave it open)."""
+        if self.owns_recording:
+            self.recording.close()
+        else:
+            self.recording.stream.flush()
+
+
+__all__ = [
+    "Comparison",
+    "NullComparison",
+    "RunView",
+    "drawn_indices",
+    "drawn_particles",
+    "open_comparison",
+    "open_view",
+    "particle_colors",
+    "weight_colors",
+]
