@@ -11,6 +11,7 @@ only gathers the names; where each thing's lines are:
     RPF step (Algorithm 6)                             mazelab/filters.py, RegularizedParticleFilter.step, .regularise
     resampling (systematic, stratified, ...)           mazelab/resampling.py
     the exact grid Bayes filter (the reference)        mazelab/grid_filter.py, GridBayesFilter.step
+    the extended Kalman filter (the baseline)          mazelab/kalman.py, ExtendedKalmanFilter.step
     recovery from kidnapping, KLD-sampling             mazelab/recovery.py, mazelab/resampling.py
     run_model and simulate                             mazelab/lab.py (drawing), mazelab/simulation.py (the loop)
     saving and loading scenarios                       mazelab/scenario.py
@@ -21,6 +22,7 @@ RPF_THRESHOLD) are shown here; change them in mazelab/model.py, where every part
 
 from mazelab.filters import AuxiliaryParticleFilter, ParticleFilter, RegularizedParticleFilter, SIRParticleFilter
 from mazelab.grid_filter import GridBayesFilter
+from mazelab.kalman import ExtendedKalmanFilter
 from mazelab.lab import run_model, simulate
 from mazelab.model import MAX_STRAIGHT_STEPS, OUTSIDE_PENALTY, ROBOT_SPEED, RPF_THRESHOLD
 from mazelab.recovery import Recovery
@@ -35,6 +37,7 @@ __all__ = [
     "ROBOT_SPEED",
     "RPF_THRESHOLD",
     "AuxiliaryParticleFilter",
+    "ExtendedKalmanFilter",
     "GridBayesFilter",
     "KLDSampling",
     "ParticleFilter",

@@ -1,10 +1,11 @@
-"""mazelab: a robot lost in a maze, found by particle filters (SIR, APF, RPF) and the exact grid filter.
+"""mazelab: a robot lost in a maze, found by particle filters (SIR, APF, RPF) and the exact grid filter;
+an extended Kalman filter as the baseline.
 
 The paper's three files (particle_filter.py, draw.py, main.py) are faces over this package. Its
 modules, bottom to top (each imports only those above it in this list):
 
     checks, lookup, maze, model, weights, resampling, robot   the model: maze, motion, measurement, robot
-    recovery, filters, grid_filter, registry                  the filters
+    recovery, filters, grid_filter, kalman, registry          the filters
     atomic, scenario, simulation                              saved scenarios and the simulation loop
     viz/                                                      drawing in Rerun (never imported by the above)
     lab                                                       run_model and simulate, with drawing

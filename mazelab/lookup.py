@@ -82,9 +82,37 @@ class NearestStationLookup:
         nearest = min(_squared_distance(self.stations[i], x, y) for i in candidates.tolist())
         return math.sqrt(nearest)
 
+    def nearest_at(self, x: float, y: float) -> int:
+        """`nearest`'s station index for one float64 point, in plain floats (as `distance_at`)."""
+        ix, iy = math.floor(x * self.scale) + self.offset, math.floor(y * self.scale) + self.offset
+        if not (0 <= ix < self.nx and 0 <= iy < self.ny):
+            return int(self.nearest(np.array([[x, y]]))[0])
+        cell = iy * self.nx + ix
+        row = self.row[cell]
+        candidates = self._all[row] if row >= 0 else self._first[cell : cell + 1]
+        return min(candidates.tolist(), key=lambda i: _squared_distance(self.stations[i], x, y))
+
     def distances(self, points: np.ndarray) -> np.ndarray:
         """Distance to the nearest station for points of shape (N, 2)."""
         return self.locate(points[:, 0], points[:, 1])[0]
+
+    def nearest(self, points: np.ndarray) -> np.ndarray:
+        """Index into `stations` of the station nearest each point (N, 2) float64, shape (N,): the
+        nearest of the point's lookup cell's candidates (brute force beyond the table), exact as
+        `locate` (ties go to the earlier candidate)."""
+        x, y = points[:, 0], points[:, 1]
+        cells, beyond = self._cells(x, y)
+        rows = self.row.take(cells)
+        candidates = np.where(
+            (rows >= 0)[:, None], self._all[np.maximum(rows, 0)], self._first.take(cells)[:, None]
+        )  # (N, K): every candidate of each point's cell (a cell with one candidate repeats it)
+        xy = self.stations[candidates]  # (N, K, 2)
+        d2 = _squared_distances(xy[..., 0], xy[..., 1], x[:, None], y[:, None])
+        nearest = np.take_along_axis(candidates, d2.argmin(axis=1)[:, None], axis=1)[:, 0]
+        if len(beyond):
+            d2 = _squared_distances(self.stations[:, 0], self.stations[:, 1], x[beyond, None], y[beyond, None])
+            nearest[beyond] = d2.argmin(axis=1)
+        return nearest
 
     def _cells(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Each point's flat lookup-cell index (N,), and the indices of the points beyond the table."""

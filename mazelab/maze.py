@@ -120,6 +120,14 @@ class Maze:
         distances = self._lookup.distances(flat).reshape(points.shape[:-1])
         return float(distances) if distances.ndim == 0 else distances
 
+    def nearest_station(self, points: Any) -> np.ndarray:
+        """Coordinates of the station nearest each point: points (..., 2) -> (..., 2), map units.
+        The station whose distance `distance_to_nearest_station` gives (the EKF's data association)."""
+        points = np.asarray(points, dtype=float)
+        if points.shape == (2,):  # the EKF's one mean a step
+            return self.stations[self._lookup.nearest_at(float(points[0]), float(points[1]))]
+        return self.stations[self._lookup.nearest(points.reshape(-1, 2))].reshape(points.shape)
+
     def station_distances_and_free(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Distance to the nearest station and the free flag of each point, both from one cell lookup:
         x, y of shape (N,) and one float dtype (float32 particles are computed in float32)."""

@@ -157,6 +157,8 @@ def simulate(
     `kidnap_at=K`: at step K, before its move, the robot is carried to a free place drawn from the
     seed (see Robot.kidnap); a robot that replays a kidnapping keeps it. The scenario stores it.
     result.extras["particle_count"] holds the particle count per step (it varies with KLD-sampling).
+    A filter class with `accepts_start = True` is also handed the robot's start as `start=` (the
+    EKF's `init="start"` tracks from it; the kidnapping, if any, is left for it to find out).
     `view` is what the run draws into: None (nothing), a view (`log_step`, `close`), or a function
     `(world, filter_name) -> view`, called once the inputs are checked (mazelab.lab passes Rerun's).
     """
@@ -184,6 +186,8 @@ def simulate(
     robot.reset()
     if not robot.rng_given:
         robot.rng = robot_rng
+    if getattr(filter_class, "accepts_start", False):  # a filter that can track from the known start (the EKF)
+        filter_options = {"start": robot.initial_position, **filter_options}
     filt = filter_class(world, sigma, delta, particles, filter_rng, **filter_options)
     view = open_run_view(view, world, filter_class.name)
     expect_kidnapping(view, robot.kidnap_at, robot.kidnap_position)

@@ -56,6 +56,11 @@ def test_nearest_station_lookup_equals_brute_force(path, rng):
     corners = world.stations + rng.uniform(-1e-9, 1e-9, world.stations.shape)
     points = np.concatenate([inside, around, far, corners])
     np.testing.assert_allclose(world.distance_to_nearest_station(points), brute_force_distance(world, points))
+    # the nearest station's coordinates (the EKF's data association) are at exactly that distance
+    nearest = world.nearest_station(points)
+    assert nearest.shape == points.shape and (nearest[:, None] == world.stations).all(axis=2).any(axis=1).all()
+    assert np.array_equal(np.sqrt(((nearest - points) ** 2).sum(axis=1)), world.distance_to_nearest_station(points))
+    assert np.array_equal(world.nearest_station(points[0]), nearest[0])
 
 
 def test_distance_takes_scalars_pairs_and_arrays(paper_world):

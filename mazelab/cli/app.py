@@ -49,6 +49,7 @@ from mazelab.experiments.stats import CONFIDENCE_LEVEL
 from mazelab.experiments.study import MazeChoice, study_settings, study_tasks, varied_parameters
 from mazelab.experiments.summary import describe_setting, plot_study, study_csv, study_table, summarise_study
 from mazelab.filters import ParticleFilter
+from mazelab.kalman import EKF_INITS, ExtendedKalmanFilter
 from mazelab.lab import simulate
 from mazelab.maze import Maze, MazeError
 from mazelab.mazes import DEFAULT_MAZE, find_maze, load_maze
@@ -110,7 +111,7 @@ def demo(
 @app.command()
 def run(
     maze: Annotated[str | None, typer.Option(help=f"maze file, or a name in mazes/ [default: {DEFAULT_MAZE}]")] = None,
-    filter_name: Annotated[str, typer.Option("--filter", help="sir, apf, rpf or grid (or a class name)")] = "sir",
+    filter_name: Annotated[str, typer.Option("--filter", help="sir, apf, rpf, grid or ekf (or a class name)")] = "sir",
     particles: Annotated[int, typer.Option(min=1, help="particle count N_S")] = DEFAULT_PARTICLE_COUNT,
     steps: Annotated[int, typer.Option(min=1, help="number of steps")] = DEFAULT_STEPS,
     sigma: Annotated[float | None, typer.Option(help="measurement noise std [0.2, 0.8]")] = None,
@@ -135,6 +136,10 @@ def run(
         float | None,
         typer.Option(help=f"KLD-sampling: normal quantile z_(1-delta) [default: {KLD_QUANTILE:.3f}, for 99%]"),
     ] = None,
+    init: Annotated[
+        str | None,
+        typer.Option(help="ekf only: prior (the free area, global localisation) or start (track from the true start)"),
+    ] = None,
     viewer: ViewerOption = False,
     rrd: RrdOption = None,
     web: WebOption = False,
@@ -144,6 +149,7 @@ def run(
     """Run one filter: on a fresh lost robot, or replaying a saved scenario (--scenario)."""
     visualize = visualization(viewer, rrd, web, no_viz, max_drawn)
     options = filter_options(filter_name, resampling, recovery, sensor_resetting, alpha_slow, alpha_fast, kld)
+    options.update(kalman_options(filter_name, init))
     if kld:
         options["kld"] = KLDSampling(epsilon=kld_epsilon, z=KLD_QUANTILE if kld_z is None else kld_z)
     for path in (save_scenario_path, rrd):
@@ -202,6 +208,17 @@ def filter_options(
     return options
 
 
+def kalman_options(filter_name: str, init: str | None) -> dict[str, Any]:
+    """The EKF's --init (prior or start); refused for the other filters."""
+    if init is None:
+        return {}
+    if resolve_filter(filter_name) is not ExtendedKalmanFilter:
+        raise UserError("--init applies to the ekf only")
+    if init not in EKF_INITS:
+        raise UserError(f"--init must be one of {', '.join(EKF_INITS)}, got {init!r}")
+    return {"init": init}
+
+
 def recovery_option(recovery: bool, sensor_resetting: bool, alpha_slow: float, alpha_fast: float) -> Recovery | None:
     """--recovery (augmented MCL) or --sensor-resetting, with the rates; None for neither."""
     if not (recovery or sensor_resetting):
@@ -212,7 +229,7 @@ def recovery_option(recovery: bool, sensor_resetting: bool, alpha_slow: float, a
 @app.command()
 def compare(
     scenario: Annotated[Path, typer.Argument(help="a saved scenario json (run --save-scenario)", show_default=False)],
-    filters: Annotated[str, typer.Option(help="comma-separated filters: sir, apf, rpf, grid")] = "sir,apf,rpf",
+    filters: Annotated[str, typer.Option(help="comma-separated filters: sir, apf, rpf, grid, ekf")] = "sir,apf,rpf",
     maze: Annotated[str | None, typer.Option(help="the maze, if the scenario stores none")] = None,
     sigma: Annotated[float | None, typer.Option(help="override the scenario's sigma")] = None,
     delta: Annotated[float | None, typer.Option(help="override the scenario's delta")] = None,
@@ -293,7 +310,7 @@ def study(
     delta: Annotated[str, typer.Option(help="compass error width (radians), comma-separated")] = str(DEFAULT_DELTA),
     particles: Annotated[str, typer.Option(help="particle counts N_S, comma-separated")] = str(DEFAULT_PARTICLE_COUNT),
     threshold: Annotated[str, typer.Option(help="RPF threshold N_T / N_S, comma-separated")] = str(RPF_THRESHOLD),
-    filters: Annotated[str, typer.Option(help="comma-separated filters: sir, apf, rpf, grid")] = "sir,apf,rpf",
+    filters: Annotated[str, typer.Option(help="comma-separated filters: sir, apf, rpf, grid, ekf")] = "sir,apf,rpf",
     kidnap_at: Annotated[int | None, typer.Option(min=1, help="kidnap the robot at this step in every run")] = None,
     recovery: Annotated[
         str, typer.Option(help="recovery of the particle filters, comma-separated: none, augmented, sensor")
@@ -449,6 +466,7 @@ __all__ = [
     "demo",
     "filter_options",
     "from_scenario",
+    "kalman_options",
     "main",
     "recovery_option",
     "run",

@@ -1,5 +1,6 @@
-"""What one run draws: particles coloured by weight, the estimate's circle, the series; and the
-views that a run (open_view) or a comparison of filters (open_comparison) draws into.
+"""What one run draws: particles coloured by weight (or the EKF's covariance ellipse), the estimate's
+circle, the series; and the views that a run (open_view) or a comparison of filters
+(open_comparison) draws into.
 
 `visualize` (run_model's argument and the CLI's --viewer/--rrd/--web/--no-viz) takes:
   True or "auto"  the notebook viewer inside Jupyter, else the native viewer when a display
@@ -21,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from mazelab.kalman import covariance_ellipse
 from mazelab.maze import Maze
 from mazelab.model import CONFIDENCE_RADIUS
 from mazelab.simulation import NullView
@@ -29,6 +31,8 @@ from mazelab.viz.recording import Recording, heading_vectors
 from mazelab.viz.style import (
     CELL_DOT_RADIUS,
     CONFIDENT_COLOR,
+    COVARIANCE_LINE_RADIUS,
+    COVARIANCE_SIGMAS,
     ESTIMATE_COLOR,
     FILTER_COLORS,
     INJECTED_COLOR,
@@ -169,21 +173,18 @@ class RunView:
 
     def log_step(self, step: int, robot_position: Sequence[float], robot_heading: float | None, state: Any) -> None:
         """Draw step `step`: the robot (once per recording), the particles coloured by weight (the
-        injected ones apart), the estimate's circle (green when confident), and the error, ESS and
-        confidence series; with KLD-sampling, the particle count beside the ESS."""
+        injected ones apart) or a Gaussian's covariance ellipse, the estimate's circle (green when
+        confident), and the error, ESS and confidence series; with KLD-sampling, the particle count
+        beside the ESS."""
         import rerun as rr
 
         stream = self.recording.stream
         stream.set_time("step", sequence=step)
         self.recording.log_robot(step, robot_position, robot_heading)
-        positions, headings, weights = drawn_particles(state, self.max_drawn)
-        colors = particle_colors(state, weights, self.max_drawn)
-        if headings is None:
-            stream.log(f"{self.path}/particles", rr.Points2D(positions, colors=colors, radii=CELL_DOT_RADIUS))
+        if hasattr(state, "covariance"):
+            self.log_gaussian(state)
         else:
-            vectors = heading_vectors(headings, PARTICLE_ARROW_LENGTH)
-            arrows = rr.Arrows2D(origins=positions, vectors=vectors, colors=colors, radii=PARTICLE_ARROW_RADIUS)
-            stream.log(f"{self.path}/particles", arrows)
+            self.log_particles(state)
         estimate, confident = np.asarray(state.estimate, dtype=float), bool(state.is_confident)
         circle = rr.Ellipses2D(
             centers=[estimate],
@@ -200,6 +201,28 @@ class RunView:
         stream.log(f"/metrics/confident/{self.metric}", rr.Scalars(float(confident)))
         if getattr(state, "kld", None) is not None:
             self.log_particle_count(int(state.count))
+
+    def log_particles(self, state: Any) -> None:
+        """The particles (or a grid's cells) coloured by weight, the injected ones apart."""
+        import rerun as rr
+
+        positions, headings, weights = drawn_particles(state, self.max_drawn)
+        colors = particle_colors(state, weights, self.max_drawn)
+        if headings is None:
+            drawn = rr.Points2D(positions, colors=colors, radii=CELL_DOT_RADIUS)
+        else:
+            vectors = heading_vectors(headings, PARTICLE_ARROW_LENGTH)
+            drawn = rr.Arrows2D(origins=positions, vectors=vectors, colors=colors, radii=PARTICLE_ARROW_RADIUS)
+        self.recording.stream.log(f"{self.path}/particles", drawn)
+
+    def log_gaussian(self, state: Any) -> None:
+        """A Gaussian belief (the EKF's `mean`, `covariance`): its COVARIANCE_SIGMAS ellipse, a polygon
+        in the filter's colour (rerun's Ellipses2D are axis-aligned: they cannot be rotated)."""
+        import rerun as rr
+
+        outline = covariance_ellipse(np.asarray(state.mean), np.asarray(state.covariance), COVARIANCE_SIGMAS)
+        strip = rr.LineStrips2D([outline], colors=self.color, radii=COVARIANCE_LINE_RADIUS)
+        self.recording.stream.log(f"{self.path}/covariance", strip)
 
     def log_particle_count(self, count: int) -> None:
         """The particle count N of this step (KLD-sampling varies it), in the ESS panel: ESS <= N."""
