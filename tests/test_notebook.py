@@ -1,0 +1,121 @@
+"""notebooks/lab.ipynb: committed without outputs, and run top to bottom in a fresh kernel of this
+interpreter (nbclient, ipykernel) in a temporary folder, without a display or a network."""
+
+from __future__ import annotations
+
+import base64
+import io
+import json
+import sys
+import tomllib
+
+import matplotlib.image
+import nbformat
+import pytest
+from conftest import ROOT
+from nbclient import NotebookClient
+
+from mazelab.scenario import load_scenario
+from mazelab.viz.targets import notebook_viewer_installed
+
+NOTEBOOK = ROOT / "notebooks" / "lab.ipynb"
+KERNEL_NAME = "mazelab-test"  # a kernel spec of our own (see `kernel_spec`): no other "python3" can shadow it
+CELL_TIMEOUT = 180  # seconds per cell; the whole notebook takes about 10 s on two cores
+WIDGET = "application/vnd.jupyter.widget-view+json"
+
+
+def read_notebook() -> nbformat.NotebookNode:
+    return nbformat.read(NOTEBOOK, as_version=nbformat.NO_CONVERT)
+
+
+def code_cells(notebook: nbformat.NotebookNode) -> list[nbformat.NotebookNode]:
+    return [cell for cell in notebook.cells if cell.cell_type == "code"]
+
+
+def test_committed_notebook_has_no_outputs():
+    notebook = read_notebook()
+    nbformat.validate(notebook)
+    for cell in code_cells(notebook):
+        assert cell.outputs == [], f"cell {cell.id} has outputs: strip them before committing"
+        assert cell.execution_count is None, f"cell {cell.id} has an execution count: strip it before committing"
+    # executing in Jupyter adds e.g. "widgets" (the viewer's state, megabytes); only these two belong
+    assert set(notebook.metadata) == {"kernelspec", "language_info"}
+    assert all(not cell.metadata for cell in notebook.cells), "cell metadata (collapsed, scrolled, ...) is noise"
+
+
+def test_notebook_metadata_matches_the_supported_python():
+    metadata = read_notebook().metadata
+    requires = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["requires-python"]
+    assert requires.startswith(">=")
+    minimum = tuple(int(part) for part in requires.removeprefix(">=").split("."))
+    declared = tuple(int(part) for part in metadata.language_info.version.split("."))
+    assert metadata.language_info.name == "python"
+    assert declared[: len(minimum)] >= minimum
+    assert metadata.kernelspec.language == "python"
+    assert metadata.kernelspec.name == "python3"
+
+
+@pytest.fixture
+def kernel_spec(tmp_path, monkeypatch) -> str:
+    """A kernel spec that starts ipykernel on sys.executable (this very environment) with the inline
+    matplotlib backend (figures become image/png outputs, whatever MPLBACKEND the tests run with).
+    JUPYTER_PATH comes first in Jupyter's search; the kernel's state stays in tmp_path."""
+    spec_dir = tmp_path / "jupyter" / "kernels" / KERNEL_NAME
+    spec_dir.mkdir(parents=True)
+    spec = {
+        "argv": [sys.executable, "-m", "ipykernel_launcher", "-f", "{connection_file}"],
+        "display_name": "maze lab tests",
+        "language": "python",
+        "env": {"MPLBACKEND": "module://matplotlib_inline.backend_inline"},
+    }
+    (spec_dir / "kernel.json").write_text(json.dumps(spec))
+    monkeypatch.setenv("JUPYTER_PATH", str(tmp_path / "jupyter"))
+    monkeypatch.setenv("JUPYTER_RUNTIME_DIR", str(tmp_path / "runtime"))
+    monkeypatch.setenv("JUPYTER_PLATFORM_DIRS", "1")  # jupyter_core's own future default; silences its warning
+    monkeypatch.setenv("IPYTHONDIR", str(tmp_path / "ipython"))
+    for name in ("DISPLAY", "WAYLAND_DISPLAY"):  # no native viewer window, whatever the notebook asks for
+        monkeypatch.delenv(name, raising=False)
+    return KERNEL_NAME
+
+
+def stdout_of(cell: nbformat.NotebookNode) -> str:
+    return "".join(output.text for output in cell.outputs if output.output_type == "stream" and output.name == "stdout")
+
+
+@pytest.mark.slow  # about 15 s: a kernel, then the whole lab (it still runs by default)
+def test_notebook_runs_top_to_bottom_in_a_fresh_kernel(kernel_spec, tmp_path):
+    notebook = read_notebook()
+    probe = nbformat.v4.new_code_cell("import sys\nprint(sys.executable)", id="test-probe")
+    notebook.cells.append(probe)
+    workdir = tmp_path / "work"
+    workdir.mkdir()
+
+    client = NotebookClient(
+        notebook, kernel_name=kernel_spec, timeout=CELL_TIMEOUT, resources={"metadata": {"path": str(workdir)}}
+    )
+    client.execute()  # raises CellExecutionError, naming the cell, if any cell fails
+
+    cells = code_cells(notebook)
+    assert all(output.output_type != "error" for cell in cells for output in cell.outputs)
+    assert stdout_of(cells[-1]).strip() == sys.executable  # the kernel ran in this environment
+
+    figure_cells = [cell for cell in cells if "plt.show()" in cell.source]
+    assert len(figure_cells) == 2  # lab steps 13 and 14
+    for cell in figure_cells:
+        pngs = [output.data["image/png"] for output in cell.outputs if "image/png" in output.get("data", {})]
+        assert len(pngs) == 1, f"cell {cell.id} drew no inline figure"
+        image = matplotlib.image.imread(io.BytesIO(base64.b64decode(pngs[0])), format="png")
+        assert image.shape[0] > 100 and image.shape[1] > 100
+
+    viewer_cells = [cell for cell in cells if "visualize=VIEWER" in cell.source]
+    assert len(viewer_cells) == 2  # lab steps 1 and 9
+    for cell in viewer_cells:
+        widgets = [output for output in cell.outputs if WIDGET in output.get("data", {})]
+        assert bool(widgets) == notebook_viewer_installed(), f"cell {cell.id}: inline viewer expected iff installed"
+
+    # step 9 saved the scenario in the kernel's working folder, where steps 10-12 read it back
+    scenario = load_scenario(workdir / "model_parameters" / "model_parameters.json")
+    assert len(scenario.init_particles_pos) == 1500
+    assert len(scenario.robot_actual_angles) == len(scenario.robot_measurements) == 200
+    assert "the same true path for all three: True" in "".join(stdout_of(cell) for cell in cells)
+    assert sorted(path.name for path in workdir.iterdir()) == ["model_parameters"]  # no recordings left behind
