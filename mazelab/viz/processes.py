@@ -1,12 +1,21 @@
-"""The Rerun processes this program starts (native viewer, web viewer), on 127.0.0.1 only."""
+"""The Rerun processes this program starts (native viewer, web viewer), on 127.0.0.1 only.
+
+A process that belongs to this run (the web viewer's server) ends with it: on Ctrl-C, and on SIGTERM
+or SIGHUP (a closed terminal, `timeout`, a stopped notebook kernel), which stop it and then take
+their usual course. A detached native viewer outlives the program on purpose.
+"""
 
 from __future__ import annotations
 
+import atexit
+import contextlib
 import importlib.util
 import os
 import shutil
+import signal
 import socket
 import subprocess
+import threading
 import time
 import urllib.parse
 from collections.abc import Sequence
@@ -14,6 +23,10 @@ from pathlib import Path
 from typing import Any
 
 VIEWER_PORT = 9876  # the native viewer's gRPC port, rerun's default: later runs reuse its window
+STOP_SIGNALS = ("SIGTERM", "SIGHUP")  # besides Ctrl-C, what ends this program and must end its children
+
+_children: set[Any] = set()  # the running processes that end with this program
+_previous_handlers: dict[int, Any] = {}
 
 
 def viewer_executable() -> str:
@@ -49,6 +62,8 @@ def start_rerun(
         stderr=subprocess.DEVNULL,
         start_new_session=detached,  # a detached viewer outlives this program (and its Ctrl-C)
     )
+    if not detached:
+        end_with_this_program(process)
     deadline = time.monotonic() + timeout
     while not all(listening(port) for port in ports):
         if process.poll() is not None or time.monotonic() > deadline:
@@ -79,6 +94,43 @@ def stop_process(process: Any) -> None:
         except subprocess.TimeoutExpired:
             process.kill()
             process.wait()
+    _children.discard(process)
+
+
+def end_with_this_program(process: Any) -> None:
+    """Stop `process` when SIGTERM or SIGHUP ends this program (Ctrl-C is handled where it waits)."""
+    _children.add(process)
+    if threading.current_thread() is not threading.main_thread():
+        return  # handlers can only be set in the main thread
+    for name in STOP_SIGNALS:
+        number = getattr(signal, name, None)
+        if number is None or number in _previous_handlers:
+            continue
+        previous = signal.getsignal(number)
+        if previous == signal.SIG_IGN:
+            continue  # ignored on purpose (nohup): stays ignored
+        _previous_handlers[number] = previous
+        signal.signal(number, _stop_children_then_go_on)
+
+
+def _stop_children_then_go_on(number: int, frame: Any) -> None:
+    """SIGTERM/SIGHUP: with no handler of its own before us, the program exits (code 128 + signal)
+    through its `finally` clauses, which save the recording (an exit hook stops any child left);
+    else the previous handler runs. Our children are sent SIGTERM first in either case."""
+    for process in list(_children):
+        with contextlib.suppress(OSError):
+            os.kill(process.pid, signal.SIGTERM)  # not Popen's methods: the interrupted code may hold its lock
+    previous = _previous_handlers.get(number)
+    if not callable(previous):
+        raise SystemExit(128 + number)
+    previous(number, frame)
+
+
+@atexit.register
+def _stop_children_at_exit() -> None:
+    """No child of this run outlives it."""
+    for process in list(_children):
+        stop_process(process)
 
 
 class WebServer:
@@ -127,8 +179,10 @@ def listening(port: int) -> bool:
 
 
 __all__ = [
+    "STOP_SIGNALS",
     "VIEWER_PORT",
     "WebServer",
+    "end_with_this_program",
     "free_port",
     "listening",
     "native_viewer",
