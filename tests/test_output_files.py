@@ -9,7 +9,6 @@ processes.
 from __future__ import annotations
 
 import os
-import resource
 import shutil
 import signal
 import stat
@@ -20,6 +19,11 @@ from pathlib import Path
 
 import pytest
 from conftest import ROOT
+
+try:
+    import resource
+except ImportError:  # not on Windows
+    resource = None
 from rerun.chunk import RrdReader
 
 from mazelab.atomic import WriteError, remove_stale_temporaries, write_bytes_atomically, write_text_atomically
@@ -116,7 +120,7 @@ def _file_size_limit(limit: int):
     return lambda: resource.setrlimit(resource.RLIMIT_FSIZE, (limit, resource.getrlimit(resource.RLIMIT_FSIZE)[1]))
 
 
-@pytest.mark.skipif(not hasattr(resource, "RLIMIT_FSIZE"), reason="no file size limit on this system")
+@pytest.mark.skipif(not hasattr(resource, "RLIMIT_FSIZE"), reason="no file size limit (RLIMIT_FSIZE) here")
 def test_a_recording_over_the_file_size_limit_is_not_announced_and_leaves_nothing(tmp_path):
     """`ulimit -f`: the write fails with EFBIG; the summary is printed, then one line, exit 1."""
     done = subprocess.run([*RUN, "--quiet", "--seed", "2", "--rrd", "r.rrd"], cwd=tmp_path, env=NO_DISPLAY,
