@@ -95,6 +95,8 @@ def stop_process(process: Any) -> None:
             process.kill()
             process.wait()
     _children.discard(process)
+    if not _children:
+        restore_signal_handlers()
 
 
 def end_with_this_program(process: Any) -> None:
@@ -111,6 +113,16 @@ def end_with_this_program(process: Any) -> None:
             continue  # ignored on purpose (nohup): stays ignored
         _previous_handlers[number] = previous
         signal.signal(number, _stop_children_then_go_on)
+
+
+def restore_signal_handlers() -> None:
+    """Put back the SIGTERM/SIGHUP handlers that were there before our first child (none left now)."""
+    if threading.current_thread() is not threading.main_thread():
+        return
+    for number, previous in list(_previous_handlers.items()):
+        if signal.getsignal(number) is _stop_children_then_go_on:
+            signal.signal(number, previous if previous is not None else signal.SIG_DFL)
+        del _previous_handlers[number]
 
 
 def _stop_children_then_go_on(number: int, frame: Any) -> None:
@@ -187,6 +199,7 @@ __all__ = [
     "listening",
     "native_viewer",
     "rerun_environment",
+    "restore_signal_handlers",
     "start_rerun",
     "stop_process",
     "viewer_executable",
