@@ -267,3 +267,22 @@ def test_the_signal_handlers_are_ours_only_while_a_child_runs():
     processes.stop_process(child)
     assert child.poll() is not None
     assert {number: signal.getsignal(number) for number in before} == before
+
+
+@pytest.mark.skipif(os.name == "nt", reason="POSIX signals")
+def test_sigterm_during_a_recorded_run_saves_the_steps_done_as_ctrl_c_does(tmp_path):
+    command = [*RUN[:-4], "--steps", "100000", "--particles", "100", "--rrd", "r.rrd"]
+    process = subprocess.Popen(command, cwd=tmp_path, env=NO_DISPLAY, stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True)  # fmt: skip
+    try:
+        _wait_for_line(process, "step   40/")
+        process.send_signal(signal.SIGTERM)
+        out, err = process.communicate(timeout=60)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    assert process.returncode == 128 + signal.SIGTERM, err
+    assert "Recording saved to r.rrd" in out and "Traceback" not in err
+    steps = recorded_steps(tmp_path / "r.rrd")
+    assert steps == list(range(1, len(steps) + 1)) and len(steps) >= 40
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r.rrd"]

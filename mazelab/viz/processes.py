@@ -1,8 +1,9 @@
 """The Rerun processes this program starts (native viewer, web viewer), on 127.0.0.1 only.
 
 A process that belongs to this run (the web viewer's server) ends with it: on Ctrl-C, and on SIGTERM
-or SIGHUP (a closed terminal, `timeout`, a stopped notebook kernel), which stop it and then take
-their usual course. A detached native viewer outlives the program on purpose.
+or SIGHUP (a closed terminal, `timeout`, a stopped notebook kernel), which stop it and end the program
+through its `finally` clauses (as Ctrl-C does, so a recording keeps the steps done). A detached
+native viewer outlives the program on purpose.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ VIEWER_PORT = 9876  # the native viewer's gRPC port, rerun's default: later runs
 STOP_SIGNALS = ("SIGTERM", "SIGHUP")  # besides Ctrl-C, what ends this program and must end its children
 
 _children: set[Any] = set()  # the running processes that end with this program
+_holders: set[object] = set()  # while any: SIGTERM/SIGHUP handled by us (see hold_stop_signals)
 _previous_handlers: dict[int, Any] = {}
 
 
@@ -95,13 +97,19 @@ def stop_process(process: Any) -> None:
             process.kill()
             process.wait()
     _children.discard(process)
-    if not _children:
-        restore_signal_handlers()
+    release_stop_signals(process)
 
 
 def end_with_this_program(process: Any) -> None:
     """Stop `process` when SIGTERM or SIGHUP ends this program (Ctrl-C is handled where it waits)."""
     _children.add(process)
+    hold_stop_signals(process)
+
+
+def hold_stop_signals(holder: object) -> None:
+    """While `holder` (a child process, an open recording) is held, SIGTERM and SIGHUP end this
+    program through its `finally` clauses, as Ctrl-C does: children stopped, the recording saved."""
+    _holders.add(holder)
     if threading.current_thread() is not threading.main_thread():
         return  # handlers can only be set in the main thread
     for name in STOP_SIGNALS:
@@ -115,8 +123,15 @@ def end_with_this_program(process: Any) -> None:
         signal.signal(number, _stop_children_then_go_on)
 
 
+def release_stop_signals(holder: object) -> None:
+    """`holder` is done; with none left, SIGTERM and SIGHUP do what they did before."""
+    _holders.discard(holder)
+    if not _holders:
+        restore_signal_handlers()
+
+
 def restore_signal_handlers() -> None:
-    """Put back the SIGTERM/SIGHUP handlers that were there before our first child (none left now)."""
+    """Put back the SIGTERM/SIGHUP handlers that were there before we set ours."""
     if threading.current_thread() is not threading.main_thread():
         return
     for number, previous in list(_previous_handlers.items()):
@@ -196,8 +211,10 @@ __all__ = [
     "WebServer",
     "end_with_this_program",
     "free_port",
+    "hold_stop_signals",
     "listening",
     "native_viewer",
+    "release_stop_signals",
     "rerun_environment",
     "restore_signal_handlers",
     "start_rerun",

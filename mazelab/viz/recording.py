@@ -20,7 +20,7 @@ import numpy as np
 
 from mazelab.atomic import WriteError, write_bytes_atomically
 from mazelab.maze import EMPTY, Maze
-from mazelab.viz.processes import WebServer, native_viewer
+from mazelab.viz.processes import WebServer, hold_stop_signals, native_viewer, release_stop_signals
 from mazelab.viz.style import (
     APPLICATION_ID,
     FREE_COLOR,
@@ -54,6 +54,8 @@ class Recording:
     ):
         self.stream, self.path, self.server, self.owned = stream, path, server, owned
         self.sink, self.claim_name = sink, claim_name  # the binary stream of a file; a default name: never replaced
+        if sink is not None:
+            hold_stop_signals(self)  # SIGTERM/SIGHUP end the run as Ctrl-C does: the steps done are saved
         self.robot_steps: set[int] = set()
         self.last_robot_position: tuple[float, float] | None = None
         self.kidnapping: tuple[int, tuple[float, float]] | None = None  # (step, place), see expect_kidnapping
@@ -155,6 +157,7 @@ class Recording:
             if self.path is not None:
                 self.save()
         finally:
+            release_stop_signals(self)
             if self.server is not None:
                 # close() runs in simulate's `finally`: a run being interrupted stops serving at once.
                 self.server.serve_until_interrupted(already_interrupted=interrupted)
