@@ -12,6 +12,7 @@ Every write of this program goes through here (scenarios, CSV, figures, recordin
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import os
 import re
@@ -59,7 +60,8 @@ def write_bytes_atomically(path: str | Path, data: bytes, *, replace: bool = Tru
         move_into_place(temporary, target, replace)
     except BaseException as error:
         if temporary is not None:
-            temporary.unlink(missing_ok=True)
+            with contextlib.suppress(OSError):  # e.g. a read-only folder, where it was never made
+                temporary.unlink(missing_ok=True)
         if isinstance(error, OSError) and (replace or not isinstance(error, FileExistsError)):
             raise WriteError(error.errno, error.strerror, str(path)) from None
         raise
