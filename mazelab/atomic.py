@@ -58,6 +58,7 @@ def write_bytes_atomically(path: str | Path, data: bytes, *, replace: bool = Tru
         finally:
             os.close(handle)
         move_into_place(temporary, target, replace)
+        sync_folder(target.parent)
     except BaseException as error:
         if temporary is not None:
             with contextlib.suppress(OSError):  # e.g. a read-only folder, where it was never made
@@ -66,6 +67,18 @@ def write_bytes_atomically(path: str | Path, data: bytes, *, replace: bool = Tru
             raise WriteError(error.errno, error.strerror, str(path)) from None
         raise
     return path
+
+
+def sync_folder(folder: Path) -> None:
+    """Make the rename itself durable (best effort: not every system can fsync a folder)."""
+    if os.name == "nt":
+        return
+    with contextlib.suppress(OSError):
+        handle = os.open(folder, os.O_RDONLY)
+        try:
+            os.fsync(handle)
+        finally:
+            os.close(handle)
 
 
 def write_all(handle: int, data: bytes) -> None:
@@ -148,6 +161,7 @@ __all__ = [
     "move_into_place",
     "process_alive",
     "remove_stale_temporaries",
+    "sync_folder",
     "temporary_name",
     "write_all",
     "write_bytes_atomically",
