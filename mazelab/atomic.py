@@ -153,7 +153,16 @@ def process_alive(pid: int) -> bool:
         return False
     except PermissionError:
         return True
-    return True
+    return not zombie(pid)
+
+
+def zombie(pid: int) -> bool:
+    """Whether the process has ended but not yet been reaped (Linux /proc; elsewhere False)."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        return False
+    return state in ("Z", "X")
 
 
 __all__ = [
@@ -166,4 +175,5 @@ __all__ = [
     "write_all",
     "write_bytes_atomically",
     "write_text_atomically",
+    "zombie",
 ]

@@ -26,7 +26,7 @@ except ImportError:  # not on Windows
     resource = None
 from rerun.chunk import RrdReader
 
-from mazelab.atomic import WriteError, remove_stale_temporaries, write_bytes_atomically, write_text_atomically
+from mazelab.atomic import WriteError, write_bytes_atomically, write_text_atomically
 from mazelab.cli.app import main
 from mazelab.experiments.tables import pyplot, save_figure
 
@@ -84,17 +84,38 @@ def test_force_onto_a_symlink_writes_through_to_its_target(tmp_path):
     assert leftovers(tmp_path) == [] and leftovers(tmp_path / "real") == []
 
 
-def test_stale_temporaries_of_gone_writers_are_removed_on_the_next_write(tmp_path):
-    gone = subprocess.Popen([sys.executable, "-c", "pass"])
-    gone.wait()  # a real process that has ended: its pid names no writer now
-    stale = tmp_path / f".s.json.{gone.pid}-0123abcd.tmp"
-    alive = tmp_path / f".s.json.{os.getpid()}-0123abcd.tmp"  # a writer still at work: kept
-    foreign = tmp_path / ".notes.tmp"  # not ours: kept
-    for path in (stale, alive, foreign):
-        path.write_bytes(b"x" * 1000)
-    write_text_atomically(tmp_path / "other.json", "{}")
-    assert not stale.exists() and alive.exists() and foreign.exists()
-    assert remove_stale_temporaries(tmp_path) == []
+SLOW_WRITER = """
+import os, sys, time
+from mazelab import atomic
+atomic.write_all = lambda handle, data: (os.write(handle, data[:1000]), print("writing", flush=True), time.sleep(60))
+atomic.write_bytes_atomically(sys.argv[1], b"x" * 100_000)
+"""
+
+
+def test_a_save_killed_midway_leaves_a_temporary_that_the_next_write_removes(tmp_path):
+    """kill -9 during a save: the old file is intact, and the next write to the folder removes the
+    temporary (its writer is gone; here not even reaped yet, a zombie)."""
+    target = tmp_path / "s.json"
+    target.write_text("old and whole")
+    writer = subprocess.Popen([sys.executable, "-c", SLOW_WRITER, str(target)], stdout=subprocess.PIPE, text=True,
+                              env={**os.environ, "PYTHONPATH": str(ROOT)})  # fmt: skip
+    try:
+        _wait_for_line(writer, "writing")
+        (stale,) = [p for p in tmp_path.iterdir() if p.name.startswith(".s.json.")]
+        os.kill(writer.pid, signal.SIGKILL)
+        deadline = time.monotonic() + 10
+        while _running(writer.pid) and time.monotonic() < deadline:
+            time.sleep(0.01)
+        alive = tmp_path / f".s.json.{os.getpid()}-0123abcd.tmp"  # a writer still at work: kept
+        foreign = tmp_path / ".notes.tmp"  # not ours: kept
+        for path in (alive, foreign):
+            path.write_bytes(b"x")
+        write_text_atomically(tmp_path / "other.json", "{}")
+        assert not stale.exists() and alive.exists() and foreign.exists()
+        assert target.read_text() == "old and whole"
+    finally:
+        writer.kill()
+        writer.wait()
 
 
 def test_a_name_near_the_limit_gets_a_temporary_name_that_fits(tmp_path):
