@@ -167,6 +167,12 @@ def _border_of(ny: int, nx: int) -> np.ndarray:
     return ring
 
 
+def lookup_cell_count(width: int, height: int) -> int:
+    """How many lookup cells the table of a width x height maze has (its memory and build time grow so)."""
+    scale = _lookup_subdivisions(width, height)
+    return (width + 2 * _LOOKUP_MARGIN) * (height + 2 * _LOOKUP_MARGIN) * scale**2
+
+
 def _lookup_subdivisions(width: int, height: int) -> int:
     """Lookup cells per map unit: _LOOKUP_SUBDIVISIONS, halved while the table would exceed
     _LOOKUP_MAX_CELLS (which keeps flat cell indices exact in float32)."""
@@ -319,4 +325,5 @@ __all__ = [
     "NearestStationLookup",
     "Progress",
     "is_scalar",
+    "lookup_cell_count",
 ]

@@ -18,7 +18,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from mazelab.maze import EMPTY, STATION_WALL, WALL, Maze
+from mazelab.maze import EMPTY, STATION_WALL, WALL, Maze, check_maze_size
 
 DEFAULT_WALL_SHARE = 0.3  # share of the cells that become walls (station blocks included)
 CELLS_PER_STATION_BLOCK = 25  # the default station count: one block per this many cells
@@ -36,6 +36,7 @@ def parse_size(text: str) -> tuple[int, int]:
     rows, columns = int(match[1]), int(match[2])
     if rows < 1 or columns < 1 or rows * columns < 2:
         raise ValueError(f"maze size {text!r} is too small: it needs room for a free cell and a station block")
+    check_maze_size(rows, columns)
     return rows, columns
 
 
@@ -52,6 +53,7 @@ def generate_maze(
     About `wall_share` of the cells become walls (fewer if no more can be added without cutting the
     free area); at least one cell stays free. The same generator state gives the same maze.
     """
+    check_maze_size(rows, columns)
     if stations < 1:
         raise ValueError(f"a maze needs at least one station block, got --stations {stations}")
     if not 0 <= wall_share < 1:
