@@ -8,12 +8,17 @@ from __future__ import annotations
 
 import json
 import math
+import re
+import stat
 from pathlib import Path
 from typing import Annotated, Any
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+import numpy as np
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from mazelab.atomic import write_text_atomically
+from mazelab.checks import angle, check_within_map, coordinate
+from mazelab.limits import MemoryLimitError, check_memory
 from mazelab.maze import Maze
 from mazelab.robot import Robot
 
@@ -22,9 +27,16 @@ SCENARIO_FORMAT_VERSION = 2  # the newest scenario format this program reads and
 KIDNAP_FORMAT_VERSION = 2  # scenarios with a kidnapping are version 2; all others stay version 1
 
 
+MAX_JSON_DEPTH = 16  # a scenario nests 3 deep; deeper files are refused before parsing (no RecursionError)
+BYTES_PER_JSON_BYTE = 40  # memory the parsed json and its validation take per byte of the file (generous)
+
 # -- saved scenarios -------------------------------------------------------------------------------
 FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
-Point = tuple[FiniteFloat, FiniteFloat]
+# Angles (radians) and coordinates or distances (map units) within the bounds of mazelab.checks.
+Angle = Annotated[FiniteFloat, AfterValidator(lambda value: angle("the angle", value))]
+Coordinate = Annotated[FiniteFloat, AfterValidator(lambda value: coordinate("the coordinate", value))]
+Distance = Annotated[FiniteFloat, AfterValidator(lambda value: coordinate("the measured distance", value))]
+Point = tuple[Coordinate, Coordinate]
 
 
 class Scenario(BaseModel):
@@ -40,9 +52,9 @@ class Scenario(BaseModel):
     format_version: int = Field(1, ge=1)
     init_robot_pos: Point
     init_particles_pos: list[Point] = Field(min_length=1)
-    robot_actual_angles: list[FiniteFloat]
-    robot_compass_angles: list[FiniteFloat]
-    robot_measurements: list[FiniteFloat] | None = None
+    robot_actual_angles: list[Angle]
+    robot_compass_angles: list[Angle]
+    robot_measurements: list[Distance] | None = None
     maze: list[list[int]] | None = None
     sigma: FiniteFloat | None = Field(None, gt=0)
     delta: FiniteFloat | None = Field(None, ge=0, le=2 * math.pi)
@@ -82,8 +94,15 @@ class Scenario(BaseModel):
         if self.steps is not None and self.steps != steps:
             raise ValueError(f"steps is {self.steps} but there are {steps} angles")
         if self.maze is not None:
-            Maze(self.maze, source="the scenario's maze")
+            self._check_places(Maze(self.maze, source="the scenario's maze"))
         return self
+
+    def _check_places(self, world: Maze) -> None:
+        """Particles within the stored maze plus a margin, and a kidnap position in its free area (the
+        robot's start is checked where every run is, in simulation.check_start)."""
+        check_within_map("init_particles_pos", self.init_particles_pos, world.width, world.height)
+        if self.kidnap_position is not None and not world.is_free(*self.kidnap_position):
+            raise ValueError(f"kidnap_position {self.kidnap_position} is not in the free area of the scenario's maze")
 
     def world(self) -> Maze | None:
         """The maze stored in the scenario, if any."""
@@ -135,40 +154,77 @@ def save_scenario(scenario: Scenario, path: str | Path = DEFAULT_PARAMETERS_PATH
 def load_scenario(path: str | Path = DEFAULT_PARAMETERS_PATH) -> Scenario:
     """Read and validate a scenario json file (a file with only the paper's four keys is fine)."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ScenarioError(f"{path}: no such scenario file") from None
-    except (OSError, UnicodeDecodeError) as error:
-        raise ScenarioError(f"{path}: cannot be read ({error})") from None
+    text = _read_scenario_file(path)
+    depth = json_depth(text)
+    if depth > MAX_JSON_DEPTH:
+        raise ScenarioError(f"{path}: json nested {depth} deep; a scenario nests at most {MAX_JSON_DEPTH} deep")
     try:
         data = json.loads(text)
     except json.JSONDecodeError as error:
         raise ScenarioError(f"{path}:{error.lineno}: not valid json ({error.msg})") from None
+    except RecursionError:  # the depth scan keeps this from happening; a last guard
+        raise ScenarioError(f"{path}: json nested too deeply") from None
     try:
         return Scenario.model_validate(data)
     except ValidationError as error:
         raise ScenarioError(f"{path}: {describe_validation_error(error)}") from None
 
 
+def _read_scenario_file(path: Path) -> str:
+    """The text of a scenario file: a regular file (not a device or pipe) whose parsing fits in memory."""
+    try:
+        status = path.stat()
+        if stat.S_ISDIR(status.st_mode):
+            raise ScenarioError(f"{path}: is a folder, not a scenario file")
+        if not stat.S_ISREG(status.st_mode):
+            raise ScenarioError(f"{path}: not a regular file (a device, pipe or socket); a scenario is a json file")
+        check_memory(f"{path}: a scenario file of {status.st_size} bytes", status.st_size * BYTES_PER_JSON_BYTE)
+        return path.read_text(encoding="utf-8")
+    except MemoryLimitError as error:
+        raise ScenarioError(str(error)) from None
+    except FileNotFoundError:
+        raise ScenarioError(f"{path}: no such scenario file") from None
+    except (OSError, UnicodeDecodeError) as error:
+        raise ScenarioError(f"{path}: cannot be read ({error})") from None
+
+
+_JSON_STRING = re.compile(r'"(?:[^"\\]|\\.)*"')
+
+
+def json_depth(text: str) -> int:
+    """How deep the arrays and objects of a json text nest (brackets inside strings do not count); a
+    cheap scan, so that a file nested 100,000 deep is refused before the parser recurses."""
+    brackets = _JSON_STRING.sub("", text).encode("utf-8", "replace")
+    codes = np.frombuffer(brackets, dtype=np.uint8)
+    steps = (codes == ord("[")).astype(np.int32) + (codes == ord("{"))
+    steps -= (codes == ord("]")).astype(np.int32) + (codes == ord("}"))
+    return int(np.cumsum(steps).max(initial=0))
+
+
 def describe_validation_error(error: ValidationError) -> str:
     """The first problem of a pydantic error, on one line: 'where: what' (and how many more)."""
     first = error.errors()[0]
     parts = (str(part) for part in first["loc"])  # a key may hold a newline: quote those, to keep one line
-    where = ".".join(part if part.isprintable() else repr(part) for part in parts) or "the file"
+    where = ".".join(part if part.isprintable() else repr(part) for part in parts)
+    message = first["msg"].removeprefix("Value error, ")  # our own checks' messages, without pydantic's label
     more = len(error.errors()) - 1
-    return f"{where}: {first['msg']}" + (f" (and {more} more problem(s))" if more else "")
+    return (f"{where}: {message}" if where else message) + (f" (and {more} more problem(s))" if more else "")
 
 
 __all__ = [
     "DEFAULT_PARAMETERS_PATH",
     "KIDNAP_FORMAT_VERSION",
+    "MAX_JSON_DEPTH",
     "SCENARIO_FORMAT_VERSION",
+    "Angle",
+    "Coordinate",
+    "Distance",
     "FiniteFloat",
     "Point",
     "Scenario",
     "ScenarioError",
     "describe_validation_error",
+    "json_depth",
     "load_scenario",
     "save_scenario",
 ]

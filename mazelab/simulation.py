@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from mazelab.checks import as_points, step_number
+from mazelab.checks import as_points, check_within_map, step_number
 from mazelab.limits import check_particles, check_steps
 from mazelab.maze import Maze
 from mazelab.model import CONVERGENCE_RADIUS, DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, check_model_parameters
@@ -64,10 +64,19 @@ def convergence_step(errors: np.ndarray, radius: float = CONVERGENCE_RADIUS) -> 
     return None if outside[-1] == len(errors) - 1 else int(outside[-1]) + 2
 
 
-def check_start(world: Maze, robot_position: tuple[float, float], particles: np.ndarray) -> None:
-    """The robot must start in the free area; particles may lie anywhere (but we say so)."""
+def check_start(
+    world: Maze,
+    robot_position: tuple[float, float],
+    particles: np.ndarray,
+    kidnap_position: tuple[float, float] | None = None,
+) -> None:
+    """The robot must start (and be put down by a kidnapping) in the free area; particles may lie
+    anywhere within the map plus a margin (but we say when they lie outside the free area)."""
     if not world.is_free(*robot_position):
         raise ValueError(f"the robot's start {robot_position} is not in the free area of the maze ({world.source})")
+    if kidnap_position is not None and not world.is_free(*kidnap_position):
+        raise ValueError(f"the kidnap position {kidnap_position} is not in the free area of the maze ({world.source})")
+    check_within_map("init_particles_pos", particles, world.width, world.height)
     outside = int((~world.is_free(particles[:, 0], particles[:, 1])).sum())
     if outside:
         warnings.warn(f"{outside} of the {len(particles)} initial particles lie outside the free area", stacklevel=3)
@@ -153,7 +162,7 @@ def simulate(
             raise ValueError(f"particle_count must be a whole number >= 1, got {count!r}")
         check_particles(int(count))
         particles = world.random_free_places(int(count), particles_rng)
-    check_start(world, robot.initial_position, particles)
+    check_start(world, robot.initial_position, particles, robot.kidnap_position)
     if steps is None:
         steps = robot.recorded_steps or DEFAULT_STEPS
     if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
