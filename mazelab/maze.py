@@ -21,10 +21,12 @@ from mazelab.limits import BYTES_PER_LOOKUP_CELL, BYTES_PER_MAZE_CELL, check_mem
 from mazelab.lookup import NearestStationLookup, Progress, is_scalar, lookup_cell_count
 
 EMPTY, WALL, STATION_WALL = 0, 1, 2
-MAZE_FILE_LIMIT_BYTES = 1_000_000  # a maze file larger than this is refused, not read
 # At most this many rows and columns: the nearest-station table's flat cell indices stay exact in
 # float32 ((4000 + 4)**2 < 2**24) and float32 particle positions resolve 2**-11 map units.
 MAX_MAZE_SIDE = 4000
+# A maze file larger than this is refused, not read: room for the largest maze written with ", "
+# between cells (3 bytes a cell, 48 MB), comments included.
+MAZE_FILE_LIMIT_BYTES = 64 * 2**20
 
 
 class MazeError(ValueError):
@@ -243,6 +245,8 @@ def parse_maze_text(text: str, source: str = "maze text") -> list[list[int]]:
         bad = next((ch for ch in cells if ch not in "012"), None)
         if bad is not None:
             raise MazeError(f"{source}:{number}: {bad!r} is not a maze cell; use 0 (free), 1 (wall), 2 (station)")
+        if len(rows) >= MAX_MAZE_SIDE or len(cells) > MAX_MAZE_SIDE:  # refused at this line, not after the rest
+            check_maze_size(len(rows) + 1, len(cells), f"{source}:{number}")
         row = [int(ch) for ch in cells]
         if rows and len(row) != len(rows[0]):
             raise MazeError(

@@ -9,6 +9,7 @@ import pytest
 from conftest import PAPER_MAZE
 
 from mazelab.cli.app import main
+from mazelab.maze import MAZE_FILE_LIMIT_BYTES
 
 SCENARIO = {
     "init_robot_pos": [3.5, 1.5],
@@ -97,7 +98,8 @@ def bad_files(tmp_path):
     for name, text in FILES.items():
         (tmp_path / name).write_text(text)
     (tmp_path / "binary.txt").write_bytes(b"\xff\xfe\x00")
-    (tmp_path / "huge.txt").write_text("0 2\n" * 300_000)
+    with (tmp_path / "huge.txt").open("wb") as huge:  # sparse: as large as that, at no cost
+        huge.truncate(MAZE_FILE_LIMIT_BYTES + 1)
     (tmp_path / "exists.json").write_text("{}")
     return tmp_path
 
