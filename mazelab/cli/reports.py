@@ -41,17 +41,23 @@ def progress_printer(steps: int, every: int = 20) -> Any:
 
 
 LOOKUP_PROGRESS_CELLS = 2**18  # a nearest-station table this large takes seconds: say so while building it
+GENERATE_PROGRESS_CELLS = 2**18  # generating a maze this large takes seconds (512 x 512)
 
 
 def prepare_world(world: Maze, min_cells: int = LOOKUP_PROGRESS_CELLS) -> Maze:
     """Build a large maze's nearest-station table up front, with a progress line on stderr (a 1000 x
     1000 maze takes tens of seconds); a small maze's table is built on first use, silently."""
     if world.lookup_cells >= min_cells and "_lookup" not in world.__dict__:
-        world.prepare(LookupProgress(f"building the nearest-station table of {world.source}"))
+        world.prepare(ProgressLine(f"building the nearest-station table of {world.source}"))
     return world
 
 
-class LookupProgress:
+def generation_progress(rows: int, columns: int) -> ProgressLine | None:
+    """A progress line for generating a large maze (None for a small one, made in a blink)."""
+    return ProgressLine(f"generating a {rows}x{columns} maze") if rows * columns >= GENERATE_PROGRESS_CELLS else None
+
+
+class ProgressLine:
     """progress(done, total) as one line on stderr: redrawn in place on a terminal, else a line at the
     start and one at the end (a log file gets no carriage returns)."""
 
@@ -91,8 +97,10 @@ def particle_count_report(result: RunResult) -> str:
 
 
 __all__ = [
+    "GENERATE_PROGRESS_CELLS",
     "LOOKUP_PROGRESS_CELLS",
-    "LookupProgress",
+    "ProgressLine",
+    "generation_progress",
     "kidnap_report",
     "particle_count_report",
     "prepare_world",
