@@ -23,6 +23,8 @@ BYTES_PER_PARTICLE = 400  # arrays a particle needs during a step, temporaries i
 BYTES_PER_STEP = 1000  # a run's per-step arrays, the robot's path and the saved scenario (about 400 measured)
 BYTES_PER_MAZE_CELL = 100  # a maze's grid, its lists and the generator's index arrays (generous)
 BYTES_PER_LOOKUP_CELL = 250  # the nearest-station table per lookup cell, while it is built (about 170 measured)
+BYTES_PER_STUDY_RUN = 1000  # a study's task per run (about 600 measured)
+BYTES_PER_STUDY_RECORD = 1500  # a study's result row per run and filter, and its CSV line
 _UNLIMITED = 2**60  # cgroup v1 writes "no limit" as a huge number near 2**63
 
 CGROUP_ROOT = Path("/sys/fs/cgroup")
@@ -60,6 +62,12 @@ def check_particles(count: int) -> None:
 def check_steps(steps: int) -> None:
     """Refuse a step count whose per-step results would not fit."""
     check_memory(f"steps {steps}", steps * BYTES_PER_STEP)
+
+
+def check_study(runs: int, filters: int) -> None:
+    """Refuse a study whose tasks and result rows (`runs` runs in all, each with `filters` filters)
+    would not fit, before the first task is made."""
+    check_memory(f"a study of {runs} runs", runs * (BYTES_PER_STUDY_RUN + filters * BYTES_PER_STUDY_RECORD))
 
 
 def memory_budget() -> MemoryBudget | None:
@@ -192,6 +200,8 @@ __all__ = [
     "BYTES_PER_MAZE_CELL",
     "BYTES_PER_PARTICLE",
     "BYTES_PER_STEP",
+    "BYTES_PER_STUDY_RECORD",
+    "BYTES_PER_STUDY_RUN",
     "MEMORY_SHARE",
     "MemoryBudget",
     "MemoryLimitError",
@@ -200,6 +210,7 @@ __all__ = [
     "check_memory",
     "check_particles",
     "check_steps",
+    "check_study",
     "memory_budget",
     "process_limit",
 ]

@@ -89,6 +89,7 @@ CASES = [
     (["run", "--steps", "1000000000000"], "steps 1000000000000 needs about 931322.6 GiB, but only"),
     (["study", "--steps", "1000000000000"], "steps 1000000000000 needs about 931322.6 GiB"),
     (["study", "--particles", "10,100000000000"], "particle_count 100000000000 needs about 37252.9 GiB"),
+    (["study", "--runs", "1000000000000", "--sigma", "0.3,0.4"], "a study of 2000000000000 runs needs about"),
     (["run", "--sigma", "abc"], "--sigma"),
     # scenarios
     (["run", "--scenario", "{tmp}/notjson.json"], "not valid json"),

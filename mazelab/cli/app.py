@@ -51,7 +51,7 @@ from mazelab.experiments.summary import describe_setting, plot_study, study_csv,
 from mazelab.filters import ParticleFilter
 from mazelab.kalman import EKF_INITS, ExtendedKalmanFilter
 from mazelab.lab import simulate
-from mazelab.limits import check_particles, check_steps
+from mazelab.limits import check_particles, check_steps, check_study
 from mazelab.maze import Maze, MazeError
 from mazelab.mazes import DEFAULT_MAZE, find_maze, load_maze
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, RPF_THRESHOLD
@@ -357,6 +357,7 @@ def study(
         parse_list(threshold, float, "--threshold"),
         parse_list(recovery, str, "--recovery"),
     )
+    check_study(len(settings) * runs, len(names))
     seed = new_seed() if seed is None else seed
     tasks = study_tasks(settings, names, runs, steps, seed, kidnap_at=kidnap_at, kld=kld)
     workers = workers or default_workers()
