@@ -35,6 +35,16 @@ def bounded_number(name: str, value: Any, bound: float, unit: str) -> float:
     return value
 
 
+def check_all_within(name: str, values: Any, bound: float, unit: str) -> None:
+    """`bounded_number` for a whole array at numpy speed (a scenario holds a pair per particle), naming
+    the first value out of bounds by its index, e.g. init_particles_pos[3][0]."""
+    array = np.asarray(values, dtype=float)
+    bad = np.argwhere(~(np.abs(array) <= bound))  # NaN is caught too
+    if len(bad):
+        index = tuple(int(i) for i in bad[0])
+        bounded_number(name + "".join(f"[{i}]" for i in index), float(array[index]), bound, unit)
+
+
 def angle(name: str, value: Any) -> float:
     """An angle in radians, finite and within MAX_ANGLE of zero."""
     return bounded_number(name, value, MAX_ANGLE, "radians")
@@ -95,6 +105,7 @@ __all__ = [
     "as_point",
     "as_points",
     "bounded_number",
+    "check_all_within",
     "check_within_map",
     "coordinate",
     "finite_number",

@@ -106,14 +106,23 @@ CASES = [
     (["run", "--scenario", "{tmp}/missing.json"], "no such scenario file"),
     (
         ["run", "--scenario", "{tmp}/compass_angle.json"],
-        "compass_angle.json: robot_compass_angles.1: the angle must lie within [-10000, 10000] radians, got 1e+300",
+        "compass_angle.json: robot_compass_angles[1] must lie within [-10000, 10000] radians, got 1e+300",
     ),
-    (["run", "--scenario", "{tmp}/compass_angle_huge.json"], "robot_compass_angles.1: the angle must lie within"),
-    (["compare", "{tmp}/compass_angle.json"], "robot_compass_angles.1: the angle must lie within"),
-    (["run", "--scenario", "{tmp}/actual_angle.json"], "robot_actual_angles.1: the angle must lie within"),
+    (
+        ["run", "--scenario", "{tmp}/compass_angle_huge.json"],
+        "robot_compass_angles[1] must lie within [-10000, 10000] radians, got 1.4e+226",
+    ),
+    (
+        ["compare", "{tmp}/compass_angle.json"],
+        "robot_compass_angles[1] must lie within [-10000, 10000] radians, got 1e+300",
+    ),
+    (
+        ["run", "--scenario", "{tmp}/actual_angle.json"],
+        "robot_actual_angles[1] must lie within [-10000, 10000] radians, got -20000",
+    ),
     (
         ["run", "--scenario", "{tmp}/far_particle.json", "--filter", "rpf"],
-        "init_particles_pos.1.0: the coordinate must lie within [-1e+06, 1e+06] map units, got 1e+39",
+        "init_particles_pos[1][0] must lie within [-1e+06, 1e+06] map units, got 1e+39",
     ),
     (
         ["run", "--scenario", "{tmp}/particle_beyond_map.json"],
@@ -123,8 +132,14 @@ CASES = [
         ["run", "--scenario", "{tmp}/particle_beyond_given_map.json", "--maze", "paper_5x5"],
         "init_particles_pos[0] = (16, 1) lies more than 10 map units beyond the 5 x 5 map (1 such point(s))",
     ),
-    (["run", "--scenario", "{tmp}/far_robot.json"], "init_robot_pos.1: the coordinate must lie within"),
-    (["run", "--scenario", "{tmp}/far_measurement.json"], "robot_measurements.1: the measured distance must lie"),
+    (
+        ["run", "--scenario", "{tmp}/far_robot.json"],
+        "init_robot_pos[1] must lie within [-1e+06, 1e+06] map units, got 1e+07",
+    ),
+    (
+        ["run", "--scenario", "{tmp}/far_measurement.json"],
+        "robot_measurements[1] must lie within [-1e+06, 1e+06] map units, got 1e+300",
+    ),
     (
         ["run", "--scenario", "{tmp}/kidnap_in_wall.json"],
         "kidnap_in_wall.json: kidnap_position (0.5, 4.5) is not in the free area of the scenario's maze",
@@ -133,7 +148,10 @@ CASES = [
         ["run", "--scenario", "{tmp}/kidnap_in_wall_given_map.json", "--maze", "paper_5x5"],
         "the kidnap position (0.5, 4.5) is not in the free area of the maze",
     ),
-    (["run", "--scenario", "{tmp}/kidnap_far.json"], "kidnap_position.0: the coordinate must lie within"),
+    (
+        ["run", "--scenario", "{tmp}/kidnap_far.json"],
+        "kidnap_position[0] must lie within [-1e+06, 1e+06] map units, got 1e+39",
+    ),
     (["run", "--scenario", "{tmp}/deep.json"], "deep.json: json nested 100000 deep; a scenario nests at most 16 deep"),
     (["compare", "{tmp}/deep_object.json"], "deep_object.json: json nested 20 deep"),
     (["run", "--scenario", "/dev/zero"], "/dev/zero: not a regular file (a device, pipe or socket); a scenario is"),
