@@ -310,15 +310,20 @@ def _possibly_nearest(
     stations: np.ndarray, lo_x: np.ndarray, lo_y: np.ndarray, size_x: np.ndarray | float, size_y: np.ndarray | float
 ) -> np.ndarray:
     """(c, K) mask: station k's least distance to box c is at most the smallest, over all stations,
-    greatest distance to box c (otherwise that other station is nearer everywhere in the box)."""
+    greatest distance to box c (otherwise that other station is nearer everywhere in the box).
+    Compared as squares (no square roots; the tolerance, added to the root of the bound, still covers
+    their rounding, a relative 1e-16)."""
     lo_x, lo_y = lo_x[:, None], lo_y[:, None]
     hi_x, hi_y = lo_x + np.asarray(size_x)[..., None], lo_y + np.asarray(size_y)[..., None]
     sx, sy = stations[:, 0], stations[:, 1]
-    least = np.hypot(np.maximum(np.maximum(lo_x - sx, sx - hi_x), 0), np.maximum(np.maximum(lo_y - sy, sy - hi_y), 0))
-    greatest = np.hypot(
-        np.maximum(np.abs(sx - lo_x), np.abs(sx - hi_x)), np.maximum(np.abs(sy - lo_y), np.abs(sy - hi_y))
+    least = _squared_distances(
+        np.maximum(np.maximum(lo_x - sx, sx - hi_x), 0), np.maximum(np.maximum(lo_y - sy, sy - hi_y), 0), 0.0, 0.0
     )
-    return least <= greatest.min(axis=1, keepdims=True) + _LOOKUP_TOLERANCE
+    greatest = _squared_distances(
+        np.maximum(np.abs(sx - lo_x), np.abs(sx - hi_x)), np.maximum(np.abs(sy - lo_y), np.abs(sy - hi_y)), 0.0, 0.0
+    )
+    bound = np.sqrt(greatest.min(axis=1, keepdims=True)) + _LOOKUP_TOLERANCE
+    return least <= bound * bound
 
 
 __all__ = [
