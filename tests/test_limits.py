@@ -188,3 +188,10 @@ def test_the_cli_shows_a_progress_line_while_a_large_table_is_built(capsys):
     assert err[-1].startswith("building the nearest-station table of paper: done in ") and err[-1].endswith(" s")
     prepare_world(Maze(PAPER_MAZE))  # a small table: built on first use, silently
     assert capsys.readouterr().err == ""
+
+
+def test_the_grid_filter_refuses_a_grid_that_would_not_fit(paper_world):
+    from mazelab.grid_filter import GridBayesFilter
+
+    with pytest.raises(MemoryLimitError, match=r"^the grid filter's 700000x700000 cells \(resolution 1e-05\) needs"):
+        GridBayesFilter(paper_world, 0.3, 0.5, resolution=1e-5)
