@@ -217,11 +217,10 @@ _JSON_STRING = re.compile(r'"(?:[^"\\]|\\.)*"')
 def json_depth(text: str) -> int:
     """How deep the arrays and objects of a json text nest (brackets inside strings do not count); a
     cheap scan, so that a file nested 100,000 deep is refused before the parser recurses."""
-    brackets = _JSON_STRING.sub("", text).encode("utf-8", "replace")
-    codes = np.frombuffer(brackets, dtype=np.uint8)
-    steps = (codes == ord("[")).astype(np.int32) + (codes == ord("{"))
-    steps -= (codes == ord("]")).astype(np.int32) + (codes == ord("}"))
-    return int(np.cumsum(steps).max(initial=0))
+    codes = np.frombuffer(_JSON_STRING.sub("", text).encode("utf-8", "replace"), dtype=np.uint8)
+    opening = (codes == ord("[")) | (codes == ord("{"))
+    brackets = opening[opening | (codes == ord("]")) | (codes == ord("}"))]  # the brackets alone, in order
+    return int(np.cumsum(np.where(brackets, 1, -1), dtype=np.int64).max(initial=0))
 
 
 def describe_validation_error(error: ValidationError) -> str:

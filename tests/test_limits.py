@@ -15,6 +15,7 @@ from conftest import PAPER_MAZE, ROOT
 from mazelab import limits
 from mazelab.checks import MAX_ANGLE, angle, check_within_map
 from mazelab.cli.reports import prepare_world
+from mazelab.grid_filter import GridBayesFilter
 from mazelab.limits import MemoryBudget, MemoryLimitError, cgroup_limit, check_memory, process_limit
 from mazelab.lookup import _LOOKUP_TILE, NearestStationLookup
 from mazelab.maze import Maze, MazeError
@@ -191,7 +192,5 @@ def test_the_cli_shows_a_progress_line_while_a_large_table_is_built(capsys):
 
 
 def test_the_grid_filter_refuses_a_grid_that_would_not_fit(paper_world):
-    from mazelab.grid_filter import GridBayesFilter
-
     with pytest.raises(MemoryLimitError, match=r"^the grid filter's 700000x700000 cells \(resolution 1e-05\) needs"):
         GridBayesFilter(paper_world, 0.3, 0.5, resolution=1e-5)
