@@ -69,9 +69,14 @@ class Maze:
     def prepare(self, progress: Progress | None = None) -> Maze:
         """Build the nearest-station table now rather than on first use, calling `progress(done, total)`
         as it goes (a 1000 x 1000 maze takes tens of seconds). Returns the maze."""
-        if "_lookup" not in self.__dict__:
+        if not self.has_lookup:
             self.__dict__["_lookup"] = self._new_lookup(progress)
         return self
+
+    @property
+    def has_lookup(self) -> bool:
+        """Whether the nearest-station table is built already."""
+        return "_lookup" in self.__dict__
 
     @property
     def lookup_cells(self) -> int:

@@ -183,12 +183,12 @@ def test_the_lookup_reports_every_tile_and_builds_the_same_table_with_or_without
 
 def test_the_cli_shows_a_progress_line_while_a_large_table_is_built(capsys):
     world = prepare_world(Maze(PAPER_MAZE, source="paper"), min_cells=0)
-    assert "_lookup" in world.__dict__  # built up front
+    assert world.has_lookup  # built up front
     err = capsys.readouterr().err.splitlines()
     assert err[0] == "building the nearest-station table of paper ..."
     assert err[-1].startswith("building the nearest-station table of paper: done in ") and err[-1].endswith(" s")
-    prepare_world(Maze(PAPER_MAZE))  # a small table: built on first use, silently
-    assert capsys.readouterr().err == ""
+    small = prepare_world(Maze(PAPER_MAZE))  # a small table: built on first use, silently
+    assert not small.has_lookup and capsys.readouterr().err == ""
 
 
 def test_the_grid_filter_refuses_a_grid_that_would_not_fit(paper_world):

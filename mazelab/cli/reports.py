@@ -47,7 +47,7 @@ GENERATE_PROGRESS_CELLS = 2**18  # generating a maze this large takes seconds (5
 def prepare_world(world: Maze, min_cells: int = LOOKUP_PROGRESS_CELLS) -> Maze:
     """Build a large maze's nearest-station table up front, with a progress line on stderr (a 1000 x
     1000 maze takes tens of seconds); a small maze's table is built on first use, silently."""
-    if world.lookup_cells >= min_cells and "_lookup" not in world.__dict__:
+    if world.lookup_cells >= min_cells and not world.has_lookup:
         world.prepare(ProgressLine(f"building the nearest-station table of {world.source}"))
     return world
 
