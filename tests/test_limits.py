@@ -4,6 +4,7 @@ nesting, and the progress of a long nearest-station table build."""
 from __future__ import annotations
 
 import json
+import os
 import resource
 import subprocess
 import sys
@@ -98,8 +99,9 @@ def test_rlimit_as_in_a_real_process_lowers_the_budget_so_a_moderate_particle_co
         resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
 
     command = [sys.executable, str(ROOT / "main.py"), "run", "--steps", "1", "--no-viz", "--quiet"]
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}  # no per-core buffers to map
     refused = subprocess.run(
-        [*command, "--particles", "3000000"], capture_output=True, text=True, timeout=120, preexec_fn=lowered
+        [*command, "--particles", "3000000"], capture_output=True, text=True, timeout=120, preexec_fn=lowered, env=env
     )
     assert refused.returncode == 2, refused.stderr
     assert refused.stderr.startswith("error: particle_count 3000000 needs about 1.1 GiB, but only 1.")
