@@ -17,7 +17,8 @@ from mazelab.atomic import write_text_atomically
 from mazelab.maze import Maze
 from mazelab.robot import Robot
 
-DEFAULT_PARAMETERS_PATH = Path("model_parameters") / "model_parameters.json"
+DEFAULT_PARAMETERS_PATH = Path("model_parameters.json")  # the paper's file (lab steps 9-10), in the working folder
+LEGACY_PARAMETERS_PATH = Path("model_parameters") / "model_parameters.json"  # where older versions saved it
 SCENARIO_FORMAT_VERSION = 2  # the newest scenario format this program reads and writes
 KIDNAP_FORMAT_VERSION = 2  # scenarios with a kidnapping are version 2; all others stay version 1
 
@@ -138,7 +139,13 @@ def load_scenario(path: str | Path = DEFAULT_PARAMETERS_PATH) -> Scenario:
     try:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
-        raise ScenarioError(f"{path}: no such scenario file") from None
+        older = (
+            LEGACY_PARAMETERS_PATH
+            if LEGACY_PARAMETERS_PATH.is_file() and path.name == "model_parameters.json"
+            else None
+        )
+        hint = f" (older versions saved to {older})" if older is not None else ""
+        raise ScenarioError(f"{path}: no such scenario file{hint}") from None
     except (OSError, UnicodeDecodeError) as error:
         raise ScenarioError(f"{path}: cannot be read ({error})") from None
     try:

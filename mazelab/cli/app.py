@@ -5,6 +5,7 @@ mazelab run --help      one run, with any maze, filter and parameters, or a save
 mazelab compare --help  every filter on one saved scenario: a table, a CSV, the lab's figure
 mazelab study --help    a Monte Carlo parameter study over seeded runs, on all cores
 mazelab maze --help     random connected mazes (generate) and a look at any maze (show)
+mazelab view FILE       a saved recording in the web viewer on 127.0.0.1 (no display needed)
 mazelab bench [--quick] the filters' speed against a plain numpy reference step
 """
 
@@ -41,7 +42,8 @@ from mazelab.cli.options import (
     visualization,
     warn_in_one_line,
 )
-from mazelab.cli.reports import kidnap_report, particle_count_report, progress_printer, summarise
+from mazelab.cli.reports import kidnap_report, particle_count_report, progress_printer, report_run
+from mazelab.cli.view import view
 from mazelab.experiments.compare import compare_filters, comparison_table, errors_csv, plot_errors
 from mazelab.experiments.executor import default_workers, run_study
 from mazelab.experiments.runs import parse_filters
@@ -52,7 +54,7 @@ from mazelab.filters import ParticleFilter
 from mazelab.kalman import EKF_INITS, ExtendedKalmanFilter
 from mazelab.lab import simulate
 from mazelab.maze import Maze, MazeError
-from mazelab.mazes import DEFAULT_MAZE, find_maze, load_maze
+from mazelab.mazes import DEFAULT_MAZE, find_maze, load_maze, mazes_fitting
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, RPF_THRESHOLD
 from mazelab.recovery import ALPHA_FAST, ALPHA_SLOW, Recovery
 from mazelab.registry import resolve_filter
@@ -87,8 +89,8 @@ def demo(
     if rrd is not None:
         check_output_path(rrd, force)
     world = load_maze(DEFAULT_MAZE)
-    seed = int(np.random.SeedSequence().entropy % 2**31)
-    robot = Robot(DEFAULT_SIGMA, DEFAULT_DELTA, world.random_free_place(np.random.default_rng(seed)))
+    seed = new_seed()
+    robot = Robot(DEFAULT_SIGMA, DEFAULT_DELTA, start_place(world, seed))
     typer.echo(
         f"A robot is lost in {find_maze(DEFAULT_MAZE).name} ({world.height}x{world.width}, "
         f"{len(world.stations)} stations); SIR with {DEFAULT_PARTICLE_COUNT} particles looks for it."
@@ -104,20 +106,29 @@ def demo(
         visualize=visualize,
         on_step=progress_printer(DEFAULT_STEPS),
     )
-    typer.echo(summarise(result))
-    typer.echo(f"Repeat this run: python main.py run --seed {seed} --start-seed {seed}")
+    report_run(result)
+    typer.echo(f"Repeat this run: mazelab run --seed {seed}")
 
 
 @app.command()
 def run(
     maze: Annotated[str | None, typer.Option(help=f"maze file, or a name in mazes/ [default: {DEFAULT_MAZE}]")] = None,
     filter_name: Annotated[str, typer.Option("--filter", help="sir, apf, rpf, grid or ekf (or a class name)")] = "sir",
-    particles: Annotated[int, typer.Option(min=1, help="particle count N_S")] = DEFAULT_PARTICLE_COUNT,
-    steps: Annotated[int, typer.Option(min=1, help="number of steps")] = DEFAULT_STEPS,
-    sigma: Annotated[float | None, typer.Option(help="measurement noise std [0.2, 0.8]")] = None,
-    delta: Annotated[float | None, typer.Option(help="compass error width, radians [0.05, 0.6]")] = None,
-    seed: Annotated[int | None, typer.Option(help="seed of the run (robot, particles, filter)")] = None,
-    start_seed: Annotated[int | None, typer.Option(help="seed of the robot's start position")] = None,
+    particles: Annotated[
+        int | None, typer.Option(min=1, help=f"particle count N_S [default: {DEFAULT_PARTICLE_COUNT}]")
+    ] = None,
+    steps: Annotated[int | None, typer.Option(min=1, help=f"number of steps [default: {DEFAULT_STEPS}]")] = None,
+    sigma: Annotated[float | None, typer.Option(help=f"measurement noise std [default: {DEFAULT_SIGMA}]")] = None,
+    delta: Annotated[
+        float | None, typer.Option(help=f"compass error width, radians [default: {DEFAULT_DELTA}]")
+    ] = None,
+    seed: Annotated[
+        int | None,
+        typer.Option(help="seed of the whole run: start, particles, walk, filter (default: new, printed)"),
+    ] = None,
+    start_seed: Annotated[
+        int | None, typer.Option(hidden=True, help="seed of the start only (default: --seed)")
+    ] = None,
     scenario: Annotated[Path | None, typer.Option(help="replay a saved scenario json")] = None,
     save_scenario_path: Annotated[Path | None, typer.Option("--save-scenario", help="save the run as json")] = None,
     force: Annotated[bool, typer.Option(help="replace existing output files (--save-scenario, --rrd)")] = False,
@@ -156,14 +167,18 @@ def run(
         if path is not None:
             check_output_path(path, force)
     if scenario is not None:
-        world, robot, sigma, delta, init_particles = from_scenario(load_scenario(scenario), maze, sigma, delta)
+        stored = load_scenario(scenario)
+        refuse_counts_for_replay(stored, particles, steps, start_seed)
+        world, robot, sigma, delta, init_particles = from_scenario(stored, maze, sigma, delta)
+        seed = replay_seed(stored, seed)
         particles_arg, steps_arg = None, None
     else:
         world = load_maze(maze or DEFAULT_MAZE)
         sigma = DEFAULT_SIGMA if sigma is None else sigma
         delta = DEFAULT_DELTA if delta is None else delta
-        robot = Robot(sigma, delta, world.random_free_place(np.random.default_rng(start_seed)))
-        init_particles, particles_arg, steps_arg = None, particles, steps
+        seed = new_seed() if seed is None else seed
+        robot = Robot(sigma, delta, start_place(world, seed if start_seed is None else start_seed))
+        init_particles, particles_arg, steps_arg = None, particles, steps or DEFAULT_STEPS
     total = steps_arg or robot.recorded_steps
     result = simulate(
         robot,
@@ -180,12 +195,36 @@ def run(
         kidnap_at=kidnap_at,
         **options,
     )
-    typer.echo(summarise(result))
+    report_run(result)
     for line in (kidnap_report(result), particle_count_report(result) if kld else None):
         if line:
             typer.echo(line)
     if save_scenario_path is not None:
         typer.echo(f"scenario saved to {save_scenario(result.scenario, save_scenario_path)}")
+
+
+def start_place(world: Maze, seed: int) -> tuple[float, float]:
+    """The robot's start of a fresh run: a free place drawn from the run's seed (as a study's runs
+    do), so that one seed repeats the whole run."""
+    return world.random_free_place(np.random.default_rng(seed))
+
+
+def replay_seed(stored: Scenario, seed: int | None) -> int:
+    """The seed of a replay: --seed, else the scenario's own (as compare uses), else a new one."""
+    return seed if seed is not None else stored.seed if stored.seed is not None else new_seed()
+
+
+def refuse_counts_for_replay(
+    stored: Scenario, particles: int | None, steps: int | None, start_seed: int | None
+) -> None:
+    """A replay takes its particles, steps and start from the scenario: refuse flags that would be ignored."""
+    given = [flag for flag, value in (("--particles", particles), ("--steps", steps), ("--start-seed", start_seed))
+             if value is not None]  # fmt: skip
+    if given:
+        raise UserError(
+            f"{' and '.join(given)} cannot change a replayed scenario (it has {len(stored.init_particles_pos)} "
+            f"particles and {len(stored.robot_actual_angles)} steps); leave {'them' if len(given) > 1 else 'it'} out"
+        )
 
 
 def filter_options(
@@ -264,7 +303,7 @@ def compare(
     check_outputs(csv_path, plot, force, rrd)
     stored = load_scenario(scenario)
     world, robot, sigma, delta, particles = from_scenario(stored, maze, sigma, delta)
-    seed = seed if seed is not None else stored.seed if stored.seed is not None else new_seed()
+    seed = replay_seed(stored, seed)
     names = parse_filters(filters)
     typer.echo(
         f"{scenario.name}: {len(particles)} particles, {robot.recorded_steps} steps, "
@@ -392,6 +431,7 @@ def study(
 
 
 app.add_typer(maze_app, name="maze")
+app.command()(view)
 
 
 def study_mazes(files: str | None, sizes: str | None, stations: str | None) -> list[MazeChoice]:
@@ -425,17 +465,39 @@ def bench(
 def from_scenario(
     scenario: Scenario, maze: str | None, sigma: float | None, delta: float | None
 ) -> tuple[Maze, Robot, float, float, list]:
-    """World, robot, sigma, delta and particles of a saved scenario; flags override stored values."""
+    """World, robot, sigma, delta and particles of a saved scenario; flags override stored values.
+    A scenario without a maze (the paper's four keys) runs on --maze, or on the one shipped maze
+    its start and particles fit; missing sigma and delta take the defaults, and a line says so."""
     stored = scenario.world()
-    world = stored if stored is not None else load_maze(maze or DEFAULT_MAZE)
+    world = stored if stored is not None else load_maze(maze) if maze is not None else fitting_maze(scenario)
     if stored is not None and maze is not None:
         given = load_maze(maze)
         if not np.array_equal(given.grid, stored.grid):
             raise UserError(f"the scenario's maze differs from {given.source}; leave out --maze to use the stored one")
+    defaults = [f"{name} {value:g}" for name, value, flag, kept in (
+        ("sigma", DEFAULT_SIGMA, sigma, scenario.sigma), ("delta", DEFAULT_DELTA, delta, scenario.delta)
+    ) if flag is None and kept is None]  # fmt: skip
+    if defaults:
+        typer.echo(f"warning: the scenario stores no {' or '.join(d.split()[0] for d in defaults)}: using the "
+                   f"default {', '.join(defaults)} (--sigma/--delta choose)", err=True)  # fmt: skip
     sigma = sigma if sigma is not None else scenario.sigma if scenario.sigma is not None else DEFAULT_SIGMA
     delta = delta if delta is not None else scenario.delta if scenario.delta is not None else DEFAULT_DELTA
     robot = scenario.robot(sigma, delta)
     return world, robot, sigma, delta, scenario.init_particles_pos
+
+
+def fitting_maze(scenario: Scenario) -> Maze:
+    """The shipped maze of a scenario that stores none: the only one whose free area holds its start
+    and every particle; with none or several, a one-line refusal asking for --maze."""
+    fitting = mazes_fitting(scenario.init_robot_pos, np.asarray(scenario.init_particles_pos))
+    if len(fitting) != 1:
+        which = "no shipped maze fits" if not fitting else f"several shipped mazes fit ({', '.join(fitting)})"
+        raise UserError(
+            f"the scenario stores no maze and {which} its start and particles: "
+            "pass --maze (and --sigma/--delta if they differ from the defaults)"
+        )
+    typer.echo(f"warning: the scenario stores no maze: using {fitting[0]}, the one shipped maze it fits", err=True)
+    return load_maze(fitting[0])
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -465,11 +527,15 @@ __all__ = [
     "compare",
     "demo",
     "filter_options",
+    "fitting_maze",
     "from_scenario",
     "kalman_options",
     "main",
     "recovery_option",
+    "refuse_counts_for_replay",
+    "replay_seed",
     "run",
+    "start_place",
     "study",
     "study_mazes",
 ]
