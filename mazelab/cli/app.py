@@ -66,6 +66,7 @@ from mazelab.viz.style import DEFAULT_MAX_DRAWN
 
 app = typer.Typer(
     add_completion=False,
+    rich_markup_mode=None,  # plain click help: text flows, defaults show, option names are never cut
     no_args_is_help=False,
     pretty_exceptions_enable=False,
     help="A robot lost in a maze, found by particle filters. Without a command: the paper's example.",
@@ -80,7 +81,7 @@ def demo(
     web: WebOption = False,
     no_viz: NoVizOption = False,
     max_drawn: MaxDrawnOption = DEFAULT_MAX_DRAWN,
-    force: Annotated[bool, typer.Option(help="replace an existing --rrd file")] = False,
+    force: Annotated[bool, typer.Option("--force", help="replace an existing --rrd file")] = False,
 ) -> None:
     """The paper's example: a lost robot, the SIR filter, 1500 particles, 200 steps."""
     if ctx.invoked_subcommand is not None:
@@ -112,8 +113,8 @@ def demo(
 
 @app.command()
 def run(
-    maze: Annotated[str | None, typer.Option(help=f"maze file, or a name in mazes/ [default: {DEFAULT_MAZE}]")] = None,
-    filter_name: Annotated[str, typer.Option("--filter", help="sir, apf, rpf, grid or ekf (or a class name)")] = "sir",
+    maze: Annotated[str | None, typer.Option(help=f"a maze file or a name in mazes/ [default: {DEFAULT_MAZE}]")] = None,
+    filter_name: Annotated[str, typer.Option("--filter", help="sir, apf, rpf, grid, ekf")] = "sir",
     particles: Annotated[
         int | None, typer.Option(min=1, help=f"particle count N_S [default: {DEFAULT_PARTICLE_COUNT}]")
     ] = None,
@@ -124,32 +125,30 @@ def run(
     ] = None,
     seed: Annotated[
         int | None,
-        typer.Option(help="seed of the whole run: start, particles, walk, filter (default: new, printed)"),
+        typer.Option(help="seed of the whole run (default: new, printed)"),
     ] = None,
     start_seed: Annotated[
         int | None, typer.Option(hidden=True, help="seed of the start only (default: --seed)")
     ] = None,
-    scenario: Annotated[Path | None, typer.Option(help="replay a saved scenario json")] = None,
-    save_scenario_path: Annotated[Path | None, typer.Option("--save-scenario", help="save the run as json")] = None,
-    force: Annotated[bool, typer.Option(help="replace existing output files (--save-scenario, --rrd)")] = False,
-    quiet: Annotated[bool, typer.Option(help="no per-step progress")] = False,
-    resampling: Annotated[str, typer.Option(help=f"resampling scheme: {', '.join(RESAMPLING_SCHEMES)}")] = "systematic",
-    kidnap_at: Annotated[
-        int | None, typer.Option(min=1, help="kidnap the robot at this step (carried to a random free place)")
-    ] = None,
+    scenario: Annotated[Path | None, typer.Option(help="replay a saved scenario (.json)")] = None,
+    save_scenario_path: Annotated[Path | None, typer.Option("--save-scenario", help="save the run (.json)")] = None,
+    force: Annotated[bool, typer.Option("--force", help="replace existing output files")] = False,
+    quiet: Annotated[bool, typer.Option("--quiet", help="no per-step progress")] = False,
+    resampling: Annotated[str, typer.Option(help=f"{', '.join(RESAMPLING_SCHEMES)}")] = "systematic",
+    kidnap_at: Annotated[int | None, typer.Option(min=1, help="carry the robot elsewhere at this step")] = None,
     recovery: RecoveryOption = False,
     sensor_resetting: SensorResettingOption = False,
     alpha_slow: AlphaSlowOption = ALPHA_SLOW,
     alpha_fast: AlphaFastOption = ALPHA_FAST,
-    kld: Annotated[bool, typer.Option(help="KLD-sampling: adapt the particle count (--particles is the most)")] = False,
-    kld_epsilon: Annotated[float, typer.Option(help="KLD-sampling: error bound epsilon")] = KLD_EPSILON,
+    kld: Annotated[bool, typer.Option("--kld", help="KLD-sampling (--particles is the most)")] = False,
+    kld_epsilon: Annotated[float, typer.Option(help="KLD-sampling: error bound")] = KLD_EPSILON,
     kld_z: Annotated[
         float | None,
-        typer.Option(help=f"KLD-sampling: normal quantile z_(1-delta) [default: {KLD_QUANTILE:.3f}, for 99%]"),
+        typer.Option(help=f"KLD-sampling: quantile z_(1-delta) [default: {KLD_QUANTILE:.3f}]"),
     ] = None,
     init: Annotated[
         str | None,
-        typer.Option(help="ekf only: prior (the free area, global localisation) or start (track from the true start)"),
+        typer.Option(help="ekf: prior (global) or start (tracking) [default: prior]"),
     ] = None,
     viewer: ViewerOption = False,
     rrd: RrdOption = None,
@@ -267,38 +266,34 @@ def recovery_option(recovery: bool, sensor_resetting: bool, alpha_slow: float, a
 
 @app.command()
 def compare(
-    scenario: Annotated[Path, typer.Argument(help="a saved scenario json (run --save-scenario)", show_default=False)],
-    filters: Annotated[str, typer.Option(help="comma-separated filters: sir, apf, rpf, grid, ekf")] = "sir,apf,rpf",
+    scenario: Annotated[Path, typer.Argument(metavar="SCENARIO", help="a saved scenario (.json)", show_default=False)],
+    filters: Annotated[str, typer.Option(help="sir, apf, rpf, grid, ekf, comma-separated")] = "sir,apf,rpf",
     maze: Annotated[str | None, typer.Option(help="the maze, if the scenario stores none")] = None,
     sigma: Annotated[float | None, typer.Option(help="override the scenario's sigma")] = None,
     delta: Annotated[float | None, typer.Option(help="override the scenario's delta")] = None,
-    seed: Annotated[int | None, typer.Option(help="seed of the filters' draws (default: the scenario's)")] = None,
-    csv_path: Annotated[
-        Path | None, typer.Option("--csv", help="per-step errors: a row per step, a column per filter")
-    ] = None,
-    plot: Annotated[Path | None, typer.Option(help="the lab's figure, error against step (.png; plot extra)")] = None,
-    force: Annotated[bool, typer.Option(help="replace existing output files")] = False,
+    seed: Annotated[int | None, typer.Option(help="the filters' seed (default: the scenario's)")] = None,
+    csv_path: Annotated[Path | None, typer.Option("--csv", help="per-step errors, a column per filter")] = None,
+    plot: Annotated[Path | None, typer.Option(help="the lab's error figure (.png; plot extra)")] = None,
+    force: Annotated[bool, typer.Option("--force", help="replace existing output files")] = False,
     kidnap_at: Annotated[
         int | None,
-        typer.Option(min=1, help="kidnap the robot at this step: the walk before it is replayed, then new"),
+        typer.Option(min=1, help="carry the robot elsewhere at this step"),
     ] = None,
     recovery: RecoveryOption = False,
     sensor_resetting: SensorResettingOption = False,
     alpha_slow: AlphaSlowOption = ALPHA_SLOW,
     alpha_fast: AlphaFastOption = ALPHA_FAST,
-    kld: Annotated[
-        bool, typer.Option(help="KLD-sampling in the particle filters (the scenario's count is the most)")
-    ] = False,
+    kld: Annotated[bool, typer.Option("--kld", help="KLD-sampling (the scenario's count is the most)")] = False,
     viewer: ViewerOption = False,
     rrd: RrdOption = None,
     web: WebOption = False,
     no_viz: NoVizOption = False,
     max_drawn: MaxDrawnOption = DEFAULT_MAX_DRAWN,
 ) -> None:
-    """Lab steps 12-13: every filter on the same saved scenario (start, particles, angles, measurements).
+    """Lab steps 12-13: every filter on one saved scenario (the same start, particles, walk).
 
-    A kidnapping (stored in the scenario, or --kidnap-at) adds to the table whether each filter
-    re-localised (mean error below 0.5 over the last 30 steps) and the steps it took to recover."""
+    A kidnapping (stored, or --kidnap-at) adds whether each filter re-localised (mean error below 0.5
+    over the last 30 steps) and the steps it took."""
     visualize = visualization(viewer, rrd, web, no_viz, max_drawn)
     check_outputs(csv_path, plot, force, rrd)
     stored = load_scenario(scenario)
@@ -339,47 +334,37 @@ def compare(
 @app.command()
 def study(
     maze: Annotated[
-        str | None, typer.Option(help=f"maze files or names, comma-separated (default: {DEFAULT_MAZE})")
+        str | None, typer.Option(help=f"maze files or names, comma-separated [default: {DEFAULT_MAZE}]")
     ] = None,
-    maze_size: Annotated[
-        str | None, typer.Option(help="generated mazes ROWSxCOLUMNS, comma-separated (a new maze every run)")
-    ] = None,
-    stations: Annotated[str | None, typer.Option(help="station blocks of the generated mazes, comma-separated")] = None,
-    sigma: Annotated[str, typer.Option(help="measurement noise std, comma-separated values")] = str(DEFAULT_SIGMA),
-    delta: Annotated[str, typer.Option(help="compass error width (radians), comma-separated")] = str(DEFAULT_DELTA),
-    particles: Annotated[str, typer.Option(help="particle counts N_S, comma-separated")] = str(DEFAULT_PARTICLE_COUNT),
-    threshold: Annotated[str, typer.Option(help="RPF threshold N_T / N_S, comma-separated")] = str(RPF_THRESHOLD),
-    filters: Annotated[str, typer.Option(help="comma-separated filters: sir, apf, rpf, grid, ekf")] = "sir,apf,rpf",
-    kidnap_at: Annotated[int | None, typer.Option(min=1, help="kidnap the robot at this step in every run")] = None,
-    recovery: Annotated[
-        str, typer.Option(help="recovery of the particle filters, comma-separated: none, augmented, sensor")
-    ] = "none",
-    kld: Annotated[bool, typer.Option(help="KLD-sampling in the particle filters (--particles is the most)")] = False,
+    maze_size: Annotated[str | None, typer.Option(help="generated mazes ROWSxCOLUMNS, comma-separated")] = None,
+    stations: Annotated[str | None, typer.Option(help="station blocks, comma-separated")] = None,
+    sigma: Annotated[str, typer.Option(help="measurement noise std, comma-separated")] = str(DEFAULT_SIGMA),
+    delta: Annotated[str, typer.Option(help="compass error width, comma-separated")] = str(DEFAULT_DELTA),
+    particles: Annotated[str, typer.Option(help="particle counts, comma-separated")] = str(DEFAULT_PARTICLE_COUNT),
+    threshold: Annotated[str, typer.Option(help="RPF's N_T / N_S, comma-separated")] = str(RPF_THRESHOLD),
+    filters: Annotated[str, typer.Option(help="sir, apf, rpf, grid, ekf, comma-separated")] = "sir,apf,rpf",
+    kidnap_at: Annotated[int | None, typer.Option(min=1, help="carry the robot elsewhere at this step")] = None,
+    recovery: Annotated[str, typer.Option(help="none, augmented, sensor, comma-separated")] = "none",
+    kld: Annotated[bool, typer.Option("--kld", help="KLD-sampling (--particles is the most)")] = False,
     runs: Annotated[int, typer.Option(min=1, help="seeded runs per setting")] = 30,
     steps: Annotated[int, typer.Option(min=1, help="steps per run")] = DEFAULT_STEPS,
-    seed: Annotated[int | None, typer.Option(help="root seed of the study (every run's seed derives from it)")] = None,
+    seed: Annotated[int | None, typer.Option(help="the study's root seed (default: new, printed)")] = None,
     workers: Annotated[int | None, typer.Option(min=1, help="processes (default: all cores)")] = None,
     csv_path: Annotated[Path | None, typer.Option("--csv", help="one row per run and filter")] = None,
-    plot: Annotated[
-        Path | None, typer.Option(help="final error against the varied parameter (.png; plot extra)")
-    ] = None,
-    force: Annotated[bool, typer.Option(help="replace existing output files")] = False,
+    plot: Annotated[Path | None, typer.Option(help="error against the varied parameter (.png)")] = None,
+    force: Annotated[bool, typer.Option("--force", help="replace existing output files")] = False,
     viewer: ViewerOption = False,
     rrd: RrdOption = None,
     web: WebOption = False,
     no_viz: NoVizOption = False,
     max_drawn: MaxDrawnOption = DEFAULT_MAX_DRAWN,
 ) -> None:
-    """Lab step 14: a Monte Carlo study. Every combination of the comma-separated values is a setting;
-    each setting gets R seeded runs, and in each run every filter sees the same scenario.
+    """Lab step 14: a Monte Carlo study over every combination of the values given.
 
-    The table gives per setting and filter the mean final error (the mean error over the last 20% of
-    the steps) with the 95% t-interval for that mean, the share of runs that converged (error below
-    0.5 from some step on), the median convergence step of those runs, and the time per step; with
-    --kidnap-at, the share of runs that re-localised and the median steps to recover; with --kld, the
-    mean particle count. Nothing is drawn by default; --viewer, --rrd or --web draw the study's first
-    run (all its filters).
-    """
+    Each setting gets R seeded runs, every filter seeing the same scenario in a run. The table gives
+    per setting and filter the mean final error (last 20% of the steps) with its 95% t-interval, the
+    share of runs that converged and the median convergence step (README: "Parameter studies").
+    Nothing is drawn unless --viewer, --rrd or --web asks (the first run)."""
     visualize = visualization(viewer, rrd, web, no_viz, max_drawn) if viewer or web or rrd is not None else False
     check_outputs(csv_path, plot, force, rrd)
     names = parse_filters(filters)
@@ -454,7 +439,7 @@ def study_mazes(files: str | None, sizes: str | None, stations: str | None) -> l
 
 @app.command()
 def bench(
-    quick: Annotated[bool, typer.Option(help="fewer sizes and steps: about half a minute")] = False,
+    quick: Annotated[bool, typer.Option("--quick", help="fewer sizes and steps: about half a minute")] = False,
 ) -> None:
     """Measure the filters' speed (particle-steps per second) against a plain numpy reference step."""
     from mazelab.bench import run_benchmark  # only this command needs it

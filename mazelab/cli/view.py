@@ -13,7 +13,9 @@ from mazelab.viz.processes import WebServer
 
 
 def view(
-    recordings: Annotated[list[Path], typer.Argument(help="saved recordings (.rrd)", show_default=False)],
+    recordings: Annotated[
+        list[Path], typer.Argument(metavar="FILE", help="saved recordings (.rrd)", show_default=False)
+    ],
 ) -> None:
     """Serve saved recordings (.rrd) in the web viewer on 127.0.0.1 until Ctrl-C; needs no display."""
     for path in recordings:
