@@ -176,6 +176,8 @@ def run(
         sigma = DEFAULT_SIGMA if sigma is None else sigma
         delta = DEFAULT_DELTA if delta is None else delta
         seed = new_seed() if seed is None else seed
+        if start_seed is not None and start_seed != seed:
+            warnings.warn(f"--start-seed {start_seed} differs from --seed {seed}: repeat with both", stacklevel=1)
         robot = Robot(sigma, delta, start_place(world, seed if start_seed is None else start_seed))
         init_particles, particles_arg, steps_arg = None, particles, steps or DEFAULT_STEPS
     total = steps_arg or robot.recorded_steps
