@@ -169,3 +169,11 @@ def test_mazelab_view_serves_a_recording_on_localhost(tmp_path, capsys):
         out, err = process.communicate(timeout=30)
     assert process.returncode == 0 and "Traceback" not in err
     assert "Stopped serving" in out
+
+
+def test_the_demo_prints_a_command_that_repeats_it(capsys):
+    demo = run_output(capsys, ["--no-viz"])
+    command = re.search(r"Repeat this run: mazelab (run --seed \d+)", demo).group(1).split()
+    summary = [line for line in demo.splitlines() if line.startswith("SIRParticleFilter: final error")]
+    again = run_output(capsys, [*command, "--no-viz", "--quiet"])
+    assert summary == again.splitlines()

@@ -111,7 +111,7 @@ def demo(
     typer.echo(f"Repeat this run: mazelab run --seed {seed}")
 
 
-@app.command()
+@app.command(short_help="One filter on a lost robot, or on a saved scenario.")
 def run(
     maze: Annotated[str | None, typer.Option(help=f"a maze file or a name in mazes/ [default: {DEFAULT_MAZE}]")] = None,
     filter_name: Annotated[str, typer.Option("--filter", help="sir, apf, rpf, grid, ekf")] = "sir",
@@ -266,7 +266,7 @@ def recovery_option(recovery: bool, sensor_resetting: bool, alpha_slow: float, a
     return Recovery("sensor" if sensor_resetting else "augmented", alpha_slow, alpha_fast)
 
 
-@app.command()
+@app.command(short_help="Lab steps 12-13: every filter on one saved scenario.")
 def compare(
     scenario: Annotated[Path, typer.Argument(metavar="SCENARIO", help="a saved scenario (.json)", show_default=False)],
     filters: Annotated[str, typer.Option(help="sir, apf, rpf, grid, ekf, comma-separated")] = "sir,apf,rpf",
@@ -333,7 +333,7 @@ def compare(
         typer.echo(f"figure written to {plot}")
 
 
-@app.command()
+@app.command(short_help="Lab step 14: a Monte Carlo parameter study.")
 def study(
     maze: Annotated[
         str | None, typer.Option(help=f"maze files or names, comma-separated [default: {DEFAULT_MAZE}]")
@@ -418,7 +418,7 @@ def study(
 
 
 app.add_typer(maze_app, name="maze")
-app.command()(view)
+app.command(short_help="A saved recording in the web viewer on 127.0.0.1.")(view)
 
 
 def study_mazes(files: str | None, sizes: str | None, stations: str | None) -> list[MazeChoice]:
@@ -439,7 +439,7 @@ def study_mazes(files: str | None, sizes: str | None, stations: str | None) -> l
     return mazes or [MazeChoice.from_maze(DEFAULT_MAZE, load_maze(DEFAULT_MAZE))]
 
 
-@app.command()
+@app.command(short_help="The filters' speed against a plain numpy step.")
 def bench(
     quick: Annotated[bool, typer.Option("--quick", help="fewer sizes and steps: about half a minute")] = False,
 ) -> None:

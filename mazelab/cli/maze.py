@@ -20,7 +20,7 @@ maze_app = typer.Typer(
 )
 
 
-@maze_app.command("generate")
+@maze_app.command("generate", short_help="A random maze with a connected free area.")
 def maze_generate(
     size: Annotated[str, typer.Option(help="ROWSxCOLUMNS")] = "10x10",
     stations: Annotated[
@@ -49,7 +49,7 @@ def maze_generate(
         typer.echo(f"{maze_generator.describe_maze(world)}; written to {out}")
 
 
-@maze_app.command("show")
+@maze_app.command("show", short_help="Print a maze; --viewer, --rrd or --web draw it.")
 def maze_show(
     path: Annotated[str, typer.Argument(metavar="MAZE", help="a maze file, or a name in mazes/", show_default=False)],
     viewer: ViewerOption = False,
