@@ -177,3 +177,18 @@ def test_the_demo_prints_a_command_that_repeats_it(capsys):
     summary = [line for line in demo.splitlines() if line.startswith("SIRParticleFilter: final error")]
     again = run_output(capsys, [*command, "--no-viz", "--quiet"])
     assert summary == again.splitlines()
+
+
+def test_step_10_reads_the_papers_file_and_an_old_place_is_named(tmp_path, monkeypatch, paper_world):
+    from particle_filter import load_scenario, run_model
+
+    monkeypatch.chdir(tmp_path)
+    robot = Robot(0.3, 0.5, (3.5, 3.5))
+    run_model(robot, paper_world, 0.3, 0.5, 100, 5, save_parameters=True, seed=1, visualize=False)
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["model_parameters.json"]
+    with open("model_parameters.json") as file:  # the paper's step 10, word for word
+        assert list(json.load(file))[:4] == PAPER_KEYS
+    (tmp_path / "model_parameters").mkdir()
+    (tmp_path / "model_parameters.json").rename(tmp_path / "model_parameters" / "model_parameters.json")
+    with pytest.raises(ValueError, match=r"no such scenario file \(older versions saved to model_parameters/"):
+        load_scenario("model_parameters.json")
