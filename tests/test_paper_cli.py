@@ -192,3 +192,11 @@ def test_step_10_reads_the_papers_file_and_an_old_place_is_named(tmp_path, monke
     (tmp_path / "model_parameters.json").rename(tmp_path / "model_parameters" / "model_parameters.json")
     with pytest.raises(ValueError, match=r"no such scenario file \(older versions saved to model_parameters/"):
         load_scenario("model_parameters.json")
+
+
+def test_mazelab_view_refuses_what_is_not_a_recording(tmp_path, capsys):
+    (tmp_path / "s.json").write_text("{}")
+    for name in ("s.json", "missing.rrd"):
+        assert main(["view", str(tmp_path / name)]) == 2
+        (line,) = capsys.readouterr().err.splitlines()
+        assert line.startswith(f"error: {tmp_path / name}: ")

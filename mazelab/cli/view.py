@@ -1,5 +1,5 @@
-"""`mazelab view FILE`: serve saved recordings in the web viewer on 127.0.0.1, for a machine without
-a display (over ssh: forward the port, then open the printed address)."""
+"""`mazelab view FILE`: serve a saved recording in the web viewer on 127.0.0.1, for a machine without
+a display (over ssh: forward the two ports, then open the printed address)."""
 
 from __future__ import annotations
 
@@ -11,19 +11,32 @@ import typer
 from mazelab.cli.options import UserError
 from mazelab.viz.processes import WebServer
 
+RRD_MAGIC = b"RRF2"  # the first bytes of a Rerun recording file
+
 
 def view(
-    recordings: Annotated[
-        list[Path], typer.Argument(metavar="FILE", help="saved recordings (.rrd)", show_default=False)
-    ],
+    recording: Annotated[Path, typer.Argument(metavar="FILE", help="a saved recording (.rrd)", show_default=False)],
 ) -> None:
-    """Serve saved recordings (.rrd) in the web viewer on 127.0.0.1 until Ctrl-C; needs no display."""
-    for path in recordings:
-        if not path.is_file():
-            raise UserError(f"{path}: no such recording file")
-    server = WebServer.start(recordings)
-    print(f"Serving {', '.join(str(path) for path in recordings)}")
+    """Serve a saved recording (.rrd) in the web viewer on 127.0.0.1 until Ctrl-C; needs no display."""
+    if not recording.is_file():
+        raise UserError(f"{recording}: no such recording file")
+    if not is_recording(recording):
+        raise UserError(f"{recording}: not a Rerun recording (.rrd)")
+    try:
+        server = WebServer.start([recording])
+    except (RuntimeError, OSError) as error:
+        raise UserError(f"{recording}: cannot serve it ({error})") from None
+    print(f"Serving {recording}")
     server.serve_until_interrupted()
 
 
-__all__ = ["view"]
+def is_recording(path: Path) -> bool:
+    """Whether the file starts as an .rrd recording does (Rerun's 'RRF2' header)."""
+    try:
+        with path.open("rb") as file:
+            return file.read(4) == RRD_MAGIC
+    except OSError:
+        return False
+
+
+__all__ = ["is_recording", "view"]
