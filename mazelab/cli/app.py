@@ -17,7 +17,6 @@ import warnings
 from pathlib import Path
 from typing import Annotated, Any
 
-import numpy as np
 import typer
 
 from mazelab import maze_generator
@@ -42,6 +41,7 @@ from mazelab.cli.options import (
     visualization,
     warn_in_one_line,
 )
+from mazelab.cli.replay import from_scenario, refuse_counts_for_replay, replay_seed, start_place
 from mazelab.cli.reports import kidnap_report, particle_count_report, progress_printer, report_run
 from mazelab.cli.view import view
 from mazelab.experiments.compare import compare_filters, comparison_table, errors_csv, plot_errors
@@ -53,14 +53,14 @@ from mazelab.experiments.summary import describe_setting, plot_study, study_csv,
 from mazelab.filters import ParticleFilter
 from mazelab.kalman import EKF_INITS, ExtendedKalmanFilter
 from mazelab.lab import simulate
-from mazelab.maze import Maze, MazeError
-from mazelab.mazes import DEFAULT_MAZE, find_maze, load_maze, mazes_fitting
+from mazelab.maze import MazeError
+from mazelab.mazes import DEFAULT_MAZE, find_maze, load_maze
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, RPF_THRESHOLD
 from mazelab.recovery import ALPHA_FAST, ALPHA_SLOW, Recovery
 from mazelab.registry import resolve_filter
 from mazelab.resampling import KLD_EPSILON, KLD_QUANTILE, RESAMPLING_SCHEMES, KLDSampling
 from mazelab.robot import Robot
-from mazelab.scenario import Scenario, ScenarioError, load_scenario, save_scenario
+from mazelab.scenario import ScenarioError, load_scenario, save_scenario
 from mazelab.simulation import new_seed
 from mazelab.viz.style import DEFAULT_MAX_DRAWN
 
@@ -202,30 +202,6 @@ def run(
             typer.echo(line)
     if save_scenario_path is not None:
         typer.echo(f"scenario saved to {save_scenario(result.scenario, save_scenario_path)}")
-
-
-def start_place(world: Maze, seed: int) -> tuple[float, float]:
-    """The robot's start of a fresh run: a free place drawn from the run's seed (as a study's runs
-    do), so that one seed repeats the whole run."""
-    return world.random_free_place(np.random.default_rng(seed))
-
-
-def replay_seed(stored: Scenario, seed: int | None) -> int:
-    """The seed of a replay: --seed, else the scenario's own (as compare uses), else a new one."""
-    return seed if seed is not None else stored.seed if stored.seed is not None else new_seed()
-
-
-def refuse_counts_for_replay(
-    stored: Scenario, particles: int | None, steps: int | None, start_seed: int | None
-) -> None:
-    """A replay takes its particles, steps and start from the scenario: refuse flags that would be ignored."""
-    given = [flag for flag, value in (("--particles", particles), ("--steps", steps), ("--start-seed", start_seed))
-             if value is not None]  # fmt: skip
-    if given:
-        raise UserError(
-            f"{' and '.join(given)} cannot change a replayed scenario (it has {len(stored.init_particles_pos)} "
-            f"particles and {len(stored.robot_actual_angles)} steps); leave {'them' if len(given) > 1 else 'it'} out"
-        )
 
 
 def filter_options(
@@ -449,44 +425,6 @@ def bench(
     run_benchmark(load_maze(DEFAULT_MAZE), quick=quick, echo=typer.echo)
 
 
-def from_scenario(
-    scenario: Scenario, maze: str | None, sigma: float | None, delta: float | None
-) -> tuple[Maze, Robot, float, float, list]:
-    """World, robot, sigma, delta and particles of a saved scenario; flags override stored values.
-    A scenario without a maze (the paper's four keys) runs on --maze, or on the one shipped maze
-    its start and particles fit; missing sigma and delta take the defaults, and a line says so."""
-    stored = scenario.world()
-    world = stored if stored is not None else load_maze(maze) if maze is not None else fitting_maze(scenario)
-    if stored is not None and maze is not None:
-        given = load_maze(maze)
-        if not np.array_equal(given.grid, stored.grid):
-            raise UserError(f"the scenario's maze differs from {given.source}; leave out --maze to use the stored one")
-    defaults = [f"{name} {value:g}" for name, value, flag, kept in (
-        ("sigma", DEFAULT_SIGMA, sigma, scenario.sigma), ("delta", DEFAULT_DELTA, delta, scenario.delta)
-    ) if flag is None and kept is None]  # fmt: skip
-    if defaults:
-        typer.echo(f"warning: the scenario stores no {' or '.join(d.split()[0] for d in defaults)}: using the "
-                   f"default {', '.join(defaults)} (--sigma/--delta choose)", err=True)  # fmt: skip
-    sigma = sigma if sigma is not None else scenario.sigma if scenario.sigma is not None else DEFAULT_SIGMA
-    delta = delta if delta is not None else scenario.delta if scenario.delta is not None else DEFAULT_DELTA
-    robot = scenario.robot(sigma, delta)
-    return world, robot, sigma, delta, scenario.init_particles_pos
-
-
-def fitting_maze(scenario: Scenario) -> Maze:
-    """The shipped maze of a scenario that stores none: the only one whose free area holds its start
-    and every particle; with none or several, a one-line refusal asking for --maze."""
-    fitting = mazes_fitting(scenario.init_robot_pos, np.asarray(scenario.init_particles_pos))
-    if len(fitting) != 1:
-        which = "no shipped maze fits" if not fitting else f"several shipped mazes fit ({', '.join(fitting)})"
-        raise UserError(
-            f"the scenario stores no maze and {which} its start and particles: "
-            "pass --maze (and --sigma/--delta if they differ from the defaults)"
-        )
-    typer.echo(f"warning: the scenario stores no maze: using {fitting[0]}, the one shipped maze it fits", err=True)
-    return load_maze(fitting[0])
-
-
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; problems with the input end as one line on stderr and exit code 2."""
     warnings.showwarning = warn_in_one_line
@@ -514,7 +452,6 @@ __all__ = [
     "compare",
     "demo",
     "filter_options",
-    "fitting_maze",
     "from_scenario",
     "kalman_options",
     "main",
