@@ -151,7 +151,14 @@ def test_every_help_fits_one_screen_of_80_columns(monkeypatch, capsys):
             assert "[default: maze_10x10]" in " ".join(text.split())  # rich took it for markup and hid it
 
 
-def test_mazelab_view_serves_a_recording_on_localhost(tmp_path, capsys):
+def children(pid: int) -> list[int]:
+    """The child processes of `pid` (Linux's /proc)."""
+    return [int(child) for task in os.listdir(f"/proc/{pid}/task")
+            for child in open(f"/proc/{pid}/task/{task}/children").read().split()]  # fmt: skip
+
+
+@pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM])
+def test_mazelab_view_serves_a_recording_on_localhost(tmp_path, capsys, stop):
     path = tmp_path / "run.rrd"
     run_output(capsys, ["run", "--maze", "paper_5x5", "--steps", "3", "--particles", "50", "--seed", "1",
                         "--quiet", "--rrd", str(path)])  # fmt: skip
@@ -164,11 +171,13 @@ def test_mazelab_view_serves_a_recording_on_localhost(tmp_path, capsys):
         url = re.search(r"(http://127\.0\.0\.1:\d+/\S*);", lines[1]).group(1)
         with urllib.request.urlopen(url, timeout=10) as page:
             assert page.status == 200 and b"Rerun" in page.read()
+        (server,) = children(process.pid)
     finally:
-        process.send_signal(signal.SIGINT)
+        process.send_signal(stop)
         out, err = process.communicate(timeout=30)
     assert process.returncode == 0 and "Traceback" not in err
     assert "Stopped serving" in out
+    assert not os.path.exists(f"/proc/{server}")  # the rerun server ended with it
 
 
 def test_the_demo_prints_a_command_that_repeats_it(capsys):

@@ -3,6 +3,7 @@ a display (over ssh: forward the two ports, then open the printed address)."""
 
 from __future__ import annotations
 
+import signal
 from pathlib import Path
 from typing import Annotated
 
@@ -27,7 +28,20 @@ def view(
     except (RuntimeError, OSError) as error:
         raise UserError(f"{recording}: cannot serve it ({error})") from None
     print(f"Serving {recording}")
+    stop_on_termination()
     server.serve_until_interrupted()
+
+
+def stop_on_termination() -> None:
+    """SIGTERM and SIGHUP (`timeout`, a closed terminal) stop serving as Ctrl-C does, so the server
+    process ends with this one instead of holding its ports."""
+
+    def interrupt(_signum: int, _frame: object) -> None:
+        raise KeyboardInterrupt
+
+    for name in ("SIGTERM", "SIGHUP"):
+        if hasattr(signal, name):
+            signal.signal(getattr(signal, name), interrupt)
 
 
 def is_recording(path: Path) -> bool:
@@ -39,4 +53,4 @@ def is_recording(path: Path) -> bool:
         return False
 
 
-__all__ = ["is_recording", "view"]
+__all__ = ["is_recording", "stop_on_termination", "view"]
