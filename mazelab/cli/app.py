@@ -119,9 +119,9 @@ def run(
         int | None, typer.Option(min=1, help=f"particle count N_S [default: {DEFAULT_PARTICLE_COUNT}]")
     ] = None,
     steps: Annotated[int | None, typer.Option(min=1, help=f"number of steps [default: {DEFAULT_STEPS}]")] = None,
-    sigma: Annotated[float | None, typer.Option(help=f"measurement noise std [default: {DEFAULT_SIGMA}]")] = None,
+    sigma: Annotated[float | None, typer.Option(help=f"noise std, lab 0.2-0.8 [default: {DEFAULT_SIGMA}]")] = None,
     delta: Annotated[
-        float | None, typer.Option(help=f"compass error width, radians [default: {DEFAULT_DELTA}]")
+        float | None, typer.Option(help=f"compass error, rad, lab 0.05-0.6 [default: {DEFAULT_DELTA}]")
     ] = None,
     seed: Annotated[
         int | None,
