@@ -105,6 +105,11 @@ def test_a_scenario_that_fits_several_mazes_or_none_is_refused_with_one_line(tmp
                                 "robot_actual_angles": [0.0], "robot_compass_angles": [0.0]}))  # fmt: skip
     assert main(["compare", str(path), "--no-viz"]) == 2
     assert "no shipped maze fits" in capsys.readouterr().err
+    assert main(["compare", str(path), "--no-viz", "--maze", "maze_20x20", "--filters", "sir"]) == 2
+    error = capsys.readouterr().err.splitlines()[-1]  # far off any map: refused by the bounds, not guessed
+    assert error.startswith("error: init_particles_pos[0]")
+    path.write_text(json.dumps({"init_robot_pos": [0.5, 0.5], "init_particles_pos": [[7.5, 7.5]],
+                                "robot_actual_angles": [0.0], "robot_compass_angles": [0.0]}))  # fmt: skip
     assert main(["compare", str(path), "--no-viz", "--maze", "paper_5x5", "--filters", "sir"]) == 0  # only warns
 
 
