@@ -7,7 +7,6 @@ mazelab.atomic: whole or not at all, under its own temporary name, every write e
 from __future__ import annotations
 
 import os
-import shlex
 import sys
 import uuid
 from collections.abc import Iterator, Sequence
@@ -20,7 +19,7 @@ import numpy as np
 
 from mazelab.atomic import WriteError, write_bytes_atomically
 from mazelab.maze import EMPTY, Maze
-from mazelab.viz.processes import WebServer, hold_stop_signals, native_viewer, release_stop_signals
+from mazelab.viz.processes import WebServer, hold_stop_signals, native_viewer, open_hint, release_stop_signals
 from mazelab.viz.style import (
     APPLICATION_ID,
     FREE_COLOR,
@@ -33,7 +32,7 @@ from mazelab.viz.style import (
     STATION_RADIUS,
     WALL_COLOR,
 )
-from mazelab.viz.targets import default_recording_path, next_free_name, resolve_target
+from mazelab.viz.targets import default_recording_path, has_display, next_free_name, resolve_target
 
 RERUN_OFF_NOTE = "Rerun is switched off (RERUN=off in the environment): nothing is recorded"
 _deferred_errors: ContextVar[list[WriteError] | None] = ContextVar("deferred_write_errors", default=None)
@@ -178,7 +177,7 @@ class Recording:
                     raise
                 deferred.append(error)
                 return
-        print(f"Recording saved to {self.path}; open it with: rerun {shlex.quote(str(self.path))}")
+        print(f"Recording saved to {self.path}; open it with: {open_hint(self.path, has_display())}")
 
 
 def rerun_switched_off() -> bool:
