@@ -22,6 +22,14 @@ RecoveryOption = Annotated[bool, typer.Option(help="augmented MCL: inject unifor
 SensorResettingOption = Annotated[bool, typer.Option(help="augmented MCL injecting particles that match z")]
 AlphaSlowOption = Annotated[float, typer.Option(help="recovery: rate of the long-term likelihood average")]
 AlphaFastOption = Annotated[float, typer.Option(help="recovery: rate of the short-term likelihood average")]
+# The RPF's kernel and the point estimate (mazelab.regularisation, mazelab.modes): on run, compare and study.
+BandwidthOption = Annotated[
+    str,
+    typer.Option(help="RPF kernel bandwidth: optimal (the paper's h_opt), multimodal (one kernel per mode) or h"),
+]
+EstimateOption = Annotated[
+    str, typer.Option(help="point estimate: mean (the paper's posterior mean) or mode (the heaviest mode's mean)")
+]
 ViewerOption = Annotated[bool, typer.Option("--viewer", help="open the native Rerun viewer (default with a display)")]
 RrdOption = Annotated[Path | None, typer.Option("--rrd", help="save the Rerun recording to this file")]
 WebOption = Annotated[bool, typer.Option("--web", help="serve the web viewer on 127.0.0.1")]
@@ -92,6 +100,8 @@ __all__ = [
     "DEFAULT_SIGMA",
     "AlphaFastOption",
     "AlphaSlowOption",
+    "BandwidthOption",
+    "EstimateOption",
     "MaxDrawnOption",
     "NoVizOption",
     "RecoveryOption",
