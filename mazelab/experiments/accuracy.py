@@ -65,17 +65,13 @@ def run_accuracy_task(task: AccuracyTask) -> list[AccuracyRecord]:
         particles = np.array(exact.scenario.init_particles_pos)
         records = []
         for label, name, options in ACCURACY_FILTERS:
-            result = (
-                exact
-                if name == "grid"
-                else simulate(
-                    robot, world, task.sigma, task.delta, None, task.steps, particles, name, seed=task.seed, **options
-                )  # fmt: skip
-            )
-            distance = np.hypot(*(result.estimates - exact.estimates)[window].T).mean()
-            records.append(
-                AccuracyRecord(task.maze, task.seed, label, float(distance), convergence_step(result.errors))
-            )
+            if name == "grid":
+                result = exact
+            else:
+                args = (robot, world, task.sigma, task.delta, None, task.steps, particles, name)
+                result = simulate(*args, seed=task.seed, **options)
+            distance = float(np.hypot(*(result.estimates - exact.estimates)[window].T).mean())
+            records.append(AccuracyRecord(task.maze, task.seed, label, distance, convergence_step(result.errors)))
     return records
 
 
