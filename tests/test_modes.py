@@ -17,7 +17,13 @@ from mazelab.grid_filter import GridBayesFilter
 from mazelab.lab import simulate
 from mazelab.maze import Maze
 from mazelab.modes import cluster_labels, find_modes, label_components
-from mazelab.regularisation import MIN_CLUSTER_VARIANCE, check_bandwidth, mixture_kernel, optimal_bandwidth
+from mazelab.regularisation import (
+    MIN_CLUSTER_VARIANCE,
+    MIXTURE_SHRINK,
+    check_bandwidth,
+    mixture_kernel,
+    optimal_bandwidth,
+)
 from mazelab.robot import Robot
 from mazelab.viz.style import MODE_DRAWN_SHARE, MODE_MIN_RADIUS, entity_name
 
@@ -133,8 +139,8 @@ def test_a_bad_bandwidth_is_one_clear_error(bad):
 
 
 def test_the_mixture_kernel_jitters_each_mode_by_its_own_covariance(rng):
-    """Cluster c of n_c points gets h_opt(n_c) D_c eps: the jitter's sample covariance in c is
-    h_opt(n_c)^2 S_c, within 5 standard errors (a variance estimate from n points has relative
+    """Cluster c of n_c points gets h_c D_c eps, h_c = MIXTURE_SHRINK h_opt(n_c): the jitter's sample
+    variances in c are h_c^2 diag(S_c), within 5 standard errors (a variance estimate from n points has relative
     standard error sqrt(2 / n))."""
     a = rng.normal((2.0, 2.0), (0.2, 0.1), (8000, 2))
     b = rng.normal((9.0, 2.0), (0.05, 0.3), (2000, 2))
@@ -144,7 +150,7 @@ def test_the_mixture_kernel_jitters_each_mode_by_its_own_covariance(rng):
     for cluster in (slice(0, 8000), slice(8000, None)):
         p, j = points[cluster], jitter[cluster]
         n = len(p)
-        expected = optimal_bandwidth(n) ** 2 * np.maximum(np.var(p, axis=0), MIN_CLUSTER_VARIANCE)
+        expected = (MIXTURE_SHRINK * optimal_bandwidth(n)) ** 2 * np.maximum(np.var(p, axis=0), MIN_CLUSTER_VARIANCE)
         np.testing.assert_allclose(np.var(j, axis=0), expected, rtol=5 * math.sqrt(2 / n))
 
 
