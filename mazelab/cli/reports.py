@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import sys
+import time
 from typing import Any
 
 import numpy as np
@@ -9,20 +11,25 @@ import typer
 
 from mazelab.experiments.kidnapping import recovery_steps
 from mazelab.experiments.runs import final_error
+from mazelab.maze import Maze
 from mazelab.robot import Robot
 from mazelab.simulation import RunResult
 
 
 def summarise(result: RunResult) -> str:
-    """A short report of a run: final error, convergence step, time per step."""
+    """A short report of a run: final error, convergence step, seed (the same for the same seed)."""
     errors = result.errors
     converged = result.converged_at
     when = f"converged at step {converged} (error < 0.5 from then on)" if converged else "not converged"
     return (
         f"{result.filter_name}: final error {errors[-1]:.3f}, mean error over the last 20% "
-        f"{final_error(errors):.3f}; {when}; "
-        f"{1e3 * result.step_seconds.mean():.2f} ms per step; seed {result.scenario.seed}"
+        f"{final_error(errors):.3f}; {when}; seed {result.scenario.seed}"
     )
+
+
+def report_run(result: RunResult) -> None:
+    """The run's summary: the same text for the same seed (timings, which vary, are compare's and bench's)."""
+    typer.echo(summarise(result))
 
 
 def progress_printer(steps: int, every: int = 20) -> Any:
@@ -35,6 +42,45 @@ def progress_printer(steps: int, every: int = 20) -> Any:
             typer.echo(f"  step {k:4d}/{steps}: error {error:6.3f}  ({state})")
 
     return report
+
+
+LOOKUP_PROGRESS_CELLS = 2**18  # a nearest-station table this large takes seconds: say so while building it
+GENERATE_PROGRESS_CELLS = 2**18  # generating a maze this large takes seconds (512 x 512)
+
+
+def prepare_world(world: Maze, min_cells: int = LOOKUP_PROGRESS_CELLS) -> Maze:
+    """Build a large maze's nearest-station table up front, with a progress line on stderr (a 1000 x
+    1000 maze takes tens of seconds); a small maze's table is built on first use, silently."""
+    if world.lookup_cells >= min_cells and not world.has_lookup:
+        world.prepare(ProgressLine(f"building the nearest-station table of {world.source}"))
+    return world
+
+
+def generation_progress(rows: int, columns: int) -> ProgressLine | None:
+    """A progress line for generating a large maze (None for a small one, made in a blink)."""
+    return ProgressLine(f"generating a {rows}x{columns} maze") if rows * columns >= GENERATE_PROGRESS_CELLS else None
+
+
+class ProgressLine:
+    """progress(done, total) as one line on stderr: redrawn in place on a terminal, else a line at the
+    start and one at the end (a log file gets no carriage returns)."""
+
+    def __init__(self, what: str):
+        self.what = what
+        self.started = time.perf_counter()
+        self.shown = -1  # the last percentage drawn
+        self.terminal = sys.stderr.isatty()
+        typer.echo(f"{what} ...", err=True, nl=not self.terminal)
+
+    def __call__(self, done: int, total: int) -> None:
+        percent = 100 * done // max(total, 1)
+        if done == total:
+            seconds = time.perf_counter() - self.started
+            start = "\r" if self.terminal else ""
+            typer.echo(f"{start}{self.what}: done in {seconds:.1f} s", err=True)
+        elif self.terminal and percent != self.shown:
+            typer.echo(f"\r{self.what}: {percent}%", err=True, nl=False)
+        self.shown = percent
 
 
 def kidnap_report(result: RunResult) -> str | None:
@@ -55,8 +101,14 @@ def particle_count_report(result: RunResult) -> str:
 
 
 __all__ = [
+    "GENERATE_PROGRESS_CELLS",
+    "LOOKUP_PROGRESS_CELLS",
+    "ProgressLine",
+    "generation_progress",
     "kidnap_report",
     "particle_count_report",
+    "prepare_world",
     "progress_printer",
+    "report_run",
     "summarise",
 ]
