@@ -341,7 +341,7 @@ def study(
     ] = None,
     maze_size: Annotated[str | None, typer.Option(help="generated mazes ROWSxCOLUMNS, comma-separated")] = None,
     stations: Annotated[str | None, typer.Option(help="station blocks, comma-separated")] = None,
-    sigma: Annotated[str, typer.Option(help="measurement noise std, comma-separated")] = str(DEFAULT_SIGMA),
+    sigma: Annotated[str, typer.Option(help="noise std sigma, comma-separated")] = str(DEFAULT_SIGMA),
     delta: Annotated[str, typer.Option(help="compass error width, comma-separated")] = str(DEFAULT_DELTA),
     particles: Annotated[str, typer.Option(help="particle counts, comma-separated")] = str(DEFAULT_PARTICLE_COUNT),
     threshold: Annotated[str, typer.Option(help="RPF's N_T / N_S, comma-separated")] = str(RPF_THRESHOLD),
@@ -349,9 +349,7 @@ def study(
     kidnap_at: Annotated[int | None, typer.Option(min=1, help="carry the robot elsewhere at this step")] = None,
     recovery: Annotated[str, typer.Option(help="none, augmented, sensor, comma-separated")] = "none",
     kld: Annotated[bool, typer.Option("--kld", help="KLD-sampling (--particles is the most)")] = False,
-    bandwidth: Annotated[str, typer.Option(help="RPF kernel: optimal, multimodal or numbers h, comma-separated")] = (
-        "optimal"
-    ),
+    bandwidth: Annotated[str, typer.Option(help="RPF kernels: optimal, multimodal, h", show_default=False)] = "optimal",
     estimate: EstimateOption = "mean",
     runs: Annotated[int, typer.Option(min=1, help="seeded runs per setting")] = 30,
     steps: Annotated[int, typer.Option(min=1, help="steps per run")] = DEFAULT_STEPS,
@@ -448,6 +446,8 @@ def accuracy(
 
     names = parse_list(maze, str, "--maze") if maze is not None else sorted(p.stem for p in MAZES_DIR.glob("*.txt"))
     check_model_parameters(sigma, delta)
+    check_steps(steps)
+    check_particles(particles)
     tasks = accuracy_tasks([(n, load_maze(n)) for n in names], runs, sigma, delta, particles, steps, seed)
     typer.echo(
         f"Accuracy: {len(names)} maze(s) x {runs} runs, sigma {sigma:g}, delta {delta:g}, {particles} particles, "
