@@ -13,6 +13,8 @@ from typing import Any
 
 from mazelab.experiments.study import RunFailure, RunRecord, RunTask, StudyOutcome, run_task, run_task_safely
 
+QUEUED_PER_WORKER = 4  # tasks queued per worker process at a time
+
 
 def default_workers() -> int:
     """All the cores this process may use."""
@@ -65,11 +67,20 @@ def _run_in_pool(
     advance: Callable[[], None],
 ) -> None:
     """Tasks on a process pool (the drawn ones here meanwhile); on Ctrl-C, cancel what has not
-    started, let the running tasks finish, and keep every finished result."""
+    started, let the running tasks finish, and keep every finished result. A few tasks per worker are
+    queued at a time, so that a large study starts at once and Ctrl-C never meets a long submission."""
     pool = ProcessPoolExecutor(max_workers=min(workers, len(tasks)), initializer=_ignore_sigint)
     pending: dict[Future, RunTask] = {}
+    queue = iter(tasks)
+
+    def submit_next() -> None:
+        task = next(queue, None)
+        if task is not None:
+            pending[pool.submit(run_task_safely, task)] = task
+
     try:
-        pending = {pool.submit(run_task_safely, task): task for task in tasks}
+        for _ in range(QUEUED_PER_WORKER * workers):
+            submit_next()
         for task in drawn:
             outcome.add(_draw_task(task, visualize))
             advance()
@@ -78,6 +89,7 @@ def _run_in_pool(
             for future in done:
                 outcome.add(_result_of(future, pending.pop(future)))
                 advance()
+                submit_next()
     finally:  # also on Ctrl-C: the workers ignore it and finish their current run
         pool.shutdown(wait=True, cancel_futures=True)
         for future, task in pending.items():
