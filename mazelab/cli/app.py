@@ -21,7 +21,7 @@ from typing import Annotated, Any
 import typer
 
 from mazelab import maze_generator
-from mazelab.atomic import write_text_atomically
+from mazelab.atomic import WriteError, write_text_atomically
 from mazelab.cli.maze import maze_app
 from mazelab.cli.options import (
     DEFAULT_DELTA,
@@ -68,6 +68,7 @@ from mazelab.resampling import KLD_EPSILON, KLD_QUANTILE, RESAMPLING_SCHEMES, KL
 from mazelab.robot import Robot
 from mazelab.scenario import ScenarioError, load_scenario, save_scenario
 from mazelab.simulation import new_seed
+from mazelab.viz.recording import write_errors_deferred
 from mazelab.viz.style import DEFAULT_MAX_DRAWN
 
 app = typer.Typer(
@@ -492,20 +493,32 @@ def bench(
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run the CLI; problems with the input end as one line on stderr and exit code 2."""
+    """Run the CLI; problems with the input end as one line on stderr and exit code 2, a file that
+    cannot be written as one line and exit code 1 (after the results are printed)."""
     warnings.showwarning = warn_in_one_line
     try:
-        code = app(args=argv, standalone_mode=False)
+        with write_errors_deferred():
+            code = app(args=argv, standalone_mode=False)
     except typer.TyperException as error:  # typer's usage errors: bad option, bad value, missing argument
         typer.echo(f"error: {error.format_message()}", err=True)
         return 2
     except (UserError, MazeError, ScenarioError, ValueError) as error:
         typer.echo(f"error: {error}", err=True)
         return 2
+    except OSError as error:  # a full disk, a file size limit, a read-only folder, a name too long
+        typer.echo(f"error: {describe_os_error(error)}", err=True)
+        return 1
     except (KeyboardInterrupt, typer.Abort):
         typer.echo("interrupted", err=True)
         return 130
     return code if isinstance(code, int) else 0
+
+
+def describe_os_error(error: OSError) -> str:
+    """One line naming the file and the cause."""
+    if isinstance(error, WriteError) or error.filename is None:
+        return str(error)
+    return f"{error.filename}: {error.strerror or error}"
 
 
 if __name__ == "__main__":
@@ -518,6 +531,7 @@ __all__ = [
     "bench",
     "compare",
     "demo",
+    "describe_os_error",
     "estimate_options",
     "filter_options",
     "from_scenario",

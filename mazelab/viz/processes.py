@@ -1,13 +1,23 @@
-"""The Rerun processes this program starts (native viewer, web viewer), on 127.0.0.1 only."""
+"""The Rerun processes this program starts (native viewer, web viewer), on 127.0.0.1 only.
+
+A process that belongs to this run (the web viewer's server) ends with it: on Ctrl-C, and on SIGTERM
+or SIGHUP (a closed terminal, `timeout`, a stopped notebook kernel), which stop it and end the program
+through its `finally` clauses (as Ctrl-C does, so a recording keeps the steps done). A detached
+native viewer outlives the program on purpose.
+"""
 
 from __future__ import annotations
 
+import atexit
+import contextlib
 import importlib.util
 import os
 import shlex
 import shutil
+import signal
 import socket
 import subprocess
+import threading
 import time
 import urllib.parse
 from collections.abc import Sequence
@@ -15,6 +25,11 @@ from pathlib import Path
 from typing import Any
 
 VIEWER_PORT = 9876  # the native viewer's gRPC port, rerun's default: later runs reuse its window
+STOP_SIGNALS = ("SIGTERM", "SIGHUP")  # besides Ctrl-C, what ends this program and must end its children
+
+_children: set[Any] = set()  # the running processes that end with this program
+_holders: set[object] = set()  # while any: SIGTERM/SIGHUP handled by us (see hold_stop_signals)
+_previous_handlers: dict[int, Any] = {}
 
 
 def viewer_executable() -> str:
@@ -50,6 +65,8 @@ def start_rerun(
         stderr=subprocess.DEVNULL,
         start_new_session=detached,  # a detached viewer outlives this program (and its Ctrl-C)
     )
+    if not detached:
+        end_with_this_program(process)
     deadline = time.monotonic() + timeout
     while not all(listening(port) for port in ports):
         if process.poll() is not None or time.monotonic() > deadline:
@@ -80,6 +97,68 @@ def stop_process(process: Any) -> None:
         except subprocess.TimeoutExpired:
             process.kill()
             process.wait()
+    _children.discard(process)
+    release_stop_signals(process)
+
+
+def end_with_this_program(process: Any) -> None:
+    """Stop `process` when SIGTERM or SIGHUP ends this program (Ctrl-C is handled where it waits)."""
+    _children.add(process)
+    hold_stop_signals(process)
+
+
+def hold_stop_signals(holder: object) -> None:
+    """While `holder` (a child process, an open recording) is held, SIGTERM and SIGHUP end this
+    program through its `finally` clauses, as Ctrl-C does: children stopped, the recording saved."""
+    _holders.add(holder)
+    if threading.current_thread() is not threading.main_thread():
+        return  # handlers can only be set in the main thread
+    for name in STOP_SIGNALS:
+        number = getattr(signal, name, None)
+        if number is None or number in _previous_handlers:
+            continue
+        previous = signal.getsignal(number)
+        if previous == signal.SIG_IGN:
+            continue  # ignored on purpose (nohup): stays ignored
+        _previous_handlers[number] = previous
+        signal.signal(number, _stop_children_then_go_on)
+
+
+def release_stop_signals(holder: object) -> None:
+    """`holder` is done; with none left, SIGTERM and SIGHUP do what they did before."""
+    _holders.discard(holder)
+    if not _holders:
+        restore_signal_handlers()
+
+
+def restore_signal_handlers() -> None:
+    """Put back the SIGTERM/SIGHUP handlers that were there before we set ours."""
+    if threading.current_thread() is not threading.main_thread():
+        return
+    for number, previous in list(_previous_handlers.items()):
+        if signal.getsignal(number) is _stop_children_then_go_on:
+            signal.signal(number, previous if previous is not None else signal.SIG_DFL)
+        del _previous_handlers[number]
+
+
+def _stop_children_then_go_on(number: int, frame: Any) -> None:
+    """SIGTERM/SIGHUP: with no handler of its own before us, the program exits (code 128 + signal)
+    through its `finally` clauses, which save the recording (an exit hook stops any child left);
+    else the previous handler runs. Our children are sent SIGTERM first in either case."""
+    for process in list(_children):
+        with contextlib.suppress(OSError):
+            os.kill(process.pid, signal.SIGTERM)  # not Popen's methods: the interrupted code may hold its lock
+    previous = _previous_handlers.get(number)
+    if not callable(previous):
+        raise SystemExit(128 + number)
+    previous(number, frame)
+
+
+@atexit.register
+def _stop_children_at_exit() -> None:
+    """No child of this run outlives it."""
+    for process in list(_children):
+        stop_process(process)
 
 
 class WebServer:
@@ -137,13 +216,18 @@ def listening(port: int) -> bool:
 
 
 __all__ = [
+    "STOP_SIGNALS",
     "VIEWER_PORT",
     "WebServer",
+    "end_with_this_program",
     "free_port",
+    "hold_stop_signals",
     "listening",
     "native_viewer",
     "open_hint",
+    "release_stop_signals",
     "rerun_environment",
+    "restore_signal_handlers",
     "start_rerun",
     "stop_process",
     "viewer_executable",

@@ -1,18 +1,25 @@
-"""A Rerun recording of the lab: its stream and sinks, the maze and the robot drawn once per recording."""
+"""A Rerun recording of the lab: its stream and sinks, the maze and the robot drawn once per recording.
+
+A file recording is kept in memory (Rerun's binary stream) and written at the end through
+mazelab.atomic: whole or not at all, under its own temporary name, every write error reported.
+"""
 
 from __future__ import annotations
 
 import os
 import sys
 import uuid
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from contextvars import ContextVar
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from mazelab.atomic import WriteError, write_bytes_atomically
 from mazelab.maze import EMPTY, Maze
-from mazelab.viz.processes import WebServer, native_viewer, open_hint
+from mazelab.viz.processes import WebServer, hold_stop_signals, native_viewer, open_hint, release_stop_signals
 from mazelab.viz.style import (
     APPLICATION_ID,
     FREE_COLOR,
@@ -25,56 +32,78 @@ from mazelab.viz.style import (
     STATION_RADIUS,
     WALL_COLOR,
 )
-from mazelab.viz.targets import default_recording_path, has_display, partial_path, resolve_target
+from mazelab.viz.targets import default_recording_path, has_display, next_free_name, resolve_target
+
+RERUN_OFF_NOTE = "Rerun is switched off (RERUN=off in the environment): nothing is recorded"
+_deferred_errors: ContextVar[list[WriteError] | None] = ContextVar("deferred_write_errors", default=None)
 
 
 class Recording:
     """A Rerun recording of the lab: its stream, where it goes, and the robot and maze drawn once."""
 
-    def __init__(self, stream: Any, *, path: Path | None = None, server: WebServer | None = None, owned: bool = True):
+    def __init__(
+        self,
+        stream: Any,
+        *,
+        path: Path | None = None,
+        server: WebServer | None = None,
+        owned: bool = True,
+        sink: Any = None,
+        claim_name: bool = False,
+    ):
         self.stream, self.path, self.server, self.owned = stream, path, server, owned
+        self.sink, self.claim_name = sink, claim_name  # the binary stream of a file; a default name: never replaced
+        if sink is not None:
+            hold_stop_signals(self)  # SIGTERM/SIGHUP end the run as Ctrl-C does: the steps done are saved
         self.robot_steps: set[int] = set()
         self.last_robot_position: tuple[float, float] | None = None
         self.kidnapping: tuple[int, tuple[float, float]] | None = None  # (step, place), see expect_kidnapping
         self.closed = False
 
     @classmethod
-    def open(cls, target: Any, world: Maze, blueprint: Any, *, label: str) -> Recording:
-        """A recording going where `target` says (see the `visualize` values), with the maze logged."""
+    def open(cls, target: Any, world: Maze, blueprint: Any, *, label: str) -> Recording | None:
+        """A recording going where `target` says (see the `visualize` values), with the maze logged;
+        None, after a line saying so, when Rerun is switched off (RERUN=off)."""
         import rerun as rr
 
         if isinstance(target, rr.RecordingStream):
             target.send_blueprint(blueprint, make_active=False, make_default=True)
             recording = cls(target, owned=False)
         else:
-            recording = cls._to(resolve_target(target, label), blueprint, label)
+            if rerun_switched_off():
+                print(RERUN_OFF_NOTE)
+                return None
+            stream = rr.RecordingStream(APPLICATION_ID, recording_id=str(uuid.uuid4()))
+            recording = cls._to(stream, target, blueprint, label)
         log_maze(recording.stream, world)
         return recording
 
     @classmethod
-    def _to(cls, target: str | Path, blueprint: Any, label: str) -> Recording:
+    def _to(cls, stream: Any, target: Any, blueprint: Any, label: str) -> Recording:
         import rerun as rr
 
-        stream = rr.RecordingStream(APPLICATION_ID, recording_id=str(uuid.uuid4()))
+        default_name = target is True or target in ("auto", "viewer", "web")
+        target = resolve_target(target, label)
+        default_name = default_name and isinstance(target, Path)
         if target == "viewer":
             try:
                 stream.connect_grpc(native_viewer(), default_blueprint=blueprint)
                 return cls(stream)
             except RuntimeError as error:  # e.g. a display that the viewer cannot open
-                target = default_recording_path(label)
+                target, default_name = default_recording_path(label), True
                 print(f"{error}: the recording goes to {target} instead")
         if target == "notebook":
             stream.notebook_show(blueprint=blueprint, height=700)
             return cls(stream)
         path = default_recording_path(label) if target == "web" else Path(target)
-        partial = partial_path(path)
+        sink = stream.binary_stream()  # kept in memory: written whole at close (see mazelab.atomic)
         if target == "web":
             server = WebServer.start()
-            stream.set_sinks(rr.GrpcSink(server.grpc_url), rr.FileSink(partial), default_blueprint=blueprint)
+            stream.set_sinks(rr.GrpcSink(server.grpc_url), sink, default_blueprint=blueprint)
             print(f"Serving the web viewer at {server.url}")
-            return cls(stream, path=path, server=server)
-        stream.save(partial, default_blueprint=blueprint)
-        return cls(stream, path=path)
+            return cls(stream, path=path, server=server, sink=sink, claim_name=True)
+        stream.set_sinks(sink, default_blueprint=blueprint)
+        return cls(stream, path=path, sink=sink, claim_name=default_name)
 
     def log_robot(self, step: int, position: Sequence[float], heading: float | None) -> None:
         """The robot (a green dot and its heading) and the step number, once per step of the recording:
@@ -109,8 +138,9 @@ class Recording:
         self.stream.log(f"{MAP}/robot/kidnapping/place", ring)
 
     def close(self) -> None:
-        """Flush; a file is completed and moved into place and its path printed; a web viewer is
-        served until Ctrl-C. A caller's own recording is only flushed."""
+        """Flush; a file is written whole and its path printed (a write error is raised, or deferred,
+        see write_errors_deferred); a web viewer is served until Ctrl-C. A caller's own recording is
+        only flushed."""
         if self.closed:
             return
         self.closed = True
@@ -121,12 +151,52 @@ class Recording:
         if not self.owned:
             return
         self.stream.disconnect()
-        if self.path is not None:
-            os.replace(partial_path(self.path), self.path)
-            print(f"Recording saved to {self.path}; open it with: {open_hint(self.path, has_display())}")
-        if self.server is not None:
-            # close() runs in simulate's `finally`: a run being interrupted stops serving at once.
-            self.server.serve_until_interrupted(already_interrupted=sys.exc_info()[0] is not None)
+        interrupted = sys.exc_info()[0] is not None
+        try:
+            if self.path is not None:
+                self.save()
+        finally:
+            release_stop_signals(self)
+            if self.server is not None:
+                # close() runs in simulate's `finally`: a run being interrupted stops serving at once.
+                self.server.serve_until_interrupted(already_interrupted=interrupted)
+
+    def save(self) -> None:
+        """Write the recording to its file, whole or not at all, and say where; a default name that
+        another run took meanwhile becomes the next free one. A write error is raised or deferred."""
+        data = self.sink.read() or b""
+        while True:
+            try:
+                write_bytes_atomically(self.path, data, replace=not self.claim_name)
+                break
+            except FileExistsError:
+                self.path = next_free_name(self.path)
+            except WriteError as error:
+                deferred = _deferred_errors.get()
+                if deferred is None:
+                    raise
+                deferred.append(error)
+                return
+        print(f"Recording saved to {self.path}; open it with: {open_hint(self.path, has_display())}")
+
+
+def rerun_switched_off() -> bool:
+    """Whether Rerun's own switch, the environment variable RERUN, turns logging off (off, 0, false, no)."""
+    return os.environ.get("RERUN", "").strip().lower() in ("off", "0", "false", "no")
+
+
+@contextmanager
+def write_errors_deferred() -> Iterator[None]:
+    """Within this block a recording that cannot be written does not end the run: the error is
+    raised when the block ends, after the command printed its results."""
+    errors: list[WriteError] = []
+    token = _deferred_errors.set(errors)
+    try:
+        yield
+    finally:
+        _deferred_errors.reset(token)
+    if errors:
+        raise errors[0]
 
 
 def log_maze(stream: Any, world: Maze) -> None:
@@ -152,8 +222,11 @@ def heading_vectors(angles: np.ndarray, length: float) -> np.ndarray:
 
 
 __all__ = [
+    "RERUN_OFF_NOTE",
     "Recording",
     "heading_vectors",
     "log_maze",
     "maze_image",
+    "rerun_switched_off",
+    "write_errors_deferred",
 ]

@@ -5,6 +5,7 @@ from __future__ import annotations
 import difflib
 import importlib.util
 import os
+import re
 import sys
 import time
 from dataclasses import dataclass
@@ -13,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from mazelab.atomic import WriteError
 from mazelab.viz.style import DEFAULT_MAX_DRAWN
 
 TARGET_WORDS = ("viewer", "web", "notebook")  # the visualize strings that are not file names
@@ -76,19 +78,25 @@ def check_target_word(target: str) -> None:
 
 
 def default_recording_path(label: str) -> Path:
-    """recordings/<label>-<date>-<time>.rrd in the current folder, made unique; the folder is created."""
-    RECORDINGS_DIR.mkdir(parents=True, exist_ok=True)
-    stem = f"{label}-{time.strftime('%Y%m%d-%H%M%S')}"
-    path, n = RECORDINGS_DIR / f"{stem}.rrd", 1
-    while path.exists() or partial_path(path).exists():
+    """recordings/<label>-<date>-<time>.rrd in the current folder, free now; the folder is created.
+    (The name is claimed when the file is written: a run started in the same second takes the next.)"""
+    try:
+        RECORDINGS_DIR.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise WriteError(error.errno, error.strerror, str(RECORDINGS_DIR)) from None
+    path = RECORDINGS_DIR / f"{label}-{time.strftime('%Y%m%d-%H%M%S')}.rrd"
+    return next_free_name(path) if path.exists() else path
+
+
+def next_free_name(path: Path) -> Path:
+    """The first of NAME-2.rrd, NAME-3.rrd, ... that does not exist (NAME-2 follows NAME-1 or NAME)."""
+    match = re.fullmatch(r"(.*-\d{8}-\d{6})(?:-(\d+))?", path.stem) or re.fullmatch(r"(.*?)(?:-(\d+))?", path.stem)
+    base, n = match.group(1), int(match.group(2) or 1)
+    while True:
         n += 1
-        path = RECORDINGS_DIR / f"{stem}-{n}.rrd"
-    return path
-
-
-def partial_path(path: Path) -> Path:
-    """Where a recording is written until it is complete (then renamed to `path`: never half a file)."""
-    return path.with_name(f".{path.name}.partial")
+        candidate = path.with_name(f"{base}-{n}{path.suffix}")
+        if not candidate.exists():
+            return candidate
 
 
 def has_display() -> bool:
@@ -116,7 +124,7 @@ __all__ = [
     "default_recording_path",
     "has_display",
     "in_jupyter",
+    "next_free_name",
     "notebook_viewer_installed",
-    "partial_path",
     "resolve_target",
 ]

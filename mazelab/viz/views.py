@@ -58,6 +58,8 @@ def open_view(visualize: Any, world: Maze, filter_name: str) -> Any:
         return NullView()
     blueprint = run_blueprint(world, filter_name)
     recording = Recording.open(options.target, world, blueprint, label=entity_name(filter_name))
+    if recording is None:  # Rerun is switched off (RERUN=off)
+        return NullView()
     return RunView(recording, filter_name, FILTER_COLORS[0], options.max_drawn, owns_recording=True)
 
 
@@ -81,6 +83,8 @@ def open_comparison(visualize: Any, world: Maze, filter_names: Sequence[str]) ->
     if not names:
         raise ValueError("a comparison needs at least one filter")
     recording = Recording.open(options.target, world, comparison_blueprint(world, names), label="compare")
+    if recording is None:  # Rerun is switched off (RERUN=off)
+        return NullComparison()
     return Comparison(recording, names, options.max_drawn)
 
 
