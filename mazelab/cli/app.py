@@ -283,8 +283,8 @@ def compare(
         recovery=recovery_option(recovery, sensor_resetting, alpha_slow, alpha_fast),
         kld=kld,
     )
-    kidnapping = next(iter(results.values())).scenario
-    if kidnapping.kidnap_at is not None:
+    kidnapping = next(iter(results.values()))
+    if kidnapping.kidnap_at is not None and kidnapping.kidnap_position is not None:
         x, y = kidnapping.kidnap_position
         typer.echo(f"kidnapped at step {kidnapping.kidnap_at} to ({x:.2f}, {y:.2f})")
     typer.echo(comparison_table(results, kld=kld))

@@ -253,7 +253,7 @@ def run_task(task: RunTask, visualize: Any = False) -> list[RunRecord]:
 
 def kidnap_figures(result: RunResult) -> tuple[bool | None, int | None]:
     """(re-localised, steps to recover) of a run with a kidnapping; (None, None) without one."""
-    if result.scenario.kidnap_at is None:
+    if result.kidnap_at is None:
         return None, None
     return relocalised(result), recovery_steps(result)
 
