@@ -10,6 +10,7 @@ mazelab bench [--quick] the filters' speed against a plain numpy reference step
 
 from __future__ import annotations
 
+import signal
 import sys
 import time
 import warnings
@@ -43,7 +44,8 @@ from mazelab.cli.options import (
 )
 from mazelab.cli.reports import kidnap_report, particle_count_report, progress_printer, summarise
 from mazelab.experiments.compare import compare_filters, comparison_table, errors_csv, plot_errors
-from mazelab.experiments.executor import default_workers, run_study
+from mazelab.experiments.executor import STOP_SIGNALS, default_workers, run_study
+from mazelab.experiments.rowlog import RowLog
 from mazelab.experiments.runs import parse_filters
 from mazelab.experiments.stats import CONFIDENCE_LEVEL
 from mazelab.experiments.study import MazeChoice, study_settings, study_tasks, varied_parameters
@@ -362,21 +364,34 @@ def study(
         + (f"; varied: {', '.join(varied)}" if varied else "")
     )
     started = time.perf_counter()
-    outcome = run_study(tasks, workers, visualize=visualize, progress=True)
+    log = RowLog(csv_path) if csv_path is not None else None  # rows appended as runs finish: a stop keeps them
+    try:
+        outcome = run_study(
+            tasks, workers, visualize=visualize, progress=True, on_records=None if log is None else log.append
+        )
+    finally:
+        if log is not None:
+            log.close()
     seconds = time.perf_counter() - started
-    if csv_path is not None:
-        write_text_atomically(csv_path, study_csv(outcome.records))
     for failure in outcome.failures:
         typer.echo(f"error: {failure.describe()}", err=True)
     finished = len({(r.setting, r.run) for r in outcome.records})
     if outcome.interrupted:
+        if csv_path is not None and log is not None and log.error is None:
+            write_text_atomically(csv_path, study_csv(outcome.records))  # the same rows, in order
         saved = f"; they are in {csv_path}" if csv_path is not None else ""
         typer.echo(f"interrupted after {finished} of {len(tasks)} runs{saved}", err=True)
-        raise KeyboardInterrupt
+        for sig in STOP_SIGNALS:  # stopping already: a further Ctrl-C, SIGTERM or SIGHUP changes nothing
+            signal.signal(sig, signal.SIG_IGN)
+        raise typer.Exit(128 + (outcome.stopped_by or signal.SIGINT))  # 130 Ctrl-C, 143 SIGTERM, 129 SIGHUP
     summaries = summarise_study(outcome.records, settings)
-    typer.echo(study_table(summaries, varied, kld=kld))
+    typer.echo(study_table(summaries, varied, kld=kld))  # the table first: a write error cannot lose it
     typer.echo(f"{finished} runs in {seconds:.1f} s wall time")
-    if csv_path is not None:
+    if csv_path is not None and log is not None:
+        if log.error is not None:
+            typer.echo(f"error: cannot write {csv_path}: {log.error.strerror or log.error}", err=True)
+            raise typer.Exit(1)
+        write_text_atomically(csv_path, study_csv(outcome.records))  # the rows of the log, in order
         typer.echo(f"one row per run and filter written to {csv_path}")
     if plot is not None and summaries:
         what = ", ".join(varied) or "the setting"

@@ -274,6 +274,7 @@ class StudyOutcome:
     records: list[RunRecord] = field(default_factory=list)
     failures: list[RunFailure] = field(default_factory=list)
     interrupted: bool = False
+    stopped_by: int | None = None  # the signal that stopped it (2: Ctrl-C), None if it ran to the end
     tasks: int = 0
 
     def add(self, outcome: list[RunRecord] | RunFailure) -> None:
