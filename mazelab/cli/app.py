@@ -44,6 +44,7 @@ from mazelab.cli.options import (
 )
 from mazelab.cli.reports import kidnap_report, particle_count_report, progress_printer, summarise
 from mazelab.experiments.compare import compare_filters, comparison_table, errors_csv, plot_errors
+from mazelab.experiments.dask_runner import close_client, connect
 from mazelab.experiments.executor import STOP_SIGNALS, default_workers, run_study
 from mazelab.experiments.rowlog import RowLog
 from mazelab.experiments.runs import parse_filters
@@ -322,6 +323,10 @@ def study(
     steps: Annotated[int, typer.Option(min=1, help="steps per run")] = DEFAULT_STEPS,
     seed: Annotated[int | None, typer.Option(help="root seed of the study (every run's seed derives from it)")] = None,
     workers: Annotated[int | None, typer.Option(min=1, help="processes (default: all cores)")] = None,
+    dask: Annotated[
+        str | None,
+        typer.Option(help="run the runs on the Dask cluster of this scheduler, e.g. tcp://10.0.0.5:8786 (dask extra)"),
+    ] = None,
     csv_path: Annotated[Path | None, typer.Option("--csv", help="one row per run and filter")] = None,
     plot: Annotated[
         Path | None, typer.Option(help="final error against the varied parameter (.png; plot extra)")
@@ -358,8 +363,10 @@ def study(
     tasks = study_tasks(settings, names, runs, steps, seed, kidnap_at=kidnap_at, kld=kld)
     workers = workers or default_workers()
     varied = varied_parameters(settings)
+    client = connect(dask) if dask is not None else None  # a bad address: one line and exit 2, before anything
+    where = f"on the Dask cluster at {dask}" if dask is not None else f"{workers} worker(s)"
     typer.echo(
-        f"Study: {len(settings)} setting(s) x {runs} runs x {len(names)} filters, seed {seed}, {workers} worker(s)\n"
+        f"Study: {len(settings)} setting(s) x {runs} runs x {len(names)} filters, seed {seed}, {where}\n"
         f"{describe_setting(settings[0], steps, runs, kidnap_at)}"
         + (f"; varied: {', '.join(varied)}" if varied else "")
     )
@@ -367,11 +374,18 @@ def study(
     log = RowLog(csv_path) if csv_path is not None else None  # rows appended as runs finish: a stop keeps them
     try:
         outcome = run_study(
-            tasks, workers, visualize=visualize, progress=True, on_records=None if log is None else log.append
+            tasks,
+            workers,
+            visualize=visualize,
+            progress=True,
+            on_records=None if log is None else log.append,
+            dask=client,
         )
     finally:
         if log is not None:
             log.close()
+        if client is not None:
+            close_client(client)
     seconds = time.perf_counter() - started
     for failure in outcome.failures:
         typer.echo(f"error: {failure.describe()}", err=True)

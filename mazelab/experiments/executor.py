@@ -19,7 +19,16 @@ from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager, suppress
 from typing import Any
 
-from mazelab.experiments.study import RunFailure, RunRecord, RunTask, StudyOutcome, run_task, run_task_safely
+from mazelab.experiments.dask_runner import close_client, connect, run_on_dask
+from mazelab.experiments.study import (
+    RunFailure,
+    RunRecord,
+    RunTask,
+    StudyOutcome,
+    run_task,
+    run_unit_safely,
+    study_units,
+)
 
 
 def default_workers() -> int:
@@ -42,8 +51,11 @@ def run_study(
     visualize: Any = False,
     progress: bool = False,
     on_records: Callable[[list[RunRecord]], None] | None = None,
+    dask: Any = None,
 ) -> StudyOutcome:
-    """Run every task, on `workers` processes (default: all cores); any stop keeps the finished runs.
+    """Run every task, on `workers` processes (default: all cores) or on a Dask cluster: `dask` is its
+    scheduler's address (connected and closed here) or a dask.distributed Client; any stop keeps the
+    finished runs.
 
     With `visualize`, the first run is drawn (all its filters, as compare draws them) in this process.
     A run that raises becomes a RunFailure; the others go on. `on_records` is handed each finished
@@ -53,30 +65,46 @@ def run_study(
     workers = default_workers() if workers is None else workers
     if workers < 1:
         raise ValueError(f"--workers must be >= 1, got {workers}")
+    client = connect(dask) if isinstance(dask, str) else dask  # a bad address: one line, before anything runs
     outcome = StudyOutcome(tasks=len(tasks))
 
-    def collect(result: list[RunRecord] | RunFailure) -> None:
-        outcome.add(result)
-        if on_records is not None and not isinstance(result, RunFailure):
-            on_records(result)
+    def collect(results: list[list[RunRecord] | RunFailure]) -> None:
+        for result in results:
+            outcome.add(result)
+            if on_records is not None and not isinstance(result, RunFailure):
+                on_records(result)
 
-    with _progress_bar(len(tasks), progress) as advance, _stop_signals():
-        try:
-            drawn, rest = (list(tasks[:1]), list(tasks[1:])) if visualize else ([], list(tasks))
-            if workers == 1 or len(rest) <= 1:
-                for task in drawn:
-                    collect(_draw_task(task, visualize))
-                    advance()
-                for task in rest:
-                    collect(run_task_safely(task))
-                    advance()
-            else:
-                _run_in_pool(rest, drawn, workers, visualize, collect, advance)
-        except KeyboardInterrupt as stop:
-            outcome.interrupted = True
-            outcome.stopped_by = getattr(stop, "signum", signal.SIGINT)
+    try:
+        with _progress_bar(len(tasks), progress) as advance, _stop_signals():
+            try:
+                drawn, rest = (list(tasks[:1]), list(tasks[1:])) if visualize else ([], list(tasks))
+                units = study_units(rest, 1 if client is not None else workers)
+                if client is not None:
+                    run_on_dask(client, units, lambda: _run_drawn(drawn, visualize, collect, advance), collect, advance)
+                elif workers == 1 or len(units) <= 1:
+                    _run_drawn(drawn, visualize, collect, advance)
+                    for unit in units:
+                        collect(run_unit_safely(unit))
+                        advance(len(unit))
+                else:
+                    _run_in_pool(units, drawn, workers, visualize, collect, advance)
+            except KeyboardInterrupt as stop:
+                outcome.interrupted = True
+                outcome.stopped_by = getattr(stop, "signum", signal.SIGINT)
+    finally:
+        if isinstance(dask, str):
+            close_client(client)
     outcome.sort()
     return outcome
+
+
+def _run_drawn(
+    drawn: list[RunTask], visualize: Any, collect: Callable[[list], None], advance: Callable[..., None]
+) -> None:
+    """The drawn run(s), in this process (the viewer is here)."""
+    for task in drawn:
+        collect([_draw_task(task, visualize)])
+        advance()
 
 
 def _draw_task(task: RunTask, visualize: Any) -> list[RunRecord] | RunFailure:
@@ -87,38 +115,36 @@ def _draw_task(task: RunTask, visualize: Any) -> list[RunRecord] | RunFailure:
 
 
 def _run_in_pool(
-    tasks: list[RunTask],
+    units: list[tuple[RunTask, ...]],
     drawn: list[RunTask],
     workers: int,
     visualize: Any,
-    collect: Callable[[list[RunRecord] | RunFailure], None],
-    advance: Callable[[], None],
+    collect: Callable[[list], None],
+    advance: Callable[..., None],
 ) -> None:
-    """Tasks on a process pool (the drawn ones here meanwhile), at most two per worker handed out at a
-    time. On Ctrl-C, hand out no more and let the running tasks finish; on a second Ctrl-C, SIGTERM or
-    SIGHUP end the workers at once. Every finished result is kept; the stop is raised again."""
-    pool = ProcessPoolExecutor(max_workers=min(workers, len(tasks)), initializer=_worker_setup)
-    waiting = iter(tasks)
-    running: dict[Future, RunTask] = {}
+    """Units of runs on a process pool (the drawn ones here meanwhile), at most two per worker handed
+    out at a time. On Ctrl-C, hand out no more and let the running units finish; on a second Ctrl-C,
+    SIGTERM or SIGHUP end the workers at once. Every finished result is kept; the stop is raised again."""
+    pool = ProcessPoolExecutor(max_workers=min(workers, len(units)), initializer=_worker_setup)
+    waiting = iter(units)
+    running: dict[Future, tuple[RunTask, ...]] = {}
 
     def hand_out() -> None:
-        for task in waiting:
-            running[pool.submit(run_task_safely, task)] = task
+        for unit in waiting:
+            running[pool.submit(run_unit_safely, unit)] = unit
             if len(running) >= 2 * workers:
                 return
 
     def take(done: set[Future], finished_only: bool = False) -> None:
         for future in done:
-            task = running.pop(future)
+            unit = running.pop(future)
             if not finished_only or future.exception() is None:
-                collect(_result_of(future, task))
-                advance()
+                collect(_result_of(future, unit))
+                advance(len(unit))
 
     try:
         hand_out()
-        for task in drawn:
-            collect(_draw_task(task, visualize))
-            advance()
+        _run_drawn(drawn, visualize, collect, advance)
         while running:
             take(wait(running, return_when=FIRST_COMPLETED)[0])
             hand_out()
@@ -150,11 +176,11 @@ def _end_workers(pool: ProcessPoolExecutor) -> None:
     pool.shutdown(wait=True)  # the pool's thread sees the workers gone and ends
 
 
-def _result_of(future: Future, task: RunTask) -> list[RunRecord] | RunFailure:
+def _result_of(future: Future, unit: tuple[RunTask, ...]) -> list[list[RunRecord] | RunFailure]:
     try:
         return future.result()
     except BrokenProcessPool:
-        return RunFailure(task, "its worker process died (out of memory?)")
+        return [RunFailure(task, "its worker process died (out of memory?)") for task in unit]
 
 
 PR_SET_PDEATHSIG = 1  # linux/prctl.h: the signal a process gets when its parent dies
@@ -228,7 +254,7 @@ def _signals_ignored() -> Iterator[None]:
 def _progress_bar(total: int, show: bool) -> Iterator[Callable[[], None]]:
     """A rich progress bar on stderr (typer brings rich); yields the function that advances it."""
     if not show:
-        yield lambda: None
+        yield lambda count=1: None
         return
     from rich.console import Console
     from rich.progress import (
@@ -250,7 +276,7 @@ def _progress_bar(total: int, show: bool) -> Iterator[Callable[[], None]]:
     )
     with Progress(*columns, console=Console(stderr=True), transient=False) as bar:
         task = bar.add_task("runs", total=total)
-        yield lambda: bar.advance(task)
+        yield lambda count=1: bar.advance(task, count)
 
 
 __all__ = [
