@@ -49,11 +49,16 @@ def sample_headings(
     compass_angle: float, delta: float, count: int, rng: np.random.Generator, dtype: type = np.float64
 ) -> np.ndarray:
     """Headings actually taken, th ~ U(th0 - Delta/2, th0 + Delta/2), shape (count,), radians."""
-    headings = rng.random(count, dtype=dtype)
-    headings -= 0.5
-    headings *= delta
-    headings += float(compass_angle)
-    return headings
+    return headings_from_uniforms(rng.random(count, dtype=dtype), compass_angle, delta)
+
+
+def headings_from_uniforms(uniforms: np.ndarray, compass_angle: float | np.ndarray, delta: float) -> np.ndarray:
+    """th = th0 + Delta (u - 1/2) for uniforms u in [0, 1), in place (in the uniforms' dtype);
+    `compass_angle` is one angle or one per uniform (runs advanced together, mazelab.batch)."""
+    uniforms -= 0.5
+    uniforms *= delta
+    uniforms += compass_angle if isinstance(compass_angle, np.ndarray) else float(compass_angle)
+    return uniforms
 
 
 def move(positions: np.ndarray, headings: np.ndarray, speed: float = ROBOT_SPEED) -> np.ndarray:
@@ -77,15 +82,16 @@ def take_particles(points: np.ndarray, indices: np.ndarray) -> np.ndarray:
 
 
 def log_likelihood(
-    z: float, positions: np.ndarray, world: Maze, sigma: float, outside_penalty: float = OUTSIDE_PENALTY
+    z: float | np.ndarray, positions: np.ndarray, world: Maze, sigma: float, outside_penalty: float = OUTSIDE_PENALTY
 ) -> np.ndarray:
     """Equation (3) in logs, with refinement 1: log p(z | x) for positions (N, 2) -> (N,).
 
     The Gaussian's constant -log(sigma sqrt(2 pi)) is kept so that sums of these are true log-likelihoods.
+    `z` is one measurement, or one per position in the positions' dtype (runs advanced together).
     """
     distance, free = world.station_distances_and_free(positions[:, 0], positions[:, 1])
     residual = distance  # (d - z) / sigma, computed in place: the sign does not matter once squared
-    residual -= float(z)
+    residual -= z if isinstance(z, np.ndarray) else float(z)
     residual /= sigma
     log_p = residual
     log_p *= residual
@@ -123,6 +129,7 @@ __all__ = [
     "ROBOT_SPEED",
     "RPF_THRESHOLD",
     "check_model_parameters",
+    "headings_from_uniforms",
     "log_likelihood",
     "move",
     "sample_headings",

@@ -9,7 +9,8 @@ import logging
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from mazelab.experiments.study import RunFailure, RunTask, run_unit_safely
+from mazelab.experiments.batch_runs import run_unit_safely
+from mazelab.experiments.study import RunFailure, RunTask
 
 CONNECT_SECONDS = 3  # a scheduler that does not answer within this is reported unreachable
 

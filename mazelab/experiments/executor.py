@@ -19,6 +19,7 @@ from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager, suppress
 from typing import Any
 
+from mazelab.experiments.batch_runs import run_unit_safely, study_units
 from mazelab.experiments.dask_runner import close_client, connect, run_on_dask
 from mazelab.experiments.study import (
     RunFailure,
@@ -26,8 +27,6 @@ from mazelab.experiments.study import (
     RunTask,
     StudyOutcome,
     run_task,
-    run_unit_safely,
-    study_units,
 )
 
 

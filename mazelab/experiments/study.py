@@ -222,6 +222,12 @@ def run_task(task: RunTask, visualize: Any = False) -> list[RunRecord]:
     finally:
         if comparison is not None:
             comparison.close()
+    return run_records(task, world, results)
+
+
+def run_records(task: RunTask, world: Maze, results: dict[str, RunResult]) -> list[RunRecord]:
+    """The study's rows of one run: a record per filter's result."""
+    s = task.setting
     stations = int((world.grid == STATION_WALL).sum())
     return [
         RunRecord(
@@ -266,16 +272,6 @@ def run_task_safely(task: RunTask) -> list[RunRecord] | RunFailure:
         return RunFailure(task, f"{type(error).__name__}: {error}")
 
 
-def study_units(tasks: Sequence[RunTask], workers: int) -> list[tuple[RunTask, ...]]:
-    """The tasks cut into units of work for the workers: one run each, for now."""
-    return [(task,) for task in tasks]
-
-
-def run_unit_safely(unit: Sequence[RunTask]) -> list[list[RunRecord] | RunFailure]:
-    """Every run of a unit (`run_task_safely` each), in order."""
-    return [run_task_safely(task) for task in unit]
-
-
 @dataclass
 class StudyOutcome:
     """What a study produced: a record per finished run and filter, the failed runs, and whether
@@ -309,12 +305,11 @@ __all__ = [
     "StudyOutcome",
     "StudySetting",
     "kidnap_figures",
+    "run_records",
     "run_seeds",
     "run_task",
     "run_task_safely",
-    "run_unit_safely",
     "study_settings",
     "study_tasks",
-    "study_units",
     "varied_parameters",
 ]
