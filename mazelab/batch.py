@@ -35,8 +35,7 @@ from mazelab.model import (
     move,
     take_particles,
 )
-from mazelab.resampling import systematic_resample
-from mazelab.weights import log_sum_exp, weighted_covariance
+from mazelab.weights import log_sum_exp
 
 
 # -- per-run operations on (R, N) arrays -------------------------------------------------------------
@@ -49,9 +48,10 @@ def log_sum_exp_rows(log_w: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(top), totals, top).astype(float)
 
 
-def systematic_resample_rows(weights: np.ndarray, uniforms: np.ndarray) -> np.ndarray:
+def systematic_resample_rows(weights: np.ndarray, uniforms: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
     """resampling.systematic_resample of each row of weights (R, N), row r with the offset U_r: the
-    ancestors as indices into the (R*N,) particles, shape (R*N,)."""
+    ancestors as indices into the (R*N,) particles, shape (R*N,); `rows`, the runs the rows are
+    (default 0..R-1)."""
     runs, count = weights.shape
     below = np.empty((runs, count + 1))
     below[:, 0] = 0.0
@@ -65,7 +65,7 @@ def systematic_resample_rows(weights: np.ndarray, uniforms: np.ndarray) -> np.nd
     bins = ends[:, 1:-1] + (count + 1) * np.arange(runs)[:, None]  # each run counts in its own bins
     starts = np.bincount(bins.ravel(), minlength=runs * (count + 1)).reshape(runs, count + 1)[:, :count]
     ancestors = np.cumsum(starts, axis=1)
-    ancestors += count * np.arange(runs)[:, None]
+    ancestors += count * (np.arange(runs) if rows is None else rows)[:, None]
     return ancestors.ravel()
 
 
@@ -109,20 +109,21 @@ class BatchParticleFilter:
         """The rows of run `run` in the (R*N,) arrays."""
         return slice(run * self.count, (run + 1) * self.count)
 
-    def per_particle(self, values: np.ndarray) -> np.ndarray:
-        """One value per run (R,) -> one per particle (R*N,), in the particles' dtype."""
-        return np.repeat(np.asarray(values, dtype=float).astype(PARTICLE_DTYPE), self.count)
+    @staticmethod
+    def per_run(values: np.ndarray) -> np.ndarray:
+        """One value per run (R,) -> a column (R, 1) in the particles' dtype, for (R, N) arrays."""
+        return np.asarray(values, dtype=float).astype(PARTICLE_DTYPE)[:, None]
 
     def propagate(
         self, positions: np.ndarray, compass_angles: np.ndarray, active: np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray]:
         """x_k ~ p(x_k | x_{k-1}) for every run (the `active` ones draw; the others' rows are left
         unmoved-looking garbage that the caller replaces)."""
-        uniforms = np.zeros(len(positions), dtype=PARTICLE_DTYPE)
+        uniforms = np.zeros((self.runs, self.count), dtype=PARTICLE_DTYPE)
         for run, rng in enumerate(self.rngs):
             if active is None or active[run]:
-                rng.random(dtype=PARTICLE_DTYPE, out=uniforms[self.run_rows(run)])
-        headings = headings_from_uniforms(uniforms, self.per_particle(compass_angles), self.delta)
+                rng.random(dtype=PARTICLE_DTYPE, out=uniforms[run])
+        headings = headings_from_uniforms(uniforms, self.per_run(compass_angles), self.delta).reshape(-1)
         return move(positions, headings, self.speed), headings
 
     def resample(self, weights: np.ndarray, active: np.ndarray | None = None) -> np.ndarray:
@@ -143,7 +144,7 @@ class BatchParticleFilter:
 
     def likelihood(self, z: np.ndarray, positions: np.ndarray) -> np.ndarray:
         """log p(z_k | x) of equation (3) for every particle of every run, z (R,) -> (R, N)."""
-        log_lik = log_likelihood(self.per_particle(z), positions, self.world, self.sigma, self.outside_penalty)
+        log_lik = log_likelihood(np.asarray(z, dtype=float), positions, self.world, self.sigma, self.outside_penalty)
         return log_lik.reshape(self.runs, self.count)
 
     # the weighted posteriors, per run
@@ -284,19 +285,29 @@ class BatchRPF(BatchParticleFilter):
         self.steps_done += 1
 
     def regularise(self, runs: np.ndarray) -> None:
-        """RegularizedParticleFilter.regularise for the runs marked in `runs` (R,) bool, one by one."""
-        weights, h = self.weights, self.bandwidth
+        """RegularizedParticleFilter.regularise for the runs marked in `runs` (R,) bool: resample, then
+        jitter each particle by h_opt D eps, eps ~ N(0, I_2), D D^T = S, S each run's covariance."""
+        chosen = np.flatnonzero(runs)
+        weights = self.weights[chosen]
+        x = self.positions[:, 0].reshape(self.runs, -1)[chosen]
+        y = self.positions[:, 1].reshape(self.runs, -1)[chosen]
+        mean = self.estimate[chosen]  # weighted_mean, as weighted_covariance computes it
+        dx, dy = x - mean[:, :1], y - mean[:, 1:]  # float64: the spread may be tiny
+        xx, xy, yy = ((weights * a * b).sum(axis=1) for a, b in ((dx, dx), (dx, dy), (dy, dy)))
+        covariance = np.stack([np.stack([xx, xy], -1), np.stack([xy, yy], -1)], -2)  # S_k per run, (M, 2, 2)
+        D = np.linalg.cholesky(covariance + 1e-12 * np.eye(2))  # D_k D_k^T = S_k (tiny ridge: S may be 0)
+        uniforms = np.array([self.rngs[run].random() for run in chosen])
+        ancestors = systematic_resample_rows(weights, uniforms, chosen)  # RESAMPLE
+        eps = np.empty((len(ancestors), 2), dtype=PARTICLE_DTYPE)
+        for i, run in enumerate(chosen):
+            self.rngs[run].standard_normal(dtype=PARTICLE_DTYPE, out=eps[i * self.count : (i + 1) * self.count])
+        moved = take_particles(self.positions, ancestors) + gaussian_jitter(eps, self.bandwidth * D)  # x^{i*} + h D eps
         positions, headings, log_weights = self.positions.copy(order="F"), self.headings.copy(), self.log_weights.copy()
-        for run in np.flatnonzero(runs):
-            rows, rng = self.run_rows(int(run)), self.rngs[run]
-            points = self.positions[rows]
-            covariance = weighted_covariance(weights[run], points)  # S_k
-            D = np.linalg.cholesky(covariance + 1e-12 * np.eye(2))  # D_k D_k^T = S_k
-            ancestors = systematic_resample(weights[run], rng)  # RESAMPLE
-            eps = rng.standard_normal((len(ancestors), 2), dtype=PARTICLE_DTYPE)
-            positions[rows] = take_particles(points, ancestors) + gaussian_jitter(eps, h * D)  # x^{i*} + h D eps
-            headings[rows] = self.headings[rows].take(ancestors)
-            log_weights[run] = -math.log(self.count)
+        for column in range(2):
+            positions[:, column].reshape(self.runs, -1)[chosen] = moved[:, column].reshape(len(chosen), -1)
+        headings.reshape(self.runs, -1)[chosen] = self.headings.take(ancestors).reshape(len(chosen), -1)
+        log_weights[chosen] = -math.log(self.count)
+        for run in chosen:
             self.regularised_at[run].append(self.steps_done)
         self.positions, self.headings, self.log_weights = positions, headings, log_weights
 

@@ -54,7 +54,7 @@ def sample_headings(
 
 def headings_from_uniforms(uniforms: np.ndarray, compass_angle: float | np.ndarray, delta: float) -> np.ndarray:
     """th = th0 + Delta (u - 1/2) for uniforms u in [0, 1), in place (in the uniforms' dtype);
-    `compass_angle` is one angle or one per uniform (runs advanced together, mazelab.batch)."""
+    `compass_angle` is one angle, or an array that broadcasts against the uniforms (mazelab.batch)."""
     uniforms -= 0.5
     uniforms *= delta
     uniforms += compass_angle if isinstance(compass_angle, np.ndarray) else float(compass_angle)
@@ -87,11 +87,15 @@ def log_likelihood(
     """Equation (3) in logs, with refinement 1: log p(z | x) for positions (N, 2) -> (N,).
 
     The Gaussian's constant -log(sigma sqrt(2 pi)) is kept so that sums of these are true log-likelihoods.
-    `z` is one measurement, or one per position in the positions' dtype (runs advanced together).
+    `z` is one measurement, or R measurements for positions in R equal blocks (runs advanced together).
     """
     distance, free = world.station_distances_and_free(positions[:, 0], positions[:, 1])
     residual = distance  # (d - z) / sigma, computed in place: the sign does not matter once squared
-    residual -= z if isinstance(z, np.ndarray) else float(z)
+    if isinstance(z, np.ndarray):
+        blocks = residual.reshape(len(z), -1)
+        blocks -= z.astype(residual.dtype)[:, None]
+    else:
+        residual -= float(z)
     residual /= sigma
     log_p = residual
     log_p *= residual

@@ -13,6 +13,7 @@ import pytest
 from conftest import PAPER_MAZE
 
 from mazelab.cli.app import from_scenario, main
+from mazelab.experiments import batch_runs
 from mazelab.experiments import study as experiments
 from mazelab.experiments.compare import compare_filters
 from mazelab.experiments.executor import run_study
@@ -218,6 +219,7 @@ def test_a_crashing_run_is_reported_with_its_seed_and_the_others_kept(tmp_path, 
         return real(task, visualize)
 
     monkeypatch.setattr(experiments, "run_task", crash_on_run_2)
+    monkeypatch.setattr(batch_runs, "batchable", lambda task: False)  # run by run, through run_task
     table = tmp_path / "s.csv"
     args = ["study", "--maze", "paper_5x5", "--runs", "3", "--steps", "10", "--particles", "50", "--filters", "sir"]
     assert main([*args, "--seed", "3", "--workers", "1", "--csv", str(table)]) == 1
@@ -236,6 +238,7 @@ def test_ctrl_c_keeps_the_finished_runs_and_exits_130(tmp_path, capsys, monkeypa
         return real(task, visualize)
 
     monkeypatch.setattr(experiments, "run_task", interrupt_on_run_3)
+    monkeypatch.setattr(batch_runs, "batchable", lambda task: False)  # run by run, through run_task
     table = tmp_path / "s.csv"
     args = ["study", "--maze", "paper_5x5", "--runs", "5", "--steps", "10", "--particles", "50", "--filters", "sir,apf"]
     assert main([*args, "--workers", "1", "--csv", str(table)]) == 130
