@@ -269,6 +269,9 @@ def run_benchmark(small: Maze, quick: bool = False, echo: Callable[[str], None] 
     if not quick:
         seconds, error = big_run_seconds(small)
         echo(f"simulate(), SIR, N = 1,000,000, 200 steps on the small maze: {seconds:.1f} s (final error {error:.3f})")
+    from mazelab.bench_study import run_study_benchmark  # studies: imports the experiments
+
+    run_study_benchmark(small, large, quick, echo)
     return rows
 
 
