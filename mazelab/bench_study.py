@@ -72,6 +72,8 @@ def run_study_benchmark(small: Maze, large: Maze, quick: bool, echo: Callable[[s
     """Print the study figures: per-run overhead, runs per second, and the cost's growth with R, N, B."""
     steps, runs, settings = (40, 12, 2) if quick else (200, 30, 4)
     cores = default_workers()
+    for world in (small, large):  # warm up: each maze's lookup tables are built on first use
+        run_cost(world, 2, 100, 2)
     one = run_cost(small, 1, 1500, steps)
     batched = run_cost(small, runs, 1500, steps)
     gain = one.microseconds / batched.microseconds

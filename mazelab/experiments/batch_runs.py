@@ -26,7 +26,9 @@ def batchable(task: RunTask) -> bool:
     """Whether the batched filters run this task as run_task would: a maze file, the paper's
     particle filters with their default options."""
     s = task.setting
-    return s.maze.grid is not None and s.recovery == "none" and not task.kld and set(task.filters) <= set(BATCH_FILTERS)
+    paper_options = s.recovery == "none" and not task.kld
+    paper_options &= getattr(s, "bandwidth", "optimal") == "optimal" and getattr(task, "estimate", "mean") == "mean"
+    return s.maze.grid is not None and paper_options and set(task.filters) <= set(BATCH_FILTERS)
 
 
 def study_units(tasks: Sequence[RunTask], workers: int) -> list[tuple[RunTask, ...]]:
