@@ -190,6 +190,7 @@ def _worker_setup() -> None:
     """In each worker: leave Ctrl-C to the main process (it stops the study and keeps what finished),
     and end with the parent, however it ends."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # not the parent's handler, which a fork inherits
     if hasattr(signal, "SIGHUP"):  # a terminal's hangup reaches the whole group: the parent ends the workers
         signal.signal(signal.SIGHUP, signal.SIG_IGN)
     die_with_parent()
