@@ -61,3 +61,11 @@ def test_a_studys_units_give_the_records_of_its_runs_one_by_one(paper_world):
 
     together = [without_timing(records) for unit in units for records in run_unit_safely(unit)]
     assert together == [without_timing(run_task(task)) for task in tasks]
+
+
+def test_units_respect_the_particle_budget(paper_world):
+    many = study_settings([MazeChoice.from_maze("paper", paper_world)], [0.3], [0.5], [400_000], [0.2])
+    tasks = study_tasks(many, ["SIRParticleFilter"], 5, 3, 1)
+    assert [len(unit) for unit in study_units(tasks, workers=1)] == [2, 2, 1]  # 2 x 400,000 <= 10^6
+    huge = study_settings([MazeChoice.from_maze("paper", paper_world)], [0.3], [0.5], [2_000_000], [0.2])
+    assert [len(unit) for unit in study_units(study_tasks(huge, ["SIRParticleFilter"], 3, 3, 1), 1)] == [1, 1, 1]

@@ -20,6 +20,7 @@ from mazelab.robot import Robot
 from mazelab.simulation import RunInputs, RunResult, plan_kidnapping
 
 MAX_BATCH = 32  # runs advanced together: beyond this the fixed cost per step is already small
+MAX_BATCH_PARTICLES = 1_000_000  # R x N at most: a batch needs no more memory than a run of 10^6 particles
 
 
 def batchable(task: RunTask) -> bool:
@@ -32,14 +33,16 @@ def batchable(task: RunTask) -> bool:
 
 
 def study_units(tasks: Sequence[RunTask], workers: int) -> list[tuple[RunTask, ...]]:
-    """The tasks cut into units of work: the runs of a setting together (at most MAX_BATCH, and small
-    enough that every worker gets two units), or one run each where the batch does not apply."""
+    """The tasks cut into units of work: the runs of a setting together (at most MAX_BATCH runs and
+    MAX_BATCH_PARTICLES particles, and small enough that every worker gets two units), or one run
+    each where the batch does not apply."""
     units: list[tuple[RunTask, ...]] = []
     batches = [list(group) for _, group in groupby(tasks, key=lambda t: t.setting_index)]
     size = max(1, min(MAX_BATCH, math.ceil(len(tasks) / (2 * workers))))
     for batch in batches:
-        if len(batch) > 1 and batchable(batch[0]):
-            parts = math.ceil(len(batch) / size)
+        fits = max(1, MAX_BATCH_PARTICLES // batch[0].setting.particles)
+        if len(batch) > 1 and batchable(batch[0]) and min(size, fits) > 1:
+            parts = math.ceil(len(batch) / min(size, fits))
             step = math.ceil(len(batch) / parts)
             units += [tuple(batch[i : i + step]) for i in range(0, len(batch), step)]
         else:
@@ -132,6 +135,7 @@ def run_batch(tasks: Sequence[RunTask]) -> list[list[RunRecord]]:
 
 __all__ = [
     "MAX_BATCH",
+    "MAX_BATCH_PARTICLES",
     "Walk",
     "batchable",
     "run_batch",
