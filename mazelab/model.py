@@ -52,6 +52,12 @@ def sample_headings(
     return headings_from_uniforms(rng.random(count, dtype=dtype), compass_angle, delta)
 
 
+def sample_heading(compass_angle: float, delta: float, rng: np.random.Generator) -> float:
+    """One heading th ~ U(th0 - Delta/2, th0 + Delta/2) (the robot's, once a step): sample_headings'
+    draw and operations in plain floats, so the same value without numpy calls on an array of one."""
+    return (rng.random() - 0.5) * delta + float(compass_angle)
+
+
 def headings_from_uniforms(uniforms: np.ndarray, compass_angle: float | np.ndarray, delta: float) -> np.ndarray:
     """th = th0 + Delta (u - 1/2) for uniforms u in [0, 1), in place (in the uniforms' dtype);
     `compass_angle` is one angle, or an array that broadcasts against the uniforms (mazelab.batch)."""
@@ -136,6 +142,7 @@ __all__ = [
     "headings_from_uniforms",
     "log_likelihood",
     "move",
+    "sample_heading",
     "sample_headings",
     "take_particles",
 ]
