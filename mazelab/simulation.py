@@ -183,10 +183,13 @@ def _available_memory() -> int | None:
         return None
 
 
-def check_start(world: Maze, robot_position: tuple[float, float], particles: np.ndarray) -> None:
-    """The robot must start in the free area; particles may lie anywhere (but we say so)."""
+def check_start(world: Maze, robot_position: tuple[float, float], particles: np.ndarray | None) -> None:
+    """The robot must start in the free area; particles handed in may lie anywhere (but we say so;
+    None: drawn from the free area, nothing to check)."""
     if not world.is_free(*robot_position):
         raise ValueError(f"the robot's start {robot_position} is not in the free area of the maze ({world.source})")
+    if particles is None:
+        return
     outside = int((~world.is_free(particles[:, 0], particles[:, 1])).sum())
     if outside:
         warnings.warn(f"{outside} of the {len(particles)} initial particles lie outside the free area", stacklevel=3)
@@ -272,7 +275,7 @@ def simulate(
             raise ValueError(f"particle_count must be a whole number >= 1, got {count!r}")
         check_memory_for(int(count))
         particles = world.random_free_places(int(count), particles_rng)
-    check_start(world, robot.initial_position, particles)
+    check_start(world, robot.initial_position, particles if init_particles_pos is not None else None)
     if steps is None:
         steps = robot.recorded_steps or DEFAULT_STEPS
     if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
