@@ -8,11 +8,13 @@ from typing import Any
 
 import numpy as np
 
+from mazelab.limits import check_memory
 from mazelab.maze import Maze
 from mazelab.model import CONFIDENCE_RADIUS, CONFIDENCE_SHARE, LOG_UNDERFLOW, OUTSIDE_PENALTY, ROBOT_SPEED
 from mazelab.weights import mass_within, weighted_mean
 
 GRID_RESOLUTION = 0.02  # cell size of GridBayesFilter, map units (divides 1, so cells never straddle walls)
+BYTES_PER_GRID_CELL = 250  # the density, positions, distances and FFT buffers per cell (about 130 measured)
 
 
 class GridBayesFilter:
@@ -46,6 +48,7 @@ class GridBayesFilter:
         self.origin = -margin
         nx = round((world.width + 2 * margin) / resolution)
         ny = round((world.height + 2 * margin) / resolution)
+        check_memory(f"the grid filter's {ny}x{nx} cells (resolution {resolution:g})", nx * ny * BYTES_PER_GRID_CELL)
         centres_x = self.origin + (np.arange(nx) + 0.5) * resolution
         centres_y = self.origin + (np.arange(ny) + 0.5) * resolution
         gx, gy = np.meshgrid(centres_x, centres_y)  # row j is y, column i is x

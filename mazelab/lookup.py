@@ -4,6 +4,7 @@ the station count): what the likelihood of every particle needs each step."""
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -16,8 +17,9 @@ _LOOKUP_MARGIN = 2
 # cells, the fewer have more than one candidate station (at 4, about one in five on the shipped mazes).
 _LOOKUP_SUBDIVISIONS = 4
 _LOOKUP_MAX_CELLS = 2**22  # a larger map gets coarser lookup cells (flat indices stay exact in float32)
-_LOOKUP_TILE = 8  # the table is built in square tiles of this many lookup cells a side
+_LOOKUP_TILE = 16  # the table is built in square tiles of this many lookup cells a side
 _LOOKUP_TOLERANCE = 1e-9  # map units: candidate tests keep near-ties (rounding cannot drop the nearest)
+Progress = Callable[[int, int], None]  # progress(done, total): how far a long build has come
 
 
 class NearestStationLookup:
@@ -31,8 +33,9 @@ class NearestStationLookup:
     Queries run in the points' float dtype (float32 particles, float64 for the exact public API).
     """
 
-    def __init__(self, stations: np.ndarray, free_grid: np.ndarray):
-        """stations (B, 2) in map coordinates; free_grid (H, W) bool, the maze's free cells, row 0 on top."""
+    def __init__(self, stations: np.ndarray, free_grid: np.ndarray, progress: Progress | None = None):
+        """stations (B, 2) in map coordinates; free_grid (H, W) bool, the maze's free cells, row 0 on top;
+        `progress(done, total)` is called as the table's tiles are built (a large maze takes seconds)."""
         height, width = free_grid.shape
         self.scale = _lookup_subdivisions(width, height)
         self.offset = _LOOKUP_MARGIN * self.scale  # lookup-cell index of x = 0 (and of y = 0)
@@ -40,7 +43,7 @@ class NearestStationLookup:
         self.ny = (height + 2 * _LOOKUP_MARGIN) * self.scale
         self.stations = stations
         free = _lookup_cells_free(free_grid, self.scale, _LOOKUP_MARGIN).ravel()  # (C,) bool
-        candidates, counts = _candidate_stations(stations, self.nx, self.ny, self.offset, self.scale)
+        candidates, counts = _candidate_stations(stations, self.nx, self.ny, self.offset, self.scale, progress)
         ambiguous = np.flatnonzero(counts > 1)
         self.kind = _cell_kinds(free, counts > 1)  # (C,) int8
         self.row = np.full(len(counts), -1, dtype=np.int32)  # each cell's row of `_all`, -1: one candidate
@@ -164,6 +167,12 @@ def _border_of(ny: int, nx: int) -> np.ndarray:
     return ring
 
 
+def lookup_cell_count(width: int, height: int) -> int:
+    """How many lookup cells the table of a width x height maze has (its memory and build time grow so)."""
+    scale = _lookup_subdivisions(width, height)
+    return (width + 2 * _LOOKUP_MARGIN) * (height + 2 * _LOOKUP_MARGIN) * scale**2
+
+
 def _lookup_subdivisions(width: int, height: int) -> int:
     """Lookup cells per map unit: _LOOKUP_SUBDIVISIONS, halved while the table would exceed
     _LOOKUP_MAX_CELLS (which keeps flat cell indices exact in float32)."""
@@ -218,21 +227,26 @@ def _brute_force_squared_distances(stations: np.ndarray, x: np.ndarray, y: np.nd
 
 
 def _candidate_stations(
-    stations: np.ndarray, nx: int, ny: int, offset: int, scale: int
+    stations: np.ndarray, nx: int, ny: int, offset: int, scale: int, progress: Progress | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
     """For every lookup cell (flat index j * nx + i), the stations that can be nearest to a point of it,
     nearest to the cell's centre first: (C, K) station indices padded by repeating the first, and the
-    counts (C,). Built tile by tile, each tile's cells choosing among the tile's own candidates."""
-    size = 1 / scale
-    tiles = []
-    for j0 in range(0, ny, _LOOKUP_TILE):
-        for i0 in range(0, nx, _LOOKUP_TILE):
-            ii, jj = np.meshgrid(np.arange(i0, min(i0 + _LOOKUP_TILE, nx)), np.arange(j0, min(j0 + _LOOKUP_TILE, ny)))
-            lo_x, lo_y = (ii.ravel() - offset) * size, (jj.ravel() - offset) * size
-            tile = (lo_x[:1], lo_y[:1], lo_x[-1:] + size - lo_x[:1], lo_y[-1:] + size - lo_y[:1])
-            near = np.flatnonzero(_possibly_nearest(stations, *tile)[0])
-            order, counts = _cell_candidates(stations[near], lo_x, lo_y, size)
-            tiles.append(((jj * nx + ii).ravel(), near[order], counts))
+    counts (C,). Built tile by tile, each tile's cells choosing among the tile's own candidates, which
+    come from halving the table box by box (each box keeps its parent's candidates that can be nearest
+    in it), so a tile checks a few dozen stations, not all B. `progress(done, total)` counts tiles."""
+    tiles: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+    total = -(-nx // _LOOKUP_TILE) * -(-ny // _LOOKUP_TILE)
+    boxes = [(0, 0, nx, ny, np.arange(len(stations)))]  # (i0, j0, ni, nj, candidates): a depth-first stack
+    while boxes:
+        i0, j0, ni, nj, near = boxes.pop()
+        lo = (np.array([i0 - offset], dtype=float) / scale, np.array([j0 - offset], dtype=float) / scale)
+        near = near[_possibly_nearest(stations[near], *lo, ni / scale, nj / scale)[0]]
+        if ni <= _LOOKUP_TILE and nj <= _LOOKUP_TILE:
+            tiles.append(_tile_candidates(stations, near, i0, j0, ni, nj, nx, offset, scale))
+            if progress is not None:
+                progress(len(tiles), total)
+        else:
+            boxes += [(a, b, m, n, near) for a, b, m, n in reversed(_halves(i0, j0, ni, nj))]
     width = max(int(counts.max()) for _, _, counts in tiles)
     table = np.empty((nx * ny, width), dtype=np.intp)
     all_counts = np.empty(nx * ny, dtype=np.intp)
@@ -242,6 +256,27 @@ def _candidate_stations(
         table[cells] = np.pad(candidates, ((0, 0), (0, width - candidates.shape[1])), mode="edge")
         all_counts[cells] = counts
     return table, all_counts
+
+
+def _halves(i0: int, j0: int, ni: int, nj: int) -> list[tuple[int, int, int, int]]:
+    """A box of lookup cells cut in two across its longer side, at a multiple of the tile side (so
+    the leaves are the tiles of the table)."""
+    if ni >= nj:
+        cut = max(1, ni // _LOOKUP_TILE // 2) * _LOOKUP_TILE
+        return [(i0, j0, cut, nj), (i0 + cut, j0, ni - cut, nj)]
+    cut = max(1, nj // _LOOKUP_TILE // 2) * _LOOKUP_TILE
+    return [(i0, j0, ni, cut), (i0, j0 + cut, ni, nj - cut)]
+
+
+def _tile_candidates(
+    stations: np.ndarray, near: np.ndarray, i0: int, j0: int, ni: int, nj: int, nx: int, offset: int, scale: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One tile's flat cell indices, each cell's candidates (indices into `stations`) and counts."""
+    ii, jj = np.meshgrid(np.arange(i0, i0 + ni), np.arange(j0, j0 + nj))
+    size = 1 / scale
+    lo_x, lo_y = (ii.ravel() - offset) * size, (jj.ravel() - offset) * size
+    order, counts = _cell_candidates(stations[near], lo_x, lo_y, size)
+    return (jj * nx + ii).ravel(), near[order], counts
 
 
 def _cell_candidates(
@@ -275,18 +310,25 @@ def _possibly_nearest(
     stations: np.ndarray, lo_x: np.ndarray, lo_y: np.ndarray, size_x: np.ndarray | float, size_y: np.ndarray | float
 ) -> np.ndarray:
     """(c, K) mask: station k's least distance to box c is at most the smallest, over all stations,
-    greatest distance to box c (otherwise that other station is nearer everywhere in the box)."""
+    greatest distance to box c (otherwise that other station is nearer everywhere in the box).
+    Compared as squares (no square roots; the tolerance, added to the root of the bound, still covers
+    their rounding, a relative 1e-16)."""
     lo_x, lo_y = lo_x[:, None], lo_y[:, None]
     hi_x, hi_y = lo_x + np.asarray(size_x)[..., None], lo_y + np.asarray(size_y)[..., None]
     sx, sy = stations[:, 0], stations[:, 1]
-    least = np.hypot(np.maximum(np.maximum(lo_x - sx, sx - hi_x), 0), np.maximum(np.maximum(lo_y - sy, sy - hi_y), 0))
-    greatest = np.hypot(
-        np.maximum(np.abs(sx - lo_x), np.abs(sx - hi_x)), np.maximum(np.abs(sy - lo_y), np.abs(sy - hi_y))
+    least = _squared_distances(
+        np.maximum(np.maximum(lo_x - sx, sx - hi_x), 0), np.maximum(np.maximum(lo_y - sy, sy - hi_y), 0), 0.0, 0.0
     )
-    return least <= greatest.min(axis=1, keepdims=True) + _LOOKUP_TOLERANCE
+    greatest = _squared_distances(
+        np.maximum(np.abs(sx - lo_x), np.abs(sx - hi_x)), np.maximum(np.abs(sy - lo_y), np.abs(sy - hi_y)), 0.0, 0.0
+    )
+    bound = np.sqrt(greatest.min(axis=1, keepdims=True)) + _LOOKUP_TOLERANCE
+    return least <= bound * bound
 
 
 __all__ = [
     "NearestStationLookup",
+    "Progress",
     "is_scalar",
+    "lookup_cell_count",
 ]

@@ -9,6 +9,7 @@ Cell values: 0 empty, 1 wall, 2 wall with a station at each of its four corners.
 from __future__ import annotations
 
 import math
+import stat
 from collections.abc import Sequence
 from functools import cached_property
 from pathlib import Path
@@ -16,10 +17,16 @@ from typing import Any
 
 import numpy as np
 
-from mazelab.lookup import NearestStationLookup, is_scalar
+from mazelab.limits import BYTES_PER_LOOKUP_CELL, BYTES_PER_MAZE_CELL, check_memory
+from mazelab.lookup import NearestStationLookup, Progress, is_scalar, lookup_cell_count
 
 EMPTY, WALL, STATION_WALL = 0, 1, 2
-MAZE_FILE_LIMIT_BYTES = 1_000_000  # a maze file larger than this is refused, not read
+# At most this many rows and columns: the nearest-station table's flat cell indices stay exact in
+# float32 ((4000 + 4)**2 < 2**24) and float32 particle positions resolve 2**-11 map units.
+MAX_MAZE_SIDE = 4000
+# A maze file larger than this is refused, not read: room for the largest maze written with ", "
+# between cells (3 bytes a cell, 48 MB), comments included.
+MAZE_FILE_LIMIT_BYTES = 64 * 2**20
 
 
 class MazeError(ValueError):
@@ -57,7 +64,30 @@ class Maze:
     @cached_property
     def _lookup(self) -> NearestStationLookup:
         """The nearest-station table, built on first use (a few ms; about a second for 100 x 100)."""
-        return NearestStationLookup(self.stations, self.grid == EMPTY)
+        return self._new_lookup()
+
+    def prepare(self, progress: Progress | None = None) -> Maze:
+        """Build the nearest-station table now rather than on first use, calling `progress(done, total)`
+        as it goes (a 1000 x 1000 maze takes tens of seconds). Returns the maze."""
+        if not self.has_lookup:
+            self.__dict__["_lookup"] = self._new_lookup(progress)
+        return self
+
+    @property
+    def has_lookup(self) -> bool:
+        """Whether the nearest-station table is built already."""
+        return "_lookup" in self.__dict__
+
+    @property
+    def lookup_cells(self) -> int:
+        """The size of the nearest-station table, in lookup cells (what its build time grows with)."""
+        return lookup_cell_count(self.width, self.height)
+
+    def _new_lookup(self, progress: Progress | None = None) -> NearestStationLookup:
+        """The nearest-station table, refused up front if it would not fit in memory."""
+        what = f"the nearest-station table of the {self.height}x{self.width} maze ({self.source})"
+        check_memory(what, self.lookup_cells * BYTES_PER_LOOKUP_CELL)
+        return NearestStationLookup(self.stations, self.grid == EMPTY, progress)
 
     # -- geometry --------------------------------------------------------------------------------
     @property
@@ -138,12 +168,25 @@ class Maze:
 
 
 # -- validation and parsing ----------------------------------------------------------------------
+def check_maze_size(rows: int, columns: int, source: str | None = None) -> None:
+    """Refuse, before anything is allocated, a maze beyond MAX_MAZE_SIDE or one whose grid and
+    nearest-station table would not fit in memory (`source` names the file, if any)."""
+    where = f"{source}: " if source else ""
+    if rows > MAX_MAZE_SIDE or columns > MAX_MAZE_SIDE:
+        raise MazeError(
+            f"{where}a {rows}x{columns} maze is too large: at most {MAX_MAZE_SIDE} rows and {MAX_MAZE_SIDE} columns"
+        )
+    needed = rows * columns * BYTES_PER_MAZE_CELL + lookup_cell_count(columns, rows) * BYTES_PER_LOOKUP_CELL
+    check_memory(f"{where}a {rows}x{columns} maze", needed)
+
+
 def _validate_grid(maze_map: Any, source: str) -> np.ndarray:
     """Check the map is rectangular, non-empty, of 0/1/2 with a free cell and a station."""
     if isinstance(maze_map, np.ndarray):
-        rows = maze_map.tolist() if maze_map.ndim == 2 else None
-        if rows is None:
+        if maze_map.ndim != 2:
             raise MazeError(f"{source}: a maze must be 2-D, got an array of {maze_map.ndim} dimension(s)")
+        check_maze_size(*maze_map.shape, source=source)
+        rows = maze_map.tolist()
     else:
         try:
             rows = [list(row) for row in maze_map]
@@ -152,6 +195,7 @@ def _validate_grid(maze_map: Any, source: str) -> np.ndarray:
     if not rows or not rows[0]:
         raise MazeError(f"{source}: the maze is empty")
     width = len(rows[0])
+    check_maze_size(len(rows), width, source)
     for r, row in enumerate(rows):
         if len(row) != width:
             raise MazeError(f"{source}: row {r + 1} has {len(row)} cells, row 1 has {width}: not rectangular")
@@ -167,20 +211,28 @@ def _validate_grid(maze_map: Any, source: str) -> np.ndarray:
 
 
 def _read_maze_file(path: Path) -> str:
-    """The text of a maze file, refusing missing, unreadable, binary or enormous files clearly."""
+    """The text of a maze file, refusing missing, unreadable, binary or enormous files, and anything
+    that is not a regular file (a folder, a device such as /dev/zero, a pipe), clearly and at once."""
     try:
-        size = path.stat().st_size
-        if path.is_dir():
+        status = path.stat()
+        if stat.S_ISDIR(status.st_mode):
             raise MazeError(f"{path}: is a folder, not a maze file")
-        if size > MAZE_FILE_LIMIT_BYTES:
-            raise MazeError(f"{path}: {size} bytes is too large for a maze file (limit {MAZE_FILE_LIMIT_BYTES})")
-        data = path.read_bytes()
+        if not stat.S_ISREG(status.st_mode):
+            raise MazeError(f"{path}: not a regular file (a device, pipe or socket); a maze is a text file")
+        if status.st_size > MAZE_FILE_LIMIT_BYTES:
+            raise MazeError(
+                f"{path}: {status.st_size} bytes is too large for a maze file (limit {MAZE_FILE_LIMIT_BYTES})"
+            )
+        with path.open("rb") as file:
+            data = file.read(MAZE_FILE_LIMIT_BYTES + 1)  # at most one byte past the limit, whatever stat said
     except FileNotFoundError:
         raise MazeError(f"{path}: no such maze file") from None
     except PermissionError:
         raise MazeError(f"{path}: not readable (permission denied)") from None
     except OSError as error:
         raise MazeError(f"{path}: cannot be read ({error.strerror or error})") from None
+    if len(data) > MAZE_FILE_LIMIT_BYTES:
+        raise MazeError(f"{path}: too large for a maze file (more than {MAZE_FILE_LIMIT_BYTES} bytes)")
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError:
@@ -198,6 +250,8 @@ def parse_maze_text(text: str, source: str = "maze text") -> list[list[int]]:
         bad = next((ch for ch in cells if ch not in "012"), None)
         if bad is not None:
             raise MazeError(f"{source}:{number}: {bad!r} is not a maze cell; use 0 (free), 1 (wall), 2 (station)")
+        if len(rows) >= MAX_MAZE_SIDE or len(cells) > MAX_MAZE_SIDE:  # refused at this line, not after the rest
+            check_maze_size(len(rows) + 1, len(cells), f"{source}:{number}")
         row = [int(ch) for ch in cells]
         if rows and len(row) != len(rows[0]):
             raise MazeError(
@@ -231,10 +285,12 @@ def _free_cell_origins(grid: np.ndarray) -> np.ndarray:
 
 __all__ = [
     "EMPTY",
+    "MAX_MAZE_SIDE",
     "MAZE_FILE_LIMIT_BYTES",
     "STATION_WALL",
     "WALL",
     "Maze",
     "MazeError",
+    "check_maze_size",
     "parse_maze_text",
 ]

@@ -18,7 +18,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from mazelab.maze import EMPTY, STATION_WALL, WALL, Maze
+from mazelab.lookup import Progress
+from mazelab.maze import EMPTY, STATION_WALL, WALL, Maze, check_maze_size
 
 DEFAULT_WALL_SHARE = 0.3  # share of the cells that become walls (station blocks included)
 CELLS_PER_STATION_BLOCK = 25  # the default station count: one block per this many cells
@@ -36,6 +37,7 @@ def parse_size(text: str) -> tuple[int, int]:
     rows, columns = int(match[1]), int(match[2])
     if rows < 1 or columns < 1 or rows * columns < 2:
         raise ValueError(f"maze size {text!r} is too small: it needs room for a free cell and a station block")
+    check_maze_size(rows, columns)
     return rows, columns
 
 
@@ -45,13 +47,20 @@ def default_station_count(rows: int, columns: int) -> int:
 
 
 def generate_maze(
-    rows: int, columns: int, stations: int, rng: np.random.Generator, wall_share: float = DEFAULT_WALL_SHARE
+    rows: int,
+    columns: int,
+    stations: int,
+    rng: np.random.Generator,
+    wall_share: float = DEFAULT_WALL_SHARE,
+    progress: Progress | None = None,
 ) -> Maze:
     """A random rows x columns maze with `stations` station blocks and a 4-connected free area.
 
     About `wall_share` of the cells become walls (fewer if no more can be added without cutting the
     free area); at least one cell stays free. The same generator state gives the same maze.
+    `progress(done, total)` follows the walls added (a 1000 x 1000 maze takes some seconds).
     """
+    check_maze_size(rows, columns)
     if stations < 1:
         raise ValueError(f"a maze needs at least one station block, got --stations {stations}")
     if not 0 <= wall_share < 1:
@@ -59,20 +68,27 @@ def generate_maze(
     if stations >= rows * columns:
         raise ValueError(f"{stations} station blocks do not fit in a {rows}x{columns} maze with a free cell")
     grid = np.full((rows, columns), EMPTY, dtype=np.int8)
-    walls = _add_walls(grid, max(stations, round(wall_share * rows * columns)), rng, _can_become_wall)
+    wanted = max(stations, round(wall_share * rows * columns))
+    walls = _add_walls(grid, wanted, rng, _can_become_wall, progress)
     if walls < stations:  # rare: only free cycles are left, which the local test cannot open
         walls += _add_walls(grid, stations - walls, rng, _keeps_free_area_connected)
     _place_stations(grid, stations, rng)
+    if progress is not None:
+        progress(wanted, wanted)
     return Maze(grid, source=f"generated {rows}x{columns} maze")
 
 
 def _add_walls(
-    grid: np.ndarray, wanted: int, rng: np.random.Generator, allowed: Callable[[np.ndarray, int, int], bool]
+    grid: np.ndarray,
+    wanted: int,
+    rng: np.random.Generator,
+    allowed: Callable[[np.ndarray, int, int], bool],
+    progress: Progress | None = None,
 ) -> int:
     """Turn up to `wanted` free cells into walls, in random order, where `allowed`; returns how many.
 
     A cell refused early may be allowed once its neighbours changed, so the passes repeat until
-    `wanted` is reached or a pass adds nothing.
+    `wanted` is reached or a pass adds nothing. `progress(added, wanted)` is called every 2**14 walls.
     """
     added = 0
     while added < wanted:
@@ -82,6 +98,8 @@ def _add_walls(
             if added < wanted and allowed(grid, r, c):
                 grid[r, c] = WALL
                 added += 1
+                if progress is not None and added % 2**14 == 0 and added < wanted:
+                    progress(added, wanted)
         if added == before:
             break
     return added

@@ -7,7 +7,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from mazelab.checks import as_point, finite_number, step_number
+from mazelab.checks import angle, as_point, coordinate, step_number
 from mazelab.maze import Maze
 from mazelab.model import MAX_STRAIGHT_STEPS, ROBOT_SPEED, check_model_parameters, sample_heading
 
@@ -40,13 +40,13 @@ class Robot:
         self.initial_position = as_point("robot position", position)
         if (actual_angles is None) != (compass_angles is None):
             raise ValueError("give both actual_angles and compass_angles, or neither")
-        self.actual_angles = [finite_number("actual angle", a) for a in actual_angles or []]
-        self.compass_angles = [finite_number("compass angle", a) for a in compass_angles or []]
+        self.actual_angles = [angle("actual angle", a) for a in actual_angles or []]
+        self.compass_angles = [angle("compass angle", a) for a in compass_angles or []]
         if len(self.actual_angles) != len(self.compass_angles):
             raise ValueError(
                 f"actual_angles has {len(self.actual_angles)} entries but compass_angles has {len(self.compass_angles)}"
             )
-        self.measurements = [finite_number("measurement", z) for z in measurements or []]
+        self.measurements = [coordinate("measurement", z) for z in measurements or []]
         if measurements is not None and len(self.measurements) != len(self.actual_angles):
             raise ValueError(
                 f"measurements has {len(self.measurements)} entries, one per step ({len(self.actual_angles)}) expected"

@@ -6,14 +6,20 @@ robot_compass_angles) loads; the program writes the measurements and metadata to
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
+import re
+import stat
 from pathlib import Path
 from typing import Annotated, Any
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from mazelab.atomic import write_text_atomically
+from mazelab.checks import MAX_ANGLE, MAX_COORDINATE, check_all_within, check_within_map
+from mazelab.limits import MemoryLimitError, check_memory
 from mazelab.maze import Maze
 from mazelab.robot import Robot
 
@@ -21,6 +27,9 @@ DEFAULT_PARAMETERS_PATH = Path("model_parameters") / "model_parameters.json"
 SCENARIO_FORMAT_VERSION = 2  # the newest scenario format this program reads and writes
 KIDNAP_FORMAT_VERSION = 2  # scenarios with a kidnapping are version 2; all others stay version 1
 
+
+MAX_JSON_DEPTH = 16  # a scenario nests 3 deep; deeper files are refused before parsing (no RecursionError)
+BYTES_PER_JSON_BYTE = 40  # memory the parsed json and its validation take per byte of the file (generous)
 
 # -- saved scenarios -------------------------------------------------------------------------------
 FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
@@ -62,6 +71,7 @@ class Scenario(BaseModel):
 
     @model_validator(mode="after")
     def _consistent(self) -> Scenario:
+        particles = self._check_bounds()
         if self.format_version > SCENARIO_FORMAT_VERSION:
             raise ValueError(
                 f"format_version {self.format_version} is newer than this program reads ({SCENARIO_FORMAT_VERSION})"
@@ -82,8 +92,30 @@ class Scenario(BaseModel):
         if self.steps is not None and self.steps != steps:
             raise ValueError(f"steps is {self.steps} but there are {steps} angles")
         if self.maze is not None:
-            Maze(self.maze, source="the scenario's maze")
+            self._check_places(Maze(self.maze, source="the scenario's maze"), particles)
         return self
+
+    def _check_bounds(self) -> np.ndarray:
+        """Angles within MAX_ANGLE radians, places and distances within MAX_COORDINATE map units,
+        checked in numpy (a scenario may hold a million particles); returns the particles (N, 2)."""
+        particles = _pairs(self.init_particles_pos)
+        for name, values, bound, unit in (
+            ("robot_actual_angles", _numbers(self.robot_actual_angles), MAX_ANGLE, "radians"),
+            ("robot_compass_angles", _numbers(self.robot_compass_angles), MAX_ANGLE, "radians"),
+            ("robot_measurements", _numbers(self.robot_measurements or []), MAX_COORDINATE, "map units"),
+            ("init_robot_pos", _numbers(self.init_robot_pos), MAX_COORDINATE, "map units"),
+            ("init_particles_pos", particles, MAX_COORDINATE, "map units"),
+            ("kidnap_position", _numbers(self.kidnap_position or []), MAX_COORDINATE, "map units"),
+        ):
+            check_all_within(name, values, bound, unit)
+        return particles
+
+    def _check_places(self, world: Maze, particles: np.ndarray) -> None:
+        """Particles within the stored maze plus a margin, and a kidnap position in its free area (the
+        robot's start is checked where every run is, in simulation.check_start)."""
+        check_within_map("init_particles_pos", particles, world.width, world.height)
+        if self.kidnap_position is not None and not world.is_free(*self.kidnap_position):
+            raise ValueError(f"kidnap_position {self.kidnap_position} is not in the free area of the scenario's maze")
 
     def world(self) -> Maze | None:
         """The maze stored in the scenario, if any."""
@@ -120,6 +152,16 @@ class Scenario(BaseModel):
         return "{\n" + ",\n".join(lines) + "\n}\n"
 
 
+def _numbers(values: Any) -> np.ndarray:
+    """A list of floats as an array (fromiter: several times faster than asarray on long lists)."""
+    return np.fromiter(values, dtype=float, count=len(values))
+
+
+def _pairs(points: list[tuple[float, float]]) -> np.ndarray:
+    """A list of (x, y) pairs as an (N, 2) array, at fromiter's speed."""
+    return np.fromiter(itertools.chain.from_iterable(points), dtype=float, count=2 * len(points)).reshape(-1, 2)
+
+
 class ScenarioError(ValueError):
     """A scenario file that cannot be used; the message is one line naming the file and the problem."""
 
@@ -135,40 +177,73 @@ def save_scenario(scenario: Scenario, path: str | Path = DEFAULT_PARAMETERS_PATH
 def load_scenario(path: str | Path = DEFAULT_PARAMETERS_PATH) -> Scenario:
     """Read and validate a scenario json file (a file with only the paper's four keys is fine)."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ScenarioError(f"{path}: no such scenario file") from None
-    except (OSError, UnicodeDecodeError) as error:
-        raise ScenarioError(f"{path}: cannot be read ({error})") from None
+    text = _read_scenario_file(path)
+    depth = json_depth(text)
+    if depth > MAX_JSON_DEPTH:
+        raise ScenarioError(f"{path}: json nested {depth} deep; a scenario nests at most {MAX_JSON_DEPTH} deep")
     try:
         data = json.loads(text)
     except json.JSONDecodeError as error:
         raise ScenarioError(f"{path}:{error.lineno}: not valid json ({error.msg})") from None
+    except RecursionError:  # the depth scan keeps this from happening; a last guard
+        raise ScenarioError(f"{path}: json nested too deeply") from None
     try:
         return Scenario.model_validate(data)
     except ValidationError as error:
         raise ScenarioError(f"{path}: {describe_validation_error(error)}") from None
 
 
+def _read_scenario_file(path: Path) -> str:
+    """The text of a scenario file: a regular file (not a device or pipe) whose parsing fits in memory."""
+    try:
+        status = path.stat()
+        if stat.S_ISDIR(status.st_mode):
+            raise ScenarioError(f"{path}: is a folder, not a scenario file")
+        if not stat.S_ISREG(status.st_mode):
+            raise ScenarioError(f"{path}: not a regular file (a device, pipe or socket); a scenario is a json file")
+        check_memory(f"{path}: a scenario file of {status.st_size} bytes", status.st_size * BYTES_PER_JSON_BYTE)
+        return path.read_text(encoding="utf-8")
+    except MemoryLimitError as error:
+        raise ScenarioError(str(error)) from None
+    except FileNotFoundError:
+        raise ScenarioError(f"{path}: no such scenario file") from None
+    except (OSError, UnicodeDecodeError) as error:
+        raise ScenarioError(f"{path}: cannot be read ({error})") from None
+
+
+_JSON_STRING = re.compile(r'"(?:[^"\\]|\\.)*"')
+
+
+def json_depth(text: str) -> int:
+    """How deep the arrays and objects of a json text nest (brackets inside strings do not count); a
+    cheap scan, so that a file nested 100,000 deep is refused before the parser recurses."""
+    codes = np.frombuffer(_JSON_STRING.sub("", text).encode("utf-8", "replace"), dtype=np.uint8)
+    opening = (codes == ord("[")) | (codes == ord("{"))
+    brackets = opening[opening | (codes == ord("]")) | (codes == ord("}"))]  # the brackets alone, in order
+    return int(np.cumsum(np.where(brackets, 1, -1), dtype=np.int64).max(initial=0))
+
+
 def describe_validation_error(error: ValidationError) -> str:
     """The first problem of a pydantic error, on one line: 'where: what' (and how many more)."""
     first = error.errors()[0]
     parts = (str(part) for part in first["loc"])  # a key may hold a newline: quote those, to keep one line
-    where = ".".join(part if part.isprintable() else repr(part) for part in parts) or "the file"
+    where = ".".join(part if part.isprintable() else repr(part) for part in parts)
+    message = first["msg"].removeprefix("Value error, ")  # our own checks' messages, without pydantic's label
     more = len(error.errors()) - 1
-    return f"{where}: {first['msg']}" + (f" (and {more} more problem(s))" if more else "")
+    return (f"{where}: {message}" if where else message) + (f" (and {more} more problem(s))" if more else "")
 
 
 __all__ = [
     "DEFAULT_PARAMETERS_PATH",
     "KIDNAP_FORMAT_VERSION",
+    "MAX_JSON_DEPTH",
     "SCENARIO_FORMAT_VERSION",
     "FiniteFloat",
     "Point",
     "Scenario",
     "ScenarioError",
     "describe_validation_error",
+    "json_depth",
     "load_scenario",
     "save_scenario",
 ]

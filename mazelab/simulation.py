@@ -7,7 +7,6 @@ log_step and close); it never imports the viewer (mazelab.lab joins the two).
 
 from __future__ import annotations
 
-import os
 import time
 import warnings
 from collections.abc import Callable, Sequence
@@ -16,7 +15,8 @@ from typing import Any
 
 import numpy as np
 
-from mazelab.checks import as_points, step_number
+from mazelab.checks import as_points, check_within_map, step_number
+from mazelab.limits import check_particles, check_steps
 from mazelab.maze import Maze
 from mazelab.model import CONVERGENCE_RADIUS, DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, check_model_parameters
 from mazelab.registry import resolve_filter
@@ -161,35 +161,22 @@ def convergence_step(errors: np.ndarray, radius: float = CONVERGENCE_RADIUS) -> 
     return None if outside[-1] == len(errors) - 1 else int(outside[-1]) + 2
 
 
-BYTES_PER_PARTICLE = 400  # arrays a particle needs during a step, temporaries included (generous)
-
-
-def check_memory_for(particle_count: int) -> None:
-    """Refuse, before allocating, a particle count whose arrays would not fit in the available memory."""
-    needed = particle_count * BYTES_PER_PARTICLE
-    available = _available_memory()
-    if available is not None and needed > 0.8 * available:
-        raise ValueError(
-            f"particle_count {particle_count} needs about {needed / 2**30:.1f} GiB, "
-            f"but only {available / 2**30:.1f} GiB of memory is available"
-        )
-
-
-def _available_memory() -> int | None:
-    """Bytes of physical memory available now, where the system tells (None elsewhere)."""
-    try:
-        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
-    except (AttributeError, ValueError, OSError):
-        return None
-
-
-def check_start(world: Maze, robot_position: tuple[float, float], particles: np.ndarray | None) -> None:
-    """The robot must start in the free area; particles handed in may lie anywhere (but we say so;
+def check_start(
+    world: Maze,
+    robot_position: tuple[float, float],
+    particles: np.ndarray | None,
+    kidnap_position: tuple[float, float] | None = None,
+) -> None:
+    """The robot must start (and be put down by a kidnapping) in the free area; particles handed in
+    may lie anywhere within the map plus a margin (but we say when they lie outside the free area;
     None: drawn from the free area, nothing to check)."""
     if not world.is_free(*robot_position):
         raise ValueError(f"the robot's start {robot_position} is not in the free area of the maze ({world.source})")
+    if kidnap_position is not None and not world.is_free(*kidnap_position):
+        raise ValueError(f"the kidnap position {kidnap_position} is not in the free area of the maze ({world.source})")
     if particles is None:
         return
+    check_within_map("init_particles_pos", particles, world.width, world.height)
     outside = int((~world.is_free(particles[:, 0], particles[:, 1])).sum())
     if outside:
         warnings.warn(f"{outside} of the {len(particles)} initial particles lie outside the free area", stacklevel=3)
@@ -273,13 +260,15 @@ def simulate(
         count = DEFAULT_PARTICLE_COUNT if particle_count is None else particle_count
         if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 1:
             raise ValueError(f"particle_count must be a whole number >= 1, got {count!r}")
-        check_memory_for(int(count))
+        check_particles(int(count))
         particles = world.random_free_places(int(count), particles_rng)
-    check_start(world, robot.initial_position, particles if init_particles_pos is not None else None)
+    given = particles if init_particles_pos is not None else None  # drawn ones lie in the free area
+    check_start(world, robot.initial_position, given, robot.kidnap_position)
     if steps is None:
         steps = robot.recorded_steps or DEFAULT_STEPS
     if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
         raise ValueError(f"steps must be a whole number >= 1, got {steps!r}")
+    check_steps(int(steps))
     if kidnap_at is not None:
         plan_kidnapping(robot, world, kidnap_at, steps, kidnap_rng)
 
@@ -334,11 +323,9 @@ def plan_kidnapping(robot: Robot, world: Maze, kidnap_at: int, steps: int, rng: 
 
 
 __all__ = [
-    "BYTES_PER_PARTICLE",
     "NullView",
     "RunInputs",
     "RunResult",
-    "check_memory_for",
     "check_start",
     "convergence_step",
     "expect_kidnapping",

@@ -42,7 +42,7 @@ from mazelab.cli.options import (
     visualization,
     warn_in_one_line,
 )
-from mazelab.cli.reports import kidnap_report, particle_count_report, progress_printer, summarise
+from mazelab.cli.reports import kidnap_report, particle_count_report, prepare_world, progress_printer, summarise
 from mazelab.experiments.compare import compare_filters, comparison_table, errors_csv, plot_errors
 from mazelab.experiments.dask_runner import close_client, connect
 from mazelab.experiments.executor import STOP_SIGNALS, default_workers, run_study
@@ -54,6 +54,7 @@ from mazelab.experiments.summary import describe_setting, plot_study, study_csv,
 from mazelab.filters import ParticleFilter
 from mazelab.kalman import EKF_INITS, ExtendedKalmanFilter
 from mazelab.lab import simulate
+from mazelab.limits import check_particles, check_steps, check_study
 from mazelab.maze import Maze, MazeError
 from mazelab.mazes import DEFAULT_MAZE, find_maze, load_maze
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, RPF_THRESHOLD
@@ -167,6 +168,7 @@ def run(
         delta = DEFAULT_DELTA if delta is None else delta
         robot = Robot(sigma, delta, world.random_free_place(np.random.default_rng(start_seed)))
         init_particles, particles_arg, steps_arg = None, particles, steps
+    prepare_world(world)
     total = steps_arg or robot.recorded_steps
     result = simulate(
         robot,
@@ -267,6 +269,7 @@ def compare(
     check_outputs(csv_path, plot, force, rrd)
     stored = load_scenario(scenario)
     world, robot, sigma, delta, particles = from_scenario(stored, maze, sigma, delta)
+    prepare_world(world)
     seed = seed if seed is not None else stored.seed if stored.seed is not None else new_seed()
     names = parse_filters(filters)
     typer.echo(
@@ -351,6 +354,8 @@ def study(
     visualize = visualization(viewer, rrd, web, no_viz, max_drawn) if viewer or web or rrd is not None else False
     check_outputs(csv_path, plot, force, rrd)
     names = parse_filters(filters)
+    check_steps(steps)  # each run's limits, up front rather than in every worker
+    check_particles(max(parse_list(particles, int, "--particles")))
     settings = study_settings(
         study_mazes(maze, maze_size, stations),
         parse_list(sigma, float, "--sigma"),
@@ -359,6 +364,7 @@ def study(
         parse_list(threshold, float, "--threshold"),
         parse_list(recovery, str, "--recovery"),
     )
+    check_study(len(settings) * runs, len(names))
     seed = new_seed() if seed is None else seed
     tasks = study_tasks(settings, names, runs, steps, seed, kidnap_at=kidnap_at, kld=kld)
     workers = workers or default_workers()

@@ -11,6 +11,7 @@ import typer
 from mazelab import maze_generator
 from mazelab.atomic import write_text_atomically
 from mazelab.cli.options import NoVizOption, RrdOption, ViewerOption, WebOption, check_output_path, visualization
+from mazelab.cli.reports import generation_progress
 from mazelab.mazes import load_maze
 from mazelab.simulation import new_seed
 from mazelab.viz.views import open_view
@@ -35,7 +36,8 @@ def maze_generate(
     rows, columns = maze_generator.parse_size(size)
     stations = maze_generator.default_station_count(rows, columns) if stations is None else stations
     seed = new_seed() if seed is None else seed
-    world = maze_generator.generate_maze(rows, columns, stations, np.random.default_rng(seed), walls)
+    progress = generation_progress(rows, columns)
+    world = maze_generator.generate_maze(rows, columns, stations, np.random.default_rng(seed), walls, progress)
     command = f"python main.py maze generate --size {rows}x{columns} --stations {stations} --seed {seed}"
     if walls != maze_generator.DEFAULT_WALL_SHARE:
         command += f" --walls {walls:g}"
