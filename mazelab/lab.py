@@ -71,8 +71,9 @@ def run_model(
     """The paper's entry point: run a filter and return [((x_true, y_true), (x_est, y_est)), ...].
 
     With `init_particles_pos` the particle count follows from it, and with a robot that replays
-    angles the step count follows from them. `save_parameters=True` saves the scenario (the paper's
-    model_parameters.json, in `parameters_path`) so the filters can be compared on identical data.
+    angles the step count follows from them. `save_parameters=True` saves the scenario so the filters
+    can be compared on identical data: to the paper's model_parameters.json in the working folder, or
+    to `parameters_path`.
     `kidnap_at=K` kidnaps the robot at step K; filter options such as `resampling=`, `recovery=`
     and `kld=` pass through to the filter (see ParticleFilter).
     """

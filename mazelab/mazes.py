@@ -2,12 +2,20 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
-from mazelab.maze import Maze
+import numpy as np
+
+from mazelab.maze import Maze, MazeError
 
 MAZES_DIR = Path(__file__).resolve().parent.parent / "mazes"  # the repository's mazes/ (an editable install)
 DEFAULT_MAZE = "maze_10x10"
+
+
+def shipped_mazes() -> list[str]:
+    """The names of the mazes in mazes/ (file names without .txt), sorted."""
+    return sorted(path.stem for path in MAZES_DIR.glob("*.txt"))
 
 
 def find_maze(name_or_path: str) -> Path:
@@ -18,11 +26,21 @@ def find_maze(name_or_path: str) -> Path:
     for candidate in (MAZES_DIR / name_or_path, MAZES_DIR / f"{name_or_path}.txt"):
         if candidate.exists():
             return candidate
+    if path.parent == Path(".") and shipped_mazes():  # a bare name: perhaps a mistyped shipped maze
+        raise MazeError(f"{name_or_path}: no such maze file, nor a maze in mazes/ ({', '.join(shipped_mazes())})")
     return path  # Maze.from_file reports it missing
 
 
 def load_maze(name_or_path: str) -> Maze:
+    """The maze of a file, or of a shipped maze's name."""
     return Maze.from_file(find_maze(name_or_path))
+
+
+def mazes_fitting(start: Sequence[float], particles: np.ndarray) -> list[str]:
+    """The shipped mazes in whose free area the robot's start and every particle lie (a scenario
+    that stores no maze was made on one of these)."""
+    points = np.vstack([np.asarray(start, dtype=float).reshape(1, 2), np.asarray(particles, dtype=float)])
+    return [name for name in shipped_mazes() if np.all(load_maze(name).is_free(points[:, 0], points[:, 1]))]
 
 
 __all__ = [
@@ -30,4 +48,6 @@ __all__ = [
     "MAZES_DIR",
     "find_maze",
     "load_maze",
+    "mazes_fitting",
+    "shipped_mazes",
 ]

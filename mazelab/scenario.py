@@ -23,7 +23,8 @@ from mazelab.limits import MemoryLimitError, check_memory
 from mazelab.maze import Maze
 from mazelab.robot import Robot
 
-DEFAULT_PARAMETERS_PATH = Path("model_parameters") / "model_parameters.json"
+DEFAULT_PARAMETERS_PATH = Path("model_parameters.json")  # the paper's file (lab steps 9-10), in the working folder
+LEGACY_PARAMETERS_PATH = Path("model_parameters") / "model_parameters.json"  # where older versions saved it
 SCENARIO_FORMAT_VERSION = 2  # the newest scenario format this program reads and writes
 KIDNAP_FORMAT_VERSION = 2  # scenarios with a kidnapping are version 2; all others stay version 1
 
@@ -206,7 +207,9 @@ def _read_scenario_file(path: Path) -> str:
     except MemoryLimitError as error:
         raise ScenarioError(str(error)) from None
     except FileNotFoundError:
-        raise ScenarioError(f"{path}: no such scenario file") from None
+        older = LEGACY_PARAMETERS_PATH.is_file() and path.name == "model_parameters.json"
+        hint = f" (older versions saved to {LEGACY_PARAMETERS_PATH})" if older else ""
+        raise ScenarioError(f"{path}: no such scenario file{hint}") from None
     except (OSError, UnicodeDecodeError) as error:
         raise ScenarioError(f"{path}: cannot be read ({error})") from None
 

@@ -114,8 +114,8 @@ def test_notebook_runs_top_to_bottom_in_a_fresh_kernel(kernel_spec, tmp_path):
         assert bool(widgets) == notebook_viewer_installed(), f"cell {cell.id}: inline viewer expected iff installed"
 
     # step 9 saved the scenario in the kernel's working folder, where steps 10-12 read it back
-    scenario = load_scenario(workdir / "model_parameters" / "model_parameters.json")
+    scenario = load_scenario(workdir / "model_parameters.json")
     assert len(scenario.init_particles_pos) == 1500
     assert len(scenario.robot_actual_angles) == len(scenario.robot_measurements) == 200
     assert "the same true path for all three: True" in "".join(stdout_of(cell) for cell in cells)
-    assert sorted(path.name for path in workdir.iterdir()) == ["model_parameters"]  # no recordings left behind
+    assert sorted(path.name for path in workdir.iterdir()) == ["model_parameters.json"]  # no recordings left behind

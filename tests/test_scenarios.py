@@ -34,7 +34,7 @@ def test_the_papers_lab_steps_2_to_12(tmp_path, monkeypatch):
     trial = run_model(robot, world, sigma, delta, particle_count=particle_count, steps=steps, save_parameters=True)
     assert len(trial) == steps
     # 10. read it back with json.load
-    with open("model_parameters/model_parameters.json") as f:
+    with open("model_parameters.json") as f:  # the paper's step 10, word for word
         params = json.load(f)
     init_robot_pos = params["init_robot_pos"]
     init_particles_pos = params["init_particles_pos"]

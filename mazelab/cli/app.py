@@ -5,6 +5,7 @@ mazelab run --help      one run, with any maze, filter and parameters, or a save
 mazelab compare --help  every filter on one saved scenario: a table, a CSV, the lab's figure
 mazelab study --help    a Monte Carlo parameter study over seeded runs, on all cores
 mazelab maze --help     random connected mazes (generate) and a look at any maze (show)
+mazelab view FILE       a saved recording in the web viewer on 127.0.0.1 (no display needed)
 mazelab bench [--quick] the filters' speed against a plain numpy reference step
 """
 
@@ -17,7 +18,6 @@ import warnings
 from pathlib import Path
 from typing import Annotated, Any
 
-import numpy as np
 import typer
 
 from mazelab import maze_generator
@@ -42,7 +42,9 @@ from mazelab.cli.options import (
     visualization,
     warn_in_one_line,
 )
-from mazelab.cli.reports import kidnap_report, particle_count_report, prepare_world, progress_printer, summarise
+from mazelab.cli.replay import from_scenario, refuse_counts_for_replay, replay_seed, start_place
+from mazelab.cli.reports import kidnap_report, particle_count_report, prepare_world, progress_printer, report_run
+from mazelab.cli.view import view
 from mazelab.experiments.compare import compare_filters, comparison_table, errors_csv, plot_errors
 from mazelab.experiments.dask_runner import close_client, connect
 from mazelab.experiments.executor import STOP_SIGNALS, default_workers, run_study
@@ -55,19 +57,20 @@ from mazelab.filters import ParticleFilter
 from mazelab.kalman import EKF_INITS, ExtendedKalmanFilter
 from mazelab.lab import simulate
 from mazelab.limits import check_particles, check_steps, check_study
-from mazelab.maze import Maze, MazeError
+from mazelab.maze import MazeError
 from mazelab.mazes import DEFAULT_MAZE, find_maze, load_maze
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, RPF_THRESHOLD
 from mazelab.recovery import ALPHA_FAST, ALPHA_SLOW, Recovery
 from mazelab.registry import resolve_filter
 from mazelab.resampling import KLD_EPSILON, KLD_QUANTILE, RESAMPLING_SCHEMES, KLDSampling
 from mazelab.robot import Robot
-from mazelab.scenario import Scenario, ScenarioError, load_scenario, save_scenario
+from mazelab.scenario import ScenarioError, load_scenario, save_scenario
 from mazelab.simulation import new_seed
 from mazelab.viz.style import DEFAULT_MAX_DRAWN
 
 app = typer.Typer(
     add_completion=False,
+    rich_markup_mode=None,  # plain click help: text flows, defaults show, option names are never cut
     no_args_is_help=False,
     pretty_exceptions_enable=False,
     help="A robot lost in a maze, found by particle filters. Without a command: the paper's example.",
@@ -82,7 +85,7 @@ def demo(
     web: WebOption = False,
     no_viz: NoVizOption = False,
     max_drawn: MaxDrawnOption = DEFAULT_MAX_DRAWN,
-    force: Annotated[bool, typer.Option(help="replace an existing --rrd file")] = False,
+    force: Annotated[bool, typer.Option("--force", help="replace an existing --rrd file")] = False,
 ) -> None:
     """The paper's example: a lost robot, the SIR filter, 1500 particles, 200 steps."""
     if ctx.invoked_subcommand is not None:
@@ -91,8 +94,8 @@ def demo(
     if rrd is not None:
         check_output_path(rrd, force)
     world = load_maze(DEFAULT_MAZE)
-    seed = int(np.random.SeedSequence().entropy % 2**31)
-    robot = Robot(DEFAULT_SIGMA, DEFAULT_DELTA, world.random_free_place(np.random.default_rng(seed)))
+    seed = new_seed()
+    robot = Robot(DEFAULT_SIGMA, DEFAULT_DELTA, start_place(world, seed))
     typer.echo(
         f"A robot is lost in {find_maze(DEFAULT_MAZE).name} ({world.height}x{world.width}, "
         f"{len(world.stations)} stations); SIR with {DEFAULT_PARTICLE_COUNT} particles looks for it."
@@ -108,41 +111,48 @@ def demo(
         visualize=visualize,
         on_step=progress_printer(DEFAULT_STEPS),
     )
-    typer.echo(summarise(result))
-    typer.echo(f"Repeat this run: python main.py run --seed {seed} --start-seed {seed}")
+    report_run(result)
+    typer.echo(f"Repeat this run: mazelab run --seed {seed}")
 
 
-@app.command()
+@app.command(short_help="One filter on a lost robot, or on a saved scenario.")
 def run(
-    maze: Annotated[str | None, typer.Option(help=f"maze file, or a name in mazes/ [default: {DEFAULT_MAZE}]")] = None,
-    filter_name: Annotated[str, typer.Option("--filter", help="sir, apf, rpf, grid or ekf (or a class name)")] = "sir",
-    particles: Annotated[int, typer.Option(min=1, help="particle count N_S")] = DEFAULT_PARTICLE_COUNT,
-    steps: Annotated[int, typer.Option(min=1, help="number of steps")] = DEFAULT_STEPS,
-    sigma: Annotated[float | None, typer.Option(help="measurement noise std [0.2, 0.8]")] = None,
-    delta: Annotated[float | None, typer.Option(help="compass error width, radians [0.05, 0.6]")] = None,
-    seed: Annotated[int | None, typer.Option(help="seed of the run (robot, particles, filter)")] = None,
-    start_seed: Annotated[int | None, typer.Option(help="seed of the robot's start position")] = None,
-    scenario: Annotated[Path | None, typer.Option(help="replay a saved scenario json")] = None,
-    save_scenario_path: Annotated[Path | None, typer.Option("--save-scenario", help="save the run as json")] = None,
-    force: Annotated[bool, typer.Option(help="replace existing output files (--save-scenario, --rrd)")] = False,
-    quiet: Annotated[bool, typer.Option(help="no per-step progress")] = False,
-    resampling: Annotated[str, typer.Option(help=f"resampling scheme: {', '.join(RESAMPLING_SCHEMES)}")] = "systematic",
-    kidnap_at: Annotated[
-        int | None, typer.Option(min=1, help="kidnap the robot at this step (carried to a random free place)")
+    maze: Annotated[str | None, typer.Option(help=f"a maze file or a name in mazes/ [default: {DEFAULT_MAZE}]")] = None,
+    filter_name: Annotated[str, typer.Option("--filter", help="sir, apf, rpf, grid, ekf")] = "sir",
+    particles: Annotated[
+        int | None, typer.Option(min=1, help=f"particle count N_S [default: {DEFAULT_PARTICLE_COUNT}]")
     ] = None,
+    steps: Annotated[int | None, typer.Option(min=1, help=f"number of steps [default: {DEFAULT_STEPS}]")] = None,
+    sigma: Annotated[float | None, typer.Option(help=f"noise std, lab 0.2-0.8 [default: {DEFAULT_SIGMA}]")] = None,
+    delta: Annotated[
+        float | None, typer.Option(help=f"compass error, rad, lab 0.05-0.6 [default: {DEFAULT_DELTA}]")
+    ] = None,
+    seed: Annotated[
+        int | None,
+        typer.Option(help="seed of the whole run (default: new, printed)"),
+    ] = None,
+    start_seed: Annotated[
+        int | None, typer.Option(hidden=True, help="seed of the start only (default: --seed)")
+    ] = None,
+    scenario: Annotated[Path | None, typer.Option(help="replay a saved scenario (.json)")] = None,
+    save_scenario_path: Annotated[Path | None, typer.Option("--save-scenario", help="save the run (.json)")] = None,
+    force: Annotated[bool, typer.Option("--force", help="replace existing output files")] = False,
+    quiet: Annotated[bool, typer.Option("--quiet", help="no per-step progress")] = False,
+    resampling: Annotated[str, typer.Option(help=f"{', '.join(RESAMPLING_SCHEMES)}")] = "systematic",
+    kidnap_at: Annotated[int | None, typer.Option(min=1, help="carry the robot elsewhere at this step")] = None,
     recovery: RecoveryOption = False,
     sensor_resetting: SensorResettingOption = False,
     alpha_slow: AlphaSlowOption = ALPHA_SLOW,
     alpha_fast: AlphaFastOption = ALPHA_FAST,
-    kld: Annotated[bool, typer.Option(help="KLD-sampling: adapt the particle count (--particles is the most)")] = False,
-    kld_epsilon: Annotated[float, typer.Option(help="KLD-sampling: error bound epsilon")] = KLD_EPSILON,
+    kld: Annotated[bool, typer.Option("--kld", help="KLD-sampling (--particles is the most)")] = False,
+    kld_epsilon: Annotated[float, typer.Option(help="KLD-sampling: error bound")] = KLD_EPSILON,
     kld_z: Annotated[
         float | None,
-        typer.Option(help=f"KLD-sampling: normal quantile z_(1-delta) [default: {KLD_QUANTILE:.3f}, for 99%]"),
+        typer.Option(help=f"KLD-sampling: quantile z_(1-delta) [default: {KLD_QUANTILE:.3f}]"),
     ] = None,
     init: Annotated[
         str | None,
-        typer.Option(help="ekf only: prior (the free area, global localisation) or start (track from the true start)"),
+        typer.Option(help="ekf: prior (global) or start (tracking) [default: prior]"),
     ] = None,
     viewer: ViewerOption = False,
     rrd: RrdOption = None,
@@ -160,14 +170,20 @@ def run(
         if path is not None:
             check_output_path(path, force)
     if scenario is not None:
-        world, robot, sigma, delta, init_particles = from_scenario(load_scenario(scenario), maze, sigma, delta)
+        stored = load_scenario(scenario)
+        refuse_counts_for_replay(stored, particles, steps, start_seed)
+        world, robot, sigma, delta, init_particles = from_scenario(stored, maze, sigma, delta)
+        seed = replay_seed(stored, seed)
         particles_arg, steps_arg = None, None
     else:
         world = load_maze(maze or DEFAULT_MAZE)
         sigma = DEFAULT_SIGMA if sigma is None else sigma
         delta = DEFAULT_DELTA if delta is None else delta
-        robot = Robot(sigma, delta, world.random_free_place(np.random.default_rng(start_seed)))
-        init_particles, particles_arg, steps_arg = None, particles, steps
+        seed = new_seed() if seed is None else seed
+        if start_seed is not None and start_seed != seed:
+            warnings.warn(f"--start-seed {start_seed} differs from --seed {seed}: repeat with both", stacklevel=1)
+        robot = Robot(sigma, delta, start_place(world, seed if start_seed is None else start_seed))
+        init_particles, particles_arg, steps_arg = None, particles, steps or DEFAULT_STEPS
     prepare_world(world)
     total = steps_arg or robot.recorded_steps
     result = simulate(
@@ -185,7 +201,7 @@ def run(
         kidnap_at=kidnap_at,
         **options,
     )
-    typer.echo(summarise(result))
+    report_run(result)
     for line in (kidnap_report(result), particle_count_report(result) if kld else None):
         if line:
             typer.echo(line)
@@ -231,46 +247,42 @@ def recovery_option(recovery: bool, sensor_resetting: bool, alpha_slow: float, a
     return Recovery("sensor" if sensor_resetting else "augmented", alpha_slow, alpha_fast)
 
 
-@app.command()
+@app.command(short_help="Lab steps 12-13: every filter on one saved scenario.")
 def compare(
-    scenario: Annotated[Path, typer.Argument(help="a saved scenario json (run --save-scenario)", show_default=False)],
-    filters: Annotated[str, typer.Option(help="comma-separated filters: sir, apf, rpf, grid, ekf")] = "sir,apf,rpf",
+    scenario: Annotated[Path, typer.Argument(metavar="SCENARIO", help="a saved scenario (.json)", show_default=False)],
+    filters: Annotated[str, typer.Option(help="sir, apf, rpf, grid, ekf, comma-separated")] = "sir,apf,rpf",
     maze: Annotated[str | None, typer.Option(help="the maze, if the scenario stores none")] = None,
     sigma: Annotated[float | None, typer.Option(help="override the scenario's sigma")] = None,
     delta: Annotated[float | None, typer.Option(help="override the scenario's delta")] = None,
-    seed: Annotated[int | None, typer.Option(help="seed of the filters' draws (default: the scenario's)")] = None,
-    csv_path: Annotated[
-        Path | None, typer.Option("--csv", help="per-step errors: a row per step, a column per filter")
-    ] = None,
-    plot: Annotated[Path | None, typer.Option(help="the lab's figure, error against step (.png; plot extra)")] = None,
-    force: Annotated[bool, typer.Option(help="replace existing output files")] = False,
+    seed: Annotated[int | None, typer.Option(help="the filters' seed (default: the scenario's)")] = None,
+    csv_path: Annotated[Path | None, typer.Option("--csv", help="per-step errors, a column per filter")] = None,
+    plot: Annotated[Path | None, typer.Option(help="the lab's error figure (.png; plot extra)")] = None,
+    force: Annotated[bool, typer.Option("--force", help="replace existing output files")] = False,
     kidnap_at: Annotated[
         int | None,
-        typer.Option(min=1, help="kidnap the robot at this step: the walk before it is replayed, then new"),
+        typer.Option(min=1, help="carry the robot elsewhere at this step"),
     ] = None,
     recovery: RecoveryOption = False,
     sensor_resetting: SensorResettingOption = False,
     alpha_slow: AlphaSlowOption = ALPHA_SLOW,
     alpha_fast: AlphaFastOption = ALPHA_FAST,
-    kld: Annotated[
-        bool, typer.Option(help="KLD-sampling in the particle filters (the scenario's count is the most)")
-    ] = False,
+    kld: Annotated[bool, typer.Option("--kld", help="KLD-sampling (the scenario's count is the most)")] = False,
     viewer: ViewerOption = False,
     rrd: RrdOption = None,
     web: WebOption = False,
     no_viz: NoVizOption = False,
     max_drawn: MaxDrawnOption = DEFAULT_MAX_DRAWN,
 ) -> None:
-    """Lab steps 12-13: every filter on the same saved scenario (start, particles, angles, measurements).
+    """Lab steps 12-13: every filter on one saved scenario (the same start, particles, walk).
 
-    A kidnapping (stored in the scenario, or --kidnap-at) adds to the table whether each filter
-    re-localised (mean error below 0.5 over the last 30 steps) and the steps it took to recover."""
+    A kidnapping (stored, or --kidnap-at) adds whether each filter re-localised (mean error below 0.5
+    over the last 30 steps) and the steps it took."""
     visualize = visualization(viewer, rrd, web, no_viz, max_drawn)
     check_outputs(csv_path, plot, force, rrd)
     stored = load_scenario(scenario)
     world, robot, sigma, delta, particles = from_scenario(stored, maze, sigma, delta)
     prepare_world(world)
-    seed = seed if seed is not None else stored.seed if stored.seed is not None else new_seed()
+    seed = replay_seed(stored, seed)
     names = parse_filters(filters)
     typer.echo(
         f"{scenario.name}: {len(particles)} particles, {robot.recorded_steps} steps, "
@@ -303,54 +315,44 @@ def compare(
         typer.echo(f"figure written to {plot}")
 
 
-@app.command()
+@app.command(short_help="Lab step 14: a Monte Carlo parameter study.")
 def study(
     maze: Annotated[
-        str | None, typer.Option(help=f"maze files or names, comma-separated (default: {DEFAULT_MAZE})")
+        str | None, typer.Option(help=f"maze files or names, comma-separated [default: {DEFAULT_MAZE}]")
     ] = None,
-    maze_size: Annotated[
-        str | None, typer.Option(help="generated mazes ROWSxCOLUMNS, comma-separated (a new maze every run)")
-    ] = None,
-    stations: Annotated[str | None, typer.Option(help="station blocks of the generated mazes, comma-separated")] = None,
-    sigma: Annotated[str, typer.Option(help="measurement noise std, comma-separated values")] = str(DEFAULT_SIGMA),
-    delta: Annotated[str, typer.Option(help="compass error width (radians), comma-separated")] = str(DEFAULT_DELTA),
-    particles: Annotated[str, typer.Option(help="particle counts N_S, comma-separated")] = str(DEFAULT_PARTICLE_COUNT),
-    threshold: Annotated[str, typer.Option(help="RPF threshold N_T / N_S, comma-separated")] = str(RPF_THRESHOLD),
-    filters: Annotated[str, typer.Option(help="comma-separated filters: sir, apf, rpf, grid, ekf")] = "sir,apf,rpf",
-    kidnap_at: Annotated[int | None, typer.Option(min=1, help="kidnap the robot at this step in every run")] = None,
-    recovery: Annotated[
-        str, typer.Option(help="recovery of the particle filters, comma-separated: none, augmented, sensor")
-    ] = "none",
-    kld: Annotated[bool, typer.Option(help="KLD-sampling in the particle filters (--particles is the most)")] = False,
+    maze_size: Annotated[str | None, typer.Option(help="generated mazes ROWSxCOLUMNS, comma-separated")] = None,
+    stations: Annotated[str | None, typer.Option(help="station blocks, comma-separated")] = None,
+    sigma: Annotated[str, typer.Option(help="measurement noise std, comma-separated")] = str(DEFAULT_SIGMA),
+    delta: Annotated[str, typer.Option(help="compass error width, comma-separated")] = str(DEFAULT_DELTA),
+    particles: Annotated[str, typer.Option(help="particle counts, comma-separated")] = str(DEFAULT_PARTICLE_COUNT),
+    threshold: Annotated[str, typer.Option(help="RPF's N_T / N_S, comma-separated")] = str(RPF_THRESHOLD),
+    filters: Annotated[str, typer.Option(help="sir, apf, rpf, grid, ekf, comma-separated")] = "sir,apf,rpf",
+    kidnap_at: Annotated[int | None, typer.Option(min=1, help="carry the robot elsewhere at this step")] = None,
+    recovery: Annotated[str, typer.Option(help="none, augmented, sensor, comma-separated")] = "none",
+    kld: Annotated[bool, typer.Option("--kld", help="KLD-sampling (--particles is the most)")] = False,
     runs: Annotated[int, typer.Option(min=1, help="seeded runs per setting")] = 30,
     steps: Annotated[int, typer.Option(min=1, help="steps per run")] = DEFAULT_STEPS,
-    seed: Annotated[int | None, typer.Option(help="root seed of the study (every run's seed derives from it)")] = None,
+    seed: Annotated[int | None, typer.Option(help="the study's root seed (default: new, printed)")] = None,
     workers: Annotated[int | None, typer.Option(min=1, help="processes (default: all cores)")] = None,
     dask: Annotated[
         str | None,
         typer.Option(help="run the runs on the Dask cluster of this scheduler, e.g. tcp://10.0.0.5:8786 (dask extra)"),
     ] = None,
     csv_path: Annotated[Path | None, typer.Option("--csv", help="one row per run and filter")] = None,
-    plot: Annotated[
-        Path | None, typer.Option(help="final error against the varied parameter (.png; plot extra)")
-    ] = None,
-    force: Annotated[bool, typer.Option(help="replace existing output files")] = False,
+    plot: Annotated[Path | None, typer.Option(help="error against the varied parameter (.png)")] = None,
+    force: Annotated[bool, typer.Option("--force", help="replace existing output files")] = False,
     viewer: ViewerOption = False,
     rrd: RrdOption = None,
     web: WebOption = False,
     no_viz: NoVizOption = False,
     max_drawn: MaxDrawnOption = DEFAULT_MAX_DRAWN,
 ) -> None:
-    """Lab step 14: a Monte Carlo study. Every combination of the comma-separated values is a setting;
-    each setting gets R seeded runs, and in each run every filter sees the same scenario.
+    """Lab step 14: a Monte Carlo study over every combination of the values given.
 
-    The table gives per setting and filter the mean final error (the mean error over the last 20% of
-    the steps) with the 95% t-interval for that mean, the share of runs that converged (error below
-    0.5 from some step on), the median convergence step of those runs, and the time per step; with
-    --kidnap-at, the share of runs that re-localised and the median steps to recover; with --kld, the
-    mean particle count. Nothing is drawn by default; --viewer, --rrd or --web draw the study's first
-    run (all its filters).
-    """
+    Each setting gets R seeded runs, every filter seeing the same scenario in a run. The table gives
+    per setting and filter the mean final error (last 20% of the steps) with its 95% t-interval, the
+    share of runs that converged and the median convergence step (README: "Parameter studies").
+    Nothing is drawn unless --viewer, --rrd or --web asks (the first run)."""
     visualize = visualization(viewer, rrd, web, no_viz, max_drawn) if viewer or web or rrd is not None else False
     check_outputs(csv_path, plot, force, rrd)
     names = parse_filters(filters)
@@ -427,6 +429,7 @@ def study(
 
 
 app.add_typer(maze_app, name="maze")
+app.command(short_help="A saved recording in the web viewer on 127.0.0.1.")(view)
 
 
 def study_mazes(files: str | None, sizes: str | None, stations: str | None) -> list[MazeChoice]:
@@ -447,30 +450,14 @@ def study_mazes(files: str | None, sizes: str | None, stations: str | None) -> l
     return mazes or [MazeChoice.from_maze(DEFAULT_MAZE, load_maze(DEFAULT_MAZE))]
 
 
-@app.command()
+@app.command(short_help="The filters' speed against a plain numpy step.")
 def bench(
-    quick: Annotated[bool, typer.Option(help="fewer sizes and steps: about half a minute")] = False,
+    quick: Annotated[bool, typer.Option("--quick", help="fewer sizes and steps: about half a minute")] = False,
 ) -> None:
     """Measure the filters' speed (particle-steps per second) against a plain numpy reference step."""
     from mazelab.bench import run_benchmark  # only this command needs it
 
     run_benchmark(load_maze(DEFAULT_MAZE), quick=quick, echo=typer.echo)
-
-
-def from_scenario(
-    scenario: Scenario, maze: str | None, sigma: float | None, delta: float | None
-) -> tuple[Maze, Robot, float, float, list]:
-    """World, robot, sigma, delta and particles of a saved scenario; flags override stored values."""
-    stored = scenario.world()
-    world = stored if stored is not None else load_maze(maze or DEFAULT_MAZE)
-    if stored is not None and maze is not None:
-        given = load_maze(maze)
-        if not np.array_equal(given.grid, stored.grid):
-            raise UserError(f"the scenario's maze differs from {given.source}; leave out --maze to use the stored one")
-    sigma = sigma if sigma is not None else scenario.sigma if scenario.sigma is not None else DEFAULT_SIGMA
-    delta = delta if delta is not None else scenario.delta if scenario.delta is not None else DEFAULT_DELTA
-    robot = scenario.robot(sigma, delta)
-    return world, robot, sigma, delta, scenario.init_particles_pos
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -504,7 +491,10 @@ __all__ = [
     "kalman_options",
     "main",
     "recovery_option",
+    "refuse_counts_for_replay",
+    "replay_seed",
     "run",
+    "start_place",
     "study",
     "study_mazes",
 ]

@@ -16,10 +16,12 @@ from mazelab.mazes import load_maze
 from mazelab.simulation import new_seed
 from mazelab.viz.views import open_view
 
-maze_app = typer.Typer(no_args_is_help=True, help="Random connected mazes (generate) and a look at any maze (show).")
+maze_app = typer.Typer(
+    no_args_is_help=True, rich_markup_mode=None, help="Random connected mazes (generate) and a look at any maze (show)."
+)
 
 
-@maze_app.command("generate")
+@maze_app.command("generate", short_help="A random maze with a connected free area.")
 def maze_generate(
     size: Annotated[str, typer.Option(help="ROWSxCOLUMNS")] = "10x10",
     stations: Annotated[
@@ -28,7 +30,7 @@ def maze_generate(
     walls: Annotated[float, typer.Option(help="share of the cells that are walls")] = maze_generator.DEFAULT_WALL_SHARE,
     seed: Annotated[int | None, typer.Option(help="the same seed gives the same maze")] = None,
     out: Annotated[Path | None, typer.Option(help="write the maze file here (default: print it)")] = None,
-    force: Annotated[bool, typer.Option(help="replace an existing file")] = False,
+    force: Annotated[bool, typer.Option("--force", help="replace an existing file")] = False,
 ) -> None:
     """A random maze whose free area is connected, in the mazes/ file format."""
     if out is not None:
@@ -49,9 +51,9 @@ def maze_generate(
         typer.echo(f"{maze_generator.describe_maze(world)}; written to {out}")
 
 
-@maze_app.command("show")
+@maze_app.command("show", short_help="Print a maze; --viewer, --rrd or --web draw it.")
 def maze_show(
-    path: Annotated[str, typer.Argument(help="a maze file, or a name in mazes/", show_default=False)],
+    path: Annotated[str, typer.Argument(metavar="MAZE", help="a maze file, or a name in mazes/", show_default=False)],
     viewer: ViewerOption = False,
     rrd: RrdOption = None,
     web: WebOption = False,

@@ -18,17 +18,15 @@ DEFAULT_SIGMA, DEFAULT_DELTA = 0.3, 0.5
 
 # Where a run is drawn: these four options sit on every command that runs filters.
 # Recovery from a kidnapping (augmented MCL): the same options on run and compare.
-RecoveryOption = Annotated[bool, typer.Option(help="augmented MCL: inject uniform particles when lost")]
-SensorResettingOption = Annotated[bool, typer.Option(help="augmented MCL injecting particles that match z")]
-AlphaSlowOption = Annotated[float, typer.Option(help="recovery: rate of the long-term likelihood average")]
-AlphaFastOption = Annotated[float, typer.Option(help="recovery: rate of the short-term likelihood average")]
-ViewerOption = Annotated[bool, typer.Option("--viewer", help="open the native Rerun viewer (default with a display)")]
-RrdOption = Annotated[Path | None, typer.Option("--rrd", help="save the Rerun recording to this file")]
+RecoveryOption = Annotated[bool, typer.Option("--recovery", help="augmented MCL: inject particles when lost")]
+SensorResettingOption = Annotated[bool, typer.Option("--sensor-resetting", help="inject particles that match z")]
+AlphaSlowOption = Annotated[float, typer.Option(help="recovery: long-term average's rate")]
+AlphaFastOption = Annotated[float, typer.Option(help="recovery: short-term average's rate")]
+ViewerOption = Annotated[bool, typer.Option("--viewer", help="the native viewer (default with a display)")]
+RrdOption = Annotated[Path | None, typer.Option("--rrd", help="save the recording to this .rrd file")]
 WebOption = Annotated[bool, typer.Option("--web", help="serve the web viewer on 127.0.0.1")]
 NoVizOption = Annotated[bool, typer.Option("--no-viz", help="draw nothing")]
-MaxDrawnOption = Annotated[
-    int, typer.Option("--max-drawn", min=1, help="draw at most this many particles per step (all are filtered)")
-]
+MaxDrawnOption = Annotated[int, typer.Option("--max-drawn", min=1, help="particles drawn per step, at most")]
 
 
 def visualization(viewer: bool, rrd: Path | None, web: bool, no_viz: bool, max_drawn: int = DEFAULT_MAX_DRAWN) -> Any:

@@ -17,15 +17,19 @@ from mazelab.simulation import RunResult
 
 
 def summarise(result: RunResult) -> str:
-    """A short report of a run: final error, convergence step, time per step."""
+    """A short report of a run: final error, convergence step, seed (the same for the same seed)."""
     errors = result.errors
     converged = result.converged_at
     when = f"converged at step {converged} (error < 0.5 from then on)" if converged else "not converged"
     return (
         f"{result.filter_name}: final error {errors[-1]:.3f}, mean error over the last 20% "
-        f"{final_error(errors):.3f}; {when}; "
-        f"{1e3 * result.step_seconds.mean():.2f} ms per step; seed {result.seed}"
+        f"{final_error(errors):.3f}; {when}; seed {result.seed}"
     )
+
+
+def report_run(result: RunResult) -> None:
+    """The run's summary: the same text for the same seed (timings, which vary, are compare's and bench's)."""
+    typer.echo(summarise(result))
 
 
 def progress_printer(steps: int, every: int = 20) -> Any:
@@ -104,5 +108,6 @@ __all__ = [
     "particle_count_report",
     "prepare_world",
     "progress_printer",
+    "report_run",
     "summarise",
 ]

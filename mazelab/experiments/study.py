@@ -111,7 +111,7 @@ class RunTask:
     setting_index: int  # 1-based
     setting: StudySetting
     run: int  # 1-based
-    seed: int  # seeds the start (default_rng(seed)) and simulate(seed=seed), as `run --seed S --start-seed S`
+    seed: int  # seeds the start (default_rng(seed)) and simulate(seed=seed), as `run --seed S`
     maze_seed: int | None  # seeds a generated maze (as `maze generate --seed`); None for a maze file
     filters: tuple[str, ...]
     steps: int

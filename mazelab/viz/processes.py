@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import shlex
 import shutil
 import socket
 import subprocess
@@ -90,10 +91,12 @@ class WebServer:
         self.url = f"http://127.0.0.1:{web_port}/?url={urllib.parse.quote(self.grpc_url, safe='')}"
 
     @classmethod
-    def start(cls) -> WebServer:
-        """Start `rerun --serve-web` bound to 127.0.0.1 on two free ports; return once it listens."""
+    def start(cls, recordings: Sequence[Path] = ()) -> WebServer:
+        """Start `rerun --serve-web` bound to 127.0.0.1 on two free ports; return once it listens.
+        With `recordings` (saved .rrd files) it serves those instead of waiting for a run."""
         grpc_port, web_port = free_port(), free_port()
         arguments = ["--serve-web", "--bind", "127.0.0.1", "--port", str(grpc_port), "--web-viewer-port", str(web_port)]
+        arguments += [str(path) for path in recordings]
         return cls(start_rerun(arguments, [grpc_port, web_port], detached=False), grpc_port, web_port)
 
     def serve_until_interrupted(self, already_interrupted: bool = False) -> None:
@@ -110,6 +113,13 @@ class WebServer:
     def stop(self) -> None:
         """End the server process."""
         stop_process(self.process)
+
+
+def open_hint(path: Path, display: bool) -> str:
+    """How to look at a saved recording: the native viewer with a display, else the web viewer that
+    `mazelab view` serves on 127.0.0.1 (plain `rerun --web-viewer` would listen on every interface)."""
+    quoted = shlex.quote(str(path))
+    return f"rerun {quoted}" if display else f"mazelab view {quoted} (the web viewer, on 127.0.0.1)"
 
 
 def free_port() -> int:
@@ -132,6 +142,7 @@ __all__ = [
     "free_port",
     "listening",
     "native_viewer",
+    "open_hint",
     "rerun_environment",
     "start_rerun",
     "stop_process",

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import shlex
 import sys
 import uuid
 from collections.abc import Sequence
@@ -13,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from mazelab.maze import EMPTY, Maze
-from mazelab.viz.processes import WebServer, native_viewer
+from mazelab.viz.processes import WebServer, native_viewer, open_hint
 from mazelab.viz.style import (
     APPLICATION_ID,
     FREE_COLOR,
@@ -26,7 +25,7 @@ from mazelab.viz.style import (
     STATION_RADIUS,
     WALL_COLOR,
 )
-from mazelab.viz.targets import default_recording_path, partial_path, resolve_target
+from mazelab.viz.targets import default_recording_path, has_display, partial_path, resolve_target
 
 
 class Recording:
@@ -124,7 +123,7 @@ class Recording:
         self.stream.disconnect()
         if self.path is not None:
             os.replace(partial_path(self.path), self.path)
-            print(f"Recording saved to {self.path}; open it with: rerun {shlex.quote(str(self.path))}")
+            print(f"Recording saved to {self.path}; open it with: {open_hint(self.path, has_display())}")
         if self.server is not None:
             # close() runs in simulate's `finally`: a run being interrupted stops serving at once.
             self.server.serve_until_interrupted(already_interrupted=sys.exc_info()[0] is not None)

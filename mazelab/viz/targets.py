@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import difflib
 import importlib.util
 import os
 import sys
@@ -14,6 +15,7 @@ import numpy as np
 
 from mazelab.viz.style import DEFAULT_MAX_DRAWN
 
+TARGET_WORDS = ("viewer", "web", "notebook")  # the visualize strings that are not file names
 RECORDINGS_DIR = Path("recordings")  # where runs without a display are saved, relative to the cwd
 
 
@@ -46,8 +48,10 @@ def resolve_target(target: Any, label: str = "run") -> str | Path:
         return path
     if target == "notebook" and not notebook_viewer_installed():
         raise ValueError("visualize='notebook' needs rerun's notebook viewer: pip install -e '.[notebook]'")
-    if target in ("viewer", "web", "notebook"):
+    if target in TARGET_WORDS:
         return target
+    if isinstance(target, str):
+        check_target_word(target)
     if isinstance(target, (str, Path)):
         path = Path(target)
         if path.is_dir():
@@ -58,6 +62,17 @@ def resolve_target(target: Any, label: str = "run") -> str | Path:
     raise ValueError(
         f"visualize must be True, False, 'viewer', 'web', 'notebook', an .rrd path or a view, got {target!r}"
     )
+
+
+def check_target_word(target: str) -> None:
+    """Refuse a `visualize` string that is neither a word nor looks like a file (a mistyped "viwer"
+    must not become a file named viwer); a path with a folder or a suffix (.rrd) is a file."""
+    path = Path(target)
+    if path.suffix or path.parent != Path(".") or not target.strip():
+        return
+    close = difflib.get_close_matches(target, TARGET_WORDS, n=1)
+    hint = f"; did you mean {close[0]!r}?" if close else "; a file needs a suffix such as .rrd"
+    raise ValueError(f"visualize={target!r} is not one of {', '.join(map(repr, TARGET_WORDS))} nor a file name{hint}")
 
 
 def default_recording_path(label: str) -> Path:
@@ -95,7 +110,9 @@ def notebook_viewer_installed() -> bool:
 
 __all__ = [
     "RECORDINGS_DIR",
+    "TARGET_WORDS",
     "Visualization",
+    "check_target_word",
     "default_recording_path",
     "has_display",
     "in_jupyter",

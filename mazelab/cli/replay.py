@@ -1,0 +1,86 @@
+"""Runs from a seed or a saved scenario: the start a seed gives, the seed of a replay, and the maze,
+sigma and delta of a scenario (flags override the stored values; a file with only the paper's four
+keys runs on the one shipped maze it fits)."""
+
+from __future__ import annotations
+
+import numpy as np
+import typer
+
+from mazelab.cli.options import DEFAULT_DELTA, DEFAULT_SIGMA, UserError
+from mazelab.maze import Maze
+from mazelab.mazes import load_maze, mazes_fitting
+from mazelab.robot import Robot
+from mazelab.scenario import Scenario
+from mazelab.simulation import new_seed
+
+
+def start_place(world: Maze, seed: int) -> tuple[float, float]:
+    """The robot's start of a fresh run: a free place drawn from the run's seed (as a study's runs
+    do), so that one seed repeats the whole run."""
+    return world.random_free_place(np.random.default_rng(seed))
+
+
+def replay_seed(stored: Scenario, seed: int | None) -> int:
+    """The seed of a replay: --seed, else the scenario's own (as compare uses), else a new one."""
+    return seed if seed is not None else stored.seed if stored.seed is not None else new_seed()
+
+
+def refuse_counts_for_replay(
+    stored: Scenario, particles: int | None, steps: int | None, start_seed: int | None
+) -> None:
+    """A replay takes its particles, steps and start from the scenario: refuse flags that would be ignored."""
+    given = [flag for flag, value in (("--particles", particles), ("--steps", steps), ("--start-seed", start_seed))
+             if value is not None]  # fmt: skip
+    if given:
+        raise UserError(
+            f"{' and '.join(given)} cannot change a replayed scenario (it has {len(stored.init_particles_pos)} "
+            f"particles and {len(stored.robot_actual_angles)} steps); leave {'them' if len(given) > 1 else 'it'} out"
+        )
+
+
+def from_scenario(
+    scenario: Scenario, maze: str | None, sigma: float | None, delta: float | None
+) -> tuple[Maze, Robot, float, float, list]:
+    """World, robot, sigma, delta and particles of a saved scenario; flags override stored values.
+    A scenario without a maze (the paper's four keys) runs on --maze, or on the one shipped maze
+    its start and particles fit; missing sigma and delta take the defaults, and a line says so."""
+    stored = scenario.world()
+    world = stored if stored is not None else load_maze(maze) if maze is not None else fitting_maze(scenario)
+    if stored is not None and maze is not None:
+        given = load_maze(maze)
+        if not np.array_equal(given.grid, stored.grid):
+            raise UserError(f"the scenario's maze differs from {given.source}; leave out --maze to use the stored one")
+    defaults = [f"{name} {value:g}" for name, value, flag, kept in (
+        ("sigma", DEFAULT_SIGMA, sigma, scenario.sigma), ("delta", DEFAULT_DELTA, delta, scenario.delta)
+    ) if flag is None and kept is None]  # fmt: skip
+    if defaults:
+        typer.echo(f"warning: the scenario stores no {' or '.join(d.split()[0] for d in defaults)}: using the "
+                   f"default {', '.join(defaults)} (--sigma/--delta choose)", err=True)  # fmt: skip
+    sigma = sigma if sigma is not None else scenario.sigma if scenario.sigma is not None else DEFAULT_SIGMA
+    delta = delta if delta is not None else scenario.delta if scenario.delta is not None else DEFAULT_DELTA
+    robot = scenario.robot(sigma, delta)
+    return world, robot, sigma, delta, scenario.init_particles_pos
+
+
+def fitting_maze(scenario: Scenario) -> Maze:
+    """The shipped maze of a scenario that stores none: the only one whose free area holds its start
+    and every particle; with none or several, a one-line refusal asking for --maze."""
+    fitting = mazes_fitting(scenario.init_robot_pos, np.asarray(scenario.init_particles_pos))
+    if len(fitting) != 1:
+        which = "no shipped maze fits" if not fitting else f"several shipped mazes fit ({', '.join(fitting)})"
+        raise UserError(
+            f"the scenario stores no maze and {which} its start and particles: "
+            "pass --maze (and --sigma/--delta if they differ from the defaults)"
+        )
+    typer.echo(f"warning: the scenario stores no maze: using {fitting[0]}, the one shipped maze it fits", err=True)
+    return load_maze(fitting[0])
+
+
+__all__ = [
+    "fitting_maze",
+    "from_scenario",
+    "refuse_counts_for_replay",
+    "replay_seed",
+    "start_place",
+]
