@@ -334,10 +334,7 @@ def study(
     steps: Annotated[int, typer.Option(min=1, help="steps per run")] = DEFAULT_STEPS,
     seed: Annotated[int | None, typer.Option(help="the study's root seed (default: new, printed)")] = None,
     workers: Annotated[int | None, typer.Option(min=1, help="processes (default: all cores)")] = None,
-    dask: Annotated[
-        str | None,
-        typer.Option(help="run the runs on the Dask cluster of this scheduler, e.g. tcp://10.0.0.5:8786 (dask extra)"),
-    ] = None,
+    dask: Annotated[str | None, typer.Option(help="the Dask scheduler to run on, tcp://HOST:PORT")] = None,
     csv_path: Annotated[Path | None, typer.Option("--csv", help="one row per run and filter")] = None,
     plot: Annotated[Path | None, typer.Option(help="error against the varied parameter (.png)")] = None,
     force: Annotated[bool, typer.Option("--force", help="replace existing output files")] = False,
