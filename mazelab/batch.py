@@ -270,6 +270,7 @@ class BatchRPF(BatchParticleFilter):
         if not 0 < threshold <= 1:
             raise ValueError(f"the RPF threshold must be in (0, 1] (N_T = threshold * N_S), got {threshold}")
         self.threshold = threshold
+        self.bandwidth_rule = "optimal"  # the paper's h_opt, as the single filter's default
         self.regularised_at: list[list[int]] = [[] for _ in range(self.runs)]
 
     bandwidth = RegularizedParticleFilter.bandwidth  # h_opt for N = self.count: the single filter's
@@ -301,7 +302,11 @@ class BatchRPF(BatchParticleFilter):
         eps = np.empty((len(ancestors), 2), dtype=PARTICLE_DTYPE)
         for i, run in enumerate(chosen):
             self.rngs[run].standard_normal(dtype=PARTICLE_DTYPE, out=eps[i * self.count : (i + 1) * self.count])
-        moved = take_particles(self.positions, ancestors) + gaussian_jitter(eps, self.bandwidth * D)  # x^{i*} + h D eps
+        moved = take_particles(self.positions, ancestors)
+        for i, scale in enumerate(self.bandwidth * D):  # x^{i*} + h D eps, each run with its own D
+            moved[i * self.count : (i + 1) * self.count] += gaussian_jitter(
+                eps[i * self.count : (i + 1) * self.count], scale
+            )
         positions, headings, log_weights = self.positions.copy(order="F"), self.headings.copy(), self.log_weights.copy()
         for column in range(2):
             positions[:, column].reshape(self.runs, -1)[chosen] = moved[:, column].reshape(len(chosen), -1)

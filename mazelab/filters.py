@@ -273,12 +273,9 @@ def _unmoved(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def gaussian_jitter(eps: np.ndarray, scale: np.ndarray) -> np.ndarray:
     """eps @ scale.T for standard normal eps (N, 2) and a lower-triangular scale (2, 2), in eps's dtype:
-    the kernel's draws, written out (a BLAS matmul would start threads for two columns). A stack of
-    scales (R, 2, 2) applies to R equal blocks of eps (runs advanced together, mazelab.batch)."""
+    the kernel's draws, written out (a BLAS matmul would start threads for two columns)."""
     jitter = np.empty(eps.shape, eps.dtype, order="F")
-    a, c, d = (np.asarray(v).astype(eps.dtype) for v in (scale[..., 0, 0], scale[..., 1, 0], scale[..., 1, 1]))
-    if scale.ndim == 3:
-        a, c, d = (np.repeat(v, len(eps) // len(scale)) for v in (a, c, d))
+    a, c, d = (eps.dtype.type(v) for v in (scale[0, 0], scale[1, 0], scale[1, 1]))
     jitter[:, 0] = a * eps[:, 0]
     jitter[:, 1] = c * eps[:, 0] + d * eps[:, 1]
     return jitter
