@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+import signal
 import statistics
 import sys
 
@@ -242,6 +243,7 @@ def test_ctrl_c_keeps_the_finished_runs_and_exits_130(tmp_path, capsys, monkeypa
     table = tmp_path / "s.csv"
     args = ["study", "--maze", "paper_5x5", "--runs", "5", "--steps", "10", "--particles", "50", "--filters", "sir,apf"]
     assert main([*args, "--workers", "1", "--csv", str(table)]) == 130
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # in-process: handlers put back
     assert "interrupted after 2 of 5 runs" in capsys.readouterr().err
     assert [(r["run"], r["filter"]) for r in read_csv(table)] == [
         (run, name) for run in ("1", "2") for name in FILTERS[:2]

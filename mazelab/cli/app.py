@@ -385,6 +385,7 @@ def study(
             progress=True,
             on_records=None if log is None else log.append,
             dask=client,
+            ignore_signals_after_stop=True,  # a stopped study only saves and exits: a further Ctrl-C waits
         )
     finally:
         if log is not None:
@@ -458,8 +459,22 @@ def bench(
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run the CLI; problems with the input end as one line on stderr and exit code 2."""
+    """Run the CLI; problems with the input end as one line on stderr and exit code 2.
+
+    A stopped study leaves Ctrl-C, SIGTERM and SIGHUP ignored until the process exits (a further one
+    can neither hang nor interrupt the exit); called with `argv` (in-process), main puts the signal
+    handlers back as it found them."""
     warnings.showwarning = warn_in_one_line
+    handlers = {sig: signal.getsignal(sig) for sig in STOP_SIGNALS}
+    try:
+        return _main(argv)
+    finally:
+        if argv is not None:
+            for sig, handler in handlers.items():
+                signal.signal(sig, handler)
+
+
+def _main(argv: list[str] | None) -> int:
     try:
         code = app(args=argv, standalone_mode=False)
     except typer.TyperException as error:  # typer's usage errors: bad option, bad value, missing argument

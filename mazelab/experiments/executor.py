@@ -51,6 +51,7 @@ def run_study(
     progress: bool = False,
     on_records: Callable[[list[RunRecord]], None] | None = None,
     dask: Any = None,
+    ignore_signals_after_stop: bool = False,
 ) -> StudyOutcome:
     """Run every task, on `workers` processes (default: all cores) or on a Dask cluster: `dask` is its
     scheduler's address (connected and closed here) or a dask.distributed Client; any stop keeps the
@@ -59,7 +60,8 @@ def run_study(
     With `visualize`, the first run is drawn (all its filters, as compare draws them) in this process.
     A run that raises becomes a RunFailure; the others go on. `on_records` is handed each finished
     run's records as they come (the study's CSV appends them). A stop sets outcome.interrupted and
-    outcome.stopped_by (the signal's number: SIGINT for Ctrl-C).
+    outcome.stopped_by (the signal's number: SIGINT for Ctrl-C); with `ignore_signals_after_stop` (a
+    command about to exit), further Ctrl-C, SIGTERM and SIGHUP are ignored from then on.
     """
     workers = default_workers() if workers is None else workers
     if workers < 1:
@@ -74,7 +76,11 @@ def run_study(
                 on_records(result)
 
     try:
-        with _progress_bar(len(tasks), progress) as advance, _stop_signals():
+
+        def keep_ignoring() -> bool:
+            return ignore_signals_after_stop and outcome.interrupted
+
+        with _progress_bar(len(tasks), progress) as advance, _stop_signals(keep_ignoring):
             try:
                 drawn, rest = (list(tasks[:1]), list(tasks[1:])) if visualize else ([], list(tasks))
                 units = study_units(rest, 1 if client is not None else workers)
@@ -88,6 +94,8 @@ def run_study(
                 else:
                     _run_in_pool(units, drawn, workers, visualize, collect, advance)
             except KeyboardInterrupt as stop:
+                if ignore_signals_after_stop:
+                    _ignore(STOP_SIGNALS)
                 outcome.interrupted = True
                 outcome.stopped_by = getattr(stop, "signum", signal.SIGINT)
     finally:
@@ -215,9 +223,10 @@ def _watch_parent(parent: int) -> None:
 
 
 @contextmanager
-def _stop_signals() -> Iterator[None]:
+def _stop_signals(keep_ignoring: Callable[[], bool] = lambda: False) -> Iterator[None]:
     """While the study runs: SIGTERM and SIGHUP raise StudyStopped in the main thread (as Ctrl-C raises
-    KeyboardInterrupt), so that they too keep the finished runs and end the workers."""
+    KeyboardInterrupt), so that they too keep the finished runs and end the workers. Afterwards the
+    previous handlers come back, unless `keep_ignoring()` (the stop signals stay ignored then)."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -229,8 +238,18 @@ def _stop_signals() -> Iterator[None]:
     try:
         yield
     finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+        if keep_ignoring():
+            _ignore(STOP_SIGNALS)
+        else:
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+
+
+def _ignore(signals: Sequence[int]) -> None:
+    """Ignore these signals from now on (in the main thread; elsewhere nothing to do)."""
+    if threading.current_thread() is threading.main_thread():
+        for sig in signals:
+            signal.signal(sig, signal.SIG_IGN)
 
 
 STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
