@@ -9,6 +9,8 @@ only gathers the names; where each thing's lines are:
     SIR step (Algorithm 4)                             mazelab/filters.py, SIRParticleFilter.step
     APF step (Algorithm 5)                             mazelab/filters.py, AuxiliaryParticleFilter.step
     RPF step (Algorithm 6)                             mazelab/filters.py, RegularizedParticleFilter.step, .regularise
+    the RPF's kernel (bandwidth optimal, multimodal)   mazelab/regularisation.py
+    modes of a cloud, the mode estimate                mazelab/modes.py
     resampling (systematic, stratified, ...)           mazelab/resampling.py
     the exact grid Bayes filter (the reference)        mazelab/grid_filter.py, GridBayesFilter.step
     the extended Kalman filter (the baseline)          mazelab/kalman.py, ExtendedKalmanFilter.step

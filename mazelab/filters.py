@@ -28,14 +28,22 @@ from mazelab.model import (
     sample_headings,
     take_particles,
 )
+from mazelab.modes import Mode, check_estimate, find_modes
 from mazelab.recovery import ALPHA_FAST, ALPHA_SLOW, Recovery, RecoveryAndKLD
+from mazelab.regularisation import (
+    Kernel,
+    check_bandwidth,
+    gaussian_jitter,
+    mixture_kernel,
+    optimal_bandwidth,
+    whole_cloud_kernel,
+)
 from mazelab.resampling import KLDSampling, Move, resampling_scheme
 from mazelab.weights import (
     effective_sample_size,
     exp_in_place,
     log_sum_exp,
     mass_within,
-    weighted_covariance,
     weighted_mean,
 )
 
@@ -47,7 +55,8 @@ class ParticleFilter(RecoveryAndKLD):
     previous posterior, the same sequence of operations, so that between steps the filter holds the
     weighted posterior that the estimate, the ESS and the drawing read.
     Options beyond the paper (off by default): `recovery` (True, "augmented" or "sensor", with
-    `alpha_slow`, `alpha_fast`) and `kld` (True or a KLDSampling); see RecoveryAndKLD.
+    `alpha_slow`, `alpha_fast`) and `kld` (True or a KLDSampling); see RecoveryAndKLD; `estimate="mode"`
+    reports the mean of the heaviest mode (mazelab.modes) instead of the paper's posterior mean.
 
     `positions` (N, 2) and `headings` (N,) are float32 (PARTICLE_DTYPE), `log_weights` (N,) float64.
     The filter replaces these arrays rather than writing into them; to change them, assign new arrays
@@ -71,8 +80,10 @@ class ParticleFilter(RecoveryAndKLD):
         alpha_slow: float = ALPHA_SLOW,
         alpha_fast: float = ALPHA_FAST,
         kld: bool | KLDSampling | None = None,
+        estimate: str = "mean",
     ):
         self.world, self.sigma, self.delta = world, sigma, delta
+        self.estimate_rule = check_estimate(estimate)
         self.rng = rng if rng is not None else np.random.default_rng()
         self.resample = resampling_scheme(resampling)
         self.outside_penalty, self.speed = outside_penalty, speed
@@ -119,8 +130,20 @@ class ParticleFilter(RecoveryAndKLD):
 
     @property
     def estimate(self) -> np.ndarray:
+        """The posterior mean sum_i W_i x_i (the paper's), or the heaviest mode's mean, shape (2,)."""
+        if self.estimate_rule == "mode":
+            return self.modes[0].mean.copy() if self.modes else self.mean
+        return self.mean
+
+    @property
+    def mean(self) -> np.ndarray:
         """The posterior mean sum_i W_i x_i, shape (2,)."""
         return self._cached("estimate", lambda: weighted_mean(self.weights, self.positions)).copy()
+
+    @property
+    def modes(self) -> list[Mode]:
+        """The cloud's modes (connected occupied bins, mazelab.modes), heaviest first."""
+        return self._cached("modes", lambda: find_modes(self.positions, self.weights))
 
     @property
     def is_confident(self) -> bool:
@@ -217,22 +240,28 @@ class AuxiliaryParticleFilter(ParticleFilter):
 
 class RegularizedParticleFilter(ParticleFilter):
     """Regularised particle filter, Arulampalam et al. Algorithm 6, with refinements 3-5: the prior
-    as proposal, a 2-D Gaussian kernel, and regularisation when N_eff < N_T = threshold * N_S."""
+    as proposal, a 2-D Gaussian kernel, and regularisation when N_eff < N_T = threshold * N_S.
+
+    `bandwidth`: "optimal" (the paper's h_opt with the whole cloud's covariance), "multimodal" (one
+    kernel per mode, beyond the paper) or a number h; see mazelab.regularisation."""
 
     name = "RegularizedParticleFilter"
 
-    def __init__(self, *args: Any, threshold: float = RPF_THRESHOLD, **kwargs: Any):
+    def __init__(self, *args: Any, threshold: float = RPF_THRESHOLD, bandwidth: str | float = "optimal", **kwargs: Any):
         super().__init__(*args, **kwargs)
         if not 0 < threshold <= 1:
             raise ValueError(f"the RPF threshold must be in (0, 1] (N_T = threshold * N_S), got {threshold}")
         self.threshold = threshold
+        self.bandwidth_rule = check_bandwidth(bandwidth)
         self.regularised_at: list[int] = []
 
     @property
     def bandwidth(self) -> float:
-        """h_opt = A N^(-1/(n+4)), A = (4/(n+2))^(1/(n+4)), for the Gaussian kernel in n = 2 dimensions."""
-        n = 2
-        return (4 / (n + 2)) ** (1 / (n + 4)) * self.count ** (-1 / (n + 4))
+        """h of the whole-cloud kernel: h_opt = A N^(-1/(n+4)), A = (4/(n+2))^(1/(n+4)) in n = 2
+        dimensions, or the number given (with "multimodal" each mode has its own h_opt(n_c))."""
+        if isinstance(self.bandwidth_rule, float):
+            return self.bandwidth_rule
+        return optimal_bandwidth(self.count)
 
     def step(self, compass_angle: float, z: float) -> None:
         if self.ess < self.threshold * self.count:  # IF N_eff < N_T (end of Alg. 6, previous step)
@@ -248,37 +277,30 @@ class RegularizedParticleFilter(ParticleFilter):
         self.steps_done += 1
 
     def regularise(self) -> None:
-        """Resample, then jitter each particle by h_opt D eps, eps ~ N(0, I_2), D D^T = S."""
+        """Resample, then jitter each particle by h D eps, eps ~ N(0, I_2), D D^T = S (the kernel K_h)."""
         weights = self.weights
-        covariance = weighted_covariance(weights, self.positions)  # S_k, the weighted empirical covariance
-        D = np.linalg.cholesky(covariance + 1e-12 * np.eye(2))  # D_k D_k^T = S_k (tiny ridge: S may be 0)
-        h = self.bandwidth
+        kernel = self.kernel(weights)
 
         def jitter(ancestors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # x^{i*} + h D eps
             eps = self.rng.standard_normal((len(ancestors), 2), dtype=PARTICLE_DTYPE)
-            return take_particles(self.positions, ancestors) + gaussian_jitter(eps, h * D), self.headings.take(
-                ancestors
-            )
+            resampled = take_particles(self.positions, ancestors)
+            return resampled + kernel(resampled, eps), self.headings.take(ancestors)
 
         # RESAMPLE and jitter; injected points (recovery) are not jittered: the step's move follows
         self.positions, self.headings, _, _ = self.draw_particles(weights, jitter, _unmoved)
         self.log_weights = np.full(self.count, -math.log(self.count))
         self.regularised_at.append(self.steps_done)
 
+    def kernel(self, weights: np.ndarray) -> Kernel:
+        """This regularisation's kernel: h D_k with the whole cloud's S_k, or one per mode (multimodal)."""
+        if self.bandwidth_rule == "multimodal":
+            return mixture_kernel
+        return whole_cloud_kernel(weights, self.positions, self.bandwidth)
+
 
 def _unmoved(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Injected points as they are (the RPF's step moves them next), with zero headings."""
     return points, np.zeros(len(points), dtype=PARTICLE_DTYPE)
-
-
-def gaussian_jitter(eps: np.ndarray, scale: np.ndarray) -> np.ndarray:
-    """eps @ scale.T for standard normal eps (N, 2) and a lower-triangular scale (2, 2), in eps's dtype:
-    the kernel's draws, written out (a BLAS matmul would start threads for two columns)."""
-    jitter = np.empty(eps.shape, eps.dtype, order="F")
-    a, c, d = (eps.dtype.type(v) for v in (scale[0, 0], scale[1, 0], scale[1, 1]))
-    jitter[:, 0] = a * eps[:, 0]
-    jitter[:, 1] = c * eps[:, 0] + d * eps[:, 1]
-    return jitter
 
 
 __all__ = [

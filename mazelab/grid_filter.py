@@ -11,6 +11,7 @@ import numpy as np
 from mazelab.limits import check_memory
 from mazelab.maze import Maze
 from mazelab.model import CONFIDENCE_RADIUS, CONFIDENCE_SHARE, LOG_UNDERFLOW, OUTSIDE_PENALTY, ROBOT_SPEED
+from mazelab.modes import MODE_CELL, Mode, check_estimate, find_modes, modes_of_bins
 from mazelab.weights import mass_within, weighted_mean
 
 GRID_RESOLUTION = 0.02  # cell size of GridBayesFilter, map units (divides 1, so cells never straddle walls)
@@ -39,10 +40,12 @@ class GridBayesFilter:
         margin: float = 1.0,
         outside_penalty: float = OUTSIDE_PENALTY,
         speed: float = ROBOT_SPEED,
+        estimate: str = "mean",
         **_: Any,
     ):
         del particles  # the exact filter starts from the exact prior, not from a sample of it
         self.world, self.sigma, self.delta, self.speed = world, sigma, delta, speed
+        self.estimate_rule = check_estimate(estimate)
         self.rng = rng if rng is not None else np.random.default_rng()
         self.resolution = resolution
         self.origin = -margin
@@ -124,8 +127,29 @@ class GridBayesFilter:
 
     @property
     def estimate(self) -> np.ndarray:
+        """The posterior mean over the cell centres (or, with estimate="mode", the heaviest mode's), (2,)."""
+        if self.estimate_rule == "mode":
+            modes = self.modes
+            return modes[0].mean.copy() if modes else self.mean
+        return self.mean
+
+    @property
+    def mean(self) -> np.ndarray:
         """The posterior mean over the cell centres, shape (2,)."""
         return weighted_mean(self.weights, self.positions)
+
+    @property
+    def modes(self) -> list[Mode]:
+        """The density's modes (mazelab.modes), heaviest first: its cells summed into MODE_CELL bins
+        (the bins line up with the maze's cells when the resolution divides MODE_CELL)."""
+        f = round(MODE_CELL / self.resolution)
+        ny, nx = self.shape
+        if not math.isclose(f * self.resolution, MODE_CELL) or ny % f or nx % f:
+            return find_modes(self.positions, self.weights)
+        x, y = (self.positions[:, i].reshape(self.shape) for i in (0, 1))
+        d = self.density
+        terms = (d, d * x, d * y, d * x * x, d * x * y, d * y * y)
+        return modes_of_bins(np.stack([t.reshape(ny // f, f, nx // f, f).sum(axis=(1, 3)) for t in terms]))
 
     @property
     def is_confident(self) -> bool:

@@ -17,6 +17,7 @@ import numpy as np
 
 from mazelab.maze import Maze
 from mazelab.model import CONFIDENCE_RADIUS, CONFIDENCE_SHARE, ROBOT_SPEED
+from mazelab.modes import check_estimate
 
 START_STD = 0.05  # std of each coordinate of init="start"'s covariance, map units: the start is known
 EKF_INITS = ("prior", "start")
@@ -52,8 +53,10 @@ class ExtendedKalmanFilter:
         start: tuple[float, float] | np.ndarray | None = None,
         start_std: float = START_STD,
         speed: float = ROBOT_SPEED,
+        estimate: str = "mean",
     ):
         del particles, rng  # a Gaussian needs neither a sample nor random draws
+        check_estimate(estimate)  # one Gaussian: its mode is its mean
         self.world, self.sigma, self.delta, self.speed = world, sigma, delta, speed
         if init == "prior":
             self.mean, self.covariance = free_area_moments(world)

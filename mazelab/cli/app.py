@@ -7,6 +7,7 @@ mazelab study --help    a Monte Carlo parameter study over seeded runs, on all c
 mazelab maze --help     random connected mazes (generate) and a look at any maze (show)
 mazelab view FILE       a saved recording in the web viewer on 127.0.0.1 (no display needed)
 mazelab bench [--quick] the filters' speed against a plain numpy reference step
+mazelab accuracy        each filter's distance to the exact grid posterior on the shipped mazes
 """
 
 from __future__ import annotations
@@ -28,6 +29,8 @@ from mazelab.cli.options import (
     DEFAULT_SIGMA,
     AlphaFastOption,
     AlphaSlowOption,
+    BandwidthOption,
+    EstimateOption,
     MaxDrawnOption,
     NoVizOption,
     RecoveryOption,
@@ -53,15 +56,17 @@ from mazelab.experiments.runs import parse_filters
 from mazelab.experiments.stats import CONFIDENCE_LEVEL
 from mazelab.experiments.study import MazeChoice, study_settings, study_tasks, varied_parameters
 from mazelab.experiments.summary import describe_setting, plot_study, study_csv, study_table, summarise_study
-from mazelab.filters import ParticleFilter
+from mazelab.filters import ParticleFilter, RegularizedParticleFilter
 from mazelab.kalman import EKF_INITS, ExtendedKalmanFilter
 from mazelab.lab import simulate
 from mazelab.limits import check_particles, check_steps, check_study
 from mazelab.maze import MazeError
-from mazelab.mazes import DEFAULT_MAZE, find_maze, load_maze
-from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, RPF_THRESHOLD
+from mazelab.mazes import DEFAULT_MAZE, MAZES_DIR, find_maze, load_maze
+from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, RPF_THRESHOLD, check_model_parameters
+from mazelab.modes import check_estimate
 from mazelab.recovery import ALPHA_FAST, ALPHA_SLOW, Recovery
 from mazelab.registry import resolve_filter
+from mazelab.regularisation import check_bandwidth
 from mazelab.resampling import KLD_EPSILON, KLD_QUANTILE, RESAMPLING_SCHEMES, KLDSampling
 from mazelab.robot import Robot
 from mazelab.scenario import ScenarioError, load_scenario, save_scenario
@@ -154,6 +159,8 @@ def run(
         str | None,
         typer.Option(help="ekf: prior (global) or start (tracking) [default: prior]"),
     ] = None,
+    bandwidth: BandwidthOption = "optimal",
+    estimate: EstimateOption = "mean",
     viewer: ViewerOption = False,
     rrd: RrdOption = None,
     web: WebOption = False,
@@ -164,6 +171,7 @@ def run(
     visualize = visualization(viewer, rrd, web, no_viz, max_drawn)
     options = filter_options(filter_name, resampling, recovery, sensor_resetting, alpha_slow, alpha_fast, kld)
     options.update(kalman_options(filter_name, init))
+    options.update(estimate_options(filter_name, bandwidth, estimate))
     if kld:
         options["kld"] = KLDSampling(epsilon=kld_epsilon, z=KLD_QUANTILE if kld_z is None else kld_z)
     for path in (save_scenario_path, rrd):
@@ -229,6 +237,16 @@ def filter_options(
     return options
 
 
+def estimate_options(filter_name: str, bandwidth: str, estimate: str) -> dict[str, Any]:
+    """--bandwidth (the rpf only; refused for the others unless left at optimal) and --estimate."""
+    options: dict[str, Any] = {"estimate": check_estimate(estimate)}
+    if resolve_filter(filter_name) is RegularizedParticleFilter:
+        options["bandwidth"] = check_bandwidth(bandwidth)
+    elif bandwidth != "optimal":
+        raise UserError("--bandwidth applies to the rpf only")
+    return options
+
+
 def kalman_options(filter_name: str, init: str | None) -> dict[str, Any]:
     """The EKF's --init (prior or start); refused for the other filters."""
     if init is None:
@@ -267,6 +285,8 @@ def compare(
     alpha_slow: AlphaSlowOption = ALPHA_SLOW,
     alpha_fast: AlphaFastOption = ALPHA_FAST,
     kld: Annotated[bool, typer.Option("--kld", help="KLD-sampling (the scenario's count is the most)")] = False,
+    bandwidth: BandwidthOption = "optimal",
+    estimate: EstimateOption = "mean",
     viewer: ViewerOption = False,
     rrd: RrdOption = None,
     web: WebOption = False,
@@ -300,6 +320,8 @@ def compare(
         kidnap_at=kidnap_at,
         recovery=recovery_option(recovery, sensor_resetting, alpha_slow, alpha_fast),
         kld=kld,
+        bandwidth=check_bandwidth(bandwidth),
+        estimate=check_estimate(estimate),
     )
     kidnapping = next(iter(results.values()))
     if kidnapping.kidnap_at is not None and kidnapping.kidnap_position is not None:
@@ -322,7 +344,7 @@ def study(
     ] = None,
     maze_size: Annotated[str | None, typer.Option(help="generated mazes ROWSxCOLUMNS, comma-separated")] = None,
     stations: Annotated[str | None, typer.Option(help="station blocks, comma-separated")] = None,
-    sigma: Annotated[str, typer.Option(help="measurement noise std, comma-separated")] = str(DEFAULT_SIGMA),
+    sigma: Annotated[str, typer.Option(help="noise std sigma, comma-separated")] = str(DEFAULT_SIGMA),
     delta: Annotated[str, typer.Option(help="compass error width, comma-separated")] = str(DEFAULT_DELTA),
     particles: Annotated[str, typer.Option(help="particle counts, comma-separated")] = str(DEFAULT_PARTICLE_COUNT),
     threshold: Annotated[str, typer.Option(help="RPF's N_T / N_S, comma-separated")] = str(RPF_THRESHOLD),
@@ -330,6 +352,8 @@ def study(
     kidnap_at: Annotated[int | None, typer.Option(min=1, help="carry the robot elsewhere at this step")] = None,
     recovery: Annotated[str, typer.Option(help="none, augmented, sensor, comma-separated")] = "none",
     kld: Annotated[bool, typer.Option("--kld", help="KLD-sampling (--particles is the most)")] = False,
+    bandwidth: Annotated[str, typer.Option(help="RPF kernels: optimal, multimodal, h", show_default=False)] = "optimal",
+    estimate: EstimateOption = "mean",
     runs: Annotated[int, typer.Option(min=1, help="seeded runs per setting")] = 30,
     steps: Annotated[int, typer.Option(min=1, help="steps per run")] = DEFAULT_STEPS,
     seed: Annotated[int | None, typer.Option(help="the study's root seed (default: new, printed)")] = None,
@@ -362,10 +386,11 @@ def study(
         parse_list(particles, int, "--particles"),
         parse_list(threshold, float, "--threshold"),
         parse_list(recovery, str, "--recovery"),
+        parse_list(bandwidth, str, "--bandwidth"),
     )
     check_study(len(settings) * runs, len(names))
     seed = new_seed() if seed is None else seed
-    tasks = study_tasks(settings, names, runs, steps, seed, kidnap_at=kidnap_at, kld=kld)
+    tasks = study_tasks(settings, names, runs, steps, seed, kidnap_at=kidnap_at, kld=kld, estimate=estimate)
     workers = workers or default_workers()
     varied = varied_parameters(settings)
     client = connect(dask) if dask is not None else None  # a bad address: one line and exit 2, before anything
@@ -424,6 +449,41 @@ def study(
         typer.echo(f"figure written to {plot}")
     if outcome.failures:
         raise typer.Exit(1)
+
+
+@app.command()
+def accuracy(
+    maze: Annotated[
+        str | None, typer.Option(help="maze files or names, comma-separated (default: every maze in mazes/)")
+    ] = None,
+    sigma: Annotated[float, typer.Option(help="measurement noise std")] = DEFAULT_SIGMA,
+    delta: Annotated[float, typer.Option(help="compass error width, radians")] = DEFAULT_DELTA,
+    particles: Annotated[int, typer.Option(min=1, help="particle count N_S")] = DEFAULT_PARTICLE_COUNT,
+    runs: Annotated[int, typer.Option(min=1, help="seeded runs per maze")] = 10,
+    steps: Annotated[int, typer.Option(min=2, help="steps per run (the distance is averaged over the second half)")] = (
+        DEFAULT_STEPS
+    ),
+    seed: Annotated[int, typer.Option(help="root seed (run r has the same seed on every maze)")] = 1,
+    workers: Annotated[int | None, typer.Option(min=1, help="processes (default: all cores)")] = None,
+) -> None:
+    """How close each filter comes to the exact posterior: per maze, the mean distance between its
+    estimate and the exact grid filter's posterior mean over the second half of the steps, and the
+    share of runs that converged (error below 0.5 from some step on)."""
+    from mazelab.experiments.accuracy import ACCURACY_FILTERS, accuracy_table, accuracy_tasks, run_accuracy
+
+    names = parse_list(maze, str, "--maze") if maze is not None else sorted(p.stem for p in MAZES_DIR.glob("*.txt"))
+    check_model_parameters(sigma, delta)
+    check_steps(steps)
+    check_particles(particles)
+    tasks = accuracy_tasks([(n, load_maze(n)) for n in names], runs, sigma, delta, particles, steps, seed)
+    typer.echo(
+        f"Accuracy: {len(names)} maze(s) x {runs} runs, sigma {sigma:g}, delta {delta:g}, {particles} particles, "
+        f"{steps} steps, seed {seed}; filters: {', '.join(label for label, _, _ in ACCURACY_FILTERS)}"
+    )
+    started = time.perf_counter()
+    records = run_accuracy(tasks, workers or default_workers())
+    typer.echo(accuracy_table(records))
+    typer.echo(f"{len(tasks)} runs in {time.perf_counter() - started:.1f} s wall time")
 
 
 app.add_typer(maze_app, name="maze")
@@ -494,10 +554,12 @@ if __name__ == "__main__":
 
 
 __all__ = [
+    "accuracy",
     "app",
     "bench",
     "compare",
     "demo",
+    "estimate_options",
     "filter_options",
     "from_scenario",
     "kalman_options",

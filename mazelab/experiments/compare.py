@@ -44,6 +44,8 @@ def compare_filters(
     kidnap_at: int | None = None,
     recovery: bool | str | Recovery | None = None,
     kld: bool | KLDSampling | None = None,
+    bandwidth: str | float | None = None,
+    estimate: str | None = None,
 ) -> dict[str, RunResult]:
     """Lab steps 12-13: every filter on one saved scenario, drawn side by side in one recording.
 
@@ -67,6 +69,8 @@ def compare_filters(
             kidnap_at=kidnap_at,
             recovery=recovery,
             kld=kld,
+            bandwidth=bandwidth,
+            estimate=estimate,
         )
     finally:
         comparison.close()

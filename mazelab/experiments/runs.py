@@ -50,15 +50,22 @@ def filter_options(
     threshold: float | None,
     recovery: bool | str | Recovery | None = None,
     kld: bool | KLDSampling | None = None,
+    bandwidth: str | float | None = None,
+    estimate: str | None = None,
 ) -> dict[str, Any]:
-    """Constructor options of one filter: the RPF threshold N_T / N_S goes to the RPF only, recovery
-    and KLD-sampling to the particle filters only (the exact grid filter needs neither)."""
+    """Constructor options of one filter: the RPF threshold N_T / N_S and bandwidth go to the RPF only,
+    recovery and KLD-sampling to the particle filters only (the exact grid filter needs neither), the
+    point estimate ("mean" or "mode") to every filter."""
     filter_class = resolve_filter(filter_name)
     options: dict[str, Any] = {}
     if threshold is not None and filter_class is RegularizedParticleFilter:
         options["threshold"] = threshold
+    if bandwidth is not None and filter_class is RegularizedParticleFilter:
+        options["bandwidth"] = bandwidth
     if issubclass(filter_class, ParticleFilter):
         options.update(recovery=recovery, kld=kld)
+    if estimate is not None:
+        options["estimate"] = estimate
     return options
 
 
@@ -82,13 +89,16 @@ def run_filters(
     kidnap_at: int | None = None,
     recovery: bool | str | Recovery | None = None,
     kld: bool | KLDSampling | None = None,
+    bandwidth: str | float | None = None,
+    estimate: str | None = None,
 ) -> dict[str, RunResult]:
     """Run every filter on the same scenario: the robot's walk, measurements and initial particles.
 
     The first run records the walk and measurements (if the robot has none) and draws the particles
     (if none are given); every later filter replays exactly those, the kidnapping (`kidnap_at`, its
     place drawn from `seed`) included. Each filter's random draws come from `seed`, and with
-    `comparison` (open_comparison) each run draws into its own view.
+    `comparison` (open_comparison) each run draws into its own view. `bandwidth` is the RPF's kernel
+    bandwidth, `estimate` every filter's point estimate ("mean" or "mode").
     """
     results: dict[str, RunResult] = {}
     for name in filter_names:
@@ -104,7 +114,7 @@ def run_filters(
             seed=seed,
             view=None if comparison is None else comparison.view_for(name),
             kidnap_at=kidnap_at,
-            **filter_options(name, threshold, recovery, kld),
+            **filter_options(name, threshold, recovery, kld, bandwidth, estimate),
         )
         if particles is None:
             particles = result.initial_particles

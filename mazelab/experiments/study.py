@@ -19,6 +19,8 @@ from mazelab.experiments.runs import final_error, mean_ess, mean_particle_count,
 from mazelab.maze import STATION_WALL, Maze
 from mazelab.maze_generator import generate_maze
 from mazelab.model import check_model_parameters
+from mazelab.modes import check_estimate
+from mazelab.regularisation import check_bandwidth
 from mazelab.robot import Robot
 from mazelab.simulation import RunResult, convergence_step
 from mazelab.viz.views import open_comparison
@@ -67,12 +69,13 @@ class StudySetting:
     particles: int
     threshold: float  # the RPF's N_T / N_S
     recovery: str = "none"  # a kidnapping.RECOVERY_VARIANTS name, for the particle filters
+    bandwidth: str | float = "optimal"  # the RPF's kernel bandwidth (mazelab.regularisation)
 
     def value(self, parameter: str) -> Any:
         return self.maze.label if parameter == "maze" else getattr(self, parameter)
 
 
-STUDY_PARAMETERS = ("maze", "sigma", "delta", "particles", "threshold", "recovery")
+STUDY_PARAMETERS = ("maze", "sigma", "delta", "particles", "threshold", "recovery", "bandwidth")
 
 
 def study_settings(
@@ -82,6 +85,7 @@ def study_settings(
     particle_counts: Sequence[int],
     thresholds: Sequence[float],
     recoveries: Sequence[str] = ("none",),
+    bandwidths: Sequence[str | float] = ("optimal",),
 ) -> list[StudySetting]:
     """Every combination of the given values (the first parameter varies slowest), each checked."""
     for recovery in recoveries:
@@ -95,7 +99,8 @@ def study_settings(
             raise ValueError(f"the RPF threshold must be in (0, 1] (N_T = threshold * N_S), got {threshold}")
     for sigma, delta in itertools.product(dict.fromkeys(sigmas), dict.fromkeys(deltas)):
         check_model_parameters(sigma, delta)  # refuses impossible values, warns once outside the lab's ranges
-    combinations = itertools.product(mazes, sigmas, deltas, particle_counts, thresholds, recoveries)
+    bandwidths = list(dict.fromkeys(check_bandwidth(b) for b in bandwidths))
+    combinations = itertools.product(mazes, sigmas, deltas, particle_counts, thresholds, recoveries, bandwidths)
     return [StudySetting(*values) for values in combinations]
 
 
@@ -117,6 +122,7 @@ class RunTask:
     steps: int
     kidnap_at: int | None = None  # kidnap the robot at this step (its place drawn from `seed`)
     kld: bool = False  # KLD-sampling in the particle filters
+    estimate: str = "mean"  # every filter's point estimate: "mean" or "mode" (mazelab.modes)
 
 
 def run_seeds(root_seed: int, runs: int) -> list[tuple[int, int]]:
@@ -138,8 +144,10 @@ def study_tasks(
     *,
     kidnap_at: int | None = None,
     kld: bool = False,
+    estimate: str = "mean",
 ) -> list[RunTask]:
     """One task per setting and run, in order."""
+    check_estimate(estimate)
     if runs < 1 or steps < 1:
         raise ValueError(f"runs and steps must be >= 1, got {runs} runs and {steps} steps")
     if kidnap_at is not None and not 1 <= kidnap_at <= steps:
@@ -147,7 +155,16 @@ def study_tasks(
     seeds = run_seeds(root_seed, runs)
     return [
         RunTask(
-            i, setting, r, seed, maze_seed if setting.maze.grid is None else None, tuple(filters), steps, kidnap_at, kld
+            i,
+            setting,
+            r,
+            seed,
+            maze_seed if setting.maze.grid is None else None,
+            tuple(filters),
+            steps,
+            kidnap_at,
+            kld,
+            estimate,
         )
         for i, setting in enumerate(settings, start=1)
         for r, (seed, maze_seed) in enumerate(seeds, start=1)
@@ -180,6 +197,8 @@ class RunRecord:
     relocalised: bool | None = None  # kidnapping.relocalised; None without a kidnapping
     steps_to_recover: int | None = None  # kidnapping.recovery_steps; None: never, or no kidnapping
     mean_particle_count: float = math.nan  # over the steps (KLD-sampling varies it)
+    bandwidth: str | float = "optimal"  # the RPF's kernel bandwidth (the other filters ignore it)
+    estimate: str = "mean"  # the point estimate the errors are measured from
 
 
 @dataclass
@@ -218,6 +237,8 @@ def run_task(task: RunTask, visualize: Any = False) -> list[RunRecord]:
                 kidnap_at=task.kidnap_at,
                 recovery=RECOVERY_VARIANTS[s.recovery],
                 kld=task.kld,
+                bandwidth=s.bandwidth,
+                estimate=task.estimate,
             )
     finally:
         if comparison is not None:
@@ -252,6 +273,8 @@ def run_records(task: RunTask, world: Maze, results: dict[str, RunResult]) -> li
             task.kidnap_at,
             *kidnap_figures(result),
             mean_particle_count(result),
+            s.bandwidth,
+            task.estimate,
         )
         for name, result in results.items()
     ]

@@ -79,7 +79,8 @@ def describe_setting(setting: StudySetting, steps: int, runs: int, kidnap_at: in
     kidnapping = "" if kidnap_at is None else f", kidnapped at step {kidnap_at}, recovery {setting.recovery}"
     return (
         f"maze {setting.maze.label}, sigma {setting.sigma:g}, delta {setting.delta:g}, {setting.particles} particles, "
-        f"RPF N_T = {setting.threshold:g} N_S, {steps} steps{kidnapping}, {runs} runs per setting"
+        f"RPF N_T = {setting.threshold:g} N_S, RPF bandwidth {format_value(setting.bandwidth)}, "
+        f"{steps} steps{kidnapping}, {runs} runs per setting"
     )
 
 

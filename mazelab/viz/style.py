@@ -19,6 +19,8 @@ FILTER_COLORS = ((214, 39, 40), (31, 119, 180), (255, 127, 14), (44, 160, 44), (
 PARTICLE_ARROW_LENGTH, ROBOT_ARROW_LENGTH = 0.15, 0.5  # map units
 STATION_RADIUS, ROBOT_RADIUS, PARTICLE_ARROW_RADIUS, CELL_DOT_RADIUS = 0.08, 0.12, 0.008, 0.03
 COVARIANCE_SIGMAS, COVARIANCE_LINE_RADIUS = 2.0, 0.02  # the EKF's ellipse: 2-sigma (86% of a 2-D Gaussian)
+MODE_DRAWN_SHARE = 0.05  # modes holding more than this share of the weight are drawn, each a labelled circle
+MODE_MIN_RADIUS, MODE_LINE_RADIUS = 0.25, 0.02  # a mode's circle: its spread, at least this (map units)
 SERIES = ("error", "ess", "confident")  # the time series under /metrics/<series>/<filter>
 
 
@@ -41,6 +43,9 @@ __all__ = [
     "INJECTED_COLOR",
     "KIDNAP_COLOR",
     "MAP",
+    "MODE_DRAWN_SHARE",
+    "MODE_LINE_RADIUS",
+    "MODE_MIN_RADIUS",
     "PARTICLE_ARROW_LENGTH",
     "PARTICLE_ARROW_RADIUS",
     "ROBOT_ARROW_LENGTH",

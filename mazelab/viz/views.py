@@ -1,6 +1,6 @@
 """What one run draws: particles coloured by weight (or the EKF's covariance ellipse), the estimate's
-circle, the series; and the views that a run (open_view) or a comparison of filters
-(open_comparison) draws into.
+circle, each mode's circle with its weight, the series; and the views that a run (open_view) or a
+comparison of filters (open_comparison) draws into.
 
 `visualize` (run_model's argument and the CLI's --viewer/--rrd/--web/--no-viz) takes:
   True or "auto"  the notebook viewer inside Jupyter, else the native viewer when a display
@@ -25,6 +25,7 @@ import numpy as np
 from mazelab.kalman import covariance_ellipse
 from mazelab.maze import Maze
 from mazelab.model import CONFIDENCE_RADIUS
+from mazelab.modes import Mode
 from mazelab.simulation import NullView
 from mazelab.viz.blueprints import comparison_blueprint, run_blueprint
 from mazelab.viz.recording import Recording, heading_vectors
@@ -37,6 +38,9 @@ from mazelab.viz.style import (
     FILTER_COLORS,
     INJECTED_COLOR,
     MAP,
+    MODE_DRAWN_SHARE,
+    MODE_LINE_RADIUS,
+    MODE_MIN_RADIUS,
     PARTICLE_ARROW_LENGTH,
     PARTICLE_ARROW_RADIUS,
     SERIES,
@@ -193,6 +197,8 @@ class RunView:
             line_radii=0.03,
         )
         stream.log(f"{self.path}/estimate", circle)
+        if hasattr(state, "modes"):
+            self.log_modes(state.modes)
         error = float(np.hypot(*(estimate - np.asarray(robot_position, dtype=float))))
         stream.log(f"/metrics/error/{self.metric}", rr.Scalars(error))
         ess = float(state.ess)
@@ -214,6 +220,22 @@ class RunView:
             vectors = heading_vectors(headings, PARTICLE_ARROW_LENGTH)
             drawn = rr.Arrows2D(origins=positions, vectors=vectors, colors=colors, radii=PARTICLE_ARROW_RADIUS)
         self.recording.stream.log(f"{self.path}/particles", drawn)
+
+    def log_modes(self, modes: Sequence[Mode]) -> None:
+        """Each mode holding more than MODE_DRAWN_SHARE of the weight: a circle in the filter's colour
+        (radius its spread, at least MODE_MIN_RADIUS) labelled with its weight, so the hypotheses show."""
+        import rerun as rr
+
+        shown = [m for m in modes if m.weight > MODE_DRAWN_SHARE]
+        circles = rr.Ellipses2D(
+            centers=[m.mean for m in shown],
+            half_sizes=[[max(m.spread, MODE_MIN_RADIUS)] * 2 for m in shown],
+            colors=self.color,
+            line_radii=MODE_LINE_RADIUS,
+            labels=[f"{m.weight:.0%}" for m in shown],
+            show_labels=True,
+        )
+        self.recording.stream.log(f"{self.path}/modes", circles)
 
     def log_gaussian(self, state: Any) -> None:
         """A Gaussian belief (the EKF's `mean`, `covariance`): its COVARIANCE_SIGMAS ellipse, a polygon

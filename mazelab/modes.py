@@ -1,0 +1,159 @@
+"""The modes of a weighted cloud: its points binned on a square grid, the occupied bins joined into
+clusters when they touch (8-neighbours), as AMCL clusters its particles for its pose estimate.
+
+A mode is a cluster's share of the weight, its weighted mean and its spread. The point estimate
+"mode" is the mean of the heaviest cluster (AMCL's pose); "mean" is the paper's posterior mean.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+MODE_CELL = 0.5  # bin size of the clustering, map units: half a maze cell, so a wall cell keeps modes apart
+MIN_BIN_MASS = 1e-4  # a bin holding less than this share of the weight counts as empty
+ESTIMATES = ("mean", "mode")  # the point estimates: the paper's posterior mean, the heaviest mode's mean
+
+
+@dataclass(frozen=True)
+class Mode:
+    """One cluster of the cloud: `weight` its share of the total weight, `mean` (2,) its weighted mean,
+    `spread` the root of the trace of its weighted covariance (map units)."""
+
+    weight: float
+    mean: np.ndarray
+    spread: float
+
+
+def check_estimate(estimate: str) -> str:
+    """The point-estimate rule, checked: "mean" (the paper's) or "mode"."""
+    if estimate not in ESTIMATES:
+        raise ValueError(f"estimate must be one of {', '.join(ESTIMATES)}, got {estimate!r}")
+    return estimate
+
+
+def label_components(occupied: np.ndarray) -> np.ndarray:
+    """Connected components (8-neighbours) of a boolean grid: labels 0..K-1, -1 where unoccupied.
+
+    Each occupied bin starts with its own flat index; every round takes the smallest label of its
+    3x3 neighbourhood and then follows labels as pointers (pointer jumping), until nothing changes."""
+    rows, columns = occupied.shape
+    empty = rows * columns  # larger than any index
+    labels = np.where(occupied, np.arange(empty).reshape(occupied.shape), empty)
+    while True:
+        padded = np.pad(labels, 1, constant_values=empty)
+        smallest = labels.copy()
+        for dy in range(3):
+            for dx in range(3):
+                np.minimum(smallest, padded[dy : dy + rows, dx : dx + columns], out=smallest)
+        smallest = np.where(occupied, smallest, empty)
+        flat = smallest.ravel()
+        for _ in range(2):  # a label is a bin index: point at that bin's label
+            inside = flat < empty
+            flat[inside] = flat[flat[inside]]
+        if np.array_equal(smallest, labels):
+            break
+        labels = smallest
+    out = np.full(labels.shape, -1, dtype=np.int64)
+    _, out[occupied] = np.unique(labels[occupied], return_inverse=True)
+    return out
+
+
+def cluster_labels(
+    positions: np.ndarray, weights: np.ndarray | None = None, cell: float = MODE_CELL, min_mass: float = MIN_BIN_MASS
+) -> tuple[np.ndarray, int]:
+    """Each point's cluster (N,) (-1 in a bin lighter than `min_mass` of the total) and the cluster count.
+
+    With `weights` None every point counts alike and any bin holding a point is occupied (a resampled cloud)."""
+    points = np.asarray(positions, dtype=float)
+    if len(points) == 0:
+        return np.zeros(0, dtype=np.int64), 0
+    bins = np.floor(points / cell).astype(np.int64)
+    bins -= bins.min(axis=0)
+    rows, columns = int(bins[:, 1].max()) + 1, int(bins[:, 0].max()) + 1
+    flat = bins[:, 1] * columns + bins[:, 0]
+    if weights is None:
+        occupied = np.bincount(flat, minlength=rows * columns) > 0
+    else:
+        w = np.asarray(weights, dtype=float)
+        occupied = np.bincount(flat, w, minlength=rows * columns) > min_mass * w.sum()
+    grid = label_components(occupied.reshape(rows, columns))
+    return grid.ravel()[flat], int(grid.max()) + 1
+
+
+def cluster_moments(
+    positions: np.ndarray, weights: np.ndarray, labels: np.ndarray, count: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per cluster: total weight (K,), weighted mean (K, 2), weighted covariance (K, 2, 2); float64."""
+    inside = labels >= 0
+    lab, w = labels[inside], np.asarray(weights, dtype=float)[inside]
+    x, y = (np.asarray(positions, dtype=float)[inside, i] for i in (0, 1))
+    total = np.bincount(lab, w, minlength=count)
+    safe = np.where(total > 0, total, 1.0)
+    mean = np.column_stack([np.bincount(lab, w * x, minlength=count), np.bincount(lab, w * y, minlength=count)])
+    mean /= safe[:, None]
+    dx, dy = x - mean[lab, 0], y - mean[lab, 1]  # centred first: the spread may be tiny beside the position
+    covariance = np.empty((count, 2, 2))
+    covariance[:, 0, 0] = np.bincount(lab, w * dx * dx, minlength=count) / safe
+    covariance[:, 0, 1] = covariance[:, 1, 0] = np.bincount(lab, w * dx * dy, minlength=count) / safe
+    covariance[:, 1, 1] = np.bincount(lab, w * dy * dy, minlength=count) / safe
+    return total, mean, covariance
+
+
+def find_modes(
+    positions: np.ndarray, weights: np.ndarray, cell: float = MODE_CELL, min_mass: float = MIN_BIN_MASS
+) -> list[Mode]:
+    """The modes of a weighted cloud (positions (N, 2), weights (N,)), heaviest first; weights are shares
+    of the total (the bins lighter than `min_mass` belong to none, so they may sum to a little less than 1)."""
+    points, w = np.asarray(positions, dtype=float), np.asarray(weights, dtype=float)
+    if len(points) == 0:
+        return []
+    bins = np.floor(points / cell).astype(np.int64)
+    bins -= bins.min(axis=0)
+    rows, columns = int(bins[:, 1].max()) + 1, int(bins[:, 0].max()) + 1
+    flat = bins[:, 1] * columns + bins[:, 0]
+    x, y = points[:, 0], points[:, 1]
+    terms = (w, w * x, w * y, w * x * x, w * x * y, w * y * y)
+    sums = np.stack([np.bincount(flat, t, minlength=rows * columns) for t in terms]).reshape(6, rows, columns)
+    return modes_of_bins(sums, min_mass)
+
+
+def modes_of_bins(sums: np.ndarray, min_mass: float = MIN_BIN_MASS) -> list[Mode]:
+    """The modes from per-bin sums (6, rows, columns) of w, wx, wy, wx^2, wxy, wy^2 over the points of
+    each bin (a grid density can sum its cells without listing them), heaviest first."""
+    total = sums[0].sum()
+    if not total > 0:
+        return []
+    labels = label_components(sums[0] > min_mass * total).ravel()
+    inside = labels >= 0
+    count = int(labels.max()) + 1
+    per = np.stack([np.bincount(labels[inside], s.ravel()[inside], minlength=count) for s in sums])
+    mass = np.where(per[0] > 0, per[0], 1.0)
+    mean_x, mean_y = per[1] / mass, per[2] / mass
+    variance = per[3] / mass - mean_x**2 + per[5] / mass - mean_y**2
+    spread = np.sqrt(np.clip(variance, 0.0, None))
+    share = per[0] / total
+    order = np.argsort(-share, kind="stable")
+    return [Mode(float(share[i]), np.array([mean_x[i], mean_y[i]]), float(spread[i])) for i in order]
+
+
+def heaviest_mode_mean(positions: np.ndarray, weights: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+    """The mean of the heaviest mode (AMCL's pose estimate), or `fallback` if no bin is occupied."""
+    modes = find_modes(positions, weights)
+    return modes[0].mean if modes else np.asarray(fallback, dtype=float).copy()
+
+
+__all__ = [
+    "ESTIMATES",
+    "MIN_BIN_MASS",
+    "MODE_CELL",
+    "Mode",
+    "check_estimate",
+    "cluster_labels",
+    "cluster_moments",
+    "find_modes",
+    "heaviest_mode_mean",
+    "label_components",
+    "modes_of_bins",
+]

@@ -1,0 +1,108 @@
+"""The RPF's kernel K_h: the jitter added to each resampled particle (Arulampalam et al., Algorithm 6).
+
+bandwidth="optimal" (the paper's): h_opt D eps, h_opt = A N^(-1/(n+4)) and D D^T = S the covariance of
+  the whole weighted cloud; optimal when the posterior is one Gaussian, it over-smooths a posterior
+  with several modes (S spans all of them).
+bandwidth="multimodal" (beyond the paper): the mixture RPF of Murangira, Musso and Dahia (2016). The
+  resampled cloud is split into its modes (mazelab.modes: connected occupied half-cell bins); cluster c
+  of n_c particles gets its own kernel h_c D_c eps, D_c D_c^T = S_c its own covariance (at least that
+  of one bin, so that a cluster of a few copies is still spread), h_c = MIXTURE_SHRINK h_opt(n_c): a
+  mode is no Gaussian either (walls cut it), and Musso, Oudjane and Le Gland (2001) advise a smaller h
+  than h_opt for such densities; the factor was chosen by measuring against the exact grid filter
+  (see the README, "Multimodal posteriors").
+bandwidth=h (a number): h D eps with the whole cloud's D, h given.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+
+from mazelab.modes import MODE_CELL, cluster_labels, cluster_moments
+from mazelab.weights import weighted_covariance
+
+BANDWIDTHS = ("optimal", "multimodal")
+MIXTURE_SHRINK = 0.5  # h_c = MIXTURE_SHRINK * h_opt(n_c) in the multimodal kernel (measured, see the README)
+MIN_CLUSTER_VARIANCE = MODE_CELL**2 / 12  # the variance of a uniform spread over one bin, per axis
+
+Kernel = Callable[[np.ndarray, np.ndarray], np.ndarray]  # (resampled points (N, 2), eps (N, 2)) -> jitter (N, 2)
+
+
+def optimal_bandwidth(count: int | np.ndarray, dimension: int = 2) -> float | np.ndarray:
+    """h_opt = A N^(-1/(n+4)), A = (4/(n+2))^(1/(n+4)): optimal for a Gaussian kernel and posterior."""
+    n = dimension
+    return (4 / (n + 2)) ** (1 / (n + 4)) * count ** (-1 / (n + 4))
+
+
+def check_bandwidth(bandwidth: str | float) -> str | float:
+    """ "optimal", "multimodal" or a positive number h; a numeric string counts as its number."""
+    if isinstance(bandwidth, str):
+        if bandwidth in BANDWIDTHS:
+            return bandwidth
+        try:
+            bandwidth = float(bandwidth)
+        except ValueError:
+            raise ValueError(f"bandwidth must be optimal, multimodal or a positive number, got {bandwidth!r}") from None
+    if isinstance(bandwidth, bool) or not isinstance(bandwidth, (int, float)) or not 0 < bandwidth < math.inf:
+        raise ValueError(f"bandwidth must be optimal, multimodal or a positive number, got {bandwidth!r}")
+    return float(bandwidth)
+
+
+def whole_cloud_kernel(weights: np.ndarray, positions: np.ndarray, h: float) -> Kernel:
+    """h D eps with D D^T = S, the weighted covariance of the whole cloud (the paper's kernel for h_opt)."""
+    covariance = weighted_covariance(weights, positions)  # S_k, the weighted empirical covariance
+    D = np.linalg.cholesky(covariance + 1e-12 * np.eye(2))  # D_k D_k^T = S_k (tiny ridge: S may be 0)
+    scale = h * D
+    return lambda points, eps: gaussian_jitter(eps, scale)
+
+
+def mixture_kernel(points: np.ndarray, eps: np.ndarray) -> np.ndarray:
+    """h_c D_c eps for each resampled point of cluster c, h_c = MIXTURE_SHRINK h_opt(n_c) (Murangira,
+    Musso and Dahia 2016, with a narrower h)."""
+    labels, count = cluster_labels(points)  # every resampled point lies in an occupied bin: no -1
+    sizes = np.bincount(labels, minlength=count)
+    _, _, covariance = cluster_moments(points, np.ones(len(points)), labels, count)
+    covariance[:, 0, 0] = np.maximum(covariance[:, 0, 0], MIN_CLUSTER_VARIANCE)
+    covariance[:, 1, 1] = np.maximum(covariance[:, 1, 1], MIN_CLUSTER_VARIANCE)
+    a, c, d = cholesky_2x2(covariance)
+    h = MIXTURE_SHRINK * optimal_bandwidth(sizes)
+    dtype = eps.dtype
+    a, c, d = ((h * v).astype(dtype)[labels] for v in (a, c, d))
+    jitter = np.empty(eps.shape, dtype, order="F")
+    jitter[:, 0] = a * eps[:, 0]
+    jitter[:, 1] = c * eps[:, 0] + d * eps[:, 1]
+    return jitter
+
+
+def cholesky_2x2(covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The lower-triangular factors [[a, 0], [c, d]] of positive definite (K, 2, 2) matrices, each (K,)."""
+    a = np.sqrt(covariance[:, 0, 0])
+    c = covariance[:, 1, 0] / a
+    d = np.sqrt(np.clip(covariance[:, 1, 1] - c * c, 0.0, None))
+    return a, c, d
+
+
+def gaussian_jitter(eps: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """eps @ scale.T for standard normal eps (N, 2) and a lower-triangular scale (2, 2), in eps's dtype:
+    the kernel's draws, written out (a BLAS matmul would start threads for two columns)."""
+    jitter = np.empty(eps.shape, eps.dtype, order="F")
+    a, c, d = (eps.dtype.type(v) for v in (scale[0, 0], scale[1, 0], scale[1, 1]))
+    jitter[:, 0] = a * eps[:, 0]
+    jitter[:, 1] = c * eps[:, 0] + d * eps[:, 1]
+    return jitter
+
+
+__all__ = [
+    "BANDWIDTHS",
+    "MIN_CLUSTER_VARIANCE",
+    "MIXTURE_SHRINK",
+    "Kernel",
+    "check_bandwidth",
+    "cholesky_2x2",
+    "gaussian_jitter",
+    "mixture_kernel",
+    "optimal_bandwidth",
+    "whole_cloud_kernel",
+]
