@@ -372,8 +372,7 @@ def study(
 
     Each setting gets R seeded runs, every filter seeing the same scenario in a run. The table gives
     per setting and filter the mean final error (last 20% of the steps) with its 95% t-interval, the
-    share of runs that converged and the median convergence step (README: "Parameter studies").
-    Nothing is drawn unless --viewer, --rrd or --web asks (the first run)."""
+    share converged and the median convergence step (README: "Parameter studies")."""
     visualize = visualization(viewer, rrd, web, no_viz, max_drawn) if viewer or web or rrd is not None else False
     check_outputs(csv_path, plot, force, rrd)
     names = parse_filters(filters)
