@@ -170,6 +170,47 @@ def big_run_seconds(world: Maze, particles: int = 1_000_000, steps: int = 200) -
     return time.perf_counter() - started, float(result.errors[-1])
 
 
+@dataclass(frozen=True)
+class RunModelFigures:
+    """run_model at N particles without drawing, against its own filter steps and the reference step."""
+
+    particles: int
+    steps: int
+    total_seconds: float  # the whole run_model call
+    filter_seconds: float  # the sum of its filter steps (step, estimate, ESS, confidence)
+    reference_seconds_per_step: float  # the plain numpy reference step at the same N, same process
+
+    @property
+    def overhead(self) -> float:
+        """The whole call's time as a multiple of its filter steps' own time (1.0: no overhead)."""
+        return self.total_seconds / self.filter_seconds
+
+    @property
+    def times_reference(self) -> float:
+        """run_model's particle-steps per second as a multiple of the reference step's."""
+        return (self.particles * self.steps / self.total_seconds) / (self.particles / self.reference_seconds_per_step)
+
+
+def run_model_figures(
+    world: Maze, particles: int = 1_000_000, steps: int = 12, seed: int = 4, reference: float | None = None
+) -> RunModelFigures:
+    """Time run_model(..., visualize=False) end to end, the same seeded run's filter steps (simulate
+    records them), and the reference step at the same N (unless given, seconds per step), in this process."""
+    from mazelab.lab import run_model  # the paper's entry point, as a notebook calls it
+
+    def robot() -> Robot:
+        return Robot(BENCH_SIGMA, BENCH_DELTA, world.random_free_place(np.random.default_rng(seed)))
+
+    simulate(robot(), world, BENCH_SIGMA, BENCH_DELTA, particles, 2, seed=seed)  # warm the lookup tables
+    started = time.perf_counter()
+    run_model(robot(), world, BENCH_SIGMA, BENCH_DELTA, particles, steps, seed=seed, visualize=False)
+    total = time.perf_counter() - started
+    result = simulate(robot(), world, BENCH_SIGMA, BENCH_DELTA, particles, steps, seed=seed)
+    if reference is None:
+        reference = time_steps(reference_stepper(world, particles), record_walk(world, 4), 1)
+    return RunModelFigures(particles, steps, total, float(result.step_seconds.sum()), reference)
+
+
 def cpu_model() -> str:
     """The CPU's model name from /proc/cpuinfo (Linux), else what platform knows."""
     try:
@@ -218,9 +259,19 @@ def run_benchmark(small: Maze, quick: bool = False, echo: Callable[[str], None] 
     )
     total_ms, filter_ms = small_run_ms(small, steps=50 if quick else 200)
     echo(f"simulate(), SIR, N = 1,500 on the small maze: {total_ms:.2f} ms/step, of which the filter {filter_ms:.2f}")
+    reference = [r for r in rows if r.maze.startswith("small") and (r.filter_name, r.particles) == ("reference", 10**6)]
+    figures = run_model_figures(small, reference=reference[0].seconds_per_step if reference else None)
+    echo(
+        f"run_model(), SIR, N = {figures.particles:,}, {figures.steps} steps, visualize=False: "
+        f"{figures.total_seconds:.2f} s, {figures.overhead:.2f}x its filter steps' own time "
+        f"({figures.filter_seconds:.2f} s), {figures.times_reference:.1f}x the reference step"
+    )
     if not quick:
         seconds, error = big_run_seconds(small)
         echo(f"simulate(), SIR, N = 1,000,000, 200 steps on the small maze: {seconds:.1f} s (final error {error:.3f})")
+    from mazelab.bench_study import run_study_benchmark  # studies: imports the experiments
+
+    run_study_benchmark(small, large, quick, echo)
     return rows
 
 
@@ -238,6 +289,7 @@ __all__ = [
     "QUICK_COUNTS",
     "REFERENCE_LIMIT",
     "BenchRow",
+    "RunModelFigures",
     "big_run_seconds",
     "cpu_model",
     "filter_stepper",
@@ -249,6 +301,7 @@ __all__ = [
     "record_walk",
     "reference_stepper",
     "run_benchmark",
+    "run_model_figures",
     "small_run_ms",
     "time_steps",
 ]

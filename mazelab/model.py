@@ -49,11 +49,22 @@ def sample_headings(
     compass_angle: float, delta: float, count: int, rng: np.random.Generator, dtype: type = np.float64
 ) -> np.ndarray:
     """Headings actually taken, th ~ U(th0 - Delta/2, th0 + Delta/2), shape (count,), radians."""
-    headings = rng.random(count, dtype=dtype)
-    headings -= 0.5
-    headings *= delta
-    headings += float(compass_angle)
-    return headings
+    return headings_from_uniforms(rng.random(count, dtype=dtype), compass_angle, delta)
+
+
+def sample_heading(compass_angle: float, delta: float, rng: np.random.Generator) -> float:
+    """One heading th ~ U(th0 - Delta/2, th0 + Delta/2) (the robot's, once a step): sample_headings'
+    draw and operations in plain floats, so the same value without numpy calls on an array of one."""
+    return (rng.random() - 0.5) * delta + float(compass_angle)
+
+
+def headings_from_uniforms(uniforms: np.ndarray, compass_angle: float | np.ndarray, delta: float) -> np.ndarray:
+    """th = th0 + Delta (u - 1/2) for uniforms u in [0, 1), in place (in the uniforms' dtype);
+    `compass_angle` is one angle, or an array that broadcasts against the uniforms (mazelab.batch)."""
+    uniforms -= 0.5
+    uniforms *= delta
+    uniforms += compass_angle if isinstance(compass_angle, np.ndarray) else float(compass_angle)
+    return uniforms
 
 
 def move(positions: np.ndarray, headings: np.ndarray, speed: float = ROBOT_SPEED) -> np.ndarray:
@@ -77,15 +88,20 @@ def take_particles(points: np.ndarray, indices: np.ndarray) -> np.ndarray:
 
 
 def log_likelihood(
-    z: float, positions: np.ndarray, world: Maze, sigma: float, outside_penalty: float = OUTSIDE_PENALTY
+    z: float | np.ndarray, positions: np.ndarray, world: Maze, sigma: float, outside_penalty: float = OUTSIDE_PENALTY
 ) -> np.ndarray:
     """Equation (3) in logs, with refinement 1: log p(z | x) for positions (N, 2) -> (N,).
 
     The Gaussian's constant -log(sigma sqrt(2 pi)) is kept so that sums of these are true log-likelihoods.
+    `z` is one measurement, or R measurements for positions in R equal blocks (runs advanced together).
     """
     distance, free = world.station_distances_and_free(positions[:, 0], positions[:, 1])
     residual = distance  # (d - z) / sigma, computed in place: the sign does not matter once squared
-    residual -= float(z)
+    if isinstance(z, np.ndarray):
+        blocks = residual.reshape(len(z), -1)
+        blocks -= z.astype(residual.dtype)[:, None]
+    else:
+        residual -= float(z)
     residual /= sigma
     log_p = residual
     log_p *= residual
@@ -123,8 +139,10 @@ __all__ = [
     "ROBOT_SPEED",
     "RPF_THRESHOLD",
     "check_model_parameters",
+    "headings_from_uniforms",
     "log_likelihood",
     "move",
+    "sample_heading",
     "sample_headings",
     "take_particles",
 ]

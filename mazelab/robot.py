@@ -9,7 +9,7 @@ import numpy as np
 
 from mazelab.checks import angle, as_point, coordinate, step_number
 from mazelab.maze import Maze
-from mazelab.model import MAX_STRAIGHT_STEPS, ROBOT_SPEED, check_model_parameters, sample_headings
+from mazelab.model import MAX_STRAIGHT_STEPS, ROBOT_SPEED, check_model_parameters, sample_heading
 
 
 class Robot:
@@ -125,7 +125,7 @@ class Robot:
         for _ in range(tries):
             if self._compass is None or self._straight >= self.max_straight_steps:
                 self._compass, self._straight = float(self.rng.uniform(0.0, 2 * math.pi)), 0
-            actual = float(sample_headings(self._compass, self.delta, 1, self.rng)[0])
+            actual = sample_heading(self._compass, self.delta, self.rng)
             dx, dy = self.speed * math.cos(actual), self.speed * math.sin(actual)
             # The midpoint check keeps the robot from cutting the corner of a wall block.
             if world.is_free(self.x + dx, self.y + dy) and world.is_free(self.x + dx / 2, self.y + dy / 2):

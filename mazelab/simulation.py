@@ -33,10 +33,37 @@ class RunResult:
     estimates: np.ndarray  # (steps, 2), the posterior mean after the update with z_k
     ess: np.ndarray  # (steps,), NaN for the grid filter
     confident: np.ndarray  # (steps,) bool
-    step_seconds: np.ndarray  # (steps,), the filter's own time per step
+    step_seconds: np.ndarray  # (steps,), the filter's own time per step: its step and its estimate, ESS, confidence
     reinitialised_at: list[int]
-    scenario: Scenario
+    inputs: RunInputs
     extras: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def scenario(self) -> Scenario:
+        """The run as a Scenario (what save_scenario writes), built on first use: lists and validation
+        cost more than a large run's filter steps, so a run that is not saved never pays for them."""
+        if "scenario" not in self.__dict__:
+            self.__dict__["scenario"] = self.inputs.scenario()
+        return self.__dict__["scenario"]
+
+    @property
+    def seed(self) -> int:
+        """The seed that repeats the run."""
+        return self.inputs.seed
+
+    @property
+    def kidnap_at(self) -> int | None:
+        """The step at which the robot was kidnapped, or None."""
+        return self.inputs.kidnap_at
+
+    @property
+    def kidnap_position(self) -> tuple[float, float] | None:
+        return self.inputs.kidnap_position
+
+    @property
+    def initial_particles(self) -> np.ndarray:
+        """The initial particles (N, 2), as given or drawn (float64)."""
+        return self.inputs.particles
 
     @property
     def errors(self) -> np.ndarray:
@@ -56,6 +83,76 @@ class RunResult:
         ]
 
 
+@dataclass(frozen=True)
+class RunInputs:
+    """What a run started from and walked, as arrays and plain values: a Scenario's content before
+    it is turned into lists and validated (RunResult.scenario does that on demand)."""
+
+    robot_position: tuple[float, float]
+    particles: np.ndarray  # (N, 2) float64
+    actual_angles: list[float]
+    compass_angles: list[float]
+    measurements: list[float]
+    world: Maze
+    sigma: float
+    delta: float
+    seed: int
+    steps: int
+    filtering_algorithm: str
+    kidnap_at: int | None = None
+    kidnap_position: tuple[float, float] | None = None
+
+    @classmethod
+    def of_run(
+        cls,
+        robot: Robot,
+        particles: np.ndarray,
+        world: Maze,
+        sigma: float,
+        delta: float,
+        seed: int,
+        steps: int,
+        name: str,
+    ) -> RunInputs:
+        """The inputs of a run of `steps` steps by `robot` (its recorded walk is copied)."""
+        kidnapped = robot.kidnap_at is not None and robot.kidnap_at <= steps
+        return cls(
+            robot.initial_position,
+            particles,
+            robot.actual_angles[:steps],
+            robot.compass_angles[:steps],
+            robot.measurements[:steps],
+            world,
+            sigma,
+            delta,
+            seed,
+            steps,
+            name,
+            robot.kidnap_at if kidnapped else None,
+            robot.kidnap_position if kidnapped else None,
+        )
+
+    def scenario(self) -> Scenario:
+        """The validated Scenario of these inputs."""
+        kidnapping = {}
+        if self.kidnap_at is not None:
+            kidnapping = {"kidnap_at": self.kidnap_at, "kidnap_position": self.kidnap_position}
+        return Scenario(
+            init_robot_pos=self.robot_position,
+            init_particles_pos=self.particles.tolist(),
+            robot_actual_angles=self.actual_angles,
+            robot_compass_angles=self.compass_angles,
+            robot_measurements=self.measurements,
+            maze=self.world.as_lists(),
+            sigma=self.sigma,
+            delta=self.delta,
+            seed=self.seed,
+            steps=self.steps,
+            filtering_algorithm=self.filtering_algorithm,
+            **kidnapping,
+        )
+
+
 def convergence_step(errors: np.ndarray, radius: float = CONVERGENCE_RADIUS) -> int | None:
     """The first step (1-based) after which every error is below `radius`; None if the last is not."""
     outside = np.flatnonzero(np.asarray(errors) >= radius)
@@ -67,15 +164,18 @@ def convergence_step(errors: np.ndarray, radius: float = CONVERGENCE_RADIUS) -> 
 def check_start(
     world: Maze,
     robot_position: tuple[float, float],
-    particles: np.ndarray,
+    particles: np.ndarray | None,
     kidnap_position: tuple[float, float] | None = None,
 ) -> None:
-    """The robot must start (and be put down by a kidnapping) in the free area; particles may lie
-    anywhere within the map plus a margin (but we say when they lie outside the free area)."""
+    """The robot must start (and be put down by a kidnapping) in the free area; particles handed in
+    may lie anywhere within the map plus a margin (but we say when they lie outside the free area;
+    None: drawn from the free area, nothing to check)."""
     if not world.is_free(*robot_position):
         raise ValueError(f"the robot's start {robot_position} is not in the free area of the maze ({world.source})")
     if kidnap_position is not None and not world.is_free(*kidnap_position):
         raise ValueError(f"the kidnap position {kidnap_position} is not in the free area of the maze ({world.source})")
+    if particles is None:
+        return
     check_within_map("init_particles_pos", particles, world.width, world.height)
     outside = int((~world.is_free(particles[:, 0], particles[:, 1])).sum())
     if outside:
@@ -162,7 +262,8 @@ def simulate(
             raise ValueError(f"particle_count must be a whole number >= 1, got {count!r}")
         check_particles(int(count))
         particles = world.random_free_places(int(count), particles_rng)
-    check_start(world, robot.initial_position, particles, robot.kidnap_position)
+    given = particles if init_particles_pos is not None else None  # drawn ones lie in the free area
+    check_start(world, robot.initial_position, given, robot.kidnap_position)
     if steps is None:
         steps = robot.recorded_steps or DEFAULT_STEPS
     if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
@@ -187,28 +288,15 @@ def simulate(
             compass_angle, z = robot.step(world)
             started = time.perf_counter()
             filt.step(compass_angle, z)
-            seconds[k] = time.perf_counter() - started
-            true_positions[k], estimates[k] = robot.position, filt.estimate
-            ess[k], confident[k], counts[k] = filt.ess, filt.is_confident, filt.count
+            estimates[k], ess[k], confident[k] = filt.estimate, filt.ess, filt.is_confident
+            seconds[k] = time.perf_counter() - started  # the step and the posterior it reports
+            true_positions[k], counts[k] = robot.position, filt.count
             view.log_step(k + 1, robot.position, robot.heading, filt)
             if on_step is not None:
                 on_step(k + 1, robot, filt)
     finally:
         view.close()
-    scenario = Scenario(
-        init_robot_pos=robot.initial_position,
-        init_particles_pos=particles.tolist(),
-        robot_actual_angles=robot.actual_angles[:steps],
-        robot_compass_angles=robot.compass_angles[:steps],
-        robot_measurements=robot.measurements[:steps],
-        maze=world.as_lists(),
-        sigma=sigma,
-        delta=delta,
-        seed=seed,
-        steps=steps,
-        filtering_algorithm=filter_class.name,
-        **_kidnapping_fields(robot, steps),
-    )
+    inputs = RunInputs.of_run(robot, particles, world, sigma, delta, seed, steps, filter_class.name)
     return RunResult(
         filter_class.name,
         true_positions,
@@ -217,7 +305,7 @@ def simulate(
         confident,
         seconds,
         list(filt.reinitialised_at),
-        scenario,
+        inputs,
         extras={"particle_count": counts},
     )
 
@@ -234,15 +322,9 @@ def plan_kidnapping(robot: Robot, world: Maze, kidnap_at: int, steps: int, rng: 
         raise ValueError(f"the robot replays a kidnapping at step {robot.kidnap_at}, not at step {kidnap_at}")
 
 
-def _kidnapping_fields(robot: Robot, steps: int) -> dict[str, Any]:
-    """The scenario's kidnap_at and kidnap_position, if the robot was kidnapped within `steps`."""
-    if robot.kidnap_at is None or robot.kidnap_at > steps:
-        return {}
-    return {"kidnap_at": robot.kidnap_at, "kidnap_position": robot.kidnap_position}
-
-
 __all__ = [
     "NullView",
+    "RunInputs",
     "RunResult",
     "check_start",
     "convergence_step",

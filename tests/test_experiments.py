@@ -5,18 +5,16 @@ from __future__ import annotations
 import csv
 import io
 import math
-import os
 import signal
 import statistics
-import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
-from conftest import PAPER_MAZE, ROOT
+from conftest import PAPER_MAZE
 
 from mazelab.cli.app import from_scenario, main
+from mazelab.experiments import batch_runs
 from mazelab.experiments import study as experiments
 from mazelab.experiments.compare import compare_filters
 from mazelab.experiments.executor import run_study
@@ -222,6 +220,7 @@ def test_a_crashing_run_is_reported_with_its_seed_and_the_others_kept(tmp_path, 
         return real(task, visualize)
 
     monkeypatch.setattr(experiments, "run_task", crash_on_run_2)
+    monkeypatch.setattr(batch_runs, "batchable", lambda task: False)  # run by run, through run_task
     table = tmp_path / "s.csv"
     args = ["study", "--maze", "paper_5x5", "--runs", "3", "--steps", "10", "--particles", "50", "--filters", "sir"]
     assert main([*args, "--seed", "3", "--workers", "1", "--csv", str(table)]) == 1
@@ -240,47 +239,15 @@ def test_ctrl_c_keeps_the_finished_runs_and_exits_130(tmp_path, capsys, monkeypa
         return real(task, visualize)
 
     monkeypatch.setattr(experiments, "run_task", interrupt_on_run_3)
+    monkeypatch.setattr(batch_runs, "batchable", lambda task: False)  # run by run, through run_task
     table = tmp_path / "s.csv"
     args = ["study", "--maze", "paper_5x5", "--runs", "5", "--steps", "10", "--particles", "50", "--filters", "sir,apf"]
     assert main([*args, "--workers", "1", "--csv", str(table)]) == 130
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # in-process: handlers put back
     assert "interrupted after 2 of 5 runs" in capsys.readouterr().err
     assert [(r["run"], r["filter"]) for r in read_csv(table)] == [
         (run, name) for run in ("1", "2") for name in FILTERS[:2]
     ]
-
-
-def test_ctrl_c_on_the_process_pool_keeps_the_finished_runs(tmp_path):
-    """A real SIGINT to the whole process group (what Ctrl-C sends) while two workers run a long study:
-    exit code 130, and the CSV holds whole runs only (every filter of each finished run)."""
-    table = tmp_path / "s.csv"
-    command = [
-        sys.executable,
-        str(ROOT / "main.py"),
-        "study",
-        "--maze",
-        "paper_5x5",
-        "--runs",
-        "100000",
-        "--steps",
-        "20",
-    ]
-    command += ["--particles", "100", "--filters", "sir,apf", "--workers", "2", "--csv", str(table)]
-    process = subprocess.Popen(
-        command,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        start_new_session=True,
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
-    )
-    time.sleep(4)
-    os.killpg(process.pid, signal.SIGINT)
-    _, err = process.communicate(timeout=60)
-    assert process.returncode == 130, err
-    assert "interrupted after" in err and "Traceback" not in err
-    rows = read_csv(table)
-    runs = {r["run"] for r in rows}
-    assert len(rows) == 2 * len(runs) < 2 * 100000
 
 
 # -- kidnapping in compare and study ---------------------------------------------------------------

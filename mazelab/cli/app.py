@@ -12,6 +12,7 @@ mazelab accuracy        each filter's distance to the exact grid posterior on th
 
 from __future__ import annotations
 
+import signal
 import sys
 import time
 import warnings
@@ -48,7 +49,9 @@ from mazelab.cli.replay import from_scenario, refuse_counts_for_replay, replay_s
 from mazelab.cli.reports import kidnap_report, particle_count_report, prepare_world, progress_printer, report_run
 from mazelab.cli.view import view
 from mazelab.experiments.compare import compare_filters, comparison_table, errors_csv, plot_errors
-from mazelab.experiments.executor import default_workers, run_study
+from mazelab.experiments.dask_runner import close_client, connect
+from mazelab.experiments.executor import STOP_SIGNALS, default_workers, run_study
+from mazelab.experiments.rowlog import RowLog
 from mazelab.experiments.runs import parse_filters
 from mazelab.experiments.stats import CONFIDENCE_LEVEL
 from mazelab.experiments.study import MazeChoice, study_settings, study_tasks, varied_parameters
@@ -321,8 +324,8 @@ def compare(
         bandwidth=check_bandwidth(bandwidth),
         estimate=check_estimate(estimate),
     )
-    kidnapping = next(iter(results.values())).scenario
-    if kidnapping.kidnap_at is not None:
+    kidnapping = next(iter(results.values()))
+    if kidnapping.kidnap_at is not None and kidnapping.kidnap_position is not None:
         x, y = kidnapping.kidnap_position
         typer.echo(f"kidnapped at step {kidnapping.kidnap_at} to ({x:.2f}, {y:.2f})")
     typer.echo(comparison_table(results, kld=kld))
@@ -356,6 +359,7 @@ def study(
     steps: Annotated[int, typer.Option(min=1, help="steps per run")] = DEFAULT_STEPS,
     seed: Annotated[int | None, typer.Option(help="the study's root seed (default: new, printed)")] = None,
     workers: Annotated[int | None, typer.Option(min=1, help="processes (default: all cores)")] = None,
+    dask: Annotated[str | None, typer.Option(help="the Dask scheduler to run on, tcp://HOST:PORT")] = None,
     csv_path: Annotated[Path | None, typer.Option("--csv", help="one row per run and filter")] = None,
     plot: Annotated[Path | None, typer.Option(help="error against the varied parameter (.png)")] = None,
     force: Annotated[bool, typer.Option("--force", help="replace existing output files")] = False,
@@ -369,8 +373,7 @@ def study(
 
     Each setting gets R seeded runs, every filter seeing the same scenario in a run. The table gives
     per setting and filter the mean final error (last 20% of the steps) with its 95% t-interval, the
-    share of runs that converged and the median convergence step (README: "Parameter studies").
-    Nothing is drawn unless --viewer, --rrd or --web asks (the first run)."""
+    share converged and the median convergence step (README: "Parameter studies")."""
     visualize = visualization(viewer, rrd, web, no_viz, max_drawn) if viewer or web or rrd is not None else False
     check_outputs(csv_path, plot, force, rrd)
     names = parse_filters(filters)
@@ -390,27 +393,50 @@ def study(
     tasks = study_tasks(settings, names, runs, steps, seed, kidnap_at=kidnap_at, kld=kld, estimate=estimate)
     workers = workers or default_workers()
     varied = varied_parameters(settings)
+    client = connect(dask) if dask is not None else None  # a bad address: one line and exit 2, before anything
+    where = f"on the Dask cluster at {dask}" if dask is not None else f"{workers} worker(s)"
     typer.echo(
-        f"Study: {len(settings)} setting(s) x {runs} runs x {len(names)} filters, seed {seed}, {workers} worker(s)\n"
+        f"Study: {len(settings)} setting(s) x {runs} runs x {len(names)} filters, seed {seed}, {where}\n"
         f"{describe_setting(settings[0], steps, runs, kidnap_at)}"
         + (f"; varied: {', '.join(varied)}" if varied else "")
     )
     started = time.perf_counter()
-    outcome = run_study(tasks, workers, visualize=visualize, progress=True)
+    log = RowLog(csv_path) if csv_path is not None else None  # rows appended as runs finish: a stop keeps them
+    try:
+        outcome = run_study(
+            tasks,
+            workers,
+            visualize=visualize,
+            progress=True,
+            on_records=None if log is None else log.append,
+            dask=client,
+            ignore_signals_after_stop=True,  # a stopped study only saves and exits: a further Ctrl-C waits
+        )
+    finally:
+        if log is not None:
+            log.close()
+        if client is not None:
+            close_client(client)
     seconds = time.perf_counter() - started
-    if csv_path is not None:
-        write_text_atomically(csv_path, study_csv(outcome.records))
     for failure in outcome.failures:
         typer.echo(f"error: {failure.describe()}", err=True)
     finished = len({(r.setting, r.run) for r in outcome.records})
     if outcome.interrupted:
+        if csv_path is not None and log is not None and log.error is None:
+            write_text_atomically(csv_path, study_csv(outcome.records))  # the same rows, in order
         saved = f"; they are in {csv_path}" if csv_path is not None else ""
         typer.echo(f"interrupted after {finished} of {len(tasks)} runs{saved}", err=True)
-        raise KeyboardInterrupt
+        for sig in STOP_SIGNALS:  # stopping already: a further Ctrl-C, SIGTERM or SIGHUP changes nothing
+            signal.signal(sig, signal.SIG_IGN)
+        raise typer.Exit(128 + (outcome.stopped_by or signal.SIGINT))  # 130 Ctrl-C, 143 SIGTERM, 129 SIGHUP
     summaries = summarise_study(outcome.records, settings)
-    typer.echo(study_table(summaries, varied, kld=kld))
+    typer.echo(study_table(summaries, varied, kld=kld))  # the table first: a write error cannot lose it
     typer.echo(f"{finished} runs in {seconds:.1f} s wall time")
-    if csv_path is not None:
+    if csv_path is not None and log is not None:
+        if log.error is not None:
+            typer.echo(f"error: cannot write {csv_path}: {log.error.strerror or log.error}", err=True)
+            raise typer.Exit(1)
+        write_text_atomically(csv_path, study_csv(outcome.records))  # the rows of the log, in order
         typer.echo(f"one row per run and filter written to {csv_path}")
     if plot is not None and summaries:
         what = ", ".join(varied) or "the setting"
@@ -494,8 +520,22 @@ def bench(
 
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; problems with the input end as one line on stderr and exit code 2, a file that
-    cannot be written as one line and exit code 1 (after the results are printed)."""
+    cannot be written as one line and exit code 1 (after the results are printed).
+
+    A stopped study leaves Ctrl-C, SIGTERM and SIGHUP ignored until the process exits (a further one
+    can neither hang nor interrupt the exit); called with `argv` (in-process), main puts the signal
+    handlers back as it found them."""
     warnings.showwarning = warn_in_one_line
+    handlers = {sig: signal.getsignal(sig) for sig in STOP_SIGNALS}
+    try:
+        return _main(argv)
+    finally:
+        if argv is not None:
+            for sig, handler in handlers.items():
+                signal.signal(sig, handler)
+
+
+def _main(argv: list[str] | None) -> int:
     try:
         with write_errors_deferred():
             code = app(args=argv, standalone_mode=False)

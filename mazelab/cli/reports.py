@@ -23,7 +23,7 @@ def summarise(result: RunResult) -> str:
     when = f"converged at step {converged} (error < 0.5 from then on)" if converged else "not converged"
     return (
         f"{result.filter_name}: final error {errors[-1]:.3f}, mean error over the last 20% "
-        f"{final_error(errors):.3f}; {when}; seed {result.scenario.seed}"
+        f"{final_error(errors):.3f}; {when}; seed {result.seed}"
     )
 
 
@@ -85,13 +85,12 @@ class ProgressLine:
 
 def kidnap_report(result: RunResult) -> str | None:
     """Where the robot was carried, and when (if ever) the filter found it again."""
-    scenario = result.scenario
-    if scenario.kidnap_at is None:
+    if result.kidnap_at is None or result.kidnap_position is None:
         return None
-    x, y = scenario.kidnap_position
+    x, y = result.kidnap_position
     steps = recovery_steps(result)
     found = f"re-localised {steps} steps later" if steps is not None else "not re-localised by the end"
-    return f"kidnapped at step {scenario.kidnap_at} to ({x:.2f}, {y:.2f}): {found}"
+    return f"kidnapped at step {result.kidnap_at} to ({x:.2f}, {y:.2f}): {found}"
 
 
 def particle_count_report(result: RunResult) -> str:

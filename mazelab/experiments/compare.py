@@ -79,7 +79,7 @@ def compare_filters(
 def comparison_table(results: dict[str, RunResult], kld: bool = False) -> str:
     """Per filter: mean error, final error, convergence step, mean ESS and milliseconds per step; with a
     kidnapping, whether the filter re-localised and in how many steps; with `kld`, the mean particle count."""
-    kidnapped = any(result.scenario.kidnap_at is not None for result in results.values())
+    kidnapped = any(result.kidnap_at is not None for result in results.values())
     headers = ["filter", "mean error", f"last {FINAL_SHARE:.0%} error", "converged at", "mean ESS", "ms/step"]
     headers += ["re-localised", "steps to recover"] * kidnapped + ["mean N"] * kld
     rows = []

@@ -1,19 +1,33 @@
-"""How a study's runs are executed: in this process or on a process pool, with a progress bar;
-Ctrl-C keeps the finished runs."""
+"""How a study's runs are executed: in this process or on a process pool, with a progress bar.
+
+Stopping keeps every finished run: the first Ctrl-C cancels the runs not started and lets the running
+ones finish; a second Ctrl-C, SIGTERM or SIGHUP ends the workers at once. Workers also end with their
+parent when it is killed outright (kill -9): a parent-death signal on Linux, a watchdog thread elsewhere.
+"""
 
 from __future__ import annotations
 
+import ctypes
 import os
 import signal
+import sys
+import threading
+import time
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from typing import Any
 
-from mazelab.experiments.study import RunFailure, RunRecord, RunTask, StudyOutcome, run_task, run_task_safely
-
-QUEUED_PER_WORKER = 4  # tasks queued per worker process at a time
+from mazelab.experiments.batch_runs import run_unit_safely, study_units
+from mazelab.experiments.dask_runner import close_client, connect, run_on_dask
+from mazelab.experiments.study import (
+    RunFailure,
+    RunRecord,
+    RunTask,
+    StudyOutcome,
+    run_task,
+)
 
 
 def default_workers() -> int:
@@ -21,34 +35,83 @@ def default_workers() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
+class StudyStopped(KeyboardInterrupt):
+    """SIGTERM or SIGHUP stopped the study (raised in the main thread, as Ctrl-C raises KeyboardInterrupt)."""
+
+    def __init__(self, signum: int):
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
 def run_study(
-    tasks: Sequence[RunTask], workers: int | None = None, *, visualize: Any = False, progress: bool = False
+    tasks: Sequence[RunTask],
+    workers: int | None = None,
+    *,
+    visualize: Any = False,
+    progress: bool = False,
+    on_records: Callable[[list[RunRecord]], None] | None = None,
+    dask: Any = None,
+    ignore_signals_after_stop: bool = False,
 ) -> StudyOutcome:
-    """Run every task, on `workers` processes (default: all cores); Ctrl-C keeps the finished runs.
+    """Run every task, on `workers` processes (default: all cores) or on a Dask cluster: `dask` is its
+    scheduler's address (connected and closed here) or a dask.distributed Client; any stop keeps the
+    finished runs.
 
     With `visualize`, the first run is drawn (all its filters, as compare draws them) in this process.
-    A run that raises becomes a RunFailure; the others go on.
+    A run that raises becomes a RunFailure; the others go on. `on_records` is handed each finished
+    run's records as they come (the study's CSV appends them). A stop sets outcome.interrupted and
+    outcome.stopped_by (the signal's number: SIGINT for Ctrl-C); with `ignore_signals_after_stop` (a
+    command about to exit), further Ctrl-C, SIGTERM and SIGHUP are ignored from then on.
     """
     workers = default_workers() if workers is None else workers
     if workers < 1:
         raise ValueError(f"--workers must be >= 1, got {workers}")
+    client = connect(dask) if isinstance(dask, str) else dask  # a bad address: one line, before anything runs
     outcome = StudyOutcome(tasks=len(tasks))
-    with _progress_bar(len(tasks), progress) as advance:
-        try:
-            drawn, rest = (list(tasks[:1]), list(tasks[1:])) if visualize else ([], list(tasks))
-            if workers == 1 or len(rest) <= 1:
-                for task in drawn:
-                    outcome.add(_draw_task(task, visualize))
-                    advance()
-                for task in rest:
-                    outcome.add(run_task_safely(task))
-                    advance()
-            else:
-                _run_in_pool(rest, drawn, workers, visualize, outcome, advance)
-        except KeyboardInterrupt:
-            outcome.interrupted = True
+
+    def collect(results: list[list[RunRecord] | RunFailure]) -> None:
+        for result in results:
+            outcome.add(result)
+            if on_records is not None and not isinstance(result, RunFailure):
+                on_records(result)
+
+    try:
+
+        def keep_ignoring() -> bool:
+            return ignore_signals_after_stop and outcome.interrupted
+
+        with _progress_bar(len(tasks), progress) as advance, _stop_signals(keep_ignoring):
+            try:
+                drawn, rest = (list(tasks[:1]), list(tasks[1:])) if visualize else ([], list(tasks))
+                units = study_units(rest, 1 if client is not None else workers)
+                if client is not None:
+                    run_on_dask(client, units, lambda: _run_drawn(drawn, visualize, collect, advance), collect, advance)
+                elif workers == 1 or len(units) <= 1:
+                    _run_drawn(drawn, visualize, collect, advance)
+                    for unit in units:
+                        collect(run_unit_safely(unit))
+                        advance(len(unit))
+                else:
+                    _run_in_pool(units, drawn, workers, visualize, collect, advance)
+            except KeyboardInterrupt as stop:
+                if ignore_signals_after_stop:
+                    _ignore(STOP_SIGNALS)
+                outcome.interrupted = True
+                outcome.stopped_by = getattr(stop, "signum", signal.SIGINT)
+    finally:
+        if isinstance(dask, str):
+            close_client(client)
     outcome.sort()
     return outcome
+
+
+def _run_drawn(
+    drawn: list[RunTask], visualize: Any, collect: Callable[[list], None], advance: Callable[..., None]
+) -> None:
+    """The drawn run(s), in this process (the viewer is here)."""
+    for task in drawn:
+        collect([_draw_task(task, visualize)])
+        advance()
 
 
 def _draw_task(task: RunTask, visualize: Any) -> list[RunRecord] | RunFailure:
@@ -59,62 +122,158 @@ def _draw_task(task: RunTask, visualize: Any) -> list[RunRecord] | RunFailure:
 
 
 def _run_in_pool(
-    tasks: list[RunTask],
+    units: list[tuple[RunTask, ...]],
     drawn: list[RunTask],
     workers: int,
     visualize: Any,
-    outcome: StudyOutcome,
-    advance: Callable[[], None],
+    collect: Callable[[list], None],
+    advance: Callable[..., None],
 ) -> None:
-    """Tasks on a process pool (the drawn ones here meanwhile); on Ctrl-C, cancel what has not
-    started, let the running tasks finish, and keep every finished result. A few tasks per worker are
-    queued at a time, so that a large study starts at once and Ctrl-C never meets a long submission."""
-    pool = ProcessPoolExecutor(max_workers=min(workers, len(tasks)), initializer=_ignore_sigint)
-    pending: dict[Future, RunTask] = {}
-    queue = iter(tasks)
+    """Units of runs on a process pool (the drawn ones here meanwhile), at most two per worker handed
+    out at a time. On Ctrl-C, hand out no more and let the running units finish; on a second Ctrl-C,
+    SIGTERM or SIGHUP end the workers at once. Every finished result is kept; the stop is raised again."""
+    pool = ProcessPoolExecutor(max_workers=min(workers, len(units)), initializer=_worker_setup)
+    waiting = iter(units)
+    running: dict[Future, tuple[RunTask, ...]] = {}
 
-    def submit_next() -> None:
-        task = next(queue, None)
-        if task is not None:
-            pending[pool.submit(run_task_safely, task)] = task
+    def hand_out() -> None:
+        for unit in waiting:
+            running[pool.submit(run_unit_safely, unit)] = unit
+            if len(running) >= 2 * workers:
+                return
+
+    def take(done: set[Future], finished_only: bool = False) -> None:
+        for future in done:
+            unit = running.pop(future)
+            if not finished_only or future.exception() is None:
+                collect(_result_of(future, unit))
+                advance(len(unit))
 
     try:
-        for _ in range(QUEUED_PER_WORKER * workers):
-            submit_next()
-        for task in drawn:
-            outcome.add(_draw_task(task, visualize))
-            advance()
-        while pending:
-            done, _ = wait(pending, return_when=FIRST_COMPLETED)
-            for future in done:
-                outcome.add(_result_of(future, pending.pop(future)))
-                advance()
-                submit_next()
-    finally:  # also on Ctrl-C: the workers ignore it and finish their current run
-        pool.shutdown(wait=True, cancel_futures=True)
-        for future, task in pending.items():
-            if future.done() and not future.cancelled():
-                outcome.add(_result_of(future, task))
-                advance()
+        hand_out()
+        _run_drawn(drawn, visualize, collect, advance)
+        while running:
+            take(wait(running, return_when=FIRST_COMPLETED)[0])
+            hand_out()
+    except KeyboardInterrupt as stop:
+        if not isinstance(stop, StudyStopped):
+            try:  # the workers ignore Ctrl-C and finish what they were handed
+                while running:
+                    take(wait(running, timeout=0.2, return_when=FIRST_COMPLETED)[0])
+            except KeyboardInterrupt as second:
+                stop = second
+        with _signals_ignored():
+            take({future for future in running if future.done()}, finished_only=True)
+            _end_workers(pool)
+        raise stop from None
+    pool.shutdown(wait=True)
 
 
-def _result_of(future: Future, task: RunTask) -> list[RunRecord] | RunFailure:
+def _end_workers(pool: ProcessPoolExecutor) -> None:
+    """Kill the pool's worker processes now and reap them (their unfinished runs are dropped)."""
+    kill_workers = getattr(pool, "kill_workers", None)  # Python 3.14
+    processes = list((getattr(pool, "_processes", None) or {}).values())  # no public API before 3.14
+    if kill_workers is not None:
+        kill_workers()
+    for process in processes:
+        if process.is_alive():
+            process.kill()
+    for process in processes:
+        process.join(timeout=5)
+    pool.shutdown(wait=True)  # the pool's thread sees the workers gone and ends
+
+
+def _result_of(future: Future, unit: tuple[RunTask, ...]) -> list[list[RunRecord] | RunFailure]:
     try:
         return future.result()
     except BrokenProcessPool:
-        return RunFailure(task, "its worker process died (out of memory?)")
+        return [RunFailure(task, "its worker process died (out of memory?)") for task in unit]
 
 
-def _ignore_sigint() -> None:
-    """Workers leave Ctrl-C to the main process, which stops the study and saves what finished."""
+PR_SET_PDEATHSIG = 1  # linux/prctl.h: the signal a process gets when its parent dies
+WATCHDOG_SECONDS = 0.5
+
+
+def _worker_setup() -> None:
+    """In each worker: leave Ctrl-C to the main process (it stops the study and keeps what finished),
+    and end with the parent, however it ends."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # not the parent's handler, which a fork inherits
+    if hasattr(signal, "SIGHUP"):  # a terminal's hangup reaches the whole group: the parent ends the workers
+        signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    die_with_parent()
+
+
+def die_with_parent() -> None:
+    """End this process when its parent ends: SIGKILL from the kernel on Linux (PR_SET_PDEATHSIG),
+    and on every system a daemon thread that polls os.getppid() (a reparented process has another)."""
+    parent = os.getppid()
+    if sys.platform.startswith("linux"):
+        with suppress(OSError, AttributeError):
+            ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+    if parent == 1:  # the parent died before the check was set
+        os._exit(1)
+    threading.Thread(target=_watch_parent, args=(parent,), daemon=True, name="parent-watchdog").start()
+
+
+def _watch_parent(parent: int) -> None:
+    while os.getppid() == parent:
+        time.sleep(WATCHDOG_SECONDS)
+    os._exit(1)
+
+
+@contextmanager
+def _stop_signals(keep_ignoring: Callable[[], bool] = lambda: False) -> Iterator[None]:
+    """While the study runs: SIGTERM and SIGHUP raise StudyStopped in the main thread (as Ctrl-C raises
+    KeyboardInterrupt), so that they too keep the finished runs and end the workers. Afterwards the
+    previous handlers come back, unless `keep_ignoring()` (the stop signals stay ignored then)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def stop(signum: int, _frame: Any) -> None:
+        raise StudyStopped(signum)
+
+    previous = {sig: signal.signal(sig, stop) for sig in STOP_SIGNALS if sig != signal.SIGINT}
+    try:
+        yield
+    finally:
+        if keep_ignoring():
+            _ignore(STOP_SIGNALS)
+        else:
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+
+
+def _ignore(signals: Sequence[int]) -> None:
+    """Ignore these signals from now on (in the main thread; elsewhere nothing to do)."""
+    if threading.current_thread() is threading.main_thread():
+        for sig in signals:
+            signal.signal(sig, signal.SIG_IGN)
+
+
+STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
+
+
+@contextmanager
+def _signals_ignored() -> Iterator[None]:
+    """Ctrl-C, SIGTERM and SIGHUP ignored while the workers are ended (a third Ctrl-C changes nothing)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {sig: signal.signal(sig, signal.SIG_IGN) for sig in STOP_SIGNALS}
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
 
 
 @contextmanager
 def _progress_bar(total: int, show: bool) -> Iterator[Callable[[], None]]:
     """A rich progress bar on stderr (typer brings rich); yields the function that advances it."""
     if not show:
-        yield lambda: None
+        yield lambda count=1: None
         return
     from rich.console import Console
     from rich.progress import (
@@ -136,10 +295,13 @@ def _progress_bar(total: int, show: bool) -> Iterator[Callable[[], None]]:
     )
     with Progress(*columns, console=Console(stderr=True), transient=False) as bar:
         task = bar.add_task("runs", total=total)
-        yield lambda: bar.advance(task)
+        yield lambda count=1: bar.advance(task, count)
 
 
 __all__ = [
+    "STOP_SIGNALS",
+    "StudyStopped",
     "default_workers",
+    "die_with_parent",
     "run_study",
 ]

@@ -66,7 +66,7 @@ def walk_until(robot: Robot, kidnap_at: int) -> Robot:
 
 def recovery_steps(result: RunResult) -> int | None:
     """R - K: R the first step from which the error stays below CONVERGENCE_RADIUS, K the kidnap step."""
-    kidnap_at = result.scenario.kidnap_at
+    kidnap_at = result.kidnap_at
     if kidnap_at is None:
         raise ValueError("the run has no kidnapping")
     since = convergence_step(result.errors[kidnap_at - 1 :])  # 1-based within the errors of steps K..end

@@ -117,7 +117,7 @@ def run_filters(
             **filter_options(name, threshold, recovery, kld, bandwidth, estimate),
         )
         if particles is None:
-            particles = np.array(result.scenario.init_particles_pos)
+            particles = result.initial_particles
         steps = len(result.errors)
         results[result.filter_name] = result
     return results
@@ -130,7 +130,7 @@ def mean_particle_count(result: RunResult) -> float:
 
 def kidnap_figures(result: RunResult) -> tuple[bool | None, int | None]:
     """(re-localised, steps to recover) of a run with a kidnapping; (None, None) without one."""
-    if result.scenario.kidnap_at is None:
+    if result.kidnap_at is None:
         return None, None
     return relocalised(result), recovery_steps(result)
 

@@ -243,6 +243,12 @@ def run_task(task: RunTask, visualize: Any = False) -> list[RunRecord]:
     finally:
         if comparison is not None:
             comparison.close()
+    return run_records(task, world, results)
+
+
+def run_records(task: RunTask, world: Maze, results: dict[str, RunResult]) -> list[RunRecord]:
+    """The study's rows of one run: a record per filter's result."""
+    s = task.setting
     stations = int((world.grid == STATION_WALL).sum())
     return [
         RunRecord(
@@ -276,7 +282,7 @@ def run_task(task: RunTask, visualize: Any = False) -> list[RunRecord]:
 
 def kidnap_figures(result: RunResult) -> tuple[bool | None, int | None]:
     """(re-localised, steps to recover) of a run with a kidnapping; (None, None) without one."""
-    if result.scenario.kidnap_at is None:
+    if result.kidnap_at is None:
         return None, None
     return relocalised(result), recovery_steps(result)
 
@@ -297,6 +303,7 @@ class StudyOutcome:
     records: list[RunRecord] = field(default_factory=list)
     failures: list[RunFailure] = field(default_factory=list)
     interrupted: bool = False
+    stopped_by: int | None = None  # the signal that stopped it (2: Ctrl-C), None if it ran to the end
     tasks: int = 0
 
     def add(self, outcome: list[RunRecord] | RunFailure) -> None:
@@ -321,6 +328,7 @@ __all__ = [
     "StudyOutcome",
     "StudySetting",
     "kidnap_figures",
+    "run_records",
     "run_seeds",
     "run_task",
     "run_task_safely",

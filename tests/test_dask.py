@@ -1,0 +1,92 @@
+"""study --dask: a study's runs on a real Dask cluster (a LocalCluster on 127.0.0.1) give every run's
+figures bit for bit as the local study does."""
+
+from __future__ import annotations
+
+import csv
+import io
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+from conftest import ROOT
+
+from mazelab.cli.app import main
+from mazelab.experiments.executor import run_study
+from mazelab.experiments.study import MazeChoice, study_settings, study_tasks
+from mazelab.mazes import load_maze
+
+distributed = pytest.importorskip("distributed")
+
+TIMING = "ms_per_step"  # the only column that may differ: it is measured
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    with distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=False, protocol="tcp", host="127.0.0.1", dashboard_address=None
+    ) as local:
+        yield local
+
+
+def rows_without_timing(text: str) -> list[dict[str, str]]:
+    return [{k: v for k, v in row.items() if k != TIMING} for row in csv.DictReader(io.StringIO(text))]
+
+
+def test_a_study_on_dask_gives_the_local_studys_runs(cluster, tmp_path, capsys):
+    args = ["study", "--maze", "paper_5x5", "--sigma", "0.3,0.6", "--runs", "3", "--steps", "30"]
+    args += ["--particles", "200", "--seed", "11", "--no-viz"]
+    assert main([*args, "--workers", "1", "--csv", str(tmp_path / "local.csv")]) == 0
+    assert main([*args, "--dask", cluster.scheduler_address, "--csv", str(tmp_path / "dask.csv")]) == 0
+    out = capsys.readouterr().out
+    assert f"on the Dask cluster at {cluster.scheduler_address}" in out
+    local, remote = (rows_without_timing((tmp_path / f"{n}.csv").read_text()) for n in ("local", "dask"))
+    assert len(local) == 2 * 3 * 3 and remote == local  # every run's final error, convergence, ESS ... alike
+
+
+def test_run_study_takes_a_client(cluster):
+    world = load_maze("paper_5x5")
+    settings = study_settings([MazeChoice.from_maze("paper_5x5", world)], [0.4], [0.5], [100], [0.2])
+    tasks = study_tasks(settings, ["SIRParticleFilter"], 4, 10, 5)
+    with distributed.Client(cluster.scheduler_address) as client:
+        remote = run_study(tasks, dask=client)
+    local = run_study(tasks, 1)
+    assert [r.final_error for r in remote.records] == [r.final_error for r in local.records]
+    assert not remote.interrupted and not remote.failures
+
+
+@pytest.mark.parametrize("address", ["tcp://127.0.0.1:1", "no-port-here"])
+def test_an_unreachable_or_wrong_address_is_one_line_and_exit_2(address, capsys):
+    started = time.monotonic()
+    assert main(["study", "--maze", "paper_5x5", "--runs", "2", "--steps", "5", "--dask", address]) == 2
+    assert time.monotonic() - started < 10
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("error: ") and address in err
+
+
+def test_ctrl_c_on_a_dask_study_cancels_the_rest_and_keeps_the_finished_rows(cluster, tmp_path):
+    table = tmp_path / "s.csv"
+    command = [sys.executable, str(ROOT / "main.py"), "study", "--maze", "paper_5x5", "--runs", "2000"]
+    command += ["--steps", "20", "--particles", "100", "--filters", "sir", "--seed", "1", "--csv", str(table)]
+    process = subprocess.Popen(
+        [*command, "--dask", cluster.scheduler_address],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+    deadline = time.monotonic() + 60
+    while (not table.exists() or table.read_text().count("\n") < 3) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    os.killpg(process.pid, signal.SIGINT)
+    _, err = process.communicate(timeout=60)
+    assert process.returncode == 130 and "interrupted after" in err and "Traceback" not in err, err
+    rows = list(csv.DictReader(io.StringIO(table.read_text())))
+    assert 2 <= len(rows) < 2000
+    while cluster.scheduler.tasks and time.monotonic() < deadline:  # the client is gone: nothing left to run
+        time.sleep(0.1)
+    assert not cluster.scheduler.tasks

@@ -1,0 +1,30 @@
+"""Studies at scale: a run keeps its arrays and builds its Scenario only when asked."""
+
+from __future__ import annotations
+
+import numpy as np
+from conftest import PAPER_MAZE
+
+from mazelab import bench as benchmark
+from mazelab.maze import Maze
+from mazelab.robot import Robot
+from mazelab.scenario import load_scenario, save_scenario
+from mazelab.simulation import simulate
+
+
+def test_a_run_builds_its_scenario_only_when_asked_and_it_round_trips(tmp_path, paper_world):
+    robot = Robot(0.3, 0.5, paper_world.random_free_place(np.random.default_rng(1)))
+    result = simulate(robot, paper_world, 0.3, 0.5, 200, 15, seed=7, kidnap_at=9)
+    assert "scenario" not in result.__dict__  # nothing turned into lists or validated yet
+    assert (result.seed, result.kidnap_at) == (7, 9) and result.initial_particles.shape == (200, 2)
+    scenario = result.scenario
+    assert result.scenario is scenario  # built once
+    assert scenario.init_particles_pos == [tuple(p) for p in result.initial_particles.tolist()]
+    assert (scenario.seed, scenario.kidnap_at, scenario.kidnap_position) == (7, 9, result.kidnap_position)
+    assert load_scenario(save_scenario(scenario, tmp_path / "s.json")) == scenario
+
+
+def test_run_model_figures_on_a_tiny_run():
+    figures = benchmark.run_model_figures(Maze(PAPER_MAZE), particles=300, steps=3)
+    assert figures.total_seconds > 0 and figures.filter_seconds > 0 and figures.reference_seconds_per_step > 0
+    assert figures.overhead > 0 and figures.times_reference > 0
