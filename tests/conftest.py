@@ -1,7 +1,13 @@
-"""Shared fixtures: the shipped mazes and a seeded robot walk on the paper's maze."""
+"""Shared fixtures: the shipped mazes and a seeded robot walk on the paper's maze; a real study process."""
 
 from __future__ import annotations
 
+import csv
+import io
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +25,34 @@ PAPER_MAZE = (
     (1, 0, 0, 0, 0),
     (0, 0, 2, 0, 1),
 )
+
+
+def start_study_process(arguments: list[str]) -> subprocess.Popen:
+    """`main.py study ARGUMENTS` in its own session (so killpg reaches its workers), Ctrl-C at its default."""
+    return subprocess.Popen(
+        [sys.executable, str(ROOT / "main.py"), "study", *arguments],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+
+
+def finished_rows(table: Path) -> list[dict[str, str]]:
+    """The whole rows a study's CSV holds so far (none before it exists)."""
+    try:
+        text = table.read_text()
+    except FileNotFoundError:
+        return []
+    return list(csv.DictReader(io.StringIO(text[: text.rfind("\n") + 1])))  # whole lines only
+
+
+def wait_for_rows(table: Path, count: int, process: subprocess.Popen, timeout: float = 60) -> None:
+    """Wait until the study's CSV holds `count` finished rows, the study ends, or `timeout` seconds pass."""
+    deadline = time.monotonic() + timeout
+    while len(finished_rows(table)) < count and process.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.1)
 
 
 @pytest.fixture

@@ -7,12 +7,10 @@ import csv
 import io
 import os
 import signal
-import subprocess
-import sys
 import time
 
 import pytest
-from conftest import ROOT
+from conftest import start_study_process, wait_for_rows
 
 from mazelab.cli.app import main
 from mazelab.experiments.executor import run_study
@@ -69,19 +67,12 @@ def test_an_unreachable_or_wrong_address_is_one_line_and_exit_2(address, capsys)
 
 def test_ctrl_c_on_a_dask_study_cancels_the_rest_and_keeps_the_finished_rows(cluster, tmp_path):
     table = tmp_path / "s.csv"
-    command = [sys.executable, str(ROOT / "main.py"), "study", "--maze", "paper_5x5", "--runs", "2000"]
-    command += ["--steps", "20", "--particles", "100", "--filters", "sir", "--seed", "1", "--csv", str(table)]
-    process = subprocess.Popen(
-        [*command, "--dask", cluster.scheduler_address],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        start_new_session=True,
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    long_study = ["--maze", "paper_5x5", "--runs", "2000", "--steps", "20", "--particles", "100", "--filters", "sir"]
+    process = start_study_process(
+        [*long_study, "--seed", "1", "--csv", str(table), "--dask", cluster.scheduler_address]
     )
+    wait_for_rows(table, 2, process)
     deadline = time.monotonic() + 60
-    while (not table.exists() or table.read_text().count("\n") < 3) and time.monotonic() < deadline:
-        time.sleep(0.1)
     os.killpg(process.pid, signal.SIGINT)
     _, err = process.communicate(timeout=60)
     assert process.returncode == 130 and "interrupted after" in err and "Traceback" not in err, err

@@ -3,17 +3,14 @@
 
 from __future__ import annotations
 
-import csv
-import io
 import os
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import pytest
-from conftest import ROOT
+from conftest import finished_rows, start_study_process, wait_for_rows
 
 pytestmark = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads the process table in /proc")
 
@@ -33,30 +30,14 @@ def session_processes(session: int) -> list[int]:
     return found
 
 
-def finished_rows(table: Path) -> list[dict[str, str]]:
-    try:
-        text = table.read_text()
-    except FileNotFoundError:
-        return []
-    return list(csv.DictReader(io.StringIO(text[: text.rfind("\n") + 1])))  # whole lines only
-
-
 def start_study(tmp_path: Path) -> tuple[subprocess.Popen, Path]:
     """A long study on two workers in its own session, once its CSV holds a finished run."""
     table = tmp_path / "s.csv"
-    command = [sys.executable, str(ROOT / "main.py"), "study", "--maze", "paper_5x5", "--runs", "3000"]
-    command += ["--steps", "20", "--particles", "100", "--filters", "sir,apf", "--workers", "2", "--seed", "1"]
-    process = subprocess.Popen(
-        [*command, "--csv", str(table)],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        start_new_session=True,
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    long_study = ["--maze", "paper_5x5", "--runs", "3000", "--steps", "20", "--particles", "100"]
+    process = start_study_process(
+        [*long_study, "--filters", "sir,apf", "--workers", "2", "--seed", "1", "--csv", str(table)]
     )
-    deadline = time.monotonic() + 60
-    while len(finished_rows(table)) < 4 and process.poll() is None and time.monotonic() < deadline:
-        time.sleep(0.1)
+    wait_for_rows(table, 4, process)
     assert len(finished_rows(table)) >= 4, "the study wrote no rows"
     assert len(session_processes(process.pid)) >= 3, "the study should run on two workers"
     return process, table
