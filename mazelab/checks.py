@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+import stat
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -111,3 +113,14 @@ __all__ = [
     "finite_number",
     "step_number",
 ]
+
+
+def regular_file_size(path: Path, kind: str, contents: str) -> int:
+    """The size in bytes of `path`, which must be a regular file: a folder, device (/dev/zero), pipe or
+    socket is refused with a ValueError naming it. OSError (a missing file, no permission) passes through."""
+    status = path.stat()
+    if stat.S_ISDIR(status.st_mode):
+        raise ValueError(f"{path}: is a folder, not a {kind} file")
+    if not stat.S_ISREG(status.st_mode):
+        raise ValueError(f"{path}: not a regular file (a device, pipe or socket); a {kind} is a {contents} file")
+    return status.st_size

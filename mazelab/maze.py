@@ -9,7 +9,6 @@ Cell values: 0 empty, 1 wall, 2 wall with a station at each of its four corners.
 from __future__ import annotations
 
 import math
-import stat
 from collections.abc import Sequence
 from functools import cached_property
 from pathlib import Path
@@ -17,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from mazelab.checks import regular_file_size
 from mazelab.limits import BYTES_PER_LOOKUP_CELL, BYTES_PER_MAZE_CELL, check_memory
 from mazelab.lookup import NearestStationLookup, Progress, is_scalar, lookup_cell_count
 
@@ -214,17 +214,15 @@ def _read_maze_file(path: Path) -> str:
     """The text of a maze file, refusing missing, unreadable, binary or enormous files, and anything
     that is not a regular file (a folder, a device such as /dev/zero, a pipe), clearly and at once."""
     try:
-        status = path.stat()
-        if stat.S_ISDIR(status.st_mode):
-            raise MazeError(f"{path}: is a folder, not a maze file")
-        if not stat.S_ISREG(status.st_mode):
-            raise MazeError(f"{path}: not a regular file (a device, pipe or socket); a maze is a text file")
-        if status.st_size > MAZE_FILE_LIMIT_BYTES:
-            raise MazeError(
-                f"{path}: {status.st_size} bytes is too large for a maze file (limit {MAZE_FILE_LIMIT_BYTES})"
-            )
+        size = regular_file_size(path, "maze", "text")
+        if size > MAZE_FILE_LIMIT_BYTES:
+            raise MazeError(f"{path}: {size} bytes is too large for a maze file (limit {MAZE_FILE_LIMIT_BYTES})")
         with path.open("rb") as file:
             data = file.read(MAZE_FILE_LIMIT_BYTES + 1)  # at most one byte past the limit, whatever stat said
+    except MazeError:
+        raise
+    except ValueError as error:  # a folder, device, pipe or socket
+        raise MazeError(str(error)) from None
     except FileNotFoundError:
         raise MazeError(f"{path}: no such maze file") from None
     except PermissionError:

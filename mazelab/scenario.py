@@ -10,7 +10,6 @@ import itertools
 import json
 import math
 import re
-import stat
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -18,8 +17,8 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from mazelab.atomic import write_text_atomically
-from mazelab.checks import MAX_ANGLE, MAX_COORDINATE, check_all_within, check_within_map
-from mazelab.limits import MemoryLimitError, check_memory
+from mazelab.checks import MAX_ANGLE, MAX_COORDINATE, check_all_within, check_within_map, regular_file_size
+from mazelab.limits import check_memory
 from mazelab.maze import Maze
 from mazelab.robot import Robot
 
@@ -197,14 +196,10 @@ def load_scenario(path: str | Path = DEFAULT_PARAMETERS_PATH) -> Scenario:
 def _read_scenario_file(path: Path) -> str:
     """The text of a scenario file: a regular file (not a device or pipe) whose parsing fits in memory."""
     try:
-        status = path.stat()
-        if stat.S_ISDIR(status.st_mode):
-            raise ScenarioError(f"{path}: is a folder, not a scenario file")
-        if not stat.S_ISREG(status.st_mode):
-            raise ScenarioError(f"{path}: not a regular file (a device, pipe or socket); a scenario is a json file")
-        check_memory(f"{path}: a scenario file of {status.st_size} bytes", status.st_size * BYTES_PER_JSON_BYTE)
+        size = regular_file_size(path, "scenario", "json")
+        check_memory(f"{path}: a scenario file of {size} bytes", size * BYTES_PER_JSON_BYTE)
         return path.read_text(encoding="utf-8")
-    except MemoryLimitError as error:
+    except ValueError as error:  # not a regular file, or too large to parse (MemoryLimitError)
         raise ScenarioError(str(error)) from None
     except FileNotFoundError:
         older = LEGACY_PARAMETERS_PATH.is_file() and path.name == "model_parameters.json"
