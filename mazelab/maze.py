@@ -49,9 +49,15 @@ class Maze:
     # -- loading ---------------------------------------------------------------------------------
     @classmethod
     def from_file(cls, path: str | Path) -> Maze:
-        """Read a maze text file: one row per line, cells 0/1/2 (spaces optional), '#' comments."""
-        path = Path(path)
-        return cls(parse_maze_text(_read_maze_file(path), source=str(path)), source=str(path))
+        """Read a maze text file: one row per line, cells 0/1/2 (spaces optional), '#' comments; a
+        shipped maze also by its name from any folder (`Maze.from_file("paper_5x5")`)."""
+        from mazelab.mazes import find_maze  # mazes imports this module
+
+        path = find_maze(path)
+        text = _read_maze_file(path)
+        if text.lstrip().startswith("{"):
+            raise MazeError(f"{path}: looks like a saved scenario (json), not a maze; replay it with run --scenario")
+        return cls(parse_maze_text(text, source=str(path)), source=str(path))
 
     def to_text(self) -> str:
         """The maze in the file format of `from_file` (one row per line, cells separated by spaces)."""

@@ -18,16 +18,25 @@ def shipped_mazes() -> list[str]:
     return sorted(path.stem for path in MAZES_DIR.glob("*.txt"))
 
 
-def find_maze(name_or_path: str) -> Path:
-    """A maze file path, or the name of a file in mazes/ (with or without .txt)."""
+def find_maze(name_or_path: str | Path) -> Path:
+    """A maze file path, or the name of a file in mazes/ (with or without .txt), from any folder.
+
+    A path that does not exist but ends in a shipped maze's file name (`mazes/paper_5x5.txt` typed in
+    another folder) is refused with the name that works everywhere (`paper_5x5`)."""
     path = Path(name_or_path)
     if path.exists():
         return path
-    for candidate in (MAZES_DIR / name_or_path, MAZES_DIR / f"{name_or_path}.txt"):
-        if candidate.exists():
-            return candidate
+    if path.parent == Path("."):
+        for candidate in (MAZES_DIR / path.name, MAZES_DIR / f"{path.name}.txt"):
+            if candidate.is_file():
+                return candidate
+    if path.stem in shipped_mazes() and path.suffix in ("", ".txt"):
+        raise MazeError(
+            f"{path}: no such maze file in {Path.cwd()}; {path.stem} is a shipped maze: "
+            f"name it {path.stem!r} (without a folder) to use it from any folder"
+        )
     if path.parent == Path(".") and shipped_mazes():  # a bare name: perhaps a mistyped shipped maze
-        raise MazeError(f"{name_or_path}: no such maze file, nor a maze in mazes/ ({', '.join(shipped_mazes())})")
+        raise MazeError(f"{path}: no such maze file, nor a maze in mazes/ ({', '.join(shipped_mazes())})")
     return path  # Maze.from_file reports it missing
 
 

@@ -7,6 +7,7 @@ log_step and close); it never imports the viewer (mazelab.lab joins the two).
 
 from __future__ import annotations
 
+import math
 import time
 import warnings
 from collections.abc import Callable, Sequence
@@ -182,6 +183,24 @@ def check_start(
         warnings.warn(f"{outside} of the {len(particles)} initial particles lie outside the free area", stacklevel=3)
 
 
+def check_walk_in_maze(world: Maze, robot: Robot) -> None:
+    """A recorded walk (a replayed scenario) must stay in the free area of `world`, as every walk made
+    on it does: a start or a step in a wall or off the map means it was made on another maze."""
+    x, y = robot.initial_position
+    for k in range(robot.recorded_steps + 1):  # step k's position, in Robot.step's own arithmetic
+        if k > 0:
+            if k == robot.kidnap_at:
+                x, y = robot.kidnap_position
+            heading = robot.actual_angles[k - 1]
+            x, y = x + robot.speed * math.cos(heading), y + robot.speed * math.sin(heading)
+        if not world.is_free(x, y):
+            where = "the robot's start" if k == 0 else f"step {k} of the robot's walk"
+            raise ValueError(
+                f"{where} ({x:.2f}, {y:.2f}) lies in a wall or off the map of {world.source}: "
+                "the walk was made on another maze"
+            )
+
+
 def new_seed() -> int:
     """A fresh random seed, recorded so that any run can be repeated."""
     return int(np.random.SeedSequence().entropy % 2**63)
@@ -264,6 +283,7 @@ def simulate(
         particles = world.random_free_places(int(count), particles_rng)
     given = particles if init_particles_pos is not None else None  # drawn ones lie in the free area
     check_start(world, robot.initial_position, given, robot.kidnap_position)
+    check_walk_in_maze(world, robot)
     if steps is None:
         steps = robot.recorded_steps or DEFAULT_STEPS
     if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
@@ -327,6 +347,7 @@ __all__ = [
     "RunInputs",
     "RunResult",
     "check_start",
+    "check_walk_in_maze",
     "convergence_step",
     "expect_kidnapping",
     "new_seed",

@@ -13,7 +13,7 @@ from mazelab.cli.app import main
 
 def test_run_prints_a_summary(capsys):
     assert main(["run", "--steps", "30", "--particles", "300", "--seed", "1", "--quiet"]) == 0
-    assert "SIRParticleFilter: final error" in capsys.readouterr().out
+    assert "SIRParticleFilter: last-step error" in capsys.readouterr().out
 
 
 def test_run_saves_and_replays_a_scenario(tmp_path, capsys):
@@ -56,5 +56,5 @@ def test_python_main_py_runs_the_demo(tmp_path):
         [sys.executable, str(ROOT / "main.py")], cwd=tmp_path, capture_output=True, text=True, timeout=300, env=env
     )
     assert done.returncode == 0, done.stderr
-    assert "SIRParticleFilter: final error" in done.stdout
+    assert "SIRParticleFilter: last-step error" in done.stdout
     assert "step  200/200" in done.stdout

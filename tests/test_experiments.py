@@ -75,7 +75,7 @@ def test_compare_writes_the_table_csv_and_figure(scenario_path, tmp_path, capsys
     args = ["compare", str(scenario_path), "--filters", "sir,apf,rpf,grid", "--no-viz"]
     assert main([*args, "--csv", str(table), "--plot", str(figure)]) == 0
     out = capsys.readouterr().out
-    for header in ["mean error", "last 20% error", "converged at", "mean ESS", "ms/step", "GridBayesFilter"]:
+    for header in ["mean error", "last-20% error", "converged at", "mean ESS", "ms/step", "GridBayesFilter"]:
         assert header in out
     rows = read_csv(table)
     assert list(rows[0]) == ["step", *FILTERS, "GridBayesFilter"]

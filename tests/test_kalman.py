@@ -188,7 +188,7 @@ def test_the_cli_refuses_particle_filter_options_for_the_ekf(capsys, args, messa
 
 def test_the_cli_runs_it_from_the_start_and_refuses_init_for_the_others(capsys):
     assert main(["run", "--filter", "ekf", "--init", "start", "--steps", "20", "--seed", "2", "--quiet"]) == 0
-    assert "ExtendedKalmanFilter: final error" in capsys.readouterr().out
+    assert "ExtendedKalmanFilter: last-step error" in capsys.readouterr().out
     assert main(["run", "--filter", "sir", "--init", "start", "--steps", "5", "--quiet"]) == 2
     assert "--init applies to the ekf only" in capsys.readouterr().err
 

@@ -147,7 +147,7 @@ def test_a_recording_over_the_file_size_limit_is_not_announced_and_leaves_nothin
     done = subprocess.run([*RUN, "--quiet", "--seed", "2", "--rrd", "r.rrd"], cwd=tmp_path, env=NO_DISPLAY,
                           capture_output=True, text=True, timeout=120, preexec_fn=_file_size_limit(20_000))  # fmt: skip
     assert done.returncode == 1
-    assert "final error" in done.stdout and "Recording saved" not in done.stdout
+    assert "last-20% error" in done.stdout and "Recording saved" not in done.stdout
     assert done.stderr.strip() == "error: cannot write r.rrd: File too large"
     assert list(tmp_path.iterdir()) == []
 
@@ -204,7 +204,7 @@ def test_rerun_off_records_nothing_says_so_and_keeps_the_summary_and_scenario(tm
     monkeypatch.chdir(tmp_path)
     assert main([*RUN[2:], "--save-scenario", "s.json"]) == 0
     out = capsys.readouterr().out
-    assert "Rerun is switched off (RERUN=off" in out and "final error" in out and "scenario saved to s.json" in out
+    assert "Rerun is switched off (RERUN=off" in out and "last-20% error" in out and "scenario saved to s.json" in out
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s.json"]  # no recordings/, no temporaries
 
 

@@ -48,7 +48,7 @@ def test_a_run_without_a_seed_prints_the_one_that_repeats_it(capsys):
 
 def summary_figures(text: str) -> tuple[str, str]:
     """(last-20% error, convergence step) from a run's summary line."""
-    match = re.search(r"last 20% ([\d.]+); (?:converged at step (\d+)|not converged)", text)
+    match = re.search(r"last-20% error ([\d.]+); (?:converged at step (\d+)|not converged)", text)
     return match.group(1), match.group(2) or "never"
 
 
@@ -188,7 +188,7 @@ def test_mazelab_view_serves_a_recording_on_localhost(tmp_path, capsys, stop):
 def test_the_demo_prints_a_command_that_repeats_it(capsys):
     demo = run_output(capsys, ["--no-viz"])
     command = re.search(r"Repeat this run: mazelab (run --seed \d+)", demo).group(1).split()
-    summary = [line for line in demo.splitlines() if line.startswith("SIRParticleFilter: final error")]
+    summary = [line for line in demo.splitlines() if line.startswith("SIRParticleFilter: last-step error")]
     again = run_output(capsys, [*command, "--no-viz", "--quiet"])
     assert summary == again.splitlines()
 

@@ -21,6 +21,13 @@ from typing import Annotated, Any
 import typer
 
 from mazelab.atomic import WriteError, write_text_atomically
+from mazelab.cli.hints import (
+    check_filter_name,
+    check_filter_names,
+    option_elsewhere,
+    plain_usage_names,
+    refuse_option_as_value,
+)
 from mazelab.cli.maze import maze_app
 from mazelab.cli.options import (
     DEFAULT_DELTA,
@@ -50,6 +57,7 @@ from mazelab.experiments.compare import compare_filters, comparison_table, error
 from mazelab.experiments.executor import STOP_SIGNALS
 from mazelab.experiments.runs import parse_filters
 from mazelab.filters import ParticleFilter, RegularizedParticleFilter
+from mazelab.invocation import command_prefix
 from mazelab.kalman import EKF_INITS, ExtendedKalmanFilter
 from mazelab.lab import simulate
 from mazelab.maze import MazeError
@@ -63,7 +71,7 @@ from mazelab.resampling import KLD_EPSILON, KLD_QUANTILE, RESAMPLING_SCHEMES, KL
 from mazelab.robot import Robot
 from mazelab.scenario import ScenarioError, load_scenario, save_scenario
 from mazelab.simulation import new_seed
-from mazelab.viz.recording import write_errors_deferred
+from mazelab.viz.recording import web_serving_deferred, write_errors_deferred
 from mazelab.viz.style import DEFAULT_MAX_DRAWN
 
 app = typer.Typer(
@@ -110,7 +118,7 @@ def demo(
         on_step=progress_printer(DEFAULT_STEPS),
     )
     report_run(result)
-    typer.echo(f"Repeat this run: mazelab run --seed {seed}")
+    typer.echo(f"Repeat this run: {command_prefix()} run --seed {seed}")
 
 
 @app.command(short_help="One filter on a lost robot, or on a saved scenario.")
@@ -162,6 +170,7 @@ def run(
 ) -> None:
     """Run one filter: on a fresh lost robot, or replaying a saved scenario (--scenario)."""
     visualize = visualization(viewer, rrd, web, no_viz, max_drawn)
+    check_filter_name(filter_name)
     options = filter_options(filter_name, resampling, recovery, sensor_resetting, alpha_slow, alpha_fast, kld)
     options.update(kalman_options(filter_name, init))
     options.update(estimate_options(filter_name, bandwidth, estimate))
@@ -296,7 +305,7 @@ def compare(
     world, robot, sigma, delta, particles = from_scenario(stored, maze, sigma, delta)
     prepare_world(world)
     seed = replay_seed(stored, seed)
-    names = parse_filters(filters)
+    names = parse_filters(check_filter_names(filters))
     typer.echo(
         f"{scenario.name}: {len(particles)} particles, {robot.recorded_steps} steps, "
         f"sigma {sigma:g}, delta {delta:g}, seed {seed}"
@@ -364,11 +373,14 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _main(argv: list[str] | None) -> int:
+    plain_usage_names()
+    group, args = typer.main.get_command(app), sys.argv[1:] if argv is None else argv
     try:
-        with write_errors_deferred():
-            code = app(args=argv, standalone_mode=False)
+        refuse_option_as_value(args, group)
+        with write_errors_deferred(), web_serving_deferred():
+            code = group.main(args=argv, standalone_mode=False)
     except typer.TyperException as error:  # typer's usage errors: bad option, bad value, missing argument
-        typer.echo(f"error: {error.format_message()}", err=True)
+        typer.echo(f"error: {error.format_message()}{option_elsewhere(error, group, args)}", err=True)
         return 2
     except (UserError, MazeError, ScenarioError, ValueError) as error:
         typer.echo(f"error: {error}", err=True)

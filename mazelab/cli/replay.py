@@ -12,7 +12,7 @@ from mazelab.maze import Maze
 from mazelab.mazes import load_maze, mazes_fitting
 from mazelab.robot import Robot
 from mazelab.scenario import Scenario
-from mazelab.simulation import new_seed
+from mazelab.simulation import check_walk_in_maze, new_seed
 
 
 def start_place(world: Maze, seed: int) -> tuple[float, float]:
@@ -57,10 +57,30 @@ def from_scenario(
     if defaults:
         typer.echo(f"warning: the scenario stores no {' or '.join(d.split()[0] for d in defaults)}: using the "
                    f"default {', '.join(defaults)} (--sigma/--delta choose)", err=True)  # fmt: skip
+    warn_overrides(scenario, sigma, delta)
     sigma = sigma if sigma is not None else scenario.sigma if scenario.sigma is not None else DEFAULT_SIGMA
     delta = delta if delta is not None else scenario.delta if scenario.delta is not None else DEFAULT_DELTA
     robot = scenario.robot(sigma, delta)
+    try:
+        check_walk_in_maze(world, robot)
+    except ValueError as error:
+        raise UserError(f"{error}; pass the maze it was made on (--maze)") from None
     return world, robot, sigma, delta, scenario.init_particles_pos
+
+
+def warn_overrides(scenario: Scenario, sigma: float | None, delta: float | None) -> None:
+    """Say when --sigma or --delta differs from what the scenario's walk and measurements were made
+    with: the filters then assume a model that the replayed data does not follow (a legitimate
+    experiment, but never a silent one)."""
+    made_with = {"sigma": "measurements", "delta": "compass angles"}
+    for name, given, stored in (("sigma", sigma, scenario.sigma), ("delta", delta, scenario.delta)):
+        replayed = name == "delta" or scenario.robot_measurements is not None  # else z is drawn with --sigma
+        if given is not None and stored is not None and given != stored and replayed:
+            typer.echo(
+                f"warning: --{name} {given:g} overrides the scenario's {name} {stored:g}: the filters assume "
+                f"{given:g}, the replayed {made_with[name]} were made with {stored:g}",
+                err=True,
+            )
 
 
 def fitting_maze(scenario: Scenario) -> Maze:
@@ -83,4 +103,5 @@ __all__ = [
     "refuse_counts_for_replay",
     "replay_seed",
     "start_place",
+    "warn_overrides",
 ]

@@ -10,19 +10,20 @@ import numpy as np
 import typer
 
 from mazelab.experiments.kidnapping import recovery_steps
-from mazelab.experiments.runs import final_error
+from mazelab.experiments.runs import FINAL_SHARE, final_error
 from mazelab.maze import Maze
 from mazelab.robot import Robot
 from mazelab.simulation import RunResult
 
 
 def summarise(result: RunResult) -> str:
-    """A short report of a run: final error, convergence step, seed (the same for the same seed)."""
+    """A short report of a run: the last step's error, the last-20% error (the mean error over the last
+    20% of the steps, what compare and study report), the convergence step and the seed."""
     errors = result.errors
     converged = result.converged_at
     when = f"converged at step {converged} (error < 0.5 from then on)" if converged else "not converged"
     return (
-        f"{result.filter_name}: final error {errors[-1]:.3f}, mean error over the last 20% "
+        f"{result.filter_name}: last-step error {errors[-1]:.3f}, last-{FINAL_SHARE:.0%} error "
         f"{final_error(errors):.3f}; {when}; seed {result.seed}"
     )
 

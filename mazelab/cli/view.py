@@ -19,6 +19,10 @@ def view(
     recording: Annotated[Path, typer.Argument(metavar="FILE", help="a saved recording (.rrd)", show_default=False)],
 ) -> None:
     """Serve a saved recording (.rrd) in the web viewer on 127.0.0.1 until Ctrl-C; needs no display."""
+    if recording.is_dir():
+        found = sorted(recording.glob("*.rrd"))
+        which = f"e.g. {found[-1]}" if found else "it holds no .rrd file"
+        raise UserError(f"{recording} is a folder, not a recording: name one .rrd file ({which})")
     if not recording.is_file():
         raise UserError(f"{recording}: no such recording file")
     if not is_recording(recording):

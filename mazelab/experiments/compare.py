@@ -77,10 +77,11 @@ def compare_filters(
 
 
 def comparison_table(results: dict[str, RunResult], kld: bool = False) -> str:
-    """Per filter: mean error, final error, convergence step, mean ESS and milliseconds per step; with a
-    kidnapping, whether the filter re-localised and in how many steps; with `kld`, the mean particle count."""
+    """Per filter: mean error, last-20% error (the mean error over the last 20% of the steps), convergence
+    step, mean ESS and milliseconds per step; with a kidnapping, whether the filter re-localised and in
+    how many steps; with `kld`, the mean particle count."""
     kidnapped = any(result.kidnap_at is not None for result in results.values())
-    headers = ["filter", "mean error", f"last {FINAL_SHARE:.0%} error", "converged at", "mean ESS", "ms/step"]
+    headers = ["filter", "mean error", f"last-{FINAL_SHARE:.0%} error", "converged at", "mean ESS", "ms/step"]
     headers += ["re-localised", "steps to recover"] * kidnapped + ["mean N"] * kld
     rows = []
     for name, result in results.items():

@@ -8,6 +8,12 @@ from typing import Any
 from mazelab.maze import Maze
 from mazelab.viz.style import MAP, SERIES, entity_name
 
+# The step panel stands for the paper's window title. Its share of the column's height: the panel's
+# header and one line of heading text need about 110 pixels, and the viewer's default layout in a
+# 1400 x 900 browser window leaves some 620 pixels for the column (checked on a screenshot of the
+# web viewer in headless Chromium); 1 in 10 cut the text in half.
+STEP_PANEL_SHARE = 0.18
+
 
 # -- layouts ---------------------------------------------------------------------------------------
 def map_view(world: Maze, filter_name: str) -> Any:
@@ -33,7 +39,9 @@ def run_blueprint(world: Maze, filter_name: str) -> Any:
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Vertical(
-                rrb.TextDocumentView(name="step", origin="/title"), map_view(world, filter_name), row_shares=[1, 9]
+                rrb.TextDocumentView(name="step", origin="/title"),
+                map_view(world, filter_name),
+                row_shares=[STEP_PANEL_SHARE, 1 - STEP_PANEL_SHARE],
             ),
             rrb.Vertical(*series),
             column_shares=[3, 2],
@@ -50,7 +58,7 @@ def comparison_blueprint(world: Maze, filter_names: Sequence[str]) -> Any:
             rrb.TextDocumentView(name="step", origin="/title"),
             rrb.Horizontal(*[map_view(world, name) for name in filter_names]),
             rrb.TimeSeriesView(name=SERIES_TITLES["error"], origin="/metrics/error"),
-            row_shares=[1.5, 8, 4],
+            row_shares=[STEP_PANEL_SHARE, (1 - STEP_PANEL_SHARE) * 2 / 3, (1 - STEP_PANEL_SHARE) / 3],
         )
     )
 
@@ -64,6 +72,7 @@ SERIES_TITLES = {
 
 __all__ = [
     "SERIES_TITLES",
+    "STEP_PANEL_SHARE",
     "comparison_blueprint",
     "map_view",
     "run_blueprint",

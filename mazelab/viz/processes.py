@@ -24,6 +24,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from mazelab.invocation import command_prefix
+
 VIEWER_PORT = 9876  # the native viewer's gRPC port, rerun's default: later runs reuse its window
 STOP_SIGNALS = ("SIGTERM", "SIGHUP")  # besides Ctrl-C, what ends this program and must end its children
 
@@ -166,6 +168,7 @@ class WebServer:
 
     def __init__(self, process: Any, grpc_port: int, web_port: int):
         self.process, self.grpc_port, self.web_port = process, grpc_port, web_port
+        self.announced = False  # whether its address was printed already (a run prints it as it starts)
         self.grpc_url = f"rerun+http://127.0.0.1:{grpc_port}/proxy"
         self.url = f"http://127.0.0.1:{web_port}/?url={urllib.parse.quote(self.grpc_url, safe='')}"
 
@@ -182,7 +185,8 @@ class WebServer:
         """Keep serving (the server holds the recording) until Ctrl-C, then stop cleanly."""
         try:
             if not already_interrupted:
-                print(f"The web viewer is at {self.url}; press Ctrl-C to stop serving.")
+                where = "at the address above" if self.announced else f"at {self.url}"
+                print(f"The web viewer is {where}; press Ctrl-C to stop serving.", flush=True)
                 self.process.wait()
         except KeyboardInterrupt:
             print("Stopped serving the web viewer.")
@@ -198,7 +202,7 @@ def open_hint(path: Path, display: bool) -> str:
     """How to look at a saved recording: the native viewer with a display, else the web viewer that
     `mazelab view` serves on 127.0.0.1 (plain `rerun --web-viewer` would listen on every interface)."""
     quoted = shlex.quote(str(path))
-    return f"rerun {quoted}" if display else f"mazelab view {quoted} (the web viewer, on 127.0.0.1)"
+    return f"rerun {quoted}" if display else f"{command_prefix()} view {quoted} (the web viewer, on 127.0.0.1)"
 
 
 def free_port() -> int:

@@ -36,6 +36,7 @@ from mazelab.viz.targets import default_recording_path, has_display, next_free_n
 
 RERUN_OFF_NOTE = "Rerun is switched off (RERUN=off in the environment): nothing is recorded"
 _deferred_errors: ContextVar[list[WriteError] | None] = ContextVar("deferred_write_errors", default=None)
+_deferred_servers: ContextVar[list[WebServer] | None] = ContextVar("deferred_web_servers", default=None)
 
 
 class Recording:
@@ -101,6 +102,7 @@ class Recording:
             server = WebServer.start()
             stream.set_sinks(rr.GrpcSink(server.grpc_url), sink, default_blueprint=blueprint)
             print(f"Serving the web viewer at {server.url}")
+            server.announced = True
             return cls(stream, path=path, server=server, sink=sink, claim_name=True)
         stream.set_sinks(sink, default_blueprint=blueprint)
         return cls(stream, path=path, sink=sink, claim_name=default_name)
@@ -157,7 +159,10 @@ class Recording:
                 self.save()
         finally:
             release_stop_signals(self)
-            if self.server is not None:
+            deferred = _deferred_servers.get()
+            if self.server is not None and deferred is not None and not interrupted:
+                deferred.append(self.server)  # served once the command has printed its results
+            elif self.server is not None:
                 # close() runs in simulate's `finally`: a run being interrupted stops serving at once.
                 self.server.serve_until_interrupted(already_interrupted=interrupted)
 
@@ -199,6 +204,25 @@ def write_errors_deferred() -> Iterator[None]:
         raise errors[0]
 
 
+@contextmanager
+def web_serving_deferred() -> Iterator[None]:
+    """Within this block a web viewer is served (until Ctrl-C) when the block ends, not when its run
+    ends, so that a command prints its results first; an error in the block stops it at once."""
+    servers: list[WebServer] = []
+    token = _deferred_servers.set(servers)
+    finished = False
+    try:
+        yield
+        finished = True
+    finally:
+        _deferred_servers.reset(token)
+        for index, server in enumerate(servers):
+            if finished and index == 0:
+                server.serve_until_interrupted()
+            else:
+                server.stop()
+
+
 def log_maze(stream: Any, world: Maze) -> None:
     """The static map: walls black and free cells white (an image, one pixel per cell), stations as
     cyan dots, all under MAP, whose transform turns the map frame (y up) into the view's (y down)."""
@@ -228,5 +252,6 @@ __all__ = [
     "log_maze",
     "maze_image",
     "rerun_switched_off",
+    "web_serving_deferred",
     "write_errors_deferred",
 ]

@@ -1,0 +1,105 @@
+"""What turns a puzzling command-line error into one a student can act on: an option given to the
+wrong command, an option swallowed as another option's value, a misspelt filter name; and the help's
+usage lines without typer's braces."""
+
+from __future__ import annotations
+
+import difflib
+import shlex
+from collections.abc import Sequence
+from typing import Any
+
+import typer
+import typer.core
+
+from mazelab.cli.options import UserError
+from mazelab.invocation import command_prefix
+from mazelab.registry import resolve_filter
+
+FILTER_NAMES = ("sir", "apf", "rpf", "grid", "ekf")  # the short names the help lists
+
+
+def plain_usage_names() -> None:
+    """Usage lines name a required argument as `SCENARIO`, not typer's `{SCENARIO}` (which reads as
+    a placeholder to type with its braces)."""
+    argument = typer.core.TyperArgument
+    if hasattr(argument, "_usage_display_name"):
+
+        def usage_name(self: Any) -> str:
+            name = self.display_name_raw if self.required else f"[{self.display_name_raw}]"
+            return name + ("..." if self.nargs != 1 else "")
+
+        argument._usage_display_name = usage_name
+
+
+def commands_of(group: Any) -> dict[str, Any]:
+    """The subcommands of a click group, by name (the group's own, one level down for groups)."""
+    return dict(getattr(group, "commands", {}))
+
+
+def option_elsewhere(error: Exception, group: Any, argv: Sequence[str] = ()) -> str:
+    """For "No such option" at the top level: the commands that take that option, and the command to
+    type instead (`uv run main.py --seed 1` means `run --seed 1`); '' when there is nothing to add."""
+    name = getattr(error, "option_name", None)
+    ctx = getattr(error, "ctx", None)
+    if not name or ctx is None or ctx.command is not group:
+        return ""
+    takers = [
+        command
+        for command, cmd in commands_of(group).items()
+        if any(name in param.opts for param in getattr(cmd, "params", []))
+    ]
+    if not takers:
+        return ""
+    first = "run" if "run" in takers else takers[0]
+    given = shlex.join(argv) if argv else f"{name} ..."
+    return f"; {name} is an option of {', '.join(takers)}: {command_prefix()} {first} {given}"
+
+
+def refuse_option_as_value(argv: Sequence[str], group: Any) -> None:
+    """`run --filter --no-viz` would take `--no-viz` as the filter's name: refuse an option that takes a
+    value when what follows it is another option of the same command."""
+    argv = list(argv)
+    command = group
+    for index, token in enumerate(argv):
+        sub = commands_of(command).get(token)
+        if sub is not None:
+            command = sub
+            continue
+        known = {opt for param in getattr(command, "params", []) for opt in param.opts}
+        param = next((p for p in getattr(command, "params", []) if token in p.opts), None)
+        if param is None or getattr(param, "is_flag", True) or index + 1 >= len(argv):
+            continue
+        following = argv[index + 1]
+        if following in known or following.split("=", 1)[0] in known:
+            raise UserError(f"{token} needs a value, got the option {following}")
+
+
+def check_filter_name(name: str, option: str = "--filter") -> str:
+    """A filter name the registry knows, else one line with the nearest short name (`sri`: did you
+    mean `sir`?) and the choices."""
+    try:
+        resolve_filter(name)
+    except ValueError:
+        close = difflib.get_close_matches(name.lower(), FILTER_NAMES, n=1, cutoff=0.5)
+        hint = f"; did you mean {close[0]}?" if close else ""
+        raise UserError(f"{option}: unknown filter {name!r}{hint} (choose from {', '.join(FILTER_NAMES)})") from None
+    return name
+
+
+def check_filter_names(names: str, option: str = "--filters") -> str:
+    """Every name of a comma-separated --filters list, checked as check_filter_name does."""
+    for name in names.split(","):
+        if name.strip():
+            check_filter_name(name.strip(), option)
+    return names
+
+
+__all__ = [
+    "FILTER_NAMES",
+    "check_filter_name",
+    "check_filter_names",
+    "option_elsewhere",
+    "plain_usage_names",
+    "refuse_option_as_value",
+]

@@ -1,0 +1,57 @@
+"""How this program was started, so that the commands it prints can be pasted back as they are:
+`uv run mazelab ...` under uv, `python main.py ...` for the script, `mazelab ...` when installed on
+the PATH, `python -m mazelab ...` otherwise."""
+
+from __future__ import annotations
+
+import os
+import shlex
+import shutil
+import sys
+from collections.abc import Mapping
+from pathlib import Path
+
+PROJECT_DIR = Path(__file__).resolve().parent.parent  # the clone (an editable install), where pyproject.toml is
+
+
+def command_prefix(argv0: str | None = None, environ: Mapping[str, str] | None = None, cwd: Path | None = None) -> str:
+    """The words that start this program again from the current folder, e.g. `uv run mazelab`.
+
+    `uv run` sets the variable UV; outside the project's folder uv needs `--project CLONE` to find it.
+    The script `main.py` is named as it was typed; the installed command is `mazelab` when that is the
+    one on the PATH, else `python -m mazelab` with this interpreter."""
+    argv0 = sys.argv[0] if argv0 is None else argv0
+    environ = os.environ if environ is None else environ
+    cwd = Path.cwd() if cwd is None else cwd
+    uv = "UV" in environ
+    project = ""
+    if uv and (PROJECT_DIR / "pyproject.toml").is_file() and not _inside(cwd, PROJECT_DIR):
+        project = f"--project {shlex.quote(str(PROJECT_DIR))} "
+    if Path(argv0).name == "main.py":
+        return f"uv run {project}{shlex.quote(argv0)}" if uv else f"python {shlex.quote(argv0)}"
+    if uv:
+        return f"uv run {project}mazelab"
+    on_path = shutil.which("mazelab", path=environ.get("PATH"))
+    if on_path is not None and (Path(argv0).name != "mazelab" or _same_file(on_path, argv0)):
+        return "mazelab"
+    return f"{shlex.quote(sys.executable)} -m mazelab"
+
+
+def _inside(folder: Path, root: Path) -> bool:
+    """Whether `folder` is `root` or lies below it."""
+    try:
+        folder.resolve().relative_to(root)
+    except ValueError:
+        return False
+    return True
+
+
+def _same_file(a: str, b: str) -> bool:
+    """Whether two paths name one file (False if either is missing)."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+__all__ = ["PROJECT_DIR", "command_prefix"]
