@@ -227,21 +227,35 @@ def format_table(rows: list[BenchRow]) -> str:
     """The rows as a text table, each filter's speed also as a multiple of the reference step's."""
     reference = {(r.maze, r.particles): r.particle_steps_per_second for r in rows if r.filter_name == "reference"}
     lines = [
-        f"{'maze':<22} {'filter':<26} {'N':>9} {'M p-steps/s':>12} {'ms/step':>9} {'peak MB':>8} {'x reference':>12}",
+        "Speed in millions of particle-steps per second (N particles x steps / time); x reference: the filter's",
+        "speed over the plain numpy reference step's at the same N (- where the reference's N x B matrix would",
+        "not fit in memory, so it was not run).",
+        f"{'maze':<22} {'filter':<26} {'N':>9} {'M/s':>9} {'ms/step':>9} {'peak MB':>8} {'x reference':>12}",
     ]
     for r in rows:
         base = reference.get((r.maze, r.particles))
-        ratio = f"{r.particle_steps_per_second / base:11.1f}x" if base and r.filter_name != "reference" else ""
-        peak = f"{r.peak_bytes / 2**20:8.1f}" if r.peak_bytes is not None else f"{'':8}"
+        ratio = (
+            "(itself)"
+            if r.filter_name == "reference"
+            else f"{r.particle_steps_per_second / base:.1f}x"
+            if base
+            else "-"
+        )
+        peak = f"{r.peak_bytes / 2**20:8.1f}" if r.peak_bytes is not None else f"{'-':>8}"
         lines.append(
-            f"{r.maze:<22} {r.filter_name:<26} {r.particles:>9,} {r.particle_steps_per_second / 1e6:12.2f} "
+            f"{r.maze:<22} {r.filter_name:<26} {r.particles:>9,} {speed(r.particle_steps_per_second / 1e6):>9} "
             f"{1e3 * r.seconds_per_step:9.2f} {peak} {ratio:>12}"
         )
     return "\n".join(lines)
 
 
+def speed(millions: float) -> str:
+    """Millions per second to three significant figures (0.0088, not 0.00; 25.6)."""
+    return f"{millions:.3g}" if millions < 100 else f"{millions:.0f}"
+
+
 def run_benchmark(small: Maze, quick: bool = False, echo: Callable[[str], None] = print) -> list[BenchRow]:
-    """Measure and print everything; `quick` takes about half a minute, the full run a few minutes."""
+    """Measure and print everything (`quick`: 40 s on a 2-core virtual machine; the full run, minutes)."""
     counts, steps, warmup = (QUICK_COUNTS, 8, 4) if quick else (FULL_COUNTS, 30, 10)
     large = large_maze()
     echo(
@@ -303,5 +317,6 @@ __all__ = [
     "run_benchmark",
     "run_model_figures",
     "small_run_ms",
+    "speed",
     "time_steps",
 ]

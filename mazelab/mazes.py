@@ -11,6 +11,9 @@ from mazelab.maze import Maze, MazeError
 
 MAZES_DIR = Path(__file__).resolve().parent.parent / "mazes"  # the repository's mazes/ (an editable install)
 DEFAULT_MAZE = "maze_10x10"
+# The mazes the lab ships, named: what `accuracy` runs on by default (a maze a student adds to mazes/
+# is found by its name too, but does not change the lab's default set).
+LAB_MAZES = ("maze_10x10", "maze_20x20", "paper_5x5", "twin_rooms_6x12")
 
 
 def shipped_mazes() -> list[str]:
@@ -54,6 +57,7 @@ def mazes_fitting(start: Sequence[float], particles: np.ndarray) -> list[str]:
 
 __all__ = [
     "DEFAULT_MAZE",
+    "LAB_MAZES",
     "MAZES_DIR",
     "find_maze",
     "load_maze",

@@ -197,7 +197,7 @@ def check_walk_in_maze(world: Maze, robot: Robot) -> None:
             where = "the robot's start" if k == 0 else f"step {k} of the robot's walk"
             raise ValueError(
                 f"{where} ({x:.2f}, {y:.2f}) lies in a wall or off the map of {world.source}: "
-                "the walk was made on another maze"
+                "the walk was not made on this maze"
             )
 
 

@@ -21,6 +21,10 @@ def test_measure_gives_every_filter_and_the_reference_and_a_table():
     assert names == ["SIRParticleFilter", "AuxiliaryParticleFilter", "RegularizedParticleFilter", "reference"]
     assert all(row.seconds_per_step > 0 and row.peak_bytes > 0 for row in rows)
     table = benchmark.format_table(rows)
-    assert len(table.splitlines()) == 1 + len(rows)
-    ratios = [line.endswith("x") for line in table.splitlines()[1:]]
-    assert ratios == [True, True, True, False]  # each filter's speed as a multiple of the reference step's
+    lines = table.splitlines()
+    header = next(i for i, line in enumerate(lines) if line.startswith("maze"))
+    assert "particle-steps per second" in "\n".join(lines[:header])  # the columns are explained above them
+    assert len(lines) == header + 1 + len(rows)
+    ratios = [line.split()[-1] for line in lines[header + 1 :]]
+    assert [r.endswith("x") for r in ratios] == [True, True, True, False]  # each filter against the reference
+    assert ratios[-1] == "(itself)" and all(line.split()[4] != "0.00" for line in lines[header + 1 :])

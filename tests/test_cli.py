@@ -38,7 +38,7 @@ def test_run_saves_and_replays_a_scenario(tmp_path, capsys):
         (["run", "--sigma", "-1"], "sigma must be > 0"),
         (["run", "--delta", "9"], "delta must be in [0, 2*pi]"),
         (["run", "--maze", "no_such_maze"], "no such maze file"),
-        (["run", "--filter", "kalman"], "valid names"),
+        (["run", "--filter", "kalman"], "choose from"),
         (["run", "--scenario", "missing.json"], "no such scenario file"),
         (["run", "--save-scenario", "/no/such/folder/x.json"], "does not exist"),
         (["run", "--bogus"], "No such option"),

@@ -187,7 +187,7 @@ def test_mazelab_view_serves_a_recording_on_localhost(tmp_path, capsys, stop):
 
 def test_the_demo_prints_a_command_that_repeats_it(capsys):
     demo = run_output(capsys, ["--no-viz"])
-    command = re.search(r"Repeat this run: mazelab (run --seed \d+)", demo).group(1).split()
+    command = re.search(r"Repeat this run: .*mazelab (run --seed \d+)", demo).group(1).split()
     summary = [line for line in demo.splitlines() if line.startswith("SIRParticleFilter: last-step error")]
     again = run_output(capsys, [*command, "--no-viz", "--quiet"])
     assert summary == again.splitlines()

@@ -123,8 +123,10 @@ def demo(
 
 @app.command(short_help="One filter on a lost robot, or on a saved scenario.")
 def run(
-    maze: Annotated[str | None, typer.Option(help=f"a maze file or a name in mazes/ [default: {DEFAULT_MAZE}]")] = None,
-    filter_name: Annotated[str, typer.Option("--filter", help="sir, apf, rpf, grid, ekf")] = "sir",
+    maze: Annotated[
+        str | None, typer.Option(metavar="MAZE", help=f"a maze file or a name in mazes/ [default: {DEFAULT_MAZE}]")
+    ] = None,
+    filter_name: Annotated[str, typer.Option("--filter", metavar="sir|apf|rpf|grid|ekf", help="the filter")] = "sir",
     particles: Annotated[
         int | None, typer.Option(min=1, help=f"particle count N_S [default: {DEFAULT_PARTICLE_COUNT}]")
     ] = None,
@@ -144,7 +146,7 @@ def run(
     save_scenario_path: Annotated[Path | None, typer.Option("--save-scenario", help="save the run (.json)")] = None,
     force: Annotated[bool, typer.Option("--force", help="replace existing output files")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", help="no per-step progress")] = False,
-    resampling: Annotated[str, typer.Option(help=f"{', '.join(RESAMPLING_SCHEMES)}")] = "systematic",
+    resampling: Annotated[str, typer.Option(metavar="SCHEME", help=f"{', '.join(RESAMPLING_SCHEMES)}")] = "systematic",
     kidnap_at: Annotated[int | None, typer.Option(min=1, help="carry the robot elsewhere at this step")] = None,
     recovery: RecoveryOption = False,
     sensor_resetting: SensorResettingOption = False,
@@ -154,11 +156,13 @@ def run(
     kld_epsilon: Annotated[float, typer.Option(help="KLD-sampling: error bound")] = KLD_EPSILON,
     kld_z: Annotated[
         float | None,
-        typer.Option(help=f"KLD-sampling: quantile z_(1-delta) [default: {KLD_QUANTILE:.3f}]"),
+        typer.Option(
+            help=f"KLD-sampling: the normal quantile z_(1-p), p the bound's risk [default: {KLD_QUANTILE:.3f}]"
+        ),
     ] = None,
     init: Annotated[
         str | None,
-        typer.Option(help="ekf: prior (global) or start (tracking) [default: prior]"),
+        typer.Option(metavar="prior|start", help="ekf: prior (global) or start (tracking) [default: prior]"),
     ] = None,
     bandwidth: BandwidthOption = "optimal",
     estimate: EstimateOption = "mean",
@@ -270,8 +274,10 @@ def recovery_option(recovery: bool, sensor_resetting: bool, alpha_slow: float, a
 @app.command(short_help="Lab steps 12-13: every filter on one saved scenario.")
 def compare(
     scenario: Annotated[Path, typer.Argument(metavar="SCENARIO", help="a saved scenario (.json)", show_default=False)],
-    filters: Annotated[str, typer.Option(help="sir, apf, rpf, grid, ekf, comma-separated")] = "sir,apf,rpf",
-    maze: Annotated[str | None, typer.Option(help="the maze, if the scenario stores none")] = None,
+    filters: Annotated[
+        str, typer.Option(metavar="NAMES", help="sir, apf, rpf, grid, ekf, comma-separated")
+    ] = "sir,apf,rpf",
+    maze: Annotated[str | None, typer.Option(metavar="MAZE", help="the maze, if the scenario stores none")] = None,
     sigma: Annotated[float | None, typer.Option(help="override the scenario's sigma")] = None,
     delta: Annotated[float | None, typer.Option(help="override the scenario's delta")] = None,
     seed: Annotated[int | None, typer.Option(help="the filters' seed (default: the scenario's)")] = None,
@@ -300,12 +306,13 @@ def compare(
     A kidnapping (stored, or --kidnap-at) adds whether each filter re-localised (mean error below 0.5
     over the last 30 steps) and the steps it took."""
     visualize = visualization(viewer, rrd, web, no_viz, max_drawn)
+    check_filter_names(filters)
     check_outputs(csv_path, plot, force, rrd)
     stored = load_scenario(scenario)
     world, robot, sigma, delta, particles = from_scenario(stored, maze, sigma, delta)
     prepare_world(world)
     seed = replay_seed(stored, seed)
-    names = parse_filters(check_filter_names(filters))
+    names = parse_filters(filters)
     typer.echo(
         f"{scenario.name}: {len(particles)} particles, {robot.recorded_steps} steps, "
         f"sigma {sigma:g}, delta {delta:g}, seed {seed}"

@@ -26,9 +26,16 @@ ViewerOption = Annotated[bool, typer.Option("--viewer", help="the native viewer 
 RrdOption = Annotated[Path | None, typer.Option("--rrd", help="save the recording to this .rrd file")]
 # The RPF's kernel and the point estimate (mazelab.regularisation, mazelab.modes): on run, compare and study.
 BandwidthOption = Annotated[
-    str, typer.Option(help="RPF kernel: optimal (the paper's, default), multimodal, h", show_default=False)
+    str,
+    typer.Option(
+        metavar="KERNEL",
+        help="RPF kernel: optimal (the paper's, default), multimodal, a number h",
+        show_default=False,
+    ),
 ]
-EstimateOption = Annotated[str, typer.Option(help="estimate: mean (the paper's, default) or mode", show_default=False)]
+EstimateOption = Annotated[
+    str, typer.Option(metavar="mean|mode", help="estimate: mean (the paper's, default) or mode", show_default=False)
+]
 WebOption = Annotated[bool, typer.Option("--web", help="serve the web viewer on 127.0.0.1")]
 NoVizOption = Annotated[bool, typer.Option("--no-viz", help="draw nothing")]
 MaxDrawnOption = Annotated[int, typer.Option("--max-drawn", min=1, help="particles drawn per step, at most")]

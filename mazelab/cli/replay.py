@@ -12,7 +12,7 @@ from mazelab.maze import Maze
 from mazelab.mazes import load_maze, mazes_fitting
 from mazelab.robot import Robot
 from mazelab.scenario import Scenario
-from mazelab.simulation import check_walk_in_maze, new_seed
+from mazelab.simulation import check_start, check_walk_in_maze, new_seed
 
 
 def start_place(world: Maze, seed: int) -> tuple[float, float]:
@@ -61,10 +61,12 @@ def from_scenario(
     sigma = sigma if sigma is not None else scenario.sigma if scenario.sigma is not None else DEFAULT_SIGMA
     delta = delta if delta is not None else scenario.delta if scenario.delta is not None else DEFAULT_DELTA
     robot = scenario.robot(sigma, delta)
-    try:
-        check_walk_in_maze(world, robot)
-    except ValueError as error:
-        raise UserError(f"{error}; pass the maze it was made on (--maze)") from None
+    if stored is None:  # a maze given or fitted: the scenario's start and walk must lie in its free area
+        try:
+            check_start(world, robot.initial_position, None, robot.kidnap_position)
+            check_walk_in_maze(world, robot)
+        except ValueError as error:
+            raise UserError(f"{error}; pass the maze the scenario was made on (--maze)") from None
     return world, robot, sigma, delta, scenario.init_particles_pos
 
 

@@ -12,6 +12,7 @@ import typer
 
 from mazelab import maze_generator
 from mazelab.atomic import write_text_atomically
+from mazelab.cli.hints import check_filter_names
 from mazelab.cli.options import (
     DEFAULT_DELTA,
     DEFAULT_SIGMA,
@@ -33,7 +34,7 @@ from mazelab.experiments.stats import CONFIDENCE_LEVEL
 from mazelab.experiments.study import MazeChoice, study_settings, study_tasks, varied_parameters
 from mazelab.experiments.summary import describe_setting, plot_study, study_csv, study_table, summarise_study
 from mazelab.limits import check_particles, check_steps, check_study
-from mazelab.mazes import DEFAULT_MAZE, MAZES_DIR, find_maze, load_maze
+from mazelab.mazes import DEFAULT_MAZE, LAB_MAZES, find_maze, load_maze
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, RPF_THRESHOLD, check_model_parameters
 from mazelab.simulation import new_seed
 from mazelab.viz.style import DEFAULT_MAX_DRAWN
@@ -44,16 +45,22 @@ def study(
         str | None, typer.Option(help=f"maze files or names, comma-separated [default: {DEFAULT_MAZE}]")
     ] = None,
     maze_size: Annotated[str | None, typer.Option(help="generated mazes ROWSxCOLUMNS, comma-separated")] = None,
-    stations: Annotated[str | None, typer.Option(help="station blocks, comma-separated")] = None,
+    stations: Annotated[
+        str | None, typer.Option(help="station blocks (cells of type 2) of the generated mazes, comma-separated")
+    ] = None,
     sigma: Annotated[str, typer.Option(help="noise std sigma, comma-separated")] = str(DEFAULT_SIGMA),
     delta: Annotated[str, typer.Option(help="compass error width, comma-separated")] = str(DEFAULT_DELTA),
     particles: Annotated[str, typer.Option(help="particle counts, comma-separated")] = str(DEFAULT_PARTICLE_COUNT),
     threshold: Annotated[str, typer.Option(help="RPF's N_T / N_S, comma-separated")] = str(RPF_THRESHOLD),
-    filters: Annotated[str, typer.Option(help="sir, apf, rpf, grid, ekf, comma-separated")] = "sir,apf,rpf",
+    filters: Annotated[
+        str, typer.Option(metavar="NAMES", help="sir, apf, rpf, grid, ekf, comma-separated")
+    ] = "sir,apf,rpf",
     kidnap_at: Annotated[int | None, typer.Option(min=1, help="carry the robot elsewhere at this step")] = None,
-    recovery: Annotated[str, typer.Option(help="none, augmented, sensor, comma-separated")] = "none",
+    recovery: Annotated[str, typer.Option(metavar="NAMES", help="none, augmented, sensor, comma-separated")] = "none",
     kld: Annotated[bool, typer.Option("--kld", help="KLD-sampling (--particles is the most)")] = False,
-    bandwidth: Annotated[str, typer.Option(help="RPF kernels: optimal, multimodal, h", show_default=False)] = "optimal",
+    bandwidth: Annotated[
+        str, typer.Option(metavar="KERNELS", help="RPF kernels: optimal, multimodal, h", show_default=False)
+    ] = "optimal",
     estimate: EstimateOption = "mean",
     runs: Annotated[int, typer.Option(min=1, help="seeded runs per setting")] = 30,
     steps: Annotated[int, typer.Option(min=1, help="steps per run")] = DEFAULT_STEPS,
@@ -76,7 +83,7 @@ def study(
     share converged and the median convergence step (README: "Parameter studies")."""
     visualize = visualization(viewer, rrd, web, no_viz, max_drawn) if viewer or web or rrd is not None else False
     check_outputs(csv_path, plot, force, rrd)
-    names = parse_filters(filters)
+    names = parse_filters(check_filter_names(filters))
     check_steps(steps)  # each run's limits, up front rather than in every worker
     check_particles(max(parse_list(particles, int, "--particles")))
     settings = study_settings(
@@ -142,7 +149,7 @@ def study(
         what = ", ".join(varied) or "the setting"
         where = "" if "maze" in varied else f" on {settings[0].maze.label}"
         title = (
-            f"Final error against {what}{where}\n({runs} runs per point, "
+            f"Last-20% error against {what}{where}\n({runs} runs per point, "
             f"{CONFIDENCE_LEVEL:.0%} t-intervals for the mean)"
         )
         plot_study(summaries, varied or ["maze"], plot, title)
@@ -153,7 +160,8 @@ def study(
 
 def accuracy(
     maze: Annotated[
-        str | None, typer.Option(help="maze files or names, comma-separated (default: every maze in mazes/)")
+        str | None,
+        typer.Option(help=f"maze files or names, comma-separated (default: the shipped {', '.join(LAB_MAZES)})"),
     ] = None,
     sigma: Annotated[float, typer.Option(help="measurement noise std")] = DEFAULT_SIGMA,
     delta: Annotated[float, typer.Option(help="compass error width, radians")] = DEFAULT_DELTA,
@@ -170,7 +178,7 @@ def accuracy(
     share of runs that converged (error below 0.5 from some step on)."""
     from mazelab.experiments.accuracy import ACCURACY_FILTERS, accuracy_table, accuracy_tasks, run_accuracy
 
-    names = parse_list(maze, str, "--maze") if maze is not None else sorted(p.stem for p in MAZES_DIR.glob("*.txt"))
+    names = parse_list(maze, str, "--maze") if maze is not None else list(LAB_MAZES)
     check_model_parameters(sigma, delta)
     check_steps(steps)
     check_particles(particles)
