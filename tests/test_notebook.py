@@ -1,8 +1,10 @@
-"""notebooks/lab.ipynb: committed without outputs, and run top to bottom in a fresh kernel of this
-interpreter (nbclient, ipykernel) in a temporary folder, without a display or a network."""
+"""notebooks/lab.ipynb and its Ukrainian twin lab_uk.ipynb: committed without outputs, the same code,
+and each run top to bottom in a fresh kernel of this interpreter (nbclient, ipykernel) in a temporary
+folder, without a display or a network."""
 
 from __future__ import annotations
 
+import ast
 import base64
 import io
 import json
@@ -18,22 +20,25 @@ from nbclient import NotebookClient
 from mazelab.scenario import load_scenario
 from mazelab.viz.targets import notebook_viewer_installed
 
-NOTEBOOK = ROOT / "notebooks" / "lab.ipynb"
+NOTEBOOKS = {"en": ROOT / "notebooks" / "lab.ipynb", "uk": ROOT / "notebooks" / "lab_uk.ipynb"}
+# what step 12 prints when the three filters walked the same true path, in each notebook's language
+SAME_PATH = {"en": "the same true path for all three: True", "uk": "справжній шлях однаковий для всіх трьох: True"}
 KERNEL_NAME = "mazelab-test"  # a kernel spec of our own (see `kernel_spec`): no other "python3" can shadow it
 CELL_TIMEOUT = 180  # seconds per cell; the whole notebook takes about 10 s on two cores
 WIDGET = "application/vnd.jupyter.widget-view+json"
 
 
-def read_notebook() -> nbformat.NotebookNode:
-    return nbformat.read(NOTEBOOK, as_version=nbformat.NO_CONVERT)
+def read_notebook(language: str = "en") -> nbformat.NotebookNode:
+    return nbformat.read(NOTEBOOKS[language], as_version=nbformat.NO_CONVERT)
 
 
 def code_cells(notebook: nbformat.NotebookNode) -> list[nbformat.NotebookNode]:
     return [cell for cell in notebook.cells if cell.cell_type == "code"]
 
 
-def test_committed_notebook_has_no_outputs():
-    notebook = read_notebook()
+@pytest.mark.parametrize("language", NOTEBOOKS)
+def test_committed_notebook_has_no_outputs(language):
+    notebook = read_notebook(language)
     nbformat.validate(notebook)
     for cell in code_cells(notebook):
         assert cell.outputs == [], f"cell {cell.id} has outputs: strip them before committing"
@@ -43,8 +48,9 @@ def test_committed_notebook_has_no_outputs():
     assert all(not cell.metadata for cell in notebook.cells), "cell metadata (collapsed, scrolled, ...) is noise"
 
 
-def test_notebook_metadata_matches_the_supported_python():
-    metadata = read_notebook().metadata
+@pytest.mark.parametrize("language", NOTEBOOKS)
+def test_notebook_metadata_matches_the_supported_python(language):
+    metadata = read_notebook(language).metadata
     requires = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["requires-python"]
     assert requires.startswith(">=")
     minimum = tuple(int(part) for part in requires.removeprefix(">=").split("."))
@@ -82,9 +88,34 @@ def stdout_of(cell: nbformat.NotebookNode) -> str:
     return "".join(output.text for output in cell.outputs if output.output_type == "stream" and output.name == "stdout")
 
 
-@pytest.mark.slow  # about 15 s: a kernel, then the whole lab (it still runs by default)
-def test_notebook_runs_top_to_bottom_in_a_fresh_kernel(kernel_spec, tmp_path):
-    notebook = read_notebook()
+def code_without_words(source: str) -> str:
+    """A cell's code with its strings and comments blanked (what a translation may change)."""
+    lines = [line for line in source.splitlines() if not line.startswith("%")]  # IPython magics
+    tree = ast.parse("\n".join(lines))
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Constant) and isinstance(node.value, str):
+            node.value = ""
+        elif isinstance(node, ast.JoinedStr):
+            node.values = [value for value in node.values if not isinstance(value, ast.Constant)]
+    return ast.dump(tree)
+
+
+def test_the_ukrainian_notebook_is_the_english_one_in_the_papers_words():
+    english, ukrainian = read_notebook("en"), read_notebook("uk")
+    assert [(c.id, c.cell_type) for c in ukrainian.cells] == [(c.id, c.cell_type) for c in english.cells]
+    for en, uk in zip(code_cells(english), code_cells(ukrainian), strict=True):
+        assert code_without_words(uk.source) == code_without_words(en.source), f"cell {uk.id}: not the same code"
+    text = " ".join(cell.source for cell in ukrainian.cells if cell.cell_type == "markdown").lower()
+    for term in ("гранул", "гранулярн", "станці", "лабіринт"):  # the paper's own terms
+        assert term in text
+    headings = [cell.source.splitlines()[0] for cell in ukrainian.cells if cell.source.startswith("## Крок ")]
+    assert [int(h.split()[2].rstrip(":")) for h in headings] == list(range(1, 15))  # steps 1-14, in order
+
+
+@pytest.mark.slow  # about 15 s each: a kernel, then the whole lab (it still runs by default)
+@pytest.mark.parametrize("language", NOTEBOOKS)
+def test_notebook_runs_top_to_bottom_in_a_fresh_kernel(kernel_spec, tmp_path, language):
+    notebook = read_notebook(language)
     probe = nbformat.v4.new_code_cell("import sys\nprint(sys.executable)", id="test-probe")
     notebook.cells.append(probe)
     workdir = tmp_path / "work"
@@ -117,5 +148,5 @@ def test_notebook_runs_top_to_bottom_in_a_fresh_kernel(kernel_spec, tmp_path):
     scenario = load_scenario(workdir / "model_parameters.json")
     assert len(scenario.init_particles_pos) == 1500
     assert len(scenario.robot_actual_angles) == len(scenario.robot_measurements) == 200
-    assert "the same true path for all three: True" in "".join(stdout_of(cell) for cell in cells)
+    assert SAME_PATH[language] in "".join(stdout_of(cell) for cell in cells)
     assert sorted(path.name for path in workdir.iterdir()) == ["model_parameters.json"]  # no recordings left behind

@@ -451,7 +451,7 @@ def test_the_demo_without_a_display_writes_a_recording_and_says_where(tmp_path):
     (path,) = (tmp_path / "recordings").glob("sir_particle_filter-*.rrd")
     relative = path.relative_to(tmp_path)
     assert f"the recording goes to {relative}" in done.stdout
-    assert f"mazelab view {relative}" in done.stdout
+    assert f"main.py view {relative}" in done.stdout  # started as the script: the hint names the script
     rec = load(path)
     assert steps_of(rec["/map/robot"]) == list(range(1, 201))
     assert len(rec["/map/sir_particle_filter/particles"][200]["Arrows2D:origins"]) == 1500
