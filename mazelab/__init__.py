@@ -7,6 +7,7 @@ modules, bottom to top (each imports only those above it in this list):
     checks, lookup, maze, model, weights, resampling, robot   the model: maze, motion, measurement, robot
     recovery, filters, grid_filter, kalman, registry          the filters
     atomic, scenario, simulation                              saved scenarios and the simulation loop
+    invocation                                                how this program was started (printed commands)
     viz/                                                      drawing in Rerun (never imported by the above)
     lab                                                       run_model and simulate, with drawing
     mazes, maze_generator, experiments/, bench                shipped and random mazes, compare and study
