@@ -181,7 +181,7 @@ def test_sensor_resetting_injects_by_how_far_w_fast_is_below_the_localised_level
     times the localised likelihood: w_fast at `share` of that threshold gives max(0, 1 - share)."""
     filt = SIRParticleFilter(paper_world, 0.3, 0.5, paper_world.random_free_places(10), recovery="sensor")
     filt.track_likelihood(-50.0, 1.0)  # w_slow: a lost filter's level, which the sensor mode ignores
-    filt.log_w_fast = math.log(share * SENSOR_RESET_LEVEL * localised_likelihood(0.3))
+    filt.recovery.log_w_fast = math.log(share * SENSOR_RESET_LEVEL * localised_likelihood(0.3))
     assert filt.injection_probability == pytest.approx(probability, abs=1e-12)
     with pytest.raises(ValueError, match="0 < reset_level <= 1"):
         Recovery("sensor", reset_level=1.5)
@@ -198,7 +198,8 @@ def test_a_lost_rpf_injects_without_resampling_and_keeps_the_weights(paper_world
     injected = filt._injected  # the mask of the step about to run (`injected` shows it once the step is done)
     assert injected is not None and 0.9 * 400 < injected.sum() <= 400  # probability 1 - 1e-3 / 0.5
     np.testing.assert_array_equal(filt.positions[~injected], before[~injected])
-    assert filt.log_weights is weights and filt.regularised_at == []
+    np.testing.assert_array_equal(filt.log_weights, weights)
+    assert filt.regularised_at == []
 
 
 def test_sensor_resetting_draws_points_with_density_proportional_to_the_likelihood(paper_world, rng):

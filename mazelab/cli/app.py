@@ -42,7 +42,7 @@ from mazelab.cli.options import (
     visualization,
     warn_in_one_line,
 )
-from mazelab.cli.replay import from_scenario, refuse_counts_for_replay, replay_seed, start_place
+from mazelab.cli.replay import from_scenario, refuse_counts_for_replay, replay_seed
 from mazelab.cli.reports import kidnap_report, particle_count_report, prepare_world, progress_printer, report_run
 from mazelab.cli.studies import accuracy, study, study_mazes
 from mazelab.cli.view import view
@@ -62,7 +62,7 @@ from mazelab.regularisation import check_bandwidth
 from mazelab.resampling import KLD_EPSILON, KLD_QUANTILE, RESAMPLING_SCHEMES, KLDSampling
 from mazelab.robot import Robot
 from mazelab.scenario import ScenarioError, load_scenario, save_scenario
-from mazelab.simulation import new_seed
+from mazelab.seeding import new_seed, start_place
 from mazelab.viz.recording import write_errors_deferred
 from mazelab.viz.style import DEFAULT_MAX_DRAWN
 
@@ -409,7 +409,6 @@ __all__ = [
     "refuse_counts_for_replay",
     "replay_seed",
     "run",
-    "start_place",
     "study",
     "study_mazes",
 ]

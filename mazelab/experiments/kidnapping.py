@@ -26,6 +26,7 @@ import numpy as np
 from mazelab.maze import Maze
 from mazelab.model import CONVERGENCE_RADIUS
 from mazelab.robot import Robot
+from mazelab.seeding import start_place
 from mazelab.simulation import RunResult, convergence_step, simulate
 
 RECOVERY_VARIANTS = {"none": None, "augmented": "augmented", "sensor": "sensor"}  # table label -> recovery=
@@ -95,7 +96,7 @@ def recovery_trial(
     """One seeded kidnapping trial of `filter_name` with recovery `variant` (none, augmented, sensor)."""
     if variant not in RECOVERY_VARIANTS:
         raise ValueError(f"unknown recovery variant {variant!r}; choose one of {', '.join(RECOVERY_VARIANTS)}")
-    start = world.random_free_place(np.random.default_rng([seed, 1]))
+    start = start_place(world, seed)
     robot = Robot(sigma, delta, start)
     result = simulate(
         robot,
