@@ -22,6 +22,13 @@ def exp_in_place(values: np.ndarray) -> np.ndarray:
     return np.exp(values, out=values)
 
 
+def weights_from_logs(log_w: np.ndarray, log_totals: np.ndarray) -> np.ndarray:
+    """Normalised weights exp(log w - log total) of R runs (R, N), totals (R,); a run whose total is
+    -inf gets NaNs (the caller does not draw from it)."""
+    with np.errstate(invalid="ignore"):
+        return exp_in_place(np.subtract(log_w, log_totals[:, None]))
+
+
 def effective_sample_size(weights: np.ndarray) -> float | np.ndarray:
     """N_eff = 1 / sum(W_i^2) for normalised weights W (Arulampalam et al., eq. 51), per run."""
     ess = 1.0 / (weights * weights).sum(axis=-1)
@@ -74,4 +81,5 @@ __all__ = [
     "mass_within",
     "weighted_covariance",
     "weighted_mean",
+    "weights_from_logs",
 ]

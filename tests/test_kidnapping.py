@@ -10,7 +10,7 @@ import pytest
 from conftest import ROOT
 
 from mazelab.cli.app import main
-from mazelab.experiments.kidnapping import recovery_steps, recovery_trial
+from mazelab.experiments.kidnapping import recovery_trial
 from mazelab.filters import RegularizedParticleFilter, SIRParticleFilter
 from mazelab.lab import run_model, simulate
 from mazelab.maze import Maze
@@ -233,14 +233,6 @@ def test_recovery_relocalises_where_the_papers_filter_does_not():
     assert sum(o.relocalised for o in plain) <= 3
     assert sum(o.relocalised for o in sensor) >= 7
     assert sum(o.relocalised and not p.relocalised for o, p in zip(sensor, plain, strict=True)) >= 5
-
-
-def test_recovery_steps_count_from_the_kidnapping(paper_world):
-    result = kidnapped_run(paper_world, recovery="sensor")
-    errors = result.errors
-    steps = recovery_steps(result)
-    if steps is not None:
-        assert (errors[11 + steps :] < 0.5).all() and (steps == 0 or errors[11 + steps - 1] >= 0.5)
 
 
 # -- KLD-sampling ----------------------------------------------------------------------------------
