@@ -303,3 +303,16 @@ def test_run_kidnaps_recovers_and_adapts_from_the_command_line(capsys, tmp_path)
     assert main(["run", "--filter", "grid", "--recovery", "--quiet"]) == 2
     assert main(["run", "--recovery", "--alpha-slow", "0.5", "--quiet"]) == 2
     assert "alpha_slow" in capsys.readouterr().err
+
+
+def test_the_recovery_table_runs_as_the_readme_says_from_any_folder(tmp_path):
+    """`python -m mazelab.experiments.kidnapping RUNS` finds the shipped maze wherever it is started."""
+    import subprocess
+    import sys
+
+    done = subprocess.run(
+        [sys.executable, "-m", "mazelab.experiments.kidnapping", "1"], cwd=tmp_path, capture_output=True, text=True
+    )
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.strip().splitlines()
+    assert lines[0].startswith("filter") and len(lines) == 1 + 3 * 3  # three filters, three recovery variants
