@@ -26,7 +26,15 @@ class SIRParticleFilter(ParticleFilter):
     name = "SIRParticleFilter"
 
     def step(self, compass_angle: float | np.ndarray, z: float | np.ndarray) -> None:
-        """One step of Algorithm 4 (see ParticleFilter.step for the parameters)."""
+        """One step of Algorithm 4.
+
+        Parameters
+        ----------
+        compass_angle : float, or array (R,)
+            th0_k, the heading the compass reports for this step (radians), of each run.
+        z : float, or array (R,)
+            z_k, the measured distance to the nearest station (map units), of each run.
+        """
         compass_angle, z = per_run(compass_angle, self.runs), per_run(z, self.runs)
         every_run = np.arange(self.runs)
         # RESAMPLE (end of Alg. 4, previous step), then x_k^i ~ p(x_k | x_{k-1}^i)
@@ -46,7 +54,15 @@ class AuxiliaryParticleFilter(ParticleFilter):
     name = "AuxiliaryParticleFilter"
 
     def step(self, compass_angle: float | np.ndarray, z: float | np.ndarray) -> None:
-        """One step of Algorithm 5 (see ParticleFilter.step for the parameters)."""
+        """One step of Algorithm 5.
+
+        Parameters
+        ----------
+        compass_angle : float, or array (R,)
+            th0_k, the heading the compass reports for this step (radians), of each run.
+        z : float, or array (R,)
+            z_k, the measured distance to the nearest station (map units), of each run.
+        """
         compass_angle, z = per_run(compass_angle, self.runs), per_run(z, self.runs)
         mu, _ = self.propagate(self.positions, compass_angle)  # mu_k^i ~ p(x_k | x_{k-1}^i)
         log_mu_lik = self.likelihood(z, mu)
@@ -114,7 +130,15 @@ class RegularizedParticleFilter(ParticleFilter):
         return self._one(self._regularised)
 
     def step(self, compass_angle: float | np.ndarray, z: float | np.ndarray) -> None:
-        """One step of Algorithm 6 (see ParticleFilter.step for the parameters)."""
+        """One step of Algorithm 6.
+
+        Parameters
+        ----------
+        compass_angle : float, or array (R,)
+            th0_k, the heading the compass reports for this step (radians), of each run.
+        z : float, or array (R,)
+            z_k, the measured distance to the nearest station (map units), of each run.
+        """
         compass_angle, z = per_run(compass_angle, self.runs), per_run(z, self.runs)
         degenerate = self.run_ess < self.threshold * self.count  # IF N_eff < N_T (end of Alg. 6, previous step)
         if degenerate.any():
