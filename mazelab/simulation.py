@@ -17,12 +17,14 @@ from typing import Any
 import numpy as np
 
 from mazelab.checks import as_points, check_within_map, step_number
+from mazelab.contract import check_options, takes
 from mazelab.limits import check_particles, check_steps
 from mazelab.maze import Maze
 from mazelab.model import CONVERGENCE_RADIUS, DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, check_model_parameters
 from mazelab.registry import resolve_filter
 from mazelab.robot import Robot
 from mazelab.scenario import Scenario
+from mazelab.seeding import new_seed, run_streams
 
 
 @dataclass
@@ -201,11 +203,6 @@ def check_walk_in_maze(world: Maze, robot: Robot) -> None:
             )
 
 
-def new_seed() -> int:
-    """A fresh random seed, recorded so that any run can be repeated."""
-    return int(np.random.SeedSequence().entropy % 2**63)
-
-
 class NullView:
     """A view that draws nothing: what a run without drawing uses."""
 
@@ -263,16 +260,16 @@ def simulate(
     `kidnap_at=K`: at step K, before its move, the robot is carried to a free place drawn from the
     seed (see Robot.kidnap); a robot that replays a kidnapping keeps it. The scenario stores it.
     result.extras["particle_count"] holds the particle count per step (it varies with KLD-sampling).
-    A filter class with `accepts_start = True` is also handed the robot's start as `start=` (the
+    A filter class that declares the option `start` is also handed the robot's start (the
     EKF's `init="start"` tracks from it; the kidnapping, if any, is left for it to find out).
     `view` is what the run draws into: None (nothing), a view (`log_step`, `close`), or a function
     `(world, filter_name) -> view`, called once the inputs are checked (mazelab.lab passes Rerun's).
     """
     sigma, delta = check_model_parameters(sigma, delta)
     filter_class = resolve_filter(filtering_algorithm)
+    check_options(filter_class, filter_options)
     seed = new_seed() if seed is None else int(seed)
-    # spawn(4)'s first three streams are spawn(3)'s: runs without kidnapping are unchanged
-    robot_rng, particles_rng, filter_rng, kidnap_rng = np.random.default_rng(seed).spawn(4)
+    streams = run_streams(seed)
     if init_particles_pos is not None:
         particles = as_points("init_particles_pos", init_particles_pos)
     else:
@@ -280,7 +277,7 @@ def simulate(
         if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 1:
             raise ValueError(f"particle_count must be a whole number >= 1, got {count!r}")
         check_particles(int(count))
-        particles = world.random_free_places(int(count), particles_rng)
+        particles = world.random_free_places(int(count), streams.particles)
     given = particles if init_particles_pos is not None else None  # drawn ones lie in the free area
     check_start(world, robot.initial_position, given, robot.kidnap_position)
     check_walk_in_maze(world, robot)
@@ -290,14 +287,14 @@ def simulate(
         raise ValueError(f"steps must be a whole number >= 1, got {steps!r}")
     check_steps(int(steps))
     if kidnap_at is not None:
-        plan_kidnapping(robot, world, kidnap_at, steps, kidnap_rng)
+        plan_kidnapping(robot, world, kidnap_at, steps, streams.kidnap)
 
     robot.reset()
     if not robot.rng_given:
-        robot.rng = robot_rng
-    if getattr(filter_class, "accepts_start", False):  # a filter that can track from the known start (the EKF)
+        robot.rng = streams.robot
+    if takes(filter_class, "start"):  # a filter that can track from the known start (the EKF)
         filter_options = {"start": robot.initial_position, **filter_options}
-    filt = filter_class(world, sigma, delta, particles, filter_rng, **filter_options)
+    filt = filter_class(world, sigma, delta, particles, streams.filter, **filter_options)
     view = open_run_view(view, world, filter_class.name)
     expect_kidnapping(view, robot.kidnap_at, robot.kidnap_position)
     true_positions, estimates = np.empty((steps, 2)), np.empty((steps, 2))
@@ -350,7 +347,6 @@ __all__ = [
     "check_walk_in_maze",
     "convergence_step",
     "expect_kidnapping",
-    "new_seed",
     "open_run_view",
     "plan_kidnapping",
     "simulate",

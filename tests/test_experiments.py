@@ -146,7 +146,7 @@ def test_every_filter_of_a_run_sees_the_same_scenario():
     assert [r.converged_at for r in records] == [convergence_step(sir.errors), convergence_step(apf.errors)]
 
 
-def test_run_seeds_do_not_depend_on_the_setting_or_the_workers():
+def test_study_seeds_do_not_depend_on_the_setting_or_the_workers():
     _, tasks = tiny_tasks()
     assert [t.seed for t in tasks[:3]] == [t.seed for t in tasks[3:]]  # run r: the same seed in each setting
     assert len({t.seed for t in tasks[:3]}) == 3

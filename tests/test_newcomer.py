@@ -205,7 +205,7 @@ def test_help_shows_names_and_choices_not_braces_or_types(capsys, command):
     assert usage.startswith("Usage:") and "{" not in usage
     assert "--filter <str>" not in text and "--filters <str>" not in text and "z_(1-delta)" not in text
     if command == ["run"]:
-        assert "--filter sir|apf|rpf|grid|ekf" in text and "--estimate mean|mode" in text
+        assert "--filter NAME" in text and "sir, apf, rpf, grid, ekf" in text and "--estimate mean|mode" in text
 
 
 # -- the web viewer and the step panel -------------------------------------------------------------

@@ -49,7 +49,7 @@ from mazelab.cli.options import (
     visualization,
     warn_in_one_line,
 )
-from mazelab.cli.replay import from_scenario, refuse_counts_for_replay, replay_seed, start_place
+from mazelab.cli.replay import from_scenario, refuse_counts_for_replay, replay_seed
 from mazelab.cli.reports import kidnap_report, particle_count_report, prepare_world, progress_printer, report_run
 from mazelab.cli.studies import accuracy, study, study_mazes
 from mazelab.cli.view import view
@@ -70,7 +70,7 @@ from mazelab.regularisation import check_bandwidth
 from mazelab.resampling import KLD_EPSILON, KLD_QUANTILE, RESAMPLING_SCHEMES, KLDSampling
 from mazelab.robot import Robot
 from mazelab.scenario import ScenarioError, load_scenario, save_scenario
-from mazelab.simulation import new_seed
+from mazelab.seeding import new_seed, start_place
 from mazelab.viz.recording import web_serving_deferred, write_errors_deferred
 from mazelab.viz.style import DEFAULT_MAX_DRAWN
 
@@ -126,7 +126,7 @@ def run(
     maze: Annotated[
         str | None, typer.Option(metavar="MAZE", help=f"a maze file or a name in mazes/ [default: {DEFAULT_MAZE}]")
     ] = None,
-    filter_name: Annotated[str, typer.Option("--filter", metavar="sir|apf|rpf|grid|ekf", help="the filter")] = "sir",
+    filter_name: Annotated[str, typer.Option("--filter", metavar="NAME", help="sir, apf, rpf, grid, ekf")] = "sir",
     particles: Annotated[
         int | None, typer.Option(min=1, help=f"particle count N_S [default: {DEFAULT_PARTICLE_COUNT}]")
     ] = None,
@@ -156,9 +156,7 @@ def run(
     kld_epsilon: Annotated[float, typer.Option(help="KLD-sampling: error bound")] = KLD_EPSILON,
     kld_z: Annotated[
         float | None,
-        typer.Option(
-            help=f"KLD-sampling: the normal quantile z_(1-p), p the bound's risk [default: {KLD_QUANTILE:.3f}]"
-        ),
+        typer.Option(help=f"KLD-sampling: quantile z_(1-p), p its risk [default: {KLD_QUANTILE:.3f}]"),
     ] = None,
     init: Annotated[
         str | None,
@@ -428,7 +426,6 @@ __all__ = [
     "refuse_counts_for_replay",
     "replay_seed",
     "run",
-    "start_place",
     "study",
     "study_mazes",
 ]

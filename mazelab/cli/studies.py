@@ -36,7 +36,7 @@ from mazelab.experiments.summary import describe_setting, plot_study, study_csv,
 from mazelab.limits import check_particles, check_steps, check_study
 from mazelab.mazes import DEFAULT_MAZE, LAB_MAZES, find_maze, load_maze
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, RPF_THRESHOLD, check_model_parameters
-from mazelab.simulation import new_seed
+from mazelab.seeding import new_seed
 from mazelab.viz.style import DEFAULT_MAX_DRAWN
 
 

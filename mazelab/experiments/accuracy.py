@@ -13,10 +13,10 @@ from typing import Any
 
 import numpy as np
 
-from mazelab.experiments.study import run_seeds
 from mazelab.experiments.tables import format_optional, format_table
 from mazelab.maze import Maze
 from mazelab.robot import Robot
+from mazelab.seeding import start_place, study_seeds
 from mazelab.simulation import convergence_step, simulate
 
 # (label, filter, options): the filters of the table, each against the exact grid filter
@@ -57,7 +57,7 @@ class AccuracyRecord:
 def run_accuracy_task(task: AccuracyTask) -> list[AccuracyRecord]:
     """The grid filter and every particle filter on one scenario; their distances to the grid's mean."""
     world = Maze(task.grid, source=task.maze)
-    robot = Robot(task.sigma, task.delta, world.random_free_place(np.random.default_rng(task.seed)))
+    robot = Robot(task.sigma, task.delta, start_place(world, task.seed))
     window = slice(task.steps // 2, task.steps)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)  # sigma or delta outside the lab's range: said once by the CLI
@@ -79,7 +79,7 @@ def accuracy_tasks(
     mazes: Sequence[tuple[str, Maze]], runs: int, sigma: float, delta: float, particles: int, steps: int, seed: int
 ) -> list[AccuracyTask]:
     """`runs` seeded runs per maze (run r has the same seed on every maze, as in a study)."""
-    seeds = [s for s, _ in run_seeds(seed, runs)]
+    seeds = [s for s, _ in study_seeds(seed, runs)]
     return [
         AccuracyTask(name, tuple(map(tuple, world.as_lists())), s, sigma, delta, particles, steps)
         for name, world in mazes

@@ -22,6 +22,7 @@ from mazelab.model import check_model_parameters
 from mazelab.modes import check_estimate
 from mazelab.regularisation import check_bandwidth
 from mazelab.robot import Robot
+from mazelab.seeding import start_place, study_seeds
 from mazelab.simulation import RunResult, convergence_step
 from mazelab.viz.views import open_comparison
 
@@ -125,16 +126,6 @@ class RunTask:
     estimate: str = "mean"  # every filter's point estimate: "mean" or "mode" (mazelab.modes)
 
 
-def run_seeds(root_seed: int, runs: int) -> list[tuple[int, int]]:
-    """(seed, maze seed) of runs 1..R, children of one root SeedSequence.
-
-    Run r has the same seeds in every setting (common random numbers: settings differ by their
-    parameters, not by their luck), and no seed depends on the number of workers.
-    """
-    children = np.random.SeedSequence(root_seed).spawn(runs)
-    return [tuple(int(v >> np.uint64(1)) for v in child.generate_state(2, np.uint64)) for child in children]
-
-
 def study_tasks(
     settings: Sequence[StudySetting],
     filters: Sequence[str],
@@ -152,7 +143,7 @@ def study_tasks(
         raise ValueError(f"runs and steps must be >= 1, got {runs} runs and {steps} steps")
     if kidnap_at is not None and not 1 <= kidnap_at <= steps:
         raise ValueError(f"kidnap_at must be a step from 1 to {steps}, got {kidnap_at}")
-    seeds = run_seeds(root_seed, runs)
+    seeds = study_seeds(root_seed, runs)
     return [
         RunTask(
             i,
@@ -218,7 +209,7 @@ def run_task(task: RunTask, visualize: Any = False) -> list[RunRecord]:
     """One run of a study: one scenario, every filter on it; a record per filter."""
     s = task.setting
     world = s.maze.world(task.maze_seed)
-    robot = Robot(s.sigma, s.delta, world.random_free_place(np.random.default_rng(task.seed)))
+    robot = Robot(s.sigma, s.delta, start_place(world, task.seed))
     comparison = open_comparison(visualize, world, list(task.filters)) if visualize else None
     try:
         with warnings.catch_warnings():  # the range warnings were shown once, by study_settings
@@ -329,7 +320,6 @@ __all__ = [
     "StudySetting",
     "kidnap_figures",
     "run_records",
-    "run_seeds",
     "run_task",
     "run_task_safely",
     "study_settings",
