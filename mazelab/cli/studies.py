@@ -45,9 +45,7 @@ def study(
         str | None, typer.Option(help=f"maze files or names, comma-separated [default: {DEFAULT_MAZE}]")
     ] = None,
     maze_size: Annotated[str | None, typer.Option(help="generated mazes ROWSxCOLUMNS, comma-separated")] = None,
-    stations: Annotated[
-        str | None, typer.Option(help="station blocks (cells of type 2) of the generated mazes, comma-separated")
-    ] = None,
+    stations: Annotated[str | None, typer.Option(help="station blocks, comma-separated")] = None,
     sigma: Annotated[str, typer.Option(help="noise std sigma, comma-separated")] = str(DEFAULT_SIGMA),
     delta: Annotated[str, typer.Option(help="compass error width, comma-separated")] = str(DEFAULT_DELTA),
     particles: Annotated[str, typer.Option(help="particle counts, comma-separated")] = str(DEFAULT_PARTICLE_COUNT),
@@ -79,7 +77,7 @@ def study(
     """Lab step 14: a Monte Carlo study over every combination of the values given.
 
     Each setting gets R seeded runs, every filter seeing the same scenario in a run. The table gives
-    per setting and filter the mean final error (last 20% of the steps) with its 95% t-interval, the
+    per setting and filter the mean last-20% error (over the last 20% of the steps) with its 95% t-interval, the
     share converged and the median convergence step (README: "Parameter studies")."""
     visualize = visualization(viewer, rrd, web, no_viz, max_drawn) if viewer or web or rrd is not None else False
     check_outputs(csv_path, plot, force, rrd)
