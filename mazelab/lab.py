@@ -91,8 +91,8 @@ def run_model(
         kidnap_at=kidnap_at,
         **filter_options,
     )
-    if save_parameters:
-        save_scenario(result.scenario, parameters_path)
+    if save_parameters:  # say where: a relative path is relative to the folder Python runs in
+        print(f"scenario saved to {save_scenario(result.scenario, parameters_path).resolve()}")
     return result.as_pairs()
 
 

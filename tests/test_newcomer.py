@@ -55,6 +55,7 @@ def test_a_lab_script_in_a_folder_of_its_own_runs_with_the_projects_python(tmp_p
     )
     assert done.returncode == 0, done.stderr
     assert "5 steps saved here" in done.stdout and (tmp_path / "model_parameters.json").is_file()
+    assert f"scenario saved to {(tmp_path / 'model_parameters.json').resolve()}" in done.stdout  # says where
 
 
 def test_the_command_a_run_prints_can_be_pasted_in_a_folder_of_its_own(tmp_path):
