@@ -16,11 +16,12 @@ import signal
 import sys
 import warnings
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 import typer
 
 from mazelab.atomic import WriteError, write_text_atomically
+from mazelab.cli.filter_options import options_per_filter
 from mazelab.cli.maze import maze_app
 from mazelab.cli.options import (
     DEFAULT_DELTA,
@@ -37,6 +38,7 @@ from mazelab.cli.options import (
     UserError,
     ViewerOption,
     WebOption,
+    check_choice,
     check_output_path,
     check_outputs,
     visualization,
@@ -49,8 +51,7 @@ from mazelab.cli.view import view
 from mazelab.experiments.compare import compare_filters, comparison_table, errors_csv, plot_errors
 from mazelab.experiments.executor import STOP_SIGNALS
 from mazelab.experiments.runs import parse_filters
-from mazelab.filters import ParticleFilter, RegularizedParticleFilter
-from mazelab.kalman import EKF_INITS, ExtendedKalmanFilter
+from mazelab.kalman import EKF_INITS
 from mazelab.lab import simulate
 from mazelab.maze import MazeError
 from mazelab.mazes import DEFAULT_MAZE, find_maze, load_maze
@@ -136,7 +137,9 @@ def run(
     save_scenario_path: Annotated[Path | None, typer.Option("--save-scenario", help="save the run (.json)")] = None,
     force: Annotated[bool, typer.Option("--force", help="replace existing output files")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", help="no per-step progress")] = False,
-    resampling: Annotated[str, typer.Option(help=f"{', '.join(RESAMPLING_SCHEMES)}")] = "systematic",
+    resampling: Annotated[
+        str | None, typer.Option(help=f"{', '.join(RESAMPLING_SCHEMES)} [default: systematic]")
+    ] = None,
     kidnap_at: Annotated[int | None, typer.Option(min=1, help="carry the robot elsewhere at this step")] = None,
     recovery: RecoveryOption = False,
     sensor_resetting: SensorResettingOption = False,
@@ -152,8 +155,8 @@ def run(
         str | None,
         typer.Option(help="ekf: prior (global) or start (tracking) [default: prior]"),
     ] = None,
-    bandwidth: BandwidthOption = "optimal",
-    estimate: EstimateOption = "mean",
+    bandwidth: BandwidthOption = None,
+    estimate: EstimateOption = None,
     viewer: ViewerOption = False,
     rrd: RrdOption = None,
     web: WebOption = False,
@@ -162,11 +165,15 @@ def run(
 ) -> None:
     """Run one filter: on a fresh lost robot, or replaying a saved scenario (--scenario)."""
     visualize = visualization(viewer, rrd, web, no_viz, max_drawn)
-    options = filter_options(filter_name, resampling, recovery, sensor_resetting, alpha_slow, alpha_fast, kld)
-    options.update(kalman_options(filter_name, init))
-    options.update(estimate_options(filter_name, bandwidth, estimate))
-    if kld:
-        options["kld"] = KLDSampling(epsilon=kld_epsilon, z=KLD_QUANTILE if kld_z is None else kld_z)
+    given = {
+        "resampling": resampling,
+        "recovery": recovery_option(recovery, sensor_resetting, alpha_slow, alpha_fast),
+        "kld": KLDSampling(epsilon=kld_epsilon, z=KLD_QUANTILE if kld_z is None else kld_z) if kld else None,
+        "bandwidth": None if bandwidth is None else check_bandwidth(bandwidth),
+        "estimate": None if estimate is None else check_estimate(estimate),
+        "init": None if init is None else check_choice("--init", init, EKF_INITS),
+    }
+    options = options_per_filter([filter_name], given)[resolve_filter(filter_name).name]
     for path in (save_scenario_path, rrd):
         if path is not None:
             check_output_path(path, force)
@@ -210,47 +217,6 @@ def run(
         typer.echo(f"scenario saved to {save_scenario(result.scenario, save_scenario_path)}")
 
 
-def filter_options(
-    filter_name: str,
-    resampling: str,
-    recovery: bool,
-    sensor_resetting: bool,
-    alpha_slow: float,
-    alpha_fast: float,
-    kld: bool,
-) -> dict[str, Any]:
-    """The particle filters' options from the command line; refused for the grid filter."""
-    if not issubclass(resolve_filter(filter_name), ParticleFilter):
-        if recovery or sensor_resetting or kld or resampling != "systematic":
-            raise UserError("--resampling, --recovery, --sensor-resetting and --kld apply to particle filters only")
-        return {}
-    options: dict[str, Any] = {"resampling": resampling}
-    if recovery or sensor_resetting:
-        options["recovery"] = recovery_option(recovery, sensor_resetting, alpha_slow, alpha_fast)
-    return options
-
-
-def estimate_options(filter_name: str, bandwidth: str, estimate: str) -> dict[str, Any]:
-    """--bandwidth (the rpf only; refused for the others unless left at optimal) and --estimate."""
-    options: dict[str, Any] = {"estimate": check_estimate(estimate)}
-    if resolve_filter(filter_name) is RegularizedParticleFilter:
-        options["bandwidth"] = check_bandwidth(bandwidth)
-    elif bandwidth != "optimal":
-        raise UserError("--bandwidth applies to the rpf only")
-    return options
-
-
-def kalman_options(filter_name: str, init: str | None) -> dict[str, Any]:
-    """The EKF's --init (prior or start); refused for the other filters."""
-    if init is None:
-        return {}
-    if resolve_filter(filter_name) is not ExtendedKalmanFilter:
-        raise UserError("--init applies to the ekf only")
-    if init not in EKF_INITS:
-        raise UserError(f"--init must be one of {', '.join(EKF_INITS)}, got {init!r}")
-    return {"init": init}
-
-
 def recovery_option(recovery: bool, sensor_resetting: bool, alpha_slow: float, alpha_fast: float) -> Recovery | None:
     """--recovery (augmented MCL) or --sensor-resetting, with the rates; None for neither."""
     if not (recovery or sensor_resetting):
@@ -278,8 +244,8 @@ def compare(
     alpha_slow: AlphaSlowOption = ALPHA_SLOW,
     alpha_fast: AlphaFastOption = ALPHA_FAST,
     kld: Annotated[bool, typer.Option("--kld", help="KLD-sampling (the scenario's count is the most)")] = False,
-    bandwidth: BandwidthOption = "optimal",
-    estimate: EstimateOption = "mean",
+    bandwidth: BandwidthOption = None,
+    estimate: EstimateOption = None,
     viewer: ViewerOption = False,
     rrd: RrdOption = None,
     web: WebOption = False,
@@ -297,6 +263,13 @@ def compare(
     prepare_world(world)
     seed = replay_seed(stored, seed)
     names = parse_filters(filters)
+    given = {
+        "recovery": recovery_option(recovery, sensor_resetting, alpha_slow, alpha_fast),
+        "kld": kld or None,
+        "bandwidth": None if bandwidth is None else check_bandwidth(bandwidth),
+        "estimate": None if estimate is None else check_estimate(estimate),
+    }
+    options_per_filter(names, given)  # a flag that none of the filters takes: one line, before any work
     typer.echo(
         f"{scenario.name}: {len(particles)} particles, {robot.recorded_steps} steps, "
         f"sigma {sigma:g}, delta {delta:g}, seed {seed}"
@@ -311,10 +284,7 @@ def compare(
         seed=seed,
         visualize=visualize,
         kidnap_at=kidnap_at,
-        recovery=recovery_option(recovery, sensor_resetting, alpha_slow, alpha_fast),
-        kld=kld,
-        bandwidth=check_bandwidth(bandwidth),
-        estimate=check_estimate(estimate),
+        **given,
     )
     kidnapping = next(iter(results.values()))
     if kidnapping.kidnap_at is not None and kidnapping.kidnap_position is not None:
@@ -400,10 +370,7 @@ __all__ = [
     "compare",
     "demo",
     "describe_os_error",
-    "estimate_options",
-    "filter_options",
     "from_scenario",
-    "kalman_options",
     "main",
     "recovery_option",
     "refuse_counts_for_replay",

@@ -12,6 +12,7 @@ import typer
 
 from mazelab import maze_generator
 from mazelab.atomic import write_text_atomically
+from mazelab.cli.filter_options import options_per_filter
 from mazelab.cli.options import (
     DEFAULT_DELTA,
     DEFAULT_SIGMA,
@@ -48,13 +49,13 @@ def study(
     sigma: Annotated[str, typer.Option(help="noise std sigma, comma-separated")] = str(DEFAULT_SIGMA),
     delta: Annotated[str, typer.Option(help="compass error width, comma-separated")] = str(DEFAULT_DELTA),
     particles: Annotated[str, typer.Option(help="particle counts, comma-separated")] = str(DEFAULT_PARTICLE_COUNT),
-    threshold: Annotated[str, typer.Option(help="RPF's N_T / N_S, comma-separated")] = str(RPF_THRESHOLD),
+    threshold: Annotated[str | None, typer.Option(help=f"RPF's N_T / N_S, comma-separated ({RPF_THRESHOLD})")] = None,
     filters: Annotated[str, typer.Option(help="sir, apf, rpf, grid, ekf, comma-separated")] = "sir,apf,rpf",
     kidnap_at: Annotated[int | None, typer.Option(min=1, help="carry the robot elsewhere at this step")] = None,
-    recovery: Annotated[str, typer.Option(help="none, augmented, sensor, comma-separated")] = "none",
+    recovery: Annotated[str | None, typer.Option(help="none (default), augmented, sensor, comma-separated")] = None,
     kld: Annotated[bool, typer.Option("--kld", help="KLD-sampling (--particles is the most)")] = False,
-    bandwidth: Annotated[str, typer.Option(help="RPF kernels: optimal, multimodal, h", show_default=False)] = "optimal",
-    estimate: EstimateOption = "mean",
+    bandwidth: Annotated[str | None, typer.Option(help="RPF kernels: optimal (default), multimodal, h")] = None,
+    estimate: EstimateOption = None,
     runs: Annotated[int, typer.Option(min=1, help="seeded runs per setting")] = 30,
     steps: Annotated[int, typer.Option(min=1, help="steps per run")] = DEFAULT_STEPS,
     seed: Annotated[int | None, typer.Option(help="the study's root seed (default: new, printed)")] = None,
@@ -77,6 +78,18 @@ def study(
     visualize = visualization(viewer, rrd, web, no_viz, max_drawn) if viewer or web or rrd is not None else False
     check_outputs(csv_path, plot, force, rrd)
     names = parse_filters(filters)
+    options_per_filter(  # a flag that none of the filters takes: one line, before any work
+        names,
+        {
+            "threshold": threshold,
+            "recovery": None if recovery in (None, "none") else recovery,
+            "kld": kld or None,
+            "bandwidth": bandwidth,
+            "estimate": estimate,
+        },
+    )
+    threshold, recovery = threshold or str(RPF_THRESHOLD), recovery or "none"
+    bandwidth, estimate = bandwidth or "optimal", estimate or "mean"
     check_steps(steps)  # each run's limits, up front rather than in every worker
     check_particles(max(parse_list(particles, int, "--particles")))
     settings = study_settings(
