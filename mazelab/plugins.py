@@ -78,11 +78,15 @@ def load_plugin(spec: str) -> type:
         return _loaded[key]
     cls = getattr(module, class_name, None)
     if not isinstance(cls, type):
-        defined = ", ".join(n for n, c in vars(module).items() if isinstance(c, type) and c.__module__ == module.__name__)
+        defined = ", ".join(
+            n for n, c in vars(module).items() if isinstance(c, type) and c.__module__ == module.__name__
+        )
         raise ValueError(f"{shown}: {path} has no class {class_name!r} (it defines: {defined or 'no classes'})")
     missing = missing_parts(cls)
     if missing:
-        raise ValueError(f"{shown}: class {class_name} does not meet the filter contract: it has no {', '.join(missing)}")
+        raise ValueError(
+            f"{shown}: class {class_name} does not meet the filter contract: it has no {', '.join(missing)}"
+        )
     _loaded[key] = cls
     _by_name[cls.name] = cls
     return cls

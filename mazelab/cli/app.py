@@ -22,7 +22,6 @@ from typing import Annotated, Any
 import typer
 
 from mazelab.atomic import WriteError, write_text_atomically
-from mazelab.contract import takes
 from mazelab.cli.exercise import exercise_app
 from mazelab.cli.maze import maze_app
 from mazelab.cli.options import (
@@ -49,6 +48,7 @@ from mazelab.cli.replay import from_scenario, refuse_counts_for_replay, replay_s
 from mazelab.cli.reports import kidnap_report, particle_count_report, prepare_world, progress_printer, report_run
 from mazelab.cli.studies import accuracy, study, study_mazes
 from mazelab.cli.view import view
+from mazelab.contract import takes
 from mazelab.experiments.compare import compare_filters, comparison_table, errors_csv, plot_errors
 from mazelab.experiments.executor import STOP_SIGNALS
 from mazelab.experiments.runs import parse_filters
@@ -267,7 +267,9 @@ def recovery_option(recovery: bool, sensor_resetting: bool, alpha_slow: float, a
 @app.command(short_help="Lab steps 12-13: every filter on one saved scenario.")
 def compare(
     scenario: Annotated[Path, typer.Argument(metavar="SCENARIO", help="a saved scenario (.json)", show_default=False)],
-    filters: Annotated[str, typer.Option(help="sir, apf, rpf, grid, ekf, FILE.py:Class, comma-separated")] = "sir,apf,rpf",
+    filters: Annotated[
+        str, typer.Option(help="sir, apf, rpf, grid, ekf, FILE.py:Class, comma-separated")
+    ] = "sir,apf,rpf",
     maze: Annotated[str | None, typer.Option(help="the maze, if the scenario stores none")] = None,
     sigma: Annotated[float | None, typer.Option(help="override the scenario's sigma")] = None,
     delta: Annotated[float | None, typer.Option(help="override the scenario's delta")] = None,

@@ -147,8 +147,16 @@ def check_estimate(filter_class: type) -> Row:
         worst = max(worst, float(np.hypot(*(got - weights @ points))))
         plain &= bool(np.hypot(*(got - points.mean(axis=0))) <= ESTIMATE_TOLERANCE)
     passed = worst <= ESTIMATE_TOLERANCE
-    hint = "" if passed else "that is the plain mean of the particles: " + HINTS["estimate"] if plain else HINTS["estimate"]
-    return Row("estimate", passed, f"sum W_i x_i to {ESTIMATE_TOLERANCE:g}", f"off by {worst:.3g}", "" if passed else hint)
+    hint = (
+        ""
+        if passed
+        else "that is the plain mean of the particles: " + HINTS["estimate"]
+        if plain
+        else HINTS["estimate"]
+    )
+    return Row(
+        "estimate", passed, f"sum W_i x_i to {ESTIMATE_TOLERANCE:g}", f"off by {worst:.3g}", "" if passed else hint
+    )
 
 
 # -- predict ------------------------------------------------------------------------------------------
@@ -192,12 +200,16 @@ def check_predict(filter_class: type) -> Row:
         spread = f"headings th0 {deviation.min():+.3f}..{deviation.max():+.3f}"
         if np.abs(length - ROBOT_SPEED).max() > STEP_TOLERANCE:
             got = f"step lengths {length.min():.4f}..{length.max():.4f}"
-            return Row("predict", False, expected, got, f"every particle moves exactly L = ROBOT_SPEED; {HINTS['predict']}")
+            return Row(
+                "predict", False, expected, got, f"every particle moves exactly L = ROBOT_SPEED; {HINTS['predict']}"
+            )
         statistic = ks_uniform(deviation / DELTA + 0.5)
         p = kolmogorov_p(statistic, len(deviation))
         reports.append(f"KS p {p:.2g}")
         if p < alpha:
-            return Row("predict", False, expected, f"{spread}, KS D {statistic:.3f}, p {p:.2g}", _predict_hint(deviation))
+            return Row(
+                "predict", False, expected, f"{spread}, KS D {statistic:.3f}, p {p:.2g}", _predict_hint(deviation)
+            )
         if again is None or not np.array_equal(np.asarray(again, dtype=float), moved):
             hint = "draw from the rng argument (rng.random, rng.uniform), not np.random: a seeded run must repeat"
             return Row("predict", False, "the same draws from an equally seeded rng", "different draws", hint)
@@ -229,7 +241,9 @@ def resample_weights(count: int = 40) -> np.ndarray:
     return rng.permutation(expected) / count
 
 
-def offspring_counts(resample: Callable[[np.ndarray, np.random.Generator], np.ndarray], weights: np.ndarray, seed: int) -> np.ndarray:
+def offspring_counts(
+    resample: Callable[[np.ndarray, np.random.Generator], np.ndarray], weights: np.ndarray, seed: int
+) -> np.ndarray:
     """The offspring counts (R, N) of RESAMPLE_DRAWS calls of `resample` on `weights`, from one seeded rng."""
     rng = np.random.default_rng([SEED, seed])
     n = len(weights)
@@ -272,7 +286,8 @@ def resembles(variance: float, weights: np.ndarray) -> tuple[str, str]:
     """The shipped scheme whose total offspring variance (over the same seeded calls) is nearest on a
     log scale, and a phrase comparing the variance with systematic's and multinomial's."""
     references = {
-        name: offspring_counts(scheme, weights, 7).var(axis=0, ddof=1).sum() for name, scheme in RESAMPLING_SCHEMES.items()
+        name: offspring_counts(scheme, weights, 7).var(axis=0, ddof=1).sum()
+        for name, scheme in RESAMPLING_SCHEMES.items()
     }
     nearest = min(references, key=lambda name: abs(math.log((variance + 1e-9) / (references[name] + 1e-9))))
     ratio = variance / references["systematic"]

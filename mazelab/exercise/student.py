@@ -78,7 +78,9 @@ class StudentFilter:
         estimate: str = "mean",
     ):
         if estimate != "mean":
-            raise ValueError(f"{self.name} estimates with its own estimate() method: estimate={estimate!r} does not apply")
+            raise ValueError(
+                f"{self.name} estimates with its own estimate() method: estimate={estimate!r} does not apply"
+            )
         self.world, self.sigma, self.delta = world, float(sigma), float(delta)
         self.rng = rng if rng is not None else np.random.default_rng()
         self.positions = as_points("particles", particles).copy()
@@ -137,7 +139,9 @@ class StudentFilter:
         """`weigh` on a copy of the positions, its answer checked: (N,), no NaN or +inf."""
         log_w = np.asarray(self.weigh(positions.copy(), z), dtype=float)
         if log_w.shape != (len(positions),):
-            raise PartError(f"weigh returned shape {log_w.shape}; expected ({len(positions)},), one log-likelihood each")
+            raise PartError(
+                f"weigh returned shape {log_w.shape}; expected ({len(positions)},), one log-likelihood each"
+            )
         if np.isnan(log_w).any() or np.isposinf(log_w).any():
             raise PartError("weigh returned NaN or +inf; expected log-likelihoods (finite, or -inf for zero)")
         return log_w
@@ -186,7 +190,6 @@ class StudentFilter:
     def belief(self) -> Particles:
         """What the viewer draws: the particles and their weights."""
         return Particles(self.positions, self.weights)
-
 
 
 def _checked(part: str, values: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
