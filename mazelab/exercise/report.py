@@ -6,8 +6,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from mazelab.exercise.parts import Row, check_parts, is_student_filter
-from mazelab.exercise.student import PARTS
+from collections.abc import Callable
+
+from mazelab.exercise.parts import Row, check_estimate, check_parts, check_predict, check_resample, check_weigh
+from mazelab.exercise.parts import is_student_filter
+from mazelab.exercise.student import PARTS, StudentFilter
 from mazelab.exercise.whole import FIGURE_HEADERS, ScenarioFigures, check_whole, figures_table, sign_test_alpha
 from mazelab.experiments.tables import format_table
 
@@ -78,4 +81,33 @@ def progress(filter_class: type) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["PARTS", "Report", "check", "format_report", "progress"]
+PART_CHECKS: dict[str, Callable[[type], Row]] = {
+    "predict": check_predict,
+    "weigh": check_weigh,
+    "resample": lambda filter_class: check_resample(filter_class)[0],
+    "estimate": check_estimate,
+}
+
+
+def check_part(part: str, function: Callable[..., object]) -> Row:
+    """Check one part written as a plain function `part(self, ...)` (a notebook cell), print its row."""
+    if part not in PART_CHECKS:
+        raise ValueError(f"unknown part {part!r}; the parts are {', '.join(PARTS)}")
+    row = PART_CHECKS[part](type("NotebookFilter", (StudentFilter,), {part: function}))
+    print(
+        format_table(
+            ["part", "result", "expected", "got", "hint"],
+            [[row.part, "pass" if row.passed else "FAIL", row.expected, row.got, row.hint]],
+        )
+    )
+    return row
+
+
+def check_and_print(filter_class: type) -> Report:
+    """`check` the whole filter and print the report (the notebook's last check cell)."""
+    report = check(filter_class)
+    print(format_report(report))
+    return report
+
+
+__all__ = ["PARTS", "Report", "check", "check_and_print", "check_part", "format_report", "progress"]
