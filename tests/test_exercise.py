@@ -64,7 +64,8 @@ def test_the_skeleton_fails_all_four_parts_as_not_implemented(tmp_path, capsys):
     assert main(["exercise", "new", str(tmp_path / "ex")]) == 0
     skeleton = load_plugin(str(tmp_path / "ex" / "my_filter.py"))
     report = check(skeleton)
-    assert [(row.part, row.passed, row.got) for row in report.rows[:4]] == [(p, False, "not implemented") for p in PARTS]
+    rows = [(row.part, row.passed, row.got) for row in report.rows[:4]]
+    assert rows == [(part, False, "not implemented") for part in PARTS]
     assert report.row("whole filter").got == "not run" and not report.passed
     assert main(["exercise", "check", str(tmp_path / "ex" / "my_filter.py:MyFilter")]) == 1
     assert "To fix: predict, weigh, resample, estimate, whole filter." in capsys.readouterr().out
@@ -106,7 +107,8 @@ def test_check_refuses_what_is_not_a_python_file(tmp_path, capsys):
 def test_the_skeleton_docstrings_name_the_equation_and_the_line():
     from mazelab.exercise.template import FILTER_TEMPLATE
 
-    for text in ('"Draw x_k^i ~ p(x_k | x_(k-1)^i)": the paper\'s equation (1)', "equation (3)", '"RESAMPLE"', "posterior mean"):
+    lines = ('"Draw x_k^i ~ p(x_k | x_(k-1)^i)": the paper\'s equation (1)', "equation (3)", '"RESAMPLE"')
+    for text in (*lines, "posterior mean"):
         assert text in FILTER_TEMPLATE
 
 
@@ -119,14 +121,15 @@ def test_student_filter_meets_the_contract_and_runs(paper_world):
     assert ReferenceFilter.name == "ReferenceFilter" and ReferenceFilter.options == {"estimate": "mean"}
     filt.step(0.3, 1.0)
     assert filt.estimate.shape == (2,) and 1 <= filt.ess <= 300 and math.isclose(filt.belief().weights.sum(), 1)
-    result = simulate(Robot(0.3, 0.5, (1.5, 0.5)), paper_world, 0.3, 0.5, 300, 40, filtering_algorithm=ReferenceFilter, seed=4)
+    args = (paper_world, 0.3, 0.5, 300, 40)
+    result = simulate(Robot(0.3, 0.5, (1.5, 0.5)), *args, filtering_algorithm=ReferenceFilter, seed=4)
     assert result.filter_name == "ReferenceFilter"
-    again = simulate(Robot(0.3, 0.5, (1.5, 0.5)), paper_world, 0.3, 0.5, 300, 40, filtering_algorithm=ReferenceFilter, seed=4)
+    again = simulate(Robot(0.3, 0.5, (1.5, 0.5)), *args, filtering_algorithm=ReferenceFilter, seed=4)
     assert np.array_equal(result.estimates, again.estimates)  # every draw from the seeded rng
 
 
 def test_student_filter_restarts_from_the_prior_when_no_particle_explains_z(paper_world):
-    particles = np.full((100, 2), 0.5) + [2.0, 1.0]  # all in one spot
+    particles = np.tile([2.5, 1.5], (100, 1))  # all in one spot
     filt = ReferenceFilter(paper_world, 0.2, 0.5, particles, np.random.default_rng(3))
     filt.step(0.0, 1e6)  # nothing is a million units from a station
     assert filt.reinitialised_at == [1]

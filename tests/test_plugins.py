@@ -30,7 +30,8 @@ def test_resolve_filter_takes_a_file_and_class():
 def test_two_files_with_one_class_name_do_not_clash(tmp_path):
     for folder in ("a", "b"):
         (tmp_path / folder).mkdir()
-        (tmp_path / folder / "f.py").write_text(f"from mazelab.filters import SIRParticleFilter\nclass F(SIRParticleFilter):\n    tag = {folder!r}\n")
+        source = f"from mazelab.filters import SIRParticleFilter\nclass F(SIRParticleFilter):\n    tag = {folder!r}\n"
+        (tmp_path / folder / "f.py").write_text(source)
     a, b = load_plugin(f"{tmp_path / 'a' / 'f.py'}:F"), load_plugin(f"{tmp_path / 'b' / 'f.py'}:F")
     assert (a.tag, b.tag) == ("a", "b") and a.__module__ != b.__module__
 
@@ -86,7 +87,7 @@ def test_a_plugin_in_filters_is_checked_before_any_run(tmp_path, capsys):
     assert "none.py" in capsys.readouterr().err
 
 
-RAISING = '''\
+RAISING = """\
 import numpy as np
 from exercise_answers import ReferenceFilter
 
@@ -96,7 +97,7 @@ class Raising(ReferenceFilter):
         if self.steps_done == 2:
             return np.log(positions[:, 5])
         return super().weigh(positions, z)
-'''
+"""
 
 
 def test_a_plugin_that_raises_shows_its_own_frame_and_the_step(tmp_path, capsys, monkeypatch):
@@ -130,7 +131,8 @@ def test_simulate_raises_a_student_code_error_with_the_original_as_cause(paper_w
     namespace: dict = {}
     exec(compile(source, "broken_filter.py", "exec"), namespace)
     with pytest.raises(StudentCodeError, match="Broken raised PartError at step 1: predict returned shape") as info:
-        simulate(Robot(0.3, 0.5, (1.5, 0.5)), paper_world, 0.3, 0.5, 50, 5, filtering_algorithm=namespace["Broken"], seed=1)
+        robot = Robot(0.3, 0.5, (1.5, 0.5))
+        simulate(robot, paper_world, 0.3, 0.5, 50, 5, filtering_algorithm=namespace["Broken"], seed=1)
     assert info.value.__cause__ is not None
 
 

@@ -4,12 +4,18 @@ to write (`progress`, what `python my_filter.py` prints)."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from collections.abc import Callable
-
-from mazelab.exercise.parts import Row, check_estimate, check_parts, check_predict, check_resample, check_weigh
-from mazelab.exercise.parts import is_student_filter
+from mazelab.exercise.parts import (
+    Row,
+    check_estimate,
+    check_parts,
+    check_predict,
+    check_resample,
+    check_weigh,
+    is_student_filter,
+)
 from mazelab.exercise.student import PARTS, StudentFilter
 from mazelab.exercise.whole import FIGURE_HEADERS, ScenarioFigures, check_whole, figures_table, sign_test_alpha
 from mazelab.experiments.tables import format_table
