@@ -8,6 +8,7 @@ mazelab maze --help     random connected mazes (generate) and a look at any maze
 mazelab view FILE       a saved recording in the web viewer on 127.0.0.1 (no display needed)
 mazelab bench [--quick] the filters' speed against a plain numpy reference step
 mazelab accuracy        each filter's distance to the exact grid posterior on the shipped mazes
+mazelab exercise --help write your own filter (new) and grade it against the exact posterior (check)
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from typing import Annotated
 import typer
 
 from mazelab.atomic import WriteError, write_text_atomically
+from mazelab.cli.exercise import exercise_app
 from mazelab.cli.filter_options import options_per_filter
 from mazelab.cli.maze import maze_app
 from mazelab.cli.options import (
@@ -57,6 +59,7 @@ from mazelab.maze import MazeError
 from mazelab.mazes import DEFAULT_MAZE, find_maze, load_maze
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
 from mazelab.modes import check_estimate
+from mazelab.plugins import StudentCodeError
 from mazelab.recovery import ALPHA_FAST, ALPHA_SLOW, Recovery
 from mazelab.registry import resolve_filter
 from mazelab.regularisation import check_bandwidth
@@ -117,7 +120,7 @@ def demo(
 @app.command(short_help="One filter on a lost robot, or on a saved scenario.")
 def run(
     maze: Annotated[str | None, typer.Option(help=f"a maze file or a name in mazes/ [default: {DEFAULT_MAZE}]")] = None,
-    filter_name: Annotated[str, typer.Option("--filter", help="sir, apf, rpf, grid, ekf")] = "sir",
+    filter_name: Annotated[str, typer.Option("--filter", help="sir, apf, rpf, grid, ekf, or FILE.py:Class")] = "sir",
     particles: Annotated[
         int | None, typer.Option(min=1, help=f"particle count N_S [default: {DEFAULT_PARTICLE_COUNT}]")
     ] = None,
@@ -227,7 +230,9 @@ def recovery_option(recovery: bool, sensor_resetting: bool, alpha_slow: float, a
 @app.command(short_help="Lab steps 12-13: every filter on one saved scenario.")
 def compare(
     scenario: Annotated[Path, typer.Argument(metavar="SCENARIO", help="a saved scenario (.json)", show_default=False)],
-    filters: Annotated[str, typer.Option(help="sir, apf, rpf, grid, ekf, comma-separated")] = "sir,apf,rpf",
+    filters: Annotated[
+        str, typer.Option(help="sir, apf, rpf, grid, ekf, FILE.py:Class, comma-separated")
+    ] = "sir,apf,rpf",
     maze: Annotated[str | None, typer.Option(help="the maze, if the scenario stores none")] = None,
     sigma: Annotated[float | None, typer.Option(help="override the scenario's sigma")] = None,
     delta: Annotated[float | None, typer.Option(help="override the scenario's delta")] = None,
@@ -303,6 +308,7 @@ def compare(
 app.command(short_help="Lab step 14: a Monte Carlo parameter study.")(study)
 app.command(short_help="Every filter against the exact grid posterior.")(accuracy)
 app.add_typer(maze_app, name="maze")
+app.add_typer(exercise_app, name="exercise")
 app.command(short_help="A saved recording in the web viewer on 127.0.0.1.")(view)
 
 
@@ -343,6 +349,9 @@ def _main(argv: list[str] | None) -> int:
     except (UserError, MazeError, ScenarioError, ValueError) as error:
         typer.echo(f"error: {error}", err=True)
         return 2
+    except StudentCodeError as error:  # the student's filter raised: their frames and the step, not ours
+        typer.echo(f"error: {error}", err=True)
+        return 1
     except OSError as error:  # a full disk, a file size limit, a read-only folder, a name too long
         typer.echo(f"error: {describe_os_error(error)}", err=True)
         return 1

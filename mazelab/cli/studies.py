@@ -29,7 +29,7 @@ from mazelab.cli.options import (
 from mazelab.experiments.dask_runner import close_client, connect
 from mazelab.experiments.executor import STOP_SIGNALS, default_workers, run_study
 from mazelab.experiments.rowlog import RowLog
-from mazelab.experiments.runs import parse_filters
+from mazelab.experiments.runs import filter_labels, parse_filters
 from mazelab.experiments.stats import CONFIDENCE_LEVEL
 from mazelab.experiments.study import MazeChoice, study_settings, study_tasks, varied_parameters
 from mazelab.experiments.summary import describe_setting, plot_study, study_csv, study_table, summarise_study
@@ -177,6 +177,9 @@ def accuracy(
     ),
     seed: Annotated[int, typer.Option(help="root seed (run r has the same seed on every maze)")] = 1,
     workers: Annotated[int | None, typer.Option(min=1, help="processes (default: all cores)")] = None,
+    filters: Annotated[
+        str | None, typer.Option(help="filters, comma-separated, e.g. sir,my_filter.py:MyFilter [default: all]")
+    ] = None,
 ) -> None:
     """How close each filter comes to the exact posterior: per maze, the mean distance between its
     estimate and the exact grid filter's posterior mean over the second half of the steps, and the
@@ -187,15 +190,21 @@ def accuracy(
     check_model_parameters(sigma, delta)
     check_steps(steps)
     check_particles(particles)
-    tasks = accuracy_tasks([(n, load_maze(n)) for n in names], runs, sigma, delta, particles, steps, seed)
+    chosen = ACCURACY_FILTERS if filters is None else tuple((label_of(n), n, {}) for n in parse_filters(filters))
+    tasks = accuracy_tasks([(n, load_maze(n)) for n in names], runs, sigma, delta, particles, steps, seed, chosen)
     typer.echo(
         f"Accuracy: {len(names)} maze(s) x {runs} runs, sigma {sigma:g}, delta {delta:g}, {particles} particles, "
-        f"{steps} steps, seed {seed}; filters: {', '.join(label for label, _, _ in ACCURACY_FILTERS)}"
+        f"{steps} steps, seed {seed}; filters: {', '.join(label for label, _, _ in chosen)}"
     )
     started = time.perf_counter()
     records = run_accuracy(tasks, workers or default_workers())
     typer.echo(accuracy_table(records))
     typer.echo(f"{len(tasks)} runs in {time.perf_counter() - started:.1f} s wall time")
+
+
+def label_of(name: str) -> str:
+    """A filter's label in the accuracy table: its `name` (a plug-in's class name)."""
+    return filter_labels([name])[0]
 
 
 def study_mazes(files: str | None, sizes: str | None, stations: str | None) -> list[MazeChoice]:
