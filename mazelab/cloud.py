@@ -404,7 +404,9 @@ def _generators(rng: Any, runs: int) -> list[np.random.Generator]:
 
 def per_run(value: float | np.ndarray, runs: int) -> np.ndarray:
     """A step's compass angle or measurement as one value per run, float64 (R,)."""
-    return np.broadcast_to(np.asarray(value, dtype=float), (runs,))
+    if isinstance(value, np.ndarray):
+        return np.broadcast_to(value.astype(float, copy=False), (runs,))
+    return np.full(runs, float(value))
 
 
 __all__ = ["ParticleFilter", "per_run"]

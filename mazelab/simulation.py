@@ -21,6 +21,7 @@ from mazelab.contract import check_options, takes
 from mazelab.limits import check_particles, check_steps
 from mazelab.maze import Maze
 from mazelab.model import CONVERGENCE_RADIUS, DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, check_model_parameters
+from mazelab.plugins import raise_for_student, student_code
 from mazelab.registry import resolve_filter
 from mazelab.robot import Robot
 from mazelab.scenario import Scenario
@@ -294,7 +295,8 @@ def simulate(
         robot.rng = streams.robot
     if takes(filter_class, "start"):  # a filter that can track from the known start (the EKF)
         filter_options = {"start": robot.initial_position, **filter_options}
-    filt = filter_class(world, sigma, delta, particles, streams.filter, **filter_options)
+    with student_code(filter_class):  # a user's filter that raises: its own frames and the step (plugins)
+        filt = filter_class(world, sigma, delta, particles, streams.filter, **filter_options)
     view = open_run_view(view, world, filter_class.name)
     expect_kidnapping(view, robot.kidnap_at, robot.kidnap_position)
     true_positions, estimates = np.empty((steps, 2)), np.empty((steps, 2))
@@ -311,6 +313,8 @@ def simulate(
             view.log_step(k + 1, robot.position, robot.heading, filt)
             if on_step is not None:
                 on_step(k + 1, robot, filt)
+    except Exception as error:
+        raise_for_student(error, filter_class, k + 1)  # a user's filter: its own frames and the step (plugins)
     finally:
         view.close()
     inputs = RunInputs.of_run(robot, particles, world, sigma, delta, seed, steps, filter_class.name)

@@ -10,11 +10,13 @@ def log_sum_exp(log_w: np.ndarray) -> float | np.ndarray:
     """log(sum(exp(log_w))) along the last axis without overflow or underflow; -inf where every entry
     is -inf. A float for one run (N,), an array (R,) for R runs (R, N)."""
     top = log_w.max(axis=-1, keepdims=True)  # the array methods skip np.max's dispatch: a few us a call
+    finite = np.isfinite(top[..., 0])
     with np.errstate(invalid="ignore"):  # rows whose top is -inf give NaN here and -inf below
         shifted = np.subtract(log_w, top)
         totals = top[..., 0] + np.log(np.exp(shifted, out=shifted).sum(axis=-1))
-    totals = np.where(np.isfinite(top[..., 0]), totals, top[..., 0]).astype(float)
-    return float(totals) if log_w.ndim == 1 else totals
+    if not finite.all():
+        totals = np.where(finite, totals, top[..., 0])
+    return float(totals) if log_w.ndim == 1 else totals.astype(float)
 
 
 def exp_in_place(values: np.ndarray) -> np.ndarray:
@@ -46,7 +48,9 @@ def weighted_mean(weights: np.ndarray, points: np.ndarray) -> np.ndarray:
     """sum_i W_i x_i per run, float64: (2,) for weights (N,), (R, 2) for weights (R, N)."""
     W = np.atleast_2d(weights)
     w = W.astype(points.dtype, copy=False)
-    means = np.stack([(w * c).sum(axis=1) for c in _columns(points, len(W))], axis=1).astype(float)
+    means = np.empty((len(W), 2))
+    for column, c in enumerate(_columns(points, len(W))):
+        means[:, column] = (w * c).sum(axis=1)  # summed in the points' dtype, then float64
     return means[0] if weights.ndim == 1 else means
 
 

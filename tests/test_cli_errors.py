@@ -160,7 +160,7 @@ CASES = [
     (["run", "--scenario", "{tmp}/in_wall.json", "--maze", "maze_10x10"], "differs"),
     (["compare", "{tmp}/notjson.json"], "not valid json"),
     # names and outputs
-    (["run", "--filter", "kalman"], "unknown filter 'kalman' (choose from sir, apf, rpf, grid, ekf)"),
+    (["run", "--filter", "kalman"], "unknown filter 'kalman' (choose from sir, apf, rpf, grid, ekf, or FILE.py:Class)"),
     (["run", "--resampling", "magic"], "unknown resampling scheme"),
     (["run", "--save-scenario", "{tmp}/no/such/folder/x.json"], "does not exist"),
     (["run", "--save-scenario", "{tmp}/exists.json"], "exists; use --force"),

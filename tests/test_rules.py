@@ -256,3 +256,31 @@ def test_an_error_in_a_batched_unit_is_reported_for_its_runs(paper_world, monkey
     assert len(outcomes) == 3
     assert all(isinstance(o, batch_runs.RunFailure) and "a bug in the step" in o.message for o in outcomes)
     assert all("runs advanced together" in o.message for o in outcomes)
+
+
+# -- the command line reads the same declaration --------------------------------------------------
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["run", "--filter", "grid", "--recovery"], "GridBayesFilter does not take --recovery"),
+        (["run", "--filter", "grid", "--resampling", "systematic"], "GridBayesFilter does not take --resampling"),
+        (["run", "--filter", "ekf", "--bandwidth", "multimodal"], "ExtendedKalmanFilter does not take --bandwidth"),
+        (["run", "--filter", "apf", "--init", "start"], "AuxiliaryParticleFilter does not take --init"),
+        (["study", "--filters", "sir", "--bandwidth", "multimodal"], "SIRParticleFilter does not take --bandwidth"),
+        (["study", "--filters", "sir,apf", "--threshold", "0.3"], "SIRParticleFilter and AuxiliaryParticleFilter do"),
+        (["study", "--filters", "grid,ekf", "--kld"], "GridBayesFilter and ExtendedKalmanFilter do not take --kld"),
+    ],
+)
+def test_the_command_line_refuses_an_option_no_chosen_filter_takes(capsys, args, message):
+    from mazelab.cli.app import main
+
+    assert main([*args, "--no-viz"]) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1
+
+
+def test_an_option_some_chosen_filters_take_goes_to_those(tmp_path, capsys):
+    from mazelab.cli.app import main
+
+    args = ["study", "--maze", "paper_5x5", "--filters", "sir,grid", "--estimate", "mode", "--runs", "1"]
+    assert main([*args, "--steps", "4", "--particles", "50", "--seed", "1", "--no-viz", "--workers", "1"]) == 0

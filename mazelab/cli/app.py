@@ -8,6 +8,7 @@ mazelab maze --help     random connected mazes (generate) and a look at any maze
 mazelab view FILE       a saved recording in the web viewer on 127.0.0.1 (no display needed)
 mazelab bench [--quick] the filters' speed against a plain numpy reference step
 mazelab accuracy        each filter's distance to the exact grid posterior on the shipped mazes
+mazelab exercise --help write your own filter (new) and grade it against the exact posterior (check)
 """
 
 from __future__ import annotations
@@ -16,11 +17,13 @@ import signal
 import sys
 import warnings
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 import typer
 
 from mazelab.atomic import WriteError, write_text_atomically
+from mazelab.cli.exercise import exercise_app
+from mazelab.cli.filter_options import options_per_filter
 from mazelab.cli.hints import (
     check_filter_name,
     check_filter_names,
@@ -44,6 +47,7 @@ from mazelab.cli.options import (
     UserError,
     ViewerOption,
     WebOption,
+    check_choice,
     check_output_path,
     check_outputs,
     visualization,
@@ -56,14 +60,14 @@ from mazelab.cli.view import view
 from mazelab.experiments.compare import compare_filters, comparison_table, errors_csv, plot_errors
 from mazelab.experiments.executor import STOP_SIGNALS
 from mazelab.experiments.runs import parse_filters
-from mazelab.filters import ParticleFilter, RegularizedParticleFilter
 from mazelab.invocation import command_prefix
-from mazelab.kalman import EKF_INITS, ExtendedKalmanFilter
+from mazelab.kalman import EKF_INITS
 from mazelab.lab import simulate
 from mazelab.maze import MazeError
 from mazelab.mazes import DEFAULT_MAZE, find_maze, load_maze
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
 from mazelab.modes import check_estimate
+from mazelab.plugins import StudentCodeError
 from mazelab.recovery import ALPHA_FAST, ALPHA_SLOW, Recovery
 from mazelab.registry import resolve_filter
 from mazelab.regularisation import check_bandwidth
@@ -126,7 +130,9 @@ def run(
     maze: Annotated[
         str | None, typer.Option(metavar="MAZE", help=f"a maze file or a name in mazes/ [default: {DEFAULT_MAZE}]")
     ] = None,
-    filter_name: Annotated[str, typer.Option("--filter", metavar="NAME", help="sir, apf, rpf, grid, ekf")] = "sir",
+    filter_name: Annotated[
+        str, typer.Option("--filter", metavar="NAME", help="sir, apf, rpf, grid, ekf, or FILE.py:Class")
+    ] = "sir",
     particles: Annotated[
         int | None, typer.Option(min=1, help=f"particle count N_S [default: {DEFAULT_PARTICLE_COUNT}]")
     ] = None,
@@ -146,7 +152,9 @@ def run(
     save_scenario_path: Annotated[Path | None, typer.Option("--save-scenario", help="save the run (.json)")] = None,
     force: Annotated[bool, typer.Option("--force", help="replace existing output files")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", help="no per-step progress")] = False,
-    resampling: Annotated[str, typer.Option(metavar="SCHEME", help=f"{', '.join(RESAMPLING_SCHEMES)}")] = "systematic",
+    resampling: Annotated[
+        str | None, typer.Option(metavar="SCHEME", help=f"{', '.join(RESAMPLING_SCHEMES)} [default: systematic]")
+    ] = None,
     kidnap_at: Annotated[int | None, typer.Option(min=1, help="carry the robot elsewhere at this step")] = None,
     recovery: RecoveryOption = False,
     sensor_resetting: SensorResettingOption = False,
@@ -156,14 +164,14 @@ def run(
     kld_epsilon: Annotated[float, typer.Option(help="KLD-sampling: error bound")] = KLD_EPSILON,
     kld_z: Annotated[
         float | None,
-        typer.Option(help=f"KLD-sampling: quantile z_(1-p), p its risk [default: {KLD_QUANTILE:.3f}]"),
+        typer.Option(help=f"KLD-sampling: quantile z_(1-p) [default: {KLD_QUANTILE:.3f}]"),
     ] = None,
     init: Annotated[
         str | None,
         typer.Option(metavar="prior|start", help="ekf: prior (global) or start (tracking) [default: prior]"),
     ] = None,
-    bandwidth: BandwidthOption = "optimal",
-    estimate: EstimateOption = "mean",
+    bandwidth: BandwidthOption = None,
+    estimate: EstimateOption = None,
     viewer: ViewerOption = False,
     rrd: RrdOption = None,
     web: WebOption = False,
@@ -173,11 +181,15 @@ def run(
     """Run one filter: on a fresh lost robot, or replaying a saved scenario (--scenario)."""
     visualize = visualization(viewer, rrd, web, no_viz, max_drawn)
     check_filter_name(filter_name)
-    options = filter_options(filter_name, resampling, recovery, sensor_resetting, alpha_slow, alpha_fast, kld)
-    options.update(kalman_options(filter_name, init))
-    options.update(estimate_options(filter_name, bandwidth, estimate))
-    if kld:
-        options["kld"] = KLDSampling(epsilon=kld_epsilon, z=KLD_QUANTILE if kld_z is None else kld_z)
+    given = {
+        "resampling": resampling,
+        "recovery": recovery_option(recovery, sensor_resetting, alpha_slow, alpha_fast),
+        "kld": KLDSampling(epsilon=kld_epsilon, z=KLD_QUANTILE if kld_z is None else kld_z) if kld else None,
+        "bandwidth": None if bandwidth is None else check_bandwidth(bandwidth),
+        "estimate": None if estimate is None else check_estimate(estimate),
+        "init": None if init is None else check_choice("--init", init, EKF_INITS),
+    }
+    options = options_per_filter([filter_name], given)[resolve_filter(filter_name).name]
     for path in (save_scenario_path, rrd):
         if path is not None:
             check_output_path(path, force)
@@ -221,47 +233,6 @@ def run(
         typer.echo(f"scenario saved to {save_scenario(result.scenario, save_scenario_path)}")
 
 
-def filter_options(
-    filter_name: str,
-    resampling: str,
-    recovery: bool,
-    sensor_resetting: bool,
-    alpha_slow: float,
-    alpha_fast: float,
-    kld: bool,
-) -> dict[str, Any]:
-    """The particle filters' options from the command line; refused for the grid filter."""
-    if not issubclass(resolve_filter(filter_name), ParticleFilter):
-        if recovery or sensor_resetting or kld or resampling != "systematic":
-            raise UserError("--resampling, --recovery, --sensor-resetting and --kld apply to particle filters only")
-        return {}
-    options: dict[str, Any] = {"resampling": resampling}
-    if recovery or sensor_resetting:
-        options["recovery"] = recovery_option(recovery, sensor_resetting, alpha_slow, alpha_fast)
-    return options
-
-
-def estimate_options(filter_name: str, bandwidth: str, estimate: str) -> dict[str, Any]:
-    """--bandwidth (the rpf only; refused for the others unless left at optimal) and --estimate."""
-    options: dict[str, Any] = {"estimate": check_estimate(estimate)}
-    if resolve_filter(filter_name) is RegularizedParticleFilter:
-        options["bandwidth"] = check_bandwidth(bandwidth)
-    elif bandwidth != "optimal":
-        raise UserError("--bandwidth applies to the rpf only")
-    return options
-
-
-def kalman_options(filter_name: str, init: str | None) -> dict[str, Any]:
-    """The EKF's --init (prior or start); refused for the other filters."""
-    if init is None:
-        return {}
-    if resolve_filter(filter_name) is not ExtendedKalmanFilter:
-        raise UserError("--init applies to the ekf only")
-    if init not in EKF_INITS:
-        raise UserError(f"--init must be one of {', '.join(EKF_INITS)}, got {init!r}")
-    return {"init": init}
-
-
 def recovery_option(recovery: bool, sensor_resetting: bool, alpha_slow: float, alpha_fast: float) -> Recovery | None:
     """--recovery (augmented MCL) or --sensor-resetting, with the rates; None for neither."""
     if not (recovery or sensor_resetting):
@@ -273,7 +244,7 @@ def recovery_option(recovery: bool, sensor_resetting: bool, alpha_slow: float, a
 def compare(
     scenario: Annotated[Path, typer.Argument(metavar="SCENARIO", help="a saved scenario (.json)", show_default=False)],
     filters: Annotated[
-        str, typer.Option(metavar="NAMES", help="sir, apf, rpf, grid, ekf, comma-separated")
+        str, typer.Option(metavar="NAMES", help="sir, apf, rpf, grid, ekf, FILE.py:Class, comma-separated")
     ] = "sir,apf,rpf",
     maze: Annotated[str | None, typer.Option(metavar="MAZE", help="the maze, if the scenario stores none")] = None,
     sigma: Annotated[float | None, typer.Option(help="override the scenario's sigma")] = None,
@@ -291,8 +262,8 @@ def compare(
     alpha_slow: AlphaSlowOption = ALPHA_SLOW,
     alpha_fast: AlphaFastOption = ALPHA_FAST,
     kld: Annotated[bool, typer.Option("--kld", help="KLD-sampling (the scenario's count is the most)")] = False,
-    bandwidth: BandwidthOption = "optimal",
-    estimate: EstimateOption = "mean",
+    bandwidth: BandwidthOption = None,
+    estimate: EstimateOption = None,
     viewer: ViewerOption = False,
     rrd: RrdOption = None,
     web: WebOption = False,
@@ -311,6 +282,13 @@ def compare(
     prepare_world(world)
     seed = replay_seed(stored, seed)
     names = parse_filters(filters)
+    given = {
+        "recovery": recovery_option(recovery, sensor_resetting, alpha_slow, alpha_fast),
+        "kld": kld or None,
+        "bandwidth": None if bandwidth is None else check_bandwidth(bandwidth),
+        "estimate": None if estimate is None else check_estimate(estimate),
+    }
+    options_per_filter(names, given)  # a flag that none of the filters takes: one line, before any work
     typer.echo(
         f"{scenario.name}: {len(particles)} particles, {robot.recorded_steps} steps, "
         f"sigma {sigma:g}, delta {delta:g}, seed {seed}"
@@ -325,10 +303,7 @@ def compare(
         seed=seed,
         visualize=visualize,
         kidnap_at=kidnap_at,
-        recovery=recovery_option(recovery, sensor_resetting, alpha_slow, alpha_fast),
-        kld=kld,
-        bandwidth=check_bandwidth(bandwidth),
-        estimate=check_estimate(estimate),
+        **given,
     )
     kidnapping = next(iter(results.values()))
     if kidnapping.kidnap_at is not None and kidnapping.kidnap_position is not None:
@@ -347,6 +322,7 @@ def compare(
 app.command(short_help="Lab step 14: a Monte Carlo parameter study.")(study)
 app.command(short_help="Every filter against the exact grid posterior.")(accuracy)
 app.add_typer(maze_app, name="maze")
+app.add_typer(exercise_app, name="exercise")
 app.command(short_help="A saved recording in the web viewer on 127.0.0.1.")(view)
 
 
@@ -390,6 +366,9 @@ def _main(argv: list[str] | None) -> int:
     except (UserError, MazeError, ScenarioError, ValueError) as error:
         typer.echo(f"error: {error}", err=True)
         return 2
+    except StudentCodeError as error:  # the student's filter raised: their frames and the step, not ours
+        typer.echo(f"error: {error}", err=True)
+        return 1
     except OSError as error:  # a full disk, a file size limit, a read-only folder, a name too long
         typer.echo(f"error: {describe_os_error(error)}", err=True)
         return 1
@@ -417,10 +396,7 @@ __all__ = [
     "compare",
     "demo",
     "describe_os_error",
-    "estimate_options",
-    "filter_options",
     "from_scenario",
-    "kalman_options",
     "main",
     "recovery_option",
     "refuse_counts_for_replay",

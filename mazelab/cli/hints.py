@@ -14,6 +14,7 @@ import typer.core
 
 from mazelab.cli.options import UserError
 from mazelab.invocation import command_prefix
+from mazelab.plugins import is_plugin_spec
 from mazelab.registry import resolve_filter
 
 FILTER_NAMES = ("sir", "apf", "rpf", "grid", "ekf")  # the short names the help lists
@@ -78,12 +79,16 @@ def refuse_option_as_value(argv: Sequence[str], group: Any) -> None:
 def check_filter_name(name: str, option: str = "--filter") -> str:
     """A filter name the registry knows, else one line with the nearest short name (`sri`: did you
     mean `sir`?) and the choices."""
+    if is_plugin_spec(name):  # FILE.py:Class, the registry's own errors say what is wrong with it
+        return name
     try:
         resolve_filter(name)
     except ValueError:
         close = difflib.get_close_matches(name.lower(), FILTER_NAMES, n=1, cutoff=0.5)
         hint = f"; did you mean {close[0]}?" if close else ""
-        raise UserError(f"{option}: unknown filter {name!r}{hint} (choose from {', '.join(FILTER_NAMES)})") from None
+        raise UserError(
+            f"{option}: unknown filter {name!r}{hint} (choose from {', '.join(FILTER_NAMES)}, or FILE.py:Class)"
+        ) from None
     return name
 
 

@@ -12,6 +12,7 @@ import typer
 
 from mazelab import maze_generator
 from mazelab.atomic import write_text_atomically
+from mazelab.cli.filter_options import options_per_filter
 from mazelab.cli.hints import check_filter_names
 from mazelab.cli.options import (
     DEFAULT_DELTA,
@@ -29,7 +30,7 @@ from mazelab.cli.options import (
 from mazelab.experiments.dask_runner import close_client, connect
 from mazelab.experiments.executor import STOP_SIGNALS, default_workers, run_study
 from mazelab.experiments.rowlog import RowLog
-from mazelab.experiments.runs import parse_filters
+from mazelab.experiments.runs import filter_labels, parse_filters
 from mazelab.experiments.stats import CONFIDENCE_LEVEL
 from mazelab.experiments.study import MazeChoice, study_settings, study_tasks, varied_parameters
 from mazelab.experiments.summary import describe_setting, plot_study, study_csv, study_table, summarise_study
@@ -49,17 +50,19 @@ def study(
     sigma: Annotated[str, typer.Option(help="noise std sigma, comma-separated")] = str(DEFAULT_SIGMA),
     delta: Annotated[str, typer.Option(help="compass error width, comma-separated")] = str(DEFAULT_DELTA),
     particles: Annotated[str, typer.Option(help="particle counts, comma-separated")] = str(DEFAULT_PARTICLE_COUNT),
-    threshold: Annotated[str, typer.Option(help="RPF's N_T / N_S, comma-separated")] = str(RPF_THRESHOLD),
+    threshold: Annotated[str | None, typer.Option(help=f"RPF's N_T / N_S, comma-separated ({RPF_THRESHOLD})")] = None,
     filters: Annotated[
         str, typer.Option(metavar="NAMES", help="sir, apf, rpf, grid, ekf, comma-separated")
     ] = "sir,apf,rpf",
     kidnap_at: Annotated[int | None, typer.Option(min=1, help="carry the robot elsewhere at this step")] = None,
-    recovery: Annotated[str, typer.Option(metavar="NAMES", help="none, augmented, sensor, comma-separated")] = "none",
+    recovery: Annotated[
+        str | None, typer.Option(metavar="NAMES", help="none (default), augmented, sensor, comma-separated")
+    ] = None,
     kld: Annotated[bool, typer.Option("--kld", help="KLD-sampling (--particles is the most)")] = False,
     bandwidth: Annotated[
-        str, typer.Option(metavar="KERNELS", help="RPF kernels: optimal, multimodal, h", show_default=False)
-    ] = "optimal",
-    estimate: EstimateOption = "mean",
+        str | None, typer.Option(metavar="KERNELS", help="RPF kernels: optimal (default), multimodal, h")
+    ] = None,
+    estimate: EstimateOption = None,
     runs: Annotated[int, typer.Option(min=1, help="seeded runs per setting")] = 30,
     steps: Annotated[int, typer.Option(min=1, help="steps per run")] = DEFAULT_STEPS,
     seed: Annotated[int | None, typer.Option(help="the study's root seed (default: new, printed)")] = None,
@@ -82,6 +85,18 @@ def study(
     visualize = visualization(viewer, rrd, web, no_viz, max_drawn) if viewer or web or rrd is not None else False
     check_outputs(csv_path, plot, force, rrd)
     names = parse_filters(check_filter_names(filters))
+    options_per_filter(  # a flag that none of the filters takes: one line, before any work
+        names,
+        {
+            "threshold": threshold,
+            "recovery": None if recovery in (None, "none") else recovery,
+            "kld": kld or None,
+            "bandwidth": bandwidth,
+            "estimate": estimate,
+        },
+    )
+    threshold, recovery = threshold or str(RPF_THRESHOLD), recovery or "none"
+    bandwidth, estimate = bandwidth or "optimal", estimate or "mean"
     check_steps(steps)  # each run's limits, up front rather than in every worker
     check_particles(max(parse_list(particles, int, "--particles")))
     settings = study_settings(
@@ -170,6 +185,10 @@ def accuracy(
     ),
     seed: Annotated[int, typer.Option(help="root seed (run r has the same seed on every maze)")] = 1,
     workers: Annotated[int | None, typer.Option(min=1, help="processes (default: all cores)")] = None,
+    filters: Annotated[
+        str | None,
+        typer.Option(metavar="NAMES", help="filters, comma-separated, e.g. sir,my_filter.py:MyFilter [default: all]"),
+    ] = None,
 ) -> None:
     """How close each filter comes to the exact posterior: per maze, the mean distance between its
     estimate and the exact grid filter's posterior mean over the second half of the steps, and the
@@ -180,15 +199,21 @@ def accuracy(
     check_model_parameters(sigma, delta)
     check_steps(steps)
     check_particles(particles)
-    tasks = accuracy_tasks([(n, load_maze(n)) for n in names], runs, sigma, delta, particles, steps, seed)
+    chosen = ACCURACY_FILTERS if filters is None else tuple((label_of(n), n, {}) for n in parse_filters(filters))
+    tasks = accuracy_tasks([(n, load_maze(n)) for n in names], runs, sigma, delta, particles, steps, seed, chosen)
     typer.echo(
         f"Accuracy: {len(names)} maze(s) x {runs} runs, sigma {sigma:g}, delta {delta:g}, {particles} particles, "
-        f"{steps} steps, seed {seed}; filters: {', '.join(label for label, _, _ in ACCURACY_FILTERS)}"
+        f"{steps} steps, seed {seed}; filters: {', '.join(label for label, _, _ in chosen)}"
     )
     started = time.perf_counter()
     records = run_accuracy(tasks, workers or default_workers())
     typer.echo(accuracy_table(records))
     typer.echo(f"{len(tasks)} runs in {time.perf_counter() - started:.1f} s wall time")
+
+
+def label_of(name: str) -> str:
+    """A filter's label in the accuracy table: its `name` (a plug-in's class name)."""
+    return filter_labels([name])[0]
 
 
 def study_mazes(files: str | None, sizes: str | None, stations: str | None) -> list[MazeChoice]:

@@ -40,6 +40,7 @@ class AccuracyTask:
     delta: float
     particles: int
     steps: int
+    filters: tuple[tuple[str, str, dict[str, Any]], ...] = ACCURACY_FILTERS  # (label, filter or FILE.py:Class, options)
 
 
 @dataclass(frozen=True)
@@ -64,8 +65,8 @@ def run_accuracy_task(task: AccuracyTask) -> list[AccuracyRecord]:
         exact = simulate(robot, world, task.sigma, task.delta, task.particles, task.steps, None, "grid", seed=task.seed)
         particles = np.array(exact.scenario.init_particles_pos)
         records = []
-        for label, name, options in ACCURACY_FILTERS:
-            if name == "grid":
+        for label, name, options in task.filters:
+            if name in ("grid", "GridBayesFilter"):
                 result = exact
             else:
                 args = (robot, world, task.sigma, task.delta, None, task.steps, particles, name)
@@ -76,12 +77,20 @@ def run_accuracy_task(task: AccuracyTask) -> list[AccuracyRecord]:
 
 
 def accuracy_tasks(
-    mazes: Sequence[tuple[str, Maze]], runs: int, sigma: float, delta: float, particles: int, steps: int, seed: int
+    mazes: Sequence[tuple[str, Maze]],
+    runs: int,
+    sigma: float,
+    delta: float,
+    particles: int,
+    steps: int,
+    seed: int,
+    filters: tuple[tuple[str, str, dict[str, Any]], ...] = ACCURACY_FILTERS,
 ) -> list[AccuracyTask]:
-    """`runs` seeded runs per maze (run r has the same seed on every maze, as in a study)."""
+    """`runs` seeded runs per maze (run r has the same seed on every maze, as in a study); `filters`:
+    (label, filter name or plug-in spec, options) of each filter measured (the exact grid always runs)."""
     seeds = [s for s, _ in study_seeds(seed, runs)]
     return [
-        AccuracyTask(name, tuple(map(tuple, world.as_lists())), s, sigma, delta, particles, steps)
+        AccuracyTask(name, tuple(map(tuple, world.as_lists())), s, sigma, delta, particles, steps, filters)
         for name, world in mazes
         for s in seeds
     ]

@@ -19,7 +19,7 @@ from mazelab.experiments.kidnapping import RECOVERY_VARIANTS
 from mazelab.experiments.runs import filter_options
 from mazelab.experiments.study import RunFailure, RunRecord, RunTask, run_records, run_task_safely
 from mazelab.maze import Maze
-from mazelab.registry import resolve_filter
+from mazelab.registry import FILTERS, resolve_filter
 from mazelab.robot import Robot
 from mazelab.seeding import filter_rng, run_streams, start_place
 from mazelab.simulation import RunInputs, RunResult, plan_kidnapping
@@ -43,12 +43,17 @@ def task_options(task: RunTask, name: str) -> dict[str, object]:
 
 def batchable(task: RunTask) -> bool:
     """The declared rule: a setting's runs advance together when they share one maze (a maze file, not
-    a maze generated per run) and every filter is a particle filter whose options let runs go together
-    (ParticleFilter.runs_together: not recovery or KLD-sampling); otherwise one run at a time."""
+    a maze generated per run) and every filter is one of the lab's particle filters whose options let
+    runs go together (ParticleFilter.runs_together: not recovery or KLD-sampling); otherwise one run
+    at a time (the grid filter, the EKF, and a student's plug-in, whose errors name its own lines)."""
     if task.setting.maze.grid is None:
         return False
     classes = [resolve_filter(name) for name in task.filters]
-    return all(issubclass(cls, ParticleFilter) and cls.runs_together(task_options(task, cls.name)) for cls in classes)
+    shipped = set(FILTERS.values())
+    return all(
+        cls in shipped and issubclass(cls, ParticleFilter) and cls.runs_together(task_options(task, cls.name))
+        for cls in classes
+    )
 
 
 def study_units(tasks: Sequence[RunTask], workers: int) -> list[tuple[RunTask, ...]]:

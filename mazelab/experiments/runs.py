@@ -16,6 +16,7 @@ import numpy as np
 from mazelab.cloud import ParticleFilter
 from mazelab.contract import takes
 from mazelab.maze import Maze
+from mazelab.plugins import canonical_spec, is_plugin_spec
 from mazelab.recovery import Recovery
 from mazelab.registry import resolve_filter
 from mazelab.resampling import KLDSampling
@@ -37,11 +38,27 @@ def mean_ess(result: RunResult) -> float:
 
 
 def parse_filters(text: str) -> list[str]:
-    """'sir,apf,rpf' -> the filters' class names, in order, without repeats."""
-    names = [resolve_filter(part.strip()).name for part in text.split(",") if part.strip()]
+    """'sir,apf,rpf' -> the filters' class names, in order, without repeats; a plug-in
+    `file.py:Class` -> its spec with the file's absolute path (what worker processes import)."""
+    names = [filter_key(part.strip()) for part in text.split(",") if part.strip()]
     if not names:
         raise ValueError("--filters is empty; give e.g. sir,apf,rpf")
-    return list(dict.fromkeys(names))
+    names = list(dict.fromkeys(names))
+    labels = [resolve_filter(name).name for name in names]
+    for label in labels:
+        if labels.count(label) > 1:
+            raise ValueError(f"--filters has two filters named {label}: rename one class (or its `name`)")
+    return names
+
+
+def filter_key(name: str) -> str:
+    """A shipped filter's class name, or a plug-in's spec with its absolute path."""
+    return canonical_spec(name) if is_plugin_spec(name) else resolve_filter(name).name
+
+
+def filter_labels(names: Sequence[str]) -> list[str]:
+    """How the results and the viewer name the filters: their `name` (a plug-in's is its class name)."""
+    return [resolve_filter(name).name for name in names]
 
 
 # -- several filters on one scenario ---------------------------------------------------------------
@@ -96,7 +113,7 @@ def run_filters(
             particles,
             name,
             seed=seed,
-            view=None if comparison is None else comparison.view_for(name),
+            view=None if comparison is None else comparison.view_for(resolve_filter(name).name),
             kidnap_at=kidnap_at,
             **filter_options(
                 name, threshold=threshold, recovery=recovery, kld=kld, bandwidth=bandwidth, estimate=estimate
@@ -116,6 +133,8 @@ def mean_particle_count(result: RunResult) -> float:
 
 __all__ = [
     "FINAL_SHARE",
+    "filter_key",
+    "filter_labels",
     "filter_options",
     "final_error",
     "is_particle_filter",

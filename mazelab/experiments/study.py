@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from mazelab.experiments.kidnapping import RECOVERY_VARIANTS, recovery_steps, relocalised
-from mazelab.experiments.runs import final_error, mean_ess, mean_particle_count, run_filters
+from mazelab.experiments.runs import filter_labels, final_error, mean_ess, mean_particle_count, run_filters
 from mazelab.maze import STATION_WALL, Maze
 from mazelab.maze_generator import generate_maze
 from mazelab.model import check_model_parameters
@@ -210,7 +210,7 @@ def run_task(task: RunTask, visualize: Any = False) -> list[RunRecord]:
     s = task.setting
     world = s.maze.world(task.maze_seed)
     robot = Robot(s.sigma, s.delta, start_place(world, task.seed))
-    comparison = open_comparison(visualize, world, list(task.filters)) if visualize else None
+    comparison = open_comparison(visualize, world, filter_labels(task.filters)) if visualize else None
     try:
         with warnings.catch_warnings():  # the range warnings were shown once, by study_settings
             warnings.simplefilter("ignore", UserWarning)
