@@ -38,7 +38,7 @@ def test_two_files_with_one_class_name_do_not_clash(tmp_path):
 
 def test_run_with_a_plugin(capsys):
     assert main(["run", "--filter", REFERENCE, *QUICK, "--quiet", "--no-viz"]) == 0
-    assert "ReferenceFilter: final error" in capsys.readouterr().out
+    assert "ReferenceFilter: last-step error" in capsys.readouterr().out
 
 
 def test_compare_and_study_with_a_plugin(tmp_path, capsys):
