@@ -43,6 +43,7 @@ from mazelab.cli.options import (
     warn_in_one_line,
 )
 from mazelab.cli.replay import from_scenario, refuse_counts_for_replay, replay_seed
+from mazelab.cli.replay_filter import replay_filter_name, replay_options
 from mazelab.cli.reports import kidnap_report, particle_count_report, prepare_world, progress_printer, report_run
 from mazelab.cli.studies import accuracy, study, study_mazes
 from mazelab.cli.view import view
@@ -115,6 +116,7 @@ def demo(
 
 @app.command(short_help="One filter on a lost robot, or on a saved scenario.")
 def run(
+    ctx: typer.Context,
     maze: Annotated[str | None, typer.Option(help=f"a maze file or a name in mazes/ [default: {DEFAULT_MAZE}]")] = None,
     filter_name: Annotated[str, typer.Option("--filter", help="sir, apf, rpf, grid, ekf")] = "sir",
     particles: Annotated[
@@ -160,8 +162,11 @@ def run(
     no_viz: NoVizOption = False,
     max_drawn: MaxDrawnOption = DEFAULT_MAX_DRAWN,
 ) -> None:
-    """Run one filter: on a fresh lost robot, or replaying a saved scenario (--scenario)."""
+    """Run one filter: on a fresh lost robot, or replaying a saved scenario (--scenario): its filter
+    and options, unless --filter or an option is given (a line says what changed)."""
     visualize = visualization(viewer, rrd, web, no_viz, max_drawn)
+    stored = load_scenario(scenario) if scenario is not None else None
+    filter_name = replay_filter_name(ctx, stored, filter_name)
     options = filter_options(filter_name, resampling, recovery, sensor_resetting, alpha_slow, alpha_fast, kld)
     options.update(kalman_options(filter_name, init))
     options.update(estimate_options(filter_name, bandwidth, estimate))
@@ -170,8 +175,8 @@ def run(
     for path in (save_scenario_path, rrd):
         if path is not None:
             check_output_path(path, force)
-    if scenario is not None:
-        stored = load_scenario(scenario)
+    if stored is not None:
+        options = replay_options(ctx, stored, filter_name, options)
         refuse_counts_for_replay(stored, particles, steps, start_seed)
         world, robot, sigma, delta, init_particles = from_scenario(stored, maze, sigma, delta)
         seed = replay_seed(stored, seed)
