@@ -42,6 +42,7 @@ from mazelab.cli.options import (
     visualization,
     warn_in_one_line,
 )
+from mazelab.cli.provenance import remember_arguments, show_version
 from mazelab.cli.replay import from_scenario, refuse_counts_for_replay, replay_seed
 from mazelab.cli.replay_filter import replay_filter_name, replay_options
 from mazelab.cli.reports import kidnap_report, particle_count_report, prepare_world, progress_printer, report_run
@@ -85,6 +86,9 @@ def demo(
     no_viz: NoVizOption = False,
     max_drawn: MaxDrawnOption = DEFAULT_MAX_DRAWN,
     force: Annotated[bool, typer.Option("--force", help="replace an existing --rrd file")] = False,
+    version: Annotated[
+        bool, typer.Option("--version", is_eager=True, callback=show_version, help="the versions, then exit")
+    ] = False,
 ) -> None:
     """The paper's example: a lost robot, the SIR filter, 1500 particles, 200 steps."""
     if ctx.invoked_subcommand is not None:
@@ -359,6 +363,7 @@ def main(argv: list[str] | None = None) -> int:
     can neither hang nor interrupt the exit); called with `argv` (in-process), main puts the signal
     handlers back as it found them."""
     warnings.showwarning = warn_in_one_line
+    remember_arguments(argv)
     handlers = {sig: signal.getsignal(sig) for sig in STOP_SIGNALS}
     try:
         return _main(argv)
