@@ -21,6 +21,7 @@ from typing import Annotated, Any
 import typer
 
 from mazelab.atomic import WriteError, write_text_atomically
+from mazelab.cli.compare_outputs import compare_record_file, finish_compare, start_compare_record
 from mazelab.cli.maze import maze_app
 from mazelab.cli.options import (
     DEFAULT_DELTA,
@@ -277,6 +278,7 @@ def compare(
     seed: Annotated[int | None, typer.Option(help="the filters' seed (default: the scenario's)")] = None,
     csv_path: Annotated[Path | None, typer.Option("--csv", help="per-step errors, a column per filter")] = None,
     plot: Annotated[Path | None, typer.Option(help="the lab's error figure (.png; plot extra)")] = None,
+    traces: Annotated[Path | None, typer.Option(help="per-step rows of every filter (.csv, or .parquet)")] = None,
     force: Annotated[bool, typer.Option("--force", help="replace existing output files")] = False,
     kidnap_at: Annotated[
         int | None,
@@ -301,11 +303,15 @@ def compare(
     over the last 30 steps) and the steps it took."""
     visualize = visualization(viewer, rrd, web, no_viz, max_drawn)
     check_outputs(csv_path, plot, force, rrd)
+    record_file = compare_record_file(csv_path, plot, traces, force)  # a JSON record beside the outputs
     stored = load_scenario(scenario)
     world, robot, sigma, delta, particles = from_scenario(stored, maze, sigma, delta)
     prepare_world(world)
     seed = replay_seed(stored, seed)
     names = parse_filters(filters)
+    parameters = {"filters": names, "sigma": sigma, "delta": delta, "seed": seed, "kidnap_at": kidnap_at, "kld": kld,
+                  "recovery": recovery or sensor_resetting, "bandwidth": bandwidth, "estimate": estimate}  # fmt: skip
+    recorder = start_compare_record(scenario, parameters)
     typer.echo(
         f"{scenario.name}: {len(particles)} particles, {robot.recorded_steps} steps, "
         f"sigma {sigma:g}, delta {delta:g}, seed {seed}"
@@ -337,6 +343,7 @@ def compare(
         title = f"Localisation error: {scenario.name} (sigma {sigma:g}, delta {delta:g}, {len(particles)} particles)"
         plot_errors(results, plot, title)
         typer.echo(f"figure written to {plot}")
+    finish_compare(results, seed, traces, recorder, record_file)
 
 
 app.command(short_help="Lab step 14: a Monte Carlo parameter study.")(study)
