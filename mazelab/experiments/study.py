@@ -70,12 +70,16 @@ class MazeChoice:
 
 def file_mazes(paths: Sequence[str | Path], load: Any) -> list[MazeChoice]:
     """The MazeChoices of maze files: labelled by file name without .txt, or, where two files share a
-    name, by the path as given; `load(path)` reads a Maze. The same file twice counts once."""
+    name, by as many of their last folders as tell them apart (a/m, b/m); `load(path)` reads a Maze.
+    The same file twice counts once."""
     paths = list(dict.fromkeys(str(p) for p in paths))
-    stems = [Path(p).stem for p in paths]
-    labels = [
-        stem if stems.count(stem) == 1 else str(Path(p).with_suffix("")) for p, stem in zip(paths, stems, strict=True)
-    ]
+    parts = [Path(p).with_suffix("").parts for p in paths]
+    labels = [p[-1] for p in parts]
+    for depth in range(2, max(map(len, parts), default=1) + 1):
+        clashing = {label for label in labels if labels.count(label) > 1}
+        if not clashing:
+            break
+        labels = ["/".join(p[-depth:]) if label in clashing else label for p, label in zip(parts, labels, strict=True)]
     return [MazeChoice.from_maze(label, load(p), p) for label, p in zip(labels, paths, strict=True)]
 
 
