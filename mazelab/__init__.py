@@ -4,8 +4,11 @@ an extended Kalman filter as the baseline.
 The paper's three files (particle_filter.py, draw.py, main.py) are faces over this package. Its
 modules, bottom to top (each imports only those above it in this list):
 
-    checks, lookup, maze, model, weights, resampling, robot   the model: maze, motion, measurement, robot
-    recovery, filters, grid_filter, kalman, registry          the filters
+    checks, limits, lookup, maze, model, modes                the model: maze, motion, measurement, modes
+    seeding                                                   the one rule from a seed to a run's random streams
+    weights, resampling, regularisation, robot                weighted clouds, resampling, the RPF's kernel, robot
+    contract                                                  what every filter provides (and declares)
+    recovery, cloud, filters, grid_filter, kalman, registry   the filters (cloud: one engine for 1 or R runs)
     atomic, scenario, simulation                              saved scenarios and the simulation loop
     viz/                                                      drawing in Rerun (never imported by the above)
     lab                                                       run_model and simulate, with drawing

@@ -272,9 +272,14 @@ class ParticleFilter:
         return self._one(self.run_weights)
 
     @property
+    def run_ess(self) -> np.ndarray:
+        """N_eff = 1 / sum_i W_i^2 per run, shape (R,)."""
+        return self._cached("ess", lambda: effective_sample_size(self.run_weights))
+
+    @property
     def ess(self) -> float | np.ndarray:
         """N_eff = 1 / sum_i W_i^2: a float for one run, (R,) for R runs."""
-        return self._one(self._cached("ess", lambda: effective_sample_size(self.run_weights)))
+        return float(self.run_ess[0]) if self.runs == 1 else self.run_ess
 
     @property
     def mean(self) -> np.ndarray:
@@ -399,7 +404,9 @@ def _generators(rng: Any, runs: int) -> list[np.random.Generator]:
 
 def per_run(value: float | np.ndarray, runs: int) -> np.ndarray:
     """A step's compass angle or measurement as one value per run, float64 (R,)."""
-    return np.broadcast_to(np.asarray(value, dtype=float), (runs,))
+    if isinstance(value, np.ndarray):
+        return np.broadcast_to(value.astype(float, copy=False), (runs,))
+    return np.full(runs, float(value))
 
 
 __all__ = ["ParticleFilter", "per_run"]

@@ -17,7 +17,7 @@ import numpy as np
 from mazelab.cloud import ParticleFilter, per_run
 from mazelab.model import LOG_UNDERFLOW, PARTICLE_DTYPE, RPF_THRESHOLD, take_particles
 from mazelab.regularisation import Kernel, check_bandwidth, gaussian_jitter, mixture_kernel, optimal_bandwidth
-from mazelab.weights import exp_in_place, log_sum_exp, weighted_covariance
+from mazelab.weights import log_sum_exp, weighted_covariance, weights_from_logs
 
 
 class SIRParticleFilter(ParticleFilter):
@@ -26,7 +26,15 @@ class SIRParticleFilter(ParticleFilter):
     name = "SIRParticleFilter"
 
     def step(self, compass_angle: float | np.ndarray, z: float | np.ndarray) -> None:
-        """One step of Algorithm 4 (see ParticleFilter.step for the parameters)."""
+        """One step of Algorithm 4.
+
+        Parameters
+        ----------
+        compass_angle : float, or array (R,)
+            th0_k, the heading the compass reports for this step (radians), of each run.
+        z : float, or array (R,)
+            z_k, the measured distance to the nearest station (map units), of each run.
+        """
         compass_angle, z = per_run(compass_angle, self.runs), per_run(z, self.runs)
         every_run = np.arange(self.runs)
         # RESAMPLE (end of Alg. 4, previous step), then x_k^i ~ p(x_k | x_{k-1}^i)
@@ -46,38 +54,47 @@ class AuxiliaryParticleFilter(ParticleFilter):
     name = "AuxiliaryParticleFilter"
 
     def step(self, compass_angle: float | np.ndarray, z: float | np.ndarray) -> None:
-        """One step of Algorithm 5 (see ParticleFilter.step for the parameters)."""
+        """One step of Algorithm 5.
+
+        Parameters
+        ----------
+        compass_angle : float, or array (R,)
+            th0_k, the heading the compass reports for this step (radians), of each run.
+        z : float, or array (R,)
+            z_k, the measured distance to the nearest station (map units), of each run.
+        """
         compass_angle, z = per_run(compass_angle, self.runs), per_run(z, self.runs)
         mu, _ = self.propagate(self.positions, compass_angle)  # mu_k^i ~ p(x_k | x_{k-1}^i)
-        log_mu_likelihood = self.likelihood(z, mu)
-        first_stage = self._log_w + log_mu_likelihood  # w_k^i ∝ p(z_k | mu_k^i) w_{k-1}^i
-        log_first_total = np.atleast_1d(log_sum_exp(first_stage))  # log F, F = sum_i W_{k-1}^i p(z_k | mu_k^i)
-        lost = log_first_total < LOG_UNDERFLOW  # no mu explains z: these runs restart from the prior
-        drawn = np.flatnonzero(~lost)
+        log_mu_lik = self.likelihood(z, mu)
+        first_stage = self._log_w + log_mu_lik  # w_k^i ∝ p(z_k | mu_k^i) w_{k-1}^i
+        log_F = np.atleast_1d(log_sum_exp(first_stage))  # F = sum_i W_{k-1}^i p(z_k | mu_k^i)
+        lost = log_F < LOG_UNDERFLOW  # no mu explains z_k: these runs restart from the prior
+        drawn, second_stage = np.flatnonzero(~lost), None
         if len(drawn):
             # i^j ~ the first stage, then x_k^j ~ p(x_k | x_{k-1}^{i^j})
-            with np.errstate(invalid="ignore"):  # a lost run's row is -inf - -inf; it is not drawn from
-                first_weights = exp_in_place(first_stage - log_first_total[:, None])
+            first_weights = weights_from_logs(first_stage, log_F)
             x, headings, ancestors, injected = self.draw_particles(first_weights, *self.motion(compass_angle), drawn)
             self.replace_runs(x, headings, drawn)
             log_lik = self.likelihood(z[drawn], x)
-            second_stage = log_lik - log_mu_likelihood.ravel().take(ancestors).reshape(
-                len(drawn), -1
-            )  # p(z|x^j) / p(z|mu^{i^j})
-        if self.recovery is None:
-            self._set_weights(self.all_runs(second_stage if len(drawn) else None, drawn), z, lost)
-        elif lost[0]:
-            self._set_weights(self._log_w, z, lost)
-            self.track_likelihood(log_first_total, z)
-        else:
-            # On the scale of p(z_k | z_1:k-1): F p(z|x^j) / p(z|mu^{i^j}), whose mean is Pitt and
-            # Shephard's estimate of it; an injected particle has no ancestor and carries p(z|x^j).
-            log_w = second_stage + log_first_total.astype(second_stage.dtype)[:, None]
-            if injected is not None:
-                log_w = np.where(injected, log_lik, log_w)
-            self._set_weights(log_w, z)
-            self.track_likelihood(log_sum_exp(log_w) - math.log(self.count), z)
+            log_mu_ancestor = log_mu_lik.ravel().take(ancestors).reshape(len(drawn), -1)
+            second_stage = log_lik - log_mu_ancestor  # w_k^j = p(z_k | x_k^j) / p(z_k | mu_k^{i^j})
+            if self.recovery is not None:
+                second_stage = predictive_scale(second_stage, log_F, log_lik, injected)
+        log_w = self.all_runs(second_stage, drawn)
+        self._set_weights(log_w, z, lost)  # normalise; the lost runs restart
+        if self.recovery is not None:  # w_avg of this step (one run)
+            self.track_likelihood(log_F if lost[0] else log_sum_exp(log_w) - math.log(self.count), z)
         self.steps_done += 1
+
+
+def predictive_scale(
+    second_stage: np.ndarray, log_F: np.ndarray, log_lik: np.ndarray, injected: np.ndarray | None
+) -> np.ndarray:
+    """The APF's weights on the scale of p(z_k | z_1:k-1), for recovery's w_avg: F p(z|x^j) / p(z|mu^{i^j}),
+    whose mean is Pitt and Shephard's estimate of it; an injected particle has no ancestor and carries
+    p(z|x^j). Normalising them gives the second-stage weights again."""
+    log_w = second_stage + log_F.astype(second_stage.dtype)[:, None]
+    return log_w if injected is None else np.where(injected, log_lik, log_w)
 
 
 class RegularizedParticleFilter(ParticleFilter):
@@ -113,11 +130,17 @@ class RegularizedParticleFilter(ParticleFilter):
         return self._one(self._regularised)
 
     def step(self, compass_angle: float | np.ndarray, z: float | np.ndarray) -> None:
-        """One step of Algorithm 6 (see ParticleFilter.step for the parameters)."""
+        """One step of Algorithm 6.
+
+        Parameters
+        ----------
+        compass_angle : float, or array (R,)
+            th0_k, the heading the compass reports for this step (radians), of each run.
+        z : float, or array (R,)
+            z_k, the measured distance to the nearest station (map units), of each run.
+        """
         compass_angle, z = per_run(compass_angle, self.runs), per_run(z, self.runs)
-        degenerate = (
-            np.atleast_1d(self.ess) < self.threshold * self.count
-        )  # IF N_eff < N_T (end of Alg. 6, previous step)
+        degenerate = self.run_ess < self.threshold * self.count  # IF N_eff < N_T (end of Alg. 6, previous step)
         if degenerate.any():
             self.regularise(np.flatnonzero(degenerate))
         elif self.injection_probability > 0:  # recovery: lost, though the weights have not degenerated

@@ -76,6 +76,15 @@ class GridBayesFilter:
         return self.free / self.free.sum()
 
     def step(self, compass_angle: float, z: float) -> None:
+        """One step of the exact Bayes filter: predict, then update.
+
+        Parameters
+        ----------
+        compass_angle : float
+            th0_k, the heading the compass reports for this step (radians).
+        z : float
+            z_k, the measured distance to the nearest station (map units).
+        """
         self.density = self.predict(self.density, compass_angle)  # p(x_k | z_1:k-1), Chapman-Kolmogorov
         self.update(z)  # p(x_k | z_1:k) ∝ p(z_k | x_k) p(x_k | z_1:k-1)
         self.steps_done += 1

@@ -84,7 +84,15 @@ class ExtendedKalmanFilter:
         self.reinitialised_at: list[int] = []  # never: a Kalman filter has no "no hypothesis explains z"
 
     def step(self, compass_angle: float, z: float) -> None:
-        """Predict with compass angle th0_k, then update with the range z_k."""
+        """Predict with compass angle th0_k, then update with the range z_k.
+
+        Parameters
+        ----------
+        compass_angle : float
+            th0_k, the heading the compass reports for this step (radians).
+        z : float
+            z_k, the measured distance to the nearest station (map units).
+        """
         self.predict(compass_angle)
         self.update(z)
         self.steps_done += 1

@@ -58,10 +58,13 @@ def systematic_resample_runs(weights: np.ndarray, uniforms: np.ndarray, count: i
     ends = below.astype(np.int64)
     ends[:, 0], ends[:, -1] = 0, count  # the last guards against round-off leaving cumsum(W) short of 1
     np.minimum(ends, count, out=ends)  # ends >= 0 already
-    bins = ends[:, 1:-1] + (count + 1) * np.arange(runs)[:, None]  # each run counts in its own bins
+    bins = ends[:, 1:-1]
+    if runs > 1:  # each run counts in its own bins
+        bins = bins + (count + 1) * np.arange(runs)[:, None]
     starts = np.bincount(bins.ravel(), minlength=runs * (count + 1)).reshape(runs, count + 1)[:, :count]
     ancestors = np.cumsum(starts, axis=1)  # particle i repeated ends[i + 1] - ends[i] times, sorted
-    ancestors += size * np.arange(runs)[:, None]
+    if runs > 1:
+        ancestors += size * np.arange(runs)[:, None]
     return ancestors.ravel()
 
 

@@ -10,8 +10,6 @@ A study's root seed gives run r the same seeds in every setting (common random n
 the number of runs or workers (`study_seeds`).
 """
 
-from __future__ import annotations
-
 from typing import Any, NamedTuple
 
 import numpy as np

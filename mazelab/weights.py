@@ -10,16 +10,25 @@ def log_sum_exp(log_w: np.ndarray) -> float | np.ndarray:
     """log(sum(exp(log_w))) along the last axis without overflow or underflow; -inf where every entry
     is -inf. A float for one run (N,), an array (R,) for R runs (R, N)."""
     top = log_w.max(axis=-1, keepdims=True)  # the array methods skip np.max's dispatch: a few us a call
+    finite = np.isfinite(top[..., 0])
     with np.errstate(invalid="ignore"):  # rows whose top is -inf give NaN here and -inf below
         shifted = np.subtract(log_w, top)
         totals = top[..., 0] + np.log(np.exp(shifted, out=shifted).sum(axis=-1))
-    totals = np.where(np.isfinite(top[..., 0]), totals, top[..., 0]).astype(float)
-    return float(totals) if log_w.ndim == 1 else totals
+    if not finite.all():
+        totals = np.where(finite, totals, top[..., 0])
+    return float(totals) if log_w.ndim == 1 else totals.astype(float)
 
 
 def exp_in_place(values: np.ndarray) -> np.ndarray:
     """exp(values), written over `values` (a temporary of the caller's): no second array."""
     return np.exp(values, out=values)
+
+
+def weights_from_logs(log_w: np.ndarray, log_totals: np.ndarray) -> np.ndarray:
+    """Normalised weights exp(log w - log total) of R runs (R, N), totals (R,); a run whose total is
+    -inf gets NaNs (the caller does not draw from it)."""
+    with np.errstate(invalid="ignore"):
+        return exp_in_place(np.subtract(log_w, log_totals[:, None]))
 
 
 def effective_sample_size(weights: np.ndarray) -> float | np.ndarray:
@@ -39,7 +48,9 @@ def weighted_mean(weights: np.ndarray, points: np.ndarray) -> np.ndarray:
     """sum_i W_i x_i per run, float64: (2,) for weights (N,), (R, 2) for weights (R, N)."""
     W = np.atleast_2d(weights)
     w = W.astype(points.dtype, copy=False)
-    means = np.stack([(w * c).sum(axis=1) for c in _columns(points, len(W))], axis=1).astype(float)
+    means = np.empty((len(W), 2))
+    for column, c in enumerate(_columns(points, len(W))):
+        means[:, column] = (w * c).sum(axis=1)  # summed in the points' dtype, then float64
     return means[0] if weights.ndim == 1 else means
 
 
@@ -74,4 +85,5 @@ __all__ = [
     "mass_within",
     "weighted_covariance",
     "weighted_mean",
+    "weights_from_logs",
 ]

@@ -18,7 +18,6 @@ import sys
 from collections.abc import Iterable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -191,7 +190,9 @@ def format_recovery_table(rows: Iterable[RecoveryRow]) -> str:
 
 
 if __name__ == "__main__":
-    maze = Maze.from_file(Path(__file__).resolve().parent / "mazes" / "maze_10x10.txt")
+    from mazelab.mazes import load_maze
+
+    maze = load_maze("maze_10x10")
     count = int(sys.argv[1]) if len(sys.argv) > 1 else 40
     print(format_recovery_table(recovery_table(maze, runs=count, workers=2)))
 

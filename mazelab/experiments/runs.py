@@ -15,7 +15,6 @@ import numpy as np
 
 from mazelab.cloud import ParticleFilter
 from mazelab.contract import takes
-from mazelab.experiments.kidnapping import recovery_steps, relocalised
 from mazelab.maze import Maze
 from mazelab.recovery import Recovery
 from mazelab.registry import resolve_filter
@@ -115,19 +114,11 @@ def mean_particle_count(result: RunResult) -> float:
     return float(np.mean(result.extras["particle_count"]))
 
 
-def kidnap_figures(result: RunResult) -> tuple[bool | None, int | None]:
-    """(re-localised, steps to recover) of a run with a kidnapping; (None, None) without one."""
-    if result.kidnap_at is None:
-        return None, None
-    return relocalised(result), recovery_steps(result)
-
-
 __all__ = [
     "FINAL_SHARE",
     "filter_options",
     "final_error",
     "is_particle_filter",
-    "kidnap_figures",
     "mean_ess",
     "mean_particle_count",
     "parse_filters",
