@@ -44,19 +44,17 @@ from mazelab.viz.style import DEFAULT_MAX_DRAWN
 
 
 def study(
-    maze: Annotated[
-        str | None, typer.Option(help=f"maze files or names, comma-separated [default: {DEFAULT_MAZE}]")
-    ] = None,
+    maze: Annotated[str | None, typer.Option(help=f"maze files or names, a list [default: {DEFAULT_MAZE}]")] = None,
     maze_size: Annotated[str | None, typer.Option(help="generated mazes ROWSxCOLUMNS, comma-separated")] = None,
     stations: Annotated[str | None, typer.Option(help="generated mazes' station blocks, comma-separated")] = None,
     wall_share: Annotated[str | None, typer.Option(help="generated mazes' share of walls, comma-separated")] = None,
     sigma: Annotated[str, typer.Option(help="noise std sigma, comma-separated")] = str(DEFAULT_SIGMA),
-    delta: Annotated[str, typer.Option(help="compass error width, comma-separated")] = str(DEFAULT_DELTA),
+    delta: Annotated[str, typer.Option(help="compass error, comma-separated")] = str(DEFAULT_DELTA),
     particles: Annotated[str, typer.Option(help="particle counts, comma-separated")] = str(DEFAULT_PARTICLE_COUNT),
     threshold: Annotated[str, typer.Option(help="RPF's N_T / N_S, comma-separated")] = str(RPF_THRESHOLD),
-    filters: Annotated[str, typer.Option(help="sir, apf, rpf, grid, ekf, comma-separated")] = "sir,apf,rpf",
+    filters: Annotated[str, typer.Option(help="sir, apf, rpf, grid, ekf, a list")] = "sir,apf,rpf",
     kidnap_at: Annotated[int | None, typer.Option(min=1, help="carry the robot elsewhere at this step")] = None,
-    recovery: Annotated[str, typer.Option(help="none, augmented, sensor, comma-separated")] = "none",
+    recovery: Annotated[str, typer.Option(help="none, augmented or sensor, a list")] = "none",
     kld: Annotated[bool, typer.Option("--kld", help="KLD-sampling (--particles is the most)")] = False,
     bandwidth: Annotated[str, typer.Option(help="RPF kernels: optimal, multimodal, h", show_default=False)] = "optimal",
     estimate: EstimateOption = "mean",
@@ -68,14 +66,10 @@ def study(
     csv_path: Annotated[Path | None, typer.Option("--csv", help="one row per run and filter")] = None,
     plot: Annotated[Path | None, typer.Option(help="error against the varied parameters (.png)")] = None,
     traces: Annotated[Path | None, typer.Option(help="per-step rows of every run (.csv, or .parquet)")] = None,
-    record: Annotated[
-        Path | None, typer.Option(help="the study's JSON record [default: beside --csv, e.g. study.record.json]")
-    ] = None,
-    resume: Annotated[
-        bool, typer.Option("--resume", help="run only the rows missing from --csv (or more --runs)")
-    ] = False,
+    record: Annotated[Path | None, typer.Option(help="JSON record [default: CSV.record.json]")] = None,
+    resume: Annotated[bool, typer.Option("--resume", help="run only the rows missing from --csv")] = False,
     force: Annotated[bool, typer.Option("--force", help="replace existing output files")] = False,
-    draw_run: Annotated[int, typer.Option(min=1, help="the run drawn with --viewer, --rrd or --web")] = 1,
+    draw_run: Annotated[int, typer.Option(help="the run --viewer/--rrd/--web draw", show_default=False)] = 1,
     viewer: ViewerOption = False,
     rrd: RrdOption = None,
     web: WebOption = False,
@@ -84,11 +78,8 @@ def study(
 ) -> None:
     """Lab step 14: a Monte Carlo study over every combination of the values given.
 
-    Each setting gets R seeded runs, every filter seeing the same scenario in a run, and each filter
-    runs once per value of the options it takes. The table gives per setting and filter the mean and
-    median final error (last 20% of the steps) with 95% bootstrap intervals, the share converged with
-    its Wilson interval and the median convergence step; a JSON record of the study goes beside its
-    outputs (README: "Parameter studies")."""
+    Each filter runs once per value of its own options; a JSON record goes beside the outputs
+    (README: "Parameter studies")."""
     visualize = visualization(viewer, rrd, web, no_viz, max_drawn) if viewer or web or rrd is not None else False
     record_file = record if record is not None else next((record_path(p) for p in (csv_path, plot, traces) if p), None)
     recorded = _check_resume(csv_path, record_file) if resume else None
