@@ -1,6 +1,6 @@
 """Per-step traces (`study --traces`, `compare --traces`): one row per run, filter and step, in long
 format, so that pandas reads them directly (`pandas.read_csv`, or `read_parquet` for a .parquet file,
-which needs pyarrow: the `parquet` extra). Columns: TRACE_COLUMNS."""
+which needs pyarrow). Columns: TRACE_COLUMNS."""
 
 from __future__ import annotations
 
@@ -32,7 +32,7 @@ TRACE_COLUMNS = [
     "step_ms",  # the filter's own time for the step
     "particle_count",
 ]
-PARQUET_HINT = 'a .parquet trace file needs pyarrow: pip install -e ".[parquet]" (or give a .csv path)'
+PARQUET_HINT = "a .parquet trace file needs pyarrow (pip install pyarrow); or give a .csv path"
 
 
 def check_trace_path(path: Path) -> None:
