@@ -82,11 +82,17 @@ class AccuracyRecord:
     maze_seed: int | None = None
 
 
+def distance_to_exact(estimates: np.ndarray, exact: np.ndarray) -> float:
+    """The mean distance between a filter's estimates and the exact posterior means (steps, 2) over the
+    second half of the steps (after the first localisation), map units."""
+    window = slice(len(exact) // 2, len(exact))
+    return float(np.hypot(*(estimates - exact)[window].T).mean())
+
+
 def run_accuracy_task(task: AccuracyTask) -> list[AccuracyRecord]:
     """The grid filter and every other filter on one scenario; their distances to the grid's mean."""
     world = task.choice.world(task.maze_seed)
     robot = Robot(task.sigma, task.delta, start_place(world, task.seed))
-    window = slice(task.steps // 2, task.steps)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)  # sigma or delta outside the lab's range: said once by the CLI
         exact = simulate(robot, world, task.sigma, task.delta, task.particles, task.steps, None, "grid", seed=task.seed)
@@ -98,7 +104,7 @@ def run_accuracy_task(task: AccuracyTask) -> list[AccuracyRecord]:
             else:
                 args = (robot, world, task.sigma, task.delta, None, task.steps, particles, name)
                 result = simulate(*args, seed=task.seed, **options)
-            distance = float(np.hypot(*(result.estimates - exact.estimates)[window].T).mean())
+            distance = distance_to_exact(result.estimates, exact.estimates)
             converged = convergence_step(result.errors)
             records.append(AccuracyRecord(task.maze, task.seed, label, distance, converged, task.run, task.maze_seed))
     return records
@@ -226,6 +232,7 @@ __all__ = [
     "accuracy_summary",
     "accuracy_table",
     "accuracy_tasks",
+    "distance_to_exact",
     "run_accuracy",
     "run_accuracy_task",
 ]
