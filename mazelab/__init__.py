@@ -17,4 +17,16 @@ modules, bottom to top (each imports only those above it in this list):
     cli/                                                      the command line (`mazelab`, `python main.py`)
 """
 
+from typing import Any
+
 __version__ = "0.2.0"
+
+
+def __getattr__(name: str) -> Any:
+    """`mazelab.study(...)`, the Python entry point of studies (mazelab.experiments.api), imported on
+    first use so that `import mazelab` stays light."""
+    if name in ("study", "StudyResult"):
+        from mazelab.experiments import api
+
+        return getattr(api, name)
+    raise AttributeError(f"module 'mazelab' has no attribute {name!r}")

@@ -123,6 +123,25 @@ def check_options(filter_class: type, options: Mapping[str, Any], *, spelled: Ma
             raise ValueError(f"{filter_class.name} does not take the option {shown} (it takes: {takes})")
 
 
+def options_for(
+    filter_classes: Sequence[type], given: Mapping[str, Any], *, spelled: Mapping[str, str] | None = None
+) -> dict[str, dict[str, Any]]:
+    """Per filter (by `name`), the given options (None: not given) that it declares; several filters
+    share the options given, each taking its own. An option that none of them declares is refused in
+    one line naming the option (as the user `spelled` it), the filters and what they take."""
+    spelled = spelled or {}
+    chosen = {option: value for option, value in given.items() if value is not None}
+    for option in chosen:
+        if not any(takes(cls, option) for cls in filter_classes):
+            names = " and ".join(cls.name for cls in filter_classes)
+            offered = [spelled.get(o, o) for o in given if any(takes(cls, o) for cls in filter_classes)]
+            they = "they take" if len(filter_classes) > 1 else "it takes"
+            take_list = f"; {they} {', '.join(offered)}" if offered else ""
+            verb = "do" if len(filter_classes) > 1 else "does"
+            raise ValueError(f"{names} {verb} not take {spelled.get(option, option)}{take_list}")
+    return {cls.name: {o: v for o, v in chosen.items() if takes(cls, o)} for cls in filter_classes}
+
+
 def takes(filter_class: type, option: str) -> bool:
     """Whether `filter_class` declares `option`."""
     return option in filter_class.options
@@ -137,5 +156,6 @@ __all__ = [
     "check_filter",
     "check_options",
     "missing_parts",
+    "options_for",
     "takes",
 ]

@@ -21,6 +21,7 @@ from mazelab.contract import check_options, takes
 from mazelab.limits import check_particles, check_steps
 from mazelab.maze import Maze
 from mazelab.model import CONVERGENCE_RADIUS, DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, check_model_parameters
+from mazelab.option_json import options_to_json
 from mazelab.plugins import raise_for_student, student_code
 from mazelab.registry import resolve_filter
 from mazelab.robot import Robot
@@ -105,6 +106,7 @@ class RunInputs:
     filtering_algorithm: str
     kidnap_at: int | None = None
     kidnap_position: tuple[float, float] | None = None
+    filter_options: dict[str, Any] | None = None  # every option of the filter, defaults filled in (JSON form)
 
     @classmethod
     def of_run(
@@ -117,8 +119,10 @@ class RunInputs:
         seed: int,
         steps: int,
         name: str,
+        filter_options: dict[str, Any] | None = None,
     ) -> RunInputs:
-        """The inputs of a run of `steps` steps by `robot` (its recorded walk is copied)."""
+        """The inputs of a run of `steps` steps by `robot` (its recorded walk is copied); `filter_options`
+        the filter's options in JSON form (mazelab.option_json), or None."""
         kidnapped = robot.kidnap_at is not None and robot.kidnap_at <= steps
         return cls(
             robot.initial_position,
@@ -134,6 +138,7 @@ class RunInputs:
             name,
             robot.kidnap_at if kidnapped else None,
             robot.kidnap_position if kidnapped else None,
+            filter_options,
         )
 
     def scenario(self) -> Scenario:
@@ -153,6 +158,7 @@ class RunInputs:
             seed=self.seed,
             steps=self.steps,
             filtering_algorithm=self.filtering_algorithm,
+            filter_options=self.filter_options,
             **kidnapping,
         )
 
@@ -317,7 +323,8 @@ def simulate(
         raise_for_student(error, filter_class, k + 1)  # a user's filter: its own frames and the step (plugins)
     finally:
         view.close()
-    inputs = RunInputs.of_run(robot, particles, world, sigma, delta, seed, steps, filter_class.name)
+    stored = options_to_json({**filter_class.options, **filter_options})  # every option, defaults filled in
+    inputs = RunInputs.of_run(robot, particles, world, sigma, delta, seed, steps, filter_class.name, stored)
     return RunResult(
         filter_class.name,
         true_positions,

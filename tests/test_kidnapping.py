@@ -64,7 +64,7 @@ def test_the_kidnapped_robot_moves_from_its_new_place(paper_world):
     assert tuple(result.true_positions[11]) == expected
     steps = np.hypot(*np.diff(result.true_positions, axis=0).T)
     np.testing.assert_allclose(np.delete(steps, 10), ROBOT_SPEED, rtol=1e-12)  # every step but the jump
-    assert scenario.format_version == 2
+    assert scenario.format_version == 3  # it stores the filter's options too
     assert kidnapped_run(paper_world).scenario.kidnap_position == scenario.kidnap_position  # seeded
     assert kidnapped_run(paper_world, seed=6).scenario.kidnap_position != scenario.kidnap_position
 
@@ -73,7 +73,7 @@ def test_every_filter_replaying_a_saved_kidnapping_sees_the_same_walk(tmp_path, 
     first = kidnapped_run(paper_world)
     path = save_scenario(first.scenario, tmp_path / "k.json")
     data = json.loads(path.read_text())
-    assert data["format_version"] == 2 and data["kidnap_at"] == 12
+    assert data["format_version"] == 3 and data["kidnap_at"] == 12
     scenario = load_scenario(path)
     assert scenario == first.scenario
     for name in PARTICLE_FILTERS:
@@ -104,7 +104,9 @@ def test_a_walk_recorded_without_kidnapping_cannot_be_kidnapped(paper_world):
 def test_scenarios_without_a_kidnapping_stay_version_1(tmp_path, paper_world):
     result = simulate(Robot(0.3, 0.5, (3.5, 1.5)), paper_world, 0.3, 0.5, 50, 10, seed=2)
     data = json.loads(save_scenario(result.scenario, tmp_path / "s.json").read_text())
-    assert data["format_version"] == 1 and "kidnap_at" not in data
+    assert data["format_version"] == 3 and "kidnap_at" not in data  # version 3: it stores the options
+    del data["format_version"], data["filter_options"]
+    assert Scenario.model_validate(data).format_version == 1
 
 
 @pytest.mark.parametrize(

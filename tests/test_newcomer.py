@@ -125,7 +125,7 @@ def test_accuracy_runs_on_the_named_shipped_mazes_not_on_whatever_is_in_mazes(tm
 
     seen = []
     monkeypatch.setattr(accuracy, "accuracy_tasks", lambda named, *args: seen.extend(n for n, _ in named) or [])
-    monkeypatch.setattr(accuracy, "run_accuracy", lambda tasks, workers: [])
+    monkeypatch.setattr(accuracy, "run_accuracy", lambda tasks, *args: [])
     monkeypatch.setattr(accuracy, "accuracy_table", lambda records: "")
     assert main(["accuracy", "--runs", "1"]) == 0
     assert seen == list(LAB_MAZES) and "random_20x20" not in seen

@@ -284,3 +284,14 @@ def test_an_option_some_chosen_filters_take_goes_to_those(tmp_path, capsys):
 
     args = ["study", "--maze", "paper_5x5", "--filters", "sir,grid", "--estimate", "mode", "--runs", "1"]
     assert main([*args, "--steps", "4", "--particles", "50", "--seed", "1", "--no-viz", "--workers", "1"]) == 0
+
+
+# -- accuracy: the second half of the steps --------------------------------------------------------
+def test_accuracy_averages_the_distance_over_the_second_half_of_the_steps():
+    """The first localisation is not accuracy: 10 steps 3 units off, then 10 steps 0.1 off gives 0.1."""
+    from mazelab.experiments.accuracy import distance_to_exact
+
+    exact = np.zeros((20, 2))
+    estimates = np.r_[np.full((10, 2), [3.0, 0.0]), np.full((10, 2), [0.0, 0.1])]
+    assert distance_to_exact(estimates, exact) == pytest.approx(0.1)
+    assert distance_to_exact(estimates[:19], exact[:19]) == pytest.approx((3.0 + 9 * 0.1) / 10)  # steps 10-19

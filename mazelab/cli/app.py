@@ -22,6 +22,7 @@ from typing import Annotated
 import typer
 
 from mazelab.atomic import WriteError, write_text_atomically
+from mazelab.cli.compare_outputs import compare_record_file, finish_compare, start_compare_record
 from mazelab.cli.exercise import exercise_app
 from mazelab.cli.filter_options import options_per_filter
 from mazelab.cli.hints import (
@@ -53,7 +54,9 @@ from mazelab.cli.options import (
     visualization,
     warn_in_one_line,
 )
+from mazelab.cli.provenance import remember_arguments, show_version
 from mazelab.cli.replay import from_scenario, refuse_counts_for_replay, replay_seed
+from mazelab.cli.replay_filter import replay_filter_name, replay_options
 from mazelab.cli.reports import kidnap_report, particle_count_report, prepare_world, progress_printer, report_run
 from mazelab.cli.studies import accuracy, study, study_mazes
 from mazelab.cli.view import view
@@ -96,6 +99,9 @@ def demo(
     no_viz: NoVizOption = False,
     max_drawn: MaxDrawnOption = DEFAULT_MAX_DRAWN,
     force: Annotated[bool, typer.Option("--force", help="replace an existing --rrd file")] = False,
+    version: Annotated[
+        bool, typer.Option("--version", is_eager=True, callback=show_version, help="the versions, then exit")
+    ] = False,
 ) -> None:
     """The paper's example: a lost robot, the SIR filter, 1500 particles, 200 steps."""
     if ctx.invoked_subcommand is not None:
@@ -127,6 +133,7 @@ def demo(
 
 @app.command(short_help="One filter on a lost robot, or on a saved scenario.")
 def run(
+    ctx: typer.Context,
     maze: Annotated[
         str | None, typer.Option(metavar="MAZE", help=f"a maze file or a name in mazes/ [default: {DEFAULT_MAZE}]")
     ] = None,
@@ -178,9 +185,11 @@ def run(
     no_viz: NoVizOption = False,
     max_drawn: MaxDrawnOption = DEFAULT_MAX_DRAWN,
 ) -> None:
-    """Run one filter: on a fresh lost robot, or replaying a saved scenario (--scenario)."""
+    """Run one filter on a lost robot, or replay a saved scenario (--scenario) with its filter and
+    options."""
     visualize = visualization(viewer, rrd, web, no_viz, max_drawn)
-    check_filter_name(filter_name)
+    stored = load_scenario(scenario) if scenario is not None else None
+    filter_name = check_filter_name(replay_filter_name(ctx, stored, filter_name))
     given = {
         "resampling": resampling,
         "recovery": recovery_option(recovery, sensor_resetting, alpha_slow, alpha_fast),
@@ -193,8 +202,8 @@ def run(
     for path in (save_scenario_path, rrd):
         if path is not None:
             check_output_path(path, force)
-    if scenario is not None:
-        stored = load_scenario(scenario)
+    if stored is not None:
+        options = replay_options(ctx, stored, filter_name, options)
         refuse_counts_for_replay(stored, particles, steps, start_seed)
         world, robot, sigma, delta, init_particles = from_scenario(stored, maze, sigma, delta)
         seed = replay_seed(stored, seed)
@@ -252,6 +261,7 @@ def compare(
     seed: Annotated[int | None, typer.Option(help="the filters' seed (default: the scenario's)")] = None,
     csv_path: Annotated[Path | None, typer.Option("--csv", help="per-step errors, a column per filter")] = None,
     plot: Annotated[Path | None, typer.Option(help="the lab's error figure (.png; plot extra)")] = None,
+    traces: Annotated[Path | None, typer.Option(help="per-step rows of every filter (.csv, or .parquet)")] = None,
     force: Annotated[bool, typer.Option("--force", help="replace existing output files")] = False,
     kidnap_at: Annotated[
         int | None,
@@ -277,6 +287,7 @@ def compare(
     visualize = visualization(viewer, rrd, web, no_viz, max_drawn)
     check_filter_names(filters)
     check_outputs(csv_path, plot, force, rrd)
+    record_file = compare_record_file(csv_path, plot, traces, force)  # a JSON record beside the outputs
     stored = load_scenario(scenario)
     world, robot, sigma, delta, particles = from_scenario(stored, maze, sigma, delta)
     prepare_world(world)
@@ -289,6 +300,9 @@ def compare(
         "estimate": None if estimate is None else check_estimate(estimate),
     }
     options_per_filter(names, given)  # a flag that none of the filters takes: one line, before any work
+    parameters = {"filters": names, "sigma": sigma, "delta": delta, "seed": seed, "kidnap_at": kidnap_at, "kld": kld,
+                  "recovery": recovery or sensor_resetting, "bandwidth": bandwidth, "estimate": estimate}  # fmt: skip
+    recorder = start_compare_record(scenario, parameters)
     typer.echo(
         f"{scenario.name}: {len(particles)} particles, {robot.recorded_steps} steps, "
         f"sigma {sigma:g}, delta {delta:g}, seed {seed}"
@@ -317,6 +331,7 @@ def compare(
         title = f"Localisation error: {scenario.name} (sigma {sigma:g}, delta {delta:g}, {len(particles)} particles)"
         plot_errors(results, plot, title)
         typer.echo(f"figure written to {plot}")
+    finish_compare(results, seed, traces, recorder, record_file)
 
 
 app.command(short_help="Lab step 14: a Monte Carlo parameter study.")(study)
@@ -344,6 +359,7 @@ def main(argv: list[str] | None = None) -> int:
     can neither hang nor interrupt the exit); called with `argv` (in-process), main puts the signal
     handlers back as it found them."""
     warnings.showwarning = warn_in_one_line
+    remember_arguments(argv)
     handlers = {sig: signal.getsignal(sig) for sig in STOP_SIGNALS}
     try:
         return _main(argv)

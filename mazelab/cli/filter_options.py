@@ -11,7 +11,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from mazelab.cli.options import UserError
-from mazelab.contract import takes
+from mazelab.contract import options_for
 from mazelab.registry import resolve_filter
 
 # the flag that sets each filter option (what the user typed, for the messages)
@@ -27,20 +27,13 @@ FLAGS: Mapping[str, str] = {
 
 
 def options_per_filter(filter_names: Sequence[str | type], given: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
-    """Per filter (by class name), the given options (None: not given) that it declares.
-
-    `given` holds every filter option the command has a flag for. Raises UserError for an option
-    that no filter of the command declares, naming its flag, the filters and the flags they take."""
-    classes = [resolve_filter(name) for name in filter_names]
-    chosen = {name: value for name, value in given.items() if value is not None}
-    for option in chosen:
-        if not any(takes(cls, option) for cls in classes):
-            flag = FLAGS.get(option, option)
-            names = " and ".join(cls.name for cls in classes)
-            flags = [FLAGS.get(o, o) for o in given if any(takes(cls, o) for cls in classes)]
-            takes_list = f"; {'they take' if len(classes) > 1 else 'it takes'} {', '.join(flags)}" if flags else ""
-            raise UserError(f"{names} {'do' if len(classes) > 1 else 'does'} not take {flag}{takes_list}")
-    return {cls.name: {o: v for o, v in chosen.items() if takes(cls, o)} for cls in classes}
+    """Per filter (by class name), the given options (None: not given) that it declares; `given` holds
+    every filter option the command has a flag for. Raises UserError for an option that no filter of
+    the command declares, naming its flag, the filters and the flags they take."""
+    try:
+        return options_for([resolve_filter(name) for name in filter_names], given, spelled=FLAGS)
+    except ValueError as error:
+        raise UserError(str(error)) from None
 
 
 __all__ = ["FLAGS", "options_per_filter"]

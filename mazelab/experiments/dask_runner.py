@@ -9,8 +9,8 @@ import logging
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from mazelab.experiments.batch_runs import run_unit_safely
 from mazelab.experiments.study import RunFailure, RunTask
+from mazelab.experiments.units import run_unit_timed
 
 CONNECT_SECONDS = 3  # a scheduler that does not answer within this is reported unreachable
 
@@ -57,7 +57,7 @@ def run_on_dask(
     raise the stop again."""
     from distributed import as_completed
 
-    futures = dict(zip(client.map(run_unit_safely, units, pure=False), units, strict=True))
+    futures = dict(zip(client.map(run_unit_timed, units, pure=False), units, strict=True))
     taken: set[Any] = set()
 
     def take(future: Any) -> None:

@@ -19,7 +19,7 @@ from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager, suppress
 from typing import Any
 
-from mazelab.experiments.batch_runs import run_unit_safely, study_units
+from mazelab.experiments.batch_runs import study_units
 from mazelab.experiments.dask_runner import close_client, connect, run_on_dask
 from mazelab.experiments.study import (
     RunFailure,
@@ -28,6 +28,7 @@ from mazelab.experiments.study import (
     StudyOutcome,
     run_task,
 )
+from mazelab.experiments.units import run_unit_timed
 
 
 def default_workers() -> int:
@@ -80,7 +81,7 @@ def run_study(
         def keep_ignoring() -> bool:
             return ignore_signals_after_stop and outcome.interrupted
 
-        with _progress_bar(len(tasks), progress) as advance, _stop_signals(keep_ignoring):
+        with progress_bar(len(tasks), progress) as advance, _stop_signals(keep_ignoring):
             try:
                 drawn, rest = (list(tasks[:1]), list(tasks[1:])) if visualize else ([], list(tasks))
                 units = study_units(rest, 1 if client is not None else workers)
@@ -89,7 +90,7 @@ def run_study(
                 elif workers == 1 or len(units) <= 1:
                     _run_drawn(drawn, visualize, collect, advance)
                     for unit in units:
-                        collect(run_unit_safely(unit))
+                        collect(run_unit_timed(unit))
                         advance(len(unit))
                 else:
                     _run_in_pool(units, drawn, workers, visualize, collect, advance)
@@ -115,8 +116,12 @@ def _run_drawn(
 
 
 def _draw_task(task: RunTask, visualize: Any) -> list[RunRecord] | RunFailure:
+    started = time.perf_counter()
     try:
-        return run_task(task, visualize)
+        records = run_task(task, visualize)
+        for record in records:
+            record.run_seconds = time.perf_counter() - started
+        return records
     except Exception as error:
         return RunFailure(task, f"{type(error).__name__}: {error}")
 
@@ -138,7 +143,7 @@ def _run_in_pool(
 
     def hand_out() -> None:
         for unit in waiting:
-            running[pool.submit(run_unit_safely, unit)] = unit
+            running[pool.submit(run_unit_timed, unit)] = unit
             if len(running) >= 2 * workers:
                 return
 
@@ -270,8 +275,9 @@ def _signals_ignored() -> Iterator[None]:
 
 
 @contextmanager
-def _progress_bar(total: int, show: bool) -> Iterator[Callable[[], None]]:
-    """A rich progress bar on stderr (typer brings rich); yields the function that advances it."""
+def progress_bar(total: int, show: bool, what: str = "runs") -> Iterator[Callable[..., None]]:
+    """A rich progress bar on stderr (typer brings rich) over `total` `what`; yields the function that
+    advances it (by one, or by the count given)."""
     if not show:
         yield lambda count=1: None
         return
@@ -286,7 +292,7 @@ def _progress_bar(total: int, show: bool) -> Iterator[Callable[[], None]]:
     )
 
     columns = (
-        TextColumn("runs"),
+        TextColumn(what),
         BarColumn(),
         MofNCompleteColumn(),
         TimeElapsedColumn(),
@@ -294,7 +300,7 @@ def _progress_bar(total: int, show: bool) -> Iterator[Callable[[], None]]:
         TimeRemainingColumn(),
     )
     with Progress(*columns, console=Console(stderr=True), transient=False) as bar:
-        task = bar.add_task("runs", total=total)
+        task = bar.add_task(what, total=total)
         yield lambda count=1: bar.advance(task, count)
 
 
@@ -303,5 +309,6 @@ __all__ = [
     "StudyStopped",
     "default_workers",
     "die_with_parent",
+    "progress_bar",
     "run_study",
 ]
