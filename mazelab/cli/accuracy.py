@@ -30,7 +30,9 @@ def accuracy(
     stations: Annotated[str | None, typer.Option(help="generated mazes' station blocks, comma-separated")] = None,
     filters: Annotated[
         str | None,
-        typer.Option(help="sir, apf, rpf, ekf or FILE.py:Class, comma-separated [default: SIR, APF, both RPFs]"),
+        typer.Option(
+            metavar="NAMES", help="sir, apf, rpf, ekf or FILE.py:Class, comma-separated [default: SIR, APF, both RPFs]"
+        ),
     ] = None,
     sigma: Annotated[float, typer.Option(help="measurement noise std")] = DEFAULT_SIGMA,
     delta: Annotated[float, typer.Option(help="compass error width, radians")] = DEFAULT_DELTA,
