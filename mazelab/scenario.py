@@ -166,11 +166,12 @@ class ScenarioError(ValueError):
     """A scenario file that cannot be used; the message is one line naming the file and the problem."""
 
 
-def save_scenario(scenario: Scenario, path: str | Path = DEFAULT_PARAMETERS_PATH) -> Path:
-    """Write the scenario as json, atomically (a reader never sees half a file). Returns the path."""
+def save_scenario(scenario: Scenario, path: str | Path = DEFAULT_PARAMETERS_PATH, *, replace: bool = True) -> Path:
+    """Write the scenario as json, atomically (a reader never sees half a file). Returns the path.
+    Without `replace` an existing file is never replaced (mazelab.atomic.NameTakenError)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    write_text_atomically(path, scenario.to_json())
+    write_text_atomically(path, scenario.to_json(), replace=replace)
     return path
 
 

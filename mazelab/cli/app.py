@@ -15,6 +15,8 @@ from __future__ import annotations
 import signal
 import sys
 import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -88,7 +90,7 @@ def demo(
     """The paper's example: a lost robot, the SIR filter, 1500 particles, 200 steps."""
     if ctx.invoked_subcommand is not None:
         return
-    visualize = visualization(viewer, rrd, web, no_viz, max_drawn)
+    visualize = visualization(viewer, rrd, web, no_viz, max_drawn, force)
     if rrd is not None:
         check_output_path(rrd, force)
     world = load_maze(DEFAULT_MAZE)
@@ -161,7 +163,7 @@ def run(
     max_drawn: MaxDrawnOption = DEFAULT_MAX_DRAWN,
 ) -> None:
     """Run one filter: on a fresh lost robot, or replaying a saved scenario (--scenario)."""
-    visualize = visualization(viewer, rrd, web, no_viz, max_drawn)
+    visualize = visualization(viewer, rrd, web, no_viz, max_drawn, force)
     options = filter_options(filter_name, resampling, recovery, sensor_resetting, alpha_slow, alpha_fast, kld)
     options.update(kalman_options(filter_name, init))
     options.update(estimate_options(filter_name, bandwidth, estimate))
@@ -187,27 +189,40 @@ def run(
         init_particles, particles_arg, steps_arg = None, particles, steps or DEFAULT_STEPS
     prepare_world(world)
     total = steps_arg or robot.recorded_steps
-    result = simulate(
-        robot,
-        world,
-        sigma,
-        delta,
-        particles_arg,
-        steps_arg,
-        init_particles,
-        filter_name,
-        seed=seed,
-        visualize=visualize,
-        on_step=None if quiet else progress_printer(total),
-        kidnap_at=kidnap_at,
-        **options,
-    )
+    with scenario_not_saved_on_stop(save_scenario_path):
+        result = simulate(
+            robot,
+            world,
+            sigma,
+            delta,
+            particles_arg,
+            steps_arg,
+            init_particles,
+            filter_name,
+            seed=seed,
+            visualize=visualize,
+            on_step=None if quiet else progress_printer(total),
+            kidnap_at=kidnap_at,
+            **options,
+        )
     report_run(result)
     for line in (kidnap_report(result), particle_count_report(result) if kld else None):
         if line:
             typer.echo(line)
     if save_scenario_path is not None:
-        typer.echo(f"scenario saved to {save_scenario(result.scenario, save_scenario_path)}")
+        typer.echo(f"scenario saved to {save_scenario(result.scenario, save_scenario_path, replace=force)}")
+
+
+@contextmanager
+def scenario_not_saved_on_stop(path: Path | None) -> Iterator[None]:
+    """A run stopped (Ctrl-C; SIGTERM or SIGHUP with a recording, which exit through SystemExit) before
+    its end says that its scenario was not saved."""
+    try:
+        yield
+    except (KeyboardInterrupt, SystemExit):
+        if path is not None:
+            typer.echo(f"the run did not finish: no scenario saved to {path}", err=True)
+        raise
 
 
 def filter_options(
@@ -290,7 +305,7 @@ def compare(
 
     A kidnapping (stored, or --kidnap-at) adds whether each filter re-localised (mean error below 0.5
     over the last 30 steps) and the steps it took."""
-    visualize = visualization(viewer, rrd, web, no_viz, max_drawn)
+    visualize = visualization(viewer, rrd, web, no_viz, max_drawn, force)
     check_outputs(csv_path, plot, force, rrd)
     stored = load_scenario(scenario)
     world, robot, sigma, delta, particles = from_scenario(stored, maze, sigma, delta)
@@ -322,11 +337,11 @@ def compare(
         typer.echo(f"kidnapped at step {kidnapping.kidnap_at} to ({x:.2f}, {y:.2f})")
     typer.echo(comparison_table(results, kld=kld))
     if csv_path is not None:
-        write_text_atomically(csv_path, errors_csv(results))
+        write_text_atomically(csv_path, errors_csv(results), replace=force)
         typer.echo(f"per-step errors written to {csv_path}")
     if plot is not None:
         title = f"Localisation error: {scenario.name} (sigma {sigma:g}, delta {delta:g}, {len(particles)} particles)"
-        plot_errors(results, plot, title)
+        plot_errors(results, plot, title, replace=force)
         typer.echo(f"figure written to {plot}")
 
 

@@ -47,7 +47,7 @@ def maze_generate(
     if out is None:
         typer.echo(text, nl=False)
     else:
-        write_text_atomically(out, text)
+        write_text_atomically(out, text, replace=force)
         typer.echo(f"{maze_generator.describe_maze(world)}; written to {out}")
 
 

@@ -134,7 +134,9 @@ def study_csv(records: Sequence[RunRecord]) -> str:
     return buffer.getvalue()
 
 
-def plot_study(summaries: Sequence[StudySummary], varied: Sequence[str], path: Path, title: str) -> None:
+def plot_study(
+    summaries: Sequence[StudySummary], varied: Sequence[str], path: Path, title: str, *, replace: bool = True
+) -> None:
     """Mean final error with its t-interval against the varied parameter, a line per filter."""
     plt = pyplot()
     numeric = len(varied) == 1 and varied[0] in _PARAMETER_LABELS
@@ -162,7 +164,7 @@ def plot_study(summaries: Sequence[StudySummary], varied: Sequence[str], path: P
     axes.set_ylim(bottom=0)
     axes.grid(alpha=0.3)
     axes.legend()
-    save_figure(figure, path)
+    save_figure(figure, path, replace=replace)
 
 
 def _setting_label(setting: StudySetting, parameter: str) -> str:
