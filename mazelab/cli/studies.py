@@ -11,7 +11,7 @@ from typing import Annotated
 import typer
 
 from mazelab import maze_generator
-from mazelab.atomic import write_text_atomically
+from mazelab.atomic import WriteError
 from mazelab.cli.options import (
     DEFAULT_DELTA,
     DEFAULT_SIGMA,
@@ -31,7 +31,7 @@ from mazelab.experiments.rowlog import RowLog
 from mazelab.experiments.runs import parse_filters
 from mazelab.experiments.stats import CONFIDENCE_LEVEL
 from mazelab.experiments.study import MazeChoice, study_settings, study_tasks, varied_parameters
-from mazelab.experiments.summary import describe_setting, plot_study, study_csv, study_table, summarise_study
+from mazelab.experiments.summary import describe_setting, plot_study, study_table, summarise_study
 from mazelab.limits import check_particles, check_steps, check_study
 from mazelab.mazes import DEFAULT_MAZE, MAZES_DIR, find_maze, load_maze
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, RPF_THRESHOLD, check_model_parameters
@@ -93,15 +93,22 @@ def study(
     tasks = study_tasks(settings, names, runs, steps, seed, kidnap_at=kidnap_at, kld=kld, estimate=estimate)
     workers = workers or default_workers()
     varied = varied_parameters(settings)
-    client = connect(dask) if dask is not None else None  # a bad address: one line and exit 2, before anything
+    log = RowLog(csv_path, replace=force) if csv_path is not None else None  # rows go to NAME.csv.partial
+    try:
+        client = connect(dask) if dask is not None else None  # a bad address: one line and exit 2, before anything
+    except BaseException:
+        if log is not None:
+            log.discard()
+        raise
     where = f"on the Dask cluster at {dask}" if dask is not None else f"{workers} worker(s)"
     typer.echo(
         f"Study: {len(settings)} setting(s) x {runs} runs x {len(names)} filters, seed {seed}, {where}\n"
         f"{describe_setting(settings[0], steps, runs, kidnap_at)}"
         + (f"; varied: {', '.join(varied)}" if varied else "")
     )
+    if log is not None and log.note:
+        typer.echo(f"note: {log.note}", err=True)
     started = time.perf_counter()
-    log = RowLog(csv_path) if csv_path is not None else None  # rows appended as runs finish: a stop keeps them
     try:
         outcome = run_study(
             tasks,
@@ -113,8 +120,6 @@ def study(
             ignore_signals_after_stop=True,  # a stopped study only saves and exits: a further Ctrl-C waits
         )
     finally:
-        if log is not None:
-            log.close()
         if client is not None:
             close_client(client)
     seconds = time.perf_counter() - started
@@ -122,9 +127,9 @@ def study(
         typer.echo(f"error: {failure.describe()}", err=True)
     finished = len({(r.setting, r.run) for r in outcome.records})
     if outcome.interrupted:
-        if csv_path is not None and log is not None and log.error is None:
-            write_text_atomically(csv_path, study_csv(outcome.records))  # the same rows, in order
-        saved = f"; they are in {csv_path}" if csv_path is not None else ""
+        saved = f"; {log.kept()}" if log is not None else ""  # the CSV stays the old file (or none)
+        if log is not None:
+            log.close()
         typer.echo(f"interrupted after {finished} of {len(tasks)} runs{saved}", err=True)
         for sig in STOP_SIGNALS:  # stopping already: a further Ctrl-C, SIGTERM or SIGHUP changes nothing
             signal.signal(sig, signal.SIG_IGN)
@@ -133,10 +138,12 @@ def study(
     typer.echo(study_table(summaries, varied, kld=kld))  # the table first: a write error cannot lose it
     typer.echo(f"{finished} runs in {seconds:.1f} s wall time")
     if csv_path is not None and log is not None:
-        if log.error is not None:
-            typer.echo(f"error: cannot write {csv_path}: {log.error.strerror or log.error}", err=True)
-            raise typer.Exit(1)
-        write_text_atomically(csv_path, study_csv(outcome.records))  # the rows of the log, in order
+        try:
+            log.finish(outcome.records)  # the whole CSV, in order; then the partial file goes
+        except OSError as error:
+            log.close()
+            typer.echo(f"error: {describe_write_error(error)}; {log.kept()}", err=True)
+            raise typer.Exit(1) from None
         typer.echo(f"one row per run and filter written to {csv_path}")
     if plot is not None and summaries:
         what = ", ".join(varied) or "the setting"
@@ -145,7 +152,7 @@ def study(
             f"Final error against {what}{where}\n({runs} runs per point, "
             f"{CONFIDENCE_LEVEL:.0%} t-intervals for the mean)"
         )
-        plot_study(summaries, varied or ["maze"], plot, title)
+        plot_study(summaries, varied or ["maze"], plot, title, replace=force)
         typer.echo(f"figure written to {plot}")
     if outcome.failures:
         raise typer.Exit(1)
@@ -183,6 +190,11 @@ def accuracy(
     records = run_accuracy(tasks, workers or default_workers())
     typer.echo(accuracy_table(records))
     typer.echo(f"{len(tasks)} runs in {time.perf_counter() - started:.1f} s wall time")
+
+
+def describe_write_error(error: OSError) -> str:
+    """One line naming the file and the cause of a write error."""
+    return str(error) if isinstance(error, WriteError) else f"cannot write {error.filename}: {error.strerror or error}"
 
 
 def study_mazes(files: str | None, sizes: str | None, stations: str | None) -> list[MazeChoice]:
