@@ -129,10 +129,10 @@ def run(
     ] = None,
     seed: Annotated[
         int | None,
-        typer.Option(help="seed of the whole run (default: new, printed)"),
+        typer.Option(min=0, help="seed of the whole run (default: new, printed)"),
     ] = None,
     start_seed: Annotated[
-        int | None, typer.Option(hidden=True, help="seed of the start only (default: --seed)")
+        int | None, typer.Option(min=0, hidden=True, help="seed of the start only (default: --seed)")
     ] = None,
     scenario: Annotated[Path | None, typer.Option(help="replay a saved scenario (.json)")] = None,
     save_scenario_path: Annotated[Path | None, typer.Option("--save-scenario", help="save the run (.json)")] = None,
@@ -280,7 +280,7 @@ def compare(
     maze: Annotated[str | None, typer.Option(help="the maze, if the scenario stores none")] = None,
     sigma: Annotated[float | None, typer.Option(help="override the scenario's sigma")] = None,
     delta: Annotated[float | None, typer.Option(help="override the scenario's delta")] = None,
-    seed: Annotated[int | None, typer.Option(help="the filters' seed (default: the scenario's)")] = None,
+    seed: Annotated[int | None, typer.Option(min=0, help="the filters' seed (default: the scenario's)")] = None,
     csv_path: Annotated[Path | None, typer.Option("--csv", help="per-step errors, a column per filter")] = None,
     plot: Annotated[Path | None, typer.Option(help="the lab's error figure (.png; plot extra)")] = None,
     force: Annotated[bool, typer.Option("--force", help="replace existing output files")] = False,

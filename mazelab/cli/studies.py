@@ -12,6 +12,7 @@ import typer
 
 from mazelab import maze_generator
 from mazelab.atomic import WriteError
+from mazelab.checks import check_bandwidth_within, check_sigma_within
 from mazelab.cli.options import (
     DEFAULT_DELTA,
     DEFAULT_SIGMA,
@@ -19,6 +20,7 @@ from mazelab.cli.options import (
     MaxDrawnOption,
     NoVizOption,
     RrdOption,
+    UserError,
     ViewerOption,
     WebOption,
     check_outputs,
@@ -30,11 +32,14 @@ from mazelab.experiments.executor import STOP_SIGNALS, default_workers, run_stud
 from mazelab.experiments.rowlog import RowLog
 from mazelab.experiments.runs import parse_filters
 from mazelab.experiments.stats import CONFIDENCE_LEVEL
-from mazelab.experiments.study import MazeChoice, study_settings, study_tasks, varied_parameters
+from mazelab.experiments.study import MazeChoice, StudySetting, study_settings, study_tasks, varied_parameters
 from mazelab.experiments.summary import describe_setting, plot_study, study_table, summarise_study
+from mazelab.filters import RegularizedParticleFilter
 from mazelab.limits import check_particles, check_steps, check_study
 from mazelab.mazes import DEFAULT_MAZE, MAZES_DIR, find_maze, load_maze
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, RPF_THRESHOLD, check_model_parameters
+from mazelab.registry import resolve_filter
+from mazelab.regularisation import check_bandwidth
 from mazelab.simulation import new_seed
 from mazelab.viz.style import DEFAULT_MAX_DRAWN
 
@@ -57,7 +62,7 @@ def study(
     estimate: EstimateOption = "mean",
     runs: Annotated[int, typer.Option(min=1, help="seeded runs per setting")] = 30,
     steps: Annotated[int, typer.Option(min=1, help="steps per run")] = DEFAULT_STEPS,
-    seed: Annotated[int | None, typer.Option(help="the study's root seed (default: new, printed)")] = None,
+    seed: Annotated[int | None, typer.Option(min=0, help="the study's root seed (default: new, printed)")] = None,
     workers: Annotated[int | None, typer.Option(min=1, help="processes (default: all cores)")] = None,
     dask: Annotated[str | None, typer.Option(help="the Dask scheduler to run on, tcp://HOST:PORT")] = None,
     csv_path: Annotated[Path | None, typer.Option("--csv", help="one row per run and filter")] = None,
@@ -89,6 +94,7 @@ def study(
         parse_list(bandwidth, str, "--bandwidth"),
     )
     check_study(len(settings) * runs, len(names))
+    check_study_numbers(settings, names)
     seed = new_seed() if seed is None else seed
     tasks = study_tasks(settings, names, runs, steps, seed, kidnap_at=kidnap_at, kld=kld, estimate=estimate)
     workers = workers or default_workers()
@@ -169,7 +175,7 @@ def accuracy(
     steps: Annotated[int, typer.Option(min=2, help="steps per run (the distance is averaged over the second half)")] = (
         DEFAULT_STEPS
     ),
-    seed: Annotated[int, typer.Option(help="root seed (run r has the same seed on every maze)")] = 1,
+    seed: Annotated[int, typer.Option(min=0, help="root seed (run r has the same seed on every maze)")] = 1,
     workers: Annotated[int | None, typer.Option(min=1, help="processes (default: all cores)")] = None,
 ) -> None:
     """How close each filter comes to the exact posterior: per maze, the mean distance between its
@@ -181,7 +187,11 @@ def accuracy(
     check_model_parameters(sigma, delta)
     check_steps(steps)
     check_particles(particles)
-    tasks = accuracy_tasks([(n, load_maze(n)) for n in names], runs, sigma, delta, particles, steps, seed)
+    check_study(len(names) * runs, len(ACCURACY_FILTERS))  # --runs 10000000: refused before any work
+    mazes = [(n, load_maze(n)) for n in names]
+    for _, world in mazes:
+        check_sigma_within(sigma, world.width, world.height)
+    tasks = accuracy_tasks(mazes, runs, sigma, delta, particles, steps, seed)
     typer.echo(
         f"Accuracy: {len(names)} maze(s) x {runs} runs, sigma {sigma:g}, delta {delta:g}, {particles} particles, "
         f"{steps} steps, seed {seed}; filters: {', '.join(label for label, _, _ in ACCURACY_FILTERS)}"
@@ -190,6 +200,18 @@ def accuracy(
     records = run_accuracy(tasks, workers or default_workers())
     typer.echo(accuracy_table(records))
     typer.echo(f"{len(tasks)} runs in {time.perf_counter() - started:.1f} s wall time")
+
+
+def check_study_numbers(settings: list[StudySetting], names: list[str]) -> None:
+    """Each setting's sigma and RPF bandwidth within the ranges of its maze, and a bandwidth other than
+    optimal only with the rpf among the filters (as `run` refuses it), before any run starts."""
+    rpf = any(resolve_filter(name) is RegularizedParticleFilter for name in names)
+    for setting in settings:
+        rows, columns = setting.maze.size or (len(setting.maze.grid or ()), len((setting.maze.grid or ((),))[0]))
+        check_sigma_within(setting.sigma, columns, rows)
+        check_bandwidth_within(check_bandwidth(setting.bandwidth), columns, rows)
+        if setting.bandwidth != "optimal" and not rpf:
+            raise UserError("--bandwidth applies to the rpf only: add rpf to --filters")
 
 
 def describe_write_error(error: OSError) -> str:
@@ -211,5 +233,7 @@ def study_mazes(files: str | None, sizes: str | None, stations: str | None) -> l
                 if stations
                 else [maze_generator.default_station_count(rows, columns)]
             )
+            for count in counts:
+                maze_generator.check_generation(rows, columns, count)  # --stations 0: refused up front
             mazes += [MazeChoice.generated(rows, columns, count) for count in counts]
     return mazes or [MazeChoice.from_maze(DEFAULT_MAZE, load_maze(DEFAULT_MAZE))]
