@@ -27,7 +27,7 @@ from mazelab.cli.options import (
     parse_list,
     visualization,
 )
-from mazelab.experiments.dask_runner import close_client, connect
+from mazelab.experiments.dask_runner import DASK_TIMEOUT, close_client, connect
 from mazelab.experiments.executor import STOP_SIGNALS, default_workers, run_study
 from mazelab.experiments.rowlog import RowLog
 from mazelab.experiments.runs import parse_filters
@@ -65,6 +65,9 @@ def study(
     seed: Annotated[int | None, typer.Option(min=0, help="the study's root seed (default: new, printed)")] = None,
     workers: Annotated[int | None, typer.Option(min=1, help="processes (default: all cores)")] = None,
     dask: Annotated[str | None, typer.Option(help="the Dask scheduler to run on, tcp://HOST:PORT")] = None,
+    dask_timeout: Annotated[
+        float, typer.Option(min=0.1, help="seconds without a finished run before a Dask study gives up")
+    ] = DASK_TIMEOUT,
     csv_path: Annotated[Path | None, typer.Option("--csv", help="one row per run and filter")] = None,
     plot: Annotated[Path | None, typer.Option(help="error against the varied parameter (.png)")] = None,
     force: Annotated[bool, typer.Option("--force", help="replace existing output files")] = False,
@@ -123,6 +126,7 @@ def study(
             progress=True,
             on_records=None if log is None else log.append,
             dask=client,
+            dask_timeout=dask_timeout,
             ignore_signals_after_stop=True,  # a stopped study only saves and exits: a further Ctrl-C waits
         )
     finally:
@@ -132,6 +136,12 @@ def study(
     for failure in outcome.failures:
         typer.echo(f"error: {failure.describe()}", err=True)
     finished = len({(r.setting, r.run) for r in outcome.records})
+    if outcome.lost is not None:  # the cluster or the pool is gone: the CSV stays the old file
+        if log is not None:
+            log.close()
+        kept = f"; {log.kept()}" if log is not None else ""
+        typer.echo(f"error: {outcome.lost}; {finished} of {len(tasks)} runs finished{kept}", err=True)
+        raise typer.Exit(1)
     if outcome.interrupted:
         saved = f"; {log.kept()}" if log is not None else ""  # the CSV stays the old file (or none)
         if log is not None:
