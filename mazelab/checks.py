@@ -177,6 +177,21 @@ def check_grid_resolution(resolution: Any) -> float:
     return resolution
 
 
+MAX_KLD_QUANTILE = 40.0  # z_(1-delta) beyond this is no probability float64 can tell from 1
+MAX_KLD_EPSILON = 1.0  # the KL bound: beyond 1 it bounds nothing a particle count can reach
+MIN_KLD_EPSILON = 1e-9  # the count grows as 1/epsilon: below this it is no count at all
+
+
+def check_kld_numbers(epsilon: Any, z: Any) -> None:
+    """KLD-sampling's error bound epsilon in [MIN_KLD_EPSILON, MAX_KLD_EPSILON] and quantile z in (0, MAX_KLD_QUANTILE]
+    (the engine's KLDSampling checks the rest), or a one-line ValueError."""
+    epsilon, z = finite_number("KLD epsilon", epsilon), finite_number("KLD z", z)
+    if not MIN_KLD_EPSILON <= epsilon <= MAX_KLD_EPSILON:
+        raise ValueError(f"KLD epsilon must lie in [{MIN_KLD_EPSILON:g}, {MAX_KLD_EPSILON:g}], got {epsilon:g}")
+    if not 0 < z <= MAX_KLD_QUANTILE:
+        raise ValueError(f"KLD z must lie in (0, {MAX_KLD_QUANTILE:g}] (a normal quantile), got {z:g}")
+
+
 def check_world(world: Any) -> Any:
     """A maze for a filter or a run: a mazelab.maze.Maze, or a one-line ValueError."""
     from mazelab.maze import Maze
@@ -218,6 +233,7 @@ __all__ = [
     "check_all_within",
     "check_bandwidth_within",
     "check_grid_resolution",
+    "check_kld_numbers",
     "check_particle_count",
     "check_seed",
     "check_sigma_within",

@@ -19,6 +19,7 @@ from mazelab.checks import (
     as_points,
     check_bandwidth_within,
     check_grid_resolution,
+    check_kld_numbers,
     check_particle_count,
     check_seed,
     check_within_map,
@@ -290,6 +291,9 @@ def simulate(
     sigma, delta = check_model_parameters(sigma, delta, (world.width, world.height))
     if "bandwidth" in filter_options:
         check_bandwidth_within(filter_options["bandwidth"], world.width, world.height)
+    kld = filter_options.get("kld")
+    if hasattr(kld, "epsilon") and hasattr(kld, "z"):
+        check_kld_numbers(kld.epsilon, kld.z)
     if "resolution" in filter_options:
         check_grid_resolution(filter_options["resolution"])
     filter_class = resolve_filter(filtering_algorithm)

@@ -181,3 +181,9 @@ def test_the_python_api_checks_world_seed_count_and_resolution(paper_world):
             simulate(robot, paper_world, 0.3, 0.5, 10, 3, filtering_algorithm="grid", resolution=resolution)
         with pytest.raises(ValueError, match="resolution must"):
             check_grid_resolution(resolution)
+
+
+@pytest.mark.parametrize("option", [["--kld-epsilon", "1e300"], ["--kld-epsilon", "1e-320"], ["--kld-z", "1e300"]])
+def test_absurd_kld_numbers_are_refused(option, capsys):
+    assert main([*RUN, "--kld", *option]) == 2
+    assert "KLD" in one_error_line(capsys)
