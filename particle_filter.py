@@ -9,6 +9,9 @@ only gathers the names; where each thing's lines are:
     SIR step (Algorithm 4)                             mazelab/filters.py, SIRParticleFilter.step
     APF step (Algorithm 5)                             mazelab/filters.py, AuxiliaryParticleFilter.step
     RPF step (Algorithm 6)                             mazelab/filters.py, RegularizedParticleFilter.step, .regularise
+    the cloud the three share (weights, ESS, estimate,  mazelab/cloud.py, ParticleFilter (one run, or R runs
+      resampling, restarts)                              at once for a study: the same lines)
+    what every filter provides (your own filter too)   mazelab/contract.py, Filter
     the RPF's kernel (bandwidth optimal, multimodal)   mazelab/regularisation.py
     modes of a cloud, the mode estimate                mazelab/modes.py
     resampling (systematic, stratified, ...)           mazelab/resampling.py
@@ -16,6 +19,7 @@ only gathers the names; where each thing's lines are:
     the extended Kalman filter (the baseline)          mazelab/kalman.py, ExtendedKalmanFilter.step
     recovery from kidnapping, KLD-sampling             mazelab/recovery.py, mazelab/resampling.py
     run_model and simulate                             mazelab/lab.py (drawing), mazelab/simulation.py (the loop)
+    how a seed becomes a run's random draws            mazelab/seeding.py
     saving and loading scenarios                       mazelab/scenario.py
 
 The constants the paper lets a student change (ROBOT_SPEED, MAX_STRAIGHT_STEPS, OUTSIDE_PENALTY,

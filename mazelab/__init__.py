@@ -4,8 +4,11 @@ an extended Kalman filter as the baseline.
 The paper's three files (particle_filter.py, draw.py, main.py) are faces over this package. Its
 modules, bottom to top (each imports only those above it in this list):
 
-    checks, lookup, maze, model, weights, resampling, robot   the model: maze, motion, measurement, robot
-    recovery, filters, grid_filter, kalman, registry          the filters
+    checks, limits, lookup, maze, model, modes                the model: maze, motion, measurement, modes
+    seeding                                                   the one rule from a seed to a run's random streams
+    weights, resampling, regularisation, robot                weighted clouds, resampling, the RPF's kernel, robot
+    contract                                                  what every filter provides (and declares)
+    recovery, cloud, filters, grid_filter, kalman, registry   the filters (cloud: one engine for 1 or R runs)
     atomic, scenario, simulation                              saved scenarios and the simulation loop
     viz/                                                      drawing in Rerun (never imported by the above)
     lab                                                       run_model and simulate, with drawing
@@ -13,4 +16,16 @@ modules, bottom to top (each imports only those above it in this list):
     cli/                                                      the command line (`mazelab`, `python main.py`)
 """
 
+from typing import Any
+
 __version__ = "0.2.0"
+
+
+def __getattr__(name: str) -> Any:
+    """`mazelab.study(...)`, the Python entry point of studies (mazelab.experiments.api), imported on
+    first use so that `import mazelab` stays light."""
+    if name in ("study", "StudyResult"):
+        from mazelab.experiments import api
+
+        return getattr(api, name)
+    raise AttributeError(f"module 'mazelab' has no attribute {name!r}")

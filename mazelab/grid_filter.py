@@ -4,10 +4,11 @@ and the oracle the tests and the accuracy table measure them against."""
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
+from mazelab.contract import Density
 from mazelab.limits import check_memory
 from mazelab.maze import Maze
 from mazelab.model import CONFIDENCE_RADIUS, CONFIDENCE_SHARE, LOG_UNDERFLOW, OUTSIDE_PENALTY, ROBOT_SPEED
@@ -26,7 +27,14 @@ class GridBayesFilter:
     the update multiplies by equation (3) with the outside penalty, evaluated at the cell centres.
     """
 
-    name = "GridBayesFilter"
+    name: ClassVar[str] = "GridBayesFilter"
+    options: ClassVar[dict[str, Any]] = {
+        "resolution": GRID_RESOLUTION,
+        "margin": 1.0,
+        "outside_penalty": OUTSIDE_PENALTY,
+        "speed": ROBOT_SPEED,
+        "estimate": "mean",
+    }
 
     def __init__(
         self,
@@ -41,7 +49,6 @@ class GridBayesFilter:
         outside_penalty: float = OUTSIDE_PENALTY,
         speed: float = ROBOT_SPEED,
         estimate: str = "mean",
-        **_: Any,
     ):
         del particles  # the exact filter starts from the exact prior, not from a sample of it
         self.world, self.sigma, self.delta, self.speed = world, sigma, delta, speed
@@ -62,7 +69,6 @@ class GridBayesFilter:
         self._distance = world.distance_to_nearest_station(self.positions).reshape(self.shape)
         self.density = self._prior()
         self._last_arc: tuple[float, np.ndarray, np.ndarray] | None = None
-        self.headings = np.zeros(len(self.positions))
         self.steps_done = 0
         self.reinitialised_at: list[int] = []
 
@@ -70,6 +76,15 @@ class GridBayesFilter:
         return self.free / self.free.sum()
 
     def step(self, compass_angle: float, z: float) -> None:
+        """One step of the exact Bayes filter: predict, then update.
+
+        Parameters
+        ----------
+        compass_angle : float
+            th0_k, the heading the compass reports for this step (radians).
+        z : float
+            z_k, the measured distance to the nearest station (map units).
+        """
         self.density = self.predict(self.density, compass_angle)  # p(x_k | z_1:k-1), Chapman-Kolmogorov
         self.update(z)  # p(x_k | z_1:k) ∝ p(z_k | x_k) p(x_k | z_1:k-1)
         self.steps_done += 1
@@ -107,10 +122,9 @@ class GridBayesFilter:
             return None
         return posterior / total
 
-    @property
-    def log_weights(self) -> np.ndarray:
-        with np.errstate(divide="ignore"):
-            return np.log(self.density.ravel())
+    def belief(self) -> Density:
+        """What the viewer draws: the density's cells and masses, and its modes."""
+        return Density(self.positions, self.weights, self.modes)
 
     @property
     def weights(self) -> np.ndarray:

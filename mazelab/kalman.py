@@ -12,9 +12,11 @@ are not in a Gaussian.
 from __future__ import annotations
 
 import math
+from typing import Any, ClassVar
 
 import numpy as np
 
+from mazelab.contract import Gaussian
 from mazelab.maze import Maze
 from mazelab.model import CONFIDENCE_RADIUS, CONFIDENCE_SHARE, ROBOT_SPEED
 from mazelab.modes import check_estimate
@@ -34,12 +36,19 @@ class ExtendedKalmanFilter:
 
     `init="prior"` (default) starts from the free area's exact mean and covariance (global
     localisation, the lab's problem); `init="start"` from the robot's true start `start` with
-    covariance START_STD^2 I (position tracking). simulate hands every filter class with
-    `accepts_start` the robot's start as `start=`. Not a sample: no particles, no ESS.
+    covariance START_STD^2 I (position tracking). simulate hands every filter class that declares
+    the option `start` the robot's start. Not a sample: no particles, no ESS.
     """
 
-    name = "ExtendedKalmanFilter"
-    accepts_start = True  # simulate passes start=robot.initial_position
+    name: ClassVar[str] = "ExtendedKalmanFilter"
+    # `start`: simulate hands a filter that declares it the robot's start (for init="start")
+    options: ClassVar[dict[str, Any]] = {
+        "init": "prior",
+        "start": None,
+        "start_std": START_STD,
+        "speed": ROBOT_SPEED,
+        "estimate": "mean",
+    }
 
     def __init__(
         self,
@@ -75,7 +84,15 @@ class ExtendedKalmanFilter:
         self.reinitialised_at: list[int] = []  # never: a Kalman filter has no "no hypothesis explains z"
 
     def step(self, compass_angle: float, z: float) -> None:
-        """Predict with compass angle th0_k, then update with the range z_k."""
+        """Predict with compass angle th0_k, then update with the range z_k.
+
+        Parameters
+        ----------
+        compass_angle : float
+            th0_k, the heading the compass reports for this step (radians).
+        z : float
+            z_k, the measured distance to the nearest station (map units).
+        """
         self.predict(compass_angle)
         self.update(z)
         self.steps_done += 1
@@ -99,6 +116,10 @@ class ExtendedKalmanFilter:
         self.mean, self.covariance, self.innovation = range_update(
             self.mean, self.covariance, self.station, z, self.sigma**2
         )
+
+    def belief(self) -> Gaussian:
+        """What the viewer draws: the Gaussian's mean and covariance."""
+        return Gaussian(self.mean, self.covariance)
 
     # the read interface simulate and the viewer use
     @property

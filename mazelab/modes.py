@@ -138,12 +138,6 @@ def modes_of_bins(sums: np.ndarray, min_mass: float = MIN_BIN_MASS) -> list[Mode
     return [Mode(float(share[i]), np.array([mean_x[i], mean_y[i]]), float(spread[i])) for i in order]
 
 
-def heaviest_mode_mean(positions: np.ndarray, weights: np.ndarray, fallback: np.ndarray) -> np.ndarray:
-    """The mean of the heaviest mode (AMCL's pose estimate), or `fallback` if no bin is occupied."""
-    modes = find_modes(positions, weights)
-    return modes[0].mean if modes else np.asarray(fallback, dtype=float).copy()
-
-
 __all__ = [
     "ESTIMATES",
     "MIN_BIN_MASS",
@@ -153,7 +147,6 @@ __all__ = [
     "cluster_labels",
     "cluster_moments",
     "find_modes",
-    "heaviest_mode_mean",
     "label_components",
     "modes_of_bins",
 ]

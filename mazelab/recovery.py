@@ -1,18 +1,17 @@
-"""Recovery from kidnapping (augmented MCL, sensor resetting) and the resampling options that every
-particle filter mixes in (RecoveryAndKLD): off by default, so the paper's filters are unchanged."""
+"""Recovery from kidnapping (augmented MCL, sensor resetting): a part handed to a particle filter
+(`RecoveryTracker`), off by default, so the paper's filters are unchanged."""
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from mazelab.checks import finite_number
 from mazelab.maze import Maze
 from mazelab.model import log_likelihood
-from mazelab.resampling import Move, kld_options, kld_resample
+from mazelab.resampling import Move
 
 ALPHA_SLOW, ALPHA_FAST = 0.001, 0.1  # decay rates of the likelihood averages (Thrun et al., Table 8.3)
 RECOVERY_MODES = ("augmented", "sensor")
@@ -103,46 +102,33 @@ def measurement_matched_places(world: Maze, z: float, sigma: float, count: int, 
     return np.concatenate(found)
 
 
-class RecoveryAndKLD:
-    """The resampling options of a ParticleFilter (mixed into it): recovery and KLD-sampling.
+class RecoveryTracker:
+    """What recovery keeps in a filter of one run: w_slow and w_fast (in logs) and the last z, and the
+    injection they decide. The filter calls `track` with each step's w_avg, and `inject` where it resamples."""
 
-    `draw_particles` is the filter's resampling: with both options off it is exactly
-    `resample` + the filter's move, with no extra draw from its generator, so the paper's filters are
-    unchanged. Needs the filter's world, sigma, rng, resample, count.
-    """
-
-    def _init_options(
-        self, recovery: bool | str | Recovery | None, alpha_slow: float, alpha_fast: float, kld: Any
-    ) -> None:
-        self.recovery = recovery_options(recovery, alpha_slow, alpha_fast)
-        self.kld = kld_options(kld)
-        self.max_count = self.count if self.kld is None or self.kld.max_count is None else self.kld.max_count
+    def __init__(self, options: Recovery, world: Maze, sigma: float):
+        self.options, self.world, self.sigma = options, world, sigma
         self.log_w_slow = self.log_w_fast = -math.inf  # log w_slow, log w_fast: set by the first w_avg
         self.last_z: float | None = None
-        self._injected: np.ndarray | None = None
-        self._injected_step = 0
+
+    @property
+    def mode(self) -> str:
+        return self.options.mode
 
     @property
     def injection_probability(self) -> float:
-        """max(0, 1 - w_fast / reference) (see Recovery); 0 without recovery or before the first measurement."""
-        if self.recovery is None or self.last_z is None or self.log_w_slow == -math.inf:
+        """max(0, 1 - w_fast / reference) (see Recovery); 0 before the first measurement."""
+        if self.last_z is None or self.log_w_slow == -math.inf:
             return 0.0
-        return max(0.0, 1.0 - math.exp(self.log_w_fast - self.recovery.log_reference(self.log_w_slow, self.sigma)))
+        return max(0.0, 1.0 - math.exp(self.log_w_fast - self.options.log_reference(self.log_w_slow, self.sigma)))
 
-    @property
-    def injected(self) -> np.ndarray | None:
-        """Which particles this step's resampling replaced by injected draws (bool, (N,)), or None."""
-        return self._injected if self._injected_step == self.steps_done else None
-
-    def track_likelihood(self, log_w_avg: float, z: float) -> None:
+    def track(self, log_w_avg: float, z: float) -> None:
         """w_slow += alpha_slow (w_avg - w_slow), w_fast likewise; in logs, w <- (1 - a) w + a w_avg.
 
         Both start at the first w_avg (as ROS AMCL does; Table 8.3 leaves them open): from zero,
         w_slow would take ~1/alpha_slow steps to reach the likelihood's level and hold back recovery.
         """
-        if self.recovery is None:
-            return
-        slow, fast = self.recovery.alpha_slow, self.recovery.alpha_fast
+        slow, fast = self.options.alpha_slow, self.options.alpha_fast
         if self.last_z is None:
             self.log_w_slow = self.log_w_fast = float(log_w_avg)
         else:
@@ -150,45 +136,21 @@ class RecoveryAndKLD:
             self.log_w_fast = float(np.logaddexp(_log1m(fast) + self.log_w_fast, math.log(fast) + log_w_avg))
         self.last_z = z
 
-    def draw_particles(
-        self, weights: np.ndarray, move: Move, move_injected: Move
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
-        """Resample (N fixed, or KLD-sized) and `move` the ancestors; then, with recovery, replace each
-        particle with probability `injection_probability` by an injected point passed through
-        `move_injected`. Returns (positions, headings, ancestors, injected mask or None)."""
-        if self.kld is None:
-            ancestors = self.resample(weights, self.rng)
-            positions, headings = move(ancestors)
-        else:
-            ancestors, positions, headings = kld_resample(
-                weights, move, self.kld, self.resample, self.rng, self.max_count
-            )
-        self.count = len(positions)
-        injected = self._inject(positions, headings, move_injected)
-        self._injected, self._injected_step = injected, self.steps_done + 1
-        return positions, headings, ancestors, injected
-
-    def inject_without_resampling(self, move_injected: Move) -> None:
-        """Replace particles with probability `injection_probability`, each injected point keeping the
-        weight of the particle it replaces: the selection ignores the weights, so the set represents the
-        same mixture (1 - p) belief + p injection as injecting at a resampling."""
-        positions, headings = self.positions.copy(order="F"), self.headings.copy()
-        injected = self._inject(positions, headings, move_injected)
-        self._injected, self._injected_step = injected, self.steps_done + 1
-        self.positions, self.headings = positions, headings
-
-    def _inject(self, positions: np.ndarray, headings: np.ndarray, move_injected: Move) -> np.ndarray | None:
-        """Replace particles in place with probability `injection_probability`; the mask, or None."""
+    def inject(
+        self, positions: np.ndarray, headings: np.ndarray, move_injected: Move, rng: np.random.Generator
+    ) -> np.ndarray | None:
+        """Replace particles in place with probability `injection_probability` by draws from the free area
+        (uniform, or matched to the last z) passed through `move_injected`; the mask, or None."""
         probability = self.injection_probability
         if probability == 0:
             return None
-        injected = self.rng.random(len(positions)) < probability
+        injected = rng.random(len(positions)) < probability
         count = int(injected.sum())
         if count:
-            if self.recovery.mode == "sensor" and self.last_z is not None:
-                places = measurement_matched_places(self.world, self.last_z, self.sigma, count, self.rng)
+            if self.options.mode == "sensor" and self.last_z is not None:
+                places = measurement_matched_places(self.world, self.last_z, self.sigma, count, rng)
             else:
-                places = self.world.random_free_places(count, self.rng)
+                places = self.world.random_free_places(count, rng)
             positions[injected], headings[injected] = move_injected(places)
         return injected
 
@@ -205,7 +167,7 @@ __all__ = [
     "SENSOR_RESET_BATCHES",
     "SENSOR_RESET_LEVEL",
     "Recovery",
-    "RecoveryAndKLD",
+    "RecoveryTracker",
     "localised_likelihood",
     "measurement_matched_places",
     "recovery_options",

@@ -35,27 +35,37 @@ def stratified_resample(weights: np.ndarray, rng: np.random.Generator, count: in
 
 
 def systematic_resample(weights: np.ndarray, rng: np.random.Generator, count: int | None = None) -> np.ndarray:
-    """One uniform offset U shared by the M strata: the lowest-variance scheme, used by default.
+    """One uniform offset U shared by the M strata: the lowest-variance scheme, used by default."""
+    count = len(weights) if count is None else count
+    return systematic_resample_runs(weights[None], np.array([rng.random()]), count)
+
+
+def systematic_resample_runs(weights: np.ndarray, uniforms: np.ndarray, count: int | None = None) -> np.ndarray:
+    """Systematic resampling of R runs at once: weights (R, N), run r with the offset U_r = uniforms[r];
+    M = `count` ancestors per run (default N) as indices into the runs' (R*N,) particles, shape (R*M,).
 
     The points u_m = (m + U) / M below cumsum(W)[i] number ceil(M cumsum(W)[i] - U), so ancestor i gets
     the difference of two such counts: O(N) counting instead of a binary search per point.
     """
-    count = len(weights) if count is None else count
-    below = np.empty(len(weights) + 1)  # below[i + 1]: how many points lie below cumsum(W)[i]
-    below[0] = 0.0
-    np.cumsum(weights, out=below[1:])  # float64 whatever the weights' dtype: the strata are 1/M wide
+    runs, size = weights.shape
+    count = size if count is None else count
+    below = np.empty((runs, size + 1))  # below[:, i + 1]: how many points lie below cumsum(W)[i]
+    below[:, 0] = 0.0
+    np.cumsum(weights, axis=1, out=below[:, 1:])  # float64 whatever the weights' dtype: strata are 1/M wide
     below *= count
-    below -= rng.random()
+    below -= uniforms[:, None]
     np.ceil(below, out=below)
     ends = below.astype(np.int64)
-    ends[0], ends[-1] = 0, count  # the last guards against round-off leaving cumsum(W) short of 1
-    return _ancestors_from_counts(np.minimum(ends, count, out=ends), count)  # ends >= 0 already
-
-
-def _ancestors_from_counts(ends: np.ndarray, count: int) -> np.ndarray:
-    """Ancestor indices (count,), sorted: particle i repeated ends[i + 1] - ends[i] times."""
-    starts = np.bincount(ends[1:-1], minlength=count)[:count]  # how many particles end before point m
-    return np.cumsum(starts)
+    ends[:, 0], ends[:, -1] = 0, count  # the last guards against round-off leaving cumsum(W) short of 1
+    np.minimum(ends, count, out=ends)  # ends >= 0 already
+    bins = ends[:, 1:-1]
+    if runs > 1:  # each run counts in its own bins
+        bins = bins + (count + 1) * np.arange(runs)[:, None]
+    starts = np.bincount(bins.ravel(), minlength=runs * (count + 1)).reshape(runs, count + 1)[:, :count]
+    ancestors = np.cumsum(starts, axis=1)  # particle i repeated ends[i + 1] - ends[i] times, sorted
+    if runs > 1:
+        ancestors += size * np.arange(runs)[:, None]
+    return ancestors.ravel()
 
 
 def residual_resample(weights: np.ndarray, rng: np.random.Generator, count: int | None = None) -> np.ndarray:
@@ -205,4 +215,5 @@ __all__ = [
     "residual_resample",
     "stratified_resample",
     "systematic_resample",
+    "systematic_resample_runs",
 ]

@@ -100,7 +100,20 @@ class Robot:
         return len(self.actual_angles)
 
     def step(self, world: Maze) -> tuple[float, float]:
-        """Move one step, then measure: (compass angle th0_k the filters use, measured distance z_k)."""
+        """Move one step, then measure.
+
+        Parameters
+        ----------
+        world : Maze
+            The maze the robot walks in (its walls turn it; its stations are measured).
+
+        Returns
+        -------
+        compass_angle : float
+            th0_k, the heading the compass reports (radians), what the filters predict with.
+        z : float
+            z_k, the measured distance to the nearest station (map units).
+        """
         k = self.steps_taken
         if k + 1 == self.kidnap_at:
             self.x, self.y = self.kidnap_position  # the kidnapping: picked up and put down elsewhere

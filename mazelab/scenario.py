@@ -1,7 +1,8 @@
 """Saved scenarios (lab step 9): the pydantic model of the json file, and saving and loading it.
 
 A file with only the paper's four keys (init_robot_pos, init_particles_pos, robot_actual_angles,
-robot_compass_angles) loads; the program writes the measurements and metadata too.
+robot_compass_angles) loads; the program writes the measurements and metadata too, and the filter's
+options (`filter_options`, mazelab.option_json), so that a replay repeats the run that made the file.
 """
 
 from __future__ import annotations
@@ -14,7 +15,17 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    StrictBool,
+    StrictInt,
+    StrictStr,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from mazelab.atomic import write_text_atomically
 from mazelab.checks import (
@@ -28,12 +39,15 @@ from mazelab.checks import (
 )
 from mazelab.limits import check_memory
 from mazelab.maze import Maze
+from mazelab.option_json import options_from_json
+from mazelab.registry import resolve_filter
 from mazelab.robot import Robot
 
 DEFAULT_PARAMETERS_PATH = Path("model_parameters.json")  # the paper's file (lab steps 9-10), in the working folder
 LEGACY_PARAMETERS_PATH = Path("model_parameters") / "model_parameters.json"  # where older versions saved it
-SCENARIO_FORMAT_VERSION = 2  # the newest scenario format this program reads and writes
-KIDNAP_FORMAT_VERSION = 2  # scenarios with a kidnapping are version 2; all others stay version 1
+SCENARIO_FORMAT_VERSION = 3  # the newest scenario format this program reads and writes
+KIDNAP_FORMAT_VERSION = 2  # scenarios with a kidnapping are version 2 (or more)
+OPTIONS_FORMAT_VERSION = 3  # scenarios that store the filter's options are version 3; without either, version 1
 
 
 MAX_JSON_DEPTH = 16  # a scenario nests 3 deep; deeper files are refused before parsing (no RecursionError)
@@ -45,14 +59,18 @@ BYTES_PER_JSON_BYTE = 40  # memory the parsed json and its validation take per b
 FiniteFloat = Annotated[float, Field(strict=True, allow_inf_nan=False)]
 Whole = Annotated[int, Field(strict=True)]
 Point = tuple[FiniteFloat, FiniteFloat]
+OptionScalar = StrictBool | StrictInt | FiniteFloat | StrictStr | None
+OptionValue = OptionScalar | dict[str, OptionScalar]  # a number, a word, or an object's fields (Recovery, KLD)
 
 
 class Scenario(BaseModel):
     """A saved run (lab step 9): the paper's four keys, the measurements, and metadata.
 
     Version 2 adds the kidnapping (kidnap_at, kidnap_position: at step kidnap_at the robot is put down
-    at kidnap_position before that step's move). A scenario is written with the lowest version that
-    holds it, so files without a kidnapping stay version 1 and older readers still read them.
+    at kidnap_position before that step's move); version 3 the filter's options (filter_options: every
+    keyword option of `filtering_algorithm` that made the run, in JSON form, see mazelab.option_json).
+    A scenario is written with the lowest version that holds it, so files without either stay version 1
+    and older readers still read them.
     """
 
     model_config = ConfigDict(extra="forbid")
@@ -71,13 +89,17 @@ class Scenario(BaseModel):
     filtering_algorithm: Annotated[str, Field(strict=True)] | None = None
     kidnap_at: Whole | None = Field(None, ge=1)
     kidnap_position: Point | None = None
+    filter_options: dict[str, OptionValue] | None = None
 
     @model_validator(mode="before")
     @classmethod
     def _lowest_version(cls, data: Any) -> Any:
         """Without an explicit format_version, the lowest that holds the data."""
         if isinstance(data, dict) and "format_version" not in data:
-            data = {**data, "format_version": KIDNAP_FORMAT_VERSION if data.get("kidnap_at") is not None else 1}
+            version = OPTIONS_FORMAT_VERSION if data.get("filter_options") is not None else 1
+            if data.get("kidnap_at") is not None:
+                version = max(version, KIDNAP_FORMAT_VERSION)
+            data = {**data, "format_version": version}
         return data
 
     @field_validator("filtering_algorithm")
@@ -113,6 +135,7 @@ class Scenario(BaseModel):
         if self.steps is not None and self.steps != steps:
             raise ValueError(f"steps is {self.steps} but there are {steps} angles")
         self._check_measurements()
+        self._check_filter_options()
         if self.maze is not None:
             self._check_places(Maze(self.maze, source="the scenario's maze"), particles)
         return self
@@ -154,6 +177,26 @@ class Scenario(BaseModel):
         if self.kidnap_position is not None and not world.is_free(*self.kidnap_position):
             raise ValueError(f"kidnap_position {self.kidnap_position} is not in the free area of the scenario's maze")
 
+    def _check_filter_options(self) -> None:
+        """filter_options need format_version 3 and a filter, declare only options that filter takes
+        (mazelab.contract), and build (a Recovery's or KLD's fields checked as the filter checks them)."""
+        if self.filter_options is None:
+            return
+        if self.format_version < OPTIONS_FORMAT_VERSION:
+            raise ValueError(f"filter_options need format_version {OPTIONS_FORMAT_VERSION}, got {self.format_version}")
+        if self.filtering_algorithm is None:
+            raise ValueError("filter_options need the filtering_algorithm they belong to")
+        filter_class = resolve_filter(self.filtering_algorithm)
+        for name in self.filter_options:
+            if name not in filter_class.options:
+                takes = ", ".join(filter_class.options) or "no options"
+                raise ValueError(f"{filter_class.name} does not take the option {name!r} (it takes: {takes})")
+        options_from_json(self.filter_options)
+
+    def filter_kwargs(self) -> dict[str, Any]:
+        """The stored filter options as the filter's keyword arguments (empty when none are stored)."""
+        return options_from_json(self.filter_options or {})
+
     def world(self) -> Maze | None:
         """The maze stored in the scenario, if any."""
         return None if self.maze is None else Maze(self.maze, source="the scenario's maze")
@@ -181,7 +224,9 @@ class Scenario(BaseModel):
         data = self.model_dump(exclude_none=True)
         lines = []
         for key, value in data.items():
-            if key in ("init_particles_pos", "maze"):
+            if key == "filter_options":
+                lines.append(f'  "{key}": {json.dumps(value, sort_keys=True)}')
+            elif key in ("init_particles_pos", "maze"):
                 inner = ",\n".join(f"    {json.dumps(list(item))}" for item in value)
                 lines.append(f'  "{key}": [\n{inner}\n  ]')
             else:
@@ -277,6 +322,7 @@ __all__ = [
     "DEFAULT_PARAMETERS_PATH",
     "KIDNAP_FORMAT_VERSION",
     "MAX_JSON_DEPTH",
+    "OPTIONS_FORMAT_VERSION",
     "SCENARIO_FORMAT_VERSION",
     "FiniteFloat",
     "Point",

@@ -26,12 +26,16 @@ from mazelab.checks import (
     check_world,
     step_number,
 )
+from mazelab.contract import check_options, takes
 from mazelab.limits import check_particles, check_recording, check_steps
 from mazelab.maze import Maze
 from mazelab.model import CONVERGENCE_RADIUS, DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, check_model_parameters
+from mazelab.option_json import options_to_json
+from mazelab.plugins import raise_for_student, student_code
 from mazelab.registry import resolve_filter
 from mazelab.robot import Robot
 from mazelab.scenario import Scenario
+from mazelab.seeding import new_seed, run_streams
 
 
 @dataclass
@@ -111,6 +115,7 @@ class RunInputs:
     filtering_algorithm: str
     kidnap_at: int | None = None
     kidnap_position: tuple[float, float] | None = None
+    filter_options: dict[str, Any] | None = None  # every option of the filter, defaults filled in (JSON form)
 
     @classmethod
     def of_run(
@@ -123,8 +128,10 @@ class RunInputs:
         seed: int,
         steps: int,
         name: str,
+        filter_options: dict[str, Any] | None = None,
     ) -> RunInputs:
-        """The inputs of a run of `steps` steps by `robot` (its recorded walk is copied)."""
+        """The inputs of a run of `steps` steps by `robot` (its recorded walk is copied); `filter_options`
+        the filter's options in JSON form (mazelab.option_json), or None."""
         kidnapped = robot.kidnap_at is not None and robot.kidnap_at <= steps
         return cls(
             robot.initial_position,
@@ -140,6 +147,7 @@ class RunInputs:
             name,
             robot.kidnap_at if kidnapped else None,
             robot.kidnap_position if kidnapped else None,
+            filter_options,
         )
 
     def scenario(self) -> Scenario:
@@ -159,6 +167,7 @@ class RunInputs:
             seed=self.seed,
             steps=self.steps,
             filtering_algorithm=self.filtering_algorithm,
+            filter_options=self.filter_options,
             **kidnapping,
         )
 
@@ -216,11 +225,6 @@ def check_replayed_walk(robot: Robot, world: Maze, steps: int) -> None:
             f"robot_actual_angles[{k}]: step {k + 1} of the replayed walk leaves the free area of the maze "
             f"({world.source}) at ({path[k, 0]:.2f}, {path[k, 1]:.2f})"
         )
-
-
-def new_seed() -> int:
-    """A fresh random seed, recorded so that any run can be repeated."""
-    return int(np.random.SeedSequence().entropy % 2**63)
 
 
 class NullView:
@@ -281,7 +285,7 @@ def simulate(
     `kidnap_at=K`: at step K, before its move, the robot is carried to a free place drawn from the
     seed (see Robot.kidnap); a robot that replays a kidnapping keeps it. The scenario stores it.
     result.extras["particle_count"] holds the particle count per step (it varies with KLD-sampling).
-    A filter class with `accepts_start = True` is also handed the robot's start as `start=` (the
+    A filter class that declares the option `start` is also handed the robot's start (the
     EKF's `init="start"` tracks from it; the kidnapping, if any, is left for it to find out).
     `view` is what the run draws into: None (nothing), a view (`log_step`, `close`), or a function
     `(world, filter_name) -> view`, called once the inputs are checked (mazelab.lab passes Rerun's).
@@ -297,9 +301,9 @@ def simulate(
     if "resolution" in filter_options:
         check_grid_resolution(filter_options["resolution"])
     filter_class = resolve_filter(filtering_algorithm)
+    check_options(filter_class, filter_options)
     seed = new_seed() if seed is None else check_seed("seed", seed)
-    # spawn(4)'s first three streams are spawn(3)'s: runs without kidnapping are unchanged
-    robot_rng, particles_rng, filter_rng, kidnap_rng = np.random.default_rng(seed).spawn(4)
+    streams = run_streams(seed)
     if init_particles_pos is not None:
         particles = as_points("init_particles_pos", init_particles_pos)
         check_particle_count(particle_count, len(particles))
@@ -308,7 +312,7 @@ def simulate(
         if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 1:
             raise ValueError(f"particle_count must be a whole number >= 1, got {count!r}")
         check_particles(int(count))
-        particles = world.random_free_places(int(count), particles_rng)
+        particles = world.random_free_places(int(count), streams.particles)
     given = particles if init_particles_pos is not None else None  # drawn ones lie in the free area
     check_start(world, robot.initial_position, given, robot.kidnap_position)
     if steps is None:
@@ -320,14 +324,15 @@ def simulate(
     if recorded is not None:
         check_recording(len(particles), int(steps), recorded)
     if kidnap_at is not None:
-        plan_kidnapping(robot, world, kidnap_at, steps, kidnap_rng)
+        plan_kidnapping(robot, world, kidnap_at, steps, streams.kidnap)
 
     robot.reset()
     if not robot.rng_given:
-        robot.rng = robot_rng
-    if getattr(filter_class, "accepts_start", False):  # a filter that can track from the known start (the EKF)
+        robot.rng = streams.robot
+    if takes(filter_class, "start"):  # a filter that can track from the known start (the EKF)
         filter_options = {"start": robot.initial_position, **filter_options}
-    filt = filter_class(world, sigma, delta, particles, filter_rng, **filter_options)
+    with student_code(filter_class):  # a user's filter that raises: its own frames and the step (plugins)
+        filt = filter_class(world, sigma, delta, particles, streams.filter, **filter_options)
     view = open_run_view(view, world, filter_class.name)
     expect_kidnapping(view, robot.kidnap_at, robot.kidnap_position)
     true_positions, estimates = np.empty((steps, 2)), np.empty((steps, 2))
@@ -344,9 +349,12 @@ def simulate(
             view.log_step(k + 1, robot.position, robot.heading, filt)
             if on_step is not None:
                 on_step(k + 1, robot, filt)
+    except Exception as error:
+        raise_for_student(error, filter_class, k + 1)  # a user's filter: its own frames and the step (plugins)
     finally:
         view.close()
-    inputs = RunInputs.of_run(robot, particles, world, sigma, delta, seed, steps, filter_class.name)
+    stored = options_to_json({**filter_class.options, **filter_options})  # every option, defaults filled in
+    inputs = RunInputs.of_run(robot, particles, world, sigma, delta, seed, steps, filter_class.name, stored)
     return RunResult(
         filter_class.name,
         true_positions,
@@ -379,7 +387,6 @@ __all__ = [
     "check_start",
     "convergence_step",
     "expect_kidnapping",
-    "new_seed",
     "open_run_view",
     "plan_kidnapping",
     "simulate",

@@ -5,14 +5,18 @@ from __future__ import annotations
 import numpy as np
 
 
-# -- weights ---------------------------------------------------------------------------------------
-def log_sum_exp(log_w: np.ndarray) -> float:
-    """log(sum(exp(log_w))) without overflow or underflow; -inf when every entry is -inf."""
-    top = log_w.max()  # the array methods skip np.max's dispatch: a few us a call, which counts at small N
-    if not np.isfinite(top):
-        return float(top)
-    shifted = np.subtract(log_w, top)
-    return float(top + np.log(np.exp(shifted, out=shifted).sum()))
+# -- weights: each function takes one run's weights (N,) or R runs' (R, N), summing along the last axis
+def log_sum_exp(log_w: np.ndarray) -> float | np.ndarray:
+    """log(sum(exp(log_w))) along the last axis without overflow or underflow; -inf where every entry
+    is -inf. A float for one run (N,), an array (R,) for R runs (R, N)."""
+    top = log_w.max(axis=-1, keepdims=True)  # the array methods skip np.max's dispatch: a few us a call
+    finite = np.isfinite(top[..., 0])
+    with np.errstate(invalid="ignore"):  # rows whose top is -inf give NaN here and -inf below
+        shifted = np.subtract(log_w, top)
+        totals = top[..., 0] + np.log(np.exp(shifted, out=shifted).sum(axis=-1))
+    if not finite.all():
+        totals = np.where(finite, totals, top[..., 0])
+    return float(totals) if log_w.ndim == 1 else totals.astype(float)
 
 
 def exp_in_place(values: np.ndarray) -> np.ndarray:
@@ -20,39 +24,58 @@ def exp_in_place(values: np.ndarray) -> np.ndarray:
     return np.exp(values, out=values)
 
 
-def normalise_log_weights(log_w: np.ndarray) -> np.ndarray:
-    """Log weights shifted so that their exponentials sum to one."""
-    return log_w - log_sum_exp(log_w)
+def weights_from_logs(log_w: np.ndarray, log_totals: np.ndarray) -> np.ndarray:
+    """Normalised weights exp(log w - log total) of R runs (R, N), totals (R,); a run whose total is
+    -inf gets NaNs (the caller does not draw from it)."""
+    with np.errstate(invalid="ignore"):
+        return exp_in_place(np.subtract(log_w, log_totals[:, None]))
 
 
-def effective_sample_size(weights: np.ndarray) -> float:
-    """N_eff = 1 / sum(W_i^2) for normalised weights W (Arulampalam et al., eq. 51)."""
-    return float(1.0 / (weights * weights).sum())
+def effective_sample_size(weights: np.ndarray) -> float | np.ndarray:
+    """N_eff = 1 / sum(W_i^2) for normalised weights W (Arulampalam et al., eq. 51), per run."""
+    ess = 1.0 / (weights * weights).sum(axis=-1)
+    return float(ess) if weights.ndim == 1 else ess
 
 
 # -- weighted summaries: numpy's pairwise sums, not BLAS (threaded BLAS stalls on a busy machine) -----
+# `points` (R*N, 2) hold R runs' particles in R blocks of N rows (one run: (N, 2)).
+def _columns(points: np.ndarray, runs: int) -> tuple[np.ndarray, np.ndarray]:
+    """The x and y columns of the points as (R, N) views."""
+    return points[:, 0].reshape(runs, -1), points[:, 1].reshape(runs, -1)
+
+
 def weighted_mean(weights: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """sum_i W_i x_i for normalised weights (N,) and points (N, 2), as float64 (2,)."""
-    w = weights.astype(points.dtype, copy=False)
-    return np.array([(w * points[:, 0]).sum(), (w * points[:, 1]).sum()], dtype=float)
+    """sum_i W_i x_i per run, float64: (2,) for weights (N,), (R, 2) for weights (R, N)."""
+    W = np.atleast_2d(weights)
+    w = W.astype(points.dtype, copy=False)
+    means = np.empty((len(W), 2))
+    for column, c in enumerate(_columns(points, len(W))):
+        means[:, column] = (w * c).sum(axis=1)  # summed in the points' dtype, then float64
+    return means[0] if weights.ndim == 1 else means
 
 
 def weighted_covariance(weights: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """sum_i W_i (x_i - mean)(x_i - mean)^T, float64 (2, 2)."""
-    mean = weighted_mean(weights, points)
-    dx, dy = points[:, 0] - mean[0], points[:, 1] - mean[1]  # float64: the spread may be tiny
-    xx, xy, yy = np.sum(weights * dx * dx), np.sum(weights * dx * dy), np.sum(weights * dy * dy)
-    return np.array([[xx, xy], [xy, yy]])
+    """sum_i W_i (x_i - mean)(x_i - mean)^T per run, float64: (2, 2), or (R, 2, 2) for weights (R, N)."""
+    W = np.atleast_2d(weights)
+    mean = np.atleast_2d(weighted_mean(weights, points))
+    x, y = _columns(points, len(W))
+    dx, dy = x - mean[:, :1], y - mean[:, 1:]  # float64: the spread may be tiny
+    xx, xy, yy = ((W * a * b).sum(axis=1) for a, b in ((dx, dx), (dx, dy), (dy, dy)))
+    covariance = np.stack([np.stack([xx, xy], -1), np.stack([xy, yy], -1)], -2)
+    return covariance[0] if weights.ndim == 1 else covariance
 
 
-def mass_within(weights: np.ndarray, points: np.ndarray, centre: np.ndarray, radius: float) -> float:
-    """The total weight of the points (N, 2) at most `radius` from `centre`."""
-    dx = points[:, 0] - points.dtype.type(centre[0])
-    dy = points[:, 1] - points.dtype.type(centre[1])
+def mass_within(weights: np.ndarray, points: np.ndarray, centre: np.ndarray, radius: float) -> float | np.ndarray:
+    """The total weight of the points at most `radius` from `centre` ((2,), or (R, 2) per run)."""
+    W = np.atleast_2d(weights)
+    c = np.atleast_2d(centre).astype(points.dtype)
+    x, y = _columns(points, len(W))
+    dx, dy = x - c[:, :1], y - c[:, 1:]
     dx *= dx
     dy *= dy
     dx += dy
-    return float(weights.sum(where=dx <= radius * radius))
+    mass = np.sum(W, axis=1, where=dx <= radius * radius)
+    return float(mass[0]) if weights.ndim == 1 else mass
 
 
 __all__ = [
@@ -60,7 +83,7 @@ __all__ = [
     "exp_in_place",
     "log_sum_exp",
     "mass_within",
-    "normalise_log_weights",
     "weighted_covariance",
     "weighted_mean",
+    "weights_from_logs",
 ]

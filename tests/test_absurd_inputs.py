@@ -134,7 +134,7 @@ def test_a_negative_seed_names_the_option(capsys):
 def test_study_refuses_what_run_refuses_before_any_run(capsys):
     study = ["study", "--runs", "2", "--steps", "3"]
     assert main([*study, "--maze", "paper_5x5", "--bandwidth", "multimodal", "--filters", "sir"]) == 2
-    assert "--bandwidth applies to the rpf only" in one_error_line(capsys)
+    assert "does not take --bandwidth" in one_error_line(capsys)
     assert main([*study, "--maze-size", "5x5", "--stations", "0"]) == 2
     assert "--stations 0" in one_error_line(capsys)
     assert "Study:" not in capsys.readouterr().out

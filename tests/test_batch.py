@@ -1,5 +1,5 @@
-"""The batched filters (mazelab.batch) advance R runs together bit for bit as R single-run filters,
-restarts included; a study's units give the records run_task gives run by run."""
+"""One filter object of R runs (mazelab.cloud) advances them together bit for bit as R single-run
+filters, restarts included; a study's units give the records run_task gives run by run."""
 
 from __future__ import annotations
 
@@ -8,7 +8,6 @@ import dataclasses
 import numpy as np
 import pytest
 
-from mazelab.batch import BATCH_FILTERS
 from mazelab.experiments.batch_runs import run_unit_safely, study_units
 from mazelab.experiments.study import MazeChoice, run_task, study_settings, study_tasks
 from mazelab.registry import resolve_filter
@@ -35,9 +34,7 @@ def test_batched_runs_equal_single_runs_bit_for_bit(name, paper_world):
     singles = [
         single_class(paper_world, 0.3, 0.5, particles[r], np.random.default_rng(s + 1000)) for r, s in enumerate(SEEDS)
     ]
-    batch = BATCH_FILTERS[single_class.name](
-        paper_world, 0.3, 0.5, particles, [np.random.default_rng(s + 1000) for s in SEEDS]
-    )
+    batch = single_class(paper_world, 0.3, 0.5, particles, [np.random.default_rng(s + 1000) for s in SEEDS])
     for k in range(steps):
         compass, z = np.array([w[k][0] for w in walks]), np.array([w[k][1] for w in walks])
         batch.step(compass, z)
@@ -57,7 +54,9 @@ def test_a_studys_units_give_the_records_of_its_runs_one_by_one(paper_world):
     assert [len(unit) for unit in units] == [3, 3]  # each setting's runs together
 
     def without_timing(records):
-        return [{k: v for k, v in dataclasses.asdict(r).items() if k != "ms_per_step"} for r in records]
+        return [
+            {k: v for k, v in dataclasses.asdict(r).items() if k not in ("ms_per_step", "run_seconds")} for r in records
+        ]
 
     together = [without_timing(records) for unit in units for records in run_unit_safely(unit)]
     assert together == [without_timing(run_task(task)) for task in tasks]

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from mazelab.cli.app import main
-from mazelab.experiments import batch_runs, executor
+from mazelab.experiments import executor, units
 from mazelab.experiments.rowlog import RowLog
 
 distributed = pytest.importorskip("distributed")
@@ -78,23 +78,23 @@ def test_a_cluster_without_workers_ends_after_the_dask_timeout(tmp_path, capsys)
 
 
 def kill_the_worker_once(unit):
-    """run_unit_safely, but the first worker to run run 2 dies as with kill -9 (a marker file says it did)."""
+    """run_unit_timed, but the first worker to run run 2 dies as with kill -9 (a marker file says it did)."""
     marker = Path(os.environ["MAZELAB_TEST_MARKER"])
     if any(task.run == 2 for task in unit) and not marker.exists():
         marker.touch()
         os.kill(os.getpid(), signal.SIGKILL)
-    return batch_runs.run_unit_safely(unit)
+    return units.run_unit_timed(unit)
 
 
 def kill_the_worker_always(unit):
     if any(task.run == 2 for task in unit):
         os.kill(os.getpid(), signal.SIGKILL)
-    return batch_runs.run_unit_safely(unit)
+    return units.run_unit_timed(unit)
 
 
 def test_a_killed_local_worker_restarts_the_pool_and_the_study_goes_on(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("MAZELAB_TEST_MARKER", str(tmp_path / "killed"))
-    monkeypatch.setattr(executor, "run_unit_safely", kill_the_worker_once)
+    monkeypatch.setattr(executor, "run_unit_timed", kill_the_worker_once)
     monkeypatch.setattr(executor, "study_units", lambda tasks, workers: [(task,) for task in tasks])
     table = tmp_path / "s.csv"
     assert main([*STUDY, "--runs", "8", "--workers", "2", "--csv", str(table)]) == 0
@@ -104,7 +104,7 @@ def test_a_killed_local_worker_restarts_the_pool_and_the_study_goes_on(tmp_path,
 
 
 def test_workers_that_keep_dying_stop_the_study_with_the_rows_kept(tmp_path, monkeypatch, capsys):
-    monkeypatch.setattr(executor, "run_unit_safely", kill_the_worker_always)
+    monkeypatch.setattr(executor, "run_unit_timed", kill_the_worker_always)
     monkeypatch.setattr(executor, "study_units", lambda tasks, workers: [(task,) for task in tasks])
     table = tmp_path / "s.csv"
     assert main([*STUDY, "--runs", "6", "--workers", "2", "--csv", str(table)]) == 1

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import io
+import itertools
 import math
 import signal
 import statistics
@@ -20,7 +21,7 @@ from mazelab.experiments.compare import compare_filters
 from mazelab.experiments.executor import run_study
 from mazelab.experiments.kidnapping import DEFAULT_WINDOW, recovery_steps, relocalised
 from mazelab.experiments.runs import final_error
-from mazelab.experiments.stats import student_t_quantile, t_interval
+from mazelab.experiments.stats import bootstrap_interval, student_t_quantile, t_interval, wilson_interval
 from mazelab.experiments.study import MazeChoice, RunRecord, study_settings, study_tasks
 from mazelab.experiments.summary import CSV_COLUMNS, study_table, summarise_study
 from mazelab.lab import simulate
@@ -121,15 +122,19 @@ def test_study_csv_has_a_row_per_run_and_filter(tmp_path, capsys):
     assert main([*args, "--runs", "3", "--steps", "25", "--particles", "100", "--seed", "1", "--csv", str(table)]) == 0
     rows = read_csv(table)
     assert list(rows[0]) == CSV_COLUMNS == [
-        "setting", "run", "seed", "maze", "maze_seed", "stations", "sigma", "delta", "particles", "threshold",
+        "setting", "run", "seed", "maze", "maze_seed", "station_blocks", "sigma", "delta", "particles", "threshold",
         "steps", "filter", "final_error", "mean_error", "converged_at", "mean_ess", "ms_per_step",
         "recovery", "kidnap_at", "relocalised", "steps_to_recover", "mean_particle_count", "bandwidth", "estimate",
+        "maze_sha256", "maze_rows", "maze_columns", "wall_share", "run_seconds",
     ]  # fmt: skip
     assert len(rows) == 4 * 3 * 2  # settings x runs x filters
     assert {(r["sigma"], r["delta"]) for r in rows} == {("0.3", "0.2"), ("0.3", "0.5"), ("0.6", "0.2"), ("0.6", "0.5")}
-    assert {r["stations"] for r in rows} == {"2"} and {r["maze_seed"] for r in rows} == {""}
+    assert {r["station_blocks"] for r in rows} == {"2"} and {r["maze_seed"] for r in rows} == {""}
+    assert {(r["maze_rows"], r["maze_columns"]) for r in rows} == {("5", "5")}
+    assert all(float(r["run_seconds"]) > 0 for r in rows)
     out = capsys.readouterr().out
-    assert "95% CI of mean" in out and "median conv. step" in out and "sigma" in out and "delta" in out
+    assert "95% CI" in out and "percentile bootstrap" in out and "median conv. step" in out
+    assert "varied: sigma 0.3, 0.6; delta 0.2, 0.5" in out and "fixed: maze paper_5x5, 100 particles" in out
 
 
 def test_every_filter_of_a_run_sees_the_same_scenario():
@@ -146,7 +151,7 @@ def test_every_filter_of_a_run_sees_the_same_scenario():
     assert [r.converged_at for r in records] == [convergence_step(sir.errors), convergence_step(apf.errors)]
 
 
-def test_run_seeds_do_not_depend_on_the_setting_or_the_workers():
+def test_study_seeds_do_not_depend_on_the_setting_or_the_workers():
     _, tasks = tiny_tasks()
     assert [t.seed for t in tasks[:3]] == [t.seed for t in tasks[3:]]  # run r: the same seed in each setting
     assert len({t.seed for t in tasks[:3]}) == 3
@@ -158,8 +163,8 @@ def test_run_seeds_do_not_depend_on_the_setting_or_the_workers():
 
 def test_study_statistics_on_a_tiny_seeded_study():
     """The table's figures recomputed by hand from the run records of a tiny seeded study: the mean,
-    the t-interval mean -/+ t_{0.975, n-1} s / sqrt(n) with T_975_DF2 (closed form for n - 1 = 2),
-    the converged share and the median convergence step of the converged runs."""
+    the percentile bootstrap interval (within the runs' range), the converged share and the median
+    convergence step of the converged runs."""
     settings, tasks = tiny_tasks()
     outcome = run_study(tasks, workers=1)
     summaries = summarise_study(outcome.records, settings)
@@ -168,10 +173,10 @@ def test_study_statistics_on_a_tiny_seeded_study():
         mine = [r for r in outcome.records if (r.setting, r.filter) == (s.setting_index, s.filter)]
         finals = np.array([r.final_error for r in mine])
         mean, sd = finals.sum() / 3, math.sqrt(((finals - finals.sum() / 3) ** 2).sum() / 2)
-        half = T_975_DF2 * sd / math.sqrt(3)
-        assert s.runs == 3
+        assert s.runs == 3 and sd >= 0
         assert s.mean_final_error == pytest.approx(mean, rel=1e-12)
-        assert s.interval == pytest.approx((mean - half, mean + half), rel=1e-9, abs=1e-12)
+        assert s.interval == bootstrap_interval(finals, "mean")
+        assert finals.min() <= s.interval[0] <= mean <= s.interval[1] <= finals.max()
         steps = sorted(r.converged_at for r in mine if r.converged_at is not None)
         assert s.converged_share == len(steps) / 3
         assert s.median_convergence_step == (statistics.median(steps) if steps else None)
@@ -182,15 +187,22 @@ def record(final: float, converged: int | None, run: int) -> RunRecord:
 
 
 def test_summary_of_known_numbers():
-    """Final errors 0.1, 0.2, 0.6: mean 0.3, s = sqrt((0.04 + 0.01 + 0.09) / 2) = sqrt(0.07), half width
-    T_975_DF2 sqrt(0.07 / 3) = 0.6572...; converged at 5, never, 9: share 2/3, median 7."""
+    """Final errors 0.1, 0.2, 0.6: mean 0.3, whose t-interval (half width T_975_DF2 sqrt(0.07 / 3) =
+    0.657) reaches below zero; the bootstrap's resampled means lie within [0.1, 0.6] and its
+    2.5% and 97.5% quantiles are resampled means of three of the values (k/3 sums). Converged at 5,
+    never, 9: share 2/3 with the Wilson interval, median 7."""
     settings = study_settings([MazeChoice("m", grid=((0, 2),))], [0.3], [0.5], [10], [0.2])
     records = [record(0.1, 5, 1), record(0.2, None, 2), record(0.6, 9, 3)]
     (summary,) = summarise_study(records, settings)
     half = T_975_DF2 * math.sqrt(0.07 / 3)
+    assert t_interval([0.1, 0.2, 0.6]) == pytest.approx((0.3 - half, 0.3 + half)) and 0.3 - half < 0
     assert summary.mean_final_error == pytest.approx(0.3)
-    assert summary.interval == pytest.approx((0.3 - half, 0.3 + half))
+    low, high = summary.interval
+    assert 0.1 <= low < 0.3 < high <= 0.6
+    means = {round(sum(c) / 3, 12) for c in itertools.product([0.1, 0.2, 0.6], repeat=3)}
+    assert round(low, 12) in means and round(high, 12) in means
     assert summary.converged_share == pytest.approx(2 / 3)
+    assert summary.converged_interval == wilson_interval(2, 3)
     assert summary.median_convergence_step == 7
     assert all(math.isnan(v) for v in t_interval([0.4]))  # one run: no interval
 
@@ -344,7 +356,9 @@ def test_study_varies_recovery_from_the_command_line(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "re-localised" in out and "median steps to recover" in out and "mean N" in out
     rows = read_csv(table)
-    assert [r["recovery"] for r in rows[::4]] == ["none", "augmented", "sensor"]
+    sir = [r for r in rows if r["filter"] == "SIRParticleFilter"]
+    assert [r["recovery"] for r in sir[::2]] == ["none", "augmented", "sensor"]
+    assert {r["recovery"] for r in rows if r["filter"] == "GridBayesFilter"} == {"none"}  # it takes no recovery
     assert {r["kidnap_at"] for r in rows} == {"20"} and {r["relocalised"] for r in rows} <= {"True", "False"}
     assert main([*args[:-2], "--recovery", "sometimes"]) == 2
     assert "unknown recovery 'sometimes'" in capsys.readouterr().err

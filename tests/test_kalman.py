@@ -174,9 +174,9 @@ def test_it_is_registered_and_gets_no_particle_filter_options():
 @pytest.mark.parametrize(
     ("args", "message"),
     [
-        (["--kld"], "particle filters only"),
-        (["--recovery"], "particle filters only"),
-        (["--resampling", "residual"], "particle filters only"),
+        (["--kld"], "ExtendedKalmanFilter does not take --kld"),
+        (["--recovery"], "ExtendedKalmanFilter does not take --recovery"),
+        (["--resampling", "residual"], "ExtendedKalmanFilter does not take --resampling"),
         (["--init", "somewhere"], "--init must be one of prior, start"),
     ],
 )
@@ -190,7 +190,7 @@ def test_the_cli_runs_it_from_the_start_and_refuses_init_for_the_others(capsys):
     assert main(["run", "--filter", "ekf", "--init", "start", "--steps", "20", "--seed", "2", "--quiet"]) == 0
     assert "ExtendedKalmanFilter: final error" in capsys.readouterr().out
     assert main(["run", "--filter", "sir", "--init", "start", "--steps", "5", "--quiet"]) == 2
-    assert "--init applies to the ekf only" in capsys.readouterr().err
+    assert "SIRParticleFilter does not take --init" in capsys.readouterr().err
 
 
 def test_compare_has_an_ekf_row(tmp_path, capsys):

@@ -138,10 +138,10 @@ def test_points_beyond_the_map_and_margin_are_refused_naming_the_first():
 def test_simulate_refuses_far_particles_and_a_kidnap_position_in_a_wall(paper_world):
     robot = Robot(0.3, 0.5, (3.5, 1.5))
     with pytest.raises(ValueError, match=r"init_particles_pos\[0\] = \(1e\+39, 1\) lies more than 10 map units"):
-        simulate(robot, paper_world, 0.3, 0.5, init_particles_pos=[[1e39, 1.0]], steps=2, seed=1, visualize=False)
+        simulate(robot, paper_world, 0.3, 0.5, init_particles_pos=[[1e39, 1.0]], steps=2, seed=1)
     robot.kidnap(2, (0.5, 4.5))
     with pytest.raises(ValueError, match=r"the kidnap position \(0.5, 4.5\) is not in the free area"):
-        simulate(robot, paper_world, 0.3, 0.5, 10, steps=3, seed=1, visualize=False)
+        simulate(robot, paper_world, 0.3, 0.5, 10, steps=3, seed=1)
 
 
 @pytest.mark.parametrize(

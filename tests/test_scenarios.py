@@ -64,7 +64,9 @@ def test_saved_scenario_has_the_papers_keys_and_metadata(tmp_path, paper_world):
     path = save_scenario(result.scenario, tmp_path / "s.json")
     data = json.loads(path.read_text())
     assert list(data)[:5] == ["format_version", *PAPER_KEYS]
-    assert data["format_version"] == 1  # no kidnapping: still readable by version-1 readers
+    assert data["format_version"] == 3 and data["filter_options"]["resampling"] == "systematic"  # the options: v3
+    without = {k: v for k, v in data.items() if k not in ("format_version", "filter_options")}
+    assert Scenario.model_validate(without).format_version == 1  # no options, no kidnapping: version-1 readers
     assert len(data["robot_measurements"]) == 20 and data["steps"] == 20
     assert data["maze"] == paper_world.as_lists() and data["seed"] == 3
     assert data["sigma"] == 0.3 and data["delta"] == 0.5

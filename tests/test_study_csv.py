@@ -33,13 +33,13 @@ def test_force_keeps_the_old_csv_until_the_new_one_is_whole(tmp_path, monkeypatc
     table = tmp_path / "s.csv"
     table.write_text("old\n")
     seen = []
-    real = executor.run_unit_safely
+    real = executor.run_unit_timed
 
     def look(unit):
         seen.append(table.read_text())  # what a reader of the CSV sees while the study runs
         return real(unit)
 
-    monkeypatch.setattr(executor, "run_unit_safely", look)
+    monkeypatch.setattr(executor, "run_unit_timed", look)
     assert main([*STUDY, "--csv", str(table), "--force"]) == 0
     assert seen and set(seen) == {"old\n"}
     assert len(rows(table)) == 12 and not table.with_name("s.csv.partial").exists()
@@ -50,13 +50,13 @@ def test_force_keeps_the_old_csv_until_the_new_one_is_whole(tmp_path, monkeypatc
 def test_a_file_size_limit_leaves_the_old_csv_and_whole_rows_in_the_partial_file(tmp_path):
     table = tmp_path / "s.csv"
     table.write_text("old\n")
-    limit = 1200  # bytes: the header and a few rows fit, not all twelve (about 2300 bytes)
+    limit = 6000  # bytes: the record (about 3000) and some rows fit, not all forty (about 11000 bytes)
 
     def limited() -> None:
         resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
 
     process = subprocess.run(
-        [sys.executable, str(ROOT / "main.py"), *STUDY, "--csv", str(table), "--force", "--no-viz"],
+        [sys.executable, str(ROOT / "main.py"), *STUDY, "--runs", "40", "--csv", str(table), "--force", "--no-viz"],
         capture_output=True,
         text=True,
         preexec_fn=limited,

@@ -115,7 +115,9 @@ def recorded_run(world, visualize, *, particles=200, steps=12, name="SIRParticle
     states: dict[int, dict] = {}
 
     def keep(k, robot, filt):
-        states[k] = {"positions": filt.positions.copy(), "headings": filt.headings.copy(), "weights": filt.weights}
+        belief = filt.belief()
+        headings = getattr(belief, "headings", None)
+        states[k] = {"positions": belief.positions.copy(), "headings": headings, "weights": belief.weights}
         states[k]["heading"] = robot.heading
 
     robot = Robot(0.3, 0.5, (3.5, 1.5))

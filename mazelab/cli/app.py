@@ -8,6 +8,7 @@ mazelab maze --help     random connected mazes (generate) and a look at any maze
 mazelab view FILE       a saved recording in the web viewer on 127.0.0.1 (no display needed)
 mazelab bench [--quick] the filters' speed against a plain numpy reference step
 mazelab accuracy        each filter's distance to the exact grid posterior on the shipped mazes
+mazelab exercise --help write your own filter (new) and grade it against the exact posterior (check)
 """
 
 from __future__ import annotations
@@ -18,11 +19,14 @@ import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 import typer
 
 from mazelab.atomic import WriteError, write_text_atomically
+from mazelab.cli.compare_outputs import compare_record_file, finish_compare, start_compare_record
+from mazelab.cli.exercise import exercise_app
+from mazelab.cli.filter_options import options_per_filter
 from mazelab.cli.maze import maze_app
 from mazelab.cli.options import (
     DEFAULT_DELTA,
@@ -39,32 +43,35 @@ from mazelab.cli.options import (
     UserError,
     ViewerOption,
     WebOption,
+    check_choice,
     check_output_path,
     check_outputs,
     visualization,
     warn_in_one_line,
 )
-from mazelab.cli.replay import from_scenario, refuse_counts_for_replay, replay_seed, start_place
+from mazelab.cli.provenance import remember_arguments, show_version
+from mazelab.cli.replay import from_scenario, refuse_counts_for_replay, replay_seed
+from mazelab.cli.replay_filter import replay_filter_name, replay_options
 from mazelab.cli.reports import kidnap_report, particle_count_report, prepare_world, progress_printer, report_run
 from mazelab.cli.studies import accuracy, study, study_mazes
 from mazelab.cli.view import view
 from mazelab.experiments.compare import compare_filters, comparison_table, errors_csv, plot_errors
 from mazelab.experiments.executor import STOP_SIGNALS
 from mazelab.experiments.runs import parse_filters
-from mazelab.filters import ParticleFilter, RegularizedParticleFilter
-from mazelab.kalman import EKF_INITS, ExtendedKalmanFilter
+from mazelab.kalman import EKF_INITS
 from mazelab.lab import simulate
 from mazelab.maze import MazeError
 from mazelab.mazes import DEFAULT_MAZE, find_maze, load_maze
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
 from mazelab.modes import check_estimate
+from mazelab.plugins import StudentCodeError
 from mazelab.recovery import ALPHA_FAST, ALPHA_SLOW, Recovery
 from mazelab.registry import resolve_filter
 from mazelab.regularisation import check_bandwidth
 from mazelab.resampling import KLD_EPSILON, KLD_QUANTILE, RESAMPLING_SCHEMES, KLDSampling
 from mazelab.robot import Robot
 from mazelab.scenario import ScenarioError, load_scenario, save_scenario
-from mazelab.simulation import new_seed
+from mazelab.seeding import new_seed, start_place
 from mazelab.viz.recording import write_errors_deferred
 from mazelab.viz.style import DEFAULT_MAX_DRAWN
 
@@ -86,6 +93,9 @@ def demo(
     no_viz: NoVizOption = False,
     max_drawn: MaxDrawnOption = DEFAULT_MAX_DRAWN,
     force: Annotated[bool, typer.Option("--force", help="replace an existing --rrd file")] = False,
+    version: Annotated[
+        bool, typer.Option("--version", is_eager=True, callback=show_version, help="the versions, then exit")
+    ] = False,
 ) -> None:
     """The paper's example: a lost robot, the SIR filter, 1500 particles, 200 steps."""
     if ctx.invoked_subcommand is not None:
@@ -117,8 +127,9 @@ def demo(
 
 @app.command(short_help="One filter on a lost robot, or on a saved scenario.")
 def run(
+    ctx: typer.Context,
     maze: Annotated[str | None, typer.Option(help=f"a maze file or a name in mazes/ [default: {DEFAULT_MAZE}]")] = None,
-    filter_name: Annotated[str, typer.Option("--filter", help="sir, apf, rpf, grid, ekf")] = "sir",
+    filter_name: Annotated[str, typer.Option("--filter", help="sir, apf, rpf, grid, ekf, or FILE.py:Class")] = "sir",
     particles: Annotated[
         int | None, typer.Option(min=1, help=f"particle count N_S [default: {DEFAULT_PARTICLE_COUNT}]")
     ] = None,
@@ -138,7 +149,9 @@ def run(
     save_scenario_path: Annotated[Path | None, typer.Option("--save-scenario", help="save the run (.json)")] = None,
     force: Annotated[bool, typer.Option("--force", help="replace existing output files")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", help="no per-step progress")] = False,
-    resampling: Annotated[str, typer.Option(help=f"{', '.join(RESAMPLING_SCHEMES)}")] = "systematic",
+    resampling: Annotated[
+        str | None, typer.Option(help=f"{', '.join(RESAMPLING_SCHEMES)} [default: systematic]")
+    ] = None,
     kidnap_at: Annotated[int | None, typer.Option(min=1, help="carry the robot elsewhere at this step")] = None,
     recovery: RecoveryOption = False,
     sensor_resetting: SensorResettingOption = False,
@@ -154,26 +167,33 @@ def run(
         str | None,
         typer.Option(help="ekf: prior (global) or start (tracking) [default: prior]"),
     ] = None,
-    bandwidth: BandwidthOption = "optimal",
-    estimate: EstimateOption = "mean",
+    bandwidth: BandwidthOption = None,
+    estimate: EstimateOption = None,
     viewer: ViewerOption = False,
     rrd: RrdOption = None,
     web: WebOption = False,
     no_viz: NoVizOption = False,
     max_drawn: MaxDrawnOption = DEFAULT_MAX_DRAWN,
 ) -> None:
-    """Run one filter: on a fresh lost robot, or replaying a saved scenario (--scenario)."""
+    """Run one filter on a lost robot, or replay a saved scenario (--scenario) with its filter and
+    options."""
     visualize = visualization(viewer, rrd, web, no_viz, max_drawn, force)
-    options = filter_options(filter_name, resampling, recovery, sensor_resetting, alpha_slow, alpha_fast, kld)
-    options.update(kalman_options(filter_name, init))
-    options.update(estimate_options(filter_name, bandwidth, estimate))
-    if kld:
-        options["kld"] = KLDSampling(epsilon=kld_epsilon, z=KLD_QUANTILE if kld_z is None else kld_z)
+    stored = load_scenario(scenario) if scenario is not None else None
+    filter_name = replay_filter_name(ctx, stored, filter_name)
+    given = {
+        "resampling": resampling,
+        "recovery": recovery_option(recovery, sensor_resetting, alpha_slow, alpha_fast),
+        "kld": KLDSampling(epsilon=kld_epsilon, z=KLD_QUANTILE if kld_z is None else kld_z) if kld else None,
+        "bandwidth": None if bandwidth is None else check_bandwidth(bandwidth),
+        "estimate": None if estimate is None else check_estimate(estimate),
+        "init": None if init is None else check_choice("--init", init, EKF_INITS),
+    }
+    options = options_per_filter([filter_name], given)[resolve_filter(filter_name).name]
     for path in (save_scenario_path, rrd):
         if path is not None:
             check_output_path(path, force)
-    if scenario is not None:
-        stored = load_scenario(scenario)
+    if stored is not None:
+        options = replay_options(ctx, stored, filter_name, options)
         refuse_counts_for_replay(stored, particles, steps, start_seed)
         world, robot, sigma, delta, init_particles = from_scenario(stored, maze, sigma, delta)
         seed = replay_seed(stored, seed)
@@ -225,47 +245,6 @@ def scenario_not_saved_on_stop(path: Path | None) -> Iterator[None]:
         raise
 
 
-def filter_options(
-    filter_name: str,
-    resampling: str,
-    recovery: bool,
-    sensor_resetting: bool,
-    alpha_slow: float,
-    alpha_fast: float,
-    kld: bool,
-) -> dict[str, Any]:
-    """The particle filters' options from the command line; refused for the grid filter."""
-    if not issubclass(resolve_filter(filter_name), ParticleFilter):
-        if recovery or sensor_resetting or kld or resampling != "systematic":
-            raise UserError("--resampling, --recovery, --sensor-resetting and --kld apply to particle filters only")
-        return {}
-    options: dict[str, Any] = {"resampling": resampling}
-    if recovery or sensor_resetting:
-        options["recovery"] = recovery_option(recovery, sensor_resetting, alpha_slow, alpha_fast)
-    return options
-
-
-def estimate_options(filter_name: str, bandwidth: str, estimate: str) -> dict[str, Any]:
-    """--bandwidth (the rpf only; refused for the others unless left at optimal) and --estimate."""
-    options: dict[str, Any] = {"estimate": check_estimate(estimate)}
-    if resolve_filter(filter_name) is RegularizedParticleFilter:
-        options["bandwidth"] = check_bandwidth(bandwidth)
-    elif bandwidth != "optimal":
-        raise UserError("--bandwidth applies to the rpf only")
-    return options
-
-
-def kalman_options(filter_name: str, init: str | None) -> dict[str, Any]:
-    """The EKF's --init (prior or start); refused for the other filters."""
-    if init is None:
-        return {}
-    if resolve_filter(filter_name) is not ExtendedKalmanFilter:
-        raise UserError("--init applies to the ekf only")
-    if init not in EKF_INITS:
-        raise UserError(f"--init must be one of {', '.join(EKF_INITS)}, got {init!r}")
-    return {"init": init}
-
-
 def recovery_option(recovery: bool, sensor_resetting: bool, alpha_slow: float, alpha_fast: float) -> Recovery | None:
     """--recovery (augmented MCL) or --sensor-resetting, with the rates; None for neither."""
     if not (recovery or sensor_resetting):
@@ -276,13 +255,16 @@ def recovery_option(recovery: bool, sensor_resetting: bool, alpha_slow: float, a
 @app.command(short_help="Lab steps 12-13: every filter on one saved scenario.")
 def compare(
     scenario: Annotated[Path, typer.Argument(metavar="SCENARIO", help="a saved scenario (.json)", show_default=False)],
-    filters: Annotated[str, typer.Option(help="sir, apf, rpf, grid, ekf, comma-separated")] = "sir,apf,rpf",
+    filters: Annotated[
+        str, typer.Option(help="sir, apf, rpf, grid, ekf, FILE.py:Class, comma-separated")
+    ] = "sir,apf,rpf",
     maze: Annotated[str | None, typer.Option(help="the maze, if the scenario stores none")] = None,
     sigma: Annotated[float | None, typer.Option(help="override the scenario's sigma")] = None,
     delta: Annotated[float | None, typer.Option(help="override the scenario's delta")] = None,
     seed: Annotated[int | None, typer.Option(min=0, help="the filters' seed (default: the scenario's)")] = None,
     csv_path: Annotated[Path | None, typer.Option("--csv", help="per-step errors, a column per filter")] = None,
     plot: Annotated[Path | None, typer.Option(help="the lab's error figure (.png; plot extra)")] = None,
+    traces: Annotated[Path | None, typer.Option(help="per-step rows of every filter (.csv, or .parquet)")] = None,
     force: Annotated[bool, typer.Option("--force", help="replace existing output files")] = False,
     kidnap_at: Annotated[
         int | None,
@@ -293,8 +275,8 @@ def compare(
     alpha_slow: AlphaSlowOption = ALPHA_SLOW,
     alpha_fast: AlphaFastOption = ALPHA_FAST,
     kld: Annotated[bool, typer.Option("--kld", help="KLD-sampling (the scenario's count is the most)")] = False,
-    bandwidth: BandwidthOption = "optimal",
-    estimate: EstimateOption = "mean",
+    bandwidth: BandwidthOption = None,
+    estimate: EstimateOption = None,
     viewer: ViewerOption = False,
     rrd: RrdOption = None,
     web: WebOption = False,
@@ -307,11 +289,22 @@ def compare(
     over the last 30 steps) and the steps it took."""
     visualize = visualization(viewer, rrd, web, no_viz, max_drawn, force)
     check_outputs(csv_path, plot, force, rrd)
+    record_file = compare_record_file(csv_path, plot, traces, force)  # a JSON record beside the outputs
     stored = load_scenario(scenario)
     world, robot, sigma, delta, particles = from_scenario(stored, maze, sigma, delta)
     prepare_world(world)
     seed = replay_seed(stored, seed)
     names = parse_filters(filters)
+    given = {
+        "recovery": recovery_option(recovery, sensor_resetting, alpha_slow, alpha_fast),
+        "kld": kld or None,
+        "bandwidth": None if bandwidth is None else check_bandwidth(bandwidth),
+        "estimate": None if estimate is None else check_estimate(estimate),
+    }
+    options_per_filter(names, given)  # a flag that none of the filters takes: one line, before any work
+    parameters = {"filters": names, "sigma": sigma, "delta": delta, "seed": seed, "kidnap_at": kidnap_at, "kld": kld,
+                  "recovery": recovery or sensor_resetting, "bandwidth": bandwidth, "estimate": estimate}  # fmt: skip
+    recorder = start_compare_record(scenario, parameters)
     typer.echo(
         f"{scenario.name}: {len(particles)} particles, {robot.recorded_steps} steps, "
         f"sigma {sigma:g}, delta {delta:g}, seed {seed}"
@@ -326,10 +319,7 @@ def compare(
         seed=seed,
         visualize=visualize,
         kidnap_at=kidnap_at,
-        recovery=recovery_option(recovery, sensor_resetting, alpha_slow, alpha_fast),
-        kld=kld,
-        bandwidth=check_bandwidth(bandwidth),
-        estimate=check_estimate(estimate),
+        **given,
     )
     kidnapping = next(iter(results.values()))
     if kidnapping.kidnap_at is not None and kidnapping.kidnap_position is not None:
@@ -343,11 +333,13 @@ def compare(
         title = f"Localisation error: {scenario.name} (sigma {sigma:g}, delta {delta:g}, {len(particles)} particles)"
         plot_errors(results, plot, title, replace=force)
         typer.echo(f"figure written to {plot}")
+    finish_compare(results, seed, traces, recorder, record_file)
 
 
 app.command(short_help="Lab step 14: a Monte Carlo parameter study.")(study)
 app.command(short_help="Every filter against the exact grid posterior.")(accuracy)
 app.add_typer(maze_app, name="maze")
+app.add_typer(exercise_app, name="exercise")
 app.command(short_help="A saved recording in the web viewer on 127.0.0.1.")(view)
 
 
@@ -369,6 +361,7 @@ def main(argv: list[str] | None = None) -> int:
     can neither hang nor interrupt the exit); called with `argv` (in-process), main puts the signal
     handlers back as it found them."""
     warnings.showwarning = warn_in_one_line
+    remember_arguments(argv)
     handlers = {sig: signal.getsignal(sig) for sig in STOP_SIGNALS}
     try:
         return _main(argv)
@@ -388,6 +381,9 @@ def _main(argv: list[str] | None) -> int:
     except (UserError, MazeError, ScenarioError, ValueError) as error:
         typer.echo(f"error: {error}", err=True)
         return 2
+    except StudentCodeError as error:  # the student's filter raised: their frames and the step, not ours
+        typer.echo(f"error: {error}", err=True)
+        return 1
     except OSError as error:  # a full disk, a file size limit, a read-only folder, a name too long
         typer.echo(f"error: {describe_os_error(error)}", err=True)
         return 1
@@ -415,16 +411,12 @@ __all__ = [
     "compare",
     "demo",
     "describe_os_error",
-    "estimate_options",
-    "filter_options",
     "from_scenario",
-    "kalman_options",
     "main",
     "recovery_option",
     "refuse_counts_for_replay",
     "replay_seed",
     "run",
-    "start_place",
     "study",
     "study_mazes",
 ]

@@ -13,7 +13,7 @@ from mazelab.atomic import write_text_atomically
 from mazelab.cli.options import NoVizOption, RrdOption, ViewerOption, WebOption, check_output_path, visualization
 from mazelab.cli.reports import generation_progress
 from mazelab.mazes import load_maze
-from mazelab.simulation import new_seed
+from mazelab.seeding import new_seed
 from mazelab.viz.views import open_view
 
 maze_app = typer.Typer(

@@ -4,6 +4,7 @@ the one-line errors and warnings of the command line."""
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -27,9 +28,11 @@ ViewerOption = Annotated[bool, typer.Option("--viewer", help="the native viewer 
 RrdOption = Annotated[Path | None, typer.Option("--rrd", help="save the recording to this .rrd file")]
 # The RPF's kernel and the point estimate (mazelab.regularisation, mazelab.modes): on run, compare and study.
 BandwidthOption = Annotated[
-    str, typer.Option(help="RPF kernel: optimal (the paper's, default), multimodal, h", show_default=False)
+    str | None, typer.Option(help="RPF kernel: optimal (the paper's, default), multimodal, h", show_default=False)
 ]
-EstimateOption = Annotated[str, typer.Option(help="estimate: mean (the paper's, default) or mode", show_default=False)]
+EstimateOption = Annotated[
+    str | None, typer.Option(help="estimate: mean (the paper's, default) or mode", show_default=False)
+]
 WebOption = Annotated[bool, typer.Option("--web", help="serve the web viewer on 127.0.0.1")]
 NoVizOption = Annotated[bool, typer.Option("--no-viz", help="draw nothing")]
 MaxDrawnOption = Annotated[int, typer.Option("--max-drawn", min=1, help="particles drawn per step, at most")]
@@ -107,6 +110,13 @@ def warn_in_one_line(message: Warning | str, category: type[Warning], *_args: An
         typer.echo(f"warning: {message}", err=True)
 
 
+def check_choice(flag: str, value: str, choices: Sequence[str]) -> str:
+    """`value` if it is one of `choices`, else one line naming the flag and the choices."""
+    if value not in choices:
+        raise UserError(f"{flag} must be one of {', '.join(choices)}, got {value!r}")
+    return value
+
+
 __all__ = [
     "DEFAULT_DELTA",
     "DEFAULT_SIGMA",
@@ -122,6 +132,7 @@ __all__ = [
     "UserError",
     "ViewerOption",
     "WebOption",
+    "check_choice",
     "check_output_path",
     "check_outputs",
     "parse_list",

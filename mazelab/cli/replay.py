@@ -12,13 +12,7 @@ from mazelab.maze import Maze
 from mazelab.mazes import load_maze, mazes_fitting
 from mazelab.robot import Robot
 from mazelab.scenario import Scenario
-from mazelab.simulation import new_seed
-
-
-def start_place(world: Maze, seed: int) -> tuple[float, float]:
-    """The robot's start of a fresh run: a free place drawn from the run's seed (as a study's runs
-    do), so that one seed repeats the whole run."""
-    return world.random_free_place(np.random.default_rng(seed))
+from mazelab.seeding import new_seed
 
 
 def replay_seed(stored: Scenario, seed: int | None) -> int:
@@ -82,5 +76,4 @@ __all__ = [
     "from_scenario",
     "refuse_counts_for_replay",
     "replay_seed",
-    "start_place",
 ]

@@ -1,18 +1,17 @@
-"""The command line's studies: `study` (lab step 14, a Monte Carlo parameter study) and `accuracy`
-(every filter against the exact grid posterior). Plain functions; mazelab.cli.app registers them."""
+"""The command line's studies: `study` (lab step 14, a Monte Carlo parameter study; its Python twin is
+`mazelab.study`) and `accuracy` (mazelab.cli.accuracy). Plain functions; mazelab.cli.app registers them."""
 
 from __future__ import annotations
 
 import signal
-import time
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
-from mazelab import maze_generator
 from mazelab.atomic import WriteError
-from mazelab.checks import check_bandwidth_within, check_sigma_within
+from mazelab.cli.accuracy import accuracy
+from mazelab.cli.filter_options import options_per_filter
 from mazelab.cli.options import (
     DEFAULT_DELTA,
     DEFAULT_SIGMA,
@@ -23,43 +22,44 @@ from mazelab.cli.options import (
     UserError,
     ViewerOption,
     WebOption,
+    check_output_path,
     check_outputs,
     parse_list,
     visualization,
 )
+from mazelab.cli.provenance import command_line
 from mazelab.experiments.dask_runner import DASK_TIMEOUT, close_client, connect
 from mazelab.experiments.executor import STOP_SIGNALS, default_workers, run_study
-from mazelab.experiments.rowlog import RowLog
+from mazelab.experiments.plan import StudyPlan, plan_study
+from mazelab.experiments.plan import study_mazes as plan_mazes
+from mazelab.experiments.record import Recorder, differences, read_record, record_path
+from mazelab.experiments.resume import RESUME_IGNORES, missing_tasks, read_study_csv
+from mazelab.experiments.rowlog import RowLog, partial_path
 from mazelab.experiments.runs import parse_filters
 from mazelab.experiments.stats import CONFIDENCE_LEVEL
-from mazelab.experiments.study import MazeChoice, StudySetting, study_settings, study_tasks, varied_parameters
-from mazelab.experiments.summary import describe_setting, plot_study, study_table, summarise_study
-from mazelab.filters import RegularizedParticleFilter
-from mazelab.limits import check_particles, check_steps, check_study
-from mazelab.mazes import DEFAULT_MAZE, MAZES_DIR, find_maze, load_maze
-from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, RPF_THRESHOLD, check_model_parameters
-from mazelab.registry import resolve_filter
-from mazelab.regularisation import check_bandwidth
-from mazelab.simulation import new_seed
+from mazelab.experiments.study import MazeChoice, RunRecord, RunTask
+from mazelab.experiments.summary import study_table, summarise_study
+from mazelab.experiments.traces import check_trace_path, kept_traces, study_traces, write_traces
+from mazelab.mazes import DEFAULT_MAZE
+from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, RPF_THRESHOLD
 from mazelab.viz.style import DEFAULT_MAX_DRAWN
 
 
 def study(
-    maze: Annotated[
-        str | None, typer.Option(help=f"maze files or names, comma-separated [default: {DEFAULT_MAZE}]")
-    ] = None,
+    maze: Annotated[str | None, typer.Option(help=f"maze files or names, a list [default: {DEFAULT_MAZE}]")] = None,
     maze_size: Annotated[str | None, typer.Option(help="generated mazes ROWSxCOLUMNS, comma-separated")] = None,
-    stations: Annotated[str | None, typer.Option(help="station blocks, comma-separated")] = None,
+    stations: Annotated[str | None, typer.Option(help="generated mazes' station blocks, comma-separated")] = None,
+    wall_share: Annotated[str | None, typer.Option(help="generated mazes' share of walls, comma-separated")] = None,
     sigma: Annotated[str, typer.Option(help="noise std sigma, comma-separated")] = str(DEFAULT_SIGMA),
-    delta: Annotated[str, typer.Option(help="compass error width, comma-separated")] = str(DEFAULT_DELTA),
+    delta: Annotated[str, typer.Option(help="compass error, comma-separated")] = str(DEFAULT_DELTA),
     particles: Annotated[str, typer.Option(help="particle counts, comma-separated")] = str(DEFAULT_PARTICLE_COUNT),
-    threshold: Annotated[str, typer.Option(help="RPF's N_T / N_S, comma-separated")] = str(RPF_THRESHOLD),
-    filters: Annotated[str, typer.Option(help="sir, apf, rpf, grid, ekf, comma-separated")] = "sir,apf,rpf",
+    threshold: Annotated[str | None, typer.Option(help=f"RPF's N_T / N_S, a list [default: {RPF_THRESHOLD}]")] = None,
+    filters: Annotated[str, typer.Option(help="sir, apf, rpf, grid, ekf, a list")] = "sir,apf,rpf",
     kidnap_at: Annotated[int | None, typer.Option(min=1, help="carry the robot elsewhere at this step")] = None,
-    recovery: Annotated[str, typer.Option(help="none, augmented, sensor, comma-separated")] = "none",
+    recovery: Annotated[str | None, typer.Option(help="none (default), augmented or sensor, a list")] = None,
     kld: Annotated[bool, typer.Option("--kld", help="KLD-sampling (--particles is the most)")] = False,
-    bandwidth: Annotated[str, typer.Option(help="RPF kernels: optimal, multimodal, h", show_default=False)] = "optimal",
-    estimate: EstimateOption = "mean",
+    bandwidth: Annotated[str | None, typer.Option(help="RPF kernels: optimal (default), multimodal, h")] = None,
+    estimate: EstimateOption = None,
     runs: Annotated[int, typer.Option(min=1, help="seeded runs per setting")] = 30,
     steps: Annotated[int, typer.Option(min=1, help="steps per run")] = DEFAULT_STEPS,
     seed: Annotated[int | None, typer.Option(min=0, help="the study's root seed (default: new, printed)")] = None,
@@ -69,8 +69,12 @@ def study(
         float, typer.Option(min=0.1, help="seconds without a finished run before a Dask study gives up")
     ] = DASK_TIMEOUT,
     csv_path: Annotated[Path | None, typer.Option("--csv", help="one row per run and filter")] = None,
-    plot: Annotated[Path | None, typer.Option(help="error against the varied parameter (.png)")] = None,
+    plot: Annotated[Path | None, typer.Option(help="error against the varied parameters (.png)")] = None,
+    traces: Annotated[Path | None, typer.Option(help="per-step rows of every run (.csv, or .parquet)")] = None,
+    record: Annotated[Path | None, typer.Option(help="JSON record [default: CSV.record.json]")] = None,
+    resume: Annotated[bool, typer.Option("--resume", help="run only the rows missing from --csv")] = False,
     force: Annotated[bool, typer.Option("--force", help="replace existing output files")] = False,
+    draw_run: Annotated[int, typer.Option(help="the run --viewer/--rrd/--web draw", show_default=False)] = 1,
     viewer: ViewerOption = False,
     rrd: RrdOption = None,
     web: WebOption = False,
@@ -79,45 +83,67 @@ def study(
 ) -> None:
     """Lab step 14: a Monte Carlo study over every combination of the values given.
 
-    Each setting gets R seeded runs, every filter seeing the same scenario in a run. The table gives
-    per setting and filter the mean final error (last 20% of the steps) with its 95% t-interval, the
-    share converged and the median convergence step (README: "Parameter studies")."""
-    visualize = visualization(viewer, rrd, web, no_viz, max_drawn) if viewer or web or rrd is not None else False
-    check_outputs(csv_path, plot, force, rrd)
-    names = parse_filters(filters)
-    check_steps(steps)  # each run's limits, up front rather than in every worker
-    check_particles(max(parse_list(particles, int, "--particles")))
-    settings = study_settings(
-        study_mazes(maze, maze_size, stations),
-        parse_list(sigma, float, "--sigma"),
-        parse_list(delta, float, "--delta"),
-        parse_list(particles, int, "--particles"),
-        parse_list(threshold, float, "--threshold"),
-        parse_list(recovery, str, "--recovery"),
-        parse_list(bandwidth, str, "--bandwidth"),
-    )
-    check_study(len(settings) * runs, len(names))
-    check_study_numbers(settings, names)
-    seed = new_seed() if seed is None else seed
-    tasks = study_tasks(settings, names, runs, steps, seed, kidnap_at=kidnap_at, kld=kld, estimate=estimate)
+    Each filter runs once per value of its own options; a JSON record goes beside the outputs
+    (README: "Parameter studies")."""
+    visualize = visualization(viewer, rrd, web, no_viz, max_drawn, force) if viewer or web or rrd is not None else False
+    record_file = record if record is not None else next((record_path(p) for p in (csv_path, plot, traces) if p), None)
+    recorded = _check_resume(csv_path, record_file) if resume else None
+    if recorded is not None and seed is None:
+        seed = recorded["parameters"]["root_seed"]
+    check_outputs(None if resume else csv_path, plot, force or resume, rrd)  # --resume replaces its own outputs
+    for path in (traces, record_file):
+        if path is not None and not resume:
+            check_output_path(path, force)
+    if traces is not None:
+        check_trace_path(traces)
+    options_per_filter(  # a flag that none of the filters takes: one line, before any work
+        parse_filters(filters),
+        {"threshold": threshold, "recovery": None if recovery in (None, "none") else recovery,
+         "kld": kld or None, "bandwidth": bandwidth, "estimate": estimate},
+    )  # fmt: skip
+    threshold, recovery = threshold or str(RPF_THRESHOLD), recovery or "none"
+    bandwidth, estimate = bandwidth or "optimal", estimate or "mean"
+    plan = plan_study(
+        plan_mazes(_list(maze, str, "--maze"), _list(maze_size, str, "--maze-size"),
+                   _list(stations, int, "--stations"), _list(wall_share, float, "--wall-share")),
+        filters,
+        sigma=parse_list(sigma, float, "--sigma"),
+        delta=parse_list(delta, float, "--delta"),
+        particles=parse_list(particles, int, "--particles"),
+        threshold=parse_list(threshold, float, "--threshold"),
+        recovery=parse_list(recovery, str, "--recovery"),
+        bandwidth=parse_list(bandwidth, str, "--bandwidth"),
+        estimate=parse_list(estimate, str, "--estimate"),
+        runs=runs, steps=steps, seed=seed, kidnap_at=kidnap_at, kld=kld, traces=traces is not None,
+    )  # fmt: skip
+    tasks, kept = plan.tasks(), []
+    if recorded is not None and csv_path is not None:
+        tasks, kept = _resumed(plan, recorded, csv_path)
+    tasks = _drawn_first(tasks, draw_run) if visualize else tasks
     workers = workers or default_workers()
-    varied = varied_parameters(settings)
-    log = RowLog(csv_path, replace=force) if csv_path is not None else None  # rows go to NAME.csv.partial
+    log = RowLog(csv_path, replace=force or resume, adopt=resume) if csv_path is not None else None  # NAME.csv.partial
     try:
         client = connect(dask) if dask is not None else None  # a bad address: one line and exit 2, before anything
     except BaseException:
         if log is not None:
-            log.discard()
+            log.close() if resume else log.discard()
         raise
     where = f"on the Dask cluster at {dask}" if dask is not None else f"{workers} worker(s)"
-    typer.echo(
-        f"Study: {len(settings)} setting(s) x {runs} runs x {len(names)} filters, seed {seed}, {where}\n"
-        f"{describe_setting(settings[0], steps, runs, kidnap_at)}"
-        + (f"; varied: {', '.join(varied)}" if varied else "")
-    )
+    typer.echo(plan.header(where))
+    if visualize:
+        typer.echo(f"drawing run {tasks[0].run} of setting {tasks[0].setting_index} (--draw-run chooses the run)")
+    if recorded is not None:
+        typer.echo(f"resuming: {len(kept)} rows kept from {_rows_file(csv_path)}, {len(tasks)} run(s) to go")
     if log is not None and log.note:
         typer.echo(f"note: {log.note}", err=True)
-    started = time.perf_counter()
+    recorder = Recorder(
+        "study", command_line(), plan.parameters(), outputs=_outputs(csv_path, plot, traces),
+        sessions=[*(recorded or {}).get("sessions", []), *([] if recorded is None else [_session(recorded)])],
+    )  # fmt: skip
+    if record_file is not None:
+        recorder.write(record_file)  # now: an interrupted study keeps its parameters for --resume
+    if log is not None and kept:
+        log.append(kept)
     try:
         outcome = run_study(
             tasks,
@@ -132,96 +158,104 @@ def study(
     finally:
         if client is not None:
             close_client(client)
-    seconds = time.perf_counter() - started
     for failure in outcome.failures:
         typer.echo(f"error: {failure.describe()}", err=True)
-    finished = len({(r.setting, r.run) for r in outcome.records})
-    if outcome.lost is not None:  # the cluster or the pool is gone: the CSV stays the old file
+    records = _in_order([*kept, *outcome.records], plan)
+    finished = len({(r.setting, r.run) for r in records})
+    total = len(plan.tasks())
+    summaries = summarise_study(records, plan.settings)
+    closing = {
+        "runs_finished": finished,
+        "runs_in_study": total,
+        "failures": [f.describe() for f in outcome.failures],
+        "summary": [s.as_dict() for s in summaries],
+    }
+    if outcome.interrupted or outcome.lost is not None:  # the CSV stays the old file; the rows are in NAME.csv.partial
         if log is not None:
             log.close()
-        kept = f"; {log.kept()}" if log is not None else ""
-        typer.echo(f"error: {outcome.lost}; {finished} of {len(tasks)} runs finished{kept}", err=True)
-        raise typer.Exit(1)
-    if outcome.interrupted:
-        saved = f"; {log.kept()}" if log is not None else ""  # the CSV stays the old file (or none)
-        if log is not None:
-            log.close()
-        typer.echo(f"interrupted after {finished} of {len(tasks)} runs{saved}", err=True)
+        _write_traces(traces, _in_order(outcome.records, plan), tasks, recorded is not None)
+        if record_file is not None:
+            recorder.finish("interrupted", **closing)
+            recorder.write(record_file)
+        saved = f"; {log.kept()} (--resume goes on)" if log is not None else ""
+        if outcome.lost is not None:  # a lost cluster or pool: one line, exit 1
+            typer.echo(f"error: {outcome.lost}; {finished} of {total} runs finished{saved}", err=True)
+            raise typer.Exit(1)
+        typer.echo(f"interrupted after {finished} of {total} runs{saved}", err=True)
         for sig in STOP_SIGNALS:  # stopping already: a further Ctrl-C, SIGTERM or SIGHUP changes nothing
             signal.signal(sig, signal.SIG_IGN)
         raise typer.Exit(128 + (outcome.stopped_by or signal.SIGINT))  # 130 Ctrl-C, 143 SIGTERM, 129 SIGHUP
-    summaries = summarise_study(outcome.records, settings)
-    typer.echo(study_table(summaries, varied, kld=kld))  # the table first: a write error cannot lose it
-    typer.echo(f"{finished} runs in {seconds:.1f} s wall time")
+    typer.echo(study_table(summaries, plan.varied, kld=kld))  # the table first: a write error cannot lose it
+    seconds = recorder.finish("finished" if not outcome.failures else "finished with failures", **closing)
+    ran = len({(r.setting, r.run) for r in outcome.records})
+    typer.echo(f"{ran} runs in {seconds['duration_seconds']:.1f} s wall time")
     if csv_path is not None and log is not None:
         try:
-            log.finish(outcome.records)  # the whole CSV, in order; then the partial file goes
+            log.finish(records)  # the whole CSV, in order; then the partial file goes
         except OSError as error:
             log.close()
             typer.echo(f"error: {describe_write_error(error)}; {log.kept()}", err=True)
             raise typer.Exit(1) from None
         typer.echo(f"one row per run and filter written to {csv_path}")
+    if _write_traces(traces, _in_order(outcome.records, plan), tasks, recorded is not None):
+        typer.echo(f"per-step traces written to {traces}")
     if plot is not None and summaries:
-        what = ", ".join(varied) or "the setting"
-        where = "" if "maze" in varied else f" on {settings[0].maze.label}"
-        title = (
-            f"Final error against {what}{where}\n({runs} runs per point, "
-            f"{CONFIDENCE_LEVEL:.0%} t-intervals for the mean)"
-        )
-        plot_study(summaries, varied or ["maze"], plot, title, replace=force)
-        typer.echo(f"figure written to {plot}")
+        _plot(plan, summaries, plot, force)
+    if record_file is not None:
+        recorder.write(record_file)
+        typer.echo(f"the study's record (command, versions, seeds, mazes, summary) written to {record_file}")
     if outcome.failures:
         raise typer.Exit(1)
 
 
-def accuracy(
-    maze: Annotated[
-        str | None, typer.Option(help="maze files or names, comma-separated (default: every maze in mazes/)")
-    ] = None,
-    sigma: Annotated[float, typer.Option(help="measurement noise std")] = DEFAULT_SIGMA,
-    delta: Annotated[float, typer.Option(help="compass error width, radians")] = DEFAULT_DELTA,
-    particles: Annotated[int, typer.Option(min=1, help="particle count N_S")] = DEFAULT_PARTICLE_COUNT,
-    runs: Annotated[int, typer.Option(min=1, help="seeded runs per maze")] = 10,
-    steps: Annotated[int, typer.Option(min=2, help="steps per run (the distance is averaged over the second half)")] = (
-        DEFAULT_STEPS
-    ),
-    seed: Annotated[int, typer.Option(min=0, help="root seed (run r has the same seed on every maze)")] = 1,
-    workers: Annotated[int | None, typer.Option(min=1, help="processes (default: all cores)")] = None,
-) -> None:
-    """How close each filter comes to the exact posterior: per maze, the mean distance between its
-    estimate and the exact grid filter's posterior mean over the second half of the steps, and the
-    share of runs that converged (error below 0.5 from some step on)."""
-    from mazelab.experiments.accuracy import ACCURACY_FILTERS, accuracy_table, accuracy_tasks, run_accuracy
-
-    names = parse_list(maze, str, "--maze") if maze is not None else sorted(p.stem for p in MAZES_DIR.glob("*.txt"))
-    check_model_parameters(sigma, delta)
-    check_steps(steps)
-    check_particles(particles)
-    check_study(len(names) * runs, len(ACCURACY_FILTERS))  # --runs 10000000: refused before any work
-    mazes = [(n, load_maze(n)) for n in names]
-    for _, world in mazes:
-        check_sigma_within(sigma, world.width, world.height)
-    tasks = accuracy_tasks(mazes, runs, sigma, delta, particles, steps, seed)
-    typer.echo(
-        f"Accuracy: {len(names)} maze(s) x {runs} runs, sigma {sigma:g}, delta {delta:g}, {particles} particles, "
-        f"{steps} steps, seed {seed}; filters: {', '.join(label for label, _, _ in ACCURACY_FILTERS)}"
-    )
-    started = time.perf_counter()
-    records = run_accuracy(tasks, workers or default_workers())
-    typer.echo(accuracy_table(records))
-    typer.echo(f"{len(tasks)} runs in {time.perf_counter() - started:.1f} s wall time")
+def _list(text: str | None, kind: type, option: str) -> list | None:
+    return None if text is None else parse_list(text, kind, option)
 
 
-def check_study_numbers(settings: list[StudySetting], names: list[str]) -> None:
-    """Each setting's sigma and RPF bandwidth within the ranges of its maze, and a bandwidth other than
-    optimal only with the rpf among the filters (as `run` refuses it), before any run starts."""
-    rpf = any(resolve_filter(name) is RegularizedParticleFilter for name in names)
-    for setting in settings:
-        rows, columns = setting.maze.size or (len(setting.maze.grid or ()), len((setting.maze.grid or ((),))[0]))
-        check_sigma_within(setting.sigma, columns, rows)
-        check_bandwidth_within(check_bandwidth(setting.bandwidth), columns, rows)
-        if setting.bandwidth != "optimal" and not rpf:
-            raise UserError("--bandwidth applies to the rpf only: add rpf to --filters")
+def _outputs(csv_path: Path | None, plot: Path | None, traces: Path | None) -> dict[str, str | None]:
+    return {"csv": _name(csv_path), "plot": _name(plot), "traces": _name(traces)}
+
+
+def _name(path: Path | None) -> str | None:
+    return None if path is None else str(path)
+
+
+def _session(recorded: dict[str, Any]) -> dict[str, Any]:
+    """An earlier session of a resumed study, as its record said."""
+    keys = ("command", "started", "ended", "duration_seconds", "status", "runs_finished")
+    return {k: recorded.get(k) for k in keys}
+
+
+def _check_resume(csv_path: Path | None, record_file: Path | None) -> dict[str, Any]:
+    """The record of the study to resume; one line if there is none."""
+    if csv_path is None or record_file is None:
+        raise UserError("--resume needs the study's --csv (its record lies beside it)")
+    if not csv_path.exists() and not partial_path(csv_path).exists():
+        raise UserError(f"--resume: {csv_path} does not exist (nothing to resume; leave out --resume)")
+    try:
+        return read_record(record_file)
+    except ValueError as error:
+        raise UserError(f"--resume: {error}") from None
+
+
+def _resumed(plan: StudyPlan, recorded: dict[str, Any], csv_path: Path) -> tuple[list[RunTask], list[RunRecord]]:
+    """The tasks still to run and the rows to keep, after checking the study against its record."""
+    changed = differences(recorded["parameters"], plan.parameters(), ignore=RESUME_IGNORES)
+    if changed:
+        raise UserError(f"--resume: the study differs from its record ({changed[0]}); give the same parameters")
+    if plan.runs < recorded["parameters"].get("runs", 0):
+        raise UserError(f"--resume: --runs {plan.runs} is fewer than the study's {recorded['parameters']['runs']}")
+    try:
+        return missing_tasks(plan.tasks(), read_study_csv(_rows_file(csv_path)))
+    except ValueError as error:
+        raise UserError(str(error)) from None
+
+
+def _rows_file(csv_path: Path | None) -> Path | None:
+    """Where a resumed study's finished rows are: the partial file a stopped study left, else the CSV."""
+    if csv_path is None:
+        return None
+    return partial_path(csv_path) if partial_path(csv_path).exists() else csv_path
 
 
 def describe_write_error(error: OSError) -> str:
@@ -229,21 +263,47 @@ def describe_write_error(error: OSError) -> str:
     return str(error) if isinstance(error, WriteError) else f"cannot write {error.filename}: {error.strerror or error}"
 
 
-def study_mazes(files: str | None, sizes: str | None, stations: str | None) -> list[MazeChoice]:
-    """The study's mazes: the files, then every generated size x station count."""
-    mazes = (
-        [MazeChoice.from_maze(find_maze(name).stem, load_maze(name)) for name in parse_list(files, str, "--maze")]
-        if files is not None
-        else []
+def _drawn_first(tasks: list[RunTask], run: int) -> list[RunTask]:
+    """The tasks with the drawn one (run `run` of the first setting) first: the executor draws it."""
+    chosen = next((i for i, t in enumerate(tasks) if t.run == run), None)
+    if chosen is None:
+        raise UserError(f"--draw-run {run}: the study has no such run to draw")
+    return [tasks[chosen], *tasks[:chosen], *tasks[chosen + 1 :]]
+
+
+def _in_order(records: list[RunRecord], plan: StudyPlan) -> list[RunRecord]:
+    """Rows in (setting, run, filter) order, filters in the study's order."""
+    names = [getattr(f, "name", f) for f in plan.filters]
+    order = {name: i for i, name in enumerate(dict.fromkeys([*names, *(r.filter for r in records)]))}
+    return sorted(records, key=lambda r: (r.setting, r.run, order[r.filter]))
+
+
+def _write_traces(path: Path | None, records: list[RunRecord], tasks: list[RunTask], resumed: bool) -> bool:
+    """Write the traces of this session's runs (after the kept ones of an earlier session)."""
+    if path is None:
+        return False
+    kept = kept_traces(path, {(t.setting_index, t.run) for t in tasks}) if resumed else None
+    write_traces(path, study_traces(records), kept)
+    return True
+
+
+def _plot(plan: StudyPlan, summaries: list, plot: Path, force: bool = True) -> None:
+    from mazelab.experiments.study_plot import plot_study
+
+    varied = plan.varied
+    what = ", ".join(varied) or "the setting"
+    where = "" if "maze" in varied else f" on {plan.settings[0].maze.label}"
+    title = (
+        f"Final error against {what}{where}\n({plan.runs} runs per point, "
+        f"{CONFIDENCE_LEVEL:.0%} percentile bootstrap intervals for the mean)"
     )
-    if sizes is not None or stations is not None:
-        for rows, columns in (maze_generator.parse_size(s) for s in parse_list(sizes or "10x10", str, "--maze-size")):
-            counts = (
-                parse_list(stations, int, "--stations")
-                if stations
-                else [maze_generator.default_station_count(rows, columns)]
-            )
-            for count in counts:
-                maze_generator.check_generation(rows, columns, count)  # --stations 0: refused up front
-            mazes += [MazeChoice.generated(rows, columns, count) for count in counts]
-    return mazes or [MazeChoice.from_maze(DEFAULT_MAZE, load_maze(DEFAULT_MAZE))]
+    plot_study(summaries, varied or ["maze"], plot, title, replace=force)
+    typer.echo(f"figure written to {plot}")
+
+
+def study_mazes(files: str | None, sizes: str | None, stations: str | None) -> list[MazeChoice]:
+    """The study's mazes from the command line's text (mazelab.experiments.plan.study_mazes)."""
+    return plan_mazes(_list(files, str, "--maze"), _list(sizes, str, "--maze-size"), _list(stations, int, "--stations"))
+
+
+__all__ = ["accuracy", "study", "study_mazes"]

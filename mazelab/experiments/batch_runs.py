@@ -1,11 +1,12 @@
-"""A study's runs in units of work: the runs of one setting advanced together by the batched filters
-(mazelab.batch), bit for bit as run_task runs them one by one, or one run at a time where the
-batch does not apply (generated mazes, recovery, KLD-sampling, the grid filter and the EKF)."""
+"""A study's runs in units of work: the runs of one setting advanced together by one filter object of
+R runs (mazelab.cloud: the same steps as a single run, bit for bit), or one run at a time where the
+declared rule says they cannot be (`batchable`)."""
 
 from __future__ import annotations
 
 import math
 import time
+import traceback
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -13,23 +14,46 @@ from itertools import groupby
 
 import numpy as np
 
-from mazelab.batch import BATCH_FILTERS
+from mazelab.cloud import ParticleFilter
+from mazelab.experiments.kidnapping import RECOVERY_VARIANTS
+from mazelab.experiments.runs import filter_options
 from mazelab.experiments.study import RunFailure, RunRecord, RunTask, run_records, run_task_safely
 from mazelab.maze import Maze
+from mazelab.registry import FILTERS, resolve_filter
 from mazelab.robot import Robot
+from mazelab.seeding import filter_rng, run_streams, start_place
 from mazelab.simulation import RunInputs, RunResult, plan_kidnapping
 
 MAX_BATCH = 32  # runs advanced together: beyond this the fixed cost per step is already small
 MAX_BATCH_PARTICLES = 1_000_000  # R x N at most: a batch needs no more memory than a run of 10^6 particles
 
 
-def batchable(task: RunTask) -> bool:
-    """Whether the batched filters run this task as run_task would: a maze file, the paper's
-    particle filters with their default options."""
+def task_options(task: RunTask, name: str) -> dict[str, object]:
+    """The options of filter `name` in this task's runs (those it declares)."""
     s = task.setting
-    paper_options = s.recovery == "none" and not task.kld
-    paper_options &= getattr(s, "bandwidth", "optimal") == "optimal" and getattr(task, "estimate", "mean") == "mean"
-    return s.maze.grid is not None and paper_options and set(task.filters) <= set(BATCH_FILTERS)
+    return filter_options(
+        name,
+        threshold=s.threshold,
+        recovery=RECOVERY_VARIANTS[s.recovery],
+        kld=task.kld,
+        bandwidth=s.bandwidth,
+        estimate=task.estimate,
+    )
+
+
+def batchable(task: RunTask) -> bool:
+    """The declared rule: a setting's runs advance together when they share one maze (a maze file, not
+    a maze generated per run) and every filter is one of the lab's particle filters whose options let
+    runs go together (ParticleFilter.runs_together: not recovery or KLD-sampling); otherwise one run
+    at a time (the grid filter, the EKF, and a student's plug-in, whose errors name its own lines)."""
+    if task.setting.maze.grid is None:
+        return False
+    classes = [resolve_filter(name) for name in task.filters]
+    shipped = set(FILTERS.values())
+    return all(
+        cls in shipped and issubclass(cls, ParticleFilter) and cls.runs_together(task_options(task, cls.name))
+        for cls in classes
+    )
 
 
 def study_units(tasks: Sequence[RunTask], workers: int) -> list[tuple[RunTask, ...]]:
@@ -51,13 +75,16 @@ def study_units(tasks: Sequence[RunTask], workers: int) -> list[tuple[RunTask, .
 
 
 def run_unit_safely(unit: Sequence[RunTask]) -> list[list[RunRecord] | RunFailure]:
-    """Every run of a unit, in order: together when they can be, else (or if that fails) one by one,
-    a run that raises becoming a RunFailure."""
+    """Every run of a unit, in order: together when `batchable` says so, else one by one; a run that
+    raises becomes a RunFailure, and so does every run of a batched unit that raises (a bug in the
+    batched path is reported, never hidden by a quiet second try)."""
     if len(unit) > 1 and all(batchable(task) for task in unit):
         try:
             return list(run_batch(unit))
-        except Exception:  # find which run fails, and let the others finish
-            pass
+        except Exception as error:
+            where = traceback.extract_tb(error.__traceback__)[-1]
+            message = f"{type(error).__name__}: {error} (runs advanced together; at {where.name}, line {where.lineno})"
+            return [RunFailure(task, message) for task in unit]
     return [run_task_safely(task) for task in unit]
 
 
@@ -80,13 +107,13 @@ class Walk:
 def walk_of(task: RunTask, world: Maze) -> Walk:
     """The run's walk and particles from its seed: the draws simulate makes (robot, particles, kidnapping)."""
     s = task.setting
-    robot = Robot(s.sigma, s.delta, world.random_free_place(np.random.default_rng(task.seed)))
-    robot_rng, particles_rng, _, kidnap_rng = np.random.default_rng(task.seed).spawn(4)
-    particles = world.random_free_places(s.particles, particles_rng)
+    robot = Robot(s.sigma, s.delta, start_place(world, task.seed))
+    streams = run_streams(task.seed)
+    particles = world.random_free_places(s.particles, streams.particles)
     if task.kidnap_at is not None:
-        plan_kidnapping(robot, world, task.kidnap_at, task.steps, kidnap_rng)
+        plan_kidnapping(robot, world, task.kidnap_at, task.steps, streams.kidnap)
     robot.reset()
-    robot.rng = robot_rng
+    robot.rng = streams.robot
     true_positions = np.empty((task.steps, 2))
     for k in range(task.steps):
         robot.step(world)
@@ -96,7 +123,7 @@ def walk_of(task: RunTask, world: Maze) -> Walk:
 
 
 def run_batch(tasks: Sequence[RunTask]) -> list[list[RunRecord]]:
-    """The runs of one setting (same filters and steps), every filter advancing all of them together."""
+    """The runs of one setting (same filters and steps), each filter advancing all of them together."""
     s, steps = tasks[0].setting, tasks[0].steps
     world = s.maze.world(None)
     with warnings.catch_warnings():  # the range warnings were shown once, by study_settings
@@ -107,9 +134,8 @@ def run_batch(tasks: Sequence[RunTask]) -> list[list[RunRecord]]:
     z = np.array([walk.measurements for walk in walks])
     results: list[dict[str, RunResult]] = [{} for _ in tasks]
     for name in tasks[0].filters:
-        rngs = [np.random.default_rng(task.seed).spawn(4)[2] for task in tasks]  # each run's filter stream
-        options = {"threshold": s.threshold} if name == "RegularizedParticleFilter" else {}
-        filt = BATCH_FILTERS[name](world, s.sigma, s.delta, particles, rngs, **options)
+        rngs = [filter_rng(task.seed) for task in tasks]  # each run's filter stream, as simulate's
+        filt = resolve_filter(name)(world, s.sigma, s.delta, particles, rngs, **task_options(tasks[0], name))
         estimates, ess = np.empty((len(tasks), steps, 2)), np.empty((len(tasks), steps))
         confident, seconds = np.empty((len(tasks), steps), dtype=bool), np.empty(steps)
         for k in range(steps):

@@ -15,6 +15,7 @@ import numpy as np
 from mazelab.experiments.kidnapping import recovery_steps, relocalised, walk_until
 from mazelab.experiments.runs import (
     FINAL_SHARE,
+    filter_labels,
     final_error,
     is_particle_filter,
     mean_ess,
@@ -54,7 +55,7 @@ def compare_filters(
     steps = robot.recorded_steps
     if kidnap_at is not None and robot.kidnap_at is None:
         robot = walk_until(robot, kidnap_at)
-    comparison = open_comparison(visualize, world, list(filter_names))
+    comparison = open_comparison(visualize, world, filter_labels(filter_names))
     try:
         return run_filters(
             world,

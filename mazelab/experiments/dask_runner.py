@@ -13,8 +13,8 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import CancelledError
 from typing import Any
 
-from mazelab.experiments.batch_runs import run_unit_safely
 from mazelab.experiments.study import RunFailure, RunTask
+from mazelab.experiments.units import run_unit_timed
 
 CONNECT_SECONDS = 3  # a scheduler that does not answer within this is reported unreachable
 DASK_TIMEOUT = 300.0  # seconds without any finished run after which a study on Dask gives up (--dask-timeout)
@@ -110,7 +110,7 @@ def run_on_dask(
     finish. On Ctrl-C (or SIGTERM/SIGHUP), cancel the remaining units, keep the finished ones and
     raise the stop again. A lost scheduler, or `timeout` seconds without a finished unit (no worker
     left), raises ClusterLost after the finished units are collected."""
-    futures = dict(zip(client.map(run_unit_safely, units, pure=False), units, strict=True))
+    futures = dict(zip(client.map(run_unit_timed, units, pure=False), units, strict=True))
     taken: set[Any] = set()
     finished: queue.SimpleQueue[Any] = queue.SimpleQueue()  # futures as they finish (or fail, or are cancelled)
     for future in futures:

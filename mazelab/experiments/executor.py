@@ -21,7 +21,7 @@ from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager, suppress
 from typing import Any
 
-from mazelab.experiments.batch_runs import run_unit_safely, study_units
+from mazelab.experiments.batch_runs import study_units
 from mazelab.experiments.dask_runner import DASK_TIMEOUT, ClusterLost, close_client, connect, run_on_dask
 from mazelab.experiments.study import (
     RunFailure,
@@ -30,6 +30,7 @@ from mazelab.experiments.study import (
     StudyOutcome,
     run_task,
 )
+from mazelab.experiments.units import run_unit_timed
 
 
 def default_workers() -> int:
@@ -85,7 +86,7 @@ def run_study(
         def keep_ignoring() -> bool:
             return ignore_signals_after_stop and outcome.interrupted
 
-        with _progress_bar(len(tasks), progress) as advance, _stop_signals(keep_ignoring):
+        with progress_bar(len(tasks), progress) as advance, _stop_signals(keep_ignoring):
             try:
                 drawn, rest = (list(tasks[:1]), list(tasks[1:])) if visualize else ([], list(tasks))
                 units = study_units(rest, 1 if client is not None else workers)
@@ -95,7 +96,7 @@ def run_study(
                 elif workers == 1 or len(units) <= 1:
                     _run_drawn(drawn, visualize, collect, advance)
                     for unit in units:
-                        collect(run_unit_safely(unit))
+                        collect(run_unit_timed(unit))
                         advance(len(unit))
                 else:
                     _run_in_pool(units, drawn, workers, visualize, collect, advance)
@@ -123,8 +124,12 @@ def _run_drawn(
 
 
 def _draw_task(task: RunTask, visualize: Any) -> list[RunRecord] | RunFailure:
+    started = time.perf_counter()
     try:
-        return run_task(task, visualize)
+        records = run_task(task, visualize)
+        for record in records:
+            record.run_seconds = time.perf_counter() - started
+        return records
     except Exception as error:
         return RunFailure(task, f"{type(error).__name__}: {error}")
 
@@ -149,7 +154,7 @@ def _run_in_pool(
     def hand_out() -> None:
         while waiting and len(running) < 2 * workers:
             unit = waiting.popleft()
-            running[pool.submit(run_unit_safely, unit)] = unit
+            running[pool.submit(run_unit_timed, unit)] = unit
 
     def take(done: set[Future], finished_only: bool = False) -> None:
         for future in done:
@@ -309,8 +314,9 @@ def _signals_ignored() -> Iterator[None]:
 
 
 @contextmanager
-def _progress_bar(total: int, show: bool) -> Iterator[Callable[[], None]]:
-    """A rich progress bar on stderr (typer brings rich); yields the function that advances it."""
+def progress_bar(total: int, show: bool, what: str = "runs") -> Iterator[Callable[..., None]]:
+    """A rich progress bar on stderr (typer brings rich) over `total` `what`; yields the function that
+    advances it (by one, or by the count given)."""
     if not show:
         yield lambda count=1: None
         return
@@ -325,7 +331,7 @@ def _progress_bar(total: int, show: bool) -> Iterator[Callable[[], None]]:
     )
 
     columns = (
-        TextColumn("runs"),
+        TextColumn(what),
         BarColumn(),
         MofNCompleteColumn(),
         TimeElapsedColumn(),
@@ -333,7 +339,7 @@ def _progress_bar(total: int, show: bool) -> Iterator[Callable[[], None]]:
         TimeRemainingColumn(),
     )
     with Progress(*columns, console=Console(stderr=True), transient=False) as bar:
-        task = bar.add_task("runs", total=total)
+        task = bar.add_task(what, total=total)
         yield lambda count=1: bar.advance(task, count)
 
 
@@ -344,5 +350,6 @@ __all__ = [
     "StudyStopped",
     "default_workers",
     "die_with_parent",
+    "progress_bar",
     "run_study",
 ]

@@ -18,7 +18,6 @@ import sys
 from collections.abc import Iterable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -26,6 +25,7 @@ import numpy as np
 from mazelab.maze import Maze
 from mazelab.model import CONVERGENCE_RADIUS
 from mazelab.robot import Robot
+from mazelab.seeding import start_place
 from mazelab.simulation import RunResult, convergence_step, simulate
 
 RECOVERY_VARIANTS = {"none": None, "augmented": "augmented", "sensor": "sensor"}  # table label -> recovery=
@@ -95,7 +95,7 @@ def recovery_trial(
     """One seeded kidnapping trial of `filter_name` with recovery `variant` (none, augmented, sensor)."""
     if variant not in RECOVERY_VARIANTS:
         raise ValueError(f"unknown recovery variant {variant!r}; choose one of {', '.join(RECOVERY_VARIANTS)}")
-    start = world.random_free_place(np.random.default_rng([seed, 1]))
+    start = start_place(world, seed)
     robot = Robot(sigma, delta, start)
     result = simulate(
         robot,
@@ -190,7 +190,9 @@ def format_recovery_table(rows: Iterable[RecoveryRow]) -> str:
 
 
 if __name__ == "__main__":
-    maze = Maze.from_file(Path(__file__).resolve().parent / "mazes" / "maze_10x10.txt")
+    from mazelab.mazes import load_maze
+
+    maze = load_maze("maze_10x10")
     count = int(sys.argv[1]) if len(sys.argv) > 1 else 40
     print(format_recovery_table(recovery_table(maze, runs=count, workers=2)))
 

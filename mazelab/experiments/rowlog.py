@@ -60,8 +60,9 @@ class RowLog:
     Raises PartialFileError (a ValueError: one line) when another study writes the same partial file,
     or when one is left from a stopped study and `replace` is False; `note` says when one was replaced."""
 
-    def __init__(self, path: str | Path, *, replace: bool = False):
+    def __init__(self, path: str | Path, *, replace: bool = False, adopt: bool = False):
         self.path = Path(path)
+        self.adopt = adopt  # --resume: a leftover partial file is this study's own (its kept rows are re-appended)
         self.partial = partial_path(self.path)
         self.replace = replace
         self.error: OSError | None = None
@@ -86,14 +87,15 @@ class RowLog:
             os.close(handle)
             raise PartialFileError(f"another study is writing {self.partial}: give this one another --csv")
         if left:
-            if not self.replace:
+            if not (self.replace or self.adopt):
                 os.close(handle)
                 raise PartialFileError(
                     f"{self.partial} holds the rows of an earlier study that was stopped: move it away, "
                     "or use --force to discard it"
                 )
             os.ftruncate(handle, 0)
-            self.note = f"discarded the rows of an earlier stopped study in {self.partial} (--force)"
+            if not self.adopt:
+                self.note = f"discarded the rows of an earlier stopped study in {self.partial} (--force)"
         return handle
 
     def append(self, records: Sequence[RunRecord]) -> None:

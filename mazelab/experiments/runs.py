@@ -13,9 +13,10 @@ from typing import Any
 
 import numpy as np
 
-from mazelab.experiments.kidnapping import recovery_steps, relocalised
-from mazelab.filters import ParticleFilter, RegularizedParticleFilter
+from mazelab.cloud import ParticleFilter
+from mazelab.contract import takes
 from mazelab.maze import Maze
+from mazelab.plugins import canonical_spec, is_plugin_spec
 from mazelab.recovery import Recovery
 from mazelab.registry import resolve_filter
 from mazelab.resampling import KLDSampling
@@ -37,36 +38,36 @@ def mean_ess(result: RunResult) -> float:
 
 
 def parse_filters(text: str) -> list[str]:
-    """'sir,apf,rpf' -> the filters' class names, in order, without repeats."""
-    names = [resolve_filter(part.strip()).name for part in text.split(",") if part.strip()]
+    """'sir,apf,rpf' -> the filters' class names, in order, without repeats; a plug-in
+    `file.py:Class` -> its spec with the file's absolute path (what worker processes import)."""
+    names = [filter_key(part.strip()) for part in text.split(",") if part.strip()]
     if not names:
         raise ValueError("--filters is empty; give e.g. sir,apf,rpf")
-    return list(dict.fromkeys(names))
+    names = list(dict.fromkeys(names))
+    labels = [resolve_filter(name).name for name in names]
+    for label in labels:
+        if labels.count(label) > 1:
+            raise ValueError(f"--filters has two filters named {label}: rename one class (or its `name`)")
+    return names
+
+
+def filter_key(name: str) -> str:
+    """A shipped filter's class name, or a plug-in's spec with its absolute path."""
+    return canonical_spec(name) if is_plugin_spec(name) else resolve_filter(name).name
+
+
+def filter_labels(names: Sequence[str]) -> list[str]:
+    """How the results and the viewer name the filters: their `name` (a plug-in's is its class name)."""
+    return [resolve_filter(name).name for name in names]
 
 
 # -- several filters on one scenario ---------------------------------------------------------------
-def filter_options(
-    filter_name: str,
-    threshold: float | None,
-    recovery: bool | str | Recovery | None = None,
-    kld: bool | KLDSampling | None = None,
-    bandwidth: str | float | None = None,
-    estimate: str | None = None,
-) -> dict[str, Any]:
-    """Constructor options of one filter: the RPF threshold N_T / N_S and bandwidth go to the RPF only,
-    recovery and KLD-sampling to the particle filters only (the exact grid filter needs neither), the
-    point estimate ("mean" or "mode") to every filter."""
+def filter_options(filter_name: str | type, **options: Any) -> dict[str, Any]:
+    """Of the options given (None: not given), those the filter declares (mazelab.contract): a study's
+    RPF threshold and bandwidth reach the RPF only, recovery and KLD-sampling the particle filters,
+    the point estimate every filter that has one."""
     filter_class = resolve_filter(filter_name)
-    options: dict[str, Any] = {}
-    if threshold is not None and filter_class is RegularizedParticleFilter:
-        options["threshold"] = threshold
-    if bandwidth is not None and filter_class is RegularizedParticleFilter:
-        options["bandwidth"] = bandwidth
-    if issubclass(filter_class, ParticleFilter):
-        options.update(recovery=recovery, kld=kld)
-    if estimate is not None:
-        options["estimate"] = estimate
-    return options
+    return {name: value for name, value in options.items() if value is not None and takes(filter_class, name)}
 
 
 def is_particle_filter(filter_name: str) -> bool:
@@ -112,9 +113,11 @@ def run_filters(
             particles,
             name,
             seed=seed,
-            view=None if comparison is None else comparison.view_for(name),
+            view=None if comparison is None else comparison.view_for(resolve_filter(name).name),
             kidnap_at=kidnap_at,
-            **filter_options(name, threshold, recovery, kld, bandwidth, estimate),
+            **filter_options(
+                name, threshold=threshold, recovery=recovery, kld=kld, bandwidth=bandwidth, estimate=estimate
+            ),
         )
         if particles is None:
             particles = result.initial_particles
@@ -128,19 +131,13 @@ def mean_particle_count(result: RunResult) -> float:
     return float(np.mean(result.extras["particle_count"]))
 
 
-def kidnap_figures(result: RunResult) -> tuple[bool | None, int | None]:
-    """(re-localised, steps to recover) of a run with a kidnapping; (None, None) without one."""
-    if result.kidnap_at is None:
-        return None, None
-    return relocalised(result), recovery_steps(result)
-
-
 __all__ = [
     "FINAL_SHARE",
+    "filter_key",
+    "filter_labels",
     "filter_options",
     "final_error",
     "is_particle_filter",
-    "kidnap_figures",
     "mean_ess",
     "mean_particle_count",
     "parse_filters",

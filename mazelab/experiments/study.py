@@ -4,24 +4,29 @@ filter (a row of the study's CSV)."""
 
 from __future__ import annotations
 
+import dataclasses
 import functools
+import hashlib
 import itertools
 import math
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from pathlib import Path
+from typing import Any, ClassVar
 
 import numpy as np
 
 from mazelab.experiments.kidnapping import RECOVERY_VARIANTS, recovery_steps, relocalised
-from mazelab.experiments.runs import final_error, mean_ess, mean_particle_count, run_filters
+from mazelab.experiments.runs import filter_labels, final_error, mean_ess, mean_particle_count, run_filters
 from mazelab.maze import STATION_WALL, Maze
-from mazelab.maze_generator import generate_maze
+from mazelab.maze_generator import DEFAULT_WALL_SHARE, generate_maze
 from mazelab.model import check_model_parameters
 from mazelab.modes import check_estimate
+from mazelab.registry import resolve_filter
 from mazelab.regularisation import check_bandwidth
 from mazelab.robot import Robot
+from mazelab.seeding import start_place, study_seeds
 from mazelab.simulation import RunResult, convergence_step
 from mazelab.viz.views import open_comparison
 
@@ -29,27 +34,53 @@ from mazelab.viz.views import open_comparison
 # -- a study: settings, runs and seeds -------------------------------------------------------------
 @dataclass(frozen=True)
 class MazeChoice:
-    """A study's maze: a file's grid, or a size and station count generated anew in every run."""
+    """A study's maze: a file's grid (its path and the sha256 of its bytes identify it), or a size,
+    station-block count and wall share generated anew in every run (from the run's maze seed)."""
 
     label: str
     grid: tuple[tuple[int, ...], ...] | None = None
     size: tuple[int, int] | None = None  # (rows, columns) of a generated maze
     stations: int | None = None  # station blocks of a generated maze
+    path: str | None = None  # the maze file, as given
+    sha256: str | None = None  # of the maze file's bytes
+    wall_share: float | None = None  # the share of cells a generated maze makes walls
 
     @classmethod
-    def from_maze(cls, label: str, world: Maze) -> MazeChoice:
-        return cls(label, grid=tuple(map(tuple, world.as_lists())))
+    def from_maze(cls, label: str, world: Maze, path: str | Path | None = None) -> MazeChoice:
+        """A maze file's grid; with `path`, the file's path and content hash are kept too."""
+        digest = hashlib.sha256(Path(path).read_bytes()).hexdigest() if path is not None else None
+        return cls(
+            label, grid=tuple(map(tuple, world.as_lists())), path=None if path is None else str(path), sha256=digest
+        )
 
     @classmethod
-    def generated(cls, rows: int, columns: int, stations: int) -> MazeChoice:
-        return cls(f"random {rows}x{columns}, {stations} stations", size=(rows, columns), stations=stations)
+    def generated(cls, rows: int, columns: int, stations: int, wall_share: float = DEFAULT_WALL_SHARE) -> MazeChoice:
+        walls = "" if wall_share == DEFAULT_WALL_SHARE else f", wall share {wall_share:g}"
+        label = f"random {rows}x{columns}, {stations} station blocks{walls}"
+        return cls(label, size=(rows, columns), stations=stations, wall_share=wall_share)
 
     def world(self, maze_seed: int | None) -> Maze:
         """The maze of one run: the file's grid, or the generated maze of `maze_seed`."""
         if self.grid is not None:
             return _maze_of(self.grid, self.label)
         assert self.size is not None and self.stations is not None
-        return generate_maze(*self.size, self.stations, np.random.default_rng(maze_seed))
+        share = DEFAULT_WALL_SHARE if self.wall_share is None else self.wall_share
+        return generate_maze(*self.size, self.stations, np.random.default_rng(maze_seed), share)
+
+
+def file_mazes(paths: Sequence[str | Path], load: Any) -> list[MazeChoice]:
+    """The MazeChoices of maze files: labelled by file name without .txt, or, where two files share a
+    name, by as many of their last folders as tell them apart (a/m, b/m); `load(path)` reads a Maze.
+    The same file twice counts once."""
+    paths = list(dict.fromkeys(str(p) for p in paths))
+    parts = [Path(p).with_suffix("").parts for p in paths]
+    labels = [p[-1] for p in parts]
+    for depth in range(2, max(map(len, parts), default=1) + 1):
+        clashing = {label for label in labels if labels.count(label) > 1}
+        if not clashing:
+            break
+        labels = ["/".join(p[-depth:]) if label in clashing else label for p, label in zip(parts, labels, strict=True)]
+    return [MazeChoice.from_maze(label, load(p), p) for label, p in zip(labels, paths, strict=True)]
 
 
 @functools.lru_cache(maxsize=8)
@@ -70,12 +101,33 @@ class StudySetting:
     threshold: float  # the RPF's N_T / N_S
     recovery: str = "none"  # a kidnapping.RECOVERY_VARIANTS name, for the particle filters
     bandwidth: str | float = "optimal"  # the RPF's kernel bandwidth (mazelab.regularisation)
+    estimate: str = "mean"  # every filter's point estimate: "mean" or "mode" (mazelab.modes)
 
     def value(self, parameter: str) -> Any:
         return self.maze.label if parameter == "maze" else getattr(self, parameter)
 
 
-STUDY_PARAMETERS = ("maze", "sigma", "delta", "particles", "threshold", "recovery", "bandwidth")
+STUDY_PARAMETERS = ("maze", "sigma", "delta", "particles", "threshold", "recovery", "bandwidth", "estimate")
+# the study parameters that are filter options (mazelab.contract): a filter that does not declare one
+# runs once for all its values
+OPTION_PARAMETERS = {"threshold": "threshold", "recovery": "recovery", "bandwidth": "bandwidth", "estimate": "estimate"}
+# filters that take no particle count (the constructor's particles are ignored): once for all counts.
+# The contract has no declaration for this yet; these are the shipped ones that ignore it.
+PARTICLE_FREE_FILTERS = ("GridBayesFilter", "ExtendedKalmanFilter")
+
+
+def takes_parameter(filter_name: str | type, parameter: str) -> bool:
+    """Whether a study parameter can change a filter's results: the model's (maze, sigma, delta) always,
+    the particle count unless the filter ignores it, an option only if the filter declares it."""
+    try:
+        filter_class = resolve_filter(filter_name)
+    except ValueError:  # a filter known only by its name in a record (a student's own): assume it does
+        return True
+    if parameter in OPTION_PARAMETERS:
+        return OPTION_PARAMETERS[parameter] in filter_class.options
+    if parameter == "particles":
+        return filter_class.name not in PARTICLE_FREE_FILTERS
+    return True
 
 
 def study_settings(
@@ -86,8 +138,10 @@ def study_settings(
     thresholds: Sequence[float],
     recoveries: Sequence[str] = ("none",),
     bandwidths: Sequence[str | float] = ("optimal",),
+    estimates: Sequence[str] = ("mean",),
 ) -> list[StudySetting]:
     """Every combination of the given values (the first parameter varies slowest), each checked."""
+    estimates = list(dict.fromkeys(check_estimate(e) for e in estimates))
     for recovery in recoveries:
         if recovery not in RECOVERY_VARIANTS:
             raise ValueError(f"unknown recovery {recovery!r}; choose from {', '.join(RECOVERY_VARIANTS)}")
@@ -100,7 +154,9 @@ def study_settings(
     for sigma, delta in itertools.product(dict.fromkeys(sigmas), dict.fromkeys(deltas)):
         check_model_parameters(sigma, delta)  # refuses impossible values, warns once outside the lab's ranges
     bandwidths = list(dict.fromkeys(check_bandwidth(b) for b in bandwidths))
-    combinations = itertools.product(mazes, sigmas, deltas, particle_counts, thresholds, recoveries, bandwidths)
+    combinations = itertools.product(
+        mazes, sigmas, deltas, particle_counts, thresholds, recoveries, bandwidths, estimates
+    )
     return [StudySetting(*values) for values in combinations]
 
 
@@ -123,16 +179,24 @@ class RunTask:
     kidnap_at: int | None = None  # kidnap the robot at this step (its place drawn from `seed`)
     kld: bool = False  # KLD-sampling in the particle filters
     estimate: str = "mean"  # every filter's point estimate: "mean" or "mode" (mazelab.modes)
+    traces: bool = False  # keep each filter's per-step trace on its record (`RunRecord.trace`)
 
 
-def run_seeds(root_seed: int, runs: int) -> list[tuple[int, int]]:
-    """(seed, maze seed) of runs 1..R, children of one root SeedSequence.
-
-    Run r has the same seeds in every setting (common random numbers: settings differ by their
-    parameters, not by their luck), and no seed depends on the number of workers.
-    """
-    children = np.random.SeedSequence(root_seed).spawn(runs)
-    return [tuple(int(v >> np.uint64(1)) for v in child.generate_state(2, np.uint64)) for child in children]
+def filters_per_setting(settings: Sequence[StudySetting], filters: Sequence[str]) -> list[tuple[str, ...]]:
+    """The filters each setting runs: a filter runs in the first setting of each combination of the
+    parameters it takes (`takes_parameter`), so SIR is not run again for each RPF bandwidth. Run r
+    has the same seeds in every setting, so the skipped runs would repeat the kept ones bit for bit."""
+    seen: set[tuple[Any, ...]] = set()
+    chosen = []
+    for setting in settings:
+        mine = []
+        for name in filters:
+            key = (name, *(setting.value(p) if takes_parameter(name, p) else None for p in STUDY_PARAMETERS))
+            if key not in seen:
+                seen.add(key)
+                mine.append(name)
+        chosen.append(tuple(mine))
+    return chosen
 
 
 def study_tasks(
@@ -144,15 +208,19 @@ def study_tasks(
     *,
     kidnap_at: int | None = None,
     kld: bool = False,
-    estimate: str = "mean",
+    estimate: str | None = None,
+    traces: bool = False,
 ) -> list[RunTask]:
-    """One task per setting and run, in order."""
-    check_estimate(estimate)
+    """One task per setting and run, in order, each with the filters that setting runs
+    (`filters_per_setting`; a setting that runs none has no tasks). `estimate`, if given, replaces the
+    settings' own; `traces` keeps each run's per-step trace (mazelab.experiments.traces)."""
+    if estimate is not None:
+        settings = [dataclasses.replace(s, estimate=check_estimate(estimate)) for s in settings]
     if runs < 1 or steps < 1:
         raise ValueError(f"runs and steps must be >= 1, got {runs} runs and {steps} steps")
     if kidnap_at is not None and not 1 <= kidnap_at <= steps:
         raise ValueError(f"kidnap_at must be a step from 1 to {steps}, got {kidnap_at}")
-    seeds = run_seeds(root_seed, runs)
+    seeds = study_seeds(root_seed, runs)
     return [
         RunTask(
             i,
@@ -160,13 +228,15 @@ def study_tasks(
             r,
             seed,
             maze_seed if setting.maze.grid is None else None,
-            tuple(filters),
+            mine,
             steps,
             kidnap_at,
             kld,
-            estimate,
+            setting.estimate,
+            traces,
         )
-        for i, setting in enumerate(settings, start=1)
+        for i, (setting, mine) in enumerate(zip(settings, filters_per_setting(settings, filters), strict=True), start=1)
+        if mine
         for r, (seed, maze_seed) in enumerate(seeds, start=1)
     ]
 
@@ -180,7 +250,7 @@ class RunRecord:
     seed: int
     maze: str
     maze_seed: int | None
-    stations: int  # station blocks (cells of type 2) of the run's maze
+    station_blocks: int  # station blocks (cells of type 2) of the run's maze; each has 4 corner stations
     sigma: float
     delta: float
     particles: int
@@ -199,6 +269,13 @@ class RunRecord:
     mean_particle_count: float = math.nan  # over the steps (KLD-sampling varies it)
     bandwidth: str | float = "optimal"  # the RPF's kernel bandwidth (the other filters ignore it)
     estimate: str = "mean"  # the point estimate the errors are measured from
+    maze_sha256: str | None = None  # sha256 of the maze file's bytes; None for a generated maze
+    maze_rows: int = 0  # the run's maze size
+    maze_columns: int = 0
+    wall_share: float | None = None  # a generated maze's requested share of walls; None for a file
+    run_seconds: float = math.nan  # wall time of the run: its share of the unit of runs it ran in
+    # Not a column: with RunTask.traces, the filter's per-step arrays (mazelab.experiments.traces)
+    trace: ClassVar[dict[str, Any] | None] = None
 
 
 @dataclass
@@ -218,8 +295,8 @@ def run_task(task: RunTask, visualize: Any = False) -> list[RunRecord]:
     """One run of a study: one scenario, every filter on it; a record per filter."""
     s = task.setting
     world = s.maze.world(task.maze_seed)
-    robot = Robot(s.sigma, s.delta, world.random_free_place(np.random.default_rng(task.seed)))
-    comparison = open_comparison(visualize, world, list(task.filters)) if visualize else None
+    robot = Robot(s.sigma, s.delta, start_place(world, task.seed))
+    comparison = open_comparison(visualize, world, filter_labels(task.filters)) if visualize else None
     try:
         with warnings.catch_warnings():  # the range warnings were shown once, by study_settings
             warnings.simplefilter("ignore", UserWarning)
@@ -247,10 +324,11 @@ def run_task(task: RunTask, visualize: Any = False) -> list[RunRecord]:
 
 
 def run_records(task: RunTask, world: Maze, results: dict[str, RunResult]) -> list[RunRecord]:
-    """The study's rows of one run: a record per filter's result."""
+    """The study's rows of one run: a record per filter's result (with its per-step trace if the task
+    asks for it)."""
     s = task.setting
     stations = int((world.grid == STATION_WALL).sum())
-    return [
+    records = [
         RunRecord(
             task.setting_index,
             task.run,
@@ -275,9 +353,29 @@ def run_records(task: RunTask, world: Maze, results: dict[str, RunResult]) -> li
             mean_particle_count(result),
             s.bandwidth,
             task.estimate,
+            s.maze.sha256,
+            int(world.grid.shape[0]),
+            int(world.grid.shape[1]),
+            s.maze.wall_share,
         )
         for name, result in results.items()
     ]
+    if task.traces:
+        for record, result in zip(records, results.values(), strict=True):
+            record.trace = trace_of(result)
+    return records
+
+
+def trace_of(result: RunResult) -> dict[str, np.ndarray]:
+    """A run's per-step arrays: true position, estimate, ESS, confidence, step time, particle count."""
+    return {
+        "true": result.true_positions,
+        "estimate": result.estimates,
+        "ess": result.ess,
+        "confident": result.confident,
+        "step_seconds": result.step_seconds,
+        "particle_count": result.extras.get("particle_count", np.full(len(result.ess), -1)),
+    }
 
 
 def kidnap_figures(result: RunResult) -> tuple[bool | None, int | None]:
@@ -321,6 +419,8 @@ class StudyOutcome:
 
 
 __all__ = [
+    "OPTION_PARAMETERS",
+    "PARTICLE_FREE_FILTERS",
     "STUDY_PARAMETERS",
     "MazeChoice",
     "RunFailure",
@@ -328,12 +428,15 @@ __all__ = [
     "RunTask",
     "StudyOutcome",
     "StudySetting",
+    "file_mazes",
+    "filters_per_setting",
     "kidnap_figures",
     "run_records",
-    "run_seeds",
     "run_task",
     "run_task_safely",
     "study_settings",
     "study_tasks",
+    "takes_parameter",
+    "trace_of",
     "varied_parameters",
 ]

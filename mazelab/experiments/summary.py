@@ -1,5 +1,6 @@
-"""A study's statistics per setting and filter: the mean final error with its 95% t-interval, the
-converged share, the median convergence step; the table, the CSV and the figure."""
+"""A study's statistics per setting and filter: the mean and median final error with percentile
+bootstrap intervals, the converged share with its Wilson interval, the median convergence step; the
+table and the CSV (the figure: mazelab.experiments.study_plot)."""
 
 from __future__ import annotations
 
@@ -9,14 +10,18 @@ import math
 import statistics
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, fields
-from pathlib import Path
 
-import numpy as np
+from mazelab.experiments.runs import is_particle_filter
+from mazelab.experiments.stats import (
+    BOOTSTRAP_SAMPLES,
+    CONFIDENCE_LEVEL,
+    bootstrap_interval,
+    wilson_interval,
+)
+from mazelab.experiments.study import RunRecord, StudySetting, takes_parameter
+from mazelab.experiments.tables import csv_cell, format_optional, format_table, format_value
 
-from mazelab.experiments.runs import FINAL_SHARE, is_particle_filter
-from mazelab.experiments.stats import CONFIDENCE_LEVEL, t_interval
-from mazelab.experiments.study import RunRecord, StudySetting
-from mazelab.experiments.tables import csv_cell, format_optional, format_table, format_value, pyplot, save_figure
+Interval = tuple[float, float]
 
 
 # -- a study's statistics ---------------------------------------------------------------------------
@@ -29,13 +34,26 @@ class StudySummary:
     filter: str
     runs: int
     mean_final_error: float
-    interval: tuple[float, float]  # the 95% t-interval for the mean final error; NaN with one run
+    interval: Interval  # percentile bootstrap interval for the mean final error; NaN with one run
     converged_share: float  # share of the runs with a convergence step
     median_convergence_step: float | None  # median over the converged runs; None if none converged
     ms_per_step: float
     relocalised_share: float | None = None  # share of the runs re-localised; None without a kidnapping
     median_steps_to_recover: float | None = None  # median over the runs that recovered; None if none did
     mean_particle_count: float = math.nan
+    median_final_error: float = math.nan
+    median_interval: Interval = (math.nan, math.nan)  # percentile bootstrap interval for the median
+    converged_interval: Interval = (math.nan, math.nan)  # Wilson interval for the converged share
+    relocalised_interval: Interval | None = None  # Wilson interval for the re-localised share
+    run_seconds: float = math.nan  # mean wall time per run
+
+    def as_dict(self) -> dict[str, object]:
+        """The summary as plain values (the setting's parameters spelled out), for a record or pandas."""
+        data = {k: v for k, v in asdict(self).items() if k != "setting"}
+        data["setting"] = data.pop("setting_index")
+        for parameter in ("maze", "sigma", "delta", "particles", "threshold", "recovery", "bandwidth", "estimate"):
+            data[parameter] = self.setting.value(parameter)
+        return data
 
 
 def summarise_study(records: Sequence[RunRecord], settings: Sequence[StudySetting]) -> list[StudySummary]:
@@ -47,6 +65,7 @@ def summarise_study(records: Sequence[RunRecord], settings: Sequence[StudySettin
     for (index, name), group in groups.items():
         finals = [r.final_error for r in group]
         converged = [r.converged_at for r in group if r.converged_at is not None]
+        relocalised, steps_to_recover = recovery_summary(group)
         summaries.append(
             StudySummary(
                 index,
@@ -54,12 +73,18 @@ def summarise_study(records: Sequence[RunRecord], settings: Sequence[StudySettin
                 name,
                 len(group),
                 statistics.fmean(finals),
-                t_interval(finals),
+                bootstrap_interval(finals, "mean"),
                 len(converged) / len(group),
                 statistics.median(converged) if converged else None,
                 statistics.fmean(r.ms_per_step for r in group),
-                *recovery_summary(group),
+                relocalised,
+                steps_to_recover,
                 statistics.fmean(r.mean_particle_count for r in group),
+                statistics.median(finals),
+                bootstrap_interval(finals, "median"),
+                wilson_interval(len(converged), len(group)),
+                None if relocalised is None else wilson_interval(sum(bool(r.relocalised) for r in group), len(group)),
+                statistics.fmean(r.run_seconds for r in group),
             )
         )
     return summaries
@@ -74,51 +99,92 @@ def recovery_summary(group: Sequence[RunRecord]) -> tuple[float | None, float | 
     return sum(r.relocalised for r in group) / len(group), statistics.median(recovered) if recovered else None
 
 
-def describe_setting(setting: StudySetting, steps: int, runs: int, kidnap_at: int | None = None) -> str:
-    """The fixed parameters of a study in one line."""
-    kidnapping = "" if kidnap_at is None else f", kidnapped at step {kidnap_at}, recovery {setting.recovery}"
+def describe_setting(
+    setting: StudySetting, steps: int, runs: int, kidnap_at: int | None = None, varied: Sequence[str] = ()
+) -> str:
+    """The fixed parameters of a study in one line (a varied one is left out: `describe_varied` says it)."""
+    parts = {
+        "maze": f"maze {setting.maze.label}",
+        "sigma": f"sigma {setting.sigma:g}",
+        "delta": f"delta {setting.delta:g}",
+        "particles": f"{setting.particles} particles",
+        "threshold": f"RPF N_T = {setting.threshold:g} N_S",
+        "bandwidth": f"RPF bandwidth {format_value(setting.bandwidth)}",
+        "estimate": f"{setting.estimate} estimate",
+    }
+    kidnapping = "" if kidnap_at is None else f", kidnapped at step {kidnap_at}"
+    if kidnap_at is not None and "recovery" not in varied:
+        kidnapping += f", recovery {setting.recovery}"
+    fixed = [text for parameter, text in parts.items() if parameter not in varied]
+    return ", ".join([*fixed, f"{steps} steps{kidnapping}", f"{runs} runs per setting"])
+
+
+def describe_varied(settings: Sequence[StudySetting], varied: Sequence[str]) -> str:
+    """The varied parameters with their values: 'varied: sigma 0.2, 0.4; bandwidth optimal, multimodal'."""
+    if not varied:
+        return ""
+    values = {p: list(dict.fromkeys(format_value(s.value(p)) for s in settings)) for p in varied}
+    return "varied: " + "; ".join(f"{p} {', '.join(v)}" for p, v in values.items())
+
+
+def interval_note() -> str:
+    """The line under the table that names its intervals' methods."""
     return (
-        f"maze {setting.maze.label}, sigma {setting.sigma:g}, delta {setting.delta:g}, {setting.particles} particles, "
-        f"RPF N_T = {setting.threshold:g} N_S, RPF bandwidth {format_value(setting.bandwidth)}, "
-        f"{steps} steps{kidnapping}, {runs} runs per setting"
+        f"[{CONFIDENCE_LEVEL:.0%} intervals: mean and median by percentile bootstrap (B = {BOOTSTRAP_SAMPLES}, "
+        "seeded), shares by Wilson score; '-' in a parameter's column: the filter does not take it]"
     )
 
 
+def _interval(low: float, high: float, spec: str = "{:.3f}") -> str:
+    return "-" if math.isnan(low) else f"[{spec.format(low)}, {spec.format(high)}]"
+
+
 def study_table(summaries: Sequence[StudySummary], varied: Sequence[str], kld: bool = False) -> str:
-    """A row per setting and filter: the varied parameters, then the statistics; with a kidnapping the
-    re-localised share and median steps to recover, with `kld` the mean particle count."""
+    """A row per setting and filter: the varied parameters ('-' where the filter does not take one),
+    then the statistics with their intervals; with a kidnapping the re-localised share and median
+    steps to recover, with `kld` the mean particle count."""
     kidnapped = any(s.relocalised_share is not None for s in summaries)
+    ci = f"{CONFIDENCE_LEVEL:.0%} CI"
     headers = [
         *varied,
         "filter",
         "runs",
-        "final error",
-        f"{CONFIDENCE_LEVEL:.0%} CI of mean",
+        "mean final error",
+        ci,
+        "median",
+        ci,
         "converged",
+        ci,
         "median conv. step",
         "ms/step",
-        *(["re-localised", "median steps to recover"] if kidnapped else []),
+        *(["re-localised", ci, "median steps to recover"] if kidnapped else []),
         *(["mean N"] if kld else []),
     ]
     rows = []
     for s in summaries:
-        low, high = s.interval
         row = [
-            *(format_value(s.setting.value(p)) for p in varied),
+            *(format_value(s.setting.value(p)) if takes_parameter(s.filter, p) else "-" for p in varied),
             s.filter,
             str(s.runs),
             f"{s.mean_final_error:.3f}",
-            "-" if math.isnan(low) else f"[{low:.3f}, {high:.3f}]",
+            _interval(*s.interval),
+            f"{s.median_final_error:.3f}",
+            _interval(*s.median_interval),
             f"{s.converged_share:.0%}",
+            _interval(*s.converged_interval, spec="{:.0%}"),
             format_optional(s.median_convergence_step, "{:g}"),
             f"{s.ms_per_step:.2f}",
         ]
         if kidnapped:
-            row += [format_optional(s.relocalised_share, "{:.0%}"), format_optional(s.median_steps_to_recover, "{:g}")]
+            row += [
+                format_optional(s.relocalised_share, "{:.0%}"),
+                _interval(*(s.relocalised_interval or (math.nan, math.nan)), spec="{:.0%}"),
+                format_optional(s.median_steps_to_recover, "{:g}"),
+            ]
         if kld:
             row.append(f"{s.mean_particle_count:.0f}" if is_particle_filter(s.filter) else "-")
         rows.append(row)
-    return format_table(headers, rows)
+    return format_table(headers, rows) + "\n" + interval_note()
 
 
 CSV_COLUMNS = [f.name for f in fields(RunRecord)]
@@ -134,65 +200,12 @@ def study_csv(records: Sequence[RunRecord]) -> str:
     return buffer.getvalue()
 
 
-def plot_study(
-    summaries: Sequence[StudySummary], varied: Sequence[str], path: Path, title: str, *, replace: bool = True
-) -> None:
-    """Mean final error with its t-interval against the varied parameter, a line per filter."""
-    plt = pyplot()
-    numeric = len(varied) == 1 and varied[0] in _PARAMETER_LABELS
-    names = list(dict.fromkeys(s.filter for s in summaries))
-    positions = {i: (s.setting.value(varied[0]) if numeric else n) for n, (i, s) in enumerate(_first_of(summaries))}
-    spread = (max(positions.values()) - min(positions.values()) or 1) if numeric else 4
-    figure, axes = plt.subplots(figsize=(8, 4.5), layout="constrained")
-    for f, name in enumerate(names):
-        mine = [s for s in summaries if s.filter == name]
-        dodge = 0.012 * spread * (f - (len(names) - 1) / 2)  # side by side, so the error bars do not hide each other
-        x = [positions[s.setting_index] + dodge for s in mine]
-        mean = np.array([s.mean_final_error for s in mine])
-        low, high = np.array([s.interval for s in mine]).T
-        bars = np.nan_to_num([mean - low, high - mean])
-        axes.errorbar(x, mean, yerr=bars, marker="o", capsize=4, label=name)
-    if numeric:
-        axes.set_xlabel(_PARAMETER_LABELS[varied[0]])
-    else:
-        labels = {s.setting_index: ", ".join(_setting_label(s.setting, p) for p in varied) for s in summaries}
-        axes.set_xticks(
-            list(positions.values()), [labels[i] or f"setting {i}" for i in positions], rotation=20, ha="right"
-        )
-        axes.set_xlabel("setting")
-    axes.set(title=title, ylabel=f"final error (mean of the last {FINAL_SHARE:.0%} of steps)")
-    axes.set_ylim(bottom=0)
-    axes.grid(alpha=0.3)
-    axes.legend()
-    save_figure(figure, path, replace=replace)
-
-
-def _setting_label(setting: StudySetting, parameter: str) -> str:
-    value = format_value(setting.value(parameter))
-    return value if parameter == "maze" else f"{parameter} {value}"
-
-
-def _first_of(summaries: Sequence[StudySummary]) -> list[tuple[int, StudySummary]]:
-    """(setting index, its first summary) per setting, in order."""
-    first: dict[int, StudySummary] = {}
-    for s in summaries:
-        first.setdefault(s.setting_index, s)
-    return list(first.items())
-
-
-_PARAMETER_LABELS = {
-    "sigma": "sigma, measurement noise std (map units)",
-    "delta": "Delta, compass error width (radians)",
-    "particles": "particle count N_S",
-    "threshold": "RPF threshold N_T / N_S",
-}
-
-
 __all__ = [
     "CSV_COLUMNS",
     "StudySummary",
     "describe_setting",
-    "plot_study",
+    "describe_varied",
+    "interval_note",
     "recovery_summary",
     "study_csv",
     "study_table",

@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from mazelab.contract import Density, Gaussian, Particles
 from mazelab.kalman import covariance_ellipse
 from mazelab.maze import Maze
 from mazelab.model import CONFIDENCE_RADIUS
@@ -121,23 +122,24 @@ def weight_colors(weights: np.ndarray) -> np.ndarray:
     return np.column_stack([255 * t, np.zeros_like(t), 255 * (1 - t)]).astype(np.uint8)
 
 
-def drawn_particles(state: Any, max_drawn: int) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
-    """What is drawn of a filter's posterior: positions (M, 2), headings (M,) or None, weights (M,).
+def drawn_particles(belief: Particles | Density, max_drawn: int) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
+    """What is drawn of a filter's belief: positions (M, 2), headings (M,) or None, weights (M,).
 
-    A particle filter: all N particles when N <= max_drawn, else max_drawn of them at evenly spaced
-    indices (deterministic: drawing never draws from the filter's random stream). A grid density
-    (GridBayesFilter, whose cells are not a sample): the cells hit by a systematic pick of max_drawn
-    points of its mass, each cell once, so the dots show where the probability is.
+    Particles: all N when N <= max_drawn, else max_drawn of them at evenly spaced indices
+    (deterministic: drawing never draws from the filter's random stream). A Density (the grid
+    filter's cells, which are not a sample): the cells hit by a systematic pick of max_drawn points
+    of its mass, each cell once, so the dots show where the probability is.
     """
-    weights = np.asarray(state.weights)
-    positions = np.asarray(state.positions)
-    if hasattr(state, "density"):
+    weights = np.asarray(belief.weights)
+    positions = np.asarray(belief.positions)
+    if isinstance(belief, Density):
         cumulative = np.cumsum(weights)
         targets = (np.arange(max_drawn) + 0.5) / max_drawn * cumulative[-1]
         cells = np.unique(np.minimum(np.searchsorted(cumulative, targets), len(weights) - 1))
         return positions[cells], None, weights[cells]
     picked = drawn_indices(len(positions), max_drawn)
-    return positions[picked], np.asarray(state.headings)[picked], weights[picked]
+    headings = None if belief.headings is None else np.asarray(belief.headings)[picked]
+    return positions[picked], headings, weights[picked]
 
 
 def drawn_indices(count: int, max_drawn: int) -> slice | np.ndarray:
@@ -147,11 +149,11 @@ def drawn_indices(count: int, max_drawn: int) -> slice | np.ndarray:
     return np.linspace(0, count - 1, max_drawn).round().astype(np.int64)
 
 
-def particle_colors(state: Any, weights: np.ndarray, max_drawn: int) -> np.ndarray:
+def particle_colors(belief: Particles | Density, weights: np.ndarray, max_drawn: int) -> np.ndarray:
     """The drawn particles' colours (M, 3): by weight (`weight_colors`), and INJECTED_COLOR for those
-    that recovery injected this step (`state.injected`, a mask over all N particles, or None)."""
+    that recovery injected this step (`belief.injected`, a mask over all N particles, or None)."""
     colors = weight_colors(weights)
-    injected = getattr(state, "injected", None)
+    injected = belief.injected if isinstance(belief, Particles) else None
     if injected is not None:
         colors[np.asarray(injected)[drawn_indices(len(injected), max_drawn)]] = INJECTED_COLOR
     return colors
@@ -193,10 +195,11 @@ class RunView:
         stream = self.recording.stream
         stream.set_time("step", sequence=step)
         self.recording.log_robot(step, robot_position, robot_heading)
-        if hasattr(state, "covariance"):
-            self.log_gaussian(state)
+        belief = state.belief()
+        if isinstance(belief, Gaussian):
+            self.log_gaussian(belief)
         else:
-            self.log_particles(state)
+            self.log_particles(belief)
         estimate, confident = np.asarray(state.estimate, dtype=float), bool(state.is_confident)
         circle = rr.Ellipses2D(
             centers=[estimate],
@@ -205,23 +208,23 @@ class RunView:
             line_radii=0.03,
         )
         stream.log(f"{self.path}/estimate", circle)
-        if hasattr(state, "modes"):
-            self.log_modes(state.modes)
+        if not isinstance(belief, Gaussian) and belief.modes is not None:
+            self.log_modes(belief.modes)
         error = float(np.hypot(*(estimate - np.asarray(robot_position, dtype=float))))
         stream.log(f"/metrics/error/{self.metric}", rr.Scalars(error))
         ess = float(state.ess)
         if not math.isnan(ess):  # the grid filter is not a sample: no ESS
             stream.log(f"/metrics/ess/{self.metric}", rr.Scalars(ess))
         stream.log(f"/metrics/confident/{self.metric}", rr.Scalars(float(confident)))
-        if getattr(state, "kld", None) is not None:
+        if isinstance(belief, Particles) and belief.count_varies:  # KLD-sampling: N beside the ESS
             self.log_particle_count(int(state.count))
 
-    def log_particles(self, state: Any) -> None:
+    def log_particles(self, belief: Particles | Density) -> None:
         """The particles (or a grid's cells) coloured by weight, the injected ones apart."""
         import rerun as rr
 
-        positions, headings, weights = drawn_particles(state, self.max_drawn)
-        colors = particle_colors(state, weights, self.max_drawn)
+        positions, headings, weights = drawn_particles(belief, self.max_drawn)
+        colors = particle_colors(belief, weights, self.max_drawn)
         if headings is None:
             drawn = rr.Points2D(positions, colors=colors, radii=CELL_DOT_RADIUS)
         else:
@@ -245,12 +248,12 @@ class RunView:
         )
         self.recording.stream.log(f"{self.path}/modes", circles)
 
-    def log_gaussian(self, state: Any) -> None:
-        """A Gaussian belief (the EKF's `mean`, `covariance`): its COVARIANCE_SIGMAS ellipse, a polygon
-        in the filter's colour (rerun's Ellipses2D are axis-aligned: they cannot be rotated)."""
+    def log_gaussian(self, belief: Gaussian) -> None:
+        """A Gaussian belief (the EKF's): its COVARIANCE_SIGMAS ellipse, a polygon in the filter's colour
+        (rerun's Ellipses2D are axis-aligned: they cannot be rotated)."""
         import rerun as rr
 
-        outline = covariance_ellipse(np.asarray(state.mean), np.asarray(state.covariance), COVARIANCE_SIGMAS)
+        outline = covariance_ellipse(np.asarray(belief.mean), np.asarray(belief.covariance), COVARIANCE_SIGMAS)
         strip = rr.LineStrips2D([outline], colors=self.color, radii=COVARIANCE_LINE_RADIUS)
         self.recording.stream.log(f"{self.path}/covariance", strip)
 

@@ -1,0 +1,108 @@
+"""`mazelab accuracy`: every filter against the exact grid posterior, with a progress bar, intervals,
+a CSV of the runs and a JSON record beside it."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from mazelab.atomic import write_text_atomically
+from mazelab.checks import check_sigma_within
+from mazelab.cli.options import DEFAULT_DELTA, DEFAULT_SIGMA, check_output_path, parse_list
+from mazelab.cli.provenance import command_line
+from mazelab.experiments.executor import default_workers, progress_bar
+from mazelab.experiments.plan import maze_description, study_mazes
+from mazelab.experiments.record import Recorder, record_path
+from mazelab.experiments.runs import parse_filters
+from mazelab.limits import check_particles, check_steps, check_study
+from mazelab.mazes import MAZES_DIR
+from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, check_model_parameters
+
+
+def accuracy(
+    maze: Annotated[
+        str | None, typer.Option(help="maze files or names, comma-separated (default: every maze in mazes/)")
+    ] = None,
+    maze_size: Annotated[str | None, typer.Option(help="generated mazes ROWSxCOLUMNS, comma-separated")] = None,
+    stations: Annotated[str | None, typer.Option(help="generated mazes' station blocks, comma-separated")] = None,
+    filters: Annotated[
+        str | None,
+        typer.Option(help="sir, apf, rpf, ekf or FILE.py:Class, comma-separated [default: SIR, APF, both RPFs]"),
+    ] = None,
+    sigma: Annotated[float, typer.Option(help="measurement noise std")] = DEFAULT_SIGMA,
+    delta: Annotated[float, typer.Option(help="compass error width, radians")] = DEFAULT_DELTA,
+    particles: Annotated[int, typer.Option(min=1, help="particle count N_S")] = DEFAULT_PARTICLE_COUNT,
+    runs: Annotated[int, typer.Option(min=1, help="seeded runs per maze")] = 10,
+    steps: Annotated[int, typer.Option(min=2, help="steps per run (the distance is averaged over the second half)")] = (
+        DEFAULT_STEPS
+    ),
+    seed: Annotated[int, typer.Option(min=0, help="root seed (run r has the same seed on every maze)")] = 1,
+    workers: Annotated[int | None, typer.Option(min=1, help="processes (default: all cores)")] = None,
+    csv_path: Annotated[Path | None, typer.Option("--csv", help="one row per maze, run and filter")] = None,
+    record: Annotated[Path | None, typer.Option(help="the JSON record [default: beside --csv]")] = None,
+    force: Annotated[bool, typer.Option("--force", help="replace existing output files")] = False,
+) -> None:
+    """How close each filter comes to the exact posterior: per maze, the mean distance between its
+    estimate and the exact grid filter's posterior mean over the second half of the steps (with a 95%
+    bootstrap interval), and the share of runs that converged (error below 0.5 from some step on;
+    Wilson interval)."""
+    from mazelab.experiments.accuracy import (
+        accuracy_csv,
+        accuracy_filters,
+        accuracy_table,
+        accuracy_tasks,
+        run_accuracy,
+    )
+
+    record_file = record if record is not None else record_path(csv_path) if csv_path is not None else None
+    for path in (csv_path, record_file):
+        if path is not None:
+            check_output_path(path, force)
+    files = parse_list(maze, str, "--maze") if maze is not None else None
+    if files is None and maze_size is None and stations is None:
+        files = sorted(p.stem for p in MAZES_DIR.glob("*.txt"))
+    sizes = parse_list(maze_size, str, "--maze-size") if maze_size is not None else None
+    counts = parse_list(stations, int, "--stations") if stations is not None else None
+    mazes = study_mazes(files, sizes, counts) if files or sizes or counts else study_mazes(None)
+    chosen = accuracy_filters(None if filters is None else parse_filters(filters))
+    check_model_parameters(sigma, delta)
+    check_steps(steps)
+    check_particles(particles)
+    check_study(len(mazes) * runs, len(chosen))  # --runs 10000000: refused before any work
+    for choice in mazes:
+        rows, columns = choice.size if choice.grid is None else (len(choice.grid), len(choice.grid[0]))
+        check_sigma_within(sigma, columns, rows)
+    tasks = accuracy_tasks([(m.label, m) for m in mazes], runs, sigma, delta, particles, steps, seed, chosen)
+    labels = ", ".join(label for label, _, _ in chosen)
+    typer.echo(
+        f"Accuracy: {len(mazes)} maze(s) ({', '.join(m.label for m in mazes)}) x {runs} runs, sigma {sigma:g}, "
+        f"delta {delta:g}, {particles} particles, {steps} steps, seed {seed}; filters: {labels}"
+    )
+    parameters = {
+        "mazes": [maze_description(m) for m in mazes],
+        "filters": [label for label, _, _ in chosen],
+        "sigma": sigma, "delta": delta, "particles": particles, "runs": runs, "steps": steps, "root_seed": seed,
+    }  # fmt: skip
+    recorder = Recorder(
+        "accuracy", command_line(), parameters, outputs={"csv": None if csv_path is None else str(csv_path)}
+    )
+    started = time.perf_counter()
+    with progress_bar(len(tasks), True) as advance:
+        records = run_accuracy(tasks, workers or default_workers(), advance)
+    typer.echo(accuracy_table(records))
+    typer.echo(f"{len(tasks)} runs in {time.perf_counter() - started:.1f} s wall time")
+    if csv_path is not None:
+        write_text_atomically(csv_path, accuracy_csv(records), replace=force)
+        typer.echo(f"one row per maze, run and filter written to {csv_path}")
+    if record_file is not None:
+        from mazelab.experiments.accuracy import accuracy_summary
+
+        recorder.finish("finished", summary=accuracy_summary(records))
+        recorder.write(record_file)
+        typer.echo(f"the record (command, versions, seeds, mazes, summary) written to {record_file}")
+
+
+__all__ = ["accuracy"]

@@ -1,0 +1,60 @@
+"""compare's per-step traces (--traces) and its JSON record (beside --csv, --plot or --traces)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import typer
+
+from mazelab.cli.options import check_output_path
+from mazelab.cli.provenance import command_line
+from mazelab.experiments.record import Recorder, file_sha256, record_path
+from mazelab.experiments.runs import final_error, mean_ess
+from mazelab.experiments.traces import check_trace_path, compare_traces, write_traces
+from mazelab.simulation import RunResult
+
+
+def compare_record_file(csv_path: Path | None, plot: Path | None, traces: Path | None, force: bool) -> Path | None:
+    """Where compare's record goes (beside its first output), checked like the outputs; the traces'
+    format checked too."""
+    if traces is not None:
+        check_output_path(traces, force)
+        check_trace_path(traces)
+    path = next((record_path(p) for p in (csv_path, plot, traces) if p is not None), None)
+    if path is not None:
+        check_output_path(path, force)
+    return path
+
+
+def start_compare_record(scenario: Path, parameters: dict[str, Any]) -> Recorder:
+    """The record of a compare, started before its runs."""
+    return Recorder("compare", command_line(), {**parameters, "scenario": str(scenario)},
+                    scenario_sha256=file_sha256(scenario))  # fmt: skip
+
+
+def finish_compare(
+    results: dict[str, RunResult], seed: int, traces: Path | None, recorder: Recorder, record_file: Path | None
+) -> None:
+    """Write the traces and the record (with each filter's figures)."""
+    if traces is not None:
+        write_traces(traces, compare_traces(results, seed))
+        typer.echo(f"per-step traces written to {traces}")
+    if record_file is not None:
+        summary = [
+            {
+                "filter": name,
+                "mean_error": float(result.errors.mean()),
+                "final_error": final_error(result.errors),
+                "converged_at": result.converged_at,
+                "mean_ess": mean_ess(result),
+                "ms_per_step": 1e3 * float(result.step_seconds.mean()),
+            }
+            for name, result in results.items()
+        ]
+        recorder.finish("finished", summary=summary)
+        recorder.write(record_file)
+        typer.echo(f"the record (command, versions, scenario hash, summary) written to {record_file}")
+
+
+__all__ = ["compare_record_file", "finish_compare", "start_compare_record"]

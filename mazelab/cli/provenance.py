@@ -1,0 +1,38 @@
+"""What the records of the command line need: the command as typed (`main` keeps it) and
+`mazelab --version`."""
+
+from __future__ import annotations
+
+import sys
+from contextvars import ContextVar
+from pathlib import Path
+
+import typer
+
+from mazelab.experiments.record import package_version, program_versions
+
+_ARGUMENTS: ContextVar[list[str] | None] = ContextVar("mazelab_arguments", default=None)
+
+
+def remember_arguments(argv: list[str] | None) -> None:
+    """Keep the command's arguments (those handed to main, else the process's) for the records."""
+    _ARGUMENTS.set(list(argv) if argv is not None else sys.argv[1:])
+
+
+def command_line() -> list[str]:
+    """The command as typed: the program's name, then every argument."""
+    arguments = _ARGUMENTS.get()
+    program = Path(sys.argv[0]).name if sys.argv and sys.argv[0] else "mazelab"
+    return ["mazelab" if program in ("", "-c", "__main__.py") else program, *(arguments or sys.argv[1:])]
+
+
+def show_version(value: bool) -> None:
+    """--version: the program's, its git commit (if any), numpy's and Python's; then exit."""
+    if value:
+        versions = program_versions()
+        commit = f" (git {versions['git_commit']})" if versions["git_commit"] else ""
+        typer.echo(f"mazelab {package_version()}{commit}, numpy {versions['numpy']}, Python {versions['python']}")
+        raise typer.Exit()
+
+
+__all__ = ["command_line", "remember_arguments", "show_version"]

@@ -1,0 +1,412 @@
+"""The weighted particle cloud that the paper's three filters share (mazelab.filters writes their steps).
+
+One filter object advances R runs of one setting together: run r's particles are rows r*N..(r+1)*N of
+`positions` (R*N, 2), its log weights row r of (R, N), and its random draws come from its own
+Generator `rngs[r]`, in the order a filter of that run alone would draw them. So one implementation
+serves a single run (R = 1, what a student builds) and a batched study (R runs, bit for bit the same
+as R single runs): every array operation covers all runs in one numpy call, reductions are per run
+along the last axis, and only the draws loop over the runs (never over particles).
+
+For one run the attributes keep the paper's shapes: positions (N, 2), weights (N,), estimate (2,),
+ess a float. For R runs: weights (R, N), estimate (R, 2), ess (R,), is_confident (R,).
+Recovery from kidnapping and KLD-sampling are parts handed to the filter (`RecoveryTracker`,
+`KLDSampling`); they vary the particles of one run, so they need R = 1 (`runs_together` says so).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any, ClassVar
+
+import numpy as np
+
+from mazelab.checks import as_points
+from mazelab.contract import Particles
+from mazelab.maze import Maze
+from mazelab.model import (
+    CONFIDENCE_RADIUS,
+    CONFIDENCE_SHARE,
+    LOG_UNDERFLOW,
+    OUTSIDE_PENALTY,
+    PARTICLE_DTYPE,
+    ROBOT_SPEED,
+    headings_from_uniforms,
+    log_likelihood,
+    move,
+    take_particles,
+)
+from mazelab.modes import Mode, check_estimate, find_modes
+from mazelab.recovery import ALPHA_FAST, ALPHA_SLOW, Recovery, RecoveryTracker, recovery_options
+from mazelab.resampling import KLDSampling, Move, kld_options, kld_resample, resampling_scheme, systematic_resample
+from mazelab.resampling import systematic_resample_runs as systematic_runs
+from mazelab.weights import effective_sample_size, log_sum_exp, mass_within, weighted_mean
+
+
+class ParticleFilter:
+    """Weighted particles {x_i, W_i} approximating the posterior p(x_k | z_1:k), for R runs at once.
+
+    Arulampalam's algorithms end each step by resampling; here each step starts by resampling the
+    previous posterior, the same sequence of operations, so that between steps the filter holds the
+    weighted posterior that the estimate, the ESS and the drawing read.
+
+    Parameters
+    ----------
+    world : Maze
+        The map: free area and stations.
+    sigma, delta : float
+        The measurement noise's standard deviation (map units) and the compass error's width (radians).
+    particles : array (N, 2), or (R, N, 2) for R runs together
+        The initial particles (the prior's sample).
+    rng : numpy.random.Generator, or a sequence of R of them
+        Every random draw of the filter (each run's from its own); None: a fresh unseeded one.
+    resampling : str
+        "systematic" (the default), "stratified", "multinomial" or "residual".
+    outside_penalty, speed : float
+        The paper's 0.5 factor outside the free area, and L (model constants, here to experiment).
+    recovery : None, True, "augmented", "sensor" or a Recovery
+        Recovery from kidnapping (beyond the paper), with `alpha_slow`, `alpha_fast`; one run only.
+    kld : None, True or a KLDSampling
+        KLD-sampling (Fox 2003): the particle count adapts to the posterior's spread; one run only.
+    estimate : str
+        "mean" (the paper's posterior mean) or "mode" (the heaviest mode's mean, mazelab.modes).
+
+    `positions` are float32 (PARTICLE_DTYPE), `log_weights` float64. The filter replaces these arrays
+    rather than writing into them; to change them, assign new arrays (the weights, estimate, ESS and
+    confidence are computed once per assignment and cached).
+    """
+
+    name: ClassVar[str] = "ParticleFilter"
+    options: ClassVar[Mapping[str, Any]] = {
+        "resampling": "systematic",
+        "outside_penalty": OUTSIDE_PENALTY,
+        "speed": ROBOT_SPEED,
+        "recovery": None,
+        "alpha_slow": ALPHA_SLOW,
+        "alpha_fast": ALPHA_FAST,
+        "kld": None,
+        "estimate": "mean",
+    }
+    ONE_RUN_OPTIONS: ClassVar[tuple[str, ...]] = ("recovery", "kld")  # options that need R = 1
+
+    def __init__(
+        self,
+        world: Maze,
+        sigma: float,
+        delta: float,
+        particles: np.ndarray,
+        rng: np.random.Generator | Sequence[np.random.Generator] | None = None,
+        *,
+        resampling: str = "systematic",
+        outside_penalty: float = OUTSIDE_PENALTY,
+        speed: float = ROBOT_SPEED,
+        recovery: bool | str | Recovery | None = None,
+        alpha_slow: float = ALPHA_SLOW,
+        alpha_fast: float = ALPHA_FAST,
+        kld: bool | KLDSampling | None = None,
+        estimate: str = "mean",
+    ):
+        self.world, self.sigma, self.delta = world, sigma, delta
+        self.estimate_rule = check_estimate(estimate)
+        self.scheme_name = resampling
+        self.scheme = resampling_scheme(resampling)
+        self.outside_penalty, self.speed = outside_penalty, speed
+        runs_particles = _as_runs(particles)  # (R, N, 2)
+        self.runs, self.count = runs_particles.shape[:2]
+        self.rngs = _generators(rng, self.runs)
+        self.positions = np.asfortranarray(runs_particles.reshape(-1, 2), dtype=PARTICLE_DTYPE)  # (R*N, 2)
+        self.headings = np.zeros(len(self.positions), dtype=PARTICLE_DTYPE)  # each particle's last motion angle
+        self._log_w = np.full((self.runs, self.count), -math.log(self.count))
+        self._summary_of: tuple[np.ndarray, np.ndarray] | None = None  # the arrays _summary describes
+        self._summary: dict[str, Any] = {}
+        self.steps_done = 0
+        self._reinitialised: list[list[int]] = [[] for _ in range(self.runs)]
+        # the parts beyond the paper, off by default
+        recovering = recovery_options(recovery, alpha_slow, alpha_fast)
+        self.recovery = None if recovering is None else RecoveryTracker(recovering, world, sigma)
+        self.kld = kld_options(kld)
+        self.max_count = self.count if self.kld is None or self.kld.max_count is None else self.kld.max_count
+        if self.runs > 1 and (self.recovery is not None or self.kld is not None):
+            raise ValueError("recovery and KLD-sampling vary one run's particles: they run one run at a time")
+        self._injected: np.ndarray | None = None
+        self._injected_step = 0
+
+    @classmethod
+    def runs_together(cls, options: Mapping[str, Any]) -> bool:
+        """Whether several runs with these options can advance together (R > 1): not with recovery or
+        KLD-sampling, which vary one run's particles (such runs go one at a time)."""
+        return not any(options.get(name) not in (None, False, "none") for name in cls.ONE_RUN_OPTIONS)
+
+    def step(self, compass_angle: float | np.ndarray, z: float | np.ndarray) -> None:
+        """Advance one step: predict with the compass angle th0_k (radians), update with z_k.
+
+        Parameters
+        ----------
+        compass_angle, z : float, or arrays (R,) for R runs
+        """
+        raise NotImplementedError
+
+    # -- the model, for all runs at once --------------------------------------------------------------
+    def propagate(
+        self, positions: np.ndarray, compass_angle: np.ndarray, runs: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Draw x_k ~ p(x_k | x_{k-1}): uniform on the arc of radius L around th0 (headings too), for
+        the given `runs` (default all), whose blocks of `positions` lie one after another."""
+        runs = np.arange(self.runs) if runs is None else runs
+        dtype = positions.dtype  # PARTICLE_DTYPE, or float64 for injected draws from the free area
+        uniforms = np.empty((len(runs), len(positions) // len(runs)), dtype=dtype)
+        for row, run in enumerate(runs):
+            self.rngs[run].random(dtype=dtype, out=uniforms[row])
+        angles = np.asarray(compass_angle, dtype=float)[runs].astype(dtype)[:, None]
+        headings = headings_from_uniforms(uniforms, angles, self.delta).reshape(-1)
+        return move(positions, headings, self.speed), headings
+
+    def motion(self, compass_angle: np.ndarray) -> tuple[Callable[..., Any], Move]:
+        """This step's transition, for resampled ancestors and for injected points (draw_particles)."""
+
+        def ancestors_moved(ancestors: np.ndarray, runs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            return self.propagate(take_particles(self.positions, ancestors), compass_angle, runs)
+
+        return ancestors_moved, lambda points: self.propagate(points, compass_angle)
+
+    def likelihood(self, z: np.ndarray, positions: np.ndarray) -> np.ndarray:
+        """log p(z_k | x) of equation (3) with the outside penalty, z (R,) -> (R, N)."""
+        log_lik = log_likelihood(z, positions, self.world, self.sigma, self.outside_penalty)
+        return log_lik.reshape(len(z), -1)
+
+    # -- resampling, and the parts that change it ------------------------------------------------------
+    def resample(self, weights: np.ndarray, runs: np.ndarray) -> np.ndarray:
+        """Ancestors of the given runs, drawn by their weights (R, N) with the resampling scheme: indices
+        into `positions`, N per run, shape (len(runs) * N,)."""
+        if self.scheme is systematic_resample:  # one offset per run, the counting done for all runs at once
+            uniforms = np.array([self.rngs[run].random() for run in runs])
+            ancestors = systematic_runs(weights[runs] if len(runs) < self.runs else weights, uniforms)
+            if len(runs) < self.runs:  # block b of the result is run runs[b]'s
+                ancestors += np.repeat(self.count * (runs - np.arange(len(runs))), self.count)
+            return ancestors
+        return np.concatenate([self.scheme(weights[run], self.rngs[run]) + run * self.count for run in runs])
+
+    def draw_particles(
+        self, weights: np.ndarray, move_ancestors: Callable[..., Any], move_injected: Move, runs: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+        """RESAMPLE the given runs by their weights (R, N) and `move_ancestors` the ancestors; with
+        KLD-sampling, as many as Fox's bound asks; with recovery, then replace each particle with the
+        injection probability by an injected point passed through `move_injected`.
+        Returns (positions, headings, ancestors, injected mask or None) of those runs."""
+        if self.kld is None:
+            ancestors = self.resample(weights, runs)
+            positions, headings = move_ancestors(ancestors, runs)
+        else:  # one run (R = 1)
+            ancestors, positions, headings = kld_resample(
+                weights[0], lambda a: move_ancestors(a, runs), self.kld, self.scheme, self.rngs[0], self.max_count
+            )
+        injected = None
+        if self.recovery is not None:  # one run (R = 1)
+            injected = self.recovery.inject(positions, headings, move_injected, self.rngs[0])
+        self._injected, self._injected_step = injected, self.steps_done + 1
+        return positions, headings, ancestors, injected
+
+    def inject_without_resampling(self, move_injected: Move) -> None:
+        """Recovery between resamplings: replace particles with the injection probability, each injected
+        point keeping the weight of the particle it replaces (the selection ignores the weights, so the
+        set represents the same mixture (1 - p) belief + p injection as injecting at a resampling)."""
+        positions, headings = self.positions.copy(order="F"), self.headings.copy()
+        self._injected = self.recovery.inject(positions, headings, move_injected, self.rngs[0])
+        self._injected_step = self.steps_done + 1
+        self.positions, self.headings = positions, headings
+
+    @property
+    def injected(self) -> np.ndarray | None:
+        """Which particles this step's recovery replaced by injected draws (bool, (N,)), or None."""
+        return self._injected if self._injected_step == self.steps_done else None
+
+    @property
+    def injection_probability(self) -> float:
+        """The recovery's injection probability now (0 without recovery)."""
+        return 0.0 if self.recovery is None else self.recovery.injection_probability
+
+    def track_likelihood(self, log_w_avg: np.ndarray | float, z: np.ndarray | float) -> None:
+        """Hand recovery this step's w_avg, log p(z_k | z_1:k-1) estimated (one run)."""
+        if self.recovery is not None:
+            self.recovery.track(float(np.asarray(log_w_avg).item()), float(np.asarray(z).item()))
+
+    def replace_runs(self, x: np.ndarray, headings: np.ndarray, runs: np.ndarray) -> None:
+        """New particles (len(runs) * N, 2) and headings for the given runs; the other runs keep theirs."""
+        if len(runs) == self.runs:
+            self.positions, self.headings, self.count = x, headings, len(x) // self.runs
+            return
+        positions, all_headings = self.positions.copy(order="F"), self.headings.copy()
+        for block, run in enumerate(runs):
+            rows = slice(run * self.count, (run + 1) * self.count)
+            part = slice(block * self.count, (block + 1) * self.count)
+            positions[rows], all_headings[rows] = x[part], headings[part]
+        self.positions, self.headings = positions, all_headings
+
+    def all_runs(self, log_w: np.ndarray | None, runs: np.ndarray) -> np.ndarray:
+        """Log weights (R, N) with the given runs' rows from `log_w` (the other runs restart: zeros)."""
+        if log_w is not None and len(runs) == self.runs:
+            return log_w
+        full = np.zeros((self.runs, self.count), dtype=np.float32 if log_w is None else log_w.dtype)
+        if log_w is not None:
+            full[runs] = log_w
+        return full
+
+    # -- the weighted posterior, per run --------------------------------------------------------------
+    @property
+    def log_weights(self) -> np.ndarray:
+        """log W_i, normalised: (N,) for one run, (R, N) for R runs."""
+        return self._log_w[0] if self.runs == 1 else self._log_w
+
+    @log_weights.setter
+    def log_weights(self, values: np.ndarray) -> None:
+        self._log_w = np.asarray(values, dtype=float).reshape(self.runs, -1)
+
+    @property
+    def run_weights(self) -> np.ndarray:
+        """W_i = exp(log W_i) per run, shape (R, N)."""
+        return self._cached("weights", lambda: np.exp(self._log_w))
+
+    @property
+    def weights(self) -> np.ndarray:
+        """The normalised weights W_i: (N,) for one run, (R, N) for R runs."""
+        return self._one(self.run_weights)
+
+    @property
+    def run_ess(self) -> np.ndarray:
+        """N_eff = 1 / sum_i W_i^2 per run, shape (R,)."""
+        return self._cached("ess", lambda: effective_sample_size(self.run_weights))
+
+    @property
+    def ess(self) -> float | np.ndarray:
+        """N_eff = 1 / sum_i W_i^2: a float for one run, (R,) for R runs."""
+        return float(self.run_ess[0]) if self.runs == 1 else self.run_ess
+
+    @property
+    def mean(self) -> np.ndarray:
+        """The posterior mean sum_i W_i x_i: (2,) for one run, (R, 2) for R runs."""
+        return self._one(self._cached("mean", lambda: weighted_mean(self.run_weights, self.positions))).copy()
+
+    @property
+    def modes(self) -> list[Mode] | list[list[Mode]]:
+        """The cloud's modes (connected occupied bins, mazelab.modes), heaviest first; a list per run for R runs."""
+        return self._one(self._run_modes())
+
+    @property
+    def estimate(self) -> np.ndarray:
+        """The posterior mean (the paper's), or the heaviest mode's mean: (2,), or (R, 2) for R runs."""
+        return self._one(self._estimates()).copy()
+
+    @property
+    def is_confident(self) -> bool | np.ndarray:
+        """At least 95% of the weight lies within distance 1 of the estimate (the paper's green circle)."""
+        share = self._cached(
+            "confident", lambda: mass_within(self.run_weights, self.positions, self._estimates(), CONFIDENCE_RADIUS)
+        )
+        confident = share >= CONFIDENCE_SHARE
+        return bool(confident[0]) if self.runs == 1 else confident
+
+    @property
+    def reinitialised_at(self) -> list[int] | list[list[int]]:
+        """The steps at which no particle explained z and the filter restarted (a list per run for R runs)."""
+        return self._one(self._reinitialised)
+
+    def run_positions(self, run: int) -> np.ndarray:
+        """Run `run`'s particles, (N, 2)."""
+        return self.positions[run * self.count : (run + 1) * self.count]
+
+    def belief(self) -> Particles:
+        """What the viewer draws: the particles (one run)."""
+        return Particles(self.positions, self.weights, self.headings, self.injected, self.modes, self.kld is not None)
+
+    def _estimates(self) -> np.ndarray:
+        """The estimate of each run, (R, 2) float64."""
+        if self.estimate_rule == "mode":
+            means = self._cached("mean", lambda: weighted_mean(self.run_weights, self.positions))
+            return np.stack([m[0].mean if m else mean for m, mean in zip(self._run_modes(), means, strict=True)])
+        return self._cached("mean", lambda: weighted_mean(self.run_weights, self.positions))
+
+    def _run_modes(self) -> list[list[Mode]]:
+        """Each run's modes, heaviest first."""
+        return self._cached(
+            "modes", lambda: [find_modes(self.run_positions(r), w) for r, w in enumerate(self.run_weights)]
+        )
+
+    def _one(self, per_run: Any) -> Any:
+        """Run 0's value for one run (the paper's shapes), all runs' otherwise."""
+        return per_run[0] if self.runs == 1 else per_run
+
+    def _cached(self, name: str, compute: Callable[[], Any]) -> Any:
+        """`compute()`, remembered until `positions` or `log_weights` is assigned a new array."""
+        described = self._summary_of
+        if described is None or described[0] is not self.positions or described[1] is not self._log_w:
+            self._summary_of, self._summary = (self.positions, self._log_w), {}
+        if name not in self._summary:
+            self._summary[name] = compute()
+        return self._summary[name]
+
+    # -- bookkeeping, per run --------------------------------------------------------------------------
+    def _set_weights(self, log_w: np.ndarray, z: np.ndarray, lost: np.ndarray | None = None) -> None:
+        """Normalise each run's log weights (R, N); a run whose total underflows (no particle explains
+        z), or that is `lost`, starts again from the prior."""
+        totals = np.atleast_1d(log_sum_exp(log_w))
+        log_weights = np.subtract(log_w, totals[:, None], dtype=float)
+        restart = (totals < LOG_UNDERFLOW) | np.isnan(totals)
+        if lost is not None:
+            restart |= lost
+        if restart.any():
+            log_weights = self._reinitialise(np.flatnonzero(restart), z, log_weights)
+        self._log_w = log_weights
+
+    def _reinitialise(self, runs: np.ndarray, z: np.ndarray, log_weights: np.ndarray) -> np.ndarray:
+        """The given runs start again from the prior (uniform over the free area), weighted by their z;
+        returns the log weights with theirs replaced."""
+        if self.kld is not None:  # the prior is as spread as a belief gets: the most particles (R = 1)
+            self.count = self.max_count
+            self.positions = np.empty((self.count, 2), dtype=PARTICLE_DTYPE, order="F")
+            self.headings = np.zeros(self.count, dtype=PARTICLE_DTYPE)
+            log_weights = np.empty((1, self.count))
+        else:
+            self.positions = self.positions.copy(order="F")
+        for run in runs:
+            self._reinitialised[run].append(self.steps_done + 1)
+            rows = slice(run * self.count, (run + 1) * self.count)
+            self.positions[rows] = self.world.random_free_places(self.count, self.rngs[run])
+            log_w = log_likelihood(float(z[run]), self.positions[rows], self.world, self.sigma, self.outside_penalty)
+            total = log_sum_exp(log_w)
+            uniform = total < LOG_UNDERFLOW
+            log_weights[run] = -math.log(self.count) if uniform else np.subtract(log_w, total, dtype=float)
+        return log_weights
+
+
+def _as_runs(particles: Any) -> np.ndarray:
+    """Initial particles as (R, N, 2): (N, 2) is one run."""
+    array = np.asarray(particles)
+    if array.ndim == 3:
+        if array.shape[2] != 2 or array.shape[1] < 1:
+            raise ValueError(f"particles of R runs must have shape (R, N, 2), got {array.shape}")
+        return np.stack([as_points("particles", run) for run in array])
+    return as_points("particles", particles)[None]
+
+
+def _generators(rng: Any, runs: int) -> list[np.random.Generator]:
+    """One Generator per run: `rng` itself for one run, or the sequence given (None: fresh ones)."""
+    if rng is None:
+        return [np.random.default_rng() for _ in range(runs)]
+    if isinstance(rng, np.random.Generator):
+        if runs != 1:
+            raise ValueError(f"{runs} runs need {runs} generators, one each, got one")
+        return [rng]
+    rngs = list(rng)
+    if len(rngs) != runs or not all(isinstance(g, np.random.Generator) for g in rngs):
+        raise ValueError(f"{runs} runs need {runs} numpy Generators, got {len(rngs)}")
+    return rngs
+
+
+def per_run(value: float | np.ndarray, runs: int) -> np.ndarray:
+    """A step's compass angle or measurement as one value per run, float64 (R,)."""
+    if isinstance(value, np.ndarray):
+        return np.broadcast_to(value.astype(float, copy=False), (runs,))
+    return np.full(runs, float(value))
+
+
+__all__ = ["ParticleFilter", "per_run"]

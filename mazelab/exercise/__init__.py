@@ -1,0 +1,16 @@
+"""The exercise: a student writes Algorithm 4's four parts (predict, weigh, resample, estimate) in a
+subclass of StudentFilter; `mazelab exercise check` grades each part and the whole filter against the
+exact posterior.
+
+    from mazelab.exercise import OUTSIDE_PENALTY, ROBOT_SPEED, StudentFilter
+
+Modules: student (StudentFilter, the wiring), template (the files `exercise new` writes), parts (one
+check per part), whole (the whole filter against the exact grid posterior), report (the table).
+"""
+
+from __future__ import annotations
+
+from mazelab.exercise.student import PARTS, PartError, StudentFilter
+from mazelab.model import OUTSIDE_PENALTY, ROBOT_SPEED
+
+__all__ = ["OUTSIDE_PENALTY", "PARTS", "ROBOT_SPEED", "PartError", "StudentFilter"]

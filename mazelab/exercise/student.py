@@ -1,0 +1,204 @@
+"""StudentFilter: Algorithm 4 (SIR) with four parts left to the student, wired into the filter contract.
+
+The student writes `predict`, `weigh`, `resample` and `estimate`; StudentFilter calls them in the
+order of Arulampalam et al.'s Algorithm 4 and does the rest: log-domain normalisation, the effective
+sample size, the green circle, and a restart from the prior when no particle explains z_k. Like the
+shipped filters, each step starts by resampling the previous posterior (the end of the previous
+step's Algorithm 4), so between steps the filter holds the weighted posterior that is drawn and read.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any, ClassVar
+
+import numpy as np
+
+from mazelab.checks import as_points
+from mazelab.contract import Particles
+from mazelab.maze import Maze
+from mazelab.model import CONFIDENCE_RADIUS, CONFIDENCE_SHARE, LOG_UNDERFLOW, OUTSIDE_PENALTY, ROBOT_SPEED
+from mazelab.weights import effective_sample_size, log_sum_exp, mass_within
+
+PARTS = ("predict", "weigh", "resample", "estimate")
+
+
+class PartError(ValueError):
+    """A part returned something of the wrong shape or kind: one line naming the part and what came."""
+
+
+class StudentFilter:
+    """Algorithm 4 (SIR) whose four parts the subclass writes; see the methods for each part's job.
+
+    Parameters
+    ----------
+    world : Maze
+        The map: `world.distance_to_nearest_station(points)` and `world.is_free(x, y)`.
+    sigma, delta : float
+        The measurement noise's standard deviation and the compass error's full width (radians).
+    particles : array (N, 2)
+        The initial particles, drawn from the prior (uniform over the free area).
+    rng : numpy.random.Generator
+        Every random draw of the filter; `predict` and `resample` receive it.
+    estimate : str
+        Only "mean": the point estimate is the student's own `estimate`.
+
+    Attributes the parts may read: `self.world`, `self.sigma`, `self.delta`, `self.ROBOT_SPEED` (L) and
+    `self.OUTSIDE_PENALTY` (refinement 1's factor), also importable from mazelab.exercise.
+    """
+
+    name: ClassVar[str] = "StudentFilter"
+    options: ClassVar[Mapping[str, Any]] = {"estimate": "mean"}
+    ROBOT_SPEED: ClassVar[float] = ROBOT_SPEED
+    OUTSIDE_PENALTY: ClassVar[float] = OUTSIDE_PENALTY
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        """A subclass is named after itself (results and the viewer label it so) unless it sets `name`.
+
+        The contract's `estimate` is the point estimate (2,) of the present posterior; the student's
+        `estimate(positions, weights)` method is the part that computes it. A subclass's method is
+        kept as `estimate_part`, and `estimate` stays the contract's value."""
+        super().__init_subclass__(**kwargs)
+        if "name" not in cls.__dict__:
+            cls.name = cls.__name__
+        written = cls.__dict__.get("estimate")
+        if callable(written):
+            cls.estimate_part = written
+            cls.estimate = StudentFilter.__dict__["estimate"]
+
+    def __init__(
+        self,
+        world: Maze,
+        sigma: float,
+        delta: float,
+        particles: np.ndarray,
+        rng: np.random.Generator | None = None,
+        *,
+        estimate: str = "mean",
+    ):
+        if estimate != "mean":
+            raise ValueError(
+                f"{self.name} estimates with its own estimate() method: estimate={estimate!r} does not apply"
+            )
+        self.world, self.sigma, self.delta = world, float(sigma), float(delta)
+        self.rng = rng if rng is not None else np.random.default_rng()
+        self.positions = as_points("particles", particles).copy()
+        self.count = len(self.positions)
+        self.log_weights = np.full(self.count, -math.log(self.count))
+        self.reinitialised_at: list[int] = []
+        self.steps_done = 0
+        self._estimate: np.ndarray | None = None
+
+    # -- the student's four parts --------------------------------------------------------------------
+    def predict(self, positions: np.ndarray, compass_angle: float, rng: np.random.Generator) -> np.ndarray:
+        """Draw x_k^i ~ p(x_k | x_{k-1}^i): positions (N, 2) -> moved positions (N, 2)."""
+        raise NotImplementedError("predict is still to write")
+
+    def weigh(self, positions: np.ndarray, z: float) -> np.ndarray:
+        """log p(z_k | x_k^i) for positions (N, 2) -> (N,)."""
+        raise NotImplementedError("weigh is still to write")
+
+    def resample(self, weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """Normalised weights (N,) -> ancestor indices (N,)."""
+        raise NotImplementedError("resample is still to write")
+
+    def estimate_part(self, positions: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        """The posterior mean, shape (2,): a subclass writes it as `estimate(self, positions, weights)`."""
+        raise NotImplementedError("estimate is still to write")
+
+    # -- Algorithm 4, wired ------------------------------------------------------------------------
+    def step(self, compass_angle: float, z: float) -> None:
+        """One step of Algorithm 4: RESAMPLE the previous posterior, draw x_k^i ~ p(x_k | x_{k-1}^i),
+        w_k^i = p(z_k | x_k^i), normalise (in logs); restart from the prior if no particle explains z_k."""
+        ancestors = self.call_resample(self.weights)
+        moved = self.call_predict(self.positions[ancestors], float(compass_angle))
+        log_w = self.call_weigh(moved, float(z))
+        total = log_sum_exp(log_w)
+        if not total >= LOG_UNDERFLOW:  # every weight underflows (or NaN): no particle explains z_k
+            self.reinitialised_at.append(self.steps_done + 1)
+            moved = self.world.random_free_places(self.count, self.rng)
+            log_w = self.call_weigh(moved, float(z))
+            total = log_sum_exp(log_w)
+            if not total >= LOG_UNDERFLOW:
+                log_w, total = np.zeros(self.count), math.log(self.count)
+        self.positions = moved
+        self.log_weights = log_w - total
+        self._estimate = None
+        self.steps_done += 1
+
+    def call_predict(
+        self, positions: np.ndarray, compass_angle: float, rng: np.random.Generator | None = None
+    ) -> np.ndarray:
+        """`predict` on a copy of the positions (drawing from `rng`, default the filter's), its answer
+        checked: (N, 2), finite."""
+        moved = np.asarray(self.predict(positions.copy(), compass_angle, self.rng if rng is None else rng), dtype=float)
+        return _checked("predict", moved, (len(positions), 2))
+
+    def call_weigh(self, positions: np.ndarray, z: float) -> np.ndarray:
+        """`weigh` on a copy of the positions, its answer checked: (N,), no NaN or +inf."""
+        log_w = np.asarray(self.weigh(positions.copy(), z), dtype=float)
+        if log_w.shape != (len(positions),):
+            raise PartError(
+                f"weigh returned shape {log_w.shape}; expected ({len(positions)},), one log-likelihood each"
+            )
+        if np.isnan(log_w).any() or np.isposinf(log_w).any():
+            raise PartError("weigh returned NaN or +inf; expected log-likelihoods (finite, or -inf for zero)")
+        return log_w
+
+    def call_resample(self, weights: np.ndarray, rng: np.random.Generator | None = None) -> np.ndarray:
+        """`resample` on a copy of the weights (drawing from `rng`, default the filter's), its answer
+        checked: N whole numbers in [0, N)."""
+        ancestors = np.asarray(self.resample(weights.copy(), self.rng if rng is None else rng))
+        if ancestors.shape != (len(weights),):
+            raise PartError(f"resample returned shape {ancestors.shape}; expected ({len(weights)},), one index each")
+        if not np.issubdtype(ancestors.dtype, np.integer):
+            raise PartError(f"resample returned {ancestors.dtype} values; expected whole-number indices")
+        if len(ancestors) and (ancestors.min() < 0 or ancestors.max() >= len(weights)):
+            raise PartError(f"resample returned an index outside [0, {len(weights)})")
+        return ancestors
+
+    def call_estimate(self, positions: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        """`estimate` on copies, its answer checked: (2,), finite."""
+        point = np.asarray(self.estimate_part(positions.copy(), weights.copy()), dtype=float)
+        return _checked("estimate", point, (2,))
+
+    # -- the filter contract -------------------------------------------------------------------------
+    @property
+    def weights(self) -> np.ndarray:
+        """The normalised weights W_i = exp(log W_i), (N,)."""
+        return np.exp(self.log_weights)
+
+    @property
+    def ess(self) -> float:
+        """N_eff = 1 / sum_i W_i^2."""
+        return float(effective_sample_size(self.weights))
+
+    @property
+    def is_confident(self) -> bool:
+        """At least 95% of the weight lies within distance 1 of the estimate (the green circle)."""
+        share = mass_within(self.weights, self.positions, self.estimate, CONFIDENCE_RADIUS)
+        return bool(share >= CONFIDENCE_SHARE)
+
+    @property
+    def estimate(self) -> np.ndarray:
+        """The contract's point estimate: the student's estimate of the present posterior, (2,) (once per step)."""
+        if self._estimate is None:
+            self._estimate = self.call_estimate(self.positions, self.weights)
+        return self._estimate.copy()
+
+    def belief(self) -> Particles:
+        """What the viewer draws: the particles and their weights."""
+        return Particles(self.positions, self.weights)
+
+
+def _checked(part: str, values: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """A part's array, refused in one line when its shape is wrong or it holds a value that is not finite."""
+    if values.shape != shape:
+        raise PartError(f"{part} returned shape {values.shape}; expected {shape}")
+    if not np.isfinite(values).all():
+        raise PartError(f"{part} returned a value that is not finite (NaN or inf)")
+    return values
+
+
+__all__ = ["PARTS", "PartError", "StudentFilter"]

@@ -1,0 +1,108 @@
+"""The files `mazelab exercise new DIR` writes: the student's filter (four parts to write) and a README."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+FILTER_FILE = "my_filter.py"
+README_FILE = "README.md"
+
+FILTER_TEMPLATE = '''"""My particle filter: the four parts of Algorithm 4 (SIR) for the maze lab.
+
+Run `python my_filter.py` to see which parts are still to write, and
+`mazelab exercise check my_filter.py` to grade them against the exact posterior.
+"""
+
+import numpy as np
+
+from mazelab.exercise import OUTSIDE_PENALTY, ROBOT_SPEED, StudentFilter
+
+
+class MyFilter(StudentFilter):
+    """SIR (Arulampalam et al. 2002, Algorithm 4) for the paper's model.
+
+    Available: self.world (world.distance_to_nearest_station(points), world.is_free(x, y)),
+    self.sigma (measurement noise std), self.delta (compass error width, radians),
+    ROBOT_SPEED (L = 0.2) and OUTSIDE_PENALTY (0.5).
+    """
+
+    def predict(self, positions, compass_angle, rng):
+        """Algorithm 4, line "Draw x_k^i ~ p(x_k | x_(k-1)^i)": the paper's equation (1).
+
+        Each particle moves ROBOT_SPEED along its own heading th ~ U(th0 - delta/2, th0 + delta/2),
+        th0 = compass_angle. positions (N, 2) -> moved positions (N, 2). Draw only from `rng`.
+        Walls are not predict's job (weigh penalises particles outside the free area).
+        """
+        raise NotImplementedError("predict is still to write")
+
+    def weigh(self, positions, z):
+        """Algorithm 4, line "Calculate w_k^i = p(z_k | x_k^i)": the paper's equation (3) in logs.
+
+        log N(z; d, sigma^2), d = the distance from each position to its nearest station, plus
+        log(OUTSIDE_PENALTY) for positions outside the free area (the paper's refinement 1).
+        positions (N, 2) -> log-likelihoods (N,); a constant offset is fine (unnormalised).
+        """
+        raise NotImplementedError("weigh is still to write")
+
+    def resample(self, weights, rng):
+        """Algorithm 4, last line "RESAMPLE" (Algorithm 2, or any unbiased scheme).
+
+        Normalised weights (N,) -> ancestor indices (N,) with E[copies of i] = N * weights[i].
+        Draw only from `rng`.
+        """
+        raise NotImplementedError("resample is still to write")
+
+    def estimate(self, positions, weights):
+        """The paper's estimate: the posterior mean sum_i W_i x_i of the weighted particles
+        (Algorithm 4's output {x_k^i, w_k^i} summarised; the circle's centre in the viewer).
+
+        positions (N, 2), normalised weights (N,) -> the point estimate (2,).
+        """
+        raise NotImplementedError("estimate is still to write")
+
+
+if __name__ == "__main__":
+    from mazelab.exercise.report import progress
+
+    print(progress(MyFilter))
+'''
+
+README_TEMPLATE = """# Your own particle filter
+
+`my_filter.py` holds `MyFilter`, the SIR filter (Algorithm 4 of Arulampalam et al.) for the maze
+lab's model, with four parts for you to write. Each method's docstring names the paper's equation
+and the line of Algorithm 4 it implements:
+
+1. `predict(positions, compass_angle, rng)`: the motion model, equation (1).
+2. `weigh(positions, z)`: the log-likelihood, equation (3), with the penalty outside the free area.
+3. `resample(weights, rng)`: ancestor indices drawn by the weights (Algorithm 2, or any unbiased scheme).
+4. `estimate(positions, weights)`: the posterior mean.
+
+`StudentFilter` does the rest (normalising the weights in logs, the effective sample size, the green
+circle, restarting from the prior when no particle explains a measurement). Use numpy on whole
+arrays (no loops over particles) and draw random numbers only from the `rng` you are given.
+
+- `python my_filter.py` says which parts are still to write and checks those you wrote.
+- `mazelab exercise check my_filter.py` grades every part and the whole filter against the exact
+  posterior (a table: pass or fail, expected against what came, a hint). Exit code 0 means all pass.
+- `mazelab run --filter my_filter.py:MyFilter` runs it in the viewer; `mazelab compare SCENARIO
+  --filters sir,my_filter.py:MyFilter` puts it beside the shipped SIR.
+"""
+
+
+def write_exercise(folder: Path, force: bool = False) -> list[Path]:
+    """Write my_filter.py and README.md into `folder` (made if missing); refuse to replace either
+    without `force`. Returns the paths written."""
+    paths = [folder / FILTER_FILE, folder / README_FILE]
+    if folder.exists() and not folder.is_dir():
+        raise ValueError(f"{folder} is a file, not a folder")
+    existing = [path for path in paths if path.exists()]
+    if existing and not force:
+        raise ValueError(f"{', '.join(map(str, existing))} already there; use --force to replace")
+    folder.mkdir(parents=True, exist_ok=True)
+    for path, text in zip(paths, (FILTER_TEMPLATE, README_TEMPLATE), strict=True):
+        path.write_text(text)
+    return paths
+
+
+__all__ = ["FILTER_FILE", "FILTER_TEMPLATE", "README_FILE", "README_TEMPLATE", "write_exercise"]

@@ -1,0 +1,197 @@
+"""A study's plan: its mazes, settings, filters, runs and seed, checked once, whether it comes from the
+command line (`mazelab study`) or from Python (`mazelab.study`); its parameters as the record keeps
+them, and the lines that describe it."""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from mazelab import maze_generator
+from mazelab.checks import check_bandwidth_within, check_sigma_within
+from mazelab.contract import options_for
+from mazelab.experiments.runs import parse_filters
+from mazelab.experiments.study import (
+    MazeChoice,
+    RunTask,
+    StudySetting,
+    file_mazes,
+    study_settings,
+    study_tasks,
+    varied_parameters,
+)
+from mazelab.experiments.summary import describe_setting, describe_varied
+from mazelab.limits import check_particles, check_steps, check_study
+from mazelab.maze_generator import DEFAULT_WALL_SHARE
+from mazelab.mazes import DEFAULT_MAZE, find_maze, load_maze
+from mazelab.model import RPF_THRESHOLD
+from mazelab.registry import resolve_filter
+from mazelab.seeding import new_seed
+
+
+def study_mazes(
+    files: Sequence[str] | None,
+    sizes: Sequence[str] | None = None,
+    stations: Sequence[int] | None = None,
+    wall_shares: Sequence[float] | None = None,
+) -> list[MazeChoice]:
+    """The study's mazes: the files (or shipped names), then every generated size x station-block
+    count x wall share; the default maze if none is given."""
+    mazes = file_mazes([str(find_maze(name)) for name in files], load_maze) if files else []
+    if sizes or stations or wall_shares:
+        for rows, columns in (maze_generator.parse_size(s) for s in (sizes or ["10x10"])):
+            counts = list(stations) if stations else [maze_generator.default_station_count(rows, columns)]
+            for count, share in itertools.product(counts, wall_shares or [DEFAULT_WALL_SHARE]):
+                maze_generator.check_generation(rows, columns, count, share)  # --stations 0: refused up front
+                mazes.append(MazeChoice.generated(rows, columns, count, share))
+    return mazes or file_mazes([str(find_maze(DEFAULT_MAZE))], load_maze)
+
+
+def maze_description(choice: MazeChoice) -> dict[str, Any]:
+    """A maze as the record lists it: a file's path and sha256, or what generates it."""
+    if choice.grid is not None:
+        return {
+            "label": choice.label,
+            "file": choice.path,
+            "sha256": choice.sha256,
+            "rows": len(choice.grid),
+            "columns": len(choice.grid[0]),
+            "station_blocks": sum(row.count(2) for row in choice.grid),
+        }
+    assert choice.size is not None
+    return {
+        "label": choice.label,
+        "generated": f"{choice.size[0]}x{choice.size[1]}",
+        "station_blocks": choice.stations,
+        "wall_share": choice.wall_share,
+        "note": "a new maze per run, from the run's maze_seed (mazelab maze generate --seed)",
+    }
+
+
+@dataclass
+class StudyPlan:
+    """Everything that fixes a study's rows."""
+
+    settings: list[StudySetting]
+    filters: list[Any]  # filter names (or classes, from Python)
+    runs: int
+    steps: int
+    seed: int
+    kidnap_at: int | None = None
+    kld: bool = False
+    traces: bool = False
+
+    @property
+    def varied(self) -> list[str]:
+        return varied_parameters(self.settings)
+
+    def tasks(self) -> list[RunTask]:
+        """Every run of the study, each with the filters its setting runs."""
+        return study_tasks(
+            self.settings,
+            self.filters,
+            self.runs,
+            self.steps,
+            self.seed,
+            kidnap_at=self.kidnap_at,
+            kld=self.kld,
+            traces=self.traces,
+        )
+
+    def parameters(self) -> dict[str, Any]:
+        """The study's parameters as parsed (what the record keeps and --resume compares)."""
+
+        def values(parameter: str) -> list[Any]:
+            return list(dict.fromkeys(s.value(parameter) for s in self.settings))
+
+        return {
+            "filters": [resolve_filter(f).name for f in self.filters],
+            "mazes": [maze_description(m) for m in dict.fromkeys(s.maze for s in self.settings)],
+            **{p: values(p) for p in ("sigma", "delta", "particles", "threshold", "recovery", "bandwidth", "estimate")},
+            "runs": self.runs,
+            "steps": self.steps,
+            "root_seed": self.seed,
+            "kidnap_at": self.kidnap_at,
+            "kld": self.kld,
+        }
+
+    def header(self, where: str) -> str:
+        """The study's first lines: its size, seed and workers; the fixed parameters; the varied ones
+        with all their values."""
+        runs = len(self.tasks()) // max(1, self.runs)
+        skipped = len(self.settings) - runs
+        note = f" ({skipped} setting(s) run no filter)" if skipped else ""
+        lines = [
+            f"Study: {len(self.settings)} setting(s){note} x {self.runs} runs x {len(self.filters)} filters, "
+            f"seed {self.seed}, {where}",
+            "fixed: " + describe_setting(self.settings[0], self.steps, self.runs, self.kidnap_at, self.varied),
+        ]
+        if self.varied:
+            lines.append(describe_varied(self.settings, self.varied) + " (each filter once per value it takes)")
+        return "\n".join(lines)
+
+
+def plan_study(
+    mazes: Sequence[MazeChoice],
+    filters: str | Sequence[Any],
+    *,
+    sigma: Sequence[float],
+    delta: Sequence[float],
+    particles: Sequence[int],
+    threshold: Sequence[float],
+    recovery: Sequence[str] = ("none",),
+    bandwidth: Sequence[str | float] = ("optimal",),
+    estimate: Sequence[str] = ("mean",),
+    runs: int = 30,
+    steps: int = 200,
+    seed: int | None = None,
+    kidnap_at: int | None = None,
+    kld: bool = False,
+    traces: bool = False,
+) -> StudyPlan:
+    """Check and combine a study's values into its plan (a new root seed if none is given)."""
+    names = parse_filters(filters) if isinstance(filters, str) else _filter_list(filters)
+    options_for(  # an option that no filter takes, given a value other than the default: refused
+        [resolve_filter(name) for name in names],
+        {
+            name: None if all(v == default for v in values) else values
+            for name, values, default in (
+                ("threshold", threshold, RPF_THRESHOLD),
+                ("recovery", recovery, "none"),
+                ("bandwidth", bandwidth, "optimal"),
+                ("estimate", estimate, "mean"),
+                ("kld", [kld], False),
+            )
+        },
+    )
+    check_steps(steps)  # each run's limits, up front rather than in every worker
+    check_particles(max(particles))
+    settings = study_settings(mazes, sigma, delta, particles, threshold, recovery, bandwidth, estimate)
+    check_study(len(settings) * runs, len(names))
+    check_study_numbers(settings)
+    plan = StudyPlan(settings, names, runs, steps, new_seed() if seed is None else seed, kidnap_at, kld, traces)
+    plan.tasks()  # checks runs, steps and kidnap_at
+    return plan
+
+
+def check_study_numbers(settings: Sequence[Any]) -> None:
+    """Each setting's sigma and numeric RPF bandwidth within the ranges of its maze (mazelab.checks),
+    before any run starts."""
+    for setting in settings:
+        maze = setting.maze
+        rows, columns = maze.size if maze.grid is None else (len(maze.grid), len(maze.grid[0]))
+        check_sigma_within(setting.sigma, columns, rows)
+        check_bandwidth_within(setting.bandwidth, columns, rows)
+
+
+def _filter_list(filters: Sequence[Any]) -> list[Any]:
+    """Names resolved to the registry's, classes kept (a student's own filter), without repeats."""
+    chosen = [f if isinstance(f, type) else resolve_filter(f).name for f in filters]
+    if not chosen:
+        raise ValueError("filters is empty; give e.g. ['sir', 'apf', 'rpf']")
+    return list(dict.fromkeys(chosen))
+
+
+__all__ = ["StudyPlan", "maze_description", "plan_study", "study_mazes"]

@@ -1,0 +1,187 @@
+"""The record of how a result was made: a JSON file beside a study's CSV (and beside compare's and
+accuracy's outputs) with the exact command, every parameter as parsed, the root seed, the program's
+version and commit, numpy's and Python's versions, the maze files with their sha256, when it ran and
+for how long, the peak memory, the summary table and the intervals' methods. `study --resume` checks
+a study's parameters against it."""
+
+from __future__ import annotations
+
+import datetime as dt
+import hashlib
+import json
+import platform
+import subprocess
+import sys
+import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mazelab.atomic import write_text_atomically
+from mazelab.experiments.stats import CONFIDENCE_LEVEL, INTERVAL_METHODS
+
+RECORD_FORMAT = 1
+RECORD_SUFFIX = ".record.json"
+PACKAGE = "maze-particle-filter-lab"
+GIT_SECONDS = 5  # a git that does not answer within this is left out
+
+
+def record_path(output: str | Path) -> Path:
+    """Where the record of an output goes: study.csv -> study.record.json, beside it."""
+    output = Path(output)
+    return output.with_name(output.stem + RECORD_SUFFIX)
+
+
+def package_version() -> str:
+    """The installed package's version (the source's when it is not installed)."""
+    try:
+        from importlib.metadata import PackageNotFoundError, version
+
+        return version(PACKAGE)
+    except (ImportError, PackageNotFoundError):
+        from mazelab import __version__
+
+        return __version__
+
+
+def git_commit(folder: Path | None = None) -> str | None:
+    """The commit of the source the package runs from (with '-dirty' if it has changes), or None
+    without git, outside a repository, or when git does not answer: never an error."""
+    folder = folder or Path(__file__).resolve().parents[2]
+    try:
+
+        def git(*args: str) -> str:
+            done = subprocess.run(
+                ["git", "-C", str(folder), *args], capture_output=True, text=True, timeout=GIT_SECONDS, check=True
+            )
+            return done.stdout.strip()
+
+        commit = git("rev-parse", "HEAD")
+        dirty = bool(git("status", "--porcelain", "--untracked-files=no"))
+    except (OSError, subprocess.SubprocessError, ValueError):
+        return None
+    return f"{commit}-dirty" if dirty else commit
+
+
+def program_versions() -> dict[str, Any]:
+    """The versions a result depends on: this program (and its git commit, if any), numpy, Python."""
+    return {
+        "mazelab": package_version(),
+        "git_commit": git_commit(),
+        "numpy": np.__version__,
+        "python": platform.python_version(),
+        "implementation": platform.python_implementation(),
+        "system": f"{platform.system()} {platform.machine()}",
+    }
+
+
+def file_sha256(path: str | Path) -> str:
+    """The sha256 of a file's bytes (what `sha256sum FILE` prints)."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def now() -> str:
+    """The current time, UTC, ISO 8601 to the second."""
+    return dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
+
+
+def peak_memory() -> dict[str, int | None]:
+    """Peak resident memory in bytes of this process and of its largest finished worker (None where
+    the system does not say)."""
+    try:
+        import resource
+    except ImportError:  # Windows
+        return {"this_process": None, "largest_worker": None}
+    scale = 1 if sys.platform == "darwin" else 1024  # ru_maxrss: bytes on macOS, kilobytes on Linux
+    own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * scale
+    children = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * scale
+    return {"this_process": int(own), "largest_worker": int(children) or None}
+
+
+def jsonable(value: Any) -> Any:
+    """Tuples as lists, numpy numbers as Python ones, NaN as None: what json.dumps writes and reads back."""
+    if isinstance(value, Mapping):
+        return {str(k): jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [jsonable(v) for v in value]
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and value != value:
+        return None
+    return value
+
+
+class Recorder:
+    """A record being made: started when the work starts, written at the start (so that an interrupted
+    study has its parameters for --resume) and again at the end."""
+
+    def __init__(self, kind: str, command: Sequence[str], parameters: Mapping[str, Any], **extra: Any):
+        self.started_clock = time.perf_counter()
+        self.data: dict[str, Any] = {
+            "record_format": RECORD_FORMAT,
+            "kind": kind,
+            "command": list(command),
+            "program": program_versions(),
+            "started": now(),
+            "ended": None,
+            "duration_seconds": None,
+            "status": "running",
+            "parameters": jsonable(parameters),
+            "intervals": {"level": CONFIDENCE_LEVEL, **INTERVAL_METHODS},
+            **jsonable(extra),
+        }
+
+    def finish(self, status: str, **extra: Any) -> dict[str, Any]:
+        """Close the record: end time, duration, status, peak memory and the given items (summary, ...)."""
+        self.data.update(
+            ended=now(),
+            duration_seconds=round(time.perf_counter() - self.started_clock, 3),
+            status=status,
+            peak_memory_bytes=peak_memory(),
+            **jsonable(extra),
+        )
+        return self.data
+
+    def write(self, path: str | Path) -> None:
+        """Write the record, whole (mazelab.atomic)."""
+        write_text_atomically(path, json.dumps(self.data, indent=2, allow_nan=False) + "\n")
+
+
+def read_record(path: str | Path) -> dict[str, Any]:
+    """A record written by Recorder; a ValueError of one line naming the file otherwise."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ValueError(f"{path}: no such record (a study's record is written beside its CSV)") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise ValueError(f"{path}: not a readable record ({error})") from None
+    if not isinstance(data, dict) or data.get("record_format") != RECORD_FORMAT or "parameters" not in data:
+        raise ValueError(f"{path}: not a record of this program (record_format {RECORD_FORMAT} expected)")
+    return data
+
+
+def differences(recorded: Mapping[str, Any], given: Mapping[str, Any], ignore: Sequence[str] = ()) -> list[str]:
+    """The parameters that differ between a record's and the given ones, as 'name: recorded -> given'."""
+    given = jsonable(given)
+    names = [k for k in dict.fromkeys([*recorded, *given]) if k not in ignore]
+    return [f"{k}: {recorded.get(k)!r} -> {given.get(k)!r}" for k in names if recorded.get(k) != given.get(k)]
+
+
+__all__ = [
+    "RECORD_FORMAT",
+    "RECORD_SUFFIX",
+    "Recorder",
+    "differences",
+    "file_sha256",
+    "git_commit",
+    "jsonable",
+    "now",
+    "package_version",
+    "peak_memory",
+    "program_versions",
+    "read_record",
+    "record_path",
+]
