@@ -11,7 +11,7 @@ import typer
 
 from mazelab.atomic import write_text_atomically
 from mazelab.checks import check_sigma_within
-from mazelab.cli.options import DEFAULT_DELTA, DEFAULT_SIGMA, check_output_path, parse_list
+from mazelab.cli.options import DEFAULT_DELTA, DEFAULT_SIGMA, check_output_path, parse_list, seed_option
 from mazelab.cli.provenance import command_line
 from mazelab.experiments.executor import default_workers, progress_bar
 from mazelab.experiments.plan import maze_description, study_mazes
@@ -39,7 +39,9 @@ def accuracy(
     steps: Annotated[int, typer.Option(min=2, help="steps per run (the distance is averaged over the second half)")] = (
         DEFAULT_STEPS
     ),
-    seed: Annotated[int, typer.Option(min=0, help="root seed (run r has the same seed on every maze)")] = 1,
+    seed: Annotated[
+        int, typer.Option(callback=seed_option, help="root seed (run r has the same seed on every maze)")
+    ] = 1,
     workers: Annotated[int | None, typer.Option(min=1, help="processes (default: all cores)")] = None,
     csv_path: Annotated[Path | None, typer.Option("--csv", help="one row per maze, run and filter")] = None,
     record: Annotated[Path | None, typer.Option(help="the JSON record [default: beside --csv]")] = None,

@@ -46,6 +46,7 @@ from mazelab.cli.options import (
     check_choice,
     check_output_path,
     check_outputs,
+    seed_option,
     visualization,
     warn_in_one_line,
 )
@@ -140,10 +141,10 @@ def run(
     ] = None,
     seed: Annotated[
         int | None,
-        typer.Option(min=0, help="seed of the whole run (default: new, printed)"),
+        typer.Option(callback=seed_option, help="seed of the whole run (default: new, printed)"),
     ] = None,
     start_seed: Annotated[
-        int | None, typer.Option(min=0, hidden=True, help="seed of the start only (default: --seed)")
+        int | None, typer.Option(callback=seed_option, hidden=True, help="seed of the start only (default: --seed)")
     ] = None,
     scenario: Annotated[Path | None, typer.Option(help="replay a saved scenario (.json)")] = None,
     save_scenario_path: Annotated[Path | None, typer.Option("--save-scenario", help="save the run (.json)")] = None,
@@ -261,7 +262,9 @@ def compare(
     maze: Annotated[str | None, typer.Option(help="the maze, if the scenario stores none")] = None,
     sigma: Annotated[float | None, typer.Option(help="override the scenario's sigma")] = None,
     delta: Annotated[float | None, typer.Option(help="override the scenario's delta")] = None,
-    seed: Annotated[int | None, typer.Option(min=0, help="the filters' seed (default: the scenario's)")] = None,
+    seed: Annotated[
+        int | None, typer.Option(callback=seed_option, help="the filters' seed (default: the scenario's)")
+    ] = None,
     csv_path: Annotated[Path | None, typer.Option("--csv", help="per-step errors, a column per filter")] = None,
     plot: Annotated[Path | None, typer.Option(help="the lab's error figure (.png; plot extra)")] = None,
     traces: Annotated[Path | None, typer.Option(help="per-step rows of every filter (.csv, or .parquet)")] = None,

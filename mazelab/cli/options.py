@@ -11,6 +11,7 @@ from typing import Annotated, Any
 import typer
 
 from mazelab.atomic import NameTakenError, NotRegularFileError, output_target
+from mazelab.checks import check_seed
 from mazelab.experiments.tables import pyplot
 from mazelab.viz.style import DEFAULT_MAX_DRAWN
 from mazelab.viz.targets import Visualization
@@ -71,6 +72,16 @@ def check_output_path(path: Path, force: bool) -> None:
         raise UserError(f"{path.parent} is not writable: cannot write {path.name} there")
     if path.is_dir():
         raise UserError(f"{path} is a folder, not a file")
+
+
+def seed_option(value: int | None) -> int | None:
+    """A --seed: a whole number in [0, 2**128) (typer names the option in its one-line error)."""
+    if value is not None:
+        try:
+            check_seed("a seed", value)
+        except ValueError as error:
+            raise typer.BadParameter(str(error)) from None
+    return value
 
 
 def parse_list(text: str, kind: type, option: str) -> list:
@@ -136,6 +147,7 @@ __all__ = [
     "check_output_path",
     "check_outputs",
     "parse_list",
+    "seed_option",
     "visualization",
     "warn_in_one_line",
 ]

@@ -25,6 +25,7 @@ from mazelab.cli.options import (
     check_output_path,
     check_outputs,
     parse_list,
+    seed_option,
     visualization,
 )
 from mazelab.cli.provenance import command_line
@@ -49,12 +50,12 @@ def study(
     maze: Annotated[str | None, typer.Option(help=f"maze files or names, a list [default: {DEFAULT_MAZE}]")] = None,
     maze_size: Annotated[str | None, typer.Option(help="generated mazes ROWSxCOLUMNS, comma-separated")] = None,
     stations: Annotated[str | None, typer.Option(help="generated mazes' station blocks, comma-separated")] = None,
-    wall_share: Annotated[str | None, typer.Option(help="generated mazes' share of walls, comma-separated")] = None,
+    wall_share: Annotated[str | None, typer.Option(help="generated mazes' wall shares, a list")] = None,
     sigma: Annotated[str, typer.Option(help="noise std sigma, comma-separated")] = str(DEFAULT_SIGMA),
     delta: Annotated[str, typer.Option(help="compass error, comma-separated")] = str(DEFAULT_DELTA),
     particles: Annotated[str, typer.Option(help="particle counts, comma-separated")] = str(DEFAULT_PARTICLE_COUNT),
     threshold: Annotated[str | None, typer.Option(help=f"RPF's N_T / N_S, a list [default: {RPF_THRESHOLD}]")] = None,
-    filters: Annotated[str, typer.Option(help="sir, apf, rpf, grid, ekf, a list")] = "sir,apf,rpf",
+    filters: Annotated[str, typer.Option(help="sir,apf,rpf,grid,ekf")] = "sir,apf,rpf",
     kidnap_at: Annotated[int | None, typer.Option(min=1, help="carry the robot elsewhere at this step")] = None,
     recovery: Annotated[str | None, typer.Option(help="none (default), augmented or sensor, a list")] = None,
     kld: Annotated[bool, typer.Option("--kld", help="KLD-sampling (--particles is the most)")] = False,
@@ -62,11 +63,13 @@ def study(
     estimate: EstimateOption = None,
     runs: Annotated[int, typer.Option(min=1, help="seeded runs per setting")] = 30,
     steps: Annotated[int, typer.Option(min=1, help="steps per run")] = DEFAULT_STEPS,
-    seed: Annotated[int | None, typer.Option(min=0, help="the study's root seed (default: new, printed)")] = None,
+    seed: Annotated[
+        int | None, typer.Option(callback=seed_option, help="the study's root seed (default: new, printed)")
+    ] = None,
     workers: Annotated[int | None, typer.Option(min=1, help="processes (default: all cores)")] = None,
     dask: Annotated[str | None, typer.Option(help="the Dask scheduler to run on, tcp://HOST:PORT")] = None,
     dask_timeout: Annotated[
-        float, typer.Option(min=0.1, help="seconds without a finished run before a Dask study gives up")
+        float, typer.Option(metavar="<s>", callback=dask_timeout_option, help="give up after s idle seconds")
     ] = DASK_TIMEOUT,
     csv_path: Annotated[Path | None, typer.Option("--csv", help="one row per run and filter")] = None,
     plot: Annotated[Path | None, typer.Option(help="error against the varied parameters (.png)")] = None,
@@ -206,6 +209,13 @@ def study(
         typer.echo(f"the study's record (command, versions, seeds, mazes, summary) written to {record_file}")
     if outcome.failures:
         raise typer.Exit(1)
+
+
+def dask_timeout_option(value: float) -> float:
+    """--dask-timeout: a positive number of seconds (typer names the option in its one-line error)."""
+    if not 0 < value < float("inf"):
+        raise typer.BadParameter(f"seconds must be a positive number, got {value}")
+    return value
 
 
 def _list(text: str | None, kind: type, option: str) -> list | None:
