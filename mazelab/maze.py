@@ -232,7 +232,7 @@ def _read_maze_file(path: Path) -> str:
     if len(data) > MAZE_FILE_LIMIT_BYTES:
         raise MazeError(f"{path}: too large for a maze file (more than {MAZE_FILE_LIMIT_BYTES} bytes)")
     try:
-        return data.decode("utf-8")
+        return data.decode("utf-8-sig")  # a byte-order mark (some editors write one) is fine
     except UnicodeDecodeError:
         raise MazeError(f"{path}: not a text file (not UTF-8)") from None
 

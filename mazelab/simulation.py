@@ -15,9 +15,19 @@ from typing import Any
 
 import numpy as np
 
-from mazelab.checks import as_points, check_within_map, step_number
+from mazelab.checks import (
+    as_points,
+    check_bandwidth_within,
+    check_grid_resolution,
+    check_kld_numbers,
+    check_particle_count,
+    check_seed,
+    check_within_map,
+    check_world,
+    step_number,
+)
 from mazelab.contract import check_options, takes
-from mazelab.limits import check_particles, check_steps
+from mazelab.limits import check_particles, check_recording, check_steps
 from mazelab.maze import Maze
 from mazelab.model import CONVERGENCE_RADIUS, DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, check_model_parameters
 from mazelab.option_json import options_to_json
@@ -164,7 +174,7 @@ class RunInputs:
 
 def convergence_step(errors: np.ndarray, radius: float = CONVERGENCE_RADIUS) -> int | None:
     """The first step (1-based) after which every error is below `radius`; None if the last is not."""
-    outside = np.flatnonzero(np.asarray(errors) >= radius)
+    outside = np.flatnonzero(~(np.asarray(errors) < radius))  # NaN (a failed estimate) never converges
     if len(outside) == 0:
         return 1
     return None if outside[-1] == len(errors) - 1 else int(outside[-1]) + 2
@@ -189,6 +199,32 @@ def check_start(
     outside = int((~world.is_free(particles[:, 0], particles[:, 1])).sum())
     if outside:
         warnings.warn(f"{outside} of the {len(particles)} initial particles lie outside the free area", stacklevel=3)
+
+
+def check_replayed_walk(robot: Robot, world: Maze, steps: int) -> None:
+    """A recorded walk (a scenario's robot_actual_angles) must stay in the free area: the first step
+    that leaves it is refused in one line (a hand-edited walk through walls, or another maze's)."""
+    count = min(steps, robot.recorded_steps)
+    if count == 0:
+        return
+    angles = np.asarray(robot.actual_angles[:count], dtype=float)
+    moves = robot.speed * np.column_stack([np.cos(angles), np.sin(angles)])
+    starts = np.tile(np.asarray(robot.initial_position, dtype=float), (count, 1))
+    if robot.kidnap_at is not None and robot.kidnap_at <= count:  # the walk goes on from the kidnap place
+        k = robot.kidnap_at - 1
+        starts[k:] = np.asarray(robot.kidnap_position, dtype=float)
+        moves = moves.copy()
+        before, after = moves[:k], moves[k:]
+        path = np.vstack([starts[:k] + np.cumsum(before, axis=0), starts[k:] + np.cumsum(after, axis=0)])
+    else:
+        path = starts + np.cumsum(moves, axis=0)
+    outside = np.flatnonzero(~world.is_free(path[:, 0], path[:, 1]))
+    if len(outside):
+        k = int(outside[0])
+        raise ValueError(
+            f"robot_actual_angles[{k}]: step {k + 1} of the replayed walk leaves the free area of the maze "
+            f"({world.source}) at ({path[k, 0]:.2f}, {path[k, 1]:.2f})"
+        )
 
 
 class NullView:
@@ -237,6 +273,7 @@ def simulate(
     view: Any = None,
     on_step: Callable[[int, Robot, Any], None] | None = None,
     kidnap_at: int | None = None,
+    recorded: int | None = None,
     **filter_options: Any,
 ) -> RunResult:
     """Run one filter on the robot's walk and return the full `RunResult` (what run_model summarises).
@@ -252,14 +289,24 @@ def simulate(
     EKF's `init="start"` tracks from it; the kidnapping, if any, is left for it to find out).
     `view` is what the run draws into: None (nothing), a view (`log_step`, `close`), or a function
     `(world, filter_name) -> view`, called once the inputs are checked (mazelab.lab passes Rerun's).
+    `recorded=M`: the view records at most M particles a step (its memory is checked up front).
     """
-    sigma, delta = check_model_parameters(sigma, delta)
+    check_world(world)
+    sigma, delta = check_model_parameters(sigma, delta, (world.width, world.height))
+    if "bandwidth" in filter_options:
+        check_bandwidth_within(filter_options["bandwidth"], world.width, world.height)
+    kld = filter_options.get("kld")
+    if hasattr(kld, "epsilon") and hasattr(kld, "z"):
+        check_kld_numbers(kld.epsilon, kld.z)
+    if "resolution" in filter_options:
+        check_grid_resolution(filter_options["resolution"])
     filter_class = resolve_filter(filtering_algorithm)
     check_options(filter_class, filter_options)
-    seed = new_seed() if seed is None else int(seed)
+    seed = new_seed() if seed is None else check_seed("seed", seed)
     streams = run_streams(seed)
     if init_particles_pos is not None:
         particles = as_points("init_particles_pos", init_particles_pos)
+        check_particle_count(particle_count, len(particles))
     else:
         count = DEFAULT_PARTICLE_COUNT if particle_count is None else particle_count
         if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 1:
@@ -273,6 +320,9 @@ def simulate(
     if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
         raise ValueError(f"steps must be a whole number >= 1, got {steps!r}")
     check_steps(int(steps))
+    check_replayed_walk(robot, world, int(steps))
+    if recorded is not None:
+        check_recording(len(particles), int(steps), recorded)
     if kidnap_at is not None:
         plan_kidnapping(robot, world, kidnap_at, steps, streams.kidnap)
 
