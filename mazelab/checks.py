@@ -9,6 +9,8 @@ from typing import Any
 
 import numpy as np
 
+MAX_MAZE_SIDE = 4000  # rows and columns of a maze, at most (its tables grow with their product)
+
 # Angles are radians. A heading is periodic, so any real one lies within a few turns of zero; beyond
 # MAX_ANGLE a float32 particle heading (spacing 2**-10 rad at 1e4, 50 times finer than the lab's least
 # delta) would lose the compass's precision, and at 1e20 or so nothing of it is left: refused.
@@ -132,8 +134,6 @@ def check_sigma_within(sigma: float, width: float | None, height: float | None, 
     map (None), within the widest range of any maze (a 1 x 1 one's least, a largest one's most)."""
     sigma = finite_number(name, sigma)
     if width is None or height is None:
-        from mazelab.maze import MAX_MAZE_SIDE
-
         low, high = sigma_range(1, 1)[0], sigma_range(MAX_MAZE_SIDE, MAX_MAZE_SIDE)[1]
         where = "on any maze"
     else:
@@ -192,15 +192,6 @@ def check_kld_numbers(epsilon: Any, z: Any) -> None:
         raise ValueError(f"KLD z must lie in (0, {MAX_KLD_QUANTILE:g}] (a normal quantile), got {z:g}")
 
 
-def check_world(world: Any) -> Any:
-    """A maze for a filter or a run: a mazelab.maze.Maze, or a one-line ValueError."""
-    from mazelab.maze import Maze
-
-    if not isinstance(world, Maze):
-        raise ValueError(f"world must be a Maze (mazelab.maze.Maze or load_maze), got {type(world).__name__}")
-    return world
-
-
 def check_seed(name: str, value: Any) -> int:
     """A seed: a whole number in [0, MAX_SEED) (1.5 or True are refused, not rounded), or a ValueError."""
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
@@ -223,6 +214,7 @@ __all__ = [
     "MAX_BANDWIDTH",
     "MAX_COORDINATE",
     "MAX_GRID_RESOLUTION",
+    "MAX_MAZE_SIDE",
     "MAX_SEED",
     "MIN_BANDWIDTH",
     "NORMAL_TAIL",
@@ -238,7 +230,6 @@ __all__ = [
     "check_seed",
     "check_sigma_within",
     "check_within_map",
-    "check_world",
     "coordinate",
     "finite_number",
     "map_diagonal",

@@ -17,18 +17,14 @@ import numpy as np
 
 from mazelab.checks import (
     as_points,
-    check_bandwidth_within,
-    check_grid_resolution,
-    check_kld_numbers,
     check_particle_count,
     check_seed,
     check_within_map,
-    check_world,
     step_number,
 )
 from mazelab.contract import check_options, takes
 from mazelab.limits import check_particles, check_recording, check_steps
-from mazelab.maze import Maze
+from mazelab.maze import Maze, check_world
 from mazelab.model import CONVERGENCE_RADIUS, DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, check_model_parameters
 from mazelab.option_json import options_to_json
 from mazelab.plugins import raise_for_student, student_code
@@ -293,13 +289,6 @@ def simulate(
     """
     check_world(world)
     sigma, delta = check_model_parameters(sigma, delta, (world.width, world.height))
-    if "bandwidth" in filter_options:
-        check_bandwidth_within(filter_options["bandwidth"], world.width, world.height)
-    kld = filter_options.get("kld")
-    if hasattr(kld, "epsilon") and hasattr(kld, "z"):
-        check_kld_numbers(kld.epsilon, kld.z)
-    if "resolution" in filter_options:
-        check_grid_resolution(filter_options["resolution"])
     filter_class = resolve_filter(filtering_algorithm)
     check_options(filter_class, filter_options)
     seed = new_seed() if seed is None else check_seed("seed", seed)
