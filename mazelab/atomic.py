@@ -4,8 +4,14 @@ Every write of this program goes through here (scenarios, CSV, figures, recordin
 - the temporary name holds the writer's pid and a random part (`.NAME.PID-RANDOM.tmp`, NAME cut so
   the whole stays within the folder's name limit), so concurrent writers never share one, and a
   temporary whose writer is gone (killed mid-write) is removed by the next write to that folder;
-- a new file follows the umask (0644 under umask 022), a replaced file keeps its mode, and a
-  symlink is written through to its target;
+- only regular files are ever replaced: a folder, device, pipe or socket at the name is refused
+  (NotRegularFileError), `replace` or not; a symlink to a regular file is written through to its target,
+  a dangling one only with `replace`;
+- without `replace` the final name is created exclusively (a hard link of the finished temporary
+  onto it, which fails atomically if the name exists): of concurrent writers exactly one wins, the
+  others get NameTakenError; with `replace` the last writer wins, and a writer whose file another process
+  replaced before it could say "saved" gets ReplacedMeanwhileError instead;
+- a new file follows the umask (0644 under umask 022), a replaced file keeps its mode;
 - any failure (full disk, file size limit, read-only folder, a name too long) removes the temporary,
   leaves an older file intact and raises WriteError: one line naming the file and the cause.
 """
@@ -32,18 +38,72 @@ class WriteError(OSError):
         return f"cannot write {self.filename}: {cause}"
 
 
-def write_text_atomically(path: str | Path, text: str) -> None:
+class NotRegularFileError(WriteError):
+    """An output name held by a folder, device, pipe or socket: never replaced, --force or not."""
+
+    def __init__(self, path: str | Path, what: str):
+        super().__init__(errno.EEXIST, f"it is {what}, not a regular file; only regular files are replaced", str(path))
+
+
+class NameTakenError(WriteError, FileExistsError):
+    """An output name that exists (or was created by another process meanwhile) and may not be replaced."""
+
+    def __init__(self, path: str | Path, how: str = "it exists"):
+        super().__init__(errno.EEXIST, f"{how}; use --force to replace it", str(path))
+
+
+class ReplacedMeanwhileError(WriteError):
+    """A file that another writer replaced right after this one wrote it: it is not this writer's."""
+
+    def __str__(self) -> str:
+        return f"{self.filename} was replaced by another process meanwhile: the file there is not this run's"
+
+
+def file_kind(mode: int) -> str:
+    """'a folder', 'a device', ... for a stat mode that is not a regular file's."""
+    if stat.S_ISDIR(mode):
+        return "a folder"
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        return "a device"
+    if stat.S_ISFIFO(mode):
+        return "a pipe"
+    if stat.S_ISSOCK(mode):
+        return "a socket"
+    return "not a regular file"
+
+
+def output_target(path: str | Path, replace: bool) -> Path:
+    """The file a write to `path` creates or replaces: `path`, or a symlink's final target. Raises
+    NotRegularFileError for a folder, device, pipe or socket (`replace` or not), and without `replace`
+    NameTakenError for an existing name (a symlink too, dangling or not)."""
+    path = Path(path)
+    target = Path(os.path.realpath(path)) if path.is_symlink() else path
+    try:
+        mode = os.stat(target).st_mode
+    except FileNotFoundError:
+        if target is not path and not replace:
+            raise NameTakenError(path, "it is a symlink to a missing file") from None
+        return target
+    if not stat.S_ISREG(mode):
+        raise NotRegularFileError(path, file_kind(mode))
+    if not replace:
+        raise NameTakenError(path)
+    return target
+
+
+def write_text_atomically(path: str | Path, text: str, *, replace: bool = True) -> Path:
     """Write `text` to `path` whole or not at all: a temporary file in the same folder, then rename."""
-    write_bytes_atomically(path, text.encode("utf-8"))
+    return write_bytes_atomically(path, text.encode("utf-8"), replace=replace)
 
 
 def write_bytes_atomically(path: str | Path, data: bytes, *, replace: bool = True) -> Path:
     """Write `data` to `path` whole or not at all (see the module docstring); returns the path.
-    `replace=False` never replaces an existing file (FileExistsError): a name is claimed only once."""
+    `replace=False` never replaces an existing file (NameTakenError, a FileExistsError): a name is claimed
+    only once, across processes."""
     path = Path(path)
     temporary = None
     try:
-        target = Path(os.path.realpath(path)) if path.is_symlink() else path  # --force onto a link: its target
+        target = output_target(path, replace)  # --force onto a link: its target
         remove_stale_temporaries(target.parent)
         temporary = target.parent / temporary_name(target)
         mode = stat.S_IMODE(os.stat(target).st_mode) if target.exists() else None
@@ -53,20 +113,38 @@ def write_bytes_atomically(path: str | Path, data: bytes, *, replace: bool = Tru
             if mode is not None and hasattr(os, "fchmod"):
                 os.fchmod(handle, mode)
             os.fsync(handle)
-            if os.fstat(handle).st_size != len(data):
+            written = os.fstat(handle)
+            if written.st_size != len(data):
                 raise OSError(errno.EIO, "the file on disk is shorter than what was written")
         finally:
             os.close(handle)
+        if replace:
+            output_target(path, replace)  # a device or pipe put there meanwhile is still never replaced
         move_into_place(temporary, target, replace)
         sync_folder(target.parent)
     except BaseException as error:
         if temporary is not None:
             with contextlib.suppress(OSError):  # e.g. a read-only folder, where it was never made
                 temporary.unlink(missing_ok=True)
-        if isinstance(error, OSError) and (replace or not isinstance(error, FileExistsError)):
+        if isinstance(error, WriteError):
+            raise
+        if isinstance(error, FileExistsError) and not replace:
+            raise NameTakenError(path, "another process created it meanwhile") from None
+        if isinstance(error, OSError):
             raise WriteError(error.errno, error.strerror, str(path)) from None
         raise
+    if not same_file(target, written):
+        raise ReplacedMeanwhileError(errno.EEXIST, "replaced meanwhile", str(path))
     return path
+
+
+def same_file(path: Path, status: os.stat_result) -> bool:
+    """Whether `path` is still the file of `status` (no other writer replaced it since)."""
+    try:
+        now = os.stat(path)
+    except OSError:
+        return False
+    return (now.st_ino, now.st_dev) == (status.st_ino, status.st_dev) or os.name == "nt"
 
 
 def sync_folder(folder: Path) -> None:
@@ -89,7 +167,8 @@ def write_all(handle: int, data: bytes) -> None:
 
 
 def move_into_place(temporary: Path, target: Path, replace: bool) -> None:
-    """Rename `temporary` to `target`; with replace=False only if `target` does not exist yet."""
+    """Rename `temporary` to `target`; with replace=False only if `target` does not exist yet (a hard
+    link fails atomically with FileExistsError when another writer holds the name)."""
     if replace:
         os.replace(temporary, target)
         return
@@ -98,7 +177,7 @@ def move_into_place(temporary: Path, target: Path, replace: bool) -> None:
     except OSError as error:
         if error.errno not in (errno.EPERM, errno.ENOTSUP, errno.EOPNOTSUPP):
             raise
-        if target.exists():  # a file system without hard links: check, then rename
+        if os.path.lexists(target):  # a file system without hard links: check, then rename
             raise FileExistsError(errno.EEXIST, "File exists", str(target)) from None
         os.replace(temporary, target)
         return
@@ -166,10 +245,16 @@ def zombie(pid: int) -> bool:
 
 
 __all__ = [
+    "NameTakenError",
+    "NotRegularFileError",
+    "ReplacedMeanwhileError",
     "WriteError",
+    "file_kind",
     "move_into_place",
+    "output_target",
     "process_alive",
     "remove_stale_temporaries",
+    "same_file",
     "sync_folder",
     "temporary_name",
     "write_all",

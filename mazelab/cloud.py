@@ -21,9 +21,9 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from mazelab.checks import as_points
+from mazelab.checks import as_points, check_sigma_within
 from mazelab.contract import Particles
-from mazelab.maze import Maze
+from mazelab.maze import Maze, check_world
 from mazelab.model import (
     CONFIDENCE_RADIUS,
     CONFIDENCE_SHARE,
@@ -106,7 +106,8 @@ class ParticleFilter:
         kld: bool | KLDSampling | None = None,
         estimate: str = "mean",
     ):
-        self.world, self.sigma, self.delta = world, sigma, delta
+        self.world, self.sigma, self.delta = check_world(world), sigma, delta
+        check_sigma_within(sigma, world.width, world.height)
         self.estimate_rule = check_estimate(estimate)
         self.scheme_name = resampling
         self.scheme = resampling_scheme(resampling)

@@ -14,6 +14,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from mazelab.checks import check_bandwidth_within
 from mazelab.cloud import ParticleFilter, per_run
 from mazelab.model import LOG_UNDERFLOW, PARTICLE_DTYPE, RPF_THRESHOLD, take_particles
 from mazelab.regularisation import Kernel, check_bandwidth, gaussian_jitter, mixture_kernel, optimal_bandwidth
@@ -113,7 +114,7 @@ class RegularizedParticleFilter(ParticleFilter):
         if not 0 < threshold <= 1:
             raise ValueError(f"the RPF threshold must be in (0, 1] (N_T = threshold * N_S), got {threshold}")
         self.threshold = threshold
-        self.bandwidth_rule = check_bandwidth(bandwidth)
+        self.bandwidth_rule = check_bandwidth(check_bandwidth_within(bandwidth, self.world.width, self.world.height))
         self._regularised: list[list[int]] = [[] for _ in range(self.runs)]
 
     @property

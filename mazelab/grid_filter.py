@@ -8,9 +8,10 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from mazelab.checks import check_grid_resolution, check_sigma_within
 from mazelab.contract import Density
 from mazelab.limits import check_memory
-from mazelab.maze import Maze
+from mazelab.maze import Maze, check_world
 from mazelab.model import CONFIDENCE_RADIUS, CONFIDENCE_SHARE, LOG_UNDERFLOW, OUTSIDE_PENALTY, ROBOT_SPEED
 from mazelab.modes import MODE_CELL, Mode, check_estimate, find_modes, modes_of_bins
 from mazelab.weights import mass_within, weighted_mean
@@ -51,7 +52,9 @@ class GridBayesFilter:
         estimate: str = "mean",
     ):
         del particles  # the exact filter starts from the exact prior, not from a sample of it
-        self.world, self.sigma, self.delta, self.speed = world, sigma, delta, speed
+        self.world, self.sigma, self.delta, self.speed = check_world(world), sigma, delta, speed
+        check_sigma_within(sigma, world.width, world.height)
+        resolution = check_grid_resolution(resolution)
         self.estimate_rule = check_estimate(estimate)
         self.rng = rng if rng is not None else np.random.default_rng()
         self.resolution = resolution

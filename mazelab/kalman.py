@@ -16,8 +16,9 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from mazelab.checks import check_sigma_within
 from mazelab.contract import Gaussian
-from mazelab.maze import Maze
+from mazelab.maze import Maze, check_world
 from mazelab.model import CONFIDENCE_RADIUS, CONFIDENCE_SHARE, ROBOT_SPEED
 from mazelab.modes import check_estimate
 
@@ -66,7 +67,8 @@ class ExtendedKalmanFilter:
     ):
         del particles, rng  # a Gaussian needs neither a sample nor random draws
         check_estimate(estimate)  # one Gaussian: its mode is its mean
-        self.world, self.sigma, self.delta, self.speed = world, sigma, delta, speed
+        self.world, self.sigma, self.delta, self.speed = check_world(world), sigma, delta, speed
+        check_sigma_within(sigma, world.width, world.height)
         if init == "prior":
             self.mean, self.covariance = free_area_moments(world)
         elif init == "start":

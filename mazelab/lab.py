@@ -15,6 +15,8 @@ from mazelab.maze import Maze
 from mazelab.robot import Robot
 from mazelab.scenario import DEFAULT_PARAMETERS_PATH, save_scenario
 from mazelab.simulation import RunResult
+from mazelab.viz.style import DEFAULT_MAX_DRAWN
+from mazelab.viz.targets import Visualization
 from mazelab.viz.views import open_view
 
 
@@ -47,8 +49,16 @@ def simulate(
         init_particles_pos,
         filtering_algorithm,
         view=functools.partial(open_view, visualize),
+        recorded=drawn_at_most(visualize),
         **options,
     )
+
+
+def drawn_at_most(visualize: Any) -> int | None:
+    """How many particles a step of this `visualize` records at most (None: nothing is drawn)."""
+    if visualize is False or visualize is None:
+        return None
+    return visualize.max_drawn if isinstance(visualize, Visualization) else DEFAULT_MAX_DRAWN
 
 
 def run_model(

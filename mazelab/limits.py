@@ -25,6 +25,14 @@ BYTES_PER_MAZE_CELL = 100  # a maze's grid, its lists and the generator's index 
 BYTES_PER_LOOKUP_CELL = 250  # the nearest-station table per lookup cell, while it is built (about 170 measured)
 BYTES_PER_STUDY_RUN = 1000  # a study's task per run (about 600 measured)
 BYTES_PER_STUDY_RECORD = 1500  # a study's result row per run and filter, and its CSV line
+# A run drawn into Rerun: its stream, threads and in-memory recording. Under an address-space limit
+# (ulimit -v) Rerun's threads reserve most of what is left (measured: about 700 MiB of 800 MiB), so
+# it needs far more there than the RAM it really uses (about 100 MiB).
+RECORDING_ADDRESS_SPACE_BYTES = 576 * 2**20
+RECORDING_RAM_BYTES = 160 * 2**20
+BYTES_PER_DRAWN_PARTICLE = 24  # per drawn particle and step in the recording (position, colour, radius)
+BYTES_PER_VIEWED_PARTICLE = 40  # per particle and step while the view picks what to draw (weights, indices)
+ADDRESS_SPACE_SOURCE = "the address-space limit, ulimit -v"
 _UNLIMITED = 2**60  # cgroup v1 writes "no limit" as a huge number near 2**63
 
 CGROUP_ROOT = Path("/sys/fs/cgroup")
@@ -57,6 +65,22 @@ def check_memory(what: str, needed: int, budget: MemoryBudget | None = None) -> 
 def check_particles(count: int) -> None:
     """Refuse a particle count whose arrays would not fit."""
     check_memory(f"particle_count {count}", count * BYTES_PER_PARTICLE)
+
+
+def check_recording(particles: int, steps: int, max_drawn: int, budget: MemoryBudget | None = None) -> None:
+    """Refuse a drawn run (--rrd, the viewer) whose particles and recording would not fit together:
+    Rerun's own share (more under ulimit -v, see above), the drawn particles of every step kept in
+    the recording, and the view's arrays over all particles."""
+    budget = memory_budget() if budget is None else budget
+    if budget is None:
+        return
+    rerun = RECORDING_ADDRESS_SPACE_BYTES if budget.source == ADDRESS_SPACE_SOURCE else RECORDING_RAM_BYTES
+    needed = (
+        particles * (BYTES_PER_PARTICLE + BYTES_PER_VIEWED_PARTICLE)
+        + steps * min(particles, max_drawn) * BYTES_PER_DRAWN_PARTICLE
+        + rerun
+    )
+    check_memory(f"particle_count {particles} with a recording of {steps} steps", needed, budget)
 
 
 def check_steps(steps: int) -> None:
@@ -98,7 +122,7 @@ def process_limit(proc_self: Path = PROC_SELF) -> MemoryBudget | None:
     sizes = _process_sizes(proc_self)
     budgets = []
     for limit, used_key, source in (
-        (resource.RLIMIT_AS, "VmSize", "the address-space limit, ulimit -v"),
+        (resource.RLIMIT_AS, "VmSize", ADDRESS_SPACE_SOURCE),
         (resource.RLIMIT_DATA, "VmData", "the data-size limit, ulimit -d"),
     ):
         soft, _ = resource.getrlimit(limit)
@@ -209,6 +233,7 @@ __all__ = [
     "cgroup_limit",
     "check_memory",
     "check_particles",
+    "check_recording",
     "check_steps",
     "check_study",
     "memory_budget",

@@ -16,14 +16,13 @@ from typing import Any
 
 import numpy as np
 
-from mazelab.checks import regular_file_size
+from mazelab.checks import MAX_MAZE_SIDE, regular_file_size
 from mazelab.limits import BYTES_PER_LOOKUP_CELL, BYTES_PER_MAZE_CELL, check_memory
 from mazelab.lookup import NearestStationLookup, Progress, is_scalar, lookup_cell_count
 
 EMPTY, WALL, STATION_WALL = 0, 1, 2
 # At most this many rows and columns: the nearest-station table's flat cell indices stay exact in
 # float32 ((4000 + 4)**2 < 2**24) and float32 particle positions resolve 2**-11 map units.
-MAX_MAZE_SIDE = 4000
 # A maze file larger than this is refused, not read: room for the largest maze written with ", "
 # between cells (3 bytes a cell, 48 MB), comments included.
 MAZE_FILE_LIMIT_BYTES = 64 * 2**20
@@ -238,7 +237,7 @@ def _read_maze_file(path: Path) -> str:
     if len(data) > MAZE_FILE_LIMIT_BYTES:
         raise MazeError(f"{path}: too large for a maze file (more than {MAZE_FILE_LIMIT_BYTES} bytes)")
     try:
-        return data.decode("utf-8")
+        return data.decode("utf-8-sig")  # a byte-order mark (some editors write one) is fine
     except UnicodeDecodeError:
         raise MazeError(f"{path}: not a text file (not UTF-8)") from None
 
@@ -287,6 +286,13 @@ def _free_cell_origins(grid: np.ndarray) -> np.ndarray:
     return np.column_stack([cols, grid.shape[0] - 1 - rows]).astype(float)
 
 
+def check_world(world: Any) -> Maze:
+    """A maze for a filter or a run: a Maze, or a one-line ValueError."""
+    if not isinstance(world, Maze):
+        raise ValueError(f"world must be a Maze (mazelab.maze.Maze or load_maze), got {type(world).__name__}")
+    return world
+
+
 __all__ = [
     "EMPTY",
     "MAX_MAZE_SIDE",
@@ -296,5 +302,6 @@ __all__ = [
     "Maze",
     "MazeError",
     "check_maze_size",
+    "check_world",
     "parse_maze_text",
 ]

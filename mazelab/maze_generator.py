@@ -46,6 +46,18 @@ def default_station_count(rows: int, columns: int) -> int:
     return max(1, round(rows * columns / CELLS_PER_STATION_BLOCK))
 
 
+def check_generation(rows: int, columns: int, stations: int, wall_share: float = DEFAULT_WALL_SHARE) -> None:
+    """Refuse a maze that cannot be generated (one line), before any work: a size, a station count or
+    a wall share out of range."""
+    check_maze_size(rows, columns)
+    if stations < 1:
+        raise ValueError(f"a maze needs at least one station block, got --stations {stations}")
+    if not 0 <= wall_share < 1:
+        raise ValueError(f"the wall share must be in [0, 1), got {wall_share}")
+    if stations >= rows * columns:
+        raise ValueError(f"{stations} station blocks do not fit in a {rows}x{columns} maze with a free cell")
+
+
 def generate_maze(
     rows: int,
     columns: int,
@@ -60,13 +72,7 @@ def generate_maze(
     free area); at least one cell stays free. The same generator state gives the same maze.
     `progress(done, total)` follows the walls added (a 1000 x 1000 maze takes some seconds).
     """
-    check_maze_size(rows, columns)
-    if stations < 1:
-        raise ValueError(f"a maze needs at least one station block, got --stations {stations}")
-    if not 0 <= wall_share < 1:
-        raise ValueError(f"the wall share must be in [0, 1), got {wall_share}")
-    if stations >= rows * columns:
-        raise ValueError(f"{stations} station blocks do not fit in a {rows}x{columns} maze with a free cell")
+    check_generation(rows, columns, stations, wall_share)
     grid = np.full((rows, columns), EMPTY, dtype=np.int8)
     wanted = max(stations, round(wall_share * rows * columns))
     walls = _add_walls(grid, wanted, rng, _can_become_wall, progress)

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from mazelab.checks import finite_number
+from mazelab.checks import check_sigma_within, finite_number
 
 if TYPE_CHECKING:
     from mazelab.maze import Maze
@@ -111,11 +111,16 @@ def log_likelihood(
     return log_p
 
 
-def check_model_parameters(sigma: float, delta: float) -> tuple[float, float]:
-    """Refuse impossible sigma/delta with a clear message; warn outside the lab's recommended ranges."""
+def check_model_parameters(
+    sigma: float, delta: float, map_size: tuple[float, float] | None = None
+) -> tuple[float, float]:
+    """Refuse impossible sigma/delta with a clear message; warn outside the lab's recommended ranges.
+    sigma must lie in the range that keeps the arithmetic finite on the map (width, height), or
+    without one on any maze (mazelab.checks.sigma_range)."""
     sigma, delta = finite_number("sigma", sigma), finite_number("delta", delta)
     if sigma <= 0:
         raise ValueError(f"sigma must be > 0 (the measurement noise's standard deviation), got {sigma}")
+    check_sigma_within(sigma, *(map_size or (None, None)))
     if not 0 <= delta <= 2 * math.pi:
         raise ValueError(f"delta must be in [0, 2*pi] (the compass error's full width, radians), got {delta}")
     for name, value, (low, high) in (("sigma", sigma, LAB_SIGMA_RANGE), ("delta", delta, LAB_DELTA_RANGE)):

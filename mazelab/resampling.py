@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from mazelab.checks import finite_number, step_number
+from mazelab.checks import check_kld_numbers, finite_number, step_number
 
 
 # -- resampling: plain functions, normalised weights W (N,) -> ancestor indices (M,) ---------------
@@ -126,6 +126,7 @@ class KLDSampling:
     max_count: int | None = None
 
     def __post_init__(self) -> None:
+        check_kld_numbers(self.epsilon, self.z)
         for name in ("epsilon", "z", "bin_size"):
             if not finite_number(f"KLD {name}", getattr(self, name)) > 0:
                 raise ValueError(f"KLD {name} must be > 0, got {getattr(self, name)}")

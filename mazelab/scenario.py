@@ -15,10 +15,28 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, StrictBool, StrictInt, StrictStr, ValidationError, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    StrictBool,
+    StrictInt,
+    StrictStr,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from mazelab.atomic import write_text_atomically
-from mazelab.checks import MAX_ANGLE, MAX_COORDINATE, check_all_within, check_within_map, regular_file_size
+from mazelab.checks import (
+    MAX_ANGLE,
+    MAX_COORDINATE,
+    MAX_SEED,
+    NORMAL_TAIL,
+    check_all_within,
+    check_within_map,
+    regular_file_size,
+)
 from mazelab.limits import check_memory
 from mazelab.maze import Maze
 from mazelab.option_json import options_from_json
@@ -36,7 +54,10 @@ MAX_JSON_DEPTH = 16  # a scenario nests 3 deep; deeper files are refused before 
 BYTES_PER_JSON_BYTE = 40  # memory the parsed json and its validation take per byte of the file (generous)
 
 # -- saved scenarios -------------------------------------------------------------------------------
-FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
+# Strict types: "0.3" is not a number and true is not a seed in a scenario file (a whole number
+# still counts as a float).
+FiniteFloat = Annotated[float, Field(strict=True, allow_inf_nan=False)]
+Whole = Annotated[int, Field(strict=True)]
 Point = tuple[FiniteFloat, FiniteFloat]
 OptionScalar = StrictBool | StrictInt | FiniteFloat | StrictStr | None
 OptionValue = OptionScalar | dict[str, OptionScalar]  # a number, a word, or an object's fields (Recovery, KLD)
@@ -54,19 +75,19 @@ class Scenario(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    format_version: int = Field(1, ge=1)
+    format_version: Whole = Field(1, ge=1)
     init_robot_pos: Point
     init_particles_pos: list[Point] = Field(min_length=1)
-    robot_actual_angles: list[FiniteFloat]
-    robot_compass_angles: list[FiniteFloat]
+    robot_actual_angles: list[FiniteFloat] = Field(min_length=1)
+    robot_compass_angles: list[FiniteFloat] = Field(min_length=1)
     robot_measurements: list[FiniteFloat] | None = None
-    maze: list[list[int]] | None = None
+    maze: list[list[Whole]] | None = None
     sigma: FiniteFloat | None = Field(None, gt=0)
     delta: FiniteFloat | None = Field(None, ge=0, le=2 * math.pi)
-    seed: int | None = None
-    steps: int | None = Field(None, ge=1)
-    filtering_algorithm: str | None = None
-    kidnap_at: int | None = Field(None, ge=1)
+    seed: Whole | None = Field(None, ge=0, lt=MAX_SEED)
+    steps: Whole | None = Field(None, ge=1)
+    filtering_algorithm: Annotated[str, Field(strict=True)] | None = None
+    kidnap_at: Whole | None = Field(None, ge=1)
     kidnap_position: Point | None = None
     filter_options: dict[str, OptionValue] | None = None
 
@@ -80,6 +101,16 @@ class Scenario(BaseModel):
                 version = max(version, KIDNAP_FORMAT_VERSION)
             data = {**data, "format_version": version}
         return data
+
+    @field_validator("filtering_algorithm")
+    @classmethod
+    def _known_filter(cls, name: str | None) -> str | None:
+        """A filter this program knows (mazelab.registry), e.g. SIRParticleFilter."""
+        if name is not None:
+            from mazelab.registry import resolve_filter  # here: the registry imports the filters
+
+            resolve_filter(name)
+        return name
 
     @model_validator(mode="after")
     def _consistent(self) -> Scenario:
@@ -103,10 +134,26 @@ class Scenario(BaseModel):
             raise ValueError(f"robot_measurements has {len(self.robot_measurements)} entries, {steps} expected")
         if self.steps is not None and self.steps != steps:
             raise ValueError(f"steps is {self.steps} but there are {steps} angles")
+        self._check_measurements()
         self._check_filter_options()
         if self.maze is not None:
             self._check_places(Maze(self.maze, source="the scenario's maze"), particles)
         return self
+
+    def _check_measurements(self) -> None:
+        """A measurement is a distance plus N(0, sigma^2) noise: it may be a little negative, but not
+        below -NORMAL_TAIL sigma (no draw of the noise reaches that far; without a stored sigma, 0)."""
+        if not self.robot_measurements:
+            return
+        floor = -NORMAL_TAIL * (self.sigma or 0.0)
+        z = _numbers(self.robot_measurements)
+        below = np.flatnonzero(z < floor)
+        if len(below):
+            i = int(below[0])
+            raise ValueError(
+                f"robot_measurements[{i}] = {z[i]:g} is below {floor:g}: a noisy distance is at least "
+                f"-{NORMAL_TAIL:g} sigma" + ("" if self.sigma else " (the scenario stores no sigma)")
+            )
 
     def _check_bounds(self) -> np.ndarray:
         """Angles within MAX_ANGLE radians, places and distances within MAX_COORDINATE map units,
@@ -201,11 +248,12 @@ class ScenarioError(ValueError):
     """A scenario file that cannot be used; the message is one line naming the file and the problem."""
 
 
-def save_scenario(scenario: Scenario, path: str | Path = DEFAULT_PARAMETERS_PATH) -> Path:
-    """Write the scenario as json, atomically (a reader never sees half a file). Returns the path."""
+def save_scenario(scenario: Scenario, path: str | Path = DEFAULT_PARAMETERS_PATH, *, replace: bool = True) -> Path:
+    """Write the scenario as json, atomically (a reader never sees half a file). Returns the path.
+    Without `replace` an existing file is never replaced (mazelab.atomic.NameTakenError)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    write_text_atomically(path, scenario.to_json())
+    write_text_atomically(path, scenario.to_json(), replace=replace)
     return path
 
 
@@ -220,6 +268,8 @@ def load_scenario(path: str | Path = DEFAULT_PARAMETERS_PATH) -> Scenario:
         data = json.loads(text)
     except json.JSONDecodeError as error:
         raise ScenarioError(f"{path}:{error.lineno}: not valid json ({error.msg})") from None
+    except ValueError as error:  # e.g. a number of more than 4300 digits
+        raise ScenarioError(f"{path}: not a usable json file ({str(error).splitlines()[0]})") from None
     except RecursionError:  # the depth scan keeps this from happening; a last guard
         raise ScenarioError(f"{path}: json nested too deeply") from None
     try:
@@ -233,15 +283,17 @@ def _read_scenario_file(path: Path) -> str:
     try:
         size = regular_file_size(path, "scenario", "json")
         check_memory(f"{path}: a scenario file of {size} bytes", size * BYTES_PER_JSON_BYTE)
-        return path.read_text(encoding="utf-8")
+        return path.read_text(encoding="utf-8-sig")  # a byte-order mark, as some editors write, is fine
+    except UnicodeDecodeError as error:  # binary, UTF-16, ...: before ValueError, of which it is one
+        raise ScenarioError(f"{path}: not a UTF-8 text file (a scenario is json; byte {error.start})") from None
     except ValueError as error:  # not a regular file, or too large to parse (MemoryLimitError)
         raise ScenarioError(str(error)) from None
     except FileNotFoundError:
         older = LEGACY_PARAMETERS_PATH.is_file() and path.name == "model_parameters.json"
         hint = f" (older versions saved to {LEGACY_PARAMETERS_PATH})" if older else ""
         raise ScenarioError(f"{path}: no such scenario file{hint}") from None
-    except (OSError, UnicodeDecodeError) as error:
-        raise ScenarioError(f"{path}: cannot be read ({error})") from None
+    except OSError as error:
+        raise ScenarioError(f"{path}: cannot be read ({error.strerror or error})") from None
 
 
 _JSON_STRING = re.compile(r'"(?:[^"\\]|\\.)*"')

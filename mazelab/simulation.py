@@ -16,10 +16,16 @@ from typing import Any
 
 import numpy as np
 
-from mazelab.checks import as_points, check_within_map, step_number
+from mazelab.checks import (
+    as_points,
+    check_particle_count,
+    check_seed,
+    check_within_map,
+    step_number,
+)
 from mazelab.contract import check_options, takes
-from mazelab.limits import check_particles, check_steps
-from mazelab.maze import Maze
+from mazelab.limits import check_particles, check_recording, check_steps
+from mazelab.maze import Maze, check_world
 from mazelab.model import CONVERGENCE_RADIUS, DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, check_model_parameters
 from mazelab.option_json import options_to_json
 from mazelab.plugins import raise_for_student, student_code
@@ -165,7 +171,7 @@ class RunInputs:
 
 def convergence_step(errors: np.ndarray, radius: float = CONVERGENCE_RADIUS) -> int | None:
     """The first step (1-based) after which every error is below `radius`; None if the last is not."""
-    outside = np.flatnonzero(np.asarray(errors) >= radius)
+    outside = np.flatnonzero(~(np.asarray(errors) < radius))  # NaN (a failed estimate) never converges
     if len(outside) == 0:
         return 1
     return None if outside[-1] == len(errors) - 1 else int(outside[-1]) + 2
@@ -192,21 +198,26 @@ def check_start(
         warnings.warn(f"{outside} of the {len(particles)} initial particles lie outside the free area", stacklevel=3)
 
 
-def check_walk_in_maze(world: Maze, robot: Robot) -> None:
-    """A recorded walk (a replayed scenario) must stay in the free area of `world`, as every walk made
-    on it does: a start or a step in a wall or off the map means it was made on another maze."""
+def check_walk_in_maze(world: Maze, robot: Robot, steps: int | None = None) -> None:
+    """A recorded walk (a replayed scenario's start and robot_actual_angles, its first `steps` steps)
+    must stay in the free area of `world`, as every walk made on it does: the start or the first step
+    that leaves it is refused in one line (a hand-edited walk through walls, or another maze's).
+    Positions are computed in Robot.step's own arithmetic, so a walk made on `world` always passes."""
+    count = robot.recorded_steps if steps is None else min(steps, robot.recorded_steps)
     x, y = robot.initial_position
-    for k in range(robot.recorded_steps + 1):  # step k's position, in Robot.step's own arithmetic
-        if k > 0:
-            if k == robot.kidnap_at:
-                x, y = robot.kidnap_position
-            heading = robot.actual_angles[k - 1]
-            x, y = x + robot.speed * math.cos(heading), y + robot.speed * math.sin(heading)
+    if not world.is_free(x, y):
+        raise ValueError(
+            f"the robot's start ({x:.2f}, {y:.2f}) lies outside the free area of the maze ({world.source})"
+        )
+    for k in range(1, count + 1):
+        if k == robot.kidnap_at:
+            x, y = robot.kidnap_position
+        heading = robot.actual_angles[k - 1]
+        x, y = x + robot.speed * math.cos(heading), y + robot.speed * math.sin(heading)
         if not world.is_free(x, y):
-            where = "the robot's start" if k == 0 else f"step {k} of the robot's walk"
             raise ValueError(
-                f"{where} ({x:.2f}, {y:.2f}) lies in a wall or off the map of {world.source}: "
-                "the walk was not made on this maze"
+                f"robot_actual_angles[{k - 1}]: step {k} of the replayed walk leaves the free area of the maze "
+                f"({world.source}) at ({x:.2f}, {y:.2f}); a walk made on this maze never does"
             )
 
 
@@ -256,6 +267,7 @@ def simulate(
     view: Any = None,
     on_step: Callable[[int, Robot, Any], None] | None = None,
     kidnap_at: int | None = None,
+    recorded: int | None = None,
     **filter_options: Any,
 ) -> RunResult:
     """Run one filter on the robot's walk and return the full `RunResult` (what run_model summarises).
@@ -271,14 +283,17 @@ def simulate(
     EKF's `init="start"` tracks from it; the kidnapping, if any, is left for it to find out).
     `view` is what the run draws into: None (nothing), a view (`log_step`, `close`), or a function
     `(world, filter_name) -> view`, called once the inputs are checked (mazelab.lab passes Rerun's).
+    `recorded=M`: the view records at most M particles a step (its memory is checked up front).
     """
-    sigma, delta = check_model_parameters(sigma, delta)
+    check_world(world)
+    sigma, delta = check_model_parameters(sigma, delta, (world.width, world.height))
     filter_class = resolve_filter(filtering_algorithm)
     check_options(filter_class, filter_options)
-    seed = new_seed() if seed is None else int(seed)
+    seed = new_seed() if seed is None else check_seed("seed", seed)
     streams = run_streams(seed)
     if init_particles_pos is not None:
         particles = as_points("init_particles_pos", init_particles_pos)
+        check_particle_count(particle_count, len(particles))
     else:
         count = DEFAULT_PARTICLE_COUNT if particle_count is None else particle_count
         if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 1:
@@ -287,12 +302,14 @@ def simulate(
         particles = world.random_free_places(int(count), streams.particles)
     given = particles if init_particles_pos is not None else None  # drawn ones lie in the free area
     check_start(world, robot.initial_position, given, robot.kidnap_position)
-    check_walk_in_maze(world, robot)
     if steps is None:
         steps = robot.recorded_steps or DEFAULT_STEPS
     if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
         raise ValueError(f"steps must be a whole number >= 1, got {steps!r}")
     check_steps(int(steps))
+    check_walk_in_maze(world, robot, int(steps))
+    if recorded is not None:
+        check_recording(len(particles), int(steps), recorded)
     if kidnap_at is not None:
         plan_kidnapping(robot, world, kidnap_at, steps, streams.kidnap)
 

@@ -253,11 +253,13 @@ def test_ctrl_c_keeps_the_finished_runs_and_exits_130(tmp_path, capsys, monkeypa
     monkeypatch.setattr(experiments, "run_task", interrupt_on_run_3)
     monkeypatch.setattr(batch_runs, "batchable", lambda task: False)  # run by run, through run_task
     table = tmp_path / "s.csv"
+    table.write_text("old\n")
     args = ["study", "--maze", "paper_5x5", "--runs", "5", "--steps", "10", "--particles", "50", "--filters", "sir,apf"]
-    assert main([*args, "--workers", "1", "--csv", str(table)]) == 130
+    assert main([*args, "--workers", "1", "--csv", str(table), "--force"]) == 130
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # in-process: handlers put back
-    assert "interrupted after 2 of 5 runs" in capsys.readouterr().err
-    assert [(r["run"], r["filter"]) for r in read_csv(table)] == [
+    assert f"interrupted after 2 of 5 runs; the finished rows are in {table}.partial" in capsys.readouterr().err
+    assert table.read_text() == "old\n"  # the old file, not a cut one
+    assert [(r["run"], r["filter"]) for r in read_csv(table.with_name("s.csv.partial"))] == [
         (run, name) for run in ("1", "2") for name in FILTERS[:2]
     ]
 

@@ -135,7 +135,10 @@ def test_accuracy_runs_on_the_named_shipped_mazes_not_on_whatever_is_in_mazes(tm
 def test_a_walk_into_a_wall_is_refused_and_a_walk_made_on_the_maze_is_not():
     world = Maze(PAPER_MAZE)
     down = Robot(0.3, 0.5, (0.5, 3.5), actual_angles=[-np.pi / 2] * 4, compass_angles=[-np.pi / 2] * 4)
-    with pytest.raises(ValueError, match=r"step 3 of the robot's walk \(0.50, 2.90\) lies in a wall"):
+    with pytest.raises(
+        ValueError,
+        match=r"robot_actual_angles\[2\]: step 3 of the replayed walk leaves the free area .* at \(0.50, 2.90\)",
+    ):
         check_walk_in_maze(world, down)
     wandered = simulate(Robot(0.3, 0.5, (3.5, 1.5)), world, 0.3, 0.5, 100, 300, seed=5)
     check_walk_in_maze(world, wandered.scenario.robot())  # 300 steps of wandering stay in the free area

@@ -134,9 +134,9 @@ def test_a_file_with_only_the_papers_four_keys_loads_and_runs(tmp_path, paper_wo
             "init_robot_pos.1",
         ),
         (
-            '{"init_robot_pos": [1, 2], "init_particles_pos": [[1, 2]], "robot_actual_angles": [1], '
-            '"robot_compass_angles": []}',
-            "robot_actual_angles has 1 entries but robot_compass_angles has 0",
+            '{"init_robot_pos": [1, 2], "init_particles_pos": [[1, 2]], "robot_actual_angles": [1, 2], '
+            '"robot_compass_angles": [1]}',
+            "robot_actual_angles has 2 entries but robot_compass_angles has 1",
         ),
         (
             '{"init_robot_pos": [1, 2], "init_particles_pos": [[1, 2]], "robot_actual_angles": [1], '
@@ -144,8 +144,8 @@ def test_a_file_with_only_the_papers_four_keys_loads_and_runs(tmp_path, paper_wo
             "robot_measurements has 2 entries",
         ),
         (
-            '{"init_robot_pos": [1, 2], "init_particles_pos": [[1, 2]], "robot_actual_angles": [], '
-            '"robot_compass_angles": [], "format_version": 99}',
+            '{"init_robot_pos": [1, 2], "init_particles_pos": [[1, 2]], "robot_actual_angles": [1], '
+            '"robot_compass_angles": [1], "format_version": 99}',
             "newer than this program reads",
         ),
         (

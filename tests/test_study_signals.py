@@ -30,13 +30,17 @@ def session_processes(session: int) -> list[int]:
     return found
 
 
+OLD_CSV = "an older study's rows\n"
+
+
 def start_study(tmp_path: Path) -> tuple[subprocess.Popen, Path]:
-    """A long study on two workers in its own session, once its CSV holds a finished run."""
-    table = tmp_path / "s.csv"
+    """A long study on two workers in its own session, once its rows (s.csv.partial while it runs) hold
+    a finished run; returns the partial file."""
     long_study = ["--maze", "paper_5x5", "--runs", "3000", "--steps", "20", "--particles", "100"]
-    process = start_study_process(
-        [*long_study, "--filters", "sir,apf", "--workers", "2", "--seed", "1", "--csv", str(table)]
-    )
+    (tmp_path / "s.csv").write_text(OLD_CSV)  # an older study's CSV, replaced (--force) only by a whole one
+    long_study += ["--filters", "sir,apf", "--workers", "2", "--seed", "1", "--force"]
+    process = start_study_process([*long_study, "--csv", str(tmp_path / "s.csv")])
+    table = tmp_path / "s.csv.partial"
     wait_for_rows(table, 4, process)
     assert len(finished_rows(table)) >= 4, "the study wrote no rows"
     assert len(session_processes(process.pid)) >= 3, "the study should run on two workers"
@@ -73,7 +77,9 @@ def test_a_stopped_study_keeps_its_rows_and_ends_its_workers(tmp_path, signals, 
     _, err = process.communicate(timeout=30)
     assert process.returncode == code, err
     assert "interrupted after" in err and "Traceback" not in err
+    assert f"the finished rows are in {table}" in err
     assert_whole_runs(finished_rows(table))
+    assert (tmp_path / "s.csv").read_text() == OLD_CSV  # the CSV is the old one or a whole new one
     assert_no_process_left(process.pid)
 
 
@@ -84,3 +90,4 @@ def test_kill_9_on_the_study_ends_its_workers_and_keeps_the_rows(tmp_path):
     process.communicate(timeout=30)
     assert_no_process_left(process.pid)
     assert len(finished_rows(table)) >= before
+    assert (tmp_path / "s.csv").read_text() == OLD_CSV

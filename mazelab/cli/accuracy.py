@@ -10,13 +10,14 @@ from typing import Annotated
 import typer
 
 from mazelab.atomic import write_text_atomically
-from mazelab.cli.options import DEFAULT_DELTA, DEFAULT_SIGMA, check_output_path, parse_list
+from mazelab.checks import check_sigma_within
+from mazelab.cli.options import DEFAULT_DELTA, DEFAULT_SIGMA, check_output_path, parse_list, seed_option
 from mazelab.cli.provenance import command_line
 from mazelab.experiments.executor import default_workers, progress_bar
 from mazelab.experiments.plan import maze_description, study_mazes
 from mazelab.experiments.record import Recorder, record_path
 from mazelab.experiments.runs import parse_filters
-from mazelab.limits import check_particles, check_steps
+from mazelab.limits import check_particles, check_steps, check_study
 from mazelab.mazes import LAB_MAZES
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, check_model_parameters
 
@@ -41,7 +42,9 @@ def accuracy(
     steps: Annotated[int, typer.Option(min=2, help="steps per run (the distance is averaged over the second half)")] = (
         DEFAULT_STEPS
     ),
-    seed: Annotated[int, typer.Option(help="root seed (run r has the same seed on every maze)")] = 1,
+    seed: Annotated[
+        int, typer.Option(callback=seed_option, help="root seed (run r has the same seed on every maze)")
+    ] = 1,
     workers: Annotated[int | None, typer.Option(min=1, help="processes (default: all cores)")] = None,
     csv_path: Annotated[Path | None, typer.Option("--csv", help="one row per maze, run and filter")] = None,
     record: Annotated[Path | None, typer.Option(help="the JSON record [default: beside --csv]")] = None,
@@ -73,6 +76,10 @@ def accuracy(
     check_model_parameters(sigma, delta)
     check_steps(steps)
     check_particles(particles)
+    check_study(len(mazes) * runs, len(chosen))  # --runs 10000000: refused before any work
+    for choice in mazes:
+        rows, columns = choice.size if choice.grid is None else (len(choice.grid), len(choice.grid[0]))
+        check_sigma_within(sigma, columns, rows)
     tasks = accuracy_tasks([(m.label, m) for m in mazes], runs, sigma, delta, particles, steps, seed, chosen)
     labels = ", ".join(label for label, _, _ in chosen)
     typer.echo(
@@ -93,7 +100,7 @@ def accuracy(
     typer.echo(accuracy_table(records))
     typer.echo(f"{len(tasks)} runs in {time.perf_counter() - started:.1f} s wall time")
     if csv_path is not None:
-        write_text_atomically(csv_path, accuracy_csv(records))
+        write_text_atomically(csv_path, accuracy_csv(records), replace=force)
         typer.echo(f"one row per maze, run and filter written to {csv_path}")
     if record_file is not None:
         from mazelab.experiments.accuracy import accuracy_summary

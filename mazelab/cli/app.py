@@ -16,6 +16,8 @@ from __future__ import annotations
 import signal
 import sys
 import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Annotated
 
@@ -51,6 +53,7 @@ from mazelab.cli.options import (
     check_choice,
     check_output_path,
     check_outputs,
+    seed_option,
     visualization,
     warn_in_one_line,
 )
@@ -106,7 +109,7 @@ def demo(
     """The paper's example: a lost robot, the SIR filter, 1500 particles, 200 steps."""
     if ctx.invoked_subcommand is not None:
         return
-    visualize = visualization(viewer, rrd, web, no_viz, max_drawn)
+    visualize = visualization(viewer, rrd, web, no_viz, max_drawn, force)
     if rrd is not None:
         check_output_path(rrd, force)
     world = load_maze(DEFAULT_MAZE)
@@ -150,10 +153,10 @@ def run(
     ] = None,
     seed: Annotated[
         int | None,
-        typer.Option(help="seed of the whole run (default: new, printed)"),
+        typer.Option(callback=seed_option, help="seed of the whole run (default: new, printed)"),
     ] = None,
     start_seed: Annotated[
-        int | None, typer.Option(hidden=True, help="seed of the start only (default: --seed)")
+        int | None, typer.Option(callback=seed_option, hidden=True, help="seed of the start only (default: --seed)")
     ] = None,
     scenario: Annotated[Path | None, typer.Option(help="replay a saved scenario (.json)")] = None,
     save_scenario_path: Annotated[Path | None, typer.Option("--save-scenario", help="save the run (.json)")] = None,
@@ -187,7 +190,7 @@ def run(
 ) -> None:
     """Run one filter on a lost robot, or replay a saved scenario (--scenario) with its filter and
     options."""
-    visualize = visualization(viewer, rrd, web, no_viz, max_drawn)
+    visualize = visualization(viewer, rrd, web, no_viz, max_drawn, force)
     stored = load_scenario(scenario) if scenario is not None else None
     filter_name = check_filter_name(replay_filter_name(ctx, stored, filter_name))
     given = {
@@ -219,27 +222,40 @@ def run(
         init_particles, particles_arg, steps_arg = None, particles, steps or DEFAULT_STEPS
     prepare_world(world)
     total = steps_arg or robot.recorded_steps
-    result = simulate(
-        robot,
-        world,
-        sigma,
-        delta,
-        particles_arg,
-        steps_arg,
-        init_particles,
-        filter_name,
-        seed=seed,
-        visualize=visualize,
-        on_step=None if quiet else progress_printer(total),
-        kidnap_at=kidnap_at,
-        **options,
-    )
+    with scenario_not_saved_on_stop(save_scenario_path):
+        result = simulate(
+            robot,
+            world,
+            sigma,
+            delta,
+            particles_arg,
+            steps_arg,
+            init_particles,
+            filter_name,
+            seed=seed,
+            visualize=visualize,
+            on_step=None if quiet else progress_printer(total),
+            kidnap_at=kidnap_at,
+            **options,
+        )
     report_run(result)
     for line in (kidnap_report(result), particle_count_report(result) if kld else None):
         if line:
             typer.echo(line)
     if save_scenario_path is not None:
-        typer.echo(f"scenario saved to {save_scenario(result.scenario, save_scenario_path)}")
+        typer.echo(f"scenario saved to {save_scenario(result.scenario, save_scenario_path, replace=force)}")
+
+
+@contextmanager
+def scenario_not_saved_on_stop(path: Path | None) -> Iterator[None]:
+    """A run stopped (Ctrl-C; SIGTERM or SIGHUP with a recording, which exit through SystemExit) before
+    its end says that its scenario was not saved."""
+    try:
+        yield
+    except (KeyboardInterrupt, SystemExit):
+        if path is not None:
+            typer.echo(f"the run did not finish: no scenario saved to {path}", err=True)
+        raise
 
 
 def recovery_option(recovery: bool, sensor_resetting: bool, alpha_slow: float, alpha_fast: float) -> Recovery | None:
@@ -258,7 +274,9 @@ def compare(
     maze: Annotated[str | None, typer.Option(metavar="MAZE", help="the maze, if the scenario stores none")] = None,
     sigma: Annotated[float | None, typer.Option(help="override the scenario's sigma")] = None,
     delta: Annotated[float | None, typer.Option(help="override the scenario's delta")] = None,
-    seed: Annotated[int | None, typer.Option(help="the filters' seed (default: the scenario's)")] = None,
+    seed: Annotated[
+        int | None, typer.Option(callback=seed_option, help="the filters' seed (default: the scenario's)")
+    ] = None,
     csv_path: Annotated[Path | None, typer.Option("--csv", help="per-step errors, a column per filter")] = None,
     plot: Annotated[Path | None, typer.Option(help="the lab's error figure (.png; plot extra)")] = None,
     traces: Annotated[Path | None, typer.Option(help="per-step rows of every filter (.csv, or .parquet)")] = None,
@@ -284,7 +302,7 @@ def compare(
 
     A kidnapping (stored, or --kidnap-at) adds whether each filter re-localised (mean error below 0.5
     over the last 30 steps) and the steps it took."""
-    visualize = visualization(viewer, rrd, web, no_viz, max_drawn)
+    visualize = visualization(viewer, rrd, web, no_viz, max_drawn, force)
     check_filter_names(filters)
     check_outputs(csv_path, plot, force, rrd)
     record_file = compare_record_file(csv_path, plot, traces, force)  # a JSON record beside the outputs
@@ -325,11 +343,11 @@ def compare(
         typer.echo(f"kidnapped at step {kidnapping.kidnap_at} to ({x:.2f}, {y:.2f})")
     typer.echo(comparison_table(results, kld=kld))
     if csv_path is not None:
-        write_text_atomically(csv_path, errors_csv(results))
+        write_text_atomically(csv_path, errors_csv(results), replace=force)
         typer.echo(f"per-step errors written to {csv_path}")
     if plot is not None:
         title = f"Localisation error: {scenario.name} (sigma {sigma:g}, delta {delta:g}, {len(particles)} particles)"
-        plot_errors(results, plot, title)
+        plot_errors(results, plot, title, replace=force)
         typer.echo(f"figure written to {plot}")
     finish_compare(results, seed, traces, recorder, record_file)
 

@@ -10,7 +10,15 @@ import typer
 
 from mazelab import maze_generator
 from mazelab.atomic import write_text_atomically
-from mazelab.cli.options import NoVizOption, RrdOption, ViewerOption, WebOption, check_output_path, visualization
+from mazelab.cli.options import (
+    NoVizOption,
+    RrdOption,
+    ViewerOption,
+    WebOption,
+    check_output_path,
+    seed_option,
+    visualization,
+)
 from mazelab.cli.reports import generation_progress
 from mazelab.mazes import load_maze
 from mazelab.seeding import new_seed
@@ -28,7 +36,7 @@ def maze_generate(
         int | None, typer.Option(min=1, help="station blocks (default: one per 25 cells)", show_default=False)
     ] = None,
     walls: Annotated[float, typer.Option(help="share of the cells that are walls")] = maze_generator.DEFAULT_WALL_SHARE,
-    seed: Annotated[int | None, typer.Option(help="the same seed gives the same maze")] = None,
+    seed: Annotated[int | None, typer.Option(callback=seed_option, help="the same seed gives the same maze")] = None,
     out: Annotated[Path | None, typer.Option(help="write the maze file here (default: print it)")] = None,
     force: Annotated[bool, typer.Option("--force", help="replace an existing file")] = False,
 ) -> None:
@@ -47,7 +55,7 @@ def maze_generate(
     if out is None:
         typer.echo(text, nl=False)
     else:
-        write_text_atomically(out, text)
+        write_text_atomically(out, text, replace=force)
         typer.echo(f"{maze_generator.describe_maze(world)}; written to {out}")
 
 

@@ -10,6 +10,8 @@ from typing import Annotated, Any
 
 import typer
 
+from mazelab.atomic import NameTakenError, NotRegularFileError, output_target
+from mazelab.checks import check_seed
 from mazelab.experiments.tables import pyplot
 from mazelab.viz.style import DEFAULT_MAX_DRAWN
 from mazelab.viz.targets import Visualization
@@ -43,14 +45,17 @@ NoVizOption = Annotated[bool, typer.Option("--no-viz", help="draw nothing")]
 MaxDrawnOption = Annotated[int, typer.Option("--max-drawn", min=1, help="particles drawn per step, at most")]
 
 
-def visualization(viewer: bool, rrd: Path | None, web: bool, no_viz: bool, max_drawn: int = DEFAULT_MAX_DRAWN) -> Any:
-    """The `visualize` argument of run_model for the command-line options (see draw.py)."""
+def visualization(
+    viewer: bool, rrd: Path | None, web: bool, no_viz: bool, max_drawn: int = DEFAULT_MAX_DRAWN, force: bool = True
+) -> Any:
+    """The `visualize` argument of run_model for the command-line options (see draw.py); an --rrd file
+    replaces an existing one only with `force`."""
     if sum([viewer, rrd is not None, web, no_viz]) > 1:
         raise UserError("choose one of --viewer, --rrd, --web and --no-viz")
     if no_viz:
         return False
     target = rrd if rrd is not None else "viewer" if viewer else "web" if web else True
-    return Visualization(target, max_drawn)
+    return Visualization(target, max_drawn, replace=force)
 
 
 class UserError(Exception):
@@ -58,15 +63,31 @@ class UserError(Exception):
 
 
 def check_output_path(path: Path, force: bool) -> None:
-    """Refuse to overwrite an existing file without --force, or to write into a missing folder."""
-    if path.exists() and not force:
-        raise UserError(f"{path} exists; use --force to replace it")
+    """Refuse to overwrite an existing file (or a symlink, dangling or not) without --force, anything
+    but a regular file with or without it, or to write into a missing folder. (The write itself checks
+    again: without --force it creates the name exclusively, see mazelab.atomic.)"""
+    try:
+        output_target(path, force)
+    except NameTakenError as error:
+        raise UserError(f"{path} exists; use --force to replace it" if path.exists() else str(error)) from None
+    except NotRegularFileError as error:
+        raise UserError(str(error).removeprefix("cannot write ")) from None
     if not path.parent.exists():
         raise UserError(f"{path.parent} does not exist: cannot write {path.name} there")
     if not os.access(path.parent, os.W_OK):
         raise UserError(f"{path.parent} is not writable: cannot write {path.name} there")
     if path.is_dir():
         raise UserError(f"{path} is a folder, not a file")
+
+
+def seed_option(value: int | None) -> int | None:
+    """A --seed: a whole number in [0, 2**128) (typer names the option in its one-line error)."""
+    if value is not None:
+        try:
+            check_seed("a seed", value)
+        except ValueError as error:
+            raise typer.BadParameter(str(error)) from None
+    return value
 
 
 def parse_list(text: str, kind: type, option: str) -> list:
@@ -81,12 +102,19 @@ def parse_list(text: str, kind: type, option: str) -> list:
 
 
 def check_outputs(csv_path: Path | None, plot: Path | None, force: bool, rrd: Path | None = None) -> None:
-    """Check the output paths, and that matplotlib is there for --plot, before any run starts."""
+    """Check the output paths, and that matplotlib is there for --plot and writes its format, before
+    any run starts."""
     for path in (csv_path, plot, rrd):
         if path is not None:
             check_output_path(path, force)
     if plot is not None:
         pyplot()
+        from matplotlib.backend_bases import FigureCanvasBase
+
+        formats = FigureCanvasBase.get_supported_filetypes()
+        suffix = plot.suffix.lstrip(".").lower() or "png"
+        if suffix not in formats:
+            raise UserError(f"--plot {plot}: cannot draw .{suffix} files; use one of .{', .'.join(sorted(formats))}")
 
 
 _warned: set[str] = set()
@@ -125,6 +153,7 @@ __all__ = [
     "check_output_path",
     "check_outputs",
     "parse_list",
+    "seed_option",
     "visualization",
     "warn_in_one_line",
 ]

@@ -9,7 +9,7 @@ from typing import Annotated, Any
 
 import typer
 
-from mazelab.atomic import write_text_atomically
+from mazelab.atomic import WriteError
 from mazelab.cli.accuracy import accuracy
 from mazelab.cli.filter_options import options_per_filter
 from mazelab.cli.hints import check_filter_names
@@ -26,20 +26,21 @@ from mazelab.cli.options import (
     check_output_path,
     check_outputs,
     parse_list,
+    seed_option,
     visualization,
 )
 from mazelab.cli.provenance import command_line
-from mazelab.experiments.dask_runner import close_client, connect
+from mazelab.experiments.dask_runner import DASK_TIMEOUT, close_client, connect
 from mazelab.experiments.executor import STOP_SIGNALS, default_workers, run_study
 from mazelab.experiments.plan import StudyPlan, plan_study
 from mazelab.experiments.plan import study_mazes as plan_mazes
 from mazelab.experiments.record import Recorder, differences, read_record, record_path
 from mazelab.experiments.resume import RESUME_IGNORES, missing_tasks, read_study_csv
-from mazelab.experiments.rowlog import RowLog
+from mazelab.experiments.rowlog import RowLog, partial_path
 from mazelab.experiments.runs import parse_filters
 from mazelab.experiments.stats import CONFIDENCE_LEVEL
 from mazelab.experiments.study import MazeChoice, RunRecord, RunTask
-from mazelab.experiments.summary import study_csv, study_table, summarise_study
+from mazelab.experiments.summary import study_table, summarise_study
 from mazelab.experiments.traces import check_trace_path, kept_traces, study_traces, write_traces
 from mazelab.mazes import DEFAULT_MAZE
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, RPF_THRESHOLD
@@ -50,12 +51,12 @@ def study(
     maze: Annotated[str | None, typer.Option(help=f"maze files or names, a list [default: {DEFAULT_MAZE}]")] = None,
     maze_size: Annotated[str | None, typer.Option(help="generated mazes ROWSxCOLUMNS, comma-separated")] = None,
     stations: Annotated[str | None, typer.Option(help="generated mazes' station blocks, comma-separated")] = None,
-    wall_share: Annotated[str | None, typer.Option(help="generated mazes' share of walls, comma-separated")] = None,
+    wall_share: Annotated[str | None, typer.Option(help="generated mazes' wall shares, a list")] = None,
     sigma: Annotated[str, typer.Option(help="noise std sigma, comma-separated")] = str(DEFAULT_SIGMA),
     delta: Annotated[str, typer.Option(help="compass error, comma-separated")] = str(DEFAULT_DELTA),
     particles: Annotated[str, typer.Option(help="particle counts, comma-separated")] = str(DEFAULT_PARTICLE_COUNT),
     threshold: Annotated[str | None, typer.Option(help=f"RPF's N_T / N_S, a list [default: {RPF_THRESHOLD}]")] = None,
-    filters: Annotated[str, typer.Option(metavar="NAMES", help="sir, apf, rpf, grid, ekf, a list")] = "sir,apf,rpf",
+    filters: Annotated[str, typer.Option(metavar="NAMES", help="sir,apf,rpf,grid,ekf")] = "sir,apf,rpf",
     kidnap_at: Annotated[int | None, typer.Option(min=1, help="carry the robot elsewhere at this step")] = None,
     recovery: Annotated[
         str | None, typer.Option(metavar="NAMES", help="none (default), augmented or sensor, a list")
@@ -67,9 +68,14 @@ def study(
     estimate: EstimateOption = None,
     runs: Annotated[int, typer.Option(min=1, help="seeded runs per setting")] = 30,
     steps: Annotated[int, typer.Option(min=1, help="steps per run")] = DEFAULT_STEPS,
-    seed: Annotated[int | None, typer.Option(help="the study's root seed (default: new, printed)")] = None,
+    seed: Annotated[
+        int | None, typer.Option(callback=seed_option, help="the study's root seed (default: new, printed)")
+    ] = None,
     workers: Annotated[int | None, typer.Option(min=1, help="processes (default: all cores)")] = None,
     dask: Annotated[str | None, typer.Option(help="the Dask scheduler to run on, tcp://HOST:PORT")] = None,
+    dask_timeout: Annotated[
+        float, typer.Option(metavar="<s>", callback=dask_timeout_option, help="give up after s idle seconds")
+    ] = DASK_TIMEOUT,
     csv_path: Annotated[Path | None, typer.Option("--csv", help="one row per run and filter")] = None,
     plot: Annotated[Path | None, typer.Option(help="error against the varied parameters (.png)")] = None,
     traces: Annotated[Path | None, typer.Option(help="per-step rows of every run (.csv, or .parquet)")] = None,
@@ -87,7 +93,7 @@ def study(
 
     Each filter runs once per value of its own options; a JSON record goes beside the outputs
     (README: "Parameter studies")."""
-    visualize = visualization(viewer, rrd, web, no_viz, max_drawn) if viewer or web or rrd is not None else False
+    visualize = visualization(viewer, rrd, web, no_viz, max_drawn, force) if viewer or web or rrd is not None else False
     record_file = record if record is not None else next((record_path(p) for p in (csv_path, plot, traces) if p), None)
     recorded = _check_resume(csv_path, record_file) if resume else None
     if recorded is not None and seed is None:
@@ -123,20 +129,27 @@ def study(
         tasks, kept = _resumed(plan, recorded, csv_path)
     tasks = _drawn_first(tasks, draw_run) if visualize else tasks
     workers = workers or default_workers()
-    client = connect(dask) if dask is not None else None  # a bad address: one line and exit 2, before anything
+    log = RowLog(csv_path, replace=force or resume, adopt=resume) if csv_path is not None else None  # NAME.csv.partial
+    try:
+        client = connect(dask) if dask is not None else None  # a bad address: one line and exit 2, before anything
+    except BaseException:
+        if log is not None:
+            log.close() if resume else log.discard()
+        raise
     where = f"on the Dask cluster at {dask}" if dask is not None else f"{workers} worker(s)"
     typer.echo(plan.header(where))
     if visualize:
         typer.echo(f"drawing run {tasks[0].run} of setting {tasks[0].setting_index} (--draw-run chooses the run)")
     if recorded is not None:
-        typer.echo(f"resuming: {len(kept)} rows kept from {csv_path}, {len(tasks)} run(s) to go")
+        typer.echo(f"resuming: {len(kept)} rows kept from {_rows_file(csv_path)}, {len(tasks)} run(s) to go")
+    if log is not None and log.note:
+        typer.echo(f"note: {log.note}", err=True)
     recorder = Recorder(
         "study", command_line(), plan.parameters(), outputs=_outputs(csv_path, plot, traces),
         sessions=[*(recorded or {}).get("sessions", []), *([] if recorded is None else [_session(recorded)])],
     )  # fmt: skip
     if record_file is not None:
         recorder.write(record_file)  # now: an interrupted study keeps its parameters for --resume
-    log = RowLog(csv_path) if csv_path is not None else None  # rows appended as runs finish: a stop keeps them
     if log is not None and kept:
         log.append(kept)
     try:
@@ -147,11 +160,10 @@ def study(
             progress=True,
             on_records=None if log is None else log.append,
             dask=client,
+            dask_timeout=dask_timeout,
             ignore_signals_after_stop=True,  # a stopped study only saves and exits: a further Ctrl-C waits
         )
     finally:
-        if log is not None:
-            log.close()
         if client is not None:
             close_client(client)
     for failure in outcome.failures:
@@ -166,14 +178,17 @@ def study(
         "failures": [f.describe() for f in outcome.failures],
         "summary": [s.as_dict() for s in summaries],
     }
-    if outcome.interrupted:
-        if csv_path is not None and log is not None and log.error is None:
-            write_text_atomically(csv_path, study_csv(records))  # the same rows, in order
+    if outcome.interrupted or outcome.lost is not None:  # the CSV stays the old file; the rows are in NAME.csv.partial
+        if log is not None:
+            log.close()
         _write_traces(traces, _in_order(outcome.records, plan), tasks, recorded is not None)
         if record_file is not None:
             recorder.finish("interrupted", **closing)
             recorder.write(record_file)
-        saved = f"; they are in {csv_path} (--resume goes on)" if csv_path is not None else ""
+        saved = f"; {log.kept()} (--resume goes on)" if log is not None else ""
+        if outcome.lost is not None:  # a lost cluster or pool: one line, exit 1
+            typer.echo(f"error: {outcome.lost}; {finished} of {total} runs finished{saved}", err=True)
+            raise typer.Exit(1)
         typer.echo(f"interrupted after {finished} of {total} runs{saved}", err=True)
         for sig in STOP_SIGNALS:  # stopping already: a further Ctrl-C, SIGTERM or SIGHUP changes nothing
             signal.signal(sig, signal.SIG_IGN)
@@ -183,20 +198,29 @@ def study(
     ran = len({(r.setting, r.run) for r in outcome.records})
     typer.echo(f"{ran} runs in {seconds['duration_seconds']:.1f} s wall time")
     if csv_path is not None and log is not None:
-        if log.error is not None:
-            typer.echo(f"error: cannot write {csv_path}: {log.error.strerror or log.error}", err=True)
-            raise typer.Exit(1)
-        write_text_atomically(csv_path, study_csv(records))  # the rows of the log, in order
+        try:
+            log.finish(records)  # the whole CSV, in order; then the partial file goes
+        except OSError as error:
+            log.close()
+            typer.echo(f"error: {describe_write_error(error)}; {log.kept()}", err=True)
+            raise typer.Exit(1) from None
         typer.echo(f"one row per run and filter written to {csv_path}")
     if _write_traces(traces, _in_order(outcome.records, plan), tasks, recorded is not None):
         typer.echo(f"per-step traces written to {traces}")
     if plot is not None and summaries:
-        _plot(plan, summaries, plot)
+        _plot(plan, summaries, plot, force)
     if record_file is not None:
         recorder.write(record_file)
         typer.echo(f"the study's record (command, versions, seeds, mazes, summary) written to {record_file}")
     if outcome.failures:
         raise typer.Exit(1)
+
+
+def dask_timeout_option(value: float) -> float:
+    """--dask-timeout: a positive number of seconds (typer names the option in its one-line error)."""
+    if not 0 < value < float("inf"):
+        raise typer.BadParameter(f"seconds must be a positive number, got {value}")
+    return value
 
 
 def _list(text: str | None, kind: type, option: str) -> list | None:
@@ -221,7 +245,7 @@ def _check_resume(csv_path: Path | None, record_file: Path | None) -> dict[str, 
     """The record of the study to resume; one line if there is none."""
     if csv_path is None or record_file is None:
         raise UserError("--resume needs the study's --csv (its record lies beside it)")
-    if not csv_path.exists():
+    if not csv_path.exists() and not partial_path(csv_path).exists():
         raise UserError(f"--resume: {csv_path} does not exist (nothing to resume; leave out --resume)")
     try:
         return read_record(record_file)
@@ -237,9 +261,21 @@ def _resumed(plan: StudyPlan, recorded: dict[str, Any], csv_path: Path) -> tuple
     if plan.runs < recorded["parameters"].get("runs", 0):
         raise UserError(f"--resume: --runs {plan.runs} is fewer than the study's {recorded['parameters']['runs']}")
     try:
-        return missing_tasks(plan.tasks(), read_study_csv(csv_path))
+        return missing_tasks(plan.tasks(), read_study_csv(_rows_file(csv_path)))
     except ValueError as error:
         raise UserError(str(error)) from None
+
+
+def _rows_file(csv_path: Path | None) -> Path | None:
+    """Where a resumed study's finished rows are: the partial file a stopped study left, else the CSV."""
+    if csv_path is None:
+        return None
+    return partial_path(csv_path) if partial_path(csv_path).exists() else csv_path
+
+
+def describe_write_error(error: OSError) -> str:
+    """One line naming the file and the cause of a write error."""
+    return str(error) if isinstance(error, WriteError) else f"cannot write {error.filename}: {error.strerror or error}"
 
 
 def _drawn_first(tasks: list[RunTask], run: int) -> list[RunTask]:
@@ -266,7 +302,7 @@ def _write_traces(path: Path | None, records: list[RunRecord], tasks: list[RunTa
     return True
 
 
-def _plot(plan: StudyPlan, summaries: list, plot: Path) -> None:
+def _plot(plan: StudyPlan, summaries: list, plot: Path, force: bool = True) -> None:
     from mazelab.experiments.study_plot import plot_study
 
     varied = plan.varied
@@ -276,7 +312,7 @@ def _plot(plan: StudyPlan, summaries: list, plot: Path) -> None:
         f"Last-20% error against {what}{where}\n({plan.runs} runs per point, "
         f"{CONFIDENCE_LEVEL:.0%} percentile bootstrap intervals for the mean)"
     )
-    plot_study(summaries, varied or ["maze"], plot, title)
+    plot_study(summaries, varied or ["maze"], plot, title, replace=force)
     typer.echo(f"figure written to {plot}")
 
 

@@ -4,6 +4,7 @@ a display (over ssh: forward the two ports, then open the printed address)."""
 from __future__ import annotations
 
 import signal
+import warnings
 from pathlib import Path
 from typing import Annotated
 
@@ -49,11 +50,21 @@ def stop_on_termination() -> None:
 
 
 def is_recording(path: Path) -> bool:
-    """Whether the file starts as an .rrd recording does (Rerun's 'RRF2' header)."""
+    """Whether the file is an .rrd recording: Rerun's 'RRF2' header, and Rerun's own reader finds a
+    whole recording in it (a file that only starts like one, or is cut short, is not)."""
     try:
         with path.open("rb") as file:
-            return file.read(4) == RRD_MAGIC
+            if file.read(4) != RRD_MAGIC:
+                return False
     except OSError:
+        return False
+    from rerun.chunk import RrdReader
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # "no footer": a cut file is scanned, then refused below
+            return any(store.kind == "recording" for store in RrdReader(path).recordings())
+    except Exception:  # Rerun's reader refuses it: a bad frame, an unknown encoding, a cut file
         return False
 
 

@@ -116,7 +116,7 @@ def errors_csv(results: dict[str, RunResult]) -> str:
     return buffer.getvalue()
 
 
-def plot_errors(results: dict[str, RunResult], path: Path, title: str) -> None:
+def plot_errors(results: dict[str, RunResult], path: Path, title: str, *, replace: bool = True) -> None:
     """The lab's figure: error against step, one line per filter, saved to `path` (png, pdf or svg)."""
     plt = pyplot()
     figure, axes = plt.subplots(figsize=(8, 4.5), layout="constrained")
@@ -127,7 +127,7 @@ def plot_errors(results: dict[str, RunResult], path: Path, title: str) -> None:
     axes.set_ylim(bottom=0)
     axes.grid(alpha=0.3)
     axes.legend()
-    save_figure(figure, path)
+    save_figure(figure, path, replace=replace)
 
 
 __all__ = [

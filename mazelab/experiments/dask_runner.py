@@ -6,41 +6,94 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import queue
+import socket
+import sys
 from collections.abc import Callable, Sequence
+from concurrent.futures import CancelledError
 from typing import Any
 
 from mazelab.experiments.study import RunFailure, RunTask
 from mazelab.experiments.units import run_unit_timed
 
 CONNECT_SECONDS = 3  # a scheduler that does not answer within this is reported unreachable
+DASK_TIMEOUT = 300.0  # seconds without any finished run after which a study on Dask gives up (--dask-timeout)
+SCHEMES = ("tcp",)  # what --dask takes: tls, ucx and others need a security or transport setup of their own
+
+
+class ClusterLost(RuntimeError):  # noqa: N818 (a state, as KeyboardInterrupt)
+    """The Dask cluster went away (its scheduler died) or stopped finishing runs (no worker left):
+    str() is one line saying which; the finished runs are kept."""
 
 
 def connect(address: str, timeout: float = CONNECT_SECONDS) -> Any:
     """A dask.distributed Client of the scheduler at `address` (e.g. tcp://10.0.0.5:8786), or a
-    ValueError of one line: dask missing, or the scheduler unreachable within `timeout` seconds."""
+    ValueError of one line: dask missing, another scheme than tcp://, or the scheduler unreachable
+    within `timeout` seconds (probed with a plain socket first, so no half-made Client lingers)."""
     try:
         from distributed import Client
     except ImportError:
         raise ValueError('--dask needs dask.distributed: pip install -e ".[dask]"') from None
-    from distributed.comm import parse_address
-    from distributed.comm.addressing import parse_host_port
-
-    try:  # a malformed address is refused here: a Client that fails to parse it lingers at exit
-        scheme, location = parse_address(address)
-        if scheme in ("tcp", "tls"):
-            parse_host_port(location)
-    except (ValueError, TypeError) as error:
-        raise ValueError(f"--dask {address!r} is not a scheduler address like tcp://HOST:8786 ({error})") from None
-    logging.getLogger("distributed").setLevel(logging.CRITICAL)  # its retry warnings, one per attempt
+    host, port = parse_scheduler_address(address)
+    quiet_distributed()
+    try:
+        with socket.create_connection((host, port), timeout=timeout):
+            pass
+    except OSError as error:
+        reason = error.strerror or type(error).__name__ if not isinstance(error, TimeoutError) else "no answer"
+        raise ValueError(f"cannot reach the Dask scheduler at {address!r}: {reason} within {timeout:g} s") from None
     try:
         return Client(address, timeout=timeout, set_as_default=False)
-    except Exception as error:  # OSError, TimeoutError, ValueError (a malformed address), ...
+    except MemoryError:  # something answers there, but not Dask's protocol (a frame of exabytes)
+        raise ValueError(f"cannot reach the Dask scheduler at {address!r}: what answers there is not one") from None
+    except Exception as error:  # OSError, TimeoutError, ValueError (not a scheduler there), ...
         reason = str(error).splitlines()[0] if str(error) else type(error).__name__
         raise ValueError(f"cannot reach the Dask scheduler at {address!r}: {reason}") from None
 
 
+def parse_scheduler_address(address: str) -> tuple[str, int]:
+    """(host, port) of tcp://HOST:PORT, or a one-line ValueError naming --dask."""
+    from distributed.comm import parse_address
+    from distributed.comm.addressing import parse_host_port
+
+    usage = f"--dask {address!r} is not a scheduler address like tcp://HOST:8786"
+    try:  # a malformed address is refused here: a Client that fails to parse it lingers at exit
+        scheme, location = parse_address(address)
+        if scheme not in SCHEMES:
+            raise ValueError(f"{usage} (only tcp:// is supported, not {scheme}://)")
+        host, port = parse_host_port(location)
+    except ValueError as error:
+        raise ValueError(str(error) if str(error).startswith(usage) else f"{usage} ({error})") from None
+    except TypeError as error:
+        raise ValueError(f"{usage} ({error})") from None
+    if not port or not 0 < int(port) < 65536:
+        raise ValueError(f"{usage} (no port)")
+    return host, int(port)
+
+
+def quiet_distributed() -> None:
+    """distributed's own logging (retries, lost connections, tracebacks) off, and the noise of a
+    Client collected late ("Exception ignored in Client.__del__") dropped: this program says in one
+    line what went wrong."""
+    for name in ("distributed", "tornado", "asyncio"):
+        logging.getLogger(name).setLevel(logging.CRITICAL + 1)
+    previous = sys.unraisablehook
+    if getattr(previous, "_mazelab_quiet", False):
+        return
+
+    def hook(unraisable: Any) -> None:
+        where = " ".join(
+            str(getattr(thing, "__module__", "") or "") for thing in (unraisable.object, type(unraisable.object))
+        )
+        if "distributed" not in where and "tornado" not in where:
+            previous(unraisable)
+
+    hook._mazelab_quiet = True  # type: ignore[attr-defined]
+    sys.unraisablehook = hook
+
+
 def close_client(client: Any) -> None:
-    """Close the connection (the cluster itself goes on)."""
+    """Close the connection (the cluster itself goes on); quietly, also when the cluster is gone."""
     with contextlib.suppress(Exception):
         client.close(timeout=CONNECT_SECONDS)
 
@@ -51,40 +104,81 @@ def run_on_dask(
     run_here: Callable[[], None],
     collect: Callable[[list], None],
     advance: Callable[..., None],
+    timeout: float = DASK_TIMEOUT,
 ) -> None:
     """Submit every unit, run `run_here` (the drawn run) meanwhile, and collect the units as they
     finish. On Ctrl-C (or SIGTERM/SIGHUP), cancel the remaining units, keep the finished ones and
-    raise the stop again."""
-    from distributed import as_completed
-
+    raise the stop again. A lost scheduler, or `timeout` seconds without a finished unit (no worker
+    left), raises ClusterLost after the finished units are collected."""
     futures = dict(zip(client.map(run_unit_timed, units, pure=False), units, strict=True))
     taken: set[Any] = set()
+    finished: queue.SimpleQueue[Any] = queue.SimpleQueue()  # futures as they finish (or fail, or are cancelled)
+    for future in futures:
+        future.add_done_callback(finished.put)
 
     def take(future: Any) -> None:
         taken.add(future)
         unit = futures[future]
         try:
             collect(future.result())
+        except CancelledError:  # the scheduler went away with it: not the run's fault
+            raise ClusterLost("lost the Dask scheduler (it cancelled the runs not finished)") from None
         except Exception as error:  # the unit failed on the worker (e.g. mazelab missing there)
             collect([RunFailure(task, f"on the Dask cluster: {type(error).__name__}: {error}") for task in unit])
         advance(len(unit))
 
+    def take_finished() -> None:
+        for future in futures:  # the runs that did finish are kept
+            if future not in taken and future.status == "finished":
+                with contextlib.suppress(ClusterLost):
+                    take(future)
+
+    def cancel_rest() -> None:
+        with contextlib.suppress(Exception):
+            client.cancel([f for f in futures if f not in taken], force=True)
+
     try:
         run_here()
-        for future in as_completed(list(futures), loop=client.loop):
-            take(future)
-    except KeyboardInterrupt:
-        with contextlib.suppress(Exception):
-            client.cancel([f for f in futures if f not in taken])
-        for future in futures:
-            if future not in taken and future.status == "finished":
+        while len(taken) < len(futures):
+            try:
+                future = finished.get(timeout=timeout)
+            except queue.Empty:
+                raise ClusterLost(
+                    f"no run finished on the Dask cluster within {timeout:g} s (--dask-timeout): "
+                    f"{describe_workers(client)}"
+                ) from None
+            if future not in taken:
                 take(future)
+            if client.status not in ("running", "connecting"):
+                raise ClusterLost(f"lost the connection to the Dask scheduler ({client.status})")
+    except ClusterLost:
+        take_finished()
+        cancel_rest()
         raise
+    except KeyboardInterrupt:
+        cancel_rest()
+        take_finished()
+        raise
+
+
+def describe_workers(client: Any) -> str:
+    """'no worker is left' or 'N worker(s) connected', for the timeout's message."""
+    try:
+        count = len(client.scheduler_info(n_workers=-1).get("workers", {}))
+    except TypeError:  # an older distributed without n_workers
+        count = len(client.scheduler_info().get("workers", {}))
+    except Exception:
+        return "the scheduler does not answer"
+    return "no worker is left" if count == 0 else f"{count} worker(s) connected, none finishing"
 
 
 __all__ = [
     "CONNECT_SECONDS",
+    "DASK_TIMEOUT",
+    "ClusterLost",
     "close_client",
     "connect",
+    "parse_scheduler_address",
+    "quiet_distributed",
     "run_on_dask",
 ]

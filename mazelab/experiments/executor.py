@@ -13,6 +13,8 @@ import signal
 import sys
 import threading
 import time
+import warnings
+from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
@@ -20,7 +22,7 @@ from contextlib import contextmanager, suppress
 from typing import Any
 
 from mazelab.experiments.batch_runs import study_units
-from mazelab.experiments.dask_runner import close_client, connect, run_on_dask
+from mazelab.experiments.dask_runner import DASK_TIMEOUT, ClusterLost, close_client, connect, run_on_dask
 from mazelab.experiments.study import (
     RunFailure,
     RunRecord,
@@ -53,6 +55,7 @@ def run_study(
     on_records: Callable[[list[RunRecord]], None] | None = None,
     dask: Any = None,
     ignore_signals_after_stop: bool = False,
+    dask_timeout: float = DASK_TIMEOUT,
 ) -> StudyOutcome:
     """Run every task, on `workers` processes (default: all cores) or on a Dask cluster: `dask` is its
     scheduler's address (connected and closed here) or a dask.distributed Client; any stop keeps the
@@ -62,7 +65,9 @@ def run_study(
     A run that raises becomes a RunFailure; the others go on. `on_records` is handed each finished
     run's records as they come (the study's CSV appends them). A stop sets outcome.interrupted and
     outcome.stopped_by (the signal's number: SIGINT for Ctrl-C); with `ignore_signals_after_stop` (a
-    command about to exit), further Ctrl-C, SIGTERM and SIGHUP are ignored from then on.
+    command about to exit), further Ctrl-C, SIGTERM and SIGHUP are ignored from then on. A lost Dask
+    cluster (its scheduler gone, or `dask_timeout` seconds without a finished run) or a local pool
+    whose workers keep dying ends the study early: outcome.lost says why, in one line.
     """
     workers = default_workers() if workers is None else workers
     if workers < 1:
@@ -86,7 +91,8 @@ def run_study(
                 drawn, rest = (list(tasks[:1]), list(tasks[1:])) if visualize else ([], list(tasks))
                 units = study_units(rest, 1 if client is not None else workers)
                 if client is not None:
-                    run_on_dask(client, units, lambda: _run_drawn(drawn, visualize, collect, advance), collect, advance)
+                    here = lambda: _run_drawn(drawn, visualize, collect, advance)  # noqa: E731
+                    run_on_dask(client, units, here, collect, advance, dask_timeout)
                 elif workers == 1 or len(units) <= 1:
                     _run_drawn(drawn, visualize, collect, advance)
                     for unit in units:
@@ -94,6 +100,8 @@ def run_study(
                         advance(len(unit))
                 else:
                     _run_in_pool(units, drawn, workers, visualize, collect, advance)
+            except (ClusterLost, PoolLost) as lost:
+                outcome.lost = str(lost)
             except KeyboardInterrupt as stop:
                 if ignore_signals_after_stop:
                     _ignore(STOP_SIGNALS)
@@ -137,15 +145,16 @@ def _run_in_pool(
     """Units of runs on a process pool (the drawn ones here meanwhile), at most two per worker handed
     out at a time. On Ctrl-C, hand out no more and let the running units finish; on a second Ctrl-C,
     SIGTERM or SIGHUP end the workers at once. Every finished result is kept; the stop is raised again."""
-    pool = ProcessPoolExecutor(max_workers=min(workers, len(units)), initializer=_worker_setup)
-    waiting = iter(units)
+    size = min(workers, len(units))
+    pool = ProcessPoolExecutor(max_workers=size, initializer=_worker_setup)
+    waiting = deque(units)
     running: dict[Future, tuple[RunTask, ...]] = {}
+    restarts = 0
 
     def hand_out() -> None:
-        for unit in waiting:
+        while waiting and len(running) < 2 * workers:
+            unit = waiting.popleft()
             running[pool.submit(run_unit_timed, unit)] = unit
-            if len(running) >= 2 * workers:
-                return
 
     def take(done: set[Future], finished_only: bool = False) -> None:
         for future in done:
@@ -154,12 +163,35 @@ def _run_in_pool(
                 collect(_result_of(future, unit))
                 advance(len(unit))
 
+    def restart_if_broken(done: set[Future]) -> set[Future]:
+        """A worker killed (kill -9, out of memory) breaks the pool: its unfinished units go back in
+        the queue and a new pool starts, at most MAX_POOL_RESTARTS times; the finished ones are kept."""
+        nonlocal pool, restarts
+        if not any(isinstance(f.exception(), BrokenProcessPool) for f in done):
+            return done
+        restarts += 1
+        if restarts > MAX_POOL_RESTARTS:
+            raise PoolLost(f"worker processes died {restarts} times (killed, or out of memory?)")
+        finished = {f for f in running if f.done() and f.exception() is None}
+        for future in [f for f in running if f not in finished]:
+            waiting.appendleft(running.pop(future))
+        warnings.warn("a worker process died (killed, or out of memory?): its runs start again on a new pool",
+                      stacklevel=2)  # fmt: skip
+        _end_workers(pool)
+        pool = ProcessPoolExecutor(max_workers=size, initializer=_worker_setup)
+        return finished
+
     try:
         hand_out()
         _run_drawn(drawn, visualize, collect, advance)
         while running:
-            take(wait(running, return_when=FIRST_COMPLETED)[0])
+            take(restart_if_broken(wait(running, return_when=FIRST_COMPLETED)[0]))
             hand_out()
+    except PoolLost:
+        with _signals_ignored():
+            take({future for future in running if future.done() and future.exception() is None})
+            _end_workers(pool)
+        raise
     except KeyboardInterrupt as stop:
         if not isinstance(stop, StudyStopped):
             try:  # the workers ignore Ctrl-C and finish what they were handed
@@ -193,6 +225,13 @@ def _result_of(future: Future, unit: tuple[RunTask, ...]) -> list[list[RunRecord
         return future.result()
     except BrokenProcessPool:
         return [RunFailure(task, "its worker process died (out of memory?)") for task in unit]
+
+
+MAX_POOL_RESTARTS = 3  # a pool whose workers die more often than this stops the study (rows kept)
+
+
+class PoolLost(RuntimeError):  # noqa: N818 (a state, as ClusterLost)
+    """The local pool's workers keep dying: str() is one line; the finished runs are kept."""
 
 
 PR_SET_PDEATHSIG = 1  # linux/prctl.h: the signal a process gets when its parent dies
@@ -305,7 +344,9 @@ def progress_bar(total: int, show: bool, what: str = "runs") -> Iterator[Callabl
 
 
 __all__ = [
+    "MAX_POOL_RESTARTS",
     "STOP_SIGNALS",
+    "PoolLost",
     "StudyStopped",
     "default_workers",
     "die_with_parent",

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from mazelab import maze_generator
+from mazelab.checks import check_bandwidth_within, check_sigma_within
 from mazelab.contract import options_for
 from mazelab.experiments.runs import parse_filters
 from mazelab.experiments.study import (
@@ -43,6 +44,7 @@ def study_mazes(
         for rows, columns in (maze_generator.parse_size(s) for s in (sizes or ["10x10"])):
             counts = list(stations) if stations else [maze_generator.default_station_count(rows, columns)]
             for count, share in itertools.product(counts, wall_shares or [DEFAULT_WALL_SHARE]):
+                maze_generator.check_generation(rows, columns, count, share)  # --stations 0: refused up front
                 mazes.append(MazeChoice.generated(rows, columns, count, share))
     return mazes or file_mazes([str(find_maze(DEFAULT_MAZE))], load_maze)
 
@@ -168,9 +170,20 @@ def plan_study(
     check_particles(max(particles))
     settings = study_settings(mazes, sigma, delta, particles, threshold, recovery, bandwidth, estimate)
     check_study(len(settings) * runs, len(names))
+    check_study_numbers(settings)
     plan = StudyPlan(settings, names, runs, steps, new_seed() if seed is None else seed, kidnap_at, kld, traces)
     plan.tasks()  # checks runs, steps and kidnap_at
     return plan
+
+
+def check_study_numbers(settings: Sequence[Any]) -> None:
+    """Each setting's sigma and numeric RPF bandwidth within the ranges of its maze (mazelab.checks),
+    before any run starts."""
+    for setting in settings:
+        maze = setting.maze
+        rows, columns = maze.size if maze.grid is None else (len(maze.grid), len(maze.grid[0]))
+        check_sigma_within(setting.sigma, columns, rows)
+        check_bandwidth_within(setting.bandwidth, columns, rows)
 
 
 def _filter_list(filters: Sequence[Any]) -> list[Any]:

@@ -1,64 +1,166 @@
-"""A study's CSV as it grows: each finished run's rows are appended (and flushed) as they come, so a
-study stopped any way (Ctrl-C, SIGTERM, kill -9) keeps every finished row. At the end the command
-replaces the file, whole, by the rows in (setting, run, filter) order."""
+"""A study's CSV as it grows: each finished run's rows are appended (and flushed) to a partial file
+beside the CSV, `NAME.csv.partial`, so a study stopped any way (Ctrl-C, SIGTERM, kill -9, a lost
+cluster, a full disk) keeps every finished row there, and the CSV itself is the old file or the new
+whole one, never a cut one. At the end the whole CSV, in (setting, run, filter) order, is written
+through mazelab.atomic and the partial file removed.
+
+The partial file is created exclusively and locked while its study runs: a second study with the
+same CSV is refused, and a partial file left by a study that was stopped is reported (and replaced
+only with --force)."""
 
 from __future__ import annotations
 
 import contextlib
 import csv
+import io
+import os
 from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
-from typing import TextIO
 
+from mazelab.atomic import output_target, write_all, write_text_atomically
 from mazelab.experiments.study import RunRecord
-from mazelab.experiments.summary import CSV_COLUMNS
+from mazelab.experiments.summary import CSV_COLUMNS, study_csv
 from mazelab.experiments.tables import csv_cell
+
+try:
+    import fcntl
+except ImportError:  # Windows: no advisory locks; the exclusive creation still refuses a second study
+    fcntl = None  # type: ignore[assignment]
+
+PARTIAL_SUFFIX = ".partial"
+
+
+class PartialFileError(ValueError):
+    """A study's partial file that is in the way: another study's, or an earlier stopped one's."""
+
+
+def partial_path(path: str | Path) -> Path:
+    """Where a study's rows go while it runs: NAME.csv.partial beside NAME.csv."""
+    path = Path(path)
+    return path.with_name(path.name + PARTIAL_SUFFIX)
+
+
+def rows_text(records: Sequence[RunRecord], header: bool = False) -> str:
+    """CSV lines of `records` (with the header line first if asked)."""
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, fieldnames=CSV_COLUMNS, lineterminator="\n")
+    if header:
+        writer.writeheader()
+    for record in records:
+        writer.writerow({k: csv_cell(v) for k, v in asdict(record).items()})
+    return buffer.getvalue()
 
 
 class RowLog:
-    """Appends a study's rows to `path` as runs finish; a write error stops the appending and is kept
-    in `error` (the study goes on; the command reports it after the table)."""
+    """Appends a study's rows to `partial` (NAME.csv.partial) as runs finish. A write error stops the
+    appending (the partial file is cut back to its last whole row) and is kept in `error`: the study
+    goes on, and `finish` still tries to write the whole CSV from the rows in memory.
 
-    def __init__(self, path: str | Path):
+    Raises PartialFileError (a ValueError: one line) when another study writes the same partial file,
+    or when one is left from a stopped study and `replace` is False; `note` says when one was replaced."""
+
+    def __init__(self, path: str | Path, *, replace: bool = False, adopt: bool = False):
         self.path = Path(path)
+        self.adopt = adopt  # --resume: a leftover partial file is this study's own (its kept rows are re-appended)
+        self.partial = partial_path(self.path)
+        self.replace = replace
         self.error: OSError | None = None
-        self._stream: TextIO | None = None
+        self.note: str | None = None
+        self._size = 0  # bytes of whole rows in the partial file
+        output_target(self.path, replace)  # a device, pipe or folder; an existing CSV without --force
+        self._handle: int | None = self._open_partial()
         try:
-            self._stream = open(self.path, "w", encoding="utf-8", newline="")  # noqa: SIM115 (held for the study)
-            self._writer = csv.DictWriter(self._stream, fieldnames=CSV_COLUMNS, lineterminator="\n")
-            self._writer.writeheader()
-            self._stream.flush()
+            self._write(rows_text([], header=True))
         except OSError as error:
             self._fail(error)
+
+    def _open_partial(self) -> int:
+        output_target(self.partial, True)  # a device or folder of that name is never written
+        try:
+            handle = os.open(self.partial, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+            left = False
+        except FileExistsError:
+            handle = os.open(self.partial, os.O_WRONLY)
+            left = True
+        if not _lock(handle):
+            os.close(handle)
+            raise PartialFileError(f"another study is writing {self.partial}: give this one another --csv")
+        if left:
+            if not (self.replace or self.adopt):
+                os.close(handle)
+                raise PartialFileError(
+                    f"{self.partial} holds the rows of an earlier study that was stopped: move it away, "
+                    "or use --force to discard it"
+                )
+            os.ftruncate(handle, 0)
+            if not self.adopt:
+                self.note = f"discarded the rows of an earlier stopped study in {self.partial} (--force)"
+        return handle
 
     def append(self, records: Sequence[RunRecord]) -> None:
-        """Write one finished run's rows and flush them to the file."""
-        if self._stream is None:
+        """Write one finished run's rows to the partial file."""
+        if self._handle is None:
             return
         try:
-            for record in records:
-                self._writer.writerow({k: csv_cell(v) for k, v in asdict(record).items()})
-            self._stream.flush()
+            self._write(rows_text(records))
         except OSError as error:
             self._fail(error)
 
+    def _write(self, text: str) -> None:
+        if self._handle is None:
+            return
+        write_all(self._handle, text.encode("utf-8"))
+        self._size += len(text.encode("utf-8"))
+
+    def finish(self, records: Sequence[RunRecord]) -> None:
+        """Write the whole CSV (old file or new whole one) from `records`, then remove the partial
+        file; on a write error (raised) the partial file stays, named by `kept`."""
+        write_text_atomically(self.path, study_csv(records), replace=self.replace)
+        with contextlib.suppress(OSError):
+            self.partial.unlink()
+        self.close()
+
+    def kept(self) -> str:
+        """Where the finished rows are, for a message: 'they are in NAME.csv.partial'."""
+        return f"the finished rows are in {self.partial}"
+
     def close(self) -> None:
-        if self._stream is not None:
-            try:
-                self._stream.close()
-            except OSError as error:
-                self.error = self.error or error
-            self._stream = None
+        """Stop appending and release the partial file (it stays where it is)."""
+        if self._handle is not None:
+            with contextlib.suppress(OSError):
+                os.close(self._handle)
+            self._handle = None
+
+    def discard(self) -> None:
+        """Remove the partial file (a study that did not start)."""
+        self.close()
+        with contextlib.suppress(OSError):
+            self.partial.unlink()
 
     def _fail(self, error: OSError) -> None:
         self.error = self.error or error
-        if self._stream is not None:
+        if self._handle is not None:
             with contextlib.suppress(OSError):
-                self._stream.close()
-            self._stream = None
+                os.ftruncate(self._handle, self._size)  # no row cut in half
+        self.close()
+
+
+def _lock(handle: int) -> bool:
+    """Lock the partial file for this study; False if another study holds it."""
+    if fcntl is None:
+        return True
+    try:
+        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        return False
+    return True
 
 
 __all__ = [
+    "PARTIAL_SUFFIX",
+    "PartialFileError",
     "RowLog",
+    "partial_path",
+    "rows_text",
 ]

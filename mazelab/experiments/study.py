@@ -403,6 +403,7 @@ class StudyOutcome:
     interrupted: bool = False
     stopped_by: int | None = None  # the signal that stopped it (2: Ctrl-C), None if it ran to the end
     tasks: int = 0
+    lost: str | None = None  # why the study stopped early without a signal (a lost cluster or pool), one line
 
     def add(self, outcome: list[RunRecord] | RunFailure) -> None:
         if isinstance(outcome, RunFailure):

@@ -73,8 +73,11 @@ def _named(parameter: str, value: Any) -> str:
     return format_value(value) if parameter == "maze" else f"{parameter} {format_value(value)}"
 
 
-def plot_study(summaries: Sequence[StudySummary], varied: Sequence[str], path: Path, title: str) -> FigureLayout:
-    """Draw the study's small multiples to `path` (png, pdf or svg) and return their layout."""
+def plot_study(
+    summaries: Sequence[StudySummary], varied: Sequence[str], path: Path, title: str, *, replace: bool = True
+) -> FigureLayout:
+    """Draw the study's small multiples to `path` (png, pdf or svg) and return their layout (an
+    existing file is replaced only with `replace`)."""
     plt = pyplot()
     layout, panels, _ = figure_layout(summaries, varied)
     x = layout.x
@@ -127,7 +130,7 @@ def plot_study(summaries: Sequence[StudySummary], varied: Sequence[str], path: P
             seen.setdefault(label, h)
     figure.legend(list(seen.values()), list(seen), loc="outside lower center", ncols=min(4, len(seen)))
     figure.suptitle(title, fontsize=10)
-    save_figure(figure, path)
+    save_figure(figure, path, replace=replace)
     return layout
 
 

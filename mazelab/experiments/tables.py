@@ -25,14 +25,15 @@ def pyplot() -> Any:
     return plt
 
 
-def save_figure(figure: Any, path: Path) -> None:
-    """Save a matplotlib figure atomically in the format of the path's suffix, then close it."""
+def save_figure(figure: Any, path: Path, *, replace: bool = True) -> None:
+    """Save a matplotlib figure atomically in the format of the path's suffix, then close it (an
+    existing file is replaced only with `replace`)."""
     buffer = io.BytesIO()
     try:
         figure.savefig(buffer, format=path.suffix.lstrip(".").lower() or "png", dpi=150)
     finally:
         pyplot().close(figure)
-    write_bytes_atomically(path, buffer.getvalue())
+    write_bytes_atomically(path, buffer.getvalue(), replace=replace)
 
 
 def format_table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:

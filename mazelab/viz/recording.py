@@ -51,9 +51,11 @@ class Recording:
         owned: bool = True,
         sink: Any = None,
         claim_name: bool = False,
+        replace: bool = True,
     ):
         self.stream, self.path, self.server, self.owned = stream, path, server, owned
         self.sink, self.claim_name = sink, claim_name  # the binary stream of a file; a default name: never replaced
+        self.replace = replace and not claim_name  # a named file: replaced only if asked (--force)
         if sink is not None:
             hold_stop_signals(self)  # SIGTERM/SIGHUP end the run as Ctrl-C does: the steps done are saved
         self.robot_steps: set[int] = set()
@@ -62,9 +64,10 @@ class Recording:
         self.closed = False
 
     @classmethod
-    def open(cls, target: Any, world: Maze, blueprint: Any, *, label: str) -> Recording | None:
+    def open(cls, target: Any, world: Maze, blueprint: Any, *, label: str, replace: bool = True) -> Recording | None:
         """A recording going where `target` says (see the `visualize` values), with the maze logged;
-        None, after a line saying so, when Rerun is switched off (RERUN=off)."""
+        None, after a line saying so, when Rerun is switched off (RERUN=off). A named file replaces an
+        existing one only with `replace`."""
         import rerun as rr
 
         if isinstance(target, rr.RecordingStream):
@@ -75,12 +78,12 @@ class Recording:
                 print(RERUN_OFF_NOTE)
                 return None
             stream = rr.RecordingStream(APPLICATION_ID, recording_id=str(uuid.uuid4()))
-            recording = cls._to(stream, target, blueprint, label)
+            recording = cls._to(stream, target, blueprint, label, replace)
         log_maze(recording.stream, world)
         return recording
 
     @classmethod
-    def _to(cls, stream: Any, target: Any, blueprint: Any, label: str) -> Recording:
+    def _to(cls, stream: Any, target: Any, blueprint: Any, label: str, replace: bool = True) -> Recording:
         import rerun as rr
 
         default_name = target is True or target in ("auto", "viewer", "web")
@@ -105,7 +108,7 @@ class Recording:
             server.announced = True
             return cls(stream, path=path, server=server, sink=sink, claim_name=True)
         stream.set_sinks(sink, default_blueprint=blueprint)
-        return cls(stream, path=path, sink=sink, claim_name=default_name)
+        return cls(stream, path=path, sink=sink, claim_name=default_name, replace=replace)
 
     def log_robot(self, step: int, position: Sequence[float], heading: float | None) -> None:
         """The robot (a green dot and its heading) and the step number, once per step of the recording:
@@ -172,17 +175,25 @@ class Recording:
         data = self.sink.read() or b""
         while True:
             try:
-                write_bytes_atomically(self.path, data, replace=not self.claim_name)
+                write_bytes_atomically(self.path, data, replace=self.replace)
                 break
-            except FileExistsError:
+            except FileExistsError as error:
+                if not self.claim_name:  # a name the user chose, taken by another run meanwhile
+                    self._defer_or_raise(error)
+                    return
                 self.path = next_free_name(self.path)
             except WriteError as error:
-                deferred = _deferred_errors.get()
-                if deferred is None:
-                    raise
-                deferred.append(error)
+                self._defer_or_raise(error)
                 return
         print(f"Recording saved to {self.path}; open it with: {open_hint(self.path, has_display())}")
+
+    @staticmethod
+    def _defer_or_raise(error: OSError) -> None:
+        """Raise a write error now, or keep it for the end of write_errors_deferred."""
+        deferred = _deferred_errors.get()
+        if deferred is None:
+            raise error
+        deferred.append(error if isinstance(error, WriteError) else WriteError(error.errno, error.strerror))
 
 
 def rerun_switched_off() -> bool:

@@ -27,6 +27,7 @@ class Visualization:
 
     target: Any = True
     max_drawn: int = DEFAULT_MAX_DRAWN
+    replace: bool = True  # a recording file may replace an existing one (False: its name is created exclusively)
 
     def __post_init__(self) -> None:
         if isinstance(self.max_drawn, bool) or not isinstance(self.max_drawn, (int, np.integer)) or self.max_drawn < 1:

@@ -58,7 +58,9 @@ def open_view(visualize: Any, world: Maze, filter_name: str) -> Any:
     if options.target is None or options.target is False:
         return NullView()
     blueprint = run_blueprint(world, filter_name)
-    recording = Recording.open(options.target, world, blueprint, label=entity_name(filter_name))
+    recording = Recording.open(
+        options.target, world, blueprint, label=entity_name(filter_name), replace=options.replace
+    )
     if recording is None:  # Rerun is switched off (RERUN=off)
         return NullView()
     return RunView(recording, filter_name, FILTER_COLORS[0], options.max_drawn, owns_recording=True)
@@ -83,7 +85,9 @@ def open_comparison(visualize: Any, world: Maze, filter_names: Sequence[str]) ->
     names = list(dict.fromkeys(filter_names))
     if not names:
         raise ValueError("a comparison needs at least one filter")
-    recording = Recording.open(options.target, world, comparison_blueprint(world, names), label="compare")
+    recording = Recording.open(
+        options.target, world, comparison_blueprint(world, names), label="compare", replace=options.replace
+    )
     if recording is None:  # Rerun is switched off (RERUN=off)
         return NullComparison()
     return Comparison(recording, names, options.max_drawn)
