@@ -19,6 +19,7 @@ import numpy as np
 from mazelab.checks import MAX_MAZE_SIDE, regular_file_size
 from mazelab.limits import BYTES_PER_LOOKUP_CELL, BYTES_PER_MAZE_CELL, check_memory
 from mazelab.lookup import NearestStationLookup, Progress, is_scalar, lookup_cell_count
+from mazelab.maze_paths import MazeError, find_maze
 
 EMPTY, WALL, STATION_WALL = 0, 1, 2
 # At most this many rows and columns: the nearest-station table's flat cell indices stay exact in
@@ -26,10 +27,6 @@ EMPTY, WALL, STATION_WALL = 0, 1, 2
 # A maze file larger than this is refused, not read: room for the largest maze written with ", "
 # between cells (3 bytes a cell, 48 MB), comments included.
 MAZE_FILE_LIMIT_BYTES = 64 * 2**20
-
-
-class MazeError(ValueError):
-    """A maze map or maze file that cannot be used; the message names the problem (and file:line)."""
 
 
 class Maze:
@@ -50,8 +47,6 @@ class Maze:
     def from_file(cls, path: str | Path) -> Maze:
         """Read a maze text file: one row per line, cells 0/1/2 (spaces optional), '#' comments; a
         shipped maze also by its name from any folder (`Maze.from_file("paper_5x5")`)."""
-        from mazelab.mazes import find_maze  # mazes imports this module
-
         path = find_maze(path)
         text = _read_maze_file(path)
         if text.lstrip().startswith("{"):

@@ -126,10 +126,9 @@ class KLDSampling:
     max_count: int | None = None
 
     def __post_init__(self) -> None:
-        check_kld_numbers(self.epsilon, self.z)
-        for name in ("epsilon", "z", "bin_size"):
-            if not finite_number(f"KLD {name}", getattr(self, name)) > 0:
-                raise ValueError(f"KLD {name} must be > 0, got {getattr(self, name)}")
+        check_kld_numbers(self.epsilon, self.z)  # epsilon and z within ranges that keep the count finite
+        if not finite_number("KLD bin_size", self.bin_size) > 0:
+            raise ValueError(f"KLD bin_size must be > 0, got {self.bin_size}")
         if self.z < 1:
             warnings.warn(
                 f"KLD z = {self.z} looks like a probability; z is the normal quantile z_(1-delta), "

@@ -253,8 +253,10 @@ def test_kld_bound_matches_a_hand_computation():
 def test_kld_z_is_a_quantile_not_a_probability():
     with pytest.warns(UserWarning, match="looks like a probability"):
         KLDSampling(z=0.99)
-    with pytest.raises(ValueError, match="epsilon must be > 0"):
+    with pytest.raises(ValueError, match=r"KLD epsilon must lie in \[1e-09, 1\], got 0"):
         KLDSampling(epsilon=0)
+    with pytest.raises(ValueError, match="KLD bin_size must be > 0"):
+        KLDSampling(bin_size=0)
     with pytest.raises(ValueError, match="below min_count"):
         KLDSampling(min_count=100, max_count=50)
 
