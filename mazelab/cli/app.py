@@ -23,8 +23,8 @@ from typing import Annotated
 
 import typer
 
-from mazelab.atomic import WriteError, write_text_atomically
-from mazelab.cli.compare_outputs import compare_record_file, finish_compare, start_compare_record
+from mazelab.atomic import WriteError
+from mazelab.cli.compare_outputs import compare_record_file, finish_compare, report_compare, start_compare_record
 from mazelab.cli.exercise import exercise_app
 from mazelab.cli.filter_options import options_per_filter
 from mazelab.cli.hints import (
@@ -61,9 +61,10 @@ from mazelab.cli.provenance import remember_arguments, show_version
 from mazelab.cli.replay import from_scenario, refuse_counts_for_replay, replay_seed
 from mazelab.cli.replay_filter import replay_filter_name, replay_options
 from mazelab.cli.reports import kidnap_report, particle_count_report, prepare_world, progress_printer, report_run
+from mazelab.cli.run_setup import fresh_setup, replay_setup
 from mazelab.cli.studies import accuracy, study, study_mazes
 from mazelab.cli.view import view
-from mazelab.experiments.compare import compare_filters, comparison_table, errors_csv, plot_errors
+from mazelab.experiments.compare import compare_filters
 from mazelab.experiments.executor import STOP_SIGNALS
 from mazelab.experiments.runs import parse_filters
 from mazelab.invocation import command_prefix
@@ -206,38 +207,12 @@ def run(
         if path is not None:
             check_output_path(path, force)
     if stored is not None:
-        options = replay_options(ctx, stored, filter_name, options)
         refuse_counts_for_replay(stored, particles, steps, start_seed)
-        world, robot, sigma, delta, init_particles = from_scenario(stored, maze, sigma, delta)
-        seed = replay_seed(stored, seed)
-        particles_arg, steps_arg = None, None
+        setup = replay_setup(stored, maze, sigma, delta, seed, replay_options(ctx, stored, filter_name, options))
     else:
-        world = load_maze(maze or DEFAULT_MAZE)
-        sigma = DEFAULT_SIGMA if sigma is None else sigma
-        delta = DEFAULT_DELTA if delta is None else delta
-        seed = new_seed() if seed is None else seed
-        if start_seed is not None and start_seed != seed:
-            warnings.warn(f"--start-seed {start_seed} differs from --seed {seed}: repeat with both", stacklevel=1)
-        robot = Robot(sigma, delta, start_place(world, seed if start_seed is None else start_seed))
-        init_particles, particles_arg, steps_arg = None, particles, steps or DEFAULT_STEPS
-    prepare_world(world)
-    total = steps_arg or robot.recorded_steps
+        setup = fresh_setup(maze, sigma, delta, seed, start_seed, particles, steps, options)
     with scenario_not_saved_on_stop(save_scenario_path):
-        result = simulate(
-            robot,
-            world,
-            sigma,
-            delta,
-            particles_arg,
-            steps_arg,
-            init_particles,
-            filter_name,
-            seed=seed,
-            visualize=visualize,
-            on_step=None if quiet else progress_printer(total),
-            kidnap_at=kidnap_at,
-            **options,
-        )
+        result = setup.run(filter_name, visualize=visualize, quiet=quiet, kidnap_at=kidnap_at)
     report_run(result)
     for line in (kidnap_report(result), particle_count_report(result) if kld else None):
         if line:
@@ -306,10 +281,7 @@ def compare(
     check_filter_names(filters)
     check_outputs(csv_path, plot, force, rrd)
     record_file = compare_record_file(csv_path, plot, traces, force)  # a JSON record beside the outputs
-    stored = load_scenario(scenario)
-    world, robot, sigma, delta, particles = from_scenario(stored, maze, sigma, delta)
-    prepare_world(world)
-    seed = replay_seed(stored, seed)
+    setup = replay_setup(load_scenario(scenario), maze, sigma, delta, seed, {})
     names = parse_filters(filters)
     given = {
         "recovery": recovery_option(recovery, sensor_resetting, alpha_slow, alpha_fast),
@@ -318,38 +290,25 @@ def compare(
         "estimate": None if estimate is None else check_estimate(estimate),
     }
     options_per_filter(names, given)  # a flag that none of the filters takes: one line, before any work
-    parameters = {"filters": names, "sigma": sigma, "delta": delta, "seed": seed, "kidnap_at": kidnap_at, "kld": kld,
-                  "recovery": recovery or sensor_resetting, "bandwidth": bandwidth, "estimate": estimate}  # fmt: skip
+    parameters = {"filters": names, "sigma": setup.sigma, "delta": setup.delta, "seed": setup.seed,
+                  "kidnap_at": kidnap_at, "kld": kld, "recovery": recovery or sensor_resetting,
+                  "bandwidth": bandwidth, "estimate": estimate}  # fmt: skip
     recorder = start_compare_record(scenario, parameters)
+    prepare_world(setup.world)
     typer.echo(
-        f"{scenario.name}: {len(particles)} particles, {robot.recorded_steps} steps, "
-        f"sigma {sigma:g}, delta {delta:g}, seed {seed}"
+        f"{scenario.name}: {len(setup.initial_particles)} particles, {setup.robot.recorded_steps} steps, "
+        f"sigma {setup.sigma:g}, delta {setup.delta:g}, seed {setup.seed}"
     )
     results = compare_filters(
-        world,
-        robot,
-        sigma,
-        delta,
-        particles,
-        names,
-        seed=seed,
-        visualize=visualize,
-        kidnap_at=kidnap_at,
-        **given,
+        setup.world, setup.robot, setup.sigma, setup.delta, setup.initial_particles, names,
+        seed=setup.seed, visualize=visualize, kidnap_at=kidnap_at, **given,
+    )  # fmt: skip
+    title = (
+        f"Localisation error: {scenario.name} (sigma {setup.sigma:g}, delta {setup.delta:g}, "
+        f"{len(setup.initial_particles)} particles)"
     )
-    kidnapping = next(iter(results.values()))
-    if kidnapping.kidnap_at is not None and kidnapping.kidnap_position is not None:
-        x, y = kidnapping.kidnap_position
-        typer.echo(f"kidnapped at step {kidnapping.kidnap_at} to ({x:.2f}, {y:.2f})")
-    typer.echo(comparison_table(results, kld=kld))
-    if csv_path is not None:
-        write_text_atomically(csv_path, errors_csv(results), replace=force)
-        typer.echo(f"per-step errors written to {csv_path}")
-    if plot is not None:
-        title = f"Localisation error: {scenario.name} (sigma {sigma:g}, delta {delta:g}, {len(particles)} particles)"
-        plot_errors(results, plot, title, replace=force)
-        typer.echo(f"figure written to {plot}")
-    finish_compare(results, seed, traces, recorder, record_file)
+    report_compare(results, kld=kld, csv_path=csv_path, plot=plot, title=title, force=force)
+    finish_compare(results, setup.seed, traces, recorder, record_file)
 
 
 app.command(short_help="Lab step 14: a Monte Carlo parameter study.")(study)

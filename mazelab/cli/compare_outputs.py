@@ -1,4 +1,5 @@
-"""compare's per-step traces (--traces) and its JSON record (beside --csv, --plot or --traces)."""
+"""compare's report: the table, the per-step errors (--csv), the lab's figure (--plot), the per-step
+traces (--traces) and its JSON record (beside --csv, --plot or --traces)."""
 
 from __future__ import annotations
 
@@ -7,8 +8,10 @@ from typing import Any
 
 import typer
 
+from mazelab.atomic import write_text_atomically
 from mazelab.cli.options import check_output_path
 from mazelab.cli.provenance import command_line
+from mazelab.experiments.compare import comparison_table, errors_csv, plot_errors
 from mazelab.experiments.record import Recorder, file_sha256, record_path
 from mazelab.experiments.runs import final_error, mean_ess
 from mazelab.experiments.traces import check_trace_path, compare_traces, write_traces
@@ -31,6 +34,23 @@ def start_compare_record(scenario: Path, parameters: dict[str, Any]) -> Recorder
     """The record of a compare, started before its runs."""
     return Recorder("compare", command_line(), {**parameters, "scenario": str(scenario)},
                     scenario_sha256=file_sha256(scenario))  # fmt: skip
+
+
+def report_compare(
+    results: dict[str, RunResult], *, kld: bool, csv_path: Path | None, plot: Path | None, title: str, force: bool
+) -> None:
+    """The kidnapping (if any), the table, then the per-step errors and the figure."""
+    kidnapping = next(iter(results.values()))
+    if kidnapping.kidnap_at is not None and kidnapping.kidnap_position is not None:
+        x, y = kidnapping.kidnap_position
+        typer.echo(f"kidnapped at step {kidnapping.kidnap_at} to ({x:.2f}, {y:.2f})")
+    typer.echo(comparison_table(results, kld=kld))
+    if csv_path is not None:
+        write_text_atomically(csv_path, errors_csv(results), replace=force)
+        typer.echo(f"per-step errors written to {csv_path}")
+    if plot is not None:
+        plot_errors(results, plot, title, replace=force)
+        typer.echo(f"figure written to {plot}")
 
 
 def finish_compare(
@@ -57,4 +77,4 @@ def finish_compare(
         typer.echo(f"the record (command, versions, scenario hash, summary) written to {record_file}")
 
 
-__all__ = ["compare_record_file", "finish_compare", "start_compare_record"]
+__all__ = ["compare_record_file", "finish_compare", "report_compare", "start_compare_record"]

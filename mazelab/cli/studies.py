@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import signal
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -39,7 +40,7 @@ from mazelab.experiments.resume import RESUME_IGNORES, missing_tasks, read_study
 from mazelab.experiments.rowlog import RowLog, partial_path
 from mazelab.experiments.runs import parse_filters
 from mazelab.experiments.stats import CONFIDENCE_LEVEL
-from mazelab.experiments.study import MazeChoice, RunRecord, RunTask
+from mazelab.experiments.study import MazeChoice, RunRecord, RunTask, StudyOutcome
 from mazelab.experiments.summary import study_table, summarise_study
 from mazelab.experiments.traces import check_trace_path, kept_traces, study_traces, write_traces
 from mazelab.mazes import DEFAULT_MAZE
@@ -94,47 +95,109 @@ def study(
     Each filter runs once per value of its own options; a JSON record goes beside the outputs
     (README: "Parameter studies")."""
     visualize = visualization(viewer, rrd, web, no_viz, max_drawn, force) if viewer or web or rrd is not None else False
-    record_file = record if record is not None else next((record_path(p) for p in (csv_path, plot, traces) if p), None)
-    recorded = _check_resume(csv_path, record_file) if resume else None
-    if recorded is not None and seed is None:
-        seed = recorded["parameters"]["root_seed"]
-    check_outputs(None if resume else csv_path, plot, force or resume, rrd)  # --resume replaces its own outputs
-    for path in (traces, record_file):
-        if path is not None and not resume:
-            check_output_path(path, force)
-    if traces is not None:
-        check_trace_path(traces)
-    options_per_filter(  # a flag that none of the filters takes: one line, before any work
-        parse_filters(check_filter_names(filters)),
-        {"threshold": threshold, "recovery": None if recovery in (None, "none") else recovery,
-         "kld": kld or None, "bandwidth": bandwidth, "estimate": estimate},
+    outputs = StudyOutputs.parse(csv_path, plot, traces, record, rrd, force, resume)
+    given = {"threshold": threshold, "recovery": recovery, "bandwidth": bandwidth, "estimate": estimate}
+    plan = parse_plan(
+        outputs, filters, given, maze=maze, maze_size=maze_size, stations=stations, wall_share=wall_share,
+        sigma=sigma, delta=delta, particles=particles, runs=runs, steps=steps, seed=seed, kidnap_at=kidnap_at, kld=kld,
     )  # fmt: skip
-    threshold, recovery = threshold or str(RPF_THRESHOLD), recovery or "none"
-    bandwidth, estimate = bandwidth or "optimal", estimate or "mean"
-    plan = plan_study(
+    session = open_session(plan, outputs, visualize, draw_run, dask, workers or default_workers())
+    outcome = run_session(session, visualize, dask_timeout)
+    report_study(session, outcome, kld)
+
+
+# -- the study in three steps: parse (outputs, plan), run (a session), report -------------------------
+@dataclass
+class StudyOutputs:
+    """The study's output files, checked before any work: the CSV, figure, traces and record, and the
+    record of the study to resume (--resume)."""
+
+    csv_path: Path | None
+    plot: Path | None
+    traces: Path | None
+    record_file: Path | None
+    recorded: dict[str, Any] | None
+    force: bool
+    resume: bool
+
+    @classmethod
+    def parse(
+        cls, csv_path: Path | None, plot: Path | None, traces: Path | None, record: Path | None,
+        rrd: Path | None, force: bool, resume: bool,
+    ) -> StudyOutputs:  # fmt: skip
+        """Check the outputs (one line for a name that exists without --force, a folder, a device)."""
+        record_file = (
+            record if record is not None else next((record_path(p) for p in (csv_path, plot, traces) if p), None)
+        )
+        recorded = _check_resume(csv_path, record_file) if resume else None
+        check_outputs(None if resume else csv_path, plot, force or resume, rrd)  # --resume replaces its own outputs
+        for path in (traces, record_file):
+            if path is not None and not resume:
+                check_output_path(path, force)
+        if traces is not None:
+            check_trace_path(traces)
+        return cls(csv_path, plot, traces, record_file, recorded, force, resume)
+
+
+def parse_plan(
+    outputs: StudyOutputs, filters: str, given: dict[str, str | None], *, maze: str | None, maze_size: str | None,
+    stations: str | None, wall_share: str | None, sigma: str, delta: str, particles: str, runs: int, steps: int,
+    seed: int | None, kidnap_at: int | None, kld: bool,
+) -> StudyPlan:  # fmt: skip
+    """The study's plan from the command line's lists; a flag that none of the filters takes is refused
+    first, in one line. A resumed study keeps its recorded root seed unless --seed is given."""
+    if outputs.recorded is not None and seed is None:
+        seed = outputs.recorded["parameters"]["root_seed"]
+    recovery = given["recovery"]
+    options_per_filter(
+        parse_filters(check_filter_names(filters)),
+        {**given, "recovery": None if recovery in (None, "none") else recovery, "kld": kld or None},
+    )
+    return plan_study(
         plan_mazes(_list(maze, str, "--maze"), _list(maze_size, str, "--maze-size"),
                    _list(stations, int, "--stations"), _list(wall_share, float, "--wall-share")),
         filters,
         sigma=parse_list(sigma, float, "--sigma"),
         delta=parse_list(delta, float, "--delta"),
         particles=parse_list(particles, int, "--particles"),
-        threshold=parse_list(threshold, float, "--threshold"),
-        recovery=parse_list(recovery, str, "--recovery"),
-        bandwidth=parse_list(bandwidth, str, "--bandwidth"),
-        estimate=parse_list(estimate, str, "--estimate"),
-        runs=runs, steps=steps, seed=seed, kidnap_at=kidnap_at, kld=kld, traces=traces is not None,
+        threshold=parse_list(given["threshold"] or str(RPF_THRESHOLD), float, "--threshold"),
+        recovery=parse_list(recovery or "none", str, "--recovery"),
+        bandwidth=parse_list(given["bandwidth"] or "optimal", str, "--bandwidth"),
+        estimate=parse_list(given["estimate"] or "mean", str, "--estimate"),
+        runs=runs, steps=steps, seed=seed, kidnap_at=kidnap_at, kld=kld, traces=outputs.traces is not None,
     )  # fmt: skip
-    tasks, kept = plan.tasks(), []
+
+
+@dataclass
+class StudySession:
+    """One session of a study: its plan and outputs, the runs to go, the rows kept from an earlier
+    session, the growing CSV (NAME.csv.partial), the Dask client and the record."""
+
+    plan: StudyPlan
+    outputs: StudyOutputs
+    tasks: list[RunTask]
+    kept: list[RunRecord]
+    workers: int
+    log: RowLog | None
+    client: Any
+    recorder: Recorder
+
+
+def open_session(
+    plan: StudyPlan, outputs: StudyOutputs, visualize: Any, draw_run: int, dask: str | None, workers: int
+) -> StudySession:
+    """The runs to go, the row log, the cluster and the record; the study's header printed."""
+    tasks, kept, recorded, csv_path = plan.tasks(), [], outputs.recorded, outputs.csv_path
     if recorded is not None and csv_path is not None:
         tasks, kept = _resumed(plan, recorded, csv_path)
     tasks = _drawn_first(tasks, draw_run) if visualize else tasks
-    workers = workers or default_workers()
-    log = RowLog(csv_path, replace=force or resume, adopt=resume) if csv_path is not None else None  # NAME.csv.partial
+    replace = outputs.force or outputs.resume
+    log = RowLog(csv_path, replace=replace, adopt=outputs.resume) if csv_path is not None else None  # NAME.csv.partial
     try:
         client = connect(dask) if dask is not None else None  # a bad address: one line and exit 2, before anything
     except BaseException:
         if log is not None:
-            log.close() if resume else log.discard()
+            log.close() if outputs.resume else log.discard()
         raise
     where = f"on the Dask cluster at {dask}" if dask is not None else f"{workers} worker(s)"
     typer.echo(plan.header(where))
@@ -145,32 +208,43 @@ def study(
     if log is not None and log.note:
         typer.echo(f"note: {log.note}", err=True)
     recorder = Recorder(
-        "study", command_line(), plan.parameters(), outputs=_outputs(csv_path, plot, traces),
+        "study", command_line(), plan.parameters(), outputs=_outputs(csv_path, outputs.plot, outputs.traces),
         sessions=[*(recorded or {}).get("sessions", []), *([] if recorded is None else [_session(recorded)])],
     )  # fmt: skip
-    if record_file is not None:
-        recorder.write(record_file)  # now: an interrupted study keeps its parameters for --resume
+    if outputs.record_file is not None:
+        recorder.write(outputs.record_file)  # now: an interrupted study keeps its parameters for --resume
     if log is not None and kept:
         log.append(kept)
+    return StudySession(plan, outputs, tasks, kept, workers, log, client, recorder)
+
+
+def run_session(session: StudySession, visualize: Any, dask_timeout: float) -> StudyOutcome:
+    """The session's runs, on the workers or the cluster, rows appended to the log as they come."""
+    log = session.log
     try:
-        outcome = run_study(
-            tasks,
-            workers,
+        return run_study(
+            session.tasks,
+            session.workers,
             visualize=visualize,
             progress=True,
             on_records=None if log is None else log.append,
-            dask=client,
+            dask=session.client,
             dask_timeout=dask_timeout,
             ignore_signals_after_stop=True,  # a stopped study only saves and exits: a further Ctrl-C waits
         )
     finally:
-        if client is not None:
-            close_client(client)
+        if session.client is not None:
+            close_client(session.client)
+
+
+def report_study(session: StudySession, outcome: StudyOutcome, kld: bool) -> None:
+    """The failures, then the table (first: a write error cannot lose it), the CSV, traces, figure and
+    record; a stopped or lost study keeps its rows in the partial file and exits non-zero."""
+    plan, outputs, log = session.plan, session.outputs, session.log
     for failure in outcome.failures:
         typer.echo(f"error: {failure.describe()}", err=True)
-    records = _in_order([*kept, *outcome.records], plan)
-    finished = len({(r.setting, r.run) for r in records})
-    total = len(plan.tasks())
+    records = _in_order([*session.kept, *outcome.records], plan)
+    finished, total = len({(r.setting, r.run) for r in records}), len(plan.tasks())
     summaries = summarise_study(records, plan.settings)
     closing = {
         "runs_finished": finished,
@@ -178,42 +252,50 @@ def study(
         "failures": [f.describe() for f in outcome.failures],
         "summary": [s.as_dict() for s in summaries],
     }
-    if outcome.interrupted or outcome.lost is not None:  # the CSV stays the old file; the rows are in NAME.csv.partial
-        if log is not None:
-            log.close()
-        _write_traces(traces, _in_order(outcome.records, plan), tasks, recorded is not None)
-        if record_file is not None:
-            recorder.finish("interrupted", **closing)
-            recorder.write(record_file)
-        saved = f"; {log.kept()} (--resume goes on)" if log is not None else ""
-        if outcome.lost is not None:  # a lost cluster or pool: one line, exit 1
-            typer.echo(f"error: {outcome.lost}; {finished} of {total} runs finished{saved}", err=True)
-            raise typer.Exit(1)
-        typer.echo(f"interrupted after {finished} of {total} runs{saved}", err=True)
-        for sig in STOP_SIGNALS:  # stopping already: a further Ctrl-C, SIGTERM or SIGHUP changes nothing
-            signal.signal(sig, signal.SIG_IGN)
-        raise typer.Exit(128 + (outcome.stopped_by or signal.SIGINT))  # 130 Ctrl-C, 143 SIGTERM, 129 SIGHUP
-    typer.echo(study_table(summaries, plan.varied, kld=kld))  # the table first: a write error cannot lose it
-    seconds = recorder.finish("finished" if not outcome.failures else "finished with failures", **closing)
+    if outcome.interrupted or outcome.lost is not None:
+        report_stopped(session, outcome, closing)
+    typer.echo(study_table(summaries, plan.varied, kld=kld))
+    seconds = session.recorder.finish("finished" if not outcome.failures else "finished with failures", **closing)
     ran = len({(r.setting, r.run) for r in outcome.records})
     typer.echo(f"{ran} runs in {seconds['duration_seconds']:.1f} s wall time")
-    if csv_path is not None and log is not None:
+    if outputs.csv_path is not None and log is not None:
         try:
             log.finish(records)  # the whole CSV, in order; then the partial file goes
         except OSError as error:
             log.close()
             typer.echo(f"error: {describe_write_error(error)}; {log.kept()}", err=True)
             raise typer.Exit(1) from None
-        typer.echo(f"one row per run and filter written to {csv_path}")
-    if _write_traces(traces, _in_order(outcome.records, plan), tasks, recorded is not None):
-        typer.echo(f"per-step traces written to {traces}")
-    if plot is not None and summaries:
-        _plot(plan, summaries, plot, force)
-    if record_file is not None:
-        recorder.write(record_file)
-        typer.echo(f"the study's record (command, versions, seeds, mazes, summary) written to {record_file}")
+        typer.echo(f"one row per run and filter written to {outputs.csv_path}")
+    if _write_traces(outputs.traces, _in_order(outcome.records, plan), session.tasks, outputs.recorded is not None):
+        typer.echo(f"per-step traces written to {outputs.traces}")
+    if outputs.plot is not None and summaries:
+        _plot(plan, summaries, outputs.plot, outputs.force)
+    if outputs.record_file is not None:
+        session.recorder.write(outputs.record_file)
+        typer.echo(f"the study's record (command, versions, seeds, mazes, summary) written to {outputs.record_file}")
     if outcome.failures:
         raise typer.Exit(1)
+
+
+def report_stopped(session: StudySession, outcome: StudyOutcome, closing: dict[str, Any]) -> None:
+    """A stopped study (Ctrl-C, SIGTERM, SIGHUP) or a lost cluster: the CSV stays the old file, the
+    rows are in NAME.csv.partial (--resume goes on), the traces and the record are written; exits."""
+    outputs, log = session.outputs, session.log
+    if log is not None:
+        log.close()
+    _write_traces(outputs.traces, _in_order(outcome.records, session.plan), session.tasks, outputs.recorded is not None)
+    if outputs.record_file is not None:
+        session.recorder.finish("interrupted", **closing)
+        session.recorder.write(outputs.record_file)
+    saved = f"; {log.kept()} (--resume goes on)" if log is not None else ""
+    finished, total = closing["runs_finished"], closing["runs_in_study"]
+    if outcome.lost is not None:  # a lost cluster or pool: one line, exit 1
+        typer.echo(f"error: {outcome.lost}; {finished} of {total} runs finished{saved}", err=True)
+        raise typer.Exit(1)
+    typer.echo(f"interrupted after {finished} of {total} runs{saved}", err=True)
+    for sig in STOP_SIGNALS:  # stopping already: a further Ctrl-C, SIGTERM or SIGHUP changes nothing
+        signal.signal(sig, signal.SIG_IGN)
+    raise typer.Exit(128 + (outcome.stopped_by or signal.SIGINT))  # 130 Ctrl-C, 143 SIGTERM, 129 SIGHUP
 
 
 def dask_timeout_option(value: float) -> float:
