@@ -163,7 +163,7 @@ def small_run_ms(world: Maze, particles: int = 1500, steps: int = 200) -> tuple[
 
 
 def big_run_seconds(world: Maze, particles: int = 1_000_000, steps: int = 200) -> tuple[float, float]:
-    """A whole `simulate` run of SIR with a million particles: (seconds, final error in map units)."""
+    """A whole `simulate` run of SIR with a million particles: (seconds, last-step error in map units)."""
     robot = Robot(BENCH_SIGMA, BENCH_DELTA, world.random_free_place(np.random.default_rng(4)))
     started = time.perf_counter()
     result = simulate(robot, world, BENCH_SIGMA, BENCH_DELTA, particles, steps, seed=4)
@@ -282,7 +282,10 @@ def run_benchmark(small: Maze, quick: bool = False, echo: Callable[[str], None] 
     )
     if not quick:
         seconds, error = big_run_seconds(small)
-        echo(f"simulate(), SIR, N = 1,000,000, 200 steps on the small maze: {seconds:.1f} s (final error {error:.3f})")
+        echo(
+            f"simulate(), SIR, N = 1,000,000, 200 steps on the small maze: {seconds:.1f} s "
+            f"(last-step error {error:.3f})"
+        )
     from mazelab.bench_study import run_study_benchmark  # studies: imports the experiments
 
     run_study_benchmark(small, large, quick, echo)

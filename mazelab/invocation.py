@@ -37,6 +37,17 @@ def command_prefix(argv0: str | None = None, environ: Mapping[str, str] | None =
     return f"{shlex.quote(sys.executable)} -m mazelab"
 
 
+def python_prefix(environ: Mapping[str, str] | None = None, cwd: Path | None = None) -> str:
+    """The words that run a Python file with the lab importable: `uv run [--project CLONE] python`
+    under uv, else `python` (an activated environment or a pip install)."""
+    environ = os.environ if environ is None else environ
+    cwd = Path.cwd() if cwd is None else cwd
+    if "UV" not in environ:
+        return "python"
+    inside = _inside(cwd, PROJECT_DIR) or not (PROJECT_DIR / "pyproject.toml").is_file()
+    return "uv run python" if inside else f"uv run --project {shlex.quote(str(PROJECT_DIR))} python"
+
+
 def _inside(folder: Path, root: Path) -> bool:
     """Whether `folder` is `root` or lies below it."""
     try:
@@ -54,4 +65,4 @@ def _same_file(a: str, b: str) -> bool:
         return False
 
 
-__all__ = ["PROJECT_DIR", "command_prefix"]
+__all__ = ["PROJECT_DIR", "command_prefix", "python_prefix"]

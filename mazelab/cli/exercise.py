@@ -11,6 +11,7 @@ import typer
 from mazelab.exercise.report import check as run_check
 from mazelab.exercise.report import format_report
 from mazelab.exercise.template import write_exercise
+from mazelab.invocation import python_prefix
 from mazelab.plugins import is_plugin_spec, load_plugin
 
 exercise_app = typer.Typer(
@@ -29,7 +30,7 @@ def new(
     """Write my_filter.py (a StudentFilter with four parts to write) and a short README into DIR."""
     for path in write_exercise(folder, force):
         typer.echo(f"wrote {path}")
-    typer.echo(f"Next: python {folder / 'my_filter.py'}  (says which parts are still to write)")
+    typer.echo(f"Next: {python_prefix()} {folder / 'my_filter.py'}  (says which parts are still to write)")
 
 
 @exercise_app.command(name="check", short_help="Grade FILE[:Class]: each part, then the whole filter.")

@@ -1,7 +1,8 @@
 """Several filters on one robot walk, and the figures of one run.
 
 Figures of one run:
-    final error       the mean error over the last FINAL_SHARE (20%) of the steps: robust to one unlucky step;
+    last-20% error    `final_error` (its CSV column): the mean error over the last FINAL_SHARE (20%) of the
+                      steps, robust to one unlucky step (the last-step error is errors[-1]);
     convergence step  `convergence_step`: the step from which the error stays below CONVERGENCE_RADIUS.
 """
 
@@ -23,7 +24,7 @@ from mazelab.resampling import KLDSampling
 from mazelab.robot import Robot
 from mazelab.simulation import RunResult, simulate
 
-FINAL_SHARE = 0.2  # the final error is the mean error over this share of the last steps
+FINAL_SHARE = 0.2  # the last-20% error (`final_error`) is the mean error over this share of the last steps
 
 
 def final_error(errors: np.ndarray, share: float = FINAL_SHARE) -> float:

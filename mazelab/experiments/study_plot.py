@@ -1,4 +1,4 @@
-"""A study's figure as small multiples: the mean final error with its interval against one varied
+"""A study's figure as small multiples: the mean last-20% error with its interval against one varied
 parameter (the x axis), one line per filter and varied option (e.g. "RPF, bandwidth multimodal"), and
 one panel per combination of the other varied parameters (e.g. maze x sigma)."""
 
@@ -122,7 +122,7 @@ def plot_study(
     for k in range(count, rows * columns):
         axes[k // columns][k % columns].set_visible(False)
     for row in axes:
-        row[0].set_ylabel(f"final error (mean of the last {FINAL_SHARE:.0%} of steps)")
+        row[0].set_ylabel(f"last-{FINAL_SHARE:.0%} error (mean error over the last {FINAL_SHARE:.0%} of the steps)")
     handles, labels = axes[0][0].get_legend_handles_labels()
     seen = dict(zip(labels, handles, strict=True))
     for ax in axes.flat[1:count]:

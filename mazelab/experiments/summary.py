@@ -34,7 +34,7 @@ class StudySummary:
     filter: str
     runs: int
     mean_final_error: float
-    interval: Interval  # percentile bootstrap interval for the mean final error; NaN with one run
+    interval: Interval  # percentile bootstrap interval for the mean last-20% error; NaN with one run
     converged_share: float  # share of the runs with a convergence step
     median_convergence_step: float | None  # median over the converged runs; None if none converged
     ms_per_step: float
@@ -149,7 +149,7 @@ def study_table(summaries: Sequence[StudySummary], varied: Sequence[str], kld: b
         *varied,
         "filter",
         "runs",
-        "mean final error",
+        "mean last-20% error",
         ci,
         "median",
         ci,
