@@ -4,16 +4,19 @@ an extended Kalman filter as the baseline.
 The paper's three files (particle_filter.py, draw.py, main.py) are faces over this package. Its
 modules, bottom to top (each imports only those above it in this list):
 
-    checks, limits, lookup, maze, model, modes                the model: maze, motion, measurement, modes
+    checks, limits, lookup, maze_paths, maze, model, modes    the model: maze, motion, measurement, modes
     seeding                                                   the one rule from a seed to a run's random streams
     weights, resampling, regularisation, robot                weighted clouds, resampling, the RPF's kernel, robot
     contract                                                  what every filter provides (and declares)
-    recovery, cloud, filters, grid_filter, kalman, registry   the filters (cloud: one engine for 1 or R runs)
-    atomic, scenario, simulation                              saved scenarios and the simulation loop
+    recovery, cloud, filters, grid_filter, kalman             the filters (cloud: one engine for 1 or R runs)
+    plugins, registry                                         filters by name, and a student's own (file.py:Class)
+    atomic, option_json, scenario, simulation                 saved scenarios and the simulation loop
     invocation                                                how this program was started (printed commands)
     viz/                                                      drawing in Rerun (never imported by the above)
     lab                                                       run_model and simulate, with drawing
-    mazes, maze_generator, experiments/, bench                shipped and random mazes, compare and study
+    mazes, maze_generator                                     shipped and random mazes
+    experiments/, bench                                       compare, study, accuracy, kidnapping; the benchmark
+    exercise/                                                 the students' exercise: StudentFilter and its checker
     cli/                                                      the command line (`mazelab`, `python main.py`)
 """
 
