@@ -153,12 +153,12 @@ class ParticleFilter:
     ) -> tuple[np.ndarray, np.ndarray]:
         """Draw x_k ~ p(x_k | x_{k-1}): uniform on the arc of radius L around th0 (headings too), for
         the given `runs` (default all), whose blocks of `positions` lie one after another."""
-        runs = np.arange(self.runs) if runs is None else runs
+        rngs = self.rngs if runs is None else [self.rngs[run] for run in runs]
         dtype = positions.dtype  # PARTICLE_DTYPE, or float64 for injected draws from the free area
-        uniforms = np.empty((len(runs), len(positions) // len(runs)), dtype=dtype)
-        for row, run in enumerate(runs):
-            self.rngs[run].random(dtype=dtype, out=uniforms[row])
-        angles = np.asarray(compass_angle, dtype=float)[runs].astype(dtype)[:, None]
+        uniforms = np.empty((len(rngs), len(positions) // len(rngs)), dtype=dtype)
+        for row, rng in enumerate(rngs):
+            rng.random(dtype=dtype, out=uniforms[row])
+        angles = (compass_angle if runs is None else compass_angle[runs]).astype(dtype)[:, None]
         headings = headings_from_uniforms(uniforms, angles, self.delta).reshape(-1)
         return move(positions, headings, self.speed), headings
 
@@ -172,7 +172,8 @@ class ParticleFilter:
 
     def likelihood(self, z: np.ndarray, positions: np.ndarray) -> np.ndarray:
         """log p(z_k | x) of equation (3) with the outside penalty, z (R,) -> (R, N)."""
-        log_lik = log_likelihood(z, positions, self.world, self.sigma, self.outside_penalty)
+        one = float(z[0]) if len(z) == 1 else z  # one run: a plain number (the same float32 arithmetic)
+        log_lik = log_likelihood(one, positions, self.world, self.sigma, self.outside_penalty)
         return log_lik.reshape(len(z), -1)
 
     # -- resampling, and the parts that change it ------------------------------------------------------
@@ -351,11 +352,11 @@ class ParticleFilter:
         z), or that is `lost`, starts again from the prior."""
         totals = np.atleast_1d(log_sum_exp(log_w))
         log_weights = np.subtract(log_w, totals[:, None], dtype=float)
-        restart = (totals < LOG_UNDERFLOW) | np.isnan(totals)
+        explained = totals >= LOG_UNDERFLOW  # False for an underflow and for NaN
         if lost is not None:
-            restart |= lost
-        if restart.any():
-            log_weights = self._reinitialise(np.flatnonzero(restart), z, log_weights)
+            explained &= ~lost
+        if not explained.all():
+            log_weights = self._reinitialise(np.flatnonzero(~explained), z, log_weights)
         self._log_w = log_weights
 
     def _reinitialise(self, runs: np.ndarray, z: np.ndarray, log_weights: np.ndarray) -> np.ndarray:
@@ -407,7 +408,7 @@ def per_run(value: float | np.ndarray, runs: int) -> np.ndarray:
     """A step's compass angle or measurement as one value per run, float64 (R,)."""
     if isinstance(value, np.ndarray):
         return np.broadcast_to(value.astype(float, copy=False), (runs,))
-    return np.full(runs, float(value))
+    return np.array([float(value)] * runs)
 
 
 __all__ = ["ParticleFilter", "per_run"]

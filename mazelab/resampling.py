@@ -51,7 +51,7 @@ def systematic_resample_runs(weights: np.ndarray, uniforms: np.ndarray, count: i
     count = size if count is None else count
     below = np.empty((runs, size + 1))  # below[:, i + 1]: how many points lie below cumsum(W)[i]
     below[:, 0] = 0.0
-    np.cumsum(weights, axis=1, out=below[:, 1:])  # float64 whatever the weights' dtype: strata are 1/M wide
+    weights.cumsum(axis=1, out=below[:, 1:])  # float64 whatever the weights' dtype: strata are 1/M wide
     below *= count
     below -= uniforms[:, None]
     np.ceil(below, out=below)
@@ -62,7 +62,7 @@ def systematic_resample_runs(weights: np.ndarray, uniforms: np.ndarray, count: i
     if runs > 1:  # each run counts in its own bins
         bins = bins + (count + 1) * np.arange(runs)[:, None]
     starts = np.bincount(bins.ravel(), minlength=runs * (count + 1)).reshape(runs, count + 1)[:, :count]
-    ancestors = np.cumsum(starts, axis=1)  # particle i repeated ends[i + 1] - ends[i] times, sorted
+    ancestors = starts.cumsum(axis=1)  # particle i repeated ends[i + 1] - ends[i] times, sorted
     if runs > 1:
         ancestors += size * np.arange(runs)[:, None]
     return ancestors.ravel()

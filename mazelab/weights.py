@@ -11,10 +11,13 @@ def log_sum_exp(log_w: np.ndarray) -> float | np.ndarray:
     is -inf. A float for one run (N,), an array (R,) for R runs (R, N)."""
     top = log_w.max(axis=-1, keepdims=True)  # the array methods skip np.max's dispatch: a few us a call
     finite = np.isfinite(top[..., 0])
-    with np.errstate(invalid="ignore"):  # rows whose top is -inf give NaN here and -inf below
+    if finite.all():
         shifted = np.subtract(log_w, top)
         totals = top[..., 0] + np.log(np.exp(shifted, out=shifted).sum(axis=-1))
-    if not finite.all():
+    else:
+        with np.errstate(invalid="ignore"):  # rows whose top is -inf give NaN here and -inf below
+            shifted = np.subtract(log_w, top)
+            totals = top[..., 0] + np.log(np.exp(shifted, out=shifted).sum(axis=-1))
         totals = np.where(finite, totals, top[..., 0])
     return float(totals) if log_w.ndim == 1 else totals.astype(float)
 
@@ -27,6 +30,8 @@ def exp_in_place(values: np.ndarray) -> np.ndarray:
 def weights_from_logs(log_w: np.ndarray, log_totals: np.ndarray) -> np.ndarray:
     """Normalised weights exp(log w - log total) of R runs (R, N), totals (R,); a run whose total is
     -inf gets NaNs (the caller does not draw from it)."""
+    if np.isfinite(log_totals).all():
+        return exp_in_place(np.subtract(log_w, log_totals[:, None]))
     with np.errstate(invalid="ignore"):
         return exp_in_place(np.subtract(log_w, log_totals[:, None]))
 
@@ -46,7 +51,7 @@ def _columns(points: np.ndarray, runs: int) -> tuple[np.ndarray, np.ndarray]:
 
 def weighted_mean(weights: np.ndarray, points: np.ndarray) -> np.ndarray:
     """sum_i W_i x_i per run, float64: (2,) for weights (N,), (R, 2) for weights (R, N)."""
-    W = np.atleast_2d(weights)
+    W = weights if weights.ndim > 1 else weights[None]
     w = W.astype(points.dtype, copy=False)
     means = np.empty((len(W), 2))
     for column, c in enumerate(_columns(points, len(W))):
@@ -56,8 +61,8 @@ def weighted_mean(weights: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 def weighted_covariance(weights: np.ndarray, points: np.ndarray) -> np.ndarray:
     """sum_i W_i (x_i - mean)(x_i - mean)^T per run, float64: (2, 2), or (R, 2, 2) for weights (R, N)."""
-    W = np.atleast_2d(weights)
-    mean = np.atleast_2d(weighted_mean(weights, points))
+    W = weights if weights.ndim > 1 else weights[None]
+    mean = weighted_mean(W, points)
     x, y = _columns(points, len(W))
     dx, dy = x - mean[:, :1], y - mean[:, 1:]  # float64: the spread may be tiny
     xx, xy, yy = ((W * a * b).sum(axis=1) for a, b in ((dx, dx), (dx, dy), (dy, dy)))
@@ -67,8 +72,8 @@ def weighted_covariance(weights: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 def mass_within(weights: np.ndarray, points: np.ndarray, centre: np.ndarray, radius: float) -> float | np.ndarray:
     """The total weight of the points at most `radius` from `centre` ((2,), or (R, 2) per run)."""
-    W = np.atleast_2d(weights)
-    c = np.atleast_2d(centre).astype(points.dtype)
+    W = weights if weights.ndim > 1 else weights[None]
+    c = (centre if centre.ndim > 1 else centre[None]).astype(points.dtype)
     x, y = _columns(points, len(W))
     dx, dy = x - c[:, :1], y - c[:, 1:]
     dx *= dx
