@@ -17,7 +17,7 @@ import pytest
 from conftest import ROOT
 from test_visualization import _ctrl_c_once, latest, load
 
-from mazelab import mazes
+from mazelab import maze_paths, mazes
 from mazelab.cli.app import main
 from mazelab.invocation import PROJECT_DIR, command_prefix
 from mazelab.maze import Maze, MazeError
@@ -120,8 +120,8 @@ def test_accuracy_runs_on_the_named_shipped_mazes_not_on_whatever_is_in_mazes(tm
     for name in shipped_mazes():
         (tmp_path / f"{name}.txt").write_text((mazes.MAZES_DIR / f"{name}.txt").read_text())
     (tmp_path / "random_20x20.txt").write_text((mazes.MAZES_DIR / "maze_20x20.txt").read_text())  # a student's
-    monkeypatch.setattr(mazes, "MAZES_DIR", tmp_path)
-    from mazelab.experiments import accuracy
+    monkeypatch.setattr(maze_paths, "MAZES_DIR", tmp_path)
+    from mazelab.cli import accuracy
 
     seen = []
     monkeypatch.setattr(accuracy, "accuracy_tasks", lambda named, *args: seen.extend(n for n, _ in named) or [])

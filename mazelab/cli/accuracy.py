@@ -13,10 +13,19 @@ from mazelab.atomic import write_text_atomically
 from mazelab.checks import check_sigma_within
 from mazelab.cli.options import DEFAULT_DELTA, DEFAULT_SIGMA, check_output_path, parse_list, seed_option
 from mazelab.cli.provenance import command_line
+from mazelab.experiments.accuracy import (
+    accuracy_csv,
+    accuracy_filters,
+    accuracy_summary,
+    accuracy_table,
+    accuracy_tasks,
+    run_accuracy,
+)
 from mazelab.experiments.executor import default_workers, progress_bar
 from mazelab.experiments.plan import maze_description, study_mazes
 from mazelab.experiments.record import Recorder, record_path
 from mazelab.experiments.runs import parse_filters
+from mazelab.experiments.study import MazeChoice
 from mazelab.limits import check_particles, check_steps, check_study
 from mazelab.mazes import LAB_MAZES
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, check_model_parameters
@@ -54,32 +63,13 @@ def accuracy(
     estimate and the exact grid filter's posterior mean over the second half of the steps (with a 95%
     bootstrap interval), and the share of runs that converged (error below 0.5 from some step on;
     Wilson interval)."""
-    from mazelab.experiments.accuracy import (
-        accuracy_csv,
-        accuracy_filters,
-        accuracy_table,
-        accuracy_tasks,
-        run_accuracy,
-    )
-
     record_file = record if record is not None else record_path(csv_path) if csv_path is not None else None
     for path in (csv_path, record_file):
         if path is not None:
             check_output_path(path, force)
-    files = parse_list(maze, str, "--maze") if maze is not None else None
-    if files is None and maze_size is None and stations is None:
-        files = list(LAB_MAZES)  # the lab's set, named: a maze a student adds to mazes/ does not join it
-    sizes = parse_list(maze_size, str, "--maze-size") if maze_size is not None else None
-    counts = parse_list(stations, int, "--stations") if stations is not None else None
-    mazes = study_mazes(files, sizes, counts) if files or sizes or counts else study_mazes(None)
+    mazes = accuracy_mazes(maze, maze_size, stations)
     chosen = accuracy_filters(None if filters is None else parse_filters(filters))
-    check_model_parameters(sigma, delta)
-    check_steps(steps)
-    check_particles(particles)
-    check_study(len(mazes) * runs, len(chosen))  # --runs 10000000: refused before any work
-    for choice in mazes:
-        rows, columns = choice.size if choice.grid is None else (len(choice.grid), len(choice.grid[0]))
-        check_sigma_within(sigma, columns, rows)
+    check_accuracy(mazes, chosen, sigma, delta, particles, runs, steps)
     tasks = accuracy_tasks([(m.label, m) for m in mazes], runs, sigma, delta, particles, steps, seed, chosen)
     labels = ", ".join(label for label, _, _ in chosen)
     typer.echo(
@@ -97,14 +87,44 @@ def accuracy(
     started = time.perf_counter()
     with progress_bar(len(tasks), True) as advance:
         records = run_accuracy(tasks, workers or default_workers(), advance)
+    report_accuracy(records, time.perf_counter() - started, len(tasks), csv_path, record_file, recorder, force)
+
+
+def accuracy_mazes(maze: str | None, maze_size: str | None, stations: str | None) -> list[MazeChoice]:
+    """The mazes of the table: the files named, the generated sizes, or the lab's shipped set (named,
+    so that a maze a student adds to mazes/ does not join it)."""
+    files = parse_list(maze, str, "--maze") if maze is not None else None
+    if files is None and maze_size is None and stations is None:
+        files = list(LAB_MAZES)
+    sizes = parse_list(maze_size, str, "--maze-size") if maze_size is not None else None
+    counts = parse_list(stations, int, "--stations") if stations is not None else None
+    return study_mazes(files, sizes, counts) if files or sizes or counts else study_mazes(None)
+
+
+def check_accuracy(
+    mazes: list[MazeChoice], chosen: tuple, sigma: float, delta: float, particles: int, runs: int, steps: int
+) -> None:
+    """The table's size and numbers, refused before any work (--runs 10000000 included)."""
+    check_model_parameters(sigma, delta)
+    check_steps(steps)
+    check_particles(particles)
+    check_study(len(mazes) * runs, len(chosen))
+    for choice in mazes:
+        rows, columns = choice.size if choice.grid is None else (len(choice.grid), len(choice.grid[0]))
+        check_sigma_within(sigma, columns, rows)
+
+
+def report_accuracy(
+    records: list, seconds: float, runs: int, csv_path: Path | None, record_file: Path | None,
+    recorder: Recorder, force: bool,
+) -> None:  # fmt: skip
+    """The table, the time, the CSV and the record."""
     typer.echo(accuracy_table(records))
-    typer.echo(f"{len(tasks)} runs in {time.perf_counter() - started:.1f} s wall time")
+    typer.echo(f"{runs} runs in {seconds:.1f} s wall time")
     if csv_path is not None:
         write_text_atomically(csv_path, accuracy_csv(records), replace=force)
         typer.echo(f"one row per maze, run and filter written to {csv_path}")
     if record_file is not None:
-        from mazelab.experiments.accuracy import accuracy_summary
-
         recorder.finish("finished", summary=accuracy_summary(records))
         recorder.write(record_file)
         typer.echo(f"the record (command, versions, seeds, mazes, summary) written to {record_file}")
