@@ -4,21 +4,19 @@ steps (after the first localisation), and the share of runs that converged (`maz
 
 from __future__ import annotations
 
-import csv
-import io
 import math
 import statistics
 import warnings
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
 
 from mazelab.experiments.stats import bootstrap_interval, wilson_interval
 from mazelab.experiments.study import MazeChoice
-from mazelab.experiments.tables import csv_cell, format_optional, format_table
+from mazelab.experiments.tables import format_optional, format_table, records_csv
 from mazelab.plugins import is_plugin_spec
 from mazelab.registry import resolve_filter
 from mazelab.robot import Robot
@@ -214,12 +212,7 @@ ACCURACY_COLUMNS = [f.name for f in fields(AccuracyRecord)]
 
 def accuracy_csv(records: Sequence[AccuracyRecord]) -> str:
     """One row per maze, run and filter, columns ACCURACY_COLUMNS; an empty cell for "never"."""
-    buffer = io.StringIO()
-    writer = csv.DictWriter(buffer, fieldnames=ACCURACY_COLUMNS, lineterminator="\n")
-    writer.writeheader()
-    for record in records:
-        writer.writerow({k: csv_cell(v) for k, v in asdict(record).items()})
-    return buffer.getvalue()
+    return records_csv(records, ACCURACY_COLUMNS)
 
 
 __all__ = [

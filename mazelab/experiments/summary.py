@@ -4,8 +4,6 @@ table and the CSV (the figure: mazelab.experiments.study_plot)."""
 
 from __future__ import annotations
 
-import csv
-import io
 import math
 import statistics
 from collections.abc import Sequence
@@ -19,7 +17,7 @@ from mazelab.experiments.stats import (
     wilson_interval,
 )
 from mazelab.experiments.study import RunRecord, StudySetting, takes_parameter
-from mazelab.experiments.tables import csv_cell, format_optional, format_table, format_value
+from mazelab.experiments.tables import format_optional, format_table, format_value, records_csv
 
 Interval = tuple[float, float]
 
@@ -192,12 +190,7 @@ CSV_COLUMNS = [f.name for f in fields(RunRecord)]
 
 def study_csv(records: Sequence[RunRecord]) -> str:
     """One row per run and filter, columns CSV_COLUMNS; an empty cell for None and NaN."""
-    buffer = io.StringIO()
-    writer = csv.DictWriter(buffer, fieldnames=CSV_COLUMNS, lineterminator="\n")
-    writer.writeheader()
-    for record in records:
-        writer.writerow({k: csv_cell(v) for k, v in asdict(record).items()})
-    return buffer.getvalue()
+    return records_csv(records, CSV_COLUMNS)
 
 
 __all__ = [

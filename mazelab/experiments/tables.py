@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import csv
 import io
 import math
 from collections.abc import Sequence
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -66,6 +68,17 @@ def csv_cell(value: Any) -> Any:
     return repr(value) if isinstance(value, float) else value
 
 
+def records_csv(records: Sequence[Any], columns: Sequence[str]) -> str:
+    """CSV text of dataclass records, one row each in `columns` order; an empty cell for None and NaN,
+    floats written in full (repr) so that the file reads back bit for bit."""
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, fieldnames=list(columns), lineterminator="\n")
+    writer.writeheader()
+    for record in records:
+        writer.writerow({k: csv_cell(v) for k, v in asdict(record).items()})
+    return buffer.getvalue()
+
+
 __all__ = [
     "PLOT_INSTALL_HINT",
     "csv_cell",
@@ -74,5 +87,6 @@ __all__ = [
     "format_table",
     "format_value",
     "pyplot",
+    "records_csv",
     "save_figure",
 ]
