@@ -88,6 +88,45 @@ def test_progress_checks_the_parts_written():
     assert "still to write: resample" in text and "weigh" in text and "pass" in text
 
 
+def test_progress_prints_the_check_command_of_this_file(tmp_path, monkeypatch):
+    (tmp_path / "mine.py").write_text(
+        "from exercise_answers import ReferenceFilter\n\n\n"
+        "class MyFilter(ReferenceFilter):\n    pass\n\n\n"
+        "class Other(ReferenceFilter):\n    pass\n"
+    )
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("UV", raising=False)
+    lines = [progress(load_plugin(f"mine.py:{name}")).splitlines()[-1] for name in ("MyFilter", "Other")]
+    assert lines[0].endswith(" exercise check mine.py") and "FILE" not in lines[0]
+    assert lines[1].endswith(" exercise check mine.py:Other")
+
+
+def test_a_failing_part_is_named_in_the_whole_filters_hint(monkeypatch):
+    import exercise_answers as answers
+
+    import mazelab.exercise.report as report_module
+    from mazelab.exercise.parts import Row
+
+    hint = "the parts pass alone but not together: check what weigh and predict assume of each other"
+
+    def failing_whole(filter_class, scheme):  # a fresh row each call: check() may rewrite its hint
+        return Row("whole filter", False, "", "", hint), []
+
+    monkeypatch.setattr(report_module, "check_whole", failing_whole)
+    assert check(answers.UnweightedMean).row("whole filter").hint.startswith("fix estimate first")
+    assert check(ReferenceFilter).row("whole filter").hint == hint  # every part passes: the hint stands
+
+
+def test_an_error_in_the_whole_filter_is_one_table_cell_naming_the_students_line():
+    class Raising(ReferenceFilter):
+        def predict(self, positions, compass_angle, rng):
+            raise RuntimeError("my bug")
+
+    row = check(Raising).row("whole filter")
+    assert not row.passed and "\n" not in row.got and row.hint == "fix the error first"
+    assert "raised RuntimeError at step 1: my bug; " in row.got and "test_exercise.py, line" in row.got
+
+
 def test_new_refuses_to_overwrite_without_force(tmp_path, capsys):
     assert main(["exercise", "new", str(tmp_path)]) == 0
     (tmp_path / "my_filter.py").write_text("# my work\n")

@@ -257,7 +257,9 @@ def test_ctrl_c_keeps_the_finished_runs_and_exits_130(tmp_path, capsys, monkeypa
     args = ["study", "--maze", "paper_5x5", "--runs", "5", "--steps", "10", "--particles", "50", "--filters", "sir,apf"]
     assert main([*args, "--workers", "1", "--csv", str(table), "--force"]) == 130
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # in-process: handlers put back
-    assert f"interrupted after 2 of 5 runs; the finished rows are in {table}.partial" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert f"interrupted after 2 of 5 runs; the finished rows are in {table}.partial; go on with: " in err
+    assert err.rstrip().endswith(f"--csv {table} --force --resume")  # the command as typed, to paste back
     assert table.read_text() == "old\n"  # the old file, not a cut one
     assert [(r["run"], r["filter"]) for r in read_csv(table.with_name("s.csv.partial"))] == [
         (run, name) for run in ("1", "2") for name in FILTERS[:2]

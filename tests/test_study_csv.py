@@ -87,6 +87,16 @@ def test_a_leftover_partial_file_is_reported_and_replaced_only_with_force(tmp_pa
     assert len(rows(table)) == 12 and not partial.exists()
 
 
+def test_a_stopped_studys_partial_file_is_named_before_its_record(tmp_path, capsys):
+    table = tmp_path / "s.csv"
+    table.with_name("s.csv.partial").write_text("rows of a stopped study\n")
+    table.with_name("s.record.json").write_text("{}")  # a stopped study leaves its record too
+    assert main([*STUDY, "--csv", str(table)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{table}.partial holds the rows of an earlier study" in err
+    assert "add --resume to the same command" in err and "record" not in err
+
+
 def test_a_second_study_with_the_same_csv_is_refused(tmp_path, capsys):
     table = tmp_path / "s.csv"
     running = RowLog(table)  # the first study, still running: it holds s.csv.partial

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import shlex
 import sys
 from contextvars import ContextVar
 from pathlib import Path
@@ -10,6 +11,7 @@ from pathlib import Path
 import typer
 
 from mazelab.experiments.record import package_version, program_versions
+from mazelab.invocation import command_prefix
 
 _ARGUMENTS: ContextVar[list[str] | None] = ContextVar("mazelab_arguments", default=None)
 
@@ -26,6 +28,14 @@ def command_line() -> list[str]:
     return ["mazelab" if program in ("", "-c", "__main__.py") else program, *(arguments or sys.argv[1:])]
 
 
+def resume_command() -> str:
+    """The command as typed, with --resume, written to be pasted back (see mazelab.invocation)."""
+    arguments = list(_ARGUMENTS.get() or sys.argv[1:])
+    if "--resume" not in arguments:
+        arguments.append("--resume")
+    return f"{command_prefix()} {shlex.join(arguments)}"
+
+
 def show_version(value: bool) -> None:
     """--version: the program's, its git commit (if any), numpy's and Python's; then exit."""
     if value:
@@ -35,4 +45,4 @@ def show_version(value: bool) -> None:
         raise typer.Exit()
 
 
-__all__ = ["command_line", "remember_arguments", "show_version"]
+__all__ = ["command_line", "remember_arguments", "resume_command", "show_version"]

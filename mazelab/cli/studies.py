@@ -30,14 +30,14 @@ from mazelab.cli.options import (
     seed_option,
     visualization,
 )
-from mazelab.cli.provenance import command_line
+from mazelab.cli.provenance import command_line, resume_command
 from mazelab.experiments.dask_runner import DASK_TIMEOUT, close_client, connect
 from mazelab.experiments.executor import STOP_SIGNALS, default_workers, run_study
 from mazelab.experiments.plan import StudyPlan, plan_study
 from mazelab.experiments.plan import study_mazes as plan_mazes
 from mazelab.experiments.record import Recorder, differences, read_record, record_path
 from mazelab.experiments.resume import RESUME_IGNORES, missing_tasks, read_study_csv
-from mazelab.experiments.rowlog import RowLog, partial_path
+from mazelab.experiments.rowlog import RowLog, check_left_over, partial_path
 from mazelab.experiments.runs import parse_filters
 from mazelab.experiments.stats import CONFIDENCE_LEVEL
 from mazelab.experiments.study import MazeChoice, RunRecord, RunTask, StudyOutcome
@@ -130,6 +130,8 @@ class StudyOutputs:
             record if record is not None else next((record_path(p) for p in (csv_path, plot, traces) if p), None)
         )
         recorded = _check_resume(csv_path, record_file) if resume else None
+        if csv_path is not None and not resume:  # a stopped study's rows: named before its record
+            check_left_over(csv_path, force)
         check_outputs(None if resume else csv_path, plot, force or resume, rrd)  # --resume replaces its own outputs
         for path in (traces, record_file):
             if path is not None and not resume:
@@ -279,7 +281,8 @@ def report_study(session: StudySession, outcome: StudyOutcome, kld: bool) -> Non
 
 def report_stopped(session: StudySession, outcome: StudyOutcome, closing: dict[str, Any]) -> None:
     """A stopped study (Ctrl-C, SIGTERM, SIGHUP) or a lost cluster: the CSV stays the old file, the
-    rows are in NAME.csv.partial (--resume goes on), the traces and the record are written; exits."""
+    rows are in NAME.csv.partial (the line gives the command with --resume), the traces and the record
+    are written; exits."""
     outputs, log = session.outputs, session.log
     if log is not None:
         log.close()
@@ -287,7 +290,7 @@ def report_stopped(session: StudySession, outcome: StudyOutcome, closing: dict[s
     if outputs.record_file is not None:
         session.recorder.finish("interrupted", **closing)
         session.recorder.write(outputs.record_file)
-    saved = f"; {log.kept()} (--resume goes on)" if log is not None else ""
+    saved = f"; {log.kept()}; go on with: {resume_command()}" if log is not None else ""
     finished, total = closing["runs_finished"], closing["runs_in_study"]
     if outcome.lost is not None:  # a lost cluster or pool: one line, exit 1
         typer.echo(f"error: {outcome.lost}; {finished} of {total} runs finished{saved}", err=True)

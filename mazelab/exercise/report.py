@@ -4,8 +4,12 @@ to write (`progress`, what `python my_filter.py` prints)."""
 
 from __future__ import annotations
 
+import contextlib
+import inspect
+import shlex
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from mazelab.exercise.parts import (
     Row,
@@ -19,6 +23,7 @@ from mazelab.exercise.parts import (
 from mazelab.exercise.student import PARTS, StudentFilter
 from mazelab.exercise.whole import FIGURE_HEADERS, ScenarioFigures, check_whole, figures_table, sign_test_alpha
 from mazelab.experiments.tables import format_table
+from mazelab.invocation import command_prefix
 
 
 @dataclass
@@ -51,6 +56,9 @@ def check(filter_class: type, *, whole: bool = True) -> Report:
             report.rows.append(Row("whole filter", False, expected, "not run", "write every part first"))
         else:
             row, report.figures = check_whole(filter_class, scheme)
+            failed = [r.part for r in report.rows if not r.passed]
+            if failed and not row.passed and row.hint.startswith("the parts pass alone"):
+                row.hint = f"fix {', '.join(failed)} first: the whole filter runs with every part"
             report.rows.append(row)
     return report
 
@@ -83,8 +91,24 @@ def progress(filter_class: type) -> str:
             )
         )
     if not todo:
-        lines.append("Grade the whole filter against the exact posterior: mazelab exercise check FILE")
+        lines.append(f"Grade the whole filter against the exact posterior: {check_command(filter_class)}")
     return "\n".join(lines)
+
+
+def check_command(filter_class: type) -> str:
+    """The command that grades `filter_class`, to paste back: `mazelab exercise check my_filter.py`
+    (with the prefix the program was started with, and `:Class` unless the class is MyFilter)."""
+    try:
+        source = Path(inspect.getsourcefile(filter_class) or "")
+    except TypeError:  # a class defined in a notebook cell or at the prompt has no file
+        source = Path()
+    if not source.name:
+        return f"{command_prefix()} exercise check FILE"
+    shown = source.resolve()
+    with contextlib.suppress(ValueError):  # outside the folder you are in: the whole path
+        shown = shown.relative_to(Path.cwd().resolve())
+    spec = str(shown) if filter_class.__name__ == "MyFilter" else f"{shown}:{filter_class.__name__}"
+    return f"{command_prefix()} exercise check {shlex.quote(spec)}"
 
 
 PART_CHECKS: dict[str, Callable[[type], Row]] = {
@@ -116,4 +140,4 @@ def check_and_print(filter_class: type) -> Report:
     return report
 
 
-__all__ = ["PARTS", "Report", "check", "check_and_print", "check_part", "format_report", "progress"]
+__all__ = ["PARTS", "Report", "check", "check_and_print", "check_command", "check_part", "format_report", "progress"]

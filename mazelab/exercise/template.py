@@ -87,6 +87,11 @@ arrays (no loops over particles) and draw random numbers only from the `rng` you
   posterior (a table: pass or fail, expected against what came, a hint). Exit code 0 means all pass.
 - `mazelab run --filter my_filter.py:MyFilter` runs it in the viewer; `mazelab compare SCENARIO
   --filters sir,my_filter.py:MyFilter` puts it beside the shipped SIR.
+
+Here `python` and `mazelab` stand for the way you start the lab: `uv run --project CLONE python` and
+`uv run --project CLONE mazelab` with uv from a folder of your own (CLONE: the lab's folder), plain
+`python` and `mazelab` in its activated environment. Once all four parts are written, `python
+my_filter.py` prints the grading command written your way, to paste.
 """
 
 

@@ -84,9 +84,9 @@ def check_whole(filter_class: type, scheme: str = "systematic") -> tuple[Row, li
             try:
                 figures.append(run_scenario(filter_class, maze, seed, scheme))
             except StudentCodeError as error:
-                return Row(
-                    "whole filter", False, expected, f"{maze}, seed {seed}: {error}", "fix the error first"
-                ), figures
+                where = "; ".join(line.strip() for line in str(error).splitlines())  # one line: a table cell
+                got = f"{maze}, seed {seed}: {where}"
+                return Row("whole filter", False, expected, got, "fix the error first"), figures
     worse = sum(f.distance > f.sir_distance for f in figures)
     mean, sir_mean = np.mean([f.distance for f in figures]), np.mean([f.sir_distance for f in figures])
     converged, sir_converged = sum(f.converged for f in figures), sum(f.sir_converged for f in figures)

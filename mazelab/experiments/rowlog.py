@@ -52,6 +52,37 @@ def rows_text(records: Sequence[RunRecord], header: bool = False) -> str:
     return buffer.getvalue()
 
 
+def _busy(partial: Path) -> str:
+    return f"another study is writing {partial}: give this one another --csv"
+
+
+def _left_over(partial: Path) -> str:
+    return (
+        f"{partial} holds the rows of an earlier study that was stopped: add --resume to the same command "
+        "to go on with it, or use --force to discard it"
+    )
+
+
+def check_left_over(path: str | Path, replace: bool = False) -> None:
+    """Refuse, in one line, a CSV whose partial file another study is writing, or (unless `replace`)
+    one that a stopped study left: checked before the study's other outputs, so that the line names
+    the partial file and --resume, not the record the stopped study also left."""
+    partial = partial_path(path)
+    if not partial.is_file():
+        return
+    try:
+        handle = os.open(partial, os.O_RDONLY)
+    except OSError:
+        return  # RowLog reports what is wrong with it
+    try:
+        if not _lock(handle):
+            raise PartialFileError(_busy(partial))
+        if not replace:
+            raise PartialFileError(_left_over(partial))
+    finally:
+        os.close(handle)  # and with it the lock
+
+
 class RowLog:
     """Appends a study's rows to `partial` (NAME.csv.partial) as runs finish. A write error stops the
     appending (the partial file is cut back to its last whole row) and is kept in `error`: the study
@@ -85,14 +116,11 @@ class RowLog:
             left = True
         if not _lock(handle):
             os.close(handle)
-            raise PartialFileError(f"another study is writing {self.partial}: give this one another --csv")
+            raise PartialFileError(_busy(self.partial))
         if left:
             if not (self.replace or self.adopt):
                 os.close(handle)
-                raise PartialFileError(
-                    f"{self.partial} holds the rows of an earlier study that was stopped: move it away, "
-                    "or use --force to discard it"
-                )
+                raise PartialFileError(_left_over(self.partial))
             os.ftruncate(handle, 0)
             if not self.adopt:
                 self.note = f"discarded the rows of an earlier stopped study in {self.partial} (--force)"
@@ -161,6 +189,7 @@ __all__ = [
     "PARTIAL_SUFFIX",
     "PartialFileError",
     "RowLog",
+    "check_left_over",
     "partial_path",
     "rows_text",
 ]
