@@ -269,14 +269,35 @@ def test_an_error_in_a_batched_unit_is_reported_for_its_runs(paper_world, monkey
         (["study", "--filters", "sir", "--bandwidth", "multimodal"], "SIRParticleFilter does not take --bandwidth"),
         (["study", "--filters", "sir,apf", "--threshold", "0.3"], "SIRParticleFilter and AuxiliaryParticleFilter do"),
         (["study", "--filters", "grid,ekf", "--kld"], "GridBayesFilter and ExtendedKalmanFilter do not take --kld"),
+        # a flag that tunes an option (recovery's rates, KLD's bounds) is refused where the option is
+        (["run", "--filter", "grid", "--alpha-fast", "0.2"], "GridBayesFilter does not take --alpha-fast"),
+        (["run", "--filter", "ekf", "--alpha-slow", "0.01"], "ExtendedKalmanFilter does not take --alpha-slow"),
+        (["run", "--filter", "grid", "--kld-epsilon", "0.1"], "GridBayesFilter does not take --kld-epsilon"),
+        (["run", "--filter", "ekf", "--kld-z", "1.5"], "ExtendedKalmanFilter does not take --kld-z"),
+        (["compare", "s.json", "--filters", "grid,ekf", "--alpha-fast", "0.2"], "ExtendedKalmanFilter do not take"),
     ],
 )
-def test_the_command_line_refuses_an_option_no_chosen_filter_takes(capsys, args, message):
+def test_the_command_line_refuses_an_option_no_chosen_filter_takes(tmp_path, capsys, args, message):
     from mazelab.cli.app import main
 
+    if args[0] == "compare":  # a scenario to compare on
+        scenario = tmp_path / "s.json"
+        assert main(["run", "--steps", "3", "--particles", "20", "--seed", "1", "--quiet", "--no-viz",
+                     "--save-scenario", str(scenario)]) == 0  # fmt: skip
+        capsys.readouterr()
+        args = [args[0], str(scenario), *args[2:]]
     assert main([*args, "--no-viz"]) == 2
     err = capsys.readouterr().err
     assert message in err and err.count("\n") == 1
+
+
+def test_a_refusal_names_the_flags_of_the_command_it_refuses(capsys):
+    """study has --recovery NAMES and no --sensor-resetting: its refusals name only its own flags."""
+    from mazelab.cli.app import main
+
+    assert main(["study", "--filters", "grid", "--recovery", "augmented", "--no-viz"]) == 2
+    err = capsys.readouterr().err
+    assert "GridBayesFilter does not take --recovery;" in err and "--sensor-resetting" not in err
 
 
 def test_an_option_some_chosen_filters_take_goes_to_those(tmp_path, capsys):
