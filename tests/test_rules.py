@@ -78,6 +78,26 @@ def test_the_rpf_regularises_each_of_r_runs_by_its_own_ess(paper_world):
     assert len({len(steps) for steps in together.regularised_at}) > 1 or together.regularised_at[0]
 
 
+# -- the effective sample size: N_eff = 1 / sum_i W_i^2 (Arulampalam et al., eq. 51) -----------------------
+@pytest.mark.parametrize("cls", [SIRParticleFilter, AuxiliaryParticleFilter, RegularizedParticleFilter])
+def test_the_ess_is_one_over_the_sum_of_the_squared_normalised_weights(paper_world, cls):
+    """Known weights (1/2, 1/4, 1/4) give 1 / (1/4 + 1/16 + 1/16) = 8/3, for one run and per run of R;
+    after real steps the ESS is that of the weights the filter holds, computed here independently."""
+    one = cls(paper_world, 0.3, 0.5, np.full((3, 2), 2.5), np.random.default_rng(1))
+    one.log_weights = np.log([0.5, 0.25, 0.25])
+    assert one.ess == pytest.approx(8 / 3, rel=1e-12) and isinstance(one.ess, float)
+    two = cls(paper_world, 0.3, 0.5, np.full((2, 3, 2), 2.5), [np.random.default_rng(1), np.random.default_rng(2)])
+    two.log_weights = np.log([[0.5, 0.25, 0.25], [1 / 3, 1 / 3, 1 / 3]])
+    np.testing.assert_allclose(two.ess, [8 / 3, 3.0], rtol=1e-12)
+    filt = cls(paper_world, 0.3, 0.5, paper_world.random_free_places(400, np.random.default_rng(3)),
+               np.random.default_rng(4))  # fmt: skip
+    for compass, z in recorded_walk(paper_world, 5, 12):
+        filt.step(compass, z)
+        weights = np.exp(np.asarray(filt.log_weights, dtype=float))
+        assert weights.sum() == pytest.approx(1.0, rel=1e-5)  # normalised in float32 arithmetic
+        assert filt.ess == pytest.approx(1.0 / np.sum(weights**2), rel=1e-9)
+
+
 # -- the APF: the second-stage weight ---------------------------------------------------------------
 def test_the_apfs_second_stage_weight_is_the_likelihood_ratio(paper_world):
     """Algorithm 5 with mu_i one draw of the transition: x^j ~ p(x_k | x^{i^j}) and w^j = p(z | x^j) /
