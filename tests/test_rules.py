@@ -98,6 +98,26 @@ def test_the_ess_is_one_over_the_sum_of_the_squared_normalised_weights(paper_wor
         assert filt.ess == pytest.approx(1.0 / np.sum(weights**2), rel=1e-9)
 
 
+# -- a restart: from the prior, weighted by the run's own z ---------------------------------------------
+@pytest.mark.parametrize("cls", [SIRParticleFilter, AuxiliaryParticleFilter, RegularizedParticleFilter])
+def test_a_run_that_restarts_weights_the_prior_by_its_own_measurement(paper_world, cls):
+    """No particle explains z_k (here 50, beyond any station of the 5x5 maze): that run, and only it,
+    restarts from the prior with W_i proportional to p(z_k | x_i) of its own z_k (not another run's)."""
+    seeds = (3, 4, 5)
+    particles = np.stack([paper_world.random_free_places(200, np.random.default_rng(s)) for s in seeds])
+    filt = cls(paper_world, 0.3, 0.5, particles, [np.random.default_rng(s) for s in seeds])
+    filt.step(np.zeros(3), np.array([1.0, 1.0, 1.0]))
+    filt.step(np.zeros(3), np.array([1.0, 50.0, 1.0]))
+    assert filt.reinitialised_at == [[], [2], []]
+    # run 1's fresh prior weighted by p(50 | x), which underflows everywhere: uniform (z = 1 would not be)
+    np.testing.assert_allclose(filt.weights[1], 1 / 200, rtol=1e-12)
+    assert not np.allclose(filt.weights[0], 1 / 200)
+    filt.step(np.zeros(3), np.array([1.0, 1.0, 1.0]))
+    filt.step(np.zeros(3), np.array([1.2, 1.5, 50.0]))
+    assert filt.reinitialised_at == [[], [2], [4]]
+    np.testing.assert_allclose(filt.weights[2], 1 / 200, rtol=1e-12)
+
+
 # -- the APF: the second-stage weight ---------------------------------------------------------------
 def test_the_apfs_second_stage_weight_is_the_likelihood_ratio(paper_world):
     """Algorithm 5 with mu_i one draw of the transition: x^j ~ p(x_k | x^{i^j}) and w^j = p(z | x^j) /
