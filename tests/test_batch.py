@@ -8,7 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from mazelab.experiments.batch_runs import run_unit_safely, study_units
+from mazelab.experiments.batch_runs import run_batch, run_unit_safely, study_units
 from mazelab.experiments.study import MazeChoice, run_task, study_settings, study_tasks
 from mazelab.registry import resolve_filter
 from mazelab.robot import Robot
@@ -60,6 +60,20 @@ def test_a_studys_units_give_the_records_of_its_runs_one_by_one(paper_world):
 
     together = [without_timing(records) for unit in units for records in run_unit_safely(unit)]
     assert together == [without_timing(run_task(task)) for task in tasks]
+
+
+def test_a_batch_of_one_run_gives_the_records_of_that_run(paper_world):
+    """R = 1 gives the paper's shapes (a float ESS, one list of restarts): run_batch reads them as one run's."""
+    settings = study_settings([MazeChoice.from_maze("paper", paper_world)], [0.3], [0.5], [5], [0.2])
+    filters = ["SIRParticleFilter", "AuxiliaryParticleFilter", "RegularizedParticleFilter"]
+    tasks = study_tasks(settings, filters, 1, 30, 3)
+    timing = ("ms_per_step", "run_seconds")
+
+    def without_timing(records):
+        return [{k: v for k, v in dataclasses.asdict(r).items() if k not in timing} for r in records]
+
+    (records,) = run_batch(tasks)
+    assert without_timing(records) == without_timing(run_task(tasks[0]))
 
 
 def test_units_respect_the_particle_budget(paper_world):

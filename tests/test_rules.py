@@ -78,6 +78,46 @@ def test_the_rpf_regularises_each_of_r_runs_by_its_own_ess(paper_world):
     assert len({len(steps) for steps in together.regularised_at}) > 1 or together.regularised_at[0]
 
 
+# -- the effective sample size: N_eff = 1 / sum_i W_i^2 (Arulampalam et al., eq. 51) -----------------------
+@pytest.mark.parametrize("cls", [SIRParticleFilter, AuxiliaryParticleFilter, RegularizedParticleFilter])
+def test_the_ess_is_one_over_the_sum_of_the_squared_normalised_weights(paper_world, cls):
+    """Known weights (1/2, 1/4, 1/4) give 1 / (1/4 + 1/16 + 1/16) = 8/3, for one run and per run of R;
+    after real steps the ESS is that of the weights the filter holds, computed here independently."""
+    one = cls(paper_world, 0.3, 0.5, np.full((3, 2), 2.5), np.random.default_rng(1))
+    one.log_weights = np.log([0.5, 0.25, 0.25])
+    assert one.ess == pytest.approx(8 / 3, rel=1e-12) and isinstance(one.ess, float)
+    two = cls(paper_world, 0.3, 0.5, np.full((2, 3, 2), 2.5), [np.random.default_rng(1), np.random.default_rng(2)])
+    two.log_weights = np.log([[0.5, 0.25, 0.25], [1 / 3, 1 / 3, 1 / 3]])
+    np.testing.assert_allclose(two.ess, [8 / 3, 3.0], rtol=1e-12)
+    filt = cls(paper_world, 0.3, 0.5, paper_world.random_free_places(400, np.random.default_rng(3)),
+               np.random.default_rng(4))  # fmt: skip
+    for compass, z in recorded_walk(paper_world, 5, 12):
+        filt.step(compass, z)
+        weights = np.exp(np.asarray(filt.log_weights, dtype=float))
+        assert weights.sum() == pytest.approx(1.0, rel=1e-5)  # normalised in float32 arithmetic
+        assert filt.ess == pytest.approx(1.0 / np.sum(weights**2), rel=1e-9)
+
+
+# -- a restart: from the prior, weighted by the run's own z ---------------------------------------------
+@pytest.mark.parametrize("cls", [SIRParticleFilter, AuxiliaryParticleFilter, RegularizedParticleFilter])
+def test_a_run_that_restarts_weights_the_prior_by_its_own_measurement(paper_world, cls):
+    """No particle explains z_k (here 50, beyond any station of the 5x5 maze): that run, and only it,
+    restarts from the prior with W_i proportional to p(z_k | x_i) of its own z_k (not another run's)."""
+    seeds = (3, 4, 5)
+    particles = np.stack([paper_world.random_free_places(200, np.random.default_rng(s)) for s in seeds])
+    filt = cls(paper_world, 0.3, 0.5, particles, [np.random.default_rng(s) for s in seeds])
+    filt.step(np.zeros(3), np.array([1.0, 1.0, 1.0]))
+    filt.step(np.zeros(3), np.array([1.0, 50.0, 1.0]))
+    assert filt.reinitialised_at == [[], [2], []]
+    # run 1's fresh prior weighted by p(50 | x), which underflows everywhere: uniform (z = 1 would not be)
+    np.testing.assert_allclose(filt.weights[1], 1 / 200, rtol=1e-12)
+    assert not np.allclose(filt.weights[0], 1 / 200)
+    filt.step(np.zeros(3), np.array([1.0, 1.0, 1.0]))
+    filt.step(np.zeros(3), np.array([1.2, 1.5, 50.0]))
+    assert filt.reinitialised_at == [[], [2], [4]]
+    np.testing.assert_allclose(filt.weights[2], 1 / 200, rtol=1e-12)
+
+
 # -- the APF: the second-stage weight ---------------------------------------------------------------
 def test_the_apfs_second_stage_weight_is_the_likelihood_ratio(paper_world):
     """Algorithm 5 with mu_i one draw of the transition: x^j ~ p(x_k | x^{i^j}) and w^j = p(z | x^j) /
@@ -269,14 +309,35 @@ def test_an_error_in_a_batched_unit_is_reported_for_its_runs(paper_world, monkey
         (["study", "--filters", "sir", "--bandwidth", "multimodal"], "SIRParticleFilter does not take --bandwidth"),
         (["study", "--filters", "sir,apf", "--threshold", "0.3"], "SIRParticleFilter and AuxiliaryParticleFilter do"),
         (["study", "--filters", "grid,ekf", "--kld"], "GridBayesFilter and ExtendedKalmanFilter do not take --kld"),
+        # a flag that tunes an option (recovery's rates, KLD's bounds) is refused where the option is
+        (["run", "--filter", "grid", "--alpha-fast", "0.2"], "GridBayesFilter does not take --alpha-fast"),
+        (["run", "--filter", "ekf", "--alpha-slow", "0.01"], "ExtendedKalmanFilter does not take --alpha-slow"),
+        (["run", "--filter", "grid", "--kld-epsilon", "0.1"], "GridBayesFilter does not take --kld-epsilon"),
+        (["run", "--filter", "ekf", "--kld-z", "1.5"], "ExtendedKalmanFilter does not take --kld-z"),
+        (["compare", "s.json", "--filters", "grid,ekf", "--alpha-fast", "0.2"], "ExtendedKalmanFilter do not take"),
     ],
 )
-def test_the_command_line_refuses_an_option_no_chosen_filter_takes(capsys, args, message):
+def test_the_command_line_refuses_an_option_no_chosen_filter_takes(tmp_path, capsys, args, message):
     from mazelab.cli.app import main
 
+    if args[0] == "compare":  # a scenario to compare on
+        scenario = tmp_path / "s.json"
+        assert main(["run", "--steps", "3", "--particles", "20", "--seed", "1", "--quiet", "--no-viz",
+                     "--save-scenario", str(scenario)]) == 0  # fmt: skip
+        capsys.readouterr()
+        args = [args[0], str(scenario), *args[2:]]
     assert main([*args, "--no-viz"]) == 2
     err = capsys.readouterr().err
     assert message in err and err.count("\n") == 1
+
+
+def test_a_refusal_names_the_flags_of_the_command_it_refuses(capsys):
+    """study has --recovery NAMES and no --sensor-resetting: its refusals name only its own flags."""
+    from mazelab.cli.app import main
+
+    assert main(["study", "--filters", "grid", "--recovery", "augmented", "--no-viz"]) == 2
+    err = capsys.readouterr().err
+    assert "GridBayesFilter does not take --recovery;" in err and "--sensor-resetting" not in err
 
 
 def test_an_option_some_chosen_filters_take_goes_to_those(tmp_path, capsys):

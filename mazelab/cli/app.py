@@ -26,7 +26,7 @@ import typer
 from mazelab.atomic import WriteError
 from mazelab.cli.compare_outputs import compare_record_file, finish_compare, report_compare, start_compare_record
 from mazelab.cli.exercise import exercise_app
-from mazelab.cli.filter_options import options_per_filter
+from mazelab.cli.filter_options import TUNING_FLAGS, options_per_filter
 from mazelab.cli.hints import (
     check_filter_name,
     check_filter_names,
@@ -59,7 +59,7 @@ from mazelab.cli.options import (
 )
 from mazelab.cli.provenance import remember_arguments, show_version
 from mazelab.cli.replay import from_scenario, refuse_counts_for_replay, replay_seed
-from mazelab.cli.replay_filter import replay_filter_name, replay_options
+from mazelab.cli.replay_filter import given_on_command_line, replay_filter_name, replay_options
 from mazelab.cli.reports import kidnap_report, particle_count_report, prepare_world, progress_printer, report_run
 from mazelab.cli.run_setup import fresh_setup, replay_setup
 from mazelab.cli.studies import accuracy, study, study_mazes
@@ -202,7 +202,8 @@ def run(
         "estimate": None if estimate is None else check_estimate(estimate),
         "init": None if init is None else check_choice("--init", init, EKF_INITS),
     }
-    options = options_per_filter([filter_name], given)[resolve_filter(filter_name).name]
+    tuning = [flag for flag in TUNING_FLAGS if given_on_command_line(ctx, flag)]
+    options = options_per_filter([filter_name], given, tuning=tuning)[resolve_filter(filter_name).name]
     for path in (save_scenario_path, rrd):
         if path is not None:
             check_output_path(path, force)
@@ -242,6 +243,7 @@ def recovery_option(recovery: bool, sensor_resetting: bool, alpha_slow: float, a
 
 @app.command(short_help="Lab steps 12-13: every filter on one saved scenario.")
 def compare(
+    ctx: typer.Context,
     scenario: Annotated[Path, typer.Argument(metavar="SCENARIO", help="a saved scenario (.json)", show_default=False)],
     filters: Annotated[
         str, typer.Option(metavar="NAMES", help="sir, apf, rpf, grid, ekf, FILE.py:Class, comma-separated")
@@ -289,7 +291,8 @@ def compare(
         "bandwidth": None if bandwidth is None else check_bandwidth(bandwidth),
         "estimate": None if estimate is None else check_estimate(estimate),
     }
-    options_per_filter(names, given)  # a flag that none of the filters takes: one line, before any work
+    tuning = [flag for flag in TUNING_FLAGS if given_on_command_line(ctx, flag)]
+    options_per_filter(names, given, tuning=tuning)  # a flag that none of the filters takes: one line, first
     parameters = {"filters": names, "sigma": setup.sigma, "delta": setup.delta, "seed": setup.seed,
                   "kidnap_at": kidnap_at, "kld": kld, "recovery": recovery or sensor_resetting,
                   "bandwidth": bandwidth, "estimate": estimate}  # fmt: skip

@@ -154,6 +154,7 @@ def parse_plan(
     options_per_filter(
         parse_filters(check_filter_names(filters)),
         {**given, "recovery": None if recovery in (None, "none") else recovery, "kld": kld or None},
+        flags={"recovery": "--recovery"},  # study's one flag for it (no --sensor-resetting)
     )
     return plan_study(
         plan_mazes(_list(maze, str, "--maze"), _list(maze_size, str, "--maze-size"),

@@ -143,6 +143,7 @@ def run_batch(tasks: Sequence[RunTask]) -> list[list[RunRecord]]:
             filt.step(compass[:, k], z[:, k])
             estimates[:, k], ess[:, k], confident[:, k] = filt.estimate, filt.ess, filt.is_confident
             seconds[k] = (time.perf_counter() - started) / len(tasks)  # each run's share of the step
+        restarts = filt.reinitialised_at if len(tasks) > 1 else [filt.reinitialised_at]  # one run: one list
         for r, walk in enumerate(walks):
             inputs = RunInputs(**{**walk.inputs.__dict__, "filtering_algorithm": name})
             results[r][name] = RunResult(
@@ -152,7 +153,7 @@ def run_batch(tasks: Sequence[RunTask]) -> list[list[RunRecord]]:
                 ess[r],
                 confident[r],
                 seconds,
-                filt.reinitialised_at[r],
+                restarts[r],
                 inputs,
                 extras={"particle_count": np.full(steps, s.particles, dtype=np.int64)},
             )
