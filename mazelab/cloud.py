@@ -165,7 +165,7 @@ class ParticleFilter:
     def motion(self, compass_angle: np.ndarray) -> tuple[Callable[..., Any], Move]:
         """This step's transition, for resampled ancestors and for injected points (draw_particles)."""
 
-        def ancestors_moved(ancestors: np.ndarray, runs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        def ancestors_moved(ancestors: np.ndarray, runs: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
             return self.propagate(take_particles(self.positions, ancestors), compass_angle, runs)
 
         return ancestors_moved, lambda points: self.propagate(points, compass_angle)
@@ -177,21 +177,23 @@ class ParticleFilter:
         return log_lik.reshape(len(z), -1)
 
     # -- resampling, and the parts that change it ------------------------------------------------------
-    def resample(self, weights: np.ndarray, runs: np.ndarray) -> np.ndarray:
-        """Ancestors of the given runs, drawn by their weights (R, N) with the resampling scheme: indices
-        into `positions`, N per run, shape (len(runs) * N,)."""
+    def resample(self, weights: np.ndarray, runs: np.ndarray | None = None) -> np.ndarray:
+        """Ancestors of the given runs (None: every run), drawn by their weights (R, N) with the
+        resampling scheme: indices into `positions`, N per run, shape (len(runs) * N,)."""
+        chosen = range(self.runs) if runs is None else runs
         if self.scheme is systematic_resample:  # one offset per run, the counting done for all runs at once
-            uniforms = np.array([self.rngs[run].random() for run in runs])
-            ancestors = systematic_runs(weights[runs] if len(runs) < self.runs else weights, uniforms)
-            if len(runs) < self.runs:  # block b of the result is run runs[b]'s
-                ancestors += np.repeat(self.count * (runs - np.arange(len(runs))), self.count)
+            uniforms = np.array([self.rngs[run].random() for run in chosen])
+            if runs is None:
+                return systematic_runs(weights, uniforms)
+            ancestors = systematic_runs(weights[runs], uniforms)  # block b of the result is run runs[b]'s
+            ancestors += np.repeat(self.count * (runs - np.arange(len(runs))), self.count)
             return ancestors
-        return np.concatenate([self.scheme(weights[run], self.rngs[run]) + run * self.count for run in runs])
+        return np.concatenate([self.scheme(weights[run], self.rngs[run]) + run * self.count for run in chosen])
 
     def draw_particles(
-        self, weights: np.ndarray, move_ancestors: Callable[..., Any], move_injected: Move, runs: np.ndarray
+        self, weights: np.ndarray, move_ancestors: Callable[..., Any], move_injected: Move, runs: np.ndarray | None
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
-        """RESAMPLE the given runs by their weights (R, N) and `move_ancestors` the ancestors; with
+        """RESAMPLE the given runs (None: every run) by their weights (R, N) and `move_ancestors` the ancestors; with
         KLD-sampling, as many as Fox's bound asks; with recovery, then replace each particle with the
         injection probability by an injected point passed through `move_injected`.
         Returns (positions, headings, ancestors, injected mask or None) of those runs."""
@@ -232,9 +234,10 @@ class ParticleFilter:
         if self.recovery is not None:
             self.recovery.track(float(np.asarray(log_w_avg).item()), float(np.asarray(z).item()))
 
-    def replace_runs(self, x: np.ndarray, headings: np.ndarray, runs: np.ndarray) -> None:
-        """New particles (len(runs) * N, 2) and headings for the given runs; the other runs keep theirs."""
-        if len(runs) == self.runs:
+    def replace_runs(self, x: np.ndarray, headings: np.ndarray, runs: np.ndarray | None = None) -> None:
+        """New particles (len(runs) * N, 2) and headings for the given runs (None: every run); the other
+        runs keep theirs."""
+        if runs is None:
             self.positions, self.headings, self.count = x, headings, len(x) // self.runs
             return
         positions, all_headings = self.positions.copy(order="F"), self.headings.copy()
@@ -244,9 +247,10 @@ class ParticleFilter:
             positions[rows], all_headings[rows] = x[part], headings[part]
         self.positions, self.headings = positions, all_headings
 
-    def all_runs(self, log_w: np.ndarray | None, runs: np.ndarray) -> np.ndarray:
-        """Log weights (R, N) with the given runs' rows from `log_w` (the other runs restart: zeros)."""
-        if log_w is not None and len(runs) == self.runs:
+    def all_runs(self, log_w: np.ndarray | None, runs: np.ndarray | None) -> np.ndarray:
+        """Log weights (R, N) with the given runs' rows from `log_w` (None: every run's; the other runs
+        restart: zeros)."""
+        if runs is None:
             return log_w
         full = np.zeros((self.runs, self.count), dtype=np.float32 if log_w is None else log_w.dtype)
         if log_w is not None:

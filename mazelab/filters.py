@@ -37,10 +37,9 @@ class SIRParticleFilter(ParticleFilter):
             z_k, the measured distance to the nearest station (map units), of each run.
         """
         compass_angle, z = per_run(compass_angle, self.runs), per_run(z, self.runs)
-        every_run = np.arange(self.runs)
         # RESAMPLE (end of Alg. 4, previous step), then x_k^i ~ p(x_k | x_{k-1}^i)
-        x, headings, _, _ = self.draw_particles(self.run_weights, *self.motion(compass_angle), every_run)
-        self.replace_runs(x, headings, every_run)
+        x, headings, _, _ = self.draw_particles(self.run_weights, *self.motion(compass_angle), None)
+        self.replace_runs(x, headings)
         log_lik = self.likelihood(z, x)
         self._set_weights(log_lik, z)  # w_k^i = p(z_k | x_k^i), then normalise
         if self.recovery is not None:  # w_avg = the mean of p(z_k | x_k^i) over the resampled particles
@@ -70,14 +69,14 @@ class AuxiliaryParticleFilter(ParticleFilter):
         first_stage = self._log_w + log_mu_lik  # w_k^i ∝ p(z_k | mu_k^i) w_{k-1}^i
         log_F = np.atleast_1d(log_sum_exp(first_stage))  # F = sum_i W_{k-1}^i p(z_k | mu_k^i)
         lost = log_F < LOG_UNDERFLOW  # no mu explains z_k: these runs restart from the prior
-        drawn, second_stage = np.flatnonzero(~lost), None
-        if len(drawn):
+        drawn, second_stage = (np.flatnonzero(~lost) if lost.any() else None), None  # None: every run
+        if drawn is None or len(drawn):
             # i^j ~ the first stage, then x_k^j ~ p(x_k | x_{k-1}^{i^j})
             first_weights = weights_from_logs(first_stage, log_F)
             x, headings, ancestors, injected = self.draw_particles(first_weights, *self.motion(compass_angle), drawn)
             self.replace_runs(x, headings, drawn)
-            log_lik = self.likelihood(z[drawn], x)
-            log_mu_ancestor = log_mu_lik.ravel().take(ancestors).reshape(len(drawn), -1)
+            log_lik = self.likelihood(z if drawn is None else z[drawn], x)
+            log_mu_ancestor = log_mu_lik.ravel().take(ancestors).reshape(len(log_lik), -1)
             second_stage = log_lik - log_mu_ancestor  # w_k^j = p(z_k | x_k^j) / p(z_k | mu_k^{i^j})
             if self.recovery is not None:
                 second_stage = predictive_scale(second_stage, log_F, log_lik, injected)
@@ -143,7 +142,7 @@ class RegularizedParticleFilter(ParticleFilter):
         compass_angle, z = per_run(compass_angle, self.runs), per_run(z, self.runs)
         degenerate = self.run_ess < self.threshold * self.count  # IF N_eff < N_T (end of Alg. 6, previous step)
         if degenerate.any():
-            self.regularise(np.flatnonzero(degenerate))
+            self.regularise(None if degenerate.all() else np.flatnonzero(degenerate))
         elif self.injection_probability > 0:  # recovery: lost, though the weights have not degenerated
             self.inject_without_resampling(_unmoved)
         x, headings = self.propagate(self.positions, compass_angle)  # x_k^i ~ q = p(x_k | x_{k-1}^i)
@@ -157,14 +156,14 @@ class RegularizedParticleFilter(ParticleFilter):
     def regularise(self, runs: np.ndarray | None = None) -> None:
         """RESAMPLE the given runs (default all), then jitter each particle by h D eps, eps ~ N(0, I_2),
         D D^T = S (the kernel K_h); their weights become 1/N."""
-        runs = np.arange(self.runs) if runs is None else runs
+        chosen = np.arange(self.runs) if runs is None else runs
         weights = self.run_weights
-        kernels = self.kernels(weights[runs], runs)
+        kernels = self.kernels(weights if runs is None else weights[runs], chosen)
 
-        def jitter(ancestors: np.ndarray, _: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # x^{i*} + h D eps
+        def jitter(ancestors: np.ndarray, _: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:  # x^{i*} + h D eps
             moved = take_particles(self.positions, ancestors)
-            size = len(ancestors) // len(runs)
-            for block, (run, kernel) in enumerate(zip(runs, kernels, strict=True)):
+            size = len(ancestors) // len(chosen)
+            for block, (run, kernel) in enumerate(zip(chosen, kernels, strict=True)):
                 rows = slice(block * size, (block + 1) * size)
                 eps = self.rngs[run].standard_normal((size, 2), dtype=PARTICLE_DTYPE)
                 moved[rows] += kernel(moved[rows], eps)
@@ -173,10 +172,10 @@ class RegularizedParticleFilter(ParticleFilter):
         # RESAMPLE and jitter; injected points (recovery) are not jittered: the step's move follows
         x, headings, _, _ = self.draw_particles(weights, jitter, _unmoved, runs)
         self.replace_runs(x, headings, runs)
-        log_weights = self._log_w.copy() if len(runs) < self.runs else np.empty((self.runs, self.count))
-        log_weights[runs] = -math.log(self.count)  # W^i = 1 / N
+        log_weights = np.empty((self.runs, self.count)) if runs is None else self._log_w.copy()
+        log_weights[chosen] = -math.log(self.count)  # W^i = 1 / N
         self._log_w = log_weights
-        for run in runs:
+        for run in chosen:
             self._regularised[run].append(self.steps_done)
 
     def kernels(self, weights: np.ndarray, runs: np.ndarray) -> list[Kernel]:
