@@ -4,13 +4,14 @@ an extended Kalman filter as the baseline.
 The paper's three files (particle_filter.py, draw.py, main.py) are faces over this package. Its
 modules, bottom to top (each imports only those above it in this list):
 
-    checks, limits, lookup, maze_paths, maze, model, modes    the model: maze, motion, measurement, modes
-    seeding                                                   the one rule from a seed to a run's random streams
+    checks, declaration                                       checks of numbers; a filter's options, declared once
+    limits, lookup, maze_paths, maze, model, modes            the model: maze, motion, measurement, modes
+    seeding, run_axis, stops                                  seeds to random streams; the run axis; who stopped
     weights, resampling, regularisation, robot                weighted clouds, resampling, the RPF's kernel, robot
     contract                                                  what every filter provides (and declares)
     recovery, cloud, filters, grid_filter, kalman             the filters (cloud: one engine for 1 or R runs)
-    plugins, registry                                         filters by name, and a student's own (file.py:Class)
-    atomic, option_json, scenario, simulation                 saved scenarios and the simulation loop
+    plugins, registry                                         one entry per filter, and a student's own (file.py:Class)
+    atomic, scenario, collect, simulation                     saved scenarios; the one recording loop; one run
     invocation                                                how this program was started (printed commands)
     viz/                                                      drawing in Rerun (never imported by the above)
     lab                                                       run_model and simulate, with drawing

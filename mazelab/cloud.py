@@ -1,50 +1,63 @@
 """The weighted particle cloud that the paper's three filters share (mazelab.filters writes their steps).
 
-One filter object advances R runs of one setting together: run r's particles are rows r*N..(r+1)*N of
-`positions` (R*N, 2), its log weights row r of (R, N), and its random draws come from its own
-Generator `rngs[r]`, in the order a filter of that run alone would draw them. So one implementation
-serves a single run (R = 1, what a student builds) and a batched study (R runs, bit for bit the same
-as R single runs): every array operation covers all runs in one numpy call, reductions are per run
-along the last axis, and only the draws loop over the runs (never over particles).
+A student reads one run: `positions` (N, 2) float32, `weights` (N,), `estimate` (2,), `ess` a float,
+and the public steps a filter is made of: `propagate` (the transition), `likelihood` (equation (3)),
+`draw_particles` (RESAMPLE, then move), `normalise` (the weights, with a restart from the prior when no
+particle explains z) and `set_uniform_weights`. Every option is declared once in `options`
+(mazelab.declaration): the constructor takes its defaults from there and checks the values there.
 
-For one run the attributes keep the paper's shapes: positions (N, 2), weights (N,), estimate (2,),
-ess a float. For R runs: weights (R, N), estimate (R, 2), ess (R,), is_confident (R,).
-Recovery from kidnapping and KLD-sampling are parts handed to the filter (`RecoveryTracker`,
-`KLDSampling`); they vary the particles of one run, so they need R = 1 (`runs_together` says so).
+The same object also advances R runs of one setting together (a batched study): run r's particles are
+rows r*N..(r+1)*N of `positions` (R*N, 2), its log weights row r of `run_log_weights` (R, N), and its
+draws come from its own Generator `rngs[r]`, in the order a filter of that run alone would draw them,
+so R runs are bit for bit R single runs. The run axis shows only where a step passes `runs` (the runs a
+draw is for: None means all); the helpers for it sit at the end of the class and in mazelab.run_axis.
+Recovery from kidnapping and KLD-sampling vary one run's particles, so they need R = 1.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
+from types import MappingProxyType
 from typing import Any, ClassVar
 
 import numpy as np
 
-from mazelab.checks import as_points, check_sigma_within
+from mazelab.checks import check_sigma_within
 from mazelab.contract import Particles
+from mazelab.declaration import Options, options_of, with_options_section
 from mazelab.maze import Maze, check_world
 from mazelab.model import (
     CONFIDENCE_RADIUS,
     CONFIDENCE_SHARE,
     LOG_UNDERFLOW,
-    OUTSIDE_PENALTY,
+    OUTSIDE_PENALTY_OPTION,
     PARTICLE_DTYPE,
-    ROBOT_SPEED,
+    SPEED_OPTION,
     headings_from_uniforms,
     log_likelihood,
     move,
     take_particles,
 )
-from mazelab.modes import Mode, check_estimate, find_modes
-from mazelab.recovery import ALPHA_FAST, ALPHA_SLOW, Recovery, RecoveryTracker, recovery_options
-from mazelab.resampling import KLDSampling, Move, kld_options, kld_resample, resampling_scheme, systematic_resample
+from mazelab.modes import ESTIMATE_OPTION, Mode, find_modes
+from mazelab.recovery import RECOVERY_OPTIONS, RecoveryTracker, recovery_options
+from mazelab.resampling import (
+    KLD_OPTIONS,
+    RESAMPLING_OPTION,
+    KLDSampling,
+    Move,
+    kld_options,
+    kld_resample,
+    resampling_scheme,
+    systematic_resample,
+)
 from mazelab.resampling import systematic_resample_runs as systematic_runs
+from mazelab.run_axis import as_runs, generators, per_run, replace_blocks
 from mazelab.weights import effective_sample_size, log_sum_exp, mass_within, weighted_mean
 
 
 class ParticleFilter:
-    """Weighted particles {x_i, W_i} approximating the posterior p(x_k | z_1:k), for R runs at once.
+    """Weighted particles {x_i, W_i} approximating the posterior p(x_k | z_1:k).
 
     Arulampalam's algorithms end each step by resampling; here each step starts by resampling the
     previous posterior, the same sequence of operations, so that between steps the filter holds the
@@ -53,41 +66,40 @@ class ParticleFilter:
     Parameters
     ----------
     world : Maze
-        The map: free area and stations.
+        The map: free area and stations (read-only: a filter cannot change it for the others).
     sigma, delta : float
         The measurement noise's standard deviation (map units) and the compass error's width (radians).
     particles : array (N, 2), or (R, N, 2) for R runs together
         The initial particles (the prior's sample).
     rng : numpy.random.Generator, or a sequence of R of them
         Every random draw of the filter (each run's from its own); None: a fresh unseeded one.
-    resampling : str
-        "systematic" (the default), "stratified", "multinomial" or "residual".
-    outside_penalty, speed : float
-        The paper's 0.5 factor outside the free area, and L (model constants, here to experiment).
-    recovery : None, True, "augmented", "sensor" or a Recovery
-        Recovery from kidnapping (beyond the paper), with `alpha_slow`, `alpha_fast`; one run only.
-    kld : None, True or a KLDSampling
-        KLD-sampling (Fox 2003): the particle count adapts to the posterior's spread; one run only.
-    estimate : str
-        "mean" (the paper's posterior mean) or "mode" (the heaviest mode's mean, mazelab.modes).
+    **options
+        The declared options (`options`, listed below); `settings` holds the values this filter runs with.
 
-    `positions` are float32 (PARTICLE_DTYPE), `log_weights` float64. The filter replaces these arrays
+    `positions` are float32 (PARTICLE_DTYPE), log weights float64. The filter replaces these arrays
     rather than writing into them; to change them, assign new arrays (the weights, estimate, ESS and
     confidence are computed once per assignment and cached).
     """
 
     name: ClassVar[str] = "ParticleFilter"
-    options: ClassVar[Mapping[str, Any]] = {
-        "resampling": "systematic",
-        "outside_penalty": OUTSIDE_PENALTY,
-        "speed": ROBOT_SPEED,
-        "recovery": None,
-        "alpha_slow": ALPHA_SLOW,
-        "alpha_fast": ALPHA_FAST,
-        "kld": None,
-        "estimate": "mean",
-    }
+    options: ClassVar[Options] = Options(
+        RESAMPLING_OPTION,
+        OUTSIDE_PENALTY_OPTION,
+        SPEED_OPTION,
+        *RECOVERY_OPTIONS,
+        *KLD_OPTIONS,
+        ESTIMATE_OPTION,
+        check=lambda values: _check_parts(values),
+    )
     ONE_RUN_OPTIONS: ClassVar[tuple[str, ...]] = ("recovery", "kld")  # options that need R = 1
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        """A subclass is named after itself unless it sets `name` (results and the viewer label it so),
+        and its docstring lists its declared options."""
+        super().__init_subclass__(**kwargs)
+        if "name" not in cls.__dict__:
+            cls.name = cls.__name__
+        cls.__doc__ = with_options_section(cls.__doc__, options_of(cls))
 
     def __init__(
         self,
@@ -96,25 +108,19 @@ class ParticleFilter:
         delta: float,
         particles: np.ndarray,
         rng: np.random.Generator | Sequence[np.random.Generator] | None = None,
-        *,
-        resampling: str = "systematic",
-        outside_penalty: float = OUTSIDE_PENALTY,
-        speed: float = ROBOT_SPEED,
-        recovery: bool | str | Recovery | None = None,
-        alpha_slow: float = ALPHA_SLOW,
-        alpha_fast: float = ALPHA_FAST,
-        kld: bool | KLDSampling | None = None,
-        estimate: str = "mean",
+        **options: Any,
     ):
+        settings = type(self).options.resolve(options, self.name)  # defaults filled in, each value checked
+        self.settings: Mapping[str, Any] = MappingProxyType(settings)
         self.world, self.sigma, self.delta = check_world(world), sigma, delta
         check_sigma_within(sigma, world.width, world.height)
-        self.estimate_rule = check_estimate(estimate)
-        self.scheme_name = resampling
-        self.scheme = resampling_scheme(resampling)
-        self.outside_penalty, self.speed = outside_penalty, speed
-        runs_particles = _as_runs(particles)  # (R, N, 2)
+        self.estimate_rule = settings["estimate"]
+        self.scheme_name = settings["resampling"]
+        self.scheme = resampling_scheme(self.scheme_name)
+        self.outside_penalty, self.speed = settings["outside_penalty"], settings["speed"]
+        runs_particles = as_runs(particles)  # (R, N, 2)
         self.runs, self.count = runs_particles.shape[:2]
-        self.rngs = _generators(rng, self.runs)
+        self.rngs = generators(rng, self.runs)
         self.positions = np.asfortranarray(runs_particles.reshape(-1, 2), dtype=PARTICLE_DTYPE)  # (R*N, 2)
         self.headings = np.zeros(len(self.positions), dtype=PARTICLE_DTYPE)  # each particle's last motion angle
         self._log_w = np.full((self.runs, self.count), -math.log(self.count))
@@ -123,9 +129,9 @@ class ParticleFilter:
         self.steps_done = 0
         self._reinitialised: list[list[int]] = [[] for _ in range(self.runs)]
         # the parts beyond the paper, off by default
-        recovering = recovery_options(recovery, alpha_slow, alpha_fast)
+        recovering = recovery_options(settings["recovery"], settings["alpha_slow"], settings["alpha_fast"])
         self.recovery = None if recovering is None else RecoveryTracker(recovering, world, sigma)
-        self.kld = kld_options(kld)
+        self.kld: KLDSampling | None = kld_options(settings["kld"], settings["kld_epsilon"], settings["kld_z"])
         self.max_count = self.count if self.kld is None or self.kld.max_count is None else self.kld.max_count
         if self.runs > 1 and (self.recovery is not None or self.kld is not None):
             raise ValueError("recovery and KLD-sampling vary one run's particles: they run one run at a time")
@@ -147,12 +153,30 @@ class ParticleFilter:
         """
         raise NotImplementedError
 
-    # -- the model, for all runs at once --------------------------------------------------------------
+    @property
+    def diagnostics(self) -> dict[str, Any]:
+        """This step's figures of the filter's own, by name (recorded per step in RunResult.extras and a
+        study's traces): recovery's injection probability when recovery is on."""
+        return {} if self.recovery is None else {"injection_probability": self.injection_probability}
+
+    # -- the model: transition and likelihood ----------------------------------------------------------
     def propagate(
         self, positions: np.ndarray, compass_angle: np.ndarray, runs: np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Draw x_k ~ p(x_k | x_{k-1}): uniform on the arc of radius L around th0 (headings too), for
-        the given `runs` (default all), whose blocks of `positions` lie one after another."""
+        """Draw x_k ~ p(x_k | x_{k-1}): uniform on the arc of radius L around th0 (headings too).
+
+        Parameters
+        ----------
+        positions : array (N, 2), or the blocks of the given runs one after another
+        compass_angle : array (R,)
+            th0_k of every run (`per_run` makes it from a number).
+        runs : array of run indices, optional
+            The runs whose blocks `positions` holds (None: every run).
+
+        Returns
+        -------
+        (moved positions, headings) : arrays (M, 2) and (M,) in the positions' dtype
+        """
         rngs = self.rngs if runs is None else [self.rngs[run] for run in runs]
         dtype = positions.dtype  # PARTICLE_DTYPE, or float64 for injected draws from the free area
         uniforms = np.empty((len(rngs), len(positions) // len(rngs)), dtype=dtype)
@@ -171,15 +195,38 @@ class ParticleFilter:
         return ancestors_moved, lambda points: self.propagate(points, compass_angle)
 
     def likelihood(self, z: np.ndarray, positions: np.ndarray) -> np.ndarray:
-        """log p(z_k | x) of equation (3) with the outside penalty, z (R,) -> (R, N)."""
+        """log p(z_k | x) of equation (3) with the outside penalty.
+
+        Parameters
+        ----------
+        z : array (R,)
+            z_k of each run whose block `positions` holds.
+        positions : array (R*N, 2)
+
+        Returns
+        -------
+        array (R, N)
+        """
         one = float(z[0]) if len(z) == 1 else z  # one run: a plain number (the same float32 arithmetic)
         log_lik = log_likelihood(one, positions, self.world, self.sigma, self.outside_penalty)
         return log_lik.reshape(len(z), -1)
 
     # -- resampling, and the parts that change it ------------------------------------------------------
     def resample(self, weights: np.ndarray, runs: np.ndarray | None = None) -> np.ndarray:
-        """Ancestors of the given runs (None: every run), drawn by their weights (R, N) with the
-        resampling scheme: indices into `positions`, N per run, shape (len(runs) * N,)."""
+        """Ancestors drawn by the weights with the resampling scheme.
+
+        Parameters
+        ----------
+        weights : array (R, N)
+            Normalised weights of the given runs (one row per run).
+        runs : array of run indices, optional
+            The runs to resample (None: every run).
+
+        Returns
+        -------
+        array (len(runs) * N,)
+            Indices into `positions`, N per run.
+        """
         chosen = range(self.runs) if runs is None else runs
         if self.scheme is systematic_resample:  # one offset per run, the counting done for all runs at once
             uniforms = np.array([self.rngs[run].random() for run in chosen])
@@ -193,10 +240,14 @@ class ParticleFilter:
     def draw_particles(
         self, weights: np.ndarray, move_ancestors: Callable[..., Any], move_injected: Move, runs: np.ndarray | None
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
-        """RESAMPLE the given runs (None: every run) by their weights (R, N) and `move_ancestors` the ancestors; with
-        KLD-sampling, as many as Fox's bound asks; with recovery, then replace each particle with the
-        injection probability by an injected point passed through `move_injected`.
-        Returns (positions, headings, ancestors, injected mask or None) of those runs."""
+        """RESAMPLE by the weights (R, N) and `move_ancestors` the ancestors; with KLD-sampling, as many
+        as Fox's bound asks; with recovery, then replace each particle with the injection probability by
+        an injected point passed through `move_injected`.
+
+        Returns
+        -------
+        (positions, headings, ancestors, injected mask or None) of the given runs (None: every run).
+        """
         if self.kld is None:
             ancestors = self.resample(weights, runs)
             positions, headings = move_ancestors(ancestors, runs)
@@ -234,30 +285,26 @@ class ParticleFilter:
         if self.recovery is not None:
             self.recovery.track(float(np.asarray(log_w_avg).item()), float(np.asarray(z).item()))
 
-    def replace_runs(self, x: np.ndarray, headings: np.ndarray, runs: np.ndarray | None = None) -> None:
-        """New particles (len(runs) * N, 2) and headings for the given runs (None: every run); the other
-        runs keep theirs."""
-        if runs is None:
-            self.positions, self.headings, self.count = x, headings, len(x) // self.runs
-            return
-        positions, all_headings = self.positions.copy(order="F"), self.headings.copy()
-        for block, run in enumerate(runs):
-            rows = slice(run * self.count, (run + 1) * self.count)
-            part = slice(block * self.count, (block + 1) * self.count)
-            positions[rows], all_headings[rows] = x[part], headings[part]
-        self.positions, self.headings = positions, all_headings
+    # -- the weights ---------------------------------------------------------------------------------
+    def normalise(self, log_w: np.ndarray, z: np.ndarray, lost: np.ndarray | None = None) -> None:
+        """W_i ∝ exp(log w_i): normalise each run's log weights (R, N) and keep them; a run whose total
+        underflows (no particle explains z_k), or that is `lost` (bool (R,)), starts again from the prior
+        (uniform over the free area), weighted by its own z_k (`reinitialised_at` lists the step)."""
+        totals = np.atleast_1d(log_sum_exp(log_w))
+        log_weights = np.subtract(log_w, totals[:, None], dtype=float)
+        explained = totals >= LOG_UNDERFLOW  # False for an underflow and for NaN
+        if lost is not None:
+            explained &= ~lost
+        if not explained.all():
+            log_weights = self._reinitialise(np.flatnonzero(~explained), z, log_weights)
+        self._log_w = log_weights
 
-    def all_runs(self, log_w: np.ndarray | None, runs: np.ndarray | None) -> np.ndarray:
-        """Log weights (R, N) with the given runs' rows from `log_w` (None: every run's; the other runs
-        restart: zeros)."""
-        if runs is None:
-            return log_w
-        full = np.zeros((self.runs, self.count), dtype=np.float32 if log_w is None else log_w.dtype)
-        if log_w is not None:
-            full[runs] = log_w
-        return full
+    def set_uniform_weights(self, runs: np.ndarray | None = None) -> None:
+        """W_i = 1 / N for the given runs (None: every run): the weights after a resampling."""
+        log_weights = np.empty((self.runs, self.count)) if runs is None else self._log_w.copy()
+        log_weights[slice(None) if runs is None else runs] = -math.log(self.count)
+        self._log_w = log_weights
 
-    # -- the weighted posterior, per run --------------------------------------------------------------
     @property
     def log_weights(self) -> np.ndarray:
         """log W_i, normalised: (N,) for one run, (R, N) for R runs."""
@@ -266,6 +313,11 @@ class ParticleFilter:
     @log_weights.setter
     def log_weights(self, values: np.ndarray) -> None:
         self._log_w = np.asarray(values, dtype=float).reshape(self.runs, -1)
+
+    @property
+    def run_log_weights(self) -> np.ndarray:
+        """log W_i per run, shape (R, N) (for one run: one row), normalised."""
+        return self._log_w
 
     @property
     def run_weights(self) -> np.ndarray:
@@ -277,6 +329,7 @@ class ParticleFilter:
         """The normalised weights W_i: (N,) for one run, (R, N) for R runs."""
         return self._one(self.run_weights)
 
+    # -- the weighted posterior: what the estimate, the ESS and the drawing read ------------------------
     @property
     def run_ess(self) -> np.ndarray:
         """N_eff = 1 / sum_i W_i^2 per run, shape (R,)."""
@@ -316,13 +369,33 @@ class ParticleFilter:
         """The steps at which no particle explained z and the filter restarted (a list per run for R runs)."""
         return self._one(self._reinitialised)
 
+    def belief(self) -> Particles:
+        """What the viewer draws: the particles (one run)."""
+        return Particles(self.positions, self.weights, self.headings, self.injected, self.modes, self.kld is not None)
+
+    # -- R runs together: the blocks of the run axis ------------------------------------------------------
     def run_positions(self, run: int) -> np.ndarray:
         """Run `run`'s particles, (N, 2)."""
         return self.positions[run * self.count : (run + 1) * self.count]
 
-    def belief(self) -> Particles:
-        """What the viewer draws: the particles (one run)."""
-        return Particles(self.positions, self.weights, self.headings, self.injected, self.modes, self.kld is not None)
+    def replace_runs(self, x: np.ndarray, headings: np.ndarray, runs: np.ndarray | None = None) -> None:
+        """New particles (len(runs) * N, 2) and headings for the given runs (None: every run); the other
+        runs keep theirs."""
+        if runs is None:
+            self.positions, self.headings, self.count = x, headings, len(x) // self.runs
+            return
+        self.positions = replace_blocks(self.positions, x, runs, self.count)
+        self.headings = replace_blocks(self.headings, headings, runs, self.count)
+
+    def all_runs(self, log_w: np.ndarray | None, runs: np.ndarray | None) -> np.ndarray:
+        """Log weights (R, N) with the given runs' rows from `log_w` (None: every run's; the other runs
+        restart: zeros)."""
+        if runs is None:
+            return log_w
+        full = np.zeros((self.runs, self.count), dtype=np.float32 if log_w is None else log_w.dtype)
+        if log_w is not None:
+            full[runs] = log_w
+        return full
 
     def _estimates(self) -> np.ndarray:
         """The estimate of each run, (R, 2) float64."""
@@ -342,26 +415,13 @@ class ParticleFilter:
         return per_run[0] if self.runs == 1 else per_run
 
     def _cached(self, name: str, compute: Callable[[], Any]) -> Any:
-        """`compute()`, remembered until `positions` or `log_weights` is assigned a new array."""
+        """`compute()`, remembered until `positions` or the log weights are assigned a new array."""
         described = self._summary_of
         if described is None or described[0] is not self.positions or described[1] is not self._log_w:
             self._summary_of, self._summary = (self.positions, self._log_w), {}
         if name not in self._summary:
             self._summary[name] = compute()
         return self._summary[name]
-
-    # -- bookkeeping, per run --------------------------------------------------------------------------
-    def _set_weights(self, log_w: np.ndarray, z: np.ndarray, lost: np.ndarray | None = None) -> None:
-        """Normalise each run's log weights (R, N); a run whose total underflows (no particle explains
-        z), or that is `lost`, starts again from the prior."""
-        totals = np.atleast_1d(log_sum_exp(log_w))
-        log_weights = np.subtract(log_w, totals[:, None], dtype=float)
-        explained = totals >= LOG_UNDERFLOW  # False for an underflow and for NaN
-        if lost is not None:
-            explained &= ~lost
-        if not explained.all():
-            log_weights = self._reinitialise(np.flatnonzero(~explained), z, log_weights)
-        self._log_w = log_weights
 
     def _reinitialise(self, runs: np.ndarray, z: np.ndarray, log_weights: np.ndarray) -> np.ndarray:
         """The given runs start again from the prior (uniform over the free area), weighted by their z;
@@ -384,35 +444,14 @@ class ParticleFilter:
         return log_weights
 
 
-def _as_runs(particles: Any) -> np.ndarray:
-    """Initial particles as (R, N, 2): (N, 2) is one run."""
-    array = np.asarray(particles)
-    if array.ndim == 3:
-        if array.shape[2] != 2 or array.shape[1] < 1:
-            raise ValueError(f"particles of R runs must have shape (R, N, 2), got {array.shape}")
-        return np.stack([as_points("particles", run) for run in array])
-    return as_points("particles", particles)[None]
+def _check_parts(values: Mapping[str, Any]) -> None:
+    """The options that build a part together (recovery and its rates, KLD-sampling and its numbers),
+    checked as the constructor builds them: alpha_slow above alpha_fast is refused here, in one line."""
+    recovery_options(values["recovery"], values["alpha_slow"], values["alpha_fast"])
+    kld_options(values["kld"], values["kld_epsilon"], values["kld_z"])
 
 
-def _generators(rng: Any, runs: int) -> list[np.random.Generator]:
-    """One Generator per run: `rng` itself for one run, or the sequence given (None: fresh ones)."""
-    if rng is None:
-        return [np.random.default_rng() for _ in range(runs)]
-    if isinstance(rng, np.random.Generator):
-        if runs != 1:
-            raise ValueError(f"{runs} runs need {runs} generators, one each, got one")
-        return [rng]
-    rngs = list(rng)
-    if len(rngs) != runs or not all(isinstance(g, np.random.Generator) for g in rngs):
-        raise ValueError(f"{runs} runs need {runs} numpy Generators, got {len(rngs)}")
-    return rngs
-
-
-def per_run(value: float | np.ndarray, runs: int) -> np.ndarray:
-    """A step's compass angle or measurement as one value per run, float64 (R,)."""
-    if isinstance(value, np.ndarray):
-        return np.broadcast_to(value.astype(float, copy=False), (runs,))
-    return np.array([float(value)] * runs)
+ParticleFilter.__doc__ = with_options_section(ParticleFilter.__doc__, ParticleFilter.options)
 
 
 __all__ = ["ParticleFilter", "per_run"]

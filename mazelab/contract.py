@@ -4,25 +4,64 @@ viewer take any class that meets it (the shipped ones, the exact grid filter, th
 A filter is a class built as `cls(world, sigma, delta, particles, rng, **options)` whose objects have:
 
     step(compass_angle, z)   advance one step: predict with the compass angle th0_k, update with z_k
-    estimate                 the point estimate, shape (2,)
+    estimate                 the point estimate, shape (2,), finite
     ess                      the effective sample size, or NaN when the belief is not a sample
     is_confident             the paper's green circle: 95% of the belief within distance 1 of the estimate
-    count                    particles (or cells, or 1 for a Gaussian) this step
+    count                    particles (or cells, or 1 for a Gaussian) this step, a whole number >= 1
     reinitialised_at         the steps at which it restarted from the prior (no hypothesis explained z)
     belief()                 what the viewer draws: Particles, Density or Gaussian (below)
+    diagnostics (optional)   a dict of this step's figures of its own, recorded per step
 
-and class attributes `name` (how results and the viewer label it) and `options` (every keyword option
-the constructor takes, with its default). An option a filter does not declare is refused for it, by
-`check_options`, with one line that names the option and the filter.
+and class attributes `name` (how results and the viewer label it) and `options`, every keyword option
+the constructor takes, declared once (mazelab.declaration: `Options(Option(name, default, help, ...))`,
+or a plain mapping of names to defaults). An option a filter does not declare is refused for it in one
+line. The contract is checked on the object before the first step (`check_filter`) and each step's
+values where they are read (`step_values`): a missing part or a bad value is one line naming it.
+
+A new filter, worked through: SIR that resamples only when the weights degenerate (adaptive
+resampling, Liu and Chen 1995), with one option. It declares the option once, and its step calls the
+cloud's public methods only (mazelab.cloud.ParticleFilter), each line one line of the algorithm:
+
+    from mazelab.cloud import ParticleFilter
+    from mazelab.declaration import Option, number_in
+    from mazelab.run_axis import per_run
+
+    class AdaptiveSIR(ParticleFilter):
+        '''SIR that resamples only when the ESS falls below ess_share * N.'''
+
+        options = ParticleFilter.options.extend(
+            Option("ess_share", 0.5, "resample when ESS < ess_share * N", check=number_in("ess_share", 0, 1)),
+        )
+
+        def step(self, compass_angle, z):
+            compass_angle, z = per_run(compass_angle, 1), per_run(z, 1)
+            if self.ess < self.settings["ess_share"] * self.count:  # RESAMPLE only when degenerate
+                x, headings, _, _ = self.draw_particles(self.run_weights, *self.motion(compass_angle), None)
+                self.set_uniform_weights()  # W_i = 1/N
+            else:
+                x, headings = self.propagate(self.positions, compass_angle)  # x_k^i ~ p(x_k | x_k-1^i)
+            self.replace_runs(x, headings)
+            self.normalise(self.run_log_weights + self.likelihood(z, x), z)  # w_k^i ∝ w_k-1^i p(z_k | x_k^i)
+            self.steps_done += 1
+
+Saved as my_filter.py it runs wherever the shipped filters run: `mazelab run --filter
+my_filter.py:AdaptiveSIR --option ess_share=0.3`, `compare`, `study --option ess_share=0.3,0.5,0.9`;
+its saved runs replay with it. Added to the package, it is one entry in mazelab.registry.SHIPPED
+(`batched=True` only once its step works for R runs together, as the shipped steps do).
+mazelab.exercise.StudentFilter is the gentler start: four parts to write, the rest wired.
 """
 
 from __future__ import annotations
 
+import math
+import numbers
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
+
+from mazelab.declaration import Options, options_of
 
 # -- what a filter has to draw ---------------------------------------------------------------------
 
@@ -66,7 +105,7 @@ class Filter(Protocol):
     """What every filter provides (see the module's docstring)."""
 
     name: ClassVar[str]
-    options: ClassVar[Mapping[str, Any]]
+    options: ClassVar[Options | Mapping[str, Any]]
     count: int
     reinitialised_at: list[int]
 
@@ -94,33 +133,145 @@ REQUIRED_ATTRIBUTES = ("estimate", "ess", "is_confident", "count", "reinitialise
 
 
 def missing_parts(filter_class: type) -> list[str]:
-    """The parts of the contract a class lacks (empty when it meets it), by name; the attributes its
-    objects set in __init__ (count, reinitialised_at) cannot be seen on the class and are checked on
-    an object by `check_filter`."""
+    """The parts of the contract a class lacks (empty when it meets it), by name.
+
+    Parameters
+    ----------
+    filter_class : type
+
+    Returns
+    -------
+    list of str
+        E.g. ["class attribute 'name'", "method step()"]; the attributes its objects set in __init__
+        (count, reinitialised_at) cannot be seen on the class and are checked by `check_filter`.
+    """
     missing = [f"class attribute {a!r}" for a in ("name", "options") if not hasattr(filter_class, a)]
-    if hasattr(filter_class, "options") and not isinstance(filter_class.options, Mapping):
-        missing.append("'options' as a mapping of option names to defaults")
+    if hasattr(filter_class, "name") and not isinstance(filter_class.name, str):
+        missing.append("'name' as a string")
+    if hasattr(filter_class, "options"):
+        try:
+            options_of(filter_class)
+        except (TypeError, ValueError):
+            missing.append("'options' as a mapping of option names to defaults (or mazelab.declaration.Options)")
     missing += [f"method {m}()" for m in REQUIRED_METHODS if not callable(getattr(filter_class, m, None))]
     return missing
 
 
+class ContractError(TypeError, ValueError):
+    """A filter object that misses part of the contract or hands back a bad value: one line naming it."""
+
+
 def check_filter(filt: Any) -> None:
-    """Refuse an object that misses part of the contract, naming what is missing."""
+    """Refuse an object that misses part of the contract or has a mistyped part, naming it.
+
+    Parameters
+    ----------
+    filt : object
+        A filter just built, before its first step: its parts are there, `reinitialised_at` is a list
+        of step numbers and `count` a whole number >= 1 (estimate, ess and is_confident are checked
+        where they are read, after each step: `check_step_values`).
+
+    Raises
+    ------
+    ContractError
+        One line: the filter, then what is missing or mistyped.
+    """
+    name = getattr(type(filt), "name", type(filt).__name__)
     missing = missing_parts(type(filt))
-    missing += [f"attribute {a!r}" for a in REQUIRED_ATTRIBUTES if not hasattr(filt, a)]
+    missing += [f"attribute {a!r}" for a in REQUIRED_ATTRIBUTES if not _has(filt, a)]
     if missing:
-        raise TypeError(f"{type(filt).__name__} does not meet the filter contract: it has no {', '.join(missing)}")
+        raise ContractError(f"{name} does not meet the filter contract: it has no {', '.join(missing)}")
+    restarts = filt.reinitialised_at
+    if not isinstance(restarts, (list, tuple)) or not all(_whole(s) for s in restarts):
+        raise ContractError(
+            f"{name}.reinitialised_at must be a list of step numbers (whole numbers), got {_shown(restarts)}"
+        )
+    count = filt.count
+    if not _whole(count) or count < 1:
+        raise ContractError(f"{name}.count must be a whole number >= 1, got {_shown(count)}")
+
+
+def step_values(filt: Any, runs: int | None = None) -> tuple[np.ndarray, Any, Any, int]:
+    """A step's values as the run reads them, each checked (`check_step_values`)."""
+    return check_step_values(type(filt), (filt.estimate, filt.ess, filt.is_confident, filt.count), runs)
+
+
+def check_step_values(
+    filter_class: type, values: tuple[Any, Any, Any, Any], runs: int | None = None
+) -> tuple[np.ndarray, Any, Any, int]:
+    """A step's values (estimate, ess, is_confident, count) as read from a filter, each checked.
+
+    Parameters
+    ----------
+    filter_class : type
+        The filter's class, for the messages.
+    values : (estimate, ess, is_confident, count)
+    runs : int, optional
+        R for a filter advancing R runs together: estimate (R, 2), ess and is_confident (R,).
+
+    Returns
+    -------
+    (estimate, ess, is_confident, count)
+        estimate float64 (2,) or (R, 2); ess a float (NaN: not a sample) or (R,); is_confident bool or (R,).
+
+    Raises
+    ------
+    ContractError
+        One line naming the part and the value: an estimate that is not finite or not (2,), an ess that
+        is no number, a confidence that is not True or False, a count that is not a whole number >= 1.
+    """
+    raw_estimate, ess, confident, count = values
+    name = getattr(filter_class, "name", filter_class.__name__)
+    shape = (2,) if runs is None else (runs, 2)
+    try:
+        estimate = np.asarray(raw_estimate, dtype=float)
+    except (TypeError, ValueError):
+        raise ContractError(f"{name}.estimate must be a point (x, y), got {_shown(raw_estimate)}") from None
+    if estimate.shape != shape:
+        raise ContractError(f"{name}.estimate must have shape {shape}, got {estimate.shape}")
+    if not np.isfinite(estimate).all():
+        raise ContractError(f"{name}.estimate must be finite, got {_shown(estimate)}")
+    if runs is None:
+        if isinstance(ess, (bool, np.bool_)) or not isinstance(ess, numbers.Real) or not (math.isnan(ess) or ess >= 0):
+            raise ContractError(f"{name}.ess must be a number >= 0 (or NaN when not a sample), got {_shown(ess)}")
+        ess = float(ess)
+        if not isinstance(confident, (bool, np.bool_)):
+            raise ContractError(f"{name}.is_confident must be True or False, got {_shown(confident)}")
+    if not _whole(count) or count < 1:
+        raise ContractError(f"{name}.count must be a whole number >= 1, got {_shown(count)}")
+    return estimate, ess, confident, int(count)
+
+
+def _has(filt: Any, attribute: str) -> bool:
+    """Whether the object has the attribute, without running a property's code (a student's
+    `estimate` is read after the first step, where its errors name the step)."""
+    if isinstance(getattr(type(filt), attribute, None), property):
+        return True
+    try:
+        getattr(filt, attribute)
+    except AttributeError:
+        return False
+    return True
+
+
+def _whole(value: Any) -> bool:
+    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+
+
+def _shown(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def check_options(filter_class: type, options: Mapping[str, Any], *, spelled: Mapping[str, str] | None = None) -> None:
-    """Refuse any option that `filter_class` does not declare, in one line naming the option and the
-    filter; `spelled` maps an option to how the user wrote it (e.g. "bandwidth" -> "--bandwidth")."""
-    declared = filter_class.options
+    """Refuse any option that `filter_class` does not declare, in one line naming the option (as the
+    user `spelled` it, e.g. "bandwidth" -> "--bandwidth") and what the filter takes."""
+    declared = options_of(filter_class)
     for option in options:
         if option not in declared:
             shown = (spelled or {}).get(option, option)
-            takes = ", ".join(declared) or "no options"
-            raise ValueError(f"{filter_class.name} does not take the option {shown} (it takes: {takes})")
+            takes_ = ", ".join(o.name for o in declared.settable()) or "no options"
+            raise ValueError(f"{filter_class.name} does not take the option {shown} (it takes: {takes_})")
 
 
 def options_for(
@@ -133,29 +284,42 @@ def options_for(
     chosen = {option: value for option, value in given.items() if value is not None}
     for option in chosen:
         if not any(takes(cls, option) for cls in filter_classes):
-            names = " and ".join(cls.name for cls in filter_classes)
-            offered = [spelled.get(o, o) for o in given if any(takes(cls, o) for cls in filter_classes)]
-            they = "they take" if len(filter_classes) > 1 else "it takes"
-            take_list = f"; {they} {', '.join(offered)}" if offered else ""
-            verb = "do" if len(filter_classes) > 1 else "does"
-            raise ValueError(f"{names} {verb} not take {spelled.get(option, option)}{take_list}")
+            raise ValueError(not_taken(filter_classes, spelled.get(option, option)))
     return {cls.name: {o: v for o, v in chosen.items() if takes(cls, o)} for cls in filter_classes}
+
+
+def not_taken(filter_classes: Sequence[type], spelled: str) -> str:
+    """The line for an option that none of the filters declares: 'GridBayesFilter does not take
+    --recovery (it takes: resolution, margin, ...)', each filter's options named for several."""
+
+    def declared(cls: type) -> str:
+        return ", ".join(o.name for o in options_of(cls).settable()) or "no options"
+
+    if len(filter_classes) == 1:
+        return f"{filter_classes[0].name} does not take {spelled} (it takes: {declared(filter_classes[0])})"
+    names = " and ".join(cls.name for cls in filter_classes)
+    each = "; ".join(f"{cls.name}: {declared(cls)}" for cls in filter_classes)
+    return f"{names} do not take {spelled} ({each})"
 
 
 def takes(filter_class: type, option: str) -> bool:
     """Whether `filter_class` declares `option`."""
-    return option in filter_class.options
+    return option in options_of(filter_class)
 
 
 __all__ = [
     "Belief",
+    "ContractError",
     "Density",
     "Filter",
     "Gaussian",
     "Particles",
     "check_filter",
     "check_options",
+    "check_step_values",
     "missing_parts",
+    "not_taken",
     "options_for",
+    "step_values",
     "takes",
 ]

@@ -15,9 +15,11 @@ from typing import Any, ClassVar
 import numpy as np
 
 from mazelab.checks import check_bandwidth_within
-from mazelab.cloud import ParticleFilter, per_run
+from mazelab.cloud import ParticleFilter
+from mazelab.declaration import Option, Options, number_in
 from mazelab.model import LOG_UNDERFLOW, PARTICLE_DTYPE, RPF_THRESHOLD, take_particles
-from mazelab.regularisation import Kernel, check_bandwidth, gaussian_jitter, mixture_kernel, optimal_bandwidth
+from mazelab.regularisation import BANDWIDTH_OPTION, Kernel, gaussian_jitter, mixture_kernel, optimal_bandwidth
+from mazelab.run_axis import per_run
 from mazelab.weights import log_sum_exp, weighted_covariance, weights_from_logs
 
 
@@ -41,7 +43,7 @@ class SIRParticleFilter(ParticleFilter):
         x, headings, _, _ = self.draw_particles(self.run_weights, *self.motion(compass_angle), None)
         self.replace_runs(x, headings)
         log_lik = self.likelihood(z, x)
-        self._set_weights(log_lik, z)  # w_k^i = p(z_k | x_k^i), then normalise
+        self.normalise(log_lik, z)  # w_k^i = p(z_k | x_k^i), then normalise
         if self.recovery is not None:  # w_avg = the mean of p(z_k | x_k^i) over the resampled particles
             self.track_likelihood(log_sum_exp(log_lik) - math.log(self.count), z)
         self.steps_done += 1
@@ -66,7 +68,7 @@ class AuxiliaryParticleFilter(ParticleFilter):
         compass_angle, z = per_run(compass_angle, self.runs), per_run(z, self.runs)
         mu, _ = self.propagate(self.positions, compass_angle)  # mu_k^i ~ p(x_k | x_{k-1}^i)
         log_mu_lik = self.likelihood(z, mu)
-        first_stage = self._log_w + log_mu_lik  # w_k^i ∝ p(z_k | mu_k^i) w_{k-1}^i
+        first_stage = self.run_log_weights + log_mu_lik  # w_k^i ∝ p(z_k | mu_k^i) w_{k-1}^i
         log_F = np.atleast_1d(log_sum_exp(first_stage))  # F = sum_i W_{k-1}^i p(z_k | mu_k^i)
         lost = log_F < LOG_UNDERFLOW  # no mu explains z_k: these runs restart from the prior
         drawn, second_stage = (np.flatnonzero(~lost) if lost.any() else None), None  # None: every run
@@ -81,7 +83,7 @@ class AuxiliaryParticleFilter(ParticleFilter):
             if self.recovery is not None:
                 second_stage = predictive_scale(second_stage, log_F, log_lik, injected)
         log_w = self.all_runs(second_stage, drawn)
-        self._set_weights(log_w, z, lost)  # normalise; the lost runs restart
+        self.normalise(log_w, z, lost)  # normalise; the lost runs restart
         if self.recovery is not None:  # w_avg of this step (one run)
             self.track_likelihood(log_F if lost[0] else log_sum_exp(log_w) - math.log(self.count), z)
         self.steps_done += 1
@@ -106,15 +108,20 @@ class RegularizedParticleFilter(ParticleFilter):
     mazelab.regularisation. The other options are ParticleFilter's."""
 
     name = "RegularizedParticleFilter"
-    options: ClassVar[dict[str, Any]] = {**ParticleFilter.options, "threshold": RPF_THRESHOLD, "bandwidth": "optimal"}
+    options: ClassVar[Options] = ParticleFilter.options.extend(
+        Option(
+            "threshold", RPF_THRESHOLD, "N_T / N_S: regularise when the ESS falls below N_T (refinement 5: 0.2)",
+            check=number_in("the RPF threshold", 0.0, 1.0, what=" (N_T = threshold * N_S)"), flag="--threshold",
+        ),
+        BANDWIDTH_OPTION,
+    )  # fmt: skip
 
-    def __init__(self, *args: Any, threshold: float = RPF_THRESHOLD, bandwidth: str | float = "optimal", **kwargs: Any):
-        super().__init__(*args, **kwargs)
-        if not 0 < threshold <= 1:
-            raise ValueError(f"the RPF threshold must be in (0, 1] (N_T = threshold * N_S), got {threshold}")
-        self.threshold = threshold
-        self.bandwidth_rule = check_bandwidth(check_bandwidth_within(bandwidth, self.world.width, self.world.height))
+    def __init__(self, *args: Any, **options: Any):
+        super().__init__(*args, **options)
+        self.threshold = self.settings["threshold"]
+        self.bandwidth_rule = check_bandwidth_within(self.settings["bandwidth"], self.world.width, self.world.height)
         self._regularised: list[list[int]] = [[] for _ in range(self.runs)]
+        self._regularised_now = np.zeros(self.runs, dtype=bool)
 
     @property
     def bandwidth(self) -> float:
@@ -129,6 +136,12 @@ class RegularizedParticleFilter(ParticleFilter):
         """The steps after which the filter regularised (a list per run for R runs)."""
         return self._one(self._regularised)
 
+    @property
+    def diagnostics(self) -> dict[str, Any]:
+        """ParticleFilter's, and whether this step began by regularising (bool, or (R,) for R runs)."""
+        now = bool(self._regularised_now[0]) if self.runs == 1 else self._regularised_now.copy()
+        return {**super().diagnostics, "regularised": now}
+
     def step(self, compass_angle: float | np.ndarray, z: float | np.ndarray) -> None:
         """One step of Algorithm 6.
 
@@ -141,16 +154,17 @@ class RegularizedParticleFilter(ParticleFilter):
         """
         compass_angle, z = per_run(compass_angle, self.runs), per_run(z, self.runs)
         degenerate = self.run_ess < self.threshold * self.count  # IF N_eff < N_T (end of Alg. 6, previous step)
+        self._regularised_now = degenerate
         if degenerate.any():
             self.regularise(None if degenerate.all() else np.flatnonzero(degenerate))
         elif self.injection_probability > 0:  # recovery: lost, though the weights have not degenerated
             self.inject_without_resampling(_unmoved)
         x, headings = self.propagate(self.positions, compass_angle)  # x_k^i ~ q = p(x_k | x_{k-1}^i)
         self.positions, self.headings = x, headings
-        log_w = self._log_w + self.likelihood(z, x)  # w_k^i ∝ w_{k-1}^i p(z_k | x_k^i)
+        log_w = self.run_log_weights + self.likelihood(z, x)  # w_k^i ∝ w_{k-1}^i p(z_k | x_k^i)
         if self.recovery is not None:  # W_{k-1} is normalised: w_avg = sum_i W_{k-1}^i p(z_k | x_k^i)
             self.track_likelihood(log_sum_exp(log_w), z)
-        self._set_weights(log_w, z)
+        self.normalise(log_w, z)
         self.steps_done += 1
 
     def regularise(self, runs: np.ndarray | None = None) -> None:
@@ -172,9 +186,7 @@ class RegularizedParticleFilter(ParticleFilter):
         # RESAMPLE and jitter; injected points (recovery) are not jittered: the step's move follows
         x, headings, _, _ = self.draw_particles(weights, jitter, _unmoved, runs)
         self.replace_runs(x, headings, runs)
-        log_weights = np.empty((self.runs, self.count)) if runs is None else self._log_w.copy()
-        log_weights[chosen] = -math.log(self.count)  # W^i = 1 / N
-        self._log_w = log_weights
+        self.set_uniform_weights(runs)  # W^i = 1 / N
         for run in chosen:
             self._regularised[run].append(self.steps_done)
 

@@ -4,16 +4,24 @@ and the oracle the tests and the accuracy table measure them against."""
 from __future__ import annotations
 
 import math
+from types import MappingProxyType
 from typing import Any, ClassVar
 
 import numpy as np
 
-from mazelab.checks import check_grid_resolution, check_sigma_within
+from mazelab.checks import MAP_MARGIN, check_grid_resolution, check_sigma_within
 from mazelab.contract import Density
+from mazelab.declaration import Option, Options, number_in, with_options_section
 from mazelab.limits import check_memory
 from mazelab.maze import Maze, check_world
-from mazelab.model import CONFIDENCE_RADIUS, CONFIDENCE_SHARE, LOG_UNDERFLOW, OUTSIDE_PENALTY, ROBOT_SPEED
-from mazelab.modes import MODE_CELL, Mode, check_estimate, find_modes, modes_of_bins
+from mazelab.model import (
+    CONFIDENCE_RADIUS,
+    CONFIDENCE_SHARE,
+    LOG_UNDERFLOW,
+    OUTSIDE_PENALTY_OPTION,
+    SPEED_OPTION,
+)
+from mazelab.modes import ESTIMATE_OPTION, MODE_CELL, Mode, find_modes, modes_of_bins
 from mazelab.weights import mass_within, weighted_mean
 
 GRID_RESOLUTION = 0.02  # cell size of GridBayesFilter, map units (divides 1, so cells never straddle walls)
@@ -29,13 +37,15 @@ class GridBayesFilter:
     """
 
     name: ClassVar[str] = "GridBayesFilter"
-    options: ClassVar[dict[str, Any]] = {
-        "resolution": GRID_RESOLUTION,
-        "margin": 1.0,
-        "outside_penalty": OUTSIDE_PENALTY,
-        "speed": ROBOT_SPEED,
-        "estimate": "mean",
-    }
+    options: ClassVar[Options] = Options(
+        Option("resolution", GRID_RESOLUTION, "the cells' side, map units (memory grows as its inverse square)",
+               check=check_grid_resolution),
+        Option("margin", 1.0, "the grid's margin around the map, map units (mass leaving it is dropped)",
+               check=number_in("margin", 0.0, MAP_MARGIN, low_open=False, what=" map units")),
+        OUTSIDE_PENALTY_OPTION,
+        SPEED_OPTION,
+        ESTIMATE_OPTION,
+    )  # fmt: skip
 
     def __init__(
         self,
@@ -44,18 +54,15 @@ class GridBayesFilter:
         delta: float,
         particles: np.ndarray | None = None,
         rng: np.random.Generator | None = None,
-        *,
-        resolution: float = GRID_RESOLUTION,
-        margin: float = 1.0,
-        outside_penalty: float = OUTSIDE_PENALTY,
-        speed: float = ROBOT_SPEED,
-        estimate: str = "mean",
+        **options: Any,
     ):
         del particles  # the exact filter starts from the exact prior, not from a sample of it
-        self.world, self.sigma, self.delta, self.speed = check_world(world), sigma, delta, speed
+        settings = type(self).options.resolve(options, self.name)
+        self.settings = MappingProxyType(settings)
+        resolution, margin, outside_penalty = settings["resolution"], settings["margin"], settings["outside_penalty"]
+        self.world, self.sigma, self.delta, self.speed = check_world(world), sigma, delta, settings["speed"]
         check_sigma_within(sigma, world.width, world.height)
-        resolution = check_grid_resolution(resolution)
-        self.estimate_rule = check_estimate(estimate)
+        self.estimate_rule = settings["estimate"]
         self.rng = rng if rng is not None else np.random.default_rng()
         self.resolution = resolution
         self.origin = -margin
@@ -219,6 +226,9 @@ def _fast_fft_length(n: int) -> int:
     """The smallest 2^a, 3 * 2^a or 5 * 2^a >= n: numpy's FFT is fastest on such lengths (640 takes a
     third of the time of 625 = 5^4)."""
     return min(odd * 2 ** max(0, math.ceil(math.log2(n / odd))) for odd in (1, 3, 5))
+
+
+GridBayesFilter.__doc__ = with_options_section(GridBayesFilter.__doc__, GridBayesFilter.options)
 
 
 __all__ = [

@@ -12,15 +12,17 @@ are not in a Gaussian.
 from __future__ import annotations
 
 import math
+from types import MappingProxyType
 from typing import Any, ClassVar
 
 import numpy as np
 
-from mazelab.checks import check_sigma_within
+from mazelab.checks import MAP_MARGIN, check_sigma_within
 from mazelab.contract import Gaussian
+from mazelab.declaration import Option, Options, choice, number_in, with_options_section
 from mazelab.maze import Maze, check_world
-from mazelab.model import CONFIDENCE_RADIUS, CONFIDENCE_SHARE, ROBOT_SPEED
-from mazelab.modes import check_estimate
+from mazelab.model import CONFIDENCE_RADIUS, CONFIDENCE_SHARE, ROBOT_SPEED, SPEED_OPTION
+from mazelab.modes import ESTIMATE_OPTION
 
 START_STD = 0.05  # std of each coordinate of init="start"'s covariance, map units: the start is known
 EKF_INITS = ("prior", "start")
@@ -42,14 +44,16 @@ class ExtendedKalmanFilter:
     """
 
     name: ClassVar[str] = "ExtendedKalmanFilter"
-    # `start`: simulate hands a filter that declares it the robot's start (for init="start")
-    options: ClassVar[dict[str, Any]] = {
-        "init": "prior",
-        "start": None,
-        "start_std": START_STD,
-        "speed": ROBOT_SPEED,
-        "estimate": "mean",
-    }
+    options: ClassVar[Options] = Options(
+        Option("init", "prior", "prior (global localisation, the lab's problem) or start (tracking the start)",
+               parse=str.strip, check=choice("init", EKF_INITS), flag="--init"),
+        # simulate hands a filter that declares `start` the robot's start (for init="start")
+        Option("start", None, "the robot's start (x, y), handed in by the run", derived=True),
+        Option("start_std", START_STD, "init=start: each coordinate's std, map units",
+               check=number_in("start_std", 0.0, MAP_MARGIN, what=" map units")),
+        SPEED_OPTION,
+        ESTIMATE_OPTION,
+    )  # fmt: skip
 
     def __init__(
         self,
@@ -58,26 +62,21 @@ class ExtendedKalmanFilter:
         delta: float,
         particles: np.ndarray | None = None,
         rng: np.random.Generator | None = None,
-        *,
-        init: str = "prior",
-        start: tuple[float, float] | np.ndarray | None = None,
-        start_std: float = START_STD,
-        speed: float = ROBOT_SPEED,
-        estimate: str = "mean",
+        **options: Any,
     ):
         del particles, rng  # a Gaussian needs neither a sample nor random draws
-        check_estimate(estimate)  # one Gaussian: its mode is its mean
-        self.world, self.sigma, self.delta, self.speed = check_world(world), sigma, delta, speed
+        settings = type(self).options.resolve(options, self.name)
+        self.settings = MappingProxyType(settings)
+        init, start, start_std = settings["init"], settings["start"], settings["start_std"]
+        self.world, self.sigma, self.delta, self.speed = check_world(world), sigma, delta, settings["speed"]
         check_sigma_within(sigma, world.width, world.height)
         if init == "prior":
             self.mean, self.covariance = free_area_moments(world)
-        elif init == "start":
+        else:  # "start"
             if start is None:
                 raise ValueError('init="start" needs the robot\'s start: give start=(x, y)')
             self.mean = np.array(start, dtype=float).reshape(2)
             self.covariance = start_std**2 * np.eye(2)
-        else:
-            raise ValueError(f"init must be one of {', '.join(EKF_INITS)}, got {init!r}")
         self.init = init
         self._last_q: tuple[float, np.ndarray, np.ndarray] | None = None
         self.station = np.full(2, np.nan)  # the station the last update measured to
@@ -233,6 +232,9 @@ def covariance_ellipse(mean: np.ndarray, covariance: np.ndarray, scale: float = 
     angles = np.linspace(0.0, 2 * math.pi, points + 1)
     circle = np.column_stack([np.cos(angles), np.sin(angles)])
     return mean + scale * (circle * np.sqrt(np.maximum(values, 0.0))) @ vectors.T
+
+
+ExtendedKalmanFilter.__doc__ = with_options_section(ExtendedKalmanFilter.__doc__, ExtendedKalmanFilter.options)
 
 
 __all__ = [

@@ -8,6 +8,7 @@ Cell values: 0 empty, 1 wall, 2 wall with a station at each of its four corners.
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Sequence
 from functools import cached_property
@@ -33,14 +34,35 @@ class Maze:
     """A rectangular maze of 0/1/2 cells: free area, walls, stations and nearest-station distances.
 
     `maze_map` is any rectangular nested sequence (tuple of tuples, list of lists, numpy array).
+    A Maze does not change once built: its arrays are read-only and its attributes cannot be
+    reassigned, so every filter handed one maze sees the same map (a plug-in gets its own `copy`).
     """
 
     def __init__(self, maze_map: Sequence[Sequence[int]] | np.ndarray, *, source: str = "maze map"):
-        self.grid = _validate_grid(maze_map, source)
-        self.source = source
-        self.height, self.width = self.grid.shape
-        self.stations = _station_corners(self.grid)
-        self.free_cells = _free_cell_origins(self.grid)
+        state = self.__dict__
+        state["grid"] = _validate_grid(maze_map, source)
+        state["source"] = source
+        state["height"], state["width"] = self.grid.shape
+        state["stations"] = _station_corners(self.grid)
+        state["free_cells"] = _free_cell_origins(self.grid)
+        _read_only(self)
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        raise AttributeError(f"a Maze does not change once built: cannot set {name!r} (make a new Maze)")
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        """Unpickled (a worker process's copy): read-only again (numpy unpickles arrays writeable)."""
+        self.__dict__.update(state)
+        _read_only(self)
+
+    def __delattr__(self, name: str) -> None:
+        raise AttributeError(f"a Maze does not change once built: cannot delete {name!r}")
+
+    def copy(self) -> Maze:
+        """A maze equal to this one that shares no array with it (its nearest-station table too, if
+        built): what a filter that is not the lab's is handed, so that whatever it does to its maze
+        cannot reach the others' (a read-only maze already refuses the writes of ordinary code)."""
+        return copy.deepcopy(self)  # __setstate__ makes the copy read-only
 
     # -- loading ---------------------------------------------------------------------------------
     @classmethod
@@ -87,7 +109,9 @@ class Maze:
         """The nearest-station table, refused up front if it would not fit in memory."""
         what = f"the nearest-station table of the {self.height}x{self.width} maze ({self.source})"
         check_memory(what, self.lookup_cells * BYTES_PER_LOOKUP_CELL)
-        return NearestStationLookup(self.stations, self.grid == EMPTY, progress)
+        lookup = NearestStationLookup(self.stations, self.grid == EMPTY, progress)
+        _read_only(lookup)
+        return lookup
 
     # -- geometry --------------------------------------------------------------------------------
     @property
@@ -279,6 +303,16 @@ def _free_cell_origins(grid: np.ndarray) -> np.ndarray:
     """Lower-left corners (x, y) of the free cells, shape (F, 2)."""
     rows, cols = np.nonzero(grid == EMPTY)
     return np.column_stack([cols, grid.shape[0] - 1 - rows]).astype(float)
+
+
+def _read_only(holder: Any) -> None:
+    """Make every array attribute of `holder` (a Maze, its nearest-station table) read-only: a write
+    into the map raises at the line that tries it instead of changing it for everyone else."""
+    for value in vars(holder).values():
+        if isinstance(value, np.ndarray):
+            value.flags.writeable = False
+        elif isinstance(value, NearestStationLookup):
+            _read_only(value)
 
 
 def check_world(world: Any) -> Maze:

@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from mazelab.checks import check_sigma_within, finite_number
+from mazelab.declaration import Option, number_in
 
 if TYPE_CHECKING:
     from mazelab.maze import Maze
@@ -32,6 +33,20 @@ CONFIDENCE_SHARE = 0.95
 CONVERGENCE_RADIUS = 0.5  # a run has converged from the step after which its error stays below this
 DEFAULT_PARTICLE_COUNT = 1500
 DEFAULT_STEPS = 200
+
+
+MAX_SPEED = 1.0  # a filter may assume another L (model mismatch), up to one maze cell per step
+
+
+# -- the model's constants as filter options (mazelab.declaration): every filter of the model takes them
+SPEED_OPTION = Option(
+    "speed", ROBOT_SPEED, "L, the step length the filter assumes (map units; the robot's is 0.2)",
+    check=number_in("speed", 0.0, MAX_SPEED, what=" map units (at most a maze cell a step)"),
+)  # fmt: skip
+OUTSIDE_PENALTY_OPTION = Option(
+    "outside_penalty", OUTSIDE_PENALTY, "the likelihood factor outside the free area (refinement 1: 0.5)",
+    check=number_in("outside_penalty", 0.0, 1.0, what=" (a factor on a likelihood)"),
+)  # fmt: skip
 
 
 # exp(x) is 0 in float64 below this: when the filter's whole predictive likelihood p(z_k | z_1:k-1)
@@ -138,11 +153,14 @@ __all__ = [
     "LAB_DELTA_RANGE",
     "LAB_SIGMA_RANGE",
     "LOG_UNDERFLOW",
+    "MAX_SPEED",
     "MAX_STRAIGHT_STEPS",
     "OUTSIDE_PENALTY",
+    "OUTSIDE_PENALTY_OPTION",
     "PARTICLE_DTYPE",
     "ROBOT_SPEED",
     "RPF_THRESHOLD",
+    "SPEED_OPTION",
     "check_model_parameters",
     "headings_from_uniforms",
     "log_likelihood",

@@ -11,6 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mazelab.declaration import Option
+
 MODE_CELL = 0.5  # bin size of the clustering, map units: half a maze cell, so a wall cell keeps modes apart
 MIN_BIN_MASS = 1e-4  # a bin holding less than this share of the weight counts as empty
 ESTIMATES = ("mean", "mode")  # the point estimates: the paper's posterior mean, the heaviest mode's mean
@@ -28,9 +30,15 @@ class Mode:
 
 def check_estimate(estimate: str) -> str:
     """The point-estimate rule, checked: "mean" (the paper's) or "mode"."""
-    if estimate not in ESTIMATES:
+    if not isinstance(estimate, str) or estimate not in ESTIMATES:
         raise ValueError(f"estimate must be one of {', '.join(ESTIMATES)}, got {estimate!r}")
     return estimate
+
+
+ESTIMATE_OPTION = Option(
+    "estimate", "mean", "the point estimate: mean (the paper's posterior mean) or mode (the heaviest mode's mean)",
+    parse=str.strip, check=check_estimate, flag="--estimate",
+)  # fmt: skip
 
 
 def label_components(occupied: np.ndarray) -> np.ndarray:
@@ -140,6 +148,7 @@ def modes_of_bins(sums: np.ndarray, min_mass: float = MIN_BIN_MASS) -> list[Mode
 
 __all__ = [
     "ESTIMATES",
+    "ESTIMATE_OPTION",
     "MIN_BIN_MASS",
     "MODE_CELL",
     "Mode",

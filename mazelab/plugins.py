@@ -1,9 +1,13 @@
 """A student's own filter as a plug-in: `path/to/my_filter.py:MyFilter` wherever a filter name goes.
 
 `load_plugin(spec)` imports the file under a module name of its own (one per file, so two files that
-both define `MyFilter` never clash) and returns the class, refusing in one line that names the file,
-the class and what is missing. `StudentCodeError` is what a run raises when the student's code fails:
-the student's own frames (their file and line, none of the lab's) and the step at which it happened.
+both define `MyFilter` never clash), with the file's folder importable while it loads (as `python
+my_filter.py` has it), and returns the class, refusing in one line that names the file, the class and
+what is missing. `plugin_reference` is how a saved run names it: the spec as written, the file's
+sha256 and the class (a scenario never imports it: the user names the plug-in to replay it).
+`StudentCodeError` is what a run raises when the student's code fails: the student's own frames (their
+file and line, none of the lab's) and the step at which it happened; a filter that calls sys.exit,
+raises KeyboardInterrupt or changes the working folder is reported the same way (mazelab.stops).
 """
 
 from __future__ import annotations
@@ -11,15 +15,20 @@ from __future__ import annotations
 import hashlib
 import importlib.util
 import inspect
+import os
 import sys
 import sysconfig
 import traceback
+import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType, TracebackType
 
 from mazelab.contract import missing_parts
+from mazelab.declaration import options_of
+from mazelab.stops import describe_exit, is_users_stop
 
 PACKAGE_DIR = Path(__file__).resolve().parent  # mazelab/: frames here are the lab's, not the student's
 _LIBRARY_DIRS = tuple(
@@ -42,6 +51,38 @@ def split_spec(spec: str) -> tuple[Path, str | None]:
         return Path(spec), None
     path, _, class_name = spec.rpartition(":")
     return Path(path), class_name.strip() or None
+
+
+@dataclass(frozen=True)
+class PluginReference:
+    """How a saved run names a plug-in: the spec as the user wrote it, the file's sha256 and the class.
+    A scenario stores it and never imports it; a replay needs the user to name the plug-in again."""
+
+    spec: str
+    sha256: str
+    class_name: str
+    path: str  # the file's absolute path when it was loaded (for the worker processes of a study)
+
+    @property
+    def canonical(self) -> str:
+        """`/absolute/path/file.py:Class`: what worker processes import again."""
+        return f"{self.path}:{self.class_name}"
+
+    def as_json(self) -> dict[str, str]:
+        """What a scenario stores (the absolute path is the machine's, so it is left out)."""
+        return {"spec": self.spec, "sha256": self.sha256, "class": self.class_name}
+
+
+def file_sha256(path: str | Path) -> str:
+    """The sha256 of a file's bytes, hex."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def plugin_reference(spec: str, filter_class: type) -> PluginReference:
+    """The reference of a plug-in loaded from `spec` (its class already loaded)."""
+    path = Path(inspect.getfile(filter_class)).resolve()
+    written = split_spec(spec)[0]
+    return PluginReference(f"{written}:{filter_class.__name__}", file_sha256(path), filter_class.__name__, str(path))
 
 
 def canonical_spec(spec: str) -> str:
@@ -77,19 +118,46 @@ def load_plugin(spec: str) -> type:
     if key in _loaded:
         return _loaded[key]
     cls = getattr(module, class_name, None)
+    defined = ", ".join(n for n, c in vars(module).items() if isinstance(c, type) and c.__module__ == module.__name__)
     if not isinstance(cls, type):
-        defined = ", ".join(
-            n for n, c in vars(module).items() if isinstance(c, type) and c.__module__ == module.__name__
-        )
         raise ValueError(f"{shown}: {path} has no class {class_name!r} (it defines: {defined or 'no classes'})")
+    if cls.__module__ != module.__name__ and is_lab_class(cls):
+        raise ValueError(
+            f"{shown}: {class_name} is the lab's own class, which {path.name} imports; name the class you wrote "
+            f"(it defines: {defined or 'no classes'})"
+        )
     missing = missing_parts(cls)
     if missing:
         raise ValueError(
             f"{shown}: class {class_name} does not meet the filter contract: it has no {', '.join(missing)}"
         )
+    check_declared_defaults(cls, shown)
     _loaded[key] = cls
     _by_name[cls.name] = cls
     return cls
+
+
+def check_declared_defaults(cls: type, shown: str) -> None:
+    """A constructor that spells an option's default itself must spell the declared one (else the run
+    would use one value and the scenario store another); one line naming the option."""
+    try:
+        parameters = inspect.signature(cls.__init__).parameters
+        declared = options_of(cls)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"{shown}: {error}") from None
+    for name, parameter in parameters.items():
+        spelled = name in declared and parameter.default is not inspect.Parameter.empty
+        if spelled and parameter.default != declared[name].default:
+            raise ValueError(
+                f"{shown}: the constructor's default {name}={parameter.default!r} is not the declared "
+                f"default {declared[name].default!r}: take the default from the declaration (options)"
+            )
+
+
+def is_lab_class(cls: type) -> bool:
+    """Whether a class is the lab's own (defined in mazelab/ or a face of the repo), not the student's."""
+    module = getattr(cls, "__module__", "") or ""
+    return module.split(".")[0] in ("mazelab", "particle_filter", "draw")
 
 
 def loaded_plugin(name: str) -> type | None:
@@ -114,12 +182,26 @@ def _import_file(resolved: Path, shown: Path) -> ModuleType:
         raise ValueError(f"{shown}: cannot be imported as a Python module")
     module = importlib.util.module_from_spec(spec)
     sys.modules[module_name] = module
+    folder = str(resolved.parent)
+    added = folder not in sys.path
+    if added:
+        sys.path.insert(0, folder)  # its helper modules import, as with `python file.py`
     try:
-        spec.loader.exec_module(module)
+        with working_folder_kept(shown.name):
+            spec.loader.exec_module(module)
+    except (SystemExit, KeyboardInterrupt) as error:
+        del sys.modules[module_name]
+        if is_users_stop(error):
+            raise
+        line = _student_line(error.__traceback__, error)
+        raise ValueError(f"{shown} does not import: it {describe_exit(error)} while being imported{line}") from None
     except Exception as error:
         del sys.modules[module_name]
         line = _student_line(error.__traceback__, error)
         raise ValueError(f"{shown} does not import: {type(error).__name__}: {error}{line}") from None
+    finally:
+        if added and folder in sys.path:
+            sys.path.remove(folder)
     return module
 
 
@@ -159,11 +241,18 @@ def is_student_class(filter_class: type) -> bool:
 def describe_student_error(error: BaseException, filter_name: str, step: int) -> str:
     """`MyFilter raised ValueError at step 5: ...` and the student's frames, one line each."""
     when = "while being built" if step == 0 else f"at step {step}"
-    lines = [f"{filter_name} raised {type(error).__name__} {when}: {error}"]
-    for frame in student_frames(error.__traceback__):
+    return "\n".join(
+        [f"{filter_name} raised {type(error).__name__} {when}: {error}", *_frame_lines(error.__traceback__)]
+    )
+
+
+def _frame_lines(tb: TracebackType | None) -> list[str]:
+    """The student's frames of a traceback, one line each: file, line, function and code."""
+    lines = []
+    for frame in student_frames(tb):
         code = f": {frame.line.strip()}" if frame.line else ""
         lines.append(f"  {frame.filename}, line {frame.lineno}, in {frame.name}{code}")
-    return "\n".join(lines)
+    return lines
 
 
 class _Step:
@@ -172,35 +261,75 @@ class _Step:
     number = 0
 
 
-def raise_for_student(error: Exception, filter_class: type, step: int) -> None:
+def raise_for_student(error: BaseException, filter_class: type, step: int) -> None:
     """Raise `error` as it is for a shipped filter; for a user's, a StudentCodeError naming the step and
-    the user's frames, from `error`."""
+    the user's frames, from `error` (a sys.exit or KeyboardInterrupt of its own too; the user's stop
+    passes as it is)."""
     if not is_student_class(filter_class) or isinstance(error, StudentCodeError):
         raise error
+    if isinstance(error, (SystemExit, KeyboardInterrupt)):
+        if is_users_stop(error):
+            raise error
+        when = "while being built" if step == 0 else f"at step {step}"
+        lines = [f"{filter_class.name} {describe_exit(error)} {when} (a filter must not end the program)"]
+        lines += _frame_lines(error.__traceback__)
+        raise StudentCodeError("\n".join(lines)) from None
     raise StudentCodeError(describe_student_error(error, filter_class.name, step)) from error
 
 
 @contextmanager
 def student_code(filter_class: type) -> Iterator[_Step]:
-    """Around the calls of a user's filter: an Exception inside becomes a StudentCodeError naming the
-    step (set `.number` on what this yields) and the user's frames; a shipped filter's errors pass as they are."""
+    """Around the calls of a user's filter: an Exception inside (or its own sys.exit) becomes a
+    StudentCodeError naming the step (set `.number` on what this yields) and the user's frames; the
+    working folder it changes is put back; a shipped filter's errors pass as they are."""
     step = _Step()
     try:
-        yield step
-    except Exception as error:
+        with working_folder_kept(filter_class.name if is_student_class(filter_class) else None):
+            yield step
+    except BaseException as error:  # the student's own sys.exit becomes their error too
         raise_for_student(error, filter_class, step.number)
 
 
+@contextmanager
+def working_folder_kept(owner: str | None) -> Iterator[None]:
+    """Put back the working folder if `owner`'s code changes it (outputs are written where the user
+    asked), with a one-line warning; None: nothing to watch (a shipped filter)."""
+    if owner is None:
+        yield
+        return
+    before = os.getcwd()
+    try:
+        yield
+    finally:
+        after = _cwd_or_none()
+        if after != before:
+            os.chdir(before)
+            warnings.warn(f"{owner} changed the working folder to {after}; it was put back to {before}", stacklevel=3)
+
+
+def _cwd_or_none() -> str | None:
+    try:
+        return os.getcwd()
+    except OSError:  # the folder it moved to was removed
+        return None
+
+
 __all__ = [
+    "PluginReference",
     "StudentCodeError",
     "canonical_spec",
+    "check_declared_defaults",
     "describe_student_error",
+    "file_sha256",
+    "is_lab_class",
     "is_plugin_spec",
     "is_student_class",
     "load_plugin",
     "loaded_plugin",
+    "plugin_reference",
     "raise_for_student",
     "split_spec",
     "student_code",
     "student_frames",
+    "working_folder_kept",
 ]

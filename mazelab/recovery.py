@@ -3,12 +3,15 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from mazelab.checks import finite_number
+from mazelab.declaration import Option
 from mazelab.maze import Maze
 from mazelab.model import log_likelihood
 from mazelab.resampling import Move
@@ -81,6 +84,52 @@ def recovery_options(
     if not isinstance(recovery, str):
         raise ValueError(f"recovery must be True, False, {' or '.join(RECOVERY_MODES)}, got {recovery!r}")
     return Recovery(recovery.lower(), alpha_slow, alpha_fast)
+
+
+def check_recovery(recovery: Any) -> str | Recovery | None:
+    """The recovery option: None (off; also False and "none"), "augmented" (also True), "sensor", or a Recovery."""
+    if recovery is None or recovery is False or (isinstance(recovery, str) and recovery.strip().lower() == "none"):
+        return None
+    if recovery is True:
+        return "augmented"
+    if isinstance(recovery, Recovery):
+        return recovery
+    if isinstance(recovery, str) and recovery.strip().lower() in RECOVERY_MODES:
+        return recovery.strip().lower()
+    raise ValueError(f"unknown recovery {recovery!r}; choose none, {' or '.join(RECOVERY_MODES)}")
+
+
+def recovery_from_json(value: Any) -> Any:
+    """A stored recovery option: null, a mode's name, or a Recovery's fields."""
+    if isinstance(value, dict):
+        known = {f.name for f in dataclasses.fields(Recovery)}
+        unknown = sorted(set(value) - known)
+        if unknown:
+            raise ValueError(f"has no field {unknown[0]!r} (it has: {', '.join(sorted(known))})")
+        return Recovery(**value)
+    return value
+
+
+def _rate(name: str) -> Any:
+    def check(value: Any) -> float:
+        rate = finite_number(name, value)
+        if not 0 < rate <= 1:
+            raise ValueError(f"{name} must be in (0, 1] (a rate of an exponential average), got {value!r}")
+        return rate
+
+    return check
+
+
+RECOVERY_OPTIONS = (
+    Option(
+        "recovery", None, "recovery from kidnapping (beyond the paper): none, augmented (MCL) or sensor (resetting)",
+        parse=str.strip, check=check_recovery, from_json=recovery_from_json, flag="--recovery/--sensor-resetting",
+    ),
+    Option("alpha_slow", ALPHA_SLOW, "recovery: the long-term likelihood average's rate", check=_rate("alpha_slow"),
+           flag="--alpha-slow", tunes="recovery"),
+    Option("alpha_fast", ALPHA_FAST, "recovery: the short-term likelihood average's rate", check=_rate("alpha_fast"),
+           flag="--alpha-fast", tunes="recovery"),
+)  # fmt: skip
 
 
 def measurement_matched_places(world: Maze, z: float, sigma: float, count: int, rng: np.random.Generator) -> np.ndarray:
@@ -164,10 +213,12 @@ __all__ = [
     "ALPHA_FAST",
     "ALPHA_SLOW",
     "RECOVERY_MODES",
+    "RECOVERY_OPTIONS",
     "SENSOR_RESET_BATCHES",
     "SENSOR_RESET_LEVEL",
     "Recovery",
     "RecoveryTracker",
+    "check_recovery",
     "localised_likelihood",
     "measurement_matched_places",
     "recovery_options",

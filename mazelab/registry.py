@@ -1,52 +1,235 @@
-"""Every filter by name: class names, short names (sir, apf, rpf, grid, ekf), the paper's spaced names,
-and a student's own as `path/to/file.py:ClassName` (mazelab.plugins)."""
+"""Every filter by name, one entry each: its class, short name, label, colour, one-line help, and what it
+can do (take particles, run R runs together). The command line's choices and hints, the figures' labels
+and colours (the same in Rerun and in the PNGs), `mazelab --help` and a study's columns read it.
+
+A filter of the package is one entry in `SHIPPED`; a student's own, `path/to/file.py:ClassName`, gets an
+entry when it is loaded (mazelab.plugins), with its file's sha256 so that a saved run names it exactly.
+
+    entry = filter_entry("rpf")          # also "RegularizedParticleFilter", "Regularized Particle Filter"
+    entry.filter_class, entry.label      # RegularizedParticleFilter, "RPF"
+"""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from mazelab.declaration import Options, options_of
 from mazelab.filters import AuxiliaryParticleFilter, RegularizedParticleFilter, SIRParticleFilter
 from mazelab.grid_filter import GridBayesFilter
 from mazelab.kalman import ExtendedKalmanFilter
-from mazelab.plugins import is_plugin_spec, load_plugin, loaded_plugin
+from mazelab.plugins import PluginReference, is_plugin_spec, load_plugin, loaded_plugin, plugin_reference
 
-FILTERS: dict[str, type] = {
-    "SIRParticleFilter": SIRParticleFilter,
-    "AuxiliaryParticleFilter": AuxiliaryParticleFilter,
-    "RegularizedParticleFilter": RegularizedParticleFilter,
-    "GridBayesFilter": GridBayesFilter,
-    "ExtendedKalmanFilter": ExtendedKalmanFilter,
-}
-SHORT_NAMES = {
-    "sir": "SIRParticleFilter",
-    "apf": "AuxiliaryParticleFilter",
-    "rpf": "RegularizedParticleFilter",
-    "grid": "GridBayesFilter",
-    "ekf": "ExtendedKalmanFilter",
-}
+Colour = tuple[int, int, int]
+# colours for filters in order (matplotlib's tab10, which the PNGs use too): the shipped filters take
+# the first five, plug-ins the next free one
+PALETTE: tuple[Colour, ...] = (
+    (214, 39, 40),
+    (31, 119, 180),
+    (255, 127, 14),
+    (44, 160, 44),
+    (148, 103, 189),
+    (140, 86, 75),
+    (227, 119, 194),
+    (127, 127, 127),
+    (188, 189, 34),
+    (23, 190, 207),
+)
+
+
+@dataclass(frozen=True)
+class FilterEntry:
+    """A filter as every layer knows it.
+
+    Parameters
+    ----------
+    filter_class : type
+        The class (meeting mazelab.contract).
+    short_name : str
+        What the command line takes (`--filter sir`).
+    label : str
+        How figures and tables name it (SIR).
+    colour : (int, int, int)
+        Its colour, RGB 0-255, in the viewer and the PNGs.
+    help : str
+        One line for the help and the hints.
+    takes_particles : bool
+        Whether it is a sample (a particle count changes its results): not the grid filter or the EKF.
+    batched : bool
+        Whether a study may advance R runs of it together (its step works on the run axis; declared,
+        False for a new class until it says so).
+    plugin : PluginReference or None
+        A plug-in's file, its sha256 and its class; None for a filter of the package.
+    """
+
+    filter_class: type
+    short_name: str
+    label: str
+    colour: Colour
+    help: str
+    takes_particles: bool = True
+    batched: bool = False
+    plugin: PluginReference | None = None
+
+    @property
+    def name(self) -> str:
+        """The filter's `name`: how results, records and scenarios name it."""
+        return self.filter_class.name
+
+    @property
+    def options(self) -> Options:
+        """Its declared options (mazelab.declaration)."""
+        return options_of(self.filter_class)
+
+    @property
+    def reference(self) -> str:
+        """What a worker process or a record resolves again: the short name, or a plug-in's path:Class."""
+        return self.short_name if self.plugin is None else self.plugin.canonical
+
+
+SHIPPED: tuple[FilterEntry, ...] = (
+    FilterEntry(SIRParticleFilter, "sir", "SIR", PALETTE[0], "sampling importance resampling (Algorithm 4)",
+                batched=True),
+    FilterEntry(AuxiliaryParticleFilter, "apf", "APF", PALETTE[1], "the auxiliary particle filter (Algorithm 5)",
+                batched=True),
+    FilterEntry(RegularizedParticleFilter, "rpf", "RPF", PALETTE[2], "the regularised particle filter (Algorithm 6)",
+                batched=True),
+    FilterEntry(GridBayesFilter, "grid", "grid", PALETTE[3], "the exact Bayes filter on a fine grid (the reference)",
+                takes_particles=False),
+    FilterEntry(ExtendedKalmanFilter, "ekf", "EKF", PALETTE[4], "an extended Kalman filter (the baseline)",
+                takes_particles=False),
+)  # fmt: skip
+_BY_CLASS: dict[type, FilterEntry] = {entry.filter_class: entry for entry in SHIPPED}
+_BY_NAME: dict[str, FilterEntry] = {entry.name: entry for entry in SHIPPED}
+
+
+def short_names() -> list[str]:
+    """The shipped filters' short names, in order (sir, apf, rpf, grid, ekf)."""
+    return [entry.short_name for entry in SHIPPED]
+
+
+def is_shipped(filter_class: type) -> bool:
+    """Whether a class is one of the package's own filters (not a plug-in or a user's class)."""
+    return filter_class in _BY_CLASS
+
+
+def shipped_entry(name: str) -> FilterEntry | None:
+    """The lab's own filter of a name (short, class or spaced name, as `filter_entry` reads them), or
+    None; never a plug-in, and nothing is imported (what a scenario's loader may ask)."""
+    key = "".join(str(name).split()).lower()
+    for entry in SHIPPED:
+        full = entry.filter_class.__name__.lower()
+        if key in (entry.short_name, full, full.replace("particlefilter", ""), entry.name.lower()):
+            return entry
+    return None
+
+
+def filter_entry(name: str | type) -> FilterEntry:
+    """The entry of a filter: a short name (sir), a class name (SIRParticleFilter) or the paper's spaced
+    name ("SIR Particle Filter"), case-insensitive; a class itself (a user's own gets an entry made
+    from its attributes); a plug-in `path/to/file.py:ClassName` (imported once per process); or the
+    `name` of a plug-in already loaded in this process.
+
+    Raises
+    ------
+    ValueError
+        One line naming the unknown name and the valid ones.
+    """
+    if isinstance(name, type):
+        return _BY_CLASS.get(name) or _entry_of_class(name, None)
+    text = str(name).strip()
+    if is_plugin_spec(text):
+        return plugin_entry(text)
+    shipped = shipped_entry(text)
+    if shipped is not None:
+        return shipped
+    loaded = loaded_plugin(text)
+    if loaded is not None:
+        return filter_entry(loaded)
+    valid = ", ".join(short_names())
+    raise ValueError(f"unknown filter {text!r}; choose from {valid}, or path/to/file.py:ClassName")
 
 
 def resolve_filter(name: str | type) -> type:
-    """The filter class for a class name, a short name (sir/apf/rpf/grid/ekf) or the paper's spaced name
-    ("SIR Particle Filter"), case-insensitive; a class itself; or a plug-in `path/to/file.py:ClassName`
-    (imported once per process; a class loaded so is also found by its `name`)."""
-    if isinstance(name, type):
-        return name
-    if is_plugin_spec(str(name)):
-        return load_plugin(str(name))
-    key = "".join(str(name).split()).lower()
-    for full in FILTERS:
-        if key in (full.lower(), full.lower().replace("particlefilter", "")):
-            return FILTERS[full]
-    if key in SHORT_NAMES:
-        return FILTERS[SHORT_NAMES[key]]
-    plugin = loaded_plugin(str(name).strip())
-    if plugin is not None:
-        return plugin
-    valid = ", ".join([*FILTERS, *SHORT_NAMES])
-    raise ValueError(f"unknown filtering algorithm {name!r}; valid names: {valid}, or path/to/file.py:ClassName")
+    """The filter class of a name, a class or a plug-in spec (see `filter_entry`)."""
+    return filter_entry(name).filter_class
+
+
+def plugin_entry(spec: str) -> FilterEntry:
+    """The entry of a plug-in `path/to/file.py:ClassName`: the class loaded (mazelab.plugins), its
+    reference (file, sha256, class) and the next free colour."""
+    filter_class = load_plugin(spec)
+    return _entry_of_class(filter_class, plugin_reference(spec, filter_class))
+
+
+_made: dict[type, FilterEntry] = {}
+
+
+def _entry_of_class(filter_class: type, plugin: PluginReference | None) -> FilterEntry:
+    """An entry for a class that is not shipped, from its own attributes: `name`, an optional `label`,
+    `takes_particles` (default True) and `batched` (declared on the class itself, default False)."""
+    if filter_class in _made and (plugin is None or _made[filter_class].plugin == plugin):
+        return _made[filter_class]
+    used = {entry.colour for entry in (*SHIPPED, *_made.values())}
+    colour = next((c for c in PALETTE if c not in used), PALETTE[len(_made) % len(PALETTE)])
+    doc = (filter_class.__doc__ or "").strip().splitlines()
+    entry = FilterEntry(
+        filter_class,
+        short_name=filter_class.__name__,
+        label=str(getattr(filter_class, "label", None) or filter_class.name),
+        colour=colour,
+        help=doc[0] if doc else f"{filter_class.__name__}, a filter of your own",
+        takes_particles=bool(getattr(filter_class, "takes_particles", True)),
+        batched=bool(filter_class.__dict__.get("batched", False)),
+        plugin=plugin,
+    )
+    _made[filter_class] = entry
+    return entry
+
+
+def entry_by_name(name: str) -> FilterEntry | None:
+    """The entry of a filter by the `name` results carry (a shipped one, or a plug-in loaded here), or None."""
+    entry = _BY_NAME.get(name)
+    if entry is not None:
+        return entry
+    loaded = loaded_plugin(name)
+    return None if loaded is None else filter_entry(loaded)
+
+
+def labels(names: Sequence[str]) -> dict[str, str]:
+    """Figure labels for the names results carry: the entry's label, or the name itself when unknown."""
+    return {name: (entry.label if (entry := entry_by_name(name)) else name) for name in names}
+
+
+def rgb(colour: Colour) -> tuple[float, float, float]:
+    """An RGB 0-255 colour in matplotlib's 0-1 form."""
+    return colour[0] / 255, colour[1] / 255, colour[2] / 255
+
+
+def colour_of(name: str) -> Colour:
+    """A filter's colour by the name results carry (an unknown one: the palette's grey)."""
+    entry = entry_by_name(name)
+    return entry.colour if entry is not None else PALETTE[7]
+
+
+FILTERS: dict[str, type] = {entry.filter_class.__name__: entry.filter_class for entry in SHIPPED}
+SHORT_NAMES: dict[str, str] = {entry.short_name: entry.filter_class.__name__ for entry in SHIPPED}
 
 
 __all__ = [
     "FILTERS",
+    "PALETTE",
+    "SHIPPED",
     "SHORT_NAMES",
+    "FilterEntry",
+    "colour_of",
+    "entry_by_name",
+    "filter_entry",
+    "is_shipped",
+    "labels",
+    "plugin_entry",
     "resolve_filter",
+    "rgb",
+    "shipped_entry",
+    "short_names",
 ]

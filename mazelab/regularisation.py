@@ -20,6 +20,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from mazelab.declaration import Option
 from mazelab.modes import MODE_CELL, cluster_labels, cluster_moments
 from mazelab.weights import weighted_covariance
 
@@ -48,6 +49,12 @@ def check_bandwidth(bandwidth: str | float) -> str | float:
     if isinstance(bandwidth, bool) or not isinstance(bandwidth, (int, float)) or not 0 < bandwidth < math.inf:
         raise ValueError(f"bandwidth must be optimal, multimodal or a positive number, got {bandwidth!r}")
     return float(bandwidth)
+
+
+BANDWIDTH_OPTION = Option(
+    "bandwidth", "optimal", "the RPF's kernel: optimal (the paper's h_opt), multimodal (one kernel per mode) or h",
+    parse=str.strip, check=check_bandwidth, flag="--bandwidth",
+)  # fmt: skip
 
 
 def whole_cloud_kernel(weights: np.ndarray, positions: np.ndarray, h: float) -> Kernel:
@@ -96,6 +103,7 @@ def gaussian_jitter(eps: np.ndarray, scale: np.ndarray) -> np.ndarray:
 
 __all__ = [
     "BANDWIDTHS",
+    "BANDWIDTH_OPTION",
     "MIN_CLUSTER_VARIANCE",
     "MIXTURE_SHRINK",
     "Kernel",

@@ -3,6 +3,7 @@ KLD-sampling (Fox 2003), which chooses M as it resamples."""
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -12,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from mazelab.checks import check_kld_numbers, finite_number, step_number
+from mazelab.declaration import Option, parse_flag
 
 
 # -- resampling: plain functions, normalised weights W (N,) -> ancestor indices (M,) ---------------
@@ -92,8 +94,22 @@ def resampling_scheme(name: str) -> Callable[..., np.ndarray]:
     """The resampling function called `name` (systematic, stratified, multinomial, residual)."""
     try:
         return RESAMPLING_SCHEMES[name.lower()]
-    except KeyError:
+    except (KeyError, AttributeError):
         raise ValueError(f"unknown resampling scheme {name!r}; choose one of {', '.join(RESAMPLING_SCHEMES)}") from None
+
+
+def check_scheme(name: Any) -> str:
+    """A resampling scheme's name, lower case, or one line naming the schemes."""
+    if not isinstance(name, str):
+        raise ValueError(f"resampling must be one of {', '.join(RESAMPLING_SCHEMES)}, got {name!r}")
+    resampling_scheme(name)
+    return name.lower()
+
+
+RESAMPLING_OPTION = Option(
+    "resampling", "systematic", f"the resampling scheme: {', '.join(RESAMPLING_SCHEMES)}",
+    parse=str.strip, check=check_scheme, flag="--resampling",
+)  # fmt: skip
 
 
 KLD_BIN_SIZE = 0.25  # KLD-sampling counts occupied squares of this side (map units)
@@ -144,15 +160,56 @@ class KLDSampling:
         return np.maximum(self.min_count, np.ceil(kld_sample_size(bins, self.epsilon, self.z))).astype(np.int64)
 
 
-def kld_options(kld: bool | KLDSampling | None) -> KLDSampling | None:
-    """The KLDSampling a filter option asks for: None/False (off), True (the defaults), or a KLDSampling."""
+def kld_options(
+    kld: bool | KLDSampling | None, epsilon: float = KLD_EPSILON, z: float = KLD_QUANTILE
+) -> KLDSampling | None:
+    """The KLDSampling a filter option asks for: None/False (off), True (with `epsilon` and `z`), or a
+    KLDSampling (its own numbers)."""
     if kld is None or kld is False:
         return None
     if kld is True:
-        return KLDSampling()
+        return KLDSampling(epsilon=epsilon, z=z)
     if isinstance(kld, KLDSampling):
         return kld
     raise ValueError(f"kld must be True, False or a KLDSampling, got {kld!r}")
+
+
+def check_kld(kld: Any) -> bool | KLDSampling | None:
+    """The kld option: None/False (off), True, or a KLDSampling."""
+    if kld is None or isinstance(kld, (bool, KLDSampling)):
+        return None if kld is False else kld
+    raise ValueError(f"kld must be true, false or a KLDSampling, got {kld!r}")
+
+
+def kld_from_json(value: Any) -> Any:
+    """A stored kld option: true/false/null, or a KLDSampling's fields."""
+    if isinstance(value, dict):
+        known = {f.name for f in dataclasses.fields(KLDSampling)}
+        unknown = sorted(set(value) - known)
+        if unknown:
+            raise ValueError(f"has no field {unknown[0]!r} (it has: {', '.join(sorted(known))})")
+        return KLDSampling(**value)
+    return value
+
+
+def _kld_number(name: str) -> Any:
+    def check(value: Any) -> float:
+        check_kld_numbers(value if name == "epsilon" else KLD_EPSILON, value if name == "z" else KLD_QUANTILE)
+        return float(value)
+
+    return check
+
+
+KLD_OPTIONS = (
+    Option(
+        "kld", None, "KLD-sampling (Fox 2003): the particle count adapts, the given count the most",
+        parse=parse_flag, check=check_kld, from_json=kld_from_json, flag="--kld",
+    ),
+    Option("kld_epsilon", KLD_EPSILON, "KLD-sampling's error bound epsilon", check=_kld_number("epsilon"),
+           flag="--kld-epsilon", tunes="kld"),
+    Option("kld_z", KLD_QUANTILE, "KLD-sampling's normal quantile z_(1-delta) (2.326: delta 0.01)",
+           check=_kld_number("z"), flag="--kld-z", tunes="kld"),
+)  # fmt: skip
 
 
 Move = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]  # ancestors or points -> (positions, headings)
@@ -203,10 +260,14 @@ __all__ = [
     "KLD_BIN_SIZE",
     "KLD_EPSILON",
     "KLD_MIN_COUNT",
+    "KLD_OPTIONS",
     "KLD_QUANTILE",
+    "RESAMPLING_OPTION",
     "RESAMPLING_SCHEMES",
     "KLDSampling",
     "Move",
+    "check_kld",
+    "check_scheme",
     "kld_options",
     "kld_resample",
     "kld_sample_size",

@@ -2,7 +2,12 @@
 
 A file with only the paper's four keys (init_robot_pos, init_particles_pos, robot_actual_angles,
 robot_compass_angles) loads; the program writes the measurements and metadata too, and the filter's
-options (`filter_options`, mazelab.option_json), so that a replay repeats the run that made the file.
+options (`filter_options`, in the JSON form its declaration gives them), so that a replay repeats the
+run that made the file.
+
+Loading a scenario never imports code: it names its filter, a shipped one by name, or a plug-in by
+reference (`filter_plugin`: the spec as written, the file's sha256, the class), which a replay runs
+only when the user names the plug-in again (`--filter file.py:Class`).
 """
 
 from __future__ import annotations
@@ -37,17 +42,19 @@ from mazelab.checks import (
     check_within_map,
     regular_file_size,
 )
+from mazelab.declaration import options_of
 from mazelab.limits import check_memory
 from mazelab.maze import Maze
-from mazelab.option_json import options_from_json
-from mazelab.registry import resolve_filter
+from mazelab.registry import FilterEntry, shipped_entry
 from mazelab.robot import Robot
 
 DEFAULT_PARAMETERS_PATH = Path("model_parameters.json")  # the paper's file (lab steps 9-10), in the working folder
 LEGACY_PARAMETERS_PATH = Path("model_parameters") / "model_parameters.json"  # where older versions saved it
-SCENARIO_FORMAT_VERSION = 3  # the newest scenario format this program reads and writes
+SCENARIO_FORMAT_VERSION = 4  # the newest scenario format this program reads and writes
 KIDNAP_FORMAT_VERSION = 2  # scenarios with a kidnapping are version 2 (or more)
 OPTIONS_FORMAT_VERSION = 3  # scenarios that store the filter's options are version 3; without either, version 1
+PLUGIN_FORMAT_VERSION = 4  # scenarios of a plug-in's run name it by reference (filter_plugin): version 4
+SHA256 = r"^[0-9a-f]{64}$"
 
 
 MAX_JSON_DEPTH = 16  # a scenario nests 3 deep; deeper files are refused before parsing (no RecursionError)
@@ -63,13 +70,29 @@ OptionScalar = StrictBool | StrictInt | FiniteFloat | StrictStr | None
 OptionValue = OptionScalar | dict[str, OptionScalar]  # a number, a word, or an object's fields (Recovery, KLD)
 
 
+class PluginSource(BaseModel):
+    """A plug-in named by reference: the spec as the user wrote it, the sha256 of its file, its class.
+    Never imported on loading; a replay runs it only when the user names it (`--filter`)."""
+
+    model_config = ConfigDict(extra="forbid", populate_by_name=True)
+
+    spec: StrictStr = Field(min_length=1, max_length=4096)
+    sha256: Annotated[str, Field(strict=True, pattern=SHA256)]
+    class_name: StrictStr = Field(alias="class", min_length=1, max_length=256)
+
+    def describe(self) -> str:
+        """'my_filter.py:MyFilter (sha256 1a2b3c4d...)'."""
+        return f"{self.spec} (sha256 {self.sha256[:12]}...)"
+
+
 class Scenario(BaseModel):
     """A saved run (lab step 9): the paper's four keys, the measurements, and metadata.
 
     Version 2 adds the kidnapping (kidnap_at, kidnap_position: at step kidnap_at the robot is put down
     at kidnap_position before that step's move); version 3 the filter's options (filter_options: every
-    keyword option of `filtering_algorithm` that made the run, in JSON form, see mazelab.option_json).
-    A scenario is written with the lowest version that holds it, so files without either stay version 1
+    keyword option of `filtering_algorithm` that made the run, in the JSON form its declaration gives);
+    version 4 a plug-in's reference (filter_plugin), for a run of a filter that is not the lab's.
+    A scenario is written with the lowest version that holds it, so files without these stay version 1
     and older readers still read them.
     """
 
@@ -90,6 +113,7 @@ class Scenario(BaseModel):
     kidnap_at: Whole | None = Field(None, ge=1)
     kidnap_position: Point | None = None
     filter_options: dict[str, OptionValue] | None = None
+    filter_plugin: PluginSource | None = None
 
     @model_validator(mode="before")
     @classmethod
@@ -99,18 +123,25 @@ class Scenario(BaseModel):
             version = OPTIONS_FORMAT_VERSION if data.get("filter_options") is not None else 1
             if data.get("kidnap_at") is not None:
                 version = max(version, KIDNAP_FORMAT_VERSION)
+            if data.get("filter_plugin") is not None:
+                version = max(version, PLUGIN_FORMAT_VERSION)
             data = {**data, "format_version": version}
         return data
 
     @field_validator("filtering_algorithm")
     @classmethod
-    def _known_filter(cls, name: str | None) -> str | None:
-        """A filter this program knows (mazelab.registry), e.g. SIRParticleFilter."""
-        if name is not None:
-            from mazelab.registry import resolve_filter  # here: the registry imports the filters
-
-            resolve_filter(name)
+    def _a_name(cls, name: str | None) -> str | None:
+        """A filter's name: one of the lab's, or a plug-in's (never imported here: see filter_plugin)."""
+        if name is not None and (not name.strip() or len(name) > 4096 or not name.isprintable()):
+            raise ValueError(f"filtering_algorithm must be a filter's name, got {name[:60]!r}")
         return name
+
+    @property
+    def shipped_filter(self) -> FilterEntry | None:
+        """The lab's filter the scenario names (None: none stored, or a plug-in's or another program's)."""
+        if self.filtering_algorithm is None or self.filter_plugin is not None:
+            return None
+        return shipped_entry(self.filtering_algorithm)
 
     @model_validator(mode="after")
     def _consistent(self) -> Scenario:
@@ -178,24 +209,37 @@ class Scenario(BaseModel):
             raise ValueError(f"kidnap_position {self.kidnap_position} is not in the free area of the scenario's maze")
 
     def _check_filter_options(self) -> None:
-        """filter_options need format_version 3 and a filter, declare only options that filter takes
-        (mazelab.contract), and build (a Recovery's or KLD's fields checked as the filter checks them)."""
+        """filter_options need format_version 3 and a filter; for a filter of the lab's they are checked
+        by its declaration as its constructor checks them (a plug-in's when the user names it to replay);
+        filter_plugin needs format_version 4 and the plug-in's name."""
+        if self.filter_plugin is not None:
+            if self.format_version < PLUGIN_FORMAT_VERSION:
+                raise ValueError(
+                    f"filter_plugin needs format_version {PLUGIN_FORMAT_VERSION}, got {self.format_version}"
+                )
+            if self.filtering_algorithm is None:
+                raise ValueError("filter_plugin needs the filtering_algorithm (the plug-in's name) it belongs to")
         if self.filter_options is None:
             return
         if self.format_version < OPTIONS_FORMAT_VERSION:
             raise ValueError(f"filter_options need format_version {OPTIONS_FORMAT_VERSION}, got {self.format_version}")
         if self.filtering_algorithm is None:
             raise ValueError("filter_options need the filtering_algorithm they belong to")
-        filter_class = resolve_filter(self.filtering_algorithm)
-        for name in self.filter_options:
-            if name not in filter_class.options:
-                takes = ", ".join(filter_class.options) or "no options"
-                raise ValueError(f"{filter_class.name} does not take the option {name!r} (it takes: {takes})")
-        options_from_json(self.filter_options)
+        entry = self.shipped_filter
+        if entry is not None:
+            entry.options.from_json(self.filter_options, entry.name)
 
-    def filter_kwargs(self) -> dict[str, Any]:
-        """The stored filter options as the filter's keyword arguments (empty when none are stored)."""
-        return options_from_json(self.filter_options or {})
+    def filter_kwargs(self, filter_class: type | None = None) -> dict[str, Any]:
+        """The stored filter options as keyword arguments of `filter_class` (default: the lab's filter
+        the scenario names), those it declares, checked by its declaration; empty when none are stored."""
+        if filter_class is None:
+            entry = self.shipped_filter
+            if entry is None:
+                return {}
+            filter_class = entry.filter_class
+        declared = options_of(filter_class)
+        stored = {k: v for k, v in (self.filter_options or {}).items() if k in declared and not declared[k].derived}
+        return declared.from_json(stored, filter_class.name)
 
     def world(self) -> Maze | None:
         """The maze stored in the scenario, if any."""
@@ -221,10 +265,10 @@ class Scenario(BaseModel):
 
     def to_json(self) -> str:
         """Json with the paper's keys first, one particle per line (readable, and diff-able)."""
-        data = self.model_dump(exclude_none=True)
+        data = self.model_dump(exclude_none=True, by_alias=True)
         lines = []
         for key, value in data.items():
-            if key == "filter_options":
+            if key in ("filter_options", "filter_plugin"):
                 lines.append(f'  "{key}": {json.dumps(value, sort_keys=True)}')
             elif key in ("init_particles_pos", "maze"):
                 inner = ",\n".join(f"    {json.dumps(list(item))}" for item in value)
@@ -323,8 +367,10 @@ __all__ = [
     "KIDNAP_FORMAT_VERSION",
     "MAX_JSON_DEPTH",
     "OPTIONS_FORMAT_VERSION",
+    "PLUGIN_FORMAT_VERSION",
     "SCENARIO_FORMAT_VERSION",
     "FiniteFloat",
+    "PluginSource",
     "Point",
     "Scenario",
     "ScenarioError",

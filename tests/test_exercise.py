@@ -157,7 +157,7 @@ def test_student_filter_meets_the_contract_and_runs(paper_world):
     particles = paper_world.random_free_places(300, np.random.default_rng(1))
     filt = ReferenceFilter(paper_world, 0.3, 0.5, particles, np.random.default_rng(2))
     check_filter(filt)
-    assert ReferenceFilter.name == "ReferenceFilter" and ReferenceFilter.options == {"estimate": "mean"}
+    assert ReferenceFilter.name == "ReferenceFilter" and ReferenceFilter.options.defaults() == {"estimate": "mean"}
     filt.step(0.3, 1.0)
     assert filt.estimate.shape == (2,) and 1 <= filt.ess <= 300 and math.isclose(filt.belief().weights.sum(), 1)
     args = (paper_world, 0.3, 0.5, 300, 40)

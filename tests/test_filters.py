@@ -73,7 +73,7 @@ def test_filter_names(name, cls):
 
 
 def test_unknown_filter_name_lists_the_valid_ones():
-    with pytest.raises(ValueError, match="valid names: SIRParticleFilter"):
+    with pytest.raises(ValueError, match="unknown filter 'kalman'; choose from sir, apf, rpf, grid, ekf"):
         resolve_filter("kalman")
 
 

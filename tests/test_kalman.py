@@ -177,7 +177,7 @@ def test_it_is_registered_and_gets_no_particle_filter_options():
         (["--kld"], "ExtendedKalmanFilter does not take --kld"),
         (["--recovery"], "ExtendedKalmanFilter does not take --recovery"),
         (["--resampling", "residual"], "ExtendedKalmanFilter does not take --resampling"),
-        (["--init", "somewhere"], "--init must be one of prior, start"),
+        (["--init", "somewhere"], "init must be one of prior, start, got 'somewhere'"),
     ],
 )
 def test_the_cli_refuses_particle_filter_options_for_the_ekf(capsys, args, message):

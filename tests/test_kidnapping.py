@@ -134,9 +134,9 @@ def test_bad_kidnappings_in_a_scenario_file_are_refused(tmp_path, extra, message
     ("options", "message"),
     [
         ({"alpha_slow": 0.1, "alpha_fast": 0.1}, "0 < alpha_slow < alpha_fast <= 1"),
-        ({"alpha_slow": 0.0}, "0 < alpha_slow"),
-        ({"alpha_slow": -0.1}, "0 < alpha_slow"),
-        ({"alpha_fast": 1.5}, "alpha_fast <= 1"),
+        ({"alpha_slow": 0.0}, r"alpha_slow must be in \(0, 1\]"),
+        ({"alpha_slow": -0.1}, r"alpha_slow must be in \(0, 1\]"),
+        ({"alpha_fast": 1.5}, r"alpha_fast must be in \(0, 1\]"),
         ({"alpha_slow": math.nan}, "alpha_slow must be finite"),
         ({"recovery": "psychic"}, "unknown recovery 'psychic'"),
     ],

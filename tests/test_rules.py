@@ -337,7 +337,7 @@ def test_a_refusal_names_the_flags_of_the_command_it_refuses(capsys):
 
     assert main(["study", "--filters", "grid", "--recovery", "augmented", "--no-viz"]) == 2
     err = capsys.readouterr().err
-    assert "GridBayesFilter does not take --recovery;" in err and "--sensor-resetting" not in err
+    assert "GridBayesFilter does not take --recovery (it takes: resolution, " in err and "--sensor-resetting" not in err
 
 
 def test_an_option_some_chosen_filters_take_goes_to_those(tmp_path, capsys):

@@ -8,6 +8,7 @@ mazelab maze --help     random connected mazes (generate) and a look at any maze
 mazelab view FILE       a saved recording in the web viewer on 127.0.0.1 (no display needed)
 mazelab bench [--quick] the filters' speed against a plain numpy reference step
 mazelab accuracy        each filter's distance to the exact grid posterior on the shipped mazes
+mazelab filters [NAME]  the filters, and every option each declares (--option NAME=VALUE sets one)
 mazelab exercise --help write your own filter (new) and grade it against the exact posterior (check)
 """
 
@@ -26,10 +27,29 @@ import typer
 from mazelab.atomic import WriteError
 from mazelab.cli.compare_outputs import compare_record_file, finish_compare, report_compare, start_compare_record
 from mazelab.cli.exercise import exercise_app
-from mazelab.cli.filter_options import TUNING_FLAGS, options_per_filter
+from mazelab.cli.filter_options import (
+    AlphaFastFlag,
+    AlphaSlowFlag,
+    BandwidthFlag,
+    EstimateFlag,
+    KldEpsilonFlag,
+    KldFlag,
+    KldZFlag,
+    OptionFlag,
+    RecoveryFlag,
+    ResamplingFlag,
+    SensorResettingFlag,
+    merge_named,
+    named_values,
+    options_per_filter,
+    parse_option_texts,
+    recovery_value,
+)
+from mazelab.cli.filters_help import filters, registry_help
 from mazelab.cli.hints import (
     check_filter_name,
     check_filter_names,
+    filter_choices,
     option_elsewhere,
     plain_usage_names,
     refuse_option_as_value,
@@ -38,19 +58,12 @@ from mazelab.cli.maze import maze_app
 from mazelab.cli.options import (
     DEFAULT_DELTA,
     DEFAULT_SIGMA,
-    AlphaFastOption,
-    AlphaSlowOption,
-    BandwidthOption,
-    EstimateOption,
     MaxDrawnOption,
     NoVizOption,
-    RecoveryOption,
     RrdOption,
-    SensorResettingOption,
     UserError,
     ViewerOption,
     WebOption,
-    check_choice,
     check_output_path,
     check_outputs,
     seed_option,
@@ -59,29 +72,26 @@ from mazelab.cli.options import (
 )
 from mazelab.cli.provenance import remember_arguments, show_version
 from mazelab.cli.replay import from_scenario, refuse_counts_for_replay, replay_seed
-from mazelab.cli.replay_filter import given_on_command_line, replay_filter_name, replay_options
+from mazelab.cli.replay_filter import replay_filter_name, replay_options
 from mazelab.cli.reports import kidnap_report, particle_count_report, prepare_world, progress_printer, report_run
 from mazelab.cli.run_setup import fresh_setup, replay_setup
 from mazelab.cli.studies import accuracy, study, study_mazes
 from mazelab.cli.view import view
+from mazelab.declaration import to_plain_json
 from mazelab.experiments.compare import compare_filters
 from mazelab.experiments.executor import STOP_SIGNALS
 from mazelab.experiments.runs import parse_filters
 from mazelab.invocation import command_prefix
-from mazelab.kalman import EKF_INITS
 from mazelab.lab import simulate
 from mazelab.maze import MazeError
 from mazelab.mazes import DEFAULT_MAZE, find_maze, load_maze
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
-from mazelab.modes import check_estimate
 from mazelab.plugins import StudentCodeError
-from mazelab.recovery import ALPHA_FAST, ALPHA_SLOW, Recovery
 from mazelab.registry import resolve_filter
-from mazelab.regularisation import check_bandwidth
-from mazelab.resampling import KLD_EPSILON, KLD_QUANTILE, RESAMPLING_SCHEMES, KLDSampling
 from mazelab.robot import Robot
 from mazelab.scenario import ScenarioError, load_scenario, save_scenario
 from mazelab.seeding import new_seed, start_place
+from mazelab.stops import exit_without_strays, mark_interrupts
 from mazelab.viz.recording import web_serving_deferred, write_errors_deferred
 from mazelab.viz.style import DEFAULT_MAX_DRAWN
 
@@ -90,7 +100,8 @@ app = typer.Typer(
     rich_markup_mode=None,  # plain click help: text flows, defaults show, option names are never cut
     no_args_is_help=False,
     pretty_exceptions_enable=False,
-    help="A robot lost in a maze, found by particle filters. Without a command: the paper's example.",
+    help="A robot lost in a maze, found by particle filters. Without a command: the paper's example.\n\n"
+    + registry_help(),
 )
 
 
@@ -141,9 +152,7 @@ def run(
     maze: Annotated[
         str | None, typer.Option(metavar="MAZE", help=f"a maze file or a name in mazes/ [default: {DEFAULT_MAZE}]")
     ] = None,
-    filter_name: Annotated[
-        str, typer.Option("--filter", metavar="NAME", help="sir, apf, rpf, grid, ekf, or FILE.py:Class")
-    ] = "sir",
+    filter_name: Annotated[str, typer.Option("--filter", metavar="NAME", help=filter_choices())] = "sir",
     particles: Annotated[
         int | None, typer.Option(min=1, help=f"particle count N_S [default: {DEFAULT_PARTICLE_COUNT}]")
     ] = None,
@@ -163,26 +172,22 @@ def run(
     save_scenario_path: Annotated[Path | None, typer.Option("--save-scenario", help="save the run (.json)")] = None,
     force: Annotated[bool, typer.Option("--force", help="replace existing output files")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", help="no per-step progress")] = False,
-    resampling: Annotated[
-        str | None, typer.Option(metavar="SCHEME", help=f"{', '.join(RESAMPLING_SCHEMES)} [default: systematic]")
-    ] = None,
     kidnap_at: Annotated[int | None, typer.Option(min=1, help="carry the robot elsewhere at this step")] = None,
-    recovery: RecoveryOption = False,
-    sensor_resetting: SensorResettingOption = False,
-    alpha_slow: AlphaSlowOption = ALPHA_SLOW,
-    alpha_fast: AlphaFastOption = ALPHA_FAST,
-    kld: Annotated[bool, typer.Option("--kld", help="KLD-sampling (--particles is the most)")] = False,
-    kld_epsilon: Annotated[float, typer.Option(help="KLD-sampling: error bound")] = KLD_EPSILON,
-    kld_z: Annotated[
-        float | None,
-        typer.Option(help=f"KLD-sampling: quantile z_(1-p) [default: {KLD_QUANTILE:.3f}]"),
-    ] = None,
+    resampling: ResamplingFlag = None,
+    recovery: RecoveryFlag = False,
+    sensor_resetting: SensorResettingFlag = False,
+    alpha_slow: AlphaSlowFlag = None,
+    alpha_fast: AlphaFastFlag = None,
+    kld: KldFlag = False,
+    kld_epsilon: KldEpsilonFlag = None,
+    kld_z: KldZFlag = None,
     init: Annotated[
         str | None,
         typer.Option(metavar="prior|start", help="ekf: prior (global) or start (tracking) [default: prior]"),
     ] = None,
-    bandwidth: BandwidthOption = None,
-    estimate: EstimateOption = None,
+    bandwidth: BandwidthFlag = None,
+    estimate: EstimateFlag = None,
+    option: OptionFlag = None,
     viewer: ViewerOption = False,
     rrd: RrdOption = None,
     web: WebOption = False,
@@ -190,32 +195,31 @@ def run(
     max_drawn: MaxDrawnOption = DEFAULT_MAX_DRAWN,
 ) -> None:
     """Run one filter on a lost robot, or replay a saved scenario (--scenario) with its filter and
-    options."""
+    options. Every filter option: --option NAME=VALUE (`mazelab filters` lists them)."""
     visualize = visualization(viewer, rrd, web, no_viz, max_drawn, force)
     stored = load_scenario(scenario) if scenario is not None else None
-    filter_name = check_filter_name(replay_filter_name(ctx, stored, filter_name))
-    given = {
-        "resampling": resampling,
-        "recovery": recovery_option(recovery, sensor_resetting, alpha_slow, alpha_fast),
-        "kld": KLDSampling(epsilon=kld_epsilon, z=KLD_QUANTILE if kld_z is None else kld_z) if kld else None,
-        "bandwidth": None if bandwidth is None else check_bandwidth(bandwidth),
-        "estimate": None if estimate is None else check_estimate(estimate),
-        "init": None if init is None else check_choice("--init", init, EKF_INITS),
-    }
-    tuning = [flag for flag in TUNING_FLAGS if given_on_command_line(ctx, flag)]
-    options = options_per_filter([filter_name], given, tuning=tuning)[resolve_filter(filter_name).name]
+    filter_name = check_filter_name(replay_filter_name(ctx, stored, filter_name, scenario))
+    named = {
+        "resampling": resampling, "recovery": recovery_value(recovery, sensor_resetting), "alpha_slow": alpha_slow,
+        "alpha_fast": alpha_fast, "kld": kld or None, "kld_epsilon": kld_epsilon, "kld_z": kld_z, "init": init,
+        "bandwidth": bandwidth, "estimate": estimate,
+    }  # fmt: skip
+    given = merge_named(named_values(named, [filter_name]), parse_option_texts(option, [filter_name]))
+    options = options_per_filter([filter_name], given, check=stored is None)[resolve_filter(filter_name).name]
     for path in (save_scenario_path, rrd):
         if path is not None:
             check_output_path(path, force)
     if stored is not None:
         refuse_counts_for_replay(stored, particles, steps, start_seed)
-        setup = replay_setup(stored, maze, sigma, delta, seed, replay_options(ctx, stored, filter_name, options))
+        options = replay_options(stored, filter_name, options)
+        options_per_filter([filter_name], options)  # the replay's options, checked as the filter will
+        setup = replay_setup(stored, maze, sigma, delta, seed, options)
     else:
         setup = fresh_setup(maze, sigma, delta, seed, start_seed, particles, steps, options)
     with scenario_not_saved_on_stop(save_scenario_path):
         result = setup.run(filter_name, visualize=visualize, quiet=quiet, kidnap_at=kidnap_at)
     report_run(result)
-    for line in (kidnap_report(result), particle_count_report(result) if kld else None):
+    for line in (kidnap_report(result), particle_count_report(result) if setup.options.get("kld") else None):
         if line:
             typer.echo(line)
     if save_scenario_path is not None:
@@ -234,20 +238,10 @@ def scenario_not_saved_on_stop(path: Path | None) -> Iterator[None]:
         raise
 
 
-def recovery_option(recovery: bool, sensor_resetting: bool, alpha_slow: float, alpha_fast: float) -> Recovery | None:
-    """--recovery (augmented MCL) or --sensor-resetting, with the rates; None for neither."""
-    if not (recovery or sensor_resetting):
-        return None
-    return Recovery("sensor" if sensor_resetting else "augmented", alpha_slow, alpha_fast)
-
-
 @app.command(short_help="Lab steps 12-13: every filter on one saved scenario.")
 def compare(
-    ctx: typer.Context,
     scenario: Annotated[Path, typer.Argument(metavar="SCENARIO", help="a saved scenario (.json)", show_default=False)],
-    filters: Annotated[
-        str, typer.Option(metavar="NAMES", help="sir, apf, rpf, grid, ekf, FILE.py:Class, comma-separated")
-    ] = "sir,apf,rpf",
+    filters: Annotated[str, typer.Option(metavar="NAMES", help=filter_choices(many=True))] = "sir,apf,rpf",
     maze: Annotated[str | None, typer.Option(metavar="MAZE", help="the maze, if the scenario stores none")] = None,
     sigma: Annotated[float | None, typer.Option(help="override the scenario's sigma")] = None,
     delta: Annotated[float | None, typer.Option(help="override the scenario's delta")] = None,
@@ -262,20 +256,22 @@ def compare(
         int | None,
         typer.Option(min=1, help="carry the robot elsewhere at this step"),
     ] = None,
-    recovery: RecoveryOption = False,
-    sensor_resetting: SensorResettingOption = False,
-    alpha_slow: AlphaSlowOption = ALPHA_SLOW,
-    alpha_fast: AlphaFastOption = ALPHA_FAST,
-    kld: Annotated[bool, typer.Option("--kld", help="KLD-sampling (the scenario's count is the most)")] = False,
-    bandwidth: BandwidthOption = None,
-    estimate: EstimateOption = None,
+    recovery: RecoveryFlag = False,
+    sensor_resetting: SensorResettingFlag = False,
+    alpha_slow: AlphaSlowFlag = None,
+    alpha_fast: AlphaFastFlag = None,
+    kld: KldFlag = False,
+    bandwidth: BandwidthFlag = None,
+    estimate: EstimateFlag = None,
+    option: OptionFlag = None,
     viewer: ViewerOption = False,
     rrd: RrdOption = None,
     web: WebOption = False,
     no_viz: NoVizOption = False,
     max_drawn: MaxDrawnOption = DEFAULT_MAX_DRAWN,
 ) -> None:
-    """Lab steps 12-13: every filter on one saved scenario (the same start, particles, walk).
+    """Lab steps 12-13: every filter on one saved scenario (the same start, particles, walk). Each
+    filter takes the options it declares (--option NAME=VALUE; `mazelab filters` lists them).
 
     A kidnapping (stored, or --kidnap-at) adds whether each filter re-localised (mean error below 0.5
     over the last 30 steps) and the steps it took."""
@@ -285,17 +281,15 @@ def compare(
     record_file = compare_record_file(csv_path, plot, traces, force)  # a JSON record beside the outputs
     setup = replay_setup(load_scenario(scenario), maze, sigma, delta, seed, {})
     names = parse_filters(filters)
-    given = {
-        "recovery": recovery_option(recovery, sensor_resetting, alpha_slow, alpha_fast),
-        "kld": kld or None,
-        "bandwidth": None if bandwidth is None else check_bandwidth(bandwidth),
-        "estimate": None if estimate is None else check_estimate(estimate),
-    }
-    tuning = [flag for flag in TUNING_FLAGS if given_on_command_line(ctx, flag)]
-    options_per_filter(names, given, tuning=tuning)  # a flag that none of the filters takes: one line, first
-    parameters = {"filters": names, "sigma": setup.sigma, "delta": setup.delta, "seed": setup.seed,
-                  "kidnap_at": kidnap_at, "kld": kld, "recovery": recovery or sensor_resetting,
-                  "bandwidth": bandwidth, "estimate": estimate}  # fmt: skip
+    named = {
+        "recovery": recovery_value(recovery, sensor_resetting), "alpha_slow": alpha_slow, "alpha_fast": alpha_fast,
+        "kld": kld or None, "bandwidth": bandwidth, "estimate": estimate,
+    }  # fmt: skip
+    given = merge_named(named_values(named, names), parse_option_texts(option, names))
+    options_per_filter(names, given)  # an option that none of the filters takes, or a bad value: one line, first
+    parameters = {"filters": [resolve_filter(n).name for n in names], "sigma": setup.sigma, "delta": setup.delta,
+                  "seed": setup.seed, "kidnap_at": kidnap_at,
+                  "options": {k: to_plain_json(v) for k, v in given.items()}}  # fmt: skip
     recorder = start_compare_record(scenario, parameters)
     prepare_world(setup.world)
     typer.echo(
@@ -310,11 +304,12 @@ def compare(
         f"Localisation error: {scenario.name} (sigma {setup.sigma:g}, delta {setup.delta:g}, "
         f"{len(setup.initial_particles)} particles)"
     )
-    report_compare(results, kld=kld, csv_path=csv_path, plot=plot, title=title, force=force)
+    report_compare(results, kld=bool(given.get("kld")), csv_path=csv_path, plot=plot, title=title, force=force)
     finish_compare(results, setup.seed, traces, recorder, record_file)
 
 
 app.command(short_help="Lab step 14: a Monte Carlo parameter study.")(study)
+app.command(short_help="The filters, and every option each declares.")(filters)
 app.command(short_help="Every filter against the exact grid posterior.")(accuracy)
 app.add_typer(maze_app, name="maze")
 app.add_typer(exercise_app, name="exercise")
@@ -341,12 +336,17 @@ def main(argv: list[str] | None = None) -> int:
     warnings.showwarning = warn_in_one_line
     remember_arguments(argv)
     handlers = {sig: signal.getsignal(sig) for sig in STOP_SIGNALS}
+    unmark = mark_interrupts()  # Ctrl-C raises a marked KeyboardInterrupt: a filter's own is told apart
     try:
-        return _main(argv)
+        code = _main(argv)
     finally:
+        unmark()
         if argv is not None:
             for sig, handler in handlers.items():
                 signal.signal(sig, handler)
+    if argv is None:  # a process of its own: a plug-in's forgotten thread must not keep it alive
+        exit_without_strays(code, lambda line: typer.echo(line, err=True))
+    return code
 
 
 def _main(argv: list[str] | None) -> int:
@@ -394,7 +394,6 @@ __all__ = [
     "describe_os_error",
     "from_scenario",
     "main",
-    "recovery_option",
     "refuse_counts_for_replay",
     "replay_seed",
     "run",

@@ -15,9 +15,7 @@ import typer.core
 from mazelab.cli.options import UserError
 from mazelab.invocation import command_prefix
 from mazelab.plugins import is_plugin_spec
-from mazelab.registry import resolve_filter
-
-FILTER_NAMES = ("sir", "apf", "rpf", "grid", "ekf")  # the short names the help lists
+from mazelab.registry import resolve_filter, short_names
 
 
 def plain_usage_names() -> None:
@@ -84,10 +82,11 @@ def check_filter_name(name: str, option: str = "--filter") -> str:
     try:
         resolve_filter(name)
     except ValueError:
-        close = difflib.get_close_matches(name.lower(), FILTER_NAMES, n=1, cutoff=0.5)
+        names = short_names()
+        close = difflib.get_close_matches(name.lower(), names, n=1, cutoff=0.5)
         hint = f"; did you mean {close[0]}?" if close else ""
         raise UserError(
-            f"{option}: unknown filter {name!r}{hint} (choose from {', '.join(FILTER_NAMES)}, or FILE.py:Class)"
+            f"{option}: unknown filter {name!r}{hint} (choose from {', '.join(names)}, or FILE.py:Class)"
         ) from None
     return name
 
@@ -100,10 +99,16 @@ def check_filter_names(names: str, option: str = "--filters") -> str:
     return names
 
 
+def filter_choices(many: bool = False) -> str:
+    """The help's list of filters, from the registry: 'sir, apf, rpf, grid, ekf, or FILE.py:Class'."""
+    names = ", ".join(short_names())
+    return f"{names}, FILE.py:Class, comma-separated" if many else f"{names}, or FILE.py:Class"
+
+
 __all__ = [
-    "FILTER_NAMES",
     "check_filter_name",
     "check_filter_names",
+    "filter_choices",
     "option_elsewhere",
     "plain_usage_names",
     "refuse_option_as_value",

@@ -19,27 +19,10 @@ from mazelab.viz.targets import Visualization
 DEFAULT_SIGMA, DEFAULT_DELTA = 0.3, 0.5
 
 
-# Where a run is drawn: these four options sit on every command that runs filters.
-# Recovery from a kidnapping (augmented MCL): the same options on run and compare.
-RecoveryOption = Annotated[bool, typer.Option("--recovery", help="augmented MCL: inject particles when lost")]
-SensorResettingOption = Annotated[bool, typer.Option("--sensor-resetting", help="inject particles that match z")]
-AlphaSlowOption = Annotated[float, typer.Option(help="recovery: long-term average's rate")]
-AlphaFastOption = Annotated[float, typer.Option(help="recovery: short-term average's rate")]
+# Where a run is drawn: these options sit on every command that runs filters (the filters' own options
+# are in mazelab.cli.filter_options, read from their declarations).
 ViewerOption = Annotated[bool, typer.Option("--viewer", help="the native viewer (default with a display)")]
 RrdOption = Annotated[Path | None, typer.Option("--rrd", help="save the recording to this .rrd file")]
-# The RPF's kernel and the point estimate (mazelab.regularisation, mazelab.modes): on run, compare and study.
-BandwidthOption = Annotated[
-    str | None,
-    typer.Option(
-        metavar="KERNEL",
-        help="RPF kernel: optimal (the paper's, default), multimodal, h",
-        show_default=False,
-    ),
-]
-EstimateOption = Annotated[
-    str | None,
-    typer.Option(metavar="mean|mode", help="estimate: mean (the paper's, default) or mode", show_default=False),
-]
 WebOption = Annotated[bool, typer.Option("--web", help="serve the web viewer on 127.0.0.1")]
 NoVizOption = Annotated[bool, typer.Option("--no-viz", help="draw nothing")]
 MaxDrawnOption = Annotated[int, typer.Option("--max-drawn", min=1, help="particles drawn per step, at most")]
@@ -137,15 +120,9 @@ def check_choice(flag: str, value: str, choices: Sequence[str]) -> str:
 __all__ = [
     "DEFAULT_DELTA",
     "DEFAULT_SIGMA",
-    "AlphaFastOption",
-    "AlphaSlowOption",
-    "BandwidthOption",
-    "EstimateOption",
     "MaxDrawnOption",
     "NoVizOption",
-    "RecoveryOption",
     "RrdOption",
-    "SensorResettingOption",
     "UserError",
     "ViewerOption",
     "WebOption",

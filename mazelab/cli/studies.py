@@ -12,12 +12,17 @@ import typer
 
 from mazelab.atomic import WriteError
 from mazelab.cli.accuracy import accuracy
-from mazelab.cli.filter_options import options_per_filter
-from mazelab.cli.hints import check_filter_names
+from mazelab.cli.filter_options import (
+    KldFlag,
+    StudyOptionFlag,
+    declared_by,
+    options_per_filter,
+    parse_option_texts,
+)
+from mazelab.cli.hints import check_filter_names, filter_choices
 from mazelab.cli.options import (
     DEFAULT_DELTA,
     DEFAULT_SIGMA,
-    EstimateOption,
     MaxDrawnOption,
     NoVizOption,
     RrdOption,
@@ -40,7 +45,7 @@ from mazelab.experiments.resume import RESUME_IGNORES, missing_tasks, read_study
 from mazelab.experiments.rowlog import RowLog, check_left_over, partial_path
 from mazelab.experiments.runs import parse_filters
 from mazelab.experiments.stats import CONFIDENCE_LEVEL
-from mazelab.experiments.study import MazeChoice, RunRecord, RunTask, StudyOutcome
+from mazelab.experiments.study import PAPER_OPTIONS, MazeChoice, RunRecord, RunTask, StudyOutcome, declared_option
 from mazelab.experiments.summary import study_table, summarise_study
 from mazelab.experiments.traces import check_trace_path, kept_traces, study_traces, write_traces
 from mazelab.mazes import DEFAULT_MAZE
@@ -57,16 +62,17 @@ def study(
     delta: Annotated[str, typer.Option(help="compass error, comma-separated")] = str(DEFAULT_DELTA),
     particles: Annotated[str, typer.Option(help="particle counts, comma-separated")] = str(DEFAULT_PARTICLE_COUNT),
     threshold: Annotated[str | None, typer.Option(help=f"RPF's N_T / N_S, a list [default: {RPF_THRESHOLD}]")] = None,
-    filters: Annotated[str, typer.Option(metavar="NAMES", help="sir,apf,rpf,grid,ekf")] = "sir,apf,rpf",
+    filters: Annotated[str, typer.Option(metavar="NAMES", help=filter_choices(many=True))] = "sir,apf,rpf",
     kidnap_at: Annotated[int | None, typer.Option(min=1, help="carry the robot elsewhere at this step")] = None,
     recovery: Annotated[
         str | None, typer.Option(metavar="NAMES", help="none (default), augmented or sensor, a list")
     ] = None,
-    kld: Annotated[bool, typer.Option("--kld", help="KLD-sampling (--particles is the most)")] = False,
+    kld: KldFlag = False,
     bandwidth: Annotated[
         str | None, typer.Option(metavar="KERNELS", help="RPF kernels: optimal (default), multimodal, h")
     ] = None,
-    estimate: EstimateOption = None,
+    estimate: Annotated[str | None, typer.Option(metavar="RULES", help="mean (default), mode, a list")] = None,
+    option: StudyOptionFlag = None,
     runs: Annotated[int, typer.Option(min=1, help="seeded runs per setting")] = 30,
     steps: Annotated[int, typer.Option(min=1, help="steps per run")] = DEFAULT_STEPS,
     seed: Annotated[
@@ -90,15 +96,13 @@ def study(
     no_viz: NoVizOption = False,
     max_drawn: MaxDrawnOption = DEFAULT_MAX_DRAWN,
 ) -> None:
-    """Lab step 14: a Monte Carlo study over every combination of the values given.
-
-    Each filter runs once per value of its own options; a JSON record goes beside the outputs
-    (README: "Parameter studies")."""
+    """Lab step 14: a Monte Carlo study of every combination of the values given, each filter once per
+    value of its own options (README: "Parameter studies")."""
     visualize = visualization(viewer, rrd, web, no_viz, max_drawn, force) if viewer or web or rrd is not None else False
     outputs = StudyOutputs.parse(csv_path, plot, traces, record, rrd, force, resume)
     given = {"threshold": threshold, "recovery": recovery, "bandwidth": bandwidth, "estimate": estimate}
     plan = parse_plan(
-        outputs, filters, given, maze=maze, maze_size=maze_size, stations=stations, wall_share=wall_share,
+        outputs, filters, given, option, maze=maze, maze_size=maze_size, stations=stations, wall_share=wall_share,
         sigma=sigma, delta=delta, particles=particles, runs=runs, steps=steps, seed=seed, kidnap_at=kidnap_at, kld=kld,
     )  # fmt: skip
     session = open_session(plan, outputs, visualize, draw_run, dask, workers or default_workers())
@@ -142,33 +146,62 @@ class StudyOutputs:
 
 
 def parse_plan(
-    outputs: StudyOutputs, filters: str, given: dict[str, str | None], *, maze: str | None, maze_size: str | None,
-    stations: str | None, wall_share: str | None, sigma: str, delta: str, particles: str, runs: int, steps: int,
-    seed: int | None, kidnap_at: int | None, kld: bool,
+    outputs: StudyOutputs, filters: str, given: dict[str, str | None], option: list[str] | None, *,
+    maze: str | None, maze_size: str | None, stations: str | None, wall_share: str | None, sigma: str, delta: str,
+    particles: str, runs: int, steps: int, seed: int | None, kidnap_at: int | None, kld: bool,
 ) -> StudyPlan:  # fmt: skip
-    """The study's plan from the command line's lists; a flag that none of the filters takes is refused
-    first, in one line. A resumed study keeps its recorded root seed unless --seed is given."""
+    """The study's plan from the command line's lists: the paper's named flags (--threshold, --recovery,
+    --bandwidth, --estimate) and --option NAME=V1,V2 for any declared option, each value parsed and
+    checked by its declaration; an option that none of the filters takes is refused first, in one line.
+    A resumed study keeps its recorded root seed unless --seed is given."""
     if outputs.recorded is not None and seed is None:
         seed = outputs.recorded["parameters"]["root_seed"]
-    recovery = given["recovery"]
+    names = parse_filters(check_filter_names(filters))
+    lists = {name: _list(text, str, f"--{name}") for name, text in given.items() if text is not None}
+    named = {name: [_parsed(names, name, value) for value in values] for name, values in lists.items()}
+    generic = parse_option_texts(option, names, lists=True)
+    for name in named.keys() & generic.keys():
+        raise UserError(f"{name} is given twice, as --{name} and as --option {name}; give it once")
+    options = {**named, **generic}
+    if "kld" in options and options["kld"] == [True]:
+        kld, options = True, {k: v for k, v in options.items() if k != "kld"}
+    paper = {name: options.pop(name) for name in PAPER_OPTIONS if name in options}
+    recovery = paper.get("recovery")
     options_per_filter(
-        parse_filters(check_filter_names(filters)),
-        {**given, "recovery": None if recovery in (None, "none") else recovery, "kld": kld or None},
-        flags={"recovery": "--recovery"},  # study's one flag for it (no --sensor-resetting)
+        names,
+        {
+            **{k: v for k, v in paper.items() if not (k == "recovery" and set(v) <= {None, "none"})},
+            **options,
+            "kld": kld or None,
+        },
+        flags={**{name: f"--{name}" for name in given}, "kld": "--kld"},
+        check=False,  # each value is checked below, by plan_study, for every filter that takes it
     )
     return plan_study(
         plan_mazes(_list(maze, str, "--maze"), _list(maze_size, str, "--maze-size"),
                    _list(stations, int, "--stations"), _list(wall_share, float, "--wall-share")),
-        filters,
+        names,
         sigma=parse_list(sigma, float, "--sigma"),
         delta=parse_list(delta, float, "--delta"),
         particles=parse_list(particles, int, "--particles"),
-        threshold=parse_list(given["threshold"] or str(RPF_THRESHOLD), float, "--threshold"),
-        recovery=parse_list(recovery or "none", str, "--recovery"),
-        bandwidth=parse_list(given["bandwidth"] or "optimal", str, "--bandwidth"),
-        estimate=parse_list(given["estimate"] or "mean", str, "--estimate"),
+        threshold=paper.get("threshold", [RPF_THRESHOLD]),
+        recovery=["none" if r is None else r for r in recovery] if recovery else ["none"],
+        bandwidth=paper.get("bandwidth", ["optimal"]),
+        estimate=paper.get("estimate", ["mean"]),
+        options=options,
         runs=runs, steps=steps, seed=seed, kidnap_at=kidnap_at, kld=kld, traces=outputs.traces is not None,
     )  # fmt: skip
+
+
+def _parsed(names: list[str], option: str, text: str) -> Any:
+    """One value of a named list flag (--bandwidth optimal,0.05), read by the option's declaration."""
+    declared = declared_by(names, option) or [declared_option(option)]
+    if declared[0] is None:
+        return text
+    try:
+        return declared[0].parse_text(text)
+    except ValueError as error:
+        raise UserError(f"--{option} {text}: {error}") from None
 
 
 @dataclass
@@ -195,7 +228,9 @@ def open_session(
         tasks, kept = _resumed(plan, recorded, csv_path)
     tasks = _drawn_first(tasks, draw_run) if visualize else tasks
     replace = outputs.force or outputs.resume
-    log = RowLog(csv_path, replace=replace, adopt=outputs.resume) if csv_path is not None else None  # NAME.csv.partial
+    log = (  # NAME.csv.partial, with the study's columns
+        RowLog(csv_path, replace=replace, adopt=outputs.resume, columns=plan.columns) if csv_path is not None else None
+    )
     try:
         client = connect(dask) if dask is not None else None  # a bad address: one line and exit 2, before anything
     except BaseException:

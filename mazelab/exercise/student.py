@@ -10,18 +10,27 @@ step's Algorithm 4), so between steps the filter holds the weighted posterior th
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 from typing import Any, ClassVar
 
 import numpy as np
 
 from mazelab.checks import as_points
 from mazelab.contract import Particles
+from mazelab.declaration import Option, Options
 from mazelab.maze import Maze
 from mazelab.model import CONFIDENCE_RADIUS, CONFIDENCE_SHARE, LOG_UNDERFLOW, OUTSIDE_PENALTY, ROBOT_SPEED
 from mazelab.weights import effective_sample_size, log_sum_exp, mass_within
 
 PARTS = ("predict", "weigh", "resample", "estimate")
+
+
+def _own_estimate(estimate: Any) -> str:
+    """StudentFilter's estimate option: only "mean" (its estimate() is the student's own)."""
+    if estimate != "mean":
+        raise ValueError(
+            f"a StudentFilter estimates with its own estimate() method: estimate={estimate!r} does not apply"
+        )
+    return estimate
 
 
 class PartError(ValueError):
@@ -49,7 +58,10 @@ class StudentFilter:
     """
 
     name: ClassVar[str] = "StudentFilter"
-    options: ClassVar[Mapping[str, Any]] = {"estimate": "mean"}
+    options: ClassVar[Options] = Options(
+        Option("estimate", "mean", "only mean: the point estimate is the student's own estimate()",
+               parse=str.strip, check=_own_estimate),
+    )  # fmt: skip
     ROBOT_SPEED: ClassVar[float] = ROBOT_SPEED
     OUTSIDE_PENALTY: ClassVar[float] = OUTSIDE_PENALTY
 
@@ -74,13 +86,9 @@ class StudentFilter:
         delta: float,
         particles: np.ndarray,
         rng: np.random.Generator | None = None,
-        *,
-        estimate: str = "mean",
+        **options: Any,
     ):
-        if estimate != "mean":
-            raise ValueError(
-                f"{self.name} estimates with its own estimate() method: estimate={estimate!r} does not apply"
-            )
+        self.settings = type(self).options.resolve(options, self.name)
         self.world, self.sigma, self.delta = world, float(sigma), float(delta)
         self.rng = rng if rng is not None else np.random.default_rng()
         self.positions = as_points("particles", particles).copy()

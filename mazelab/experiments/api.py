@@ -4,8 +4,8 @@ rows as a list of dicts (`pandas.DataFrame(result.rows)`), its summary and its r
 from __future__ import annotations
 
 import sys
-from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -14,6 +14,7 @@ from mazelab.experiments.executor import run_study
 from mazelab.experiments.plan import plan_study, study_mazes
 from mazelab.experiments.record import Recorder
 from mazelab.experiments.summary import summarise_study
+from mazelab.experiments.tables import flat_row
 from mazelab.experiments.traces import TRACE_COLUMNS, study_traces
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, RPF_THRESHOLD
 
@@ -52,6 +53,7 @@ def study(
     bandwidth: str | float | Sequence[str | float] = "optimal",
     estimate: str | Sequence[str] = "mean",
     filters: str | Sequence[Any] = ("sir", "apf", "rpf"),
+    options: Mapping[str, Any] | None = None,
     runs: int = 30,
     steps: int = DEFAULT_STEPS,
     seed: int | None = None,
@@ -72,6 +74,9 @@ def study(
         The studied values (see `mazelab study --help`).
     filters
         Names ("sir", "rpf", ...) or filter classes (a student's own, meeting mazelab.contract).
+    options
+        Any other declared filter option, by name: a value or a list of values to vary (e.g.
+        {"resampling": ["systematic", "residual"]}); each filter takes those it declares.
     runs, steps, seed, kidnap_at, kld
         Runs per setting, steps per run, the root seed (None: a new one, in the record), a
         kidnapping step, KLD-sampling.
@@ -95,6 +100,7 @@ def study(
         recovery=_listed(recovery),
         bandwidth=_listed(bandwidth),
         estimate=_listed(estimate),
+        options={name: _listed(value) for name, value in (options or {}).items()},
         runs=runs,
         steps=steps,
         seed=seed,
@@ -115,7 +121,7 @@ def study(
     )
     blocks = study_traces(outcome.records) if traces else []
     columns = {c: np.concatenate([b[c] for b in blocks]) for c in TRACE_COLUMNS} if blocks else None
-    return StudyResult([asdict(r) for r in outcome.records], summary, record, failures, columns)
+    return StudyResult([flat_row(r) for r in outcome.records], summary, record, failures, columns)
 
 
 __all__ = ["StudyResult", "study"]

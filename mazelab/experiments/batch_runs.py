@@ -5,7 +5,6 @@ declared rule says they cannot be (`batchable`)."""
 from __future__ import annotations
 
 import math
-import time
 import traceback
 import warnings
 from collections.abc import Sequence
@@ -14,46 +13,32 @@ from itertools import groupby
 
 import numpy as np
 
-from mazelab.cloud import ParticleFilter
-from mazelab.experiments.kidnapping import RECOVERY_VARIANTS
-from mazelab.experiments.runs import filter_options
+from mazelab.collect import record_steps
+from mazelab.contract import check_filter
 from mazelab.experiments.study import RunFailure, RunRecord, RunTask, run_records, run_task_safely
 from mazelab.maze import Maze
-from mazelab.registry import FILTERS, resolve_filter
+from mazelab.registry import filter_entry
 from mazelab.robot import Robot
 from mazelab.seeding import filter_rng, run_streams, start_place
-from mazelab.simulation import RunInputs, RunResult, plan_kidnapping
+from mazelab.simulation import RunInputs, RunResult, maze_for, plan_kidnapping
 
 MAX_BATCH = 32  # runs advanced together: beyond this the fixed cost per step is already small
 MAX_BATCH_PARTICLES = 1_000_000  # R x N at most: a batch needs no more memory than a run of 10^6 particles
 
 
-def task_options(task: RunTask, name: str) -> dict[str, object]:
-    """The options of filter `name` in this task's runs (those it declares)."""
-    s = task.setting
-    return filter_options(
-        name,
-        threshold=s.threshold,
-        recovery=RECOVERY_VARIANTS[s.recovery],
-        kld=task.kld,
-        bandwidth=s.bandwidth,
-        estimate=task.estimate,
-    )
-
-
 def batchable(task: RunTask) -> bool:
     """The declared rule: a setting's runs advance together when they share one maze (a maze file, not
-    a maze generated per run) and every filter is one of the lab's particle filters whose options let
-    runs go together (ParticleFilter.runs_together: not recovery or KLD-sampling); otherwise one run
-    at a time (the grid filter, the EKF, and a student's plug-in, whose errors name its own lines)."""
+    a maze generated per run) and every filter's registry entry declares it `batched` (the lab's
+    particle filters; a new class only when it says so) with options that let runs go together
+    (`runs_together`: not recovery or KLD-sampling); otherwise one run at a time."""
     if task.setting.maze.grid is None:
         return False
-    classes = [resolve_filter(name) for name in task.filters]
-    shipped = set(FILTERS.values())
-    return all(
-        cls in shipped and issubclass(cls, ParticleFilter) and cls.runs_together(task_options(task, cls.name))
-        for cls in classes
-    )
+    for name in task.filters:
+        entry = filter_entry(name)
+        runs_together = getattr(entry.filter_class, "runs_together", None)
+        if not entry.batched or (runs_together is not None and not runs_together(task.filter_options(name))):
+            return False
+    return True
 
 
 def study_units(tasks: Sequence[RunTask], workers: int) -> list[tuple[RunTask, ...]]:
@@ -134,28 +119,28 @@ def run_batch(tasks: Sequence[RunTask]) -> list[list[RunRecord]]:
     z = np.array([walk.measurements for walk in walks])
     results: list[dict[str, RunResult]] = [{} for _ in tasks]
     for name in tasks[0].filters:
+        filter_class = filter_entry(name).filter_class
         rngs = [filter_rng(task.seed) for task in tasks]  # each run's filter stream, as simulate's
-        filt = resolve_filter(name)(world, s.sigma, s.delta, particles, rngs, **task_options(tasks[0], name))
-        estimates, ess = np.empty((len(tasks), steps, 2)), np.empty((len(tasks), steps))
-        confident, seconds = np.empty((len(tasks), steps), dtype=bool), np.empty(steps)
-        for k in range(steps):
-            started = time.perf_counter()
-            filt.step(compass[:, k], z[:, k])
-            estimates[:, k], ess[:, k], confident[:, k] = filt.estimate, filt.ess, filt.is_confident
-            seconds[k] = (time.perf_counter() - started) / len(tasks)  # each run's share of the step
+        options = tasks[0].filter_options(name)
+        filt = filter_class(maze_for(filter_class, world), s.sigma, s.delta, particles, rngs, **options)
+        runs = None if len(tasks) == 1 else len(tasks)  # one run: the paper's shapes
+        if runs is None:
+            check_filter(filt)
+        steps_of = record_steps(filt, steps, lambda k: (compass[:, k], z[:, k]), runs=runs)
         restarts = filt.reinitialised_at if len(tasks) > 1 else [filt.reinitialised_at]  # one run: one list
         for r, walk in enumerate(walks):
-            inputs = RunInputs(**{**walk.inputs.__dict__, "filtering_algorithm": name})
-            results[r][name] = RunResult(
-                name,
+            inputs = RunInputs(**{**walk.inputs.__dict__, "filtering_algorithm": filter_class.name})
+            run = steps_of.run(r)
+            results[r][filter_class.name] = RunResult(
+                filter_class.name,
                 walk.true_positions,
-                estimates[r],
-                ess[r],
-                confident[r],
-                seconds,
+                run["estimates"],
+                run["ess"],
+                run["confident"],
+                steps_of.seconds,
                 restarts[r],
                 inputs,
-                extras={"particle_count": np.full(steps, s.particles, dtype=np.int64)},
+                extras={"particle_count": run["counts"], "diagnostics": run["diagnostics"]},
             )
     return [run_records(task, world, result) for task, result in zip(tasks, results, strict=True)]
 

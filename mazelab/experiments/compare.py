@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from mazelab.contract import options_for
 from mazelab.experiments.kidnapping import recovery_steps, relocalised, walk_until
 from mazelab.experiments.runs import (
     FINAL_SHARE,
@@ -25,8 +26,7 @@ from mazelab.experiments.runs import (
 from mazelab.experiments.tables import format_number, format_table, pyplot, save_figure
 from mazelab.maze import Maze
 from mazelab.model import CONVERGENCE_RADIUS
-from mazelab.recovery import Recovery
-from mazelab.resampling import KLDSampling
+from mazelab.registry import colour_of, labels, resolve_filter, rgb
 from mazelab.robot import Robot
 from mazelab.simulation import RunResult
 from mazelab.viz.views import open_comparison
@@ -43,15 +43,15 @@ def compare_filters(
     seed: int,
     visualize: Any = False,
     kidnap_at: int | None = None,
-    recovery: bool | str | Recovery | None = None,
-    kld: bool | KLDSampling | None = None,
-    bandwidth: str | float | None = None,
-    estimate: str | None = None,
+    **options: Any,
 ) -> dict[str, RunResult]:
     """Lab steps 12-13: every filter on one saved scenario, drawn side by side in one recording.
 
     `kidnap_at=K` on a scenario recorded without a kidnapping replays its walk up to step K - 1; then
-    the robot is carried to a free place drawn from `seed` and walks on, every filter seeing the same."""
+    the robot is carried to a free place drawn from `seed` and walks on, every filter seeing the same.
+    `options` (e.g. recovery="sensor", bandwidth="multimodal") reach each filter that declares them; one
+    that none of the filters declares is refused in one line."""
+    per_filter = options_for([resolve_filter(name) for name in filter_names], options)
     steps = robot.recorded_steps
     if kidnap_at is not None and robot.kidnap_at is None:
         robot = walk_until(robot, kidnap_at)
@@ -68,10 +68,7 @@ def compare_filters(
             steps=steps,
             comparison=comparison,
             kidnap_at=kidnap_at,
-            recovery=recovery,
-            kld=kld,
-            bandwidth=bandwidth,
-            estimate=estimate,
+            options={name: per_filter[resolve_filter(name).name] for name in filter_names},
         )
     finally:
         comparison.close()
@@ -120,8 +117,10 @@ def plot_errors(results: dict[str, RunResult], path: Path, title: str, *, replac
     """The lab's figure: error against step, one line per filter, saved to `path` (png, pdf or svg)."""
     plt = pyplot()
     figure, axes = plt.subplots(figsize=(8, 4.5), layout="constrained")
+    shown = labels(list(results))  # the registry's labels and colours, as in the viewer
     for name, result in results.items():
-        axes.plot(np.arange(1, len(result.errors) + 1), result.errors, label=name, linewidth=1.2)
+        steps = np.arange(1, len(result.errors) + 1)
+        axes.plot(steps, result.errors, label=shown[name], color=rgb(colour_of(name)), linewidth=1.2)
     axes.axhline(CONVERGENCE_RADIUS, color="grey", linestyle="--", linewidth=0.8, label="convergence radius")
     axes.set(title=title, xlabel="step k", ylabel="error |estimate - true position| (map units)")
     axes.set_ylim(bottom=0)

@@ -5,29 +5,32 @@ them, and the lines that describe it."""
 from __future__ import annotations
 
 import itertools
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 from mazelab import maze_generator
 from mazelab.checks import check_bandwidth_within, check_sigma_within
 from mazelab.contract import options_for
+from mazelab.declaration import to_plain_json
 from mazelab.experiments.runs import parse_filters
 from mazelab.experiments.study import (
+    BASE_PARAMETERS,
     MazeChoice,
     RunTask,
     StudySetting,
     file_mazes,
+    study_parameters,
     study_settings,
     study_tasks,
     varied_parameters,
 )
-from mazelab.experiments.summary import describe_setting, describe_varied
+from mazelab.experiments.summary import CSV_COLUMNS, describe_setting, describe_varied
 from mazelab.limits import check_particles, check_steps, check_study
 from mazelab.maze_generator import DEFAULT_WALL_SHARE
 from mazelab.mazes import DEFAULT_MAZE, find_maze, load_maze
 from mazelab.model import RPF_THRESHOLD
-from mazelab.registry import resolve_filter
+from mazelab.registry import filter_entry, resolve_filter
 from mazelab.seeding import new_seed
 
 
@@ -84,6 +87,17 @@ class StudyPlan:
     traces: bool = False
 
     @property
+    def other_options(self) -> list[str]:
+        """The filter options the study sets beyond the paper's four: a CSV column each."""
+        others = list(study_parameters(self.settings)[len(BASE_PARAMETERS) :])
+        return [*others, "kld"] if self.kld and "kld" not in others else others
+
+    @property
+    def columns(self) -> list[str]:
+        """The study CSV's columns: CSV_COLUMNS, then one per other option."""
+        return [*CSV_COLUMNS, *self.other_options]
+
+    @property
     def varied(self) -> list[str]:
         return varied_parameters(self.settings)
 
@@ -106,10 +120,12 @@ class StudyPlan:
         def values(parameter: str) -> list[Any]:
             return list(dict.fromkeys(s.value(parameter) for s in self.settings))
 
+        others = study_parameters(self.settings)[len(BASE_PARAMETERS) :]
         return {
             "filters": [resolve_filter(f).name for f in self.filters],
             "mazes": [maze_description(m) for m in dict.fromkeys(s.maze for s in self.settings)],
             **{p: values(p) for p in ("sigma", "delta", "particles", "threshold", "recovery", "bandwidth", "estimate")},
+            **({"options": {p: [to_plain_json(v) for v in values(p)] for p in others}} if others else {}),
             "runs": self.runs,
             "steps": self.steps,
             "root_seed": self.seed,
@@ -140,10 +156,11 @@ def plan_study(
     sigma: Sequence[float],
     delta: Sequence[float],
     particles: Sequence[int],
-    threshold: Sequence[float],
+    threshold: Sequence[float] = (RPF_THRESHOLD,),
     recovery: Sequence[str] = ("none",),
     bandwidth: Sequence[str | float] = ("optimal",),
     estimate: Sequence[str] = ("mean",),
+    options: Mapping[str, Sequence[Any]] | None = None,
     runs: int = 30,
     steps: int = 200,
     seed: int | None = None,
@@ -151,29 +168,59 @@ def plan_study(
     kld: bool = False,
     traces: bool = False,
 ) -> StudyPlan:
-    """Check and combine a study's values into its plan (a new root seed if none is given)."""
+    """Check and combine a study's values into its plan (a new root seed if none is given).
+
+    `threshold`, `recovery`, `bandwidth` and `estimate` are the paper's four options of lab step 14;
+    `options` any other declared option of the filters, each a list of values (a plug-in's included).
+    An option that no filter of the study takes, given a value other than its default, is refused in
+    one line; every value, for every filter that takes it, is checked by its declaration up front."""
     names = parse_filters(filters) if isinstance(filters, str) else _filter_list(filters)
+    classes = [resolve_filter(name) for name in names]
+    others = {name: list(values) for name, values in (options or {}).items()}
+    for name, values in others.items():
+        if not values:
+            raise ValueError(f"option {name} has no values")
     options_for(  # an option that no filter takes, given a value other than the default: refused
-        [resolve_filter(name) for name in names],
+        classes,
         {
-            name: None if all(v == default for v in values) else values
-            for name, values, default in (
-                ("threshold", threshold, RPF_THRESHOLD),
-                ("recovery", recovery, "none"),
-                ("bandwidth", bandwidth, "optimal"),
-                ("estimate", estimate, "mean"),
-                ("kld", [kld], False),
-            )
+            **{
+                name: None if all(v == default for v in values) else values
+                for name, values, default in (
+                    ("threshold", threshold, RPF_THRESHOLD),
+                    ("recovery", recovery, "none"),
+                    ("bandwidth", bandwidth, "optimal"),
+                    ("estimate", estimate, "mean"),
+                    ("kld", [kld], False),
+                )
+            },
+            **others,
         },
     )
     check_steps(steps)  # each run's limits, up front rather than in every worker
     check_particles(max(particles))
-    settings = study_settings(mazes, sigma, delta, particles, threshold, recovery, bandwidth, estimate)
+    settings = study_settings(mazes, sigma, delta, particles, threshold, recovery, bandwidth, estimate, others)
     check_study(len(settings) * runs, len(names))
     check_study_numbers(settings)
+    check_filter_options(settings, names, kld)
     plan = StudyPlan(settings, names, runs, steps, new_seed() if seed is None else seed, kidnap_at, kld, traces)
     plan.tasks()  # checks runs, steps and kidnap_at
     return plan
+
+
+def check_filter_options(settings: Sequence[StudySetting], names: Sequence[Any], kld: bool) -> None:
+    """Every filter's options in every setting, checked by its declaration as its constructor will
+    check them (values and combinations), before any run starts."""
+    seen: set[tuple[Any, ...]] = set()
+    for setting in settings:
+        for name in names:
+            given = setting.filter_options(name)
+            entry = filter_entry(name)
+            if kld and "kld" in entry.options:
+                given["kld"] = True
+            key = (entry.name, repr(sorted(given.items())))
+            if key not in seen:
+                seen.add(key)
+                entry.options.resolve(given, entry.name)
 
 
 def check_study_numbers(settings: Sequence[Any]) -> None:

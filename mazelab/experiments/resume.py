@@ -13,6 +13,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from mazelab.declaration import parse_literal
 from mazelab.experiments.study import RunRecord, RunTask
 
 RESUME_IGNORES = ("runs",)  # parameters that may differ between the record and a resumed study
@@ -42,12 +43,14 @@ def _parse(text: str, kind: Any) -> Any:
     raise ValueError(f"{text!r} is not a {kind}")
 
 
-def read_study_csv(path: str | Path) -> list[RunRecord]:
-    """The rows of a study's CSV as RunRecords. A last row cut short (a study killed while writing
-    it) is left out; any other bad row is a ValueError of one line naming the file and row."""
+def read_study_csv(path: str | Path, expected: Sequence[str] | None = None) -> list[RunRecord]:
+    """The rows of a study's CSV as RunRecords: the fixed columns, then a column per other filter
+    option (its cells read back as the values they spell, into RunRecord.options); with `expected`,
+    the header must be exactly those columns. A last row cut short (a study killed while writing it)
+    is left out; any other bad row is a ValueError of one line naming the file and row."""
     path = Path(path)
     hints = typing.get_type_hints(RunRecord)
-    columns = [f.name for f in dataclasses.fields(RunRecord)]
+    fixed = [f.name for f in dataclasses.fields(RunRecord) if f.name != "options"]
     try:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
@@ -57,16 +60,19 @@ def read_study_csv(path: str | Path) -> list[RunRecord]:
         return []
     reader = csv.reader(lines)
     header = next(reader)
-    if header != columns:
+    if header[: len(fixed)] != fixed or (expected is not None and header != list(expected)):
         raise ValueError(f"--resume: {path} is not a study CSV of this version (its columns differ)")
+    columns, others = header, header[len(fixed) :]
     records = []
     for number, row in enumerate(reader, start=2):
         last = number == len(lines)
         if last and (len(row) != len(columns) or not lines[-1].endswith("\n")):
             break  # cut short by a kill: that run is run again
         try:
-            values = {name: _parse(cell, hints[name]) for name, cell in zip(columns, row, strict=True)}
-            records.append(RunRecord(**values))
+            cells = dict(zip(columns, row, strict=True))
+            values = {name: _parse(cells[name], hints[name]) for name in fixed}
+            options = {name: parse_literal(cells[name]) if cells[name] != "" else None for name in others}
+            records.append(RunRecord(**values, options=options))
         except ValueError as error:
             raise ValueError(f"--resume: {path} row {number}: {error}") from None
     return records

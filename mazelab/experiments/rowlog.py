@@ -15,13 +15,12 @@ import csv
 import io
 import os
 from collections.abc import Sequence
-from dataclasses import asdict
 from pathlib import Path
 
 from mazelab.atomic import output_target, write_all, write_text_atomically
 from mazelab.experiments.study import RunRecord
 from mazelab.experiments.summary import CSV_COLUMNS, study_csv
-from mazelab.experiments.tables import csv_cell
+from mazelab.experiments.tables import csv_cell, flat_row
 
 try:
     import fcntl
@@ -41,14 +40,15 @@ def partial_path(path: str | Path) -> Path:
     return path.with_name(path.name + PARTIAL_SUFFIX)
 
 
-def rows_text(records: Sequence[RunRecord], header: bool = False) -> str:
-    """CSV lines of `records` (with the header line first if asked)."""
+def rows_text(records: Sequence[RunRecord], header: bool = False, columns: Sequence[str] = CSV_COLUMNS) -> str:
+    """CSV lines of `records` in `columns` (the study's: CSV_COLUMNS, then its other options), with the
+    header line first if asked."""
     buffer = io.StringIO()
-    writer = csv.DictWriter(buffer, fieldnames=CSV_COLUMNS, lineterminator="\n")
+    writer = csv.DictWriter(buffer, fieldnames=list(columns), lineterminator="\n")
     if header:
         writer.writeheader()
     for record in records:
-        writer.writerow({k: csv_cell(v) for k, v in asdict(record).items()})
+        writer.writerow({k: csv_cell(v) for k, v in flat_row(record).items()})
     return buffer.getvalue()
 
 
@@ -91,8 +91,11 @@ class RowLog:
     Raises PartialFileError (a ValueError: one line) when another study writes the same partial file,
     or when one is left from a stopped study and `replace` is False; `note` says when one was replaced."""
 
-    def __init__(self, path: str | Path, *, replace: bool = False, adopt: bool = False):
+    def __init__(
+        self, path: str | Path, *, replace: bool = False, adopt: bool = False, columns: Sequence[str] = CSV_COLUMNS
+    ):
         self.path = Path(path)
+        self.columns = list(columns)  # the study's columns: CSV_COLUMNS, then a column per other option
         self.adopt = adopt  # --resume: a leftover partial file is this study's own (its kept rows are re-appended)
         self.partial = partial_path(self.path)
         self.replace = replace
@@ -102,7 +105,7 @@ class RowLog:
         output_target(self.path, replace)  # a device, pipe or folder; an existing CSV without --force
         self._handle: int | None = self._open_partial()
         try:
-            self._write(rows_text([], header=True))
+            self._write(rows_text([], header=True, columns=self.columns))
         except OSError as error:
             self._fail(error)
 
@@ -131,7 +134,7 @@ class RowLog:
         if self._handle is None:
             return
         try:
-            self._write(rows_text(records))
+            self._write(rows_text(records, columns=self.columns))
         except OSError as error:
             self._fail(error)
 
@@ -144,7 +147,7 @@ class RowLog:
     def finish(self, records: Sequence[RunRecord]) -> None:
         """Write the whole CSV (old file or new whole one) from `records`, then remove the partial
         file; on a write error (raised) the partial file stays, named by `kept`."""
-        write_text_atomically(self.path, study_csv(records), replace=self.replace)
+        write_text_atomically(self.path, study_csv(records, self.columns), replace=self.replace)
         with contextlib.suppress(OSError):
             self.partial.unlink()
         self.close()

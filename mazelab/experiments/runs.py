@@ -9,18 +9,15 @@ Figures of one run:
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
-from mazelab.cloud import ParticleFilter
 from mazelab.contract import takes
 from mazelab.maze import Maze
 from mazelab.plugins import canonical_spec, is_plugin_spec
-from mazelab.recovery import Recovery
-from mazelab.registry import resolve_filter
-from mazelab.resampling import KLDSampling
+from mazelab.registry import filter_entry, resolve_filter
 from mazelab.robot import Robot
 from mazelab.simulation import RunResult, simulate
 
@@ -64,15 +61,16 @@ def filter_labels(names: Sequence[str]) -> list[str]:
 
 # -- several filters on one scenario ---------------------------------------------------------------
 def filter_options(filter_name: str | type, **options: Any) -> dict[str, Any]:
-    """Of the options given (None: not given), those the filter declares (mazelab.contract): a study's
-    RPF threshold and bandwidth reach the RPF only, recovery and KLD-sampling the particle filters,
+    """Of the options given (None: not given), those the filter declares (mazelab.declaration): the
+    RPF's threshold and bandwidth reach the RPF only, recovery and KLD-sampling the particle filters,
     the point estimate every filter that has one."""
     filter_class = resolve_filter(filter_name)
     return {name: value for name, value in options.items() if value is not None and takes(filter_class, name)}
 
 
 def is_particle_filter(filter_name: str) -> bool:
-    return issubclass(resolve_filter(filter_name), ParticleFilter)
+    """Whether a filter is a sample of particles (its registry entry says it takes a particle count)."""
+    return filter_entry(filter_name).takes_particles
 
 
 def run_filters(
@@ -86,21 +84,17 @@ def run_filters(
     particles: Sequence[Sequence[float]] | np.ndarray | None = None,
     particle_count: int | None = None,
     steps: int | None = None,
-    threshold: float | None = None,
     comparison: Any = None,
     kidnap_at: int | None = None,
-    recovery: bool | str | Recovery | None = None,
-    kld: bool | KLDSampling | None = None,
-    bandwidth: str | float | None = None,
-    estimate: str | None = None,
+    options: Mapping[str, Mapping[str, Any]] | None = None,
 ) -> dict[str, RunResult]:
     """Run every filter on the same scenario: the robot's walk, measurements and initial particles.
 
     The first run records the walk and measurements (if the robot has none) and draws the particles
     (if none are given); every later filter replays exactly those, the kidnapping (`kidnap_at`, its
     place drawn from `seed`) included. Each filter's random draws come from `seed`, and with
-    `comparison` (open_comparison) each run draws into its own view. `bandwidth` is the RPF's kernel
-    bandwidth, `estimate` every filter's point estimate ("mean" or "mode").
+    `comparison` (open_comparison) each run draws into its own view. `options` maps a filter's name
+    (as in `filter_names`) to its own options.
     """
     results: dict[str, RunResult] = {}
     for name in filter_names:
@@ -116,9 +110,7 @@ def run_filters(
             seed=seed,
             view=None if comparison is None else comparison.view_for(resolve_filter(name).name),
             kidnap_at=kidnap_at,
-            **filter_options(
-                name, threshold=threshold, recovery=recovery, kld=kld, bandwidth=bandwidth, estimate=estimate
-            ),
+            **(options or {}).get(name, {}),
         )
         if particles is None:
             particles = result.initial_particles

@@ -10,21 +10,20 @@ import hashlib
 import itertools
 import math
 import warnings
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
 
-from mazelab.experiments.kidnapping import RECOVERY_VARIANTS, recovery_steps, relocalised
+from mazelab.declaration import Option, options_of
+from mazelab.experiments.kidnapping import recovery_steps, relocalised
 from mazelab.experiments.runs import filter_labels, final_error, mean_ess, mean_particle_count, run_filters
 from mazelab.maze import STATION_WALL, Maze
 from mazelab.maze_generator import DEFAULT_WALL_SHARE, generate_maze
-from mazelab.model import check_model_parameters
-from mazelab.modes import check_estimate
-from mazelab.registry import resolve_filter
-from mazelab.regularisation import check_bandwidth
+from mazelab.model import RPF_THRESHOLD, check_model_parameters
+from mazelab.registry import SHIPPED, filter_entry, resolve_filter
 from mazelab.robot import Robot
 from mazelab.seeding import start_place, study_seeds
 from mazelab.simulation import RunResult, convergence_step
@@ -92,42 +91,69 @@ def _maze_of(grid: tuple[tuple[int, ...], ...], label: str) -> Maze:
 
 @dataclass(frozen=True)
 class StudySetting:
-    """One combination of the studied parameters."""
+    """One combination of the studied parameters: the model's (maze, sigma, delta, particle count),
+    the paper's four filter options of lab step 14 (always columns of the study), and any other
+    declared filter option the study sets (`options`, by name: `--option NAME=VALUES`)."""
 
     maze: MazeChoice
     sigma: float
     delta: float
     particles: int
-    threshold: float  # the RPF's N_T / N_S
-    recovery: str = "none"  # a kidnapping.RECOVERY_VARIANTS name, for the particle filters
+    threshold: float = RPF_THRESHOLD  # the RPF's N_T / N_S
+    recovery: str = "none"  # none, augmented or sensor, for the particle filters
     bandwidth: str | float = "optimal"  # the RPF's kernel bandwidth (mazelab.regularisation)
     estimate: str = "mean"  # every filter's point estimate: "mean" or "mode" (mazelab.modes)
+    options: tuple[tuple[str, Any], ...] = ()  # the other filter options the study sets, (name, value)
 
     def value(self, parameter: str) -> Any:
-        return self.maze.label if parameter == "maze" else getattr(self, parameter)
+        """The value of a studied parameter (a model parameter, one of the four, or another option)."""
+        if parameter == "maze":
+            return self.maze.label
+        if parameter in MODEL_PARAMETERS or parameter in PAPER_OPTIONS:
+            return getattr(self, parameter)
+        return dict(self.options).get(parameter)
+
+    @property
+    def option_names(self) -> tuple[str, ...]:
+        """Every filter option this setting gives a value: the paper's four, then the others."""
+        return (*PAPER_OPTIONS, *(name for name, _ in self.options))
+
+    def filter_options(self, filter_name: str | type) -> dict[str, Any]:
+        """The options of this setting that the filter declares (its declaration checks them)."""
+        declared = options_of(resolve_filter(filter_name))
+        return {name: self.value(name) for name in self.option_names if name in declared}
 
 
-STUDY_PARAMETERS = ("maze", "sigma", "delta", "particles", "threshold", "recovery", "bandwidth", "estimate")
-# the study parameters that are filter options (mazelab.contract): a filter that does not declare one
-# runs once for all its values
-OPTION_PARAMETERS = {"threshold": "threshold", "recovery": "recovery", "bandwidth": "bandwidth", "estimate": "estimate"}
-# filters that take no particle count (the constructor's particles are ignored): once for all counts.
-# The contract has no declaration for this yet; these are the shipped ones that ignore it.
-PARTICLE_FREE_FILTERS = ("GridBayesFilter", "ExtendedKalmanFilter")
+MODEL_PARAMETERS = ("sigma", "delta", "particles")
+# the filter options of lab step 14 (the paper's RPF threshold, and the kernel, recovery and estimate
+# this lab adds): always a column of the study, given or not
+PAPER_OPTIONS = ("threshold", "recovery", "bandwidth", "estimate")
+BASE_PARAMETERS = ("maze", *MODEL_PARAMETERS, *PAPER_OPTIONS)
+
+
+def study_parameters(settings: Sequence[StudySetting]) -> tuple[str, ...]:
+    """The parameters a study's settings give: the model's, the paper's four options, any other option."""
+    others = dict.fromkeys(name for s in settings for name, _ in s.options)
+    return (*BASE_PARAMETERS, *others)
+
+
+def is_option_parameter(parameter: str) -> bool:
+    """Whether a study parameter is a filter option (not the maze or a model parameter)."""
+    return parameter not in ("maze", *MODEL_PARAMETERS)
 
 
 def takes_parameter(filter_name: str | type, parameter: str) -> bool:
     """Whether a study parameter can change a filter's results: the model's (maze, sigma, delta) always,
-    the particle count unless the filter ignores it, an option only if the filter declares it."""
+    the particle count unless the filter's entry says it takes none, an option only if it declares it."""
     try:
-        filter_class = resolve_filter(filter_name)
+        entry = filter_entry(filter_name)
     except ValueError:  # a filter known only by its name in a record (a student's own): assume it does
         return True
-    if parameter in OPTION_PARAMETERS:
-        return OPTION_PARAMETERS[parameter] in filter_class.options
     if parameter == "particles":
-        return filter_class.name not in PARTICLE_FREE_FILTERS
-    return True
+        return entry.takes_particles
+    if parameter in ("maze", "sigma", "delta"):
+        return True
+    return parameter in entry.options
 
 
 def study_settings(
@@ -135,34 +161,60 @@ def study_settings(
     sigmas: Sequence[float],
     deltas: Sequence[float],
     particle_counts: Sequence[int],
-    thresholds: Sequence[float],
+    thresholds: Sequence[float] = (RPF_THRESHOLD,),
     recoveries: Sequence[str] = ("none",),
     bandwidths: Sequence[str | float] = ("optimal",),
     estimates: Sequence[str] = ("mean",),
+    options: Mapping[str, Sequence[Any]] | None = None,
 ) -> list[StudySetting]:
-    """Every combination of the given values (the first parameter varies slowest), each checked."""
-    estimates = list(dict.fromkeys(check_estimate(e) for e in estimates))
-    for recovery in recoveries:
-        if recovery not in RECOVERY_VARIANTS:
-            raise ValueError(f"unknown recovery {recovery!r}; choose from {', '.join(RECOVERY_VARIANTS)}")
+    """Every combination of the given values (the first parameter varies slowest), each checked by the
+    declaration of the option (mazelab.declaration) as the filters' constructors check it; `options`
+    holds the other filter options the study sets, each a list of values."""
     for count in particle_counts:
-        if count < 1:
-            raise ValueError(f"particle counts must be >= 1, got {count}")
-    for threshold in thresholds:
-        if not 0 < threshold <= 1:
-            raise ValueError(f"the RPF threshold must be in (0, 1] (N_T = threshold * N_S), got {threshold}")
+        if isinstance(count, bool) or not isinstance(count, int) or count < 1:
+            raise ValueError(f"particle counts must be whole numbers >= 1, got {count!r}")
     for sigma, delta in itertools.product(dict.fromkeys(sigmas), dict.fromkeys(deltas)):
         check_model_parameters(sigma, delta)  # refuses impossible values, warns once outside the lab's ranges
-    bandwidths = list(dict.fromkeys(check_bandwidth(b) for b in bandwidths))
-    combinations = itertools.product(
-        mazes, sigmas, deltas, particle_counts, thresholds, recoveries, bandwidths, estimates
-    )
-    return [StudySetting(*values) for values in combinations]
+    paper = {
+        "threshold": _checked("threshold", thresholds),
+        "recovery": [_recovery_name(r) for r in dict.fromkeys(recoveries)],
+        "bandwidth": _checked("bandwidth", bandwidths),
+        "estimate": _checked("estimate", estimates),
+    }
+    others = {name: _checked(name, values) for name, values in (options or {}).items()}
+    combinations = itertools.product(mazes, sigmas, deltas, particle_counts, *paper.values(), *others.values())
+    return [StudySetting(*values[:8], options=tuple(zip(others, values[8:], strict=True))) for values in combinations]
+
+
+def _checked(name: str, values: Sequence[Any]) -> list[Any]:
+    """The values of a studied option, each checked by the option's declaration (the first filter of
+    the lab's that declares it; a plug-in's own options are checked by its declaration in plan_study)."""
+    option = declared_option(name)
+    checked = [value if option is None else option.validate(value) for value in values]
+    return list(dict.fromkeys(checked))
+
+
+def declared_option(name: str) -> Option | None:
+    """The declaration of an option among the lab's filters (None: only a plug-in declares it)."""
+    return next((entry.options[name] for entry in SHIPPED if name in entry.options), None)
+
+
+def _recovery_name(recovery: Any) -> str:
+    """A study's recovery as its name: none, augmented or sensor (checked by the option's declaration)."""
+    value = declared_option("recovery").validate(recovery)
+    if value is not None and not isinstance(value, str):
+        raise ValueError(f"a study's recovery is none, augmented or sensor, got {recovery!r}")
+    return "none" if value is None else value
 
 
 def varied_parameters(settings: Sequence[StudySetting]) -> list[str]:
     """The parameters that take more than one value across the settings."""
-    return [p for p in STUDY_PARAMETERS if len({s.value(p) for s in settings}) > 1]
+    return [p for p in study_parameters(settings) if len({_key(s.value(p)) for s in settings}) > 1]
+
+
+def _key(value: Any) -> Any:
+    """A value as a set member (an object option's fields, a list as a tuple)."""
+    return value if not isinstance(value, (list, dict)) else repr(value)
 
 
 @dataclass(frozen=True)
@@ -177,21 +229,34 @@ class RunTask:
     filters: tuple[str, ...]
     steps: int
     kidnap_at: int | None = None  # kidnap the robot at this step (its place drawn from `seed`)
-    kld: bool = False  # KLD-sampling in the particle filters
-    estimate: str = "mean"  # every filter's point estimate: "mean" or "mode" (mazelab.modes)
     traces: bool = False  # keep each filter's per-step trace on its record (`RunRecord.trace`)
+
+    @property
+    def estimate(self) -> str:
+        """The point estimate the errors are measured from: "mean" or "mode"."""
+        return self.setting.estimate
+
+    @property
+    def kld(self) -> bool:
+        """Whether the particle filters use KLD-sampling."""
+        return bool(self.setting.value("kld"))
+
+    def filter_options(self, name: str) -> dict[str, Any]:
+        """Filter `name`'s options in this run (those of the setting it declares)."""
+        return self.setting.filter_options(name)
 
 
 def filters_per_setting(settings: Sequence[StudySetting], filters: Sequence[str]) -> list[tuple[str, ...]]:
     """The filters each setting runs: a filter runs in the first setting of each combination of the
     parameters it takes (`takes_parameter`), so SIR is not run again for each RPF bandwidth. Run r
     has the same seeds in every setting, so the skipped runs would repeat the kept ones bit for bit."""
+    parameters = study_parameters(settings)
     seen: set[tuple[Any, ...]] = set()
     chosen = []
     for setting in settings:
         mine = []
         for name in filters:
-            key = (name, *(setting.value(p) if takes_parameter(name, p) else None for p in STUDY_PARAMETERS))
+            key = (name, *(_key(setting.value(p)) if takes_parameter(name, p) else None for p in parameters))
             if key not in seen:
                 seen.add(key)
                 mine.append(name)
@@ -213,28 +278,19 @@ def study_tasks(
 ) -> list[RunTask]:
     """One task per setting and run, in order, each with the filters that setting runs
     (`filters_per_setting`; a setting that runs none has no tasks). `estimate`, if given, replaces the
-    settings' own; `traces` keeps each run's per-step trace (mazelab.experiments.traces)."""
+    settings' own, and `kld` turns KLD-sampling on in all of them; `traces` keeps each run's per-step
+    trace (mazelab.experiments.traces)."""
     if estimate is not None:
-        settings = [dataclasses.replace(s, estimate=check_estimate(estimate)) for s in settings]
+        settings = [dataclasses.replace(s, estimate=_checked("estimate", [estimate])[0]) for s in settings]
+    if kld:
+        settings = [dataclasses.replace(s, options=tuple({**dict(s.options), "kld": True}.items())) for s in settings]
     if runs < 1 or steps < 1:
         raise ValueError(f"runs and steps must be >= 1, got {runs} runs and {steps} steps")
     if kidnap_at is not None and not 1 <= kidnap_at <= steps:
         raise ValueError(f"kidnap_at must be a step from 1 to {steps}, got {kidnap_at}")
     seeds = study_seeds(root_seed, runs)
     return [
-        RunTask(
-            i,
-            setting,
-            r,
-            seed,
-            maze_seed if setting.maze.grid is None else None,
-            mine,
-            steps,
-            kidnap_at,
-            kld,
-            setting.estimate,
-            traces,
-        )
+        RunTask(i, setting, r, seed, maze_seed if setting.maze.grid is None else None, mine, steps, kidnap_at, traces)
         for i, (setting, mine) in enumerate(zip(settings, filters_per_setting(settings, filters), strict=True), start=1)
         if mine
         for r, (seed, maze_seed) in enumerate(seeds, start=1)
@@ -274,6 +330,8 @@ class RunRecord:
     maze_columns: int = 0
     wall_share: float | None = None  # a generated maze's requested share of walls; None for a file
     run_seconds: float = math.nan  # wall time of the run: its share of the unit of runs it ran in
+    # the setting's other filter options (beyond the four above), by name: a column each, after these
+    options: dict[str, Any] = field(default_factory=dict)
     # Not a column: with RunTask.traces, the filter's per-step arrays (mazelab.experiments.traces)
     trace: ClassVar[dict[str, Any] | None] = None
 
@@ -309,13 +367,9 @@ def run_task(task: RunTask, visualize: Any = False) -> list[RunRecord]:
                 seed=task.seed,
                 particle_count=s.particles,
                 steps=task.steps,
-                threshold=s.threshold,
                 comparison=comparison,
                 kidnap_at=task.kidnap_at,
-                recovery=RECOVERY_VARIANTS[s.recovery],
-                kld=task.kld,
-                bandwidth=s.bandwidth,
-                estimate=task.estimate,
+                options={name: task.filter_options(name) for name in task.filters},
             )
     finally:
         if comparison is not None:
@@ -357,6 +411,7 @@ def run_records(task: RunTask, world: Maze, results: dict[str, RunResult]) -> li
             int(world.grid.shape[0]),
             int(world.grid.shape[1]),
             s.maze.wall_share,
+            options=option_cells(s),
         )
         for name, result in results.items()
     ]
@@ -364,6 +419,17 @@ def run_records(task: RunTask, world: Maze, results: dict[str, RunResult]) -> li
         for record, result in zip(records, results.values(), strict=True):
             record.trace = trace_of(result)
     return records
+
+
+def option_cells(setting: StudySetting) -> dict[str, Any]:
+    """The setting's other options as a row's cells: numbers, words and flags as they are, anything
+    else (none, an object's fields) in its declaration's words."""
+    cells = {}
+    for name, value in setting.options:
+        option = declared_option(name)
+        plain = value is None or isinstance(value, (bool, int, float, str))
+        cells[name] = value if plain and value is not None else (option.show(value) if option else str(value))
+    return cells
 
 
 def trace_of(result: RunResult) -> dict[str, np.ndarray]:
@@ -419,21 +485,25 @@ class StudyOutcome:
 
 
 __all__ = [
-    "OPTION_PARAMETERS",
-    "PARTICLE_FREE_FILTERS",
-    "STUDY_PARAMETERS",
+    "BASE_PARAMETERS",
+    "MODEL_PARAMETERS",
+    "PAPER_OPTIONS",
     "MazeChoice",
     "RunFailure",
     "RunRecord",
     "RunTask",
     "StudyOutcome",
     "StudySetting",
+    "declared_option",
     "file_mazes",
     "filters_per_setting",
+    "is_option_parameter",
     "kidnap_figures",
+    "option_cells",
     "run_records",
     "run_task",
     "run_task_safely",
+    "study_parameters",
     "study_settings",
     "study_tasks",
     "takes_parameter",

@@ -13,9 +13,10 @@ from typing import Any
 import numpy as np
 
 from mazelab.experiments.runs import FINAL_SHARE
-from mazelab.experiments.study import OPTION_PARAMETERS, takes_parameter
+from mazelab.experiments.study import is_option_parameter, takes_parameter
 from mazelab.experiments.summary import StudySummary
 from mazelab.experiments.tables import format_value, pyplot, save_figure
+from mazelab.registry import labels
 
 NUMERIC_PARAMETERS = ("sigma", "delta", "particles", "threshold")  # an x axis with a scale
 PARAMETER_LABELS = {
@@ -23,13 +24,6 @@ PARAMETER_LABELS = {
     "delta": "Delta, compass error width (radians)",
     "particles": "particle count N_S",
     "threshold": "RPF threshold N_T / N_S",
-}
-SHORT_NAMES = {
-    "SIRParticleFilter": "SIR",
-    "AuxiliaryParticleFilter": "APF",
-    "RegularizedParticleFilter": "RPF",
-    "GridBayesFilter": "grid",
-    "ExtendedKalmanFilter": "EKF",
 }
 MAX_COLUMNS = 3  # panels per row
 
@@ -47,9 +41,9 @@ class FigureLayout:
 def figure_layout(summaries: Sequence[StudySummary], varied: Sequence[str]) -> tuple[FigureLayout, dict, dict]:
     """Split the varied parameters into the x axis, the lines and the panels; returns the layout and
     the summaries by panel and by line."""
-    x = next((p for p in varied if p in NUMERIC_PARAMETERS and p not in OPTION_PARAMETERS), None)
+    x = next((p for p in varied if p in NUMERIC_PARAMETERS and not is_option_parameter(p)), None)
     x = x or next((p for p in varied if p in NUMERIC_PARAMETERS), None)
-    options = [p for p in varied if p in OPTION_PARAMETERS and p != x]
+    options = [p for p in varied if is_option_parameter(p) and p != x]
     if x is None:
         x = next((p for p in varied if p not in options), None)
     facets = [p for p in varied if p != x and p not in options]
@@ -64,7 +58,7 @@ def figure_layout(summaries: Sequence[StudySummary], varied: Sequence[str]) -> t
 
 def line_label(summary: StudySummary, options: Sequence[str]) -> str:
     """'RPF, bandwidth multimodal': the filter and the varied options it takes."""
-    name = SHORT_NAMES.get(summary.filter, summary.filter)
+    name = labels([summary.filter])[summary.filter]  # the registry's label (SIR), as the viewer's
     taken = [_named(p, summary.setting.value(p)) for p in options if takes_parameter(summary.filter, p)]
     return ", ".join([name, *taken])
 
@@ -90,7 +84,7 @@ def plot_study(
     )
     categories = list(dict.fromkeys(format_value(s.setting.value(x)) for s in summaries)) if x and not numeric else []
     colours = {label: f"C{i % 10}" for i, label in enumerate(layout.lines)}
-    options = [p for p in varied if p in OPTION_PARAMETERS and p != x]
+    options = [p for p in varied if is_option_parameter(p) and p != x]
     for k, (panel, mine) in enumerate(panels.items()):
         ax = axes[k // columns][k % columns]
         by_line: dict[str, list[StudySummary]] = {}

@@ -16,7 +16,7 @@ from mazelab.experiments.stats import (
     bootstrap_interval,
     wilson_interval,
 )
-from mazelab.experiments.study import RunRecord, StudySetting, takes_parameter
+from mazelab.experiments.study import RunRecord, StudySetting, option_cells, takes_parameter
 from mazelab.experiments.tables import format_optional, format_table, format_value, records_csv
 
 Interval = tuple[float, float]
@@ -51,6 +51,7 @@ class StudySummary:
         data["setting"] = data.pop("setting_index")
         for parameter in ("maze", "sigma", "delta", "particles", "threshold", "recovery", "bandwidth", "estimate"):
             data[parameter] = self.setting.value(parameter)
+        data.update(option_cells(self.setting))  # the setting's other filter options, one key each
         return data
 
 
@@ -185,12 +186,13 @@ def study_table(summaries: Sequence[StudySummary], varied: Sequence[str], kld: b
     return format_table(headers, rows) + "\n" + interval_note()
 
 
-CSV_COLUMNS = [f.name for f in fields(RunRecord)]
+CSV_COLUMNS = [f.name for f in fields(RunRecord) if f.name != "options"]  # then a column per other option
 
 
-def study_csv(records: Sequence[RunRecord]) -> str:
-    """One row per run and filter, columns CSV_COLUMNS; an empty cell for None and NaN."""
-    return records_csv(records, CSV_COLUMNS)
+def study_csv(records: Sequence[RunRecord], columns: Sequence[str] = CSV_COLUMNS) -> str:
+    """One row per run and filter, columns CSV_COLUMNS then the study's other options; an empty cell for
+    None and NaN."""
+    return records_csv(records, columns)
 
 
 __all__ = [

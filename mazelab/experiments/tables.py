@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from mazelab.atomic import write_bytes_atomically
+from mazelab.declaration import show_value
 
 PLOT_INSTALL_HINT = 'plotting needs matplotlib: pip install -e ".[plot]"'
 
@@ -59,7 +60,8 @@ def format_optional(value: float | None, spec: str) -> str:
 
 
 def format_value(value: Any) -> str:
-    return f"{value:g}" if isinstance(value, float) else str(value)
+    """A parameter's value in a table or a label: 0.05, multimodal, none (mazelab.declaration)."""
+    return show_value(value)
 
 
 def csv_cell(value: Any) -> Any:
@@ -68,20 +70,32 @@ def csv_cell(value: Any) -> Any:
     return repr(value) if isinstance(value, float) else value
 
 
+def flat_row(record: Any) -> dict[str, Any]:
+    """A dataclass record as one row: its fields, with a record's `options` (a dict of the other
+    filter options) spread into a column each."""
+    row = asdict(record)
+    row.update(row.pop("options", None) or {})
+    return row
+
+
 def records_csv(records: Sequence[Any], columns: Sequence[str]) -> str:
-    """CSV text of dataclass records, one row each in `columns` order; an empty cell for None and NaN,
-    floats written in full (repr) so that the file reads back bit for bit."""
+    """CSV text of dataclass records, one row each in `columns` order (then any option column the
+    records carry, in the order they first appear); an empty cell for None and NaN, floats written in
+    full (repr) so that the file reads back bit for bit."""
+    rows = [flat_row(record) for record in records]
+    extra = dict.fromkeys(name for row in rows for name in row if name not in columns)
     buffer = io.StringIO()
-    writer = csv.DictWriter(buffer, fieldnames=list(columns), lineterminator="\n")
+    writer = csv.DictWriter(buffer, fieldnames=[*columns, *extra], lineterminator="\n")
     writer.writeheader()
-    for record in records:
-        writer.writerow({k: csv_cell(v) for k, v in asdict(record).items()})
+    for row in rows:
+        writer.writerow({k: csv_cell(v) for k, v in row.items()})
     return buffer.getvalue()
 
 
 __all__ = [
     "PLOT_INSTALL_HINT",
     "csv_cell",
+    "flat_row",
     "format_number",
     "format_optional",
     "format_table",

@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from mazelab.invocation import command_prefix
+from mazelab.stops import StoppedBySignal
 
 VIEWER_PORT = 9876  # the native viewer's gRPC port, rerun's default: later runs reuse its window
 STOP_SIGNALS = ("SIGTERM", "SIGHUP")  # besides Ctrl-C, what ends this program and must end its children
@@ -152,7 +153,7 @@ def _stop_children_then_go_on(number: int, frame: Any) -> None:
             os.kill(process.pid, signal.SIGTERM)  # not Popen's methods: the interrupted code may hold its lock
     previous = _previous_handlers.get(number)
     if not callable(previous):
-        raise SystemExit(128 + number)
+        raise StoppedBySignal(128 + number)
     previous(number, frame)
 
 

@@ -15,7 +15,6 @@ STATION_COLOR, ROBOT_COLOR = (0, 200, 255), (0, 170, 0)
 ESTIMATE_COLOR, CONFIDENT_COLOR = (128, 128, 128), (0, 200, 0)
 INJECTED_COLOR = (255, 190, 0)  # particles injected by recovery this step (weights are drawn blue..red)
 KIDNAP_COLOR = (230, 0, 200)  # the jump of a kidnapped robot
-FILTER_COLORS = ((214, 39, 40), (31, 119, 180), (255, 127, 14), (44, 160, 44), (148, 103, 189), (140, 86, 75))
 PARTICLE_ARROW_LENGTH, ROBOT_ARROW_LENGTH = 0.15, 0.5  # map units
 STATION_RADIUS, ROBOT_RADIUS, PARTICLE_ARROW_RADIUS, CELL_DOT_RADIUS = 0.08, 0.12, 0.008, 0.03
 COVARIANCE_SIGMAS, COVARIANCE_LINE_RADIUS = 2.0, 0.02  # the EKF's ellipse: 2-sigma (86% of a 2-D Gaussian)
@@ -38,7 +37,6 @@ __all__ = [
     "COVARIANCE_SIGMAS",
     "DEFAULT_MAX_DRAWN",
     "ESTIMATE_COLOR",
-    "FILTER_COLORS",
     "FREE_COLOR",
     "INJECTED_COLOR",
     "KIDNAP_COLOR",

@@ -27,6 +27,7 @@ from mazelab.kalman import covariance_ellipse
 from mazelab.maze import Maze
 from mazelab.model import CONFIDENCE_RADIUS
 from mazelab.modes import Mode
+from mazelab.registry import colour_of
 from mazelab.simulation import NullView
 from mazelab.viz.blueprints import comparison_blueprint, run_blueprint
 from mazelab.viz.recording import Recording, heading_vectors
@@ -36,7 +37,6 @@ from mazelab.viz.style import (
     COVARIANCE_LINE_RADIUS,
     COVARIANCE_SIGMAS,
     ESTIMATE_COLOR,
-    FILTER_COLORS,
     INJECTED_COLOR,
     MAP,
     MODE_DRAWN_SHARE,
@@ -63,7 +63,7 @@ def open_view(visualize: Any, world: Maze, filter_name: str) -> Any:
     )
     if recording is None:  # Rerun is switched off (RERUN=off)
         return NullView()
-    return RunView(recording, filter_name, FILTER_COLORS[0], options.max_drawn, owns_recording=True)
+    return RunView(recording, filter_name, colour_of(filter_name), options.max_drawn, owns_recording=True)
 
 
 class NullComparison:
@@ -98,9 +98,8 @@ class Comparison:
 
     def __init__(self, recording: Recording, filter_names: Sequence[str], max_drawn: int):
         self.recording = recording
-        self.views = {
-            name: RunView(recording, name, FILTER_COLORS[i % len(FILTER_COLORS)], max_drawn, owns_recording=False)
-            for i, name in enumerate(filter_names)
+        self.views = {  # each filter in its registry colour, as in the PNGs
+            name: RunView(recording, name, colour_of(name), max_drawn, owns_recording=False) for name in filter_names
         }
 
     def view_for(self, filter_name: str) -> RunView:

@@ -1,0 +1,133 @@
+"""The one recording loop: a filter stepped along a walk, each step's values read where the contract
+says, checked, and kept per step, for one run (simulate) and for R runs advanced together (a batched
+study) alike. A filter's own figures (`diagnostics`: the RPF's regularisation, recovery's injection
+probability) are kept the same way, so they reach RunResult and a study's traces with no code of their
+own.
+
+    steps = record_steps(filt, 200, observe=lambda k: robot.step(world))
+    steps.estimates   # (steps, 2) for one run, (R, steps, 2) for R runs
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from mazelab.contract import ContractError, check_step_values
+
+Observe = Callable[[int], tuple[Any, Any]]  # step index k (0-based) -> (compass angle, z) of every run
+AfterStep = Callable[[int, Any], None]  # (step number k (1-based), the filter) after each step
+
+
+@dataclass
+class Recorded:
+    """Per step k = 1..steps, for R runs: the estimate (R, steps, 2), ESS, green circle and particle
+    count (R, steps), the filter's own time per step (steps,), and its diagnostics by name (R, steps)."""
+
+    estimates: np.ndarray
+    ess: np.ndarray
+    confident: np.ndarray
+    counts: np.ndarray
+    seconds: np.ndarray
+    diagnostics: dict[str, np.ndarray] = field(default_factory=dict)
+
+    @classmethod
+    def empty(cls, steps: int, runs: int) -> Recorded:
+        return cls(
+            np.empty((runs, steps, 2)),
+            np.empty((runs, steps)),
+            np.empty((runs, steps), dtype=bool),
+            np.empty((runs, steps), dtype=np.int64),
+            np.empty(steps),
+        )
+
+    def run(self, r: int) -> dict[str, Any]:
+        """Run r's per-step arrays, by name: estimates (steps, 2), ess, confident, counts, diagnostics."""
+        return {
+            "estimates": self.estimates[r],
+            "ess": self.ess[r],
+            "confident": self.confident[r],
+            "counts": self.counts[r],
+            "diagnostics": {name: values[r] for name, values in self.diagnostics.items()},
+        }
+
+
+def record_steps(
+    filt: Any,
+    steps: int,
+    observe: Observe,
+    *,
+    runs: int | None = None,
+    after: AfterStep | None = None,
+    at: Any = None,
+) -> Recorded:
+    """Step `filt` `steps` times and keep what each step reads.
+
+    Parameters
+    ----------
+    filt : a filter (mazelab.contract)
+    steps : int
+    observe : callable
+        k (0-based) -> (compass angle th0_k, measurement z_k): numbers for one run, arrays (R,) for R runs.
+    runs : int, optional
+        R for a filter advancing R runs together (None: one run, the paper's shapes).
+    after : callable, optional
+        (k, filt) after step k (1-based): the viewer, a progress line.
+    at : object with a `number` attribute, optional
+        Set to the step being run (for the error that names it, mazelab.plugins.student_code).
+
+    Returns
+    -------
+    Recorded
+        Arrays with a run axis of length R (1 for one run). The time per step is the filter's step
+        and its reads (estimate, ESS, confidence), divided among the R runs.
+    """
+    count = 1 if runs is None else runs
+    recorded = Recorded.empty(steps, count)
+    diagnostics: dict[str, list[Any]] = {}
+    for k in range(steps):
+        if at is not None:
+            at.number = k + 1
+        compass_angle, z = observe(k)
+        started = time.perf_counter()
+        filt.step(compass_angle, z)
+        values = filt.estimate, filt.ess, filt.is_confident, filt.count
+        recorded.seconds[k] = (time.perf_counter() - started) / count
+        estimate, ess, confident, particles = check_step_values(type(filt), values, runs)
+        recorded.estimates[:, k], recorded.ess[:, k], recorded.confident[:, k] = estimate, ess, confident
+        recorded.counts[:, k] = particles
+        _keep_diagnostics(diagnostics, getattr(filt, "diagnostics", None), k, type(filt))
+        if after is not None:
+            after(k + 1, filt)
+    recorded.diagnostics = {name: _per_run(values, count) for name, values in diagnostics.items()}
+    return recorded
+
+
+def _keep_diagnostics(kept: dict[str, list[Any]], now: Any, k: int, filter_class: type) -> None:
+    """Append this step's diagnostics; a name missing at a step is NaN there."""
+    if not now:
+        for values in kept.values():
+            values.append(np.nan)
+        return
+    if not isinstance(now, dict):
+        raise ContractError(f"{filter_class.name}.diagnostics must be a dict of this step's figures, got {now!r}")
+    for name in kept.keys() - now.keys():
+        kept[name].append(np.nan)
+    for name, value in now.items():
+        kept.setdefault(name, [np.nan] * k).append(value)
+
+
+def _per_run(values: list[Any], runs: int) -> np.ndarray:
+    """A diagnostic's steps as (R, steps): one value a step for one run, (R,) a step for R runs."""
+    try:
+        array = np.array([np.broadcast_to(np.asarray(v, dtype=float), (runs,)) for v in values])
+    except (TypeError, ValueError):
+        raise ContractError("a diagnostic must be a number (or one per run) at every step") from None
+    return array.T
+
+
+__all__ = ["Recorded", "record_steps"]

@@ -1,0 +1,54 @@
+"""The run axis of a filter that advances R runs together (mazelab.cloud): run r's particles are the
+block of rows r*N..(r+1)*N, its draws come from its own Generator. Helpers a single run never needs
+to read: particles as (R, N, 2), one Generator per run, a step's inputs per run, blocks replaced."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from mazelab.checks import as_points
+
+
+def as_runs(particles: Any) -> np.ndarray:
+    """Initial particles as (R, N, 2): (N, 2) is one run."""
+    array = np.asarray(particles)
+    if array.ndim == 3:
+        if array.shape[2] != 2 or array.shape[1] < 1:
+            raise ValueError(f"particles of R runs must have shape (R, N, 2), got {array.shape}")
+        return np.stack([as_points("particles", run) for run in array])
+    return as_points("particles", particles)[None]
+
+
+def generators(rng: Any, runs: int) -> list[np.random.Generator]:
+    """One Generator per run: `rng` itself for one run, or the sequence given (None: fresh ones)."""
+    if rng is None:
+        return [np.random.default_rng() for _ in range(runs)]
+    if isinstance(rng, np.random.Generator):
+        if runs != 1:
+            raise ValueError(f"{runs} runs need {runs} generators, one each, got one")
+        return [rng]
+    rngs = list(rng)
+    if len(rngs) != runs or not all(isinstance(g, np.random.Generator) for g in rngs):
+        raise ValueError(f"{runs} runs need {runs} numpy Generators, got {len(rngs)}")
+    return rngs
+
+
+def per_run(value: float | np.ndarray, runs: int) -> np.ndarray:
+    """A step's compass angle or measurement as one value per run, float64 (R,)."""
+    if isinstance(value, np.ndarray):
+        return np.broadcast_to(value.astype(float, copy=False), (runs,))
+    return np.array([float(value)] * runs)
+
+
+def replace_blocks(values: np.ndarray, new: np.ndarray, runs: np.ndarray, size: int) -> np.ndarray:
+    """A copy of `values` (R*size, ...) whose blocks of the given runs are the blocks of `new`
+    (len(runs)*size, ...), in order; the other runs' blocks are kept."""
+    replaced = values.copy(order="F" if values.ndim > 1 else "C")
+    for block, run in enumerate(runs):
+        replaced[run * size : (run + 1) * size] = new[block * size : (block + 1) * size]
+    return replaced
+
+
+__all__ = ["as_runs", "generators", "per_run", "replace_blocks"]
