@@ -18,6 +18,7 @@ from __future__ import annotations
 import ast
 import dataclasses
 import math
+import re
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, replace
 from typing import Any
@@ -328,9 +329,9 @@ def with_options_section(doc: str | None, options: Options) -> str:
     """A filter class's docstring with its declared options listed (made from the declaration, so the
     list never goes stale): an earlier generated section is replaced."""
     doc = (doc or "").rstrip()
-    marker = "\n\nOptions\n"
-    if marker in doc:
-        doc = doc[: doc.index(marker)].rstrip()
+    earlier = re.search(r"\n\n[ \t]*Options\n[ \t]*-------\n", doc)
+    if earlier is not None:
+        doc = doc[: earlier.start()].rstrip()
     lines = [line for line in doc.splitlines()[1:] if line.strip()]
     indent = " " * min((len(line) - len(line.lstrip()) for line in lines), default=0)
     section = "\n".join(indent + line if line else line for line in options.numpydoc().splitlines())

@@ -99,17 +99,51 @@ SHIPPED: tuple[FilterEntry, ...] = (
     FilterEntry(ExtendedKalmanFilter, "ekf", "EKF", PALETTE[4], "an extended Kalman filter (the baseline)",
                 takes_particles=False),
 )  # fmt: skip
+_ENTRIES: list[FilterEntry] = list(SHIPPED)  # SHIPPED, then any registered by a package (`register`)
 _BY_CLASS: dict[type, FilterEntry] = {entry.filter_class: entry for entry in SHIPPED}
 _BY_NAME: dict[str, FilterEntry] = {entry.name: entry for entry in SHIPPED}
 
 
+def register(entry: FilterEntry) -> FilterEntry:
+    """Add a package's filter to the registry (what SHIPPED's lines do for the lab's own): every command,
+    figure and study then knows it by its short name. A short name, name or class already taken is
+    refused in one line."""
+    for other in _ENTRIES:
+        for what, mine, theirs in (
+            ("short name", entry.short_name, other.short_name),
+            ("name", entry.name, other.name),
+            ("class", entry.filter_class, other.filter_class),
+        ):
+            if mine == theirs:
+                raise ValueError(f"the {what} {mine!r} is taken by {other.name}: a registry entry needs its own")
+    _ENTRIES.append(entry)
+    _BY_CLASS[entry.filter_class] = entry
+    _BY_NAME[entry.name] = entry
+    return entry
+
+
+def unregister(short_name: str) -> None:
+    """Remove a registered package filter (not one of SHIPPED)."""
+    entry = next((e for e in _ENTRIES if e.short_name == short_name and e not in SHIPPED), None)
+    if entry is None:
+        raise ValueError(f"no registered filter {short_name!r} to remove (the lab's own stay)")
+    _ENTRIES.remove(entry)
+    del _BY_CLASS[entry.filter_class], _BY_NAME[entry.name]
+
+
+def entries() -> list[FilterEntry]:
+    """Every registered filter: the lab's (SHIPPED), then a package's (`register`)."""
+    return list(_ENTRIES)
+
+
 def short_names() -> list[str]:
-    """The shipped filters' short names, in order (sir, apf, rpf, grid, ekf)."""
-    return [entry.short_name for entry in SHIPPED]
+    """The registered filters' short names, in order (sir, apf, rpf, grid, ekf, ...)."""
+    return [entry.short_name for entry in _ENTRIES]
 
 
 def is_shipped(filter_class: type) -> bool:
-    """Whether a class is one of the package's own filters (not a plug-in or a user's class)."""
+    """Whether a class is one of the registry's filters (the lab's, or a package's), not a plug-in or
+    a user's own class."""
     return filter_class in _BY_CLASS
 
 
@@ -117,7 +151,7 @@ def shipped_entry(name: str) -> FilterEntry | None:
     """The lab's own filter of a name (short, class or spaced name, as `filter_entry` reads them), or
     None; never a plug-in, and nothing is imported (what a scenario's loader may ask)."""
     key = "".join(str(name).split()).lower()
-    for entry in SHIPPED:
+    for entry in _ENTRIES:
         full = entry.filter_class.__name__.lower()
         if key in (entry.short_name, full, full.replace("particlefilter", ""), entry.name.lower()):
             return entry
@@ -170,7 +204,7 @@ def _entry_of_class(filter_class: type, plugin: PluginReference | None) -> Filte
     `takes_particles` (default True) and `batched` (declared on the class itself, default False)."""
     if filter_class in _made and (plugin is None or _made[filter_class].plugin == plugin):
         return _made[filter_class]
-    used = {entry.colour for entry in (*SHIPPED, *_made.values())}
+    used = {entry.colour for entry in (*_ENTRIES, *_made.values())}
     colour = next((c for c in PALETTE if c not in used), PALETTE[len(_made) % len(PALETTE)])
     doc = (filter_class.__doc__ or "").strip().splitlines()
     entry = FilterEntry(
@@ -223,13 +257,16 @@ __all__ = [
     "SHORT_NAMES",
     "FilterEntry",
     "colour_of",
+    "entries",
     "entry_by_name",
     "filter_entry",
     "is_shipped",
     "labels",
     "plugin_entry",
+    "register",
     "resolve_filter",
     "rgb",
     "shipped_entry",
     "short_names",
+    "unregister",
 ]

@@ -19,7 +19,7 @@ from mazelab.contract import not_taken, options_for
 from mazelab.declaration import Option
 from mazelab.modes import ESTIMATE_OPTION
 from mazelab.recovery import RECOVERY_OPTIONS
-from mazelab.registry import SHIPPED, filter_entry
+from mazelab.registry import entries, filter_entry
 from mazelab.regularisation import BANDWIDTH_OPTION
 from mazelab.resampling import KLD_OPTIONS, RESAMPLING_OPTION
 
@@ -160,7 +160,7 @@ def merge_named(named: Mapping[str, Any], generic: Mapping[str, Any]) -> GivenOp
 
 def declared_option_anywhere(name: str) -> Option | None:
     """The declaration of an option among the lab's filters (for its named flag), or None."""
-    return next((entry.options[name] for entry in SHIPPED if name in entry.options), None)
+    return next((entry.options[name] for entry in entries() if name in entry.options), None)
 
 
 def options_per_filter(

@@ -10,7 +10,7 @@ import typer
 
 from mazelab.cli.hints import check_filter_name
 from mazelab.declaration import show_value
-from mazelab.registry import SHIPPED, FilterEntry, filter_entry
+from mazelab.registry import FilterEntry, entries, filter_entry
 
 WIDTH = 100  # columns of the listing
 
@@ -33,7 +33,7 @@ def filters(
 
 def registry_listing() -> str:
     """One line per shipped filter: short name, label, help, what it can do."""
-    lines = ["filter  label  what it is", *(_entry_line(entry) for entry in SHIPPED)]
+    lines = ["filter  label  what it is", *(_entry_line(entry) for entry in entries())]
     lines += [
         "",
         "Your own: --filter FILE.py:Class (see `mazelab exercise new`); its options: mazelab filters FILE.py:Class",
@@ -44,7 +44,7 @@ def registry_listing() -> str:
 
 def registry_help() -> str:
     """The filters for `mazelab --help`, one short line each (from the registry)."""
-    names = ", ".join(entry.short_name for entry in SHIPPED)
+    names = ", ".join(entry.short_name for entry in entries())
     return f"Filters (--filter NAME): {names}, or FILE.py:Class; `mazelab filters` lists them and their options."
 
 

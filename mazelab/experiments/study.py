@@ -23,7 +23,7 @@ from mazelab.experiments.runs import filter_labels, final_error, mean_ess, mean_
 from mazelab.maze import STATION_WALL, Maze
 from mazelab.maze_generator import DEFAULT_WALL_SHARE, generate_maze
 from mazelab.model import RPF_THRESHOLD, check_model_parameters
-from mazelab.registry import SHIPPED, filter_entry, resolve_filter
+from mazelab.registry import entries, filter_entry, resolve_filter
 from mazelab.robot import Robot
 from mazelab.seeding import start_place, study_seeds
 from mazelab.simulation import RunResult, convergence_step
@@ -196,7 +196,7 @@ def _checked(name: str, values: Sequence[Any]) -> list[Any]:
 
 def declared_option(name: str) -> Option | None:
     """The declaration of an option among the lab's filters (None: only a plug-in declares it)."""
-    return next((entry.options[name] for entry in SHIPPED if name in entry.options), None)
+    return next((entry.options[name] for entry in entries() if name in entry.options), None)
 
 
 def _recovery_name(recovery: Any) -> str:
