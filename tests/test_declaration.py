@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from typing import ClassVar
 
 import numpy as np
 import pytest
@@ -138,7 +139,7 @@ def test_a_decimal_comma_names_what_to_write():
 
 def test_a_plug_ins_plain_mapping_of_defaults_is_read_by_each_defaults_type():
     class Plain:
-        options = {"alpha": 0.5, "count": 3, "flag": False, "word": "x", "nothing": None}
+        options: ClassVar[dict] = {"alpha": 0.5, "count": 3, "flag": False, "word": "x", "nothing": None}
 
     options = options_of(Plain)
     assert [options[n].parse_text(t) for n, t in (("alpha", "0.7"), ("count", "4"), ("flag", "yes"))] == [0.7, 4, True]
