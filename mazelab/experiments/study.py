@@ -432,8 +432,10 @@ def option_cells(setting: StudySetting) -> dict[str, Any]:
     return cells
 
 
-def trace_of(result: RunResult) -> dict[str, np.ndarray]:
-    """A run's per-step arrays: true position, estimate, ESS, confidence, step time, particle count."""
+def trace_of(result: RunResult) -> dict[str, Any]:
+    """A run's per-step arrays: true position, estimate, ESS, confidence, step time, particle count,
+    and the filter's own diagnostics by name (mazelab.collect: the RPF's `regularised`, recovery's
+    `injection_probability`)."""
     return {
         "true": result.true_positions,
         "estimate": result.estimates,
@@ -441,6 +443,7 @@ def trace_of(result: RunResult) -> dict[str, np.ndarray]:
         "confident": result.confident,
         "step_seconds": result.step_seconds,
         "particle_count": result.extras.get("particle_count", np.full(len(result.ess), -1)),
+        "diagnostics": result.extras.get("diagnostics", {}),
     }
 
 
