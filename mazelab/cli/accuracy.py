@@ -11,8 +11,10 @@ import typer
 
 from mazelab.atomic import write_text_atomically
 from mazelab.checks import check_sigma_within
+from mazelab.cli.filter_options import OptionFlag, options_per_filter, parse_option_texts
 from mazelab.cli.options import DEFAULT_DELTA, DEFAULT_SIGMA, check_output_path, parse_list, seed_option
 from mazelab.cli.provenance import command_line
+from mazelab.declaration import show_value
 from mazelab.experiments.accuracy import (
     accuracy_csv,
     accuracy_filters,
@@ -29,6 +31,7 @@ from mazelab.experiments.study import MazeChoice
 from mazelab.limits import check_particles, check_steps, check_study
 from mazelab.mazes import LAB_MAZES
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, check_model_parameters
+from mazelab.registry import resolve_filter
 
 
 def accuracy(
@@ -54,6 +57,7 @@ def accuracy(
     seed: Annotated[
         int, typer.Option(callback=seed_option, help="root seed (run r has the same seed on every maze)")
     ] = 1,
+    option: OptionFlag = None,
     workers: Annotated[int | None, typer.Option(min=1, help="processes (default: all cores)")] = None,
     csv_path: Annotated[Path | None, typer.Option("--csv", help="one row per maze, run and filter")] = None,
     record: Annotated[Path | None, typer.Option(help="the JSON record [default: beside --csv]")] = None,
@@ -68,7 +72,7 @@ def accuracy(
         if path is not None:
             check_output_path(path, force)
     mazes = accuracy_mazes(maze, maze_size, stations)
-    chosen = accuracy_filters(None if filters is None else parse_filters(filters))
+    chosen = with_options(accuracy_filters(None if filters is None else parse_filters(filters)), option)
     check_accuracy(mazes, chosen, sigma, delta, particles, runs, steps)
     tasks = accuracy_tasks([(m.label, m) for m in mazes], runs, sigma, delta, particles, steps, seed, chosen)
     labels = ", ".join(label for label, _, _ in chosen)
@@ -88,6 +92,22 @@ def accuracy(
     with progress_bar(len(tasks), True) as advance:
         records = run_accuracy(tasks, workers or default_workers(), advance)
     report_accuracy(records, time.perf_counter() - started, len(tasks), csv_path, record_file, recorder, force)
+
+
+def with_options(chosen: tuple, texts: list[str] | None) -> tuple:
+    """The table's filters with the --option values each declares (its label then says so); an option
+    none of them declares, or a bad value, is one line."""
+    if not texts:
+        return chosen
+    names = list(dict.fromkeys(name for _, name, _ in chosen))
+    given = parse_option_texts(texts, names)
+    per_filter = options_per_filter(names, given)
+    shown = ", ".join(f"{k} {show_value(v)}" for k, v in given.items())
+    result = []
+    for label, name, options in chosen:
+        mine = per_filter[resolve_filter(name).name]
+        result.append((f"{label} ({shown})" if mine else label, name, {**options, **mine}))
+    return tuple(result)
 
 
 def accuracy_mazes(maze: str | None, maze_size: str | None, stations: str | None) -> list[MazeChoice]:
