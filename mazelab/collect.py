@@ -37,6 +37,16 @@ class Recorded:
 
     @classmethod
     def empty(cls, steps: int, runs: int) -> Recorded:
+        """Arrays for `steps` steps of `runs` runs, to be filled.
+
+        Parameters
+        ----------
+        steps, runs : int
+
+        Returns
+        -------
+        Recorded
+        """
         return cls(
             np.empty((runs, steps, 2)),
             np.empty((runs, steps)),
@@ -46,7 +56,18 @@ class Recorded:
         )
 
     def run(self, r: int) -> dict[str, Any]:
-        """Run r's per-step arrays, by name: estimates (steps, 2), ess, confident, counts, diagnostics."""
+        """Run r's per-step arrays, by name.
+
+        Parameters
+        ----------
+        r : int
+            The run (0 for one run).
+
+        Returns
+        -------
+        dict
+            estimates (steps, 2), ess, confident, counts (steps,) and diagnostics (name -> (steps,)).
+        """
         return {
             "estimates": self.estimates[r],
             "ess": self.ess[r],

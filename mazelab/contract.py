@@ -110,7 +110,15 @@ class Filter(Protocol):
     reinitialised_at: list[int]
 
     def step(self, compass_angle: float, z: float) -> None:
-        """Predict with the compass angle th0_k (radians), then update with the measurement z_k (map units)."""
+        """Predict with the compass angle th0_k, then update with the measurement z_k.
+
+        Parameters
+        ----------
+        compass_angle : float
+            th0_k, the heading the compass reports for this step (radians).
+        z : float
+            z_k, the measured distance to the nearest station (map units).
+        """
 
     @property
     def estimate(self) -> np.ndarray:
@@ -125,7 +133,12 @@ class Filter(Protocol):
         """At least 95% of the belief lies within distance 1 of the estimate."""
 
     def belief(self) -> Belief:
-        """What the viewer draws this step."""
+        """What the viewer draws this step.
+
+        Returns
+        -------
+        Particles, Density or Gaussian
+        """
 
 
 REQUIRED_METHODS = ("step", "belief")
@@ -192,7 +205,18 @@ def check_filter(filt: Any) -> None:
 
 
 def step_values(filt: Any, runs: int | None = None) -> tuple[np.ndarray, Any, Any, int]:
-    """A step's values as the run reads them, each checked (`check_step_values`)."""
+    """A step's values as the run reads them, each checked (`check_step_values`).
+
+    Parameters
+    ----------
+    filt : a filter
+    runs : int, optional
+        R for a filter advancing R runs together.
+
+    Returns
+    -------
+    (estimate, ess, is_confident, count)
+    """
     return check_step_values(type(filt), (filt.estimate, filt.ess, filt.is_confident, filt.count), runs)
 
 
@@ -265,7 +289,20 @@ def _shown(value: Any) -> str:
 
 def check_options(filter_class: type, options: Mapping[str, Any], *, spelled: Mapping[str, str] | None = None) -> None:
     """Refuse any option that `filter_class` does not declare, in one line naming the option (as the
-    user `spelled` it, e.g. "bandwidth" -> "--bandwidth") and what the filter takes."""
+    user `spelled` it, e.g. "bandwidth" -> "--bandwidth") and what the filter takes.
+
+    Parameters
+    ----------
+    filter_class : type
+    options : mapping
+        Option names (and values).
+    spelled : mapping, optional
+        Option name -> how the user wrote it.
+
+    Raises
+    ------
+    ValueError
+    """
     declared = options_of(filter_class)
     for option in options:
         if option not in declared:
@@ -278,8 +315,27 @@ def options_for(
     filter_classes: Sequence[type], given: Mapping[str, Any], *, spelled: Mapping[str, str] | None = None
 ) -> dict[str, dict[str, Any]]:
     """Per filter (by `name`), the given options (None: not given) that it declares; several filters
-    share the options given, each taking its own. An option that none of them declares is refused in
-    one line naming the option (as the user `spelled` it), the filters and what they take."""
+    share the options given, each taking its own.
+
+    Parameters
+    ----------
+    filter_classes : sequence of type
+    given : mapping
+        Option name -> value, None for an option not given.
+    spelled : mapping, optional
+        Option name -> how the user wrote it, for the message.
+
+    Returns
+    -------
+    dict
+        Filter name -> {option: value} of the options it declares.
+
+    Raises
+    ------
+    ValueError
+        One line for an option that none of them declares: the option as spelled, the filters and what
+        they take.
+    """
     spelled = spelled or {}
     chosen = {option: value for option, value in given.items() if value is not None}
     for option in chosen:
@@ -290,7 +346,18 @@ def options_for(
 
 def not_taken(filter_classes: Sequence[type], spelled: str) -> str:
     """The line for an option that none of the filters declares: 'GridBayesFilter does not take
-    --recovery (it takes: resolution, margin, ...)', each filter's options named for several."""
+    --recovery (it takes: resolution, margin, ...)', each filter's options named for several.
+
+    Parameters
+    ----------
+    filter_classes : sequence of type
+    spelled : str
+        The option as the user wrote it.
+
+    Returns
+    -------
+    str
+    """
 
     def declared(cls: type) -> str:
         return ", ".join(o.name for o in options_of(cls).settable()) or "no options"
@@ -303,7 +370,17 @@ def not_taken(filter_classes: Sequence[type], spelled: str) -> str:
 
 
 def takes(filter_class: type, option: str) -> bool:
-    """Whether `filter_class` declares `option`."""
+    """Whether `filter_class` declares `option`.
+
+    Parameters
+    ----------
+    filter_class : type
+    option : str
+
+    Returns
+    -------
+    bool
+    """
     return option in options_of(filter_class)
 
 

@@ -33,7 +33,23 @@ Check = Callable[[Any], Any]
 
 # -- how a value is written and read --------------------------------------------------------------
 def to_plain_json(value: Any) -> Any:
-    """A value's JSON form: a dataclass as a dict of its fields, a numpy number as a Python one."""
+    """A value's JSON form: a dataclass as a dict of its fields, a numpy number as a Python one.
+
+    Parameters
+    ----------
+    value : Any
+        An option's value: a number, a word, a flag, None, a sequence, or a dataclass (Recovery, KLDSampling).
+
+    Returns
+    -------
+    Any
+        Plain JSON (dict, list, str, int, float, bool, None).
+
+    Raises
+    ------
+    ValueError
+        For a value with no JSON form (an infinite number, an arbitrary object).
+    """
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
         return {f.name: to_plain_json(getattr(value, f.name)) for f in dataclasses.fields(value)}
     if isinstance(value, np.generic):
@@ -48,7 +64,17 @@ def to_plain_json(value: Any) -> Any:
 
 
 def show_value(value: Any) -> str:
-    """A value in a few words (tables, labels, messages): 0.05, multimodal, none."""
+    """A value in a few words (tables, labels, messages): 0.05, multimodal, none.
+
+    Parameters
+    ----------
+    value : Any
+
+    Returns
+    -------
+    str
+        Floats by `:g`, None as "none", a dataclass as `Name(field value, ...)`.
+    """
     if value is None:
         return "none"
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
@@ -60,7 +86,16 @@ def show_value(value: Any) -> str:
 
 
 def parse_literal(text: str) -> Any:
-    """Command-line text as the value it spells: a number, true/false, none, or the word itself."""
+    """Command-line text as the value it spells: a number, true/false, none, or the word itself.
+
+    Parameters
+    ----------
+    text : str
+
+    Returns
+    -------
+    int, float, bool, None or str
+    """
     stripped = text.strip()
     lowered = stripped.lower()
     if lowered in ("true", "false"):
@@ -76,7 +111,17 @@ def parse_literal(text: str) -> Any:
 
 def parse_like(default: Any) -> Parse:
     """The parser for an option declared only by its default: the default's type (a float option
-    reads "0.3", a whole number "3", a flag "true"), or any literal for None and text."""
+    reads "0.3", a whole number "3", a flag "true"), or any literal for None and text.
+
+    Parameters
+    ----------
+    default : Any
+
+    Returns
+    -------
+    callable
+        text -> value.
+    """
     if isinstance(default, bool):
         return parse_flag
     if isinstance(default, int):
@@ -87,7 +132,21 @@ def parse_like(default: Any) -> Parse:
 
 
 def parse_number(text: str) -> float:
-    """A number: "0.3", "1e-3" (a decimal comma is refused with what to write instead)."""
+    """A number: "0.3", "1e-3" (a decimal comma is refused with what to write instead).
+
+    Parameters
+    ----------
+    text : str
+
+    Returns
+    -------
+    float
+
+    Raises
+    ------
+    ValueError
+        One line; for "0,3" it says to write 0.3.
+    """
     try:
         return float(text)
     except ValueError:
@@ -96,7 +155,16 @@ def parse_number(text: str) -> float:
 
 
 def parse_whole(text: str) -> int:
-    """A whole number: "3"."""
+    """A whole number: "3".
+
+    Parameters
+    ----------
+    text : str
+
+    Returns
+    -------
+    int
+    """
     try:
         return int(text)
     except ValueError:
@@ -104,7 +172,16 @@ def parse_whole(text: str) -> int:
 
 
 def parse_flag(text: str) -> bool:
-    """true/false (also yes/no, on/off, 1/0)."""
+    """true/false (also yes/no, on/off, 1/0).
+
+    Parameters
+    ----------
+    text : str
+
+    Returns
+    -------
+    bool
+    """
     lowered = text.strip().lower()
     if lowered in ("true", "yes", "on", "1"):
         return True
@@ -115,7 +192,19 @@ def parse_flag(text: str) -> bool:
 
 # -- checks: value -> the value the filter uses, or a ValueError of one line -------------------------
 def choice(name: str, choices: tuple[str, ...]) -> Check:
-    """A word among `choices`."""
+    """A check that takes a word among `choices`.
+
+    Parameters
+    ----------
+    name : str
+        The option's name, for the message.
+    choices : tuple of str
+
+    Returns
+    -------
+    callable
+        value -> the word, or a ValueError naming the choices.
+    """
 
     def check(value: Any) -> str:
         if not isinstance(value, str) or value not in choices:
@@ -126,7 +215,24 @@ def choice(name: str, choices: tuple[str, ...]) -> Check:
 
 
 def number_in(name: str, low: float, high: float, *, low_open: bool = True, what: str = "") -> Check:
-    """A finite number in (low, high] (or [low, high] with low_open=False)."""
+    """A check that takes a finite number in (low, high] (or [low, high] with low_open=False).
+
+    Parameters
+    ----------
+    name : str
+        The option's name, for the message.
+    low, high : float
+        The bounds.
+    low_open : bool
+        Whether `low` itself is refused.
+    what : str
+        Words after the interval in the message (its units, what the number is).
+
+    Returns
+    -------
+    callable
+        value -> float, or a ValueError of one line naming the option and the interval.
+    """
 
     def check(value: Any) -> float:
         if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
@@ -186,7 +292,22 @@ class Option:
     derived: bool = False
 
     def parse_text(self, text: str) -> Any:
-        """The value that command-line `text` spells (not yet checked: `validate` does that)."""
+        """The value that command-line `text` spells (not yet checked: `validate` does that).
+
+        Parameters
+        ----------
+        text : str
+            What follows `--option NAME=`, or a named flag's text.
+
+        Returns
+        -------
+        Any
+
+        Raises
+        ------
+        ValueError
+            One line naming the option.
+        """
         parse = self.parse or parse_like(self.default)
         try:
             return parse(text)
@@ -194,7 +315,16 @@ class Option:
             raise ValueError(f"option {self.name}: {error}") from None
 
     def validate(self, value: Any) -> Any:
-        """The value the filter uses, or a ValueError naming the option."""
+        """The value the filter uses (the declared check applied), or a ValueError naming the option.
+
+        Parameters
+        ----------
+        value : Any
+
+        Returns
+        -------
+        Any
+        """
         return value if self.check is None else self.check(value)
 
     @property
@@ -242,13 +372,34 @@ class Options(Mapping[str, Option]):
         return hash(self.declared)
 
     def extend(self, *options: Option) -> Options:
-        """These options and more (an option of the same name replaces the inherited one in place)."""
+        """These options and more (an option of the same name replaces the inherited one in place).
+
+        Parameters
+        ----------
+        *options : Option
+
+        Returns
+        -------
+        Options
+            A new declaration (this one is unchanged); the combined check is kept.
+        """
         new = {o.name: o for o in options}
         kept = [new.pop(o.name, o) for o in self.declared]
         return Options(*kept, *new.values(), check=self.check)
 
     def with_defaults(self, **defaults: Any) -> Options:
-        """The same options with other defaults (a subclass that changes one)."""
+        """The same options with other defaults (a subclass that changes one).
+
+        Parameters
+        ----------
+        **defaults
+            New defaults by option name.
+
+        Returns
+        -------
+        Options
+            A new declaration (this one is unchanged).
+        """
         unknown = sorted(set(defaults) - set(self))
         if unknown:
             raise ValueError(f"no option {unknown[0]!r} to change the default of (declared: {', '.join(self)})")
@@ -258,23 +409,59 @@ class Options(Mapping[str, Option]):
         )
 
     def defaults(self) -> dict[str, Any]:
-        """Every option's default, by name."""
+        """Every option's default, by name.
+
+        Returns
+        -------
+        dict
+        """
         return {o.name: o.default for o in self.declared}
 
     def settable(self) -> list[Option]:
-        """The options a user sets (the derived ones left out)."""
+        """The options a user sets (the derived ones left out).
+
+        Returns
+        -------
+        list of Option
+        """
         return [o for o in self.declared if not o.derived]
 
     def refuse_undeclared(self, given: Mapping[str, Any], owner: str) -> None:
-        """One line for the first option of `given` that is not declared, naming what `owner` takes."""
+        """Refuse the first option of `given` that is not declared, naming what `owner` takes.
+
+        Parameters
+        ----------
+        given : mapping
+            Option names (and values).
+        owner : str
+            The filter's name, for the message.
+        """
         for name in given:
             if name not in self._by_name:
                 takes = ", ".join(o.name for o in self.settable()) or "no options"
                 raise ValueError(f"{owner} does not take the option {name} (it takes: {takes})")
 
     def resolve(self, given: Mapping[str, Any], owner: str) -> dict[str, Any]:
-        """Every option's value: the given ones checked, the rest their defaults; an undeclared one,
-        a bad value, or a tuning option given while what it tunes is off is one ValueError line."""
+        """Every option's value: the given ones checked, the rest their defaults.
+
+        Parameters
+        ----------
+        given : mapping
+            The options handed to the constructor (or typed on the command line).
+        owner : str
+            The filter's name, for the messages.
+
+        Returns
+        -------
+        dict
+            Every declared option's value, in declaration order.
+
+        Raises
+        ------
+        ValueError
+            One line: an undeclared option, a bad value, a tuning option given while what it tunes is
+            off, or a combination the declaration's `check` refuses.
+        """
         self.refuse_undeclared(given, owner)
         values = {}
         for option in self.declared:
@@ -293,17 +480,57 @@ class Options(Mapping[str, Option]):
         return values
 
     def parse(self, name: str, text: str, owner: str) -> Any:
-        """The value of `--option NAME=TEXT` for `owner`'s declared option `name`."""
+        """The value of `--option NAME=TEXT` for `owner`'s declared option `name`.
+
+        Parameters
+        ----------
+        name, text : str
+        owner : str
+            The filter's name, for the message.
+
+        Returns
+        -------
+        Any
+        """
         self.refuse_undeclared({name: None}, owner)
         return self._by_name[name].parse_text(text)
 
     def to_json(self, values: Mapping[str, Any]) -> dict[str, Any]:
-        """Values in their JSON form, in declaration order (derived options and undeclared names left out)."""
+        """Values in their JSON form, in declaration order (derived options and undeclared names left out).
+
+        Parameters
+        ----------
+        values : mapping
+            Option values by name.
+
+        Returns
+        -------
+        dict
+            What a scenario or a record stores.
+        """
         return {o.name: o.to_json(values[o.name]) for o in self.declared if o.name in values and not o.derived}
 
     def from_json(self, stored: Mapping[str, Any], owner: str) -> dict[str, Any]:
-        """Stored JSON values back as the filter's keyword options, each checked and all checked together
-        (one line naming a bad one); the derived ones are never taken from a file."""
+        """Stored JSON values back as the filter's keyword options, each checked and all checked together;
+        the derived ones are never taken from a file.
+
+        Parameters
+        ----------
+        stored : mapping
+            What a scenario stores (`filter_options`).
+        owner : str
+            The filter's name, for the messages.
+
+        Returns
+        -------
+        dict
+            Keyword options for the constructor.
+
+        Raises
+        ------
+        ValueError
+            One line naming the option and the problem.
+        """
         self.refuse_undeclared(stored, owner)
         values = {}
         for name, value in stored.items():
@@ -318,7 +545,12 @@ class Options(Mapping[str, Option]):
         return values
 
     def numpydoc(self) -> str:
-        """The options as a numpydoc section, for the filter's docstring."""
+        """The options as a numpydoc section, for the filter's docstring.
+
+        Returns
+        -------
+        str
+        """
         lines = ["Options", "-------"]
         for o in self.settable():
             lines += [f"{o.name} : default {show_value(o.default)}", f"    {o.help}"]
@@ -327,7 +559,18 @@ class Options(Mapping[str, Option]):
 
 def with_options_section(doc: str | None, options: Options) -> str:
     """A filter class's docstring with its declared options listed (made from the declaration, so the
-    list never goes stale): an earlier generated section is replaced."""
+    list never goes stale): an earlier generated section is replaced.
+
+    Parameters
+    ----------
+    doc : str or None
+        The class's docstring.
+    options : Options
+
+    Returns
+    -------
+    str
+    """
     doc = (doc or "").rstrip()
     earlier = re.search(r"\n\n[ \t]*Options\n[ \t]*-------\n", doc)
     if earlier is not None:
@@ -340,7 +583,21 @@ def with_options_section(doc: str | None, options: Options) -> str:
 
 def options_of(filter_class: type) -> Options:
     """A filter class's declared options as Options: its `options` as they are, or, for a plain
-    mapping of names to defaults (a plug-in's), Options parsed by each default's type."""
+    mapping of names to defaults (a plug-in's), Options parsed by each default's type.
+
+    Parameters
+    ----------
+    filter_class : type
+
+    Returns
+    -------
+    Options
+
+    Raises
+    ------
+    TypeError
+        When `options` is neither.
+    """
     declared = getattr(filter_class, "options", None)
     if isinstance(declared, Options):
         return declared

@@ -106,8 +106,22 @@ _BY_NAME: dict[str, FilterEntry] = {entry.name: entry for entry in SHIPPED}
 
 def register(entry: FilterEntry) -> FilterEntry:
     """Add a package's filter to the registry (what SHIPPED's lines do for the lab's own): every command,
-    figure and study then knows it by its short name. A short name, name or class already taken is
-    refused in one line."""
+    figure and study then knows it by its short name.
+
+    Parameters
+    ----------
+    entry : FilterEntry
+
+    Returns
+    -------
+    FilterEntry
+        The entry, registered.
+
+    Raises
+    ------
+    ValueError
+        One line for a short name, name or class already taken.
+    """
     for other in _ENTRIES:
         for what, mine, theirs in (
             ("short name", entry.short_name, other.short_name),
@@ -123,7 +137,12 @@ def register(entry: FilterEntry) -> FilterEntry:
 
 
 def unregister(short_name: str) -> None:
-    """Remove a registered package filter (not one of SHIPPED)."""
+    """Remove a registered package filter (not one of SHIPPED).
+
+    Parameters
+    ----------
+    short_name : str
+    """
     entry = next((e for e in _ENTRIES if e.short_name == short_name and e not in SHIPPED), None)
     if entry is None:
         raise ValueError(f"no registered filter {short_name!r} to remove (the lab's own stay)")
@@ -132,24 +151,52 @@ def unregister(short_name: str) -> None:
 
 
 def entries() -> list[FilterEntry]:
-    """Every registered filter: the lab's (SHIPPED), then a package's (`register`)."""
+    """Every registered filter: the lab's (SHIPPED), then a package's (`register`).
+
+    Returns
+    -------
+    list of FilterEntry
+    """
     return list(_ENTRIES)
 
 
 def short_names() -> list[str]:
-    """The registered filters' short names, in order (sir, apf, rpf, grid, ekf, ...)."""
+    """The registered filters' short names, in order (sir, apf, rpf, grid, ekf, ...).
+
+    Returns
+    -------
+    list of str
+    """
     return [entry.short_name for entry in _ENTRIES]
 
 
 def is_shipped(filter_class: type) -> bool:
     """Whether a class is one of the registry's filters (the lab's, or a package's), not a plug-in or
-    a user's own class."""
+    a user's own class.
+
+    Parameters
+    ----------
+    filter_class : type
+
+    Returns
+    -------
+    bool
+    """
     return filter_class in _BY_CLASS
 
 
 def shipped_entry(name: str) -> FilterEntry | None:
-    """The lab's own filter of a name (short, class or spaced name, as `filter_entry` reads them), or
-    None; never a plug-in, and nothing is imported (what a scenario's loader may ask)."""
+    """The registry's filter of a name (short, class or spaced name, as `filter_entry` reads them), or
+    None; never a plug-in, and nothing is imported (what a scenario's loader may ask).
+
+    Parameters
+    ----------
+    name : str
+
+    Returns
+    -------
+    FilterEntry or None
+    """
     key = "".join(str(name).split()).lower()
     for entry in _ENTRIES:
         full = entry.filter_class.__name__.lower()
@@ -163,6 +210,14 @@ def filter_entry(name: str | type) -> FilterEntry:
     name ("SIR Particle Filter"), case-insensitive; a class itself (a user's own gets an entry made
     from its attributes); a plug-in `path/to/file.py:ClassName` (imported once per process); or the
     `name` of a plug-in already loaded in this process.
+
+    Parameters
+    ----------
+    name : str or type
+
+    Returns
+    -------
+    FilterEntry
 
     Raises
     ------
@@ -185,13 +240,36 @@ def filter_entry(name: str | type) -> FilterEntry:
 
 
 def resolve_filter(name: str | type) -> type:
-    """The filter class of a name, a class or a plug-in spec (see `filter_entry`)."""
+    """The filter class of a name, a class or a plug-in spec (see `filter_entry`).
+
+    Parameters
+    ----------
+    name : str or type
+
+    Returns
+    -------
+    type
+    """
     return filter_entry(name).filter_class
 
 
 def plugin_entry(spec: str) -> FilterEntry:
     """The entry of a plug-in `path/to/file.py:ClassName`: the class loaded (mazelab.plugins), its
-    reference (file, sha256, class) and the next free colour."""
+    reference (file, sha256, class) and the next free colour.
+
+    Parameters
+    ----------
+    spec : str
+
+    Returns
+    -------
+    FilterEntry
+
+    Raises
+    ------
+    ValueError
+        One line naming the file, the class and what is wrong (mazelab.plugins.load_plugin).
+    """
     filter_class = load_plugin(spec)
     return _entry_of_class(filter_class, plugin_reference(spec, filter_class))
 
@@ -222,7 +300,16 @@ def _entry_of_class(filter_class: type, plugin: PluginReference | None) -> Filte
 
 
 def entry_by_name(name: str) -> FilterEntry | None:
-    """The entry of a filter by the `name` results carry (a shipped one, or a plug-in loaded here), or None."""
+    """The entry of a filter by the `name` results carry (a registered one, or a plug-in loaded here).
+
+    Parameters
+    ----------
+    name : str
+
+    Returns
+    -------
+    FilterEntry or None
+    """
     entry = _BY_NAME.get(name)
     if entry is not None:
         return entry
@@ -231,17 +318,45 @@ def entry_by_name(name: str) -> FilterEntry | None:
 
 
 def labels(names: Sequence[str]) -> dict[str, str]:
-    """Figure labels for the names results carry: the entry's label, or the name itself when unknown."""
+    """Figure labels for the names results carry: the entry's label, or the name itself when unknown.
+
+    Parameters
+    ----------
+    names : sequence of str
+
+    Returns
+    -------
+    dict
+        name -> label.
+    """
     return {name: (entry.label if (entry := entry_by_name(name)) else name) for name in names}
 
 
 def rgb(colour: Colour) -> tuple[float, float, float]:
-    """An RGB 0-255 colour in matplotlib's 0-1 form."""
+    """An RGB 0-255 colour in matplotlib's 0-1 form.
+
+    Parameters
+    ----------
+    colour : (int, int, int)
+
+    Returns
+    -------
+    (float, float, float)
+    """
     return colour[0] / 255, colour[1] / 255, colour[2] / 255
 
 
 def colour_of(name: str) -> Colour:
-    """A filter's colour by the name results carry (an unknown one: the palette's grey)."""
+    """A filter's colour by the name results carry (an unknown one: the palette's grey).
+
+    Parameters
+    ----------
+    name : str
+
+    Returns
+    -------
+    (int, int, int)
+    """
     entry = entry_by_name(name)
     return entry.colour if entry is not None else PALETTE[7]
 

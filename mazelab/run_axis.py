@@ -12,7 +12,16 @@ from mazelab.checks import as_points
 
 
 def as_runs(particles: Any) -> np.ndarray:
-    """Initial particles as (R, N, 2): (N, 2) is one run."""
+    """Initial particles as (R, N, 2): (N, 2) is one run.
+
+    Parameters
+    ----------
+    particles : array-like (N, 2) or (R, N, 2)
+
+    Returns
+    -------
+    array (R, N, 2)
+    """
     array = np.asarray(particles)
     if array.ndim == 3:
         if array.shape[2] != 2 or array.shape[1] < 1:
@@ -22,7 +31,17 @@ def as_runs(particles: Any) -> np.ndarray:
 
 
 def generators(rng: Any, runs: int) -> list[np.random.Generator]:
-    """One Generator per run: `rng` itself for one run, or the sequence given (None: fresh ones)."""
+    """One Generator per run: `rng` itself for one run, or the sequence given (None: fresh ones).
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator, a sequence of R of them, or None
+    runs : int
+
+    Returns
+    -------
+    list of numpy.random.Generator
+    """
     if rng is None:
         return [np.random.default_rng() for _ in range(runs)]
     if isinstance(rng, np.random.Generator):
@@ -36,15 +55,38 @@ def generators(rng: Any, runs: int) -> list[np.random.Generator]:
 
 
 def per_run(value: float | np.ndarray, runs: int) -> np.ndarray:
-    """A step's compass angle or measurement as one value per run, float64 (R,)."""
+    """A step's compass angle or measurement as one value per run, float64 (R,).
+
+    Parameters
+    ----------
+    value : float or array (R,)
+    runs : int
+
+    Returns
+    -------
+    array (R,)
+    """
     if isinstance(value, np.ndarray):
         return np.broadcast_to(value.astype(float, copy=False), (runs,))
     return np.array([float(value)] * runs)
 
 
 def replace_blocks(values: np.ndarray, new: np.ndarray, runs: np.ndarray, size: int) -> np.ndarray:
-    """A copy of `values` (R*size, ...) whose blocks of the given runs are the blocks of `new`
-    (len(runs)*size, ...), in order; the other runs' blocks are kept."""
+    """A copy of `values` whose blocks of the given runs are the blocks of `new`, in order; the other
+    runs' blocks are kept.
+
+    Parameters
+    ----------
+    values : array (R*size, ...)
+    new : array (len(runs)*size, ...)
+    runs : array of run indices
+    size : int
+        The rows of one run's block.
+
+    Returns
+    -------
+    array (R*size, ...)
+    """
     replaced = values.copy(order="F" if values.ndim > 1 else "C")
     for block, run in enumerate(runs):
         replaced[run * size : (run + 1) * size] = new[block * size : (block + 1) * size]
