@@ -11,14 +11,17 @@ only gathers the names; where each thing's lines are:
     RPF step (Algorithm 6)                             mazelab/filters.py, RegularizedParticleFilter.step, .regularise
     the cloud the three share (weights, ESS, estimate,  mazelab/cloud.py, ParticleFilter (one run, or R runs
       resampling, restarts)                              at once for a study: the same lines)
-    what every filter provides (your own filter too)   mazelab/contract.py, Filter
+    what every filter provides (your own filter too)   mazelab/contract.py, Filter (with a worked example)
+    a filter's options, declared once                  mazelab/declaration.py, Option; each filter's `options`
+    every filter by name, label and colour             mazelab/registry.py, SHIPPED (one entry each)
     the RPF's kernel (bandwidth optimal, multimodal)   mazelab/regularisation.py
     modes of a cloud, the mode estimate                mazelab/modes.py
     resampling (systematic, stratified, ...)           mazelab/resampling.py
     the exact grid Bayes filter (the reference)        mazelab/grid_filter.py, GridBayesFilter.step
     the extended Kalman filter (the baseline)          mazelab/kalman.py, ExtendedKalmanFilter.step
     recovery from kidnapping, KLD-sampling             mazelab/recovery.py, mazelab/resampling.py
-    run_model and simulate                             mazelab/lab.py (drawing), mazelab/simulation.py (the loop)
+    run_model and simulate                             mazelab/lab.py (drawing), mazelab/simulation.py (one run),
+                                                         mazelab/collect.py (the loop that records each step)
     how a seed becomes a run's random draws            mazelab/seeding.py
     saving and loading scenarios                       mazelab/scenario.py
 
