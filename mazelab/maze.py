@@ -168,8 +168,7 @@ class Maze:
         """
         if y is not None and is_scalar(x) and is_scalar(y):  # the robot's measurement, once a step
             return self._lookup.distance_at(float(x), float(y))
-        points = np.asarray(x, dtype=float) if y is None else np.stack(np.broadcast_arrays(x, y), -1)
-        points = np.asarray(points, dtype=float)
+        points = _point_array(x) if y is None else np.stack(np.broadcast_arrays(x, y), -1).astype(float)
         flat = points.reshape(-1, 2)
         distances = self._lookup.distances(flat).reshape(points.shape[:-1])
         return float(distances) if distances.ndim == 0 else distances
@@ -177,7 +176,7 @@ class Maze:
     def nearest_station(self, points: Any) -> np.ndarray:
         """Coordinates of the station nearest each point: points (..., 2) -> (..., 2), map units.
         The station whose distance `distance_to_nearest_station` gives (the EKF's data association)."""
-        points = np.asarray(points, dtype=float)
+        points = _point_array(points)
         if points.shape == (2,):  # the EKF's one mean a step
             return self.stations[self._lookup.nearest_at(float(points[0]), float(points[1]))]
         return self.stations[self._lookup.nearest(points.reshape(-1, 2))].reshape(points.shape)
@@ -303,6 +302,16 @@ def _free_cell_origins(grid: np.ndarray) -> np.ndarray:
     """Lower-left corners (x, y) of the free cells, shape (F, 2)."""
     rows, cols = np.nonzero(grid == EMPTY)
     return np.column_stack([cols, grid.shape[0] - 1 - rows]).astype(float)
+
+
+def _point_array(points: Any) -> np.ndarray:
+    """Points of shape (..., 2) as floats, or one line saying what the Maze's methods take."""
+    array = np.asarray(points, dtype=float)
+    if array.ndim == 0 or array.shape[-1] != 2:
+        raise ValueError(
+            f"points must have shape (N, 2), one (x, y) each, or give x and y apart; got shape {array.shape}"
+        )
+    return array
 
 
 def _read_only(holder: Any) -> None:

@@ -45,6 +45,7 @@ from mazelab.checks import (
 from mazelab.declaration import options_of
 from mazelab.limits import check_memory
 from mazelab.maze import Maze
+from mazelab.maze_paths import shipped_mazes
 from mazelab.registry import FilterEntry, shipped_entry
 from mazelab.robot import Robot
 
@@ -311,7 +312,7 @@ def load_scenario(path: str | Path = DEFAULT_PARAMETERS_PATH) -> Scenario:
     try:
         data = json.loads(text)
     except json.JSONDecodeError as error:
-        raise ScenarioError(f"{path}:{error.lineno}: not valid json ({error.msg})") from None
+        raise ScenarioError(f"{path}:{error.lineno}: not valid json ({error.msg}){_what_it_is(path, text)}") from None
     except ValueError as error:  # e.g. a number of more than 4300 digits
         raise ScenarioError(f"{path}: not a usable json file ({str(error).splitlines()[0]})") from None
     except RecursionError:  # the depth scan keeps this from happening; a last guard
@@ -320,6 +321,20 @@ def load_scenario(path: str | Path = DEFAULT_PARAMETERS_PATH) -> Scenario:
         return Scenario.model_validate(data)
     except ValidationError as error:
         raise ScenarioError(f"{path}: {describe_validation_error(error)}") from None
+
+
+def _what_it_is(path: Path, text: str) -> str:
+    """For a file that is no json: what it looks like, and what takes it instead."""
+    lines = [line.split("#")[0].strip() for line in text.splitlines()]
+    first = next((line for line in lines if line), "")
+    saved = "a scenario is the .json that run --save-scenario FILE.json writes"
+    if first and set(first.replace(",", " ").split()) <= {"0", "1", "2"}:
+        return f"; {path.name} looks like a maze file: --maze {path}; {saved}"
+    if path.suffix.lower() == ".csv" or ("," in first and not first.startswith(("{", "["))):
+        return f"; {path.name} looks like a CSV (a study's or compare's table), not a scenario: {saved}"
+    if path.suffix.lower() == ".rrd":
+        return f"; {path.name} is a recording: mazelab view {path}; {saved}"
+    return ""
 
 
 def _read_scenario_file(path: Path) -> str:
@@ -335,6 +350,8 @@ def _read_scenario_file(path: Path) -> str:
     except FileNotFoundError:
         older = LEGACY_PARAMETERS_PATH.is_file() and path.name == "model_parameters.json"
         hint = f" (older versions saved to {LEGACY_PARAMETERS_PATH})" if older else ""
+        if not hint and path.parent == Path(".") and path.stem in shipped_mazes() and path.suffix in ("", ".txt"):
+            hint = f"; {path.stem} is a maze: --maze {path.stem} (a scenario is a .json saved by run --save-scenario)"
         raise ScenarioError(f"{path}: no such scenario file{hint}") from None
     except OSError as error:
         raise ScenarioError(f"{path}: cannot be read ({error.strerror or error})") from None

@@ -164,7 +164,8 @@ CASES = [
     (["run", "--resampling", "magic"], "unknown resampling scheme"),
     (["run", "--save-scenario", "{tmp}/no/such/folder/x.json"], "does not exist"),
     (["run", "--save-scenario", "{tmp}/exists.json"], "exists; use --force"),
-    (["run", "--rrd", "{tmp}/exists.json"], "exists; use --force"),
+    (["run", "--rrd", "{tmp}/exists.rrd"], "exists; use --force"),
+    (["run", "--rrd", "{tmp}/exists.json"], "a recording is an .rrd file"),
     (["compare", "{tmp}/in_wall.json", "--filters", "sir,kalman"], "kalman"),
     (["study", "--sigma", "0.3,abc"], "--sigma"),
     (["run", "--no-viz", "--web"], "choose one of"),
@@ -180,6 +181,7 @@ def bad_files(tmp_path):
     with (tmp_path / "huge.txt").open("wb") as huge:  # sparse: as large as that, at no cost
         huge.truncate(MAZE_FILE_LIMIT_BYTES + 1)
     (tmp_path / "exists.json").write_text("{}")
+    (tmp_path / "exists.rrd").write_bytes(b"")
     (tmp_path / "long_rows.txt").write_text("0" * 4000 + "2\n")
     os.mkfifo(tmp_path / "fifo")  # opening it would block: it must be refused before that
     return tmp_path

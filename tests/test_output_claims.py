@@ -124,7 +124,8 @@ def test_a_device_pipe_or_folder_is_never_an_output(tmp_path, kind, force, capsy
     ):
         assert main(command + (["--force"] if force else [])) == 2, command
         err = capsys.readouterr().err.strip().splitlines()
-        assert len(err) == 1 and "not a regular file" in err[0] and str(target) in err[0], err
+        said = "is a folder: name a file in it" if kind == "folder" else "not a regular file"
+        assert len(err) == 1 and said in err[0] and str(target) in err[0], err
         assert os.lstat(target).st_mode == mode
     with pytest.raises(NotRegularFileError):
         write_bytes_atomically(target, b"x", replace=True)

@@ -53,6 +53,7 @@ from mazelab.cli.hints import (
     option_elsewhere,
     plain_usage_names,
     refuse_option_as_value,
+    usage_hint,
 )
 from mazelab.cli.maze import maze_app
 from mazelab.cli.options import (
@@ -70,7 +71,7 @@ from mazelab.cli.options import (
     visualization,
     warn_in_one_line,
 )
-from mazelab.cli.provenance import remember_arguments, show_version
+from mazelab.cli.provenance import remember_arguments, repeat_command, show_version
 from mazelab.cli.replay import from_scenario, refuse_counts_for_replay, replay_seed
 from mazelab.cli.replay_filter import replay_filter_name, replay_options
 from mazelab.cli.reports import kidnap_report, particle_count_report, prepare_world, progress_printer, report_run
@@ -224,6 +225,7 @@ def run(
             typer.echo(line)
     if save_scenario_path is not None:
         typer.echo(f"scenario saved to {save_scenario(result.scenario, save_scenario_path, replace=force)}")
+    typer.echo(f"Repeat this run: {repeat_command(result.seed)}")
 
 
 @contextmanager
@@ -357,7 +359,9 @@ def _main(argv: list[str] | None) -> int:
         with write_errors_deferred(), web_serving_deferred():
             code = group.main(args=argv, standalone_mode=False)
     except typer.TyperException as error:  # typer's usage errors: bad option, bad value, missing argument
-        typer.echo(f"error: {error.format_message()}{option_elsewhere(error, group, args)}", err=True)
+        hint = option_elsewhere(error, group, args) or usage_hint(error, args)
+        message = error.format_message()
+        typer.echo(f"error: {message.rstrip('.') if hint else message}{hint}", err=True)
         return 2
     except (UserError, MazeError, ScenarioError, ValueError) as error:
         typer.echo(f"error: {error}", err=True)

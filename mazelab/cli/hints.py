@@ -5,6 +5,7 @@ usage lines without typer's braces."""
 from __future__ import annotations
 
 import difflib
+import re
 import shlex
 from collections.abc import Sequence
 from typing import Any
@@ -53,6 +54,51 @@ def option_elsewhere(error: Exception, group: Any, argv: Sequence[str] = ()) -> 
     first = "run" if "run" in takers else takers[0]
     given = shlex.join(argv) if argv else f"{name} ..."
     return f"; {name} is an option of {', '.join(takers)}: {command_prefix()} {first} {given}"
+
+
+# what to type for a command's missing argument
+ARGUMENT_EXAMPLES = {
+    "compare": "compare model_parameters/paper_5x5.json (a scenario saved by run --save-scenario FILE.json)",
+    "view": "view recordings/FILE.rrd",
+    "new": "exercise new my_exercise",
+    "check": "exercise check my_exercise/my_filter.py",
+    "show": "maze show paper_5x5",
+}
+
+
+def usage_hint(error: Exception, argv: Sequence[str] = ()) -> str:
+    """What to add to typer's usage errors so that they name the fix: a decimal comma ("write 0.3"), a
+    list given as several arguments ("--sigma 0.2,0.4"), a missing argument (an example); '' else."""
+    format_message = getattr(error, "format_message", None)
+    message = format_message() if callable(format_message) else str(error)
+    args = list(argv)
+    name = getattr(getattr(error, "param", None), "opts", None)
+    if name and "valid number" in message:
+        value = _value_of(args, name)
+        if value is not None and re.fullmatch(r"-?\d+,\d+", value.strip()):
+            return f"; write {value.strip().replace(',', '.')} (a decimal point, not a comma)"
+    extra = re.search(r"unexpected extra argument(?:s|\(s\))? \((.+)\)", message)
+    if extra:
+        first = extra.group(1).split()[0]
+        at = args.index(first) if first in args else -1
+        if at >= 2 and args[at - 2].startswith("--"):
+            return f"; a list is one argument, comma-separated: {args[at - 2]} {args[at - 1]},{first}"
+    if "Missing argument" in message or "Missing parameter" in message:
+        command = getattr(getattr(error, "ctx", None), "info_name", None)
+        if command in ARGUMENT_EXAMPLES:
+            return f"; e.g. {command_prefix()} {ARGUMENT_EXAMPLES[command]}"
+    return ""
+
+
+def _value_of(args: list[str], names: Sequence[str]) -> str | None:
+    """The value given to an option in argv (`--sigma 0,3` or `--sigma=0,3`), or None."""
+    for index, token in enumerate(args):
+        for name in names:
+            if token == name and index + 1 < len(args):
+                return args[index + 1]
+            if token.startswith(name + "="):
+                return token[len(name) + 1 :]
+    return None
 
 
 def refuse_option_as_value(argv: Sequence[str], group: Any) -> None:
@@ -112,4 +158,5 @@ __all__ = [
     "option_elsewhere",
     "plain_usage_names",
     "refuse_option_as_value",
+    "usage_hint",
 ]

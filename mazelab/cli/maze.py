@@ -20,6 +20,7 @@ from mazelab.cli.options import (
     visualization,
 )
 from mazelab.cli.reports import generation_progress
+from mazelab.invocation import command_prefix
 from mazelab.mazes import load_maze
 from mazelab.seeding import new_seed
 from mazelab.viz.views import open_view
@@ -35,12 +36,16 @@ def maze_generate(
     stations: Annotated[
         int | None, typer.Option(min=1, help="station blocks (default: one per 25 cells)", show_default=False)
     ] = None,
-    walls: Annotated[float, typer.Option(help="share of the cells that are walls")] = maze_generator.DEFAULT_WALL_SHARE,
+    walls: Annotated[
+        float, typer.Option("--wall-share", help="share of the cells that are walls")
+    ] = maze_generator.DEFAULT_WALL_SHARE,
+    old_walls: Annotated[float | None, typer.Option("--walls", hidden=True, help="the former --wall-share")] = None,
     seed: Annotated[int | None, typer.Option(callback=seed_option, help="the same seed gives the same maze")] = None,
     out: Annotated[Path | None, typer.Option(help="write the maze file here (default: print it)")] = None,
     force: Annotated[bool, typer.Option("--force", help="replace an existing file")] = False,
 ) -> None:
     """A random maze whose free area is connected, in the mazes/ file format."""
+    walls = walls if old_walls is None else old_walls  # --walls: its earlier spelling
     if out is not None:
         check_output_path(out, force)
     rows, columns = maze_generator.parse_size(size)
@@ -48,9 +53,9 @@ def maze_generate(
     seed = new_seed() if seed is None else seed
     progress = generation_progress(rows, columns)
     world = maze_generator.generate_maze(rows, columns, stations, np.random.default_rng(seed), walls, progress)
-    command = f"python main.py maze generate --size {rows}x{columns} --stations {stations} --seed {seed}"
+    command = f"{command_prefix()} maze generate --size {rows}x{columns} --stations {stations} --seed {seed}"
     if walls != maze_generator.DEFAULT_WALL_SHARE:
-        command += f" --walls {walls:g}"
+        command += f" --wall-share {walls:g}"
     text = maze_generator.maze_file_text(world, command)
     if out is None:
         typer.echo(text, nl=False)

@@ -4,6 +4,7 @@ the one-line errors and warnings of the command line."""
 from __future__ import annotations
 
 import os
+import re
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Annotated, Any
@@ -37,6 +38,8 @@ def visualization(
         raise UserError("choose one of --viewer, --rrd, --web and --no-viz")
     if no_viz:
         return False
+    if rrd is not None and rrd.suffix.lower() != ".rrd":
+        raise UserError(f"--rrd {rrd}: a recording is an .rrd file (e.g. --rrd {rrd.with_suffix('.rrd')})")
     target = rrd if rrd is not None else "viewer" if viewer else "web" if web else True
     return Visualization(target, max_drawn, replace=force)
 
@@ -49,6 +52,8 @@ def check_output_path(path: Path, force: bool) -> None:
     """Refuse to overwrite an existing file (or a symlink, dangling or not) without --force, anything
     but a regular file with or without it, or to write into a missing folder. (The write itself checks
     again: without --force it creates the name exclusively, see mazelab.atomic.)"""
+    if path.is_dir() and not path.is_symlink():
+        raise UserError(f"{path} is a folder: name a file in it (e.g. {path}/NAME)")
     try:
         output_target(path, force)
     except NameTakenError as error:
@@ -74,7 +79,14 @@ def seed_option(value: int | None) -> int | None:
 
 
 def parse_list(text: str, kind: type, option: str) -> list:
-    """'0.2,0.4' -> [0.2, 0.4] (of `kind`), or a one-line error naming the option."""
+    """'0.2,0.4' -> [0.2, 0.4] (of `kind`), or a one-line error naming the option; '0,3' for a number
+    is refused with what to write (a decimal comma: a list of 0 and 3 is no lab's value)."""
+    if kind is float and re.fullmatch(r"\s*0,\d+\s*", text):
+        decimal = text.strip().replace(",", ".")
+        raise UserError(
+            f"{option} {text.strip()}: the comma separates values (0 and {text.strip()[2:]}); "
+            f"for one value write {decimal}, for a list {decimal},0.4"
+        )
     try:
         values = [kind(part) for part in text.split(",") if part.strip()]
     except ValueError:

@@ -36,6 +36,25 @@ def resume_command() -> str:
     return f"{command_prefix()} {shlex.join(arguments)}"
 
 
+def repeat_command(seed: int | None, drop: tuple[str, ...] = ("--resume",)) -> str:
+    """The command as typed with its seed given (`--seed S` set, or replaced), to be pasted back: the
+    same run or study again, bit for bit. Flags in `drop` are left out (a resumed study repeats whole)."""
+    arguments, kept, skip = list(_ARGUMENTS.get() or sys.argv[1:]), [], False
+    for token in arguments:
+        if skip:
+            skip = False
+            continue
+        if token == "--seed":
+            skip = True
+            continue
+        if token.startswith("--seed=") or token in drop:
+            continue
+        kept.append(token)
+    if seed is not None:
+        kept += ["--seed", str(seed)]
+    return f"{command_prefix()} {shlex.join(kept)}"
+
+
 def show_version(value: bool) -> None:
     """--version: the program's, its git commit (if any), numpy's and Python's; then exit."""
     if value:
@@ -45,4 +64,4 @@ def show_version(value: bool) -> None:
         raise typer.Exit()
 
 
-__all__ = ["command_line", "remember_arguments", "resume_command", "show_version"]
+__all__ = ["command_line", "remember_arguments", "repeat_command", "resume_command", "show_version"]

@@ -35,7 +35,7 @@ from mazelab.cli.options import (
     seed_option,
     visualization,
 )
-from mazelab.cli.provenance import command_line, resume_command
+from mazelab.cli.provenance import command_line, repeat_command, resume_command
 from mazelab.experiments.dask_runner import DASK_TIMEOUT, close_client, connect
 from mazelab.experiments.executor import STOP_SIGNALS, default_workers, run_study
 from mazelab.experiments.plan import StudyPlan, plan_study
@@ -296,6 +296,7 @@ def report_study(session: StudySession, outcome: StudyOutcome, kld: bool) -> Non
     seconds = session.recorder.finish("finished" if not outcome.failures else "finished with failures", **closing)
     ran = len({(r.setting, r.run) for r in outcome.records})
     typer.echo(f"{ran} runs in {seconds['duration_seconds']:.1f} s wall time")
+    typer.echo(f"Repeat this study: {repeat_command(plan.seed)}")
     if outputs.csv_path is not None and log is not None:
         try:
             log.finish(records)  # the whole CSV, in order; then the partial file goes
