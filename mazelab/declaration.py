@@ -63,6 +63,32 @@ def to_plain_json(value: Any) -> Any:
     raise ValueError(f"option value {value!r} ({type(value).__name__}) has no JSON form")
 
 
+def object_from_json(kind: type) -> Callable[[Any], Any]:
+    """The `from_json` of an option whose value may be an object given as its fields (Recovery,
+    KLDSampling): a dict becomes `kind(**fields)`, an unknown field is one line; anything else stays.
+
+    Parameters
+    ----------
+    kind : a dataclass
+
+    Returns
+    -------
+    callable
+        stored value -> the option's value.
+    """
+
+    def from_json(value: Any) -> Any:
+        if not isinstance(value, dict):
+            return value
+        known = {f.name for f in dataclasses.fields(kind)}
+        unknown = sorted(set(value) - known)
+        if unknown:
+            raise ValueError(f"has no field {unknown[0]!r} (it has: {', '.join(sorted(known))})")
+        return kind(**value)
+
+    return from_json
+
+
 def show_value(value: Any) -> str:
     """A value in a few words (tables, labels, messages): 0.05, multimodal, none.
 
@@ -611,6 +637,7 @@ __all__ = [
     "Options",
     "choice",
     "number_in",
+    "object_from_json",
     "options_of",
     "parse_flag",
     "parse_like",

@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -11,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from mazelab.checks import finite_number
-from mazelab.declaration import Option
+from mazelab.declaration import Option, object_from_json
 from mazelab.maze import Maze
 from mazelab.model import log_likelihood
 from mazelab.resampling import Move
@@ -99,17 +98,6 @@ def check_recovery(recovery: Any) -> str | Recovery | None:
     raise ValueError(f"unknown recovery {recovery!r}; choose none, {' or '.join(RECOVERY_MODES)}")
 
 
-def recovery_from_json(value: Any) -> Any:
-    """A stored recovery option: null, a mode's name, or a Recovery's fields."""
-    if isinstance(value, dict):
-        known = {f.name for f in dataclasses.fields(Recovery)}
-        unknown = sorted(set(value) - known)
-        if unknown:
-            raise ValueError(f"has no field {unknown[0]!r} (it has: {', '.join(sorted(known))})")
-        return Recovery(**value)
-    return value
-
-
 def _rate(name: str) -> Any:
     def check(value: Any) -> float:
         rate = finite_number(name, value)
@@ -123,7 +111,8 @@ def _rate(name: str) -> Any:
 RECOVERY_OPTIONS = (
     Option(
         "recovery", None, "recovery from kidnapping (beyond the paper): none, augmented (MCL) or sensor (resetting)",
-        parse=str.strip, check=check_recovery, from_json=recovery_from_json, flag="--recovery/--sensor-resetting",
+        parse=str.strip, check=check_recovery, from_json=object_from_json(Recovery),
+        flag="--recovery/--sensor-resetting",
     ),
     Option("alpha_slow", ALPHA_SLOW, "recovery: the long-term likelihood average's rate", check=_rate("alpha_slow"),
            flag="--alpha-slow", tunes="recovery"),

@@ -3,7 +3,6 @@ KLD-sampling (Fox 2003), which chooses M as it resamples."""
 
 from __future__ import annotations
 
-import dataclasses
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -13,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from mazelab.checks import check_kld_numbers, finite_number, step_number
-from mazelab.declaration import Option, parse_flag
+from mazelab.declaration import Option, object_from_json, parse_flag
 
 
 # -- resampling: plain functions, normalised weights W (N,) -> ancestor indices (M,) ---------------
@@ -181,17 +180,6 @@ def check_kld(kld: Any) -> bool | KLDSampling | None:
     raise ValueError(f"kld must be true, false or a KLDSampling, got {kld!r}")
 
 
-def kld_from_json(value: Any) -> Any:
-    """A stored kld option: true/false/null, or a KLDSampling's fields."""
-    if isinstance(value, dict):
-        known = {f.name for f in dataclasses.fields(KLDSampling)}
-        unknown = sorted(set(value) - known)
-        if unknown:
-            raise ValueError(f"has no field {unknown[0]!r} (it has: {', '.join(sorted(known))})")
-        return KLDSampling(**value)
-    return value
-
-
 def _kld_number(name: str) -> Any:
     def check(value: Any) -> float:
         check_kld_numbers(value if name == "epsilon" else KLD_EPSILON, value if name == "z" else KLD_QUANTILE)
@@ -203,7 +191,7 @@ def _kld_number(name: str) -> Any:
 KLD_OPTIONS = (
     Option(
         "kld", None, "KLD-sampling (Fox 2003): the particle count adapts, the given count the most",
-        parse=parse_flag, check=check_kld, from_json=kld_from_json, flag="--kld",
+        parse=parse_flag, check=check_kld, from_json=object_from_json(KLDSampling), flag="--kld",
     ),
     Option("kld_epsilon", KLD_EPSILON, "KLD-sampling's error bound epsilon", check=_kld_number("epsilon"),
            flag="--kld-epsilon", tunes="kld"),
