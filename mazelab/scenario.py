@@ -40,6 +40,7 @@ from mazelab.checks import (
     NORMAL_TAIL,
     check_all_within,
     check_within_map,
+    map_diagonal,
     regular_file_size,
 )
 from mazelab.declaration import options_of
@@ -208,6 +209,7 @@ class Scenario(BaseModel):
         check_within_map("init_particles_pos", particles, world.width, world.height)
         if self.kidnap_position is not None and not world.is_free(*self.kidnap_position):
             raise ValueError(f"kidnap_position {self.kidnap_position} is not in the free area of the scenario's maze")
+        check_measurements_within(self.robot_measurements, world, self.sigma)
 
     def _check_filter_options(self) -> None:
         """filter_options need format_version 3 and a filter; for a filter of the lab's they are checked
@@ -277,6 +279,22 @@ class Scenario(BaseModel):
             else:
                 lines.append(f'  "{key}": {json.dumps(value)}')
         return "{\n" + ",\n".join(lines) + "\n}\n"
+
+
+def check_measurements_within(measurements: list[float] | None, world: Maze, sigma: float | None) -> None:
+    """A measured distance on `world` is at most its diagonal plus NORMAL_TAIL sigma (no station lies
+    farther from a free place than the map's diagonal); the first beyond is refused in one line."""
+    if not measurements:
+        return
+    ceiling = map_diagonal(world.width, world.height) + NORMAL_TAIL * (sigma or 0.0)
+    z = _numbers(measurements)
+    above = np.flatnonzero(z > ceiling)
+    if len(above):
+        i = int(above[0])
+        raise ValueError(
+            f"robot_measurements[{i}] = {z[i]:g} is beyond {ceiling:.3g}: on this {world.height}x{world.width} maze a "
+            f"distance to the nearest station is at most the map's diagonal (plus {NORMAL_TAIL:g} sigma of noise)"
+        )
 
 
 def _numbers(values: Any) -> np.ndarray:
@@ -391,6 +409,7 @@ __all__ = [
     "Point",
     "Scenario",
     "ScenarioError",
+    "check_measurements_within",
     "describe_validation_error",
     "json_depth",
     "load_scenario",

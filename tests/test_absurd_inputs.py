@@ -110,6 +110,8 @@ def test_scenarios_have_strict_types(tmp_path, capsys, change, message):
     data = _saved_scenario(tmp_path)
     if change.get("robot_measurements") == "negative":
         data["robot_measurements"][3] = -100.0
+    elif change.get("robot_measurements") == "far":
+        data["robot_measurements"][3] = 1e6
     else:
         data.update(change)
     path = _scenario_file(tmp_path, data)

@@ -11,7 +11,7 @@ from mazelab.cli.options import DEFAULT_DELTA, DEFAULT_SIGMA, UserError
 from mazelab.maze import Maze
 from mazelab.mazes import load_maze, mazes_fitting
 from mazelab.robot import Robot
-from mazelab.scenario import Scenario
+from mazelab.scenario import Scenario, check_measurements_within
 from mazelab.seeding import new_seed
 from mazelab.simulation import check_start, check_walk_in_maze
 
@@ -60,6 +60,7 @@ def from_scenario(
         try:
             check_start(world, robot.initial_position, None, robot.kidnap_position)
             check_walk_in_maze(world, robot)
+            check_measurements_within(scenario.robot_measurements, world, sigma)
         except ValueError as error:
             raise UserError(f"{error}; pass the maze the scenario was made on (--maze)") from None
     return world, robot, sigma, delta, scenario.init_particles_pos
