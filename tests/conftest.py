@@ -15,6 +15,7 @@ import pytest
 from hypothesis import settings
 
 from mazelab.maze import Maze
+from mazelab.robot import Robot
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -31,6 +32,13 @@ PAPER_MAZE = (
     (1, 0, 0, 0, 0),
     (0, 0, 2, 0, 1),
 )
+
+
+def recorded_walk(world: Maze, seed: int, steps: int) -> list[tuple[float, float]]:
+    """(compass angle, z) of each step of a seeded robot."""
+    rng = np.random.default_rng(seed)
+    robot = Robot(0.3, 0.5, world.random_free_place(rng), rng=rng)
+    return [robot.step(world) for _ in range(steps)]
 
 
 def start_study_process(arguments: list[str]) -> subprocess.Popen:

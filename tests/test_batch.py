@@ -1,5 +1,7 @@
-"""One filter object of R runs (mazelab.cloud) advances them together bit for bit as R single-run
-filters, restarts included; a study's units give the records run_task gives run by run."""
+"""A study's runs in units of work (mazelab.experiments.batch_runs): one filter object of R runs
+(mazelab.cloud) advances them together bit for bit as R single-run filters, restarts included; a study's
+units give the records run_task gives run by run, within the particle budget; runs go together by the
+declared rule (`batchable`), and an error in a batched unit is reported for its runs, not retried quietly."""
 
 from __future__ import annotations
 
@@ -7,20 +9,16 @@ import dataclasses
 
 import numpy as np
 import pytest
+from conftest import recorded_walk
 
+from mazelab.experiments import batch_runs
 from mazelab.experiments.batch_runs import run_batch, run_unit_safely, study_units
 from mazelab.experiments.study import MazeChoice, run_task, study_settings, study_tasks
+from mazelab.filters import SIRParticleFilter
 from mazelab.registry import resolve_filter
-from mazelab.robot import Robot
 
 SEEDS = (11, 12, 13, 14)
 IMPOSSIBLE_Z = 50.0  # no place of the 5x5 maze is this far from a station: every weight underflows
-
-
-def recorded_walk(world, seed: int, steps: int) -> list[tuple[float, float]]:
-    rng = np.random.default_rng(seed)
-    robot = Robot(0.3, 0.5, world.random_free_place(rng), rng=rng)
-    return [robot.step(world) for _ in range(steps)]
 
 
 @pytest.mark.parametrize("name", ["sir", "apf", "rpf"])
@@ -82,3 +80,28 @@ def test_units_respect_the_particle_budget(paper_world):
     assert [len(unit) for unit in study_units(tasks, workers=1)] == [2, 2, 1]  # 2 x 400,000 <= 10^6
     huge = study_settings([MazeChoice.from_maze("paper", paper_world)], [0.3], [0.5], [2_000_000], [0.2])
     assert [len(unit) for unit in study_units(study_tasks(huge, ["SIRParticleFilter"], 3, 3, 1), 1)] == [1, 1, 1]
+
+
+# -- the batched path: declared, and never quiet about a failure ----------------------------------------
+def test_runs_go_together_by_the_declared_rule(paper_world):
+    settings = study_settings([MazeChoice.from_maze("paper", paper_world)], [0.3], [0.5], [100], [0.2])
+    plain = study_tasks(settings, ["SIRParticleFilter", "RegularizedParticleFilter"], 3, 5, 1)
+    assert batch_runs.batchable(plain[0])
+    assert not batch_runs.batchable(study_tasks(settings, ["SIRParticleFilter"], 3, 5, 1, kld=True)[0])
+    assert not batch_runs.batchable(study_tasks(settings, ["SIRParticleFilter", "GridBayesFilter"], 3, 5, 1)[0])
+    assert SIRParticleFilter.runs_together({"bandwidth": "multimodal", "estimate": "mode"})
+    assert not SIRParticleFilter.runs_together({"recovery": "sensor"})
+
+
+def test_an_error_in_a_batched_unit_is_reported_for_its_runs(paper_world, monkeypatch):
+    settings = study_settings([MazeChoice.from_maze("paper", paper_world)], [0.3], [0.5], [100], [0.2])
+    unit = tuple(study_tasks(settings, ["SIRParticleFilter"], 3, 5, 1))
+
+    def broken(self, compass_angle, z):
+        raise RuntimeError("a bug in the step")
+
+    monkeypatch.setattr(SIRParticleFilter, "step", broken)
+    outcomes = batch_runs.run_unit_safely(unit)
+    assert len(outcomes) == 3
+    assert all(isinstance(o, batch_runs.RunFailure) and "a bug in the step" in o.message for o in outcomes)
+    assert all("runs advanced together" in o.message for o in outcomes)

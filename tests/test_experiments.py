@@ -13,6 +13,7 @@ import sys
 import numpy as np
 import pytest
 from conftest import PAPER_MAZE
+from test_stats import T_975_DF2
 
 from mazelab.cli.app import from_scenario, main
 from mazelab.experiments import batch_runs
@@ -21,7 +22,7 @@ from mazelab.experiments.compare import compare_filters
 from mazelab.experiments.executor import run_study
 from mazelab.experiments.kidnapping import DEFAULT_WINDOW, recovery_steps, relocalised
 from mazelab.experiments.runs import final_error
-from mazelab.experiments.stats import bootstrap_interval, student_t_quantile, t_interval, wilson_interval
+from mazelab.experiments.stats import bootstrap_interval, t_interval, wilson_interval
 from mazelab.experiments.study import MazeChoice, RunRecord, study_settings, study_tasks
 from mazelab.experiments.summary import CSV_COLUMNS, study_table, summarise_study
 from mazelab.lab import simulate
@@ -32,9 +33,6 @@ from mazelab.scenario import load_scenario, save_scenario
 from mazelab.simulation import convergence_step
 
 FILTERS = ["SIRParticleFilter", "AuxiliaryParticleFilter", "RegularizedParticleFilter"]
-# With 2 degrees of freedom Student's t has F(t) = 1/2 + t / (2 sqrt(2 + t^2)), so F(t) = q at
-# t = (2q - 1) / sqrt(2 q (1 - q)): the 97.5% quantile in closed form.
-T_975_DF2 = 0.95 / math.sqrt(2 * 0.975 * 0.025)
 
 
 @pytest.fixture
@@ -205,16 +203,6 @@ def test_summary_of_known_numbers():
     assert summary.converged_interval == wilson_interval(2, 3)
     assert summary.median_convergence_step == 7
     assert all(math.isnan(v) for v in t_interval([0.4]))  # one run: no interval
-
-
-@pytest.mark.parametrize(
-    ("df", "quantile"),  # t_{0.975, df} from statistical tables, 10 significant digits
-    [(1, 12.70620474), (2, 4.302652730), (3, 3.182446305), (4, 2.776445105), (9, 2.262157163), (29, 2.045229642),
-     (100, 1.983971519)],
-)  # fmt: skip
-def test_student_t_quantile_matches_the_tables(df, quantile):
-    assert student_t_quantile(0.95, df) == pytest.approx(quantile, rel=1e-9)
-    assert student_t_quantile(0.95, 2) == pytest.approx(T_975_DF2, rel=1e-11)
 
 
 def test_final_error_is_the_mean_of_the_last_fifth():

@@ -1,4 +1,12 @@
-"""The filters: the exact grid filter's pieces, agreement with it, convergence, and degenerate runs."""
+"""The paper's particle filters (mazelab.filters: the SIR, APF and RPF steps), each rule on its own and
+against the exact grid filter:
+
+- the RPF regularises exactly at the steps whose previous ESS fell below N_T, each of R runs by its own;
+- the APF's second-stage weight is p(z | x) / p(z | mu), so without compass noise it is uniform;
+- they agree with the exact grid filter, converge in most seeded runs, restart from the prior when no
+  particle explains z, and repeat a seeded run bit for bit;
+- the filters' names resolve (and an unknown one lists the valid ones).
+"""
 
 from __future__ import annotations
 
@@ -6,56 +14,106 @@ import math
 
 import numpy as np
 import pytest
+from conftest import recorded_walk
 
 from mazelab.filters import AuxiliaryParticleFilter, RegularizedParticleFilter, SIRParticleFilter
-from mazelab.grid_filter import GRID_RESOLUTION, GridBayesFilter, arc_kernel, fft_convolve_same
+from mazelab.grid_filter import GRID_RESOLUTION, GridBayesFilter
 from mazelab.lab import simulate
-from mazelab.model import LOG_UNDERFLOW, ROBOT_SPEED
+from mazelab.model import LOG_UNDERFLOW, ROBOT_SPEED, log_likelihood
 from mazelab.registry import resolve_filter
 from mazelab.robot import Robot
 
 PARTICLE_FILTERS = ["sir", "apf", "rpf"]
 
 
-@pytest.mark.parametrize(("theta", "delta"), [(0.3, 0.5), (2.0, 0.05), (-1.0, 2 * math.pi), (4.0, 0.0)])
-def test_arc_kernel_is_a_density_with_the_arcs_exact_mean(theta, delta):
-    kernel = arc_kernel(theta, delta, ROBOT_SPEED, GRID_RESOLUTION)
-    radius = kernel.shape[0] // 2
-    assert kernel.sum() == pytest.approx(1.0)
-    offsets = (np.arange(kernel.shape[0]) - radius) * GRID_RESOLUTION
-    mean_x, mean_y = kernel.sum(axis=0) @ offsets, kernel.sum(axis=1) @ offsets
-    # E[L (cos th, sin th)] for th ~ U(theta - delta/2, theta + delta/2) is L sinc(delta/2) (cos, sin)(theta);
-    # the kernel's arc is a midpoint rule of that integral, exact to O((delta/samples)^2).
-    shrink = 1.0 if delta == 0 else math.sin(delta / 2) / (delta / 2)
-    assert mean_x == pytest.approx(ROBOT_SPEED * shrink * math.cos(theta), abs=1e-3 * ROBOT_SPEED)
-    assert mean_y == pytest.approx(ROBOT_SPEED * shrink * math.sin(theta), abs=1e-3 * ROBOT_SPEED)
+# -- the RPF: regularise exactly when N_eff < N_T ------------------------------------------------------
+@pytest.mark.parametrize("threshold", [0.2, 0.5])
+def test_the_rpf_regularises_exactly_at_the_steps_whose_ess_fell_below_n_t(paper_world, threshold):
+    """Algorithm 6: IF N_eff < N_T, resample and jitter; so step k+1 regularises iff the ESS after step
+    k is below threshold * N (the first step never: the initial weights are uniform, ESS = N)."""
+    count = 600
+    rpf = RegularizedParticleFilter(
+        paper_world, 0.3, 0.5, paper_world.random_free_places(count, np.random.default_rng(1)),
+        np.random.default_rng(2), threshold=threshold,
+    )  # fmt: skip
+    expected, ess_before = [], rpf.ess
+    for k, (compass, z) in enumerate(recorded_walk(paper_world, 7, 80)):
+        if ess_before < threshold * count:
+            expected.append(k)  # regularised_at holds the steps done before it
+        rpf.step(compass, z)
+        ess_before = rpf.ess
+    assert 3 <= len(expected) < 80  # both branches taken
+    assert rpf.regularised_at == expected
 
 
-def test_fft_convolution_equals_direct_convolution(rng):
-    image, kernel = rng.random((17, 23)), rng.random((5, 7))
-    direct = np.zeros_like(image)
-    for dy in range(5):
-        for dx in range(7):
-            shifted = np.zeros_like(image)
-            sy, sx = dy - 2, dx - 3  # kernel cell (dy, dx) moves mass by (sy, sx)
-            shifted[max(sy, 0) : 17 + min(sy, 0), max(sx, 0) : 23 + min(sx, 0)] = image[
-                max(-sy, 0) : 17 - max(sy, 0), max(-sx, 0) : 23 - max(sx, 0)
-            ]
-            direct += kernel[dy, dx] * shifted
-    np.testing.assert_allclose(fft_convolve_same(image, kernel), direct, atol=1e-12)
+def test_the_rpf_regularises_each_of_r_runs_by_its_own_ess(paper_world):
+    """R runs together: run r regularises at its own steps, as the single run r would."""
+    seeds = (3, 4, 5)
+    walks = [recorded_walk(paper_world, s, 50) for s in seeds]
+    particles = np.stack([paper_world.random_free_places(300, np.random.default_rng(s)) for s in seeds])
+    together = RegularizedParticleFilter(paper_world, 0.3, 0.5, particles, [np.random.default_rng(s) for s in seeds])
+    alone = [
+        RegularizedParticleFilter(paper_world, 0.3, 0.5, p, np.random.default_rng(s))
+        for p, s in zip(particles, seeds, strict=True)
+    ]
+    for k in range(50):
+        together.step(np.array([w[k][0] for w in walks]), np.array([w[k][1] for w in walks]))
+        for r, filt in enumerate(alone):
+            filt.step(*walks[r][k])
+    assert together.regularised_at == [filt.regularised_at for filt in alone]
+    assert len({len(steps) for steps in together.regularised_at}) > 1 or together.regularised_at[0]
 
 
-def test_grid_prediction_moves_the_belief_along_the_compass(paper_world):
-    grid = GridBayesFilter(paper_world, 0.3, 0.5)
-    before = grid.estimate.copy()
-    grid.density = grid.predict(grid.density, compass_angle=0.0)
-    # mass only leaves through the grid's outer edge, which the prior does not reach in one step
-    assert grid.density.sum() == pytest.approx(1.0)
-    shift = grid.estimate - before
-    assert shift[0] == pytest.approx(ROBOT_SPEED * math.sin(0.25) / 0.25, rel=1e-3)
-    assert shift[1] == pytest.approx(0.0, abs=1e-9)
+def test_rpf_regularises_when_ess_falls_below_the_threshold(paper_world):
+    robot = Robot(0.3, 0.5, (3.5, 1.5))
+    result = simulate(robot, paper_world, 0.3, 0.5, 1000, 60, filtering_algorithm="rpf", seed=5, threshold=0.5)
+    # it regularises at the start of step k when ESS after step k-1 was below 0.5 N
+    low = np.flatnonzero(result.ess[:-1] < 0.5 * 1000) + 1
+    assert len(low) > 0
+    rpf = RegularizedParticleFilter(paper_world, 0.3, 0.5, paper_world.random_free_places(1000))
+    assert rpf.bandwidth == pytest.approx(1000 ** (-1 / 6))  # A = (4/4)^(1/6) = 1 in two dimensions
 
 
+# -- the APF: the second-stage weight ---------------------------------------------------------------
+def test_the_apfs_second_stage_weight_is_the_likelihood_ratio(paper_world):
+    """Algorithm 5 with mu_i one draw of the transition: x^j ~ p(x_k | x^{i^j}) and w^j = p(z | x^j) /
+    p(z | mu^{i^j}). Computed here independently: the same draws replayed from a copy of the filter's
+    Generator, in the order the step makes them (mu's headings, the resampling offset, x's headings)."""
+    count, compass, z, delta = 400, 0.7, 1.3, 0.5
+    start = paper_world.random_free_places(count, np.random.default_rng(5)).astype(np.float32)
+    rng = np.random.default_rng(6)
+    replay = np.random.default_rng(6)
+    apf = AuxiliaryParticleFilter(paper_world, 0.3, delta, start, rng)
+    apf.step(compass, z)
+
+    def moved(points, uniforms):
+        headings = (uniforms - np.float32(0.5)) * np.float32(delta) + np.float32(compass)
+        return points + ROBOT_SPEED * np.column_stack([np.cos(headings), np.sin(headings)])
+
+    mu = moved(start.astype(float), replay.random(count, dtype=np.float32).astype(float))
+    first = log_likelihood(z, mu, paper_world, 0.3)
+    w_first = np.exp(first - first.max())
+    w_first /= w_first.sum()
+    u = replay.random()  # systematic resampling: ancestors from one offset
+    ancestors = np.searchsorted(np.cumsum(w_first), (np.arange(count) + u) / count, side="right")
+    x = moved(start.astype(float)[ancestors], replay.random(count, dtype=np.float32).astype(float))
+    log_w = log_likelihood(z, x, paper_world, 0.3) - first[ancestors]  # p(z | x^j) / p(z | mu^{i^j})
+    expected = np.exp(log_w - log_w.max())
+    expected /= expected.sum()
+    np.testing.assert_allclose(apf.positions, x, atol=1e-4)
+    np.testing.assert_allclose(apf.weights, expected, rtol=2e-3, atol=1e-9)
+
+
+def test_without_compass_noise_the_apfs_second_stage_weights_are_equal(paper_world):
+    """With Delta = 0 the move is deterministic, so x^j = mu^{i^j} and every ratio p(z|x^j) / p(z|mu^{i^j})
+    is 1: the weights after the step are uniform (without the division they would be p(z | x^j))."""
+    particles = paper_world.random_free_places(500, np.random.default_rng(8))
+    apf = AuxiliaryParticleFilter(paper_world, 0.3, 0.0, particles, np.random.default_rng(9))
+    apf.step(0.4, 1.1)
+    np.testing.assert_allclose(apf.weights, 1 / 500, rtol=1e-5)
+
+
+# -- names ------------------------------------------------------------------------------------------
 @pytest.mark.parametrize(
     ("name", "cls"),
     [
@@ -77,6 +135,7 @@ def test_unknown_filter_name_lists_the_valid_ones():
         resolve_filter("kalman")
 
 
+# -- against the exact grid filter, convergence, degenerate runs ---------------------------------------
 @pytest.fixture(scope="module")
 def agreement_run():
     """One seeded walk of 150 steps on the paper's maze, and the grid filter's answer to it."""
@@ -158,19 +217,3 @@ def test_the_same_seed_gives_the_same_run_bit_for_bit(paper_world, name):
     np.testing.assert_array_equal(first.estimates, second.estimates)
     np.testing.assert_array_equal(first.true_positions, second.true_positions)
     assert first.scenario == second.scenario
-
-
-def test_rpf_regularises_when_ess_falls_below_the_threshold(paper_world):
-    robot = Robot(0.3, 0.5, (3.5, 1.5))
-    result = simulate(robot, paper_world, 0.3, 0.5, 1000, 60, filtering_algorithm="rpf", seed=5, threshold=0.5)
-    # it regularises at the start of step k when ESS after step k-1 was below 0.5 N
-    low = np.flatnonzero(result.ess[:-1] < 0.5 * 1000) + 1
-    assert len(low) > 0
-    rpf = RegularizedParticleFilter(paper_world, 0.3, 0.5, paper_world.random_free_places(1000))
-    assert rpf.bandwidth == pytest.approx(1000 ** (-1 / 6))  # A = (4/4)^(1/6) = 1 in two dimensions
-
-
-def test_particles_keep_their_last_heading(paper_world, rng):
-    sir = SIRParticleFilter(paper_world, 0.3, 0.2, paper_world.random_free_places(500, rng), rng)
-    sir.step(1.0, 1.0)
-    assert np.all(np.abs(sir.headings - 1.0) <= 0.1)

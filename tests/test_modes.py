@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import csv
 import math
-import re
 
 import numpy as np
 import pytest
@@ -13,7 +12,6 @@ from conftest import PAPER_MAZE, ROOT
 from test_visualization import load
 
 from mazelab.cli.app import main
-from mazelab.experiments.accuracy import ACCURACY_FILTERS
 from mazelab.filters import RegularizedParticleFilter, SIRParticleFilter
 from mazelab.grid_filter import GridBayesFilter
 from mazelab.lab import simulate
@@ -222,14 +220,3 @@ def test_each_heavy_mode_is_drawn_as_a_circle_with_its_weight(tmp_path, twin_roo
         radii = [[max(m.spread, MODE_MIN_RADIUS)] * 2 for m in modes]
         np.testing.assert_allclose(circles.get("Ellipses2D:half_sizes", []), radii or [], atol=1e-5)
         assert circles.get("Ellipses2D:labels", []) == [f"{m.weight:.0%}" for m in modes]
-
-
-def test_accuracy_reports_every_filter_against_the_exact_posterior(capsys):
-    args = ["accuracy", "--maze", "paper_5x5", "--runs", "1", "--steps", "12", "--particles", "150", "--workers", "1"]
-    assert main(args) == 0
-    out = capsys.readouterr().out
-    cells = [re.split(r"\s{2,}", line.strip()) for line in out.splitlines() if line.startswith("paper_5x5")]
-    rows = {row[1]: row for row in cells}
-    assert set(rows) == {label for label, _, _ in ACCURACY_FILTERS}
-    assert rows["grid (exact)"][3:5] == ["0.000", "0.000"]  # the reference is at distance 0 from itself
-    assert main([*args[:3], "--runs", "0"]) == 2

@@ -1,13 +1,12 @@
 """Studies a researcher can publish from: the JSON record, faithful replays, mazes told apart, each
-filter once per setting of its own options, resume, per-step traces, intervals that fit, the faceted
-figure, accuracy's CSV and the Python entry point."""
+filter once per setting of its own options, resume, per-step traces, the faceted figure and the Python
+entry point. (The intervals are checked in test_stats.py, accuracy's CSV in test_accuracy.py.)"""
 
 from __future__ import annotations
 
 import csv
 import hashlib
 import json
-import math
 import shutil
 from pathlib import Path
 
@@ -17,7 +16,6 @@ import pytest
 import mazelab
 from mazelab.cli.app import main
 from mazelab.experiments.runs import final_error
-from mazelab.experiments.stats import bootstrap_interval, wilson_interval
 from mazelab.experiments.study import MazeChoice, StudySetting, filters_per_setting
 from mazelab.experiments.study_plot import figure_layout
 from mazelab.experiments.summary import StudySummary
@@ -206,30 +204,6 @@ def test_compare_writes_traces_and_a_record(tmp_path):
     )
 
 
-# -- item 7: intervals that fit ------------------------------------------------------------------------
-def test_bootstrap_interval_covers_the_mean_at_its_level():
-    """400 samples of 30 normal values: the share of percentile bootstrap intervals that hold the true
-    mean is near 0.95; the percentile bootstrap is known to run a little low at n = 30 (the plug-in
-    spread is s sqrt((n-1)/n)), so the bound below is 0.95 - 0.02 - 4 binomial standard errors."""
-    rng = np.random.default_rng(7)
-    hits = [low <= 0 <= high for low, high in (bootstrap_interval(rng.normal(size=30), seed=s) for s in range(400))]
-    standard_error = math.sqrt(0.95 * 0.05 / 400)
-    assert 0.95 - 0.02 - 4 * standard_error <= np.mean(hits) <= 0.95 + 4 * standard_error
-
-
-def test_intervals_respect_the_quantity():
-    errors = [0.05, 0.07, 0.1, 0.09, 6.3]  # one lost run: the t-interval reaches below zero
-    for statistic in ("mean", "median"):
-        low, high = bootstrap_interval(errors, statistic)
-        assert 0.05 <= low <= high <= 6.3
-    assert bootstrap_interval(errors) == bootstrap_interval(errors)  # seeded
-    z2 = 1.959963984540054**2
-    assert wilson_interval(0, 10) == (0.0, pytest.approx(z2 / (10 + z2)))  # closed form at p = 0
-    assert wilson_interval(10, 10) == (pytest.approx(10 / (10 + z2)), 1.0)
-    low, high = wilson_interval(7, 20)
-    assert low == pytest.approx(0.1812, abs=1e-4) and high == pytest.approx(0.5671, abs=1e-4)  # tables
-
-
 # -- item 8: the faceted figure ------------------------------------------------------------------------
 def test_study_figure_has_a_panel_per_maze_and_a_line_per_filter_and_option(tmp_path):
     figure = tmp_path / "f.png"
@@ -251,19 +225,7 @@ def test_study_figure_has_a_panel_per_maze_and_a_line_per_filter_and_option(tmp_
     assert layout.lines == ["SIR", "RPF, bandwidth optimal", "RPF, bandwidth multimodal"]
 
 
-# -- items 9 and 10: accuracy's CSV, and the Python entry point -------------------------------------------
-def test_accuracy_csv_filters_and_generated_mazes(tmp_path, capsys):
-    table = tmp_path / "a.csv"
-    args = ["accuracy", "--maze-size", "6x6", "--stations", "2", "--filters", "sir,ekf", "--runs", "2"]
-    assert main([*args, "--steps", "10", "--particles", "100", "--workers", "1", "--csv", str(table)]) == 0
-    rows = read_csv(table)
-    assert [r["filter"] for r in rows[:3]] == ["SIRParticleFilter", "ExtendedKalmanFilter", "grid (exact)"]
-    assert len(rows) == 2 * 3 and all(r["maze_seed"] for r in rows)
-    assert all(float(r["distance_to_exact"]) == 0 for r in rows if r["filter"] == "grid (exact)")
-    assert "95% CI" in capsys.readouterr().out
-    assert json.loads((tmp_path / "a.record.json").read_text())["kind"] == "accuracy"
-
-
+# -- item 10: the Python entry point ----------------------------------------------------------------------
 def test_python_entry_point_returns_rows_summary_and_record():
     result = mazelab.study("paper_5x5", sigma=[0.3, 0.5], filters=["sir"], runs=2, steps=15, particles=80, seed=3)
     assert len(result.rows) == 4 and result.rows[0]["filter"] == "SIRParticleFilter"

@@ -1,7 +1,8 @@
 """A regression guard, not a check of any rule: a few estimates pinned when the package was split out
 of the paper's three files (a change to any filter's draws or arithmetic shows here first). The rules
-themselves are checked by tests/test_rules.py, test_filters.py and test_batch.py; these numbers only say
-that nothing changed. Deselect with -m "not pinned"."""
+themselves are checked each in its module's test file (tests/test_filters.py, test_cloud.py,
+test_resampling.py, test_weights.py, test_batch.py, ...); these numbers only say that nothing changed.
+Deselect with -m "not pinned"."""
 
 from __future__ import annotations
 

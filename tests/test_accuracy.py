@@ -1,0 +1,56 @@
+"""How close each filter comes to the exact posterior (mazelab.experiments.accuracy, `mazelab accuracy`):
+the distance is averaged over the second half of the steps; the table has every filter against the exact
+grid filter (the reference at distance 0 from itself); its CSV and record, on generated mazes too."""
+
+from __future__ import annotations
+
+import csv
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mazelab.cli.app import main
+from mazelab.experiments.accuracy import ACCURACY_FILTERS
+
+
+def read_csv(path: Path) -> list[dict[str, str]]:
+    with path.open(newline="") as handle:
+        return list(csv.DictReader(handle))
+
+
+# -- accuracy: the second half of the steps --------------------------------------------------------
+def test_accuracy_averages_the_distance_over_the_second_half_of_the_steps():
+    """The first localisation is not accuracy: 10 steps 3 units off, then 10 steps 0.1 off gives 0.1."""
+    from mazelab.experiments.accuracy import distance_to_exact
+
+    exact = np.zeros((20, 2))
+    estimates = np.r_[np.full((10, 2), [3.0, 0.0]), np.full((10, 2), [0.0, 0.1])]
+    assert distance_to_exact(estimates, exact) == pytest.approx(0.1)
+    assert distance_to_exact(estimates[:19], exact[:19]) == pytest.approx((3.0 + 9 * 0.1) / 10)  # steps 10-19
+
+
+# -- the command ------------------------------------------------------------------------------------
+def test_accuracy_reports_every_filter_against_the_exact_posterior(capsys):
+    args = ["accuracy", "--maze", "paper_5x5", "--runs", "1", "--steps", "12", "--particles", "150", "--workers", "1"]
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    cells = [re.split(r"\s{2,}", line.strip()) for line in out.splitlines() if line.startswith("paper_5x5")]
+    rows = {row[1]: row for row in cells}
+    assert set(rows) == {label for label, _, _ in ACCURACY_FILTERS}
+    assert rows["grid (exact)"][3:5] == ["0.000", "0.000"]  # the reference is at distance 0 from itself
+    assert main([*args[:3], "--runs", "0"]) == 2
+
+
+def test_accuracy_csv_filters_and_generated_mazes(tmp_path, capsys):
+    table = tmp_path / "a.csv"
+    args = ["accuracy", "--maze-size", "6x6", "--stations", "2", "--filters", "sir,ekf", "--runs", "2"]
+    assert main([*args, "--steps", "10", "--particles", "100", "--workers", "1", "--csv", str(table)]) == 0
+    rows = read_csv(table)
+    assert [r["filter"] for r in rows[:3]] == ["SIRParticleFilter", "ExtendedKalmanFilter", "grid (exact)"]
+    assert len(rows) == 2 * 3 and all(r["maze_seed"] for r in rows)
+    assert all(float(r["distance_to_exact"]) == 0 for r in rows if r["filter"] == "grid (exact)")
+    assert "95% CI" in capsys.readouterr().out
+    assert json.loads((tmp_path / "a.record.json").read_text())["kind"] == "accuracy"
