@@ -287,30 +287,6 @@ def _shown(value: Any) -> str:
     return text if len(text) <= 60 else text[:57] + "..."
 
 
-def check_options(filter_class: type, options: Mapping[str, Any], *, spelled: Mapping[str, str] | None = None) -> None:
-    """Refuse any option that `filter_class` does not declare, in one line naming the option (as the
-    user `spelled` it, e.g. "bandwidth" -> "--bandwidth") and what the filter takes.
-
-    Parameters
-    ----------
-    filter_class : type
-    options : mapping
-        Option names (and values).
-    spelled : mapping, optional
-        Option name -> how the user wrote it.
-
-    Raises
-    ------
-    ValueError
-    """
-    declared = options_of(filter_class)
-    for option in options:
-        if option not in declared:
-            shown = (spelled or {}).get(option, option)
-            takes_ = ", ".join(o.name for o in declared.settable()) or "no options"
-            raise ValueError(f"{filter_class.name} does not take the option {shown} (it takes: {takes_})")
-
-
 def options_for(
     filter_classes: Sequence[type], given: Mapping[str, Any], *, spelled: Mapping[str, str] | None = None
 ) -> dict[str, dict[str, Any]]:
@@ -392,7 +368,6 @@ __all__ = [
     "Gaussian",
     "Particles",
     "check_filter",
-    "check_options",
     "check_step_values",
     "missing_parts",
     "not_taken",

@@ -16,11 +16,10 @@ import numpy as np
 import pytest
 from conftest import recorded_walk
 
-from mazelab.filters import AuxiliaryParticleFilter, RegularizedParticleFilter, SIRParticleFilter
+from mazelab.filters import AuxiliaryParticleFilter, RegularizedParticleFilter
 from mazelab.grid_filter import GRID_RESOLUTION, GridBayesFilter
 from mazelab.lab import simulate
 from mazelab.model import LOG_UNDERFLOW, ROBOT_SPEED, log_likelihood
-from mazelab.registry import resolve_filter
 from mazelab.robot import Robot
 
 PARTICLE_FILTERS = ["sir", "apf", "rpf"]
@@ -111,28 +110,6 @@ def test_without_compass_noise_the_apfs_second_stage_weights_are_equal(paper_wor
     apf = AuxiliaryParticleFilter(paper_world, 0.3, 0.0, particles, np.random.default_rng(9))
     apf.step(0.4, 1.1)
     np.testing.assert_allclose(apf.weights, 1 / 500, rtol=1e-5)
-
-
-# -- names ------------------------------------------------------------------------------------------
-@pytest.mark.parametrize(
-    ("name", "cls"),
-    [
-        ("SIRParticleFilter", SIRParticleFilter),
-        ("sir", SIRParticleFilter),
-        ("SIR Particle Filter", SIRParticleFilter),
-        ("Auxiliary Particle Filter", AuxiliaryParticleFilter),
-        ("APF", AuxiliaryParticleFilter),
-        ("regularizedparticlefilter", RegularizedParticleFilter),
-        ("grid", GridBayesFilter),
-    ],
-)
-def test_filter_names(name, cls):
-    assert resolve_filter(name) is cls
-
-
-def test_unknown_filter_name_lists_the_valid_ones():
-    with pytest.raises(ValueError, match="unknown filter 'kalman'; choose from sir, apf, rpf, grid, ekf"):
-        resolve_filter("kalman")
 
 
 # -- against the exact grid filter, convergence, degenerate runs ---------------------------------------

@@ -23,6 +23,8 @@ from mazelab.cloud import ParticleFilter
 from mazelab.declaration import Option, number_in
 from mazelab.experiments import batch_runs
 from mazelab.experiments.study import MazeChoice, run_task, study_settings, study_tasks
+from mazelab.filters import AuxiliaryParticleFilter, RegularizedParticleFilter, SIRParticleFilter
+from mazelab.grid_filter import GridBayesFilter
 from mazelab.plugins import check_declared_defaults
 from mazelab.registry import SHIPPED, FilterEntry, filter_entry, register, resolve_filter, unregister
 from mazelab.run_axis import per_run
@@ -58,6 +60,23 @@ def test_every_declared_default_is_the_constructors(paper_world, entry):
 )
 def test_the_names_of_a_filter_resolve_to_its_entry(name):
     assert filter_entry(name) is SHIPPED[0]
+
+
+# -- names of the classes ------------------------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    ("name", "cls"),
+    [
+        ("SIRParticleFilter", SIRParticleFilter),
+        ("sir", SIRParticleFilter),
+        ("SIR Particle Filter", SIRParticleFilter),
+        ("Auxiliary Particle Filter", AuxiliaryParticleFilter),
+        ("APF", AuxiliaryParticleFilter),
+        ("regularizedparticlefilter", RegularizedParticleFilter),
+        ("grid", GridBayesFilter),
+    ],
+)
+def test_filter_names(name, cls):
+    assert resolve_filter(name) is cls
 
 
 def test_an_unknown_name_is_one_line_with_the_choices():
