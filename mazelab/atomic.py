@@ -77,11 +77,14 @@ def file_kind(mode: int) -> str:
     return "not a regular file"
 
 
-def output_target(path: str | Path, replace: bool) -> Path:
+def output_target(path: str | Path, replace: bool, follow_links: bool = True) -> Path:
     """The file a write to `path` creates or replaces: `path`, or a symlink's final target. Raises
     NotRegularFileError for a folder, device, pipe or socket (`replace` or not), and without `replace`
-    NameTakenError for an existing name (a symlink too, dangling or not)."""
+    NameTakenError for an existing name (a symlink too, dangling or not). With `follow_links` False
+    (a program's own working file) a symlink at the name is NotRegularFileError too, never followed."""
     path = Path(path)
+    if not follow_links and path.is_symlink():
+        raise NotRegularFileError(path, "a symlink")
     target = Path(os.path.realpath(path)) if path.is_symlink() else path
     try:
         mode = os.stat(target).st_mode
@@ -100,19 +103,21 @@ def output_target(path: str | Path, replace: bool) -> Path:
     return target
 
 
-def write_text_atomically(path: str | Path, text: str, *, replace: bool = True) -> Path:
+def write_text_atomically(path: str | Path, text: str, *, replace: bool = True, follow_links: bool = True) -> Path:
     """Write `text` to `path` whole or not at all: a temporary file in the same folder, then rename."""
-    return write_bytes_atomically(path, text.encode("utf-8"), replace=replace)
+    return write_bytes_atomically(path, text.encode("utf-8"), replace=replace, follow_links=follow_links)
 
 
-def write_bytes_atomically(path: str | Path, data: bytes, *, replace: bool = True) -> Path:
+def write_bytes_atomically(path: str | Path, data: bytes, *, replace: bool = True, follow_links: bool = True) -> Path:
     """Write `data` to `path` whole or not at all (see the module docstring); returns the path.
     `replace=False` never replaces an existing file (NameTakenError, a FileExistsError): a name is claimed
-    only once, across processes."""
+    only once, across processes. `follow_links=False` (a program's own working file, such as a study's
+    partial record) refuses a symlink at the name, and the rename replaces a link put there meanwhile
+    rather than writing through it."""
     path = Path(path)
     temporary = None
     try:
-        target = output_target(path, replace)  # --force onto a link: its target
+        target = output_target(path, replace, follow_links)  # --force onto a link: its target
         remove_stale_temporaries(target.parent)
         temporary = target.parent / temporary_name(target)
         mode = stat.S_IMODE(os.stat(target).st_mode) if target.exists() else None
@@ -128,7 +133,7 @@ def write_bytes_atomically(path: str | Path, data: bytes, *, replace: bool = Tru
         finally:
             os.close(handle)
         if replace:
-            output_target(path, replace)  # a device or pipe put there meanwhile is still never replaced
+            output_target(path, replace, follow_links)  # a device or pipe put there meanwhile is still never replaced
         move_into_place(temporary, target, replace)
         sync_folder(target.parent)
     except BaseException as error:

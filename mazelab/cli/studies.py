@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import os
 import signal
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,19 +31,32 @@ from mazelab.cli.options import (
     seed_option,
     visualization,
 )
+from mazelab.cli.outputs import check_one_file_each
 from mazelab.cli.provenance import command_line, resume_command
 from mazelab.experiments.dask_runner import DASK_TIMEOUT, close_client, connect
 from mazelab.experiments.executor import STOP_SIGNALS, default_workers, run_study
 from mazelab.experiments.plan import StudyPlan, plan_study
 from mazelab.experiments.plan import study_mazes as plan_mazes
-from mazelab.experiments.record import Recorder, differences, read_record, record_path
-from mazelab.experiments.resume import RESUME_IGNORES, missing_tasks, read_study_csv
-from mazelab.experiments.rowlog import RowLog, check_left_over, partial_path
+from mazelab.experiments.record import Recorder, differences, record_path
+from mazelab.experiments.resume import (
+    RESUME_IGNORES,
+    check_rows_of_study,
+    missing_tasks,
+    read_study_csv,
+    read_study_record,
+)
+from mazelab.experiments.rowlog import RowLog, check_left_over, check_partial_name, partial_path
 from mazelab.experiments.runs import parse_filters
 from mazelab.experiments.stats import CONFIDENCE_LEVEL
 from mazelab.experiments.study import MazeChoice, RunRecord, RunTask, StudyOutcome
 from mazelab.experiments.summary import study_table, summarise_study
-from mazelab.experiments.traces import check_trace_path, kept_traces, study_traces, write_traces
+from mazelab.experiments.traces import (
+    check_trace_path,
+    check_traces_of_study,
+    kept_traces,
+    study_traces,
+    write_traces,
+)
 from mazelab.mazes import DEFAULT_MAZE
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, RPF_THRESHOLD
 from mazelab.viz.style import DEFAULT_MAX_DRAWN
@@ -125,13 +139,17 @@ class StudyOutputs:
         cls, csv_path: Path | None, plot: Path | None, traces: Path | None, record: Path | None,
         rrd: Path | None, force: bool, resume: bool,
     ) -> StudyOutputs:  # fmt: skip
-        """Check the outputs (one line for a name that exists without --force, a folder, a device)."""
+        """Check the outputs (one line for a name that exists without --force, a folder, a device, a
+        symlink at a partial file's name, two outputs that are one file), before any work."""
         record_file = (
             record if record is not None else next((record_path(p) for p in (csv_path, plot, traces) if p), None)
         )
+        check_one_file_each(_named_outputs(csv_path, plot, traces, record, record_file, rrd))
+        if csv_path is not None:  # a stopped study's rows: named before its record
+            check_left_over(csv_path, force, adopt=resume)
+            if record_file is not None:
+                check_partial_name(partial_path(record_file))
         recorded = _check_resume(csv_path, record_file) if resume else None
-        if csv_path is not None and not resume:  # a stopped study's rows: named before its record
-            check_left_over(csv_path, force)
         check_outputs(None if resume else csv_path, plot, force or resume, rrd)  # --resume replaces its own outputs
         for path in (traces, record_file):
             if path is not None and not resume:
@@ -139,6 +157,19 @@ class StudyOutputs:
         if traces is not None:
             check_trace_path(traces)
         return cls(csv_path, plot, traces, record_file, recorded, force, resume)
+
+
+def _named_outputs(
+    csv_path: Path | None, plot: Path | None, traces: Path | None, record: Path | None, record_file: Path | None,
+    rrd: Path | None,
+) -> list[tuple[str, Path | None]]:  # fmt: skip
+    """The study's output files by what the user calls them, the partial files beside the CSV too."""
+    partials = [] if csv_path is None else [("--csv's partial file", partial_path(csv_path))]
+    if csv_path is not None and record_file is not None:
+        partials.append(("the record's partial file", partial_path(record_file)))
+    named = "--record" if record is not None else "the record"
+    others = [("--plot", plot), ("--traces", traces), (named, record_file), ("--rrd", rrd)]
+    return [("--csv", csv_path), *partials, *others]
 
 
 def parse_plan(
@@ -192,10 +223,14 @@ def open_session(
     """The runs to go, the row log, the cluster and the record; the study's header printed."""
     tasks, kept, recorded, csv_path = plan.tasks(), [], outputs.recorded, outputs.csv_path
     if recorded is not None and csv_path is not None:
-        tasks, kept = _resumed(plan, recorded, csv_path)
+        tasks, kept = _resumed(plan, recorded, csv_path, outputs.traces)
     tasks = _drawn_first(tasks, draw_run) if visualize else tasks
     replace = outputs.force or outputs.resume
-    log = RowLog(csv_path, replace=replace, adopt=outputs.resume) if csv_path is not None else None  # NAME.csv.partial
+    log = (  # NAME.csv.partial, and the record beside it while the study runs
+        RowLog(csv_path, replace=replace, adopt=outputs.resume, record=outputs.record_file)
+        if csv_path is not None
+        else None
+    )
     try:
         client = connect(dask) if dask is not None else None  # a bad address: one line and exit 2, before anything
     except BaseException:
@@ -214,8 +249,8 @@ def open_session(
         "study", command_line(), plan.parameters(), outputs=_outputs(csv_path, outputs.plot, outputs.traces),
         sessions=[*(recorded or {}).get("sessions", []), *([] if recorded is None else [_session(recorded)])],
     )  # fmt: skip
-    if outputs.record_file is not None:
-        recorder.write(outputs.record_file)  # now: an interrupted study keeps its parameters for --resume
+    if log is not None:  # now, beside the partial rows: an interrupted study keeps its parameters for --resume
+        log.write_record(recorder)  # (the record beside the CSV stays the old CSV's until the new CSV replaces it)
     if log is not None and kept:
         log.append(kept)
     return StudySession(plan, outputs, tasks, kept, workers, log, client, recorder)
@@ -263,7 +298,7 @@ def report_study(session: StudySession, outcome: StudyOutcome, kld: bool) -> Non
     typer.echo(f"{ran} runs in {seconds['duration_seconds']:.1f} s wall time")
     if outputs.csv_path is not None and log is not None:
         try:
-            log.finish(records)  # the whole CSV, in order; then the partial file goes
+            log.finish(records, session.recorder)  # the whole CSV, in order, its record; then the partial files go
         except OSError as error:
             log.close()
             typer.echo(f"error: {describe_write_error(error)}; {log.kept()}", err=True)
@@ -288,9 +323,12 @@ def report_stopped(session: StudySession, outcome: StudyOutcome, closing: dict[s
     if log is not None:
         log.close()
     _write_traces(outputs.traces, _in_order(outcome.records, session.plan), session.tasks, outputs.recorded is not None)
-    if outputs.record_file is not None:
+    if outputs.record_file is not None:  # with a CSV: beside the partial rows, the old CSV keeps its record
         session.recorder.finish("interrupted", **closing)
-        session.recorder.write(outputs.record_file)
+        if log is not None:
+            log.write_record(session.recorder)
+        else:
+            session.recorder.write(outputs.record_file)
     saved = f"; {log.kept()}; go on with: {resume_command()}" if log is not None else ""
     finished, total = closing["runs_finished"], closing["runs_in_study"]
     if outcome.lost is not None:  # a lost cluster or pool: one line, exit 1
@@ -328,26 +366,38 @@ def _session(recorded: dict[str, Any]) -> dict[str, Any]:
 
 
 def _check_resume(csv_path: Path | None, record_file: Path | None) -> dict[str, Any]:
-    """The record of the study to resume; one line if there is none."""
+    """The record of the study to resume: the one beside the partial rows a stopped study left
+    (NAME.record.json.partial), else the one beside the CSV; one line if there is none, or if it is
+    not a study's record (a list for its parameters, a root seed that is text, a pipe)."""
     if csv_path is None or record_file is None:
         raise UserError("--resume needs the study's --csv (its record lies beside it)")
-    if not csv_path.exists() and not partial_path(csv_path).exists():
+    if not os.path.lexists(csv_path) and not partial_path(csv_path).exists():
         raise UserError(f"--resume: {csv_path} does not exist (nothing to resume; leave out --resume)")
+    if _rows_file(csv_path) != csv_path and os.path.lexists(partial_path(record_file)):
+        record_file = partial_path(record_file)  # the record of the partial rows, not of the old CSV
     try:
-        return read_record(record_file)
+        return read_study_record(record_file)
     except ValueError as error:
         raise UserError(f"--resume: {error}") from None
 
 
-def _resumed(plan: StudyPlan, recorded: dict[str, Any], csv_path: Path) -> tuple[list[RunTask], list[RunRecord]]:
-    """The tasks still to run and the rows to keep, after checking the study against its record."""
+def _resumed(
+    plan: StudyPlan, recorded: dict[str, Any], csv_path: Path, traces: Path | None = None
+) -> tuple[list[RunTask], list[RunRecord]]:
+    """The tasks still to run and the rows to keep, after checking the study against its record,
+    and each kept row (and kept trace) against the plan: another study's rows are refused."""
     changed = differences(recorded["parameters"], plan.parameters(), ignore=RESUME_IGNORES)
     if changed:
         raise UserError(f"--resume: the study differs from its record ({changed[0]}); give the same parameters")
-    if plan.runs < recorded["parameters"].get("runs", 0):
+    if plan.runs < recorded["parameters"]["runs"]:
         raise UserError(f"--resume: --runs {plan.runs} is fewer than the study's {recorded['parameters']['runs']}")
+    rows_file, tasks = _rows_file(csv_path), plan.tasks()
     try:
-        return missing_tasks(plan.tasks(), read_study_csv(_rows_file(csv_path)))
+        records = read_study_csv(rows_file)
+        check_rows_of_study(tasks, records, rows_file)
+        if traces is not None:
+            check_traces_of_study(traces, tasks)
+        return missing_tasks(tasks, records)
     except ValueError as error:
         raise UserError(str(error)) from None
 
@@ -356,7 +406,7 @@ def _rows_file(csv_path: Path | None) -> Path | None:
     """Where a resumed study's finished rows are: the partial file a stopped study left, else the CSV."""
     if csv_path is None:
         return None
-    return partial_path(csv_path) if partial_path(csv_path).exists() else csv_path
+    return partial_path(csv_path) if os.path.lexists(partial_path(csv_path)) else csv_path
 
 
 def describe_write_error(error: OSError) -> str:
