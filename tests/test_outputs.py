@@ -34,6 +34,7 @@ def command(tmp_path: Path, *arguments: str) -> subprocess.CompletedProcess:
         ([*STUDY, "--csv", "s.csv", "--plot", "s.record.json"], "--plot and the record are one file (s.record.json)"),
         ([*STUDY, "--csv", "s.csv", "--traces", "s.record.json.partial"], "the record's partial file and --traces"),
         ([*STUDY[:-1], "--traces", "t.csv", "--rrd", "t.csv"], "--traces and --rrd are one file (t.csv)"),
+        ([*STUDY, "--csv", "s.csv", "--traces", "t.csv", "--plot", "t.csv.partial"], "--traces's partial file and"),
         ([*ACCURACY, "--csv", "a.csv", "--record", "a.csv"], "--csv and --record are one file (a.csv)"),
     ],
 )

@@ -199,3 +199,40 @@ def test_a_finished_study_replaces_the_record_with_its_csv_and_leaves_no_partial
     assert record["parameters"]["root_seed"] == 3 and record["runs_finished"] == 6
     assert len(rows(tmp_path / "s.csv")) == 12
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s.csv", "s.record.json"]
+
+
+def traces_without_timing(path: Path) -> list[dict[str, str]]:
+    return [{k: v for k, v in row.items() if k != "step_ms"} for row in rows(path)]
+
+
+def resume(tmp_path: Path, *flags: str) -> subprocess.CompletedProcess:
+    command = [sys.executable, str(ROOT / "main.py"), *STUDY, "--csv", str(tmp_path / "s.csv"), *flags, "--resume"]
+    return subprocess.run(command, capture_output=True, text=True, timeout=120)
+
+
+@pytest.mark.parametrize("stop", ["kill -9", "Ctrl-C"])
+def test_the_old_traces_stay_beside_the_old_csv_and_a_resume_gives_whole_traces(tmp_path, stop):
+    """--traces under --force: a killed study writes no traces, a stopped one writes them beside its
+    partial rows (t.csv.partial); the old t.csv stays either way. The resume keeps a run only with its
+    traces (the killed study's runs run again) and ends with the traces of an uninterrupted study."""
+    old_study(tmp_path)
+    (tmp_path / "t.csv").write_text("old traces\n")
+    process = blocked_study(tmp_path, "--force", "--traces", str(tmp_path / "t.csv"))
+    if stop == "kill -9":
+        process.kill()
+        process.wait()
+    else:
+        process.send_signal(signal.SIGINT)
+        process.communicate(timeout=60)
+        assert {r["run"] for r in rows(tmp_path / "t.csv.partial")} == {"1", "2"}
+    assert (tmp_path / "t.csv").read_text() == "old traces\n"
+    done = resume(tmp_path, "--traces", str(tmp_path / "t.csv"))
+    assert done.returncode == 0, done.stderr
+    kept = "0 rows kept" if stop == "kill -9" else "4 rows kept"
+    assert kept in done.stdout
+    (tmp_path / "whole").mkdir()
+    whole = tmp_path / "whole" / "s.csv"
+    assert main([*STUDY, "--seed", "2", "--csv", str(whole), "--traces", str(tmp_path / "whole" / "t.csv")]) == 0
+    assert traces_without_timing(tmp_path / "t.csv") == traces_without_timing(tmp_path / "whole" / "t.csv")
+    assert [untimed(r) for r in rows(tmp_path / "s.csv")] == [untimed(r) for r in rows(whole)]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.csv", "s.record.json", "t.csv", "whole"]

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 from dataclasses import dataclass
@@ -133,6 +134,7 @@ class StudyOutputs:
     recorded: dict[str, Any] | None
     force: bool
     resume: bool
+    traces_kept_from: Path | None = None  # --resume --traces: the earlier session's traces, beside its rows
 
     @classmethod
     def parse(
@@ -147,8 +149,9 @@ class StudyOutputs:
         check_one_file_each(_named_outputs(csv_path, plot, traces, record, record_file, rrd))
         if csv_path is not None:  # a stopped study's rows: named before its record
             check_left_over(csv_path, force, adopt=resume)
-            if record_file is not None:
-                check_partial_name(partial_path(record_file))
+            for path in (record_file, traces):
+                if path is not None:
+                    check_partial_name(partial_path(path))
         recorded = _check_resume(csv_path, record_file) if resume else None
         check_outputs(None if resume else csv_path, plot, force or resume, rrd)  # --resume replaces its own outputs
         for path in (traces, record_file):
@@ -156,7 +159,10 @@ class StudyOutputs:
                 check_output_path(path, force)
         if traces is not None:
             check_trace_path(traces)
-        return cls(csv_path, plot, traces, record_file, recorded, force, resume)
+        kept_from = None
+        if resume and traces is not None and csv_path is not None:  # the traces that go with the rows resumed
+            kept_from = partial_path(traces) if _rows_file(csv_path) != csv_path else traces
+        return cls(csv_path, plot, traces, record_file, recorded, force, resume, kept_from)
 
 
 def _named_outputs(
@@ -167,6 +173,8 @@ def _named_outputs(
     partials = [] if csv_path is None else [("--csv's partial file", partial_path(csv_path))]
     if csv_path is not None and record_file is not None:
         partials.append(("the record's partial file", partial_path(record_file)))
+    if csv_path is not None and traces is not None:
+        partials.append(("--traces's partial file", partial_path(traces)))
     named = "--record" if record is not None else "the record"
     others = [("--plot", plot), ("--traces", traces), (named, record_file), ("--rrd", rrd)]
     return [("--csv", csv_path), *partials, *others]
@@ -223,7 +231,7 @@ def open_session(
     """The runs to go, the row log, the cluster and the record; the study's header printed."""
     tasks, kept, recorded, csv_path = plan.tasks(), [], outputs.recorded, outputs.csv_path
     if recorded is not None and csv_path is not None:
-        tasks, kept = _resumed(plan, recorded, csv_path, outputs.traces)
+        tasks, kept = _resumed(plan, recorded, csv_path, outputs.traces_kept_from)
     tasks = _drawn_first(tasks, draw_run) if visualize else tasks
     replace = outputs.force or outputs.resume
     log = (  # NAME.csv.partial, and the record beside it while the study runs
@@ -304,7 +312,7 @@ def report_study(session: StudySession, outcome: StudyOutcome, kld: bool) -> Non
             typer.echo(f"error: {describe_write_error(error)}; {log.kept()}", err=True)
             raise typer.Exit(1) from None
         typer.echo(f"one row per run and filter written to {outputs.csv_path}")
-    if _write_traces(outputs.traces, _in_order(outcome.records, plan), session.tasks, outputs.recorded is not None):
+    if _write_traces(outputs.traces, _in_order(outcome.records, plan), session.tasks, outputs.traces_kept_from):
         typer.echo(f"per-step traces written to {outputs.traces}")
     if outputs.plot is not None and summaries:
         _plot(plan, summaries, outputs.plot, outputs.force)
@@ -322,7 +330,8 @@ def report_stopped(session: StudySession, outcome: StudyOutcome, closing: dict[s
     outputs, log = session.outputs, session.log
     if log is not None:
         log.close()
-    _write_traces(outputs.traces, _in_order(outcome.records, session.plan), session.tasks, outputs.recorded is not None)
+    traces = _in_order(outcome.records, session.plan)  # with a CSV: beside the partial rows, as the record
+    _write_traces(outputs.traces, traces, session.tasks, outputs.traces_kept_from, stopped=log is not None)
     if outputs.record_file is not None:  # with a CSV: beside the partial rows, the old CSV keeps its record
         session.recorder.finish("interrupted", **closing)
         if log is not None:
@@ -382,10 +391,12 @@ def _check_resume(csv_path: Path | None, record_file: Path | None) -> dict[str, 
 
 
 def _resumed(
-    plan: StudyPlan, recorded: dict[str, Any], csv_path: Path, traces: Path | None = None
+    plan: StudyPlan, recorded: dict[str, Any], csv_path: Path, traces_kept_from: Path | None = None
 ) -> tuple[list[RunTask], list[RunRecord]]:
     """The tasks still to run and the rows to keep, after checking the study against its record,
-    and each kept row (and kept trace) against the plan: another study's rows are refused."""
+    and each kept row (and kept trace) against the plan: another study's rows are refused. With
+    --traces, a run whose traces are not beside its rows (a study killed with kill -9 writes none; the
+    traces beside an older CSV are that CSV's) runs again."""
     changed = differences(recorded["parameters"], plan.parameters(), ignore=RESUME_IGNORES)
     if changed:
         raise UserError(f"--resume: the study differs from its record ({changed[0]}); give the same parameters")
@@ -395,8 +406,9 @@ def _resumed(
     try:
         records = read_study_csv(rows_file)
         check_rows_of_study(tasks, records, rows_file)
-        if traces is not None:
-            check_traces_of_study(traces, tasks)
+        if traces_kept_from is not None:  # a run is kept with its traces only: one without them runs again
+            traced = check_traces_of_study(traces_kept_from, tasks)
+            records = [r for r in records if (r.setting, r.run) in traced]
         return missing_tasks(tasks, records)
     except ValueError as error:
         raise UserError(str(error)) from None
@@ -429,12 +441,20 @@ def _in_order(records: list[RunRecord], plan: StudyPlan) -> list[RunRecord]:
     return sorted(records, key=lambda r: (r.setting, r.run, order[r.filter]))
 
 
-def _write_traces(path: Path | None, records: list[RunRecord], tasks: list[RunTask], resumed: bool) -> bool:
-    """Write the traces of this session's runs (after the kept ones of an earlier session)."""
+def _write_traces(
+    path: Path | None, records: list[RunRecord], tasks: list[RunTask], kept_from: Path | None, stopped: bool = False
+) -> bool:
+    """Write the traces of this session's runs, after the kept ones of an earlier session (read from
+    `kept_from`, --resume). A stopped study with a CSV writes them beside its partial rows
+    (TRACES.partial): the old traces stay beside the old CSV; a finished one replaces the traces
+    and removes the partial traces."""
     if path is None:
         return False
-    kept = kept_traces(path, {(t.setting_index, t.run) for t in tasks}) if resumed else None
-    write_traces(path, study_traces(records), kept)
+    kept = kept_traces(kept_from, {(t.setting_index, t.run) for t in tasks}) if kept_from is not None else None
+    write_traces(partial_path(path) if stopped else path, study_traces(records), kept, follow_links=not stopped)
+    if not stopped:
+        with contextlib.suppress(OSError):
+            partial_path(path).unlink()  # the new whole traces replace what a stopped session left
     return True
 
 

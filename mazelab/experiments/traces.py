@@ -98,9 +98,12 @@ def trace_header() -> str:
     return ",".join(TRACE_COLUMNS) + "\n"
 
 
-def write_traces(path: Path, blocks: Sequence[dict[str, Any]], kept: str | Any = None) -> None:
+def write_traces(
+    path: Path, blocks: Sequence[dict[str, Any]], kept: str | Any = None, *, follow_links: bool = True
+) -> None:
     """Write the traces to `path`, whole (mazelab.atomic): CSV, or Parquet for a .parquet path.
-    `kept`: rows of an earlier session to keep in front (CSV text without header, or a pyarrow Table)."""
+    `kept`: rows of an earlier session to keep in front (CSV text without header, or a pyarrow Table);
+    `follow_links=False` for a stopped study's partial traces (never written through a link)."""
     if path.suffix.lower() == ".parquet":
         import pyarrow as pa
         import pyarrow.parquet as pq
@@ -112,17 +115,19 @@ def write_traces(path: Path, blocks: Sequence[dict[str, Any]], kept: str | Any =
             table = pa.concat_tables([kept, table.cast(kept.schema)])
         buffer = io.BytesIO()
         pq.write_table(table, buffer)
-        write_bytes_atomically(path, buffer.getvalue())
+        write_bytes_atomically(path, buffer.getvalue(), follow_links=follow_links)
         return
-    write_text_atomically(path, trace_header() + (kept or "") + trace_csv_rows(blocks))
+    write_text_atomically(path, trace_header() + (kept or "") + trace_csv_rows(blocks), follow_links=follow_links)
 
 
-def check_traces_of_study(path: Path, tasks: Sequence[RunTask]) -> None:
-    """Refuse (a ValueError of one line naming the first) an earlier session's trace rows (--resume)
-    that are not this study's: a (setting, run) it does not have, another seed, a filter it does not
-    run there, a step beyond its steps. Nothing to check if the file is not there."""
+def check_traces_of_study(path: Path, tasks: Sequence[RunTask]) -> set[tuple[int, int]]:
+    """The (setting, run)s an earlier session's trace file (--resume) holds, after refusing (a
+    ValueError of one line naming the first) rows that are not this study's: a (setting, run) it does
+    not have, another seed, a filter it does not run there, a step beyond its steps. An empty set if the
+    file is not there."""
+    traced: set[tuple[int, int]] = set()
     if not os.path.lexists(path):
-        return
+        return traced
     planned = {(t.setting_index, t.run): t for t in tasks}
     for number, (setting, run, seed, name, step) in enumerate(_trace_keys(path), start=2):
         task = planned.get((setting, run))
@@ -135,11 +140,13 @@ def check_traces_of_study(path: Path, tasks: Sequence[RunTask]) -> None:
         elif not 1 <= step <= task.steps:
             why = f"its step {step} is not one of this study's {task.steps}"
         else:
+            traced.add((setting, run))
             continue
         raise ValueError(
             f"--resume: {path} row {number} is another study's ({why}); traces of another study are never "
             "kept: move that file away, or give another --traces"
         )
+    return traced
 
 
 def _trace_keys(path: Path) -> Iterable[tuple[int | None, int, int, str, int]]:
