@@ -133,3 +133,15 @@ def test_a_full_disk_leaves_the_students_filter_whole(tmp_path):
     assert done.stdout.splitlines()[-1] == "1 True ['fill', 'my_filter.py']", done.stdout + done.stderr
     (line,) = done.stderr.splitlines()
     assert line.startswith("error: cannot write ") and line.endswith(": No space left on device")
+
+
+@pytest.mark.skipif(not hasattr(os, "geteuid") or os.geteuid() == 0, reason="root may write anywhere")
+def test_a_read_only_folder_is_refused_up_front(tmp_path):
+    folder = tmp_path / "ex"
+    folder.mkdir()
+    folder.chmod(0o555)
+    try:
+        done = exercise_new(folder)
+    finally:
+        folder.chmod(0o755)
+    assert done.returncode == 2 and "is not writable" in one_error_line(done)

@@ -20,6 +20,11 @@ from mazelab.cli.app import main
 from mazelab.experiments.resume import PLANNED_COLUMNS, foreign_row, read_study_csv
 from mazelab.experiments.study import RunRecord
 
+try:
+    import resource
+except ImportError:  # not on Windows
+    resource = None
+
 STUDY = ["study", "--maze", "paper_5x5", "--runs", "3", "--steps", "5", "--particles", "30", "--filters", "sir,apf"]
 STUDY += ["--workers", "1", "--no-viz"]
 
@@ -170,10 +175,10 @@ def test_a_record_nested_too_deep_or_with_a_huge_number_is_one_line(tmp_path, fi
         assert str(record) in line and expected in line
 
 
-def resume_process(table: Path) -> subprocess.CompletedProcess:
+def resume_process(table: Path, preexec_fn=None) -> subprocess.CompletedProcess:
     """`main.py study ... --resume` as its own process: a pipe that it opened would hang it (timeout)."""
     command = [sys.executable, str(ROOT / "main.py"), *STUDY, "--csv", str(table), "--resume"]
-    return subprocess.run(command, capture_output=True, text=True, timeout=60)
+    return subprocess.run(command, capture_output=True, text=True, timeout=60, preexec_fn=preexec_fn)
 
 
 @pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no named pipes here")
@@ -215,3 +220,22 @@ def test_utf16_and_nul_bytes_are_named_with_their_file(tmp_path, finished, capsy
     finished.write_text(text.replace("sir", "s\0r", 1).replace("SIRParticleFilter", "SIR\0", 1))
     assert main([*STUDY, "--csv", str(finished), "--resume"]) == 2
     assert f"--resume: {finished}" in one_error(capsys)
+
+
+@pytest.mark.skipif(resource is None or not hasattr(resource, "RLIMIT_AS"), reason="no address-space limit here")
+def test_a_csv_too_large_to_read_back_is_refused_unread(tmp_path, finished):
+    """A CSV of 2 GB (sparse: no disk space) under `ulimit -v` 3 GB: refused in one line before it is read,
+    not a MemoryError once it is."""
+    with finished.open("r+b") as handle:
+        try:
+            handle.truncate(2 * 10**9)
+        except OSError as error:
+            pytest.skip(f"no sparse file of 2 GB here: {error}")
+
+    def limited() -> None:
+        resource.setrlimit(resource.RLIMIT_AS, (3 * 2**30, resource.getrlimit(resource.RLIMIT_AS)[1]))
+
+    done = resume_process(finished, preexec_fn=limited)
+    assert done.returncode == 2, done.stderr
+    (line,) = done.stderr.splitlines()
+    assert f"reading {finished} (2000000000 bytes) needs about " in line and "memory is available" in line

@@ -107,6 +107,8 @@ def write_exercise(folder: Path, force: bool = False) -> list[Path]:
     paths = [folder / FILTER_FILE, folder / README_FILE]
     if os.path.lexists(folder) and not folder.is_dir():
         raise ValueError(f"{folder} is not a folder (give a folder to write the exercise into)")
+    if folder.is_dir() and not os.access(folder, os.W_OK):
+        raise ValueError(f"{folder} is not writable: cannot write the exercise there")
     for path in paths:
         check_exercise_file(path, force)
     try:

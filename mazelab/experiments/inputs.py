@@ -10,8 +10,10 @@ import stat
 from pathlib import Path
 
 from mazelab.atomic import file_kind
+from mazelab.limits import check_memory
 
 READ_CHUNK = 1 << 20  # bytes per read
+MEMORY_PER_BYTE = 12  # what reading a study's file takes per byte of it: the text, its lines, the rows (generous)
 
 
 def read_regular_bytes(path: str | Path, what: str, *, follow_links: bool = True) -> bytes:
@@ -34,9 +36,10 @@ def read_regular_bytes(path: str | Path, what: str, *, follow_links: bool = True
             raise ValueError(f"{path}: it is {kind}, not a regular file; {what} is a regular file") from None
         raise ValueError(f"{path}: cannot read it ({error.strerror or error})") from None
     try:
-        mode = os.fstat(handle).st_mode
-        if not stat.S_ISREG(mode):
-            raise ValueError(f"{path}: it is {file_kind(mode)}, not a regular file; {what} is a regular file")
+        status = os.fstat(handle)
+        if not stat.S_ISREG(status.st_mode):
+            raise ValueError(f"{path}: it is {file_kind(status.st_mode)}, not a regular file; {what} is a regular file")
+        check_memory(f"reading {path} ({status.st_size} bytes)", status.st_size * MEMORY_PER_BYTE)
         chunks = []
         while chunk := os.read(handle, READ_CHUNK):
             chunks.append(chunk)

@@ -54,7 +54,8 @@ def _parse(text: str, kind: Any) -> Any:
                 continue
         elif option is str:
             return text
-    raise ValueError(f"{text!r} is not a {kind}")
+    shown = text if len(text) <= 40 else f"{text[:40]}..."
+    raise ValueError(f"{shown!r} is not a {kind}")
 
 
 def read_study_csv(path: str | Path) -> list[RunRecord]:
