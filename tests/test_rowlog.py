@@ -8,6 +8,7 @@ signals, real links."""
 from __future__ import annotations
 
 import csv
+import importlib.util
 import io
 import json
 import os
@@ -236,3 +237,18 @@ def test_the_old_traces_stay_beside_the_old_csv_and_a_resume_gives_whole_traces(
     assert traces_without_timing(tmp_path / "t.csv") == traces_without_timing(tmp_path / "whole" / "t.csv")
     assert [untimed(r) for r in rows(tmp_path / "s.csv")] == [untimed(r) for r in rows(whole)]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s.csv", "s.record.json", "t.csv", "whole"]
+
+
+@pytest.mark.skipif(importlib.util.find_spec("distributed") is None, reason="needs dask.distributed")
+def test_a_resume_that_cannot_start_keeps_the_stopped_studys_rows(tmp_path):
+    """--resume from a stopped study's partial file with a --dask address that does not answer: refused
+    (exit 2) after the partial file was opened, and its rows are all still there."""
+    process = blocked_study(tmp_path)
+    process.send_signal(signal.SIGINT)
+    process.communicate(timeout=60)
+    before = rows(tmp_path / "s.csv.partial")
+    assert {r["run"] for r in before} == {"1", "2"}
+    done = resume(tmp_path, "--dask", "tcp://127.0.0.1:1")
+    assert done.returncode == 2 and "cannot reach the Dask scheduler" in done.stderr
+    assert rows(tmp_path / "s.csv.partial") == before
+    assert resume(tmp_path).returncode == 0 and len(rows(tmp_path / "s.csv")) == 12

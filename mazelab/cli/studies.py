@@ -234,8 +234,8 @@ def open_session(
         tasks, kept = _resumed(plan, recorded, csv_path, outputs.traces_kept_from)
     tasks = _drawn_first(tasks, draw_run) if visualize else tasks
     replace = outputs.force or outputs.resume
-    log = (  # NAME.csv.partial, and the record beside it while the study runs
-        RowLog(csv_path, replace=replace, adopt=outputs.resume, record=outputs.record_file)
+    log = (  # NAME.csv.partial (the kept rows in it at once), and the record beside it while the study runs
+        RowLog(csv_path, replace=replace, adopt=outputs.resume, record=outputs.record_file, kept=kept)
         if csv_path is not None
         else None
     )
@@ -259,8 +259,6 @@ def open_session(
     )  # fmt: skip
     if log is not None:  # now, beside the partial rows: an interrupted study keeps its parameters for --resume
         log.write_record(recorder)  # (the record beside the CSV stays the old CSV's until the new CSV replaces it)
-    if log is not None and kept:
-        log.append(kept)
     return StudySession(plan, outputs, tasks, kept, workers, log, client, recorder)
 
 

@@ -26,7 +26,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from mazelab.atomic import file_kind, output_target, write_all, write_text_atomically
+from mazelab.atomic import file_kind, output_target, temporary_name, write_all, write_text_atomically
 from mazelab.experiments.study import RunRecord
 from mazelab.experiments.summary import CSV_COLUMNS, study_csv
 from mazelab.experiments.tables import csv_cell
@@ -129,13 +129,23 @@ class RowLog:
     goes on, and `finish` still tries to write the whole CSV from the rows in memory.
 
     Raises PartialFileError (a ValueError: one line) when another study writes the same partial file,
-    or when one is left from a stopped study and `replace` is False; `note` says when one was replaced."""
+    or when one is left from a stopped study and `replace` is False; `note` says when one was replaced.
+
+    `kept` (--resume): the rows kept from an earlier session, written at once after the header. A
+    partial file that a stopped session left (`adopt`) is replaced whole by the header and the kept
+    rows (a new file renamed over it), so that no moment leaves the kept rows only in memory."""
 
     def __init__(
-        self, path: str | Path, *, replace: bool = False, adopt: bool = False, record: str | Path | None = None
+        self,
+        path: str | Path,
+        *,
+        replace: bool = False,
+        adopt: bool = False,
+        record: str | Path | None = None,
+        kept: Sequence[RunRecord] = (),
     ):
         self.path = Path(path)
-        self.adopt = adopt  # --resume: a leftover partial file is this study's own (its kept rows are re-appended)
+        self.adopt = adopt  # --resume: a leftover partial file is this study's own (rewritten with the kept rows)
         self.partial = partial_path(self.path)
         self.record = None if record is None else Path(record)  # the study's record beside the CSV
         self.record_partial = None if record is None else partial_path(record)  # ... beside the partial rows
@@ -147,8 +157,15 @@ class RowLog:
         self._size = 0  # bytes of whole rows in the partial file
         output_target(self.path, replace)  # a device, pipe or folder; an existing CSV without --force
         self._handle: int | None = self._open_partial()
+        text = rows_text(kept, header=True)
+        if self._adopted:
+            try:
+                self._handle = self._rewrite(self._handle, text)
+            except OSError as error:  # the partial file stays as the stopped session left it
+                self.error = error
+            return
         try:
-            self._write(rows_text([], header=True))
+            self._write(text)
         except OSError as error:
             self._fail(error)
 
@@ -163,14 +180,41 @@ class RowLog:
         if not _lock(handle):
             os.close(handle)
             raise PartialFileError(_busy(self.partial))
-        if left:
-            if not (self.replace or self.adopt):
+        self._adopted = left and self.adopt
+        if left and not self.adopt:
+            if not self.replace:
                 os.close(handle)
                 raise PartialFileError(_left_over(self.partial))
             os.ftruncate(handle, 0)
-            if not self.adopt:
-                self.note = f"discarded the rows of an earlier stopped study in {self.partial} (--force)"
+            self.note = f"discarded the rows of an earlier stopped study in {self.partial} (--force)"
         return handle
+
+    def _rewrite(self, old: int, text: str) -> int:
+        """Replace the adopted partial file (locked by `old`) by a new one holding `text`, locked before
+        it takes the name; returns the new one's handle. On an error the old file stays whole and is
+        released (raised; no more rows are appended)."""
+        temporary = self.partial.parent / temporary_name(self.partial)
+        try:
+            new = os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL | _NOFOLLOW, 0o666)
+        except OSError:
+            os.close(old)
+            self._handle = None
+            raise
+        try:
+            _lock(new)
+            write_all(new, text.encode("utf-8"))
+            os.fsync(new)
+            os.replace(temporary, self.partial)
+        except OSError:
+            os.close(new)
+            with contextlib.suppress(OSError):
+                temporary.unlink()
+            os.close(old)
+            self._handle = None
+            raise
+        os.close(old)
+        self._size = len(text.encode("utf-8"))
+        return new
 
     def _open_left_over(self) -> int:
         """The partial file an earlier study left, opened without following a link and checked again
