@@ -258,7 +258,11 @@ class RowLog:
     def finish(self, records: Sequence[RunRecord], recorder: Any = None) -> None:
         """Write the whole CSV (old file or new whole one) from `records`, right after it the record
         beside it (with `recorder`), then remove the partial files; on a write error (raised) the
-        partial files stay, named by `kept` (--resume goes on from them)."""
+        partial files stay, named by `kept` (--resume goes on from them), the partial record updated
+        (best effort) to the finished session's."""
+        if recorder is not None:
+            with contextlib.suppress(OSError, PartialFileError):
+                self.write_record(recorder)
         write_text_atomically(self.path, study_csv(records), replace=self.replace)
         if recorder is not None and self.record is not None:
             recorder.write(self.record)
