@@ -1,12 +1,14 @@
 """Files written whole or not at all: a temporary file in the same folder, then a rename.
 
 Every write of this program goes through here (scenarios, CSV, figures, recordings, mazes):
-- the temporary name holds the writer's pid and a random part (`.NAME.PID-RANDOM.tmp`, NAME cut so
-  the whole stays within the folder's name limit), so concurrent writers never share one, and a
-  temporary whose writer is gone (killed mid-write) is removed by the next write to that folder;
-- only regular files are ever replaced: a folder, device, pipe or socket at the name is refused
-  (NotRegularFileError), `replace` or not; a symlink to a regular file is written through to its target,
-  a dangling one only with `replace`;
+- the temporary name holds the writer's host, pid and a random part (`.NAME.HOST.PID-RANDOM.tmp`, NAME
+  cut so the whole stays within the folder's name limit), so concurrent writers never share one, and a
+  temporary whose writer is gone (killed mid-write) is removed by the next write to that folder from the
+  same host: on a folder shared between machines (NFS) a pid says nothing about another host's
+  processes, so another host's temporaries (and those without a host, of older versions) are kept;
+- only regular files are ever replaced: a folder, device, pipe, socket or symlink loop at the name is
+  refused (NotRegularFileError), `replace` or not; a symlink to a regular file is written through to its
+  target, a dangling one only with `replace`;
 - without `replace` the final name is created exclusively (a hard link of the finished temporary
   onto it, which fails atomically if the name exists): of concurrent writers exactly one wins, the
   others get NameTakenError; with `replace` the last writer wins, and a writer whose file another process
@@ -20,13 +22,16 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import hashlib
 import os
 import re
 import secrets
+import socket
 import stat
 from pathlib import Path
 
-TEMPORARY_PATTERN = re.compile(r"^\..*\.(\d+)-[0-9a-f]{8}\.tmp$")  # .NAME.PID-RANDOM.tmp
+TEMPORARY_PATTERN = re.compile(r"^\..*\.([A-Za-z0-9_-]+)\.(\d+)-[0-9a-f]{8}\.tmp$")  # .NAME.HOST.PID-RANDOM.tmp
+HOST_TAG_LENGTH = 40  # characters of the host name a temporary's name keeps (a hash of the rest joins them)
 DEFAULT_NAME_MAX = 255  # bytes in one file name on the usual file systems
 
 
@@ -72,11 +77,14 @@ def file_kind(mode: int) -> str:
     return "not a regular file"
 
 
-def output_target(path: str | Path, replace: bool) -> Path:
+def output_target(path: str | Path, replace: bool, follow_links: bool = True) -> Path:
     """The file a write to `path` creates or replaces: `path`, or a symlink's final target. Raises
     NotRegularFileError for a folder, device, pipe or socket (`replace` or not), and without `replace`
-    NameTakenError for an existing name (a symlink too, dangling or not)."""
+    NameTakenError for an existing name (a symlink too, dangling or not). With `follow_links` False
+    (a program's own working file) a symlink at the name is NotRegularFileError too, never followed."""
     path = Path(path)
+    if not follow_links and path.is_symlink():
+        raise NotRegularFileError(path, "a symlink")
     target = Path(os.path.realpath(path)) if path.is_symlink() else path
     try:
         mode = os.stat(target).st_mode
@@ -84,6 +92,10 @@ def output_target(path: str | Path, replace: bool) -> Path:
         if target is not path and not replace:
             raise NameTakenError(path, "it is a symlink to a missing file") from None
         return target
+    except OSError as error:
+        if error.errno == errno.ELOOP:  # a link to itself, or a chain that comes back
+            raise NotRegularFileError(path, "a symlink loop") from None
+        raise
     if not stat.S_ISREG(mode):
         raise NotRegularFileError(path, file_kind(mode))
     if not replace:
@@ -91,19 +103,21 @@ def output_target(path: str | Path, replace: bool) -> Path:
     return target
 
 
-def write_text_atomically(path: str | Path, text: str, *, replace: bool = True) -> Path:
+def write_text_atomically(path: str | Path, text: str, *, replace: bool = True, follow_links: bool = True) -> Path:
     """Write `text` to `path` whole or not at all: a temporary file in the same folder, then rename."""
-    return write_bytes_atomically(path, text.encode("utf-8"), replace=replace)
+    return write_bytes_atomically(path, text.encode("utf-8"), replace=replace, follow_links=follow_links)
 
 
-def write_bytes_atomically(path: str | Path, data: bytes, *, replace: bool = True) -> Path:
+def write_bytes_atomically(path: str | Path, data: bytes, *, replace: bool = True, follow_links: bool = True) -> Path:
     """Write `data` to `path` whole or not at all (see the module docstring); returns the path.
     `replace=False` never replaces an existing file (NameTakenError, a FileExistsError): a name is claimed
-    only once, across processes."""
+    only once, across processes. `follow_links=False` (a program's own working file, such as a study's
+    partial record) refuses a symlink at the name, and the rename replaces a link put there meanwhile
+    rather than writing through it."""
     path = Path(path)
     temporary = None
     try:
-        target = output_target(path, replace)  # --force onto a link: its target
+        target = output_target(path, replace, follow_links)  # --force onto a link: its target
         remove_stale_temporaries(target.parent)
         temporary = target.parent / temporary_name(target)
         mode = stat.S_IMODE(os.stat(target).st_mode) if target.exists() else None
@@ -119,7 +133,7 @@ def write_bytes_atomically(path: str | Path, data: bytes, *, replace: bool = Tru
         finally:
             os.close(handle)
         if replace:
-            output_target(path, replace)  # a device or pipe put there meanwhile is still never replaced
+            output_target(path, replace, follow_links)  # a device or pipe put there meanwhile is still never replaced
         move_into_place(temporary, target, replace)
         sync_folder(target.parent)
     except BaseException as error:
@@ -185,11 +199,23 @@ def move_into_place(temporary: Path, target: Path, replace: bool) -> None:
 
 
 def temporary_name(target: Path) -> str:
-    """`.NAME.PID-RANDOM.tmp` for `target`, NAME cut so the whole fits the folder's name limit."""
-    suffix = f".{os.getpid()}-{secrets.token_hex(4)}.tmp"
+    """`.NAME.HOST.PID-RANDOM.tmp` for `target`, NAME cut so the whole fits the folder's name limit."""
+    suffix = f".{host_tag()}.{os.getpid()}-{secrets.token_hex(4)}.tmp"
     room = name_max(target.parent) - len(suffix.encode()) - 1
     name = target.name.encode()[: max(room, 1)].decode(errors="ignore")
     return f".{name}{suffix}"
+
+
+def host_tag(host: str | None = None) -> str:
+    """This host's name as a temporary's name holds it: letters, digits, '-' and '_' only (a dot
+    would split the name), at most HOST_TAG_LENGTH characters; a name that had to change gets a
+    short hash of the whole, so that two hosts never share a tag."""
+    host = socket.gethostname() if host is None else host
+    tag = re.sub(r"[^A-Za-z0-9-]", "_", host)
+    if tag != host or len(tag) > HOST_TAG_LENGTH or not tag:
+        digest = hashlib.sha256(host.encode("utf-8", "surrogateescape")).hexdigest()[:8]
+        tag = f"{tag[: HOST_TAG_LENGTH - 9]}_{digest}"
+    return tag
 
 
 def name_max(folder: Path) -> int:
@@ -201,15 +227,17 @@ def name_max(folder: Path) -> int:
 
 
 def remove_stale_temporaries(folder: Path) -> list[Path]:
-    """Remove this program's temporaries in `folder` whose writing process is gone; the removed ones."""
+    """Remove this program's temporaries in `folder` written on this host by a process that is gone;
+    the removed ones. Another host's are kept: its writer may be alive there (a shared folder)."""
     removed = []
     try:
         entries = list(os.scandir(folder))
     except OSError:
         return removed
+    here = host_tag()
     for entry in entries:
         match = TEMPORARY_PATTERN.match(entry.name)
-        if match and not process_alive(int(match.group(1))):
+        if match and match.group(1) == here and not process_alive(int(match.group(2))):
             try:
                 os.unlink(entry.path)
                 removed.append(Path(entry.path))
@@ -250,6 +278,7 @@ __all__ = [
     "ReplacedMeanwhileError",
     "WriteError",
     "file_kind",
+    "host_tag",
     "move_into_place",
     "output_target",
     "process_alive",

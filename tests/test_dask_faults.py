@@ -11,6 +11,7 @@ import signal
 from pathlib import Path
 
 import pytest
+from test_executor import kill_run_2_after_another_run, wait_until_broken
 
 from mazelab.cli.app import main
 from mazelab.experiments import executor, units
@@ -77,15 +78,6 @@ def test_a_cluster_without_workers_ends_after_the_dask_timeout(tmp_path, capsys)
     assert "0 of 3 runs finished" in line and not table.exists()
 
 
-def kill_the_worker_once(unit):
-    """run_unit_timed, but the first worker to run run 2 dies as with kill -9 (a marker file says it did)."""
-    marker = Path(os.environ["MAZELAB_TEST_MARKER"])
-    if any(task.run == 2 for task in unit) and not marker.exists():
-        marker.touch()
-        os.kill(os.getpid(), signal.SIGKILL)
-    return units.run_unit_timed(unit)
-
-
 def kill_the_worker_always(unit):
     if any(task.run == 2 for task in unit):
         os.kill(os.getpid(), signal.SIGKILL)
@@ -93,9 +85,18 @@ def kill_the_worker_always(unit):
 
 
 def test_a_killed_local_worker_restarts_the_pool_and_the_study_goes_on(tmp_path, monkeypatch, capsys):
-    monkeypatch.setenv("MAZELAB_TEST_MARKER", str(tmp_path / "killed"))
-    monkeypatch.setattr(executor, "run_unit_timed", kill_the_worker_once)
-    monkeypatch.setattr(executor, "study_units", lambda tasks, workers: [(task,) for task in tasks])
+    """Run 2's worker dies (kill -9) at a known point: just after the study appended another run's
+    rows, before it hands out more (the pool is broken then); no timing decides the path."""
+    pools = kill_run_2_after_another_run(tmp_path, monkeypatch)
+    real_append = RowLog.append
+
+    def append_then_kill_run_2(log, records):
+        real_append(log, records)
+        if not (tmp_path / "go").exists():
+            (tmp_path / "go").touch()
+            wait_until_broken(pools[-1])
+
+    monkeypatch.setattr(RowLog, "append", append_then_kill_run_2)
     table = tmp_path / "s.csv"
     assert main([*STUDY, "--runs", "8", "--workers", "2", "--csv", str(table)]) == 0
     assert (tmp_path / "killed").exists()

@@ -13,6 +13,7 @@ from mazelab.atomic import write_text_atomically
 from mazelab.checks import check_sigma_within
 from mazelab.cli.filter_options import OptionFlag, options_per_filter, parse_option_texts
 from mazelab.cli.options import DEFAULT_DELTA, DEFAULT_SIGMA, check_output_path, parse_list, seed_option
+from mazelab.cli.outputs import check_one_file_each
 from mazelab.cli.provenance import command_line
 from mazelab.declaration import show_value
 from mazelab.experiments.accuracy import (
@@ -68,6 +69,7 @@ def accuracy(
     bootstrap interval), and the share of runs that converged (error below 0.5 from some step on;
     Wilson interval)."""
     record_file = record if record is not None else record_path(csv_path) if csv_path is not None else None
+    check_one_file_each([("--csv", csv_path), ("--record" if record is not None else "the record", record_file)])
     for path in (csv_path, record_file):
         if path is not None:
             check_output_path(path, force)

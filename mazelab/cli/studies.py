@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import os
 import signal
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,19 +37,32 @@ from mazelab.cli.options import (
     seed_option,
     visualization,
 )
+from mazelab.cli.outputs import check_one_file_each
 from mazelab.cli.provenance import command_line, repeat_command, resume_command
 from mazelab.experiments.dask_runner import DASK_TIMEOUT, close_client, connect
 from mazelab.experiments.executor import STOP_SIGNALS, default_workers, run_study
 from mazelab.experiments.plan import StudyPlan, plan_study
 from mazelab.experiments.plan import study_mazes as plan_mazes
-from mazelab.experiments.record import Recorder, differences, read_record, record_path
-from mazelab.experiments.resume import RESUME_IGNORES, missing_tasks, read_study_csv
-from mazelab.experiments.rowlog import RowLog, check_left_over, partial_path
+from mazelab.experiments.record import Recorder, differences, record_path
+from mazelab.experiments.resume import (
+    RESUME_IGNORES,
+    check_rows_of_study,
+    missing_tasks,
+    read_study_csv,
+    read_study_record,
+)
+from mazelab.experiments.rowlog import RowLog, check_left_over, check_partial_name, partial_path
 from mazelab.experiments.runs import parse_filters
 from mazelab.experiments.stats import CONFIDENCE_LEVEL
 from mazelab.experiments.study import PAPER_OPTIONS, MazeChoice, RunRecord, RunTask, StudyOutcome, declared_option
 from mazelab.experiments.summary import study_table, summarise_study
-from mazelab.experiments.traces import check_trace_path, kept_traces, study_traces, write_traces
+from mazelab.experiments.traces import (
+    check_trace_path,
+    check_traces_of_study,
+    kept_traces,
+    study_traces,
+    write_traces,
+)
 from mazelab.mazes import DEFAULT_MAZE
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, RPF_THRESHOLD
 from mazelab.viz.style import DEFAULT_MAX_DRAWN
@@ -123,26 +138,50 @@ class StudyOutputs:
     recorded: dict[str, Any] | None
     force: bool
     resume: bool
+    traces_kept_from: Path | None = None  # --resume --traces: the earlier session's traces, beside its rows
 
     @classmethod
     def parse(
         cls, csv_path: Path | None, plot: Path | None, traces: Path | None, record: Path | None,
         rrd: Path | None, force: bool, resume: bool,
     ) -> StudyOutputs:  # fmt: skip
-        """Check the outputs (one line for a name that exists without --force, a folder, a device)."""
+        """Check the outputs (one line for a name that exists without --force, a folder, a device, a
+        symlink at a partial file's name, two outputs that are one file), before any work."""
         record_file = (
             record if record is not None else next((record_path(p) for p in (csv_path, plot, traces) if p), None)
         )
+        check_one_file_each(_named_outputs(csv_path, plot, traces, record, record_file, rrd))
+        if csv_path is not None:  # a stopped study's rows: named before its record
+            check_left_over(csv_path, force, adopt=resume)
+            for path in (record_file, traces):
+                if path is not None:
+                    check_partial_name(partial_path(path))
         recorded = _check_resume(csv_path, record_file) if resume else None
-        if csv_path is not None and not resume:  # a stopped study's rows: named before its record
-            check_left_over(csv_path, force)
         check_outputs(None if resume else csv_path, plot, force or resume, rrd)  # --resume replaces its own outputs
         for path in (traces, record_file):
             if path is not None and not resume:
                 check_output_path(path, force)
         if traces is not None:
             check_trace_path(traces)
-        return cls(csv_path, plot, traces, record_file, recorded, force, resume)
+        kept_from = None
+        if resume and traces is not None and csv_path is not None:  # the traces that go with the rows resumed
+            kept_from = partial_path(traces) if _rows_file(csv_path) != csv_path else traces
+        return cls(csv_path, plot, traces, record_file, recorded, force, resume, kept_from)
+
+
+def _named_outputs(
+    csv_path: Path | None, plot: Path | None, traces: Path | None, record: Path | None, record_file: Path | None,
+    rrd: Path | None,
+) -> list[tuple[str, Path | None]]:  # fmt: skip
+    """The study's output files by what the user calls them, the partial files beside the CSV too."""
+    partials = [] if csv_path is None else [("--csv's partial file", partial_path(csv_path))]
+    if csv_path is not None and record_file is not None:
+        partials.append(("the record's partial file", partial_path(record_file)))
+    if csv_path is not None and traces is not None:
+        partials.append(("--traces's partial file", partial_path(traces)))
+    named = "--record" if record is not None else "the record"
+    others = [("--plot", plot), ("--traces", traces), (named, record_file), ("--rrd", rrd)]
+    return [("--csv", csv_path), *partials, *others]
 
 
 def parse_plan(
@@ -225,11 +264,15 @@ def open_session(
     """The runs to go, the row log, the cluster and the record; the study's header printed."""
     tasks, kept, recorded, csv_path = plan.tasks(), [], outputs.recorded, outputs.csv_path
     if recorded is not None and csv_path is not None:
-        tasks, kept = _resumed(plan, recorded, csv_path)
+        tasks, kept = _resumed(plan, recorded, csv_path, outputs.traces_kept_from)
     tasks = _drawn_first(tasks, draw_run) if visualize else tasks
     replace = outputs.force or outputs.resume
-    log = (  # NAME.csv.partial, with the study's columns
-        RowLog(csv_path, replace=replace, adopt=outputs.resume, columns=plan.columns) if csv_path is not None else None
+    log = (  # NAME.csv.partial with the study's columns (the kept rows in it at once), the record beside it
+        RowLog(
+            csv_path, replace=replace, adopt=outputs.resume, record=outputs.record_file, kept=kept, columns=plan.columns
+        )
+        if csv_path is not None
+        else None
     )
     try:
         client = connect(dask) if dask is not None else None  # a bad address: one line and exit 2, before anything
@@ -249,10 +292,8 @@ def open_session(
         "study", command_line(), plan.parameters(), outputs=_outputs(csv_path, outputs.plot, outputs.traces),
         sessions=[*(recorded or {}).get("sessions", []), *([] if recorded is None else [_session(recorded)])],
     )  # fmt: skip
-    if outputs.record_file is not None:
-        recorder.write(outputs.record_file)  # now: an interrupted study keeps its parameters for --resume
-    if log is not None and kept:
-        log.append(kept)
+    if log is not None:  # now, beside the partial rows: an interrupted study keeps its parameters for --resume
+        log.write_record(recorder)  # (the record beside the CSV stays the old CSV's until the new CSV replaces it)
     return StudySession(plan, outputs, tasks, kept, workers, log, client, recorder)
 
 
@@ -299,13 +340,13 @@ def report_study(session: StudySession, outcome: StudyOutcome, kld: bool) -> Non
     typer.echo(f"Repeat this study: {repeat_command(plan.seed)}")
     if outputs.csv_path is not None and log is not None:
         try:
-            log.finish(records)  # the whole CSV, in order; then the partial file goes
+            log.finish(records, session.recorder)  # the whole CSV, in order, its record; then the partial files go
         except OSError as error:
             log.close()
             typer.echo(f"error: {describe_write_error(error)}; {log.kept()}", err=True)
             raise typer.Exit(1) from None
         typer.echo(f"one row per run and filter written to {outputs.csv_path}")
-    if _write_traces(outputs.traces, _in_order(outcome.records, plan), session.tasks, outputs.recorded is not None):
+    if _write_traces(outputs.traces, _in_order(outcome.records, plan), session.tasks, outputs.traces_kept_from):
         typer.echo(f"per-step traces written to {outputs.traces}")
     if outputs.plot is not None and summaries:
         _plot(plan, summaries, outputs.plot, outputs.force)
@@ -323,10 +364,14 @@ def report_stopped(session: StudySession, outcome: StudyOutcome, closing: dict[s
     outputs, log = session.outputs, session.log
     if log is not None:
         log.close()
-    _write_traces(outputs.traces, _in_order(outcome.records, session.plan), session.tasks, outputs.recorded is not None)
-    if outputs.record_file is not None:
+    traces = _in_order(outcome.records, session.plan)  # with a CSV: beside the partial rows, as the record
+    _write_traces(outputs.traces, traces, session.tasks, outputs.traces_kept_from, stopped=log is not None)
+    if outputs.record_file is not None:  # with a CSV: beside the partial rows, the old CSV keeps its record
         session.recorder.finish("interrupted", **closing)
-        session.recorder.write(outputs.record_file)
+        if log is not None:
+            log.write_record(session.recorder)
+        else:
+            session.recorder.write(outputs.record_file)
     saved = f"; {log.kept()}; go on with: {resume_command()}" if log is not None else ""
     finished, total = closing["runs_finished"], closing["runs_in_study"]
     if outcome.lost is not None:  # a lost cluster or pool: one line, exit 1
@@ -364,26 +409,41 @@ def _session(recorded: dict[str, Any]) -> dict[str, Any]:
 
 
 def _check_resume(csv_path: Path | None, record_file: Path | None) -> dict[str, Any]:
-    """The record of the study to resume; one line if there is none."""
+    """The record of the study to resume: the one beside the partial rows a stopped study left
+    (NAME.record.json.partial), else the one beside the CSV; one line if there is none, or if it is
+    not a study's record (a list for its parameters, a root seed that is text, a pipe)."""
     if csv_path is None or record_file is None:
         raise UserError("--resume needs the study's --csv (its record lies beside it)")
-    if not csv_path.exists() and not partial_path(csv_path).exists():
+    if not os.path.lexists(csv_path) and not partial_path(csv_path).exists():
         raise UserError(f"--resume: {csv_path} does not exist (nothing to resume; leave out --resume)")
+    if _rows_file(csv_path) != csv_path and os.path.lexists(partial_path(record_file)):
+        record_file = partial_path(record_file)  # the record of the partial rows, not of the old CSV
     try:
-        return read_record(record_file)
+        return read_study_record(record_file)
     except ValueError as error:
         raise UserError(f"--resume: {error}") from None
 
 
-def _resumed(plan: StudyPlan, recorded: dict[str, Any], csv_path: Path) -> tuple[list[RunTask], list[RunRecord]]:
-    """The tasks still to run and the rows to keep, after checking the study against its record."""
+def _resumed(
+    plan: StudyPlan, recorded: dict[str, Any], csv_path: Path, traces_kept_from: Path | None = None
+) -> tuple[list[RunTask], list[RunRecord]]:
+    """The tasks still to run and the rows to keep, after checking the study against its record,
+    and each kept row (and kept trace) against the plan: another study's rows are refused. With
+    --traces, a run whose traces are not beside its rows (a study killed with kill -9 writes none; the
+    traces beside an older CSV are that CSV's) runs again."""
     changed = differences(recorded["parameters"], plan.parameters(), ignore=RESUME_IGNORES)
     if changed:
         raise UserError(f"--resume: the study differs from its record ({changed[0]}); give the same parameters")
-    if plan.runs < recorded["parameters"].get("runs", 0):
+    if plan.runs < recorded["parameters"]["runs"]:
         raise UserError(f"--resume: --runs {plan.runs} is fewer than the study's {recorded['parameters']['runs']}")
+    rows_file, tasks = _rows_file(csv_path), plan.tasks()
     try:
-        return missing_tasks(plan.tasks(), read_study_csv(_rows_file(csv_path)))
+        records = read_study_csv(rows_file, expected=plan.columns)  # this study's columns, its options' too
+        check_rows_of_study(tasks, records, rows_file)
+        if traces_kept_from is not None:  # a run is kept with its traces only: one without them runs again
+            traced = check_traces_of_study(traces_kept_from, tasks)
+            records = [r for r in records if (r.setting, r.run) in traced]
+        return missing_tasks(tasks, records)
     except ValueError as error:
         raise UserError(str(error)) from None
 
@@ -392,7 +452,7 @@ def _rows_file(csv_path: Path | None) -> Path | None:
     """Where a resumed study's finished rows are: the partial file a stopped study left, else the CSV."""
     if csv_path is None:
         return None
-    return partial_path(csv_path) if partial_path(csv_path).exists() else csv_path
+    return partial_path(csv_path) if os.path.lexists(partial_path(csv_path)) else csv_path
 
 
 def describe_write_error(error: OSError) -> str:
@@ -415,12 +475,20 @@ def _in_order(records: list[RunRecord], plan: StudyPlan) -> list[RunRecord]:
     return sorted(records, key=lambda r: (r.setting, r.run, order[r.filter]))
 
 
-def _write_traces(path: Path | None, records: list[RunRecord], tasks: list[RunTask], resumed: bool) -> bool:
-    """Write the traces of this session's runs (after the kept ones of an earlier session)."""
+def _write_traces(
+    path: Path | None, records: list[RunRecord], tasks: list[RunTask], kept_from: Path | None, stopped: bool = False
+) -> bool:
+    """Write the traces of this session's runs, after the kept ones of an earlier session (read from
+    `kept_from`, --resume). A stopped study with a CSV writes them beside its partial rows
+    (TRACES.partial): the old traces stay beside the old CSV; a finished one replaces the traces
+    and removes the partial traces."""
     if path is None:
         return False
-    kept = kept_traces(path, {(t.setting_index, t.run) for t in tasks}) if resumed else None
-    write_traces(path, study_traces(records), kept)
+    kept = kept_traces(kept_from, {(t.setting_index, t.run) for t in tasks}) if kept_from is not None else None
+    write_traces(partial_path(path) if stopped else path, study_traces(records), kept, follow_links=not stopped)
+    if not stopped:
+        with contextlib.suppress(OSError):
+            partial_path(path).unlink()  # the new whole traces replace what a stopped session left
     return True
 
 

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
+
+from mazelab.atomic import NameTakenError, NotRegularFileError, output_target, write_text_atomically
 
 FILTER_FILE = "my_filter.py"
 README_FILE = "README.md"
@@ -96,18 +99,36 @@ my_filter.py` prints the grading command written your way, to paste.
 
 
 def write_exercise(folder: Path, force: bool = False) -> list[Path]:
-    """Write my_filter.py and README.md into `folder` (made if missing); refuse to replace either
-    without `force`. Returns the paths written."""
+    """Write my_filter.py and README.md into `folder` (made if missing) through mazelab.atomic: each
+    file is the old one or the new whole one, a folder, pipe, device or symlink loop at either name is
+    refused, and without `force` so is any name that exists (a symlink too, dangling or not). Both
+    names are checked before either file is written (a ValueError of one line); a write that fails
+    (a full disk) is a WriteError naming the file, with the old file left whole. Returns the paths."""
     paths = [folder / FILTER_FILE, folder / README_FILE]
-    if folder.exists() and not folder.is_dir():
-        raise ValueError(f"{folder} is a file, not a folder")
-    existing = [path for path in paths if path.exists()]
-    if existing and not force:
-        raise ValueError(f"{', '.join(map(str, existing))} already there; use --force to replace")
-    folder.mkdir(parents=True, exist_ok=True)
-    for path, text in zip(paths, (FILTER_TEMPLATE, README_TEMPLATE), strict=True):
-        path.write_text(text)
+    if os.path.lexists(folder) and not folder.is_dir():
+        raise ValueError(f"{folder} is not a folder (give a folder to write the exercise into)")
+    if folder.is_dir() and not os.access(folder, os.W_OK):
+        raise ValueError(f"{folder} is not writable: cannot write the exercise there")
+    for path in paths:
+        check_exercise_file(path, force)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise ValueError(f"cannot make the folder {folder}: {error.strerror or error}") from None
+    # The README first: should a write fail, the student's my_filter.py is the one left as it was.
+    for path, text in reversed(list(zip(paths, (FILTER_TEMPLATE, README_TEMPLATE), strict=True))):
+        write_text_atomically(path, text, replace=force)
     return paths
+
+
+def check_exercise_file(path: Path, force: bool) -> None:
+    """Refuse, in one line, an exercise file's name that mazelab.atomic would not write."""
+    try:
+        output_target(path, force)
+    except (NameTakenError, NotRegularFileError) as error:  # "X: it exists; use --force to replace it"
+        raise ValueError(str(error).removeprefix("cannot write ")) from None
+    except OSError as error:  # e.g. a part of the folder's path is a file
+        raise ValueError(f"cannot write {path}: {error.strerror or error}") from None
 
 
 __all__ = ["FILTER_FILE", "FILTER_TEMPLATE", "README_FILE", "README_TEMPLATE", "write_exercise"]

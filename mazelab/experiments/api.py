@@ -3,6 +3,8 @@ rows as a list of dicts (`pandas.DataFrame(result.rows)`), its summary and its r
 
 from __future__ import annotations
 
+import numbers
+import os
 import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -10,6 +12,8 @@ from typing import Any
 
 import numpy as np
 
+from mazelab.checks import check_seed
+from mazelab.contract import missing_parts
 from mazelab.experiments.executor import run_study
 from mazelab.experiments.plan import plan_study, study_mazes
 from mazelab.experiments.record import Recorder
@@ -32,11 +36,89 @@ class StudyResult:
     traces: dict[str, np.ndarray] | None = None
 
 
-def _listed(value: Any) -> list[Any] | None:
-    """A value or a sequence of values as a list (None stays None)."""
+NUMBER = (numbers.Real,)  # int, float, numpy's numbers; bool is refused apart
+WHOLE = (numbers.Integral,)
+TEXT = (str,)
+PATH = (str, os.PathLike)
+
+
+def _listed(name: str, value: Any, kinds: tuple[type, ...], what: str) -> list[Any] | None:
+    """A value or a list (tuple, range, 1-d array) of values of `kinds` as a list; None stays None.
+    A value of another type (True for a count, text for a number, a dict) is a TypeError, an empty
+    list a ValueError: one line naming the argument."""
     if value is None:
         return None
-    return list(value) if isinstance(value, (list, tuple)) else [value]
+    if isinstance(value, np.ndarray):
+        value = value.tolist() if value.ndim == 1 else value.item() if value.ndim == 0 else value
+    values = list(value) if isinstance(value, (list, tuple, range)) else [value]
+    if not values:
+        raise ValueError(f"{name} is empty; give {what} or a list of them")
+    for item in values:
+        if isinstance(item, bool) or not isinstance(item, kinds):
+            raise TypeError(f"{name} takes {what} or a list of them, got {item!r} ({type(item).__name__})")
+    return values
+
+
+def _options(options: Any) -> dict[str, list[Any]]:
+    """The other filter options: a mapping of names to a value or a list of values (checked by the
+    filters' declarations in plan_study)."""
+    if options is None:
+        return {}
+    if not isinstance(options, Mapping):
+        raise TypeError(f"options takes a mapping of option names to values, got {type(options).__name__}")
+    listed = {}
+    for name, value in options.items():
+        values = list(value) if isinstance(value, (list, tuple, range)) else [value]
+        if not values:
+            raise ValueError(f"options[{name!r}] is empty; give a value or a list of them")
+        listed[str(name)] = values
+    return listed
+
+
+def _whole(name: str, value: Any, *, optional: bool = False) -> int | None:
+    """A whole number (not a bool: runs=True is no run count), or None when `optional`."""
+    if value is None and optional:
+        return None
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise TypeError(f"{name} must be a whole number, got {value!r} ({type(value).__name__})")
+    return int(value)
+
+
+def _flag(name: str, value: Any) -> bool:
+    if not isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"{name} must be True or False, got {value!r} ({type(value).__name__})")
+    return bool(value)
+
+
+def _filters(filters: Any) -> str | list[Any]:
+    """The filters: a comma-separated string, or a list of names and filter classes (each class
+    meeting mazelab.contract); anything else a TypeError naming it."""
+    if isinstance(filters, str):
+        return filters
+    chosen = _listed("filters", filters, (str, type), "filter names or filter classes")
+    for item in chosen:
+        if isinstance(item, type) and missing_parts(item):
+            raise TypeError(
+                f"filters: {item.__name__} is not a filter class: it has no {', '.join(missing_parts(item))} "
+                "(mazelab.contract)"
+            )
+    return chosen
+
+
+def _dask(dask: Any) -> Any:
+    """None, a scheduler address (text), or a distributed.Client; anything else a TypeError."""
+    if dask is None or isinstance(dask, str):
+        return dask
+    try:
+        from distributed import Client
+    except ImportError:
+        Client = None
+    if Client is None or not isinstance(dask, Client):
+        raise TypeError(
+            f"dask must be a scheduler address like 'tcp://HOST:8786' or a distributed.Client, got {dask!r} "
+            f"({type(dask).__name__})"
+        )
+    return dask
 
 
 def study(
@@ -89,25 +171,42 @@ def study(
     -------
     StudyResult
         rows, summary, record (the same JSON record `mazelab study` writes), failures, traces.
+
+    Raises
+    ------
+    TypeError
+        An argument of the wrong type (runs=True, sigma="0.3", filters=[object], dask=42), named.
+    ValueError
+        A value out of its range, or an empty list (sigma=[]), named.
     """
+    workers = _whole("workers", workers, optional=True)
+    if workers is not None and workers < 1:
+        raise ValueError(f"workers must be >= 1 (or None: all cores), got {workers}")
+    seed = None if seed is None else check_seed("seed", _whole("seed", seed))
     plan = plan_study(
-        study_mazes(_listed(maze), _listed(maze_size), _listed(stations), _listed(wall_share)),
-        filters if isinstance(filters, str) else list(filters),
-        sigma=_listed(sigma),
-        delta=_listed(delta),
-        particles=_listed(particles),
-        threshold=_listed(threshold),
-        recovery=_listed(recovery),
-        bandwidth=_listed(bandwidth),
-        estimate=_listed(estimate),
-        options={name: _listed(value) for name, value in (options or {}).items()},
-        runs=runs,
-        steps=steps,
+        study_mazes(
+            _listed("maze", maze, PATH, "a maze file or shipped name"),
+            _listed("maze_size", maze_size, TEXT, "a size like '20x20'"),
+            _listed("stations", stations, WHOLE, "a whole number of station blocks"),
+            _listed("wall_share", wall_share, NUMBER, "a share of walls"),
+        ),
+        _filters(filters),
+        sigma=_listed("sigma", sigma, NUMBER, "a number"),
+        delta=_listed("delta", delta, NUMBER, "a number"),
+        particles=_listed("particles", particles, WHOLE, "a whole number"),
+        threshold=_listed("threshold", threshold, NUMBER, "a number"),
+        recovery=_listed("recovery", recovery, TEXT, "a recovery name"),
+        bandwidth=_listed("bandwidth", bandwidth, (str, *NUMBER), "a kernel name or a number"),
+        estimate=_listed("estimate", estimate, TEXT, "'mean' or 'mode'"),
+        options=_options(options),
+        runs=_whole("runs", runs),
+        steps=_whole("steps", steps),
         seed=seed,
-        kidnap_at=kidnap_at,
-        kld=kld,
-        traces=traces,
+        kidnap_at=_whole("kidnap_at", kidnap_at, optional=True),
+        kld=_flag("kld", kld),
+        traces=_flag("traces", traces),
     )
+    dask = _dask(dask)
     recorder = Recorder("study", [sys.argv[0] or "python", "mazelab.study(...)"], plan.parameters())
     outcome = run_study(plan.tasks(), workers, dask=dask)
     summaries = summarise_study(outcome.records, plan.settings)

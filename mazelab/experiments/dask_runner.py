@@ -19,6 +19,10 @@ from mazelab.experiments.units import run_unit_timed
 CONNECT_SECONDS = 3  # a scheduler that does not answer within this is reported unreachable
 DASK_TIMEOUT = 300.0  # seconds without any finished run after which a study on Dask gives up (--dask-timeout)
 SCHEMES = ("tcp",)  # what --dask takes: tls, ucx and others need a security or transport setup of their own
+# The loggers silenced while a study runs on Dask: distributed's configuration gives some of their
+# children a level and a handler of their own (distributed.client: warning), so each is set, not
+# only the parents.
+QUIET_LOGGERS = ("distributed", "tornado", "asyncio", "bokeh")
 
 
 class ClusterLost(RuntimeError):  # noqa: N818 (a state, as KeyboardInterrupt)
@@ -75,7 +79,8 @@ def quiet_distributed() -> None:
     """distributed's own logging (retries, lost connections, tracebacks) off, and the noise of a
     Client collected late ("Exception ignored in Client.__del__") dropped: this program says in one
     line what went wrong."""
-    for name in ("distributed", "tornado", "asyncio"):
+    names = [n for n in list(logging.Logger.manager.loggerDict) if n.split(".")[0] in QUIET_LOGGERS]
+    for name in dict.fromkeys([*QUIET_LOGGERS, *names]):
         logging.getLogger(name).setLevel(logging.CRITICAL + 1)
     previous = sys.unraisablehook
     if getattr(previous, "_mazelab_quiet", False):
@@ -123,7 +128,11 @@ def run_on_dask(
             collect(future.result())
         except CancelledError:  # the scheduler went away with it: not the run's fault
             raise ClusterLost("lost the Dask scheduler (it cancelled the runs not finished)") from None
-        except Exception as error:  # the unit failed on the worker (e.g. mazelab missing there)
+        except Exception as error:
+            if future.status != "error" and isinstance(error, OSError):  # finished, but a dead cluster
+                # could not send its result (CommClosedError): the cluster's fault, not the run's
+                raise ClusterLost(f"lost the connection to the Dask cluster ({type(error).__name__})") from None
+            # the unit itself raised on the worker (e.g. mazelab missing there)
             collect([RunFailure(task, f"on the Dask cluster: {type(error).__name__}: {error}") for task in unit])
         advance(len(unit))
 
@@ -175,6 +184,7 @@ def describe_workers(client: Any) -> str:
 __all__ = [
     "CONNECT_SECONDS",
     "DASK_TIMEOUT",
+    "QUIET_LOGGERS",
     "ClusterLost",
     "close_client",
     "connect",

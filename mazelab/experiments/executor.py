@@ -144,17 +144,29 @@ def _run_in_pool(
 ) -> None:
     """Units of runs on a process pool (the drawn ones here meanwhile), at most two per worker handed
     out at a time. On Ctrl-C, hand out no more and let the running units finish; on a second Ctrl-C,
-    SIGTERM or SIGHUP end the workers at once. Every finished result is kept; the stop is raised again."""
+    SIGTERM or SIGHUP end the workers at once. Every finished result is kept; the stop is raised again.
+
+    A worker that dies (kill -9, out of memory) breaks the pool. That shows either as a unit's future
+    failing with BrokenProcessPool, or, when the worker died after the last wait returned (another
+    unit had just finished), as `submit` raising BrokenProcessPool while more units are handed out:
+    both restart the pool, at most MAX_POOL_RESTARTS times, with the units not finished handed out
+    again and the finished ones kept."""
     size = min(workers, len(units))
     pool = ProcessPoolExecutor(max_workers=size, initializer=_worker_setup)
     waiting = deque(units)
     running: dict[Future, tuple[RunTask, ...]] = {}
     restarts = 0
 
-    def hand_out() -> None:
+    def hand_out() -> bool:
+        """Submit units until two per worker run; False if the pool is broken (the unit stays queued)."""
         while waiting and len(running) < 2 * workers:
-            unit = waiting.popleft()
-            running[pool.submit(run_unit_timed, unit)] = unit
+            unit = waiting[0]
+            try:
+                future = pool.submit(run_unit_timed, unit)
+            except BrokenProcessPool:  # a worker died since the last wait
+                return False
+            running[future] = waiting.popleft()
+        return True
 
     def take(done: set[Future], finished_only: bool = False) -> None:
         for future in done:
@@ -163,12 +175,10 @@ def _run_in_pool(
                 collect(_result_of(future, unit))
                 advance(len(unit))
 
-    def restart_if_broken(done: set[Future]) -> set[Future]:
-        """A worker killed (kill -9, out of memory) breaks the pool: its unfinished units go back in
-        the queue and a new pool starts, at most MAX_POOL_RESTARTS times; the finished ones are kept."""
+    def restart() -> set[Future]:
+        """A new pool: the unfinished units go back in the queue, the finished futures are returned
+        (to take), at most MAX_POOL_RESTARTS times."""
         nonlocal pool, restarts
-        if not any(isinstance(f.exception(), BrokenProcessPool) for f in done):
-            return done
         restarts += 1
         if restarts > MAX_POOL_RESTARTS:
             raise PoolLost(f"worker processes died {restarts} times (killed, or out of memory?)")
@@ -176,17 +186,24 @@ def _run_in_pool(
         for future in [f for f in running if f not in finished]:
             waiting.appendleft(running.pop(future))
         warnings.warn("a worker process died (killed, or out of memory?): its runs start again on a new pool",
-                      stacklevel=2)  # fmt: skip
+                      stacklevel=3)  # fmt: skip
         _end_workers(pool)
         pool = ProcessPoolExecutor(max_workers=size, initializer=_worker_setup)
         return finished
 
+    def broken(done: set[Future]) -> bool:
+        return any(isinstance(f.exception(), BrokenProcessPool) for f in done)
+
     try:
-        hand_out()
+        handed = hand_out()
         _run_drawn(drawn, visualize, collect, advance)
-        while running:
-            take(restart_if_broken(wait(running, return_when=FIRST_COMPLETED)[0]))
-            hand_out()
+        while running or waiting:
+            if not handed:
+                take(restart())
+            else:
+                done = wait(running, return_when=FIRST_COMPLETED)[0]
+                take(restart() if broken(done) else done)
+            handed = hand_out()
     except PoolLost:
         with _signals_ignored():
             take({future for future in running if future.done() and future.exception() is None})

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from mazelab.atomic import write_text_atomically
+from mazelab.experiments.inputs import read_regular_text
 from mazelab.experiments.stats import CONFIDENCE_LEVEL, INTERVAL_METHODS
 
 RECORD_FORMAT = 1
@@ -144,20 +145,27 @@ class Recorder:
         )
         return self.data
 
-    def write(self, path: str | Path) -> None:
-        """Write the record, whole (mazelab.atomic)."""
-        write_text_atomically(path, json.dumps(self.data, indent=2, allow_nan=False) + "\n")
+    def write(self, path: str | Path, follow_links: bool = True) -> None:
+        """Write the record, whole (mazelab.atomic); `follow_links=False` for a partial record, which
+        is the program's own file (a symlink at its name is refused, never written through)."""
+        text = json.dumps(self.data, indent=2, allow_nan=False) + "\n"
+        write_text_atomically(path, text, follow_links=follow_links)
 
 
 def read_record(path: str | Path) -> dict[str, Any]:
-    """A record written by Recorder; a ValueError of one line naming the file otherwise."""
+    """A record written by Recorder; a ValueError of one line naming the file otherwise (a pipe or a
+    device is refused unread, see mazelab.experiments.inputs)."""
     path = Path(path)
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        text = read_regular_text(path, "a record")
     except FileNotFoundError:
         raise ValueError(f"{path}: no such record (a study's record is written beside its CSV)") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
-        raise ValueError(f"{path}: not a readable record ({error})") from None
+    try:
+        data = json.loads(text)
+    except ValueError as error:  # not JSON; a number of more than 4300 digits
+        raise ValueError(f"{path}: not a readable record ({str(error).splitlines()[0]})") from None
+    except RecursionError:  # lists nested thousands deep
+        raise ValueError(f"{path}: not a readable record (nested too deep)") from None
     if not isinstance(data, dict) or data.get("record_format") != RECORD_FORMAT or "parameters" not in data:
         raise ValueError(f"{path}: not a record of this program (record_format {RECORD_FORMAT} expected)")
     return data

@@ -1,6 +1,11 @@
 """Resuming and extending a study (`study --resume`): the rows already in its CSV are read back, and
 only the missing (setting, run, filter) rows are run. Run r's seeds do not depend on the number of
-runs (mazelab.seeding.study_seeds), so a larger --runs extends the study and the rows it had stay."""
+runs (mazelab.seeding.study_seeds), so a larger --runs extends the study and the rows it had stay.
+
+Only this study's rows are kept: a row whose seed, maze (its file's sha256, a generated maze's seed)
+or parameters differ from what the plan gives its (setting, run) is another study's, and is refused
+in one line naming it (a CSV of another seed or maze, a partial file copied from another study). The
+files read back (the record, the CSV, the partial file) must be regular files of UTF-8 text."""
 
 from __future__ import annotations
 
@@ -9,14 +14,24 @@ import dataclasses
 import math
 import types
 import typing
-from collections.abc import Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from mazelab.checks import check_seed
 from mazelab.declaration import parse_literal
-from mazelab.experiments.study import RunRecord, RunTask
+from mazelab.experiments.inputs import read_regular_text
+from mazelab.experiments.record import read_record
+from mazelab.experiments.study import RunRecord, RunTask, option_cells
+from mazelab.experiments.tables import csv_cell
 
 RESUME_IGNORES = ("runs",)  # parameters that may differ between the record and a resumed study
+# The columns of a row that the plan fixes for its (setting, run): seed and maze first (the message
+# names the first that differs), then the parameters. The rest are the run's results.
+PLANNED_COLUMNS = (
+    "seed", "maze_sha256", "maze_seed", "maze", "wall_share", "sigma", "delta", "particles", "threshold",
+    "recovery", "bandwidth", "estimate", "steps", "kidnap_at",
+)  # fmt: skip
 
 
 def _parse(text: str, kind: Any) -> Any:
@@ -40,42 +55,128 @@ def _parse(text: str, kind: Any) -> Any:
                 continue
         elif option is str:
             return text
-    raise ValueError(f"{text!r} is not a {kind}")
+    shown = text if len(text) <= 40 else f"{text[:40]}..."
+    raise ValueError(f"{shown!r} is not a {kind}")
 
 
 def read_study_csv(path: str | Path, expected: Sequence[str] | None = None) -> list[RunRecord]:
     """The rows of a study's CSV as RunRecords: the fixed columns, then a column per other filter
     option (its cells read back as the values they spell, into RunRecord.options); with `expected`,
     the header must be exactly those columns. A last row cut short (a study killed while writing it)
-    is left out; any other bad row is a ValueError of one line naming the file and row."""
+    is left out; any other bad row is a ValueError of one line naming the file and row (row 2 is the
+    first after the header). A pipe, device or folder, or text that is not UTF-8, is refused."""
     path = Path(path)
     hints = typing.get_type_hints(RunRecord)
     fixed = [f.name for f in dataclasses.fields(RunRecord) if f.name != "options"]
     try:
-        text = path.read_text(encoding="utf-8")
+        text = read_regular_text(path, "a study CSV")
     except FileNotFoundError:
         raise ValueError(f"--resume: {path} does not exist (nothing to resume)") from None
+    except ValueError as error:
+        raise ValueError(f"--resume: {error}") from None
     lines = text.splitlines(keepends=True)
     if not lines:
         return []
     reader = csv.reader(lines)
-    header = next(reader)
-    if header[: len(fixed)] != fixed or (expected is not None and header != list(expected)):
-        raise ValueError(f"--resume: {path} is not a study CSV of this version (its columns differ)")
-    columns, others = header, header[len(fixed) :]
     records = []
-    for number, row in enumerate(reader, start=2):
-        last = number == len(lines)
-        if last and (len(row) != len(columns) or not lines[-1].endswith("\n")):
-            break  # cut short by a kill: that run is run again
-        try:
-            cells = dict(zip(columns, row, strict=True))
-            values = {name: _parse(cells[name], hints[name]) for name in fixed}
-            options = {name: parse_literal(cells[name]) if cells[name] != "" else None for name in others}
-            records.append(RunRecord(**values, options=options))
-        except ValueError as error:
-            raise ValueError(f"--resume: {path} row {number}: {error}") from None
+    try:
+        header = next(reader)
+        if header[: len(fixed)] != fixed or (expected is not None and header != list(expected)):
+            raise ValueError(f"--resume: {path} is not a study CSV of this version (its columns differ)")
+        columns, others = header, header[len(fixed) :]
+        for number, row in enumerate(reader, start=2):
+            last = number == len(lines)
+            if last and (len(row) != len(columns) or not lines[-1].endswith("\n")):
+                break  # cut short by a kill: that run is run again
+            if len(row) != len(columns):
+                raise ValueError(f"--resume: {path} row {number} has {len(row)} cells, the header {len(columns)}")
+            try:
+                cells = dict(zip(columns, row, strict=True))
+                values = {name: _parse(cells[name], hints[name]) for name in fixed}
+                options = {name: parse_literal(cells[name]) if cells[name] != "" else None for name in others}
+                records.append(RunRecord(**values, options=options))
+            except ValueError as error:
+                raise ValueError(f"--resume: {path} row {number}: {error}") from None
+    except csv.Error as error:  # a NUL byte, a cell over the field size limit
+        raise ValueError(f"--resume: {path} is not a study CSV ({error})") from None
     return records
+
+
+def read_study_record(path: str | Path) -> dict[str, Any]:
+    """The record of a study to resume: a record (mazelab.experiments.record.read_record) of kind
+    "study" whose parameters are a mapping with a root seed and a run count, and whose sessions, if
+    any, a list of mappings; a ValueError of one line naming the file otherwise."""
+    data = read_record(path)
+    parameters = data["parameters"]
+    if data.get("kind") != "study":
+        raise ValueError(f"{path}: not a study's record (its kind is {data.get('kind')!r})")
+    if not isinstance(parameters, Mapping):
+        raise ValueError(f"{path}: its parameters are {type(parameters).__name__}, not a mapping of names to values")
+    try:
+        check_seed("its parameters' root_seed", parameters.get("root_seed"))
+    except ValueError as error:
+        raise ValueError(f"{path}: {error}") from None
+    runs = parameters.get("runs")
+    if isinstance(runs, bool) or not isinstance(runs, int) or runs < 1:
+        raise ValueError(f"{path}: its parameters' runs must be a whole number >= 1, got {runs!r}")
+    sessions = data.get("sessions", [])
+    if not isinstance(sessions, list) or not all(isinstance(item, Mapping) for item in sessions):
+        raise ValueError(f"{path}: its sessions must be a list of the earlier sessions, got {sessions!r:.60}")
+    return data
+
+
+def planned_cells(task: RunTask) -> dict[str, str]:
+    """The cells (as the CSV writes them) of PLANNED_COLUMNS that run `task`'s rows must hold."""
+    s = task.setting
+    values = {
+        "seed": task.seed, "maze_sha256": s.maze.sha256, "maze_seed": task.maze_seed, "maze": s.maze.label,
+        "wall_share": s.maze.wall_share, "sigma": s.sigma, "delta": s.delta, "particles": s.particles,
+        "threshold": s.threshold, "recovery": s.recovery, "bandwidth": s.bandwidth, "estimate": task.estimate,
+        "steps": task.steps, "kidnap_at": task.kidnap_at,
+    }  # fmt: skip
+    return {
+        **{column: _cell(values[column]) for column in PLANNED_COLUMNS},
+        **{name: _cell(value) for name, value in option_cells(s).items()},  # the setting's other options
+    }
+
+
+def _cell(value: Any) -> str:
+    return str(csv_cell(value))
+
+
+def foreign_row(tasks: Sequence[RunTask], records: Iterable[RunRecord]) -> tuple[int, str] | None:
+    """(the index of the first record that is not one of `tasks`' rows, why), or None when every
+    record is: a (setting, run) the tasks have, one of its filters, and the seed, maze and parameters
+    the task gives it."""
+    planned = {(t.setting_index, t.run): t for t in tasks}
+    cells: dict[tuple[int, int], dict[str, str]] = {}
+    for index, record in enumerate(records):
+        task = planned.get((record.setting, record.run))
+        if task is None:
+            return index, f"run {record.run} of setting {record.setting} is not in this study"
+        if record.filter not in task.filters:
+            return index, f"its filter {record.filter} is not one this study runs in setting {record.setting}"
+        expected = cells.setdefault((task.setting_index, task.run), planned_cells(task))
+        for column in expected:
+            found = _cell(getattr(record, column) if column in PLANNED_COLUMNS else record.options.get(column))
+            if found != expected[column]:
+                return index, (
+                    f"its {column} is {found or 'empty'}, where this study's run {task.run} of setting "
+                    f"{task.setting_index} has {expected[column] or 'none'}"
+                )
+    return None
+
+
+def check_rows_of_study(tasks: Sequence[RunTask], records: Sequence[RunRecord], path: str | Path) -> None:
+    """Refuse, in one line naming the first, rows of `path` that are not this study's (`foreign_row`):
+    another seed, maze or parameters are another study's results, never to be kept as this one's."""
+    found = foreign_row(tasks, records)
+    if found is not None:
+        index, why = found
+        raise ValueError(
+            f"--resume: {path} row {index + 2} is another study's ({why}); rows of another study are never "
+            "kept: give this study's own --csv and parameters, or another --csv"
+        )
 
 
 def missing_tasks(tasks: Sequence[RunTask], records: Sequence[RunRecord]) -> tuple[list[RunTask], list[RunRecord]]:
@@ -101,4 +202,13 @@ def missing_tasks(tasks: Sequence[RunTask], records: Sequence[RunRecord]) -> tup
     return todo, kept
 
 
-__all__ = ["RESUME_IGNORES", "missing_tasks", "read_study_csv"]
+__all__ = [
+    "PLANNED_COLUMNS",
+    "RESUME_IGNORES",
+    "check_rows_of_study",
+    "foreign_row",
+    "missing_tasks",
+    "planned_cells",
+    "read_study_csv",
+    "read_study_record",
+]

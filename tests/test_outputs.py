@@ -1,0 +1,67 @@
+"""One file per output (mazelab.cli.outputs): two outputs of `study` or `accuracy` that are one file,
+by name, through a symlink or as a hard link, are refused in one line (exit 2) before any run, with
+nothing written. Real processes for the commands, real links."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from conftest import ROOT
+
+from mazelab.cli.app import main
+
+STUDY = ["study", "--maze", "paper_5x5", "--runs", "2", "--steps", "3", "--particles", "20", "--filters", "sir"]
+STUDY += ["--seed", "1", "--workers", "1", "--no-viz"]
+ACCURACY = ["accuracy", "--maze", "paper_5x5", "--runs", "1", "--steps", "4", "--particles", "20", "--filters", "sir"]
+
+
+def command(tmp_path: Path, *arguments: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, str(ROOT / "main.py"), *arguments], cwd=tmp_path, capture_output=True,
+                          text=True, timeout=120)  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("arguments", "expected"),
+    [
+        ([*STUDY, "--csv", "s.csv", "--traces", "s.csv"], "--csv and --traces are one file (s.csv)"),
+        ([*STUDY, "--csv", "s.csv", "--record", "s.csv"], "--csv and --record are one file (s.csv)"),
+        ([*STUDY, "--csv", "s.csv", "--plot", "./s.csv"], "--csv and --plot are one file (s.csv)"),
+        ([*STUDY, "--csv", "s.csv", "--record", "s.csv.partial"], "--csv's partial file and --record are one file"),
+        ([*STUDY, "--csv", "s.csv", "--plot", "s.record.json"], "--plot and the record are one file (s.record.json)"),
+        ([*STUDY, "--csv", "s.csv", "--traces", "s.record.json.partial"], "the record's partial file and --traces"),
+        ([*STUDY[:-1], "--traces", "t.csv", "--rrd", "t.csv"], "--traces and --rrd are one file (t.csv)"),
+        ([*STUDY, "--csv", "s.csv", "--traces", "t.csv", "--plot", "t.csv.partial"], "--traces's partial file and"),
+        ([*ACCURACY, "--csv", "a.csv", "--record", "a.csv"], "--csv and --record are one file (a.csv)"),
+    ],
+)
+def test_two_outputs_of_one_name_are_refused_before_any_run(tmp_path, arguments, expected):
+    done = command(tmp_path, *arguments)
+    assert done.returncode == 2, done.stderr
+    (line,) = done.stderr.splitlines()
+    assert line.startswith("error: ") and expected in line and "give each output a name of its own" in line
+    assert done.stdout == "" and list(tmp_path.iterdir()) == []  # no header, no run, no file
+
+
+def test_a_symlink_or_a_hard_link_to_another_output_is_the_same_file(tmp_path, capsys):
+    table = tmp_path / "s.csv"
+    table.write_text("old\n")
+    (tmp_path / "link.csv").symlink_to(table)
+    os.link(table, tmp_path / "hard.csv")
+    for other in ("link.csv", "hard.csv"):
+        assert main([*STUDY, "--csv", str(table), "--traces", str(tmp_path / other), "--force"]) == 2
+        err = capsys.readouterr().err
+        assert f"--csv and --traces are one file ({table} and {tmp_path / other})" in err
+    assert main([*ACCURACY, "--csv", str(table), "--record", str(tmp_path / "link.csv"), "--force"]) == 2
+    assert "--csv and --record are one file" in capsys.readouterr().err
+    assert table.read_text() == "old\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["hard.csv", "link.csv", "s.csv"]
+
+
+def test_outputs_of_their_own_names_are_accepted(tmp_path, capsys):
+    names = ["--csv", "s.csv", "--traces", "t.csv", "--record", "r.json", "--plot", "p.png"]
+    assert main([*STUDY, *[str(tmp_path / n) if n[0] != "-" else n for n in names]]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["p.png", "r.json", "s.csv", "t.csv"]
