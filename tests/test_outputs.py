@@ -33,7 +33,7 @@ def command(tmp_path: Path, *arguments: str) -> subprocess.CompletedProcess:
         ([*STUDY, "--csv", "s.csv", "--record", "s.csv.partial"], "--csv's partial file and --record are one file"),
         ([*STUDY, "--csv", "s.csv", "--plot", "s.record.json"], "--plot and the record are one file (s.record.json)"),
         ([*STUDY, "--csv", "s.csv", "--traces", "s.record.json.partial"], "the record's partial file and --traces"),
-        ([*STUDY[:-1], "--traces", "t.csv", "--rrd", "t.csv"], "--traces and --rrd are one file (t.csv)"),
+        ([*STUDY[:-1], "--plot", "t.rrd", "--rrd", "t.rrd"], "--plot and --rrd are one file (t.rrd)"),
         ([*STUDY, "--csv", "s.csv", "--traces", "t.csv", "--plot", "t.csv.partial"], "--traces's partial file and"),
         ([*ACCURACY, "--csv", "a.csv", "--record", "a.csv"], "--csv and --record are one file (a.csv)"),
     ],
