@@ -1,4 +1,4 @@
-"""One file per output (mazelab.cli.outputs): two outputs of `study` or `accuracy` that are one file,
+"""One file per output (mazelab.cli.outputs): two outputs of `study`, `compare` or `accuracy` that are one file,
 by name, through a symlink or as a hard link, are refused in one line (exit 2) before any run, with
 nothing written. Real processes for the commands, real links."""
 
@@ -65,3 +65,19 @@ def test_outputs_of_their_own_names_are_accepted(tmp_path, capsys):
     names = ["--csv", "s.csv", "--traces", "t.csv", "--record", "r.json", "--plot", "p.png"]
     assert main([*STUDY, *[str(tmp_path / n) if n[0] != "-" else n for n in names]]) == 0
     assert sorted(p.name for p in tmp_path.iterdir()) == ["p.png", "r.json", "s.csv", "t.csv"]
+
+
+@pytest.mark.parametrize(
+    ("arguments", "expected"),
+    [
+        (["--csv", "c.csv", "--plot", "c.csv"], "--csv and --plot are one file (c.csv)"),
+        (["--csv", "c.csv", "--traces", "c.record.json"], "--traces and the record are one file (c.record.json)"),
+        (["--plot", "c.rrd", "--rrd", "c.rrd"], "--plot and --rrd are one file (c.rrd)"),
+    ],
+)
+def test_compares_outputs_of_one_name_are_refused_before_any_run(tmp_path, arguments, expected):
+    scenario = ROOT / "model_parameters" / "paper_5x5.json"
+    done = command(tmp_path, "compare", str(scenario), "--filters", "sir", *arguments)
+    assert done.returncode == 2, done.stderr
+    (line,) = done.stderr.splitlines()
+    assert expected in line and done.stdout == "" and list(tmp_path.iterdir()) == []

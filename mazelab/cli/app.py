@@ -279,8 +279,8 @@ def compare(
     over the last 30 steps) and the steps it took."""
     visualize = visualization(viewer, rrd, web, no_viz, max_drawn, force)
     check_filter_names(filters)
+    record_file = compare_record_file(csv_path, plot, traces, force, rrd)  # a JSON record beside the outputs
     check_outputs(csv_path, plot, force, rrd)
-    record_file = compare_record_file(csv_path, plot, traces, force)  # a JSON record beside the outputs
     setup = replay_setup(load_scenario(scenario), maze, sigma, delta, seed, {})
     names = parse_filters(filters)
     named = {

@@ -10,6 +10,7 @@ import typer
 
 from mazelab.atomic import write_text_atomically
 from mazelab.cli.options import check_output_path
+from mazelab.cli.outputs import check_one_file_each
 from mazelab.cli.provenance import command_line
 from mazelab.experiments.compare import comparison_table, errors_csv, plot_errors
 from mazelab.experiments.record import Recorder, file_sha256, record_path
@@ -18,13 +19,18 @@ from mazelab.experiments.traces import check_trace_path, compare_traces, write_t
 from mazelab.simulation import RunResult
 
 
-def compare_record_file(csv_path: Path | None, plot: Path | None, traces: Path | None, force: bool) -> Path | None:
+def compare_record_file(
+    csv_path: Path | None, plot: Path | None, traces: Path | None, force: bool, rrd: Path | None = None
+) -> Path | None:
     """Where compare's record goes (beside its first output), checked like the outputs; the traces'
-    format checked too."""
+    format checked too; two outputs that are one file refused first, in one line naming both."""
+    path = next((record_path(p) for p in (csv_path, plot, traces) if p is not None), None)
+    check_one_file_each(
+        [("--csv", csv_path), ("--plot", plot), ("--traces", traces), ("--rrd", rrd), ("the record", path)]
+    )
     if traces is not None:
         check_output_path(traces, force)
         check_trace_path(traces)
-    path = next((record_path(p) for p in (csv_path, plot, traces) if p is not None), None)
     if path is not None:
         check_output_path(path, force)
     return path
