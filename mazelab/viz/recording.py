@@ -103,11 +103,13 @@ class Recording:
         sink = stream.binary_stream()  # kept in memory: written whole at close (see mazelab.atomic)
         if target == "web":
             server = WebServer.start()
-            stream.set_sinks(rr.GrpcSink(server.grpc_url), sink, default_blueprint=blueprint)
+            stream.set_sinks(rr.GrpcSink(server.grpc_url), sink)
+            send_active_layout(stream, blueprint)
             print(f"Serving the web viewer at {server.url}")
             server.announced = True
             return cls(stream, path=path, server=server, sink=sink, claim_name=True)
-        stream.set_sinks(sink, default_blueprint=blueprint)
+        stream.set_sinks(sink)
+        send_active_layout(stream, blueprint)
         return cls(stream, path=path, sink=sink, claim_name=default_name, replace=replace)
 
     def log_robot(self, step: int, position: Sequence[float], heading: float | None) -> None:
@@ -196,6 +198,13 @@ class Recording:
         deferred.append(error if isinstance(error, WriteError) else WriteError(error.errno, error.strerror))
 
 
+def send_active_layout(stream: Any, blueprint: Any) -> None:
+    """Send the lab's layout to a stream that goes to a file, marked active as well as default: a
+    file whose blueprint is only the default opens in Rerun's web viewer with its automatic grid
+    (the recording comes first in the file; see mazelab.viz.saved), whoever serves it."""
+    stream.send_blueprint(blueprint, make_active=True, make_default=True)
+
+
 def rerun_switched_off() -> bool:
     """Whether Rerun's own switch, the environment variable RERUN, turns logging off (off, 0, false, no)."""
     return os.environ.get("RERUN", "").strip().lower() in ("off", "0", "false", "no")
@@ -263,6 +272,7 @@ __all__ = [
     "log_maze",
     "maze_image",
     "rerun_switched_off",
+    "send_active_layout",
     "web_serving_deferred",
     "write_errors_deferred",
 ]
