@@ -128,8 +128,8 @@ def panel_left(pixels: np.ndarray, row: int, x: int) -> int:
 
 def the_lab_layout(pixels: np.ndarray, maps: int) -> list[str]:
     """What is missing for the lab's layout with `maps` map panels side by side, drawn whole: in each
-    map the STATIONS stations and particles; above the maps the step panel's heading ("Step N" in
-    markdown, taller than any label of the viewer's own). Empty when everything is there."""
+    map the STATIONS stations and particles; above the maps the step panel with its heading ("Step N"
+    in markdown, taller than the viewer's own labels). Empty when everything is there."""
     missing = []
     stations = station_dots(pixels)
     if len(stations) != STATIONS * maps:
@@ -149,8 +149,10 @@ def the_lab_layout(pixels: np.ndarray, maps: int) -> list[str]:
         max(box[3] for box in stations),
     )
     lines = text_lines(pixels, 40, first_station - 12, left, right)
-    if not any(height >= 14 for _, height in lines):
-        missing.append(f"no heading above the maps (lines of text there: {lines})")
+    # lines[0] is the step panel's header ("step" and its icon, 15 px), lines[-1] the map panel's (14-15
+    # px); between them the step's heading, "Step N" in markdown: 18 px from cap to descender
+    if not any(height >= 16 for _, height in lines[1:-1]):
+        missing.append(f"no heading in the panel above the maps (lines of text there: {lines})")
     return missing
 
 
@@ -302,7 +304,11 @@ def test_view_replays_a_file_with_its_layout_first_and_active_and_the_recording_
     ],
     ids=["text appended", "bytes appended", "cut in half", "end marker cut"],
 )
-def test_view_refuses_a_file_that_is_not_a_whole_recording(tmp_path, capsys, damage, problem):
+def test_view_refuses_a_file_that_is_not_a_whole_recording(tmp_path, capsys, monkeypatch, damage, problem):
+    def served(cls, *recordings):
+        raise AssertionError("mazelab view went on to serve it")
+
+    monkeypatch.setattr(WebServer, "start", classmethod(served))  # a refused file never gets this far
     whole = tmp_path / "run.rrd"
     assert main([*SHORT_RUN, "--rrd", str(whole)]) == 0
     assert recording_problem(whole) is None
