@@ -32,6 +32,7 @@ FLAGS = (
     "--disable-background-networking",
     "--disable-component-update",
     "--disable-sync",
+    "--disable-breakpad",  # no crash reports written under the home folder
     "--use-angle=swiftshader",  # WebGL without a GPU: Rerun's web viewer needs WebGL 2 (or WebGPU)
     "--enable-unsafe-swiftshader",
     "--host-resolver-rules=MAP * ~NOTFOUND, EXCLUDE 127.0.0.1",  # nothing but this machine

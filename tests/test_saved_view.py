@@ -38,7 +38,7 @@ BROWSER = find_browser()
 needs_browser = pytest.mark.skipif(
     BROWSER is None,
     reason="no headless Chromium (chromium, chromium-browser or google-chrome on PATH, or $CHROMIUM): "
-    "the saved recording is not looked at in a browser; Debian/Ubuntu: apt-get install chromium",
+    "the saved recording is not looked at in a browser (Debian: apt-get install chromium)",
 )
 DEADLINE = 150.0  # seconds for a page to show everything it should (a failing page is given this long)
 STATIONS = 8  # the paper's maze: two station blocks, a station at each of their four corners
