@@ -16,7 +16,7 @@ from mazelab.robot import Robot
 from mazelab.scenario import DEFAULT_PARAMETERS_PATH, save_scenario
 from mazelab.simulation import RunResult
 from mazelab.viz.style import DEFAULT_MAX_DRAWN
-from mazelab.viz.targets import Visualization
+from mazelab.viz.targets import Visualization, in_jupyter
 from mazelab.viz.views import open_view
 
 
@@ -102,7 +102,9 @@ def run_model(
         **filter_options,
     )
     if save_parameters:  # say where: a relative path is relative to the folder Python runs in
-        print(f"scenario saved to {save_scenario(result.scenario, parameters_path).resolve()}")
+        saved = save_scenario(result.scenario, parameters_path)
+        # in Jupyter that folder is the notebook's: the name as given, no machine path in a report handed in
+        print(f"scenario saved to {saved if in_jupyter() and not saved.is_absolute() else saved.resolve()}")
     return result.as_pairs()
 
 

@@ -9,6 +9,7 @@ mazelab view FILE       a saved recording in the web viewer on 127.0.0.1 (no dis
 mazelab bench [--quick] the filters' speed against a plain numpy reference step
 mazelab accuracy        each filter's distance to the exact grid posterior on the shipped mazes
 mazelab filters [NAME]  the filters, and every option each declares (--option NAME=VALUE sets one)
+mazelab recordings      the saved recordings with their sizes; --clean thins the folder
 mazelab exercise --help write your own filter (new) and grade it against the exact posterior (check)
 """
 
@@ -72,6 +73,7 @@ from mazelab.cli.options import (
     warn_in_one_line,
 )
 from mazelab.cli.provenance import remember_arguments, repeat_command, show_version
+from mazelab.cli.recordings import recordings
 from mazelab.cli.replay import from_scenario, refuse_counts_for_replay, replay_seed
 from mazelab.cli.replay_filter import replay_filter_name, replay_options
 from mazelab.cli.reports import kidnap_report, particle_count_report, prepare_world, progress_printer, report_run
@@ -316,6 +318,7 @@ app.command(short_help="Every filter against the exact grid posterior.")(accurac
 app.add_typer(maze_app, name="maze")
 app.add_typer(exercise_app, name="exercise")
 app.command(short_help="A saved recording in the web viewer on 127.0.0.1.")(view)
+app.command(short_help="The recordings saved without a display; --clean removes old ones.")(recordings)
 
 
 @app.command(short_help="The filters' speed against a plain numpy step.")

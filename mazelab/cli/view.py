@@ -1,10 +1,9 @@
-"""`mazelab view FILE`: serve a saved recording in the web viewer on 127.0.0.1, for a machine without
-a display (over ssh: forward the two ports, then open the printed address)."""
+"""`mazelab view FILE`: serve a saved recording in the web viewer on 127.0.0.1, with the lab's layout,
+for a machine without a display (over ssh: forward the two ports, then open the printed address)."""
 
 from __future__ import annotations
 
 import signal
-import warnings
 from pathlib import Path
 from typing import Annotated
 
@@ -12,8 +11,7 @@ import typer
 
 from mazelab.cli.options import UserError
 from mazelab.viz.processes import WebServer
-
-RRD_MAGIC = b"RRF2"  # the first bytes of a Rerun recording file
+from mazelab.viz.saved import recording_problem, send_with_layout
 
 
 def view(
@@ -26,14 +24,25 @@ def view(
         raise UserError(f"{recording} is a folder, not a recording: name one .rrd file ({which})")
     if not recording.is_file():
         raise UserError(f"{recording}: no such recording file")
-    if not is_recording(recording):
-        raise UserError(f"{recording}: not a Rerun recording (.rrd)")
+    problem = recording_problem(recording)
+    if problem is not None:
+        raise UserError(f"{recording}: {problem}")
     try:
-        server = WebServer.start([recording])
+        server = WebServer.start()
     except (RuntimeError, OSError) as error:
         raise UserError(f"{recording}: cannot serve it ({error})") from None
-    print(f"Serving {recording}")
     stop_on_termination()
+    try:
+        # sent by us, not by `rerun --serve-web FILE`: the lab's layout goes first and active (see mazelab.viz.saved)
+        send_with_layout(recording, server.grpc_url)
+    except RuntimeError as error:  # rerun could not read or send it after all
+        server.stop()
+        typer.echo(f"error: {recording}: could not send it to the web viewer ({error})", err=True)
+        raise typer.Exit(1) from None
+    except BaseException:
+        server.stop()
+        raise
+    print(f"Serving {recording}")
     server.serve_until_interrupted()
 
 
@@ -49,23 +58,4 @@ def stop_on_termination() -> None:
             signal.signal(getattr(signal, name), interrupt)
 
 
-def is_recording(path: Path) -> bool:
-    """Whether the file is an .rrd recording: Rerun's 'RRF2' header, and Rerun's own reader finds a
-    whole recording in it (a file that only starts like one, or is cut short, is not)."""
-    try:
-        with path.open("rb") as file:
-            if file.read(4) != RRD_MAGIC:
-                return False
-    except OSError:
-        return False
-    from rerun.chunk import RrdReader
-
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # "no footer": a cut file is scanned, then refused below
-            return any(store.kind == "recording" for store in RrdReader(path).recordings())
-    except Exception:  # Rerun's reader refuses it: a bad frame, an unknown encoding, a cut file
-        return False
-
-
-__all__ = ["is_recording", "stop_on_termination", "view"]
+__all__ = ["stop_on_termination", "view"]

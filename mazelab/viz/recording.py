@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from mazelab.atomic import WriteError, write_bytes_atomically
+from mazelab.invocation import command_prefix
 from mazelab.maze import EMPTY, Maze
 from mazelab.viz.processes import WebServer, hold_stop_signals, native_viewer, open_hint, release_stop_signals
 from mazelab.viz.style import (
@@ -32,9 +33,17 @@ from mazelab.viz.style import (
     STATION_RADIUS,
     WALL_COLOR,
 )
-from mazelab.viz.targets import default_recording_path, has_display, next_free_name, resolve_target
+from mazelab.viz.targets import (
+    default_recording_path,
+    folder_summary,
+    has_display,
+    human_size,
+    next_free_name,
+    resolve_target,
+)
 
 RERUN_OFF_NOTE = "Rerun is switched off (RERUN=off in the environment): nothing is recorded"
+KEEP_HINT = 10  # the cleanup the save line suggests: keep this many of the newest default recordings
 _deferred_errors: ContextVar[list[WriteError] | None] = ContextVar("deferred_write_errors", default=None)
 _deferred_servers: ContextVar[list[WebServer] | None] = ContextVar("deferred_web_servers", default=None)
 
@@ -103,11 +112,13 @@ class Recording:
         sink = stream.binary_stream()  # kept in memory: written whole at close (see mazelab.atomic)
         if target == "web":
             server = WebServer.start()
-            stream.set_sinks(rr.GrpcSink(server.grpc_url), sink, default_blueprint=blueprint)
+            stream.set_sinks(rr.GrpcSink(server.grpc_url), sink)
+            send_active_layout(stream, blueprint)
             print(f"Serving the web viewer at {server.url}")
             server.announced = True
             return cls(stream, path=path, server=server, sink=sink, claim_name=True)
-        stream.set_sinks(sink, default_blueprint=blueprint)
+        stream.set_sinks(sink)
+        send_active_layout(stream, blueprint)
         return cls(stream, path=path, sink=sink, claim_name=default_name, replace=replace)
 
     def log_robot(self, step: int, position: Sequence[float], heading: float | None) -> None:
@@ -185,7 +196,10 @@ class Recording:
             except WriteError as error:
                 self._defer_or_raise(error)
                 return
-        print(f"Recording saved to {self.path}; open it with: {open_hint(self.path, has_display())}")
+        hint = open_hint(self.path, has_display())
+        print(f"Recording saved to {self.path}; {human_size(len(data))}; open it with: {hint}")
+        if self.claim_name:  # a default name: runs without a display pile them up in RECORDINGS_DIR
+            print(cleanup_hint(self.path.parent))
 
     @staticmethod
     def _defer_or_raise(error: OSError) -> None:
@@ -194,6 +208,20 @@ class Recording:
         if deferred is None:
             raise error
         deferred.append(error if isinstance(error, WriteError) else WriteError(error.errno, error.strerror))
+
+
+def cleanup_hint(folder: Path) -> str:
+    """What the folder of default recordings holds now, and the command that thins it (`recordings`
+    without options lists them)."""
+    command = f"{command_prefix()} recordings --keep {KEEP_HINT} --clean"
+    return f"{folder_summary(folder)}; to keep only the {KEEP_HINT} newest: {command}"
+
+
+def send_active_layout(stream: Any, blueprint: Any) -> None:
+    """Send the lab's layout to a stream that goes to a file, marked active as well as default: a
+    file whose blueprint is only the default opens in Rerun's web viewer with its automatic grid
+    (the recording comes first in the file; see mazelab.viz.saved), whoever serves it."""
+    stream.send_blueprint(blueprint, make_active=True, make_default=True)
 
 
 def rerun_switched_off() -> bool:
@@ -257,12 +285,15 @@ def heading_vectors(angles: np.ndarray, length: float) -> np.ndarray:
 
 
 __all__ = [
+    "KEEP_HINT",
     "RERUN_OFF_NOTE",
     "Recording",
+    "cleanup_hint",
     "heading_vectors",
     "log_maze",
     "maze_image",
     "rerun_switched_off",
+    "send_active_layout",
     "web_serving_deferred",
     "write_errors_deferred",
 ]

@@ -100,6 +100,63 @@ def next_free_name(path: Path) -> Path:
             return candidate
 
 
+# -- the recordings folder -------------------------------------------------------------------------
+LAB_NAME = re.compile(r"[^.].*-\d{8}-\d{6}(-\d+)?\.rrd")  # default names: <label>-<date>-<time>[-N].rrd
+
+
+@dataclass(frozen=True)
+class SavedRecording:
+    """A recording file in a folder: its path, size (bytes), time last written (seconds since the
+    epoch), and whether the lab named it (a default name, see default_recording_path)."""
+
+    path: Path
+    size: int
+    modified: float
+
+    @property
+    def lab_named(self) -> bool:
+        return LAB_NAME.fullmatch(self.path.name) is not None
+
+
+def saved_recordings(folder: Path | None = None) -> list[SavedRecording]:
+    """The .rrd files in `folder` (default RECORDINGS_DIR) that are regular files (a symbolic link or
+    a folder is not one of them), oldest first; none when the folder does not exist."""
+    folder = RECORDINGS_DIR if folder is None else folder
+    found = []
+    try:
+        entries = list(os.scandir(folder))
+    except (FileNotFoundError, NotADirectoryError):
+        return []
+    for entry in entries:
+        if entry.name.startswith(".") or not entry.name.endswith(".rrd"):
+            continue
+        try:
+            if not entry.is_file(follow_symlinks=False):
+                continue
+            info = entry.stat(follow_symlinks=False)
+        except FileNotFoundError:  # removed meanwhile (another cleanup, a run's rename)
+            continue
+        found.append(SavedRecording(Path(folder) / entry.name, info.st_size, info.st_mtime))
+    return sorted(found, key=lambda saved: (saved.modified, saved.path.name))
+
+
+def human_size(size: float) -> str:
+    """A size in bytes as people write it, in powers of 1000: 532 B, 12.4 kB, 3.1 MB, 1.25 GB."""
+    for unit, scale in (("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
+        if size >= scale:
+            value = size / scale
+            return f"{value:.3g} {unit}" if value < 100 else f"{value:.0f} {unit}"
+    return f"{int(size)} B"
+
+
+def folder_summary(folder: Path | None = None) -> str:
+    """What a folder of recordings holds now, e.g. "recordings/ holds 7 recordings, 140 MB"."""
+    folder = RECORDINGS_DIR if folder is None else folder
+    found = saved_recordings(folder)
+    count = f"{len(found)} recording{'s' if len(found) != 1 else ''}"
+    return f"{folder}{os.sep} holds {count}, {human_size(sum(saved.size for saved in found))}"
+
+
 def has_display() -> bool:
     """Whether a native viewer window can open: always on macOS and Windows, else DISPLAY or WAYLAND_DISPLAY."""
     return sys.platform in ("darwin", "win32") or bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
@@ -118,14 +175,19 @@ def notebook_viewer_installed() -> bool:
 
 
 __all__ = [
+    "LAB_NAME",
     "RECORDINGS_DIR",
     "TARGET_WORDS",
+    "SavedRecording",
     "Visualization",
     "check_target_word",
     "default_recording_path",
+    "folder_summary",
     "has_display",
+    "human_size",
     "in_jupyter",
     "next_free_name",
     "notebook_viewer_installed",
     "resolve_target",
+    "saved_recordings",
 ]

@@ -1,0 +1,151 @@
+"""`mazelab recordings [FOLDER]`: the recordings that runs without a display saved (recordings/ in the
+current folder), with their sizes; `--keep N`, `--older-than AGE` and `--max-size SIZE` choose old
+ones to remove, shown first, removed with `--clean`.
+
+Only recordings the lab named (`<label>-<date>-<time>.rrd`, regular files) are ever removed: a file
+you saved there under a name of your own, a link or a folder stays.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import stat
+import time
+from datetime import datetime
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from mazelab.cli.options import UserError
+from mazelab.invocation import command_prefix
+from mazelab.viz import targets
+from mazelab.viz.targets import SavedRecording, folder_summary, human_size, saved_recordings
+
+AGE_UNITS = {"m": 60.0, "h": 3600.0, "d": 86400.0, "w": 7 * 86400.0}
+SIZE_UNITS = {"": 1.0, "k": 1e3, "m": 1e6, "g": 1e9, "t": 1e12}
+
+
+def parse_age(text: str) -> float:
+    """An age such as 30m, 12h, 7d or 2w, in seconds."""
+    match = re.fullmatch(r"\s*(\d+(?:\.\d+)?)\s*([mhdw])\s*", text.lower())
+    if match is None:
+        raise UserError(f"--older-than {text!r}: write a number and a unit: 30m, 12h, 7d or 2w")
+    return float(match.group(1)) * AGE_UNITS[match.group(2)]
+
+
+def parse_size(text: str) -> float:
+    """A size such as 100MB, 1.5GB, 500kB or 100M (powers of 1000), in bytes."""
+    match = re.fullmatch(r"\s*(\d+(?:\.\d+)?)\s*([kmgt]?)b?\s*", text.lower())
+    if match is None:
+        raise UserError(f"--max-size {text!r}: write a number and a unit: 500kB, 100MB or 1.5GB")
+    return float(match.group(1)) * SIZE_UNITS[match.group(2)]
+
+
+def chosen(
+    found: list[SavedRecording], keep: int | None, older_than: float | None, max_size: float | None, now: float
+) -> list[SavedRecording]:
+    """The lab-named recordings of `found` (oldest first) that a rule removes: beyond the `keep`
+    newest, older than `older_than` seconds, or beyond `max_size` bytes counted from the newest.
+    Together, a recording goes when any rule says so."""
+    named = [saved for saved in found if saved.lab_named]
+    newest_first = named[::-1]
+    doomed: set[Path] = set()
+    if keep is not None:
+        doomed |= {saved.path for saved in newest_first[keep:]}
+    if older_than is not None:
+        doomed |= {saved.path for saved in named if now - saved.modified > older_than}
+    if max_size is not None:
+        total = 0
+        for saved in newest_first:
+            total += saved.size
+            if total > max_size:
+                doomed.add(saved.path)
+    return [saved for saved in named if saved.path in doomed]
+
+
+def remove(doomed: list[SavedRecording]) -> list[SavedRecording]:
+    """Remove each file that is still the regular file listed (one replaced by a link meanwhile, or
+    gone, is left alone); the ones removed. The first error (permissions) ends it, raised."""
+    removed = []
+    for saved in doomed:
+        try:
+            info = os.lstat(saved.path)
+        except FileNotFoundError:
+            continue
+        if not stat.S_ISREG(info.st_mode) or info.st_size != saved.size:
+            continue  # no longer the recording listed: a run rewrote the name, or it is a link now
+        os.unlink(saved.path)
+        removed.append(saved)
+    return removed
+
+
+def line(saved: SavedRecording, mark: str = "") -> str:
+    """One recording: when it was written, its size, its path."""
+    when = datetime.fromtimestamp(saved.modified).strftime("%Y-%m-%d %H:%M")
+    return f"  {when}  {human_size(saved.size):>8}  {saved.path}{mark}"
+
+
+def recordings(
+    folder: Annotated[
+        Path | None,
+        typer.Argument(metavar="FOLDER", help="where (default: recordings/ here)", show_default=False),
+    ] = None,
+    keep: Annotated[
+        int | None, typer.Option("--keep", metavar="N", min=0, help="remove all but the N newest", show_default=False)
+    ] = None,
+    older_than: Annotated[
+        str | None, typer.Option("--older-than", metavar="AGE", help="remove older ones: 30m, 12h, 7d, 2w")
+    ] = None,
+    max_size: Annotated[
+        str | None, typer.Option("--max-size", metavar="SIZE", help="keep the newest within SIZE: 500MB, 2GB")
+    ] = None,
+    clean: Annotated[
+        bool, typer.Option("--clean", help="remove the recordings chosen (without: only show them)")
+    ] = False,
+) -> None:
+    """List the recordings of runs without a display, with their sizes; remove old ones with --clean."""
+    folder = targets.RECORDINGS_DIR if folder is None else folder
+    if folder.exists() and not folder.is_dir():
+        raise UserError(f"{folder} is not a folder: name the folder of recordings (default: recordings/)")
+    ages = None if older_than is None else parse_age(older_than)
+    cap = None if max_size is None else parse_size(max_size)
+    rules = keep is not None or ages is not None or cap is not None
+    if clean and not rules:
+        raise UserError(
+            "--clean needs what to remove: --keep N (all but the N newest), --older-than 7d or --max-size 500MB"
+        )
+    found = saved_recordings(folder)
+    if not found:
+        typer.echo(f"No recordings in {folder}{os.sep}" + ("" if folder.is_dir() else " (no such folder)"))
+        return
+    doomed = chosen(found, keep, ages, cap, time.time()) if rules else []
+    if clean:
+        removed = remove(doomed)
+        freed = human_size(sum(saved.size for saved in removed))
+        typer.echo(
+            f"Removed {len(removed)} recording{'s' if len(removed) != 1 else ''} ({freed}); {folder_summary(folder)}"
+        )
+        return
+    marks = {saved.path for saved in doomed}
+    typer.echo(f"{folder_summary(folder)}:")
+    for saved in found:
+        mark = "  (would be removed)" if saved.path in marks else "" if saved.lab_named else "  (your name: kept)"
+        typer.echo(line(saved, mark))
+    options = " ".join(
+        part for part in (
+            f"--keep {keep}" if keep is not None else "",
+            f"--older-than {older_than}" if older_than is not None else "",
+            f"--max-size {max_size}" if max_size is not None else "",
+        ) if part
+    )  # fmt: skip
+    where = "" if folder == targets.RECORDINGS_DIR else f" {folder}"
+    if rules:
+        size = human_size(sum(saved.size for saved in doomed))
+        typer.echo(f"{len(doomed)} would be removed ({size}): {command_prefix()} recordings{where} {options} --clean")
+    else:
+        typer.echo(f"To remove old ones: {command_prefix()} recordings{where} --keep 10 (shows them), then add --clean")
+
+
+__all__ = ["chosen", "parse_age", "parse_size", "recordings", "remove"]

@@ -1,0 +1,100 @@
+"""A saved recording (.rrd): whether it is a whole one, and sending it to a viewer with its own layout.
+
+Why the layout needs sending, not only the file (rerun-sdk 0.41): a file written with
+``default_blueprint=`` marks its blueprint as the application's *default* only
+(``BlueprintActivationCommand make_active=false``), and the SDK writes the recording's own store
+(its properties) before the blueprint. The web viewer, fed such a file by ``rerun --serve-web FILE``
+or by an http URL, activates the recording first; finding no active layout for the application it
+builds its automatic grid, and a default that arrives later stays a default ("reset the blueprint"
+to see it). The native viewer, which reads local files through its catalog, shows the default. So
+recordings are written with their blueprint made active (mazelab.viz.recording), and `mazelab view`
+sends a file's blueprint first and active, which also opens files written before that with the
+lab's layout.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Callable, Iterable
+from pathlib import Path
+from typing import Any
+
+RRD_MAGIC = b"RRF2"  # the first bytes of a Rerun recording file
+
+
+class SavedBlueprint:
+    """A blueprint read back from a file, in the form `RecordingStream.send_blueprint` takes: rerun 0.41
+    turns a BlueprintLike into a blueprint stream by `to_blueprint()._log_to_stream(stream)`; here that
+    sends the file's blueprint chunks as they are (containers, views, shares, visual bounds)."""
+
+    def __init__(self, chunks: Iterable[Any]):
+        self.chunks = list(chunks)
+
+    def to_blueprint(self) -> SavedBlueprint:
+        """The blueprint itself (the BlueprintLike protocol)."""
+        return self
+
+    def _log_to_stream(self, stream: Any) -> None:
+        """Send the saved chunks to the blueprint stream that rerun prepared."""
+        stream.send_chunks(self.chunks)
+
+
+def recording_problem(path: Path) -> str | None:
+    """Why `path` is not a whole Rerun recording, or None when it is one: Rerun's "RRF2" header, a
+    recording its reader finds, and Rerun's end marker at the very end of the file (rerun 0.41 ends
+    every file it writes with a footer that indexes its chunks; a file with bytes appended, or cut
+    short, has none where the reader looks)."""
+    try:
+        with path.open("rb") as file:
+            if file.read(4) != RRD_MAGIC:
+                return "not a Rerun recording (.rrd)"
+    except OSError as error:
+        return f"cannot be read ({error.strerror})"
+    from rerun.chunk import RrdReader
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # "no footer/manifest": a file without an end marker, refused below
+            reader = RrdReader(path)
+            recordings = reader.recordings()
+            if not recordings:
+                return "not a Rerun recording (.rrd): it holds no recording"
+    except Exception:  # Rerun's reader refuses it: a bad frame, an unknown encoding, a file cut in a frame
+        return "not a Rerun recording (.rrd), or a damaged one: Rerun cannot read it (cut short?)"
+    try:
+        reader.store(store=recordings[0])  # needs the footer: refused by rerun when the file does not end with it
+    except Exception:
+        return "not a whole Rerun recording: something follows the end of the recording, or it was cut short"
+    return None
+
+
+def send_with_layout(path: Path, url: str) -> None:
+    """Send the saved recording `path` (checked by recording_problem) to the viewer or proxy at the
+    gRPC `url`, its layout first and active (see replay_with_layout)."""
+    replay_with_layout(path, lambda stream: stream.connect_grpc(url))
+
+
+def replay_with_layout(path: Path, connect: Callable[[Any], None]) -> None:
+    """Replay the saved recording `path` into new streams, each given its sink by `connect`: for each
+    recording in the file, its application's blueprint first, made the active layout, then the
+    recording's chunks (its properties among them), under the file's own application and recording
+    ids. Each stream is flushed and closed before this returns."""
+    import rerun as rr
+    from rerun.chunk import RrdReader
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        reader = RrdReader(path)
+        blueprints = {entry.application_id: entry for entry in reader.blueprints()}  # the last of each application
+        for entry in reader.recordings():
+            stream = rr.RecordingStream(entry.application_id, recording_id=entry.recording_id, send_properties=False)
+            connect(stream)
+            if entry.application_id in blueprints:
+                layout = SavedBlueprint(reader.stream(store=blueprints[entry.application_id]))
+                stream.send_blueprint(layout, make_active=True, make_default=True)
+            stream.send_chunks(reader.stream(store=entry))
+            stream.flush()
+            stream.disconnect()
+
+
+__all__ = ["RRD_MAGIC", "SavedBlueprint", "recording_problem", "replay_with_layout", "send_with_layout"]
