@@ -309,7 +309,7 @@ def compare(
         f"{len(setup.initial_particles)} particles)"
     )
     report_compare(results, kld=bool(given.get("kld")), csv_path=csv_path, plot=plot, title=title, force=force)
-    finish_compare(results, setup.seed, traces, recorder, record_file)
+    finish_compare(results, setup.seed, traces, recorder, record_file, maze=setup.world.source)
 
 
 app.command(short_help="Lab step 14: a Monte Carlo parameter study.")(study)

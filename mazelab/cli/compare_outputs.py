@@ -60,11 +60,17 @@ def report_compare(
 
 
 def finish_compare(
-    results: dict[str, RunResult], seed: int, traces: Path | None, recorder: Recorder, record_file: Path | None
+    results: dict[str, RunResult],
+    seed: int,
+    traces: Path | None,
+    recorder: Recorder,
+    record_file: Path | None,
+    maze: str | None = None,
 ) -> None:
-    """Write the traces and the record (with each filter's figures)."""
+    """Write the traces (with the scenario's `maze`, sigma, delta and particle count) and the record
+    (with each filter's figures)."""
     if traces is not None:
-        write_traces(traces, compare_traces(results, seed))
+        write_traces(traces, compare_traces(results, seed, maze))
         typer.echo(f"per-step traces written to {traces}")
     if record_file is not None:
         summary = [

@@ -19,7 +19,7 @@ from mazelab.experiments.plan import plan_study, study_mazes
 from mazelab.experiments.record import Recorder
 from mazelab.experiments.summary import summarise_study
 from mazelab.experiments.tables import flat_row
-from mazelab.experiments.traces import TRACE_COLUMNS, study_traces
+from mazelab.experiments.traces import study_traces, trace_table_columns
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, RPF_THRESHOLD
 
 
@@ -219,7 +219,7 @@ def study(
         runs_finished=len({(r.setting, r.run) for r in outcome.records}),
     )
     blocks = study_traces(outcome.records) if traces else []
-    columns = {c: np.concatenate([b[c] for b in blocks]) for c in TRACE_COLUMNS} if blocks else None
+    columns = trace_table_columns(blocks)
     return StudyResult([flat_row(r) for r in outcome.records], summary, record, failures, columns)
 
 

@@ -1,6 +1,9 @@
 """Per-step traces (`study --traces`, `compare --traces`): one row per run, filter and step, in long
 format, so that pandas reads them directly (`pandas.read_csv`, or `read_parquet` for a .parquet file,
-which needs pyarrow). Columns: TRACE_COLUMNS."""
+which needs pyarrow). Columns: TRACE_COLUMNS, then each filter's own diagnostics (`regularised`,
+`injection_probability`, ...: empty where a filter has none), then the row's parameters (the maze,
+sigma, delta, particles, the paper's four options and any other option of the setting), so that a
+band plot of the error against the steps, by filter and parameter, is one `groupby`."""
 
 from __future__ import annotations
 
@@ -34,6 +37,7 @@ TRACE_COLUMNS = [
     "step_ms",  # the filter's own time for the step
     "particle_count",
 ]
+PARAMETER_COLUMNS = ["maze", "sigma", "delta", "particles", "threshold", "recovery", "bandwidth", "estimate"]
 PARQUET_HINT = "a .parquet trace file needs pyarrow (pip install pyarrow); or give a .csv path"
 
 
@@ -48,10 +52,20 @@ def check_trace_path(path: Path) -> None:
         raise ValueError(f"--traces {path}: give a .csv or .parquet file")
 
 
-def trace_columns(setting: int | None, run: int, seed: int, name: str, trace: dict[str, np.ndarray]) -> dict[str, Any]:
-    """One run and filter's trace as columns (arrays of one length)."""
+def trace_columns(
+    setting: int | None,
+    run: int,
+    seed: int,
+    name: str,
+    trace: dict[str, Any],
+    parameters: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """One run and filter's trace as columns (arrays of one length): TRACE_COLUMNS, the filter's
+    diagnostics, and the row's `parameters` (a value each, the same at every step)."""
     steps = len(trace["ess"])
     true, estimate = np.asarray(trace["true"], dtype=float), np.asarray(trace["estimate"], dtype=float)
+    diagnostics = {name_: np.asarray(v, dtype=float) for name_, v in (trace.get("diagnostics") or {}).items()}
+    constant = {name_: np.full(steps, value, dtype=object) for name_, value in (parameters or {}).items()}
     return {
         "setting": np.full(steps, -1 if setting is None else setting),
         "run": np.full(steps, run),
@@ -67,35 +81,82 @@ def trace_columns(setting: int | None, run: int, seed: int, name: str, trace: di
         "confident": np.asarray(trace["confident"]).astype(np.int8),
         "step_ms": 1e3 * np.asarray(trace["step_seconds"], dtype=float),
         "particle_count": np.asarray(trace["particle_count"], dtype=np.int64),
+        **{f"{DIAGNOSTIC_PREFIX}{name_}": values for name_, values in diagnostics.items()},
+        **constant,
     }
 
 
+DIAGNOSTIC_PREFIX = "diagnostic_"  # a filter's own per-step figure, e.g. diagnostic_regularised
+
+
+def record_parameters(record: RunRecord) -> dict[str, Any]:
+    """A study row's parameters as trace columns: PARAMETER_COLUMNS, then its other options."""
+    return {**{name: getattr(record, name) for name in PARAMETER_COLUMNS}, **record.options}
+
+
 def study_traces(records: Iterable[RunRecord]) -> list[dict[str, Any]]:
-    """The traces a study's records carry (RunTask.traces), as columns per run and filter."""
-    return [trace_columns(r.setting, r.run, r.seed, r.filter, r.trace) for r in records if r.trace is not None]
+    """The traces a study's records carry (RunTask.traces), as columns per run and filter, with the
+    row's parameters."""
+    return [
+        trace_columns(r.setting, r.run, r.seed, r.filter, r.trace, record_parameters(r))
+        for r in records
+        if r.trace is not None
+    ]
 
 
-def compare_traces(results: dict[str, RunResult], seed: int) -> list[dict[str, Any]]:
-    """compare's runs (one scenario, every filter) as trace columns."""
-    return [trace_columns(None, 1, seed, name, trace_of(result)) for name, result in results.items()]
+def compare_traces(results: dict[str, RunResult], seed: int, maze: str | None = None) -> list[dict[str, Any]]:
+    """compare's runs (one scenario, every filter) as trace columns, with each run's sigma, delta and
+    particle count (and `maze`, the scenario's, if given)."""
+    blocks = []
+    for name, result in results.items():
+        inputs = result.inputs
+        parameters = {"maze": maze, "sigma": inputs.sigma, "delta": inputs.delta, "particles": len(inputs.particles)}
+        blocks.append(trace_columns(None, 1, seed, name, trace_of(result), parameters))
+    return blocks
 
 
-def trace_csv_rows(blocks: Sequence[dict[str, Any]]) -> str:
-    """The rows of the blocks as CSV text, without the header: exact floats (%.17g), an empty cell for
-    NaN and for compare's setting."""
+def trace_column_names(blocks: Sequence[dict[str, Any]]) -> list[str]:
+    """The columns of these blocks: TRACE_COLUMNS, the diagnostics any of them has, then the parameters."""
+    extra = dict.fromkeys(column for block in blocks for column in block if column not in TRACE_COLUMNS)
+    diagnostics = [c for c in extra if c.startswith(DIAGNOSTIC_PREFIX)]
+    return [*TRACE_COLUMNS, *diagnostics, *(c for c in extra if c not in diagnostics)]
+
+
+def trace_csv_rows(blocks: Sequence[dict[str, Any]], columns: Sequence[str] | None = None) -> str:
+    """The rows of the blocks as CSV text, without the header, in `columns` (default: the blocks' own):
+    exact floats (%.17g), an empty cell for NaN, for compare's setting and for a column a block lacks."""
+    columns = trace_column_names(blocks) if columns is None else list(columns)
     buffer = io.StringIO()
+    numeric = TRACE_COLUMNS[4:]  # step .. particle_count
     for block in blocks:
         setting = "" if block["setting"][0] == -1 else str(block["setting"][0])
-        prefix = f"{setting},{block['run'][0]},{block['seed'][0]},{block['filter'][0]}"
-        numbers = np.column_stack([block[c].astype(float) for c in TRACE_COLUMNS[4:]])  # step .. particle_count
+        prefix = f"{setting},{block['run'][0]},{block['seed'][0]},{_cell(block['filter'][0])}"
+        steps = len(block["step"])
+        diagnostics = [c for c in columns[len(TRACE_COLUMNS) :] if c.startswith(DIAGNOSTIC_PREFIX)]
+        numbers = np.column_stack(
+            [block[c].astype(float) for c in numeric] + [block.get(c, np.full(steps, np.nan)) for c in diagnostics]
+        )
         text = io.StringIO()
-        np.savetxt(text, numbers, fmt=["%d", *["%.17g"] * 6, "%d", "%.17g", "%d"], delimiter=",")
-        buffer.writelines(f"{prefix},{line}\n" for line in text.getvalue().replace("nan", "").splitlines())
+        fmt = ["%d", *["%.17g"] * 6, "%d", "%.17g", "%d", *["%.17g"] * len(diagnostics)]
+        np.savetxt(text, numbers, fmt=fmt, delimiter=",")
+        constants = [c for c in columns[len(TRACE_COLUMNS) :] if not c.startswith(DIAGNOSTIC_PREFIX)]
+        suffix = "".join(f",{_cell(block[c][0]) if c in block else ''}" for c in constants)
+        buffer.writelines(f"{prefix},{line}{suffix}\n" for line in text.getvalue().replace("nan", "").splitlines())
     return buffer.getvalue()
 
 
-def trace_header() -> str:
-    return ",".join(TRACE_COLUMNS) + "\n"
+def _cell(value: Any) -> str:
+    """A constant cell as CSV writes it: an empty one for None, a float in full, quoted where needed."""
+    if value is None or (isinstance(value, float) and np.isnan(value)):
+        return ""
+    text = repr(value) if isinstance(value, float) else str(value)
+    if any(ch in text for ch in ',"\n'):
+        return '"' + text.replace('"', '""') + '"'
+    return text
+
+
+def trace_header(columns: Sequence[str] = TRACE_COLUMNS) -> str:
+    return ",".join(columns) + "\n"
 
 
 def write_traces(
@@ -108,16 +169,47 @@ def write_traces(
         import pyarrow as pa
         import pyarrow.parquet as pq
 
-        columns = {c: np.concatenate([b[c] for b in blocks]) if blocks else np.array([]) for c in TRACE_COLUMNS}
+        names = trace_column_names(blocks)
+        columns = {c: np.concatenate([_filled(b, c) for b in blocks]) if blocks else np.array([]) for c in names}
         columns["setting"] = np.where(columns["setting"] == -1, None, columns["setting"]) if blocks else []
-        table = pa.table({c: pa.array(list(v) if c in ("setting", "filter") else v) for c, v in columns.items()})
+        table = pa.table(
+            {c: pa.array(list(v) if v.dtype == object or c == "setting" else v) for c, v in columns.items()}
+        )
         if kept is not None:
-            table = pa.concat_tables([kept, table.cast(kept.schema)])
+            table = pa.concat_tables([kept, table], promote_options="permissive")
         buffer = io.BytesIO()
         pq.write_table(table, buffer)
         write_bytes_atomically(path, buffer.getvalue(), follow_links=follow_links)
         return
-    write_text_atomically(path, trace_header() + (kept or "") + trace_csv_rows(blocks), follow_links=follow_links)
+    kept_header, kept_rows = kept if kept else (None, "")
+    columns = trace_column_names(blocks)
+    if kept_header is not None:  # an earlier session's columns first, then any new one
+        columns = [*kept_header, *(c for c in columns if c not in kept_header)]
+        kept_rows = _padded(kept_rows, len(kept_header), len(columns))
+    text = trace_header(columns) + kept_rows + trace_csv_rows(blocks, columns)
+    write_text_atomically(path, text, follow_links=follow_links)
+
+
+def trace_table_columns(blocks: Sequence[dict[str, Any]]) -> dict[str, np.ndarray] | None:
+    """The blocks as one set of columns (a diagnostic missing from a block: NaN there), or None."""
+    if not blocks:
+        return None
+    return {c: np.concatenate([_filled(b, c) for b in blocks]) for c in trace_column_names(blocks)}
+
+
+def _filled(block: dict[str, Any], column: str) -> np.ndarray:
+    """A block's column, or missing values where the block has none (another filter's diagnostic)."""
+    if column in block:
+        return block[column]
+    steps = len(block["step"])
+    return np.full(steps, np.nan) if column.startswith(DIAGNOSTIC_PREFIX) else np.full(steps, None, dtype=object)
+
+
+def _padded(rows: str, have: int, want: int) -> str:
+    """CSV rows of `have` cells with empty cells added up to `want`."""
+    if want == have or not rows:
+        return rows
+    return "".join(line.rstrip("\n") + "," * (want - have) + "\n" for line in rows.splitlines())
 
 
 def check_traces_of_study(path: Path, tasks: Sequence[RunTask]) -> set[tuple[int, int]]:
@@ -163,12 +255,13 @@ def _trace_keys(path: Path) -> Iterable[tuple[int | None, int, int, str, int]]:
         yield from zip(*(table[c] for c in ("setting", "run", "seed", "filter", "step")), strict=True)
         return
     lines = _trace_lines(path)
+    width = len(next(csv.reader(lines[:1]))) if lines else len(TRACE_COLUMNS)
     try:
         for number, row in enumerate(csv.reader(lines[1:]), start=2):
-            if len(row) != len(TRACE_COLUMNS):
+            if len(row) != width:
                 if number == len(lines):
                     return  # cut short
-                raise ValueError(f"--resume: {path} row {number} has {len(row)} cells, the header {len(TRACE_COLUMNS)}")
+                raise ValueError(f"--resume: {path} row {number} has {len(row)} cells, the header {width}")
             yield int(row[0]), int(row[1]), int(row[2]), row[3], int(row[4])
     except csv.Error as error:
         raise ValueError(f"--resume: {path} is not a trace file ({error})") from None
@@ -184,7 +277,7 @@ def _trace_lines(path: Path) -> list[str]:
         lines = read_regular_text(path, "a trace file").splitlines(keepends=True)
     except ValueError as error:
         raise ValueError(f"--resume: {error}") from None
-    if lines and lines[0] != trace_header():
+    if lines and next(csv.reader(lines[:1]))[: len(TRACE_COLUMNS)] != TRACE_COLUMNS:
         raise ValueError(f"--resume: {path} is not a trace file of this version (its columns differ)")
     return lines
 
@@ -195,9 +288,9 @@ def pa_buffer(data: bytes) -> Any:
     return pa.BufferReader(data)
 
 
-def kept_traces(path: Path, rerun: set[tuple[int, int]]) -> str | Any:
-    """An earlier session's traces (for --resume), without the (setting, run)s run again; None if the
-    file is not there."""
+def kept_traces(path: Path, rerun: set[tuple[int, int]]) -> tuple[list[str], str] | Any:
+    """An earlier session's traces (for --resume), without the (setting, run)s run again: (its header's
+    columns, its rows as CSV text) for a CSV, a pyarrow Table for Parquet; None if the file is not there."""
     if not path.exists():
         return None
     if path.suffix.lower() == ".parquet":
@@ -210,12 +303,13 @@ def kept_traces(path: Path, rerun: set[tuple[int, int]]) -> str | Any:
         keys = pc.binary_join_element_wise(pc.cast(table["setting"], "string"), pc.cast(table["run"], "string"), ",")
         wanted = pa_array_of({f"{s},{r}" for s, r in rerun})
         return table.filter(pc.invert(pc.is_in(keys, value_set=wanted)))
-    lines = _trace_lines(path)[1:]
+    lines = _trace_lines(path)
+    header = next(csv.reader(lines[:1])) if lines else list(TRACE_COLUMNS)
     kept = []
-    for row, line in zip(csv.reader(lines), lines, strict=True):
-        if len(row) == len(TRACE_COLUMNS) and line.endswith("\n") and (int(row[0]), int(row[1])) not in rerun:
+    for row, line in zip(csv.reader(lines[1:]), lines[1:], strict=True):
+        if len(row) == len(header) and line.endswith("\n") and (int(row[0]), int(row[1])) not in rerun:
             kept.append(line)
-    return "".join(kept)
+    return header, "".join(kept)
 
 
 def pa_array_of(values: set[str]) -> Any:
@@ -225,14 +319,19 @@ def pa_array_of(values: set[str]) -> Any:
 
 
 __all__ = [
+    "DIAGNOSTIC_PREFIX",
+    "PARAMETER_COLUMNS",
     "PARQUET_HINT",
     "TRACE_COLUMNS",
     "check_trace_path",
     "check_traces_of_study",
     "compare_traces",
     "kept_traces",
+    "record_parameters",
     "study_traces",
+    "trace_column_names",
     "trace_columns",
     "trace_csv_rows",
+    "trace_table_columns",
     "write_traces",
 ]
