@@ -55,7 +55,7 @@ from mazelab.experiments.rowlog import RowLog, check_left_over, check_partial_na
 from mazelab.experiments.runs import parse_filters
 from mazelab.experiments.stats import CONFIDENCE_LEVEL
 from mazelab.experiments.study import PAPER_OPTIONS, MazeChoice, RunRecord, RunTask, StudyOutcome, declared_option
-from mazelab.experiments.summary import study_table, summarise_study
+from mazelab.experiments.summary import CSV_DTYPES, study_table, summarise_study
 from mazelab.experiments.traces import (
     check_trace_path,
     check_traces_of_study,
@@ -291,6 +291,7 @@ def open_session(
     recorder = Recorder(
         "study", command_line(), plan.parameters(), outputs=_outputs(csv_path, outputs.plot, outputs.traces),
         sessions=[*(recorded or {}).get("sessions", []), *([] if recorded is None else [_session(recorded)])],
+        csv_dtypes=CSV_DTYPES,
     )  # fmt: skip
     if log is not None:  # now, beside the partial rows: an interrupted study keeps its parameters for --resume
         log.write_record(recorder)  # (the record beside the CSV stays the old CSV's until the new CSV replaces it)

@@ -17,7 +17,7 @@ from mazelab.contract import missing_parts
 from mazelab.experiments.executor import run_study
 from mazelab.experiments.plan import plan_study, study_mazes
 from mazelab.experiments.record import Recorder
-from mazelab.experiments.summary import summarise_study
+from mazelab.experiments.summary import CSV_DTYPES, summarise_study
 from mazelab.experiments.tables import flat_row
 from mazelab.experiments.traces import study_traces, trace_table_columns
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, RPF_THRESHOLD
@@ -207,7 +207,9 @@ def study(
         traces=_flag("traces", traces),
     )
     dask = _dask(dask)
-    recorder = Recorder("study", [sys.argv[0] or "python", "mazelab.study(...)"], plan.parameters())
+    recorder = Recorder(
+        "study", [sys.argv[0] or "python", "mazelab.study(...)"], plan.parameters(), csv_dtypes=CSV_DTYPES
+    )
     outcome = run_study(plan.tasks(), workers, dask=dask)
     summaries = summarise_study(outcome.records, plan.settings)
     summary = [s.as_dict() for s in summaries]

@@ -7,6 +7,7 @@ from __future__ import annotations
 import itertools
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from mazelab import maze_generator
@@ -28,6 +29,7 @@ from mazelab.experiments.study import (
 from mazelab.experiments.summary import CSV_COLUMNS, describe_setting, describe_varied
 from mazelab.limits import check_particles, check_steps, check_study
 from mazelab.maze_generator import DEFAULT_WALL_SHARE
+from mazelab.maze_paths import MAZES_DIR
 from mazelab.mazes import DEFAULT_MAZE, find_maze, load_maze
 from mazelab.model import RPF_THRESHOLD
 from mazelab.registry import filter_entry, resolve_filter
@@ -53,11 +55,14 @@ def study_mazes(
 
 
 def maze_description(choice: MazeChoice) -> dict[str, Any]:
-    """A maze as the record lists it: a file's path and sha256, or what generates it."""
+    """A maze as the record lists it: a file's path (a shipped maze's as mazes/NAME.txt, the project's
+    own; another file's as given, relative to the record's working folder) and sha256, or what
+    generates it."""
     if choice.grid is not None:
         return {
             "label": choice.label,
-            "file": choice.path,
+            "file": shipped_path(choice.path),
+            "shipped": choice.path is not None and is_shipped_maze(choice.path),
             "sha256": choice.sha256,
             "rows": len(choice.grid),
             "columns": len(choice.grid[0]),
@@ -69,8 +74,21 @@ def maze_description(choice: MazeChoice) -> dict[str, Any]:
         "generated": f"{choice.size[0]}x{choice.size[1]}",
         "station_blocks": choice.stations,
         "wall_share": choice.wall_share,
-        "note": "a new maze per run, from the run's maze_seed (mazelab maze generate --seed)",
+        "note": "a new maze per run, from the run's maze_seed (mazelab maze generate --seed); each run's "
+        "maze_sha256 in the CSV is the sha256 of its grid as maze text (Maze.to_text())",
     }
+
+
+def is_shipped_maze(path: str | Path) -> bool:
+    """Whether a maze file is one of the project's own (in mazes/)."""
+    return Path(path).resolve().parent == MAZES_DIR.resolve()
+
+
+def shipped_path(path: str | None) -> str | None:
+    """A maze file's path for a record: mazes/NAME.txt for a shipped one (no machine's folder in it)."""
+    if path is None or not is_shipped_maze(path):
+        return path
+    return f"mazes/{Path(path).name}"
 
 
 @dataclass
@@ -241,4 +259,4 @@ def _filter_list(filters: Sequence[Any]) -> list[Any]:
     return list(dict.fromkeys(chosen))
 
 
-__all__ = ["StudyPlan", "maze_description", "plan_study", "study_mazes"]
+__all__ = ["StudyPlan", "is_shipped_maze", "maze_description", "plan_study", "shipped_path", "study_mazes"]

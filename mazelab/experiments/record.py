@@ -9,6 +9,7 @@ from __future__ import annotations
 import datetime as dt
 import hashlib
 import json
+import os
 import platform
 import subprocess
 import sys
@@ -66,8 +67,29 @@ def git_commit(folder: Path | None = None) -> str | None:
     return f"{commit}-dirty" if dirty else commit
 
 
+# the distributions a result can depend on: the project's dependencies and extras (None: not installed)
+DEPENDENCIES = (
+    "numpy", "rerun-sdk", "pydantic", "typer", "rich", "matplotlib", "dask", "distributed", "numba", "llvmlite",
+    "pyarrow", "scipy",
+)  # fmt: skip
+
+
+def dependency_versions() -> dict[str, str | None]:
+    """The installed version of each of DEPENDENCIES, None for one that is not installed."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    versions: dict[str, str | None] = {}
+    for name in DEPENDENCIES:
+        try:
+            versions[name] = version(name)
+        except PackageNotFoundError:
+            versions[name] = None
+    return versions
+
+
 def program_versions() -> dict[str, Any]:
-    """The versions a result depends on: this program (and its git commit, if any), numpy, Python."""
+    """The versions a result depends on: this program (and its git commit, if any), numpy, Python, and
+    every dependency's (`packages`)."""
     return {
         "mazelab": package_version(),
         "git_commit": git_commit(),
@@ -75,6 +97,7 @@ def program_versions() -> dict[str, Any]:
         "python": platform.python_version(),
         "implementation": platform.python_implementation(),
         "system": f"{platform.system()} {platform.machine()}",
+        "packages": dependency_versions(),
     }
 
 
@@ -129,6 +152,7 @@ class Recorder:
             "ended": None,
             "duration_seconds": None,
             "status": "running",
+            "working_folder": os.getcwd(),  # where relative paths of the command and the mazes start
             "parameters": jsonable(parameters),
             "intervals": {"level": CONFIDENCE_LEVEL, **INTERVAL_METHODS},
             **jsonable(extra),
@@ -179,9 +203,11 @@ def differences(recorded: Mapping[str, Any], given: Mapping[str, Any], ignore: S
 
 
 __all__ = [
+    "DEPENDENCIES",
     "RECORD_FORMAT",
     "RECORD_SUFFIX",
     "Recorder",
+    "dependency_versions",
     "differences",
     "file_sha256",
     "git_commit",

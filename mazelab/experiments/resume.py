@@ -134,8 +134,9 @@ def planned_cells(task: RunTask) -> dict[str, str]:
         "threshold": s.threshold, "recovery": s.recovery, "bandwidth": s.bandwidth, "estimate": task.estimate,
         "steps": task.steps, "kidnap_at": task.kidnap_at,
     }  # fmt: skip
+    generated = s.maze.grid is None  # its maze_sha256 is its run's own maze's, which maze_seed fixes
     return {
-        **{column: _cell(values[column]) for column in PLANNED_COLUMNS},
+        **{column: _cell(values[column]) for column in PLANNED_COLUMNS if not (generated and column == "maze_sha256")},
         **{name: _cell(value) for name, value in option_cells(s).items()},  # the setting's other options
     }
 

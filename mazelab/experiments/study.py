@@ -325,7 +325,7 @@ class RunRecord:
     mean_particle_count: float = math.nan  # over the steps (KLD-sampling varies it)
     bandwidth: str | float = "optimal"  # the RPF's kernel bandwidth (the other filters ignore it)
     estimate: str = "mean"  # the point estimate the errors are measured from
-    maze_sha256: str | None = None  # sha256 of the maze file's bytes; None for a generated maze
+    maze_sha256: str | None = None  # sha256 of the maze file's bytes; a generated maze's: of its grid as maze text
     maze_rows: int = 0  # the run's maze size
     maze_columns: int = 0
     wall_share: float | None = None  # a generated maze's requested share of walls; None for a file
@@ -407,7 +407,7 @@ def run_records(task: RunTask, world: Maze, results: dict[str, RunResult]) -> li
             mean_particle_count(result),
             s.bandwidth,
             task.estimate,
-            s.maze.sha256,
+            s.maze.sha256 if s.maze.sha256 is not None else maze_text_sha256(world),
             int(world.grid.shape[0]),
             int(world.grid.shape[1]),
             s.maze.wall_share,
@@ -419,6 +419,11 @@ def run_records(task: RunTask, world: Maze, results: dict[str, RunResult]) -> li
         for record, result in zip(records, results.values(), strict=True):
             record.trace = trace_of(result)
     return records
+
+
+def maze_text_sha256(world: Maze) -> str:
+    """The sha256 of a maze's grid as maze-file text (Maze.to_text()): a generated maze's identity."""
+    return hashlib.sha256(world.to_text().encode()).hexdigest()
 
 
 def option_cells(setting: StudySetting) -> dict[str, Any]:

@@ -187,6 +187,9 @@ def study_table(summaries: Sequence[StudySummary], varied: Sequence[str], kld: b
 
 
 CSV_COLUMNS = [f.name for f in fields(RunRecord) if f.name != "options"]  # then a column per other option
+# how to read the CSV's seeds back whole: maze_seed is empty for a maze file, so pandas would read the
+# column as float64 and round a seed above 2**53 (the record says so; pandas: dtype={"maze_seed": str})
+CSV_DTYPES = {"seed": "int64", "maze_seed": "str (empty for a maze file; as float64 a seed loses digits)"}
 
 
 def study_csv(records: Sequence[RunRecord], columns: Sequence[str] = CSV_COLUMNS) -> str:
@@ -197,6 +200,7 @@ def study_csv(records: Sequence[RunRecord], columns: Sequence[str] = CSV_COLUMNS
 
 __all__ = [
     "CSV_COLUMNS",
+    "CSV_DTYPES",
     "StudySummary",
     "describe_setting",
     "describe_varied",
