@@ -58,7 +58,7 @@ def _entry_line(entry: FilterEntry) -> str:
 def options_listing(entry: FilterEntry) -> str:
     """A filter's declared options: name, default, flag, help (wrapped to WIDTH columns)."""
     options = entry.options.settable()
-    head = f"{entry.label} ({entry.name}): {entry.help}"
+    head = f"{entry.label} ({entry.name}): {entry.help}" if entry.label != entry.name else f"{entry.name}: {entry.help}"
     if entry.plugin is not None:
         head += f"\n  from {entry.plugin.spec} (sha256 {entry.plugin.sha256[:12]}...)"
     if not options:
