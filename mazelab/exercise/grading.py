@@ -24,7 +24,8 @@ from pathlib import Path
 from typing import Any
 
 from mazelab.exercise.layout import format_report
-from mazelab.exercise.report import STAGES, WHOLE, NotGradableError, Report, check_file
+from mazelab.exercise.outcome import Report
+from mazelab.exercise.report import STAGES, WHOLE, NotGradableError, check_file
 from mazelab.exercise.rows import FAIL, NOT_OWN, NOT_RUN, NOT_WRITTEN, PASS
 from mazelab.exercise.runner import DEFAULT_TIMEOUT, child_context
 from mazelab.exercise.student import PARTS

@@ -5,14 +5,11 @@ on its own lines; then the whole filter's figures per scenario and the verdict."
 from __future__ import annotations
 
 import textwrap
-from typing import TYPE_CHECKING
 
+from mazelab.exercise.outcome import Report
 from mazelab.exercise.rows import FAIL, NOT_RUN, NOT_WRITTEN, PASS, Row
 from mazelab.exercise.whole import FIGURE_HEADERS, figures_table
 from mazelab.experiments.tables import format_table
-
-if TYPE_CHECKING:
-    from mazelab.exercise.report import Report
 
 WIDTH = 100
 PART_WIDTH, RESULT_WIDTH = 12, 12  # "whole filter", "not own work"

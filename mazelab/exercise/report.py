@@ -15,6 +15,9 @@ submission a row of that).
 
 from __future__ import annotations
 
+import contextlib
+import inspect
+import shlex
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,9 +25,11 @@ from typing import Any
 
 from mazelab.exercise import child
 from mazelab.exercise.inputs import PartInputs, ScenarioInputs, default_seed, draw_part_inputs, draw_scenarios
+from mazelab.exercise.layout import format_rows
 from mazelab.exercise.monitor import Monitor
 from mazelab.exercise.offspring import expected_text as resample_expected
 from mazelab.exercise.offspring import judge_resample
+from mazelab.exercise.outcome import Report
 from mazelab.exercise.parts import EXPECTED, judge_estimate, judge_predict, judge_weigh
 from mazelab.exercise.rows import NOT_OWN, NOT_WRITTEN, BadAnswerError, Row, ended_row, not_own_row, not_run_row
 from mazelab.exercise.runner import DEFAULT_TIMEOUT, child_request, run_child
@@ -32,6 +37,7 @@ from mazelab.exercise.student import PARTS
 from mazelab.exercise.whole import References, ScenarioFigures, judge_whole, whole_answer
 from mazelab.exercise.whole import expected_text as whole_expected
 from mazelab.exercise.wire import Message, decode
+from mazelab.invocation import command_prefix
 from mazelab.plugins import split_spec
 
 STAGES = (*PARTS, "whole")
@@ -52,29 +58,6 @@ class Answers:
     ended: dict[str, str] = field(default_factory=dict)
     problem: str | None = None
     output: str = ""
-
-
-@dataclass
-class Report:
-    """One submission's check: its rows (the parts, then the whole filter), the whole filter's figures
-    per scenario, the seed of its inputs, what went wrong beyond the rows, and the time it took."""
-
-    filter_name: str
-    seed: int
-    rows: list[Row] = field(default_factory=list)
-    figures: list[ScenarioFigures] = field(default_factory=list)
-    problems: list[str] = field(default_factory=list)
-    seconds: float = 0.0
-    output: str = ""
-
-    @property
-    def passed(self) -> bool:
-        """Every row passed (exit code 0)."""
-        return bool(self.rows) and all(row.passed for row in self.rows)
-
-    def row(self, part: str) -> Row:
-        """The row of one part (or "whole filter")."""
-        return next(row for row in self.rows if row.part == part)
 
 
 # -- collecting the answers ---------------------------------------------------------------------------
@@ -298,21 +281,40 @@ def finish(report: Report) -> Report:
 def source_seed(thing: Any) -> int:
     """The seed of a class or function without a file of its own: from its source text (a notebook
     cell's too), or 0."""
-    import inspect
-
     try:
         return default_seed(inspect.getsource(thing).encode())
     except (OSError, TypeError):
         return 0
 
 
-def __getattr__(name: str) -> Any:
-    """The self-check's functions by their old address (a my_filter.py written before they moved)."""
-    if name in ("progress", "check_part", "check_and_print", "check_command"):
-        from mazelab.exercise import selfcheck
+def progress(filter_class: type) -> str:
+    """Which parts are still to write, and the checks of those written (what `python my_filter.py`
+    prints: a self-check in the student's process)."""
+    report = check(filter_class, stages=PARTS)
+    todo = [row.part for row in report.rows if row.not_written]
+    lines = [f"{filter_class.name}: " + (f"still to write: {', '.join(todo)}" if todo else "all four parts written")]
+    written = [row for row in report.rows if not row.not_written]
+    if written:
+        lines.append(format_rows(written))
+    if not todo:
+        lines.append(f"Grade the whole filter against the exact posterior: {check_command(filter_class)}")
+    return "\n".join(lines)
 
-        return getattr(selfcheck, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+def check_command(filter_class: type) -> str:
+    """The command that grades `filter_class`, to paste back: `mazelab exercise check my_filter.py`
+    (with the prefix the program was started with, and `:Class` unless the class is MyFilter)."""
+    try:
+        source = Path(inspect.getsourcefile(filter_class) or "")
+    except TypeError:  # a class defined in a notebook cell or at the prompt has no file
+        source = Path()
+    if not source.name:
+        return f"{command_prefix()} exercise check FILE"
+    shown = source.resolve()
+    with contextlib.suppress(ValueError):  # outside the folder you are in: the whole path
+        shown = shown.relative_to(Path.cwd().resolve())
+    spec = str(shown) if filter_class.__name__ == "MyFilter" else f"{shown}:{filter_class.__name__}"
+    return f"{command_prefix()} exercise check {shlex.quote(spec)}"
 
 
 __all__ = [
@@ -322,9 +324,11 @@ __all__ = [
     "Report",
     "build_report",
     "check",
+    "check_command",
     "check_file",
     "collect_in_process",
     "collect_isolated",
     "finish",
+    "progress",
     "source_seed",
 ]

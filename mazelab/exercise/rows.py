@@ -78,7 +78,8 @@ def error_row(part: str, expected: str, error: dict[str, str], hint: str) -> Row
 def not_own_row(part: str, expected: str, meta: dict[str, Any]) -> Row | None:
     """The row of a stage that called the lab's reference implementation or tampered with the
     monitor that watches for it, or None."""
-    calls = [str(name)[:120] for name in meta.get("reference_calls") or []][:5]
+    calls = [str(name)[:120] for name in meta.get("reference_calls") or []]
+    calls = ([c for c in calls if "<" not in c] or calls)[:4]  # the functions, before their inner code
     refused = meta.get("monitor_refused") or 0
     if calls:
         return Row(part, NOT_OWN, expected, "calls the lab's " + ", ".join(calls), REFERENCE_HINT)

@@ -6,46 +6,13 @@ its last cell (every part and the whole filter). The same inputs and verdicts as
 
 from __future__ import annotations
 
-import contextlib
-import inspect
-import shlex
 from collections.abc import Callable
-from pathlib import Path
 
 from mazelab.exercise.layout import format_report, format_rows
-from mazelab.exercise.report import Report, check, source_seed
+from mazelab.exercise.outcome import Report
+from mazelab.exercise.report import check, check_command, progress, source_seed
 from mazelab.exercise.rows import Row
 from mazelab.exercise.student import PARTS, StudentFilter
-from mazelab.invocation import command_prefix
-
-
-def progress(filter_class: type) -> str:
-    """Which parts are still to write, and the checks of those written (what running the file says)."""
-    report = check(filter_class, stages=PARTS)
-    todo = [row.part for row in report.rows if row.not_written]
-    lines = [f"{filter_class.name}: " + (f"still to write: {', '.join(todo)}" if todo else "all four parts written")]
-    written = [row for row in report.rows if not row.not_written]
-    if written:
-        lines.append(format_rows(written))
-    if not todo:
-        lines.append(f"Grade the whole filter against the exact posterior: {check_command(filter_class)}")
-    return "\n".join(lines)
-
-
-def check_command(filter_class: type) -> str:
-    """The command that grades `filter_class`, to paste back: `mazelab exercise check my_filter.py`
-    (with the prefix the program was started with, and `:Class` unless the class is MyFilter)."""
-    try:
-        source = Path(inspect.getsourcefile(filter_class) or "")
-    except TypeError:  # a class defined in a notebook cell or at the prompt has no file
-        source = Path()
-    if not source.name:
-        return f"{command_prefix()} exercise check FILE"
-    shown = source.resolve()
-    with contextlib.suppress(ValueError):  # outside the folder you are in: the whole path
-        shown = shown.relative_to(Path.cwd().resolve())
-    spec = str(shown) if filter_class.__name__ == "MyFilter" else f"{shown}:{filter_class.__name__}"
-    return f"{command_prefix()} exercise check {shlex.quote(spec)}"
 
 
 def check_part(part: str, function: Callable[..., object]) -> Row:

@@ -62,7 +62,7 @@ class MyFilter(StudentFilter):
 
 
 if __name__ == "__main__":
-    from mazelab.exercise.selfcheck import progress
+    from mazelab.exercise.report import progress
 
     print(progress(MyFilter))
 '''
