@@ -286,8 +286,14 @@ def test_a_hang_is_stopped_at_the_time_limit_and_the_next_parts_still_run(tmp_pa
     predict = "def predict(self, positions, compass_angle, rng):\n    while True:\n        pass\n"
     report = checked(tmp_path, stages=("predict", "estimate"), timeout=3, predict=predict)
     assert rows(report)["predict"] == ("fail", rows(report)["predict"][1])
-    assert "ran past the time limit (3 s) in predict" in rows(report)["predict"][1]
+    assert "ran past the time limit (3 s of processor time) in predict" in rows(report)["predict"][1]
     assert rows(report)["estimate"][0] == "pass"
+
+
+def test_a_child_that_waits_without_working_is_stopped_too(tmp_path):
+    estimate = "def estimate(self, positions, weights):\n    import time\n    time.sleep(600)\n"
+    status, got = rows(checked(tmp_path, stages=("estimate",), timeout=1, estimate=estimate))["estimate"]
+    assert status == "fail" and "waited past the time limit (14 s) in estimate" in got
 
 
 def test_what_the_student_prints_is_kept_and_its_last_line_shown_when_it_dies(tmp_path):

@@ -35,6 +35,7 @@ from mazelab.plugins import StudentCodeError, load_plugin, student_code, student
 from mazelab.seeding import filter_rng
 from mazelab.stops import describe_exit, mark_interrupts
 
+preload_reference()  # once, in the fork server (its children start with them imported, none of their time)
 STAGES = ("predict", "weigh", "resample", "estimate", "whole")
 Emit = Callable[..., None]  # emit(meta, arrays=None): one message to the grader
 Answer = tuple[dict[str, Any], dict[str, np.ndarray]]  # a stage's meta (its error, if any) and arrays
@@ -284,12 +285,14 @@ def _flush() -> None:
 
 
 def apply_limits(limits: dict[str, int]) -> None:
-    """The child's own resource limits (POSIX): its memory, no core file, a bounded file size."""
+    """The child's own resource limits (POSIX): its processor time (SIGXCPU at the limit, SIGKILL two
+    seconds later), its memory, no core file, a bounded file size."""
     try:
         import resource
     except ImportError:  # Windows: the grader's time limit is all there is
         return
     for name, value in (
+        ("RLIMIT_CPU", limits["cpu_seconds"]),
         ("RLIMIT_AS", limits["memory_bytes"]),
         ("RLIMIT_CORE", 0),
         ("RLIMIT_FSIZE", limits["file_bytes"]),
@@ -300,7 +303,7 @@ def apply_limits(limits: dict[str, int]) -> None:
         try:
             hard = resource.getrlimit(which)[1]
             value = value if hard == resource.RLIM_INFINITY else min(value, hard)
-            resource.setrlimit(which, (value, hard))
+            resource.setrlimit(which, (value, value + 2 if name == "RLIMIT_CPU" else hard))
         except (ValueError, OSError):
             pass
 

@@ -15,6 +15,7 @@ import csv
 import io
 import json
 import os
+import textwrap
 import threading
 import time
 from collections.abc import Callable
@@ -107,7 +108,8 @@ def grade_one(submission: Submission, seed: int | None, timeout: float, referenc
     try:
         report = check_file(str(submission.file), seed=seed, timeout=timeout, references=references)
     except NotGradableError as error:
-        return Graded(submission, None, str(error), time.perf_counter() - started)
+        problem = str(error).replace(str(submission.file), f"{submission.name}/{submission.file.name}")
+        return Graded(submission, None, problem, time.perf_counter() - started)
     return Graded(submission, report, None, time.perf_counter() - started)
 
 
@@ -155,7 +157,11 @@ def csv_row(graded: Graded) -> dict[str, Any]:
         row["sir_to_exact"] = f"{sum(f.sir_distance for f in figures) / len(figures):.4f}"
         row["converged"] = sum(f.converged for f in figures)
         row["sir_converged"] = sum(f.sir_converged for f in figures)
-    wrong = [f"{r.part}: {r.got}" for r in report.rows if not r.passed and r.status != NOT_RUN]
+    wrong = [  # how a process ended is in report.problems already
+        f"{r.part}: {r.got}"
+        for r in report.rows
+        if r.status not in (PASS, NOT_RUN, NOT_WRITTEN, NOT_OWN) and not r.got.startswith("the student's process")
+    ]
     row["problem"] = "; ".join(dict.fromkeys([*report.problems, *wrong]))
     return row
 
@@ -209,20 +215,23 @@ def gradescope_json(graded: Graded) -> str:
 
 
 def summary(graded: list[Graded], width: int = 100) -> str:
-    """A line per submission (each row's status, the time, what went wrong) and the counts."""
+    """A line per submission (each row's status and the time), what went wrong on its own indented
+    line under it (at most two lines), and the counts."""
     name_width = min(24, max(len("submission"), *(len(g.submission.name) for g in graded)))
     header = f"{'submission':<{name_width}}  " + "  ".join(f"{p[:8]:<8}" for p in (*PARTS, "whole")) + "  seconds"
-    lines = [header, "-" * min(width, len(header) + 10)]
+    lines = [header, "-" * min(width, len(header))]
     for one in graded:
         cells = "  ".join(f"{SHORT.get(one.status(p), '?'):<8}" for p in ROW_NAMES)
-        line = f"{one.submission.name[:name_width]:<{name_width}}  {cells}  {one.seconds:7.1f}"
+        lines.append(f"{one.submission.name[:name_width]:<{name_width}}  {cells}  {one.seconds:7.1f}")
         problem = one.problem or (csv_row(one)["problem"] if one.report else "")
         if problem:
-            line += "  " + problem
-        lines.append(line if len(line) <= width else line[: width - 3] + "...")
+            wrapped = textwrap.wrap(problem, width - 4, break_long_words=True, break_on_hyphens=False)
+            lines += ["    " + line for line in wrapped[:2]]
+            if len(wrapped) > 2:
+                lines[-1] = lines[-1][: width - 3] + "..."
     passed = sum(one.passed for one in graded)
     counts = ", ".join(f"{p} {sum(one.status(p) == PASS for one in graded)}" for p in ROW_NAMES)
-    lines += ["", f"{len(graded)} submissions, {passed} pass every row; passing each: {counts}"]
+    lines += ["", *textwrap.wrap(f"{len(graded)} submissions, {passed} pass every row; passing each: {counts}", width)]
     lines.append("pass, FAIL; todo: not written; REF: calls the lab's reference implementation; -: not run")
     return "\n".join(lines)
 

@@ -80,11 +80,14 @@ def judge_resample(inputs: PartInputs, answer: Message) -> tuple[Row, str]:
     if failing:
         k = max(failing, key=lambda j: worst[j])
         i = int(np.argmax(np.abs(scores[k])))
-        target = len(vectors[k]) * vectors[k][i]
-        got = (
-            f"under the {kinds[k]} weights particle {i} has mean offspring {counts[k][:, i].mean():.3f} "
-            f"for N W = {target:.3f} (|z| {worst[k]:.3g} > {critical:.2f})"
-        )
+        target, mean = len(vectors[k]) * vectors[k][i], counts[k][:, i].mean()
+        if np.isfinite(scores[k][i]):
+            got = (
+                f"under the {kinds[k]} weights particle {i} has mean offspring {mean:.3f} for "
+                f"N W = {target:.3f} (|z| {worst[k]:.3g} > {critical:.2f})"
+            )
+        else:
+            got = f"under the {kinds[k]} weights particle {i} gets {mean:.0f} at every call, for N W = {target:.3f}"
         return Row("resample", FAIL, expected, got, _bias_hint(counts, vectors, kinds, failing)), "systematic"
     for k, (rows, again) in enumerate(zip(ancestors, repeats, strict=True)):
         if not np.array_equal(rows[0], again):

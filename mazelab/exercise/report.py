@@ -72,7 +72,7 @@ def collect_isolated(
     """Run the stages in child processes (a new one after a stage in which one ended)."""
     answers, todo = Answers(), list(stages)
     while todo:
-        run = run_child(child_request(str(path), class_name, todo, parts, scenarios), timeout)
+        run = run_child(child_request(str(path), class_name, todo, parts, scenarios, timeout), timeout)
         answers.output += run.output
         if run.loaded is None:
             answers.problem = f"the student's process {run.ended or 'sent nothing'}"

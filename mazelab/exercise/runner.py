@@ -17,6 +17,7 @@ signal before that; it runs past the time limit (killed); or it sends what is no
 from __future__ import annotations
 
 import contextlib
+import math
 import multiprocessing
 import os
 import signal
@@ -30,7 +31,7 @@ import numpy as np
 from mazelab.exercise.inputs import PartInputs, ScenarioInputs
 from mazelab.exercise.wire import MAX_MESSAGE_BYTES, Message, WireError, decode, encode
 
-DEFAULT_TIMEOUT = 120.0  # seconds per child run: a vectorised filter needs 5-10 s, per-particle loops more
+DEFAULT_TIMEOUT = 120.0  # processor seconds per child run: a vectorised filter needs 5-10, per-particle loops more
 MEMORY_LIMIT = 4 << 30  # bytes of address space for the child
 FILE_LIMIT = 64 << 20  # the largest file the child may write
 OUTPUT_KEPT = 2000  # characters of the child's prints kept (its first and its last)
@@ -47,16 +48,22 @@ _context: Any = None
 
 
 def child_request(
-    file: str, class_name: str | None, stages: list[str], parts: PartInputs, scenarios: list[ScenarioInputs]
+    file: str,
+    class_name: str | None,
+    stages: list[str],
+    parts: PartInputs,
+    scenarios: list[ScenarioInputs],
+    timeout: float = DEFAULT_TIMEOUT,
 ) -> bytes:
-    """The request: what to load, which stages, and their inputs; only what a filter is given (the
-    scenarios' compass angles, measurements and initial particles, never their true path)."""
+    """The request: what to load, which stages, their inputs and the child's limits; only what a
+    filter is given (the scenarios' compass angles, measurements and initial particles, never their
+    true path)."""
     predict, weigh, resample, estimate = parts.predict, parts.weigh, parts.resample, parts.estimate
     meta = {
         "file": file,
         "class": class_name,
         "stages": stages,
-        "limits": {"memory_bytes": MEMORY_LIMIT, "file_bytes": FILE_LIMIT},
+        "limits": {"memory_bytes": MEMORY_LIMIT, "file_bytes": FILE_LIMIT, "cpu_seconds": math.ceil(timeout)},
         "parts": {
             "maze": parts.maze,
             "sigma": parts.sigma,
@@ -214,8 +221,24 @@ class _Output(threading.Thread):
         return (self.head + middle + self.tail).decode(errors="replace")
 
 
+def wall_limit(timeout: float) -> float:
+    """How long the grader waits for a child whose processor time is limited to `timeout` seconds
+    (its own RLIMIT_CPU ends a busy one): a child that waits without working (a sleep, a lock) is
+    stopped after this; where there is no processor limit (Windows), `timeout` itself."""
+    return 4 * timeout + 10 if _has_cpu_limit() else timeout
+
+
+def _has_cpu_limit() -> bool:
+    try:
+        import resource
+    except ImportError:
+        return False
+    return hasattr(resource, "RLIMIT_CPU")
+
+
 def run_child(request: bytes, timeout: float = DEFAULT_TIMEOUT) -> ChildRun:
-    """Start a child on `request`, wait at most `timeout` seconds, and return what it gave."""
+    """Start a child on `request` (whose processor time the child limits to `timeout` seconds),
+    wait at most `wall_limit(timeout)`, and return what it gave."""
     from mazelab.exercise import child  # the target, by name: the fork server has it imported
 
     context = child_context()
@@ -230,7 +253,7 @@ def run_child(request: bytes, timeout: float = DEFAULT_TIMEOUT) -> ChildRun:
     reader, printed = _Reader(results_in, run), _Output(output_in.fileno())
     reader.start()
     printed.start()
-    process.join(timeout)
+    process.join(wall_limit(timeout))
     timed_out = process.exitcode is None
     _end_session(process)
     process.join(5)
@@ -255,7 +278,9 @@ def _end_session(process: Any) -> None:
 def _how_it_ended(run: ChildRun, reader: _Reader, exitcode: int | None, timed_out: bool, timeout: float) -> str | None:
     where = run.where()
     if timed_out:
-        return f"ran past the time limit ({timeout:g} s) {where} and was stopped"
+        return f"waited past the time limit ({wall_limit(timeout):g} s) {where} and was stopped"
+    if exitcode is not None and exitcode == -getattr(signal, "SIGXCPU", 0):
+        return f"ran past the time limit ({timeout:g} s of processor time) {where} and was stopped"
     if reader.problem:
         return f"{reader.problem} {where}"
     if reader.is_alive():
