@@ -109,13 +109,20 @@ class IdentityResample(ReferenceFilter):
         return np.arange(len(weights))
 
 
-class EssGate(ReferenceFilter):
-    """Resamples only when the ESS falls below N/2 (the filter's choice, made inside resample)."""
+def ess_gate(share: float) -> type:
+    """A resampler that resamples only when the ESS falls below `share` N (the filter's choice, made
+    inside resample): below, systematic resampling; above, every particle kept once."""
 
-    def resample(self, weights, rng):
-        if 1 / np.sum(weights**2) > len(weights) / 2:
-            return np.arange(len(weights))
-        return super().resample(weights, rng)
+    class EssGate(ReferenceFilter):
+        def resample(self, weights, rng):
+            if 1 / np.sum(weights**2) > share * len(weights):
+                return np.arange(len(weights))
+            return super().resample(weights, rng)
+
+    return EssGate
+
+
+EssGate = ess_gate(0.5)
 
 
 class NoHeadingNoise(ReferenceFilter):

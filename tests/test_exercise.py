@@ -69,6 +69,13 @@ def test_each_broken_part_fails_with_the_hint_that_names_its_bug(variant):
     assert phrase in rows[0][2], rows[0]
 
 
+@pytest.mark.parametrize("share", [0.5, 0.9])
+def test_an_ess_gate_inside_resample_fails_whatever_its_threshold(share):
+    """Under the mild weights the ESS is 0.99 N: a gate at N/2 or at 0.9 N keeps every particle there."""
+    (_, got, hint), *_ = failing(answers.ess_gate(share), SEEDS[0], ("resample",))
+    assert "resample always draws" in hint and ("mild" in got or share == 0.5)
+
+
 def test_a_wrong_station_is_not_told_a_scale_of_the_exponent():
     (_, _, hint), *_ = failing(answers.WrongStation, SEEDS[0], ("weigh",))
     assert "times -(z - d)^2" not in hint and "distance_to_nearest_station" in hint

@@ -241,7 +241,16 @@ def test_the_child_holds_none_of_the_graders_objects(tmp_path):
             names = {{"RunResult", "GridBayesFilter", "ScenarioInputs", "PartInputs", "Report", "References", "Row"}}
             objects = gc.get_objects()
             kinds = sorted({{type(o).__name__ for o in objects if type(o).__name__ in names}})
-            arrays = [a for o in objects for a in gc.get_referents(o) if isinstance(a, np.ndarray)]
+            arrays, seen, todo = [], set(), list(objects)  # every array any object holds, however deep
+            while todo:
+                thing = todo.pop()
+                if id(thing) in seen:
+                    continue
+                seen.add(id(thing))
+                if isinstance(thing, np.ndarray):
+                    arrays.append(thing)
+                elif isinstance(thing, (dict, list, tuple, set)) or hasattr(thing, "__dict__"):
+                    todo.extend(gc.get_referents(thing))
             others = [a for a in arrays if a is not scenario_truth and a.shape == scenario_truth.shape]
             paths = sum(np.allclose(a, scenario_truth) for a in others)
             with open({str(found)!r}, "w") as file:
