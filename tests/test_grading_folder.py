@@ -9,9 +9,15 @@ import contextlib
 import csv
 import io
 import json
+import os
+import signal
+import subprocess
+import sys
 import textwrap
+import time
 
 import pytest
+from conftest import ROOT
 from exercise_answers import PARTS_SOURCE, write_submission
 
 from mazelab.cli.app import main
@@ -201,3 +207,30 @@ def test_grade_refuses_to_overwrite_outputs_without_force(graded, class_folder, 
     assert main(["exercise", "grade", str(class_folder), "--csv", str(out / "grades.csv"), "--quiet"]) == 2
     assert "--force" in capsys.readouterr().err and (out / "grades.csv").read_text() == before
     assert main(["exercise", "grade", str(out / "nothing")]) == 2
+
+
+def test_ctrl_c_ends_the_grading_and_its_childrens_processes(tmp_path):
+    """A submission that waits forever at import; Ctrl-C ends the grade (exit 130) and its child."""
+    marker = tmp_path / "child.pid"
+    prelude = f"import os, time\nopen({str(marker)!r}, 'w').write(str(os.getpid()))\ntime.sleep(600)"
+    write_submission(tmp_path / "class" / "slow" / "my_filter.py", prelude)
+    grading = subprocess.Popen(
+        [sys.executable, str(ROOT / "main.py"), "exercise", "grade", str(tmp_path / "class"), "--quiet"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+    try:
+        for _ in range(600):  # until the child has imported the file (at most a minute)
+            if marker.exists() and marker.read_text():
+                break
+            time.sleep(0.1)
+        child = int(marker.read_text())
+        grading.send_signal(signal.SIGINT)
+        _, err = grading.communicate(timeout=60)
+    finally:
+        grading.kill()
+    assert grading.returncode == 130, err
+    with pytest.raises(ProcessLookupError):
+        os.kill(child, 0)

@@ -28,7 +28,7 @@ from mazelab.exercise.layout import format_report
 from mazelab.exercise.outcome import Report
 from mazelab.exercise.report import STAGES, WHOLE, NotGradableError, check_file
 from mazelab.exercise.rows import FAIL, NOT_OWN, NOT_RUN, NOT_WRITTEN, PASS
-from mazelab.exercise.runner import DEFAULT_TIMEOUT, child_context
+from mazelab.exercise.runner import DEFAULT_TIMEOUT, allow_children, child_context, stop_children
 from mazelab.exercise.student import PARTS
 from mazelab.exercise.template import FILTER_FILE
 from mazelab.exercise.whole import References
@@ -124,18 +124,28 @@ def grade_folder(
     """Grade the submissions, `jobs` at a time (default: the cores), in their order."""
     jobs = jobs or os.cpu_count() or 1
     lock = threading.Lock()
-    with ProcessPoolExecutor(max_workers=jobs, mp_context=child_context()) as pool:
-        references = References(pool)
+    allow_children()
+    pool = ProcessPoolExecutor(max_workers=jobs, mp_context=child_context())
+    references = References(pool)
 
-        def one(submission: Submission) -> Graded:
-            graded = grade_one(submission, seed, timeout, references)
-            if on_done is not None:
-                with lock:
-                    on_done(graded)
-            return graded
+    def one(submission: Submission) -> Graded:
+        graded = grade_one(submission, seed, timeout, references)
+        if on_done is not None:
+            with lock:
+                on_done(graded)
+        return graded
 
-        with ThreadPoolExecutor(max_workers=jobs, thread_name_prefix="mazelab-grade") as threads:
-            return list(threads.map(one, submissions))
+    threads = ThreadPoolExecutor(max_workers=jobs, thread_name_prefix="mazelab-grade")
+    try:
+        futures = [threads.submit(one, submission) for submission in submissions]
+        return [future.result() for future in futures]
+    except BaseException:  # Ctrl-C: end the running children, start no new one
+        stop_children()
+        raise
+    finally:
+        threads.shutdown(wait=True, cancel_futures=True)
+        pool.shutdown(wait=True, cancel_futures=True)
+        allow_children()
 
 
 # -- what grading writes ----------------------------------------------------------------------------

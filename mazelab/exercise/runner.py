@@ -45,6 +45,26 @@ CHILD_ENVIRONMENT = {  # the fork server's (and so every child's): one thread ea
 }
 _context_lock = threading.Lock()
 _context: Any = None
+_running: set[Any] = set()  # the children alive now (what `stop_children` ends)
+_running_lock = threading.Lock()
+_stopped = threading.Event()
+
+
+class GradingStoppedError(Exception):
+    """The grading was stopped (Ctrl-C): no new child is started, and the running ones are ended."""
+
+
+def stop_children() -> None:
+    """End every running child (and its session) and start no new one until `allow_children`."""
+    _stopped.set()
+    with _running_lock:
+        running = list(_running)
+    for process in running:
+        _end_session(process)
+
+
+def allow_children() -> None:
+    _stopped.clear()
 
 
 def child_request(
@@ -241,22 +261,32 @@ def run_child(request: bytes, timeout: float = DEFAULT_TIMEOUT) -> ChildRun:
     wait at most `wall_limit(timeout)`, and return what it gave."""
     from mazelab.exercise import child  # the target, by name: the fork server has it imported
 
+    if _stopped.is_set():
+        raise GradingStoppedError("the grading was stopped")
     context = child_context()
     results_in, results_out = context.Pipe(duplex=False)
     output_in, output_out = context.Pipe(duplex=False)
     run = ChildRun()
     process = context.Process(target=child.main, args=(request, results_out, output_out), daemon=True)
     started = time.perf_counter()
-    process.start()
+    with _running_lock:
+        process.start()
+        _running.add(process)
     results_out.close()
     output_out.close()
     reader, printed = _Reader(results_in, run), _Output(output_in.fileno())
     reader.start()
     printed.start()
-    process.join(wall_limit(timeout))
-    timed_out = process.exitcode is None
-    _end_session(process)
-    process.join(5)
+    try:
+        process.join(wall_limit(timeout))
+        timed_out = process.exitcode is None
+    finally:
+        _end_session(process)
+        process.join(5)
+        with _running_lock:
+            _running.discard(process)
+    if _stopped.is_set():
+        raise GradingStoppedError("the grading was stopped")
     run.seconds = time.perf_counter() - started
     reader.join(5)
     printed.join(2)
@@ -299,4 +329,14 @@ def _signal_name(number: int) -> str:
         return "unknown"
 
 
-__all__ = ["DEFAULT_TIMEOUT", "ChildRun", "child_context", "child_request", "run_child"]
+__all__ = [
+    "DEFAULT_TIMEOUT",
+    "ChildRun",
+    "GradingStoppedError",
+    "allow_children",
+    "child_context",
+    "child_request",
+    "run_child",
+    "stop_children",
+    "wall_limit",
+]
