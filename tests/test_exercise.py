@@ -1,6 +1,7 @@
-"""The exercise: StudentFilter's wiring, `exercise new`, and `exercise check`, which passes the shipped
-SIR written as a StudentFilter (and a multinomial resampler), fails the unfilled skeleton on all four
-parts, and fails each broken variant on the right part."""
+"""The exercise's verdicts, in this process (the student's own self-check, mazelab.exercise.selfcheck;
+the isolated grade is tests/test_grading.py): correct parts pass, each broken part fails with the hint
+that names its bug, and each tolerance is pinned by a slightly wrong part that fails (and would pass
+if the check were ten times looser); StudentFilter's wiring, `exercise new` and the self-check."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import math
 import subprocess
 import sys
 
+import exercise_answers as answers
 import numpy as np
 import pytest
 from exercise_answers import BROKEN, MultinomialFilter, ReferenceFilter
@@ -15,60 +17,233 @@ from exercise_answers import BROKEN, MultinomialFilter, ReferenceFilter
 from mazelab.cli.app import main
 from mazelab.contract import check_filter
 from mazelab.exercise import PARTS, StudentFilter
-from mazelab.exercise.parts import check_parts, kolmogorov_p, ks_uniform, resample_weights
-from mazelab.exercise.report import check, progress
+from mazelab.exercise.inputs import (
+    RESAMPLE_KINDS,
+    default_seed,
+    draw_part_inputs,
+    draw_scenarios,
+    resample_vector,
+)
+from mazelab.exercise.layout import WIDTH, format_report
+from mazelab.exercise.offspring import critical_z, judge_resample, offspring_counts, scheme_variances, z_scores
+from mazelab.exercise.parts import kolmogorov_p, ks_uniform
+from mazelab.exercise.report import check, collect_in_process
+from mazelab.exercise.rows import take
+from mazelab.exercise.selfcheck import progress
 from mazelab.exercise.whole import sign_test_alpha
 from mazelab.plugins import load_plugin
+from mazelab.resampling import RESAMPLING_SCHEMES
 from mazelab.simulation import simulate
 
-
-@pytest.fixture(scope="module")
-def reference_report():
-    return check(ReferenceFilter)
-
-
-def test_the_shipped_sir_as_a_student_filter_passes_every_row(reference_report):
-    assert [row.part for row in reference_report.rows] == [*PARTS, "whole filter"]
-    assert reference_report.passed, [row for row in reference_report.rows if not row.passed]
-    assert "looks systematic" in reference_report.row("resample").got
-    assert len(reference_report.figures) == 12
+SEEDS = (3, 4)  # the part checks' inputs of two seeds (different mazes, sigma, delta, sizes)
+WHOLE_SEED = 2024  # the whole filter's scenarios (the exact runs are computed once per process)
+BONFERRONI_SEED = 107  # a correct multinomial resampler's largest |z| there is 3.55: past 3.29, the
+# two-sided normal quantile at 0.001, but within the corrected quantile (about 4.6 for ~250 particles)
 
 
-def test_a_multinomial_resampler_passes_and_is_named():
-    rows, scheme = check_parts(MultinomialFilter)
-    assert all(row.passed for row in rows), rows
-    assert scheme == "multinomial" and "looks multinomial" in rows[2].got
+def failing(cls: type, seed: int, stages: tuple[str, ...] = tuple(PARTS)) -> list[tuple[str, str, str]]:
+    """(part, got, hint) of each row of `stages` that does not pass."""
+    return [(r.part, r.got, r.hint) for r in check(cls, seed=seed, stages=stages).rows if not r.passed]
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_the_shipped_sir_as_a_student_filter_passes_every_part(seed):
+    report = check(ReferenceFilter, seed=seed, stages=tuple(PARTS))
+    assert [row.part for row in report.rows] == list(PARTS)
+    assert report.passed, [row for row in report.rows if not row.passed]
+    assert "looks systematic" in report.row("resample").got
+
+
+@pytest.mark.parametrize("cls", [MultinomialFilter, answers.StratifiedFilter, answers.ResidualFilter])
+def test_any_unbiased_resampler_passes_and_is_named(cls):
+    row = check(cls, seed=SEEDS[0], stages=("resample",)).row("resample")
+    assert row.passed, row
+    assert f"looks {cls.__name__.removesuffix('Filter').lower()}" in row.got
 
 
 @pytest.mark.parametrize("variant", list(BROKEN), ids=lambda cls: cls.__name__)
-def test_each_broken_variant_fails_its_part_only(variant):
-    rows, _ = check_parts(variant)
-    failed = [row.part for row in rows if not row.passed]
-    assert failed == [BROKEN[variant]]
-    assert next(row for row in rows if not row.passed).hint
+def test_each_broken_part_fails_with_the_hint_that_names_its_bug(variant):
+    part, phrase = BROKEN[variant]
+    rows = failing(variant, SEEDS[1], (part,))
+    assert [row[0] for row in rows] == [part]
+    assert phrase in rows[0][2], rows[0]
 
 
-def test_the_hints_name_what_is_wrong():
-    import exercise_answers as answers
-
-    hints = {cls.__name__: next(r.hint for r in check_parts(cls)[0] if not r.passed) for cls in BROKEN}
-    assert "the sign" in hints[answers.SignFlipped.__name__]
-    assert "sigma where sigma^2 belongs" in hints[answers.SigmaNotSquared.__name__]
-    assert "outside penalty" in hints[answers.NoPenalty.__name__]
-    assert "arange" in hints[answers.IdentityResample.__name__]
-    assert "no heading noise" in hints[answers.NoHeadingNoise.__name__]
-    assert "plain mean" in hints[answers.UnweightedMean.__name__]
+@pytest.mark.parametrize("share", [0.5, 0.9])
+def test_an_ess_gate_inside_resample_fails_whatever_its_threshold(share):
+    """Under the mild weights the ESS is 0.99 N: a gate at N/2 or at 0.9 N keeps every particle there."""
+    (_, got, hint), *_ = failing(answers.ess_gate(share), SEEDS[0], ("resample",))
+    assert "resample always draws" in hint and ("mild" in got or share == 0.5)
 
 
-def test_the_skeleton_fails_all_four_parts_as_not_implemented(tmp_path, capsys):
+def test_a_wrong_station_is_not_told_a_scale_of_the_exponent():
+    (_, _, hint), *_ = failing(answers.WrongStation, SEEDS[0], ("weigh",))
+    assert "times -(z - d)^2" not in hint and "distance_to_nearest_station" in hint
+
+
+def test_one_heading_for_all_particles_is_not_called_no_noise():
+    (_, got, hint), *_ = failing(answers.SharedHeading, SEEDS[0], ("predict",))
+    assert "no heading noise" not in hint and "same heading" in got
+
+
+# -- each tolerance pinned: a slightly wrong part fails, and would pass were the check 10x looser ----
+def test_a_likelihood_one_percent_off_outside_the_free_area_fails_weigh():
+    (part, got, hint), *_ = failing(answers.PenaltyOnePercentOff, SEEDS[0], ("weigh",))
+    assert part == "weigh" and got == "largest deviation 0.00995"  # log(1.01): 10x the tolerance 1e-3
+    assert "outside penalty" in hint and "-0.6832" in hint  # yours adds log(0.505)
+
+
+def test_an_exponent_one_percent_off_fails_weigh_and_is_named():
+    (_, _, hint), *_ = failing(answers.ExponentOnePercentOff, SEEDS[1], ("weigh",))
+    assert "1.01 times" in hint
+
+
+def test_a_step_three_ten_thousandths_long_fails_predict():
+    (_, got, _), *_ = failing(answers.StepSlightlyLong, SEEDS[0], ("predict",))
+    assert got.startswith("step lengths 0.20030..0.20030")  # 3e-4 off: 3x the tolerance 1e-4
+
+
+def test_a_heading_spread_ten_percent_too_wide_fails_predict():
+    (_, got, hint), *_ = failing(answers.SpreadTenPercentWide, SEEDS[0], ("predict",))
+    assert "KS p" in got and "1.1 times the compass error's width" in hint
+
+
+def test_the_ks_test_sits_at_its_stated_level():
+    """A heading grid of scaled KS distance 2.25 (p 7.7e-5) fails the test at 0.00025 (it would pass
+    at 0.000025); one at 1.98 (p 7.6e-4) passes (it would fail at 0.001, without the correction for
+    predict's four tests)."""
+    assert [p for p, *_ in failing(answers.ks_distance_predict(2.25), SEEDS[0], ("predict",))] == ["predict"]
+    assert failing(answers.ks_distance_predict(1.98), SEEDS[0], ("predict",)) == []
+
+
+def test_an_estimate_three_ten_thousandths_off_fails():
+    (_, got, _), *_ = failing(answers.EstimateSlightlyOff, SEEDS[0], ("estimate",))
+    assert got.startswith("off by 0.000424")  # hypot(3e-4, 3e-4): 4x the tolerance 1e-4
+
+
+def test_a_resampler_biased_by_seven_standard_errors_fails():
+    (_, got, _), *_ = failing(answers.biased_resampler(7.0), SEEDS[1], ("resample",))
+    assert "particle 0 has mean offspring" in got
+
+
+def test_the_resample_check_is_corrected_for_its_many_particles():
+    """Without the Bonferroni correction (3.29 for each particle), a correct resampler would fail here."""
+    parts = draw_part_inputs(BONFERRONI_SEED)
+    answer = collect_in_process(MultinomialFilter, parts, [], ["resample"]).results["resample"]
+    worst = max(
+        float(np.abs(z_scores(offspring_counts(take(answer, f"ancestors/{k}", None, "<i8"), len(w)), w)).max())
+        for k, w in enumerate(parts.resample.weights)
+    )
+    assert 3.29 < worst < critical_z(sum(len(w) for w in parts.resample.weights))
+    assert judge_resample(parts, answer)[0].passed
+
+
+# -- the whole filter ------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def reference_report():
+    return check(ReferenceFilter, seed=WHOLE_SEED)
+
+
+def test_the_shipped_sir_as_a_student_filter_passes_the_whole_filter(reference_report):
+    assert [row.part for row in reference_report.rows] == [*PARTS, "whole filter"]
+    assert reference_report.passed, [row for row in reference_report.rows if not row.passed]
+    assert len(reference_report.figures) == 12
+    assert {f.maze for f in reference_report.figures} <= {"paper_5x5", "maze_10x10"}
+
+
+def test_the_report_fits_in_a_hundred_columns(reference_report):
+    text = format_report(reference_report)
+    assert max(map(len, text.splitlines())) <= WIDTH
+    broken = format_report(check(answers.WrongStation, seed=SEEDS[0], stages=tuple(PARTS)))
+    assert max(map(len, broken.splitlines())) <= WIDTH and "\n" + " " * 28 + "hint: " in broken
+
+
+def test_parts_that_pass_alone_but_not_together_fail_the_whole_filter(reference_report):
+    report = check(answers.ForgetsResampling, seed=WHOLE_SEED)
+    assert [row.passed for row in report.rows] == [True] * 4 + [False]
+    assert "farther on" in report.row("whole filter").got
+
+
+def test_a_nan_estimate_never_passes_the_whole_filter(reference_report):
+    class NanWhole(ReferenceFilter):
+        """Its estimate part is right; the estimate the filter reports is not a number."""
+
+        @property
+        def estimate(self):
+            return np.array([np.nan, np.nan])
+
+    NanWhole.estimate_part = ReferenceFilter.estimate_part
+    row = check(NanWhole, seed=WHOLE_SEED).row("whole filter")
+    assert not row.passed and "nan" in row.got and "a number at every step" in row.hint
+
+
+def test_an_error_in_the_whole_filter_is_one_cell_naming_the_students_line():
+    class Raising(ReferenceFilter):
+        def step(self, compass_angle, z):
+            raise RuntimeError("my bug")
+
+    row = check(Raising, seed=WHOLE_SEED).row("whole filter")
+    assert not row.passed and "\n" not in row.got and row.hint == "fix the error first"
+    assert "raised RuntimeError at step 1: my bug; " in row.got and "test_exercise.py, line" in row.got
+
+
+def test_a_failing_part_is_named_in_the_whole_filters_hint():
+    row = check(answers.SignFlipped, seed=WHOLE_SEED).row("whole filter")
+    assert not row.passed and row.hint.startswith("fix weigh first")
+
+
+# -- fresh inputs from a seed ------------------------------------------------------------------------
+def test_each_seed_draws_fresh_inputs_and_the_same_seed_the_same():
+    first, again, other = draw_part_inputs(5), draw_part_inputs(5), draw_part_inputs(6)
+    assert np.array_equal(first.predict.start, again.predict.start) and first.sigma == again.sigma
+    assert len(first.estimate.points) != len(other.estimate.points) and first.delta != other.delta
+    assert first.predict.angles != other.predict.angles
+    assert [len(w) for w in first.resample.weights] != [len(w) for w in other.resample.weights]
+    assert 0.4 <= first.sigma <= 0.8 and 0.1 <= first.delta <= 0.4  # away from the example's 0.3, 0.5
+    walks = draw_scenarios(5, count=2, steps=5), draw_scenarios(6, count=2, steps=5)
+    assert walks[0][0].measurements != walks[1][0].measurements
+    assert default_seed(b"a") == default_seed(b"a") != default_seed(b"b") and 0 <= default_seed(b"a") < 2**63
+
+
+def test_the_weight_vectors_are_of_their_kinds():
+    rng = np.random.default_rng(1)
+    for kind in RESAMPLE_KINDS:
+        weights = resample_vector(kind, 51, rng)
+        assert math.isclose(weights.sum(), 1) and (kind == "even") == np.allclose(weights, 1 / 51)
+        assert (51 * weights).min() >= 0.19  # every particle's offspring count averages near normal
+    ess = 1 / np.sum(resample_vector("mild", 1000, rng) ** 2)
+    assert ess > 950  # keeping every particle is wrong even where the ESS is high
+    assert resample_vector("one dominant", 51, rng).max() == pytest.approx(0.5)
+
+
+def test_the_scheme_variances_are_those_of_the_shipped_schemes():
+    weights = resample_vector("fractional", 41, np.random.default_rng(2))
+    exact = scheme_variances(weights)
+    for name, scheme in RESAMPLING_SCHEMES.items():
+        rng = np.random.default_rng(3)
+        counts = offspring_counts(np.stack([scheme(weights, rng) for _ in range(4000)]), 41)
+        measured = counts.var(axis=0, ddof=1).sum()
+        assert measured == pytest.approx(exact[name], rel=0.06), name  # a variance's error over 4000: ~2%
+
+
+def test_the_statistics_behind_the_checks():
+    n = 1000
+    assert math.isclose(kolmogorov_p(1.3581 / math.sqrt(n), n), 0.05, abs_tol=0.003)  # the 5% critical value
+    uniform = (np.arange(n) + 0.5) / n
+    assert ks_uniform(uniform) == pytest.approx(0.5 / n)
+    assert ks_uniform(np.concatenate([uniform, [-5.0]])) < 0.002  # below 0 the CDF is 0, not negative
+    assert sign_test_alpha() == 13 / 4096
+    assert critical_z(1) == pytest.approx(3.2905, abs=1e-4)
+
+
+# -- StudentFilter, exercise new, the self-check -------------------------------------------------------
+def test_the_skeleton_fails_all_four_parts_as_not_written(tmp_path):
     assert main(["exercise", "new", str(tmp_path / "ex")]) == 0
     skeleton = load_plugin(str(tmp_path / "ex" / "my_filter.py"))
-    report = check(skeleton)
-    rows = [(row.part, row.passed, row.got) for row in report.rows[:4]]
-    assert rows == [(part, False, "not implemented") for part in PARTS]
-    assert report.row("whole filter").got == "not run" and not report.passed
-    assert main(["exercise", "check", str(tmp_path / "ex" / "my_filter.py:MyFilter")]) == 1
-    assert "To fix: predict, weigh, resample, estimate, whole filter." in capsys.readouterr().out
+    report = check(skeleton, seed=SEEDS[0], stages=tuple(PARTS))
+    assert [(row.part, row.status, row.got) for row in report.rows] == [
+        (part, "not written", "not implemented") for part in PARTS
+    ]
 
 
 def test_running_the_skeleton_says_what_is_left(tmp_path):
@@ -101,32 +276,6 @@ def test_progress_prints_the_check_command_of_this_file(tmp_path, monkeypatch):
     assert lines[1].endswith(" exercise check mine.py:Other")
 
 
-def test_a_failing_part_is_named_in_the_whole_filters_hint(monkeypatch):
-    import exercise_answers as answers
-
-    import mazelab.exercise.report as report_module
-    from mazelab.exercise.parts import Row
-
-    hint = "the parts pass alone but not together: check what weigh and predict assume of each other"
-
-    def failing_whole(filter_class, scheme):  # a fresh row each call: check() may rewrite its hint
-        return Row("whole filter", False, "", "", hint), []
-
-    monkeypatch.setattr(report_module, "check_whole", failing_whole)
-    assert check(answers.UnweightedMean).row("whole filter").hint.startswith("fix estimate first")
-    assert check(ReferenceFilter).row("whole filter").hint == hint  # every part passes: the hint stands
-
-
-def test_an_error_in_the_whole_filter_is_one_table_cell_naming_the_students_line():
-    class Raising(ReferenceFilter):
-        def predict(self, positions, compass_angle, rng):
-            raise RuntimeError("my bug")
-
-    row = check(Raising).row("whole filter")
-    assert not row.passed and "\n" not in row.got and row.hint == "fix the error first"
-    assert "raised RuntimeError at step 1: my bug; " in row.got and "test_exercise.py, line" in row.got
-
-
 def test_new_refuses_to_overwrite_without_force(tmp_path, capsys):
     assert main(["exercise", "new", str(tmp_path)]) == 0
     (tmp_path / "my_filter.py").write_text("# my work\n")
@@ -135,12 +284,6 @@ def test_new_refuses_to_overwrite_without_force(tmp_path, capsys):
     assert (tmp_path / "my_filter.py").read_text() == "# my work\n"
     assert main(["exercise", "new", str(tmp_path), "--force"]) == 0
     assert "class MyFilter(StudentFilter)" in (tmp_path / "my_filter.py").read_text()
-
-
-def test_check_refuses_what_is_not_a_python_file(tmp_path, capsys):
-    assert main(["exercise", "check", "sir"]) == 2
-    assert main(["exercise", "check", str(tmp_path / "none.py")]) == 2
-    assert "none.py" in capsys.readouterr().err
 
 
 def test_the_skeleton_docstrings_name_the_equation_and_the_line():
@@ -178,13 +321,3 @@ def test_student_filter_restarts_from_the_prior_when_no_particle_explains_z(pape
 def test_student_filter_refuses_estimate_mode(paper_world):
     with pytest.raises(ValueError, match="estimate='mode' does not apply"):
         StudentFilter(paper_world, 0.3, 0.5, [[1.5, 0.5]], estimate="mode")
-
-
-def test_the_statistics_behind_the_checks():
-    n = 1000
-    assert math.isclose(kolmogorov_p(1.3581 / math.sqrt(n), n), 0.05, abs_tol=0.003)  # the 5% critical value
-    uniform = (np.arange(n) + 0.5) / n
-    assert ks_uniform(uniform) == pytest.approx(0.5 / n)
-    assert sign_test_alpha() == 13 / 4096
-    weights = resample_weights()
-    assert math.isclose(weights.sum(), 1) and np.all(np.abs(40 * weights % 1 - 0.5) <= 0.4 + 1e-9)

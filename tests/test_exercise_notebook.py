@@ -1,9 +1,12 @@
-"""notebooks/exercise.ipynb: committed unfilled and without outputs; with the reference answers put in
-by this test (never shipped in the notebook), it runs top to bottom in a fresh kernel and every check
-cell passes."""
+"""notebooks/exercise.ipynb and its Ukrainian twin exercise_uk.ipynb: committed unfilled and without
+outputs, the same code (their docstrings and comments aside), each stub with the docstring the
+checker's hint sends the student to; with the reference answers put in by this test (never shipped in
+the notebooks), each runs top to bottom in a fresh kernel, every check cell passes, and no line of
+what it prints is wider than the report's 100 columns."""
 
 from __future__ import annotations
 
+import ast
 import inspect
 import textwrap
 
@@ -15,12 +18,13 @@ from nbclient import NotebookClient
 from test_notebook import CELL_TIMEOUT, kernel_spec, stdout_of  # noqa: F401 (kernel_spec is a fixture)
 
 from mazelab.exercise import PARTS
+from mazelab.exercise.layout import WIDTH
 
-NOTEBOOK = ROOT / "notebooks" / "exercise.ipynb"
+NOTEBOOKS = {"en": ROOT / "notebooks" / "exercise.ipynb", "uk": ROOT / "notebooks" / "exercise_uk.ipynb"}
 
 
-def read() -> nbformat.NotebookNode:
-    return nbformat.read(NOTEBOOK, as_version=nbformat.NO_CONVERT)
+def read(language: str) -> nbformat.NotebookNode:
+    return nbformat.read(NOTEBOOKS[language], as_version=nbformat.NO_CONVERT)
 
 
 def cell(notebook: nbformat.NotebookNode, cell_id: str) -> nbformat.NotebookNode:
@@ -33,8 +37,18 @@ def answer(part: str) -> str:
     return textwrap.dedent(inspect.getsource(method))
 
 
-def test_committed_notebook_is_unfilled_and_has_no_outputs():
-    notebook = read()
+def code_without_words(source: str) -> str:
+    """The code of a cell with its docstrings and comments gone (ast drops the comments)."""
+    tree = ast.parse(source)
+    for node in ast.walk(tree):
+        if isinstance(node, ast.FunctionDef) and ast.get_docstring(node) is not None:
+            node.body = node.body[1:]
+    return ast.dump(tree)
+
+
+@pytest.mark.parametrize("language", NOTEBOOKS)
+def test_committed_notebook_is_unfilled_and_has_no_outputs(language):
+    notebook = read(language)
     nbformat.validate(notebook)
     assert set(notebook.metadata) == {"kernelspec", "language_info"}
     for c in notebook.cells:
@@ -46,9 +60,28 @@ def test_committed_notebook_is_unfilled_and_has_no_outputs():
         assert f'check_part("{part}", {part})' in cell(notebook, f"check-{part}").source
 
 
-@pytest.mark.slow  # a kernel and the whole check: about 15 s (it still runs by default)
-def test_notebook_with_the_reference_answers_passes_every_check(kernel_spec, tmp_path):  # noqa: F811
-    notebook = read()
+@pytest.mark.parametrize("language", NOTEBOOKS)
+def test_each_stub_has_the_docstring_the_hint_names(language):
+    """An unwritten part's hint says "write predict (see its docstring)": the stub has one."""
+    for part in PARTS:
+        (function,) = ast.parse(cell(read(language), f"answer-{part}").source).body
+        assert function.name == part and len(ast.get_docstring(function) or "") > 40
+
+
+def test_the_two_notebooks_hold_the_same_code():
+    english, ukrainian = read("en"), read("uk")
+    assert [c.id for c in english.cells] == [c.id for c in ukrainian.cells]
+    for mine, theirs in zip(english.cells, ukrainian.cells, strict=True):
+        if mine.cell_type == "code":
+            assert code_without_words(mine.source) == code_without_words(theirs.source), mine.id
+    intro = cell(ukrainian, "intro").source
+    assert "гранулярний фільтр" in intro and "гранула" in intro
+
+
+@pytest.mark.slow  # a kernel and the whole check, each notebook: about a minute (it still runs by default)
+@pytest.mark.parametrize("language", NOTEBOOKS)
+def test_notebook_with_the_reference_answers_passes_every_check(kernel_spec, tmp_path, language):  # noqa: F811
+    notebook = read(language)
     for part in PARTS:
         cell(notebook, f"answer-{part}").source = answer(part)
     client = NotebookClient(
@@ -58,4 +91,6 @@ def test_notebook_with_the_reference_answers_passes_every_check(kernel_spec, tmp
     for part in PARTS:
         out = stdout_of(cell(notebook, f"check-{part}"))
         assert f"{part}" in out and "pass" in out and "FAIL" not in out, out
-    assert "All checks pass." in stdout_of(cell(notebook, "check-whole"))
+        assert max(map(len, out.splitlines())) <= WIDTH
+    whole = stdout_of(cell(notebook, "check-whole"))
+    assert "All checks pass." in whole and max(map(len, whole.splitlines())) <= WIDTH, whole

@@ -1,4 +1,5 @@
-"""`mazelab exercise new DIR` (the student's files) and `mazelab exercise check FILE[:Class]` (the grade)."""
+"""`mazelab exercise new DIR` (the student's files), `mazelab exercise check FILE[:Class]` (one grade)
+and `mazelab exercise grade DIR` (a folder of them)."""
 
 from __future__ import annotations
 
@@ -8,18 +9,33 @@ from typing import Annotated
 
 import typer
 
-from mazelab.exercise.report import check as run_check
-from mazelab.exercise.report import format_report
+from mazelab.atomic import write_text_atomically
+from mazelab.cli.options import UserError, check_output_path, seed_option
+from mazelab.exercise.grading import Graded, Submission, csv_text, discover, grade_folder, gradescope_json, summary
+from mazelab.exercise.layout import format_report
+from mazelab.exercise.report import NotGradableError, check_file
+from mazelab.exercise.runner import DEFAULT_TIMEOUT
 from mazelab.exercise.template import write_exercise
 from mazelab.invocation import python_prefix
-from mazelab.plugins import is_plugin_spec, load_plugin
+from mazelab.plugins import is_plugin_spec
 
 exercise_app = typer.Typer(
-    help="Write your own particle filter (new) and grade it against the exact posterior (check).",
+    help="Write your own particle filter (new), grade it (check), grade a class's folder (grade).",
     no_args_is_help=True,
     rich_markup_mode=None,
     pretty_exceptions_enable=False,
 )
+SeedFlag = Annotated[
+    int | None,
+    typer.Option(callback=seed_option, help="the inputs' seed (default: from the file's content)", show_default=False),
+]
+TimeoutFlag = Annotated[
+    float, typer.Option(min=1.0, help="seconds each run of the student's process may take before it is stopped")
+]
+ForceFlag = Annotated[bool, typer.Option("--force", help="replace existing output files")]
+GradescopeFlag = Annotated[
+    Path | None, typer.Option(metavar="DIR", help="write Gradescope's results.json there", show_default=False)
+]
 
 
 @exercise_app.command(short_help="Write the exercise (my_filter.py, README.md) into DIR.")
@@ -36,18 +52,94 @@ def new(
 @exercise_app.command(name="check", short_help="Grade FILE[:Class]: each part, then the whole filter.")
 def check_command(
     spec: Annotated[str, typer.Argument(metavar="FILE[:Class]", help="the student's file, and its class if several")],
+    seed: SeedFlag = None,
+    timeout: TimeoutFlag = DEFAULT_TIMEOUT,
+    gradescope: GradescopeFlag = None,
+    force: ForceFlag = False,
 ) -> None:
-    """Check each part on seeded inputs and the whole filter against the exact grid posterior, with
-    the shipped SIR's figures beside it; exit code 0 only when every row passes."""
+    """Check each part on fresh inputs and the whole filter against the exact grid posterior, with the
+    shipped SIR's figures beside it. The student's code runs in a process of its own with a time
+    limit; exit code 0 only when every row passes, 1 when one does not, 2 when the file cannot be
+    checked (it does not import, has no such class, or the class is not a StudentFilter)."""
     if not is_plugin_spec(spec):
         raise ValueError(f"{spec}: give a Python file, path/to/my_filter.py or path/to/my_filter.py:MyFilter")
-    filter_class = load_plugin(spec)
+    results = _gradescope_file(gradescope, force)
     started = time.perf_counter()
-    report = run_check(filter_class)
-    typer.echo(format_report(report))
+    try:
+        report = check_file(spec, seed=seed, timeout=timeout)
+    except NotGradableError as error:
+        raise UserError(str(error)) from None
+    note = " (given)" if seed is not None else f" (from the file; --seed {report.seed} repeats it)"
+    typer.echo(format_report(report, seed_note=note))
     typer.echo(f"checked in {time.perf_counter() - started:.1f} s")
+    if results is not None:
+        graded = Graded(Submission(Path(spec).name, Path(spec)), report, None, report.seconds)
+        write_text_atomically(results, gradescope_json(graded), replace=force)
     if not report.passed:
         raise typer.Exit(1)
 
 
-__all__ = ["check_command", "exercise_app", "new"]
+def _gradescope_file(folder: Path | None, force: bool) -> Path | None:
+    if folder is None:
+        return None
+    if not folder.is_dir():
+        raise UserError(f"--gradescope {folder}: no such folder")
+    check_output_path(folder / "results.json", force)
+    return folder / "results.json"
+
+
+@exercise_app.command(name="grade", short_help="Grade every submission in DIR, in parallel.")
+def grade_command(
+    folder: Annotated[Path, typer.Argument(metavar="DIR", help="one subfolder or one .py file per submission")],
+    seed: Annotated[
+        int | None,
+        typer.Option(
+            callback=seed_option,
+            help="one seed for every submission (kept from the students; the exact runs are then shared)",
+            show_default=False,
+        ),
+    ] = None,
+    timeout: TimeoutFlag = DEFAULT_TIMEOUT,
+    jobs: Annotated[int | None, typer.Option(min=1, help="submissions at once (default: the cores)")] = None,
+    csv_path: Annotated[
+        Path | None, typer.Option("--csv", metavar="F", help="one row per submission", show_default=False)
+    ] = None,
+    gradescope: GradescopeFlag = None,
+    force: ForceFlag = False,
+    quiet: Annotated[bool, typer.Option("--quiet", help="no progress bar")] = False,
+) -> None:
+    """Check every submission of DIR (each in processes of its own, with the time limit), several at
+    once, then print a summary table; --csv writes a row per submission, --gradescope a results.json
+    per submission (DIR/NAME/results.json). Exit code 0 when every submission was checked, whatever
+    its grade."""
+    submissions = discover(folder)
+    if csv_path is not None:
+        check_output_path(csv_path, force)
+    targets = {}
+    if gradescope is not None:
+        if not gradescope.is_dir():
+            raise UserError(f"--gradescope {gradescope}: no such folder")
+        for submission in submissions:
+            target = gradescope / submission.name / "results.json"
+            if target.exists() and not force:
+                raise UserError(f"{target} exists; use --force to replace it")
+            targets[submission.name] = target
+    from mazelab.experiments.executor import progress_bar
+
+    started = time.perf_counter()
+    with progress_bar(len(submissions), not quiet, what="submissions") as advance:
+        graded = grade_folder(submissions, seed=seed, timeout=timeout, jobs=jobs, on_done=lambda _: advance())
+    typer.echo(summary(graded))
+    typer.echo(f"graded in {time.perf_counter() - started:.1f} s")
+    if csv_path is not None:
+        typer.echo(f"wrote {write_text_atomically(csv_path, csv_text(graded), replace=force)}")
+    for one in graded:
+        if one.submission.name in targets:
+            target = targets[one.submission.name]
+            target.parent.mkdir(exist_ok=True)
+            write_text_atomically(target, gradescope_json(one), replace=force)
+    if targets:
+        typer.echo(f"wrote {len(targets)} results.json under {gradescope}")
+
+
+__all__ = ["check_command", "exercise_app", "grade_command", "new"]

@@ -1,165 +1,58 @@
-"""One check per part of the exercise, each on fixed seeded inputs, each a row of the report.
+"""The verdicts on predict, weigh and estimate, made by the grader from the values the student's
+process returned for the inputs of mazelab.exercise.inputs (resample's are in mazelab.exercise.offspring).
 
 weigh     against mazelab.model.log_likelihood up to a constant per measurement: |deviation| <= 1e-3
-estimate  against sum_i W_i x_i on two sets of unequal weights: |deviation| <= 1e-4 map units
-predict   every step of length L (to 1e-4), the heading's deviation from th0 uniform on [-Delta/2, Delta/2]:
-          a Kolmogorov-Smirnov test at each of two compass angles, each at 0.0005 (0.001 together)
-resample  unbiased offspring counts, E[N_i] = N W_i: a z-test per particle over R seeded calls,
-          Bonferroni over the N particles (0.001 together); which scheme its variance resembles
-predict and resample must also repeat their draws from an equally seeded Generator.
-A correct part fails a statistical check with at most the stated probability (the false-alarm rate);
-the deterministic checks (tolerances far above float64 rounding) never fail a correct part.
+          (a likelihood 1% off outside the free area is 0.00995 off); finite, or -inf only where 0
+estimate  against sum_i W_i x_i under even, unequal, very unequal and one-dominant weights: <= 1e-4
+predict   every step of length L (to 1e-4); one heading per particle (no two alike); the heading's
+          deviation from th0 uniform on [-Delta/2, Delta/2] at each of three compass angles (a
+          Kolmogorov-Smirnov test); fresh noise at every call (the correlation between two calls on
+          one Generator); the same draws from an equally seeded Generator
+A correct part fails a statistical check with at most the stated probability (the false-alarm rate:
+predict's four tests together 0.001, each at 0.00025); the deterministic checks' tolerances lie far
+above float64 rounding, so they never fail a correct part.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from dataclasses import dataclass
-from pathlib import Path
 from statistics import NormalDist
-from typing import Any
 
 import numpy as np
 
-from mazelab.exercise.student import PartError, StudentFilter
-from mazelab.maze import Maze
-from mazelab.mazes import load_maze
+from mazelab.exercise.inputs import PartInputs
+from mazelab.exercise.rows import FAIL, PASS, Row, error_of, error_row, take
+from mazelab.exercise.wire import Message
 from mazelab.model import OUTSIDE_PENALTY, ROBOT_SPEED, log_likelihood
-from mazelab.plugins import student_frames
-from mazelab.resampling import RESAMPLING_SCHEMES
 
-CHECK_MAZE = "maze_10x10"
-SIGMA, DELTA = 0.3, 0.4  # delta is not the command line's default 0.5: a hard-coded 0.5 shows
-SEED = 2024  # every check's inputs and draws come from seeds derived from this one
 WEIGH_TOLERANCE = 1e-3  # log-likelihood units: a weight off by 0.1%
 ESTIMATE_TOLERANCE = 1e-4  # map units
 STEP_TOLERANCE = 1e-4  # map units, on the step length L = 0.2
-PREDICT_ALPHA = 0.001  # false-alarm rate of the predict check (two KS tests at half of it each)
-PREDICT_COUNT = 20_000
-PREDICT_ANGLES = (0.7, 3.0)  # the second straddles +-pi: an angle wrapped wrongly shows
-RESAMPLE_ALPHA = 0.001  # false-alarm rate of the resample check (Bonferroni over the particles)
-RESAMPLE_DRAWS = 4000  # R calls of resample on the same weights
-
-
-@dataclass
-class Row:
-    """A row of the report: the part, pass or fail, what was expected, what came, and a hint."""
-
-    part: str
-    passed: bool
-    expected: str
-    got: str
-    hint: str = ""
-    not_written: bool = False
-
-
-def make_filter(filter_class: type, world: Maze | None = None, count: int = 200) -> Any:
-    """The student's filter on the check maze with SIGMA, DELTA and `count` seeded prior particles."""
-    world = world if world is not None else load_maze(CHECK_MAZE)
-    rng = np.random.default_rng(SEED)
-    return filter_class(world, SIGMA, DELTA, world.random_free_places(count, rng), rng)
-
-
-def call_part(part: str, call: Callable[[], Any]) -> tuple[Any, Row | None]:
-    """(the part's answer, None), or (None, the failing row): not written, or the error it raised."""
-    try:
-        return call(), None
-    except NotImplementedError:
-        return None, Row(part, False, "written", "not implemented", f"write {part} (see its docstring)", True)
-    except PartError as error:
-        return None, Row(part, False, "an answer of the right shape", str(error), HINTS[part])
-    except Exception as error:
-        frames = student_frames(error.__traceback__)
-        where = f" ({Path(frames[-1].filename).name}, line {frames[-1].lineno})" if frames else ""
-        return None, Row(part, False, "no error", f"{type(error).__name__}: {error}{where}", HINTS[part])
-
+PREDICT_ALPHA = 0.001  # predict's false-alarm rate: three KS tests and one correlation test, 0.00025 each
+PREDICT_TESTS = 4
+DISTINCT_SHARE = 0.99  # at least this share of the particles' headings differ (continuous draws)
 
 HINTS = {
-    "predict": "equation (1): x_k = x_{k-1} + L (cos th, sin th), th ~ U(th0 - Delta/2, th0 + Delta/2), per particle",
-    "weigh": "equation (3): log N(z; d, sigma^2) = -(z - d)^2 / (2 sigma^2) + const, + log 0.5 outside the free area",
+    "predict": "equation (1): x_k = x_(k-1) + L (cos th, sin th), th ~ U(th0 - Delta/2, th0 + Delta/2), "
+    "one th per particle",
+    "weigh": "equation (3): log N(z; d, sigma^2) = -(z - d)^2 / (2 sigma^2) + const, + log(OUTSIDE_PENALTY) "
+    "outside the free area",
     "resample": "Algorithm 2 (systematic): u_j = (U + j) / N, ancestor j = the first i with cumsum(W)_i > u_j",
-    "estimate": "the posterior mean sum_i W_i x_i (weighted by W, not a plain average of the particles)",
+    "estimate": "the posterior mean sum_i W_i x_i (weights @ positions; the weights are normalised)",
+}
+EXPECTED = {
+    "predict": f"steps of L = {ROBOT_SPEED:g}, headings U(th0 +- Delta/2), one per particle, fresh per call",
+    "weigh": f"log p(z|x) of eq. (3) up to a constant, deviation <= {WEIGH_TOLERANCE:g}",
+    "estimate": f"sum_i W_i x_i to {ESTIMATE_TOLERANCE:g}",
 }
 
 
-# -- weigh --------------------------------------------------------------------------------------------
-def check_weigh(filter_class: type) -> Row:
-    """weigh against mazelab.model.log_likelihood, up to a constant per z, on points in and out of the free area."""
-    filt = make_filter(filter_class)
-    world = filt.world
-    rng = np.random.default_rng([SEED, 1])
-    points = rng.uniform([-0.5, -0.5], [world.width + 0.5, world.height + 0.5], size=(3000, 2))
-    outside = ~world.is_free(points[:, 0], points[:, 1])
-    distance = world.distance_to_nearest_station(points)
-    worst, fits = 0.0, []
-    for z in (0.4, 1.3, 2.6):
-        got, failed = call_part("weigh", lambda z=z: filt.call_weigh(points, z))
-        if failed:
-            return failed
-        expected = log_likelihood(z, points, world, SIGMA)
-        deviation = got - expected
-        if not np.isfinite(deviation).all():
-            return Row("weigh", False, _weigh_expected(), "-inf where the likelihood is not 0", HINTS["weigh"])
-        worst = max(worst, float(np.abs(deviation - np.median(deviation)).max()))
-        quadratic = -0.5 * ((z - distance) / SIGMA) ** 2
-        design = np.column_stack([quadratic, outside, np.ones(len(points))])
-        fits.append(np.linalg.lstsq(design, got, rcond=None)[0][:2])
-    passed = worst <= WEIGH_TOLERANCE
-    scale, penalty = np.mean(fits, axis=0)
-    hint = "" if passed else _weigh_hint(float(scale), float(penalty))
-    return Row("weigh", passed, _weigh_expected(), f"largest deviation {worst:.3g}", hint)
+def predict_alpha_each() -> float:
+    """The level of each of predict's tests (Bonferroni over PREDICT_TESTS)."""
+    return PREDICT_ALPHA / PREDICT_TESTS
 
 
-def _weigh_expected() -> str:
-    return f"log p(z|x) of eq. (3) up to a constant, deviation <= {WEIGH_TOLERANCE:g}"
-
-
-def _weigh_hint(scale: float, penalty: float) -> str:
-    """Which term of equation (3) the fit got ≈ scale * quadratic + penalty * outside + c gets wrong."""
-    if abs(scale + 1) < 0.05:
-        return "the sign: log N = -(z - d)^2 / (2 sigma^2); a particle far from z must weigh less (eq. 3)"
-    if abs(scale - SIGMA) < 0.05:
-        return "sigma where sigma^2 belongs: (z - d)^2 / (2 sigma^2), sigma = the noise's std (eq. 3)"
-    if abs(scale - 1) > 0.01:
-        return f"the exponent is {scale:.2f} times -(z - d)^2 / (2 sigma^2) of eq. (3)"
-    if abs(penalty - math.log(OUTSIDE_PENALTY)) > 0.01:
-        return (
-            f"the outside penalty: add log(OUTSIDE_PENALTY) = {math.log(OUTSIDE_PENALTY):.3f} where "
-            f"world.is_free is False (refinement 1); yours adds {penalty:.3f}"
-        )
-    return HINTS["weigh"] + "; d = world.distance_to_nearest_station(positions)"
-
-
-# -- estimate -----------------------------------------------------------------------------------------
-def check_estimate(filter_class: type) -> Row:
-    """estimate against sum_i W_i x_i on two sets of very unequal weights."""
-    filt = make_filter(filter_class)
-    rng = np.random.default_rng([SEED, 2])
-    points = filt.world.random_free_places(2000, rng)
-    worst, plain = 0.0, True
-    for power in (4, 12):  # W_i ∝ e_i^power, e exponential: a few particles carry most of the weight
-        weights = rng.exponential(size=len(points)) ** power
-        weights /= weights.sum()
-        got, failed = call_part("estimate", lambda w=weights: filt.call_estimate(points, w))
-        if failed:
-            return failed
-        worst = max(worst, float(np.hypot(*(got - weights @ points))))
-        plain &= bool(np.hypot(*(got - points.mean(axis=0))) <= ESTIMATE_TOLERANCE)
-    passed = worst <= ESTIMATE_TOLERANCE
-    hint = (
-        ""
-        if passed
-        else "that is the plain mean of the particles: " + HINTS["estimate"]
-        if plain
-        else HINTS["estimate"]
-    )
-    return Row(
-        "estimate", passed, f"sum W_i x_i to {ESTIMATE_TOLERANCE:g}", f"off by {worst:.3g}", "" if passed else hint
-    )
-
-
-# -- predict ------------------------------------------------------------------------------------------
+# -- predict ------------------------------------------------------------------------------------
 def kolmogorov_p(statistic: float, n: int) -> float:
     """P(D_n >= statistic) for the one-sample Kolmogorov-Smirnov statistic, Stephens' approximation
     (accurate for n >= 35): Q((sqrt(n) + 0.12 + 0.11 / sqrt(n)) D), Q(x) = 2 sum (-1)^(k-1) e^(-2 k^2 x^2)."""
@@ -170,158 +63,225 @@ def kolmogorov_p(statistic: float, n: int) -> float:
 
 
 def ks_uniform(values: np.ndarray) -> float:
-    """The KS statistic of values against U(0, 1)."""
-    u = np.sort(values)
+    """The KS statistic of values against U(0, 1) (whose CDF is 0 below 0 and 1 above 1)."""
+    u = np.clip(np.sort(values), 0.0, 1.0)
     n = len(u)
     grid = np.arange(1, n + 1) / n
     return float(max((grid - u).max(), (u - (grid - 1 / n)).max()))
 
 
-def check_predict(filter_class: type) -> Row:
-    """predict: steps of length L, and the heading's deviation from th0 uniform within Delta/2 (KS)."""
-    filt = make_filter(filter_class)
-    rng = np.random.default_rng([SEED, 3])
-    start = filt.world.random_free_places(PREDICT_COUNT, rng)
-    alpha = PREDICT_ALPHA / len(PREDICT_ANGLES)
-    expected = f"steps of L = {ROBOT_SPEED:g}; headings U(th0 +- Delta/2): KS p >= {alpha:g} at each of 2 angles"
-    reports = []
-    for index, angle in enumerate(PREDICT_ANGLES):
+def heading_deviations(start: np.ndarray, moved: np.ndarray, angle: float) -> tuple[np.ndarray, np.ndarray]:
+    """(step lengths, each step's heading minus th0 in (-pi, pi]) of one predict call."""
+    step = moved - start
+    return np.hypot(step[:, 0], step[:, 1]), np.angle((step[:, 0] + 1j * step[:, 1]) * np.exp(-1j * angle))
 
-        def draw(angle: float = angle, index: int = index) -> np.ndarray:
-            return filt.call_predict(start, angle, np.random.default_rng([SEED, 4, index]))
 
-        moved, failed = call_part("predict", draw)
-        if failed:
-            return failed
-        again, _ = call_part("predict", draw)
-        step = moved - start
-        length = np.hypot(step[:, 0], step[:, 1])
-        deviation = np.angle((step[:, 0] + 1j * step[:, 1]) * np.exp(-1j * angle))
-        spread = f"headings th0 {deviation.min():+.3f}..{deviation.max():+.3f}"
+def judge_predict(inputs: PartInputs, answer: Message) -> Row:
+    """predict's row from its answer (moved/j, again, repeat)."""
+    expected, error = EXPECTED["predict"], error_of(answer)
+    if error:
+        return error_row("predict", expected, error, HINTS["predict"])
+    start, angles, delta = inputs.predict.start, inputs.predict.angles, inputs.delta
+    moved = [take(answer, f"moved/{j}", start.shape) for j in range(len(angles))]
+    again, repeat = take(answer, "again", start.shape), take(answer, "repeat", start.shape)
+    if not all(np.isfinite(m).all() for m in (*moved, again, repeat)):
+        return Row("predict", FAIL, expected, "NaN or inf among the moved positions", _nan_hint("predict"))
+    alpha, reports = predict_alpha_each(), []
+    for j, angle in enumerate(angles):
+        length, deviation = heading_deviations(start, moved[j], angle)
         if np.abs(length - ROBOT_SPEED).max() > STEP_TOLERANCE:
-            got = f"step lengths {length.min():.4f}..{length.max():.4f}"
+            got = f"step lengths {length.min():.5f}..{length.max():.5f} at th0 = {angle:.3f}"
             return Row(
-                "predict", False, expected, got, f"every particle moves exactly L = ROBOT_SPEED; {HINTS['predict']}"
+                "predict", FAIL, expected, got, f"every particle moves exactly L = ROBOT_SPEED; {HINTS['predict']}"
             )
-        statistic = ks_uniform(deviation / DELTA + 0.5)
+        shared = _shared_headings(deviation)
+        if shared:
+            return Row("predict", FAIL, expected, shared[0], shared[1])
+        statistic = ks_uniform(deviation / delta + 0.5)
         p = kolmogorov_p(statistic, len(deviation))
-        reports.append(f"KS p {p:.2g}")
+        reports.append(f"{p:.2g}")
         if p < alpha:
-            return Row(
-                "predict", False, expected, f"{spread}, KS D {statistic:.3f}, p {p:.2g}", _predict_hint(deviation)
-            )
-        if again is None or not np.array_equal(np.asarray(again, dtype=float), moved):
-            hint = "draw from the rng argument (rng.random, rng.uniform), not np.random: a seeded run must repeat"
-            return Row("predict", False, "the same draws from an equally seeded rng", "different draws", hint)
-    return Row("predict", True, expected, ", ".join(reports))
+            spread = f"th - th0 in {deviation.min():+.3f}..{deviation.max():+.3f} at th0 = {angle:.3f}"
+            got = f"{spread}: KS p {p:.2g} < {alpha:g}"
+            return Row("predict", FAIL, expected, got, _spread_hint(deviation, delta))
+    correlation = _call_correlation(start, moved[0], again, angles[0])
+    if correlation is not None:
+        return Row("predict", FAIL, expected, correlation, "draw new noise at every call (from its rng); keep none")
+    if not np.array_equal(repeat, moved[0]):
+        hint = "draw from the rng argument (rng.random, rng.uniform), not np.random or self.rng: a seeded run repeats"
+        return Row("predict", FAIL, "the same draws from an equally seeded rng", "different draws", hint)
+    return Row("predict", PASS, expected, f"KS p {', '.join(reports)} (>= {alpha:g} each); fresh noise per call")
 
 
-def _predict_hint(deviation: np.ndarray) -> str:
-    """What the headings' spread says: none, half or twice the width, or another law."""
+def _shared_headings(deviation: np.ndarray) -> tuple[str, str] | None:
+    """(got, hint) when the particles do not each draw their own heading: none drawn at all, one
+    shared by all, or the same few repeated; else None."""
+    distinct = len(np.unique(np.round(deviation, 12)))
+    if distinct == 1 and abs(float(deviation[0])) < 1e-9:
+        return "every particle moves exactly along th0", "no heading noise: draw th ~ U(th0 +- Delta/2) (eq. 1)"
+    if distinct == 1:
+        got = f"every particle takes the same heading (th0 {float(deviation[0]):+.3f})"
+        return got, "one heading is drawn for all particles: draw one per particle (size=len(positions))"
+    if distinct < DISTINCT_SHARE * len(deviation):
+        got = f"{distinct} different headings among {len(deviation)} particles"
+        return got, "headings repeat across particles: draw one th per particle, each fresh"
+    return None
+
+
+def _spread_hint(deviation: np.ndarray, delta: float) -> str:
+    """What the headings' spread says: half or twice the width, a shift, or another law."""
     width = float(deviation.max() - deviation.min())
-    if width < 1e-9:
-        return "no heading noise: draw th ~ U(th0 - Delta/2, th0 + Delta/2) for each particle (eq. 1)"
-    if abs(width - DELTA) > 0.05 * DELTA:
-        return f"the headings span {width:.3f}, the compass error's width is Delta = {DELTA:g}: th0 +- Delta/2"
-    return "the heading is uniform within Delta/2 of th0 (not normal, not shifted): " + HINTS["predict"]
+    centre = float(deviation.max() + deviation.min()) / 2
+    spread = float(np.std(deviation))
+    kurtosis = float(np.mean((deviation - deviation.mean()) ** 4)) / spread**4 if spread > 0 else 0.0
+    if kurtosis > 2.5:  # a uniform's is 1.8, a normal's 3
+        return (
+            "the headings are bell-shaped (not normal: the paper's compass error is uniform): "
+            "th = th0 + Delta (u - 1/2), u ~ U(0, 1), Delta = self.delta"
+        )
+    if abs(width - delta) > 0.02 * delta:
+        return (
+            f"the headings span {width:.3f}, {width / delta:.3g} times the compass error's width "
+            f"Delta = self.delta = {delta:.3f}: th = th0 + Delta (u - 1/2), u ~ U(0, 1)"
+        )
+    if abs(centre) > 0.02 * delta:
+        return f"the headings are centred {centre:+.3f} off th0: th = th0 + Delta (u - 1/2), u ~ U(0, 1)"
+    return "the heading is uniform within Delta/2 of th0 (not normal): " + HINTS["predict"]
 
 
-# -- resample -----------------------------------------------------------------------------------------
-def resample_weights(count: int = 40) -> np.ndarray:
-    """Weights whose N W_i have fractional parts in [0.1, 0.9] (so every unbiased scheme varies each
-    count), in pairs f, 1 - f that sum to whole numbers; some particles get several offspring."""
-    rng = np.random.default_rng([SEED, 5])
-    pairs = count // 2
-    fractions = rng.uniform(0.1, 0.9, size=pairs)
-    whole = np.zeros((pairs, 2))
-    whole[pairs // 2 : 3 * pairs // 4] = (1, 1)
-    whole[3 * pairs // 4 :] = (2, 0)
-    expected = (whole + np.column_stack([fractions, 1 - fractions])).ravel()
-    expected *= count / expected.sum()  # the pairs sum to `count` already; this only removes rounding
-    return rng.permutation(expected) / count
+def _call_correlation(start: np.ndarray, first: np.ndarray, again: np.ndarray, angle: float) -> str | None:
+    """What is wrong when a second call on the same Generator does not draw new noise: the same
+    moves, or headings correlated beyond chance (|r| sqrt(N) past the normal quantile); else None."""
+    if np.array_equal(first, again):
+        return "the same moves as the previous call (on the same Generator)"
+    a, b = heading_deviations(start, first, angle)[1], heading_deviations(start, again, angle)[1]
+    if np.std(a) == 0 or np.std(b) == 0:
+        return None  # the per-particle check has spoken
+    r = float(np.corrcoef(a, b)[0, 1])
+    critical = NormalDist().inv_cdf(1 - predict_alpha_each() / 2)
+    if abs(r) * math.sqrt(len(a)) > critical:
+        return f"the heading noise of two calls correlates (r = {r:.3f}, limit {critical / math.sqrt(len(a)):.3f})"
+    return None
 
 
-def offspring_counts(
-    resample: Callable[[np.ndarray, np.random.Generator], np.ndarray], weights: np.ndarray, seed: int
-) -> np.ndarray:
-    """The offspring counts (R, N) of RESAMPLE_DRAWS calls of `resample` on `weights`, from one seeded rng."""
-    rng = np.random.default_rng([SEED, seed])
-    n = len(weights)
-    ancestors = np.stack([np.asarray(resample(weights.copy(), rng)) for _ in range(RESAMPLE_DRAWS)])
-    rows = np.arange(RESAMPLE_DRAWS)[:, None] * n
-    return np.bincount((ancestors + rows).ravel(), minlength=RESAMPLE_DRAWS * n).reshape(RESAMPLE_DRAWS, n)
+# -- weigh --------------------------------------------------------------------------------------
+def judge_weigh(inputs: PartInputs, answer: Message) -> Row:
+    """weigh's row from its answer (log_w/j, one per measurement)."""
+    expected, error = EXPECTED["weigh"], error_of(answer)
+    if error:
+        return error_row("weigh", expected, error, HINTS["weigh"])
+    world, points, sigma = inputs.world, inputs.weigh.points, inputs.sigma
+    got = [take(answer, f"log_w/{j}", (len(points),)) for j in range(len(inputs.weigh.z))]
+    if any(np.isnan(g).any() or np.isposinf(g).any() for g in got):
+        return Row("weigh", FAIL, expected, "NaN or +inf among the log-likelihoods", _nan_hint("weigh"))
+    outside = ~world.is_free(points[:, 0], points[:, 1])
+    distance = world.distance_to_nearest_station(points)
+    worst, fits = 0.0, []
+    for z, log_w in zip(inputs.weigh.z, got, strict=True):
+        if np.isneginf(log_w).any():
+            return Row("weigh", FAIL, expected, "-inf where the likelihood is not 0", _underflow_hint())
+        deviation = log_w - log_likelihood(z, points, world, sigma)
+        worst = max(worst, float(np.abs(deviation - np.median(deviation)).max()))
+        fits.append(_fit(log_w, -0.5 * ((z - distance) / sigma) ** 2, outside))
+    if worst <= WEIGH_TOLERANCE:
+        return Row("weigh", PASS, expected, f"largest deviation {worst:.3g}")
+    return Row("weigh", FAIL, expected, f"largest deviation {worst:.3g}", _weigh_hint(fits, got, sigma))
 
 
-def check_resample(filter_class: type) -> tuple[Row, str]:
-    """resample: E[N_i] = N W_i for every particle (z-tests, Bonferroni), and the scheme it resembles
-    by its offspring variance; returns the row and that scheme's name (for the whole-filter check)."""
-    filt = make_filter(filter_class)
-    weights = resample_weights()
-    n = len(weights)
-    expected = f"E[offspring] = N W_i: z-tests over {RESAMPLE_DRAWS} calls, alpha {RESAMPLE_ALPHA:g} overall"
-    counts, failed = call_part("resample", lambda: offspring_counts(filt.call_resample, weights, 6))
-    if failed:
-        return failed, "systematic"
-    again, _ = call_part("resample", lambda: offspring_counts(filt.call_resample, weights, 6)[:1])
-    target = n * weights
-    mean, std = counts.mean(axis=0), counts.std(axis=0, ddof=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        z = np.where(std > 0, (mean - target) / (std / math.sqrt(RESAMPLE_DRAWS)), np.inf)
-    critical = NormalDist().inv_cdf(1 - RESAMPLE_ALPHA / (2 * n))
-    worst = int(np.argmax(np.abs(z)))
-    scheme, resemblance = resembles(counts.var(axis=0, ddof=1).sum(), weights)
-    if abs(z[worst]) > critical:
-        got = f"particle {worst}: mean offspring {mean[worst]:.3f} for N W = {target[worst]:.3f}"
-        if np.all(std == 0):
-            got += " (the same counts every call)"
-        hint = "every particle kept once (arange): " if np.array_equal(mean, np.ones(n)) else ""
-        return Row("resample", False, expected, got, hint + HINTS["resample"]), "systematic"
-    if again is None or not np.array_equal(again, counts[:1]):
-        hint = "draw from the rng argument, not np.random: a seeded run must repeat"
-        return Row("resample", False, "the same draws from an equally seeded rng", "different draws", hint), scheme
-    return Row("resample", True, expected, f"largest |z| {abs(z[worst]):.2f} < {critical:.2f}; {resemblance}"), scheme
+def _fit(log_w: np.ndarray, quadratic: np.ndarray, outside: np.ndarray) -> tuple[float, float, float]:
+    """(a, b, largest residual) of the least-squares fit log_w ~ a * quadratic + b * outside + c."""
+    design = np.column_stack([quadratic, outside, np.ones(len(log_w))])
+    coefficients = np.linalg.lstsq(design, log_w, rcond=None)[0]
+    residual = float(np.abs(design @ coefficients - log_w).max())
+    return float(coefficients[0]), float(coefficients[1]), residual
 
 
-def resembles(variance: float, weights: np.ndarray) -> tuple[str, str]:
-    """The shipped scheme whose total offspring variance (over the same seeded calls) is nearest on a
-    log scale, and a phrase comparing the variance with systematic's and multinomial's."""
-    references = {
-        name: offspring_counts(scheme, weights, 7).var(axis=0, ddof=1).sum()
-        for name, scheme in RESAMPLING_SCHEMES.items()
-    }
-    nearest = min(references, key=lambda name: abs(math.log((variance + 1e-9) / (references[name] + 1e-9))))
-    ratio = variance / references["systematic"]
-    phrase = (
-        f"looks {nearest} (offspring variance {variance:.2f}: {ratio:.2g}x systematic's "
-        f"{references['systematic']:.2f}, multinomial's {references['multinomial']:.2f})"
-    )
-    return nearest, phrase
+def _weigh_hint(fits: list[tuple[float, float, float]], got: list[np.ndarray], sigma: float) -> str:
+    """Which term of equation (3) the fit log_w ~ a q + b outside + c gets wrong; if it does not fit
+    at all, whether weigh returned likelihoods instead of logs, or used another distance."""
+    spread = max(float(np.ptp(g)) for g in got) or 1.0
+    if max(f[2] for f in fits) > 0.01 * spread:
+        if all(np.all(g >= 0) for g in got):
+            return "weigh returns log-likelihoods, not likelihoods: log N(z; d, sigma^2), not N itself (eq. 3)"
+        return (
+            "the weights do not follow -(z - d)^2 / (2 sigma^2) in d, the distance to the nearest station: "
+            "d = self.world.distance_to_nearest_station(positions), the nearest of all stations"
+        )
+    scale, penalty = float(np.mean([f[0] for f in fits])), float(np.mean([f[1] for f in fits]))
+    if abs(scale + 1) < 0.02:
+        return "the sign: log N = -(z - d)^2 / (2 sigma^2); a particle far from z must weigh less (eq. 3)"
+    if abs(scale - sigma) < 0.02 * sigma:
+        return "sigma where sigma^2 belongs: (z - d)^2 / (2 sigma^2), sigma = the noise's std (eq. 3)"
+    if abs(scale - sigma**2) < 0.02 * sigma**2:
+        return "sigma is missing: -(z - d)^2 / (2 sigma^2), sigma = self.sigma (eq. 3)"
+    if abs(scale - 2) < 0.02:
+        return "the 2 of 2 sigma^2 is missing: -(z - d)^2 / (2 sigma^2) (eq. 3)"
+    if abs(scale - 1) > 1e-3:
+        return f"the exponent is {scale:.4g} times -(z - d)^2 / (2 sigma^2) of eq. (3)"
+    log_penalty = math.log(OUTSIDE_PENALTY)
+    if abs(penalty - log_penalty) > 1e-4:
+        if abs(penalty - OUTSIDE_PENALTY) < 0.01:
+            return f"add the log of the penalty, log(OUTSIDE_PENALTY) = {log_penalty:.3f}, not the penalty itself"
+        return (
+            f"the outside penalty: add log(OUTSIDE_PENALTY) = {log_penalty:.4f} where world.is_free is False "
+            f"(refinement 1); yours adds {penalty:.4f}"
+        )
+    return HINTS["weigh"] + "; d = self.world.distance_to_nearest_station(positions)"
 
 
-def check_parts(filter_class: type) -> tuple[list[Row], str]:
-    """Every part's row, in Algorithm 4's order, and the scheme the resampler resembles."""
-    resample_row, scheme = check_resample(filter_class)
-    rows = [check_predict(filter_class), check_weigh(filter_class), resample_row, check_estimate(filter_class)]
-    return rows, scheme
+def _underflow_hint() -> str:
+    return "work in logs: -(z - d)^2 / (2 sigma^2) directly, not log(exp(...)), which underflows to -inf"
 
 
-def is_student_filter(filter_class: type) -> bool:
-    """Whether the class is the exercise's (its parts can be checked one by one)."""
-    return isinstance(filter_class, type) and issubclass(filter_class, StudentFilter)
+def _nan_hint(part: str) -> str:
+    return f"{part} must return numbers: NaN or inf comes from 0/0, inf - inf or log of a negative (check each term)"
+
+
+# -- estimate -----------------------------------------------------------------------------------
+def judge_estimate(inputs: PartInputs, answer: Message) -> Row:
+    """estimate's row from its answer (point/k, one per weight vector)."""
+    expected, error = EXPECTED["estimate"], error_of(answer)
+    if error:
+        return error_row("estimate", expected, error, HINTS["estimate"])
+    points, vectors = inputs.estimate.points, inputs.estimate.weights
+    got = [take(answer, f"point/{k}", (2,)) for k in range(len(vectors))]
+    if not all(np.isfinite(g).all() for g in got):
+        return Row("estimate", FAIL, expected, "NaN or inf", _nan_hint("estimate"))
+    offsets = [float(np.hypot(*(g - w @ points))) for g, w in zip(got, vectors, strict=True)]
+    worst = int(np.argmax(offsets))
+    report = f"off by {offsets[worst]:.3g} under the {inputs.estimate.kinds[worst]} weights"
+    if offsets[worst] <= ESTIMATE_TOLERANCE:
+        return Row("estimate", PASS, expected, f"largest offset {offsets[worst]:.3g}")
+    return Row("estimate", FAIL, expected, report, _estimate_hint(got, points, vectors))
+
+
+def _estimate_hint(got: list[np.ndarray], points: np.ndarray, vectors: tuple[np.ndarray, ...]) -> str:
+    """The plain mean, the heaviest particle, or the general hint."""
+    unequal = [(g, w) for g, w in zip(got, vectors, strict=True) if np.ptp(w) > 0]
+
+    def near(values: list[np.ndarray]) -> bool:
+        return all(np.hypot(*(g - v)) <= ESTIMATE_TOLERANCE for (g, _), v in zip(unequal, values, strict=True))
+
+    if near([points.mean(axis=0)] * len(unequal)):
+        return "that is the plain mean of the particles: " + HINTS["estimate"]
+    if near([points[np.argmax(w)] for _, w in unequal]):
+        return "that is the heaviest particle (the mode); the paper's estimate is the mean: " + HINTS["estimate"]
+    return HINTS["estimate"]
 
 
 __all__ = [
+    "ESTIMATE_TOLERANCE",
+    "EXPECTED",
     "HINTS",
-    "Row",
-    "check_estimate",
-    "check_parts",
-    "check_predict",
-    "check_resample",
-    "check_weigh",
-    "is_student_filter",
+    "PREDICT_ALPHA",
+    "PREDICT_TESTS",
+    "STEP_TOLERANCE",
+    "WEIGH_TOLERANCE",
+    "heading_deviations",
+    "judge_estimate",
+    "judge_predict",
+    "judge_weigh",
     "kolmogorov_p",
     "ks_uniform",
-    "make_filter",
-    "resample_weights",
-    "resembles",
+    "predict_alpha_each",
 ]

@@ -1,110 +1,230 @@
-"""The whole filter against the exact posterior: on fixed seeded scenarios of the shipped mazes, the
-distance between its estimate and the exact grid filter's posterior mean over the second half of the
-steps, and whether it converged, with the shipped SIR's figures on the same scenarios beside it.
+"""The whole filter against the exact posterior: on the seed's scenarios (mazelab.exercise.inputs),
+the distance between the student's estimate and the exact grid filter's posterior mean over the
+second half of the steps, and whether it converged, with the shipped SIR's figures beside it.
+
+The grader runs the exact filter and the SIR itself (`References`: each scenario's runs computed
+once per process, in the background while the student's process works); the student's process
+gets each scenario's compass angles, measurements and initial particles, and returns its estimates.
 
 The verdict is a one-sided sign test: on each scenario the student's filter and the shipped SIR (with
 the resampling scheme the student's resembles) see the same walk, measurements and initial particles.
 A filter that is the SIR in distribution is the farther of the two from the exact mean with probability
 1/2 on each scenario, independently; it fails when it is farther on at least WORSE_LIMIT of the
-SCENARIOS, which happens with probability P(Binomial(12, 1/2) >= 11) = 13/4096 = 0.0032.
+scenarios, which happens with probability P(Binomial(12, 1/2) >= 11) = 13/4096 = 0.0032. An estimate
+that is not a number at some step fails outright (a NaN distance is never "no farther").
 """
 
 from __future__ import annotations
 
 import math
+import queue
+import threading
 import warnings
+from collections.abc import Callable
+from concurrent.futures import Executor, Future
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
-from mazelab.exercise.parts import Row
-from mazelab.mazes import load_maze
-from mazelab.plugins import StudentCodeError
-from mazelab.robot import Robot
-from mazelab.seeding import start_place
-from mazelab.simulation import RunResult, convergence_step, simulate
+from mazelab.exercise.inputs import SCENARIO_COUNT, ScenarioInputs
+from mazelab.exercise.rows import FAIL, PASS, Row, error_of, take
+from mazelab.exercise.wire import Message
+from mazelab.simulation import convergence_step, simulate
 
-SCENARIOS = tuple((maze, seed) for maze in ("paper_5x5", "maze_10x10") for seed in range(11, 17))
-SIGMA, DELTA = 0.3, 0.5  # the lab's example
-PARTICLES, STEPS = 1000, 150
 GRID_RESOLUTION = 0.05  # the exact filter's cells: fine next to L = 0.2, coarse enough to be quick
 WORSE_LIMIT = 11  # fail when farther than the SIR from the exact mean on this many of the 12 scenarios
+NAN_HINT = "the estimate must be a number at every step: check the weights (all 0 or NaN?) and estimate"
 
 
-def sign_test_alpha(limit: int = WORSE_LIMIT, scenarios: int = len(SCENARIOS)) -> float:
+def sign_test_alpha(limit: int = WORSE_LIMIT, scenarios: int = SCENARIO_COUNT) -> float:
     """P(Binomial(scenarios, 1/2) >= limit): the whole-filter check's false-alarm rate."""
     return sum(math.comb(scenarios, k) for k in range(limit, scenarios + 1)) / 2**scenarios
 
 
+def expected_text(scheme: str = "systematic") -> str:
+    return (
+        f"no worse than SIR ({scheme}): farther on < {WORSE_LIMIT} of {SCENARIO_COUNT} (alpha {sign_test_alpha():.4f})"
+    )
+
+
+# -- the grader's own runs ------------------------------------------------------------------------
+def _quiet_run(scenario: ScenarioInputs, filter_name: str, **options: object) -> np.ndarray:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        result = simulate(
+            scenario.robot(),
+            scenario.world,
+            scenario.sigma,
+            scenario.delta,
+            None,
+            len(scenario.measurements),
+            scenario.particles,
+            filter_name,
+            seed=scenario.seed,
+            **options,
+        )
+    return result.estimates
+
+
+def exact_estimates(scenario: ScenarioInputs) -> np.ndarray:
+    """The exact grid filter's posterior means (steps, 2) on the scenario."""
+    return _quiet_run(scenario, "grid", resolution=GRID_RESOLUTION)
+
+
+def sir_estimates(scenario: ScenarioInputs, scheme: str) -> np.ndarray:
+    """The shipped SIR's estimates (steps, 2) on the scenario, resampling with `scheme`."""
+    return _quiet_run(scenario, "sir", resampling=scheme)
+
+
+_memo: dict[tuple, Future] = {}
+_memo_lock = threading.Lock()
+
+
+class Background(Executor):
+    """One daemon thread working through what is submitted: a check that ends early does not wait
+    for the reference runs it no longer needs (nor count them as threads left running)."""
+
+    def __init__(self) -> None:
+        self._queue: queue.SimpleQueue = queue.SimpleQueue()
+        threading.Thread(target=self._work, name="mazelab-references", daemon=True).start()
+
+    def submit(self, function: Callable[..., Any], /, *args: Any, **kwargs: Any) -> Future:
+        future: Future = Future()
+        self._queue.put((future, function, args, kwargs))
+        return future
+
+    def _work(self) -> None:
+        while True:
+            future, function, args, kwargs = self._queue.get()
+            if not future.set_running_or_notify_cancel():
+                continue
+            try:
+                future.set_result(function(*args, **kwargs))
+            except BaseException as error:  # the future carries it to whoever waits
+                future.set_exception(error)
+
+
+_background: Background | None = None
+
+
+class References:
+    """The exact and the SIR runs of scenarios, each computed once per process (a memo of futures
+    shared by every References), on `executor` (default: one background thread)."""
+
+    def __init__(self, executor: Executor | None = None):
+        self.executor = executor
+
+    def _submit(self, key: tuple, function: object, *args: object) -> Future:
+        global _background
+        with _memo_lock:
+            future = _memo.get(key)
+            if future is not None and not (future.done() and (future.cancelled() or future.exception())):
+                return future
+            if self.executor is None and _background is None:
+                _background = Background()
+            future = (self.executor or _background).submit(function, *args)
+            _memo[key] = future
+            return future
+
+    def exact(self, scenario: ScenarioInputs) -> Future:
+        return self._submit(("exact", scenario.key), exact_estimates, scenario)
+
+    def sir(self, scenario: ScenarioInputs, scheme: str) -> Future:
+        return self._submit(("sir", scheme, scenario.key), sir_estimates, scenario, scheme)
+
+
+# -- the verdict ------------------------------------------------------------------------------------
 @dataclass
 class ScenarioFigures:
     """One scenario: the student's and the SIR's distance to the exact mean (second half) and convergence."""
 
     maze: str
     seed: int
+    sigma: float
+    delta: float
+    particles: int
     distance: float
     sir_distance: float
     converged: bool
     sir_converged: bool
 
 
-def distance_to_exact(result: RunResult, exact: RunResult) -> float:
+def distance_to_exact(estimates: np.ndarray, exact: np.ndarray) -> float:
     """Mean distance between a run's estimates and the exact posterior means over the second half."""
-    window = slice(len(exact.estimates) // 2, None)
-    return float(np.hypot(*(result.estimates - exact.estimates)[window].T).mean())
+    window = slice(len(exact) // 2, None)
+    return float(np.hypot(*(estimates - exact)[window].T).mean())
 
 
-def run_scenario(filter_class: type, maze: str, seed: int, scheme: str) -> ScenarioFigures:
-    """The exact filter, the student's and the shipped SIR on one seeded scenario."""
-    world = load_maze(maze)
-    robot = Robot(SIGMA, DELTA, start_place(world, seed))
-    exact = simulate(robot, world, SIGMA, DELTA, PARTICLES, STEPS, None, "grid", seed=seed, resolution=GRID_RESOLUTION)
-    particles = exact.initial_particles
-    mine = simulate(robot, world, SIGMA, DELTA, None, STEPS, particles, filter_class, seed=seed)
-    sir = simulate(robot, world, SIGMA, DELTA, None, STEPS, particles, "sir", seed=seed, resampling=scheme)
-    return ScenarioFigures(
-        maze,
-        seed,
-        distance_to_exact(mine, exact),
-        distance_to_exact(sir, exact),
-        convergence_step(mine.errors) is not None,
-        convergence_step(sir.errors) is not None,
-    )
+def converged(estimates: np.ndarray, truth: np.ndarray) -> bool:
+    return convergence_step(np.hypot(*(estimates - truth).T)) is not None
 
 
-def check_whole(filter_class: type, scheme: str = "systematic") -> tuple[Row, list[ScenarioFigures]]:
-    """The whole filter's row (the sign test against the shipped SIR) and the figures per scenario."""
-    expected = (
-        f"no worse than SIR ({scheme}): farther on < {WORSE_LIMIT} of {len(SCENARIOS)} (alpha {sign_test_alpha():.4f})"
-    )
-    figures = []
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)
-        for maze, seed in SCENARIOS:
-            try:
-                figures.append(run_scenario(filter_class, maze, seed, scheme))
-            except StudentCodeError as error:
-                where = "; ".join(line.strip() for line in str(error).splitlines())  # one line: a table cell
-                got = f"{maze}, seed {seed}: {where}"
-                return Row("whole filter", False, expected, got, "fix the error first"), figures
-    worse = sum(f.distance > f.sir_distance for f in figures)
+def whole_answer(scenarios: list[ScenarioInputs], answer: Message, scheme: str) -> Row | list[np.ndarray]:
+    """The student's estimates per scenario, or the failing row when there are none to compare: an
+    error (naming the scenario) or an estimate that is not a number (naming the step)."""
+    expected, error = expected_text(scheme), error_of(answer)
+    if error:
+        where = answer.meta.get("scenario")
+        prefix = f"scenario {where + 1}: " if isinstance(where, int) and not isinstance(where, bool) else ""
+        hint = NAN_HINT if "not finite" in error["text"] else "fix the error first"
+        return Row("whole filter", FAIL, expected, prefix + error["text"], hint)
+    estimates = []
+    for i, scenario in enumerate(scenarios):
+        mine = take(answer, f"estimates/{i}", (len(scenario.measurements), 2))
+        if not np.isfinite(mine).all():
+            step = int(np.argmin(np.isfinite(mine).all(axis=1))) + 1
+            got = f"scenario {i + 1}: the estimate is {mine[step - 1].tolist()} at step {step}"
+            return Row("whole filter", FAIL, expected, got, NAN_HINT)
+        estimates.append(mine)
+    return estimates
+
+
+def judge_whole(
+    scenarios: list[ScenarioInputs],
+    estimates: list[np.ndarray],
+    exact: list[np.ndarray],
+    sir: list[np.ndarray],
+    scheme: str,
+) -> tuple[Row, list[ScenarioFigures]]:
+    """The whole filter's row (the sign test against the SIR) and the figures per scenario."""
+    figures = [
+        ScenarioFigures(
+            s.maze,
+            s.seed,
+            s.sigma,
+            s.delta,
+            len(s.particles),
+            distance_to_exact(mine, exact[i]),
+            distance_to_exact(sir[i], exact[i]),
+            converged(mine, s.true_positions),
+            converged(sir[i], s.true_positions),
+        )
+        for i, (s, mine) in enumerate(zip(scenarios, estimates, strict=True))
+    ]
+    worse = sum(not f.distance <= f.sir_distance for f in figures)  # NaN counts as worse
     mean, sir_mean = np.mean([f.distance for f in figures]), np.mean([f.sir_distance for f in figures])
-    converged, sir_converged = sum(f.converged for f in figures), sum(f.sir_converged for f in figures)
     got = (
         f"farther on {worse} of {len(figures)}; to exact {mean:.3f} (SIR {sir_mean:.3f}); "
-        f"converged {converged}/{len(figures)} (SIR {sir_converged})"
+        f"converged {sum(f.converged for f in figures)}/{len(figures)} (SIR {sum(f.sir_converged for f in figures)})"
     )
-    passed = worse < WORSE_LIMIT
-    hint = "" if passed else "the parts pass alone but not together: check what weigh and predict assume of each other"
-    return Row("whole filter", passed, expected, got, hint), figures
+    if worse < WORSE_LIMIT:
+        return Row("whole filter", PASS, expected_text(scheme), got), figures
+    hint = "the parts pass alone but not together: check what weigh and predict assume of each other"
+    return Row("whole filter", FAIL, expected_text(scheme), got, hint), figures
+
+
+FIGURE_HEADERS = ["maze", "sigma", "delta", "N", "to exact", "SIR's", "converged", "SIR's"]
 
 
 def figures_table(figures: list[ScenarioFigures]) -> list[list[str]]:
-    """Rows of the per-scenario table: maze, seed, distances to the exact mean and convergence."""
+    """Rows of the per-scenario table: maze, noise, particles, distances to the exact mean, convergence."""
     return [
         [
             f.maze,
-            str(f.seed),
+            f"{f.sigma:.2f}",
+            f"{f.delta:.2f}",
+            str(f.particles),
             f"{f.distance:.3f}",
             f"{f.sir_distance:.3f}",
             "yes" if f.converged else "no",
@@ -114,15 +234,19 @@ def figures_table(figures: list[ScenarioFigures]) -> list[list[str]]:
     ]
 
 
-FIGURE_HEADERS = ["maze", "seed", "to exact (yours)", "to exact (SIR)", "converged (yours)", "converged (SIR)"]
-
 __all__ = [
     "FIGURE_HEADERS",
-    "SCENARIOS",
+    "GRID_RESOLUTION",
+    "WORSE_LIMIT",
+    "References",
     "ScenarioFigures",
-    "check_whole",
+    "converged",
     "distance_to_exact",
+    "exact_estimates",
+    "expected_text",
     "figures_table",
-    "run_scenario",
+    "judge_whole",
     "sign_test_alpha",
+    "sir_estimates",
+    "whole_answer",
 ]

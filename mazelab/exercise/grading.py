@@ -1,0 +1,262 @@
+"""Grading a folder of submissions: each one checked in child processes of its own (mazelab.exercise.
+report.check_file), several at once over the cores, the grader's reference runs computed once per
+scenario in a pool of worker processes; then one CSV row per submission, Gradescope's results.json
+per submission, and a summary table.
+
+A submission is a subfolder (its my_filter.py, else its only Python file, else the only one that
+mentions StudentFilter) or a .py file directly in the folder; names starting with "." or "_" are
+skipped. One that cannot be checked (no file to grade, an import error, not a StudentFilter) gets a
+row saying why, never a pass.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import textwrap
+import threading
+import time
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from mazelab.exercise.layout import format_report
+from mazelab.exercise.outcome import Report
+from mazelab.exercise.report import STAGES, WHOLE, NotGradableError, check_file
+from mazelab.exercise.rows import FAIL, NOT_OWN, NOT_RUN, NOT_WRITTEN, PASS
+from mazelab.exercise.runner import DEFAULT_TIMEOUT, allow_children, child_context, stop_children
+from mazelab.exercise.student import PARTS
+from mazelab.exercise.template import FILTER_FILE
+from mazelab.exercise.whole import References
+
+ROW_NAMES = (*PARTS, WHOLE)
+CSV_COLUMNS = (
+    "submission", "file", "seed", *PARTS, "whole_filter", "farther_on", "to_exact", "sir_to_exact",
+    "converged", "sir_converged", "seconds", "problem",
+)  # fmt: skip
+SHORT = {PASS: "pass", FAIL: "FAIL", NOT_WRITTEN: "todo", NOT_RUN: "-", NOT_OWN: "REF", None: "-"}
+
+
+@dataclass
+class Submission:
+    """One submission: its name (the folder's or the file's), the file to grade, or why there is none."""
+
+    name: str
+    file: Path | None
+    problem: str | None = None
+
+
+@dataclass
+class Graded:
+    """A submission's outcome: its report, or the one line why it could not be checked."""
+
+    submission: Submission
+    report: Report | None
+    problem: str | None
+    seconds: float
+
+    def status(self, part: str) -> str | None:
+        if self.report is None:
+            return FAIL
+        return next((row.status for row in self.report.rows if row.part == part), None)
+
+    @property
+    def passed(self) -> bool:
+        return self.report is not None and self.report.passed
+
+
+def discover(folder: Path) -> list[Submission]:
+    """The submissions in `folder`, by name."""
+    if not folder.is_dir():
+        raise ValueError(f"{folder}: no such folder of submissions")
+    found = []
+    for entry in sorted(folder.iterdir(), key=lambda p: p.name):
+        if entry.name.startswith((".", "_")):
+            continue
+        if entry.is_dir():
+            found.append(_in_folder(entry))
+        elif entry.suffix == ".py" and entry.is_file():
+            found.append(Submission(entry.name, entry))
+    if not found:
+        raise ValueError(f"{folder}: no submissions (a subfolder or a .py file each)")
+    return found
+
+
+def _in_folder(folder: Path) -> Submission:
+    if (folder / FILTER_FILE).is_file():
+        return Submission(folder.name, folder / FILTER_FILE)
+    files = sorted(p for p in folder.glob("*.py") if p.is_file() and not p.name.startswith((".", "_")))
+    mentioning = [p for p in files if "StudentFilter" in p.read_text(errors="replace")]
+    for candidates in (files, mentioning):
+        if len(candidates) == 1:
+            return Submission(folder.name, candidates[0])
+    if not files:
+        return Submission(folder.name, None, f"{folder.name}: no Python file to grade")
+    names = ", ".join(p.name for p in files[:5])
+    return Submission(folder.name, None, f"{folder.name}: which file? {names} (call the one to grade {FILTER_FILE})")
+
+
+def grade_one(submission: Submission, seed: int | None, timeout: float, references: References) -> Graded:
+    """Check one submission (never raises for the submission's own problems)."""
+    started = time.perf_counter()
+    if submission.file is None:
+        return Graded(submission, None, submission.problem, 0.0)
+    try:
+        report = check_file(str(submission.file), seed=seed, timeout=timeout, references=references)
+    except NotGradableError as error:
+        problem = str(error).replace(str(submission.file), f"{submission.name}/{submission.file.name}")
+        return Graded(submission, None, problem, time.perf_counter() - started)
+    return Graded(submission, report, None, time.perf_counter() - started)
+
+
+def grade_folder(
+    submissions: list[Submission],
+    *,
+    seed: int | None = None,
+    timeout: float = DEFAULT_TIMEOUT,
+    jobs: int | None = None,
+    on_done: Callable[[Graded], None] | None = None,
+) -> list[Graded]:
+    """Grade the submissions, `jobs` at a time (default: the cores), in their order."""
+    jobs = jobs or os.cpu_count() or 1
+    lock = threading.Lock()
+    allow_children()
+    pool = ProcessPoolExecutor(max_workers=jobs, mp_context=child_context())
+    references = References(pool)
+
+    def one(submission: Submission) -> Graded:
+        graded = grade_one(submission, seed, timeout, references)
+        if on_done is not None:
+            with lock:
+                on_done(graded)
+        return graded
+
+    threads = ThreadPoolExecutor(max_workers=jobs, thread_name_prefix="mazelab-grade")
+    try:
+        futures = [threads.submit(one, submission) for submission in submissions]
+        return [future.result() for future in futures]
+    except BaseException:  # Ctrl-C: end the running children, start no new one
+        stop_children()
+        raise
+    finally:
+        threads.shutdown(wait=True, cancel_futures=True)
+        pool.shutdown(wait=True, cancel_futures=True)
+        allow_children()
+
+
+# -- what grading writes ----------------------------------------------------------------------------
+def csv_row(graded: Graded) -> dict[str, Any]:
+    """One submission's CSV row: its statuses, the whole filter's figures, time and what went wrong."""
+    report, row = graded.report, {name: "" for name in CSV_COLUMNS}
+    row.update(submission=graded.submission.name, seconds=f"{graded.seconds:.1f}")
+    row["file"] = graded.submission.file.name if graded.submission.file else ""
+    for part in ROW_NAMES:
+        row[part.replace(" ", "_")] = graded.status(part) or NOT_RUN
+    if report is None:
+        row["problem"] = graded.problem or ""
+        return row
+    row["seed"] = report.seed
+    if report.figures:
+        figures = report.figures
+        row["farther_on"] = sum(not f.distance <= f.sir_distance for f in figures)
+        row["to_exact"] = f"{sum(f.distance for f in figures) / len(figures):.4f}"
+        row["sir_to_exact"] = f"{sum(f.sir_distance for f in figures) / len(figures):.4f}"
+        row["converged"] = sum(f.converged for f in figures)
+        row["sir_converged"] = sum(f.sir_converged for f in figures)
+    wrong = [  # how a process ended is in report.problems already
+        f"{r.part}: {r.got}"
+        for r in report.rows
+        if r.status not in (PASS, NOT_RUN, NOT_WRITTEN, NOT_OWN) and not r.got.startswith("the student's process")
+    ]
+    row["problem"] = "; ".join(dict.fromkeys([*report.problems, *wrong]))
+    return row
+
+
+def csv_text(graded: list[Graded]) -> str:
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, fieldnames=CSV_COLUMNS, lineterminator="\n")
+    writer.writeheader()
+    for one in graded:
+        writer.writerow(csv_row(one))
+    return buffer.getvalue()
+
+
+def gradescope_results(graded: Graded) -> dict[str, Any]:
+    """Gradescope's results.json for one submission: a test per row (1 point each), the report as
+    the submission's output (its published autograder format)."""
+    report = graded.report
+    if report is None:
+        text = graded.problem or "not checked"
+        tests = [_test(i, part, 0.0, text) for i, part in enumerate(ROW_NAMES, 1)]
+        return {"score": 0.0, "execution_time": round(graded.seconds), "output": text, "tests": tests}
+    tests = []
+    for i, row in enumerate(report.rows, 1):
+        lines = [f"{SHORT.get(row.status, row.status)}: {row.got}", f"expected: {row.expected}"]
+        lines += [f"hint: {row.hint}"] if row.hint and not row.passed else []
+        tests.append(_test(i, row.part, 1.0 if row.passed else 0.0, "\n".join(lines)))
+    return {
+        "score": float(sum(t["score"] for t in tests)),
+        "execution_time": round(graded.seconds),
+        "output": format_report(report),
+        "stdout_visibility": "hidden",
+        "tests": tests,
+        "extra_data": {"seed": report.seed, "problems": report.problems},
+    }
+
+
+def _test(number: int, name: str, score: float, output: str) -> dict[str, Any]:
+    return {
+        "name": name,
+        "number": str(number),
+        "score": score,
+        "max_score": 1.0,
+        "status": "passed" if score == 1.0 else "failed",
+        "output": output,
+        "visibility": "visible",
+    }
+
+
+def gradescope_json(graded: Graded) -> str:
+    return json.dumps(gradescope_results(graded), indent=2, allow_nan=False) + "\n"
+
+
+def summary(graded: list[Graded], width: int = 100) -> str:
+    """A line per submission (each row's status and the time), what went wrong on its own indented
+    line under it (at most two lines), and the counts."""
+    name_width = min(24, max(len("submission"), *(len(g.submission.name) for g in graded)))
+    header = f"{'submission':<{name_width}}  " + "  ".join(f"{p[:8]:<8}" for p in (*PARTS, "whole")) + "  seconds"
+    lines = [header, "-" * min(width, len(header))]
+    for one in graded:
+        cells = "  ".join(f"{SHORT.get(one.status(p), '?'):<8}" for p in ROW_NAMES)
+        lines.append(f"{one.submission.name[:name_width]:<{name_width}}  {cells}  {one.seconds:7.1f}")
+        problem = one.problem or (csv_row(one)["problem"] if one.report else "")
+        if problem:
+            wrapped = textwrap.wrap(problem, width - 4, break_long_words=True, break_on_hyphens=False)
+            lines += ["    " + line for line in wrapped[:2]]
+            if len(wrapped) > 2:
+                lines[-1] = lines[-1][: width - 3] + "..."
+    passed = sum(one.passed for one in graded)
+    counts = ", ".join(f"{p} {sum(one.status(p) == PASS for one in graded)}" for p in ROW_NAMES)
+    lines += ["", *textwrap.wrap(f"{len(graded)} submissions, {passed} pass every row; passing each: {counts}", width)]
+    lines.append("pass, FAIL; todo: not written; REF: calls the lab's reference implementation; -: not run")
+    return "\n".join(lines)
+
+
+__all__ = [
+    "CSV_COLUMNS",
+    "STAGES",
+    "Graded",
+    "Submission",
+    "csv_row",
+    "csv_text",
+    "discover",
+    "grade_folder",
+    "grade_one",
+    "gradescope_json",
+    "gradescope_results",
+    "summary",
+]

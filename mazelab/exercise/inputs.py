@@ -1,0 +1,303 @@
+"""Every check's inputs, drawn from one seed: the points, weights, angles, sizes, sigma, delta and the
+whole filter's scenarios are fresh for every seed, so a part cannot be tuned to public inputs.
+
+`default_seed(data)` is the seed of a submission: the first 63 bits of the sha256 of its file, so a
+file gets the same inputs (and the same report) every time, and any edit of it gets new ones. An
+instructor's `--seed S` replaces it (the same inputs for every submission, which the students do not
+know). Each check draws from its own stream `default_rng([seed, tag])`: changing one check's inputs
+leaves the others'.
+
+The grader keeps these objects; the student's process (mazelab.exercise.child) is sent only what a
+filter is given (`child_request`): never a scenario's true path.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+
+import numpy as np
+
+from mazelab.maze import Maze
+from mazelab.mazes import load_maze
+from mazelab.robot import Robot
+from mazelab.seeding import run_streams, start_place
+
+PART_MAZES = ("paper_5x5", "twin_rooms_6x12", "maze_10x10", "maze_20x20")
+WHOLE_MAZES = ("paper_5x5", "maze_10x10")  # quick for the grid filter; not the twin rooms (a coin flip)
+PART_SIGMA = (0.4, 0.8)  # the parts' sigma and delta: within the lab's ranges, away from its example
+PART_DELTA = (0.1, 0.4)  # (0.3, 0.5), so that a part that hard-codes them fails
+WHOLE_SIGMA = (0.2, 0.6)  # the scenarios' noise; delta >= 0.2 keeps the arc (L delta) wider than a grid cell
+WHOLE_DELTA = (0.2, 0.6)
+SCENARIO_COUNT = 12
+SCENARIO_STEPS = 150
+SCENARIO_PARTICLES = (800, 1200)
+PRIOR_COUNT = 200  # the particles a part check's filter is built with
+PREDICT_COUNT = (10_000, 20_000)
+WEIGH_COUNT = (2000, 4000)
+ESTIMATE_COUNT = (500, 3000)
+RESAMPLE_COUNT = (30, 80)
+RESAMPLE_DRAWS = 4000  # R calls of resample on each weight vector
+RESAMPLE_KINDS = ("even", "mild", "fractional", "one dominant", "a few heavy")
+ESTIMATE_KINDS = ("even", "unequal", "very unequal", "one dominant")
+# one stream per check: default_rng([seed, tag])
+PARTS_TAG, PREDICT_TAG, WEIGH_TAG, RESAMPLE_TAG, ESTIMATE_TAG, WHOLE_TAG = range(1, 7)
+
+
+def default_seed(data: bytes) -> int:
+    """A submission's seed: the first 63 bits of the sha256 of its file's bytes."""
+    return int.from_bytes(hashlib.sha256(data).digest()[:8], "big") >> 1
+
+
+@dataclass(frozen=True)
+class PredictInputs:
+    """predict on `start` (N, 2) at three compass angles (one anywhere, one straddling +-pi, one
+    straddling 0), each call from default_rng(seed); the first angle is also called again with the
+    same Generator (fresh noise) and with an equally seeded one (the same draws)."""
+
+    start: np.ndarray
+    angles: tuple[float, ...]
+    seeds: tuple[int, ...]
+
+
+@dataclass(frozen=True)
+class WeighInputs:
+    """weigh on `points` (N, 2), inside and outside the free area, for each measurement in `z`."""
+
+    points: np.ndarray
+    z: tuple[float, ...]
+
+
+@dataclass(frozen=True)
+class ResampleInputs:
+    """resample called `draws` times on each weight vector (from one Generator per vector, seeded
+    `seeds[k]`), then once more from an equally seeded one."""
+
+    weights: tuple[np.ndarray, ...]
+    kinds: tuple[str, ...]
+    seeds: tuple[int, ...]
+    draws: int
+
+
+@dataclass(frozen=True)
+class EstimateInputs:
+    """estimate on `points` (N, 2) under each weight vector (normalised)."""
+
+    points: np.ndarray
+    weights: tuple[np.ndarray, ...]
+    kinds: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class PartInputs:
+    """The inputs of the four part checks: one maze, sigma and delta, the prior particles the
+    filter is built with (and its Generator's seed), and each part's inputs."""
+
+    seed: int
+    maze: str
+    grid: np.ndarray
+    sigma: float
+    delta: float
+    prior: np.ndarray
+    filter_seed: int
+    predict: PredictInputs
+    weigh: WeighInputs
+    resample: ResampleInputs
+    estimate: EstimateInputs
+
+    @property
+    def world(self) -> Maze:
+        return Maze(self.grid, source=self.maze)
+
+
+@dataclass(frozen=True)
+class ScenarioInputs:
+    """One scenario of the whole-filter check: a maze, the noise, a seeded walk (what the filter is
+    told: compass angles and measurements; what it is not: the true path) and initial particles."""
+
+    maze: str
+    grid: np.ndarray
+    sigma: float
+    delta: float
+    seed: int  # the run's seed: the robot's start and walk, the particles, the filters' draws
+    start: tuple[float, float]  # the robot's start: the grader's, like the path
+    particles: np.ndarray
+    actual_angles: tuple[float, ...]
+    compass_angles: tuple[float, ...]
+    measurements: tuple[float, ...]
+    true_positions: np.ndarray  # (steps, 2): the grader's, never sent to the student's process
+
+    @property
+    def key(self) -> tuple:
+        """What identifies the scenario (its reference runs are computed once per key)."""
+        return (self.maze, self.sigma, self.delta, self.seed, len(self.particles), len(self.measurements))
+
+    @property
+    def world(self) -> Maze:
+        return Maze(self.grid, source=self.maze)
+
+    def robot(self) -> Robot:
+        """A robot that replays the walk (for the exact and the shipped filter's runs)."""
+        return Robot(
+            self.sigma,
+            self.delta,
+            self.start,
+            actual_angles=self.actual_angles,
+            compass_angles=self.compass_angles,
+            measurements=self.measurements,
+        )
+
+
+def _between(rng: np.random.Generator, bounds: tuple[float, float]) -> float:
+    return float(rng.uniform(*bounds))
+
+
+def _count(rng: np.random.Generator, bounds: tuple[int, int]) -> int:
+    return int(rng.integers(bounds[0], bounds[1] + 1))
+
+
+def _seeds(rng: np.random.Generator, count: int) -> tuple[int, ...]:
+    return tuple(int(s) for s in rng.integers(0, 2**62, size=count))
+
+
+def draw_part_inputs(seed: int) -> PartInputs:
+    """The four part checks' inputs for `seed`."""
+    rng = np.random.default_rng([seed, PARTS_TAG])
+    maze = str(rng.choice(PART_MAZES))
+    world = load_maze(maze)
+    sigma, delta = _between(rng, PART_SIGMA), _between(rng, PART_DELTA)
+    prior = world.random_free_places(PRIOR_COUNT, rng)
+    return PartInputs(
+        seed,
+        maze,
+        world.grid.copy(),
+        sigma,
+        delta,
+        prior,
+        _seeds(rng, 1)[0],
+        _predict_inputs(seed, world, delta),
+        _weigh_inputs(seed, world, sigma),
+        _resample_inputs(seed),
+        _estimate_inputs(seed, world),
+    )
+
+
+def _predict_inputs(seed: int, world: Maze, delta: float) -> PredictInputs:
+    rng = np.random.default_rng([seed, PREDICT_TAG])
+    start = world.random_free_places(_count(rng, PREDICT_COUNT), rng)
+    near = rng.uniform(-delta / 4, delta / 4, size=2)  # headings on both sides of pi, and of 0 (2 pi)
+    angles = (float(rng.uniform(0, 2 * np.pi)), float(np.pi + near[0]), float(near[1] % (2 * np.pi)))
+    return PredictInputs(start, angles, _seeds(rng, len(angles)))
+
+
+def _weigh_inputs(seed: int, world: Maze, sigma: float) -> WeighInputs:
+    """Points over the map and half a unit beyond (inside and outside the free area); measurements
+    as the robot would make them at three free places."""
+    rng = np.random.default_rng([seed, WEIGH_TAG])
+    count = _count(rng, WEIGH_COUNT)
+    points = rng.uniform([-0.5, -0.5], [world.width + 0.5, world.height + 0.5], size=(count, 2))
+    places = world.random_free_places(3, rng)
+    z = world.distance_to_nearest_station(places) + rng.normal(0.0, sigma, size=3)
+    return WeighInputs(points, tuple(float(v) for v in z))
+
+
+def resample_vector(kind: str, count: int, rng: np.random.Generator) -> np.ndarray:
+    """Normalised weights (count,) of one kind. Every N W_i is at least about 0.2 (so each particle's
+    mean offspring count over the calls is close to normal), except under even weights (exactly 1).
+    even: 1/N; mild: 1 + U(0, 0.5) (ESS about 0.99 N: keeping every particle is wrong here too);
+    fractional: N W_i with fractional parts in about [0.2, 0.8], some 1 + f and 2 + f; one dominant: one
+    particle carries half the weight; a few heavy: three to five carry 80%."""
+    if kind == "even":
+        weights = np.ones(count)
+    elif kind == "mild":
+        weights = 1 + rng.uniform(0, 0.5, size=count)
+    elif kind == "fractional":
+        pairs = count // 2
+        fractions = rng.uniform(0.2, 0.8, size=pairs)
+        whole = np.zeros((pairs, 2))
+        whole[pairs // 2 : 3 * pairs // 4] = (1, 1)
+        whole[3 * pairs // 4 :] = (2, 0)
+        weights = (whole + np.column_stack([fractions, 1 - fractions])).ravel()
+        weights = np.concatenate([weights, np.ones(count - len(weights))])
+    elif kind == "one dominant":
+        weights = np.full(count, 1 / (count - 1))
+        weights[0] = 1.0
+    elif kind == "a few heavy":
+        heavy = int(rng.integers(3, 6))
+        weights = np.full(count, 0.2 / (count - heavy))
+        weights[:heavy] = 0.8 / heavy
+    else:
+        raise ValueError(f"unknown weight vector {kind!r}")
+    return rng.permutation(weights / weights.sum())
+
+
+def _resample_inputs(seed: int) -> ResampleInputs:
+    rng = np.random.default_rng([seed, RESAMPLE_TAG])
+    weights = tuple(resample_vector(kind, _count(rng, RESAMPLE_COUNT), rng) for kind in RESAMPLE_KINDS)
+    return ResampleInputs(weights, RESAMPLE_KINDS, _seeds(rng, len(weights)), RESAMPLE_DRAWS)
+
+
+def _estimate_inputs(seed: int, world: Maze) -> EstimateInputs:
+    rng = np.random.default_rng([seed, ESTIMATE_TAG])
+    points = world.random_free_places(_count(rng, ESTIMATE_COUNT), rng)
+    n = len(points)
+    vectors = [np.ones(n), rng.exponential(size=n) ** 4, rng.exponential(size=n) ** 12, np.full(n, 0.1 / n)]
+    vectors[3][rng.integers(n)] = 0.9
+    return EstimateInputs(points, tuple(v / v.sum() for v in vectors), ESTIMATE_KINDS)
+
+
+def draw_scenarios(seed: int, count: int = SCENARIO_COUNT, steps: int = SCENARIO_STEPS) -> list[ScenarioInputs]:
+    """The whole filter's scenarios for `seed`: a maze, sigma, delta, particle count and run seed
+    each, the robot's walk and the initial particles drawn from the run seed (mazelab.seeding)."""
+    rng = np.random.default_rng([seed, WHOLE_TAG])
+    scenarios = []
+    for run_seed in _seeds(rng, count):
+        maze = str(rng.choice(WHOLE_MAZES))
+        sigma, delta = _between(rng, WHOLE_SIGMA), _between(rng, WHOLE_DELTA)
+        scenarios.append(walk_scenario(maze, sigma, delta, run_seed, _count(rng, SCENARIO_PARTICLES), steps))
+    return scenarios
+
+
+def walk_scenario(maze: str, sigma: float, delta: float, seed: int, particles: int, steps: int) -> ScenarioInputs:
+    """One scenario: the robot of run `seed` walks `steps` steps; `particles` drawn from the prior."""
+    world = load_maze(maze)
+    streams = run_streams(seed)
+    start = start_place(world, seed)
+    robot = Robot(sigma, delta, start, rng=streams.robot)
+    path = np.empty((steps, 2))
+    for k in range(steps):
+        robot.step(world)
+        path[k] = robot.position
+    return ScenarioInputs(
+        maze,
+        world.grid.copy(),
+        sigma,
+        delta,
+        seed,
+        start,
+        world.random_free_places(particles, streams.particles),
+        tuple(robot.actual_angles),
+        tuple(robot.compass_angles),
+        tuple(robot.measurements),
+        path,
+    )
+
+
+__all__ = [
+    "ESTIMATE_KINDS",
+    "RESAMPLE_DRAWS",
+    "RESAMPLE_KINDS",
+    "SCENARIO_COUNT",
+    "SCENARIO_STEPS",
+    "EstimateInputs",
+    "PartInputs",
+    "PredictInputs",
+    "ResampleInputs",
+    "ScenarioInputs",
+    "WeighInputs",
+    "default_seed",
+    "draw_part_inputs",
+    "draw_scenarios",
+    "resample_vector",
+    "walk_scenario",
+]

@@ -1,0 +1,338 @@
+"""The grade that 200 students will try to fool: `mazelab exercise check` runs the student's file in a
+child process and judges, in the grader, only the values it returned. Each cheat of issue 29 has a
+test (a report patched at import, an exit in a part, a class that is not a StudentFilter, delegation
+to the lab's reference implementation, NaN in the estimate, an ESS gate, reused heading noise, the
+public inputs special-cased), and so has each way a child can end (an exit, a signal, a hang, output
+that is not an answer). The folder grader is tests/test_grading_folder.py."""
+
+from __future__ import annotations
+
+import json
+import textwrap
+
+import numpy as np
+import pytest
+from exercise_answers import write_submission
+
+from mazelab.cli.app import main
+from mazelab.exercise.inputs import default_seed, draw_scenarios
+from mazelab.exercise.report import NotGradableError, check_file
+
+SEED = 2024  # the seed of tests/test_exercise.py's whole-filter tests: the exact runs are computed once
+ALL = ("predict", "weigh", "resample", "estimate", "whole")
+
+
+def rows(report) -> dict[str, tuple[str, str]]:
+    return {row.part: (row.status, row.got) for row in report.rows}
+
+
+def checked(tmp_path, *, stages=ALL, timeout=60.0, prelude="", class_line=None, **parts):
+    """The report of a submission of the reference parts, `parts` replaced (a method's source)."""
+    options = {} if class_line is None else {"class_line": class_line}
+    path = write_submission(tmp_path / "my_filter.py", prelude, **options, **parts)
+    return check_file(str(path), seed=SEED, timeout=timeout, stages=stages)
+
+
+# -- an honest submission -----------------------------------------------------------------------------
+def test_a_correct_submission_passes_and_its_seed_repeats_the_report_exactly(tmp_path, capsys):
+    path = write_submission(tmp_path / "my_filter.py")
+    assert main(["exercise", "check", str(path), "--seed", str(SEED)]) == 0
+    first = capsys.readouterr().out
+    assert "All checks pass." in first and f"inputs from seed {SEED} (given)" in first
+    assert main(["exercise", "check", str(path), "--seed", str(SEED)]) == 0
+    again = capsys.readouterr().out
+
+    def without_time(text: str) -> list[str]:
+        return [line for line in text.splitlines() if not line.startswith("checked in")]
+
+    assert without_time(first) == without_time(again)
+    assert max(map(len, first.splitlines())) <= 100
+
+
+def test_the_default_seed_is_the_files_content(tmp_path):
+    path = write_submission(tmp_path / "my_filter.py")
+    report = check_file(str(path), stages=("estimate",))
+    assert report.seed == default_seed(path.read_bytes())
+    path.write_text(path.read_text() + "# an edit\n")
+    assert check_file(str(path), stages=("estimate",)).seed == default_seed(path.read_bytes()) != report.seed
+
+
+# -- the cheats of the issue ----------------------------------------------------------------------------
+def test_a_report_patched_at_import_changes_nothing(tmp_path, capsys):
+    prelude = """
+        import mazelab.exercise.layout as layout
+        import mazelab.exercise.report as report
+        import mazelab.exercise.rows as rows
+
+        report.Report.passed = property(lambda self: True)
+        rows.Row.passed = property(lambda self: True)
+        layout.format_report = lambda *args, **kwargs: "All checks pass."
+    """
+    path = write_submission(tmp_path / "my_filter.py", prelude, predict=None, weigh=None, resample=None, estimate=None)
+    assert main(["exercise", "check", str(path), "--seed", str(SEED)]) == 1
+    out = capsys.readouterr().out
+    assert "All checks pass." not in out and "To fix: predict, weigh, resample, estimate, whole filter." in out
+
+
+@pytest.mark.parametrize(
+    "code, happened",
+    [("import os; os._exit(0)", "exited with code 0 in weigh"), ("import sys; sys.exit(0)", "called sys.exit(0)")],
+)
+def test_an_exit_in_a_part_fails_that_part_and_the_others_are_still_judged(tmp_path, code, happened):
+    weigh = f"def weigh(self, positions, z):\n    {code}\n"
+    report = checked(tmp_path, stages=("predict", "weigh", "estimate"), weigh=weigh)
+    assert rows(report)["weigh"][0] == "fail" and happened in rows(report)["weigh"][1]
+    assert rows(report)["predict"][0] == rows(report)["estimate"][0] == "pass"
+    assert not report.passed
+
+
+@pytest.mark.parametrize("code", ["import os; os._exit(0)", "import sys; sys.exit(0)", "raise SystemExit(3)"])
+def test_an_exit_while_the_file_is_imported_fails_every_row(tmp_path, capsys, code):
+    path = write_submission(tmp_path / "my_filter.py", code)
+    result = main(["exercise", "check", str(path), "--seed", str(SEED)])
+    captured = capsys.readouterr()
+    if "_exit" in code:  # the child ends: every row fails, naming it
+        assert result == 1 and "exited with code 0 while importing the file" in captured.out
+    else:  # the import fails: one line, exit 2
+        assert result == 2 and "while being imported" in captured.err and captured.out == ""
+
+
+def test_a_class_that_is_not_a_student_filter_is_one_line_and_exit_2(tmp_path, capsys):
+    (tmp_path / "mine.py").write_text(
+        "from mazelab.filters import SIRParticleFilter\n\n\nclass MyFilter(SIRParticleFilter):\n    pass\n"
+    )
+    assert main(["exercise", "check", str(tmp_path / "mine.py")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "MyFilter is not a StudentFilter" in err[0] and "SIRParticleFilter" in err[0]
+
+
+DELEGATIONS = {
+    "log_likelihood": (
+        "weigh",
+        """
+        def weigh(self, positions, z):
+            from mazelab.model import log_likelihood
+            return log_likelihood(z, positions, self.world, self.sigma)
+        """,
+        "mazelab.model.log_likelihood",
+    ),
+    "reloaded": (
+        "weigh",
+        """
+        def weigh(self, positions, z):
+            import importlib
+            import mazelab.model
+            fresh = importlib.reload(mazelab.model)
+            return fresh.log_likelihood(z, positions, self.world, self.sigma)
+        """,
+        "mazelab.model.log_likelihood",
+    ),
+    "copied code": (
+        "weigh",
+        """
+        def weigh(self, positions, z):
+            import types
+            from mazelab.model import log_likelihood as original
+            copy = types.FunctionType(original.__code__, original.__globals__, "mine", original.__defaults__)
+            return copy(z, positions, self.world, self.sigma)
+        """,
+        "mazelab.model.log_likelihood",
+    ),
+    "in a thread": (
+        "weigh",
+        """
+        def weigh(self, positions, z):
+            import threading
+            from mazelab.model import log_likelihood
+            out = []
+            worker = threading.Thread(target=lambda: out.append(log_likelihood(z, positions, self.world, self.sigma)))
+            worker.start()
+            worker.join()
+            return out[0]
+        """,
+        "mazelab.model.log_likelihood",
+    ),
+    "the resampling schemes": (
+        "resample",
+        """
+        def resample(self, weights, rng):
+            from mazelab.resampling import RESAMPLING_SCHEMES
+            return RESAMPLING_SCHEMES["multinomial"](weights, rng)
+        """,
+        "mazelab.resampling.multinomial_resample",
+    ),
+    "the weights' helpers": (
+        "estimate",
+        """
+        def estimate(self, positions, weights):
+            from mazelab.weights import weighted_mean
+            return weighted_mean(weights, positions)
+        """,
+        "mazelab.weights.weighted_mean",
+    ),
+    "the model's motion": (
+        "predict",
+        """
+        def predict(self, positions, compass_angle, rng):
+            from mazelab.model import move, sample_headings
+            return move(positions, sample_headings(compass_angle, self.delta, len(positions), rng))
+        """,
+        "mazelab.model.sample_headings",
+    ),
+}
+
+
+@pytest.mark.parametrize("how", list(DELEGATIONS))
+def test_a_part_that_calls_the_labs_reference_implementation_is_not_the_students(tmp_path, how):
+    part, code, name = DELEGATIONS[how]
+    report = checked(tmp_path, stages=(part,), **{part: textwrap.dedent(code)})
+    status, got = rows(report)[part]
+    assert status == "not own work" and name in got, got
+    assert f"{part}: calls the lab's" in report.problems[-1]
+
+
+def test_a_filter_whose_step_runs_the_shipped_sir_is_not_the_students(tmp_path):
+    prelude = "from mazelab.filters import SIRParticleFilter"
+    step = """
+        def step(self, compass_angle, z):
+            if not hasattr(self, "inner"):
+                self.inner = SIRParticleFilter(self.world, self.sigma, self.delta, self.positions, self.rng)
+            self.inner.step(compass_angle, z)
+            self.positions, self.log_weights = self.inner.positions, np.log(self.inner.weights)
+            self._estimate = None
+    """
+    report = checked(tmp_path, stages=("whole",), prelude=prelude, step=textwrap.dedent(step))
+    status, got = rows(report)["whole filter"]
+    assert status == "not own work" and "mazelab.cloud.ParticleFilter.__init__" in got
+
+
+def test_removing_the_graders_call_monitor_is_seen(tmp_path):
+    weigh = """
+        def weigh(self, positions, z):
+            import sys
+            from mazelab.model import log_likelihood
+            sys.setprofile(None)
+            return log_likelihood(z, positions, self.world, self.sigma)
+    """
+    status, got = rows(checked(tmp_path, stages=("weigh",), weigh=textwrap.dedent(weigh)))["weigh"]
+    assert status == "not own work" and "call monitor" in got
+
+
+def test_a_nan_estimate_never_passes_the_whole_filter(tmp_path):
+    """estimate is right alone; the estimate the filter reports is not a number."""
+    path = write_submission(tmp_path / "my_filter.py")
+    nan = "\n\nclass NanFilter(MyFilter):\n    estimate = property(lambda self: np.array([np.nan, np.nan]))\n"
+    path.write_text(path.read_text() + nan)
+    report = check_file(f"{path}:NanFilter", seed=SEED, stages=("estimate", "whole"))
+    assert rows(report)["estimate"][0] == "pass"
+    status, got = rows(report)["whole filter"]
+    assert status == "fail" and "nan" in got and "a number at every step" in report.row("whole filter").hint
+
+
+def test_the_child_holds_none_of_the_graders_objects(tmp_path):
+    """The student's code looks for the grader's objects and the true path in its own process: none."""
+    found = tmp_path / "found.json"
+    truth = draw_scenarios(SEED)[0]
+    prelude = f"""
+        import gc, json
+
+
+        def snoop(scenario_truth):
+            names = {{"RunResult", "GridBayesFilter", "ScenarioInputs", "PartInputs", "Report", "References", "Row"}}
+            objects = gc.get_objects()
+            kinds = sorted({{type(o).__name__ for o in objects if type(o).__name__ in names}})
+            arrays, seen, todo = [], set(), list(objects)  # every array any object holds, however deep
+            while todo:
+                thing = todo.pop()
+                if id(thing) in seen:
+                    continue
+                seen.add(id(thing))
+                if isinstance(thing, np.ndarray):
+                    arrays.append(thing)
+                    continue
+                try:
+                    todo.extend(gc.get_referents(thing))
+                except Exception:
+                    pass
+            others = [a for a in arrays if a is not scenario_truth and a.shape == scenario_truth.shape]
+            paths = sum(np.allclose(a, scenario_truth) for a in others)
+            with open({str(found)!r}, "w") as file:
+                json.dump({{"kinds": kinds, "paths": int(paths), "arrays": len(arrays)}}, file)
+    """
+    np.save(tmp_path / "truth.npy", truth.true_positions)
+    step = f"""
+        def step(self, compass_angle, z):
+            if not hasattr(self, "snooped"):
+                self.snooped = snoop(np.load({str(tmp_path / "truth.npy")!r}))
+            super().step(compass_angle, z)
+    """
+    report = checked(tmp_path, stages=("whole",), prelude=prelude, step=textwrap.dedent(step))
+    assert found.exists(), report.rows
+    seen = json.loads(found.read_text())
+    assert seen["kinds"] == [] and seen["paths"] == 0 and seen["arrays"] > 0, seen
+
+
+# -- how a child can end -------------------------------------------------------------------------------
+def test_a_signal_names_the_signal_and_the_part(tmp_path):
+    estimate = (
+        "def estimate(self, positions, weights):\n    import os, signal\n    os.kill(os.getpid(), signal.SIGKILL)\n"
+    )
+    status, got = rows(checked(tmp_path, stages=("estimate",), estimate=estimate))["estimate"]
+    assert status == "fail" and "killed by signal 9 (SIGKILL) in estimate" in got
+
+
+def test_output_that_is_not_an_answer_is_named(tmp_path):
+    estimate = """
+        def estimate(self, positions, weights):
+            import gc
+            from multiprocessing.connection import Connection
+            for thing in gc.get_objects():
+                if isinstance(thing, Connection) and thing.writable:
+                    thing.send_bytes(b"All checks pass.")
+            return weights @ positions
+    """
+    status, got = rows(checked(tmp_path, stages=("estimate",), estimate=textwrap.dedent(estimate)))["estimate"]
+    assert status == "fail" and "sent output the grader cannot read" in got
+
+
+def test_a_hang_is_stopped_at_the_time_limit_and_the_next_parts_still_run(tmp_path):
+    predict = "def predict(self, positions, compass_angle, rng):\n    while True:\n        pass\n"
+    report = checked(tmp_path, stages=("predict", "estimate"), timeout=3, predict=predict)
+    assert rows(report)["predict"] == ("fail", rows(report)["predict"][1])
+    assert "ran past the time limit (3 s of processor time) in predict" in rows(report)["predict"][1]
+    assert rows(report)["estimate"][0] == "pass"
+
+
+def test_a_child_that_waits_without_working_is_stopped_too(tmp_path):
+    estimate = "def estimate(self, positions, weights):\n    import time\n    time.sleep(600)\n"
+    status, got = rows(checked(tmp_path, stages=("estimate",), timeout=1, estimate=estimate))["estimate"]
+    assert status == "fail" and "waited past the time limit (14 s) in estimate" in got
+
+
+def test_what_the_student_prints_is_kept_and_its_last_line_shown_when_it_dies(tmp_path):
+    weigh = "def weigh(self, positions, z):\n    print('about to fail')\n    import os\n    os._exit(3)\n"
+    status, got = rows(checked(tmp_path, stages=("weigh",), weigh=weigh))["weigh"]
+    assert status == "fail" and "exited with code 3 in weigh" in got and "its last line: about to fail" in got
+
+
+def test_a_file_that_does_not_import_is_one_line_and_exit_2(tmp_path, capsys):
+    (tmp_path / "my_filter.py").write_text("def broken(:\n")
+    assert main(["exercise", "check", str(tmp_path / "my_filter.py")]) == 2
+    assert "does not import" in capsys.readouterr().err
+    with pytest.raises(NotGradableError, match="no such file"):
+        check_file(str(tmp_path / "none.py"))
+
+
+def test_check_writes_gradescopes_results(tmp_path, capsys):
+    path = write_submission(
+        tmp_path / "my_filter.py", weigh="def weigh(self, positions, z):\n    raise NotImplementedError\n"
+    )
+    (tmp_path / "results").mkdir()
+    assert main(["exercise", "check", str(path), "--seed", str(SEED), "--gradescope", str(tmp_path / "results")]) == 1
+    results = json.loads((tmp_path / "results" / "results.json").read_text())
+    assert [t["name"] for t in results["tests"]] == ["predict", "weigh", "resample", "estimate", "whole filter"]
+    assert [t["status"] for t in results["tests"]] == ["passed", "failed", "passed", "passed", "failed"]
+    assert results["score"] == 3.0 and "Checking MyFilter" in results["output"]
+    capsys.readouterr()
+    assert main(["exercise", "check", str(path), "--gradescope", str(tmp_path / "results")]) == 2  # exists
+    assert "--force" in capsys.readouterr().err
