@@ -125,7 +125,7 @@ def test_study_csv_has_a_row_per_run_and_filter(tmp_path, capsys):
         "setting", "run", "seed", "maze", "maze_seed", "station_blocks", "sigma", "delta", "particles", "threshold",
         "steps", "filter", "final_error", "mean_error", "converged_at", "mean_ess", "ms_per_step",
         "recovery", "kidnap_at", "relocalised", "steps_to_recover", "mean_particle_count", "bandwidth", "estimate",
-        "maze_sha256", "maze_rows", "maze_columns", "wall_share", "run_seconds",
+        "maze_sha256", "maze_rows", "maze_columns", "wall_share", "run_seconds", "distance_to_exact",
     ]  # fmt: skip
     assert len(rows) == 4 * 3 * 2  # settings x runs x filters
     assert {(r["sigma"], r["delta"]) for r in rows} == {("0.3", "0.2"), ("0.3", "0.5"), ("0.6", "0.2"), ("0.6", "0.5")}

@@ -10,7 +10,7 @@ from typing import Annotated, Any
 
 import typer
 
-from mazelab.atomic import WriteError
+from mazelab.atomic import WriteError, write_text_atomically
 from mazelab.cli.accuracy import accuracy
 from mazelab.cli.filter_options import (
     KldFlag,
@@ -46,10 +46,11 @@ from mazelab.experiments.rowlog import RowLog, check_left_over, partial_path
 from mazelab.experiments.runs import parse_filters
 from mazelab.experiments.stats import CONFIDENCE_LEVEL
 from mazelab.experiments.study import PAPER_OPTIONS, MazeChoice, RunRecord, RunTask, StudyOutcome, declared_option
-from mazelab.experiments.summary import study_table, summarise_study
+from mazelab.experiments.summary import study_table, summarise_study, summary_csv, summary_path
 from mazelab.experiments.traces import check_trace_path, kept_traces, study_traces, write_traces
 from mazelab.mazes import DEFAULT_MAZE
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, RPF_THRESHOLD
+from mazelab.registry import filter_entry, resolve_filter
 from mazelab.viz.style import DEFAULT_MAX_DRAWN
 
 
@@ -84,7 +85,18 @@ def study(
         float, typer.Option(metavar="<s>", callback=dask_timeout_option, help="give up after s idle seconds")
     ] = DASK_TIMEOUT,
     csv_path: Annotated[Path | None, typer.Option("--csv", help="one row per run and filter")] = None,
-    plot: Annotated[Path | None, typer.Option(help="error against the varied parameters (.png)")] = None,
+    plot: Annotated[
+        Path | None, typer.Option(help="the figure: error against the varied parameters (.png, .pdf or .svg)")
+    ] = None,
+    summary_csv: Annotated[
+        Path | None, typer.Option("--summary-csv", help="one row per setting and filter [default: CSV.summary.csv]")
+    ] = None,
+    reference: Annotated[
+        str | None, typer.Option(metavar="grid", help="run the exact grid filter too: every row's distance_to_exact")
+    ] = None,
+    paired: Annotated[
+        str | None, typer.Option(metavar="FILTER", help="paired differences to this filter's errors, on the same runs")
+    ] = None,
     traces: Annotated[Path | None, typer.Option(help="per-step rows of every run (.csv, or .parquet)")] = None,
     record: Annotated[Path | None, typer.Option(help="JSON record [default: CSV.record.json]")] = None,
     resume: Annotated[bool, typer.Option("--resume", help="run only the rows missing from --csv")] = False,
@@ -104,10 +116,12 @@ def study(
     plan = parse_plan(
         outputs, filters, given, option, maze=maze, maze_size=maze_size, stations=stations, wall_share=wall_share,
         sigma=sigma, delta=delta, particles=particles, runs=runs, steps=steps, seed=seed, kidnap_at=kidnap_at, kld=kld,
+        reference=reference,
     )  # fmt: skip
+    extras = StudyExtras.parse(plan, outputs, summary_csv, paired)
     session = open_session(plan, outputs, visualize, draw_run, dask, workers or default_workers())
     outcome = run_session(session, visualize, dask_timeout)
-    report_study(session, outcome, kld)
+    report_study(session, outcome, kld, extras)
 
 
 # -- the study in three steps: parse (outputs, plan), run (a session), report -------------------------
@@ -149,6 +163,7 @@ def parse_plan(
     outputs: StudyOutputs, filters: str, given: dict[str, str | None], option: list[str] | None, *,
     maze: str | None, maze_size: str | None, stations: str | None, wall_share: str | None, sigma: str, delta: str,
     particles: str, runs: int, steps: int, seed: int | None, kidnap_at: int | None, kld: bool,
+    reference: str | None = None,
 ) -> StudyPlan:  # fmt: skip
     """The study's plan from the command line's lists: the paper's named flags (--threshold, --recovery,
     --bandwidth, --estimate) and --option NAME=V1,V2 for any declared option, each value parsed and
@@ -190,6 +205,7 @@ def parse_plan(
         estimate=paper.get("estimate", ["mean"]),
         options=options,
         runs=runs, steps=steps, seed=seed, kidnap_at=kidnap_at, kld=kld, traces=outputs.traces is not None,
+        reference=reference,
     )  # fmt: skip
 
 
@@ -202,6 +218,33 @@ def _parsed(names: list[str], option: str, text: str) -> Any:
         return declared[0].parse_text(text)
     except ValueError as error:
         raise UserError(f"--{option} {text}: {error}") from None
+
+
+@dataclass
+class StudyExtras:
+    """What the report adds to the table and the rows: the summary CSV (--summary-csv, or NAME.summary.csv
+    beside --csv) and the filter of the paired differences (--paired), checked before any run."""
+
+    summary_csv: Path | None = None
+    paired: str | None = None
+
+    @classmethod
+    def parse(cls, plan: StudyPlan, outputs: StudyOutputs, summary_csv: Path | None, paired: str | None) -> StudyExtras:
+        """--paired names one of the study's filters; the summary CSV is a new name (or --force, --resume)."""
+        if paired is not None:
+            entries = [filter_entry(f) for f in plan.filters]
+            chosen = resolve_filter(check_filter_names(paired, "--paired")).name
+            if chosen not in [entry.name for entry in entries]:
+                given = ", ".join(entry.reference for entry in entries)
+                raise UserError(f"--paired {paired}: not one of the study's --filters ({given})")
+            paired = chosen
+        if summary_csv is None and outputs.csv_path is not None:
+            summary_csv = summary_path(outputs.csv_path)
+        if summary_csv is not None:
+            if outputs.csv_path is not None and summary_csv.resolve() == outputs.csv_path.resolve():
+                raise UserError(f"--summary-csv {summary_csv} is the --csv file; give it a name of its own")
+            check_output_path(summary_csv, outputs.force or outputs.resume)
+        return cls(summary_csv, paired)
 
 
 @dataclass
@@ -275,15 +318,17 @@ def run_session(session: StudySession, visualize: Any, dask_timeout: float) -> S
             close_client(session.client)
 
 
-def report_study(session: StudySession, outcome: StudyOutcome, kld: bool) -> None:
-    """The failures, then the table (first: a write error cannot lose it), the CSV, traces, figure and
-    record; a stopped or lost study keeps its rows in the partial file and exits non-zero."""
+def report_study(session: StudySession, outcome: StudyOutcome, kld: bool, extras: StudyExtras | None = None) -> None:
+    """The failures, then the table (first: a write error cannot lose it), the CSV, the summary CSV,
+    traces, figure and record; a stopped or lost study keeps its rows in the partial file and exits
+    non-zero."""
     plan, outputs, log = session.plan, session.outputs, session.log
+    extras = extras or StudyExtras()
     for failure in outcome.failures:
         typer.echo(f"error: {failure.describe()}", err=True)
     records = _in_order([*session.kept, *outcome.records], plan)
     finished, total = len({(r.setting, r.run) for r in records}), len(plan.tasks())
-    summaries = summarise_study(records, plan.settings)
+    summaries = summarise_study(records, plan.settings, paired=extras.paired)
     closing = {
         "runs_finished": finished,
         "runs_in_study": total,
@@ -304,6 +349,13 @@ def report_study(session: StudySession, outcome: StudyOutcome, kld: bool) -> Non
             typer.echo(f"error: {describe_write_error(error)}; {log.kept()}", err=True)
             raise typer.Exit(1) from None
         typer.echo(f"one row per run and filter written to {outputs.csv_path}")
+    if extras.summary_csv is not None and summaries:
+        try:
+            write_text_atomically(extras.summary_csv, summary_csv(summaries), replace=outputs.force or outputs.resume)
+        except OSError as error:
+            typer.echo(f"error: {describe_write_error(error)}", err=True)
+            raise typer.Exit(1) from None
+        typer.echo(f"one row per setting and filter (the table, with its intervals) written to {extras.summary_csv}")
     if _write_traces(outputs.traces, _in_order(outcome.records, plan), session.tasks, outputs.recorded is not None):
         typer.echo(f"per-step traces written to {outputs.traces}")
     if outputs.plot is not None and summaries:

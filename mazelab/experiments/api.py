@@ -17,6 +17,7 @@ from mazelab.experiments.summary import summarise_study
 from mazelab.experiments.tables import flat_row
 from mazelab.experiments.traces import TRACE_COLUMNS, study_traces
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, RPF_THRESHOLD
+from mazelab.registry import resolve_filter
 
 
 @dataclass
@@ -60,6 +61,8 @@ def study(
     kidnap_at: int | None = None,
     kld: bool = False,
     traces: bool = False,
+    reference: str | None = None,
+    paired: str | None = None,
     workers: int | None = 1,
     dask: Any = None,
 ) -> StudyResult:
@@ -82,6 +85,10 @@ def study(
         kidnapping step, KLD-sampling.
     traces
         Keep every run's per-step trace (StudyResult.traces).
+    reference
+        "grid": every run also runs the exact grid filter, every row gets `distance_to_exact`.
+    paired
+        A filter of the study: each other filter's summary gets its paired difference to it.
     workers, dask
         Processes (None: all cores), or a Dask scheduler address or Client.
 
@@ -107,10 +114,13 @@ def study(
         kidnap_at=kidnap_at,
         kld=kld,
         traces=traces,
+        reference=reference,
     )
+    if paired is not None and resolve_filter(paired).name not in [resolve_filter(f).name for f in plan.filters]:
+        raise ValueError(f"paired={paired!r} is not one of the study's filters")
     recorder = Recorder("study", [sys.argv[0] or "python", "mazelab.study(...)"], plan.parameters())
     outcome = run_study(plan.tasks(), workers, dask=dask)
-    summaries = summarise_study(outcome.records, plan.settings)
+    summaries = summarise_study(outcome.records, plan.settings, paired=paired)
     summary = [s.as_dict() for s in summaries]
     failures = [f.describe() for f in outcome.failures]
     record = recorder.finish(
