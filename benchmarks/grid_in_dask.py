@@ -103,21 +103,31 @@ def in_worker(maze: str, steps: int, keep_trim: bool = True, profile: bool = Tru
         return client.submit(grid_step_costs, maze, steps, pure=False).result()
 
 
-def study_ms_per_step(maze: str, steps: int, dask: bool) -> float:
-    """The median `ms_per_step` of the grid filter's rows in `mazelab.study` (4 runs), in this process
-    or on a one-worker LocalCluster."""
+def study_ms_per_step(maze: str, steps: int, dask: bool) -> dict:
+    """A study of the grid filter (4 runs) in this process or on a one-worker LocalCluster: the median
+    `ms_per_step` of its rows (wall time) and the CPU time of the process that ran them per step."""
     import mazelab
 
     kwargs = {"maze": maze, "filters": ["grid"], "runs": 4, "steps": steps, "seed": 1}
+    warm = {**kwargs, "runs": 1, "steps": 2}  # imports and first allocations, not measured
     if not dask:
-        return statistics.median(r["ms_per_step"] for r in mazelab.study(**kwargs).rows)
-    from distributed import Client, LocalCluster
+        mazelab.study(**warm)
+        started = time.process_time()
+        rows = mazelab.study(**kwargs).rows
+        cpu = time.process_time() - started
+    else:
+        from distributed import Client, LocalCluster
 
-    with (
-        LocalCluster(n_workers=1, threads_per_worker=1, host="127.0.0.1", dashboard_address=None) as cluster,
-        Client(cluster) as client,
-    ):
-        return statistics.median(r["ms_per_step"] for r in mazelab.study(**kwargs, dask=client).rows)
+        with (
+            LocalCluster(n_workers=1, threads_per_worker=1, host="127.0.0.1", dashboard_address=None) as cluster,
+            Client(cluster) as client,
+        ):
+            mazelab.study(**warm, dask=client)
+            (before,) = client.run(time.process_time).values()
+            rows = mazelab.study(**kwargs, dask=client).rows
+            (after,) = client.run(time.process_time).values()
+            cpu = after - before
+    return {"ms_per_step": statistics.median(r["ms_per_step"] for r in rows), "cpu_ms": 1e3 * cpu / (4 * steps)}
 
 
 def fresh(place: str, maze: str, steps: int, env: dict[str, str] | None = None) -> dict:
@@ -146,7 +156,7 @@ def one(place: str, maze: str, steps: int) -> dict:
         return in_thread(maze, steps)
     if place.startswith("worker"):
         return in_worker(maze, steps, keep_trim=place != "worker-no-trim", profile=place != "worker-no-profile")
-    return {"ms_per_step": study_ms_per_step(maze, steps, dask=place == "study-dask")}
+    return study_ms_per_step(maze, steps, dask=place == "study-dask")
 
 
 def main() -> None:
@@ -167,10 +177,10 @@ def main() -> None:
             rows = [fresh(place, maze, args.steps, env) for _ in range(args.repeats)]
             cpu, wall, faults = (statistics.median(r[key] for r in rows) for key in ("cpu_ms", "wall_ms", "faults"))
             print(f"{label:<36} {rows[0]['cells']:>9} {cpu:>11.2f} {wall:>12.2f} {faults:>16.0f}")
-        study = {p: statistics.median(fresh(p, maze, args.steps)["ms_per_step"] for _ in range(args.repeats))
-                 for p in ("study-here", "study-dask")}  # fmt: skip
-        print(f"a study's ms_per_step (grid): {study['study-here']:.2f} in process, "
-              f"{study['study-dask']:.2f} on a LocalCluster")  # fmt: skip
+        for place, label in (("study-here", "in this process"), ("study-dask", "on a LocalCluster")):
+            rows = [fresh(place, maze, args.steps) for _ in range(args.repeats)]
+            wall, cpu = (statistics.median(r[key] for r in rows) for key in ("ms_per_step", "cpu_ms"))
+            print(f"a study of the grid filter {label:<18}: ms_per_step {wall:.2f} (wall), CPU {cpu:.2f} ms/step")
     print(f"\nload average {os.getloadavg()[0]:.2f} at the end")
 
 

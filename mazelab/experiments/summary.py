@@ -35,6 +35,7 @@ from mazelab.experiments.study import (
     option_cells,
     study_parameters,
     takes_parameter,
+    varied_parameters,
 )
 from mazelab.experiments.tables import csv_cell, format_number, format_optional, format_table, format_value, records_csv
 from mazelab.model import CONVERGENCE_RADIUS
@@ -123,7 +124,7 @@ def summarise_study(
             last,
             *_mean_and_interval(distances),
         )
-        if reference is not None and name != reference:
+        if reference is not None and name != reference and pairs_exactly(name, reference, settings):
             pairs = paired_finals(group, records, settings, reference)
             if pairs:
                 mine, theirs = zip(*pairs, strict=True)
@@ -156,6 +157,13 @@ def _mean_and_interval(values: Sequence[float]) -> tuple[float, Interval]:
     return (
         (statistics.fmean(finite), bootstrap_interval(finite, "mean")) if finite else (math.nan, (math.nan, math.nan))
     )
+
+
+def pairs_exactly(name: str, reference: str, settings: Sequence[StudySetting]) -> bool:
+    """Whether a filter's setting fixes the reference's: not when the reference takes a varied parameter
+    the filter does not (the grid filter against SIR with several particle counts: which N?)."""
+    varied = varied_parameters(settings)
+    return not any(takes_parameter(reference, p) and not takes_parameter(name, p) for p in varied)
 
 
 def paired_finals(
@@ -378,6 +386,7 @@ __all__ = [
     "interval_note",
     "last_convergence_step",
     "paired_finals",
+    "pairs_exactly",
     "recovery_summary",
     "study_csv",
     "study_table",
