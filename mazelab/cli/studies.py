@@ -85,9 +85,7 @@ def study(
         float, typer.Option(metavar="<s>", callback=dask_timeout_option, help="give up after s idle seconds")
     ] = DASK_TIMEOUT,
     csv_path: Annotated[Path | None, typer.Option("--csv", help="one row per run and filter")] = None,
-    plot: Annotated[
-        Path | None, typer.Option(help="the figure: error against the varied parameters (.png, .pdf or .svg)")
-    ] = None,
+    plot: Annotated[Path | None, typer.Option(help="the figure: .png, .pdf or .svg (the suffix chooses)")] = None,
     summary_csv: Annotated[
         Path | None, typer.Option("--summary-csv", help="one row per setting and filter [default: CSV.summary.csv]")
     ] = None,
@@ -96,6 +94,9 @@ def study(
     ] = None,
     paired: Annotated[
         str | None, typer.Option(metavar="FILTER", help="paired differences to this filter's errors, on the same runs")
+    ] = None,
+    plot_x: Annotated[
+        str | None, typer.Option(metavar="PARAMETER", help="the figure's x axis: a varied parameter (sigma, ...)")
     ] = None,
     traces: Annotated[Path | None, typer.Option(help="per-step rows of every run (.csv, or .parquet)")] = None,
     record: Annotated[Path | None, typer.Option(help="JSON record [default: CSV.record.json]")] = None,
@@ -118,7 +119,7 @@ def study(
         sigma=sigma, delta=delta, particles=particles, runs=runs, steps=steps, seed=seed, kidnap_at=kidnap_at, kld=kld,
         reference=reference,
     )  # fmt: skip
-    extras = StudyExtras.parse(plan, outputs, summary_csv, paired)
+    extras = StudyExtras.parse(plan, outputs, summary_csv, paired, plot_x)
     session = open_session(plan, outputs, visualize, draw_run, dask, workers or default_workers())
     outcome = run_session(session, visualize, dask_timeout)
     report_study(session, outcome, kld, extras)
@@ -227,10 +228,18 @@ class StudyExtras:
 
     summary_csv: Path | None = None
     paired: str | None = None
+    plot_x: str | None = None  # the figure's x axis (--plot-x), a varied parameter
 
     @classmethod
-    def parse(cls, plan: StudyPlan, outputs: StudyOutputs, summary_csv: Path | None, paired: str | None) -> StudyExtras:
-        """--paired names one of the study's filters; the summary CSV is a new name (or --force, --resume)."""
+    def parse(
+        cls, plan: StudyPlan, outputs: StudyOutputs, summary_csv: Path | None, paired: str | None,
+        plot_x: str | None = None,
+    ) -> StudyExtras:  # fmt: skip
+        """--paired names one of the study's filters, --plot-x one of its varied parameters; the summary
+        CSV is a new name (or --force, --resume)."""
+        if plot_x is not None and plot_x not in plan.varied:
+            varied = ", ".join(plan.varied) or "none: give a parameter two values"
+            raise UserError(f"--plot-x {plot_x}: the x axis is a varied parameter of the study ({varied})")
         if paired is not None:
             entries = [filter_entry(f) for f in plan.filters]
             chosen = resolve_filter(check_filter_names(paired, "--paired")).name
@@ -244,7 +253,7 @@ class StudyExtras:
             if outputs.csv_path is not None and summary_csv.resolve() == outputs.csv_path.resolve():
                 raise UserError(f"--summary-csv {summary_csv} is the --csv file; give it a name of its own")
             check_output_path(summary_csv, outputs.force or outputs.resume)
-        return cls(summary_csv, paired)
+        return cls(summary_csv, paired, plot_x)
 
 
 @dataclass
@@ -359,7 +368,7 @@ def report_study(session: StudySession, outcome: StudyOutcome, kld: bool, extras
     if _write_traces(outputs.traces, _in_order(outcome.records, plan), session.tasks, outputs.recorded is not None):
         typer.echo(f"per-step traces written to {outputs.traces}")
     if outputs.plot is not None and summaries:
-        _plot(plan, summaries, outputs.plot, outputs.force)
+        _plot(plan, summaries, outputs.plot, outputs.force, extras.plot_x)
     if outputs.record_file is not None:
         session.recorder.write(outputs.record_file)
         typer.echo(f"the study's record (command, versions, seeds, mazes, summary) written to {outputs.record_file}")
@@ -475,7 +484,7 @@ def _write_traces(path: Path | None, records: list[RunRecord], tasks: list[RunTa
     return True
 
 
-def _plot(plan: StudyPlan, summaries: list, plot: Path, force: bool = True) -> None:
+def _plot(plan: StudyPlan, summaries: list, plot: Path, force: bool = True, x: str | None = None) -> None:
     from mazelab.experiments.study_plot import plot_study
 
     varied = plan.varied
@@ -485,7 +494,7 @@ def _plot(plan: StudyPlan, summaries: list, plot: Path, force: bool = True) -> N
         f"Last-20% error against {what}{where}\n({plan.runs} runs per point, "
         f"{CONFIDENCE_LEVEL:.0%} percentile bootstrap intervals for the mean)"
     )
-    plot_study(summaries, varied or ["maze"], plot, title, replace=force)
+    plot_study(summaries, varied or ["maze"], plot, title, replace=force, x=x)
     typer.echo(f"figure written to {plot}")
 
 

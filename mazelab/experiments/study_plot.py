@@ -139,7 +139,8 @@ def axis_label(parameter: str | None) -> str:
     if parameter in PARAMETER_LABELS:
         return PARAMETER_LABELS[parameter]
     option = declared_option(parameter)
-    return f"{parameter} ({option.help})" if option is not None and len(option.help) < 60 else parameter
+    words = option.help.split(" (")[0] if option is not None else ""
+    return f"{parameter}, {words}" if words and len(words) <= 50 else parameter
 
 
 @dataclass
