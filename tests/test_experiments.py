@@ -169,7 +169,7 @@ def test_study_seeds_do_not_depend_on_the_setting_or_the_workers():
 
 def test_study_statistics_on_a_tiny_seeded_study():
     """The table's figures recomputed by hand from the run records of a tiny seeded study: the mean,
-    the percentile bootstrap interval (within the runs' range), the converged share and the median
+    the BCa bootstrap interval (within the runs' range), the converged share and the median
     convergence step of the converged runs."""
     settings, tasks = tiny_tasks()
     outcome = run_study(tasks, workers=1)
@@ -181,7 +181,7 @@ def test_study_statistics_on_a_tiny_seeded_study():
         mean, sd = finals.sum() / 3, math.sqrt(((finals - finals.sum() / 3) ** 2).sum() / 2)
         assert s.runs == 3 and sd >= 0
         assert s.mean_final_error == pytest.approx(mean, rel=1e-12)
-        assert s.interval == bootstrap_interval(finals, "mean")
+        assert s.interval == bootstrap_interval(finals, "mean", method="bca")
         assert finals.min() <= s.interval[0] <= mean <= s.interval[1] <= finals.max()
         last = mine[0].steps - max(1, int(mine[0].steps * 0.2)) + 1  # converged: the last 20% of the steps
         counted = [r.converged_at is not None and r.converged_at <= last for r in mine]

@@ -196,7 +196,7 @@ def test_paired_differences_in_a_study_pair_each_run_with_the_same_scenario():
         differences = [r["final_error"] - sir[r["sigma"], r["run"]] for r in mine]
         assert s["paired_with"] == "SIRParticleFilter" and s["paired_runs"] == 3
         assert s["mean_difference"] == pytest.approx(statistics.fmean(differences), rel=1e-12)
-        assert tuple(s["difference_interval"]) == bootstrap_interval(differences, "mean")
+        assert tuple(s["difference_interval"]) == bootstrap_interval(differences, "mean", method="bca")
     assert len({s["bandwidth"] for s in result.summary if s["filter"] == "RegularizedParticleFilter"}) == 2
 
 
@@ -243,7 +243,7 @@ def test_the_study_writes_a_summary_csv_beside_its_rows(tmp_path, capsys):
     for s in summary:
         mine = [float(r["final_error"]) for r in rows if r["filter"] == s["filter"]]
         assert float(s["mean_final_error"]) == statistics.fmean(mine)
-        low, high = bootstrap_interval(mine, "mean")
+        low, high = bootstrap_interval(mine, "mean", method="bca")
         assert (float(s["mean_final_error_low"]), float(s["mean_final_error_high"])) == (low, high)
     assert summary[0]["paired_with"] == "" and summary[1]["paired_with"] == "SIRParticleFilter"
     assert main([*args, *TINY, "--csv", str(table)]) == 2  # the files exist: refused without --force

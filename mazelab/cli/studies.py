@@ -492,7 +492,7 @@ def _plot(plan: StudyPlan, summaries: list, plot: Path, force: bool = True, x: s
     where = "" if "maze" in varied else f" on {plan.settings[0].maze.label}"
     title = (
         f"Last-20% error against {what}{where}\n({plan.runs} runs per point, "
-        f"{CONFIDENCE_LEVEL:.0%} percentile bootstrap intervals for the mean)"
+        f"{CONFIDENCE_LEVEL:.0%} BCa bootstrap intervals for the mean)"
     )
     plot_study(summaries, varied or ["maze"], plot, title, replace=force, x=x)
     typer.echo(f"figure written to {plot}")

@@ -25,10 +25,15 @@ import numpy as np
 CONFIDENCE_LEVEL = 0.95  # of every interval of a study's table
 BOOTSTRAP_SAMPLES = 2000  # B, the bootstrap's resamples
 BOOTSTRAP_SEED = 20240531  # the bootstrap's resamples are drawn from this seed: the same rows, the same interval
+MEAN_METHOD = "bca"  # a study's means (errors, distances, paired differences): BCa (benchmarks/interval_coverage.py)
+MEDIAN_METHOD = "percentile"  # its medians: percentile (BCa's jackknife acceleration does not suit a median)
+_RESAMPLES = f"B = {BOOTSTRAP_SAMPLES} resamples of the runs, seed {BOOTSTRAP_SEED}"
 INTERVAL_METHODS = {
-    "mean": f"percentile bootstrap, B = {BOOTSTRAP_SAMPLES} resamples of the runs, seed {BOOTSTRAP_SEED}",
-    "median": f"percentile bootstrap, B = {BOOTSTRAP_SAMPLES} resamples of the runs, seed {BOOTSTRAP_SEED}",
+    "mean": f"a study's table: BCa bootstrap, {_RESAMPLES} (compare, accuracy: percentile bootstrap)",
+    "median": f"percentile bootstrap, {_RESAMPLES}",
+    "paired difference": f"paired BCa bootstrap (the runs resampled as pairs), {_RESAMPLES}",
     "share": "Wilson score interval",
+    "convergence step": "Kaplan-Meier median, the runs that never converge censored; interval from the log-log band",
 }
 
 
@@ -297,6 +302,8 @@ __all__ = [
     "CONFIDENCE_LEVEL",
     "INTERVAL_KINDS",
     "INTERVAL_METHODS",
+    "MEAN_METHOD",
+    "MEDIAN_METHOD",
     "SurvivalCurve",
     "bca_levels",
     "bootstrap_interval",

@@ -1,5 +1,5 @@
-"""A study's statistics per setting and filter: the mean and median final error with percentile
-bootstrap intervals, the converged share with its Wilson interval, the Kaplan-Meier median
+"""A study's statistics per setting and filter: the mean final error with its BCa bootstrap interval
+and the median with its percentile one, the converged share with its Wilson interval, the Kaplan-Meier median
 convergence step (the runs that never converge count, as censored), with `--reference grid` the
 distance to the exact posterior, with `--paired NAME` the paired difference to that filter; the
 table, the rows' CSV and the summary CSV (the figure: mazelab.experiments.study_plot).
@@ -23,6 +23,8 @@ from mazelab.experiments.runs import FINAL_SHARE, is_particle_filter
 from mazelab.experiments.stats import (
     BOOTSTRAP_SAMPLES,
     CONFIDENCE_LEVEL,
+    MEAN_METHOD,
+    MEDIAN_METHOD,
     bootstrap_interval,
     km_median,
     paired_difference,
@@ -54,7 +56,7 @@ class StudySummary:
     filter: str
     runs: int
     mean_final_error: float
-    interval: Interval  # percentile bootstrap interval for the mean last-20% error; NaN with one run
+    interval: Interval  # BCa bootstrap interval for the mean last-20% error; NaN with one run
     converged_share: float  # share of the runs below the radius for at least the last K steps (`converged`)
     median_convergence_step: float | None  # Kaplan-Meier median (never-converged runs censored); None: not reached
     ms_per_step: float
@@ -69,11 +71,11 @@ class StudySummary:
     convergence_interval: Interval = (math.nan, math.nan)  # the KM median's interval; NaN: not reached
     last_convergence_step: int = 0  # the last step a convergence can count from (steps - K + 1): the censoring time
     distance_to_exact: float = math.nan  # mean over the runs of the distance to the exact posterior mean
-    distance_interval: Interval = (math.nan, math.nan)  # its percentile bootstrap interval
+    distance_interval: Interval = (math.nan, math.nan)  # its BCa bootstrap interval
     paired_with: str | None = None  # the filter the paired difference is taken to (`--paired`)
     paired_runs: int = 0  # runs in both (the pairs)
     mean_difference: float = math.nan  # mean over the pairs of (this filter's - paired_with's) last-20% error
-    difference_interval: Interval = (math.nan, math.nan)  # its paired percentile bootstrap interval
+    difference_interval: Interval = (math.nan, math.nan)  # its paired BCa bootstrap interval
 
     def as_dict(self) -> dict[str, object]:
         """The summary as plain values (the setting's parameters spelled out), for a record or pandas."""
@@ -108,7 +110,7 @@ def summarise_study(
             name,
             len(group),
             statistics.fmean(finals),
-            bootstrap_interval(finals, "mean"),
+            bootstrap_interval(finals, "mean", method=MEAN_METHOD),
             sum(converged) / len(group),
             None if math.isnan(median_step) else median_step,
             statistics.fmean(r.ms_per_step for r in group),
@@ -116,7 +118,7 @@ def summarise_study(
             steps_to_recover,
             statistics.fmean(r.mean_particle_count for r in group),
             statistics.median(finals),
-            bootstrap_interval(finals, "median"),
+            bootstrap_interval(finals, "median", method=MEDIAN_METHOD),
             wilson_interval(sum(converged), len(group)),
             None if relocalised is None else wilson_interval(sum(bool(r.relocalised) for r in group), len(group)),
             statistics.fmean(r.run_seconds for r in group),
@@ -129,7 +131,9 @@ def summarise_study(
             if pairs:
                 mine, theirs = zip(*pairs, strict=True)
                 summary.paired_with, summary.paired_runs = reference, len(pairs)
-                summary.mean_difference, summary.difference_interval = paired_difference(mine, theirs)
+                summary.mean_difference, summary.difference_interval = paired_difference(
+                    mine, theirs, method=MEAN_METHOD
+                )
         summaries.append(summary)
     return summaries
 
@@ -152,11 +156,11 @@ def converged_within(converged_at: int | None, steps: int) -> bool:
 
 
 def _mean_and_interval(values: Sequence[float]) -> tuple[float, Interval]:
-    """The mean of the finite values with its percentile bootstrap interval; NaN when there are none."""
+    """The mean of the finite values with its BCa bootstrap interval; NaN when there are none."""
     finite = [v for v in values if not math.isnan(v)]
-    return (
-        (statistics.fmean(finite), bootstrap_interval(finite, "mean")) if finite else (math.nan, (math.nan, math.nan))
-    )
+    if not finite:
+        return math.nan, (math.nan, math.nan)
+    return statistics.fmean(finite), bootstrap_interval(finite, "mean", method=MEAN_METHOD)
 
 
 def pairs_exactly(name: str, reference: str, settings: Sequence[StudySetting]) -> bool:
@@ -224,8 +228,9 @@ def interval_note(summaries: Sequence[StudySummary] = ()) -> str:
     last = max((s.last_convergence_step for s in summaries), default=0)
     steps = f"from step {last} on at the latest" if last else "for at least the last 20% of the steps"
     lines = [
-        f"[{CONFIDENCE_LEVEL:.0%} intervals: mean and median by percentile bootstrap (B = {BOOTSTRAP_SAMPLES}, "
-        "seeded), shares by Wilson score; '-' in a parameter's column: the filter does not take it]",
+        f"[{CONFIDENCE_LEVEL:.0%} intervals: means by BCa bootstrap, medians by percentile bootstrap (B = "
+        f"{BOOTSTRAP_SAMPLES}, seeded), shares by Wilson score; '-' in a parameter's column: the filter does not "
+        "take it]",
         f"[converged: the error stays below {CONVERGENCE_RADIUS:g} for at least the last 20% of the steps "
         f"({steps}); median conv. step: Kaplan-Meier, the runs that never converge censored there "
         f"('>{last or 'N'}': not reached), its interval from the log-log band]",
@@ -235,7 +240,7 @@ def interval_note(summaries: Sequence[StudySummary] = ()) -> str:
         label = labels([reference])[reference]
         lines.append(
             f"[diff. vs {label}: the filter's last-20% error minus {label}'s on the same runs (negative: "
-            f"smaller), mean over the pairs, paired bootstrap interval (the runs resampled as pairs)]"
+            f"smaller), mean over the pairs, paired BCa bootstrap interval (the runs resampled as pairs)]"
         )
     return "\n".join(lines)
 
