@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import mazelab
 from mazelab.cli.app import main
 from mazelab.experiments.study import MazeChoice, StudySetting
 from mazelab.experiments.study_plot import FONT_POINTS, PAPER_WIDTH, PNG_DPI, Y_LABEL, plot_study
@@ -152,3 +153,10 @@ def test_the_grid_reference_is_in_every_panel_of_a_facet_it_does_not_take(tmp_pa
     assert layout.x == "sigma" and layout.panels == ["particles 100", "particles 1000"]
     ids = {element.get("id") for element in ET.parse(path).getroot().iter() if element.get("id")}
     assert {"panel-1:line:grid", "panel-2:line:grid", "panel-1:line:SIR", "panel-2:line:SIR"} <= ids
+
+
+def test_a_python_study_draws_its_figure_without_glue(tmp_path):
+    result = mazelab.study("paper_5x5", sigma=[0.3, 0.5], filters=["sir", "grid"], runs=2, steps=10, particles=60,
+                           seed=3)  # fmt: skip
+    path = result.figure(tmp_path / "f.pdf")
+    assert Y_LABEL in pdf_text(path) and result.varied == ["sigma"]

@@ -343,6 +343,7 @@ def report_study(session: StudySession, outcome: StudyOutcome, kld: bool, extras
         "runs_in_study": total,
         "failures": [f.describe() for f in outcome.failures],
         "summary": [s.as_dict() for s in summaries],
+        **({"summary_csv": str(extras.summary_csv)} if extras.summary_csv is not None else {}),
     }
     if outcome.interrupted or outcome.lost is not None:
         report_stopped(session, outcome, closing)

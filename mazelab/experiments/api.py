@@ -6,6 +6,7 @@ from __future__ import annotations
 import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -13,7 +14,7 @@ import numpy as np
 from mazelab.experiments.executor import run_study
 from mazelab.experiments.plan import plan_study, study_mazes
 from mazelab.experiments.record import Recorder
-from mazelab.experiments.summary import summarise_study
+from mazelab.experiments.summary import StudySummary, summarise_study
 from mazelab.experiments.tables import flat_row
 from mazelab.experiments.traces import TRACE_COLUMNS, study_traces
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, RPF_THRESHOLD
@@ -31,6 +32,20 @@ class StudyResult:
     record: dict[str, Any]
     failures: list[str] = field(default_factory=list)
     traces: dict[str, np.ndarray] | None = None
+    summaries: list[StudySummary] = field(default_factory=list, repr=False)  # the summary, as objects
+    varied: list[str] = field(default_factory=list)  # the varied parameters
+
+    def figure(self, path: str | Path, x: str | None = None, title: str | None = None) -> Path:
+        """The study's figure, as `mazelab study --plot PATH` draws it (.png, .pdf or .svg by the
+        suffix; `x` a varied parameter for the x axis, as --plot-x); an existing file is replaced."""
+        from mazelab.experiments.study_plot import plot_study
+
+        path = Path(path)
+        runs = self.record["parameters"]["runs"]
+        plot_study(
+            self.summaries, self.varied or ["maze"], path, title or f"Last-20% error ({runs} runs per point)", x=x
+        )
+        return path
 
 
 def _listed(value: Any) -> list[Any] | None:
@@ -131,7 +146,8 @@ def study(
     )
     blocks = study_traces(outcome.records) if traces else []
     columns = {c: np.concatenate([b[c] for b in blocks]) for c in TRACE_COLUMNS} if blocks else None
-    return StudyResult([flat_row(r) for r in outcome.records], summary, record, failures, columns)
+    rows = [flat_row(r) for r in outcome.records]
+    return StudyResult(rows, summary, record, failures, columns, summaries, plan.varied)
 
 
 __all__ = ["StudyResult", "study"]

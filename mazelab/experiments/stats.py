@@ -29,7 +29,7 @@ MEAN_METHOD = "bca"  # a study's means (errors, distances, paired differences): 
 MEDIAN_METHOD = "percentile"  # its medians: percentile (BCa's jackknife acceleration does not suit a median)
 _RESAMPLES = f"B = {BOOTSTRAP_SAMPLES} resamples of the runs, seed {BOOTSTRAP_SEED}"
 INTERVAL_METHODS = {
-    "mean": f"a study's table: BCa bootstrap, {_RESAMPLES} (compare, accuracy: percentile bootstrap)",
+    "mean": f"a study's table: BCa bootstrap, {_RESAMPLES} (accuracy's table: percentile bootstrap)",
     "median": f"percentile bootstrap, {_RESAMPLES}",
     "paired difference": f"paired BCa bootstrap (the runs resampled as pairs), {_RESAMPLES}",
     "share": "Wilson score interval",
