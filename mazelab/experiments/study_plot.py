@@ -274,7 +274,7 @@ def draw_panel(ax: Any, lines: Sequence[_Line], scale: XScale, all_labels: Seque
             where = np.array([scale.position(s.setting.value(scale.parameter)) for s in line.points]) + offset
         mean = np.array([s.mean_final_error for s in line.points])
         low, high = np.array([s.interval for s in line.points]).T
-        bars = np.nan_to_num(np.vstack([mean - low, high - mean]))
+        bars = np.clip(np.nan_to_num(np.vstack([mean - low, high - mean])), 0, None)  # a BCa interval may miss the mean
         container = ax.errorbar(
             scale.back(where), mean, yerr=bars, fmt="-" + line.marker if len(where) > 1 else line.marker,
             color=line.colour, label=line.label, elinewidth=0.8,
