@@ -225,6 +225,9 @@ def test_reference_grid_gives_every_row_its_distance_to_the_exact_posterior(monk
     assert first["distance_to_exact"] == distance_to_exact(sir.estimates, exact.estimates)
     distances = [r["distance_to_exact"] for r in result.rows if r["setting"] == 1]
     assert result.summary[0]["distance_to_exact"] == pytest.approx(statistics.fmean(distances))
+    made.clear()
+    mazelab.study("paper_5x5", filters=["sir", "grid"], runs=2, steps=16, seed=7, reference="grid")
+    assert len(made) == 2  # the study's own grid row is the reference: not run a second time
 
 
 def test_the_study_writes_a_summary_csv_beside_its_rows(tmp_path, capsys):

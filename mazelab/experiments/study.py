@@ -403,7 +403,9 @@ def with_reference(
     grid = resolve_filter(REFERENCE).name
     s = task.setting
     key = (s.maze, task.maze_seed, s.sigma, s.delta, task.seed, task.steps, task.kidnap_at)
-    if grid in results and not task.filter_options(grid):  # the study's own grid row is the reference
+    declared = filter_entry(REFERENCE).options
+    defaults = all(value == declared[name].default for name, value in task.filter_options(grid).items())
+    if grid in results and defaults:  # the study's own grid row, with the default options, is the reference
         _EXACT_MEANS[key] = results[grid].estimates
     exact = exact_means(key, world, robot)
     for record in records:
