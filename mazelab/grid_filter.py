@@ -22,7 +22,6 @@ from mazelab.model import (
     SPEED_OPTION,
 )
 from mazelab.modes import ESTIMATE_OPTION, MODE_CELL, Mode, find_modes, modes_of_bins
-from mazelab.weights import mass_within, weighted_mean
 
 GRID_RESOLUTION = 0.02  # cell size of GridBayesFilter, map units (divides 1, so cells never straddle walls)
 BYTES_PER_GRID_CELL = 250  # the density, positions, distances and FFT buffers per cell (about 130 measured)
@@ -66,9 +65,7 @@ class GridBayesFilter:
         self.rng = rng if rng is not None else np.random.default_rng()
         self.resolution = resolution
         self.origin = -margin
-        nx = round((world.width + 2 * margin) / resolution)
-        ny = round((world.height + 2 * margin) / resolution)
-        check_memory(f"the grid filter's {ny}x{nx} cells (resolution {resolution:g})", nx * ny * BYTES_PER_GRID_CELL)
+        ny, nx = check_grid_memory(world.width, world.height, resolution, margin)
         centres_x = self.origin + (np.arange(nx) + 0.5) * resolution
         centres_y = self.origin + (np.arange(ny) + 0.5) * resolution
         gx, gy = np.meshgrid(centres_x, centres_y)  # row j is y, column i is x
@@ -78,6 +75,7 @@ class GridBayesFilter:
         self._log_likelihood_constant = np.where(self.free, 0.0, math.log(outside_penalty))
         self._distance = world.distance_to_nearest_station(self.positions).reshape(self.shape)
         self.density = self._prior()
+        self._work: GridWorkspace | None = None  # made at the first step (a filter only read never needs it)
         self._last_arc: tuple[float, np.ndarray, np.ndarray] | None = None
         self.steps_done = 0
         self.reinitialised_at: list[int] = []
@@ -95,42 +93,66 @@ class GridBayesFilter:
         z : float
             z_k, the measured distance to the nearest station (map units).
         """
-        self.density = self.predict(self.density, compass_angle)  # p(x_k | z_1:k-1), Chapman-Kolmogorov
+        work = self.workspace
+        # p(x_k | z_1:k-1), Chapman-Kolmogorov, into the workspace: update replaces it with a new array
+        self.density = self.predict(self.density, compass_angle, out=work.predicted)
         self.update(z)  # p(x_k | z_1:k) ∝ p(z_k | x_k) p(x_k | z_1:k-1)
         self.steps_done += 1
 
-    def predict(self, density: np.ndarray, compass_angle: float) -> np.ndarray:
-        """Convolve with the arc kernel of this step's compass angle (linear, not circular, FFT)."""
+    @property
+    def workspace(self) -> GridWorkspace:
+        """The step's buffers, made on first use."""
+        if self._work is None:
+            self._work = GridWorkspace(self.shape, arc_kernel_shape(self.speed, self.resolution))
+        return self._work
+
+    def predict(self, density: np.ndarray, compass_angle: float, out: np.ndarray | None = None) -> np.ndarray:
+        """Convolve with the arc kernel of this step's compass angle (linear, not circular, FFT), into
+        `out` if given (an array of the grid's shape), else a new array."""
         kernel, spectrum = self._arc(compass_angle)
-        return np.clip(fft_convolve_same(density, kernel, spectrum), 0.0, None)
+        return np.clip(self.workspace.convolve(density, kernel.shape, spectrum), 0.0, None, out=out)
 
     def _arc(self, compass_angle: float) -> tuple[np.ndarray, np.ndarray]:
         """The arc kernel of this compass angle and its FFT, kept while the angle repeats (the robot
         holds a compass heading for up to MAX_STRAIGHT_STEPS steps)."""
         if self._last_arc is None or self._last_arc[0] != compass_angle:
             kernel = arc_kernel(compass_angle, self.delta, self.speed, self.resolution)
-            spectrum = np.fft.rfft2(kernel, fft_shape(self.shape, kernel.shape))
+            spectrum = self.workspace.kernel_spectrum(kernel)  # np.fft.rfft2(kernel, fft_shape(...)), in place
             self._last_arc = (compass_angle, kernel, spectrum)
         return self._last_arc[1], self._last_arc[2]
 
     def update(self, z: float) -> None:
-        log_lik = -0.5 * ((z - self._distance) / self.sigma) ** 2 + self._log_likelihood_constant
-        posterior = self._weighted(self.density, log_lik)
+        """Multiply the density by the likelihood of z (equation (3), the outside penalty), normalised:
+        self.density becomes a new array."""
+        work = self.workspace
+        log_lik = np.subtract(z, self._distance, out=work.log_likelihood)
+        log_lik /= self.sigma
+        np.square(log_lik, out=log_lik)
+        np.multiply(-0.5, log_lik, out=log_lik)
+        log_lik += self._log_likelihood_constant  # -0.5 ((z - d) / sigma)^2 + log penalty
+        posterior = self._weighted(self.density, log_lik, work)
         if posterior is None:  # no cell explains z: restart from the prior, as the particle filters do
             self.reinitialised_at.append(self.steps_done + 1)
-            posterior = self._weighted(self._prior(), log_lik)
+            posterior = self._weighted(self._prior(), log_lik, work)
         self.density = self._prior() if posterior is None else posterior
 
     @staticmethod
-    def _weighted(density: np.ndarray, log_lik: np.ndarray) -> np.ndarray | None:
-        """density x exp(log_lik), normalised; None when that product's total underflows."""
-        support = density > 0
-        top = log_lik[support].max()
-        posterior = np.where(support, density * np.exp(np.where(support, log_lik - top, 0.0)), 0.0)
-        total = posterior.sum()
+    def _weighted(density: np.ndarray, log_lik: np.ndarray, work: GridWorkspace) -> np.ndarray | None:
+        """density x exp(log_lik - top) on the density's support (0 elsewhere), normalised, as a new
+        array; None when that product's total underflows. `top` is the largest log-likelihood on the
+        support; the product is formed in the workspace."""
+        support = np.greater(density, 0, out=work.support)
+        outside = np.logical_not(support, out=work.outside)
+        top = log_lik.max(where=support, initial=-math.inf)
+        product = np.subtract(log_lik, top, out=work.product)
+        np.copyto(product, 0.0, where=outside)
+        np.exp(product, out=product)
+        product *= density
+        np.copyto(product, 0.0, where=outside)
+        total = product.sum()
         if not total > 0 or math.log(total) + top < LOG_UNDERFLOW:
             return None
-        return posterior / total
+        return product / total
 
     def belief(self) -> Density:
         """What the viewer draws: the density's cells and masses, and its modes."""
@@ -160,7 +182,7 @@ class GridBayesFilter:
     @property
     def mean(self) -> np.ndarray:
         """The posterior mean over the cell centres, shape (2,)."""
-        return weighted_mean(self.weights, self.positions)
+        return self.workspace.weighted_mean(self.weights, self.positions)
 
     @property
     def modes(self) -> list[Mode]:
@@ -178,7 +200,8 @@ class GridBayesFilter:
     @property
     def is_confident(self) -> bool:
         """At least 95% of the mass lies within distance 1 of the estimate (as for the particle filters)."""
-        return mass_within(self.weights, self.positions, self.estimate, CONFIDENCE_RADIUS) >= CONFIDENCE_SHARE
+        mass = self.workspace.mass_within(self.weights, self.positions, self.estimate, CONFIDENCE_RADIUS)
+        return mass >= CONFIDENCE_SHARE
 
     def posterior_std(self) -> float:
         """Root of the trace of the posterior covariance (map units): how spread the belief is."""
@@ -186,11 +209,77 @@ class GridBayesFilter:
         return float(np.sqrt(self.weights @ (centred**2).sum(axis=1)))
 
 
+def check_grid_memory(
+    width: float, height: float, resolution: float = GRID_RESOLUTION, margin: float = 1.0
+) -> tuple[int, int]:
+    """The grid's (rows, columns) of cells on a map of width x height (map units) plus `margin`;
+    refused in one line (MemoryLimitError) when its arrays would not fit in memory."""
+    nx = round((width + 2 * margin) / resolution)
+    ny = round((height + 2 * margin) / resolution)
+    check_memory(f"the grid filter's {ny}x{nx} cells (resolution {resolution:g})", nx * ny * BYTES_PER_GRID_CELL)
+    return ny, nx
+
+
+class GridWorkspace:
+    """The buffers of a grid filter's step, made once: its FFT convolution's (`convolve`), the
+    predicted density, the log-likelihood, the support and the weighted product (each the grid's
+    shape). Reusing them gives the same numbers, bit for bit, as fresh arrays."""
+
+    def __init__(self, shape: tuple[int, int], kernel_shape: tuple[int, int]):
+        self.shape, self.fft_shape = shape, fft_shape(shape, kernel_shape)
+        (ny, _), (py, px) = shape, self.fft_shape
+        self.rows = np.empty((ny, px // 2 + 1), dtype=complex)  # rfft of each image row, padded to px
+        self.spectrum = np.empty((py, px // 2 + 1), dtype=complex)  # then along y, padded to py
+        self.inverse = np.empty_like(self.spectrum)  # the product's inverse along y
+        self.kept_rows = np.empty((ny, px))  # the inverse along x of the rows the crop keeps
+        self.predicted, self.log_likelihood, self.product = (np.empty(shape) for _ in range(3))
+        self.support, self.outside = np.empty(shape, dtype=bool), np.empty(shape, dtype=bool)
+        self.kernel_rows = np.empty((kernel_shape[0], px // 2 + 1), dtype=complex)
+        self.kernel_fft = np.empty_like(self.spectrum)
+        cells = shape[0] * shape[1]
+        self.cells, self.cells_y, self.within = np.empty((1, cells)), np.empty((1, cells)), np.empty((1, cells), bool)
+
+    def kernel_spectrum(self, kernel: np.ndarray) -> np.ndarray:
+        """np.fft.rfft2(kernel, self.fft_shape), bit for bit, in the workspace (valid until the next call)."""
+        py, px = self.fft_shape
+        np.fft.rfft(kernel, px, axis=1, out=self.kernel_rows)
+        return np.fft.fft(self.kernel_rows, py, axis=0, out=self.kernel_fft)
+
+    def weighted_mean(self, weights: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """mazelab.weights.weighted_mean of one run's weights (M,) and points (M, 2), bit for bit (the
+        same products and sums), its products in the workspace: (2,)."""
+        means = np.empty(2)
+        for column in (0, 1):
+            means[column] = np.multiply(weights[None], points[:, column][None], out=self.cells).sum(axis=1)[0]
+        return means
+
+    def mass_within(self, weights: np.ndarray, points: np.ndarray, centre: np.ndarray, radius: float) -> float:
+        """mazelab.weights.mass_within of one run, bit for bit, its distances in the workspace."""
+        dx = np.subtract(points[:, 0][None], centre[0], out=self.cells)
+        dy = np.subtract(points[:, 1][None], centre[1], out=self.cells_y)
+        dx *= dx
+        dy *= dy
+        dx += dy
+        return float(np.sum(weights[None], axis=1, where=np.less_equal(dx, radius * radius, out=self.within))[0])
+
+    def convolve(self, image: np.ndarray, kernel_shape: tuple[int, int], kernel_spectrum: np.ndarray) -> np.ndarray:
+        """`fft_convolve_same(image, kernel, kernel_spectrum)` in these buffers, the same numbers bit
+        for bit (the same 1-D transforms, axis by axis, as np.fft.rfft2 and irfft2; only the rows the
+        crop keeps are transformed back along x). A view of the workspace: valid until the next call."""
+        (ny, nx), (ky, kx), (py, px) = image.shape, kernel_shape, self.fft_shape
+        np.fft.rfft(image, px, axis=1, out=self.rows)
+        np.fft.fft(self.rows, py, axis=0, out=self.spectrum)
+        self.spectrum *= kernel_spectrum
+        np.fft.ifft(self.spectrum, py, axis=0, out=self.inverse)
+        np.fft.irfft(self.inverse[ky // 2 : ky // 2 + ny], px, axis=1, out=self.kept_rows)
+        return self.kept_rows[:, kx // 2 : kx // 2 + nx]
+
+
 def arc_kernel(compass_angle: float, delta: float, speed: float, resolution: float) -> np.ndarray:
     """The transition density on the grid: the arc of radius `speed` spanning `delta` around
     `compass_angle`, spread bilinearly over cells so that its mean is exact. Shape (2R+1, 2R+1),
     centred on the origin cell, rows along y; sums to one."""
-    radius = math.ceil(speed / resolution) + 1
+    radius = arc_kernel_shape(speed, resolution)[0] // 2
     samples = max(16, math.ceil(4 * speed * delta / resolution))
     angles = compass_angle + delta * ((np.arange(samples) + 0.5) / samples - 0.5)
     fx = radius + speed * np.cos(angles) / resolution
@@ -202,6 +291,12 @@ def arc_kernel(compass_angle: float, delta: float, speed: float, resolution: flo
         for dx, wx in ((0, 1 - tx), (1, tx)):
             np.add.at(kernel, (iy + dy, ix + dx), wy * wx / samples)
     return kernel
+
+
+def arc_kernel_shape(speed: float, resolution: float) -> tuple[int, int]:
+    """The shape of `arc_kernel`'s array: (2R+1, 2R+1), R = ceil(speed / resolution) + 1 cells."""
+    radius = math.ceil(speed / resolution) + 1
+    return 2 * radius + 1, 2 * radius + 1
 
 
 def fft_convolve_same(image: np.ndarray, kernel: np.ndarray, kernel_spectrum: np.ndarray | None = None) -> np.ndarray:
@@ -234,7 +329,10 @@ GridBayesFilter.__doc__ = with_options_section(GridBayesFilter.__doc__, GridBaye
 __all__ = [
     "GRID_RESOLUTION",
     "GridBayesFilter",
+    "GridWorkspace",
     "arc_kernel",
+    "arc_kernel_shape",
+    "check_grid_memory",
     "fft_convolve_same",
     "fft_shape",
 ]

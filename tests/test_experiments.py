@@ -22,7 +22,12 @@ from mazelab.experiments.compare import compare_filters
 from mazelab.experiments.executor import run_study
 from mazelab.experiments.kidnapping import DEFAULT_WINDOW, recovery_steps, relocalised
 from mazelab.experiments.runs import final_error
-from mazelab.experiments.stats import bootstrap_interval, t_interval, wilson_interval
+from mazelab.experiments.stats import (
+    bootstrap_interval,
+    km_median,
+    t_interval,
+    wilson_interval,
+)
 from mazelab.experiments.study import MazeChoice, RunRecord, study_settings, study_tasks
 from mazelab.experiments.summary import CSV_COLUMNS, study_table, summarise_study
 from mazelab.lab import simulate
@@ -123,7 +128,7 @@ def test_study_csv_has_a_row_per_run_and_filter(tmp_path, capsys):
         "setting", "run", "seed", "maze", "maze_seed", "station_blocks", "sigma", "delta", "particles", "threshold",
         "steps", "filter", "final_error", "mean_error", "converged_at", "mean_ess", "ms_per_step",
         "recovery", "kidnap_at", "relocalised", "steps_to_recover", "mean_particle_count", "bandwidth", "estimate",
-        "maze_sha256", "maze_rows", "maze_columns", "wall_share", "run_seconds",
+        "maze_sha256", "maze_rows", "maze_columns", "wall_share", "run_seconds", "distance_to_exact",
     ]  # fmt: skip
     assert len(rows) == 4 * 3 * 2  # settings x runs x filters
     assert {(r["sigma"], r["delta"]) for r in rows} == {("0.3", "0.2"), ("0.3", "0.5"), ("0.6", "0.2"), ("0.6", "0.5")}
@@ -161,7 +166,7 @@ def test_study_seeds_do_not_depend_on_the_setting_or_the_workers():
 
 def test_study_statistics_on_a_tiny_seeded_study():
     """The table's figures recomputed by hand from the run records of a tiny seeded study: the mean,
-    the percentile bootstrap interval (within the runs' range), the converged share and the median
+    the BCa bootstrap interval (within the runs' range), the converged share and the median
     convergence step of the converged runs."""
     settings, tasks = tiny_tasks()
     outcome = run_study(tasks, workers=1)
@@ -173,11 +178,14 @@ def test_study_statistics_on_a_tiny_seeded_study():
         mean, sd = finals.sum() / 3, math.sqrt(((finals - finals.sum() / 3) ** 2).sum() / 2)
         assert s.runs == 3 and sd >= 0
         assert s.mean_final_error == pytest.approx(mean, rel=1e-12)
-        assert s.interval == bootstrap_interval(finals, "mean")
+        assert s.interval == bootstrap_interval(finals, "mean", method="bca")
         assert finals.min() <= s.interval[0] <= mean <= s.interval[1] <= finals.max()
-        steps = sorted(r.converged_at for r in mine if r.converged_at is not None)
-        assert s.converged_share == len(steps) / 3
-        assert s.median_convergence_step == (statistics.median(steps) if steps else None)
+        last = mine[0].steps - max(1, int(mine[0].steps * 0.2)) + 1  # converged: the last 20% of the steps
+        counted = [r.converged_at is not None and r.converged_at <= last for r in mine]
+        assert s.converged_share == sum(counted) / 3
+        times = [min(r.converged_at or last, last) for r in mine]  # never: censored at `last`
+        median = km_median(times, counted)[0]
+        assert s.median_convergence_step == (None if math.isnan(median) else median)
 
 
 def record(final: float, converged: int | None, run: int) -> RunRecord:
@@ -188,7 +196,9 @@ def test_summary_of_known_numbers():
     """Final errors 0.1, 0.2, 0.6: mean 0.3, whose t-interval (half width T_975_DF2 sqrt(0.07 / 3) =
     0.657) reaches below zero; the bootstrap's resampled means lie within [0.1, 0.6] and its
     2.5% and 97.5% quantiles are resampled means of three of the values (k/3 sums). Converged at 5,
-    never, 9: share 2/3 with the Wilson interval, median 7."""
+    never, 9 of 10 steps (9 still counts: below the radius for the last 2 = 20% of the steps): share
+    2/3 with the Wilson interval; Kaplan-Meier median 9 (S = 2/3 after 5, 1/3 after 9: the run that
+    never converged counts, where the median of the converged runs alone said 7)."""
     settings = study_settings([MazeChoice("m", grid=((0, 2),))], [0.3], [0.5], [10], [0.2])
     records = [record(0.1, 5, 1), record(0.2, None, 2), record(0.6, 9, 3)]
     (summary,) = summarise_study(records, settings)
@@ -201,7 +211,7 @@ def test_summary_of_known_numbers():
     assert round(low, 12) in means and round(high, 12) in means
     assert summary.converged_share == pytest.approx(2 / 3)
     assert summary.converged_interval == wilson_interval(2, 3)
-    assert summary.median_convergence_step == 7
+    assert summary.median_convergence_step == 9
     assert all(math.isnan(v) for v in t_interval([0.4]))  # one run: no interval
 
 

@@ -12,7 +12,7 @@ from typing import Annotated, Any
 
 import typer
 
-from mazelab.atomic import WriteError
+from mazelab.atomic import WriteError, write_text_atomically
 from mazelab.cli.accuracy import accuracy
 from mazelab.cli.filter_options import (
     KldFlag,
@@ -55,7 +55,7 @@ from mazelab.experiments.rowlog import RowLog, check_left_over, check_partial_na
 from mazelab.experiments.runs import parse_filters
 from mazelab.experiments.stats import CONFIDENCE_LEVEL
 from mazelab.experiments.study import PAPER_OPTIONS, MazeChoice, RunRecord, RunTask, StudyOutcome, declared_option
-from mazelab.experiments.summary import CSV_DTYPES, study_table, summarise_study
+from mazelab.experiments.summary import CSV_DTYPES, study_table, summarise_study, summary_csv, summary_path
 from mazelab.experiments.traces import (
     check_trace_path,
     check_traces_of_study,
@@ -65,6 +65,7 @@ from mazelab.experiments.traces import (
 )
 from mazelab.mazes import DEFAULT_MAZE
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, RPF_THRESHOLD
+from mazelab.registry import filter_entry, resolve_filter
 from mazelab.viz.style import DEFAULT_MAX_DRAWN
 
 
@@ -99,7 +100,19 @@ def study(
         float, typer.Option(metavar="<s>", callback=dask_timeout_option, help="give up after s idle seconds")
     ] = DASK_TIMEOUT,
     csv_path: Annotated[Path | None, typer.Option("--csv", help="one row per run and filter")] = None,
-    plot: Annotated[Path | None, typer.Option(help="error against the varied parameters (.png)")] = None,
+    plot: Annotated[Path | None, typer.Option(help="the figure: .png, .pdf or .svg (the suffix chooses)")] = None,
+    summary_csv: Annotated[
+        Path | None, typer.Option("--summary-csv", help="one row per setting and filter [default: CSV.summary.csv]")
+    ] = None,
+    reference: Annotated[
+        str | None, typer.Option(metavar="grid", help="run the exact grid filter too: every row's distance_to_exact")
+    ] = None,
+    paired: Annotated[
+        str | None, typer.Option(metavar="FILTER", help="paired differences to this filter's errors, on the same runs")
+    ] = None,
+    plot_x: Annotated[
+        str | None, typer.Option(metavar="PARAMETER", help="the figure's x axis: a varied parameter (sigma, ...)")
+    ] = None,
     traces: Annotated[Path | None, typer.Option(help="per-step rows of every run (.csv, or .parquet)")] = None,
     record: Annotated[Path | None, typer.Option(help="JSON record [default: CSV.record.json]")] = None,
     resume: Annotated[bool, typer.Option("--resume", help="run only the rows missing from --csv")] = False,
@@ -119,10 +132,12 @@ def study(
     plan = parse_plan(
         outputs, filters, given, option, maze=maze, maze_size=maze_size, stations=stations, wall_share=wall_share,
         sigma=sigma, delta=delta, particles=particles, runs=runs, steps=steps, seed=seed, kidnap_at=kidnap_at, kld=kld,
+        reference=reference,
     )  # fmt: skip
+    extras = StudyExtras.parse(plan, outputs, summary_csv, paired, plot_x)
     session = open_session(plan, outputs, visualize, draw_run, dask, workers or default_workers())
     outcome = run_session(session, visualize, dask_timeout)
-    report_study(session, outcome, kld)
+    report_study(session, outcome, kld, extras)
 
 
 # -- the study in three steps: parse (outputs, plan), run (a session), report -------------------------
@@ -188,6 +203,7 @@ def parse_plan(
     outputs: StudyOutputs, filters: str, given: dict[str, str | None], option: list[str] | None, *,
     maze: str | None, maze_size: str | None, stations: str | None, wall_share: str | None, sigma: str, delta: str,
     particles: str, runs: int, steps: int, seed: int | None, kidnap_at: int | None, kld: bool,
+    reference: str | None = None,
 ) -> StudyPlan:  # fmt: skip
     """The study's plan from the command line's lists: the paper's named flags (--threshold, --recovery,
     --bandwidth, --estimate) and --option NAME=V1,V2 for any declared option, each value parsed and
@@ -229,6 +245,7 @@ def parse_plan(
         estimate=paper.get("estimate", ["mean"]),
         options=options,
         runs=runs, steps=steps, seed=seed, kidnap_at=kidnap_at, kld=kld, traces=outputs.traces is not None,
+        reference=reference,
     )  # fmt: skip
 
 
@@ -241,6 +258,41 @@ def _parsed(names: list[str], option: str, text: str) -> Any:
         return declared[0].parse_text(text)
     except ValueError as error:
         raise UserError(f"--{option} {text}: {error}") from None
+
+
+@dataclass
+class StudyExtras:
+    """What the report adds to the table and the rows: the summary CSV (--summary-csv, or NAME.summary.csv
+    beside --csv) and the filter of the paired differences (--paired), checked before any run."""
+
+    summary_csv: Path | None = None
+    paired: str | None = None
+    plot_x: str | None = None  # the figure's x axis (--plot-x), a varied parameter
+
+    @classmethod
+    def parse(
+        cls, plan: StudyPlan, outputs: StudyOutputs, summary_csv: Path | None, paired: str | None,
+        plot_x: str | None = None,
+    ) -> StudyExtras:  # fmt: skip
+        """--paired names one of the study's filters, --plot-x one of its varied parameters; the summary
+        CSV is a new name (or --force, --resume)."""
+        if plot_x is not None and plot_x not in plan.varied:
+            varied = ", ".join(plan.varied) or "none: give a parameter two values"
+            raise UserError(f"--plot-x {plot_x}: the x axis is a varied parameter of the study ({varied})")
+        if paired is not None:
+            entries = [filter_entry(f) for f in plan.filters]
+            chosen = resolve_filter(check_filter_names(paired, "--paired")).name
+            if chosen not in [entry.name for entry in entries]:
+                given = ", ".join(entry.reference for entry in entries)
+                raise UserError(f"--paired {paired}: not one of the study's --filters ({given})")
+            paired = chosen
+        if summary_csv is None and outputs.csv_path is not None:
+            summary_csv = summary_path(outputs.csv_path)
+        if summary_csv is not None:
+            if outputs.csv_path is not None and summary_csv.resolve() == outputs.csv_path.resolve():
+                raise UserError(f"--summary-csv {summary_csv} is the --csv file; give it a name of its own")
+            check_output_path(summary_csv, outputs.force or outputs.resume)
+        return cls(summary_csv, paired, plot_x)
 
 
 @dataclass
@@ -317,20 +369,23 @@ def run_session(session: StudySession, visualize: Any, dask_timeout: float) -> S
             close_client(session.client)
 
 
-def report_study(session: StudySession, outcome: StudyOutcome, kld: bool) -> None:
-    """The failures, then the table (first: a write error cannot lose it), the CSV, traces, figure and
-    record; a stopped or lost study keeps its rows in the partial file and exits non-zero."""
+def report_study(session: StudySession, outcome: StudyOutcome, kld: bool, extras: StudyExtras | None = None) -> None:
+    """The failures, then the table (first: a write error cannot lose it), the CSV, the summary CSV,
+    traces, figure and record; a stopped or lost study keeps its rows in the partial file and exits
+    non-zero."""
     plan, outputs, log = session.plan, session.outputs, session.log
+    extras = extras or StudyExtras()
     for failure in outcome.failures:
         typer.echo(f"error: {failure.describe()}", err=True)
     records = _in_order([*session.kept, *outcome.records], plan)
     finished, total = len({(r.setting, r.run) for r in records}), len(plan.tasks())
-    summaries = summarise_study(records, plan.settings)
+    summaries = summarise_study(records, plan.settings, paired=extras.paired)
     closing = {
         "runs_finished": finished,
         "runs_in_study": total,
         "failures": [f.describe() for f in outcome.failures],
         "summary": [s.as_dict() for s in summaries],
+        **({"summary_csv": str(extras.summary_csv)} if extras.summary_csv is not None else {}),
     }
     if outcome.interrupted or outcome.lost is not None:
         report_stopped(session, outcome, closing)
@@ -347,10 +402,17 @@ def report_study(session: StudySession, outcome: StudyOutcome, kld: bool) -> Non
             typer.echo(f"error: {describe_write_error(error)}; {log.kept()}", err=True)
             raise typer.Exit(1) from None
         typer.echo(f"one row per run and filter written to {outputs.csv_path}")
+    if extras.summary_csv is not None and summaries:
+        try:
+            write_text_atomically(extras.summary_csv, summary_csv(summaries), replace=outputs.force or outputs.resume)
+        except OSError as error:
+            typer.echo(f"error: {describe_write_error(error)}", err=True)
+            raise typer.Exit(1) from None
+        typer.echo(f"one row per setting and filter (the table, with its intervals) written to {extras.summary_csv}")
     if _write_traces(outputs.traces, _in_order(outcome.records, plan), session.tasks, outputs.traces_kept_from):
         typer.echo(f"per-step traces written to {outputs.traces}")
     if outputs.plot is not None and summaries:
-        _plot(plan, summaries, outputs.plot, outputs.force)
+        _plot(plan, summaries, outputs.plot, outputs.force, extras.plot_x)
     if outputs.record_file is not None:
         session.recorder.write(outputs.record_file)
         typer.echo(f"the study's record (command, versions, seeds, mazes, summary) written to {outputs.record_file}")
@@ -493,7 +555,7 @@ def _write_traces(
     return True
 
 
-def _plot(plan: StudyPlan, summaries: list, plot: Path, force: bool = True) -> None:
+def _plot(plan: StudyPlan, summaries: list, plot: Path, force: bool = True, x: str | None = None) -> None:
     from mazelab.experiments.study_plot import plot_study
 
     varied = plan.varied
@@ -501,9 +563,9 @@ def _plot(plan: StudyPlan, summaries: list, plot: Path, force: bool = True) -> N
     where = "" if "maze" in varied else f" on {plan.settings[0].maze.label}"
     title = (
         f"Last-20% error against {what}{where}\n({plan.runs} runs per point, "
-        f"{CONFIDENCE_LEVEL:.0%} percentile bootstrap intervals for the mean)"
+        f"{CONFIDENCE_LEVEL:.0%} BCa bootstrap intervals for the mean)"
     )
-    plot_study(summaries, varied or ["maze"], plot, title, replace=force)
+    plot_study(summaries, varied or ["maze"], plot, title, replace=force, x=x)
     typer.echo(f"figure written to {plot}")
 
 

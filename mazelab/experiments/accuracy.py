@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from mazelab.experiments.stats import bootstrap_interval, wilson_interval
-from mazelab.experiments.study import MazeChoice
+from mazelab.experiments.study import MazeChoice, distance_to_exact  # one definition, a study's too
 from mazelab.experiments.tables import format_optional, format_table, records_csv
 from mazelab.plugins import is_plugin_spec
 from mazelab.registry import resolve_filter
@@ -78,13 +78,6 @@ class AccuracyRecord:
     converged_at: int | None
     run: int = 1
     maze_seed: int | None = None
-
-
-def distance_to_exact(estimates: np.ndarray, exact: np.ndarray) -> float:
-    """The mean distance between a filter's estimates and the exact posterior means (steps, 2) over the
-    second half of the steps (after the first localisation), map units."""
-    window = slice(len(exact) // 2, len(exact))
-    return float(np.hypot(*(estimates - exact)[window].T).mean())
 
 
 def run_accuracy_task(task: AccuracyTask) -> list[AccuracyRecord]:

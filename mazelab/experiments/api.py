@@ -8,6 +8,7 @@ import os
 import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -17,10 +18,11 @@ from mazelab.contract import missing_parts
 from mazelab.experiments.executor import run_study
 from mazelab.experiments.plan import plan_study, study_mazes
 from mazelab.experiments.record import Recorder
-from mazelab.experiments.summary import CSV_DTYPES, summarise_study
+from mazelab.experiments.summary import CSV_DTYPES, StudySummary, summarise_study
 from mazelab.experiments.tables import flat_row
 from mazelab.experiments.traces import study_traces, trace_table_columns
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, RPF_THRESHOLD
+from mazelab.registry import resolve_filter
 
 
 @dataclass
@@ -34,6 +36,20 @@ class StudyResult:
     record: dict[str, Any]
     failures: list[str] = field(default_factory=list)
     traces: dict[str, np.ndarray] | None = None
+    summaries: list[StudySummary] = field(default_factory=list, repr=False)  # the summary, as objects
+    varied: list[str] = field(default_factory=list)  # the varied parameters
+
+    def figure(self, path: str | Path, x: str | None = None, title: str | None = None) -> Path:
+        """The study's figure, as `mazelab study --plot PATH` draws it (.png, .pdf or .svg by the
+        suffix; `x` a varied parameter for the x axis, as --plot-x); an existing file is replaced."""
+        from mazelab.experiments.study_plot import plot_study
+
+        path = Path(path)
+        runs = self.record["parameters"]["runs"]
+        plot_study(
+            self.summaries, self.varied or ["maze"], path, title or f"Last-20% error ({runs} runs per point)", x=x
+        )
+        return path
 
 
 NUMBER = (numbers.Real,)  # int, float, numpy's numbers; bool is refused apart
@@ -142,6 +158,8 @@ def study(
     kidnap_at: int | None = None,
     kld: bool = False,
     traces: bool = False,
+    reference: str | None = None,
+    paired: str | None = None,
     workers: int | None = 1,
     dask: Any = None,
 ) -> StudyResult:
@@ -164,6 +182,10 @@ def study(
         kidnapping step, KLD-sampling.
     traces
         Keep every run's per-step trace (StudyResult.traces).
+    reference
+        "grid": every run also runs the exact grid filter, every row gets `distance_to_exact`.
+    paired
+        A filter of the study: each other filter's summary gets its paired difference to it.
     workers, dask
         Processes (None: all cores), or a Dask scheduler address or Client.
 
@@ -205,13 +227,16 @@ def study(
         kidnap_at=_whole("kidnap_at", kidnap_at, optional=True),
         kld=_flag("kld", kld),
         traces=_flag("traces", traces),
+        reference=reference,
     )
+    if paired is not None and resolve_filter(paired).name not in [resolve_filter(f).name for f in plan.filters]:
+        raise ValueError(f"paired={paired!r} is not one of the study's filters")
     dask = _dask(dask)
     recorder = Recorder(
         "study", [sys.argv[0] or "python", "mazelab.study(...)"], plan.parameters(), csv_dtypes=CSV_DTYPES
     )
     outcome = run_study(plan.tasks(), workers, dask=dask)
-    summaries = summarise_study(outcome.records, plan.settings)
+    summaries = summarise_study(outcome.records, plan.settings, paired=paired)
     summary = [s.as_dict() for s in summaries]
     failures = [f.describe() for f in outcome.failures]
     record = recorder.finish(
@@ -222,7 +247,8 @@ def study(
     )
     blocks = study_traces(outcome.records) if traces else []
     columns = trace_table_columns(blocks)
-    return StudyResult([flat_row(r) for r in outcome.records], summary, record, failures, columns)
+    rows = [flat_row(r) for r in outcome.records]
+    return StudyResult(rows, summary, record, failures, columns, summaries, plan.varied)
 
 
 __all__ = ["StudyResult", "study"]

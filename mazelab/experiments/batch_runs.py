@@ -30,8 +30,8 @@ def batchable(task: RunTask) -> bool:
     """The declared rule: a setting's runs advance together when they share one maze (a maze file, not
     a maze generated per run) and every filter's registry entry declares it `batched` (the lab's
     particle filters; a new class only when it says so) with options that let runs go together
-    (`runs_together`: not recovery or KLD-sampling); otherwise one run at a time."""
-    if task.setting.maze.grid is None:
+    (`runs_together`: not recovery or KLD-sampling), and no `--reference`; otherwise one run at a time."""
+    if task.setting.maze.grid is None or task.reference is not None:  # a reference runs the grid per run
         return False
     for name in task.filters:
         entry = filter_entry(name)

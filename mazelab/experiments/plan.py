@@ -17,6 +17,7 @@ from mazelab.declaration import to_plain_json
 from mazelab.experiments.runs import parse_filters
 from mazelab.experiments.study import (
     BASE_PARAMETERS,
+    REFERENCE,
     MazeChoice,
     RunTask,
     StudySetting,
@@ -27,6 +28,7 @@ from mazelab.experiments.study import (
     varied_parameters,
 )
 from mazelab.experiments.summary import CSV_COLUMNS, describe_setting, describe_varied
+from mazelab.grid_filter import check_grid_memory
 from mazelab.limits import check_particles, check_steps, check_study
 from mazelab.maze_generator import DEFAULT_WALL_SHARE
 from mazelab.maze_paths import MAZES_DIR
@@ -103,6 +105,7 @@ class StudyPlan:
     kidnap_at: int | None = None
     kld: bool = False
     traces: bool = False
+    reference: str | None = None  # "grid": every row gets distance_to_exact (`study --reference grid`)
 
     @property
     def other_options(self) -> list[str]:
@@ -130,6 +133,7 @@ class StudyPlan:
             kidnap_at=self.kidnap_at,
             kld=self.kld,
             traces=self.traces,
+            reference=self.reference,
         )
 
     def parameters(self) -> dict[str, Any]:
@@ -149,6 +153,7 @@ class StudyPlan:
             "root_seed": self.seed,
             "kidnap_at": self.kidnap_at,
             "kld": self.kld,
+            **({"reference": self.reference} if self.reference else {}),  # absent without one, as before
         }
 
     def header(self, where: str) -> str:
@@ -164,6 +169,8 @@ class StudyPlan:
         ]
         if self.varied:
             lines.append(describe_varied(self.settings, self.varied) + " (each filter once per value it takes)")
+        if self.reference:
+            lines.append("reference: the exact grid filter, once per run's scenario (distance_to_exact)")
         return "\n".join(lines)
 
 
@@ -185,6 +192,7 @@ def plan_study(
     kidnap_at: int | None = None,
     kld: bool = False,
     traces: bool = False,
+    reference: str | None = None,
 ) -> StudyPlan:
     """Check and combine a study's values into its plan (a new root seed if none is given).
 
@@ -220,9 +228,23 @@ def plan_study(
     check_study(len(settings) * runs, len(names))
     check_study_numbers(settings)
     check_filter_options(settings, names, kld)
-    plan = StudyPlan(settings, names, runs, steps, new_seed() if seed is None else seed, kidnap_at, kld, traces)
+    if reference is not None:
+        check_reference(reference, settings)
+    plan = StudyPlan(
+        settings, names, runs, steps, new_seed() if seed is None else seed, kidnap_at, kld, traces, reference
+    )
     plan.tasks()  # checks runs, steps and kidnap_at
     return plan
+
+
+def check_reference(reference: str, settings: Sequence[StudySetting]) -> None:
+    """--reference: only "grid", and the grid filter's cells must fit in memory on every maze (its
+    constructor's own check, for each maze's size), before any run starts."""
+    if reference != REFERENCE:
+        raise ValueError(f"--reference {reference}: the reference is the exact grid filter, --reference {REFERENCE}")
+    for maze in dict.fromkeys(s.maze for s in settings):
+        rows, columns = maze.size if maze.grid is None else (len(maze.grid), len(maze.grid[0]))
+        check_grid_memory(columns, rows)
 
 
 def check_filter_options(settings: Sequence[StudySetting], names: Sequence[Any], kld: bool) -> None:

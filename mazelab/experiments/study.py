@@ -230,6 +230,7 @@ class RunTask:
     steps: int
     kidnap_at: int | None = None  # kidnap the robot at this step (its place drawn from `seed`)
     traces: bool = False  # keep each filter's per-step trace on its record (`RunRecord.trace`)
+    reference: str | None = None  # "grid": the exact grid filter runs too, each record gets distance_to_exact
 
     @property
     def estimate(self) -> str:
@@ -275,11 +276,13 @@ def study_tasks(
     kld: bool = False,
     estimate: str | None = None,
     traces: bool = False,
+    reference: str | None = None,
 ) -> list[RunTask]:
     """One task per setting and run, in order, each with the filters that setting runs
     (`filters_per_setting`; a setting that runs none has no tasks). `estimate`, if given, replaces the
     settings' own, and `kld` turns KLD-sampling on in all of them; `traces` keeps each run's per-step
-    trace (mazelab.experiments.traces)."""
+    trace (mazelab.experiments.traces); `reference` ("grid") measures each filter against the exact
+    posterior (`with_reference`)."""
     if estimate is not None:
         settings = [dataclasses.replace(s, estimate=_checked("estimate", [estimate])[0]) for s in settings]
     if kld:
@@ -288,10 +291,15 @@ def study_tasks(
         raise ValueError(f"runs and steps must be >= 1, got {runs} runs and {steps} steps")
     if kidnap_at is not None and not 1 <= kidnap_at <= steps:
         raise ValueError(f"kidnap_at must be a step from 1 to {steps}, got {kidnap_at}")
+    if reference not in (None, REFERENCE):
+        raise ValueError(f"reference must be {REFERENCE!r} (the exact grid filter), got {reference!r}")
     seeds = study_seeds(root_seed, runs)
+    chosen = zip(settings, filters_per_setting(settings, filters), strict=True)
     return [
-        RunTask(i, setting, r, seed, maze_seed if setting.maze.grid is None else None, mine, steps, kidnap_at, traces)
-        for i, (setting, mine) in enumerate(zip(settings, filters_per_setting(settings, filters), strict=True), start=1)
+        RunTask(
+            i, setting, r, seed, None if setting.maze.grid else maze_seed, mine, steps, kidnap_at, traces, reference
+        )
+        for i, (setting, mine) in enumerate(chosen, start=1)
         if mine
         for r, (seed, maze_seed) in enumerate(seeds, start=1)
     ]
@@ -330,6 +338,8 @@ class RunRecord:
     maze_columns: int = 0
     wall_share: float | None = None  # a generated maze's requested share of walls; None for a file
     run_seconds: float = math.nan  # wall time of the run: its share of the unit of runs it ran in
+    # with a reference (`study --reference grid`): accuracy.distance_to_exact of the filter's estimates
+    distance_to_exact: float = math.nan
     # the setting's other filter options (beyond the four above), by name: a column each, after these
     options: dict[str, Any] = field(default_factory=dict)
     # Not a column: with RunTask.traces, the filter's per-step arrays (mazelab.experiments.traces)
@@ -374,7 +384,58 @@ def run_task(task: RunTask, visualize: Any = False) -> list[RunRecord]:
     finally:
         if comparison is not None:
             comparison.close()
-    return run_records(task, world, results)
+    records = run_records(task, world, results)
+    return with_reference(task, world, robot, results, records) if task.reference else records
+
+
+# -- the distance to the exact posterior (`study --reference grid`) ------------------------------------
+REFERENCE = "grid"  # what --reference takes: the exact grid filter (mazelab.grid_filter), default options
+
+
+def with_reference(
+    task: RunTask, world: Maze, robot: Robot, results: dict[str, RunResult], records: list[RunRecord]
+) -> list[RunRecord]:
+    """Each record's distance_to_exact: the mean distance between its filter's estimates and the exact
+    posterior means over the second half of the steps (mazelab.experiments.accuracy.distance_to_exact).
+    The exact means are the grid filter's with its default options, on the robot's recorded walk;
+    they are the same in every setting that shares this run's scenario, so a process computes them
+    once per scenario (`exact_means`) and a grid row of the study with default options is reused."""
+    grid = resolve_filter(REFERENCE).name
+    s = task.setting
+    key = (s.maze, task.maze_seed, s.sigma, s.delta, task.seed, task.steps, task.kidnap_at)
+    declared = filter_entry(REFERENCE).options
+    defaults = all(value == declared[name].default for name, value in task.filter_options(grid).items())
+    if grid in results and defaults:  # the study's own grid row, with the default options, is the reference
+        _EXACT_MEANS[key] = results[grid].estimates
+    exact = exact_means(key, world, robot)
+    for record in records:
+        record.distance_to_exact = distance_to_exact(results[record.filter].estimates, exact)
+    return records
+
+
+def distance_to_exact(estimates: np.ndarray, exact: np.ndarray) -> float:
+    """The mean distance between a filter's estimates and the exact posterior means (steps, 2) over the
+    second half of the steps (after the first localisation), map units."""
+    window = slice(len(exact) // 2, len(exact))
+    return float(np.hypot(*(estimates - exact)[window].T).mean())
+
+
+_EXACT_MEANS: dict[tuple[Any, ...], np.ndarray] = {}  # the exact posterior means of the scenarios seen here
+_EXACT_KEPT = 256  # at most this many (steps x 2 floats each): a worker's memory stays small
+
+
+def exact_means(key: tuple[Any, ...], world: Maze, robot: Robot) -> np.ndarray:
+    """The exact grid filter's posterior means (steps, 2) on the robot's recorded walk (its scenario is
+    `key`), computed once per scenario in this process."""
+    if key not in _EXACT_MEANS:
+        _, _, sigma, delta, seed, steps, kidnap_at = key
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)
+            exact = run_filters(world, robot, sigma, delta, [REFERENCE], seed=seed, steps=steps, kidnap_at=kidnap_at)
+        if len(_EXACT_MEANS) >= _EXACT_KEPT:
+            _EXACT_MEANS.pop(next(iter(_EXACT_MEANS)))
+        _EXACT_MEANS[key] = next(iter(exact.values())).estimates
+    return _EXACT_MEANS[key]
 
 
 def run_records(task: RunTask, world: Maze, results: dict[str, RunResult]) -> list[RunRecord]:
@@ -496,6 +557,7 @@ __all__ = [
     "BASE_PARAMETERS",
     "MODEL_PARAMETERS",
     "PAPER_OPTIONS",
+    "REFERENCE",
     "MazeChoice",
     "RunFailure",
     "RunRecord",
@@ -503,6 +565,8 @@ __all__ = [
     "StudyOutcome",
     "StudySetting",
     "declared_option",
+    "distance_to_exact",
+    "exact_means",
     "file_mazes",
     "filters_per_setting",
     "is_option_parameter",
@@ -517,4 +581,5 @@ __all__ = [
     "takes_parameter",
     "trace_of",
     "varied_parameters",
+    "with_reference",
 ]

@@ -1,59 +1,124 @@
-"""A study's figure as small multiples: the mean last-20% error with its interval against one varied
-parameter (the x axis), one line per filter and varied option (e.g. "RPF, bandwidth multimodal"), and
-one panel per combination of the other varied parameters (e.g. maze x sigma)."""
+"""A study's figure as small multiples, sized for a paper: the mean last-20% error with its interval
+against one varied parameter (the x axis), one line per filter and varied option (e.g. "RPF,
+bandwidth multimodal"), and one panel per combination of the other varied parameters (e.g. maze x
+sigma).
+
+- each panel has its own y range, from 0 to just above its highest interval (the figure says so);
+- a filter that does not take the x parameter (the grid filter against N) is a reference: a dashed
+  line at its mean with its interval shaded, in every panel whose parameters it shares;
+- the lines' points are dodged (moved apart sideways) so that their error bars do not hide each other;
+- the figure is PAPER_WIDTH inches wide with FONT_POINTS type (a two-column paper's full width), PNG
+  at PNG_DPI, or PDF / SVG with their text as text (the path's suffix chooses);
+- the filters' colours are the registry's (mazelab.registry.colour_of), as in the viewer.
+"""
 
 from __future__ import annotations
 
 import math
+import numbers
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from mazelab.experiments.runs import FINAL_SHARE
-from mazelab.experiments.study import is_option_parameter, takes_parameter
+from mazelab.experiments.study import declared_option, is_option_parameter, takes_parameter
 from mazelab.experiments.summary import StudySummary
 from mazelab.experiments.tables import format_value, pyplot, save_figure
-from mazelab.registry import labels
+from mazelab.registry import colour_of, labels, rgb
 
-NUMERIC_PARAMETERS = ("sigma", "delta", "particles", "threshold")  # an x axis with a scale
+NUMERIC_PARAMETERS = ("sigma", "delta", "particles", "threshold")  # the x axis, first choice first
 PARAMETER_LABELS = {
-    "sigma": "sigma, measurement noise std (map units)",
-    "delta": "Delta, compass error width (radians)",
-    "particles": "particle count N_S",
-    "threshold": "RPF threshold N_T / N_S",
+    "sigma": "σ, noise std (map units)",  # noqa: RUF001
+    "delta": "Δ, compass error width (rad)",
+    "particles": "particle count $N_S$",
+    "threshold": "RPF threshold $N_T / N_S$",
 }
+Y_LABEL = f"last-{FINAL_SHARE:.0%} error (map units)"  # a map unit is a maze cell's side
+PAPER_WIDTH = 7.0  # inches: a two-column paper's text width (one column: about 3.4)
+PANEL_HEIGHT = 2.0  # inches per row of panels
+FONT_POINTS = 8  # the text; tick labels one point smaller
+PNG_DPI = 300
 MAX_COLUMNS = 3  # panels per row
+DODGE = 0.3  # the lines of a panel spread over this share of the smallest gap between x values
+MARKERS = ("o", "s", "^", "D", "v", "P", "X")  # the lines of one filter (its options) differ by marker
+STYLE = {
+    "font.size": FONT_POINTS,
+    "axes.titlesize": FONT_POINTS,
+    "axes.labelsize": FONT_POINTS,
+    "figure.titlesize": FONT_POINTS,
+    "legend.fontsize": FONT_POINTS - 1,
+    "xtick.labelsize": FONT_POINTS - 1,
+    "ytick.labelsize": FONT_POINTS - 1,
+    "axes.linewidth": 0.6,
+    "lines.linewidth": 1.0,
+    "lines.markersize": 3.5,
+    "errorbar.capsize": 2,
+    "pdf.fonttype": 42,  # TrueType in the PDF: its text is text (journals ask for it)
+    "svg.fonttype": "none",  # the SVG's text as <text>, editable
+}
 
 
 @dataclass(frozen=True)
 class FigureLayout:
     """What a study's figure shows: the x parameter (None: the lines side by side), the panels'
-    titles, the lines' labels."""
+    titles, the lines' labels; once drawn, each panel's y range and its box in figure coordinates
+    (x0, y0, x1, y1, from the bottom left, 0 to 1)."""
 
     x: str | None
     panels: list[str]
     lines: list[str]
+    y_ranges: list[tuple[float, float]] = field(default_factory=list)
+    boxes: list[tuple[float, float, float, float]] = field(default_factory=list)
+    references: list[list[str]] = field(default_factory=list)  # per panel: the lines drawn as references
 
 
-def figure_layout(summaries: Sequence[StudySummary], varied: Sequence[str]) -> tuple[FigureLayout, dict, dict]:
+def is_numeric(summaries: Sequence[StudySummary], parameter: str) -> bool:
+    """Whether every value a parameter takes in the study is a number (not a flag): an x axis with a scale."""
+    values = [s.setting.value(parameter) for s in summaries]
+    return all(isinstance(v, numbers.Real) and not isinstance(v, bool) for v in values)
+
+
+def choose_x(summaries: Sequence[StudySummary], varied: Sequence[str], x: str | None = None) -> str | None:
+    """The x axis: `x` if given (a varied parameter), else the first numeric varied one (sigma, delta,
+    N, the threshold, then any numeric --option), else the first varied parameter that is not an option."""
+    if x is not None:
+        if x not in varied:
+            raise ValueError(f"the figure's x axis {x!r} is not a varied parameter ({', '.join(varied) or 'none'})")
+        return x
+    numeric = [p for p in varied if is_numeric(summaries, p)]
+    ordered = [p for p in NUMERIC_PARAMETERS if p in numeric] + [p for p in numeric if p not in NUMERIC_PARAMETERS]
+    if ordered:
+        return ordered[0]
+    return next((p for p in varied if not is_option_parameter(p)), None)
+
+
+def figure_layout(
+    summaries: Sequence[StudySummary], varied: Sequence[str], x: str | None = None
+) -> tuple[FigureLayout, dict[str, list[StudySummary]], dict[str, list[StudySummary]]]:
     """Split the varied parameters into the x axis, the lines and the panels; returns the layout and
-    the summaries by panel and by line."""
-    x = next((p for p in varied if p in NUMERIC_PARAMETERS and not is_option_parameter(p)), None)
-    x = x or next((p for p in varied if p in NUMERIC_PARAMETERS), None)
+    the summaries by panel and by line. A filter that does not take a panel's parameter (the grid
+    filter and the RPF's bandwidth) is in every panel that agrees on the parameters it does take."""
+    x = choose_x(summaries, varied, x)
     options = [p for p in varied if is_option_parameter(p) and p != x]
-    if x is None:
-        x = next((p for p in varied if p not in options), None)
     facets = [p for p in varied if p != x and p not in options]
-    panels: dict[str, list[StudySummary]] = {}
+    panel_values: dict[str, dict[str, Any]] = {}
+    for s in summaries:
+        panel_values.setdefault(_panel_title(s, facets), {p: s.setting.value(p) for p in facets})
+    panels: dict[str, list[StudySummary]] = {title: [] for title in panel_values}
     lines: dict[str, list[StudySummary]] = {}
     for s in summaries:
-        panel = ", ".join(_named(p, s.setting.value(p)) for p in facets)
-        panels.setdefault(panel, []).append(s)
         lines.setdefault(line_label(s, options), []).append(s)
+        for title, values in panel_values.items():
+            if all(not takes_parameter(s.filter, p) or s.setting.value(p) == v for p, v in values.items()):
+                panels[title].append(s)
     return FigureLayout(x, list(panels), list(lines)), panels, lines
+
+
+def _panel_title(summary: StudySummary, facets: Sequence[str]) -> str:
+    return ", ".join(_named(p, summary.setting.value(p)) for p in facets)
 
 
 def line_label(summary: StudySummary, options: Sequence[str]) -> str:
@@ -67,65 +132,197 @@ def _named(parameter: str, value: Any) -> str:
     return format_value(value) if parameter == "maze" else f"{parameter} {format_value(value)}"
 
 
+def axis_label(parameter: str | None) -> str:
+    """The x axis's label: the lab's words for a model parameter, an option's declared help."""
+    if parameter is None:
+        return "filter"
+    if parameter in PARAMETER_LABELS:
+        return PARAMETER_LABELS[parameter]
+    option = declared_option(parameter)
+    words = option.help.split(" (")[0] if option is not None else ""
+    return f"{parameter}, {words}" if words and len(words) <= 50 else parameter
+
+
+@dataclass
+class _Line:
+    """One line of a panel: its label, colour, marker, points (summaries in x order)."""
+
+    label: str
+    colour: tuple[float, float, float]
+    marker: str
+    points: list[StudySummary]
+    reference: bool  # its filter does not take the x parameter: one value for the whole panel
+
+
+def panel_lines(mine: Sequence[StudySummary], x: str | None, options: Sequence[str]) -> list[_Line]:
+    """A panel's lines, each filter in its registry colour, its options' lines told apart by marker."""
+    by_label: dict[str, list[StudySummary]] = {}
+    for s in mine:
+        by_label.setdefault(line_label(s, options), []).append(s)
+    per_filter: dict[str, int] = {}
+    lines = []
+    for label, points in by_label.items():
+        name = points[0].filter
+        index = per_filter.get(name, 0)
+        per_filter[name] = index + 1
+        reference = x is not None and not takes_parameter(name, x)
+        if x is not None and not reference:
+            points = sorted(points, key=lambda s: _sort_key(s.setting.value(x)))
+        lines.append(_Line(label, rgb(colour_of(name)), MARKERS[index % len(MARKERS)], points, reference))
+    return lines
+
+
+def _sort_key(value: Any) -> tuple[int, Any]:
+    return (0, value) if isinstance(value, numbers.Real) else (1, str(value))
+
+
 def plot_study(
-    summaries: Sequence[StudySummary], varied: Sequence[str], path: Path, title: str, *, replace: bool = True
+    summaries: Sequence[StudySummary],
+    varied: Sequence[str],
+    path: Path,
+    title: str,
+    *,
+    replace: bool = True,
+    x: str | None = None,
 ) -> FigureLayout:
-    """Draw the study's small multiples to `path` (png, pdf or svg) and return their layout (an
-    existing file is replaced only with `replace`)."""
+    """Draw the study's small multiples to `path` (.png at PNG_DPI, .pdf or .svg) and return their
+    layout with each panel's y range and box (an existing file is replaced only with `replace`).
+    `x` chooses the x axis among the varied parameters (default: `choose_x`)."""
     plt = pyplot()
-    layout, panels, _ = figure_layout(summaries, varied)
-    x = layout.x
-    numeric = x in NUMERIC_PARAMETERS
-    count = len(layout.panels)
-    columns = min(MAX_COLUMNS, count)
-    rows = math.ceil(count / columns)
-    figure, axes = plt.subplots(
-        rows, columns, figsize=(4.2 * columns + 1.5, 3.4 * rows + 1.2), sharey=True, squeeze=False, layout="constrained"
-    )
-    categories = list(dict.fromkeys(format_value(s.setting.value(x)) for s in summaries)) if x and not numeric else []
-    colours = {label: f"C{i % 10}" for i, label in enumerate(layout.lines)}
-    options = [p for p in varied if is_option_parameter(p) and p != x]
-    for k, (panel, mine) in enumerate(panels.items()):
-        ax = axes[k // columns][k % columns]
-        by_line: dict[str, list[StudySummary]] = {}
-        for s in mine:
-            by_line.setdefault(line_label(s, options), []).append(s)
-        for j, (label, points) in enumerate(by_line.items()):
-            if x is None:
-                xs = np.array([float(layout.lines.index(label))])
-            elif numeric:
-                points = sorted(points, key=lambda s: s.setting.value(x))
-                xs = np.array([float(s.setting.value(x)) for s in points])
-            else:
-                xs = np.array([float(categories.index(format_value(s.setting.value(x)))) for s in points])
-            if not numeric:
-                xs = xs + 0.08 * (j - (len(by_line) - 1) / 2)  # side by side: the bars do not hide each other
-            mean = np.array([s.mean_final_error for s in points])
-            low, high = np.array([s.interval for s in points]).T
-            bars = np.nan_to_num(np.vstack([mean - low, high - mean]))
-            style = "-o" if numeric else "o"
-            ax.errorbar(xs, mean, yerr=bars, fmt=style, capsize=3, color=colours[label], label=label)
+    import matplotlib
+
+    with matplotlib.rc_context(STYLE):
+        layout, panels, _ = figure_layout(summaries, varied, x)
+        x = layout.x
+        options = [p for p in varied if is_option_parameter(p) and p != x]
+        count = len(layout.panels)
+        columns = min(MAX_COLUMNS, count)
+        rows = math.ceil(count / columns)
+        figure, axes = plt.subplots(
+            rows, columns, figsize=(PAPER_WIDTH, PANEL_HEIGHT * rows + 0.9), squeeze=False, layout="constrained"
+        )
+        scale = XScale.of(summaries, x)
+        ranges, references = [], []
+        for k, mine in enumerate(panels.values()):
+            ax = axes[k // columns][k % columns]
+            ax.set_gid(f"panel-{k + 1}")
+            lines = panel_lines(mine, x, options)
+            top = draw_panel(ax, lines, scale, layout.lines, k + 1)
+            ax.set_ylim(0, top)
+            ax.set_title(layout.panels[k] or None)
+            ax.set_xlabel(axis_label(x))
+            ax.grid(alpha=0.3, linewidth=0.5)
+            ranges.append((0.0, top))
+            references.append([line.label for line in lines if line.reference])
+        for k in range(count, rows * columns):
+            axes[k // columns][k % columns].set_visible(False)
+        for row in axes:
+            row[0].set_ylabel(Y_LABEL)
+        _legend(figure, axes.flat[:count], layout.lines)
+        figure.suptitle(f"{title}\n(each panel its own y range)" if count > 1 else title)
+        save_figure(figure, path, replace=replace, dpi=PNG_DPI)
+        boxes = [tuple(float(v) for v in ax.get_position().extents) for ax in axes.flat[:count]]
+    return FigureLayout(layout.x, layout.panels, layout.lines, ranges, boxes, references)
+
+
+@dataclass(frozen=True)
+class XScale:
+    """Where a value goes on the x axis: a number (linear, or log10 for particle counts spanning 10x or
+    more), or a category's index; `gap` is the smallest distance between two values there (for the dodge)."""
+
+    kind: str  # "linear", "log" or "category"
+    parameter: str | None = None  # the x parameter (None: the lines side by side)
+    categories: tuple[str, ...] = ()
+    values: tuple[float, ...] = ()  # the numeric x values
+    gap: float = 1.0
+
+    @classmethod
+    def of(cls, summaries: Sequence[StudySummary], x: str | None) -> XScale:
         if x is None:
-            ax.set_xticks(range(len(layout.lines)), layout.lines, rotation=20, ha="right")
-        elif not numeric:
-            ax.set_xticks(range(len(categories)), categories, rotation=20, ha="right")
-        ax.set_xlabel(PARAMETER_LABELS.get(x or "", x or "filter"))
-        ax.set_title(panel, fontsize=9)
-        ax.set_ylim(bottom=0)
-        ax.grid(alpha=0.3)
-    for k in range(count, rows * columns):
-        axes[k // columns][k % columns].set_visible(False)
-    for row in axes:
-        row[0].set_ylabel(f"last-{FINAL_SHARE:.0%} error (mean error over the last {FINAL_SHARE:.0%} of the steps)")
-    handles, labels = axes[0][0].get_legend_handles_labels()
-    seen = dict(zip(labels, handles, strict=True))
-    for ax in axes.flat[1:count]:
-        for h, label in zip(*ax.get_legend_handles_labels(), strict=True):
-            seen.setdefault(label, h)
-    figure.legend(list(seen.values()), list(seen), loc="outside lower center", ncols=min(4, len(seen)))
-    figure.suptitle(title, fontsize=10)
-    save_figure(figure, path, replace=replace)
-    return layout
+            return cls("category")
+        if not is_numeric(summaries, x):
+            return cls("category", x, tuple(dict.fromkeys(format_value(s.setting.value(x)) for s in summaries)))
+        values = sorted({float(s.setting.value(x)) for s in summaries})
+        log = x == "particles" and values[0] > 0 and values[-1] / values[0] >= 10
+        where = np.log10(values) if log else np.array(values)
+        gap = float(np.diff(where).min()) if len(where) > 1 else 1.0
+        return cls("log" if log else "linear", x, gap=gap, values=tuple(values))
+
+    def position(self, value: Any) -> float:
+        """The value's place in the transformed coordinate (log10 for a log axis)."""
+        if self.kind == "category":
+            return float(self.categories.index(format_value(value)))
+        return math.log10(float(value)) if self.kind == "log" else float(value)
+
+    def back(self, where: np.ndarray) -> np.ndarray:
+        """Transformed coordinates back to data (what matplotlib plots on a log axis)."""
+        return 10**where if self.kind == "log" else where
 
 
-__all__ = ["NUMERIC_PARAMETERS", "FigureLayout", "figure_layout", "line_label", "plot_study"]
+def draw_panel(ax: Any, lines: Sequence[_Line], scale: XScale, all_labels: Sequence[str], panel: int) -> float:
+    """Draw a panel's lines (dodged, with error bars) and references (dashed, shaded interval); returns
+    the top of its y range: just above the highest interval or mean."""
+    drawn = [line for line in lines if not line.reference]
+    slots = [label for label in all_labels if label in {line.label for line in drawn}]
+    highest = 0.0
+    for line in drawn:
+        j = slots.index(line.label)  # the same slot in every panel: a line keeps its place
+        offset = DODGE * scale.gap * (j / (len(slots) - 1) - 0.5) if len(slots) > 1 else 0.0
+        if scale.kind == "category" and not scale.categories:  # nothing varied on x: a slot per line
+            where = np.array([float(all_labels.index(line.label))])
+        else:
+            where = np.array([scale.position(s.setting.value(scale.parameter)) for s in line.points]) + offset
+        mean = np.array([s.mean_final_error for s in line.points])
+        low, high = np.array([s.interval for s in line.points]).T
+        bars = np.clip(np.nan_to_num(np.vstack([mean - low, high - mean])), 0, None)  # a BCa interval may miss the mean
+        container = ax.errorbar(
+            scale.back(where), mean, yerr=bars, fmt="-" + line.marker if len(where) > 1 else line.marker,
+            color=line.colour, label=line.label, elinewidth=0.8,
+        )  # fmt: skip
+        container.lines[0].set_gid(f"panel-{panel}:line:{line.label}")
+        highest = max(highest, float(np.nanmax(np.append(high, mean))))
+    for line in lines:
+        if line.reference:
+            (s,) = line.points[:1]
+            ax.axhline(s.mean_final_error, color=line.colour, linestyle="--", linewidth=1.0, label=line.label,
+                       gid=f"panel-{panel}:reference:{line.label}")  # fmt: skip
+            if not math.isnan(s.interval[0]):
+                ax.axhspan(*s.interval, color=line.colour, alpha=0.15, linewidth=0)
+            highest = max(highest, s.mean_final_error, 0.0 if math.isnan(s.interval[1]) else s.interval[1])
+    if scale.kind == "log":
+        ax.set_xscale("log")
+    if scale.kind == "linear" and 1 < len(scale.values) <= 8:
+        ax.set_xticks(scale.values, [format_value(v) for v in scale.values])  # the studied values, as given
+    if scale.kind == "category":
+        names = scale.categories or tuple(all_labels)
+        ax.set_xticks(range(len(names)), names, rotation=20 if max(map(len, names)) > 8 else 0, ha="right")
+        ax.set_xlim(-0.5, len(names) - 0.5)
+    return 1.1 * highest if highest > 0 else 1.0
+
+
+def _legend(figure: Any, axes: Sequence[Any], order: Sequence[str]) -> None:
+    """One legend for all panels, below them, in the lines' order (each line once, a reference as its
+    dashed line)."""
+    seen: dict[str, Any] = {}
+    for ax in axes:
+        for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
+            seen.setdefault(label, handle)
+    names = sorted(seen, key=lambda label: order.index(label) if label in order else len(order))
+    figure.legend([seen[n] for n in names], names, loc="outside lower center", ncols=min(4, len(names)), frameon=False)
+
+
+__all__ = [
+    "FONT_POINTS",
+    "NUMERIC_PARAMETERS",
+    "PAPER_WIDTH",
+    "PNG_DPI",
+    "Y_LABEL",
+    "FigureLayout",
+    "XScale",
+    "axis_label",
+    "choose_x",
+    "figure_layout",
+    "is_numeric",
+    "line_label",
+    "plot_study",
+]

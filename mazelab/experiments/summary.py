@@ -1,23 +1,47 @@
-"""A study's statistics per setting and filter: the mean and median final error with percentile
-bootstrap intervals, the converged share with its Wilson interval, the median convergence step; the
-table and the CSV (the figure: mazelab.experiments.study_plot)."""
+"""A study's statistics per setting and filter: the mean final error with its BCa bootstrap interval
+and the median with its percentile one, the converged share with its Wilson interval, the Kaplan-Meier median
+convergence step (the runs that never converge count, as censored), with `--reference grid` the
+distance to the exact posterior, with `--paired NAME` the paired difference to that filter; the
+table, the rows' CSV and the summary CSV (the figure: mazelab.experiments.study_plot).
+
+Converged, defined: the error stays below CONVERGENCE_RADIUS for at least the last K steps, K the
+last-20% window (`convergence_window`, the steps `final_error` averages): a run that only gets below
+the radius near its end is not counted, and "converged" agrees with a small last-20% error."""
 
 from __future__ import annotations
 
+import csv
+import io
 import math
 import statistics
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+from typing import Any
 
-from mazelab.experiments.runs import is_particle_filter
+from mazelab.experiments.runs import FINAL_SHARE, is_particle_filter
 from mazelab.experiments.stats import (
     BOOTSTRAP_SAMPLES,
     CONFIDENCE_LEVEL,
+    MEAN_METHOD,
+    MEDIAN_METHOD,
     bootstrap_interval,
+    km_median,
+    paired_difference,
     wilson_interval,
 )
-from mazelab.experiments.study import RunRecord, StudySetting, option_cells, takes_parameter
-from mazelab.experiments.tables import format_optional, format_table, format_value, records_csv
+from mazelab.experiments.study import (
+    BASE_PARAMETERS,
+    RunRecord,
+    StudySetting,
+    option_cells,
+    study_parameters,
+    takes_parameter,
+    varied_parameters,
+)
+from mazelab.experiments.tables import csv_cell, format_number, format_optional, format_table, format_value, records_csv
+from mazelab.model import CONVERGENCE_RADIUS
+from mazelab.registry import labels, resolve_filter
 
 Interval = tuple[float, float]
 
@@ -32,9 +56,9 @@ class StudySummary:
     filter: str
     runs: int
     mean_final_error: float
-    interval: Interval  # percentile bootstrap interval for the mean last-20% error; NaN with one run
-    converged_share: float  # share of the runs with a convergence step
-    median_convergence_step: float | None  # median over the converged runs; None if none converged
+    interval: Interval  # BCa bootstrap interval for the mean last-20% error; NaN with one run
+    converged_share: float  # share of the runs below the radius for at least the last K steps (`converged`)
+    median_convergence_step: float | None  # Kaplan-Meier median (never-converged runs censored); None: not reached
     ms_per_step: float
     relocalised_share: float | None = None  # share of the runs re-localised; None without a kidnapping
     median_steps_to_recover: float | None = None  # median over the runs that recovered; None if none did
@@ -44,6 +68,14 @@ class StudySummary:
     converged_interval: Interval = (math.nan, math.nan)  # Wilson interval for the converged share
     relocalised_interval: Interval | None = None  # Wilson interval for the re-localised share
     run_seconds: float = math.nan  # mean wall time per run
+    convergence_interval: Interval = (math.nan, math.nan)  # the KM median's interval; NaN: not reached
+    last_convergence_step: int = 0  # the last step a convergence can count from (steps - K + 1): the censoring time
+    distance_to_exact: float = math.nan  # mean over the runs of the distance to the exact posterior mean
+    distance_interval: Interval = (math.nan, math.nan)  # its BCa bootstrap interval
+    paired_with: str | None = None  # the filter the paired difference is taken to (`--paired`)
+    paired_runs: int = 0  # runs in both (the pairs)
+    mean_difference: float = math.nan  # mean over the pairs of (this filter's - paired_with's) last-20% error
+    difference_interval: Interval = (math.nan, math.nan)  # its paired BCa bootstrap interval
 
     def as_dict(self) -> dict[str, object]:
         """The summary as plain values (the setting's parameters spelled out), for a record or pandas."""
@@ -55,38 +87,103 @@ class StudySummary:
         return data
 
 
-def summarise_study(records: Sequence[RunRecord], settings: Sequence[StudySetting]) -> list[StudySummary]:
-    """Per setting and filter (in the records' order): the statistics of the study's table."""
+def summarise_study(
+    records: Sequence[RunRecord], settings: Sequence[StudySetting], paired: str | None = None
+) -> list[StudySummary]:
+    """Per setting and filter (in the records' order): the statistics of the study's table; with
+    `paired` (a filter of the study), each other filter's paired difference to it (`paired_runs`)."""
     groups: dict[tuple[int, str], list[RunRecord]] = {}
     for record in records:
         groups.setdefault((record.setting, record.filter), []).append(record)
+    reference = None if paired is None else resolve_filter(paired).name
     summaries = []
     for (index, name), group in groups.items():
         finals = [r.final_error for r in group]
-        converged = [r.converged_at for r in group if r.converged_at is not None]
+        last = last_convergence_step(group[0].steps)
+        converged = [converged_within(r.converged_at, r.steps) for r in group]
+        median_step, step_interval = km_median([min(r.converged_at or last, last) for r in group], converged)
         relocalised, steps_to_recover = recovery_summary(group)
-        summaries.append(
-            StudySummary(
-                index,
-                settings[index - 1],
-                name,
-                len(group),
-                statistics.fmean(finals),
-                bootstrap_interval(finals, "mean"),
-                len(converged) / len(group),
-                statistics.median(converged) if converged else None,
-                statistics.fmean(r.ms_per_step for r in group),
-                relocalised,
-                steps_to_recover,
-                statistics.fmean(r.mean_particle_count for r in group),
-                statistics.median(finals),
-                bootstrap_interval(finals, "median"),
-                wilson_interval(len(converged), len(group)),
-                None if relocalised is None else wilson_interval(sum(bool(r.relocalised) for r in group), len(group)),
-                statistics.fmean(r.run_seconds for r in group),
-            )
+        distances = [r.distance_to_exact for r in group]
+        summary = StudySummary(
+            index,
+            settings[index - 1],
+            name,
+            len(group),
+            statistics.fmean(finals),
+            bootstrap_interval(finals, "mean", method=MEAN_METHOD),
+            sum(converged) / len(group),
+            None if math.isnan(median_step) else median_step,
+            statistics.fmean(r.ms_per_step for r in group),
+            relocalised,
+            steps_to_recover,
+            statistics.fmean(r.mean_particle_count for r in group),
+            statistics.median(finals),
+            bootstrap_interval(finals, "median", method=MEDIAN_METHOD),
+            wilson_interval(sum(converged), len(group)),
+            None if relocalised is None else wilson_interval(sum(bool(r.relocalised) for r in group), len(group)),
+            statistics.fmean(r.run_seconds for r in group),
+            step_interval,
+            last,
+            *_mean_and_interval(distances),
         )
+        if reference is not None and name != reference and pairs_exactly(name, reference, settings):
+            pairs = paired_finals(group, records, settings, reference)
+            if pairs:
+                mine, theirs = zip(*pairs, strict=True)
+                summary.paired_with, summary.paired_runs = reference, len(pairs)
+                summary.mean_difference, summary.difference_interval = paired_difference(
+                    mine, theirs, method=MEAN_METHOD
+                )
+        summaries.append(summary)
     return summaries
+
+
+def convergence_window(steps: int) -> int:
+    """K, the steps a run must stay below the radius to count as converged: the last-20% window
+    (`final_error` averages the same steps), at least one."""
+    return max(1, int(steps * FINAL_SHARE))
+
+
+def last_convergence_step(steps: int) -> int:
+    """The last step a run's convergence can count from: steps - K + 1 (K = `convergence_window`);
+    a run not converged by then is censored there (for the Kaplan-Meier median)."""
+    return steps - convergence_window(steps) + 1
+
+
+def converged_within(converged_at: int | None, steps: int) -> bool:
+    """Converged: below the radius from `converged_at` on, for at least the last K steps."""
+    return converged_at is not None and converged_at <= last_convergence_step(steps)
+
+
+def _mean_and_interval(values: Sequence[float]) -> tuple[float, Interval]:
+    """The mean of the finite values with its BCa bootstrap interval; NaN when there are none."""
+    finite = [v for v in values if not math.isnan(v)]
+    if not finite:
+        return math.nan, (math.nan, math.nan)
+    return statistics.fmean(finite), bootstrap_interval(finite, "mean", method=MEAN_METHOD)
+
+
+def pairs_exactly(name: str, reference: str, settings: Sequence[StudySetting]) -> bool:
+    """Whether a filter's setting fixes the reference's: not when the reference takes a varied parameter
+    the filter does not (the grid filter against SIR with several particle counts: which N?)."""
+    varied = varied_parameters(settings)
+    return not any(takes_parameter(reference, p) and not takes_parameter(name, p) for p in varied)
+
+
+def paired_finals(
+    group: Sequence[RunRecord], records: Sequence[RunRecord], settings: Sequence[StudySetting], reference: str
+) -> list[tuple[float, float]]:
+    """(this filter's, the reference filter's) last-20% error per run both ran on the same scenario:
+    the reference's record of the same run in a setting that agrees on every parameter the reference
+    takes (it runs once per such combination, `filters_per_setting`, so it may be another setting's)."""
+    parameters = study_parameters(settings)
+
+    def key(setting: StudySetting) -> tuple[str, ...]:
+        return tuple(repr(setting.value(p)) for p in parameters if takes_parameter(reference, p))
+
+    theirs = {(key(settings[r.setting - 1]), r.run): r.final_error for r in records if r.filter == reference}
+    wanted = key(settings[group[0].setting - 1])
+    return [(r.final_error, theirs[wanted, r.run]) for r in group if (wanted, r.run) in theirs]
 
 
 def recovery_summary(group: Sequence[RunRecord]) -> tuple[float | None, float | None]:
@@ -126,16 +223,35 @@ def describe_varied(settings: Sequence[StudySetting], varied: Sequence[str]) -> 
     return "varied: " + "; ".join(f"{p} {', '.join(v)}" for p, v in values.items())
 
 
-def interval_note() -> str:
-    """The line under the table that names its intervals' methods."""
-    return (
-        f"[{CONFIDENCE_LEVEL:.0%} intervals: mean and median by percentile bootstrap (B = {BOOTSTRAP_SAMPLES}, "
-        "seeded), shares by Wilson score; '-' in a parameter's column: the filter does not take it]"
-    )
+def interval_note(summaries: Sequence[StudySummary] = ()) -> str:
+    """The lines under the table: its intervals' methods, what converged means, and the paired columns."""
+    last = max((s.last_convergence_step for s in summaries), default=0)
+    steps = f"from step {last} on at the latest" if last else "for at least the last 20% of the steps"
+    lines = [
+        f"[{CONFIDENCE_LEVEL:.0%} intervals: means by BCa bootstrap, medians by percentile bootstrap (B = "
+        f"{BOOTSTRAP_SAMPLES}, seeded), shares by Wilson score; '-' in a parameter's column: the filter does not "
+        "take it]",
+        f"[converged: the error stays below {CONVERGENCE_RADIUS:g} for at least the last 20% of the steps "
+        f"({steps}); median conv. step: Kaplan-Meier, the runs that never converge censored there "
+        f"('>{last or 'N'}': not reached), its interval from the log-log band]",
+    ]
+    reference = next((s.paired_with for s in summaries if s.paired_with), None)
+    if reference is not None:
+        label = labels([reference])[reference]
+        lines.append(
+            f"[diff. vs {label}: the filter's last-20% error minus {label}'s on the same runs (negative: "
+            f"smaller), mean over the pairs, paired BCa bootstrap interval (the runs resampled as pairs)]"
+        )
+    return "\n".join(lines)
 
 
 def _interval(low: float, high: float, spec: str = "{:.3f}") -> str:
     return "-" if math.isnan(low) else f"[{spec.format(low)}, {spec.format(high)}]"
+
+
+def _step(value: float | None, last: int) -> str:
+    """A KM median step, or '>last' when not reached."""
+    return f">{last}" if value is None or math.isnan(value) else f"{value:g}"
 
 
 def study_table(summaries: Sequence[StudySummary], varied: Sequence[str], kld: bool = False) -> str:
@@ -143,6 +259,8 @@ def study_table(summaries: Sequence[StudySummary], varied: Sequence[str], kld: b
     then the statistics with their intervals; with a kidnapping the re-localised share and median
     steps to recover, with `kld` the mean particle count."""
     kidnapped = any(s.relocalised_share is not None for s in summaries)
+    exact = any(not math.isnan(s.distance_to_exact) for s in summaries)
+    reference = next((s.paired_with for s in summaries if s.paired_with), None)
     ci = f"{CONFIDENCE_LEVEL:.0%} CI"
     headers = [
         *varied,
@@ -155,9 +273,12 @@ def study_table(summaries: Sequence[StudySummary], varied: Sequence[str], kld: b
         "converged",
         ci,
         "median conv. step",
+        ci,
         "ms/step",
         *(["re-localised", ci, "median steps to recover"] if kidnapped else []),
         *(["mean N"] if kld else []),
+        *(["dist. to exact", ci] if exact else []),
+        *([f"diff. vs {labels([reference])[reference]}", ci] if reference else []),
     ]
     rows = []
     for s in summaries:
@@ -171,7 +292,8 @@ def study_table(summaries: Sequence[StudySummary], varied: Sequence[str], kld: b
             _interval(*s.median_interval),
             f"{s.converged_share:.0%}",
             _interval(*s.converged_interval, spec="{:.0%}"),
-            format_optional(s.median_convergence_step, "{:g}"),
+            _step(s.median_convergence_step, s.last_convergence_step),
+            _step_interval(s.convergence_interval, s.last_convergence_step),
             f"{s.ms_per_step:.2f}",
         ]
         if kidnapped:
@@ -182,14 +304,77 @@ def study_table(summaries: Sequence[StudySummary], varied: Sequence[str], kld: b
             ]
         if kld:
             row.append(f"{s.mean_particle_count:.0f}" if is_particle_filter(s.filter) else "-")
+        if exact:
+            row += [format_number(s.distance_to_exact, "{:.3f}"), _interval(*s.distance_interval)]
+        if reference:
+            row += [format_number(s.mean_difference, "{:+.3f}"), _interval(*s.difference_interval, spec="{:+.3f}")]
         rows.append(row)
-    return format_table(headers, rows) + "\n" + interval_note()
+    return format_table(headers, rows) + "\n" + interval_note(summaries)
+
+
+def _step_interval(bounds: Interval, last: int) -> str:
+    """The KM median's interval: '-' when even its lower end is not reached, '>last' for an upper one."""
+    low, high = bounds
+    return "-" if math.isnan(low) else f"[{low:g}, {_step(high, last)}]"
 
 
 CSV_COLUMNS = [f.name for f in fields(RunRecord) if f.name != "options"]  # then a column per other option
 # how to read the CSV's seeds back whole: maze_seed is empty for a maze file, so pandas would read the
 # column as float64 and round a seed above 2**53 (the record says so; pandas: dtype={"maze_seed": str})
 CSV_DTYPES = {"seed": "int64", "maze_seed": "str (empty for a maze file; as float64 a seed loses digits)"}
+
+# the summary CSV's statistics, after `setting`, the study's parameters and `filter`: (column, how to read it)
+SUMMARY_STATISTICS: tuple[tuple[str, Any], ...] = (
+    ("runs", lambda s: s.runs),
+    ("mean_final_error", lambda s: s.mean_final_error),
+    ("mean_final_error_low", lambda s: s.interval[0]),
+    ("mean_final_error_high", lambda s: s.interval[1]),
+    ("median_final_error", lambda s: s.median_final_error),
+    ("median_final_error_low", lambda s: s.median_interval[0]),
+    ("median_final_error_high", lambda s: s.median_interval[1]),
+    ("converged_share", lambda s: s.converged_share),
+    ("converged_low", lambda s: s.converged_interval[0]),
+    ("converged_high", lambda s: s.converged_interval[1]),
+    ("last_convergence_step", lambda s: s.last_convergence_step),
+    ("median_convergence_step", lambda s: s.median_convergence_step),
+    ("median_convergence_step_low", lambda s: s.convergence_interval[0]),
+    ("median_convergence_step_high", lambda s: s.convergence_interval[1]),
+    ("ms_per_step", lambda s: s.ms_per_step),
+    ("run_seconds", lambda s: s.run_seconds),
+    ("mean_particle_count", lambda s: s.mean_particle_count),
+    ("relocalised_share", lambda s: s.relocalised_share),
+    ("relocalised_low", lambda s: (s.relocalised_interval or (None, None))[0]),
+    ("relocalised_high", lambda s: (s.relocalised_interval or (None, None))[1]),
+    ("median_steps_to_recover", lambda s: s.median_steps_to_recover),
+    ("distance_to_exact", lambda s: s.distance_to_exact),
+    ("distance_to_exact_low", lambda s: s.distance_interval[0]),
+    ("distance_to_exact_high", lambda s: s.distance_interval[1]),
+    ("paired_with", lambda s: s.paired_with),
+    ("paired_runs", lambda s: s.paired_runs or None),
+    ("mean_difference", lambda s: s.mean_difference),
+    ("difference_low", lambda s: s.difference_interval[0]),
+    ("difference_high", lambda s: s.difference_interval[1]),
+)
+
+
+def summary_csv(summaries: Sequence[StudySummary]) -> str:
+    """One row per setting and filter (the table's): `setting`, the study's parameters (an empty cell
+    where the filter does not take one, the table's '-'), `filter`, then SUMMARY_STATISTICS, each
+    interval as _low and _high columns; an empty cell for None, NaN and 'not reached'."""
+    parameters = list(study_parameters([s.setting for s in summaries])) if summaries else list(BASE_PARAMETERS)
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(["setting", *parameters, "filter", *(name for name, _ in SUMMARY_STATISTICS)])
+    for s in summaries:
+        cells = {**{p: s.setting.value(p) for p in parameters}, **option_cells(s.setting)}
+        given = [csv_cell(cells.get(p)) if takes_parameter(s.filter, p) else "" for p in parameters]
+        writer.writerow([s.setting_index, *given, s.filter, *(csv_cell(read(s)) for _, read in SUMMARY_STATISTICS)])
+    return buffer.getvalue()
+
+
+def summary_path(csv_path: Path) -> Path:
+    """Where the summary CSV goes by default: NAME.summary.csv beside the rows' NAME.csv."""
+    return csv_path.with_name(f"{csv_path.stem}.summary.csv")
 
 
 def study_csv(records: Sequence[RunRecord], columns: Sequence[str] = CSV_COLUMNS) -> str:
@@ -201,12 +386,20 @@ def study_csv(records: Sequence[RunRecord], columns: Sequence[str] = CSV_COLUMNS
 __all__ = [
     "CSV_COLUMNS",
     "CSV_DTYPES",
+    "SUMMARY_STATISTICS",
     "StudySummary",
+    "converged_within",
+    "convergence_window",
     "describe_setting",
     "describe_varied",
     "interval_note",
+    "last_convergence_step",
+    "paired_finals",
+    "pairs_exactly",
     "recovery_summary",
     "study_csv",
     "study_table",
     "summarise_study",
+    "summary_csv",
+    "summary_path",
 ]

@@ -28,12 +28,12 @@ def pyplot() -> Any:
     return plt
 
 
-def save_figure(figure: Any, path: Path, *, replace: bool = True) -> None:
-    """Save a matplotlib figure atomically in the format of the path's suffix, then close it (an
-    existing file is replaced only with `replace`)."""
+def save_figure(figure: Any, path: Path, *, replace: bool = True, dpi: int = 150) -> None:
+    """Save a matplotlib figure atomically in the format of the path's suffix (raster formats at
+    `dpi`), then close it (an existing file is replaced only with `replace`)."""
     buffer = io.BytesIO()
     try:
-        figure.savefig(buffer, format=path.suffix.lstrip(".").lower() or "png", dpi=150)
+        figure.savefig(buffer, format=path.suffix.lstrip(".").lower() or "png", dpi=dpi)
     finally:
         pyplot().close(figure)
     write_bytes_atomically(path, buffer.getvalue(), replace=replace)
