@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -57,12 +58,51 @@ BANDWIDTH_OPTION = Option(
 )  # fmt: skip
 
 
+@dataclass(frozen=True, eq=False)
+class GaussianKernel:
+    """The kernel h D eps of one run: `scale` is h D, lower triangular (2, 2), D D^T = S_k.
+
+    Called as a Kernel, (resampled points (N, 2), eps (N, 2)) -> the jitter (N, 2) in eps's dtype; the
+    compiled backend reads `scale` and jitters in its own pass (mazelab.kernels.model.jitter).
+    """
+
+    scale: np.ndarray
+
+    def __call__(self, points: np.ndarray, eps: np.ndarray) -> np.ndarray:
+        """h D eps for each row of eps.
+
+        Parameters
+        ----------
+        points : array (N, 2)
+            The resampled points (unused: the kernel is the same everywhere).
+        eps : array (N, 2)
+            Standard normal draws.
+
+        Returns
+        -------
+        array (N, 2), order F, in eps's dtype
+        """
+        return gaussian_jitter(eps, self.scale)
+
+
 def whole_cloud_kernel(weights: np.ndarray, positions: np.ndarray, h: float) -> Kernel:
-    """h D eps with D D^T = S, the weighted covariance of the whole cloud (the paper's kernel for h_opt)."""
+    """h D eps with D D^T = S, the weighted covariance of the whole cloud (the paper's kernel for h_opt).
+
+    Parameters
+    ----------
+    weights : array (N,)
+        Normalised weights.
+    positions : array (N, 2)
+    h : float
+        The bandwidth.
+
+    Returns
+    -------
+    GaussianKernel
+    """
     covariance = weighted_covariance(weights, positions)  # S_k, the weighted empirical covariance
     D = np.linalg.cholesky(covariance + 1e-12 * np.eye(2))  # D_k D_k^T = S_k (tiny ridge: S may be 0)
-    scale = h * D
-    return lambda points, eps: gaussian_jitter(eps, scale)
+    return GaussianKernel(h * D)
 
 
 def mixture_kernel(points: np.ndarray, eps: np.ndarray) -> np.ndarray:
@@ -106,6 +146,7 @@ __all__ = [
     "BANDWIDTH_OPTION",
     "MIN_CLUSTER_VARIANCE",
     "MIXTURE_SHRINK",
+    "GaussianKernel",
     "Kernel",
     "check_bandwidth",
     "cholesky_2x2",
