@@ -348,11 +348,12 @@ class ParticleFilter:
         explained = totals >= LOG_UNDERFLOW  # False for an underflow and for NaN
         if lost is not None:
             explained &= ~lost
-        if not explained.all():
-            log_weights, reads = self._reinitialise(np.flatnonzero(~explained), z, log_weights), None
+        restarted = np.flatnonzero(~explained)
+        if len(restarted):
+            log_weights = self._reinitialise(restarted, z, log_weights)
         self._log_w = log_weights
-        if reads is not None:
-            self._keep_reads(reads)
+        if reads is not None and len(restarted) < self.runs:
+            self._keep_reads(reads, restarted)
 
     def normalised(self, log_a: np.ndarray, log_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """W_i ∝ exp(log a_i + log b_i) per run, and log sum_i exp(log a_i + log b_i) (the APF's first
@@ -520,13 +521,22 @@ class ParticleFilter:
         """Run 0's value for one run (the paper's shapes), all runs' otherwise."""
         return per_run[0] if self.runs == 1 else per_run
 
-    def _keep_reads(self, reads: dict[str, np.ndarray]) -> None:
+    def _keep_reads(self, reads: dict[str, np.ndarray], restarted: np.ndarray) -> None:
         """Keep the reads the compiled normalisation made (weights, ESS, mean, and the confidence share
-        around the mean, the estimate unless the estimate is the heaviest mode) for this step's reads."""
+        around the mean, the estimate unless the estimate is the heaviest mode) for this step's reads;
+        the restarted runs' are made from their new weights as a run of their own makes them, so that R
+        runs together stay R single runs."""
+        weights, ess, mean, share = reads["weights"], reads["ess"], reads["mean"], reads["share"]
+        if len(restarted):
+            weights[restarted] = np.exp(self._log_w[restarted])
+            points = np.concatenate([self.run_positions(run) for run in restarted])
+            ess[restarted] = self.ops.effective_sample_size(weights[restarted])
+            mean[restarted] = self.ops.weighted_mean(weights[restarted], points)
+            share[restarted] = self.ops.mass_within(weights[restarted], points, mean[restarted], CONFIDENCE_RADIUS)
         self._summary_of = (self.positions, self._log_w)
-        self._summary = {"weights": reads["weights"], "ess": reads["ess"], "mean": reads["mean"]}
+        self._summary = {"weights": weights, "ess": ess, "mean": mean}
         if self.estimate_rule != "mode":
-            self._summary["confident"] = reads["share"]
+            self._summary["confident"] = share
 
     def _cached(self, name: str, compute: Callable[[], Any]) -> Any:
         """`compute()`, remembered until `positions` or the log weights are assigned a new array."""

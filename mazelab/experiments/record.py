@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from mazelab.atomic import write_text_atomically
+from mazelab.backend import backend_versions
 from mazelab.experiments.stats import CONFIDENCE_LEVEL, INTERVAL_METHODS
 
 RECORD_FORMAT = 1
@@ -66,11 +67,13 @@ def git_commit(folder: Path | None = None) -> str | None:
 
 
 def program_versions() -> dict[str, Any]:
-    """The versions a result depends on: this program (and its git commit, if any), numpy, Python."""
+    """The versions a result depends on: this program (and its git commit, if any), numpy, the filters'
+    backend (numpy or compiled, mazelab.backend) and numba's version (None without it), Python."""
     return {
         "mazelab": package_version(),
         "git_commit": git_commit(),
         "numpy": np.__version__,
+        **backend_versions(),
         "python": platform.python_version(),
         "implementation": platform.python_implementation(),
         "system": f"{platform.system()} {platform.machine()}",

@@ -17,9 +17,9 @@ from typing import Any
 
 import numpy as np
 
-from mazelab.backend import NumpyKernels
 from mazelab.kernels import model, resampling, weights
 from mazelab.model import CONFIDENCE_RADIUS, PARTICLE_DTYPE, headings_from_uniforms
+from mazelab.numpy_ops import NumpyKernels
 from mazelab.regularisation import GaussianKernel
 
 _KEEP = 3  # arrays kept per buffer name and shape: the filter's, the one being filled, one a caller holds

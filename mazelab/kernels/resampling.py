@@ -3,7 +3,8 @@ is the numpy reference, and these are its ancestors to the bit for the same weig
 
 The points u_m = (m + U) / M below the cumulative weight c_i = W_1 + ... + W_i number ceil(M c_i - U),
 so particle i is the ancestor of the points from ceil(M c_{i-1} - U) to ceil(M c_i - U): one pass over
-the weights writes the M ancestors in order, with no search.
+the weights counts where each particle's points end, a running sum over the points turns the counts
+into the ancestors, in order, with no search and no branch that depends on the weights.
 """
 
 from __future__ import annotations
@@ -32,18 +33,17 @@ def systematic(weights, uniforms, count, bases, out):  # pragma: no cover - comp
     """
     runs, size = weights.shape
     for b in range(runs):
-        cumulative = 0.0  # float64 whatever the weights' dtype (numpy's cumsum into a float64 array)
-        start = 0
         block = b * count
-        base = bases[b]
-        for i in range(size):
+        for m in range(count):
+            out[block + m] = 0
+        # out[block + e] counts the particles whose points end at e: numpy's bincount of the ends
+        cumulative = 0.0  # float64 whatever the weights' dtype (numpy's cumsum into a float64 array)
+        for i in range(size - 1):  # the last particle takes the rest: round-off may leave the sum short of 1
             cumulative += weights[b, i]
-            # the last particle takes the rest: round-off may leave the sum short of 1
-            end = count if i == size - 1 else min(math.ceil(cumulative * count - uniforms[b]), count)
-            for m in range(start, end):
-                out[block + m] = base + i
-            if end > start:
-                start = end
-
-
-__all__ = ["systematic"]
+            end = math.ceil(cumulative * count - uniforms[b])
+            if end < count:
+                out[block + end] += 1
+        ancestor = bases[b]  # then the running sum: point m's ancestor is the number of ends at or below m
+        for m in range(count):
+            ancestor += out[block + m]
+            out[block + m] = ancestor
