@@ -145,7 +145,17 @@ class ParticleFilter:
     @classmethod
     def runs_together(cls, options: Mapping[str, Any]) -> bool:
         """Whether several runs with these options can advance together (R > 1): not with recovery or
-        KLD-sampling, which vary one run's particles (such runs go one at a time)."""
+        KLD-sampling, which vary one run's particles (such runs go one at a time).
+
+        Parameters
+        ----------
+        options : mapping
+            The filter's options by name.
+
+        Returns
+        -------
+        bool
+        """
         return not any(options.get(name) not in (None, False, "none") for name in cls.ONE_RUN_OPTIONS)
 
     def step(self, compass_angle: float | np.ndarray, z: float | np.ndarray) -> None:

@@ -100,7 +100,23 @@ def predictive_scale(
 ) -> np.ndarray:
     """The APF's weights on the scale of p(z_k | z_1:k-1), for recovery's w_avg: F p(z|x^j) / p(z|mu^{i^j}),
     whose mean is Pitt and Shephard's estimate of it; an injected particle has no ancestor and carries
-    p(z|x^j). Normalising them gives the second-stage weights again."""
+    p(z|x^j). Normalising them gives the second-stage weights again.
+
+    Parameters
+    ----------
+    second_stage : array (R, N)
+        log p(z | x^j) - log p(z | mu^{i^j}).
+    log_F : array (R,)
+        log F, the first stage's total.
+    log_lik : array (R, N)
+        log p(z | x^j).
+    injected : bool array (N,), or None
+        Recovery's injected particles.
+
+    Returns
+    -------
+    array (R, N)
+    """
     log_w = second_stage + log_F.astype(second_stage.dtype)[:, None]
     return log_w if injected is None else np.where(injected, log_lik, log_w)
 

@@ -64,8 +64,17 @@ class BufferPool:
 
 
 def lookup_tables(world: Any) -> tuple:
-    """The maze's nearest-station tables in float32 (mazelab.lookup) as the likelihood kernel reads them:
-    (scale, offset, nx, ny, kind, row, first (C, 2), all_x (K, A), all_y (K, A), border (b, 2))."""
+    """The maze's nearest-station tables in float32 (mazelab.lookup) as the likelihood kernel reads them.
+
+    Parameters
+    ----------
+    world : Maze
+
+    Returns
+    -------
+    tuple
+        (scale, offset, nx, ny, kind, row, first (C, 2), all_x (K, A), all_y (K, A), border (b, 2)).
+    """
     lookup = world.prepare()._lookup
     tables = lookup._station_tables(np.dtype(PARTICLE_DTYPE))
     contiguous = np.ascontiguousarray

@@ -85,8 +85,17 @@ def normalise(log_w, w, tops, positions, radius, log_out, totals, means, ess, sh
 
 @jit
 def mass_within(weights, positions, centres, radius, shares):  # pragma: no cover - compiled
-    """The weight within `radius` of each run's centre (R, 2) (mazelab.weights.mass_within, float32
-    distances), into shares (R,)."""
+    """The weight within `radius` of each run's centre (mazelab.weights.mass_within, float32 distances).
+
+    Parameters
+    ----------
+    weights : float array (R, N)
+    positions : float32 array (R*N, 2)
+    centres : float64 array (R, 2)
+    radius : float
+    shares : float64 array (R,)
+        Written: each run's weight within the circle.
+    """
     runs, size = weights.shape
     r2 = np.float32(radius * radius)
     for r in range(runs):
@@ -104,7 +113,15 @@ def mass_within(weights, positions, centres, radius, shares):  # pragma: no cove
 @jit
 def covariance(weights, positions, out):  # pragma: no cover - compiled
     """sum_i W_i (x_i - mean)(x_i - mean)^T of R runs (mazelab.weights.weighted_covariance), the mean
-    first (float64 deviations: the spread may be tiny), into out (R, 2, 2)."""
+    first (float64 deviations: the spread may be tiny).
+
+    Parameters
+    ----------
+    weights : float array (R, N)
+    positions : float32 array (R*N, 2)
+    out : float64 array (R, 2, 2)
+        Written: each run's covariance.
+    """
     runs, size = weights.shape
     for r in range(runs):
         block = r * size
