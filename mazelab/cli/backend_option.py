@@ -5,7 +5,7 @@ it) and puts back what was there when the command ends."""
 from __future__ import annotations
 
 import os
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -47,17 +47,33 @@ def set_backend(ctx: typer.Context, value: str | None) -> str | None:
     return name
 
 
-BackendOption = Annotated[
-    str | None,
-    typer.Option(
-        "--backend",
-        metavar="numpy|compiled",
-        callback=set_backend,
-        help="the filters' hot parts in numpy or compiled (numba, the fast extra) [default: $MAZELAB_BACKEND, "
-        "else compiled when numba is installed]",
-        show_default=False,
-    ),
-]
+def backend_option(hidden: bool = False) -> Any:
+    """The --backend option's type (hidden where the command's help has no line to spare: it fills one
+    screen, and MAZELAB_BACKEND does the same).
+
+    Parameters
+    ----------
+    hidden : bool
+
+    Returns
+    -------
+    typing.Annotated type for a typer parameter
+    """
+    return Annotated[
+        str | None,
+        typer.Option(
+            "--backend",
+            metavar="numpy|compiled",
+            callback=set_backend,
+            help="numpy or compiled (default: compiled with numba)",
+            show_default=False,
+            hidden=hidden,
+        ),
+    ]
 
 
-__all__ = ["BackendOption", "set_backend"]
+BackendOption = backend_option()
+HiddenBackendOption = backend_option(hidden=True)
+
+
+__all__ = ["BackendOption", "HiddenBackendOption", "backend_option", "set_backend"]
