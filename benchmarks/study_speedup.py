@@ -22,7 +22,8 @@ import tempfile
 import time
 from pathlib import Path
 
-STUDY = "study --maze paper_5x5 --sigma 0.2,0.4,0.6,0.8 --runs 30 --seed 2024 --workers 1 --no-viz".split()
+STUDY = ["study", "--maze", "paper_5x5", "--sigma", "0.2,0.4,0.6,0.8", "--runs", "30", "--seed", "2024"]
+STUDY += ["--workers", "1", "--no-viz"]
 TIMING = {"ms_per_step", "run_seconds"}
 
 
@@ -54,7 +55,7 @@ def main() -> None:
     args = parser.parse_args()
     here = Path(__file__).resolve().parents[1]
     subjects = [("other", args.other, None), ("numpy", here, "numpy"), ("compiled", here, "compiled")]
-    for label, checkout, backend in subjects:  # warm-up: bytecode written, kernels cached
+    for _, checkout, backend in subjects:  # warm-up: bytecode written, kernels cached
         run_study(checkout, backend)
     print(f"load average before: {os.getloadavg()}")
     times: dict[str, list[tuple[float, float]]] = {label: [] for label, _, _ in subjects}
@@ -70,11 +71,15 @@ def main() -> None:
         cpu_here = sum(c for _, c in times[label])
         wall_other = sum(w for w, _ in times["other"])
         wall_here = sum(w for w, _ in times[label])
-        same = sum(a == b for a, b in zip(rows["other"], rows[label], strict=True))
+        common = [k for k in rows["other"][0] if k in rows[label][0]]  # a newer CSV has more columns
+        same = sum(all(a[k] == b[k] for k in common) for a, b in zip(rows["other"], rows[label], strict=True))
+        converged = sum(row["converged_at"] not in ("", "None") for row in rows[label])
         print(
             f"{label}: {cpu_other / cpu_here:.2f}x the other checkout's speed in CPU time, "
-            f"{wall_other / wall_here:.2f}x in wall time; {same} of {len(rows[label])} rows equal"
+            f"{wall_other / wall_here:.2f}x in wall time; {same} of {len(rows[label])} rows equal on the "
+            f"{len(common)} columns both write; {converged} runs converged"
         )
+    print(f"other: {sum(row['converged_at'] not in ('', 'None') for row in rows['other'])} runs converged")
 
 
 if __name__ == "__main__":
