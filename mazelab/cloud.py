@@ -354,6 +354,9 @@ class ParticleFilter:
         lost : bool array (R,), optional
             Runs to restart whatever their weights.
         """
+        # the last step's weights and reads go first (the new ones replace them), so that the compiled
+        # backend writes the new ones into their arrays, unless something else still holds them
+        self._summary_of, self._summary, self._log_w = None, {}, None
         totals, log_weights, reads = self.ops.normalise(log_w, self.positions)
         explained = totals >= LOG_UNDERFLOW  # False for an underflow and for NaN
         if lost is not None:

@@ -152,10 +152,9 @@ class CompiledKernels(NumpyKernels):
         if positions.dtype != PARTICLE_DTYPE or uniforms.dtype != PARTICLE_DTYPE:
             return super().move(positions, ancestors, uniforms, angles, delta, speed)
         headings = headings_from_uniforms(uniforms, angles[:, None], delta).reshape(-1)
-        cos_h = np.cos(headings, out=self.pool.take("cos", headings.shape, PARTICLE_DTYPE))
-        sin_h = np.sin(headings, out=self.pool.take("sin", headings.shape, PARTICLE_DTYPE))
         out = self.pool.take("positions", (len(headings), 2), PARTICLE_DTYPE, "F")
-        steps = _NO_ANCESTORS if ancestors is None else ancestors
+        cos_h, sin_h = np.cos(headings, out=out[:, 0]), np.sin(headings, out=out[:, 1])  # the columns, then
+        steps = _NO_ANCESTORS if ancestors is None else ancestors  # the step adds the moved-from positions
         model.step(positions, steps, cos_h, sin_h, PARTICLE_DTYPE(speed), out)
         return out, headings
 
@@ -203,11 +202,12 @@ class CompiledKernels(NumpyKernels):
 
         Returns
         -------
-        int64 array (len(runs) * N,)
+        int32 array (len(runs) * N,) (int64 from 2**31 particles on)
         """
         rows = np.arange(len(weights_)) if runs is None else np.asarray(runs, dtype=np.int64)
         chosen = weights_ if runs is None else weights_[rows]
-        out = self.pool.take("ancestors", (len(rows) * count,), np.int64)
+        index = np.int32 if len(weights_) * count < 2**31 else np.int64  # half the memory of numpy's int64
+        out = self.pool.take("ancestors", (len(rows) * count,), index)
         resampling.systematic(chosen, uniforms, count, rows * count, out)
         return out
 

@@ -33,7 +33,8 @@ def step(positions, ancestors, cos_h, sin_h, speed, out):  # pragma: no cover - 
     ancestors : int array (M,)
         Row of `positions` each particle moves from; empty: particle i moves from row i.
     cos_h, sin_h : float32 arrays (M,)
-        cos th_i and sin th_i of the headings.
+        cos th_i and sin th_i of the headings (they may be the columns of `out`: each is read before
+        its place is written).
     speed : float32
         The step length L (map units).
     out : float32 array (M, 2)

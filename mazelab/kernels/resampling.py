@@ -28,7 +28,7 @@ def systematic(weights, uniforms, count, bases, out):  # pragma: no cover - comp
         M, the ancestors per run.
     bases : int array (R,)
         Added to run b's ancestors (the row of its first particle in the particles of all runs).
-    out : int64 array (R*M,)
+    out : int32 or int64 array (R*M,)
         The ancestors, run b's in block b, each run's sorted.
     """
     runs, size = weights.shape
