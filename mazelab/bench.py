@@ -1,5 +1,6 @@
-"""The speed benchmark (`python main.py bench`): particle-steps per second of the filters, and of a
-plain numpy reference step measured in the same run, on a small and a large maze.
+"""The speed benchmark (`python main.py bench`): particle-steps per second of the filters on each
+backend (numpy, and compiled where numba is installed: mazelab.backend) side by side, and of a plain
+numpy reference step measured in the same run, on a small and a large maze.
 
 A row times `steps` steps of one filter on a recorded walk, after a few warm-up steps (which also let
 the particles start to gather, as in a real run); each step includes reading the estimate, the ESS and
@@ -21,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mazelab.backend import chosen_backend, numba_available, use_backend
 from mazelab.grid_filter import GridBayesFilter
 from mazelab.maze import EMPTY, STATION_WALL, WALL, Maze
 from mazelab.model import OUTSIDE_PENALTY, ROBOT_SPEED
@@ -39,13 +41,14 @@ REFERENCE_LIMIT = 2.5e7  # the reference step is skipped when N x B exceeds this
 
 @dataclass(frozen=True)
 class BenchRow:
-    """One measurement: a filter (or the reference step) at N particles on one maze."""
+    """One measurement: a filter (or the reference step) at N particles on one maze, on a backend."""
 
     maze: str
     filter_name: str
     particles: int
     seconds_per_step: float
     peak_bytes: int | None
+    backend: str = "numpy"
 
     @property
     def particle_steps_per_second(self) -> float:
@@ -77,10 +80,14 @@ def time_steps(step: Callable[[float, float], None], walk: list[tuple[float, flo
     return statistics.median(times)
 
 
-def filter_stepper(name: str, world: Maze, particles: int, seed: int = 2) -> Callable[[float, float], None]:
-    """A step of a fresh filter, followed by the reads `simulate` makes (estimate, ESS, confidence)."""
+def filter_stepper(
+    name: str, world: Maze, particles: int, seed: int = 2, backend: str | None = None
+) -> Callable[[float, float], None]:
+    """A step of a fresh filter (on `backend`, default the chosen one), followed by the reads `simulate`
+    makes (estimate, ESS, confidence)."""
     rng = np.random.default_rng(seed)
-    filt = resolve_filter(name)(world, BENCH_SIGMA, BENCH_DELTA, world.random_free_places(particles, rng), rng)
+    with use_backend(backend or chosen_backend()):
+        filt = resolve_filter(name)(world, BENCH_SIGMA, BENCH_DELTA, world.random_free_places(particles, rng), rng)
 
     def step(compass_angle: float, z: float) -> None:
         filt.step(compass_angle, z)
@@ -126,16 +133,24 @@ def peak_memory(make_step: Callable[[], Callable[[float, float], None]], walk: l
 
 
 def measure(
-    maze_name: str, world: Maze, counts: tuple[int, ...], steps: int, warmup: int, walk_seed: int = 1
+    maze_name: str,
+    world: Maze,
+    counts: tuple[int, ...],
+    steps: int,
+    warmup: int,
+    walk_seed: int = 1,
+    backends: tuple[str, ...] | None = None,
 ) -> Iterator[BenchRow]:
-    """The rows of one maze: every filter at every N, then the reference step where it is affordable."""
+    """The rows of one maze: every filter at every N on each backend (default: the chosen one), then
+    the reference step where it is affordable."""
     walk = record_walk(world, warmup + steps, walk_seed)
     world.station_distances_and_free(np.zeros(1, np.float32), np.zeros(1, np.float32))  # build the float32 tables
     for n in counts:
         for name in BENCH_FILTERS:
-            peak = peak_memory(lambda name=name, n=n: filter_stepper(name, world, n), walk)
-            seconds = time_steps(filter_stepper(name, world, n), walk, warmup)
-            yield BenchRow(maze_name, resolve_filter(name).name, n, seconds, peak)
+            for backend in backends or (chosen_backend(),):
+                peak = peak_memory(lambda name=name, n=n, b=backend: filter_stepper(name, world, n, backend=b), walk)
+                seconds = time_steps(filter_stepper(name, world, n, backend=backend), walk, warmup)
+                yield BenchRow(maze_name, resolve_filter(name).name, n, seconds, peak, backend)
         if n * len(world.stations) <= REFERENCE_LIMIT:
             reference_walk = walk[: warmup + max(3, steps // 4)]
             peak = peak_memory(lambda n=n: reference_stepper(world, n), walk)
@@ -155,7 +170,8 @@ def grid_filter_ms(world: Maze, steps: int) -> float:
 
 
 def small_run_ms(world: Maze, particles: int = 1500, steps: int = 200) -> tuple[float, float]:
-    """A whole `simulate` run of SIR at the lab's N: (wall-clock ms per step, the filter's own ms per step)."""
+    """A whole `simulate` run of SIR at the lab's N (on the chosen backend): (wall-clock ms per step, the
+    filter's own ms per step)."""
     robot = Robot(BENCH_SIGMA, BENCH_DELTA, world.random_free_place(np.random.default_rng(3)))
     started = time.perf_counter()
     result = simulate(robot, world, BENCH_SIGMA, BENCH_DELTA, particles, steps, seed=3)
@@ -224,13 +240,21 @@ def cpu_model() -> str:
 
 
 def format_table(rows: list[BenchRow]) -> str:
-    """The rows as a text table, each filter's speed also as a multiple of the reference step's."""
+    """The rows as a text table, each filter's speed also as a multiple of the reference step's and, on
+    the compiled backend, of the same filter's on numpy."""
     reference = {(r.maze, r.particles): r.particle_steps_per_second for r in rows if r.filter_name == "reference"}
+    on_numpy = {
+        (r.maze, r.filter_name, r.particles): r.particle_steps_per_second
+        for r in rows
+        if r.backend == "numpy" and r.filter_name != "reference"
+    }
     lines = [
-        "Speed in millions of particle-steps per second (N particles x steps / time); x reference: the filter's",
-        "speed over the plain numpy reference step's at the same N (- where the reference's N x B matrix would",
-        "not fit in memory, so it was not run).",
-        f"{'maze':<22} {'filter':<26} {'N':>9} {'M/s':>9} {'ms/step':>9} {'peak MB':>8} {'x reference':>12}",
+        "Speed in millions of particle-steps per second (N particles x steps / time); x numpy: a compiled row's",
+        "speed over the same filter's on the numpy backend; x reference: the filter's speed over the plain numpy",
+        "reference step's at the same N (- where the reference's N x B matrix would not fit in memory, so it",
+        "was not run).",
+        f"{'maze':<22} {'filter':<26} {'backend':<9} {'N':>9} {'M/s':>9} {'ms/step':>9} {'peak MB':>8} "
+        f"{'x numpy':>8} {'x reference':>12}",
     ]
     for r in rows:
         base = reference.get((r.maze, r.particles))
@@ -241,10 +265,13 @@ def format_table(rows: list[BenchRow]) -> str:
             if base
             else "-"
         )
+        numpy_speed = on_numpy.get((r.maze, r.filter_name, r.particles))
+        versus = f"{r.particle_steps_per_second / numpy_speed:.2f}x" if numpy_speed and r.backend != "numpy" else "-"
         peak = f"{r.peak_bytes / 2**20:8.1f}" if r.peak_bytes is not None else f"{'-':>8}"
         lines.append(
-            f"{r.maze:<22} {r.filter_name:<26} {r.particles:>9,} {speed(r.particle_steps_per_second / 1e6):>9} "
-            f"{1e3 * r.seconds_per_step:9.2f} {peak} {ratio:>12}"
+            f"{r.maze:<22} {r.filter_name:<26} {r.backend:<9} {r.particles:>9,} "
+            f"{speed(r.particle_steps_per_second / 1e6):>9} {1e3 * r.seconds_per_step:9.2f} {peak} {versus:>8} "
+            f"{ratio:>12}"
         )
     return "\n".join(lines)
 
@@ -254,41 +281,107 @@ def speed(millions: float) -> str:
     return f"{millions:.3g}" if millions < 100 else f"{millions:.0f}"
 
 
-def run_benchmark(small: Maze, quick: bool = False, echo: Callable[[str], None] = print) -> list[BenchRow]:
-    """Measure and print everything (`quick`: 40 s on a 2-core virtual machine; the full run, minutes)."""
+def available_backends() -> tuple[str, ...]:
+    """The backends this machine has: numpy, and compiled where numba imports.
+
+    Returns
+    -------
+    tuple of str
+    """
+    return ("numpy", "compiled") if numba_available() else ("numpy",)
+
+
+def kernels_start_seconds(world: Maze) -> tuple[float, int]:
+    """The compiled backend's start in this process: (seconds to import numba and the kernels and run
+    two steps of each filter, how many kernels had to be compiled rather than loaded from the cache).
+
+    Parameters
+    ----------
+    world : Maze
+
+    Returns
+    -------
+    (float, int)
+    """
+    started = time.perf_counter()
+    from mazelab.kernels import model, resampling, weights  # imports numba
+
+    walk = record_walk(world, 2)
+    for name in BENCH_FILTERS:
+        step = filter_stepper(name, world, 200, backend="compiled")
+        for compass_angle, z in walk:
+            step(compass_angle, z)
+    kernels = (model.step, model.log_likelihood, resampling.systematic, weights.normalise, weights.covariance)
+    return time.perf_counter() - started, sum(sum(k.stats.cache_misses.values()) for k in kernels)
+
+
+def run_benchmark(
+    small: Maze, quick: bool = False, echo: Callable[[str], None] = print, backends: tuple[str, ...] | None = None
+) -> list[BenchRow]:
+    """Measure and print everything (`quick`: 40 s a backend on a 2-core virtual machine; the full run,
+    minutes), on `backends` side by side (None: every backend this machine has).
+
+    Parameters
+    ----------
+    small : Maze
+        The small maze (the large one is generated: `large_maze`).
+    quick : bool
+        Fewer sizes and steps.
+    echo : callable
+        Prints a line.
+    backends : tuple of str, optional
+
+    Returns
+    -------
+    list of BenchRow
+        The table's rows.
+    """
+    backends = backends or available_backends()
     counts, steps, warmup = (QUICK_COUNTS, 8, 4) if quick else (FULL_COUNTS, 30, 10)
     large = large_maze()
     echo(
-        f"CPU: {cpu_model()}, {os.cpu_count()} cores; numpy {np.__version__}; "
+        f"CPU: {cpu_model()}, {os.cpu_count()} cores; numpy {np.__version__}; backends {', '.join(backends)}; "
         f"median of {steps} steps after {warmup} warm-up steps; peak memory by tracemalloc (filter + 2 steps)"
     )
+    if "compiled" in backends:
+        seconds, compiled = kernels_start_seconds(small)
+        how = f"{compiled} kernels compiled (the first use on this machine)" if compiled else "loaded from the cache"
+        echo(f"compiled backend: numba imported and the kernels {how} in {seconds:.1f} s, once per process")
     for label, world in (("small", small), ("large", large)):
         echo(f"{label}: {Path(world.source).name}, {world.height}x{world.width}, {len(world.stations)} stations")
     rows: list[BenchRow] = []
     for name, world in (("small " + _size(small), small), ("large " + _size(large), large)):
-        rows += measure(name, world, counts, steps, warmup)
+        rows += measure(name, world, counts, steps, warmup, backends=backends)
     echo(format_table(rows))
     echo(
         f"GridBayesFilter on the small maze (resolution 0.02): {grid_filter_ms(small, 10 if quick else 30):.1f} ms/step"
     )
-    total_ms, filter_ms = small_run_ms(small, steps=50 if quick else 200)
-    echo(f"simulate(), SIR, N = 1,500 on the small maze: {total_ms:.2f} ms/step, of which the filter {filter_ms:.2f}")
     reference = [r for r in rows if r.maze.startswith("small") and (r.filter_name, r.particles) == ("reference", 10**6)]
-    figures = run_model_figures(small, reference=reference[0].seconds_per_step if reference else None)
-    echo(
-        f"run_model(), SIR, N = {figures.particles:,}, {figures.steps} steps, visualize=False: "
-        f"{figures.total_seconds:.2f} s, {figures.overhead:.2f}x its filter steps' own time "
-        f"({figures.filter_seconds:.2f} s), {figures.times_reference:.1f}x the reference step"
-    )
-    if not quick:
-        seconds, error = big_run_seconds(small)
-        echo(
-            f"simulate(), SIR, N = 1,000,000, 200 steps on the small maze: {seconds:.1f} s "
-            f"(last-step error {error:.3f})"
-        )
+    for backend in backends:
+        with use_backend(backend):
+            total_ms, filter_ms = small_run_ms(small, steps=50 if quick else 200)
+            echo(
+                f"[{backend}] simulate(), SIR, N = 1,500 on the small maze: {total_ms:.2f} ms/step, "
+                f"of which the filter {filter_ms:.2f}"
+            )
+            figures = run_model_figures(small, reference=reference[0].seconds_per_step if reference else None)
+            echo(
+                f"[{backend}] run_model(), SIR, N = {figures.particles:,}, {figures.steps} steps, visualize=False: "
+                f"{figures.total_seconds:.2f} s, {figures.overhead:.2f}x its filter steps' own time "
+                f"({figures.filter_seconds:.2f} s), {figures.times_reference:.1f}x the reference step"
+            )
+            if not quick:
+                seconds, error = big_run_seconds(small)
+                echo(
+                    f"[{backend}] simulate(), SIR, N = 1,000,000, 200 steps on the small maze: {seconds:.1f} s "
+                    f"(last-step error {error:.3f})"
+                )
     from mazelab.bench_study import run_study_benchmark  # studies: imports the experiments
 
-    run_study_benchmark(small, large, quick, echo)
+    for backend in backends:
+        with use_backend(backend):
+            echo(f"[{backend}] studies:")
+            run_study_benchmark(small, large, quick, echo)
     return rows
 
 
@@ -307,11 +400,13 @@ __all__ = [
     "REFERENCE_LIMIT",
     "BenchRow",
     "RunModelFigures",
+    "available_backends",
     "big_run_seconds",
     "cpu_model",
     "filter_stepper",
     "format_table",
     "grid_filter_ms",
+    "kernels_start_seconds",
     "large_maze",
     "measure",
     "peak_memory",

@@ -23,6 +23,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from mazelab.backend import kernels_for
 from mazelab.checks import check_sigma_within
 from mazelab.contract import Particles
 from mazelab.declaration import Options, options_of, with_options_section
@@ -34,10 +35,7 @@ from mazelab.model import (
     OUTSIDE_PENALTY_OPTION,
     PARTICLE_DTYPE,
     SPEED_OPTION,
-    headings_from_uniforms,
     log_likelihood,
-    move,
-    take_particles,
 )
 from mazelab.modes import ESTIMATE_OPTION, Mode, find_modes
 from mazelab.recovery import RECOVERY_OPTIONS, RecoveryTracker, recovery_options
@@ -51,9 +49,8 @@ from mazelab.resampling import (
     resampling_scheme,
     systematic_resample,
 )
-from mazelab.resampling import systematic_resample_runs as systematic_runs
 from mazelab.run_axis import as_runs, generators, per_run, replace_blocks
-from mazelab.weights import effective_sample_size, log_sum_exp, mass_within, weighted_mean
+from mazelab.weights import log_sum_exp
 
 
 class ParticleFilter:
@@ -79,6 +76,11 @@ class ParticleFilter:
     `positions` are float32 (PARTICLE_DTYPE), log weights float64. The filter replaces these arrays
     rather than writing into them; to change them, assign new arrays (the weights, estimate, ESS and
     confidence are computed once per assignment and cached).
+
+    The hot parts (the move, the likelihood, systematic resampling, the normalisation and the reads, the
+    RPF's jitter) run on `ops`, numpy's or the compiled kernels (mazelab.backend: `backend` names the
+    one chosen when the filter was made). The compiled kernels reuse their arrays once nothing else
+    holds them, so an array kept from an earlier step is never written over.
     """
 
     name: ClassVar[str] = "ParticleFilter"
@@ -114,6 +116,8 @@ class ParticleFilter:
         self.settings: Mapping[str, Any] = MappingProxyType(settings)
         self.world, self.sigma, self.delta = check_world(world), sigma, delta
         check_sigma_within(sigma, world.width, world.height)
+        self.ops = kernels_for(self.world)  # the hot operations: numpy's or compiled (mazelab.backend)
+        self.backend: str = self.ops.name
         self.estimate_rule = settings["estimate"]
         self.scheme_name = settings["resampling"]
         self.scheme = resampling_scheme(self.scheme_name)
@@ -141,7 +145,17 @@ class ParticleFilter:
     @classmethod
     def runs_together(cls, options: Mapping[str, Any]) -> bool:
         """Whether several runs with these options can advance together (R > 1): not with recovery or
-        KLD-sampling, which vary one run's particles (such runs go one at a time)."""
+        KLD-sampling, which vary one run's particles (such runs go one at a time).
+
+        Parameters
+        ----------
+        options : mapping
+            The filter's options by name.
+
+        Returns
+        -------
+        bool
+        """
         return not any(options.get(name) not in (None, False, "none") for name in cls.ONE_RUN_OPTIONS)
 
     def step(self, compass_angle: float | np.ndarray, z: float | np.ndarray) -> None:
@@ -161,7 +175,11 @@ class ParticleFilter:
 
     # -- the model: transition and likelihood ----------------------------------------------------------
     def propagate(
-        self, positions: np.ndarray, compass_angle: np.ndarray, runs: np.ndarray | None = None
+        self,
+        positions: np.ndarray,
+        compass_angle: np.ndarray,
+        runs: np.ndarray | None = None,
+        ancestors: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Draw x_k ~ p(x_k | x_{k-1}): uniform on the arc of radius L around th0 (headings too).
 
@@ -172,6 +190,8 @@ class ParticleFilter:
             th0_k of every run (`per_run` makes it from a number).
         runs : array of run indices, optional
             The runs whose blocks `positions` holds (None: every run).
+        ancestors : int array, optional
+            Move positions[ancestors] (the resampled particles, gathered in the same pass), not positions.
 
         Returns
         -------
@@ -179,18 +199,30 @@ class ParticleFilter:
         """
         rngs = self.rngs if runs is None else [self.rngs[run] for run in runs]
         dtype = positions.dtype  # PARTICLE_DTYPE, or float64 for injected draws from the free area
-        uniforms = np.empty((len(rngs), len(positions) // len(rngs)), dtype=dtype)
+        moved = len(positions) if ancestors is None else len(ancestors)
+        uniforms = self.ops.buffer("uniforms", (len(rngs), moved // len(rngs)), dtype)
         for row, rng in enumerate(rngs):
             rng.random(dtype=dtype, out=uniforms[row])
-        angles = (compass_angle if runs is None else compass_angle[runs]).astype(dtype)[:, None]
-        headings = headings_from_uniforms(uniforms, angles, self.delta).reshape(-1)
-        return move(positions, headings, self.speed), headings
+        angles = (compass_angle if runs is None else compass_angle[runs]).astype(dtype)
+        return self.ops.move(positions, ancestors, uniforms, angles, self.delta, self.speed)
 
     def motion(self, compass_angle: np.ndarray) -> tuple[Callable[..., Any], Move]:
-        """This step's transition, for resampled ancestors and for injected points (draw_particles)."""
+        """This step's transition, for resampled ancestors and for injected points (draw_particles).
+
+        Parameters
+        ----------
+        compass_angle : array (R,)
+            th0_k of every run.
+
+        Returns
+        -------
+        (move_ancestors, move_injected)
+            (ancestors, runs) -> the ancestors' particles moved, and points -> the points moved, each
+            as (positions, headings).
+        """
 
         def ancestors_moved(ancestors: np.ndarray, runs: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-            return self.propagate(take_particles(self.positions, ancestors), compass_angle, runs)
+            return self.propagate(self.positions, compass_angle, runs, ancestors)
 
         return ancestors_moved, lambda points: self.propagate(points, compass_angle)
 
@@ -207,9 +239,7 @@ class ParticleFilter:
         -------
         array (R, N)
         """
-        one = float(z[0]) if len(z) == 1 else z  # one run: a plain number (the same float32 arithmetic)
-        log_lik = log_likelihood(one, positions, self.world, self.sigma, self.outside_penalty)
-        return log_lik.reshape(len(z), -1)
+        return self.ops.log_likelihood(z, positions, self.world, self.sigma, self.outside_penalty)
 
     # -- resampling, and the parts that change it ------------------------------------------------------
     def resample(self, weights: np.ndarray, runs: np.ndarray | None = None) -> np.ndarray:
@@ -230,11 +260,7 @@ class ParticleFilter:
         chosen = range(self.runs) if runs is None else runs
         if self.scheme is systematic_resample:  # one offset per run, the counting done for all runs at once
             uniforms = np.array([self.rngs[run].random() for run in chosen])
-            if runs is None:
-                return systematic_runs(weights, uniforms)
-            ancestors = systematic_runs(weights[runs], uniforms)  # block b of the result is run runs[b]'s
-            ancestors += np.repeat(self.count * (runs - np.arange(len(runs))), self.count)
-            return ancestors
+            return self.ops.systematic(weights, uniforms, runs, self.count)
         return np.concatenate([self.scheme(weights[run], self.rngs[run]) + run * self.count for run in chosen])
 
     def draw_particles(
@@ -243,6 +269,17 @@ class ParticleFilter:
         """RESAMPLE by the weights (R, N) and `move_ancestors` the ancestors; with KLD-sampling, as many
         as Fox's bound asks; with recovery, then replace each particle with the injection probability by
         an injected point passed through `move_injected`.
+
+        Parameters
+        ----------
+        weights : array (R, N)
+            Every run's normalised weights.
+        move_ancestors : callable
+            (ancestors, runs) -> (positions, headings), the transition of the resampled particles.
+        move_injected : callable
+            points -> (positions, headings), the transition of recovery's injected points.
+        runs : int array, or None
+            The runs to draw for (None: every run).
 
         Returns
         -------
@@ -264,7 +301,13 @@ class ParticleFilter:
     def inject_without_resampling(self, move_injected: Move) -> None:
         """Recovery between resamplings: replace particles with the injection probability, each injected
         point keeping the weight of the particle it replaces (the selection ignores the weights, so the
-        set represents the same mixture (1 - p) belief + p injection as injecting at a resampling)."""
+        set represents the same mixture (1 - p) belief + p injection as injecting at a resampling).
+
+        Parameters
+        ----------
+        move_injected : callable
+            points -> (positions, headings), applied to the injected points.
+        """
         positions, headings = self.positions.copy(order="F"), self.headings.copy()
         self._injected = self.recovery.inject(positions, headings, move_injected, self.rngs[0])
         self._injected_step = self.steps_done + 1
@@ -281,7 +324,15 @@ class ParticleFilter:
         return 0.0 if self.recovery is None else self.recovery.injection_probability
 
     def track_likelihood(self, log_w_avg: np.ndarray | float, z: np.ndarray | float) -> None:
-        """Hand recovery this step's w_avg, log p(z_k | z_1:k-1) estimated (one run)."""
+        """Hand recovery this step's w_avg, log p(z_k | z_1:k-1) estimated (one run).
+
+        Parameters
+        ----------
+        log_w_avg : float or array of one
+            log w_avg.
+        z : float or array of one
+            z_k.
+        """
         if self.recovery is not None:
             self.recovery.track(float(np.asarray(log_w_avg).item()), float(np.asarray(z).item()))
 
@@ -289,18 +340,55 @@ class ParticleFilter:
     def normalise(self, log_w: np.ndarray, z: np.ndarray, lost: np.ndarray | None = None) -> None:
         """W_i ∝ exp(log w_i): normalise each run's log weights (R, N) and keep them; a run whose total
         underflows (no particle explains z_k), or that is `lost` (bool (R,)), starts again from the prior
-        (uniform over the free area), weighted by its own z_k (`reinitialised_at` lists the step)."""
-        totals = np.atleast_1d(log_sum_exp(log_w))
-        log_weights = np.subtract(log_w, totals[:, None], dtype=float)
+        (uniform over the free area), weighted by its own z_k (`reinitialised_at` lists the step).
+
+        The compiled backend reads the step's weights, ESS, mean and confidence in the same passes;
+        they are kept for the reads of this step.
+
+        Parameters
+        ----------
+        log_w : array (R, N)
+            Unnormalised log weights of the particles in `positions`.
+        z : array (R,)
+            z_k of each run (a restarted run is weighted by it).
+        lost : bool array (R,), optional
+            Runs to restart whatever their weights.
+        """
+        # the last step's weights and reads go first (the new ones replace them), so that the compiled
+        # backend writes the new ones into their arrays, unless something else still holds them
+        self._summary_of, self._summary, self._log_w = None, {}, None
+        totals, log_weights, reads = self.ops.normalise(log_w, self.positions)
         explained = totals >= LOG_UNDERFLOW  # False for an underflow and for NaN
         if lost is not None:
             explained &= ~lost
-        if not explained.all():
-            log_weights = self._reinitialise(np.flatnonzero(~explained), z, log_weights)
+        restarted = np.flatnonzero(~explained)
+        if len(restarted):
+            log_weights = self._reinitialise(restarted, z, log_weights)
         self._log_w = log_weights
+        if reads is not None and len(restarted) < self.runs:
+            self._keep_reads(reads, restarted)
+
+    def normalised(self, log_a: np.ndarray, log_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """W_i ∝ exp(log a_i + log b_i) per run, and log sum_i exp(log a_i + log b_i) (the APF's first
+        stage, W_{k-1} p(z_k | mu_k), and its total F), without changing the filter's weights.
+
+        Parameters
+        ----------
+        log_a, log_b : arrays (R, N)
+
+        Returns
+        -------
+        (W (R, N), log totals (R,)); a run whose total is -inf gets NaN weights
+        """
+        return self.ops.normalised(log_a, log_b)
 
     def set_uniform_weights(self, runs: np.ndarray | None = None) -> None:
-        """W_i = 1 / N for the given runs (None: every run): the weights after a resampling."""
+        """W_i = 1 / N for the given runs (None: every run): the weights after a resampling.
+
+        Parameters
+        ----------
+        runs : int array, optional
+        """
         log_weights = np.empty((self.runs, self.count)) if runs is None else self._log_w.copy()
         log_weights[slice(None) if runs is None else runs] = -math.log(self.count)
         self._log_w = log_weights
@@ -333,7 +421,7 @@ class ParticleFilter:
     @property
     def run_ess(self) -> np.ndarray:
         """N_eff = 1 / sum_i W_i^2 per run, shape (R,)."""
-        return self._cached("ess", lambda: effective_sample_size(self.run_weights))
+        return self._cached("ess", lambda: self.ops.effective_sample_size(self.run_weights))
 
     @property
     def ess(self) -> float | np.ndarray:
@@ -343,7 +431,7 @@ class ParticleFilter:
     @property
     def mean(self) -> np.ndarray:
         """The posterior mean sum_i W_i x_i: (2,) for one run, (R, 2) for R runs."""
-        return self._one(self._cached("mean", lambda: weighted_mean(self.run_weights, self.positions))).copy()
+        return self._one(self._cached("mean", lambda: self.ops.weighted_mean(self.run_weights, self.positions))).copy()
 
     @property
     def modes(self) -> list[Mode] | list[list[Mode]]:
@@ -359,7 +447,8 @@ class ParticleFilter:
     def is_confident(self) -> bool | np.ndarray:
         """At least 95% of the weight lies within distance 1 of the estimate (the paper's green circle)."""
         share = self._cached(
-            "confident", lambda: mass_within(self.run_weights, self.positions, self._estimates(), CONFIDENCE_RADIUS)
+            "confident",
+            lambda: self.ops.mass_within(self.run_weights, self.positions, self._estimates(), CONFIDENCE_RADIUS),
         )
         confident = share >= CONFIDENCE_SHARE
         return bool(confident[0]) if self.runs == 1 else confident
@@ -370,17 +459,38 @@ class ParticleFilter:
         return self._one(self._reinitialised)
 
     def belief(self) -> Particles:
-        """What the viewer draws: the particles (one run)."""
+        """What the viewer draws: the particles (one run).
+
+        Returns
+        -------
+        Particles
+        """
         return Particles(self.positions, self.weights, self.headings, self.injected, self.modes, self.kld is not None)
 
     # -- R runs together: the blocks of the run axis ------------------------------------------------------
     def run_positions(self, run: int) -> np.ndarray:
-        """Run `run`'s particles, (N, 2)."""
+        """Run `run`'s particles.
+
+        Parameters
+        ----------
+        run : int
+
+        Returns
+        -------
+        array (N, 2), a view of `positions`
+        """
         return self.positions[run * self.count : (run + 1) * self.count]
 
     def replace_runs(self, x: np.ndarray, headings: np.ndarray, runs: np.ndarray | None = None) -> None:
         """New particles (len(runs) * N, 2) and headings for the given runs (None: every run); the other
-        runs keep theirs."""
+        runs keep theirs.
+
+        Parameters
+        ----------
+        x : array (len(runs) * N, 2)
+        headings : array (len(runs) * N,)
+        runs : int array, optional
+        """
         if runs is None:
             self.positions, self.headings, self.count = x, headings, len(x) // self.runs
             return
@@ -389,7 +499,17 @@ class ParticleFilter:
 
     def all_runs(self, log_w: np.ndarray | None, runs: np.ndarray | None) -> np.ndarray:
         """Log weights (R, N) with the given runs' rows from `log_w` (None: every run's; the other runs
-        restart: zeros)."""
+        restart: zeros).
+
+        Parameters
+        ----------
+        log_w : array (len(runs), N), or None
+        runs : int array, or None
+
+        Returns
+        -------
+        array (R, N)
+        """
         if runs is None:
             return log_w
         full = np.zeros((self.runs, self.count), dtype=np.float32 if log_w is None else log_w.dtype)
@@ -400,9 +520,9 @@ class ParticleFilter:
     def _estimates(self) -> np.ndarray:
         """The estimate of each run, (R, 2) float64."""
         if self.estimate_rule == "mode":
-            means = self._cached("mean", lambda: weighted_mean(self.run_weights, self.positions))
+            means = self._cached("mean", lambda: self.ops.weighted_mean(self.run_weights, self.positions))
             return np.stack([m[0].mean if m else mean for m, mean in zip(self._run_modes(), means, strict=True)])
-        return self._cached("mean", lambda: weighted_mean(self.run_weights, self.positions))
+        return self._cached("mean", lambda: self.ops.weighted_mean(self.run_weights, self.positions))
 
     def _run_modes(self) -> list[list[Mode]]:
         """Each run's modes, heaviest first."""
@@ -413,6 +533,23 @@ class ParticleFilter:
     def _one(self, per_run: Any) -> Any:
         """Run 0's value for one run (the paper's shapes), all runs' otherwise."""
         return per_run[0] if self.runs == 1 else per_run
+
+    def _keep_reads(self, reads: dict[str, np.ndarray], restarted: np.ndarray) -> None:
+        """Keep the reads the compiled normalisation made (weights, ESS, mean, and the confidence share
+        around the mean, the estimate unless the estimate is the heaviest mode) for this step's reads;
+        the restarted runs' are made from their new weights as a run of their own makes them, so that R
+        runs together stay R single runs."""
+        weights, ess, mean, share = reads["weights"], reads["ess"], reads["mean"], reads["share"]
+        if len(restarted):
+            weights[restarted] = np.exp(self._log_w[restarted])
+            points = np.concatenate([self.run_positions(run) for run in restarted])
+            ess[restarted] = self.ops.effective_sample_size(weights[restarted])
+            mean[restarted] = self.ops.weighted_mean(weights[restarted], points)
+            share[restarted] = self.ops.mass_within(weights[restarted], points, mean[restarted], CONFIDENCE_RADIUS)
+        self._summary_of = (self.positions, self._log_w)
+        self._summary = {"weights": weights, "ess": ess, "mean": mean}
+        if self.estimate_rule != "mode":
+            self._summary["confident"] = share
 
     def _cached(self, name: str, compute: Callable[[], Any]) -> Any:
         """`compute()`, remembered until `positions` or the log weights are assigned a new array."""

@@ -17,10 +17,17 @@ import numpy as np
 from mazelab.checks import check_bandwidth_within
 from mazelab.cloud import ParticleFilter
 from mazelab.declaration import Option, Options, number_in
-from mazelab.model import LOG_UNDERFLOW, PARTICLE_DTYPE, RPF_THRESHOLD, take_particles
-from mazelab.regularisation import BANDWIDTH_OPTION, Kernel, gaussian_jitter, mixture_kernel, optimal_bandwidth
+from mazelab.model import LOG_UNDERFLOW, PARTICLE_DTYPE, RPF_THRESHOLD
+from mazelab.regularisation import (
+    BANDWIDTH_OPTION,
+    GaussianKernel,
+    Kernel,
+    gaussian_jitter,
+    mixture_kernel,
+    optimal_bandwidth,
+)
 from mazelab.run_axis import per_run
-from mazelab.weights import log_sum_exp, weighted_covariance, weights_from_logs
+from mazelab.weights import log_sum_exp
 
 
 class SIRParticleFilter(ParticleFilter):
@@ -68,13 +75,12 @@ class AuxiliaryParticleFilter(ParticleFilter):
         compass_angle, z = per_run(compass_angle, self.runs), per_run(z, self.runs)
         mu, _ = self.propagate(self.positions, compass_angle)  # mu_k^i ~ p(x_k | x_{k-1}^i)
         log_mu_lik = self.likelihood(z, mu)
-        first_stage = self.run_log_weights + log_mu_lik  # w_k^i ∝ p(z_k | mu_k^i) w_{k-1}^i
-        log_F = np.atleast_1d(log_sum_exp(first_stage))  # F = sum_i W_{k-1}^i p(z_k | mu_k^i)
+        # the first stage w_k^i ∝ p(z_k | mu_k^i) w_{k-1}^i, normalised, and F = sum_i W_{k-1}^i p(z_k | mu_k^i)
+        first_weights, log_F = self.normalised(self.run_log_weights, log_mu_lik)
         lost = log_F < LOG_UNDERFLOW  # no mu explains z_k: these runs restart from the prior
         drawn, second_stage = (np.flatnonzero(~lost) if lost.any() else None), None  # None: every run
         if drawn is None or len(drawn):
             # i^j ~ the first stage, then x_k^j ~ p(x_k | x_{k-1}^{i^j})
-            first_weights = weights_from_logs(first_stage, log_F)
             x, headings, ancestors, injected = self.draw_particles(first_weights, *self.motion(compass_angle), drawn)
             self.replace_runs(x, headings, drawn)
             log_lik = self.likelihood(z if drawn is None else z[drawn], x)
@@ -94,7 +100,23 @@ def predictive_scale(
 ) -> np.ndarray:
     """The APF's weights on the scale of p(z_k | z_1:k-1), for recovery's w_avg: F p(z|x^j) / p(z|mu^{i^j}),
     whose mean is Pitt and Shephard's estimate of it; an injected particle has no ancestor and carries
-    p(z|x^j). Normalising them gives the second-stage weights again."""
+    p(z|x^j). Normalising them gives the second-stage weights again.
+
+    Parameters
+    ----------
+    second_stage : array (R, N)
+        log p(z | x^j) - log p(z | mu^{i^j}).
+    log_F : array (R,)
+        log F, the first stage's total.
+    log_lik : array (R, N)
+        log p(z | x^j).
+    injected : bool array (N,), or None
+        Recovery's injected particles.
+
+    Returns
+    -------
+    array (R, N)
+    """
     log_w = second_stage + log_F.astype(second_stage.dtype)[:, None]
     return log_w if injected is None else np.where(injected, log_lik, log_w)
 
@@ -169,19 +191,23 @@ class RegularizedParticleFilter(ParticleFilter):
 
     def regularise(self, runs: np.ndarray | None = None) -> None:
         """RESAMPLE the given runs (default all), then jitter each particle by h D eps, eps ~ N(0, I_2),
-        D D^T = S (the kernel K_h); their weights become 1/N."""
+        D D^T = S (the kernel K_h); their weights become 1/N.
+
+        Parameters
+        ----------
+        runs : int array, optional
+            The runs to regularise (None: every run).
+        """
         chosen = np.arange(self.runs) if runs is None else runs
         weights = self.run_weights
         kernels = self.kernels(weights if runs is None else weights[runs], chosen)
 
         def jitter(ancestors: np.ndarray, _: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:  # x^{i*} + h D eps
-            moved = take_particles(self.positions, ancestors)
             size = len(ancestors) // len(chosen)
-            for block, (run, kernel) in enumerate(zip(chosen, kernels, strict=True)):
-                rows = slice(block * size, (block + 1) * size)
-                eps = self.rngs[run].standard_normal((size, 2), dtype=PARTICLE_DTYPE)
-                moved[rows] += kernel(moved[rows], eps)
-            return moved, self.headings.take(ancestors)
+            eps = self.ops.buffer("eps", (len(ancestors), 2), PARTICLE_DTYPE)  # eps ~ N(0, I_2), run by run
+            for block, run in enumerate(chosen):
+                self.rngs[run].standard_normal(dtype=PARTICLE_DTYPE, out=eps[block * size : (block + 1) * size])
+            return self.ops.jitter(self.positions, self.headings, ancestors, eps, kernels)
 
         # RESAMPLE and jitter; injected points (recovery) are not jittered: the step's move follows
         x, headings, _, _ = self.draw_particles(weights, jitter, _unmoved, runs)
@@ -191,18 +217,24 @@ class RegularizedParticleFilter(ParticleFilter):
             self._regularised[run].append(self.steps_done)
 
     def kernels(self, weights: np.ndarray, runs: np.ndarray) -> list[Kernel]:
-        """Each given run's kernel: h D_k with its whole cloud's S_k, or one per mode (multimodal)."""
+        """Each given run's kernel: h D_k with its whole cloud's S_k, or one per mode (multimodal).
+
+        Parameters
+        ----------
+        weights : array (len(runs), N)
+            The given runs' normalised weights.
+        runs : int array
+
+        Returns
+        -------
+        list of Kernel, one per given run
+        """
         if self.bandwidth_rule == "multimodal":
             return [mixture_kernel] * len(runs)
         clouds = np.concatenate([self.run_positions(run) for run in runs]) if len(runs) < self.runs else self.positions
-        covariance = weighted_covariance(weights, clouds)  # S_k per run, the weighted empirical covariance
+        covariance = self.ops.weighted_covariance(weights, clouds)  # S_k per run, the weighted covariance
         D = np.linalg.cholesky(covariance + 1e-12 * np.eye(2))  # D_k D_k^T = S_k (tiny ridge: S may be 0)
-        return [_jitter_by(scale) for scale in self.bandwidth * D]
-
-
-def _jitter_by(scale: np.ndarray) -> Kernel:
-    """The kernel h D eps for one run's lower-triangular h D (2, 2)."""
-    return lambda points, eps: gaussian_jitter(eps, scale)
+        return [GaussianKernel(scale) for scale in self.bandwidth * D]
 
 
 def _unmoved(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -32,13 +33,34 @@ Kernel = Callable[[np.ndarray, np.ndarray], np.ndarray]  # (resampled points (N,
 
 
 def optimal_bandwidth(count: int | np.ndarray, dimension: int = 2) -> float | np.ndarray:
-    """h_opt = A N^(-1/(n+4)), A = (4/(n+2))^(1/(n+4)): optimal for a Gaussian kernel and posterior."""
+    """h_opt = A N^(-1/(n+4)), A = (4/(n+2))^(1/(n+4)): optimal for a Gaussian kernel and posterior.
+
+    Parameters
+    ----------
+    count : int or array of int
+        N, the particles (of the cloud, or of each mode).
+    dimension : int
+        n, the state's dimension.
+
+    Returns
+    -------
+    float, or an array the shape of `count`
+    """
     n = dimension
     return (4 / (n + 2)) ** (1 / (n + 4)) * count ** (-1 / (n + 4))
 
 
 def check_bandwidth(bandwidth: str | float) -> str | float:
-    """ "optimal", "multimodal" or a positive number h; a numeric string counts as its number."""
+    """ "optimal", "multimodal" or a positive number h; a numeric string counts as its number.
+
+    Parameters
+    ----------
+    bandwidth : str or float
+
+    Returns
+    -------
+    str or float
+    """
     if isinstance(bandwidth, str):
         if bandwidth in BANDWIDTHS:
             return bandwidth
@@ -57,17 +79,68 @@ BANDWIDTH_OPTION = Option(
 )  # fmt: skip
 
 
+@dataclass(frozen=True, eq=False)
+class GaussianKernel:
+    """The kernel h D eps of one run: `scale` is h D, lower triangular (2, 2), D D^T = S_k.
+
+    Called as a Kernel, (resampled points (N, 2), eps (N, 2)) -> the jitter (N, 2) in eps's dtype; the
+    compiled backend reads `scale` and jitters in its own pass (mazelab.kernels.model.jitter).
+    """
+
+    scale: np.ndarray
+
+    def __call__(self, points: np.ndarray, eps: np.ndarray) -> np.ndarray:
+        """h D eps for each row of eps.
+
+        Parameters
+        ----------
+        points : array (N, 2)
+            The resampled points (unused: the kernel is the same everywhere).
+        eps : array (N, 2)
+            Standard normal draws.
+
+        Returns
+        -------
+        array (N, 2), order F, in eps's dtype
+        """
+        return gaussian_jitter(eps, self.scale)
+
+
 def whole_cloud_kernel(weights: np.ndarray, positions: np.ndarray, h: float) -> Kernel:
-    """h D eps with D D^T = S, the weighted covariance of the whole cloud (the paper's kernel for h_opt)."""
+    """h D eps with D D^T = S, the weighted covariance of the whole cloud (the paper's kernel for h_opt).
+
+    Parameters
+    ----------
+    weights : array (N,)
+        Normalised weights.
+    positions : array (N, 2)
+    h : float
+        The bandwidth.
+
+    Returns
+    -------
+    GaussianKernel
+    """
     covariance = weighted_covariance(weights, positions)  # S_k, the weighted empirical covariance
     D = np.linalg.cholesky(covariance + 1e-12 * np.eye(2))  # D_k D_k^T = S_k (tiny ridge: S may be 0)
-    scale = h * D
-    return lambda points, eps: gaussian_jitter(eps, scale)
+    return GaussianKernel(h * D)
 
 
 def mixture_kernel(points: np.ndarray, eps: np.ndarray) -> np.ndarray:
     """h_c D_c eps for each resampled point of cluster c, h_c = MIXTURE_SHRINK h_opt(n_c) (Murangira,
-    Musso and Dahia 2016, with a narrower h)."""
+    Musso and Dahia 2016, with a narrower h).
+
+    Parameters
+    ----------
+    points : array (N, 2)
+        The resampled points.
+    eps : array (N, 2)
+        Standard normal draws.
+
+    Returns
+    -------
+    array (N, 2), order F, in eps's dtype
+    """
     labels, count = cluster_labels(points)  # every resampled point lies in an occupied bin: no -1
     sizes = np.bincount(labels, minlength=count)
     _, _, covariance = cluster_moments(points, np.ones(len(points)), labels, count)
@@ -84,7 +157,16 @@ def mixture_kernel(points: np.ndarray, eps: np.ndarray) -> np.ndarray:
 
 
 def cholesky_2x2(covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The lower-triangular factors [[a, 0], [c, d]] of positive definite (K, 2, 2) matrices, each (K,)."""
+    """The lower-triangular factors [[a, 0], [c, d]] of positive definite 2 x 2 matrices.
+
+    Parameters
+    ----------
+    covariance : array (K, 2, 2)
+
+    Returns
+    -------
+    (a, c, d), each an array (K,)
+    """
     a = np.sqrt(covariance[:, 0, 0])
     c = covariance[:, 1, 0] / a
     d = np.sqrt(np.clip(covariance[:, 1, 1] - c * c, 0.0, None))
@@ -92,8 +174,19 @@ def cholesky_2x2(covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nda
 
 
 def gaussian_jitter(eps: np.ndarray, scale: np.ndarray) -> np.ndarray:
-    """eps @ scale.T for standard normal eps (N, 2) and a lower-triangular scale (2, 2), in eps's dtype:
-    the kernel's draws, written out (a BLAS matmul would start threads for two columns)."""
+    """eps @ scale.T for standard normal eps and a lower-triangular scale, in eps's dtype: the kernel's
+    draws, written out (a BLAS matmul would start threads for two columns).
+
+    Parameters
+    ----------
+    eps : array (N, 2)
+    scale : array (2, 2)
+        h D, lower triangular.
+
+    Returns
+    -------
+    array (N, 2), order F
+    """
     jitter = np.empty(eps.shape, eps.dtype, order="F")
     a, c, d = (eps.dtype.type(v) for v in (scale[0, 0], scale[1, 0], scale[1, 1]))
     jitter[:, 0] = a * eps[:, 0]
@@ -106,6 +199,7 @@ __all__ = [
     "BANDWIDTH_OPTION",
     "MIN_CLUSTER_VARIANCE",
     "MIXTURE_SHRINK",
+    "GaussianKernel",
     "Kernel",
     "check_bandwidth",
     "cholesky_2x2",

@@ -24,29 +24,86 @@ def _inverse_cdf(sorted_uniforms: np.ndarray, weights: np.ndarray) -> np.ndarray
 
 
 def multinomial_resample(weights: np.ndarray, rng: np.random.Generator, count: int | None = None) -> np.ndarray:
-    """M independent draws from the categorical distribution W."""
+    """M independent draws from the categorical distribution W.
+
+    Parameters
+    ----------
+    weights : array (N,)
+        Normalised weights.
+    rng : numpy.random.Generator
+    count : int, optional
+        M (default N).
+
+    Returns
+    -------
+    int array (M,)
+        Ancestor indices, sorted.
+    """
     count = len(weights) if count is None else count
     return _inverse_cdf(np.sort(rng.random(count)), weights)
 
 
 def stratified_resample(weights: np.ndarray, rng: np.random.Generator, count: int | None = None) -> np.ndarray:
-    """One uniform draw in each of the M strata [m/M, (m+1)/M)."""
+    """One uniform draw in each of the M strata [m/M, (m+1)/M).
+
+    Parameters
+    ----------
+    weights : array (N,)
+        Normalised weights.
+    rng : numpy.random.Generator
+    count : int, optional
+        M (default N).
+
+    Returns
+    -------
+    int array (M,)
+        Ancestor indices, sorted.
+    """
     count = len(weights) if count is None else count
     return _inverse_cdf((np.arange(count) + rng.random(count)) / count, weights)
 
 
 def systematic_resample(weights: np.ndarray, rng: np.random.Generator, count: int | None = None) -> np.ndarray:
-    """One uniform offset U shared by the M strata: the lowest-variance scheme, used by default."""
+    """One uniform offset U shared by the M strata: the lowest-variance scheme, used by default.
+
+    Parameters
+    ----------
+    weights : array (N,)
+        Normalised weights.
+    rng : numpy.random.Generator
+        Draws U.
+    count : int, optional
+        M (default N).
+
+    Returns
+    -------
+    int array (M,)
+        Ancestor indices, sorted.
+    """
     count = len(weights) if count is None else count
     return systematic_resample_runs(weights[None], np.array([rng.random()]), count)
 
 
 def systematic_resample_runs(weights: np.ndarray, uniforms: np.ndarray, count: int | None = None) -> np.ndarray:
-    """Systematic resampling of R runs at once: weights (R, N), run r with the offset U_r = uniforms[r];
-    M = `count` ancestors per run (default N) as indices into the runs' (R*N,) particles, shape (R*M,).
+    """Systematic resampling of R runs at once, run r with the offset U_r = uniforms[r].
 
     The points u_m = (m + U) / M below cumsum(W)[i] number ceil(M cumsum(W)[i] - U), so ancestor i gets
-    the difference of two such counts: O(N) counting instead of a binary search per point.
+    the difference of two such counts: O(N) counting instead of a binary search per point (the compiled
+    backend's kernel, mazelab.kernels.resampling, gives the same ancestors).
+
+    Parameters
+    ----------
+    weights : array (R, N)
+        Each run's normalised weights.
+    uniforms : array (R,)
+        U_r ~ U[0, 1) of each run.
+    count : int, optional
+        M, the ancestors per run (default N).
+
+    Returns
+    -------
+    int64 array (R*M,)
+        Indices into the runs' (R*N,) particles, block r run r's, each block sorted.
     """
     runs, size = weights.shape
     count = size if count is None else count
@@ -70,7 +127,21 @@ def systematic_resample_runs(weights: np.ndarray, uniforms: np.ndarray, count: i
 
 
 def residual_resample(weights: np.ndarray, rng: np.random.Generator, count: int | None = None) -> np.ndarray:
-    """floor(M W_i) copies of each particle, the remaining draws multinomial on the remainders."""
+    """floor(M W_i) copies of each particle, the remaining draws multinomial on the remainders.
+
+    Parameters
+    ----------
+    weights : array (N,)
+        Normalised weights.
+    rng : numpy.random.Generator
+    count : int, optional
+        M (default N).
+
+    Returns
+    -------
+    int array (M,)
+        Ancestor indices.
+    """
     count = len(weights) if count is None else count
     copies = np.floor(count * weights).astype(np.int64)
     deterministic = np.repeat(np.arange(len(weights)), copies)
@@ -90,7 +161,18 @@ RESAMPLING_SCHEMES: dict[str, Callable[..., np.ndarray]] = {
 
 
 def resampling_scheme(name: str) -> Callable[..., np.ndarray]:
-    """The resampling function called `name` (systematic, stratified, multinomial, residual)."""
+    """The resampling function called `name` (systematic, stratified, multinomial, residual).
+
+    Parameters
+    ----------
+    name : str
+        Any case.
+
+    Returns
+    -------
+    callable
+        (weights, rng, count=None) -> ancestor indices.
+    """
     try:
         return RESAMPLING_SCHEMES[name.lower()]
     except (KeyError, AttributeError):
@@ -98,7 +180,16 @@ def resampling_scheme(name: str) -> Callable[..., np.ndarray]:
 
 
 def check_scheme(name: Any) -> str:
-    """A resampling scheme's name, lower case, or one line naming the schemes."""
+    """A resampling scheme's name, lower case, or one line naming the schemes.
+
+    Parameters
+    ----------
+    name : str
+
+    Returns
+    -------
+    str
+    """
     if not isinstance(name, str):
         raise ValueError(f"resampling must be one of {', '.join(RESAMPLING_SCHEMES)}, got {name!r}")
     resampling_scheme(name)
@@ -120,7 +211,21 @@ KLD_MIN_COUNT = 100
 def kld_sample_size(bins: Any, epsilon: float = KLD_EPSILON, z: float = KLD_QUANTILE) -> np.ndarray:
     """Fox (2003), eq. 13: the sample size that keeps the KL distance between the sample's binned
     estimate and the binned posterior below epsilon with probability 1 - delta, for k occupied bins:
-        n = (k-1)/(2 eps) (1 - 2/(9(k-1)) + sqrt(2/(9(k-1))) z_{1-delta})^3   (0 for k <= 1)."""
+        n = (k-1)/(2 eps) (1 - 2/(9(k-1)) + sqrt(2/(9(k-1))) z_{1-delta})^3   (0 for k <= 1).
+
+    Parameters
+    ----------
+    bins : int or array of int
+        k, the occupied bins.
+    epsilon : float
+        The KL bound.
+    z : float
+        The normal quantile z_{1-delta}.
+
+    Returns
+    -------
+    float array, the shape of `bins`
+    """
     k_minus_1 = np.asarray(bins, dtype=float) - 1
     safe = np.maximum(k_minus_1, 1.0)
     c = 2 / (9 * safe)
@@ -155,7 +260,17 @@ class KLDSampling:
             raise ValueError(f"KLD max_count {self.max_count} is below min_count {self.min_count}")
 
     def required_count(self, bins: Any) -> np.ndarray:
-        """max(min_count, ceil(n_chi(k))): Fox's stopping count for k occupied bins."""
+        """max(min_count, ceil(n_chi(k))): Fox's stopping count for k occupied bins.
+
+        Parameters
+        ----------
+        bins : int or array of int
+            k, the occupied bins.
+
+        Returns
+        -------
+        int64 array, the shape of `bins`
+        """
         return np.maximum(self.min_count, np.ceil(kld_sample_size(bins, self.epsilon, self.z))).astype(np.int64)
 
 
@@ -163,7 +278,18 @@ def kld_options(
     kld: bool | KLDSampling | None, epsilon: float = KLD_EPSILON, z: float = KLD_QUANTILE
 ) -> KLDSampling | None:
     """The KLDSampling a filter option asks for: None/False (off), True (with `epsilon` and `z`), or a
-    KLDSampling (its own numbers)."""
+    KLDSampling (its own numbers).
+
+    Parameters
+    ----------
+    kld : bool, KLDSampling or None
+    epsilon, z : float
+        KLD-sampling's numbers when `kld` is True.
+
+    Returns
+    -------
+    KLDSampling or None
+    """
     if kld is None or kld is False:
         return None
     if kld is True:
@@ -174,7 +300,16 @@ def kld_options(
 
 
 def check_kld(kld: Any) -> bool | KLDSampling | None:
-    """The kld option: None/False (off), True, or a KLDSampling."""
+    """The kld option: None/False (off), True, or a KLDSampling.
+
+    Parameters
+    ----------
+    kld : object
+
+    Returns
+    -------
+    True, KLDSampling or None
+    """
     if kld is None or isinstance(kld, (bool, KLDSampling)):
         return None if kld is False else kld
     raise ValueError(f"kld must be true, false or a KLDSampling, got {kld!r}")
@@ -213,8 +348,26 @@ def kld_resample(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """KLD-sampling (Fox 2003, Table 1) in batches: draw ancestors from W, move them, and stop at the first
     sample n with n >= required_count(k), k the bins occupied by samples 1..n, or at max_count.
-    Returns (ancestors, positions, headings). Each batch is shuffled so that cutting a stratified or
-    systematic batch short still keeps every ancestor with the same probability."""
+    Each batch is shuffled so that cutting a stratified or systematic batch short still keeps every
+    ancestor with the same probability.
+
+    Parameters
+    ----------
+    weights : array (N,)
+        Normalised weights (one run).
+    move : callable
+        Ancestors -> (positions, headings): the transition of the drawn particles.
+    options : KLDSampling
+    resample : callable
+        The resampling scheme, (weights, rng, count) -> ancestors.
+    rng : numpy.random.Generator
+    max_count : int
+        The most particles to draw.
+
+    Returns
+    -------
+    (ancestors (n,), positions (n, 2), headings (n,))
+    """
     least = min(options.min_count, max_count)
     occupied = np.empty(0, dtype=np.int64)  # sorted keys of the occupied bins
     parts, drawn, target = [], 0, least

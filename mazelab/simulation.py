@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from mazelab.backend import backend_of
 from mazelab.checks import (
     as_points,
     check_particle_count,
@@ -281,7 +282,8 @@ def simulate(
     initial particles and the filter; the same seed gives the same result bit for bit.
     `kidnap_at=K`: at step K, before its move, the robot is carried to a free place drawn from the
     seed (see Robot.kidnap); a robot that replays a kidnapping keeps it. The scenario stores it.
-    result.extras["particle_count"] holds the particle count per step (it varies with KLD-sampling).
+    result.extras["particle_count"] holds the particle count per step (it varies with KLD-sampling),
+    result.extras["backend"] the backend the filter ran on (numpy or compiled, mazelab.backend).
     A filter class that declares the option `start` is also handed the robot's start (the
     EKF's `init="start"` tracks from it; the kidnapping, if any, is left for it to find out).
     `view` is what the run draws into: None (nothing), a view (`log_step`, `close`), or a function
@@ -360,7 +362,7 @@ def simulate(
         recorded.seconds,
         list(filt.reinitialised_at),
         inputs,
-        extras={"particle_count": run["counts"], "diagnostics": run["diagnostics"]},
+        extras={"particle_count": run["counts"], "diagnostics": run["diagnostics"], "backend": backend_of(filt)},
     )
 
 

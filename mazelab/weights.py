@@ -8,7 +8,17 @@ import numpy as np
 # -- weights: each function takes one run's weights (N,) or R runs' (R, N), summing along the last axis
 def log_sum_exp(log_w: np.ndarray) -> float | np.ndarray:
     """log(sum(exp(log_w))) along the last axis without overflow or underflow; -inf where every entry
-    is -inf. A float for one run (N,), an array (R,) for R runs (R, N)."""
+    is -inf.
+
+    Parameters
+    ----------
+    log_w : array (N,) or (R, N)
+        Log weights of one run or of R runs.
+
+    Returns
+    -------
+    float for one run, float64 array (R,) for R runs
+    """
     top = log_w.max(axis=-1, keepdims=True)  # the array methods skip np.max's dispatch: a few us a call
     finite = np.isfinite(top[..., 0])
     if finite.all():
@@ -23,13 +33,35 @@ def log_sum_exp(log_w: np.ndarray) -> float | np.ndarray:
 
 
 def exp_in_place(values: np.ndarray) -> np.ndarray:
-    """exp(values), written over `values` (a temporary of the caller's): no second array."""
+    """exp(values), written over `values` (a temporary of the caller's): no second array.
+
+    Parameters
+    ----------
+    values : float array
+        Overwritten.
+
+    Returns
+    -------
+    numpy.ndarray
+        `values` itself, now exp(values).
+    """
     return np.exp(values, out=values)
 
 
 def weights_from_logs(log_w: np.ndarray, log_totals: np.ndarray) -> np.ndarray:
-    """Normalised weights exp(log w - log total) of R runs (R, N), totals (R,); a run whose total is
-    -inf gets NaNs (the caller does not draw from it)."""
+    """Normalised weights exp(log w - log total) of R runs; a run whose total is -inf gets NaNs (the
+    caller does not draw from it).
+
+    Parameters
+    ----------
+    log_w : array (R, N)
+    log_totals : array (R,)
+        Each run's log sum exp(log w).
+
+    Returns
+    -------
+    float array (R, N)
+    """
     if np.isfinite(log_totals).all():
         return exp_in_place(np.subtract(log_w, log_totals[:, None]))
     with np.errstate(invalid="ignore"):
@@ -37,7 +69,17 @@ def weights_from_logs(log_w: np.ndarray, log_totals: np.ndarray) -> np.ndarray:
 
 
 def effective_sample_size(weights: np.ndarray) -> float | np.ndarray:
-    """N_eff = 1 / sum(W_i^2) for normalised weights W (Arulampalam et al., eq. 51), per run."""
+    """N_eff = 1 / sum(W_i^2) for normalised weights W (Arulampalam et al., eq. 51), per run.
+
+    Parameters
+    ----------
+    weights : array (N,) or (R, N)
+        Normalised weights.
+
+    Returns
+    -------
+    float for one run, array (R,) for R runs
+    """
     ess = 1.0 / (weights * weights).sum(axis=-1)
     return float(ess) if weights.ndim == 1 else ess
 
@@ -50,7 +92,19 @@ def _columns(points: np.ndarray, runs: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def weighted_mean(weights: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """sum_i W_i x_i per run, float64: (2,) for weights (N,), (R, 2) for weights (R, N)."""
+    """sum_i W_i x_i per run, float64 (summed in the points' dtype).
+
+    Parameters
+    ----------
+    weights : array (N,) or (R, N)
+        Normalised weights.
+    points : array (N, 2) or (R*N, 2)
+        The particles, run r's in the block of rows r*N..(r+1)*N.
+
+    Returns
+    -------
+    float64 array (2,) for one run, (R, 2) for R runs
+    """
     W = weights if weights.ndim > 1 else weights[None]
     w = W.astype(points.dtype, copy=False)
     means = np.empty((len(W), 2))
@@ -60,7 +114,19 @@ def weighted_mean(weights: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 
 def weighted_covariance(weights: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """sum_i W_i (x_i - mean)(x_i - mean)^T per run, float64: (2, 2), or (R, 2, 2) for weights (R, N)."""
+    """sum_i W_i (x_i - mean)(x_i - mean)^T per run, float64.
+
+    Parameters
+    ----------
+    weights : array (N,) or (R, N)
+        Normalised weights.
+    points : array (N, 2) or (R*N, 2)
+        The particles, run r's in the block of rows r*N..(r+1)*N.
+
+    Returns
+    -------
+    float64 array (2, 2) for one run, (R, 2, 2) for R runs
+    """
     W = weights if weights.ndim > 1 else weights[None]
     mean = weighted_mean(W, points)
     x, y = _columns(points, len(W))
@@ -71,7 +137,21 @@ def weighted_covariance(weights: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 
 def mass_within(weights: np.ndarray, points: np.ndarray, centre: np.ndarray, radius: float) -> float | np.ndarray:
-    """The total weight of the points at most `radius` from `centre` ((2,), or (R, 2) per run)."""
+    """The total weight of the points at most `radius` from `centre` (distances in the points' dtype).
+
+    Parameters
+    ----------
+    weights : array (N,) or (R, N)
+        Normalised weights.
+    points : array (N, 2) or (R*N, 2)
+    centre : array (2,), or (R, 2) per run
+    radius : float
+        Map units.
+
+    Returns
+    -------
+    float for one run, array (R,) for R runs
+    """
     W = weights if weights.ndim > 1 else weights[None]
     c = (centre if centre.ndim > 1 else centre[None]).astype(points.dtype)
     x, y = _columns(points, len(W))

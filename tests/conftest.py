@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import io
+import os
 import signal
 import subprocess
 import sys
@@ -18,6 +19,11 @@ from mazelab.maze import Maze
 from mazelab.robot import Robot
 
 ROOT = Path(__file__).resolve().parent.parent
+
+# The suite's pinned numbers and bit-for-bit comparisons are the numpy backend's, the reference: the
+# filters run on it unless MAZELAB_BACKEND says otherwise (set here, before any filter is made, so that the
+# subprocesses the tests start inherit it too). tests/test_kernels.py and test_backend.py run the compiled one.
+os.environ.setdefault("MAZELAB_BACKEND", "numpy")
 
 # The property tests draw their examples from a fixed seed: the suite gives the same verdict on the
 # same code every time (a failure found once is found again).

@@ -11,6 +11,7 @@ import typer
 
 from mazelab.atomic import write_text_atomically
 from mazelab.checks import check_sigma_within
+from mazelab.cli.backend_option import BackendOption
 from mazelab.cli.filter_options import OptionFlag, options_per_filter, parse_option_texts
 from mazelab.cli.options import DEFAULT_DELTA, DEFAULT_SIGMA, check_output_path, parse_list, seed_option
 from mazelab.cli.outputs import check_one_file_each
@@ -63,6 +64,7 @@ def accuracy(
     csv_path: Annotated[Path | None, typer.Option("--csv", help="one row per maze, run and filter")] = None,
     record: Annotated[Path | None, typer.Option(help="the JSON record [default: beside --csv]")] = None,
     force: Annotated[bool, typer.Option("--force", help="replace existing output files")] = False,
+    backend: BackendOption = None,
 ) -> None:
     """How close each filter comes to the exact posterior: per maze, the mean distance between its
     estimate and the exact grid filter's posterior mean over the second half of the steps (with a 95%

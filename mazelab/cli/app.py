@@ -26,6 +26,7 @@ from typing import Annotated
 import typer
 
 from mazelab.atomic import WriteError
+from mazelab.cli.backend_option import BackendOption
 from mazelab.cli.compare_outputs import compare_record_file, finish_compare, report_compare, start_compare_record
 from mazelab.cli.exercise import exercise_app
 from mazelab.cli.filter_options import (
@@ -196,6 +197,7 @@ def run(
     web: WebOption = False,
     no_viz: NoVizOption = False,
     max_drawn: MaxDrawnOption = DEFAULT_MAX_DRAWN,
+    backend: BackendOption = None,
 ) -> None:
     """Run one filter on a lost robot, or replay a saved scenario (--scenario) with its filter and
     options. Every filter option: --option NAME=VALUE (`mazelab filters` lists them)."""
@@ -273,6 +275,7 @@ def compare(
     web: WebOption = False,
     no_viz: NoVizOption = False,
     max_drawn: MaxDrawnOption = DEFAULT_MAX_DRAWN,
+    backend: BackendOption = None,
 ) -> None:
     """Lab steps 12-13: every filter on one saved scenario (the same start, particles, walk). Each
     filter takes the options it declares (--option NAME=VALUE; `mazelab filters` lists them).
@@ -324,11 +327,15 @@ app.command(short_help="The recordings saved without a display; --clean removes 
 @app.command(short_help="The filters' speed against a plain numpy step.")
 def bench(
     quick: Annotated[bool, typer.Option("--quick", help="fewer sizes and steps (41 s on a 2-core machine)")] = False,
+    backend: BackendOption = None,
 ) -> None:
-    """Measure the filters' speed (particle-steps per second) against a plain numpy reference step."""
+    """Measure the filters' speed (particle-steps per second) against a plain numpy reference step, on
+    both backends side by side (numpy, and compiled where numba is installed), or on --backend's."""
     from mazelab.bench import run_benchmark  # only this command needs it
 
-    run_benchmark(load_maze(DEFAULT_MAZE), quick=quick, echo=typer.echo)
+    run_benchmark(
+        load_maze(DEFAULT_MAZE), quick=quick, echo=typer.echo, backends=None if backend is None else (backend,)
+    )
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -14,6 +14,7 @@ import typer
 
 from mazelab.atomic import WriteError, write_text_atomically
 from mazelab.cli.accuracy import accuracy
+from mazelab.cli.backend_option import HiddenBackendOption
 from mazelab.cli.filter_options import (
     KldFlag,
     StudyOptionFlag,
@@ -123,6 +124,7 @@ def study(
     web: WebOption = False,
     no_viz: NoVizOption = False,
     max_drawn: MaxDrawnOption = DEFAULT_MAX_DRAWN,
+    backend: HiddenBackendOption = None,
 ) -> None:
     """Lab step 14: a Monte Carlo study of every combination of the values given, each filter once per
     value of its own options (README: "Parameter studies")."""

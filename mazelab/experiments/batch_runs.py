@@ -13,6 +13,7 @@ from itertools import groupby
 
 import numpy as np
 
+from mazelab.backend import backend_of
 from mazelab.collect import record_steps
 from mazelab.contract import check_filter
 from mazelab.experiments.study import RunFailure, RunRecord, RunTask, run_records, run_task_safely
@@ -140,7 +141,11 @@ def run_batch(tasks: Sequence[RunTask]) -> list[list[RunRecord]]:
                 steps_of.seconds,
                 restarts[r],
                 inputs,
-                extras={"particle_count": run["counts"], "diagnostics": run["diagnostics"]},
+                extras={
+                    "particle_count": run["counts"],
+                    "diagnostics": run["diagnostics"],
+                    "backend": backend_of(filt),
+                },
             )
     return [run_records(task, world, result) for task, result in zip(tasks, results, strict=True)]
 

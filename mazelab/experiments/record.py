@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from mazelab.atomic import write_text_atomically
+from mazelab.backend import backend_versions
 from mazelab.experiments.inputs import read_regular_text
 from mazelab.experiments.stats import CONFIDENCE_LEVEL, INTERVAL_METHODS
 
@@ -88,12 +89,14 @@ def dependency_versions() -> dict[str, str | None]:
 
 
 def program_versions() -> dict[str, Any]:
-    """The versions a result depends on: this program (and its git commit, if any), numpy, Python, and
+    """The versions a result depends on: this program (and its git commit, if any), numpy, the filters'
+    backend (numpy or compiled, mazelab.backend) and numba's version (None without it), Python, and
     every dependency's (`packages`)."""
     return {
         "mazelab": package_version(),
         "git_commit": git_commit(),
         "numpy": np.__version__,
+        **backend_versions(),
         "python": platform.python_version(),
         "implementation": platform.python_implementation(),
         "system": f"{platform.system()} {platform.machine()}",

@@ -1,0 +1,194 @@
+"""Which implementation of the hot parts a particle filter runs on: "numpy" (the reference, always
+there) or "compiled" (numba kernels, the `fast` extra: mazelab.kernels).
+
+The choice, in order: `use_backend(name)` around the code, else the environment variable
+MAZELAB_BACKEND (numpy or compiled; the commands' --backend sets it, so that a study's worker
+processes inherit it), else "compiled" when numba can be imported and "numpy" when it cannot. A
+filter takes the backend chosen when it is made (`filt.backend`), and RunResult.extras["backend"] and
+every record say which ran. The numpy backend is the lab's code as it always was, bit for bit; the
+compiled one does the same arithmetic but for the sums' order and the last bit of cos and sin, so a
+seed repeats a run on each backend, and the two agree statistically, not bit for bit.
+
+Both backends offer the same operations (mazelab.numpy_ops.NumpyKernels, mazelab.kernels.compiled's
+CompiledKernels):
+the move (equation (1)), the likelihood (equation (3)), systematic resampling, the normalisation with
+the step's reads, the APF's first-stage weights, the weighted covariance and the RPF's jitter. The
+cloud (mazelab.cloud) calls them; the filters' steps (mazelab.filters) do not know which runs.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+import importlib.util
+import os
+from collections.abc import Iterator
+from contextlib import contextmanager
+from functools import cache
+from typing import Any
+
+from mazelab.numpy_ops import NumpyKernels
+
+BACKENDS = ("numpy", "compiled")
+ENVIRONMENT_VARIABLE = "MAZELAB_BACKEND"
+INSTALL_HINT = 'the compiled backend needs numba: pip install -e ".[fast]" (uv sync installs it)'
+
+
+@cache
+def numba_available() -> bool:
+    """Whether numba can be imported here (it is the `fast` extra), asked once per process.
+
+    Returns
+    -------
+    bool
+    """
+    if importlib.util.find_spec("numba") is None:
+        return False
+    try:
+        import numba  # noqa: F401
+    except Exception:  # a numba that does not import with this numpy or Python counts as none
+        return False
+    return True
+
+
+def default_backend() -> str:
+    """The backend without a choice: "compiled" when numba imports, else "numpy".
+
+    Returns
+    -------
+    str
+    """
+    return "compiled" if numba_available() else "numpy"
+
+
+def check_backend(name: Any, source: str = "backend") -> str:
+    """A backend's name, lower case, or one line naming the choices (and the extra for "compiled").
+
+    Parameters
+    ----------
+    name : str
+        "numpy" or "compiled".
+    source : str
+        What gave the name, for the message (an option, the environment variable).
+
+    Returns
+    -------
+    str
+        The name, lower case and stripped.
+    """
+    chosen = name.strip().lower() if isinstance(name, str) else name
+    if chosen not in BACKENDS:
+        raise ValueError(f"{source} must be one of {', '.join(BACKENDS)}, got {name!r}")
+    if chosen == "compiled" and not numba_available():
+        raise ValueError(f"{source} {chosen}: {INSTALL_HINT}")
+    return chosen
+
+
+def chosen_backend() -> str:
+    """The backend a filter made now runs on: MAZELAB_BACKEND if set (checked), else the default.
+
+    Returns
+    -------
+    str
+        "numpy" or "compiled".
+    """
+    value = os.environ.get(ENVIRONMENT_VARIABLE, "")
+    return check_backend(value, ENVIRONMENT_VARIABLE) if value.strip() else default_backend()
+
+
+@contextmanager
+def use_backend(name: str) -> Iterator[str]:
+    """Make the filters created inside run on the backend `name` (it sets MAZELAB_BACKEND for the
+    time, so processes started inside inherit it too).
+
+    Parameters
+    ----------
+    name : str
+        "numpy" or "compiled".
+
+    Yields
+    ------
+    str
+        The backend's checked name.
+    """
+    chosen = check_backend(name)
+    before = os.environ.get(ENVIRONMENT_VARIABLE)
+    os.environ[ENVIRONMENT_VARIABLE] = chosen
+    try:
+        yield chosen
+    finally:
+        if before is None:
+            os.environ.pop(ENVIRONMENT_VARIABLE, None)
+        else:
+            os.environ[ENVIRONMENT_VARIABLE] = before
+
+
+def backend_versions() -> dict[str, str | None]:
+    """What a record says of the backend: the chosen one's name, and numba's installed version (None
+    without it; read from the package's metadata, so that a numpy run does not import numba).
+
+    Returns
+    -------
+    dict
+        {"backend": name, "numba": version or None}.
+    """
+    try:
+        version = importlib.metadata.version("numba")
+    except importlib.metadata.PackageNotFoundError:
+        version = None
+    return {"backend": chosen_backend(), "numba": version}
+
+
+def backend_of(filt: Any) -> str:
+    """The backend a filter ran on: its `backend` for the particle filters, "numpy" for any other
+    (the grid filter, the EKF and plug-ins use numpy directly).
+
+    Parameters
+    ----------
+    filt : a filter
+
+    Returns
+    -------
+    str
+    """
+    name = getattr(filt, "backend", None)
+    return name if name in BACKENDS else "numpy"
+
+
+def kernels_for(world: Any, name: str | None = None) -> Any:
+    """The operations of a filter on `world`: the numpy ones, or a new CompiledKernels (its own buffers).
+
+    Parameters
+    ----------
+    world : Maze
+        The filter's maze (the compiled likelihood reads its lookup tables).
+    name : str, optional
+        The backend (None: `chosen_backend()`).
+
+    Returns
+    -------
+    NumpyKernels or mazelab.kernels.compiled.CompiledKernels
+    """
+    if (name or chosen_backend()) == "numpy":
+        return NUMPY_KERNELS
+    from mazelab.kernels.compiled import CompiledKernels  # imports numba: only when it runs
+
+    return CompiledKernels(world)
+
+
+NUMPY_KERNELS = NumpyKernels()
+
+
+__all__ = [
+    "BACKENDS",
+    "ENVIRONMENT_VARIABLE",
+    "INSTALL_HINT",
+    "NUMPY_KERNELS",
+    "backend_of",
+    "backend_versions",
+    "check_backend",
+    "chosen_backend",
+    "default_backend",
+    "kernels_for",
+    "numba_available",
+    "use_backend",
+]

@@ -1,0 +1,335 @@
+"""The compiled backend's operations for one filter (mazelab.backend.NumpyKernels has the same
+methods): each calls one kernel for all R runs, into buffers it reuses.
+
+A buffer is reused only when nothing else holds it: the pool checks its reference count, so an array
+the filter still holds (its positions, the weights it cached) or one a caller kept (a student's list of
+`filt.positions`, a view of it) is never written over; the pool then makes another. Anything the
+kernels do not cover (float64 points such as recovery's injected draws, the multimodal kernel)
+goes to the numpy operations.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from mazelab.kernels import model, resampling, weights
+from mazelab.model import CONFIDENCE_RADIUS, PARTICLE_DTYPE, headings_from_uniforms
+from mazelab.numpy_ops import NumpyKernels
+from mazelab.regularisation import GaussianKernel
+
+_KEEP = 3  # arrays kept per buffer name and shape: the filter's, the one being filled, one a caller holds
+
+
+class BufferPool:
+    """Arrays by name, handed out again once nothing outside the pool refers to them."""
+
+    def __init__(self) -> None:
+        self._slots: dict[str, tuple[tuple, list[np.ndarray]]] = {}  # name -> ((shape, dtype, order), arrays)
+        probe = [np.empty(1)]
+        self._free = sys.getrefcount(probe[0])  # an array only the pool holds: its list's and the call's
+
+    def take(self, name: str, shape: tuple[int, ...], dtype: Any, order: str = "C") -> np.ndarray:
+        """An array of this shape, dtype and order, not referred to by anything but the pool.
+
+        Parameters
+        ----------
+        name : str
+            What it holds (positions, weights, ...).
+        shape : tuple of int
+        dtype : numpy dtype
+        order : "C" or "F"
+
+        Returns
+        -------
+        numpy.ndarray
+            Uninitialised (its old values, or new memory).
+        """
+        kind = (shape, dtype, order)
+        held = self._slots.get(name)
+        if held is None or held[0] != kind:  # new, or the shape changed (KLD-sampling, a subset of runs)
+            held = self._slots[name] = (kind, [])
+        slots = held[1]
+        for index in range(len(slots)):
+            if sys.getrefcount(slots[index]) == self._free:
+                return slots[index]
+        array = np.empty(shape, dtype=dtype, order=order)
+        if len(slots) < _KEEP:
+            slots.append(array)
+        return array
+
+
+def lookup_tables(world: Any) -> tuple:
+    """The maze's nearest-station tables in float32 (mazelab.lookup) as the likelihood kernel reads them.
+
+    Parameters
+    ----------
+    world : Maze
+
+    Returns
+    -------
+    tuple
+        (scale, offset, nx, ny, kind, row, first (C, 2), all_x (K, A), all_y (K, A), border (b, 2)).
+    """
+    lookup = world.prepare()._lookup
+    tables = lookup._station_tables(np.dtype(PARTICLE_DTYPE))
+    contiguous = np.ascontiguousarray
+    return (
+        PARTICLE_DTYPE(lookup.scale),
+        PARTICLE_DTYPE(lookup.offset),
+        int(lookup.nx),
+        int(lookup.ny),
+        lookup.kind,
+        lookup.row,
+        contiguous(tables.first),
+        contiguous(tables.all_x),
+        contiguous(tables.all_y),
+        contiguous(tables.border),
+    )
+
+
+class CompiledKernels(NumpyKernels):
+    """The hot parts of one filter on `world`, compiled (mazelab.kernels), with reused buffers; what
+    the kernels do not cover is NumpyKernels' (this class's parent).
+
+    Parameters
+    ----------
+    world : Maze
+        The filter's maze: its lookup tables are read once.
+    """
+
+    name = "compiled"
+
+    def __init__(self, world: Any):
+        self.tables = lookup_tables(world)
+        self.pool = BufferPool()
+        self._tables_of = world
+
+    def buffer(self, name: str, shape: tuple[int, ...], dtype: Any) -> np.ndarray:
+        """An array to be filled, C order, reused once no one else holds it (see BufferPool.take).
+
+        Parameters
+        ----------
+        name : str
+        shape : tuple of int
+        dtype : numpy dtype
+
+        Returns
+        -------
+        numpy.ndarray
+        """
+        return self.pool.take(name, shape, dtype)
+
+    def move(
+        self,
+        positions: np.ndarray,
+        ancestors: np.ndarray | None,
+        uniforms: np.ndarray,
+        angles: np.ndarray,
+        delta: float,
+        speed: float,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Equation (1): NumpyKernels.move's arguments and results, and its values to the bit (the same
+        float32 headings and numpy's cos and sin), the gather and the step in one compiled pass; float64
+        points go to numpy.
+
+        Parameters
+        ----------
+        positions : array (P, 2)
+        ancestors : int array (R*M,), or None
+        uniforms : array (R, M)
+        angles : array (R,)
+        delta, speed : float
+
+        Returns
+        -------
+        (moved positions (R*M, 2) order F, headings (R*M,)): the headings are the uniforms' array
+        """
+        if positions.dtype != PARTICLE_DTYPE or uniforms.dtype != PARTICLE_DTYPE:
+            return super().move(positions, ancestors, uniforms, angles, delta, speed)
+        headings = headings_from_uniforms(uniforms, angles[:, None], delta).reshape(-1)
+        out = self.pool.take("positions", (len(headings), 2), PARTICLE_DTYPE, "F")
+        cos_h, sin_h = np.cos(headings, out=out[:, 0]), np.sin(headings, out=out[:, 1])  # the columns, then
+        steps = _NO_ANCESTORS if ancestors is None else ancestors  # the step adds the moved-from positions
+        model.step(positions, steps, cos_h, sin_h, PARTICLE_DTYPE(speed), out)
+        return out, headings
+
+    def log_likelihood(
+        self, z: np.ndarray, positions: np.ndarray, world: Any, sigma: float, outside_penalty: float
+    ) -> np.ndarray:
+        """Equation (3) in logs, compiled: the locate and the likelihood in one pass (float32, the
+        numpy path's values to the bit).
+
+        Parameters
+        ----------
+        z : array (R,)
+        positions : array (R*N, 2)
+        world : Maze
+        sigma, outside_penalty : float
+
+        Returns
+        -------
+        float32 array (R, N)
+        """
+        if positions.dtype != PARTICLE_DTYPE or world is not self._tables_of:
+            return super().log_likelihood(z, positions, world, sigma, outside_penalty)
+        norm = math.log(sigma * math.sqrt(2 * math.pi))
+        out = self.pool.take("log_likelihood", (len(z), len(positions) // len(z)), PARTICLE_DTYPE)
+        model.log_likelihood(
+            positions,
+            np.asarray(z, dtype=PARTICLE_DTYPE),
+            PARTICLE_DTYPE(sigma),
+            PARTICLE_DTYPE(-norm),
+            PARTICLE_DTYPE(math.log(outside_penalty) - norm),
+            self.tables,
+            out.reshape(-1),
+        )
+        return out
+
+    def systematic(self, weights_: np.ndarray, uniforms: np.ndarray, runs: np.ndarray | None, count: int) -> np.ndarray:
+        """Systematic resampling by counting, compiled (NumpyKernels.systematic's arguments and results).
+
+        Parameters
+        ----------
+        weights_ : array (R, N)
+        uniforms : array (len(runs),)
+        runs : int array, or None
+        count : int
+
+        Returns
+        -------
+        int32 array (len(runs) * N,) (int64 from 2**31 particles on)
+        """
+        rows = np.arange(len(weights_)) if runs is None else np.asarray(runs, dtype=np.int64)
+        chosen = weights_ if runs is None else weights_[rows]
+        index = np.int32 if len(weights_) * count < 2**31 else np.int64  # half the memory of numpy's int64
+        out = self.pool.take("ancestors", (len(rows) * count,), index)
+        resampling.systematic(chosen, uniforms, count, rows * count, out)
+        return out
+
+    def normalise(self, log_w: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict | None]:
+        """log W and W of each run, with the step's reads: numpy's vectorised max and exp, then the
+        sums and the normalisation in two compiled passes.
+
+        Parameters
+        ----------
+        log_w : array (R, N)
+        positions : array (R*N, 2)
+
+        Returns
+        -------
+        (log totals (R,), log W (R, N) float64, reads): reads holds "weights" (R, N), "ess" (R,),
+        "mean" (R, 2) and "share" (R,), the weight within CONFIDENCE_RADIUS of the mean
+        """
+        if positions.dtype != PARTICLE_DTYPE or len(positions) != log_w.size:
+            return super().normalise(log_w, positions)
+        runs, size = log_w.shape
+        tops = np.maximum.reduce(log_w, axis=1).astype(np.float64)  # NaN where a run holds one
+        w = self.pool.take("weights", (runs, size), np.float64)
+        if all(top > -math.inf for top in tops.tolist()):
+            np.subtract(log_w, tops[:, None], out=w)
+        else:
+            with np.errstate(invalid="ignore"):  # a run whose top is -inf: NaN here, normalise marks it
+                np.subtract(log_w, tops[:, None], out=w)
+        np.exp(w, out=w)
+        log_out = self.pool.take("log_weights", (runs, size), np.float64)
+        totals, ess, shares, means = np.empty(runs), np.empty(runs), np.empty(runs), np.empty((runs, 2))
+        weights.normalise(log_w, w, tops, positions, CONFIDENCE_RADIUS, log_out, totals, means, ess, shares)
+        return totals, log_out, {"weights": w, "ess": ess, "mean": means, "share": shares}
+
+    def normalised(self, log_a: np.ndarray, log_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """W ∝ exp(log_a + log_b) per run and log sum exp(log_a + log_b), into reused arrays, with one
+        exponential per particle (numpy's log_sum_exp and weights_from_logs take two).
+
+        Parameters
+        ----------
+        log_a, log_b : arrays (R, N)
+
+        Returns
+        -------
+        (W (R, N) float64, log totals (R,)); a run whose total is -inf (or NaN) gets NaN weights
+        """
+        w = np.add(log_a, log_b, out=self.pool.take("first_weights", log_a.shape, np.float64))
+        tops = np.maximum.reduce(w, axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):  # a run whose top is -inf: NaN weights
+            w -= tops[:, None]
+            np.exp(w, out=w)
+            sums = w.sum(axis=1)
+            w /= sums[:, None]
+            totals = tops + np.log(sums)
+        totals[~(tops > -np.inf)] = tops[~(tops > -np.inf)]  # -inf stays -inf, NaN stays NaN
+        return w, totals
+
+    def mass_within(
+        self, weights_: np.ndarray, positions: np.ndarray, centres: np.ndarray, radius: float
+    ) -> np.ndarray:
+        """The weight within `radius` of each run's centre (R, 2), compiled.
+
+        Parameters
+        ----------
+        weights_ : array (R, N)
+        positions : array (R*N, 2)
+        centres : array (R, 2)
+        radius : float
+
+        Returns
+        -------
+        array (R,)
+        """
+        shares = np.empty(len(weights_))
+        weights.mass_within(weights_, positions, np.asarray(centres, dtype=float).reshape(-1, 2), radius, shares)
+        return shares
+
+    def weighted_covariance(self, weights_: np.ndarray, positions: np.ndarray) -> np.ndarray:
+        """Each run's weighted covariance, compiled (two passes: the mean, then the moments).
+
+        Parameters
+        ----------
+        weights_ : array (R, N)
+        positions : array (R*N, 2)
+
+        Returns
+        -------
+        array (R, 2, 2) float64
+        """
+        if positions.dtype != PARTICLE_DTYPE:
+            return super().weighted_covariance(weights_, positions)
+        out = np.empty((len(weights_), 2, 2))
+        weights.covariance(weights_, positions, out)
+        return out
+
+    def jitter(
+        self, positions: np.ndarray, headings: np.ndarray, ancestors: np.ndarray, eps: np.ndarray, kernels: Sequence
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The RPF's gather and jitter in one pass for Gaussian kernels (h D eps, one D per run); the
+        multimodal kernel goes to numpy.
+
+        Parameters
+        ----------
+        positions : array (P, 2)
+        headings : array (P,)
+        ancestors : int array (R*M,)
+        eps : array (R*M, 2)
+        kernels : sequence of R kernels
+
+        Returns
+        -------
+        (jittered positions (R*M, 2) order F, their headings (R*M,))
+        """
+        if positions.dtype != PARTICLE_DTYPE or not all(isinstance(k, GaussianKernel) for k in kernels):
+            return super().jitter(positions, headings, ancestors, eps, kernels)
+        scales = np.array([[k.scale[0, 0], k.scale[1, 0], k.scale[1, 1]] for k in kernels], dtype=PARTICLE_DTYPE)
+        out = self.pool.take("positions", (len(ancestors), 2), PARTICLE_DTYPE, "F")
+        out_headings = self.pool.take("headings", (len(ancestors),), PARTICLE_DTYPE)
+        model.jitter(positions, headings, ancestors, eps, scales, out, out_headings)
+        return out, out_headings
+
+
+_NO_ANCESTORS = np.empty(0, dtype=np.int64)
+
+
+__all__ = ["BufferPool", "CompiledKernels", "lookup_tables"]

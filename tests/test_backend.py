@@ -1,0 +1,143 @@
+"""Which backend runs (mazelab.backend): the default (compiled when numba imports, numpy when it does
+not), MAZELAB_BACKEND and use_backend, --backend on the commands (one line for a wrong name), and
+every RunResult and JSON record naming the backend that ran; `mazelab bench` shows both side by side."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from conftest import ROOT
+
+from mazelab import bench as benchmark
+from mazelab.backend import ENVIRONMENT_VARIABLE, backend_versions, check_backend, chosen_backend, use_backend
+from mazelab.cli.app import main
+from mazelab.lab import simulate
+from mazelab.registry import resolve_filter
+from mazelab.robot import Robot
+
+HAS_NUMBA = subprocess.run([sys.executable, "-c", "import numba"], capture_output=True).returncode == 0
+needs_numba = pytest.mark.skipif(not HAS_NUMBA, reason="the compiled backend needs numba (the fast extra)")
+
+# a Python that cannot import numba, as on an install without the fast extra
+WITHOUT_NUMBA = "import sys; sys.modules['numba'] = None\n"
+
+
+def python(code: str, backend: str | None = None) -> str:
+    """Run `code` in a fresh interpreter with MAZELAB_BACKEND set to `backend` (None: unset)."""
+    env = {k: v for k, v in os.environ.items() if k != ENVIRONMENT_VARIABLE}
+    if backend is not None:
+        env[ENVIRONMENT_VARIABLE] = backend
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=ROOT, timeout=600, check=False
+    )
+    assert done.returncode == 0, done.stderr
+    return done.stdout.strip()
+
+
+MADE = (
+    "import numpy as np\n"
+    "from mazelab.maze import Maze\n"
+    "from mazelab.registry import resolve_filter\n"
+    "w = Maze.from_file('paper_5x5')\n"
+    "points = w.random_free_places(50, np.random.default_rng(1))\n"
+    "f = resolve_filter('sir')(w, 0.3, 0.5, points, np.random.default_rng(2))\n"
+    "print(f.backend)\n"
+)
+
+
+@needs_numba
+def test_without_a_choice_the_compiled_backend_runs_where_numba_imports():
+    assert python(MADE) == "compiled"
+
+
+def test_without_numba_the_numpy_backend_runs_and_compiled_is_refused_in_one_line():
+    assert python(WITHOUT_NUMBA + MADE) == "numpy"
+    code = WITHOUT_NUMBA + "from mazelab.cli.app import main\nprint(main(['run', '--backend', 'compiled', '--no-viz']))"
+    env = {k: v for k, v in os.environ.items() if k != ENVIRONMENT_VARIABLE}
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=ROOT, timeout=120)
+    assert done.stdout.strip() == "2"
+    assert done.stderr.strip().splitlines() == [
+        'error: --backend compiled: the compiled backend needs numba: pip install -e ".[fast]" (uv sync installs it)'
+    ]
+
+
+def test_the_environment_variable_chooses_and_a_wrong_name_is_one_line():
+    assert python(MADE, "numpy") == "numpy"
+    assert python(MADE, " NumPy ") == "numpy"
+    with pytest.raises(ValueError, match=r"^MAZELAB_BACKEND must be one of numpy, compiled, got 'fortran'$"):
+        check_backend("fortran", "MAZELAB_BACKEND")
+
+
+def test_use_backend_chooses_for_the_filters_made_inside_and_puts_the_variable_back(paper_world):
+    before = os.environ.get(ENVIRONMENT_VARIABLE)
+    rng = np.random.default_rng(1)
+    backend = "compiled" if HAS_NUMBA else "numpy"
+    with use_backend(backend):
+        assert chosen_backend() == backend
+        filt = resolve_filter("apf")(paper_world, 0.3, 0.5, paper_world.random_free_places(50, rng), rng)
+    assert filt.backend == backend
+    assert os.environ.get(ENVIRONMENT_VARIABLE) == before
+    with pytest.raises(ValueError, match="must be one of"), use_backend("cuda"):
+        pass
+    assert os.environ.get(ENVIRONMENT_VARIABLE) == before
+
+
+@pytest.mark.parametrize("name", ["sir", "grid"])
+def test_a_run_result_says_which_backend_ran(name, paper_world):
+    robot = Robot(0.3, 0.5, paper_world.random_free_place(np.random.default_rng(3)))
+    options = {"resolution": 0.1} if name == "grid" else {}
+    with use_backend("numpy"):
+        result = simulate(robot, paper_world, 0.3, 0.5, 100, 3, filtering_algorithm=name, seed=1, **options)
+    assert result.extras["backend"] == "numpy"  # the grid filter is numpy's whatever the choice
+
+
+@pytest.mark.parametrize("backend", ["numpy", pytest.param("compiled", marks=needs_numba)])
+def test_backend_on_the_command_line_runs_it_and_the_record_says_so(backend, tmp_path, capsys):
+    before = os.environ.get(ENVIRONMENT_VARIABLE)
+    csv = tmp_path / "s.csv"
+    arguments = ["--maze", "paper_5x5", "--runs", "2", "--steps", "5", "--particles", "100", "--workers", "1"]
+    code = main(["study", *arguments, "--no-viz", "--csv", str(csv), "--backend", backend])
+    assert code == 0, capsys.readouterr().err
+    record = json.loads((tmp_path / "s.record.json").read_text())
+    assert record["program"]["backend"] == backend
+    assert record["program"]["numba"] == (backend_versions()["numba"])
+    assert os.environ.get(ENVIRONMENT_VARIABLE) == before  # the command's choice ends with the command
+
+
+def test_a_wrong_backend_on_the_command_line_is_one_line(capsys):
+    for command in (["run", "--no-viz"], ["accuracy"], ["bench", "--quick"]):
+        assert main([*command, "--backend", "gpu"]) == 2
+        assert capsys.readouterr().err.strip().splitlines() == [
+            "error: --backend must be one of numpy, compiled, got 'gpu'"
+        ]
+
+
+@needs_numba
+def test_a_run_on_the_command_line_on_the_compiled_backend(tmp_path):
+    done = subprocess.run(
+        [sys.executable, str(ROOT / "main.py"), "run", "--maze", "paper_5x5", "--steps", "5", "--seed", "3",
+         "--no-viz", "--quiet", "--backend", "compiled", "--save-scenario", str(tmp_path / "r.json")],
+        capture_output=True, text=True, timeout=600, check=False,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert (tmp_path / "r.json").exists()
+
+
+@needs_numba
+def test_bench_shows_both_backends_side_by_side(paper_world):
+    rows = list(benchmark.measure("paper", paper_world, (300,), steps=2, warmup=1, backends=("numpy", "compiled")))
+    assert [(r.filter_name, r.backend) for r in rows[:6]] == [
+        (name, backend)
+        for name in ("SIRParticleFilter", "AuxiliaryParticleFilter", "RegularizedParticleFilter")
+        for backend in ("numpy", "compiled")
+    ]
+    lines = benchmark.format_table(rows).splitlines()
+    header = next(i for i, line in enumerate(lines) if line.startswith("maze"))
+    versus = [line.split()[-2] for line in lines[header + 1 :]]  # the x numpy column
+    assert versus[:6:2] == ["-"] * 3 and all(v.endswith("x") for v in versus[1:6:2])
+    assert benchmark.available_backends() == ("numpy", "compiled")
