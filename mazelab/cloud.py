@@ -73,6 +73,8 @@ class ParticleFilter:
     **options
         The declared options (`options`, listed below); `settings` holds the values this filter runs with.
 
+    Notes
+    -----
     `positions` are float32 (PARTICLE_DTYPE), log weights float64. The filter replaces these arrays
     rather than writing into them; to change them, assign new arrays (the weights, estimate, ESS and
     confidence are computed once per assignment and cached).

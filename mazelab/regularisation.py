@@ -9,7 +9,7 @@ bandwidth="multimodal" (beyond the paper): the mixture RPF of Murangira, Musso a
   of one bin, so that a cluster of a few copies is still spread), h_c = MIXTURE_SHRINK h_opt(n_c): a
   mode is no Gaussian either (walls cut it), and Musso, Oudjane and Le Gland (2001) advise a smaller h
   than h_opt for such densities; the factor was chosen by measuring against the exact grid filter
-  (see the README, "Multimodal posteriors").
+  (see docs/multimodal.md).
 bandwidth=h (a number): h D eps with the whole cloud's D, h given.
 """
 
@@ -26,7 +26,7 @@ from mazelab.modes import MODE_CELL, cluster_labels, cluster_moments
 from mazelab.weights import weighted_covariance
 
 BANDWIDTHS = ("optimal", "multimodal")
-MIXTURE_SHRINK = 0.5  # h_c = MIXTURE_SHRINK * h_opt(n_c) in the multimodal kernel (measured, see the README)
+MIXTURE_SHRINK = 0.5  # h_c = MIXTURE_SHRINK * h_opt(n_c) in the multimodal kernel (measured, see docs/multimodal.md)
 MIN_CLUSTER_VARIANCE = MODE_CELL**2 / 12  # the variance of a uniform spread over one bin, per axis
 
 Kernel = Callable[[np.ndarray, np.ndarray], np.ndarray]  # (resampled points (N, 2), eps (N, 2)) -> jitter (N, 2)

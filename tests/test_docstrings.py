@@ -1,6 +1,6 @@
 """The API reference of the filter core, the contract and the registry: every public function and
 method says its parameters and what it returns (numpydoc), so the reference built from them
-(pdoc, in CI) documents the extension API a researcher writes a filter against."""
+(mkdocs, in CI) documents the extension API a researcher writes a filter against."""
 
 from __future__ import annotations
 

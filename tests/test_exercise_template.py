@@ -88,11 +88,12 @@ def test_an_existing_file_is_replaced_only_with_force(tmp_path):
 def test_a_file_size_limit_leaves_the_students_filter_whole(tmp_path):
     """`ulimit -f` between the README's size and the filter's: the README is written, the filter's
     write fails with one line and exit 1, and the student's my_filter.py is left as it was."""
-    assert len(README_TEMPLATE.encode()) < 2000 < len(FILTER_TEMPLATE.encode())
+    limit = (len(README_TEMPLATE.encode()) + len(FILTER_TEMPLATE.encode())) // 2  # README fits, filter not
+    assert len(README_TEMPLATE.encode()) < limit < len(FILTER_TEMPLATE.encode())
     (tmp_path / "my_filter.py").write_text(STUDENTS_WORK)
 
     def limited() -> None:
-        resource.setrlimit(resource.RLIMIT_FSIZE, (2000, resource.getrlimit(resource.RLIMIT_FSIZE)[1]))
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, resource.getrlimit(resource.RLIMIT_FSIZE)[1]))
 
     done = exercise_new(tmp_path, "--force", preexec_fn=limited)
     assert done.returncode == 1

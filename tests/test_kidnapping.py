@@ -6,7 +6,7 @@
   kidnapped; scenarios without one stay version 1, and bad kidnappings in a file are refused;
 - "re-localised" looks at the mean error of the last DEFAULT_WINDOW steps; recovery_steps counts from the
   kidnapping;
-- the command line kidnaps, recovers and adapts, and the recovery table runs as the README says.
+- the command line kidnaps, recovers and adapts, and the recovery table runs as docs/kidnapped.md says.
 """
 
 from __future__ import annotations

@@ -32,6 +32,8 @@ def command(tmp_path: Path, *arguments: str) -> subprocess.CompletedProcess:
         ([*STUDY, "--csv", "s.csv", "--plot", "./s.csv"], "--csv and --plot are one file (s.csv)"),
         ([*STUDY, "--csv", "s.csv", "--record", "s.csv.partial"], "--csv's partial file and --record are one file"),
         ([*STUDY, "--csv", "s.csv", "--plot", "s.record.json"], "--plot and the record are one file (s.record.json)"),
+        ([*STUDY, "--csv", "s.csv", "--traces", "s.summary.csv"], "--traces and the summary CSV are one file"),
+        ([*STUDY, "--csv", "s.csv", "--summary-csv", "s.csv"], "--csv and --summary-csv are one file (s.csv)"),
         ([*STUDY, "--csv", "s.csv", "--traces", "s.record.json.partial"], "the record's partial file and --traces"),
         ([*STUDY[:-1], "--plot", "t.rrd", "--rrd", "t.rrd"], "--plot and --rrd are one file (t.rrd)"),
         ([*STUDY, "--csv", "s.csv", "--traces", "t.csv", "--plot", "t.csv.partial"], "--traces's partial file and"),
@@ -64,7 +66,7 @@ def test_a_symlink_or_a_hard_link_to_another_output_is_the_same_file(tmp_path, c
 def test_outputs_of_their_own_names_are_accepted(tmp_path, capsys):
     names = ["--csv", "s.csv", "--traces", "t.csv", "--record", "r.json", "--plot", "p.png"]
     assert main([*STUDY, *[str(tmp_path / n) if n[0] != "-" else n for n in names]]) == 0
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["p.png", "r.json", "s.csv", "t.csv"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["p.png", "r.json", "s.csv", "s.summary.csv", "t.csv"]
 
 
 @pytest.mark.parametrize(

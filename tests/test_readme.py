@@ -1,4 +1,5 @@
-"""The README's Python examples run as written (shortened to a few steps, drawing to files)."""
+"""The Python examples of the README and of the documentation's pages run as written (shortened to a
+few steps, drawing to files)."""
 
 from __future__ import annotations
 
@@ -7,13 +8,16 @@ import re
 from conftest import ROOT
 
 README = (ROOT / "README.md").read_text(encoding="utf-8")
+VIEWER_PAGE = (ROOT / "docs" / "viewer.md").read_text(encoding="utf-8")
 
 
-def python_blocks(section: str) -> list[str]:
-    """The ```python blocks of the README section that starts with `section`."""
-    start = README.index(section)
-    end = README.find("\n## ", start + len(section))
-    return re.findall(r"```python\n(.*?)```", README[start : end if end > 0 else None], re.S)
+def python_blocks(section: str, text: str = README) -> list[str]:
+    """The ```python blocks of the section of `text` (the README's by default) that starts with `section`
+    (up to the next heading of the same level)."""
+    start = text.index(section)
+    level = section.split(" ")[0]
+    end = text.find(f"\n{level} ", start + len(section))
+    return re.findall(r"```python\n(.*?)```", text[start : end if end > 0 else None], re.S)
 
 
 def test_the_lab_steps_run_as_written(tmp_path, monkeypatch, capsys):
@@ -29,6 +33,6 @@ def test_the_lab_steps_run_as_written(tmp_path, monkeypatch, capsys):
 
 def test_the_notebook_comparison_snippet_runs(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    (code,) = [block for block in python_blocks("### In Jupyter") if "open_comparison" in block]
+    (code,) = [block for block in python_blocks("## In Jupyter", VIEWER_PAGE) if "open_comparison" in block]
     exec(code.replace('"notebook"', '"comparison.rrd"').replace("steps=200", "steps=5").replace("(1500,", "(200,"), {})
     assert (tmp_path / "comparison.rrd").stat().st_size > 0

@@ -142,7 +142,7 @@ def test_sensor_resetting_draws_points_with_density_proportional_to_the_likeliho
 def test_recovery_relocalises_where_the_papers_filter_does_not():
     """Ten seeded kidnappings on mazes/maze_10x10.txt (sigma 0.3, delta 0.5, 1000 particles, kidnapped at
     step 80 of 200, re-localised = mean error < 0.5 over the last 30 steps). Measured over 40 runs
-    (README's table, 2000 particles) the paper's SIR re-localises in about 5% of runs, with sensor
+    (docs/kidnapped.md's table, 2000 particles) the paper's SIR re-localises in about 5% of runs, with sensor
     resetting in over 90%. If those were the true rates here, 10 runs would give the plain filter 4 or
     more successes with probability 1.3% and sensor resetting 6 or fewer with probability 1.3%: the
     thresholds below separate a working recovery from none. (Fixed seeds make the test repeatable.)"""

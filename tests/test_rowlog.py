@@ -178,7 +178,7 @@ def test_a_killed_study_keeps_the_old_csv_and_its_record_and_resumes_from_its_ow
     assert [untimed(r) for r in table] == [untimed(r) for r in rows(tmp_path / "whole" / "s.csv")]
     assert record["parameters"]["root_seed"] == 2 and record["status"] == "finished"
     assert record["runs_finished"] == 6 and len(record["sessions"]) == 1
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.csv", "s.record.json", "whole"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.csv", "s.record.json", "s.summary.csv", "whole"]
 
 
 def test_a_stopped_study_keeps_the_old_record_beside_the_old_csv(tmp_path):
@@ -199,7 +199,7 @@ def test_a_finished_study_replaces_the_record_with_its_csv_and_leaves_no_partial
     record = json.loads((tmp_path / "s.record.json").read_text())
     assert record["parameters"]["root_seed"] == 3 and record["runs_finished"] == 6
     assert len(rows(tmp_path / "s.csv")) == 12
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.csv", "s.record.json"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.csv", "s.record.json", "s.summary.csv"]
 
 
 def traces_without_timing(path: Path) -> list[dict[str, str]]:
@@ -236,7 +236,7 @@ def test_the_old_traces_stay_beside_the_old_csv_and_a_resume_gives_whole_traces(
     assert main([*STUDY, "--seed", "2", "--csv", str(whole), "--traces", str(tmp_path / "whole" / "t.csv")]) == 0
     assert traces_without_timing(tmp_path / "t.csv") == traces_without_timing(tmp_path / "whole" / "t.csv")
     assert [untimed(r) for r in rows(tmp_path / "s.csv")] == [untimed(r) for r in rows(whole)]
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.csv", "s.record.json", "t.csv", "whole"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.csv", "s.record.json", "s.summary.csv", "t.csv", "whole"]
 
 
 @pytest.mark.skipif(importlib.util.find_spec("distributed") is None, reason="needs dask.distributed")

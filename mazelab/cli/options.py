@@ -26,7 +26,7 @@ ViewerOption = Annotated[bool, typer.Option("--viewer", help="the native viewer 
 RrdOption = Annotated[Path | None, typer.Option("--rrd", help="save the recording to this .rrd file")]
 WebOption = Annotated[bool, typer.Option("--web", help="serve the web viewer on 127.0.0.1")]
 NoVizOption = Annotated[bool, typer.Option("--no-viz", help="draw nothing")]
-MaxDrawnOption = Annotated[int, typer.Option("--max-drawn", min=1, help="particles drawn per step, at most")]
+MaxDrawnOption = Annotated[int, typer.Option("--max-drawn", min=1, help="most particles drawn a step")]
 
 
 def visualization(

@@ -98,21 +98,22 @@ def study(
     workers: Annotated[int | None, typer.Option(min=1, help="processes (default: all cores)")] = None,
     dask: Annotated[str | None, typer.Option(help="the Dask scheduler to run on, tcp://HOST:PORT")] = None,
     dask_timeout: Annotated[
-        float, typer.Option(metavar="<s>", callback=dask_timeout_option, help="give up after s idle seconds")
+        float,
+        typer.Option(metavar="<s>", callback=dask_timeout_option, hidden=True, help="give up after s idle seconds"),
     ] = DASK_TIMEOUT,
     csv_path: Annotated[Path | None, typer.Option("--csv", help="one row per run and filter")] = None,
     plot: Annotated[Path | None, typer.Option(help="the figure: .png, .pdf or .svg (the suffix chooses)")] = None,
     summary_csv: Annotated[
-        Path | None, typer.Option("--summary-csv", help="one row per setting and filter [default: CSV.summary.csv]")
+        Path | None, typer.Option("--summary-csv", hidden=True, help="the table as CSV [default: CSV.summary.csv]")
     ] = None,
     reference: Annotated[
-        str | None, typer.Option(metavar="grid", help="run the exact grid filter too: every row's distance_to_exact")
+        str | None, typer.Option(metavar="grid", help="the exact grid filter too: distance_to_exact")
     ] = None,
     paired: Annotated[
-        str | None, typer.Option(metavar="FILTER", help="paired differences to this filter's errors, on the same runs")
+        str | None, typer.Option(metavar="FILTER", help="each filter's difference to FILTER, run by run")
     ] = None,
     plot_x: Annotated[
-        str | None, typer.Option(metavar="PARAMETER", help="the figure's x axis: a varied parameter (sigma, ...)")
+        str | None, typer.Option(metavar="PARAMETER", help="the figure's x axis, a varied parameter")
     ] = None,
     traces: Annotated[Path | None, typer.Option(help="per-step rows of every run (.csv, or .parquet)")] = None,
     record: Annotated[Path | None, typer.Option(help="JSON record [default: CSV.record.json]")] = None,
@@ -126,17 +127,16 @@ def study(
     max_drawn: MaxDrawnOption = DEFAULT_MAX_DRAWN,
     backend: HiddenBackendOption = None,
 ) -> None:
-    """Lab step 14: a Monte Carlo study of every combination of the values given, each filter once per
-    value of its own options (README: "Parameter studies")."""
+    """Lab step 14: a study of every combination of the values (docs/studies.md)."""
     visualize = visualization(viewer, rrd, web, no_viz, max_drawn, force) if viewer or web or rrd is not None else False
-    outputs = StudyOutputs.parse(csv_path, plot, traces, record, rrd, force, resume)
+    outputs = StudyOutputs.parse(csv_path, plot, traces, record, rrd, force, resume, summary_csv)
     given = {"threshold": threshold, "recovery": recovery, "bandwidth": bandwidth, "estimate": estimate}
     plan = parse_plan(
         outputs, filters, given, option, maze=maze, maze_size=maze_size, stations=stations, wall_share=wall_share,
         sigma=sigma, delta=delta, particles=particles, runs=runs, steps=steps, seed=seed, kidnap_at=kidnap_at, kld=kld,
         reference=reference,
     )  # fmt: skip
-    extras = StudyExtras.parse(plan, outputs, summary_csv, paired, plot_x)
+    extras = StudyExtras.parse(plan, paired, plot_x)
     session = open_session(plan, outputs, visualize, draw_run, dask, workers or default_workers())
     outcome = run_session(session, visualize, dask_timeout)
     report_study(session, outcome, kld, extras)
@@ -156,18 +156,23 @@ class StudyOutputs:
     force: bool
     resume: bool
     traces_kept_from: Path | None = None  # --resume --traces: the earlier session's traces, beside its rows
+    summary_csv: Path | None = None  # the table as CSV: --summary-csv, or NAME.summary.csv beside --csv
 
     @classmethod
     def parse(
         cls, csv_path: Path | None, plot: Path | None, traces: Path | None, record: Path | None,
-        rrd: Path | None, force: bool, resume: bool,
+        rrd: Path | None, force: bool, resume: bool, summary_csv: Path | None = None,
     ) -> StudyOutputs:  # fmt: skip
         """Check the outputs (one line for a name that exists without --force, a folder, a device, a
         symlink at a partial file's name, two outputs that are one file), before any work."""
         record_file = (
             record if record is not None else next((record_path(p) for p in (csv_path, plot, traces) if p), None)
         )
-        check_one_file_each(_named_outputs(csv_path, plot, traces, record, record_file, rrd))
+        summary_named = "--summary-csv" if summary_csv is not None else "the summary CSV"
+        if summary_csv is None and csv_path is not None:
+            summary_csv = summary_path(csv_path)
+        named = _named_outputs(csv_path, plot, traces, record, record_file, rrd)
+        check_one_file_each([*named, (summary_named, summary_csv)])
         if csv_path is not None:  # a stopped study's rows: named before its record
             check_left_over(csv_path, force, adopt=resume)
             for path in (record_file, traces):
@@ -180,10 +185,12 @@ class StudyOutputs:
                 check_output_path(path, force)
         if traces is not None:
             check_trace_path(traces)
+        if summary_csv is not None:
+            check_output_path(summary_csv, force or resume)
         kept_from = None
         if resume and traces is not None and csv_path is not None:  # the traces that go with the rows resumed
             kept_from = partial_path(traces) if _rows_file(csv_path) != csv_path else traces
-        return cls(csv_path, plot, traces, record_file, recorded, force, resume, kept_from)
+        return cls(csv_path, plot, traces, record_file, recorded, force, resume, kept_from, summary_csv)
 
 
 def _named_outputs(
@@ -264,20 +271,15 @@ def _parsed(names: list[str], option: str, text: str) -> Any:
 
 @dataclass
 class StudyExtras:
-    """What the report adds to the table and the rows: the summary CSV (--summary-csv, or NAME.summary.csv
-    beside --csv) and the filter of the paired differences (--paired), checked before any run."""
+    """What the report adds to the table and the figure: the filter of the paired differences (--paired)
+    and the figure's x axis (--plot-x), checked before any run."""
 
-    summary_csv: Path | None = None
     paired: str | None = None
     plot_x: str | None = None  # the figure's x axis (--plot-x), a varied parameter
 
     @classmethod
-    def parse(
-        cls, plan: StudyPlan, outputs: StudyOutputs, summary_csv: Path | None, paired: str | None,
-        plot_x: str | None = None,
-    ) -> StudyExtras:  # fmt: skip
-        """--paired names one of the study's filters, --plot-x one of its varied parameters; the summary
-        CSV is a new name (or --force, --resume)."""
+    def parse(cls, plan: StudyPlan, paired: str | None, plot_x: str | None = None) -> StudyExtras:
+        """--paired names one of the study's filters, --plot-x one of its varied parameters."""
         if plot_x is not None and plot_x not in plan.varied:
             varied = ", ".join(plan.varied) or "none: give a parameter two values"
             raise UserError(f"--plot-x {plot_x}: the x axis is a varied parameter of the study ({varied})")
@@ -288,13 +290,7 @@ class StudyExtras:
                 given = ", ".join(entry.reference for entry in entries)
                 raise UserError(f"--paired {paired}: not one of the study's --filters ({given})")
             paired = chosen
-        if summary_csv is None and outputs.csv_path is not None:
-            summary_csv = summary_path(outputs.csv_path)
-        if summary_csv is not None:
-            if outputs.csv_path is not None and summary_csv.resolve() == outputs.csv_path.resolve():
-                raise UserError(f"--summary-csv {summary_csv} is the --csv file; give it a name of its own")
-            check_output_path(summary_csv, outputs.force or outputs.resume)
-        return cls(summary_csv, paired, plot_x)
+        return cls(paired, plot_x)
 
 
 @dataclass
@@ -387,7 +383,7 @@ def report_study(session: StudySession, outcome: StudyOutcome, kld: bool, extras
         "runs_in_study": total,
         "failures": [f.describe() for f in outcome.failures],
         "summary": [s.as_dict() for s in summaries],
-        **({"summary_csv": str(extras.summary_csv)} if extras.summary_csv is not None else {}),
+        **({"summary_csv": str(outputs.summary_csv)} if outputs.summary_csv is not None else {}),
     }
     if outcome.interrupted or outcome.lost is not None:
         report_stopped(session, outcome, closing)
@@ -404,13 +400,13 @@ def report_study(session: StudySession, outcome: StudyOutcome, kld: bool, extras
             typer.echo(f"error: {describe_write_error(error)}; {log.kept()}", err=True)
             raise typer.Exit(1) from None
         typer.echo(f"one row per run and filter written to {outputs.csv_path}")
-    if extras.summary_csv is not None and summaries:
+    if outputs.summary_csv is not None and summaries:
         try:
-            write_text_atomically(extras.summary_csv, summary_csv(summaries), replace=outputs.force or outputs.resume)
+            write_text_atomically(outputs.summary_csv, summary_csv(summaries), replace=outputs.force or outputs.resume)
         except OSError as error:
             typer.echo(f"error: {describe_write_error(error)}", err=True)
             raise typer.Exit(1) from None
-        typer.echo(f"one row per setting and filter (the table, with its intervals) written to {extras.summary_csv}")
+        typer.echo(f"one row per setting and filter (the table, with its intervals) written to {outputs.summary_csv}")
     if _write_traces(outputs.traces, _in_order(outcome.records, plan), session.tasks, outputs.traces_kept_from):
         typer.echo(f"per-step traces written to {outputs.traces}")
     if outputs.plot is not None and summaries:

@@ -50,9 +50,11 @@ class StudentFilter:
         The initial particles, drawn from the prior (uniform over the free area).
     rng : numpy.random.Generator
         Every random draw of the filter; `predict` and `resample` receive it.
-    estimate : str
-        Only "mean": the point estimate is the student's own `estimate`.
+    **options
+        Only `estimate="mean"`: the point estimate is the student's own `estimate`.
 
+    Notes
+    -----
     Attributes the parts may read: `self.world`, `self.sigma`, `self.delta`, `self.ROBOT_SPEED` (L) and
     `self.OUTSIDE_PENALTY` (refinement 1's factor), also importable from mazelab.exercise.
     """
