@@ -22,7 +22,7 @@ from mazelab.plugins import PluginReference, is_plugin_spec, load_plugin, loaded
 
 Colour = tuple[int, int, int]
 # colours for filters in order (matplotlib's tab10, which the PNGs use too): the shipped filters take
-# the first five, plug-ins the next free one
+# the first five, plug-ins the next free one (in turn once all are taken)
 PALETTE: tuple[Colour, ...] = (
     (214, 39, 40),
     (31, 119, 180),
@@ -283,7 +283,10 @@ def _entry_of_class(filter_class: type, plugin: PluginReference | None) -> Filte
     if filter_class in _made and (plugin is None or _made[filter_class].plugin == plugin):
         return _made[filter_class]
     used = {entry.colour for entry in (*_ENTRIES, *_made.values())}
-    colour = next((c for c in PALETTE if c not in used), PALETTE[len(_made) % len(PALETTE)])
+    # the next free colour; once all are taken, the plug-ins' colours in turn (a shipped one never)
+    shipped = {entry.colour for entry in SHIPPED}
+    others = [c for c in PALETTE if c not in shipped]
+    colour = next((c for c in PALETTE if c not in used), others[len(_made) % len(others)])
     doc = (filter_class.__doc__ or "").strip().splitlines()
     entry = FilterEntry(
         filter_class,

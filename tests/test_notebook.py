@@ -10,6 +10,7 @@ import io
 import json
 import sys
 import tomllib
+from pathlib import Path
 
 import matplotlib.image
 import nbformat
@@ -113,19 +114,27 @@ def test_the_ukrainian_notebook_is_the_english_one_in_the_papers_words():
 
 
 @pytest.mark.slow  # about 15 s each: a kernel, then the whole lab (it still runs by default)
-@pytest.mark.parametrize("language", NOTEBOOKS)
-def test_notebook_runs_top_to_bottom_in_a_fresh_kernel(kernel_spec, tmp_path, language):
+def execute_lab(language: str, kernel_spec: str, workdir: Path) -> nbformat.NotebookNode:
+    """The notebook run top to bottom in a fresh kernel, in `workdir`, with a last cell that prints the
+    kernel's interpreter; raises CellExecutionError, naming the cell, if any cell fails."""
     notebook = read_notebook(language)
-    probe = nbformat.v4.new_code_cell("import sys\nprint(sys.executable)", id="test-probe")
-    notebook.cells.append(probe)
-    workdir = tmp_path / "work"
+    notebook.cells.append(nbformat.v4.new_code_cell("import sys\nprint(sys.executable)", id="test-probe"))
     workdir.mkdir()
-
     client = NotebookClient(
         notebook, kernel_name=kernel_spec, timeout=CELL_TIMEOUT, resources={"metadata": {"path": str(workdir)}}
     )
-    client.execute()  # raises CellExecutionError, naming the cell, if any cell fails
+    client.execute()
+    return notebook
 
+
+def test_notebook_runs_top_to_bottom_in_a_fresh_kernel(kernel_spec, tmp_path):
+    """The English lab; the Ukrainian one runs once, in tests/test_notebook_uk.py, with these checks."""
+    workdir = tmp_path / "work"
+    check_the_executed_lab(execute_lab("en", kernel_spec, workdir), workdir, "en")
+
+
+def check_the_executed_lab(notebook: nbformat.NotebookNode, workdir: Path, language: str) -> None:
+    """What an executed lab shows: no error, this interpreter, the two figures, the viewers, the scenario."""
     cells = code_cells(notebook)
     assert all(output.output_type != "error" for cell in cells for output in cell.outputs)
     assert stdout_of(cells[-1]).strip() == sys.executable  # the kernel ran in this environment

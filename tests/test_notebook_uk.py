@@ -13,8 +13,7 @@ import re
 import nbformat
 import pytest
 from conftest import ROOT
-from nbclient import NotebookClient
-from test_notebook import CELL_TIMEOUT, code_cells, kernel_spec, read_notebook, stdout_of  # noqa: F401
+from test_notebook import check_the_executed_lab, code_cells, execute_lab, kernel_spec, read_notebook, stdout_of  # noqa: F401
 
 CYRILLIC = re.compile(r"[а-щьюяєіїґ]", re.IGNORECASE)  # noqa: RUF001
 # the native speaker's corrections: the wording that was there, and what replaced it
@@ -73,17 +72,14 @@ def test_every_line_the_notebook_prints_is_worded_in_ukrainian():
 
 @pytest.mark.slow  # a kernel, then the whole lab, as in test_notebook.py (it still runs by default)
 def test_the_executed_notebook_is_ukrainian_and_names_no_folder_of_this_machine(kernel_spec, tmp_path):  # noqa: F811
-    notebook = read_notebook("uk")
     workdir = tmp_path / "a student's folder"
-    workdir.mkdir()
-    client = NotebookClient(
-        notebook, kernel_name=kernel_spec, timeout=CELL_TIMEOUT, resources={"metadata": {"path": str(workdir)}}
-    )
-    client.execute()
-    outputs = json.dumps([cell.outputs for cell in code_cells(notebook)], ensure_ascii=False)
+    notebook = execute_lab("uk", kernel_spec, workdir)
+    check_the_executed_lab(notebook, workdir, "uk")
+    lab_cells = [cell for cell in code_cells(notebook) if cell.id != "test-probe"]  # the probe prints the python
+    outputs = json.dumps([cell.outputs for cell in lab_cells], ensure_ascii=False)
     for folder in {str(workdir), str(workdir.resolve()), str(tmp_path), str(ROOT), "/home/", "/root/"}:
         assert folder not in outputs, f"an output names {folder}"
-    cells = {cell.id: cell for cell in code_cells(notebook)}
+    cells = {cell.id: cell for cell in lab_cells}
     for cell in cells.values():
         for line in stdout_of(cell).splitlines():
             if line.startswith(LIBRARY_LINES):

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import csv
 import inspect
+import itertools
 import textwrap
 
 import numpy as np
@@ -82,6 +83,14 @@ def test_filter_names(name, cls):
 def test_an_unknown_name_is_one_line_with_the_choices():
     with pytest.raises(ValueError, match=r"^unknown filter 'kalman'; choose from sir, apf, rpf, grid, ekf, or "):
         filter_entry("kalman")
+
+
+def test_plug_ins_never_take_a_shipped_filters_colour_even_when_the_palette_is_used_up():
+    """Twelve plug-in classes in one process: more than the palette's free colours; none looks like SIR."""
+    shipped = {entry.colour for entry in SHIPPED}
+    made = [filter_entry(type(f"Many{i}", (SIRParticleFilter,), {"__doc__": "one of many."})) for i in range(12)]
+    assert not shipped & {entry.colour for entry in made}
+    assert all(a.colour != b.colour for a, b in itertools.pairwise(made))  # two in a row differ
 
 
 def test_a_plug_in_gets_an_entry_of_its_own_not_batched_until_it_says_so(tmp_path):
