@@ -138,6 +138,25 @@ def test_the_resample_check_is_corrected_for_its_many_particles():
     assert judge_resample(parts, answer)[0].passed
 
 
+def test_a_systematic_resampler_passes_where_a_count_never_varies_yet_is_not_quite_n_w():
+    """Seed 10006's mild vector has a particle with N W_i = 0.99995: systematic resampling gives it 1
+    offspring at all 4000 calls (probability 0.82), which is no evidence of bias."""
+    parts = draw_part_inputs(10006)
+    answer = collect_in_process(ReferenceFilter, parts, [], ["resample"]).results["resample"]
+    assert judge_resample(parts, answer)[0].passed
+
+
+def test_a_count_that_never_varies_is_judged_by_its_probability():
+    """Always 1 offspring: fine for N W = 0.99995 (p = 0.82), a bias for N W = 0.99 (p = 4e-18) and for
+    1.01005 (below N W, the sign says so); exactly N W is z = 0; a p below the smallest double is inf."""
+    counts = np.ones((4000, 4), dtype=np.int64)
+    weights = np.array([0.99995, 0.99, 1.0, 1.01005]) / 4
+    z = z_scores(counts, weights)
+    critical = critical_z(4)
+    assert abs(z[0]) < 1 and z[1] > critical and z[2] == 0 and z[3] < -critical
+    assert np.isinf(z_scores(np.ones((4000, 2), dtype=np.int64), np.array([0.25, 1.75]) / 2)[1])
+
+
 # -- the whole filter ------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def reference_report():

@@ -25,7 +25,7 @@ NOTEBOOKS = {"en": ROOT / "notebooks" / "lab.ipynb", "uk": ROOT / "notebooks" / 
 # what step 12 prints when the three filters walked the same true path, in each notebook's language
 SAME_PATH = {"en": "the same true path for all three: True", "uk": "справжній шлях однаковий для всіх трьох: True"}
 KERNEL_NAME = "mazelab-test"  # a kernel spec of our own (see `kernel_spec`): no other "python3" can shadow it
-CELL_TIMEOUT = 180  # seconds per cell; the whole notebook takes about 10 s on two cores
+CELL_TIMEOUT = 180  # seconds per cell; the whole notebook takes about 23 s on two cores
 WIDGET = "application/vnd.jupyter.widget-view+json"
 
 

@@ -7,8 +7,12 @@ z_i = (m_i - N W_i) / (s_i / sqrt(R)) is close to standard normal for any unbias
 N W_i is at least about 0.2, so R N W_i >= 800 offspring are averaged). The check fails when some
 |z_i| exceeds the normal quantile at RESAMPLE_ALPHA / (2 M), M the particles of all the vectors
 together: by Bonferroni's inequality a correct resampler fails with probability at most RESAMPLE_ALPHA,
-whatever the correlations between its counts. A count that never varies (systematic or residual
-resampling under even weights) must equal N W_i (to rounding).
+whatever the correlations between its counts. A count that never varies has no sample deviation to
+divide by. If it is k with d = |k - N W_i| < 1, the likeliest unbiased way to show it is the scheme of
+least variance (systematic resampling: floor or ceil of N W_i), which gives k at all R calls with
+probability (1 - d)^R; that is the count's p-value, read as the z of the same two-sided p. So N W_i =
+0.99995, always 1 in 4000 calls (probability 0.82), passes, and always 1 for N W_i = 0.99 (probability
+4e-18) fails. A constant k with d >= 1 is impossible for an unbiased scheme of that least variance.
 """
 
 from __future__ import annotations
@@ -47,15 +51,30 @@ def offspring_counts(ancestors: np.ndarray, n: int) -> np.ndarray:
 
 
 def z_scores(counts: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """Each particle's z (see the module docstring); +-inf where a count never varies yet is not N W_i."""
+    """Each particle's z (see the module docstring): the t-like score of its mean count, or for a count
+    that never varies the z of its p-value (1 - d)^R (+-inf for d >= 1)."""
     target = len(weights) * weights
     mean, std = counts.mean(axis=0), counts.std(axis=0, ddof=1)
     error = std / math.sqrt(len(counts))
     fixed = std == 0
     with np.errstate(divide="ignore", invalid="ignore"):
         z = (mean - target) / error
-        z[fixed] = np.where(np.abs(mean - target) <= EXACT, 0.0, np.copysign(np.inf, mean - target))[fixed]
+    z[fixed] = [constant_count_z(m - t, len(counts)) for m, t in zip(mean[fixed], target[fixed], strict=True)]
     return z
+
+
+def constant_count_z(deviation: float, calls: int) -> float:
+    """The signed two-sided z of a count that was the same at all `calls` calls, `deviation` = k - N W_i
+    from its expectation: p = (1 - |deviation|)^calls (the least-variance scheme's chance of it)."""
+    d = abs(deviation)
+    if d <= EXACT:
+        return 0.0
+    if d >= 1:
+        return math.copysign(math.inf, deviation)
+    half_p = math.exp(calls * math.log1p(-d)) / 2  # the lower tail's share of the two-sided p
+    if half_p == 0.0:  # below the smallest double: far past any critical value
+        return math.copysign(math.inf, deviation)
+    return math.copysign(-NormalDist().inv_cdf(half_p), deviation)
 
 
 def judge_resample(inputs: PartInputs, answer: Message) -> tuple[Row, str]:
