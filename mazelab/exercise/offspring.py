@@ -2,9 +2,13 @@
 its offspring variance resembles (the whole filter is compared with the SIR using that scheme).
 
 Unbiased means E[N_i] = N W_i for every particle i. Over R calls on one vector, particle i's mean
-offspring count m_i has standard error s_i / sqrt(R) (s_i its sample standard deviation), and
-z_i = (m_i - N W_i) / (s_i / sqrt(R)) is close to standard normal for any unbiased scheme (every
-N W_i is at least about 0.2, so R N W_i >= 800 offspring are averaged). The check fails when some
+offspring count m_i has standard error s_i / sqrt(R), and z_i = (m_i - N W_i) / (s_i / sqrt(R)) is
+close to standard normal for any unbiased scheme (every N W_i is at least about 0.2, so R N W_i >= 800
+offspring are averaged). s_i^2 is the larger of the sample variance and f(1 - f), f the fractional
+part of N W_i: no integer count with mean N W_i varies less (systematic resampling attains it), and
+where the count leaves its usual value rarely (N W_i = 1.002: 8 times in 4000 calls on average) the
+sample variance of a run with fewer such calls is far too small (one call: z = -6.4 for a correct
+systematic resampler). The check fails when some
 |z_i| exceeds the normal quantile at RESAMPLE_ALPHA / (2 M), M the particles of all the vectors
 together: by Bonferroni's inequality a correct resampler fails with probability at most RESAMPLE_ALPHA,
 whatever the correlations between its counts. A count that never varies has no sample deviation to
@@ -51,11 +55,13 @@ def offspring_counts(ancestors: np.ndarray, n: int) -> np.ndarray:
 
 
 def z_scores(counts: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """Each particle's z (see the module docstring): the t-like score of its mean count, or for a count
-    that never varies the z of its p-value (1 - d)^R (+-inf for d >= 1)."""
+    """Each particle's z (see the module docstring): its mean count's deviation over the standard error
+    (the variance at least f(1 - f)), or for a count that never varies the z of its p-value (1 - d)^R
+    (+-inf for d >= 1)."""
     target = len(weights) * weights
     mean, std = counts.mean(axis=0), counts.std(axis=0, ddof=1)
-    error = std / math.sqrt(len(counts))
+    fraction = target - np.floor(target)
+    error = np.sqrt(np.maximum(std**2, fraction * (1 - fraction)) / len(counts))  # the least variance's floor
     fixed = std == 0
     with np.errstate(divide="ignore", invalid="ignore"):
         z = (mean - target) / error
