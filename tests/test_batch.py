@@ -21,6 +21,18 @@ SEEDS = (11, 12, 13, 14)
 IMPOSSIBLE_Z = 50.0  # no place of the 5x5 maze is this far from a station: every weight underflows
 
 
+def step_together_and_alone(batch, singles, walks: list, steps: int) -> None:
+    """Step the R-run filter and the R single-run filters on the same walks; each step's estimate, ESS
+    and confidence of run r must be the single run's, bit for bit."""
+    for k in range(steps):
+        compass, z = np.array([w[k][0] for w in walks]), np.array([w[k][1] for w in walks])
+        batch.step(compass, z)
+        for r, single in enumerate(singles):
+            single.step(compass[r], z[r])
+            assert np.array_equal(batch.estimate[r], single.estimate), (k, r)
+            assert batch.ess[r] == single.ess and batch.is_confident[r] == single.is_confident
+
+
 @pytest.mark.parametrize("name", ["sir", "apf", "rpf"])
 def test_batched_runs_equal_single_runs_bit_for_bit(name, paper_world):
     count, steps = 200, 40
@@ -33,13 +45,7 @@ def test_batched_runs_equal_single_runs_bit_for_bit(name, paper_world):
         single_class(paper_world, 0.3, 0.5, particles[r], np.random.default_rng(s + 1000)) for r, s in enumerate(SEEDS)
     ]
     batch = single_class(paper_world, 0.3, 0.5, particles, [np.random.default_rng(s + 1000) for s in SEEDS])
-    for k in range(steps):
-        compass, z = np.array([w[k][0] for w in walks]), np.array([w[k][1] for w in walks])
-        batch.step(compass, z)
-        for r, single in enumerate(singles):
-            single.step(compass[r], z[r])
-            assert np.array_equal(batch.estimate[r], single.estimate), (k, r)
-            assert batch.ess[r] == single.ess and batch.is_confident[r] == single.is_confident
+    step_together_and_alone(batch, singles, walks, steps)
     assert [len(single.reinitialised_at) > 0 for single in singles] == [False, True, False, True]
     assert batch.reinitialised_at == [single.reinitialised_at for single in singles]
 

@@ -14,6 +14,7 @@ import math
 
 import numpy as np
 import pytest
+from test_batch import step_together_and_alone
 
 pytest.importorskip("numba")
 
@@ -196,13 +197,7 @@ def test_batched_runs_equal_single_runs_bit_for_bit_on_the_compiled_backend(name
         batch = cls(paper_world, 0.3, 0.5, particles, [np.random.default_rng(s + 7) for s in seeds])
         singles = [cls(paper_world, 0.3, 0.5, particles[r], np.random.default_rng(s + 7)) for r, s in enumerate(seeds)]
     assert batch.backend == "compiled" and all(single.backend == "compiled" for single in singles)
-    for k in range(steps):
-        compass, z = np.array([w[k][0] for w in walks]), np.array([w[k][1] for w in walks])
-        batch.step(compass, z)
-        for r, single in enumerate(singles):
-            single.step(compass[r], z[r])
-            assert np.array_equal(batch.estimate[r], single.estimate), (k, r)
-            assert batch.ess[r] == single.ess and batch.is_confident[r] == single.is_confident
+    step_together_and_alone(batch, singles, walks, steps)
     assert batch.reinitialised_at == [single.reinitialised_at for single in singles] and batch.reinitialised_at[1]
 
 
