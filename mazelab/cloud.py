@@ -26,7 +26,7 @@ import numpy as np
 from mazelab.backend import kernels_for
 from mazelab.checks import check_sigma_within
 from mazelab.contract import Particles
-from mazelab.declaration import Options, options_of, with_options_section
+from mazelab.declaration import Options, options_of
 from mazelab.maze import Maze, check_world
 from mazelab.model import (
     CONFIDENCE_RADIUS,
@@ -71,7 +71,7 @@ class ParticleFilter:
     rng : numpy.random.Generator, or a sequence of R of them
         Every random draw of the filter (each run's from its own); None: a fresh unseeded one.
     **options
-        The declared options (`options`, listed below); `settings` holds the values this filter runs with.
+        The declared options (`options`; `mazelab filters sir` lists them); `settings`: the values it runs with.
 
     Notes
     -----
@@ -99,11 +99,11 @@ class ParticleFilter:
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         """A subclass is named after itself unless it sets `name` (results and the viewer label it so),
-        and its docstring lists its declared options."""
+        and its `options` are Options (a plain mapping read by `options_of`)."""
         super().__init_subclass__(**kwargs)
         if "name" not in cls.__dict__:
             cls.name = cls.__name__
-        cls.__doc__ = with_options_section(cls.__doc__, options_of(cls))
+        cls.options = options_of(cls)
 
     def __init__(
         self,
@@ -588,9 +588,6 @@ def _check_parts(values: Mapping[str, Any]) -> None:
     checked as the constructor builds them: alpha_slow above alpha_fast is refused here, in one line."""
     recovery_options(values["recovery"], values["alpha_slow"], values["alpha_fast"])
     kld_options(values["kld"], values["kld_epsilon"], values["kld_z"])
-
-
-ParticleFilter.__doc__ = with_options_section(ParticleFilter.__doc__, ParticleFilter.options)
 
 
 __all__ = ["ParticleFilter", "per_run"]

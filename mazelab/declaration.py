@@ -2,15 +2,15 @@
 
 Every layer reads the declaration: the constructor takes its defaults from it and validates there
 (`Options.resolve`), the command line turns `--option NAME=VALUE` (and the paper's named flags, which
-are spellings of the same options) into values with `parse`, and scenarios, records, replays and a
-study's columns store and show values with `to_json`, `from_json` and `show`.
+are spellings of the same options) into values with `parse`, and scenarios, records and replays store
+values in their JSON form (`Options.to_json`, `Options.from_json`).
 
     options = ParticleFilter.options.extend(
-        Option("spread", 0.1, "the jitter's std, map units", check=positive("spread")),
+        Option("spread", 0.1, "the jitter's std, map units", check=number_in("spread", 0.0, 1.0)),
     )
 
-A plug-in may declare its options as a plain mapping of names to defaults (`{"spread": 0.1}`);
-`options_of` reads that as Options whose `parse` follows each default's type.
+A plug-in may declare its options as a plain mapping of names to defaults (`{"spread": 0.1}`), also in a
+subclass (`{**SIRParticleFilter.options, "inflation": 1.0}`): `options_of` reads it as Options.
 """
 
 from __future__ import annotations
@@ -18,7 +18,6 @@ from __future__ import annotations
 import ast
 import dataclasses
 import math
-import re
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, replace
 from typing import Any
@@ -121,6 +120,11 @@ def parse_literal(text: str) -> Any:
     Returns
     -------
     int, float, bool, None or str
+
+    Raises
+    ------
+    ValueError
+        For a number that is not finite (1e999).
     """
     stripped = text.strip()
     lowered = stripped.lower()
@@ -132,69 +136,9 @@ def parse_literal(text: str) -> Any:
         value = ast.literal_eval(stripped)
     except (ValueError, SyntaxError, MemoryError, RecursionError):
         return stripped
+    if isinstance(value, float) and not math.isfinite(value):
+        raise ValueError(f"expected a finite number, got {text!r}")
     return value if isinstance(value, (int, float)) and not isinstance(value, bool) else stripped
-
-
-def parse_like(default: Any) -> Parse:
-    """The parser for an option declared only by its default: the default's type (a float option
-    reads "0.3", a whole number "3", a flag "true"), or any literal for None and text.
-
-    Parameters
-    ----------
-    default : Any
-
-    Returns
-    -------
-    callable
-        text -> value.
-    """
-    if isinstance(default, bool):
-        return parse_flag
-    if isinstance(default, int):
-        return parse_whole
-    if isinstance(default, float):
-        return parse_number
-    return parse_literal
-
-
-def parse_number(text: str) -> float:
-    """A number: "0.3", "1e-3" (a decimal comma is refused with what to write instead).
-
-    Parameters
-    ----------
-    text : str
-
-    Returns
-    -------
-    float
-
-    Raises
-    ------
-    ValueError
-        One line; for "0,3" it says to write 0.3.
-    """
-    try:
-        return float(text)
-    except ValueError:
-        hint = f" (write {text.replace(',', '.')})" if "," in text else ""
-        raise ValueError(f"expected a number, got {text!r}{hint}") from None
-
-
-def parse_whole(text: str) -> int:
-    """A whole number: "3".
-
-    Parameters
-    ----------
-    text : str
-
-    Returns
-    -------
-    int
-    """
-    try:
-        return int(text)
-    except ValueError:
-        raise ValueError(f"expected a whole number, got {text!r}") from None
 
 
 def parse_flag(text: str) -> bool:
@@ -214,6 +158,38 @@ def parse_flag(text: str) -> bool:
     if lowered in ("false", "no", "off", "0"):
         return False
     raise ValueError(f"expected true or false, got {text!r}")
+
+
+def _parse_number(text: str) -> float:
+    """A finite number: "0.3", "1e-3"; NaN and infinities are refused, and "0,3" says to write 0.3."""
+    try:
+        number = float(text)
+    except ValueError:
+        hint = f" (write {text.replace(',', '.')})" if "," in text else ""
+        raise ValueError(f"expected a number, got {text!r}{hint}") from None
+    if not math.isfinite(number):
+        raise ValueError(f"expected a finite number, got {text!r}")
+    return number
+
+
+def _parse_whole(text: str) -> int:
+    """A whole number: "3"."""
+    try:
+        return int(text)
+    except ValueError:
+        raise ValueError(f"expected a whole number, got {text!r}") from None
+
+
+def _parse_like(default: Any) -> Parse:
+    """The parser of an option declared without one: by its default's type (a flag, a whole number, a
+    number), or any literal for None and text."""
+    if isinstance(default, bool):
+        return parse_flag
+    if isinstance(default, int):
+        return _parse_whole
+    if isinstance(default, float):
+        return _parse_number
+    return parse_literal
 
 
 # -- checks: value -> the value the filter uses, or a ValueError of one line -------------------------
@@ -287,20 +263,16 @@ class Option:
     help : str
         One line: what the option does, with units.
     parse : callable, optional
-        Command-line text -> value (default: by the default's type, `parse_like`).
+        Command-line text -> value (default: by the default's type: a flag, a whole
+        number or a finite number, else any literal).
     check : callable, optional
         Value -> the value the filter uses, raising ValueError of one line for a bad one (default:
         any value). The one place the option is validated: the constructor calls it, and so do the
         command line and the study, early, through `Options.resolve`.
     flag : str, optional
         The paper's named flag that spells this option too (e.g. "--bandwidth"), for the messages.
-    to_json, from_json : callable, optional
-        The value's JSON form (scenarios, records) and back (default: plain values).
-    show : callable, optional
-        The value in a few words, for tables, labels and the study's columns.
-    tunes : str, optional
-        The option this one tunes (alpha_fast tunes recovery): giving it a value other than its
-        default while that option is off is refused, rather than silently unused.
+    from_json : callable, optional
+        A stored JSON value -> the option's value (default: as stored); `to_plain_json` writes it.
     derived : bool
         Handed in by the run itself (the EKF's `start`): never on the command line, never stored.
     """
@@ -311,10 +283,7 @@ class Option:
     parse: Parse | None = None
     check: Check | None = None
     flag: str | None = None
-    to_json: Callable[[Any], Any] = to_plain_json
     from_json: Callable[[Any], Any] = lambda value: value
-    show: Callable[[Any], str] = show_value
-    tunes: str | None = None
     derived: bool = False
 
     def parse_text(self, text: str) -> Any:
@@ -332,10 +301,13 @@ class Option:
         Raises
         ------
         ValueError
-            One line naming the option.
+            One line naming the option: text it cannot read, or a control character (a newline
+            would print as a line of its own wherever the value is shown).
         """
-        parse = self.parse or parse_like(self.default)
+        parse = self.parse or _parse_like(self.default)
         try:
+            if any(not character.isprintable() for character in text):
+                raise ValueError(f"a value cannot hold a control character (a newline, a tab), got {text!r}")
             return parse(text)
         except ValueError as error:
             raise ValueError(f"option {self.name}: {error}") from None
@@ -353,34 +325,45 @@ class Option:
         """
         return value if self.check is None else self.check(value)
 
-    @property
-    def spelled(self) -> str:
-        """How the command line spells it: the named flag, or --option NAME=..."""
-        return self.flag or f"--option {self.name}=..."
+    def show(self, value: Any) -> str:
+        """A value of this option in a few words, for tables and labels (`show_value`).
+
+        Parameters
+        ----------
+        value : Any
+
+        Returns
+        -------
+        str
+        """
+        return show_value(value)
 
 
 class Options(Mapping[str, Option]):
-    """A filter's options by name, in declaration order: an immutable value (`extend` and
-    `with_defaults` make new ones)."""
+    """A filter's options by name, in declaration order (`extend` makes a new declaration).
 
-    __slots__ = ("_by_name", "check", "declared")
+    Parameters
+    ----------
+    *options : Option
+    check : callable, optional
+        Sees every resolved value together and refuses a combination (recovery's alpha_slow below its
+        alpha_fast) in one line; `extend` keeps it.
+    """
 
     def __init__(self, *options: Option, check: Callable[[dict[str, Any]], None] | None = None):
-        """`check`, if given, sees every resolved value together and refuses combinations (recovery's
-        alpha_slow below its alpha_fast) in one line; `extend` and `with_defaults` keep it."""
         names = [o.name for o in options]
         repeated = sorted({n for n in names if names.count(n) > 1})
         if repeated:
             raise ValueError(f"option {repeated[0]!r} is declared twice")
-        object.__setattr__(self, "declared", tuple(options))
-        object.__setattr__(self, "_by_name", {o.name: o for o in options})
-        object.__setattr__(self, "check", check)
-
-    def __setattr__(self, name: str, value: Any) -> None:
-        raise AttributeError("Options are immutable: extend() or with_defaults() make new ones")
+        self.declared = tuple(options)
+        self.check = check
+        self._by_name = {o.name: o for o in options}
 
     def __eq__(self, other: object) -> bool:
         return isinstance(other, Options) and self.declared == other.declared
+
+    def __hash__(self) -> int:
+        return hash(self.declared)
 
     def __repr__(self) -> str:
         return f"Options({', '.join(self._by_name)})"
@@ -393,9 +376,6 @@ class Options(Mapping[str, Option]):
 
     def __len__(self) -> int:
         return len(self.declared)
-
-    def __hash__(self) -> int:
-        return hash(self.declared)
 
     def extend(self, *options: Option) -> Options:
         """These options and more (an option of the same name replaces the inherited one in place).
@@ -412,27 +392,6 @@ class Options(Mapping[str, Option]):
         new = {o.name: o for o in options}
         kept = [new.pop(o.name, o) for o in self.declared]
         return Options(*kept, *new.values(), check=self.check)
-
-    def with_defaults(self, **defaults: Any) -> Options:
-        """The same options with other defaults (a subclass that changes one).
-
-        Parameters
-        ----------
-        **defaults
-            New defaults by option name.
-
-        Returns
-        -------
-        Options
-            A new declaration (this one is unchanged).
-        """
-        unknown = sorted(set(defaults) - set(self))
-        if unknown:
-            raise ValueError(f"no option {unknown[0]!r} to change the default of (declared: {', '.join(self)})")
-        return Options(
-            *(replace(o, default=defaults[o.name]) if o.name in defaults else o for o in self.declared),
-            check=self.check,
-        )
 
     def defaults(self) -> dict[str, Any]:
         """Every option's default, by name.
@@ -452,21 +411,6 @@ class Options(Mapping[str, Option]):
         """
         return [o for o in self.declared if not o.derived]
 
-    def refuse_undeclared(self, given: Mapping[str, Any], owner: str) -> None:
-        """Refuse the first option of `given` that is not declared, naming what `owner` takes.
-
-        Parameters
-        ----------
-        given : mapping
-            Option names (and values).
-        owner : str
-            The filter's name, for the message.
-        """
-        for name in given:
-            if name not in self._by_name:
-                takes = ", ".join(o.name for o in self.settable()) or "no options"
-                raise ValueError(f"{owner} does not take the option {name} (it takes: {takes})")
-
     def resolve(self, given: Mapping[str, Any], owner: str) -> dict[str, Any]:
         """Every option's value: the given ones checked, the rest their defaults.
 
@@ -485,41 +429,13 @@ class Options(Mapping[str, Option]):
         Raises
         ------
         ValueError
-            One line: an undeclared option, a bad value, a tuning option given while what it tunes is
-            off, or a combination the declaration's `check` refuses.
+            One line: an undeclared option, a bad value, or a combination the declaration's `check` refuses.
         """
-        self.refuse_undeclared(given, owner)
-        values = {}
-        for option in self.declared:
-            value = given.get(option.name, option.default)
-            values[option.name] = option.validate(value) if option.name in given else value
-        for option in self.declared:
-            tuned = self._by_name.get(option.tunes) if option.tunes else None
-            changed = option.name in given and values[option.name] != option.default
-            if tuned is not None and changed and values[tuned.name] in (None, False):
-                raise ValueError(
-                    f"{owner}: {option.name} tunes {tuned.name}, which is off: give {tuned.spelled} too "
-                    f"(or leave out {option.spelled})"
-                )
+        self._refuse_undeclared(given, owner)
+        values = {o.name: o.validate(given[o.name]) if o.name in given else o.default for o in self.declared}
         if self.check is not None:
             self.check(values)
         return values
-
-    def parse(self, name: str, text: str, owner: str) -> Any:
-        """The value of `--option NAME=TEXT` for `owner`'s declared option `name`.
-
-        Parameters
-        ----------
-        name, text : str
-        owner : str
-            The filter's name, for the message.
-
-        Returns
-        -------
-        Any
-        """
-        self.refuse_undeclared({name: None}, owner)
-        return self._by_name[name].parse_text(text)
 
     def to_json(self, values: Mapping[str, Any]) -> dict[str, Any]:
         """Values in their JSON form, in declaration order (derived options and undeclared names left out).
@@ -533,8 +449,20 @@ class Options(Mapping[str, Option]):
         -------
         dict
             What a scenario or a record stores.
+
+        Raises
+        ------
+        ValueError
+            One line naming the option whose value has no JSON form (an infinite number, an object).
         """
-        return {o.name: o.to_json(values[o.name]) for o in self.declared if o.name in values and not o.derived}
+        stored = {}
+        for o in self.declared:
+            if o.name in values and not o.derived:
+                try:
+                    stored[o.name] = to_plain_json(values[o.name])
+                except ValueError as error:
+                    raise ValueError(f"option {o.name}: {error}") from None
+        return stored
 
     def from_json(self, stored: Mapping[str, Any], owner: str) -> dict[str, Any]:
         """Stored JSON values back as the filter's keyword options, each checked and all checked together;
@@ -557,7 +485,7 @@ class Options(Mapping[str, Option]):
         ValueError
             One line naming the option and the problem.
         """
-        self.refuse_undeclared(stored, owner)
+        self._refuse_undeclared(stored, owner)
         values = {}
         for name, value in stored.items():
             option = self._by_name[name]
@@ -570,46 +498,23 @@ class Options(Mapping[str, Option]):
         self.resolve(values, owner)  # each value and their combination, checked as the constructor checks them
         return values
 
-    def numpydoc(self) -> str:
-        """The options as a numpydoc section, for the filter's docstring.
-
-        Returns
-        -------
-        str
-        """
-        lines = ["Options", "-------"]
-        for o in self.settable():
-            lines += [f"{o.name} : default {show_value(o.default)}", f"    {o.help}"]
-        return "\n".join(lines)
-
-
-def with_options_section(doc: str | None, options: Options) -> str:
-    """A filter class's docstring with its declared options listed (made from the declaration, so the
-    list never goes stale): an earlier generated section is replaced.
-
-    Parameters
-    ----------
-    doc : str or None
-        The class's docstring.
-    options : Options
-
-    Returns
-    -------
-    str
-    """
-    doc = (doc or "").rstrip()
-    earlier = re.search(r"\n\n[ \t]*Options\n[ \t]*-------\n", doc)
-    if earlier is not None:
-        doc = doc[: earlier.start()].rstrip()
-    lines = [line for line in doc.splitlines()[1:] if line.strip()]
-    indent = " " * min((len(line) - len(line.lstrip()) for line in lines), default=0)
-    section = "\n".join(indent + line if line else line for line in options.numpydoc().splitlines())
-    return f"{doc}\n\n{section}\n"
+    def _refuse_undeclared(self, given: Mapping[str, Any], owner: str) -> None:
+        """Refuse the first option of `given` that is not declared, naming what `owner` takes."""
+        for name in given:
+            if name not in self._by_name:
+                takes = ", ".join(o.name for o in self.settable()) or "no options"
+                raise ValueError(f"{owner} does not take the option {name} (it takes: {takes})")
 
 
 def options_of(filter_class: type) -> Options:
-    """A filter class's declared options as Options: its `options` as they are, or, for a plain
-    mapping of names to defaults (a plug-in's), Options parsed by each default's type.
+    """A filter class's declared options as Options: its `options` as they are, or a plain mapping read
+    as a declaration.
+
+    In a mapping, a name whose value is an Option takes that Option (`{**SIRParticleFilter.options, ...}`);
+    a name that a base class declares keeps the base's Option, the value its new default (checked as a
+    given value is); a new name is declared by its default alone (parsed by the default's type, not
+    checked). The nearest declared base's options that the mapping leaves out are kept, and its combined
+    check: a subclass runs the base's constructor, which needs every option.
 
     Parameters
     ----------
@@ -622,14 +527,29 @@ def options_of(filter_class: type) -> Options:
     Raises
     ------
     TypeError
-        When `options` is neither.
+        When `options` is neither Options nor a mapping.
+    ValueError
+        When a name of the mapping holds an Option of another name, or a new default its check refuses.
     """
     declared = getattr(filter_class, "options", None)
     if isinstance(declared, Options):
         return declared
-    if isinstance(declared, Mapping):
-        return Options(*(Option(str(name), default, "(declared by its default)") for name, default in declared.items()))
-    raise TypeError(f"{getattr(filter_class, '__name__', filter_class)!r}.options is not a mapping of options")
+    if not isinstance(declared, Mapping):
+        raise TypeError(f"{getattr(filter_class, '__name__', filter_class)!r}.options is not a mapping of options")
+    bases = [getattr(base, "options", None) for base in getattr(filter_class, "__mro__", ())[1:]]
+    inherited = next((options for options in bases if isinstance(options, Options)), Options())
+    return inherited.extend(*(_declared_by(str(name), value, inherited) for name, value in declared.items()))
+
+
+def _declared_by(name: str, value: Any, inherited: Options) -> Option:
+    """The Option that `name: value` of a plain mapping declares (see `options_of`)."""
+    if isinstance(value, Option):
+        if value.name != name:
+            raise ValueError(f"options: the name {name!r} holds the option {value.name!r}")
+        return value
+    if name in inherited:  # a new default, checked as a given value would be
+        return replace(inherited[name], default=inherited[name].validate(value))
+    return Option(name, value, "(declared by its default)")
 
 
 __all__ = [
@@ -640,11 +560,7 @@ __all__ = [
     "object_from_json",
     "options_of",
     "parse_flag",
-    "parse_like",
     "parse_literal",
-    "parse_number",
-    "parse_whole",
     "show_value",
     "to_plain_json",
-    "with_options_section",
 ]

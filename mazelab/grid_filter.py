@@ -11,7 +11,7 @@ import numpy as np
 
 from mazelab.checks import MAP_MARGIN, check_grid_resolution, check_sigma_within
 from mazelab.contract import Density
-from mazelab.declaration import Option, Options, number_in, with_options_section
+from mazelab.declaration import Option, Options, number_in
 from mazelab.limits import check_memory
 from mazelab.maze import Maze, check_world
 from mazelab.model import (
@@ -321,9 +321,6 @@ def _fast_fft_length(n: int) -> int:
     """The smallest 2^a, 3 * 2^a or 5 * 2^a >= n: numpy's FFT is fastest on such lengths (640 takes a
     third of the time of 625 = 5^4)."""
     return min(odd * 2 ** max(0, math.ceil(math.log2(n / odd))) for odd in (1, 3, 5))
-
-
-GridBayesFilter.__doc__ = with_options_section(GridBayesFilter.__doc__, GridBayesFilter.options)
 
 
 __all__ = [

@@ -19,7 +19,7 @@ import numpy as np
 
 from mazelab.checks import MAP_MARGIN, check_sigma_within
 from mazelab.contract import Gaussian
-from mazelab.declaration import Option, Options, choice, number_in, with_options_section
+from mazelab.declaration import Option, Options, choice, number_in
 from mazelab.maze import Maze, check_world
 from mazelab.model import CONFIDENCE_RADIUS, CONFIDENCE_SHARE, ROBOT_SPEED, SPEED_OPTION
 from mazelab.modes import ESTIMATE_OPTION
@@ -232,9 +232,6 @@ def covariance_ellipse(mean: np.ndarray, covariance: np.ndarray, scale: float = 
     angles = np.linspace(0.0, 2 * math.pi, points + 1)
     circle = np.column_stack([np.cos(angles), np.sin(angles)])
     return mean + scale * (circle * np.sqrt(np.maximum(values, 0.0))) @ vectors.T
-
-
-ExtendedKalmanFilter.__doc__ = with_options_section(ExtendedKalmanFilter.__doc__, ExtendedKalmanFilter.options)
 
 
 __all__ = [

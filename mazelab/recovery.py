@@ -115,9 +115,9 @@ RECOVERY_OPTIONS = (
         flag="--recovery/--sensor-resetting",
     ),
     Option("alpha_slow", ALPHA_SLOW, "recovery: the long-term likelihood average's rate", check=_rate("alpha_slow"),
-           flag="--alpha-slow", tunes="recovery"),
+           flag="--alpha-slow"),
     Option("alpha_fast", ALPHA_FAST, "recovery: the short-term likelihood average's rate", check=_rate("alpha_fast"),
-           flag="--alpha-fast", tunes="recovery"),
+           flag="--alpha-fast"),
 )  # fmt: skip
 
 

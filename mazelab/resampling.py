@@ -329,9 +329,9 @@ KLD_OPTIONS = (
         parse=parse_flag, check=check_kld, from_json=object_from_json(KLDSampling), flag="--kld",
     ),
     Option("kld_epsilon", KLD_EPSILON, "KLD-sampling's error bound epsilon", check=_kld_number("epsilon"),
-           flag="--kld-epsilon", tunes="kld"),
+           flag="--kld-epsilon"),
     Option("kld_z", KLD_QUANTILE, "KLD-sampling's normal quantile z_(1-delta) (2.326: delta 0.01)",
-           check=_kld_number("z"), flag="--kld-z", tunes="kld"),
+           check=_kld_number("z"), flag="--kld-z"),
 )  # fmt: skip
 
 
