@@ -120,16 +120,16 @@ def register(entry: FilterEntry) -> FilterEntry:
     Raises
     ------
     ValueError
-        One line for a short name, name or class already taken.
+        One line for a short name or name that already names a filter (as `filter_entry` reads names:
+        "SIR" is sir's; a class registered already has its name), or a short name that is not one
+        lower-case word.
     """
-    for other in _ENTRIES:
-        for what, mine, theirs in (
-            ("short name", entry.short_name, other.short_name),
-            ("name", entry.name, other.name),
-            ("class", entry.filter_class, other.filter_class),
-        ):
-            if mine == theirs:
-                raise ValueError(f"the {what} {mine!r} is taken by {other.name}: a registry entry needs its own")
+    if not entry.short_name or entry.short_name != "".join(entry.short_name.split()).lower():
+        raise ValueError(f"the short name {entry.short_name!r} is not one lower-case word (the command line's)")
+    for what, mine in (("short name", entry.short_name), ("name", entry.name)):
+        other = shipped_entry(mine)
+        if other is not None:
+            raise ValueError(f"the {what} {mine!r} is taken by {other.name}: a registry entry needs its own")
     _ENTRIES.append(entry)
     _BY_CLASS[entry.filter_class] = entry
     _BY_NAME[entry.name] = entry
@@ -365,14 +365,12 @@ def colour_of(name: str) -> Colour:
 
 
 FILTERS: dict[str, type] = {entry.filter_class.__name__: entry.filter_class for entry in SHIPPED}
-SHORT_NAMES: dict[str, str] = {entry.short_name: entry.filter_class.__name__ for entry in SHIPPED}
 
 
 __all__ = [
     "FILTERS",
     "PALETTE",
     "SHIPPED",
-    "SHORT_NAMES",
     "FilterEntry",
     "colour_of",
     "entries",

@@ -27,7 +27,7 @@ from mazelab.experiments.study import MazeChoice, run_task, study_settings, stud
 from mazelab.filters import AuxiliaryParticleFilter, RegularizedParticleFilter, SIRParticleFilter
 from mazelab.grid_filter import GridBayesFilter
 from mazelab.plugins import check_declared_defaults
-from mazelab.registry import SHIPPED, FilterEntry, filter_entry, register, resolve_filter, unregister
+from mazelab.registry import SHIPPED, FilterEntry, entries, filter_entry, register, resolve_filter, unregister
 from mazelab.run_axis import per_run
 from mazelab.scenario import load_scenario
 
@@ -80,8 +80,16 @@ def test_filter_names(name, cls):
     assert resolve_filter(name) is cls
 
 
-def test_an_unknown_name_is_one_line_with_the_choices():
-    with pytest.raises(ValueError, match=r"^unknown filter 'kalman'; choose from sir, apf, rpf, grid, ekf, or "):
+@pytest.mark.parametrize("added", [False, True], ids=["shipped", "one-added"])
+def test_an_unknown_name_is_one_line_with_the_registrys_choices(added, request):
+    """The choices are the registry's, whatever it holds: a filter added to it is among them."""
+    if added:
+        request.getfixturevalue("wide_registered")
+    valid = ", ".join(entry.short_name for entry in entries())
+    assert ("wide" in valid) == added
+    with pytest.raises(
+        ValueError, match=rf"^unknown filter 'kalman'; choose from {valid}, or path/to/file.py:ClassName$"
+    ):
         filter_entry("kalman")
 
 
@@ -150,6 +158,26 @@ def wide_registered():
     entry = register(FilterEntry(WideSIR, "wide", "wide SIR", (23, 190, 207), "SIR with a tempered likelihood"))
     yield entry
     unregister("wide")
+
+
+@pytest.mark.parametrize(
+    ("short_name", "name", "message"),
+    [
+        ("sir", "WideSIR", "the short name 'sir' is taken by SIRParticleFilter"),
+        ("rpf", "WideSIR", "the short name 'rpf' is taken by RegularizedParticleFilter"),
+        ("wide", "SIRParticleFilter", "the name 'SIRParticleFilter' is taken by SIRParticleFilter"),
+        ("wide", "SIR Particle Filter", "the name 'SIR Particle Filter' is taken by SIRParticleFilter"),
+        ("Wide", "WideSIR", "the short name 'Wide' is not one lower-case word"),
+    ],
+)
+def test_register_refuses_a_name_already_taken(short_name, name, message):
+    """A second entry under a taken name would be unreachable (the first answers to it) or take over
+    the lab's own filter's results; refused in one line, the registry as it was."""
+    before = entries()
+    filter_class = type(name, (WideSIR,), {"name": name})
+    with pytest.raises(ValueError, match=rf"^{message}"):
+        register(FilterEntry(filter_class, short_name, "wide SIR", (23, 190, 207), "SIR with a tempered likelihood"))
+    assert entries() == before
 
 
 def test_a_filter_added_to_the_package_is_one_entry_and_every_command_takes_it(tmp_path, capsys, wide_registered):

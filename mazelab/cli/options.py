@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import os
 import re
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -122,13 +121,6 @@ def warn_in_one_line(message: Warning | str, category: type[Warning], *_args: An
         typer.echo(f"warning: {message}", err=True)
 
 
-def check_choice(flag: str, value: str, choices: Sequence[str]) -> str:
-    """`value` if it is one of `choices`, else one line naming the flag and the choices."""
-    if value not in choices:
-        raise UserError(f"{flag} must be one of {', '.join(choices)}, got {value!r}")
-    return value
-
-
 __all__ = [
     "DEFAULT_DELTA",
     "DEFAULT_SIGMA",
@@ -138,7 +130,6 @@ __all__ = [
     "UserError",
     "ViewerOption",
     "WebOption",
-    "check_choice",
     "check_output_path",
     "check_outputs",
     "parse_list",
