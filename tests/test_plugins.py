@@ -82,6 +82,30 @@ def test_bad_plugins_get_one_line(tmp_path, capsys, source, spec_class, message)
     assert "Traceback" not in err
 
 
+SPELLED_DEFAULT = """\
+from mazelab.filters import SIRParticleFilter
+
+
+class Spelled(SIRParticleFilter):
+    options = {{**SIRParticleFilter.options, "inflation": 1.0}}
+
+    def __init__(self, world, sigma, delta, particles, rng=None, inflation={inflation}, **options):
+        super().__init__(world, sigma, delta, particles, rng, inflation=inflation, **options)
+"""
+
+
+@pytest.mark.parametrize("spelled", ["2.0", "1", "None"])
+def test_a_plugin_whose_constructor_spells_another_default_is_refused(tmp_path, capsys, spelled):
+    """Its runs would use the constructor's default while its scenarios store the declared one."""
+    path = tmp_path / "spelled.py"
+    path.write_text(SPELLED_DEFAULT.format(inflation=spelled))
+    assert main(["run", "--filter", f"{path}:Spelled", *QUICK, "--quiet", "--no-viz"]) == (0 if spelled == "1" else 2)
+    err = capsys.readouterr().err
+    if spelled != "1":  # 1 == 1.0: the declared default, spelled as a whole number
+        assert err.count("\n") == 1 and "spelled.py" in err and "Traceback" not in err
+        assert f"the constructor's default inflation={spelled} is not the declared default 1.0" in err
+
+
 def test_a_plugin_in_filters_is_checked_before_any_run(tmp_path, capsys):
     assert main(["study", "--filters", f"sir,{tmp_path / 'none.py'}:F", "--runs", "1", "--steps", "5"]) == 2
     assert "none.py" in capsys.readouterr().err
