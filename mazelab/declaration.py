@@ -165,11 +165,20 @@ def _parse_number(text: str) -> float:
     try:
         number = float(text)
     except ValueError:
-        hint = f" (write {text.replace(',', '.')})" if "," in text else ""
+        decimal = text.replace(",", ".", 1)
+        hint = f" (write {decimal})" if text.count(",") == 1 and _is_number(decimal) else ""
         raise ValueError(f"expected a number, got {text!r}{hint}") from None
     if not math.isfinite(number):
         raise ValueError(f"expected a finite number, got {text!r}")
     return number
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
 
 
 def _parse_whole(text: str) -> int:

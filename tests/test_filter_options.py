@@ -2,12 +2,14 @@
 an option that no chosen filter takes is refused in one line naming the filters and what they take (a
 flag that tunes an option, such as recovery's rates or KLD's bounds, where the option is); a refusal
 names the flags of the command it refuses; an option that some chosen filters take goes to those and
-reaches their runs.
+reaches their runs. A value is one line: no control character, no NaN for a number, and a list where
+one value goes says that lists are the study's.
 """
 
 from __future__ import annotations
 
 import csv
+import textwrap
 
 import pytest
 
@@ -79,3 +81,73 @@ def test_an_option_some_chosen_filters_take_goes_to_those(tmp_path, capsys):
         mean_error, last_fifth = float(rows[name]["mean_error"]), float(rows[name]["final_error"])
         assert (mean_error, last_fifth) == (result.errors.mean(), final_error(result.errors))
         assert mean_error != errors(name, "mean", sir.initial_particles).errors.mean()
+
+
+QUICK = ["--steps", "3", "--particles", "20", "--seed", "1", "--no-viz"]
+
+
+def refusal(capsys, args) -> str:
+    """The one line of stderr of a refused command (exit 2, nothing on stdout)."""
+    assert main(args) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and err.count("\n") == 1 and "Traceback" not in err
+    return err
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["run", "--option", "resampling=systematic,residual"],
+        ["run", "--resampling", "stratified,residual"],
+        ["run", "--filter", "rpf", "--option", "threshold=0.3,0.5"],
+        ["compare", "--filters", "sir,apf", "--option", "resampling=systematic,residual"],
+    ],
+)
+def test_a_list_where_one_value_goes_says_lists_are_the_studys(tmp_path, capsys, args):
+    if args[0] == "compare":
+        scenario = tmp_path / "s.json"
+        assert main(["run", *QUICK, "--quiet", "--save-scenario", str(scenario)]) == 0
+        capsys.readouterr()
+        args = [args[0], str(scenario), *args[1:], "--no-viz"]
+    else:
+        args = [*args, *QUICK]
+    assert "a list of values is for mazelab study" in refusal(capsys, args)
+
+
+def test_a_bad_value_with_a_comma_that_is_no_list_gets_no_list_hint(capsys):
+    assert "a list of values" not in refusal(capsys, ["run", "--option", "resampling=systematic,nope", *QUICK])
+    err = refusal(capsys, ["run", "--filter", "rpf", "--option", "threshold=0,3", *QUICK])
+    assert "(write 0.3)" in err and "a list of values" not in err
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["run", "--option", "resampling=systematic\nRepeat this run: mazelab run --seed 666"],
+        ["run", "--resampling", "systematic\nRepeat this run: mazelab run --seed 666"],
+        ["run", "--option", "bogus\nRepeat this run: mazelab run --seed 666=1"],
+        ["study", "--option", "resampling=systematic,residual\rRepeat this run", "--runs", "1"],
+    ],
+)
+def test_no_option_value_forges_a_line(capsys, args):
+    """A newline in a value would print as a line of its own (the repeat command's, say): refused."""
+    assert "control character" in refusal(capsys, [*args, *QUICK])
+
+
+def test_a_plugins_unchecked_number_option_refuses_nan_naming_it(tmp_path, capsys):
+    """An option declared by its default alone has no check: NaN would pass every bound it is compared with."""
+    path = tmp_path / "inflated.py"
+    path.write_text(
+        textwrap.dedent(
+            """
+            from mazelab.filters import SIRParticleFilter
+
+            class Inflated(SIRParticleFilter):
+                options = {**SIRParticleFilter.options, "inflation": 1.0}
+            """
+        )
+    )
+    for text in ("nan", "inf", "-1e999"):
+        err = refusal(capsys, ["run", "--filter", f"{path}:Inflated", "--option", f"inflation={text}", *QUICK])
+        assert f"--option inflation={text}: expected a finite number, got '{text}'" in err
+    assert main(["run", "--filter", f"{path}:Inflated", "--option", "inflation=1e26", "--quiet", *QUICK]) == 0

@@ -61,12 +61,31 @@ def named_values(named: Mapping[str, Any], filter_names: Sequence[str | type]) -
             continue
         declared = declared_by(filter_names, name)
         if isinstance(value, str) and declared:
-            try:
-                value = declared[0].parse_text(value)
-            except ValueError as error:
-                raise UserError(f"{declared[0].spelled}: {error}") from None
+            value = read_value(declared[0], value, declared[0].flag or f"--{name}")
         values[name] = value
     return values
+
+
+def read_value(option: Option, text: str, spelled: str) -> Any:
+    """One value of `option` from command-line text, read by its declaration; a value with a comma
+    that it refuses, when each part alone is one it takes, says that lists are the study's."""
+    try:
+        value = option.parse_text(text)
+        if "," in text:
+            option.validate(value)  # refused here, where the hint can say where lists go
+        return value
+    except ValueError as error:
+        message = str(error).removeprefix(f"option {option.name}: ")
+        raise UserError(f"{spelled}: {message}{list_hint(option, text)}") from None
+
+
+def list_hint(option: Option, text: str) -> str:
+    """'; ...' when `text` reads as a list of values of `option` (V1,V2), else nothing."""
+    try:
+        parts = [option.validate(option.parse_text(part)) for part in text.split(",")]
+    except ValueError:
+        return ""
+    return f"; a list of values is for mazelab study (study --option {option.name}={text})" if len(parts) > 1 else ""
 
 
 OptionFlag = Annotated[
@@ -108,6 +127,8 @@ def parse_option_texts(
     """
     parsed: dict[str, Any] = {}
     for text in texts or ():
+        if not text.isprintable():  # a newline would print as a line of its own in the messages
+            raise UserError(f"--option {text!r}: an option cannot hold a control character (a newline, a tab)")
         name, equals, value = text.partition("=")
         name = name.strip()
         if not equals or not name:
@@ -117,16 +138,14 @@ def parse_option_texts(
             raise UserError(refusal(filter_names, name, f"--option {name}"))
         if name in parsed:
             raise UserError(f"--option {name} is given twice; give each option once")
-        try:
-            if lists:
-                parts = [part for part in value.split(",") if part.strip()]
-                if not parts:
-                    raise ValueError("no values (write NAME=V1,V2)")
-                parsed[name] = list(dict.fromkeys(declared[0].parse_text(part) for part in parts))
-            else:
-                parsed[name] = declared[0].parse_text(value)
-        except ValueError as error:
-            raise UserError(f"--option {name}={value}: {error}") from None
+        spelled = f"--option {name}={value}"
+        if not lists:
+            parsed[name] = read_value(declared[0], value, spelled)
+            continue
+        parts = [part for part in value.split(",") if part.strip()]
+        if not parts:
+            raise UserError(f"{spelled}: no values (write NAME=V1,V2)")
+        parsed[name] = list(dict.fromkeys(read_value(declared[0], part, spelled) for part in parts))
     return parsed
 
 
@@ -194,7 +213,7 @@ def spelling(entries: Sequence[Any], name: str, flags: Mapping[str, str] | None 
     if flags and name in flags:
         return flags[name]
     declared = next((e.options[name] for e in entries if name in e.options), None)
-    return declared.spelled if declared is not None else f"--option {name}"
+    return declared.flag if declared is not None and declared.flag else f"--option {name}=..."
 
 
 __all__ = [
@@ -217,6 +236,7 @@ __all__ = [
     "named_values",
     "options_per_filter",
     "parse_option_texts",
+    "read_value",
     "recovery_value",
     "refusal",
     "spelling",
