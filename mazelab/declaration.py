@@ -514,8 +514,8 @@ def options_of(filter_class: type) -> Options:
     In a mapping, a name whose value is an Option takes that Option (`{**SIRParticleFilter.options, ...}`);
     a name that a base class declares keeps the base's Option, the value its new default (checked as a
     given value is); a new name is declared by its default alone (parsed by the default's type, not
-    checked). The nearest declared base's options that the mapping leaves out are kept, and its combined
-    check: a subclass runs the base's constructor, which needs every option.
+    checked). What the nearest base that declares options declares and the mapping leaves out is kept, with
+    its combined check: a subclass runs the base's constructor, which needs every option.
 
     Parameters
     ----------
@@ -537,8 +537,8 @@ def options_of(filter_class: type) -> Options:
         return declared
     if not isinstance(declared, Mapping):
         raise TypeError(f"{getattr(filter_class, '__name__', filter_class)!r}.options is not a mapping of options")
-    bases = [getattr(base, "options", None) for base in getattr(filter_class, "__mro__", ())[1:]]
-    inherited = next((options for options in bases if isinstance(options, Options)), Options())
+    base = next((base for base in getattr(filter_class, "__mro__", ())[1:] if "options" in vars(base)), None)
+    inherited = Options() if base is None else options_of(base)
     return inherited.extend(*(_declared_by(str(name), value, inherited) for name, value in declared.items()))
 
 

@@ -91,6 +91,23 @@ def test_a_plain_mapping_in_a_subclass_extends_the_declaration_it_inherits(paper
             options: ClassVar[dict] = {"resampling": "nope"}
 
 
+def test_plain_mappings_declare_through_a_chain_of_plug_in_classes():
+    class Base:
+        options: ClassVar[dict] = {"alpha": 0.5, "count": 3}
+
+    class Child(Base):
+        options: ClassVar[dict] = {"count": 4, "word": "x"}
+
+    assert options_of(Child).defaults() == {"alpha": 0.5, "count": 4, "word": "x"}
+    assert options_of(Child)["count"].parse_text("5") == 5  # still read as a whole number
+    with pytest.raises(ValueError, match=r"^options: the name 'a' holds the option 'b'$"):
+
+        class Misnamed(Base):
+            options: ClassVar[dict] = {"a": Option("b", 1, "b")}
+
+        options_of(Misnamed)
+
+
 def test_a_subclass_that_changes_a_declared_default_runs_it_and_stores_it(paper_world):
     from mazelab.robot import Robot
     from mazelab.seeding import start_place
