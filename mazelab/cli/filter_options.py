@@ -76,16 +76,17 @@ def read_value(option: Option, text: str, spelled: str) -> Any:
         return value
     except ValueError as error:
         message = str(error).removeprefix(f"option {option.name}: ")
-        raise UserError(f"{spelled}: {message}{list_hint(option, text)}") from None
+        raise UserError(f"{spelled}: {message}{_list_hint(option, text)}") from None
 
 
-def list_hint(option: Option, text: str) -> str:
+def _list_hint(option: Option, text: str) -> str:
     """'; ...' when `text` reads as a list of values of `option` (V1,V2), else nothing."""
     try:
-        parts = [option.validate(option.parse_text(part)) for part in text.split(",")]
+        for part in text.split(","):
+            option.validate(option.parse_text(part))
     except ValueError:
         return ""
-    return f"; a list of values is for mazelab study (study --option {option.name}={text})" if len(parts) > 1 else ""
+    return f"; a list of values is for mazelab study (study --option {option.name}={text})" if "," in text else ""
 
 
 OptionFlag = Annotated[
