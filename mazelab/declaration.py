@@ -313,7 +313,7 @@ class Option:
         """
         parse = self.parse or _parse_like(self.default)
         try:
-            if any(not character.isprintable() for character in text):
+            if not text.isprintable():
                 raise ValueError(f"a value cannot hold a control character (a newline, a tab), got {text!r}")
             return parse(text)
         except ValueError as error:
