@@ -18,7 +18,14 @@ from mazelab.declaration import Options, options_of
 from mazelab.filters import AuxiliaryParticleFilter, RegularizedParticleFilter, SIRParticleFilter
 from mazelab.grid_filter import GridBayesFilter
 from mazelab.kalman import ExtendedKalmanFilter
-from mazelab.plugins import PluginReference, is_plugin_spec, load_plugin, loaded_plugin, plugin_reference
+from mazelab.plugins import (
+    PluginReference,
+    check_declared_defaults,
+    is_plugin_spec,
+    load_plugin,
+    loaded_plugin,
+    plugin_reference,
+)
 
 Colour = tuple[int, int, int]
 # colours for filters in order (matplotlib's tab10, which the PNGs use too): the shipped filters take
@@ -122,7 +129,7 @@ def register(entry: FilterEntry) -> FilterEntry:
     ValueError
         One line for a short name or name that already names a filter (as `filter_entry` reads names:
         "SIR" is sir's; a class registered already has its name), or a short name that is not one
-        lower-case word.
+        lower-case word; a constructor that spells a default other than the declared one.
     """
     if not entry.short_name or entry.short_name != "".join(entry.short_name.split()).lower():
         raise ValueError(f"the short name {entry.short_name!r} is not one lower-case word (the command line's)")
@@ -130,6 +137,7 @@ def register(entry: FilterEntry) -> FilterEntry:
         other = shipped_entry(mine)
         if other is not None:
             raise ValueError(f"the {what} {mine!r} is taken by {other.name}: a registry entry needs its own")
+    check_declared_defaults(entry.filter_class, entry.short_name)
     _ENTRIES.append(entry)
     _BY_CLASS[entry.filter_class] = entry
     _BY_NAME[entry.name] = entry

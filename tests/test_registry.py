@@ -180,6 +180,18 @@ def test_register_refuses_a_name_already_taken(short_name, name, message):
     assert entries() == before
 
 
+def test_register_refuses_a_constructor_that_spells_another_default():
+    class Spelled(WideSIR):
+        def __init__(self, world, sigma, delta, particles, rng=None, temper=0.5, **options):
+            super().__init__(world, sigma, delta, particles, rng, temper=temper, **options)
+
+    with pytest.raises(
+        ValueError, match=r"^spelled: the constructor's default temper=0.5 is not the declared default 1.0"
+    ):
+        register(FilterEntry(Spelled, "spelled", "spelled", (23, 190, 207), "SIR with its own default"))
+    assert "spelled" not in [entry.short_name for entry in entries()]
+
+
 def test_a_filter_added_to_the_package_is_one_entry_and_every_command_takes_it(tmp_path, capsys, wide_registered):
     saved, table = tmp_path / "w.json", tmp_path / "s.csv"
     common = ["--maze", "paper_5x5", "--steps", "25", "--particles", "150", "--seed", "2", "--no-viz"]
