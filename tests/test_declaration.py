@@ -56,12 +56,16 @@ def test_a_combination_is_checked_together():
 
 
 def test_extend_replaces_in_place_and_keeps_the_combined_check():
-    options = Options(*small_options().declared, check=lambda values: values["rate"] < 0.9 or 1 / 0)
+    def below_spread(values):
+        if values["rate"] < values["spread"]:
+            raise ValueError("rate below spread")
+
+    options = Options(*small_options().declared, check=below_spread)
     extended = options.extend(Option("spread", 0.2, "wider"), Option("new", 1, "new"))
     assert list(extended) == ["spread", "mode", "rate", "new"] and extended["spread"].default == 0.2
     assert options["spread"].default == 0.1  # a new value, the old intact
-    with pytest.raises(ZeroDivisionError):
-        extended.resolve({"rate": 0.95}, "F")
+    with pytest.raises(ValueError, match="rate below spread"):
+        extended.resolve({"rate": 0.15}, "F")
     with pytest.raises(ValueError, match="declared twice"):
         Options(Option("a", 1, "a"), Option("a", 2, "a"))
 
