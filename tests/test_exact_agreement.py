@@ -18,11 +18,11 @@ import numpy as np
 import pytest
 from conftest import PAPER_MAZE
 
-from mazelab.filters import RegularizedParticleFilter
+from mazelab.filters import AuxiliaryParticleFilter, RegularizedParticleFilter
 from mazelab.grid_filter import GRID_RESOLUTION, GridBayesFilter
 from mazelab.lab import simulate
 from mazelab.maze import Maze
-from mazelab.model import ROBOT_SPEED
+from mazelab.model import ROBOT_SPEED, log_likelihood
 from mazelab.robot import Robot
 
 PARTICLE_FILTERS = ["sir", "apf", "rpf"]
@@ -162,3 +162,76 @@ def test_the_rpfs_jitter_is_h_d_eps_around_each_resampled_particle(paper_world):
     sample = np.cov(e.T)
     np.testing.assert_allclose(np.diag(sample), 1.0, atol=4 * math.sqrt(2) * se, err_msg="jitter's variance")
     assert abs(sample[0, 1]) < 4 * se, f"the jitter's axes are correlated: {sample[0, 1]:.3f}"
+
+
+# -- the APF's first stage -----------------------------------------------------------------------------
+def first_stage_share(
+    cloud: np.ndarray, weights: np.ndarray, in_a: np.ndarray, world: Maze, sigma: float, delta: float, step: tuple
+) -> tuple[float, float]:
+    """The share of the first stage's ancestors that cluster A gets, expected, and its standard error.
+
+    Parameters
+    ----------
+    cloud, weights : arrays (N, 2), (N,)
+        The particles and their normalised weights W_{k-1} before the step.
+    in_a : bool array (N,)
+        The particles of cluster A.
+    world, sigma, delta
+        The model the filter runs.
+    step : (compass angle, z)
+
+    Returns
+    -------
+    (share, standard error)
+
+    Notes
+    -----
+    mu_i ~ p(x_k | x_{k-1}^i) is the arc of radius L around x_{k-1}^i spanning Delta around the compass
+    angle, so p_i = p(z_k | mu_i) has its mean and variance over the arc, taken here at 256 headings. The
+    share sum_A W_i p_i / sum W_i p_i is a ratio of sums of independent terms: its variance is about
+    sum_i W_i^2 var(p_i) (1_A(i) - share)^2 / (sum_i W_i E p_i)^2 (the delta method). Resampling the
+    ancestors adds at most share (1 - share) / N (multinomial; systematic resampling adds less).
+    """
+    compass, z = step
+    headings = compass + delta * ((np.arange(256) + 0.5) / 256 - 0.5)
+    arcs = cloud[:, None, :] + ROBOT_SPEED * np.stack([np.cos(headings), np.sin(headings)], axis=1)
+    p = np.exp(log_likelihood(z, arcs.reshape(-1, 2), world, sigma)).reshape(len(cloud), -1)
+    total = weights @ p.mean(axis=1)
+    share = weights[in_a] @ p.mean(axis=1)[in_a] / total
+    variance = (weights**2 * p.var(axis=1) * (in_a - share) ** 2).sum() / total**2
+    return float(share), math.sqrt(variance + share * (1 - share) / len(cloud))
+
+
+def test_the_apfs_first_stage_draws_ancestors_by_their_previous_weights(paper_world):
+    """Algorithm 5's first stage draws ancestor i with probability W_{k-1}^i p(z_k | mu_i) (normalised).
+    A hand-made case where W_{k-1} decides it: half the particles start at B = (1, 4), a station, so
+    every move of step 1 (downwards) ends at distance L from it and their weights after step 1 are all
+    equal; the other half start at A = (3.2, 1.2), where the same arc crosses z_1 = L only near its
+    middle, so with sigma = 0.03 A's particles after step 1 weigh from nearly 0 to 1. Step 2's z_2 is
+    explained mostly by A's light particles. From the cloud after step 1 (positions, weights) the share
+    of step 2's particles descended from A is predicted with W_{k-1} and without it
+    (`first_stage_share`); the filter's share must lie within 4 standard errors of the first, and the
+    case is made so that the two predictions lie far more apart than that (about 0.035 against 0.175,
+    standard error 0.005)."""
+    a, b, sigma, delta, count = np.array([3.2, 1.2]), np.array([1.0, 4.0]), 0.03, math.pi / 2, 2000
+    start = np.repeat([a, b], count // 2, axis=0)
+    apf = AuxiliaryParticleFilter(paper_world, sigma, delta, start, np.random.default_rng(3))
+    apf.step(-math.pi / 2, ROBOT_SPEED)
+    cloud, weights = np.asarray(apf.positions, float), np.asarray(apf.weights, float)
+
+    def nearer_a(points: np.ndarray) -> np.ndarray:
+        return np.hypot(*(points - a).T) < np.hypot(*(points - b).T)
+
+    step = (0.0, 0.3)
+    share, se = first_stage_share(cloud, weights, nearer_a(cloud), paper_world, sigma, delta, step)
+    unweighted, se_unweighted = first_stage_share(
+        cloud, np.full(count, 1 / count), nearer_a(cloud), paper_world, sigma, delta, step
+    )
+    assert abs(unweighted - share) > 8 * max(se, se_unweighted), "W_{k-1} should decide this case"
+    apf.step(*step)
+    assert apf.reinitialised_at == []
+    drawn = nearer_a(np.asarray(apf.positions, float)).mean()
+    assert abs(drawn - share) < 4 * se, (
+        f"{drawn:.4f} of the ancestors came from A; W_(k-1) p(z | mu) gives {share:.4f} +- {se:.4f}, "
+        f"p(z | mu) alone {unweighted:.4f}"
+    )
