@@ -314,6 +314,7 @@ def open_session(
     """The runs to go, the row log, the cluster and the record; the study's header printed."""
     tasks, kept, recorded, csv_path = plan.tasks(), [], outputs.recorded, outputs.csv_path
     if recorded is not None and csv_path is not None:
+        check_plugin_code(recorded, plan, outputs.record_file)
         tasks, kept = _resumed(plan, recorded, csv_path, outputs.traces_kept_from)
     tasks = _drawn_first(tasks, draw_run) if visualize else tasks
     replace = outputs.force or outputs.resume
@@ -483,6 +484,19 @@ def _check_resume(csv_path: Path | None, record_file: Path | None) -> dict[str, 
         return read_study_record(record_file)
     except ValueError as error:
         raise UserError(f"--resume: {error}") from None
+
+
+def check_plugin_code(recorded: dict[str, Any], plan: StudyPlan, record_file: Path | None) -> None:
+    """--resume keeps rows made by the same code only: a plug-in whose file's sha256 is not the one
+    in the record is refused in one line naming the file and both hashes."""
+    before = {p.get("filter"): p for p in recorded["parameters"].get("plugins") or [] if isinstance(p, dict)}
+    for now in plan.parameters().get("plugins", []):
+        old = before.get(now["filter"])
+        if old is not None and old.get("sha256") != now["sha256"]:
+            raise UserError(
+                f"--resume: {now['file']} is not the code that made the rows (sha256 {old.get('sha256')} in "
+                f"{record_file}, {now['sha256']} now); restore it, or start the study again with --force"
+            )
 
 
 def _resumed(

@@ -19,6 +19,7 @@ import numpy as np
 
 from mazelab.declaration import Option, options_of
 from mazelab.experiments.kidnapping import recovery_steps, relocalised
+from mazelab.experiments.plugin_code import PluginCode, filters_here
 from mazelab.experiments.runs import filter_labels, final_error, mean_ess, mean_particle_count, run_filters
 from mazelab.maze import STATION_WALL, Maze
 from mazelab.maze_generator import DEFAULT_WALL_SHARE, generate_maze
@@ -231,6 +232,14 @@ class RunTask:
     kidnap_at: int | None = None  # kidnap the robot at this step (its place drawn from `seed`)
     traces: bool = False  # keep each filter's per-step trace on its record (`RunRecord.trace`)
     reference: str | None = None  # "grid": the exact grid filter runs too, each record gets distance_to_exact
+    plugins: tuple[PluginCode, ...] = ()  # the code of the plug-ins among `filters`, sent with the run
+
+    def here(self) -> RunTask:
+        """This run with each plug-in's spec the one that imports its shipped code in this process
+        (mazelab.experiments.plugin_code): a worker runs the code the study was planned with."""
+        if not self.plugins:
+            return self
+        return dataclasses.replace(self, filters=filters_here(self.filters, self.plugins))
 
     @property
     def estimate(self) -> str:
@@ -277,12 +286,14 @@ def study_tasks(
     estimate: str | None = None,
     traces: bool = False,
     reference: str | None = None,
+    plugins: tuple[PluginCode, ...] = (),
 ) -> list[RunTask]:
     """One task per setting and run, in order, each with the filters that setting runs
     (`filters_per_setting`; a setting that runs none has no tasks). `estimate`, if given, replaces the
     settings' own, and `kld` turns KLD-sampling on in all of them; `traces` keeps each run's per-step
     trace (mazelab.experiments.traces); `reference` ("grid") measures each filter against the exact
-    posterior (`with_reference`)."""
+    posterior (`with_reference`); `plugins` the code of the plug-ins among the filters
+    (mazelab.experiments.plugin_code), sent with every run."""
     if estimate is not None:
         settings = [dataclasses.replace(s, estimate=_checked("estimate", [estimate])[0]) for s in settings]
     if kld:
@@ -297,7 +308,17 @@ def study_tasks(
     chosen = zip(settings, filters_per_setting(settings, filters), strict=True)
     return [
         RunTask(
-            i, setting, r, seed, None if setting.maze.grid else maze_seed, mine, steps, kidnap_at, traces, reference
+            i,
+            setting,
+            r,
+            seed,
+            None if setting.maze.grid else maze_seed,
+            mine,
+            steps,
+            kidnap_at,
+            traces,
+            reference,
+            tuple(code for code in plugins if code.spec in mine),
         )
         for i, (setting, mine) in enumerate(chosen, start=1)
         if mine
