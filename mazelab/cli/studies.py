@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import os
 import signal
 from dataclasses import dataclass
@@ -40,7 +41,7 @@ from mazelab.cli.options import (
 )
 from mazelab.cli.outputs import check_one_file_each
 from mazelab.cli.provenance import command_line, repeat_command, resume_command
-from mazelab.experiments.dask_runner import DASK_TIMEOUT, close_client, connect
+from mazelab.experiments.dask_runner import DASK_TIMEOUT, check_workers, close_client, connect
 from mazelab.experiments.executor import STOP_SIGNALS, default_workers, run_study
 from mazelab.experiments.plan import StudyPlan, plan_study
 from mazelab.experiments.plan import study_mazes as plan_mazes
@@ -327,6 +328,12 @@ def open_session(
     )
     try:
         client = connect(dask) if dask is not None else None  # a bad address: one line and exit 2, before anything
+        if client is not None:
+            try:
+                check_workers(client)  # workers that disagree on the backend or versions: one line, exit 2
+            except ValueError:
+                close_client(client)
+                raise
     except BaseException:
         if log is not None:
             log.close() if outputs.resume else log.discard()
@@ -384,6 +391,8 @@ def report_study(session: StudySession, outcome: StudyOutcome, kld: bool, extras
         "runs_in_study": total,
         "failures": [f.describe() for f in outcome.failures],
         "summary": [s.as_dict() for s in summaries],
+        "workers": [dataclasses.asdict(report) for report in outcome.workers.values()],
+        "startup_seconds": round(outcome.startup_seconds, 3),
         **({"summary_csv": str(outputs.summary_csv)} if outputs.summary_csv is not None else {}),
     }
     if outcome.interrupted or outcome.lost is not None:
@@ -391,7 +400,7 @@ def report_study(session: StudySession, outcome: StudyOutcome, kld: bool, extras
     typer.echo(study_table(summaries, plan.varied, kld=kld))
     seconds = session.recorder.finish("finished" if not outcome.failures else "finished with failures", **closing)
     ran = len({(r.setting, r.run) for r in outcome.records})
-    typer.echo(f"{ran} runs in {seconds['duration_seconds']:.1f} s wall time")
+    typer.echo(f"{ran} runs in {seconds['duration_seconds']:.1f} s wall time; {startup_line(outcome)}")
     typer.echo(f"Repeat this study: {repeat_command(plan.seed)}")
     if outputs.csv_path is not None and log is not None:
         try:
@@ -468,6 +477,15 @@ def _session(recorded: dict[str, Any]) -> dict[str, Any]:
     """An earlier session of a resumed study, as its record said."""
     keys = ("command", "started", "ended", "duration_seconds", "status", "runs_finished")
     return {k: recorded.get(k) for k in keys}
+
+
+def startup_line(outcome: StudyOutcome) -> str:
+    """The processes' start-up, reported apart from ms/step and run_seconds (mazelab.experiments.warmup)."""
+    processes = len(outcome.workers)
+    return (
+        f"start-up {outcome.startup_seconds:.1f} s in {processes} process(es) (numba's kernels loaded, first "
+        "calls; not in ms_per_step or run_seconds)"
+    )
 
 
 def _check_resume(csv_path: Path | None, record_file: Path | None) -> dict[str, Any]:

@@ -22,7 +22,14 @@ from contextlib import contextmanager, suppress
 from typing import Any
 
 from mazelab.experiments.batch_runs import study_units
-from mazelab.experiments.dask_runner import DASK_TIMEOUT, ClusterLost, close_client, connect, run_on_dask
+from mazelab.experiments.dask_runner import (
+    DASK_TIMEOUT,
+    ClusterLost,
+    check_workers,
+    close_client,
+    connect,
+    run_on_dask,
+)
 from mazelab.experiments.study import (
     RunFailure,
     RunRecord,
@@ -30,7 +37,8 @@ from mazelab.experiments.study import (
     StudyOutcome,
     run_task,
 )
-from mazelab.experiments.units import run_unit_timed
+from mazelab.experiments.units import UnitOutcome, run_unit_timed
+from mazelab.experiments.warmup import take_startup_seconds, worker_report
 
 
 def default_workers() -> int:
@@ -73,12 +81,19 @@ def run_study(
     if workers < 1:
         raise ValueError(f"--workers must be >= 1, got {workers}")
     client = connect(dask) if isinstance(dask, str) else dask  # a bad address: one line, before anything runs
+    if client is not None:
+        try:
+            check_workers(client)  # workers of different backends or versions: one line, before anything runs
+        except ValueError:
+            if isinstance(dask, str):
+                close_client(client)
+            raise
     outcome = StudyOutcome(tasks=len(tasks))
 
     def collect(results: list[list[RunRecord] | RunFailure]) -> None:
         for result in results:
             outcome.add(result)
-            if on_records is not None and not isinstance(result, RunFailure):
+            if on_records is not None and isinstance(result, list):
                 on_records(result)
 
     try:
@@ -119,19 +134,21 @@ def _run_drawn(
 ) -> None:
     """The drawn run(s), in this process (the viewer is here)."""
     for task in drawn:
-        collect([_draw_task(task, visualize)])
+        collect(_draw_task(task, visualize))
         advance()
 
 
-def _draw_task(task: RunTask, visualize: Any) -> list[RunRecord] | RunFailure:
+def _draw_task(task: RunTask, visualize: Any) -> list[UnitOutcome]:
+    """The drawn run's records (or its failure), then this process's WorkerReport."""
     started = time.perf_counter()
     try:
-        records = run_task(task, visualize)
-        for record in records:
-            record.run_seconds = time.perf_counter() - started
-        return records
+        records = run_task(task.here(), visualize)
     except Exception as error:
-        return RunFailure(task, f"{type(error).__name__}: {error}")
+        return [RunFailure(task, f"{type(error).__name__}: {error}"), worker_report(take_startup_seconds())]
+    startup = take_startup_seconds()
+    for record in records:
+        record.run_seconds = time.perf_counter() - started - startup
+    return [records, worker_report(startup)]
 
 
 def _run_in_pool(
