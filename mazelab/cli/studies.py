@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import os
 import signal
@@ -58,6 +57,7 @@ from mazelab.experiments.runs import parse_filters
 from mazelab.experiments.stats import CONFIDENCE_LEVEL
 from mazelab.experiments.study import PAPER_OPTIONS, MazeChoice, RunRecord, RunTask, StudyOutcome, declared_option
 from mazelab.experiments.summary import CSV_DTYPES, study_table, summarise_study, summary_csv, summary_path
+from mazelab.experiments.trace_log import TraceLog
 from mazelab.experiments.traces import (
     check_trace_path,
     check_traces_of_study,
@@ -307,6 +307,15 @@ class StudySession:
     log: RowLog | None
     client: Any
     recorder: Recorder
+    trace_log: TraceLog | None = None  # TRACES.partial, each finished run's traces appended (with --csv)
+    kept_traces: Any = None  # the traces of the kept runs (--resume), read before the trace log starts
+
+    def append(self, records: list[RunRecord]) -> None:
+        """One finished run's rows and traces, appended to the partial files."""
+        if self.log is not None:
+            self.log.append(records)
+        if self.trace_log is not None:
+            self.trace_log.append(records)
 
 
 def open_session(
@@ -319,6 +328,8 @@ def open_session(
         tasks, kept = _resumed(plan, recorded, csv_path, outputs.traces_kept_from)
     tasks = _drawn_first(tasks, draw_run) if visualize else tasks
     replace = outputs.force or outputs.resume
+    kept_from, rerun = outputs.traces_kept_from, {(t.setting_index, t.run) for t in tasks}
+    kept_trace_rows = kept_traces(kept_from, rerun) if kept_from is not None else None
     log = (  # NAME.csv.partial with the study's columns (the kept rows in it at once), the record beside it
         RowLog(
             csv_path, replace=replace, adopt=outputs.resume, record=outputs.record_file, kept=kept, columns=plan.columns
@@ -326,7 +337,10 @@ def open_session(
         if csv_path is not None
         else None
     )
+    trace_log = None
     try:
+        if log is not None and outputs.traces is not None:  # claimed now: a second study with it is refused
+            trace_log = TraceLog(outputs.traces, replace=outputs.force, adopt=outputs.resume, kept=kept_trace_rows)
         client = connect(dask) if dask is not None else None  # a bad address: one line and exit 2, before anything
         if client is not None:
             try:
@@ -337,6 +351,8 @@ def open_session(
     except BaseException:
         if log is not None:
             log.close() if outputs.resume else log.discard()
+        if trace_log is not None:
+            trace_log.close() if outputs.resume else trace_log.discard()
         raise
     where = f"on the Dask cluster at {dask}" if dask is not None else f"{workers} worker(s)"
     typer.echo(plan.header(where))
@@ -353,7 +369,7 @@ def open_session(
     )  # fmt: skip
     if log is not None:  # now, beside the partial rows: an interrupted study keeps its parameters for --resume
         log.write_record(recorder)  # (the record beside the CSV stays the old CSV's until the new CSV replaces it)
-    return StudySession(plan, outputs, tasks, kept, workers, log, client, recorder)
+    return StudySession(plan, outputs, tasks, kept, workers, log, client, recorder, trace_log, kept_trace_rows)
 
 
 def run_session(session: StudySession, visualize: Any, dask_timeout: float) -> StudyOutcome:
@@ -365,7 +381,7 @@ def run_session(session: StudySession, visualize: Any, dask_timeout: float) -> S
             session.workers,
             visualize=visualize,
             progress=True,
-            on_records=None if log is None else log.append,
+            on_records=None if log is None else session.append,
             dask=session.client,
             dask_timeout=dask_timeout,
             ignore_signals_after_stop=True,  # a stopped study only saves and exits: a further Ctrl-C waits
@@ -417,7 +433,7 @@ def report_study(session: StudySession, outcome: StudyOutcome, kld: bool, extras
             typer.echo(f"error: {describe_write_error(error)}", err=True)
             raise typer.Exit(1) from None
         typer.echo(f"one row per setting and filter (the table, with its intervals) written to {outputs.summary_csv}")
-    if _write_traces(outputs.traces, _in_order(outcome.records, plan), session.tasks, outputs.traces_kept_from):
+    if _write_traces(outputs.traces, _in_order(outcome.records, plan), session.kept_traces, session.trace_log):
         typer.echo(f"per-step traces written to {outputs.traces}")
     if outputs.plot is not None and summaries:
         _plot(plan, summaries, outputs.plot, outputs.force, extras.plot_x)
@@ -435,8 +451,10 @@ def report_stopped(session: StudySession, outcome: StudyOutcome, closing: dict[s
     outputs, log = session.outputs, session.log
     if log is not None:
         log.close()
-    traces = _in_order(outcome.records, session.plan)  # with a CSV: beside the partial rows, as the record
-    _write_traces(outputs.traces, traces, session.tasks, outputs.traces_kept_from, stopped=log is not None)
+    if session.trace_log is not None:  # with a CSV: each finished run's traces are in TRACES.partial already
+        session.trace_log.close()
+    else:
+        _write_traces(outputs.traces, _in_order(outcome.records, session.plan), session.kept_traces)
     if outputs.record_file is not None:  # with a CSV: beside the partial rows, the old CSV keeps its record
         session.recorder.finish("interrupted", **closing)
         if log is not None:
@@ -568,20 +586,14 @@ def _in_order(records: list[RunRecord], plan: StudyPlan) -> list[RunRecord]:
     return sorted(records, key=lambda r: (r.setting, r.run, order[r.filter]))
 
 
-def _write_traces(
-    path: Path | None, records: list[RunRecord], tasks: list[RunTask], kept_from: Path | None, stopped: bool = False
-) -> bool:
-    """Write the traces of this session's runs, after the kept ones of an earlier session (read from
-    `kept_from`, --resume). A stopped study with a CSV writes them beside its partial rows
-    (TRACES.partial): the old traces stay beside the old CSV; a finished one replaces the traces
-    and removes the partial traces."""
+def _write_traces(path: Path | None, records: list[RunRecord], kept: Any, trace_log: TraceLog | None = None) -> bool:
+    """Write the whole traces: the kept ones of an earlier session (--resume), then this session's
+    runs; then the partial traces (TraceLog) go."""
     if path is None:
         return False
-    kept = kept_traces(kept_from, {(t.setting_index, t.run) for t in tasks}) if kept_from is not None else None
-    write_traces(partial_path(path) if stopped else path, study_traces(records), kept, follow_links=not stopped)
-    if not stopped:
-        with contextlib.suppress(OSError):
-            partial_path(path).unlink()  # the new whole traces replace what a stopped session left
+    write_traces(path, study_traces(records), kept)
+    if trace_log is not None:
+        trace_log.discard()
     return True
 
 

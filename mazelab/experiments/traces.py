@@ -185,7 +185,7 @@ def write_traces(
     columns = trace_column_names(blocks)
     if kept_header is not None:  # an earlier session's columns first, then any new one
         columns = [*kept_header, *(c for c in columns if c not in kept_header)]
-        kept_rows = _padded(kept_rows, len(kept_header), len(columns))
+        kept_rows = padded(kept_rows, len(kept_header), len(columns))
     text = trace_header(columns) + kept_rows + trace_csv_rows(blocks, columns)
     write_text_atomically(path, text, follow_links=follow_links)
 
@@ -205,7 +205,7 @@ def _filled(block: dict[str, Any], column: str) -> np.ndarray:
     return np.full(steps, np.nan) if column.startswith(DIAGNOSTIC_PREFIX) else np.full(steps, None, dtype=object)
 
 
-def _padded(rows: str, have: int, want: int) -> str:
+def padded(rows: str, have: int, want: int) -> str:
     """CSV rows of `have` cells with empty cells added up to `want`."""
     if want == have or not rows:
         return rows
@@ -327,6 +327,7 @@ __all__ = [
     "check_traces_of_study",
     "compare_traces",
     "kept_traces",
+    "padded",
     "record_parameters",
     "study_traces",
     "trace_column_names",
