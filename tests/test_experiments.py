@@ -15,6 +15,7 @@ import pytest
 from conftest import PAPER_MAZE
 from test_stats import T_975_DF2
 
+from mazelab.backend import chosen_backend
 from mazelab.cli.app import from_scenario, main
 from mazelab.experiments import batch_runs
 from mazelab.experiments import study as experiments
@@ -132,7 +133,8 @@ def test_study_csv_has_a_row_per_run_and_filter(tmp_path, capsys):
         "backend",
     ]  # fmt: skip
     assert len(rows) == 4 * 3 * 2  # settings x runs x filters
-    assert {(r["filter"], r["label"]) for r in rows} == {("SIRParticleFilter", "SIR"), ("RegularizedParticleFilter", "RPF")}
+    labels = {(r["filter"], r["label"]) for r in rows}
+    assert labels == {("SIRParticleFilter", "SIR"), ("RegularizedParticleFilter", "RPF")}
     assert {r["backend"] for r in rows} == {chosen_backend()}
     assert {(r["sigma"], r["delta"]) for r in rows} == {("0.3", "0.2"), ("0.3", "0.5"), ("0.6", "0.2"), ("0.6", "0.5")}
     assert {r["station_blocks"] for r in rows} == {"2"} and {r["maze_seed"] for r in rows} == {""}
