@@ -290,6 +290,11 @@ class StudyExtras:
             if chosen not in [entry.name for entry in entries]:
                 given = ", ".join(entry.reference for entry in entries)
                 raise UserError(f"--paired {paired}: not one of the study's --filters ({given})")
+            if len(entries) == 1:
+                raise UserError(
+                    f"--paired {paired}: the study's only filter, paired with itself (every difference 0); "
+                    "add the filters to compare with it to --filters"
+                )
             paired = chosen
         return cls(paired, plot_x)
 
