@@ -412,6 +412,7 @@ def report_study(session: StudySession, outcome: StudyOutcome, kld: bool, extras
         "runs_in_study": total,
         "failures": [f.describe() for f in outcome.failures],
         "summary": [s.as_dict() for s in summaries],
+        "paired": extras.paired,
         "workers": [dataclasses.asdict(report) for report in outcome.workers.values()],
         "startup_seconds": round(outcome.startup_seconds, 3),
         **({"summary_csv": str(outputs.summary_csv)} if outputs.summary_csv is not None else {}),

@@ -156,7 +156,7 @@ class StudyPlan:
             "root_seed": self.seed,
             "kidnap_at": self.kidnap_at,
             "kld": self.kld,
-            **({"reference": self.reference} if self.reference else {}),  # absent without one, as before
+            "reference": self.reference,  # "grid", or None: no distance to the exact posterior
             **({"plugins": [plugin_description(code) for code in self.plugins]} if self.plugins else {}),
         }
 

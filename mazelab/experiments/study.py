@@ -434,6 +434,8 @@ def with_reference(
     exact = exact_means(key, world, robot)
     for record in records:
         record.distance_to_exact = distance_to_exact(results[record.filter].estimates, exact)
+        if record.trace is not None:
+            record.trace = {**record.trace, "exact": exact}  # the traces' exact_x, exact_y
     return records
 
 

@@ -21,7 +21,8 @@ from mazelab.experiments.rowlog import PartialFileError, check_partial_name, loc
 from mazelab.experiments.study import RunRecord
 from mazelab.experiments.traces import (
     TRACE_COLUMNS,
-    padded,
+    ordered,
+    relaid,
     study_traces,
     trace_column_names,
     trace_csv_rows,
@@ -78,13 +79,12 @@ class TraceLog:
         blocks = study_traces(records)
         if self._handle is None or not blocks:
             return
-        new = [c for c in trace_column_names(blocks) if c not in self.columns]
+        wanted = ordered([*self.columns, *trace_column_names(blocks)])
         try:
-            if new:
+            if wanted != self.columns:
                 old = self.path.read_text(encoding="utf-8").split("\n", 1)[1] if self.path.exists() else ""
-                have = len(self.columns)
-                self.columns += new
-                self._rewrite(trace_header(self.columns) + padded(old, have, len(self.columns)))
+                self._rewrite(trace_header(wanted) + relaid(old, self.columns, wanted))
+                self.columns = wanted
             write_all(self._handle, trace_csv_rows(blocks, self.columns).encode("utf-8"))
         except OSError:
             self.close()
