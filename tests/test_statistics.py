@@ -196,7 +196,7 @@ def test_paired_differences_in_a_study_pair_each_run_with_the_same_scenario():
         differences = [r["final_error"] - sir[r["sigma"], r["run"]] for r in mine]
         assert s["paired_with"] == "SIRParticleFilter" and s["paired_runs"] == 3
         assert s["mean_difference"] == pytest.approx(statistics.fmean(differences), rel=1e-12)
-        assert tuple(s["difference_interval"]) == bootstrap_interval(differences, "mean", method="bca")
+        assert (s["difference_low"], s["difference_high"]) == bootstrap_interval(differences, "mean", method="bca")
     assert len({s["bandwidth"] for s in result.summary if s["filter"] == "RegularizedParticleFilter"}) == 2
 
 

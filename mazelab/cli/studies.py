@@ -54,7 +54,6 @@ from mazelab.experiments.resume import (
 )
 from mazelab.experiments.rowlog import RowLog, check_left_over, check_partial_name, partial_path
 from mazelab.experiments.runs import parse_filters
-from mazelab.experiments.stats import CONFIDENCE_LEVEL
 from mazelab.experiments.study import PAPER_OPTIONS, MazeChoice, RunRecord, RunTask, StudyOutcome, declared_option
 from mazelab.experiments.summary import CSV_DTYPES, study_table, summarise_study, summary_csv, summary_path
 from mazelab.experiments.trace_log import TraceLog
@@ -116,6 +115,10 @@ def study(
     plot_x: Annotated[
         str | None, typer.Option(metavar="PARAMETER", help="the figure's x axis, a varied parameter")
     ] = None,
+    plot_y: Annotated[
+        str, typer.Option(metavar="mean|median|converged|exact|paired", help="what the figure draws")
+    ] = "mean",
+    title: Annotated[str | None, typer.Option(help="the figure's title (default: what it draws against what)")] = None,
     traces: Annotated[Path | None, typer.Option(help="per-step rows of every run (.csv, or .parquet)")] = None,
     record: Annotated[Path | None, typer.Option(help="JSON record [default: CSV.record.json]")] = None,
     resume: Annotated[bool, typer.Option("--resume", help="run only the rows missing from --csv")] = False,
@@ -137,7 +140,7 @@ def study(
         sigma=sigma, delta=delta, particles=particles, runs=runs, steps=steps, seed=seed, kidnap_at=kidnap_at, kld=kld,
         reference=reference,
     )  # fmt: skip
-    extras = StudyExtras.parse(plan, paired, plot_x)
+    extras = StudyExtras.parse(plan, paired, plot_x, plot_y, title)
     session = open_session(plan, outputs, visualize, draw_run, dask, workers or default_workers())
     outcome = run_session(session, visualize, dask_timeout)
     report_study(session, outcome, kld, extras)
@@ -277,10 +280,26 @@ class StudyExtras:
 
     paired: str | None = None
     plot_x: str | None = None  # the figure's x axis (--plot-x), a varied parameter
+    plot_y: str = "mean"  # what the figure draws (--plot-y): a key of study_plot.Y_QUANTITIES
+    title: str | None = None  # the figure's first title line (--title), instead of the program's
 
     @classmethod
-    def parse(cls, plan: StudyPlan, paired: str | None, plot_x: str | None = None) -> StudyExtras:
-        """--paired names one of the study's filters, --plot-x one of its varied parameters."""
+    def parse(
+        cls, plan: StudyPlan, paired: str | None, plot_x: str | None = None, plot_y: str = "mean",
+        title: str | None = None,
+    ) -> StudyExtras:  # fmt: skip
+        """--paired names one of the study's filters, --plot-x one of its varied parameters, --plot-y
+        what the figure draws (exact needs --reference grid, paired needs --paired)."""
+        from mazelab.experiments.study_plot import Y_QUANTITIES
+
+        if plot_y not in Y_QUANTITIES:
+            raise UserError(f"--plot-y {plot_y}: choose one of {', '.join(Y_QUANTITIES)}")
+        if plot_y == "exact" and plan.reference is None:
+            raise UserError("--plot-y exact: the distance to the exact posterior needs --reference grid")
+        if plot_y == "paired" and paired is None:
+            raise UserError("--plot-y paired: the paired difference needs --paired FILTER")
+        if title is not None and ("\n" in title or not title.strip()):
+            raise UserError("--title: give one line of text")
         if plot_x is not None and plot_x not in plan.varied:
             varied = ", ".join(plan.varied) or "none: give a parameter two values"
             raise UserError(f"--plot-x {plot_x}: the x axis is a varied parameter of the study ({varied})")
@@ -296,7 +315,7 @@ class StudyExtras:
                     "add the filters to compare with it to --filters"
                 )
             paired = chosen
-        return cls(paired, plot_x)
+        return cls(paired, plot_x, plot_y, title)
 
 
 @dataclass
@@ -442,7 +461,7 @@ def report_study(session: StudySession, outcome: StudyOutcome, kld: bool, extras
     if _write_traces(outputs.traces, _in_order(outcome.records, plan), session.kept_traces, session.trace_log):
         typer.echo(f"per-step traces written to {outputs.traces}")
     if outputs.plot is not None and summaries:
-        _plot(plan, summaries, outputs.plot, outputs.force, extras.plot_x)
+        _plot(plan, summaries, outputs.plot, outputs.force or outputs.resume, extras)  # --resume: its own figure
     if outputs.record_file is not None:
         session.recorder.write(outputs.record_file)
         typer.echo(f"the study's record (command, versions, seeds, mazes, summary) written to {outputs.record_file}")
@@ -603,17 +622,16 @@ def _write_traces(path: Path | None, records: list[RunRecord], kept: Any, trace_
     return True
 
 
-def _plot(plan: StudyPlan, summaries: list, plot: Path, force: bool = True, x: str | None = None) -> None:
-    from mazelab.experiments.study_plot import plot_study
+def _plot(plan: StudyPlan, summaries: list, plot: Path, force: bool = True, extras: StudyExtras | None = None) -> None:
+    """The study's figure (mazelab.experiments.study_plot), as `mazelab.study(...).figure(...)` draws it."""
+    from mazelab.experiments.study_plot import plot_study, study_title
 
+    extras = extras or StudyExtras()
     varied = plan.varied
-    what = ", ".join(varied) or "the setting"
-    where = "" if "maze" in varied else f" on {plan.settings[0].maze.label}"
-    title = (
-        f"Last-20% error against {what}{where}\n({plan.runs} runs per point, "
-        f"{CONFIDENCE_LEVEL:.0%} BCa bootstrap intervals for the mean)"
+    title = extras.title or study_title(
+        varied, summaries, plan.runs, plan.settings[0].maze.label, extras.plot_x, extras.plot_y
     )
-    plot_study(summaries, varied or ["maze"], plot, title, replace=force, x=x)
+    plot_study(summaries, varied or ["maze"], plot, title, replace=force, x=extras.plot_x, y=extras.plot_y)
     typer.echo(f"figure written to {plot}")
 
 

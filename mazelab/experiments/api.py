@@ -41,16 +41,18 @@ class StudyResult:
     summaries: list[StudySummary] = field(default_factory=list, repr=False)  # the summary, as objects
     varied: list[str] = field(default_factory=list)  # the varied parameters
 
-    def figure(self, path: str | Path, x: str | None = None, title: str | None = None) -> Path:
+    def figure(self, path: str | Path, x: str | None = None, title: str | None = None, y: str = "mean") -> Path:
         """The study's figure, as `mazelab study --plot PATH` draws it (.png, .pdf or .svg by the
-        suffix; `x` a varied parameter for the x axis, as --plot-x); an existing file is replaced."""
-        from mazelab.experiments.study_plot import plot_study
+        suffix; `x` a varied parameter for the x axis, as --plot-x; `y` what it draws, as --plot-y:
+        mean, median, converged, exact or paired; `title` instead of the program's, as --title); an
+        existing file is replaced."""
+        from mazelab.experiments.study_plot import plot_study, study_title
 
         path = Path(path)
-        runs = self.record["parameters"]["runs"]
-        plot_study(
-            self.summaries, self.varied or ["maze"], path, title or f"Last-20% error ({runs} runs per point)", x=x
-        )
+        parameters = self.record["parameters"]
+        maze = parameters["mazes"][0]["label"]
+        title = title or study_title(self.varied, self.summaries, parameters["runs"], maze, x, y)
+        plot_study(self.summaries, self.varied or ["maze"], path, title, x=x, y=y)
         return path
 
 
