@@ -169,7 +169,7 @@ def warm_batch(
         steps = min(WARM_UP_STEPS, tasks[0].steps)
         record_steps(filt, steps, lambda k: (compass[:r, k], z[:r, k]), runs=None if r == 1 else r)
 
-    warm_once(("batch", filter_class, options_key(options), r), warm)
+    warm_once(("batch", filter_class, options_key(filter_class, options), r), warm)
 
 
 __all__ = [

@@ -21,6 +21,7 @@ from importlib.metadata import PackageNotFoundError, version
 from typing import Any
 
 from mazelab.backend import chosen_backend
+from mazelab.declaration import options_of
 from mazelab.maze import Maze
 from mazelab.registry import resolve_filter
 from mazelab.robot import Robot
@@ -49,9 +50,11 @@ def warm_once(key: Hashable, warm: Callable[[], Any]) -> None:
     _startup_seconds[0] += time.perf_counter() - started
 
 
-def options_key(options: Mapping[str, Any]) -> str:
-    """A filter's options as part of a warm-up key."""
-    return repr(sorted(options.items()))
+def options_key(filter_class: type, options: Mapping[str, Any]) -> str:
+    """A filter's options as part of a warm-up key: those that differ from their declared default (a
+    filter given its defaults runs the same code as one given nothing)."""
+    declared = options_of(filter_class)
+    return repr(sorted((k, v) for k, v in options.items() if k not in declared or declared[k].default != v))
 
 
 def warm_up_filters(
@@ -72,7 +75,8 @@ def warm_up_filters(
             robot = Robot(sigma, delta, start_place(world, WARM_UP_SEED))
             simulate(robot, world, sigma, delta, particle_count, WARM_UP_STEPS, None, name, seed=WARM_UP_SEED, **own)
 
-        warm_once(("single", resolve_filter(name), options_key(own)), warm)
+        filter_class = resolve_filter(name)
+        warm_once(("single", filter_class, options_key(filter_class, own)), warm)
 
 
 def take_startup_seconds() -> float:
