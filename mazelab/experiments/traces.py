@@ -1,7 +1,8 @@
 """Per-step traces (`study --traces`, `compare --traces`): one row per run, filter and step, in long
 format, so that pandas reads them directly (`pandas.read_csv`, or `read_parquet` for a .parquet file,
 which needs pyarrow). Columns: TRACE_COLUMNS, then each filter's own diagnostics (`regularised`,
-`injection_probability`, ...: empty where a filter has none), then the row's parameters (the maze,
+`injection_probability`, ...: empty where a filter has none), then the filter's label (SIR) and the
+row's parameters (the maze,
 sigma, delta, particles, the paper's four options and any other option of the setting), so that a
 band plot of the error against the steps, by filter and parameter, is one `groupby`."""
 
@@ -19,6 +20,7 @@ import numpy as np
 from mazelab.atomic import write_bytes_atomically, write_text_atomically
 from mazelab.experiments.inputs import read_regular_bytes, read_regular_text
 from mazelab.experiments.study import RunRecord, RunTask, trace_of
+from mazelab.registry import labels
 from mazelab.simulation import RunResult
 
 TRACE_COLUMNS = [
@@ -109,7 +111,7 @@ def exact_columns(exact: Any, estimate: np.ndarray) -> dict[str, np.ndarray]:
 
 def record_parameters(record: RunRecord) -> dict[str, Any]:
     """A study row's parameters as trace columns: PARAMETER_COLUMNS, then its other options."""
-    return {**{name: getattr(record, name) for name in PARAMETER_COLUMNS}, **record.options}
+    return {"label": record.label, **{name: getattr(record, name) for name in PARAMETER_COLUMNS}, **record.options}
 
 
 def study_traces(records: Iterable[RunRecord]) -> list[dict[str, Any]]:
@@ -128,7 +130,8 @@ def compare_traces(results: dict[str, RunResult], seed: int, maze: str | None = 
     blocks = []
     for name, result in results.items():
         inputs = result.inputs
-        parameters = {"maze": maze, "sigma": inputs.sigma, "delta": inputs.delta, "particles": len(inputs.particles)}
+        parameters = {"label": labels([name])[name], "maze": maze, "sigma": inputs.sigma, "delta": inputs.delta,
+                      "particles": len(inputs.particles)}  # fmt: skip
         blocks.append(trace_columns(None, 1, seed, name, trace_of(result), parameters))
     return blocks
 
