@@ -252,3 +252,18 @@ def test_a_resume_that_cannot_start_keeps_the_stopped_studys_rows(tmp_path):
     assert done.returncode == 2 and "cannot reach the Dask scheduler" in done.stderr
     assert rows(tmp_path / "s.csv.partial") == before
     assert resume(tmp_path).returncode == 0 and len(rows(tmp_path / "s.csv")) == 12
+
+
+@pytest.mark.parametrize("flag", ["--summary-csv", "--record", "--plot", "--traces"])
+def test_a_second_study_with_an_output_the_first_is_writing_is_refused_before_its_runs(tmp_path, capsys, flag):
+    """Each output is claimed before the runs: a study given an output that a running study will write
+    (another --csv, the same --summary-csv, --record, --plot or --traces) is refused at once, in one line."""
+    shared = tmp_path / ("shared.png" if flag == "--plot" else "shared.json" if flag == "--record" else "shared.csv")
+    process = blocked_study(tmp_path, flag, str(shared))
+    try:
+        assert main([*STUDY, "--seed", "2", "--csv", str(tmp_path / "other.csv"), flag, str(shared)]) == 2
+        assert f"another study is writing {shared} now ({flag})" in one_error(capsys)
+        assert not (tmp_path / "other.csv.partial").exists()
+    finally:
+        process.kill()
+        process.wait()

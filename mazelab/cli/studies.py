@@ -40,6 +40,7 @@ from mazelab.cli.options import (
 )
 from mazelab.cli.outputs import check_one_file_each
 from mazelab.cli.provenance import command_line, repeat_command, resume_command
+from mazelab.experiments.claims import OutputClaims
 from mazelab.experiments.dask_runner import DASK_TIMEOUT, check_workers, close_client, connect
 from mazelab.experiments.executor import STOP_SIGNALS, default_workers, run_study
 from mazelab.experiments.plan import StudyPlan, plan_study
@@ -142,8 +143,11 @@ def study(
     )  # fmt: skip
     extras = StudyExtras.parse(plan, paired, plot_x, plot_y, title)
     session = open_session(plan, outputs, visualize, draw_run, dask, workers or default_workers())
-    outcome = run_session(session, visualize, dask_timeout)
-    report_study(session, outcome, kld, extras)
+    try:
+        outcome = run_session(session, visualize, dask_timeout)
+        report_study(session, outcome, kld, extras)
+    finally:
+        session.claims.release()
 
 
 # -- the study in three steps: parse (outputs, plan), run (a session), report -------------------------
@@ -332,6 +336,7 @@ class StudySession:
     client: Any
     recorder: Recorder
     trace_log: TraceLog | None = None  # TRACES.partial, each finished run's traces appended (with --csv)
+    claims: OutputClaims = dataclasses.field(default_factory=lambda: OutputClaims([]))  # the other outputs
     kept_traces: Any = None  # the traces of the kept runs (--resume), read before the trace log starts
 
     def append(self, records: list[RunRecord]) -> None:
@@ -351,18 +356,15 @@ def open_session(
         check_plugin_code(recorded, plan, outputs.record_file)
         tasks, kept = _resumed(plan, recorded, csv_path, outputs.traces_kept_from)
     tasks = _drawn_first(tasks, draw_run) if visualize else tasks
-    replace = outputs.force or outputs.resume
     kept_from, rerun = outputs.traces_kept_from, {(t.setting_index, t.run) for t in tasks}
     kept_trace_rows = kept_traces(kept_from, rerun) if kept_from is not None else None
-    log = (  # NAME.csv.partial with the study's columns (the kept rows in it at once), the record beside it
-        RowLog(
-            csv_path, replace=replace, adopt=outputs.resume, record=outputs.record_file, kept=kept, columns=plan.columns
-        )
-        if csv_path is not None
-        else None
-    )
-    trace_log = None
+    claims = OutputClaims(  # a second study given one of these now is refused before its runs
+        [("--summary-csv", outputs.summary_csv), ("--record", outputs.record_file), ("--plot", outputs.plot),
+         ("--traces", outputs.traces)]
+    )  # fmt: skip
+    log = trace_log = None
     try:
+        log = _row_log(plan, outputs, kept)
         if log is not None and outputs.traces is not None:  # claimed now: a second study with it is refused
             trace_log = TraceLog(outputs.traces, replace=outputs.force, adopt=outputs.resume, kept=kept_trace_rows)
         client = connect(dask) if dask is not None else None  # a bad address: one line and exit 2, before anything
@@ -373,6 +375,7 @@ def open_session(
                 close_client(client)
                 raise
     except BaseException:
+        claims.release()
         if log is not None:
             log.close() if outputs.resume else log.discard()
         if trace_log is not None:
@@ -393,7 +396,21 @@ def open_session(
     )  # fmt: skip
     if log is not None:  # now, beside the partial rows: an interrupted study keeps its parameters for --resume
         log.write_record(recorder)  # (the record beside the CSV stays the old CSV's until the new CSV replaces it)
-    return StudySession(plan, outputs, tasks, kept, workers, log, client, recorder, trace_log, kept_trace_rows)
+    return StudySession(
+        plan, outputs, tasks, kept, workers, log, client, recorder,
+        trace_log=trace_log, kept_traces=kept_trace_rows, claims=claims,
+    )  # fmt: skip
+
+
+def _row_log(plan: StudyPlan, outputs: StudyOutputs, kept: list[RunRecord]) -> RowLog | None:
+    """NAME.csv.partial with the study's columns (the kept rows in it at once), the record beside it."""
+    if outputs.csv_path is None:
+        return None
+    replace = outputs.force or outputs.resume
+    return RowLog(
+        outputs.csv_path, replace=replace, adopt=outputs.resume, record=outputs.record_file, kept=kept,
+        columns=plan.columns,
+    )  # fmt: skip
 
 
 def run_session(session: StudySession, visualize: Any, dask_timeout: float) -> StudyOutcome:
