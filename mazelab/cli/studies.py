@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import dataclasses
-import os
 import signal
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,35 +31,24 @@ from mazelab.cli.options import (
     UserError,
     ViewerOption,
     WebOption,
-    check_output_path,
-    check_outputs,
     parse_list,
     seed_option,
     visualization,
 )
-from mazelab.cli.outputs import check_one_file_each
 from mazelab.cli.provenance import command_line, repeat_command, resume_command
+from mazelab.cli.study_outputs import StudyOutputs, check_plugin_code, resumed, rows_file, session_of
 from mazelab.experiments.claims import OutputClaims
 from mazelab.experiments.dask_runner import DASK_TIMEOUT, check_workers, close_client, connect
 from mazelab.experiments.executor import STOP_SIGNALS, default_workers, run_study
 from mazelab.experiments.plan import StudyPlan, plan_study
 from mazelab.experiments.plan import study_mazes as plan_mazes
-from mazelab.experiments.record import Recorder, differences, record_path
-from mazelab.experiments.resume import (
-    RESUME_IGNORES,
-    check_rows_of_study,
-    missing_tasks,
-    read_study_csv,
-    read_study_record,
-)
-from mazelab.experiments.rowlog import RowLog, check_left_over, check_partial_name, partial_path
+from mazelab.experiments.record import Recorder
+from mazelab.experiments.rowlog import RowLog
 from mazelab.experiments.runs import parse_filters
 from mazelab.experiments.study import PAPER_OPTIONS, MazeChoice, RunRecord, RunTask, StudyOutcome, declared_option
-from mazelab.experiments.summary import CSV_DTYPES, study_table, summarise_study, summary_csv, summary_path
+from mazelab.experiments.summary import CSV_DTYPES, study_table, summarise_study, summary_csv
 from mazelab.experiments.trace_log import TraceLog
 from mazelab.experiments.traces import (
-    check_trace_path,
-    check_traces_of_study,
     kept_traces,
     study_traces,
     write_traces,
@@ -151,71 +139,6 @@ def study(
 
 
 # -- the study in three steps: parse (outputs, plan), run (a session), report -------------------------
-@dataclass
-class StudyOutputs:
-    """The study's output files, checked before any work: the CSV, figure, traces and record, and the
-    record of the study to resume (--resume)."""
-
-    csv_path: Path | None
-    plot: Path | None
-    traces: Path | None
-    record_file: Path | None
-    recorded: dict[str, Any] | None
-    force: bool
-    resume: bool
-    traces_kept_from: Path | None = None  # --resume --traces: the earlier session's traces, beside its rows
-    summary_csv: Path | None = None  # the table as CSV: --summary-csv, or NAME.summary.csv beside --csv
-
-    @classmethod
-    def parse(
-        cls, csv_path: Path | None, plot: Path | None, traces: Path | None, record: Path | None,
-        rrd: Path | None, force: bool, resume: bool, summary_csv: Path | None = None,
-    ) -> StudyOutputs:  # fmt: skip
-        """Check the outputs (one line for a name that exists without --force, a folder, a device, a
-        symlink at a partial file's name, two outputs that are one file), before any work."""
-        record_file = (
-            record if record is not None else next((record_path(p) for p in (csv_path, plot, traces) if p), None)
-        )
-        summary_named = "--summary-csv" if summary_csv is not None else "the summary CSV"
-        if summary_csv is None and csv_path is not None:
-            summary_csv = summary_path(csv_path)
-        named = _named_outputs(csv_path, plot, traces, record, record_file, rrd)
-        check_one_file_each([*named, (summary_named, summary_csv)])
-        if csv_path is not None:  # a stopped study's rows: named before its record
-            check_left_over(csv_path, force, adopt=resume)
-            for path in (record_file, traces):
-                if path is not None:
-                    check_partial_name(partial_path(path))
-        recorded = _check_resume(csv_path, record_file) if resume else None
-        check_outputs(None if resume else csv_path, plot, force or resume, rrd)  # --resume replaces its own outputs
-        for path in (traces, record_file):
-            if path is not None and not resume:
-                check_output_path(path, force)
-        if traces is not None:
-            check_trace_path(traces)
-        if summary_csv is not None:
-            check_output_path(summary_csv, force or resume)
-        kept_from = None
-        if resume and traces is not None and csv_path is not None:  # the traces that go with the rows resumed
-            kept_from = partial_path(traces) if _rows_file(csv_path) != csv_path else traces
-        return cls(csv_path, plot, traces, record_file, recorded, force, resume, kept_from, summary_csv)
-
-
-def _named_outputs(
-    csv_path: Path | None, plot: Path | None, traces: Path | None, record: Path | None, record_file: Path | None,
-    rrd: Path | None,
-) -> list[tuple[str, Path | None]]:  # fmt: skip
-    """The study's output files by what the user calls them, the partial files beside the CSV too."""
-    partials = [] if csv_path is None else [("--csv's partial file", partial_path(csv_path))]
-    if csv_path is not None and record_file is not None:
-        partials.append(("the record's partial file", partial_path(record_file)))
-    if csv_path is not None and traces is not None:
-        partials.append(("--traces's partial file", partial_path(traces)))
-    named = "--record" if record is not None else "the record"
-    others = [("--plot", plot), ("--traces", traces), (named, record_file), ("--rrd", rrd)]
-    return [("--csv", csv_path), *partials, *others]
-
-
 def parse_plan(
     outputs: StudyOutputs, filters: str, given: dict[str, str | None], option: list[str] | None, *,
     maze: str | None, maze_size: str | None, stations: str | None, wall_share: str | None, sigma: str, delta: str,
@@ -354,7 +277,7 @@ def open_session(
     tasks, kept, recorded, csv_path = plan.tasks(), [], outputs.recorded, outputs.csv_path
     if recorded is not None and csv_path is not None:
         check_plugin_code(recorded, plan, outputs.record_file)
-        tasks, kept = _resumed(plan, recorded, csv_path, outputs.traces_kept_from)
+        tasks, kept = resumed(plan, recorded, csv_path, outputs.traces_kept_from)
     tasks = _drawn_first(tasks, draw_run) if visualize else tasks
     kept_from, rerun = outputs.traces_kept_from, {(t.setting_index, t.run) for t in tasks}
     kept_trace_rows = kept_traces(kept_from, rerun) if kept_from is not None else None
@@ -386,12 +309,12 @@ def open_session(
     if visualize:
         typer.echo(f"drawing run {tasks[0].run} of setting {tasks[0].setting_index} (--draw-run chooses the run)")
     if recorded is not None:
-        typer.echo(f"resuming: {len(kept)} rows kept from {_rows_file(csv_path)}, {len(tasks)} run(s) to go")
+        typer.echo(f"resuming: {len(kept)} rows kept from {rows_file(csv_path)}, {len(tasks)} run(s) to go")
     if log is not None and log.note:
         typer.echo(f"note: {log.note}", err=True)
     recorder = Recorder(
         "study", command_line(), plan.parameters(), outputs=_outputs(csv_path, outputs.plot, outputs.traces),
-        sessions=[*(recorded or {}).get("sessions", []), *([] if recorded is None else [_session(recorded)])],
+        sessions=[*(recorded or {}).get("sessions", []), *([] if recorded is None else [session_of(recorded)])],
         csv_dtypes=CSV_DTYPES,
     )  # fmt: skip
     if log is not None:  # now, beside the partial rows: an interrupted study keeps its parameters for --resume
@@ -533,12 +456,6 @@ def _name(path: Path | None) -> str | None:
     return None if path is None else str(path)
 
 
-def _session(recorded: dict[str, Any]) -> dict[str, Any]:
-    """An earlier session of a resumed study, as its record said."""
-    keys = ("command", "started", "ended", "duration_seconds", "status", "runs_finished")
-    return {k: recorded.get(k) for k in keys}
-
-
 def startup_line(outcome: StudyOutcome) -> str:
     """The processes' start-up, reported apart from ms/step and run_seconds (mazelab.experiments.warmup)."""
     processes = len(outcome.workers)
@@ -546,66 +463,6 @@ def startup_line(outcome: StudyOutcome) -> str:
         f"start-up {outcome.startup_seconds:.1f} s in {processes} process(es) (numba's kernels loaded, first "
         "calls; not in ms_per_step or run_seconds)"
     )
-
-
-def _check_resume(csv_path: Path | None, record_file: Path | None) -> dict[str, Any]:
-    """The record of the study to resume: the one beside the partial rows a stopped study left
-    (NAME.record.json.partial), else the one beside the CSV; one line if there is none, or if it is
-    not a study's record (a list for its parameters, a root seed that is text, a pipe)."""
-    if csv_path is None or record_file is None:
-        raise UserError("--resume needs the study's --csv (its record lies beside it)")
-    if not os.path.lexists(csv_path) and not partial_path(csv_path).exists():
-        raise UserError(f"--resume: {csv_path} does not exist (nothing to resume; leave out --resume)")
-    if _rows_file(csv_path) != csv_path and os.path.lexists(partial_path(record_file)):
-        record_file = partial_path(record_file)  # the record of the partial rows, not of the old CSV
-    try:
-        return read_study_record(record_file)
-    except ValueError as error:
-        raise UserError(f"--resume: {error}") from None
-
-
-def check_plugin_code(recorded: dict[str, Any], plan: StudyPlan, record_file: Path | None) -> None:
-    """--resume keeps rows made by the same code only: a plug-in whose file's sha256 is not the one
-    in the record is refused in one line naming the file and both hashes."""
-    before = {p.get("filter"): p for p in recorded["parameters"].get("plugins") or [] if isinstance(p, dict)}
-    for now in plan.parameters().get("plugins", []):
-        old = before.get(now["filter"])
-        if old is not None and old.get("sha256") != now["sha256"]:
-            raise UserError(
-                f"--resume: {now['file']} is not the code that made the rows (sha256 {old.get('sha256')} in "
-                f"{record_file}, {now['sha256']} now); restore it, or start the study again with --force"
-            )
-
-
-def _resumed(
-    plan: StudyPlan, recorded: dict[str, Any], csv_path: Path, traces_kept_from: Path | None = None
-) -> tuple[list[RunTask], list[RunRecord]]:
-    """The tasks still to run and the rows to keep, after checking the study against its record,
-    and each kept row (and kept trace) against the plan: another study's rows are refused. With
-    --traces, a run whose traces are not beside its rows (a study killed with kill -9 writes none; the
-    traces beside an older CSV are that CSV's) runs again."""
-    changed = differences(recorded["parameters"], plan.parameters(), ignore=RESUME_IGNORES)
-    if changed:
-        raise UserError(f"--resume: the study differs from its record ({changed[0]}); give the same parameters")
-    if plan.runs < recorded["parameters"]["runs"]:
-        raise UserError(f"--resume: --runs {plan.runs} is fewer than the study's {recorded['parameters']['runs']}")
-    rows_file, tasks = _rows_file(csv_path), plan.tasks()
-    try:
-        records = read_study_csv(rows_file, expected=plan.columns)  # this study's columns, its options' too
-        check_rows_of_study(tasks, records, rows_file)
-        if traces_kept_from is not None:  # a run is kept with its traces only: one without them runs again
-            traced = check_traces_of_study(traces_kept_from, tasks)
-            records = [r for r in records if (r.setting, r.run) in traced]
-        return missing_tasks(tasks, records)
-    except ValueError as error:
-        raise UserError(str(error)) from None
-
-
-def _rows_file(csv_path: Path | None) -> Path | None:
-    """Where a resumed study's finished rows are: the partial file a stopped study left, else the CSV."""
-    if csv_path is None:
-        return None
-    return partial_path(csv_path) if os.path.lexists(partial_path(csv_path)) else csv_path
 
 
 def describe_write_error(error: OSError) -> str:

@@ -18,6 +18,7 @@ parameters, laid out as the design (maze x sigma: a row per maze, a column per s
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import numbers
 import textwrap
@@ -266,8 +267,9 @@ def plot_study(
     import matplotlib
 
     quantity = y_quantity(y, summaries)
-    if y == "paired":  # the filter paired with has no difference to itself
+    if y == "paired":  # the filter paired with has no difference to itself; the axis names it
         summaries = [s for s in summaries if s.paired_with]
+        quantity = dataclasses.replace(quantity, label=paired_label(summaries))
     with matplotlib.rc_context(STYLE):
         layout, panels, _ = figure_layout(summaries, varied, x)
         x = layout.x
@@ -301,6 +303,12 @@ def plot_study(
     return FigureLayout(layout.x, layout.panels, layout.lines, layout.shape, ranges, boxes, references)
 
 
+def paired_label(summaries: Sequence[StudySummary]) -> str:
+    """The paired difference's axis: 'last-20% error minus SIR's (map units)'."""
+    other = summaries[0].paired_with or ""
+    return f"last-{FINAL_SHARE:.0%} error minus {labels([other])[other]}'s (map units)"
+
+
 def caption(scale: XScale, panels: int, quantity: YQuantity) -> str:
     """The title's second line: the intervals, each panel's own y range, where points overlap."""
     notes = [f"{CONFIDENCE_LEVEL:.0%} {quantity.method}"]
@@ -327,7 +335,11 @@ def study_title(
     parts += [f"lines by filter, {', '.join(line_parameters)}"] if line_parameters else []
     where = "" if "maze" in varied else f" on {maze}"
     extra = f" ({'; '.join(parts)})" if parts else ""
-    return f"{Y_QUANTITIES[y].label.split(' (')[0].capitalize()}{against}{where}{extra}, {runs} runs per point"
+    what = Y_QUANTITIES[y].label.split(" (")[0].capitalize()
+    paired = next((s.paired_with for s in summaries if s.paired_with), None)
+    if y == "paired" and paired is not None:
+        what = f"Paired difference to {labels([paired])[paired]} in last-{FINAL_SHARE:.0%} error"
+    return f"{what}{against}{where}{extra}, {runs} runs per point"
 
 
 @dataclass(frozen=True)
