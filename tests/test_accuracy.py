@@ -7,6 +7,10 @@ from __future__ import annotations
 import csv
 import json
 import re
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -54,3 +58,39 @@ def test_accuracy_csv_filters_and_generated_mazes(tmp_path, capsys):
     assert all(float(r["distance_to_exact"]) == 0 for r in rows if r["filter"] == "grid (exact)")
     assert "95% CI" in capsys.readouterr().out
     assert json.loads((tmp_path / "a.record.json").read_text())["kind"] == "accuracy"
+
+
+def children_of(pid: int) -> set[int]:
+    """The processes whose parent is `pid` (from /proc)."""
+    found = set()
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            found.add(int(stat.parent.name))
+    return found
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads the process table from /proc")
+@pytest.mark.parametrize("stop", [signal.SIGTERM, signal.SIGINT])
+def test_a_stopped_accuracy_ends_its_workers_and_keeps_what_finished(tmp_path, stop):
+    table = tmp_path / "a.csv"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "mazelab", "accuracy", "--maze", "paper_5x5", "--runs", "200", "--workers", "2",
+         "--steps", "60", "--csv", str(table)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    for _ in range(600):  # until both workers run (at most a minute)
+        workers = children_of(process.pid)
+        if len(workers) >= 2:
+            break
+        time.sleep(0.1)
+    process.send_signal(stop)
+    _, err = process.communicate(timeout=60)
+    assert process.returncode == 128 + stop, err
+    assert re.search(r"interrupted after \d+ of 200 runs", err)
+    assert not children_of(process.pid) and not any(Path(f"/proc/{pid}").exists() for pid in workers)
+    if table.exists():  # the runs that finished before the stop, whole
+        assert json.loads(table.with_suffix(".record.json").read_text())["status"] == "interrupted"

@@ -15,6 +15,7 @@ import pytest
 from conftest import PAPER_MAZE
 from test_stats import T_975_DF2
 
+from mazelab.backend import chosen_backend
 from mazelab.cli.app import from_scenario, main
 from mazelab.experiments import batch_runs
 from mazelab.experiments import study as experiments
@@ -128,9 +129,13 @@ def test_study_csv_has_a_row_per_run_and_filter(tmp_path, capsys):
         "setting", "run", "seed", "maze", "maze_seed", "station_blocks", "sigma", "delta", "particles", "threshold",
         "steps", "filter", "final_error", "mean_error", "converged_at", "mean_ess", "ms_per_step",
         "recovery", "kidnap_at", "relocalised", "steps_to_recover", "mean_particle_count", "bandwidth", "estimate",
-        "maze_sha256", "maze_rows", "maze_columns", "wall_share", "run_seconds", "distance_to_exact",
+        "maze_sha256", "maze_rows", "maze_columns", "wall_share", "run_seconds", "distance_to_exact", "label",
+        "backend",
     ]  # fmt: skip
     assert len(rows) == 4 * 3 * 2  # settings x runs x filters
+    labels = {(r["filter"], r["label"]) for r in rows}
+    assert labels == {("SIRParticleFilter", "SIR"), ("RegularizedParticleFilter", "RPF")}
+    assert {r["backend"] for r in rows} == {chosen_backend()}
     assert {(r["sigma"], r["delta"]) for r in rows} == {("0.3", "0.2"), ("0.3", "0.5"), ("0.6", "0.2"), ("0.6", "0.5")}
     assert {r["station_blocks"] for r in rows} == {"2"} and {r["maze_seed"] for r in rows} == {""}
     assert {(r["maze_rows"], r["maze_columns"]) for r in rows} == {("5", "5")}

@@ -213,9 +213,10 @@ def resume(tmp_path: Path, *flags: str) -> subprocess.CompletedProcess:
 
 @pytest.mark.parametrize("stop", ["kill -9", "Ctrl-C"])
 def test_the_old_traces_stay_beside_the_old_csv_and_a_resume_gives_whole_traces(tmp_path, stop):
-    """--traces under --force: a killed study writes no traces, a stopped one writes them beside its
-    partial rows (t.csv.partial); the old t.csv stays either way. The resume keeps a run only with its
-    traces (the killed study's runs run again) and ends with the traces of an uninterrupted study."""
+    """--traces under --force: each finished run's traces are appended beside its partial rows
+    (t.csv.partial) as its rows are, so a study stopped any way, kill -9 included, keeps them; the old
+    t.csv stays. The resume keeps the finished runs with their traces and ends with the traces of an
+    uninterrupted study."""
     old_study(tmp_path)
     (tmp_path / "t.csv").write_text("old traces\n")
     process = blocked_study(tmp_path, "--force", "--traces", str(tmp_path / "t.csv"))
@@ -225,12 +226,11 @@ def test_the_old_traces_stay_beside_the_old_csv_and_a_resume_gives_whole_traces(
     else:
         process.send_signal(signal.SIGINT)
         process.communicate(timeout=60)
-        assert {r["run"] for r in rows(tmp_path / "t.csv.partial")} == {"1", "2"}
+    assert {r["run"] for r in rows(tmp_path / "t.csv.partial")} == {"1", "2"}
     assert (tmp_path / "t.csv").read_text() == "old traces\n"
     done = resume(tmp_path, "--traces", str(tmp_path / "t.csv"))
     assert done.returncode == 0, done.stderr
-    kept = "0 rows kept" if stop == "kill -9" else "4 rows kept"
-    assert kept in done.stdout
+    assert "4 rows kept" in done.stdout
     (tmp_path / "whole").mkdir()
     whole = tmp_path / "whole" / "s.csv"
     assert main([*STUDY, "--seed", "2", "--csv", str(whole), "--traces", str(tmp_path / "whole" / "t.csv")]) == 0
@@ -252,3 +252,18 @@ def test_a_resume_that_cannot_start_keeps_the_stopped_studys_rows(tmp_path):
     assert done.returncode == 2 and "cannot reach the Dask scheduler" in done.stderr
     assert rows(tmp_path / "s.csv.partial") == before
     assert resume(tmp_path).returncode == 0 and len(rows(tmp_path / "s.csv")) == 12
+
+
+@pytest.mark.parametrize("flag", ["--summary-csv", "--record", "--plot", "--traces"])
+def test_a_second_study_with_an_output_the_first_is_writing_is_refused_before_its_runs(tmp_path, capsys, flag):
+    """Each output is claimed before the runs: a study given an output that a running study will write
+    (another --csv, the same --summary-csv, --record, --plot or --traces) is refused at once, in one line."""
+    shared = tmp_path / ("shared.png" if flag == "--plot" else "shared.json" if flag == "--record" else "shared.csv")
+    process = blocked_study(tmp_path, flag, str(shared))
+    try:
+        assert main([*STUDY, "--seed", "2", "--csv", str(tmp_path / "other.csv"), flag, str(shared)]) == 2
+        assert f"another study is writing {shared} now ({flag})" in one_error(capsys)
+        assert not (tmp_path / "other.csv.partial").exists()
+    finally:
+        process.kill()
+        process.wait()

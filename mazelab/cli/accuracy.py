@@ -18,6 +18,7 @@ from mazelab.cli.outputs import check_one_file_each
 from mazelab.cli.provenance import command_line
 from mazelab.declaration import show_value
 from mazelab.experiments.accuracy import (
+    AccuracyStopped,
     accuracy_csv,
     accuracy_filters,
     accuracy_summary,
@@ -93,8 +94,16 @@ def accuracy(
         "accuracy", command_line(), parameters, outputs={"csv": None if csv_path is None else str(csv_path)}
     )
     started = time.perf_counter()
-    with progress_bar(len(tasks), True) as advance:
-        records = run_accuracy(tasks, workers or default_workers(), advance)
+    try:
+        with progress_bar(len(tasks), True) as advance:
+            records = run_accuracy(tasks, workers or default_workers(), advance)
+    except AccuracyStopped as stop:  # the workers are ended; what finished is reported and saved
+        done = len({(r.maze, r.run) for r in stop.records})
+        if stop.records:
+            report_accuracy(stop.records, time.perf_counter() - started, done, csv_path, record_file, recorder, force,
+                            status="interrupted")  # fmt: skip
+        typer.echo(f"interrupted after {done} of {len(tasks)} runs", err=True)
+        raise typer.Exit(128 + stop.signum) from None
     report_accuracy(records, time.perf_counter() - started, len(tasks), csv_path, record_file, recorder, force)
 
 
@@ -140,16 +149,16 @@ def check_accuracy(
 
 def report_accuracy(
     records: list, seconds: float, runs: int, csv_path: Path | None, record_file: Path | None,
-    recorder: Recorder, force: bool,
+    recorder: Recorder, force: bool, status: str = "finished",
 ) -> None:  # fmt: skip
-    """The table, the time, the CSV and the record."""
+    """The table, the time, the CSV and the record (its `status`: finished, or interrupted)."""
     typer.echo(accuracy_table(records))
     typer.echo(f"{runs} runs in {seconds:.1f} s wall time")
     if csv_path is not None:
         write_text_atomically(csv_path, accuracy_csv(records), replace=force)
         typer.echo(f"one row per maze, run and filter written to {csv_path}")
     if record_file is not None:
-        recorder.finish("finished", summary=accuracy_summary(records))
+        recorder.finish(status, summary=accuracy_summary(records))
         recorder.write(record_file)
         typer.echo(f"the record (command, versions, seeds, mazes, summary) written to {record_file}")
 

@@ -16,6 +16,7 @@ from mazelab.experiments.compare import comparison_table, errors_csv, plot_error
 from mazelab.experiments.record import Recorder, file_sha256, record_path
 from mazelab.experiments.runs import final_error, mean_ess
 from mazelab.experiments.traces import check_trace_path, compare_traces, write_traces
+from mazelab.experiments.warmup import take_startup_seconds
 from mazelab.simulation import RunResult
 
 
@@ -50,7 +51,7 @@ def report_compare(
     if kidnapping.kidnap_at is not None and kidnapping.kidnap_position is not None:
         x, y = kidnapping.kidnap_position
         typer.echo(f"kidnapped at step {kidnapping.kidnap_at} to ({x:.2f}, {y:.2f})")
-    typer.echo(comparison_table(results, kld=kld))
+    typer.echo(comparison_table(results, kld=kld, startup_seconds=take_startup_seconds()))
     if csv_path is not None:
         write_text_atomically(csv_path, errors_csv(results), replace=force)
         typer.echo(f"per-step errors written to {csv_path}")

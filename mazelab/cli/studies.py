@@ -3,8 +3,7 @@
 
 from __future__ import annotations
 
-import contextlib
-import os
+import dataclasses
 import signal
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,34 +31,24 @@ from mazelab.cli.options import (
     UserError,
     ViewerOption,
     WebOption,
-    check_output_path,
-    check_outputs,
     parse_list,
     seed_option,
     visualization,
 )
-from mazelab.cli.outputs import check_one_file_each
 from mazelab.cli.provenance import command_line, repeat_command, resume_command
-from mazelab.experiments.dask_runner import DASK_TIMEOUT, close_client, connect
+from mazelab.cli.study_outputs import StudyOutputs, check_plugin_code, resumed, rows_file, session_of
+from mazelab.experiments.claims import OutputClaims
+from mazelab.experiments.dask_runner import DASK_TIMEOUT, check_workers, close_client, connect
 from mazelab.experiments.executor import STOP_SIGNALS, default_workers, run_study
 from mazelab.experiments.plan import StudyPlan, plan_study
 from mazelab.experiments.plan import study_mazes as plan_mazes
-from mazelab.experiments.record import Recorder, differences, record_path
-from mazelab.experiments.resume import (
-    RESUME_IGNORES,
-    check_rows_of_study,
-    missing_tasks,
-    read_study_csv,
-    read_study_record,
-)
-from mazelab.experiments.rowlog import RowLog, check_left_over, check_partial_name, partial_path
+from mazelab.experiments.record import Recorder
+from mazelab.experiments.rowlog import RowLog
 from mazelab.experiments.runs import parse_filters
-from mazelab.experiments.stats import CONFIDENCE_LEVEL
 from mazelab.experiments.study import PAPER_OPTIONS, MazeChoice, RunRecord, RunTask, StudyOutcome, declared_option
-from mazelab.experiments.summary import CSV_DTYPES, study_table, summarise_study, summary_csv, summary_path
+from mazelab.experiments.summary import CSV_DTYPES, study_table, summarise_study, summary_csv
+from mazelab.experiments.trace_log import TraceLog
 from mazelab.experiments.traces import (
-    check_trace_path,
-    check_traces_of_study,
     kept_traces,
     study_traces,
     write_traces,
@@ -115,6 +104,10 @@ def study(
     plot_x: Annotated[
         str | None, typer.Option(metavar="PARAMETER", help="the figure's x axis, a varied parameter")
     ] = None,
+    plot_y: Annotated[
+        str, typer.Option(metavar="mean|median|converged|exact|paired", help="what the figure draws")
+    ] = "mean",
+    title: Annotated[str | None, typer.Option(help="the figure's title (default: what it draws against what)")] = None,
     traces: Annotated[Path | None, typer.Option(help="per-step rows of every run (.csv, or .parquet)")] = None,
     record: Annotated[Path | None, typer.Option(help="JSON record [default: CSV.record.json]")] = None,
     resume: Annotated[bool, typer.Option("--resume", help="run only the rows missing from --csv")] = False,
@@ -136,78 +129,16 @@ def study(
         sigma=sigma, delta=delta, particles=particles, runs=runs, steps=steps, seed=seed, kidnap_at=kidnap_at, kld=kld,
         reference=reference,
     )  # fmt: skip
-    extras = StudyExtras.parse(plan, paired, plot_x)
+    extras = StudyExtras.parse(plan, paired, plot_x, plot_y, title)
     session = open_session(plan, outputs, visualize, draw_run, dask, workers or default_workers())
-    outcome = run_session(session, visualize, dask_timeout)
-    report_study(session, outcome, kld, extras)
+    try:
+        outcome = run_session(session, visualize, dask_timeout)
+        report_study(session, outcome, kld, extras)
+    finally:
+        session.claims.release()
 
 
 # -- the study in three steps: parse (outputs, plan), run (a session), report -------------------------
-@dataclass
-class StudyOutputs:
-    """The study's output files, checked before any work: the CSV, figure, traces and record, and the
-    record of the study to resume (--resume)."""
-
-    csv_path: Path | None
-    plot: Path | None
-    traces: Path | None
-    record_file: Path | None
-    recorded: dict[str, Any] | None
-    force: bool
-    resume: bool
-    traces_kept_from: Path | None = None  # --resume --traces: the earlier session's traces, beside its rows
-    summary_csv: Path | None = None  # the table as CSV: --summary-csv, or NAME.summary.csv beside --csv
-
-    @classmethod
-    def parse(
-        cls, csv_path: Path | None, plot: Path | None, traces: Path | None, record: Path | None,
-        rrd: Path | None, force: bool, resume: bool, summary_csv: Path | None = None,
-    ) -> StudyOutputs:  # fmt: skip
-        """Check the outputs (one line for a name that exists without --force, a folder, a device, a
-        symlink at a partial file's name, two outputs that are one file), before any work."""
-        record_file = (
-            record if record is not None else next((record_path(p) for p in (csv_path, plot, traces) if p), None)
-        )
-        summary_named = "--summary-csv" if summary_csv is not None else "the summary CSV"
-        if summary_csv is None and csv_path is not None:
-            summary_csv = summary_path(csv_path)
-        named = _named_outputs(csv_path, plot, traces, record, record_file, rrd)
-        check_one_file_each([*named, (summary_named, summary_csv)])
-        if csv_path is not None:  # a stopped study's rows: named before its record
-            check_left_over(csv_path, force, adopt=resume)
-            for path in (record_file, traces):
-                if path is not None:
-                    check_partial_name(partial_path(path))
-        recorded = _check_resume(csv_path, record_file) if resume else None
-        check_outputs(None if resume else csv_path, plot, force or resume, rrd)  # --resume replaces its own outputs
-        for path in (traces, record_file):
-            if path is not None and not resume:
-                check_output_path(path, force)
-        if traces is not None:
-            check_trace_path(traces)
-        if summary_csv is not None:
-            check_output_path(summary_csv, force or resume)
-        kept_from = None
-        if resume and traces is not None and csv_path is not None:  # the traces that go with the rows resumed
-            kept_from = partial_path(traces) if _rows_file(csv_path) != csv_path else traces
-        return cls(csv_path, plot, traces, record_file, recorded, force, resume, kept_from, summary_csv)
-
-
-def _named_outputs(
-    csv_path: Path | None, plot: Path | None, traces: Path | None, record: Path | None, record_file: Path | None,
-    rrd: Path | None,
-) -> list[tuple[str, Path | None]]:  # fmt: skip
-    """The study's output files by what the user calls them, the partial files beside the CSV too."""
-    partials = [] if csv_path is None else [("--csv's partial file", partial_path(csv_path))]
-    if csv_path is not None and record_file is not None:
-        partials.append(("the record's partial file", partial_path(record_file)))
-    if csv_path is not None and traces is not None:
-        partials.append(("--traces's partial file", partial_path(traces)))
-    named = "--record" if record is not None else "the record"
-    others = [("--plot", plot), ("--traces", traces), (named, record_file), ("--rrd", rrd)]
-    return [("--csv", csv_path), *partials, *others]
-
-
 def parse_plan(
     outputs: StudyOutputs, filters: str, given: dict[str, str | None], option: list[str] | None, *,
     maze: str | None, maze_size: str | None, stations: str | None, wall_share: str | None, sigma: str, delta: str,
@@ -276,10 +207,26 @@ class StudyExtras:
 
     paired: str | None = None
     plot_x: str | None = None  # the figure's x axis (--plot-x), a varied parameter
+    plot_y: str = "mean"  # what the figure draws (--plot-y): a key of study_plot.Y_QUANTITIES
+    title: str | None = None  # the figure's first title line (--title), instead of the program's
 
     @classmethod
-    def parse(cls, plan: StudyPlan, paired: str | None, plot_x: str | None = None) -> StudyExtras:
-        """--paired names one of the study's filters, --plot-x one of its varied parameters."""
+    def parse(
+        cls, plan: StudyPlan, paired: str | None, plot_x: str | None = None, plot_y: str = "mean",
+        title: str | None = None,
+    ) -> StudyExtras:  # fmt: skip
+        """--paired names one of the study's filters, --plot-x one of its varied parameters, --plot-y
+        what the figure draws (exact needs --reference grid, paired needs --paired)."""
+        from mazelab.experiments.study_plot import Y_QUANTITIES
+
+        if plot_y not in Y_QUANTITIES:
+            raise UserError(f"--plot-y {plot_y}: choose one of {', '.join(Y_QUANTITIES)}")
+        if plot_y == "exact" and plan.reference is None:
+            raise UserError("--plot-y exact: the distance to the exact posterior needs --reference grid")
+        if plot_y == "paired" and paired is None:
+            raise UserError("--plot-y paired: the paired difference needs --paired FILTER")
+        if title is not None and ("\n" in title or not title.strip()):
+            raise UserError("--title: give one line of text")
         if plot_x is not None and plot_x not in plan.varied:
             varied = ", ".join(plan.varied) or "none: give a parameter two values"
             raise UserError(f"--plot-x {plot_x}: the x axis is a varied parameter of the study ({varied})")
@@ -289,8 +236,13 @@ class StudyExtras:
             if chosen not in [entry.name for entry in entries]:
                 given = ", ".join(entry.reference for entry in entries)
                 raise UserError(f"--paired {paired}: not one of the study's --filters ({given})")
+            if len(entries) == 1:
+                raise UserError(
+                    f"--paired {paired}: the study's only filter, paired with itself (every difference 0); "
+                    "add the filters to compare with it to --filters"
+                )
             paired = chosen
-        return cls(paired, plot_x)
+        return cls(paired, plot_x, plot_y, title)
 
 
 @dataclass
@@ -306,6 +258,16 @@ class StudySession:
     log: RowLog | None
     client: Any
     recorder: Recorder
+    trace_log: TraceLog | None = None  # TRACES.partial, each finished run's traces appended (with --csv)
+    claims: OutputClaims = dataclasses.field(default_factory=lambda: OutputClaims([]))  # the other outputs
+    kept_traces: Any = None  # the traces of the kept runs (--resume), read before the trace log starts
+
+    def append(self, records: list[RunRecord]) -> None:
+        """One finished run's rows and traces, appended to the partial files."""
+        if self.log is not None:
+            self.log.append(records)
+        if self.trace_log is not None:
+            self.trace_log.append(records)
 
 
 def open_session(
@@ -314,38 +276,64 @@ def open_session(
     """The runs to go, the row log, the cluster and the record; the study's header printed."""
     tasks, kept, recorded, csv_path = plan.tasks(), [], outputs.recorded, outputs.csv_path
     if recorded is not None and csv_path is not None:
-        tasks, kept = _resumed(plan, recorded, csv_path, outputs.traces_kept_from)
+        check_plugin_code(recorded, plan, outputs.record_file)
+        tasks, kept = resumed(plan, recorded, csv_path, outputs.traces_kept_from)
     tasks = _drawn_first(tasks, draw_run) if visualize else tasks
-    replace = outputs.force or outputs.resume
-    log = (  # NAME.csv.partial with the study's columns (the kept rows in it at once), the record beside it
-        RowLog(
-            csv_path, replace=replace, adopt=outputs.resume, record=outputs.record_file, kept=kept, columns=plan.columns
-        )
-        if csv_path is not None
-        else None
-    )
+    kept_from, rerun = outputs.traces_kept_from, {(t.setting_index, t.run) for t in tasks}
+    kept_trace_rows = kept_traces(kept_from, rerun) if kept_from is not None else None
+    claims = OutputClaims(  # a second study given one of these now is refused before its runs
+        [("--summary-csv", outputs.summary_csv), ("--record", outputs.record_file), ("--plot", outputs.plot),
+         ("--traces", outputs.traces)]
+    )  # fmt: skip
+    log = trace_log = None
     try:
+        log = _row_log(plan, outputs, kept)
+        if log is not None and outputs.traces is not None:  # claimed now: a second study with it is refused
+            trace_log = TraceLog(outputs.traces, replace=outputs.force, adopt=outputs.resume, kept=kept_trace_rows)
         client = connect(dask) if dask is not None else None  # a bad address: one line and exit 2, before anything
+        if client is not None:
+            try:
+                check_workers(client)  # workers that disagree on the backend or versions: one line, exit 2
+            except ValueError:
+                close_client(client)
+                raise
     except BaseException:
+        claims.release()
         if log is not None:
             log.close() if outputs.resume else log.discard()
+        if trace_log is not None:
+            trace_log.close() if outputs.resume else trace_log.discard()
         raise
     where = f"on the Dask cluster at {dask}" if dask is not None else f"{workers} worker(s)"
     typer.echo(plan.header(where))
     if visualize:
         typer.echo(f"drawing run {tasks[0].run} of setting {tasks[0].setting_index} (--draw-run chooses the run)")
     if recorded is not None:
-        typer.echo(f"resuming: {len(kept)} rows kept from {_rows_file(csv_path)}, {len(tasks)} run(s) to go")
+        typer.echo(f"resuming: {len(kept)} rows kept from {rows_file(csv_path)}, {len(tasks)} run(s) to go")
     if log is not None and log.note:
         typer.echo(f"note: {log.note}", err=True)
     recorder = Recorder(
         "study", command_line(), plan.parameters(), outputs=_outputs(csv_path, outputs.plot, outputs.traces),
-        sessions=[*(recorded or {}).get("sessions", []), *([] if recorded is None else [_session(recorded)])],
+        sessions=[*(recorded or {}).get("sessions", []), *([] if recorded is None else [session_of(recorded)])],
         csv_dtypes=CSV_DTYPES,
     )  # fmt: skip
     if log is not None:  # now, beside the partial rows: an interrupted study keeps its parameters for --resume
         log.write_record(recorder)  # (the record beside the CSV stays the old CSV's until the new CSV replaces it)
-    return StudySession(plan, outputs, tasks, kept, workers, log, client, recorder)
+    return StudySession(
+        plan, outputs, tasks, kept, workers, log, client, recorder,
+        trace_log=trace_log, kept_traces=kept_trace_rows, claims=claims,
+    )  # fmt: skip
+
+
+def _row_log(plan: StudyPlan, outputs: StudyOutputs, kept: list[RunRecord]) -> RowLog | None:
+    """NAME.csv.partial with the study's columns (the kept rows in it at once), the record beside it."""
+    if outputs.csv_path is None:
+        return None
+    replace = outputs.force or outputs.resume
+    return RowLog(
+        outputs.csv_path, replace=replace, adopt=outputs.resume, record=outputs.record_file, kept=kept,
+        columns=plan.columns,
+    )  # fmt: skip
 
 
 def run_session(session: StudySession, visualize: Any, dask_timeout: float) -> StudyOutcome:
@@ -357,7 +345,7 @@ def run_session(session: StudySession, visualize: Any, dask_timeout: float) -> S
             session.workers,
             visualize=visualize,
             progress=True,
-            on_records=None if log is None else log.append,
+            on_records=None if log is None else session.append,
             dask=session.client,
             dask_timeout=dask_timeout,
             ignore_signals_after_stop=True,  # a stopped study only saves and exits: a further Ctrl-C waits
@@ -383,6 +371,9 @@ def report_study(session: StudySession, outcome: StudyOutcome, kld: bool, extras
         "runs_in_study": total,
         "failures": [f.describe() for f in outcome.failures],
         "summary": [s.as_dict() for s in summaries],
+        "paired": extras.paired,
+        "workers": [dataclasses.asdict(report) for report in outcome.workers.values()],
+        "startup_seconds": round(outcome.startup_seconds, 3),
         **({"summary_csv": str(outputs.summary_csv)} if outputs.summary_csv is not None else {}),
     }
     if outcome.interrupted or outcome.lost is not None:
@@ -390,7 +381,7 @@ def report_study(session: StudySession, outcome: StudyOutcome, kld: bool, extras
     typer.echo(study_table(summaries, plan.varied, kld=kld))
     seconds = session.recorder.finish("finished" if not outcome.failures else "finished with failures", **closing)
     ran = len({(r.setting, r.run) for r in outcome.records})
-    typer.echo(f"{ran} runs in {seconds['duration_seconds']:.1f} s wall time")
+    typer.echo(f"{ran} runs in {seconds['duration_seconds']:.1f} s wall time; {startup_line(outcome)}")
     typer.echo(f"Repeat this study: {repeat_command(plan.seed)}")
     if outputs.csv_path is not None and log is not None:
         try:
@@ -407,10 +398,10 @@ def report_study(session: StudySession, outcome: StudyOutcome, kld: bool, extras
             typer.echo(f"error: {describe_write_error(error)}", err=True)
             raise typer.Exit(1) from None
         typer.echo(f"one row per setting and filter (the table, with its intervals) written to {outputs.summary_csv}")
-    if _write_traces(outputs.traces, _in_order(outcome.records, plan), session.tasks, outputs.traces_kept_from):
+    if _write_traces(outputs.traces, _in_order(outcome.records, plan), session.kept_traces, session.trace_log):
         typer.echo(f"per-step traces written to {outputs.traces}")
     if outputs.plot is not None and summaries:
-        _plot(plan, summaries, outputs.plot, outputs.force, extras.plot_x)
+        _plot(plan, summaries, outputs.plot, outputs.force or outputs.resume, extras)  # --resume: its own figure
     if outputs.record_file is not None:
         session.recorder.write(outputs.record_file)
         typer.echo(f"the study's record (command, versions, seeds, mazes, summary) written to {outputs.record_file}")
@@ -425,8 +416,10 @@ def report_stopped(session: StudySession, outcome: StudyOutcome, closing: dict[s
     outputs, log = session.outputs, session.log
     if log is not None:
         log.close()
-    traces = _in_order(outcome.records, session.plan)  # with a CSV: beside the partial rows, as the record
-    _write_traces(outputs.traces, traces, session.tasks, outputs.traces_kept_from, stopped=log is not None)
+    if session.trace_log is not None:  # with a CSV: each finished run's traces are in TRACES.partial already
+        session.trace_log.close()
+    else:
+        _write_traces(outputs.traces, _in_order(outcome.records, session.plan), session.kept_traces)
     if outputs.record_file is not None:  # with a CSV: beside the partial rows, the old CSV keeps its record
         session.recorder.finish("interrupted", **closing)
         if log is not None:
@@ -463,57 +456,13 @@ def _name(path: Path | None) -> str | None:
     return None if path is None else str(path)
 
 
-def _session(recorded: dict[str, Any]) -> dict[str, Any]:
-    """An earlier session of a resumed study, as its record said."""
-    keys = ("command", "started", "ended", "duration_seconds", "status", "runs_finished")
-    return {k: recorded.get(k) for k in keys}
-
-
-def _check_resume(csv_path: Path | None, record_file: Path | None) -> dict[str, Any]:
-    """The record of the study to resume: the one beside the partial rows a stopped study left
-    (NAME.record.json.partial), else the one beside the CSV; one line if there is none, or if it is
-    not a study's record (a list for its parameters, a root seed that is text, a pipe)."""
-    if csv_path is None or record_file is None:
-        raise UserError("--resume needs the study's --csv (its record lies beside it)")
-    if not os.path.lexists(csv_path) and not partial_path(csv_path).exists():
-        raise UserError(f"--resume: {csv_path} does not exist (nothing to resume; leave out --resume)")
-    if _rows_file(csv_path) != csv_path and os.path.lexists(partial_path(record_file)):
-        record_file = partial_path(record_file)  # the record of the partial rows, not of the old CSV
-    try:
-        return read_study_record(record_file)
-    except ValueError as error:
-        raise UserError(f"--resume: {error}") from None
-
-
-def _resumed(
-    plan: StudyPlan, recorded: dict[str, Any], csv_path: Path, traces_kept_from: Path | None = None
-) -> tuple[list[RunTask], list[RunRecord]]:
-    """The tasks still to run and the rows to keep, after checking the study against its record,
-    and each kept row (and kept trace) against the plan: another study's rows are refused. With
-    --traces, a run whose traces are not beside its rows (a study killed with kill -9 writes none; the
-    traces beside an older CSV are that CSV's) runs again."""
-    changed = differences(recorded["parameters"], plan.parameters(), ignore=RESUME_IGNORES)
-    if changed:
-        raise UserError(f"--resume: the study differs from its record ({changed[0]}); give the same parameters")
-    if plan.runs < recorded["parameters"]["runs"]:
-        raise UserError(f"--resume: --runs {plan.runs} is fewer than the study's {recorded['parameters']['runs']}")
-    rows_file, tasks = _rows_file(csv_path), plan.tasks()
-    try:
-        records = read_study_csv(rows_file, expected=plan.columns)  # this study's columns, its options' too
-        check_rows_of_study(tasks, records, rows_file)
-        if traces_kept_from is not None:  # a run is kept with its traces only: one without them runs again
-            traced = check_traces_of_study(traces_kept_from, tasks)
-            records = [r for r in records if (r.setting, r.run) in traced]
-        return missing_tasks(tasks, records)
-    except ValueError as error:
-        raise UserError(str(error)) from None
-
-
-def _rows_file(csv_path: Path | None) -> Path | None:
-    """Where a resumed study's finished rows are: the partial file a stopped study left, else the CSV."""
-    if csv_path is None:
-        return None
-    return partial_path(csv_path) if os.path.lexists(partial_path(csv_path)) else csv_path
+def startup_line(outcome: StudyOutcome) -> str:
+    """The processes' start-up, reported apart from ms/step and run_seconds (mazelab.experiments.warmup)."""
+    processes = len(outcome.workers)
+    return (
+        f"start-up {outcome.startup_seconds:.1f} s in {processes} process(es) (numba's kernels loaded, first "
+        "calls; not in ms_per_step or run_seconds)"
+    )
 
 
 def describe_write_error(error: OSError) -> str:
@@ -536,34 +485,27 @@ def _in_order(records: list[RunRecord], plan: StudyPlan) -> list[RunRecord]:
     return sorted(records, key=lambda r: (r.setting, r.run, order[r.filter]))
 
 
-def _write_traces(
-    path: Path | None, records: list[RunRecord], tasks: list[RunTask], kept_from: Path | None, stopped: bool = False
-) -> bool:
-    """Write the traces of this session's runs, after the kept ones of an earlier session (read from
-    `kept_from`, --resume). A stopped study with a CSV writes them beside its partial rows
-    (TRACES.partial): the old traces stay beside the old CSV; a finished one replaces the traces
-    and removes the partial traces."""
+def _write_traces(path: Path | None, records: list[RunRecord], kept: Any, trace_log: TraceLog | None = None) -> bool:
+    """Write the whole traces: the kept ones of an earlier session (--resume), then this session's
+    runs; then the partial traces (TraceLog) go."""
     if path is None:
         return False
-    kept = kept_traces(kept_from, {(t.setting_index, t.run) for t in tasks}) if kept_from is not None else None
-    write_traces(partial_path(path) if stopped else path, study_traces(records), kept, follow_links=not stopped)
-    if not stopped:
-        with contextlib.suppress(OSError):
-            partial_path(path).unlink()  # the new whole traces replace what a stopped session left
+    write_traces(path, study_traces(records), kept)
+    if trace_log is not None:
+        trace_log.discard()
     return True
 
 
-def _plot(plan: StudyPlan, summaries: list, plot: Path, force: bool = True, x: str | None = None) -> None:
-    from mazelab.experiments.study_plot import plot_study
+def _plot(plan: StudyPlan, summaries: list, plot: Path, force: bool = True, extras: StudyExtras | None = None) -> None:
+    """The study's figure (mazelab.experiments.study_plot), as `mazelab.study(...).figure(...)` draws it."""
+    from mazelab.experiments.study_plot import plot_study, study_title
 
+    extras = extras or StudyExtras()
     varied = plan.varied
-    what = ", ".join(varied) or "the setting"
-    where = "" if "maze" in varied else f" on {plan.settings[0].maze.label}"
-    title = (
-        f"Last-20% error against {what}{where}\n({plan.runs} runs per point, "
-        f"{CONFIDENCE_LEVEL:.0%} BCa bootstrap intervals for the mean)"
+    title = extras.title or study_title(
+        varied, summaries, plan.runs, plan.settings[0].maze.label, extras.plot_x, extras.plot_y
     )
-    plot_study(summaries, varied or ["maze"], plot, title, replace=force, x=x)
+    plot_study(summaries, varied or ["maze"], plot, title, replace=force, x=extras.plot_x, y=extras.plot_y)
     typer.echo(f"figure written to {plot}")
 
 

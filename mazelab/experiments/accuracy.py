@@ -5,6 +5,7 @@ steps (after the first localisation), and the share of runs that converged (`maz
 from __future__ import annotations
 
 import math
+import signal
 import statistics
 import warnings
 from collections.abc import Callable, Sequence
@@ -14,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from mazelab.experiments.executor import end_workers, signals_ignored, stop_signals, worker_setup
 from mazelab.experiments.stats import bootstrap_interval, wilson_interval
 from mazelab.experiments.study import MazeChoice, distance_to_exact  # one definition, a study's too
 from mazelab.experiments.tables import format_optional, format_table, records_csv
@@ -127,22 +129,43 @@ def accuracy_tasks(
     return tasks
 
 
+class AccuracyStopped(KeyboardInterrupt):
+    """Ctrl-C, SIGTERM or SIGHUP stopped the runs: the workers are ended, `records` holds the runs that
+    finished (in task order), `signum` the signal."""
+
+    def __init__(self, records: list[AccuracyRecord], signum: int):
+        super().__init__(signal.Signals(signum).name)
+        self.records, self.signum = records, signum
+
+
 def run_accuracy(
     tasks: Sequence[AccuracyTask], workers: int = 1, advance: Callable[..., None] | None = None
 ) -> list[AccuracyRecord]:
-    """Every task, on `workers` processes; records in task order. `advance()` is called as each run ends."""
+    """Every task, on `workers` processes; records in task order. `advance()` is called as each run ends.
+    Ctrl-C, SIGTERM or SIGHUP end the worker processes at once and raise AccuracyStopped with the runs
+    that finished (the workers ignore Ctrl-C themselves and end with this process however it ends)."""
     advance = advance or (lambda count=1: None)
     outcomes: list[list[AccuracyRecord]] = [[] for _ in tasks]
-    if workers <= 1 or len(tasks) <= 1:
-        for i, task in enumerate(tasks):
-            outcomes[i] = run_accuracy_task(task)
-            advance()
-    else:
-        with ProcessPoolExecutor(max_workers=min(workers, len(tasks))) as pool:
-            futures = {pool.submit(run_accuracy_task, task): i for i, task in enumerate(tasks)}
-            for future in as_completed(futures):
-                outcomes[futures[future]] = future.result()
-                advance()
+    pool = None
+    try:
+        with stop_signals():
+            if workers <= 1 or len(tasks) <= 1:
+                for i, task in enumerate(tasks):
+                    outcomes[i] = run_accuracy_task(task)
+                    advance()
+            else:
+                pool = ProcessPoolExecutor(max_workers=min(workers, len(tasks)), initializer=worker_setup)
+                futures = {pool.submit(run_accuracy_task, task): i for i, task in enumerate(tasks)}
+                for future in as_completed(futures):
+                    outcomes[futures[future]] = future.result()
+                    advance()
+                pool.shutdown(wait=True)
+    except KeyboardInterrupt as stop:
+        with signals_ignored():
+            if pool is not None:
+                end_workers(pool)
+        finished = [record for outcome in outcomes for record in outcome]
+        raise AccuracyStopped(finished, getattr(stop, "signum", signal.SIGINT)) from None
     return [record for outcome in outcomes for record in outcome]
 
 
@@ -212,6 +235,7 @@ __all__ = [
     "ACCURACY_COLUMNS",
     "ACCURACY_FILTERS",
     "AccuracyRecord",
+    "AccuracyStopped",
     "AccuracyTask",
     "accuracy_csv",
     "accuracy_filters",

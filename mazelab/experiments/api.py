@@ -3,11 +3,12 @@ rows as a list of dicts (`pandas.DataFrame(result.rows)`), its summary and its r
 
 from __future__ import annotations
 
+import inspect
 import numbers
 import os
 import sys
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -18,10 +19,11 @@ from mazelab.contract import missing_parts
 from mazelab.experiments.executor import run_study
 from mazelab.experiments.plan import plan_study, study_mazes
 from mazelab.experiments.record import Recorder
-from mazelab.experiments.summary import CSV_DTYPES, StudySummary, summarise_study
+from mazelab.experiments.summary import CSV_DTYPES, StudySummary, summarise_study, summary_rows
 from mazelab.experiments.tables import flat_row
 from mazelab.experiments.traces import study_traces, trace_table_columns
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, RPF_THRESHOLD
+from mazelab.plugins import is_lab_class
 from mazelab.registry import resolve_filter
 
 
@@ -39,16 +41,18 @@ class StudyResult:
     summaries: list[StudySummary] = field(default_factory=list, repr=False)  # the summary, as objects
     varied: list[str] = field(default_factory=list)  # the varied parameters
 
-    def figure(self, path: str | Path, x: str | None = None, title: str | None = None) -> Path:
+    def figure(self, path: str | Path, x: str | None = None, title: str | None = None, y: str = "mean") -> Path:
         """The study's figure, as `mazelab study --plot PATH` draws it (.png, .pdf or .svg by the
-        suffix; `x` a varied parameter for the x axis, as --plot-x); an existing file is replaced."""
-        from mazelab.experiments.study_plot import plot_study
+        suffix; `x` a varied parameter for the x axis, as --plot-x; `y` what it draws, as --plot-y:
+        mean, median, converged, exact or paired; `title` instead of the program's, as --title); an
+        existing file is replaced."""
+        from mazelab.experiments.study_plot import plot_study, study_title
 
         path = Path(path)
-        runs = self.record["parameters"]["runs"]
-        plot_study(
-            self.summaries, self.varied or ["maze"], path, title or f"Last-20% error ({runs} runs per point)", x=x
-        )
+        parameters = self.record["parameters"]
+        maze = parameters["mazes"][0]["label"]
+        title = title or study_title(self.varied, self.summaries, parameters["runs"], maze, x, y)
+        plot_study(self.summaries, self.varied or ["maze"], path, title, x=x, y=y)
         return path
 
 
@@ -201,6 +205,7 @@ def study(
     ValueError
         A value out of its range, or an empty list (sigma=[]), named.
     """
+    call = dict(locals())  # the arguments as given: the record's `call` re-runs them (`call_arguments`)
     workers = _whole("workers", workers, optional=True)
     if workers is not None and workers < 1:
         raise ValueError(f"workers must be >= 1 (or None: all cores), got {workers}")
@@ -237,13 +242,17 @@ def study(
     )
     outcome = run_study(plan.tasks(), workers, dask=dask)
     summaries = summarise_study(outcome.records, plan.settings, paired=paired)
-    summary = [s.as_dict() for s in summaries]
+    summary = summary_rows(summaries)
     failures = [f.describe() for f in outcome.failures]
     record = recorder.finish(
         "finished" if not failures else "finished with failures",
         summary=summary,
         failures=failures,
         runs_finished=len({(r.setting, r.run) for r in outcome.records}),
+        paired=None if paired is None else resolve_filter(paired).name,
+        call={"function": "mazelab.study", "arguments": call_arguments(call, plan.seed)},
+        workers=[asdict(report) for report in outcome.workers.values()],
+        startup_seconds=round(outcome.startup_seconds, 3),
     )
     blocks = study_traces(outcome.records) if traces else []
     columns = trace_table_columns(blocks)
@@ -251,4 +260,36 @@ def study(
     return StudyResult(rows, summary, record, failures, columns, summaries, plan.varied)
 
 
-__all__ = ["StudyResult", "study"]
+def call_arguments(call: Mapping[str, Any], seed: int) -> dict[str, Any]:
+    """`study`'s arguments as data, so that `mazelab.study(**record["call"]["arguments"])` makes the
+    same rows: the root seed the study drew (when none was given), a filter class as the spec of its
+    file (`path/to/file.py:Class`, what a name can say), arrays as lists; a Dask Client (not data) is
+    left out, the study then runs on this machine's workers."""
+    arguments = {name: value for name, value in call.items() if name != "dask" or isinstance(value, str)}
+    arguments["seed"] = seed
+    filters = arguments["filters"]
+    if not isinstance(filters, str):
+        arguments["filters"] = [
+            f"{inspect.getfile(f)}:{f.__name__}" if isinstance(f, type) and not is_lab_class(f) else _name_of(f)
+            for f in filters
+        ]
+    return {name: _data(value) for name, value in arguments.items()}
+
+
+def _data(value: Any) -> Any:
+    """An argument as JSON data: arrays and tuples as lists, paths as text."""
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, os.PathLike):
+        return os.fspath(value)
+    if isinstance(value, (list, tuple, range)):
+        return [_data(item) for item in value]
+    return value
+
+
+def _name_of(filter_name: Any) -> str:
+    """A shipped filter's registry name (a class of the lab's, or a name as given)."""
+    return resolve_filter(filter_name).name
+
+
+__all__ = ["StudyResult", "call_arguments", "study"]

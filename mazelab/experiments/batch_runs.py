@@ -17,6 +17,7 @@ from mazelab.backend import backend_of
 from mazelab.collect import record_steps
 from mazelab.contract import check_filter
 from mazelab.experiments.study import RunFailure, RunRecord, RunTask, run_records, run_task_safely
+from mazelab.experiments.warmup import WARM_UP_SEED, WARM_UP_STEPS, options_key, warm_once
 from mazelab.maze import Maze
 from mazelab.registry import filter_entry
 from mazelab.robot import Robot
@@ -119,10 +120,12 @@ def run_batch(tasks: Sequence[RunTask]) -> list[list[RunRecord]]:
     compass = np.array([walk.compass_angles for walk in walks])  # (R, steps)
     z = np.array([walk.measurements for walk in walks])
     results: list[dict[str, RunResult]] = [{} for _ in tasks]
+    world.prepare()
     for name in tasks[0].filters:
         filter_class = filter_entry(name).filter_class
-        rngs = [filter_rng(task.seed) for task in tasks]  # each run's filter stream, as simulate's
         options = tasks[0].filter_options(name)
+        warm_batch(filter_class, world, tasks, particles, compass, z, options)
+        rngs = [filter_rng(task.seed) for task in tasks]  # each run's filter stream, as simulate's
         filt = filter_class(maze_for(filter_class, world), s.sigma, s.delta, particles, rngs, **options)
         runs = None if len(tasks) == 1 else len(tasks)  # one run: the paper's shapes
         if runs is None:
@@ -148,6 +151,25 @@ def run_batch(tasks: Sequence[RunTask]) -> list[list[RunRecord]]:
                 },
             )
     return [run_records(task, world, result) for task, result in zip(tasks, results, strict=True)]
+
+
+def warm_batch(
+    filter_class: type, world: Maze, tasks: Sequence[RunTask], particles: np.ndarray, compass: np.ndarray,
+    z: np.ndarray, options: dict,
+) -> None:  # fmt: skip
+    """Before the batch's timed steps: the filter advancing one or two runs together (as the batch
+    will) for a few untimed steps, once per process, options and shape (mazelab.experiments.warmup);
+    its random draws come from a stream of its own, its numbers are discarded."""
+    r = min(2, len(tasks))
+    s = tasks[0].setting
+
+    def warm() -> None:
+        rngs = [filter_rng(WARM_UP_SEED) for _ in range(r)]
+        filt = filter_class(maze_for(filter_class, world), s.sigma, s.delta, particles[:r].copy(), rngs, **options)
+        steps = min(WARM_UP_STEPS, tasks[0].steps)
+        record_steps(filt, steps, lambda k: (compass[:r, k], z[:r, k]), runs=None if r == 1 else r)
+
+    warm_once(("batch", filter_class, options_key(filter_class, options), r), warm)
 
 
 __all__ = [

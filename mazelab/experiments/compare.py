@@ -74,10 +74,11 @@ def compare_filters(
         comparison.close()
 
 
-def comparison_table(results: dict[str, RunResult], kld: bool = False) -> str:
+def comparison_table(results: dict[str, RunResult], kld: bool = False, startup_seconds: float | None = None) -> str:
     """Per filter: mean error, last-20% error (the mean error over the last 20% of the steps), convergence
     step, mean ESS and milliseconds per step; with a kidnapping, whether the filter re-localised and in
-    how many steps; with `kld`, the mean particle count."""
+    how many steps; with `kld`, the mean particle count. With `startup_seconds` (the process's one-off
+    costs, mazelab.experiments.warmup), a line saying they are not in ms/step."""
     kidnapped = any(result.kidnap_at is not None for result in results.values())
     headers = ["filter", "mean error", f"last-{FINAL_SHARE:.0%} error", "converged at", "mean ESS", "ms/step"]
     headers += ["re-localised", "steps to recover"] * kidnapped + ["mean N"] * kld
@@ -98,7 +99,18 @@ def comparison_table(results: dict[str, RunResult], kld: bool = False) -> str:
         if kld:
             row.append(f"{mean_particle_count(result):.0f}" if is_particle_filter(name) else "-")
         rows.append(row)
-    return format_table(headers, rows)
+    table = format_table(headers, rows)
+    if startup_seconds is None:
+        return table
+    return f"{table}\n{startup_note(startup_seconds)}"
+
+
+def startup_note(seconds: float) -> str:
+    """The line that reports the start-up apart from ms/step."""
+    return (
+        f"[ms/step: each filter's own steps, after untimed warm-up steps; start-up (numba's kernels loaded, "
+        f"first calls) {seconds:.2f} s, not in ms/step]"
+    )
 
 
 def errors_csv(results: dict[str, RunResult]) -> str:
@@ -134,4 +146,5 @@ __all__ = [
     "comparison_table",
     "errors_csv",
     "plot_errors",
+    "startup_note",
 ]

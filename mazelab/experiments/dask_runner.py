@@ -15,6 +15,7 @@ from typing import Any
 
 from mazelab.experiments.study import RunFailure, RunTask
 from mazelab.experiments.units import run_unit_timed
+from mazelab.experiments.warmup import WorkerReport, worker_report
 
 CONNECT_SECONDS = 3  # a scheduler that does not answer within this is reported unreachable
 DASK_TIMEOUT = 300.0  # seconds without any finished run after which a study on Dask gives up (--dask-timeout)
@@ -95,6 +96,25 @@ def quiet_distributed() -> None:
 
     hook._mazelab_quiet = True  # type: ignore[attr-defined]
     sys.unraisablehook = hook
+
+
+def check_workers(client: Any) -> list[WorkerReport]:
+    """Each Dask worker's report of its backend and package versions (mazelab.experiments.warmup), asked
+    before any run: workers that disagree would mix rows of two backends (or versions) under one
+    record, so they are refused in one line naming two that differ."""
+    try:
+        reports = client.run(worker_report)
+    except Exception as error:  # a worker without mazelab, or gone
+        reason = str(error).splitlines()[0] if str(error) else type(error).__name__
+        raise ValueError(f"the Dask workers cannot say their backend: {reason}") from None
+    reports = [reports[address] for address in sorted(reports)]
+    for report in reports[1:]:
+        if report.identity != reports[0].identity:
+            raise ValueError(
+                f"the Dask workers disagree ({reports[0].describe()}; {report.describe()}): start every worker "
+                "with the same MAZELAB_BACKEND and packages"
+            )
+    return reports
 
 
 def close_client(client: Any) -> None:
@@ -186,6 +206,7 @@ __all__ = [
     "DASK_TIMEOUT",
     "QUIET_LOGGERS",
     "ClusterLost",
+    "check_workers",
     "close_client",
     "connect",
     "parse_scheduler_address",

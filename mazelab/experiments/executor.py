@@ -22,7 +22,14 @@ from contextlib import contextmanager, suppress
 from typing import Any
 
 from mazelab.experiments.batch_runs import study_units
-from mazelab.experiments.dask_runner import DASK_TIMEOUT, ClusterLost, close_client, connect, run_on_dask
+from mazelab.experiments.dask_runner import (
+    DASK_TIMEOUT,
+    ClusterLost,
+    check_workers,
+    close_client,
+    connect,
+    run_on_dask,
+)
 from mazelab.experiments.study import (
     RunFailure,
     RunRecord,
@@ -30,7 +37,8 @@ from mazelab.experiments.study import (
     StudyOutcome,
     run_task,
 )
-from mazelab.experiments.units import run_unit_timed
+from mazelab.experiments.units import UnitOutcome, run_unit_timed
+from mazelab.experiments.warmup import take_startup_seconds, worker_report
 
 
 def default_workers() -> int:
@@ -73,12 +81,19 @@ def run_study(
     if workers < 1:
         raise ValueError(f"--workers must be >= 1, got {workers}")
     client = connect(dask) if isinstance(dask, str) else dask  # a bad address: one line, before anything runs
+    if client is not None:
+        try:
+            check_workers(client)  # workers of different backends or versions: one line, before anything runs
+        except ValueError:
+            if isinstance(dask, str):
+                close_client(client)
+            raise
     outcome = StudyOutcome(tasks=len(tasks))
 
     def collect(results: list[list[RunRecord] | RunFailure]) -> None:
         for result in results:
             outcome.add(result)
-            if on_records is not None and not isinstance(result, RunFailure):
+            if on_records is not None and isinstance(result, list):
                 on_records(result)
 
     try:
@@ -86,7 +101,7 @@ def run_study(
         def keep_ignoring() -> bool:
             return ignore_signals_after_stop and outcome.interrupted
 
-        with progress_bar(len(tasks), progress) as advance, _stop_signals(keep_ignoring):
+        with progress_bar(len(tasks), progress) as advance, stop_signals(keep_ignoring):
             try:
                 drawn, rest = (list(tasks[:1]), list(tasks[1:])) if visualize else ([], list(tasks))
                 units = study_units(rest, 1 if client is not None else workers)
@@ -119,19 +134,21 @@ def _run_drawn(
 ) -> None:
     """The drawn run(s), in this process (the viewer is here)."""
     for task in drawn:
-        collect([_draw_task(task, visualize)])
+        collect(_draw_task(task, visualize))
         advance()
 
 
-def _draw_task(task: RunTask, visualize: Any) -> list[RunRecord] | RunFailure:
+def _draw_task(task: RunTask, visualize: Any) -> list[UnitOutcome]:
+    """The drawn run's records (or its failure), then this process's WorkerReport."""
     started = time.perf_counter()
     try:
-        records = run_task(task, visualize)
-        for record in records:
-            record.run_seconds = time.perf_counter() - started
-        return records
+        records = run_task(task.here(), visualize)
     except Exception as error:
-        return RunFailure(task, f"{type(error).__name__}: {error}")
+        return [RunFailure(task, f"{type(error).__name__}: {error}"), worker_report(take_startup_seconds())]
+    startup = take_startup_seconds()
+    for record in records:
+        record.run_seconds = time.perf_counter() - started - startup
+    return [records, worker_report(startup)]
 
 
 def _run_in_pool(
@@ -152,7 +169,7 @@ def _run_in_pool(
     both restart the pool, at most MAX_POOL_RESTARTS times, with the units not finished handed out
     again and the finished ones kept."""
     size = min(workers, len(units))
-    pool = ProcessPoolExecutor(max_workers=size, initializer=_worker_setup)
+    pool = ProcessPoolExecutor(max_workers=size, initializer=worker_setup)
     waiting = deque(units)
     running: dict[Future, tuple[RunTask, ...]] = {}
     restarts = 0
@@ -187,8 +204,8 @@ def _run_in_pool(
             waiting.appendleft(running.pop(future))
         warnings.warn("a worker process died (killed, or out of memory?): its runs start again on a new pool",
                       stacklevel=3)  # fmt: skip
-        _end_workers(pool)
-        pool = ProcessPoolExecutor(max_workers=size, initializer=_worker_setup)
+        end_workers(pool)
+        pool = ProcessPoolExecutor(max_workers=size, initializer=worker_setup)
         return finished
 
     def broken(done: set[Future]) -> bool:
@@ -205,9 +222,9 @@ def _run_in_pool(
                 take(restart() if broken(done) else done)
             handed = hand_out()
     except PoolLost:
-        with _signals_ignored():
+        with signals_ignored():
             take({future for future in running if future.done() and future.exception() is None})
-            _end_workers(pool)
+            end_workers(pool)
         raise
     except KeyboardInterrupt as stop:
         if not isinstance(stop, StudyStopped):
@@ -216,14 +233,14 @@ def _run_in_pool(
                     take(wait(running, timeout=0.2, return_when=FIRST_COMPLETED)[0])
             except KeyboardInterrupt as second:
                 stop = second
-        with _signals_ignored():
+        with signals_ignored():
             take({future for future in running if future.done()}, finished_only=True)
-            _end_workers(pool)
+            end_workers(pool)
         raise stop from None
     pool.shutdown(wait=True)
 
 
-def _end_workers(pool: ProcessPoolExecutor) -> None:
+def end_workers(pool: ProcessPoolExecutor) -> None:
     """Kill the pool's worker processes now and reap them (their unfinished runs are dropped)."""
     kill_workers = getattr(pool, "kill_workers", None)  # Python 3.14
     processes = list((getattr(pool, "_processes", None) or {}).values())  # no public API before 3.14
@@ -255,7 +272,7 @@ PR_SET_PDEATHSIG = 1  # linux/prctl.h: the signal a process gets when its parent
 WATCHDOG_SECONDS = 0.5
 
 
-def _worker_setup() -> None:
+def worker_setup() -> None:
     """In each worker: leave Ctrl-C to the main process (it stops the study and keeps what finished),
     and end with the parent, however it ends."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -284,7 +301,7 @@ def _watch_parent(parent: int) -> None:
 
 
 @contextmanager
-def _stop_signals(keep_ignoring: Callable[[], bool] = lambda: False) -> Iterator[None]:
+def stop_signals(keep_ignoring: Callable[[], bool] = lambda: False) -> Iterator[None]:
     """While the study runs: SIGTERM and SIGHUP raise StudyStopped in the main thread (as Ctrl-C raises
     KeyboardInterrupt), so that they too keep the finished runs and end the workers. Afterwards the
     previous handlers come back, unless `keep_ignoring()` (the stop signals stay ignored then)."""
@@ -317,7 +334,7 @@ STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SI
 
 
 @contextmanager
-def _signals_ignored() -> Iterator[None]:
+def signals_ignored() -> Iterator[None]:
     """Ctrl-C, SIGTERM and SIGHUP ignored while the workers are ended (a third Ctrl-C changes nothing)."""
     if threading.current_thread() is not threading.main_thread():
         yield
@@ -367,6 +384,10 @@ __all__ = [
     "StudyStopped",
     "default_workers",
     "die_with_parent",
+    "end_workers",
     "progress_bar",
     "run_study",
+    "signals_ignored",
+    "stop_signals",
+    "worker_setup",
 ]

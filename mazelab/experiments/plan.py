@@ -14,7 +14,8 @@ from mazelab import maze_generator
 from mazelab.checks import check_bandwidth_within, check_sigma_within
 from mazelab.contract import options_for
 from mazelab.declaration import to_plain_json
-from mazelab.experiments.runs import parse_filters
+from mazelab.experiments.plugin_code import PluginCode, plugin_codes
+from mazelab.experiments.runs import filter_key, parse_filters
 from mazelab.experiments.study import (
     BASE_PARAMETERS,
     REFERENCE,
@@ -106,6 +107,7 @@ class StudyPlan:
     kld: bool = False
     traces: bool = False
     reference: str | None = None  # "grid": every row gets distance_to_exact (`study --reference grid`)
+    plugins: tuple[PluginCode, ...] = ()  # the plug-ins' code, read once: every run carries it
 
     @property
     def other_options(self) -> list[str]:
@@ -134,6 +136,7 @@ class StudyPlan:
             kld=self.kld,
             traces=self.traces,
             reference=self.reference,
+            plugins=self.plugins,
         )
 
     def parameters(self) -> dict[str, Any]:
@@ -153,7 +156,8 @@ class StudyPlan:
             "root_seed": self.seed,
             "kidnap_at": self.kidnap_at,
             "kld": self.kld,
-            **({"reference": self.reference} if self.reference else {}),  # absent without one, as before
+            "reference": self.reference,  # "grid", or None: no distance to the exact posterior
+            **({"plugins": [plugin_description(code) for code in self.plugins]} if self.plugins else {}),
         }
 
     def header(self, where: str) -> str:
@@ -172,6 +176,16 @@ class StudyPlan:
         if self.reference:
             lines.append("reference: the exact grid filter, once per run's scenario (distance_to_exact)")
         return "\n".join(lines)
+
+
+def plugin_description(code: PluginCode) -> dict[str, str]:
+    """A plug-in as the record lists it: its filter's name, its file (relative to the working folder
+    when inside it), its class and the sha256 of the file's bytes the rows were made with."""
+    try:
+        shown = str(code.path.relative_to(Path.cwd()))
+    except ValueError:
+        shown = str(code.path)
+    return {"filter": resolve_filter(code.spec).name, "file": shown, "class": code.class_name, "sha256": code.sha256}
 
 
 def plan_study(
@@ -231,7 +245,16 @@ def plan_study(
     if reference is not None:
         check_reference(reference, settings)
     plan = StudyPlan(
-        settings, names, runs, steps, new_seed() if seed is None else seed, kidnap_at, kld, traces, reference
+        settings,
+        names,
+        runs,
+        steps,
+        new_seed() if seed is None else seed,
+        kidnap_at,
+        kld,
+        traces,
+        reference,
+        plugin_codes(names),
     )
     plan.tasks()  # checks runs, steps and kidnap_at
     return plan
@@ -275,7 +298,7 @@ def check_study_numbers(settings: Sequence[Any]) -> None:
 
 def _filter_list(filters: Sequence[Any]) -> list[Any]:
     """Names resolved to the registry's, classes kept (a student's own filter), without repeats."""
-    chosen = [f if isinstance(f, type) else resolve_filter(f).name for f in filters]
+    chosen = [f if isinstance(f, type) else filter_key(f) for f in filters]
     if not chosen:
         raise ValueError("filters is empty; give e.g. ['sir', 'apf', 'rpf']")
     return list(dict.fromkeys(chosen))

@@ -115,7 +115,7 @@ def check_left_over(path: str | Path, replace: bool = False, adopt: bool = False
     except OSError:
         return  # RowLog reports what is wrong with it
     try:
-        if not _lock(handle):
+        if not lock(handle):
             raise PartialFileError(_busy(partial))
         if not (replace or adopt):
             raise PartialFileError(_left_over(partial))
@@ -180,7 +180,7 @@ class RowLog:
         except FileExistsError:
             handle = self._open_left_over()
             left = True
-        if not _lock(handle):
+        if not lock(handle):
             os.close(handle)
             raise PartialFileError(_busy(self.partial))
         self._adopted = left and self.adopt
@@ -204,7 +204,7 @@ class RowLog:
             self._handle = None
             raise
         try:
-            _lock(new)
+            lock(new)
             write_all(new, text.encode("utf-8"))
             os.fsync(new)
             os.replace(temporary, self.partial)
@@ -304,7 +304,7 @@ _NOFOLLOW = getattr(os, "O_NOFOLLOW", 0)  # a symlink at the name: ELOOP, never 
 _NONBLOCK = getattr(os, "O_NONBLOCK", 0)  # a pipe at the name: no wait for its other end
 
 
-def _lock(handle: int) -> bool:
+def lock(handle: int) -> bool:
     """Lock the partial file for this study; False if another study holds it."""
     if fcntl is None:
         return True
@@ -321,6 +321,7 @@ __all__ = [
     "RowLog",
     "check_left_over",
     "check_partial_name",
+    "lock",
     "partial_path",
     "rows_text",
 ]

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from mazelab.contract import takes
+from mazelab.experiments.warmup import warm_up_filters
 from mazelab.maze import Maze
 from mazelab.plugins import canonical_spec, is_plugin_spec
 from mazelab.registry import filter_entry, resolve_filter
@@ -94,8 +95,11 @@ def run_filters(
     (if none are given); every later filter replays exactly those, the kidnapping (`kidnap_at`, its
     place drawn from `seed`) included. Each filter's random draws come from `seed`, and with
     `comparison` (open_comparison) each run draws into its own view. `options` maps a filter's name
-    (as in `filter_names`) to its own options.
+    (as in `filter_names`) to its own options. Before the first timed step, each filter is warmed
+    once per process (mazelab.experiments.warmup): a filter's time per step is the same in any order.
     """
+    count = particle_count if particles is None else len(particles)
+    warm_up_filters(world, sigma, delta, filter_names, count, options or {})
     results: dict[str, RunResult] = {}
     for name in filter_names:
         result = simulate(

@@ -19,11 +19,13 @@ import numpy as np
 
 from mazelab.declaration import Option, options_of
 from mazelab.experiments.kidnapping import recovery_steps, relocalised
+from mazelab.experiments.plugin_code import PluginCode, filters_here
 from mazelab.experiments.runs import filter_labels, final_error, mean_ess, mean_particle_count, run_filters
+from mazelab.experiments.warmup import WorkerReport
 from mazelab.maze import STATION_WALL, Maze
 from mazelab.maze_generator import DEFAULT_WALL_SHARE, generate_maze
 from mazelab.model import RPF_THRESHOLD, check_model_parameters
-from mazelab.registry import entries, filter_entry, resolve_filter
+from mazelab.registry import entries, filter_entry, labels, resolve_filter
 from mazelab.robot import Robot
 from mazelab.seeding import start_place, study_seeds
 from mazelab.simulation import RunResult, convergence_step
@@ -231,6 +233,14 @@ class RunTask:
     kidnap_at: int | None = None  # kidnap the robot at this step (its place drawn from `seed`)
     traces: bool = False  # keep each filter's per-step trace on its record (`RunRecord.trace`)
     reference: str | None = None  # "grid": the exact grid filter runs too, each record gets distance_to_exact
+    plugins: tuple[PluginCode, ...] = ()  # the code of the plug-ins among `filters`, sent with the run
+
+    def here(self) -> RunTask:
+        """This run with each plug-in's spec the one that imports its shipped code in this process
+        (mazelab.experiments.plugin_code): a worker runs the code the study was planned with."""
+        if not self.plugins:
+            return self
+        return dataclasses.replace(self, filters=filters_here(self.filters, self.plugins))
 
     @property
     def estimate(self) -> str:
@@ -277,12 +287,14 @@ def study_tasks(
     estimate: str | None = None,
     traces: bool = False,
     reference: str | None = None,
+    plugins: tuple[PluginCode, ...] = (),
 ) -> list[RunTask]:
     """One task per setting and run, in order, each with the filters that setting runs
     (`filters_per_setting`; a setting that runs none has no tasks). `estimate`, if given, replaces the
     settings' own, and `kld` turns KLD-sampling on in all of them; `traces` keeps each run's per-step
     trace (mazelab.experiments.traces); `reference` ("grid") measures each filter against the exact
-    posterior (`with_reference`)."""
+    posterior (`with_reference`); `plugins` the code of the plug-ins among the filters
+    (mazelab.experiments.plugin_code), sent with every run."""
     if estimate is not None:
         settings = [dataclasses.replace(s, estimate=_checked("estimate", [estimate])[0]) for s in settings]
     if kld:
@@ -297,7 +309,17 @@ def study_tasks(
     chosen = zip(settings, filters_per_setting(settings, filters), strict=True)
     return [
         RunTask(
-            i, setting, r, seed, None if setting.maze.grid else maze_seed, mine, steps, kidnap_at, traces, reference
+            i,
+            setting,
+            r,
+            seed,
+            None if setting.maze.grid else maze_seed,
+            mine,
+            steps,
+            kidnap_at,
+            traces,
+            reference,
+            tuple(code for code in plugins if code.spec in mine),
         )
         for i, (setting, mine) in enumerate(chosen, start=1)
         if mine
@@ -340,6 +362,8 @@ class RunRecord:
     run_seconds: float = math.nan  # wall time of the run: its share of the unit of runs it ran in
     # with a reference (`study --reference grid`): accuracy.distance_to_exact of the filter's estimates
     distance_to_exact: float = math.nan
+    label: str = ""  # the filter's label in the registry (what the figure and table show: SIR, APF, ...)
+    backend: str = ""  # the backend the filter ran on, as the process that ran it says (mazelab.backend)
     # the setting's other filter options (beyond the four above), by name: a column each, after these
     options: dict[str, Any] = field(default_factory=dict)
     # Not a column: with RunTask.traces, the filter's per-step arrays (mazelab.experiments.traces)
@@ -410,6 +434,8 @@ def with_reference(
     exact = exact_means(key, world, robot)
     for record in records:
         record.distance_to_exact = distance_to_exact(results[record.filter].estimates, exact)
+        if record.trace is not None:
+            record.trace = {**record.trace, "exact": exact}  # the traces' exact_x, exact_y
     return records
 
 
@@ -472,6 +498,8 @@ def run_records(task: RunTask, world: Maze, results: dict[str, RunResult]) -> li
             int(world.grid.shape[0]),
             int(world.grid.shape[1]),
             s.maze.wall_share,
+            label=labels([name])[name],
+            backend=result.extras.get("backend", "numpy"),
             options=option_cells(s),
         )
         for name, result in results.items()
@@ -539,12 +567,21 @@ class StudyOutcome:
     stopped_by: int | None = None  # the signal that stopped it (2: Ctrl-C), None if it ran to the end
     tasks: int = 0
     lost: str | None = None  # why the study stopped early without a signal (a lost cluster or pool), one line
+    workers: dict[str, WorkerReport] = field(default_factory=dict)  # each process's report, start-up summed
 
-    def add(self, outcome: list[RunRecord] | RunFailure) -> None:
+    def add(self, outcome: list[RunRecord] | RunFailure | WorkerReport) -> None:
         if isinstance(outcome, RunFailure):
             self.failures.append(outcome)
+        elif isinstance(outcome, WorkerReport):
+            known = self.workers.setdefault(outcome.worker, dataclasses.replace(outcome, startup_seconds=0.0))
+            known.startup_seconds += outcome.startup_seconds
         else:
             self.records.extend(outcome)
+
+    @property
+    def startup_seconds(self) -> float:
+        """The start-up of every process that ran runs (numba's load, first-call warm-ups), summed."""
+        return sum(report.startup_seconds for report in self.workers.values())
 
     def sort(self) -> None:
         """Records in (setting, run, filter order) order, whatever order the workers finished in."""

@@ -1,12 +1,16 @@
-"""A study's figure as small multiples, sized for a paper: the mean last-20% error with its interval
-against one varied parameter (the x axis), one line per filter and varied option (e.g. "RPF,
-bandwidth multimodal"), and one panel per combination of the other varied parameters (e.g. maze x
-sigma).
+"""A study's figure as small multiples, sized for a paper: a statistic of the runs with its interval
+(`Y_QUANTITIES`: the mean or median last-20% error, the converged share, the distance to the exact
+posterior, the paired difference) against one varied parameter (the x axis), one line per filter and
+varied option (e.g. "RPF, bandwidth multimodal"), and one panel per combination of the other varied
+parameters, laid out as the design (maze x sigma: a row per maze, a column per sigma).
 
-- each panel has its own y range, from 0 to just above its highest interval (the figure says so);
+- each panel has its own y range, from 0 (or below 0 for a difference) to just above its highest
+  interval (the figure says so); a share runs from 0% to 100%;
 - a filter that does not take the x parameter (the grid filter against N) is a reference: a dashed
-  line at its mean with its interval shaded, in every panel whose parameters it shares;
-- the lines' points are dodged (moved apart sideways) so that their error bars do not hide each other;
+  line at its value with its interval shaded, in every panel whose parameters it shares;
+- on a numeric x axis every point stays at its x (lines that overlap are told apart by marker and line
+  style); only on a categorical axis are the lines moved apart sideways (the caption says so);
+- every line has a marker and a line style of its own, so the lines stay apart in grey print;
 - the figure is PAPER_WIDTH inches wide with FONT_POINTS type (a two-column paper's full width), PNG
   at PNG_DPI, or PDF / SVG with their text as text (the path's suffix chooses);
 - the filters' colours are the registry's (mazelab.registry.colour_of), as in the viewer.
@@ -14,8 +18,10 @@ sigma).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import numbers
+import textwrap
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from mazelab.experiments.runs import FINAL_SHARE
+from mazelab.experiments.stats import CONFIDENCE_LEVEL
 from mazelab.experiments.study import declared_option, is_option_parameter, takes_parameter
 from mazelab.experiments.summary import StudySummary
 from mazelab.experiments.tables import format_value, pyplot, save_figure
@@ -36,14 +43,58 @@ PARAMETER_LABELS = {
     "particles": "particle count $N_S$",
     "threshold": "RPF threshold $N_T / N_S$",
 }
-Y_LABEL = f"last-{FINAL_SHARE:.0%} error (map units)"  # a map unit is a maze cell's side
 PAPER_WIDTH = 7.0  # inches: a two-column paper's text width (one column: about 3.4)
 PANEL_HEIGHT = 2.0  # inches per row of panels
 FONT_POINTS = 8  # the text; tick labels one point smaller
 PNG_DPI = 300
+CAPTION_WIDTH = 110  # characters per line of the title's caption (the figure's width at FONT_POINTS)
 MAX_COLUMNS = 3  # panels per row
-DODGE = 0.3  # the lines of a panel spread over this share of the smallest gap between x values
-MARKERS = ("o", "s", "^", "D", "v", "P", "X")  # the lines of one filter (its options) differ by marker
+DODGE = 0.3  # on a categorical axis, the lines of a panel spread over this share of a category's width
+MARKERS = ("o", "s", "^", "D", "v", "P", "X")  # each line of the figure a marker ...
+LINE_STYLES = ("-", "--", ":", "-.")  # ... and a line style of its own: apart in grey print too
+
+
+@dataclass(frozen=True)
+class YQuantity:
+    """What the figure's y axis shows: its label, the value and interval of a summary, and the interval's
+    method (for the title)."""
+
+    label: str
+    value: Any  # StudySummary -> float
+    interval: Any  # StudySummary -> (low, high)
+    method: str
+    share: bool = False  # a share: drawn in percent, from 0% to 100%
+    signed: bool = False  # a difference: may be below 0 (a line at 0 drawn)
+
+
+Y_QUANTITIES = {
+    "mean": YQuantity(f"mean last-{FINAL_SHARE:.0%} error (map units)", lambda s: s.mean_final_error,
+                      lambda s: s.interval, "BCa bootstrap intervals for the mean"),
+    "median": YQuantity(f"median last-{FINAL_SHARE:.0%} error (map units)", lambda s: s.median_final_error,
+                        lambda s: s.median_interval, "percentile bootstrap intervals for the median"),
+    "converged": YQuantity("runs converged (%)", lambda s: s.converged_share, lambda s: s.converged_interval,
+                           "Wilson score intervals for the share", share=True),
+    "exact": YQuantity("distance to the exact posterior mean (map units)", lambda s: s.distance_to_exact,
+                       lambda s: s.distance_interval, "BCa bootstrap intervals for the mean distance"),
+    "paired": YQuantity(f"paired difference in last-{FINAL_SHARE:.0%} error (map units)",
+                        lambda s: s.mean_difference, lambda s: s.difference_interval,
+                        "paired BCa bootstrap intervals for the mean difference", signed=True),
+}  # fmt: skip
+Y_LABEL = Y_QUANTITIES["mean"].label  # a map unit is a maze cell's side
+
+
+def y_quantity(y: str, summaries: Sequence[StudySummary]) -> YQuantity:
+    """The y axis `y` (a key of Y_QUANTITIES), or a one-line ValueError: an unknown one, the distance to
+    exact without a reference, the paired difference without a filter to pair with."""
+    if y not in Y_QUANTITIES:
+        raise ValueError(f"the figure's y {y!r} is not one of {', '.join(Y_QUANTITIES)}")
+    if y == "exact" and all(math.isnan(s.distance_to_exact) for s in summaries):
+        raise ValueError("the figure's y 'exact' needs the distance to the exact posterior: --reference grid")
+    if y == "paired" and not any(s.paired_with for s in summaries):
+        raise ValueError("the figure's y 'paired' needs a filter to pair with: --paired FILTER")
+    return Y_QUANTITIES[y]
+
+
 STYLE = {
     "font.size": FONT_POINTS,
     "axes.titlesize": FONT_POINTS,
@@ -70,6 +121,7 @@ class FigureLayout:
     x: str | None
     panels: list[str]
     lines: list[str]
+    shape: tuple[int, int] = (1, 1)  # rows x columns of panels, as the design
     y_ranges: list[tuple[float, float]] = field(default_factory=list)
     boxes: list[tuple[float, float, float, float]] = field(default_factory=list)
     references: list[list[str]] = field(default_factory=list)  # per panel: the lines drawn as references
@@ -114,7 +166,25 @@ def figure_layout(
         for title, values in panel_values.items():
             if all(not takes_parameter(s.filter, p) or s.setting.value(p) == v for p, v in values.items()):
                 panels[title].append(s)
-    return FigureLayout(x, list(panels), list(lines)), panels, lines
+    return FigureLayout(x, list(panels), list(lines), panel_grid(summaries, facets, len(panels))), panels, lines
+
+
+def panel_grid(summaries: Sequence[StudySummary], facets: Sequence[str], count: int) -> tuple[int, int]:
+    """Rows x columns of the panels, as the design: a column per value of the last panel parameter and
+    a row per combination of the others (maze x sigma, 2 x 2: two rows of two); one panel parameter
+    alone fills rows of at most MAX_COLUMNS."""
+    if count <= 1:
+        return 1, 1
+    if len(facets) >= 2:
+        columns = len({_key(s.setting.value(facets[-1])) for s in summaries})
+        if count % columns == 0:
+            return count // columns, columns
+    columns = min(MAX_COLUMNS, count) if count != 4 else 2
+    return math.ceil(count / columns), columns
+
+
+def _key(value: Any) -> Any:
+    return repr(value) if isinstance(value, (list, dict)) else value
 
 
 def _panel_title(summary: StudySummary, facets: Sequence[str]) -> str:
@@ -152,23 +222,26 @@ class _Line:
     marker: str
     points: list[StudySummary]
     reference: bool  # its filter does not take the x parameter: one value for the whole panel
+    style: str = "-"
 
 
-def panel_lines(mine: Sequence[StudySummary], x: str | None, options: Sequence[str]) -> list[_Line]:
-    """A panel's lines, each filter in its registry colour, its options' lines told apart by marker."""
+def panel_lines(
+    mine: Sequence[StudySummary], x: str | None, options: Sequence[str], order: Sequence[str] = ()
+) -> list[_Line]:
+    """A panel's lines, each filter in its registry colour; each line of the figure (its place in
+    `order`, the figure's lines) has a marker and a line style of its own, the same in every panel."""
     by_label: dict[str, list[StudySummary]] = {}
     for s in mine:
         by_label.setdefault(line_label(s, options), []).append(s)
-    per_filter: dict[str, int] = {}
     lines = []
     for label, points in by_label.items():
         name = points[0].filter
-        index = per_filter.get(name, 0)
-        per_filter[name] = index + 1
+        index = list(order).index(label) if label in order else len(order) + list(by_label).index(label)
         reference = x is not None and not takes_parameter(name, x)
         if x is not None and not reference:
             points = sorted(points, key=lambda s: _sort_key(s.setting.value(x)))
-        lines.append(_Line(label, rgb(colour_of(name)), MARKERS[index % len(MARKERS)], points, reference))
+        marker, style = MARKERS[index % len(MARKERS)], LINE_STYLES[index % len(LINE_STYLES)]
+        lines.append(_Line(label, rgb(colour_of(name)), marker, points, reference, style))
     return lines
 
 
@@ -184,45 +257,89 @@ def plot_study(
     *,
     replace: bool = True,
     x: str | None = None,
+    y: str = "mean",
 ) -> FigureLayout:
     """Draw the study's small multiples to `path` (.png at PNG_DPI, .pdf or .svg) and return their
     layout with each panel's y range and box (an existing file is replaced only with `replace`).
-    `x` chooses the x axis among the varied parameters (default: `choose_x`)."""
+    `x` chooses the x axis among the varied parameters (default: `choose_x`), `y` what is drawn
+    (a key of Y_QUANTITIES)."""
     plt = pyplot()
     import matplotlib
 
+    quantity = y_quantity(y, summaries)
+    if y == "paired":  # the filter paired with has no difference to itself; the axis names it
+        summaries = [s for s in summaries if s.paired_with]
+        quantity = dataclasses.replace(quantity, label=paired_label(summaries))
     with matplotlib.rc_context(STYLE):
         layout, panels, _ = figure_layout(summaries, varied, x)
         x = layout.x
         options = [p for p in varied if is_option_parameter(p) and p != x]
         count = len(layout.panels)
-        columns = min(MAX_COLUMNS, count)
-        rows = math.ceil(count / columns)
+        rows, columns = layout.shape
         figure, axes = plt.subplots(
-            rows, columns, figsize=(PAPER_WIDTH, PANEL_HEIGHT * rows + 0.9), squeeze=False, layout="constrained"
+            rows, columns, figsize=(PAPER_WIDTH, PANEL_HEIGHT * rows + 1.0), squeeze=False, layout="constrained"
         )
         scale = XScale.of(summaries, x)
         ranges, references = [], []
         for k, mine in enumerate(panels.values()):
             ax = axes[k // columns][k % columns]
             ax.set_gid(f"panel-{k + 1}")
-            lines = panel_lines(mine, x, options)
-            top = draw_panel(ax, lines, scale, layout.lines, k + 1)
-            ax.set_ylim(0, top)
+            lines = panel_lines(mine, x, options, layout.lines)
+            bottom, top = draw_panel(ax, lines, scale, layout.lines, k + 1, quantity)
+            ax.set_ylim(bottom, top)
             ax.set_title(layout.panels[k] or None)
             ax.set_xlabel(axis_label(x))
             ax.grid(alpha=0.3, linewidth=0.5)
-            ranges.append((0.0, top))
+            ranges.append((bottom, top))
             references.append([line.label for line in lines if line.reference])
         for k in range(count, rows * columns):
             axes[k // columns][k % columns].set_visible(False)
         for row in axes:
-            row[0].set_ylabel(Y_LABEL)
+            row[0].set_ylabel(quantity.label)
         _legend(figure, axes.flat[:count], layout.lines)
-        figure.suptitle(f"{title}\n(each panel its own y range)" if count > 1 else title)
+        figure.suptitle(f"{title}\n{caption(scale, count, quantity)}")
         save_figure(figure, path, replace=replace, dpi=PNG_DPI)
         boxes = [tuple(float(v) for v in ax.get_position().extents) for ax in axes.flat[:count]]
-    return FigureLayout(layout.x, layout.panels, layout.lines, ranges, boxes, references)
+    return FigureLayout(layout.x, layout.panels, layout.lines, layout.shape, ranges, boxes, references)
+
+
+def paired_label(summaries: Sequence[StudySummary]) -> str:
+    """The paired difference's axis: 'last-20% error minus SIR's (map units)'."""
+    other = summaries[0].paired_with or ""
+    return f"last-{FINAL_SHARE:.0%} error minus {labels([other])[other]}'s (map units)"
+
+
+def caption(scale: XScale, panels: int, quantity: YQuantity) -> str:
+    """The title's second line: the intervals, each panel's own y range, where points overlap."""
+    notes = [f"{CONFIDENCE_LEVEL:.0%} {quantity.method}"]
+    if panels > 1 and not quantity.share:
+        notes.append("each panel its own y range")
+    if scale.kind == "category":
+        notes.append("lines set side by side within a category")
+    else:
+        notes.append("points at one x drawn there, told apart by marker and line style")
+    return "\n".join(textwrap.wrap("(" + "; ".join(notes) + ")", CAPTION_WIDTH))
+
+
+def study_title(
+    varied: Sequence[str], summaries: Sequence[StudySummary], runs: int, maze: str, x: str | None, y: str
+) -> str:
+    """The figure's first line: what is drawn against what (the x axis, then the panels' and the lines'
+    parameters), and the runs per point."""
+    layout, _, _ = figure_layout(summaries, varied or ["maze"], x)
+    x = layout.x
+    against = f" against {x}" if x is not None else " per filter"
+    panel_parameters = [p for p in varied if p != x and not is_option_parameter(p)]
+    line_parameters = [p for p in varied if p != x and is_option_parameter(p)]
+    parts = [f"panels by {', '.join(panel_parameters)}"] if panel_parameters else []
+    parts += [f"lines by filter, {', '.join(line_parameters)}"] if line_parameters else []
+    where = "" if "maze" in varied else f" on {maze}"
+    extra = f" ({'; '.join(parts)})" if parts else ""
+    what = Y_QUANTITIES[y].label.split(" (")[0].capitalize()
+    paired = next((s.paired_with for s in summaries if s.paired_with), None)
+    if y == "paired" and paired is not None:
+        what = f"Paired difference to {labels([paired])[paired]} in last-{FINAL_SHARE:.0%} error"
+    return f"{what}{against}{where}{extra}, {runs} runs per point"
 
 
 @dataclass(frozen=True)
@@ -259,36 +376,48 @@ class XScale:
         return 10**where if self.kind == "log" else where
 
 
-def draw_panel(ax: Any, lines: Sequence[_Line], scale: XScale, all_labels: Sequence[str], panel: int) -> float:
-    """Draw a panel's lines (dodged, with error bars) and references (dashed, shaded interval); returns
-    the top of its y range: just above the highest interval or mean."""
+def draw_panel(
+    ax: Any, lines: Sequence[_Line], scale: XScale, all_labels: Sequence[str], panel: int,
+    quantity: YQuantity = Y_QUANTITIES["mean"],
+) -> tuple[float, float]:  # fmt: skip
+    """Draw a panel's lines (with error bars; moved apart sideways on a categorical axis only) and
+    references (dashed, shaded interval); returns its y range: from 0 (or the lowest interval of a
+    difference) to just above the highest interval or value; 0-100 for a share."""
     drawn = [line for line in lines if not line.reference]
     slots = [label for label in all_labels if label in {line.label for line in drawn}]
-    highest = 0.0
+    unit = 100.0 if quantity.share else 1.0
+    highest, lowest = 0.0, 0.0
     for line in drawn:
         j = slots.index(line.label)  # the same slot in every panel: a line keeps its place
-        offset = DODGE * scale.gap * (j / (len(slots) - 1) - 0.5) if len(slots) > 1 else 0.0
+        dodged = scale.kind == "category" and scale.categories and len(slots) > 1
+        offset = DODGE * (j / (len(slots) - 1) - 0.5) if dodged else 0.0
         if scale.kind == "category" and not scale.categories:  # nothing varied on x: a slot per line
             where = np.array([float(all_labels.index(line.label))])
         else:
             where = np.array([scale.position(s.setting.value(scale.parameter)) for s in line.points]) + offset
-        mean = np.array([s.mean_final_error for s in line.points])
-        low, high = np.array([s.interval for s in line.points]).T
-        bars = np.clip(np.nan_to_num(np.vstack([mean - low, high - mean])), 0, None)  # a BCa interval may miss the mean
+        value = unit * np.array([quantity.value(s) for s in line.points], dtype=float)
+        low, high = unit * np.array([quantity.interval(s) for s in line.points], dtype=float).T
+        bars = np.clip(np.nan_to_num(np.vstack([value - low, high - value])), 0, None)  # BCa may miss the mean
         container = ax.errorbar(
-            scale.back(where), mean, yerr=bars, fmt="-" + line.marker if len(where) > 1 else line.marker,
-            color=line.colour, label=line.label, elinewidth=0.8,
+            scale.back(where), value, yerr=bars, fmt=line.marker, linestyle=line.style if len(where) > 1 else "none",
+            color=line.colour, label=line.label, elinewidth=0.8, markerfacecolor="white" if j % 2 else line.colour,
         )  # fmt: skip
         container.lines[0].set_gid(f"panel-{panel}:line:{line.label}")
-        highest = max(highest, float(np.nanmax(np.append(high, mean))))
+        highest = max(highest, float(np.nanmax(np.append(high, value))))
+        lowest = min(lowest, float(np.nanmin(np.append(low, value))))
     for line in lines:
         if line.reference:
             (s,) = line.points[:1]
-            ax.axhline(s.mean_final_error, color=line.colour, linestyle="--", linewidth=1.0, label=line.label,
+            value, (low, high) = unit * quantity.value(s), (unit * v for v in quantity.interval(s))
+            dashes = line.style if line.style != "-" else "--"  # a reference is never a solid line
+            ax.axhline(value, color=line.colour, linestyle=dashes, linewidth=1.0, label=line.label,
                        gid=f"panel-{panel}:reference:{line.label}")  # fmt: skip
-            if not math.isnan(s.interval[0]):
-                ax.axhspan(*s.interval, color=line.colour, alpha=0.15, linewidth=0)
-            highest = max(highest, s.mean_final_error, 0.0 if math.isnan(s.interval[1]) else s.interval[1])
+            if not math.isnan(low):
+                ax.axhspan(low, high, color=line.colour, alpha=0.15, linewidth=0)
+            highest = max(highest, value, 0.0 if math.isnan(high) else high)
+            lowest = min(lowest, value, 0.0 if math.isnan(low) else low)
+    if quantity.signed:
+        ax.axhline(0.0, color="black", linewidth=0.6)
     if scale.kind == "log":
         ax.set_xscale("log")
     if scale.kind == "linear" and 1 < len(scale.values) <= 8:
@@ -297,7 +426,10 @@ def draw_panel(ax: Any, lines: Sequence[_Line], scale: XScale, all_labels: Seque
         names = scale.categories or tuple(all_labels)
         ax.set_xticks(range(len(names)), names, rotation=20 if max(map(len, names)) > 8 else 0, ha="right")
         ax.set_xlim(-0.5, len(names) - 0.5)
-    return 1.1 * highest if highest > 0 else 1.0
+    if quantity.share:
+        return 0.0, 105.0
+    top = 1.1 * highest if highest > 0 else 1.0
+    return (1.1 * lowest if lowest < 0 else 0.0), top
 
 
 def _legend(figure: Any, axes: Sequence[Any], order: Sequence[str]) -> None:
@@ -317,6 +449,7 @@ __all__ = [
     "PAPER_WIDTH",
     "PNG_DPI",
     "Y_LABEL",
+    "Y_QUANTITIES",
     "FigureLayout",
     "XScale",
     "axis_label",
@@ -325,4 +458,6 @@ __all__ = [
     "is_numeric",
     "line_label",
     "plot_study",
+    "study_title",
+    "y_quantity",
 ]

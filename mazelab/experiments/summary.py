@@ -357,18 +357,34 @@ SUMMARY_STATISTICS: tuple[tuple[str, Any], ...] = (
 )
 
 
+def summary_rows(summaries: Sequence[StudySummary]) -> list[dict[str, Any]]:
+    """One dict per setting and filter, the summary CSV's columns: `setting`, the study's parameters
+    (None where the filter does not take one, the table's '-'), `filter`, `label` (the registry's),
+    then SUMMARY_STATISTICS, each interval as _low and _high."""
+    parameters = list(study_parameters([s.setting for s in summaries])) if summaries else list(BASE_PARAMETERS)
+    rows = []
+    for s in summaries:
+        cells = {**{p: s.setting.value(p) for p in parameters}, **option_cells(s.setting)}
+        rows.append(
+            {
+                "setting": s.setting_index,
+                **{p: cells.get(p) if takes_parameter(s.filter, p) else None for p in parameters},
+                "filter": s.filter,
+                "label": labels([s.filter])[s.filter],
+                **{name: read(s) for name, read in SUMMARY_STATISTICS},
+            }
+        )
+    return rows
+
+
 def summary_csv(summaries: Sequence[StudySummary]) -> str:
-    """One row per setting and filter (the table's): `setting`, the study's parameters (an empty cell
-    where the filter does not take one, the table's '-'), `filter`, then SUMMARY_STATISTICS, each
-    interval as _low and _high columns; an empty cell for None, NaN and 'not reached'."""
+    """The summary rows (`summary_rows`) as CSV: an empty cell for None, NaN and 'not reached'."""
     parameters = list(study_parameters([s.setting for s in summaries])) if summaries else list(BASE_PARAMETERS)
     buffer = io.StringIO()
     writer = csv.writer(buffer, lineterminator="\n")
-    writer.writerow(["setting", *parameters, "filter", *(name for name, _ in SUMMARY_STATISTICS)])
-    for s in summaries:
-        cells = {**{p: s.setting.value(p) for p in parameters}, **option_cells(s.setting)}
-        given = [csv_cell(cells.get(p)) if takes_parameter(s.filter, p) else "" for p in parameters]
-        writer.writerow([s.setting_index, *given, s.filter, *(csv_cell(read(s)) for _, read in SUMMARY_STATISTICS)])
+    writer.writerow(["setting", *parameters, "filter", "label", *(name for name, _ in SUMMARY_STATISTICS)])
+    for row in summary_rows(summaries):
+        writer.writerow([csv_cell(value) for value in row.values()])
     return buffer.getvalue()
 
 
@@ -402,4 +418,5 @@ __all__ = [
     "summarise_study",
     "summary_csv",
     "summary_path",
+    "summary_rows",
 ]

@@ -1,7 +1,8 @@
 """Per-step traces (`study --traces`, `compare --traces`): one row per run, filter and step, in long
 format, so that pandas reads them directly (`pandas.read_csv`, or `read_parquet` for a .parquet file,
 which needs pyarrow). Columns: TRACE_COLUMNS, then each filter's own diagnostics (`regularised`,
-`injection_probability`, ...: empty where a filter has none), then the row's parameters (the maze,
+`injection_probability`, ...: empty where a filter has none), then the filter's label (SIR) and the
+row's parameters (the maze,
 sigma, delta, particles, the paper's four options and any other option of the setting), so that a
 band plot of the error against the steps, by filter and parameter, is one `groupby`."""
 
@@ -19,6 +20,7 @@ import numpy as np
 from mazelab.atomic import write_bytes_atomically, write_text_atomically
 from mazelab.experiments.inputs import read_regular_bytes, read_regular_text
 from mazelab.experiments.study import RunRecord, RunTask, trace_of
+from mazelab.registry import labels
 from mazelab.simulation import RunResult
 
 TRACE_COLUMNS = [
@@ -82,16 +84,34 @@ def trace_columns(
         "step_ms": 1e3 * np.asarray(trace["step_seconds"], dtype=float),
         "particle_count": np.asarray(trace["particle_count"], dtype=np.int64),
         **{f"{DIAGNOSTIC_PREFIX}{name_}": values for name_, values in diagnostics.items()},
+        **exact_columns(trace.get("exact"), estimate),
         **constant,
     }
 
 
 DIAGNOSTIC_PREFIX = "diagnostic_"  # a filter's own per-step figure, e.g. diagnostic_regularised
+# with `study --reference grid`: the exact posterior mean at each step (the grid filter's), and the
+# distance of the filter's estimate to it
+EXACT_COLUMNS = ["exact_x", "exact_y", "distance_to_exact"]
+
+
+def per_step(column: str) -> bool:
+    """Whether a column beyond TRACE_COLUMNS holds a number per step (a diagnostic, the exact posterior)
+    rather than a parameter of the run."""
+    return column.startswith(DIAGNOSTIC_PREFIX) or column in EXACT_COLUMNS
+
+
+def exact_columns(exact: Any, estimate: np.ndarray) -> dict[str, np.ndarray]:
+    """The exact posterior mean per step and the estimate's distance to it (none without a reference)."""
+    if exact is None:
+        return {}
+    exact = np.asarray(exact, dtype=float)
+    return {"exact_x": exact[:, 0], "exact_y": exact[:, 1], "distance_to_exact": np.hypot(*(estimate - exact).T)}
 
 
 def record_parameters(record: RunRecord) -> dict[str, Any]:
     """A study row's parameters as trace columns: PARAMETER_COLUMNS, then its other options."""
-    return {**{name: getattr(record, name) for name in PARAMETER_COLUMNS}, **record.options}
+    return {"label": record.label, **{name: getattr(record, name) for name in PARAMETER_COLUMNS}, **record.options}
 
 
 def study_traces(records: Iterable[RunRecord]) -> list[dict[str, Any]]:
@@ -110,7 +130,8 @@ def compare_traces(results: dict[str, RunResult], seed: int, maze: str | None = 
     blocks = []
     for name, result in results.items():
         inputs = result.inputs
-        parameters = {"maze": maze, "sigma": inputs.sigma, "delta": inputs.delta, "particles": len(inputs.particles)}
+        parameters = {"label": labels([name])[name], "maze": maze, "sigma": inputs.sigma, "delta": inputs.delta,
+                      "particles": len(inputs.particles)}  # fmt: skip
         blocks.append(trace_columns(None, 1, seed, name, trace_of(result), parameters))
     return blocks
 
@@ -118,7 +139,7 @@ def compare_traces(results: dict[str, RunResult], seed: int, maze: str | None = 
 def trace_column_names(blocks: Sequence[dict[str, Any]]) -> list[str]:
     """The columns of these blocks: TRACE_COLUMNS, the diagnostics any of them has, then the parameters."""
     extra = dict.fromkeys(column for block in blocks for column in block if column not in TRACE_COLUMNS)
-    diagnostics = [c for c in extra if c.startswith(DIAGNOSTIC_PREFIX)]
+    diagnostics = [c for c in extra if per_step(c)]
     return [*TRACE_COLUMNS, *diagnostics, *(c for c in extra if c not in diagnostics)]
 
 
@@ -132,14 +153,14 @@ def trace_csv_rows(blocks: Sequence[dict[str, Any]], columns: Sequence[str] | No
         setting = "" if block["setting"][0] == -1 else str(block["setting"][0])
         prefix = f"{setting},{block['run'][0]},{block['seed'][0]},{_cell(block['filter'][0])}"
         steps = len(block["step"])
-        diagnostics = [c for c in columns[len(TRACE_COLUMNS) :] if c.startswith(DIAGNOSTIC_PREFIX)]
+        diagnostics = [c for c in columns[len(TRACE_COLUMNS) :] if per_step(c)]
         numbers = np.column_stack(
             [block[c].astype(float) for c in numeric] + [block.get(c, np.full(steps, np.nan)) for c in diagnostics]
         )
         text = io.StringIO()
         fmt = ["%d", *["%.17g"] * 6, "%d", "%.17g", "%d", *["%.17g"] * len(diagnostics)]
         np.savetxt(text, numbers, fmt=fmt, delimiter=",")
-        constants = [c for c in columns[len(TRACE_COLUMNS) :] if not c.startswith(DIAGNOSTIC_PREFIX)]
+        constants = [c for c in columns[len(TRACE_COLUMNS) :] if not per_step(c)]
         suffix = "".join(f",{_cell(block[c][0]) if c in block else ''}" for c in constants)
         buffer.writelines(f"{prefix},{line}{suffix}\n" for line in text.getvalue().replace("nan", "").splitlines())
     return buffer.getvalue()
@@ -183,9 +204,9 @@ def write_traces(
         return
     kept_header, kept_rows = kept if kept else (None, "")
     columns = trace_column_names(blocks)
-    if kept_header is not None:  # an earlier session's columns first, then any new one
-        columns = [*kept_header, *(c for c in columns if c not in kept_header)]
-        kept_rows = _padded(kept_rows, len(kept_header), len(columns))
+    if kept_header is not None:  # an earlier session's columns and any new one, each row laid out in them
+        columns = ordered([*kept_header, *columns])
+        kept_rows = relaid(kept_rows, kept_header, columns)
     text = trace_header(columns) + kept_rows + trace_csv_rows(blocks, columns)
     write_text_atomically(path, text, follow_links=follow_links)
 
@@ -194,7 +215,21 @@ def trace_table_columns(blocks: Sequence[dict[str, Any]]) -> dict[str, np.ndarra
     """The blocks as one set of columns (a diagnostic missing from a block: NaN there), or None."""
     if not blocks:
         return None
-    return {c: np.concatenate([_filled(b, c) for b in blocks]) for c in trace_column_names(blocks)}
+    columns = {c: np.concatenate([_filled(b, c) for b in blocks]) for c in trace_column_names(blocks)}
+    return {c: numeric(values) for c, values in columns.items()}
+
+
+def numeric(values: np.ndarray) -> np.ndarray:
+    """A column of parameters as numbers when every value is one (sigma, delta, particles: float64 or
+    int64, as pandas reads the CSV), else as it is (text, a missing value among numbers)."""
+    if values.dtype != object or not len(values):
+        return values
+    kinds = {type(v) for v in values}
+    if kinds <= {int, np.int64} and not any(isinstance(v, bool) for v in values):
+        return values.astype(np.int64)
+    if kinds <= {int, float, np.int64, np.float64} and not any(isinstance(v, bool) for v in values):
+        return values.astype(np.float64)
+    return values
 
 
 def _filled(block: dict[str, Any], column: str) -> np.ndarray:
@@ -202,14 +237,26 @@ def _filled(block: dict[str, Any], column: str) -> np.ndarray:
     if column in block:
         return block[column]
     steps = len(block["step"])
-    return np.full(steps, np.nan) if column.startswith(DIAGNOSTIC_PREFIX) else np.full(steps, None, dtype=object)
+    return np.full(steps, np.nan) if per_step(column) else np.full(steps, None, dtype=object)
 
 
-def _padded(rows: str, have: int, want: int) -> str:
-    """CSV rows of `have` cells with empty cells added up to `want`."""
-    if want == have or not rows:
+def relaid(rows: str, have: Sequence[str], want: Sequence[str]) -> str:
+    """CSV rows of the columns `have` laid out in the columns `want` (a superset): each cell moved to its
+    column, an empty cell where a row had none."""
+    if list(have) == list(want) or not rows:
         return rows
-    return "".join(line.rstrip("\n") + "," * (want - have) + "\n" for line in rows.splitlines())
+    where = [list(have).index(c) if c in have else None for c in want]
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    for row in csv.reader(io.StringIO(rows)):
+        writer.writerow(["" if i is None or i >= len(row) else row[i] for i in where])
+    return buffer.getvalue()
+
+
+def ordered(columns: Sequence[str]) -> list[str]:
+    """Trace columns in the order their rows are written: TRACE_COLUMNS, the per-step ones, the parameters."""
+    extra = [c for c in dict.fromkeys(columns) if c not in TRACE_COLUMNS]
+    return [*TRACE_COLUMNS, *(c for c in extra if per_step(c)), *(c for c in extra if not per_step(c))]
 
 
 def check_traces_of_study(path: Path, tasks: Sequence[RunTask]) -> set[tuple[int, int]]:
@@ -320,14 +367,20 @@ def pa_array_of(values: set[str]) -> Any:
 
 __all__ = [
     "DIAGNOSTIC_PREFIX",
+    "EXACT_COLUMNS",
     "PARAMETER_COLUMNS",
     "PARQUET_HINT",
     "TRACE_COLUMNS",
     "check_trace_path",
     "check_traces_of_study",
     "compare_traces",
+    "exact_columns",
     "kept_traces",
+    "numeric",
+    "ordered",
+    "per_step",
     "record_parameters",
+    "relaid",
     "study_traces",
     "trace_column_names",
     "trace_columns",
