@@ -95,6 +95,20 @@ def test_a_runs_repeat_line_repeats_it_bit_for_bit_with_its_options(tmp_path):
     assert again.stdout.splitlines()[0] == first.stdout.splitlines()[0]
 
 
+def test_a_runs_repeat_line_pastes_back_after_the_run_saved_its_files(tmp_path, monkeypatch, capsys):
+    """The files the run wrote (--save-scenario, --rrd) are not written again by the repeat line, which
+    would find them taken; and --force, which would replace them unasked, is not repeated either."""
+    monkeypatch.chdir(tmp_path)
+    args = ["run", "--maze", "paper_5x5", "--steps", "8", "--particles", "100", "--quiet"]
+    assert main([*args, "--save-scenario", "s.json", "--rrd", "r.rrd", "--force"]) == 0
+    first = capsys.readouterr().out
+    command = _printed_command(first, "run")
+    assert not {"--save-scenario", "s.json", "--rrd", "r.rrd", "--force"} & set(command)
+    assert main([*command[len(shlex.split(command_prefix())) :], "--no-viz"]) == 0
+    (summary,) = [line for line in first.splitlines() if line.startswith("SIRParticleFilter:")]
+    assert capsys.readouterr().out.splitlines()[0] == summary
+
+
 def test_a_studys_repeat_line_repeats_its_rows(tmp_path, capsys):
     args = ["study", "--maze", "paper_5x5", "--runs", "2", "--steps", "10", "--particles", "60", "--no-viz"]
     assert main([*args, "--workers", "1", "--csv", str(tmp_path / "a.csv")]) == 0

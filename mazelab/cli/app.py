@@ -229,7 +229,13 @@ def run(
             typer.echo(line)
     if save_scenario_path is not None:
         typer.echo(f"scenario saved to {save_scenario(result.scenario, save_scenario_path, replace=force)}")
-    typer.echo(f"Repeat this run: {repeat_command(result.seed)}")
+    typer.echo(f"Repeat this run: {repeat_command(result.seed, REPEAT_DROPS, REPEAT_DROPS_WITH_VALUE)}")
+
+
+# "Repeat this run" repeats the run, not its files: the scenario and recording it wrote would be found
+# taken by the pasted command ("exists; use --force"), and --force would replace them unasked.
+REPEAT_DROPS = ("--resume", "--force")
+REPEAT_DROPS_WITH_VALUE = ("--save-scenario", "--rrd")
 
 
 @contextmanager
