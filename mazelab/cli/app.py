@@ -75,7 +75,13 @@ from mazelab.cli.options import (
 )
 from mazelab.cli.provenance import remember_arguments, repeat_command, show_version
 from mazelab.cli.recordings import recordings
-from mazelab.cli.replay import from_scenario, refuse_counts_for_replay, replay_seed
+from mazelab.cli.replay import (
+    from_scenario,
+    refuse_counts_for_replay,
+    replay_seed,
+    stored_options,
+    with_stored_options,
+)
 from mazelab.cli.replay_filter import replay_filter_name, replay_options
 from mazelab.cli.reports import kidnap_report, particle_count_report, prepare_world, progress_printer, report_run
 from mazelab.cli.run_setup import fresh_setup, replay_setup
@@ -284,7 +290,8 @@ def compare(
     backend: BackendOption = None,
 ) -> None:
     """Lab steps 12-13: every filter on one saved scenario (the same start, particles, walk). Each
-    filter takes the options it declares (--option NAME=VALUE; `mazelab filters` lists them).
+    filter takes the options it declares (--option NAME=VALUE; `mazelab filters` lists them), and
+    those the scenario's run set away from their defaults unless given here (a line names them).
 
     A kidnapping (stored, or --kidnap-at) adds whether each filter re-localised (mean error below 0.5
     over the last 30 steps) and the steps it took."""
@@ -292,13 +299,15 @@ def compare(
     check_filter_names(filters)
     record_file = compare_record_file(csv_path, plot, traces, force, rrd)  # a JSON record beside the outputs
     check_outputs(csv_path, plot, force, rrd)
-    setup = replay_setup(load_scenario(scenario), maze, sigma, delta, seed, {})
+    stored = load_scenario(scenario)
+    setup = replay_setup(stored, maze, sigma, delta, seed, {})
     names = parse_filters(filters)
     named = {
         "recovery": recovery_value(recovery, sensor_resetting), "alpha_slow": alpha_slow, "alpha_fast": alpha_fast,
         "kld": kld or None, "bandwidth": bandwidth, "estimate": estimate,
     }  # fmt: skip
     given = merge_named(named_values(named, names), parse_option_texts(option, names))
+    given = with_stored_options(given, stored_options(stored, names, scenario), scenario)
     options_per_filter(names, given)  # an option that none of the filters takes, or a bad value: one line, first
     parameters = {"filters": [resolve_filter(n).name for n in names], "sigma": setup.sigma, "delta": setup.delta,
                   "seed": setup.seed, "kidnap_at": kidnap_at,
