@@ -46,12 +46,13 @@ from mazelab.checks import (
 from mazelab.declaration import options_of
 from mazelab.limits import check_memory
 from mazelab.maze import Maze
-from mazelab.maze_paths import shipped_mazes
+from mazelab.maze_paths import MAZES_DIR, shipped_mazes
 from mazelab.registry import FilterEntry, shipped_entry
 from mazelab.robot import Robot
 
 DEFAULT_PARAMETERS_PATH = Path("model_parameters.json")  # the paper's file (lab steps 9-10), in the working folder
 LEGACY_PARAMETERS_PATH = Path("model_parameters") / "model_parameters.json"  # where older versions saved it
+SCENARIOS_DIR = MAZES_DIR.parent / "model_parameters"  # the shipped scenarios, beside mazes/ (found by name)
 SCENARIO_FORMAT_VERSION = 4  # the newest scenario format this program reads and writes
 KIDNAP_FORMAT_VERSION = 2  # scenarios with a kidnapping are version 2 (or more)
 OPTIONS_FORMAT_VERSION = 3  # scenarios that store the filter's options are version 3; without either, version 1
@@ -320,9 +321,36 @@ def save_scenario(scenario: Scenario, path: str | Path = DEFAULT_PARAMETERS_PATH
     return path
 
 
+def shipped_scenarios() -> list[str]:
+    """The names of the scenarios in model_parameters/ (file names without .json), sorted."""
+    return sorted(path.stem for path in SCENARIOS_DIR.glob("*.json"))
+
+
+def find_scenario(name_or_path: str | Path) -> Path:
+    """A scenario file path, or the name of a shipped one (in model_parameters/, with or without
+    .json), from any folder, as mazes are found (mazelab.maze_paths.find_maze): a file in the current
+    folder comes first. A path that does not exist but ends in a shipped scenario's file name
+    (`model_parameters/paper_5x5.json` typed in another folder) is refused with the name that works
+    everywhere."""
+    path = Path(name_or_path)
+    if path.exists():
+        return path
+    if path.parent == Path("."):
+        for candidate in (SCENARIOS_DIR / path.name, SCENARIOS_DIR / f"{path.name}.json"):
+            if candidate.is_file():
+                return candidate
+    elif path.stem in shipped_scenarios() and path.suffix in ("", ".json"):
+        raise ScenarioError(
+            f"{path}: no such scenario file in {Path.cwd()}; {path.stem} is a shipped scenario: "
+            f"name it {path.stem!r} (without a folder) to use it from any folder"
+        )
+    return path  # load_scenario reports it missing
+
+
 def load_scenario(path: str | Path = DEFAULT_PARAMETERS_PATH) -> Scenario:
-    """Read and validate a scenario json file (a file with only the paper's four keys is fine)."""
-    path = Path(path)
+    """Read and validate a scenario json file (a file with only the paper's four keys is fine), or a
+    shipped scenario by its name (see find_scenario)."""
+    path = find_scenario(path)
     text = _read_scenario_file(path)
     depth = json_depth(text)
     if depth > MAX_JSON_DEPTH:
@@ -403,6 +431,7 @@ __all__ = [
     "MAX_JSON_DEPTH",
     "OPTIONS_FORMAT_VERSION",
     "PLUGIN_FORMAT_VERSION",
+    "SCENARIOS_DIR",
     "SCENARIO_FORMAT_VERSION",
     "FiniteFloat",
     "PluginSource",
@@ -411,7 +440,9 @@ __all__ = [
     "ScenarioError",
     "check_measurements_within",
     "describe_validation_error",
+    "find_scenario",
     "json_depth",
     "load_scenario",
     "save_scenario",
+    "shipped_scenarios",
 ]

@@ -42,7 +42,7 @@ def error_line(capsys) -> str:
         (["study", "--sigma", "0.2", "0.4", "--runs", "1"], "a list is one argument, comma-separated: --sigma 0.2,0.4"),
         (["compare"], "e.g. "),
         (["exercise", "new"], "exercise new my_exercise"),
-        (["run", "--scenario", "paper_5x5", "--no-viz"], "paper_5x5 is a maze: --maze paper_5x5"),
+        (["run", "--scenario", "maze_20x20", "--no-viz"], "maze_20x20 is a maze: --maze maze_20x20"),
         (["run", "--rrd", "out.png"], "a recording is an .rrd file (e.g. --rrd out.rrd)"),
     ],
 )

@@ -99,7 +99,7 @@ from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
 from mazelab.plugins import StudentCodeError
 from mazelab.registry import resolve_filter
 from mazelab.robot import Robot
-from mazelab.scenario import ScenarioError, load_scenario, save_scenario
+from mazelab.scenario import ScenarioError, find_scenario, load_scenario, save_scenario
 from mazelab.seeding import new_seed, start_place
 from mazelab.stops import exit_without_strays, mark_interrupts
 from mazelab.viz.recording import web_serving_deferred, write_errors_deferred
@@ -178,7 +178,9 @@ def run(
     start_seed: Annotated[
         int | None, typer.Option(callback=seed_option, hidden=True, help="seed of the start only (default: --seed)")
     ] = None,
-    scenario: Annotated[Path | None, typer.Option(help="replay a saved scenario (.json)")] = None,
+    scenario: Annotated[
+        Path | None, typer.Option(help="replay a saved scenario (.json), or a shipped one by name (paper_5x5)")
+    ] = None,
     save_scenario_path: Annotated[Path | None, typer.Option("--save-scenario", help="save the run (.json)")] = None,
     force: Annotated[bool, typer.Option("--force", help="replace existing output files")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", help="no per-step progress")] = False,
@@ -258,7 +260,10 @@ def scenario_not_saved_on_stop(path: Path | None) -> Iterator[None]:
 
 @app.command(short_help="Lab steps 12-13: every filter on one saved scenario.")
 def compare(
-    scenario: Annotated[Path, typer.Argument(metavar="SCENARIO", help="a saved scenario (.json)", show_default=False)],
+    scenario: Annotated[
+        Path,
+        typer.Argument(metavar="SCENARIO", help="a saved scenario (.json) or a shipped name", show_default=False),
+    ],
     filters: Annotated[str, typer.Option(metavar="NAMES", help=filter_choices(many=True))] = "sir,apf,rpf",
     maze: Annotated[str | None, typer.Option(metavar="MAZE", help="the maze, if the scenario stores none")] = None,
     sigma: Annotated[float | None, typer.Option(help="override the scenario's sigma")] = None,
@@ -299,6 +304,7 @@ def compare(
     check_filter_names(filters)
     record_file = compare_record_file(csv_path, plot, traces, force, rrd)  # a JSON record beside the outputs
     check_outputs(csv_path, plot, force, rrd)
+    scenario = find_scenario(scenario)  # a shipped one by its name: its file's name in the table's title
     stored = load_scenario(scenario)
     setup = replay_setup(stored, maze, sigma, delta, seed, {})
     names = parse_filters(filters)
