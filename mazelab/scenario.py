@@ -83,6 +83,22 @@ class PluginSource(BaseModel):
     sha256: Annotated[str, Field(strict=True, pattern=SHA256)]
     class_name: StrictStr = Field(alias="class", min_length=1, max_length=256)
 
+    @model_validator(mode="after")
+    def _one_reference(self) -> PluginSource:
+        """The spec is one printable line naming a .py file and this class (`file.py:Class`, as the
+        program writes it): it is printed in messages and commands, where a newline would forge a line."""
+        if not self.class_name.isidentifier():
+            raise ValueError(f"filter_plugin.class must be a Python class name, got {self.class_name[:60]!r}")
+        if not self.spec.isprintable():
+            raise ValueError(f"filter_plugin.spec must be one printable line, got {self.spec[:60]!r}")
+        path, _, class_name = self.spec.rpartition(":")
+        if not path.strip().endswith(".py") or class_name != self.class_name:
+            raise ValueError(
+                f"filter_plugin.spec must name a .py file and the class {self.class_name} "
+                f"(FILE.py:{self.class_name}), got {self.spec[:60]!r}"
+            )
+        return self
+
     def describe(self) -> str:
         """'my_filter.py:MyFilter (sha256 1a2b3c4d...)'."""
         return f"{self.spec} (sha256 {self.sha256[:12]}...)"
@@ -244,6 +260,20 @@ class Scenario(BaseModel):
         declared = options_of(filter_class)
         stored = {k: v for k, v in (self.filter_options or {}).items() if k in declared and not declared[k].derived}
         return declared.from_json(stored, filter_class.name)
+
+    def plugin_name_problem(self, name: str, sha256: str, class_name: str) -> str | None:
+        """Why the plug-in `class_name` loaded now (its `name`, its file's `sha256`) cannot be the one
+        this scenario names, or None: the same file's class must carry the stored filtering_algorithm
+        (a file whose filtering_algorithm and filter_plugin disagree was edited by hand)."""
+        plugin = self.filter_plugin
+        if plugin is None or plugin.class_name != class_name or plugin.sha256 != sha256:
+            return None  # another filter, or the file changed since (which the replay says)
+        if name != self.filtering_algorithm:
+            return (
+                f"filtering_algorithm {self.filtering_algorithm!r} is not the name of the plug-in {plugin.spec} "
+                f"that filter_plugin names ({name!r}): one of the two was edited"
+            )
+        return None
 
     def world(self) -> Maze | None:
         """The maze stored in the scenario, if any."""

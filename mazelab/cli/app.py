@@ -76,6 +76,7 @@ from mazelab.cli.options import (
 from mazelab.cli.provenance import remember_arguments, repeat_command, show_version
 from mazelab.cli.recordings import recordings
 from mazelab.cli.replay import (
+    check_plugin_name,
     from_scenario,
     refuse_counts_for_replay,
     replay_seed,
@@ -224,6 +225,7 @@ def run(
             check_output_path(path, force)
     if stored is not None:
         refuse_counts_for_replay(stored, particles, steps, start_seed)
+        check_plugin_name(stored, filter_name, scenario)
         options = replay_options(stored, filter_name, options)
         options_per_filter([filter_name], options)  # the replay's options, checked as the filter will
         setup = replay_setup(stored, maze, sigma, delta, seed, options)

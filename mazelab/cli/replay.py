@@ -88,6 +88,17 @@ def warn_overrides(scenario: Scenario, sigma: float | None, delta: float | None)
             )
 
 
+def check_plugin_name(stored: Scenario, filter_name: str, path: Path | None) -> None:
+    """Refuse, in one line, a replay whose plug-in is the file the scenario names but whose stored
+    filtering_algorithm is not that plug-in's name (see Scenario.plugin_name_problem)."""
+    reference = filter_entry(filter_name).plugin
+    if reference is None:
+        return
+    problem = stored.plugin_name_problem(filter_entry(filter_name).name, reference.sha256, reference.class_name)
+    if problem is not None:
+        raise UserError(f"{path or 'the scenario'}: {problem}")
+
+
 def stored_options(stored: Scenario, filter_names: Sequence[str], path: Path) -> dict[str, Any]:
     """The options the scenario's run set away from their defaults, as the compared filters that
     declare them read them (a filter's default is not an option set: every filter keeps its own)."""
@@ -136,6 +147,7 @@ def fitting_maze(scenario: Scenario) -> Maze:
 
 
 __all__ = [
+    "check_plugin_name",
     "fitting_maze",
     "from_scenario",
     "refuse_counts_for_replay",
