@@ -341,10 +341,11 @@ def compare(
 app.command(short_help="Lab step 14: a Monte Carlo parameter study.")(study)
 app.command(short_help="The filters, and every option each declares.")(filters)
 app.command(short_help="Every filter against the exact grid posterior.")(accuracy)
-app.add_typer(maze_app, name="maze")
-app.add_typer(exercise_app, name="exercise")
+# each short help fits on its line of `mazelab --help` in 80 columns (click cuts a longer one with "...")
+app.add_typer(maze_app, name="maze", short_help="Random connected mazes (generate); a look at one (show).")
+app.add_typer(exercise_app, name="exercise", short_help="Your own filter: write it (new), grade it (check).")
 app.command(short_help="A saved recording in the web viewer on 127.0.0.1.")(view)
-app.command(short_help="The recordings saved without a display; --clean removes old ones.")(recordings)
+app.command(short_help="The saved recordings, with sizes; --clean removes old ones.")(recordings)
 
 
 @app.command(short_help="The filters' speed against a plain numpy step.")
