@@ -6,6 +6,7 @@ mazelab compare --help  every filter on one saved scenario: a table, a CSV, the 
 mazelab study --help    a Monte Carlo parameter study over seeded runs, on all cores
 mazelab maze --help     random connected mazes (generate) and a look at any maze (show)
 mazelab view FILE       a saved recording in the web viewer on 127.0.0.1 (no display needed)
+mazelab notebook NAME   a copy of the lab's notebook NAME (lab, lab_uk, ...) here, to run in Jupyter
 mazelab bench [--quick] the filters' speed against a plain numpy reference step
 mazelab accuracy        each filter's distance to the exact grid posterior on the shipped mazes
 mazelab filters [NAME]  the filters, and every option each declares (--option NAME=VALUE sets one)
@@ -58,6 +59,7 @@ from mazelab.cli.hints import (
     usage_hint,
 )
 from mazelab.cli.maze import maze_app
+from mazelab.cli.notebook import notebook
 from mazelab.cli.options import (
     DEFAULT_DELTA,
     DEFAULT_SIGMA,
@@ -345,6 +347,7 @@ app.command(short_help="Every filter against the exact grid posterior.")(accurac
 app.add_typer(maze_app, name="maze", short_help="Random connected mazes (generate); a look at one (show).")
 app.add_typer(exercise_app, name="exercise", short_help="Your own filter: write it (new), grade it (check).")
 app.command(short_help="A saved recording in the web viewer on 127.0.0.1.")(view)
+app.command(short_help="A copy of a lab notebook here, to run in Jupyter.")(notebook)
 app.command(short_help="The saved recordings, with sizes; --clean removes old ones.")(recordings)
 
 
