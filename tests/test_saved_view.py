@@ -218,10 +218,12 @@ def contents(path: Path) -> dict[str, int]:
 
 
 def served_by_mazelab_view(path: Path):
-    """`main.py view PATH` as a user starts it; the address it prints, then Ctrl-C."""
+    """`main.py view PATH` as a user starts it; the address it prints (a line of its own, copied whole),
+    then Ctrl-C."""
     process = subprocess.Popen([sys.executable, str(ROOT / "main.py"), "view", str(path)], stdout=subprocess.PIPE,
                                stderr=subprocess.PIPE, text=True)  # fmt: skip
-    return process, re.search(r"(http://127\.0\.0\.1:\d+/\S*);", process.stdout.readline() + process.stdout.readline())
+    printed = "".join(process.stdout.readline() for _ in range(3))
+    return process, re.search(r"^(http://127\.0\.0\.1:\d+/\S*)$", printed, re.M)
 
 
 def stop(process: subprocess.Popen) -> str:
