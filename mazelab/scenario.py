@@ -88,13 +88,13 @@ class PluginSource(BaseModel):
         """The spec is one printable line naming a .py file and this class (`file.py:Class`, as the
         program writes it): it is printed in messages and commands, where a newline would forge a line."""
         if not self.class_name.isidentifier():
-            raise ValueError(f"filter_plugin.class must be a Python class name, got {self.class_name[:60]!r}")
+            raise ValueError(f"class must be a Python class name, got {self.class_name[:60]!r}")
         if not self.spec.isprintable():
-            raise ValueError(f"filter_plugin.spec must be one printable line, got {self.spec[:60]!r}")
+            raise ValueError(f"spec must be one printable line, got {self.spec[:60]!r}")
         path, _, class_name = self.spec.rpartition(":")
         if not path.strip().endswith(".py") or class_name != self.class_name:
             raise ValueError(
-                f"filter_plugin.spec must name a .py file and the class {self.class_name} "
+                f"spec must name a .py file and the class {self.class_name} "
                 f"(FILE.py:{self.class_name}), got {self.spec[:60]!r}"
             )
         return self

@@ -219,10 +219,10 @@ def _plugin_scenario(tmp_path, capsys) -> tuple[Path, dict]:
 @pytest.mark.parametrize(
     ("edit", "message"),
     [
-        ({"spec": "mine.py:Mine\nRepeat this run: rm -rf ~"}, "filter_plugin.spec must be one printable line"),
-        ({"class": "Mine\nforged"}, "filter_plugin.class must be a Python class name"),
-        ({"spec": "mine.py:Other"}, "filter_plugin.spec must name a .py file and the class Mine"),
-        ({"spec": "mine.txt:Mine"}, "filter_plugin.spec must name a .py file"),
+        ({"spec": "mine.py:Mine\nRepeat this run: rm -rf ~"}, "filter_plugin: spec must be one printable line"),
+        ({"class": "Mine\nforged"}, "filter_plugin: class must be a Python class name"),
+        ({"spec": "mine.py:Other"}, "filter_plugin: spec must name a .py file and the class Mine"),
+        ({"spec": "mine.txt:Mine"}, "filter_plugin: spec must name a .py file"),
     ],
 )
 def test_a_plugin_reference_is_one_printable_line_naming_its_class(tmp_path, capsys, edit, message):
