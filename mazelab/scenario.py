@@ -46,12 +46,13 @@ from mazelab.checks import (
 from mazelab.declaration import options_of
 from mazelab.limits import check_memory
 from mazelab.maze import Maze
-from mazelab.maze_paths import shipped_mazes
+from mazelab.maze_paths import MAZES_DIR, shipped_mazes
 from mazelab.registry import FilterEntry, shipped_entry
 from mazelab.robot import Robot
 
 DEFAULT_PARAMETERS_PATH = Path("model_parameters.json")  # the paper's file (lab steps 9-10), in the working folder
 LEGACY_PARAMETERS_PATH = Path("model_parameters") / "model_parameters.json"  # where older versions saved it
+SCENARIOS_DIR = MAZES_DIR.parent / "model_parameters"  # the shipped scenarios, beside mazes/ (found by name)
 SCENARIO_FORMAT_VERSION = 4  # the newest scenario format this program reads and writes
 KIDNAP_FORMAT_VERSION = 2  # scenarios with a kidnapping are version 2 (or more)
 OPTIONS_FORMAT_VERSION = 3  # scenarios that store the filter's options are version 3; without either, version 1
@@ -81,6 +82,22 @@ class PluginSource(BaseModel):
     spec: StrictStr = Field(min_length=1, max_length=4096)
     sha256: Annotated[str, Field(strict=True, pattern=SHA256)]
     class_name: StrictStr = Field(alias="class", min_length=1, max_length=256)
+
+    @model_validator(mode="after")
+    def _one_reference(self) -> PluginSource:
+        """The spec is one printable line naming a .py file and this class (`file.py:Class`, as the
+        program writes it): it is printed in messages and commands, where a newline would forge a line."""
+        if not self.class_name.isidentifier():
+            raise ValueError(f"class must be a Python class name, got {self.class_name[:60]!r}")
+        if not self.spec.isprintable():
+            raise ValueError(f"spec must be one printable line, got {self.spec[:60]!r}")
+        path, _, class_name = self.spec.rpartition(":")
+        if not path.strip().endswith(".py") or class_name != self.class_name:
+            raise ValueError(
+                f"spec must name a .py file and the class {self.class_name} "
+                f"(FILE.py:{self.class_name}), got {self.spec[:60]!r}"
+            )
+        return self
 
     def describe(self) -> str:
         """'my_filter.py:MyFilter (sha256 1a2b3c4d...)'."""
@@ -244,6 +261,20 @@ class Scenario(BaseModel):
         stored = {k: v for k, v in (self.filter_options or {}).items() if k in declared and not declared[k].derived}
         return declared.from_json(stored, filter_class.name)
 
+    def plugin_name_problem(self, name: str, sha256: str, class_name: str) -> str | None:
+        """Why the plug-in `class_name` loaded now (its `name`, its file's `sha256`) cannot be the one
+        this scenario names, or None: the same file's class must carry the stored filtering_algorithm
+        (a file whose filtering_algorithm and filter_plugin disagree was edited by hand)."""
+        plugin = self.filter_plugin
+        if plugin is None or plugin.class_name != class_name or plugin.sha256 != sha256:
+            return None  # another filter, or the file changed since (which the replay says)
+        if name != self.filtering_algorithm:
+            return (
+                f"filtering_algorithm {self.filtering_algorithm!r} is not the name of the plug-in {plugin.spec} "
+                f"that filter_plugin names ({name!r}): one of the two was edited"
+            )
+        return None
+
     def world(self) -> Maze | None:
         """The maze stored in the scenario, if any."""
         return None if self.maze is None else Maze(self.maze, source="the scenario's maze")
@@ -320,9 +351,36 @@ def save_scenario(scenario: Scenario, path: str | Path = DEFAULT_PARAMETERS_PATH
     return path
 
 
+def shipped_scenarios() -> list[str]:
+    """The names of the scenarios in model_parameters/ (file names without .json), sorted."""
+    return sorted(path.stem for path in SCENARIOS_DIR.glob("*.json"))
+
+
+def find_scenario(name_or_path: str | Path) -> Path:
+    """A scenario file path, or the name of a shipped one (in model_parameters/, with or without
+    .json), from any folder, as mazes are found (mazelab.maze_paths.find_maze): a file in the current
+    folder comes first. A path that does not exist but ends in a shipped scenario's file name
+    (`model_parameters/paper_5x5.json` typed in another folder) is refused with the name that works
+    everywhere."""
+    path = Path(name_or_path)
+    if path.exists():
+        return path
+    if path.parent == Path("."):
+        for candidate in (SCENARIOS_DIR / path.name, SCENARIOS_DIR / f"{path.name}.json"):
+            if candidate.is_file():
+                return candidate
+    elif path.stem in shipped_scenarios() and path.suffix in ("", ".json"):
+        raise ScenarioError(
+            f"{path}: no such scenario file in {Path.cwd()}; {path.stem} is a shipped scenario: "
+            f"name it {path.stem!r} (without a folder) to use it from any folder"
+        )
+    return path  # load_scenario reports it missing
+
+
 def load_scenario(path: str | Path = DEFAULT_PARAMETERS_PATH) -> Scenario:
-    """Read and validate a scenario json file (a file with only the paper's four keys is fine)."""
-    path = Path(path)
+    """Read and validate a scenario json file (a file with only the paper's four keys is fine), or a
+    shipped scenario by its name (see find_scenario)."""
+    path = find_scenario(path)
     text = _read_scenario_file(path)
     depth = json_depth(text)
     if depth > MAX_JSON_DEPTH:
@@ -403,6 +461,7 @@ __all__ = [
     "MAX_JSON_DEPTH",
     "OPTIONS_FORMAT_VERSION",
     "PLUGIN_FORMAT_VERSION",
+    "SCENARIOS_DIR",
     "SCENARIO_FORMAT_VERSION",
     "FiniteFloat",
     "PluginSource",
@@ -411,7 +470,9 @@ __all__ = [
     "ScenarioError",
     "check_measurements_within",
     "describe_validation_error",
+    "find_scenario",
     "json_depth",
     "load_scenario",
     "save_scenario",
+    "shipped_scenarios",
 ]

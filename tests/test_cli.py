@@ -58,3 +58,21 @@ def test_python_main_py_runs_the_demo(tmp_path):
     assert done.returncode == 0, done.stderr
     assert "SIRParticleFilter: last-step error" in done.stdout
     assert "step  200/200" in done.stdout
+
+
+def test_compare_on_a_saved_scenario_uses_the_options_its_run_set_and_says_so(tmp_path, capsys):
+    """A run saved with a non-default option scores the same by `run --scenario` and in `compare`'s
+    row of its filter; the option is named on stderr; one given on the command line wins, silently."""
+    path, table = tmp_path / "s.json", tmp_path / "errors.csv"
+    args = ["run", "--maze", "paper_5x5", "--steps", "30", "--particles", "300", "--seed", "4", "--quiet"]
+    assert main([*args, "--filter", "rpf", "--option", "threshold=0.6", "--save-scenario", str(path)]) == 0
+    capsys.readouterr()
+    assert main(["run", "--scenario", str(path), "--quiet", "--no-viz"]) == 0
+    replayed = capsys.readouterr().out.splitlines()[0]
+    assert main(["compare", str(path), "--filters", "sir,rpf", "--csv", str(table), "--no-viz"]) == 0
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "threshold 0.6" in err
+    last = table.read_text().splitlines()[-1].split(",")
+    assert f"last-step error {float(last[2]):.3f}" in replayed
+    assert main(["compare", str(path), "--filters", "rpf", "--option", "threshold=0.2", "--no-viz"]) == 0
+    assert capsys.readouterr().err == ""

@@ -6,7 +6,7 @@ import json
 import os
 
 import pytest
-from conftest import PAPER_MAZE
+from conftest import PAPER_MAZE, needs_unwritable_folders
 
 from mazelab.cli.app import main
 from mazelab.maze import MAZE_FILE_LIMIT_BYTES
@@ -198,7 +198,7 @@ def test_each_bad_input_gets_one_line_and_exit_code_2(bad_files, capsys, args, m
     assert message in errors[0] and "Traceback" not in err
 
 
-@pytest.mark.skipif(os.geteuid() == 0, reason="root may write anywhere")
+@needs_unwritable_folders
 def test_an_unwritable_folder_is_refused(tmp_path, capsys):
     folder = tmp_path / "locked"
     folder.mkdir(mode=0o500)

@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from conftest import ROOT
+from conftest import ROOT, needs_unwritable_folders
 
 from mazelab.exercise.template import FILTER_TEMPLATE, README_TEMPLATE
 
@@ -136,7 +136,7 @@ def test_a_full_disk_leaves_the_students_filter_whole(tmp_path):
     assert line.startswith("error: cannot write ") and line.endswith(": No space left on device")
 
 
-@pytest.mark.skipif(not hasattr(os, "geteuid") or os.geteuid() == 0, reason="root may write anywhere")
+@needs_unwritable_folders
 def test_a_read_only_folder_is_refused_up_front(tmp_path):
     folder = tmp_path / "ex"
     folder.mkdir()

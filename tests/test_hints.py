@@ -42,7 +42,7 @@ def error_line(capsys) -> str:
         (["study", "--sigma", "0.2", "0.4", "--runs", "1"], "a list is one argument, comma-separated: --sigma 0.2,0.4"),
         (["compare"], "e.g. "),
         (["exercise", "new"], "exercise new my_exercise"),
-        (["run", "--scenario", "paper_5x5", "--no-viz"], "paper_5x5 is a maze: --maze paper_5x5"),
+        (["run", "--scenario", "maze_20x20", "--no-viz"], "maze_20x20 is a maze: --maze maze_20x20"),
         (["run", "--rrd", "out.png"], "a recording is an .rrd file (e.g. --rrd out.rrd)"),
     ],
 )
@@ -93,6 +93,20 @@ def test_a_runs_repeat_line_repeats_it_bit_for_bit_with_its_options(tmp_path):
     activated = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
     again = subprocess.run(command, cwd=tmp_path, capture_output=True, text=True, check=True, env=activated)
     assert again.stdout.splitlines()[0] == first.stdout.splitlines()[0]
+
+
+def test_a_runs_repeat_line_pastes_back_after_the_run_saved_its_files(tmp_path, monkeypatch, capsys):
+    """The files the run wrote (--save-scenario, --rrd) are not written again by the repeat line, which
+    would find them taken; and --force, which would replace them unasked, is not repeated either."""
+    monkeypatch.chdir(tmp_path)
+    args = ["run", "--maze", "paper_5x5", "--steps", "8", "--particles", "100", "--quiet"]
+    assert main([*args, "--save-scenario", "s.json", "--rrd", "r.rrd", "--force"]) == 0
+    first = capsys.readouterr().out
+    command = _printed_command(first, "run")
+    assert not {"--save-scenario", "s.json", "--rrd", "r.rrd", "--force"} & set(command)
+    assert main([*command[len(shlex.split(command_prefix())) :], "--no-viz"]) == 0
+    (summary,) = [line for line in first.splitlines() if line.startswith("SIRParticleFilter:")]
+    assert capsys.readouterr().out.splitlines()[0] == summary
 
 
 def test_a_studys_repeat_line_repeats_its_rows(tmp_path, capsys):

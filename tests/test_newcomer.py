@@ -212,6 +212,15 @@ def test_help_shows_names_and_choices_not_braces_or_types(capsys, command):
         assert "--filter NAME" in text and "sir, apf, rpf, grid, ekf" in text and "--estimate mean|mode" in text
 
 
+def test_every_commands_description_fits_on_its_line_of_the_help_in_80_columns(capsys, monkeypatch):
+    monkeypatch.setenv("COLUMNS", "80")
+    assert main(["--help"]) == 0
+    text = capsys.readouterr().out
+    commands = text[text.index("Commands:") :].splitlines()[1:]
+    assert commands and all(line.startswith("  ") and len(line) <= 80 for line in commands)
+    assert all(len(line.split()) > 1 and not line.rstrip().endswith("...") for line in commands), commands
+
+
 # -- the web viewer and the step panel -------------------------------------------------------------
 def test_a_web_run_prints_its_results_before_serving_and_its_address_once(monkeypatch, capsys):
     servers = []

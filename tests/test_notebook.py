@@ -14,10 +14,13 @@ from pathlib import Path
 
 import matplotlib.image
 import nbformat
+import numpy as np
 import pytest
 from conftest import ROOT
 from nbclient import NotebookClient
 
+from mazelab.cli.app import main
+from mazelab.registry import colour_of, rgb
 from mazelab.scenario import load_scenario
 from mazelab.viz.targets import notebook_viewer_installed
 
@@ -27,6 +30,10 @@ SAME_PATH = {"en": "the same true path for all three: True", "uk": "справж
 KERNEL_NAME = "mazelab-test"  # a kernel spec of our own (see `kernel_spec`): no other "python3" can shadow it
 CELL_TIMEOUT = 180  # seconds per cell; the whole notebook takes about 23 s on two cores
 WIDGET = "application/vnd.jupyter.widget-view+json"
+FILTERS = ("SIRParticleFilter", "AuxiliaryParticleFilter", "RegularizedParticleFilter")  # the lab's three
+# a curve's pixels in a figure: its colour within 2/255 per channel (a PNG's rounding), at least 50 of them
+# (a line of 1.2 points over a figure 8 inches wide, or a study's markers, draw thousands)
+COLOUR_TOLERANCE, LEAST_PIXELS = 2.5 / 255, 50
 
 
 def read_notebook(language: str = "en") -> nbformat.NotebookNode:
@@ -146,6 +153,9 @@ def check_the_executed_lab(notebook: nbformat.NotebookNode, workdir: Path, langu
         assert len(pngs) == 1, f"cell {cell.id} drew no inline figure"
         image = matplotlib.image.imread(io.BytesIO(base64.b64decode(pngs[0])), format="png")
         assert image.shape[0] > 100 and image.shape[1] > 100
+        for name in FILTERS:  # each filter drawn in its registry colour, as the viewer and the CLI draw it
+            distance = np.abs(image[..., :3] - np.array(rgb(colour_of(name)))).max(axis=-1)
+            assert (distance < COLOUR_TOLERANCE).sum() >= LEAST_PIXELS, f"cell {cell.id}: no {name} in its colour"
 
     viewer_cells = [cell for cell in cells if "visualize=VIEWER" in cell.source]
     assert len(viewer_cells) == 2  # lab steps 1 and 9
@@ -159,3 +169,22 @@ def check_the_executed_lab(notebook: nbformat.NotebookNode, workdir: Path, langu
     assert len(scenario.robot_actual_angles) == len(scenario.robot_measurements) == 200
     assert SAME_PATH[language] in "".join(stdout_of(cell) for cell in cells)
     assert sorted(path.name for path in workdir.iterdir()) == ["model_parameters.json"]  # no recordings left behind
+
+
+def test_mazelab_notebook_copies_a_notebook_into_ones_own_folder_and_says_how_to_open_it(tmp_path, monkeypatch, capsys):
+    """The notebooks are run from a copy in the student's folder: the clone stays as shipped."""
+    monkeypatch.chdir(tmp_path)
+    assert main(["notebook", "lab_uk"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert (tmp_path / "lab_uk.ipynb").read_bytes() == NOTEBOOKS["uk"].read_bytes()
+    assert out[-1].startswith(("uv run", "jupyter lab")) and "jupyter lab lab_uk.ipynb" in out[-1]
+    assert main(["notebook", "lab_uk"]) == 2  # a copy with the student's outputs is never replaced unasked
+    assert "exists; use --force" in capsys.readouterr().err
+    assert main(["notebook", "lab.ipynb"]) == 0 and (tmp_path / "lab.ipynb").is_file()
+    assert main(["notebook", "nope"]) == 2
+    assert "the lab's notebooks are exercise, exercise_uk, lab, lab_uk" in capsys.readouterr().err
+    monkeypatch.chdir(ROOT / "notebooks")
+    before = sorted(path.name for path in (ROOT / "notebooks").iterdir())
+    assert main(["notebook", "lab"]) == 2  # never into the clone
+    assert "a folder of your own" in capsys.readouterr().err
+    assert sorted(path.name for path in (ROOT / "notebooks").iterdir()) == before

@@ -1,7 +1,7 @@
 """notebooks/lab_uk.ipynb reads as Ukrainian written for the lab, not as a translation: the native
 speaker's corrections stay made, every line the notebook prints itself is Ukrainian (the study's table
-too), and what a student hands in carries no path of their machine. Run in a fresh kernel as
-tests/test_notebook.py runs it (its kernel spec), in a folder of the test's own.
+too, its numbers with a decimal comma), and what a student hands in carries no path of their machine.
+Run in a fresh kernel as tests/test_notebook.py runs it (its kernel spec), in a folder of the test's own.
 """
 
 from __future__ import annotations
@@ -26,7 +26,19 @@ CORRECTED = [
     ("накреслити лабіринт", "задати карту лабіринту"),
     ("обрати шуми", "обрати параметри σ і Δ"),  # noqa: RUF001
     ("в межах `delta`", "не більше ніж на `delta / 2` в кожен бік"),
+    ("по чотирьох кутах якого знаходяться станції", "у чотирьох кутах якого розташовані станції"),  # noqa: RUF001
+    ("Система відліку на карті", "Система координат карти"),
+    ("тестовий запуск", "пробний запуск"),
+    ("усі кути, якими робот справді рухався", "усі напрямки, у яких робот справді рухався"),  # noqa: RUF001
+    ("якщо файл хибний", "якщо файл неправильний"),
+    ("там, де робот є насправді", "там, де насправді перебуває робот"),
+    ("Англійська версія", "Англомовна версія"),
+    ("значимістю", "значущістю"),
+    ("показу компаса", "показань компаса"),
+    ("коло радіуса", "коло радіусом"),
 ]
+# the last-20% error is named once, as the "кінцева похибка", and called so from then on
+FINAL_ERROR_DEFINED = "на *кінцеву похибку* — середню похибку оцінки за останні 20% кроків"
 # what the library prints in English into a cell's output (the notebook does not print it itself)
 LIBRARY_LINES = ("scenario saved to ",)
 
@@ -58,6 +70,7 @@ def test_the_native_speakers_corrections_are_made():
         assert right in text, right
     assert not re.search(r"\d x \d|\] x \[|\} x \{", text), "a product of sizes is written with the sign"
     assert "\N{MULTIPLICATION SIGN}" in text
+    assert text.count(FINAL_ERROR_DEFINED) == 1 and "похибка останніх 20%" not in text
 
 
 def test_every_line_the_notebook_prints_is_worded_in_ukrainian():
@@ -90,3 +103,6 @@ def test_the_executed_notebook_is_ukrainian_and_names_no_folder_of_this_machine(
     table = stdout_of(cells["step-14-code"]).splitlines()
     assert CYRILLIC.search(table[0]) and "filter" not in table[0] and "runs" not in table[0]
     assert len(table) == 1 + 4 * 3  # the header, then four values of sigma for each of three filters
+    for row in table[1:]:  # a decimal comma in the numbers, as Ukrainian text writes them; [low; high]
+        assert re.match(r"\s*0,\d\s", row) and re.search(r" \d,\d{3} +\[\d,\d{3}; \d,\d{3}\]", row), row
+        assert not re.search(r"\d\.\d", row), row

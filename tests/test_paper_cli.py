@@ -172,8 +172,8 @@ def test_mazelab_view_serves_a_recording_on_localhost(tmp_path, capsys, stop):
         text=True,
     )  # fmt: skip
     try:
-        lines = [process.stdout.readline(), process.stdout.readline()]
-        url = re.search(r"(http://127\.0\.0\.1:\d+/\S*);", lines[1]).group(1)
+        lines = [process.stdout.readline() for _ in range(3)]
+        url = re.fullmatch(r"(http://127\.0\.0\.1:\d+/\S*)\n", lines[2]).group(1)  # a line of its own
         with urllib.request.urlopen(url, timeout=10) as page:
             assert page.status == 200 and b"Rerun" in page.read()
         (server,) = children(process.pid)

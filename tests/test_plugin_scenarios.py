@@ -96,6 +96,7 @@ def test_a_plugins_saved_run_replays_bit_for_bit_with_its_options(tmp_path, caps
     assert main(["run", "--scenario", str(saved), "--filter", "sir", "--no-viz", "--quiet"]) == 0  # another filter
     assert "filter AdaptiveSIR -> SIRParticleFilter" in capsys.readouterr().err
     assert main(["compare", str(saved), "--filters", f"sir,{spec}", "--no-viz"]) == 0
+    assert "ess_share 0.3" in capsys.readouterr().err  # compare's plug-in takes its stored option, said
     plugin.write_text(ADAPTIVE + "\n# edited\n")  # the file changed since: said in one line, and run
     assert main(["run", "--scenario", str(saved), "--filter", spec, "--no-viz", "--quiet"]) == 0
     changed = capsys.readouterr()

@@ -218,10 +218,12 @@ def contents(path: Path) -> dict[str, int]:
 
 
 def served_by_mazelab_view(path: Path):
-    """`main.py view PATH` as a user starts it; the address it prints, then Ctrl-C."""
+    """`main.py view PATH` as a user starts it; the address it prints (a line of its own, copied whole),
+    then Ctrl-C."""
     process = subprocess.Popen([sys.executable, str(ROOT / "main.py"), "view", str(path)], stdout=subprocess.PIPE,
                                stderr=subprocess.PIPE, text=True)  # fmt: skip
-    return process, re.search(r"(http://127\.0\.0\.1:\d+/\S*);", process.stdout.readline() + process.stdout.readline())
+    printed = "".join(process.stdout.readline() for _ in range(3))
+    return process, re.search(r"^(http://127\.0\.0\.1:\d+/\S*)$", printed, re.M)
 
 
 def stop(process: subprocess.Popen) -> str:
@@ -305,8 +307,9 @@ def test_view_replays_a_file_with_its_layout_first_and_active_and_the_recording_
         (lambda data: data + np.random.default_rng(1).bytes(4096), "not a whole Rerun recording: something follows"),
         (lambda data: data[: len(data) // 2], "not a Rerun recording (.rrd), or a damaged one"),
         (lambda data: data[:-40], "not a Rerun recording (.rrd), or a damaged one"),
+        (lambda data: data[:1000] + bytes(64) + data[1064:], "a damaged Rerun recording: part of it cannot be"),
     ],
-    ids=["text appended", "bytes appended", "cut in half", "end marker cut"],
+    ids=["text appended", "bytes appended", "cut in half", "end marker cut", "damaged in the middle"],
 )
 def test_view_refuses_a_file_that_is_not_a_whole_recording(tmp_path, capsys, monkeypatch, damage, problem):
     def served(cls, *recordings):
@@ -323,6 +326,43 @@ def test_view_refuses_a_file_that_is_not_a_whole_recording(tmp_path, capsys, mon
     captured = capsys.readouterr()
     assert captured.err.startswith(f"error: {damaged}: {problem}") and captured.err.count("\n") == 1
     assert "Serving" not in captured.out
+
+
+def test_view_with_rerun_switched_off_says_so_in_one_line(tmp_path, capsys, monkeypatch):
+    whole = tmp_path / "run.rrd"
+    assert main([*SHORT_RUN, "--rrd", str(whole)]) == 0
+    capsys.readouterr()
+    monkeypatch.setenv("RERUN", "off")
+    assert main(["view", str(whole)]) == 2
+    captured = capsys.readouterr()
+    assert captured.err == f"error: {whole}: viewing needs Rerun, which RERUN=off switches off: unset RERUN\n"
+    assert captured.out == ""
+
+
+def test_view_prints_the_address_alone_on_its_line(tmp_path, capsys, monkeypatch):
+    """The address is copied whole by selecting its line: no word or punctuation glued on."""
+    whole, served = tmp_path / "run.rrd", []
+    assert main([*SHORT_RUN, "--rrd", str(whole)]) == 0
+    start = WebServer.start
+
+    def start_and_stop_waiting(cls):
+        server = start()
+        wait = server.process.wait
+        server.process.wait = lambda timeout=None: wait(timeout) if timeout is not None else _interrupt()
+        served.append(server)
+        return server
+
+    monkeypatch.setattr(WebServer, "start", classmethod(start_and_stop_waiting))
+    capsys.readouterr()
+    assert main(["view", str(whole)]) == 0  # Ctrl-C ends serving, cleanly
+    (server,) = served
+    lines = capsys.readouterr().out.splitlines()
+    assert server.url in lines and "press Ctrl-C to stop serving" in lines[lines.index(server.url) - 1]
+    assert server.process.poll() is not None
+
+
+def _interrupt() -> None:
+    raise KeyboardInterrupt
 
 
 # -- the native viewer (optional: pytest --rendering; needs a Vulkan driver, e.g. Mesa's lavapipe) -----

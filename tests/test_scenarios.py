@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import json
 import os
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from mazelab.atomic import write_text_atomically
+from mazelab.cli.app import main
 from mazelab.lab import simulate
 from mazelab.scenario import Scenario, ScenarioError, load_scenario, save_scenario
 
@@ -199,3 +201,46 @@ def test_scenario_round_trips_every_float_exactly(tmp_path):
         robot_measurements=rng.random(50).tolist(),
     )
     assert load_scenario(save_scenario(scenario, tmp_path / "x.json")) == scenario
+
+
+PLUGIN_FILTER = "from mazelab.filters import SIRParticleFilter\n\n\nclass Mine(SIRParticleFilter):\n    pass\n"
+
+
+def _plugin_scenario(tmp_path, capsys) -> tuple[Path, dict]:
+    """A scenario saved by a run of the plug-in mine.py:Mine, and its json."""
+    (tmp_path / "mine.py").write_text(PLUGIN_FILTER)
+    saved = tmp_path / "s.json"
+    args = ["run", "--filter", f"{tmp_path}/mine.py:Mine", "--maze", "paper_5x5", "--steps", "4", "--particles", "50"]
+    assert main([*args, "--seed", "1", "--no-viz", "--quiet", "--save-scenario", str(saved)]) == 0
+    capsys.readouterr()
+    return saved, json.loads(saved.read_text())
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        ({"spec": "mine.py:Mine\nRepeat this run: rm -rf ~"}, "filter_plugin: spec must be one printable line"),
+        ({"class": "Mine\nforged"}, "filter_plugin: class must be a Python class name"),
+        ({"spec": "mine.py:Other"}, "filter_plugin: spec must name a .py file and the class Mine"),
+        ({"spec": "mine.txt:Mine"}, "filter_plugin: spec must name a .py file"),
+    ],
+)
+def test_a_plugin_reference_is_one_printable_line_naming_its_class(tmp_path, capsys, edit, message):
+    saved, data = _plugin_scenario(tmp_path, capsys)
+    data["filter_plugin"] |= edit
+    saved.write_text(json.dumps(data))
+    with pytest.raises(ScenarioError) as error:
+        load_scenario(saved)
+    assert message in str(error.value) and "\n" not in str(error.value)
+    assert main(["run", "--scenario", str(saved), "--no-viz", "--quiet"]) == 2
+    assert capsys.readouterr().err.count("\n") == 1
+
+
+def test_a_plugin_scenario_whose_filtering_algorithm_is_not_its_plugins_name_is_refused(tmp_path, capsys):
+    saved, data = _plugin_scenario(tmp_path, capsys)
+    replay = ["run", "--scenario", str(saved), "--filter", f"{tmp_path}/mine.py:Mine", "--no-viz", "--quiet"]
+    assert main(replay) == 0
+    saved.write_text(json.dumps({**data, "filtering_algorithm": "SIRParticleFilter"}))
+    assert main(replay) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "filtering_algorithm 'SIRParticleFilter' is not the name of the plug-in" in err

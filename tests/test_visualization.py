@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rerun as rr
+import rerun.blueprint as rrb
 from conftest import PAPER_MAZE, ROOT
 from rerun.chunk import RrdReader
 
@@ -306,6 +307,8 @@ def test_the_comparison_shows_each_filter_side_by_side_and_every_error_below(tmp
         assert view[4] == ["/map/maze", "/map/stations", "/map/robot/**", f"/map/{entity_name(name)}/**"]
     assert errors[:4] == ("view", "TimeSeries", errors[2], "/metrics/error")
     assert [v[1] for v in views(tree)].count("TimeSeries") == 1
+    legends = [latest(rows) for entity, rows in load(path, "blueprint").items() if entity.endswith("/PlotLegend")]
+    assert [row["PlotLegend:corner"] for row in legends] == [[rrb.Corner2D.RightTop.value]]  # off the first steps
 
     rec = load(path)
     steps = list(range(1, 11))

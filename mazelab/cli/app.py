@@ -6,6 +6,7 @@ mazelab compare --help  every filter on one saved scenario: a table, a CSV, the 
 mazelab study --help    a Monte Carlo parameter study over seeded runs, on all cores
 mazelab maze --help     random connected mazes (generate) and a look at any maze (show)
 mazelab view FILE       a saved recording in the web viewer on 127.0.0.1 (no display needed)
+mazelab notebook NAME   a copy of the lab's notebook NAME (lab, lab_uk, ...) here, to run in Jupyter
 mazelab bench [--quick] the filters' speed against a plain numpy reference step
 mazelab accuracy        each filter's distance to the exact grid posterior on the shipped mazes
 mazelab filters [NAME]  the filters, and every option each declares (--option NAME=VALUE sets one)
@@ -58,6 +59,7 @@ from mazelab.cli.hints import (
     usage_hint,
 )
 from mazelab.cli.maze import maze_app
+from mazelab.cli.notebook import notebook
 from mazelab.cli.options import (
     DEFAULT_DELTA,
     DEFAULT_SIGMA,
@@ -75,7 +77,14 @@ from mazelab.cli.options import (
 )
 from mazelab.cli.provenance import remember_arguments, repeat_command, show_version
 from mazelab.cli.recordings import recordings
-from mazelab.cli.replay import from_scenario, refuse_counts_for_replay, replay_seed
+from mazelab.cli.replay import (
+    check_plugin_name,
+    from_scenario,
+    refuse_counts_for_replay,
+    replay_seed,
+    stored_options,
+    with_stored_options,
+)
 from mazelab.cli.replay_filter import replay_filter_name, replay_options
 from mazelab.cli.reports import kidnap_report, particle_count_report, prepare_world, progress_printer, report_run
 from mazelab.cli.run_setup import fresh_setup, replay_setup
@@ -93,7 +102,7 @@ from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
 from mazelab.plugins import StudentCodeError
 from mazelab.registry import resolve_filter
 from mazelab.robot import Robot
-from mazelab.scenario import ScenarioError, load_scenario, save_scenario
+from mazelab.scenario import ScenarioError, find_scenario, load_scenario, save_scenario
 from mazelab.seeding import new_seed, start_place
 from mazelab.stops import exit_without_strays, mark_interrupts
 from mazelab.viz.recording import web_serving_deferred, write_errors_deferred
@@ -172,7 +181,9 @@ def run(
     start_seed: Annotated[
         int | None, typer.Option(callback=seed_option, hidden=True, help="seed of the start only (default: --seed)")
     ] = None,
-    scenario: Annotated[Path | None, typer.Option(help="replay a saved scenario (.json)")] = None,
+    scenario: Annotated[
+        Path | None, typer.Option(help="replay a saved scenario (.json), or a shipped one by name (paper_5x5)")
+    ] = None,
     save_scenario_path: Annotated[Path | None, typer.Option("--save-scenario", help="save the run (.json)")] = None,
     force: Annotated[bool, typer.Option("--force", help="replace existing output files")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", help="no per-step progress")] = False,
@@ -216,6 +227,7 @@ def run(
             check_output_path(path, force)
     if stored is not None:
         refuse_counts_for_replay(stored, particles, steps, start_seed)
+        check_plugin_name(stored, filter_name, scenario)
         options = replay_options(stored, filter_name, options)
         options_per_filter([filter_name], options)  # the replay's options, checked as the filter will
         setup = replay_setup(stored, maze, sigma, delta, seed, options)
@@ -229,7 +241,13 @@ def run(
             typer.echo(line)
     if save_scenario_path is not None:
         typer.echo(f"scenario saved to {save_scenario(result.scenario, save_scenario_path, replace=force)}")
-    typer.echo(f"Repeat this run: {repeat_command(result.seed)}")
+    typer.echo(f"Repeat this run: {repeat_command(result.seed, REPEAT_DROPS, REPEAT_DROPS_WITH_VALUE)}")
+
+
+# "Repeat this run" repeats the run, not its files: the scenario and recording it wrote would be found
+# taken by the pasted command ("exists; use --force"), and --force would replace them unasked.
+REPEAT_DROPS = ("--resume", "--force")
+REPEAT_DROPS_WITH_VALUE = ("--save-scenario", "--rrd")
 
 
 @contextmanager
@@ -246,7 +264,10 @@ def scenario_not_saved_on_stop(path: Path | None) -> Iterator[None]:
 
 @app.command(short_help="Lab steps 12-13: every filter on one saved scenario.")
 def compare(
-    scenario: Annotated[Path, typer.Argument(metavar="SCENARIO", help="a saved scenario (.json)", show_default=False)],
+    scenario: Annotated[
+        Path,
+        typer.Argument(metavar="SCENARIO", help="a saved scenario (.json) or a shipped name", show_default=False),
+    ],
     filters: Annotated[str, typer.Option(metavar="NAMES", help=filter_choices(many=True))] = "sir,apf,rpf",
     maze: Annotated[str | None, typer.Option(metavar="MAZE", help="the maze, if the scenario stores none")] = None,
     sigma: Annotated[float | None, typer.Option(help="override the scenario's sigma")] = None,
@@ -278,7 +299,8 @@ def compare(
     backend: BackendOption = None,
 ) -> None:
     """Lab steps 12-13: every filter on one saved scenario (the same start, particles, walk). Each
-    filter takes the options it declares (--option NAME=VALUE; `mazelab filters` lists them).
+    filter takes the options it declares (--option NAME=VALUE; `mazelab filters` lists them), and
+    those the scenario's run set away from their defaults unless given here (a line names them).
 
     A kidnapping (stored, or --kidnap-at) adds whether each filter re-localised (mean error below 0.5
     over the last 30 steps) and the steps it took."""
@@ -286,13 +308,16 @@ def compare(
     check_filter_names(filters)
     record_file = compare_record_file(csv_path, plot, traces, force, rrd)  # a JSON record beside the outputs
     check_outputs(csv_path, plot, force, rrd)
-    setup = replay_setup(load_scenario(scenario), maze, sigma, delta, seed, {})
+    scenario = find_scenario(scenario)  # a shipped one by its name: its file's name in the table's title
+    stored = load_scenario(scenario)
+    setup = replay_setup(stored, maze, sigma, delta, seed, {})
     names = parse_filters(filters)
     named = {
         "recovery": recovery_value(recovery, sensor_resetting), "alpha_slow": alpha_slow, "alpha_fast": alpha_fast,
         "kld": kld or None, "bandwidth": bandwidth, "estimate": estimate,
     }  # fmt: skip
     given = merge_named(named_values(named, names), parse_option_texts(option, names))
+    given = with_stored_options(given, stored_options(stored, names, scenario), scenario)
     options_per_filter(names, given)  # an option that none of the filters takes, or a bad value: one line, first
     parameters = {"filters": [resolve_filter(n).name for n in names], "sigma": setup.sigma, "delta": setup.delta,
                   "seed": setup.seed, "kidnap_at": kidnap_at,
@@ -318,10 +343,12 @@ def compare(
 app.command(short_help="Lab step 14: a Monte Carlo parameter study.")(study)
 app.command(short_help="The filters, and every option each declares.")(filters)
 app.command(short_help="Every filter against the exact grid posterior.")(accuracy)
-app.add_typer(maze_app, name="maze")
-app.add_typer(exercise_app, name="exercise")
+# each short help fits on its line of `mazelab --help` in 80 columns (click cuts a longer one with "...")
+app.add_typer(maze_app, name="maze", short_help="Random connected mazes (generate); a look at one (show).")
+app.add_typer(exercise_app, name="exercise", short_help="Your own filter: write it (new), grade it (check).")
 app.command(short_help="A saved recording in the web viewer on 127.0.0.1.")(view)
-app.command(short_help="The recordings saved without a display; --clean removes old ones.")(recordings)
+app.command(short_help="A copy of a lab notebook here, to run in Jupyter.")(notebook)
+app.command(short_help="The saved recordings, with sizes; --clean removes old ones.")(recordings)
 
 
 @app.command(short_help="The filters' speed against a plain numpy step.")

@@ -58,7 +58,7 @@ def option_elsewhere(error: Exception, group: Any, argv: Sequence[str] = ()) -> 
 
 # what to type for a command's missing argument
 ARGUMENT_EXAMPLES = {
-    "compare": "compare model_parameters/paper_5x5.json (a scenario saved by run --save-scenario FILE.json)",
+    "compare": "compare paper_5x5 (a shipped scenario, or a .json saved by run --save-scenario FILE.json)",
     "view": "view recordings/FILE.rrd",
     "new": "exercise new my_exercise",
     "check": "exercise check my_exercise/my_filter.py",

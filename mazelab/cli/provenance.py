@@ -36,18 +36,23 @@ def resume_command() -> str:
     return f"{command_prefix()} {shlex.join(arguments)}"
 
 
-def repeat_command(seed: int | None, drop: tuple[str, ...] = ("--resume",)) -> str:
+def repeat_command(
+    seed: int | None, drop: tuple[str, ...] = ("--resume",), drop_with_value: tuple[str, ...] = ()
+) -> str:
     """The command as typed with its seed given (`--seed S` set, or replaced), to be pasted back: the
-    same run or study again, bit for bit. Flags in `drop` are left out (a resumed study repeats whole)."""
+    same run or study again, bit for bit. Flags in `drop` are left out (a resumed study repeats whole),
+    and so are the options in `drop_with_value` with their values (a file the run wrote, which the
+    pasted command would find taken)."""
     arguments, kept, skip = list(_ARGUMENTS.get() or sys.argv[1:]), [], False
+    valued = ("--seed", *drop_with_value)
     for token in arguments:
         if skip:
             skip = False
             continue
-        if token == "--seed":
+        if token in valued:
             skip = True
             continue
-        if token.startswith("--seed=") or token in drop:
+        if token.startswith(tuple(f"{option}=" for option in valued)) or token in drop:
             continue
         kept.append(token)
     if seed is not None:

@@ -4,12 +4,19 @@ keys runs on the one shipped maze it fits)."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
 import numpy as np
 import typer
 
+from mazelab.cli.filter_options import GivenOptions
 from mazelab.cli.options import DEFAULT_DELTA, DEFAULT_SIGMA, UserError
+from mazelab.declaration import show_value
 from mazelab.maze import Maze
 from mazelab.mazes import load_maze, mazes_fitting
+from mazelab.registry import filter_entry
 from mazelab.robot import Robot
 from mazelab.scenario import Scenario, check_measurements_within
 from mazelab.seeding import new_seed
@@ -81,6 +88,50 @@ def warn_overrides(scenario: Scenario, sigma: float | None, delta: float | None)
             )
 
 
+def check_plugin_name(stored: Scenario, filter_name: str, path: Path | None) -> None:
+    """Refuse, in one line, a replay whose plug-in is the file the scenario names but whose stored
+    filtering_algorithm is not that plug-in's name (see Scenario.plugin_name_problem)."""
+    reference = filter_entry(filter_name).plugin
+    if reference is None:
+        return
+    problem = stored.plugin_name_problem(filter_entry(filter_name).name, reference.sha256, reference.class_name)
+    if problem is not None:
+        raise UserError(f"{path or 'the scenario'}: {problem}")
+
+
+def stored_options(stored: Scenario, filter_names: Sequence[str], path: Path) -> dict[str, Any]:
+    """The options the scenario's run set away from their defaults, as the compared filters that
+    declare them read them (a filter's default is not an option set: every filter keeps its own)."""
+    found: dict[str, Any] = {}
+    for name in filter_names:
+        entry = filter_entry(name)
+        try:
+            kept = stored.filter_kwargs(entry.filter_class)
+        except ValueError as error:
+            raise UserError(f"{path}: the scenario's filter_options for {entry.name}: {error}") from None
+        for option, value in kept.items():
+            if value != entry.options[option].default:
+                found.setdefault(option, value)
+    return found
+
+
+def with_stored_options(given: GivenOptions, stored: Mapping[str, Any], path: Path) -> GivenOptions:
+    """The options of a comparison on a saved scenario: those its run set (`stored_options`), each
+    filter that declares one taking it, then those given on the command line over them; one line on
+    stderr names the stored ones used, so that the scenario's own filter scores as its replay does."""
+    used = {name: value for name, value in stored.items() if name not in given}
+    if used:
+        shown = ", ".join(f"{name} {show_value(value)}" for name, value in used.items())
+        typer.echo(
+            f"note: {path.name} was saved by a run with {shown}: each filter that takes "
+            f"{'them' if len(used) > 1 else 'it'} does so here (--option NAME=VALUE to change)",
+            err=True,
+        )
+    merged = GivenOptions({**used, **given})
+    merged.spelled = {**{name: f"--option {name}" for name in used}, **getattr(given, "spelled", {})}
+    return merged
+
+
 def fitting_maze(scenario: Scenario) -> Maze:
     """The shipped maze of a scenario that stores none: the only one whose free area holds its start
     and every particle; with none or several, a one-line refusal asking for --maze."""
@@ -96,9 +147,12 @@ def fitting_maze(scenario: Scenario) -> Maze:
 
 
 __all__ = [
+    "check_plugin_name",
     "fitting_maze",
     "from_scenario",
     "refuse_counts_for_replay",
     "replay_seed",
+    "stored_options",
     "warn_overrides",
+    "with_stored_options",
 ]

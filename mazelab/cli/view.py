@@ -3,6 +3,7 @@ for a machine without a display (over ssh: forward the two ports, then open the 
 
 from __future__ import annotations
 
+import os
 import signal
 from pathlib import Path
 from typing import Annotated
@@ -11,6 +12,7 @@ import typer
 
 from mazelab.cli.options import UserError
 from mazelab.viz.processes import WebServer
+from mazelab.viz.recording import rerun_switched_off
 from mazelab.viz.saved import recording_problem, send_with_layout
 
 
@@ -24,6 +26,9 @@ def view(
         raise UserError(f"{recording} is a folder, not a recording: name one .rrd file ({which})")
     if not recording.is_file():
         raise UserError(f"{recording}: no such recording file")
+    if rerun_switched_off():
+        switch = f"RERUN={os.environ['RERUN']}"
+        raise UserError(f"{recording}: viewing needs Rerun, which {switch} switches off: unset RERUN")
     problem = recording_problem(recording)
     if problem is not None:
         raise UserError(f"{recording}: {problem}")

@@ -13,6 +13,11 @@ from mazelab.viz.style import MAP, SERIES, entity_name
 # 1400 x 900 browser window leaves some 620 pixels for the column (checked on a screenshot of the
 # web viewer in headless Chromium); 1 in 10 cut the text in half.
 STEP_PANEL_SHARE = 0.18
+# Where the legend of an error plot goes: the errors are large over the first steps, where the filters
+# still search and their curves differ (the left, up to the top), then small; the top right corner is
+# the part of the plot that no curve reaches once the robot is found (the default, top left, hid the
+# search).
+ERROR_LEGEND_CORNER = "RightTop"
 
 
 # -- layouts ---------------------------------------------------------------------------------------
@@ -35,7 +40,7 @@ def run_blueprint(world: Maze, filter_name: str) -> Any:
     """One run: the step number over the maze view; the error, ESS and confidence series beside it."""
     import rerun.blueprint as rrb
 
-    series = [rrb.TimeSeriesView(name=SERIES_TITLES[s], origin=f"/metrics/{s}") for s in SERIES]
+    series = [series_view(s) for s in SERIES]
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Vertical(
@@ -57,10 +62,19 @@ def comparison_blueprint(world: Maze, filter_names: Sequence[str]) -> Any:
         rrb.Vertical(
             rrb.TextDocumentView(name="step", origin="/title"),
             rrb.Horizontal(*[map_view(world, name) for name in filter_names]),
-            rrb.TimeSeriesView(name=SERIES_TITLES["error"], origin="/metrics/error"),
+            series_view("error"),
             row_shares=[STEP_PANEL_SHARE, (1 - STEP_PANEL_SHARE) * 2 / 3, (1 - STEP_PANEL_SHARE) / 3],
         )
     )
+
+
+def series_view(series: str) -> Any:
+    """The plot of one series over the steps (every filter's curve in it); the error's legend out of the
+    way of the first steps (ERROR_LEGEND_CORNER)."""
+    import rerun.blueprint as rrb
+
+    legend = getattr(rrb.Corner2D, ERROR_LEGEND_CORNER) if series == "error" else None
+    return rrb.TimeSeriesView(name=SERIES_TITLES[series], origin=f"/metrics/{series}", plot_legend=legend)
 
 
 SERIES_TITLES = {
@@ -71,9 +85,11 @@ SERIES_TITLES = {
 
 
 __all__ = [
+    "ERROR_LEGEND_CORNER",
     "SERIES_TITLES",
     "STEP_PANEL_SHARE",
     "comparison_blueprint",
     "map_view",
     "run_blueprint",
+    "series_view",
 ]

@@ -185,9 +185,10 @@ class WebServer:
     def serve_until_interrupted(self, already_interrupted: bool = False) -> None:
         """Keep serving (the server holds the recording) until Ctrl-C, then stop cleanly."""
         try:
-            if not already_interrupted:
-                where = "at the address above" if self.announced else f"at {self.url}"
-                print(f"The web viewer is {where}; press Ctrl-C to stop serving.", flush=True)
+            if not already_interrupted:  # the address alone on its line: copied whole, with nothing glued on
+                shown = "the address above" if self.announced else "this address"
+                print(f"Open {shown} in a browser (press Ctrl-C to stop serving)", end="", flush=True)
+                print("." if self.announced else f":\n{self.url}", flush=True)
                 self.process.wait()
         except KeyboardInterrupt:
             print("Stopped serving the web viewer.")

@@ -14,6 +14,7 @@ lab's layout.
 
 from __future__ import annotations
 
+import collections
 import warnings
 from collections.abc import Callable, Iterable
 from pathlib import Path
@@ -41,9 +42,10 @@ class SavedBlueprint:
 
 def recording_problem(path: Path) -> str | None:
     """Why `path` is not a whole Rerun recording, or None when it is one: Rerun's "RRF2" header, a
-    recording its reader finds, and Rerun's end marker at the very end of the file (rerun 0.41 ends
+    recording its reader finds, Rerun's end marker at the very end of the file (rerun 0.41 ends
     every file it writes with a footer that indexes its chunks; a file with bytes appended, or cut
-    short, has none where the reader looks)."""
+    short, has none where the reader looks), and every chunk decoded (a frame damaged in the middle
+    would otherwise fail only while it is sent, with Rerun's own log lines)."""
     try:
         with path.open("rb") as file:
             if file.read(4) != RRD_MAGIC:
@@ -65,6 +67,13 @@ def recording_problem(path: Path) -> str | None:
         reader.store(store=recordings[0])  # needs the footer: refused by rerun when the file does not end with it
     except Exception:
         return "not a whole Rerun recording: something follows the end of the recording, or it was cut short"
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            for entry in [*recordings, *reader.blueprints()]:  # every chunk decoded, as sending it will
+                collections.deque(reader.stream(store=entry), maxlen=0)
+    except Exception:  # a frame damaged in the middle: its checksum or its compressed data does not decode
+        return "a damaged Rerun recording: part of it cannot be decoded (changed on disk?)"
     return None
 
 
