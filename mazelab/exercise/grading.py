@@ -14,6 +14,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import multiprocessing
 import os
 import textwrap
 import threading
@@ -28,7 +29,7 @@ from mazelab.exercise.layout import format_report
 from mazelab.exercise.outcome import Report
 from mazelab.exercise.report import STAGES, WHOLE, NotGradableError, check_file
 from mazelab.exercise.rows import FAIL, NOT_OWN, NOT_RUN, NOT_WRITTEN, PASS
-from mazelab.exercise.runner import DEFAULT_TIMEOUT, allow_children, child_context, stop_children
+from mazelab.exercise.runner import DEFAULT_TIMEOUT, allow_children, stop_children
 from mazelab.exercise.student import PARTS
 from mazelab.exercise.template import FILTER_FILE
 from mazelab.exercise.whole import References
@@ -125,7 +126,7 @@ def grade_folder(
     jobs = jobs or os.cpu_count() or 1
     lock = threading.Lock()
     allow_children()
-    pool = ProcessPoolExecutor(max_workers=jobs, mp_context=child_context())
+    pool = ProcessPoolExecutor(max_workers=jobs, mp_context=_reference_context())
     references = References(pool)
 
     def one(submission: Submission) -> Graded:
@@ -146,6 +147,13 @@ def grade_folder(
         threads.shutdown(wait=True, cancel_futures=True)
         pool.shutdown(wait=True, cancel_futures=True)
         allow_children()
+
+
+def _reference_context() -> Any:
+    """The reference runs' workers: a fresh interpreter each (forkserver, or spawn where there is none),
+    never a fork of the grader's threads."""
+    methods = multiprocessing.get_all_start_methods()
+    return multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn")
 
 
 # -- what grading writes ----------------------------------------------------------------------------

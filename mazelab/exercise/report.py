@@ -26,17 +26,18 @@ from typing import Any
 from mazelab.exercise import child
 from mazelab.exercise.inputs import PartInputs, ScenarioInputs, default_seed, draw_part_inputs, draw_scenarios
 from mazelab.exercise.layout import format_rows
-from mazelab.exercise.monitor import Monitor
+from mazelab.exercise.likeness import class_source, copied_parts
 from mazelab.exercise.offspring import expected_text as resample_expected
 from mazelab.exercise.offspring import judge_resample
 from mazelab.exercise.outcome import Report
 from mazelab.exercise.parts import EXPECTED, judge_estimate, judge_predict, judge_weigh
-from mazelab.exercise.rows import NOT_OWN, NOT_WRITTEN, BadAnswerError, Row, ended_row, not_own_row, not_run_row
-from mazelab.exercise.runner import DEFAULT_TIMEOUT, child_request, run_child
+from mazelab.exercise.rows import COPY_HINT, NOT_OWN, NOT_WRITTEN, BadAnswerError, Row, ended_row, not_run_row
+from mazelab.exercise.runner import DEFAULT_TIMEOUT, child_request, run_child, submission_copy
+from mazelab.exercise.sandbox import sandbox
 from mazelab.exercise.student import PARTS
 from mazelab.exercise.whole import References, ScenarioFigures, judge_whole, whole_answer
 from mazelab.exercise.whole import expected_text as whole_expected
-from mazelab.exercise.wire import Message, decode
+from mazelab.exercise.wire import Message, decode, encode
 from mazelab.invocation import command_prefix
 from mazelab.plugins import split_spec
 
@@ -68,23 +69,29 @@ def collect_isolated(
     scenarios: list[ScenarioInputs],
     timeout: float,
     stages: tuple[str, ...] = STAGES,
+    shown: str = "",
 ) -> Answers:
-    """Run the stages in child processes (a new one after a stage in which one ended)."""
+    """Run the stages in child processes, each in the sandbox of the submission's own copy (a new
+    child after a stage in which one ended)."""
     answers, todo = Answers(), list(stages)
-    while todo:
-        run = run_child(child_request(str(path), class_name, todo, parts, scenarios, timeout), timeout)
-        answers.output += run.output
-        if run.loaded is None:
-            answers.problem = f"the student's process {run.ended or 'sent nothing'}"
-            return answers
-        answers.loaded = run.loaded
-        answers.results.update(run.results)
-        if run.ended is None or run.loaded.get("error") or not run.loaded.get("student_filter"):
-            return answers
-        stage = run.stage if run.stage in todo and run.stage not in run.results else None
-        stage = stage or next(s for s in todo if s not in run.results)
-        answers.ended[stage] = run.ended
-        todo = [s for s in todo if s not in run.results and s != stage]
+    made = sandbox()
+    with submission_copy(path) as run_folder:
+        while todo:
+            file = made.inside(run_folder, path.name)
+            request = child_request(file, class_name, todo, parts, scenarios, shown or path.name)
+            run = run_child(request, run_folder, timeout, made)
+            answers.output += run.output
+            if run.loaded is None:
+                answers.problem = f"the student's process {run.ended or 'sent nothing'}"
+                return answers
+            answers.loaded = run.loaded
+            answers.results.update(run.results)
+            if run.ended is None or run.loaded.get("error") or not run.loaded.get("student_filter"):
+                return answers
+            stage = run.stage if run.stage in todo and run.stage not in run.results else None
+            stage = stage or next(s for s in todo if s not in run.results)
+            answers.ended[stage] = run.ended
+            todo = [s for s in todo if s not in run.results and s != stage]
     return answers
 
 
@@ -95,17 +102,13 @@ def collect_in_process(
     answers, request = Answers(), decode(child_request("", None, stages, parts, scenarios))
 
     def emit(meta: dict[str, Any], arrays: dict | None = None) -> None:
-        from mazelab.exercise.wire import encode
-
         message = decode(encode(meta, arrays))  # exactly what a child would send
         if meta["kind"] == "loaded":
             answers.loaded = message.meta
         elif meta["kind"] == "result":
             answers.results[meta["stage"]] = message
 
-    monitor = Monitor()
-    with monitor.installed():
-        child.serve(request, emit, monitor, filter_class)
+    child.serve(request, emit, filter_class)
     return answers
 
 
@@ -153,9 +156,11 @@ def build_report(
     answers: Answers,
     references: References,
     stages: tuple[str, ...] = STAGES,
+    copies: dict[str, str] | None = None,
 ) -> Report:
     """The report from the answers: each part judged (or failed for how the process ended in it, or
-    for calling the reference implementation), then the whole filter against the reference runs."""
+    for being the lab's code: `copies`, mazelab.exercise.likeness), then the whole filter against the
+    reference runs."""
     report = Report(name, seed, output=answers.output)
     if answers.problem:
         report.problems.append(answers.problem)
@@ -163,11 +168,11 @@ def build_report(
         report.rows = [ended_row(_label(s), expected_of(s, parts), how, answers.output) for s in stages]
         return report
     judging = _Judging(parts, scenarios, answers, references, [references.exact(s) for s in scenarios])
-    at_import = not_own_row("import", "", answers.loaded or {})
     for stage in stages:
         row = _stage_row(stage, judging)
-        if at_import and row.status != NOT_WRITTEN:
-            row = Row(row.part, NOT_OWN, row.expected, f"at import: {at_import.got}", at_import.hint)
+        copied = (copies or {}).get(stage)
+        if copied and row.status != NOT_WRITTEN:
+            row = Row(row.part, NOT_OWN, row.expected, copied, COPY_HINT)
         report.rows.append(row)
     report.figures = judging.figures
     report.problems += [f"{_label(stage)}: the student's process {how}" for stage, how in answers.ended.items()]
@@ -186,9 +191,6 @@ def _stage_row(stage: str, judging: _Judging) -> Row:
     message = answers.results.get(stage)
     if message is None:
         return not_run_row(label, expected, "the student's process ended before it")
-    own = not_own_row(label, expected, message.meta)
-    if own:
-        return own
     try:
         if stage == "whole":
             return _whole_row(judging, message)
@@ -242,12 +244,15 @@ def check_file(
     references = references or References()
     for scenario in scenarios:
         references.exact(scenario)  # start the exact runs while the student's process works
-    answers = collect_isolated(path.resolve(), class_name, parts, scenarios, timeout, stages)
+    answers = collect_isolated(path.resolve(), class_name, parts, scenarios, timeout, stages, shown)
     problem = loading_problem(answers, shown)
     if problem:
         raise NotGradableError(problem)
     name = str((answers.loaded or {}).get("name") or class_name or path.stem)
-    report = finish(build_report(name, seed, parts, scenarios, answers, references, stages))
+    copies = copied_parts(path.read_text(errors="replace"))
+    report = finish(build_report(name, seed, parts, scenarios, answers, references, stages, copies))
+    if sandbox().note:
+        report.problems.append(sandbox().note)
     report.seconds = time.perf_counter() - started
     return report
 
@@ -263,7 +268,8 @@ def check(filter_class: type, *, seed: int | None = None, stages: tuple[str, ...
     problem = loading_problem(answers, filter_class.__name__)
     if problem:
         raise NotGradableError(problem)
-    report = build_report(str(filter_class.name), seed, parts, scenarios, answers, References(), stages)
+    copies = copied_parts(class_source(filter_class))
+    report = build_report(str(filter_class.name), seed, parts, scenarios, answers, References(), stages, copies)
     report = finish(report)
     report.seconds = time.perf_counter() - started
     return report
