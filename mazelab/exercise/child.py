@@ -2,7 +2,7 @@
 
 It runs in the submission's sandbox (mazelab.exercise.sandbox), where the lab is not installed: this
 module imports only numpy and the student kit (mazelab.exercise.kit), so that it runs there as it is.
-The grader (mazelab.exercise.runner) starts it in `python -I -S` (mazelab.exercise.sandbox), writes
+The grader (mazelab.exercise.runner) starts it in `python -P -S -s` (mazelab.exercise.sandbox), writes
 the request on its standard input (the file and class to load, the stages and their inputs: points,
 weights, angles, a maze's cells, the scenarios' compass angles and measurements; never the true path,
 the exact posterior or a reference answer) and reads its answers on a pipe whose descriptor it names, as messages
@@ -81,7 +81,21 @@ def student_call(function: Callable[..., Any], *args: Any) -> tuple[Any, dict[st
     except (SystemExit, KeyboardInterrupt) as error:
         return None, {"kind": "exit", "text": f"{describe_exit(error)}, which a part must not do{_where(error)}"}
     except BaseException as error:
-        return None, {"kind": "error", "text": f"{type(error).__name__}: {_text(error)}{_where(error)}"}
+        text = f"{type(error).__name__}: {_text(error)}{_where(error)}{_past_limit(error)}"
+        return None, {"kind": "error", "text": text}
+
+
+def _past_limit(error: BaseException) -> str:
+    """' (past the memory limit of 4 GB)' for a MemoryError under the grader's limit, else ''."""
+    if not isinstance(error, MemoryError):
+        return ""
+    try:
+        import resource
+
+        limit = resource.getrlimit(resource.RLIMIT_AS)[0]
+    except (ImportError, OSError, ValueError):
+        return ""
+    return "" if limit == resource.RLIM_INFINITY else f" (past the memory limit of {limit / 2**30:g} GB)"
 
 
 def as_values(part: str, value: Any, shape: tuple[int, ...], whole_numbers: bool = False) -> tuple[Any, Any]:
@@ -224,6 +238,7 @@ def whole_stage(cls: type, request: Message, worlds: Worlds, emit: Emit) -> Answ
             return {"error": {"kind": "exit", "text": text}, "scenario": i, "step": step}, out
         except BaseException as error:
             text = f"{cls.__name__} raised {type(error).__name__}{_when(step)}: {_text(error)}{_where(error)}"
+            text += _past_limit(error)
             text = "; ".join(line.strip() for line in text.splitlines())  # one line: a table cell
             return {"error": {"kind": "error", "text": text}, "scenario": i, "step": step}, out
         out[f"estimates/{i}"] = estimates

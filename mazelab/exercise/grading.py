@@ -175,13 +175,18 @@ def csv_row(graded: Graded) -> dict[str, Any]:
         row["sir_to_exact"] = f"{sum(f.sir_distance for f in figures) / len(figures):.4f}"
         row["converged"] = sum(f.converged for f in figures)
         row["sir_converged"] = sum(f.sir_converged for f in figures)
+    row["problem"] = "; ".join([*problems_of(report), *([report.note] if report.note else [])])
+    return row
+
+
+def problems_of(report: Report) -> list[str]:
+    """What went wrong: how a process ended, a part that is the lab's code, each failing row's figures."""
     wrong = [  # how a process ended is in report.problems already
         f"{r.part}: {r.got}"
         for r in report.rows
         if r.status not in (PASS, NOT_RUN, NOT_WRITTEN, NOT_OWN) and not r.got.startswith("the student's process")
     ]
-    row["problem"] = "; ".join(dict.fromkeys([*report.problems, *wrong]))
-    return row
+    return list(dict.fromkeys([*report.problems, *wrong]))
 
 
 def csv_text(graded: list[Graded]) -> str:
@@ -241,7 +246,7 @@ def summary(graded: list[Graded], width: int = 100) -> str:
     for one in graded:
         cells = "  ".join(f"{SHORT.get(one.status(p), '?'):<8}" for p in ROW_NAMES)
         lines.append(f"{one.submission.name[:name_width]:<{name_width}}  {cells}  {one.seconds:7.1f}")
-        problem = one.problem or (csv_row(one)["problem"] if one.report else "")
+        problem = one.problem or ("; ".join(problems_of(one.report)) if one.report else "")
         if problem:
             wrapped = textwrap.wrap(problem, width - 4, break_long_words=True, break_on_hyphens=False)
             lines += ["    " + line for line in wrapped[:2]]
@@ -250,7 +255,9 @@ def summary(graded: list[Graded], width: int = 100) -> str:
     passed = sum(one.passed for one in graded)
     counts = ", ".join(f"{p} {sum(one.status(p) == PASS for one in graded)}" for p in ROW_NAMES)
     lines += ["", *textwrap.wrap(f"{len(graded)} submissions, {passed} pass every row; passing each: {counts}", width)]
-    lines.append("pass, FAIL; todo: not written; REF: calls the lab's reference implementation; -: not run")
+    lines.append("pass, FAIL; todo: not written; REF: the lab's code with its names changed; -: not run")
+    notes = {one.report.note for one in graded if one.report and one.report.note}
+    lines += [line for note in sorted(notes) for line in textwrap.wrap(note, width)]
     return "\n".join(lines)
 
 

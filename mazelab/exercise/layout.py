@@ -41,6 +41,8 @@ def format_report(report: Report, width: int = WIDTH, seed_note: str = "") -> st
     """The whole report: the heading, the rows, the figures per scenario, and the verdict."""
     heading = f"Checking {report.filter_name}: inputs from seed {report.seed}{seed_note}"
     lines = [*_wrapped(heading, "", 0, width), "", format_rows(report.rows, width)]
+    if report.note:
+        lines[1:1] = _wrapped(report.note, "", 0, width)
     if report.figures:
         lines += ["", *_wrapped("The whole filter on each scenario (distance to the exact mean over the "
                                 "second half of the steps; yours, then the SIR's):", "", 0, width)]  # fmt: skip

@@ -251,8 +251,7 @@ def check_file(
     name = str((answers.loaded or {}).get("name") or class_name or path.stem)
     copies = copied_parts(path.read_text(errors="replace"))
     report = finish(build_report(name, seed, parts, scenarios, answers, references, stages, copies))
-    if sandbox().note:
-        report.problems.append(sandbox().note)
+    report.note = sandbox().note
     report.seconds = time.perf_counter() - started
     return report
 

@@ -35,12 +35,12 @@ UNSANDBOXED = (
     "not sandboxed ({why}): the student's code ran with the grader's rights, so a hostile submission's "
     "verdict cannot be trusted here"
 )
-CHILD_ENVIRONMENT = {  # one thread each, a fixed str hash, no bytecode written
+CHILD_ENVIRONMENT = {  # the child's whole environment: one thread each, a fixed str hash
+    # (python -P -S -s -B -u: no folder of the grader's on sys.path, no site, no bytecode, prints unbuffered)
     "OMP_NUM_THREADS": "1",
     "OPENBLAS_NUM_THREADS": "1",
     "MKL_NUM_THREADS": "1",
     "PYTHONHASHSEED": "0",
-    "PYTHONDONTWRITEBYTECODE": "1",
     "HOME": "/tmp",
     "LANG": "C.UTF-8",
 }
@@ -74,9 +74,21 @@ class Sandbox:
         python = os.path.realpath(sys.executable)
         if not self.sandboxed:
             entry = ENTRY.format(kit=str(kit), site=str(run / "site"), fd=answers)
-            return [python, "-I", "-S", "-c", entry]
+            return [python, "-P", "-S", "-s", "-B", "-u", "-c", entry]
         entry = ENTRY.format(kit=KIT_ROOT, site=SITE_ROOT, fd=answers)
-        return [self.bwrap, *bwrap_arguments(kit, run / "submission"), "--", python, "-I", "-S", "-c", entry]
+        return [
+            self.bwrap,
+            *bwrap_arguments(kit, run / "submission"),
+            "--",
+            python,
+            "-P",
+            "-S",
+            "-s",
+            "-B",
+            "-u",
+            "-c",
+            entry,
+        ]
 
     def inside(self, run: Path, name: str) -> str:
         """The submission's path as the child sees it."""
