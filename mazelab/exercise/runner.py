@@ -2,8 +2,8 @@
 submission's sandbox (mazelab.exercise.sandbox) with its limits, and what came back, read without
 trusting it.
 
-The child is a fresh interpreter (`python -P -S -s`) running mazelab.exercise.child on the student kit (the lab itself is
-not there); it is sent the request on its standard input and answers on a pipe as messages of
+The child is a fresh interpreter (`python -P -S -s`) running mazelab.exercise.child on the student
+kit (the lab itself is not there); it is sent the request on its standard input and answers on a pipe as messages of
 mazelab.exercise.wire (JSON and raw arrays, never pickle), each after its length, read by a thread as
 they come, so that a child that dies mid-way leaves the answers it gave. Its processor time, memory
 and file sizes are limited by the grader before it starts (setrlimit, inherited by all it starts);
