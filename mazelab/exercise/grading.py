@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from mazelab.exercise.language import Catalogue
 from mazelab.exercise.layout import format_report
 from mazelab.exercise.outcome import Report
 from mazelab.exercise.report import STAGES, WHOLE, NotGradableError, check_file
@@ -71,24 +72,51 @@ class Graded:
 
 
 def discover(folder: Path) -> list[Submission]:
-    """The submissions in `folder`, by name."""
+    """The submissions in `folder`, by name: a link that leads out of the folder or to a file that is
+    not Python is refused (named), and two names for one file are graded once."""
+    if not folder.exists():
+        raise ValueError(f"{folder}: no such folder of submissions (check the path)")
     if not folder.is_dir():
-        raise ValueError(f"{folder}: no such folder of submissions")
-    found = []
+        raise ValueError(f"{folder}: not a folder; grade one file with `exercise check {folder}`")
+    found, by_file = [], {}
     for entry in sorted(folder.iterdir(), key=lambda p: p.name):
         if entry.name.startswith((".", "_")):
             continue
         if entry.is_dir():
-            found.append(_in_folder(entry))
-        elif entry.suffix == ".py" and entry.is_file():
-            found.append(Submission(entry.name, entry))
+            submission = _in_folder(entry)
+        elif entry.suffix == ".py" or entry.is_symlink():
+            submission = Submission(entry.name, entry)
+        else:
+            continue
+        submission = _refused_link(submission, folder) if submission.file else submission
+        if submission.file is not None:
+            real = submission.file.resolve()
+            if real in by_file:
+                first = by_file[real]
+                why = f"{submission.file}: the same file as {first.file} (a link); graded once, as {first.name}"
+                submission = Submission(submission.name, None, why)
+            else:
+                by_file[real] = submission
+        found.append(submission)
     if not found:
         raise ValueError(f"{folder}: no submissions (a subfolder or a .py file each)")
     return found
 
 
+def _refused_link(submission: Submission, folder: Path) -> Submission:
+    """The submission, or why its file is refused: a link out of the class folder, or to what is not
+    a Python file (a student's link to /etc/passwd is never read)."""
+    file = submission.file
+    real = file.resolve()
+    if not real.is_relative_to(folder.resolve()):
+        return Submission(submission.name, None, f"{file}: a link out of the class folder; not graded")
+    if real.suffix != ".py" or not real.is_file():
+        return Submission(submission.name, None, f"{file}: a link to {real.name}, not a Python file; not graded")
+    return submission
+
+
 def _in_folder(folder: Path) -> Submission:
-    if (folder / FILTER_FILE).is_file():
+    if (folder / FILTER_FILE).is_file() or (folder / FILTER_FILE).is_symlink():
         return Submission(folder.name, folder / FILTER_FILE)
     files = sorted(p for p in folder.glob("*.py") if p.is_file() and not p.name.startswith((".", "_")))
     mentioning = [p for p in files if "StudentFilter" in p.read_text(errors="replace")]
@@ -96,9 +124,9 @@ def _in_folder(folder: Path) -> Submission:
         if len(candidates) == 1:
             return Submission(folder.name, candidates[0])
     if not files:
-        return Submission(folder.name, None, f"{folder.name}: no Python file to grade")
+        return Submission(folder.name, None, f"{folder}: no Python file to grade")
     names = ", ".join(p.name for p in files[:5])
-    return Submission(folder.name, None, f"{folder.name}: which file? {names} (call the one to grade {FILTER_FILE})")
+    return Submission(folder.name, None, f"{folder}: which file? {names} (call the one to grade {FILTER_FILE})")
 
 
 def grade_one(submission: Submission, seed: int | None, timeout: float, references: References) -> Graded:
@@ -109,9 +137,16 @@ def grade_one(submission: Submission, seed: int | None, timeout: float, referenc
     try:
         report = check_file(str(submission.file), seed=seed, timeout=timeout, references=references)
     except NotGradableError as error:
-        problem = str(error).replace(str(submission.file), f"{submission.name}/{submission.file.name}")
-        return Graded(submission, None, problem, time.perf_counter() - started)
+        return Graded(submission, None, str(error), time.perf_counter() - started)
     return Graded(submission, report, None, time.perf_counter() - started)
+
+
+class GradingInterruptedError(Exception):
+    """Ctrl-C or SIGTERM stopped the grading: the submissions graded before it (`graded`, in order)."""
+
+    def __init__(self, graded: list[Graded]):
+        super().__init__("the grading was stopped")
+        self.graded = graded
 
 
 def grade_folder(
@@ -137,12 +172,16 @@ def grade_folder(
         return graded
 
     threads = ThreadPoolExecutor(max_workers=jobs, thread_name_prefix="mazelab-grade")
+    futures = [threads.submit(one, submission) for submission in submissions]
     try:
-        futures = [threads.submit(one, submission) for submission in submissions]
         return [future.result() for future in futures]
-    except BaseException:  # Ctrl-C: end the running children, start no new one
+    except BaseException:  # Ctrl-C, SIGTERM: end the running children, start no new one, keep what was graded
         stop_children()
-        raise
+        for future in futures:
+            future.cancel()
+        threads.shutdown(wait=True, cancel_futures=True)
+        done = [f.result() for f in futures if f.done() and not f.cancelled() and f.exception() is None]
+        raise GradingInterruptedError(done) from None
     finally:
         threads.shutdown(wait=True, cancel_futures=True)
         pool.shutdown(wait=True, cancel_futures=True)
@@ -198,26 +237,29 @@ def csv_text(graded: list[Graded]) -> str:
     return buffer.getvalue()
 
 
-def gradescope_results(graded: Graded) -> dict[str, Any]:
+def gradescope_results(graded: Graded, catalogue: Catalogue | None = None) -> dict[str, Any]:
     """Gradescope's results.json for one submission: a test per row (1 point each), the report as
-    the submission's output (its published autograder format)."""
-    report = graded.report
+    the submission's output (its published autograder format), in the catalogue's language; a
+    submission that could not be checked scores 0 with the reason."""
+    words, report = catalogue or Catalogue(), graded.report
+    _ = words.gettext
     if report is None:
         text = graded.problem or "not checked"
-        tests = [_test(i, part, 0.0, text) for i, part in enumerate(ROW_NAMES, 1)]
+        tests = [_test(i, _(part), 0.0, text) for i, part in enumerate(ROW_NAMES, 1)]
         return {"score": 0.0, "execution_time": round(graded.seconds), "output": text, "tests": tests}
     tests = []
     for i, row in enumerate(report.rows, 1):
-        lines = [f"{SHORT.get(row.status, row.status)}: {row.got}", f"expected: {row.expected}"]
-        lines += [f"hint: {row.hint}"] if row.hint and not row.passed else []
-        tests.append(_test(i, row.part, 1.0 if row.passed else 0.0, "\n".join(lines)))
+        status = _(FAIL.upper() if row.status == FAIL else row.status)
+        lines = [f"{status}: {words.translate(row.got)}", _("expected: ") + words.translate(row.expected)]
+        lines += [_("hint: ") + words.translate(row.hint)] if row.hint and not row.passed else []
+        tests.append(_test(i, _(row.part), 1.0 if row.passed else 0.0, "\n".join(lines)))
     return {
         "score": float(sum(t["score"] for t in tests)),
         "execution_time": round(graded.seconds),
-        "output": format_report(report),
+        "output": format_report(report, catalogue=words),
         "stdout_visibility": "hidden",
         "tests": tests,
-        "extra_data": {"seed": report.seed, "problems": report.problems},
+        "extra_data": {"seed": report.seed, "problems": report.problems, "sandboxed": not report.note},
     }
 
 
@@ -233,8 +275,8 @@ def _test(number: int, name: str, score: float, output: str) -> dict[str, Any]:
     }
 
 
-def gradescope_json(graded: Graded) -> str:
-    return json.dumps(gradescope_results(graded), indent=2, allow_nan=False) + "\n"
+def gradescope_json(graded: Graded, catalogue: Catalogue | None = None) -> str:
+    return json.dumps(gradescope_results(graded, catalogue), indent=2, allow_nan=False) + "\n"
 
 
 def summary(graded: list[Graded], width: int = 100) -> str:
@@ -265,6 +307,7 @@ __all__ = [
     "CSV_COLUMNS",
     "STAGES",
     "Graded",
+    "GradingInterruptedError",
     "Submission",
     "csv_row",
     "csv_text",

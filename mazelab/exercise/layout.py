@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import textwrap
 
+from mazelab.exercise.language import Catalogue
 from mazelab.exercise.outcome import Report
 from mazelab.exercise.rows import FAIL, NOT_RUN, NOT_WRITTEN, PASS, Row
 from mazelab.exercise.whole import FIGURE_HEADERS, figures_table
@@ -23,32 +24,42 @@ def _wrapped(text: str, first: str, indent: int, width: int) -> list[str]:
     return [first + lines[0], *(" " * indent + line for line in lines[1:])]
 
 
-def format_rows(rows: list[Row], width: int = WIDTH) -> str:
-    """The rows: part, result, what came; under a row that did not pass, "expected:" and "hint:"."""
+def format_rows(rows: list[Row], width: int = WIDTH, catalogue: Catalogue | None = None) -> str:
+    """The rows: part, result, what came; under a row that did not pass, "expected:" and "hint:" (in
+    the catalogue's language: English by default)."""
+    words = catalogue or Catalogue()
+    _ = words.gettext
     indent = PART_WIDTH + RESULT_WIDTH + 4
-    lines = [f"{'part':<{PART_WIDTH}}  {'result':<{RESULT_WIDTH}}  got", "-" * min(width, 80)]
+    lines = [f"{_('part'):<{PART_WIDTH}}  {_('result'):<{RESULT_WIDTH}}  {_('got')}", "-" * min(width, 80)]
     for row in rows:
-        status = SHOWN.get(row.status, row.status)
-        lines += _wrapped(row.got, f"{row.part:<{PART_WIDTH}}  {status:<{RESULT_WIDTH}}  ", indent, width)
+        status = _(SHOWN.get(row.status, row.status))
+        first = f"{_(row.part):<{PART_WIDTH}}  {status:<{RESULT_WIDTH}}  "
+        lines += _wrapped(words.translate(row.got), first, indent, width)
         if row.status not in (PASS, NOT_WRITTEN, NOT_RUN):
-            lines += _wrapped("expected: " + row.expected, " " * indent, indent, width)
-        if not row.passed:
-            lines += _wrapped("hint: " + row.hint, " " * indent, indent, width) if row.hint else []
+            lines += _wrapped(_("expected: ") + words.translate(row.expected), " " * indent, indent, width)
+        if not row.passed and row.hint:
+            lines += _wrapped(_("hint: ") + words.translate(row.hint), " " * indent, indent, width)
     return "\n".join(lines)
 
 
-def format_report(report: Report, width: int = WIDTH, seed_note: str = "") -> str:
+def format_report(report: Report, width: int = WIDTH, seed_note: str = "", catalogue: Catalogue | None = None) -> str:
     """The whole report: the heading, the rows, the figures per scenario, and the verdict."""
-    heading = f"Checking {report.filter_name}: inputs from seed {report.seed}{seed_note}"
-    lines = [*_wrapped(heading, "", 0, width), "", format_rows(report.rows, width)]
+    words = catalogue or Catalogue()
+    _ = words.gettext
+    heading = _("Checking {name}: inputs from seed {seed}{note}").format(
+        name=report.filter_name, seed=report.seed, note=seed_note
+    )
+    lines = [*_wrapped(heading, "", 0, width), "", format_rows(report.rows, width, words)]
     if report.note:
-        lines[1:1] = _wrapped(report.note, "", 0, width)
+        lines[1:1] = _wrapped(words.translate(report.note), "", 0, width)
     if report.figures:
-        lines += ["", *_wrapped("The whole filter on each scenario (distance to the exact mean over the "
-                                "second half of the steps; yours, then the SIR's):", "", 0, width)]  # fmt: skip
-        lines.append(format_table(FIGURE_HEADERS, figures_table(report.figures)))
-    failed = [r.part for r in report.rows if not r.passed]
-    lines += ["", "All checks pass." if not failed else f"To fix: {', '.join(failed)}."]
+        intro = _("The whole filter on each scenario (distance to the exact mean over the second half of the "
+                  "steps; yours, then the SIR's):")  # fmt: skip
+        lines += ["", *_wrapped(intro, "", 0, width)]
+        table = [[_(cell) for cell in row] for row in figures_table(report.figures)]
+        lines.append(format_table([_(h) for h in FIGURE_HEADERS], table))
+    failed = [_(r.part) for r in report.rows if not r.passed]
+    lines += ["", _("All checks pass.") if not failed else _("To fix: {parts}.").format(parts=", ".join(failed))]
     return "\n".join(lines)
 
 
