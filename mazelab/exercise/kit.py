@@ -151,8 +151,9 @@ def build_kit(folder: Path) -> str:
 
 
 def lab_imports(module: str) -> set[str]:
-    """The mazelab modules `module`'s source imports (at any depth of its code, not under TYPE_CHECKING)."""
-    tree = ast.parse(source_file(module).read_text())
+    """The mazelab modules `module` imports (at any depth of its code, not under TYPE_CHECKING), as the
+    kit holds it (a module of constants imports nothing)."""
+    tree = ast.parse(module_text(module) if module in KIT else source_file(module).read_text())
     found: set[str] = set()
     for node in ast.walk(tree):
         if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):

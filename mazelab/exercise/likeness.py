@@ -144,8 +144,9 @@ def likeness(source: str) -> dict[str, Likeness]:
         mine: set[tuple[str, ...]] = set()
         for node in nodes:
             mine |= fingerprint(tokens(node))
-        shares = {name: len(prints & mine) / len(prints) for name, prints in reference_prints().items() if prints}
-        nearest = max(shares, key=shares.__getitem__)
+        references = reference_prints()
+        shares = {name: len(prints & mine) / len(prints) for name, prints in references.items() if prints}
+        nearest = max(shares, key=lambda name: (round(shares[name], 2), len(references[name])))  # the largest of ties
         found[part] = Likeness(part, nearest, shares[nearest])
     return found
 
