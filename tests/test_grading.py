@@ -11,7 +11,6 @@ from __future__ import annotations
 import json
 import textwrap
 
-import numpy as np
 import pytest
 from exercise_answers import write_submission
 
@@ -201,7 +200,7 @@ def test_a_part_that_calls_the_labs_reference_implementation_finds_nothing_to_ca
 
 def test_a_filter_whose_step_runs_the_shipped_sir_does_not_import(tmp_path):
     path = write_submission(tmp_path / "my_filter.py", "from mazelab.filters import SIRParticleFilter")
-    with pytest.raises(NotGradableError, match="No module named 'mazelab.filters'"):
+    with pytest.raises(NotGradableError, match=r"No module named 'mazelab\.filters'"):
         check_file(str(path), seed=SEED, stages=("whole",))
 
 
@@ -219,14 +218,14 @@ def test_a_nan_estimate_never_passes_the_whole_filter(tmp_path):
 def test_the_child_holds_none_of_the_graders_objects(tmp_path):
     """The student's code looks for the grader's objects and the true path in its own process: none."""
     truth = draw_scenarios(SEED)[0]
-    prelude = f"""
+    prelude = """
         import gc, json
 
 
         def snoop(scenario_truth):
-            names = {{"RunResult", "GridBayesFilter", "ScenarioInputs", "PartInputs", "Report", "References", "Row"}}
+            names = {"RunResult", "GridBayesFilter", "ScenarioInputs", "PartInputs", "Report", "References", "Row"}
             objects = gc.get_objects()
-            kinds = sorted({{type(o).__name__ for o in objects if type(o).__name__ in names}})
+            kinds = sorted({type(o).__name__ for o in objects if type(o).__name__ in names})
             arrays, seen, todo = [], set(), list(objects)  # every array any object holds, however deep
             while todo:
                 thing = todo.pop()
@@ -242,7 +241,7 @@ def test_the_child_holds_none_of_the_graders_objects(tmp_path):
                     pass
             others = [a for a in arrays if a is not scenario_truth and a.shape == scenario_truth.shape]
             paths = sum(np.allclose(a, scenario_truth) for a in others)
-            print("snooped", json.dumps({{"kinds": kinds, "paths": int(paths), "arrays": len(arrays)}}))
+            print("snooped", json.dumps({"kinds": kinds, "paths": int(paths), "arrays": len(arrays)}))
     """
     step = f"""
         def step(self, compass_angle, z):
