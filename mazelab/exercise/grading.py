@@ -50,6 +50,7 @@ class Submission:
     name: str
     file: Path | None
     problem: str | None = None
+    own_folder: bool = False  # a subfolder of its own: the Python files beside the file are its too
 
 
 @dataclass
@@ -110,6 +111,8 @@ def _refused_link(submission: Submission, folder: Path) -> Submission:
     real = file.resolve()
     if not real.is_relative_to(folder.resolve()):
         return Submission(submission.name, None, f"{file}: a link out of the class folder; not graded")
+    if submission.own_folder and file.parent.resolve() != real.parent:
+        return Submission(submission.name, None, f"{file}: a link to another folder's file; not graded")
     if real.suffix != ".py" or not real.is_file():
         return Submission(submission.name, None, f"{file}: a link to {real.name}, not a Python file; not graded")
     return submission
@@ -117,12 +120,12 @@ def _refused_link(submission: Submission, folder: Path) -> Submission:
 
 def _in_folder(folder: Path) -> Submission:
     if (folder / FILTER_FILE).is_file() or (folder / FILTER_FILE).is_symlink():
-        return Submission(folder.name, folder / FILTER_FILE)
+        return Submission(folder.name, folder / FILTER_FILE, own_folder=True)
     files = sorted(p for p in folder.glob("*.py") if p.is_file() and not p.name.startswith((".", "_")))
     mentioning = [p for p in files if "StudentFilter" in p.read_text(errors="replace")]
     for candidates in (files, mentioning):
         if len(candidates) == 1:
-            return Submission(folder.name, candidates[0])
+            return Submission(folder.name, candidates[0], own_folder=True)
     if not files:
         return Submission(folder.name, None, f"{folder}: no Python file to grade")
     names = ", ".join(p.name for p in files[:5])
@@ -135,7 +138,9 @@ def grade_one(submission: Submission, seed: int | None, timeout: float, referenc
     if submission.file is None:
         return Graded(submission, None, submission.problem, 0.0)
     try:
-        report = check_file(str(submission.file), seed=seed, timeout=timeout, references=references)
+        report = check_file(
+            str(submission.file), seed=seed, timeout=timeout, references=references, companions=submission.own_folder
+        )
     except NotGradableError as error:
         return Graded(submission, None, str(error), time.perf_counter() - started)
     return Graded(submission, report, None, time.perf_counter() - started)
@@ -282,7 +287,7 @@ def gradescope_json(graded: Graded, catalogue: Catalogue | None = None) -> str:
 def summary(graded: list[Graded], width: int = 100) -> str:
     """A line per submission (each row's status and the time), what went wrong on its own indented
     line under it (at most two lines), and the counts."""
-    name_width = min(24, max(len("submission"), *(len(g.submission.name) for g in graded)))
+    name_width = min(24, max([len("submission"), *(len(g.submission.name) for g in graded)]))
     header = f"{'submission':<{name_width}}  " + "  ".join(f"{p[:8]:<8}" for p in (*PARTS, "whole")) + "  seconds"
     lines = [header, "-" * min(width, len(header))]
     for one in graded:

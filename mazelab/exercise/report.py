@@ -70,12 +70,13 @@ def collect_isolated(
     timeout: float,
     stages: tuple[str, ...] = STAGES,
     shown: str = "",
+    companions: bool = True,
 ) -> Answers:
-    """Run the stages in child processes, each in the sandbox of the submission's own copy (a new
-    child after a stage in which one ended)."""
+    """Run the stages in child processes, each in the sandbox of the submission's own copy (and the
+    Python files beside it, with `companions`); a new child after a stage in which one ended."""
     answers, todo = Answers(), list(stages)
     made = sandbox()
-    with submission_copy(path) as run_folder:
+    with submission_copy(path, companions) as run_folder:
         while todo:
             file = made.inside(run_folder, path.name)
             request = child_request(file, class_name, todo, parts, scenarios, shown or path.name)
@@ -230,21 +231,26 @@ def check_file(
     timeout: float = DEFAULT_TIMEOUT,
     references: References | None = None,
     stages: tuple[str, ...] = STAGES,
+    companions: bool = True,
 ) -> Report:
     """Grade `path/to/file.py[:Class]` in child processes (the given stages: every part and the whole
-    filter by default); NotGradableError when it cannot be checked."""
+    filter by default), the Python files beside it copied with it unless `companions` is False (a
+    file directly in a class folder: the others are other students'); NotGradableError when it
+    cannot be checked."""
     started = time.perf_counter()
     path, class_name = split_spec(spec)
     shown = f"{path}:{class_name}" if class_name else str(path)
     if not path.is_file():
-        raise NotGradableError(f"{shown}: no such file {path}")
+        raise NotGradableError(f"{shown}: no such file {path}" + ("" if path.exists() else " (check the path)"))
+    if path.resolve().suffix != ".py":
+        raise NotGradableError(f"{shown}: a link to {path.resolve()}, not a Python file")
     seed = default_seed(path.read_bytes()) if seed is None else seed
     parts = draw_part_inputs(seed)
     scenarios = draw_scenarios(seed) if "whole" in stages else []
     references = references or References()
     for scenario in scenarios:
         references.exact(scenario)  # start the exact runs while the student's process works
-    answers = collect_isolated(path.resolve(), class_name, parts, scenarios, timeout, stages, shown)
+    answers = collect_isolated(path.resolve(), class_name, parts, scenarios, timeout, stages, shown, companions)
     problem = loading_problem(answers, shown)
     if problem:
         raise NotGradableError(problem)

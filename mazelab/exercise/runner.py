@@ -85,16 +85,22 @@ def _remove(folder: Path) -> None:
     shutil.rmtree(folder, ignore_errors=True)
 
 
+COMPANIONS_KEPT = 50  # at most this many Python files beside a submission are copied with it
+
+
 @contextlib.contextmanager
-def submission_copy(path: Path) -> Any:
-    """A folder holding only a read-only copy of the submission (`submission/NAME`) and, for a plain
-    child, `site/` with links to numpy; removed afterwards. Yields the folder."""
+def submission_copy(path: Path, companions: bool = True) -> Any:
+    """A folder holding only read-only copies of the submission (`submission/NAME`) and, with
+    `companions`, the Python files beside it (its helper modules: a submission folder's own files),
+    and for a plain child `site/` with links to numpy; removed afterwards. Yields the folder."""
     run = Path(tempfile.mkdtemp(prefix="mazelab-run-"))
     try:
         (run / "submission").mkdir()
-        copy = run / "submission" / path.name
-        shutil.copyfile(path, copy)
-        copy.chmod(0o444)
+        beside = [p for p in path.parent.glob("*.py") if p.name != path.name and p.is_file() and not p.is_symlink()]
+        for source in [path, *sorted(beside)[:COMPANIONS_KEPT]] if companions else [path]:
+            copy = run / "submission" / source.name
+            shutil.copyfile(source, copy)
+            copy.chmod(0o444)
         (run / "site").mkdir()
         for folder in numpy_folders():
             (run / "site" / folder.name).symlink_to(folder)
