@@ -13,8 +13,9 @@ from typing import Annotated
 
 import typer
 
-from mazelab.atomic import write_text_atomically
+from mazelab.atomic import write_bytes_atomically, write_text_atomically
 from mazelab.cli.options import UserError, check_output_path, seed_option
+from mazelab.exercise.autograder import BundleError, bundle_bytes
 from mazelab.exercise.claims import check_outside, claimed
 from mazelab.exercise.grading import (
     Graded,
@@ -36,7 +37,7 @@ from mazelab.invocation import python_prefix
 from mazelab.plugins import is_plugin_spec
 
 exercise_app = typer.Typer(
-    help="Write your own particle filter (new), grade it (check), grade a class's folder (grade).",
+    help="Write your own filter (new), grade it (check), a class's folder (grade), on Gradescope (autograder).",
     no_args_is_help=True,
     rich_markup_mode=None,
     pretty_exceptions_enable=False,
@@ -219,6 +220,32 @@ def _gradescope_targets(gradescope: Path | None, submissions: list[Submission], 
     return targets
 
 
+@exercise_app.command(name="autograder", short_help="Write Gradescope's autograder bundle (a .zip).")
+def autograder_command(
+    bundle: Annotated[Path, typer.Argument(metavar="OUT.zip", help="the bundle to write")],
+    seed: Annotated[
+        int | None,
+        typer.Option(callback=seed_option, help="one secret seed for every submission", show_default=False),
+    ] = None,
+    timeout: TimeoutFlag = DEFAULT_TIMEOUT,
+    lang: LangFlag = None,
+    force: ForceFlag = False,
+) -> None:
+    """Write the zip to upload as Gradescope's autograder: setup.sh (bubblewrap, and this lab at this
+    version with its locked dependencies) and run_autograder (the check of
+    /autograder/submission/my_filter.py, its results.json in /autograder/results)."""
+    if bundle.suffix != ".zip":
+        raise UserError(f"{bundle}: the bundle is a .zip file (OUT.zip)")
+    if lang is not None:
+        _catalogue(lang)
+    check_output_path(bundle, force)
+    try:
+        data = bundle_bytes(seed, lang, timeout)
+    except BundleError as error:
+        raise UserError(str(error)) from None
+    typer.echo(f"wrote {write_bytes_atomically(bundle, data, replace=force)} (upload it as the autograder)")
+
+
 class _Stop:
     """The signal that stopped the grading (None: none yet)."""
 
@@ -248,4 +275,4 @@ def _stop_signals() -> Iterator[_Stop]:
             signal.signal(number, old)
 
 
-__all__ = ["check_command", "exercise_app", "grade_command", "new"]
+__all__ = ["autograder_command", "check_command", "exercise_app", "grade_command", "new"]
