@@ -11,6 +11,7 @@ row saying why, never a pass.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
 import json
@@ -182,6 +183,7 @@ def grade_folder(
         return [future.result() for future in futures]
     except BaseException:  # Ctrl-C, SIGTERM: end the running children, start no new one, keep what was graded
         stop_children()
+        _end_workers(pool)
         for future in futures:
             future.cancel()
         threads.shutdown(wait=True, cancel_futures=True)
@@ -191,6 +193,13 @@ def grade_folder(
         threads.shutdown(wait=True, cancel_futures=True)
         pool.shutdown(wait=True, cancel_futures=True)
         allow_children()
+
+
+def _end_workers(pool: ProcessPoolExecutor) -> None:
+    """Kill the reference runs' workers now (a grid run in progress would hold shutdown for seconds)."""
+    for process in list((getattr(pool, "_processes", None) or {}).values()):
+        with contextlib.suppress(OSError, AttributeError):
+            process.kill()
 
 
 def _reference_context() -> Any:
