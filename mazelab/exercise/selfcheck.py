@@ -16,9 +16,9 @@ from mazelab.exercise.rows import Row
 from mazelab.exercise.student import PARTS, StudentFilter
 
 
-def check_part(part: str, function: Callable[..., object], lang: str | None = None) -> Row:
+def check_part(part: str, function: Callable[..., object], lang: str = "en") -> Row:
     """Check one part written as a plain function `part(self, ...)` (a notebook cell), print its row
-    (in `lang`: en or uk; default the locale's)."""
+    (in `lang`: en or uk)."""
     if part not in PARTS:
         raise ValueError(f"unknown part {part!r}; the parts are {', '.join(PARTS)}")
     notebook_filter = type("NotebookFilter", (StudentFilter,), {part: function})
@@ -27,9 +27,9 @@ def check_part(part: str, function: Callable[..., object], lang: str | None = No
     return row
 
 
-def check_and_print(filter_class: type, lang: str | None = None) -> Report:
+def check_and_print(filter_class: type, lang: str = "en") -> Report:
     """Check every part and the whole filter, and print the report (the notebook's last check cell),
-    in `lang` (en or uk; default the locale's)."""
+    in `lang` (en or uk)."""
     report = check(filter_class)
     words = catalogue_for(lang)
     print(format_report(report, seed_note=words.gettext(" (from the class's source)"), catalogue=words))
