@@ -206,7 +206,7 @@ def _cmdline(process: Path) -> str:
 def test_a_part_that_allocates_past_the_memory_limit_fails_naming_it(tmp_path):
     estimate = f"""
         def estimate(self, positions, weights):
-            hoard = np.ones({MEMORY_LIMIT // 8 + (1 << 27)})  # a gigabyte past the limit
+            hoard = np.empty({MEMORY_LIMIT // 8 + (1 << 27)})  # a gigabyte past the limit (of address space)
             return weights @ positions + hoard[0] - 1
     """
     status, got = rows(estimate_only(tmp_path, estimate=textwrap.dedent(estimate)))["estimate"]

@@ -254,7 +254,8 @@ def check_file(
     problem = loading_problem(answers, shown)
     if problem:
         raise NotGradableError(problem)
-    name = str((answers.loaded or {}).get("name") or class_name or path.stem)
+    said = str((answers.loaded or {}).get("name") or class_name or path.stem)
+    name = " ".join(said.split())[:80]  # the child's word for its name: one line, never a forged one
     copies = copied_parts(path.read_text(errors="replace"))
     report = finish(build_report(name, seed, parts, scenarios, answers, references, stages, copies))
     report.note = sandbox().note
