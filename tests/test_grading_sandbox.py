@@ -28,7 +28,7 @@ from mazelab.exercise.kit import (
 )
 from mazelab.exercise.report import NotGradableError, check_file
 from mazelab.exercise.runner import MEMORY_LIMIT
-from mazelab.exercise.sandbox import SANDBOX_UID, sandbox
+from mazelab.exercise.sandbox import SANDBOX_UID, TMP_LIMIT, Sandbox, sandbox
 
 SEED = 2024  # tests/test_grading.py's
 needs_sandbox = pytest.mark.skipif(not sandbox().sandboxed, reason=f"no sandbox here: {sandbox().why}")
@@ -211,6 +211,31 @@ def test_a_part_that_allocates_past_the_memory_limit_fails_naming_it(tmp_path):
     """
     status, got = rows(estimate_only(tmp_path, estimate=textwrap.dedent(estimate)))["estimate"]
     assert status == "fail" and "MemoryError" in got and f"past the memory limit of {MEMORY_LIMIT / 2**30:g} GB" in got
+
+
+@needs_sandbox
+def test_the_private_tmp_is_bounded(tmp_path):
+    if not sandbox().bounded_tmp:
+        pytest.skip("this bwrap (before 0.7) cannot bound /tmp")
+    estimate = f"""
+        def estimate(self, positions, weights):
+            block = bytes(48 << 20)  # under the file size limit; {TMP_LIMIT >> 20} MB of /tmp in all
+            for k in range({TMP_LIMIT // (48 << 20) + 2}):
+                with open(f"/tmp/fill{{k}}", "wb") as file:
+                    file.write(block)
+            return weights @ positions
+    """
+    status, got = rows(estimate_only(tmp_path, estimate=textwrap.dedent(estimate)))["estimate"]
+    assert status == "fail" and "No space left on device" in got, got
+
+
+def test_a_child_that_cannot_be_started_fails_its_rows_not_the_grader(tmp_path, monkeypatch):
+    import mazelab.exercise.report as report
+
+    monkeypatch.setattr(report, "sandbox", lambda: Sandbox(str(tmp_path / "gone" / "bwrap")))
+    path = write_submission(tmp_path / "sub" / "my_filter.py")
+    checked = check_file(str(path), seed=SEED, stages=("weigh", "estimate"))
+    assert [(r.status, "could not be started" in r.got) for r in checked.rows] == [("fail", True)] * 2
 
 
 # -- copied code ---------------------------------------------------------------------------------------

@@ -309,17 +309,13 @@ def run_child(
     run = ChildRun()
     started = time.perf_counter()
     with _running_lock:
-        process = subprocess.Popen(
-            made.command(kit_folder, run_folder, answers_out),
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            pass_fds=(answers_out,),
-            preexec_fn=_limits(timeout),
-            start_new_session=True,
-            env=_plain_environment(made),
-            cwd=run_folder,
-        )
+        try:
+            process = _start(made.command(kit_folder, run_folder, answers_out), answers_out, timeout, made, run_folder)
+        except OSError as error:  # bwrap gone since the probe, no memory to fork: this run's failure only
+            os.close(answers_in)
+            os.close(answers_out)
+            run.ended = f"could not be started ({error.strerror or error})"
+            return run
         _running.add(process)
     os.close(answers_out)
     reader = _Reader(os.fdopen(answers_in, "rb"), run)
@@ -346,6 +342,22 @@ def run_child(
     run.output = printed.text()
     run.ended = _how_it_ended(run, reader, _signal_of(process.returncode, made), process.returncode, timed_out, timeout)
     return run
+
+
+def _start(command: list[str], answers: int, timeout: float, made: Sandbox, run_folder: Path) -> subprocess.Popen:
+    """The child's process: the request on its standard input, its prints merged on one pipe, the
+    answer pipe kept open, its limits, a session of its own."""
+    return subprocess.Popen(
+        command,
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        pass_fds=(answers,),
+        preexec_fn=_limits(timeout),
+        start_new_session=True,
+        env=_plain_environment(made),
+        cwd=run_folder,
+    )
 
 
 def _send(process: subprocess.Popen, request: bytes) -> None:

@@ -30,6 +30,7 @@ import numpy as np
 from mazelab.exercise.kit import PACKAGE_DIR
 
 SANDBOX_UID = 65534  # "nobody"
+TMP_LIMIT = 256 << 20  # bytes the sandbox's private /tmp (in memory) may hold, where bwrap can bound it (0.7+)
 KIT_ROOT, SITE_ROOT, SUBMISSION_ROOT = "/kit", "/site", "/submission"
 UNSANDBOXED = (
     "not sandboxed ({why}): the student's code ran with the grader's rights, so a hostile submission's "
@@ -57,6 +58,7 @@ class Sandbox:
 
     bwrap: str | None
     why: str = ""
+    bounded_tmp: bool = True  # bwrap bounds the private /tmp (--size, bubblewrap 0.7 and later)
 
     @property
     def sandboxed(self) -> bool:
@@ -119,13 +121,15 @@ def interpreter_folders() -> list[str]:
     return sorted(f for f in folders if not any(f != g and f.startswith(g + os.sep) for g in folders))
 
 
-def bwrap_arguments(kit: Path, submission: Path) -> list[str]:
-    """bwrap's options: the namespaces, the uid, the read-only binds, and the lab hidden where an
-    interpreter folder holds it (a lab installed into the system's Python)."""
+def bwrap_arguments(kit: Path, submission: Path, bounded_tmp: bool = True) -> list[str]:
+    """bwrap's options: the namespaces, the uid, a private /tmp (of at most TMP_LIMIT bytes where
+    `bounded_tmp`), the read-only binds, and the lab hidden where an interpreter folder holds it (a
+    lab installed into the system's Python)."""
+    size = ["--size", str(TMP_LIMIT)] if bounded_tmp else []
     arguments = [
         "--unshare-all", "--unshare-user", "--uid", str(SANDBOX_UID), "--gid", str(SANDBOX_UID),
         "--die-with-parent", "--new-session", "--cap-drop", "ALL", "--hostname", "sandbox",
-        "--proc", "/proc", "--dev", "/dev", "--tmpfs", "/tmp", *_system_binds(),
+        "--proc", "/proc", "--dev", "/dev", *size, "--tmpfs", "/tmp", *_system_binds(),
     ]  # fmt: skip
     for folder in interpreter_folders():
         arguments += ["--ro-bind", folder, folder]
@@ -151,15 +155,17 @@ def sandbox() -> Sandbox:
     if not found:
         return Sandbox(None, "bwrap is not installed; on Debian or Ubuntu: apt-get install bubblewrap")
     empty = Path(os.path.realpath(sys.base_prefix))
-    probe = [found, *bwrap_arguments(empty, empty), "--", os.path.realpath(sys.executable), "-I", "-S", "-c", "pass"]
-    try:
-        done = subprocess.run(probe, capture_output=True, timeout=30, check=False)
-    except (OSError, subprocess.TimeoutExpired) as error:
-        return Sandbox(None, f"bwrap cannot run here ({error})")
-    if done.returncode != 0:
-        line = (done.stderr.decode(errors="replace").strip().splitlines() or ["no reason given"])[-1]
-        return Sandbox(None, f"bwrap cannot make a sandbox here ({line[:120]})")
-    return Sandbox(found)
+    why = "no reason given"
+    for bounded in (True, False):  # an older bwrap (before 0.7) cannot bound /tmp: a sandbox all the same
+        probe = [found, *bwrap_arguments(empty, empty, bounded), "--", os.path.realpath(sys.executable), "-S", "-c", ""]
+        try:
+            done = subprocess.run(probe, capture_output=True, timeout=30, check=False)
+        except (OSError, subprocess.TimeoutExpired) as error:
+            return Sandbox(None, f"bwrap cannot run here ({error})")
+        if done.returncode == 0:
+            return Sandbox(found, bounded_tmp=bounded)
+        why = (done.stderr.decode(errors="replace").strip().splitlines() or [why])[-1]
+    return Sandbox(None, f"bwrap cannot make a sandbox here ({why[:120]})")
 
 
 def require_sandbox() -> Sandbox:
