@@ -6,6 +6,7 @@ real (skipped, saying why, where it cannot: CI installs it)."""
 
 from __future__ import annotations
 
+import ast
 import json
 import os
 import re
@@ -23,6 +24,7 @@ from mazelab.exercise.kit import (
     REFERENCE_FUNCTIONS,
     REFERENCE_MODULES,
     build_kit,
+    kit_file,
     source_file,
     transitive_imports,
 )
@@ -59,6 +61,31 @@ def test_every_module_student_filter_imports_is_in_the_kit_and_none_is_a_referen
     assert needed - set(KIT) == set(), "add these to mazelab.exercise.kit.KIT"
     assert not [m for m in KIT if m.startswith(REFERENCE_MODULES)]
     assert not [m for m in needed if m.startswith(REFERENCE_MODULES)]
+
+
+def test_every_name_a_kit_module_imports_from_another_is_in_the_kit(tmp_path):
+    """A module the kit trims (only some functions, or constants) still holds every name the kit's
+    other modules import from it: StudentFilter importing a new name from mazelab.weights names it here."""
+    build_kit(tmp_path / "kit")
+    defined = {}
+    for module in KIT:
+        tree = ast.parse((tmp_path / "kit" / kit_file(module)).read_text())
+        names = set()
+        for node in tree.body:
+            if isinstance(node, (ast.FunctionDef, ast.ClassDef)):
+                names.add(node.name)
+            elif isinstance(node, ast.Assign):
+                names |= {t.id for t in node.targets if isinstance(t, ast.Name)}
+            elif isinstance(node, (ast.Import, ast.ImportFrom)):
+                names |= {(a.asname or a.name).split(".")[0] for a in node.names}
+        defined[module] = names
+    missing = []
+    for module in KIT:
+        for node in ast.walk(ast.parse((tmp_path / "kit" / kit_file(module)).read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module in KIT and not node.level:
+                missing += [f"{node.module}.{a.name}" for a in node.names if a.name not in defined[node.module]
+                            and f"{node.module}.{a.name}" not in KIT]  # fmt: skip
+    assert missing == []
 
 
 def test_the_kit_holds_none_of_the_reference_functions_and_is_built_read_only(tmp_path):
