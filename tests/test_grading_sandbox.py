@@ -208,6 +208,29 @@ def test_forged_answers_on_the_pipe_get_the_verdict_of_their_values(tmp_path):
 
 
 @needs_sandbox
+def test_a_forged_done_without_answers_fails_every_row_and_forges_no_line(tmp_path):
+    prelude = """
+        import os, stat
+        from mazelab.exercise.wire import encode
+
+        for fd in range(3, 64):
+            try:
+                if stat.S_ISFIFO(os.fstat(fd).st_mode):
+                    for meta in ({"kind": "loaded", "class": "MyFilter", "name": "Mine\\nAll checks pass.",
+                                  "student_filter": True, "bases": []}, {"kind": "done"}):
+                        data = encode(meta)
+                        os.write(fd, len(data).to_bytes(8, "big") + data)
+            except OSError:
+                pass
+        os._exit(0)
+    """
+    path = write_submission(tmp_path / "sub" / "my_filter.py", textwrap.dedent(prelude))
+    report = check_file(str(path), seed=SEED, stages=("predict", "estimate"))
+    assert [(r.status, r.got) for r in report.rows] == [("fail", "no answer came from the student's process")] * 2
+    assert report.filter_name == "Mine All checks pass."  # one line: the report's own lines cannot be forged
+
+
+@needs_sandbox
 def test_a_setsid_grandchild_and_a_sleeping_thread_neither_hold_the_grading_nor_outlive_it(tmp_path):
     marker = f"mazelab-test-grandchild-{os.getpid()}-{time.time_ns()}"
     prelude = f"""

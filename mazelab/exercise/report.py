@@ -31,7 +31,7 @@ from mazelab.exercise.offspring import expected_text as resample_expected
 from mazelab.exercise.offspring import judge_resample
 from mazelab.exercise.outcome import Report
 from mazelab.exercise.parts import EXPECTED, judge_estimate, judge_predict, judge_weigh
-from mazelab.exercise.rows import COPY_HINT, NOT_OWN, NOT_WRITTEN, BadAnswerError, Row, ended_row, not_run_row
+from mazelab.exercise.rows import COPY_HINT, FAIL, NOT_OWN, NOT_WRITTEN, BadAnswerError, Row, ended_row, not_run_row
 from mazelab.exercise.runner import DEFAULT_TIMEOUT, child_request, run_child, submission_copy
 from mazelab.exercise.sandbox import sandbox
 from mazelab.exercise.student import PARTS
@@ -126,14 +126,20 @@ def loading_problem(answers: Answers, shown: str) -> str | None:
     if loaded is None:
         return None
     if loaded.get("error"):
-        return str(loaded["error"])
+        return one_line(loaded["error"])
     if not loaded.get("student_filter"):
-        bases = ", ".join(loaded.get("bases") or []) or "object"
+        bases = one_line(", ".join(map(str, loaded.get("bases") or [])) or "object", 200)
         return (
-            f"{shown}: {loaded.get('class')} is not a StudentFilter (it subclasses {bases}); the exercise grades "
-            "a subclass of mazelab.exercise.StudentFilter with your own predict, weigh, resample and estimate"
+            f"{shown}: {one_line(loaded.get('class'), 80)} is not a StudentFilter (it subclasses {bases}); the "
+            "exercise grades a subclass of mazelab.exercise.StudentFilter with your own predict, weigh, resample "
+            "and estimate"
         )
     return None
+
+
+def one_line(text: object, limit: int = 600) -> str:
+    """What the student's process said, as one line of at most `limit` characters (never a forged line)."""
+    return " ".join(str(text).split())[:limit]
 
 
 @dataclass
@@ -190,8 +196,8 @@ def _stage_row(stage: str, judging: _Judging) -> Row:
     if stage in answers.ended:
         return ended_row(label, expected, answers.ended[stage], answers.output)
     message = answers.results.get(stage)
-    if message is None:
-        return not_run_row(label, expected, "the student's process ended before it")
+    if message is None:  # it said "done" (or ended) without this stage's answer
+        return Row(label, FAIL, expected, "no answer came from the student's process", "a part returns its answer")
     try:
         if stage == "whole":
             return _whole_row(judging, message)
@@ -255,7 +261,7 @@ def check_file(
     if problem:
         raise NotGradableError(problem)
     said = str((answers.loaded or {}).get("name") or class_name or path.stem)
-    name = " ".join(said.split())[:80]  # the child's word for its name: one line, never a forged one
+    name = one_line(said, 80)  # the child's word for its name
     copies = copied_parts(path.read_text(errors="replace"))
     report = finish(build_report(name, seed, parts, scenarios, answers, references, stages, copies))
     report.note = sandbox().note
