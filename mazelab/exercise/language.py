@@ -5,8 +5,9 @@ of their strings: nothing in it is run, and no compiled .mo or new tool is neede
 a `gettext.NullTranslations`, so `catalogue.gettext(text)` is the standard call. The report's texts
 are made in English where they are computed (the grader's verdicts) and translated where they are
 shown (mazelab.exercise.layout): a text is looked up whole; a msgid with `{name}` fields also
-matches a text with any values there (a hint that names a number), and a text made of several
-msgids (a hint added to another) has each translated.
+matches a text with any values there (a hint that names a number; a value that is itself a msgid,
+a weight vector's kind, is translated too), and a text made of several msgids (a hint added to
+another) has each translated.
 
 The language is `--lang` where given, else the locale's (LANGUAGE, LC_ALL, LC_MESSAGES, LANG: the
 first whose language has a catalogue), else English.
@@ -96,16 +97,24 @@ class Catalogue(gettext.NullTranslations):
         if text in self.entries:
             return self.entries[text]
         for pattern, translation in self.patterns:
-            text = pattern.sub(lambda m, t=translation: t.format(**m.groupdict()), text)
+            text = pattern.sub(lambda m, t=translation: t.format(**self._values(m.groupdict())), text)
         for message, translation in self.pieces:
             text = text.replace(message, translation)
         return text
 
+    def _values(self, values: dict[str, str]) -> dict[str, str]:
+        """A pattern's field values, each translated where it is a msgid (a weight vector's kind)."""
+        return {name: self.entries.get(value, value) for name, value in values.items()}
+
 
 def _pattern(message: str) -> re.Pattern[str]:
-    """A msgid with `{name}` fields as a pattern matching any value there (within one clause)."""
+    """A msgid with `{name}` fields as a pattern matching any value there (within one clause; a field
+    at the end takes the clause's rest)."""
     parts = FIELD.split(message)
-    regex = "".join(re.escape(p) if i % 2 == 0 else f"(?P<{p}>[^;]+?)" for i, p in enumerate(parts))
+    last = len(parts) - 2 if parts[-1] == "" else -1
+    regex = "".join(
+        re.escape(p) if i % 2 == 0 else f"(?P<{p}>[^;]+{'' if i == last else '?'})" for i, p in enumerate(parts)
+    )
     return re.compile(regex)
 
 
