@@ -8,12 +8,12 @@ import textwrap
 
 from mazelab.exercise.language import Catalogue
 from mazelab.exercise.outcome import Report
-from mazelab.exercise.rows import FAIL, NOT_RUN, NOT_WRITTEN, PASS, Row
+from mazelab.exercise.rows import FAIL, NOT_OWN, NOT_RUN, NOT_WRITTEN, PASS, Row
 from mazelab.exercise.whole import FIGURE_HEADERS, figures_table
 from mazelab.experiments.tables import format_table
 
 WIDTH = 100
-PART_WIDTH, RESULT_WIDTH = 12, 12  # "whole filter", "not own work"
+PART_WIDTH, RESULT_WIDTH = 12, 12  # "whole filter", "not own work" (wider where a language's words are)
 SHOWN = {FAIL: "FAIL"}  # how a status reads in the table (the others as they are)
 
 
@@ -29,11 +29,13 @@ def format_rows(rows: list[Row], width: int = WIDTH, catalogue: Catalogue | None
     the catalogue's language: English by default)."""
     words = catalogue or Catalogue()
     _ = words.gettext
-    indent = PART_WIDTH + RESULT_WIDTH + 4
-    lines = [f"{_('part'):<{PART_WIDTH}}  {_('result'):<{RESULT_WIDTH}}  {_('got')}", "-" * min(width, 80)]
+    part_width = max(PART_WIDTH, *(len(_(row.part)) for row in rows))
+    result_width = max(RESULT_WIDTH, *(len(_(SHOWN.get(s, s))) for s in (PASS, FAIL, NOT_WRITTEN, NOT_RUN, NOT_OWN)))
+    indent = part_width + result_width + 4
+    lines = [f"{_('part'):<{part_width}}  {_('result'):<{result_width}}  {_('got')}", "-" * min(width, 80)]
     for row in rows:
         status = _(SHOWN.get(row.status, row.status))
-        first = f"{_(row.part):<{PART_WIDTH}}  {status:<{RESULT_WIDTH}}  "
+        first = f"{_(row.part):<{part_width}}  {status:<{result_width}}  "
         lines += _wrapped(words.translate(row.got), first, indent, width)
         if row.status not in (PASS, NOT_WRITTEN, NOT_RUN):
             lines += _wrapped(_("expected: ") + words.translate(row.expected), " " * indent, indent, width)
