@@ -38,6 +38,7 @@ from mazelab.plugins import is_plugin_spec
 
 exercise_app = typer.Typer(
     help="Write your own filter (new), grade it (check), a class's folder (grade), on Gradescope (autograder).",
+    short_help="Your own filter: write it, grade it, grade a class.",
     no_args_is_help=True,
     rich_markup_mode=None,
     pretty_exceptions_enable=False,
