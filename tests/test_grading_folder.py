@@ -383,3 +383,22 @@ def test_sigterm_ends_every_sandbox_and_keeps_what_was_graded(tmp_path):
     assert json.loads((results / "alice" / "results.json").read_text())["score"] == 5.0
     time.sleep(0.5)
     assert [line for pid, line in below.items() if alive(pid)] == []
+
+
+def test_sigterm_ends_a_check_and_its_sandbox(tmp_path):
+    path = write_submission(tmp_path / "hang" / "my_filter.py", "import time\ntime.sleep(600)")
+    checking = subprocess.Popen(
+        [sys.executable, str(ROOT / "main.py"), "exercise", "check", str(path)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        below = wait_for_child(checking, "my_filter.py")
+        checking.send_signal(signal.SIGTERM)
+        _, err = checking.communicate(timeout=60)
+    finally:
+        checking.kill()
+    assert checking.returncode == 143 and "stopped: nothing graded" in err, err
+    time.sleep(0.5)
+    assert [line for pid, line in below.items() if alive(pid)] == []

@@ -102,7 +102,11 @@ def check_command(
     _sandbox_or_refuse(require_sandbox)
     started = time.perf_counter()
     try:
-        report = check_file(spec, seed=seed, timeout=timeout)
+        with _stop_signals() as stop:
+            report = check_file(spec, seed=seed, timeout=timeout)
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM: the student's process has been ended with its sandbox
+        typer.echo("stopped: nothing graded", err=True)
+        raise typer.Exit(128 + (stop.number or signal.SIGINT)) from None
     except NotGradableError as error:
         if results is not None:
             graded = Graded(Submission(Path(spec).name, None), None, str(error), time.perf_counter() - started)
