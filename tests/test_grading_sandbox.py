@@ -376,3 +376,10 @@ def test_the_catalogue_is_read_without_running_it(tmp_path):
         read_po(po)
     po.write_text('msgid "a"\nmsgstr "b\\n"\n')
     assert read_po(po) == {"a": "b\n"}
+
+
+def test_check_refuses_a_link_to_a_file_that_is_not_python_in_one_line(tmp_path, capsys):
+    (tmp_path / "my_filter.py").symlink_to("/etc/passwd")
+    assert main(["exercise", "check", str(tmp_path / "my_filter.py")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"error: {tmp_path / 'my_filter.py'}: a link to /etc/passwd, not a Python file"]
