@@ -10,11 +10,13 @@ import csv
 import io
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
 import textwrap
 import time
+from pathlib import Path
 
 import pytest
 from conftest import ROOT
@@ -85,12 +87,12 @@ EXPECTED = {  # the statuses of predict, weigh, resample, estimate, whole filter
     "erin": ("fail",) * 5,
     "frank": ("fail",) * 5,
     "grace": ("fail",) * 5,
-    "heidi": ("pass", "not own work", "pass", "pass", "not own work"),
+    "heidi": ("fail",) * 5,  # the reference implementation is not in the sandbox: it does not import
     "ivan": ("pass", "fail", "pass", "pass", "*"),
     "judy": ("pass", "pass", "fail", "pass", "*"),
     "mallory": ("pass", "pass", "pass", "pass", "fail"),
     "niaj": ("pass", "pass", "fail", "pass", "fail"),
-    "olivia": ("not written",) * 4 + ("not run",),
+    "olivia": ("fail",) * 5,  # nor is the grader
     "peggy": ("pass", "pass", "pass", "pass", "pass"),
     "rupert": ("fail",) * 5,
     "sybil.py": ("pass", "pass", "pass", "pass", "pass"),
@@ -173,8 +175,9 @@ def test_each_submission_gets_the_statuses_it_earned(graded):
         assert all(map(matches, got, statuses)), (name, got)
     assert "time limit" in table["dave"]["problem"]
     assert "exited with code 0 while importing" in table["frank"]["problem"]
-    assert "does not import" in table["erin"]["problem"] and "not a StudentFilter" in table["grace"]["problem"]
-    assert "mazelab.model.log_likelihood" in table["heidi"]["problem"] and "SIGKILL" in table["xavier"]["problem"]
+    assert "does not import" in table["erin"]["problem"] and "mazelab.filters" in table["grace"]["problem"]
+    assert "cannot import name 'log_likelihood'" in table["heidi"]["problem"]  # the kit's model: constants only
+    assert "SIGKILL" in table["xavier"]["problem"]
     assert table["alice"]["seed"] == str(SEED) and int(table["alice"]["farther_on"]) < 11
     assert float(table["alice"]["to_exact"]) > 0 and table["alice"]["problem"] == ""
 
@@ -209,28 +212,193 @@ def test_grade_refuses_to_overwrite_outputs_without_force(graded, class_folder, 
     assert main(["exercise", "grade", str(out / "nothing")]) == 2
 
 
-def test_ctrl_c_ends_the_grading_and_its_childrens_processes(tmp_path):
-    """A submission that waits forever at import; Ctrl-C ends the grade (exit 130) and its child."""
-    marker = tmp_path / "child.pid"
-    prelude = f"import os, time\nopen({str(marker)!r}, 'w').write(str(os.getpid()))\ntime.sleep(600)"
-    write_submission(tmp_path / "class" / "slow" / "my_filter.py", prelude)
-    grading = subprocess.Popen(
-        [sys.executable, str(ROOT / "main.py"), "exercise", "grade", str(tmp_path / "class"), "--quiet"],
+# -- a class with saboteurs: links, a student writing others' files, outputs where they must not be -------
+@pytest.fixture(scope="module")
+def small_class(tmp_path_factory):
+    """alice (honest); bob, a link to alice's folder; eve.py, a link to /etc/passwd; zed.py, a link to a
+    text file; mallory, who appends
+    an exit to alice's file and plants a results.json for alice, then does honest work."""
+    root = tmp_path_factory.mktemp("small")
+    folder, out = root / "class", root / "out"
+    out.mkdir()
+    alice = write_submission(folder / "alice" / "my_filter.py")
+    (folder / "bob").symlink_to(folder / "alice")
+    (folder / "eve.py").symlink_to("/etc/passwd")
+    (folder / "_notes.txt").write_text("not Python\n")
+    (folder / "zed.py").symlink_to(folder / "_notes.txt")
+    prelude = f"""
+        for target, text in (({str(alice)!r}, "\\nraise SystemExit(3)\\n"),
+                             ({str(out / "alice" / "results.json")!r}, '{{"score": 0}}')):
+            try:
+                import os
+                os.makedirs(os.path.dirname(target), exist_ok=True)
+                with open(target, "a") as file:
+                    file.write(text)
+                print("wrote", target)
+            except OSError as error:
+                print("could not write", target, type(error).__name__)
+    """
+    write_submission(folder / "mallory" / "my_filter.py", textwrap.dedent(prelude))
+    before = alice.read_text()
+    code = main(["exercise", "grade", str(folder), "--seed", str(SEED), "--csv", str(out / "grades.csv"),
+                 "--gradescope", str(out), "--quiet", "--timeout", str(TIMEOUT)])  # fmt: skip
+    return folder, out, code, before
+
+
+def test_no_student_changes_anothers_file_or_grade(small_class):
+    folder, out, code, before = small_class
+    assert code == 0 and (folder / "alice" / "my_filter.py").read_text() == before
+    table = {row["submission"]: row for row in csv.DictReader(io.StringIO((out / "grades.csv").read_text()))}
+    assert table["alice"]["whole_filter"] == "pass" and table["mallory"]["whole_filter"] == "pass"
+    assert json.loads((out / "alice" / "results.json").read_text())["score"] == 5.0
+
+
+def test_a_linked_duplicate_is_graded_once_and_a_link_to_a_system_file_never_read(small_class):
+    _, out, _, _ = small_class
+    table = {row["submission"]: row for row in csv.DictReader(io.StringIO((out / "grades.csv").read_text()))}
+    assert "the same file as" in table["bob"]["problem"] and "graded once, as alice" in table["bob"]["problem"]
+    assert "eve.py: a link out of the class folder; not graded" in table["eve.py"]["problem"]
+    assert "zed.py: a link to _notes.txt, not a Python file" in table["zed.py"]["problem"]
+    assert "root:" not in (out / "grades.csv").read_text()
+
+
+def test_outputs_inside_the_class_folder_and_a_claimed_csv_are_refused_before_grading(small_class, capsys):
+    folder, out, _, _ = small_class
+    alice = folder / "alice" / "my_filter.py"
+    before = alice.read_text()
+    for options in (["--csv", str(alice), "--force"], ["--gradescope", str(folder / "alice")], ["--csv", "x.csv"]):
+        args = ["exercise", "grade", str(folder), "--quiet", *options]
+        if options == ["--csv", "x.csv"]:
+            args = ["exercise", "grade", str(folder), "--quiet", "--csv", str(folder / "x.csv")]
+        assert main(args) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "inside the class folder" in err[0], err
+    assert alice.read_text() == before
+    from mazelab.exercise.claims import claimed
+
+    with claimed([(out / "again.csv", "--csv")]):
+        assert main(["exercise", "grade", str(folder), "--quiet", "--csv", str(out / "again.csv")]) == 2
+    err = capsys.readouterr().err
+    assert "another grader is writing it now" in err and not (out / "again.csv").exists()
+
+
+def test_grade_names_a_path_that_does_not_exist_in_one_line(tmp_path, capsys):
+    assert main(["exercise", "grade", str(tmp_path / "nowhere")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"error: {tmp_path / 'nowhere'}: no such folder of submissions (check the path)"]
+
+
+def descendants(pid: int) -> dict[int, str]:
+    """The processes below `pid` (any depth) and their command lines."""
+    parents, lines = {}, {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            with contextlib.suppress(OSError, ValueError, IndexError):
+                parents[int(entry.name)] = int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
+                lines[int(entry.name)] = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+    found, todo = {}, [pid]
+    while todo:
+        parent = todo.pop()
+        for child, its_parent in parents.items():
+            if its_parent == parent and child not in found:
+                found[child] = lines.get(child, "")
+                todo.append(child)
+    return found
+
+
+def alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+def start_grading(folder, *options):
+    return subprocess.Popen(
+        [sys.executable, str(ROOT / "main.py"), "exercise", "grade", str(folder), "--quiet", *options],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
+
+
+def wait_for_child(grading, file_name: str) -> dict[int, str]:
+    """Wait (at most two minutes) until the grader runs the student's process of the submission whose
+    file is `file_name` (its run folder holds the copy); then the grader's processes."""
+    for _ in range(1200):
+        below = descendants(grading.pid)
+        for line in below.values():
+            runs = re.findall(r"(\S*mazelab-run-\w+)", line)
+            if "mazelab.exercise.child" in line and any((Path(r) / "submission" / file_name).exists() for r in runs):
+                return below
+            if "mazelab.exercise.child" in line and not runs:  # inside bwrap: the run folder is its bind's
+                binds = [d for d in below.values() if "bwrap" in d and "mazelab-run-" in d]
+                if any(file_name in os.listdir(r) for b in binds for r in _submission_binds(b)):
+                    return below
+        time.sleep(0.1)
+    raise AssertionError("the student's process never started")
+
+
+def _submission_binds(line: str) -> list[str]:
+    return [r for r in re.findall(r"(\S*mazelab-run-\w+/submission)", line) if Path(r).is_dir()]
+
+
+def test_ctrl_c_ends_the_grading_and_its_childrens_processes(tmp_path):
+    """A submission that waits forever at import; Ctrl-C ends the grade (exit 130) and every process below it."""
+    write_submission(tmp_path / "class" / "slow" / "my_filter.py", "import time\ntime.sleep(600)")
+    grading = start_grading(tmp_path / "class")
     try:
-        for _ in range(600):  # until the child has imported the file (at most a minute)
-            if marker.exists() and marker.read_text():
-                break
-            time.sleep(0.1)
-        child = int(marker.read_text())
+        below = wait_for_child(grading, "my_filter.py")
         grading.send_signal(signal.SIGINT)
         _, err = grading.communicate(timeout=60)
     finally:
         grading.kill()
     assert grading.returncode == 130, err
-    with pytest.raises(ProcessLookupError):
-        os.kill(child, 0)
+    time.sleep(0.5)
+    assert [line for pid, line in below.items() if alive(pid)] == []
+
+
+def test_sigterm_ends_every_sandbox_and_keeps_what_was_graded(tmp_path):
+    """One at a time: alice is graded, then b_slow waits forever; SIGTERM ends the grading (exit 143),
+    every process below it, and alice's row and results.json are written."""
+    write_submission(tmp_path / "class" / "alice" / "my_filter.py")
+    write_submission(tmp_path / "class" / "b_slow.py", "import time\ntime.sleep(600)")
+    (tmp_path / "out").mkdir()
+    csv_file, results = tmp_path / "out" / "grades.csv", tmp_path / "out"
+    grading = start_grading(
+        tmp_path / "class", "--jobs", "1", "--seed", str(SEED), "--csv", str(csv_file), "--gradescope", str(results)
+    )
+    try:
+        below = wait_for_child(grading, "b_slow.py")
+        grading.send_signal(signal.SIGTERM)
+        _, err = grading.communicate(timeout=60)
+    finally:
+        grading.kill()
+    assert grading.returncode == 143, err
+    assert "stopped: 1 of 2 submissions graded" in err
+    rows = list(csv.DictReader(io.StringIO(csv_file.read_text())))
+    assert [(r["submission"], r["whole_filter"]) for r in rows] == [("alice", "pass")]
+    assert json.loads((results / "alice" / "results.json").read_text())["score"] == 5.0
+    time.sleep(0.5)
+    assert [line for pid, line in below.items() if alive(pid)] == []
+
+
+def test_sigterm_ends_a_check_and_its_sandbox(tmp_path):
+    path = write_submission(tmp_path / "hang" / "my_filter.py", "import time\ntime.sleep(600)")
+    checking = subprocess.Popen(
+        [sys.executable, str(ROOT / "main.py"), "exercise", "check", str(path)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        below = wait_for_child(checking, "my_filter.py")
+        checking.send_signal(signal.SIGTERM)
+        _, err = checking.communicate(timeout=60)
+    finally:
+        checking.kill()
+    assert checking.returncode == 143 and "stopped: nothing graded" in err, err
+    time.sleep(0.5)
+    assert [line for pid, line in below.items() if alive(pid)] == []

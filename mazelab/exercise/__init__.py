@@ -5,7 +5,10 @@ exact posterior.
     from mazelab.exercise import OUTSIDE_PENALTY, ROBOT_SPEED, StudentFilter
 
 Modules: student (StudentFilter, the wiring), template (the files `exercise new` writes), parts (one
-check per part), whole (the whole filter against the exact grid posterior), report (the table).
+check per part), whole (the whole filter against the exact grid posterior), report (the checker),
+sandbox, kit, runner and child (where and how a submission runs: a bubblewrap sandbox holding only
+the student kit), likeness (copied code), language (the report's catalogues), grading (a class's
+folder), autograder (Gradescope's bundle).
 """
 
 from __future__ import annotations

@@ -1,45 +1,48 @@
 """The student's process: the one place a submission's code runs when it is graded.
 
-The grader (mazelab.exercise.runner) starts this as a child process and sends it a request: the file
-and class to load, the stages to run and their inputs (points, weights, angles, a maze's cells, the
-scenarios' compass angles and measurements: what a filter is given, never the true path, the exact
-posterior or a reference answer). The child loads the file under the reference-call monitor
-(mazelab.exercise.monitor), builds a fresh filter for each part, calls the student's methods on the
-inputs and sends back, stage by stage, only values: the arrays the student's code returned, its
-errors as text, and the reference functions it called. Every verdict is made by the grader, from
-these values. Before each stage it sends that stage's name, so that a child that ends mid-way (an
-exit, a signal, a hang the grader kills) is reported at the stage where it happened.
+It runs in the submission's sandbox (mazelab.exercise.sandbox), where the lab is not installed: this
+module imports only numpy and the student kit (mazelab.exercise.kit), so that it runs there as it is.
+The grader (mazelab.exercise.runner) starts it in `python -P -S -s` (mazelab.exercise.sandbox), writes
+the request on its standard input (the file and class to load, the stages and their inputs: points,
+weights, angles, a maze's cells, the scenarios' compass angles and measurements; never the true path,
+the exact posterior or a reference answer) and reads its answers on a pipe whose descriptor it names, as messages
+of mazelab.exercise.wire, each preceded by its length. The child loads the file, builds a fresh
+filter for each part, calls the student's methods on the inputs and sends back, stage by stage, only
+values: the arrays the student's code returned and its errors as text. Nothing it says about itself
+is believed: every verdict is the grader's, from these values. Before each stage it sends that
+stage's name, so that a child that ends mid-way is reported at the stage where it happened.
 
-`serve` is the same work in any process: the child's `main` calls it, and the notebook's checks call
-it in their own process (a self-check, not a grade).
+`serve` is the same work in any process: `main` calls it, and the notebook's checks call it in their
+own process (a self-check, not a grade).
 """
 
 from __future__ import annotations
 
 import contextlib
 import faulthandler
+import importlib.util
 import os
 import sys
 import time
+import traceback
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from mazelab.exercise.monitor import Monitor, preload_reference
 from mazelab.exercise.student import StudentFilter
 from mazelab.exercise.wire import Message, decode, encode
 from mazelab.maze import Maze
-from mazelab.plugins import StudentCodeError, load_plugin, student_code, student_frames
 from mazelab.seeding import filter_rng
-from mazelab.stops import describe_exit, mark_interrupts
 
-preload_reference()  # once, in the fork server (its children start with them imported, none of their time)
 STAGES = ("predict", "weigh", "resample", "estimate", "whole")
 Emit = Callable[..., None]  # emit(meta, arrays=None): one message to the grader
 Answer = tuple[dict[str, Any], dict[str, np.ndarray]]  # a stage's meta (its error, if any) and arrays
 TEXT_LIMIT = 600  # characters of an error's text
+_LIBRARIES = tuple(
+    str(Path(p).resolve()) for p in {sys.prefix, sys.base_prefix, Path(np.__file__).parent, Path(__file__).parents[1]}
+)
 
 
 # -- the student's calls ------------------------------------------------------------------------
@@ -51,9 +54,21 @@ def _text(error: BaseException) -> str:
     return text if len(text) <= TEXT_LIMIT else text[: TEXT_LIMIT - 3] + "..."
 
 
+def student_frames(tb: Any) -> list[traceback.FrameSummary]:
+    """The frames of a traceback outside the kit, Python and numpy: the student's."""
+    return [f for f in traceback.extract_tb(tb) if not str(Path(f.filename).resolve()).startswith(_LIBRARIES)]
+
+
 def _where(error: BaseException) -> str:
     frames = student_frames(error.__traceback__)
     return f" ({Path(frames[-1].filename).name}, line {frames[-1].lineno})" if frames else ""
+
+
+def describe_exit(error: BaseException) -> str:
+    """What the student's code did, in a few words: 'called sys.exit(3)', 'raised KeyboardInterrupt'."""
+    if isinstance(error, SystemExit):
+        return f"called sys.exit({error.code!r})" if error.code is not None else "called sys.exit()"
+    return f"raised {type(error).__name__}"
 
 
 def student_call(function: Callable[..., Any], *args: Any) -> tuple[Any, dict[str, str] | None]:
@@ -66,7 +81,21 @@ def student_call(function: Callable[..., Any], *args: Any) -> tuple[Any, dict[st
     except (SystemExit, KeyboardInterrupt) as error:
         return None, {"kind": "exit", "text": f"{describe_exit(error)}, which a part must not do{_where(error)}"}
     except BaseException as error:
-        return None, {"kind": "error", "text": f"{type(error).__name__}: {_text(error)}{_where(error)}"}
+        text = f"{type(error).__name__}: {_text(error)}{_where(error)}{_past_limit(error)}"
+        return None, {"kind": "error", "text": text}
+
+
+def _past_limit(error: BaseException) -> str:
+    """' (past the memory limit of 4 GB)' for a MemoryError under the grader's limit, else ''."""
+    if not isinstance(error, MemoryError):
+        return ""
+    try:
+        import resource
+
+        limit = resource.getrlimit(resource.RLIMIT_AS)[0]
+    except (ImportError, OSError, ValueError):
+        return ""
+    return "" if limit == resource.RLIM_INFINITY else f" (past the memory limit of {limit / 2**30:g} GB)"
 
 
 def as_values(part: str, value: Any, shape: tuple[int, ...], whole_numbers: bool = False) -> tuple[Any, Any]:
@@ -197,22 +226,27 @@ def whole_stage(cls: type, request: Message, worlds: Worlds, emit: Emit) -> Answ
         emit({"kind": "stage", "stage": "whole", "scenario": i})
         world = worlds.copy_of(request.arrays[f"scenario/{i}/grid"], scenario["maze"])
         compass, z = request.arrays[f"scenario/{i}/compass"], request.arrays[f"scenario/{i}/z"]
-        estimates = np.empty((len(z), 2))
+        estimates, step = np.empty((len(z), 2)), 0
         try:
-            with student_code(cls) as at:
-                particles = request.arrays[f"scenario/{i}/particles"].copy()
-                filt = cls(world, scenario["sigma"], scenario["delta"], particles, filter_rng(scenario["seed"]))
-                for k in range(len(z)):
-                    at.number = k + 1
-                    filt.step(float(compass[k]), float(z[k]))
-                    estimates[k] = _estimate_of(filt)
-        except StudentCodeError as error:
-            text = "; ".join(line.strip() for line in str(error).splitlines())  # one line: a table cell
-            return {"error": {"kind": "error", "text": text}, "scenario": i, "step": at.number}, out
+            particles = request.arrays[f"scenario/{i}/particles"].copy()
+            filt = cls(world, scenario["sigma"], scenario["delta"], particles, filter_rng(scenario["seed"]))
+            for step in range(1, len(z) + 1):
+                filt.step(float(compass[step - 1]), float(z[step - 1]))
+                estimates[step - 1] = _estimate_of(filt)
+        except (SystemExit, KeyboardInterrupt) as error:
+            text = f"{cls.__name__} {describe_exit(error)}{_when(step)}{_where(error)}"
+            return {"error": {"kind": "exit", "text": text}, "scenario": i, "step": step}, out
         except BaseException as error:
-            return {"error": {"kind": "exit", "text": describe_exit(error)}, "scenario": i, "step": at.number}, out
+            text = f"{cls.__name__} raised {type(error).__name__}{_when(step)}: {_text(error)}{_where(error)}"
+            text += _past_limit(error)
+            text = "; ".join(line.strip() for line in text.splitlines())  # one line: a table cell
+            return {"error": {"kind": "error", "text": text}, "scenario": i, "step": step}, out
         out[f"estimates/{i}"] = estimates
     return {}, out
+
+
+def _when(step: int) -> str:
+    return " while being built" if step == 0 else f" at step {step}"
 
 
 def _estimate_of(filt: Any) -> np.ndarray:
@@ -234,14 +268,44 @@ STAGE_RUNNERS = {
 
 # -- loading and serving ----------------------------------------------------------------------
 def load(meta: dict[str, Any]) -> tuple[type | None, dict[str, Any]]:
-    """The class the request names (loaded from its file), and what the grader is told about it."""
-    spec = meta["file"] + (f":{meta['class']}" if meta.get("class") else "")
+    """The class the request names, loaded from its file (its folder importable while it loads), and
+    what the grader is told about it (the grader checks it again from the values it gets)."""
+    path, class_name = Path(meta["file"]), meta.get("class")
+    shown = meta.get("shown") or path.name
+    spec = importlib.util.spec_from_file_location("submission", path)
+    if spec is None or spec.loader is None:
+        return None, {"error": f"{shown}: cannot be imported as a Python module"}
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["submission"] = module
+    sys.path.insert(0, str(path.parent))
     try:
-        cls = load_plugin(spec)
-    except ValueError as error:
-        return None, {"error": _text(error)}
+        spec.loader.exec_module(module)
+    except (SystemExit, KeyboardInterrupt) as error:
+        return None, {
+            "error": f"{shown} does not import: it {describe_exit(error)} while being imported{_where(error)}"
+        }
     except BaseException as error:
-        return None, {"error": f"{spec} does not import: {type(error).__name__}: {_text(error)}"}
+        line = "" if isinstance(error, SyntaxError) else _where(error)
+        return None, {"error": f"{shown} does not import: {type(error).__name__}: {_text(error)}{line}"}
+    finally:
+        with contextlib.suppress(ValueError):
+            sys.path.remove(str(path.parent))
+    return _chosen_class(module, class_name, shown)
+
+
+def _chosen_class(module: Any, class_name: str | None, shown: str) -> tuple[type | None, dict[str, Any]]:
+    """The named class, or the one class the file defines that subclasses StudentFilter."""
+    defined = [c for c in vars(module).values() if isinstance(c, type) and c.__module__ == module.__name__]
+    if class_name is None:
+        students = [c for c in defined if issubclass(c, StudentFilter)]
+        if len(students) != 1:
+            found = ", ".join(c.__name__ for c in students) or "none"
+            return None, {"error": f"{shown}: name the class as {shown}:ClassName (StudentFilter classes: {found})"}
+        return students[0], describe_class(students[0])
+    cls = getattr(module, class_name, None)
+    if not isinstance(cls, type) or cls not in defined:
+        names = ", ".join(c.__name__ for c in defined) or "no classes"
+        return None, {"error": f"{shown}: no class {class_name!r} of its own (it defines: {names})"}
     return cls, describe_class(cls)
 
 
@@ -255,12 +319,11 @@ def describe_class(cls: type) -> dict[str, Any]:
     return {"class": cls.__name__, "name": name[:80], "student_filter": issubclass(cls, StudentFilter), "bases": bases}
 
 
-def serve(request: Message, emit: Emit, monitor: Monitor, filter_class: type | None = None) -> None:
-    """Load the class (or take `filter_class`), then run the request's stages, each under the
-    monitor, sending its start and its answer; then "done"."""
-    with monitor.watching("import"):
-        cls, loaded = (filter_class, describe_class(filter_class)) if filter_class else load(request.meta)
-    emit({"kind": "loaded", **loaded, **monitor.seen("import")})
+def serve(request: Message, emit: Emit, filter_class: type | None = None) -> None:
+    """Load the class (or take `filter_class`), then run the request's stages, sending each one's
+    start and its answer; then "done"."""
+    cls, loaded = (filter_class, describe_class(filter_class)) if filter_class else load(request.meta)
+    emit({"kind": "loaded", **loaded})
     if cls is None or not loaded["student_filter"]:
         emit({"kind": "done"})
         return
@@ -268,13 +331,9 @@ def serve(request: Message, emit: Emit, monitor: Monitor, filter_class: type | N
     for stage in request.meta["stages"]:
         emit({"kind": "stage", "stage": stage})
         started = time.perf_counter()
-        with monitor.watching(stage):
-            meta, arrays = STAGE_RUNNERS[stage](cls, request, worlds, emit)
+        meta, arrays = STAGE_RUNNERS[stage](cls, request, worlds, emit)
         _flush()
-        emit(
-            {**meta, "kind": "result", "stage": stage, "seconds": time.perf_counter() - started, **monitor.seen(stage)},
-            arrays,
-        )
+        emit({**meta, "kind": "result", "stage": stage, "seconds": time.perf_counter() - started}, arrays)
     emit({"kind": "done"})
 
 
@@ -284,50 +343,27 @@ def _flush() -> None:
             stream.flush()
 
 
-def apply_limits(limits: dict[str, int]) -> None:
-    """The child's own resource limits (POSIX): its processor time (SIGXCPU at the limit, SIGKILL two
-    seconds later), its memory, no core file, a bounded file size."""
-    try:
-        import resource
-    except ImportError:  # Windows: the grader's time limit is all there is
-        return
-    for name, value in (
-        ("RLIMIT_CPU", limits["cpu_seconds"]),
-        ("RLIMIT_AS", limits["memory_bytes"]),
-        ("RLIMIT_CORE", 0),
-        ("RLIMIT_FSIZE", limits["file_bytes"]),
-    ):
-        which = getattr(resource, name, None)
-        if which is None:
-            continue
-        try:
-            hard = resource.getrlimit(which)[1]
-            value = value if hard == resource.RLIM_INFINITY else min(value, hard)
-            resource.setrlimit(which, (value, value + 2 if name == "RLIMIT_CPU" else hard))
-        except (ValueError, OSError):
-            pass
+def _read_request() -> Message:
+    """The request, whole, from standard input (then closed: the student's code reads nothing there)."""
+    data = sys.stdin.buffer.read()
+    os.close(0)
+    os.open(os.devnull, os.O_RDONLY)
+    return decode(data)
 
 
-def main(request: bytes, results: Any, output: Any) -> None:
-    """The child process: its own session (the grader ends it and whatever it starts together), its
-    prints into `output`, its limits, the monitor, then `serve`, answering through `results`."""
-    with contextlib.suppress(AttributeError, OSError):
-        os.setsid()
-    for fd in (1, 2):
-        os.dup2(output.fileno(), fd)
+def main(answer_fd: int) -> None:
+    """The child process: read the request, serve it, answering on the descriptor `answer_fd`."""
     faulthandler.enable(file=sys.stderr, all_threads=True)  # a crash in C names the student's line
-    message = decode(request)
-    apply_limits(message.meta["limits"])
-    mark_interrupts()  # a KeyboardInterrupt raised by code is the student's, not a Ctrl-C
-    preload_reference()
-    monitor = Monitor()
-    monitor.install()
+    message = _read_request()
+    answers = os.fdopen(answer_fd, "wb", buffering=0)
 
     def emit(meta: dict[str, Any], arrays: dict[str, np.ndarray] | None = None) -> None:
-        results.send_bytes(encode(meta, arrays))
+        data = encode(meta, arrays)
+        answers.write(len(data).to_bytes(8, "big") + data)
 
-    serve(message, emit, monitor)
+    serve(message, emit)
     _flush()
+    os._exit(0)  # the student's threads, daemons or not, end with the process
 
 
-__all__ = ["STAGES", "STAGE_RUNNERS", "as_values", "load", "main", "serve", "student_call"]
+__all__ = ["STAGES", "STAGE_RUNNERS", "as_values", "describe_exit", "load", "main", "serve", "student_call"]

@@ -11,7 +11,8 @@ from mazelab.exercise.whole import ScenarioFigures
 @dataclass
 class Report:
     """One submission's check: its rows (the parts, then the whole filter), the whole filter's figures
-    per scenario, the seed of its inputs, what went wrong beyond the rows, and the time it took."""
+    per scenario, the seed of its inputs, what went wrong beyond the rows, the time it took, and
+    whether it ran unsandboxed."""
 
     filter_name: str
     seed: int
@@ -20,6 +21,7 @@ class Report:
     problems: list[str] = field(default_factory=list)
     seconds: float = 0.0
     output: str = ""
+    note: str = ""  # where the child was not sandboxed: the one line saying its verdict cannot be trusted
 
     @property
     def passed(self) -> bool:

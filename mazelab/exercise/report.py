@@ -26,17 +26,18 @@ from typing import Any
 from mazelab.exercise import child
 from mazelab.exercise.inputs import PartInputs, ScenarioInputs, default_seed, draw_part_inputs, draw_scenarios
 from mazelab.exercise.layout import format_rows
-from mazelab.exercise.monitor import Monitor
+from mazelab.exercise.likeness import class_source, copied_parts
 from mazelab.exercise.offspring import expected_text as resample_expected
 from mazelab.exercise.offspring import judge_resample
 from mazelab.exercise.outcome import Report
 from mazelab.exercise.parts import EXPECTED, judge_estimate, judge_predict, judge_weigh
-from mazelab.exercise.rows import NOT_OWN, NOT_WRITTEN, BadAnswerError, Row, ended_row, not_own_row, not_run_row
-from mazelab.exercise.runner import DEFAULT_TIMEOUT, child_request, run_child
+from mazelab.exercise.rows import COPY_HINT, FAIL, NOT_OWN, NOT_WRITTEN, BadAnswerError, Row, ended_row, not_run_row
+from mazelab.exercise.runner import DEFAULT_TIMEOUT, child_request, run_child, submission_copy
+from mazelab.exercise.sandbox import sandbox
 from mazelab.exercise.student import PARTS
 from mazelab.exercise.whole import References, ScenarioFigures, judge_whole, whole_answer
 from mazelab.exercise.whole import expected_text as whole_expected
-from mazelab.exercise.wire import Message, decode
+from mazelab.exercise.wire import Message, decode, encode
 from mazelab.invocation import command_prefix
 from mazelab.plugins import split_spec
 
@@ -68,23 +69,30 @@ def collect_isolated(
     scenarios: list[ScenarioInputs],
     timeout: float,
     stages: tuple[str, ...] = STAGES,
+    shown: str = "",
+    companions: bool = True,
 ) -> Answers:
-    """Run the stages in child processes (a new one after a stage in which one ended)."""
+    """Run the stages in child processes, each in the sandbox of the submission's own copy (and the
+    Python files beside it, with `companions`); a new child after a stage in which one ended."""
     answers, todo = Answers(), list(stages)
-    while todo:
-        run = run_child(child_request(str(path), class_name, todo, parts, scenarios, timeout), timeout)
-        answers.output += run.output
-        if run.loaded is None:
-            answers.problem = f"the student's process {run.ended or 'sent nothing'}"
-            return answers
-        answers.loaded = run.loaded
-        answers.results.update(run.results)
-        if run.ended is None or run.loaded.get("error") or not run.loaded.get("student_filter"):
-            return answers
-        stage = run.stage if run.stage in todo and run.stage not in run.results else None
-        stage = stage or next(s for s in todo if s not in run.results)
-        answers.ended[stage] = run.ended
-        todo = [s for s in todo if s not in run.results and s != stage]
+    made = sandbox()
+    with submission_copy(path, companions) as run_folder:
+        while todo:
+            file = made.inside(run_folder, path.name)
+            request = child_request(file, class_name, todo, parts, scenarios, shown or path.name)
+            run = run_child(request, run_folder, timeout, made)
+            answers.output += run.output
+            if run.loaded is None:
+                answers.problem = f"the student's process {run.ended or 'sent nothing'}"
+                return answers
+            answers.loaded = run.loaded
+            answers.results.update(run.results)
+            if run.ended is None or run.loaded.get("error") or not run.loaded.get("student_filter"):
+                return answers
+            stage = run.stage if run.stage in todo and run.stage not in run.results else None
+            stage = stage or next(s for s in todo if s not in run.results)
+            answers.ended[stage] = run.ended
+            todo = [s for s in todo if s not in run.results and s != stage]
     return answers
 
 
@@ -95,17 +103,13 @@ def collect_in_process(
     answers, request = Answers(), decode(child_request("", None, stages, parts, scenarios))
 
     def emit(meta: dict[str, Any], arrays: dict | None = None) -> None:
-        from mazelab.exercise.wire import encode
-
         message = decode(encode(meta, arrays))  # exactly what a child would send
         if meta["kind"] == "loaded":
             answers.loaded = message.meta
         elif meta["kind"] == "result":
             answers.results[meta["stage"]] = message
 
-    monitor = Monitor()
-    with monitor.installed():
-        child.serve(request, emit, monitor, filter_class)
+    child.serve(request, emit, filter_class)
     return answers
 
 
@@ -122,14 +126,20 @@ def loading_problem(answers: Answers, shown: str) -> str | None:
     if loaded is None:
         return None
     if loaded.get("error"):
-        return str(loaded["error"])
+        return one_line(loaded["error"])
     if not loaded.get("student_filter"):
-        bases = ", ".join(loaded.get("bases") or []) or "object"
+        bases = one_line(", ".join(map(str, loaded.get("bases") or [])) or "object", 200)
         return (
-            f"{shown}: {loaded.get('class')} is not a StudentFilter (it subclasses {bases}); the exercise grades "
-            "a subclass of mazelab.exercise.StudentFilter with your own predict, weigh, resample and estimate"
+            f"{shown}: {one_line(loaded.get('class'), 80)} is not a StudentFilter (it subclasses {bases}); the "
+            "exercise grades a subclass of mazelab.exercise.StudentFilter with your own predict, weigh, resample "
+            "and estimate"
         )
     return None
+
+
+def one_line(text: object, limit: int = 600) -> str:
+    """What the student's process said, as one line of at most `limit` characters (never a forged line)."""
+    return " ".join(str(text).split())[:limit]
 
 
 @dataclass
@@ -153,9 +163,11 @@ def build_report(
     answers: Answers,
     references: References,
     stages: tuple[str, ...] = STAGES,
+    copies: dict[str, str] | None = None,
 ) -> Report:
     """The report from the answers: each part judged (or failed for how the process ended in it, or
-    for calling the reference implementation), then the whole filter against the reference runs."""
+    for being the lab's code: `copies`, mazelab.exercise.likeness), then the whole filter against the
+    reference runs."""
     report = Report(name, seed, output=answers.output)
     if answers.problem:
         report.problems.append(answers.problem)
@@ -163,11 +175,11 @@ def build_report(
         report.rows = [ended_row(_label(s), expected_of(s, parts), how, answers.output) for s in stages]
         return report
     judging = _Judging(parts, scenarios, answers, references, [references.exact(s) for s in scenarios])
-    at_import = not_own_row("import", "", answers.loaded or {})
     for stage in stages:
         row = _stage_row(stage, judging)
-        if at_import and row.status != NOT_WRITTEN:
-            row = Row(row.part, NOT_OWN, row.expected, f"at import: {at_import.got}", at_import.hint)
+        copied = (copies or {}).get(stage)
+        if copied and row.status != NOT_WRITTEN:
+            row = Row(row.part, NOT_OWN, row.expected, copied, COPY_HINT)
         report.rows.append(row)
     report.figures = judging.figures
     report.problems += [f"{_label(stage)}: the student's process {how}" for stage, how in answers.ended.items()]
@@ -184,11 +196,8 @@ def _stage_row(stage: str, judging: _Judging) -> Row:
     if stage in answers.ended:
         return ended_row(label, expected, answers.ended[stage], answers.output)
     message = answers.results.get(stage)
-    if message is None:
-        return not_run_row(label, expected, "the student's process ended before it")
-    own = not_own_row(label, expected, message.meta)
-    if own:
-        return own
+    if message is None:  # it said "done" (or ended) without this stage's answer
+        return Row(label, FAIL, expected, "no answer came from the student's process", "a part returns its answer")
     try:
         if stage == "whole":
             return _whole_row(judging, message)
@@ -228,26 +237,34 @@ def check_file(
     timeout: float = DEFAULT_TIMEOUT,
     references: References | None = None,
     stages: tuple[str, ...] = STAGES,
+    companions: bool = True,
 ) -> Report:
     """Grade `path/to/file.py[:Class]` in child processes (the given stages: every part and the whole
-    filter by default); NotGradableError when it cannot be checked."""
+    filter by default), the Python files beside it copied with it unless `companions` is False (a
+    file directly in a class folder: the others are other students'); NotGradableError when it
+    cannot be checked."""
     started = time.perf_counter()
     path, class_name = split_spec(spec)
     shown = f"{path}:{class_name}" if class_name else str(path)
     if not path.is_file():
-        raise NotGradableError(f"{shown}: no such file {path}")
+        raise NotGradableError(f"{shown}: no such file {path}" + ("" if path.exists() else " (check the path)"))
+    if path.resolve().suffix != ".py":
+        raise NotGradableError(f"{shown}: a link to {path.resolve()}, not a Python file")
     seed = default_seed(path.read_bytes()) if seed is None else seed
     parts = draw_part_inputs(seed)
     scenarios = draw_scenarios(seed) if "whole" in stages else []
     references = references or References()
     for scenario in scenarios:
         references.exact(scenario)  # start the exact runs while the student's process works
-    answers = collect_isolated(path.resolve(), class_name, parts, scenarios, timeout, stages)
+    answers = collect_isolated(path.resolve(), class_name, parts, scenarios, timeout, stages, shown, companions)
     problem = loading_problem(answers, shown)
     if problem:
         raise NotGradableError(problem)
-    name = str((answers.loaded or {}).get("name") or class_name or path.stem)
-    report = finish(build_report(name, seed, parts, scenarios, answers, references, stages))
+    said = str((answers.loaded or {}).get("name") or class_name or path.stem)
+    name = one_line(said, 80)  # the child's word for its name
+    copies = copied_parts(path.read_text(errors="replace"))
+    report = finish(build_report(name, seed, parts, scenarios, answers, references, stages, copies))
+    report.note = sandbox().note
     report.seconds = time.perf_counter() - started
     return report
 
@@ -263,7 +280,8 @@ def check(filter_class: type, *, seed: int | None = None, stages: tuple[str, ...
     problem = loading_problem(answers, filter_class.__name__)
     if problem:
         raise NotGradableError(problem)
-    report = build_report(str(filter_class.name), seed, parts, scenarios, answers, References(), stages)
+    copies = copied_parts(class_source(filter_class))
+    report = build_report(str(filter_class.name), seed, parts, scenarios, answers, References(), stages, copies)
     report = finish(report)
     report.seconds = time.perf_counter() - started
     return report

@@ -1,21 +1,17 @@
 """A row of the report, and the rows every check shares: a part that is not written, an error or an
 exit of the student's code, an answer of the wrong form, a part that calls the lab's reference
-implementation, a stage the student's process never reached or ended in."""
+implementation's code, a stage the student's process never reached or ended in."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from mazelab.exercise.wire import Message
 
 PASS, FAIL, NOT_WRITTEN, NOT_RUN, NOT_OWN = "pass", "fail", "not written", "not run", "not own work"
-REFERENCE_HINT = (
-    "write it yourself: a part may not call the lab's reference implementation (mazelab.model, "
-    "mazelab.resampling, mazelab.weights, the shipped filters, the grid filter, the simulation)"
-)
+COPY_HINT = "write it yourself: a part may not be the lab's reference implementation with its names changed"
 
 
 @dataclass
@@ -75,20 +71,6 @@ def error_row(part: str, expected: str, error: dict[str, str], hint: str) -> Row
     return Row(part, FAIL, expected, text, hint)
 
 
-def not_own_row(part: str, expected: str, meta: dict[str, Any]) -> Row | None:
-    """The row of a stage that called the lab's reference implementation or tampered with the
-    monitor that watches for it, or None."""
-    calls = [str(name)[:120] for name in meta.get("reference_calls") or []]
-    calls = ([c for c in calls if "<" not in c] or calls)[:4]  # the functions, before their inner code
-    refused = meta.get("monitor_refused") or 0
-    if calls:
-        return Row(part, NOT_OWN, expected, "calls the lab's " + ", ".join(calls), REFERENCE_HINT)
-    if refused:
-        got = "changed the grader's call monitor (sys.setprofile)"
-        return Row(part, NOT_OWN, expected, got, "leave the process's profiler alone: the grader uses it")
-    return None
-
-
 def not_run_row(part: str, expected: str, why: str) -> Row:
     return Row(part, NOT_RUN, expected, "not run", why)
 
@@ -102,18 +84,17 @@ def ended_row(part: str, expected: str, ended: str, output: str) -> Row:
 
 
 __all__ = [
+    "COPY_HINT",
     "FAIL",
     "NOT_OWN",
     "NOT_RUN",
     "NOT_WRITTEN",
     "PASS",
-    "REFERENCE_HINT",
     "BadAnswerError",
     "Row",
     "ended_row",
     "error_of",
     "error_row",
-    "not_own_row",
     "not_run_row",
     "take",
 ]

@@ -1,13 +1,13 @@
-"""The grader's side of the student's process: the request it is sent, the child started and bounded
-in time, and what came back, read without trusting it.
+"""The grader's side of the student's process: the request it is sent, the child started in the
+submission's sandbox (mazelab.exercise.sandbox) with its limits, and what came back, read without
+trusting it.
 
-The child is a multiprocessing process of the forkserver context (spawn where there is none): the
-fork server is a fresh interpreter that has imported only the child's modules (numpy, the lab's
-model, StudentFilter), so a child starts in milliseconds and shares nothing with the grader's memory:
-not the exact runs, not the robot's path, not the reference answers. It runs in a session of its
-own (ended with all it started), with its prints collected (the first and last few lines kept), and
-answers through a pipe as messages of mazelab.exercise.wire (JSON and raw arrays, never pickle),
-read by a thread as they come, so that a child that dies mid-way leaves the answers it gave.
+The child is a fresh interpreter (`python -P -S -s`) running mazelab.exercise.child on the student
+kit (the lab itself is not there); it is sent the request on its standard input and answers on a pipe as messages of
+mazelab.exercise.wire (JSON and raw arrays, never pickle), each after its length, read by a thread as
+they come, so that a child that dies mid-way leaves the answers it gave. Its processor time, memory
+and file sizes are limited by the grader before it starts (setrlimit, inherited by all it starts);
+its waiting by the grader's clock. It runs in a session of its own, ended with all it started.
 
 How a child can end: it answers and says "done"; it exits (any code, os._exit too) or is killed by a
 signal before that; it runs past the time limit (killed); or it sends what is not a message. Each is
@@ -16,46 +16,45 @@ signal before that; it runs past the time limit (killed); or it sends what is no
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import math
-import multiprocessing
 import os
+import shutil
 import signal
+import subprocess
+import tempfile
 import threading
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from mazelab.exercise.inputs import PartInputs, ScenarioInputs
+from mazelab.exercise.kit import build_kit
+from mazelab.exercise.sandbox import Sandbox, numpy_folders, sandbox
 from mazelab.exercise.wire import MAX_MESSAGE_BYTES, Message, WireError, decode, encode
 
 DEFAULT_TIMEOUT = 120.0  # processor seconds per child run: a vectorised filter needs 5-10, per-particle loops more
+MAX_TIMEOUT = 86_400.0  # a day: the largest --timeout (a processor-time limit must be a finite whole number)
 MEMORY_LIMIT = 4 << 30  # bytes of address space for the child
 FILE_LIMIT = 64 << 20  # the largest file the child may write
 OUTPUT_KEPT = 2000  # characters of the child's prints kept (its first and its last)
-CHILD_ENVIRONMENT = {  # the fork server's (and so every child's): one thread each, a fixed str hash, no display
-    "OMP_NUM_THREADS": "1",
-    "OPENBLAS_NUM_THREADS": "1",
-    "MKL_NUM_THREADS": "1",
-    "PYTHONHASHSEED": "0",
-    "MPLBACKEND": "Agg",
-    "PYTHONDONTWRITEBYTECODE": "1",
-}
-_context_lock = threading.Lock()
-_context: Any = None
-_running: set[Any] = set()  # the children alive now (what `stop_children` ends)
+_running: set[subprocess.Popen] = set()  # the children alive now (what `stop_children` ends)
 _running_lock = threading.Lock()
 _stopped = threading.Event()
+_kit_lock = threading.Lock()
+_kit: tuple[Path, str] | None = None
 
 
 class GradingStoppedError(Exception):
-    """The grading was stopped (Ctrl-C): no new child is started, and the running ones are ended."""
+    """The grading was stopped (Ctrl-C, SIGTERM): no new child is started, and the running ones are ended."""
 
 
 def stop_children() -> None:
-    """End every running child (and its session) and start no new one until `allow_children`."""
+    """End every running child (and its sandbox) and start no new one until `allow_children`."""
     _stopped.set()
     with _running_lock:
         running = list(_running)
@@ -67,23 +66,68 @@ def allow_children() -> None:
     _stopped.clear()
 
 
+def kit() -> tuple[Path, str]:
+    """The student kit of this process (built once, in a temporary folder removed at exit) and its sha256."""
+    global _kit
+    with _kit_lock:
+        if _kit is None:
+            folder = Path(tempfile.mkdtemp(prefix="mazelab-kit-"))
+            atexit.register(_remove, folder)
+            _kit = (folder, build_kit(folder / "kit"))
+        return _kit[0] / "kit", _kit[1]
+
+
+def _remove(folder: Path) -> None:
+    """Remove a folder of read-only files and folders."""
+    for path in [folder, *folder.rglob("*")]:
+        with contextlib.suppress(OSError):
+            path.chmod(0o755 if path.is_dir() else 0o644)
+    shutil.rmtree(folder, ignore_errors=True)
+
+
+COMPANIONS_KEPT = 50  # at most this many Python files beside a submission are copied with it
+
+
+@contextlib.contextmanager
+def submission_copy(path: Path, companions: bool = True) -> Any:
+    """A folder holding only read-only copies of the submission (`submission/NAME`) and, with
+    `companions`, the Python files beside it (its helper modules: a submission folder's own files),
+    and for a plain child `site/` with links to numpy; removed afterwards. Yields the folder."""
+    run = Path(tempfile.mkdtemp(prefix="mazelab-run-"))
+    try:
+        (run / "submission").mkdir()
+        beside = [p for p in path.parent.glob("*.py") if p.name != path.name and p.is_file() and not p.is_symlink()]
+        for source in [path, *sorted(beside)[:COMPANIONS_KEPT]] if companions else [path]:
+            copy = run / "submission" / source.name
+            shutil.copyfile(source, copy)
+            copy.chmod(0o444)
+        (run / "site").mkdir()
+        for folder in numpy_folders():
+            (run / "site" / folder.name).symlink_to(folder)
+        for folder in (run / "submission", run / "site", run):
+            folder.chmod(0o555)
+        yield run
+    finally:
+        _remove(run)
+
+
 def child_request(
     file: str,
     class_name: str | None,
     stages: list[str],
     parts: PartInputs,
     scenarios: list[ScenarioInputs],
-    timeout: float = DEFAULT_TIMEOUT,
+    shown: str = "",
 ) -> bytes:
     """The request: what to load, which stages, their inputs and the child's limits; only what a
     filter is given (the scenarios' compass angles, measurements and initial particles, never their
-    true path)."""
+    true path); `file` is the submission's path as the child sees it, `shown` its name in messages."""
     predict, weigh, resample, estimate = parts.predict, parts.weigh, parts.resample, parts.estimate
     meta = {
         "file": file,
         "class": class_name,
+        "shown": shown,
         "stages": stages,
-        "limits": {"memory_bytes": MEMORY_LIMIT, "file_bytes": FILE_LIMIT, "cpu_seconds": math.ceil(timeout)},
         "parts": {
             "maze": parts.maze,
             "sigma": parts.sigma,
@@ -140,62 +184,27 @@ class ChildRun:
         return f"in {self.stage}"
 
 
-def child_context() -> Any:
-    """The multiprocessing context of the children: forkserver (started once, with the child's modules
-    and CHILD_ENVIRONMENT) where there is one, else spawn."""
-    global _context
-    with _context_lock:
-        if _context is None:
-            try:
-                context = multiprocessing.get_context("forkserver")
-            except ValueError:
-                _context = multiprocessing.get_context("spawn")
-                return _context
-            # the main module too: a child would import it again otherwise (multiprocessing's rule), each time
-            context.set_forkserver_preload(["__main__", "mazelab.exercise.child"])
-            with _environment(CHILD_ENVIRONMENT):
-                from multiprocessing import forkserver
-
-                forkserver.ensure_running()
-            _context = context
-        return _context
-
-
-@contextlib.contextmanager
-def _environment(values: dict[str, str]) -> Any:
-    """os.environ with `values` while the fork server starts (it copies the environment), then as before."""
-    before = {name: os.environ.get(name) for name in values}
-    os.environ.update(values)
-    try:
-        yield
-    finally:
-        for name, value in before.items():
-            if value is None:
-                os.environ.pop(name, None)
-            else:
-                os.environ[name] = value
-
-
 class _Reader(threading.Thread):
     """Reads the child's messages as they come (a daemon: a pipe kept open by an escaped grandchild
     cannot hold the grader); stops at the end of the pipe or the first unreadable message."""
 
-    def __init__(self, connection: Any, run: ChildRun):
+    def __init__(self, stream: Any, run: ChildRun):
         super().__init__(daemon=True)
-        self.connection, self.run_, self.problem = connection, run, None
+        self.stream, self.run_, self.problem = stream, run, None
         self.done = False
 
     def run(self) -> None:
         received = 0
         try:
-            while True:
-                data = self.connection.recv_bytes(MAX_MESSAGE_BYTES)
-                received += len(data)
-                if received > MAX_MESSAGE_BYTES:
-                    raise WireError(f"more than {MAX_MESSAGE_BYTES >> 20} MB")
+            while header := self.stream.read(8):
+                size = int.from_bytes(header, "big")
+                received += size
+                if len(header) < 8 or received > MAX_MESSAGE_BYTES:
+                    raise WireError(f"more than {MAX_MESSAGE_BYTES >> 20} MB" if len(header) == 8 else "a cut header")
+                data = self.stream.read(size)
+                if len(data) < size:
+                    raise WireError("a message cut short")
                 self._take(decode(data))
-        except EOFError:
-            pass
         except (WireError, OSError, ValueError) as error:
             self.problem = f"sent output the grader cannot read ({error})"
 
@@ -243,7 +252,7 @@ class _Output(threading.Thread):
 
 def wall_limit(timeout: float) -> float:
     """How long the grader waits for a child whose processor time is limited to `timeout` seconds
-    (its own RLIMIT_CPU ends a busy one): a child that waits without working (a sleep, a lock) is
+    (its RLIMIT_CPU ends a busy one): a child that waits without working (a sleep, a lock) is
     stopped after this; where there is no processor limit (Windows), `timeout` itself."""
     return 4 * timeout + 10 if _has_cpu_limit() else timeout
 
@@ -256,33 +265,73 @@ def _has_cpu_limit() -> bool:
     return hasattr(resource, "RLIMIT_CPU")
 
 
-def run_child(request: bytes, timeout: float = DEFAULT_TIMEOUT) -> ChildRun:
-    """Start a child on `request` (whose processor time the child limits to `timeout` seconds),
-    wait at most `wall_limit(timeout)`, and return what it gave."""
-    from mazelab.exercise import child  # the target, by name: the fork server has it imported
+def _limits(timeout: float) -> Any:
+    """The function run in the child before it starts (after fork, before exec): its processor time
+    (SIGXCPU at the limit, SIGKILL two seconds later), memory, no core file, a bounded file size."""
+    try:
+        import resource
+    except ImportError:  # Windows: the grader's clock is all there is
+        return None
+    cpu = math.ceil(min(timeout, MAX_TIMEOUT))
+    wanted = [
+        (resource.RLIMIT_CPU, cpu, cpu + 2),
+        (resource.RLIMIT_AS, MEMORY_LIMIT, MEMORY_LIMIT),
+        (resource.RLIMIT_CORE, 0, 0),
+        (resource.RLIMIT_FSIZE, FILE_LIMIT, FILE_LIMIT),
+    ]
+    current = [resource.getrlimit(which)[1] for which, _, _ in wanted]
+    settings = [
+        (
+            which,
+            min(soft, hard) if hard != resource.RLIM_INFINITY else soft,
+            min(top, hard) if hard != resource.RLIM_INFINITY else top,
+        )
+        for (which, soft, top), hard in zip(wanted, current, strict=True)
+    ]
 
+    def apply() -> None:
+        for which, soft, hard in settings:
+            resource.setrlimit(which, (soft, hard))
+
+    return apply
+
+
+def run_child(
+    request: bytes, run_folder: Path, timeout: float = DEFAULT_TIMEOUT, made: Sandbox | None = None
+) -> ChildRun:
+    """Start a child on `request` in its sandbox (the submission's copy in `run_folder`), its processor
+    time limited to `timeout` seconds; wait at most `wall_limit(timeout)` and return what it gave."""
     if _stopped.is_set():
         raise GradingStoppedError("the grading was stopped")
-    context = child_context()
-    results_in, results_out = context.Pipe(duplex=False)
-    output_in, output_out = context.Pipe(duplex=False)
+    made = made or sandbox()
+    kit_folder, _ = kit()
+    answers_in, answers_out = os.pipe()
     run = ChildRun()
-    process = context.Process(target=child.main, args=(request, results_out, output_out), daemon=True)
     started = time.perf_counter()
     with _running_lock:
-        process.start()
+        try:
+            process = _start(made.command(kit_folder, run_folder, answers_out), answers_out, timeout, made, run_folder)
+        except OSError as error:  # bwrap gone since the probe, no memory to fork: this run's failure only
+            os.close(answers_in)
+            os.close(answers_out)
+            run.ended = f"could not be started ({error.strerror or error})"
+            return run
         _running.add(process)
-    results_out.close()
-    output_out.close()
-    reader, printed = _Reader(results_in, run), _Output(output_in.fileno())
+    os.close(answers_out)
+    reader = _Reader(os.fdopen(answers_in, "rb"), run)
+    printed = _Output(process.stdout.fileno())
     reader.start()
     printed.start()
     try:
-        process.join(wall_limit(timeout))
-        timed_out = process.exitcode is None
+        threading.Thread(target=_send, args=(process, request), daemon=True).start()
+        process.wait(wall_limit(timeout))
+        timed_out = False
+    except subprocess.TimeoutExpired:
+        timed_out = True
     finally:
         _end_session(process)
-        process.join(5)
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            process.wait(5)
         with _running_lock:
             _running.discard(process)
     if _stopped.is_set():
@@ -291,35 +340,74 @@ def run_child(request: bytes, timeout: float = DEFAULT_TIMEOUT) -> ChildRun:
     reader.join(5)
     printed.join(2)
     run.output = printed.text()
-    run.ended = _how_it_ended(run, reader, process.exitcode, timed_out, timeout)
-    for connection in (results_in, output_in):
-        with contextlib.suppress(OSError):
-            connection.close()
+    run.ended = _how_it_ended(run, reader, _signal_of(process.returncode, made), process.returncode, timed_out, timeout)
     return run
 
 
-def _end_session(process: Any) -> None:
-    """Kill the child and everything in its session (it is the session's leader)."""
+def _start(command: list[str], answers: int, timeout: float, made: Sandbox, run_folder: Path) -> subprocess.Popen:
+    """The child's process: the request on its standard input, its prints merged on one pipe, the
+    answer pipe kept open, its limits, a session of its own."""
+    return subprocess.Popen(
+        command,
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        pass_fds=(answers,),
+        preexec_fn=_limits(timeout),
+        start_new_session=True,
+        env=_plain_environment(made),
+        cwd=run_folder,
+    )
+
+
+def _send(process: subprocess.Popen, request: bytes) -> None:
+    """Write the request to the child's standard input and close it (a child that reads none is its own)."""
+    with contextlib.suppress(OSError):
+        process.stdin.write(request)
+    with contextlib.suppress(OSError):
+        process.stdin.close()
+
+
+def _plain_environment(made: Sandbox) -> dict[str, str] | None:
+    """A plain child's environment: the sandbox's few variables, and PATH (bwrap sets its own)."""
+    from mazelab.exercise.sandbox import CHILD_ENVIRONMENT
+
+    return {"PATH": os.environ.get("PATH", ""), **CHILD_ENVIRONMENT} if not made.sandboxed else None
+
+
+def _signal_of(code: int | None, made: Sandbox) -> int | None:
+    """The signal that ended the child: a negative return code, or bwrap's 128 + the signal of its child."""
+    if code is None:
+        return None
+    if code < 0:
+        return -code
+    return code - 128 if made.sandboxed and 128 < code < 128 + 65 else None
+
+
+def _end_session(process: subprocess.Popen) -> None:
+    """Kill the child's session (bwrap and so its whole sandbox; a plain child and what it started)."""
     for kill in (lambda: os.killpg(process.pid, signal.SIGKILL), process.kill):
-        with contextlib.suppress(ProcessLookupError, PermissionError, AttributeError, OSError):
+        with contextlib.suppress(ProcessLookupError, PermissionError, OSError):
             kill()
 
 
-def _how_it_ended(run: ChildRun, reader: _Reader, exitcode: int | None, timed_out: bool, timeout: float) -> str | None:
+def _how_it_ended(
+    run: ChildRun, reader: _Reader, signal_number: int | None, code: int | None, timed_out: bool, timeout: float
+) -> str | None:
     where = run.where()
     if timed_out:
         return f"waited past the time limit ({wall_limit(timeout):g} s) {where} and was stopped"
-    if exitcode is not None and exitcode == -getattr(signal, "SIGXCPU", 0):
+    if signal_number == getattr(signal, "SIGXCPU", 0):
         return f"ran past the time limit ({timeout:g} s of processor time) {where} and was stopped"
     if reader.problem:
         return f"{reader.problem} {where}"
     if reader.is_alive():
         return f"kept its answer pipe open after it ended {where}"
-    if reader.done and exitcode == 0:
+    if reader.done and code == 0:
         return None
-    if exitcode is not None and exitcode < 0:
-        return f"was killed by signal {-exitcode} ({_signal_name(-exitcode)}) {where}"
-    return f"exited with code {exitcode} {where}, before answering"
+    if signal_number is not None:
+        return f"was killed by signal {signal_number} ({_signal_name(signal_number)}) {where}"
+    return f"exited with code {code} {where}, before answering"
 
 
 def _signal_name(number: int) -> str:
@@ -331,12 +419,15 @@ def _signal_name(number: int) -> str:
 
 __all__ = [
     "DEFAULT_TIMEOUT",
+    "MAX_TIMEOUT",
+    "MEMORY_LIMIT",
     "ChildRun",
     "GradingStoppedError",
     "allow_children",
-    "child_context",
     "child_request",
+    "kit",
     "run_child",
     "stop_children",
+    "submission_copy",
     "wall_limit",
 ]

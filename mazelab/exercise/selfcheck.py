@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+from mazelab.exercise.language import catalogue_for
 from mazelab.exercise.layout import format_report, format_rows
 from mazelab.exercise.outcome import Report
 from mazelab.exercise.report import check, check_command, progress, source_seed
@@ -15,20 +16,23 @@ from mazelab.exercise.rows import Row
 from mazelab.exercise.student import PARTS, StudentFilter
 
 
-def check_part(part: str, function: Callable[..., object]) -> Row:
-    """Check one part written as a plain function `part(self, ...)` (a notebook cell), print its row."""
+def check_part(part: str, function: Callable[..., object], lang: str = "en") -> Row:
+    """Check one part written as a plain function `part(self, ...)` (a notebook cell), print its row
+    (in `lang`: en or uk)."""
     if part not in PARTS:
         raise ValueError(f"unknown part {part!r}; the parts are {', '.join(PARTS)}")
     notebook_filter = type("NotebookFilter", (StudentFilter,), {part: function})
     row = check(notebook_filter, seed=source_seed(function), stages=(part,)).rows[0]
-    print(format_rows([row]))
+    print(format_rows([row], catalogue=catalogue_for(lang)))
     return row
 
 
-def check_and_print(filter_class: type) -> Report:
-    """Check every part and the whole filter, and print the report (the notebook's last check cell)."""
+def check_and_print(filter_class: type, lang: str = "en") -> Report:
+    """Check every part and the whole filter, and print the report (the notebook's last check cell),
+    in `lang` (en or uk)."""
     report = check(filter_class)
-    print(format_report(report, seed_note=" (from the class's source)"))
+    words = catalogue_for(lang)
+    print(format_report(report, seed_note=words.gettext(" (from the class's source)"), catalogue=words))
     return report
 
 

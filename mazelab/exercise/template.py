@@ -88,10 +88,11 @@ arrays (no loops over particles) and draw random numbers only from the `rng` you
 - `python my_filter.py` says which parts are still to write and checks those you wrote.
 - `mazelab exercise check my_filter.py` grades every part and the whole filter against the exact
   posterior (a row per part: pass or fail, what came, and under a failing row what was expected and a
-  hint). Exit code 0 means all pass. It runs your file in a process of its own, on inputs drawn from
+  hint). Exit code 0 means all pass. It runs your file in a sandbox of its own, on inputs drawn from
   the file's content (an edit gets new ones; `--seed S` repeats a report) and judges only what your
-  code returns. Each part must be your own code: one that calls the lab's reference implementation
-  (mazelab.model, mazelab.resampling, mazelab.weights, the shipped filters) is marked "not own work".
+  code returns. The lab's reference implementation (mazelab.model's functions, mazelab.resampling,
+  the shipped filters) is not in that sandbox: each part must be your own code, and one copied from
+  the lab's with its names changed is marked "not own work". `--lang uk`: the report in Ukrainian.
 - `mazelab run --filter my_filter.py:MyFilter` runs it in the viewer; `mazelab compare SCENARIO
   --filters sir,my_filter.py:MyFilter` puts it beside the shipped SIR.
 

@@ -1,0 +1,193 @@
+"""The student kit: the only lab code a submission's sandbox holds.
+
+A graded submission runs where the lab is not installed (mazelab.exercise.sandbox): it sees Python,
+numpy, its own file and this kit, a folder the grader builds from the list below. The kit carries
+StudentFilter and what it imports (the step's wiring, the maze's geometry the exercise allows, the
+model's constants) and the child's side of the grading (mazelab.exercise.child, .wire); never an
+implementation of a graded part: not the model's transition or likelihood, not a resampling scheme,
+not the weighted mean, not the shipped filters, the grid filter or the grader. There is nothing to
+delegate to, copy or exec.
+
+`KIT` is the one list to extend when StudentFilter imports a new module: an entry is a module copied
+whole (`WHOLE`), only its constants (`CONSTANTS`: their values, written as literals), or only the
+named top-level functions and classes (with the private helpers they use). `tests/test_exercise_kit.py`
+checks that every module StudentFilter imports, directly or not, is here, and that no reference
+implementation is.
+"""
+
+from __future__ import annotations
+
+import ast
+import hashlib
+import importlib
+from pathlib import Path
+
+WHOLE = "whole"
+CONSTANTS = "constants"
+PACKAGE_DIR = Path(__file__).resolve().parents[1]  # mazelab/
+KIT: dict[str, str | tuple[str, ...]] = {
+    "mazelab": CONSTANTS,  # the package's __init__: its version only (the real one reaches the studies)
+    "mazelab.checks": WHOLE,
+    "mazelab.declaration": WHOLE,
+    "mazelab.contract": WHOLE,
+    "mazelab.limits": WHOLE,
+    "mazelab.lookup": WHOLE,
+    "mazelab.maze_paths": WHOLE,
+    "mazelab.maze": WHOLE,
+    "mazelab.seeding": WHOLE,
+    "mazelab.model": CONSTANTS,  # L, the outside penalty, the green circle: never the transition or likelihood
+    "mazelab.weights": ("log_sum_exp", "effective_sample_size", "mass_within"),  # not weighted_mean (estimate)
+    "mazelab.exercise": WHOLE,
+    "mazelab.exercise.student": WHOLE,
+    "mazelab.exercise.wire": WHOLE,
+    "mazelab.exercise.child": WHOLE,
+}
+# What must never be in the sandbox: the reference implementations and the grader.
+REFERENCE_MODULES = (
+    "mazelab.filters",
+    "mazelab.cloud",
+    "mazelab.resampling",
+    "mazelab.regularisation",
+    "mazelab.grid_filter",
+    "mazelab.kalman",
+    "mazelab.simulation",
+    "mazelab.robot",
+    "mazelab.kernels",
+    "mazelab.experiments",
+    "mazelab.exercise.parts",
+    "mazelab.exercise.offspring",
+    "mazelab.exercise.whole",
+    "mazelab.exercise.report",
+    "mazelab.exercise.inputs",
+)
+REFERENCE_FUNCTIONS = ("mazelab.model.log_likelihood", "mazelab.model.move", "mazelab.weights.weighted_mean")
+
+
+class KitError(RuntimeError):
+    """The kit cannot be built: a module's constant is not a plain value (the list needs a look)."""
+
+
+def source_file(module: str) -> Path:
+    """The lab's source file of `module` (a package's __init__.py)."""
+    relative = Path(*module.split("."))
+    package = PACKAGE_DIR.parent / relative / "__init__.py"
+    return package if package.is_file() else PACKAGE_DIR.parent / relative.with_suffix(".py")
+
+
+def kit_file(module: str) -> Path:
+    """Where `module` lies inside the kit folder (relative)."""
+    relative = Path(*module.split("."))
+    return relative / "__init__.py" if source_file(module).name == "__init__.py" else relative.with_suffix(".py")
+
+
+def constants_text(module: str) -> str:
+    """A module of `module`'s upper-case constants as literals (their values now: one source of truth)."""
+    loaded = importlib.import_module(module)
+    lines = [f'"""The constants of {module}, as the student kit carries them."""', ""]
+    for name, value in vars(loaded).items():
+        upper = name.isupper() and not name.startswith("_") and name != "TYPE_CHECKING"
+        if (name == "__version__" or upper) and _literal(value):
+            lines.append(f"{name} = {value!r}")
+    return "\n".join(lines) + "\n"
+
+
+def _literal(value: object) -> bool:
+    """Whether `value`'s repr is a literal that reads back as the same value."""
+    plain = (bool, int, float, str)
+    return isinstance(value, plain) or (isinstance(value, tuple) and all(isinstance(v, plain) for v in value))
+
+
+def selected_text(module: str, names: tuple[str, ...]) -> str:
+    """`module`'s source with only its imports, its constants and the named functions and classes
+    (and the private top-level helpers they use), in their order."""
+    source = source_file(module).read_text()
+    tree = ast.parse(source)
+    defined = {n.name: n for n in tree.body if isinstance(n, (ast.FunctionDef, ast.ClassDef))}
+    missing = [name for name in names if name not in defined]
+    if missing:
+        raise KitError(f"{module} has no {', '.join(missing)} (mazelab.exercise.kit.KIT)")
+    keep, todo = set(), list(names)
+    while todo:
+        name = todo.pop()
+        if name in keep:
+            continue
+        keep.add(name)
+        used = {n.id for n in ast.walk(defined[name]) if isinstance(n, ast.Name)}
+        todo += [u for u in used if u in defined and u.startswith("_")]
+    body = [
+        n
+        for n in tree.body
+        if not isinstance(n, (ast.FunctionDef, ast.ClassDef)) or n.name in keep
+        if not (isinstance(n, ast.Assign) and any(isinstance(t, ast.Name) and t.id == "__all__" for t in n.targets))
+    ]
+    kept = ast.Module(body=body, type_ignores=[])
+    return ast.unparse(kept) + f"\n__all__ = {sorted(names)!r}\n"
+
+
+def module_text(module: str) -> str:
+    """The text the kit holds for `module`."""
+    how = KIT[module]
+    if how == WHOLE:
+        return source_file(module).read_text()
+    if how == CONSTANTS:
+        return constants_text(module)
+    return selected_text(module, tuple(how))
+
+
+def build_kit(folder: Path) -> str:
+    """Write the kit into `folder` (which must be empty or new) and return its sha256 (of every file's
+    name and text, in order): the grader builds it once and binds it read-only into each sandbox."""
+    digest = hashlib.sha256()
+    for module in KIT:
+        target = folder / kit_file(module)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        text = module_text(module)
+        target.write_text(text)
+        target.chmod(0o444)
+        digest.update(f"{kit_file(module)}\0{text}\0".encode())
+    for directory in sorted({p for p in folder.rglob("*") if p.is_dir()} | {folder}):
+        directory.chmod(0o555)
+    return digest.hexdigest()
+
+
+def lab_imports(module: str) -> set[str]:
+    """The mazelab modules `module` imports (at any depth of its code, not under TYPE_CHECKING), as the
+    kit holds it (a module of constants imports nothing)."""
+    tree = ast.parse(module_text(module) if module in KIT else source_file(module).read_text())
+    found: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+            node.body = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("mazelab") and not node.level:
+            found.add(node.module)
+            found |= {f"{node.module}.{a.name}" for a in node.names if source_file(f"{node.module}.{a.name}").is_file()}
+        elif isinstance(node, ast.Import):
+            found |= {a.name for a in node.names if a.name.startswith("mazelab")}
+    return found
+
+
+def transitive_imports(module: str) -> set[str]:
+    """Every mazelab module `module` imports, directly or through others, and their parent packages."""
+    seen, todo = set(), [module]
+    while todo:
+        name = todo.pop()
+        if name in seen or not source_file(name).is_file():
+            continue
+        seen.add(name)
+        parts = name.split(".")
+        todo += [".".join(parts[:i]) for i in range(1, len(parts))]
+        todo += sorted(lab_imports(name))
+    return seen
+
+
+__all__ = [
+    "KIT",
+    "REFERENCE_FUNCTIONS",
+    "REFERENCE_MODULES",
+    "KitError",
+    "build_kit",
+    "kit_file",
+    "source_file",
+    "transitive_imports",
+]

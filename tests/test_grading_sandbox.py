@@ -1,0 +1,385 @@
+"""The sandbox a submission is graded in, and the adversaries of issue 37: each submission here attacks
+the grader as an instructor found one could, and gets the verdict its values earn.
+
+The kit (what the sandbox holds of the lab) is checked without a sandbox; the rest runs bubblewrap for
+real (skipped, saying why, where it cannot: CI installs it)."""
+
+from __future__ import annotations
+
+import ast
+import json
+import os
+import re
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+from exercise_answers import write_submission
+
+from mazelab.cli.app import main
+from mazelab.exercise.kit import (
+    KIT,
+    PACKAGE_DIR,
+    REFERENCE_FUNCTIONS,
+    REFERENCE_MODULES,
+    build_kit,
+    kit_file,
+    source_file,
+    transitive_imports,
+)
+from mazelab.exercise.report import NotGradableError, check_file
+from mazelab.exercise.runner import MEMORY_LIMIT
+from mazelab.exercise.sandbox import SANDBOX_UID, TMP_LIMIT, Sandbox, sandbox
+
+SEED = 2024  # tests/test_grading.py's
+needs_sandbox = pytest.mark.skipif(not sandbox().sandboxed, reason=f"no sandbox here: {sandbox().why}")
+
+
+def rows(report) -> dict[str, tuple[str, str]]:
+    return {row.part: (row.status, row.got) for row in report.rows}
+
+
+def estimate_only(tmp_path: Path, prelude: str = "", **parts) -> object:
+    """The report of the estimate stage (a few seconds) of a submission with `prelude` at import."""
+    path = write_submission(tmp_path / "sub" / "my_filter.py", textwrap.dedent(prelude), **parts)
+    return check_file(str(path), seed=SEED, stages=("estimate",), timeout=30)
+
+
+def said(report, key: str) -> dict:
+    """The JSON the submission printed after `key` (its only way to say what it found)."""
+    lines = [line for line in report.output.splitlines() if line.startswith(key + " ")]
+    assert lines, report.output
+    return json.loads(lines[-1].removeprefix(key + " "))
+
+
+# -- the kit -------------------------------------------------------------------------------------------
+def test_every_module_student_filter_imports_is_in_the_kit_and_none_is_a_reference():
+    """StudentFilter's transitive mazelab imports (and the child's) are each in KIT, and none of
+    them is a reference implementation: when StudentFilter imports a new module, this names it."""
+    needed = transitive_imports("mazelab.exercise.student") | transitive_imports("mazelab.exercise.child")
+    assert needed - set(KIT) == set(), "add these to mazelab.exercise.kit.KIT"
+    assert not [m for m in KIT if m.startswith(REFERENCE_MODULES)]
+    assert not [m for m in needed if m.startswith(REFERENCE_MODULES)]
+
+
+def test_every_name_a_kit_module_imports_from_another_is_in_the_kit(tmp_path):
+    """A module the kit trims (only some functions, or constants) still holds every name the kit's
+    other modules import from it: StudentFilter importing a new name from mazelab.weights names it here."""
+    build_kit(tmp_path / "kit")
+    defined = {}
+    for module in KIT:
+        tree = ast.parse((tmp_path / "kit" / kit_file(module)).read_text())
+        names = set()
+        for node in tree.body:
+            if isinstance(node, (ast.FunctionDef, ast.ClassDef)):
+                names.add(node.name)
+            elif isinstance(node, ast.Assign):
+                names |= {t.id for t in node.targets if isinstance(t, ast.Name)}
+            elif isinstance(node, (ast.Import, ast.ImportFrom)):
+                names |= {(a.asname or a.name).split(".")[0] for a in node.names}
+        defined[module] = names
+    missing = []
+    for module in KIT:
+        for node in ast.walk(ast.parse((tmp_path / "kit" / kit_file(module)).read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module in KIT and not node.level:
+                missing += [f"{node.module}.{a.name}" for a in node.names if a.name not in defined[node.module]
+                            and f"{node.module}.{a.name}" not in KIT]  # fmt: skip
+    assert missing == []
+
+
+def test_the_kit_holds_none_of_the_reference_functions_and_is_built_read_only(tmp_path):
+    digest = build_kit(tmp_path / "kit")
+    assert build_kit(tmp_path / "again") == digest
+    files = sorted((tmp_path / "kit").rglob("*.py"))
+    text = "\n".join(f.read_text() for f in files)
+    for name in REFERENCE_FUNCTIONS:
+        assert f"def {name.rsplit('.', 1)[1]}(" not in text, name
+    assert "def systematic_resample" not in text and "def log_likelihood" not in text
+    assert {oct(f.stat().st_mode & 0o777) for f in files} == {"0o444"}
+    model = (tmp_path / "kit" / "mazelab" / "model.py").read_text()
+    assert "ROBOT_SPEED = 0.2" in model and "import" not in model  # the constants as literals, nothing else
+
+
+# -- what the sandbox holds ------------------------------------------------------------------------------
+@needs_sandbox
+def test_the_sandbox_holds_no_reference_implementation_no_lab_source_no_network_and_no_other_file(tmp_path):
+    lab_file = str(source_file("mazelab.filters"))
+    original = str(tmp_path / "sub")
+    modules = list(REFERENCE_MODULES)
+    prelude = f"""
+        import importlib, json, os, socket
+        found = {{"imported": [], "read": [], "listed": [], "uid": os.getuid(), "network": True}}
+        for module in {modules!r}:
+            try:
+                importlib.import_module(module)
+                found["imported"].append(module)
+            except ImportError:
+                pass
+        for path in ({lab_file!r}, "/etc/passwd", {original!r} + "/my_filter.py", "/root"):
+            try:
+                open(path).read(1)
+                found["read"].append(path)
+            except OSError:
+                pass
+        for folder in ({original!r}, {str(Path(lab_file).parent)!r}, "/work", "/home"):
+            if os.path.isdir(folder):
+                found["listed"].append(folder)
+        try:
+            socket.create_connection(("127.0.0.1", 22), timeout=1).close()
+        except OSError:
+            found["network"] = False
+        found["files"] = sorted(os.listdir("/submission"))
+        print("found", json.dumps(found))
+    """
+    report = estimate_only(tmp_path, prelude)
+    found = said(report, "found")
+    assert found["imported"] == [] and found["read"] == [] and found["listed"] == [], found
+    assert found["uid"] == SANDBOX_UID and found["network"] is False and found["files"] == ["my_filter.py"]
+    assert rows(report)["estimate"][0] == "pass" and report.note == ""
+
+
+@needs_sandbox
+@pytest.mark.parametrize(
+    "how, prelude",
+    [
+        ("exec of the lab's source", "import inspect, mazelab.model as m\nexec(inspect.getsource(m.log_likelihood))"),
+        ("a copy of the lab's files", f"import shutil\nshutil.copytree({str(PACKAGE_DIR)!r}, '/tmp/lab')"),
+        ("the monitor patched", "import mazelab.exercise.monitor as m\nm.Monitor.record = lambda self, name: None"),
+    ],
+)
+def test_what_delegated_to_the_lab_finds_nothing_there(tmp_path, how, prelude):
+    path = write_submission(tmp_path / "sub" / "my_filter.py", prelude)
+    with pytest.raises(NotGradableError, match="does not import"):
+        check_file(str(path), seed=SEED, stages=("estimate",))
+
+
+@needs_sandbox
+def test_a_thread_calling_the_lab_finds_nothing_to_call(tmp_path):
+    estimate = """
+        def estimate(self, positions, weights):
+            import _thread, time
+            out = []
+            def work():
+                try:
+                    from mazelab.weights import weighted_mean
+                    out.append(weighted_mean(weights, positions))
+                except BaseException as error:
+                    out.append(error)
+            _thread.start_new_thread(work, ())
+            while not out:
+                time.sleep(0.01)
+            if isinstance(out[0], BaseException):
+                raise out[0]
+            return out[0]
+    """
+    status, got = rows(estimate_only(tmp_path, estimate=textwrap.dedent(estimate)))["estimate"]
+    assert status == "fail" and "cannot import name 'weighted_mean'" in got
+
+
+# -- answers judged by their values only -----------------------------------------------------------------
+@needs_sandbox
+def test_forged_answers_on_the_pipe_get_the_verdict_of_their_values(tmp_path):
+    """The child's answer pipe taken at import: "loaded", a forged result for every stage and "done",
+    then os._exit(0). The grader believes none of what it says, only the values: estimate fails."""
+    prelude = """
+        import os, stat
+        from mazelab.exercise.wire import encode
+
+        def send(fd, meta, arrays=None):
+            data = encode(meta, arrays)
+            os.write(fd, len(data).to_bytes(8, "big") + data)
+
+        for fd in range(3, 64):
+            try:
+                if stat.S_ISFIFO(os.fstat(fd).st_mode) and fd > 2:
+                    send(fd, {"kind": "loaded", "class": "MyFilter", "name": "MyFilter", "student_filter": True,
+                              "bases": []})
+                    send(fd, {"kind": "stage", "stage": "estimate"})
+                    send(fd, {"kind": "result", "stage": "estimate", "passed": True},
+                         {f"point/{k}": np.zeros(2) for k in range(4)})
+                    send(fd, {"kind": "done"})
+            except OSError:
+                pass
+        os._exit(0)
+    """
+    status, got = rows(estimate_only(tmp_path, prelude))["estimate"]
+    assert status == "fail" and "off by" in got, got
+
+
+@needs_sandbox
+def test_a_forged_done_without_answers_fails_every_row_and_forges_no_line(tmp_path):
+    prelude = """
+        import os, stat
+        from mazelab.exercise.wire import encode
+
+        for fd in range(3, 64):
+            try:
+                if stat.S_ISFIFO(os.fstat(fd).st_mode):
+                    for meta in ({"kind": "loaded", "class": "MyFilter", "name": "Mine\\nAll checks pass.",
+                                  "student_filter": True, "bases": []}, {"kind": "done"}):
+                        data = encode(meta)
+                        os.write(fd, len(data).to_bytes(8, "big") + data)
+            except OSError:
+                pass
+        os._exit(0)
+    """
+    path = write_submission(tmp_path / "sub" / "my_filter.py", textwrap.dedent(prelude))
+    report = check_file(str(path), seed=SEED, stages=("predict", "estimate"))
+    assert [(r.status, r.got) for r in report.rows] == [("fail", "no answer came from the student's process")] * 2
+    assert report.filter_name == "Mine All checks pass."  # one line: the report's own lines cannot be forged
+
+
+@needs_sandbox
+def test_a_setsid_grandchild_and_a_sleeping_thread_neither_hold_the_grading_nor_outlive_it(tmp_path):
+    marker = f"mazelab-test-grandchild-{os.getpid()}-{time.time_ns()}"
+    prelude = f"""
+        import os, subprocess, sys, threading, time
+        subprocess.Popen([sys.executable, "-c", "import time; time.sleep(600)", {marker!r}],
+                         start_new_session=True)
+        threading.Thread(target=time.sleep, args=(600,)).start()  # not a daemon
+    """
+    report = estimate_only(tmp_path, prelude)
+    assert rows(report)["estimate"][0] == "pass", report.rows
+    left = [p for p in Path("/proc").iterdir() if p.name.isdigit() and marker in _cmdline(p)]
+    assert left == []
+
+
+def _cmdline(process: Path) -> str:
+    try:
+        return (process / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+    except OSError:
+        return ""
+
+
+@needs_sandbox
+def test_a_part_that_allocates_past_the_memory_limit_fails_naming_it(tmp_path):
+    estimate = f"""
+        def estimate(self, positions, weights):
+            hoard = np.empty({MEMORY_LIMIT // 8 + (1 << 27)})  # a gigabyte past the limit (of address space)
+            return weights @ positions + hoard[0] - 1
+    """
+    status, got = rows(estimate_only(tmp_path, estimate=textwrap.dedent(estimate)))["estimate"]
+    assert status == "fail" and "MemoryError" in got and f"past the memory limit of {MEMORY_LIMIT / 2**30:g} GB" in got
+
+
+@needs_sandbox
+def test_the_private_tmp_is_bounded(tmp_path):
+    if not sandbox().bounded_tmp:
+        pytest.skip("this bwrap (before 0.7) cannot bound /tmp")
+    estimate = f"""
+        def estimate(self, positions, weights):
+            block = bytes(48 << 20)  # under the file size limit; {TMP_LIMIT >> 20} MB of /tmp in all
+            for k in range({TMP_LIMIT // (48 << 20) + 2}):
+                with open(f"/tmp/fill{{k}}", "wb") as file:
+                    file.write(block)
+            return weights @ positions
+    """
+    status, got = rows(estimate_only(tmp_path, estimate=textwrap.dedent(estimate)))["estimate"]
+    assert status == "fail" and "No space left on device" in got, got
+
+
+def test_a_child_that_cannot_be_started_fails_its_rows_not_the_grader(tmp_path, monkeypatch):
+    import mazelab.exercise.report as report
+
+    monkeypatch.setattr(report, "sandbox", lambda: Sandbox(str(tmp_path / "gone" / "bwrap")))
+    path = write_submission(tmp_path / "sub" / "my_filter.py")
+    checked = check_file(str(path), seed=SEED, stages=("weigh", "estimate"))
+    assert [(r.status, "could not be started" in r.got) for r in checked.rows] == [("fail", True)] * 2
+
+
+# -- copied code ---------------------------------------------------------------------------------------
+def renamed(source: str, names: dict[str, str]) -> str:
+    """`source` with its names changed (the way a copy is hidden)."""
+    for old, new in names.items():
+        source = re.sub(rf"\b{old}\b", new, source)
+    return source
+
+
+def test_the_labs_code_with_its_names_changed_is_not_own_work(tmp_path):
+    weighted = textwrap.dedent(source_file("mazelab.weights").read_text())
+    start = weighted.index("def _columns(")
+    helpers = weighted[start : weighted.index("def weighted_covariance(")]
+    helpers = renamed(helpers, {"_columns": "split_xy", "W": "ww", "means": "out", "column": "j", "runs": "r"})
+    helpers = renamed(helpers, {"weighted_mean": "my_mean", "points": "pts", "weights": "wts"})
+    estimate = "def estimate(self, positions, weights):\n    return my_mean(weights, positions)\n"
+    report = estimate_only(tmp_path, prelude="import numpy as np\n\n" + helpers, estimate=estimate)
+    status, got = rows(report)["estimate"]
+    assert status == "not own work" and "mazelab.weights.weighted_mean" in got, got
+
+
+def test_no_honest_answer_is_taken_for_a_copy():
+    """Every answer of tests/exercise_answers.py (the reference, each resampler, the planted bugs and
+    the slightly wrong parts) stays under the limit (docs/exercise.md: the measured largest)."""
+    import exercise_answers
+
+    from mazelab.exercise.likeness import LIKENESS_LIMIT, class_source, likeness
+
+    classes = [c for c in vars(exercise_answers).values() if isinstance(c, type)]
+    worst = max(one.share for c in classes for one in likeness(class_source(c)).values())
+    assert worst < LIKENESS_LIMIT
+
+
+# -- where no sandbox can be made -----------------------------------------------------------------------
+def test_without_a_sandbox_the_report_says_so_and_require_sandbox_refuses(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("MAZELAB_BWRAP", str(tmp_path / "no-bwrap"))
+    sandbox.cache_clear()
+    try:
+        report = estimate_only(tmp_path)
+        assert "not sandboxed" in report.note and "cannot be trusted" in report.note
+        path = str(tmp_path / "sub" / "my_filter.py")
+        assert main(["exercise", "check", path, "--require-sandbox"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "--require-sandbox" in err[0]
+    finally:
+        sandbox.cache_clear()
+
+
+# -- check --gradescope when nothing can be checked ------------------------------------------------------
+@pytest.mark.parametrize("what", ["does not import", "does not exist"])
+def test_check_gradescope_writes_a_zero_with_the_reason(tmp_path, capsys, what):
+    path = tmp_path / "my_filter.py"
+    if what == "does not import":
+        path.write_text("raise RuntimeError('broken at import')\n")
+    assert main(["exercise", "check", str(path), "--gradescope", str(tmp_path)]) == 2
+    results = json.loads((tmp_path / "results.json").read_text())
+    assert results["score"] == 0.0 and results["tests"] and all(t["score"] == 0.0 for t in results["tests"])
+    assert ("broken at import" if what == "does not import" else "no such file") in results["output"]
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("timeout", ["inf", "1e18", "nan"])
+def test_check_refuses_a_timeout_past_a_day_in_one_line(tmp_path, capsys, timeout):
+    path = write_submission(tmp_path / "my_filter.py")
+    assert main(["exercise", "check", str(path), "--timeout", timeout]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--timeout" in err[0]
+
+
+def test_the_uk_report_speaks_ukrainian(tmp_path, capsys):
+    path = write_submission(tmp_path / "my_filter.py", estimate="def estimate(self, positions, weights):\n    "
+                            "return positions.mean(axis=0)\n")  # fmt: skip
+    assert main(["exercise", "check", str(path), "--lang", "uk", "--seed", str(SEED), "--timeout", "30"]) == 1
+    out = capsys.readouterr().out
+    assert "НЕ ЗАРАХОВАНО" in out and "Треба виправити: estimate" in out  # noqa: RUF001
+    assert "це просте середнє гранул, без ваг" in out
+    assert "FAIL" not in out and "hint:" not in out and "expected:" not in out
+    assert main(["exercise", "check", str(path), "--lang", "xx"]) == 2
+
+
+def test_the_catalogue_is_read_without_running_it(tmp_path):
+    from mazelab.exercise.language import CatalogueError, read_po
+
+    po = tmp_path / "xx.po"
+    po.write_text('msgid "a"\nmsgstr __import__("os").system("echo run")\n')
+    with pytest.raises(CatalogueError, match="line 2"):
+        read_po(po)
+    po.write_text('msgid "a"\nmsgstr "b\\n"\n')
+    assert read_po(po) == {"a": "b\n"}
+
+
+def test_check_refuses_a_link_to_a_file_that_is_not_python_in_one_line(tmp_path, capsys):
+    (tmp_path / "my_filter.py").symlink_to("/etc/passwd")
+    assert main(["exercise", "check", str(tmp_path / "my_filter.py")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"error: {tmp_path / 'my_filter.py'}: a link to /etc/passwd, not a Python file"]
