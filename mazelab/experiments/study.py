@@ -121,7 +121,7 @@ class StudySetting:
     def filter_options(self, filter_name: str | type) -> dict[str, Any]:
         """The options of this setting that the filter declares (its declaration checks them)."""
         declared = options_of(resolve_filter(filter_name))
-        return {name: self.value(name) for name in self.option_names if name in declared}
+        return {name: self.value(name) for name in self.option_names if name in declared and _studied(name, declared)}
 
 
 MODEL_PARAMETERS = ("sigma", "delta", "particles")
@@ -153,7 +153,13 @@ def takes_parameter(filter_name: str | type, parameter: str) -> bool:
         return entry.takes_particles
     if parameter in ("maze", "sigma", "delta"):
         return True
-    return parameter in entry.options
+    return parameter in entry.options and _studied(parameter, entry.options)
+
+
+def _studied(name: str, declared: Any) -> bool:
+    """Whether a study's option reaches a filter that declares it: the paper's RPF threshold (lab step 14)
+    only a filter that resamples adaptively by default, not SIR or the APF (theirs: every step)."""
+    return name != "threshold" or declared["threshold"].default < 1
 
 
 def study_settings(
