@@ -434,6 +434,10 @@ class SMC:
         """log W_i, normalised: (N,) for one run, (R, N) for R runs."""
         return self._one(self.weights_value.lw)
 
+    @log_weights.setter
+    def log_weights(self, values: np.ndarray) -> None:
+        self.weights_value = Weights(np.asarray(values, dtype=float).reshape(self.runs, -1))
+
     @property
     def ess(self) -> float | np.ndarray:
         """N_eff = 1 / sum_i W_i^2: a float for one run, (R,) for R runs."""
