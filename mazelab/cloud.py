@@ -187,12 +187,12 @@ class ParticleFilter(SMC):
         return self.model.log_likelihood(self.measurements[self.selected_runs], points)
 
     def ancestors(self, weights: np.ndarray) -> np.ndarray:
-        """RESAMPLE: ancestor indices into `positions`, N per run served, by the resampling scheme.
+        """RESAMPLE by the resampling scheme: ancestor indices into `positions`, N per row of weights.
 
         Parameters
         ----------
         weights : array (R, N)
-            Every run's normalised weights.
+            The normalised weights of the runs served now, one row each.
 
         Returns
         -------
@@ -201,24 +201,50 @@ class ParticleFilter(SMC):
         runs = self.selected_runs
         if self.scheme is systematic_resample:  # one offset per run, the counting done for all runs at once
             uniforms = np.array([self.rngs[run].random() for run in runs])
-            return self.ops.systematic(weights, uniforms, self._selected, self.count)
-        return np.concatenate([self.scheme(weights[run], self.rngs[run]) + run * self.count for run in runs])
+            ancestors = self.ops.systematic(weights, uniforms, None, self.count)
+            if self._selected is not None:  # block b is run runs[b]'s
+                ancestors += np.repeat(self.count * (runs - np.arange(len(runs))), self.count).astype(ancestors.dtype)
+            return ancestors
+        rows = zip(runs, weights, strict=True)
+        return np.concatenate([self.scheme(w, self.rngs[run]) + run * self.count for run, w in rows])
+
+    def normal_draws(self, count: int) -> np.ndarray:
+        """eps ~ N(0, I_2), (count, 2) in PARTICLE_DTYPE, each run's block from its own Generator.
+
+        Parameters
+        ----------
+        count : int
+            The draws of all the runs served now.
+
+        Returns
+        -------
+        array (count, 2)
+        """
+        runs = self.selected_runs
+        size = count // len(runs)
+        eps = self.ops.buffer("eps", (count, 2), PARTICLE_DTYPE)
+        for block, run in enumerate(runs):
+            self.rngs[run].standard_normal(dtype=PARTICLE_DTYPE, out=eps[block * size : (block + 1) * size])
+        return eps
 
     # -- KLD-sampling and recovery: hooks of the resampling (one run) --------------------------------
-    def draw(self, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def draw(self, weights: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """RESAMPLE and `move_after_resampling`; with KLD-sampling as many as Fox's bound asks; with
         recovery, then each particle replaced with the injection probability by an injected point.
 
         Parameters
         ----------
         weights : array (R, N)
+            The first-stage weights of the particles to resample.
+        points : array (R*N, 2)
+            Those particles.
 
         Returns
         -------
         (ancestors, positions, headings)
         """
         if self.kld is None:
-            ancestors, positions, headings = super().draw(weights)
+            ancestors, positions, headings = super().draw(weights, points)
         else:  # one run (R = 1)
             ancestors, positions, headings = kld_resample(
                 weights[0], self.move_after_resampling, self.kld, self.scheme, self.rngs[0], self.max_count

@@ -124,8 +124,7 @@ class SMC:
         raise NotImplementedError
 
     def ancestors(self, weights: np.ndarray) -> np.ndarray:
-        """Ancestor indices into `positions` of the runs served now, N each, drawn by every run's
-        normalised weights (R, N)."""
+        """RESAMPLE: ancestor indices into `positions`, N per row of the normalised weights (R, N)."""
         raise NotImplementedError
 
     # -- the engine: the steps' parts, for every run ---------------------------------------------------
@@ -171,11 +170,11 @@ class SMC:
         -------
         array (R, N), normalised weights
         """
-        self.log_first_stage_total = None
+        self._first_stage_totals = None
         if log_eta is None:
             return self.weights_value.W
         weights, log_totals = self.normalised(self.weights_value.lw, log_eta)
-        self.log_first_stage_total = log_totals
+        self._first_stage_totals = log_totals
         self._lost = log_totals < LOG_UNDERFLOW
         return weights
 
@@ -198,7 +197,7 @@ class SMC:
         runs = np.flatnonzero(due)
         self._selected = None if len(runs) == self.runs else runs
         try:
-            ancestors, positions, headings = self.draw(weights)
+            ancestors, positions, headings = self.draw(self.selected_rows(weights), self.selected_points())
         finally:
             self._selected = None
         self.replace_runs(positions, headings, runs)
@@ -207,13 +206,15 @@ class SMC:
         for run in runs:
             self._resampled_at[run].append(self.steps_done)
 
-    def draw(self, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """RESAMPLE the selected runs by their weights and `move_after_resampling` the ancestors.
+    def draw(self, weights: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """RESAMPLE by the weights and `move_after_resampling` the ancestors.
 
         Parameters
         ----------
         weights : array (R, N)
-            Every run's first-stage weights.
+            The first-stage weights of the particles to resample.
+        points : array (R*N, 2)
+            Those particles.
 
         Returns
         -------
@@ -274,7 +275,7 @@ class SMC:
         for run in np.flatnonzero(fresh):
             increments[run] = (totals[run] - math.log(self.count)) + extra[run]
         if self._lost.any():
-            increments[self._lost] = self.log_first_stage_total[self._lost]
+            increments[self._lost] = self._first_stage_totals[self._lost]
         self.log_evidence_increment = increments
         self.run_log_evidence = self.run_log_evidence + increments
         self.after_reweighting(increments)
@@ -378,6 +379,11 @@ class SMC:
     def restart_count(self) -> int:
         """The particles a restarted run takes (N)."""
         return self.count
+
+    @property
+    def first_stage_log_total(self) -> np.ndarray:
+        """log F = log sum_i W_{k-1}^i eta_k^i, the first stage's total (R,) (the APF's)."""
+        return self.selected_rows(self._first_stage_totals)
 
     # -- the runs a hook serves ------------------------------------------------------------------------
     @property

@@ -17,7 +17,7 @@ import numpy as np
 
 from mazelab.checks import check_bandwidth_within
 from mazelab.cloud import ParticleFilter
-from mazelab.constants import PARTICLE_DTYPE, RPF_THRESHOLD
+from mazelab.constants import RPF_THRESHOLD
 from mazelab.declaration import Option, Options, number_in
 from mazelab.regularisation import (
     BANDWIDTH_OPTION,
@@ -69,7 +69,7 @@ class AuxiliaryParticleFilter(ParticleFilter):
         (log w (R, N), log F (R,), or 0.0 when the weights carry F already: recovery's)
         """
         second_stage = log_lik - self.log_mu_lik.ravel().take(ancestors).reshape(len(log_lik), -1)
-        log_F = self.selected_rows(self.log_first_stage_total)
+        log_F = self.first_stage_log_total
         if self.recovery is not None:  # on recovery's scale: injected particles carry p(z | x^j)
             return predictive_scale(second_stage, log_F, log_lik, self._injected), 0.0
         return second_stage, log_F
@@ -142,20 +142,23 @@ class RegularizedParticleFilter(ParticleFilter):
         now = bool(self.resampled_now[0]) if self.runs == 1 else self.resampled_now.copy()
         return {**super().diagnostics, "regularised": now}
 
-    def draw(self, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def draw(self, weights: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """IF N_eff < N_T (`time_to_resample`): the kernel K_h of the weighted cloud, then RESAMPLE and
         jitter (`move_after_resampling`); injected points (recovery) are not jittered.
 
         Parameters
         ----------
         weights : array (R, N)
+            The normalised weights of the particles to resample.
+        points : array (R*N, 2)
+            Those particles.
 
         Returns
         -------
         (ancestors, positions, headings)
         """
-        self._kernels = self.kernels(self.selected_rows(weights), self.selected_points())
-        return super().draw(weights)
+        self._kernels = self.kernels(weights, points)
+        return super().draw(weights, points)
 
     def move_after_resampling(self, ancestors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """x^i = x^{a^i} + h D eps, eps ~ N(0, I_2), D D^T = S (the kernel K_h); the transition follows.
@@ -168,11 +171,7 @@ class RegularizedParticleFilter(ParticleFilter):
         -------
         (positions, headings)
         """
-        runs = self.selected_runs
-        size = len(ancestors) // len(runs)
-        eps = self.ops.buffer("eps", (len(ancestors), 2), PARTICLE_DTYPE)  # eps ~ N(0, I_2), run by run
-        for block, run in enumerate(runs):
-            self.rngs[run].standard_normal(dtype=PARTICLE_DTYPE, out=eps[block * size : (block + 1) * size])
+        eps = self.normal_draws(len(ancestors))  # eps ~ N(0, I_2)
         return self.ops.jitter(self.positions, self.headings, ancestors, eps, self._kernels)
 
     def reweight_resampled(self, log_lik: np.ndarray, ancestors: np.ndarray) -> tuple[np.ndarray, None]:
