@@ -11,6 +11,7 @@ A filter is a class built as `cls(world, sigma, delta, particles, rng, **options
     reinitialised_at         the steps at which it restarted from the prior (no hypothesis explained z)
     belief()                 what the viewer draws: Particles, Density or Gaussian (below)
     diagnostics (optional)   a dict of this step's figures of its own, recorded per step
+    log_evidence (optional)  log p(z_1:k), its estimate of the log evidence so far, recorded per step
 
 and class attributes `name` (how results and the viewer label it) and `options`, every keyword option
 the constructor takes, declared once (mazelab.declaration: `Options(Option(name, default, help, ...))`,
