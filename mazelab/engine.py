@@ -57,7 +57,7 @@ class SMC:
         """
         self.observe(compass_angle, z)  # th0_k and z_k
         first_stage = self.first_stage(self.log_eta())  # W_{k-1}^i eta_k^i (the APF's; eta = 1 otherwise)
-        self.resample(first_stage, self.time_to_resample())  # a^i ~ first stage; x^i = move_after_resampling(a^i)
+        self.resampling(first_stage, self.time_to_resample())  # a^i ~ first stage; x^i = move_after_resampling(a^i)
         self.move()  # x_k^i ~ p(x_k | x_{k-1}^i) for the particles not moved at resampling
         self.reweight(self.log_likelihood(self.positions))  # w_k^i ∝ w^i p(z_k | x_k^i); log p(z_k | z_1:k-1)
         self.steps_done += 1
@@ -178,7 +178,7 @@ class SMC:
         self._lost = log_totals < LOG_UNDERFLOW
         return weights
 
-    def resample(self, weights: np.ndarray, due: bool | np.ndarray) -> None:
+    def resampling(self, weights: np.ndarray, due: bool | np.ndarray) -> None:
         """RESAMPLE the runs it is time for (not the lost ones), then `move_after_resampling`; the other
         runs keep their particles (recovery may inject into them: `between_resamplings`).
 

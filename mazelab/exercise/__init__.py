@@ -10,7 +10,7 @@ check per part), whole (the whole filter against the exact grid posterior), repo
 
 from __future__ import annotations
 
+from mazelab.constants import OUTSIDE_PENALTY, ROBOT_SPEED
 from mazelab.exercise.student import PARTS, PartError, StudentFilter
-from mazelab.model import OUTSIDE_PENALTY, ROBOT_SPEED
 
 __all__ = ["OUTSIDE_PENALTY", "PARTS", "ROBOT_SPEED", "PartError", "StudentFilter"]

@@ -1,0 +1,109 @@
+"""The step template (mazelab.engine.SMC) and the Weights value: one algorithm with hooks; adaptive
+resampling for every particle filter; a plug-in that overrides one hook; no hook names the runs; the
+template and what the exercise ships import no reference implementation."""
+
+from __future__ import annotations
+
+import ast
+import inspect
+import math
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+from conftest import ROOT
+
+from mazelab.cloud import ParticleFilter
+from mazelab.engine import SMC
+from mazelab.filters import AuxiliaryParticleFilter, RegularizedParticleFilter, SIRParticleFilter
+from mazelab.lab import simulate
+from mazelab.robot import Robot
+from mazelab.weights import Weights
+
+HOOKS = ("step", "log_eta", "time_to_resample", "move_after_resampling", "reweight_resampled", "draw")
+
+
+class HalfESS(SIRParticleFilter):
+    """A plug-in whose only method is the resampling rule."""
+
+    def time_to_resample(self):
+        return self.ess < 0.5 * self.count
+
+
+def run(paper_world, filter_class, **options):
+    rng = np.random.default_rng(8)
+    robot = Robot(0.3, 0.5, paper_world.random_free_place(rng), rng=rng)
+    return simulate(robot, paper_world, 0.3, 0.5, 300, 40, filtering_algorithm=filter_class, seed=8, **options)
+
+
+def test_a_plugin_that_overrides_time_to_resample_is_sir_with_that_threshold_bit_for_bit(paper_world):
+    plugin = run(paper_world, HalfESS)
+    declared = run(paper_world, "sir", threshold=0.5)
+    every_step = run(paper_world, "sir")
+    for field in ("estimates", "ess", "confident", "log_evidence"):
+        np.testing.assert_array_equal(getattr(plugin, field), getattr(declared, field))
+    assert not np.array_equal(plugin.estimates, every_step.estimates)  # the rule changed the run
+
+
+@pytest.mark.parametrize("filter_class", [SIRParticleFilter, AuxiliaryParticleFilter, RegularizedParticleFilter])
+def test_every_particle_filter_resamples_when_the_ess_falls_below_threshold_times_n(paper_world, filter_class):
+    """threshold 1 (SIR's and the APF's default, the paper's): every step; below 1: exactly the steps
+    that began with N_eff < threshold N; below 1 / N: never (N_eff >= 1)."""
+    walk = [(0.3 * k, 1.0 + 0.1 * math.sin(k)) for k in range(30)]
+    for threshold in (1.0, 0.5, 0.001):
+        filt = filter_class(paper_world, 0.3, 0.5, paper_world.random_free_places(300, np.random.default_rng(1)),
+                            np.random.default_rng(2), threshold=threshold)  # fmt: skip
+        degenerate = []
+        for k, (compass_angle, z) in enumerate(walk):
+            if threshold >= 1 or filt.ess < threshold * filt.count:
+                degenerate.append(k)
+            filt.step(compass_angle, z)
+        assert filt.resampled_at == degenerate
+        assert (threshold == 1.0) == (degenerate == list(range(30)))
+        assert (threshold == 0.001) == (degenerate == [])
+
+
+def test_sir_and_the_apf_resample_every_step_by_default_and_the_rpf_at_its_threshold():
+    assert SIRParticleFilter.options["threshold"].default == AuxiliaryParticleFilter.options["threshold"].default == 1
+    assert RegularizedParticleFilter.options["threshold"].default == 0.2
+
+
+@pytest.mark.parametrize("filter_class", [SMC, ParticleFilter, SIRParticleFilter, AuxiliaryParticleFilter,
+                                          RegularizedParticleFilter])  # fmt: skip
+def test_no_step_or_hook_names_the_runs(filter_class):
+    """The runs live below the hooks: the template's step and every hook a filter writes read as one run."""
+    for name in HOOKS:
+        method = filter_class.__dict__.get(name)
+        if method is None:
+            continue
+        tree = ast.parse(textwrap.dedent(inspect.getsource(method)))  # code only: docstrings are strings
+        names = {node.id for node in ast.walk(tree) if isinstance(node, ast.Name)}
+        attributes = {node.attr for node in ast.walk(tree) if isinstance(node, ast.Attribute)}
+        arguments = {node.arg for node in ast.walk(tree) if isinstance(node, ast.arg)}
+        said = {word for word in names | attributes | arguments if "run" in word.lower()}
+        assert not said, f"{filter_class.__name__}.{name} names the runs: {sorted(said)}"
+
+
+def test_weights_are_a_value_whose_w_and_ess_are_derived():
+    lw = np.log(np.array([[0.5, 0.25, 0.25], [1 / 3, 1 / 3, 1 / 3]]))
+    weights = Weights(lw)
+    np.testing.assert_allclose(weights.W, np.exp(lw))
+    np.testing.assert_allclose(weights.ess, [1 / (0.25 + 1 / 16 + 1 / 16), 3.0])
+    with pytest.raises(AttributeError, match="value"):
+        weights.lw = lw[::-1]
+
+
+def test_the_template_and_the_exercise_import_no_reference_implementation():
+    """The grading sandbox ships StudentFilter and what it imports: none of the model's code, of the
+    resampling schemes or of the grid filter may come along (their constants may)."""
+    code = (
+        "import sys; import mazelab.exercise.student, mazelab.engine; "
+        "print(','.join(sorted(m for m in sys.modules if m.startswith('mazelab'))))"
+    )
+    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT)
+    modules = set(loaded.stdout.strip().split(","))
+    for reference in ("mazelab.model", "mazelab.resampling", "mazelab.grid_filter", "mazelab.cloud",
+                      "mazelab.filters", "mazelab.numpy_ops"):  # fmt: skip
+        assert reference not in modules
