@@ -62,19 +62,61 @@ LAB_DELTA_RANGE = (0.05, 0.6)
 def sample_headings(
     compass_angle: float, delta: float, count: int, rng: np.random.Generator, dtype: type = np.float64
 ) -> np.ndarray:
-    """Headings actually taken, th ~ U(th0 - Delta/2, th0 + Delta/2), shape (count,), radians."""
+    """Headings actually taken, th ~ U(th0 - Delta/2, th0 + Delta/2) (equation (1)'s angle).
+
+    Parameters
+    ----------
+    compass_angle : float
+        th0, the compass's heading (radians).
+    delta : float
+        Delta, the compass error's full width (radians).
+    count : int
+    rng : numpy.random.Generator
+    dtype : type
+        The headings' float type.
+
+    Returns
+    -------
+    array (count,), radians
+    """
     return headings_from_uniforms(rng.random(count, dtype=dtype), compass_angle, delta)
 
 
 def sample_heading(compass_angle: float, delta: float, rng: np.random.Generator) -> float:
     """One heading th ~ U(th0 - Delta/2, th0 + Delta/2) (the robot's, once a step): sample_headings'
-    draw and operations in plain floats, so the same value without numpy calls on an array of one."""
+    draw and operations in plain floats, so the same value without numpy calls on an array of one.
+
+    Parameters
+    ----------
+    compass_angle : float
+        th0 (radians).
+    delta : float
+        Delta (radians).
+    rng : numpy.random.Generator
+
+    Returns
+    -------
+    float, radians
+    """
     return (rng.random() - 0.5) * delta + float(compass_angle)
 
 
 def headings_from_uniforms(uniforms: np.ndarray, compass_angle: float | np.ndarray, delta: float) -> np.ndarray:
-    """th = th0 + Delta (u - 1/2) for uniforms u in [0, 1), in place (in the uniforms' dtype);
-    `compass_angle` is one angle, or an array that broadcasts against the uniforms (one per run)."""
+    """th = th0 + Delta (u - 1/2) for uniforms u in [0, 1), in place (in the uniforms' dtype).
+
+    Parameters
+    ----------
+    uniforms : float array
+        u ~ U[0, 1); overwritten by the headings.
+    compass_angle : float, or array
+        th0: one angle, or an array that broadcasts against the uniforms (one per run).
+    delta : float
+        Delta (radians).
+
+    Returns
+    -------
+    array, `uniforms` itself, now the headings (radians)
+    """
     uniforms -= 0.5
     uniforms *= delta
     uniforms += compass_angle if isinstance(compass_angle, np.ndarray) else float(compass_angle)
@@ -82,8 +124,21 @@ def headings_from_uniforms(uniforms: np.ndarray, compass_angle: float | np.ndarr
 
 
 def move(positions: np.ndarray, headings: np.ndarray, speed: float = ROBOT_SPEED) -> np.ndarray:
-    """Equation (1): one step of length `speed` along `headings`; positions (N, 2) -> (N, 2) in their
-    dtype, stored column by column (order F) so that the x and y columns are contiguous."""
+    """Equation (1): one step of length `speed` along `headings`.
+
+    Parameters
+    ----------
+    positions : array (N, 2)
+    headings : array (N,)
+        th of each particle (radians).
+    speed : float
+        L (map units).
+
+    Returns
+    -------
+    array (N, 2) in the positions' dtype, stored column by column (order F) so that the x and y
+    columns are contiguous
+    """
     moved = np.empty(positions.shape, positions.dtype, order="F")
     for column, direction in ((0, np.cos), (1, np.sin)):
         step = direction(headings)
@@ -93,8 +148,18 @@ def move(positions: np.ndarray, headings: np.ndarray, speed: float = ROBOT_SPEED
 
 
 def take_particles(points: np.ndarray, indices: np.ndarray) -> np.ndarray:
-    """points[indices] for points (N, 2), gathered column by column into order-F storage
-    (fancy-indexing the rows of an (N, 2) array is several times slower)."""
+    """points[indices], gathered column by column into order-F storage (fancy-indexing the rows of an
+    (N, 2) array is several times slower).
+
+    Parameters
+    ----------
+    points : array (N, 2)
+    indices : int array (M,)
+
+    Returns
+    -------
+    array (M, 2), order F, in the points' dtype
+    """
     taken = np.empty((len(indices), 2), points.dtype, order="F")
     for column in range(2):
         np.take(points[:, column], indices, out=taken[:, column])
@@ -104,10 +169,24 @@ def take_particles(points: np.ndarray, indices: np.ndarray) -> np.ndarray:
 def log_likelihood(
     z: float | np.ndarray, positions: np.ndarray, world: Maze, sigma: float, outside_penalty: float = OUTSIDE_PENALTY
 ) -> np.ndarray:
-    """Equation (3) in logs, with refinement 1: log p(z | x) for positions (N, 2) -> (N,).
+    """Equation (3) in logs, with refinement 1: log p(z | x) = log N(z; d(x), sigma^2), plus log of the
+    outside penalty outside the free area. The Gaussian's constant -log(sigma sqrt(2 pi)) is kept, so
+    that sums of these are true log-likelihoods (and the log evidence is the model's).
 
-    The Gaussian's constant -log(sigma sqrt(2 pi)) is kept so that sums of these are true log-likelihoods.
-    `z` is one measurement, or R measurements for positions in R equal blocks (runs advanced together).
+    Parameters
+    ----------
+    z : float, or array (R,)
+        One measurement, or R measurements for positions in R equal blocks (runs advanced together).
+    positions : array (N, 2), or (R*N, 2)
+    world : Maze
+    sigma : float
+        The measurement noise's standard deviation (map units).
+    outside_penalty : float
+        The factor outside the free area.
+
+    Returns
+    -------
+    array (N,) or (R*N,), in the positions' dtype
     """
     distance, free = world.station_distances_and_free(positions[:, 0], positions[:, 1])
     residual = distance  # (d - z) / sigma, computed in place: the sign does not matter once squared
@@ -224,8 +303,20 @@ def check_model_parameters(
     sigma: float, delta: float, map_size: tuple[float, float] | None = None
 ) -> tuple[float, float]:
     """Refuse impossible sigma/delta with a clear message; warn outside the lab's recommended ranges.
-    sigma must lie in the range that keeps the arithmetic finite on the map (width, height), or
-    without one on any maze (mazelab.checks.sigma_range)."""
+
+    Parameters
+    ----------
+    sigma : float
+        Must lie in the range that keeps the arithmetic finite on the map, or without a map on any
+        maze (mazelab.checks.sigma_range).
+    delta : float
+        In [0, 2 pi] (radians).
+    map_size : (width, height), optional
+
+    Returns
+    -------
+    (sigma, delta) as floats
+    """
     sigma, delta = finite_number("sigma", sigma), finite_number("delta", delta)
     if sigma <= 0:
         raise ValueError(f"sigma must be > 0 (the measurement noise's standard deviation), got {sigma}")
