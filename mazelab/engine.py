@@ -156,7 +156,7 @@ class SMC:
         self.compass_angles, self.measurements = _per_run(compass_angle, self.runs), _per_run(z, self.runs)
         self._moved = np.zeros(self.runs, dtype=bool)
         self._lost = np.zeros(self.runs, dtype=bool)
-        self._resampled_rows: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._resampled: tuple[np.ndarray, np.ndarray] | None = None  # (the runs, their ancestors)
 
     def first_stage(self, log_eta: np.ndarray | None) -> np.ndarray:
         """W_{k-1}^i eta_k^i normalised per run; a run whose total underflows (no eta explains z_k) is
@@ -202,7 +202,7 @@ class SMC:
             self._selected = None
         self.replace_runs(positions, headings, runs)
         self._moved |= due & self.moved_by_resampling
-        self._resampled_rows = (runs, ancestors, np.zeros(self.runs, dtype=bool))
+        self._resampled = (runs, ancestors)
         for run in runs:
             self._resampled_at[run].append(self.steps_done)
 
@@ -254,8 +254,8 @@ class SMC:
         fresh = np.zeros(self.runs, dtype=bool)
         extra: list[Any] = [None] * self.runs
         rows: list[np.ndarray | None] = [None] * self.runs
-        if self._resampled_rows is not None:
-            runs, ancestors, _ = self._resampled_rows
+        if self._resampled is not None:
+            runs, ancestors = self._resampled
             self._selected = None if len(runs) == self.runs else runs
             try:
                 log_w, scale = self.reweight_resampled(self.selected_rows(log_lik), ancestors)
