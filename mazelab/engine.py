@@ -145,6 +145,8 @@ class SMC:
         self.resampled_now = np.zeros(self.runs, dtype=bool)
         self.run_log_evidence = np.zeros(self.runs)
         self._selected: np.ndarray | None = None  # the runs a hook serves now (None: every run)
+        self._every_run = np.arange(self.runs)
+        self._no_run = np.zeros(self.runs, dtype=bool)  # never written into
 
     def observe(self, compass_angle: float | np.ndarray, z: float | np.ndarray) -> None:
         """Keep the step's th0_k and z_k, one per run (float64 (R,)).
@@ -154,8 +156,7 @@ class SMC:
         compass_angle, z : float, or arrays (R,)
         """
         self.compass_angles, self.measurements = _per_run(compass_angle, self.runs), _per_run(z, self.runs)
-        self._moved = np.zeros(self.runs, dtype=bool)
-        self._lost = np.zeros(self.runs, dtype=bool)
+        self._moved = self._lost = self._no_run  # replaced, never written into
         self._resampled: tuple[np.ndarray, np.ndarray] | None = None  # (the runs, their ancestors)
 
     def first_stage(self, log_eta: np.ndarray | None) -> np.ndarray:
@@ -188,8 +189,8 @@ class SMC:
             The first-stage weights.
         due : bool, or bool array (R,)
         """
-        due = np.broadcast_to(np.asarray(due, dtype=bool), (self.runs,)) & ~self._lost
-        self.resampled_now = due.copy()
+        due = ~self._lost if due is True else np.asarray(due, dtype=bool) & ~self._lost  # a new array (R,)
+        self.resampled_now = due
         if not due.any():
             if not self._lost.any():
                 self.between_resamplings()
@@ -201,7 +202,8 @@ class SMC:
         finally:
             self._selected = None
         self.replace_runs(positions, headings, runs)
-        self._moved |= due & self.moved_by_resampling
+        if self.moved_by_resampling:
+            self._moved = due
         self._resampled = (runs, ancestors)
         for run in runs:
             self._resampled_at[run].append(self.steps_done)
@@ -229,6 +231,8 @@ class SMC:
     def move(self) -> None:
         """x_k^i ~ p(x_k | x_{k-1}^i) for the runs whose particles the resampling did not move (not the
         lost runs: they restart)."""
+        if self._moved.all():
+            return
         pending = ~self._moved & ~self._lost
         if not pending.any():
             return
@@ -251,29 +255,28 @@ class SMC:
             log p(z_k | x_k^i) of every run's particles.
         """
         previous = self.weights_value.lw
-        fresh = np.zeros(self.runs, dtype=bool)
-        extra: list[Any] = [None] * self.runs
-        rows: list[np.ndarray | None] = [None] * self.runs
+        fresh, extra = self._no_run, 0.0
+        log_w: np.ndarray | list[np.ndarray] = previous + log_lik if self._resampled is None else []
         if self._resampled is not None:
             runs, ancestors = self._resampled
             self._selected = None if len(runs) == self.runs else runs
             try:
-                log_w, scale = self.reweight_resampled(self.selected_rows(log_lik), ancestors)
+                resampled, scale = self.reweight_resampled(self.selected_rows(log_lik), ancestors)
             finally:
                 self._selected = None
             if scale is not None:
-                fresh[runs] = True
-                scales = np.broadcast_to(np.asarray(scale, dtype=float), (len(runs),))
-            for block, run in enumerate(runs):
-                rows[run] = log_w[block]
-                extra[run] = None if scale is None else float(scales[block])
-        rows = [previous[r] + log_lik[r] if row is None else row for r, row in enumerate(rows)]
+                fresh, extra = np.zeros(self.runs, dtype=bool), np.zeros(self.runs)
+                fresh[runs], extra[runs] = True, scale
+            if len(runs) == self.runs:
+                log_w = resampled
+            else:  # some runs resampled: each run's row (rows of two dtypes are normalised apart)
+                rows = dict(zip(runs.tolist(), resampled, strict=True))
+                log_w = [rows[r] if r in rows else previous[r] + log_lik[r] for r in range(self.runs)]
         del previous
         self.weights_value = None  # the last step's weights go first (the compiled backend reuses their arrays)
-        totals = self.normalise(rows)
-        increments = totals.copy()
-        for run in np.flatnonzero(fresh):
-            increments[run] = (totals[run] - math.log(self.count)) + extra[run]
+        totals = self.normalise(log_w)
+        # log p(z_k | z_1:k-1): the total of weights that carry W_{k-1}, or log F + the log mean of fresh ones
+        increments = np.where(fresh, (totals - math.log(self.count)) + extra, totals)
         if self._lost.any():
             increments[self._lost] = self._first_stage_totals[self._lost]
         self.log_evidence_increment = increments
@@ -290,13 +293,13 @@ class SMC:
         """
 
     # -- the weights ---------------------------------------------------------------------------------
-    def normalise(self, rows: list[np.ndarray]) -> np.ndarray:
+    def normalise(self, log_w: np.ndarray | list[np.ndarray]) -> np.ndarray:
         """W_i ∝ exp(log w_i) of each run (its row); runs whose total underflows (or that are lost)
         restart from the prior, weighted by their z_k. Rows of one dtype are normalised together.
 
         Parameters
         ----------
-        rows : list of R arrays (N,)
+        log_w : array (R, N), or a list of R rows (N,)
             Each run's unnormalised log weights.
 
         Returns
@@ -305,12 +308,12 @@ class SMC:
             The log totals before any restart.
         """
         groups: dict[Any, list[int]] = {}
-        for run, row in enumerate(rows):
+        for run, row in enumerate([] if isinstance(log_w, np.ndarray) else log_w):
             groups.setdefault(row.dtype, []).append(run)
-        if len(groups) == 1:
-            totals, log_weights, reads = self.normalise_rows(np.stack(rows), self.positions)
+        if len(groups) > 1:
+            totals, log_weights, reads = self._normalise_groups(log_w, list(groups.values()))
         else:
-            totals, log_weights, reads = self._normalise_groups(rows, list(groups.values()))
+            totals, log_weights, reads = self.normalise_rows(np.asarray(log_w), self.positions)
         explained = (totals >= LOG_UNDERFLOW) & ~self._lost  # False for an underflow and for NaN
         restarted = np.flatnonzero(~explained)
         if len(restarted):
@@ -389,7 +392,7 @@ class SMC:
     @property
     def selected_runs(self) -> np.ndarray:
         """The runs the present hook serves (every run outside the hooks)."""
-        return np.arange(self.runs) if self._selected is None else self._selected
+        return self._every_run if self._selected is None else self._selected
 
     def selected_rows(self, values: np.ndarray) -> np.ndarray:
         """The rows of an (R, ...) array that belong to the runs served now."""
