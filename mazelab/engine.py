@@ -16,8 +16,8 @@ runs. No hook names the runs: while a hook runs for some of them (those that res
 engine's `transition`, `log_likelihood` and draws are those runs'. A run whose weights all underflow
 (no particle explains z_k) starts again from the prior, weighted by its z_k.
 
-This module imports numpy, mazelab.weights and mazelab.constants only: the grading sandbox ships it with StudentFilter,
-and no reference implementation of the model or of resampling may come with it.
+This module imports numpy, mazelab.weights and mazelab.constants only: the grading sandbox ships it
+with StudentFilter, and no reference implementation of the model or of resampling may come with it.
 """
 
 from __future__ import annotations
@@ -35,9 +35,9 @@ from mazelab.weights import Weights, log_sum_exp, weights_from_logs
 class SMC:
     """The step template (Arulampalam et al. Algorithms 4-6 as one algorithm with hooks).
 
-    A subclass sets, before the first step: `world` (the map: `random_free_places` is the prior),
-    `rngs` (one Generator per run), `positions` (R*N, 2), `headings` (R*N,), `weights` (a Weights value),
-    `runs`, `count`, `threshold`, and calls `start_runs()`; and it provides the model's parts
+    A subclass's constructor sets `world` (the map: `random_free_places` is the prior), `positions`
+    (R*N, 2), `headings` (R*N,), `count` (N) and `threshold`, then calls `start_runs(rngs)` (one
+    Generator per run: the weights start uniform); and the subclass provides the model's parts
     `transition`, `log_likelihood` and `ancestors`.
     """
 
