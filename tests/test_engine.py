@@ -107,3 +107,13 @@ def test_the_template_and_the_exercise_import_no_reference_implementation():
     for reference in ("mazelab.model", "mazelab.resampling", "mazelab.grid_filter", "mazelab.cloud",
                       "mazelab.filters", "mazelab.numpy_ops"):  # fmt: skip
         assert reference not in modules
+
+
+def test_a_scenario_of_sir_replays_with_the_rpf_at_the_rpfs_own_threshold(paper_world):
+    """A saved run stores every option, defaults included; another filter replaying it takes the options
+    that run chose, not its defaults (SIR's threshold 1, every step, is not the RPF's N_T = 0.2)."""
+    by_default, chosen = run(paper_world, "sir").scenario, run(paper_world, "sir", threshold=0.5).scenario
+    assert by_default.filter_options["threshold"] == 1.0
+    assert "threshold" not in by_default.filter_kwargs(RegularizedParticleFilter)
+    assert chosen.filter_kwargs(RegularizedParticleFilter)["threshold"] == 0.5
+    assert by_default.filter_kwargs()["threshold"] == 1.0  # the filter that made it: every option
