@@ -1,4 +1,4 @@
-"""The step template (mazelab.engine.SMC) and the Weights value: one algorithm with hooks; adaptive
+"""The step template (mazelab.engine.SMC): one algorithm with hooks; adaptive
 resampling for every particle filter; a plug-in that overrides one hook; no hook names the runs; the
 template and what the exercise ships import no reference implementation."""
 
@@ -20,7 +20,6 @@ from mazelab.engine import SMC
 from mazelab.filters import AuxiliaryParticleFilter, RegularizedParticleFilter, SIRParticleFilter
 from mazelab.lab import simulate
 from mazelab.robot import Robot
-from mazelab.weights import Weights
 
 HOOKS = ("step", "log_eta", "time_to_resample", "move_after_resampling", "reweight_resampled", "draw")
 
@@ -84,15 +83,6 @@ def test_no_step_or_hook_names_the_runs(filter_class):
         arguments = {node.arg for node in ast.walk(tree) if isinstance(node, ast.arg)}
         said = {word for word in names | attributes | arguments if "run" in word.lower()}
         assert not said, f"{filter_class.__name__}.{name} names the runs: {sorted(said)}"
-
-
-def test_weights_are_a_value_whose_w_and_ess_are_derived():
-    lw = np.log(np.array([[0.5, 0.25, 0.25], [1 / 3, 1 / 3, 1 / 3]]))
-    weights = Weights(lw)
-    np.testing.assert_allclose(weights.W, np.exp(lw))
-    np.testing.assert_allclose(weights.ess, [1 / (0.25 + 1 / 16 + 1 / 16), 3.0])
-    with pytest.raises(AttributeError, match="value"):
-        weights.lw = lw[::-1]
 
 
 def test_the_template_and_the_exercise_import_no_reference_implementation():

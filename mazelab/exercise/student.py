@@ -61,7 +61,9 @@ class StudentFilter(SMC):
     Notes
     -----
     Attributes the parts may read: `self.world`, `self.sigma`, `self.delta`, `self.ROBOT_SPEED` (L) and
-    `self.OUTSIDE_PENALTY` (refinement 1's factor), also importable from mazelab.exercise.
+    `self.OUTSIDE_PENALTY` (refinement 1's factor), also importable from mazelab.exercise. The step is
+    the lab's template (mazelab.engine.SMC), whose own methods (`move`, `reweight`, `normalise`, `draw`,
+    ...) a helper of yours must not be named after.
     """
 
     name: ClassVar[str] = "StudentFilter"
