@@ -24,7 +24,7 @@ from mazelab.robot import Robot
 HOOKS = ("step", "log_eta", "time_to_resample", "move_after_resampling", "reweight_resampled", "draw")
 
 
-class HalfESS(SIRParticleFilter):
+class HalfESS(ParticleFilter):
     """A plug-in whose only method is the resampling rule."""
 
     def time_to_resample(self):
@@ -44,6 +44,29 @@ def test_a_plugin_that_overrides_time_to_resample_is_sir_with_that_threshold_bit
     for field in ("estimates", "ess", "confident", "log_evidence"):
         np.testing.assert_array_equal(getattr(plugin, field), getattr(declared, field))
     assert not np.array_equal(plugin.estimates, every_step.estimates)  # the rule changed the run
+
+
+def test_the_one_hook_plugin_from_a_file_runs_as_sir_with_threshold_on_the_command_line(tmp_path, capsys):
+    from mazelab.cli.app import main
+
+    (tmp_path / "half.py").write_text(HALF_ESS_FILE)
+    common = ["--maze", "paper_5x5", "--steps", "40", "--particles", "300", "--seed", "6", "--no-viz", "--quiet"]
+    assert main(["run", "--filter", f"{tmp_path}/half.py:HalfESS", *common]) == 0
+    plugin = capsys.readouterr().out.splitlines()[0]
+    assert main(["run", "--filter", "sir", "--option", "threshold=0.5", *common]) == 0
+    declared = capsys.readouterr().out.splitlines()[0]
+    assert plugin.startswith("HalfESS: ") and declared.startswith("SIRParticleFilter: ")
+    assert plugin.split(": ", 1)[1] == declared.split(": ", 1)[1]
+
+
+HALF_ESS_FILE = """
+from mazelab.cloud import ParticleFilter
+
+
+class HalfESS(ParticleFilter):
+    def time_to_resample(self):
+        return self.ess < 0.5 * self.count
+"""
 
 
 @pytest.mark.parametrize("filter_class", [SIRParticleFilter, AuxiliaryParticleFilter, RegularizedParticleFilter])
