@@ -4,19 +4,25 @@ The robot is lost in a maze; SIR, auxiliary (APF) and regularised (RPF) particle
 (Arulampalam, Maskell, Gordon, Clapp 2002, Algorithms 4-6, with the paper's refinements). This file
 only gathers the names; where each thing's lines are:
 
-    the model (L = 0.2, the 0.5 penalty, eqs. (1)-(3))  mazelab/model.py
+    one step of every particle filter: RESAMPLE when   mazelab/engine.py, SMC.step (a dozen lines; the hooks
+      it is time, move, reweight                         below it are what differs between the filters)
+    resampling (systematic, the textbook; stratified,  mazelab/resampling.py, systematic_resample, ...
+      multinomial, residual)                             (SMC.step -> ParticleFilter.ancestors -> there)
+    SIR (Algorithm 4)                                  mazelab/filters.py, SIRParticleFilter: the defaults
+    APF (Algorithm 5)                                  mazelab/filters.py, AuxiliaryParticleFilter.log_eta,
+                                                         .reweight_resampled
+    RPF (Algorithm 6)                                  mazelab/filters.py, RegularizedParticleFilter
+                                                         .move_after_resampling (the jitter), .kernels
+    the model: prior, transition (1), likelihood (3)   mazelab/model.py, LostRobot (the constants:
+                                                         mazelab/constants.py)
+    the weights (W, ESS) as a value                    mazelab/weights.py, Weights
+    the filters' options, the model and the backend    mazelab/cloud.py, ParticleFilter
     Robot (wandering, the straight-run limit)          mazelab/robot.py, Robot.step
-    SIR step (Algorithm 4)                             mazelab/filters.py, SIRParticleFilter.step
-    APF step (Algorithm 5)                             mazelab/filters.py, AuxiliaryParticleFilter.step
-    RPF step (Algorithm 6)                             mazelab/filters.py, RegularizedParticleFilter.step, .regularise
-    the cloud the three share (weights, ESS, estimate,  mazelab/cloud.py, ParticleFilter (one run, or R runs
-      resampling, restarts)                              at once for a study: the same lines)
     what every filter provides (your own filter too)   mazelab/contract.py, Filter (with a worked example)
     a filter's options, declared once                  mazelab/declaration.py, Option; each filter's `options`
     every filter by name, label and colour             mazelab/registry.py, SHIPPED (one entry each)
     the RPF's kernel (bandwidth optimal, multimodal)   mazelab/regularisation.py
     modes of a cloud, the mode estimate                mazelab/modes.py
-    resampling (systematic, stratified, ...)           mazelab/resampling.py
     the exact grid Bayes filter (the reference)        mazelab/grid_filter.py, GridBayesFilter.step
     the extended Kalman filter (the baseline)          mazelab/kalman.py, ExtendedKalmanFilter.step
     recovery from kidnapping, KLD-sampling             mazelab/recovery.py, mazelab/resampling.py
@@ -26,14 +32,14 @@ only gathers the names; where each thing's lines are:
     saving and loading scenarios                       mazelab/scenario.py
 
 The constants the paper lets a student change (ROBOT_SPEED, MAX_STRAIGHT_STEPS, OUTSIDE_PENALTY,
-RPF_THRESHOLD) are shown here; change them in mazelab/model.py, where every part reads them.
+RPF_THRESHOLD) are shown here; change them in mazelab/constants.py, where every part reads them.
 """
 
+from mazelab.constants import MAX_STRAIGHT_STEPS, OUTSIDE_PENALTY, ROBOT_SPEED, RPF_THRESHOLD
 from mazelab.filters import AuxiliaryParticleFilter, ParticleFilter, RegularizedParticleFilter, SIRParticleFilter
 from mazelab.grid_filter import GridBayesFilter
 from mazelab.kalman import ExtendedKalmanFilter
 from mazelab.lab import run_model, simulate
-from mazelab.model import MAX_STRAIGHT_STEPS, OUTSIDE_PENALTY, ROBOT_SPEED, RPF_THRESHOLD
 from mazelab.recovery import Recovery
 from mazelab.resampling import KLDSampling
 from mazelab.robot import Robot

@@ -4,12 +4,12 @@ an extended Kalman filter as the baseline.
 The paper's three files (particle_filter.py, draw.py, main.py) are faces over this package. Its
 modules, bottom to top (each imports only those above it in this list):
 
-    checks, declaration                                       checks of numbers; a filter's options, declared once
+    constants, checks, declaration                            the model's numbers; checks; a filter's options
     limits, lookup, maze_paths, maze, model, modes            the model: maze, motion, measurement, modes
     seeding, run_axis, stops                                  seeds to random streams; the run axis; who stopped
-    weights, resampling, regularisation, robot                weighted clouds, resampling, the RPF's kernel, robot
-    contract                                                  what every filter provides (and declares)
-    recovery, cloud, filters, grid_filter, kalman             the filters (cloud: one engine for 1 or R runs)
+    weights, resampling, regularisation, robot                the Weights value, resampling, the RPF's kernel, robot
+    contract, engine                                          what every filter provides; the step template (SMC)
+    recovery, cloud, filters, grid_filter, kalman             the filters (cloud: the template on the model)
     plugins, registry                                         one entry per filter, and a student's own (file.py:Class)
     atomic, scenario, collect, simulation                     saved scenarios; the one recording loop; one run
     invocation                                                how this program was started (printed commands)

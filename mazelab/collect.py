@@ -25,13 +25,15 @@ AfterStep = Callable[[int, Any], None]  # (step number k (1-based), the filter) 
 
 @dataclass
 class Recorded:
-    """Per step k = 1..steps, for R runs: the estimate (R, steps, 2), ESS, green circle and particle
-    count (R, steps), the filter's own time per step (steps,), and its diagnostics by name (R, steps)."""
+    """Per step k = 1..steps, for R runs: the estimate (R, steps, 2), ESS, green circle, particle count
+    and log evidence log p(z_1:k) (R, steps; NaN for a filter that keeps none), the filter's own time
+    per step (steps,), and its diagnostics by name (R, steps)."""
 
     estimates: np.ndarray
     ess: np.ndarray
     confident: np.ndarray
     counts: np.ndarray
+    log_evidence: np.ndarray
     seconds: np.ndarray
     diagnostics: dict[str, np.ndarray] = field(default_factory=dict)
 
@@ -52,6 +54,7 @@ class Recorded:
             np.empty((runs, steps)),
             np.empty((runs, steps), dtype=bool),
             np.empty((runs, steps), dtype=np.int64),
+            np.empty((runs, steps)),
             np.empty(steps),
         )
 
@@ -66,13 +69,15 @@ class Recorded:
         Returns
         -------
         dict
-            estimates (steps, 2), ess, confident, counts (steps,) and diagnostics (name -> (steps,)).
+            estimates (steps, 2), ess, confident, counts, log_evidence (steps,) and diagnostics
+            (name -> (steps,)).
         """
         return {
             "estimates": self.estimates[r],
             "ess": self.ess[r],
             "confident": self.confident[r],
             "counts": self.counts[r],
+            "log_evidence": self.log_evidence[r],
             "diagnostics": {name: values[r] for name, values in self.diagnostics.items()},
         }
 
@@ -121,6 +126,7 @@ def record_steps(
         estimate, ess, confident, particles = check_step_values(type(filt), values, runs)
         recorded.estimates[:, k], recorded.ess[:, k], recorded.confident[:, k] = estimate, ess, confident
         recorded.counts[:, k] = particles
+        recorded.log_evidence[:, k] = getattr(filt, "log_evidence", np.nan)  # optional in the contract
         _keep_diagnostics(diagnostics, getattr(filt, "diagnostics", None), k, type(filt))
         if after is not None:
             after(k + 1, filt)

@@ -11,6 +11,7 @@ A filter is a class built as `cls(world, sigma, delta, particles, rng, **options
     reinitialised_at         the steps at which it restarted from the prior (no hypothesis explained z)
     belief()                 what the viewer draws: Particles, Density or Gaussian (below)
     diagnostics (optional)   a dict of this step's figures of its own, recorded per step
+    log_evidence (optional)  log p(z_1:k), its estimate of the log evidence so far, recorded per step
 
 and class attributes `name` (how results and the viewer label it) and `options`, every keyword option
 the constructor takes, declared once (mazelab.declaration: `Options(Option(name, default, help, ...))`,
@@ -18,36 +19,33 @@ or a plain mapping of names to defaults). An option a filter does not declare is
 line. The contract is checked on the object before the first step (`check_filter`) and each step's
 values where they are read (`step_values`): a missing part or a bad value is one line naming it.
 
-A new filter, worked through: SIR that resamples only when the weights degenerate (adaptive
-resampling, Liu and Chen 1995), with one option. It declares the option once, and its step calls the
-cloud's public methods only (mazelab.cloud.ParticleFilter), each line one line of the algorithm:
+A new filter, worked through: SIR that resamples every `period` steps, with one option. A particle
+filter is the step template (mazelab.engine.SMC.step: resample when `time_to_resample()` says so,
+move, reweight); a new one declares its option once and overrides the hook that differs:
 
     from mazelab.cloud import ParticleFilter
     from mazelab.declaration import Option, number_in
-    from mazelab.run_axis import per_run
 
-    class AdaptiveSIR(ParticleFilter):
-        '''SIR that resamples only when the ESS falls below ess_share * N.'''
+    class PeriodicSIR(ParticleFilter):
+        '''SIR that resamples every `period` steps.'''
 
         options = ParticleFilter.options.extend(
-            Option("ess_share", 0.5, "resample when ESS < ess_share * N", check=number_in("ess_share", 0, 1)),
+            Option("period", 5, "resample every period steps", check=number_in("period", 1, 1000, low_open=False)),
         )
 
-        def step(self, compass_angle, z):
-            compass_angle, z = per_run(compass_angle, 1), per_run(z, 1)
-            if self.ess < self.settings["ess_share"] * self.count:  # RESAMPLE only when degenerate
-                x, headings, _, _ = self.draw_particles(self.run_weights, *self.motion(compass_angle), None)
-                self.set_uniform_weights()  # W_i = 1/N
-            else:
-                x, headings = self.propagate(self.positions, compass_angle)  # x_k^i ~ p(x_k | x_k-1^i)
-            self.replace_runs(x, headings)
-            self.normalise(self.run_log_weights + self.likelihood(z, x), z)  # w_k^i ∝ w_k-1^i p(z_k | x_k^i)
-            self.steps_done += 1
+        def time_to_resample(self):
+            return self.steps_done % self.settings["period"] == 0  # RESAMPLE at steps 0, period, 2 period...
 
 Saved as my_filter.py it runs wherever the shipped filters run: `mazelab run --filter
-my_filter.py:AdaptiveSIR --option ess_share=0.3`, `compare`, `study --option ess_share=0.3,0.5,0.9`;
-its saved runs replay with it. Added to the package, it is one entry in mazelab.registry.SHIPPED
-(`batched=True` only once its step works for R runs together, as the shipped steps do).
+my_filter.py:PeriodicSIR --option period=3`, `compare`, `study --option period=1,3,10`; its saved runs
+replay with it. Added to the package, it is one entry in mazelab.registry.SHIPPED (`batched=True`:
+its hooks serve R runs together, as the shipped filters' do).
+
+The other hooks: `log_eta` (the APF's first stage), `move_after_resampling` (the RPF's jitter),
+`reweight_resampled` (the weights of the resampled particles), and the model's `transition` and
+`log_likelihood` (a tempered likelihood is `temper * super().log_likelihood(points)`). No hook names
+the runs: the same lines serve one run and R runs of a study together.
+
 mazelab.exercise.StudentFilter is the gentler start: four parts to write, the rest wired.
 """
 

@@ -79,6 +79,8 @@ class GridBayesFilter:
         self._last_arc: tuple[float, np.ndarray, np.ndarray] | None = None
         self.steps_done = 0
         self.reinitialised_at: list[int] = []
+        self.log_evidence = 0.0  # log p(z_1:k), exact on the grid
+        self._log_gaussian_constant = -math.log(sigma * math.sqrt(2 * math.pi))
 
     def _prior(self) -> np.ndarray:
         return self.free / self.free.sum()
@@ -130,17 +132,20 @@ class GridBayesFilter:
         np.square(log_lik, out=log_lik)
         np.multiply(-0.5, log_lik, out=log_lik)
         log_lik += self._log_likelihood_constant  # -0.5 ((z - d) / sigma)^2 + log penalty
-        posterior = self._weighted(self.density, log_lik, work)
+        posterior, log_total = self._weighted(self.density, log_lik, work)
+        # log p(z_k | z_1:k-1) = log sum_cells p(x_k | z_1:k-1) p(z_k | x_k), the Gaussian's constant included
+        self.log_evidence += log_total + self._log_gaussian_constant
         if posterior is None:  # no cell explains z: restart from the prior, as the particle filters do
             self.reinitialised_at.append(self.steps_done + 1)
-            posterior = self._weighted(self._prior(), log_lik, work)
+            posterior, _ = self._weighted(self._prior(), log_lik, work)
         self.density = self._prior() if posterior is None else posterior
 
     @staticmethod
-    def _weighted(density: np.ndarray, log_lik: np.ndarray, work: GridWorkspace) -> np.ndarray | None:
+    def _weighted(density: np.ndarray, log_lik: np.ndarray, work: GridWorkspace) -> tuple[np.ndarray | None, float]:
         """density x exp(log_lik - top) on the density's support (0 elsewhere), normalised, as a new
-        array; None when that product's total underflows. `top` is the largest log-likelihood on the
-        support; the product is formed in the workspace."""
+        array (None when that product's total underflows), and the log of the product's total,
+        log sum density exp(log_lik). `top` is the largest log-likelihood on the support; the product
+        is formed in the workspace."""
         support = np.greater(density, 0, out=work.support)
         outside = np.logical_not(support, out=work.outside)
         top = log_lik.max(where=support, initial=-math.inf)
@@ -150,9 +155,10 @@ class GridBayesFilter:
         product *= density
         np.copyto(product, 0.0, where=outside)
         total = product.sum()
-        if not total > 0 or math.log(total) + top < LOG_UNDERFLOW:
-            return None
-        return product / total
+        log_total = math.log(total) + top if total > 0 else -math.inf
+        if not log_total >= LOG_UNDERFLOW:
+            return None, log_total
+        return product / total, log_total
 
     def belief(self) -> Density:
         """What the viewer draws: the density's cells and masses, and its modes."""

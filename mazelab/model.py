@@ -5,36 +5,41 @@
     p(z_k | x_k) = N(z_k; distance to the nearest station, sigma^2), times 0.5 outside the free area (3)
 
 The constants are the paper's (L = ROBOT_SPEED, the outside penalty, the RPF's N_T / N_S) and the
-lab's (the green circle's radius, the convergence radius); the station geometry is the maze's
-(mazelab.maze). Change a constant here and every filter, test and command follows.
+lab's (the green circle's radius, the convergence radius), kept in mazelab.constants and shown here;
+the station geometry is the maze's (mazelab.maze). Change a constant there and every filter, test and
+command follows. `LostRobot` is the model as a filter uses it.
 """
 
 from __future__ import annotations
 
 import math
 import warnings
-from typing import TYPE_CHECKING
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from mazelab.checks import check_sigma_within, finite_number
+from mazelab.constants import (
+    CONFIDENCE_RADIUS,
+    CONFIDENCE_SHARE,
+    CONVERGENCE_RADIUS,
+    DEFAULT_PARTICLE_COUNT,
+    DEFAULT_STEPS,
+    LOG_UNDERFLOW,
+    MAX_STRAIGHT_STEPS,
+    OUTSIDE_PENALTY,
+    PARTICLE_DTYPE,
+    ROBOT_SPEED,
+    RPF_THRESHOLD,
+)
 from mazelab.declaration import Option, number_in
 
 if TYPE_CHECKING:
     from mazelab.maze import Maze
 
-# -- the model's constants (the paper keeps them here, to be changed by the student) -------------
-ROBOT_SPEED = 0.2  # L, the step length in map units
-MAX_STRAIGHT_STEPS = 32  # the robot picks a new heading after this many straight steps (paper: 10 or 32)
-OUTSIDE_PENALTY = 0.5  # likelihood factor for particles outside the free area (refinement 1)
-RPF_THRESHOLD = 0.2  # RPF regularises when ESS < N_T = RPF_THRESHOLD * N_S (refinement 5)
-CONFIDENCE_RADIUS = 1.0  # the estimate is "confident" when CONFIDENCE_SHARE of the mass lies this close
-CONFIDENCE_SHARE = 0.95
-CONVERGENCE_RADIUS = 0.5  # a run has converged from the step after which its error stays below this
-DEFAULT_PARTICLE_COUNT = 1500
-DEFAULT_STEPS = 200
-
-
+# the model's constants (the paper's L, the outside penalty, N_T / N_S and the lab's radii) live in
+# mazelab.constants, a module of numbers only, so that the exercise's sandbox can take them too
 MAX_SPEED = 1.0  # a filter may assume another L (model mismatch), up to one maze cell per step
 
 
@@ -49,33 +54,69 @@ OUTSIDE_PENALTY_OPTION = Option(
 )  # fmt: skip
 
 
-# exp(x) is 0 in float64 below this: when the filter's whole predictive likelihood p(z_k | z_1:k-1)
-# is that small no particle explains z_k, and the filter starts again from the prior.
-LOG_UNDERFLOW = math.log(np.finfo(float).tiny)
 LAB_SIGMA_RANGE = (0.2, 0.8)  # the lab's recommended ranges: outside them we warn, not refuse
 LAB_DELTA_RANGE = (0.05, 0.6)
-# Particle positions and headings are float32 (half the memory traffic of float64; the map is at most
-# a few hundred units, where float32 resolves 1e-5). The robot's own path stays float64 and exact.
-PARTICLE_DTYPE = np.float32
 
 
 # -- the model -------------------------------------------------------------------------------------
 def sample_headings(
     compass_angle: float, delta: float, count: int, rng: np.random.Generator, dtype: type = np.float64
 ) -> np.ndarray:
-    """Headings actually taken, th ~ U(th0 - Delta/2, th0 + Delta/2), shape (count,), radians."""
+    """Headings actually taken, th ~ U(th0 - Delta/2, th0 + Delta/2) (equation (1)'s angle).
+
+    Parameters
+    ----------
+    compass_angle : float
+        th0, the compass's heading (radians).
+    delta : float
+        Delta, the compass error's full width (radians).
+    count : int
+    rng : numpy.random.Generator
+    dtype : type
+        The headings' float type.
+
+    Returns
+    -------
+    array (count,), radians
+    """
     return headings_from_uniforms(rng.random(count, dtype=dtype), compass_angle, delta)
 
 
 def sample_heading(compass_angle: float, delta: float, rng: np.random.Generator) -> float:
     """One heading th ~ U(th0 - Delta/2, th0 + Delta/2) (the robot's, once a step): sample_headings'
-    draw and operations in plain floats, so the same value without numpy calls on an array of one."""
+    draw and operations in plain floats, so the same value without numpy calls on an array of one.
+
+    Parameters
+    ----------
+    compass_angle : float
+        th0 (radians).
+    delta : float
+        Delta (radians).
+    rng : numpy.random.Generator
+
+    Returns
+    -------
+    float, radians
+    """
     return (rng.random() - 0.5) * delta + float(compass_angle)
 
 
 def headings_from_uniforms(uniforms: np.ndarray, compass_angle: float | np.ndarray, delta: float) -> np.ndarray:
-    """th = th0 + Delta (u - 1/2) for uniforms u in [0, 1), in place (in the uniforms' dtype);
-    `compass_angle` is one angle, or an array that broadcasts against the uniforms (mazelab.batch)."""
+    """th = th0 + Delta (u - 1/2) for uniforms u in [0, 1), in place (in the uniforms' dtype).
+
+    Parameters
+    ----------
+    uniforms : float array
+        u ~ U[0, 1); overwritten by the headings.
+    compass_angle : float, or array
+        th0: one angle, or an array that broadcasts against the uniforms (one per run).
+    delta : float
+        Delta (radians).
+
+    Returns
+    -------
+    array, `uniforms` itself, now the headings (radians)
+    """
     uniforms -= 0.5
     uniforms *= delta
     uniforms += compass_angle if isinstance(compass_angle, np.ndarray) else float(compass_angle)
@@ -83,8 +124,21 @@ def headings_from_uniforms(uniforms: np.ndarray, compass_angle: float | np.ndarr
 
 
 def move(positions: np.ndarray, headings: np.ndarray, speed: float = ROBOT_SPEED) -> np.ndarray:
-    """Equation (1): one step of length `speed` along `headings`; positions (N, 2) -> (N, 2) in their
-    dtype, stored column by column (order F) so that the x and y columns are contiguous."""
+    """Equation (1): one step of length `speed` along `headings`.
+
+    Parameters
+    ----------
+    positions : array (N, 2)
+    headings : array (N,)
+        th of each particle (radians).
+    speed : float
+        L (map units).
+
+    Returns
+    -------
+    array (N, 2) in the positions' dtype, stored column by column (order F) so that the x and y
+    columns are contiguous
+    """
     moved = np.empty(positions.shape, positions.dtype, order="F")
     for column, direction in ((0, np.cos), (1, np.sin)):
         step = direction(headings)
@@ -94,8 +148,18 @@ def move(positions: np.ndarray, headings: np.ndarray, speed: float = ROBOT_SPEED
 
 
 def take_particles(points: np.ndarray, indices: np.ndarray) -> np.ndarray:
-    """points[indices] for points (N, 2), gathered column by column into order-F storage
-    (fancy-indexing the rows of an (N, 2) array is several times slower)."""
+    """points[indices], gathered column by column into order-F storage (fancy-indexing the rows of an
+    (N, 2) array is several times slower).
+
+    Parameters
+    ----------
+    points : array (N, 2)
+    indices : int array (M,)
+
+    Returns
+    -------
+    array (M, 2), order F, in the points' dtype
+    """
     taken = np.empty((len(indices), 2), points.dtype, order="F")
     for column in range(2):
         np.take(points[:, column], indices, out=taken[:, column])
@@ -105,10 +169,24 @@ def take_particles(points: np.ndarray, indices: np.ndarray) -> np.ndarray:
 def log_likelihood(
     z: float | np.ndarray, positions: np.ndarray, world: Maze, sigma: float, outside_penalty: float = OUTSIDE_PENALTY
 ) -> np.ndarray:
-    """Equation (3) in logs, with refinement 1: log p(z | x) for positions (N, 2) -> (N,).
+    """Equation (3) in logs, with refinement 1: log p(z | x) = log N(z; d(x), sigma^2), plus log of the
+    outside penalty outside the free area. The Gaussian's constant -log(sigma sqrt(2 pi)) is kept, so
+    that sums of these are true log-likelihoods (and the log evidence is the model's).
 
-    The Gaussian's constant -log(sigma sqrt(2 pi)) is kept so that sums of these are true log-likelihoods.
-    `z` is one measurement, or R measurements for positions in R equal blocks (runs advanced together).
+    Parameters
+    ----------
+    z : float, or array (R,)
+        One measurement, or R measurements for positions in R equal blocks (runs advanced together).
+    positions : array (N, 2), or (R*N, 2)
+    world : Maze
+    sigma : float
+        The measurement noise's standard deviation (map units).
+    outside_penalty : float
+        The factor outside the free area.
+
+    Returns
+    -------
+    array (N,) or (R*N,), in the positions' dtype
     """
     distance, free = world.station_distances_and_free(positions[:, 0], positions[:, 1])
     residual = distance  # (d - z) / sigma, computed in place: the sign does not matter once squared
@@ -126,12 +204,119 @@ def log_likelihood(
     return log_p
 
 
+class LostRobot:
+    """The lost robot's state-space model as a filter uses it (nchopin/particles' FeynmanKac: M0, M,
+    logG): the prior, the transition (1) and the log-likelihood (3) with the outside penalty, for R runs
+    at once, each run's draws from its own Generator. Equations (1)-(3) are called from here only.
+
+    Parameters
+    ----------
+    world : Maze
+        The map: the free area and the stations.
+    sigma : float
+        The measurement noise's standard deviation (map units).
+    delta : float
+        The compass error's full width (radians).
+    ops : NumpyKernels or CompiledKernels
+        The backend's operations (mazelab.backend): the move and the likelihood run there.
+    speed : float
+        L, the step length the filter assumes (map units).
+    outside_penalty : float
+        The likelihood's factor outside the free area (refinement 1).
+    """
+
+    def __init__(
+        self,
+        world: Maze,
+        sigma: float,
+        delta: float,
+        ops: Any,
+        speed: float = ROBOT_SPEED,
+        outside_penalty: float = OUTSIDE_PENALTY,
+    ):
+        self.world, self.sigma, self.delta, self.ops = world, sigma, delta, ops
+        self.speed, self.outside_penalty = speed, outside_penalty
+
+    def prior(self, count: int, rng: np.random.Generator) -> np.ndarray:
+        """x_0 ~ p(x_0), uniform over the free area (M0).
+
+        Parameters
+        ----------
+        count : int
+        rng : numpy.random.Generator
+
+        Returns
+        -------
+        array (count, 2), float64
+        """
+        return self.world.random_free_places(count, rng)
+
+    def transition(
+        self,
+        points: np.ndarray,
+        compass_angles: np.ndarray,
+        rngs: Sequence[np.random.Generator],
+        ancestors: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Equation (1), x_k ~ p(x_k | x_{k-1}): each point moves L along th ~ U(th0 - Delta/2, th0 +
+        Delta/2) (M). Run r's block draws its uniforms from rngs[r].
+
+        Parameters
+        ----------
+        points : array (R*N, 2)
+            The runs' particles, in blocks (or the particles `ancestors` indexes).
+        compass_angles : array (R,)
+            th0_k of each run (radians).
+        rngs : sequence of R Generators
+        ancestors : int array (R*M,), optional
+            Move points[ancestors] (the resampled particles, gathered in the same pass).
+
+        Returns
+        -------
+        (positions (R*M, 2), headings (R*M,)) in the points' dtype
+        """
+        dtype = points.dtype  # PARTICLE_DTYPE, or float64 for injected draws from the free area
+        moved = len(points) if ancestors is None else len(ancestors)
+        uniforms = self.ops.buffer("uniforms", (len(rngs), moved // len(rngs)), dtype)
+        for row, rng in enumerate(rngs):
+            rng.random(dtype=dtype, out=uniforms[row])
+        return self.ops.move(points, ancestors, uniforms, compass_angles.astype(dtype), self.delta, self.speed)
+
+    def log_likelihood(self, z: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """Equation (3) in logs with the outside penalty, log p(z_k | x) (logG).
+
+        Parameters
+        ----------
+        z : array (R,)
+            z_k of each run.
+        points : array (R*N, 2)
+            The runs' particles, in blocks.
+
+        Returns
+        -------
+        array (R, N)
+        """
+        return self.ops.log_likelihood(z, points, self.world, self.sigma, self.outside_penalty)
+
+
 def check_model_parameters(
     sigma: float, delta: float, map_size: tuple[float, float] | None = None
 ) -> tuple[float, float]:
     """Refuse impossible sigma/delta with a clear message; warn outside the lab's recommended ranges.
-    sigma must lie in the range that keeps the arithmetic finite on the map (width, height), or
-    without one on any maze (mazelab.checks.sigma_range)."""
+
+    Parameters
+    ----------
+    sigma : float
+        Must lie in the range that keeps the arithmetic finite on the map, or without a map on any
+        maze (mazelab.checks.sigma_range).
+    delta : float
+        In [0, 2 pi] (radians).
+    map_size : (width, height), optional
+
+    Returns
+    -------
+    (sigma, delta) as floats
+    """
     sigma, delta = finite_number("sigma", sigma), finite_number("delta", delta)
     if sigma <= 0:
         raise ValueError(f"sigma must be > 0 (the measurement noise's standard deviation), got {sigma}")
@@ -161,6 +346,7 @@ __all__ = [
     "ROBOT_SPEED",
     "RPF_THRESHOLD",
     "SPEED_OPTION",
+    "LostRobot",
     "check_model_parameters",
     "headings_from_uniforms",
     "log_likelihood",

@@ -27,7 +27,17 @@ SENSOR_RESET_LEVEL = 0.5
 
 def localised_likelihood(sigma: float) -> float:
     """E[p(z | x)] at the robot's own place x: E_v[N(v; 0, sigma^2)] for v ~ N(0, sigma^2) is
-    1 / (2 sqrt(pi) sigma), the mean likelihood of a filter whose belief sits on the robot (1/units)."""
+    1 / (2 sqrt(pi) sigma), the mean likelihood of a filter whose belief sits on the robot.
+
+    Parameters
+    ----------
+    sigma : float
+        The measurement noise's standard deviation (map units).
+
+    Returns
+    -------
+    float, per map unit
+    """
     return 1.0 / (2.0 * math.sqrt(math.pi) * sigma)
 
 
@@ -64,7 +74,19 @@ class Recovery:
             raise ValueError(f"recovery needs 0 < reset_level <= 1, got {self.reset_level}")
 
     def log_reference(self, log_w_slow: float, sigma: float) -> float:
-        """log of the likelihood level below which w_fast means "lost": w_slow, or the sensor's level."""
+        """log of the likelihood level below which w_fast means "lost": w_slow, or the sensor's level.
+
+        Parameters
+        ----------
+        log_w_slow : float
+            log w_slow.
+        sigma : float
+            The measurement noise's standard deviation.
+
+        Returns
+        -------
+        float
+        """
         if self.mode == "sensor":
             return math.log(self.reset_level * localised_likelihood(sigma))
         return log_w_slow
@@ -73,7 +95,19 @@ class Recovery:
 def recovery_options(
     recovery: bool | str | Recovery | None, alpha_slow: float = ALPHA_SLOW, alpha_fast: float = ALPHA_FAST
 ) -> Recovery | None:
-    """The Recovery a filter option asks for: None/False (off), True ("augmented"), a mode name, a Recovery."""
+    """The Recovery a filter option asks for.
+
+    Parameters
+    ----------
+    recovery : bool, str, Recovery or None
+        None/False (off), True ("augmented"), a mode name, or a Recovery (its own numbers).
+    alpha_slow, alpha_fast : float
+        The averages' rates when `recovery` is True or a name.
+
+    Returns
+    -------
+    Recovery or None
+    """
     if recovery is None or recovery is False:
         return None
     if isinstance(recovery, Recovery):
@@ -86,7 +120,17 @@ def recovery_options(
 
 
 def check_recovery(recovery: Any) -> str | Recovery | None:
-    """The recovery option: None (off; also False and "none"), "augmented" (also True), "sensor", or a Recovery."""
+    """The recovery option, checked.
+
+    Parameters
+    ----------
+    recovery : object
+        None (off; also False and "none"), "augmented" (also True), "sensor", or a Recovery.
+
+    Returns
+    -------
+    str, Recovery or None
+    """
     if recovery is None or recovery is False or (isinstance(recovery, str) and recovery.strip().lower() == "none"):
         return None
     if recovery is True:
@@ -99,6 +143,8 @@ def check_recovery(recovery: Any) -> str | Recovery | None:
 
 
 def _rate(name: str) -> Any:
+    """The check of a rate in (0, 1] named `name`."""
+
     def check(value: Any) -> float:
         rate = finite_number(name, value)
         if not 0 < rate <= 1:
@@ -122,10 +168,24 @@ RECOVERY_OPTIONS = (
 
 
 def measurement_matched_places(world: Maze, z: float, sigma: float, count: int, rng: np.random.Generator) -> np.ndarray:
-    """`count` free points with density proportional to p(z | x) on the free area (sensor resetting),
-    shape (count, 2): rejection sampling from the uniform law, accepting x with probability
-    p(z | x) / max p = exp(-(z - d(x))^2 / (2 sigma^2)). Points still missing after
-    SENSOR_RESET_BATCHES batches (when no free point explains z) are drawn uniformly."""
+    """Free points with density proportional to p(z | x) on the free area (sensor resetting): rejection
+    sampling from the uniform law, accepting x with probability p(z | x) / max p =
+    exp(-(z - d(x))^2 / (2 sigma^2)). Points still missing after SENSOR_RESET_BATCHES batches (when no
+    free point explains z) are drawn uniformly.
+
+    Parameters
+    ----------
+    world : Maze
+    z : float
+        The last measurement (map units).
+    sigma : float
+    count : int
+    rng : numpy.random.Generator
+
+    Returns
+    -------
+    array (count, 2)
+    """
     found, missing = [], count
     for _ in range(SENSOR_RESET_BATCHES):
         candidates = world.random_free_places(max(4 * missing, 256), rng)
@@ -142,7 +202,16 @@ def measurement_matched_places(world: Maze, z: float, sigma: float, count: int, 
 
 class RecoveryTracker:
     """What recovery keeps in a filter of one run: w_slow and w_fast (in logs) and the last z, and the
-    injection they decide. The filter calls `track` with each step's w_avg, and `inject` where it resamples."""
+    injection they decide. The filter calls `track` with each step's w_avg, and `inject` where it resamples.
+
+    Parameters
+    ----------
+    options : Recovery
+    world : Maze
+        Where injected points are drawn.
+    sigma : float
+        The measurement noise's standard deviation.
+    """
 
     def __init__(self, options: Recovery, world: Maze, sigma: float):
         self.options, self.world, self.sigma = options, world, sigma
@@ -151,6 +220,7 @@ class RecoveryTracker:
 
     @property
     def mode(self) -> str:
+        """The recovery's mode: "augmented" or "sensor"."""
         return self.options.mode
 
     @property
@@ -165,6 +235,13 @@ class RecoveryTracker:
 
         Both start at the first w_avg (as ROS AMCL does; Table 8.3 leaves them open): from zero,
         w_slow would take ~1/alpha_slow steps to reach the likelihood's level and hold back recovery.
+
+        Parameters
+        ----------
+        log_w_avg : float
+            log w_avg, this step's estimate of log p(z_k | z_1:k-1) (the filter's log evidence increment).
+        z : float
+            z_k.
         """
         slow, fast = self.options.alpha_slow, self.options.alpha_fast
         if self.last_z is None:
@@ -178,7 +255,22 @@ class RecoveryTracker:
         self, positions: np.ndarray, headings: np.ndarray, move_injected: Move, rng: np.random.Generator
     ) -> np.ndarray | None:
         """Replace particles in place with probability `injection_probability` by draws from the free area
-        (uniform, or matched to the last z) passed through `move_injected`; the mask, or None."""
+        (uniform, or matched to the last z) passed through `move_injected`.
+
+        Parameters
+        ----------
+        positions : array (N, 2)
+            Overwritten where injected.
+        headings : array (N,)
+            Overwritten where injected.
+        move_injected : callable
+            points -> (positions, headings), what the injected points go through.
+        rng : numpy.random.Generator
+
+        Returns
+        -------
+        bool array (N,), the injected particles, or None when nothing is injected
+        """
         probability = self.injection_probability
         if probability == 0:
             return None

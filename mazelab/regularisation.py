@@ -23,7 +23,6 @@ import numpy as np
 
 from mazelab.declaration import Option
 from mazelab.modes import MODE_CELL, cluster_labels, cluster_moments
-from mazelab.weights import weighted_covariance
 
 BANDWIDTHS = ("optimal", "multimodal")
 MIXTURE_SHRINK = 0.5  # h_c = MIXTURE_SHRINK * h_opt(n_c) in the multimodal kernel (measured, see docs/multimodal.md)
@@ -106,26 +105,6 @@ class GaussianKernel:
         return gaussian_jitter(eps, self.scale)
 
 
-def whole_cloud_kernel(weights: np.ndarray, positions: np.ndarray, h: float) -> Kernel:
-    """h D eps with D D^T = S, the weighted covariance of the whole cloud (the paper's kernel for h_opt).
-
-    Parameters
-    ----------
-    weights : array (N,)
-        Normalised weights.
-    positions : array (N, 2)
-    h : float
-        The bandwidth.
-
-    Returns
-    -------
-    GaussianKernel
-    """
-    covariance = weighted_covariance(weights, positions)  # S_k, the weighted empirical covariance
-    D = np.linalg.cholesky(covariance + 1e-12 * np.eye(2))  # D_k D_k^T = S_k (tiny ridge: S may be 0)
-    return GaussianKernel(h * D)
-
-
 def mixture_kernel(points: np.ndarray, eps: np.ndarray) -> np.ndarray:
     """h_c D_c eps for each resampled point of cluster c, h_c = MIXTURE_SHRINK h_opt(n_c) (Murangira,
     Musso and Dahia 2016, with a narrower h).
@@ -206,5 +185,4 @@ __all__ = [
     "gaussian_jitter",
     "mixture_kernel",
     "optimal_bandwidth",
-    "whole_cloud_kernel",
 ]

@@ -64,14 +64,16 @@ def stratified_resample(weights: np.ndarray, rng: np.random.Generator, count: in
 
 
 def systematic_resample(weights: np.ndarray, rng: np.random.Generator, count: int | None = None) -> np.ndarray:
-    """One uniform offset U shared by the M strata: the lowest-variance scheme, used by default.
+    """Systematic resampling (Kitagawa 1996), the lowest-variance scheme and the default: one uniform
+    offset u ~ U[0, 1) shared by the M points u_m = (u + m) / M, each taken to the particle whose
+    cumulative weight first exceeds it (the inverse CDF).
 
     Parameters
     ----------
     weights : array (N,)
         Normalised weights.
     rng : numpy.random.Generator
-        Draws U.
+        Draws u.
     count : int, optional
         M (default N).
 
@@ -79,9 +81,15 @@ def systematic_resample(weights: np.ndarray, rng: np.random.Generator, count: in
     -------
     int array (M,)
         Ancestor indices, sorted.
+
+    Notes
+    -----
+    The filters run the same scheme in its counting form, `systematic_resample_runs` (and the compiled
+    kernel), which gives the same ancestors for R runs at once in O(N).
     """
     count = len(weights) if count is None else count
-    return systematic_resample_runs(weights[None], np.array([rng.random()]), count)
+    u = rng.random()
+    return _inverse_cdf((u + np.arange(count)) / count, weights)
 
 
 def systematic_resample_runs(weights: np.ndarray, uniforms: np.ndarray, count: int | None = None) -> np.ndarray:

@@ -1,6 +1,6 @@
-"""The run axis of a filter that advances R runs together (mazelab.cloud): run r's particles are the
-block of rows r*N..(r+1)*N, its draws come from its own Generator. Helpers a single run never needs
-to read: particles as (R, N, 2), one Generator per run, a step's inputs per run, blocks replaced."""
+"""The run axis of a filter that advances R runs together (mazelab.engine): run r's particles are the
+block of rows r*N..(r+1)*N, its draws come from its own Generator. What a filter's constructor reads
+of it: the particles as (R, N, 2), one Generator per run."""
 
 from __future__ import annotations
 
@@ -54,43 +54,4 @@ def generators(rng: Any, runs: int) -> list[np.random.Generator]:
     return rngs
 
 
-def per_run(value: float | np.ndarray, runs: int) -> np.ndarray:
-    """A step's compass angle or measurement as one value per run, float64 (R,).
-
-    Parameters
-    ----------
-    value : float or array (R,)
-    runs : int
-
-    Returns
-    -------
-    array (R,)
-    """
-    if isinstance(value, np.ndarray):
-        return np.broadcast_to(value.astype(float, copy=False), (runs,))
-    return np.array([float(value)] * runs)
-
-
-def replace_blocks(values: np.ndarray, new: np.ndarray, runs: np.ndarray, size: int) -> np.ndarray:
-    """A copy of `values` whose blocks of the given runs are the blocks of `new`, in order; the other
-    runs' blocks are kept.
-
-    Parameters
-    ----------
-    values : array (R*size, ...)
-    new : array (len(runs)*size, ...)
-    runs : array of run indices
-    size : int
-        The rows of one run's block.
-
-    Returns
-    -------
-    array (R*size, ...)
-    """
-    replaced = values.copy(order="F" if values.ndim > 1 else "C")
-    for block, run in enumerate(runs):
-        replaced[run * size : (run + 1) * size] = new[block * size : (block + 1) * size]
-    return replaced
-
-
-__all__ = ["as_runs", "generators", "per_run", "replace_blocks"]
+__all__ = ["as_runs", "generators"]

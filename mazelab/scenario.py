@@ -251,14 +251,19 @@ class Scenario(BaseModel):
 
     def filter_kwargs(self, filter_class: type | None = None) -> dict[str, Any]:
         """The stored filter options as keyword arguments of `filter_class` (default: the lab's filter
-        the scenario names), those it declares, checked by its declaration; empty when none are stored."""
+        the scenario names), those it declares, checked by its declaration; empty when none are stored.
+        For another filter than the one that made the run, only the options that run chose (not its
+        defaults: SIR's `threshold` 1 is not the RPF's 0.2)."""
+        made_by = self.shipped_filter
         if filter_class is None:
-            entry = self.shipped_filter
-            if entry is None:
+            if made_by is None:
                 return {}
-            filter_class = entry.filter_class
+            filter_class = made_by.filter_class
         declared = options_of(filter_class)
         stored = {k: v for k, v in (self.filter_options or {}).items() if k in declared and not declared[k].derived}
+        if made_by is not None and made_by.filter_class is not filter_class:
+            own = made_by.options.to_json(made_by.options.defaults())
+            stored = {k: v for k, v in stored.items() if k not in own or own[k] != v}
         return declared.from_json(stored, filter_class.name)
 
     def plugin_name_problem(self, name: str, sha256: str, class_name: str) -> str | None:

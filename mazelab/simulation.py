@@ -48,6 +48,7 @@ class RunResult:
     reinitialised_at: list[int]
     inputs: RunInputs
     extras: dict[str, Any] = field(default_factory=dict)
+    log_evidence: np.ndarray | None = None  # (steps,), log p(z_1:k) as the filter estimates it (NaN: none kept)
 
     @property
     def scenario(self) -> Scenario:
@@ -363,6 +364,7 @@ def simulate(
         list(filt.reinitialised_at),
         inputs,
         extras={"particle_count": run["counts"], "diagnostics": run["diagnostics"], "backend": backend_of(filt)},
+        log_evidence=run["log_evidence"],
     )
 
 

@@ -1,8 +1,46 @@
-"""Weighted particles: log-domain normalisation, the effective sample size and weighted summaries."""
+"""Weighted particles: the Weights value, log-domain normalisation, the effective sample size and
+weighted summaries. Numpy only (the engine and the exercise's sandbox import it)."""
 
 from __future__ import annotations
 
+from functools import cached_property
+
 import numpy as np
+
+
+class Weights:
+    """The weights of R runs as a value (nchopin/particles' resampling.Weights, one row per run): the
+    normalised log weights in, W and the ESS derived once when asked.
+
+    Parameters
+    ----------
+    lw : array (R, N)
+        log W_i of each run, normalised (each row's exp sums to 1).
+    W, ess : arrays (R, N) and (R,), optional
+        exp(lw) and 1 / sum W^2 when the normalisation already read them (the compiled backend).
+    """
+
+    def __init__(self, lw: np.ndarray, W: np.ndarray | None = None, ess: np.ndarray | None = None):
+        self.lw = lw
+        if W is not None:
+            self.__dict__["W"] = W
+        if ess is not None:
+            self.__dict__["ess"] = ess
+
+    def __setattr__(self, name: str, value: object) -> None:
+        if name in self.__dict__:
+            raise AttributeError(f"Weights are a value: {name} cannot change (make new Weights)")
+        super().__setattr__(name, value)
+
+    @cached_property
+    def W(self) -> np.ndarray:  # noqa: N802 (the paper's W, as particles names it)
+        """W_i = exp(log W_i), (R, N)."""
+        return np.exp(self.lw)
+
+    @cached_property
+    def ess(self) -> np.ndarray:
+        """N_eff = 1 / sum_i W_i^2 per run (eq. 51), (R,)."""
+        return effective_sample_size(self.W)
 
 
 # -- weights: each function takes one run's weights (N,) or R runs' (R, N), summing along the last axis
@@ -164,6 +202,7 @@ def mass_within(weights: np.ndarray, points: np.ndarray, centre: np.ndarray, rad
 
 
 __all__ = [
+    "Weights",
     "effective_sample_size",
     "exp_in_place",
     "log_sum_exp",

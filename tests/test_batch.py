@@ -15,7 +15,7 @@ from mazelab.experiments import batch_runs
 from mazelab.experiments.batch_runs import run_batch, run_unit_safely, study_units
 from mazelab.experiments.study import MazeChoice, run_task, study_settings, study_tasks
 from mazelab.filters import SIRParticleFilter
-from mazelab.registry import resolve_filter
+from mazelab.registry import entries, resolve_filter
 
 SEEDS = (11, 12, 13, 14)
 IMPOSSIBLE_Z = 50.0  # no place of the 5x5 maze is this far from a station: every weight underflows
@@ -31,10 +31,16 @@ def step_together_and_alone(batch, singles, walks: list, steps: int) -> None:
             single.step(compass[r], z[r])
             assert np.array_equal(batch.estimate[r], single.estimate), (k, r)
             assert batch.ess[r] == single.ess and batch.is_confident[r] == single.is_confident
+            assert batch.log_evidence[r] == single.log_evidence
 
 
-@pytest.mark.parametrize("name", ["sir", "apf", "rpf"])
-def test_batched_runs_equal_single_runs_bit_for_bit(name, paper_world):
+BATCHED = [entry.name for entry in entries() if entry.batched]  # every registry entry that declares it
+ADAPTIVE = {"threshold": 0.5}  # some runs resample at a step and others do not
+
+
+@pytest.mark.parametrize("options", [{}, ADAPTIVE], ids=["defaults", "threshold=0.5"])
+@pytest.mark.parametrize("name", BATCHED)
+def test_batched_runs_equal_single_runs_bit_for_bit(name, options, paper_world):
     count, steps = 200, 40
     walks = [recorded_walk(paper_world, seed, steps) for seed in SEEDS]
     for r in (1, 3):  # two runs meet a measurement nothing explains: they restart from the prior
@@ -42,9 +48,10 @@ def test_batched_runs_equal_single_runs_bit_for_bit(name, paper_world):
     particles = np.stack([paper_world.random_free_places(count, np.random.default_rng(s)) for s in SEEDS])
     single_class = resolve_filter(name)
     singles = [
-        single_class(paper_world, 0.3, 0.5, particles[r], np.random.default_rng(s + 1000)) for r, s in enumerate(SEEDS)
+        single_class(paper_world, 0.3, 0.5, particles[r], np.random.default_rng(s + 1000), **options)
+        for r, s in enumerate(SEEDS)
     ]
-    batch = single_class(paper_world, 0.3, 0.5, particles, [np.random.default_rng(s + 1000) for s in SEEDS])
+    batch = single_class(paper_world, 0.3, 0.5, particles, [np.random.default_rng(s + 1000) for s in SEEDS], **options)
     step_together_and_alone(batch, singles, walks, steps)
     assert [len(single.reinitialised_at) > 0 for single in singles] == [False, True, False, True]
     assert batch.reinitialised_at == [single.reinitialised_at for single in singles]

@@ -1,9 +1,9 @@
-"""The weighted particle cloud the paper's three filters share (mazelab.cloud), each rule on its own:
+"""What every particle filter of the registry shares (mazelab.cloud on mazelab.engine), each rule on its own:
 
 - its ESS is 1 / sum_i W_i^2 of the weights it holds, for one run and per run of R;
-- `normalise` restarts a run that no particle explains from the prior, weighted by that run's own z;
+- the engine restarts a run that no particle explains from the prior, weighted by that run's own z;
 - the green circle (`is_confident`) counts weight within distance 1 of the estimate, not particles;
-- each particle keeps the heading of its last move (`propagate`).
+- each particle keeps the heading of its last move (the transition).
 """
 
 from __future__ import annotations
@@ -12,12 +12,16 @@ import numpy as np
 import pytest
 from conftest import recorded_walk
 
-from mazelab.filters import AuxiliaryParticleFilter, RegularizedParticleFilter, SIRParticleFilter
-from mazelab.model import CONFIDENCE_SHARE
+from mazelab.cloud import ParticleFilter
+from mazelab.constants import CONFIDENCE_SHARE
+from mazelab.filters import SIRParticleFilter
+from mazelab.registry import entries
+
+PARTICLE_FILTERS = [entry.filter_class for entry in entries() if issubclass(entry.filter_class, ParticleFilter)]
 
 
 # -- the effective sample size: N_eff = 1 / sum_i W_i^2 (Arulampalam et al., eq. 51) -----------------------
-@pytest.mark.parametrize("cls", [SIRParticleFilter, AuxiliaryParticleFilter, RegularizedParticleFilter])
+@pytest.mark.parametrize("cls", PARTICLE_FILTERS)
 def test_the_ess_is_one_over_the_sum_of_the_squared_normalised_weights(paper_world, cls):
     """Known weights (1/2, 1/4, 1/4) give 1 / (1/4 + 1/16 + 1/16) = 8/3, for one run and per run of R;
     after real steps the ESS is that of the weights the filter holds, computed here independently."""
@@ -37,7 +41,7 @@ def test_the_ess_is_one_over_the_sum_of_the_squared_normalised_weights(paper_wor
 
 
 # -- a restart: from the prior, weighted by the run's own z ---------------------------------------------
-@pytest.mark.parametrize("cls", [SIRParticleFilter, AuxiliaryParticleFilter, RegularizedParticleFilter])
+@pytest.mark.parametrize("cls", PARTICLE_FILTERS)
 def test_a_run_that_restarts_weights_the_prior_by_its_own_measurement(paper_world, cls):
     """No particle explains z_k (here 50, beyond any station of the 5x5 maze): that run, and only it,
     restarts from the prior with W_i proportional to p(z_k | x_i) of its own z_k (not another run's)."""

@@ -29,7 +29,7 @@ from mazelab.simulation import simulate
         (["run", "--filter", "ekf", "--bandwidth", "multimodal"], "ExtendedKalmanFilter does not take --bandwidth"),
         (["run", "--filter", "apf", "--init", "start"], "AuxiliaryParticleFilter does not take --init"),
         (["study", "--filters", "sir", "--bandwidth", "multimodal"], "SIRParticleFilter does not take --bandwidth"),
-        (["study", "--filters", "sir,apf", "--threshold", "0.3"], "SIRParticleFilter and AuxiliaryParticleFilter do"),
+        (["study", "--filters", "sir,apf", "--bandwidth", "0.3"], "SIRParticleFilter and AuxiliaryParticleFilter do"),
         (["study", "--filters", "grid,ekf", "--kld"], "GridBayesFilter and ExtendedKalmanFilter do not take --kld"),
         # a flag that tunes an option (recovery's rates, KLD's bounds) is refused where the option is
         (["run", "--filter", "grid", "--alpha-fast", "0.2"], "GridBayesFilter does not take --alpha-fast"),

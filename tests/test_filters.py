@@ -14,12 +14,14 @@ import numpy as np
 import pytest
 from conftest import recorded_walk
 
+from mazelab.cloud import ParticleFilter
 from mazelab.filters import AuxiliaryParticleFilter, RegularizedParticleFilter
 from mazelab.lab import simulate
 from mazelab.model import LOG_UNDERFLOW, ROBOT_SPEED, log_likelihood
+from mazelab.registry import entries
 from mazelab.robot import Robot
 
-PARTICLE_FILTERS = ["sir", "apf", "rpf"]
+PARTICLE_FILTERS = [entry.name for entry in entries() if issubclass(entry.filter_class, ParticleFilter)]
 
 
 # -- the RPF: regularise exactly when N_eff < N_T ------------------------------------------------------

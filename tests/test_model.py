@@ -9,7 +9,8 @@ import math
 import numpy as np
 import pytest
 
-from mazelab.model import OUTSIDE_PENALTY, ROBOT_SPEED, log_likelihood, move, sample_headings
+from mazelab.backend import NUMPY_KERNELS
+from mazelab.model import OUTSIDE_PENALTY, ROBOT_SPEED, LostRobot, log_likelihood, move, sample_headings
 from mazelab.robot import Robot
 
 
@@ -49,3 +50,21 @@ def test_impossible_sigma_or_delta_is_refused(sigma, delta):
 def test_sigma_outside_the_lab_range_warns():
     with pytest.warns(UserWarning, match="outside the lab's range"):
         Robot(1.5, 0.5, (1.5, 1.5))
+
+
+def test_the_lost_robot_moves_and_weighs_r_runs_as_each_run_alone(paper_world):
+    """LostRobot (the model a filter uses): R runs' particles in blocks, run r's draws from rngs[r]; the
+    transition and the log-likelihood of the blocks are each run's own, bit for bit, and the transition
+    moves every point by exactly L."""
+    model = LostRobot(paper_world, 0.3, 0.5, NUMPY_KERNELS)
+    runs = [model.prior(50, np.random.default_rng(s)).astype(np.float32) for s in (1, 2, 3)]
+    angles, z = np.array([0.1, 1.0, 2.0]), np.array([0.5, 1.0, 1.5])
+    together, headings = model.transition(np.concatenate(runs), angles, [np.random.default_rng(s) for s in (4, 5, 6)])
+    weights = model.log_likelihood(z, together)
+    for r, seed in enumerate((4, 5, 6)):
+        alone, _ = model.transition(runs[r], angles[r : r + 1], [np.random.default_rng(seed)])
+        np.testing.assert_array_equal(together[50 * r : 50 * (r + 1)], alone)
+        np.testing.assert_array_equal(weights[r], model.log_likelihood(z[r : r + 1], alone)[0])
+        steps = np.hypot(*(alone - runs[r]).T)
+        np.testing.assert_allclose(steps, ROBOT_SPEED, rtol=1e-5)
+        assert np.all(np.abs(headings[50 * r : 50 * (r + 1)] - angles[r]) <= 0.25 + 1e-6)

@@ -33,7 +33,6 @@ ADAPTIVE = '''
 from helper_beside import DEFAULT_SHARE
 from mazelab.cloud import ParticleFilter
 from mazelab.declaration import Option, number_in
-from mazelab.run_axis import per_run
 
 
 class AdaptiveSIR(ParticleFilter):
@@ -43,16 +42,8 @@ class AdaptiveSIR(ParticleFilter):
         Option("ess_share", DEFAULT_SHARE, "resample when ESS < ess_share * N", check=number_in("ess_share", 0, 1)),
     )
 
-    def step(self, compass_angle, z):
-        compass_angle, z = per_run(compass_angle, 1), per_run(z, 1)
-        if self.ess < self.settings["ess_share"] * self.count:
-            x, headings, _, _ = self.draw_particles(self.run_weights, *self.motion(compass_angle), None)
-            self.set_uniform_weights()
-        else:
-            x, headings = self.propagate(self.positions, compass_angle)
-        self.replace_runs(x, headings)
-        self.normalise(self.run_log_weights + self.likelihood(z, x), z)
-        self.steps_done += 1
+    def time_to_resample(self):
+        return self.ess < self.settings["ess_share"] * self.count
 '''
 
 
@@ -75,8 +66,8 @@ def test_the_contracts_worked_example_runs_as_written(tmp_path, capsys):
     doc = mazelab.contract.__doc__
     code = textwrap.dedent(doc[doc.index("    from mazelab.cloud") : doc.index("Saved as my_filter.py")])
     (tmp_path / "my_filter.py").write_text(code.replace("'''", '"""'))
-    assert main(["run", "--filter", f"{tmp_path}/my_filter.py:AdaptiveSIR", "--option", "ess_share=0.3", *RUN]) == 0
-    assert first_line(capsys).startswith("AdaptiveSIR: last-step error")
+    assert main(["run", "--filter", f"{tmp_path}/my_filter.py:PeriodicSIR", "--option", "period=3", *RUN]) == 0
+    assert first_line(capsys).startswith("PeriodicSIR: last-step error")
 
 
 def test_a_plugins_saved_run_replays_bit_for_bit_with_its_options(tmp_path, capsys, plugin):

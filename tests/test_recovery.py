@@ -114,7 +114,7 @@ def test_a_lost_rpf_injects_without_resampling_and_keeps_the_weights(paper_world
     filt = RegularizedParticleFilter(paper_world, 0.3, 0.5, particles, np.random.default_rng(2), recovery="sensor")
     filt.track_likelihood(math.log(1e-3 * localised_likelihood(0.3)), 1.0)  # w_fast far below the level
     before, weights = filt.positions.copy(), filt.log_weights
-    filt.inject_without_resampling(lambda points: (points, np.zeros(len(points), np.float32)))
+    filt.between_resamplings()
     injected = filt._injected  # the mask of the step about to run (`injected` shows it once the step is done)
     assert injected is not None and 0.9 * 400 < injected.sum() <= 400  # probability 1 - 1e-3 / 0.5
     np.testing.assert_array_equal(filt.positions[~injected], before[~injected])

@@ -28,7 +28,6 @@ from mazelab.filters import AuxiliaryParticleFilter, RegularizedParticleFilter, 
 from mazelab.grid_filter import GridBayesFilter
 from mazelab.plugins import check_declared_defaults
 from mazelab.registry import SHIPPED, FilterEntry, entries, filter_entry, register, resolve_filter, unregister
-from mazelab.run_axis import per_run
 from mazelab.scenario import load_scenario
 
 
@@ -145,12 +144,8 @@ class WideSIR(ParticleFilter):
         Option("temper", 1.0, "the likelihood's exponent, 1: the paper's", check=number_in("temper", 0.0, 1.0))
     )
 
-    def step(self, compass_angle, z):
-        compass_angle, z = per_run(compass_angle, self.runs), per_run(z, self.runs)
-        x, headings, _, _ = self.draw_particles(self.run_weights, *self.motion(compass_angle), None)
-        self.replace_runs(x, headings)
-        self.normalise(self.settings["temper"] * self.likelihood(z, x), z)
-        self.steps_done += 1
+    def log_likelihood(self, points):
+        return self.settings["temper"] * super().log_likelihood(points)  # p(z_k | x)^temper
 
 
 @pytest.fixture

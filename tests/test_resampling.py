@@ -57,18 +57,21 @@ def test_unknown_resampling_scheme_lists_the_valid_ones():
         resampling_scheme("magic")
 
 
-def test_systematic_resampling_counts_equal_the_inverse_cdf_definition():
-    """The O(N) count of systematic resampling must pick, for every point u_m = (m + U) / N, the index i
-    with cumsum(W)[i-1] <= u_m < cumsum(W)[i]: the binary search of the definition, for the same U."""
+def test_the_textbook_systematic_and_the_counting_form_give_the_same_ancestors():
+    """`systematic_resample` is the textbook (u ~ U[0, 1), u_m = (u + m) / M, the inverse CDF by a
+    binary search); the filters run its O(N) counting form (systematic_resample_runs, the backend's
+    fast path). For the same u they must pick the same ancestors, M = N and M below and above N,
+    with particles of no weight among them."""
     rng = np.random.default_rng(21)
-    for n in (1, 7, 1000):
+    for trial in range(200):
+        n = int(rng.integers(1, 400))
         weights = rng.random(n) ** 4
         weights[rng.random(n) < 0.3] = 0.0  # particles with no weight get no offspring
         weights = weights / weights.sum() if weights.sum() > 0 else np.full(n, 1 / n)
-        offset = np.random.default_rng(n).random()
-        expected = np.searchsorted(np.cumsum(weights), (np.arange(n) + offset) / n, side="right")
-        fast = resampling_scheme("systematic")(weights, np.random.default_rng(n))
-        np.testing.assert_array_equal(fast, expected)
+        for count in (n, max(1, n // 3), 2 * n + 1):
+            textbook = systematic_resample(weights, np.random.default_rng(trial), count)
+            offset = np.random.default_rng(trial).random()  # the u the textbook drew
+            np.testing.assert_array_equal(systematic_resample_runs(weights[None], np.array([offset]), count), textbook)
 
 
 def test_systematic_resampling_of_r_runs_is_each_run_resampled_alone():

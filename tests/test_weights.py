@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from mazelab.weights import (
+    Weights,
     effective_sample_size,
     log_sum_exp,
     mass_within,
@@ -101,3 +102,12 @@ def test_mass_within_is_the_weight_at_most_the_radius_away():
     runs = np.vstack([weights, weights[::-1]])  # run 2: weights 0.4, 0.3, 0.2, 0.1, centre (0.5, 2)
     both = mass_within(runs, np.vstack([points, points]), np.array([[2.0, 2.0], [0.5, 2.0]]), 1.0)
     np.testing.assert_allclose(both, [0.3, 0.2], atol=1e-15)  # about (0.5, 2): only the third point
+
+
+def test_weights_are_a_value_whose_w_and_ess_are_derived():
+    lw = np.log(np.array([[0.5, 0.25, 0.25], [1 / 3, 1 / 3, 1 / 3]]))
+    weights = Weights(lw)
+    np.testing.assert_allclose(weights.W, np.exp(lw))
+    np.testing.assert_allclose(weights.ess, [1 / (0.25 + 1 / 16 + 1 / 16), 3.0])
+    with pytest.raises(AttributeError, match="value"):
+        weights.lw = lw[::-1]

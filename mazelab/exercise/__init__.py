@@ -13,7 +13,7 @@ folder), autograder (Gradescope's bundle).
 
 from __future__ import annotations
 
+from mazelab.constants import OUTSIDE_PENALTY, ROBOT_SPEED
 from mazelab.exercise.student import PARTS, PartError, StudentFilter
-from mazelab.model import OUTSIDE_PENALTY, ROBOT_SPEED
 
 __all__ = ["OUTSIDE_PENALTY", "PARTS", "ROBOT_SPEED", "PartError", "StudentFilter"]

@@ -1,25 +1,30 @@
 """StudentFilter: Algorithm 4 (SIR) with four parts left to the student, wired into the filter contract.
 
-The student writes `predict`, `weigh`, `resample` and `estimate`; StudentFilter calls them in the
-order of Arulampalam et al.'s Algorithm 4 and does the rest: log-domain normalisation, the effective
-sample size, the green circle, and a restart from the prior when no particle explains z_k. Like the
-shipped filters, each step starts by resampling the previous posterior (the end of the previous
-step's Algorithm 4), so between steps the filter holds the weighted posterior that is drawn and read.
+The student writes `predict`, `weigh`, `resample` and `estimate`; StudentFilter is the step template
+every particle filter of the lab runs (mazelab.engine.SMC.step) with those parts as its hooks: the
+transition is `predict`, the log-likelihood `weigh`, the ancestors `resample`, and the point estimate
+`estimate`. The engine does the rest: log-domain normalisation, the effective sample size, the log
+evidence, and a restart from the prior when no particle explains z_k. Like the shipped filters, each
+step starts by resampling the previous posterior (the end of the previous step's Algorithm 4), so
+between steps the filter holds the weighted posterior that is drawn and read.
+
+Nothing here imports the lab's reference implementation (the model, the resampling schemes, the grid
+filter): the grading sandbox ships this module and what it imports to the student's process.
 """
 
 from __future__ import annotations
 
-import math
 from typing import Any, ClassVar
 
 import numpy as np
 
 from mazelab.checks import as_points
+from mazelab.constants import CONFIDENCE_RADIUS, CONFIDENCE_SHARE, OUTSIDE_PENALTY, ROBOT_SPEED
 from mazelab.contract import Particles
 from mazelab.declaration import Option, Options
+from mazelab.engine import SMC
 from mazelab.maze import Maze
-from mazelab.model import CONFIDENCE_RADIUS, CONFIDENCE_SHARE, LOG_UNDERFLOW, OUTSIDE_PENALTY, ROBOT_SPEED
-from mazelab.weights import effective_sample_size, log_sum_exp, mass_within
+from mazelab.weights import mass_within
 
 PARTS = ("predict", "weigh", "resample", "estimate")
 
@@ -37,7 +42,7 @@ class PartError(ValueError):
     """A part returned something of the wrong shape or kind: one line naming the part and what came."""
 
 
-class StudentFilter:
+class StudentFilter(SMC):
     """Algorithm 4 (SIR) whose four parts the subclass writes; see the methods for each part's job.
 
     Parameters
@@ -56,7 +61,9 @@ class StudentFilter:
     Notes
     -----
     Attributes the parts may read: `self.world`, `self.sigma`, `self.delta`, `self.ROBOT_SPEED` (L) and
-    `self.OUTSIDE_PENALTY` (refinement 1's factor), also importable from mazelab.exercise.
+    `self.OUTSIDE_PENALTY` (refinement 1's factor), also importable from mazelab.exercise. The step is
+    the lab's template (mazelab.engine.SMC), whose own methods (`move`, `reweight`, `normalise`, `draw`,
+    ...) a helper of yours must not be named after.
     """
 
     name: ClassVar[str] = "StudentFilter"
@@ -95,10 +102,9 @@ class StudentFilter:
         self.rng = rng if rng is not None else np.random.default_rng()
         self.positions = as_points("particles", particles).copy()
         self.count = len(self.positions)
-        self.log_weights = np.full(self.count, -math.log(self.count))
-        self.reinitialised_at: list[int] = []
-        self.steps_done = 0
-        self._estimate: np.ndarray | None = None
+        self.headings = np.zeros(self.count)
+        self.start_runs([self.rng])
+        self._estimate: tuple[Any, np.ndarray] | None = None  # (the weights it is of, the estimate)
 
     # -- the student's four parts --------------------------------------------------------------------
     def predict(self, positions: np.ndarray, compass_angle: float, rng: np.random.Generator) -> np.ndarray:
@@ -117,25 +123,19 @@ class StudentFilter:
         """The posterior mean, shape (2,): a subclass writes it as `estimate(self, positions, weights)`."""
         raise NotImplementedError("estimate is still to write")
 
-    # -- Algorithm 4, wired ------------------------------------------------------------------------
-    def step(self, compass_angle: float, z: float) -> None:
-        """One step of Algorithm 4: RESAMPLE the previous posterior, draw x_k^i ~ p(x_k | x_{k-1}^i),
-        w_k^i = p(z_k | x_k^i), normalise (in logs); restart from the prior if no particle explains z_k."""
-        ancestors = self.call_resample(self.weights)
-        moved = self.call_predict(self.positions[ancestors], float(compass_angle))
-        log_w = self.call_weigh(moved, float(z))
-        total = log_sum_exp(log_w)
-        if not total >= LOG_UNDERFLOW:  # every weight underflows (or NaN): no particle explains z_k
-            self.reinitialised_at.append(self.steps_done + 1)
-            moved = self.world.random_free_places(self.count, self.rng)
-            log_w = self.call_weigh(moved, float(z))
-            total = log_sum_exp(log_w)
-            if not total >= LOG_UNDERFLOW:
-                log_w, total = np.zeros(self.count), math.log(self.count)
-        self.positions = moved
-        self.log_weights = log_w - total
-        self._estimate = None
-        self.steps_done += 1
+    # -- the template's hooks: the student's parts --------------------------------------------------
+    def transition(self, points: np.ndarray, ancestors: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """x_k^i ~ p(x_k | x_{k-1}^i) by the student's `predict` (of points[ancestors] after resampling)."""
+        chosen = points if ancestors is None else points[ancestors]
+        return self.call_predict(chosen, float(self.compass_angles[0])), np.zeros(len(chosen))
+
+    def log_likelihood(self, points: np.ndarray) -> np.ndarray:
+        """log p(z_k | x_k^i) by the student's `weigh`, one row (1, N)."""
+        return self.call_weigh(points, float(self.measurements[0]))[None]
+
+    def ancestors(self, weights: np.ndarray) -> np.ndarray:
+        """RESAMPLE by the student's `resample` of the normalised weights (one row)."""
+        return self.call_resample(weights[0])
 
     def call_predict(
         self, positions: np.ndarray, compass_angle: float, rng: np.random.Generator | None = None
@@ -173,17 +173,7 @@ class StudentFilter:
         point = np.asarray(self.estimate_part(positions.copy(), weights.copy()), dtype=float)
         return _checked("estimate", point, (2,))
 
-    # -- the filter contract -------------------------------------------------------------------------
-    @property
-    def weights(self) -> np.ndarray:
-        """The normalised weights W_i = exp(log W_i), (N,)."""
-        return np.exp(self.log_weights)
-
-    @property
-    def ess(self) -> float:
-        """N_eff = 1 / sum_i W_i^2."""
-        return float(effective_sample_size(self.weights))
-
+    # -- the filter contract (the weights, the ESS and the log evidence are the engine's) ------------
     @property
     def is_confident(self) -> bool:
         """At least 95% of the weight lies within distance 1 of the estimate (the green circle)."""
@@ -193,9 +183,9 @@ class StudentFilter:
     @property
     def estimate(self) -> np.ndarray:
         """The contract's point estimate: the student's estimate of the present posterior, (2,) (once per step)."""
-        if self._estimate is None:
-            self._estimate = self.call_estimate(self.positions, self.weights)
-        return self._estimate.copy()
+        if self._estimate is None or self._estimate[0] is not self.weights_value:
+            self._estimate = (self.weights_value, self.call_estimate(self.positions, self.weights))
+        return self._estimate[1].copy()
 
     def belief(self) -> Particles:
         """What the viewer draws: the particles and their weights."""

@@ -149,6 +149,7 @@ def run_batch(tasks: Sequence[RunTask]) -> list[list[RunRecord]]:
                     "diagnostics": run["diagnostics"],
                     "backend": backend_of(filt),
                 },
+                log_evidence=run["log_evidence"],
             )
     return [run_records(task, world, result) for task, result in zip(tasks, results, strict=True)]
 

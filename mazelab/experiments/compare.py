@@ -76,11 +76,20 @@ def compare_filters(
 
 def comparison_table(results: dict[str, RunResult], kld: bool = False, startup_seconds: float | None = None) -> str:
     """Per filter: mean error, last-20% error (the mean error over the last 20% of the steps), convergence
-    step, mean ESS and milliseconds per step; with a kidnapping, whether the filter re-localised and in
-    how many steps; with `kld`, the mean particle count. With `startup_seconds` (the process's one-off
-    costs, mazelab.experiments.warmup), a line saying they are not in ms/step."""
+    step, mean ESS, the log evidence log p(z_1:K) of the whole walk (its estimate; exact for the grid
+    filter; '-' for a filter that keeps none) and milliseconds per step; with a kidnapping, whether the
+    filter re-localised and in how many steps; with `kld`, the mean particle count. With `startup_seconds`
+    (the process's one-off costs, mazelab.experiments.warmup), a line saying they are not in ms/step."""
     kidnapped = any(result.kidnap_at is not None for result in results.values())
-    headers = ["filter", "mean error", f"last-{FINAL_SHARE:.0%} error", "converged at", "mean ESS", "ms/step"]
+    headers = [
+        "filter",
+        "mean error",
+        f"last-{FINAL_SHARE:.0%} error",
+        "converged at",
+        "mean ESS",
+        "log p(z_1:K)",
+        "ms/step",
+    ]
     headers += ["re-localised", "steps to recover"] * kidnapped + ["mean N"] * kld
     rows = []
     for name, result in results.items():
@@ -91,6 +100,7 @@ def comparison_table(results: dict[str, RunResult], kld: bool = False, startup_s
             f"{final_error(result.errors):.3f}",
             "never" if converged is None else f"step {converged}",
             format_number(mean_ess(result), "{:.0f}"),
+            format_number(final_log_evidence(result), "{:.1f}"),
             f"{1e3 * result.step_seconds.mean():.2f}",
         ]
         if kidnapped:
@@ -111,6 +121,11 @@ def startup_note(seconds: float) -> str:
         f"[ms/step: each filter's own steps, after untimed warm-up steps; start-up (numba's kernels loaded, "
         f"first calls) {seconds:.2f} s, not in ms/step]"
     )
+
+
+def final_log_evidence(result: RunResult) -> float:
+    """log p(z_1:K) after the last step as the filter estimates it (NaN when it keeps none)."""
+    return float("nan") if result.log_evidence is None else float(result.log_evidence[-1])
 
 
 def errors_csv(results: dict[str, RunResult]) -> str:

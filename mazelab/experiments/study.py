@@ -123,7 +123,7 @@ class StudySetting:
     def filter_options(self, filter_name: str | type) -> dict[str, Any]:
         """The options of this setting that the filter declares (its declaration checks them)."""
         declared = options_of(resolve_filter(filter_name))
-        return {name: self.value(name) for name in self.option_names if name in declared}
+        return {name: self.value(name) for name in self.option_names if name in declared and _studied(name, declared)}
 
 
 MODEL_PARAMETERS = ("sigma", "delta", "particles")
@@ -155,7 +155,22 @@ def takes_parameter(filter_name: str | type, parameter: str) -> bool:
         return entry.takes_particles
     if parameter in ("maze", "sigma", "delta"):
         return True
-    return parameter in entry.options
+    return parameter in entry.options and _studied(parameter, entry.options)
+
+
+def check_threshold_reaches(settings: Sequence[StudySetting], filters: Sequence[str]) -> None:
+    """Refuse, in one line, a study threshold other than the RPF's default that none of its filters
+    takes (`_studied`: SIR and the APF resample every step in a study)."""
+    if all(s.threshold == RPF_THRESHOLD for s in settings) or any(takes_parameter(f, "threshold") for f in filters):
+        return
+    names = " and ".join(filter_entry(f).name for f in filters)
+    raise ValueError(f"the study's threshold is the RPF's N_T (lab step 14): {names} resample every step in a study")
+
+
+def _studied(name: str, declared: Any) -> bool:
+    """Whether a study's option reaches a filter that declares it: the paper's RPF threshold (lab step 14)
+    only a filter that resamples adaptively by default, not SIR or the APF (theirs: every step)."""
+    return name != "threshold" or declared["threshold"].default < 1
 
 
 def study_settings(
@@ -305,6 +320,7 @@ def study_tasks(
         raise ValueError(f"kidnap_at must be a step from 1 to {steps}, got {kidnap_at}")
     if reference not in (None, REFERENCE):
         raise ValueError(f"reference must be {REFERENCE!r} (the exact grid filter), got {reference!r}")
+    check_threshold_reaches(settings, filters)
     seeds = study_seeds(root_seed, runs)
     chosen = zip(settings, filters_per_setting(settings, filters), strict=True)
     return [

@@ -1,0 +1,492 @@
+"""The step template every particle filter of the lab runs (as nchopin/particles' SMC.__next__):
+
+    RESAMPLE when `time_to_resample()` says so, by the first-stage weights W_{k-1} eta_k (eta = 1 but
+    for the APF), then `move_after_resampling` the drawn particles; MOVE by the transition the particles
+    not moved yet; REWEIGHT by the log-likelihood, normalise, and add log p(z_k | z_1:k-1) to the evidence.
+
+`SMC.step` is those lines; what differs between the filters are its hooks (`log_eta`, `time_to_resample`,
+`move_after_resampling`, `reweight_resampled`), and what the model provides (`transition`,
+`log_likelihood`, `ancestors`) a subclass supplies: mazelab.cloud.ParticleFilter from the model of the
+lost robot and the resampling schemes, mazelab.exercise.StudentFilter from the student's parts.
+
+The engine below the hooks also advances R runs of one setting together: run r's particles are rows
+r*N..(r+1)*N of `positions`, its log weights row r of the Weights value, its draws from its own Generator
+`rngs[r]` in the order a filter of that run alone would draw them, so R runs are bit for bit R single
+runs. No hook names the runs: while a hook runs for some of them (those that resample this step), the
+engine's `transition`, `log_likelihood` and draws are those runs'. A run whose weights all underflow
+(no particle explains z_k) starts again from the prior, weighted by its z_k.
+
+This module imports numpy, mazelab.weights and mazelab.constants only: the grading sandbox ships it
+with StudentFilter, and no reference implementation of the model or of resampling may come with it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from mazelab.constants import LOG_UNDERFLOW, PARTICLE_DTYPE
+from mazelab.weights import Weights, log_sum_exp, weights_from_logs
+
+
+class SMC:
+    """The step template (Arulampalam et al. Algorithms 4-6 as one algorithm with hooks).
+
+    A subclass's constructor sets `world` (the map: `random_free_places` is the prior), `positions`
+    (R*N, 2), `headings` (R*N,), `count` (N) and `threshold`, then calls `start_runs(rngs)` (one
+    Generator per run: the weights start uniform); and the subclass provides the model's parts
+    `transition`, `log_likelihood` and `ancestors`.
+    """
+
+    threshold: float = 1.0  # RESAMPLE when N_eff < threshold * N; 1: every step (Algorithms 4 and 5)
+    moved_by_resampling: bool = True  # the resampled particles take the transition as they are drawn
+
+    # -- the step --------------------------------------------------------------------------------------
+    def step(self, compass_angle: float | np.ndarray, z: float | np.ndarray) -> None:
+        """One step: resample when it is time, move, reweight (Algorithms 4, 5 and 6 as one).
+
+        Parameters
+        ----------
+        compass_angle : float, or array (R,)
+            th0_k, the heading the compass reports for this step (radians), of each run.
+        z : float, or array (R,)
+            z_k, the measured distance to the nearest station (map units), of each run.
+        """
+        self.observe(compass_angle, z)  # th0_k and z_k
+        first_stage = self.first_stage(self.log_eta())  # W_{k-1}^i eta_k^i (the APF's; eta = 1 otherwise)
+        self.resampling(first_stage, self.time_to_resample())  # a^i ~ first stage; x^i = move_after_resampling(a^i)
+        self.move()  # x_k^i ~ p(x_k | x_{k-1}^i) for the particles not moved at resampling
+        self.reweight(self.log_likelihood(self.positions))  # w_k^i ∝ w^i p(z_k | x_k^i); log p(z_k | z_1:k-1)
+        self.steps_done += 1
+
+    # -- the hooks: what differs between the filters ---------------------------------------------------
+    def log_eta(self) -> np.ndarray | None:
+        """log eta_k^i, the first-stage factor of each particle (the APF's); None: eta = 1 (SIR, RPF).
+
+        Returns
+        -------
+        array (R, N), or None
+        """
+        return None
+
+    def time_to_resample(self) -> bool | np.ndarray:
+        """Whether to RESAMPLE now: N_eff < threshold * N (every step for threshold 1, the paper's SIR
+        and APF; the RPF's N_T = 0.2 N).
+
+        Returns
+        -------
+        bool, or bool array (R,) for R runs
+        """
+        return True if self.threshold >= 1 else self.ess < self.threshold * self.count
+
+    def move_after_resampling(self, ancestors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The resampled particles: x_k^i ~ p(x_k | x_{k-1}^{a^i}), the transition as they are drawn.
+
+        Parameters
+        ----------
+        ancestors : int array
+            a^i, indices into `positions`.
+
+        Returns
+        -------
+        (positions, headings) of the drawn particles
+        """
+        return self.transition(self.positions, ancestors)
+
+    def reweight_resampled(self, log_lik: np.ndarray, ancestors: np.ndarray) -> tuple[np.ndarray, Any]:
+        """The log weights of resampled particles after the likelihood: w_k^i = p(z_k | x_k^i) (their
+        weights are equal after resampling), and the log of what their mean lacks to be the estimate of
+        p(z_k | z_1:k-1) (the APF's first-stage total); None when their total is that estimate.
+
+        Parameters
+        ----------
+        log_lik : array (R, N)
+            log p(z_k | x_k^i) of the resampled runs.
+        ancestors : int array
+            a^i of those runs' particles.
+
+        Returns
+        -------
+        (log w (R, N), log factor: 0.0, an array (R,), or None)
+        """
+        return log_lik, 0.0
+
+    # -- what the model provides (mazelab.cloud from the lost robot's model; StudentFilter from the parts)
+    def transition(self, points: np.ndarray, ancestors: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """x_k ~ p(x_k | x_{k-1}) for `points` (or points[ancestors]): (positions, headings)."""
+        raise NotImplementedError
+
+    def log_likelihood(self, points: np.ndarray) -> np.ndarray:
+        """log p(z_k | x) of `points`, shape (R, N)."""
+        raise NotImplementedError
+
+    def ancestors(self, weights: np.ndarray) -> np.ndarray:
+        """RESAMPLE: ancestor indices into `positions`, N per row of the normalised weights (R, N)."""
+        raise NotImplementedError
+
+    # -- the engine: the steps' parts, for every run ---------------------------------------------------
+    def start_runs(self, rngs: Sequence[np.random.Generator]) -> None:
+        """The engine's bookkeeping, set by the subclass's constructor after `positions` and `count`.
+
+        Parameters
+        ----------
+        rngs : sequence of numpy.random.Generator
+            One per run.
+        """
+        self.rngs = list(rngs)
+        self.runs = len(self.rngs)
+        self.weights_value = Weights(np.full((self.runs, self.count), -math.log(self.count)))
+        self.steps_done = 0
+        self._reinitialised: list[list[int]] = [[] for _ in range(self.runs)]
+        self._resampled_at: list[list[int]] = [[] for _ in range(self.runs)]
+        self.resampled_now = np.zeros(self.runs, dtype=bool)
+        self.run_log_evidence = np.zeros(self.runs)
+        self._selected: np.ndarray | None = None  # the runs a hook serves now (None: every run)
+        self._every_run = np.arange(self.runs)
+        self._no_run = np.zeros(self.runs, dtype=bool)  # never written into
+
+    def observe(self, compass_angle: float | np.ndarray, z: float | np.ndarray) -> None:
+        """Keep the step's th0_k and z_k, one per run (float64 (R,)).
+
+        Parameters
+        ----------
+        compass_angle, z : float, or arrays (R,)
+        """
+        self.compass_angles, self.measurements = _per_run(compass_angle, self.runs), _per_run(z, self.runs)
+        self._moved = self._lost = self._no_run  # replaced, never written into
+        self._resampled: tuple[np.ndarray, np.ndarray] | None = None  # (the runs, their ancestors)
+
+    def first_stage(self, log_eta: np.ndarray | None) -> np.ndarray:
+        """W_{k-1}^i eta_k^i normalised per run; a run whose total underflows (no eta explains z_k) is
+        lost: it restarts from the prior this step.
+
+        Parameters
+        ----------
+        log_eta : array (R, N), or None (eta = 1)
+
+        Returns
+        -------
+        array (R, N), normalised weights
+        """
+        self._first_stage_totals = None
+        if log_eta is None:
+            return self.weights_value.W
+        weights, log_totals = self.normalised(self.weights_value.lw, log_eta)
+        self._first_stage_totals = log_totals
+        self._lost = log_totals < LOG_UNDERFLOW
+        return weights
+
+    def resampling(self, weights: np.ndarray, due: bool | np.ndarray) -> None:
+        """RESAMPLE the runs it is time for (not the lost ones), then `move_after_resampling`; the other
+        runs keep their particles (recovery may inject into them: `between_resamplings`).
+
+        Parameters
+        ----------
+        weights : array (R, N)
+            The first-stage weights.
+        due : bool, or bool array (R,)
+        """
+        due = ~self._lost if due is True else np.asarray(due, dtype=bool) & ~self._lost  # a new array (R,)
+        self.resampled_now = due
+        if not due.any():
+            if not self._lost.any():
+                self.between_resamplings()
+            return
+        runs = np.flatnonzero(due)
+        self._selected = None if len(runs) == self.runs else runs
+        try:
+            ancestors, positions, headings = self.draw(self.selected_rows(weights), self.selected_points())
+        finally:
+            self._selected = None
+        self.replace_runs(positions, headings, runs)
+        if self.moved_by_resampling:
+            self._moved = due
+        self._resampled = (runs, ancestors)
+        for run in runs:
+            self._resampled_at[run].append(self.steps_done)
+
+    def draw(self, weights: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """RESAMPLE by the weights and `move_after_resampling` the ancestors.
+
+        Parameters
+        ----------
+        weights : array (R, N)
+            The first-stage weights of the particles to resample.
+        points : array (R*N, 2)
+            Those particles.
+
+        Returns
+        -------
+        (ancestors, positions, headings) of the selected runs
+        """
+        ancestors = self.ancestors(weights)
+        return (ancestors, *self.move_after_resampling(ancestors))
+
+    def between_resamplings(self) -> None:
+        """What a step without resampling does first (recovery's injection; nothing by default)."""
+
+    def move(self) -> None:
+        """x_k^i ~ p(x_k | x_{k-1}^i) for the runs whose particles the resampling did not move (not the
+        lost runs: they restart)."""
+        if self._moved.all():
+            return
+        pending = ~self._moved & ~self._lost
+        if not pending.any():
+            return
+        runs = np.flatnonzero(pending)
+        self._selected = None if len(runs) == self.runs else runs
+        try:
+            positions, headings = self.transition(self.selected_points())
+        finally:
+            self._selected = None
+        self.replace_runs(positions, headings, runs)
+
+    def reweight(self, log_lik: np.ndarray) -> None:
+        """log w_k^i = log w^i + log p(z_k | x_k^i) (the resampled runs' by `reweight_resampled`),
+        normalised per run; log p(z_k | z_1:k-1) added to each run's evidence; a run that nothing
+        explains (or that was lost) restarts from the prior.
+
+        Parameters
+        ----------
+        log_lik : array (R, N)
+            log p(z_k | x_k^i) of every run's particles.
+        """
+        previous = self.weights_value.lw
+        fresh, extra = self._no_run, 0.0
+        log_w: np.ndarray | list[np.ndarray] = previous + log_lik if self._resampled is None else []
+        if self._resampled is not None:
+            runs, ancestors = self._resampled
+            self._selected = None if len(runs) == self.runs else runs
+            try:
+                resampled, scale = self.reweight_resampled(self.selected_rows(log_lik), ancestors)
+            finally:
+                self._selected = None
+            if scale is not None:
+                fresh, extra = np.zeros(self.runs, dtype=bool), np.zeros(self.runs)
+                fresh[runs], extra[runs] = True, scale
+            if len(runs) == self.runs:
+                log_w = resampled
+            else:  # some runs resampled: each run's row (rows of two dtypes are normalised apart)
+                rows = dict(zip(runs.tolist(), resampled, strict=True))
+                log_w = [rows[r] if r in rows else previous[r] + log_lik[r] for r in range(self.runs)]
+        del previous
+        self.weights_value = None  # the last step's weights go first (the compiled backend reuses their arrays)
+        totals = self.normalise(log_w)
+        # log p(z_k | z_1:k-1): the total of weights that carry W_{k-1}, or log F + the log mean of fresh ones
+        increments = np.where(fresh, (totals - math.log(self.count)) + extra, totals)
+        if self._lost.any():
+            increments[self._lost] = self._first_stage_totals[self._lost]
+        self.log_evidence_increment = increments
+        self.run_log_evidence = self.run_log_evidence + increments
+        self.after_reweighting(increments)
+
+    def after_reweighting(self, increments: np.ndarray) -> None:
+        """What follows the reweighting (recovery's w_avg; nothing by default).
+
+        Parameters
+        ----------
+        increments : array (R,)
+            log p(z_k | z_1:k-1) estimated, per run.
+        """
+
+    # -- the weights ---------------------------------------------------------------------------------
+    def normalise(self, log_w: np.ndarray | list[np.ndarray]) -> np.ndarray:
+        """W_i ∝ exp(log w_i) of each run (its row); runs whose total underflows (or that are lost)
+        restart from the prior, weighted by their z_k. Rows of one dtype are normalised together.
+
+        Parameters
+        ----------
+        log_w : array (R, N), or a list of R rows (N,)
+            Each run's unnormalised log weights.
+
+        Returns
+        -------
+        array (R,)
+            The log totals before any restart.
+        """
+        groups: dict[Any, list[int]] = {}
+        for run, row in enumerate([] if isinstance(log_w, np.ndarray) else log_w):
+            groups.setdefault(row.dtype, []).append(run)
+        if len(groups) > 1:
+            totals, log_weights, reads = self._normalise_groups(log_w, list(groups.values()))
+        else:
+            totals, log_weights, reads = self.normalise_rows(np.asarray(log_w), self.positions)
+        explained = (totals >= LOG_UNDERFLOW) & ~self._lost  # False for an underflow and for NaN
+        restarted = np.flatnonzero(~explained)
+        if len(restarted):
+            log_weights = self._reinitialise(restarted, log_weights)
+        self.weights_value = Weights(log_weights, *self.kept_reads(reads, restarted, log_weights))
+        return np.asarray(totals, dtype=float)
+
+    def _normalise_groups(
+        self, rows: list[np.ndarray], groups: list[list[int]]
+    ) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray] | None]:
+        """`normalise_rows` of each group of runs apart (rows of one dtype), put back in the runs' order."""
+        totals, log_weights = np.empty(self.runs), np.empty((self.runs, self.count))
+        reads: dict[str, np.ndarray] | None = {}
+        for runs in groups:
+            points = np.concatenate([self.run_positions(run) for run in runs])
+            part_totals, part_log, part_reads = self.normalise_rows(np.stack([rows[r] for r in runs]), points)
+            totals[runs], log_weights[runs] = part_totals, part_log
+            if part_reads is None or reads is None:
+                reads = None
+                continue
+            for name, value in part_reads.items():
+                reads.setdefault(name, np.empty((self.runs, *value.shape[1:]), value.dtype))[runs] = value
+        return totals, log_weights, reads
+
+    def normalise_rows(self, log_w: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray, Any]:
+        """log W = log w - log sum exp(log w) per row: (log totals (R,), log W (R, N) float64, reads or
+        None); the compiled backend's also reads the step's W, ESS, mean and confidence share."""
+        totals = np.atleast_1d(log_sum_exp(log_w))
+        return totals, np.subtract(log_w, totals[:, None], dtype=float), None
+
+    def normalised(self, log_a: np.ndarray, log_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """W ∝ exp(log_a + log_b) per row, and log sum exp(log_a + log_b) (the APF's first stage)."""
+        log_w = log_a + log_b
+        totals = np.atleast_1d(log_sum_exp(log_w))
+        return weights_from_logs(log_w, totals), totals
+
+    def kept_reads(self, reads: Any, restarted: np.ndarray, log_weights: np.ndarray) -> tuple[Any, Any]:
+        """The W and ESS the normalisation read (None: derived from the log weights when asked)."""
+        return None, None
+
+    def _reinitialise(self, runs: np.ndarray, log_weights: np.ndarray) -> np.ndarray:
+        """The given runs start again from the prior (uniform over the free area), weighted by their
+        z_k; returns the log weights with theirs replaced."""
+        count = self.restart_count()
+        if count != self.count:  # the restart takes another particle count (KLD-sampling, one run)
+            self.count = count
+            self.positions = np.empty((count, 2), dtype=PARTICLE_DTYPE, order="F")
+            self.headings = np.zeros(count, dtype=PARTICLE_DTYPE)
+            log_weights = np.empty((1, count))
+        else:
+            self.positions = self.positions.copy(order="F")
+        for run in runs:
+            self._reinitialised[run].append(self.steps_done + 1)
+            rows = slice(run * self.count, (run + 1) * self.count)
+            self.positions[rows] = self.world.random_free_places(self.count, self.rngs[run])
+            self._selected = np.array([run])
+            try:
+                log_w = self.log_likelihood(self.positions[rows])[0]
+            finally:
+                self._selected = None
+            total = log_sum_exp(log_w)
+            uniform = total < LOG_UNDERFLOW
+            log_weights[run] = -math.log(self.count) if uniform else np.subtract(log_w, total, dtype=float)
+        return log_weights
+
+    def restart_count(self) -> int:
+        """The particles a restarted run takes (N)."""
+        return self.count
+
+    @property
+    def first_stage_log_total(self) -> np.ndarray:
+        """log F = log sum_i W_{k-1}^i eta_k^i, the first stage's total (R,) (the APF's)."""
+        return self.selected_rows(self._first_stage_totals)
+
+    # -- the runs a hook serves ------------------------------------------------------------------------
+    @property
+    def selected_runs(self) -> np.ndarray:
+        """The runs the present hook serves (every run outside the hooks)."""
+        return self._every_run if self._selected is None else self._selected
+
+    def selected_rows(self, values: np.ndarray) -> np.ndarray:
+        """The rows of an (R, ...) array that belong to the runs served now."""
+        return values if self._selected is None else values[self._selected]
+
+    def selected_points(self) -> np.ndarray:
+        """The particles of the runs served now (R'*N, 2)."""
+        if self._selected is None:
+            return self.positions
+        return np.concatenate([self.run_positions(run) for run in self._selected])
+
+    def run_positions(self, run: int) -> np.ndarray:
+        """Run `run`'s particles, a view (N, 2) of `positions`.
+
+        Parameters
+        ----------
+        run : int
+
+        Returns
+        -------
+        array (N, 2)
+        """
+        return self.positions[run * self.count : (run + 1) * self.count]
+
+    def replace_runs(self, positions: np.ndarray, headings: np.ndarray, runs: np.ndarray) -> None:
+        """New particles and headings for the given runs (their blocks, in order); the others keep theirs.
+
+        Parameters
+        ----------
+        positions : array (len(runs) * N, 2)
+        headings : array (len(runs) * N,)
+        runs : int array
+        """
+        if len(runs) == self.runs:
+            self.positions, self.headings, self.count = positions, headings, len(positions) // self.runs
+            return
+        self.positions = _replace_blocks(self.positions, positions, runs, self.count)
+        self.headings = _replace_blocks(self.headings, headings, runs, self.count)
+
+    # -- what the step leaves: one value per run for R runs, the paper's shapes for one -----------------
+    @property
+    def weights(self) -> np.ndarray:
+        """The normalised weights W_i: (N,) for one run, (R, N) for R runs."""
+        return self._one(self.weights_value.W)
+
+    @property
+    def log_weights(self) -> np.ndarray:
+        """log W_i, normalised: (N,) for one run, (R, N) for R runs."""
+        return self._one(self.weights_value.lw)
+
+    @log_weights.setter
+    def log_weights(self, values: np.ndarray) -> None:
+        self.weights_value = Weights(np.asarray(values, dtype=float).reshape(self.runs, -1))
+
+    @property
+    def ess(self) -> float | np.ndarray:
+        """N_eff = 1 / sum_i W_i^2: a float for one run, (R,) for R runs."""
+        ess = self.weights_value.ess
+        return float(ess[0]) if self.runs == 1 else ess
+
+    @property
+    def log_evidence(self) -> float | np.ndarray:
+        """log p(z_1:k), the running estimate (particles' logLt): a float for one run, (R,) for R runs.
+        A step that no particle explains adds the filter's (underflowing) estimate before its restart."""
+        return float(self.run_log_evidence[0]) if self.runs == 1 else self.run_log_evidence.copy()
+
+    @property
+    def reinitialised_at(self) -> list[int] | list[list[int]]:
+        """The steps at which no particle explained z and the filter restarted (a list per run for R runs)."""
+        return self._one(self._reinitialised)
+
+    @property
+    def resampled_at(self) -> list[int] | list[list[int]]:
+        """The steps after which the filter resampled (a list per run for R runs)."""
+        return self._one(self._resampled_at)
+
+    def _one(self, per_run: Any) -> Any:
+        """Run 0's value for one run (the paper's shapes), all runs' otherwise."""
+        return per_run[0] if self.runs == 1 else per_run
+
+
+def _per_run(value: float | np.ndarray, runs: int) -> np.ndarray:
+    """A step's compass angle or measurement as one value per run, float64 (R,)."""
+    if isinstance(value, np.ndarray):
+        return np.broadcast_to(value.astype(float, copy=False), (runs,))
+    return np.array([float(value)] * runs)
+
+
+def _replace_blocks(values: np.ndarray, new: np.ndarray, runs: np.ndarray, size: int) -> np.ndarray:
+    """A copy of `values` whose blocks of the given runs are the blocks of `new`, in order."""
+    replaced = values.copy(order="F" if values.ndim > 1 else "C")
+    for block, run in enumerate(runs):
+        replaced[run * size : (run + 1) * size] = new[block * size : (block + 1) * size]
+    return replaced
+
+
+__all__ = ["SMC"]
