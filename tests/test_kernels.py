@@ -11,9 +11,14 @@ machine and cached (mazelab.kernels): the first run of this file compiles them, 
 from __future__ import annotations
 
 import math
+import os
+import shutil
+import subprocess
+import sys
 
 import numpy as np
 import pytest
+from conftest import ROOT
 from test_batch import step_together_and_alone
 
 pytest.importorskip("numba")
@@ -227,9 +232,6 @@ def test_arrays_a_caller_keeps_are_never_written_over(name, paper_world):
 
 
 def test_a_second_process_loads_the_kernels_from_the_cache(tmp_path):
-    import subprocess
-    import sys
-
     script = (
         "import numpy as np\n"
         "from mazelab.backend import use_backend\n"
@@ -287,3 +289,57 @@ def test_the_backends_agree_on_a_studys_convergence_shares(paper_world):
         for mine, other in (("numpy", "compiled"), ("compiled", "numpy")):
             low, high = wilson_interval(shares[mine][name], runs)
             assert low <= shares[other][name] / runs <= high, (name, shares)
+
+
+CACHE_RUN = (
+    "import sys\n"
+    "from mazelab.cli.app import main\n"
+    "code = main(['run', '--backend', 'compiled', '--maze', 'paper_5x5', '--steps', '3', '--particles', '200',"
+    " '--filter', 'sir', '--no-viz', '--quiet'])\n"
+    "from mazelab.kernels import model\n"
+    "print(code, sum(model.step.stats.cache_misses.values()), sum(model.step.stats.cache_hits.values()))\n"
+)
+
+
+def run_with_cache(folder, prefix: list[str] | None = None) -> subprocess.CompletedProcess:
+    """CACHE_RUN in a process of its own with NUMBA_CACHE_DIR=folder (after `prefix`, a command that
+    runs the rest)."""
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(folder)}
+    command = [*(prefix or []), sys.executable, "-c", CACHE_RUN]
+    return subprocess.run(command, capture_output=True, text=True, env=env, cwd=ROOT, timeout=900, check=False)
+
+
+def test_a_damaged_cache_is_compiled_over(tmp_path):
+    first = run_with_cache(tmp_path)
+    assert first.returncode == 0, first.stderr
+    files = [f for f in tmp_path.rglob("*") if f.suffix in (".nbi", ".nbc")]
+    assert files
+    for file in files:  # a cut-off copy: each file's first bytes, then garbage
+        file.write_bytes(file.read_bytes()[:7] + b"garbage")
+    damaged = run_with_cache(tmp_path)
+    assert damaged.returncode == 0 and "Traceback" not in damaged.stderr, damaged.stderr
+    code, misses, hits = damaged.stdout.split()[-3:]
+    assert (code, int(hits)) == ("0", 0) and int(misses) >= 1  # compiled again
+    mended = run_with_cache(tmp_path)
+    code, misses, hits = mended.stdout.split()[-3:]
+    assert (code, misses) == ("0", "0") and int(hits) >= 1  # and saved over the damaged files
+
+
+def test_a_full_cache_folder_is_one_line_naming_it_and_the_run_goes_on(tmp_path):
+    """The full disk is a 16 kB tmpfs mounted over the cache folder in a mount namespace of the test's own
+    (unshare); skipped where no namespace can be made."""
+    mount = f"mount -t tmpfs -o size=16k tmpfs {tmp_path} && exec \"$@\""
+    prefix = ["unshare", "--map-root-user", "--mount", "sh", "-c", mount, "sh"]
+    probe = subprocess.run([*prefix[:-1], "sh", "true"], capture_output=True, check=False) if shutil.which("unshare") else None
+    if probe is None or probe.returncode != 0:
+        pytest.skip("no mount namespace here (unshare) to mount a tiny tmpfs in")
+    done = run_with_cache(tmp_path, prefix)
+    assert done.returncode == 0 and done.stdout.split()[-3] == "0", done.stderr
+    problems = [line for line in done.stderr.splitlines() if "cannot be saved" in line]
+    assert len(problems) == 1, done.stderr
+    assert problems[0].startswith(f"warning: mazelab's compiled kernels cannot be saved in {tmp_path}/")
+    assert problems[0].endswith(
+        " (No space left on device): they are compiled again in each process; free space there, or set "
+        "NUMBA_CACHE_DIR to a writable folder"
+    )
+    assert "Traceback" not in done.stderr

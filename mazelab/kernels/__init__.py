@@ -11,21 +11,68 @@ where it has some (the likelihood and the resampling are the numpy path's to the
 inputs); cos and sin are the C library's, exact to rounding over the whole float32 range.
 
 Importing this package imports numba. Each kernel is compiled on its first call and cached on disk
-(numba's cache=True), so the compile time is paid once per machine: in `__pycache__` beside these
-files, else in the folder NUMBA_CACHE_DIR names, else in the user's cache folder (numba's rules). Where
-none of them can be written, the kernels are compiled in memory in each process (a few seconds at
-its first step) and a warning says so once.
+(numba's cache), so the compile time is paid once per machine: in `__pycache__` beside these files,
+else in the folder NUMBA_CACHE_DIR names, else in the user's cache folder (numba's rules). Where none
+of them can be written, the kernels are compiled in memory in each process (a few seconds at its
+first step) and a warning says so once. A damaged cache file (a cut-off copy, a full disk earlier) is
+compiled over; a cache folder that cannot take the file (a full disk, a read-only mount) leaves the
+kernel compiled in memory, with one warning naming the folder and the way out.
 """
 
 from __future__ import annotations
 
+import os
 import warnings
 from collections.abc import Callable
 from typing import Any
 
 import numba
+from numba.core.caching import FunctionCache
 
-_warned: list[bool] = []
+_warned: set[str] = set()
+
+
+def _warn_once(message: str) -> None:
+    """One warning per process for each message (the CLI prints it as one line)."""
+    if message not in _warned:
+        _warned.add(message)
+        warnings.warn(message, stacklevel=3)
+
+
+class _MendingCache(FunctionCache):
+    """numba's on-disk cache of one kernel that a damaged file does not stop: a file that does not
+    load is dropped and the kernel compiled again (and saved over it), and a folder that cannot take
+    the file leaves the kernel compiled in memory, with one warning naming the folder."""
+
+    def load_overload(self, sig: Any, target_context: Any) -> Any:
+        try:
+            return super().load_overload(sig, target_context)
+        except Exception:  # a damaged index or data file: pickle, EOF, value errors; compile again
+            self._drop_index()
+            return None
+
+    def save_overload(self, sig: Any, data: Any) -> None:
+        try:
+            try:
+                super().save_overload(sig, data)
+            except OSError:
+                raise
+            except Exception:  # the index it adds to does not load: start it again
+                self._drop_index()
+                super().save_overload(sig, data)
+        except OSError as error:
+            _warn_once(
+                f"mazelab's compiled kernels cannot be saved in {self.cache_path} ({error.strerror or error}): "
+                "they are compiled again in each process; free space there, or set NUMBA_CACHE_DIR to a "
+                "writable folder"
+            )
+
+    def _drop_index(self) -> None:
+        """Remove this kernel's index file (its data files are then written afresh)."""
+        try:
+            os.unlink(self._cache_file._index_path)
+        except OSError:
+            pass
 
 
 def jit(function: Callable[..., Any] | None = None, *, inline: bool = False) -> Any:
@@ -50,17 +97,15 @@ def jit(function: Callable[..., Any] | None = None, *, inline: bool = False) -> 
     options: dict[str, Any] = {"nogil": True, "error_model": "numpy"}  # numpy's: x / 0 is inf, no check
     if inline:
         options["inline"] = "always"
+    dispatcher = numba.njit(**options)(function)
     try:
-        return numba.njit(cache=True, **options)(function)
+        dispatcher._cache = _MendingCache(function)  # what numba's cache=True sets, with the mending above
     except RuntimeError:  # numba found no writable cache folder ("cannot cache function ...")
-        if not _warned:
-            _warned.append(True)
-            warnings.warn(
-                "mazelab's compiled kernels cannot be cached (no writable cache folder; set NUMBA_CACHE_DIR): "
-                "they are compiled again in each process",
-                stacklevel=2,
-            )
-        return numba.njit(cache=False, **options)(function)
+        _warn_once(
+            "mazelab's compiled kernels cannot be cached (no writable cache folder; set NUMBA_CACHE_DIR): "
+            "they are compiled again in each process"
+        )
+    return dispatcher
 
 
 __all__ = ["jit"]
