@@ -328,10 +328,10 @@ def test_a_damaged_cache_is_compiled_over(tmp_path):
 def test_a_full_cache_folder_is_one_line_naming_it_and_the_run_goes_on(tmp_path):
     """The full disk is a 16 kB tmpfs mounted over the cache folder in a mount namespace of the test's own
     (unshare); skipped where no namespace can be made."""
-    mount = f"mount -t tmpfs -o size=16k tmpfs {tmp_path} && exec \"$@\""
+    mount = f'mount -t tmpfs -o size=16k tmpfs {tmp_path} && exec "$@"'
     prefix = ["unshare", "--map-root-user", "--mount", "sh", "-c", mount, "sh"]
-    probe = subprocess.run([*prefix[:-1], "sh", "true"], capture_output=True, check=False) if shutil.which("unshare") else None
-    if probe is None or probe.returncode != 0:
+    probe = shutil.which("unshare") and subprocess.run([*prefix, "true"], capture_output=True, check=False)
+    if not probe or probe.returncode != 0:
         pytest.skip("no mount namespace here (unshare) to mount a tiny tmpfs in")
     done = run_with_cache(tmp_path, prefix)
     assert done.returncode == 0 and done.stdout.split()[-3] == "0", done.stderr

@@ -21,6 +21,7 @@ kernel compiled in memory, with one warning naming the folder and the way out.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import warnings
 from collections.abc import Callable
@@ -69,10 +70,8 @@ class _MendingCache(FunctionCache):
 
     def _drop_index(self) -> None:
         """Remove this kernel's index file (its data files are then written afresh)."""
-        try:
+        with contextlib.suppress(OSError):
             os.unlink(self._cache_file._index_path)
-        except OSError:
-            pass
 
 
 def jit(function: Callable[..., Any] | None = None, *, inline: bool = False) -> Any:
