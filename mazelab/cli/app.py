@@ -15,6 +15,7 @@ mazelab exercise --help write your own filter (new) and grade it against the exa
 
 from __future__ import annotations
 
+import shlex
 import signal
 import sys
 import warnings
@@ -73,7 +74,7 @@ from mazelab.cli.options import (
     visualization,
     warn_in_one_line,
 )
-from mazelab.cli.provenance import remember_arguments, repeat_command, show_version
+from mazelab.cli.provenance import environment_backend, remember_arguments, repeat_command, show_version
 from mazelab.cli.recordings import recordings
 from mazelab.cli.replay import from_scenario, refuse_counts_for_replay, replay_seed
 from mazelab.cli.replay_filter import replay_filter_name, replay_options
@@ -147,7 +148,8 @@ def demo(
         on_step=progress_printer(DEFAULT_STEPS),
     )
     report_run(result)
-    typer.echo(f"Repeat this run: {command_prefix()} run --seed {seed}")
+    words = ["run", "--seed", str(seed), *environment_backend([])]
+    typer.echo(f"Repeat this run: {command_prefix()} {shlex.join(words)}")
 
 
 @app.command(short_help="One filter on a lost robot, or on a saved scenario.")
