@@ -151,11 +151,12 @@ def _log_lik(px, py, z, inv_sigma, free_term, outside_term, scale, offset, nxf, 
     cx = min(max(fx, F32(0.0)), nxf - F32(1.0))
     cy = min(max(fy, F32(0.0)), nyf - F32(1.0))
     cell = np.uint32(cy) * nx + np.uint32(cx)
+    last = np.uint32(len(rows)) - width
     dx = first[cell, 0] - px
     dy = first[cell, 1] - py
     best = dx * dx + dy * dy
     base = row[cell]
-    for c in range(np.uint32(0), width, np.uint32(2)):
+    for c in range(np.uint32(0), width if base < last else np.uint32(0), np.uint32(2)):
         dx = rows[base + c] - px
         dy = rows[base + c + np.uint32(1)] - py
         d2 = dx * dx + dy * dy
