@@ -74,7 +74,10 @@ class _MendingCache(FunctionCache):
             os.unlink(self._cache_file._index_path)
 
 
-def jit(function: Callable[..., Any] | None = None, *, inline: bool = False) -> Any:
+REORDERED_SUMS = frozenset({"reassoc", "nsz"})  # numba's fastmath: sums in any order (no FMA, NaN and inf kept)
+
+
+def jit(function: Callable[..., Any] | None = None, *, inline: bool = False, reorder: bool = False) -> Any:
     """`function` compiled by numba in nopython mode, cached on disk where a cache folder can be
     written (see the module's docstring), else compiled in memory (with one warning per process).
 
@@ -85,6 +88,11 @@ def jit(function: Callable[..., Any] | None = None, *, inline: bool = False) -> 
     inline : bool
         Inline it into the kernels that call it (numba's inline="always"): a helper called per
         particle, whose call would otherwise count the references of every array it is passed.
+    reorder : bool
+        Let the compiler reorder sums (REORDERED_SUMS): a sum over N values
+        becomes several partial sums in vector lanes, the same for every call on this machine (a seed
+        repeats a run) but not numpy's order. Only for the weights and the reads, whose numbers agree
+        with numpy's to rounding; never for the move or the likelihood (numpy's to the bit).
 
     Returns
     -------
@@ -92,10 +100,12 @@ def jit(function: Callable[..., Any] | None = None, *, inline: bool = False) -> 
         The numba dispatcher: compiled on its first call for its argument types.
     """
     if function is None:
-        return lambda f: jit(f, inline=inline)
+        return lambda f: jit(f, inline=inline, reorder=reorder)
     options: dict[str, Any] = {"nogil": True, "error_model": "numpy"}  # numpy's: x / 0 is inf, no check
     if inline:
         options["inline"] = "always"
+    if reorder:
+        options["fastmath"] = set(REORDERED_SUMS)
     dispatcher = numba.njit(**options)(function)
     try:
         dispatcher._cache = _MendingCache(function)  # what numba's cache=True sets, with the mending above
@@ -107,4 +117,4 @@ def jit(function: Callable[..., Any] | None = None, *, inline: bool = False) -> 
     return dispatcher
 
 
-__all__ = ["jit"]
+__all__ = ["REORDERED_SUMS", "jit"]

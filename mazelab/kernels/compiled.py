@@ -212,8 +212,8 @@ class CompiledKernels(NumpyKernels):
         return out
 
     def normalise(self, log_w: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict | None]:
-        """log W and W of each run, with the step's reads: numpy's vectorised max and exp, then the
-        sums and the normalisation in two compiled passes.
+        """log W and W of each run, with the step's reads: numpy's vectorised max, then the exponentials,
+        the sums and the normalisation in two compiled passes.
 
         Parameters
         ----------
@@ -228,22 +228,16 @@ class CompiledKernels(NumpyKernels):
         if positions.dtype != PARTICLE_DTYPE or len(positions) != log_w.size:
             return super().normalise(log_w, positions)
         runs, size = log_w.shape
-        tops = np.maximum.reduce(log_w, axis=1).astype(np.float64)  # NaN where a run holds one
+        tops = np.maximum.reduce(log_w, axis=1)  # NaN where a run holds one
         w = self.pool.take("weights", (runs, size), np.float64)
-        if all(top > -math.inf for top in tops.tolist()):
-            np.subtract(log_w, tops[:, None], out=w)
-        else:
-            with np.errstate(invalid="ignore"):  # a run whose top is -inf: NaN here, normalise marks it
-                np.subtract(log_w, tops[:, None], out=w)
-        np.exp(w, out=w)
         log_out = self.pool.take("log_weights", (runs, size), np.float64)
         totals, ess, shares, means = np.empty(runs), np.empty(runs), np.empty(runs), np.empty((runs, 2))
-        weights.normalise(log_w, w, tops, positions, CONFIDENCE_RADIUS, log_out, totals, means, ess, shares)
+        weights.normalise(log_w, tops, positions, CONFIDENCE_RADIUS, w, log_out, totals, means, ess, shares)
         return totals, log_out, {"weights": w, "ess": ess, "mean": means, "share": shares}
 
     def normalised(self, log_a: np.ndarray, log_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """W ∝ exp(log_a + log_b) per run and log sum exp(log_a + log_b), into reused arrays, with one
-        exponential per particle (numpy's log_sum_exp and weights_from_logs take two).
+        """W ∝ exp(log_a + log_b) per run and log sum exp(log_a + log_b), compiled into a reused array,
+        with one exponential per particle (numpy's log_sum_exp and weights_from_logs take two).
 
         Parameters
         ----------
@@ -253,15 +247,9 @@ class CompiledKernels(NumpyKernels):
         -------
         (W (R, N) float64, log totals (R,)); a run whose total is -inf (or NaN) gets NaN weights
         """
-        w = np.add(log_a, log_b, out=self.pool.take("first_weights", log_a.shape, np.float64))
-        tops = np.maximum.reduce(w, axis=1)
-        with np.errstate(invalid="ignore", divide="ignore"):  # a run whose top is -inf: NaN weights
-            w -= tops[:, None]
-            np.exp(w, out=w)
-            sums = w.sum(axis=1)
-            w /= sums[:, None]
-            totals = tops + np.log(sums)
-        totals[~(tops > -np.inf)] = tops[~(tops > -np.inf)]  # -inf stays -inf, NaN stays NaN
+        w = self.pool.take("first_weights", log_a.shape, np.float64)
+        totals = np.empty(len(log_a))
+        weights.first_stage(log_a, log_b, w, totals)
         return w, totals
 
     def mass_within(
