@@ -77,7 +77,9 @@ class _MendingCache(FunctionCache):
 REORDERED_SUMS = frozenset({"reassoc", "nsz"})  # numba's fastmath: sums in any order (no FMA, NaN and inf kept)
 
 
-def jit(function: Callable[..., Any] | None = None, *, inline: bool = False, reorder: bool = False) -> Any:
+def jit(
+    function: Callable[..., Any] | None = None, *, inline: bool = False, reorder: bool = False, threads: bool = False
+) -> Any:
     """`function` compiled by numba in nopython mode, cached on disk where a cache folder can be
     written (see the module's docstring), else compiled in memory (with one warning per process).
 
@@ -93,6 +95,9 @@ def jit(function: Callable[..., Any] | None = None, *, inline: bool = False, reo
         becomes several partial sums in vector lanes, the same for every call on this machine (a seed
         repeats a run) but not numpy's order. Only for the weights and the reads, whose numbers agree
         with numpy's to rounding; never for the move or the likelihood (numpy's to the bit).
+    threads : bool
+        Run its `numba.prange` loops on numba's threads (parallel=True; numba.set_num_threads says how
+        many): the kernels whose names end in `_threads`.
 
     Returns
     -------
@@ -100,12 +105,14 @@ def jit(function: Callable[..., Any] | None = None, *, inline: bool = False, reo
         The numba dispatcher: compiled on its first call for its argument types.
     """
     if function is None:
-        return lambda f: jit(f, inline=inline, reorder=reorder)
+        return lambda f: jit(f, inline=inline, reorder=reorder, threads=threads)
     options: dict[str, Any] = {"nogil": True, "error_model": "numpy"}  # numpy's: x / 0 is inf, no check
     if inline:
         options["inline"] = "always"
     if reorder:
         options["fastmath"] = set(REORDERED_SUMS)
+    if threads:
+        options["parallel"] = True
     dispatcher = numba.njit(**options)(function)
     try:
         dispatcher._cache = _MendingCache(function)  # what numba's cache=True sets, with the mending above

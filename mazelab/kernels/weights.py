@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import prange
 
 from mazelab.kernels import jit
 from mazelab.kernels.vector_math import exp
@@ -84,6 +85,70 @@ def normalise(log_w, tops, positions, radius, w, log_out, totals, means, ess, sh
             dy = positions[block + i, 1] - centre_y
             inside += weight if dx * dx + dy * dy <= r2 else 0.0
         shares[r] = inside
+
+
+BLOCK = 1 << 15  # particles per block of normalise_threads' sums: their order depends on it alone
+
+
+@jit(reorder=True, threads=True)
+def normalise_threads(log_w, tops, positions, radius, w, log_out, totals, means, ess, shares):  # pragma: no cover
+    """normalise's results (its arguments) with the particles in blocks of BLOCK spread over numba's
+    threads: each block's sums, then the runs' in block order, so the numbers depend on BLOCK, not on
+    the thread count (they agree with normalise's to rounding)."""
+    runs, size = log_w.shape
+    blocks = (size + BLOCK - 1) // BLOCK
+    partial = np.zeros((runs * blocks, 5))
+    for job in prange(runs * blocks):
+        r, b = job // blocks, job % blocks
+        top = np.float64(tops[r])
+        start, stop = b * BLOCK, min(size, (b + 1) * BLOCK)
+        if not (top > -np.inf):  # the run cannot be normalised: NaN weights (the filter restarts it)
+            for i in range(start, stop):
+                log_out[r, i] = w[r, i] = np.nan
+            continue
+        total = squares = sum_x = sum_y = 0.0
+        for i in range(start, stop):
+            weight = exp(log_w[r, i] - top)
+            w[r, i] = weight
+            total += weight
+            squares += weight * weight
+            sum_x += weight * positions[r * size + i, 0]
+            sum_y += weight * positions[r * size + i, 1]
+        partial[job, 0], partial[job, 1], partial[job, 2], partial[job, 3] = total, squares, sum_x, sum_y
+    sums = np.zeros((runs, 4))
+    for r in range(runs):
+        for b in range(blocks):
+            for k in range(4):
+                sums[r, k] += partial[r * blocks + b, k]
+        top = np.float64(tops[r])
+        if not (top > -np.inf):
+            totals[r] = top
+            means[r, 0] = means[r, 1] = ess[r] = shares[r] = np.nan
+            continue
+        totals[r] = top + math.log(sums[r, 0])
+        means[r, 0], means[r, 1] = sums[r, 2] / sums[r, 0], sums[r, 3] / sums[r, 0]
+        ess[r] = sums[r, 0] * sums[r, 0] / sums[r, 1]
+    r2 = np.float32(radius * radius)
+    for job in prange(runs * blocks):
+        r, b = job // blocks, job % blocks
+        if not (tops[r] > -np.inf):
+            continue
+        log_total, inverse = totals[r], 1.0 / sums[r, 0]
+        centre_x, centre_y = np.float32(means[r, 0]), np.float32(means[r, 1])
+        inside = 0.0
+        for i in range(b * BLOCK, min(size, (b + 1) * BLOCK)):
+            log_out[r, i] = log_w[r, i] - log_total
+            weight = w[r, i] * inverse
+            w[r, i] = weight
+            dx = positions[r * size + i, 0] - centre_x
+            dy = positions[r * size + i, 1] - centre_y
+            inside += weight if dx * dx + dy * dy <= r2 else 0.0
+        partial[job, 4] = inside
+    for r in range(runs):
+        if tops[r] > -np.inf:
+            shares[r] = 0.0
+            for b in range(blocks):
+                shares[r] += partial[r * blocks + b, 4]
 
 
 @jit(reorder=True)
@@ -183,4 +248,4 @@ def covariance(weights, positions, out):  # pragma: no cover - compiled
         out[r, 0, 0], out[r, 0, 1], out[r, 1, 0], out[r, 1, 1] = xx, xy, xy, yy
 
 
-__all__ = ["covariance", "first_stage", "mass_within", "normalise"]
+__all__ = ["BLOCK", "covariance", "first_stage", "mass_within", "normalise", "normalise_threads"]
