@@ -343,3 +343,56 @@ def test_a_full_cache_folder_is_one_line_naming_it_and_the_run_goes_on(tmp_path)
         "NUMBA_CACHE_DIR to a writable folder"
     )
     assert "Traceback" not in done.stderr
+
+
+needs_two_threads = pytest.mark.skipif(
+    __import__("numba").config.NUMBA_NUM_THREADS < 2, reason="numba runs one thread here (one core)"
+)
+
+
+@needs_two_threads
+def test_threads_give_the_likelihood_to_the_bit_and_the_reads_in_blocks_that_no_thread_count_changes(ten):
+    import numba
+
+    from mazelab.kernels import weights
+    from mazelab.kernels.compiled import THREADED_FROM
+
+    rng = np.random.default_rng(6)
+    count = THREADED_FROM + 12_345  # a last block of its own size
+    points = cloud_points(ten, 2 * count, rng)
+    z = np.array([1.3, 2.1])
+    one, two = CompiledKernels(ten, threads=1), CompiledKernels(ten, threads=2)
+    log_lik = one.log_likelihood(z, points, ten, 0.3, 0.5).copy()
+    np.testing.assert_array_equal(two.log_likelihood(z, points, ten, 0.3, 0.5), log_lik)
+    serial = one.normalise(log_lik, points)
+    threaded = two.normalise(log_lik, points)
+    np.testing.assert_allclose(threaded[0], serial[0], rtol=1e-12)
+    np.testing.assert_allclose(threaded[1], serial[1], rtol=0, atol=1e-9)
+    for name in ("weights", "ess", "mean", "share"):
+        np.testing.assert_allclose(threaded[2][name], serial[2][name], rtol=1e-9, atol=1e-300)
+    runs = []
+    for threads in (1, 2):  # the threaded kernel itself, on one thread and on two: the same bits
+        numba.set_num_threads(threads)
+        out = np.empty_like(log_lik, dtype=float), np.empty_like(log_lik, dtype=float)
+        reads = np.empty(2), np.empty((2, 2)), np.empty(2), np.empty(2)
+        tops = np.maximum.reduce(log_lik, axis=1)
+        weights.normalise_threads(log_lik, tops, points, 1.0, *out, *reads)
+        runs.append((out, reads))
+    for first, second in zip(runs[0], runs[1], strict=True):
+        for a, b in zip(first, second, strict=True):
+            np.testing.assert_array_equal(a, b)
+
+
+@needs_two_threads
+def test_a_seeded_run_on_two_threads_repeats_itself(paper_world, monkeypatch):
+    from mazelab.backend import THREADS_VARIABLE
+    from mazelab.kernels.compiled import THREADED_FROM
+
+    monkeypatch.setenv(THREADS_VARIABLE, "2")
+    estimates = []
+    for _ in range(2):
+        with use_backend("compiled"):
+            start = paper_world.random_free_place(np.random.default_rng(3))
+            result = simulate(Robot(0.3, 0.5, start), paper_world, 0.3, 0.5, THREADED_FROM, 6, seed=4)
+        estimates.append(np.asarray(result.estimates))
+    np.testing.assert_array_equal(estimates[0], estimates[1])

@@ -27,7 +27,7 @@ from typing import Annotated
 import typer
 
 from mazelab.atomic import WriteError
-from mazelab.cli.backend_option import BackendOption
+from mazelab.cli.backend_option import BackendOption, ThreadsOption
 from mazelab.cli.compare_outputs import compare_record_file, finish_compare, report_compare, start_compare_record
 from mazelab.cli.exercise import exercise_app
 from mazelab.cli.filter_options import (
@@ -200,6 +200,7 @@ def run(
     no_viz: NoVizOption = False,
     max_drawn: MaxDrawnOption = DEFAULT_MAX_DRAWN,
     backend: BackendOption = None,
+    threads: ThreadsOption = None,
 ) -> None:
     """Run one filter on a lost robot, or replay a saved scenario (--scenario) with its filter and
     options. Every filter option: --option NAME=VALUE (`mazelab filters` lists them)."""
