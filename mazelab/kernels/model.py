@@ -94,18 +94,6 @@ def _beyond_squared(px, py, border):  # pragma: no cover - compiled
     return best
 
 
-@jit(inline=True)
-def _point_log_likelihood(px, py, zr, sigma, free_term, outside_term, tables):  # pragma: no cover - compiled
-    """log p(z | x) of one float32 point (the lookup, its candidates, the Gaussian, the penalty)."""
-    scale, offset, nx, ny, kind, row, first, all_x, all_y, border = tables
-    d2, free = _nearest_squared(px, py, scale, offset, nx, ny, kind, row, first, all_x, all_y)
-    if d2 < 0:  # beyond the table
-        d2 = _beyond_squared(px, py, border)
-    residual = (np.sqrt(d2) - zr) / sigma
-    log_p = residual * residual * F32(-0.5)
-    return log_p + (free_term if free else outside_term)
-
-
 @jit
 def log_likelihood(positions, z, sigma, free_term, outside_term, tables, out):  # pragma: no cover - compiled
     """Equation (3) with the outside penalty, in logs, for R runs: out[i] = log p(z_r | x_i), float32.
@@ -124,22 +112,41 @@ def log_likelihood(positions, z, sigma, free_term, outside_term, tables, out):  
         The maze's lookup tables (mazelab.kernels.compiled.lookup_tables).
     out : float32 array (R*N,)
     """
-    size = positions.shape[0] // len(z)
-    for r in range(len(z)):
-        for i in range(r * size, (r + 1) * size):
-            x, y = positions[i, 0], positions[i, 1]
-            out[i] = _point_log_likelihood(x, y, z[r], sigma, free_term, outside_term, tables)
+    scale, offset, nx, ny, kind, row, first, all_x, all_y, border = tables
+    runs = len(z)
+    size = positions.shape[0] // runs
+    minus_half = F32(-0.5)
+    for r in range(runs):
+        zr = z[r]
+        for m in range(size):
+            i = r * size + m
+            px, py = positions[i, 0], positions[i, 1]
+            d2, free = _nearest_squared(px, py, scale, offset, nx, ny, kind, row, first, all_x, all_y)
+            if d2 < 0:  # beyond the table
+                d2 = _beyond_squared(px, py, border)
+            residual = (np.sqrt(d2) - zr) / sigma
+            log_p = residual * residual * minus_half
+            out[i] = log_p + (free_term if free else outside_term)
 
 
 @jit(threads=True)
 def log_likelihood_threads(positions, z, sigma, free_term, outside_term, tables, out):  # pragma: no cover
-    """log_likelihood's values to the bit, its particles spread over numba's threads."""
-    size = positions.shape[0] // len(z)
-    for r in range(len(z)):
+    """log_likelihood's values to the bit (its arguments), the particles spread over numba's threads."""
+    scale, offset, nx, ny, kind, row, first, all_x, all_y, border = tables
+    runs = len(z)
+    size = positions.shape[0] // runs
+    minus_half = F32(-0.5)
+    for r in range(runs):
+        zr = z[r]
         for m in prange(size):
             i = r * size + m
-            x, y = positions[i, 0], positions[i, 1]
-            out[i] = _point_log_likelihood(x, y, z[r], sigma, free_term, outside_term, tables)
+            px, py = positions[i, 0], positions[i, 1]
+            d2, free = _nearest_squared(px, py, scale, offset, nx, ny, kind, row, first, all_x, all_y)
+            if d2 < 0:  # beyond the table
+                d2 = _beyond_squared(px, py, border)
+            residual = (np.sqrt(d2) - zr) / sigma
+            log_p = residual * residual * minus_half
+            out[i] = log_p + (free_term if free else outside_term)
 
 
 @jit
