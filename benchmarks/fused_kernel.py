@@ -4,6 +4,7 @@ the package's compiled backend against on the same walks.
 
     uv run python benchmarks/fused_kernel.py                    # SIR, APF, RPF on maze_10x10 and a 50x50 maze
     uv run python benchmarks/fused_kernel.py --counts 1000,10000 --rounds 5
+    uv run python benchmarks/fused_kernel.py --counts 1000000 --threads 2 --clock wall   # the package on 2 threads
 
 Each fused step does what the package's step and reads do: systematic resampling (by counting), the
 move (uniform heading on the arc, cos/sin, the step), the nearest station and the free flag from the
@@ -26,7 +27,8 @@ What makes it a limit rather than a straw man:
   particles anyway.
 
 The timing alternates the fused step and the package's (filter_stepper) round by round, the median
-of each round's median step, CPU time (time.process_time: the machine is shared); the load is printed.
+of each round's median step, CPU time (time.process_time: the machine is shared) or, with --clock
+wall, wall-clock time (for --threads: the fused kernel runs on one); the load is printed.
 """
 
 from __future__ import annotations
@@ -363,14 +365,15 @@ class Fused:
         self.reads = (np.array([mx, my]), self.ess, share >= 0.95)
 
 
-def median_cpu_step(step, walk: list[tuple[float, float]], warmup: int) -> float:
-    """The median CPU time of one step (seconds) over the walk, after `warmup` untimed steps."""
+def median_cpu_step(step, walk: list[tuple[float, float]], warmup: int, clock=time.process_time) -> float:
+    """The median time of one step (seconds; CPU time unless `clock` says otherwise) over the walk,
+    after `warmup` untimed steps."""
     times = []
     for k, (compass_angle, z) in enumerate(walk):
-        started = time.process_time()
+        started = clock()
         step(compass_angle, z)
         if k >= warmup:
-            times.append(time.process_time() - started)
+            times.append(clock() - started)
     return statistics.median(times)
 
 
@@ -379,7 +382,9 @@ def fifty_by_fifty(seed: int = 50) -> Maze:
     return generate_maze(50, 50, default_station_count(50, 50), np.random.default_rng(seed))
 
 
-def compare(world: Maze, label: str, counts: list[int], rounds: int, filters: list[str], backend: str) -> None:
+def compare(
+    world: Maze, label: str, counts: list[int], rounds: int, filters: list[str], backend: str, clock=time.process_time
+) -> None:
     """Alternate the fused step and the package's, round by round, and print the medians and the ratio."""
     for n in counts:
         steps = max(12, min(60, 4_000_000 // n))
@@ -388,10 +393,10 @@ def compare(world: Maze, label: str, counts: list[int], rounds: int, filters: li
             fused, package = [], []
             for _ in range(rounds):
                 state = Fused(name, world, n)
-                fused.append(median_cpu_step(state.step, walk, 5))
+                fused.append(median_cpu_step(state.step, walk, 5, clock))
                 with use_backend(backend):
                     stepper = filter_stepper(name, world, n)
-                package.append(median_cpu_step(stepper, walk, 5))
+                package.append(median_cpu_step(stepper, walk, 5, clock))
             f, p = statistics.median(fused), statistics.median(package)
             print(f"{label:<12} {name:<4} {n:>9,} {1e3 * f:10.3f} {1e3 * p:10.3f} {f / p:8.2f}x", flush=True)
 
@@ -403,15 +408,19 @@ def main() -> None:
     parser.add_argument("--filters", default="sir,apf,rpf")
     parser.add_argument("--mazes", default="maze_10x10,50x50")
     parser.add_argument("--backend", default="compiled", help="the package's backend to time (numpy or compiled)")
+    parser.add_argument("--threads", type=int, default=1, help="the package's threads (MAZELAB_THREADS)")
+    parser.add_argument("--clock", choices=("cpu", "wall"), default="cpu", help="CPU time, or wall-clock time")
     args = parser.parse_args()
+    os.environ["MAZELAB_THREADS"] = str(args.threads)
+    clock = time.process_time if args.clock == "cpu" else time.perf_counter
     counts = [int(c) for c in args.counts.split(",")]
     filters = args.filters.split(",")
-    print(f"load average {os.getloadavg()}; CPU ms per step (median of {args.rounds} alternating rounds)")
+    print(f"load average {os.getloadavg()}; {args.clock} ms per step (median of {args.rounds} alternating rounds)")
     print(f"{'maze':<12} {'':<4} {'N':>9} {'fused':>10} {args.backend:>10} {'package/fused speed':>8}")
     for name in args.mazes.split(","):
         world = fifty_by_fifty() if name == "50x50" else Maze.from_file(name)
         world.prepare()
-        compare(world, name, counts, args.rounds, filters, args.backend)
+        compare(world, name, counts, args.rounds, filters, args.backend, clock)
 
 
 if __name__ == "__main__":
