@@ -18,9 +18,12 @@ What makes it a limit rather than a straw man:
 - cos, sin and exp as float32 polynomials (Cody-Waite range reduction, the Cephes coefficients, the
   power of two built from its bits), branch-free, so the compiler vectorises the passes that call them
   (AVX-512 where the CPU has it) instead of calling the C library once per particle;
-- a branch-free nearest-station lookup: every cell reads its first candidate and one row of 8 padded
-  candidates (the unambiguous cells a row of far points), one cache line, the minimum by selects; the
-  rare point beyond the table is found by its flag and done again in a pass of its own;
+- the nearest-station lookup with one load per cell (a code: its candidates' row and the free flag),
+  the cell clamped into the table instead of a branch (the rare point beyond it is found by its flag
+  and done again in a pass of its own), the candidate count selected without a branch (0 for a cell
+  with one candidate) and the minimum by selects; the fully branch-free form (every cell reading a row
+  of K candidates, far points for the unambiguous cells) measured 20-25% slower on the machine of
+  docs/speed.md, whose branch predictor learns the count once the cloud gathers;
 - sums in reassociable float64 (numba's fastmath "reassoc"), which the compiler splits into lanes;
 - the weights kept unnormalised between steps (their top and total are known), the ancestors in a
   reused int32 buffer, the APF's first stage and the RPF's covariance from the passes that read the
@@ -58,26 +61,25 @@ FAR = 1e15  # a padding candidate's coordinate: never the nearest (its squared d
 def lookup_arrays(world: Maze) -> tuple:
     """The maze's nearest-station lookup tables (mazelab.lookup) in the fused kernel's layout.
 
-    Returns (scale, offset, nx, ny as float32, nx, free (C,) bool, row (C,), first (C, 2), rows, width,
-    border (b, 2)): `rows` holds (A + 1) rows of the K candidates' (x, y), flat, `width` = 2 K values
-    each; `row` is each cell's row's offset in `rows`, the last row (far points only) for a cell with
-    one candidate.
+    Returns (scale, offset, nx, ny as float32, nx, code (C,), first (C, 2), rows, width, border (b, 2)):
+    `rows` holds a row of far points, then the ambiguous cells' rows of K candidates' (x, y), flat,
+    `width` = 2 K values each; a cell's code is its row's offset in `rows` (0 for a cell with one
+    candidate) times 2, plus 1 if the cell is free: one load per point, as the package's kind byte.
     """
     lookup = world._lookup
     tables = lookup._station_tables(np.dtype(F32))
     count, ambiguous = tables.all_x.shape
     rows = np.full((ambiguous + 1, count, 2), FAR, dtype=F32)
-    rows[:ambiguous, :, 0] = tables.all_x.T
-    rows[:ambiguous, :, 1] = tables.all_y.T
-    row = np.where(lookup.kind & 2, lookup.row, ambiguous).astype(np.uint32)
+    rows[1:, :, 0] = tables.all_x.T
+    rows[1:, :, 1] = tables.all_y.T
+    offsets = np.where(lookup.kind & 2, (lookup.row + 1) * (2 * count), 0)
     return (
         F32(lookup.scale),
         F32(lookup.offset),
         F32(lookup.nx),
         F32(lookup.ny),
         np.uint32(lookup.nx),
-        (lookup.kind & 1).astype(np.bool_),
-        row * np.uint32(2 * count),
+        (offsets * 2 + (lookup.kind & 1)).astype(np.uint32),
         np.ascontiguousarray(tables.first),
         rows.reshape(-1),
         np.uint32(2 * count),
@@ -143,39 +145,39 @@ def _beyond(px, py, border):
 
 
 @njit(cache=True, inline="always", fastmath=FAST)
-def _log_lik(px, py, z, inv_sigma, free_term, outside_term, scale, offset, nxf, nyf, nx, free, row, first, rows, width):
-    """(log p(z | x), whether x is inside the table) for one float32 point, branch-free: the cell
-    (clamped into the table), its first candidate and its row of K (`row` holds each cell's offset
-    into the flat `rows`), the minimum by selects, the Gaussian, the penalty."""
+def _log_lik(px, py, z, inv_sigma, free_term, outside_term, scale, offset, nxf, nyf, nx, code, first, rows, width):
+    """(log p(z | x), whether x is inside the table) for one float32 point: the cell (clamped into the
+    table), its code, its first candidate and, for an ambiguous cell, its row of K in the flat `rows`
+    (the count selected, the minimum by selects), the Gaussian, the penalty."""
     fx = np.floor(px * scale) + offset
     fy = np.floor(py * scale) + offset
     inside = (fx >= F32(0.0)) & (fy >= F32(0.0)) & (fx < nxf) & (fy < nyf)
     cx = min(max(fx, F32(0.0)), nxf - F32(1.0))
     cy = min(max(fy, F32(0.0)), nyf - F32(1.0))
     cell = np.uint32(cy) * nx + np.uint32(cx)
-    last = np.uint32(len(rows)) - width
     dx = first[cell, 0] - px
     dy = first[cell, 1] - py
     best = dx * dx + dy * dy
-    base = row[cell]
-    for c in range(np.uint32(0), width if base < last else np.uint32(0), np.uint32(2)):
+    cell_code = code[cell]
+    base = cell_code >> np.uint32(1)
+    for c in range(np.uint32(0), width if base != np.uint32(0) else np.uint32(0), np.uint32(2)):
         dx = rows[base + c] - px
         dy = rows[base + c + np.uint32(1)] - py
         d2 = dx * dx + dy * dy
         best = d2 if d2 < best else best
     res = (math.sqrt(best) - z) * inv_sigma
-    return F32(-0.5) * res * res + (free_term if free[cell] else outside_term), inside
+    return F32(-0.5) * res * res + (free_term if cell_code & np.uint32(1) else outside_term), inside
 
 
 @njit(cache=True)
-def _beyond_fix(x, y, lw, z, inv_sigma, free_term, outside_term, scale, offset, nxf, nyf, nx, free, row, first, rows,
+def _beyond_fix(x, y, lw, z, inv_sigma, free_term, outside_term, scale, offset, nxf, nyf, nx, code, first, rows,
                 width, border):  # fmt: skip
     """Redo the likelihood of the points beyond the table (outside the free area: the penalty) in
     lw; returns the largest value rewritten (-inf if none)."""
     top = F32(-np.inf)
     for i in range(len(x)):
         wrong, inside = _log_lik(x[i], y[i], z, inv_sigma, free_term, outside_term, scale, offset, nxf, nyf, nx,
-                                 free, row, first, rows, width)  # fmt: skip
+                                 code, first, rows, width)  # fmt: skip
         if not inside:
             res = (math.sqrt(_beyond(x[i], y[i], border)) - z) * inv_sigma
             lw[i] += F32(-0.5) * res * res + outside_term - wrong
@@ -215,15 +217,15 @@ def _move(x, y, ancestors, gather, u, th0, delta, speed, out_x, out_y):
 
 
 @njit(cache=True, fastmath=FAST)
-def _weigh(x, y, ancestors, z, inv_sigma, free_term, outside_term, scale, offset, nxf, nyf, nx, free, row, first, rows,
+def _weigh(x, y, ancestors, z, inv_sigma, free_term, outside_term, scale, offset, nxf, nyf, nx, code, first, rows,
            width, border, prior, mode, shift, lw):  # fmt: skip
     """lw = log p(z | x) plus, by `mode`, nothing (0), -prior[a] (1: the APF's second stage) or
     prior[j] - shift (2: the RPF's carried log weights; prior may be lw); returns the top of lw."""
     top = F32(-np.inf)
     outside = 0
     for j in range(len(x)):
-        value, inside = _log_lik(x[j], y[j], z, inv_sigma, free_term, outside_term, scale, offset, nxf, nyf, nx, free,
-                                 row, first, rows, width)  # fmt: skip
+        value, inside = _log_lik(x[j], y[j], z, inv_sigma, free_term, outside_term, scale, offset, nxf, nyf, nx, code,
+                                 first, rows, width)  # fmt: skip
         if mode == 1:
             value -= prior[ancestors[j]]
         elif mode == 2:
@@ -232,8 +234,8 @@ def _weigh(x, y, ancestors, z, inv_sigma, free_term, outside_term, scale, offset
         top = value if value > top else top
         outside += not inside
     if outside:
-        top = max(top, _beyond_fix(x, y, lw, z, inv_sigma, free_term, outside_term, scale, offset, nxf, nyf, nx, free,
-                                   row, first, rows, width, border))  # fmt: skip
+        top = max(top, _beyond_fix(x, y, lw, z, inv_sigma, free_term, outside_term, scale, offset, nxf, nyf, nx, code,
+                                   first, rows, width, border))  # fmt: skip
     return top
 
 
