@@ -312,6 +312,7 @@ def kernels_start_seconds(world: Maze) -> tuple[float, int]:
         for compass_angle, z in walk:
             step(compass_angle, z)
     kernels = (model.step, model.log_likelihood, resampling.systematic, weights.normalise, weights.first_stage)
+    kernels += (weights.covariance,)
     return time.perf_counter() - started, sum(sum(k.stats.cache_misses.values()) for k in kernels)
 
 
