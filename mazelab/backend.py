@@ -30,6 +30,7 @@ from mazelab.numpy_ops import NumpyKernels
 
 BACKENDS = ("numpy", "compiled")
 ENVIRONMENT_VARIABLE = "MAZELAB_BACKEND"
+THREADS_VARIABLE = "MAZELAB_THREADS"  # the compiled backend's threads for one large run (--threads sets it)
 INSTALL_HINT = 'the compiled backend needs numba: pip install -e ".[fast]" (uv sync installs it)'
 
 
@@ -93,6 +94,41 @@ def chosen_backend() -> str:
     """
     value = os.environ.get(ENVIRONMENT_VARIABLE, "")
     return check_backend(value, ENVIRONMENT_VARIABLE) if value.strip() else default_backend()
+
+
+def check_threads(value: Any, source: str = "threads") -> int:
+    """A thread count from 1 to this machine's cores, or one line naming the range.
+
+    Parameters
+    ----------
+    value : int or str
+    source : str
+        What gave it, for the message (an option, the environment variable).
+
+    Returns
+    -------
+    int
+    """
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    try:
+        count = int(str(value).strip())
+    except ValueError:
+        count = 0
+    if not 1 <= count <= cores:
+        raise ValueError(f"{source} must be a whole number from 1 to {cores} (this machine's cores), got {value!r}")
+    return count
+
+
+def chosen_threads() -> int:
+    """The threads the compiled backend spreads one large run's particles over: MAZELAB_THREADS if set
+    (checked), else 1. The numpy backend runs on one.
+
+    Returns
+    -------
+    int
+    """
+    value = os.environ.get(THREADS_VARIABLE, "")
+    return check_threads(value, THREADS_VARIABLE) if value.strip() else 1
 
 
 @contextmanager
@@ -183,10 +219,13 @@ __all__ = [
     "ENVIRONMENT_VARIABLE",
     "INSTALL_HINT",
     "NUMPY_KERNELS",
+    "THREADS_VARIABLE",
     "backend_of",
     "backend_versions",
     "check_backend",
+    "check_threads",
     "chosen_backend",
+    "chosen_threads",
     "default_backend",
     "kernels_for",
     "numba_available",

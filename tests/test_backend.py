@@ -141,3 +141,24 @@ def test_bench_shows_both_backends_side_by_side(paper_world):
     versus = [line.split()[-2] for line in lines[header + 1 :]]  # the x numpy column
     assert versus[:6:2] == ["-"] * 3 and all(v.endswith("x") for v in versus[1:6:2])
     assert benchmark.available_backends() == ("numpy", "compiled")
+
+
+@needs_numba
+@pytest.mark.parametrize("spelling", ["COMPILED", " Compiled "])
+def test_the_environment_variable_in_any_case_runs_and_the_repeat_line_names_the_backend(spelling, tmp_path):
+    env = {**os.environ, ENVIRONMENT_VARIABLE: spelling}
+    done = subprocess.run(
+        [sys.executable, str(ROOT / "main.py"), "run", "--maze", "paper_5x5", "--steps", "3", "--seed", "3",
+         "--no-viz", "--quiet", "--save-scenario", str(tmp_path / "r.json")],
+        capture_output=True, text=True, timeout=600, check=False, env=env,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    repeat = next(line for line in done.stdout.splitlines() if line.startswith("Repeat this run: "))
+    assert repeat.endswith(" --seed 3 --backend compiled")
+    typed = subprocess.run(
+        [sys.executable, str(ROOT / "main.py"), "run", "--maze", "paper_5x5", "--steps", "3", "--no-viz", "--quiet",
+         "--backend", "numpy"],
+        capture_output=True, text=True, timeout=600, check=False, env=env,
+    )  # fmt: skip
+    repeat = next(line for line in typed.stdout.splitlines() if line.startswith("Repeat this run: "))
+    assert repeat.count("--backend") == 1 and " --backend numpy " in repeat  # the typed choice, once

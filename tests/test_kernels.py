@@ -11,9 +11,14 @@ machine and cached (mazelab.kernels): the first run of this file compiles them, 
 from __future__ import annotations
 
 import math
+import os
+import shutil
+import subprocess
+import sys
 
 import numpy as np
 import pytest
+from conftest import ROOT
 from test_batch import step_together_and_alone
 
 pytest.importorskip("numba")
@@ -227,9 +232,6 @@ def test_arrays_a_caller_keeps_are_never_written_over(name, paper_world):
 
 
 def test_a_second_process_loads_the_kernels_from_the_cache(tmp_path):
-    import subprocess
-    import sys
-
     script = (
         "import numpy as np\n"
         "from mazelab.backend import use_backend\n"
@@ -287,3 +289,110 @@ def test_the_backends_agree_on_a_studys_convergence_shares(paper_world):
         for mine, other in (("numpy", "compiled"), ("compiled", "numpy")):
             low, high = wilson_interval(shares[mine][name], runs)
             assert low <= shares[other][name] / runs <= high, (name, shares)
+
+
+CACHE_RUN = (
+    "import sys\n"
+    "from mazelab.cli.app import main\n"
+    "code = main(['run', '--backend', 'compiled', '--maze', 'paper_5x5', '--steps', '3', '--particles', '200',"
+    " '--filter', 'sir', '--no-viz', '--quiet'])\n"
+    "from mazelab.kernels import model\n"
+    "print(code, sum(model.step.stats.cache_misses.values()), sum(model.step.stats.cache_hits.values()))\n"
+)
+
+
+def run_with_cache(folder, prefix: list[str] | None = None) -> subprocess.CompletedProcess:
+    """CACHE_RUN in a process of its own with NUMBA_CACHE_DIR=folder (after `prefix`, a command that
+    runs the rest)."""
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(folder)}
+    command = [*(prefix or []), sys.executable, "-c", CACHE_RUN]
+    return subprocess.run(command, capture_output=True, text=True, env=env, cwd=ROOT, timeout=900, check=False)
+
+
+def test_a_damaged_cache_is_compiled_over(tmp_path):
+    first = run_with_cache(tmp_path)
+    assert first.returncode == 0, first.stderr
+    files = [f for f in tmp_path.rglob("*") if f.suffix in (".nbi", ".nbc")]
+    assert files
+    for file in files:  # a cut-off copy: each file's first bytes, then garbage
+        file.write_bytes(file.read_bytes()[:7] + b"garbage")
+    damaged = run_with_cache(tmp_path)
+    assert damaged.returncode == 0 and "Traceback" not in damaged.stderr, damaged.stderr
+    code, misses, hits = damaged.stdout.split()[-3:]
+    assert (code, int(hits)) == ("0", 0) and int(misses) >= 1  # compiled again
+    mended = run_with_cache(tmp_path)
+    code, misses, hits = mended.stdout.split()[-3:]
+    assert (code, misses) == ("0", "0") and int(hits) >= 1  # and saved over the damaged files
+
+
+def test_a_full_cache_folder_is_one_line_naming_it_and_the_run_goes_on(tmp_path):
+    """The full disk is a 16 kB tmpfs mounted over the cache folder in a mount namespace of the test's own
+    (unshare); skipped where no namespace can be made."""
+    mount = f'mount -t tmpfs -o size=16k tmpfs {tmp_path} && exec "$@"'
+    prefix = ["unshare", "--map-root-user", "--mount", "sh", "-c", mount, "sh"]
+    probe = shutil.which("unshare") and subprocess.run([*prefix, "true"], capture_output=True, check=False)
+    if not probe or probe.returncode != 0:
+        pytest.skip("no mount namespace here (unshare) to mount a tiny tmpfs in")
+    done = run_with_cache(tmp_path, prefix)
+    assert done.returncode == 0 and done.stdout.split()[-3] == "0", done.stderr
+    problems = [line for line in done.stderr.splitlines() if "cannot be saved" in line]
+    assert len(problems) == 1, done.stderr
+    assert problems[0].startswith(f"warning: mazelab's compiled kernels cannot be saved in {tmp_path}/")
+    assert problems[0].endswith(
+        " (No space left on device): they are compiled again in each process; free space there, or set "
+        "NUMBA_CACHE_DIR to a writable folder"
+    )
+    assert "Traceback" not in done.stderr
+
+
+needs_two_threads = pytest.mark.skipif(
+    __import__("numba").config.NUMBA_NUM_THREADS < 2, reason="numba runs one thread here (one core)"
+)
+
+
+@needs_two_threads
+def test_threads_give_the_likelihood_to_the_bit_and_the_reads_in_blocks_that_no_thread_count_changes(ten):
+    import numba
+
+    from mazelab.kernels import weights
+    from mazelab.kernels.compiled import THREADED_FROM
+
+    rng = np.random.default_rng(6)
+    count = THREADED_FROM + 12_345  # a last block of its own size
+    points = cloud_points(ten, 2 * count, rng)
+    z = np.array([1.3, 2.1])
+    one, two = CompiledKernels(ten, threads=1), CompiledKernels(ten, threads=2)
+    log_lik = one.log_likelihood(z, points, ten, 0.3, 0.5).copy()
+    np.testing.assert_array_equal(two.log_likelihood(z, points, ten, 0.3, 0.5), log_lik)
+    serial = one.normalise(log_lik, points)
+    threaded = two.normalise(log_lik, points)
+    np.testing.assert_allclose(threaded[0], serial[0], rtol=1e-12)
+    np.testing.assert_allclose(threaded[1], serial[1], rtol=0, atol=1e-9)
+    for name in ("weights", "ess", "mean", "share"):
+        np.testing.assert_allclose(threaded[2][name], serial[2][name], rtol=1e-9, atol=1e-300)
+    runs = []
+    for threads in (1, 2):  # the threaded kernel itself, on one thread and on two: the same bits
+        numba.set_num_threads(threads)
+        out = np.empty_like(log_lik, dtype=float), np.empty_like(log_lik, dtype=float)
+        reads = np.empty(2), np.empty((2, 2)), np.empty(2), np.empty(2)
+        tops = np.maximum.reduce(log_lik, axis=1)
+        weights.normalise_threads(log_lik, tops, points, 1.0, *out, *reads)
+        runs.append((out, reads))
+    for first, second in zip(runs[0], runs[1], strict=True):
+        for a, b in zip(first, second, strict=True):
+            np.testing.assert_array_equal(a, b)
+
+
+@needs_two_threads
+def test_a_seeded_run_on_two_threads_repeats_itself(paper_world, monkeypatch):
+    from mazelab.backend import THREADS_VARIABLE
+    from mazelab.kernels.compiled import THREADED_FROM
+
+    monkeypatch.setenv(THREADS_VARIABLE, "2")
+    estimates = []
+    for _ in range(2):
+        with use_backend("compiled"):
+            start = paper_world.random_free_place(np.random.default_rng(3))
+            result = simulate(Robot(0.3, 0.5, start), paper_world, 0.3, 0.5, THREADED_FROM, 6, seed=4)
+        estimates.append(np.asarray(result.estimates))
+    np.testing.assert_array_equal(estimates[0], estimates[1])

@@ -42,7 +42,7 @@ def test_run_with_a_seed_repeats_exactly(capsys):
 
 def test_a_run_without_a_seed_prints_the_one_that_repeats_it(capsys):
     first = run_output(capsys, ["run", "--no-viz", "--quiet", *SMALL])
-    seed = re.search(r"seed (\d+)$", first.strip()).group(1)
+    seed = re.search(r"--seed (\d+)", first.strip().splitlines()[-1]).group(1)
     assert run_output(capsys, ["run", "--seed", seed, "--no-viz", "--quiet", *SMALL]) == first
 
 

@@ -16,6 +16,7 @@ mazelab exercise --help write your own filter (new) and grade it against the exa
 
 from __future__ import annotations
 
+import shlex
 import signal
 import sys
 import warnings
@@ -27,7 +28,7 @@ from typing import Annotated
 import typer
 
 from mazelab.atomic import WriteError
-from mazelab.cli.backend_option import BackendOption
+from mazelab.cli.backend_option import BackendOption, ThreadsOption
 from mazelab.cli.compare_outputs import compare_record_file, finish_compare, report_compare, start_compare_record
 from mazelab.cli.exercise import exercise_app
 from mazelab.cli.filter_options import (
@@ -75,7 +76,7 @@ from mazelab.cli.options import (
     visualization,
     warn_in_one_line,
 )
-from mazelab.cli.provenance import remember_arguments, repeat_command, show_version
+from mazelab.cli.provenance import environment_backend, remember_arguments, repeat_command, show_version
 from mazelab.cli.recordings import recordings
 from mazelab.cli.replay import (
     check_plugin_name,
@@ -156,7 +157,8 @@ def demo(
         on_step=progress_printer(DEFAULT_STEPS),
     )
     report_run(result)
-    typer.echo(f"Repeat this run: {command_prefix()} run --seed {seed}")
+    words = ["run", "--seed", str(seed), *environment_backend([])]
+    typer.echo(f"Repeat this run: {command_prefix()} {shlex.join(words)}")
 
 
 @app.command(short_help="One filter on a lost robot, or on a saved scenario.")
@@ -209,6 +211,7 @@ def run(
     no_viz: NoVizOption = False,
     max_drawn: MaxDrawnOption = DEFAULT_MAX_DRAWN,
     backend: BackendOption = None,
+    threads: ThreadsOption = None,
 ) -> None:
     """Run one filter on a lost robot, or replay a saved scenario (--scenario) with its filter and
     options. Every filter option: --option NAME=VALUE (`mazelab filters` lists them)."""

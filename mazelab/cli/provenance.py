@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import os
 import shlex
 import sys
 from contextvars import ContextVar
@@ -10,6 +11,7 @@ from pathlib import Path
 
 import typer
 
+from mazelab.backend import ENVIRONMENT_VARIABLE, check_backend
 from mazelab.experiments.record import package_version, program_versions
 from mazelab.invocation import command_prefix
 
@@ -57,7 +59,27 @@ def repeat_command(
         kept.append(token)
     if seed is not None:
         kept += ["--seed", str(seed)]
+    kept += environment_backend(kept)
     return f"{command_prefix()} {shlex.join(kept)}"
+
+
+def environment_backend(arguments: list[str]) -> list[str]:
+    """["--backend", name] when MAZELAB_BACKEND chose the backend (any spelling, named as checked) and
+    the command did not say --backend, else []: a pasted command runs on the same backend anywhere.
+
+    Parameters
+    ----------
+    arguments : list of str
+        The command's arguments.
+
+    Returns
+    -------
+    list of str
+    """
+    if any(token == "--backend" or token.startswith("--backend=") for token in arguments):
+        return []
+    value = os.environ.get(ENVIRONMENT_VARIABLE, "")
+    return ["--backend", check_backend(value, ENVIRONMENT_VARIABLE)] if value.strip() else []
 
 
 def show_version(value: bool) -> None:
@@ -69,4 +91,11 @@ def show_version(value: bool) -> None:
         raise typer.Exit()
 
 
-__all__ = ["command_line", "remember_arguments", "repeat_command", "resume_command", "show_version"]
+__all__ = [
+    "command_line",
+    "environment_backend",
+    "remember_arguments",
+    "repeat_command",
+    "resume_command",
+    "show_version",
+]

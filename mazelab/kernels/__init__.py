@@ -11,24 +11,75 @@ where it has some (the likelihood and the resampling are the numpy path's to the
 inputs); cos and sin are the C library's, exact to rounding over the whole float32 range.
 
 Importing this package imports numba. Each kernel is compiled on its first call and cached on disk
-(numba's cache=True), so the compile time is paid once per machine: in `__pycache__` beside these
-files, else in the folder NUMBA_CACHE_DIR names, else in the user's cache folder (numba's rules). Where
-none of them can be written, the kernels are compiled in memory in each process (a few seconds at
-its first step) and a warning says so once.
+(numba's cache), so the compile time is paid once per machine: in `__pycache__` beside these files,
+else in the folder NUMBA_CACHE_DIR names, else in the user's cache folder (numba's rules). Where none
+of them can be written, the kernels are compiled in memory in each process (a few seconds at its
+first step) and a warning says so once. A damaged cache file (a cut-off copy, a full disk earlier) is
+compiled over; a cache folder that cannot take the file (a full disk, a read-only mount) leaves the
+kernel compiled in memory, with one warning naming the folder and the way out.
 """
 
 from __future__ import annotations
 
+import contextlib
+import os
 import warnings
 from collections.abc import Callable
 from typing import Any
 
 import numba
+from numba.core.caching import FunctionCache
 
-_warned: list[bool] = []
+_warned: set[str] = set()
 
 
-def jit(function: Callable[..., Any] | None = None, *, inline: bool = False) -> Any:
+def _warn_once(message: str) -> None:
+    """One warning per process for each message (the CLI prints it as one line)."""
+    if message not in _warned:
+        _warned.add(message)
+        warnings.warn(message, stacklevel=3)
+
+
+class _MendingCache(FunctionCache):
+    """numba's on-disk cache of one kernel that a damaged file does not stop: a file that does not
+    load is dropped and the kernel compiled again (and saved over it), and a folder that cannot take
+    the file leaves the kernel compiled in memory, with one warning naming the folder."""
+
+    def load_overload(self, sig: Any, target_context: Any) -> Any:
+        try:
+            return super().load_overload(sig, target_context)
+        except Exception:  # a damaged index or data file: pickle, EOF, value errors; compile again
+            self._drop_index()
+            return None
+
+    def save_overload(self, sig: Any, data: Any) -> None:
+        try:
+            try:
+                super().save_overload(sig, data)
+            except OSError:
+                raise
+            except Exception:  # the index it adds to does not load: start it again
+                self._drop_index()
+                super().save_overload(sig, data)
+        except OSError as error:
+            _warn_once(
+                f"mazelab's compiled kernels cannot be saved in {self.cache_path} ({error.strerror or error}): "
+                "they are compiled again in each process; free space there, or set NUMBA_CACHE_DIR to a "
+                "writable folder"
+            )
+
+    def _drop_index(self) -> None:
+        """Remove this kernel's index file (its data files are then written afresh)."""
+        with contextlib.suppress(OSError):
+            os.unlink(self._cache_file._index_path)
+
+
+REORDERED_SUMS = frozenset({"reassoc", "nsz"})  # numba's fastmath: sums in any order (no FMA, NaN and inf kept)
+
+
+def jit(
+    function: Callable[..., Any] | None = None, *, inline: bool = False, reorder: bool = False, threads: bool = False
+) -> Any:
     """`function` compiled by numba in nopython mode, cached on disk where a cache folder can be
     written (see the module's docstring), else compiled in memory (with one warning per process).
 
@@ -39,6 +90,14 @@ def jit(function: Callable[..., Any] | None = None, *, inline: bool = False) -> 
     inline : bool
         Inline it into the kernels that call it (numba's inline="always"): a helper called per
         particle, whose call would otherwise count the references of every array it is passed.
+    reorder : bool
+        Let the compiler reorder sums (REORDERED_SUMS): a sum over N values
+        becomes several partial sums in vector lanes, the same for every call on this machine (a seed
+        repeats a run) but not numpy's order. Only for the weights and the reads, whose numbers agree
+        with numpy's to rounding; never for the move or the likelihood (numpy's to the bit).
+    threads : bool
+        Run its `numba.prange` loops on numba's threads (parallel=True; numba.set_num_threads says how
+        many): the kernels whose names end in `_threads`.
 
     Returns
     -------
@@ -46,21 +105,23 @@ def jit(function: Callable[..., Any] | None = None, *, inline: bool = False) -> 
         The numba dispatcher: compiled on its first call for its argument types.
     """
     if function is None:
-        return lambda f: jit(f, inline=inline)
+        return lambda f: jit(f, inline=inline, reorder=reorder, threads=threads)
     options: dict[str, Any] = {"nogil": True, "error_model": "numpy"}  # numpy's: x / 0 is inf, no check
     if inline:
         options["inline"] = "always"
+    if reorder:
+        options["fastmath"] = set(REORDERED_SUMS)
+    if threads:
+        options["parallel"] = True
+    dispatcher = numba.njit(**options)(function)
     try:
-        return numba.njit(cache=True, **options)(function)
+        dispatcher._cache = _MendingCache(function)  # what numba's cache=True sets, with the mending above
     except RuntimeError:  # numba found no writable cache folder ("cannot cache function ...")
-        if not _warned:
-            _warned.append(True)
-            warnings.warn(
-                "mazelab's compiled kernels cannot be cached (no writable cache folder; set NUMBA_CACHE_DIR): "
-                "they are compiled again in each process",
-                stacklevel=2,
-            )
-        return numba.njit(cache=False, **options)(function)
+        _warn_once(
+            "mazelab's compiled kernels cannot be cached (no writable cache folder; set NUMBA_CACHE_DIR): "
+            "they are compiled again in each process"
+        )
+    return dispatcher
 
 
-__all__ = ["jit"]
+__all__ = ["REORDERED_SUMS", "jit"]

@@ -15,13 +15,16 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
+import numba
 import numpy as np
 
+from mazelab.backend import chosen_threads
 from mazelab.kernels import model, resampling, weights
 from mazelab.model import CONFIDENCE_RADIUS, PARTICLE_DTYPE, headings_from_uniforms
 from mazelab.numpy_ops import NumpyKernels
 from mazelab.regularisation import GaussianKernel
 
+THREADED_FROM = 1 << 16  # particles in a call from which the likelihood and the normalisation use the threads
 _KEEP = 3  # arrays kept per buffer name and shape: the filter's, the one being filled, one a caller holds
 
 
@@ -100,14 +103,26 @@ class CompiledKernels(NumpyKernels):
     ----------
     world : Maze
         The filter's maze: its lookup tables are read once.
+    threads : int, optional
+        The threads one call's particles are spread over from THREADED_FROM particles on (the
+        likelihood, its values the same to the bit; the normalisation, its sums in blocks: the same
+        numbers for any count above one); default MAZELAB_THREADS, else 1.
     """
 
     name = "compiled"
 
-    def __init__(self, world: Any):
+    def __init__(self, world: Any, threads: int | None = None):
         self.tables = lookup_tables(world)
         self.pool = BufferPool()
         self._tables_of = world
+        self.threads = min(threads or chosen_threads(), numba.config.NUMBA_NUM_THREADS)
+
+    def _threaded(self, particles: int) -> bool:
+        """Whether a call over `particles` runs on the threads (and numba's thread count set for it)."""
+        if self.threads < 2 or particles < THREADED_FROM:
+            return False
+        numba.set_num_threads(self.threads)
+        return True
 
     def buffer(self, name: str, shape: tuple[int, ...], dtype: Any) -> np.ndarray:
         """An array to be filled, C order, reused once no one else holds it (see BufferPool.take).
@@ -179,7 +194,8 @@ class CompiledKernels(NumpyKernels):
             return super().log_likelihood(z, positions, world, sigma, outside_penalty)
         norm = math.log(sigma * math.sqrt(2 * math.pi))
         out = self.pool.take("log_likelihood", (len(z), len(positions) // len(z)), PARTICLE_DTYPE)
-        model.log_likelihood(
+        kernel = model.log_likelihood_threads if self._threaded(len(positions)) else model.log_likelihood
+        kernel(
             positions,
             np.asarray(z, dtype=PARTICLE_DTYPE),
             PARTICLE_DTYPE(sigma),
@@ -212,8 +228,8 @@ class CompiledKernels(NumpyKernels):
         return out
 
     def normalise(self, log_w: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict | None]:
-        """log W and W of each run, with the step's reads: numpy's vectorised max and exp, then the
-        sums and the normalisation in two compiled passes.
+        """log W and W of each run, with the step's reads: numpy's vectorised max, then the exponentials,
+        the sums and the normalisation in two compiled passes.
 
         Parameters
         ----------
@@ -228,22 +244,17 @@ class CompiledKernels(NumpyKernels):
         if positions.dtype != PARTICLE_DTYPE or len(positions) != log_w.size:
             return super().normalise(log_w, positions)
         runs, size = log_w.shape
-        tops = np.maximum.reduce(log_w, axis=1).astype(np.float64)  # NaN where a run holds one
+        tops = np.maximum.reduce(log_w, axis=1)  # NaN where a run holds one
         w = self.pool.take("weights", (runs, size), np.float64)
-        if all(top > -math.inf for top in tops.tolist()):
-            np.subtract(log_w, tops[:, None], out=w)
-        else:
-            with np.errstate(invalid="ignore"):  # a run whose top is -inf: NaN here, normalise marks it
-                np.subtract(log_w, tops[:, None], out=w)
-        np.exp(w, out=w)
         log_out = self.pool.take("log_weights", (runs, size), np.float64)
         totals, ess, shares, means = np.empty(runs), np.empty(runs), np.empty(runs), np.empty((runs, 2))
-        weights.normalise(log_w, w, tops, positions, CONFIDENCE_RADIUS, log_out, totals, means, ess, shares)
+        kernel = weights.normalise_threads if self._threaded(log_w.size) else weights.normalise
+        kernel(log_w, tops, positions, CONFIDENCE_RADIUS, w, log_out, totals, means, ess, shares)
         return totals, log_out, {"weights": w, "ess": ess, "mean": means, "share": shares}
 
     def normalised(self, log_a: np.ndarray, log_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """W ∝ exp(log_a + log_b) per run and log sum exp(log_a + log_b), into reused arrays, with one
-        exponential per particle (numpy's log_sum_exp and weights_from_logs take two).
+        """W ∝ exp(log_a + log_b) per run and log sum exp(log_a + log_b), compiled into a reused array,
+        with one exponential per particle (numpy's log_sum_exp and weights_from_logs take two).
 
         Parameters
         ----------
@@ -253,15 +264,9 @@ class CompiledKernels(NumpyKernels):
         -------
         (W (R, N) float64, log totals (R,)); a run whose total is -inf (or NaN) gets NaN weights
         """
-        w = np.add(log_a, log_b, out=self.pool.take("first_weights", log_a.shape, np.float64))
-        tops = np.maximum.reduce(w, axis=1)
-        with np.errstate(invalid="ignore", divide="ignore"):  # a run whose top is -inf: NaN weights
-            w -= tops[:, None]
-            np.exp(w, out=w)
-            sums = w.sum(axis=1)
-            w /= sums[:, None]
-            totals = tops + np.log(sums)
-        totals[~(tops > -np.inf)] = tops[~(tops > -np.inf)]  # -inf stays -inf, NaN stays NaN
+        w = self.pool.take("first_weights", log_a.shape, np.float64)
+        totals = np.empty(len(log_a))
+        weights.first_stage(log_a, log_b, w, totals)
         return w, totals
 
     def mass_within(
@@ -332,4 +337,4 @@ class CompiledKernels(NumpyKernels):
 _NO_ANCESTORS = np.empty(0, dtype=np.int64)
 
 
-__all__ = ["BufferPool", "CompiledKernels", "lookup_tables"]
+__all__ = ["THREADED_FROM", "BufferPool", "CompiledKernels", "lookup_tables"]

@@ -15,6 +15,7 @@ rounding over the whole float32 range, cost a tenth of the C library's scalar on
 from __future__ import annotations
 
 import numpy as np
+from numba import prange
 
 from mazelab.kernels import jit
 
@@ -128,6 +129,26 @@ def log_likelihood(positions, z, sigma, free_term, outside_term, tables, out):  
             out[i] = log_p + (free_term if free else outside_term)
 
 
+@jit(threads=True)
+def log_likelihood_threads(positions, z, sigma, free_term, outside_term, tables, out):  # pragma: no cover
+    """log_likelihood's values to the bit (its arguments), the particles spread over numba's threads."""
+    scale, offset, nx, ny, kind, row, first, all_x, all_y, border = tables
+    runs = len(z)
+    size = positions.shape[0] // runs
+    minus_half = F32(-0.5)
+    for r in range(runs):
+        zr = z[r]
+        for m in prange(size):
+            i = r * size + m
+            px, py = positions[i, 0], positions[i, 1]
+            d2, free = _nearest_squared(px, py, scale, offset, nx, ny, kind, row, first, all_x, all_y)
+            if d2 < 0:  # beyond the table
+                d2 = _beyond_squared(px, py, border)
+            residual = (np.sqrt(d2) - zr) / sigma
+            log_p = residual * residual * minus_half
+            out[i] = log_p + (free_term if free else outside_term)
+
+
 @jit
 def jitter(positions, headings, ancestors, eps, scales, out, out_headings):  # pragma: no cover - compiled
     """The RPF's kernel K_h for R runs: out[i] = positions[a_i] + h D_r eps_i, D_r lower triangular.
@@ -159,4 +180,4 @@ def jitter(positions, headings, ancestors, eps, scales, out, out_headings):  # p
             out_headings[i] = headings[source]
 
 
-__all__ = ["jitter", "log_likelihood", "step"]
+__all__ = ["jitter", "log_likelihood", "log_likelihood_threads", "step"]

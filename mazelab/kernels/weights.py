@@ -1,12 +1,14 @@
 """The weights and the weighted reads, compiled (mazelab.weights is the numpy reference).
 
-`normalise` turns R runs' weights exp(log w - max) (numpy's vectorised exp makes them) into normalised
-log weights and weights, and reads what a step reports, in two passes: the first sums the weights,
-their squares and the weighted positions (the total, the ESS, the mean); the second writes
-log W = log w - log total and W, and sums the weight within the green circle around the mean. Sums
-are float64, in order (numpy's are pairwise, so the two paths agree to rounding, not to the bit). A run
-whose log weights are all -inf (no particle explains z) or hold a NaN gets the total -inf or NaN and
-NaN weights, as in the numpy path; the filter then restarts it.
+`normalise` turns R runs' log weights into normalised log weights and weights, and reads what a step
+reports, in two passes over each run: the first takes w = exp(log w - max) (mazelab.kernels.vector_math:
+vectorised, about 1e-15 from numpy's) and sums the weights, their squares and the weighted positions
+(the total, the ESS, the mean); the second writes log W = log w - log total and W, and sums the weight
+within the green circle around the mean. `first_stage` is the APF's: W proportional to exp(log a + log
+b) and the log of their sum. Sums are float64 in partial sums the compiler keeps in vector lanes (numpy's
+are pairwise, so the two paths agree to rounding, not to the bit; a run repeats itself on one machine).
+A run whose log weights are all -inf (no particle explains z) or hold a NaN gets the total -inf or NaN
+and NaN weights, as in the numpy path; the filter then restarts it.
 """
 
 from __future__ import annotations
@@ -14,28 +16,30 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import prange
 
 from mazelab.kernels import jit
+from mazelab.kernels.vector_math import exp
 
 
-@jit
-def normalise(log_w, w, tops, positions, radius, log_out, totals, means, ess, shares):  # pragma: no cover
+@jit(reorder=True)
+def normalise(log_w, tops, positions, radius, w, log_out, totals, means, ess, shares):  # pragma: no cover
     """Normalise R runs' log weights and read each run's mean, ESS and confidence share, in two passes.
 
     Parameters
     ----------
     log_w : float array (R, N)
         Unnormalised log weights.
-    w : float64 array (R, N)
-        exp(log_w - top) on entry (numpy's vectorised exp), W = w / sum(w) on return.
-    tops : float64 array (R,)
+    tops : float array (R,)
         max_i log_w of each run; -inf or NaN for a run that cannot be normalised (its rows become NaN).
     positions : float32 array (R*N, 2)
         The particles (run r's the block r*N..(r+1)*N).
     radius : float
         The green circle's radius (map units).
+    w : float64 array (R, N)
+        W = w / sum(w), written.
     log_out : float64 array (R, N)
-        log W_i = log w_i - log sum_j w_j.
+        log W_i = log w_i - log sum_j w_j, written.
     totals : float64 array (R,)
         log sum_j w_j of each run.
     means : float64 array (R, 2)
@@ -49,7 +53,7 @@ def normalise(log_w, w, tops, positions, radius, log_out, totals, means, ess, sh
     runs, size = log_w.shape
     r2 = np.float32(radius * radius)
     for r in range(runs):
-        top = tops[r]
+        top = np.float64(tops[r])
         block = r * size
         if not (top > -np.inf):  # every weight is 0, or a NaN: no normalisation (the filter restarts it)
             totals[r] = top
@@ -59,7 +63,8 @@ def normalise(log_w, w, tops, positions, radius, log_out, totals, means, ess, sh
             continue
         total = squares = sum_x = sum_y = 0.0
         for i in range(size):
-            weight = w[r, i]
+            weight = exp(log_w[r, i] - top)
+            w[r, i] = weight
             total += weight
             squares += weight * weight
             sum_x += weight * positions[block + i, 0]
@@ -78,9 +83,112 @@ def normalise(log_w, w, tops, positions, radius, log_out, totals, means, ess, sh
             w[r, i] = weight
             dx = positions[block + i, 0] - centre_x
             dy = positions[block + i, 1] - centre_y
-            if dx * dx + dy * dy <= r2:
-                inside += weight
+            inside += weight if dx * dx + dy * dy <= r2 else 0.0
         shares[r] = inside
+
+
+BLOCK = 1 << 15  # particles per block of normalise_threads' sums: their order depends on it alone
+
+
+@jit(reorder=True, threads=True)
+def normalise_threads(log_w, tops, positions, radius, w, log_out, totals, means, ess, shares):  # pragma: no cover
+    """normalise's results (its arguments) with the particles in blocks of BLOCK spread over numba's
+    threads: each block's sums, then the runs' in block order, so the numbers depend on BLOCK, not on
+    the thread count (they agree with normalise's to rounding)."""
+    runs, size = log_w.shape
+    blocks = (size + BLOCK - 1) // BLOCK
+    partial = np.zeros((runs * blocks, 5))
+    for job in prange(runs * blocks):
+        r, b = job // blocks, job % blocks
+        top = np.float64(tops[r])
+        start, stop = b * BLOCK, min(size, (b + 1) * BLOCK)
+        if not (top > -np.inf):  # the run cannot be normalised: NaN weights (the filter restarts it)
+            for i in range(start, stop):
+                log_out[r, i] = w[r, i] = np.nan
+            continue
+        total = squares = sum_x = sum_y = 0.0
+        for i in range(start, stop):
+            weight = exp(log_w[r, i] - top)
+            w[r, i] = weight
+            total += weight
+            squares += weight * weight
+            sum_x += weight * positions[r * size + i, 0]
+            sum_y += weight * positions[r * size + i, 1]
+        partial[job, 0], partial[job, 1], partial[job, 2], partial[job, 3] = total, squares, sum_x, sum_y
+    sums = np.zeros((runs, 4))
+    for r in range(runs):
+        for b in range(blocks):
+            for k in range(4):
+                sums[r, k] += partial[r * blocks + b, k]
+        top = np.float64(tops[r])
+        if not (top > -np.inf):
+            totals[r] = top
+            means[r, 0] = means[r, 1] = ess[r] = shares[r] = np.nan
+            continue
+        totals[r] = top + math.log(sums[r, 0])
+        means[r, 0], means[r, 1] = sums[r, 2] / sums[r, 0], sums[r, 3] / sums[r, 0]
+        ess[r] = sums[r, 0] * sums[r, 0] / sums[r, 1]
+    r2 = np.float32(radius * radius)
+    for job in prange(runs * blocks):
+        r, b = job // blocks, job % blocks
+        if not (tops[r] > -np.inf):
+            continue
+        log_total, inverse = totals[r], 1.0 / sums[r, 0]
+        centre_x, centre_y = np.float32(means[r, 0]), np.float32(means[r, 1])
+        inside = 0.0
+        for i in range(b * BLOCK, min(size, (b + 1) * BLOCK)):
+            log_out[r, i] = log_w[r, i] - log_total
+            weight = w[r, i] * inverse
+            w[r, i] = weight
+            dx = positions[r * size + i, 0] - centre_x
+            dy = positions[r * size + i, 1] - centre_y
+            inside += weight if dx * dx + dy * dy <= r2 else 0.0
+        partial[job, 4] = inside
+    for r in range(runs):
+        if tops[r] > -np.inf:
+            shares[r] = 0.0
+            for b in range(blocks):
+                shares[r] += partial[r * blocks + b, 4]
+
+
+@jit(reorder=True)
+def first_stage(log_a, log_b, w, totals):  # pragma: no cover - compiled
+    """The APF's first-stage weights of R runs: W proportional to exp(log a + log b), and log sum exp(log a
+    + log b) (mazelab.weights' log_sum_exp and weights_from_logs, one exponential per particle).
+
+    Parameters
+    ----------
+    log_a, log_b : float arrays (R, N)
+        A run whose sums are all -inf, or hold a NaN, gets NaN weights and the total -inf or NaN.
+    w : float64 array (R, N)
+        Written: the normalised weights.
+    totals : float64 array (R,)
+        Written: the log totals.
+    """
+    runs, size = log_a.shape
+    for r in range(runs):
+        top = -np.inf
+        invalid = False
+        for i in range(size):
+            value = log_a[r, i] + log_b[r, i]
+            invalid |= value != value
+            top = value if value > top else top
+        if invalid:
+            top = np.nan
+        if not (top > -np.inf):
+            totals[r] = top
+            for i in range(size):
+                w[r, i] = np.nan
+            continue
+        total = 0.0
+        for i in range(size):
+            weight = exp(log_a[r, i] + log_b[r, i] - top)
+            w[r, i] = weight
+            total += weight
+        inverse = 1.0 / total
+        for i in range(size):
+            w[r, i] *= inverse
+        totals[r] = top + math.log(total)
 
 
 @jit
@@ -140,4 +248,4 @@ def covariance(weights, positions, out):  # pragma: no cover - compiled
         out[r, 0, 0], out[r, 0, 1], out[r, 1, 0], out[r, 1, 1] = xx, xy, xy, yy
 
 
-__all__ = ["covariance", "mass_within", "normalise"]
+__all__ = ["BLOCK", "covariance", "first_stage", "mass_within", "normalise", "normalise_threads"]
