@@ -39,8 +39,14 @@ KIT: dict[str, str | tuple[str, ...]] = {
     "mazelab.model": CONSTANTS,  # the same constants as the model re-exports them: never the transition or likelihood
     "mazelab.engine": WHOLE,  # the step template: its model parts (transition, likelihood, ancestors) are the student's
     # the weights' value and normalisation, not weighted_mean (the estimate is a graded part)
-    "mazelab.weights": ("Weights", "weights_from_logs", "exp_in_place", "log_sum_exp", "effective_sample_size",
-                        "mass_within"),  # fmt: skip
+    "mazelab.weights": (
+        "Weights",
+        "weights_from_logs",
+        "exp_in_place",
+        "log_sum_exp",
+        "effective_sample_size",
+        "mass_within",
+    ),
     "mazelab.exercise": WHOLE,
     "mazelab.exercise.student": WHOLE,
     "mazelab.exercise.wire": WHOLE,
