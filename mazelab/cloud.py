@@ -413,7 +413,14 @@ def _unmoved(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def _check_parts(values: Mapping[str, Any]) -> None:
     """The options that build a part together (recovery and its rates, KLD-sampling and its numbers),
-    checked as the constructor builds them: alpha_slow above alpha_fast is refused here, in one line."""
+    checked as the constructor builds them: alpha_slow above alpha_fast is refused here, in one line, and
+    so is a rate or number given while the part it tunes is off (it would be silently unused)."""
+    tuned = {"recovery": ("alpha_slow", "alpha_fast"), "kld": ("kld_epsilon", "kld_z")}
+    for part, numbers in tuned.items():
+        changed = [n for n in numbers if values[n] != ParticleFilter.options[n].default]
+        if values[part] in (None, False) and changed:
+            on, off = (ParticleFilter.options[n].flag or f"--option {n}=..." for n in (part, changed[0]))
+            raise ValueError(f"{changed[0]} tunes {part}, which is off: give {on} too (or leave out {off})")
     recovery_options(values["recovery"], values["alpha_slow"], values["alpha_fast"])
     kld_options(values["kld"], values["kld_epsilon"], values["kld_z"])
 

@@ -45,6 +45,27 @@ def test_recovery_parameters_are_validated(paper_world, options, message):
         SIRParticleFilter(paper_world, 0.3, 0.5, paper_world.random_free_places(10), **options)
 
 
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        ({"alpha_fast": 0.2}, "alpha_fast tunes recovery, which is off: give --recovery"),
+        ({"alpha_slow": 0.01}, "alpha_slow tunes recovery, which is off"),
+        ({"kld_epsilon": 0.1}, "kld_epsilon tunes kld, which is off: give --kld"),
+        ({"kld_z": 3.0}, "kld_z tunes kld, which is off"),
+    ],
+)
+def test_a_rate_given_while_what_it_tunes_is_off_is_refused(paper_world, options, message):
+    """A recovery rate or a KLD number with recovery or KLD off would be silently unused: refused."""
+    with pytest.raises(ValueError, match=message):
+        SIRParticleFilter(paper_world, 0.3, 0.5, paper_world.random_free_places(10), **options)
+    SIRParticleFilter(paper_world, 0.3, 0.5, paper_world.random_free_places(10), **options, **_on(options))
+
+
+def _on(options: dict) -> dict:
+    """The part the options tune, turned on."""
+    return {"kld": True} if any(name.startswith("kld") for name in options) else {"recovery": True}
+
+
 @pytest.mark.parametrize("name", PARTICLE_FILTERS)
 @pytest.mark.parametrize("mode", ["augmented", "sensor"])
 def test_recovery_injects_particles_only_when_the_likelihood_falls(paper_world, name, mode):
