@@ -116,7 +116,7 @@ def test_plot_without_matplotlib_says_how_to_install_it(scenario_path, tmp_path,
 # -- study: seeds, CSV, statistics -----------------------------------------------------------------
 def tiny_tasks(runs: int = 3, seed: int = 11):
     """2 sigmas x 2 filters x `runs` runs of 30 steps with 150 particles on the paper's maze."""
-    settings = study_settings([MazeChoice.from_maze("paper", Maze(PAPER_MAZE))], [0.3, 0.6], [0.5], [150], [0.2])
+    settings = study_settings([MazeChoice.from_maze("paper", Maze(PAPER_MAZE))], [0.3, 0.6], [0.5], [150])
     return settings, study_tasks(settings, FILTERS[:2], runs, 30, seed)
 
 
@@ -204,7 +204,7 @@ def test_summary_of_known_numbers():
     never, 9 of 10 steps (9 still counts: below the radius for the last 2 = 20% of the steps): share
     2/3 with the Wilson interval; Kaplan-Meier median 9 (S = 2/3 after 5, 1/3 after 9: the run that
     never converged counts, where the median of the converged runs alone said 7)."""
-    settings = study_settings([MazeChoice("m", grid=((0, 2),))], [0.3], [0.5], [10], [0.2])
+    settings = study_settings([MazeChoice("m", grid=((0, 2),))], [0.3], [0.5], [10])
     records = [record(0.1, 5, 1), record(0.2, None, 2), record(0.6, 9, 3)]
     (summary,) = summarise_study(records, settings)
     half = T_975_DF2 * math.sqrt(0.07 / 3)
@@ -310,7 +310,7 @@ def test_recovery_summary_of_known_numbers():
     """Re-localised in runs 1, 2 and 4 of 5: share 3/5. Steps to recover 10, 40, never, 20, 31 (a run can
     recover late, after the window's start, and still not count as re-localised): median of the four
     that recovered, (20 + 31) / 2 = 25.5. Mean particle count (401 + ... + 405) / 5 = 403."""
-    settings = study_settings([MazeChoice("m", grid=((0, 2),))], [0.3], [0.5], [10], [0.2], ["sensor"])
+    settings = study_settings([MazeChoice("m", grid=((0, 2),))], [0.3], [0.5], [10], {"recovery": ["sensor"]})
     records = [kidnap_record(True, 10, 1), kidnap_record(True, 40, 2), kidnap_record(False, None, 3),
                kidnap_record(True, 20, 4), kidnap_record(False, 31, 5)]  # fmt: skip
     (summary,) = summarise_study(records, settings)
@@ -327,7 +327,7 @@ def test_a_kidnapped_study_reports_relocalisation_computed_by_hand(capsys):
     the records' errors: re-localised = mean error over the last DEFAULT_WINDOW steps below
     CONVERGENCE_RADIUS, steps to recover = R - 40, R the first step from which the error stays below it."""
     world = Maze(PAPER_MAZE)
-    settings = study_settings([MazeChoice.from_maze("paper", world)], [0.3], [0.5], [300], [0.2], ["none", "sensor"])
+    settings = study_settings([MazeChoice.from_maze("paper", world)], [0.3], [0.5], [300], {"recovery": ["none", "sensor"]})
     tasks = study_tasks(settings, ["sir", "apf"], 3, 90, 5, kidnap_at=40)
     outcome = run_study(tasks, workers=1)
     task = tasks[3]  # setting 2 (sensor), run 1

@@ -126,7 +126,7 @@ def test_a_plug_in_gets_an_entry_of_its_own_not_batched_until_it_says_so(tmp_pat
 
 @pytest.mark.parametrize("entry", [e for e in SHIPPED if e.batched], ids=lambda e: e.short_name)
 def test_every_filter_that_declares_batched_gives_r_runs_bit_for_bit(paper_world, entry):
-    settings = study_settings([MazeChoice.from_maze("paper", paper_world)], [0.3], [0.5], [120], [0.2])
+    settings = study_settings([MazeChoice.from_maze("paper", paper_world)], [0.3], [0.5], [120])
     tasks = study_tasks(settings, [entry.name], 3, 25, 6)
     assert batch_runs.batchable(tasks[0])
     together = batch_runs.run_batch(tasks)
