@@ -34,6 +34,7 @@ from mazelab.experiments.summary import CSV_COLUMNS, study_table, summarise_stud
 from mazelab.lab import simulate
 from mazelab.maze import Maze
 from mazelab.model import CONVERGENCE_RADIUS
+from mazelab.registry import filter_entry
 from mazelab.robot import Robot
 from mazelab.scenario import load_scenario, save_scenario
 from mazelab.simulation import convergence_step
@@ -125,13 +126,15 @@ def test_study_csv_has_a_row_per_run_and_filter(tmp_path, capsys):
     args = ["study", "--maze", "paper_5x5", "--sigma", "0.3,0.6", "--delta", "0.2,0.5", "--filters", "sir,rpf"]
     assert main([*args, "--runs", "3", "--steps", "25", "--particles", "100", "--seed", "1", "--csv", str(table)]) == 0
     rows = read_csv(table)
-    assert list(rows[0]) == CSV_COLUMNS == [
-        "setting", "run", "seed", "maze", "maze_seed", "station_blocks", "sigma", "delta", "particles", "threshold",
+    assert CSV_COLUMNS == [
+        "setting", "run", "seed", "maze", "maze_seed", "station_blocks", "sigma", "delta", "particles",
         "steps", "filter", "final_error", "mean_error", "converged_at", "mean_ess", "ms_per_step",
-        "recovery", "kidnap_at", "relocalised", "steps_to_recover", "mean_particle_count", "bandwidth", "estimate",
+        "kidnap_at", "relocalised", "steps_to_recover", "mean_particle_count",
         "maze_sha256", "maze_rows", "maze_columns", "wall_share", "run_seconds", "distance_to_exact", "label",
         "backend",
     ]  # fmt: skip
+    declared = dict.fromkeys(o.name for name in ("sir", "rpf") for o in filter_entry(name).options.settable())
+    assert list(rows[0]) == [*CSV_COLUMNS, *declared]  # then every option the studied filters declare
     assert len(rows) == 4 * 3 * 2  # settings x runs x filters
     labels = {(r["filter"], r["label"]) for r in rows}
     assert labels == {("SIRParticleFilter", "SIR"), ("RegularizedParticleFilter", "RPF")}
@@ -194,7 +197,7 @@ def test_study_statistics_on_a_tiny_seeded_study():
 
 
 def record(final: float, converged: int | None, run: int) -> RunRecord:
-    return RunRecord(1, run, run, "m", None, 1, 0.3, 0.5, 10, 0.2, 10, "SIR", final, final, converged, 5.0, 1.0)
+    return RunRecord(1, run, run, "m", None, 1, 0.3, 0.5, 10, 10, "SIR", final, final, converged, 5.0, 1.0)
 
 
 def test_summary_of_known_numbers():
@@ -302,8 +305,8 @@ def test_compare_reports_a_stored_kidnapping_without_a_flag(tmp_path, paper_worl
 
 
 def kidnap_record(relocalised: bool, steps: int | None, run: int) -> RunRecord:
-    return RunRecord(1, run, run, "m", None, 1, 0.3, 0.5, 10, 0.2, 10, "SIR", 0.1, 0.1, None, 5.0, 1.0,
-                     "sensor", 5, relocalised, steps, 400.0 + run)  # fmt: skip
+    return RunRecord(1, run, run, "m", None, 1, 0.3, 0.5, 10, 10, "SIR", 0.1, 0.1, None, 5.0, 1.0,
+                     5, relocalised, steps, 400.0 + run, options={"recovery": "sensor"})  # fmt: skip
 
 
 def test_recovery_summary_of_known_numbers():
@@ -327,7 +330,9 @@ def test_a_kidnapped_study_reports_relocalisation_computed_by_hand(capsys):
     the records' errors: re-localised = mean error over the last DEFAULT_WINDOW steps below
     CONVERGENCE_RADIUS, steps to recover = R - 40, R the first step from which the error stays below it."""
     world = Maze(PAPER_MAZE)
-    settings = study_settings([MazeChoice.from_maze("paper", world)], [0.3], [0.5], [300], {"recovery": ["none", "sensor"]})
+    settings = study_settings(
+        [MazeChoice.from_maze("paper", world)], [0.3], [0.5], [300], {"recovery": ["none", "sensor"]}
+    )
     tasks = study_tasks(settings, ["sir", "apf"], 3, 90, 5, kidnap_at=40)
     outcome = run_study(tasks, workers=1)
     task = tasks[3]  # setting 2 (sensor), run 1
@@ -339,7 +344,7 @@ def test_a_kidnapped_study_reports_relocalisation_computed_by_hand(capsys):
     record = next(r for r in outcome.records if (r.setting, r.run, r.filter) == (2, 1, "SIRParticleFilter"))
     assert (record.relocalised, record.steps_to_recover) == (by_hand, stay[0] - 40 if stay else None)
     assert (record.relocalised, record.steps_to_recover) == (relocalised(sir), recovery_steps(sir))
-    assert (record.recovery, record.kidnap_at, record.mean_particle_count) == ("sensor", 40, 300.0)
+    assert (record.options["recovery"], record.kidnap_at, record.mean_particle_count) == ("sensor", 40, 300.0)
     summaries = summarise_study(outcome.records, settings)
     for s in summaries:
         mine = [r for r in outcome.records if (r.setting, r.filter) == (s.setting_index, s.filter)]
@@ -363,7 +368,7 @@ def test_study_varies_recovery_from_the_command_line(tmp_path, capsys):
     rows = read_csv(table)
     sir = [r for r in rows if r["filter"] == "SIRParticleFilter"]
     assert [r["recovery"] for r in sir[::2]] == ["none", "augmented", "sensor"]
-    assert {r["recovery"] for r in rows if r["filter"] == "GridBayesFilter"} == {"none"}  # it takes no recovery
+    assert {r["recovery"] for r in rows if r["filter"] == "GridBayesFilter"} == {""}  # it takes no recovery
     assert {r["kidnap_at"] for r in rows} == {"20"} and {r["relocalised"] for r in rows} <= {"True", "False"}
     assert main([*args[:-2], "--recovery", "sometimes"]) == 2
     assert "unknown recovery 'sometimes'" in capsys.readouterr().err

@@ -99,7 +99,7 @@ def test_kaplan_meier_median_not_reached():
 
 # -- converged, and the convergence step --------------------------------------------------------------
 def record(final: float, converged: int | None, run: int, steps: int = 10, name: str = "SIR") -> RunRecord:
-    return RunRecord(1, run, run, "m", None, 1, 0.3, 0.5, 10, 0.2, steps, name, final, final, converged, 5.0, 1.0)
+    return RunRecord(1, run, run, "m", None, 1, 0.3, 0.5, 10, steps, name, final, final, converged, 5.0, 1.0)
 
 
 def test_converged_means_below_the_radius_for_the_last_twenty_percent():
@@ -285,7 +285,7 @@ def test_a_pair_needs_the_reference_fixed_by_the_filters_setting():
     maze = MazeChoice("m", grid=((0, 2),))
 
     def rows(setting: int, name: str) -> list[RunRecord]:
-        return [RunRecord(setting, r, r, "m", None, 1, 0.3, 0.5, 10, 0.2, 10, name, 0.1 * r + setting, 0.1, None, 5.0,
+        return [RunRecord(setting, r, r, "m", None, 1, 0.3, 0.5, 10, 10, name, 0.1 * r + setting, 0.1, None, 5.0,
                           1.0) for r in (1, 2)]  # fmt: skip
 
     two = study_settings([maze], [0.3], [0.5], [10, 20])
