@@ -209,7 +209,7 @@ def test_a_filter_added_to_the_package_is_one_entry_and_every_command_takes_it(t
     assert main([*args, *common, "--csv", str(table)]) == 0
     rows = list(csv.DictReader(table.open()))
     assert [(r["filter"], r["temper"]) for r in rows if r["run"] == "1"] == [
-        ("SIRParticleFilter", "0.5"), ("WideSIR", "0.5"), ("WideSIR", "1.0")  # SIR does not take it: once
+        ("SIRParticleFilter", ""), ("WideSIR", "0.5"), ("WideSIR", "1.0")  # SIR does not take it: once, empty
     ]  # fmt: skip
     assert main(["run", "--filter", "wide", "--option", "temper=2", *common]) == 2
     assert "temper must be in (0, 1]" in capsys.readouterr().err
