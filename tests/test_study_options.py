@@ -80,3 +80,22 @@ def test_a_plugins_own_option_is_a_column_varied_by_option(tmp_path, capsys):
         ("Inflated", "1.0"),
         ("Inflated", "2.0"),
     }
+
+
+def test_a_plugin_study_resumes_with_its_option_cells(tmp_path, capsys):
+    """Its rows' `filter` is the plug-in's class name (the study runs it by its file's spec): `--resume`
+    keeps them, with their option cells, and the resumed CSV is the uninterrupted study's."""
+    plugin = tmp_path / "inflated.py"
+    plugin.write_text(textwrap.dedent(PLUGIN))
+    table, whole = tmp_path / "s.csv", tmp_path / "whole.csv"
+    args = ["study", "--maze", "paper_5x5", "--steps", "5", "--particles", "30", "--seed", "1", "--workers", "1"]
+    args += ["--filters", f"sir,{plugin}:Inflated", "--option", "inflation=1.0,2.0", "--no-viz", "--csv"]
+    assert main([*args, str(whole), "--runs", "3"]) == 0
+    assert main([*args, str(table), "--runs", "2"]) == 0
+    capsys.readouterr()
+    assert main([*args, str(table), "--runs", "3", "--resume"]) == 0
+    assert "resuming: 6 rows kept" in capsys.readouterr().out  # runs 1-2: SIR once, the plug-in per value
+    timings = ("ms_per_step", "run_seconds")
+    assert [{k: v for k, v in r.items() if k not in timings} for r in rows_of(table)] == [
+        {k: v for k, v in r.items() if k not in timings} for r in rows_of(whole)
+    ]

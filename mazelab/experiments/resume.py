@@ -169,10 +169,12 @@ def foreign_row(tasks: Sequence[RunTask], records: Iterable[RunRecord]) -> tuple
         task = planned.get((record.setting, record.run))
         if task is None:
             return index, f"run {record.run} of setting {record.setting} is not in this study"
-        if record.filter not in task.filters:
+        if record.filter not in task.row_filters():
             return index, f"its filter {record.filter} is not one this study runs in setting {record.setting}"
         key = (task.setting_index, task.run, record.filter)
-        expected = cells[key] if key in cells else cells.setdefault(key, planned_cells(task, record.filter))
+        if key not in cells:
+            cells[key] = planned_cells(task, task.row_filters()[record.filter])
+        expected = cells[key]
         options = {name: _option_cell(value) for name, value in record.options.items()}
         for name in options.keys() - expected.keys():
             return index, f"its {name} is {options[name]}, an option {record.filter} does not take"
@@ -208,8 +210,8 @@ def missing_tasks(tasks: Sequence[RunTask], records: Sequence[RunRecord]) -> tup
     todo, complete = [], {}
     for task in tasks:
         have = present.get((task.setting_index, task.run), set())
-        if set(task.filters) <= have:
-            complete[task.setting_index, task.run] = set(task.filters)
+        if set(task.row_filters()) <= have:
+            complete[task.setting_index, task.run] = set(task.row_filters())
         else:
             todo.append(task)
     kept, seen = [], set()

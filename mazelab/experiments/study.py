@@ -235,6 +235,11 @@ class RunTask:
         """Filter `name`'s options in this run (those of the setting it declares)."""
         return self.setting.filter_options(name)
 
+    def row_filters(self) -> dict[str, str]:
+        """The `filter` cells of this run's rows (each filter's name: a plug-in's is its class's), to
+        the filters as this task names them (a plug-in by its spec, `file.py:Class`)."""
+        return {resolve_filter(name).name: name for name in self.filters}
+
 
 def filters_per_setting(settings: Sequence[StudySetting], filters: Sequence[str]) -> list[tuple[str, ...]]:
     """The filters each setting runs: a filter runs in the first setting of each combination of the

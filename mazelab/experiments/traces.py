@@ -275,7 +275,7 @@ def check_traces_of_study(path: Path, tasks: Sequence[RunTask]) -> set[tuple[int
             why = f"run {run} of setting {setting} is not in this study"
         elif seed != task.seed:
             why = f"its seed is {seed}, where this study's run {run} of setting {setting} has {task.seed}"
-        elif name not in task.filters:
+        elif name not in task.row_filters():
             why = f"its filter {name} is not one this study runs in setting {setting}"
         elif not 1 <= step <= task.steps:
             why = f"its step {step} is not one of this study's {task.steps}"
