@@ -20,7 +20,7 @@ STUDY_SIGMA, STUDY_DELTA, STUDY_SEED = 0.4, 0.5, 2024
 def study_of(world: Maze, runs: int, steps: int, particles: int, settings: int = 1) -> list[RunTask]:
     """The paper's study on `world`: `settings` sigmas x `runs` runs of the three filters."""
     sigmas = [STUDY_SIGMA + 0.1 * i for i in range(settings)]
-    chosen = study_settings([MazeChoice.from_maze(str(world.source), world)], sigmas, [STUDY_DELTA], [particles], [0.2])
+    chosen = study_settings([MazeChoice.from_maze(str(world.source), world)], sigmas, [STUDY_DELTA], [particles])
     return study_tasks(chosen, STUDY_FILTERS, runs, steps, STUDY_SEED)
 
 

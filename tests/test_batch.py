@@ -58,7 +58,7 @@ def test_batched_runs_equal_single_runs_bit_for_bit(name, options, paper_world):
 
 
 def test_a_studys_units_give_the_records_of_its_runs_one_by_one(paper_world):
-    settings = study_settings([MazeChoice.from_maze("paper", paper_world)], [0.3, 0.6], [0.5], [150], [0.2])
+    settings = study_settings([MazeChoice.from_maze("paper", paper_world)], [0.3, 0.6], [0.5], [150])
     filters = ["SIRParticleFilter", "AuxiliaryParticleFilter", "RegularizedParticleFilter"]
     tasks = study_tasks(settings, filters, 3, 30, 8, kidnap_at=15)
     units = study_units(tasks, workers=1)
@@ -75,7 +75,7 @@ def test_a_studys_units_give_the_records_of_its_runs_one_by_one(paper_world):
 
 def test_a_batch_of_one_run_gives_the_records_of_that_run(paper_world):
     """R = 1 gives the paper's shapes (a float ESS, one list of restarts): run_batch reads them as one run's."""
-    settings = study_settings([MazeChoice.from_maze("paper", paper_world)], [0.3], [0.5], [5], [0.2])
+    settings = study_settings([MazeChoice.from_maze("paper", paper_world)], [0.3], [0.5], [5])
     filters = ["SIRParticleFilter", "AuxiliaryParticleFilter", "RegularizedParticleFilter"]
     tasks = study_tasks(settings, filters, 1, 30, 3)
     timing = ("ms_per_step", "run_seconds")
@@ -88,26 +88,27 @@ def test_a_batch_of_one_run_gives_the_records_of_that_run(paper_world):
 
 
 def test_units_respect_the_particle_budget(paper_world):
-    many = study_settings([MazeChoice.from_maze("paper", paper_world)], [0.3], [0.5], [400_000], [0.2])
+    many = study_settings([MazeChoice.from_maze("paper", paper_world)], [0.3], [0.5], [400_000])
     tasks = study_tasks(many, ["SIRParticleFilter"], 5, 3, 1)
     assert [len(unit) for unit in study_units(tasks, workers=1)] == [2, 2, 1]  # 2 x 400,000 <= 10^6
-    huge = study_settings([MazeChoice.from_maze("paper", paper_world)], [0.3], [0.5], [2_000_000], [0.2])
+    huge = study_settings([MazeChoice.from_maze("paper", paper_world)], [0.3], [0.5], [2_000_000])
     assert [len(unit) for unit in study_units(study_tasks(huge, ["SIRParticleFilter"], 3, 3, 1), 1)] == [1, 1, 1]
 
 
 # -- the batched path: declared, and never quiet about a failure ----------------------------------------
 def test_runs_go_together_by_the_declared_rule(paper_world):
-    settings = study_settings([MazeChoice.from_maze("paper", paper_world)], [0.3], [0.5], [100], [0.2])
+    settings = study_settings([MazeChoice.from_maze("paper", paper_world)], [0.3], [0.5], [100])
     plain = study_tasks(settings, ["SIRParticleFilter", "RegularizedParticleFilter"], 3, 5, 1)
     assert batch_runs.batchable(plain[0])
-    assert not batch_runs.batchable(study_tasks(settings, ["SIRParticleFilter"], 3, 5, 1, kld=True)[0])
+    kld = study_settings([MazeChoice.from_maze("paper", paper_world)], [0.3], [0.5], [100], {"kld": [True]})
+    assert not batch_runs.batchable(study_tasks(kld, ["SIRParticleFilter"], 3, 5, 1)[0])
     assert not batch_runs.batchable(study_tasks(settings, ["SIRParticleFilter", "GridBayesFilter"], 3, 5, 1)[0])
     assert SIRParticleFilter.runs_together({"bandwidth": "multimodal", "estimate": "mode"})
     assert not SIRParticleFilter.runs_together({"recovery": "sensor"})
 
 
 def test_an_error_in_a_batched_unit_is_reported_for_its_runs(paper_world, monkeypatch):
-    settings = study_settings([MazeChoice.from_maze("paper", paper_world)], [0.3], [0.5], [100], [0.2])
+    settings = study_settings([MazeChoice.from_maze("paper", paper_world)], [0.3], [0.5], [100])
     unit = tuple(study_tasks(settings, ["SIRParticleFilter"], 3, 5, 1))
 
     def broken(self, compass_angle, z):

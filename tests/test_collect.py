@@ -49,7 +49,7 @@ def test_recoverys_injection_probability_is_recorded_per_step(paper_world):
 
 
 def test_batched_and_single_runs_record_the_same_diagnostics(paper_world):
-    settings = study_settings([MazeChoice.from_maze("paper", paper_world)], [0.3], [0.5], [150], [0.5])
+    settings = study_settings([MazeChoice.from_maze("paper", paper_world)], [0.3], [0.5], [150], {"threshold": [0.5]})
     tasks = study_tasks(settings, ["RegularizedParticleFilter"], 3, 40, 5, traces=True)
     together = batch_runs.run_batch(tasks)
     for task, (batched,) in zip(tasks, together, strict=True):

@@ -47,7 +47,7 @@ def test_a_study_on_dask_gives_the_local_studys_runs(cluster, tmp_path, capsys):
 
 def test_run_study_takes_a_client(cluster):
     world = load_maze("paper_5x5")
-    settings = study_settings([MazeChoice.from_maze("paper_5x5", world)], [0.4], [0.5], [100], [0.2])
+    settings = study_settings([MazeChoice.from_maze("paper_5x5", world)], [0.4], [0.5], [100])
     tasks = study_tasks(settings, ["SIRParticleFilter"], 4, 10, 5)
     with distributed.Client(cluster.scheduler_address) as client:
         remote = run_study(tasks, dask=client)

@@ -34,6 +34,7 @@ from mazelab.experiments.summary import CSV_COLUMNS, study_table, summarise_stud
 from mazelab.lab import simulate
 from mazelab.maze import Maze
 from mazelab.model import CONVERGENCE_RADIUS
+from mazelab.registry import filter_entry
 from mazelab.robot import Robot
 from mazelab.scenario import load_scenario, save_scenario
 from mazelab.simulation import convergence_step
@@ -116,7 +117,7 @@ def test_plot_without_matplotlib_says_how_to_install_it(scenario_path, tmp_path,
 # -- study: seeds, CSV, statistics -----------------------------------------------------------------
 def tiny_tasks(runs: int = 3, seed: int = 11):
     """2 sigmas x 2 filters x `runs` runs of 30 steps with 150 particles on the paper's maze."""
-    settings = study_settings([MazeChoice.from_maze("paper", Maze(PAPER_MAZE))], [0.3, 0.6], [0.5], [150], [0.2])
+    settings = study_settings([MazeChoice.from_maze("paper", Maze(PAPER_MAZE))], [0.3, 0.6], [0.5], [150])
     return settings, study_tasks(settings, FILTERS[:2], runs, 30, seed)
 
 
@@ -125,13 +126,15 @@ def test_study_csv_has_a_row_per_run_and_filter(tmp_path, capsys):
     args = ["study", "--maze", "paper_5x5", "--sigma", "0.3,0.6", "--delta", "0.2,0.5", "--filters", "sir,rpf"]
     assert main([*args, "--runs", "3", "--steps", "25", "--particles", "100", "--seed", "1", "--csv", str(table)]) == 0
     rows = read_csv(table)
-    assert list(rows[0]) == CSV_COLUMNS == [
-        "setting", "run", "seed", "maze", "maze_seed", "station_blocks", "sigma", "delta", "particles", "threshold",
+    assert CSV_COLUMNS == [
+        "setting", "run", "seed", "maze", "maze_seed", "station_blocks", "sigma", "delta", "particles",
         "steps", "filter", "final_error", "mean_error", "converged_at", "mean_ess", "ms_per_step",
-        "recovery", "kidnap_at", "relocalised", "steps_to_recover", "mean_particle_count", "bandwidth", "estimate",
+        "kidnap_at", "relocalised", "steps_to_recover", "mean_particle_count",
         "maze_sha256", "maze_rows", "maze_columns", "wall_share", "run_seconds", "distance_to_exact", "label",
         "backend",
     ]  # fmt: skip
+    declared = dict.fromkeys(o.name for name in ("sir", "rpf") for o in filter_entry(name).options.settable())
+    assert list(rows[0]) == [*CSV_COLUMNS, *declared]  # then every option the studied filters declare
     assert len(rows) == 4 * 3 * 2  # settings x runs x filters
     labels = {(r["filter"], r["label"]) for r in rows}
     assert labels == {("SIRParticleFilter", "SIR"), ("RegularizedParticleFilter", "RPF")}
@@ -194,7 +197,7 @@ def test_study_statistics_on_a_tiny_seeded_study():
 
 
 def record(final: float, converged: int | None, run: int) -> RunRecord:
-    return RunRecord(1, run, run, "m", None, 1, 0.3, 0.5, 10, 0.2, 10, "SIR", final, final, converged, 5.0, 1.0)
+    return RunRecord(1, run, run, "m", None, 1, 0.3, 0.5, 10, 10, "SIR", final, final, converged, 5.0, 1.0)
 
 
 def test_summary_of_known_numbers():
@@ -204,7 +207,7 @@ def test_summary_of_known_numbers():
     never, 9 of 10 steps (9 still counts: below the radius for the last 2 = 20% of the steps): share
     2/3 with the Wilson interval; Kaplan-Meier median 9 (S = 2/3 after 5, 1/3 after 9: the run that
     never converged counts, where the median of the converged runs alone said 7)."""
-    settings = study_settings([MazeChoice("m", grid=((0, 2),))], [0.3], [0.5], [10], [0.2])
+    settings = study_settings([MazeChoice("m", grid=((0, 2),))], [0.3], [0.5], [10])
     records = [record(0.1, 5, 1), record(0.2, None, 2), record(0.6, 9, 3)]
     (summary,) = summarise_study(records, settings)
     half = T_975_DF2 * math.sqrt(0.07 / 3)
@@ -302,15 +305,15 @@ def test_compare_reports_a_stored_kidnapping_without_a_flag(tmp_path, paper_worl
 
 
 def kidnap_record(relocalised: bool, steps: int | None, run: int) -> RunRecord:
-    return RunRecord(1, run, run, "m", None, 1, 0.3, 0.5, 10, 0.2, 10, "SIR", 0.1, 0.1, None, 5.0, 1.0,
-                     "sensor", 5, relocalised, steps, 400.0 + run)  # fmt: skip
+    return RunRecord(1, run, run, "m", None, 1, 0.3, 0.5, 10, 10, "SIR", 0.1, 0.1, None, 5.0, 1.0,
+                     5, relocalised, steps, 400.0 + run, options={"recovery": "sensor"})  # fmt: skip
 
 
 def test_recovery_summary_of_known_numbers():
     """Re-localised in runs 1, 2 and 4 of 5: share 3/5. Steps to recover 10, 40, never, 20, 31 (a run can
     recover late, after the window's start, and still not count as re-localised): median of the four
     that recovered, (20 + 31) / 2 = 25.5. Mean particle count (401 + ... + 405) / 5 = 403."""
-    settings = study_settings([MazeChoice("m", grid=((0, 2),))], [0.3], [0.5], [10], [0.2], ["sensor"])
+    settings = study_settings([MazeChoice("m", grid=((0, 2),))], [0.3], [0.5], [10], {"recovery": ["sensor"]})
     records = [kidnap_record(True, 10, 1), kidnap_record(True, 40, 2), kidnap_record(False, None, 3),
                kidnap_record(True, 20, 4), kidnap_record(False, 31, 5)]  # fmt: skip
     (summary,) = summarise_study(records, settings)
@@ -327,7 +330,9 @@ def test_a_kidnapped_study_reports_relocalisation_computed_by_hand(capsys):
     the records' errors: re-localised = mean error over the last DEFAULT_WINDOW steps below
     CONVERGENCE_RADIUS, steps to recover = R - 40, R the first step from which the error stays below it."""
     world = Maze(PAPER_MAZE)
-    settings = study_settings([MazeChoice.from_maze("paper", world)], [0.3], [0.5], [300], [0.2], ["none", "sensor"])
+    settings = study_settings(
+        [MazeChoice.from_maze("paper", world)], [0.3], [0.5], [300], {"recovery": ["none", "sensor"]}
+    )
     tasks = study_tasks(settings, ["sir", "apf"], 3, 90, 5, kidnap_at=40)
     outcome = run_study(tasks, workers=1)
     task = tasks[3]  # setting 2 (sensor), run 1
@@ -339,7 +344,7 @@ def test_a_kidnapped_study_reports_relocalisation_computed_by_hand(capsys):
     record = next(r for r in outcome.records if (r.setting, r.run, r.filter) == (2, 1, "SIRParticleFilter"))
     assert (record.relocalised, record.steps_to_recover) == (by_hand, stay[0] - 40 if stay else None)
     assert (record.relocalised, record.steps_to_recover) == (relocalised(sir), recovery_steps(sir))
-    assert (record.recovery, record.kidnap_at, record.mean_particle_count) == ("sensor", 40, 300.0)
+    assert (record.options["recovery"], record.kidnap_at, record.mean_particle_count) == ("sensor", 40, 300.0)
     summaries = summarise_study(outcome.records, settings)
     for s in summaries:
         mine = [r for r in outcome.records if (r.setting, r.filter) == (s.setting_index, s.filter)]
@@ -363,7 +368,7 @@ def test_study_varies_recovery_from_the_command_line(tmp_path, capsys):
     rows = read_csv(table)
     sir = [r for r in rows if r["filter"] == "SIRParticleFilter"]
     assert [r["recovery"] for r in sir[::2]] == ["none", "augmented", "sensor"]
-    assert {r["recovery"] for r in rows if r["filter"] == "GridBayesFilter"} == {"none"}  # it takes no recovery
+    assert {r["recovery"] for r in rows if r["filter"] == "GridBayesFilter"} == {""}  # it takes no recovery
     assert {r["kidnap_at"] for r in rows} == {"20"} and {r["relocalised"] for r in rows} <= {"True", "False"}
     assert main([*args[:-2], "--recovery", "sometimes"]) == 2
     assert "unknown recovery 'sometimes'" in capsys.readouterr().err

@@ -275,7 +275,7 @@ def test_the_backends_agree_on_the_distance_to_the_exact_posterior(paper_world):
 
 
 def test_the_backends_agree_on_a_studys_convergence_shares(paper_world):
-    settings = study_settings([MazeChoice.from_maze("paper", paper_world)], [0.3, 0.6], [0.5], [300], [0.2])
+    settings = study_settings([MazeChoice.from_maze("paper", paper_world)], [0.3, 0.6], [0.5], [300])
     filters = ["SIRParticleFilter", "AuxiliaryParticleFilter", "RegularizedParticleFilter"]
     shares = {}
     for backend in ("numpy", "compiled"):

@@ -188,7 +188,7 @@ def test_study_varies_the_bandwidth_and_writes_its_column(tmp_path):
     assert main([*args, "--estimate", "mode", "--csv", str(table)]) == 0
     rows = list(csv.DictReader(table.open()))
     assert [(r["bandwidth"], r["filter"], r["estimate"]) for r in rows] == [
-        ("optimal", "SIRParticleFilter", "mode"),
+        ("", "SIRParticleFilter", "mode"),  # SIR declares no bandwidth: an empty cell
         ("optimal", "RegularizedParticleFilter", "mode"),
         ("multimodal", "RegularizedParticleFilter", "mode"),  # SIR takes no bandwidth: it ran once
     ]

@@ -136,7 +136,7 @@ def test_sir_is_not_rerun_for_the_rpfs_bandwidth(tmp_path):
 
 def test_the_grid_filter_runs_once_for_all_particle_counts():
     maze = MazeChoice("m", grid=((0, 2), (0, 0)))
-    settings = [StudySetting(maze, 0.3, 0.5, n, 0.2) for n in (100, 200)]
+    settings = [StudySetting(maze, 0.3, 0.5, n) for n in (100, 200)]
     assert filters_per_setting(settings, ["SIRParticleFilter", "GridBayesFilter"]) == [
         ("SIRParticleFilter", "GridBayesFilter"),
         ("SIRParticleFilter",),
@@ -216,7 +216,7 @@ def test_study_figure_has_a_panel_per_maze_and_a_line_per_filter_and_option(tmp_
     mazes = [MazeChoice("m", grid=((0, 2),)), MazeChoice("n", grid=((2, 0),))]
     combinations = [(m, s, b) for m in mazes for s in (0.3, 0.5) for b in ("optimal", "multimodal")]
     summaries = [
-        StudySummary(i, StudySetting(m, s, 0.5, 10, 0.2, bandwidth=b), f, 3, 0.1, (0.05, 0.2), 1.0, 5, 1.0)
+        StudySummary(i, StudySetting(m, s, 0.5, 10, (("bandwidth", b),)), f, 3, 0.1, (0.05, 0.2), 1.0, 5, 1.0)
         for i, (m, s, b) in enumerate(combinations, start=1)
         for f in ("SIRParticleFilter", "RegularizedParticleFilter")
     ]

@@ -119,10 +119,11 @@ def test_this_studys_own_rows_and_traces_are_kept(tmp_path, capsys):
 
 
 def test_foreign_row_checks_every_planned_column(tmp_path):
-    """Each column the plan fixes, changed alone in one row, makes that row another study's."""
+    """Each column the plan fixes, changed alone in one row, makes that row another study's: the run's
+    seeds, maze and model, and each option the row's filter ran with (or one it does not take, set)."""
     from mazelab.experiments.plan import plan_study, study_mazes
 
-    plan = plan_study(study_mazes(["paper_5x5"]), "sir", sigma=[0.3], delta=[0.5], particles=[30], threshold=[0.2],
+    plan = plan_study(study_mazes(["paper_5x5"]), "sir", sigma=[0.3], delta=[0.5], particles=[30],
                       runs=2, steps=5, seed=1)  # fmt: skip
     table = tmp_path / "s.csv"
     assert main([*STUDY[:3], "--runs", "2", "--steps", "5", "--particles", "30", "--filters", "sir", "--seed", "1",
@@ -130,11 +131,12 @@ def test_foreign_row_checks_every_planned_column(tmp_path):
     records = read_study_csv(table)
     assert foreign_row(plan.tasks(), records) is None
     changed = {"seed": 7, "maze_sha256": "0" * 64, "maze_seed": 3, "maze": "other", "wall_share": 0.3,
-               "sigma": 0.31, "delta": 0.4, "particles": 31, "threshold": 0.3, "recovery": "sensor",
-               "bandwidth": "multimodal", "estimate": "mode", "steps": 6, "kidnap_at": 2}  # fmt: skip
+               "sigma": 0.31, "delta": 0.4, "particles": 31, "steps": 6, "kidnap_at": 2}  # fmt: skip
     assert set(changed) == set(PLANNED_COLUMNS)
-    for column, value in changed.items():
-        edited = [RunRecord(**{**vars(r), column: value}) if i == 1 else r for i, r in enumerate(records)]
+    options = {"recovery": "sensor", "estimate": "mode", "resampling": "residual", "bandwidth": "multimodal"}
+    for column, value in [*changed.items(), *options.items()]:
+        cell = {column: value} if column in PLANNED_COLUMNS else {"options": {**records[1].options, column: value}}
+        edited = [RunRecord(**{**vars(r), **cell}) if i == 1 else r for i, r in enumerate(records)]
         index, why = foreign_row(plan.tasks(), edited)
         assert index == 1 and why.startswith(f"its {column} is "), column
     moved = [RunRecord(**{**vars(records[0]), "run": 9})]

@@ -99,7 +99,7 @@ def test_kaplan_meier_median_not_reached():
 
 # -- converged, and the convergence step --------------------------------------------------------------
 def record(final: float, converged: int | None, run: int, steps: int = 10, name: str = "SIR") -> RunRecord:
-    return RunRecord(1, run, run, "m", None, 1, 0.3, 0.5, 10, 0.2, steps, name, final, final, converged, 5.0, 1.0)
+    return RunRecord(1, run, run, "m", None, 1, 0.3, 0.5, 10, steps, name, final, final, converged, 5.0, 1.0)
 
 
 def test_converged_means_below_the_radius_for_the_last_twenty_percent():
@@ -116,7 +116,7 @@ def test_the_summary_counts_the_runs_that_never_converge():
     (9, event): S = 3/4 after step 2, 3/4 * 2/3 = 1/2 after step 9, so the median is 9 (no later event
     to take a midpoint with). With the last one never converging too, S stays at 3/4: not reached,
     where the median of the converged runs alone would have said 2."""
-    settings = study_settings([MazeChoice("m", grid=((0, 2),))], [0.3], [0.5], [10], [0.2])
+    settings = study_settings([MazeChoice("m", grid=((0, 2),))], [0.3], [0.5], [10])
     records = [record(0.1, 2, 1), record(0.9, 10, 2), record(0.8, None, 3), record(0.2, 9, 4)]
     (summary,) = summarise_study(records, settings)
     assert summary.converged_share == 0.5 and summary.last_convergence_step == 9
@@ -259,7 +259,7 @@ def test_the_study_writes_a_summary_csv_beside_its_rows(tmp_path, capsys):
 
 
 def test_summary_csv_keeps_every_interval_as_written():
-    settings = study_settings([MazeChoice("m", grid=((0, 2),))], [0.3], [0.5], [10], [0.2])
+    settings = study_settings([MazeChoice("m", grid=((0, 2),))], [0.3], [0.5], [10])
     (summary,) = summarise_study([record(0.1, 5, 1), record(0.2, None, 2), record(0.6, 9, 3)], settings)
     (row,) = read_csv(summary_csv([summary]))
     assert float(row["median_final_error_low"]) == summary.median_interval[0]
@@ -285,13 +285,13 @@ def test_a_pair_needs_the_reference_fixed_by_the_filters_setting():
     maze = MazeChoice("m", grid=((0, 2),))
 
     def rows(setting: int, name: str) -> list[RunRecord]:
-        return [RunRecord(setting, r, r, "m", None, 1, 0.3, 0.5, 10, 0.2, 10, name, 0.1 * r + setting, 0.1, None, 5.0,
+        return [RunRecord(setting, r, r, "m", None, 1, 0.3, 0.5, 10, 10, name, 0.1 * r + setting, 0.1, None, 5.0,
                           1.0) for r in (1, 2)]  # fmt: skip
 
-    two = study_settings([maze], [0.3], [0.5], [10, 20], [0.2])
+    two = study_settings([maze], [0.3], [0.5], [10, 20])
     records = [*rows(1, "SIRParticleFilter"), *rows(1, "GridBayesFilter"), *rows(2, "SIRParticleFilter")]
     grid = [s for s in summarise_study(records, two, paired="sir") if s.filter == "GridBayesFilter"]
     assert grid[0].paired_with is None and math.isnan(grid[0].mean_difference)
-    one = study_settings([maze], [0.3], [0.5], [10], [0.2])
+    one = study_settings([maze], [0.3], [0.5], [10])
     grid = [s for s in summarise_study(records[:4], one, paired="sir") if s.filter == "GridBayesFilter"]
     assert grid[0].paired_with == "SIRParticleFilter" and grid[0].mean_difference == pytest.approx(0.0)

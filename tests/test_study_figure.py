@@ -36,7 +36,7 @@ def summaries() -> list[StudySummary]:
         for particles in (100, 1000, 10000):
             for bandwidth in ("optimal", "multimodal"):
                 index += 1
-                setting = StudySetting(maze, 0.3, 0.5, particles, 0.2, bandwidth=bandwidth)
+                setting = StudySetting(maze, 0.3, 0.5, particles, (("bandwidth", bandwidth),))
                 for name in FILTERS:
                     if name != "RegularizedParticleFilter" and bandwidth != "optimal":
                         continue
@@ -145,7 +145,7 @@ def test_the_grid_reference_is_in_every_panel_of_a_facet_it_does_not_take(tmp_pa
     maze = MazeChoice("m", grid=((0, 2),))
     out = []
     for index, (sigma, particles) in enumerate([(s, n) for n in (100, 1000) for s in (0.2, 0.4)], start=1):
-        setting = StudySetting(maze, sigma, 0.5, particles, 0.2)
+        setting = StudySetting(maze, sigma, 0.5, particles)
         for name in ("SIRParticleFilter", "GridBayesFilter") if particles == 100 else ("SIRParticleFilter",):
             out.append(StudySummary(index, setting, name, 5, sigma, (0.5 * sigma, 2 * sigma), 1.0, 5, 1.0))
     path = tmp_path / "g.svg"

@@ -13,6 +13,7 @@ import numpy as np
 
 from mazelab.cli.app import main
 from mazelab.experiments.traces import DIAGNOSTIC_PREFIX, PARAMETER_COLUMNS, TRACE_COLUMNS
+from mazelab.registry import filter_entry
 
 STUDY = ["study", "--maze", "paper_5x5", "--filters", "sir,rpf", "--sigma", "0.3,0.5", "--runs", "2", "--steps", "15"]
 STUDY += [
@@ -37,13 +38,15 @@ def test_traces_carry_each_runs_parameters_and_its_filters_diagnostics(tmp_path)
     assert main([*STUDY, "--csv", str(table), "--traces", str(traces)]) == 0
     header = traces.read_text().splitlines()[0].split(",")
     assert header[: len(TRACE_COLUMNS)] == TRACE_COLUMNS
-    assert f"{DIAGNOSTIC_PREFIX}regularised" in header and [*PARAMETER_COLUMNS, "resampling"] == header[-9:]
+    options = [o.name for name in ("sir", "rpf") for o in filter_entry(name).options.settable()]
+    parameters = [*PARAMETER_COLUMNS, *dict.fromkeys(options)]  # the model's, then every option declared
+    assert f"{DIAGNOSTIC_PREFIX}regularised" in header and header[-len(parameters) :] == parameters
     steps = rows_of(traces)
     by_row = {(r["setting"], r["run"], r["filter"]): r for r in rows_of(table)}
     assert len(steps) == 15 * len(by_row)
     for step in steps:
         row = by_row[(step["setting"], step["run"], step["filter"])]
-        assert all(step[c] == row[c] for c in [*PARAMETER_COLUMNS, "resampling"])
+        assert all(step[c] == row[c] for c in parameters)
         regularised = step[f"{DIAGNOSTIC_PREFIX}regularised"]
         assert regularised in ("0", "1") if step["filter"] == "RegularizedParticleFilter" else regularised == ""
     rpf = [s for s in steps if s["filter"] == "RegularizedParticleFilter"]

@@ -40,12 +40,12 @@ from mazelab.cli.study_outputs import StudyOutputs, check_plugin_code, resumed, 
 from mazelab.experiments.claims import OutputClaims
 from mazelab.experiments.dask_runner import DASK_TIMEOUT, check_workers, close_client, connect
 from mazelab.experiments.executor import STOP_SIGNALS, default_workers, run_study
-from mazelab.experiments.plan import StudyPlan, plan_study
+from mazelab.experiments.plan import StudyPlan, all_default, plan_study
 from mazelab.experiments.plan import study_mazes as plan_mazes
 from mazelab.experiments.record import Recorder
 from mazelab.experiments.rowlog import RowLog
 from mazelab.experiments.runs import parse_filters
-from mazelab.experiments.study import PAPER_OPTIONS, MazeChoice, RunRecord, RunTask, StudyOutcome, declared_option
+from mazelab.experiments.study import MazeChoice, RunRecord, RunTask, StudyOutcome, declared_option
 from mazelab.experiments.summary import CSV_DTYPES, study_table, summarise_study, summary_csv
 from mazelab.experiments.trace_log import TraceLog
 from mazelab.experiments.traces import (
@@ -146,9 +146,10 @@ def parse_plan(
     reference: str | None = None,
 ) -> StudyPlan:  # fmt: skip
     """The study's plan from the command line's lists: the paper's named flags (--threshold, --recovery,
-    --bandwidth, --estimate) and --option NAME=V1,V2 for any declared option, each value parsed and
-    checked by its declaration; an option that none of the filters takes is refused first, in one line.
-    A resumed study keeps its recorded root seed unless --seed is given."""
+    --bandwidth, --estimate, spellings of those options) and --option NAME=V1,V2 for any declared
+    option, each value parsed and checked by its declaration; an option that none of the filters takes
+    is refused first, in one line, unless it is given only its default. A resumed study keeps its
+    recorded root seed unless --seed is given."""
     if outputs.recorded is not None and seed is None:
         seed = outputs.recorded["parameters"]["root_seed"]
     names = parse_filters(check_filter_names(filters))
@@ -160,15 +161,9 @@ def parse_plan(
     options = {**named, **generic}
     if "kld" in options and options["kld"] == [True]:
         kld, options = True, {k: v for k, v in options.items() if k != "kld"}
-    paper = {name: options.pop(name) for name in PAPER_OPTIONS if name in options}
-    recovery = paper.get("recovery")
     options_per_filter(
         names,
-        {
-            **{k: v for k, v in paper.items() if not (k == "recovery" and set(v) <= {None, "none"})},
-            **options,
-            "kld": kld or None,
-        },
+        {**{k: None if all_default(k, v) else v for k, v in options.items()}, "kld": kld or None},
         flags={**{name: f"--{name}" for name in given}, "kld": "--kld"},
         check=False,  # each value is checked below, by plan_study, for every filter that takes it
     )
@@ -179,10 +174,6 @@ def parse_plan(
         sigma=parse_list(sigma, float, "--sigma"),
         delta=parse_list(delta, float, "--delta"),
         particles=parse_list(particles, int, "--particles"),
-        threshold=paper.get("threshold", [RPF_THRESHOLD]),
-        recovery=["none" if r is None else r for r in recovery] if recovery else ["none"],
-        bandwidth=paper.get("bandwidth", ["optimal"]),
-        estimate=paper.get("estimate", ["mean"]),
         options=options,
         runs=runs, steps=steps, seed=seed, kidnap_at=kidnap_at, kld=kld, traces=outputs.traces is not None,
         reference=reference,
@@ -393,7 +384,11 @@ def report_study(session: StudySession, outcome: StudyOutcome, kld: bool, extras
         typer.echo(f"one row per run and filter written to {outputs.csv_path}")
     if outputs.summary_csv is not None and summaries:
         try:
-            write_text_atomically(outputs.summary_csv, summary_csv(summaries), replace=outputs.force or outputs.resume)
+            write_text_atomically(
+                outputs.summary_csv,
+                summary_csv(summaries, plan.option_columns),
+                replace=outputs.force or outputs.resume,
+            )
         except OSError as error:
             typer.echo(f"error: {describe_write_error(error)}", err=True)
             raise typer.Exit(1) from None

@@ -22,7 +22,7 @@ from mazelab.experiments.record import Recorder
 from mazelab.experiments.summary import CSV_DTYPES, StudySummary, summarise_study, summary_rows
 from mazelab.experiments.tables import flat_row
 from mazelab.experiments.traces import study_traces, trace_table_columns
-from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, RPF_THRESHOLD
+from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
 from mazelab.plugins import is_lab_class
 from mazelab.registry import resolve_filter
 
@@ -150,10 +150,10 @@ def study(
     sigma: float | Sequence[float] = 0.3,
     delta: float | Sequence[float] = 0.5,
     particles: int | Sequence[int] = DEFAULT_PARTICLE_COUNT,
-    threshold: float | Sequence[float] = RPF_THRESHOLD,
-    recovery: str | Sequence[str] = "none",
-    bandwidth: str | float | Sequence[str | float] = "optimal",
-    estimate: str | Sequence[str] = "mean",
+    threshold: float | Sequence[float] | None = None,
+    recovery: str | Sequence[str] | None = None,
+    bandwidth: str | float | Sequence[str | float] | None = None,
+    estimate: str | Sequence[str] | None = None,
     filters: str | Sequence[Any] = ("sir", "apf", "rpf"),
     options: Mapping[str, Any] | None = None,
     runs: int = 30,
@@ -174,13 +174,17 @@ def study(
     ----------
     maze, maze_size, stations, wall_share
         Maze files or shipped names; generated mazes ("20x20"), their station blocks and wall share.
-    sigma, delta, particles, threshold, recovery, bandwidth, estimate
-        The studied values (see `mazelab study --help`).
+    sigma, delta, particles
+        The studied values of the model (see `mazelab study --help`).
+    threshold, recovery, bandwidth, estimate
+        The paper's options by their names, as `mazelab study --threshold ...` spells them: the same as
+        giving them in `options` (None: not given, each filter runs its declared default).
     filters
         Names ("sir", "rpf", ...) or filter classes (a student's own, meeting mazelab.contract).
     options
-        Any other declared filter option, by name: a value or a list of values to vary (e.g.
-        {"resampling": ["systematic", "residual"]}); each filter takes those it declares.
+        Any declared filter option, by name: a value or a list of values to vary (e.g.
+        {"resampling": ["systematic", "residual"]}); each filter takes those it declares, and the rows
+        have a column for every option the studied filters declare.
     runs, steps, seed, kidnap_at, kld
         Runs per setting, steps per run, the root seed (None: a new one, in the record), a
         kidnapping step, KLD-sampling.
@@ -221,11 +225,13 @@ def study(
         sigma=_listed("sigma", sigma, NUMBER, "a number"),
         delta=_listed("delta", delta, NUMBER, "a number"),
         particles=_listed("particles", particles, WHOLE, "a whole number"),
-        threshold=_listed("threshold", threshold, NUMBER, "a number"),
-        recovery=_listed("recovery", recovery, TEXT, "a recovery name"),
-        bandwidth=_listed("bandwidth", bandwidth, (str, *NUMBER), "a kernel name or a number"),
-        estimate=_listed("estimate", estimate, TEXT, "'mean' or 'mode'"),
-        options=_options(options),
+        options=_named_options(
+            _options(options),
+            threshold=_listed("threshold", threshold, NUMBER, "a number"),
+            recovery=_listed("recovery", recovery, TEXT, "a recovery name"),
+            bandwidth=_listed("bandwidth", bandwidth, (str, *NUMBER), "a kernel name or a number"),
+            estimate=_listed("estimate", estimate, TEXT, "'mean' or 'mode'"),
+        ),
         runs=_whole("runs", runs),
         steps=_whole("steps", steps),
         seed=seed,
@@ -242,7 +248,7 @@ def study(
     )
     outcome = run_study(plan.tasks(), workers, dask=dask)
     summaries = summarise_study(outcome.records, plan.settings, paired=paired)
-    summary = summary_rows(summaries)
+    summary = summary_rows(summaries, plan.option_columns)
     failures = [f.describe() for f in outcome.failures]
     record = recorder.finish(
         "finished" if not failures else "finished with failures",
@@ -258,6 +264,14 @@ def study(
     columns = trace_table_columns(blocks)
     rows = [flat_row(r) for r in outcome.records]
     return StudyResult(rows, summary, record, failures, columns, summaries, plan.varied)
+
+
+def _named_options(options: dict[str, list[Any]], **named: list[Any] | None) -> dict[str, list[Any]]:
+    """The options with the paper's named ones added (None: not given); one given both ways is refused."""
+    for name, values in named.items():
+        if values is not None and name in options:
+            raise ValueError(f"{name} is given twice, as {name}= and in options; give it once")
+    return {**options, **{name: values for name, values in named.items() if values is not None}}
 
 
 def call_arguments(call: Mapping[str, Any], seed: int) -> dict[str, Any]:

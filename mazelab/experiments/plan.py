@@ -18,11 +18,14 @@ from mazelab.experiments.plugin_code import PluginCode, plugin_codes
 from mazelab.experiments.runs import filter_key, parse_filters
 from mazelab.experiments.study import (
     BASE_PARAMETERS,
+    MODEL_PARAMETERS,
     REFERENCE,
     MazeChoice,
     RunTask,
     StudySetting,
+    declared_option,
     file_mazes,
+    option_columns,
     study_parameters,
     study_settings,
     study_tasks,
@@ -34,7 +37,6 @@ from mazelab.limits import check_particles, check_steps, check_study
 from mazelab.maze_generator import DEFAULT_WALL_SHARE
 from mazelab.maze_paths import MAZES_DIR
 from mazelab.mazes import DEFAULT_MAZE, find_maze, load_maze
-from mazelab.model import RPF_THRESHOLD
 from mazelab.registry import filter_entry, resolve_filter
 from mazelab.seeding import new_seed
 
@@ -110,15 +112,14 @@ class StudyPlan:
     plugins: tuple[PluginCode, ...] = ()  # the plug-ins' code, read once: every run carries it
 
     @property
-    def other_options(self) -> list[str]:
-        """The filter options the study sets beyond the paper's four: a CSV column each."""
-        others = list(study_parameters(self.settings)[len(BASE_PARAMETERS) :])
-        return [*others, "kld"] if self.kld and "kld" not in others else others
+    def option_columns(self) -> list[str]:
+        """The options the study's filters declare (`study.option_columns`): a CSV column each."""
+        return list(option_columns(self.filters))
 
     @property
     def columns(self) -> list[str]:
-        """The study CSV's columns: CSV_COLUMNS, then one per other option."""
-        return [*CSV_COLUMNS, *self.other_options]
+        """The study CSV's columns: CSV_COLUMNS, then one per option its filters declare."""
+        return [*CSV_COLUMNS, *self.option_columns]
 
     @property
     def varied(self) -> list[str]:
@@ -133,7 +134,6 @@ class StudyPlan:
             self.steps,
             self.seed,
             kidnap_at=self.kidnap_at,
-            kld=self.kld,
             traces=self.traces,
             reference=self.reference,
             plugins=self.plugins,
@@ -149,8 +149,8 @@ class StudyPlan:
         return {
             "filters": [resolve_filter(f).name for f in self.filters],
             "mazes": [maze_description(m) for m in dict.fromkeys(s.maze for s in self.settings)],
-            **{p: values(p) for p in ("sigma", "delta", "particles", "threshold", "recovery", "bandwidth", "estimate")},
-            **({"options": {p: [to_plain_json(v) for v in values(p)] for p in others}} if others else {}),
+            **{p: values(p) for p in MODEL_PARAMETERS},
+            "options": {p: [to_plain_json(v) for v in values(p)] for p in others},
             "runs": self.runs,
             "steps": self.steps,
             "root_seed": self.seed,
@@ -195,10 +195,6 @@ def plan_study(
     sigma: Sequence[float],
     delta: Sequence[float],
     particles: Sequence[int],
-    threshold: Sequence[float] = (RPF_THRESHOLD,),
-    recovery: Sequence[str] = ("none",),
-    bandwidth: Sequence[str | float] = ("optimal",),
-    estimate: Sequence[str] = ("mean",),
     options: Mapping[str, Sequence[Any]] | None = None,
     runs: int = 30,
     steps: int = 200,
@@ -210,38 +206,28 @@ def plan_study(
 ) -> StudyPlan:
     """Check and combine a study's values into its plan (a new root seed if none is given).
 
-    `threshold`, `recovery`, `bandwidth` and `estimate` are the paper's four options of lab step 14;
-    `options` any other declared option of the filters, each a list of values (a plug-in's included).
-    An option that no filter of the study takes, given a value other than its default, is refused in
-    one line; every value, for every filter that takes it, is checked by its declaration up front."""
+    `options` are the filter options the study sets, by name, each a list of values (a plug-in's
+    included; `kld` is a spelling of {"kld": [True]}). An option that no filter of the study takes,
+    given a value other than its default, is refused in one line, and one given only its default is
+    left out (no filter runs it); every value, for every filter that takes it, is checked by its
+    declaration up front."""
     names = parse_filters(filters) if isinstance(filters, str) else _filter_list(filters)
     classes = [resolve_filter(name) for name in names]
-    others = {name: list(values) for name, values in (options or {}).items()}
-    for name, values in others.items():
+    given = {name: list(values) for name, values in (options or {}).items()}
+    if kld:
+        given["kld"] = [True]
+    for name, values in given.items():
         if not values:
             raise ValueError(f"option {name} has no values")
-    options_for(  # an option that no filter takes, given a value other than the default: refused
-        classes,
-        {
-            **{
-                name: None if all(v == default for v in values) else values
-                for name, values, default in (
-                    ("threshold", threshold, RPF_THRESHOLD),
-                    ("recovery", recovery, "none"),
-                    ("bandwidth", bandwidth, "optimal"),
-                    ("estimate", estimate, "mean"),
-                    ("kld", [kld], False),
-                )
-            },
-            **others,
-        },
-    )
+    options_for(classes, {name: None if all_default(name, values) else values for name, values in given.items()})
+    declared = set(option_columns(classes))
+    given = {name: values for name, values in given.items() if name in declared}
     check_steps(steps)  # each run's limits, up front rather than in every worker
     check_particles(max(particles))
-    settings = study_settings(mazes, sigma, delta, particles, threshold, recovery, bandwidth, estimate, others)
+    settings = study_settings(mazes, sigma, delta, particles, given)
     check_study(len(settings) * runs, len(names))
     check_study_numbers(settings)
-    check_filter_options(settings, names, kld)
+    check_filter_options(settings, names)
     if reference is not None:
         check_reference(reference, settings)
     plan = StudyPlan(
@@ -270,7 +256,16 @@ def check_reference(reference: str, settings: Sequence[StudySetting]) -> None:
         check_grid_memory(columns, rows)
 
 
-def check_filter_options(settings: Sequence[StudySetting], names: Sequence[Any], kld: bool) -> None:
+def all_default(name: str, values: Sequence[Any]) -> bool:
+    """Whether every value given to an option is its declared default (then no filter needs to take it)."""
+    option = declared_option(name)
+    try:
+        return option is not None and all(option.validate(v) == option.default for v in values)
+    except ValueError:  # a bad value: refused below, by the declaration of a filter that takes it
+        return False
+
+
+def check_filter_options(settings: Sequence[StudySetting], names: Sequence[Any]) -> None:
     """Every filter's options in every setting, checked by its declaration as its constructor will
     check them (values and combinations), before any run starts."""
     seen: set[tuple[Any, ...]] = set()
@@ -278,8 +273,6 @@ def check_filter_options(settings: Sequence[StudySetting], names: Sequence[Any],
         for name in names:
             given = setting.filter_options(name)
             entry = filter_entry(name)
-            if kld and "kld" in entry.options:
-                given["kld"] = True
             key = (entry.name, repr(sorted(given.items())))
             if key not in seen:
                 seen.add(key)
@@ -287,13 +280,14 @@ def check_filter_options(settings: Sequence[StudySetting], names: Sequence[Any],
 
 
 def check_study_numbers(settings: Sequence[Any]) -> None:
-    """Each setting's sigma and numeric RPF bandwidth within the ranges of its maze (mazelab.checks),
-    before any run starts."""
+    """Each setting's sigma, and a numeric kernel bandwidth if it sets one, within the ranges of its maze
+    (mazelab.checks), before any run starts."""
     for setting in settings:
         maze = setting.maze
         rows, columns = maze.size if maze.grid is None else (len(maze.grid), len(maze.grid[0]))
         check_sigma_within(setting.sigma, columns, rows)
-        check_bandwidth_within(setting.bandwidth, columns, rows)
+        if setting.value("bandwidth") is not None:
+            check_bandwidth_within(setting.value("bandwidth"), columns, rows)
 
 
 def _filter_list(filters: Sequence[Any]) -> list[Any]:
@@ -304,4 +298,12 @@ def _filter_list(filters: Sequence[Any]) -> list[Any]:
     return list(dict.fromkeys(chosen))
 
 
-__all__ = ["StudyPlan", "is_shipped_maze", "maze_description", "plan_study", "shipped_path", "study_mazes"]
+__all__ = [
+    "StudyPlan",
+    "all_default",
+    "is_shipped_maze",
+    "maze_description",
+    "plan_study",
+    "shipped_path",
+    "study_mazes",
+]

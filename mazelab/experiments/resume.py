@@ -22,16 +22,24 @@ from mazelab.checks import check_seed
 from mazelab.declaration import parse_literal
 from mazelab.experiments.inputs import read_regular_text
 from mazelab.experiments.record import read_record
-from mazelab.experiments.study import RunRecord, RunTask, option_cells
+from mazelab.experiments.study import RunRecord, RunTask, option_cell, option_cells
 from mazelab.experiments.tables import csv_cell
 
 RESUME_IGNORES = ("runs",)  # parameters that may differ between the record and a resumed study
 # The columns of a row that the plan fixes for its (setting, run): seed and maze first (the message
 # names the first that differs), then the parameters. The rest are the run's results.
 PLANNED_COLUMNS = (
-    "seed", "maze_sha256", "maze_seed", "maze", "wall_share", "sigma", "delta", "particles", "threshold",
-    "recovery", "bandwidth", "estimate", "steps", "kidnap_at",
-)  # fmt: skip
+    "seed",
+    "maze_sha256",
+    "maze_seed",
+    "maze",
+    "wall_share",
+    "sigma",
+    "delta",
+    "particles",
+    "steps",
+    "kidnap_at",
+)  # fmt: skip, then the option columns of the row's filter (`planned_cells`)
 
 
 def _parse(text: str, kind: Any) -> Any:
@@ -60,8 +68,9 @@ def _parse(text: str, kind: Any) -> Any:
 
 
 def read_study_csv(path: str | Path, expected: Sequence[str] | None = None) -> list[RunRecord]:
-    """The rows of a study's CSV as RunRecords: the fixed columns, then a column per other filter
-    option (its cells read back as the values they spell, into RunRecord.options); with `expected`,
+    """The rows of a study's CSV as RunRecords: the fixed columns, then a column per filter option (its
+    non-empty cells read back as the values they spell, as `option_cell` writes them, into
+    RunRecord.options); with `expected`,
     the header must be exactly those columns. A last row cut short (a study killed while writing it)
     is left out; any other bad row is a ValueError of one line naming the file and row (row 2 is the
     first after the header). A pipe, device or folder, or text that is not UTF-8, is refused."""
@@ -93,7 +102,7 @@ def read_study_csv(path: str | Path, expected: Sequence[str] | None = None) -> l
             try:
                 cells = dict(zip(columns, row, strict=True))
                 values = {name: _parse(cells[name], hints[name]) for name in fixed}
-                options = {name: parse_literal(cells[name]) if cells[name] != "" else None for name in others}
+                options = {name: option_cell(parse_literal(cells[name])) for name in others if cells[name] != ""}
                 records.append(RunRecord(**values, options=options))
             except ValueError as error:
                 raise ValueError(f"--resume: {path} row {number}: {error}") from None
@@ -125,19 +134,19 @@ def read_study_record(path: str | Path) -> dict[str, Any]:
     return data
 
 
-def planned_cells(task: RunTask) -> dict[str, str]:
-    """The cells (as the CSV writes them) of PLANNED_COLUMNS that run `task`'s rows must hold."""
+def planned_cells(task: RunTask, filter_name: str) -> dict[str, str]:
+    """The cells (as the CSV writes them) that run `task`'s row of filter `filter_name` must hold:
+    PLANNED_COLUMNS, then every option the filter runs with in the task's setting."""
     s = task.setting
     values = {
         "seed": task.seed, "maze_sha256": s.maze.sha256, "maze_seed": task.maze_seed, "maze": s.maze.label,
         "wall_share": s.maze.wall_share, "sigma": s.sigma, "delta": s.delta, "particles": s.particles,
-        "threshold": s.threshold, "recovery": s.recovery, "bandwidth": s.bandwidth, "estimate": task.estimate,
         "steps": task.steps, "kidnap_at": task.kidnap_at,
     }  # fmt: skip
     generated = s.maze.grid is None  # its maze_sha256 is its run's own maze's, which maze_seed fixes
     return {
         **{column: _cell(values[column]) for column in PLANNED_COLUMNS if not (generated and column == "maze_sha256")},
-        **{name: _cell(value) for name, value in option_cells(s).items()},  # the setting's other options
+        **{name: _option_cell(value) for name, value in option_cells(s, filter_name).items()},
     }
 
 
@@ -145,21 +154,32 @@ def _cell(value: Any) -> str:
     return str(csv_cell(value))
 
 
+def _option_cell(value: Any) -> str:
+    """An option's value as the CSV writes it (in its cell's words: None as "none")."""
+    return _cell(option_cell(value))
+
+
 def foreign_row(tasks: Sequence[RunTask], records: Iterable[RunRecord]) -> tuple[int, str] | None:
     """(the index of the first record that is not one of `tasks`' rows, why), or None when every
     record is: a (setting, run) the tasks have, one of its filters, and the seed, maze and parameters
     the task gives it."""
     planned = {(t.setting_index, t.run): t for t in tasks}
-    cells: dict[tuple[int, int], dict[str, str]] = {}
+    cells: dict[tuple[int, int, str], dict[str, str]] = {}
     for index, record in enumerate(records):
         task = planned.get((record.setting, record.run))
         if task is None:
             return index, f"run {record.run} of setting {record.setting} is not in this study"
-        if record.filter not in task.filters:
+        if record.filter not in task.row_filters():
             return index, f"its filter {record.filter} is not one this study runs in setting {record.setting}"
-        expected = cells.setdefault((task.setting_index, task.run), planned_cells(task))
+        key = (task.setting_index, task.run, record.filter)
+        if key not in cells:
+            cells[key] = planned_cells(task, task.row_filters()[record.filter])
+        expected = cells[key]
+        options = {name: _option_cell(value) for name, value in record.options.items()}
+        for name in options.keys() - expected.keys():
+            return index, f"its {name} is {options[name]}, an option {record.filter} does not take"
         for column in expected:
-            found = _cell(getattr(record, column) if column in PLANNED_COLUMNS else record.options.get(column))
+            found = _cell(getattr(record, column)) if column in PLANNED_COLUMNS else options.get(column, "")
             if found != expected[column]:
                 return index, (
                     f"its {column} is {found or 'empty'}, where this study's run {task.run} of setting "
@@ -190,8 +210,8 @@ def missing_tasks(tasks: Sequence[RunTask], records: Sequence[RunRecord]) -> tup
     todo, complete = [], {}
     for task in tasks:
         have = present.get((task.setting_index, task.run), set())
-        if set(task.filters) <= have:
-            complete[task.setting_index, task.run] = set(task.filters)
+        if set(task.row_filters()) <= have:
+            complete[task.setting_index, task.run] = set(task.row_filters())
         else:
             todo.append(task)
     kept, seen = [], set()

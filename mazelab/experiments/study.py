@@ -17,14 +17,15 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from mazelab.declaration import Option, options_of
+from mazelab.constants import RPF_THRESHOLD
+from mazelab.declaration import Option, options_of, show_value
 from mazelab.experiments.kidnapping import recovery_steps, relocalised
 from mazelab.experiments.plugin_code import PluginCode, filters_here
 from mazelab.experiments.runs import filter_labels, final_error, mean_ess, mean_particle_count, run_filters
 from mazelab.experiments.warmup import WorkerReport
 from mazelab.maze import STATION_WALL, Maze
 from mazelab.maze_generator import DEFAULT_WALL_SHARE, generate_maze
-from mazelab.model import RPF_THRESHOLD, check_model_parameters
+from mazelab.model import check_model_parameters
 from mazelab.registry import entries, filter_entry, labels, resolve_filter
 from mazelab.robot import Robot
 from mazelab.seeding import start_place, study_seeds
@@ -93,55 +94,62 @@ def _maze_of(grid: tuple[tuple[int, ...], ...], label: str) -> Maze:
 
 @dataclass(frozen=True)
 class StudySetting:
-    """One combination of the studied parameters: the model's (maze, sigma, delta, particle count),
-    the paper's four filter options of lab step 14 (always columns of the study), and any other
-    declared filter option the study sets (`options`, by name: `--option NAME=VALUES`)."""
+    """One combination of the studied parameters: the model's (maze, sigma, delta, particle count) and
+    the filter options the study sets (`options`, by name, each checked by its declaration); a filter
+    runs with those it declares and its declared defaults for the rest (`filter_values`)."""
 
     maze: MazeChoice
     sigma: float
     delta: float
     particles: int
-    threshold: float = RPF_THRESHOLD  # the RPF's N_T / N_S
-    recovery: str = "none"  # none, augmented or sensor, for the particle filters
-    bandwidth: str | float = "optimal"  # the RPF's kernel bandwidth (mazelab.regularisation)
-    estimate: str = "mean"  # every filter's point estimate: "mean" or "mode" (mazelab.modes)
-    options: tuple[tuple[str, Any], ...] = ()  # the other filter options the study sets, (name, value)
+    options: tuple[tuple[str, Any], ...] = ()  # the filter options the study sets, (name, value)
 
     def value(self, parameter: str) -> Any:
-        """The value of a studied parameter (a model parameter, one of the four, or another option)."""
+        """The value of a studied parameter: the maze's label, a model parameter, or an option the
+        study sets (None for an option it leaves to the filters' defaults)."""
         if parameter == "maze":
             return self.maze.label
-        if parameter in MODEL_PARAMETERS or parameter in PAPER_OPTIONS:
+        if parameter in MODEL_PARAMETERS:
             return getattr(self, parameter)
         return dict(self.options).get(parameter)
-
-    @property
-    def option_names(self) -> tuple[str, ...]:
-        """Every filter option this setting gives a value: the paper's four, then the others."""
-        return (*PAPER_OPTIONS, *(name for name, _ in self.options))
 
     def filter_options(self, filter_name: str | type) -> dict[str, Any]:
         """The options of this setting that the filter declares (its declaration checks them)."""
         declared = options_of(resolve_filter(filter_name))
-        return {name: self.value(name) for name in self.option_names if name in declared and _studied(name, declared)}
+        return {name: value for name, value in self.options if name in declared and _studied(name, declared)}
+
+    def filter_values(self, filter_name: str | type) -> dict[str, Any]:
+        """Every option the filter runs with in this setting, by name in declaration order: the setting's
+        value where it sets one, the declared default otherwise (the derived ones left out)."""
+        filter_class = resolve_filter(filter_name)
+        declared = options_of(filter_class)
+        given = self.filter_options(filter_class)
+        return {o.name: given.get(o.name, o.default) for o in declared.settable()}
 
 
 MODEL_PARAMETERS = ("sigma", "delta", "particles")
-# the filter options of lab step 14 (the paper's RPF threshold, and the kernel, recovery and estimate
-# this lab adds): always a column of the study, given or not
-PAPER_OPTIONS = ("threshold", "recovery", "bandwidth", "estimate")
-BASE_PARAMETERS = ("maze", *MODEL_PARAMETERS, *PAPER_OPTIONS)
+BASE_PARAMETERS = ("maze", *MODEL_PARAMETERS)
 
 
 def study_parameters(settings: Sequence[StudySetting]) -> tuple[str, ...]:
-    """The parameters a study's settings give: the model's, the paper's four options, any other option."""
-    others = dict.fromkeys(name for s in settings for name, _ in s.options)
-    return (*BASE_PARAMETERS, *others)
+    """The parameters a study's settings give: the maze, the model's, then each option the study sets."""
+    options = dict.fromkeys(name for s in settings for name, _ in s.options)
+    return (*BASE_PARAMETERS, *options)
+
+
+def option_columns(filters: Sequence[str | type]) -> tuple[str, ...]:
+    """A study's option columns: the union of the options its filters declare (the derived ones left
+    out), in the filters' order, each filter's in its declaration order. A study of SIR alone has no
+    column for an option only the RPF declares."""
+    names: dict[str, None] = {}
+    for name in filters:
+        names.update(dict.fromkeys(o.name for o in options_of(resolve_filter(name)).settable()))
+    return tuple(names)
 
 
 def is_option_parameter(parameter: str) -> bool:
     """Whether a study parameter is a filter option (not the maze or a model parameter)."""
-    return parameter not in ("maze", *MODEL_PARAMETERS)
+    return parameter not in BASE_PARAMETERS
 
 
 def takes_parameter(filter_name: str | type, parameter: str) -> bool:
@@ -161,7 +169,9 @@ def takes_parameter(filter_name: str | type, parameter: str) -> bool:
 def check_threshold_reaches(settings: Sequence[StudySetting], filters: Sequence[str]) -> None:
     """Refuse, in one line, a study threshold other than the RPF's default that none of its filters
     takes (`_studied`: SIR and the APF resample every step in a study)."""
-    if all(s.threshold == RPF_THRESHOLD for s in settings) or any(takes_parameter(f, "threshold") for f in filters):
+    if all(dict(s.options).get("threshold", RPF_THRESHOLD) == RPF_THRESHOLD for s in settings) or any(
+        takes_parameter(f, "threshold") for f in filters
+    ):
         return
     names = " and ".join(filter_entry(f).name for f in filters)
     raise ValueError(f"the study's threshold is the RPF's N_T (lab step 14): {names} resample every step in a study")
@@ -178,29 +188,19 @@ def study_settings(
     sigmas: Sequence[float],
     deltas: Sequence[float],
     particle_counts: Sequence[int],
-    thresholds: Sequence[float] = (RPF_THRESHOLD,),
-    recoveries: Sequence[str] = ("none",),
-    bandwidths: Sequence[str | float] = ("optimal",),
-    estimates: Sequence[str] = ("mean",),
     options: Mapping[str, Sequence[Any]] | None = None,
 ) -> list[StudySetting]:
-    """Every combination of the given values (the first parameter varies slowest), each checked by the
-    declaration of the option (mazelab.declaration) as the filters' constructors check it; `options`
-    holds the other filter options the study sets, each a list of values."""
+    """Every combination of the given values (the first parameter varies slowest); `options` holds the
+    filter options the study sets, each a list of values, each checked by the option's declaration
+    (mazelab.declaration) as the filters' constructors check it."""
     for count in particle_counts:
         if isinstance(count, bool) or not isinstance(count, int) or count < 1:
             raise ValueError(f"particle counts must be whole numbers >= 1, got {count!r}")
     for sigma, delta in itertools.product(dict.fromkeys(sigmas), dict.fromkeys(deltas)):
         check_model_parameters(sigma, delta)  # refuses impossible values, warns once outside the lab's ranges
-    paper = {
-        "threshold": _checked("threshold", thresholds),
-        "recovery": [_recovery_name(r) for r in dict.fromkeys(recoveries)],
-        "bandwidth": _checked("bandwidth", bandwidths),
-        "estimate": _checked("estimate", estimates),
-    }
-    others = {name: _checked(name, values) for name, values in (options or {}).items()}
-    combinations = itertools.product(mazes, sigmas, deltas, particle_counts, *paper.values(), *others.values())
-    return [StudySetting(*values[:8], options=tuple(zip(others, values[8:], strict=True))) for values in combinations]
+    checked = {name: _checked(name, values) for name, values in (options or {}).items()}
+    combinations = itertools.product(mazes, sigmas, deltas, particle_counts, *checked.values())
+    return [StudySetting(*values[:4], options=tuple(zip(checked, values[4:], strict=True))) for values in combinations]
 
 
 def _checked(name: str, values: Sequence[Any]) -> list[Any]:
@@ -214,14 +214,6 @@ def _checked(name: str, values: Sequence[Any]) -> list[Any]:
 def declared_option(name: str) -> Option | None:
     """The declaration of an option among the lab's filters (None: only a plug-in declares it)."""
     return next((entry.options[name] for entry in entries() if name in entry.options), None)
-
-
-def _recovery_name(recovery: Any) -> str:
-    """A study's recovery as its name: none, augmented or sensor (checked by the option's declaration)."""
-    value = declared_option("recovery").validate(recovery)
-    if value is not None and not isinstance(value, str):
-        raise ValueError(f"a study's recovery is none, augmented or sensor, got {recovery!r}")
-    return "none" if value is None else value
 
 
 def varied_parameters(settings: Sequence[StudySetting]) -> list[str]:
@@ -257,19 +249,14 @@ class RunTask:
             return self
         return dataclasses.replace(self, filters=filters_here(self.filters, self.plugins))
 
-    @property
-    def estimate(self) -> str:
-        """The point estimate the errors are measured from: "mean" or "mode"."""
-        return self.setting.estimate
-
-    @property
-    def kld(self) -> bool:
-        """Whether the particle filters use KLD-sampling."""
-        return bool(self.setting.value("kld"))
-
     def filter_options(self, name: str) -> dict[str, Any]:
         """Filter `name`'s options in this run (those of the setting it declares)."""
         return self.setting.filter_options(name)
+
+    def row_filters(self) -> dict[str, str]:
+        """The `filter` cells of this run's rows (each filter's name: a plug-in's is its class's), to
+        the filters as this task names them (a plug-in by its spec, `file.py:Class`)."""
+        return {resolve_filter(name).name: name for name in self.filters}
 
 
 def filters_per_setting(settings: Sequence[StudySetting], filters: Sequence[str]) -> list[tuple[str, ...]]:
@@ -298,22 +285,15 @@ def study_tasks(
     root_seed: int,
     *,
     kidnap_at: int | None = None,
-    kld: bool = False,
-    estimate: str | None = None,
     traces: bool = False,
     reference: str | None = None,
     plugins: tuple[PluginCode, ...] = (),
 ) -> list[RunTask]:
     """One task per setting and run, in order, each with the filters that setting runs
-    (`filters_per_setting`; a setting that runs none has no tasks). `estimate`, if given, replaces the
-    settings' own, and `kld` turns KLD-sampling on in all of them; `traces` keeps each run's per-step
+    (`filters_per_setting`; a setting that runs none has no tasks). `traces` keeps each run's per-step
     trace (mazelab.experiments.traces); `reference` ("grid") measures each filter against the exact
     posterior (`with_reference`); `plugins` the code of the plug-ins among the filters
     (mazelab.experiments.plugin_code), sent with every run."""
-    if estimate is not None:
-        settings = [dataclasses.replace(s, estimate=_checked("estimate", [estimate])[0]) for s in settings]
-    if kld:
-        settings = [dataclasses.replace(s, options=tuple({**dict(s.options), "kld": True}.items())) for s in settings]
     if runs < 1 or steps < 1:
         raise ValueError(f"runs and steps must be >= 1, got {runs} runs and {steps} steps")
     if kidnap_at is not None and not 1 <= kidnap_at <= steps:
@@ -356,7 +336,6 @@ class RunRecord:
     sigma: float
     delta: float
     particles: int
-    threshold: float
     steps: int
     filter: str
     final_error: float  # mean error over the last FINAL_SHARE of the steps
@@ -364,13 +343,10 @@ class RunRecord:
     converged_at: int | None  # convergence_step of the errors; None: never
     mean_ess: float  # NaN for the grid filter
     ms_per_step: float
-    recovery: str = "none"
     kidnap_at: int | None = None
     relocalised: bool | None = None  # kidnapping.relocalised; None without a kidnapping
     steps_to_recover: int | None = None  # kidnapping.recovery_steps; None: never, or no kidnapping
     mean_particle_count: float = math.nan  # over the steps (KLD-sampling varies it)
-    bandwidth: str | float = "optimal"  # the RPF's kernel bandwidth (the other filters ignore it)
-    estimate: str = "mean"  # the point estimate the errors are measured from
     maze_sha256: str | None = None  # sha256 of the maze file's bytes; a generated maze's: of its grid as maze text
     maze_rows: int = 0  # the run's maze size
     maze_columns: int = 0
@@ -380,7 +356,8 @@ class RunRecord:
     distance_to_exact: float = math.nan
     label: str = ""  # the filter's label in the registry (what the figure and table show: SIR, APF, ...)
     backend: str = ""  # the backend the filter ran on, as the process that ran it says (mazelab.backend)
-    # the setting's other filter options (beyond the four above), by name: a column each, after these
+    # every option the filter ran with (`StudySetting.filter_values`) as cells (`option_cell`), by name:
+    # a column each, after these; an option the filter does not declare has no key (an empty cell)
     options: dict[str, Any] = field(default_factory=dict)
     # Not a column: with RunTask.traces, the filter's per-step arrays (mazelab.experiments.traces)
     trace: ClassVar[dict[str, Any] | None] = None
@@ -496,7 +473,6 @@ def run_records(task: RunTask, world: Maze, results: dict[str, RunResult]) -> li
             s.sigma,
             s.delta,
             s.particles,
-            s.threshold,
             task.steps,
             name,
             final_error(result.errors),
@@ -504,19 +480,16 @@ def run_records(task: RunTask, world: Maze, results: dict[str, RunResult]) -> li
             convergence_step(result.errors),
             mean_ess(result),
             1e3 * float(result.step_seconds.mean()),
-            s.recovery,
             task.kidnap_at,
             *kidnap_figures(result),
             mean_particle_count(result),
-            s.bandwidth,
-            task.estimate,
             s.maze.sha256 if s.maze.sha256 is not None else maze_text_sha256(world),
             int(world.grid.shape[0]),
             int(world.grid.shape[1]),
             s.maze.wall_share,
             label=labels([name])[name],
             backend=result.extras.get("backend", "numpy"),
-            options=option_cells(s),
+            options=option_cells(s, name),
         )
         for name, result in results.items()
     ]
@@ -531,15 +504,17 @@ def maze_text_sha256(world: Maze) -> str:
     return hashlib.sha256(world.to_text().encode()).hexdigest()
 
 
-def option_cells(setting: StudySetting) -> dict[str, Any]:
-    """The setting's other options as a row's cells: numbers, words and flags as they are, anything
-    else (none, an object's fields) in its declaration's words."""
-    cells = {}
-    for name, value in setting.options:
-        option = declared_option(name)
-        plain = value is None or isinstance(value, (bool, int, float, str))
-        cells[name] = value if plain and value is not None else (option.show(value) if option else str(value))
-    return cells
+def option_cells(setting: StudySetting, filter_name: str | type) -> dict[str, Any]:
+    """Every option a filter runs with in a setting (`StudySetting.filter_values`) as a row's cells
+    (`option_cell`), by name."""
+    return {name: option_cell(value) for name, value in setting.filter_values(filter_name).items()}
+
+
+def option_cell(value: Any) -> Any:
+    """An option's value as a row's cell: a number, word or flag as it is, anything else (None, an
+    object's fields) in the declaration's words ("none", "Recovery(...)")."""
+    plain = isinstance(value, (bool, int, float, str))
+    return value if plain else show_value(value)
 
 
 def trace_of(result: RunResult) -> dict[str, Any]:
@@ -609,7 +584,6 @@ class StudyOutcome:
 __all__ = [
     "BASE_PARAMETERS",
     "MODEL_PARAMETERS",
-    "PAPER_OPTIONS",
     "REFERENCE",
     "MazeChoice",
     "RunFailure",
@@ -624,7 +598,9 @@ __all__ = [
     "filters_per_setting",
     "is_option_parameter",
     "kidnap_figures",
+    "option_cell",
     "option_cells",
+    "option_columns",
     "run_records",
     "run_task",
     "run_task_safely",

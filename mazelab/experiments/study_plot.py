@@ -31,18 +31,17 @@ import numpy as np
 
 from mazelab.experiments.runs import FINAL_SHARE
 from mazelab.experiments.stats import CONFIDENCE_LEVEL
-from mazelab.experiments.study import declared_option, is_option_parameter, takes_parameter
+from mazelab.experiments.study import MODEL_PARAMETERS, declared_option, is_option_parameter, takes_parameter
 from mazelab.experiments.summary import StudySummary
 from mazelab.experiments.tables import format_value, pyplot, save_figure
 from mazelab.registry import colour_of, labels, rgb
 
-NUMERIC_PARAMETERS = ("sigma", "delta", "particles", "threshold")  # the x axis, first choice first
+NUMERIC_PARAMETERS = MODEL_PARAMETERS  # the x axis, first choice first (then a numeric option)
 PARAMETER_LABELS = {
     "sigma": "σ, noise std (map units)",  # noqa: RUF001
     "delta": "Δ, compass error width (rad)",
     "particles": "particle count $N_S$",
-    "threshold": "RPF threshold $N_T / N_S$",
-}
+}  # an option's label: its declared help (`axis_label`)
 PAPER_WIDTH = 7.0  # inches: a two-column paper's text width (one column: about 3.4)
 PANEL_HEIGHT = 2.0  # inches per row of panels
 FONT_POINTS = 8  # the text; tick labels one point smaller
@@ -135,7 +134,7 @@ def is_numeric(summaries: Sequence[StudySummary], parameter: str) -> bool:
 
 def choose_x(summaries: Sequence[StudySummary], varied: Sequence[str], x: str | None = None) -> str | None:
     """The x axis: `x` if given (a varied parameter), else the first numeric varied one (sigma, delta,
-    N, the threshold, then any numeric --option), else the first varied parameter that is not an option."""
+    N, then any numeric option, e.g. the RPF's threshold), else the first varied parameter that is not an option."""
     if x is not None:
         if x not in varied:
             raise ValueError(f"the figure's x axis {x!r} is not a varied parameter ({', '.join(varied) or 'none'})")

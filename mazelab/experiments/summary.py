@@ -81,9 +81,9 @@ class StudySummary:
         """The summary as plain values (the setting's parameters spelled out), for a record or pandas."""
         data = {k: v for k, v in asdict(self).items() if k != "setting"}
         data["setting"] = data.pop("setting_index")
-        for parameter in ("maze", "sigma", "delta", "particles", "threshold", "recovery", "bandwidth", "estimate"):
+        for parameter in BASE_PARAMETERS:
             data[parameter] = self.setting.value(parameter)
-        data.update(option_cells(self.setting))  # the setting's other filter options, one key each
+        data.update(option_cells(self.setting, self.filter))  # every option the filter ran with, one key each
         return data
 
 
@@ -198,19 +198,16 @@ def recovery_summary(group: Sequence[RunRecord]) -> tuple[float | None, float | 
 def describe_setting(
     setting: StudySetting, steps: int, runs: int, kidnap_at: int | None = None, varied: Sequence[str] = ()
 ) -> str:
-    """The fixed parameters of a study in one line (a varied one is left out: `describe_varied` says it)."""
+    """The fixed parameters of a study in one line: the maze, the model's, and each option the study
+    sets (a varied one is left out: `describe_varied` says it; an option not set runs at its default)."""
     parts = {
         "maze": f"maze {setting.maze.label}",
         "sigma": f"sigma {setting.sigma:g}",
         "delta": f"delta {setting.delta:g}",
         "particles": f"{setting.particles} particles",
-        "threshold": f"RPF N_T = {setting.threshold:g} N_S",
-        "bandwidth": f"RPF bandwidth {format_value(setting.bandwidth)}",
-        "estimate": f"{setting.estimate} estimate",
+        **{name: f"{name} {format_value(value)}" for name, value in setting.options},
     }
     kidnapping = "" if kidnap_at is None else f", kidnapped at step {kidnap_at}"
-    if kidnap_at is not None and "recovery" not in varied:
-        kidnapping += f", recovery {setting.recovery}"
     fixed = [text for parameter, text in parts.items() if parameter not in varied]
     return ", ".join([*fixed, f"{steps} steps{kidnapping}", f"{runs} runs per setting"])
 
@@ -318,7 +315,7 @@ def _step_interval(bounds: Interval, last: int) -> str:
     return "-" if math.isnan(low) else f"[{low:g}, {_step(high, last)}]"
 
 
-CSV_COLUMNS = [f.name for f in fields(RunRecord) if f.name != "options"]  # then a column per other option
+CSV_COLUMNS = [f.name for f in fields(RunRecord) if f.name != "options"]  # then a column per declared option
 # how to read the CSV's seeds back whole: maze_seed is empty for a maze file, so pandas would read the
 # column as float64 and round a seed above 2**53 (the record says so; pandas: dtype={"maze_seed": str})
 CSV_DTYPES = {"seed": "int64", "maze_seed": "str (empty for a maze file; as float64 a seed loses digits)"}
@@ -357,18 +354,20 @@ SUMMARY_STATISTICS: tuple[tuple[str, Any], ...] = (
 )
 
 
-def summary_rows(summaries: Sequence[StudySummary]) -> list[dict[str, Any]]:
-    """One dict per setting and filter, the summary CSV's columns: `setting`, the study's parameters
-    (None where the filter does not take one, the table's '-'), `filter`, `label` (the registry's),
-    then SUMMARY_STATISTICS, each interval as _low and _high."""
-    parameters = list(study_parameters([s.setting for s in summaries])) if summaries else list(BASE_PARAMETERS)
+def summary_rows(summaries: Sequence[StudySummary], columns: Sequence[str] = ()) -> list[dict[str, Any]]:
+    """One dict per setting and filter, the summary CSV's columns: `setting`, the maze and the model's
+    parameters (None where the filter does not take one, the table's '-'), then the option `columns`
+    (the study's, `study.option_columns`: each the value the filter ran with, None where it does not
+    declare the option), `filter`, `label` (the registry's), then SUMMARY_STATISTICS, each interval as
+    _low and _high."""
     rows = []
     for s in summaries:
-        cells = {**{p: s.setting.value(p) for p in parameters}, **option_cells(s.setting)}
+        cells = option_cells(s.setting, s.filter)
         rows.append(
             {
                 "setting": s.setting_index,
-                **{p: cells.get(p) if takes_parameter(s.filter, p) else None for p in parameters},
+                **{p: s.setting.value(p) if takes_parameter(s.filter, p) else None for p in BASE_PARAMETERS},
+                **{name: cells.get(name) for name in columns},
                 "filter": s.filter,
                 "label": labels([s.filter])[s.filter],
                 **{name: read(s) for name, read in SUMMARY_STATISTICS},
@@ -377,13 +376,12 @@ def summary_rows(summaries: Sequence[StudySummary]) -> list[dict[str, Any]]:
     return rows
 
 
-def summary_csv(summaries: Sequence[StudySummary]) -> str:
+def summary_csv(summaries: Sequence[StudySummary], columns: Sequence[str] = ()) -> str:
     """The summary rows (`summary_rows`) as CSV: an empty cell for None, NaN and 'not reached'."""
-    parameters = list(study_parameters([s.setting for s in summaries])) if summaries else list(BASE_PARAMETERS)
     buffer = io.StringIO()
     writer = csv.writer(buffer, lineterminator="\n")
-    writer.writerow(["setting", *parameters, "filter", "label", *(name for name, _ in SUMMARY_STATISTICS)])
-    for row in summary_rows(summaries):
+    writer.writerow(["setting", *BASE_PARAMETERS, *columns, "filter", "label", *(n for n, _ in SUMMARY_STATISTICS)])
+    for row in summary_rows(summaries, columns):
         writer.writerow([csv_cell(value) for value in row.values()])
     return buffer.getvalue()
 
@@ -394,8 +392,8 @@ def summary_path(csv_path: Path) -> Path:
 
 
 def study_csv(records: Sequence[RunRecord], columns: Sequence[str] = CSV_COLUMNS) -> str:
-    """One row per run and filter, columns CSV_COLUMNS then the study's other options; an empty cell for
-    None and NaN."""
+    """One row per run and filter, columns CSV_COLUMNS then the study's option columns; an empty cell for
+    None and NaN, and for an option the row's filter does not declare."""
     return records_csv(records, columns)
 
 

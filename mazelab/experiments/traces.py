@@ -3,8 +3,8 @@ format, so that pandas reads them directly (`pandas.read_csv`, or `read_parquet`
 which needs pyarrow). Columns: TRACE_COLUMNS, then each filter's own diagnostics (`regularised`,
 `injection_probability`, ...: empty where a filter has none), then the filter's label (SIR) and the
 row's parameters (the maze,
-sigma, delta, particles, the paper's four options and any other option of the setting), so that a
-band plot of the error against the steps, by filter and parameter, is one `groupby`."""
+sigma, delta, particles, then every option the filter ran with: empty where a filter does not declare
+one), so that a band plot of the error against the steps, by filter and parameter, is one `groupby`."""
 
 from __future__ import annotations
 
@@ -39,7 +39,7 @@ TRACE_COLUMNS = [
     "step_ms",  # the filter's own time for the step
     "particle_count",
 ]
-PARAMETER_COLUMNS = ["maze", "sigma", "delta", "particles", "threshold", "recovery", "bandwidth", "estimate"]
+PARAMETER_COLUMNS = ["maze", "sigma", "delta", "particles"]  # then the options the row's filter ran with
 PARQUET_HINT = "a .parquet trace file needs pyarrow (pip install pyarrow); or give a .csv path"
 
 
@@ -110,7 +110,8 @@ def exact_columns(exact: Any, estimate: np.ndarray) -> dict[str, np.ndarray]:
 
 
 def record_parameters(record: RunRecord) -> dict[str, Any]:
-    """A study row's parameters as trace columns: PARAMETER_COLUMNS, then its other options."""
+    """A study row's parameters as trace columns: its label, PARAMETER_COLUMNS, then the options its
+    filter ran with (RunRecord.options)."""
     return {"label": record.label, **{name: getattr(record, name) for name in PARAMETER_COLUMNS}, **record.options}
 
 
@@ -274,7 +275,7 @@ def check_traces_of_study(path: Path, tasks: Sequence[RunTask]) -> set[tuple[int
             why = f"run {run} of setting {setting} is not in this study"
         elif seed != task.seed:
             why = f"its seed is {seed}, where this study's run {run} of setting {setting} has {task.seed}"
-        elif name not in task.filters:
+        elif name not in task.row_filters():
             why = f"its filter {name} is not one this study runs in setting {setting}"
         elif not 1 <= step <= task.steps:
             why = f"its step {step} is not one of this study's {task.steps}"
