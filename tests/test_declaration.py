@@ -87,8 +87,8 @@ def test_a_plain_mapping_in_a_subclass_extends_the_declaration_it_inherits(paper
         filt = cls(paper_world, 0.3, 0.5, particles, np.random.default_rng(2), inflation=2.0)
         filt.step(0.0, 1.0)
         assert filt.settings["inflation"] == 2.0 and filt.settings["resampling"] == "systematic"
-        with pytest.raises(ValueError, match="threshold"):
-            cls(paper_world, 0.3, 0.5, particles, threshold=0.5)  # not SIR's, nor declared here
+        with pytest.raises(ValueError, match="bandwidth"):
+            cls(paper_world, 0.3, 0.5, particles, bandwidth=0.1)  # not SIR's, nor declared here
     with pytest.raises(ValueError, match="unknown resampling scheme 'nope'"):
 
         class Bad(SIRParticleFilter):  # a new default is checked as a given value is

@@ -83,7 +83,7 @@ def test_stored_filter_options_are_validated(tmp_path):
                  "--quiet", "--save-scenario", str(saved)]) == 0  # fmt: skip
     data = json.loads(saved.read_text())
     for options, message in (
-        ({"bandwidth": 0.1}, r"SIRParticleFilter does not take the option bandwidth \(it takes: resampling, "),
+        ({"bandwidth": 0.1}, r"SIRParticleFilter does not take the option bandwidth \(it takes: threshold, "),
         ({"recovery": {"mode": "augmented", "alpha_slow": 0.5, "alpha_fast": 0.1}}, "alpha_slow < alpha_fast"),
         ({"recovery": {"mode": "augmented", "speed": 1}}, "has no field 'speed'"),
         ({"resampling": [1, 2]}, "filter_options.resampling"),

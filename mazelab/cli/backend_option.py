@@ -113,6 +113,7 @@ ThreadsOption = Annotated[
         callback=set_threads,
         help="compiled: threads for one large run [default: 1]",
         show_default=False,
+        hidden=True,  # an expert's option, documented in docs/speed.md: run --help stays one screen
     ),
 ]
 

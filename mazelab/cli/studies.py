@@ -21,7 +21,7 @@ from mazelab.cli.filter_options import (
     options_per_filter,
     parse_option_texts,
 )
-from mazelab.cli.hints import check_filter_names, filter_choices
+from mazelab.cli.hints import check_filter_names
 from mazelab.cli.options import (
     DEFAULT_DELTA,
     DEFAULT_SIGMA,
@@ -60,38 +60,38 @@ from mazelab.viz.style import DEFAULT_MAX_DRAWN
 
 
 def study(
-    maze: Annotated[str | None, typer.Option(help=f"maze files or names, a list [default: {DEFAULT_MAZE}]")] = None,
-    maze_size: Annotated[str | None, typer.Option(help="generated mazes ROWSxCOLUMNS, comma-separated")] = None,
-    stations: Annotated[str | None, typer.Option(help="generated mazes' station blocks, comma-separated")] = None,
-    wall_share: Annotated[str | None, typer.Option(help="generated mazes' wall shares, a list")] = None,
-    sigma: Annotated[str, typer.Option(help="noise std sigma, comma-separated")] = str(DEFAULT_SIGMA),
-    delta: Annotated[str, typer.Option(help="compass error, comma-separated")] = str(DEFAULT_DELTA),
-    particles: Annotated[str, typer.Option(help="particle counts, comma-separated")] = str(DEFAULT_PARTICLE_COUNT),
+    maze: Annotated[str | None, typer.Option(help=f"mazes (files or names) [default: {DEFAULT_MAZE}]")] = None,
+    maze_size: Annotated[str | None, typer.Option(help="generated mazes ROWSxCOLUMNS, a list")] = None,
+    stations: Annotated[str | None, typer.Option(hidden=True, help="generated mazes' station blocks, a list")] = None,
+    wall_share: Annotated[str | None, typer.Option(hidden=True, help="generated mazes' wall shares, a list")] = None,
+    sigma: Annotated[str, typer.Option(help="noise std sigma, a list")] = str(DEFAULT_SIGMA),
+    delta: Annotated[str, typer.Option(help="compass error, a list")] = str(DEFAULT_DELTA),
+    particles: Annotated[str, typer.Option(help="particle counts, a list")] = str(DEFAULT_PARTICLE_COUNT),
     threshold: Annotated[str | None, typer.Option(help=f"RPF's N_T / N_S, a list [default: {RPF_THRESHOLD}]")] = None,
-    filters: Annotated[str, typer.Option(metavar="NAMES", help=filter_choices(many=True))] = "sir,apf,rpf",
+    filters: Annotated[
+        str, typer.Option(metavar="NAMES", show_default=False, help="a list (mazelab filters) [default: sir,apf,rpf]")
+    ] = "sir,apf,rpf",
     kidnap_at: Annotated[int | None, typer.Option(min=1, help="carry the robot elsewhere at this step")] = None,
     recovery: Annotated[
         str | None, typer.Option(metavar="NAMES", help="none (default), augmented or sensor, a list")
     ] = None,
     kld: KldFlag = False,
     bandwidth: Annotated[
-        str | None, typer.Option(metavar="KERNELS", help="RPF kernels: optimal (default), multimodal, h")
+        str | None, typer.Option(metavar="KERNELS", help="RPF kernel: optimal (default), multimodal, h")
     ] = None,
     estimate: Annotated[str | None, typer.Option(metavar="RULES", help="mean (default), mode, a list")] = None,
     option: StudyOptionFlag = None,
     runs: Annotated[int, typer.Option(min=1, help="seeded runs per setting")] = 30,
     steps: Annotated[int, typer.Option(min=1, help="steps per run")] = DEFAULT_STEPS,
-    seed: Annotated[
-        int | None, typer.Option(callback=seed_option, help="the study's root seed (default: new, printed)")
-    ] = None,
+    seed: Annotated[int | None, typer.Option(callback=seed_option, help="root seed (default: new, printed)")] = None,
     workers: Annotated[int | None, typer.Option(min=1, help="processes (default: all cores)")] = None,
-    dask: Annotated[str | None, typer.Option(help="the Dask scheduler to run on, tcp://HOST:PORT")] = None,
+    dask: Annotated[str | None, typer.Option(help="a Dask scheduler, tcp://HOST:PORT")] = None,
     dask_timeout: Annotated[
         float,
         typer.Option(metavar="<s>", callback=dask_timeout_option, hidden=True, help="give up after s idle seconds"),
     ] = DASK_TIMEOUT,
     csv_path: Annotated[Path | None, typer.Option("--csv", help="one row per run and filter")] = None,
-    plot: Annotated[Path | None, typer.Option(help="the figure: .png, .pdf or .svg (the suffix chooses)")] = None,
+    plot: Annotated[Path | None, typer.Option(help="the figure (.png, .pdf or .svg)")] = None,
     summary_csv: Annotated[
         Path | None, typer.Option("--summary-csv", hidden=True, help="the table as CSV [default: CSV.summary.csv]")
     ] = None,
@@ -105,14 +105,16 @@ def study(
         str | None, typer.Option(metavar="PARAMETER", help="the figure's x axis, a varied parameter")
     ] = None,
     plot_y: Annotated[
-        str, typer.Option(metavar="mean|median|converged|exact|paired", help="what the figure draws")
+        str, typer.Option(metavar="Y", show_default=False, help="mean (default), median, converged, exact, paired")
     ] = "mean",
-    title: Annotated[str | None, typer.Option(help="the figure's title (default: what it draws against what)")] = None,
-    traces: Annotated[Path | None, typer.Option(help="per-step rows of every run (.csv, or .parquet)")] = None,
+    title: Annotated[str | None, typer.Option(help="the figure's title")] = None,
+    traces: Annotated[Path | None, typer.Option(help="per-step rows of every run (.csv, .parquet)")] = None,
     record: Annotated[Path | None, typer.Option(help="JSON record [default: CSV.record.json]")] = None,
     resume: Annotated[bool, typer.Option("--resume", help="run only the rows missing from --csv")] = False,
     force: Annotated[bool, typer.Option("--force", help="replace existing output files")] = False,
-    draw_run: Annotated[int, typer.Option(help="the run --viewer/--rrd/--web draw", show_default=False)] = 1,
+    draw_run: Annotated[
+        int, typer.Option(hidden=True, help="the run --viewer/--rrd/--web draw", show_default=False)
+    ] = 1,
     viewer: ViewerOption = False,
     rrd: RrdOption = None,
     web: WebOption = False,
