@@ -108,3 +108,25 @@ def test_a_second_study_with_the_same_csv_is_refused(tmp_path, capsys):
     finally:
         running.discard()
     assert not table.exists()
+
+
+def test_the_repeat_line_pastes_back_and_gives_the_same_table(tmp_path, monkeypatch, capsys):
+    """ "Repeat this study" repeats the study, not its files: pasted back beside the CSV, figure and record
+    the study wrote, it is not refused ("exists; use --force") and prints the same table."""
+    import shlex
+
+    monkeypatch.chdir(tmp_path)
+    words = ["study", "--maze", "paper_5x5", "--filters", "sir", "--runs", "2", "--steps", "8", "--particles", "60",
+             "--workers", "1", "--no-viz", "--csv", "s.csv", "--record", "r.json"]  # fmt: skip
+    assert main(words) == 0
+    first = capsys.readouterr().out
+    repeat = next(line for line in first.splitlines() if line.startswith("Repeat this study: "))
+    pasted = shlex.split(repeat.removeprefix("Repeat this study: "))
+    assert "--csv" not in pasted and "--record" not in pasted and "--seed" in pasted
+    assert main(pasted[pasted.index("study") :]) == 0
+    again = capsys.readouterr().out
+
+    def table(out: str) -> list[str]:  # the table's rows, less the last column (ms/step, a timing)
+        return [line.rsplit(maxsplit=1)[0] for line in out.splitlines() if line.startswith("SIR")]
+
+    assert table(again) == table(first) and table(first)

@@ -58,6 +58,11 @@ from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, RPF_THRESHOLD
 from mazelab.registry import filter_entry, resolve_filter
 from mazelab.viz.style import DEFAULT_MAX_DRAWN
 
+# "Repeat this study" repeats the study (the same table, bit for bit), not its files: the CSV, figure and
+# record it wrote would be found taken when the line is pasted back (add --csv NEW.csv to write them again)
+REPEAT_DROPS = ("--resume", "--force")
+REPEAT_DROPS_WITH_VALUE = ("--csv", "--plot", "--traces", "--record", "--summary-csv", "--rrd")
+
 
 def study(
     maze: Annotated[str | None, typer.Option(help=f"mazes (files or names) [default: {DEFAULT_MAZE}]")] = None,
@@ -375,7 +380,7 @@ def report_study(session: StudySession, outcome: StudyOutcome, kld: bool, extras
     seconds = session.recorder.finish("finished" if not outcome.failures else "finished with failures", **closing)
     ran = len({(r.setting, r.run) for r in outcome.records})
     typer.echo(f"{ran} runs in {seconds['duration_seconds']:.1f} s wall time; {startup_line(outcome)}")
-    typer.echo(f"Repeat this study: {repeat_command(plan.seed)}")
+    typer.echo(f"Repeat this study: {repeat_command(plan.seed, REPEAT_DROPS, REPEAT_DROPS_WITH_VALUE)}")
     if outputs.csv_path is not None and log is not None:
         try:
             log.finish(records, session.recorder)  # the whole CSV, in order, its record; then the partial files go
