@@ -96,7 +96,7 @@ def study(
         typer.Option(metavar="<s>", callback=dask_timeout_option, hidden=True, help="give up after s idle seconds"),
     ] = DASK_TIMEOUT,
     csv_path: Annotated[Path | None, typer.Option("--csv", help="one row per run and filter")] = None,
-    plot: Annotated[Path | None, typer.Option(help="the figure (.png, .pdf or .svg)")] = None,
+    plot: Annotated[Path | None, typer.Option(help="the figure: .png, .pdf or .svg (the suffix chooses)")] = None,
     summary_csv: Annotated[
         Path | None, typer.Option("--summary-csv", hidden=True, help="the table as CSV [default: CSV.summary.csv]")
     ] = None,
