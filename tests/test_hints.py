@@ -114,8 +114,8 @@ def test_a_studys_repeat_line_repeats_its_rows(tmp_path, capsys):
     assert main([*args, "--workers", "1", "--csv", str(tmp_path / "a.csv")]) == 0
     command = _printed_command(capsys.readouterr().out, "study")
     at = command.index("study")
-    repeat = [*command[at:]]
-    repeat[repeat.index("--csv") + 1] = str(tmp_path / "b.csv")
+    repeat = [*command[at:], "--csv", str(tmp_path / "b.csv")]  # the line repeats the study, not its files
+    assert "--csv" not in command
     assert main(repeat) == 0
     a, b = ((tmp_path / n).read_text().splitlines() for n in ("a.csv", "b.csv"))
     columns = a[0].split(",")

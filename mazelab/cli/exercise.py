@@ -141,11 +141,20 @@ def _sandbox_or_refuse(required: bool) -> None:
             raise UserError(str(error)) from None
 
 
+def _make_folder(folder: Path) -> None:
+    """--gradescope's folder, made when it is missing (as `mkdir -p`); a file of that name is one line."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError):
+        raise UserError(f"--gradescope {folder}: not a folder") from None
+    except OSError as error:
+        raise UserError(f"--gradescope {folder}: cannot make the folder ({error.strerror})") from None
+
+
 def _gradescope_file(folder: Path | None, force: bool) -> Path | None:
     if folder is None:
         return None
-    if not folder.is_dir():
-        raise UserError(f"--gradescope {folder}: no such folder")
+    _make_folder(folder)
     check_output_path(folder / "results.json", force)
     return folder / "results.json"
 
@@ -214,8 +223,7 @@ def _gradescope_targets(gradescope: Path | None, submissions: list[Submission], 
     """Each submission's results.json under --gradescope (an existing one refused without --force)."""
     if gradescope is None:
         return {}
-    if not gradescope.is_dir():
-        raise UserError(f"--gradescope {gradescope}: no such folder")
+    _make_folder(gradescope)
     targets = {}
     for submission in submissions:
         target = gradescope / submission.name / "results.json"

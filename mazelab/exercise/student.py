@@ -187,6 +187,12 @@ class StudentFilter(SMC):
             self._estimate = (self.weights_value, self.call_estimate(self.positions, self.weights))
         return self._estimate[1].copy()
 
+    @property
+    def log_evidence(self) -> float:
+        """NaN: the student's `weigh` may leave out a constant factor of p(z | x) (the check allows it),
+        so the engine's running total is no estimate of log p(z_1:k); `compare` shows '-'."""
+        return float("nan")
+
     def belief(self) -> Particles:
         """What the viewer draws: the particles and their weights."""
         return Particles(self.positions, self.weights)
