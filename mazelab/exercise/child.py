@@ -286,7 +286,9 @@ def load(meta: dict[str, Any]) -> tuple[type | None, dict[str, Any]]:
         }
     except BaseException as error:
         line = "" if isinstance(error, SyntaxError) else _where(error)
-        return None, {"error": f"{shown} does not import: {type(error).__name__}: {_text(error)}{line}"}
+        lab = isinstance(error, ModuleNotFoundError) and (error.name or "").startswith("mazelab")
+        why = " (the lab's own code is not there for a submission: write the part yourself)" if lab else ""
+        return None, {"error": f"{shown} does not import: {type(error).__name__}: {_text(error)}{line}{why}"}
     finally:
         with contextlib.suppress(ValueError):
             sys.path.remove(str(path.parent))
