@@ -305,16 +305,16 @@ class ParticleFilter(SMC):
             self.recovery.track(float(np.asarray(log_w_avg).item()), float(np.asarray(z).item()))
 
     # -- the weights' arithmetic on the backend --------------------------------------------------------
-    def normalise_rows(self, log_w: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray, Any]:
+    def normalise_rows(self, log_w: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, Any, Any]:
         """The backend's normalisation (the compiled one reads W, ESS, mean and confidence in its passes)."""
         self._reads_of, self._reads = None, {}  # the compiled backend may reuse the last step's arrays
-        return self.ops.normalise(log_w, positions)
+        return self.ops.normalise(log_w, positions, self.log_weights_read)
 
     def normalised(self, log_a: np.ndarray, log_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The backend's W ∝ exp(log_a + log_b) per run, and the log totals (the APF's first stage)."""
         return self.ops.normalised(log_a, log_b)
 
-    def kept_reads(self, reads: Any, restarted: np.ndarray, log_weights: np.ndarray) -> tuple[Any, Any]:
+    def kept_reads(self, reads: Any, restarted: np.ndarray, log_weights: np.ndarray | None) -> tuple[Any, Any]:
         """Keep the reads the compiled normalisation made (weights, ESS, mean, and the confidence share
         around the mean, the estimate unless the estimate is the heaviest mode) for this step's reads;
         the restarted runs' are made from their new weights as a run of their own makes them, so that R

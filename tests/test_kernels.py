@@ -36,6 +36,7 @@ from mazelab.model import PARTICLE_DTYPE, ROBOT_SPEED
 from mazelab.registry import resolve_filter
 from mazelab.regularisation import GaussianKernel, mixture_kernel
 from mazelab.robot import Robot
+from mazelab.weights import Weights
 
 F32 = PARTICLE_DTYPE
 
@@ -113,6 +114,10 @@ def test_the_normalisation_and_its_reads_agree_with_numpy_to_rounding(ten):
     log_w = (-0.5 * rng.standard_normal((3, 2000)) ** 2 * 30).astype(F32)
     log_w[2] = -np.inf  # nothing explains z: no weights, the filter restarts the run
     totals, log_weights, reads = CompiledKernels(ten).normalise(log_w, points)
+    unwritten = CompiledKernels(ten).normalise(log_w, points, write_log=False)
+    assert unwritten[1] is None  # left out, and the Weights derive the same values when read
+    np.testing.assert_array_equal(Weights(None, unnormalised=(log_w, unwritten[0])).lw[:2], log_weights[:2])
+    np.testing.assert_array_equal(unwritten[2]["weights"], reads["weights"])
     with np.errstate(invalid="ignore"):  # numpy's -inf - -inf for the run nothing explains
         numpy_totals, numpy_log_weights, _ = NUMPY_KERNELS.normalise(log_w, points)
     np.testing.assert_allclose(totals[:2], numpy_totals[:2], rtol=1e-6)  # numpy's total is summed in float32
@@ -185,6 +190,26 @@ def test_a_seed_repeats_a_run_on_the_compiled_backend_which_says_so(name, paper_
     assert numpy_run.extras["backend"] == "numpy"
     assert not np.array_equal(first.estimates, numpy_run.estimates)  # the backends differ in rounding ...
     assert np.abs(first.errors[-10:] - numpy_run.errors[-10:]).max() < 0.5  # ... not in where they find it
+
+
+@pytest.mark.parametrize("name", ["sir", "apf", "rpf"])
+def test_reading_the_log_weights_does_not_change_a_compiled_run(name, paper_world):
+    walk_rng = np.random.default_rng(5)
+    robot = Robot(0.3, 0.5, paper_world.random_free_place(walk_rng), rng=walk_rng)
+    walk = [robot.step(paper_world) for _ in range(25)]
+    with use_backend("compiled"):
+        read, unread = (
+            resolve_filter(name)(paper_world, 0.3, 0.5, paper_world.random_free_places(500, rng), rng)
+            for rng in (np.random.default_rng(6), np.random.default_rng(6))
+        )
+    for compass_angle, z in walk:
+        read.step(compass_angle, z)
+        unread.step(compass_angle, z)
+        read.log_weights  # noqa: B018 (read every step)
+        np.testing.assert_array_equal(read.positions, unread.positions)
+        np.testing.assert_array_equal(read.weights, unread.weights)
+    np.testing.assert_array_equal(read.log_weights, unread.log_weights)  # written, or derived when read
+    assert read.log_weights_read == (name != "sir")  # only a filter that may read log W has it written
 
 
 @pytest.mark.parametrize("name", ["sir", "apf", "rpf"])

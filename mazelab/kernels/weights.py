@@ -1,12 +1,13 @@
 """The weights and the weighted reads, compiled (mazelab.weights is the numpy reference).
 
-`normalise` turns R runs' log weights into normalised log weights and weights, and reads what a step
-reports, in two passes over each run: the first takes w = exp(log w - max) (mazelab.kernels.vector_math:
-vectorised, about 1e-15 from numpy's) and sums the weights, their squares and the weighted positions
-(the total, the ESS, the mean); the second writes log W = log w - log total and W, and sums the weight
-within the green circle around the mean. `first_stage` is the APF's: W proportional to exp(log a + log
-b) and the log of their sum. Sums are float64 in partial sums the compiler keeps in vector lanes (numpy's
-are pairwise, so the two paths agree to rounding, not to the bit; a run repeats itself on one machine).
+`normalise` turns R runs' log weights into their log totals and normalised weights, and reads what a
+step reports, in two passes over each run: the first takes w = exp(log w - max)
+(mazelab.kernels.vector_math: vectorised, about 1e-15 from numpy's) and sums the weights, their squares
+and the weighted positions (the total, the ESS, the mean); the second writes W (and log W = log w - log
+total for a filter that reads it) and sums the weight within the green circle around the mean.
+`first_stage` is the APF's: W proportional to exp(log a + log b) and the log of their sum. Sums are
+float64 in partial sums the compiler keeps in vector lanes (numpy's are pairwise, so the two paths agree
+to rounding, not to the bit; a run repeats itself on one machine).
 A run whose log weights are all -inf (no particle explains z) or hold a NaN gets the total -inf or NaN
 and NaN weights, as in the numpy path; the filter then restarts it.
 """
@@ -38,8 +39,9 @@ def normalise(log_w, tops, positions, radius, w, log_out, totals, means, ess, sh
         The green circle's radius (map units).
     w : float64 array (R, N)
         W = w / sum(w), written.
-    log_out : float64 array (R, N)
-        log W_i = log w_i - log sum_j w_j, written.
+    log_out : float64 array (R, N), or None
+        log W_i = log w_i - log sum_j w_j, written; None: not written (a filter that reads W only; numba
+        compiles each case apart, so the array's case is the kernel it always was).
     totals : float64 array (R,)
         log sum_j w_j of each run.
     means : float64 array (R, 2)
@@ -58,7 +60,9 @@ def normalise(log_w, tops, positions, radius, w, log_out, totals, means, ess, sh
         if not (top > -np.inf):  # every weight is 0, or a NaN: no normalisation (the filter restarts it)
             totals[r] = top
             for i in range(size):
-                log_out[r, i] = w[r, i] = np.nan
+                w[r, i] = np.nan
+                if log_out is not None:
+                    log_out[r, i] = np.nan
             means[r, 0] = means[r, 1] = ess[r] = shares[r] = np.nan
             continue
         total = squares = sum_x = sum_y = 0.0
@@ -78,7 +82,8 @@ def normalise(log_w, tops, positions, radius, w, log_out, totals, means, ess, sh
         inverse = 1.0 / total
         inside = 0.0
         for i in range(size):
-            log_out[r, i] = log_w[r, i] - log_total
+            if log_out is not None:
+                log_out[r, i] = log_w[r, i] - log_total
             weight = w[r, i] * inverse
             w[r, i] = weight
             dx = positions[block + i, 0] - centre_x
@@ -104,7 +109,9 @@ def normalise_threads(log_w, tops, positions, radius, w, log_out, totals, means,
         start, stop = b * BLOCK, min(size, (b + 1) * BLOCK)
         if not (top > -np.inf):  # the run cannot be normalised: NaN weights (the filter restarts it)
             for i in range(start, stop):
-                log_out[r, i] = w[r, i] = np.nan
+                w[r, i] = np.nan
+                if log_out is not None:
+                    log_out[r, i] = np.nan
             continue
         total = squares = sum_x = sum_y = 0.0
         for i in range(start, stop):
@@ -137,7 +144,8 @@ def normalise_threads(log_w, tops, positions, radius, w, log_out, totals, means,
         centre_x, centre_y = np.float32(means[r, 0]), np.float32(means[r, 1])
         inside = 0.0
         for i in range(b * BLOCK, min(size, (b + 1) * BLOCK)):
-            log_out[r, i] = log_w[r, i] - log_total
+            if log_out is not None:
+                log_out[r, i] = log_w[r, i] - log_total
             weight = w[r, i] * inverse
             w[r, i] = weight
             dx = positions[r * size + i, 0] - centre_x
