@@ -231,6 +231,27 @@ def test_batched_runs_equal_single_runs_bit_for_bit_on_the_compiled_backend(name
     assert batch.reinitialised_at == [single.reinitialised_at for single in singles] and batch.reinitialised_at[1]
 
 
+def test_runs_together_equal_single_runs_wherever_their_arrays_lie_in_memory(paper_world):
+    seeds = (21, 22, 23)
+    walks = []
+    for seed in seeds:
+        rng = np.random.default_rng(seed)
+        robot = Robot(0.3, 0.5, paper_world.random_free_place(rng), rng=rng)
+        walks.append([robot.step(paper_world) for _ in range(2)])
+    particles = np.stack([paper_world.random_free_places(300, np.random.default_rng(s)) for s in seeds])
+    spacers = []  # each trial's arrays land elsewhere: the sums' order must not follow them
+    for trial in range(40):
+        spacers.append(np.empty(int(np.random.default_rng(trial).integers(1, 3000))))
+        for name in ("sir", "apf", "rpf"):
+            cls = resolve_filter(name)
+            with use_backend("compiled"):
+                batch = cls(paper_world, 0.3, 0.5, particles, [np.random.default_rng(s + 7) for s in seeds])
+                singles = [
+                    cls(paper_world, 0.3, 0.5, particles[r], np.random.default_rng(s + 7)) for r, s in enumerate(seeds)
+                ]
+            step_together_and_alone(batch, singles, walks, 2)
+
+
 @pytest.mark.parametrize("name", ["sir", "apf", "rpf"])
 def test_arrays_a_caller_keeps_are_never_written_over(name, paper_world):
     rng = np.random.default_rng(8)
