@@ -347,7 +347,7 @@ class SMC:
     def normalise_rows(self, log_w: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, Any, Any]:
         """log W = log w - log sum exp(log w) per row: (log totals (R,), log W (R, N) float64 or None
         (then derived from log w and the totals when read), reads or None); the compiled backend's also
-        reads the step's W, ESS, mean and confidence share, and leaves log W to be derived."""
+        reads the step's W, ESS, mean and confidence share, and may leave log W to be derived."""
         totals = np.atleast_1d(log_sum_exp(log_w))
         return totals, np.subtract(log_w, totals[:, None], dtype=float), None
 
