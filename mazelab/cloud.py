@@ -170,8 +170,8 @@ class ParticleFilter(SMC):
         -------
         (positions, headings)
         """
-        runs = self.selected_runs
-        return self.model.transition(points, self.compass_angles[runs], [self.rngs[r] for r in runs], ancestors)
+        rngs = self.rngs if self._selected is None else [self.rngs[r] for r in self._selected]
+        return self.model.transition(points, self.selected_rows(self.compass_angles), rngs, ancestors)
 
     def log_likelihood(self, points: np.ndarray) -> np.ndarray:
         """log p(z_k | x), equation (3) with the outside penalty.
@@ -184,7 +184,7 @@ class ParticleFilter(SMC):
         -------
         array (R, N)
         """
-        return self.model.log_likelihood(self.measurements[self.selected_runs], points)
+        return self.model.log_likelihood(self.selected_rows(self.measurements), points)
 
     def ancestors(self, weights: np.ndarray) -> np.ndarray:
         """RESAMPLE by the resampling scheme: ancestor indices into `positions`, N per row of weights.
@@ -200,7 +200,8 @@ class ParticleFilter(SMC):
         """
         runs = self.selected_runs
         if self.scheme is systematic_resample:  # one offset per run, the counting done for all runs at once
-            uniforms = np.array([self.rngs[run].random() for run in runs])
+            rngs = self.rngs if self._selected is None else [self.rngs[run] for run in runs]
+            uniforms = np.array([rng.random() for rng in rngs])
             ancestors = self.ops.systematic(weights, uniforms, None, self.count)
             if self._selected is not None:  # block b is run runs[b]'s
                 ancestors += np.repeat(self.count * (runs - np.arange(len(runs))), self.count).astype(ancestors.dtype)
@@ -304,16 +305,16 @@ class ParticleFilter(SMC):
             self.recovery.track(float(np.asarray(log_w_avg).item()), float(np.asarray(z).item()))
 
     # -- the weights' arithmetic on the backend --------------------------------------------------------
-    def normalise_rows(self, log_w: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray, Any]:
+    def normalise_rows(self, log_w: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, Any, Any]:
         """The backend's normalisation (the compiled one reads W, ESS, mean and confidence in its passes)."""
         self._reads_of, self._reads = None, {}  # the compiled backend may reuse the last step's arrays
-        return self.ops.normalise(log_w, positions)
+        return self.ops.normalise(log_w, positions, self.log_weights_read)
 
     def normalised(self, log_a: np.ndarray, log_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The backend's W ∝ exp(log_a + log_b) per run, and the log totals (the APF's first stage)."""
         return self.ops.normalised(log_a, log_b)
 
-    def kept_reads(self, reads: Any, restarted: np.ndarray, log_weights: np.ndarray) -> tuple[Any, Any]:
+    def kept_reads(self, reads: Any, restarted: np.ndarray, log_weights: np.ndarray | None) -> tuple[Any, Any]:
         """Keep the reads the compiled normalisation made (weights, ESS, mean, and the confidence share
         around the mean, the estimate unless the estimate is the heaviest mode) for this step's reads;
         the restarted runs' are made from their new weights as a run of their own makes them, so that R

@@ -147,6 +147,9 @@ class SMC:
         self._selected: np.ndarray | None = None  # the runs a hook serves now (None: every run)
         self._every_run = np.arange(self.runs)
         self._no_run = np.zeros(self.runs, dtype=bool)  # never written into
+        # log W is read by a step that may not resample or that has first-stage weights; the compiled
+        # normalisation writes it for those filters only (others derive it, the same values, if asked)
+        self.log_weights_read = self.threshold < 1 or type(self).log_eta is not SMC.log_eta
 
     def observe(self, compass_angle: float | np.ndarray, z: float | np.ndarray) -> None:
         """Keep the step's th0_k and z_k, one per run (float64 (R,)).
@@ -254,10 +257,10 @@ class SMC:
         log_lik : array (R, N)
             log p(z_k | x_k^i) of every run's particles.
         """
-        previous = self.weights_value.lw
         fresh, extra = self._no_run, 0.0
-        log_w: np.ndarray | list[np.ndarray] = previous + log_lik if self._resampled is None else []
-        if self._resampled is not None:
+        if self._resampled is None:
+            log_w: np.ndarray | list[np.ndarray] = self.weights_value.lw + log_lik
+        else:
             runs, ancestors = self._resampled
             self._selected = None if len(runs) == self.runs else runs
             try:
@@ -270,9 +273,9 @@ class SMC:
             if len(runs) == self.runs:
                 log_w = resampled
             else:  # some runs resampled: each run's row (rows of two dtypes are normalised apart)
-                rows = dict(zip(runs.tolist(), resampled, strict=True))
+                rows, previous = dict(zip(runs.tolist(), resampled, strict=True)), self.weights_value.lw
                 log_w = [rows[r] if r in rows else previous[r] + log_lik[r] for r in range(self.runs)]
-        del previous
+                del previous
         self.weights_value = None  # the last step's weights go first (the compiled backend reuses their arrays)
         totals = self.normalise(log_w)
         # log p(z_k | z_1:k-1): the total of weights that carry W_{k-1}, or log F + the log mean of fresh ones
@@ -313,12 +316,14 @@ class SMC:
         if len(groups) > 1:
             totals, log_weights, reads = self._normalise_groups(log_w, list(groups.values()))
         else:
-            totals, log_weights, reads = self.normalise_rows(np.asarray(log_w), self.positions)
+            log_w = np.asarray(log_w)
+            totals, log_weights, reads = self.normalise_rows(log_w, self.positions)
         explained = (totals >= LOG_UNDERFLOW) & ~self._lost  # False for an underflow and for NaN
         restarted = np.flatnonzero(~explained)
         if len(restarted):
-            log_weights = self._reinitialise(restarted, log_weights)
-        self.weights_value = Weights(log_weights, *self.kept_reads(reads, restarted, log_weights))
+            log_weights = self._reinitialise(restarted, _log_weights(log_weights, log_w, totals))
+        unnormalised = None if log_weights is not None else (log_w, totals)  # log W derived when read
+        self.weights_value = Weights(log_weights, *self.kept_reads(reads, restarted, log_weights), unnormalised)
         return np.asarray(totals, dtype=float)
 
     def _normalise_groups(
@@ -329,8 +334,9 @@ class SMC:
         reads: dict[str, np.ndarray] | None = {}
         for runs in groups:
             points = np.concatenate([self.run_positions(run) for run in runs])
-            part_totals, part_log, part_reads = self.normalise_rows(np.stack([rows[r] for r in runs]), points)
-            totals[runs], log_weights[runs] = part_totals, part_log
+            part_log_w = np.stack([rows[r] for r in runs])
+            part_totals, part_log, part_reads = self.normalise_rows(part_log_w, points)
+            totals[runs], log_weights[runs] = part_totals, _log_weights(part_log, part_log_w, part_totals)
             if part_reads is None or reads is None:
                 reads = None
                 continue
@@ -338,9 +344,10 @@ class SMC:
                 reads.setdefault(name, np.empty((self.runs, *value.shape[1:]), value.dtype))[runs] = value
         return totals, log_weights, reads
 
-    def normalise_rows(self, log_w: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray, Any]:
-        """log W = log w - log sum exp(log w) per row: (log totals (R,), log W (R, N) float64, reads or
-        None); the compiled backend's also reads the step's W, ESS, mean and confidence share."""
+    def normalise_rows(self, log_w: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, Any, Any]:
+        """log W = log w - log sum exp(log w) per row: (log totals (R,), log W (R, N) float64 or None
+        (then derived from log w and the totals when read), reads or None); the compiled backend's also
+        reads the step's W, ESS, mean and confidence share, and may leave log W to be derived."""
         totals = np.atleast_1d(log_sum_exp(log_w))
         return totals, np.subtract(log_w, totals[:, None], dtype=float), None
 
@@ -350,7 +357,7 @@ class SMC:
         totals = np.atleast_1d(log_sum_exp(log_w))
         return weights_from_logs(log_w, totals), totals
 
-    def kept_reads(self, reads: Any, restarted: np.ndarray, log_weights: np.ndarray) -> tuple[Any, Any]:
+    def kept_reads(self, reads: Any, restarted: np.ndarray, log_weights: np.ndarray | None) -> tuple[Any, Any]:
         """The W and ESS the normalisation read (None: derived from the log weights when asked)."""
         return None, None
 
@@ -479,6 +486,11 @@ def _per_run(value: float | np.ndarray, runs: int) -> np.ndarray:
     if isinstance(value, np.ndarray):
         return np.broadcast_to(value.astype(float, copy=False), (runs,))
     return np.array([float(value)] * runs)
+
+
+def _log_weights(log_weights: np.ndarray | None, log_w: np.ndarray, totals: np.ndarray) -> np.ndarray:
+    """The normalised log weights a normalisation returned, or log w - log total where it left them out."""
+    return np.subtract(log_w, totals[:, None], dtype=float) if log_weights is None else log_weights
 
 
 def _replace_blocks(values: np.ndarray, new: np.ndarray, runs: np.ndarray, size: int) -> np.ndarray:

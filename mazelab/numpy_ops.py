@@ -120,7 +120,9 @@ class NumpyKernels:
         ancestors += np.repeat(count * (runs - np.arange(len(runs))), count)
         return ancestors
 
-    def normalise(self, log_w: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray, None]:
+    def normalise(
+        self, log_w: np.ndarray, positions: np.ndarray, write_log: bool = True
+    ) -> tuple[np.ndarray, np.ndarray, None]:
         """log W = log w - log sum exp(log w) per run.
 
         Parameters
@@ -128,6 +130,8 @@ class NumpyKernels:
         log_w : array (R, N)
         positions : array (R*N, 2)
             The particles the weights belong to (the compiled backend reads them too).
+        write_log : bool
+            Ignored: log W is what this normalisation makes (the compiled one may leave it out).
 
         Returns
         -------

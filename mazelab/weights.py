@@ -14,23 +14,37 @@ class Weights:
 
     Parameters
     ----------
-    lw : array (R, N)
-        log W_i of each run, normalised (each row's exp sums to 1).
+    lw : array (R, N), or None
+        log W_i of each run, normalised (each row's exp sums to 1); None: derived from `unnormalised`.
     W, ess : arrays (R, N) and (R,), optional
         exp(lw) and 1 / sum W^2 when the normalisation already read them (the compiled backend).
+    unnormalised : (array (R, N), array (R,)), optional
+        log w and log sum_i w_i of each run, for `lw` = log w - log total when it is read (a step that
+        resamples every time reads W only, so it never writes log W).
     """
 
-    def __init__(self, lw: np.ndarray, W: np.ndarray | None = None, ess: np.ndarray | None = None):
-        self.lw = lw
-        if W is not None:
-            self.__dict__["W"] = W
-        if ess is not None:
-            self.__dict__["ess"] = ess
+    def __init__(
+        self,
+        lw: np.ndarray | None,
+        W: np.ndarray | None = None,
+        ess: np.ndarray | None = None,
+        unnormalised: tuple[np.ndarray, np.ndarray] | None = None,
+    ):
+        self.__dict__["_unnormalised"] = unnormalised
+        for name, value in (("lw", lw), ("W", W), ("ess", ess)):
+            if value is not None:
+                self.__dict__[name] = value
 
     def __setattr__(self, name: str, value: object) -> None:
         if name in self.__dict__:
             raise AttributeError(f"Weights are a value: {name} cannot change (make new Weights)")
         super().__setattr__(name, value)
+
+    @cached_property
+    def lw(self) -> np.ndarray:
+        """log W_i = log w_i - log sum_j w_j, (R, N) float64."""
+        log_w, totals = self._unnormalised
+        return np.subtract(log_w, totals[:, None], dtype=float)
 
     @cached_property
     def W(self) -> np.ndarray:  # noqa: N802 (the paper's W, as particles names it)

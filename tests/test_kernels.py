@@ -36,6 +36,7 @@ from mazelab.model import PARTICLE_DTYPE, ROBOT_SPEED
 from mazelab.registry import resolve_filter
 from mazelab.regularisation import GaussianKernel, mixture_kernel
 from mazelab.robot import Robot
+from mazelab.weights import Weights
 
 F32 = PARTICLE_DTYPE
 
@@ -113,6 +114,10 @@ def test_the_normalisation_and_its_reads_agree_with_numpy_to_rounding(ten):
     log_w = (-0.5 * rng.standard_normal((3, 2000)) ** 2 * 30).astype(F32)
     log_w[2] = -np.inf  # nothing explains z: no weights, the filter restarts the run
     totals, log_weights, reads = CompiledKernels(ten).normalise(log_w, points)
+    unwritten = CompiledKernels(ten).normalise(log_w, points, write_log=False)
+    assert unwritten[1] is None  # left out, and the Weights derive the same values when read
+    np.testing.assert_array_equal(Weights(None, unnormalised=(log_w, unwritten[0])).lw[:2], log_weights[:2])
+    np.testing.assert_array_equal(unwritten[2]["weights"], reads["weights"])
     with np.errstate(invalid="ignore"):  # numpy's -inf - -inf for the run nothing explains
         numpy_totals, numpy_log_weights, _ = NUMPY_KERNELS.normalise(log_w, points)
     np.testing.assert_allclose(totals[:2], numpy_totals[:2], rtol=1e-6)  # numpy's total is summed in float32
@@ -188,6 +193,26 @@ def test_a_seed_repeats_a_run_on_the_compiled_backend_which_says_so(name, paper_
 
 
 @pytest.mark.parametrize("name", ["sir", "apf", "rpf"])
+def test_reading_the_log_weights_does_not_change_a_compiled_run(name, paper_world):
+    walk_rng = np.random.default_rng(5)
+    robot = Robot(0.3, 0.5, paper_world.random_free_place(walk_rng), rng=walk_rng)
+    walk = [robot.step(paper_world) for _ in range(25)]
+    with use_backend("compiled"):
+        read, unread = (
+            resolve_filter(name)(paper_world, 0.3, 0.5, paper_world.random_free_places(500, rng), rng)
+            for rng in (np.random.default_rng(6), np.random.default_rng(6))
+        )
+    for compass_angle, z in walk:
+        read.step(compass_angle, z)
+        unread.step(compass_angle, z)
+        read.log_weights  # noqa: B018 (read every step)
+        np.testing.assert_array_equal(read.positions, unread.positions)
+        np.testing.assert_array_equal(read.weights, unread.weights)
+    np.testing.assert_array_equal(read.log_weights, unread.log_weights)  # written, or derived when read
+    assert read.log_weights_read == (name != "sir")  # only a filter that may read log W has it written
+
+
+@pytest.mark.parametrize("name", ["sir", "apf", "rpf"])
 def test_batched_runs_equal_single_runs_bit_for_bit_on_the_compiled_backend(name, paper_world):
     seeds, steps = (21, 22, 23), 30
     walks = []
@@ -204,6 +229,27 @@ def test_batched_runs_equal_single_runs_bit_for_bit_on_the_compiled_backend(name
     assert batch.backend == "compiled" and all(single.backend == "compiled" for single in singles)
     step_together_and_alone(batch, singles, walks, steps)
     assert batch.reinitialised_at == [single.reinitialised_at for single in singles] and batch.reinitialised_at[1]
+
+
+def test_runs_together_equal_single_runs_wherever_their_arrays_lie_in_memory(paper_world):
+    seeds = (21, 22, 23)
+    walks = []
+    for seed in seeds:
+        rng = np.random.default_rng(seed)
+        robot = Robot(0.3, 0.5, paper_world.random_free_place(rng), rng=rng)
+        walks.append([robot.step(paper_world) for _ in range(2)])
+    particles = np.stack([paper_world.random_free_places(300, np.random.default_rng(s)) for s in seeds])
+    spacers = []  # each trial's arrays land elsewhere: the sums' order must not follow them
+    for trial in range(40):
+        spacers.append(np.empty(int(np.random.default_rng(trial).integers(1, 3000))))
+        for name in ("sir", "apf", "rpf"):
+            cls = resolve_filter(name)
+            with use_backend("compiled"):
+                batch = cls(paper_world, 0.3, 0.5, particles, [np.random.default_rng(s + 7) for s in seeds])
+                singles = [
+                    cls(paper_world, 0.3, 0.5, particles[r], np.random.default_rng(s + 7)) for r, s in enumerate(seeds)
+                ]
+            step_together_and_alone(batch, singles, walks, 2)
 
 
 @pytest.mark.parametrize("name", ["sir", "apf", "rpf"])

@@ -74,12 +74,7 @@ class _MendingCache(FunctionCache):
             os.unlink(self._cache_file._index_path)
 
 
-REORDERED_SUMS = frozenset({"reassoc", "nsz"})  # numba's fastmath: sums in any order (no FMA, NaN and inf kept)
-
-
-def jit(
-    function: Callable[..., Any] | None = None, *, inline: bool = False, reorder: bool = False, threads: bool = False
-) -> Any:
+def jit(function: Callable[..., Any] | None = None, *, inline: bool = False, threads: bool = False) -> Any:
     """`function` compiled by numba in nopython mode, cached on disk where a cache folder can be
     written (see the module's docstring), else compiled in memory (with one warning per process).
 
@@ -90,11 +85,6 @@ def jit(
     inline : bool
         Inline it into the kernels that call it (numba's inline="always"): a helper called per
         particle, whose call would otherwise count the references of every array it is passed.
-    reorder : bool
-        Let the compiler reorder sums (REORDERED_SUMS): a sum over N values
-        becomes several partial sums in vector lanes, the same for every call on this machine (a seed
-        repeats a run) but not numpy's order. Only for the weights and the reads, whose numbers agree
-        with numpy's to rounding; never for the move or the likelihood (numpy's to the bit).
     threads : bool
         Run its `numba.prange` loops on numba's threads (parallel=True; numba.set_num_threads says how
         many): the kernels whose names end in `_threads`.
@@ -105,12 +95,10 @@ def jit(
         The numba dispatcher: compiled on its first call for its argument types.
     """
     if function is None:
-        return lambda f: jit(f, inline=inline, reorder=reorder, threads=threads)
+        return lambda f: jit(f, inline=inline, threads=threads)
     options: dict[str, Any] = {"nogil": True, "error_model": "numpy"}  # numpy's: x / 0 is inf, no check
     if inline:
         options["inline"] = "always"
-    if reorder:
-        options["fastmath"] = set(REORDERED_SUMS)
     if threads:
         options["parallel"] = True
     dispatcher = numba.njit(**options)(function)
@@ -124,4 +112,4 @@ def jit(
     return dispatcher
 
 
-__all__ = ["REORDERED_SUMS", "jit"]
+__all__ = ["jit"]

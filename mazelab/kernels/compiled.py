@@ -227,26 +227,31 @@ class CompiledKernels(NumpyKernels):
         resampling.systematic(chosen, uniforms, count, rows * count, out)
         return out
 
-    def normalise(self, log_w: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict | None]:
-        """log W and W of each run, with the step's reads: numpy's vectorised max, then the exponentials,
-        the sums and the normalisation in two compiled passes.
+    def normalise(
+        self, log_w: np.ndarray, positions: np.ndarray, write_log: bool = True
+    ) -> tuple[np.ndarray, np.ndarray | None, dict | None]:
+        """Each run's log total, W and (when asked) log W, with the step's reads: numpy's vectorised
+        max, then the exponentials, the sums and the normalisation in two compiled passes.
 
         Parameters
         ----------
         log_w : array (R, N)
         positions : array (R*N, 2)
+        write_log : bool
+            Write log W (float64 (R, N)); False: leave it to the reader (log w - log total, the same
+            values), a float64 array's writes and memory saved for a filter that reads W only.
 
         Returns
         -------
-        (log totals (R,), log W (R, N) float64, reads): reads holds "weights" (R, N), "ess" (R,),
-        "mean" (R, 2) and "share" (R,), the weight within CONFIDENCE_RADIUS of the mean
+        (log totals (R,), log W (R, N) float64 or None, reads): reads holds "weights" (R, N), "ess"
+        (R,), "mean" (R, 2) and "share" (R,), the weight within CONFIDENCE_RADIUS of the mean
         """
         if positions.dtype != PARTICLE_DTYPE or len(positions) != log_w.size:
             return super().normalise(log_w, positions)
         runs, size = log_w.shape
         tops = np.maximum.reduce(log_w, axis=1)  # NaN where a run holds one
         w = self.pool.take("weights", (runs, size), np.float64)
-        log_out = self.pool.take("log_weights", (runs, size), np.float64)
+        log_out = self.pool.take("log_weights", (runs, size), np.float64) if write_log else None
         totals, ess, shares, means = np.empty(runs), np.empty(runs), np.empty(runs), np.empty((runs, 2))
         kernel = weights.normalise_threads if self._threaded(log_w.size) else weights.normalise
         kernel(log_w, tops, positions, CONFIDENCE_RADIUS, w, log_out, totals, means, ess, shares)
