@@ -172,7 +172,7 @@ def test_what_delegated_to_the_lab_finds_nothing_there(tmp_path, how, prelude):
 def test_an_import_of_the_labs_reference_code_is_named_as_such(tmp_path):
     """Not a typo: the report says the lab's own code is not there for a submission."""
     path = write_submission(tmp_path / "sub" / "my_filter.py", "from mazelab.resampling import systematic_resample")
-    with pytest.raises(NotGradableError, match="'mazelab.resampling'.*the lab's own code is not there"):
+    with pytest.raises(NotGradableError, match=r"'mazelab\.resampling'.*the lab's own code is not there"):
         check_file(str(path), seed=SEED, stages=("estimate",))
 
 
