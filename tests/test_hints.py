@@ -127,6 +127,24 @@ def test_a_studys_repeat_line_repeats_its_rows(tmp_path, capsys):
     assert [untimed(line) for line in a] == [untimed(line) for line in b]
 
 
+def test_a_comparisons_repeat_line_pastes_back_beside_its_files(tmp_path, monkeypatch, capsys):
+    """Repeat this comparison: the same table again, its files (--csv, --plot) left out, so that the
+    pasted line is not refused for files the first one wrote."""
+    monkeypatch.chdir(tmp_path)
+    args = ["compare", "paper_5x5", "--filters", "sir,apf", "--no-viz", "--csv", "e.csv"]
+    assert main(args) == 0
+    first = capsys.readouterr().out
+    command = _printed_command(first, "comparison")
+    assert "--csv" not in command and "--seed" in command
+    assert main(command[command.index("compare") :]) == 0
+    again = capsys.readouterr().out
+
+    def table(out: str) -> list[str]:  # the filters' rows less ms/step (a timing, the last column)
+        return [line.rsplit(maxsplit=1)[0] for line in out.splitlines() if line.startswith(("SIR", "APF", "Aux"))]
+
+    assert table(first) == table(again) and table(first)
+
+
 def test_the_wall_share_is_spelled_as_studys_on_maze_generate_too(tmp_path, capsys):
     out = tmp_path / "m.txt"
     assert main(["maze", "generate", "--size", "6x6", "--walls", "0.2", "--seed", "1", "--out", str(out)]) == 0

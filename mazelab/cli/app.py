@@ -251,6 +251,7 @@ def run(
 # taken by the pasted command ("exists; use --force"), and --force would replace them unasked.
 REPEAT_DROPS = ("--resume", "--force")
 REPEAT_DROPS_WITH_VALUE = ("--save-scenario", "--rrd")
+COMPARE_DROPS_WITH_VALUE = ("--csv", "--plot", "--traces", "--rrd")  # compare's files, as run's above
 
 
 @contextmanager
@@ -341,6 +342,7 @@ def compare(
     )
     report_compare(results, kld=bool(given.get("kld")), csv_path=csv_path, plot=plot, title=title, force=force)
     finish_compare(results, setup.seed, traces, recorder, record_file, maze=setup.world.source)
+    typer.echo(f"Repeat this comparison: {repeat_command(setup.seed, REPEAT_DROPS, COMPARE_DROPS_WITH_VALUE)}")
 
 
 app.command(short_help="Lab step 14: a Monte Carlo parameter study.")(study)
