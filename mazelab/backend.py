@@ -208,7 +208,7 @@ def kernels_for(world: Any, name: str | None = None) -> Any:
         return NUMPY_KERNELS
     from mazelab.kernels.compiled import CompiledKernels  # imports numba: only when it runs
 
-    return CompiledKernels(world)
+    return CompiledKernels(world, threads=chosen_threads())
 
 
 NUMPY_KERNELS = NumpyKernels()

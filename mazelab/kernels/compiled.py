@@ -18,7 +18,6 @@ from typing import Any
 import numba
 import numpy as np
 
-from mazelab.backend import chosen_threads
 from mazelab.kernels import model, resampling, weights
 from mazelab.model import CONFIDENCE_RADIUS, PARTICLE_DTYPE, headings_from_uniforms
 from mazelab.numpy_ops import NumpyKernels
@@ -106,7 +105,7 @@ class CompiledKernels(NumpyKernels):
     threads : int, optional
         The threads one call's particles are spread over from THREADED_FROM particles on (the
         likelihood, its values the same to the bit; the normalisation, its sums in blocks: the same
-        numbers for any count above one); default MAZELAB_THREADS, else 1.
+        numbers for any count above one); default 1 (mazelab.backend.kernels_for passes MAZELAB_THREADS's).
     """
 
     name = "compiled"
@@ -115,7 +114,7 @@ class CompiledKernels(NumpyKernels):
         self.tables = lookup_tables(world)
         self.pool = BufferPool()
         self._tables_of = world
-        self.threads = min(threads or chosen_threads(), numba.config.NUMBA_NUM_THREADS)
+        self.threads = min(threads or 1, numba.config.NUMBA_NUM_THREADS)
 
     def _threaded(self, particles: int) -> bool:
         """Whether a call over `particles` runs on the threads (and numba's thread count set for it)."""
