@@ -331,10 +331,12 @@ class ParticleFilter(SMC):
         self._kept = {"mean": mean} if self.estimate_rule == "mode" else {"mean": mean, "confident": share}
         return weights, ess
 
-    def normalise(self, log_w: np.ndarray | list[np.ndarray]) -> np.ndarray:
+    def normalise(
+        self, log_w: np.ndarray | list[np.ndarray], fresh: tuple[np.ndarray, Any] | None = None
+    ) -> np.ndarray:
         """The engine's normalisation (restarts included), the reads the backend made kept for this step."""
         self._kept: dict[str, Any] = {}
-        totals = super().normalise(log_w)
+        totals = super().normalise(log_w, fresh)
         if self._kept:
             self._reads_of, self._reads = (self.positions, self.weights_value), self._kept
         return totals

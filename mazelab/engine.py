@@ -277,9 +277,8 @@ class SMC:
                 log_w = [rows[r] if r in rows else previous[r] + log_lik[r] for r in range(self.runs)]
                 del previous
         self.weights_value = None  # the last step's weights go first (the compiled backend reuses their arrays)
-        totals = self.normalise(log_w)
-        # log p(z_k | z_1:k-1): the total of weights that carry W_{k-1}, or log F + the log mean of fresh ones
-        increments = np.where(fresh, (totals - math.log(self.count)) + extra, totals)
+        self.normalise(log_w, (fresh, extra))
+        increments = self.weights_value.log_mean_increment.copy()  # log p(z_k | z_1:k-1)
         if self._lost.any():
             increments[self._lost] = self._first_stage_totals[self._lost]
         self.log_evidence_increment = increments
@@ -296,7 +295,9 @@ class SMC:
         """
 
     # -- the weights ---------------------------------------------------------------------------------
-    def normalise(self, log_w: np.ndarray | list[np.ndarray]) -> np.ndarray:
+    def normalise(
+        self, log_w: np.ndarray | list[np.ndarray], fresh: tuple[np.ndarray, Any] | None = None
+    ) -> np.ndarray:
         """W_i ∝ exp(log w_i) of each run (its row); runs whose total underflows (or that are lost)
         restart from the prior, weighted by their z_k. Rows of one dtype are normalised together.
 
@@ -304,6 +305,9 @@ class SMC:
         ----------
         log_w : array (R, N), or a list of R rows (N,)
             Each run's unnormalised log weights.
+        fresh : (bool array (R,), array (R,) or float), optional
+            The runs whose log w leave out W_{k-1} = 1/N (resampled) and the log factor they lack, for
+            the Weights' log mean increment (None: every run's log w carries W_{k-1}).
 
         Returns
         -------
@@ -323,8 +327,12 @@ class SMC:
         if len(restarted):
             log_weights = self._reinitialise(restarted, _log_weights(log_weights, log_w, totals))
         unnormalised = None if log_weights is not None else (log_w, totals)  # log W derived when read
-        self.weights_value = Weights(log_weights, *self.kept_reads(reads, restarted, log_weights), unnormalised)
-        return np.asarray(totals, dtype=float)
+        totals = np.asarray(totals, dtype=float)
+        fresh_runs, log_factor = (self._no_run, 0.0) if fresh is None else fresh
+        increment = (totals, fresh_runs, log_factor, self.count)
+        reads = self.kept_reads(reads, restarted, log_weights)
+        self.weights_value = Weights(log_weights, *reads, unnormalised, increment)
+        return totals
 
     def _normalise_groups(
         self, rows: list[np.ndarray], groups: list[list[int]]
