@@ -15,7 +15,7 @@ only gathers the names; where each thing's lines are:
                                                          .move_after_resampling (the jitter), .kernels
     the model: prior, transition (1), likelihood (3)   mazelab/model.py, LostRobot (the constants:
                                                          mazelab/constants.py)
-    the weights (W, ESS) as a value                    mazelab/weights.py, Weights
+    the weights (W, ESS, the log mean increment)       mazelab/weights.py, Weights
     the filters' options, the model and the backend    mazelab/cloud.py, ParticleFilter
     Robot (wandering, the straight-run limit)          mazelab/robot.py, Robot.step
     what every filter provides (your own filter too)   mazelab/contract.py, Filter (with a worked example)

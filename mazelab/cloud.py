@@ -133,6 +133,7 @@ class ParticleFilter(SMC):
         if self.runs > 1 and (self.recovery is not None or self.kld is not None):
             raise ValueError("recovery and KLD-sampling vary one run's particles: they run one run at a time")
         self._injected: np.ndarray | None = None
+        self._kld_moved: list[np.ndarray] | None = None  # KLD-sampling: the moves made as the ancestors were drawn
         self._injected_step = 0
 
     @classmethod
@@ -186,20 +187,44 @@ class ParticleFilter(SMC):
         """
         return self.model.log_likelihood(self.selected_rows(self.measurements), points)
 
-    def ancestors(self, weights: np.ndarray) -> np.ndarray:
-        """RESAMPLE by the resampling scheme: ancestor indices into `positions`, N per row of weights.
+    def ancestors(self, W: np.ndarray) -> np.ndarray:
+        """RESAMPLE: a^i ~ W, N ancestors of each row by the scheme the `resampling` option names:
+        mazelab.resampling.systematic_resample by default (the textbook: u ~ U[0, 1), the points
+        (u + arange(N)) / N, the inverse CDF), run on the backend in its counting form (the same
+        ancestors); with KLD-sampling as many as Fox's bound asks, each drawn with its move.
 
         Parameters
         ----------
+        W : array (R, N)
+            The normalised first-stage weights of every run (the served ones are resampled).
+
+        Returns
+        -------
+        int array
+            Indices into `positions`.
+        """
+        if self.kld is not None:
+            return self.kld_ancestors(self.selected_rows(W))
+        return self.scheme_ancestors(self.scheme, self.selected_rows(W))  # scheme: resampling.systematic_resample
+
+    def scheme_ancestors(self, scheme: Callable[..., np.ndarray], weights: np.ndarray) -> np.ndarray:
+        """`scheme` (weights, rng) -> ancestors applied to each served run's row with its own Generator;
+        systematic_resample as its counting form on the backend, all runs at once (the same ancestors).
+
+        Parameters
+        ----------
+        scheme : callable
+            A scheme of mazelab.resampling.
         weights : array (R, N)
             The normalised weights of the runs served now, one row each.
 
         Returns
         -------
         int array
+            Indices into `positions`.
         """
         runs = self.selected_runs
-        if self.scheme is systematic_resample:  # one offset per run, the counting done for all runs at once
+        if scheme is systematic_resample:  # one offset per run, the counting done for all runs at once
             rngs = self.rngs if self._selected is None else [self.rngs[run] for run in runs]
             uniforms = np.array([rng.random() for rng in rngs])
             ancestors = self.ops.systematic(weights, uniforms, None, self.count)
@@ -207,7 +232,7 @@ class ParticleFilter(SMC):
                 ancestors += np.repeat(self.count * (runs - np.arange(len(runs))), self.count).astype(ancestors.dtype)
             return ancestors
         rows = zip(runs, weights, strict=True)
-        return np.concatenate([self.scheme(w, self.rngs[run]) + run * self.count for run, w in rows])
+        return np.concatenate([scheme(w, self.rngs[run]) + run * self.count for run, w in rows])
 
     def normal_draws(self, count: int) -> np.ndarray:
         """eps ~ N(0, I_2), (count, 2) in PARTICLE_DTYPE, each run's block from its own Generator.
@@ -229,31 +254,43 @@ class ParticleFilter(SMC):
         return eps
 
     # -- KLD-sampling and recovery: hooks of the resampling (one run) --------------------------------
-    def draw(self, weights: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """RESAMPLE and `move_after_resampling`; with KLD-sampling as many as Fox's bound asks; with
+    def kld_ancestors(self, weights: np.ndarray) -> np.ndarray:
+        """KLD-sampling (one run): as many ancestors as Fox's bound asks, each batch moved as it is drawn
+        (`move_after_resampling`), the moves kept for `moved_after_resampling`.
+
+        Parameters
+        ----------
+        weights : array (1, N)
+
+        Returns
+        -------
+        int array (n,)
+        """
+        ancestors, *self._kld_moved = kld_resample(
+            weights[0], self.move_after_resampling, self.kld, self.scheme, self.rngs[0], self.max_count
+        )
+        return ancestors
+
+    def moved_after_resampling(self, ancestors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """`move_after_resampling` (with KLD-sampling: the moves made as the ancestors were drawn); with
         recovery, then each particle replaced with the injection probability by an injected point.
 
         Parameters
         ----------
-        weights : array (R, N)
-            The first-stage weights of the particles to resample.
-        points : array (R*N, 2)
-            Those particles.
+        ancestors : int array
 
         Returns
         -------
-        (ancestors, positions, headings)
+        (positions, headings)
         """
         if self.kld is None:
-            ancestors, positions, headings = super().draw(weights, points)
+            positions, headings = super().moved_after_resampling(ancestors)
         else:  # one run (R = 1)
-            ancestors, positions, headings = kld_resample(
-                weights[0], self.move_after_resampling, self.kld, self.scheme, self.rngs[0], self.max_count
-            )
+            (positions, headings), self._kld_moved = self._kld_moved, None
         self._injected, self._injected_step = None, self.steps_done + 1
         if self.recovery is not None:  # one run (R = 1)
             self._injected = self.recovery.inject(positions, headings, self.move_injected, self.rngs[0])
-        return ancestors, positions, headings
+        return positions, headings
 
     def move_injected(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Recovery's injected points as the resampled ones move: by the transition, or (when every
@@ -331,10 +368,12 @@ class ParticleFilter(SMC):
         self._kept = {"mean": mean} if self.estimate_rule == "mode" else {"mean": mean, "confident": share}
         return weights, ess
 
-    def normalise(self, log_w: np.ndarray | list[np.ndarray]) -> np.ndarray:
+    def normalise(
+        self, log_w: np.ndarray | list[np.ndarray], fresh: tuple[np.ndarray, Any] | None = None
+    ) -> np.ndarray:
         """The engine's normalisation (restarts included), the reads the backend made kept for this step."""
         self._kept: dict[str, Any] = {}
-        totals = super().normalise(log_w)
+        totals = super().normalise(log_w, fresh)
         if self._kept:
             self._reads_of, self._reads = (self.positions, self.weights_value), self._kept
         return totals

@@ -1,8 +1,9 @@
 """The step template every particle filter of the lab runs (as nchopin/particles' SMC.__next__):
 
-    RESAMPLE when `time_to_resample()` says so, by the first-stage weights W_{k-1} eta_k (eta = 1 but
-    for the APF), then `move_after_resampling` the drawn particles; MOVE by the transition the particles
-    not moved yet; REWEIGHT by the log-likelihood, normalise, and add log p(z_k | z_1:k-1) to the evidence.
+    RESAMPLE when `time_to_resample()` says so, a^i = `ancestors(W)` (the resampling scheme) by the
+    first-stage weights W = W_{k-1} eta_k (eta = 1 but for the APF), then `move_after_resampling` them;
+    MOVE by the transition the particles not moved yet; REWEIGHT by the log-likelihood, normalise, and
+    add log p(z_k | z_1:k-1), the Weights' log mean increment, to the evidence.
 
 `SMC.step` is those lines; what differs between the filters are its hooks (`log_eta`, `time_to_resample`,
 `move_after_resampling`, `reweight_resampled`), and what the model provides (`transition`,
@@ -56,8 +57,9 @@ class SMC:
             z_k, the measured distance to the nearest station (map units), of each run.
         """
         self.observe(compass_angle, z)  # th0_k and z_k
-        first_stage = self.first_stage(self.log_eta())  # W_{k-1}^i eta_k^i (the APF's; eta = 1 otherwise)
-        self.resampling(first_stage, self.time_to_resample())  # a^i ~ first stage; x^i = move_after_resampling(a^i)
+        W = self.first_stage(self.log_eta())  # W_{k-1}^i eta_k^i (the APF's; eta = 1 otherwise)
+        if self.due(self.time_to_resample()):  # RESAMPLE when it is time
+            self.resampled(self.ancestors(W))  # a^i ~ W by the scheme; x^i = move_after_resampling(a^i)
         self.move()  # x_k^i ~ p(x_k | x_{k-1}^i) for the particles not moved at resampling
         self.reweight(self.log_likelihood(self.positions))  # w_k^i ∝ w^i p(z_k | x_k^i); log p(z_k | z_1:k-1)
         self.steps_done += 1
@@ -123,8 +125,9 @@ class SMC:
         """log p(z_k | x) of `points`, shape (R, N)."""
         raise NotImplementedError
 
-    def ancestors(self, weights: np.ndarray) -> np.ndarray:
-        """RESAMPLE: ancestor indices into `positions`, N per row of the normalised weights (R, N)."""
+    def ancestors(self, W: np.ndarray) -> np.ndarray:
+        """RESAMPLE: a^i ~ W, ancestor indices into `positions`, N per row of the normalised first-stage
+        weights W (R, N) that the engine serves now (`selected_rows`)."""
         raise NotImplementedError
 
     # -- the engine: the steps' parts, for every run ---------------------------------------------------
@@ -161,6 +164,7 @@ class SMC:
         self.compass_angles, self.measurements = _per_run(compass_angle, self.runs), _per_run(z, self.runs)
         self._moved = self._lost = self._no_run  # replaced, never written into
         self._resampled: tuple[np.ndarray, np.ndarray] | None = None  # (the runs, their ancestors)
+        self._selected = None  # every run (a step cut short by an error leaves none served)
 
     def first_stage(self, log_eta: np.ndarray | None) -> np.ndarray:
         """W_{k-1}^i eta_k^i normalised per run; a run whose total underflows (no eta explains z_k) is
@@ -182,51 +186,60 @@ class SMC:
         self._lost = log_totals < LOG_UNDERFLOW
         return weights
 
-    def resampling(self, weights: np.ndarray, due: bool | np.ndarray) -> None:
-        """RESAMPLE the runs it is time for (not the lost ones), then `move_after_resampling`; the other
-        runs keep their particles (recovery may inject into them: `between_resamplings`).
+    def due(self, due: bool | np.ndarray) -> bool:
+        """Whether any run resamples now: those it is time for (not the lost ones), which the engine's
+        parts serve until `resampled`; without any, recovery may inject (`between_resamplings`).
 
         Parameters
         ----------
-        weights : array (R, N)
-            The first-stage weights.
         due : bool, or bool array (R,)
+
+        Returns
+        -------
+        bool
         """
         due = ~self._lost if due is True else np.asarray(due, dtype=bool) & ~self._lost  # a new array (R,)
         self.resampled_now = due
         if not due.any():
             if not self._lost.any():
                 self.between_resamplings()
-            return
+            return False
         runs = np.flatnonzero(due)
         self._selected = None if len(runs) == self.runs else runs
+        return True
+
+    def resampled(self, ancestors: np.ndarray) -> None:
+        """x^i = `move_after_resampling`(a^i) for the runs that resample; the other runs keep their particles.
+
+        Parameters
+        ----------
+        ancestors : int array
+            a^i of the served runs' particles, indices into `positions`.
+        """
+        runs = self.selected_runs
         try:
-            ancestors, positions, headings = self.draw(self.selected_rows(weights), self.selected_points())
+            positions, headings = self.moved_after_resampling(ancestors)
         finally:
             self._selected = None
         self.replace_runs(positions, headings, runs)
         if self.moved_by_resampling:
-            self._moved = due
+            self._moved = self.resampled_now
         self._resampled = (runs, ancestors)
         for run in runs:
             self._resampled_at[run].append(self.steps_done)
 
-    def draw(self, weights: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """RESAMPLE by the weights and `move_after_resampling` the ancestors.
+    def moved_after_resampling(self, ancestors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The resampled particles: `move_after_resampling` (mazelab.cloud adds KLD-sampling and recovery).
 
         Parameters
         ----------
-        weights : array (R, N)
-            The first-stage weights of the particles to resample.
-        points : array (R*N, 2)
-            Those particles.
+        ancestors : int array
 
         Returns
         -------
-        (ancestors, positions, headings) of the selected runs
+        (positions, headings) of the served runs
         """
-        ancestors = self.ancestors(weights)
-        return (ancestors, *self.move_after_resampling(ancestors))
+        return self.move_after_resampling(ancestors)
 
     def between_resamplings(self) -> None:
         """What a step without resampling does first (recovery's injection; nothing by default)."""
@@ -277,9 +290,8 @@ class SMC:
                 log_w = [rows[r] if r in rows else previous[r] + log_lik[r] for r in range(self.runs)]
                 del previous
         self.weights_value = None  # the last step's weights go first (the compiled backend reuses their arrays)
-        totals = self.normalise(log_w)
-        # log p(z_k | z_1:k-1): the total of weights that carry W_{k-1}, or log F + the log mean of fresh ones
-        increments = np.where(fresh, (totals - math.log(self.count)) + extra, totals)
+        self.normalise(log_w, (fresh, extra))
+        increments = self.weights_value.log_mean_increment.copy()  # log p(z_k | z_1:k-1)
         if self._lost.any():
             increments[self._lost] = self._first_stage_totals[self._lost]
         self.log_evidence_increment = increments
@@ -296,7 +308,9 @@ class SMC:
         """
 
     # -- the weights ---------------------------------------------------------------------------------
-    def normalise(self, log_w: np.ndarray | list[np.ndarray]) -> np.ndarray:
+    def normalise(
+        self, log_w: np.ndarray | list[np.ndarray], fresh: tuple[np.ndarray, Any] | None = None
+    ) -> np.ndarray:
         """W_i ∝ exp(log w_i) of each run (its row); runs whose total underflows (or that are lost)
         restart from the prior, weighted by their z_k. Rows of one dtype are normalised together.
 
@@ -304,6 +318,9 @@ class SMC:
         ----------
         log_w : array (R, N), or a list of R rows (N,)
             Each run's unnormalised log weights.
+        fresh : (bool array (R,), array (R,) or float), optional
+            The runs whose log w leave out W_{k-1} = 1/N (resampled) and the log factor they lack, for
+            the Weights' log mean increment (None: every run's log w carries W_{k-1}).
 
         Returns
         -------
@@ -323,8 +340,12 @@ class SMC:
         if len(restarted):
             log_weights = self._reinitialise(restarted, _log_weights(log_weights, log_w, totals))
         unnormalised = None if log_weights is not None else (log_w, totals)  # log W derived when read
-        self.weights_value = Weights(log_weights, *self.kept_reads(reads, restarted, log_weights), unnormalised)
-        return np.asarray(totals, dtype=float)
+        totals = np.asarray(totals, dtype=float)
+        fresh_runs, log_factor = (self._no_run, 0.0) if fresh is None else fresh
+        increment = (totals, fresh_runs, log_factor, self.count)
+        reads = self.kept_reads(reads, restarted, log_weights)
+        self.weights_value = Weights(log_weights, *reads, unnormalised, increment)
+        return totals
 
     def _normalise_groups(
         self, rows: list[np.ndarray], groups: list[list[int]]

@@ -142,23 +142,22 @@ class RegularizedParticleFilter(ParticleFilter):
         now = bool(self.resampled_now[0]) if self.runs == 1 else self.resampled_now.copy()
         return {**super().diagnostics, "regularised": now}
 
-    def draw(self, weights: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """IF N_eff < N_T (`time_to_resample`): the kernel K_h of the weighted cloud, then RESAMPLE and
-        jitter (`move_after_resampling`); injected points (recovery) are not jittered.
+    def ancestors(self, W: np.ndarray) -> np.ndarray:
+        """IF N_eff < N_T (`time_to_resample`): the kernel K_h of the weighted cloud, then RESAMPLE; the
+        resampled particles are jittered (`move_after_resampling`), injected points (recovery) not.
 
         Parameters
         ----------
-        weights : array (R, N)
-            The normalised weights of the particles to resample.
-        points : array (R*N, 2)
-            Those particles.
+        W : array (R, N)
+            The normalised weights (the served rows are resampled).
 
         Returns
         -------
-        (ancestors, positions, headings)
+        int array
+            a^i, indices into `positions`.
         """
-        self._kernels = self.kernels(weights, points)
-        return super().draw(weights, points)
+        self._kernels = self.kernels(self.selected_rows(W), self.selected_points())
+        return super().ancestors(W)
 
     def move_after_resampling(self, ancestors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """x^i = x^{a^i} + h D eps, eps ~ N(0, I_2), D D^T = S (the kernel K_h); the transition follows.

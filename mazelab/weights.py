@@ -3,6 +3,7 @@ weighted summaries. Numpy only (the engine and the exercise's sandbox import it)
 
 from __future__ import annotations
 
+import math
 from functools import cached_property
 
 import numpy as np
@@ -10,7 +11,7 @@ import numpy as np
 
 class Weights:
     """The weights of R runs as a value (nchopin/particles' resampling.Weights, one row per run): the
-    normalised log weights in, W and the ESS derived once when asked.
+    normalised log weights in, W, the ESS and the log of the mean increment derived once when asked.
 
     Parameters
     ----------
@@ -21,6 +22,10 @@ class Weights:
     unnormalised : (array (R, N), array (R,)), optional
         log w and log sum_i w_i of each run, for `lw` = log w - log total when it is read (a step that
         resamples every time reads W only, so it never writes log W).
+    increment : (array (R,), bool array (R,), array (R,) or float, int), optional
+        For `log_mean_increment`: each run's log sum_i w_i of the reweighting (w_i = W_{k-1}^i G_k^i,
+        G the increment), which runs' w_i are fresh (resampled: G_k^i alone, W_{k-1}^i = 1/N left out),
+        the log factor those lack (the APF's first-stage total; 0 otherwise) and N.
     """
 
     def __init__(
@@ -29,8 +34,10 @@ class Weights:
         W: np.ndarray | None = None,
         ess: np.ndarray | None = None,
         unnormalised: tuple[np.ndarray, np.ndarray] | None = None,
+        increment: tuple[np.ndarray, np.ndarray, np.ndarray | float, int] | None = None,
     ):
         self.__dict__["_unnormalised"] = unnormalised
+        self.__dict__["_increment"] = increment
         for name, value in (("lw", lw), ("W", W), ("ess", ess)):
             if value is not None:
                 self.__dict__[name] = value
@@ -55,6 +62,15 @@ class Weights:
     def ess(self) -> np.ndarray:
         """N_eff = 1 / sum_i W_i^2 per run (eq. 51), (R,)."""
         return effective_sample_size(self.W)
+
+    @cached_property
+    def log_mean_increment(self) -> np.ndarray:
+        """log sum_i W_{k-1}^i G_k^i per run, (R,): the log of the mean increment G_k = p(z_k | x_k^i)
+        under the previous weights, the estimate of log p(z_k | z_1:k-1) (particles' `loglt`). It is the
+        log total of w_i = W_{k-1}^i G_k^i; for fresh weights (W_{k-1}^i = 1/N after resampling) the log
+        total less log N, plus the log factor they lack (the APF's first stage, as Pitt and Shephard)."""
+        log_totals, fresh, log_factor, count = self._increment
+        return np.where(fresh, (log_totals - math.log(count)) + log_factor, log_totals)
 
 
 # -- weights: each function takes one run's weights (N,) or R runs' (R, N), summing along the last axis

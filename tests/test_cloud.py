@@ -16,6 +16,7 @@ from mazelab.cloud import ParticleFilter
 from mazelab.constants import CONFIDENCE_SHARE
 from mazelab.filters import SIRParticleFilter
 from mazelab.registry import entries
+from mazelab.resampling import resampling_scheme
 
 PARTICLE_FILTERS = [entry.filter_class for entry in entries() if issubclass(entry.filter_class, ParticleFilter)]
 
@@ -85,3 +86,18 @@ def test_particles_keep_their_last_heading(paper_world, rng):
     sir = SIRParticleFilter(paper_world, 0.3, 0.2, paper_world.random_free_places(500, rng), rng)
     sir.step(1.0, 1.0)
     assert np.all(np.abs(sir.headings - 1.0) <= 0.1)
+
+
+@pytest.mark.parametrize("scheme", ["systematic", "stratified", "residual"])
+def test_the_steps_resampling_hook_is_the_textbook_scheme_applied_to_each_run(paper_world, scheme):
+    """SMC.step -> ParticleFilter.ancestors -> mazelab.resampling's scheme: for R runs, run r's ancestors
+    are the scheme's of row r with run r's Generator (systematic runs on the backend's counting form,
+    which must give the very same ancestors), in run r's block of indices."""
+    runs, count = 3, 64
+    particles = np.stack([paper_world.random_free_places(count, np.random.default_rng(s)) for s in range(runs)])
+    filt = SIRParticleFilter(paper_world, 0.3, 0.5, particles, [np.random.default_rng(10 + r) for r in range(runs)],
+                             resampling=scheme)  # fmt: skip
+    W = np.random.default_rng(5).dirichlet(np.full(count, 0.3), size=runs)
+    textbook = resampling_scheme(scheme)
+    expected = [textbook(W[r], np.random.default_rng(10 + r)) + r * count for r in range(runs)]
+    np.testing.assert_array_equal(filt.ancestors(W), np.concatenate(expected))

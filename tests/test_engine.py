@@ -21,7 +21,7 @@ from mazelab.filters import AuxiliaryParticleFilter, RegularizedParticleFilter, 
 from mazelab.lab import simulate
 from mazelab.robot import Robot
 
-HOOKS = ("step", "log_eta", "time_to_resample", "move_after_resampling", "reweight_resampled", "draw")
+HOOKS = ("step", "log_eta", "time_to_resample", "ancestors", "move_after_resampling", "reweight_resampled")
 
 
 class HalfESS(ParticleFilter):

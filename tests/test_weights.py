@@ -111,3 +111,18 @@ def test_weights_are_a_value_whose_w_and_ess_are_derived():
     np.testing.assert_allclose(weights.ess, [1 / (0.25 + 1 / 16 + 1 / 16), 3.0])
     with pytest.raises(AttributeError, match="value"):
         weights.lw = lw[::-1]
+
+
+def test_the_log_mean_increment_is_the_previous_weights_mean_of_the_increments():
+    """log sum_i W_{k-1}^i G_k^i, the estimate of log p(z_k | z_1:k-1): from the total of w = W_{k-1} G
+    where the weights carry W_{k-1}; from the mean of G (W_{k-1} = 1/N after resampling) times the
+    factor fresh weights lack (the APF's first-stage total) where they are fresh. Worked by hand."""
+    previous, increments = np.array([0.5, 0.25, 0.25]), np.array([0.2, 0.4, 0.8])
+    log_w = np.stack([np.log(previous * increments), np.log(increments)])  # run 0 carries W_{k-1}; run 1 fresh
+    totals = log_sum_exp(log_w)
+    factor = math.log(0.6)
+    weights = Weights(None, unnormalised=(log_w, totals), increment=(totals, np.array([False, True]), factor, 3))
+    carried = 0.5 * 0.2 + 0.25 * 0.4 + 0.25 * 0.8  # 0.4
+    fresh = 0.6 * (0.2 + 0.4 + 0.8) / 3  # 0.28
+    np.testing.assert_allclose(weights.log_mean_increment, np.log([carried, fresh]), rtol=1e-14)
+    np.testing.assert_allclose(weights.W, [previous * increments / carried, increments / 1.4], rtol=1e-14)
