@@ -62,7 +62,7 @@ class StudentFilter(SMC):
     -----
     Attributes the parts may read: `self.world`, `self.sigma`, `self.delta`, `self.ROBOT_SPEED` (L) and
     `self.OUTSIDE_PENALTY` (refinement 1's factor), also importable from mazelab.exercise. The step is
-    the lab's template (mazelab.engine.SMC), whose own methods (`move`, `reweight`, `normalise`, `draw`,
+    the lab's template (mazelab.engine.SMC), whose own methods (`move`, `reweight`, `normalise`, `due`, `resampled`,
     ...) a helper of yours must not be named after.
     """
 
