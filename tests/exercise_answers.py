@@ -84,6 +84,13 @@ class SigmaNotSquared(ReferenceFilter):
         return -0.5 * (z - distance) ** 2 / self.sigma + np.where(free, 0.0, np.log(OUTSIDE_PENALTY))
 
 
+class NoSquare(ReferenceFilter):
+    def weigh(self, positions, z):
+        distance = self.world.distance_to_nearest_station(positions)
+        free = self.world.is_free(positions[:, 0], positions[:, 1])
+        return -np.abs(z - distance) / self.sigma + np.where(free, 0.0, np.log(OUTSIDE_PENALTY))
+
+
 class NoPenalty(ReferenceFilter):
     def weigh(self, positions, z):
         distance = self.world.distance_to_nearest_station(positions)
@@ -180,6 +187,7 @@ class NanEstimate(ReferenceFilter):
 BROKEN = {
     SignFlipped: ("weigh", "the sign"),
     SigmaNotSquared: ("weigh", "sigma where sigma^2 belongs"),
+    NoSquare: ("weigh", "the square is missing"),
     NoPenalty: ("weigh", "outside penalty"),
     WrongStation: ("weigh", "distance to the nearest station"),
     LikelihoodNotLog: ("weigh", "not likelihoods"),

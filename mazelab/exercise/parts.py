@@ -176,16 +176,17 @@ def judge_weigh(inputs: PartInputs, answer: Message) -> Row:
         return Row("weigh", FAIL, expected, "NaN or +inf among the log-likelihoods", _nan_hint("weigh"))
     outside = ~world.is_free(points[:, 0], points[:, 1])
     distance = world.distance_to_nearest_station(points)
-    worst, fits = 0.0, []
+    worst, fits, linear = 0.0, [], []
     for z, log_w in zip(inputs.weigh.z, got, strict=True):
         if np.isneginf(log_w).any():
             return Row("weigh", FAIL, expected, "-inf where the likelihood is not 0", _underflow_hint())
         deviation = log_w - log_likelihood(z, points, world, sigma)
         worst = max(worst, float(np.abs(deviation - np.median(deviation)).max()))
         fits.append(_fit(log_w, -0.5 * ((z - distance) / sigma) ** 2, outside))
+        linear.append(min(_fit(log_w, z - distance, outside)[2], _fit(log_w, np.abs(z - distance), outside)[2]))
     if worst <= WEIGH_TOLERANCE:
         return Row("weigh", PASS, expected, f"largest deviation {worst:.3g}")
-    return Row("weigh", FAIL, expected, f"largest deviation {worst:.3g}", _weigh_hint(fits, got, sigma))
+    return Row("weigh", FAIL, expected, f"largest deviation {worst:.3g}", _weigh_hint(fits, got, sigma, linear))
 
 
 def _fit(log_w: np.ndarray, quadratic: np.ndarray, outside: np.ndarray) -> tuple[float, float, float]:
@@ -196,13 +197,18 @@ def _fit(log_w: np.ndarray, quadratic: np.ndarray, outside: np.ndarray) -> tuple
     return float(coefficients[0]), float(coefficients[1]), residual
 
 
-def _weigh_hint(fits: list[tuple[float, float, float]], got: list[np.ndarray], sigma: float) -> str:
+def _weigh_hint(
+    fits: list[tuple[float, float, float]], got: list[np.ndarray], sigma: float, linear: list[float]
+) -> str:
     """Which term of equation (3) the fit log_w ~ a q + b outside + c gets wrong; if it does not fit
-    at all, whether weigh returned likelihoods instead of logs, or used another distance."""
+    at all, whether weigh returned likelihoods instead of logs, left out the square (`linear`: the
+    largest residuals of the fits linear in z - d and in |z - d|), or used another distance."""
     spread = max(float(np.ptp(g)) for g in got) or 1.0
     if max(f[2] for f in fits) > 0.01 * spread:
         if all(np.all(g >= 0) for g in got):
             return "weigh returns log-likelihoods, not likelihoods: log N(z; d, sigma^2), not N itself (eq. 3)"
+        if max(linear) <= 0.01 * spread:
+            return "the square is missing: -(z - d)^2 / (2 sigma^2), not -(z - d) / sigma (eq. 3)"
         return (
             "the weights do not follow -(z - d)^2 / (2 sigma^2) in d, the distance to the nearest station: "
             "d = self.world.distance_to_nearest_station(positions), the nearest of all stations"
