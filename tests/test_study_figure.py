@@ -160,3 +160,15 @@ def test_a_python_study_draws_its_figure_without_glue(tmp_path):
                            seed=3)  # fmt: skip
     path = result.figure(tmp_path / "f.pdf")
     assert Y_LABEL in pdf_text(path) and result.varied == ["sigma"]
+
+
+def test_a_study_that_varies_nothing_is_titled_per_filter(tmp_path):
+    """One setting: the figure draws each filter's point, not a line "against maze"."""
+    path = tmp_path / "one.svg"
+    words = ["study", "--maze", "paper_5x5", "--filters", "sir,rpf", "--runs", "2", "--steps", "8",
+             "--particles", "60", "--workers", "1", "--no-viz", "--plot", str(path)]  # fmt: skip
+    assert main(words) == 0
+    title = next(
+        t for t in ("".join(t.itertext()) for t in ET.parse(path).getroot().iter(f"{SVG}text")) if "runs per" in t
+    )
+    assert "per filter on paper_5x5" in title and "against" not in title

@@ -327,7 +327,7 @@ def study_title(
     parameters), and the runs per point."""
     layout, _, _ = figure_layout(summaries, varied or ["maze"], x)
     x = layout.x
-    against = f" against {x}" if x is not None else " per filter"
+    against = f" against {x}" if x is not None and varied else " per filter"  # nothing varied: one point each
     panel_parameters = [p for p in varied if p != x and not is_option_parameter(p)]
     line_parameters = [p for p in varied if p != x and is_option_parameter(p)]
     parts = [f"panels by {', '.join(panel_parameters)}"] if panel_parameters else []
