@@ -56,9 +56,9 @@ class BufferPool:
         if held is None or held[0] != kind:  # new, or the shape changed (KLD-sampling, a subset of runs)
             held = self._slots[name] = (kind, [])
         slots = held[1]
-        for index in range(len(slots)):
-            if sys.getrefcount(slots[index]) == self._free:
-                return slots[index]
+        for array in slots:  # `array` itself is one more reference
+            if sys.getrefcount(array) == self._free + 1:
+                return array
         array = np.empty(shape, dtype=dtype, order=order)
         if len(slots) < _KEEP:
             slots.append(array)
