@@ -183,7 +183,8 @@ class SMC:
             return self.weights_value.W
         weights, log_totals = self.normalised(self.weights_value.lw, log_eta)
         self._first_stage_totals = log_totals
-        self._lost = log_totals < LOG_UNDERFLOW
+        lost = log_totals < LOG_UNDERFLOW
+        self._lost = lost if lost.any() else self._no_run  # none lost: the steps' checks of it are skipped
         return weights
 
     def due(self, due: bool | np.ndarray) -> bool:
@@ -198,6 +199,9 @@ class SMC:
         -------
         bool
         """
+        if due is True and self._lost is self._no_run:  # every run (the common step: none lost)
+            self.resampled_now, self._selected = np.ones(self.runs, dtype=bool), None
+            return True
         due = ~self._lost if due is True else np.asarray(due, dtype=bool) & ~self._lost  # a new array (R,)
         self.resampled_now = due
         if not due.any():
@@ -292,7 +296,7 @@ class SMC:
         self.weights_value = None  # the last step's weights go first (the compiled backend reuses their arrays)
         self.normalise(log_w, (fresh, extra))
         increments = self.weights_value.log_mean_increment.copy()  # log p(z_k | z_1:k-1)
-        if self._lost.any():
+        if self._lost is not self._no_run and self._lost.any():
             increments[self._lost] = self._first_stage_totals[self._lost]
         self.log_evidence_increment = increments
         self.run_log_evidence = self.run_log_evidence + increments
@@ -335,8 +339,10 @@ class SMC:
         else:
             log_w = np.asarray(log_w)
             totals, log_weights, reads = self.normalise_rows(log_w, self.positions)
-        explained = (totals >= LOG_UNDERFLOW) & ~self._lost  # False for an underflow and for NaN
-        restarted = np.flatnonzero(~explained)
+        explained = totals >= LOG_UNDERFLOW  # False for an underflow and for NaN
+        if self._lost is not self._no_run:
+            explained &= ~self._lost
+        restarted = _NO_RUNS if explained.all() else np.flatnonzero(~explained)
         if len(restarted):
             log_weights = self._reinitialise(restarted, _log_weights(log_weights, log_w, totals))
         unnormalised = None if log_weights is not None else (log_w, totals)  # log W derived when read
@@ -502,11 +508,14 @@ class SMC:
         return per_run[0] if self.runs == 1 else per_run
 
 
+_NO_RUNS = np.empty(0, dtype=np.intp)  # no run restarted (never written into)
+
+
 def _per_run(value: float | np.ndarray, runs: int) -> np.ndarray:
     """A step's compass angle or measurement as one value per run, float64 (R,)."""
     if isinstance(value, np.ndarray):
         return np.broadcast_to(value.astype(float, copy=False), (runs,))
-    return np.array([float(value)] * runs)
+    return np.full(runs, float(value))
 
 
 def _log_weights(log_weights: np.ndarray | None, log_w: np.ndarray, totals: np.ndarray) -> np.ndarray:
