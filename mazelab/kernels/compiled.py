@@ -115,6 +115,8 @@ class CompiledKernels(NumpyKernels):
         self.pool = BufferPool()
         self._tables_of = world
         self.threads = min(threads or 1, numba.config.NUMBA_NUM_THREADS)
+        self._terms_of: tuple = (None, ())  # (sigma, penalty), the likelihood's constants
+        self._bases_of: tuple = (None, _NO_ANCESTORS)  # (R, N), each run's first row
 
     def _threaded(self, particles: int) -> bool:
         """Whether a call over `particles` runs on the threads (and numba's thread count set for it)."""
@@ -191,19 +193,25 @@ class CompiledKernels(NumpyKernels):
         """
         if positions.dtype != PARTICLE_DTYPE or world is not self._tables_of:
             return super().log_likelihood(z, positions, world, sigma, outside_penalty)
-        norm = math.log(sigma * math.sqrt(2 * math.pi))
         out = self.pool.take("log_likelihood", (len(z), len(positions) // len(z)), PARTICLE_DTYPE)
         kernel = model.log_likelihood_threads if self._threaded(len(positions)) else model.log_likelihood
         kernel(
             positions,
             np.asarray(z, dtype=PARTICLE_DTYPE),
-            PARTICLE_DTYPE(sigma),
-            PARTICLE_DTYPE(-norm),
-            PARTICLE_DTYPE(math.log(outside_penalty) - norm),
+            *self._terms(sigma, outside_penalty),
             self.tables,
             out.reshape(-1),
         )
         return out
+
+    def _terms(self, sigma: float, outside_penalty: float) -> tuple:
+        """The likelihood kernel's float32 constants: sigma, -log(sigma sqrt(2 pi)) and that plus
+        log(outside penalty), worked out once for the filter's sigma and penalty (kept for the last pair)."""
+        if self._terms_of[0] != (sigma, outside_penalty):
+            norm = math.log(sigma * math.sqrt(2 * math.pi))
+            terms = (PARTICLE_DTYPE(sigma), PARTICLE_DTYPE(-norm), PARTICLE_DTYPE(math.log(outside_penalty) - norm))
+            self._terms_of = ((sigma, outside_penalty), terms)
+        return self._terms_of[1]
 
     def systematic(self, weights_: np.ndarray, uniforms: np.ndarray, runs: np.ndarray | None, count: int) -> np.ndarray:
         """Systematic resampling by counting, compiled (NumpyKernels.systematic's arguments and results).
@@ -219,12 +227,22 @@ class CompiledKernels(NumpyKernels):
         -------
         int32 array (len(runs) * N,) (int64 from 2**31 particles on)
         """
-        rows = np.arange(len(weights_)) if runs is None else np.asarray(runs, dtype=np.int64)
-        chosen = weights_ if runs is None else weights_[rows]
+        if runs is None:
+            chosen, bases = weights_, self._bases(len(weights_), count)
+        else:
+            rows = np.asarray(runs, dtype=np.int64)
+            chosen, bases = weights_[rows], rows * count
         index = np.int32 if len(weights_) * count < 2**31 else np.int64  # half the memory of numpy's int64
-        out = self.pool.take("ancestors", (len(rows) * count,), index)
-        resampling.systematic(chosen, uniforms, count, rows * count, out)
+        out = self.pool.take("ancestors", (len(chosen) * count,), index)
+        resampling.systematic(chosen, uniforms, count, bases, out)
         return out
+
+    def _bases(self, runs: int, count: int) -> np.ndarray:
+        """r * count for each of `runs` runs (int64 (R,)): the first row of each run's particles, made
+        once for the filter's R and N (kept for the last pair, never written into)."""
+        if self._bases_of[0] != (runs, count):
+            self._bases_of = ((runs, count), np.arange(runs) * count)
+        return self._bases_of[1]
 
     def normalise(
         self, log_w: np.ndarray, positions: np.ndarray, write_log: bool = True
