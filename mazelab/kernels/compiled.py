@@ -19,7 +19,7 @@ import numba
 import numpy as np
 
 from mazelab.kernels import model, resampling, weights
-from mazelab.model import CONFIDENCE_RADIUS, PARTICLE_DTYPE, headings_from_uniforms
+from mazelab.model import CONFIDENCE_RADIUS, PARTICLE_DTYPE
 from mazelab.numpy_ops import NumpyKernels
 from mazelab.regularisation import GaussianKernel
 
@@ -150,8 +150,8 @@ class CompiledKernels(NumpyKernels):
         speed: float,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Equation (1): NumpyKernels.move's arguments and results, and its values to the bit (the same
-        float32 headings and numpy's cos and sin), the gather and the step in one compiled pass; float64
-        points go to numpy.
+        float32 headings and numpy's cos and sin), the headings, then the gather and the step, in compiled
+        passes; float64 points (or angles) go to numpy.
 
         Parameters
         ----------
@@ -165,9 +165,10 @@ class CompiledKernels(NumpyKernels):
         -------
         (moved positions (R*M, 2) order F, headings (R*M,)): the headings are the uniforms' array
         """
-        if positions.dtype != PARTICLE_DTYPE or uniforms.dtype != PARTICLE_DTYPE:
+        if not positions.dtype == uniforms.dtype == angles.dtype == PARTICLE_DTYPE:
             return super().move(positions, ancestors, uniforms, angles, delta, speed)
-        headings = headings_from_uniforms(uniforms, angles[:, None], delta).reshape(-1)
+        model.headings(uniforms, angles, PARTICLE_DTYPE(delta))  # in place, headings_from_uniforms' values
+        headings = uniforms.reshape(-1)
         out = self.pool.take("positions", (len(headings), 2), PARTICLE_DTYPE, "F")
         cos_h, sin_h = np.cos(headings, out=out[:, 0]), np.sin(headings, out=out[:, 1])  # the columns, then
         steps = _NO_ANCESTORS if ancestors is None else ancestors  # the step adds the moved-from positions
