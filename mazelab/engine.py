@@ -150,6 +150,7 @@ class SMC:
         self._selected: np.ndarray | None = None  # the runs a hook serves now (None: every run)
         self._every_run = np.arange(self.runs)
         self._no_run = np.zeros(self.runs, dtype=bool)  # never written into
+        self._all_runs = np.ones(self.runs, dtype=bool)  # never written into
         # log W is read by a step that may not resample or that has first-stage weights; the compiled
         # normalisation writes it for those filters only (others derive it, the same values, if asked)
         self.log_weights_read = self.threshold < 1 or type(self).log_eta is not SMC.log_eta
@@ -200,7 +201,7 @@ class SMC:
         bool
         """
         if due is True and self._lost is self._no_run:  # every run (the common step: none lost)
-            self.resampled_now, self._selected = np.ones(self.runs, dtype=bool), None
+            self.resampled_now, self._selected = self._all_runs, None
             return True
         due = ~self._lost if due is True else np.asarray(due, dtype=bool) & ~self._lost  # a new array (R,)
         self.resampled_now = due
@@ -251,7 +252,7 @@ class SMC:
     def move(self) -> None:
         """x_k^i ~ p(x_k | x_{k-1}^i) for the runs whose particles the resampling did not move (not the
         lost runs: they restart)."""
-        if self._moved.all():
+        if self._moved is self._all_runs or self._moved.all():
             return
         pending = ~self._moved & ~self._lost
         if not pending.any():
@@ -284,7 +285,9 @@ class SMC:
                 resampled, scale = self.reweight_resampled(self.selected_rows(log_lik), ancestors)
             finally:
                 self._selected = None
-            if scale is not None:
+            if scale is not None and len(runs) == self.runs:  # every run resampled (never written into)
+                fresh, extra = self._all_runs, scale
+            elif scale is not None:
                 fresh, extra = np.zeros(self.runs, dtype=bool), np.zeros(self.runs)
                 fresh[runs], extra[runs] = True, scale
             if len(runs) == self.runs:
@@ -295,8 +298,9 @@ class SMC:
                 del previous
         self.weights_value = None  # the last step's weights go first (the compiled backend reuses their arrays)
         self.normalise(log_w, (fresh, extra))
-        increments = self.weights_value.log_mean_increment.copy()  # log p(z_k | z_1:k-1)
+        increments = self.weights_value.log_mean_increment  # log p(z_k | z_1:k-1)
         if self._lost is not self._no_run and self._lost.any():
+            increments = increments.copy()
             increments[self._lost] = self._first_stage_totals[self._lost]
         self.log_evidence_increment = increments
         self.run_log_evidence = self.run_log_evidence + increments
@@ -515,7 +519,7 @@ def _per_run(value: float | np.ndarray, runs: int) -> np.ndarray:
     """A step's compass angle or measurement as one value per run, float64 (R,)."""
     if isinstance(value, np.ndarray):
         return np.broadcast_to(value.astype(float, copy=False), (runs,))
-    return np.full(runs, float(value))
+    return np.array([float(value)] * runs)
 
 
 def _log_weights(log_weights: np.ndarray | None, log_w: np.ndarray, totals: np.ndarray) -> np.ndarray:
