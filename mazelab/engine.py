@@ -200,13 +200,17 @@ class SMC:
         -------
         bool
         """
-        if due is True and self._lost is self._no_run:  # every run (the common step: none lost)
+        none_lost = self._lost is self._no_run  # the common step: its checks of the lost runs skipped
+        if due is True and none_lost:
             self.resampled_now, self._selected = self._all_runs, None
             return True
-        due = ~self._lost if due is True else np.asarray(due, dtype=bool) & ~self._lost  # a new array (R,)
+        if none_lost and isinstance(due, np.ndarray) and due.shape == self._no_run.shape:
+            due = due.astype(bool)  # a new array (R,)
+        else:
+            due = ~self._lost if due is True else np.asarray(due, dtype=bool) & ~self._lost
         self.resampled_now = due
         if not due.any():
-            if not self._lost.any():
+            if none_lost or not self._lost.any():
                 self.between_resamplings()
             return False
         runs = np.flatnonzero(due)
@@ -254,10 +258,13 @@ class SMC:
         lost runs: they restart)."""
         if self._moved is self._all_runs or self._moved.all():
             return
-        pending = ~self._moved & ~self._lost
-        if not pending.any():
-            return
-        runs = np.flatnonzero(pending)
+        if self._moved is self._no_run and self._lost is self._no_run:
+            runs = self._every_run  # no run resampled and none lost: every run moves
+        else:
+            pending = ~self._moved & ~self._lost
+            if not pending.any():
+                return
+            runs = np.flatnonzero(pending)
         self._selected = None if len(runs) == self.runs else runs
         try:
             positions, headings = self.transition(self.selected_points())
