@@ -150,6 +150,7 @@ class SMC:
         self._selected: np.ndarray | None = None  # the runs a hook serves now (None: every run)
         self._every_run = np.arange(self.runs)
         self._no_run = np.zeros(self.runs, dtype=bool)  # never written into
+        self._all_runs = np.ones(self.runs, dtype=bool)  # never written into
         # log W is read by a step that may not resample or that has first-stage weights; the compiled
         # normalisation writes it for those filters only (others derive it, the same values, if asked)
         self.log_weights_read = self.threshold < 1 or type(self).log_eta is not SMC.log_eta
@@ -183,7 +184,8 @@ class SMC:
             return self.weights_value.W
         weights, log_totals = self.normalised(self.weights_value.lw, log_eta)
         self._first_stage_totals = log_totals
-        self._lost = log_totals < LOG_UNDERFLOW
+        lost = log_totals < LOG_UNDERFLOW
+        self._lost = lost if lost.any() else self._no_run  # none lost: the steps' checks of it are skipped
         return weights
 
     def due(self, due: bool | np.ndarray) -> bool:
@@ -198,10 +200,17 @@ class SMC:
         -------
         bool
         """
-        due = ~self._lost if due is True else np.asarray(due, dtype=bool) & ~self._lost  # a new array (R,)
+        none_lost = self._lost is self._no_run  # the common step: its checks of the lost runs skipped
+        if due is True and none_lost:
+            self.resampled_now, self._selected = self._all_runs, None
+            return True
+        if none_lost and isinstance(due, np.ndarray) and due.shape == self._no_run.shape:
+            due = due.astype(bool)  # a new array (R,)
+        else:
+            due = ~self._lost if due is True else np.asarray(due, dtype=bool) & ~self._lost
         self.resampled_now = due
         if not due.any():
-            if not self._lost.any():
+            if none_lost or not self._lost.any():
                 self.between_resamplings()
             return False
         runs = np.flatnonzero(due)
@@ -247,12 +256,15 @@ class SMC:
     def move(self) -> None:
         """x_k^i ~ p(x_k | x_{k-1}^i) for the runs whose particles the resampling did not move (not the
         lost runs: they restart)."""
-        if self._moved.all():
+        if self._moved is self._all_runs or self._moved.all():
             return
-        pending = ~self._moved & ~self._lost
-        if not pending.any():
-            return
-        runs = np.flatnonzero(pending)
+        if self._moved is self._no_run and self._lost is self._no_run:
+            runs = self._every_run  # no run resampled and none lost: every run moves
+        else:
+            pending = ~self._moved & ~self._lost
+            if not pending.any():
+                return
+            runs = np.flatnonzero(pending)
         self._selected = None if len(runs) == self.runs else runs
         try:
             positions, headings = self.transition(self.selected_points())
@@ -280,7 +292,9 @@ class SMC:
                 resampled, scale = self.reweight_resampled(self.selected_rows(log_lik), ancestors)
             finally:
                 self._selected = None
-            if scale is not None:
+            if scale is not None and len(runs) == self.runs:  # every run resampled (never written into)
+                fresh, extra = self._all_runs, scale
+            elif scale is not None:
                 fresh, extra = np.zeros(self.runs, dtype=bool), np.zeros(self.runs)
                 fresh[runs], extra[runs] = True, scale
             if len(runs) == self.runs:
@@ -291,8 +305,9 @@ class SMC:
                 del previous
         self.weights_value = None  # the last step's weights go first (the compiled backend reuses their arrays)
         self.normalise(log_w, (fresh, extra))
-        increments = self.weights_value.log_mean_increment.copy()  # log p(z_k | z_1:k-1)
-        if self._lost.any():
+        increments = self.weights_value.log_mean_increment  # log p(z_k | z_1:k-1)
+        if self._lost is not self._no_run and self._lost.any():
+            increments = increments.copy()
             increments[self._lost] = self._first_stage_totals[self._lost]
         self.log_evidence_increment = increments
         self.run_log_evidence = self.run_log_evidence + increments
@@ -335,8 +350,10 @@ class SMC:
         else:
             log_w = np.asarray(log_w)
             totals, log_weights, reads = self.normalise_rows(log_w, self.positions)
-        explained = (totals >= LOG_UNDERFLOW) & ~self._lost  # False for an underflow and for NaN
-        restarted = np.flatnonzero(~explained)
+        explained = totals >= LOG_UNDERFLOW  # False for an underflow and for NaN
+        if self._lost is not self._no_run:
+            explained &= ~self._lost
+        restarted = _NO_RUNS if explained.all() else np.flatnonzero(~explained)
         if len(restarted):
             log_weights = self._reinitialise(restarted, _log_weights(log_weights, log_w, totals))
         unnormalised = None if log_weights is not None else (log_w, totals)  # log W derived when read
@@ -500,6 +517,9 @@ class SMC:
     def _one(self, per_run: Any) -> Any:
         """Run 0's value for one run (the paper's shapes), all runs' otherwise."""
         return per_run[0] if self.runs == 1 else per_run
+
+
+_NO_RUNS = np.empty(0, dtype=np.intp)  # no run restarted (never written into)
 
 
 def _per_run(value: float | np.ndarray, runs: int) -> np.ndarray:

@@ -290,8 +290,8 @@ def test_a_second_process_loads_the_kernels_from_the_cache(tmp_path):
         "    for name in ('sir', 'apf', 'rpf'):\n"
         "        start = w.random_free_place(np.random.default_rng(3))\n"
         "        simulate(Robot(0.3, 0.5, start), w, 0.3, 0.5, 200, 5, filtering_algorithm=name, seed=1)\n"
-        "kernels = [model.step, model.log_likelihood, model.jitter, resampling.systematic, weights.normalise,\n"
-        "           weights.covariance]\n"
+        "kernels = [model.headings, model.step, model.log_likelihood, model.jitter, resampling.systematic,\n"
+        "           weights.normalise, weights.covariance]\n"
         "print(sum(sum(k.stats.cache_misses.values()) for k in kernels),"
         " sum(sum(k.stats.cache_hits.values()) for k in kernels))\n"
     )

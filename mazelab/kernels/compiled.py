@@ -19,7 +19,7 @@ import numba
 import numpy as np
 
 from mazelab.kernels import model, resampling, weights
-from mazelab.model import CONFIDENCE_RADIUS, PARTICLE_DTYPE, headings_from_uniforms
+from mazelab.model import CONFIDENCE_RADIUS, PARTICLE_DTYPE
 from mazelab.numpy_ops import NumpyKernels
 from mazelab.regularisation import GaussianKernel
 
@@ -56,9 +56,9 @@ class BufferPool:
         if held is None or held[0] != kind:  # new, or the shape changed (KLD-sampling, a subset of runs)
             held = self._slots[name] = (kind, [])
         slots = held[1]
-        for index in range(len(slots)):
-            if sys.getrefcount(slots[index]) == self._free:
-                return slots[index]
+        for array in slots:  # `array` itself is one more reference
+            if sys.getrefcount(array) == self._free + 1:
+                return array
         array = np.empty(shape, dtype=dtype, order=order)
         if len(slots) < _KEEP:
             slots.append(array)
@@ -115,6 +115,8 @@ class CompiledKernels(NumpyKernels):
         self.pool = BufferPool()
         self._tables_of = world
         self.threads = min(threads or 1, numba.config.NUMBA_NUM_THREADS)
+        self._terms_of: tuple = (None, ())  # (sigma, penalty), the likelihood's constants
+        self._bases_of: tuple = (None, _NO_ANCESTORS)  # (R, N), each run's first row
 
     def _threaded(self, particles: int) -> bool:
         """Whether a call over `particles` runs on the threads (and numba's thread count set for it)."""
@@ -148,8 +150,8 @@ class CompiledKernels(NumpyKernels):
         speed: float,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Equation (1): NumpyKernels.move's arguments and results, and its values to the bit (the same
-        float32 headings and numpy's cos and sin), the gather and the step in one compiled pass; float64
-        points go to numpy.
+        float32 headings and numpy's cos and sin), the headings, then the gather and the step, in compiled
+        passes; float64 points (or angles) go to numpy.
 
         Parameters
         ----------
@@ -163,9 +165,10 @@ class CompiledKernels(NumpyKernels):
         -------
         (moved positions (R*M, 2) order F, headings (R*M,)): the headings are the uniforms' array
         """
-        if positions.dtype != PARTICLE_DTYPE or uniforms.dtype != PARTICLE_DTYPE:
+        if not positions.dtype == uniforms.dtype == angles.dtype == PARTICLE_DTYPE:
             return super().move(positions, ancestors, uniforms, angles, delta, speed)
-        headings = headings_from_uniforms(uniforms, angles[:, None], delta).reshape(-1)
+        model.headings(uniforms, angles, PARTICLE_DTYPE(delta))  # in place, headings_from_uniforms' values
+        headings = uniforms.reshape(-1)
         out = self.pool.take("positions", (len(headings), 2), PARTICLE_DTYPE, "F")
         cos_h, sin_h = np.cos(headings, out=out[:, 0]), np.sin(headings, out=out[:, 1])  # the columns, then
         steps = _NO_ANCESTORS if ancestors is None else ancestors  # the step adds the moved-from positions
@@ -191,19 +194,25 @@ class CompiledKernels(NumpyKernels):
         """
         if positions.dtype != PARTICLE_DTYPE or world is not self._tables_of:
             return super().log_likelihood(z, positions, world, sigma, outside_penalty)
-        norm = math.log(sigma * math.sqrt(2 * math.pi))
         out = self.pool.take("log_likelihood", (len(z), len(positions) // len(z)), PARTICLE_DTYPE)
         kernel = model.log_likelihood_threads if self._threaded(len(positions)) else model.log_likelihood
         kernel(
             positions,
             np.asarray(z, dtype=PARTICLE_DTYPE),
-            PARTICLE_DTYPE(sigma),
-            PARTICLE_DTYPE(-norm),
-            PARTICLE_DTYPE(math.log(outside_penalty) - norm),
+            *self._terms(sigma, outside_penalty),
             self.tables,
             out.reshape(-1),
         )
         return out
+
+    def _terms(self, sigma: float, outside_penalty: float) -> tuple:
+        """The likelihood kernel's float32 constants: sigma, -log(sigma sqrt(2 pi)) and that plus
+        log(outside penalty), worked out once for the filter's sigma and penalty (kept for the last pair)."""
+        if self._terms_of[0] != (sigma, outside_penalty):
+            norm = math.log(sigma * math.sqrt(2 * math.pi))
+            terms = (PARTICLE_DTYPE(sigma), PARTICLE_DTYPE(-norm), PARTICLE_DTYPE(math.log(outside_penalty) - norm))
+            self._terms_of = ((sigma, outside_penalty), terms)
+        return self._terms_of[1]
 
     def systematic(self, weights_: np.ndarray, uniforms: np.ndarray, runs: np.ndarray | None, count: int) -> np.ndarray:
         """Systematic resampling by counting, compiled (NumpyKernels.systematic's arguments and results).
@@ -219,12 +228,22 @@ class CompiledKernels(NumpyKernels):
         -------
         int32 array (len(runs) * N,) (int64 from 2**31 particles on)
         """
-        rows = np.arange(len(weights_)) if runs is None else np.asarray(runs, dtype=np.int64)
-        chosen = weights_ if runs is None else weights_[rows]
+        if runs is None:
+            chosen, bases = weights_, self._bases(len(weights_), count)
+        else:
+            rows = np.asarray(runs, dtype=np.int64)
+            chosen, bases = weights_[rows], rows * count
         index = np.int32 if len(weights_) * count < 2**31 else np.int64  # half the memory of numpy's int64
-        out = self.pool.take("ancestors", (len(rows) * count,), index)
-        resampling.systematic(chosen, uniforms, count, rows * count, out)
+        out = self.pool.take("ancestors", (len(chosen) * count,), index)
+        resampling.systematic(chosen, uniforms, count, bases, out)
         return out
+
+    def _bases(self, runs: int, count: int) -> np.ndarray:
+        """r * count for each of `runs` runs (int64 (R,)): the first row of each run's particles, made
+        once for the filter's R and N (kept for the last pair, never written into)."""
+        if self._bases_of[0] != (runs, count):
+            self._bases_of = ((runs, count), np.arange(runs) * count)
+        return self._bases_of[1]
 
     def normalise(
         self, log_w: np.ndarray, positions: np.ndarray, write_log: bool = True

@@ -1,6 +1,7 @@
 """The model's equations, compiled (mazelab.model is the numpy reference; the paper's numbering):
 
-    (1) the move's step: x_k = x_{k-1} + L (cos th, sin th), gathered from the resampled ancestors
+    (1) the move: th = th0 + Delta (u - 1/2), then x_k = x_{k-1} + L (cos th, sin th), gathered from
+        the resampled ancestors
     (3) the likelihood: log p(z_k | x_k) = -((d(x_k) - z_k) / sigma)^2 / 2 - log(sigma sqrt(2 pi)),
         plus log 0.5 outside the free area, d the distance to the nearest station (mazelab.lookup's table)
     the RPF's jitter: x^{i*} + h D eps, eps ~ N(0, I_2) (mazelab.regularisation)
@@ -21,6 +22,27 @@ from mazelab.kernels import jit
 
 F32 = np.float32
 _FREE, _AMBIGUOUS = 1, 2  # the bits of a lookup cell's kind (mazelab.lookup)
+
+
+@jit
+def headings(uniforms, angles, delta):  # pragma: no cover - compiled
+    """th = th0_r + Delta (u - 1/2) in place, float32 operation for operation as
+    mazelab.model.headings_from_uniforms (the same values to the bit).
+
+    Parameters
+    ----------
+    uniforms : float32 array (R, M)
+        u ~ U[0, 1), overwritten by the headings (radians).
+    angles : float32 array (R,)
+        th0 of each run (radians).
+    delta : float32
+        Delta (radians).
+    """
+    runs, size = uniforms.shape
+    half = F32(0.5)
+    for r in range(runs):
+        for m in range(size):
+            uniforms[r, m] = (uniforms[r, m] - half) * delta + angles[r]
 
 
 @jit
