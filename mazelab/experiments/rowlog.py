@@ -123,7 +123,29 @@ def check_left_over(path: str | Path, replace: bool = False, adopt: bool = False
         os.close(handle)  # and with it the lock
 
 
-class RowLog:
+class AppendedFile:
+    """A partial file a study appends to as its runs finish (`partial`, open as the descriptor
+    `_handle`): `close` releases it and leaves it (a stopped study's, for --resume), `discard` removes it
+    (its whole file is written, or the study did not start). RowLog and TraceLog are such files."""
+
+    partial: Path
+    _handle: int | None = None
+
+    def close(self) -> None:
+        """Stop appending and release the partial file (it stays where it is)."""
+        if self._handle is not None:
+            with contextlib.suppress(OSError):
+                os.close(self._handle)
+            self._handle = None
+
+    def discard(self) -> None:
+        """Remove the partial file."""
+        self.close()
+        with contextlib.suppress(OSError):
+            self.partial.unlink()
+
+
+class RowLog(AppendedFile):
     """Appends a study's rows to `partial` (NAME.csv.partial) as runs finish. A write error stops the
     appending (the partial file is cut back to its last whole row) and is kept in `error`: the study
     goes on, and `finish` still tries to write the whole CSV from the rows in memory.
@@ -279,19 +301,6 @@ class RowLog:
         """Where the finished rows are, for a message: 'they are in NAME.csv.partial'."""
         return f"the finished rows are in {self.partial}"
 
-    def close(self) -> None:
-        """Stop appending and release the partial file (it stays where it is)."""
-        if self._handle is not None:
-            with contextlib.suppress(OSError):
-                os.close(self._handle)
-            self._handle = None
-
-    def discard(self) -> None:
-        """Remove the partial file (a study that did not start)."""
-        self.close()
-        with contextlib.suppress(OSError):
-            self.partial.unlink()
-
     def _fail(self, error: OSError) -> None:
         self.error = self.error or error
         if self._handle is not None:
@@ -317,6 +326,7 @@ def lock(handle: int) -> bool:
 
 __all__ = [
     "PARTIAL_SUFFIX",
+    "AppendedFile",
     "PartialFileError",
     "RowLog",
     "check_left_over",

@@ -10,14 +10,13 @@ Its header is the columns seen so far: a run whose filter brings a diagnostic no
 
 from __future__ import annotations
 
-import contextlib
 import os
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from mazelab.atomic import write_all
-from mazelab.experiments.rowlog import PartialFileError, check_partial_name, lock, partial_path
+from mazelab.experiments.rowlog import AppendedFile, PartialFileError, check_partial_name, lock, partial_path
 from mazelab.experiments.study import RunRecord
 from mazelab.experiments.traces import (
     TRACE_COLUMNS,
@@ -32,13 +31,13 @@ from mazelab.experiments.traces import (
 _FLAGS = os.O_WRONLY | os.O_APPEND | getattr(os, "O_NOFOLLOW", 0)
 
 
-class TraceLog:
+class TraceLog(AppendedFile):
     """The partial traces of a study: `kept` (the header and rows an earlier session kept, --resume)
     written at once, then each finished run's traces appended (`append`)."""
 
     def __init__(self, traces: Path, *, replace: bool = False, adopt: bool = False, kept: Any = None):
-        self.path = partial_path(traces)
-        check_partial_name(self.path)
+        self.partial = partial_path(traces)
+        check_partial_name(self.partial)
         header, rows = kept if isinstance(kept, tuple) else (list(TRACE_COLUMNS), "")
         self.columns: list[str] = list(header)
         self._handle: int | None = None
@@ -48,23 +47,23 @@ class TraceLog:
     def _open(self, replace: bool) -> None:
         """Create the partial traces exclusively, or take over a stopped session's (`replace`): locked."""
         try:
-            handle = os.open(self.path, _FLAGS | os.O_CREAT | os.O_EXCL, 0o666)
+            handle = os.open(self.partial, _FLAGS | os.O_CREAT | os.O_EXCL, 0o666)
         except FileExistsError:
-            handle = os.open(self.path, _FLAGS)
+            handle = os.open(self.partial, _FLAGS)
             if not lock(handle):
                 os.close(handle)
                 raise PartialFileError(
-                    f"{self.path} is being written by another study now: give it another --traces"
+                    f"{self.partial} is being written by another study now: give it another --traces"
                 ) from None
             if not replace:
                 os.close(handle)
                 raise PartialFileError(
-                    f"{self.path} is left from a stopped study: go on with --resume, or replace it with --force"
+                    f"{self.partial} is left from a stopped study: go on with --resume, or replace it with --force"
                 ) from None
         else:
             if not lock(handle):  # pragma: no cover (a file just created exclusively)
                 os.close(handle)
-                raise PartialFileError(f"{self.path} is being written by another study now")
+                raise PartialFileError(f"{self.partial} is being written by another study now")
         self._handle = handle
 
     def _rewrite(self, text: str) -> None:
@@ -82,25 +81,12 @@ class TraceLog:
         wanted = ordered([*self.columns, *trace_column_names(blocks)])
         try:
             if wanted != self.columns:
-                old = self.path.read_text(encoding="utf-8").split("\n", 1)[1] if self.path.exists() else ""
+                old = self.partial.read_text(encoding="utf-8").split("\n", 1)[1] if self.partial.exists() else ""
                 self._rewrite(trace_header(wanted) + relaid(old, self.columns, wanted))
                 self.columns = wanted
             write_all(self._handle, trace_csv_rows(blocks, self.columns).encode("utf-8"))
         except OSError:
             self.close()
-
-    def close(self) -> None:
-        """Stop appending and release the file (it stays: a stopped study's traces, for --resume)."""
-        if self._handle is not None:
-            with contextlib.suppress(OSError):
-                os.close(self._handle)
-            self._handle = None
-
-    def discard(self) -> None:
-        """Remove the file (the whole traces are written, or the study did not start)."""
-        self.close()
-        with contextlib.suppress(OSError):
-            self.path.unlink()
 
 
 __all__ = ["TraceLog"]
