@@ -5,6 +5,7 @@ the package's compiled backend against on the same walks.
     uv run python benchmarks/fused_kernel.py                    # SIR, APF, RPF on maze_10x10 and a 50x50 maze
     uv run python benchmarks/fused_kernel.py --counts 1000,10000 --rounds 5
     uv run python benchmarks/fused_kernel.py --counts 1000000 --threads 2 --clock wall   # the package on 2 threads
+    uv run python benchmarks/fused_kernel.py --counts 1500 --runs 30    # 30 runs together against one fused 45,000
 
 Each fused step does what the package's step and reads do: systematic resampling (by counting), the
 move (uniform heading on the arc, cos/sin, the step), the nearest station and the free flag from the
@@ -52,6 +53,7 @@ from mazelab.bench import BENCH_DELTA, BENCH_SIGMA, filter_stepper, record_walk
 from mazelab.maze import Maze
 from mazelab.maze_generator import default_station_count, generate_maze
 from mazelab.model import OUTSIDE_PENALTY, ROBOT_SPEED, RPF_THRESHOLD
+from mazelab.registry import resolve_filter
 
 F32 = np.float32
 FAST = {"reassoc", "contract", "nsz", "arcp", "afn"}  # numba's fastmath flags short of "no NaN, no inf"
@@ -403,6 +405,39 @@ def compare(
             print(f"{label:<12} {name:<4} {n:>9,} {1e3 * f:10.3f} {1e3 * p:10.3f} {f / p:8.2f}x", flush=True)
 
 
+def batched_stepper(name: str, world: Maze, particles: int, runs: int, backend: str, seed: int = 2):
+    """The package's filter advancing `runs` runs of `particles` together (as a study's unit), each from
+    its own Generator, on the walk's inputs repeated for every run; its step and reads."""
+    rngs = [np.random.default_rng(seed + r) for r in range(runs)]
+    start = np.stack([world.random_free_places(particles, rng) for rng in rngs])  # (R, N, 2)
+    with use_backend(backend):
+        filt = resolve_filter(name)(world, BENCH_SIGMA, BENCH_DELTA, start, rngs)
+
+    def step(compass_angle: float, z: float) -> None:
+        filt.step(np.full(runs, compass_angle), np.full(runs, z))
+        _ = filt.estimate, filt.ess, filt.is_confident
+
+    return step
+
+
+def compare_batched(
+    world: Maze, label: str, counts: list[int], runs: int, rounds: int, filters: list[str], backend: str, clock
+) -> None:
+    """Alternate one fused step over all R x N particles (the batched bound) and the package's step of R
+    runs of N particles together, round by round."""
+    for n in counts:
+        steps = max(12, min(60, 4_000_000 // (n * runs)))
+        walk = record_walk(world, steps + 5)
+        for name in filters:
+            fused, package = [], []
+            for _ in range(rounds):
+                fused.append(median_cpu_step(Fused(name, world, n * runs).step, walk, 5, clock))
+                package.append(median_cpu_step(batched_stepper(name, world, n, runs, backend), walk, 5, clock))
+            f, p = statistics.median(fused), statistics.median(package)
+            shown = f"{runs} x {n:,}"
+            print(f"{label:<12} {name:<4} {shown:>12} {1e3 * f:10.3f} {1e3 * p:10.3f} {f / p:8.2f}x", flush=True)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--counts", default="1000,10000,100000,1000000")
@@ -412,6 +447,7 @@ def main() -> None:
     parser.add_argument("--backend", default="compiled", help="the package's backend to time (numpy or compiled)")
     parser.add_argument("--threads", type=int, default=1, help="the package's threads (MAZELAB_THREADS)")
     parser.add_argument("--clock", choices=("cpu", "wall"), default="cpu", help="CPU time, or wall-clock time")
+    parser.add_argument("--runs", type=int, default=1, help="R > 1: R runs of N together against one fused N x R")
     args = parser.parse_args()
     os.environ["MAZELAB_THREADS"] = str(args.threads)
     clock = time.process_time if args.clock == "cpu" else time.perf_counter
@@ -422,7 +458,10 @@ def main() -> None:
     for name in args.mazes.split(","):
         world = fifty_by_fifty() if name == "50x50" else Maze.from_file(name)
         world.prepare()
-        compare(world, name, counts, args.rounds, filters, args.backend, clock)
+        if args.runs > 1:
+            compare_batched(world, name, counts, args.runs, args.rounds, filters, args.backend, clock)
+        else:
+            compare(world, name, counts, args.rounds, filters, args.backend, clock)
 
 
 if __name__ == "__main__":
