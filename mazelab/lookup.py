@@ -81,8 +81,8 @@ class NearestStationLookup:
         if near is None:
             return float(self.distances(np.array([[x, y]]))[0])
         nearest = math.inf
-        for _, sx, sy in near:
-            dx, dy = sx - x, sy - y  # `_squared_distances`' order of operations
+        for _, sx, sy in near:  # _squared_distance inlined: a call per candidate is most of the cost here
+            dx, dy = sx - x, sy - y
             d2 = dx * dx + dy * dy
             if d2 < nearest:
                 nearest = d2
@@ -93,7 +93,7 @@ class NearestStationLookup:
         near = self._candidates_at(x, y)
         if near is None:
             return int(self.nearest(np.array([[x, y]]))[0])
-        return min(near, key=lambda c: (c[1] - x) * (c[1] - x) + (c[2] - y) * (c[2] - y))[0]
+        return min(near, key=lambda c: _squared_distance(c[1], c[2], x, y))[0]
 
     def _candidates_at(self, x: float, y: float) -> tuple[tuple[int, float, float], ...] | None:
         """The candidates of the lookup cell of one point as (station index, sx, sy) in plain floats, in
@@ -219,6 +219,12 @@ def _squared_distances(sx: np.ndarray, sy: np.ndarray, x: np.ndarray, y: np.ndar
     dy *= dy
     dx += dy
     return dx
+
+
+def _squared_distance(sx: float, sy: float, x: float, y: float) -> float:
+    """(sx - x)^2 + (sy - y)^2 in plain floats, in `_squared_distances`' order of operations."""
+    dx, dy = sx - x, sy - y
+    return dx * dx + dy * dy
 
 
 def is_scalar(value: Any) -> bool:
