@@ -149,12 +149,18 @@ def _keep_diagnostics(kept: dict[str, list[Any]], now: Any, k: int, filter_class
 
 
 def _per_run(values: list[Any], runs: int) -> np.ndarray:
-    """A diagnostic's steps as (R, steps): one value a step for one run, (R,) a step for R runs."""
+    """A diagnostic's steps as (R, steps): one value a step for one run, (R,) a step for R runs (a
+    number, or one per run, is spread over the runs as numpy broadcasts it)."""
+    array = np.empty((runs, len(values)))
     try:
-        array = np.array([np.broadcast_to(np.asarray(v, dtype=float), (runs,)) for v in values])
+        for k, value in enumerate(values):
+            value = np.asarray(value, dtype=float)
+            if value.ndim > 1:  # a column takes (1, R) too; a step's diagnostic is not a table
+                raise ValueError
+            array[:, k] = value
     except (TypeError, ValueError):
         raise ContractError("a diagnostic must be a number (or one per run) at every step") from None
-    return array.T
+    return array
 
 
 __all__ = ["Recorded", "record_steps"]

@@ -54,6 +54,7 @@ class NearestStationLookup:
         self._first = candidates[:, 0]  # (C,) station indices
         self._all = candidates[ambiguous]  # (A, K) station indices, padded by repeats
         self._tables: dict[np.dtype, _StationTables] = {}
+        self._near: dict[int, tuple[tuple[int, float, float], ...]] = {}  # `_candidates_at`'s, cell by cell
 
     def locate(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(distance to the nearest station, free flag) for points x, y of shape (N,), in x's dtype."""
@@ -76,24 +77,38 @@ class NearestStationLookup:
     def distance_at(self, x: float, y: float) -> float:
         """`locate`'s distance for one float64 point, in plain floats (the same IEEE operations, so the
         same value), without the cost of numpy calls on arrays of one."""
-        ix, iy = math.floor(x * self.scale) + self.offset, math.floor(y * self.scale) + self.offset
-        if not (0 <= ix < self.nx and 0 <= iy < self.ny):
+        near = self._candidates_at(x, y)
+        if near is None:
             return float(self.distances(np.array([[x, y]]))[0])
-        cell = iy * self.nx + ix
-        row = self.row[cell]
-        candidates = self._all[row] if row >= 0 else self._first[cell : cell + 1]
-        nearest = min(_squared_distance(self.stations[i], x, y) for i in candidates.tolist())
+        nearest = math.inf
+        for _, sx, sy in near:  # _squared_distance inlined: a call per candidate is most of the cost here
+            dx, dy = sx - x, sy - y
+            d2 = dx * dx + dy * dy
+            if d2 < nearest:
+                nearest = d2
         return math.sqrt(nearest)
 
     def nearest_at(self, x: float, y: float) -> int:
         """`nearest`'s station index for one float64 point, in plain floats (as `distance_at`)."""
+        near = self._candidates_at(x, y)
+        if near is None:
+            return int(self.nearest(np.array([[x, y]]))[0])
+        return min(near, key=lambda c: _squared_distance(c[1], c[2], x, y))[0]
+
+    def _candidates_at(self, x: float, y: float) -> tuple[tuple[int, float, float], ...] | None:
+        """The candidates of the lookup cell of one point as (station index, sx, sy) in plain floats, in
+        the table's order without repeats (made once per cell: the robot's walk revisits its cells);
+        None for a point beyond the table."""
         ix, iy = math.floor(x * self.scale) + self.offset, math.floor(y * self.scale) + self.offset
         if not (0 <= ix < self.nx and 0 <= iy < self.ny):
-            return int(self.nearest(np.array([[x, y]]))[0])
+            return None
         cell = iy * self.nx + ix
-        row = self.row[cell]
-        candidates = self._all[row] if row >= 0 else self._first[cell : cell + 1]
-        return min(candidates.tolist(), key=lambda i: _squared_distance(self.stations[i], x, y))
+        near = self._near.get(cell)
+        if near is None:
+            row = int(self.row[cell])
+            candidates = dict.fromkeys((self._all[row] if row >= 0 else self._first[cell : cell + 1]).tolist())
+            near = self._near[cell] = tuple((i, *self.stations[i].tolist()) for i in candidates)
+        return near
 
     def distances(self, points: np.ndarray) -> np.ndarray:
         """Distance to the nearest station for points of shape (N, 2)."""
@@ -206,9 +221,8 @@ def _squared_distances(sx: np.ndarray, sy: np.ndarray, x: np.ndarray, y: np.ndar
     return dx
 
 
-def _squared_distance(station: np.ndarray, x: float, y: float) -> float:
+def _squared_distance(sx: float, sy: float, x: float, y: float) -> float:
     """(sx - x)^2 + (sy - y)^2 in plain floats, in `_squared_distances`' order of operations."""
-    sx, sy = station.tolist()
     dx, dy = sx - x, sy - y
     return dx * dx + dy * dy
 

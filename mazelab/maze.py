@@ -141,8 +141,8 @@ class Maze:
 
     def is_free(self, x: Any, y: Any) -> bool | np.ndarray:
         """True where (x, y) lies in [0, W) x [0, H) in a cell of type 0; vectorised over arrays."""
-        if is_scalar(x) and is_scalar(y):  # the robot's wall checks, several a step
-            return self._free_at(float(x), float(y))
+        if is_scalar(x) and is_scalar(y):
+            return self.free_at(float(x), float(y))
         x = np.asarray(x, dtype=float)
         y = np.asarray(y, dtype=float)
         inside = (x >= 0) & (x < self.width) & (y >= 0) & (y < self.height)
@@ -150,8 +150,9 @@ class Maze:
         free = inside & (self.grid[row, col] == EMPTY)
         return bool(free) if free.ndim == 0 else free
 
-    def _free_at(self, x: float, y: float) -> bool:
-        """`is_free` for one point, in plain floats."""
+    def free_at(self, x: float, y: float) -> bool:
+        """`is_free` for one point in plain floats, without its dispatch (the robot's wall checks,
+        several a step)."""
         if not (0 <= x < self.width and 0 <= y < self.height):
             return False
         return self._free_rows[self.height - 1 - math.floor(y)][math.floor(x)]
@@ -183,12 +184,17 @@ class Maze:
         Call as `distance_to_nearest_station(x, y)` with scalars or arrays of one shape, or with a
         single array of points of shape (..., 2).
         """
-        if y is not None and is_scalar(x) and is_scalar(y):  # the robot's measurement, once a step
-            return self._lookup.distance_at(float(x), float(y))
+        if y is not None and is_scalar(x) and is_scalar(y):
+            return self.distance_at(float(x), float(y))
         points = _point_array(x) if y is None else np.stack(np.broadcast_arrays(x, y), -1).astype(float)
         flat = points.reshape(-1, 2)
         distances = self._lookup.distances(flat).reshape(points.shape[:-1])
         return float(distances) if distances.ndim == 0 else distances
+
+    def distance_at(self, x: float, y: float) -> float:
+        """`distance_to_nearest_station` of one point in plain floats, without its dispatch (the
+        robot's measurement, once a step): the same value."""
+        return self._lookup.distance_at(x, y)
 
     def nearest_station(self, points: Any) -> np.ndarray:
         """Coordinates of the station nearest each point: points (..., 2) -> (..., 2), map units.

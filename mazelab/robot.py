@@ -131,17 +131,18 @@ class Robot:
 
     def measure(self, world: Maze) -> float:
         """Equation (2): a fresh noisy distance to the nearest station, N(distance, sigma^2)."""
-        return float(world.distance_to_nearest_station(self.x, self.y) + self.rng.normal(0.0, self.sigma))
+        return world.distance_at(self.x, self.y) + self.rng.normal(0.0, self.sigma)
 
     def _choose_heading(self, world: Maze, tries: int = 1000) -> tuple[float, float]:
         """The wandering rule: keep th0 unless the step would leave the free area or ran too long."""
+        free = world.free_at
         for _ in range(tries):
             if self._compass is None or self._straight >= self.max_straight_steps:
                 self._compass, self._straight = float(self.rng.uniform(0.0, 2 * math.pi)), 0
             actual = sample_heading(self._compass, self.delta, self.rng)
             dx, dy = self.speed * math.cos(actual), self.speed * math.sin(actual)
             # The midpoint check keeps the robot from cutting the corner of a wall block.
-            if world.is_free(self.x + dx, self.y + dy) and world.is_free(self.x + dx / 2, self.y + dy / 2):
+            if free(self.x + dx, self.y + dy) and free(self.x + dx / 2, self.y + dy / 2):
                 self._straight += 1
                 return self._compass, actual
             self._compass = None

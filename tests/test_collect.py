@@ -81,3 +81,39 @@ def test_r_runs_are_recorded_with_a_run_axis(paper_world):
     recorded = record_steps(filt, 5, lambda k: (np.zeros(3), np.ones(3)), runs=3)
     assert recorded.estimates.shape == (3, 5, 2) and recorded.ess.shape == (3, 5)
     assert recorded.diagnostics["regularised"].shape == (3, 5) and recorded.counts.tolist() == [[80] * 5] * 3
+
+
+class OwnDiagnostics(SIRParticleFilter):
+    """Hands back a figure of its own each step: one number for every run, one per run, or a table."""
+
+    shape = "number"
+
+    @property
+    def diagnostics(self):
+        k = float(self.steps_done)
+        if self.shape == "number":
+            return {"k": k}
+        if self.shape == "per run":
+            return {"k": [k, 10 * k, 100 * k]}
+        return {"k": [[k, k, k]]}
+
+
+@pytest.mark.parametrize(
+    ("shape", "expected"), [("number", [[1, 2], [1, 2], [1, 2]]), ("per run", [[1, 2], [10, 20], [100, 200]])]
+)
+def test_a_diagnostic_is_one_number_or_one_per_run_each_step(paper_world, shape, expected):
+    rngs = [np.random.default_rng(r) for r in range(3)]
+    particles = np.stack([paper_world.random_free_places(80, g) for g in rngs])
+    filt = OwnDiagnostics(paper_world, 0.3, 0.5, particles, rngs)
+    filt.shape = shape
+    recorded = record_steps(filt, 2, lambda k: (np.zeros(3), np.ones(3)), runs=3)
+    assert recorded.diagnostics["k"].tolist() == expected
+
+
+def test_a_diagnostic_shaped_as_a_table_is_refused(paper_world):
+    rngs = [np.random.default_rng(r) for r in range(3)]
+    particles = np.stack([paper_world.random_free_places(80, g) for g in rngs])
+    filt = OwnDiagnostics(paper_world, 0.3, 0.5, particles, rngs)
+    filt.shape = "table"
+    with pytest.raises(ContractError, match=r"^a diagnostic must be a number \(or one per run\) at every step$"):
+        record_steps(filt, 2, lambda k: (np.zeros(3), np.ones(3)), runs=3)

@@ -16,7 +16,8 @@ from conftest import PAPER_MAZE
 from test_stats import T_975_DF2
 
 from mazelab.backend import chosen_backend
-from mazelab.cli.app import from_scenario, main
+from mazelab.cli.app import main
+from mazelab.cli.replay import from_scenario
 from mazelab.experiments import batch_runs
 from mazelab.experiments import study as experiments
 from mazelab.experiments.compare import compare_filters

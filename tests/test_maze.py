@@ -63,6 +63,23 @@ def test_nearest_station_lookup_equals_brute_force(path, rng):
     assert np.array_equal(world.nearest_station(points[0]), nearest[0])
 
 
+@pytest.mark.parametrize("path", MAZES, ids=lambda p: p.stem)
+def test_one_point_paths_give_the_array_paths_values_bit_for_bit(path, rng):
+    # the robot's measurement and wall checks and the EKF's association, each a point at a time, and
+    # again from the lookup cells' kept candidates
+    world = Maze.from_file(path)
+    around = rng.uniform(-3, 3, (2000, 2)) + rng.uniform(0, 1, (2000, 2)) * [world.width, world.height]
+    points = np.concatenate([around, world.stations, rng.normal(0, 50, (50, 2))])
+    distances = world.distance_to_nearest_station(points)
+    free = world.is_free(points[:, 0], points[:, 1])
+    nearest = world.nearest_station(points)
+    for _ in range(2):
+        for k, (x, y) in enumerate(points.tolist()):
+            assert world.distance_at(x, y) == distances[k] == world.distance_to_nearest_station(x, y)
+            assert world.free_at(x, y) == free[k] == world.is_free(x, y)
+            assert np.array_equal(world.nearest_station(np.array([x, y])), nearest[k])
+
+
 def test_distance_takes_scalars_pairs_and_arrays(paper_world):
     assert paper_world.distance_to_nearest_station(1.0, 4.0) == 0.0
     assert paper_world.distance_to_nearest_station(4.0, 3.0) == pytest.approx(np.hypot(1, 2))

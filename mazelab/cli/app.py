@@ -29,7 +29,6 @@ import typer
 
 from mazelab.atomic import WriteError
 from mazelab.cli.backend_option import BackendOption, ThreadsOption
-from mazelab.cli.compare_outputs import compare_record_file, finish_compare, report_compare, start_compare_record
 from mazelab.cli.exercise import exercise_app
 from mazelab.cli.filter_options import (
     AlphaFastFlag,
@@ -78,32 +77,19 @@ from mazelab.cli.options import (
 )
 from mazelab.cli.provenance import environment_backend, remember_arguments, repeat_command, show_version
 from mazelab.cli.recordings import recordings
-from mazelab.cli.replay import (
-    check_plugin_name,
-    from_scenario,
-    refuse_counts_for_replay,
-    replay_seed,
-    stored_options,
-    with_stored_options,
-)
-from mazelab.cli.replay_filter import replay_filter_name, replay_options
 from mazelab.cli.reports import kidnap_report, particle_count_report, prepare_world, progress_printer, report_run
-from mazelab.cli.run_setup import fresh_setup, replay_setup
 from mazelab.cli.studies import accuracy, study, study_mazes
 from mazelab.cli.view import view
 from mazelab.declaration import to_plain_json
-from mazelab.experiments.compare import compare_filters
 from mazelab.experiments.executor import STOP_SIGNALS
 from mazelab.experiments.runs import parse_filters
 from mazelab.invocation import command_prefix
-from mazelab.lab import simulate
 from mazelab.maze import MazeError
 from mazelab.mazes import DEFAULT_MAZE, find_maze, load_maze
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
 from mazelab.plugins import StudentCodeError
 from mazelab.registry import resolve_filter
 from mazelab.robot import Robot
-from mazelab.scenario import ScenarioError, find_scenario, load_scenario, save_scenario
 from mazelab.seeding import new_seed, start_place
 from mazelab.stops import exit_without_strays, mark_interrupts
 from mazelab.viz.recording import web_serving_deferred, write_errors_deferred
@@ -135,6 +121,8 @@ def demo(
     """The paper's example: a lost robot, the SIR filter, 1500 particles, 200 steps."""
     if ctx.invoked_subcommand is not None:
         return
+    from mazelab.lab import simulate  # with drawing: imported by the commands that run one filter
+
     visualize = visualization(viewer, rrd, web, no_viz, max_drawn, force)
     if rrd is not None:
         check_output_path(rrd, force)
@@ -215,6 +203,11 @@ def run(
 ) -> None:
     """Run one filter on a lost robot, or replay a saved scenario (--scenario) with its filter and
     options. Every filter option: --option NAME=VALUE (`mazelab filters` lists them)."""
+    from mazelab.cli.replay import check_plugin_name, refuse_counts_for_replay  # scenarios: run and compare only
+    from mazelab.cli.replay_filter import replay_filter_name, replay_options
+    from mazelab.cli.run_setup import fresh_setup, replay_setup
+    from mazelab.scenario import load_scenario, save_scenario
+
     visualize = visualization(viewer, rrd, web, no_viz, max_drawn, force)
     stored = load_scenario(scenario) if scenario is not None else None
     filter_name = check_filter_name(replay_filter_name(ctx, stored, filter_name, scenario))
@@ -308,6 +301,12 @@ def compare(
 
     A kidnapping (stored, or --kidnap-at) adds whether each filter re-localised (mean error below 0.5
     over the last 30 steps) and the steps it took."""
+    from mazelab.cli.compare_outputs import compare_record_file, finish_compare, report_compare, start_compare_record
+    from mazelab.cli.replay import stored_options, with_stored_options  # scenarios: run and compare only
+    from mazelab.cli.run_setup import replay_setup
+    from mazelab.experiments.compare import compare_filters
+    from mazelab.scenario import find_scenario, load_scenario
+
     visualize = visualization(viewer, rrd, web, no_viz, max_drawn, force)
     check_filter_names(filters)
     record_file = compare_record_file(csv_path, plot, traces, force, rrd)  # a JSON record beside the outputs
@@ -405,7 +404,7 @@ def _main(argv: list[str] | None) -> int:
         message = error.format_message()
         typer.echo(f"error: {message.rstrip('.') if hint else message}{hint}", err=True)
         return 2
-    except (UserError, MazeError, ScenarioError, ValueError) as error:
+    except (UserError, MazeError, ValueError) as error:  # a ScenarioError is a ValueError
         typer.echo(f"error: {error}", err=True)
         return 2
     except StudentCodeError as error:  # the student's filter raised: their frames and the step, not ours
@@ -438,10 +437,7 @@ __all__ = [
     "compare",
     "demo",
     "describe_os_error",
-    "from_scenario",
     "main",
-    "refuse_counts_for_replay",
-    "replay_seed",
     "run",
     "study",
     "study_mazes",

@@ -101,12 +101,12 @@ def walk_of(task: RunTask, world: Maze) -> Walk:
         plan_kidnapping(robot, world, task.kidnap_at, task.steps, streams.kidnap)
     robot.reset()
     robot.rng = streams.robot
-    true_positions = np.empty((task.steps, 2))
-    for k in range(task.steps):
+    positions = []
+    for _ in range(task.steps):
         robot.step(world)
-        true_positions[k] = robot.position
+        positions.append(robot.position)
     inputs = RunInputs.of_run(robot, particles, world, s.sigma, s.delta, task.seed, task.steps, task.filters[0])
-    return Walk(inputs, true_positions)
+    return Walk(inputs, np.array(positions).reshape(task.steps, 2))
 
 
 def run_batch(tasks: Sequence[RunTask]) -> list[list[RunRecord]]:
