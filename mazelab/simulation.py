@@ -11,7 +11,7 @@ import math
 import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -31,8 +31,10 @@ from mazelab.model import CONVERGENCE_RADIUS, DEFAULT_PARTICLE_COUNT, DEFAULT_ST
 from mazelab.plugins import student_code
 from mazelab.registry import filter_entry, is_shipped
 from mazelab.robot import Robot
-from mazelab.scenario import Scenario
 from mazelab.seeding import new_seed, run_streams
+
+if TYPE_CHECKING:
+    from mazelab.scenario import Scenario
 
 
 @dataclass
@@ -152,7 +154,10 @@ class RunInputs:
         )
 
     def scenario(self) -> Scenario:
-        """The validated Scenario of these inputs."""
+        """The validated Scenario of these inputs (the pydantic models imported here: a study never
+        builds one)."""
+        from mazelab.scenario import Scenario
+
         kidnapping = {}
         if self.kidnap_at is not None:
             kidnapping = {"kidnap_at": self.kidnap_at, "kidnap_position": self.kidnap_position}
