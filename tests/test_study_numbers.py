@@ -44,6 +44,32 @@ class SlowStart(SIRParticleFilter):
         super().step(compass_angle, z)
 '''
 
+
+def slow_resampling(name: str) -> str:
+    """A plug-in: the RPF whose first resampling in a process pays a one-off cost, as loading its jitter's
+    kernel does (a class of its own per test: the flag is the class's)."""
+    return f'''
+import time
+
+from mazelab.filters import RegularizedParticleFilter
+
+
+class {name}(RegularizedParticleFilter):
+    """The shipped RPF resampling when N_eff < 0.05 N (from the 5th step on, not in the warm-up's 3), and
+    its first resampling in a process sleeps {ONE_OFF_SECONDS} s."""
+
+    name = "{name}"
+    options = {{"threshold": 0.05}}
+    started = False
+
+    def resampled(self, ancestors):
+        if not {name}.started:
+            {name}.started = True
+            time.sleep({ONE_OFF_SECONDS})
+        super().resampled(ancestors)
+'''
+
+
 MY_SIR = '''
 """The shipped SIR under a name of its own."""
 from mazelab.filters import SIRParticleFilter
@@ -82,6 +108,24 @@ def test_a_one_off_cost_is_in_no_timed_step_whichever_filter_runs_first(tmp_path
     results = run_filters(world, robot, 0.3, 0.5, order, seed=1, particle_count=50, steps=10)
     assert max(results["Slow start"].step_seconds) < ONE_OFF_SECONDS
     assert warmup.take_startup_seconds() >= ONE_OFF_SECONDS
+
+
+def test_the_warm_up_reaches_a_resampling_that_waits_for_n_eff(tmp_path, monkeypatch):
+    """A filter that resamples only when N_eff < threshold N may not in the warm-up's few steps: it is warmed
+    with threshold 1 too, so its first resampling's one-off cost is start-up, never a timed step's (a
+    study's batch of runs, and a run of its own)."""
+    monkeypatch.setattr(warmup, "_warmed", set())
+    warmup.take_startup_seconds()
+    batch = plugin(tmp_path, slow_resampling("SlowBatch"), "SlowBatch")
+    plan = plan_study(study_mazes(["paper_5x5"]), batch, sigma=[0.3], delta=[0.5], particles=[300], runs=3,
+                      steps=30, seed=1)  # fmt: skip
+    outcome = run_study(plan.tasks(), 1)
+    assert all(record.run_seconds < ONE_OFF_SECONDS for record in outcome.records)
+    assert outcome.startup_seconds >= ONE_OFF_SECONDS
+    single = plugin(tmp_path, slow_resampling("SlowSingle"), "SlowSingle")
+    robot = Robot(0.3, 0.5, start_place(load_maze("paper_5x5"), 1))
+    results = run_filters(load_maze("paper_5x5"), robot, 0.3, 0.5, [single], seed=1, particle_count=300, steps=30)
+    assert max(results["SlowSingle"].step_seconds) < ONE_OFF_SECONDS
 
 
 def test_a_study_reports_the_start_up_apart_from_ms_per_step(tmp_path):

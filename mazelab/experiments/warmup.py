@@ -29,6 +29,7 @@ from mazelab.seeding import start_place
 from mazelab.simulation import simulate
 
 WARM_UP_STEPS = 3  # untimed steps per filter: the first loads the kernels, the next ones reach the resampling
+# (a filter that resamples when N_eff < threshold N is warmed again with threshold 1, which resamples at once)
 WARM_UP_SEED = 0  # the warm-up walk's seed (its numbers are discarded)
 REPORTED_PACKAGES = ("numpy", "numba", "llvmlite")  # the versions a worker reports with its backend
 
@@ -57,6 +58,17 @@ def options_key(filter_class: type, options: Mapping[str, Any]) -> str:
     return repr(sorted((k, v) for k, v in options.items() if k not in declared or declared[k].default != v))
 
 
+def warm_up_options(filter_class: type, options: Mapping[str, Any]) -> list[dict[str, Any]]:
+    """The options to warm a filter with: its own, and, for one that resamples only when N_eff falls below
+    threshold N (the RPF's 0.2 N: a few steps may not reach it), the same with threshold 1, so that its
+    resampling's code (the RPF's covariance and jitter) is loaded before the timed steps too."""
+    declared = options_of(filter_class).get("threshold")
+    own = dict(options)
+    if declared is None or own.get("threshold", declared.default) >= 1:
+        return [own]
+    return [own, {**own, "threshold": 1.0}]
+
+
 def warm_up_filters(
     world: Maze,
     sigma: float,
@@ -71,11 +83,14 @@ def warm_up_filters(
     for name in filter_names:
         own = dict(options.get(name, {}))
 
-        def warm(name: str = name, own: dict[str, Any] = own) -> None:
-            robot = Robot(sigma, delta, start_place(world, WARM_UP_SEED))
-            simulate(robot, world, sigma, delta, particle_count, WARM_UP_STEPS, None, name, seed=WARM_UP_SEED, **own)
-
         filter_class = resolve_filter(name)
+
+        def warm(name: str = name, filter_class: type = filter_class, own: dict[str, Any] = own) -> None:
+            for warmed in warm_up_options(filter_class, own):
+                robot = Robot(sigma, delta, start_place(world, WARM_UP_SEED))
+                simulate(robot, world, sigma, delta, particle_count, WARM_UP_STEPS, None, name, seed=WARM_UP_SEED,
+                         **warmed)  # fmt: skip
+
         warm_once(("single", filter_class, options_key(filter_class, own)), warm)
 
 
@@ -133,5 +148,6 @@ __all__ = [
     "take_startup_seconds",
     "warm_once",
     "warm_up_filters",
+    "warm_up_options",
     "worker_report",
 ]
