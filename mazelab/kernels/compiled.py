@@ -66,7 +66,9 @@ class BufferPool:
 
 
 def lookup_tables(world: Any) -> tuple:
-    """The maze's nearest-station tables in float32 (mazelab.lookup) as the likelihood kernel reads them.
+    """The maze's nearest-station tables (mazelab.lookup) in the layout the likelihood kernel reads:
+    float32, each cell's first two candidates side by side, the rest of the few cells with more in
+    one flat array, and one code a cell.
 
     Parameters
     ----------
@@ -75,22 +77,36 @@ def lookup_tables(world: Any) -> tuple:
     Returns
     -------
     tuple
-        (scale, offset, nx, ny, kind, row, first (C, 2), all_x (K, A), all_y (K, A), border (b, 2)).
+        (scale, offset, nx, ny as float32, nx as uint64, codes (C,) uint32, pairs (C, 4), rows, width,
+        border (b, 2)). pairs[c] is cell c's first and second candidate (x0, y0, x1, y1), the second
+        a repeat of the first in a cell with one; `rows` holds, for each cell with more than two, its
+        other K - 2 candidates' (x, y) (padded by repeats of its first), `width` = 2 (K - 2) values a
+        row; a cell's code is its row's first index in `rows` times 4, plus 2 if it has a row, plus 1
+        if the cell is free.
     """
     lookup = world.prepare()._lookup
     tables = lookup._station_tables(np.dtype(PARTICLE_DTYPE))
-    contiguous = np.ascontiguousarray
+    ambiguous = np.flatnonzero(lookup.row >= 0)
+    pairs = np.concatenate([tables.first, tables.first], axis=1)
+    pairs[ambiguous, 2] = tables.all_x[1, lookup.row[ambiguous]]
+    pairs[ambiguous, 3] = tables.all_y[1, lookup.row[ambiguous]]
+    candidates = lookup._all  # (A, K) station indices, padded by repeats of the first
+    more = np.flatnonzero((candidates[:, 2:] != candidates[:, :1]).any(axis=1))  # rows with a third candidate
+    rows = np.stack([tables.all_x[2:, more].T, tables.all_y[2:, more].T], axis=-1)  # (rows, K - 2, 2)
+    width = rows.shape[1] * 2
+    codes = (lookup.kind & 1).astype(np.uint64)
+    codes[ambiguous[more]] += 2 + 4 * width * np.arange(len(more), dtype=np.uint64)
     return (
         PARTICLE_DTYPE(lookup.scale),
         PARTICLE_DTYPE(lookup.offset),
-        int(lookup.nx),
-        int(lookup.ny),
-        lookup.kind,
-        lookup.row,
-        contiguous(tables.first),
-        contiguous(tables.all_x),
-        contiguous(tables.all_y),
-        contiguous(tables.border),
+        PARTICLE_DTYPE(lookup.nx),
+        PARTICLE_DTYPE(lookup.ny),
+        np.uint64(lookup.nx),
+        codes.astype(np.uint32 if codes.max(initial=0) < 2**32 else np.uint64),
+        np.ascontiguousarray(pairs),
+        np.ascontiguousarray(rows).reshape(-1),
+        np.uint64(width),
+        np.ascontiguousarray(tables.border),
     )
 
 

@@ -21,7 +21,11 @@ from numba import prange
 from mazelab.kernels import jit
 
 F32 = np.float32
-_FREE, _AMBIGUOUS = 1, 2  # the bits of a lookup cell's kind (mazelab.lookup)
+_FREE, _MORE = 1, 2  # the low bits of a lookup cell's code (mazelab.kernels.compiled.lookup_tables)
+_ZERO, _ONE, _MINUS_HALF = F32(0.0), F32(1.0), F32(-0.5)
+# unsigned indices (numba checks a signed index for wrap-around at every load)
+_X0, _Y0, _X1, _Y1 = np.uint64(0), np.uint64(1), np.uint64(2), np.uint64(3)
+_NONE, _PAIR = np.uint64(0), np.uint64(2)
 
 
 @jit
@@ -71,54 +75,68 @@ def step(positions, ancestors, cos_h, sin_h, speed, out):  # pragma: no cover - 
 
 
 @jit(inline=True)
-def _nearest_squared(px, py, scale, offset, nx, ny, kind, row, first, all_x, all_y):  # pragma: no cover
-    """(squared distance from (px, py) to its nearest station, whether it is free): the point's lookup
-    cell, its first candidate, or all its candidates in an ambiguous cell (mazelab.lookup's
-    NearestStationLookup.locate, per point); (-1, False) for a point beyond the table."""
-    ix = np.floor(px * scale) + offset  # float32, exact: the scale is a power of two
-    iy = np.floor(py * scale) + offset
-    if not (ix >= 0 and iy >= 0 and ix < nx and iy < ny):
-        return F32(-1.0), False
-    cell = int(iy) * nx + int(ix)
-    k = kind[cell]
-    if k & _AMBIGUOUS:
-        r = row[cell]
-        dx = all_x[0, r] - px
-        dy = all_y[0, r] - py
-        best = dx * dx + dy * dy
-        for c in range(1, all_x.shape[0]):
-            dx = all_x[c, r] - px
-            dy = all_y[c, r] - py
-            d2 = dx * dx + dy * dy
-            if d2 < best:
-                best = d2
-    else:
-        dx = first[cell, 0] - px
-        dy = first[cell, 1] - py
-        best = dx * dx + dy * dy
-    return best, (k & _FREE) != 0
+def _log_likelihood_at(px, py, zr, sigma, free_term, outside_term, tables):  # pragma: no cover - compiled
+    """(log p(z_r | x) for the point (px, py) from its lookup cell, whether the point is inside the
+    table): numpy's locate and likelihood for one point, with no branch but a loop that runs for few.
+
+    The cell is clamped into the table (a point beyond it gets a wrong value and False: the caller
+    redoes it). Every cell has two candidates (the second a repeat of the first in a cell with one),
+    read in one load, and the nearer kept by a select; the cells with more than two (a few in a
+    hundred) loop over the rest of their row, which their code names. The minimum is exact whatever
+    the order, so the distance is numpy's to the bit."""
+    scale, offset, nxf, nyf, nx, codes, pairs, rows, width, _ = tables
+    fx = np.floor(px * scale) + offset  # float32, exact: the scale is a power of two
+    fy = np.floor(py * scale) + offset
+    inside = (fx >= _ZERO) & (fy >= _ZERO) & (fx < nxf) & (fy < nyf)  # False for NaN
+    cx = min(max(fx, _ZERO), nxf - _ONE)
+    cy = min(max(fy, _ZERO), nyf - _ONE)
+    cell = np.uint64(cy) * nx + np.uint64(cx)
+    code = codes[cell]
+    dx = pairs[cell, _X0] - px
+    dy = pairs[cell, _Y0] - py
+    best = dx * dx + dy * dy
+    dx = pairs[cell, _X1] - px
+    dy = pairs[cell, _Y1] - py
+    d2 = dx * dx + dy * dy
+    best = d2 if d2 < best else best
+    start = np.uint64(code >> 2)
+    for c in range(start, start + (width if code & _MORE else _NONE), _PAIR):
+        dx = rows[c] - px
+        dy = rows[c + _Y0] - py
+        d2 = dx * dx + dy * dy
+        best = d2 if d2 < best else best
+    residual = (np.sqrt(best) - zr) / sigma
+    return residual * residual * _MINUS_HALF + (free_term if code & _FREE else outside_term), inside
 
 
 @jit
-def _beyond_squared(px, py, border):  # pragma: no cover - compiled
-    """Squared distance from a point beyond the table to the nearest of the border cells' candidates
-    (b, 2): brute force, for the rare particle that drifted off the map (a call of its own, from the
-    caller's loop: inlined into _nearest_squared, it slowed the common path five times)."""
-    dx = border[0, 0] - px
-    dy = border[0, 1] - py
-    best = dx * dx + dy * dy
-    for b in range(1, border.shape[0]):
-        dx = border[b, 0] - px
-        dy = border[b, 1] - py
-        d2 = dx * dx + dy * dy
-        if d2 < best:
-            best = d2
-    return best
+def _beyond_the_table(positions, z, sigma, outside_term, tables, out):  # pragma: no cover - compiled
+    """out[i] = log p(z_r | x_i) again for the points beyond the table (outside the free area), the
+    distance to the nearest of the border cells' candidates by brute force: the rare particle that
+    drifted off the map (a pass of its own, so that the common one has no branch on it)."""
+    scale, offset, nxf, nyf, _, _, _, _, _, border = tables
+    size = positions.shape[0] // len(z)
+    for i in range(positions.shape[0]):
+        px, py = positions[i, 0], positions[i, 1]
+        fx = np.floor(px * scale) + offset
+        fy = np.floor(py * scale) + offset
+        if not ((fx >= _ZERO) & (fy >= _ZERO) & (fx < nxf) & (fy < nyf)):
+            dx = border[0, 0] - px
+            dy = border[0, 1] - py
+            best = dx * dx + dy * dy
+            for b in range(1, border.shape[0]):
+                dx = border[b, 0] - px
+                dy = border[b, 1] - py
+                d2 = dx * dx + dy * dy
+                best = d2 if d2 < best else best
+            residual = (np.sqrt(best) - z[i // size]) / sigma
+            out[i] = residual * residual * _MINUS_HALF + outside_term
 
 
 @jit
 def log_likelihood(positions, z, sigma, free_term, outside_term, tables, out):  # pragma: no cover - compiled
-    """Equation (3) with the outside penalty, in logs, for R runs: out[i] = log p(z_r | x_i), float32.
+    """Equation (3) with the outside penalty, in logs, for R runs: out[i] = log p(z_r | x_i), float32,
+    numpy's values to the bit (the same float32 operations, and the nearest of the same candidates).
 
     Parameters
     ----------
@@ -134,41 +152,39 @@ def log_likelihood(positions, z, sigma, free_term, outside_term, tables, out):  
         The maze's lookup tables (mazelab.kernels.compiled.lookup_tables).
     out : float32 array (R*N,)
     """
-    scale, offset, nx, ny, kind, row, first, all_x, all_y, border = tables
     runs = len(z)
     size = positions.shape[0] // runs
-    minus_half = F32(-0.5)
+    beyond = 0
     for r in range(runs):
         zr = z[r]
         for m in range(size):
             i = r * size + m
-            px, py = positions[i, 0], positions[i, 1]
-            d2, free = _nearest_squared(px, py, scale, offset, nx, ny, kind, row, first, all_x, all_y)
-            if d2 < 0:  # beyond the table
-                d2 = _beyond_squared(px, py, border)
-            residual = (np.sqrt(d2) - zr) / sigma
-            log_p = residual * residual * minus_half
-            out[i] = log_p + (free_term if free else outside_term)
+            value, inside = _log_likelihood_at(
+                positions[i, 0], positions[i, 1], zr, sigma, free_term, outside_term, tables
+            )
+            out[i] = value
+            beyond += 0 if inside else 1
+    if beyond:
+        _beyond_the_table(positions, z, sigma, outside_term, tables, out)
 
 
 @jit(threads=True)
 def log_likelihood_threads(positions, z, sigma, free_term, outside_term, tables, out):  # pragma: no cover
     """log_likelihood's values to the bit (its arguments), the particles spread over numba's threads."""
-    scale, offset, nx, ny, kind, row, first, all_x, all_y, border = tables
     runs = len(z)
     size = positions.shape[0] // runs
-    minus_half = F32(-0.5)
+    beyond = 0
     for r in range(runs):
         zr = z[r]
         for m in prange(size):
             i = r * size + m
-            px, py = positions[i, 0], positions[i, 1]
-            d2, free = _nearest_squared(px, py, scale, offset, nx, ny, kind, row, first, all_x, all_y)
-            if d2 < 0:  # beyond the table
-                d2 = _beyond_squared(px, py, border)
-            residual = (np.sqrt(d2) - zr) / sigma
-            log_p = residual * residual * minus_half
-            out[i] = log_p + (free_term if free else outside_term)
+            value, inside = _log_likelihood_at(
+                positions[i, 0], positions[i, 1], zr, sigma, free_term, outside_term, tables
+            )
+            out[i] = value
+            beyond += 0 if inside else 1
+    if beyond:
+        _beyond_the_table(positions, z, sigma, outside_term, tables, out)
 
 
 @jit
