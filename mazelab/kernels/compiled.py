@@ -165,9 +165,9 @@ class CompiledKernels(NumpyKernels):
         delta: float,
         speed: float,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Equation (1): NumpyKernels.move's arguments and results, and its values to the bit (the same
-        float32 headings and numpy's cos and sin), the headings, then the gather and the step, in compiled
-        passes; float64 points (or angles) go to numpy.
+        """Equation (1): NumpyKernels.move's arguments and results in one compiled pass (the headings,
+        their cos and sin, the gather and the step); the headings are numpy's to the bit, cos and sin
+        within an ulp (mazelab.kernels.model.move). float64 points (or angles) go to numpy.
 
         Parameters
         ----------
@@ -183,13 +183,10 @@ class CompiledKernels(NumpyKernels):
         """
         if not positions.dtype == uniforms.dtype == angles.dtype == PARTICLE_DTYPE:
             return super().move(positions, ancestors, uniforms, angles, delta, speed)
-        model.headings(uniforms, angles, PARTICLE_DTYPE(delta))  # in place, headings_from_uniforms' values
-        headings = uniforms.reshape(-1)
-        out = self.pool.take("positions", (len(headings), 2), PARTICLE_DTYPE, "F")
-        cos_h, sin_h = np.cos(headings, out=out[:, 0]), np.sin(headings, out=out[:, 1])  # the columns, then
-        steps = _NO_ANCESTORS if ancestors is None else ancestors  # the step adds the moved-from positions
-        model.step(positions, steps, cos_h, sin_h, PARTICLE_DTYPE(speed), out)
-        return out, headings
+        out = self.pool.take("positions", (uniforms.size, 2), PARTICLE_DTYPE, "F")
+        sources = _NO_ANCESTORS if ancestors is None else ancestors
+        model.move(positions, sources, uniforms, angles, PARTICLE_DTYPE(delta), PARTICLE_DTYPE(speed), out)
+        return out, uniforms.reshape(-1)
 
     def log_likelihood(
         self, z: np.ndarray, positions: np.ndarray, world: Any, sigma: float, outside_penalty: float
