@@ -77,12 +77,12 @@ def lookup_tables(world: Any) -> tuple:
     Returns
     -------
     tuple
-        (scale, offset, nx, ny as float32, nx as uint64, codes (C,) uint32, pairs (C, 4), rows, width,
-        border (b, 2)). pairs[c] is cell c's first and second candidate (x0, y0, x1, y1), the second
-        a repeat of the first in a cell with one; `rows` holds, for each cell with more than two, its
-        other K - 2 candidates' (x, y) (padded by repeats of its first), `width` = 2 (K - 2) values a
-        row; a cell's code is its row's first index in `rows` times 4, plus 2 if it has a row, plus 1
-        if the cell is free.
+        (scale, offset, nx, ny, codes (C,) uint32, pairs (C, 4), rows, width, border (b, 2)), the
+        numbers plain Python ones. pairs[c] is cell c's first and second candidate (x0, y0, x1, y1),
+        the second a repeat of the first in a cell with one; `rows` holds, for each cell with more than
+        two, its other K - 2 candidates' (x, y) (padded by repeats of its first), `width` = 2 (K - 2)
+        values a row; a cell's code is its row's first index in `rows` times 4, plus 2 if it has a
+        row, plus 1 if the cell is free.
     """
     lookup = world.prepare()._lookup
     tables = lookup._station_tables(np.dtype(PARTICLE_DTYPE))
@@ -97,15 +97,14 @@ def lookup_tables(world: Any) -> tuple:
     codes = (lookup.kind & 1).astype(np.uint64)
     codes[ambiguous[more]] += 2 + 4 * width * np.arange(len(more), dtype=np.uint64)
     return (
-        PARTICLE_DTYPE(lookup.scale),
-        PARTICLE_DTYPE(lookup.offset),
-        PARTICLE_DTYPE(lookup.nx),
-        PARTICLE_DTYPE(lookup.ny),
-        np.uint64(lookup.nx),
+        float(lookup.scale),
+        float(lookup.offset),
+        int(lookup.nx),
+        int(lookup.ny),
         codes.astype(np.uint32 if codes.max(initial=0) < 2**32 else np.uint64),
         np.ascontiguousarray(pairs),
         np.ascontiguousarray(rows).reshape(-1),
-        np.uint64(width),
+        width,
         np.ascontiguousarray(tables.border),
     )
 
@@ -185,7 +184,7 @@ class CompiledKernels(NumpyKernels):
             return super().move(positions, ancestors, uniforms, angles, delta, speed)
         out = self.pool.take("positions", (uniforms.size, 2), PARTICLE_DTYPE, "F")
         sources = _NO_ANCESTORS if ancestors is None else ancestors
-        model.move(positions, sources, uniforms, angles, PARTICLE_DTYPE(delta), PARTICLE_DTYPE(speed), out)
+        model.move(positions, sources, uniforms, angles, float(delta), float(speed), out)
         return out, uniforms.reshape(-1)
 
     def log_likelihood(
@@ -209,22 +208,15 @@ class CompiledKernels(NumpyKernels):
             return super().log_likelihood(z, positions, world, sigma, outside_penalty)
         out = self.pool.take("log_likelihood", (len(z), len(positions) // len(z)), PARTICLE_DTYPE)
         kernel = model.log_likelihood_threads if self._threaded(len(positions)) else model.log_likelihood
-        kernel(
-            positions,
-            np.asarray(z, dtype=PARTICLE_DTYPE),
-            *self._terms(sigma, outside_penalty),
-            self.tables,
-            out.reshape(-1),
-        )
+        kernel(positions, z, *self._terms(sigma, outside_penalty), self.tables, out)
         return out
 
     def _terms(self, sigma: float, outside_penalty: float) -> tuple:
-        """The likelihood kernel's float32 constants: sigma, -log(sigma sqrt(2 pi)) and that plus
-        log(outside penalty), worked out once for the filter's sigma and penalty (kept for the last pair)."""
+        """The likelihood kernel's constants: sigma, -log(sigma sqrt(2 pi)) and that plus log(outside
+        penalty), worked out once for the filter's sigma and penalty (kept for the last pair)."""
         if self._terms_of[0] != (sigma, outside_penalty):
             norm = math.log(sigma * math.sqrt(2 * math.pi))
-            terms = (PARTICLE_DTYPE(sigma), PARTICLE_DTYPE(-norm), PARTICLE_DTYPE(math.log(outside_penalty) - norm))
-            self._terms_of = ((sigma, outside_penalty), terms)
+            self._terms_of = ((sigma, outside_penalty), (float(sigma), -norm, math.log(outside_penalty) - norm))
         return self._terms_of[1]
 
     def systematic(self, weights_: np.ndarray, uniforms: np.ndarray, runs: np.ndarray | None, count: int) -> np.ndarray:

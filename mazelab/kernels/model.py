@@ -62,11 +62,13 @@ def move(positions, ancestors, uniforms, angles, delta, speed, out):  # pragma: 
         u ~ U[0, 1), overwritten by the headings (radians).
     angles : float32 array (R,)
         th0 of each run (radians).
-    delta, speed : float32
-        Delta (radians) and the step length L (map units).
+    delta, speed : float
+        Delta (radians) and the step length L (map units), rounded to float32 here (as numpy's float32
+        arithmetic rounds them).
     out : float32 array (R*M, 2), order F
         The moved particles.
     """
+    delta, speed = F32(delta), F32(speed)
     runs, size = uniforms.shape
     x, y = positions.T[0], positions.T[1]
     out_x, out_y = out.T[0], out.T[1]
@@ -85,6 +87,14 @@ def move(positions, ancestors, uniforms, angles, delta, speed, out):  # pragma: 
 
 
 @jit(inline=True)
+def _typed(tables):  # pragma: no cover - compiled
+    """lookup_tables' tuple with its numbers in the kernels' types: (scale, offset, nx, ny) float32, nx
+    and the row width uint64 (plain Python numbers cross into a kernel faster than numpy scalars)."""
+    scale, offset, nx, ny, codes, pairs, rows, width, border = tables
+    return F32(scale), F32(offset), F32(nx), F32(ny), np.uint64(nx), codes, pairs, rows, np.uint64(width), border
+
+
+@jit(inline=True)
 def _log_likelihood_at(px, py, zr, sigma, free_term, outside_term, tables):  # pragma: no cover - compiled
     """(log p(z_r | x) for the point (px, py) from its lookup cell, whether the point is inside the
     table): numpy's locate and likelihood for one point, with no branch but a loop that runs for few.
@@ -93,8 +103,8 @@ def _log_likelihood_at(px, py, zr, sigma, free_term, outside_term, tables):  # p
     caller redoes it; clamping its cell into the table measured 0.6 ns a particle slower). Every cell
     has two candidates (the second a repeat of the first in a cell with one), read in one load, and
     the nearer kept by a select; the cells with more than two (a few in a hundred) loop over the rest
-    of their row, which their code names. The minimum is exact whatever
-    the order, so the distance is numpy's to the bit."""
+    of their row, which their code names. The minimum is exact whatever the order, so the distance is
+    numpy's to the bit. `tables` is _typed's."""
     scale, offset, nxf, nyf, nx, codes, pairs, rows, width, _ = tables
     fx = np.floor(px * scale) + offset  # float32, exact: the scale is a power of two
     fy = np.floor(py * scale) + offset
@@ -120,80 +130,85 @@ def _log_likelihood_at(px, py, zr, sigma, free_term, outside_term, tables):  # p
 
 @jit
 def _beyond_the_table(positions, z, sigma, outside_term, tables, out):  # pragma: no cover - compiled
-    """out[i] = log p(z_r | x_i) again for the points beyond the table (outside the free area), the
+    """out[r, m] = log p(z_r | x_i) again for the points beyond the table (outside the free area), the
     distance to the nearest of the border cells' candidates by brute force: the rare particle that
-    drifted off the map (a pass of its own, so that the common one has no branch on it)."""
+    drifted off the map (a pass of its own, so that the common one has no branch on it). The numbers
+    are log_likelihood's, typed."""
     scale, offset, nxf, nyf, _, _, _, _, _, border = tables
-    size = positions.shape[0] // len(z)
-    for i in range(positions.shape[0]):
-        px, py = positions[i, 0], positions[i, 1]
-        fx = np.floor(px * scale) + offset
-        fy = np.floor(py * scale) + offset
-        if not ((fx >= _ZERO) & (fy >= _ZERO) & (fx < nxf) & (fy < nyf)):
-            dx = border[0, 0] - px
-            dy = border[0, 1] - py
-            best = dx * dx + dy * dy
-            for b in range(1, border.shape[0]):
-                dx = border[b, 0] - px
-                dy = border[b, 1] - py
-                d2 = dx * dx + dy * dy
-                best = d2 if d2 < best else best
-            residual = (np.sqrt(best) - z[i // size]) / sigma
-            out[i] = residual * residual * _MINUS_HALF + outside_term
+    runs, size = out.shape
+    for r in range(runs):
+        zr = F32(z[r])
+        for m in range(size):
+            px, py = positions[r * size + m, 0], positions[r * size + m, 1]
+            fx = np.floor(px * scale) + offset
+            fy = np.floor(py * scale) + offset
+            if not ((fx >= _ZERO) & (fy >= _ZERO) & (fx < nxf) & (fy < nyf)):
+                dx = border[0, 0] - px
+                dy = border[0, 1] - py
+                best = dx * dx + dy * dy
+                for b in range(1, border.shape[0]):
+                    dx = border[b, 0] - px
+                    dy = border[b, 1] - py
+                    d2 = dx * dx + dy * dy
+                    best = d2 if d2 < best else best
+                residual = (np.sqrt(best) - zr) / sigma
+                out[r, m] = residual * residual * _MINUS_HALF + outside_term
 
 
 @jit
 def log_likelihood(positions, z, sigma, free_term, outside_term, tables, out):  # pragma: no cover - compiled
-    """Equation (3) with the outside penalty, in logs, for R runs: out[i] = log p(z_r | x_i), float32,
-    numpy's values to the bit (the same float32 operations, and the nearest of the same candidates).
+    """Equation (3) with the outside penalty, in logs, for R runs: out[r, m] = log p(z_r | x_i) (i = r N
+    + m), float32, numpy's values to the bit (the same float32 operations, and the nearest of the same
+    candidates). The numbers come as plain floats (a numpy scalar costs some 0.25 us to pass) and are
+    rounded to float32 here, as numpy's float32 arithmetic rounds them.
 
     Parameters
     ----------
     positions : float32 array (R*N, 2)
-    z : float32 array (R,)
+    z : float array (R,)
         z_k of each run (map units).
-    sigma : float32
+    sigma : float
         The measurement noise's standard deviation.
-    free_term, outside_term : float32
+    free_term, outside_term : float
         -log(sigma sqrt(2 pi)), and that plus log(outside penalty): the constant of a free and of an
         outside point.
     tables : tuple
         The maze's lookup tables (mazelab.kernels.compiled.lookup_tables).
-    out : float32 array (R*N,)
+    out : float32 array (R, N)
     """
-    runs = len(z)
-    size = positions.shape[0] // runs
+    sigma, free_term, outside_term, typed = F32(sigma), F32(free_term), F32(outside_term), _typed(tables)
+    runs, size = out.shape
     beyond = 0
     for r in range(runs):
-        zr = z[r]
+        zr = F32(z[r])
         for m in range(size):
             i = r * size + m
             value, inside = _log_likelihood_at(
-                positions[i, 0], positions[i, 1], zr, sigma, free_term, outside_term, tables
+                positions[i, 0], positions[i, 1], zr, sigma, free_term, outside_term, typed
             )
-            out[i] = value
+            out[r, m] = value
             beyond += 0 if inside else 1
     if beyond:
-        _beyond_the_table(positions, z, sigma, outside_term, tables, out)
+        _beyond_the_table(positions, z, sigma, outside_term, typed, out)
 
 
 @jit(threads=True)
 def log_likelihood_threads(positions, z, sigma, free_term, outside_term, tables, out):  # pragma: no cover
     """log_likelihood's values to the bit (its arguments), the particles spread over numba's threads."""
-    runs = len(z)
-    size = positions.shape[0] // runs
+    sigma, free_term, outside_term, typed = F32(sigma), F32(free_term), F32(outside_term), _typed(tables)
+    runs, size = out.shape
     beyond = 0
     for r in range(runs):
-        zr = z[r]
+        zr = F32(z[r])
         for m in prange(size):
             i = r * size + m
             value, inside = _log_likelihood_at(
-                positions[i, 0], positions[i, 1], zr, sigma, free_term, outside_term, tables
+                positions[i, 0], positions[i, 1], zr, sigma, free_term, outside_term, typed
             )
-            out[i] = value
+            out[r, m] = value
             beyond += 0 if inside else 1
     if beyond:
-        _beyond_the_table(positions, z, sigma, outside_term, tables, out)
+        _beyond_the_table(positions, z, sigma, outside_term, typed, out)
 
 
 @jit
