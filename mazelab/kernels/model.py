@@ -9,8 +9,8 @@
 Positions are (R*N, 2) float32 (run r's particles the rows r*N..(r+1)*N), written into buffers the
 caller owns. The arithmetic is float32 as in the numpy path, operation for operation, so the
 likelihood of given points, the jitter and the move's headings are the numpy path's to the bit. The
-move's cos and sin are mazelab.kernels.vector_math's, within an ulp of numpy's (which are within 1.5
-of the exact value, these within 0.502): the moved particles are the numpy path's or a float32
+move's cos and sin are mazelab.kernels.vector_math's, within two ulps of numpy's (which are within
+1.5 of the exact value, these within 0.502): the moved particles are the numpy path's or a float32
 rounding from them, the price of a move in one vectorised call instead of numpy's cos and sin and
 two kernels.
 """
@@ -47,8 +47,8 @@ def move(positions, ancestors, uniforms, angles, delta, speed, out):  # pragma: 
     positions[a_i] + speed (cos th_i, sin th_i).
 
     The headings are mazelab.model.headings_from_uniforms' float32 operations (its values to the
-    bit); cos and sin are vector_math's, within an ulp of the exact value (numpy's float32 ones are
-    within 1.5 and the two agree for about 85% of angles), so a moved particle is the numpy path's or a
+    bit); cos and sin are vector_math's, within 0.502 ulp of the exact value (numpy's float32 ones
+    within 1.5; the two agree for about 85% of angles), so a moved particle is the numpy path's or a
     float32 rounding away from it. cos and sin go into `out` first, in a vectorised loop; the gather and
     the step follow.
 
