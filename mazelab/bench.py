@@ -311,7 +311,7 @@ def kernels_start_seconds(world: Maze) -> tuple[float, int]:
         step = filter_stepper(name, world, 200, backend="compiled")
         for compass_angle, z in walk:
             step(compass_angle, z)
-    kernels = (model.headings, model.step, model.log_likelihood, resampling.systematic, weights.normalise)
+    kernels = (model.move, model.log_likelihood, resampling.systematic, weights.normalise)
     kernels += (weights.first_stage, weights.covariance)
     return time.perf_counter() - started, sum(sum(k.stats.cache_misses.values()) for k in kernels)
 

@@ -66,7 +66,9 @@ class BufferPool:
 
 
 def lookup_tables(world: Any) -> tuple:
-    """The maze's nearest-station tables in float32 (mazelab.lookup) as the likelihood kernel reads them.
+    """The maze's nearest-station tables (mazelab.lookup) in the layout the likelihood kernel reads:
+    float32, each cell's first two candidates side by side, the rest of the few cells with more in
+    one flat array, and one code a cell.
 
     Parameters
     ----------
@@ -75,22 +77,35 @@ def lookup_tables(world: Any) -> tuple:
     Returns
     -------
     tuple
-        (scale, offset, nx, ny, kind, row, first (C, 2), all_x (K, A), all_y (K, A), border (b, 2)).
+        (scale, offset, nx, ny, codes (C,) uint32, pairs (C, 4), rows, width, border (b, 2)), the
+        numbers plain Python ones. pairs[c] is cell c's first and second candidate (x0, y0, x1, y1),
+        the second a repeat of the first in a cell with one; `rows` holds, for each cell with more than
+        two, its other K - 2 candidates' (x, y) (padded by repeats of its first), `width` = 2 (K - 2)
+        values a row; a cell's code is its row's first index in `rows` times 4, plus 2 if it has a
+        row, plus 1 if the cell is free.
     """
     lookup = world.prepare()._lookup
     tables = lookup._station_tables(np.dtype(PARTICLE_DTYPE))
-    contiguous = np.ascontiguousarray
+    ambiguous = np.flatnonzero(lookup.row >= 0)
+    pairs = np.concatenate([tables.first, tables.first], axis=1)
+    pairs[ambiguous, 2] = tables.all_x[1, lookup.row[ambiguous]]
+    pairs[ambiguous, 3] = tables.all_y[1, lookup.row[ambiguous]]
+    candidates = lookup._all  # (A, K) station indices, padded by repeats of the first
+    more = np.flatnonzero((candidates[:, 2:] != candidates[:, :1]).any(axis=1))  # rows with a third candidate
+    rows = np.stack([tables.all_x[2:, more].T, tables.all_y[2:, more].T], axis=-1)  # (rows, K - 2, 2)
+    width = rows.shape[1] * 2
+    codes = (lookup.kind & 1).astype(np.uint64)
+    codes[ambiguous[more]] += 2 + 4 * width * np.arange(len(more), dtype=np.uint64)
     return (
-        PARTICLE_DTYPE(lookup.scale),
-        PARTICLE_DTYPE(lookup.offset),
+        float(lookup.scale),
+        float(lookup.offset),
         int(lookup.nx),
         int(lookup.ny),
-        lookup.kind,
-        lookup.row,
-        contiguous(tables.first),
-        contiguous(tables.all_x),
-        contiguous(tables.all_y),
-        contiguous(tables.border),
+        codes.astype(np.uint32 if codes.max(initial=0) < 2**32 else np.uint64),
+        np.ascontiguousarray(pairs),
+        np.ascontiguousarray(rows).reshape(-1),
+        width,
+        np.ascontiguousarray(tables.border),
     )
 
 
@@ -149,9 +164,10 @@ class CompiledKernels(NumpyKernels):
         delta: float,
         speed: float,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Equation (1): NumpyKernels.move's arguments and results, and its values to the bit (the same
-        float32 headings and numpy's cos and sin), the headings, then the gather and the step, in compiled
-        passes; float64 points (or angles) go to numpy.
+        """Equation (1): NumpyKernels.move's arguments and results in one compiled pass (the headings,
+        their cos and sin, the gather and the step); the headings are numpy's to the bit, cos and sin
+        within 0.502 ulp of the exact value (mazelab.kernels.model.move). float64 points (or angles)
+        go to numpy.
 
         Parameters
         ----------
@@ -167,13 +183,10 @@ class CompiledKernels(NumpyKernels):
         """
         if not positions.dtype == uniforms.dtype == angles.dtype == PARTICLE_DTYPE:
             return super().move(positions, ancestors, uniforms, angles, delta, speed)
-        model.headings(uniforms, angles, PARTICLE_DTYPE(delta))  # in place, headings_from_uniforms' values
-        headings = uniforms.reshape(-1)
-        out = self.pool.take("positions", (len(headings), 2), PARTICLE_DTYPE, "F")
-        cos_h, sin_h = np.cos(headings, out=out[:, 0]), np.sin(headings, out=out[:, 1])  # the columns, then
-        steps = _NO_ANCESTORS if ancestors is None else ancestors  # the step adds the moved-from positions
-        model.step(positions, steps, cos_h, sin_h, PARTICLE_DTYPE(speed), out)
-        return out, headings
+        out = self.pool.take("positions", (uniforms.size, 2), PARTICLE_DTYPE, "F")
+        sources = _NO_ANCESTORS if ancestors is None else ancestors
+        model.move(positions, sources, uniforms, angles, float(delta), float(speed), out)
+        return out, uniforms.reshape(-1)
 
     def log_likelihood(
         self, z: np.ndarray, positions: np.ndarray, world: Any, sigma: float, outside_penalty: float
@@ -196,22 +209,15 @@ class CompiledKernels(NumpyKernels):
             return super().log_likelihood(z, positions, world, sigma, outside_penalty)
         out = self.pool.take("log_likelihood", (len(z), len(positions) // len(z)), PARTICLE_DTYPE)
         kernel = model.log_likelihood_threads if self._threaded(len(positions)) else model.log_likelihood
-        kernel(
-            positions,
-            np.asarray(z, dtype=PARTICLE_DTYPE),
-            *self._terms(sigma, outside_penalty),
-            self.tables,
-            out.reshape(-1),
-        )
+        kernel(positions, z, *self._terms(sigma, outside_penalty), self.tables, out)
         return out
 
     def _terms(self, sigma: float, outside_penalty: float) -> tuple:
-        """The likelihood kernel's float32 constants: sigma, -log(sigma sqrt(2 pi)) and that plus
-        log(outside penalty), worked out once for the filter's sigma and penalty (kept for the last pair)."""
+        """The likelihood kernel's constants: sigma, -log(sigma sqrt(2 pi)) and that plus log(outside
+        penalty), worked out once for the filter's sigma and penalty (kept for the last pair)."""
         if self._terms_of[0] != (sigma, outside_penalty):
             norm = math.log(sigma * math.sqrt(2 * math.pi))
-            terms = (PARTICLE_DTYPE(sigma), PARTICLE_DTYPE(-norm), PARTICLE_DTYPE(math.log(outside_penalty) - norm))
-            self._terms_of = ((sigma, outside_penalty), terms)
+            self._terms_of = ((sigma, outside_penalty), (float(sigma), -norm, math.log(outside_penalty) - norm))
         return self._terms_of[1]
 
     def systematic(self, weights_: np.ndarray, uniforms: np.ndarray, runs: np.ndarray | None, count: int) -> np.ndarray:
