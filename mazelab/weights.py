@@ -22,10 +22,20 @@ class Weights:
     unnormalised : (array (R, N), array (R,)), optional
         log w and log sum_i w_i of each run, for `lw` = log w - log total when it is read (a step that
         resamples every time reads W only, so it never writes log W).
-    increment : (array (R,), bool array (R,), array (R,) or float, int), optional
+    increment : (array (R,), bool array (R,) or bool, array (R,) or float, int), optional
         For `log_mean_increment`: each run's log sum_i w_i of the reweighting (w_i = W_{k-1}^i G_k^i,
-        G the increment), which runs' w_i are fresh (resampled: G_k^i alone, W_{k-1}^i = 1/N left out),
-        the log factor those lack (the APF's first-stage total; 0 otherwise) and N.
+        G the increment), which runs' w_i are fresh (resampled: G_k^i alone, W_{k-1}^i = 1/N left out;
+        True or False: every run or none), the log factor those lack (the APF's first-stage total; 0
+        otherwise) and N.
+
+    Attributes
+    ----------
+    log_mean_increment : array (R,)
+        log sum_i W_{k-1}^i G_k^i per run (given `increment`): the log of the mean increment G_k =
+        p(z_k | x_k^i) under the previous weights, the estimate of log p(z_k | z_1:k-1) (particles'
+        `loglt`). It is the log total of w_i = W_{k-1}^i G_k^i; for fresh weights (W_{k-1}^i = 1/N after
+        resampling) the log total less log N, plus the log factor they lack (the APF's first stage, as
+        Pitt and Shephard). Worked out as the value is made: every step reads it.
     """
 
     def __init__(
@@ -36,11 +46,16 @@ class Weights:
         unnormalised: tuple[np.ndarray, np.ndarray] | None = None,
         increment: tuple[np.ndarray, np.ndarray, np.ndarray | float, int] | None = None,
     ):
-        self.__dict__["_unnormalised"] = unnormalised
-        self.__dict__["_increment"] = increment
-        for name, value in (("lw", lw), ("W", W), ("ess", ess)):
-            if value is not None:
-                self.__dict__[name] = value
+        values = self.__dict__
+        values["_unnormalised"] = unnormalised
+        if lw is not None:
+            values["lw"] = lw
+        if W is not None:
+            values["W"] = W
+        if ess is not None:
+            values["ess"] = ess
+        if increment is not None:
+            values["log_mean_increment"] = log_mean_increment(*increment)
 
     def __setattr__(self, name: str, value: object) -> None:
         if name in self.__dict__:
@@ -63,14 +78,34 @@ class Weights:
         """N_eff = 1 / sum_i W_i^2 per run (eq. 51), (R,)."""
         return effective_sample_size(self.W)
 
-    @cached_property
-    def log_mean_increment(self) -> np.ndarray:
-        """log sum_i W_{k-1}^i G_k^i per run, (R,): the log of the mean increment G_k = p(z_k | x_k^i)
-        under the previous weights, the estimate of log p(z_k | z_1:k-1) (particles' `loglt`). It is the
-        log total of w_i = W_{k-1}^i G_k^i; for fresh weights (W_{k-1}^i = 1/N after resampling) the log
-        total less log N, plus the log factor they lack (the APF's first stage, as Pitt and Shephard)."""
-        log_totals, fresh, log_factor, count = self._increment
-        return np.where(fresh, (log_totals - math.log(count)) + log_factor, log_totals)
+
+def log_mean_increment(
+    log_totals: np.ndarray, fresh: np.ndarray | bool, log_factor: np.ndarray | float, count: int
+) -> np.ndarray:
+    """log p(z_k | z_1:k-1) estimated per run from the reweighting's log totals (Weights' attribute).
+
+    Parameters
+    ----------
+    log_totals : array (R,)
+        log sum_i w_i of each run.
+    fresh : bool array (R,), or bool (every run or none)
+        The runs whose w_i leave out W_{k-1}^i = 1/N (resampled).
+    log_factor : array (R,), or float
+        The log factor the fresh runs' w_i lack (the APF's first-stage total; 0 otherwise).
+    count : int
+        N.
+
+    Returns
+    -------
+    float64 array (R,): the fresh runs' log total less log N plus the factor, the others' log total
+    """
+    if fresh is False:
+        return log_totals
+    if fresh is True and len(log_totals) == 1:  # one run: the same double arithmetic on Python floats
+        factor = float(log_factor[0]) if isinstance(log_factor, np.ndarray) and log_factor.ndim else float(log_factor)
+        return np.array([(float(log_totals[0]) - math.log(count)) + factor])
+    fresh_values = (log_totals - math.log(count)) + log_factor
+    return fresh_values if fresh is True else np.where(fresh, fresh_values, log_totals)
 
 
 # -- weights: each function takes one run's weights (N,) or R runs' (R, N), summing along the last axis
@@ -235,6 +270,7 @@ __all__ = [
     "Weights",
     "effective_sample_size",
     "exp_in_place",
+    "log_mean_increment",
     "log_sum_exp",
     "mass_within",
     "weighted_covariance",
