@@ -171,8 +171,11 @@ class ParticleFilter(SMC):
         -------
         (positions, headings)
         """
-        rngs = self.rngs if self._selected is None else [self.rngs[r] for r in self._selected]
-        return self.model.transition(points, self.selected_rows(self.compass_angles), rngs, ancestors)
+        selected = self._selected
+        if selected is None:  # every run
+            return self.model.transition(points, self.compass_angles, self.rngs, ancestors)
+        rngs = [self.rngs[r] for r in selected]
+        return self.model.transition(points, self.compass_angles[selected], rngs, ancestors)
 
     def log_likelihood(self, points: np.ndarray) -> np.ndarray:
         """log p(z_k | x), equation (3) with the outside penalty.
@@ -226,7 +229,7 @@ class ParticleFilter(SMC):
         runs = self.selected_runs
         if scheme is systematic_resample:  # one offset per run, the counting done for all runs at once
             rngs = self.rngs if self._selected is None else [self.rngs[run] for run in runs]
-            uniforms = np.array([rng.random() for rng in rngs])
+            uniforms = np.array([rngs[0].random()] if len(rngs) == 1 else [rng.random() for rng in rngs])
             ancestors = self.ops.systematic(weights, uniforms, None, self.count)
             if self._selected is not None:  # block b is run runs[b]'s
                 ancestors += np.repeat(self.count * (runs - np.arange(len(runs))), self.count).astype(ancestors.dtype)
@@ -406,8 +409,7 @@ class ParticleFilter(SMC):
             "confident",
             lambda: self.ops.mass_within(self.run_weights, self.positions, self._estimates(), CONFIDENCE_RADIUS),
         )
-        confident = share >= CONFIDENCE_SHARE
-        return bool(confident[0]) if self.runs == 1 else confident
+        return bool(share[0] >= CONFIDENCE_SHARE) if self.runs == 1 else share >= CONFIDENCE_SHARE
 
     def belief(self) -> Particles:
         """What the viewer draws: the particles (one run).

@@ -184,8 +184,9 @@ class SMC:
             return self.weights_value.W
         weights, log_totals = self.normalised(self.weights_value.lw, log_eta)
         self._first_stage_totals = log_totals
-        lost = log_totals < LOG_UNDERFLOW
-        self._lost = lost if lost.any() else self._no_run  # none lost: the steps' checks of it are skipped
+        if not _all_at_least(log_totals, LOG_UNDERFLOW):  # NaN counts as lost below only if < LOG_UNDERFLOW
+            lost = log_totals < LOG_UNDERFLOW
+            self._lost = lost if lost.any() else self._no_run  # none lost: the steps' checks of it are skipped
         return weights
 
     def due(self, due: bool | np.ndarray) -> bool:
@@ -234,7 +235,7 @@ class SMC:
         if self.moved_by_resampling:
             self._moved = self.resampled_now
         self._resampled = (runs, ancestors)
-        for run in runs:
+        for run in runs.tolist():
             self._resampled_at[run].append(self.steps_done)
 
     def moved_after_resampling(self, ancestors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -312,7 +313,7 @@ class SMC:
             increments = increments.copy()
             increments[self._lost] = self._first_stage_totals[self._lost]
         self.log_evidence_increment = increments
-        self.run_log_evidence = self.run_log_evidence + increments
+        self.run_log_evidence = _plus(self.run_log_evidence, increments)
         self.after_reweighting(increments)
 
     def after_reweighting(self, increments: np.ndarray) -> None:
@@ -539,6 +540,11 @@ _NO_RUNS = np.empty(0, dtype=np.intp)  # no run restarted (never written into)
 def _all_at_least(values: np.ndarray, bound: float) -> bool:
     """Whether every value (R,) is at least `bound` (False for NaN): for one run a compare of floats."""
     return bool(values[0] >= bound) if len(values) == 1 else bool((values >= bound).all())
+
+
+def _plus(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a + b of two float64 arrays (R,), a new array: for one run the same double sum on Python floats."""
+    return np.array([float(a[0]) + float(b[0])]) if len(a) == 1 else a + b
 
 
 def _per_run(value: float | np.ndarray, runs: int) -> np.ndarray:
