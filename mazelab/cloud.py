@@ -344,6 +344,12 @@ class ParticleFilter(SMC):
         if self.recovery is not None:
             self.recovery.track(float(np.asarray(log_w_avg).item()), float(np.asarray(z).item()))
 
+    def replace_runs(self, positions: np.ndarray, headings: np.ndarray, runs: np.ndarray) -> None:
+        """The engine's replacement of the runs' particles; the reads kept for the old ones go with them
+        (so that the compiled backend may reuse their arrays within the step: the RPF's move)."""
+        self._reads_of, self._reads = None, {}
+        super().replace_runs(positions, headings, runs)
+
     # -- the weights' arithmetic on the backend --------------------------------------------------------
     def normalise_rows(self, log_w: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, Any, Any]:
         """The backend's normalisation (the compiled one reads W, ESS, mean and confidence in its passes)."""

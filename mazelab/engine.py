@@ -60,6 +60,7 @@ class SMC:
         W = self.first_stage(self.log_eta())  # W_{k-1}^i eta_k^i (the APF's; eta = 1 otherwise)
         if self.due(self.time_to_resample()):  # RESAMPLE when it is time
             self.resampled(self.ancestors(W))  # a^i ~ W by the scheme; x^i = move_after_resampling(a^i)
+        del W  # spent: the compiled backend may reuse its memory for this step's weights
         self.move()  # x_k^i ~ p(x_k | x_{k-1}^i) for the particles not moved at resampling
         self.reweight(self.log_likelihood(self.positions))  # w_k^i ∝ w^i p(z_k | x_k^i); log p(z_k | z_1:k-1)
         self.steps_done += 1
@@ -232,6 +233,8 @@ class SMC:
         finally:
             self._selected = None
         self.replace_runs(positions, headings, runs)
+        if len(runs) == self.runs:  # every run's weights are spent (the reweighting sets the next): the
+            self.weights_value = None  # compiled backend may reuse their arrays (the likelihood's too)
         if self.moved_by_resampling:
             self._moved = self.resampled_now
         self._resampled = (runs, ancestors)
