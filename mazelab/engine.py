@@ -206,6 +206,10 @@ class SMC:
         if due is True and none_lost:
             self.resampled_now, self._selected = self._all_runs, None
             return True
+        if due is False and none_lost:  # no run resamples (one run's N_eff above N_T)
+            self.resampled_now = self._no_run
+            self.between_resamplings()
+            return False
         if none_lost and isinstance(due, np.ndarray) and due.shape == self._no_run.shape:
             due = due.astype(bool)  # a new array (R,)
         else:
@@ -260,10 +264,10 @@ class SMC:
     def move(self) -> None:
         """x_k^i ~ p(x_k | x_{k-1}^i) for the runs whose particles the resampling did not move (not the
         lost runs: they restart)."""
-        if self._moved is self._all_runs or self._moved.all():
-            return
         if self._moved is self._no_run and self._lost is self._no_run:
             runs = self._every_run  # no run resampled and none lost: every run moves
+        elif self._moved is self._all_runs or self._moved.all():
+            return
         else:
             pending = ~self._moved & ~self._lost
             if not pending.any():
