@@ -37,7 +37,7 @@ def stepped(name: str, world, steps: int = 8):
 
 def kept(filt, name: str) -> int:
     """How many arrays the filter's buffer pool keeps under `name`."""
-    return len(filt.ops.pool._slots[name][1])
+    return len(filt.ops.pool._slots[name][-1])
 
 
 @pytest.mark.parametrize("name", ["sir", "apf", "rpf"])
