@@ -118,11 +118,12 @@ class ParticleFilter(SMC):
         self.estimate_rule = settings["estimate"]
         self.scheme_name = settings["resampling"]
         self.scheme = resampling_scheme(self.scheme_name)
-        runs_particles = as_runs(particles)  # (R, N, 2)
-        self.count = runs_particles.shape[1]
+        runs_particles = as_runs(particles)  # (R, N, 2), float64 (checked: a copy)
+        runs, self.count = runs_particles.shape[:2]
         self.positions = np.asfortranarray(runs_particles.reshape(-1, 2), dtype=PARTICLE_DTYPE)  # (R*N, 2)
+        del runs_particles  # the float64 copy goes before the filter's arrays are made (a million particles: 16 MB)
         self.headings = np.zeros(len(self.positions), dtype=PARTICLE_DTYPE)  # each particle's last motion angle
-        self.start_runs(generators(rng, len(runs_particles)))
+        self.start_runs(generators(rng, runs))
         self._reads_of: tuple[np.ndarray, Any] | None = None  # the arrays _reads describe
         self._reads: dict[str, Any] = {}
         # the parts beyond the paper, off by default
