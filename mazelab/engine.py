@@ -185,7 +185,7 @@ class SMC:
             return self.weights_value.W
         weights, log_totals = self.normalised(self.weights_value.lw, log_eta)
         self._first_stage_totals = log_totals
-        if not _all_at_least(log_totals, LOG_UNDERFLOW):  # NaN counts as lost below only if < LOG_UNDERFLOW
+        if not _all_at_least(log_totals, LOG_UNDERFLOW):  # a run lost (or a NaN total: not lost)
             lost = log_totals < LOG_UNDERFLOW
             self._lost = lost if lost.any() else self._no_run  # none lost: the steps' checks of it are skipped
         return weights

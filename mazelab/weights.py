@@ -11,7 +11,8 @@ import numpy as np
 
 class Weights:
     """The weights of R runs as a value (nchopin/particles' resampling.Weights, one row per run): the
-    normalised log weights in, W, the ESS and the log of the mean increment derived once when asked.
+    normalised log weights in, W and the ESS derived once when asked, the log of the mean increment
+    worked out as the value is made.
 
     Parameters
     ----------
