@@ -142,7 +142,7 @@ class SMC:
         """
         self.rngs = list(rngs)
         self.runs = len(self.rngs)
-        self.weights_value = Weights(np.full((self.runs, self.count), -math.log(self.count)))
+        self.weights_value = Weights.uniform(self.runs, self.count)
         self.steps_done = 0
         self._reinitialised: list[list[int]] = [[] for _ in range(self.runs)]
         self._resampled_at: list[list[int]] = [[] for _ in range(self.runs)]
@@ -232,6 +232,8 @@ class SMC:
             a^i of the served runs' particles, indices into `positions`.
         """
         runs = self.selected_runs
+        if self.moved_by_resampling and len(runs) == self.runs:
+            self.headings = None  # every particle moves now: the old headings go first (their memory reused)
         try:
             positions, headings = self.moved_after_resampling(ancestors)
         finally:
@@ -274,6 +276,8 @@ class SMC:
                 return
             runs = np.flatnonzero(pending)
         self._selected = None if len(runs) == self.runs else runs
+        if self._selected is None:
+            self.headings = None  # every particle moves now: the old headings go first (their memory reused)
         try:
             positions, headings = self.transition(self.selected_points())
         finally:

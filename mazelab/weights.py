@@ -56,7 +56,55 @@ class Weights:
         if ess is not None:
             values["ess"] = ess
         if increment is not None:
-            values["log_mean_increment"] = log_mean_increment(*increment)
+            values["log_mean_increment"] = self._mean_increment_logs(*increment)
+
+    @classmethod
+    def uniform(cls, runs: int, count: int) -> Weights:
+        """Equal weights W_i = 1/N of R runs, as a filter starts: W = exp(-log N), the values exp of the
+        normalised log weights gives; log W = log w - log N derived when read from log w = 0 (float32
+        zeros, pages the system gives untouched): a filter that reads W only never makes it.
+
+        Parameters
+        ----------
+        runs, count : int
+            R and N.
+
+        Returns
+        -------
+        Weights
+        """
+        W = np.full((runs, count), -math.log(count))
+        np.exp(W, out=W)
+        return cls(None, W, None, (np.zeros((runs, count), np.float32), np.full(runs, math.log(count))))
+
+    @staticmethod
+    def _mean_increment_logs(
+        log_totals: np.ndarray, fresh: np.ndarray | bool, log_factor: np.ndarray | float, count: int
+    ) -> np.ndarray:
+        """log p(z_k | z_1:k-1) estimated per run from the reweighting's log totals (`log_mean_increment`).
+
+        Parameters
+        ----------
+        log_totals : array (R,)
+            log sum_i w_i of each run.
+        fresh : bool array (R,), or bool (every run or none)
+            The runs whose w_i leave out W_{k-1}^i = 1/N (resampled).
+        log_factor : array (R,), or float
+            The log factor the fresh runs' w_i lack (the APF's first-stage total; 0 otherwise).
+        count : int
+            N.
+
+        Returns
+        -------
+        float64 array (R,): the fresh runs' log total less log N plus the factor, the others' log total
+        """
+        if fresh is False:
+            return log_totals
+        if fresh is True and len(log_totals) == 1:  # one run: the same double arithmetic on Python floats
+            factor = log_factor[0] if isinstance(log_factor, np.ndarray) and log_factor.ndim else log_factor
+            return np.array([(float(log_totals[0]) - math.log(count)) + float(factor)])
+        fresh_values = (log_totals - math.log(count)) + log_factor
+        return fresh_values if fresh is True else np.where(fresh, fresh_values, log_totals)
 
     def __setattr__(self, name: str, value: object) -> None:
         if name in self.__dict__:
@@ -78,35 +126,6 @@ class Weights:
     def ess(self) -> np.ndarray:
         """N_eff = 1 / sum_i W_i^2 per run (eq. 51), (R,)."""
         return effective_sample_size(self.W)
-
-
-def log_mean_increment(
-    log_totals: np.ndarray, fresh: np.ndarray | bool, log_factor: np.ndarray | float, count: int
-) -> np.ndarray:
-    """log p(z_k | z_1:k-1) estimated per run from the reweighting's log totals (Weights' attribute).
-
-    Parameters
-    ----------
-    log_totals : array (R,)
-        log sum_i w_i of each run.
-    fresh : bool array (R,), or bool (every run or none)
-        The runs whose w_i leave out W_{k-1}^i = 1/N (resampled).
-    log_factor : array (R,), or float
-        The log factor the fresh runs' w_i lack (the APF's first-stage total; 0 otherwise).
-    count : int
-        N.
-
-    Returns
-    -------
-    float64 array (R,): the fresh runs' log total less log N plus the factor, the others' log total
-    """
-    if fresh is False:
-        return log_totals
-    if fresh is True and len(log_totals) == 1:  # one run: the same double arithmetic on Python floats
-        factor = float(log_factor[0]) if isinstance(log_factor, np.ndarray) and log_factor.ndim else float(log_factor)
-        return np.array([(float(log_totals[0]) - math.log(count)) + factor])
-    fresh_values = (log_totals - math.log(count)) + log_factor
-    return fresh_values if fresh is True else np.where(fresh, fresh_values, log_totals)
 
 
 # -- weights: each function takes one run's weights (N,) or R runs' (R, N), summing along the last axis
@@ -271,7 +290,6 @@ __all__ = [
     "Weights",
     "effective_sample_size",
     "exp_in_place",
-    "log_mean_increment",
     "log_sum_exp",
     "mass_within",
     "weighted_covariance",

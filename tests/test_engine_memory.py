@@ -6,7 +6,10 @@ the arrays a step needs at once:
   weights once every run has resampled: the new ones are written over them);
 - the SIR's likelihood: one array (the old weights that kept it for their log W are spent);
 - the positions: two, the filter's and the moved ones (the RPF's jittered particles are moved again
-  within the step: the reads kept for the old particles go with them, not a third array).
+  within the step: the reads kept for the old particles go with them, not a third array);
+- the uniforms that become the headings: one for the SIR and the RPF (the old headings go as every
+  particle moves, their array drawn into); the APF's auxiliary points draw theirs while the old ones
+  are still the filter's.
 
 Skipped without numba (the `fast` extra)."""
 
@@ -55,3 +58,10 @@ def test_a_step_keeps_two_position_arrays(name, paper_world):
     if name == "rpf":
         assert len(filt.regularised_at) > 0, "the walk must regularise for the RPF's case"
     assert kept(filt, "positions") == 2
+
+
+@pytest.mark.parametrize("name", ["sir", "rpf"])
+def test_a_step_that_moves_every_particle_keeps_one_uniforms_array(name, paper_world):
+    filt = stepped(name, paper_world)
+    assert kept(filt, "uniforms") == 1
+    assert filt.headings is not None and len(filt.headings) == len(filt.positions)

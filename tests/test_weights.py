@@ -18,7 +18,6 @@ import pytest
 from mazelab.weights import (
     Weights,
     effective_sample_size,
-    log_mean_increment,
     log_sum_exp,
     mass_within,
     weighted_covariance,
@@ -140,7 +139,7 @@ def test_every_run_or_none_fresh_gives_the_masks_increments_to_the_bit(runs, fac
         totals = rng.normal(-3.0, 2.0, runs)
         log_factor = rng.normal(-1.0, 0.5, runs) if factor == "per run" else factor
         for fresh, mask in ((True, np.ones(runs, dtype=bool)), (False, np.zeros(runs, dtype=bool))):
-            fast = log_mean_increment(totals, fresh, log_factor, 1000)
-            masked = log_mean_increment(totals, mask, log_factor, 1000)
+            fast = Weights(None, increment=(totals, fresh, log_factor, 1000)).log_mean_increment
+            masked = Weights(None, increment=(totals, mask, log_factor, 1000)).log_mean_increment
             assert fast.dtype == masked.dtype == np.float64
             np.testing.assert_array_equal(fast.view(np.int64), masked.view(np.int64))
