@@ -118,11 +118,12 @@ class ParticleFilter(SMC):
         self.estimate_rule = settings["estimate"]
         self.scheme_name = settings["resampling"]
         self.scheme = resampling_scheme(self.scheme_name)
-        runs_particles = as_runs(particles)  # (R, N, 2)
-        self.count = runs_particles.shape[1]
+        runs_particles = as_runs(particles)  # (R, N, 2), float64 (checked: a copy)
+        runs, self.count = runs_particles.shape[:2]
         self.positions = np.asfortranarray(runs_particles.reshape(-1, 2), dtype=PARTICLE_DTYPE)  # (R*N, 2)
+        del runs_particles  # the float64 copy goes before the filter's arrays are made (a million particles: 16 MB)
         self.headings = np.zeros(len(self.positions), dtype=PARTICLE_DTYPE)  # each particle's last motion angle
-        self.start_runs(generators(rng, len(runs_particles)))
+        self.start_runs(generators(rng, runs))
         self._reads_of: tuple[np.ndarray, Any] | None = None  # the arrays _reads describe
         self._reads: dict[str, Any] = {}
         # the parts beyond the paper, off by default
@@ -171,8 +172,11 @@ class ParticleFilter(SMC):
         -------
         (positions, headings)
         """
-        rngs = self.rngs if self._selected is None else [self.rngs[r] for r in self._selected]
-        return self.model.transition(points, self.selected_rows(self.compass_angles), rngs, ancestors)
+        selected = self._selected
+        if selected is None:  # every run
+            return self.model.transition(points, self.compass_angles, self.rngs, ancestors)
+        rngs = [self.rngs[r] for r in selected]
+        return self.model.transition(points, self.compass_angles[selected], rngs, ancestors)
 
     def log_likelihood(self, points: np.ndarray) -> np.ndarray:
         """log p(z_k | x), equation (3) with the outside penalty.
@@ -341,6 +345,12 @@ class ParticleFilter(SMC):
         if self.recovery is not None:
             self.recovery.track(float(np.asarray(log_w_avg).item()), float(np.asarray(z).item()))
 
+    def replace_runs(self, positions: np.ndarray, headings: np.ndarray, runs: np.ndarray) -> None:
+        """The engine's replacement of the runs' particles; the reads kept for the old ones go with them
+        (so that the compiled backend may reuse their arrays within the step: the RPF's move)."""
+        self._reads_of, self._reads = None, {}
+        super().replace_runs(positions, headings, runs)
+
     # -- the weights' arithmetic on the backend --------------------------------------------------------
     def normalise_rows(self, log_w: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, Any, Any]:
         """The backend's normalisation (the compiled one reads W, ESS, mean and confidence in its passes)."""
@@ -406,8 +416,7 @@ class ParticleFilter(SMC):
             "confident",
             lambda: self.ops.mass_within(self.run_weights, self.positions, self._estimates(), CONFIDENCE_RADIUS),
         )
-        confident = share >= CONFIDENCE_SHARE
-        return bool(confident[0]) if self.runs == 1 else confident
+        return bool(share[0] >= CONFIDENCE_SHARE) if self.runs == 1 else share >= CONFIDENCE_SHARE
 
     def belief(self) -> Particles:
         """What the viewer draws: the particles (one run).

@@ -60,6 +60,7 @@ class SMC:
         W = self.first_stage(self.log_eta())  # W_{k-1}^i eta_k^i (the APF's; eta = 1 otherwise)
         if self.due(self.time_to_resample()):  # RESAMPLE when it is time
             self.resampled(self.ancestors(W))  # a^i ~ W by the scheme; x^i = move_after_resampling(a^i)
+        del W  # spent: the compiled backend may reuse its memory for this step's weights
         self.move()  # x_k^i ~ p(x_k | x_{k-1}^i) for the particles not moved at resampling
         self.reweight(self.log_likelihood(self.positions))  # w_k^i ∝ w^i p(z_k | x_k^i); log p(z_k | z_1:k-1)
         self.steps_done += 1
@@ -141,7 +142,7 @@ class SMC:
         """
         self.rngs = list(rngs)
         self.runs = len(self.rngs)
-        self.weights_value = Weights(np.full((self.runs, self.count), -math.log(self.count)))
+        self.weights_value = Weights.uniform(self.runs, self.count)
         self.steps_done = 0
         self._reinitialised: list[list[int]] = [[] for _ in range(self.runs)]
         self._resampled_at: list[list[int]] = [[] for _ in range(self.runs)]
@@ -184,8 +185,9 @@ class SMC:
             return self.weights_value.W
         weights, log_totals = self.normalised(self.weights_value.lw, log_eta)
         self._first_stage_totals = log_totals
-        lost = log_totals < LOG_UNDERFLOW
-        self._lost = lost if lost.any() else self._no_run  # none lost: the steps' checks of it are skipped
+        if not _all_at_least(log_totals, LOG_UNDERFLOW):  # a run lost (or a NaN total: not lost)
+            lost = log_totals < LOG_UNDERFLOW
+            self._lost = lost if lost.any() else self._no_run  # none lost: the steps' checks of it are skipped
         return weights
 
     def due(self, due: bool | np.ndarray) -> bool:
@@ -204,6 +206,10 @@ class SMC:
         if due is True and none_lost:
             self.resampled_now, self._selected = self._all_runs, None
             return True
+        if due is False and none_lost:  # no run resamples (one run's N_eff above N_T)
+            self.resampled_now = self._no_run
+            self.between_resamplings()
+            return False
         if none_lost and isinstance(due, np.ndarray) and due.shape == self._no_run.shape:
             due = due.astype(bool)  # a new array (R,)
         else:
@@ -226,15 +232,19 @@ class SMC:
             a^i of the served runs' particles, indices into `positions`.
         """
         runs = self.selected_runs
+        if self.moved_by_resampling and len(runs) == self.runs:
+            self.headings = None  # every particle moves now: the old headings go first (their memory reused)
         try:
             positions, headings = self.moved_after_resampling(ancestors)
         finally:
             self._selected = None
         self.replace_runs(positions, headings, runs)
+        if len(runs) == self.runs:  # every run's weights are spent (the reweighting sets the next): the
+            self.weights_value = None  # compiled backend may reuse their arrays (the likelihood's too)
         if self.moved_by_resampling:
             self._moved = self.resampled_now
         self._resampled = (runs, ancestors)
-        for run in runs:
+        for run in runs.tolist():
             self._resampled_at[run].append(self.steps_done)
 
     def moved_after_resampling(self, ancestors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -256,16 +266,18 @@ class SMC:
     def move(self) -> None:
         """x_k^i ~ p(x_k | x_{k-1}^i) for the runs whose particles the resampling did not move (not the
         lost runs: they restart)."""
-        if self._moved is self._all_runs or self._moved.all():
-            return
         if self._moved is self._no_run and self._lost is self._no_run:
             runs = self._every_run  # no run resampled and none lost: every run moves
+        elif self._moved is self._all_runs or self._moved.all():
+            return
         else:
             pending = ~self._moved & ~self._lost
             if not pending.any():
                 return
             runs = np.flatnonzero(pending)
         self._selected = None if len(runs) == self.runs else runs
+        if self._selected is None:
+            self.headings = None  # every particle moves now: the old headings go first (their memory reused)
         try:
             positions, headings = self.transition(self.selected_points())
         finally:
@@ -282,22 +294,24 @@ class SMC:
         log_lik : array (R, N)
             log p(z_k | x_k^i) of every run's particles.
         """
-        fresh, extra = self._no_run, 0.0
+        fresh: np.ndarray | bool = False  # which runs' log w leave out W_{k-1} (True: every run)
+        extra: np.ndarray | float = 0.0
         if self._resampled is None:
             log_w: np.ndarray | list[np.ndarray] = self.weights_value.lw + log_lik
         else:
             runs, ancestors = self._resampled
-            self._selected = None if len(runs) == self.runs else runs
+            every_run = len(runs) == self.runs
+            self._selected = None if every_run else runs
             try:
                 resampled, scale = self.reweight_resampled(self.selected_rows(log_lik), ancestors)
             finally:
                 self._selected = None
-            if scale is not None and len(runs) == self.runs:  # every run resampled (never written into)
-                fresh, extra = self._all_runs, scale
+            if scale is not None and every_run:
+                fresh, extra = True, scale
             elif scale is not None:
                 fresh, extra = np.zeros(self.runs, dtype=bool), np.zeros(self.runs)
                 fresh[runs], extra[runs] = True, scale
-            if len(runs) == self.runs:
+            if every_run:
                 log_w = resampled
             else:  # some runs resampled: each run's row (rows of two dtypes are normalised apart)
                 rows, previous = dict(zip(runs.tolist(), resampled, strict=True)), self.weights_value.lw
@@ -306,11 +320,11 @@ class SMC:
         self.weights_value = None  # the last step's weights go first (the compiled backend reuses their arrays)
         self.normalise(log_w, (fresh, extra))
         increments = self.weights_value.log_mean_increment  # log p(z_k | z_1:k-1)
-        if self._lost is not self._no_run and self._lost.any():
+        if self._lost is not self._no_run:
             increments = increments.copy()
             increments[self._lost] = self._first_stage_totals[self._lost]
         self.log_evidence_increment = increments
-        self.run_log_evidence = self.run_log_evidence + increments
+        self.run_log_evidence = _plus(self.run_log_evidence, increments)
         self.after_reweighting(increments)
 
     def after_reweighting(self, increments: np.ndarray) -> None:
@@ -324,7 +338,7 @@ class SMC:
 
     # -- the weights ---------------------------------------------------------------------------------
     def normalise(
-        self, log_w: np.ndarray | list[np.ndarray], fresh: tuple[np.ndarray, Any] | None = None
+        self, log_w: np.ndarray | list[np.ndarray], fresh: tuple[np.ndarray | bool, Any] | None = None
     ) -> np.ndarray:
         """W_i ∝ exp(log w_i) of each run (its row); runs whose total underflows (or that are lost)
         restart from the prior, weighted by their z_k. Rows of one dtype are normalised together.
@@ -333,36 +347,48 @@ class SMC:
         ----------
         log_w : array (R, N), or a list of R rows (N,)
             Each run's unnormalised log weights.
-        fresh : (bool array (R,), array (R,) or float), optional
-            The runs whose log w leave out W_{k-1} = 1/N (resampled) and the log factor they lack, for
-            the Weights' log mean increment (None: every run's log w carries W_{k-1}).
+        fresh : (bool array (R,) or bool, array (R,) or float), optional
+            The runs whose log w leave out W_{k-1} = 1/N (resampled; True: every run) and the log factor
+            they lack, for the Weights' log mean increment (None: every run's log w carries W_{k-1}).
 
         Returns
         -------
         array (R,)
             The log totals before any restart.
         """
-        groups: dict[Any, list[int]] = {}
-        for run, row in enumerate([] if isinstance(log_w, np.ndarray) else log_w):
-            groups.setdefault(row.dtype, []).append(run)
-        if len(groups) > 1:
-            totals, log_weights, reads = self._normalise_groups(log_w, list(groups.values()))
-        else:
-            log_w = np.asarray(log_w)
+        if isinstance(log_w, np.ndarray):
             totals, log_weights, reads = self.normalise_rows(log_w, self.positions)
-        explained = totals >= LOG_UNDERFLOW  # False for an underflow and for NaN
-        if self._lost is not self._no_run:
+        else:
+            log_w, (totals, log_weights, reads) = self._normalise_list(log_w)
+        if self._lost is self._no_run and _all_at_least(totals, LOG_UNDERFLOW):
+            restarted = _NO_RUNS  # the common step: every run explained, none lost
+        else:
+            explained = totals >= LOG_UNDERFLOW  # False for an underflow and for NaN
             explained &= ~self._lost
-        restarted = _NO_RUNS if explained.all() else np.flatnonzero(~explained)
+            restarted = np.flatnonzero(~explained)
         if len(restarted):
             log_weights = self._reinitialise(restarted, _log_weights(log_weights, log_w, totals))
         unnormalised = None if log_weights is not None else (log_w, totals)  # log W derived when read
         totals = np.asarray(totals, dtype=float)
-        fresh_runs, log_factor = (self._no_run, 0.0) if fresh is None else fresh
-        increment = (totals, fresh_runs, log_factor, self.count)
+        increment = (totals, *((False, 0.0) if fresh is None else fresh), self.count)
         reads = self.kept_reads(reads, restarted, log_weights)
         self.weights_value = Weights(log_weights, *reads, unnormalised, increment)
         return totals
+
+    def _normalise_list(self, rows: list[np.ndarray]) -> tuple[np.ndarray, tuple]:
+        """`normalise_rows` of R rows (N,): together when they share a dtype, else by `_normalise_groups`.
+
+        Returns
+        -------
+        (log w, the array normalised (R, N) or the rows, normalise_rows' results)
+        """
+        groups: dict[Any, list[int]] = {}
+        for run, row in enumerate(rows):
+            groups.setdefault(row.dtype, []).append(run)
+        if len(groups) > 1:
+            return rows, self._normalise_groups(rows, list(groups.values()))
+        log_w = np.asarray(rows)
+        return log_w, self.normalise_rows(log_w, self.positions)
 
     def _normalise_groups(
         self, rows: list[np.ndarray], groups: list[list[int]]
@@ -520,6 +546,16 @@ class SMC:
 
 
 _NO_RUNS = np.empty(0, dtype=np.intp)  # no run restarted (never written into)
+
+
+def _all_at_least(values: np.ndarray, bound: float) -> bool:
+    """Whether every value (R,) is at least `bound` (False for NaN): for one run a compare of floats."""
+    return bool(values[0] >= bound) if len(values) == 1 else bool((values >= bound).all())
+
+
+def _plus(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a + b of two float64 arrays (R,), a new array: for one run the same double sum on Python floats."""
+    return np.array([float(a[0]) + float(b[0])]) if len(a) == 1 else a + b
 
 
 def _per_run(value: float | np.ndarray, runs: int) -> np.ndarray:

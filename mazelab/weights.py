@@ -11,7 +11,8 @@ import numpy as np
 
 class Weights:
     """The weights of R runs as a value (nchopin/particles' resampling.Weights, one row per run): the
-    normalised log weights in, W, the ESS and the log of the mean increment derived once when asked.
+    normalised log weights in, W and the ESS derived once when asked, the log of the mean increment
+    worked out as the value is made.
 
     Parameters
     ----------
@@ -22,10 +23,20 @@ class Weights:
     unnormalised : (array (R, N), array (R,)), optional
         log w and log sum_i w_i of each run, for `lw` = log w - log total when it is read (a step that
         resamples every time reads W only, so it never writes log W).
-    increment : (array (R,), bool array (R,), array (R,) or float, int), optional
+    increment : (array (R,), bool array (R,) or bool, array (R,) or float, int), optional
         For `log_mean_increment`: each run's log sum_i w_i of the reweighting (w_i = W_{k-1}^i G_k^i,
-        G the increment), which runs' w_i are fresh (resampled: G_k^i alone, W_{k-1}^i = 1/N left out),
-        the log factor those lack (the APF's first-stage total; 0 otherwise) and N.
+        G the increment), which runs' w_i are fresh (resampled: G_k^i alone, W_{k-1}^i = 1/N left out;
+        True or False: every run or none), the log factor those lack (the APF's first-stage total; 0
+        otherwise) and N.
+
+    Attributes
+    ----------
+    log_mean_increment : array (R,)
+        log sum_i W_{k-1}^i G_k^i per run (given `increment`): the log of the mean increment G_k =
+        p(z_k | x_k^i) under the previous weights, the estimate of log p(z_k | z_1:k-1) (particles'
+        `loglt`). It is the log total of w_i = W_{k-1}^i G_k^i; for fresh weights (W_{k-1}^i = 1/N after
+        resampling) the log total less log N, plus the log factor they lack (the APF's first stage, as
+        Pitt and Shephard). Worked out as the value is made: every step reads it.
     """
 
     def __init__(
@@ -36,11 +47,64 @@ class Weights:
         unnormalised: tuple[np.ndarray, np.ndarray] | None = None,
         increment: tuple[np.ndarray, np.ndarray, np.ndarray | float, int] | None = None,
     ):
-        self.__dict__["_unnormalised"] = unnormalised
-        self.__dict__["_increment"] = increment
-        for name, value in (("lw", lw), ("W", W), ("ess", ess)):
-            if value is not None:
-                self.__dict__[name] = value
+        values = self.__dict__
+        values["_unnormalised"] = unnormalised
+        if lw is not None:
+            values["lw"] = lw
+        if W is not None:
+            values["W"] = W
+        if ess is not None:
+            values["ess"] = ess
+        if increment is not None:
+            values["log_mean_increment"] = self._mean_increment_logs(*increment)
+
+    @classmethod
+    def uniform(cls, runs: int, count: int) -> Weights:
+        """Equal weights W_i = 1/N of R runs, as a filter starts: W = exp(-log N), the values exp of the
+        normalised log weights gives; log W = log w - log N derived when read from log w = 0 (float32
+        zeros, pages the system gives untouched): a filter that reads W only never makes it.
+
+        Parameters
+        ----------
+        runs, count : int
+            R and N.
+
+        Returns
+        -------
+        Weights
+        """
+        W = np.full((runs, count), -math.log(count))
+        np.exp(W, out=W)
+        return cls(None, W, None, (np.zeros((runs, count), np.float32), np.full(runs, math.log(count))))
+
+    @staticmethod
+    def _mean_increment_logs(
+        log_totals: np.ndarray, fresh: np.ndarray | bool, log_factor: np.ndarray | float, count: int
+    ) -> np.ndarray:
+        """log p(z_k | z_1:k-1) estimated per run from the reweighting's log totals (`log_mean_increment`).
+
+        Parameters
+        ----------
+        log_totals : array (R,)
+            log sum_i w_i of each run.
+        fresh : bool array (R,), or bool (every run or none)
+            The runs whose w_i leave out W_{k-1}^i = 1/N (resampled).
+        log_factor : array (R,), or float
+            The log factor the fresh runs' w_i lack (the APF's first-stage total; 0 otherwise).
+        count : int
+            N.
+
+        Returns
+        -------
+        float64 array (R,): the fresh runs' log total less log N plus the factor, the others' log total
+        """
+        if fresh is False:
+            return log_totals
+        if fresh is True and len(log_totals) == 1:  # one run: the same double arithmetic on Python floats
+            factor = log_factor[0] if isinstance(log_factor, np.ndarray) and log_factor.ndim else log_factor
+            return np.array([(float(log_totals[0]) - math.log(count)) + float(factor)])
+        fresh_values = (log_totals - math.log(count)) + log_factor
+        return fresh_values if fresh is True else np.where(fresh, fresh_values, log_totals)
 
     def __setattr__(self, name: str, value: object) -> None:
         if name in self.__dict__:
@@ -62,15 +126,6 @@ class Weights:
     def ess(self) -> np.ndarray:
         """N_eff = 1 / sum_i W_i^2 per run (eq. 51), (R,)."""
         return effective_sample_size(self.W)
-
-    @cached_property
-    def log_mean_increment(self) -> np.ndarray:
-        """log sum_i W_{k-1}^i G_k^i per run, (R,): the log of the mean increment G_k = p(z_k | x_k^i)
-        under the previous weights, the estimate of log p(z_k | z_1:k-1) (particles' `loglt`). It is the
-        log total of w_i = W_{k-1}^i G_k^i; for fresh weights (W_{k-1}^i = 1/N after resampling) the log
-        total less log N, plus the log factor they lack (the APF's first stage, as Pitt and Shephard)."""
-        log_totals, fresh, log_factor, count = self._increment
-        return np.where(fresh, (log_totals - math.log(count)) + log_factor, log_totals)
 
 
 # -- weights: each function takes one run's weights (N,) or R runs' (R, N), summing along the last axis

@@ -24,16 +24,18 @@ from mazelab.numpy_ops import NumpyKernels
 from mazelab.regularisation import GaussianKernel
 
 THREADED_FROM = 1 << 16  # particles in a call from which the likelihood and the normalisation use the threads
-_KEEP = 3  # arrays kept per buffer name and shape: the filter's, the one being filled, one a caller holds
+_KEEP = 2  # arrays kept per buffer name and shape: the filter's and the one being filled (more are made
+# while a caller holds one, and not kept: the step lets go of what it has spent, so two are enough)
 
 
 class BufferPool:
     """Arrays by name, handed out again once nothing outside the pool refers to them."""
 
     def __init__(self) -> None:
-        self._slots: dict[str, tuple[tuple, list[np.ndarray]]] = {}  # name -> ((shape, dtype, order), arrays)
+        self._slots: dict[str, tuple] = {}  # name -> (shape, dtype, order, [arrays])
         probe = [np.empty(1)]
-        self._free = sys.getrefcount(probe[0])  # an array only the pool holds: its list's and the call's
+        # an array only the pool holds, as `take` sees it: its list's reference, the loop's and the call's
+        self._unheld = sys.getrefcount(probe[0]) + 1
 
     def take(self, name: str, shape: tuple[int, ...], dtype: Any, order: str = "C") -> np.ndarray:
         """An array of this shape, dtype and order, not referred to by anything but the pool.
@@ -51,18 +53,20 @@ class BufferPool:
         numpy.ndarray
             Uninitialised (its old values, or new memory).
         """
-        kind = (shape, dtype, order)
         held = self._slots.get(name)
-        if held is None or held[0] != kind:  # new, or the shape changed (KLD-sampling, a subset of runs)
-            held = self._slots[name] = (kind, [])
-        slots = held[1]
-        for array in slots:  # `array` itself is one more reference
-            if sys.getrefcount(array) == self._free + 1:
+        if held is None or held[0] != shape or held[1] != dtype or held[2] != order:
+            held = self._slots[name] = (shape, dtype, order, [])  # new, or another shape (KLD, some runs)
+        unheld = self._unheld
+        for array in held[3]:
+            if _references(array) == unheld:
                 return array
         array = np.empty(shape, dtype=dtype, order=order)
-        if len(slots) < _KEEP:
-            slots.append(array)
+        if len(held[3]) < _KEEP:
+            held[3].append(array)
         return array
+
+
+_references = sys.getrefcount
 
 
 def lookup_tables(world: Any) -> tuple:
