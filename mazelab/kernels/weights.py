@@ -144,18 +144,15 @@ def _add_sum(w, lanes):  # pragma: no cover - compiled
 
 
 @jit(inline=True)
-def _add_within(w, xs, ys, centre, r2, lanes):  # pragma: no cover - compiled
-    """lanes[0, i % LANES] += w_i for each i within sqrt(r2) of the centre (float32 distances), in order."""
-    full = len(w) // LANES * LANES
-    for block in range(0, full, LANES):
-        for j in range(LANES):
-            dx = xs[block + j] - centre[0]
-            dy = ys[block + j] - centre[1]
-            lanes[0, j] += np.float64(w[block + j]) if dx * dx + dy * dy <= r2 else 0.0
-    for i in range(full, len(w)):
+def _scale_and_keep_within(w, inverse, out, xs, ys, centre, r2):  # pragma: no cover - compiled
+    """out[i] = w_i * inverse (float64), then w_i kept where particle i lies within sqrt(r2) of the
+    centre (float32 distances) and 0 elsewhere (a select the loop vectorises: no branch, no sum)."""
+    for i in range(len(w)):
+        weight = w[i]
+        out[i] = np.float64(weight) * inverse
         dx = xs[i] - centre[0]
         dy = ys[i] - centre[1]
-        lanes[0, i - full] += np.float64(w[i]) if dx * dx + dy * dy <= r2 else 0.0
+        w[i] = weight if dx * dx + dy * dy <= r2 else np.float32(0.0)
 
 
 @jit(inline=True)
@@ -186,9 +183,8 @@ def _second_pass(log_w, top, inverse, xs, ys, centre, r2, w, lanes, chunk):  # p
         stop = min(first + step, size)
         part, out = chunk[: stop - first], w[first:stop]
         _exponentials(log_w[first:stop], top, part)
-        for i in range(len(part)):
-            out[i] = np.float64(part[i]) * inverse
-        _add_within(part, xs[first:stop], ys[first:stop], centre, r2, lanes)
+        _scale_and_keep_within(part, inverse, out, xs[first:stop], ys[first:stop], centre, r2)
+        _add_sum(part, lanes)
     return _lane_total(lanes, 0) * inverse
 
 
