@@ -37,10 +37,10 @@ BACKENDS = ("numpy", "compiled")
 ENVIRONMENT_VARIABLE = "MAZELAB_BACKEND"
 THREADS_VARIABLE = "MAZELAB_THREADS"  # the compiled backend's threads for one large run (--threads sets it)
 INSTALL_HINT = 'the compiled backend needs numba: pip install -e ".[fast]" (uv sync installs it)'
-# What the compiled backend costs and saves, CPU seconds, as measured on a 2-core AMD EPYC: a fresh process's
-# numba import and first kernel call (process_time around them), and numpy's step less the compiled one's
-# (mazelab.bench.filter_stepper; SIR, APF and RPF, one run of N = 100 and 10,000, 30 runs of 1,500 together).
-STARTUP_SECONDS = 0.5  # numba's import and its first kernel's set-up: 0.35 s with Python's bytecode cached, 1.1 without
+# What the compiled backend costs and saves, CPU seconds, as measured on a 2-core AMD EPYC: a fresh `main.py run`
+# (200 steps of 1,500 particles) on each backend, and numpy's step less the compiled one's (mazelab.bench's
+# filter_stepper; SIR, APF and RPF, one run of N = 100 and 10,000, 30 runs of 1,500 together).
+STARTUP_SECONDS = 0.5  # numba's import and first kernel set-up: the run's extra CPU with bytecode cached (1.2 s not)
 SAVED_PER_STEP = 60e-6  # a filter step's saving whatever its particles (fewer Python calls): 65-110 us at N = 100
 SAVED_PER_PARTICLE = 15e-9  # and per particle the step moves (R runs together: R x N): 9-30 ns
 
