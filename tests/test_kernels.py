@@ -155,6 +155,28 @@ def test_the_apf_first_stage_and_the_covariance_agree_with_numpy_to_rounding(ten
     )
 
 
+@pytest.mark.parametrize("dtype", [F32, np.float64])  # SIR's and the APF's log weights, the RPF's
+def test_the_normalisation_of_runs_together_is_each_runs_alone_to_the_bit(dtype, ten):
+    from mazelab.kernels.weights import CHUNK, LANES
+
+    rng = np.random.default_rng(7)
+    size = 2 * CHUNK + LANES + 5  # three chunks, the last with a part lane's worth
+    points = cloud_points(ten, 3 * size, rng)
+    log_w = (-0.5 * rng.standard_normal((3, size)) ** 2 * 30).astype(dtype)
+    log_b = (-3 * rng.random((3, size))).astype(F32)
+    together = CompiledKernels(ten).normalise(log_w, points)
+    first_stage = CompiledKernels(ten).normalised(log_w.astype(float), log_b)
+    for r in range(3):
+        alone = CompiledKernels(ten).normalise(log_w[r : r + 1].copy(), points[r * size : (r + 1) * size].copy())
+        np.testing.assert_array_equal(alone[0], together[0][r : r + 1])
+        np.testing.assert_array_equal(alone[1], together[1][r : r + 1])
+        for name in ("weights", "ess", "mean", "share"):
+            np.testing.assert_array_equal(alone[2][name], together[2][name][r : r + 1])
+        one = CompiledKernels(ten).normalised(log_w[r : r + 1].astype(float), log_b[r : r + 1].copy())
+        np.testing.assert_array_equal(one[0], first_stage[0][r : r + 1])
+        np.testing.assert_array_equal(one[1], first_stage[1][r : r + 1])
+
+
 def test_the_rpf_jitter_is_the_numpy_paths_to_the_bit_and_spreads_by_h_d(ten):
     rng = np.random.default_rng(6)
     points = cloud_points(ten, 2 * 20_000, rng)
