@@ -124,7 +124,7 @@ def test_the_normalisation_and_its_reads_agree_with_numpy_to_rounding(ten):
     np.testing.assert_allclose(log_weights[:2], numpy_log_weights[:2], rtol=0, atol=1e-5)
     assert totals[2] == -np.inf and np.isnan(log_weights[2]).all() and np.isnan(reads["weights"][2]).all()
     W = np.exp(numpy_log_weights[:2])
-    # float32 exponentials: 2 ulps (2.4e-7) and the difference log w - top rounded to float32 (half an ulp
+    # float32 exponentials: 1 ulp (1.2e-7) and the difference log w - top rounded to float32 (half an ulp
     # of it, 4.8e-7 of the value while it is above -8, past that the weight is below 3.4e-4 of the top's:
     # 1e-5 relative covers both); 0 below exp(-87) = 1.6e-38 of the heaviest weight (W <= 1)
     np.testing.assert_allclose(reads["weights"][:2], W, rtol=1e-5, atol=1.7e-38)
@@ -142,9 +142,9 @@ def test_the_apf_first_stage_and_the_covariance_agree_with_numpy_to_rounding(ten
     log_b = (-3 * rng.random((2, 1500))).astype(F32)
     weights, totals = CompiledKernels(ten).normalised(log_a, log_b)
     numpy_weights, numpy_totals = NUMPY_KERNELS.normalised(log_a, log_b)
-    # float32 exponentials (mazelab.kernels.weights.exp32): 2 ulps (2.4e-7) and log a + log b - top, here
-    # above -32, rounded to float32 (half an ulp: 9.5e-7), so each weight within 1.2e-6 of numpy's and
-    # the log total (the log of their sum) within 1.2e-6 too
+    # float32 exponentials (mazelab.kernels.weights.exp32): 1 ulp (1.2e-7) and log a + log b - top, here
+    # above -32, rounded to float32 (half an ulp: 9.5e-7), so each weight within 1.1e-6 of numpy's and
+    # the log total (the log of their sum) within 1.2e-6
     np.testing.assert_allclose(weights, numpy_weights, rtol=1.2e-6 * 2)  # twice: the total's error as well
     np.testing.assert_allclose(totals, numpy_totals, rtol=0, atol=1.2e-6)
     points = cloud_points(ten, 2 * 1500, rng)
@@ -153,6 +153,26 @@ def test_the_apf_first_stage_and_the_covariance_agree_with_numpy_to_rounding(ten
         NUMPY_KERNELS.weighted_covariance(weights, points),
         rtol=1e-5,
     )
+
+
+def test_the_float32_exponential_is_within_one_ulp_of_exp_and_0_below_float32s_normal_range():
+    from numba import njit
+
+    from mazelab.kernels.weights import exp32
+
+    @njit
+    def exponentials(x, out):  # pragma: no cover - compiled
+        for i in range(len(x)):
+            out[i] = exp32(x[i])
+
+    x = np.linspace(-87.0, 0.0, 1_000_001).astype(F32)  # the normalisations' range: log w - top <= 0
+    out = np.empty_like(x)
+    exponentials(x, out)
+    exact = np.exp(x.astype(float))
+    assert (np.abs(out - exact) <= np.spacing(exact.astype(F32))).all()
+    edges = np.array([-np.inf, -100.0, -87.5, np.nan, 0.0], dtype=F32)
+    exponentials(edges, out[:5])
+    np.testing.assert_array_equal(out[:5], [0.0, 0.0, 0.0, np.nan, 1.0])
 
 
 @pytest.mark.parametrize("dtype", [F32, np.float64])  # SIR's and the APF's log weights, the RPF's
