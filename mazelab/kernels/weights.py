@@ -175,10 +175,11 @@ def _first_pass(log_w, top, xs, ys, lanes, chunk):  # pragma: no cover - compile
 
 
 @jit(inline=True)
-def _second_pass(log_w, top, inverse, xs, ys, centre, r2, w, lanes, chunk):  # pragma: no cover - compiled
-    """W_i = exp(log w_i - top) * inverse (inverse = 1 / total) of the 1-D `log_w`, written into `w`,
-    and the weight within sqrt(r2) of the centre (float32 distances): the sum of those w_i in LANES
-    partial sums, times inverse."""
+def _second_pass(log_w, top, scale, xs, ys, centre, r2, w, logs, lanes, chunk):  # pragma: no cover - compiled
+    """W_i = exp(log w_i - top) / total (scale = (1 / total, log total)) of the 1-D `log_w`, written into
+    `w`, log W_i = log w_i - log total into `logs` unless it is empty, and the weight within sqrt(r2) of
+    the centre (float32 distances): the sum of those w_i in LANES partial sums, over the total."""
+    inverse, log_total = scale
     lanes[0, :] = 0.0
     size, step = len(log_w), len(chunk)
     for first in range(0, size, step):
@@ -187,6 +188,8 @@ def _second_pass(log_w, top, inverse, xs, ys, centre, r2, w, lanes, chunk):  # p
         _exponentials(log_w[first:stop], top, part)
         _scale_and_keep_within(part, inverse, out, xs[first:stop], ys[first:stop], centre, r2)
         _add_sum(part, lanes)
+        if len(logs):  # while this chunk of log w is in the cache
+            _logs(log_w[first:stop], log_total, logs[first:stop])
     return _lane_total(lanes, 0) * inverse
 
 
@@ -253,9 +256,10 @@ def normalise(log_w, positions, radius, w, log_out, reads):  # pragma: no cover
         mean_x, mean_y = sum_x / total, sum_y / total
         reads[0, r], reads[1, r], reads[2, r], reads[3, r] = log_total, mean_x, mean_y, total * total / squares
         centre = np.float32(mean_x), np.float32(mean_y)
-        reads[4, r] = _second_pass(row, top, 1.0 / total, xs, ys, centre, r2, w[r], lanes, chunk)
+        logs = w[r, :0]  # empty: log W not written
         if log_out is not None:
-            _logs(row, log_total, log_out[r])
+            logs = log_out[r]
+        reads[4, r] = _second_pass(row, top, (1.0 / total, log_total), xs, ys, centre, r2, w[r], logs, lanes, chunk)
 
 
 BLOCK = 1 << 15  # particles per block of normalise_threads' sums: their order depends on it alone
@@ -303,10 +307,11 @@ def normalise_threads(log_w, positions, radius, w, log_out, reads):  # pragma: n
             centre = np.float32(reads[1, r]), np.float32(reads[2, r])
             xs, ys = positions[r * size + start : r * size + stop, 0], positions[r * size + start : r * size + stop, 1]
             row, lanes, chunk = log_w[r, start:stop], np.empty((4, LANES)), np.empty(CHUNK, dtype=np.float32)
-            inverse = 1.0 / sums[r, 0]
-            partial[job, 4] = _second_pass(row, tops[r], inverse, xs, ys, centre, r2, w[r, start:stop], lanes, chunk)
+            logs = w[r, :0]  # empty: log W not written
             if log_out is not None:
-                _logs(row, reads[0, r], log_out[r, start:stop])
+                logs = log_out[r, start:stop]
+            scale, out = (1.0 / sums[r, 0], reads[0, r]), w[r, start:stop]
+            partial[job, 4] = _second_pass(row, tops[r], scale, xs, ys, centre, r2, out, logs, lanes, chunk)
     for r in range(runs):
         if reads[3, r] == reads[3, r]:
             reads[4, r] = 0.0
