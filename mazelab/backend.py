@@ -5,7 +5,12 @@ The choice, in order: `use_backend(name)` around the code, else the environment 
 MAZELAB_BACKEND (numpy or compiled; the commands' --backend sets it, so that a study's worker
 processes inherit it), else "compiled" when numba can be imported and "numpy" when it cannot. A
 filter takes the backend chosen when it is made (`filt.backend`), and RunResult.extras["backend"] and
-every record say which ran. The numpy backend is the lab's code as it always was, bit for bit; the
+every record say which ran.
+
+The compiled backend costs each process a start-up (numba's import and the set-up of its first
+kernel: STARTUP_SECONDS of CPU) that its faster steps pay back only over enough work; a command that
+knows its work asks `backend_for_work`, which keeps a small run or study on numpy (and numba not
+imported) when the user chose no backend. The numpy backend is the lab's code as it always was, bit for bit; the
 compiled one does the same arithmetic but for the sums' order and the last bit of cos and sin, so a
 seed repeats a run on each backend, and the two agree statistically, not bit for bit.
 
@@ -32,6 +37,12 @@ BACKENDS = ("numpy", "compiled")
 ENVIRONMENT_VARIABLE = "MAZELAB_BACKEND"
 THREADS_VARIABLE = "MAZELAB_THREADS"  # the compiled backend's threads for one large run (--threads sets it)
 INSTALL_HINT = 'the compiled backend needs numba: pip install -e ".[fast]" (uv sync installs it)'
+# What the compiled backend costs and saves, CPU seconds, as measured on a 2-core AMD EPYC: a fresh `main.py run`
+# (200 steps of 1,500 particles) on each backend, and numpy's step less the compiled one's (mazelab.bench's
+# filter_stepper; SIR, APF and RPF, one run of N = 100 and 10,000, 30 runs of 1,500 together).
+STARTUP_SECONDS = 0.5  # numba's import and first kernel set-up: the run's extra CPU with bytecode cached (1.2 s not)
+SAVED_PER_STEP = 60e-6  # a filter step's saving whatever its particles (fewer Python calls): 65-110 us at N = 100
+SAVED_PER_PARTICLE = 15e-9  # and per particle the step moves (R runs together: R x N): 9-30 ns
 
 
 @cache
@@ -94,6 +105,50 @@ def chosen_backend() -> str:
     """
     value = os.environ.get(ENVIRONMENT_VARIABLE, "")
     return check_backend(value, ENVIRONMENT_VARIABLE) if value.strip() else default_backend()
+
+
+def compiled_pays(particle_steps: float, steps: float, processes: int = 1) -> bool:
+    """Whether the compiled backend's faster steps pay back its start-up in each process.
+
+    Parameters
+    ----------
+    particle_steps : float
+        The particles moved over the whole command: the sum over its filter steps of the particles
+        each step moves (N for one run, R x N for R runs advanced together).
+    steps : float
+        The filter steps (calls of `step`: R runs advanced together take one call a step).
+    processes : int
+        The processes the work is spread over (each pays the start-up).
+
+    Returns
+    -------
+    bool
+    """
+    saved = steps * SAVED_PER_STEP + particle_steps * SAVED_PER_PARTICLE
+    return saved > processes * STARTUP_SECONDS
+
+
+def backend_for_work(particle_steps: float, steps: float, processes: int = 1) -> str:
+    """The backend a command of this much work runs on: MAZELAB_BACKEND's when set (the user's choice:
+    --backend sets it), else "compiled" where numba is installed and its start-up pays (compiled_pays),
+    else "numpy", numba then not imported. A command runs inside `use_backend(backend_for_work(...))`,
+    so that its filters, its worker processes and its records take the choice.
+
+    Parameters
+    ----------
+    particle_steps, steps : float
+        The command's work (see compiled_pays).
+    processes : int
+        The processes it runs in.
+
+    Returns
+    -------
+    str
+        "numpy" or "compiled".
+    """
+    if os.environ.get(ENVIRONMENT_VARIABLE, "").strip() or compiled_pays(particle_steps, steps, processes):
+        return chosen_backend()
+    return "numpy"
 
 
 def check_threads(value: Any, source: str = "threads") -> int:
@@ -219,13 +274,18 @@ __all__ = [
     "ENVIRONMENT_VARIABLE",
     "INSTALL_HINT",
     "NUMPY_KERNELS",
+    "SAVED_PER_PARTICLE",
+    "SAVED_PER_STEP",
+    "STARTUP_SECONDS",
     "THREADS_VARIABLE",
+    "backend_for_work",
     "backend_of",
     "backend_versions",
     "check_backend",
     "check_threads",
     "chosen_backend",
     "chosen_threads",
+    "compiled_pays",
     "default_backend",
     "kernels_for",
     "numba_available",

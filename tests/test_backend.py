@@ -14,7 +14,18 @@ import pytest
 from conftest import ROOT
 
 from mazelab import bench as benchmark
-from mazelab.backend import ENVIRONMENT_VARIABLE, backend_versions, check_backend, chosen_backend, use_backend
+from mazelab.backend import (
+    ENVIRONMENT_VARIABLE,
+    SAVED_PER_PARTICLE,
+    SAVED_PER_STEP,
+    STARTUP_SECONDS,
+    backend_for_work,
+    backend_versions,
+    check_backend,
+    chosen_backend,
+    compiled_pays,
+    use_backend,
+)
 from mazelab.cli.app import main
 from mazelab.lab import simulate
 from mazelab.registry import resolve_filter
@@ -85,6 +96,39 @@ def test_use_backend_chooses_for_the_filters_made_inside_and_puts_the_variable_b
     with pytest.raises(ValueError, match="must be one of"), use_backend("cuda"):
         pass
     assert os.environ.get(ENVIRONMENT_VARIABLE) == before
+
+
+# a command of known work: the backend it chooses, the filter made under it, and whether numba was imported
+FOR_WORK = (
+    "import sys\n"
+    "from mazelab.backend import backend_for_work, use_backend\n"
+    "with use_backend(backend_for_work(*WORK)):\n"
+    "    " + MADE.replace("\n", "\n    ").rstrip() + "\n"
+    "print('numba' in sys.modules)\n"
+)
+
+
+def test_a_small_run_without_a_choice_runs_on_numpy_and_never_imports_numba():
+    small = FOR_WORK.replace("*WORK", "1500 * 200, 200")  # `mazelab run`'s default: 200 steps of 1,500
+    assert python(small).split() == ["numpy", "False"]
+    assert python(small, "compiled").split() == (["compiled", "True"] if HAS_NUMBA else ["numpy", "False"])
+
+
+@needs_numba
+def test_work_that_pays_back_numbas_start_up_runs_compiled_and_a_choice_overrides_it():
+    study = FOR_WORK.replace("*WORK", "4 * 3 * 200 * 30 * 1500, 4 * 3 * 200")  # the paper's study, 30 runs together
+    assert python(study).split() == ["compiled", "True"]
+    assert python(study, "numpy").split() == ["numpy", "False"]
+
+
+def test_the_compiled_backend_pays_when_its_savings_exceed_each_processs_start_up(monkeypatch):
+    steps = STARTUP_SECONDS / SAVED_PER_STEP  # the steps whose fixed savings alone pay the start-up
+    assert not compiled_pays(0, 0.99 * steps) and compiled_pays(0, 1.01 * steps)
+    particle_steps = STARTUP_SECONDS / SAVED_PER_PARTICLE
+    assert not compiled_pays(0.99 * particle_steps, 0) and compiled_pays(1.01 * particle_steps, 0)
+    assert not compiled_pays(1.01 * particle_steps, 0, processes=2)  # each process pays the start-up
+    monkeypatch.delenv(ENVIRONMENT_VARIABLE, raising=False)
+    assert backend_for_work(0.99 * particle_steps, 0) == "numpy"
 
 
 @pytest.mark.parametrize("name", ["sir", "grid"])

@@ -258,8 +258,8 @@ class CompiledKernels(NumpyKernels):
     def normalise(
         self, log_w: np.ndarray, positions: np.ndarray, write_log: bool = True
     ) -> tuple[np.ndarray, np.ndarray | None, dict | None]:
-        """Each run's log total, W and (when asked) log W, with the step's reads: numpy's vectorised
-        max, then the exponentials, the sums and the normalisation in two compiled passes.
+        """Each run's log total, W and (when asked) log W, with the step's reads: the top, the
+        exponentials and the sums, then the normalisation, in three compiled passes over each run.
 
         Parameters
         ----------
@@ -271,19 +271,18 @@ class CompiledKernels(NumpyKernels):
 
         Returns
         -------
-        (log totals (R,), log W (R, N) float64 or None, reads): reads holds "weights" (R, N), "ess"
-        (R,), "mean" (R, 2) and "share" (R,), the weight within CONFIDENCE_RADIUS of the mean
+        (log totals (R,), log W (R, N) float64 or None, reads): reads holds "weights" (R, N) float64,
+        "ess" (R,), "mean" (R, 2) and "share" (R,), the weight within CONFIDENCE_RADIUS of the mean
         """
         if positions.dtype != PARTICLE_DTYPE or len(positions) != log_w.size:
             return super().normalise(log_w, positions)
         runs, size = log_w.shape
-        tops = np.maximum.reduce(log_w, axis=1)  # NaN where a run holds one
         w = self.pool.take("weights", (runs, size), np.float64)
         log_out = self.pool.take("log_weights", (runs, size), np.float64) if write_log else None
-        totals, ess, shares, means = np.empty(runs), np.empty(runs), np.empty(runs), np.empty((runs, 2))
+        reads = np.empty((5, runs))  # the totals, the mean's x and y, the ESS, the share: one row each
         kernel = weights.normalise_threads if self._threaded(log_w.size) else weights.normalise
-        kernel(log_w, tops, positions, CONFIDENCE_RADIUS, w, log_out, totals, means, ess, shares)
-        return totals, log_out, {"weights": w, "ess": ess, "mean": means, "share": shares}
+        kernel(log_w, positions, CONFIDENCE_RADIUS, w, log_out, reads)
+        return reads[0], log_out, {"weights": w, "ess": reads[3], "mean": reads[1:3].T, "share": reads[4]}
 
     def normalised(self, log_a: np.ndarray, log_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """W ∝ exp(log_a + log_b) per run and log sum exp(log_a + log_b), compiled into a reused array,

@@ -1,14 +1,24 @@
 """The weights and the weighted reads, compiled (mazelab.weights is the numpy reference).
 
-`normalise` turns R runs' log weights into their log totals and normalised weights, and reads what a
-step reports, in two passes over each run: the first takes w = exp(log w - max)
-(mazelab.kernels.vector_math: vectorised, about 1e-15 from numpy's) and sums the weights, their squares
-and the weighted positions (the total, the ESS, the mean); the second writes W (and log W = log w - log
-total for a filter that reads it) and sums the weight within the green circle around the mean.
-`first_stage` is the APF's: W proportional to exp(log a + log b) and the log of their sum. Sums are
-float64 in LANES partial sums in an order this code fixes, not the compiler (numpy's are pairwise, so
-the two paths agree to rounding, not to the bit); an order the compiler chose by the arrays' addresses
-made a run's sums, and so R runs against R single runs, differ in the last bit from process to process.
+`normalise` turns R runs' log weights into their log totals and normalised weights W (float64, as the
+numpy path's), and reads what a step reports, in three passes over each run: the top (max log w), then
+w = exp(log w - top) and the sums of the weights, their squares and the weighted positions (the total,
+the ESS, the mean), then W = w / total (and log W = log w - log total for a filter that reads it) and
+the weight within the green circle around the mean. `first_stage` is the APF's: W proportional to
+exp(log a + log b) and the log of their sum.
+
+The exponential is float32 (`exp32`, branch-free, so that the passes vectorise): one ulp, and x = log w
+- top rounded to float32 (half an ulp of x), so w within 1.2e-7 + 6e-8 |x| of numpy's float64 exp
+relative to its value (6e-7 for the weights above exp(-8) of the top), 0 below exp(-87) of the top (a
+weight under 1e-38 of the heaviest one, never drawn); the sums, the totals and W are float64 (W is read by
+the resampling schemes, the reads, recovery and the exercise as the numpy path's is; float32 W saved
+0.1-0.2 ns a particle here). Sums run in LANES partial sums in
+an order this code fixes, not the compiler (numpy's are pairwise, so the two paths agree to rounding,
+not to the bit); an order the compiler chose by the arrays' addresses made a run's sums, and so R runs
+against R single runs, differ in the last bit from process to process. LANES is 16 because numba's
+loop vectoriser takes a loop of 16 and more (one of 8 it unrolls, and numba leaves the SLP vectoriser
+off): the lanes are one vector of float64 partial sums each.
+
 A run whose log weights are all -inf (no particle explains z) or hold a NaN gets the total -inf or NaN
 and NaN weights, as in the numpy path; the filter then restarts it.
 """
@@ -16,84 +26,206 @@ and NaN weights, as in the numpy path; the filter then restarts it.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
-from numba import prange
+from llvmlite import ir
+from numba import prange, types
+from numba.extending import intrinsic
 
 from mazelab.kernels import jit
-from mazelab.kernels.vector_math import exp
 
-LANES = 8  # partial sums each sum keeps: their order is this code's, not the compiler's
+LANES = 16  # partial sums each sum keeps: their order is this code's, not the compiler's
+CHUNK = 1024  # exponentials worked out at a time (a float32 array the passes' loops read)
+_F32 = np.float32
+_LOWEST = _F32(-87.0)  # below it exp(x) is subnormal in float32: 0 here
+
+
+@intrinsic
+def _float_from_bits(typingctx: Any, bits: Any) -> Any:  # pragma: no cover - compiled
+    """The float32 whose IEEE bits are the int32 `bits` (a bitcast: no instruction)."""
+    signature = types.float32(types.int32)
+
+    def codegen(context: Any, builder: Any, sig: Any, args: Any) -> Any:
+        return builder.bitcast(args[0], ir.FloatType())
+
+    return signature, codegen
+
+
+@jit(inline=True)
+def exp32(x):  # pragma: no cover - compiled
+    """exp(x) for float32 x <= 0, branch-free (Cephes' expf: x = n ln 2 + r, |r| <= ln 2 / 2, ln 2 in
+    two parts so that r is exact, a degree-6 polynomial, 2^n from its IEEE bits): within one float32 ulp
+    of exp (tests/test_kernels.py); 0 below -87 and for -inf, NaN for NaN.
+
+    Parameters
+    ----------
+    x : float32
+
+    Returns
+    -------
+    float32
+    """
+    clamped = x if x > _LOWEST else _LOWEST  # NaN becomes _LOWEST here; the select at the end gives NaN back
+    n = np.floor(clamped * _F32(1.44269504088896341) + _F32(0.5))
+    r = (clamped - n * _F32(0.693359375)) + n * _F32(2.12194440e-4)
+    p = _F32(1.9875691500e-4) * r + _F32(1.3981999507e-3)
+    p = p * r + _F32(8.3334519073e-3)
+    p = p * r + _F32(4.1665795894e-2)
+    p = p * r + _F32(1.6666665459e-1)
+    p = p * r + _F32(5.0000001201e-1)
+    p = (p * r) * r + r + _F32(1.0)
+    value = p * _float_from_bits((np.int32(n) + np.int32(127)) << np.int32(23))
+    return value if x >= _LOWEST else (x if x != x else _F32(0.0))
 
 
 @jit(inline=True)
 def _lane_total(lanes, k):  # pragma: no cover - compiled
     """The LANES partial sums of row k, added in a fixed order (pairwise)."""
-    return ((lanes[k, 0] + lanes[k, 1]) + (lanes[k, 2] + lanes[k, 3])) + (
-        (lanes[k, 4] + lanes[k, 5]) + (lanes[k, 6] + lanes[k, 7])
-    )
+    width = LANES
+    while width > 1:
+        width //= 2
+        for j in range(width):
+            lanes[k, j] += lanes[k, j + width]
+    return lanes[k, 0]
 
 
 @jit(inline=True)
-def _first_pass(log_w, r, top, positions, block, start, stop, w, lanes):  # pragma: no cover - compiled
-    """w_i = exp(log w_i - top) for i in [start, stop) of run r, written, and (sum w, sum w^2, sum w x,
-    sum w y) in LANES partial sums each: particle i goes to lane (i - start) % LANES, so the sums'
-    order is fixed by this code and not by how the compiler vectorises the loop (or by the addresses)."""
-    for i in range(start, stop):
-        w[r, i] = exp(log_w[r, i] - top)
-    lanes[:] = 0.0
-    full = start + (stop - start) // LANES * LANES
-    for chunk in range(start, full, LANES):
+def _top(values):  # pragma: no cover - compiled
+    """max of the 1-D `values` in their dtype (-inf for none) from LANES running maxima; a NaN is
+    passed over here (its exponential makes the run's total NaN: `normalise` checks the total)."""
+    maxima = np.full(LANES, -np.inf, dtype=values.dtype)
+    size = len(values)
+    full = size // LANES * LANES
+    for chunk in range(0, full, LANES):
         for j in range(LANES):
-            weight = w[r, chunk + j]
+            maxima[j] = max(values[chunk + j], maxima[j])
+    top = maxima[0]
+    for j in range(1, LANES):
+        top = max(maxima[j], top)
+    for i in range(full, size):
+        top = max(values[i], top)
+    return top
+
+
+@jit(inline=True)
+def _exponentials(log_w, top, out):  # pragma: no cover - compiled
+    """out[i] = exp32(log w_i - top) for the 1-D `log_w` (the difference in log w's dtype, then float32)."""
+    for i in range(len(log_w)):
+        out[i] = exp32(np.float32(log_w[i] - top))
+
+
+@jit(inline=True)
+def _add_moments(w, xs, ys, lanes):  # pragma: no cover - compiled
+    """lanes[:4, i % LANES] += w_i, w_i^2, w_i x_i, w_i y_i for each i, in order (float64)."""
+    full = len(w) // LANES * LANES
+    for block in range(0, full, LANES):
+        for j in range(LANES):
+            weight = np.float64(w[block + j])
             lanes[0, j] += weight
             lanes[1, j] += weight * weight
-            lanes[2, j] += weight * positions[block + chunk + j, 0]
-            lanes[3, j] += weight * positions[block + chunk + j, 1]
-    for i in range(full, stop):
-        weight = w[r, i]
+            lanes[2, j] += weight * xs[block + j]
+            lanes[3, j] += weight * ys[block + j]
+    for i in range(full, len(w)):
+        weight = np.float64(w[i])
         lanes[0, i - full] += weight
         lanes[1, i - full] += weight * weight
-        lanes[2, i - full] += weight * positions[block + i, 0]
-        lanes[3, i - full] += weight * positions[block + i, 1]
+        lanes[2, i - full] += weight * xs[i]
+        lanes[3, i - full] += weight * ys[i]
+
+
+@jit(inline=True)
+def _add_sum(w, lanes):  # pragma: no cover - compiled
+    """lanes[0, i % LANES] += w_i for each i, in order (float64)."""
+    full = len(w) // LANES * LANES
+    for block in range(0, full, LANES):
+        for j in range(LANES):
+            lanes[0, j] += np.float64(w[block + j])
+    for i in range(full, len(w)):
+        lanes[0, i - full] += np.float64(w[i])
+
+
+@jit(inline=True)
+def _scale_and_keep_within(w, inverse, out, xs, ys, centre, r2):  # pragma: no cover - compiled
+    """out[i] = w_i * inverse (float64), then w_i kept where particle i lies within sqrt(r2) of the
+    centre (float32 distances) and 0 elsewhere (a select the loop vectorises: no branch, no sum)."""
+    for i in range(len(w)):
+        weight = w[i]
+        out[i] = np.float64(weight) * inverse
+        dx = xs[i] - centre[0]
+        dy = ys[i] - centre[1]
+        w[i] = weight if dx * dx + dy * dy <= r2 else np.float32(0.0)
+
+
+@jit(inline=True)
+def _first_pass(log_w, top, xs, ys, lanes, chunk):  # pragma: no cover - compiled
+    """(sum w, sum w^2, sum w x, sum w y) over the 1-D log weights `log_w` and their particles' xs and
+    ys, w_i = exp(log w_i - top), in LANES partial sums each: particle i goes to lane i % LANES, so the
+    sums' order is fixed by this code and not by how the compiler vectorises the loop (or by the
+    addresses). The exponentials go through `chunk` (float32, a multiple of LANES long) and each loop
+    indexes from 0, so that it vectorises."""
+    lanes[:4, :] = 0.0
+    size, step = len(log_w), len(chunk)
+    for first in range(0, size, step):
+        stop = min(first + step, size)
+        part = chunk[: stop - first]
+        _exponentials(log_w[first:stop], top, part)
+        _add_moments(part, xs[first:stop], ys[first:stop], lanes)
     return _lane_total(lanes, 0), _lane_total(lanes, 1), _lane_total(lanes, 2), _lane_total(lanes, 3)
 
 
 @jit(inline=True)
-def _second_pass(
-    log_w, r, log_total, inverse, positions, block, span, centre, r2, w, log_out, lanes
-):  # pragma: no cover
-    """W_i = w_i / total (and log W_i when log_out is an array) for i in span = (start, stop) of run r,
-    written, then the weight within sqrt(r2) of the centre (float32 distances) in LANES partial sums."""
-    start, stop = span
-    for i in range(start, stop):
-        if log_out is not None:
-            log_out[r, i] = log_w[r, i] - log_total
-        w[r, i] *= inverse
+def _second_pass(log_w, top, scale, xs, ys, centre, r2, w, logs, lanes, chunk):  # pragma: no cover - compiled
+    """W_i = exp(log w_i - top) / total (scale = (1 / total, log total)) of the 1-D `log_w`, written into
+    `w`, log W_i = log w_i - log total into `logs` unless it is empty, and the weight within sqrt(r2) of
+    the centre (float32 distances): the sum of those w_i in LANES partial sums, over the total."""
+    inverse, log_total = scale
     lanes[0, :] = 0.0
-    full = start + (stop - start) // LANES * LANES
-    for chunk in range(start, full, LANES):
-        for j in range(LANES):
-            dx = positions[block + chunk + j, 0] - centre[0]
-            dy = positions[block + chunk + j, 1] - centre[1]
-            lanes[0, j] += w[r, chunk + j] if dx * dx + dy * dy <= r2 else 0.0
-    for i in range(full, stop):
-        dx = positions[block + i, 0] - centre[0]
-        dy = positions[block + i, 1] - centre[1]
-        lanes[0, i - full] += w[r, i] if dx * dx + dy * dy <= r2 else 0.0
-    return _lane_total(lanes, 0)
+    size, step = len(log_w), len(chunk)
+    for first in range(0, size, step):
+        stop = min(first + step, size)
+        part, out = chunk[: stop - first], w[first:stop]
+        _exponentials(log_w[first:stop], top, part)
+        _scale_and_keep_within(part, inverse, out, xs[first:stop], ys[first:stop], centre, r2)
+        _add_sum(part, lanes)
+        if len(logs):  # while this chunk of log w is in the cache
+            _logs(log_w[first:stop], log_total, logs[first:stop])
+    return _lane_total(lanes, 0) * inverse
+
+
+@jit(inline=True)
+def _logs(log_w, log_total, out):  # pragma: no cover - compiled
+    """log W_i = log w_i - log total of the 1-D `log_w`, written into `out`."""
+    for i in range(len(log_w)):
+        out[i] = log_w[i] - log_total
+
+
+@jit(inline=True)
+def _failed_total(values, top):  # pragma: no cover - compiled
+    """The log total of a run that cannot be normalised (top -inf or +inf, or a NaN among the values):
+    NaN where a value is NaN, else the top (numpy's log_sum_exp)."""
+    return np.nan if np.isnan(values).any() else top
+
+
+@jit(inline=True)
+def _unnormalisable(r, row, top, w, log_out, reads):  # pragma: no cover - compiled
+    """NaN weights, log weights and reads for run r, whose weights are all 0 or hold a NaN (the filter
+    restarts it); its total is -inf where every log weight is -inf, else NaN (as numpy's)."""
+    reads[0, r] = _failed_total(row, top)
+    reads[1, r] = reads[2, r] = reads[3, r] = reads[4, r] = np.nan
+    w[r, :] = np.nan
+    if log_out is not None:
+        log_out[r, :] = np.nan
 
 
 @jit
-def normalise(log_w, tops, positions, radius, w, log_out, totals, means, ess, shares):  # pragma: no cover
-    """Normalise R runs' log weights and read each run's mean, ESS and confidence share, in two passes.
+def normalise(log_w, positions, radius, w, log_out, reads):  # pragma: no cover
+    """Normalise R runs' log weights and read each run's mean, ESS and confidence share, in three passes.
 
     Parameters
     ----------
-    log_w : float array (R, N)
+    log_w : float32 or float64 array (R, N)
         Unnormalised log weights.
-    tops : float array (R,)
-        max_i log_w of each run; -inf or NaN for a run that cannot be normalised (its rows become NaN).
     positions : float32 array (R*N, 2)
         The particles (run r's the block r*N..(r+1)*N).
     radius : float
@@ -103,140 +235,136 @@ def normalise(log_w, tops, positions, radius, w, log_out, totals, means, ess, sh
     log_out : float64 array (R, N), or None
         log W_i = log w_i - log sum_j w_j, written; None: not written (a filter that reads W only; numba
         compiles each case apart, so the array's case is the kernel it always was).
-    totals : float64 array (R,)
-        log sum_j w_j of each run.
-    means : float64 array (R, 2)
-        sum_i W_i x_i.
-    ess : float64 array (R,)
-        1 / sum_i W_i^2.
-    shares : float64 array (R,)
-        The weight of the particles at most `radius` from the run's mean (float32 distances, as
-        mazelab.weights.mass_within).
+    reads : float64 array (5, R)
+        Written, one row each: log sum_j w_j; the mean sum_i W_i x_i (two rows, x and y); the ESS
+        1 / sum_i W_i^2; the weight of the particles at most `radius` from the run's mean (float32
+        distances, as mazelab.weights.mass_within). A run that cannot be normalised (top -inf or NaN)
+        gets its top as total and NaN reads.
     """
     runs, size = log_w.shape
     r2 = np.float32(radius * radius)
-    lanes = np.empty((4, LANES))
+    lanes, chunk = np.empty((4, LANES)), np.empty(CHUNK, dtype=np.float32)
     for r in range(runs):
-        top = np.float64(tops[r])
-        block = r * size
-        if not (top > -np.inf):  # every weight is 0, or a NaN: no normalisation (the filter restarts it)
-            totals[r] = top
-            for i in range(size):
-                w[r, i] = np.nan
-                if log_out is not None:
-                    log_out[r, i] = np.nan
-            means[r, 0] = means[r, 1] = ess[r] = shares[r] = np.nan
+        row, xs, ys = log_w[r], positions[r * size : (r + 1) * size, 0], positions[r * size : (r + 1) * size, 1]
+        top = _top(row)
+        sums = _first_pass(row, top, xs, ys, lanes, chunk) if abs(top) < np.inf else (np.nan, np.nan, np.nan, np.nan)
+        total, squares, sum_x, sum_y = sums
+        if total != total:  # every weight is 0, or a NaN: no normalisation (the filter restarts it)
+            _unnormalisable(r, row, top, w, log_out, reads)
             continue
-        sums = _first_pass(log_w, r, top, positions, block, 0, size, w, lanes)
-        total, squares, sum_x, sum_y = sums[0], sums[1], sums[2], sums[3]
         log_total = top + math.log(total)
-        totals[r] = log_total
         mean_x, mean_y = sum_x / total, sum_y / total
-        means[r, 0], means[r, 1] = mean_x, mean_y
-        ess[r] = total * total / squares
+        reads[0, r], reads[1, r], reads[2, r], reads[3, r] = log_total, mean_x, mean_y, total * total / squares
         centre = np.float32(mean_x), np.float32(mean_y)
-        span, inverse = (0, size), 1.0 / total
-        shares[r] = _second_pass(log_w, r, log_total, inverse, positions, block, span, centre, r2, w, log_out, lanes)
+        logs = w[r, :0]  # empty: log W not written
+        if log_out is not None:
+            logs = log_out[r]
+        reads[4, r] = _second_pass(row, top, (1.0 / total, log_total), xs, ys, centre, r2, w[r], logs, lanes, chunk)
 
 
 BLOCK = 1 << 15  # particles per block of normalise_threads' sums: their order depends on it alone
 
 
 @jit(threads=True)
-def normalise_threads(log_w, tops, positions, radius, w, log_out, totals, means, ess, shares):  # pragma: no cover
+def normalise_threads(log_w, positions, radius, w, log_out, reads):  # pragma: no cover
     """normalise's results (its arguments) with the particles in blocks of BLOCK spread over numba's
-    threads: each block's sums, then the runs' in block order, so the numbers depend on BLOCK, not on
-    the thread count (they agree with normalise's to rounding)."""
+    threads: each block's top and sums, then the runs' in block order, so the numbers depend on BLOCK,
+    not on the thread count (they agree with normalise's to rounding)."""
     runs, size = log_w.shape
     blocks = (size + BLOCK - 1) // BLOCK
     partial = np.zeros((runs * blocks, 5))
     for job in prange(runs * blocks):
-        r, b = job // blocks, job % blocks
-        top = np.float64(tops[r])
-        start, stop = b * BLOCK, min(size, (b + 1) * BLOCK)
-        if not (top > -np.inf):  # the run cannot be normalised: NaN weights (the filter restarts it)
-            for i in range(start, stop):
-                w[r, i] = np.nan
-                if log_out is not None:
-                    log_out[r, i] = np.nan
-            continue
-        block_sums = _first_pass(log_w, r, top, positions, r * size, start, stop, w, np.empty((4, LANES)))
-        partial[job, 0], partial[job, 1], partial[job, 2], partial[job, 3] = block_sums
+        r, start, stop = _block(job, blocks, size)
+        partial[job, 4] = _top(log_w[r, start:stop])
+    tops = np.empty(runs, dtype=log_w.dtype)  # the log weights' dtype: their differences as normalise's
+    for r in range(runs):
+        top = partial[r * blocks, 4]
+        for b in range(1, blocks):
+            top = max(partial[r * blocks + b, 4], top)
+        tops[r] = top
+    for job in prange(runs * blocks):
+        r, start, stop = _block(job, blocks, size)
+        if abs(tops[r]) < np.inf:
+            xs, ys = positions[r * size + start : r * size + stop, 0], positions[r * size + start : r * size + stop, 1]
+            lanes, chunk = np.empty((4, LANES)), np.empty(CHUNK, dtype=np.float32)
+            sums = _first_pass(log_w[r, start:stop], tops[r], xs, ys, lanes, chunk)
+            partial[job, 0], partial[job, 1], partial[job, 2], partial[job, 3] = sums
     sums = np.zeros((runs, 4))
     for r in range(runs):
         for b in range(blocks):
             for k in range(4):
                 sums[r, k] += partial[r * blocks + b, k]
-        top = np.float64(tops[r])
-        if not (top > -np.inf):
-            totals[r] = top
-            means[r, 0] = means[r, 1] = ess[r] = shares[r] = np.nan
+        if not (abs(tops[r]) < np.inf and sums[r, 0] == sums[r, 0]):
+            _unnormalisable(r, log_w[r], tops[r], w, log_out, reads)
             continue
-        totals[r] = top + math.log(sums[r, 0])
-        means[r, 0], means[r, 1] = sums[r, 2] / sums[r, 0], sums[r, 3] / sums[r, 0]
-        ess[r] = sums[r, 0] * sums[r, 0] / sums[r, 1]
+        reads[0, r] = tops[r] + math.log(sums[r, 0])
+        reads[1, r], reads[2, r] = sums[r, 2] / sums[r, 0], sums[r, 3] / sums[r, 0]
+        reads[3, r] = sums[r, 0] * sums[r, 0] / sums[r, 1]
     r2 = np.float32(radius * radius)
     for job in prange(runs * blocks):
-        r, b = job // blocks, job % blocks
-        if not (tops[r] > -np.inf):
-            continue
-        log_total, inverse = totals[r], 1.0 / sums[r, 0]
-        centre = np.float32(means[r, 0]), np.float32(means[r, 1])
-        span, lanes, first = (b * BLOCK, min(size, (b + 1) * BLOCK)), np.empty((4, LANES)), r * size
-        partial[job, 4] = _second_pass(
-            log_w, r, log_total, inverse, positions, first, span, centre, r2, w, log_out, lanes
-        )
+        r, start, stop = _block(job, blocks, size)
+        if reads[3, r] == reads[3, r]:  # normalised (NaN reads: not)
+            centre = np.float32(reads[1, r]), np.float32(reads[2, r])
+            xs, ys = positions[r * size + start : r * size + stop, 0], positions[r * size + start : r * size + stop, 1]
+            row, lanes, chunk = log_w[r, start:stop], np.empty((4, LANES)), np.empty(CHUNK, dtype=np.float32)
+            logs = w[r, :0]  # empty: log W not written
+            if log_out is not None:
+                logs = log_out[r, start:stop]
+            scale, out = (1.0 / sums[r, 0], reads[0, r]), w[r, start:stop]
+            partial[job, 4] = _second_pass(row, tops[r], scale, xs, ys, centre, r2, out, logs, lanes, chunk)
     for r in range(runs):
-        if tops[r] > -np.inf:
-            shares[r] = 0.0
+        if reads[3, r] == reads[3, r]:
+            reads[4, r] = 0.0
             for b in range(blocks):
-                shares[r] += partial[r * blocks + b, 4]
+                reads[4, r] += partial[r * blocks + b, 4]
+
+
+@jit(inline=True)
+def _block(job, blocks, size):  # pragma: no cover - compiled
+    """(run, first particle, end) of job number `job` of normalise_threads (`blocks` blocks a run)."""
+    r, b = job // blocks, job % blocks
+    return r, b * BLOCK, min(size, (b + 1) * BLOCK)
 
 
 @jit
 def first_stage(log_a, log_b, w, totals):  # pragma: no cover - compiled
     """The APF's first-stage weights of R runs: W proportional to exp(log a + log b), and log sum exp(log a
-    + log b) (mazelab.weights' log_sum_exp and weights_from_logs, one exponential per particle; the total
-    in LANES partial sums).
+    + log b) (mazelab.weights' log_sum_exp and weights_from_logs, one exponential per particle, exp32's;
+    the top in LANES running maxima, the total in LANES partial sums).
 
     Parameters
     ----------
     log_a, log_b : float arrays (R, N)
         A run whose sums are all -inf, or hold a NaN, gets NaN weights and the total -inf or NaN.
     w : float64 array (R, N)
-        Written: the normalised weights.
+        Written: the normalised weights (the sums log a + log b first, then their top).
     totals : float64 array (R,)
         Written: the log totals.
     """
     runs, size = log_a.shape
-    lanes = np.empty((1, LANES))
+    lanes, chunk = np.empty((1, LANES)), np.empty(CHUNK, dtype=np.float32)
     for r in range(runs):
-        top = -np.inf
-        invalid = False
+        row = w[r]
         for i in range(size):
-            value = log_a[r, i] + log_b[r, i]
-            invalid |= value != value
-            top = value if value > top else top
-        if invalid:
-            top = np.nan
-        if not (top > -np.inf):
-            totals[r] = top
-            for i in range(size):
-                w[r, i] = np.nan
+            row[i] = log_a[r, i] + log_b[r, i]
+        top = _top(row)
+        total = np.nan
+        if abs(top) < np.inf:  # else no normalisation
+            lanes[0, :] = 0.0
+            for first in range(0, size, CHUNK):
+                part, out = chunk[: min(CHUNK, size - first)], row[first : first + CHUNK]
+                _exponentials(out, top, part)
+                for i in range(len(part)):
+                    out[i] = np.float64(part[i])
+                _add_sum(part, lanes)
+            total = _lane_total(lanes, 0)
+        if total != total:  # all -inf, or a NaN: NaN weights (the filter restarts the run)
+            totals[r] = _failed_total(row, top)
+            row[:] = np.nan
             continue
-        for i in range(size):
-            w[r, i] = exp(log_a[r, i] + log_b[r, i] - top)
-        lanes[0, :] = 0.0
-        full = size // LANES * LANES
-        for chunk in range(0, full, LANES):
-            for j in range(LANES):
-                lanes[0, j] += w[r, chunk + j]
-        for i in range(full, size):
-            lanes[0, i - full] += w[r, i]
-        total = _lane_total(lanes, 0)
         inverse = 1.0 / total
         for i in range(size):
-            w[r, i] *= inverse
+            row[i] *= inverse
         totals[r] = top + math.log(total)
 
 
