@@ -28,6 +28,7 @@ from typing import Annotated
 import typer
 
 from mazelab.atomic import WriteError
+from mazelab.backend import backend_for_work, use_backend
 from mazelab.cli.backend_option import BackendOption, ThreadsOption
 from mazelab.cli.exercise import exercise_app
 from mazelab.cli.filter_options import (
@@ -133,20 +134,21 @@ def demo(
         f"A robot is lost in {find_maze(DEFAULT_MAZE).name} ({world.height}x{world.width}, "
         f"{len(world.stations)} stations); SIR with {DEFAULT_PARTICLE_COUNT} particles looks for it."
     )
-    result = simulate(
-        robot,
-        world,
-        DEFAULT_SIGMA,
-        DEFAULT_DELTA,
-        DEFAULT_PARTICLE_COUNT,
-        DEFAULT_STEPS,
-        seed=seed,
-        visualize=visualize,
-        on_step=progress_printer(DEFAULT_STEPS),
-    )
-    report_run(result)
-    words = ["run", "--seed", str(seed), *environment_backend([])]
-    typer.echo(f"Repeat this run: {command_prefix()} {shlex.join(words)}")
+    with use_backend(backend_for_work(DEFAULT_PARTICLE_COUNT * DEFAULT_STEPS, DEFAULT_STEPS)):  # numpy, unless set
+        result = simulate(
+            robot,
+            world,
+            DEFAULT_SIGMA,
+            DEFAULT_DELTA,
+            DEFAULT_PARTICLE_COUNT,
+            DEFAULT_STEPS,
+            seed=seed,
+            visualize=visualize,
+            on_step=progress_printer(DEFAULT_STEPS),
+        )
+        report_run(result)
+        words = ["run", "--seed", str(seed), *environment_backend([])]
+        typer.echo(f"Repeat this run: {command_prefix()} {shlex.join(words)}")
 
 
 @app.command(short_help="One filter on a lost robot, or on a saved scenario.")
@@ -229,15 +231,16 @@ def run(
         setup = replay_setup(stored, maze, sigma, delta, seed, options)
     else:
         setup = fresh_setup(maze, sigma, delta, seed, start_seed, particles, steps, options)
-    with scenario_not_saved_on_stop(save_scenario_path):
-        result = setup.run(filter_name, visualize=visualize, quiet=quiet, kidnap_at=kidnap_at)
-    report_run(result)
-    for line in (kidnap_report(result), particle_count_report(result) if setup.options.get("kld") else None):
-        if line:
-            typer.echo(line)
-    if save_scenario_path is not None:
-        typer.echo(f"scenario saved to {save_scenario(result.scenario, save_scenario_path, replace=force)}")
-    typer.echo(f"Repeat this run: {repeat_command(result.seed, REPEAT_DROPS, REPEAT_DROPS_WITH_VALUE)}")
+    with use_backend(backend_for_work(*setup.work())):  # numba's start-up only where it pays (or --backend's)
+        with scenario_not_saved_on_stop(save_scenario_path):
+            result = setup.run(filter_name, visualize=visualize, quiet=quiet, kidnap_at=kidnap_at)
+        report_run(result)
+        for line in (kidnap_report(result), particle_count_report(result) if setup.options.get("kld") else None):
+            if line:
+                typer.echo(line)
+        if save_scenario_path is not None:
+            typer.echo(f"scenario saved to {save_scenario(result.scenario, save_scenario_path, replace=force)}")
+        typer.echo(f"Repeat this run: {repeat_command(result.seed, REPEAT_DROPS, REPEAT_DROPS_WITH_VALUE)}")
 
 
 # "Repeat this run" repeats the run, not its files: the scenario and recording it wrote would be found

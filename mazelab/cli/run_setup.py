@@ -16,7 +16,7 @@ from mazelab.cli.reports import prepare_world, progress_printer
 from mazelab.lab import simulate
 from mazelab.maze import Maze
 from mazelab.mazes import DEFAULT_MAZE, load_maze
-from mazelab.model import DEFAULT_STEPS
+from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
 from mazelab.robot import Robot
 from mazelab.scenario import Scenario
 from mazelab.seeding import new_seed, start_place
@@ -37,6 +37,12 @@ class RunSetup:
     steps: int | None
     seed: int
     options: dict[str, Any]
+
+    def work(self) -> tuple[int, int]:
+        """What the filter does (mazelab.backend.backend_for_work): (the particles its steps move, its steps)."""
+        steps = self.steps or self.robot.recorded_steps
+        count = len(self.initial_particles) if self.initial_particles is not None else self.particle_count
+        return (count or DEFAULT_PARTICLE_COUNT) * steps, steps
 
     def run(self, filter_name: str, *, visualize: Any, quiet: bool, kidnap_at: int | None) -> RunResult:
         """The filter on this setup, with a progress line unless `quiet`."""

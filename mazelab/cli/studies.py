@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import signal
 from dataclasses import dataclass
@@ -12,6 +13,7 @@ from typing import Annotated, Any
 import typer
 
 from mazelab.atomic import WriteError, write_text_atomically
+from mazelab.backend import backend_for_work, use_backend
 from mazelab.cli.accuracy import accuracy
 from mazelab.cli.backend_option import HiddenBackendOption
 from mazelab.cli.filter_options import (
@@ -137,12 +139,23 @@ def study(
         reference=reference,
     )  # fmt: skip
     extras = StudyExtras.parse(plan, paired, plot_x, plot_y, title)
-    session = open_session(plan, outputs, visualize, draw_run, dask, workers or default_workers())
-    try:
-        outcome = run_session(session, visualize, dask_timeout)
-        report_study(session, outcome, kld, extras)
-    finally:
-        session.claims.release()
+    workers = workers or default_workers()
+    with study_backend(plan, workers, dask):
+        session = open_session(plan, outputs, visualize, draw_run, dask, workers)
+        try:
+            outcome = run_session(session, visualize, dask_timeout)
+            report_study(session, outcome, kld, extras)
+        finally:
+            session.claims.release()
+
+
+def study_backend(plan: StudyPlan, workers: int, dask: str | None) -> contextlib.AbstractContextManager:
+    """The backend of a study on this machine's worker processes (they inherit it): --backend's or
+    MAZELAB_BACKEND's, else the compiled one where its start-up in each process pays for the study's work,
+    else numpy (mazelab.backend.backend_for_work). A Dask cluster's workers run on their own."""
+    if dask is not None:
+        return contextlib.nullcontext()
+    return use_backend(backend_for_work(*plan.work(), processes=min(workers, plan.runs * len(plan.settings))))
 
 
 # -- the study in three steps: parse (outputs, plan), run (a session), report -------------------------

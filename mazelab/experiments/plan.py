@@ -14,6 +14,7 @@ from mazelab import maze_generator
 from mazelab.checks import check_bandwidth_within, check_sigma_within
 from mazelab.contract import options_for
 from mazelab.declaration import to_plain_json
+from mazelab.experiments.batch_runs import MAX_BATCH
 from mazelab.experiments.plugin_code import PluginCode, plugin_codes
 from mazelab.experiments.runs import filter_key, parse_filters
 from mazelab.experiments.study import (
@@ -138,6 +139,13 @@ class StudyPlan:
             reference=self.reference,
             plugins=self.plugins,
         )
+
+    def work(self) -> tuple[int, float]:
+        """What the study's filters do (mazelab.backend.backend_for_work): (the particles their steps move,
+        the calls of `step`, R runs of a setting advancing together, up to MAX_BATCH)."""
+        tasks = self.tasks()
+        particle_steps = sum(t.setting.particles * t.steps * len(t.filters) for t in tasks)
+        return particle_steps, sum(t.steps * len(t.filters) for t in tasks) / min(self.runs, MAX_BATCH)
 
     def parameters(self) -> dict[str, Any]:
         """The study's parameters as parsed (what the record keeps and --resume compares)."""
