@@ -31,6 +31,7 @@ from mazelab.experiments.accuracy import accuracy_filters, accuracy_summary, acc
 from mazelab.experiments.executor import run_study
 from mazelab.experiments.stats import wilson_interval
 from mazelab.experiments.study import MazeChoice, study_settings, study_tasks
+from mazelab.kernels import sources_digest
 from mazelab.kernels.compiled import CompiledKernels
 from mazelab.lab import simulate
 from mazelab.maze import Maze
@@ -425,11 +426,11 @@ CACHE_RUN = (
 )
 
 
-def run_with_cache(folder, prefix: list[str] | None = None) -> subprocess.CompletedProcess:
+def run_with_cache(folder, prefix: list[str] | None = None, before: str = "") -> subprocess.CompletedProcess:
     """CACHE_RUN in a process of its own with NUMBA_CACHE_DIR=folder (after `prefix`, a command that
-    runs the rest)."""
+    runs the rest; `before`, Python run first)."""
     env = {**os.environ, "NUMBA_CACHE_DIR": str(folder)}
-    command = [*(prefix or []), sys.executable, "-c", CACHE_RUN]
+    command = [*(prefix or []), sys.executable, "-c", before + CACHE_RUN]
     return subprocess.run(command, capture_output=True, text=True, env=env, cwd=ROOT, timeout=900, check=False)
 
 
@@ -447,6 +448,26 @@ def test_a_damaged_cache_is_compiled_over(tmp_path):
     mended = run_with_cache(tmp_path)
     code, misses, hits = mended.stdout.split()[-3:]
     assert (code, misses) == ("0", "0") and int(hits) >= 1  # and saved over the damaged files
+
+
+def test_an_edit_to_any_kernel_source_compiles_the_kernels_again(tmp_path):
+    """numba's own stamp is the kernel's file; model.move inlines vector_math's cos and sin: a digest of
+    every kernel source is in the stamp too (here a changed digest stands for an edit of vector_math)."""
+    assert run_with_cache(tmp_path).returncode == 0
+    edited = run_with_cache(tmp_path, [], "import mazelab.kernels as k\nk._SOURCES = 'edited' + k._SOURCES\n")
+    code, misses, hits = edited.stdout.split()[-3:]
+    assert (code, int(hits)) == ("0", 0) and int(misses) >= 1, edited.stderr  # compiled again, not loaded
+    again = run_with_cache(tmp_path, [], "import mazelab.kernels as k\nk._SOURCES = 'edited' + k._SOURCES\n")
+    code, misses, hits = again.stdout.split()[-3:]
+    assert (code, misses) == ("0", "0") and int(hits) >= 1  # and kept for the edited sources
+
+
+def test_the_sources_digest_changes_with_any_kernel_file(tmp_path):
+    for name in ("model.py", "vector_math.py"):
+        (tmp_path / name).write_text("x = 1\n")
+    before = sources_digest(tmp_path)
+    (tmp_path / "vector_math.py").write_text("x = 2\n")
+    assert sources_digest(tmp_path) != before
 
 
 def test_a_full_cache_folder_is_one_line_naming_it_and_the_run_goes_on(tmp_path):

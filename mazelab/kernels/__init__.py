@@ -28,9 +28,11 @@ kernel compiled in memory, with one warning naming the folder and the way out.
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import os
 import warnings
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numba
@@ -46,10 +48,42 @@ def _warn_once(message: str) -> None:
         warnings.warn(message, stacklevel=3)
 
 
+def sources_digest(folder: Path) -> str:
+    """A digest of the kernels' sources (every .py file in `folder`).
+
+    numba keeps a cached kernel while its own file's time stamp and size are unchanged, but a kernel
+    inlines helpers from the package's other modules (vector_math's cos and sin, weights' exponentials):
+    an edit there alone (a `git pull`) would leave the old machine code running. Each kernel's cache
+    entry is stamped with this digest too, so that any change to these files compiles them again.
+
+    Parameters
+    ----------
+    folder : pathlib.Path
+
+    Returns
+    -------
+    str
+        16 hex digits.
+    """
+    digest = hashlib.sha256()
+    for path in sorted(folder.glob("*.py")):
+        digest.update(path.name.encode() + b"\0" + path.read_bytes())
+    return digest.hexdigest()[:16]
+
+
+_SOURCES = sources_digest(Path(__file__).parent)
+
+
 class _MendingCache(FunctionCache):
-    """numba's on-disk cache of one kernel that a damaged file does not stop: a file that does not
-    load is dropped and the kernel compiled again (and saved over it), and a folder that cannot take
-    the file leaves the kernel compiled in memory, with one warning naming the folder."""
+    """numba's on-disk cache of one kernel, fresh only while the kernels' sources are all unchanged
+    (sources_digest), that a damaged file does not stop: a file that does not load is dropped and the
+    kernel compiled again (and saved over it), and a folder that cannot take the file leaves the
+    kernel compiled in memory, with one warning naming the folder."""
+
+    def __init__(self, py_func: Callable[..., Any]):
+        super().__init__(py_func)
+        cache_file = self._cache_file
+        cache_file._source_stamp = (cache_file._source_stamp, _SOURCES)  # numba's (time, size), and ours
 
     def load_overload(self, sig: Any, target_context: Any) -> Any:
         try:
@@ -118,4 +152,4 @@ def jit(function: Callable[..., Any] | None = None, *, inline: bool = False, thr
     return dispatcher
 
 
-__all__ = ["jit"]
+__all__ = ["jit", "sources_digest"]
