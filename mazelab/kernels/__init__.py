@@ -9,7 +9,8 @@ The filters do not change: their steps call the cloud's methods (mazelab.cloud),
 kernels or the numpy functions, whichever backend runs (mazelab.backend). Each kernel takes the run
 axis (R runs in one call), works on float32 particles and keeps the numpy path's float32 arithmetic
 where it has some (the likelihood and the resampling are the numpy path's to the bit, given the same
-inputs); cos and sin are the C library's, exact to rounding over the whole float32 range.
+inputs); cos and sin are polynomials the compiler vectorises (mazelab.kernels.vector_math, within
+0.501 float32 ulp of the exact values), the exponentials float32 ones (within one ulp).
 
 Importing this package imports numba, and a process's first kernel call sets numba's compiler up (its
 registries) even when the kernel comes from the cache: together 0.35 s of CPU with Python's bytecode
