@@ -173,7 +173,7 @@ def test_the_apf_first_stage_and_the_covariance_agree_with_numpy_to_rounding(ten
     log_b = (-3 * rng.random((2, 1500))).astype(F32)
     weights, totals = CompiledKernels(ten).normalised(log_a, log_b)
     numpy_weights, numpy_totals = NUMPY_KERNELS.normalised(log_a, log_b)
-    # float32 exponentials (mazelab.kernels.weights.exp32): 1 ulp (1.2e-7) and log a + log b - top, here
+    # float32 exponentials (mazelab.kernels.vector_math.exp32): 1 ulp (1.2e-7) and log a + log b - top, here
     # above -32, rounded to float32 (half an ulp: 9.5e-7), so each weight within 1.1e-6 of numpy's and
     # the log total (the log of their sum) within 1.2e-6
     np.testing.assert_allclose(weights, numpy_weights, rtol=1.2e-6 * 2)  # twice: the total's error as well
@@ -189,7 +189,7 @@ def test_the_apf_first_stage_and_the_covariance_agree_with_numpy_to_rounding(ten
 def test_the_float32_exponential_is_within_one_ulp_of_exp_and_0_below_float32s_normal_range():
     from numba import njit
 
-    from mazelab.kernels.weights import exp32
+    from mazelab.kernels.vector_math import exp32
 
     @njit
     def exponentials(x, out):  # pragma: no cover - compiled

@@ -2,10 +2,7 @@
 loops that call them (numba calls the C library once per value otherwise: 10-15 ns, against about 1 ns
 here).
 
-exp: x = n ln 2 + r with n = round(x / ln 2) and |r| <= ln 2 / 2 (ln 2 in two parts, fdlibm's, so r is
-exact), exp(r) by its Taylor polynomial to degree 12 (the remainder below 2e-16 of the value), and
-2^n from its IEEE bits. The value agrees with numpy's exp to a few units in the last place: the
-normalised weights to about 1e-15.
+exp32: float32, Cephes' expf (see its docstring): within one float32 ulp of exp.
 
 cos and sin of a float32 angle: in float64, x = j pi/2 + r with |r| <= pi/4 (pi/2 in two parts, fdlibm's,
 so r is exact to about 1e-20 for |x| < 2^19), the float32 kernels of FreeBSD's libm (k_cosf.c and
@@ -26,53 +23,45 @@ from numba.extending import intrinsic
 
 from mazelab.kernels import jit
 
-_LOG2E = 1.4426950408889634
-_LN2_HI = 6.93147180369123816490e-01
-_LN2_LO = 1.90821492927058770002e-10
-_LOWEST = -708.0  # below it exp(x) is subnormal or 0 in float64: 0 here
+_LOWEST = np.float32(-87.0)  # below it exp(x) is subnormal in float32: 0 here
 
 
 @intrinsic
-def _double_from_bits(typingctx: Any, bits: Any) -> Any:  # pragma: no cover - compiled
-    """The float64 whose IEEE bits are the int64 `bits` (a bitcast: no instruction)."""
-    signature = types.float64(types.int64)
+def _float_from_bits(typingctx: Any, bits: Any) -> Any:  # pragma: no cover - compiled
+    """The float32 whose IEEE bits are the int32 `bits` (a bitcast: no instruction)."""
+    signature = types.float32(types.int32)
 
     def codegen(context: Any, builder: Any, sig: Any, args: Any) -> Any:
-        return builder.bitcast(args[0], ir.DoubleType())
+        return builder.bitcast(args[0], ir.FloatType())
 
     return signature, codegen
 
 
 @jit(inline=True)
-def exp(x):  # pragma: no cover - compiled
-    """exp(x) for float64 x <= 709, branch-free: 0 below -708 and for -inf, NaN for NaN.
+def exp32(x):  # pragma: no cover - compiled
+    """exp(x) for float32 x <= 0, branch-free (Cephes' expf: x = n ln 2 + r, |r| <= ln 2 / 2, ln 2 in
+    two parts so that r is exact, a degree-6 polynomial, 2^n from its IEEE bits): within one float32 ulp
+    of exp (tests/test_kernels.py); 0 below -87 and for -inf, NaN for NaN.
 
     Parameters
     ----------
-    x : float64
+    x : float32
 
     Returns
     -------
-    float64
+    float32
     """
     clamped = x if x > _LOWEST else _LOWEST  # NaN becomes _LOWEST here; the select at the end gives NaN back
-    n = np.floor(clamped * _LOG2E + 0.5)
-    r = (clamped - n * _LN2_HI) - n * _LN2_LO
-    p = 1.0 / 479001600.0
-    p = p * r + 1.0 / 39916800.0
-    p = p * r + 1.0 / 3628800.0
-    p = p * r + 1.0 / 362880.0
-    p = p * r + 1.0 / 40320.0
-    p = p * r + 1.0 / 5040.0
-    p = p * r + 1.0 / 720.0
-    p = p * r + 1.0 / 120.0
-    p = p * r + 1.0 / 24.0
-    p = p * r + 1.0 / 6.0
-    p = p * r + 0.5
-    p = p * r + 1.0
-    p = p * r + 1.0
-    value = p * _double_from_bits((np.int64(n) + np.int64(1023)) << np.int64(52))
-    return value if x >= _LOWEST else (x if x != x else 0.0)
+    n = np.floor(clamped * np.float32(1.44269504088896341) + np.float32(0.5))
+    r = (clamped - n * np.float32(0.693359375)) + n * np.float32(2.12194440e-4)
+    p = np.float32(1.9875691500e-4) * r + np.float32(1.3981999507e-3)
+    p = p * r + np.float32(8.3334519073e-3)
+    p = p * r + np.float32(4.1665795894e-2)
+    p = p * r + np.float32(1.6666665459e-1)
+    p = p * r + np.float32(5.0000001201e-1)
+    p = (p * r) * r + r + np.float32(1.0)
+    value = p * _float_from_bits((np.int32(n) + np.int32(127)) << np.int32(23))
+    return value if x >= _LOWEST else (x if x != x else np.float32(0.0))
 
 
 _TWO_OVER_PI = 0.6366197723675814
@@ -123,4 +112,4 @@ def cos_sin(x):  # pragma: no cover - compiled
     return np.float32(cos_x), np.float32(sin_x)
 
 
-__all__ = ["cos_sin", "exp"]
+__all__ = ["cos_sin", "exp32"]

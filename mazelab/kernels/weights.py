@@ -7,8 +7,8 @@ the ESS, the mean), then W = w / total (and log W = log w - log total for a filt
 the weight within the green circle around the mean. `first_stage` is the APF's: W proportional to
 exp(log a + log b) and the log of their sum.
 
-The exponential is float32 (`exp32`, branch-free, so that the passes vectorise): one ulp, and x = log w
-- top rounded to float32 (half an ulp of x), so w within 1.2e-7 + 6e-8 |x| of numpy's float64 exp
+The exponential is float32 (vector_math.exp32, branch-free, so that the passes vectorise): one ulp,
+and x = log w - top rounded to float32 (half an ulp of x), so w within 1.2e-7 + 6e-8 |x| of numpy's float64 exp
 relative to its value (6e-7 for the weights above exp(-8) of the top), 0 below exp(-87) of the top (a
 weight under 1e-38 of the heaviest one, never drawn); the sums, the totals and W are float64 (W is read by
 the resampling schemes, the reads, recovery and the exercise as the numpy path's is; float32 W saved
@@ -26,57 +26,16 @@ and NaN weights, as in the numpy path; the filter then restarts it.
 from __future__ import annotations
 
 import math
-from typing import Any
 
 import numpy as np
-from llvmlite import ir
-from numba import prange, types
-from numba.extending import intrinsic
+from numba import prange
 
 from mazelab.kernels import jit
+from mazelab.kernels.vector_math import exp32
 
 LANES = 16  # partial sums each sum keeps: their order is this code's, not the compiler's
 CHUNK = 1024  # exponentials worked out at a time (a float32 array the passes' loops read)
 _F32 = np.float32
-_LOWEST = _F32(-87.0)  # below it exp(x) is subnormal in float32: 0 here
-
-
-@intrinsic
-def _float_from_bits(typingctx: Any, bits: Any) -> Any:  # pragma: no cover - compiled
-    """The float32 whose IEEE bits are the int32 `bits` (a bitcast: no instruction)."""
-    signature = types.float32(types.int32)
-
-    def codegen(context: Any, builder: Any, sig: Any, args: Any) -> Any:
-        return builder.bitcast(args[0], ir.FloatType())
-
-    return signature, codegen
-
-
-@jit(inline=True)
-def exp32(x):  # pragma: no cover - compiled
-    """exp(x) for float32 x <= 0, branch-free (Cephes' expf: x = n ln 2 + r, |r| <= ln 2 / 2, ln 2 in
-    two parts so that r is exact, a degree-6 polynomial, 2^n from its IEEE bits): within one float32 ulp
-    of exp (tests/test_kernels.py); 0 below -87 and for -inf, NaN for NaN.
-
-    Parameters
-    ----------
-    x : float32
-
-    Returns
-    -------
-    float32
-    """
-    clamped = x if x > _LOWEST else _LOWEST  # NaN becomes _LOWEST here; the select at the end gives NaN back
-    n = np.floor(clamped * _F32(1.44269504088896341) + _F32(0.5))
-    r = (clamped - n * _F32(0.693359375)) + n * _F32(2.12194440e-4)
-    p = _F32(1.9875691500e-4) * r + _F32(1.3981999507e-3)
-    p = p * r + _F32(8.3334519073e-3)
-    p = p * r + _F32(4.1665795894e-2)
-    p = p * r + _F32(1.6666665459e-1)
-    p = p * r + _F32(5.0000001201e-1)
-    p = (p * r) * r + r + _F32(1.0)
-    value = p * _float_from_bits((np.int32(n) + np.int32(127)) << np.int32(23))
-    return value if x >= _LOWEST else (x if x != x else _F32(0.0))
 
 
 @jit(inline=True)
