@@ -96,7 +96,7 @@ def backend_option(hidden: bool = False) -> Any:
             "--backend",
             metavar="numpy|compiled",
             callback=set_backend,
-            help="numpy or compiled (default: compiled with numba)",
+            help="numpy or compiled (default: by the work)",
             show_default=False,
             hidden=hidden,
         ),
