@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from mazelab.backend import backend_of
+from mazelab.backend import backend_for_work, backend_of, use_backend
 from mazelab.checks import (
     as_points,
     check_particle_count,
@@ -289,7 +289,8 @@ def simulate(
     `kidnap_at=K`: at step K, before its move, the robot is carried to a free place drawn from the
     seed (see Robot.kidnap); a robot that replays a kidnapping keeps it. The scenario stores it.
     result.extras["particle_count"] holds the particle count per step (it varies with KLD-sampling),
-    result.extras["backend"] the backend the filter ran on (numpy or compiled, mazelab.backend).
+    result.extras["backend"] the backend the filter ran on (numpy or compiled: MAZELAB_BACKEND's, else
+    compiled where numba's start-up pays for the run's work, mazelab.backend.backend_for_work).
     A filter class that declares the option `start` is also handed the robot's start (the
     EKF's `init="start"` tracks from it; the kidnapping, if any, is left for it to find out).
     `view` is what the run draws into: None (nothing), a view (`log_step`, `close`), or a function
@@ -343,7 +344,8 @@ def simulate(
         if on_step is not None:
             on_step(k, robot, filt)
 
-    with student_code(filter_class):  # a user's filter that fails: its own frames and the step (plugins)
+    backend = backend_for_work(len(particles) * int(steps), int(steps))  # numba's start-up only where it pays
+    with use_backend(backend), student_code(filter_class):  # a failing user's filter: its frames and the step
         filt = filter_class(maze_for(filter_class, world), sigma, delta, particles, streams.filter, **filter_options)
         check_filter(filt)  # before the first step: a missing or mistyped part is one line naming it
     view = open_run_view(view, world, filter_class.name)

@@ -14,9 +14,11 @@ from typing import Any
 
 import numpy as np
 
+from mazelab.backend import backend_for_work, use_backend
 from mazelab.contract import takes
 from mazelab.experiments.warmup import warm_up_filters
 from mazelab.maze import Maze
+from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
 from mazelab.plugins import canonical_spec, is_plugin_spec
 from mazelab.registry import filter_entry, resolve_filter
 from mazelab.robot import Robot
@@ -99,27 +101,30 @@ def run_filters(
     once per process (mazelab.experiments.warmup): a filter's time per step is the same in any order.
     """
     count = particle_count if particles is None else len(particles)
-    warm_up_filters(world, sigma, delta, filter_names, count, options or {})
+    total = steps or robot.recorded_steps or DEFAULT_STEPS
+    work = (count or DEFAULT_PARTICLE_COUNT) * total * len(filter_names), total * len(filter_names)
     results: dict[str, RunResult] = {}
-    for name in filter_names:
-        result = simulate(
-            robot,
-            world,
-            sigma,
-            delta,
-            particle_count,
-            steps,
-            particles,
-            name,
-            seed=seed,
-            view=None if comparison is None else comparison.view_for(resolve_filter(name).name),
-            kidnap_at=kidnap_at,
-            **(options or {}).get(name, {}),
-        )
-        if particles is None:
-            particles = result.initial_particles
-        steps = len(result.errors)
-        results[result.filter_name] = result
+    with use_backend(backend_for_work(*work)):  # the warm-up and the runs on one backend (numba where it pays)
+        warm_up_filters(world, sigma, delta, filter_names, count, options or {})
+        for name in filter_names:
+            result = simulate(
+                robot,
+                world,
+                sigma,
+                delta,
+                particle_count,
+                steps,
+                particles,
+                name,
+                seed=seed,
+                view=None if comparison is None else comparison.view_for(resolve_filter(name).name),
+                kidnap_at=kidnap_at,
+                **(options or {}).get(name, {}),
+            )
+            if particles is None:
+                particles = result.initial_particles
+            steps = len(result.errors)
+            results[result.filter_name] = result
     return results
 
 
