@@ -114,6 +114,26 @@ def test_a_small_run_without_a_choice_runs_on_numpy_and_never_imports_numba():
     assert python(small, "compiled").split() == (["compiled", "True"] if HAS_NUMBA else ["numpy", "False"])
 
 
+SMALL_RUN = (
+    "import sys\n"
+    "from mazelab.cli.app import main\n"
+    "code = main(['run', '--maze', 'paper_5x5', '--particles', '300', '--steps', '20', '--seed', '4', '--no-viz',"
+    " '--quiet'])\n"
+    "print(code, 'numba' in sys.modules)\n"
+)
+
+
+def test_a_small_run_on_the_command_line_runs_on_numpy_and_its_repeat_line_says_so():
+    """`mazelab run` without a choice: the work does not repay numba's start-up, so numba is never
+    imported, and the pasted command names the backend that ran."""
+    out = python(SMALL_RUN).splitlines()
+    assert out[-1] == "0 False"
+    assert any(line.startswith("Repeat this run:") and line.endswith("--seed 4 --backend numpy") for line in out)
+    chosen = python(SMALL_RUN, "compiled").splitlines() if HAS_NUMBA else None
+    if chosen is not None:  # a choice overrides the work's
+        assert chosen[-1] == "0 True" and chosen[-2].endswith("--seed 4 --backend compiled")
+
+
 @needs_numba
 def test_work_that_pays_back_numbas_start_up_runs_compiled_and_a_choice_overrides_it():
     study = FOR_WORK.replace("*WORK", "4 * 3 * 200 * 30 * 1500, 4 * 3 * 200")  # the paper's study, 30 runs together
