@@ -3,7 +3,8 @@ there) or "compiled" (numba kernels, the `fast` extra: mazelab.kernels).
 
 The choice, in order: `use_backend(name)` around the code, else the environment variable
 MAZELAB_BACKEND (numpy or compiled; the commands' --backend sets it, so that a study's worker
-processes inherit it), else "compiled" when numba can be imported and "numpy" when it cannot. A
+processes inherit it), else the choice `backend_by_work` made for the work around it (a run, a
+comparison: `simulate`, `run_model`), else "compiled" when numba can be imported and "numpy" when it cannot. A
 filter takes the backend chosen when it is made (`filt.backend`), and RunResult.extras["backend"] and
 every record say which ran.
 
@@ -28,6 +29,7 @@ import importlib.util
 import os
 from collections.abc import Iterator
 from contextlib import contextmanager
+from contextvars import ContextVar
 from functools import cache
 from typing import Any
 
@@ -95,8 +97,12 @@ def check_backend(name: Any, source: str = "backend") -> str:
     return chosen
 
 
+_WORK_CHOICE: ContextVar[str | None] = ContextVar("mazelab_work_backend", default=None)  # backend_by_work's
+
+
 def chosen_backend() -> str:
-    """The backend a filter made now runs on: MAZELAB_BACKEND if set (checked), else the default.
+    """The backend a filter made now runs on: MAZELAB_BACKEND if set (checked), else the choice of the
+    enclosing `backend_by_work`, else the default.
 
     Returns
     -------
@@ -104,7 +110,9 @@ def chosen_backend() -> str:
         "numpy" or "compiled".
     """
     value = os.environ.get(ENVIRONMENT_VARIABLE, "")
-    return check_backend(value, ENVIRONMENT_VARIABLE) if value.strip() else default_backend()
+    if value.strip():
+        return check_backend(value, ENVIRONMENT_VARIABLE)
+    return _WORK_CHOICE.get() or default_backend()
 
 
 def compiled_pays(particle_steps: float, steps: float, processes: int = 1) -> bool:
@@ -132,7 +140,8 @@ def backend_for_work(particle_steps: float, steps: float, processes: int = 1) ->
     """The backend a command of this much work runs on: MAZELAB_BACKEND's when set (the user's choice:
     --backend sets it), else "compiled" where numba is installed and its start-up pays (compiled_pays),
     else "numpy", numba then not imported. A command runs inside `use_backend(backend_for_work(...))`,
-    so that its filters, its worker processes and its records take the choice.
+    so that its filters, its worker processes and its records take the choice; library code inside
+    `backend_by_work`. A choice already made (MAZELAB_BACKEND, an enclosing backend_by_work) stands.
 
     Parameters
     ----------
@@ -146,9 +155,33 @@ def backend_for_work(particle_steps: float, steps: float, processes: int = 1) ->
     str
         "numpy" or "compiled".
     """
-    if os.environ.get(ENVIRONMENT_VARIABLE, "").strip() or compiled_pays(particle_steps, steps, processes):
+    chosen = os.environ.get(ENVIRONMENT_VARIABLE, "").strip() or _WORK_CHOICE.get() is not None
+    if chosen or compiled_pays(particle_steps, steps, processes):
         return chosen_backend()
     return "numpy"
+
+
+@contextmanager
+def backend_by_work(particle_steps: float, steps: float) -> Iterator[str]:
+    """The filters made inside (in this thread) run on `backend_for_work`'s choice for this work, without
+    touching the environment (a library call such as `simulate` may run in a thread beside others); an
+    enclosing choice (MAZELAB_BACKEND, --backend, an outer `backend_by_work` for more work) stands.
+
+    Parameters
+    ----------
+    particle_steps, steps : float
+        The work (see compiled_pays).
+
+    Yields
+    ------
+    str
+        The backend chosen.
+    """
+    token = _WORK_CHOICE.set(backend_for_work(particle_steps, steps))
+    try:
+        yield chosen_backend()
+    finally:
+        _WORK_CHOICE.reset(token)
 
 
 def check_threads(value: Any, source: str = "threads") -> int:
@@ -278,6 +311,7 @@ __all__ = [
     "SAVED_PER_STEP",
     "STARTUP_SECONDS",
     "THREADS_VARIABLE",
+    "backend_by_work",
     "backend_for_work",
     "backend_of",
     "backend_versions",

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from mazelab.backend import backend_for_work, backend_of, use_backend
+from mazelab.backend import backend_by_work, backend_of
 from mazelab.checks import (
     as_points,
     check_particle_count,
@@ -344,8 +344,8 @@ def simulate(
         if on_step is not None:
             on_step(k, robot, filt)
 
-    backend = backend_for_work(len(particles) * int(steps), int(steps))  # numba's start-up only where it pays
-    with use_backend(backend), student_code(filter_class):  # a failing user's filter: its frames and the step
+    work = len(particles) * int(steps), int(steps)  # numba's start-up only where the run repays it
+    with backend_by_work(*work), student_code(filter_class):  # a failing user's filter: its frames and the step
         filt = filter_class(maze_for(filter_class, world), sigma, delta, particles, streams.filter, **filter_options)
         check_filter(filt)  # before the first step: a missing or mistyped part is one line naming it
     view = open_run_view(view, world, filter_class.name)

@@ -19,11 +19,13 @@ from mazelab.backend import (
     SAVED_PER_PARTICLE,
     SAVED_PER_STEP,
     STARTUP_SECONDS,
+    backend_by_work,
     backend_for_work,
     backend_versions,
     check_backend,
     chosen_backend,
     compiled_pays,
+    default_backend,
     use_backend,
 )
 from mazelab.cli.app import main
@@ -132,6 +134,22 @@ def test_a_small_run_on_the_command_line_runs_on_numpy_and_its_repeat_line_says_
     chosen = python(SMALL_RUN, "compiled").splitlines() if HAS_NUMBA else None
     if chosen is not None:  # a choice overrides the work's
         assert chosen[-1] == "0 True" and chosen[-2].endswith("--seed 4 --backend compiled")
+
+
+def test_the_work_choice_of_a_run_leaves_the_environment_alone_and_an_outer_choice_stands(monkeypatch):
+    monkeypatch.delenv(ENVIRONMENT_VARIABLE, raising=False)
+    big = STARTUP_SECONDS / SAVED_PER_PARTICLE * 2  # particle-steps that repay the start-up twice
+    with backend_by_work(1500 * 200, 200) as small:
+        assert small == chosen_backend() == "numpy" and ENVIRONMENT_VARIABLE not in os.environ
+        with backend_by_work(big, 200) as inner:  # a run inside a small comparison keeps its choice
+            assert inner == "numpy"
+    with backend_by_work(big, 200) as outer:
+        assert outer == default_backend()
+        with backend_by_work(1500 * 200, 200) as inner:  # the comparison's warm-up and runs: one backend
+            assert inner == outer
+    monkeypatch.setenv(ENVIRONMENT_VARIABLE, default_backend())
+    with backend_by_work(1500 * 200, 200) as chosen:  # the user's choice stands
+        assert chosen == default_backend()
 
 
 @needs_numba

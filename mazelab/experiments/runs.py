@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from mazelab.backend import backend_for_work, use_backend
+from mazelab.backend import backend_by_work
 from mazelab.contract import takes
 from mazelab.experiments.warmup import warm_up_filters
 from mazelab.maze import Maze
@@ -104,7 +104,7 @@ def run_filters(
     total = steps or robot.recorded_steps or DEFAULT_STEPS
     work = (count or DEFAULT_PARTICLE_COUNT) * total * len(filter_names), total * len(filter_names)
     results: dict[str, RunResult] = {}
-    with use_backend(backend_for_work(*work)):  # the warm-up and the runs on one backend (numba where it pays)
+    with backend_by_work(*work):  # the warm-up and the runs on one backend (numba where it pays)
         warm_up_filters(world, sigma, delta, filter_names, count, options or {})
         for name in filter_names:
             result = simulate(
