@@ -320,3 +320,16 @@ def test_check_writes_gradescopes_results(tmp_path, capsys):
     capsys.readouterr()
     assert main(["exercise", "check", str(path), "--gradescope", str(tmp_path / "results")]) == 2  # exists
     assert "--force" in capsys.readouterr().err
+
+
+def test_an_error_of_the_grader_itself_is_shown_as_it_is_not_as_a_stop(monkeypatch, tmp_path):
+    """Only Ctrl-C and the stop signals make a partial grading ("stopped: ..."); a bug in the grader's own
+    code while grading a submission propagates, so that it is seen and fixed."""
+    from mazelab.exercise import grading
+
+    def broken(*arguments):
+        raise RuntimeError("the grader's own bug")
+
+    monkeypatch.setattr(grading, "grade_one", broken)
+    with pytest.raises(RuntimeError, match="the grader's own bug"):
+        grading.grade_folder([grading.Submission("alice", tmp_path / "a.py")], jobs=1)

@@ -181,12 +181,14 @@ def grade_folder(
     futures = [threads.submit(one, submission) for submission in submissions]
     try:
         return [future.result() for future in futures]
-    except BaseException:  # Ctrl-C, SIGTERM: end the running children, start no new one, keep what was graded
+    except BaseException as error:  # Ctrl-C, SIGTERM: end the running children, start no new one, keep what was graded
         stop_children()
         _end_workers(pool)
         for future in futures:
             future.cancel()
         threads.shutdown(wait=True, cancel_futures=True)
+        if not isinstance(error, KeyboardInterrupt):
+            raise  # the grader's own error is not a stop: it is shown as it is
         done = [f.result() for f in futures if f.done() and not f.cancelled() and f.exception() is None]
         raise GradingInterruptedError(done) from None
     finally:
