@@ -10,15 +10,17 @@
 `log_likelihood`, `ancestors`) a subclass supplies: mazelab.cloud.ParticleFilter from the model of the
 lost robot and the resampling schemes, mazelab.exercise.StudentFilter from the student's parts.
 
-The engine below the hooks also advances R runs of one setting together: run r's particles are rows
-r*N..(r+1)*N of `positions`, its log weights row r of the Weights value, its draws from its own Generator
-`rngs[r]` in the order a filter of that run alone would draw them, so R runs are bit for bit R single
-runs. No hook names the runs: while a hook runs for some of them (those that resample this step), the
-engine's `transition`, `log_likelihood` and draws are those runs'. A run whose weights all underflow
-(no particle explains z_k) starts again from the prior, weighted by its z_k.
+The engine below the hooks also advances R runs of one setting together (their blocks and what the
+step leaves of each: mazelab.run_blocks.RunBlocks, SMC's base): run r's particles are rows r*N..(r+1)*N
+of `positions`, its log weights row r of the Weights value, its draws from its own Generator `rngs[r]`
+in the order a filter of that run alone would draw them, so R runs are bit for bit R single runs. No
+hook names the runs: while a hook runs for some of them (those that resample this step), the engine's
+`transition`, `log_likelihood` and draws are those runs'. A run whose weights all underflow (no particle
+explains z_k) starts again from the prior, weighted by its z_k.
 
-This module imports numpy, mazelab.weights and mazelab.constants only: the grading sandbox ships it
-with StudentFilter, and no reference implementation of the model or of resampling may come with it.
+This module imports numpy, mazelab.weights, mazelab.constants and mazelab.run_blocks only: the grading
+sandbox ships it with StudentFilter, and no reference implementation of the model or of resampling may
+come with it.
 """
 
 from __future__ import annotations
@@ -30,10 +32,11 @@ from typing import Any
 import numpy as np
 
 from mazelab.constants import LOG_UNDERFLOW, PARTICLE_DTYPE
+from mazelab.run_blocks import RunBlocks
 from mazelab.weights import Weights, log_sum_exp, weights_from_logs
 
 
-class SMC:
+class SMC(RunBlocks):
     """The step template (Arulampalam et al. Algorithms 4-6 as one algorithm with hooks).
 
     A subclass's constructor sets `world` (the map: `random_free_places` is the prior), `positions`
@@ -459,91 +462,6 @@ class SMC:
         """log F = log sum_i W_{k-1}^i eta_k^i, the first stage's total (R,) (the APF's)."""
         return self.selected_rows(self._first_stage_totals)
 
-    # -- the runs a hook serves ------------------------------------------------------------------------
-    @property
-    def selected_runs(self) -> np.ndarray:
-        """The runs the present hook serves (every run outside the hooks)."""
-        return self._every_run if self._selected is None else self._selected
-
-    def selected_rows(self, values: np.ndarray) -> np.ndarray:
-        """The rows of an (R, ...) array that belong to the runs served now."""
-        return values if self._selected is None else values[self._selected]
-
-    def selected_points(self) -> np.ndarray:
-        """The particles of the runs served now (R'*N, 2)."""
-        if self._selected is None:
-            return self.positions
-        return np.concatenate([self.run_positions(run) for run in self._selected])
-
-    def run_positions(self, run: int) -> np.ndarray:
-        """Run `run`'s particles, a view (N, 2) of `positions`.
-
-        Parameters
-        ----------
-        run : int
-
-        Returns
-        -------
-        array (N, 2)
-        """
-        return self.positions[run * self.count : (run + 1) * self.count]
-
-    def replace_runs(self, positions: np.ndarray, headings: np.ndarray, runs: np.ndarray) -> None:
-        """New particles and headings for the given runs (their blocks, in order); the others keep theirs.
-
-        Parameters
-        ----------
-        positions : array (len(runs) * N, 2)
-        headings : array (len(runs) * N,)
-        runs : int array
-        """
-        if len(runs) == self.runs:
-            self.positions, self.headings, self.count = positions, headings, len(positions) // self.runs
-            return
-        self.positions = _replace_blocks(self.positions, positions, runs, self.count)
-        self.headings = _replace_blocks(self.headings, headings, runs, self.count)
-
-    # -- what the step leaves: one value per run for R runs, the paper's shapes for one -----------------
-    @property
-    def weights(self) -> np.ndarray:
-        """The normalised weights W_i: (N,) for one run, (R, N) for R runs."""
-        return self._one(self.weights_value.W)
-
-    @property
-    def log_weights(self) -> np.ndarray:
-        """log W_i, normalised: (N,) for one run, (R, N) for R runs."""
-        return self._one(self.weights_value.lw)
-
-    @log_weights.setter
-    def log_weights(self, values: np.ndarray) -> None:
-        self.weights_value = Weights(np.asarray(values, dtype=float).reshape(self.runs, -1))
-
-    @property
-    def ess(self) -> float | np.ndarray:
-        """N_eff = 1 / sum_i W_i^2: a float for one run, (R,) for R runs."""
-        ess = self.weights_value.ess
-        return float(ess[0]) if self.runs == 1 else ess
-
-    @property
-    def log_evidence(self) -> float | np.ndarray:
-        """log p(z_1:k), the running estimate (particles' logLt): a float for one run, (R,) for R runs.
-        A step that no particle explains adds the filter's (underflowing) estimate before its restart."""
-        return float(self.run_log_evidence[0]) if self.runs == 1 else self.run_log_evidence.copy()
-
-    @property
-    def reinitialised_at(self) -> list[int] | list[list[int]]:
-        """The steps at which no particle explained z and the filter restarted (a list per run for R runs)."""
-        return self._one(self._reinitialised)
-
-    @property
-    def resampled_at(self) -> list[int] | list[list[int]]:
-        """The steps after which the filter resampled (a list per run for R runs)."""
-        return self._one(self._resampled_at)
-
-    def _one(self, per_run: Any) -> Any:
-        """Run 0's value for one run (the paper's shapes), all runs' otherwise."""
-        return per_run[0] if self.runs == 1 else per_run
-
 
 _NO_RUNS = np.empty(0, dtype=np.intp)  # no run restarted (never written into)
 
@@ -568,14 +486,6 @@ def _per_run(value: float | np.ndarray, runs: int) -> np.ndarray:
 def _log_weights(log_weights: np.ndarray | None, log_w: np.ndarray, totals: np.ndarray) -> np.ndarray:
     """The normalised log weights a normalisation returned, or log w - log total where it left them out."""
     return np.subtract(log_w, totals[:, None], dtype=float) if log_weights is None else log_weights
-
-
-def _replace_blocks(values: np.ndarray, new: np.ndarray, runs: np.ndarray, size: int) -> np.ndarray:
-    """A copy of `values` whose blocks of the given runs are the blocks of `new`, in order."""
-    replaced = values.copy(order="F" if values.ndim > 1 else "C")
-    for block, run in enumerate(runs):
-        replaced[run * size : (run + 1) * size] = new[block * size : (block + 1) * size]
-    return replaced
 
 
 __all__ = ["SMC"]

@@ -37,6 +37,7 @@ KIT: dict[str, str | tuple[str, ...]] = {
     "mazelab.seeding": WHOLE,
     "mazelab.constants": WHOLE,  # L, the outside penalty, the green circle: numbers only
     "mazelab.model": CONSTANTS,  # the same constants as the model re-exports them: never the transition or likelihood
+    "mazelab.run_blocks": WHOLE,  # the engine's base: the runs a hook serves, what the step leaves of each
     "mazelab.engine": WHOLE,  # the step template: its model parts (transition, likelihood, ancestors) are the student's
     # the weights' value and normalisation, not weighted_mean (the estimate is a graded part)
     "mazelab.weights": (
