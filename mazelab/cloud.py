@@ -355,11 +355,17 @@ class ParticleFilter(SMC):
     def normalise_rows(self, log_w: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, Any, Any]:
         """The backend's normalisation (the compiled one reads W, ESS, mean and confidence in its passes)."""
         self._reads_of, self._reads = None, {}  # the compiled backend may reuse the last step's arrays
-        return self.ops.normalise(log_w, positions, self.log_weights_read)
+        return self.ops.normalise(log_w, positions)
 
-    def normalised(self, log_a: np.ndarray, log_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The backend's W ∝ exp(log_a + log_b) per run, and the log totals (the APF's first stage)."""
-        return self.ops.normalised(log_a, log_b)
+    def normalised(
+        self, log_a: np.ndarray, log_b: np.ndarray, shifts: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The backend's W ∝ exp(log_a - shifts + log_b) per run, and the log totals (the APF's first stage)."""
+        return self.ops.normalised(log_a, log_b, shifts)
+
+    def reweighted(self, log_a: np.ndarray, log_lik: np.ndarray, shifts: np.ndarray | None = None) -> np.ndarray:
+        """The backend's log W_{k-1} + log p(z_k | x_k) (the compiled one float32, into log_lik's array)."""
+        return self.ops.reweighted(log_a, log_lik, shifts)
 
     def kept_reads(self, reads: Any, restarted: np.ndarray, log_weights: np.ndarray | None) -> tuple[Any, Any]:
         """Keep the reads the compiled normalisation made (weights, ESS, mean, and the confidence share

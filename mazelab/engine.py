@@ -110,7 +110,7 @@ class SMC(RunBlocks):
         Parameters
         ----------
         log_lik : array (R, N)
-            log p(z_k | x_k^i) of the resampled runs.
+            log p(z_k | x_k^i) of the resampled runs (spent after this hook: it may be written into).
         ancestors : int array
             a^i of those runs' particles.
 
@@ -155,9 +155,6 @@ class SMC(RunBlocks):
         self._every_run = np.arange(self.runs)
         self._no_run = np.zeros(self.runs, dtype=bool)  # never written into
         self._all_runs = np.ones(self.runs, dtype=bool)  # never written into
-        # log W is read by a step that may not resample or that has first-stage weights; the compiled
-        # normalisation writes it for those filters only (others derive it, the same values, if asked)
-        self.log_weights_read = self.threshold < 1 or type(self).log_eta is not SMC.log_eta
 
     def observe(self, compass_angle: float | np.ndarray, z: float | np.ndarray) -> None:
         """Keep the step's th0_k and z_k, one per run (float64 (R,)).
@@ -186,7 +183,8 @@ class SMC(RunBlocks):
         self._first_stage_totals = None
         if log_eta is None:
             return self.weights_value.W
-        weights, log_totals = self.normalised(self.weights_value.lw, log_eta)
+        log_a, shifts = self.weights_value.log_parts  # log W_{k-1} = log_a - shifts, not made when not held
+        weights, log_totals = self.normalised(log_a, log_eta, shifts)
         self._first_stage_totals = log_totals
         if not _all_at_least(log_totals, LOG_UNDERFLOW):  # a run lost (or a NaN total: not lost)
             lost = log_totals < LOG_UNDERFLOW
@@ -300,7 +298,8 @@ class SMC(RunBlocks):
         fresh: np.ndarray | bool = False  # which runs' log w leave out W_{k-1} (True: every run)
         extra: np.ndarray | float = 0.0
         if self._resampled is None:
-            log_w: np.ndarray | list[np.ndarray] = self.weights_value.lw + log_lik
+            log_a, shifts = self.weights_value.log_parts  # log W_{k-1} = log_a - shifts, not made when not held
+            log_w: np.ndarray | list[np.ndarray] = self.reweighted(log_a, log_lik, shifts)
         else:
             runs, ancestors = self._resampled
             every_run = len(runs) == self.runs
@@ -317,9 +316,11 @@ class SMC(RunBlocks):
             if every_run:
                 log_w = resampled
             else:  # some runs resampled: each run's row (rows of two dtypes are normalised apart)
-                rows, previous = dict(zip(runs.tolist(), resampled, strict=True)), self.weights_value.lw
-                log_w = [rows[r] if r in rows else previous[r] + log_lik[r] for r in range(self.runs)]
-                del previous
+                rows = dict(zip(runs.tolist(), resampled, strict=True))
+                log_a, shifts = self.weights_value.log_parts
+                kept = self.reweighted(log_a, log_lik, shifts)  # the others': log W_{k-1} + log p(z_k | x_k)
+                log_w = [rows[r] if r in rows else kept[r] for r in range(self.runs)]
+                del kept, log_a
         self.weights_value = None  # the last step's weights go first (the compiled backend reuses their arrays)
         self.normalise(log_w, (fresh, extra))
         increments = self.weights_value.log_mean_increment  # log p(z_k | z_1:k-1)
@@ -418,11 +419,21 @@ class SMC(RunBlocks):
         totals = np.atleast_1d(log_sum_exp(log_w))
         return totals, np.subtract(log_w, totals[:, None], dtype=float), None
 
-    def normalised(self, log_a: np.ndarray, log_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """W ∝ exp(log_a + log_b) per row, and log sum exp(log_a + log_b) (the APF's first stage)."""
-        log_w = log_a + log_b
+    def normalised(
+        self, log_a: np.ndarray, log_b: np.ndarray, shifts: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """W ∝ exp(log_a - shifts + log_b) per row, and its log sum exp (the APF's first stage: log_a -
+        shifts is log W_{k-1}, as Weights.log_parts gives it; shifts None: none)."""
+        log_w = self.reweighted(log_a, log_b, shifts)
         totals = np.atleast_1d(log_sum_exp(log_w))
         return weights_from_logs(log_w, totals), totals
+
+    def reweighted(self, log_a: np.ndarray, log_lik: np.ndarray, shifts: np.ndarray | None = None) -> np.ndarray:
+        """log w = log W_{k-1} + log p(z_k | x_k) per row, log W_{k-1} = log_a - shifts (Weights.log_parts;
+        shifts None: log_a is log W_{k-1}): a step that does not resample, and the APF's first stage."""
+        if shifts is not None:
+            log_a = np.subtract(log_a, shifts[:, None], dtype=float)
+        return log_a + log_lik
 
     def kept_reads(self, reads: Any, restarted: np.ndarray, log_weights: np.ndarray | None) -> tuple[Any, Any]:
         """The W and ESS the normalisation read (None: derived from the log weights when asked)."""

@@ -68,9 +68,9 @@ class AuxiliaryParticleFilter(ParticleFilter):
         -------
         (log w (R, N), log F (R,), or 0.0 when the weights carry F already: recovery's)
         """
-        log_mu = self.log_mu_lik.reshape(-1)[ancestors].reshape(len(log_lik), -1)  # log p(z_k | mu_k^{i^j})
-        same = log_lik.dtype == log_mu.dtype  # float64 where recovery injected float64 points
-        second_stage = np.subtract(log_lik, log_mu, out=log_mu if same else None)  # into the gathered array
+        log_mu, self.log_mu_lik = self.log_mu_lik, None  # log p(z_k | mu_k^i), spent here
+        # log p(z_k | x_k^j) - log p(z_k | mu_k^{i^j}); into log_lik's array unless recovery reads it after
+        second_stage = self.ops.second_stage(log_lik, log_mu, ancestors, log_lik if self.recovery is None else None)
         log_F = self.first_stage_log_total
         if self.recovery is not None:  # on recovery's scale: injected particles carry p(z | x^j)
             return predictive_scale(second_stage, log_F, log_lik, self._injected), 0.0
@@ -187,7 +187,7 @@ class RegularizedParticleFilter(ParticleFilter):
         -------
         (log w (R, N), None)
         """
-        return np.add(log_lik, -math.log(self.count), dtype=float), None  # log W^i + log p(z_k | x_k^i), float64
+        return self.ops.equal_weighted(log_lik, -math.log(self.count)), None  # log W^i + log p(z_k | x_k^i)
 
     def kernels(self, weights: np.ndarray, clouds: np.ndarray) -> list[Kernel]:
         """Each run's kernel: h D_k with its whole cloud's S_k, or one per mode (multimodal).

@@ -120,9 +120,7 @@ class NumpyKernels:
         ancestors += np.repeat(count * (runs - np.arange(len(runs))), count)
         return ancestors
 
-    def normalise(
-        self, log_w: np.ndarray, positions: np.ndarray, write_log: bool = True
-    ) -> tuple[np.ndarray, np.ndarray, None]:
+    def normalise(self, log_w: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray, None]:
         """log W = log w - log sum exp(log w) per run.
 
         Parameters
@@ -130,8 +128,6 @@ class NumpyKernels:
         log_w : array (R, N)
         positions : array (R*N, 2)
             The particles the weights belong to (the compiled backend reads them too).
-        write_log : bool
-            Ignored: log W is what this normalisation makes (the compiled one may leave it out).
 
         Returns
         -------
@@ -140,20 +136,83 @@ class NumpyKernels:
         totals = np.atleast_1d(log_sum_exp(log_w))
         return totals, np.subtract(log_w, totals[:, None], dtype=float), None
 
-    def normalised(self, log_a: np.ndarray, log_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """W ∝ exp(log_a + log_b) per run, and log sum exp(log_a + log_b).
+    def reweighted(self, log_a: np.ndarray, log_lik: np.ndarray, shifts: np.ndarray | None = None) -> np.ndarray:
+        """log w_k = log W_{k-1} + log p(z_k | x_k) of runs that do not resample (log W_{k-1} = log_a -
+        shifts, as the Weights value derives it; shifts None: log_a is log W_{k-1}).
+
+        Parameters
+        ----------
+        log_a, log_lik : arrays (R, N)
+        shifts : array (R,), optional
+
+        Returns
+        -------
+        float64 array (R, N)
+        """
+        if shifts is not None:
+            log_a = np.subtract(log_a, shifts[:, None], dtype=float)
+        return log_a + log_lik
+
+    def equal_weighted(self, log_lik: np.ndarray, log_weight: float) -> np.ndarray:
+        """log W + log p(z_k | x_k) of resampled particles, whose weights are equal (log_weight = -log N).
+
+        Parameters
+        ----------
+        log_lik : array (R, N)
+        log_weight : float
+
+        Returns
+        -------
+        float64 array (R, N)
+        """
+        return np.add(log_lik, log_weight, dtype=float)
+
+    def normalised(
+        self, log_a: np.ndarray, log_b: np.ndarray, shifts: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """W ∝ exp(log_a - shifts + log_b) per run, and log sum exp(log_a - shifts + log_b).
 
         Parameters
         ----------
         log_a, log_b : arrays (R, N)
+        shifts : array (R,), optional
+            Subtracted from each run's log_a (log w and its log total: log_a - shifts is log W, as the
+            Weights value derives it); None: none.
 
         Returns
         -------
         (W (R, N), log totals (R,)); a run whose total is -inf has NaN weights
         """
+        if shifts is not None:
+            log_a = np.subtract(log_a, shifts[:, None], dtype=float)
         log_w = log_a + log_b
         totals = np.atleast_1d(log_sum_exp(log_w))
         return weights_from_logs(log_w, totals), totals
+
+    def second_stage(
+        self, log_lik: np.ndarray, log_mu: np.ndarray, ancestors: np.ndarray, out: np.ndarray | None = None
+    ) -> np.ndarray:
+        """The APF's second-stage log weights log p(z_k | x^j) - log p(z_k | mu^{a^j}): the first stage's
+        values gathered by the ancestors, then subtracted (into the gathered array where the dtypes agree;
+        `out` is for the compiled backend, which writes in place).
+
+        Parameters
+        ----------
+        log_lik : array (R, N)
+        log_mu : array (R', N)
+            The first stage's values of every run.
+        ancestors : int array (R*N,)
+            Rows of the particles of all runs.
+        out : array (R, N), optional
+            Ignored.
+
+        Returns
+        -------
+        array (R, N)
+        """
+        gathered = log_mu.reshape(-1)[ancestors].reshape(len(log_lik), -1)  # log p(z_k | mu_k^{a^j})
+        same = log_lik.dtype == gathered.dtype  # float64 where recovery injected float64 points
+        return np.subtract(log_lik, gathered, out=gathered if same else None)
 
     def effective_sample_size(self, weights: np.ndarray) -> np.ndarray:
         """N_eff = 1 / sum_i W_i^2 per run (mazelab.weights.effective_sample_size).

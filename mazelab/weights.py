@@ -117,6 +117,14 @@ class Weights:
         log_w, totals = self._unnormalised
         return np.subtract(log_w, totals[:, None], dtype=float)
 
+    @property
+    def log_parts(self) -> tuple[np.ndarray, np.ndarray | None]:
+        """(a, shifts) with log W = a - shifts[:, None], without making log W: the log W held and None,
+        or log w and the log totals it is derived from (what the APF's first stage reads)."""
+        if "lw" in self.__dict__ or self._unnormalised is None:
+            return self.lw, None
+        return self._unnormalised
+
     @cached_property
     def W(self) -> np.ndarray:  # noqa: N802 (the paper's W, as particles names it)
         """W_i = exp(log W_i), (R, N)."""

@@ -144,12 +144,10 @@ def test_the_normalisation_and_its_reads_agree_with_numpy_to_rounding(ten):
     points = cloud_points(ten, 3 * 2000, rng)
     log_w = (-0.5 * rng.standard_normal((3, 2000)) ** 2 * 30).astype(F32)
     log_w[2] = -np.inf  # nothing explains z: no weights, the filter restarts the run
-    totals, log_weights, reads = CompiledKernels(ten).normalise(log_w, points)
-    unwritten = CompiledKernels(ten).normalise(log_w, points, write_log=False)
-    assert unwritten[1] is None  # left out, and the Weights derive the same values when read
-    np.testing.assert_array_equal(Weights(None, unnormalised=(log_w, unwritten[0])).lw[:2], log_weights[:2])
-    np.testing.assert_array_equal(unwritten[2]["weights"], reads["weights"])
+    totals, unwritten, reads = CompiledKernels(ten).normalise(log_w, points)
+    assert unwritten is None  # left out: the Weights derive log W from log w and the totals when read
     with np.errstate(invalid="ignore"):  # numpy's -inf - -inf for the run nothing explains
+        log_weights = Weights(None, unnormalised=(log_w, totals)).lw
         numpy_totals, numpy_log_weights, _ = NUMPY_KERNELS.normalise(log_w, points)
     np.testing.assert_allclose(totals[:2], numpy_totals[:2], rtol=1e-6)  # numpy's total is summed in float32
     np.testing.assert_allclose(log_weights[:2], numpy_log_weights[:2], rtol=0, atol=1e-5)
@@ -220,7 +218,6 @@ def test_the_normalisation_of_runs_together_is_each_runs_alone_to_the_bit(dtype,
     for r in range(3):
         alone = CompiledKernels(ten).normalise(log_w[r : r + 1].copy(), points[r * size : (r + 1) * size].copy())
         np.testing.assert_array_equal(alone[0], together[0][r : r + 1])
-        np.testing.assert_array_equal(alone[1], together[1][r : r + 1])
         for name in ("weights", "ess", "mean", "share"):
             np.testing.assert_array_equal(alone[2][name], together[2][name][r : r + 1])
         one = CompiledKernels(ten).normalised(log_w[r : r + 1].astype(float), log_b[r : r + 1].copy())
@@ -287,8 +284,7 @@ def test_reading_the_log_weights_does_not_change_a_compiled_run(name, paper_worl
         read.log_weights  # noqa: B018 (read every step)
         np.testing.assert_array_equal(read.positions, unread.positions)
         np.testing.assert_array_equal(read.weights, unread.weights)
-    np.testing.assert_array_equal(read.log_weights, unread.log_weights)  # written, or derived when read
-    assert read.log_weights_read == (name != "sir")  # only a filter that may read log W has it written
+    np.testing.assert_array_equal(read.log_weights, unread.log_weights)  # derived when read, kept or not
 
 
 @pytest.mark.parametrize("name", ["sir", "apf", "rpf"])
@@ -512,16 +508,15 @@ def test_threads_give_the_likelihood_to_the_bit_and_the_reads_in_blocks_that_no_
     serial = one.normalise(log_lik, points)
     threaded = two.normalise(log_lik, points)
     np.testing.assert_allclose(threaded[0], serial[0], rtol=1e-12)
-    np.testing.assert_allclose(threaded[1], serial[1], rtol=0, atol=1e-9)
     for name in ("weights", "ess", "mean", "share"):
         np.testing.assert_allclose(threaded[2][name], serial[2][name], rtol=1e-9, atol=1e-300)
     runs = []
     for threads in (1, 2):  # the threaded kernel itself, on one thread and on two: the same bits
         numba.set_num_threads(threads)
-        out = np.empty_like(log_lik, dtype=float), np.empty_like(log_lik, dtype=float)
+        out = np.empty_like(log_lik, dtype=float)
         reads = np.empty((5, 2))
-        weights.normalise_threads(log_lik, points, 1.0, *out, reads)
-        runs.append((*out, reads))
+        weights.normalise_threads(log_lik, points, 1.0, out, reads)
+        runs.append((out, reads))
     for first, second in zip(runs[0], runs[1], strict=True):
         np.testing.assert_array_equal(first, second)
 

@@ -255,42 +255,42 @@ class CompiledKernels(NumpyKernels):
             self._bases_of = ((runs, count), np.arange(runs) * count)
         return self._bases_of[1]
 
-    def normalise(
-        self, log_w: np.ndarray, positions: np.ndarray, write_log: bool = True
-    ) -> tuple[np.ndarray, np.ndarray | None, dict | None]:
-        """Each run's log total, W and (when asked) log W, with the step's reads: the top, the
-        exponentials and the sums, then the normalisation, in three compiled passes over each run.
+    def normalise(self, log_w: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, None, dict | None]:
+        """Each run's log total and W, with the step's reads: the top, the exponentials and the sums,
+        then the normalisation, in three compiled passes over each run. log W is not written: the
+        Weights value derives it from log w and the totals when it is read (the same values as log w -
+        log total here), which saves a float64 array's writes and memory.
 
         Parameters
         ----------
         log_w : array (R, N)
         positions : array (R*N, 2)
-        write_log : bool
-            Write log W (float64 (R, N)); False: leave it to the reader (log w - log total, the same
-            values), a float64 array's writes and memory saved for a filter that reads W only.
 
         Returns
         -------
-        (log totals (R,), log W (R, N) float64 or None, reads): reads holds "weights" (R, N) float64,
-        "ess" (R,), "mean" (R, 2) and "share" (R,), the weight within CONFIDENCE_RADIUS of the mean
+        (log totals (R,), None, reads): reads holds "weights" (R, N) float64, "ess" (R,), "mean" (R, 2)
+        and "share" (R,), the weight within CONFIDENCE_RADIUS of the mean
         """
         if positions.dtype != PARTICLE_DTYPE or len(positions) != log_w.size:
             return super().normalise(log_w, positions)
         runs, size = log_w.shape
         w = self.pool.take("weights", (runs, size), np.float64)
-        log_out = self.pool.take("log_weights", (runs, size), np.float64) if write_log else None
         reads = np.empty((5, runs))  # the totals, the mean's x and y, the ESS, the share: one row each
         kernel = weights.normalise_threads if self._threaded(log_w.size) else weights.normalise
-        kernel(log_w, positions, CONFIDENCE_RADIUS, w, log_out, reads)
-        return reads[0], log_out, {"weights": w, "ess": reads[3], "mean": reads[1:3].T, "share": reads[4]}
+        kernel(log_w, positions, CONFIDENCE_RADIUS, w, reads)
+        return reads[0], None, {"weights": w, "ess": reads[3], "mean": reads[1:3].T, "share": reads[4]}
 
-    def normalised(self, log_a: np.ndarray, log_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """W ∝ exp(log_a + log_b) per run and log sum exp(log_a + log_b), compiled into a reused array,
-        with one exponential per particle (numpy's log_sum_exp and weights_from_logs take two).
+    def normalised(
+        self, log_a: np.ndarray, log_b: np.ndarray, shifts: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """W ∝ exp(log_a - shifts + log_b) per run and its log total (NumpyKernels.normalised), compiled
+        into a reused array, with one exponential per particle (numpy's log_sum_exp and weights_from_logs
+        take two); log_a - shifts is worked out per particle, never stored.
 
         Parameters
         ----------
         log_a, log_b : arrays (R, N)
+        shifts : array (R,), optional
 
         Returns
         -------
@@ -298,8 +298,68 @@ class CompiledKernels(NumpyKernels):
         """
         w = self.pool.take("first_weights", log_a.shape, np.float64)
         totals = np.empty(len(log_a))
-        weights.first_stage(log_a, log_b, w, totals)
+        weights.first_stage(log_a, np.zeros(len(log_a)) if shifts is None else shifts, log_b, w, totals)
         return w, totals
+
+    def reweighted(self, log_a: np.ndarray, log_lik: np.ndarray, shifts: np.ndarray | None = None) -> np.ndarray:
+        """log W_{k-1} + log p(z_k | x_k) (log W_{k-1} = log_a - shifts) in one compiled pass, float32
+        into log_lik's array (spent after it; NumpyKernels.reweighted's float64 sum, rounded to float32,
+        saves a float64 array); float64 likelihoods (recovery's draws) go to numpy.
+
+        Parameters
+        ----------
+        log_a, log_lik : arrays (R, N)
+        shifts : array (R,), optional
+
+        Returns
+        -------
+        float32 array (R, N): log_lik's array
+        """
+        if log_lik.dtype != PARTICLE_DTYPE:
+            return super().reweighted(log_a, log_lik, shifts)
+        weights.reweighted(log_a, np.zeros(len(log_a)) if shifts is None else shifts, log_lik, log_lik)
+        return log_lik
+
+    def equal_weighted(self, log_lik: np.ndarray, log_weight: float) -> np.ndarray:
+        """log W + log p(z_k | x_k) of resampled particles (W = 1/N each: log_weight), float32 into
+        log_lik's array (spent after it); float64 likelihoods go to numpy.
+
+        Parameters
+        ----------
+        log_lik : array (R, N)
+        log_weight : float
+
+        Returns
+        -------
+        array (R, N)
+        """
+        if log_lik.dtype != PARTICLE_DTYPE:
+            return super().equal_weighted(log_lik, log_weight)
+        return np.add(log_lik, log_weight, out=log_lik)
+
+    def second_stage(
+        self, log_lik: np.ndarray, log_mu: np.ndarray, ancestors: np.ndarray, out: np.ndarray | None = None
+    ) -> np.ndarray:
+        """log p(z_k | x^j) - log p(z_k | mu^{a^j}) in one compiled pass (NumpyKernels.second_stage), into
+        `out` (log_lik itself, say) or a new array; float64 values (recovery's draws) go to numpy.
+
+        Parameters
+        ----------
+        log_lik : array (R, N)
+        log_mu : array (R', N)
+            The first stage's values of every run.
+        ancestors : int array (R*N,)
+        out : array (R, N), optional
+
+        Returns
+        -------
+        array (R, N)
+        """
+        if not log_lik.dtype == log_mu.dtype == PARTICLE_DTYPE or (out is not None and out.dtype != PARTICLE_DTYPE):
+            return super().second_stage(log_lik, log_mu, ancestors, out)
+        out = np.empty_like(log_lik) if out is None else out
+        weights.second_stage(log_lik, log_mu, ancestors, out)
+        return out
 
     def mass_within(
         self, weights_: np.ndarray, positions: np.ndarray, centres: np.ndarray, radius: float

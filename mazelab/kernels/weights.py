@@ -3,9 +3,11 @@
 `normalise` turns R runs' log weights into their log totals and normalised weights W (float64, as the
 numpy path's), and reads what a step reports, in three passes over each run: the top (max log w), then
 w = exp(log w - top) and the sums of the weights, their squares and the weighted positions (the total,
-the ESS, the mean), then W = w / total (and log W = log w - log total for a filter that reads it) and
-the weight within the green circle around the mean. `first_stage` is the APF's: W proportional to
-exp(log a + log b) and the log of their sum.
+the ESS, the mean), then W = w / total and the weight within the green circle around the mean (log W = log w - log total
+is left to the Weights value, which derives it when read). `first_stage` is the APF's: W proportional
+to exp(log a - shift + log b) and the log of their sum; `reweighted` makes log W_{k-1} + log p(z | x) of a
+step that does not resample, `second_stage` the APF's second-stage log weights, both float32 as the
+likelihood (log W_{k-1} worked out from log w and its total per particle, never stored).
 
 The exponential is float32 (vector_math.exp32, branch-free, so that the passes vectorise): one ulp,
 and x = log w - top rounded to float32 (half an ulp of x), so w within 1.2e-7 + 6e-8 |x| of numpy's float64 exp
@@ -134,11 +136,10 @@ def _first_pass(log_w, top, xs, ys, lanes, chunk):  # pragma: no cover - compile
 
 
 @jit(inline=True)
-def _second_pass(log_w, top, scale, xs, ys, centre, r2, w, logs, lanes, chunk):  # pragma: no cover - compiled
-    """W_i = exp(log w_i - top) / total (scale = (1 / total, log total)) of the 1-D `log_w`, written into
-    `w`, log W_i = log w_i - log total into `logs` unless it is empty, and the weight within sqrt(r2) of
-    the centre (float32 distances): the sum of those w_i in LANES partial sums, over the total."""
-    inverse, log_total = scale
+def _second_pass(log_w, top, inverse, xs, ys, centre, r2, w, lanes, chunk):  # pragma: no cover - compiled
+    """W_i = exp(log w_i - top) / total (inverse = 1 / total) of the 1-D `log_w`, written into `w`, and
+    the weight within sqrt(r2) of the centre (float32 distances): the sum of those w_i in LANES partial
+    sums, over the total."""
     lanes[0, :] = 0.0
     size, step = len(log_w), len(chunk)
     for first in range(0, size, step):
@@ -147,16 +148,7 @@ def _second_pass(log_w, top, scale, xs, ys, centre, r2, w, logs, lanes, chunk): 
         _exponentials(log_w[first:stop], top, part)
         _scale_and_keep_within(part, inverse, out, xs[first:stop], ys[first:stop], centre, r2)
         _add_sum(part, lanes)
-        if len(logs):  # while this chunk of log w is in the cache
-            _logs(log_w[first:stop], log_total, logs[first:stop])
     return _lane_total(lanes, 0) * inverse
-
-
-@jit(inline=True)
-def _logs(log_w, log_total, out):  # pragma: no cover - compiled
-    """log W_i = log w_i - log total of the 1-D `log_w`, written into `out`."""
-    for i in range(len(log_w)):
-        out[i] = log_w[i] - log_total
 
 
 @jit(inline=True)
@@ -167,18 +159,16 @@ def _failed_total(values, top):  # pragma: no cover - compiled
 
 
 @jit(inline=True)
-def _unnormalisable(r, row, top, w, log_out, reads):  # pragma: no cover - compiled
-    """NaN weights, log weights and reads for run r, whose weights are all 0 or hold a NaN (the filter
+def _unnormalisable(r, row, top, w, reads):  # pragma: no cover - compiled
+    """NaN weights and reads for run r, whose weights are all 0 or hold a NaN (the filter
     restarts it); its total is -inf where every log weight is -inf, else NaN (as numpy's)."""
     reads[0, r] = _failed_total(row, top)
     reads[1, r] = reads[2, r] = reads[3, r] = reads[4, r] = np.nan
     w[r, :] = np.nan
-    if log_out is not None:
-        log_out[r, :] = np.nan
 
 
 @jit
-def normalise(log_w, positions, radius, w, log_out, reads):  # pragma: no cover
+def normalise(log_w, positions, radius, w, reads):  # pragma: no cover
     """Normalise R runs' log weights and read each run's mean, ESS and confidence share, in three passes.
 
     Parameters
@@ -191,9 +181,6 @@ def normalise(log_w, positions, radius, w, log_out, reads):  # pragma: no cover
         The green circle's radius (map units).
     w : float64 array (R, N)
         W = w / sum(w), written.
-    log_out : float64 array (R, N), or None
-        log W_i = log w_i - log sum_j w_j, written; None: not written (a filter that reads W only; numba
-        compiles each case apart, so the array's case is the kernel it always was).
     reads : float64 array (5, R)
         Written, one row each: log sum_j w_j; the mean sum_i W_i x_i (two rows, x and y); the ESS
         1 / sum_i W_i^2; the weight of the particles at most `radius` from the run's mean (float32
@@ -209,23 +196,20 @@ def normalise(log_w, positions, radius, w, log_out, reads):  # pragma: no cover
         sums = _first_pass(row, top, xs, ys, lanes, chunk) if abs(top) < np.inf else (np.nan, np.nan, np.nan, np.nan)
         total, squares, sum_x, sum_y = sums
         if total != total:  # every weight is 0, or a NaN: no normalisation (the filter restarts it)
-            _unnormalisable(r, row, top, w, log_out, reads)
+            _unnormalisable(r, row, top, w, reads)
             continue
         log_total = top + math.log(total)
         mean_x, mean_y = sum_x / total, sum_y / total
         reads[0, r], reads[1, r], reads[2, r], reads[3, r] = log_total, mean_x, mean_y, total * total / squares
         centre = np.float32(mean_x), np.float32(mean_y)
-        logs = w[r, :0]  # empty: log W not written
-        if log_out is not None:
-            logs = log_out[r]
-        reads[4, r] = _second_pass(row, top, (1.0 / total, log_total), xs, ys, centre, r2, w[r], logs, lanes, chunk)
+        reads[4, r] = _second_pass(row, top, 1.0 / total, xs, ys, centre, r2, w[r], lanes, chunk)
 
 
 BLOCK = 1 << 15  # particles per block of normalise_threads' sums: their order depends on it alone
 
 
 @jit(threads=True)
-def normalise_threads(log_w, positions, radius, w, log_out, reads):  # pragma: no cover
+def normalise_threads(log_w, positions, radius, w, reads):  # pragma: no cover
     """normalise's results (its arguments) with the particles in blocks of BLOCK spread over numba's
     threads: each block's top and sums, then the runs' in block order, so the numbers depend on BLOCK,
     not on the thread count (they agree with normalise's to rounding)."""
@@ -254,7 +238,7 @@ def normalise_threads(log_w, positions, radius, w, log_out, reads):  # pragma: n
             for k in range(4):
                 sums[r, k] += partial[r * blocks + b, k]
         if not (abs(tops[r]) < np.inf and sums[r, 0] == sums[r, 0]):
-            _unnormalisable(r, log_w[r], tops[r], w, log_out, reads)
+            _unnormalisable(r, log_w[r], tops[r], w, reads)
             continue
         reads[0, r] = tops[r] + math.log(sums[r, 0])
         reads[1, r], reads[2, r] = sums[r, 2] / sums[r, 0], sums[r, 3] / sums[r, 0]
@@ -266,11 +250,8 @@ def normalise_threads(log_w, positions, radius, w, log_out, reads):  # pragma: n
             centre = np.float32(reads[1, r]), np.float32(reads[2, r])
             xs, ys = positions[r * size + start : r * size + stop, 0], positions[r * size + start : r * size + stop, 1]
             row, lanes, chunk = log_w[r, start:stop], np.empty((4, LANES)), np.empty(CHUNK, dtype=np.float32)
-            logs = w[r, :0]  # empty: log W not written
-            if log_out is not None:
-                logs = log_out[r, start:stop]
-            scale, out = (1.0 / sums[r, 0], reads[0, r]), w[r, start:stop]
-            partial[job, 4] = _second_pass(row, tops[r], scale, xs, ys, centre, r2, out, logs, lanes, chunk)
+            out = w[r, start:stop]
+            partial[job, 4] = _second_pass(row, tops[r], 1.0 / sums[r, 0], xs, ys, centre, r2, out, lanes, chunk)
     for r in range(runs):
         if reads[3, r] == reads[3, r]:
             reads[4, r] = 0.0
@@ -286,26 +267,31 @@ def _block(job, blocks, size):  # pragma: no cover - compiled
 
 
 @jit
-def first_stage(log_a, log_b, w, totals):  # pragma: no cover - compiled
-    """The APF's first-stage weights of R runs: W proportional to exp(log a + log b), and log sum exp(log a
-    + log b) (mazelab.weights' log_sum_exp and weights_from_logs, one exponential per particle, exp32's;
-    the top in LANES running maxima, the total in LANES partial sums).
+def first_stage(log_a, shifts, log_b, w, totals):  # pragma: no cover - compiled
+    """The APF's first-stage weights of R runs: W proportional to exp(log a - shift + log b), and log
+    sum exp(log a - shift + log b) (mazelab.weights' log_sum_exp and weights_from_logs, one exponential
+    per particle, exp32's; the top in LANES running maxima, the total in LANES partial sums).
 
     Parameters
     ----------
-    log_a, log_b : float arrays (R, N)
+    log_a : float array (R, N)
+        log W_{k-1} itself (shifts 0), or the unnormalised log w of the last normalisation (shifts its
+        log totals): log W_{k-1} = log w - log total, worked out here in float64 as the Weights value
+        would (mazelab.weights.Weights.lw), without the (R, N) float64 array.
+    shifts : float64 array (R,)
+    log_b : float array (R, N)
         A run whose sums are all -inf, or hold a NaN, gets NaN weights and the total -inf or NaN.
     w : float64 array (R, N)
-        Written: the normalised weights (the sums log a + log b first, then their top).
+        Written: the normalised weights (the sums log a - shift + log b first, then their top).
     totals : float64 array (R,)
         Written: the log totals.
     """
     runs, size = log_a.shape
     lanes, chunk = np.empty((1, LANES)), np.empty(CHUNK, dtype=np.float32)
     for r in range(runs):
-        row = w[r]
+        row, shift = w[r], shifts[r]
         for i in range(size):
-            row[i] = log_a[r, i] + log_b[r, i]
+            row[i] = (np.float64(log_a[r, i]) - shift) + log_b[r, i]
         top = _top(row)
         total = np.nan
         if abs(top) < np.inf:  # else no normalisation
@@ -325,6 +311,49 @@ def first_stage(log_a, log_b, w, totals):  # pragma: no cover - compiled
         for i in range(size):
             row[i] *= inverse
         totals[r] = top + math.log(total)
+
+
+@jit
+def second_stage(log_lik, log_mu, ancestors, out):  # pragma: no cover - compiled
+    """The APF's second-stage log weights of R runs: out[r, m] = log p(z_k | x_i) - log p(z_k | mu_{a_i})
+    (i = r N + m), the first-stage values gathered by the ancestors in the same pass (numpy's take and
+    subtract, the same float32 values); `out` may be `log_lik` itself.
+
+    Parameters
+    ----------
+    log_lik : float32 array (R, N)
+        log p(z_k | x_k^j) of the moved particles.
+    log_mu : float32 array (R, N)
+        log p(z_k | mu_k^i) of the first stage.
+    ancestors : int array (R*N,)
+        a^j, rows of the particles of all runs.
+    out : float32 array (R, N)
+    """
+    runs, size = log_lik.shape
+    flat = log_mu.reshape(-1)
+    for r in range(runs):
+        for m in range(size):
+            out[r, m] = log_lik[r, m] - flat[ancestors[r * size + m]]
+
+
+@jit
+def reweighted(log_a, shifts, log_lik, out):  # pragma: no cover - compiled
+    """log w_k = log W_{k-1} + log p(z_k | x_k) of R runs that do not resample, float32 as the likelihood:
+    out[r, i] = (log_a[r, i] - shifts[r]) + log_lik[r, i], the sum in float64, then rounded (log W_{k-1}
+    = log a - shift, the Weights value's derivation, never stored); `out` may be `log_lik` itself.
+
+    Parameters
+    ----------
+    log_a : float array (R, N)
+    shifts : float64 array (R,)
+    log_lik : float32 array (R, N)
+    out : float32 array (R, N)
+    """
+    runs, size = log_lik.shape
+    for r in range(runs):
+        shift = shifts[r]
+        for i in range(size):
+            out[r, i] = np.float32((np.float64(log_a[r, i]) - shift) + np.float64(log_lik[r, i]))
 
 
 @jit
@@ -384,4 +413,13 @@ def covariance(weights, positions, out):  # pragma: no cover - compiled
         out[r, 0, 0], out[r, 0, 1], out[r, 1, 0], out[r, 1, 1] = xx, xy, xy, yy
 
 
-__all__ = ["BLOCK", "covariance", "first_stage", "mass_within", "normalise", "normalise_threads"]
+__all__ = [
+    "BLOCK",
+    "covariance",
+    "first_stage",
+    "mass_within",
+    "normalise",
+    "normalise_threads",
+    "reweighted",
+    "second_stage",
+]
