@@ -90,9 +90,10 @@ def step_number(name: str, value: Any) -> int:
 
 
 def as_points(name: str, value: Any) -> np.ndarray:
-    """An (N, 2) float array of finite points with N >= 1, or a clear ValueError."""
+    """An (N, 2) float array of finite points with N >= 1, or a clear ValueError (the array itself when
+    it is one already: no copy of a million particles; the callers copy or convert what they keep)."""
     try:
-        points = np.array(value, dtype=float)
+        points = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
         raise ValueError(f"{name} must be a list of (x, y) pairs") from None
     if points.ndim != 2 or points.shape[1] != 2 or len(points) == 0:

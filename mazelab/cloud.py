@@ -118,10 +118,10 @@ class ParticleFilter(SMC):
         self.estimate_rule = settings["estimate"]
         self.scheme_name = settings["resampling"]
         self.scheme = resampling_scheme(self.scheme_name)
-        runs_particles = as_runs(particles)  # (R, N, 2), float64 (checked: a copy)
+        runs_particles = as_runs(particles)  # (R, N, 2), float64 (checked; the given array where it is one)
         runs, self.count = runs_particles.shape[:2]
         self.positions = np.asfortranarray(runs_particles.reshape(-1, 2), dtype=PARTICLE_DTYPE)  # (R*N, 2)
-        del runs_particles  # the float64 copy goes before the filter's arrays are made (a million particles: 16 MB)
+        del runs_particles  # a float64 copy goes before the filter's arrays are made (a million particles: 16 MB)
         self.headings = np.zeros(len(self.positions), dtype=PARTICLE_DTYPE)  # each particle's last motion angle
         self.start_runs(generators(rng, runs))
         self._reads_of: tuple[np.ndarray, Any] | None = None  # the arrays _reads describe
@@ -292,7 +292,8 @@ class ParticleFilter(SMC):
         else:  # one run (R = 1)
             (positions, headings), self._kld_moved = self._kld_moved, None
         self._injected, self._injected_step = None, self.steps_done + 1
-        if self.recovery is not None:  # one run (R = 1)
+        if self.recovery is not None:  # one run (R = 1); the injection writes into the headings (the RPF's read-only)
+            headings = np.require(headings, requirements="W")
             self._injected = self.recovery.inject(positions, headings, self.move_injected, self.rngs[0])
         return positions, headings
 
@@ -375,12 +376,13 @@ class ParticleFilter(SMC):
         if reads is None or len(restarted) == self.runs:
             return None, None
         weights, ess, mean, share = reads["weights"], reads["ess"], reads["mean"], reads["share"]
-        if len(restarted):
-            weights[restarted] = np.exp(log_weights[restarted])
+        if len(restarted):  # read from float64 W, as a run alone derives its W (and its reads) from log W
+            fresh = np.exp(log_weights[restarted])
+            weights[restarted] = fresh
             points = np.concatenate([self.run_positions(run) for run in restarted])
-            ess[restarted] = self.ops.effective_sample_size(weights[restarted])
-            mean[restarted] = self.ops.weighted_mean(weights[restarted], points)
-            share[restarted] = self.ops.mass_within(weights[restarted], points, mean[restarted], CONFIDENCE_RADIUS)
+            ess[restarted] = self.ops.effective_sample_size(fresh)
+            mean[restarted] = self.ops.weighted_mean(fresh, points)
+            share[restarted] = self.ops.mass_within(fresh, points, mean[restarted], CONFIDENCE_RADIUS)
         self._kept = {"mean": mean} if self.estimate_rule == "mode" else {"mean": mean, "confident": share}
         return weights, ess
 

@@ -170,10 +170,12 @@ class RegularizedParticleFilter(ParticleFilter):
 
         Returns
         -------
-        (positions, headings)
+        (positions, headings): the headings zeros, read-only (the transition that follows sets every
+        particle's; none is made)
         """
         eps = self.normal_draws(len(ancestors))  # eps ~ N(0, I_2)
-        return self.ops.jitter(self.positions, self.headings, ancestors, eps, self._kernels)
+        jittered = self.ops.jitter(self.positions, ancestors, eps, self._kernels)
+        return jittered, np.broadcast_to(np.zeros(1, dtype=self.positions.dtype), (len(ancestors),))
 
     def reweight_resampled(self, log_lik: np.ndarray, ancestors: np.ndarray) -> tuple[np.ndarray, None]:
         """W^i = 1 / N after resampling: w_k^i ∝ W^i p(z_k | x_k^i), whose total estimates p(z_k | z_1:k-1).

@@ -271,15 +271,12 @@ class NumpyKernels:
         """
         return weighted_covariance(weights, positions)
 
-    def jitter(
-        self, positions: np.ndarray, headings: np.ndarray, ancestors: np.ndarray, eps: np.ndarray, kernels: Sequence
-    ) -> tuple[np.ndarray, np.ndarray]:
+    def jitter(self, positions: np.ndarray, ancestors: np.ndarray, eps: np.ndarray, kernels: Sequence) -> np.ndarray:
         """The RPF's resampled particles, each run's block jittered by its kernel (mazelab.regularisation).
 
         Parameters
         ----------
         positions : array (P, 2)
-        headings : array (P,)
         ancestors : int array (R*M,)
         eps : array (R*M, 2)
             Standard normal draws, block r run r's.
@@ -288,14 +285,14 @@ class NumpyKernels:
 
         Returns
         -------
-        (positions[ancestors] + jitter (R*M, 2) order F, headings[ancestors] (R*M,))
+        positions[ancestors] + jitter (R*M, 2), order F
         """
         moved = take_particles(positions, ancestors)
         size = len(ancestors) // len(kernels)
         for block, kernel in enumerate(kernels):
             rows = slice(block * size, (block + 1) * size)
             moved[rows] += kernel(moved[rows], eps[rows])
-        return moved, headings.take(ancestors)
+        return moved
 
 
 __all__ = ["NumpyKernels"]

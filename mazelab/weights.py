@@ -60,9 +60,10 @@ class Weights:
 
     @classmethod
     def uniform(cls, runs: int, count: int) -> Weights:
-        """Equal weights W_i = 1/N of R runs, as a filter starts: W = exp(-log N), the values exp of the
-        normalised log weights gives; log W = log w - log N derived when read from log w = 0 (float32
-        zeros, pages the system gives untouched): a filter that reads W only never makes it.
+        """Equal weights W_i = 1/N of R runs, as a filter starts: W = exp(-log N), the value exp of the
+        normalised log weights gives, one number broadcast to (R, N) (read-only, no memory of its own);
+        log W = log w - log N derived when read from log w = 0 (float32 zeros, pages the system gives
+        untouched): a filter that reads W only never makes it.
 
         Parameters
         ----------
@@ -73,8 +74,7 @@ class Weights:
         -------
         Weights
         """
-        W = np.full((runs, count), -math.log(count))
-        np.exp(W, out=W)
+        W = np.broadcast_to(np.exp(np.float64(-math.log(count))), (runs, count))
         return cls(None, W, None, (np.zeros((runs, count), np.float32), np.full(runs, math.log(count))))
 
     @staticmethod

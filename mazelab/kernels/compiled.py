@@ -230,6 +230,7 @@ class CompiledKernels(NumpyKernels):
         Parameters
         ----------
         weights_ : array (R, N)
+            float32 as this backend's normalisation writes them (others are rounded to float32 first).
         uniforms : array (len(runs),)
         runs : int array, or None
         count : int
@@ -238,6 +239,8 @@ class CompiledKernels(NumpyKernels):
         -------
         int32 array (len(runs) * N,) (int64 from 2**31 particles on)
         """
+        if weights_.dtype != np.float32:  # the uniform start's (or derived) float64 W: the kernel of float32 W's
+            weights_ = weights_.astype(np.float32)
         if runs is None:
             chosen, bases = weights_, self._bases(len(weights_), count)
         else:
@@ -268,13 +271,13 @@ class CompiledKernels(NumpyKernels):
 
         Returns
         -------
-        (log totals (R,), None, reads): reads holds "weights" (R, N) float64, "ess" (R,), "mean" (R, 2)
+        (log totals (R,), None, reads): reads holds "weights" (R, N) float32, "ess" (R,), "mean" (R, 2)
         and "share" (R,), the weight within CONFIDENCE_RADIUS of the mean
         """
         if positions.dtype != PARTICLE_DTYPE or len(positions) != log_w.size:
             return super().normalise(log_w, positions)
         runs, size = log_w.shape
-        w = self.pool.take("weights", (runs, size), np.float64)
+        w = self.pool.take("weights", (runs, size), np.float32)
         reads = np.empty((5, runs))  # the totals, the mean's x and y, the ESS, the share: one row each
         kernel = weights.normalise_threads if self._threaded(log_w.size) else weights.normalise
         kernel(log_w, positions, CONFIDENCE_RADIUS, w, reads)
@@ -294,9 +297,9 @@ class CompiledKernels(NumpyKernels):
 
         Returns
         -------
-        (W (R, N) float64, log totals (R,)); a run whose total is -inf (or NaN) gets NaN weights
+        (W (R, N) float32, log totals (R,)); a run whose total is -inf (or NaN) gets NaN weights
         """
-        w = self.pool.take("first_weights", log_a.shape, np.float64)
+        w = self.pool.take("first_weights", log_a.shape, np.float32)
         totals = np.empty(len(log_a))
         weights.first_stage(log_a, np.zeros(len(log_a)) if shifts is None else shifts, log_b, w, totals)
         return w, totals
@@ -399,31 +402,27 @@ class CompiledKernels(NumpyKernels):
         weights.covariance(weights_, positions, out)
         return out
 
-    def jitter(
-        self, positions: np.ndarray, headings: np.ndarray, ancestors: np.ndarray, eps: np.ndarray, kernels: Sequence
-    ) -> tuple[np.ndarray, np.ndarray]:
+    def jitter(self, positions: np.ndarray, ancestors: np.ndarray, eps: np.ndarray, kernels: Sequence) -> np.ndarray:
         """The RPF's gather and jitter in one pass for Gaussian kernels (h D eps, one D per run); the
         multimodal kernel goes to numpy.
 
         Parameters
         ----------
         positions : array (P, 2)
-        headings : array (P,)
         ancestors : int array (R*M,)
         eps : array (R*M, 2)
         kernels : sequence of R kernels
 
         Returns
         -------
-        (jittered positions (R*M, 2) order F, their headings (R*M,))
+        jittered positions (R*M, 2), order F
         """
         if positions.dtype != PARTICLE_DTYPE or not all(isinstance(k, GaussianKernel) for k in kernels):
-            return super().jitter(positions, headings, ancestors, eps, kernels)
+            return super().jitter(positions, ancestors, eps, kernels)
         scales = np.array([[k.scale[0, 0], k.scale[1, 0], k.scale[1, 1]] for k in kernels], dtype=PARTICLE_DTYPE)
         out = self.pool.take("positions", (len(ancestors), 2), PARTICLE_DTYPE, "F")
-        out_headings = self.pool.take("headings", (len(ancestors),), PARTICLE_DTYPE)
-        model.jitter(positions, headings, ancestors, eps, scales, out, out_headings)
-        return out, out_headings
+        model.jitter(positions, ancestors, eps, scales, out)
+        return out
 
 
 _NO_ANCESTORS = np.empty(0, dtype=np.int64)

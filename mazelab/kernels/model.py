@@ -212,13 +212,12 @@ def log_likelihood_threads(positions, z, sigma, free_term, outside_term, tables,
 
 
 @jit
-def jitter(positions, headings, ancestors, eps, scales, out, out_headings):  # pragma: no cover - compiled
+def jitter(positions, ancestors, eps, scales, out):  # pragma: no cover - compiled
     """The RPF's kernel K_h for R runs: out[i] = positions[a_i] + h D_r eps_i, D_r lower triangular.
 
     Parameters
     ----------
     positions : float32 array (P, 2)
-    headings : float32 array (P,)
     ancestors : int array (R*M,)
         The resampled rows of `positions`.
     eps : float32 array (R*M, 2)
@@ -226,8 +225,6 @@ def jitter(positions, headings, ancestors, eps, scales, out, out_headings):  # p
     scales : float32 array (R, 3)
         (a, c, d) of each run's h D = [[a, 0], [c, d]].
     out : float32 array (R*M, 2)
-    out_headings : float32 array (R*M,)
-        The ancestors' headings.
     """
     runs = scales.shape[0]
     size = len(ancestors) // runs
@@ -239,7 +236,6 @@ def jitter(positions, headings, ancestors, eps, scales, out, out_headings):  # p
             e0 = eps[i, 0]
             out[i, 0] = positions[source, 0] + a * e0
             out[i, 1] = positions[source, 1] + (c * e0 + d * eps[i, 1])
-            out_headings[i] = headings[source]
 
 
 __all__ = ["jitter", "log_likelihood", "log_likelihood_threads", "move"]
