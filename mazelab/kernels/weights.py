@@ -1,20 +1,21 @@
 """The weights and the weighted reads, compiled (mazelab.weights is the numpy reference).
 
-`normalise` turns R runs' log weights into their log totals and normalised weights W (float64, as the
-numpy path's), and reads what a step reports, in three passes over each run: the top (max log w), then
-w = exp(log w - top) and the sums of the weights, their squares and the weighted positions (the total,
-the ESS, the mean), then W = w / total and the weight within the green circle around the mean (log W = log w - log total
-is left to the Weights value, which derives it when read). `first_stage` is the APF's: W proportional
-to exp(log a - shift + log b) and the log of their sum; `reweighted` makes log W_{k-1} + log p(z | x) of a
-step that does not resample, `second_stage` the APF's second-stage log weights, both float32 as the
-likelihood (log W_{k-1} worked out from log w and its total per particle, never stored).
+`normalise` turns R runs' log weights into their log totals and normalised weights W (float32: every
+sum over them runs in float64), and reads what a step reports, in three passes over each run: the top
+(max log w), then w = exp(log w - top) and the sums of the weights, their squares and the weighted
+positions (the total, the ESS, the mean), then W = w / total and the weight within the green circle
+around the mean. log W = log w - log total is left to the Weights value, which derives it when read.
+`first_stage` is the APF's: W proportional to exp(log a - shift + log b) and the log of their sum;
+`reweighted` makes log W_{k-1} + log p(z | x) of a step that does not resample, `second_stage` the APF's
+second-stage log weights, both float32 as the likelihood (log W_{k-1} worked out from log w and its
+total per particle, never stored). float32 W and log w hold a million particles' weights in the
+memory the fused kernel takes (benchmarks/peak_memory.py); they round a weight by at most 6e-8 of it.
 
 The exponential is float32 (vector_math.exp32, branch-free, so that the passes vectorise): one ulp,
-and x = log w - top rounded to float32 (half an ulp of x), so w within 1.2e-7 + 6e-8 |x| of numpy's float64 exp
-relative to its value (6e-7 for the weights above exp(-8) of the top), 0 below exp(-87) of the top (a
-weight under 1e-38 of the heaviest one, never drawn); the sums, the totals and W are float64 (W is read by
-the resampling schemes, the reads, recovery and the exercise as the numpy path's is; float32 W saved
-0.1-0.2 ns a particle here). Sums run in LANES partial sums in
+and x = log w - top rounded to float32 (half an ulp of x), so w within 1.2e-7 + 6e-8 |x| of numpy's
+float64 exp relative to its value (6e-7 for the weights above exp(-8) of the top), 0 below exp(-87) of
+the top (a weight under 1e-38 of the heaviest one, never drawn); the sums and the totals are float64.
+Sums run in LANES partial sums in
 an order this code fixes, not the compiler (numpy's are pairwise, so the two paths agree to rounding,
 not to the bit); an order the compiler chose by the arrays' addresses made a run's sums, and so R runs
 against R single runs, differ in the last bit from process to process. LANES is 16 because numba's
