@@ -72,7 +72,8 @@ class RunBlocks:
     # -- what the step leaves: one value per run for R runs, the paper's shapes for one -----------------
     @property
     def weights(self) -> np.ndarray:
-        """The normalised weights W_i: (N,) for one run, (R, N) for R runs."""
+        """The normalised weights W_i: (N,) for one run, (R, N) for R runs (float64; float32 as the compiled
+        backend's normalisation writes them, every sum over them in float64)."""
         return self._one(self.weights_value.W)
 
     @property
