@@ -143,3 +143,14 @@ def test_every_run_or_none_fresh_gives_the_masks_increments_to_the_bit(runs, fac
             masked = Weights(None, increment=(totals, mask, log_factor, 1000)).log_mean_increment
             assert fast.dtype == masked.dtype == np.float64
             np.testing.assert_array_equal(fast.view(np.int64), masked.view(np.int64))
+
+
+def test_the_log_parts_give_log_w_without_making_it():
+    log_w, totals = np.array([[-1.0, -2.5, -np.inf]], dtype=np.float32), np.array([0.75])
+    derived = Weights(None, unnormalised=(log_w, totals))
+    log_a, shifts = derived.log_parts
+    assert log_a is log_w and shifts is totals and "lw" not in vars(derived)  # nothing made
+    np.testing.assert_array_equal(np.subtract(log_a, shifts[:, None], dtype=float), derived.lw)  # the same bits
+    assert derived.log_parts[0] is derived.lw and derived.log_parts[1] is None  # once made, itself
+    held = Weights(np.array([[-0.1, -2.3]]))
+    assert held.log_parts[0] is held.lw and held.log_parts[1] is None
