@@ -230,7 +230,7 @@ class ParticleFilter(SMC):
         runs = self.selected_runs
         if scheme is systematic_resample:  # one offset per run, the counting done for all runs at once
             rngs = self.rngs if self._selected is None else [self.rngs[run] for run in runs]
-            uniforms = np.array([rng.random() for rng in rngs])
+            uniforms = rngs[0].random(1) if len(rngs) == 1 else np.array([rng.random() for rng in rngs])
             ancestors = self.ops.systematic(weights, uniforms, None, self.count)
             if self._selected is not None:  # block b is run runs[b]'s
                 ancestors += np.repeat(self.count * (runs - np.arange(len(runs))), self.count).astype(ancestors.dtype)

@@ -484,7 +484,7 @@ def _all_at_least(values: np.ndarray, bound: float) -> bool:
 
 def _plus(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """a + b of two float64 arrays (R,), a new array: for one run the same double sum on Python floats."""
-    return np.array([float(a[0]) + float(b[0])]) if len(a) == 1 else a + b
+    return a + b
 
 
 def _per_run(value: float | np.ndarray, runs: int) -> np.ndarray:
