@@ -328,7 +328,7 @@ class SMC(RunBlocks):
             increments = increments.copy()
             increments[self._lost] = self._first_stage_totals[self._lost]
         self.log_evidence_increment = increments
-        self.run_log_evidence = _plus(self.run_log_evidence, increments)
+        self.run_log_evidence = self.run_log_evidence + increments  # a new array (R,)
         self.after_reweighting(increments)
 
     def after_reweighting(self, increments: np.ndarray) -> None:
@@ -480,11 +480,6 @@ _NO_RUNS = np.empty(0, dtype=np.intp)  # no run restarted (never written into)
 def _all_at_least(values: np.ndarray, bound: float) -> bool:
     """Whether every value (R,) is at least `bound` (False for NaN): for one run a compare of floats."""
     return bool(values[0] >= bound) if len(values) == 1 else bool((values >= bound).all())
-
-
-def _plus(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a + b of two float64 arrays (R,), a new array: for one run the same double sum on Python floats."""
-    return a + b
 
 
 def _per_run(value: float | np.ndarray, runs: int) -> np.ndarray:
