@@ -6,6 +6,7 @@ the package's compiled backend against on the same walks.
     uv run python benchmarks/fused_kernel.py --counts 1000,10000 --rounds 5
     uv run python benchmarks/fused_kernel.py --counts 1000000 --threads 2 --clock wall   # the package on 2 threads
     uv run python benchmarks/fused_kernel.py --counts 1500 --runs 30    # 30 runs together against one fused 45,000
+    uv run python benchmarks/fused_kernel.py --counts 1000 --filters sir --kernels   # and the bare kernels' SIR step
 
 Each fused step does what the package's step and reads do: systematic resampling (by counting), the
 move (uniform heading on the arc, cos/sin, the step), the nearest station and the free flag from the
@@ -381,28 +382,75 @@ def median_cpu_step(step, walk: list[tuple[float, float]], warmup: int, clock=ti
     return statistics.median(times)
 
 
+def kernels_stepper(world: Maze, particles: int, seed: int = 2):
+    """The package's compiled kernels of a SIR step called back to back from a plain loop, into buffers
+    made once: the same draws, resampling, move, likelihood and normalisation (with its reads) as the
+    package's step, without the step template, the model's calls and the buffer pool (what they cost
+    is the package's time less this)."""
+    from mazelab.kernels import model, resampling, weights
+    from mazelab.kernels.compiled import lookup_tables
+
+    rng = np.random.default_rng(seed)
+    positions = [
+        np.asfortranarray(world.random_free_places(particles, rng), dtype=F32),
+        np.empty((particles, 2), F32, "F"),
+    ]
+    w, log_lik = np.full((1, particles), 1 / particles, F32), np.empty((1, particles), F32)
+    ancestors, uniforms, reads, bases = (
+        np.empty(particles, np.int32),
+        np.empty((1, particles), F32),
+        np.empty((5, 1)),
+        np.zeros(1, np.int64),
+    )
+    tables, norm = lookup_tables(world), math.log(BENCH_SIGMA * math.sqrt(2 * math.pi))
+    terms = (float(BENCH_SIGMA), -norm, math.log(OUTSIDE_PENALTY) - norm)
+
+    def step(compass_angle: float, z: float) -> None:
+        resampling.systematic(w, rng.random(1), particles, bases, ancestors)
+        rng.random(dtype=F32, out=uniforms[0])
+        model.move(
+            positions[0], ancestors, uniforms, np.array([compass_angle], F32), BENCH_DELTA, ROBOT_SPEED, positions[1]
+        )
+        positions.reverse()
+        model.log_likelihood(positions[0], np.array([z]), *terms, tables, log_lik)
+        weights.normalise(log_lik, positions[0], 1.0, w, reads)
+
+    return step
+
+
 def fifty_by_fifty(seed: int = 50) -> Maze:
     """A generated 50x50 maze (mazelab maze generate --size 50x50 --seed 50)."""
     return generate_maze(50, 50, default_station_count(50, 50), np.random.default_rng(seed))
 
 
 def compare(
-    world: Maze, label: str, counts: list[int], rounds: int, filters: list[str], backend: str, clock=time.process_time
+    world: Maze,
+    label: str,
+    counts: list[int],
+    rounds: int,
+    filters: list[str],
+    backend: str,
+    clock=time.process_time,
+    kernels: bool = False,
 ) -> None:
-    """Alternate the fused step and the package's, round by round, and print the medians and the ratio."""
+    """Alternate the fused step and the package's, round by round, and print the medians and the ratio
+    (with `kernels`, the SIR's bare kernels too, `kernels_stepper`, after the ratio)."""
     for n in counts:
         steps = max(12, min(60, 4_000_000 // n))
         walk = record_walk(world, steps + 5)
         for name in filters:
-            fused, package = [], []
+            fused, package, bare = [], [], []
             for _ in range(rounds):
                 state = Fused(name, world, n)
                 fused.append(median_cpu_step(state.step, walk, 5, clock))
                 with use_backend(backend):
                     stepper = filter_stepper(name, world, n)
                 package.append(median_cpu_step(stepper, walk, 5, clock))
+                if kernels and name == "sir":
+                    bare.append(median_cpu_step(kernels_stepper(world, n), walk, 5, clock))
             f, p = statistics.median(fused), statistics.median(package)
-            print(f"{label:<12} {name:<4} {n:>9,} {1e3 * f:10.3f} {1e3 * p:10.3f} {f / p:8.2f}x", flush=True)
+            shown = f"   kernels alone {1e3 * statistics.median(bare):.3f}" if bare else ""
+            print(f"{label:<12} {name:<4} {n:>9,} {1e3 * f:10.3f} {1e3 * p:10.3f} {f / p:8.2f}x{shown}", flush=True)
 
 
 def batched_stepper(name: str, world: Maze, particles: int, runs: int, backend: str, seed: int = 2):
@@ -448,6 +496,7 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=1, help="the package's threads (MAZELAB_THREADS)")
     parser.add_argument("--clock", choices=("cpu", "wall"), default="cpu", help="CPU time, or wall-clock time")
     parser.add_argument("--runs", type=int, default=1, help="R > 1: R runs of N together against one fused N x R")
+    parser.add_argument("--kernels", action="store_true", help="also the SIR's compiled kernels called back to back")
     args = parser.parse_args()
     os.environ["MAZELAB_THREADS"] = str(args.threads)
     clock = time.process_time if args.clock == "cpu" else time.perf_counter
@@ -461,7 +510,7 @@ def main() -> None:
         if args.runs > 1:
             compare_batched(world, name, counts, args.runs, args.rounds, filters, args.backend, clock)
         else:
-            compare(world, name, counts, args.rounds, filters, args.backend, clock)
+            compare(world, name, counts, args.rounds, filters, args.backend, clock, args.kernels)
 
 
 if __name__ == "__main__":
