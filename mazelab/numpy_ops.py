@@ -183,9 +183,7 @@ class NumpyKernels:
         -------
         (W (R, N), log totals (R,)); a run whose total is -inf has NaN weights
         """
-        if shifts is not None:
-            log_a = np.subtract(log_a, shifts[:, None], dtype=float)
-        log_w = log_a + log_b
+        log_w = self.reweighted(log_a, log_b, shifts)  # log_a - shifts + log_b
         totals = np.atleast_1d(log_sum_exp(log_w))
         return weights_from_logs(log_w, totals), totals
 
