@@ -306,37 +306,17 @@ class CompiledKernels(NumpyKernels):
         return w, totals
 
     def reweighted(self, log_a: np.ndarray, log_lik: np.ndarray, shifts: np.ndarray | None = None) -> np.ndarray:
-        """log W_{k-1} + log p(z_k | x_k) (log W_{k-1} = log_a - shifts) in one compiled pass, float32
-        into log_lik's array (spent after it; NumpyKernels.reweighted's float64 sum, rounded to float32,
-        saves a float64 array); float64 likelihoods (recovery's draws) go to numpy.
-
-        Parameters
-        ----------
-        log_a, log_lik : arrays (R, N)
-        shifts : array (R,), optional
-
-        Returns
-        -------
-        float32 array (R, N): log_lik's array
-        """
+        """NumpyKernels.reweighted's log W_{k-1} + log p(z_k | x_k) (its arguments) in one compiled pass:
+        its float64 sum rounded to float32, written into log_lik's array (spent after it), no float64
+        array made; float64 likelihoods (recovery's draws) go to numpy."""
         if log_lik.dtype != PARTICLE_DTYPE:
             return super().reweighted(log_a, log_lik, shifts)
         weights.reweighted(log_a, np.zeros(len(log_a)) if shifts is None else shifts, log_lik, log_lik)
         return log_lik
 
     def equal_weighted(self, log_lik: np.ndarray, log_weight: float) -> np.ndarray:
-        """log W + log p(z_k | x_k) of resampled particles (W = 1/N each: log_weight), float32 into
-        log_lik's array (spent after it); float64 likelihoods go to numpy.
-
-        Parameters
-        ----------
-        log_lik : array (R, N)
-        log_weight : float
-
-        Returns
-        -------
-        array (R, N)
-        """
+        """NumpyKernels.equal_weighted's log W + log p(z_k | x_k) (its arguments) in float32, into
+        log_lik's array (spent after it); float64 likelihoods go to numpy."""
         if log_lik.dtype != PARTICLE_DTYPE:
             return super().equal_weighted(log_lik, log_weight)
         return np.add(log_lik, log_weight, out=log_lik)
@@ -344,21 +324,9 @@ class CompiledKernels(NumpyKernels):
     def second_stage(
         self, log_lik: np.ndarray, log_mu: np.ndarray, ancestors: np.ndarray, out: np.ndarray | None = None
     ) -> np.ndarray:
-        """log p(z_k | x^j) - log p(z_k | mu^{a^j}) in one compiled pass (NumpyKernels.second_stage), into
-        `out` (log_lik itself, say) or a new array; float64 values (recovery's draws) go to numpy.
-
-        Parameters
-        ----------
-        log_lik : array (R, N)
-        log_mu : array (R', N)
-            The first stage's values of every run.
-        ancestors : int array (R*N,)
-        out : array (R, N), optional
-
-        Returns
-        -------
-        array (R, N)
-        """
+        """NumpyKernels.second_stage's log p(z_k | x^j) - log p(z_k | mu^{a^j}) (its arguments) in one
+        compiled pass, the same float32 values, into `out` (log_lik itself, say) or a new array; float64
+        values (recovery's draws) go to numpy."""
         if not log_lik.dtype == log_mu.dtype == PARTICLE_DTYPE or (out is not None and out.dtype != PARTICLE_DTYPE):
             return super().second_stage(log_lik, log_mu, ancestors, out)
         out = np.empty_like(log_lik) if out is None else out
