@@ -212,8 +212,7 @@ class CompiledKernels(NumpyKernels):
         if positions.dtype != PARTICLE_DTYPE or world is not self._tables_of:
             return super().log_likelihood(z, positions, world, sigma, outside_penalty)
         out = self.pool.take("log_likelihood", (len(z), len(positions) // len(z)), PARTICLE_DTYPE)
-        threaded = self.threads > 1 and self._threaded(len(positions))
-        kernel = model.log_likelihood_threads if threaded else model.log_likelihood
+        kernel = model.log_likelihood_threads if self._threaded(len(positions)) else model.log_likelihood
         kernel(positions, z, *self._terms(sigma, outside_penalty), self.tables, out)
         return out
 
@@ -280,7 +279,7 @@ class CompiledKernels(NumpyKernels):
         runs, size = log_w.shape
         w = self.pool.take("weights", (runs, size), np.float32)
         reads = np.empty((5, runs))  # the totals, the mean's x and y, the ESS, the share: one row each
-        kernel = weights.normalise_threads if self.threads > 1 and self._threaded(log_w.size) else weights.normalise
+        kernel = weights.normalise_threads if self._threaded(log_w.size) else weights.normalise
         kernel(log_w, positions, CONFIDENCE_RADIUS, w, reads)
         return reads[0], None, {"weights": w, "ess": reads[3], "mean": reads[1:3].T, "share": reads[4]}
 
