@@ -6,22 +6,15 @@ Rerun replaces the paper's turtle window. This file only gathers the names; wher
     the nearest-station distance of every particle       mazelab/lookup.py
     what a run draws (particles, estimate, series)       mazelab/viz/views.py, RunView.log_step
     where a recording goes (viewer, file, web, notebook) mazelab/viz/targets.py, mazelab/viz/recording.py
-    the viewer layouts                                   mazelab/viz/blueprints.py
+    the colours and the viewer's layouts                 mazelab/viz/style.py
 """
 
 from mazelab.maze import EMPTY, STATION_WALL, WALL, Maze, MazeError, parse_maze_text
-from mazelab.viz import (
-    DEFAULT_MAX_DRAWN,
-    Comparison,
-    NullComparison,
-    NullView,
-    Recording,
-    RunView,
-    Visualization,
-    heading_vectors,
-    open_comparison,
-    open_view,
-)
+from mazelab.simulation import NullView
+from mazelab.viz.recording import Recording, heading_vectors
+from mazelab.viz.style import DEFAULT_MAX_DRAWN
+from mazelab.viz.targets import Visualization
+from mazelab.viz.views import Comparison, RunView, open_comparison, open_view
 
 __all__ = [
     "DEFAULT_MAX_DRAWN",
@@ -31,7 +24,6 @@ __all__ = [
     "Comparison",
     "Maze",
     "MazeError",
-    "NullComparison",
     "NullView",
     "Recording",
     "RunView",

@@ -128,11 +128,6 @@ class Maze:
         return lookup
 
     # -- geometry --------------------------------------------------------------------------------
-    @property
-    def free_area(self) -> float:
-        """Area of the free space in square map units (each free cell is 1 x 1)."""
-        return float(len(self.free_cells))
-
     def cell_of(self, x: Any, y: Any) -> tuple[np.ndarray, np.ndarray]:
         """(row, column) indices of the cells containing the points; may lie outside the grid."""
         col = np.floor(np.asarray(x, dtype=float)).astype(np.int64)

@@ -6,8 +6,10 @@ from __future__ import annotations
 
 import ast
 import base64
+import importlib.util
 import io
 import json
+import shlex
 import sys
 import tomllib
 from pathlib import Path
@@ -20,6 +22,7 @@ from conftest import ROOT
 from nbclient import NotebookClient
 
 from mazelab.cli.app import main
+from mazelab.invocation import PROJECT_DIR
 from mazelab.registry import colour_of, rgb
 from mazelab.scenario import load_scenario
 from mazelab.viz.targets import notebook_viewer_installed
@@ -188,3 +191,49 @@ def test_mazelab_notebook_copies_a_notebook_into_ones_own_folder_and_says_how_to
     assert main(["notebook", "lab"]) == 2  # never into the clone
     assert "a folder of your own" in capsys.readouterr().err
     assert sorted(path.name for path in (ROOT / "notebooks").iterdir()) == before
+
+
+def test_in_the_clones_activated_environment_the_notebook_opens_with_uv_not_pip(tmp_path, monkeypatch, capsys):
+    """The clone's environment is made by uv, which puts no pip in it: `pip install jupyterlab` there
+    ran another Python's pip. Activated (the command on the PATH, not under `uv run`), `mazelab notebook`
+    says uv's command with the project's jupyter group, which installs JupyterLab into this environment."""
+    if Path(sys.prefix).resolve() != (PROJECT_DIR / ".venv").resolve():
+        pytest.skip("runs in the clone's own environment (.venv, made by `uv run`), not this one")
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("UV", raising=False)
+    assert main(["notebook", "lab"]) == 0
+    line = capsys.readouterr().out.splitlines()[-1]
+    assert line == f"uv run --project {shlex.quote(str(PROJECT_DIR))} --group jupyter jupyter lab lab.ipynb"
+
+
+MISSING = "jupyter lab lab.ipynb  (JupyterLab is not installed here; install it first: {install} jupyterlab)"
+
+
+@pytest.mark.parametrize(
+    ("installed", "expected"),
+    [
+        ({"jupyterlab", "pip"}, "jupyter lab lab.ipynb"),
+        ({"pip"}, MISSING.format(install="{python} -m pip install")),
+        (set(), MISSING.format(install="uv pip install --python {python}")),
+    ],
+)
+def test_in_another_environment_jupyterlab_is_installed_into_this_very_python(
+    tmp_path, monkeypatch, capsys, installed, expected
+):
+    """A pip-made environment, or one uv made without pip: the install line names this interpreter
+    (not a `pip` on the PATH, which may be another Python's), and uses uv's pip where there is no pip."""
+    find_spec = importlib.util.find_spec
+
+    def found(name, *args):
+        if name in ("jupyterlab", "pip"):
+            return object() if name in installed else None
+        return find_spec(name, *args)
+
+    monkeypatch.setattr(importlib.util, "find_spec", found)
+    monkeypatch.setattr(sys, "prefix", str(tmp_path / "venv"))
+    monkeypatch.delenv("UV", raising=False)
+    monkeypatch.setenv("PATH", "")  # no `python` on the PATH: the interpreter by its path
+    monkeypatch.chdir(tmp_path)
+    assert main(["notebook", "lab"]) == 0
+    line = capsys.readouterr().out.splitlines()[-1]
+    assert line == expected.format(python=shlex.quote(sys.executable))

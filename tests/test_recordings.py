@@ -16,8 +16,10 @@ from pathlib import Path
 import pytest
 
 from mazelab.cli.app import main
+from mazelab.invocation import command_prefix
 from mazelab.viz import targets
-from mazelab.viz.targets import human_size
+from mazelab.viz.recording import NO_DISPLAY
+from mazelab.viz.targets import CROWDED_BYTES, human_size
 
 RUN = ["run", "--maze", "paper_5x5", "--steps", "3", "--particles", "50", "--quiet"]
 DAY = 86400.0
@@ -52,17 +54,29 @@ def output(capsys, argv: list[str], code: int = 0) -> str:
 
 
 # -- a run says where and how big ------------------------------------------------------------------
-def test_every_run_with_a_default_recording_says_where_how_big_and_how_to_thin_the_folder(capsys, folder):
+def test_a_run_without_a_display_says_in_one_line_where_its_recording_is_how_big_and_how_to_open_it(capsys, folder):
     scenario = saved_scenario(capsys, folder.parent)
-    for argv, held in (([*RUN, "--seed", "1"], "1 recording"), (["compare", str(scenario)], "2 recordings")):
+    for argv in ([*RUN, "--seed", "1"], ["compare", str(scenario)]):
         out = output(capsys, argv)
-        path = Path(re.search(r"^Recording saved to (\S+); ", out, re.M).group(1))
+        (said,) = [line for line in out.splitlines() if "recording" in line.lower()]  # one line, nothing more
+        path = Path(re.match(r"Recording saved to (\S+); ", said).group(1))
         assert path.parent == folder
-        assert f"Recording saved to {path}; {human_size(path.stat().st_size)}; open it with: " in out
-        total = human_size(sum(p.stat().st_size for p in folder.glob("*.rrd")))
-        assert f"{folder}{os.sep} holds {held}, {total}; to keep only the 10 newest: " in out
-        assert re.search(r"mazelab recordings --keep 10 --clean$", out, re.M)
+        size = human_size(path.stat().st_size)
+        hint = f"{command_prefix()} view {path} (the web viewer, on 127.0.0.1)"
+        assert said == f"Recording saved to {path}; {size}; {NO_DISPLAY}, so open it with: {hint}"
     assert sorted(path.name.split("-")[0] for path in folder.glob("*.rrd")) == ["compare", "sir_particle_filter"]
+
+
+def test_once_the_folder_passes_100_mb_a_run_says_its_size_and_the_command_that_thins_it(capsys, folder):
+    big = lab_recording(folder, "compare", days_old=3, size=0)
+    os.truncate(big, int(CROWDED_BYTES) - 10**6)  # sparse: takes no room on the disk; with this run's, below 100 MB
+    assert " holds " not in output(capsys, [*RUN, "--seed", "1"])
+    os.truncate(big, int(CROWDED_BYTES) + 1)
+    out = output(capsys, [*RUN, "--seed", "2"])
+    total = human_size(sum(path.stat().st_size for path in folder.glob("*.rrd")))
+    (said,) = [line for line in out.splitlines() if " holds " in line]
+    command = f"{command_prefix()} recordings --keep 10 --clean"
+    assert said == f"{folder}{os.sep} holds 3 recordings, {total}; to keep only the 10 newest: {command}"
 
 
 def saved_scenario(capsys, where: Path) -> Path:

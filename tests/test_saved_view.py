@@ -27,11 +27,11 @@ from headless_browser import DevToolsError, HeadlessBrowser, find_browser
 from rerun.chunk import RrdReader
 
 from mazelab.cli.app import main
+from mazelab.cli.view import recording_problem, replay_with_layout
 from mazelab.lab import simulate
 from mazelab.maze import Maze
 from mazelab.robot import Robot
 from mazelab.viz.processes import WebServer, rerun_environment, viewer_executable
-from mazelab.viz.saved import recording_problem, replay_with_layout
 from mazelab.viz.style import APPLICATION_ID, STATION_COLOR
 
 BROWSER = find_browser()
@@ -235,7 +235,8 @@ def stop(process: subprocess.Popen) -> str:
 
 @needs_browser
 def test_mazelab_view_shows_a_comparison_with_its_three_maps(tmp_path, page):
-    """`compare` saved: three maps side by side, each with its stations and its filter's particles."""
+    """`compare` saved: three maps side by side across the window, each with its stations and its
+    filter's particles."""
     path, scenario = tmp_path / "compare.rrd", tmp_path / "walk.json"
     assert main([*SHORT_RUN, "--no-viz", "--save-scenario", str(scenario)]) == 0
     assert main(["compare", str(scenario), "--rrd", str(path)]) == 0
@@ -245,6 +246,13 @@ def test_mazelab_view_shows_a_comparison_with_its_three_maps(tmp_path, page):
         assert looks_like(page, address.group(1), maps=3, shot=tmp_path / "compare.png") == []
     finally:
         stop(process)
+    from PIL import Image
+
+    # Rerun's own side panels start collapsed: the three maps have the window's width (with them open,
+    # about 45% of a 1400 x 900 window went to the panels and the stations spanned less than half of it)
+    pixels = np.asarray(Image.open(tmp_path / "compare.png").convert("RGB"))
+    dots = station_dots(pixels)
+    assert (max(box[3] for box in dots) - min(box[1] for box in dots)) / pixels.shape[1] > 0.65
 
 
 @needs_browser

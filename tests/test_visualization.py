@@ -26,7 +26,7 @@ from mazelab.maze import Maze
 from mazelab.model import CONFIDENCE_RADIUS
 from mazelab.robot import Robot
 from mazelab.viz import processes, targets
-from mazelab.viz.recording import heading_vectors
+from mazelab.viz.recording import NO_DISPLAY, heading_vectors
 from mazelab.viz.style import (
     CONFIDENT_COLOR,
     ESTIMATE_COLOR,
@@ -210,6 +210,33 @@ def test_the_single_run_blueprint(tmp_path, world):
     assert [v[3] for v in found[2:]] == ["/metrics/error", "/metrics/ess", "/metrics/confident"]
 
 
+@pytest.mark.parametrize("kind", ["run", "comparison"])
+def test_the_viewer_opens_with_the_labs_panels_and_the_whole_estimate_in_each_map(tmp_path, world, kind):
+    """Rerun's own side panels (the blueprint tree, the selection) start collapsed, and the time panel as
+    its play bar on the step timeline: expanded they took about 45% of a 1400 x 900 window. Each map
+    view shows the map and around it the estimate's circle and a mode's label, wherever the estimate
+    lies on the map (they were clipped at the view's left edge)."""
+    path = tmp_path / f"{kind}.rrd"
+    if kind == "run":
+        recorded_run(world, path, steps=2)
+    else:
+        open_comparison(path, world, FILTERS).close()
+    blueprint = load(path, "blueprint")
+    collapsed = rrb.PanelState.Collapsed.value
+    assert latest(blueprint["/blueprint_panel"]) == {"PanelBlueprint:state": [collapsed]}
+    assert latest(blueprint["/selection_panel"]) == {"PanelBlueprint:state": [collapsed]}
+    time_panel = latest(blueprint["/time_panel"])
+    assert time_panel["TimePanelBlueprint:state"] == [collapsed]
+    assert time_panel["TimePanelBlueprint:timeline"] == ["step"]
+    bounds = [latest(rows)["VisualBounds2D:range"][0] for entity, rows in blueprint.items()
+              if entity.endswith("/VisualBounds2D")]  # fmt: skip
+    assert len(bounds) == (1 if kind == "run" else 3)
+    room = CONFIDENCE_RADIUS + 0.2  # the circle, its line and a label such as "100%" above a mode, in map units
+    for bound in bounds:
+        (left, right), (bottom, top) = bound["x_range"], bound["y_range"]
+        assert left <= -room and right >= world.width + room and bottom <= -room and top >= world.height + room
+
+
 def test_max_drawn_thins_what_is_drawn_not_what_is_filtered(tmp_path, world):
     path = tmp_path / "run.rrd"
     _, states = recorded_run(world, Visualization(path, max_drawn=150), particles=1000, steps=3)
@@ -330,11 +357,11 @@ def test_without_a_display_a_run_is_saved_in_recordings_and_says_where(world, ca
     (path,) = targets.RECORDINGS_DIR.glob("*.rrd")
     assert path.name.startswith("sir_particle_filter-")
     out = capsys.readouterr().out
-    assert "No display found" in out and f"mazelab view {path}" in out
+    assert f"; {NO_DISPLAY}, so open it with: " in out and f"mazelab view {path}" in out
     assert steps_of(load(path)["/map/robot"]) == [1, 2]
     recorded_run(world, "viewer", steps=1)  # asked for the viewer: falls back to a file, saying so
     assert len(list(targets.RECORDINGS_DIR.glob("*.rrd"))) == 2
-    assert "instead of opening the viewer" in capsys.readouterr().out
+    assert f"; {NO_DISPLAY}, so open it with: " in capsys.readouterr().out
     assert not list(targets.RECORDINGS_DIR.glob(".*partial"))  # complete files only
 
 
@@ -455,7 +482,8 @@ def test_the_demo_without_a_display_writes_a_recording_and_says_where(tmp_path):
     assert done.returncode == 0, done.stderr
     (path,) = (tmp_path / "recordings").glob("sir_particle_filter-*.rrd")
     relative = path.relative_to(tmp_path)
-    assert f"the recording goes to {relative}" in done.stdout
+    assert f"Recording saved to {relative}; " in done.stdout
+    assert f"{NO_DISPLAY}, so open it with: " in done.stdout
     assert f"main.py view {relative}" in done.stdout  # started as the script: the hint names the script
     rec = load(path)
     assert steps_of(rec["/map/robot"]) == list(range(1, 201))

@@ -8,6 +8,11 @@ outputs, and the scenario it saves beside itself, are yours.
 
 from __future__ import annotations
 
+import importlib.util
+import os
+import shlex
+import shutil
+import sys
 from pathlib import Path
 from typing import Annotated
 
@@ -26,13 +31,22 @@ def shipped_notebooks() -> list[str]:
 
 
 def jupyter_command(path: Path) -> str:
-    """The command that opens the notebook `path` in JupyterLab from the folder it is in: the project's
-    `jupyter` group under uv (JupyterLab in the project's own environment, where the inline viewer's
-    front end is), else the environment's own `jupyter`."""
+    """The command that opens the notebook `path` in JupyterLab from the folder it is in, in the lab's
+    own environment (JupyterLab finds the inline viewer's front end only among its own packages).
+    Under uv, or in the clone's environment that uv made (activated), the project's `jupyter` group;
+    else `jupyter lab`, saying how to install JupyterLab into this very Python where it is missing:
+    a bare `pip` may be another Python's, and an environment uv made has no pip of its own."""
     prefix = python_prefix()
+    if not prefix.startswith("uv run") and Path(sys.prefix).resolve() == (PROJECT_DIR / ".venv").resolve():
+        prefix = f"uv run --project {shlex.quote(str(PROJECT_DIR))} python"
     if prefix.startswith("uv run"):
         return f"{prefix.removesuffix(' python')} --group jupyter jupyter lab {path.name}"
-    return f"jupyter lab {path.name}  (pip install jupyterlab, if it is missing)"
+    if importlib.util.find_spec("jupyterlab") is not None:
+        return f"jupyter lab {path.name}"
+    on_path = shutil.which("python")
+    python = "python" if on_path and os.path.samefile(on_path, sys.executable) else shlex.quote(sys.executable)
+    pip = f"{python} -m pip install" if importlib.util.find_spec("pip") else f"uv pip install --python {python}"
+    return f"jupyter lab {path.name}  (JupyterLab is not installed here; install it first: {pip} jupyterlab)"
 
 
 def notebook(

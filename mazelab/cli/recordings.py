@@ -23,24 +23,18 @@ from mazelab.invocation import command_prefix
 from mazelab.viz import targets
 from mazelab.viz.targets import SavedRecording, folder_summary, human_size, saved_recordings
 
-AGE_UNITS = {"m": 60.0, "h": 3600.0, "d": 86400.0, "w": 7 * 86400.0}
-SIZE_UNITS = {"": 1.0, "k": 1e3, "m": 1e6, "g": 1e9, "t": 1e12}
+AGE_UNITS = {"m": 60.0, "h": 3600.0, "d": 86400.0, "w": 7 * 86400.0}  # --older-than: 30m, 12h, 7d, 2w
+# --max-size: 500kB, 100MB, 100M or 1.5GB (powers of 1000; bytes without a unit)
+SIZE_UNITS = {"": 1.0, "b": 1.0, "k": 1e3, "kb": 1e3, "m": 1e6, "mb": 1e6, "g": 1e9, "gb": 1e9, "t": 1e12, "tb": 1e12}
 
 
-def parse_age(text: str) -> float:
-    """An age such as 30m, 12h, 7d or 2w, in seconds."""
-    match = re.fullmatch(r"\s*(\d+(?:\.\d+)?)\s*([mhdw])\s*", text.lower())
-    if match is None:
-        raise UserError(f"--older-than {text!r}: write a number and a unit: 30m, 12h, 7d or 2w")
-    return float(match.group(1)) * AGE_UNITS[match.group(2)]
-
-
-def parse_size(text: str) -> float:
-    """A size such as 100MB, 1.5GB, 500kB or 100M (powers of 1000), in bytes."""
-    match = re.fullmatch(r"\s*(\d+(?:\.\d+)?)\s*([kmgt]?)b?\s*", text.lower())
-    if match is None:
-        raise UserError(f"--max-size {text!r}: write a number and a unit: 500kB, 100MB or 1.5GB")
-    return float(match.group(1)) * SIZE_UNITS[match.group(2)]
+def parse_amount(text: str, option: str, units: dict[str, float], examples: str) -> float:
+    """A number and one of `units` (written as `examples` show), in the units' base: seconds, bytes.
+    Anything else is one line naming `option`."""
+    match = re.fullmatch(r"\s*(\d+(?:\.\d+)?)\s*([a-z]*)\s*", text.lower())
+    if match is None or match.group(2) not in units:
+        raise UserError(f"{option} {text!r}: write a number and a unit: {examples}")
+    return float(match.group(1)) * units[match.group(2)]
 
 
 def chosen(
@@ -109,9 +103,10 @@ def recordings(
     folder = targets.RECORDINGS_DIR if folder is None else folder
     if folder.exists() and not folder.is_dir():
         raise UserError(f"{folder} is not a folder: name the folder of recordings (default: recordings/)")
-    ages = None if older_than is None else parse_age(older_than)
-    cap = None if max_size is None else parse_size(max_size)
-    rules = keep is not None or ages is not None or cap is not None
+    ages = None if older_than is None else parse_amount(older_than, "--older-than", AGE_UNITS, "30m, 12h, 7d or 2w")
+    cap = None if max_size is None else parse_amount(max_size, "--max-size", SIZE_UNITS, "500kB, 100MB or 1.5GB")
+    given = {"--keep": keep, "--older-than": older_than, "--max-size": max_size}
+    rules = " ".join(f"{flag} {value}" for flag, value in given.items() if value is not None)  # as typed
     if clean and not rules:
         raise UserError(
             "--clean needs what to remove: --keep N (all but the N newest), --older-than 7d or --max-size 500MB"
@@ -124,28 +119,19 @@ def recordings(
     if clean:
         removed = remove(doomed)
         freed = human_size(sum(saved.size for saved in removed))
-        typer.echo(
-            f"Removed {len(removed)} recording{'s' if len(removed) != 1 else ''} ({freed}); {folder_summary(folder)}"
-        )
+        plural = "s" if len(removed) != 1 else ""
+        typer.echo(f"Removed {len(removed)} recording{plural} ({freed}); {folder_summary(folder)}")
         return
-    marks = {saved.path for saved in doomed}
     typer.echo(f"{folder_summary(folder)}:")
     for saved in found:
-        mark = "  (would be removed)" if saved.path in marks else "" if saved.lab_named else "  (your name: kept)"
+        mark = "  (would be removed)" if saved in doomed else "" if saved.lab_named else "  (your name: kept)"
         typer.echo(line(saved, mark))
-    options = " ".join(
-        part for part in (
-            f"--keep {keep}" if keep is not None else "",
-            f"--older-than {older_than}" if older_than is not None else "",
-            f"--max-size {max_size}" if max_size is not None else "",
-        ) if part
-    )  # fmt: skip
-    where = "" if folder == targets.RECORDINGS_DIR else f" {folder}"
+    command = f"{command_prefix()} recordings" + ("" if folder == targets.RECORDINGS_DIR else f" {folder}")
     if rules:
         size = human_size(sum(saved.size for saved in doomed))
-        typer.echo(f"{len(doomed)} would be removed ({size}): {command_prefix()} recordings{where} {options} --clean")
+        typer.echo(f"{len(doomed)} would be removed ({size}): {command} {rules} --clean")
     else:
-        typer.echo(f"To remove old ones: {command_prefix()} recordings{where} --keep 10 (shows them), then add --clean")
+        typer.echo(f"To remove old ones: {command} --keep {targets.KEEP_HINT} (shows them), then add --clean")
 
 
-__all__ = ["chosen", "parse_age", "parse_size", "recordings", "remove"]
+__all__ = ["chosen", "parse_amount", "recordings", "remove"]

@@ -128,15 +128,9 @@ def hold_stop_signals(holder: object) -> None:
 
 
 def release_stop_signals(holder: object) -> None:
-    """`holder` is done; with none left, SIGTERM and SIGHUP do what they did before."""
+    """`holder` is done; with none left, SIGTERM and SIGHUP do what they did before we set ours."""
     _holders.discard(holder)
-    if not _holders:
-        restore_signal_handlers()
-
-
-def restore_signal_handlers() -> None:
-    """Put back the SIGTERM/SIGHUP handlers that were there before we set ours."""
-    if threading.current_thread() is not threading.main_thread():
+    if _holders or threading.current_thread() is not threading.main_thread():
         return
     for number, previous in list(_previous_handlers.items()):
         if signal.getsignal(number) is _stop_children_then_go_on:
@@ -219,22 +213,3 @@ def listening(port: int) -> bool:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
         probe.settimeout(0.2)
         return probe.connect_ex(("127.0.0.1", port)) == 0
-
-
-__all__ = [
-    "STOP_SIGNALS",
-    "VIEWER_PORT",
-    "WebServer",
-    "end_with_this_program",
-    "free_port",
-    "hold_stop_signals",
-    "listening",
-    "native_viewer",
-    "open_hint",
-    "release_stop_signals",
-    "rerun_environment",
-    "restore_signal_handlers",
-    "start_rerun",
-    "stop_process",
-    "viewer_executable",
-]

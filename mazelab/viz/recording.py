@@ -20,6 +20,7 @@ import numpy as np
 from mazelab.atomic import WriteError, write_bytes_atomically
 from mazelab.invocation import command_prefix
 from mazelab.maze import EMPTY, Maze
+from mazelab.viz import targets
 from mazelab.viz.processes import WebServer, hold_stop_signals, native_viewer, open_hint, release_stop_signals
 from mazelab.viz.style import (
     APPLICATION_ID,
@@ -33,17 +34,10 @@ from mazelab.viz.style import (
     STATION_RADIUS,
     WALL_COLOR,
 )
-from mazelab.viz.targets import (
-    default_recording_path,
-    folder_summary,
-    has_display,
-    human_size,
-    next_free_name,
-    resolve_target,
-)
+from mazelab.viz.targets import crowded_folder_hint, default_recording_path, human_size, next_free_name
 
 RERUN_OFF_NOTE = "Rerun is switched off (RERUN=off in the environment): nothing is recorded"
-KEEP_HINT = 10  # the cleanup the save line suggests: keep this many of the newest default recordings
+NO_DISPLAY = "no display found (DISPLAY and WAYLAND_DISPLAY unset)"
 _deferred_errors: ContextVar[list[WriteError] | None] = ContextVar("deferred_write_errors", default=None)
 _deferred_servers: ContextVar[list[WebServer] | None] = ContextVar("deferred_web_servers", default=None)
 
@@ -61,10 +55,12 @@ class Recording:
         sink: Any = None,
         claim_name: bool = False,
         replace: bool = True,
+        why: str = "",
     ):
         self.stream, self.path, self.server, self.owned = stream, path, server, owned
         self.sink, self.claim_name = sink, claim_name  # the binary stream of a file; a default name: never replaced
         self.replace = replace and not claim_name  # a named file: replaced only if asked (--force)
+        self.why = why  # why a file and not the viewer asked for, said where the file is
         if sink is not None:
             hold_stop_signals(self)  # SIGTERM/SIGHUP end the run as Ctrl-C does: the steps done are saved
         self.robot_steps: set[int] = set()
@@ -93,33 +89,35 @@ class Recording:
 
     @classmethod
     def _to(cls, stream: Any, target: Any, blueprint: Any, label: str, replace: bool = True) -> Recording:
+        """A recording of `stream` going to `target` (see Recording.open); the viewer asked for
+        without a display, or one that cannot open, becomes a file of the lab's own name."""
         import rerun as rr
 
-        default_name = target is True or target in ("auto", "viewer", "web")
-        target = resolve_target(target, label)
-        default_name = default_name and isinstance(target, Path)
-        if target == "viewer":
+        place, why = targets.resolve_target(target), ""
+        if place == "viewer" and not targets.has_display():
+            place, why = None, NO_DISPLAY
+        elif place == "viewer":
             try:
                 stream.connect_grpc(native_viewer(), default_blueprint=blueprint)
                 return cls(stream)
             except RuntimeError as error:  # e.g. a display that the viewer cannot open
-                target, default_name = default_recording_path(label), True
-                print(f"{error}: the recording goes to {target} instead")
-        if target == "notebook":
+                place, why = None, str(error)
+        if place == "notebook":
             stream.notebook_show(blueprint=blueprint, height=700)
             return cls(stream)
-        path = default_recording_path(label) if target == "web" else Path(target)
+        default = place in (None, "web")
+        path = default_recording_path(label) if default else place
         sink = stream.binary_stream()  # kept in memory: written whole at close (see mazelab.atomic)
-        if target == "web":
-            server = WebServer.start()
-            stream.set_sinks(rr.GrpcSink(server.grpc_url), sink)
-            send_active_layout(stream, blueprint)
+        server = WebServer.start() if place == "web" else None
+        sinks = [sink] if server is None else [rr.GrpcSink(server.grpc_url), sink]
+        stream.set_sinks(*sinks)
+        # the layout made active as well as default: Rerun's web viewer reads a file's recording before
+        # its layout and, with a default alone, shows its automatic grid (see mazelab.cli.view)
+        stream.send_blueprint(blueprint, make_active=True, make_default=True)
+        if server is not None:
             print(f"Serving the web viewer at {server.url}")
             server.announced = True
-            return cls(stream, path=path, server=server, sink=sink, claim_name=True)
-        stream.set_sinks(sink)
-        send_active_layout(stream, blueprint)
-        return cls(stream, path=path, sink=sink, claim_name=default_name, replace=replace)
+        return cls(stream, path=path, server=server, sink=sink, claim_name=default, replace=replace, why=why)
 
     def log_robot(self, step: int, position: Sequence[float], heading: float | None) -> None:
         """The robot (a green dot and its heading) and the step number, once per step of the recording:
@@ -196,10 +194,12 @@ class Recording:
             except WriteError as error:
                 self._defer_or_raise(error)
                 return
-        hint = open_hint(self.path, has_display())
-        print(f"Recording saved to {self.path}; {human_size(len(data))}; open it with: {hint}")
-        if self.claim_name:  # a default name: runs without a display pile them up in RECORDINGS_DIR
-            print(cleanup_hint(self.path.parent))
+        why = f"; {self.why}, so" if self.why else ";"
+        hint = open_hint(self.path, targets.has_display())
+        print(f"Recording saved to {self.path}; {human_size(len(data))}{why} open it with: {hint}")
+        crowded = crowded_folder_hint(self.path.parent, command_prefix()) if self.claim_name else None
+        if crowded is not None:  # default names: runs without a display pile them up in RECORDINGS_DIR
+            print(crowded)
 
     @staticmethod
     def _defer_or_raise(error: OSError) -> None:
@@ -208,20 +208,6 @@ class Recording:
         if deferred is None:
             raise error
         deferred.append(error if isinstance(error, WriteError) else WriteError(error.errno, error.strerror))
-
-
-def cleanup_hint(folder: Path) -> str:
-    """What the folder of default recordings holds now, and the command that thins it (`recordings`
-    without options lists them)."""
-    command = f"{command_prefix()} recordings --keep {KEEP_HINT} --clean"
-    return f"{folder_summary(folder)}; to keep only the {KEEP_HINT} newest: {command}"
-
-
-def send_active_layout(stream: Any, blueprint: Any) -> None:
-    """Send the lab's layout to a stream that goes to a file, marked active as well as default: a
-    file whose blueprint is only the default opens in Rerun's web viewer with its automatic grid
-    (the recording comes first in the file; see mazelab.viz.saved), whoever serves it."""
-    stream.send_blueprint(blueprint, make_active=True, make_default=True)
 
 
 def rerun_switched_off() -> bool:
@@ -282,18 +268,3 @@ def maze_image(world: Maze) -> np.ndarray:
 def heading_vectors(angles: np.ndarray, length: float) -> np.ndarray:
     """Arrows of `length` along `angles` (radians, counter-clockwise from +x), shape (N, 2)."""
     return length * np.column_stack([np.cos(angles), np.sin(angles)])
-
-
-__all__ = [
-    "KEEP_HINT",
-    "RERUN_OFF_NOTE",
-    "Recording",
-    "cleanup_hint",
-    "heading_vectors",
-    "log_maze",
-    "maze_image",
-    "rerun_switched_off",
-    "send_active_layout",
-    "web_serving_deferred",
-    "write_errors_deferred",
-]

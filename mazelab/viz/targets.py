@@ -19,6 +19,8 @@ from mazelab.viz.style import DEFAULT_MAX_DRAWN
 
 TARGET_WORDS = ("viewer", "web", "notebook")  # the visualize strings that are not file names
 RECORDINGS_DIR = Path("recordings")  # where runs without a display are saved, relative to the cwd
+CROWDED_BYTES = 100e6  # a save line beyond this size of RECORDINGS_DIR adds how to thin it (the example's run: 6 MB)
+KEEP_HINT = 10  # the cleanup that line suggests: keep this many of the newest default recordings
 
 
 @dataclass(frozen=True)
@@ -34,21 +36,11 @@ class Visualization:
             raise ValueError(f"max_drawn must be a whole number >= 1, got {self.max_drawn!r}")
 
 
-def resolve_target(target: Any, label: str = "run") -> str | Path:
-    """The place a `visualize` value means: "viewer", "web", "notebook" or a file path; without a
-    display, a file named after `label` in RECORDINGS_DIR (and a line saying so)."""
+def resolve_target(target: Any) -> str | Path:
+    """The place a `visualize` value means: "viewer" (True or "auto" outside Jupyter; a file instead when
+    the viewer cannot open, see Recording.open), "web", "notebook" or a file path."""
     if target is True or target == "auto":
-        if in_jupyter() and notebook_viewer_installed():
-            return "notebook"
-        if has_display():
-            return "viewer"
-        path = default_recording_path(label)
-        print(f"No display found (DISPLAY and WAYLAND_DISPLAY unset): the recording goes to {path}")
-        return path
-    if target == "viewer" and not has_display():
-        path = default_recording_path(label)
-        print(f"No display found (DISPLAY and WAYLAND_DISPLAY unset): saving to {path} instead of opening the viewer")
-        return path
+        return "notebook" if in_jupyter() and notebook_viewer_installed() else "viewer"
     if target == "notebook" and not notebook_viewer_installed():
         raise ValueError("visualize='notebook' needs rerun's notebook viewer: pip install -e '.[notebook]'")
     if target in TARGET_WORDS:
@@ -157,6 +149,15 @@ def folder_summary(folder: Path | None = None) -> str:
     return f"{folder}{os.sep} holds {count}, {human_size(sum(saved.size for saved in found))}"
 
 
+def crowded_folder_hint(folder: Path, command: str) -> str | None:
+    """Once a folder of default recordings holds more than CROWDED_BYTES: what it holds and the
+    `command` prefix's cleanup that keeps the KEEP_HINT newest; else None."""
+    if sum(saved.size for saved in saved_recordings(folder)) <= CROWDED_BYTES:
+        return None
+    cleanup = f"{command} recordings --keep {KEEP_HINT} --clean"
+    return f"{folder_summary(folder)}; to keep only the {KEEP_HINT} newest: {cleanup}"
+
+
 def has_display() -> bool:
     """Whether a native viewer window can open: always on macOS and Windows, else DISPLAY or WAYLAND_DISPLAY."""
     return sys.platform in ("darwin", "win32") or bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
@@ -172,22 +173,3 @@ def in_jupyter() -> bool:
 def notebook_viewer_installed() -> bool:
     """Whether rerun's notebook viewer (the `notebook` extra) is installed."""
     return importlib.util.find_spec("rerun_notebook") is not None
-
-
-__all__ = [
-    "LAB_NAME",
-    "RECORDINGS_DIR",
-    "TARGET_WORDS",
-    "SavedRecording",
-    "Visualization",
-    "check_target_word",
-    "default_recording_path",
-    "folder_summary",
-    "has_display",
-    "human_size",
-    "in_jupyter",
-    "next_free_name",
-    "notebook_viewer_installed",
-    "resolve_target",
-    "saved_recordings",
-]

@@ -16,8 +16,9 @@ comparison of filters (open_comparison) draws into.
 
 from __future__ import annotations
 
+import functools
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -29,7 +30,6 @@ from mazelab.model import CONFIDENCE_RADIUS
 from mazelab.modes import Mode
 from mazelab.registry import colour_of
 from mazelab.simulation import NullView
-from mazelab.viz.blueprints import comparison_blueprint, run_blueprint
 from mazelab.viz.recording import Recording, heading_vectors
 from mazelab.viz.style import (
     CELL_DOT_RADIUS,
@@ -45,64 +45,53 @@ from mazelab.viz.style import (
     PARTICLE_ARROW_LENGTH,
     PARTICLE_ARROW_RADIUS,
     SERIES,
+    comparison_blueprint,
     entity_name,
+    run_blueprint,
 )
 from mazelab.viz.targets import Visualization
+
+
+def open_recording(visualize: Any, world: Maze, blueprint: Callable[[], Any], label: str) -> tuple[Any, int]:
+    """The Recording a `visualize` value asks for (None: nothing is drawn, or Rerun is switched off),
+    laid out by `blueprint()` and named by `label`, and how many particles a step draws at most."""
+    options = visualize if isinstance(visualize, Visualization) else Visualization(visualize)
+    if options.target is None or options.target is False:
+        return None, options.max_drawn
+    return Recording.open(options.target, world, blueprint(), label=label, replace=options.replace), options.max_drawn
 
 
 def open_view(visualize: Any, world: Maze, filter_name: str) -> Any:
     """The view one run draws to (see the `visualize` values above)."""
     if hasattr(visualize, "log_step"):
         return visualize
-    options = visualize if isinstance(visualize, Visualization) else Visualization(visualize)
-    if options.target is None or options.target is False:
-        return NullView()
-    blueprint = run_blueprint(world, filter_name)
-    recording = Recording.open(
-        options.target, world, blueprint, label=entity_name(filter_name), replace=options.replace
-    )
-    if recording is None:  # Rerun is switched off (RERUN=off)
-        return NullView()
-    return RunView(recording, filter_name, colour_of(filter_name), options.max_drawn, owns_recording=True)
+    layout = functools.partial(run_blueprint, world, filter_name)
+    recording, max_drawn = open_recording(visualize, world, layout, entity_name(filter_name))
+    return NullView() if recording is None else RunView(recording, filter_name, max_drawn, owns_recording=True)
 
 
-class NullComparison:
-    """All filters of one scenario in one recording (compare): one view per filter."""
-
-    def view_for(self, filter_name: str) -> Any:
-        """The view that the run of `filter_name` draws to."""
-        return NullView()
-
-    def close(self) -> None:
-        """Finish the recording."""
-
-
-def open_comparison(visualize: Any, world: Maze, filter_names: Sequence[str]) -> Any:
+def open_comparison(visualize: Any, world: Maze, filter_names: Sequence[str]) -> Comparison:
     """A recording for comparing `filter_names` side by side (see the `visualize` values above)."""
-    options = visualize if isinstance(visualize, Visualization) else Visualization(visualize)
-    if options.target is None or options.target is False:
-        return NullComparison()
     names = list(dict.fromkeys(filter_names))
     if not names:
         raise ValueError("a comparison needs at least one filter")
-    recording = Recording.open(
-        options.target, world, comparison_blueprint(world, names), label="compare", replace=options.replace
-    )
-    if recording is None:  # Rerun is switched off (RERUN=off)
-        return NullComparison()
-    return Comparison(recording, names, options.max_drawn)
+    layout = functools.partial(comparison_blueprint, world, names)
+    recording, max_drawn = open_recording(visualize, world, layout, "compare")
+    return Comparison(recording, names, max_drawn)
 
 
 class Comparison:
-    """All filters of one scenario in one recording: one `RunView` per filter, the robot drawn once."""
+    """All filters of one scenario in one recording: one `RunView` per filter, the robot drawn once;
+    without a recording (nothing drawn) a NullView per filter."""
 
-    def __init__(self, recording: Recording, filter_names: Sequence[str], max_drawn: int):
+    def __init__(self, recording: Recording | None, filter_names: Sequence[str], max_drawn: int):
         self.recording = recording
-        self.views = {  # each filter in its registry colour, as in the PNGs
-            name: RunView(recording, name, colour_of(name), max_drawn, owns_recording=False) for name in filter_names
+        self.views = {
+            name: NullView() if recording is None else RunView(recording, name, max_drawn, owns_recording=False)
+            for name in filter_names
         }
 
-    def view_for(self, filter_name: str) -> RunView:
+    def view_for(self, filter_name: str) -> Any:
         """The view that the run of `filter_name` draws to (one of the names the comparison was opened with)."""
         if filter_name not in self.views:
             raise ValueError(f"{filter_name!r} is not in this comparison ({', '.join(self.views)})")
@@ -110,7 +99,8 @@ class Comparison:
 
     def close(self) -> None:
         """Finish the recording (file complete, viewer flushed, web viewer served until Ctrl-C)."""
-        self.recording.close()
+        if self.recording is not None:
+            self.recording.close()
 
 
 # -- what one run draws ----------------------------------------------------------------------------
@@ -161,24 +151,18 @@ def particle_colors(belief: Particles | Density, weights: np.ndarray, max_drawn:
 class RunView:
     """One filter's run drawn into a Rerun recording: its particles, estimate and time series."""
 
-    def __init__(
-        self, recording: Recording, filter_name: str, color: Sequence[int], max_drawn: int, *, owns_recording: bool
-    ):
+    def __init__(self, recording: Recording, filter_name: str, max_drawn: int, *, owns_recording: bool):
         import rerun as rr
 
         self.recording, self.name, self.max_drawn = recording, filter_name, max_drawn
         self.owns_recording = owns_recording
-        self.path = f"{MAP}/{entity_name(filter_name)}"
         self.metric = entity_name(filter_name)
-        self.confidence_radius = CONFIDENCE_RADIUS
-        self.color = color
+        self.path = f"{MAP}/{self.metric}"
+        self.color = colour_of(filter_name)  # each filter in its registry colour, as in the figures
         self.count_series_styled = False
+        style = rr.SeriesLines(names=filter_name, colors=self.color, widths=2)
         for series in SERIES:
-            recording.stream.log(
-                f"/metrics/{series}/{self.metric}",
-                rr.SeriesLines(names=filter_name, colors=color, widths=2),
-                static=True,
-            )
+            recording.stream.log(f"/metrics/{series}/{self.metric}", style, static=True)
 
     def expect_kidnapping(self, step: int, position: Sequence[float]) -> None:
         """The robot will be carried to `position` at step `step`: its recording draws the jump."""
@@ -202,7 +186,7 @@ class RunView:
         estimate, confident = np.asarray(state.estimate, dtype=float), bool(state.is_confident)
         circle = rr.Ellipses2D(
             centers=[estimate],
-            half_sizes=[[self.confidence_radius] * 2],
+            half_sizes=[[CONFIDENCE_RADIUS] * 2],
             colors=CONFIDENT_COLOR if confident else ESTIMATE_COLOR,
             line_radii=0.03,
         )
@@ -273,16 +257,3 @@ class RunView:
             self.recording.close()
         else:
             self.recording.stream.flush()
-
-
-__all__ = [
-    "Comparison",
-    "NullComparison",
-    "RunView",
-    "drawn_indices",
-    "drawn_particles",
-    "open_comparison",
-    "open_view",
-    "particle_colors",
-    "weight_colors",
-]
