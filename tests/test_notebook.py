@@ -29,10 +29,15 @@ from mazelab.viz.targets import notebook_viewer_installed
 
 NOTEBOOKS = {"en": ROOT / "notebooks" / "lab.ipynb", "uk": ROOT / "notebooks" / "lab_uk.ipynb"}
 # what step 12 prints when the three filters walked the same true path, in each notebook's language
-SAME_PATH = {"en": "the same true path for all three: True", "uk": "справжній шлях однаковий для всіх трьох: True"}
+SAME_PATH = {"en": "the same true path for all three: yes", "uk": "справжній шлях однаковий для всіх трьох: так"}
 KERNEL_NAME = "mazelab-test"  # a kernel spec of our own (see `kernel_spec`): no other "python3" can shadow it
 CELL_TIMEOUT = 180  # seconds per cell; the whole notebook takes about 23 s on two cores
 WIDGET = "application/vnd.jupyter.widget-view+json"
+# run after each figure cell of an executed lab: the texts of the figure just drawn (its `axes`): the tick
+# labels, the title, the axis labels and the legend
+FIGURE_PROBE = """import json
+print(json.dumps([text.get_text() for text in [*axes.get_xticklabels(), *axes.get_yticklabels(), axes.title,
+                  axes.xaxis.label, axes.yaxis.label, *axes.get_legend().get_texts()]], ensure_ascii=False))"""
 FILTERS = ("SIRParticleFilter", "AuxiliaryParticleFilter", "RegularizedParticleFilter")  # the lab's three
 # a curve's pixels in a figure: its colour within 2/255 per channel (a PNG's rounding), at least 50 of them
 # (a line of 1.2 points over a figure 8 inches wide, or a study's markers, draw thousands)
@@ -128,6 +133,9 @@ def execute_lab(language: str, kernel_spec: str, workdir: Path) -> nbformat.Note
     """The notebook run top to bottom in a fresh kernel, in `workdir`, with a last cell that prints the
     kernel's interpreter; raises CellExecutionError, naming the cell, if any cell fails."""
     notebook = read_notebook(language)
+    for index in reversed([i for i, cell in enumerate(notebook.cells) if "plt.show()" in cell.source]):
+        probe = nbformat.v4.new_code_cell(FIGURE_PROBE, id=f"test-figure-{index}")
+        notebook.cells.insert(index + 1, probe)  # what the figure just drawn says, in words
     notebook.cells.append(nbformat.v4.new_code_cell("import sys\nprint(sys.executable)", id="test-probe"))
     workdir.mkdir()
     client = NotebookClient(
@@ -137,10 +145,19 @@ def execute_lab(language: str, kernel_spec: str, workdir: Path) -> nbformat.Note
     return notebook
 
 
+def figure_texts(notebook: nbformat.NotebookNode) -> list[list[str]]:
+    """The words of each figure an executed lab drew (FIGURE_PROBE's output after it)."""
+    probes = [cell for cell in notebook.cells if cell.id.startswith("test-figure-")]
+    return [json.loads(stdout_of(cell)) for cell in probes]
+
+
 def test_notebook_runs_top_to_bottom_in_a_fresh_kernel(kernel_spec, tmp_path):
     """The English lab; the Ukrainian one runs once, in tests/test_notebook_uk.py, with these checks."""
     workdir = tmp_path / "work"
-    check_the_executed_lab(execute_lab("en", kernel_spec, workdir), workdir, "en")
+    notebook = execute_lab("en", kernel_spec, workdir)
+    check_the_executed_lab(notebook, workdir, "en")
+    for texts in figure_texts(notebook):  # the filters by their short names, as the viewer's tables say them
+        assert {"SIR", "APF", "RPF"} <= set(texts) and not set(FILTERS) & set(texts), texts
 
 
 def check_the_executed_lab(notebook: nbformat.NotebookNode, workdir: Path, language: str) -> None:

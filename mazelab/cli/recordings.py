@@ -16,6 +16,7 @@ from datetime import datetime
 from pathlib import Path
 from typing import Annotated
 
+import numpy as np
 import typer
 
 from mazelab.cli.options import UserError
@@ -45,18 +46,13 @@ def chosen(
     Together, a recording goes when any rule says so."""
     named = [saved for saved in found if saved.lab_named]
     newest_first = named[::-1]
-    doomed: set[Path] = set()
-    if keep is not None:
-        doomed |= {saved.path for saved in newest_first[keep:]}
+    doomed: set[SavedRecording] = set(newest_first[keep:]) if keep is not None else set()
     if older_than is not None:
-        doomed |= {saved.path for saved in named if now - saved.modified > older_than}
+        doomed |= {saved for saved in named if now - saved.modified > older_than}
     if max_size is not None:
-        total = 0
-        for saved in newest_first:
-            total += saved.size
-            if total > max_size:
-                doomed.add(saved.path)
-    return [saved for saved in named if saved.path in doomed]
+        sizes = np.cumsum([saved.size for saved in newest_first])
+        doomed |= {saved for saved, total in zip(newest_first, sizes, strict=True) if total > max_size}
+    return [saved for saved in named if saved in doomed]
 
 
 def remove(doomed: list[SavedRecording]) -> list[SavedRecording]:
@@ -73,12 +69,6 @@ def remove(doomed: list[SavedRecording]) -> list[SavedRecording]:
         os.unlink(saved.path)
         removed.append(saved)
     return removed
-
-
-def line(saved: SavedRecording, mark: str = "") -> str:
-    """One recording: when it was written, its size, its path."""
-    when = datetime.fromtimestamp(saved.modified).strftime("%Y-%m-%d %H:%M")
-    return f"  {when}  {human_size(saved.size):>8}  {saved.path}{mark}"
 
 
 def recordings(
@@ -122,10 +112,17 @@ def recordings(
         plural = "s" if len(removed) != 1 else ""
         typer.echo(f"Removed {len(removed)} recording{plural} ({freed}); {folder_summary(folder)}")
         return
+    show(found, doomed, folder, rules)
+
+
+def show(found: list[SavedRecording], doomed: list[SavedRecording], folder: Path, rules: str) -> None:
+    """The listing: each recording (when written, its size, its path), marked when the `rules` remove
+    it or when it is kept as one of your own names; then the command that removes what they chose."""
     typer.echo(f"{folder_summary(folder)}:")
     for saved in found:
+        when = datetime.fromtimestamp(saved.modified).strftime("%Y-%m-%d %H:%M")
         mark = "  (would be removed)" if saved in doomed else "" if saved.lab_named else "  (your name: kept)"
-        typer.echo(line(saved, mark))
+        typer.echo(f"  {when}  {human_size(saved.size):>8}  {saved.path}{mark}")
     command = f"{command_prefix()} recordings" + ("" if folder == targets.RECORDINGS_DIR else f" {folder}")
     if rules:
         size = human_size(sum(saved.size for saved in doomed))

@@ -112,40 +112,28 @@ def weight_colors(weights: np.ndarray) -> np.ndarray:
 
 
 def drawn_particles(belief: Particles | Density, max_drawn: int) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
-    """What is drawn of a filter's belief: positions (M, 2), headings (M,) or None, weights (M,).
+    """What is drawn of a filter's belief: positions (M, 2), headings (M,) or None, and colours (M, 3)
+    by weight (`weight_colors`), INJECTED_COLOR for the particles that recovery injected this step.
 
     Particles: all N when N <= max_drawn, else max_drawn of them at evenly spaced indices
     (deterministic: drawing never draws from the filter's random stream). A Density (the grid
     filter's cells, which are not a sample): the cells hit by a systematic pick of max_drawn points
     of its mass, each cell once, so the dots show where the probability is.
     """
-    weights = np.asarray(belief.weights)
-    positions = np.asarray(belief.positions)
+    weights, positions = np.asarray(belief.weights), np.asarray(belief.positions)
     if isinstance(belief, Density):
         cumulative = np.cumsum(weights)
         targets = (np.arange(max_drawn) + 0.5) / max_drawn * cumulative[-1]
         cells = np.unique(np.minimum(np.searchsorted(cumulative, targets), len(weights) - 1))
-        return positions[cells], None, weights[cells]
-    picked = drawn_indices(len(positions), max_drawn)
+        return positions[cells], None, weight_colors(weights[cells])
+    picked: slice | np.ndarray = slice(None)
+    if len(positions) > max_drawn:
+        picked = np.linspace(0, len(positions) - 1, max_drawn).round().astype(np.int64)
+    colors = weight_colors(weights[picked])
+    if belief.injected is not None:  # a mask over all N particles
+        colors[np.asarray(belief.injected)[picked]] = INJECTED_COLOR
     headings = None if belief.headings is None else np.asarray(belief.headings)[picked]
-    return positions[picked], headings, weights[picked]
-
-
-def drawn_indices(count: int, max_drawn: int) -> slice | np.ndarray:
-    """Which of `count` particles are drawn: all, or max_drawn at evenly spaced indices."""
-    if count <= max_drawn:
-        return slice(None)
-    return np.linspace(0, count - 1, max_drawn).round().astype(np.int64)
-
-
-def particle_colors(belief: Particles | Density, weights: np.ndarray, max_drawn: int) -> np.ndarray:
-    """The drawn particles' colours (M, 3): by weight (`weight_colors`), and INJECTED_COLOR for those
-    that recovery injected this step (`belief.injected`, a mask over all N particles, or None)."""
-    colors = weight_colors(weights)
-    injected = belief.injected if isinstance(belief, Particles) else None
-    if injected is not None:
-        colors[np.asarray(injected)[drawn_indices(len(injected), max_drawn)]] = INJECTED_COLOR
-    return colors
+    return positions[picked], headings, colors
 
 
 class RunView:
@@ -206,8 +194,7 @@ class RunView:
         """The particles (or a grid's cells) coloured by weight, the injected ones apart."""
         import rerun as rr
 
-        positions, headings, weights = drawn_particles(belief, self.max_drawn)
-        colors = particle_colors(belief, weights, self.max_drawn)
+        positions, headings, colors = drawn_particles(belief, self.max_drawn)
         if headings is None:
             drawn = rr.Points2D(positions, colors=colors, radii=CELL_DOT_RADIUS)
         else:
