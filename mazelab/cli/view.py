@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import collections
 import os
+import signal
 import warnings
 from collections.abc import Callable, Iterable
 from pathlib import Path
@@ -44,10 +45,11 @@ def view(
     problem = recording_problem(recording)
     if problem is not None:
         raise UserError(f"{recording}: {problem}")
-    try:  # SIGTERM and SIGHUP stop it as Ctrl-C does (mazelab.viz.processes): its ports are not held
+    try:
         server = WebServer.start()
     except (RuntimeError, OSError) as error:
         raise UserError(f"{recording}: cannot serve it ({error})") from None
+    stop_on_termination()
     try:
         replay_with_layout(recording, lambda stream: stream.connect_grpc(server.grpc_url))
     except RuntimeError as error:  # rerun could not read or send it after all
@@ -59,6 +61,18 @@ def view(
         raise
     print(f"Serving {recording}")
     server.serve_until_interrupted()
+
+
+def stop_on_termination() -> None:
+    """SIGTERM and SIGHUP (`timeout`, a closed terminal) stop serving as Ctrl-C does, so the server
+    process ends with this one instead of holding its ports, and the command ends cleanly (exit 0)."""
+
+    def interrupt(_signum: int, _frame: object) -> None:
+        raise KeyboardInterrupt
+
+    for name in ("SIGTERM", "SIGHUP"):
+        if hasattr(signal, name):
+            signal.signal(getattr(signal, name), interrupt)
 
 
 def recording_problem(path: Path) -> str | None:
