@@ -16,8 +16,9 @@ are the discretised model's exact answer: a brute-force sum over every path of c
 Memory: the forward pass keeps alpha_k at every B-th step only (checkpoints, B = ceil(sqrt(K)) unless
 told), and the backward pass refilters one block of B steps at a time from its checkpoint when it
 reaches it: about 2 sqrt(K) grids instead of K, for a second forward pass. On maze_10x10 at the
-default resolution (600 x 600 cells, 2.9 MB a grid) a 200-step walk keeps 29 grids rather than 200
-(benchmarks/smoothing_memory.py measures it).
+default resolution (600 x 600 cells, 2.75 MB a grid) a 200-step walk keeps 14 checkpoints and 15
+refiltered grids rather than 200: a peak of 165 MB allocated against 640 MB when every filtered density
+is kept (`uv run python benchmarks/smoothing_memory.py`).
 """
 
 from __future__ import annotations
