@@ -12,8 +12,10 @@ import numpy as np
 import pytest
 from conftest import PAPER_MAZE
 
+from mazelab import limits
 from mazelab.constants import OUTSIDE_PENALTY
 from mazelab.grid_filter import GridBayesFilter, arc_kernel
+from mazelab.limits import MemoryBudget, MemoryLimitError
 from mazelab.maze import Maze
 from mazelab.robot import Robot
 from mazelab.smoothing import BackwardStep, smooth
@@ -101,10 +103,17 @@ def test_checkpoints_and_recomputation_change_no_number(paper_world, checkpoint_
     walk = TINY_WALK[0] * 3, [1.0, 0.5, 0.8] * 3
     common = {"resolution": 0.1, "keep": {1, 5, 9}}
     whole = smooth(paper_world, 0.3, 0.5, *walk, checkpoint_every=9, **common)
-    blocks = smooth(paper_world, 0.3, 0.5, *walk, checkpoint_every=checkpoint_every, **common)
+    visited = {}
+
+    def visit(k, density):
+        visited[k] = density.copy()
+
+    blocks = smooth(paper_world, 0.3, 0.5, *walk, checkpoint_every=checkpoint_every, visit=visit, **common)
     np.testing.assert_array_equal(blocks.means, whole.means)
+    assert list(visited) == list(range(9, 0, -1))  # every step's smoothed density, from the last one back
     for k in (1, 5, 9):
         np.testing.assert_array_equal(blocks.densities[k], whole.densities[k])
+        np.testing.assert_array_equal(visited[k], whole.densities[k])
 
 
 def test_the_smoothed_mean_is_nearer_the_truth_than_the_filtered_mean_in_nine_of_ten_walks(paper_world):
@@ -122,6 +131,14 @@ def test_the_smoothed_mean_is_nearer_the_truth_than_the_filtered_mean_in_nine_of
         smoothed, filtered = result.errors(np.column_stack([xs, ys]))
         wins += smoothed.mean() < filtered.mean()
     assert wins >= 9
+
+
+def test_a_smoothing_that_does_not_fit_in_memory_is_refused_saying_how_much_it_needs(paper_world, monkeypatch):
+    """The grid (70 x 70 cells, 1.2 MB for the filter) fits a 4 MB budget; 10,000 steps' checkpoints and
+    one block (100 + 100 grids of 38 kB) do not."""
+    monkeypatch.setattr(limits, "memory_budget", lambda: MemoryBudget(5 * 2**20, "test budget"))
+    with pytest.raises(MemoryLimitError, match=r"^smoothing 10000 steps on the grid's 70x70 cells \(203 grids\) needs"):
+        smooth(paper_world, 0.3, 0.5, [0.1] * 10_000, [1.0] * 10_000, resolution=0.1)
 
 
 def test_bad_walks_are_refused_in_one_line(paper_world):
