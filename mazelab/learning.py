@@ -27,6 +27,7 @@ import numpy as np
 
 from mazelab.checks import check_seed, finite_number, step_number
 from mazelab.grid_filter import GridBayesFilter
+from mazelab.limits import check_particles
 from mazelab.maze import Maze
 from mazelab.model import LAB_DELTA_RANGE, LAB_SIGMA_RANGE, check_model_parameters
 from mazelab.registry import FilterEntry, filter_entry
@@ -360,6 +361,9 @@ def pmmh(
     angles, zs = check_walk(compass_angles, measurements)
     prior = ParameterGrid() if prior is None else prior
     iterations, seed = step_number("iterations", iterations), check_seed("seed", seed)
+    if isinstance(particle_count, bool) or not isinstance(particle_count, (int, np.integer)) or particle_count < 1:
+        raise ValueError(f"particle_count must be a whole number >= 1, got {particle_count!r}")
+    check_particles(int(particle_count))
     if not 0 <= burn_in < iterations:
         raise ValueError(f"burn_in must lie in [0, iterations), got {burn_in!r}")
     scale = np.array([finite_number("proposal scale", s) for s in proposal_scale])

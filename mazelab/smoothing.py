@@ -166,6 +166,9 @@ def smooth(
     sigma, delta = check_model_parameters(sigma, delta, (world.width, world.height))
     grid = GridBayesFilter(world, sigma, delta, **grid_options)
     block = checkpoint_block(steps, checkpoint_every)
+    outside = [k for k in keep if not (isinstance(k, (int, np.integer)) and 1 <= k <= steps)]
+    if outside:
+        raise ValueError(f"keep names steps 1..{steps} of the walk, got {outside[0]!r}")
     check_smoother_memory(grid.shape, steps, block, len(set(keep)))
     checkpoints, filtered_means = forward(grid, angles, zs, block)
     log_evidence = grid.log_evidence  # the refiltering below adds to it again

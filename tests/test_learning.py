@@ -88,11 +88,15 @@ def test_the_quantiles_monte_carlo_error_is_that_of_independent_draws():
     assert quantile_error(x, p) == pytest.approx(expected, rel=4 / math.sqrt(2 * n * spread))
 
 
-def test_pmmh_refuses_a_filter_whose_evidence_does_not_estimate_p_z(paper_world):
+def test_pmmh_refuses_a_filter_whose_evidence_does_not_estimate_p_z_and_bad_settings(paper_world):
     with pytest.raises(ValueError, match=r"^PMMH needs a filter whose evidence estimates p\(z_1:K\): RPF's does not"):
         pmmh(paper_world, [0.1], [1.0], 10, filter_name="rpf")
     with pytest.raises(ValueError, match="outside the prior's box"):
         pmmh(paper_world, [0.1], [1.0], 10, start=(0.1, 0.3))
+    with pytest.raises(ValueError, match="particle_count must be a whole number >= 1, got 0"):
+        pmmh(paper_world, [0.1], [1.0], 10, particle_count=0)
+    with pytest.raises(ValueError, match=r"the sigma range must be \(low, high\) with low < high"):
+        ParameterGrid(sigma_range=(0.5, 0.3))
 
 
 def test_a_seeded_chain_repeats_itself(paper_world):

@@ -146,5 +146,7 @@ def test_bad_walks_are_refused_in_one_line(paper_world):
         smooth(paper_world, 0.3, 0.5, [0.1, 0.2], [1.0], resolution=0.1)
     with pytest.raises(ValueError, match="checkpoint_every must be a step number"):
         smooth(paper_world, 0.3, 0.5, [0.1], [1.0], checkpoint_every=0, resolution=0.1)
+    with pytest.raises(ValueError, match=r"keep names steps 1\.\.1 of the walk, got 2"):
+        smooth(paper_world, 0.3, 0.5, [0.1], [1.0], keep={2}, resolution=0.1)
     with pytest.raises(ValueError, match="no cell of the grid explains z_2"):
         smooth(paper_world, 0.3, 0.05, [0.1, 0.2], [1.0, 900.0], resolution=0.1)
