@@ -18,6 +18,7 @@ from mazelab.learning import (
     ParameterPosterior,
     effective_sample_size,
     exact_parameter_posterior,
+    grid_log_evidence,
     pmmh,
     quantile_error,
 )
@@ -104,6 +105,14 @@ def test_a_seeded_chain_repeats_itself(paper_world):
     first, second = (pmmh(paper_world, angles, zs, 20, particle_count=50, seed=9) for _ in range(2))
     np.testing.assert_array_equal(first.samples, second.samples)
     assert 0 < first.accepted <= 20 and first.log_evidence.shape == (20,)
+
+
+def test_pmmh_with_the_grid_filter_is_metropolis_hastings_on_its_exact_evidence(paper_world):
+    angles, zs = seeded_walk(paper_world, 0.4, 0.3, 4)
+    chain = pmmh(paper_world, angles, zs, 8, filter_name="grid", seed=2, resolution=0.1)
+    assert chain.accepted > 0
+    for (sigma, delta), log_z in zip(chain.samples, chain.log_evidence, strict=True):
+        assert log_z == grid_log_evidence(paper_world, angles, zs, sigma, delta, resolution=0.1)
 
 
 @pytest.mark.slow
