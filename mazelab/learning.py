@@ -82,16 +82,35 @@ class ParameterGrid:
         return tuple((e[1:] + e[:-1]) / 2 for e in self.edges)
 
     def values(self) -> tuple[list[float], list[float]]:
-        """The sigma and the delta of every cell, row by row (S D each): what an executor maps."""
+        """The sigma and the delta of every cell, row by row: what an executor maps.
+
+        Returns
+        -------
+        (sigmas, deltas), two lists of S D floats
+        """
         sigmas, deltas = np.meshgrid(*self.centres, indexing="ij")
         return sigmas.ravel().tolist(), deltas.ravel().tolist()
 
     def halved(self) -> ParameterGrid:
-        """The same box with cells half as wide (twice as many along each axis): the grid's own error."""
+        """The same box with cells half as wide (twice as many along each axis): the grid's own error.
+
+        Returns
+        -------
+        ParameterGrid
+        """
         return ParameterGrid(self.sigma_range, self.delta_range, (2 * self.cells[0], 2 * self.cells[1]))
 
     def contains(self, sigma: float, delta: float) -> bool:
-        """Whether (sigma, delta) lies in the box, where the prior is positive."""
+        """Whether (sigma, delta) lies in the box, where the prior is positive.
+
+        Parameters
+        ----------
+        sigma, delta : float
+
+        Returns
+        -------
+        bool
+        """
         return (
             self.sigma_range[0] <= sigma <= self.sigma_range[1] and self.delta_range[0] <= delta <= self.delta_range[1]
         )
@@ -106,8 +125,24 @@ def grid_log_evidence(
     **grid_options: Any,
 ) -> float:
     """log p(z_1:K | sigma, delta): the grid filter's exact evidence of the walk (one cell of a
-    ParameterGrid; plain values in and out, so that an executor can map it). -inf where no cell of the
-    grid explains a measurement (the filter restarted: the model gives the walk no density)."""
+    ParameterGrid; plain values in and out, so that an executor can map it).
+
+    Parameters
+    ----------
+    world : Maze
+    compass_angles, measurements : sequences of K floats
+        The walk's th0_k (radians) and z_k (map units).
+    sigma, delta : float
+        The model's parameters at the cell.
+    **grid_options
+        GridBayesFilter's options (resolution, margin, outside_penalty, speed).
+
+    Returns
+    -------
+    float
+        -inf where no cell of the grid explains a measurement (the filter restarted: the model gives
+        the walk no density).
+    """
     grid = GridBayesFilter(world, sigma, delta, **grid_options)
     for compass_angle, z in zip(compass_angles, measurements, strict=True):
         grid.step(compass_angle, z)
@@ -144,17 +179,38 @@ class ParameterPosterior:
         return float(top + math.log(np.mean(np.exp(self.log_evidence - top))))
 
     def marginals(self) -> tuple[np.ndarray, np.ndarray]:
-        """The posterior mass of each sigma cell (S,) and of each delta cell (D,)."""
+        """The marginal posteriors.
+
+        Returns
+        -------
+        (sigma's masses (S,), delta's masses (D,))
+        """
         mass = self.mass
         return mass.sum(axis=1), mass.sum(axis=0)
 
     def mean(self) -> np.ndarray:
-        """E[(sigma, delta) | z_1:K], (2,): exact for the density constant on each cell."""
+        """E[(sigma, delta) | z_1:K]: exact for the density constant on each cell.
+
+        Returns
+        -------
+        array (2,)
+        """
         return np.array([m @ c for m, c in zip(self.marginals(), self.grid.centres, strict=True)])
 
     def interval(self, level: float = INTERVAL_LEVEL) -> np.ndarray:
-        """The equal-tailed credible interval of sigma (row 0) and of delta (row 1), (2, 2): each
-        marginal's CDF is linear within a cell, so its quantiles are interpolated between the edges."""
+        """The equal-tailed credible interval of sigma and of delta: each marginal's CDF is linear
+        within a cell, so its quantiles are interpolated between the edges.
+
+        Parameters
+        ----------
+        level : float
+            The interval's posterior probability.
+
+        Returns
+        -------
+        array (2, 2)
+            Row 0 sigma's (low, high), row 1 delta's.
+        """
         tails = np.array([(1 - level) / 2, (1 + level) / 2])
         rows = []
         for mass, edges in zip(self.marginals(), self.grid.edges, strict=True):
@@ -199,7 +255,17 @@ def exact_parameter_posterior(
 
 def evidence_filter(name: str | type) -> FilterEntry:
     """The registry's entry of a filter whose log evidence estimates p(z_1:K) without bias (one of
-    UNBIASED_EVIDENCE), or a one-line ValueError naming the filter and those that qualify."""
+    UNBIASED_EVIDENCE), or a one-line ValueError naming the filter and those that qualify.
+
+    Parameters
+    ----------
+    name : str or class
+        What mazelab.registry.filter_entry takes (sir, SIRParticleFilter, ...).
+
+    Returns
+    -------
+    FilterEntry
+    """
     entry = filter_entry(name)
     if entry.name not in UNBIASED_EVIDENCE:
         qualified = ", ".join(sorted(filter_entry(n).short_name for n in UNBIASED_EVIDENCE))
@@ -285,23 +351,57 @@ class Chain:
         return self.accepted / len(self.samples)
 
     def ess(self) -> np.ndarray:
-        """The effective sample size of sigma's and of delta's kept samples, (2,)."""
-        return np.array([effective_sample_size(column) for column in self.kept.T])
+        """The effective sample size of sigma's and of delta's kept samples (`chain_ess`).
+
+        Returns
+        -------
+        array (2,)
+        """
+        return np.array([chain_ess(column) for column in self.kept.T])
 
     def mean(self) -> np.ndarray:
-        """The chain's posterior mean of (sigma, delta), (2,)."""
+        """The chain's posterior mean of (sigma, delta).
+
+        Returns
+        -------
+        array (2,)
+        """
         return self.kept.mean(axis=0)
 
     def mean_error(self) -> np.ndarray:
-        """The Monte Carlo standard error of `mean`, sd / sqrt(ESS), (2,)."""
+        """The Monte Carlo standard error of `mean`, sd / sqrt(ESS).
+
+        Returns
+        -------
+        array (2,)
+        """
         return self.kept.std(axis=0, ddof=1) / np.sqrt(self.ess())
 
     def interval(self, level: float = INTERVAL_LEVEL) -> np.ndarray:
-        """The equal-tailed credible interval of sigma (row 0) and of delta (row 1), (2, 2)."""
+        """The equal-tailed credible interval of sigma and of delta, from the kept samples' quantiles.
+
+        Parameters
+        ----------
+        level : float
+
+        Returns
+        -------
+        array (2, 2)
+            Row 0 sigma's (low, high), row 1 delta's.
+        """
         return np.quantile(self.kept, [(1 - level) / 2, (1 + level) / 2], axis=0).T
 
     def interval_error(self, level: float = INTERVAL_LEVEL) -> np.ndarray:
-        """The Monte Carlo standard error of each end of `interval`, (2, 2)."""
+        """The Monte Carlo standard error of each end of `interval` (`quantile_error`).
+
+        Parameters
+        ----------
+        level : float
+
+        Returns
+        -------
+        array (2, 2)
+        """
         tails = ((1 - level) / 2, (1 + level) / 2)
         return np.array([[quantile_error(column, p) for p in tails] for column in self.kept.T])
 
@@ -384,10 +484,20 @@ def pmmh(
     return Chain(samples, log_evidence, accepted, burn_in, entry.name, particle_count, seed, tuple(scale.tolist()))
 
 
-def effective_sample_size(x: np.ndarray) -> float:
+def chain_ess(x: np.ndarray) -> float:
     """n / tau of a chain's values (n,), tau = 1 + 2 sum_t rho_t its integrated autocorrelation time
     by Geyer's initial monotone sequence: the sums of pairs rho_2m + rho_2m+1 while they stay
-    positive, made non-increasing (Geyer 1992). A chain that never moved has an ESS of 1."""
+    positive, made non-increasing (Geyer 1992).
+
+    Parameters
+    ----------
+    x : array (n,)
+
+    Returns
+    -------
+    float
+        At most n log10(n) (an antithetic chain's tau may fall below 1); 1 for a chain that never moved.
+    """
     x = np.asarray(x, dtype=float)
     n = len(x)
     centred = x - x.mean()
@@ -406,9 +516,21 @@ def effective_sample_size(x: np.ndarray) -> float:
 def quantile_error(x: np.ndarray, p: float) -> float:
     """The Monte Carlo standard error of a chain's p-quantile (Vehtari et al. 2021): the indicator
     1{x <= q_p} has variance p (1 - p) / ESS of its mean, and the chain's quantiles at p -/+ one such
-    standard deviation span two standard errors of q_p."""
+    standard deviation span two standard errors of q_p.
+
+    Parameters
+    ----------
+    x : array (n,)
+        The chain's values.
+    p : float
+        The quantile's probability, in (0, 1).
+
+    Returns
+    -------
+    float
+    """
     q = np.quantile(x, p)
-    spread = math.sqrt(p * (1 - p) / effective_sample_size(x <= q))
+    spread = math.sqrt(p * (1 - p) / chain_ess(x <= q))
     low, high = np.quantile(x, [max(0.0, p - spread), min(1.0, p + spread)])
     return float((high - low) / 2)
 
@@ -420,7 +542,7 @@ __all__ = [
     "EvidenceEstimator",
     "ParameterGrid",
     "ParameterPosterior",
-    "effective_sample_size",
+    "chain_ess",
     "evidence_filter",
     "exact_parameter_posterior",
     "grid_log_evidence",

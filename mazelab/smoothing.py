@@ -73,7 +73,17 @@ class SmoothedWalk:
     densities: dict[int, np.ndarray] = field(default_factory=dict)
 
     def errors(self, true_positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The distance of the smoothed and of the filtered mean to the truth (K, 2), per step: (K,), (K,)."""
+        """The distance of the smoothed and of the filtered mean to the truth, per step.
+
+        Parameters
+        ----------
+        true_positions : array (K, 2)
+            The robot's position after each step's move (map units).
+
+        Returns
+        -------
+        (smoothed (K,), filtered (K,)), map units
+        """
         return np.hypot(*(self.means - true_positions).T), np.hypot(*(self.filtered_means - true_positions).T)
 
 
@@ -98,15 +108,35 @@ class BackwardStep:
 
     def likelihood(self, z: float) -> np.ndarray:
         """l_k = p(z_k | x) on the cells divided by its largest value (equation (3), mazelab.model's
-        log_likelihood: the one source of it), an array of the grid's shape with values in [0, 1]."""
+        log_likelihood: the one source of it).
+
+        Parameters
+        ----------
+        z : float
+            z_k, the measured distance (map units).
+
+        Returns
+        -------
+        array of the grid's shape, values in [0, 1]
+        """
         grid = self.grid
         log_lik = log_likelihood(z, grid.positions, grid.world, grid.sigma, grid.settings["outside_penalty"])
         return np.exp(log_lik - log_lik.max()).reshape(grid.shape)
 
     def adjoint(self, values: np.ndarray, compass_angle: float) -> np.ndarray:
         """P^T values: the linear convolution with the flipped arc kernel of `compass_angle`, cropped to
-        the grid (the adjoint of GridBayesFilter.predict before its clip: <P f, g> = <f, P^T g>). A view
-        of the workspace, valid until the next call."""
+        the grid (the adjoint of GridBayesFilter.predict before its clip: <P f, g> = <f, P^T g>).
+
+        Parameters
+        ----------
+        values : array of the grid's shape
+        compass_angle : float
+            th0_k of the prediction this reverses (radians).
+
+        Returns
+        -------
+        array of the grid's shape: a view of the workspace, valid until the next call
+        """
         if self._angle != compass_angle or self._spectrum is None:
             grid = self.grid
             flipped = arc_kernel(compass_angle, grid.delta, grid.speed, grid.resolution)[::-1, ::-1]
@@ -259,7 +289,19 @@ def check_smoother_memory(shape: tuple[int, int], steps: int, block: int, kept: 
 
 def check_walk(compass_angles: Sequence[float], measurements: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
     """The walk's compass angles and measurements as float arrays of the same length K >= 1, each
-    value checked (mazelab.checks), or a one-line ValueError."""
+    value checked (mazelab.checks), or a one-line ValueError.
+
+    Parameters
+    ----------
+    compass_angles : sequence of K floats
+        th0_k (radians).
+    measurements : sequence of K floats
+        z_k (map units).
+
+    Returns
+    -------
+    (angles (K,), measurements (K,)), float64
+    """
     angles = np.array([angle("compass angle", a) for a in compass_angles], dtype=float)
     zs = np.array([coordinate("measurement", z) for z in measurements], dtype=float)
     if len(angles) != len(zs) or len(angles) == 0:

@@ -16,7 +16,7 @@ from mazelab.grid_filter import GridBayesFilter
 from mazelab.learning import (
     ParameterGrid,
     ParameterPosterior,
-    effective_sample_size,
+    chain_ess,
     exact_parameter_posterior,
     grid_log_evidence,
     pmmh,
@@ -75,7 +75,7 @@ def test_the_effective_sample_size_of_an_ar1_chain_is_n_times_1_minus_phi_over_1
         x[t] = phi * x[t - 1] + noise[t]
     tau = (1 + phi) / (1 - phi)
     tolerance = 4 * math.sqrt(2 * (20 * tau + 1) / n)
-    assert effective_sample_size(x) == pytest.approx(n / tau, rel=tolerance)
+    assert chain_ess(x) == pytest.approx(n / tau, rel=tolerance)
 
 
 def test_the_quantiles_monte_carlo_error_is_that_of_independent_draws():
