@@ -485,8 +485,8 @@ def pmmh(
 
 
 def chain_ess(x: np.ndarray) -> float:
-    """n / tau of a chain's values (n,), tau = 1 + 2 sum_t rho_t its integrated autocorrelation time
-    by Geyer's initial monotone sequence: the sums of pairs rho_2m + rho_2m+1 while they stay
+    """The effective sample size n / tau of a chain's values, tau = 1 + 2 sum_t rho_t its integrated
+    autocorrelation time by Geyer's initial monotone sequence: the sums of pairs rho_2m + rho_2m+1 while they stay
     positive, made non-increasing (Geyer 1992).
 
     Parameters
