@@ -1,10 +1,18 @@
-"""Runs from a seed or a saved scenario: the start a seed gives, the seed of a replay, and the maze,
-sigma and delta of a scenario (flags override the stored values; a file with only the paper's four
-keys runs on the one shipped maze it fits)."""
+"""What `run` and `compare` start from: a fresh lost robot (a maze, sigma, delta and a seed) or a saved
+scenario replayed (`RunSetup`). A replay takes the scenario's maze, walk, measurements, particles and
+seed (flags override sigma, delta and the seed; a file with only the paper's four keys runs on the one
+shipped maze it fits), and its filter and options, so that it repeats the run that made it bit for bit,
+unless the user names another filter or option; then one line says what was overridden.
+
+A scenario never imports code: a plug-in's saved run replays only when the user names the plug-in
+(`--filter file.py:Class`); its file's sha256 is checked against the stored one (a changed file is said
+in one line), and `--filter sir` replays the same scenario with SIR."""
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -15,62 +23,94 @@ from mazelab.cli.filter_options import GivenOptions
 from mazelab.cli.options import DEFAULT_DELTA, DEFAULT_SIGMA, UserError
 from mazelab.declaration import show_value
 from mazelab.maze import Maze
-from mazelab.mazes import load_maze, mazes_fitting
-from mazelab.registry import filter_entry
+from mazelab.mazes import DEFAULT_MAZE, load_maze, mazes_fitting
+from mazelab.registry import FilterEntry, filter_entry
 from mazelab.robot import Robot
 from mazelab.scenario import Scenario, check_measurements_within
-from mazelab.seeding import new_seed
+from mazelab.seeding import new_seed, start_place
 from mazelab.simulation import check_start, check_walk_in_maze
 
 
-def replay_seed(stored: Scenario, seed: int | None) -> int:
-    """The seed of a replay: --seed, else the scenario's own (as compare uses), else a new one."""
-    return seed if seed is not None else stored.seed if stored.seed is not None else new_seed()
+@dataclass
+class RunSetup:
+    """A run's inputs: the maze, the robot, sigma and delta, the initial particles (a replay's) or the
+    count to draw (None: the library's default), the steps (None: the robot's recorded walk), the seed."""
+
+    world: Maze
+    robot: Robot
+    sigma: float
+    delta: float
+    initial_particles: Any
+    particle_count: int | None
+    steps: int | None
+    seed: int
+
+    @property
+    def arguments(self) -> tuple[Any, ...]:
+        """simulate's positional arguments (mazelab.lab.simulate)."""
+        return (self.robot, self.world, self.sigma, self.delta, self.particle_count, self.steps, self.initial_particles)
 
 
-def refuse_counts_for_replay(
-    stored: Scenario, particles: int | None, steps: int | None, start_seed: int | None
-) -> None:
-    """A replay takes its particles, steps and start from the scenario: refuse flags that would be ignored."""
-    given = [flag for flag, value in (("--particles", particles), ("--steps", steps), ("--start-seed", start_seed))
-             if value is not None]  # fmt: skip
-    if given:
+def fresh_setup(
+    maze: str | None,
+    sigma: float | None,
+    delta: float | None,
+    seed: int | None,
+    start_seed: int | None,
+    particles: int | None,
+    steps: int | None,
+) -> RunSetup:
+    """A fresh lost robot: the maze (default the lab's), its start drawn from the seed (new if none)."""
+    world = load_maze(maze or DEFAULT_MAZE)
+    sigma = DEFAULT_SIGMA if sigma is None else sigma
+    delta = DEFAULT_DELTA if delta is None else delta
+    seed = new_seed() if seed is None else seed
+    if start_seed is not None and start_seed != seed:
+        warnings.warn(f"--start-seed {start_seed} differs from --seed {seed}: repeat with both", stacklevel=1)
+    robot = Robot(sigma, delta, start_place(world, seed if start_seed is None else start_seed))
+    return RunSetup(world, robot, sigma, delta, None, particles, steps, seed)
+
+
+def replay_setup(
+    stored: Scenario, maze: str | None, sigma: float | None, delta: float | None, seed: int | None
+) -> RunSetup:
+    """A saved scenario replayed: its maze (or --maze), walk, measurements, particles and seed (--seed,
+    else the scenario's own, else a new one); --sigma and --delta override the stored values, and a
+    scenario without a maze (the paper's four keys) runs on --maze, or on the one shipped maze its start
+    and particles fit; missing sigma and delta take the defaults, and a line says so."""
+    world = kept = stored.world()
+    if kept is not None and maze is not None and not np.array_equal(load_maze(maze).grid, kept.grid):
         raise UserError(
-            f"{' and '.join(given)} cannot change a replayed scenario (it has {len(stored.init_particles_pos)} "
-            f"particles and {len(stored.robot_actual_angles)} steps); leave {'them' if len(given) > 1 else 'it'} out"
+            f"the scenario's maze differs from {load_maze(maze).source}; leave out --maze to use the stored one"
         )
-
-
-def from_scenario(
-    scenario: Scenario, maze: str | None, sigma: float | None, delta: float | None
-) -> tuple[Maze, Robot, float, float, list]:
-    """World, robot, sigma, delta and particles of a saved scenario; flags override stored values.
-    A scenario without a maze (the paper's four keys) runs on --maze, or on the one shipped maze
-    its start and particles fit; missing sigma and delta take the defaults, and a line says so."""
-    stored = scenario.world()
-    world = stored if stored is not None else load_maze(maze) if maze is not None else fitting_maze(scenario)
-    if stored is not None and maze is not None:
-        given = load_maze(maze)
-        if not np.array_equal(given.grid, stored.grid):
-            raise UserError(f"the scenario's maze differs from {given.source}; leave out --maze to use the stored one")
-    defaults = [f"{name} {value:g}" for name, value, flag, kept in (
-        ("sigma", DEFAULT_SIGMA, sigma, scenario.sigma), ("delta", DEFAULT_DELTA, delta, scenario.delta)
-    ) if flag is None and kept is None]  # fmt: skip
-    if defaults:
-        typer.echo(f"warning: the scenario stores no {' or '.join(d.split()[0] for d in defaults)}: using the "
-                   f"default {', '.join(defaults)} (--sigma/--delta choose)", err=True)  # fmt: skip
-    warn_overrides(scenario, sigma, delta)
-    sigma = sigma if sigma is not None else scenario.sigma if scenario.sigma is not None else DEFAULT_SIGMA
-    delta = delta if delta is not None else scenario.delta if scenario.delta is not None else DEFAULT_DELTA
-    robot = scenario.robot(sigma, delta)
-    if stored is None:  # a maze given or fitted: the scenario's start and walk must lie in its free area
+    world = kept or (load_maze(maze) if maze is not None else fitting_maze(stored))
+    missing = [
+        f"{name} {value:g}"
+        for name, value, flag, kept in (
+            ("sigma", DEFAULT_SIGMA, sigma, stored.sigma),
+            ("delta", DEFAULT_DELTA, delta, stored.delta),
+        )
+        if flag is None and kept is None
+    ]
+    if missing:
+        typer.echo(
+            f"warning: the scenario stores no {' or '.join(d.split()[0] for d in missing)}: using the "
+            f"default {', '.join(missing)} (--sigma/--delta choose)",
+            err=True,
+        )
+    warn_overrides(stored, sigma, delta)
+    sigma = sigma if sigma is not None else stored.sigma if stored.sigma is not None else DEFAULT_SIGMA
+    delta = delta if delta is not None else stored.delta if stored.delta is not None else DEFAULT_DELTA
+    robot = stored.robot(sigma, delta)
+    if kept is None:  # a maze given or fitted: the scenario's start and walk must lie in its free area
         try:
             check_start(world, robot.initial_position, None, robot.kidnap_position)
             check_walk_in_maze(world, robot)
-            check_measurements_within(scenario.robot_measurements, world, sigma)
+            check_measurements_within(stored.robot_measurements, world, sigma)
         except ValueError as error:
             raise UserError(f"{error}; pass the maze the scenario was made on (--maze)") from None
-    return world, robot, sigma, delta, scenario.init_particles_pos
+    seed = seed if seed is not None else stored.seed if stored.seed is not None else new_seed()
+    return RunSetup(world, robot, sigma, delta, stored.init_particles_pos, None, None, seed)
 
 
 def warn_overrides(scenario: Scenario, sigma: float | None, delta: float | None) -> None:
@@ -88,50 +128,6 @@ def warn_overrides(scenario: Scenario, sigma: float | None, delta: float | None)
             )
 
 
-def check_plugin_name(stored: Scenario, filter_name: str, path: Path | None) -> None:
-    """Refuse, in one line, a replay whose plug-in is the file the scenario names but whose stored
-    filtering_algorithm is not that plug-in's name (see Scenario.plugin_name_problem)."""
-    reference = filter_entry(filter_name).plugin
-    if reference is None:
-        return
-    problem = stored.plugin_name_problem(filter_entry(filter_name).name, reference.sha256, reference.class_name)
-    if problem is not None:
-        raise UserError(f"{path or 'the scenario'}: {problem}")
-
-
-def stored_options(stored: Scenario, filter_names: Sequence[str], path: Path) -> dict[str, Any]:
-    """The options the scenario's run set away from their defaults, as the compared filters that
-    declare them read them (a filter's default is not an option set: every filter keeps its own)."""
-    found: dict[str, Any] = {}
-    for name in filter_names:
-        entry = filter_entry(name)
-        try:
-            kept = stored.filter_kwargs(entry.filter_class)
-        except ValueError as error:
-            raise UserError(f"{path}: the scenario's filter_options for {entry.name}: {error}") from None
-        for option, value in kept.items():
-            if value != entry.options[option].default:
-                found.setdefault(option, value)
-    return found
-
-
-def with_stored_options(given: GivenOptions, stored: Mapping[str, Any], path: Path) -> GivenOptions:
-    """The options of a comparison on a saved scenario: those its run set (`stored_options`), each
-    filter that declares one taking it, then those given on the command line over them; one line on
-    stderr names the stored ones used, so that the scenario's own filter scores as its replay does."""
-    used = {name: value for name, value in stored.items() if name not in given}
-    if used:
-        shown = ", ".join(f"{name} {show_value(value)}" for name, value in used.items())
-        typer.echo(
-            f"note: {path.name} was saved by a run with {shown}: each filter that takes "
-            f"{'them' if len(used) > 1 else 'it'} does so here (--option NAME=VALUE to change)",
-            err=True,
-        )
-    merged = GivenOptions({**used, **given})
-    merged.spelled = {**{name: f"--option {name}" for name in used}, **getattr(given, "spelled", {})}
-    return merged
-
-
 def fitting_maze(scenario: Scenario) -> Maze:
     """The shipped maze of a scenario that stores none: the only one whose free area holds its start
     and every particle; with none or several, a one-line refusal asking for --maze."""
@@ -146,13 +142,128 @@ def fitting_maze(scenario: Scenario) -> Maze:
     return load_maze(fitting[0])
 
 
+# -- the filter and options of a replay ------------------------------------------------------------------
+def replay_filter_name(stored: Scenario | None, filter_name: str | None, path: Path | None = None) -> str:
+    """The filter of a run: --filter when given (`filter_name`), else the scenario's own when it is the
+    lab's, else SIR. A scenario made by a plug-in (or a filter this program does not have) names the
+    command that replays it: its code is never imported from the file."""
+    if filter_name is not None:
+        return filter_name
+    if stored is None or stored.filtering_algorithm is None:
+        return "sir"
+    if stored.shipped_filter is not None:
+        return stored.shipped_filter.short_name
+    where = f"{path}" if path is not None else "the scenario"
+    if stored.filter_plugin is not None:
+        plugin = stored.filter_plugin
+        raise UserError(
+            f"{where} was made by the plug-in {plugin.describe()}; a scenario never runs code: name it to replay "
+            f"it, --filter {plugin.spec} (or replay it with another filter, e.g. --filter sir)"
+        )
+    raise UserError(
+        f"{where} was made by {stored.filtering_algorithm!r}, which is not one of the lab's filters; name the filter "
+        f"to replay it with, --filter FILE.py:Class (or e.g. --filter sir)"
+    )
+
+
+def refuse_counts_for_replay(stored: Scenario, **given: Any) -> None:
+    """A replay takes its particles, steps and start from the scenario: refuse flags that would be ignored."""
+    flags = [f"--{name.replace('_', '-')}" for name, value in given.items() if value is not None]
+    if flags:
+        raise UserError(
+            f"{' and '.join(flags)} cannot change a replayed scenario (it has {len(stored.init_particles_pos)} "
+            f"particles and {len(stored.robot_actual_angles)} steps); leave {'them' if len(flags) > 1 else 'it'} out"
+        )
+
+
+def same_filter(stored: Scenario, chosen: FilterEntry) -> bool:
+    """Whether the chosen filter is the one that made the scenario (a plug-in: the same class name)."""
+    if stored.filter_plugin is not None:
+        return chosen.plugin is not None and chosen.plugin.class_name == stored.filter_plugin.class_name
+    return stored.shipped_filter is not None and stored.shipped_filter.filter_class is chosen.filter_class
+
+
+def check_plugin(stored: Scenario, chosen: FilterEntry, path: Path | None) -> None:
+    """The plug-in named to replay a scenario: refused in one line when it is the file the scenario names
+    but not the filter its filtering_algorithm says (an edited file); a line says when its file changed."""
+    plugin = stored.filter_plugin
+    if chosen.plugin is None or plugin is None:
+        return
+    problem = stored.plugin_name_problem(chosen.name, chosen.plugin.sha256, chosen.plugin.class_name)
+    if problem is not None:
+        raise UserError(f"{path or 'the scenario'}: {problem}")
+    if same_filter(stored, chosen) and chosen.plugin.sha256 != plugin.sha256:
+        typer.echo(
+            f"warning: {chosen.plugin.spec} has changed since the scenario was saved (sha256 "
+            f"{chosen.plugin.sha256[:12]}..., saved {plugin.sha256[:12]}...): the replay may differ from the saved run",
+            err=True,
+        )
+
+
+def replay_options(stored: Scenario, filter_name: str, given: Mapping[str, Any], path: Path | None) -> dict[str, Any]:
+    """The options of a replay: the scenario's (those the chosen filter declares), then every option
+    the user gave on the command line (`given`, named flags and --option alike); one line on stderr
+    lists what differs from the stored run."""
+    chosen = filter_entry(filter_name)
+    check_plugin(stored, chosen, path)
+    if stored.filter_options is None:  # an older file: the options given, as before
+        return dict(given)
+    try:
+        kept = stored.filter_kwargs(chosen.filter_class)
+    except ValueError as error:
+        raise UserError(f"the scenario's filter_options for {chosen.name}: {error}") from None
+    changes = (
+        []
+        if stored.filtering_algorithm is None or same_filter(stored, chosen)
+        else [f"filter {stored.filtering_algorithm} -> {chosen.name}"]
+    )
+    for name, value in given.items():
+        before = kept.get(name, chosen.options[name].default if name in chosen.options else None)
+        if before != value:
+            changes.append(f"{name} {show_value(before)} -> {show_value(value)}")
+    if changes:
+        typer.echo(f"note: replaying with {'; '.join(changes)} (the scenario's run used the former)", err=True)
+    return {**kept, **given}
+
+
+def with_stored_options(stored: Scenario, filter_names: Sequence[str], given: GivenOptions, path: Path) -> GivenOptions:
+    """The options of a comparison on a saved scenario: those its run set away from their defaults, each
+    compared filter that declares one taking it (a filter's default is not an option set: every filter
+    keeps its own), then those given on the command line over them; one line on stderr names the stored
+    ones used, so that the scenario's own filter scores as its replay does."""
+    found: dict[str, Any] = {}
+    for name in filter_names:
+        entry = filter_entry(name)
+        try:
+            kept = stored.filter_kwargs(entry.filter_class)
+        except ValueError as error:
+            raise UserError(f"{path}: the scenario's filter_options for {entry.name}: {error}") from None
+        for option, value in kept.items():
+            if value != entry.options[option].default:
+                found.setdefault(option, value)
+    used = {name: value for name, value in found.items() if name not in given}
+    if used:
+        shown = ", ".join(f"{name} {show_value(value)}" for name, value in used.items())
+        typer.echo(
+            f"note: {path.name} was saved by a run with {shown}: each filter that takes "
+            f"{'them' if len(used) > 1 else 'it'} does so here (--option NAME=VALUE to change)",
+            err=True,
+        )
+    merged = GivenOptions({**used, **given})
+    merged.spelled = {**{name: f"--option {name}" for name in used}, **getattr(given, "spelled", {})}
+    return merged
+
+
 __all__ = [
-    "check_plugin_name",
+    "RunSetup",
+    "check_plugin",
     "fitting_maze",
-    "from_scenario",
+    "fresh_setup",
     "refuse_counts_for_replay",
-    "replay_seed",
-    "stored_options",
+    "replay_filter_name",
+    "replay_options",
+    "replay_setup",
+    "same_filter",
     "warn_overrides",
     "with_stored_options",
 ]

@@ -17,8 +17,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from mazelab.constants import RPF_THRESHOLD
-from mazelab.declaration import Option, options_of, show_value
+from mazelab.contract import not_taken, options_for
+from mazelab.declaration import Option, options_of, scoped, show_value
 from mazelab.experiments.kidnapping import recovery_steps, relocalised
 from mazelab.experiments.plugin_code import PluginCode, filters_here
 from mazelab.experiments.runs import filter_labels, final_error, mean_ess, mean_particle_count, run_filters
@@ -114,9 +114,10 @@ class StudySetting:
         return dict(self.options).get(parameter)
 
     def filter_options(self, filter_name: str | type) -> dict[str, Any]:
-        """The options of this setting that the filter declares (its declaration checks them)."""
-        declared = options_of(resolve_filter(filter_name))
-        return {name: value for name, value in self.options if name in declared and _studied(name, declared)}
+        """The options of this setting that the filter takes: those it declares, set for every filter or
+        for it alone (FILTER.NAME; its declaration checks them)."""
+        entry = filter_entry(filter_name)
+        return {name: value for key, value in self.options if (name := reaches(key, entry)) is not None}
 
     def filter_values(self, filter_name: str | type) -> dict[str, Any]:
         """Every option the filter runs with in this setting, by name in declaration order: the setting's
@@ -154,7 +155,7 @@ def is_option_parameter(parameter: str) -> bool:
 
 def takes_parameter(filter_name: str | type, parameter: str) -> bool:
     """Whether a study parameter can change a filter's results: the model's (maze, sigma, delta) always,
-    the particle count unless the filter's entry says it takes none, an option only if it declares it."""
+    the particle count unless the filter's entry says it takes none, an option only if it reaches it."""
     try:
         entry = filter_entry(filter_name)
     except ValueError:  # a filter known only by its name in a record (a student's own): assume it does
@@ -163,24 +164,48 @@ def takes_parameter(filter_name: str | type, parameter: str) -> bool:
         return entry.takes_particles
     if parameter in ("maze", "sigma", "delta"):
         return True
-    return parameter in entry.options and _studied(parameter, entry.options)
+    return reaches(parameter, entry) is not None
 
 
-def check_threshold_reaches(settings: Sequence[StudySetting], filters: Sequence[str]) -> None:
-    """Refuse, in one line, a study threshold other than the RPF's default that none of its filters
-    takes (`_studied`: SIR and the APF resample every step in a study)."""
-    if all(dict(s.options).get("threshold", RPF_THRESHOLD) == RPF_THRESHOLD for s in settings) or any(
-        takes_parameter(f, "threshold") for f in filters
-    ):
-        return
-    names = " and ".join(filter_entry(f).name for f in filters)
-    raise ValueError(f"the study's threshold is the RPF's N_T (lab step 14): {names} resample every step in a study")
+def options_per_filter(
+    filters: Sequence[str | type], given: Mapping[str, Any], spelled: Mapping[str, str] | None = None
+) -> dict[str, dict[str, Any]]:
+    """Per filter (by `name`), the given options (None: not given) that reach it (`reaches`): a plain
+    name every filter that declares it, FILTER.NAME its filter alone.
+
+    Raises
+    ------
+    ValueError
+        One line, the option as `spelled`: an option none of the filters takes (naming what they take),
+        FILTER.NAME of a filter not among them, or one option given both for every filter and for one.
+    """
+    entries_ = [filter_entry(f) for f in filters]
+    spelled = spelled or {}
+    per_filter = options_for([e.filter_class for e in entries_],
+                             {k: v for k, v in given.items() if scoped(k)[0] is None}, spelled=spelled)  # fmt: skip
+    for key, value in given.items():
+        scope, name = scoped(key)
+        if scope is None or value is None:
+            continue
+        target = filter_entry(scope)
+        if target.name not in per_filter:
+            shown = ", ".join(e.short_name for e in entries_)
+            raise ValueError(f"{spelled.get(key, key)}: {scope} is not one of the filters ({shown})")
+        if name not in target.options:
+            raise ValueError(not_taken([target.filter_class], spelled.get(key, key)))
+        if given.get(name) is not None:
+            raise ValueError(f"{name} is given for every filter and for {scope}: give one of them")
+        per_filter[target.name][name] = value
+    return per_filter
 
 
-def _studied(name: str, declared: Any) -> bool:
-    """Whether a study's option reaches a filter that declares it: the paper's RPF threshold (lab step 14)
-    only a filter that resamples adaptively by default, not SIR or the APF (theirs: every step)."""
-    return name != "threshold" or declared["threshold"].default < 1
+def reaches(key: str, entry: Any) -> str | None:
+    """The option a study's `key` sets for a filter's entry (its name), or None: `threshold` reaches every
+    filter that declares it, `rpf.threshold` the RPF alone (mazelab.declaration.scoped)."""
+    scope, name = scoped(key)
+    if name not in entry.options or (scope is not None and filter_entry(scope).name != entry.name):
+        return None
+    return name
 
 
 def study_settings(
@@ -203,17 +228,21 @@ def study_settings(
     return [StudySetting(*values[:4], options=tuple(zip(checked, values[4:], strict=True))) for values in combinations]
 
 
-def _checked(name: str, values: Sequence[Any]) -> list[Any]:
+def _checked(key: str, values: Sequence[Any]) -> list[Any]:
     """The values of a studied option, each checked by the option's declaration (the first filter of
-    the lab's that declares it; a plug-in's own options are checked by its declaration in plan_study)."""
-    option = declared_option(name)
+    the lab's that declares it, or its own filter's for FILTER.NAME; a plug-in's own options are checked
+    by its declaration in plan_study)."""
+    option = declared_option(key)
     checked = [value if option is None else option.validate(value) for value in values]
     return list(dict.fromkeys(checked))
 
 
-def declared_option(name: str) -> Option | None:
-    """The declaration of an option among the lab's filters (None: only a plug-in declares it)."""
-    return next((entry.options[name] for entry in entries() if name in entry.options), None)
+def declared_option(key: str) -> Option | None:
+    """The declaration of a study's option: its filter's for FILTER.NAME, else the first of the lab's
+    filters that declares it (None: only a plug-in declares it)."""
+    scope, name = scoped(key)
+    chosen = [filter_entry(scope)] if scope is not None else entries()
+    return next((entry.options[name] for entry in chosen if name in entry.options), None)
 
 
 def varied_parameters(settings: Sequence[StudySetting]) -> list[str]:
@@ -300,7 +329,6 @@ def study_tasks(
         raise ValueError(f"kidnap_at must be a step from 1 to {steps}, got {kidnap_at}")
     if reference not in (None, REFERENCE):
         raise ValueError(f"reference must be {REFERENCE!r} (the exact grid filter), got {reference!r}")
-    check_threshold_reaches(settings, filters)
     seeds = study_seeds(root_seed, runs)
     chosen = zip(settings, filters_per_setting(settings, filters), strict=True)
     return [
@@ -361,6 +389,32 @@ class RunRecord:
     options: dict[str, Any] = field(default_factory=dict)
     # Not a column: with RunTask.traces, the filter's per-step arrays (mazelab.experiments.traces)
     trace: ClassVar[dict[str, Any] | None] = None
+
+    def to_json(self) -> dict[str, Any]:
+        """The row as a journal keeps it (mazelab.experiments.journal): its fields, its trace's arrays
+        as lists (numbers in full: the CSV and traces written from it are the same bit for bit)."""
+        data = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        if self.trace is not None:
+            data["trace"] = {k: _listed(v) for k, v in self.trace.items()}
+        return data
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any]) -> RunRecord:
+        """A row from its journal form (`to_json`); a TypeError for one that is not."""
+        data = dict(data)
+        trace = data.pop("trace", None)
+        record = cls(**data)
+        if trace is not None:
+            record.trace = {k: {n: np.asarray(a) for n, a in v.items()} if k == "diagnostics" else np.asarray(v)
+                            for k, v in trace.items()}  # fmt: skip
+        return record
+
+
+def _listed(value: Any) -> Any:
+    """A trace's array (or a dict of them) as lists."""
+    if isinstance(value, dict):
+        return {k: _listed(v) for k, v in value.items()}
+    return np.asarray(value).tolist()
 
 
 @dataclass
@@ -559,6 +613,7 @@ class StudyOutcome:
     tasks: int = 0
     lost: str | None = None  # why the study stopped early without a signal (a lost cluster or pool), one line
     workers: dict[str, WorkerReport] = field(default_factory=dict)  # each process's report, start-up summed
+    backend: str = ""  # the one backend the study's runs ran on (mazelab.experiments.executor.study_backend)
 
     def add(self, outcome: list[RunRecord] | RunFailure | WorkerReport) -> None:
         if isinstance(outcome, RunFailure):
@@ -601,6 +656,8 @@ __all__ = [
     "option_cell",
     "option_cells",
     "option_columns",
+    "options_per_filter",
+    "reaches",
     "run_records",
     "run_task",
     "run_task_safely",

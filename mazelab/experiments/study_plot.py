@@ -257,11 +257,13 @@ def plot_study(
     replace: bool = True,
     x: str | None = None,
     y: str = "mean",
+    caption: bool = True,
 ) -> FigureLayout:
     """Draw the study's small multiples to `path` (.png at PNG_DPI, .pdf or .svg) and return their
     layout with each panel's y range and box (an existing file is replaced only with `replace`).
     `x` chooses the x axis among the varied parameters (default: `choose_x`), `y` what is drawn
-    (a key of Y_QUANTITIES)."""
+    (a key of Y_QUANTITIES); the title's second line says how (`caption`), unless `caption` is False
+    (a title of the user's own stands alone)."""
     plt = pyplot()
     import matplotlib
 
@@ -296,7 +298,7 @@ def plot_study(
         for row in axes:
             row[0].set_ylabel(quantity.label)
         _legend(figure, axes.flat[:count], layout.lines)
-        figure.suptitle(f"{title}\n{caption(scale, count, quantity)}")
+        figure.suptitle(f"{title}\n{describe(scale, count, quantity)}" if caption else title)
         save_figure(figure, path, replace=replace, dpi=PNG_DPI)
         boxes = [tuple(float(v) for v in ax.get_position().extents) for ax in axes.flat[:count]]
     return FigureLayout(layout.x, layout.panels, layout.lines, layout.shape, ranges, boxes, references)
@@ -308,7 +310,7 @@ def paired_label(summaries: Sequence[StudySummary]) -> str:
     return f"last-{FINAL_SHARE:.0%} error minus {labels([other])[other]}'s (map units)"
 
 
-def caption(scale: XScale, panels: int, quantity: YQuantity) -> str:
+def describe(scale: XScale, panels: int, quantity: YQuantity) -> str:
     """The title's second line: the intervals, each panel's own y range, where points overlap."""
     notes = [f"{CONFIDENCE_LEVEL:.0%} {quantity.method}"]
     if panels > 1 and not quantity.share:
