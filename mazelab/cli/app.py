@@ -20,9 +20,6 @@ import shlex
 import signal
 import sys
 import warnings
-from collections.abc import Iterator
-from contextlib import contextmanager
-from pathlib import Path
 from typing import Annotated, Any
 
 import typer
@@ -30,46 +27,32 @@ import typer
 from mazelab.atomic import WriteError
 from mazelab.cli.accuracy import accuracy
 from mazelab.cli.exercise import exercise_app
-from mazelab.cli.filter_options import OptionFlag, given_options, options_per_filter, with_option_flags
 from mazelab.cli.filters_help import filters, registry_help
-from mazelab.cli.hints import (
-    check_filter_name,
-    check_filter_names,
-    filter_choices,
-    option_elsewhere,
-    plain_usage_names,
-    refuse_option_as_value,
-    usage_hint,
-)
+from mazelab.cli.hints import option_elsewhere, plain_usage_names, refuse_option_as_value, usage_hint
 from mazelab.cli.maze import maze_app
 from mazelab.cli.notebook import notebook
 from mazelab.cli.options import (
     DEFAULT_DELTA,
     DEFAULT_SIGMA,
     BackendOption,
-    ThreadsOption,
     UserError,
     check_output_path,
-    check_outputs,
-    seed_option,
     visualization,
     warn_in_one_line,
     with_drawing,
 )
-from mazelab.cli.provenance import remember_arguments, repeat_command, show_version
+from mazelab.cli.provenance import remember_arguments, show_version
 from mazelab.cli.recordings import recordings
-from mazelab.cli.reports import kidnap_report, particle_count_report, prepare_world, progress_printer, report_run
+from mazelab.cli.replay import compare, run
+from mazelab.cli.reports import progress_printer, report_run
 from mazelab.cli.study import study
 from mazelab.cli.view import view
-from mazelab.declaration import to_plain_json
 from mazelab.experiments.executor import STOP_SIGNALS
-from mazelab.experiments.runs import parse_filters
 from mazelab.invocation import command_prefix
 from mazelab.maze import MazeError
 from mazelab.mazes import DEFAULT_MAZE, find_maze, load_maze
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
 from mazelab.plugins import StudentCodeError
-from mazelab.registry import resolve_filter
 from mazelab.robot import Robot
 from mazelab.seeding import new_seed, start_place
 from mazelab.stops import exit_without_strays, mark_interrupts
@@ -126,239 +109,8 @@ def demo(
     typer.echo(f"Repeat this run: {command_prefix()} {shlex.join(words)}")
 
 
-@app.command(short_help="One filter on a lost robot, or on a saved scenario.")
-@with_drawing
-@with_option_flags()
-def run(
-    maze: Annotated[
-        str | None, typer.Option(metavar="MAZE", help=f"a maze file or a name in mazes/ [default: {DEFAULT_MAZE}]")
-    ] = None,
-    filter_name: Annotated[
-        str | None, typer.Option("--filter", metavar="NAME", help=f"{filter_choices()} [default: sir]")
-    ] = None,
-    particles: Annotated[
-        int | None, typer.Option(help=f"particle count N_S [default: {DEFAULT_PARTICLE_COUNT}]")
-    ] = None,
-    steps: Annotated[int | None, typer.Option(min=1, help=f"number of steps [default: {DEFAULT_STEPS}]")] = None,
-    sigma: Annotated[float | None, typer.Option(help=f"noise std, lab 0.2-0.8 [default: {DEFAULT_SIGMA}]")] = None,
-    delta: Annotated[
-        float | None, typer.Option(help=f"compass error, rad, lab 0.05-0.6 [default: {DEFAULT_DELTA}]")
-    ] = None,
-    seed: Annotated[
-        int | None, typer.Option(callback=seed_option, help="seed of the whole run (default: new, printed)")
-    ] = None,
-    start_seed: Annotated[
-        int | None, typer.Option(callback=seed_option, hidden=True, help="seed of the start only")
-    ] = None,
-    scenario: Annotated[
-        Path | None, typer.Option(help="replay a saved scenario (.json), or a shipped one by name (paper_5x5)")
-    ] = None,
-    save_scenario_path: Annotated[Path | None, typer.Option("--save-scenario", help="save the run (.json)")] = None,
-    force: Annotated[bool, typer.Option("--force", help="replace existing output files")] = False,
-    quiet: Annotated[bool, typer.Option("--quiet", help="no per-step progress")] = False,
-    kidnap_at: Annotated[int | None, typer.Option(min=1, help="carry the robot elsewhere at this step")] = None,
-    option: OptionFlag = None,
-    backend: BackendOption = None,
-    threads: ThreadsOption = None,
-    named: dict[str, Any] | None = None,
-    drawing: dict[str, Any] | None = None,
-) -> None:
-    """Run one filter on a lost robot, or replay a saved scenario (--scenario) with its filter and
-    options. Every filter option: --option NAME=VALUE (`mazelab filters` lists them)."""
-    from mazelab.lab import simulate  # with drawing: imported by the commands that run one filter
-    from mazelab.scenario import save_scenario
-
-    visualize = visualization(**(drawing or {}), force=force)
-    stored, filter_name, options = run_filter(scenario, filter_name, named or {}, option)
-    for path in (save_scenario_path, (drawing or {}).get("rrd")):
-        if path is not None:
-            check_output_path(path, force)
-    setup, options = run_setup(
-        stored, scenario, filter_name, options, maze, particles, steps, sigma, delta, seed, start_seed
-    )
-    prepare_world(setup.world)
-    progress = None if quiet else progress_printer(setup.steps or setup.robot.recorded_steps or DEFAULT_STEPS)
-    with scenario_not_saved_on_stop(save_scenario_path):
-        result = simulate(
-            *setup.arguments,
-            filter_name,
-            seed=setup.seed,
-            visualize=visualize,
-            on_step=progress,
-            kidnap_at=kidnap_at,
-            **options,
-        )
-    report_run(result)
-    for line in (kidnap_report(result), particle_count_report(result) if options.get("kld") else None):
-        if line:
-            typer.echo(line)
-    if save_scenario_path is not None:
-        typer.echo(f"scenario saved to {save_scenario(result.scenario, save_scenario_path, replace=force)}")
-    repeat = repeat_command(result.seed, REPEAT_DROPS, REPEAT_DROPS_WITH_VALUE, result.extras["backend"])
-    typer.echo(f"Repeat this run: {repeat}")
-
-
-def run_filter(
-    scenario: Path | None, filter_name: str | None, named: dict[str, Any], texts: list[str] | None
-) -> tuple[Any, str, dict[str, Any]]:
-    """`run`'s saved scenario (None: a fresh robot), its filter (the scenario's unless --filter) and the
-    options given, each read and checked by the filter's declaration (a replay's are checked with the
-    scenario's, in `run_setup`)."""
-    from mazelab.cli.replay import replay_filter_name
-    from mazelab.scenario import load_scenario
-
-    stored = load_scenario(scenario) if scenario is not None else None
-    filter_name = check_filter_name(replay_filter_name(stored, filter_name, scenario))
-    given = given_options(named, texts, [filter_name])
-    return (
-        stored,
-        filter_name,
-        options_per_filter([filter_name], given, check=stored is None)[resolve_filter(filter_name).name],
-    )
-
-
-def run_setup(
-    stored: Any,
-    scenario: Path | None,
-    filter_name: str,
-    options: dict[str, Any],
-    maze: str | None,
-    particles: int | None,
-    steps: int | None,
-    sigma: float | None,
-    delta: float | None,
-    seed: int | None,
-    start_seed: int | None,
-) -> tuple[Any, dict[str, Any]]:
-    """`run`'s inputs and options: a fresh lost robot, or a saved scenario with the options it stores
-    unless given (mazelab.cli.replay), checked as the filter will check them."""
-    from mazelab.cli.replay import fresh_setup, refuse_counts_for_replay, replay_options, replay_setup
-
-    if stored is None:
-        return fresh_setup(maze, sigma, delta, seed, start_seed, particles, steps), options
-    refuse_counts_for_replay(stored, particles=particles, steps=steps, start_seed=start_seed)
-    options = replay_options(stored, filter_name, options, scenario)
-    options_per_filter([filter_name], options)  # the replay's options, checked as the filter will
-    return replay_setup(stored, maze, sigma, delta, seed), options
-
-
-# "Repeat this run" repeats the run, not its files: the scenario and recording it wrote would be found
-# taken by the pasted command ("exists; use --force"), and --force would replace them unasked.
-REPEAT_DROPS = ("--resume", "--force")
-REPEAT_DROPS_WITH_VALUE = ("--save-scenario", "--rrd")
-COMPARE_DROPS_WITH_VALUE = ("--csv", "--plot", "--traces", "--rrd")  # compare's files, as run's above
-
-
-@contextmanager
-def scenario_not_saved_on_stop(path: Path | None) -> Iterator[None]:
-    """A run stopped (Ctrl-C; SIGTERM or SIGHUP with a recording, which exit through SystemExit) before
-    its end says that its scenario was not saved."""
-    try:
-        yield
-    except (KeyboardInterrupt, SystemExit):
-        if path is not None:
-            typer.echo(f"the run did not finish: no scenario saved to {path}", err=True)
-        raise
-
-
-@app.command(short_help="Lab steps 12-13: every filter on one saved scenario.")
-@with_drawing
-@with_option_flags()
-def compare(
-    scenario: Annotated[
-        Path, typer.Argument(metavar="SCENARIO", show_default=False, help="a saved scenario (.json) or a shipped name")
-    ],
-    filters: Annotated[str, typer.Option(metavar="NAMES", help=filter_choices(many=True))] = "sir,apf,rpf",
-    maze: Annotated[str | None, typer.Option(metavar="MAZE", help="the maze, if the scenario stores none")] = None,
-    sigma: Annotated[float | None, typer.Option(help="override the scenario's sigma")] = None,
-    delta: Annotated[float | None, typer.Option(help="override the scenario's delta")] = None,
-    seed: Annotated[
-        int | None, typer.Option(callback=seed_option, help="the filters' seed (default: the scenario's)")
-    ] = None,
-    csv_path: Annotated[Path | None, typer.Option("--csv", help="per-step errors, a column per filter")] = None,
-    plot: Annotated[Path | None, typer.Option(help="the lab's error figure (.png; plot extra)")] = None,
-    traces: Annotated[Path | None, typer.Option(help="per-step rows of every filter (.csv, or .parquet)")] = None,
-    force: Annotated[bool, typer.Option("--force", help="replace existing output files")] = False,
-    kidnap_at: Annotated[int | None, typer.Option(min=1, help="carry the robot elsewhere at this step")] = None,
-    option: OptionFlag = None,
-    backend: BackendOption = None,
-    named: dict[str, Any] | None = None,
-    drawing: dict[str, Any] | None = None,
-) -> None:
-    """Lab steps 12-13: every filter on one saved scenario (the same start, particles, walk). Each
-    filter takes the options it declares (--option NAME=VALUE; `mazelab filters` lists them), and
-    those the scenario's run set away from their defaults unless given here (a line names them).
-
-    A kidnapping (stored, or --kidnap-at) adds whether each filter re-localised (mean error below 0.5
-    over the last 30 steps) and the steps it took."""
-    visualize = visualization(**(drawing or {}), force=force)
-    check_filter_names(filters)
-    outputs = {"csv_path": csv_path, "plot": plot, "traces": traces, "force": force, "rrd": (drawing or {}).get("rrd")}
-    compare_scenario(scenario, filters, maze, sigma, delta, seed, kidnap_at, named or {}, option, visualize, outputs)
-
-
-def compare_scenario(
-    scenario: Path,
-    filters: str,
-    maze: str | None,
-    sigma: float | None,
-    delta: float | None,
-    seed: int | None,
-    kidnap_at: int | None,
-    named: dict[str, Any],
-    texts: list[str] | None,
-    visualize: Any,
-    outputs: dict[str, Any],
-) -> None:
-    """compare's work: its outputs checked, the scenario replayed by every filter, the table, files and record."""
-    from mazelab.cli.replay import replay_setup, with_stored_options  # scenarios: run and compare only
-    from mazelab.cli.reports import compare_record_file, finish_compare, report_compare, start_compare_record
-    from mazelab.experiments.compare import compare_filters
-    from mazelab.scenario import find_scenario, load_scenario
-
-    csv_path, plot, traces, force, rrd = outputs.values()
-    record_file = compare_record_file(csv_path, plot, traces, force, rrd)  # a JSON record beside the outputs
-    check_outputs(csv_path, plot, force, rrd)
-    scenario = find_scenario(scenario)  # a shipped one by its name: its file's name in the table's title
-    stored = load_scenario(scenario)
-    setup = replay_setup(stored, maze, sigma, delta, seed)
-    names = parse_filters(filters)
-    given = with_stored_options(stored, names, given_options(named, texts, names), scenario)
-    options_per_filter(names, given)  # an option that none of the filters takes, or a bad value: one line, first
-    parameters = {
-        "filters": [resolve_filter(n).name for n in names],
-        "sigma": setup.sigma,
-        "delta": setup.delta,
-        "seed": setup.seed,
-        "kidnap_at": kidnap_at,
-        "options": {k: to_plain_json(v) for k, v in given.items()},
-    }
-    recorder = start_compare_record(scenario, parameters)
-    prepare_world(setup.world)
-    count = len(setup.initial_particles)
-    typer.echo(
-        f"{scenario.name}: {count} particles, {setup.robot.recorded_steps} steps, sigma {setup.sigma:g}, "
-        f"delta {setup.delta:g}, seed {setup.seed}"
-    )
-    results = compare_filters(
-        setup.world,
-        setup.robot,
-        setup.sigma,
-        setup.delta,
-        setup.initial_particles,
-        names,
-        seed=setup.seed,
-        visualize=visualize,
-        kidnap_at=kidnap_at,
-        **given,
-    )
-    title = f"Localisation error: {scenario.name} (sigma {setup.sigma:g}, delta {setup.delta:g}, {count} particles)"
-    report_compare(results, kld=bool(given.get("kld")), csv_path=csv_path, plot=plot, title=title, force=force)
-    finish_compare(results, setup.seed, traces, recorder, record_file, maze=setup.world.source)
-    backend = next(iter(results.values())).extras["backend"]
-    typer.echo(f"Repeat this comparison: {repeat_command(setup.seed, REPEAT_DROPS, COMPARE_DROPS_WITH_VALUE, backend)}")
-
-
+app.command(short_help="One filter on a lost robot, or on a saved scenario.")(run)
+app.command(short_help="Lab steps 12-13: every filter on one saved scenario.")(compare)
 app.command(short_help="Lab step 14: a Monte Carlo parameter study.")(study)
 app.command(short_help="The filters, and every option each declares.")(filters)
 app.command(short_help="Every filter against the exact grid posterior.")(accuracy)

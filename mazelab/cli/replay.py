@@ -1,34 +1,190 @@
-"""What `run` and `compare` start from: a fresh lost robot (a maze, sigma, delta and a seed) or a saved
-scenario replayed (`RunSetup`). A replay takes the scenario's maze, walk, measurements, particles and
-seed (flags override sigma, delta and the seed; a file with only the paper's four keys runs on the one
-shipped maze it fits), and its filter and options, so that it repeats the run that made it bit for bit,
-unless the user names another filter or option; then one line says what was overridden.
+"""`run` and `compare`: one filter on a lost robot or on a saved scenario, and every filter on one saved
+scenario (lab steps 9-13).
 
-A scenario never imports code: a plug-in's saved run replays only when the user names the plug-in
-(`--filter file.py:Class`); its file's sha256 is checked against the stored one (a changed file is said
-in one line), and `--filter sir` replays the same scenario with SIR."""
+A run starts from a fresh lost robot (a maze, sigma, delta and a seed) or a saved scenario replayed
+(`RunSetup`): its maze, walk, measurements, particles and seed (flags override sigma, delta and the
+seed; a file with only the paper's four keys runs on the one shipped maze it fits), and its filter and
+options, so that it repeats the run that made it bit for bit, unless the user names another filter or
+option; then one line says what was overridden. A scenario never imports code: a plug-in's saved run
+replays only when the user names the plug-in (`--filter file.py:Class`), its file's sha256 checked
+against the stored one (a changed file is said in one line); `--filter sir` replays it with SIR."""
 
 from __future__ import annotations
 
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
 import typer
 
-from mazelab.cli.filter_options import GivenOptions
-from mazelab.cli.options import DEFAULT_DELTA, DEFAULT_SIGMA, UserError
-from mazelab.declaration import show_value
+from mazelab.cli.filter_options import GivenOptions, OptionFlag, given_options, options_per_filter, with_option_flags
+from mazelab.cli.hints import check_filter_name, check_filter_names, filter_choices
+from mazelab.cli.options import (
+    DEFAULT_DELTA,
+    DEFAULT_SIGMA,
+    BackendOption,
+    ThreadsOption,
+    UserError,
+    check_output_path,
+    check_outputs,
+    seed_option,
+    visualization,
+    with_drawing,
+)
+from mazelab.cli.provenance import repeat_command
+from mazelab.cli.reports import (
+    compare_record_file,
+    finish_compare,
+    kidnap_report,
+    particle_count_report,
+    prepare_world,
+    progress_printer,
+    report_compare,
+    report_run,
+    start_compare_record,
+)
+from mazelab.declaration import show_value, to_plain_json
 from mazelab.maze import Maze
 from mazelab.mazes import DEFAULT_MAZE, load_maze, mazes_fitting
-from mazelab.registry import FilterEntry, filter_entry
+from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
+from mazelab.registry import FilterEntry, filter_entry, resolve_filter
 from mazelab.robot import Robot
-from mazelab.scenario import Scenario, check_measurements_within
+from mazelab.scenario import Scenario, check_measurements_within, find_scenario, load_scenario, save_scenario
 from mazelab.seeding import new_seed, start_place
 from mazelab.simulation import check_start, check_walk_in_maze
+
+# "Repeat this run" repeats the run, not its files: the scenario and recording it wrote would be found
+# taken by the pasted command ("exists; use --force"), and --force would replace them unasked.
+REPEAT_DROPS = ("--resume", "--force")
+RUN_FILES = ("--save-scenario", "--rrd")
+COMPARE_FILES = ("--csv", "--plot", "--traces", "--rrd")
+
+Maze_ = Annotated[
+    str | None,
+    typer.Option("--maze", metavar="MAZE", help=f"a maze file or a name in mazes/ [default: {DEFAULT_MAZE}]"),
+]
+Filter = Annotated[str | None, typer.Option("--filter", metavar="NAME", help=f"{filter_choices()} [default: sir]")]
+Particles = Annotated[int | None, typer.Option(help=f"particle count N_S [default: {DEFAULT_PARTICLE_COUNT}]")]
+Steps = Annotated[int | None, typer.Option(min=1, help=f"number of steps [default: {DEFAULT_STEPS}]")]
+Sigma = Annotated[float | None, typer.Option(help=f"noise std, lab 0.2-0.8 [default: {DEFAULT_SIGMA}]")]
+Delta = Annotated[float | None, typer.Option(help=f"compass error, rad, lab 0.05-0.6 [default: {DEFAULT_DELTA}]")]
+Seed = Annotated[int | None, typer.Option(callback=seed_option, help="seed of the whole run (default: new, printed)")]
+StartSeed = Annotated[int | None, typer.Option(callback=seed_option, hidden=True, help="seed of the start only")]
+ScenarioFile = Annotated[Path | None, typer.Option(help="replay a saved scenario (.json), or a shipped one by name")]
+SaveScenario = Annotated[Path | None, typer.Option("--save-scenario", help="save the run (.json)")]
+Force = Annotated[bool, typer.Option("--force", help="replace existing output files")]
+Quiet = Annotated[bool, typer.Option("--quiet", help="no per-step progress")]
+KidnapAt = Annotated[int | None, typer.Option(min=1, help="carry the robot elsewhere at this step")]
+SavedScenario = Annotated[Path, typer.Argument(metavar="SCENARIO", show_default=False,
+                                               help="a saved scenario (.json) or a shipped name")]  # fmt: skip
+Filters = Annotated[str, typer.Option(metavar="NAMES", help=filter_choices(many=True))]
+StoredMaze = Annotated[str | None, typer.Option(metavar="MAZE", help="the maze, if the scenario stores none")]
+NewSigma = Annotated[float | None, typer.Option("--sigma", help="override the scenario's sigma")]
+NewDelta = Annotated[float | None, typer.Option("--delta", help="override the scenario's delta")]
+ReplaySeed = Annotated[
+    int | None, typer.Option("--seed", callback=seed_option, help="the filters' seed (default: the scenario's)")
+]
+ErrorsCsv = Annotated[Path | None, typer.Option("--csv", help="per-step errors, a column per filter")]
+Plot = Annotated[Path | None, typer.Option(help="the lab's error figure (.png; plot extra)")]
+Traces = Annotated[Path | None, typer.Option(help="per-step rows of every filter (.csv, or .parquet)")]
+
+
+@with_drawing
+@with_option_flags()
+def run(maze: Maze_ = None, filter_name: Filter = None, particles: Particles = None, steps: Steps = None,
+        sigma: Sigma = None, delta: Delta = None, seed: Seed = None, start_seed: StartSeed = None,
+        scenario: ScenarioFile = None, save_scenario_path: SaveScenario = None, force: Force = False,
+        quiet: Quiet = False, kidnap_at: KidnapAt = None, option: OptionFlag = None, backend: BackendOption = None,
+        threads: ThreadsOption = None, named: dict | None = None, drawing: dict | None = None) -> None:  # fmt: skip
+    """Run one filter on a lost robot, or replay a saved scenario (--scenario) with its filter and
+    options. Every filter option: --option NAME=VALUE (`mazelab filters` lists them)."""
+    from mazelab.lab import simulate  # with drawing: imported by the commands that run one filter
+
+    visualize = visualization(**(drawing or {}), force=force)
+    stored = load_scenario(scenario) if scenario is not None else None
+    filter_name = check_filter_name(replay_filter_name(stored, filter_name, scenario))
+    options = options_per_filter([filter_name], given_options(named or {}, option, [filter_name]),
+                                 check=stored is None)[resolve_filter(filter_name).name]  # fmt: skip
+    for path in (save_scenario_path, (drawing or {}).get("rrd")):
+        if path is not None:
+            check_output_path(path, force)
+    if stored is None:
+        setup = fresh_setup(maze, sigma, delta, seed, start_seed, particles, steps)
+    else:
+        refuse_counts_for_replay(stored, particles=particles, steps=steps, start_seed=start_seed)
+        options = replay_options(stored, filter_name, options, scenario)
+        options_per_filter([filter_name], options)  # the replay's options, checked as the filter will
+        setup = replay_setup(stored, maze, sigma, delta, seed)
+    prepare_world(setup.world)
+    progress = None if quiet else progress_printer(setup.steps or setup.robot.recorded_steps or DEFAULT_STEPS)
+    with scenario_not_saved_on_stop(save_scenario_path):
+        result = simulate(*setup.arguments, filter_name, seed=setup.seed, visualize=visualize, on_step=progress,
+                          kidnap_at=kidnap_at, **options)  # fmt: skip
+    report_run(result)
+    for line in (kidnap_report(result), particle_count_report(result) if options.get("kld") else None):
+        if line:
+            typer.echo(line)
+    if save_scenario_path is not None:
+        typer.echo(f"scenario saved to {save_scenario(result.scenario, save_scenario_path, replace=force)}")
+    typer.echo(f"Repeat this run: {repeat_command(result.seed, REPEAT_DROPS, RUN_FILES, result.extras['backend'])}")
+
+
+@contextmanager
+def scenario_not_saved_on_stop(path: Path | None) -> Iterator[None]:
+    """A run stopped (Ctrl-C; SIGTERM or SIGHUP with a recording, which exit through SystemExit) before
+    its end says that its scenario was not saved."""
+    try:
+        yield
+    except (KeyboardInterrupt, SystemExit):
+        if path is not None:
+            typer.echo(f"the run did not finish: no scenario saved to {path}", err=True)
+        raise
+
+
+@with_drawing
+@with_option_flags()
+def compare(scenario: SavedScenario, filters: Filters = "sir,apf,rpf", maze: StoredMaze = None, sigma: NewSigma = None,
+            delta: NewDelta = None, seed: ReplaySeed = None, csv_path: ErrorsCsv = None, plot: Plot = None,
+            traces: Traces = None, force: Force = False, kidnap_at: KidnapAt = None, option: OptionFlag = None,
+            backend: BackendOption = None, named: dict | None = None, drawing: dict | None = None) -> None:  # fmt: skip
+    """Lab steps 12-13: every filter on one saved scenario (the same start, particles, walk). Each
+    filter takes the options it declares (--option NAME=VALUE; `mazelab filters` lists them), and
+    those the scenario's run set away from their defaults unless given here (a line names them).
+
+    A kidnapping (stored, or --kidnap-at) adds whether each filter re-localised (mean error below 0.5
+    over the last 30 steps) and the steps it took."""
+    from mazelab.experiments.compare import compare_filters
+    from mazelab.experiments.runs import parse_filters
+
+    visualize = visualization(**(drawing or {}), force=force)
+    check_filter_names(filters)
+    rrd = (drawing or {}).get("rrd")
+    record_file = compare_record_file(csv_path, plot, traces, force, rrd)  # a JSON record beside the outputs
+    check_outputs(csv_path, plot, force, rrd)
+    scenario = find_scenario(scenario)  # a shipped one by its name: its file's name in the table's title
+    stored = load_scenario(scenario)
+    setup, names = replay_setup(stored, maze, sigma, delta, seed), parse_filters(filters)
+    given = with_stored_options(stored, names, given_options(named or {}, option, names), scenario)
+    options_per_filter(names, given)  # an option that none of the filters takes, or a bad value: one line, first
+    options = {k: to_plain_json(v) for k, v in given.items()}
+    recorder = start_compare_record(scenario, {"filters": [resolve_filter(n).name for n in names], "sigma": setup.sigma,
+                                               "delta": setup.delta, "seed": setup.seed, "kidnap_at": kidnap_at,
+                                               "options": options})  # fmt: skip
+    prepare_world(setup.world)
+    shown = f"sigma {setup.sigma:g}, delta {setup.delta:g}"
+    count = len(setup.initial_particles)
+    typer.echo(f"{scenario.name}: {count} particles, {setup.robot.recorded_steps} steps, {shown}, seed {setup.seed}")
+    results = compare_filters(setup.world, setup.robot, setup.sigma, setup.delta, setup.initial_particles, names,
+                              seed=setup.seed, visualize=visualize, kidnap_at=kidnap_at, **given)  # fmt: skip
+    title = f"Localisation error: {scenario.name} ({shown}, {count} particles)"
+    report_compare(results, kld=bool(given.get("kld")), csv_path=csv_path, plot=plot, title=title, force=force)
+    finish_compare(results, setup.seed, traces, recorder, record_file, maze=setup.world.source)
+    backend = next(iter(results.values())).extras["backend"]
+    typer.echo(f"Repeat this comparison: {repeat_command(setup.seed, REPEAT_DROPS, COMPARE_FILES, backend)}")
 
 
 @dataclass
@@ -48,18 +204,11 @@ class RunSetup:
     @property
     def arguments(self) -> tuple[Any, ...]:
         """simulate's positional arguments (mazelab.lab.simulate)."""
-        return (self.robot, self.world, self.sigma, self.delta, self.particle_count, self.steps, self.initial_particles)
+        return self.robot, self.world, self.sigma, self.delta, self.particle_count, self.steps, self.initial_particles
 
 
-def fresh_setup(
-    maze: str | None,
-    sigma: float | None,
-    delta: float | None,
-    seed: int | None,
-    start_seed: int | None,
-    particles: int | None,
-    steps: int | None,
-) -> RunSetup:
+def fresh_setup(maze: str | None, sigma: float | None, delta: float | None, seed: int | None,
+                start_seed: int | None, particles: int | None, steps: int | None) -> RunSetup:  # fmt: skip
     """A fresh lost robot: the maze (default the lab's), its start drawn from the seed (new if none)."""
     world = load_maze(maze or DEFAULT_MAZE)
     sigma = DEFAULT_SIGMA if sigma is None else sigma
@@ -71,33 +220,22 @@ def fresh_setup(
     return RunSetup(world, robot, sigma, delta, None, particles, steps, seed)
 
 
-def replay_setup(
-    stored: Scenario, maze: str | None, sigma: float | None, delta: float | None, seed: int | None
-) -> RunSetup:
+def replay_setup(stored: Scenario, maze: str | None, sigma: float | None, delta: float | None,
+                 seed: int | None) -> RunSetup:  # fmt: skip
     """A saved scenario replayed: its maze (or --maze), walk, measurements, particles and seed (--seed,
     else the scenario's own, else a new one); --sigma and --delta override the stored values, and a
     scenario without a maze (the paper's four keys) runs on --maze, or on the one shipped maze its start
     and particles fit; missing sigma and delta take the defaults, and a line says so."""
-    world = kept = stored.world()
+    kept = stored.world()
     if kept is not None and maze is not None and not np.array_equal(load_maze(maze).grid, kept.grid):
-        raise UserError(
-            f"the scenario's maze differs from {load_maze(maze).source}; leave out --maze to use the stored one"
-        )
+        raise UserError(f"the scenario's maze differs from {load_maze(maze).source}; leave out --maze to use the "
+                        "stored one")  # fmt: skip
     world = kept or (load_maze(maze) if maze is not None else fitting_maze(stored))
-    missing = [
-        f"{name} {value:g}"
-        for name, value, flag, kept in (
-            ("sigma", DEFAULT_SIGMA, sigma, stored.sigma),
-            ("delta", DEFAULT_DELTA, delta, stored.delta),
-        )
-        if flag is None and kept is None
-    ]
+    missing = [(name, value) for name, value, flag, had in (("sigma", DEFAULT_SIGMA, sigma, stored.sigma),
+               ("delta", DEFAULT_DELTA, delta, stored.delta)) if flag is None and had is None]  # fmt: skip
     if missing:
-        typer.echo(
-            f"warning: the scenario stores no {' or '.join(d.split()[0] for d in missing)}: using the "
-            f"default {', '.join(missing)} (--sigma/--delta choose)",
-            err=True,
-        )
+        typer.echo(f"warning: the scenario stores no {' or '.join(n for n, _ in missing)}: using the default "
+                   f"{', '.join(f'{n} {v:g}' for n, v in missing)} (--sigma/--delta choose)", err=True)  # fmt: skip
     warn_overrides(stored, sigma, delta)
     sigma = sigma if sigma is not None else stored.sigma if stored.sigma is not None else DEFAULT_SIGMA
     delta = delta if delta is not None else stored.delta if stored.delta is not None else DEFAULT_DELTA
@@ -121,11 +259,8 @@ def warn_overrides(scenario: Scenario, sigma: float | None, delta: float | None)
     for name, given, stored in (("sigma", sigma, scenario.sigma), ("delta", delta, scenario.delta)):
         replayed = name == "delta" or scenario.robot_measurements is not None  # else z is drawn with --sigma
         if given is not None and stored is not None and given != stored and replayed:
-            typer.echo(
-                f"warning: --{name} {given:g} overrides the scenario's {name} {stored:g}: the filters assume "
-                f"{given:g}, the replayed {made_with[name]} were made with {stored:g}",
-                err=True,
-            )
+            typer.echo(f"warning: --{name} {given:g} overrides the scenario's {name} {stored:g}: the filters assume "
+                       f"{given:g}, the replayed {made_with[name]} were made with {stored:g}", err=True)  # fmt: skip
 
 
 def fitting_maze(scenario: Scenario) -> Maze:
@@ -134,10 +269,8 @@ def fitting_maze(scenario: Scenario) -> Maze:
     fitting = mazes_fitting(scenario.init_robot_pos, np.asarray(scenario.init_particles_pos))
     if len(fitting) != 1:
         which = "no shipped maze fits" if not fitting else f"several shipped mazes fit ({', '.join(fitting)})"
-        raise UserError(
-            f"the scenario stores no maze and {which} its start and particles: "
-            "pass --maze (and --sigma/--delta if they differ from the defaults)"
-        )
+        raise UserError(f"the scenario stores no maze and {which} its start and particles: pass --maze (and "
+                        "--sigma/--delta if they differ from the defaults)")  # fmt: skip
     typer.echo(f"warning: the scenario stores no maze: using {fitting[0]}, the one shipped maze it fits", err=True)
     return load_maze(fitting[0])
 
@@ -157,12 +290,12 @@ def replay_filter_name(stored: Scenario | None, filter_name: str | None, path: P
     if stored.filter_plugin is not None:
         plugin = stored.filter_plugin
         raise UserError(
-            f"{where} was made by the plug-in {plugin.describe()}; a scenario never runs code: name it to replay "
-            f"it, --filter {plugin.spec} (or replay it with another filter, e.g. --filter sir)"
+            f"{where} was made by the plug-in {plugin.describe()}; a scenario never runs code: name it "
+            f"to replay it, --filter {plugin.spec} (or replay it with another filter, e.g. --filter sir)"
         )
     raise UserError(
-        f"{where} was made by {stored.filtering_algorithm!r}, which is not one of the lab's filters; name the filter "
-        f"to replay it with, --filter FILE.py:Class (or e.g. --filter sir)"
+        f"{where} was made by {stored.filtering_algorithm!r}, which is not one of the lab's filters; "
+        f"name the filter to replay it with, --filter FILE.py:Class (or e.g. --filter sir)"
     )
 
 
@@ -193,11 +326,9 @@ def check_plugin(stored: Scenario, chosen: FilterEntry, path: Path | None) -> No
     if problem is not None:
         raise UserError(f"{path or 'the scenario'}: {problem}")
     if same_filter(stored, chosen) and chosen.plugin.sha256 != plugin.sha256:
-        typer.echo(
-            f"warning: {chosen.plugin.spec} has changed since the scenario was saved (sha256 "
-            f"{chosen.plugin.sha256[:12]}..., saved {plugin.sha256[:12]}...): the replay may differ from the saved run",
-            err=True,
-        )
+        typer.echo(f"warning: {chosen.plugin.spec} has changed since the scenario was saved (sha256 "
+                   f"{chosen.plugin.sha256[:12]}..., saved {plugin.sha256[:12]}...): the replay may differ from the "
+                   "saved run", err=True)  # fmt: skip
 
 
 def replay_options(stored: Scenario, filter_name: str, given: Mapping[str, Any], path: Path | None) -> dict[str, Any]:
@@ -212,11 +343,8 @@ def replay_options(stored: Scenario, filter_name: str, given: Mapping[str, Any],
         kept = stored.filter_kwargs(chosen.filter_class)
     except ValueError as error:
         raise UserError(f"the scenario's filter_options for {chosen.name}: {error}") from None
-    changes = (
-        []
-        if stored.filtering_algorithm is None or same_filter(stored, chosen)
-        else [f"filter {stored.filtering_algorithm} -> {chosen.name}"]
-    )
+    changes = [] if stored.filtering_algorithm is None or same_filter(stored, chosen) else [
+        f"filter {stored.filtering_algorithm} -> {chosen.name}"]  # fmt: skip
     for name, value in given.items():
         before = kept.get(name, chosen.options[name].default if name in chosen.options else None)
         if before != value:
@@ -254,16 +382,4 @@ def with_stored_options(stored: Scenario, filter_names: Sequence[str], given: Gi
     return merged
 
 
-__all__ = [
-    "RunSetup",
-    "check_plugin",
-    "fitting_maze",
-    "fresh_setup",
-    "refuse_counts_for_replay",
-    "replay_filter_name",
-    "replay_options",
-    "replay_setup",
-    "same_filter",
-    "warn_overrides",
-    "with_stored_options",
-]
+__all__ = ["RunSetup", "compare", "fresh_setup", "replay_filter_name", "replay_options", "replay_setup", "run"]

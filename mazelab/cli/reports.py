@@ -19,9 +19,11 @@ from mazelab.experiments.compare import comparison_table, errors_csv, plot_error
 from mazelab.experiments.kidnapping import recovery_steps
 from mazelab.experiments.record import Recorder, file_sha256, record_path
 from mazelab.experiments.runs import FINAL_SHARE, final_error, mean_ess
+from mazelab.experiments.study import final_log_evidence
 from mazelab.experiments.traces import check_trace_path, compare_traces, write_traces
 from mazelab.experiments.warmup import take_startup_seconds
 from mazelab.maze import Maze
+from mazelab.registry import evidence_caveat
 from mazelab.robot import Robot
 from mazelab.simulation import RunResult
 
@@ -172,7 +174,10 @@ def finish_compare(
                 "final_error": final_error(result.errors),
                 "converged_at": result.converged_at,
                 "mean_ess": mean_ess(result),
+                "log_evidence": final_log_evidence(result),
+                "log_evidence_caveat": evidence_caveat(name),
                 "ms_per_step": 1e3 * float(result.step_seconds.mean()),
+                "backend": result.extras.get("backend"),
             }
             for name, result in results.items()
         ]

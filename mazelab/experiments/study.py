@@ -26,7 +26,7 @@ from mazelab.experiments.warmup import WorkerReport
 from mazelab.maze import STATION_WALL, Maze
 from mazelab.maze_generator import DEFAULT_WALL_SHARE, generate_maze
 from mazelab.model import check_model_parameters
-from mazelab.registry import entries, filter_entry, labels, resolve_filter
+from mazelab.registry import entries, evidence_caveat, filter_entry, labels, resolve_filter
 from mazelab.robot import Robot
 from mazelab.seeding import start_place, study_seeds
 from mazelab.simulation import RunResult, convergence_step
@@ -382,6 +382,8 @@ class RunRecord:
     run_seconds: float = math.nan  # wall time of the run: its share of the unit of runs it ran in
     # with a reference (`study --reference grid`): accuracy.distance_to_exact of the filter's estimates
     distance_to_exact: float = math.nan
+    log_evidence: float = math.nan  # log p(z_1:K) of the whole walk as the filter estimates it; NaN: it keeps none
+    log_evidence_caveat: str = ""  # why that is not an estimate of p(z_1:K) under the model (the registry's)
     label: str = ""  # the filter's label in the registry (what the figure and table show: SIR, APF, ...)
     backend: str = ""  # the backend the filter ran on, as the process that ran it says (mazelab.backend)
     # every option the filter ran with (`StudySetting.filter_values`) as cells (`option_cell`), by name:
@@ -434,11 +436,11 @@ def run_task(task: RunTask, visualize: Any = False) -> list[RunRecord]:
     """One run of a study: one scenario, every filter on it; a record per filter."""
     s = task.setting
     world = s.maze.world(task.maze_seed)
-    robot = Robot(s.sigma, s.delta, start_place(world, task.seed))
     comparison = open_comparison(visualize, world, filter_labels(task.filters)) if visualize else None
     try:
         with warnings.catch_warnings():  # the range warnings were shown once, by study_settings
             warnings.simplefilter("ignore", UserWarning)
+            robot = Robot(s.sigma, s.delta, start_place(world, task.seed))
             results = run_filters(
                 world,
                 robot,
@@ -541,6 +543,8 @@ def run_records(task: RunTask, world: Maze, results: dict[str, RunResult]) -> li
             int(world.grid.shape[0]),
             int(world.grid.shape[1]),
             s.maze.wall_share,
+            log_evidence=final_log_evidence(result),
+            log_evidence_caveat=evidence_caveat(name),
             label=labels([name])[name],
             backend=result.extras.get("backend", "numpy"),
             options=option_cells(s, name),
@@ -573,7 +577,7 @@ def option_cell(value: Any) -> Any:
 
 def trace_of(result: RunResult) -> dict[str, Any]:
     """A run's per-step arrays: true position, estimate, ESS, confidence, step time, particle count,
-    and the filter's own diagnostics by name (mazelab.collect: the RPF's `regularised`, recovery's
+    log evidence so far, and the filter's own diagnostics by name (mazelab.collect: the RPF's `regularised`, recovery's
     `injection_probability`)."""
     return {
         "true": result.true_positions,
@@ -582,8 +586,14 @@ def trace_of(result: RunResult) -> dict[str, Any]:
         "confident": result.confident,
         "step_seconds": result.step_seconds,
         "particle_count": result.extras.get("particle_count", np.full(len(result.ess), -1)),
+        "log_evidence": np.full(len(result.ess), np.nan) if result.log_evidence is None else result.log_evidence,
         "diagnostics": result.extras.get("diagnostics", {}),
     }
+
+
+def final_log_evidence(result: RunResult) -> float:
+    """log p(z_1:K) after the last step as the filter estimates it (NaN when it keeps none)."""
+    return math.nan if result.log_evidence is None else float(result.log_evidence[-1])
 
 
 def kidnap_figures(result: RunResult) -> tuple[bool | None, int | None]:
@@ -651,6 +661,7 @@ __all__ = [
     "exact_means",
     "file_mazes",
     "filters_per_setting",
+    "final_log_evidence",
     "is_option_parameter",
     "kidnap_figures",
     "option_cell",

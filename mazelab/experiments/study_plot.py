@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from mazelab.experiments.compare import LINE_STYLES, MARKERS
 from mazelab.experiments.runs import FINAL_SHARE
 from mazelab.experiments.stats import CONFIDENCE_LEVEL
 from mazelab.experiments.study import MODEL_PARAMETERS, declared_option, is_option_parameter, takes_parameter
@@ -49,8 +50,7 @@ PNG_DPI = 300
 CAPTION_WIDTH = 110  # characters per line of the title's caption (the figure's width at FONT_POINTS)
 MAX_COLUMNS = 3  # panels per row
 DODGE = 0.3  # on a categorical axis, the lines of a panel spread over this share of a category's width
-MARKERS = ("o", "s", "^", "D", "v", "P", "X")  # each line of the figure a marker ...
-LINE_STYLES = ("-", "--", ":", "-.")  # ... and a line style of its own: apart in grey print too
+NUMERIC_DODGE = 0.12  # on a numeric one over this share of the smallest spacing of the x values (bars apart)
 
 
 @dataclass(frozen=True)
@@ -64,6 +64,7 @@ class YQuantity:
     method: str
     share: bool = False  # a share: drawn in percent, from 0% to 100%
     signed: bool = False  # a difference: may be below 0 (a line at 0 drawn)
+    from_zero: bool = True  # its axis starts at 0 (or below, for a difference); else it spans the values
 
 
 Y_QUANTITIES = {
@@ -78,6 +79,10 @@ Y_QUANTITIES = {
     "paired": YQuantity(f"paired difference in last-{FINAL_SHARE:.0%} error (map units)",
                         lambda s: s.mean_difference, lambda s: s.difference_interval,
                         "paired BCa bootstrap intervals for the mean difference", signed=True),
+    "evidence": YQuantity("mean log evidence log p(z_1:K)", lambda s: s.mean_log_evidence,
+                          lambda s: (s.mean_log_evidence - 1.96 * s.log_evidence_se,
+                                     s.mean_log_evidence + 1.96 * s.log_evidence_se),
+                          "intervals of the mean, 1.96 standard errors", from_zero=False),
 }  # fmt: skip
 Y_LABEL = Y_QUANTITIES["mean"].label  # a map unit is a maze cell's side
 
@@ -297,8 +302,12 @@ def plot_study(
             axes[k // columns][k % columns].set_visible(False)
         for row in axes:
             row[0].set_ylabel(quantity.label)
-        _legend(figure, axes.flat[:count], layout.lines)
-        figure.suptitle(f"{title}\n{describe(scale, count, quantity)}" if caption else title)
+        caveats = {line_label(s, []): s.log_evidence_caveat for s in summaries if s.log_evidence_caveat}
+        caveats = caveats if y == "evidence" else {}
+        _legend(figure, axes.flat[:count], layout.lines, set(caveats))
+        marks = [line for label, why in caveats.items()
+                 for line in textwrap.wrap(f"* {label}: its log evidence is {why}", CAPTION_WIDTH)]  # fmt: skip
+        figure.suptitle("\n".join([title, *([describe(scale, count, quantity)] if caption else []), *marks]))
         save_figure(figure, path, replace=replace, dpi=PNG_DPI)
         boxes = [tuple(float(v) for v in ax.get_position().extents) for ax in axes.flat[:count]]
     return FigureLayout(layout.x, layout.panels, layout.lines, layout.shape, ranges, boxes, references)
@@ -318,7 +327,8 @@ def describe(scale: XScale, panels: int, quantity: YQuantity) -> str:
     if scale.kind == "category":
         notes.append("lines set side by side within a category")
     else:
-        notes.append("points at one x drawn there, told apart by marker and line style")
+        notes.append(f"points at one x set {NUMERIC_DODGE:.0%} of the x spacing apart, so their bars do not hide "
+                     "each other")  # fmt: skip
     return "\n".join(textwrap.wrap("(" + "; ".join(notes) + ")", CAPTION_WIDTH))
 
 
@@ -361,7 +371,7 @@ class XScale:
         if not is_numeric(summaries, x):
             return cls("category", x, tuple(dict.fromkeys(format_value(s.setting.value(x)) for s in summaries)))
         values = sorted({float(s.setting.value(x)) for s in summaries})
-        log = x == "particles" and values[0] > 0 and values[-1] / values[0] >= 10
+        log = x == "particles" and values[0] > 0 and values[-1] / values[0] >= 2  # N doubling: equal steps
         where = np.log10(values) if log else np.array(values)
         gap = float(np.diff(where).min()) if len(where) > 1 else 1.0
         return cls("log" if log else "linear", x, gap=gap, values=tuple(values))
@@ -390,8 +400,9 @@ def draw_panel(
     highest, lowest = 0.0, 0.0
     for line in drawn:
         j = slots.index(line.label)  # the same slot in every panel: a line keeps its place
-        dodged = scale.kind == "category" and scale.categories and len(slots) > 1
-        offset = DODGE * (j / (len(slots) - 1) - 0.5) if dodged else 0.0
+        spread = DODGE if scale.kind == "category" else NUMERIC_DODGE * scale.gap  # a share of the x spacing
+        alone = scale.kind == "category" and not scale.categories  # nothing varied on x: a slot of its own each
+        offset = spread * (j / (len(slots) - 1) - 0.5) if len(slots) > 1 and not alone else 0.0
         if scale.kind == "category" and not scale.categories:  # nothing varied on x: a slot per line
             where = np.array([float(all_labels.index(line.label))])
         else:
@@ -402,6 +413,7 @@ def draw_panel(
         container = ax.errorbar(
             scale.back(where), value, yerr=bars, fmt=line.marker, linestyle=line.style if len(where) > 1 else "none",
             color=line.colour, label=line.label, elinewidth=0.8, markerfacecolor="white" if j % 2 else line.colour,
+            capsize=2 + j % 3,
         )  # fmt: skip
         container.lines[0].set_gid(f"panel-{panel}:line:{line.label}")
         highest = max(highest, float(np.nanmax(np.append(high, value))))
@@ -421,7 +433,8 @@ def draw_panel(
         ax.axhline(0.0, color="black", linewidth=0.6)
     if scale.kind == "log":
         ax.set_xscale("log")
-    if scale.kind == "linear" and 1 < len(scale.values) <= 8:
+        ax.minorticks_off()
+    if scale.kind != "category" and 1 < len(scale.values) <= 8:
         ax.set_xticks(scale.values, [format_value(v) for v in scale.values])  # the studied values, as given
     if scale.kind == "category":
         names = scale.categories or tuple(all_labels)
@@ -429,19 +442,25 @@ def draw_panel(
         ax.set_xlim(-0.5, len(names) - 0.5)
     if quantity.share:
         return 0.0, 105.0
+    if not quantity.from_zero:
+        values = [v for line in lines for s in line.points for v in (quantity.value(s), *quantity.interval(s))]
+        low, high = float(np.nanmin(values)), float(np.nanmax(values))
+        return low - 0.05 * (high - low or 1.0), high + 0.05 * (high - low or 1.0)
     top = 1.1 * highest if highest > 0 else 1.0
     return (1.1 * lowest if lowest < 0 else 0.0), top
 
 
-def _legend(figure: Any, axes: Sequence[Any], order: Sequence[str]) -> None:
+def _legend(figure: Any, axes: Sequence[Any], order: Sequence[str], marked: set[str] = frozenset()) -> None:
     """One legend for all panels, below them, in the lines' order (each line once, a reference as its
-    dashed line)."""
+    dashed line); a line of a `marked` filter (its log evidence not of p(z_1:K)) labelled with '*'."""
     seen: dict[str, Any] = {}
     for ax in axes:
         for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
             seen.setdefault(label, handle)
     names = sorted(seen, key=lambda label: order.index(label) if label in order else len(order))
-    figure.legend([seen[n] for n in names], names, loc="outside lower center", ncols=min(4, len(names)), frameon=False)
+    shown = [name.replace(name.split(",")[0], name.split(",")[0] + "*", 1) if name.split(",")[0] in marked else name
+             for name in names]  # fmt: skip
+    figure.legend([seen[n] for n in names], shown, loc="outside lower center", ncols=min(4, len(names)), frameon=False)
 
 
 __all__ = [

@@ -1,7 +1,8 @@
 """Per-step traces (`study --traces`, `compare --traces`): one row per run, filter and step, in long
 format, so that pandas reads them directly (`pandas.read_csv`, or `read_parquet` for a .parquet file,
 which needs pyarrow). Columns: TRACE_COLUMNS, then each filter's own diagnostics (`regularised`,
-`injection_probability`, ...: empty where a filter has none), then the filter's label (SIR) and the
+`injection_probability`, ...: empty where a filter has none), then the filter's label (SIR), why its
+log evidence is not an estimate of p(z_1:k) under the model (the RPF's; empty for the others) and the
 row's parameters (the maze,
 sigma, delta, particles, then every option the filter ran with: empty where a filter does not declare
 one), so that a band plot of the error against the steps, by filter and parameter, is one `groupby`."""
@@ -17,7 +18,7 @@ import numpy as np
 
 from mazelab.atomic import write_bytes_atomically, write_text_atomically
 from mazelab.experiments.study import RunRecord, trace_of
-from mazelab.registry import labels
+from mazelab.registry import evidence_caveat, labels
 from mazelab.simulation import RunResult
 
 TRACE_COLUMNS = [
@@ -35,6 +36,7 @@ TRACE_COLUMNS = [
     "confident",  # 1: 95% of the belief within distance 1 of the estimate (the paper's green circle)
     "step_ms",  # the filter's own time for the step
     "particle_count",
+    "log_evidence",  # log p(z_1:k) so far as the filter estimates it; empty for a filter that keeps none
 ]
 PARAMETER_COLUMNS = ["maze", "sigma", "delta", "particles"]  # then the options the row's filter ran with
 PARQUET_HINT = "a .parquet trace file needs pyarrow (pip install pyarrow); or give a .csv path"
@@ -80,6 +82,7 @@ def trace_columns(
         "confident": np.asarray(trace["confident"]).astype(np.int8),
         "step_ms": 1e3 * np.asarray(trace["step_seconds"], dtype=float),
         "particle_count": np.asarray(trace["particle_count"], dtype=np.int64),
+        "log_evidence": np.asarray(trace.get("log_evidence", np.full(steps, np.nan)), dtype=float),
         **{f"{DIAGNOSTIC_PREFIX}{name_}": values for name_, values in diagnostics.items()},
         **exact_columns(trace.get("exact"), estimate),
         **constant,
@@ -107,9 +110,10 @@ def exact_columns(exact: Any, estimate: np.ndarray) -> dict[str, np.ndarray]:
 
 
 def record_parameters(record: RunRecord) -> dict[str, Any]:
-    """A study row's parameters as trace columns: its label, PARAMETER_COLUMNS, then the options its
-    filter ran with (RunRecord.options)."""
-    return {"label": record.label, **{name: getattr(record, name) for name in PARAMETER_COLUMNS}, **record.options}
+    """A study row's parameters as trace columns: its label, why its log evidence is not of p(z_1:K) (if
+    it is not), PARAMETER_COLUMNS, then the options its filter ran with (RunRecord.options)."""
+    return {"label": record.label, "log_evidence_caveat": record.log_evidence_caveat,
+            **{name: getattr(record, name) for name in PARAMETER_COLUMNS}, **record.options}  # fmt: skip
 
 
 def study_traces(records: Iterable[RunRecord]) -> list[dict[str, Any]]:
@@ -128,8 +132,8 @@ def compare_traces(results: dict[str, RunResult], seed: int, maze: str | None = 
     blocks = []
     for name, result in results.items():
         inputs = result.inputs
-        parameters = {"label": labels([name])[name], "maze": maze, "sigma": inputs.sigma, "delta": inputs.delta,
-                      "particles": len(inputs.particles)}  # fmt: skip
+        parameters = {"label": labels([name])[name], "log_evidence_caveat": evidence_caveat(name), "maze": maze,
+                      "sigma": inputs.sigma, "delta": inputs.delta, "particles": len(inputs.particles)}  # fmt: skip
         blocks.append(trace_columns(None, 1, seed, name, trace_of(result), parameters))
     return blocks
 
@@ -146,7 +150,7 @@ def trace_csv_rows(blocks: Sequence[dict[str, Any]], columns: Sequence[str] | No
     exact floats (%.17g), an empty cell for NaN, for compare's setting and for a column a block lacks."""
     columns = trace_column_names(blocks) if columns is None else list(columns)
     buffer = io.StringIO()
-    numeric = TRACE_COLUMNS[4:]  # step .. particle_count
+    numeric = TRACE_COLUMNS[4:]  # step .. log_evidence
     for block in blocks:
         setting = "" if block["setting"][0] == -1 else str(block["setting"][0])
         prefix = f"{setting},{block['run'][0]},{block['seed'][0]},{_cell(block['filter'][0])}"
@@ -156,7 +160,7 @@ def trace_csv_rows(blocks: Sequence[dict[str, Any]], columns: Sequence[str] | No
             [block[c].astype(float) for c in numeric] + [block.get(c, np.full(steps, np.nan)) for c in diagnostics]
         )
         text = io.StringIO()
-        fmt = ["%d", *["%.17g"] * 6, "%d", "%.17g", "%d", *["%.17g"] * len(diagnostics)]
+        fmt = ["%d", *["%.17g"] * 6, "%d", "%.17g", "%d", "%.17g", *["%.17g"] * len(diagnostics)]
         np.savetxt(text, numbers, fmt=fmt, delimiter=",")
         constants = [c for c in columns[len(TRACE_COLUMNS) :] if not per_step(c)]
         suffix = "".join(f",{_cell(block[c][0]) if c in block else ''}" for c in constants)
