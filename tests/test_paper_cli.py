@@ -21,7 +21,7 @@ from conftest import ROOT
 from mazelab.cli.app import app, main
 from mazelab.lab import simulate
 from mazelab.mazes import load_maze, shipped_mazes
-from mazelab.registry import short_names
+from mazelab.registry import filter_entry, short_names
 from mazelab.robot import Robot
 
 PAPER_KEYS = ["init_robot_pos", "init_particles_pos", "robot_actual_angles", "robot_compass_angles"]
@@ -58,9 +58,9 @@ def test_a_replay_agrees_with_compare(tmp_path, capsys):
     run_output(capsys, ["run", "--maze", "paper_5x5", "--seed", "5", "--no-viz", "--quiet", *SMALL,
                         "--save-scenario", str(path)])  # fmt: skip
     table = run_output(capsys, ["compare", str(path), "--filters", "sir,rpf", "--no-viz"])
-    for name, row_name in [("sir", "SIRParticleFilter"), ("rpf", "RegularizedParticleFilter")]:
+    for name in ("sir", "rpf"):  # the table's rows are the registry's labels
         replay = run_output(capsys, ["run", "--scenario", str(path), "--filter", name, "--no-viz", "--quiet"])
-        (row,) = [line.split() for line in table.splitlines() if line.startswith(row_name)]
+        (row,) = [line.split() for line in table.splitlines() if line.split()[:1] == [filter_entry(name).label]]
         last_20, converged = summary_figures(replay)
         assert row[2] == last_20 and row[3:5] == ["step", converged]
         assert "seed 5" in replay

@@ -201,7 +201,7 @@ def test_a_filter_added_to_the_package_is_one_entry_and_every_command_takes_it(t
     assert main(["run", "--scenario", str(saved), "--no-viz", "--quiet"]) == 0  # the replay: the same run
     assert capsys.readouterr().out.splitlines()[0] == first
     assert main(["compare", str(saved), "--filters", "sir,wide", "--option", "temper=0.5", "--no-viz"]) == 0
-    assert "WideSIR" in capsys.readouterr().out
+    assert "wide SIR" in capsys.readouterr().out  # its label in the table, as the registry entry says
     args = ["study", "--filters", "sir,wide", "--option", "temper=0.5,1", "--runs", "2", "--workers", "1"]
     assert main([*args, *common, "--csv", str(table)]) == 0
     rows = list(csv.DictReader(table.open()))

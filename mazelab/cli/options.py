@@ -28,6 +28,11 @@ class UserError(Exception):
     """An input problem reported as one line on stderr with exit code 2."""
 
 
+def opt(kind: Any, *flags: str, **typer_options: Any) -> Any:
+    """A typer option's annotated type: `opt(int | None, "--runs", help=...)`."""
+    return Annotated[kind, typer.Option(*flags, **typer_options)]
+
+
 def with_parameters(
     into: str, parameters: Mapping[str, tuple[Any, Any]], convert: Callable[[dict[str, Any]], Any] = dict
 ) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
@@ -262,6 +267,7 @@ __all__ = [
     "check_output_path",
     "check_outputs",
     "file_identity",
+    "opt",
     "parse_list",
     "seed_option",
     "set_backend",

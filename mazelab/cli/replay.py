@@ -16,24 +16,20 @@ from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Any
 
 import numpy as np
 import typer
 
-from mazelab.cli.filter_options import GivenOptions, OptionFlag, given_options, options_per_filter, with_option_flags
-from mazelab.cli.hints import check_filter_name, check_filter_names, filter_choices
+from mazelab.cli.filter_options import GivenOptions, given_options, options_per_filter
+from mazelab.cli.hints import check_filter_name, check_filter_names
 from mazelab.cli.options import (
     DEFAULT_DELTA,
     DEFAULT_SIGMA,
-    BackendOption,
-    ThreadsOption,
     UserError,
     check_output_path,
     check_outputs,
-    seed_option,
     visualization,
-    with_drawing,
 )
 from mazelab.cli.provenance import repeat_command
 from mazelab.cli.reports import (
@@ -50,7 +46,7 @@ from mazelab.cli.reports import (
 from mazelab.declaration import show_value, to_plain_json
 from mazelab.maze import Maze
 from mazelab.mazes import DEFAULT_MAZE, load_maze, mazes_fitting
-from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
+from mazelab.model import DEFAULT_STEPS
 from mazelab.registry import FilterEntry, filter_entry, resolve_filter
 from mazelab.robot import Robot
 from mazelab.scenario import Scenario, check_measurements_within, find_scenario, load_scenario, save_scenario
@@ -63,53 +59,20 @@ REPEAT_DROPS = ("--resume", "--force")
 RUN_FILES = ("--save-scenario", "--rrd")
 COMPARE_FILES = ("--csv", "--plot", "--traces", "--rrd")
 
-Maze_ = Annotated[
-    str | None,
-    typer.Option("--maze", metavar="MAZE", help=f"a maze file or a name in mazes/ [default: {DEFAULT_MAZE}]"),
-]
-Filter = Annotated[str | None, typer.Option("--filter", metavar="NAME", help=f"{filter_choices()} [default: sir]")]
-Particles = Annotated[int | None, typer.Option(help=f"particle count N_S [default: {DEFAULT_PARTICLE_COUNT}]")]
-Steps = Annotated[int | None, typer.Option(min=1, help=f"number of steps [default: {DEFAULT_STEPS}]")]
-Sigma = Annotated[float | None, typer.Option(help=f"noise std, lab 0.2-0.8 [default: {DEFAULT_SIGMA}]")]
-Delta = Annotated[float | None, typer.Option(help=f"compass error, rad, lab 0.05-0.6 [default: {DEFAULT_DELTA}]")]
-Seed = Annotated[int | None, typer.Option(callback=seed_option, help="seed of the whole run (default: new, printed)")]
-StartSeed = Annotated[int | None, typer.Option(callback=seed_option, hidden=True, help="seed of the start only")]
-ScenarioFile = Annotated[Path | None, typer.Option(help="replay a saved scenario (.json), or a shipped one by name")]
-SaveScenario = Annotated[Path | None, typer.Option("--save-scenario", help="save the run (.json)")]
-Force = Annotated[bool, typer.Option("--force", help="replace existing output files")]
-Quiet = Annotated[bool, typer.Option("--quiet", help="no per-step progress")]
-KidnapAt = Annotated[int | None, typer.Option(min=1, help="carry the robot elsewhere at this step")]
-SavedScenario = Annotated[Path, typer.Argument(metavar="SCENARIO", show_default=False,
-                                               help="a saved scenario (.json) or a shipped name")]  # fmt: skip
-Filters = Annotated[str, typer.Option(metavar="NAMES", help=filter_choices(many=True))]
-StoredMaze = Annotated[str | None, typer.Option(metavar="MAZE", help="the maze, if the scenario stores none")]
-NewSigma = Annotated[float | None, typer.Option("--sigma", help="override the scenario's sigma")]
-NewDelta = Annotated[float | None, typer.Option("--delta", help="override the scenario's delta")]
-ReplaySeed = Annotated[
-    int | None, typer.Option("--seed", callback=seed_option, help="the filters' seed (default: the scenario's)")
-]
-ErrorsCsv = Annotated[Path | None, typer.Option("--csv", help="per-step errors, a column per filter")]
-Plot = Annotated[Path | None, typer.Option(help="the lab's error figure (.png; plot extra)")]
-Traces = Annotated[Path | None, typer.Option(help="per-step rows of every filter (.csv, or .parquet)")]
 
-
-@with_drawing
-@with_option_flags()
-def run(maze: Maze_ = None, filter_name: Filter = None, particles: Particles = None, steps: Steps = None,
-        sigma: Sigma = None, delta: Delta = None, seed: Seed = None, start_seed: StartSeed = None,
-        scenario: ScenarioFile = None, save_scenario_path: SaveScenario = None, force: Force = False,
-        quiet: Quiet = False, kidnap_at: KidnapAt = None, option: OptionFlag = None, backend: BackendOption = None,
-        threads: ThreadsOption = None, named: dict | None = None, drawing: dict | None = None) -> None:  # fmt: skip
-    """Run one filter on a lost robot, or replay a saved scenario (--scenario) with its filter and
-    options. Every filter option: --option NAME=VALUE (`mazelab filters` lists them)."""
+def run_one(maze: str | None, filter_name: str | None, particles: int | None, steps: int | None,
+            sigma: float | None, delta: float | None, seed: int | None, start_seed: int | None,
+            scenario: Path | None, save_scenario_path: Path | None, force: bool, quiet: bool,
+            kidnap_at: int | None, option: list[str] | None, named: dict, drawing: dict, **_: Any) -> None:  # fmt: skip
+    """`run`'s work (mazelab.cli.app): one filter on a fresh lost robot or a replayed scenario, its report."""
     from mazelab.lab import simulate  # with drawing: imported by the commands that run one filter
 
-    visualize = visualization(**(drawing or {}), force=force)
+    visualize = visualization(**drawing, force=force)
     stored = load_scenario(scenario) if scenario is not None else None
     filter_name = check_filter_name(replay_filter_name(stored, filter_name, scenario))
-    options = options_per_filter([filter_name], given_options(named or {}, option, [filter_name]),
+    options = options_per_filter([filter_name], given_options(named, option, [filter_name]),
                                  check=stored is None)[resolve_filter(filter_name).name]  # fmt: skip
-    for path in (save_scenario_path, (drawing or {}).get("rrd")):
+    for path in (save_scenario_path, drawing.get("rrd")):
         if path is not None:
             check_output_path(path, force)
     if stored is None:
@@ -145,30 +108,24 @@ def scenario_not_saved_on_stop(path: Path | None) -> Iterator[None]:
         raise
 
 
-@with_drawing
-@with_option_flags()
-def compare(scenario: SavedScenario, filters: Filters = "sir,apf,rpf", maze: StoredMaze = None, sigma: NewSigma = None,
-            delta: NewDelta = None, seed: ReplaySeed = None, csv_path: ErrorsCsv = None, plot: Plot = None,
-            traces: Traces = None, force: Force = False, kidnap_at: KidnapAt = None, option: OptionFlag = None,
-            backend: BackendOption = None, named: dict | None = None, drawing: dict | None = None) -> None:  # fmt: skip
-    """Lab steps 12-13: every filter on one saved scenario (the same start, particles, walk). Each
-    filter takes the options it declares (--option NAME=VALUE; `mazelab filters` lists them), and
-    those the scenario's run set away from their defaults unless given here (a line names them).
-
-    A kidnapping (stored, or --kidnap-at) adds whether each filter re-localised (mean error below 0.5
-    over the last 30 steps) and the steps it took."""
+def compare_scenario(
+    scenario: Path, filters: str, maze: str | None, sigma: float | None, delta: float | None, seed: int | None,
+    csv_path: Path | None, plot: Path | None, traces: Path | None, force: bool, kidnap_at: int | None,
+    option: list[str] | None, named: dict, drawing: dict, **_: Any,
+) -> None:  # fmt: skip
+    """`compare`'s work (mazelab.cli.app): every filter on the saved scenario, the table, files and record."""
     from mazelab.experiments.compare import compare_filters
     from mazelab.experiments.runs import parse_filters
 
-    visualize = visualization(**(drawing or {}), force=force)
+    visualize = visualization(**drawing, force=force)
     check_filter_names(filters)
-    rrd = (drawing or {}).get("rrd")
+    rrd = drawing.get("rrd")
     record_file = compare_record_file(csv_path, plot, traces, force, rrd)  # a JSON record beside the outputs
     check_outputs(csv_path, plot, force, rrd)
     scenario = find_scenario(scenario)  # a shipped one by its name: its file's name in the table's title
     stored = load_scenario(scenario)
     setup, names = replay_setup(stored, maze, sigma, delta, seed), parse_filters(filters)
-    given = with_stored_options(stored, names, given_options(named or {}, option, names), scenario)
+    given = with_stored_options(stored, names, given_options(named, option, names), scenario)
     options_per_filter(names, given)  # an option that none of the filters takes, or a bad value: one line, first
     options = {k: to_plain_json(v) for k, v in given.items()}
     recorder = start_compare_record(scenario, {"filters": [resolve_filter(n).name for n in names], "sigma": setup.sigma,
@@ -382,4 +339,5 @@ def with_stored_options(stored: Scenario, filter_names: Sequence[str], given: Gi
     return merged
 
 
-__all__ = ["RunSetup", "compare", "fresh_setup", "replay_filter_name", "replay_options", "replay_setup", "run"]
+__all__ = ["RunSetup", "compare_scenario", "fresh_setup", "replay_filter_name", "replay_options", "replay_setup",
+           "run_one"]  # fmt: skip

@@ -11,7 +11,7 @@ import signal
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Any
 
 import typer
 
@@ -33,6 +33,7 @@ from mazelab.cli.options import (
     check_one_file_each,
     check_output_path,
     check_outputs,
+    opt,
     parse_list,
     seed_option,
     visualization,
@@ -67,45 +68,26 @@ from mazelab.viz.style import DEFAULT_MAX_DRAWN
 # record it wrote would be found taken when the line is pasted back (add --csv NEW.csv to write them again)
 REPEAT_DROPS = ("--resume", "--force")
 REPEAT_DROPS_WITH_VALUE = ("--csv", "--plot", "--traces", "--record", "--summary-csv", "--rrd")
-
-STUDY_FILES: dict[str, tuple[Any, Any]] = {
-    "csv_path": (Annotated[Path | None, typer.Option("--csv", help="one row per run and filter")], None),
-    "plot": (Annotated[Path | None, typer.Option(help="the figure: .png, .pdf or .svg (the suffix chooses)")], None),
-    "summary_csv": (
-        Annotated[Path | None, typer.Option("--summary-csv", help="the table as CSV [default: CSV.summary.csv]")],
-        None,
-    ),
-    "traces": (Annotated[Path | None, typer.Option(help="per-step rows of every run (.csv, .parquet)")], None),
-    "record": (Annotated[Path | None, typer.Option(help="JSON record [default: CSV.record.json]")], None),
-    "resume": (Annotated[bool, typer.Option("--resume", help="run only the runs missing from --csv's journal")], False),
-    "force": (Annotated[bool, typer.Option("--force", help="replace existing output files")], False),
+FILES = {
+    "csv_path": (opt(Path | None, "--csv", help="one row per run and filter"), None),
+    "plot": (opt(Path | None, "--plot", help="the figure: .png, .pdf or .svg (the suffix chooses)"), None),
+    "summary_csv": (opt(Path | None, "--summary-csv", help="the table as CSV [default: CSV.summary.csv]"), None),
+    "traces": (opt(Path | None, "--traces", help="per-step rows of every run (.csv, .parquet)"), None),
+    "record": (opt(Path | None, "--record", help="JSON record [default: CSV.record.json]"), None),
+    "resume": (opt(bool, "--resume", help="run only the runs missing from --csv's journal"), False),
+    "force": (opt(bool, "--force", help="replace existing output files"), False),
 }
-STUDY_FIGURE: dict[str, tuple[Any, Any]] = {
-    "paired": (
-        Annotated[str | None, typer.Option(metavar="FILTER", help="each filter's difference to FILTER, run by run")],
-        None,
-    ),
-    "plot_x": (
-        Annotated[str | None, typer.Option(metavar="PARAMETER", help="the figure's x axis, a varied parameter")],
-        None,
-    ),
-    "plot_y": (
-        Annotated[
-            str,
-            typer.Option(metavar="Y", show_default=False, help="mean, median, converged, exact, paired, evidence"),
-        ],
-        "mean",
-    ),
-    "title": (Annotated[str | None, typer.Option(help="the figure's title (no caption then)")], None),
-}
-
-
+FIGURE = {
+    "paired": (opt(str | None, "--paired", metavar="FILTER", help="each filter's difference to FILTER, run by run"),
+               None),
+    "plot_x": (opt(str | None, "--plot-x", metavar="PARAMETER", help="the figure's x axis, a varied parameter"), None),
+    "plot_y": (opt(str, "--plot-y", metavar="Y", show_default=False,
+                   help="mean, median, converged, exact, paired, evidence"), "mean"),
+    "title": (opt(str | None, "--title", help="the figure's title (no caption then)"), None),
+}  # fmt: skip
 # a study draws nothing unless asked (--no-viz is its default) and one run when asked (--max-drawn rarely matters)
-STUDY_DRAWING = {
-    **DRAWING,
-    "no_viz": (Annotated[bool, typer.Option("--no-viz", hidden=True)], False),
-    "max_drawn": (Annotated[int, typer.Option("--max-drawn", min=1, hidden=True)], DEFAULT_MAX_DRAWN),
-}
+DRAWN = {**DRAWING, "no_viz": (opt(bool, "--no-viz", hidden=True), False),
+         "max_drawn": (opt(int, "--max-drawn", min=1, hidden=True), DEFAULT_MAX_DRAWN)}  # fmt: skip
 
 
 def positive_seconds(value: float) -> float:
@@ -115,98 +97,86 @@ def positive_seconds(value: float) -> float:
     return value
 
 
-@with_parameters("files", STUDY_FILES)
-@with_parameters("figure", STUDY_FIGURE)
-@with_parameters("drawing", STUDY_DRAWING)
+Mazes = opt(str | None, help=f"mazes (files or names) [default: {DEFAULT_MAZE}]")
+Sizes = opt(str | None, help="generated mazes ROWSxCOLUMNS, a list")
+Stations = opt(str | None, help="generated mazes' station blocks, a list")
+WallShares = opt(str | None, help="generated mazes' wall shares, a list")
+Sigmas, Deltas = opt(str, help="noise std sigma, a list"), opt(str, help="compass error, a list")
+Counts = opt(str, help="particle counts, a list")
+Filters = opt(str, metavar="NAMES", show_default=False, help="a list (mazelab filters) [default: sir,apf,rpf]")
+KidnapAt = opt(int | None, min=1, help="carry the robot elsewhere at this step")
+Runs, Steps = opt(int, min=1, help="seeded runs per setting"), opt(int, min=1, help="steps per run")
+RootSeed = opt(int | None, callback=seed_option, help="root seed (default: new, printed)")
+Reference = opt(str | None, metavar="grid", help="the exact grid filter too: distance_to_exact")
+Workers = opt(int | None, min=1, help="processes (default: all cores)")
+Dask = opt(str | None, help="a Dask scheduler, tcp://HOST:PORT")
+DaskTimeout = opt(float, metavar="<s>", callback=positive_seconds, show_default=False,
+                  help="give up after s idle seconds [default: 300]")  # fmt: skip
+DrawRun = opt(int, help="the run --viewer/--rrd/--web draw", show_default=False)
+
+
+@with_parameters("files", FILES)
+@with_parameters("figure", FIGURE)
+@with_parameters("drawing", DRAWN)
 @with_option_flags(lists=True)
 def study(
-    maze: Annotated[str | None, typer.Option(help=f"mazes (files or names) [default: {DEFAULT_MAZE}]")] = None,
-    maze_size: Annotated[str | None, typer.Option(help="generated mazes ROWSxCOLUMNS, a list")] = None,
-    stations: Annotated[str | None, typer.Option(help="generated mazes' station blocks, a list")] = None,
-    wall_share: Annotated[str | None, typer.Option(help="generated mazes' wall shares, a list")] = None,
-    sigma: Annotated[str, typer.Option(help="noise std sigma, a list")] = str(DEFAULT_SIGMA),
-    delta: Annotated[str, typer.Option(help="compass error, a list")] = str(DEFAULT_DELTA),
-    particles: Annotated[str, typer.Option(help="particle counts, a list")] = str(DEFAULT_PARTICLE_COUNT),
-    filters: Annotated[
-        str, typer.Option(metavar="NAMES", show_default=False, help="a list (mazelab filters) [default: sir,apf,rpf]")
-    ] = "sir,apf,rpf",
-    kidnap_at: Annotated[int | None, typer.Option(min=1, help="carry the robot elsewhere at this step")] = None,
+    maze: Mazes = None,
+    maze_size: Sizes = None,
+    stations: Stations = None,
+    wall_share: WallShares = None,
+    sigma: Sigmas = str(DEFAULT_SIGMA),
+    delta: Deltas = str(DEFAULT_DELTA),
+    particles: Counts = str(DEFAULT_PARTICLE_COUNT),
+    filters: Filters = "sir,apf,rpf",
+    kidnap_at: KidnapAt = None,
     option: StudyOptionFlag = None,
-    runs: Annotated[int, typer.Option(min=1, help="seeded runs per setting")] = 30,
-    steps: Annotated[int, typer.Option(min=1, help="steps per run")] = DEFAULT_STEPS,
-    seed: Annotated[int | None, typer.Option(callback=seed_option, help="root seed (default: new, printed)")] = None,
-    reference: Annotated[
-        str | None, typer.Option(metavar="grid", help="the exact grid filter too: distance_to_exact")
-    ] = None,
-    workers: Annotated[int | None, typer.Option(min=1, help="processes (default: all cores)")] = None,
-    dask: Annotated[str | None, typer.Option(help="a Dask scheduler, tcp://HOST:PORT")] = None,
-    dask_timeout: Annotated[
-        float,
-        typer.Option(
-            metavar="<s>",
-            callback=positive_seconds,
-            show_default=False,
-            help="give up after s idle seconds [default: 300]",
-        ),
-    ] = DASK_TIMEOUT,
-    draw_run: Annotated[int, typer.Option(help="the run --viewer/--rrd/--web draw", show_default=False)] = 1,
+    runs: Runs = 30,
+    steps: Steps = DEFAULT_STEPS,
+    seed: RootSeed = None,
+    reference: Reference = None,
+    workers: Workers = None,
+    dask: Dask = None,
+    dask_timeout: DaskTimeout = DASK_TIMEOUT,
+    draw_run: DrawRun = 1,
     backend: BackendOption = None,
-    named: dict[str, Any] | None = None,
-    drawing: dict[str, Any] | None = None,
-    figure: dict[str, Any] | None = None,
-    files: dict[str, Any] | None = None,
+    named: dict | None = None,
+    drawing: dict | None = None,
+    figure: dict | None = None,
+    files: dict | None = None,
 ) -> None:
     """Lab step 14: a study of every combination of the values (docs/studies.md)."""
-    chosen, study_files = drawing or {}, StudyFiles.parse(**(files or {}), rrd=(drawing or {}).get("rrd"))
-    drawn = chosen.get("viewer") or chosen.get("web") or chosen.get("rrd") is not None
-    visualize = visualization(**chosen, force=study_files.force) if drawn else False
-    mazes = study_mazes(
-        *(
-            parse_list(t, k, f)
-            for t, k, f in (
-                (maze, str, "--maze"),
-                (maze_size, str, "--maze-size"),
-                (stations, int, "--stations"),
-                (wall_share, float, "--wall-share"),
-            )
-        )
-    )
-    values = {
-        "sigma": parse_list(sigma, float, "--sigma"),
-        "delta": parse_list(delta, float, "--delta"),
-        "particles": parse_list(particles, int, "--particles"),
-        "runs": runs,
-        "steps": steps,
-        "kidnap_at": kidnap_at,
-        "reference": reference,
-    }
-    plan = study_plan(study_files, mazes, filters, named or {}, option, seed, values)
+    drawing = drawing or {}
+    chosen = StudyFiles.parse(**(files or {}), rrd=drawing.get("rrd"))
+    drawn = drawing.get("viewer") or drawing.get("web") or drawing.get("rrd") is not None
+    visualize = visualization(**drawing, force=chosen.force) if drawn else False
+    mazes = study_mazes(parse_list(maze, str, "--maze"), parse_list(maze_size, str, "--maze-size"),
+                        parse_list(stations, int, "--stations"),
+                        parse_list(wall_share, float, "--wall-share"))  # fmt: skip
+    values = {"sigma": parse_list(sigma, float, "--sigma"), "delta": parse_list(delta, float, "--delta"),
+              "particles": parse_list(particles, int, "--particles"), "runs": runs, "steps": steps,
+              "kidnap_at": kidnap_at, "reference": reference}  # fmt: skip
+    plan = study_plan(chosen, mazes, filters, named or {}, option, seed, values)
     extras = StudyExtras.parse(plan, **(figure or {}))
     workers = workers or default_workers()
-    chosen_backend = study_backend(plan.tasks(), 1 if dask is not None else workers)
-    session = open_session(plan, study_files, chosen_backend, visualize, draw_run, dask, workers)
+    session = open_session(plan, chosen, study_backend(plan.tasks(), 1 if dask else workers), visualize, draw_run,
+                           dask, workers)  # fmt: skip
     try:
-        outcome = run_session(session, visualize, dask_timeout)
+        outcome = run_study(session.tasks, workers, visualize=visualize, progress=True, on_records=session.append,
+                            dask=session.client, dask_timeout=dask_timeout, ignore_signals_after_stop=True,
+                            backend=session.backend)  # fmt: skip
         report_study(session, outcome, extras)
     finally:
         session.close()
 
 
-def study_plan(
-    files: StudyFiles,
-    mazes: list,
-    filters: str,
-    named: dict[str, Any],
-    texts: list[str] | None,
-    seed: int | None,
-    values: dict[str, Any],
-) -> StudyPlan:
+def study_plan(files: StudyFiles, mazes: list, filters: str, named: dict[str, Any], texts: list[str] | None,
+               seed: int | None, values: dict[str, Any]) -> StudyPlan:  # fmt: skip
     """The study's plan from the command line's lists: the named flags (spellings of declared options) and
     --option NAME=V1,V2 (FILTER.NAME=... for one filter) for any declared option, each value parsed and
     checked by its declaration; an option that none of the filters takes is refused first, in one line,
     unless it is given only its default. A resumed study keeps its journal's root seed unless --seed."""
-    if files.resumed_seed is not None and seed is None:
-        seed = files.resumed_seed
+    if files.lines and seed is None:
+        seed = journal_parameters(files.journal, files.lines)["root_seed"]
     names = parse_filters(check_filter_names(filters))
     given = given_options(named, texts, names, lists=True)
     kld = given.get("kld") == [True]
@@ -231,14 +201,8 @@ class StudyExtras:
     title: str | None = None
 
     @classmethod
-    def parse(
-        cls,
-        plan: StudyPlan,
-        paired: str | None = None,
-        plot_x: str | None = None,
-        plot_y: str = "mean",
-        title: str | None = None,
-    ) -> StudyExtras:
+    def parse(cls, plan: StudyPlan, paired: str | None = None, plot_x: str | None = None, plot_y: str = "mean",
+              title: str | None = None) -> StudyExtras:  # fmt: skip
         """--paired names one of the study's filters, --plot-x one of its varied parameters, --plot-y
         what the figure draws (exact needs --reference grid, paired needs --paired)."""
         from mazelab.experiments.study_plot import Y_QUANTITIES
@@ -258,15 +222,11 @@ class StudyExtras:
             entries = [filter_entry(f) for f in plan.filters]
             chosen = resolve_filter(check_filter_names(paired, "--paired")).name
             if chosen not in [entry.name for entry in entries]:
-                raise UserError(
-                    f"--paired {paired}: not one of the study's --filters "
-                    f"({', '.join(entry.reference for entry in entries)})"
-                )
+                shown = ", ".join(entry.reference for entry in entries)
+                raise UserError(f"--paired {paired}: not one of the study's --filters ({shown})")
             if len(entries) == 1:
-                raise UserError(
-                    f"--paired {paired}: the study's only filter, paired with itself (every difference "
-                    "0); add the filters to compare with it to --filters"
-                )
+                raise UserError(f"--paired {paired}: the study's only filter, paired with itself (every difference "
+                                "0); add the filters to compare with it to --filters")  # fmt: skip
             paired = chosen
         return cls(paired, plot_x, plot_y, title)
 
@@ -274,7 +234,7 @@ class StudyExtras:
 @dataclass
 class StudyFiles:
     """The study's files, checked before any work: the CSV and its journal, the figure, the traces, the
-    record and the summary CSV; with --resume, the journal to go on with."""
+    record and the summary CSV; with --resume, the journal's lines to go on with."""
 
     csv_path: Path | None
     plot: Path | None
@@ -284,60 +244,38 @@ class StudyFiles:
     journal: Path | None
     resume: bool
     force: bool
-    lines: list[dict[str, Any]] = dataclasses.field(default_factory=list)  # --resume: the journal's lines
-
-    @property
-    def resumed_seed(self) -> int | None:
-        """The root seed of the study --resume goes on with (its journal's last session's)."""
-        return journal_parameters(self.journal, self.lines)["root_seed"] if self.lines else None
+    lines: list[dict[str, Any]] = dataclasses.field(default_factory=list)
 
     @classmethod
-    def parse(
-        cls,
-        csv_path: Path | None = None,
-        plot: Path | None = None,
-        summary_csv: Path | None = None,
-        traces: Path | None = None,
-        record: Path | None = None,
-        resume: bool = False,
-        force: bool = False,
-        rrd: Path | None = None,
-    ) -> StudyFiles:
+    def parse(cls, csv_path: Path | None = None, plot: Path | None = None, summary_csv: Path | None = None,
+              traces: Path | None = None, record: Path | None = None, resume: bool = False, force: bool = False,
+              rrd: Path | None = None) -> StudyFiles:  # fmt: skip
         """One line for two outputs that are one file, a name that exists without --force, a folder, a
-        device, a journal another study writes or an earlier one left (without --resume or --force)."""
+        device, a journal another study writes or an earlier one left (without --resume or --force);
+        --resume replaces its own outputs."""
         record_file = record or next((record_path(p) for p in (csv_path, plot, traces) if p), None)
         summary_named = "--summary-csv" if summary_csv is not None else "the summary CSV"
         summary_csv = summary_csv or (summary_path(csv_path) if csv_path is not None else None)
         journal = journal_path(csv_path) if csv_path is not None else None
-        check_one_file_each(
-            [
-                ("--csv", csv_path),
-                ("--csv's journal", journal),
-                ("--plot", plot),
-                ("--traces", traces),
-                ("--record" if record else "the record", record_file),
-                ("--rrd", rrd),
-                (summary_named, summary_csv),
-            ]
-        )
+        check_one_file_each([("--csv", csv_path), ("--csv's journal", journal), ("--plot", plot), ("--traces", traces),
+                             ("--record" if record else "the record", record_file), ("--rrd", rrd),
+                             (summary_named, summary_csv)])  # fmt: skip
         files = cls(csv_path, plot, traces, record_file, summary_csv, journal, resume, force)
         files.check_journal()
-        check_outputs(csv_path, plot, force or resume, rrd)  # --resume replaces its own outputs
-        for path in (traces, record_file):
+        check_outputs(csv_path, plot, force or resume, rrd)
+        for path in (traces, record_file, summary_csv):
             if path is not None:
                 check_output_path(path, force or resume)
         if traces is not None:
             check_trace_path(traces)
-        if summary_csv is not None:
-            check_output_path(summary_csv, force or resume)
         return files
 
     def check_journal(self) -> None:
         """The journal beside the CSV: being written by another study (refused), left by an earlier one
-        (refused without --resume or --force), or needed by --resume (its root seed read)."""
-        if self.resume and self.journal is None:
-            raise UserError("--resume needs the study's --csv (its journal lies beside it)")
+        (refused without --resume or --force), or read whole for --resume."""
         if self.journal is None:
+            if self.resume:
+                raise UserError("--resume needs the study's --csv (its journal lies beside it)")
             return
         state = journal_state(self.journal)
         if state == "busy":
@@ -345,11 +283,10 @@ class StudyFiles:
         if state == "left" and not (self.resume or self.force):
             raise UserError(left_over(self.journal))
         if self.resume and state is None:
-            older = self.csv_path is not None and self.csv_path.exists()
             raise UserError(
                 f"--resume: no journal {self.journal} beside {self.csv_path} to go on from (an earlier "
                 "version kept none): run the study again with --force"
-                if older
+                if self.csv_path.exists()
                 else f"--resume: {self.csv_path} does not exist (nothing to resume; leave out --resume)"
             )
         if self.resume:
@@ -370,7 +307,6 @@ class StudySession:
     tasks: list[RunTask]
     kept: list[RunRecord]
     backend: str
-    workers: int
     journal: Journal | None
     client: Any
     recorder: Recorder
@@ -382,70 +318,52 @@ class StudySession:
             self.journal.write({"run": [records[0].setting, records[0].run], "records": [r.to_json() for r in records]})
 
     def close(self, status: str | None = None, **closing: Any) -> None:
-        """The session's last line in the journal (with `status`), the journal and the claims released."""
+        """The session's last line in the journal (with `status`), the journal, the cluster and the claims
+        released."""
         if self.journal is not None and status is not None:
             self.journal.write({"closed": {"status": status, "ended": self.recorder.data.get("ended"), **closing}})
         if self.journal is not None:
             self.journal.close()
+        if self.client is not None:
+            close_client(self.client)
         self.release()
 
 
-def open_session(
-    plan: StudyPlan, files: StudyFiles, backend: str, visualize: Any, draw_run: int, dask: str | None, workers: int
-) -> StudySession:
+def open_session(plan: StudyPlan, files: StudyFiles, backend: str, visualize: Any, draw_run: int,
+                 dask: str | None, workers: int) -> StudySession:  # fmt: skip
     """The runs to go (a resumed study's checked against its journal), the claims, the journal, the
     cluster and the record; the study's header printed."""
     tasks, kept, earlier = plan.tasks(), [], []
-    if files.resume and files.journal is not None:
+    if files.resume:
         try:
             tasks, kept, earlier = resume_study(files.journal, files.lines, plan, backend)
         except JournalError as error:
             raise UserError(str(error) if str(error).startswith("--resume") else f"--resume: {error}") from None
     tasks = _drawn_first(tasks, draw_run) if visualize else tasks
-    release = claim_outputs(
-        [
-            ("--summary-csv", files.summary_csv),
-            ("--record", files.record_file),
-            ("--plot", files.plot),
-            ("--traces", files.traces),
-        ]
-    )
-    journal = client = None
+    outputs = {k: None if v is None else str(v) for k, v in (("csv", files.csv_path), ("plot", files.plot),
+                                                              ("traces", files.traces))}  # fmt: skip
+    recorder = Recorder("study", command_line(), plan.parameters(), outputs=outputs, sessions=earlier,
+                        csv_dtypes=CSV_DTYPES, backend=backend)  # fmt: skip
+    claimed = [("--summary-csv", files.summary_csv), ("--record", files.record_file), ("--plot", files.plot),
+               ("--traces", files.traces)]  # fmt: skip
+    session = StudySession(plan, files, tasks, kept, backend, None, None, recorder, claim_outputs(claimed))
     try:
-        journal = Journal(files.journal, adopt=files.resume, replace=files.force) if files.journal else None
-        client = connect(dask) if dask is not None else None  # a bad address: one line and exit 2, before anything
-        if client is not None:
-            check_workers(client, backend)  # workers that cannot run the backend, or of other versions: one line
+        session.journal = Journal(files.journal, adopt=files.resume, replace=files.force) if files.journal else None
+        session.client = connect(dask) if dask is not None else None  # a bad address: one line and exit 2
+        if session.client is not None:
+            check_workers(session.client, backend)  # workers that cannot run the backend, or of other versions
     except BaseException:
-        release()
-        if journal is not None:
-            journal.close()
-        if client is not None:
-            close_client(client)
+        session.close()
         raise
     typer.echo(plan.header(f"on the Dask cluster at {dask}" if dask is not None else f"{workers} worker(s)", backend))
     if visualize:
         typer.echo(f"drawing run {tasks[0].run} of setting {tasks[0].setting_index} (--draw-run chooses the run)")
     if files.resume:
         typer.echo(f"resuming: {len(kept)} rows kept from {files.journal}, {len(tasks)} run(s) to go")
-    outputs = {"csv": _name(files.csv_path), "plot": _name(files.plot), "traces": _name(files.traces)}
-    recorder = Recorder(
-        "study",
-        command_line(),
-        plan.parameters(),
-        outputs=outputs,
-        sessions=earlier,
-        csv_dtypes=CSV_DTYPES,
-        backend=backend,
-    )
-    session = StudySession(plan, files, tasks, kept, backend, workers, journal, client, recorder, release)
-    if journal is not None:  # the parameters --resume compares, before any run
-        journal.write({"session": {k: recorder.data[k] for k in ("command", "started", "parameters", "backend")}})
+    if session.journal is not None:  # the parameters --resume compares, before any run
+        session.journal.write({"session": {k: recorder.data[k] for k in ("command", "started", "parameters",
+                                                                           "backend")}})  # fmt: skip
     return session
-
-
-def _name(path: Path | None) -> str | None:
-    return None if path is None else str(path)
 
 
 def _drawn_first(tasks: list[RunTask], run: int) -> list[RunTask]:
@@ -456,25 +374,6 @@ def _drawn_first(tasks: list[RunTask], run: int) -> list[RunTask]:
     return [tasks[chosen], *tasks[:chosen], *tasks[chosen + 1 :]]
 
 
-def run_session(session: StudySession, visualize: Any, dask_timeout: float) -> StudyOutcome:
-    """The session's runs, on the workers or the cluster, each appended to the journal as it comes."""
-    try:
-        return run_study(
-            session.tasks,
-            session.workers,
-            visualize=visualize,
-            progress=True,
-            on_records=session.append,
-            dask=session.client,
-            dask_timeout=dask_timeout,
-            ignore_signals_after_stop=True,
-            backend=session.backend,
-        )
-    finally:
-        if session.client is not None:
-            close_client(session.client)
-
-
 def report_study(session: StudySession, outcome: StudyOutcome, extras: StudyExtras) -> None:
     """The failures, then the table (first: a write error cannot lose it), the CSV, the summary CSV, the
     traces, the figure and the record; a stopped or lost study keeps its runs in the journal and exits
@@ -482,28 +381,26 @@ def report_study(session: StudySession, outcome: StudyOutcome, extras: StudyExtr
     plan, files = session.plan, session.files
     for failure in outcome.failures:
         typer.echo(f"error: {failure.describe()}", err=True)
-    records = in_order([*session.kept, *outcome.records], plan)
+    names = [getattr(f, "name", f) for f in plan.filters]  # rows in (setting, run, filter) order
+    order = {name: i for i, name in enumerate(dict.fromkeys([*names, *(r.filter for r in outcome.records)]))}
+    records = sorted([*session.kept, *outcome.records], key=lambda r: (r.setting, r.run, order[r.filter]))
     summaries = summarise_study(records, plan.settings, paired=extras.paired)
-    closing = {
-        "runs_finished": len({(r.setting, r.run) for r in records}),
-        "runs_in_study": len(plan.tasks()),
-        "failures": [f.describe() for f in outcome.failures],
-        "summary": [s.as_dict() for s in summaries],
-        "paired": extras.paired,
-        "workers": [dataclasses.asdict(report) for report in outcome.workers.values()],
-        "startup_seconds": round(outcome.startup_seconds, 3),
-        **({"summary_csv": str(files.summary_csv)} if files.summary_csv is not None else {}),
-    }
+    closing = {"runs_finished": len({(r.setting, r.run) for r in records}), "runs_in_study": len(plan.tasks()),
+               "failures": [f.describe() for f in outcome.failures], "summary": [s.as_dict() for s in summaries],
+               "paired": extras.paired, "workers": [dataclasses.asdict(w) for w in outcome.workers.values()],
+               "startup_seconds": round(outcome.startup_seconds, 3),
+               **({"summary_csv": str(files.summary_csv)} if files.summary_csv is not None else {})}  # fmt: skip
     if outcome.interrupted or outcome.lost is not None:
         report_stopped(session, outcome, records, closing)
     typer.echo(study_table(summaries, plan.varied, kld=plan.kld))
     status = "finished" if not outcome.failures else "finished with failures"
     seconds = session.recorder.finish(status, **closing)["duration_seconds"]
     ran = len({(r.setting, r.run) for r in outcome.records})
-    typer.echo(f"{ran} runs in {seconds:.1f} s wall time; {startup_line(outcome)}")
-    typer.echo(
-        f"Repeat this study: {repeat_command(plan.seed, REPEAT_DROPS, REPEAT_DROPS_WITH_VALUE, session.backend)}"
-    )
+    typer.echo(f"{ran} runs in {seconds:.1f} s wall time on the {session.backend} backend; start-up "
+               f"{outcome.startup_seconds:.1f} s in {len(outcome.workers)} process(es) (numba's kernels loaded, first "
+               "calls; not in ms_per_step or run_seconds)")  # fmt: skip
+    repeat = repeat_command(plan.seed, REPEAT_DROPS, REPEAT_DROPS_WITH_VALUE, session.backend)
+    typer.echo(f"Repeat this study: {repeat}")
     write_outputs(session, records, summaries, extras)
     session.close(status, runs_finished=closing["runs_finished"])
     if outcome.failures:
@@ -534,7 +431,8 @@ def write_outputs(session: StudySession, records: list[RunRecord], summaries: li
     except OSError as error:
         kept = f"; {session.journal.kept()}" if session.journal is not None else ""
         session.close("finished, its files not written")
-        typer.echo(f"error: {describe_write_error(error)}{kept}", err=True)
+        cause = str(error) if isinstance(error, WriteError) else f"cannot write {error.filename}: {error.strerror}"
+        typer.echo(f"error: {cause}{kept}", err=True)
         raise typer.Exit(1) from None
 
 
@@ -561,44 +459,13 @@ def report_stopped(session: StudySession, outcome: StudyOutcome, records: list[R
     raise typer.Exit(128 + (outcome.stopped_by or signal.SIGINT))  # 130 Ctrl-C, 143 SIGTERM, 129 SIGHUP
 
 
-def startup_line(outcome: StudyOutcome) -> str:
-    """The processes' start-up, reported apart from ms/step and run_seconds (mazelab.experiments.warmup)."""
-    return (
-        f"start-up {outcome.startup_seconds:.1f} s in {len(outcome.workers)} process(es) (numba's kernels "
-        "loaded, first calls; not in ms_per_step or run_seconds)"
-    )
-
-
-def describe_write_error(error: OSError) -> str:
-    """One line naming the file and the cause of a write error."""
-    return str(error) if isinstance(error, WriteError) else f"cannot write {error.filename}: {error.strerror or error}"
-
-
-def in_order(records: list[RunRecord], plan: StudyPlan) -> list[RunRecord]:
-    """Rows in (setting, run, filter) order, filters in the study's order."""
-    names = [getattr(f, "name", f) for f in plan.filters]
-    order = {name: i for i, name in enumerate(dict.fromkeys([*names, *(r.filter for r in records)]))}
-    return sorted(records, key=lambda r: (r.setting, r.run, order[r.filter]))
-
-
 def draw_figure(plan: StudyPlan, summaries: list, plot: Path, replace: bool, extras: StudyExtras) -> None:
     """The study's figure (mazelab.experiments.study_plot), as `mazelab.study(...).figure(...)` draws it."""
     from mazelab.experiments.study_plot import plot_study, study_title
 
-    varied = plan.varied
-    title = extras.title or study_title(
-        varied, summaries, plan.runs, plan.settings[0].maze.label, extras.plot_x, extras.plot_y
-    )
-    plot_study(
-        summaries,
-        varied or ["maze"],
-        plot,
-        title,
-        replace=replace,
-        x=extras.plot_x,
-        y=extras.plot_y,
-        caption=extras.title is None,
-    )
+    varied, x, y = plan.varied, extras.plot_x, extras.plot_y
+    title = extras.title or study_title(varied, summaries, plan.runs, plan.settings[0].maze.label, x, y)
+    plot_study(summaries, varied or ["maze"], plot, title, replace=replace, x=x, y=y, caption=extras.title is None)
     typer.echo(f"figure written to {plot}")
 
 
