@@ -8,7 +8,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Any
 
 import typer
 
@@ -22,6 +22,7 @@ from mazelab.cli.options import (
     UserError,
     check_one_file_each,
     check_output_path,
+    opt,
     parse_list,
     seed_option,
 )
@@ -48,35 +49,37 @@ from mazelab.mazes import LAB_MAZES
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, check_model_parameters
 from mazelab.registry import resolve_filter
 
+Mazes = opt(str | None, help=f"maze files or names, comma-separated (default: the shipped {', '.join(LAB_MAZES)})")
+Sizes = opt(str | None, help="generated mazes ROWSxCOLUMNS, comma-separated")
+Stations = opt(str | None, help="generated mazes' station blocks, comma-separated")
+Filters = opt(str | None, metavar="NAMES",
+              help="sir, apf, rpf, ekf or FILE.py:Class, comma-separated [default: SIR, APF, both RPFs]")  # fmt: skip
+Sigma, Delta = opt(float, help="measurement noise std"), opt(float, help="compass error width, radians")
+Particles, Runs = opt(int, help="particle count N_S"), opt(int, min=1, help="seeded runs per maze")
+Steps = opt(int, min=2, help="steps per run (the distance is averaged over the second half)")
+Seed = opt(int, callback=seed_option, help="root seed (run r has the same seed on every maze)")
+Workers = opt(int | None, min=1, help="processes (default: all cores)")
+Csv = opt(Path | None, "--csv", help="one row per maze, run and filter")
+Record = opt(Path | None, help="the JSON record [default: beside --csv]")
+Force = opt(bool, "--force", help="replace existing output files")
+
 
 def accuracy(
-    maze: Annotated[
-        str | None,
-        typer.Option(help=f"maze files or names, comma-separated (default: the shipped {', '.join(LAB_MAZES)})"),
-    ] = None,
-    maze_size: Annotated[str | None, typer.Option(help="generated mazes ROWSxCOLUMNS, comma-separated")] = None,
-    stations: Annotated[str | None, typer.Option(help="generated mazes' station blocks, comma-separated")] = None,
-    filters: Annotated[
-        str | None,
-        typer.Option(
-            metavar="NAMES", help="sir, apf, rpf, ekf or FILE.py:Class, comma-separated [default: SIR, APF, both RPFs]"
-        ),
-    ] = None,
-    sigma: Annotated[float, typer.Option(help="measurement noise std")] = DEFAULT_SIGMA,
-    delta: Annotated[float, typer.Option(help="compass error width, radians")] = DEFAULT_DELTA,
-    particles: Annotated[int, typer.Option(help="particle count N_S")] = DEFAULT_PARTICLE_COUNT,
-    runs: Annotated[int, typer.Option(min=1, help="seeded runs per maze")] = 10,
-    steps: Annotated[
-        int, typer.Option(min=2, help="steps per run (the distance is averaged over the second half)")
-    ] = DEFAULT_STEPS,
-    seed: Annotated[
-        int, typer.Option(callback=seed_option, help="root seed (run r has the same seed on every maze)")
-    ] = 1,
+    maze: Mazes = None,
+    maze_size: Sizes = None,
+    stations: Stations = None,
+    filters: Filters = None,
+    sigma: Sigma = DEFAULT_SIGMA,
+    delta: Delta = DEFAULT_DELTA,
+    particles: Particles = DEFAULT_PARTICLE_COUNT,
+    runs: Runs = 10,
+    steps: Steps = DEFAULT_STEPS,
+    seed: Seed = 1,
     option: OptionFlag = None,
-    workers: Annotated[int | None, typer.Option(min=1, help="processes (default: all cores)")] = None,
-    csv_path: Annotated[Path | None, typer.Option("--csv", help="one row per maze, run and filter")] = None,
-    record: Annotated[Path | None, typer.Option(help="the JSON record [default: beside --csv]")] = None,
-    force: Annotated[bool, typer.Option("--force", help="replace existing output files")] = False,
+    workers: Workers = None,
+    csv_path: Csv = None,
+    record: Record = None,
+    force: Force = False,
     backend: BackendOption = None,
 ) -> None:
     """How close each filter comes to the exact posterior: per maze, the mean distance between its
@@ -88,26 +91,15 @@ def accuracy(
     mazes = accuracy_mazes(maze, maze_size, stations)
     chosen = with_options(accuracy_filters(None if filters is None else parse_filters(filters)), option)
     check_accuracy(mazes, chosen, sigma, delta, particles, runs, steps)
-    parameters = {
-        "mazes": [maze_description(m) for m in mazes],
-        "filters": [label for label, _, _ in chosen],
-        "sigma": sigma,
-        "delta": delta,
-        "particles": particles,
-        "runs": runs,
-        "steps": steps,
-        "root_seed": seed,
-    }
+    labels = [label for label, _, _ in chosen]
+    parameters = {"mazes": [maze_description(m) for m in mazes], "filters": labels, "sigma": sigma, "delta": delta,
+                  "particles": particles, "runs": runs, "steps": steps, "root_seed": seed}  # fmt: skip
     journal, kept, replace = open_journal(csv_path, record_file, parameters, force)
     tasks = accuracy_tasks([(m.label, m) for m in mazes], runs, sigma, delta, particles, steps, seed, chosen)
-    typer.echo(
-        f"Accuracy: {len(mazes)} maze(s) ({', '.join(m.label for m in mazes)}) x {runs} runs, sigma "
-        f"{sigma:g}, delta {delta:g}, {particles} particles, {steps} steps, seed {seed}; filters: "
-        f"{', '.join(label for label, _, _ in chosen)}"
-    )
-    recorder = Recorder(
-        "accuracy", command_line(), parameters, outputs={"csv": None if csv_path is None else str(csv_path)}
-    )
+    typer.echo(f"Accuracy: {len(mazes)} maze(s) ({', '.join(m.label for m in mazes)}) x {runs} runs, sigma "
+               f"{sigma:g}, delta {delta:g}, {particles} particles, {steps} steps, seed {seed}; filters: "
+               f"{', '.join(labels)}")  # fmt: skip
+    recorder = Recorder("accuracy", command_line(), parameters, outputs={"csv": csv_path and str(csv_path)})
     outputs = {"csv_path": csv_path, "record_file": record_file, "recorder": recorder, "replace": replace}
     run_and_report(tasks, kept, workers or default_workers(), journal, outputs)
 

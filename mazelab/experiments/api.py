@@ -161,37 +161,18 @@ def study_plan(
     in the record), `kidnap_at`, `kld`, `traces` (keep every run's per-step trace), `reference` ("grid":
     the distance to the exact posterior). TypeError for an argument of the wrong type (runs=True,
     sigma="0.3"), ValueError for a value out of its range or an empty list, each one line naming it."""
-    call = {
-        "maze": maze,
-        "filters": filters,
-        "options": options,
-        "runs": runs,
-        "steps": steps,
-        "seed": seed,
-        "kidnap_at": kidnap_at,
-        "kld": kld,
-        "traces": traces,
-        "reference": reference,
-        **values,
-    }
+    call = {**{k: v for k, v in locals().items() if k != "values"}, **values}  # the values as given, for the record
     given = {name: _listed(name, values.pop(name, None), *PLAN_ARGUMENTS[name]) for name in PLAN_ARGUMENTS}
     given["maze"] = _listed("maze", maze, *PLAN_ARGUMENTS["maze"])
     seed = None if seed is None else check_seed("seed", _whole("seed", seed))
     plan = plan_study(
-        study_mazes(*(given[name] for name in ("maze", "maze_size", "stations", "wall_share"))),
-        _filters(filters),
-        sigma=given["sigma"] or [0.3],
-        delta=given["delta"] or [0.5],
-        particles=given["particles"] or [DEFAULT_PARTICLE_COUNT],
-        options=_options(options, values),
-        runs=_whole("runs", runs),
-        steps=_whole("steps", steps),
-        seed=seed,
-        kidnap_at=_whole("kidnap_at", kidnap_at, optional=True),
-        kld=_flag("kld", kld),
-        traces=_flag("traces", traces),
+        study_mazes(*(given[name] for name in ("maze", "maze_size", "stations", "wall_share"))), _filters(filters),
+        sigma=given["sigma"] or [0.3], delta=given["delta"] or [0.5],
+        particles=given["particles"] or [DEFAULT_PARTICLE_COUNT], options=_options(options, values),
+        runs=_whole("runs", runs), steps=_whole("steps", steps), seed=seed,
+        kidnap_at=_whole("kidnap_at", kidnap_at, optional=True), kld=_flag("kld", kld), traces=_flag("traces", traces),
         reference=reference,
-    )
+    )  # fmt: skip
     plan.call = call_arguments(call, plan.seed)
     return plan
 
@@ -209,20 +190,10 @@ def study(
     **values)` makes: every combination of the values given, `runs` seeded runs per setting, every filter
     once per value of the options it takes) run on `workers` processes (None: all cores) or a Dask
     cluster (`dask`: a scheduler address or a distributed.Client); `paired` a filter of the study, each
-    other filter's summary then gets its paired difference to it.
-
-    Returns
-    -------
-    StudyResult
-        rows, summary, record (the same JSON record `mazelab study` writes), failures, traces.
-
-    Raises
-    ------
-    TypeError
-        An argument of the wrong type (runs=True, sigma="0.3", filters=[object], dask=42), named.
-    ValueError
-        A value out of its range, or an empty list (sigma=[]), named.
-    """
+    other filter's summary then gets its paired difference to it. Returns the rows, the summary, the
+    record (the same JSON record `mazelab study` writes), the failures and the traces (StudyResult); an
+    argument of the wrong type is a TypeError (runs=True, filters=[object], dask=42), a value out of its
+    range or an empty list a ValueError, each one line naming it."""
     if plan is not None and (maze is not None or values):
         raise TypeError("give the study's plan or its values, not both")
     workers = _whole("workers", workers, optional=True)
@@ -232,36 +203,28 @@ def study(
     if paired is not None and resolve_filter(paired).name not in [resolve_filter(f).name for f in plan.filters]:
         raise ValueError(f"paired={paired!r} is not one of the study's filters")
     dask = _dask(dask)
-    recorder = Recorder(
-        "study", [sys.argv[0] or "python", "mazelab.study(...)"], plan.parameters(), csv_dtypes=CSV_DTYPES
-    )
+    recorder = Recorder("study", [sys.argv[0] or "python", "mazelab.study(...)"], plan.parameters(),
+                        csv_dtypes=CSV_DTYPES)  # fmt: skip
     outcome = run_study(plan.tasks(), workers, dask=dask)
     summaries = summarise_study(outcome.records, plan.settings, paired=paired)
-    summary = summary_rows(summaries, plan.option_columns)
-    failures = [f.describe() for f in outcome.failures]
+    summary, failures = summary_rows(summaries, plan.option_columns), [f.describe() for f in outcome.failures]
+    call = {
+        **(plan.call or {}),
+        "paired": paired,
+        "workers": workers,
+        **({"dask": dask} if isinstance(dask, str) else {}),
+    }
     record = recorder.finish(
-        "finished" if not failures else "finished with failures",
-        summary=summary,
-        failures=failures,
-        runs_finished=len({(r.setting, r.run) for r in outcome.records}),
-        backend=outcome.backend,
+        "finished" if not failures else "finished with failures", summary=summary, failures=failures,
+        runs_finished=len({(r.setting, r.run) for r in outcome.records}), backend=outcome.backend,
         paired=None if paired is None else resolve_filter(paired).name,
-        call={
-            "function": "mazelab.study",
-            "arguments": {
-                **(plan.call or {}),
-                "paired": paired,
-                "workers": workers,
-                **({"dask": dask} if isinstance(dask, str) else {}),
-            },
-        },
+        call={"function": "mazelab.study", "arguments": call},
         workers=[asdict(report) for report in outcome.workers.values()],
         startup_seconds=round(outcome.startup_seconds, 3),
-    )
+    )  # fmt: skip
     columns = trace_table_columns(study_traces(outcome.records)) if plan.traces else None
-    return StudyResult(
-        [flat_row(r) for r in outcome.records], summary, record, failures, columns, summaries, plan.varied
-    )
+    rows = [flat_row(r) for r in outcome.records]
+    return StudyResult(rows, summary, record, failures, columns, summaries, plan.varied)
 
 
 def _dask(dask: Any) -> Any:

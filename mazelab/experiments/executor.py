@@ -132,49 +132,41 @@ def run_study(
     client = connect(dask) if isinstance(dask, str) else dask  # a bad address: one line, before anything runs
     backend = backend or study_backend(tasks, workers if client is None else 1)
     outcome = StudyOutcome(tasks=len(tasks), backend=backend)
-
-    def collect(results: list[UnitOutcome]) -> None:
-        for result in results:
-            outcome.add(result)
-            if on_records is not None and isinstance(result, list):
-                on_records(result)
-
     try:
         if client is not None:
             check_workers(client, backend)  # workers that cannot run it, or of other versions: one line
-        with (
-            progress_bar(len(tasks), progress) as advance,
-            stop_signals(lambda: ignore_signals_after_stop and outcome.interrupted),
-        ):
-            drawn, rest = (list(tasks[:1]), list(tasks[1:])) if visualize else ([], list(tasks))
-            units = study_units(rest, 1 if client is not None else workers)
+        keep_ignoring = lambda: ignore_signals_after_stop and outcome.interrupted  # noqa: E731
+        with progress_bar(len(tasks), progress) as advance, stop_signals(keep_ignoring):
             try:
-
-                def here() -> None:  # the drawn run, in this process (while the pool or cluster works)
-                    for task in drawn:
-                        collect(draw_task(task, visualize, backend))
-                        advance()
-
-                if client is None and (workers == 1 or len(units) <= 1):
-                    here()
-                    for unit in units:
-                        collect(run_unit_timed(unit, backend))
-                        advance(len(unit))
-                else:
-                    work = functools.partial(run_unit_timed, backend=backend)
-                    Units(units, work, workers, client, dask_timeout).run(collect, advance, here)
+                run_tasks(tasks, workers, client, backend, visualize, dask_timeout, outcome.collector(on_records),
+                          advance)  # fmt: skip
             except StudyLost as lost:
                 outcome.lost = str(lost)
             except KeyboardInterrupt as stop:
                 if ignore_signals_after_stop:
                     _ignore(STOP_SIGNALS)
-                outcome.interrupted = True
-                outcome.stopped_by = getattr(stop, "signum", signal.SIGINT)
+                outcome.interrupted, outcome.stopped_by = True, getattr(stop, "signum", signal.SIGINT)
     finally:
         if isinstance(dask, str):
             close_client(client)
     outcome.sort()
     return outcome
+
+
+def run_tasks(tasks: Sequence[RunTask], workers: int, client: Any, backend: str, visualize: Any, timeout: float,
+              collect: Callable[[list], None], advance: Callable[..., None]) -> None:  # fmt: skip
+    """The tasks in units (mazelab.experiments.batch_runs.study_units) on `backend`, the drawn one (with
+    `visualize`, the first) in this process while the pool or the cluster runs the rest."""
+    drawn, rest = (list(tasks[:1]), list(tasks[1:])) if visualize else ([], list(tasks))
+    units = study_units(rest, 1 if client is not None else workers)
+    work = functools.partial(run_unit_timed, backend=backend)
+
+    def here() -> None:
+        for task in drawn:
+            collect(draw_task(task, visualize, backend))
+            advance()
+
+    Units(units, work, workers, client, timeout).run(collect, advance, here)
 
 
 class Units:
@@ -196,7 +188,7 @@ class Units:
         self.size = min(workers, len(units))
         self.limit = len(units) if client is not None else 2 * workers
         self.restarts = 0
-        self.pool = self._executor()
+        self.pool: Any = None
 
     def _executor(self) -> Any:
         if self.client is not None:
@@ -210,6 +202,14 @@ class Units:
         finishes; the stop, a lost cluster or pool, raised again once the finished units are collected
         and the workers ended (or, on Dask, the rest cancelled)."""
         self.collect, self.advance = collect, advance
+        if self.client is None and self.size <= 1:  # one worker, or one unit: in this process, in order
+            here()
+            while self.waiting:
+                unit = self.waiting.popleft()
+                collect(self.work(unit))
+                advance(len(unit))
+            return
+        self.pool = self._executor()
         try:
             handed = self._hand_out()
             here()

@@ -191,21 +191,11 @@ def plugin_description(code: PluginCode) -> dict[str, str]:
 
 
 def plan_study(
-    mazes: Sequence[MazeChoice],
-    filters: str | Sequence[Any],
-    *,
-    sigma: Sequence[float],
-    delta: Sequence[float],
-    particles: Sequence[int],
-    options: Mapping[str, Sequence[Any]] | None = None,
-    runs: int = 30,
-    steps: int = 200,
-    seed: int | None = None,
-    kidnap_at: int | None = None,
-    kld: bool = False,
-    traces: bool = False,
+    mazes: Sequence[MazeChoice], filters: str | Sequence[Any], *, sigma: Sequence[float], delta: Sequence[float],
+    particles: Sequence[int], options: Mapping[str, Sequence[Any]] | None = None, runs: int = 30, steps: int = 200,
+    seed: int | None = None, kidnap_at: int | None = None, kld: bool = False, traces: bool = False,
     reference: str | None = None,
-) -> StudyPlan:
+) -> StudyPlan:  # fmt: skip
     """Check and combine a study's values into its plan (a new root seed if none is given).
 
     `options` are the filter options the study sets, by name, each a list of values (a plug-in's
@@ -232,18 +222,8 @@ def plan_study(
     check_filter_options(settings, names)
     if reference is not None:
         check_reference(reference, settings)
-    plan = StudyPlan(
-        settings,
-        names,
-        runs,
-        steps,
-        new_seed() if seed is None else seed,
-        kidnap_at,
-        kld,
-        traces,
-        reference,
-        plugin_codes(names),
-    )
+    seed = new_seed() if seed is None else seed
+    plan = StudyPlan(settings, names, runs, steps, seed, kidnap_at, kld, traces, reference, plugin_codes(names))
     plan.tasks()  # checks runs, steps and kidnap_at
     return plan
 

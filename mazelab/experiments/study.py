@@ -625,6 +625,18 @@ class StudyOutcome:
     workers: dict[str, WorkerReport] = field(default_factory=dict)  # each process's report, start-up summed
     backend: str = ""  # the one backend the study's runs ran on (mazelab.experiments.executor.study_backend)
 
+    def collector(self, on_records: Any = None) -> Any:
+        """The function that takes a unit's outcomes into this one, each run's records also handed to
+        `on_records` as they come (the study's journal appends them)."""
+
+        def collect(results: list) -> None:
+            for result in results:
+                self.add(result)
+                if on_records is not None and isinstance(result, list):
+                    on_records(result)
+
+        return collect
+
     def add(self, outcome: list[RunRecord] | RunFailure | WorkerReport) -> None:
         if isinstance(outcome, RunFailure):
             self.failures.append(outcome)

@@ -254,21 +254,13 @@ def _sort_key(value: Any) -> tuple[int, Any]:
 
 
 def plot_study(
-    summaries: Sequence[StudySummary],
-    varied: Sequence[str],
-    path: Path,
-    title: str,
-    *,
-    replace: bool = True,
-    x: str | None = None,
-    y: str = "mean",
-    caption: bool = True,
-) -> FigureLayout:
+    summaries: Sequence[StudySummary], varied: Sequence[str], path: Path, title: str, *, replace: bool = True,
+    x: str | None = None, y: str = "mean", caption: bool = True,
+) -> FigureLayout:  # fmt: skip
     """Draw the study's small multiples to `path` (.png at PNG_DPI, .pdf or .svg) and return their
-    layout with each panel's y range and box (an existing file is replaced only with `replace`).
-    `x` chooses the x axis among the varied parameters (default: `choose_x`), `y` what is drawn
-    (a key of Y_QUANTITIES); the title's second line says how (`caption`), unless `caption` is False
-    (a title of the user's own stands alone)."""
+    layout with each panel's y range and box (an existing file is replaced only with `replace`). `x`
+    chooses the x axis among the varied parameters (default: `choose_x`), `y` what is drawn (a key of
+    Y_QUANTITIES); a caption under the title says how, unless `caption` is False (a user's own title)."""
     plt = pyplot()
     import matplotlib
 
@@ -289,25 +281,20 @@ def plot_study(
         ranges, references = [], []
         for k, mine in enumerate(panels.values()):
             ax = axes[k // columns][k % columns]
-            ax.set_gid(f"panel-{k + 1}")
             lines = panel_lines(mine, x, options, layout.lines)
-            bottom, top = draw_panel(ax, lines, scale, layout.lines, k + 1, quantity)
-            ax.set_ylim(bottom, top)
-            ax.set_title(layout.panels[k] or None)
-            ax.set_xlabel(axis_label(x))
+            ranges.append(draw_panel(ax, lines, scale, layout.lines, k + 1, quantity))
+            ax.set(ylim=ranges[-1], title=layout.panels[k] or None, xlabel=axis_label(x), gid=f"panel-{k + 1}")
             ax.grid(alpha=0.3, linewidth=0.5)
-            ranges.append((bottom, top))
             references.append([line.label for line in lines if line.reference])
-        for k in range(count, rows * columns):
-            axes[k // columns][k % columns].set_visible(False)
-        for row in axes:
-            row[0].set_ylabel(quantity.label)
-        caveats = {line_label(s, []): s.log_evidence_caveat for s in summaries if s.log_evidence_caveat}
-        caveats = caveats if y == "evidence" else {}
+        for k, ax in enumerate(axes.flat):
+            ax.set_visible(k < count)
+            ax.set_ylabel(quantity.label if k % columns == 0 else "")
+        caveats = {line_label(s, []): s.log_evidence_caveat for s in summaries if s.log_evidence_caveat and
+                   y == "evidence"}  # fmt: skip
         _legend(figure, axes.flat[:count], layout.lines, set(caveats))
-        marks = [line for label, why in caveats.items()
-                 for line in textwrap.wrap(f"* {label}: its log evidence is {why}", CAPTION_WIDTH)]  # fmt: skip
-        figure.suptitle("\n".join([title, *([describe(scale, count, quantity)] if caption else []), *marks]))
+        marks = [f"* {label}: its log evidence is {why}" for label, why in caveats.items()]
+        lines = [title, *([describe(scale, count, quantity)] if caption else []), *marks]
+        figure.suptitle("\n".join(wrapped for line in lines for wrapped in textwrap.wrap(line, CAPTION_WIDTH)))
         save_figure(figure, path, replace=replace, dpi=PNG_DPI)
         boxes = [tuple(float(v) for v in ax.get_position().extents) for ax in axes.flat[:count]]
     return FigureLayout(layout.x, layout.panels, layout.lines, layout.shape, ranges, boxes, references)
@@ -391,18 +378,15 @@ def draw_panel(
     ax: Any, lines: Sequence[_Line], scale: XScale, all_labels: Sequence[str], panel: int,
     quantity: YQuantity = Y_QUANTITIES["mean"],
 ) -> tuple[float, float]:  # fmt: skip
-    """Draw a panel's lines (with error bars; moved apart sideways on a categorical axis only) and
-    references (dashed, shaded interval); returns its y range: from 0 (or the lowest interval of a
-    difference) to just above the highest interval or value; 0-100 for a share."""
+    """Draw a panel's lines (with error bars; points at one x set a little apart) and references (dashed,
+    shaded interval); returns its y range (`y_range`)."""
     drawn = [line for line in lines if not line.reference]
     slots = [label for label in all_labels if label in {line.label for line in drawn}]
-    unit = 100.0 if quantity.share else 1.0
-    highest, lowest = 0.0, 0.0
+    unit, shown = 100.0 if quantity.share else 1.0, []
     for line in drawn:
         j = slots.index(line.label)  # the same slot in every panel: a line keeps its place
         spread = DODGE if scale.kind == "category" else NUMERIC_DODGE * scale.gap  # a share of the x spacing
-        alone = scale.kind == "category" and not scale.categories  # nothing varied on x: a slot of its own each
-        offset = spread * (j / (len(slots) - 1) - 0.5) if len(slots) > 1 and not alone else 0.0
+        offset = spread * (j / (len(slots) - 1) - 0.5) if len(slots) > 1 else 0.0
         if scale.kind == "category" and not scale.categories:  # nothing varied on x: a slot per line
             where = np.array([float(all_labels.index(line.label))])
         else:
@@ -416,21 +400,27 @@ def draw_panel(
             capsize=2 + j % 3,
         )  # fmt: skip
         container.lines[0].set_gid(f"panel-{panel}:line:{line.label}")
-        highest = max(highest, float(np.nanmax(np.append(high, value))))
-        lowest = min(lowest, float(np.nanmin(np.append(low, value))))
-    for line in lines:
-        if line.reference:
-            (s,) = line.points[:1]
-            value, (low, high) = unit * quantity.value(s), (unit * v for v in quantity.interval(s))
-            dashes = line.style if line.style != "-" else "--"  # a reference is never a solid line
-            ax.axhline(value, color=line.colour, linestyle=dashes, linewidth=1.0, label=line.label,
-                       gid=f"panel-{panel}:reference:{line.label}")  # fmt: skip
-            if not math.isnan(low):
-                ax.axhspan(low, high, color=line.colour, alpha=0.15, linewidth=0)
-            highest = max(highest, value, 0.0 if math.isnan(high) else high)
-            lowest = min(lowest, value, 0.0 if math.isnan(low) else low)
+        shown += [*value, *low, *high]
+    for line in (line for line in lines if line.reference):
+        value, (low, high) = (
+            unit * quantity.value(line.points[0]),
+            (unit * v for v in quantity.interval(line.points[0])),
+        )
+        dashes = line.style if line.style != "-" else "--"  # a reference is never a solid line
+        ax.axhline(value, color=line.colour, linestyle=dashes, linewidth=1.0, label=line.label,
+                   gid=f"panel-{panel}:reference:{line.label}")  # fmt: skip
+        if not math.isnan(low):
+            ax.axhspan(low, high, color=line.colour, alpha=0.15, linewidth=0)
+        shown += [value, low, high]
     if quantity.signed:
         ax.axhline(0.0, color="black", linewidth=0.6)
+    x_axis(ax, scale, all_labels)
+    return y_range(shown, quantity)
+
+
+def x_axis(ax: Any, scale: XScale, all_labels: Sequence[str]) -> None:
+    """A panel's x axis: log for particle counts that span a doubling, the studied values as its ticks;
+    a category's names on a categorical one."""
     if scale.kind == "log":
         ax.set_xscale("log")
         ax.minorticks_off()
@@ -440,14 +430,18 @@ def draw_panel(
         names = scale.categories or tuple(all_labels)
         ax.set_xticks(range(len(names)), names, rotation=20 if max(map(len, names)) > 8 else 0, ha="right")
         ax.set_xlim(-0.5, len(names) - 0.5)
+
+
+def y_range(shown: Sequence[float], quantity: YQuantity) -> tuple[float, float]:
+    """A panel's y range from the values and intervals it shows: 0-105% for a share; from 0 (or 10%
+    below the lowest, for a difference) to 10% above the highest; or the values' span, 5% either side."""
+    values = [v for v in shown if not math.isnan(v)]
     if quantity.share:
         return 0.0, 105.0
+    low, high = min(values, default=0.0), max(values, default=0.0)
     if not quantity.from_zero:
-        values = [v for line in lines for s in line.points for v in (quantity.value(s), *quantity.interval(s))]
-        low, high = float(np.nanmin(values)), float(np.nanmax(values))
         return low - 0.05 * (high - low or 1.0), high + 0.05 * (high - low or 1.0)
-    top = 1.1 * highest if highest > 0 else 1.0
-    return (1.1 * lowest if lowest < 0 else 0.0), top
+    return (1.1 * low if low < 0 else 0.0), (1.1 * high if high > 0 else 1.0)
 
 
 def _legend(figure: Any, axes: Sequence[Any], order: Sequence[str], marked: set[str] = frozenset()) -> None:

@@ -99,49 +99,40 @@ def summarise_study(
     groups: dict[tuple[int, str], list[RunRecord]] = {}
     for record in records:
         groups.setdefault((record.setting, record.filter), []).append(record)
+    summaries = [summarise_group(index, settings[index - 1], name, group) for (index, name), group in groups.items()]
     reference = None if paired is None else resolve_filter(paired).name
-    summaries = []
-    for (index, name), group in groups.items():
-        finals = [r.final_error for r in group]
-        last = last_convergence_step(group[0].steps)
-        converged = [converged_within(r.converged_at, r.steps) for r in group]
-        median_step, step_interval = km_median([min(r.converged_at or last, last) for r in group], converged)
-        relocalised, steps_to_recover = recovery_summary(group)
-        distances = [r.distance_to_exact for r in group]
-        summary = StudySummary(
-            index,
-            settings[index - 1],
-            name,
-            len(group),
-            statistics.fmean(finals),
-            bootstrap_interval(finals, "mean", method=MEAN_METHOD),
-            sum(converged) / len(group),
-            None if math.isnan(median_step) else median_step,
-            statistics.fmean(r.ms_per_step for r in group),
-            relocalised,
-            steps_to_recover,
-            statistics.fmean(r.mean_particle_count for r in group),
-            statistics.median(finals),
-            bootstrap_interval(finals, "median", method=MEDIAN_METHOD),
-            wilson_interval(sum(converged), len(group)),
-            None if relocalised is None else wilson_interval(sum(bool(r.relocalised) for r in group), len(group)),
-            statistics.fmean(r.run_seconds for r in group),
-            step_interval,
-            last,
-            *_mean_and_interval(distances),
-        )
-        summary.mean_log_evidence, summary.log_evidence_se = _mean_and_error([r.log_evidence for r in group])
-        summary.log_evidence_caveat, summary.backend = group[0].log_evidence_caveat, group[0].backend
-        if reference is not None and name != reference and pairs_exactly(name, reference, settings):
+    for s in summaries:
+        if reference is not None and s.filter != reference and pairs_exactly(s.filter, reference, settings):
+            group = groups[s.setting_index, s.filter]
             pairs = paired_finals(group, records, settings, reference)
             if pairs:
                 mine, theirs = zip(*pairs, strict=True)
-                summary.paired_with, summary.paired_runs = reference, len(pairs)
-                summary.mean_difference, summary.difference_interval = paired_difference(
-                    mine, theirs, method=MEAN_METHOD
-                )
-        summaries.append(summary)
+                s.paired_with, s.paired_runs = reference, len(pairs)
+                s.mean_difference, s.difference_interval = paired_difference(mine, theirs, method=MEAN_METHOD)
     return summaries
+
+
+def summarise_group(index: int, setting: StudySetting, name: str, group: Sequence[RunRecord]) -> StudySummary:
+    """One setting and filter's statistics over its runs (`group`, its rows)."""
+    finals, runs = [r.final_error for r in group], len(group)
+    last = last_convergence_step(group[0].steps)
+    converged = [converged_within(r.converged_at, r.steps) for r in group]
+    median_step, step_interval = km_median([min(r.converged_at or last, last) for r in group], converged)
+    relocalised, steps_to_recover = recovery_summary(group)
+    relocalised_interval = None if relocalised is None else wilson_interval(sum(bool(r.relocalised) for r in group),
+                                                                            runs)  # fmt: skip
+    summary = StudySummary(
+        index, setting, name, runs, statistics.fmean(finals), bootstrap_interval(finals, "mean", method=MEAN_METHOD),
+        sum(converged) / runs, None if math.isnan(median_step) else median_step,
+        statistics.fmean(r.ms_per_step for r in group), relocalised, steps_to_recover,
+        statistics.fmean(r.mean_particle_count for r in group), statistics.median(finals),
+        bootstrap_interval(finals, "median", method=MEDIAN_METHOD), wilson_interval(sum(converged), runs),
+        relocalised_interval, statistics.fmean(r.run_seconds for r in group), step_interval, last,
+        *_mean_and_interval([r.distance_to_exact for r in group]),
+    )  # fmt: skip
+    summary.mean_log_evidence, summary.log_evidence_se = _mean_and_error([r.log_evidence for r in group])
+    summary.log_evidence_caveat, summary.backend = group[0].log_evidence_caveat, group[0].backend
+    return summary
 
 
 def convergence_window(steps: int) -> int:
