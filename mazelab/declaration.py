@@ -332,19 +332,6 @@ class Option:
         """
         return value if self.check is None else self.check(value)
 
-    def show(self, value: Any) -> str:
-        """A value of this option in a few words, for tables and labels (`show_value`).
-
-        Parameters
-        ----------
-        value : Any
-
-        Returns
-        -------
-        str
-        """
-        return show_value(value)
-
 
 class Options(Mapping[str, Option]):
     """A filter's options by name, in declaration order (`extend` makes a new declaration).
