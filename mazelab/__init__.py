@@ -27,9 +27,9 @@ __version__ = "0.2.0"
 
 
 def __getattr__(name: str) -> Any:
-    """`mazelab.study(...)`, the Python entry point of studies (mazelab.experiments.api), imported on
-    first use so that `import mazelab` stays light."""
-    if name in ("study", "StudyResult"):
+    """`mazelab.study(...)` and `mazelab.study_plan(...)`, the Python entry points of studies
+    (mazelab.experiments.api), imported on first use so that `import mazelab` stays light."""
+    if name in ("study", "study_plan", "StudyResult"):
         from mazelab.experiments import api
 
         return getattr(api, name)

@@ -332,19 +332,6 @@ class Option:
         """
         return value if self.check is None else self.check(value)
 
-    def show(self, value: Any) -> str:
-        """A value of this option in a few words, for tables and labels (`show_value`).
-
-        Parameters
-        ----------
-        value : Any
-
-        Returns
-        -------
-        str
-        """
-        return show_value(value)
-
 
 class Options(Mapping[str, Option]):
     """A filter's options by name, in declaration order (`extend` makes a new declaration).
@@ -507,6 +494,24 @@ class Options(Mapping[str, Option]):
                 raise ValueError(f"{owner} does not take the option {name} (it takes: {takes})")
 
 
+def scoped(key: str) -> tuple[str | None, str]:
+    """An option's key as a study or a command sets it, split into its filter and its name.
+
+    Parameters
+    ----------
+    key : str
+        'threshold' (every filter that declares it) or 'rpf.threshold' (that filter alone; a short name,
+        a class name or a plug-in's FILE.py:Class before the last dot).
+
+    Returns
+    -------
+    (str or None, str)
+        ('rpf', 'threshold'), or (None, 'threshold') for an option of every filter.
+    """
+    scope, dot, name = key.rpartition(".")
+    return (scope, name) if dot and scope and name.isidentifier() else (None, key)
+
+
 def options_of(filter_class: type) -> Options:
     """A filter class's declared options as Options: its `options` as they are, or a plain mapping read
     as a declaration.
@@ -562,6 +567,7 @@ __all__ = [
     "options_of",
     "parse_flag",
     "parse_literal",
+    "scoped",
     "show_value",
     "to_plain_json",
 ]

@@ -67,6 +67,9 @@ class FilterEntry:
         False for a new class until it says so).
     plugin : PluginReference or None
         A plug-in's file, its sha256 and its class; None for a filter of the package.
+    evidence : str
+        Why its log evidence is not an estimate of p(z_1:K) under the lab's model, said beside every
+        such figure (tables, files, figures); empty when it is one (or when it keeps none).
     """
 
     filter_class: type
@@ -77,6 +80,7 @@ class FilterEntry:
     takes_particles: bool = True
     batched: bool = False
     plugin: PluginReference | None = None
+    evidence: str = ""
 
     @property
     def name(self) -> str:
@@ -94,13 +98,19 @@ class FilterEntry:
         return self.short_name if self.plugin is None else self.plugin.canonical
 
 
+# the RPF's log evidence: the kernel's jitter after resampling is a move of the particles that is not the
+# model's transition and that its weights leave out, so the product of its mean weights is not p(z_1:K)
+RPF_EVIDENCE = (
+    "not an estimate of p(z_1:K) under the model: its kernel jitters the particles after resampling, "
+    "a move its weights leave out"
+)
 SHIPPED: tuple[FilterEntry, ...] = (
     FilterEntry(SIRParticleFilter, "sir", "SIR", PALETTE[0], "sampling importance resampling (Algorithm 4)",
                 batched=True),
     FilterEntry(AuxiliaryParticleFilter, "apf", "APF", PALETTE[1], "the auxiliary particle filter (Algorithm 5)",
                 batched=True),
     FilterEntry(RegularizedParticleFilter, "rpf", "RPF", PALETTE[2], "the regularised particle filter (Algorithm 6)",
-                batched=True),
+                batched=True, evidence=RPF_EVIDENCE),
     FilterEntry(GridBayesFilter, "grid", "grid", PALETTE[3], "the exact Bayes filter on a fine grid (the reference)",
                 takes_particles=False),
     FilterEntry(ExtendedKalmanFilter, "ekf", "EKF", PALETTE[4], "an extended Kalman filter (the baseline)",
@@ -142,20 +152,6 @@ def register(entry: FilterEntry) -> FilterEntry:
     _BY_CLASS[entry.filter_class] = entry
     _BY_NAME[entry.name] = entry
     return entry
-
-
-def unregister(short_name: str) -> None:
-    """Remove a registered package filter (not one of SHIPPED).
-
-    Parameters
-    ----------
-    short_name : str
-    """
-    entry = next((e for e in _ENTRIES if e.short_name == short_name and e not in SHIPPED), None)
-    if entry is None:
-        raise ValueError(f"no registered filter {short_name!r} to remove (the lab's own stay)")
-    _ENTRIES.remove(entry)
-    del _BY_CLASS[entry.filter_class], _BY_NAME[entry.name]
 
 
 def entries() -> list[FilterEntry]:
@@ -287,7 +283,8 @@ _made: dict[type, FilterEntry] = {}
 
 def _entry_of_class(filter_class: type, plugin: PluginReference | None) -> FilterEntry:
     """An entry for a class that is not shipped, from its own attributes: `name`, an optional `label`,
-    `takes_particles` (default True) and `batched` (declared on the class itself, default False)."""
+    `takes_particles` (default True), `batched` (declared on the class itself, default False) and
+    `evidence` (why its log evidence is not of p(z_1:K), default none)."""
     if filter_class in _made and (plugin is None or _made[filter_class].plugin == plugin):
         return _made[filter_class]
     used = {entry.colour for entry in (*_ENTRIES, *_made.values())}
@@ -305,6 +302,7 @@ def _entry_of_class(filter_class: type, plugin: PluginReference | None) -> Filte
         takes_particles=bool(getattr(filter_class, "takes_particles", True)),
         batched=bool(filter_class.__dict__.get("batched", False)),
         plugin=plugin,
+        evidence=str(getattr(filter_class, "evidence", "") or ""),
     )
     _made[filter_class] = entry
     return entry
@@ -343,6 +341,22 @@ def labels(names: Sequence[str]) -> dict[str, str]:
     return {name: (entry.label if (entry := entry_by_name(name)) else name) for name in names}
 
 
+def evidence_caveat(name: str) -> str:
+    """Why a filter's log evidence (by the name results carry) is not an estimate of p(z_1:K) under the
+    model (its entry's `evidence`), or "" when it is one or the filter is unknown here.
+
+    Parameters
+    ----------
+    name : str
+
+    Returns
+    -------
+    str
+    """
+    entry = entry_by_name(name)
+    return entry.evidence if entry is not None else ""
+
+
 def rgb(colour: Colour) -> tuple[float, float, float]:
     """An RGB 0-255 colour in matplotlib's 0-1 form.
 
@@ -378,11 +392,13 @@ FILTERS: dict[str, type] = {entry.filter_class.__name__: entry.filter_class for 
 __all__ = [
     "FILTERS",
     "PALETTE",
+    "RPF_EVIDENCE",
     "SHIPPED",
     "FilterEntry",
     "colour_of",
     "entries",
     "entry_by_name",
+    "evidence_caveat",
     "filter_entry",
     "is_shipped",
     "labels",
@@ -392,5 +408,4 @@ __all__ = [
     "rgb",
     "shipped_entry",
     "short_names",
-    "unregister",
 ]

@@ -47,7 +47,8 @@ from mazelab.declaration import options_of
 from mazelab.limits import check_memory
 from mazelab.maze import Maze
 from mazelab.maze_paths import MAZES_DIR, shipped_mazes
-from mazelab.registry import FilterEntry, shipped_entry
+from mazelab.plugins import loaded_plugin
+from mazelab.registry import FilterEntry, filter_entry, shipped_entry
 from mazelab.robot import Robot
 
 DEFAULT_PARAMETERS_PATH = Path("model_parameters.json")  # the paper's file (lab steps 9-10), in the working folder
@@ -250,21 +251,33 @@ class Scenario(BaseModel):
             entry.options.from_json(self.filter_options, entry.name)
 
     def filter_kwargs(self, filter_class: type | None = None) -> dict[str, Any]:
-        """The stored filter options as keyword arguments of `filter_class` (default: the lab's filter
-        the scenario names), those it declares, checked by its declaration; empty when none are stored.
-        For another filter than the one that made the run, only the options that run chose (not its
-        defaults: SIR's `threshold` 1 is not the RPF's 0.2)."""
-        made_by = self.shipped_filter
+        """The stored filter options as keyword arguments of `filter_class` (default: the lab's filter the
+        scenario names), those it declares, checked by its declaration; empty when none are stored. The
+        options are the run's filter's: another filter takes only those that run chose away from its own
+        defaults (SIR's `threshold` 1 is not the RPF's 0.2), and none when the filter that made the run is
+        not known here (a plug-in not loaded in this process: its defaults cannot be told apart)."""
+        maker = self.maker()
         if filter_class is None:
-            if made_by is None:
+            if maker is None or self.filter_plugin is not None:
                 return {}
-            filter_class = made_by.filter_class
+            filter_class = maker
         declared = options_of(filter_class)
         stored = {k: v for k, v in (self.filter_options or {}).items() if k in declared and not declared[k].derived}
-        if made_by is not None and made_by.filter_class is not filter_class:
-            own = made_by.options.to_json(made_by.options.defaults())
-            stored = {k: v for k, v in stored.items() if k not in own or own[k] != v}
+        if maker is not filter_class:
+            own = {} if maker is None else options_of(maker).to_json(options_of(maker).defaults())
+            stored = {k: v for k, v in stored.items() if maker is not None and (k not in own or own[k] != v)}
         return declared.from_json(stored, filter_class.name)
+
+    def maker(self) -> type | None:
+        """The class of the filter that made the run, if this process knows it: the lab's filter it names,
+        or its plug-in once loaded here (the same class, file and sha256); else None."""
+        if self.filter_plugin is None:
+            return None if self.shipped_filter is None else self.shipped_filter.filter_class
+        loaded = loaded_plugin(self.filtering_algorithm or "")
+        reference = None if loaded is None else filter_entry(loaded).plugin
+        same = reference is not None and (reference.sha256, reference.class_name) == (
+            self.filter_plugin.sha256, self.filter_plugin.class_name)  # fmt: skip
+        return loaded if same else None
 
     def plugin_name_problem(self, name: str, sha256: str, class_name: str) -> str | None:
         """Why the plug-in `class_name` loaded now (its `name`, its file's `sha256`) cannot be the one

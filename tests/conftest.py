@@ -2,8 +2,7 @@
 
 from __future__ import annotations
 
-import csv
-import io
+import json
 import os
 import signal
 import subprocess
@@ -80,19 +79,22 @@ def start_study_process(arguments: list[str]) -> subprocess.Popen:
     )
 
 
-def finished_rows(table: Path) -> list[dict[str, str]]:
-    """The whole rows a study's CSV holds so far (none before it exists)."""
+def finished_rows(journal: Path) -> list[dict[str, str]]:
+    """The rows a study's journal (NAME.runs.jsonl) holds so far, each as the CSV writes it (text cells;
+    none before it exists): whole lines only, as a study that goes on reads them."""
     try:
-        text = table.read_text()
+        text = journal.read_text()
     except FileNotFoundError:
         return []
-    return list(csv.DictReader(io.StringIO(text[: text.rfind("\n") + 1])))  # whole lines only
+    lines = [json.loads(line) for line in text[: text.rfind("\n") + 1].splitlines()]
+    rows = [row for line in lines if "run" in line for row in line["records"]]
+    return [{k: "" if v is None else str(v) for k, v in row.items() if k not in ("options", "trace")} for row in rows]
 
 
-def wait_for_rows(table: Path, count: int, process: subprocess.Popen, timeout: float = 60) -> None:
-    """Wait until the study's CSV holds `count` finished rows, the study ends, or `timeout` seconds pass."""
+def wait_for_rows(journal: Path, count: int, process: subprocess.Popen, timeout: float = 60) -> None:
+    """Wait until the study's journal holds `count` finished rows, the study ends, or `timeout` seconds pass."""
     deadline = time.monotonic() + timeout
-    while len(finished_rows(table)) < count and process.poll() is None and time.monotonic() < deadline:
+    while len(finished_rows(journal)) < count and process.poll() is None and time.monotonic() < deadline:
         time.sleep(0.1)
 
 

@@ -94,3 +94,40 @@ def test_a_stopped_accuracy_ends_its_workers_and_keeps_what_finished(tmp_path, s
     assert not children_of(process.pid) and not any(Path(f"/proc/{pid}").exists() for pid in workers)
     if table.exists():  # the runs that finished before the stop, whole
         assert json.loads(table.with_suffix(".record.json").read_text())["status"] == "interrupted"
+
+
+def test_the_same_command_after_an_interrupted_accuracy_resumes_it_and_another_replaces_it(tmp_path, monkeypatch,
+                                                                                          capsys):  # fmt: skip
+    """An interrupted accuracy leaves its CSV, record and journal: the same command goes on from the runs
+    it finished (saying so) and ends with an uninterrupted run's CSV; one of other parameters replaces
+    what it left (saying so), without --force."""
+    from mazelab.experiments import accuracy as accuracy_module
+
+    args = ["accuracy", "--maze", "paper_5x5", "--runs", "3", "--steps", "6", "--particles", "40", "--filters", "sir",
+            "--workers", "1"]  # fmt: skip
+    table, whole = tmp_path / "a.csv", tmp_path / "whole.csv"
+    assert main([*args, "--csv", str(whole)]) == 0
+    real, done = accuracy_module.run_accuracy_task, []
+
+    def stop_at_the_third(task):
+        if len(done) == 2:
+            raise KeyboardInterrupt
+        done.append(task)
+        return real(task)
+
+    monkeypatch.setattr(accuracy_module, "run_accuracy_task", stop_at_the_third)
+    assert main([*args, "--csv", str(table)]) == 130
+    assert json.loads(table.with_suffix(".record.json").read_text())["status"] == "interrupted"
+    monkeypatch.setattr(accuracy_module, "run_accuracy_task", real)
+    capsys.readouterr()
+    assert main([*args, "--csv", str(table)]) == 0
+    out = capsys.readouterr().out
+    assert "resuming the interrupted run of" in out and "2 runs kept" in out
+    assert table.read_text() == whole.read_text()
+    monkeypatch.setattr(accuracy_module, "run_accuracy_task", stop_at_the_third)
+    done.clear()
+    assert main([*args, "--csv", str(table), "--force"]) == 130
+    monkeypatch.setattr(accuracy_module, "run_accuracy_task", real)
+    capsys.readouterr()
+    assert main([*args[:-2], "--workers", "1", "--steps", "7", "--csv", str(table)]) == 0
+    assert "replacing what an interrupted run left" in capsys.readouterr().out

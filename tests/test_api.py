@@ -23,7 +23,7 @@ SMALL = {"maze": "paper_5x5", "runs": 1, "steps": 3, "particles": 20, "filters":
         ({"sigma": [0.3, True]}, TypeError, "sigma takes a number or a list of them, got True"),
         ({"particles": [100, 1.5]}, TypeError, "particles takes a whole number or a list of them, got 1.5"),
         ({"delta": ()}, ValueError, "delta is empty"),
-        ({"estimate": [1]}, TypeError, "estimate takes"),
+        ({"estimate": [1]}, ValueError, "estimate must be one of mean, mode, got 1"),  # by its declaration
         ({"filters": [object]}, TypeError, "filters: object is not a filter class: it has no class attribute 'name'"),
         ({"filters": [42]}, TypeError, "filters takes filter names or filter classes or a list of them, got 42"),
         ({"filters": []}, ValueError, "filters is empty"),

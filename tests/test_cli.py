@@ -32,7 +32,7 @@ def test_run_saves_and_replays_a_scenario(tmp_path, capsys):
 @pytest.mark.parametrize(
     ("args", "message"),
     [
-        (["run", "--particles", "0"], "--particles"),
+        (["run", "--particles", "0"], "particle_count must be a whole number >= 1"),  # the library's check
         (["run", "--steps", "-3"], "--steps"),
         (["run", "--sigma", "abc"], "--sigma"),
         (["run", "--sigma", "-1"], "sigma must be > 0"),

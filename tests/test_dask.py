@@ -10,7 +10,7 @@ import signal
 import time
 
 import pytest
-from conftest import start_study_process, wait_for_rows
+from conftest import finished_rows, start_study_process, wait_for_rows
 
 from mazelab.cli.app import main
 from mazelab.experiments.executor import run_study
@@ -71,12 +71,12 @@ def test_ctrl_c_on_a_dask_study_cancels_the_rest_and_keeps_the_finished_rows(clu
     process = start_study_process(
         [*long_study, "--seed", "1", "--csv", str(table), "--dask", cluster.scheduler_address]
     )
-    wait_for_rows(table.with_name("s.csv.partial"), 2, process)
+    wait_for_rows(table.with_name("s.runs.jsonl"), 2, process)
     deadline = time.monotonic() + 60
     os.killpg(process.pid, signal.SIGINT)
     _, err = process.communicate(timeout=60)
     assert process.returncode == 130 and "interrupted after" in err and "Traceback" not in err, err
-    rows = list(csv.DictReader(io.StringIO(table.with_name("s.csv.partial").read_text())))
+    rows = finished_rows(table.with_name("s.runs.jsonl"))
     assert 2 <= len(rows) < 2000 and not table.exists()
     while cluster.scheduler.tasks and time.monotonic() < deadline:  # the client is gone: nothing left to run
         time.sleep(0.1)

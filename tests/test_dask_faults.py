@@ -11,11 +11,12 @@ import signal
 from pathlib import Path
 
 import pytest
+from conftest import finished_rows
 from test_executor import kill_run_2_after_another_run, wait_until_broken
 
 from mazelab.cli.app import main
-from mazelab.experiments import executor, units
-from mazelab.experiments.rowlog import RowLog
+from mazelab.experiments import executor
+from mazelab.experiments.journal import Journal
 
 distributed = pytest.importorskip("distributed")
 
@@ -44,15 +45,15 @@ def test_a_dead_scheduler_is_one_line_keeps_the_rows_and_the_old_csv(tmp_path, m
     table = tmp_path / "s.csv"
     table.write_text("old\n")
     cluster = local_cluster(1)
-    real_append = RowLog.append
+    real_write = Journal.write
 
-    def append_then_kill_the_scheduler(log, records):
-        real_append(log, records)
-        if not getattr(log, "_killed", False):
-            log._killed = True
+    def write_then_kill_the_scheduler(journal, line):
+        real_write(journal, line)
+        if "run" in line and not getattr(journal, "_killed", False):
+            journal._killed = True
             cluster.close()  # the scheduler (and its worker) go away mid-study
 
-    monkeypatch.setattr(RowLog, "append", append_then_kill_the_scheduler)
+    monkeypatch.setattr(Journal, "write", write_then_kill_the_scheduler)
     try:
         code = main([*STUDY, "--runs", "60", "--dask", cluster.scheduler_address, "--csv", str(table), "--force"])
     finally:
@@ -60,10 +61,11 @@ def test_a_dead_scheduler_is_one_line_keeps_the_rows_and_the_old_csv(tmp_path, m
     err = capsys.readouterr().err
     assert code == 1, err
     lines = [line for line in err.splitlines() if line.startswith("error")]
-    assert len(lines) == 1 and "Dask scheduler" in lines[0] and f"rows are in {table}.partial" in lines[0], err
+    journal = table.with_name("s.runs.jsonl")
+    assert len(lines) == 1 and "Dask scheduler" in lines[0] and f"rows are in {journal}" in lines[0], err
     assert "Traceback" not in err and "FutureCancelledError" not in err
     assert table.read_text() == "old\n"
-    assert 1 <= len(rows(table.with_name("s.csv.partial"))) < 60
+    assert 1 <= len(finished_rows(journal)) < 60
 
 
 def test_a_cluster_without_workers_ends_after_the_dask_timeout(tmp_path, capsys):
@@ -78,25 +80,28 @@ def test_a_cluster_without_workers_ends_after_the_dask_timeout(tmp_path, capsys)
     assert "0 of 3 runs finished" in line and not table.exists()
 
 
-def kill_the_worker_always(unit):
+REAL_RUN_UNIT = executor.run_unit_timed
+
+
+def kill_the_worker_always(unit, backend):
     if any(task.run == 2 for task in unit):
         os.kill(os.getpid(), signal.SIGKILL)
-    return units.run_unit_timed(unit)
+    return REAL_RUN_UNIT(unit, backend)
 
 
 def test_a_killed_local_worker_restarts_the_pool_and_the_study_goes_on(tmp_path, monkeypatch, capsys):
     """Run 2's worker dies (kill -9) at a known point: just after the study appended another run's
     rows, before it hands out more (the pool is broken then); no timing decides the path."""
     pools = kill_run_2_after_another_run(tmp_path, monkeypatch)
-    real_append = RowLog.append
+    real_write = Journal.write
 
-    def append_then_kill_run_2(log, records):
-        real_append(log, records)
-        if not (tmp_path / "go").exists():
+    def write_then_kill_run_2(journal, line):
+        real_write(journal, line)
+        if "run" in line and not (tmp_path / "go").exists():
             (tmp_path / "go").touch()
             wait_until_broken(pools[-1])
 
-    monkeypatch.setattr(RowLog, "append", append_then_kill_run_2)
+    monkeypatch.setattr(Journal, "write", write_then_kill_run_2)
     table = tmp_path / "s.csv"
     assert main([*STUDY, "--runs", "8", "--workers", "2", "--csv", str(table)]) == 0
     assert (tmp_path / "killed").exists()
@@ -111,5 +116,6 @@ def test_workers_that_keep_dying_stop_the_study_with_the_rows_kept(tmp_path, mon
     assert main([*STUDY, "--runs", "6", "--workers", "2", "--csv", str(table)]) == 1
     err = capsys.readouterr().err
     (line,) = [line for line in err.splitlines() if line.startswith("error")]
-    assert "worker processes died" in line and f"rows are in {table}.partial" in line
-    assert "2" not in {r["run"] for r in rows(table.with_name("s.csv.partial"))} and not table.exists()
+    journal = table.with_name("s.runs.jsonl")
+    assert "worker processes died" in line and f"rows are in {journal}" in line
+    assert "2" not in {r["run"] for r in finished_rows(journal)} and not table.exists()

@@ -49,7 +49,7 @@ def test_a_killed_scheduler_is_one_line_without_distributeds_logs(tmp_path):
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         )  # fmt: skip
         deadline = time.monotonic() + 120
-        while not finished_rows(table.with_name("s.csv.partial")) and study.poll() is None:
+        while not finished_rows(table.with_name("s.runs.jsonl")) and study.poll() is None:
             assert time.monotonic() < deadline, "the study wrote no rows"
             time.sleep(0.05)
         cluster.send_signal(signal.SIGKILL)  # the scheduler and its worker die at once
@@ -60,5 +60,9 @@ def test_a_killed_scheduler_is_one_line_without_distributeds_logs(tmp_path):
     lines = [line for line in err.splitlines() if not line.startswith("runs ")]  # the progress bar aside
     assert study.returncode == 1, err
     (line,) = lines
-    assert line.startswith("error: lost the ") and "Dask" in line and f"rows are in {table}.partial" in line, err
+    assert (
+        line.startswith("error: lost the ")
+        and "Dask" in line
+        and f"rows are in {table.with_name('s.runs.jsonl')}" in line
+    ), err
     assert "Traceback" not in err and "distributed" not in err and "ERROR" not in err

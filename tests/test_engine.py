@@ -133,10 +133,10 @@ def test_a_scenario_of_sir_replays_with_the_rpf_at_the_rpfs_own_threshold(paper_
 
 
 def test_a_studys_threshold_that_none_of_its_filters_takes_is_refused_in_one_line(capsys):
-    """The study's threshold is the RPF's N_T (lab step 14): it does not reach SIR or the APF, whose
-    default is every step, so a study of those alone refuses it rather than ignore it."""
+    """The study's threshold reaches every filter that declares it (SIR's and the APF's adaptive
+    resampling too); one none of its filters declares (the grid filter's) is refused rather than ignored."""
     from mazelab.cli.app import main
 
-    assert main(["study", "--filters", "sir,apf", "--threshold", "0.3", "--runs", "2", "--steps", "5", "--no-viz"]) == 2
+    assert main(["study", "--filters", "grid", "--threshold", "0.3", "--runs", "2", "--steps", "5", "--no-viz"]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "SIRParticleFilter and AuxiliaryParticleFilter resample every step" in err
+    assert err.count("\n") == 1 and "GridBayesFilter does not take --threshold" in err

@@ -16,13 +16,16 @@ from pathlib import Path
 
 import pytest
 
-from mazelab.experiments import executor, units
+from mazelab.experiments import executor
 from mazelab.experiments.plan import plan_study, study_mazes
 
 WAIT_SECONDS = 60  # for a condition that comes within milliseconds: a bound, not a timing
 
 
-def die_once_another_run_has_finished(unit):
+REAL_RUN_UNIT = executor.run_unit_timed
+
+
+def die_once_another_run_has_finished(unit, backend):
     """run_unit_timed, but run 2's first attempt waits until the main process has taken another run's
     rows (the file `go`), then dies as with kill -9 (the file `killed` says it did)."""
     folder = Path(os.environ["MAZELAB_TEST_DIR"])
@@ -32,7 +35,7 @@ def die_once_another_run_has_finished(unit):
             time.sleep(0.01)  # waits for a condition; the outcome does not depend on how long
         (folder / "killed").touch()
         os.kill(os.getpid(), signal.SIGKILL)
-    return units.run_unit_timed(unit)
+    return REAL_RUN_UNIT(unit, backend)
 
 
 def wait_until_broken(pool: ProcessPoolExecutor) -> None:

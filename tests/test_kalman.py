@@ -199,8 +199,8 @@ def test_compare_has_an_ekf_row(tmp_path, capsys):
     assert main([*args, "--save-scenario", str(path)]) == 0
     assert main(["compare", str(path), "--filters", "sir,ekf", "--no-viz"]) == 0
     rows = {line.split()[0]: line.split() for line in capsys.readouterr().out.splitlines() if line.strip()}
-    assert "ExtendedKalmanFilter" in rows and "SIRParticleFilter" in rows
-    assert "-" in rows["ExtendedKalmanFilter"] and "-" not in rows["SIRParticleFilter"]  # mean ESS: not a sample
+    assert "EKF" in rows and "SIR" in rows  # the registry's labels
+    assert "-" in rows["EKF"] and "-" not in rows["SIR"]  # mean ESS: not a sample
 
 
 def test_the_recording_draws_the_covariance_ellipse_and_no_particles(tmp_path, paper_world):

@@ -19,9 +19,11 @@ from test_visualization import _ctrl_c_once, latest, load
 
 from mazelab import maze_paths, mazes
 from mazelab.cli.app import main
+from mazelab.cli.filter_options import declared_flags
 from mazelab.invocation import PROJECT_DIR, command_prefix
 from mazelab.maze import Maze, MazeError
 from mazelab.mazes import LAB_MAZES, shipped_mazes
+from mazelab.registry import short_names
 from mazelab.robot import Robot
 from mazelab.simulation import check_walk_in_maze, simulate
 from mazelab.viz import processes
@@ -125,7 +127,7 @@ def test_accuracy_runs_on_the_named_shipped_mazes_not_on_whatever_is_in_mazes(tm
 
     seen = []
     monkeypatch.setattr(accuracy, "accuracy_tasks", lambda named, *args: seen.extend(n for n, _ in named) or [])
-    monkeypatch.setattr(accuracy, "run_accuracy", lambda tasks, *args: [])
+    monkeypatch.setattr(accuracy, "run_accuracy", lambda tasks, *args, **kwargs: [])
     monkeypatch.setattr(accuracy, "accuracy_table", lambda records: "")
     assert main(["accuracy", "--runs", "1"]) == 0
     assert seen == list(LAB_MAZES) and "random_20x20" not in seen
@@ -208,8 +210,9 @@ def test_help_shows_names_and_choices_not_braces_or_types(capsys, command):
     usage = text.splitlines()[0]
     assert usage.startswith("Usage:") and "{" not in usage
     assert "--filter <str>" not in text and "--filters <str>" not in text and "z_(1-delta)" not in text
-    if command == ["run"]:
-        assert "--filter NAME" in text and "sir, apf, rpf, grid, ekf" in text and "--estimate mean|mode" in text
+    if command == ["run"]:  # the filters from the registry, every declared flag named (mazelab filters: their help)
+        assert "--filter NAME" in text and ", ".join(short_names()) in text
+        assert all(f"--{name.replace('_', '-')}" in " ".join(text.split()) for name in declared_flags())
 
 
 def test_every_commands_description_fits_on_its_line_of_the_help_in_80_columns(capsys, monkeypatch):

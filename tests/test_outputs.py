@@ -1,6 +1,6 @@
-"""One file per output (mazelab.cli.outputs): two outputs of `study`, `compare` or `accuracy` that are one file,
-by name, through a symlink or as a hard link, are refused in one line (exit 2) before any run, with
-nothing written. Real processes for the commands, real links."""
+"""One file per output (mazelab.cli.options.check_one_file_each): two outputs of `study`, `compare` or
+`accuracy` that are one file, by name, through a symlink or as a hard link, are refused in one line
+(exit 2) before any run, with nothing written. Real processes for the commands, real links."""
 
 from __future__ import annotations
 
@@ -30,13 +30,12 @@ def command(tmp_path: Path, *arguments: str) -> subprocess.CompletedProcess:
         ([*STUDY, "--csv", "s.csv", "--traces", "s.csv"], "--csv and --traces are one file (s.csv)"),
         ([*STUDY, "--csv", "s.csv", "--record", "s.csv"], "--csv and --record are one file (s.csv)"),
         ([*STUDY, "--csv", "s.csv", "--plot", "./s.csv"], "--csv and --plot are one file (s.csv)"),
-        ([*STUDY, "--csv", "s.csv", "--record", "s.csv.partial"], "--csv's partial file and --record are one file"),
+        ([*STUDY, "--csv", "s.csv", "--record", "s.runs.jsonl"], "--csv's journal and --record are one file"),
         ([*STUDY, "--csv", "s.csv", "--plot", "s.record.json"], "--plot and the record are one file (s.record.json)"),
         ([*STUDY, "--csv", "s.csv", "--traces", "s.summary.csv"], "--traces and the summary CSV are one file"),
         ([*STUDY, "--csv", "s.csv", "--summary-csv", "s.csv"], "--csv and --summary-csv are one file (s.csv)"),
-        ([*STUDY, "--csv", "s.csv", "--traces", "s.record.json.partial"], "the record's partial file and --traces"),
+        ([*STUDY, "--csv", "s.csv", "--traces", "s.runs.jsonl"], "--csv's journal and --traces are one file"),
         ([*STUDY[:-1], "--plot", "t.rrd", "--rrd", "t.rrd"], "--plot and --rrd are one file (t.rrd)"),
-        ([*STUDY, "--csv", "s.csv", "--traces", "t.csv", "--plot", "t.csv.partial"], "--traces's partial file and"),
         ([*ACCURACY, "--csv", "a.csv", "--record", "a.csv"], "--csv and --record are one file (a.csv)"),
     ],
 )
@@ -66,7 +65,14 @@ def test_a_symlink_or_a_hard_link_to_another_output_is_the_same_file(tmp_path, c
 def test_outputs_of_their_own_names_are_accepted(tmp_path, capsys):
     names = ["--csv", "s.csv", "--traces", "t.csv", "--record", "r.json", "--plot", "p.png"]
     assert main([*STUDY, *[str(tmp_path / n) if n[0] != "-" else n for n in names]]) == 0
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["p.png", "r.json", "s.csv", "s.summary.csv", "t.csv"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "p.png",
+        "r.json",
+        "s.csv",
+        "s.runs.jsonl",
+        "s.summary.csv",
+        "t.csv",
+    ]
 
 
 @pytest.mark.parametrize(

@@ -21,6 +21,7 @@ from conftest import ROOT
 from mazelab.cli.app import app, main
 from mazelab.lab import simulate
 from mazelab.mazes import load_maze, shipped_mazes
+from mazelab.registry import filter_entry, short_names
 from mazelab.robot import Robot
 
 PAPER_KEYS = ["init_robot_pos", "init_particles_pos", "robot_actual_angles", "robot_compass_angles"]
@@ -57,9 +58,9 @@ def test_a_replay_agrees_with_compare(tmp_path, capsys):
     run_output(capsys, ["run", "--maze", "paper_5x5", "--seed", "5", "--no-viz", "--quiet", *SMALL,
                         "--save-scenario", str(path)])  # fmt: skip
     table = run_output(capsys, ["compare", str(path), "--filters", "sir,rpf", "--no-viz"])
-    for name, row_name in [("sir", "SIRParticleFilter"), ("rpf", "RegularizedParticleFilter")]:
+    for name in ("sir", "rpf"):  # the table's rows are the registry's labels
         replay = run_output(capsys, ["run", "--scenario", str(path), "--filter", name, "--no-viz", "--quiet"])
-        (row,) = [line.split() for line in table.splitlines() if line.startswith(row_name)]
+        (row,) = [line.split() for line in table.splitlines() if line.split()[:1] == [filter_entry(name).label]]
         last_20, converged = summary_figures(replay)
         assert row[2] == last_20 and row[3:5] == ["step", converged]
         assert "seed 5" in replay
@@ -214,3 +215,21 @@ def test_mazelab_view_refuses_what_is_not_a_recording(tmp_path, capsys):
         assert main(["view", str(tmp_path / name)]) == 2
         (line,) = capsys.readouterr().err.splitlines()
         assert line.startswith(f"error: {tmp_path / name}: ")
+
+
+def test_options_the_docs_and_the_programs_lines_use_are_in_the_help(capsys):
+    """The study's options that docs/studies.md and its "Repeat this study" lines use are listed by
+    --help; every flag `mazelab filters NAME` advertises is one that run takes (the flags are generated
+    from the declarations, Option.flag)."""
+    assert main(["study", "--help"]) == 0
+    text = capsys.readouterr().out
+    for flag in ("--backend", "--stations", "--wall-share", "--summary-csv", "--dask-timeout", "--draw-run"):
+        assert re.search(rf"^\s+{flag}\b", text, re.M), flag
+    for name in short_names():
+        assert main(["filters", name]) == 0
+        advertised = set(re.findall(r"\[(--[a-z-]+(?:/--[a-z-]+)?)\]", capsys.readouterr().out))
+        for flags in advertised:
+            for flag in flags.split("/"):
+                words = [flag] if flag in ("--kld", "--recovery", "--sensor-resetting") else [flag, "x"]
+                assert main(["run", *words, "--help"]) == 0, (name, flag)  # parsed, not "No such option"
+                capsys.readouterr()

@@ -279,3 +279,38 @@ def test_a_plugin_that_does_not_declare_batched_runs_one_run_at_a_time(tmp_path,
     mine = [r["mean_error"] for r in both if r["filter"] == "AdaptiveSIR"]
     assert len(mine) == 4 and mine == [r["mean_error"] for r in alone]
     assert "failed" not in capsys.readouterr().err
+
+
+INHERITING = '''
+from mazelab.filters import SIRParticleFilter
+
+
+class Inheriting(SIRParticleFilter):
+    """SIR under another name: its options are SIR's, stored with its saved runs (threshold 1 among them)."""
+
+    name = "Inheriting"
+    options = {**SIRParticleFilter.options, "inflation": 1.0}
+'''
+
+
+def test_compare_of_a_plugins_scenario_gives_the_rpf_its_own_threshold(tmp_path, capsys):
+    """A scenario saved by a plug-in stores its options (SIR's threshold 1 among them); they are the
+    plug-in's, whose defaults are not known unless it is loaded: the RPF of a comparison keeps its own
+    threshold (0.2) and scores as on the same walk saved by SIR, whether the plug-in is compared too or not."""
+    (tmp_path / "inheriting.py").write_text(INHERITING)
+    spec = f"{tmp_path / 'inheriting.py'}:Inheriting"
+    saved, by_sir = tmp_path / "p.json", tmp_path / "s.json"
+    assert main(["run", "--filter", spec, *RUN, "--save-scenario", str(saved)]) == 0
+    assert main(["run", "--filter", "sir", *RUN, "--save-scenario", str(by_sir)]) == 0
+    assert json.loads(saved.read_text())["filter_options"]["threshold"] == 1.0
+
+    def rpf_errors(scenario: Path, *filters: str) -> list[str]:
+        table = tmp_path / f"{scenario.stem}{len(filters)}.csv"
+        assert main(["compare", str(scenario), "--filters", ",".join(filters), "--csv", str(table), "--no-viz"]) == 0
+        rows = list(csv.DictReader(table.open()))
+        return [row["RegularizedParticleFilter"] for row in rows]
+
+    expected = rpf_errors(by_sir, "sir", "rpf")
+    assert rpf_errors(saved, "sir", "rpf") == expected
+    assert rpf_errors(saved, "sir", spec, "rpf") == expected
+    assert "threshold" not in capsys.readouterr().err  # no stored threshold handed to another filter

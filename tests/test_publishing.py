@@ -159,7 +159,7 @@ def test_an_interrupted_study_resumes_to_the_rows_of_an_uninterrupted_one(tmp_pa
     assert record["parameters"]["runs"] == 5 and len(record["sessions"]) == 1
     assert main([*base, "--runs", "5", "--csv", str(part), "--resume", "--sigma", "0.3"]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "differs from its record (sigma" in err
+    assert err.count("\n") == 1 and "differs from its journal (sigma" in err
     assert main([*base, "--runs", "2", "--csv", str(part), "--resume"]) == 2
     assert "fewer than the study's 5" in capsys.readouterr().err
 

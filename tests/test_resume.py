@@ -1,11 +1,14 @@
-"""`study --resume` keeps only this study's rows: a CSV of another seed or maze, a partial file copied
-from another study and another study's traces are refused in one line naming the first foreign row
-(exit 2, nothing written); and its inputs end as one line too: a record whose parameters are a list
-or whose root seed is text, a pipe or /dev/zero as the CSV, a row short of cells, UTF-16 text.
-Real files, links and pipes; real processes where a hang is the failure."""
+"""`study --resume` goes on from the study's journal and keeps only this study's rows: a journal of another
+seed, maze or sigma is refused (its parameters differ), and so are another study's run lines put into it,
+in one line naming the first (exit 2, nothing written); its inputs end as one line too: a journal whose
+parameters are a list or whose root seed is text, a pipe or a device among the files, a line that is not
+a run's rows, UTF-16 text, a journal too large to read. Real files, links and pipes; real processes
+where a hang is the failure."""
 
 from __future__ import annotations
 
+import csv
+import io
 import json
 import os
 import shutil
@@ -17,7 +20,7 @@ import pytest
 from conftest import ROOT
 
 from mazelab.cli.app import main
-from mazelab.experiments.resume import PLANNED_COLUMNS, foreign_row, read_study_csv
+from mazelab.experiments.journal import PLANNED_COLUMNS, foreign_row
 from mazelab.experiments.study import RunRecord
 
 try:
@@ -38,7 +41,7 @@ def one_error(capsys) -> str:
 
 @pytest.fixture
 def finished(tmp_path, capsys):
-    """A finished study of seed 1 (s.csv, s.record.json) and the bytes of each of its files."""
+    """A finished study of seed 1 (s.csv, its journal s.runs.jsonl, s.record.json)."""
     assert main([*STUDY, "--seed", "1", "--csv", str(tmp_path / "s.csv")]) == 0
     capsys.readouterr()
     return tmp_path / "s.csv"
@@ -48,21 +51,29 @@ def snapshot(folder: Path) -> dict[str, bytes]:
     return {p.name: p.read_bytes() for p in sorted(folder.iterdir()) if p.is_file() and not p.is_symlink()}
 
 
-# -- item 3: another study's rows -------------------------------------------------------------------------
-def test_a_csv_of_another_seed_is_refused_naming_its_first_row(tmp_path, finished, capsys):
-    other = tmp_path / "other.csv"
-    assert main([*STUDY, "--seed", "2", "--csv", str(other)]) == 0
-    shutil.copy(other, finished)  # another seed's rows beside this study's record
-    before = snapshot(tmp_path)
-    capsys.readouterr()
-    assert main([*STUDY, "--csv", str(finished), "--resume"]) == 2
-    line = one_error(capsys)
-    assert f"{finished} row 2 is another study's (its seed is " in line
-    assert "where this study's run 1 of setting 1 has" in line
-    assert snapshot(tmp_path) == before
+def journal_lines(path: Path) -> list[dict]:
+    return [json.loads(line) for line in path.read_text().splitlines()]
 
 
-def test_a_csv_of_another_maze_of_the_same_name_is_refused(tmp_path, capsys):
+def write_lines(path: Path, lines: list[dict]) -> None:
+    path.write_text("".join(json.dumps(line) + "\n" for line in lines))
+
+
+# -- another study's rows -----------------------------------------------------------------------------------
+def test_a_journal_of_another_seed_sigma_or_maze_is_refused_naming_the_parameter(tmp_path, finished, capsys):
+    for flags, differs in ((["--seed", "2"], "root_seed: 2 -> 1"), (["--sigma", "0.5"], "sigma: [0.5] -> [0.3]")):
+        other = tmp_path / "other.csv"
+        assert main([*STUDY, "--seed", "1", *flags, "--csv", str(other), "--force"]) == 0
+        shutil.copy(other.with_name("other.runs.jsonl"), tmp_path / "s.runs.jsonl")  # another study's journal
+        before = snapshot(tmp_path)
+        capsys.readouterr()
+        assert main([*STUDY, "--seed", "1", "--csv", str(finished), "--resume"]) == 2
+        line = one_error(capsys)
+        assert f"--resume: the study differs from its journal ({differs}" in line, line
+        assert snapshot(tmp_path) == before
+
+
+def test_a_journal_of_another_maze_of_the_same_name_is_refused(tmp_path, capsys):
     for folder, grid in (("a", "2 0 0\n0 0 0\n0 0 2\n"), ("b", "2 0 0\n0 1 0\n0 0 2\n")):
         (tmp_path / folder).mkdir()
         (tmp_path / folder / "m.txt").write_text(grid)
@@ -70,38 +81,26 @@ def test_a_csv_of_another_maze_of_the_same_name_is_refused(tmp_path, capsys):
     base = [*STUDY[3:], "--seed", "1"]
     assert main(["study", "--maze", str(tmp_path / "a" / "m.txt"), *base, "--csv", str(table)]) == 0
     assert main(["study", "--maze", str(tmp_path / "b" / "m.txt"), *base, "--csv", str(other)]) == 0
-    shutil.copy(other, table)  # the same labels and seeds, another maze
+    shutil.copy(other.with_name("o.runs.jsonl"), table.with_name("s.runs.jsonl"))  # the same labels, another maze
     capsys.readouterr()
     assert main(["study", "--maze", str(tmp_path / "a" / "m.txt"), *base, "--csv", str(table), "--resume"]) == 2
-    assert f"{table} row 2 is another study's (its maze_sha256 is " in one_error(capsys)
+    assert "--resume: the study differs from its journal (mazes: " in one_error(capsys)
 
 
-def test_a_partial_file_copied_from_another_study_is_refused(tmp_path, finished, capsys):
-    other = tmp_path / "other.csv"
-    assert main([*STUDY, "--seed", "1", "--sigma", "0.5", "--csv", str(other)]) == 0
-    shutil.copy(other, tmp_path / "s.csv.partial")  # as if this study had been stopped with these rows
-    capsys.readouterr()
-    assert main([*STUDY, "--csv", str(finished), "--resume"]) == 2
-    line = one_error(capsys)
-    assert f"{finished}.partial row 2 is another study's (its sigma is 0.5, where" in line and "has 0.3" in line
-    assert (tmp_path / "s.csv.partial").read_bytes() == other.read_bytes()
-
-
-def test_another_studys_traces_are_refused_before_any_run(tmp_path, capsys):
-    table, traces = tmp_path / "s.csv", tmp_path / "t.csv"
-    assert main([*STUDY, "--seed", "1", "--csv", str(table), "--traces", str(traces)]) == 0
-    assert main([*STUDY, "--seed", "2", "--csv", str(tmp_path / "o.csv"), "--traces", str(tmp_path / "ot.csv")]) == 0
-    shutil.copy(tmp_path / "ot.csv", traces)
-    lines = table.read_text().splitlines(keepends=True)
-    table.write_text("".join(lines[:-2]))  # run 3 to go
+def test_another_studys_run_lines_in_the_journal_are_refused_before_any_run(tmp_path, finished, capsys):
+    other = tmp_path / "o.csv"
+    assert main([*STUDY, "--seed", "2", "--csv", str(other), "--traces", str(tmp_path / "ot.csv")]) == 0
+    journal = tmp_path / "s.runs.jsonl"
+    mine, theirs = journal_lines(journal), journal_lines(other.with_name("o.runs.jsonl"))
+    write_lines(journal, [line for line in mine if "run" not in line or line["run"] != [1, 3]] + theirs[3:4])
     before = snapshot(tmp_path)
     capsys.readouterr()
-    assert main([*STUDY, "--csv", str(table), "--traces", str(traces), "--resume"]) == 2
+    assert main([*STUDY, "--csv", str(finished), "--resume"]) == 2
     captured = capsys.readouterr()
     assert "Study:" not in captured.out  # refused before the header, before any run
     (line,) = captured.err.splitlines()
-    assert f"{traces} row 2 is another study's (its seed is " in line and "traces of another study" in line
-    assert snapshot(tmp_path) == before
+    assert f"{journal} holds another study's rows (run 3 of setting 1: its seed is " in line
+    assert "rows of another study are never kept" in line and snapshot(tmp_path) == before
 
 
 def test_this_studys_own_rows_and_traces_are_kept(tmp_path, capsys):
@@ -112,9 +111,11 @@ def test_this_studys_own_rows_and_traces_are_kept(tmp_path, capsys):
     assert main([*STUDY, "--csv", str(table), "--traces", str(traces), "--resume"]) == 0
     assert "resuming: 4 rows kept" in capsys.readouterr().out
     drop = ("ms_per_step", "run_seconds")
-    assert [{k: v for k, v in vars(r).items() if k not in drop} for r in read_study_csv(table)] == [
-        {k: v for k, v in vars(r).items() if k not in drop} for r in read_study_csv(whole)
-    ]
+
+    def read(path: Path) -> list[dict[str, str]]:
+        return [{k: v for k, v in r.items() if k not in drop} for r in csv.DictReader(io.StringIO(path.read_text()))]
+
+    assert read(table) == read(whole)
     assert len(traces.read_text().splitlines()) == 1 + 3 * 2 * 5
 
 
@@ -128,7 +129,8 @@ def test_foreign_row_checks_every_planned_column(tmp_path):
     table = tmp_path / "s.csv"
     assert main([*STUDY[:3], "--runs", "2", "--steps", "5", "--particles", "30", "--filters", "sir", "--seed", "1",
                  "--workers", "1", "--csv", str(table)]) == 0  # fmt: skip
-    records = read_study_csv(table)
+    lines = journal_lines(tmp_path / "s.runs.jsonl")
+    records = [RunRecord.from_json(row) for line in lines if "run" in line for row in line["records"]]
     assert foreign_row(plan.tasks(), records) is None
     changed = {"seed": 7, "maze_sha256": "0" * 64, "maze_seed": 3, "maze": "other", "wall_share": 0.3,
                "sigma": 0.31, "delta": 0.4, "particles": 31, "steps": 6, "kidnap_at": 2}  # fmt: skip
@@ -137,44 +139,76 @@ def test_foreign_row_checks_every_planned_column(tmp_path):
     for column, value in [*changed.items(), *options.items()]:
         cell = {column: value} if column in PLANNED_COLUMNS else {"options": {**records[1].options, column: value}}
         edited = [RunRecord(**{**vars(r), **cell}) if i == 1 else r for i, r in enumerate(records)]
-        index, why = foreign_row(plan.tasks(), edited)
-        assert index == 1 and why.startswith(f"its {column} is "), column
+        why = foreign_row(plan.tasks(), edited)
+        assert why.startswith(f"run 2 of setting 1: its {column} is "), (column, why)
     moved = [RunRecord(**{**vars(records[0]), "run": 9})]
-    assert foreign_row(plan.tasks(), moved) == (0, "run 9 of setting 1 is not in this study")
+    assert foreign_row(plan.tasks(), moved) == "run 9 of setting 1 is not in this study"
     renamed = [RunRecord(**{**vars(records[0]), "filter": "AuxiliaryParticleFilter"})]
-    assert "filter AuxiliaryParticleFilter is not one this study runs" in foreign_row(plan.tasks(), renamed)[1]
+    assert "filter AuxiliaryParticleFilter is not one this study runs" in foreign_row(plan.tasks(), renamed)
 
 
-# -- item 4: the inputs of --resume -------------------------------------------------------------------------
+def test_a_journal_made_on_another_backend_is_refused_or_named(tmp_path, finished, capsys):
+    """Rows of two backends never mix in one CSV: a journal of compiled rows, resumed on numpy, is refused
+    in one line that says how to go on."""
+    journal = tmp_path / "s.runs.jsonl"
+    lines = journal_lines(journal)
+    for line in lines:
+        for row in line.get("records", []):
+            row["backend"] = "compiled"
+    write_lines(journal, [line for line in lines if line.get("run") != [1, 3]])
+    assert main([*STUDY, "--csv", str(finished), "--resume", "--backend", "numpy"]) == 2
+    line = one_error(capsys)
+    assert "holds runs made on the compiled backend and this session runs on numpy" in line
+    assert "give --backend compiled to go on" in line
+
+
+# -- the inputs of --resume -----------------------------------------------------------------------------------
 @pytest.mark.parametrize(
     ("edit", "expected"),
     [
-        (lambda r: {**r, "parameters": [1, 2]}, "its parameters are list, not a mapping"),
-        (lambda r: {**r, "parameters": {**r["parameters"], "root_seed": "5"}}, "root_seed must be a whole number"),
-        (lambda r: {**r, "parameters": {**r["parameters"], "root_seed": True}}, "root_seed must be a whole number"),
-        (lambda r: {**r, "parameters": {**r["parameters"], "runs": "3"}}, "runs must be a whole number >= 1"),
-        (lambda r: {**r, "sessions": {"a": 1}}, "its sessions must be a list"),
-        (lambda r: {**r, "kind": "accuracy"}, "not a study's record (its kind is 'accuracy')"),
-        (lambda r: [r], "not a record of this program"),
+        (lambda p: [1, 2], "its parameters are list, not a mapping"),
+        (lambda p: {**p, "root_seed": "5"}, "root_seed must be a whole number"),
+        (lambda p: {**p, "root_seed": True}, "root_seed must be a whole number"),
+        (lambda p: {**p, "runs": "3"}, "runs must be a whole number >= 1"),
     ],
 )
-def test_a_record_of_the_wrong_shape_is_one_line(tmp_path, finished, capsys, edit, expected):
-    record = tmp_path / "s.record.json"
-    record.write_text(json.dumps(edit(json.loads(record.read_text()))))
+def test_a_journal_of_the_wrong_shape_is_one_line(tmp_path, finished, capsys, edit, expected):
+    journal = tmp_path / "s.runs.jsonl"
+    lines = journal_lines(journal)
+    lines[0]["session"]["parameters"] = edit(lines[0]["session"]["parameters"])
+    write_lines(journal, lines)
     before = snapshot(tmp_path)
     assert main([*STUDY, "--csv", str(finished), "--resume"]) == 2
     line = one_error(capsys)
-    assert line.startswith(f"error: --resume: {record}: ") and expected in line, line
+    assert line.startswith(f"error: --resume: {journal}: ") and expected in line, line
     assert snapshot(tmp_path) == before
 
 
-def test_a_record_nested_too_deep_or_with_a_huge_number_is_one_line(tmp_path, finished, capsys):
-    record = tmp_path / "s.record.json"
-    for text, expected in (("[" * 100_000 + "]" * 100_000, "nested too deep"), ("1" * 5000, "not a readable record")):
-        record.write_text(text)
-        assert main([*STUDY, "--csv", str(finished), "--resume"]) == 2
-        line = one_error(capsys)
-        assert str(record) in line and expected in line
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        ("[" * 100_000 + "]" * 100_000 + "\n", "line 1: not a journal line"),
+        ("1" * 5000 + "\n", "line 1: not a journal line"),
+        ('{"run": [1, 1], "records": [{"seed": 1}]}\n', "not a study's journal (no session line)"),
+        ("[1, 2]\n", "line 1: not a journal line (a JSON object)"),
+    ],
+)
+def test_a_journal_that_is_not_one_is_one_line(tmp_path, finished, capsys, text, expected):
+    journal = tmp_path / "s.runs.jsonl"
+    journal.write_text(text)
+    assert main([*STUDY, "--csv", str(finished), "--resume"]) == 2
+    line = one_error(capsys)
+    assert str(journal) in line and expected in line, line
+
+
+def test_a_run_line_that_is_not_a_runs_rows_is_named(tmp_path, finished, capsys):
+    journal = tmp_path / "s.runs.jsonl"
+    lines = journal_lines(journal)
+    del lines[2]["records"][0]["seed"]
+    write_lines(journal, lines)
+    assert main([*STUDY, "--csv", str(finished), "--resume"]) == 2
+    line = one_error(capsys)
+    assert f"{journal} line 3: not a run's rows" in line and "seed" in line
 
 
 def resume_process(table: Path, preexec_fn=None) -> subprocess.CompletedProcess:
@@ -184,8 +218,8 @@ def resume_process(table: Path, preexec_fn=None) -> subprocess.CompletedProcess:
 
 
 @pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no named pipes here")
-@pytest.mark.parametrize("name", ["s.csv", "s.csv.partial", "s.record.json"])
-def test_a_pipe_among_the_inputs_is_refused_unread(tmp_path, finished, name):
+@pytest.mark.parametrize("name", ["s.csv", "s.runs.jsonl", "s.record.json"])
+def test_a_pipe_among_the_files_is_refused_unread(tmp_path, finished, name):
     path = tmp_path / name
     path.unlink(missing_ok=True)
     os.mkfifo(path)
@@ -196,39 +230,38 @@ def test_a_pipe_among_the_inputs_is_refused_unread(tmp_path, finished, name):
 
 
 @pytest.mark.skipif(not Path("/dev/zero").exists(), reason="no /dev/zero here")
-def test_a_csv_linked_to_dev_zero_is_refused_unread(tmp_path, finished):
+def test_a_csv_or_a_journal_linked_to_dev_zero_is_refused_unread(tmp_path, finished):
     finished.unlink()
     finished.symlink_to("/dev/zero")
     done = resume_process(finished)
     assert done.returncode == 2, done.stderr
     (line,) = done.stderr.splitlines()
-    assert line == f"error: --resume: {finished}: it is a device, not a regular file; a study CSV is a regular file"
-
-
-def test_a_row_short_of_cells_is_named(tmp_path, finished, capsys):
-    lines = finished.read_text().splitlines(keepends=True)
-    lines[2] = ",".join(lines[2].split(",")[:5]) + "\n"
-    finished.write_text("".join(lines))
-    assert main([*STUDY, "--csv", str(finished), "--resume"]) == 2
-    line = one_error(capsys)
-    assert f"{finished} row 3 has 5 cells, the header " in line and "zip()" not in line
+    assert line == f"error: {finished}: it is a device, not a regular file; only regular files are replaced"
+    journal = finished.with_name("s.runs.jsonl")
+    journal.unlink()
+    journal.symlink_to("/dev/zero")
+    finished.unlink()
+    done = resume_process(finished)
+    assert done.returncode == 2 and f"{journal} is a symlink" in done.stderr, done.stderr
 
 
 def test_utf16_and_nul_bytes_are_named_with_their_file(tmp_path, finished, capsys):
-    text = finished.read_text()
-    finished.write_text(text, encoding="utf-16")
+    journal = tmp_path / "s.runs.jsonl"
+    text = journal.read_text()
+    journal.write_text(text, encoding="utf-16")
     assert main([*STUDY, "--csv", str(finished), "--resume"]) == 2
-    assert f"--resume: {finished}: not UTF-8 text" in one_error(capsys)
-    finished.write_text(text.replace("sir", "s\0r", 1).replace("SIRParticleFilter", "SIR\0", 1))
+    assert f"--resume: {journal}: not UTF-8 text" in one_error(capsys)
+    journal.write_text(text.replace('"sir', '"s\0r', 1).replace("SIRParticleFilter", "SIR\0", 1))
     assert main([*STUDY, "--csv", str(finished), "--resume"]) == 2
-    assert f"--resume: {finished}" in one_error(capsys)
+    assert f"--resume: {journal}" in one_error(capsys)
 
 
 @pytest.mark.skipif(resource is None or not hasattr(resource, "RLIMIT_AS"), reason="no address-space limit here")
-def test_a_csv_too_large_to_read_back_is_refused_unread(tmp_path, finished):
-    """A CSV of 2 GB (sparse: no disk space) under `ulimit -v` 3 GB: refused in one line before it is read,
-    not a MemoryError once it is."""
-    with finished.open("r+b") as handle:
+def test_a_journal_too_large_to_read_back_is_refused_unread(tmp_path, finished):
+    """A journal of 2 GB (sparse: no disk space) under `ulimit -v` 3 GB: refused in one line before it is
+    read, not a MemoryError once it is."""
+    journal = tmp_path / "s.runs.jsonl"
+    with journal.open("r+b") as handle:
         try:
             handle.truncate(2 * 10**9)
         except OSError as error:
@@ -240,4 +273,15 @@ def test_a_csv_too_large_to_read_back_is_refused_unread(tmp_path, finished):
     done = resume_process(finished, preexec_fn=limited)
     assert done.returncode == 2, done.stderr
     (line,) = done.stderr.splitlines()
-    assert f"reading {finished} (2000000000 bytes) needs about " in line and "memory is available" in line
+    assert f"reading {journal} (2000000000 bytes) needs about " in line and "memory is available" in line
+
+
+def test_a_study_of_an_earlier_version_is_refused_in_one_line_saying_why(tmp_path, capsys):
+    """A CSV (and its partial rows) that an earlier version wrote, with no journal beside it: --resume
+    says it cannot go on from it, and how to start again."""
+    table = tmp_path / "s.csv"
+    table.write_text("setting,run\n1,1\n")
+    (tmp_path / "s.csv.partial").write_text("setting,run\n1,2\n")
+    assert main([*STUDY, "--csv", str(table), "--resume"]) == 2
+    line = one_error(capsys)
+    assert f"no journal {tmp_path / 's.runs.jsonl'} beside {table} to go on from" in line and "--force" in line

@@ -252,7 +252,7 @@ def test_the_study_writes_a_summary_csv_beside_its_rows(tmp_path, capsys):
         assert (float(s["mean_final_error_low"]), float(s["mean_final_error_high"])) == (low, high)
     assert summary[0]["paired_with"] == "" and summary[1]["paired_with"] == "SIRParticleFilter"
     assert main([*args, *TINY, "--csv", str(table)]) == 2  # the files exist: refused without --force
-    assert "exists; use --force" in capsys.readouterr().err
+    assert "use --force to discard it" in capsys.readouterr().err
     chosen = tmp_path / "chosen.csv"
     assert main(["study", "--filters", "sir", *TINY, "--summary-csv", str(chosen)]) == 0
     assert read_csv(chosen.read_text())[0]["runs"] == "3"

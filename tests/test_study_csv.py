@@ -1,20 +1,22 @@
-"""The study's CSV is the old file or the new whole one: rows stream into NAME.csv.partial, which a
-file size limit cuts back to whole rows and which the next study reports; two studies never share it."""
+"""The study's CSV is the old file or the new whole one: runs stream into the journal NAME.runs.jsonl,
+which a file size limit cuts back to whole lines and which the next study reports; two studies never
+share it."""
 
 from __future__ import annotations
 
 import csv
 import io
+import json
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
-from conftest import ROOT
+from conftest import ROOT, finished_rows
 
 from mazelab.cli.app import main
 from mazelab.experiments import executor
-from mazelab.experiments.rowlog import RowLog
+from mazelab.experiments.journal import Journal
 
 try:
     import resource
@@ -35,22 +37,22 @@ def test_force_keeps_the_old_csv_until_the_new_one_is_whole(tmp_path, monkeypatc
     seen = []
     real = executor.run_unit_timed
 
-    def look(unit):
+    def look(unit, backend):
         seen.append(table.read_text())  # what a reader of the CSV sees while the study runs
-        return real(unit)
+        return real(unit, backend)
 
     monkeypatch.setattr(executor, "run_unit_timed", look)
     assert main([*STUDY, "--csv", str(table), "--force"]) == 0
     assert seen and set(seen) == {"old\n"}
-    assert len(rows(table)) == 12 and not table.with_name("s.csv.partial").exists()
+    assert len(rows(table)) == 12 and len(finished_rows(table.with_name("s.runs.jsonl"))) == 12
     assert f"written to {table}" in capsys.readouterr().out
 
 
 @pytest.mark.skipif(resource is None or sys.platform == "win32", reason="RLIMIT_FSIZE")
-def test_a_file_size_limit_leaves_the_old_csv_and_whole_rows_in_the_partial_file(tmp_path):
+def test_a_file_size_limit_leaves_the_old_csv_and_whole_lines_in_the_journal(tmp_path):
     table = tmp_path / "s.csv"
     table.write_text("old\n")
-    limit = 6000  # bytes: the record (about 3000) and some rows fit, not all forty (about 11000 bytes)
+    limit = 6000  # bytes: the journal's session line (about 1400) and some runs fit, not all forty (about 30000)
 
     def limited() -> None:
         resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
@@ -64,49 +66,47 @@ def test_a_file_size_limit_leaves_the_old_csv_and_whole_rows_in_the_partial_file
     )
     assert process.returncode == 1, process.stderr
     (line,) = process.stderr.strip().splitlines()[-1:]
-    assert f"cannot write {table}" in line and f"the finished rows are in {table}.partial" in line
+    journal = table.with_name("s.runs.jsonl")
+    assert f"cannot write {table}" in line and f"the finished rows are in {journal}" in line
     assert "Traceback" not in process.stderr
     assert table.read_text() == "old\n"
-    partial = table.with_name("s.csv.partial").read_text()
-    assert partial.endswith("\n") and 0 < len(partial) <= limit
-    assert all(
-        len(row) == len(rows(table.with_name("s.csv.partial"))[0]) for row in rows(table.with_name("s.csv.partial"))
-    )
+    text = journal.read_text()
+    assert text.endswith("\n") and 0 < len(text) <= limit and finished_rows(journal)
+    assert all(json.loads(line) for line in text.splitlines())  # whole lines only
 
 
-def test_a_leftover_partial_file_is_reported_and_replaced_only_with_force(tmp_path, capsys):
+def test_a_leftover_journal_is_reported_and_replaced_only_with_force(tmp_path, capsys):
     table = tmp_path / "s.csv"
-    partial = table.with_name("s.csv.partial")
-    partial.write_text("rows of a stopped study\n")
+    journal = table.with_name("s.runs.jsonl")
+    journal.write_text('{"session": {"parameters": {}}}\n')
     assert main([*STUDY, "--csv", str(table)]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and f"{partial} holds the rows of an earlier study" in err and "--force" in err
-    assert partial.read_text() == "rows of a stopped study\n" and not table.exists()
+    assert err.count("\n") == 1 and f"{journal} holds the runs of an earlier study" in err and "--force" in err
+    assert journal.read_text() == '{"session": {"parameters": {}}}\n' and not table.exists()
     assert main([*STUDY, "--csv", str(table), "--force"]) == 0
-    assert f"discarded the rows of an earlier stopped study in {partial}" in capsys.readouterr().err
-    assert len(rows(table)) == 12 and not partial.exists()
+    assert len(rows(table)) == 12 and len(finished_rows(journal)) == 12
 
 
-def test_a_stopped_studys_partial_file_is_named_before_its_record(tmp_path, capsys):
+def test_a_stopped_studys_journal_is_named_before_its_record(tmp_path, capsys):
     table = tmp_path / "s.csv"
-    table.with_name("s.csv.partial").write_text("rows of a stopped study\n")
-    table.with_name("s.record.json").write_text("{}")  # a stopped study leaves its record too
+    table.with_name("s.runs.jsonl").write_text('{"session": {"parameters": {}}}\n')
+    table.with_name("s.record.json").write_text("{}")  # an earlier study's record too
     assert main([*STUDY, "--csv", str(table)]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and f"{table}.partial holds the rows of an earlier study" in err
+    assert err.count("\n") == 1 and "s.runs.jsonl holds the runs of an earlier study" in err
     assert "add --resume to the same command" in err and "record" not in err
 
 
 def test_a_second_study_with_the_same_csv_is_refused(tmp_path, capsys):
     table = tmp_path / "s.csv"
-    running = RowLog(table)  # the first study, still running: it holds s.csv.partial
+    running = Journal(table.with_name("s.runs.jsonl"))  # the first study, still running: it holds the journal
     try:
-        for force in ([], ["--force"]):
+        for force in ([], ["--force"], ["--resume"]):
             assert main([*STUDY, "--csv", str(table), *force]) == 2
             err = capsys.readouterr().err
-            assert err.count("\n") == 1 and f"another study is writing {table}.partial" in err
+            assert err.count("\n") == 1 and f"another study is writing {table.with_name('s.runs.jsonl')}" in err
     finally:
-        running.discard()
+        running.close()
     assert not table.exists()
 
 

@@ -172,3 +172,55 @@ def test_a_study_that_varies_nothing_is_titled_per_filter(tmp_path):
         t for t in ("".join(t.itertext()) for t in ET.parse(path).getroot().iter(f"{SVG}text")) if "runs per" in t
     )
     assert "per filter on paper_5x5" in title and "against" not in title
+
+
+# -- figures a reader tells apart (round 7) -------------------------------------------------------------------
+def figure_of(monkeypatch, module) -> dict:
+    """The figure `module` saves, kept open to read its lines (save_figure replaced by a keeper)."""
+    kept: dict = {}
+    monkeypatch.setattr(module, "save_figure", lambda figure, path, **kwargs: kept.setdefault("figure", figure))
+    return kept
+
+
+def test_compares_figure_tells_the_filters_apart_without_colour(tmp_path, monkeypatch):
+    from mazelab.experiments import compare as compare_module
+
+    kept = figure_of(monkeypatch, compare_module)
+    scenario = Path(__file__).resolve().parent.parent / "model_parameters" / "paper_5x5.json"
+    assert main(["compare", str(scenario), "--filters", "sir,apf,grid", "--plot", str(tmp_path / "c.png"),
+                 "--no-viz"]) == 0  # fmt: skip
+    lines = [line for line in kept["figure"].axes[0].get_lines() if line.get_label() in ("SIR", "APF", "grid")]
+    assert len(lines) == 3 and len({(line.get_linestyle(), line.get_marker()) for line in lines}) == 3
+
+
+def test_error_bars_at_one_x_are_set_apart_and_capped_apart(monkeypatch, tmp_path):
+    from mazelab.experiments import study_plot
+
+    kept = figure_of(monkeypatch, study_plot)
+    plot_study(summaries(), VARIED, tmp_path / "f.png", "t")
+    ax = kept["figure"].axes[0]
+    wanted = ("SIR", "RPF, bandwidth optimal")
+    xs = {c.get_label(): tuple(c.lines[0].get_xdata()) for c in ax.containers if c.get_label() in wanted}
+    assert len(xs) == 2 and all(a != b for a, b in zip(*xs.values(), strict=True))  # the same N, drawn apart
+    assert all(abs(np.log10(a / b)) < 0.1 for a, b in zip(*xs.values(), strict=True))  # by a few % of the spacing
+    caps = {c.lines[1][0].get_markersize() for c in ax.containers if c.lines[1]}
+    assert len(caps) > 1
+
+
+def test_particle_counts_spanning_a_doubling_get_a_log_axis():
+    from mazelab.experiments.study_plot import XScale
+
+    maze = MazeChoice("m", grid=((0, 2),))
+    counts = [StudySummary(i, StudySetting(maze, 0.3, 0.5, n), "SIRParticleFilter", 3, 0.1, (0.05, 0.2), 1.0, 5, 1.0)
+              for i, n in enumerate((250, 500, 1000, 2000), start=1)]  # fmt: skip
+    assert XScale.of(counts, "particles").kind == "log"
+    assert XScale.of(counts[:1] + counts[1:2], "particles").kind == "log"
+
+
+def test_a_title_of_ones_own_replaces_the_caption_too(tmp_path):
+    path = tmp_path / "t.svg"
+    words = ["study", "--maze", "paper_5x5", "--sigma", "0.3,0.5", "--filters", "sir", *TINY, "--plot", str(path),
+             "--title", "My own title"]  # fmt: skip
+    assert main(words) == 0
+    texts = " ".join("".join(t.itertext()) for t in ET.parse(path).getroot().iter(f"{SVG}text"))
+    assert "My own title" in texts and "BCa" not in texts and "intervals" not in texts

@@ -34,13 +34,13 @@ OLD_CSV = "an older study's rows\n"
 
 
 def start_study(tmp_path: Path) -> tuple[subprocess.Popen, Path]:
-    """A long study on two workers in its own session, once its rows (s.csv.partial while it runs) hold
-    a finished run; returns the partial file."""
+    """A long study on two workers in its own session, once its journal (s.runs.jsonl) holds a finished
+    run; returns the journal."""
     long_study = ["--maze", "paper_5x5", "--runs", "3000", "--steps", "20", "--particles", "100"]
     (tmp_path / "s.csv").write_text(OLD_CSV)  # an older study's CSV, replaced (--force) only by a whole one
     long_study += ["--filters", "sir,apf", "--workers", "2", "--seed", "1", "--force"]
     process = start_study_process([*long_study, "--csv", str(tmp_path / "s.csv")])
-    table = tmp_path / "s.csv.partial"
+    table = tmp_path / "s.runs.jsonl"
     wait_for_rows(table, 4, process)
     assert len(finished_rows(table)) >= 4, "the study wrote no rows"
     assert len(session_processes(process.pid)) >= 3, "the study should run on two workers"

@@ -20,81 +20,46 @@ import shlex
 import signal
 import sys
 import warnings
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
 from mazelab.atomic import WriteError
-from mazelab.backend import backend_for_work, use_backend
-from mazelab.cli.backend_option import BackendOption, ThreadsOption
+from mazelab.cli.accuracy import accuracy
 from mazelab.cli.exercise import exercise_app
-from mazelab.cli.filter_options import (
-    AlphaFastFlag,
-    AlphaSlowFlag,
-    BandwidthFlag,
-    EstimateFlag,
-    KldEpsilonFlag,
-    KldFlag,
-    KldZFlag,
-    OptionFlag,
-    RecoveryFlag,
-    ResamplingFlag,
-    SensorResettingFlag,
-    merge_named,
-    named_values,
-    options_per_filter,
-    parse_option_texts,
-    recovery_value,
-)
+from mazelab.cli.filter_options import OptionFlag, with_option_flags
 from mazelab.cli.filters_help import filters, registry_help
-from mazelab.cli.hints import (
-    check_filter_name,
-    check_filter_names,
-    filter_choices,
-    option_elsewhere,
-    plain_usage_names,
-    refuse_option_as_value,
-    usage_hint,
-)
+from mazelab.cli.hints import filter_choices, option_elsewhere, plain_usage_names, refuse_option_as_value, usage_hint
 from mazelab.cli.maze import maze_app
 from mazelab.cli.notebook import notebook
 from mazelab.cli.options import (
     DEFAULT_DELTA,
     DEFAULT_SIGMA,
-    MaxDrawnOption,
-    NoVizOption,
-    RrdOption,
+    BackendOption,
+    ThreadsOption,
     UserError,
-    ViewerOption,
-    WebOption,
     check_output_path,
-    check_outputs,
     seed_option,
     visualization,
     warn_in_one_line,
+    with_drawing,
 )
-from mazelab.cli.provenance import environment_backend, remember_arguments, repeat_command, show_version
+from mazelab.cli.provenance import remember_arguments, show_version
 from mazelab.cli.recordings import recordings
-from mazelab.cli.reports import kidnap_report, particle_count_report, prepare_world, progress_printer, report_run
-from mazelab.cli.studies import accuracy, study, study_mazes
+from mazelab.cli.reports import progress_printer, report_run
+from mazelab.cli.study import study
 from mazelab.cli.view import view
-from mazelab.declaration import to_plain_json
 from mazelab.experiments.executor import STOP_SIGNALS
-from mazelab.experiments.runs import parse_filters
 from mazelab.invocation import command_prefix
 from mazelab.maze import MazeError
 from mazelab.mazes import DEFAULT_MAZE, find_maze, load_maze
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
 from mazelab.plugins import StudentCodeError
-from mazelab.registry import resolve_filter
 from mazelab.robot import Robot
 from mazelab.seeding import new_seed, start_place
 from mazelab.stops import exit_without_strays, mark_interrupts
 from mazelab.viz.recording import web_serving_deferred, write_errors_deferred
-from mazelab.viz.style import DEFAULT_MAX_DRAWN
 
 app = typer.Typer(
     add_completion=False,
@@ -107,26 +72,23 @@ app = typer.Typer(
 
 
 @app.callback(invoke_without_command=True)
+@with_drawing
 def demo(
     ctx: typer.Context,
-    viewer: ViewerOption = False,
-    rrd: RrdOption = None,
-    web: WebOption = False,
-    no_viz: NoVizOption = False,
-    max_drawn: MaxDrawnOption = DEFAULT_MAX_DRAWN,
     force: Annotated[bool, typer.Option("--force", help="replace an existing --rrd file")] = False,
     version: Annotated[
         bool, typer.Option("--version", is_eager=True, callback=show_version, help="the versions, then exit")
     ] = False,
+    drawing: dict[str, Any] | None = None,
 ) -> None:
     """The paper's example: a lost robot, the SIR filter, 1500 particles, 200 steps."""
     if ctx.invoked_subcommand is not None:
         return
     from mazelab.lab import simulate  # with drawing: imported by the commands that run one filter
 
-    visualize = visualization(viewer, rrd, web, no_viz, max_drawn, force)
-    if rrd is not None:
-        check_output_path(rrd, force)
+    visualize = visualization(**(drawing or {}), force=force)
+    if (drawing or {}).get("rrd") is not None:
+        check_output_path(drawing["rrd"], force)
     world = load_maze(DEFAULT_MAZE)
     seed = new_seed()
     robot = Robot(DEFAULT_SIGMA, DEFAULT_DELTA, start_place(world, seed))
@@ -134,217 +96,83 @@ def demo(
         f"A robot is lost in {find_maze(DEFAULT_MAZE).name} ({world.height}x{world.width}, "
         f"{len(world.stations)} stations); SIR with {DEFAULT_PARTICLE_COUNT} particles looks for it."
     )
-    with use_backend(backend_for_work(DEFAULT_PARTICLE_COUNT * DEFAULT_STEPS, DEFAULT_STEPS)):  # numpy, unless set
-        result = simulate(
-            robot,
-            world,
-            DEFAULT_SIGMA,
-            DEFAULT_DELTA,
-            DEFAULT_PARTICLE_COUNT,
-            DEFAULT_STEPS,
-            seed=seed,
-            visualize=visualize,
-            on_step=progress_printer(DEFAULT_STEPS),
-        )
-        report_run(result)
-        words = ["run", "--seed", str(seed), *environment_backend([])]
-        typer.echo(f"Repeat this run: {command_prefix()} {shlex.join(words)}")
+    result = simulate(
+        robot,
+        world,
+        DEFAULT_SIGMA,
+        DEFAULT_DELTA,
+        DEFAULT_PARTICLE_COUNT,
+        DEFAULT_STEPS,
+        seed=seed,
+        visualize=visualize,
+        on_step=progress_printer(DEFAULT_STEPS),
+    )
+    report_run(result)
+    words = ["run", "--seed", str(seed), "--backend", result.extras["backend"]]
+    typer.echo(f"Repeat this run: {command_prefix()} {shlex.join(words)}")
+
+
+Maze_ = Annotated[
+    str | None,
+    typer.Option("--maze", metavar="MAZE", help=f"a maze file or a name in mazes/ [default: {DEFAULT_MAZE}]"),
+]
+Filter = Annotated[str | None, typer.Option("--filter", metavar="NAME", help=f"{filter_choices()} [default: sir]")]
+Particles = Annotated[int | None, typer.Option(help=f"particle count N_S [default: {DEFAULT_PARTICLE_COUNT}]")]
+Steps = Annotated[int | None, typer.Option(min=1, help=f"number of steps [default: {DEFAULT_STEPS}]")]
+Sigma = Annotated[float | None, typer.Option(help=f"noise std, lab 0.2-0.8 [default: {DEFAULT_SIGMA}]")]
+Delta = Annotated[float | None, typer.Option(help=f"compass error, rad, lab 0.05-0.6 [default: {DEFAULT_DELTA}]")]
+Seed = Annotated[int | None, typer.Option(callback=seed_option, help="seed of the whole run (default: new, printed)")]
+StartSeed = Annotated[int | None, typer.Option(callback=seed_option, hidden=True, help="seed of the start only")]
+ScenarioFile = Annotated[Path | None, typer.Option(help="replay a saved scenario (.json), or a shipped one by name")]
+SaveScenario = Annotated[Path | None, typer.Option("--save-scenario", help="save the run (.json)")]
+Force = Annotated[bool, typer.Option("--force", help="replace existing output files")]
+Quiet = Annotated[bool, typer.Option("--quiet", help="no per-step progress")]
+KidnapAt = Annotated[int | None, typer.Option(min=1, help="carry the robot elsewhere at this step")]
+SavedScenario = Annotated[Path, typer.Argument(metavar="SCENARIO", show_default=False,
+                                               help="a saved scenario (.json) or a shipped name")]  # fmt: skip
+Filters = Annotated[str, typer.Option(metavar="NAMES", help=filter_choices(many=True))]
+StoredMaze = Annotated[str | None, typer.Option(metavar="MAZE", help="the maze, if the scenario stores none")]
+NewSigma = Annotated[float | None, typer.Option("--sigma", help="override the scenario's sigma")]
+NewDelta = Annotated[float | None, typer.Option("--delta", help="override the scenario's delta")]
+ReplaySeed = Annotated[
+    int | None, typer.Option("--seed", callback=seed_option, help="the filters' seed (default: the scenario's)")
+]
+ErrorsCsv = Annotated[Path | None, typer.Option("--csv", help="per-step errors, a column per filter")]
+Plot = Annotated[Path | None, typer.Option(help="the lab's error figure (.png; plot extra)")]
+Traces = Annotated[Path | None, typer.Option(help="per-step rows of every filter (.csv, or .parquet)")]
 
 
 @app.command(short_help="One filter on a lost robot, or on a saved scenario.")
-def run(
-    ctx: typer.Context,
-    maze: Annotated[
-        str | None, typer.Option(metavar="MAZE", help=f"a maze file or a name in mazes/ [default: {DEFAULT_MAZE}]")
-    ] = None,
-    filter_name: Annotated[str, typer.Option("--filter", metavar="NAME", help=filter_choices())] = "sir",
-    particles: Annotated[
-        int | None, typer.Option(min=1, help=f"particle count N_S [default: {DEFAULT_PARTICLE_COUNT}]")
-    ] = None,
-    steps: Annotated[int | None, typer.Option(min=1, help=f"number of steps [default: {DEFAULT_STEPS}]")] = None,
-    sigma: Annotated[float | None, typer.Option(help=f"noise std, lab 0.2-0.8 [default: {DEFAULT_SIGMA}]")] = None,
-    delta: Annotated[
-        float | None, typer.Option(help=f"compass error, rad, lab 0.05-0.6 [default: {DEFAULT_DELTA}]")
-    ] = None,
-    seed: Annotated[
-        int | None,
-        typer.Option(callback=seed_option, help="seed of the whole run (default: new, printed)"),
-    ] = None,
-    start_seed: Annotated[
-        int | None, typer.Option(callback=seed_option, hidden=True, help="seed of the start only (default: --seed)")
-    ] = None,
-    scenario: Annotated[
-        Path | None, typer.Option(help="replay a saved scenario (.json), or a shipped one by name (paper_5x5)")
-    ] = None,
-    save_scenario_path: Annotated[Path | None, typer.Option("--save-scenario", help="save the run (.json)")] = None,
-    force: Annotated[bool, typer.Option("--force", help="replace existing output files")] = False,
-    quiet: Annotated[bool, typer.Option("--quiet", help="no per-step progress")] = False,
-    kidnap_at: Annotated[int | None, typer.Option(min=1, help="carry the robot elsewhere at this step")] = None,
-    resampling: ResamplingFlag = None,
-    recovery: RecoveryFlag = False,
-    sensor_resetting: SensorResettingFlag = False,
-    alpha_slow: AlphaSlowFlag = None,
-    alpha_fast: AlphaFastFlag = None,
-    kld: KldFlag = False,
-    kld_epsilon: KldEpsilonFlag = None,
-    kld_z: KldZFlag = None,
-    init: Annotated[
-        str | None,
-        typer.Option(metavar="prior|start", help="ekf: prior (global) or start (tracking) [default: prior]"),
-    ] = None,
-    bandwidth: BandwidthFlag = None,
-    estimate: EstimateFlag = None,
-    option: OptionFlag = None,
-    viewer: ViewerOption = False,
-    rrd: RrdOption = None,
-    web: WebOption = False,
-    no_viz: NoVizOption = False,
-    max_drawn: MaxDrawnOption = DEFAULT_MAX_DRAWN,
-    backend: BackendOption = None,
-    threads: ThreadsOption = None,
-) -> None:
+@with_drawing
+@with_option_flags()
+def run(maze: Maze_ = None, filter_name: Filter = None, particles: Particles = None, steps: Steps = None,
+        sigma: Sigma = None, delta: Delta = None, seed: Seed = None, start_seed: StartSeed = None,
+        scenario: ScenarioFile = None, save_scenario_path: SaveScenario = None, force: Force = False,
+        quiet: Quiet = False, kidnap_at: KidnapAt = None, option: OptionFlag = None, backend: BackendOption = None,
+        threads: ThreadsOption = None, named: dict | None = None, drawing: dict | None = None) -> None:  # fmt: skip
     """Run one filter on a lost robot, or replay a saved scenario (--scenario) with its filter and
     options. Every filter option: --option NAME=VALUE (`mazelab filters` lists them)."""
-    from mazelab.cli.replay import check_plugin_name, refuse_counts_for_replay  # scenarios: run and compare only
-    from mazelab.cli.replay_filter import replay_filter_name, replay_options
-    from mazelab.cli.run_setup import fresh_setup, replay_setup
-    from mazelab.scenario import load_scenario, save_scenario
+    from mazelab.cli.replay import run_one  # scenarios and drawing: imported by the commands that use them
 
-    visualize = visualization(viewer, rrd, web, no_viz, max_drawn, force)
-    stored = load_scenario(scenario) if scenario is not None else None
-    filter_name = check_filter_name(replay_filter_name(ctx, stored, filter_name, scenario))
-    named = {
-        "resampling": resampling, "recovery": recovery_value(recovery, sensor_resetting), "alpha_slow": alpha_slow,
-        "alpha_fast": alpha_fast, "kld": kld or None, "kld_epsilon": kld_epsilon, "kld_z": kld_z, "init": init,
-        "bandwidth": bandwidth, "estimate": estimate,
-    }  # fmt: skip
-    given = merge_named(named_values(named, [filter_name]), parse_option_texts(option, [filter_name]))
-    options = options_per_filter([filter_name], given, check=stored is None)[resolve_filter(filter_name).name]
-    for path in (save_scenario_path, rrd):
-        if path is not None:
-            check_output_path(path, force)
-    if stored is not None:
-        refuse_counts_for_replay(stored, particles, steps, start_seed)
-        check_plugin_name(stored, filter_name, scenario)
-        options = replay_options(stored, filter_name, options)
-        options_per_filter([filter_name], options)  # the replay's options, checked as the filter will
-        setup = replay_setup(stored, maze, sigma, delta, seed, options)
-    else:
-        setup = fresh_setup(maze, sigma, delta, seed, start_seed, particles, steps, options)
-    with use_backend(backend_for_work(*setup.work())):  # numba's start-up only where it pays (or --backend's)
-        with scenario_not_saved_on_stop(save_scenario_path):
-            result = setup.run(filter_name, visualize=visualize, quiet=quiet, kidnap_at=kidnap_at)
-        report_run(result)
-        for line in (kidnap_report(result), particle_count_report(result) if setup.options.get("kld") else None):
-            if line:
-                typer.echo(line)
-        if save_scenario_path is not None:
-            typer.echo(f"scenario saved to {save_scenario(result.scenario, save_scenario_path, replace=force)}")
-        typer.echo(f"Repeat this run: {repeat_command(result.seed, REPEAT_DROPS, REPEAT_DROPS_WITH_VALUE)}")
-
-
-# "Repeat this run" repeats the run, not its files: the scenario and recording it wrote would be found
-# taken by the pasted command ("exists; use --force"), and --force would replace them unasked.
-REPEAT_DROPS = ("--resume", "--force")
-REPEAT_DROPS_WITH_VALUE = ("--save-scenario", "--rrd")
-COMPARE_DROPS_WITH_VALUE = ("--csv", "--plot", "--traces", "--rrd")  # compare's files, as run's above
-
-
-@contextmanager
-def scenario_not_saved_on_stop(path: Path | None) -> Iterator[None]:
-    """A run stopped (Ctrl-C; SIGTERM or SIGHUP with a recording, which exit through SystemExit) before
-    its end says that its scenario was not saved."""
-    try:
-        yield
-    except (KeyboardInterrupt, SystemExit):
-        if path is not None:
-            typer.echo(f"the run did not finish: no scenario saved to {path}", err=True)
-        raise
+    run_one(**{**locals(), "named": named or {}, "drawing": drawing or {}})
 
 
 @app.command(short_help="Lab steps 12-13: every filter on one saved scenario.")
-def compare(
-    scenario: Annotated[
-        Path,
-        typer.Argument(metavar="SCENARIO", help="a saved scenario (.json) or a shipped name", show_default=False),
-    ],
-    filters: Annotated[str, typer.Option(metavar="NAMES", help=filter_choices(many=True))] = "sir,apf,rpf",
-    maze: Annotated[str | None, typer.Option(metavar="MAZE", help="the maze, if the scenario stores none")] = None,
-    sigma: Annotated[float | None, typer.Option(help="override the scenario's sigma")] = None,
-    delta: Annotated[float | None, typer.Option(help="override the scenario's delta")] = None,
-    seed: Annotated[
-        int | None, typer.Option(callback=seed_option, help="the filters' seed (default: the scenario's)")
-    ] = None,
-    csv_path: Annotated[Path | None, typer.Option("--csv", help="per-step errors, a column per filter")] = None,
-    plot: Annotated[Path | None, typer.Option(help="the lab's error figure (.png; plot extra)")] = None,
-    traces: Annotated[Path | None, typer.Option(help="per-step rows of every filter (.csv, or .parquet)")] = None,
-    force: Annotated[bool, typer.Option("--force", help="replace existing output files")] = False,
-    kidnap_at: Annotated[
-        int | None,
-        typer.Option(min=1, help="carry the robot elsewhere at this step"),
-    ] = None,
-    recovery: RecoveryFlag = False,
-    sensor_resetting: SensorResettingFlag = False,
-    alpha_slow: AlphaSlowFlag = None,
-    alpha_fast: AlphaFastFlag = None,
-    kld: KldFlag = False,
-    bandwidth: BandwidthFlag = None,
-    estimate: EstimateFlag = None,
-    option: OptionFlag = None,
-    viewer: ViewerOption = False,
-    rrd: RrdOption = None,
-    web: WebOption = False,
-    no_viz: NoVizOption = False,
-    max_drawn: MaxDrawnOption = DEFAULT_MAX_DRAWN,
-    backend: BackendOption = None,
-) -> None:
+@with_drawing
+@with_option_flags()
+def compare(scenario: SavedScenario, filters: Filters = "sir,apf,rpf", maze: StoredMaze = None, sigma: NewSigma = None,
+            delta: NewDelta = None, seed: ReplaySeed = None, csv_path: ErrorsCsv = None, plot: Plot = None,
+            traces: Traces = None, force: Force = False, kidnap_at: KidnapAt = None, option: OptionFlag = None,
+            backend: BackendOption = None, named: dict | None = None, drawing: dict | None = None) -> None:  # fmt: skip
     """Lab steps 12-13: every filter on one saved scenario (the same start, particles, walk). Each
     filter takes the options it declares (--option NAME=VALUE; `mazelab filters` lists them), and
     those the scenario's run set away from their defaults unless given here (a line names them).
 
     A kidnapping (stored, or --kidnap-at) adds whether each filter re-localised (mean error below 0.5
     over the last 30 steps) and the steps it took."""
-    from mazelab.cli.compare_outputs import compare_record_file, finish_compare, report_compare, start_compare_record
-    from mazelab.cli.replay import stored_options, with_stored_options  # scenarios: run and compare only
-    from mazelab.cli.run_setup import replay_setup
-    from mazelab.experiments.compare import compare_filters
-    from mazelab.scenario import find_scenario, load_scenario
+    from mazelab.cli.replay import compare_scenario  # scenarios and drawing: imported by the commands that use them
 
-    visualize = visualization(viewer, rrd, web, no_viz, max_drawn, force)
-    check_filter_names(filters)
-    record_file = compare_record_file(csv_path, plot, traces, force, rrd)  # a JSON record beside the outputs
-    check_outputs(csv_path, plot, force, rrd)
-    scenario = find_scenario(scenario)  # a shipped one by its name: its file's name in the table's title
-    stored = load_scenario(scenario)
-    setup = replay_setup(stored, maze, sigma, delta, seed, {})
-    names = parse_filters(filters)
-    named = {
-        "recovery": recovery_value(recovery, sensor_resetting), "alpha_slow": alpha_slow, "alpha_fast": alpha_fast,
-        "kld": kld or None, "bandwidth": bandwidth, "estimate": estimate,
-    }  # fmt: skip
-    given = merge_named(named_values(named, names), parse_option_texts(option, names))
-    given = with_stored_options(given, stored_options(stored, names, scenario), scenario)
-    options_per_filter(names, given)  # an option that none of the filters takes, or a bad value: one line, first
-    parameters = {"filters": [resolve_filter(n).name for n in names], "sigma": setup.sigma, "delta": setup.delta,
-                  "seed": setup.seed, "kidnap_at": kidnap_at,
-                  "options": {k: to_plain_json(v) for k, v in given.items()}}  # fmt: skip
-    recorder = start_compare_record(scenario, parameters)
-    prepare_world(setup.world)
-    typer.echo(
-        f"{scenario.name}: {len(setup.initial_particles)} particles, {setup.robot.recorded_steps} steps, "
-        f"sigma {setup.sigma:g}, delta {setup.delta:g}, seed {setup.seed}"
-    )
-    results = compare_filters(
-        setup.world, setup.robot, setup.sigma, setup.delta, setup.initial_particles, names,
-        seed=setup.seed, visualize=visualize, kidnap_at=kidnap_at, **given,
-    )  # fmt: skip
-    title = (
-        f"Localisation error: {scenario.name} (sigma {setup.sigma:g}, delta {setup.delta:g}, "
-        f"{len(setup.initial_particles)} particles)"
-    )
-    report_compare(results, kld=bool(given.get("kld")), csv_path=csv_path, plot=plot, title=title, force=force)
-    finish_compare(results, setup.seed, traces, recorder, record_file, maze=setup.world.source)
-    typer.echo(f"Repeat this comparison: {repeat_command(setup.seed, REPEAT_DROPS, COMPARE_DROPS_WITH_VALUE)}")
+    compare_scenario(**{**locals(), "named": named or {}, "drawing": drawing or {}})
 
 
 app.command(short_help="Lab step 14: a Monte Carlo parameter study.")(study)
@@ -433,15 +261,4 @@ if __name__ == "__main__":
     sys.exit(main())
 
 
-__all__ = [
-    "accuracy",
-    "app",
-    "bench",
-    "compare",
-    "demo",
-    "describe_os_error",
-    "main",
-    "run",
-    "study",
-    "study_mazes",
-]
+__all__ = ["accuracy", "app", "bench", "compare", "demo", "describe_os_error", "main", "run", "study"]

@@ -1,69 +1,111 @@
-"""Filter options from the command line, read from each filter's declaration (mazelab.declaration).
+"""Filter options on the command line, read from each filter's declaration (mazelab.declaration).
 
-One generic `--option NAME=VALUE` (repeatable) sets any declared option of any filter, a plug-in's
-included; the paper's named flags (`--bandwidth`, `--resampling`, ...) are spellings of the same
-options: `--bandwidth 0.05` and `--option bandwidth=0.05` give the same value, parsed and checked by
-the same declaration. An option that no filter of the command declares is refused in one line naming
-it and what the filters take, before any work; so is a value the declaration refuses.
+The named flags of run, compare and study (`--threshold`, `--bandwidth`, `--kld`, ...) are generated from
+the declarations' `Option.flag` (`with_option_flags`), so a declared flag is taken by every command that
+runs filters and `mazelab filters` never lists one that a command refuses. They are spellings of the
+options: `--bandwidth 0.05` and `--option bandwidth=0.05` give the same value, parsed and checked by the
+same declaration. `--option NAME=VALUE` (repeatable) sets any declared option of any filter, a plug-in's
+included, and `--option FILTER.NAME=VALUE` (e.g. `rpf.threshold`) sets it for that filter alone. An
+option that no filter of the command declares is refused in one line naming what they take, before any
+work; so is a value the declaration refuses.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+import inspect
+from collections.abc import Callable, Mapping, Sequence
 from typing import Annotated, Any
 
 import typer
 
-from mazelab.cli.options import UserError
-from mazelab.contract import not_taken, options_for
-from mazelab.declaration import Option
-from mazelab.modes import ESTIMATE_OPTION
-from mazelab.recovery import RECOVERY_OPTIONS
-from mazelab.registry import entries, filter_entry
-from mazelab.regularisation import BANDWIDTH_OPTION
-from mazelab.resampling import KLD_OPTIONS, RESAMPLING_OPTION
+from mazelab.cli.options import UserError, with_parameters
+from mazelab.contract import not_taken
+from mazelab.declaration import Option, parse_flag, scoped
+from mazelab.experiments.study import options_per_filter as reaching
+from mazelab.registry import SHIPPED, filter_entry
 
-# -- the paper's named flags: spellings of declared options (their help is the declaration's) -----------
-ResamplingFlag = Annotated[
-    str | None, typer.Option("--resampling", metavar="SCHEME", help=RESAMPLING_OPTION.help, show_default=False)
-]
-RecoveryFlag = Annotated[bool, typer.Option("--recovery", help="recovery: augmented MCL, injects when lost")]
-SensorResettingFlag = Annotated[
-    bool, typer.Option("--sensor-resetting", help="recovery: sensor resetting, injects what matches z")
-]
-KldFlag = Annotated[bool, typer.Option("--kld", help="KLD-sampling: N adapts, --particles the most")]
-# the parts' tuning: --option alpha_slow=... spells them too (hidden: `mazelab filters` lists them)
-AlphaSlowFlag = Annotated[float | None, typer.Option("--alpha-slow", hidden=True, help=RECOVERY_OPTIONS[1].help)]
-AlphaFastFlag = Annotated[float | None, typer.Option("--alpha-fast", hidden=True, help=RECOVERY_OPTIONS[2].help)]
-KldEpsilonFlag = Annotated[float | None, typer.Option("--kld-epsilon", hidden=True, help=KLD_OPTIONS[1].help)]
-KldZFlag = Annotated[float | None, typer.Option("--kld-z", hidden=True, help=KLD_OPTIONS[2].help)]
-BandwidthFlag = Annotated[
-    str | None, typer.Option("--bandwidth", metavar="KERNEL", help=BANDWIDTH_OPTION.help, show_default=False)
-]
-EstimateFlag = Annotated[
-    str | None, typer.Option("--estimate", metavar="mean|mode", help=ESTIMATE_OPTION.help, show_default=False)
-]
+# A declared flag "--a/--b" is a pair of switches on run and compare, each setting the option to a value
+# (the study's flag takes a list of the values instead); the one place these values are written.
+SWITCH_VALUES = {"--recovery": "augmented", "--sensor-resetting": "sensor"}
 
 
-def recovery_value(recovery: bool, sensor_resetting: bool) -> str | None:
-    """--recovery and --sensor-resetting as the recovery option's value (None: neither)."""
-    if recovery and sensor_resetting:
-        raise UserError("choose one of --recovery and --sensor-resetting")
-    return "sensor" if sensor_resetting else "augmented" if recovery else None
+def declared_flags() -> dict[str, Option]:
+    """The named flags of the lab's filters' options, by option name (the first declaration's)."""
+    flags: dict[str, Option] = {}
+    for entry in SHIPPED:
+        for option in entry.options.settable():
+            if option.flag:
+                flags.setdefault(option.name, option)
+    return flags
 
 
-def named_values(named: Mapping[str, Any], filter_names: Sequence[str | type]) -> dict[str, Any]:
-    """The named flags' values as options (None: not given), a flag's text parsed by the declaration
-    as `--option NAME=TEXT` would be."""
-    values = {}
-    for name, value in named.items():
-        if value is None:
-            continue
-        declared = declared_by(filter_names, name)
-        if isinstance(value, str) and declared:
-            value = read_value(declared[0], value, declared[0].flag or f"--{name}")
-        values[name] = value
-    return values
+def _flag_parameters(lists: bool) -> dict[str, inspect.Parameter]:
+    """A typer parameter per declared flag: a switch for a flag option (`--kld`) and for each half of
+    a pair (`--recovery`, `--sensor-resetting`) on run and compare; a value (a list of them for a
+    study, `lists`) otherwise. They are listed in the command's help in one paragraph (`flags_line`)."""
+    parameters = {}
+    for option in declared_flags().values():
+        spellings = (option.flag or "").split("/")
+        switches = [spellings[0]] if option.parse is parse_flag else spellings if len(spellings) > 1 else []
+        for flag in [] if lists and option.parse is not parse_flag else switches:
+            typer_option = typer.Option(flag, hidden=True, help=option.help)
+            parameters[_parameter_name(flag)] = _parameter(flag, bool, False, typer_option)
+        if (lists and option.parse is not parse_flag) or not switches:
+            typer_option = typer.Option(spellings[0], hidden=True, help=option.help)
+            parameters[_parameter_name(spellings[0])] = _parameter(spellings[0], str | None, None, typer_option)
+    return parameters
+
+
+def flags_line(lists: bool) -> str:
+    """The help's paragraph naming the declared flags (each a spelling of --option NAME=VALUE)."""
+    flags = ", ".join(f"--{name.replace('_', '-')}" for name in _flag_parameters(lists))
+    values = "V1,V2" if lists else "VALUE"
+    return f"Filter options, each also --option NAME={values} (mazelab filters NAME says what they do): {flags}."
+
+
+def _parameter_name(flag: str) -> str:
+    return flag.removeprefix("--").replace("-", "_")
+
+
+def _parameter(flag: str, kind: Any, default: Any, typer_option: Any) -> inspect.Parameter:
+    kind_ = inspect.Parameter.KEYWORD_ONLY
+    return inspect.Parameter(_parameter_name(flag), kind_, default=default, annotation=Annotated[kind, typer_option])
+
+
+def with_option_flags(lists: bool = False) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
+    """Add the declared flags (`_flag_parameters`) to a command's parameters, named in its help; the
+    command receives the ones given as `named`: {option name: its text, a list's text, or True for a
+    switch}."""
+    flags = {name: (p.annotation, p.default) for name, p in _flag_parameters(lists).items()}
+
+    def decorate(command: Callable[..., Any]) -> Callable[..., Any]:
+        wrapper = with_parameters("named", flags, _named)(command)
+        wrapper.__doc__ = f"{inspect.cleandoc(command.__doc__ or '')} {flags_line(lists)}"
+        return wrapper
+
+    return decorate
+
+
+def _named(given: Mapping[str, Any]) -> dict[str, Any]:
+    """The flags given, by option name; both halves of a pair is one line."""
+    named: dict[str, Any] = {}
+    for name, option in declared_flags().items():
+        spellings = (option.flag or "").split("/")
+        chosen = [f for f in spellings if given.get(_parameter_name(f)) not in (None, False)]
+        if len(chosen) > 1:
+            raise UserError(f"choose one of {' and '.join(spellings)}")
+        if chosen:
+            value = given[_parameter_name(chosen[0])]
+            named[name] = SWITCH_VALUES.get(chosen[0], value) if value is True and len(spellings) > 1 else value
+    return named
+
+
+def declared_by(filter_names: Sequence[str | type], key: str) -> list[Option]:
+    """The declarations of option `key` among the filters (the first filter's first); of a scoped key,
+    its filter's."""
+    scope, name = scoped(key)
+    chosen = [filter_entry(scope)] if scope is not None else [filter_entry(f) for f in filter_names]
+    return [entry.options[name] for entry in chosen if name in entry.options]
 
 
 def read_value(option: Option, text: str, spelled: str) -> Any:
@@ -94,8 +136,8 @@ OptionFlag = Annotated[
     typer.Option(
         "--option",
         metavar="NAME=VALUE",
-        help="any filter option, repeatable (mazelab filters lists them)",
         show_default=False,
+        help="a filter option, repeatable (FILTER.NAME=...: one filter's)",
     ),
 ]
 StudyOptionFlag = Annotated[
@@ -103,22 +145,24 @@ StudyOptionFlag = Annotated[
     typer.Option(
         "--option",
         metavar="NAME=V1,V2",
-        help="a filter option, values varied (mazelab filters)",
         show_default=False,
+        help="filter option values (FILTER.NAME: one's)",
     ),
 ]
 
 
-def declared_by(filter_names: Sequence[str | type], name: str) -> list[Option]:
-    """The declarations of option `name` among the filters (first the first filter's)."""
-    return [entry.options[name] for entry in map(filter_entry, filter_names) if name in entry.options]
+class GivenOptions(dict):
+    """Options given on the command line, by name (or FILTER.NAME), with how the user spelled each
+    (`spelled`: the named flag, or --option NAME), for the messages."""
+
+    spelled: dict[str, str]
 
 
-def parse_option_texts(
-    texts: Sequence[str] | None, filter_names: Sequence[str | type], *, lists: bool = False
-) -> dict[str, Any]:
-    """`--option NAME=VALUE` texts as {name: value} (with `lists`, {name: [values]} from NAME=V1,V2),
-    each value parsed by the declaration of the first filter that declares the option.
+def given_options(
+    named: Mapping[str, Any], texts: Sequence[str] | None, filter_names: Sequence[str | type], *, lists: bool = False
+) -> GivenOptions:
+    """The named flags' values and the `--option NAME=VALUE` texts (NAME=V1,V2 with `lists`), each parsed
+    by the declaration of the first filter that declares it; one given both ways is refused in one line.
 
     Raises
     ------
@@ -126,7 +170,12 @@ def parse_option_texts(
         One line: a text without '=', an option none of the filters declares (naming what they take),
         an option given twice, or a value its declaration cannot read.
     """
-    parsed: dict[str, Any] = {}
+    given = GivenOptions()
+    given.spelled = {}
+    for name, value in named.items():
+        spellings = (declared_flags()[name].flag or f"--{name}").split("/")
+        given.spelled[name] = next((f for f in spellings if SWITCH_VALUES.get(f) == value), spellings[0])
+        given[name] = _parsed(filter_names, name, value, given.spelled[name], lists)
     for text in texts or ():
         if not text.isprintable():  # a newline would print as a line of its own in the messages
             raise UserError(f"--option {text!r}: an option cannot hold a control character (a newline, a tab)")
@@ -134,111 +183,66 @@ def parse_option_texts(
         name = name.strip()
         if not equals or not name:
             raise UserError(f"--option {text!r}: write NAME=VALUE, e.g. --option bandwidth=multimodal")
+        if name in given:
+            raise UserError(f"{name} is given twice, as {given.spelled[name]} and as --option {name}; give it once")
+        given.spelled[name] = f"--option {name}"
+        given[name] = _parsed(filter_names, name, value, f"--option {name}={value}", lists)
+    return given
+
+
+def _parsed(filter_names: Sequence[str | type], name: str, value: Any, spelled: str, lists: bool) -> Any:
+    """A value (or, with `lists`, the comma-separated values) of option `name`, read by its declaration."""
+    try:
         declared = declared_by(filter_names, name)
-        if not declared or declared[0].derived:
-            raise UserError(refusal(filter_names, name, f"--option {name}"))
-        if name in parsed:
-            raise UserError(f"--option {name} is given twice; give each option once")
-        spelled = f"--option {name}={value}"
-        if not lists:
-            parsed[name] = read_value(declared[0], value, spelled)
-            continue
-        parts = [part for part in value.split(",") if part.strip()]
-        if not parts:
-            raise UserError(f"{spelled}: no values (write NAME=V1,V2)")
-        parsed[name] = list(dict.fromkeys(read_value(declared[0], part, spelled) for part in parts))
-    return parsed
+    except ValueError as error:  # FILTER.NAME of an unknown filter
+        raise UserError(f"{spelled.split('=')[0]}: {error}") from None
+    if not declared or declared[0].derived:
+        raise UserError(refusal(filter_names, name, spelled.split("=")[0]))
+    if value is True:  # a switch (--kld)
+        return [True] if lists else True
+    if not lists:
+        return read_value(declared[0], value, spelled)
+    parts = [part for part in value.split(",") if part.strip()]
+    if not parts:
+        raise UserError(f"{spelled}: no values (write NAME=V1,V2)")
+    return list(dict.fromkeys(read_value(declared[0], part, spelled) for part in parts))
 
 
-def refusal(filter_names: Sequence[str | type], name: str, spelled: str) -> str:
-    """The line for an option none of the filters declares: what each filter takes instead."""
-    return not_taken([filter_entry(f).filter_class for f in filter_names], spelled)
-
-
-class GivenOptions(dict):
-    """Options given on the command line, by name, with how the user spelled each (`spelled`: the
-    named flag, or --option NAME), for the messages."""
-
-    spelled: dict[str, str]
-
-
-def merge_named(named: Mapping[str, Any], generic: Mapping[str, Any]) -> GivenOptions:
-    """The named flags' values (None: not given) and the generic --option ones together; one option
-    given both ways with different values is refused in one line."""
-    merged = GivenOptions(generic)
-    merged.spelled = {name: f"--option {name}" for name in generic}
-    for name, value in named.items():
-        if value is None:
-            continue
-        if name in merged and merged[name] != value:
-            raise UserError(f"{name} is given twice, as its flag and as --option {name}; give it once")
-        merged[name] = value
-        declared = declared_option_anywhere(name)
-        merged.spelled[name] = declared.flag if declared is not None and declared.flag else f"--{name}"
-    return merged
-
-
-def declared_option_anywhere(name: str) -> Option | None:
-    """The declaration of an option among the lab's filters (for its named flag), or None."""
-    return next((entry.options[name] for entry in entries() if name in entry.options), None)
+def refusal(filter_names: Sequence[str | type], key: str, spelled: str) -> str:
+    """The line for an option none of the filters declares (or its FILTER.NAME's filter does not)."""
+    scope, _ = scoped(key)
+    chosen = [filter_entry(scope)] if scope is not None else [filter_entry(f) for f in filter_names]
+    return not_taken([entry.filter_class for entry in chosen], spelled)
 
 
 def options_per_filter(
-    filter_names: Sequence[str | type],
-    given: Mapping[str, Any],
-    *,
-    flags: Mapping[str, str] | None = None,
-    check: bool = True,
+    filter_names: Sequence[str | type], given: Mapping[str, Any], *, check: bool = True
 ) -> dict[str, dict[str, Any]]:
-    """Per filter (by `name`), the given options it declares (None: not given); an option that none of
-    them declares is refused in one line naming how the user spelled it (`flags`: option -> flag,
-    default the declaration's named flag) and what they take. With `check`, each filter's options
-    are checked by its declaration as its constructor will check them (a value out of range, a
-    tuning option whose part is off), in one line."""
-    entries = [filter_entry(name) for name in filter_names]
-    classes = [entry.filter_class for entry in entries]
-    spelled = {name: spelling(entries, name, {**getattr(given, "spelled", {}), **(flags or {})}) for name in given}
+    """Per filter (by `name`), the given options that reach it (mazelab.experiments.study.options_per_filter:
+    a FILTER.NAME one its filter alone); an option that none of them declares is refused in one line naming
+    how the user spelled it and what they take. With `check`, each filter's options are checked by its
+    declaration as its constructor will check them, in one line."""
+    spelled = getattr(given, "spelled", {})
     try:
-        per_filter = options_for(classes, given, spelled=spelled)
+        per_filter = reaching(filter_names, given, {k: spelled.get(k, f"--option {k}=...") for k in given})
         if check:
-            for entry in entries:
+            for entry in map(filter_entry, filter_names):
                 entry.options.resolve(per_filter[entry.name], entry.name)
     except ValueError as error:
         raise UserError(str(error)) from None
     return per_filter
 
 
-def spelling(entries: Sequence[Any], name: str, flags: Mapping[str, str] | None = None) -> str:
-    """How a command spells option `name`: its own flag (`flags`), the declaration's named flag, or
-    --option NAME=..."""
-    if flags and name in flags:
-        return flags[name]
-    declared = next((e.options[name] for e in entries if name in e.options), None)
-    return declared.flag if declared is not None and declared.flag else f"--option {name}=..."
-
-
 __all__ = [
-    "AlphaFastFlag",
-    "AlphaSlowFlag",
-    "BandwidthFlag",
-    "EstimateFlag",
+    "SWITCH_VALUES",
     "GivenOptions",
-    "KldEpsilonFlag",
-    "KldFlag",
-    "KldZFlag",
     "OptionFlag",
-    "RecoveryFlag",
-    "ResamplingFlag",
-    "SensorResettingFlag",
     "StudyOptionFlag",
     "declared_by",
-    "declared_option_anywhere",
-    "merge_named",
-    "named_values",
+    "declared_flags",
+    "given_options",
     "options_per_filter",
-    "parse_option_texts",
     "read_value",
-    "recovery_value",
     "refusal",
-    "spelling",
+    "with_option_flags",
 ]

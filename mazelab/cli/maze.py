@@ -3,22 +3,14 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import numpy as np
 import typer
 
 from mazelab import maze_generator
 from mazelab.atomic import write_text_atomically
-from mazelab.cli.options import (
-    NoVizOption,
-    RrdOption,
-    ViewerOption,
-    WebOption,
-    check_output_path,
-    seed_option,
-    visualization,
-)
+from mazelab.cli.options import check_output_path, seed_option, visualization, with_drawing
 from mazelab.cli.reports import generation_progress
 from mazelab.invocation import command_prefix
 from mazelab.mazes import load_maze
@@ -65,15 +57,15 @@ def maze_generate(
 
 
 @maze_app.command("show", short_help="Print a maze; --viewer, --rrd or --web draw it.")
+@with_drawing
 def maze_show(
     path: Annotated[str, typer.Argument(metavar="MAZE", help="a maze file, or a name in mazes/", show_default=False)],
-    viewer: ViewerOption = False,
-    rrd: RrdOption = None,
-    web: WebOption = False,
-    no_viz: NoVizOption = False,
+    drawing: dict[str, Any] | None = None,
 ) -> None:
     """Print a maze as text ('##' wall, '[]' station block, '. ' free); --viewer/--rrd/--web also log it to Rerun."""
-    visualize = visualization(viewer, rrd, web, no_viz) if viewer or web or rrd is not None else False
+    chosen = drawing or {}
+    drawn = chosen.get("viewer") or chosen.get("web") or chosen.get("rrd") is not None
+    visualize = visualization(**chosen) if drawn else False
     world = load_maze(path)
     typer.echo(maze_generator.maze_picture(world), nl=False)
     typer.echo(f"{world.source}: {maze_generator.describe_maze(world)}")

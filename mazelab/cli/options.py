@@ -1,16 +1,21 @@
-"""What the commands share: the drawing and recovery options, output-path checks, list parsing, and
-the one-line errors and warnings of the command line."""
+"""What the commands share: the drawing and backend options, output-path checks (one file per output),
+list parsing, and the one-line errors and warnings of the command line. The filters' own options are
+in mazelab.cli.filter_options, read from their declarations."""
 
 from __future__ import annotations
 
+import functools
+import inspect
 import os
 import re
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Annotated, Any
 
 import typer
 
 from mazelab.atomic import NameTakenError, NotRegularFileError, output_target
+from mazelab.backend import ENVIRONMENT_VARIABLE, THREADS_VARIABLE, check_backend, check_threads
 from mazelab.checks import check_seed
 from mazelab.experiments.tables import pyplot
 from mazelab.viz.style import DEFAULT_MAX_DRAWN
@@ -19,19 +24,66 @@ from mazelab.viz.targets import Visualization
 DEFAULT_SIGMA, DEFAULT_DELTA = 0.3, 0.5
 
 
-# Where a run is drawn: these options sit on every command that runs filters (the filters' own options
-# are in mazelab.cli.filter_options, read from their declarations).
-ViewerOption = Annotated[bool, typer.Option("--viewer", help="the native viewer (default with a display)")]
-RrdOption = Annotated[Path | None, typer.Option("--rrd", help="save the recording to this .rrd file")]
-WebOption = Annotated[bool, typer.Option("--web", help="serve the web viewer on 127.0.0.1")]
-NoVizOption = Annotated[bool, typer.Option("--no-viz", help="draw nothing")]
-MaxDrawnOption = Annotated[int, typer.Option("--max-drawn", min=1, help="most particles drawn a step")]
+class UserError(Exception):
+    """An input problem reported as one line on stderr with exit code 2."""
+
+
+def opt(kind: Any, *flags: str, **typer_options: Any) -> Any:
+    """A typer option's annotated type: `opt(int | None, "--runs", help=...)`."""
+    return Annotated[kind, typer.Option(*flags, **typer_options)]
+
+
+def with_parameters(
+    into: str, parameters: Mapping[str, tuple[Any, Any]], convert: Callable[[dict[str, Any]], Any] = dict
+) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
+    """Add a group of typer parameters (name -> (Annotated type with its typer.Option, default)) to a
+    command; the command receives their values together as its parameter `into` (a dict, or what
+    `convert` makes of it). The options several commands share are declared once this way."""
+
+    def decorate(command: Callable[..., Any]) -> Callable[..., Any]:
+        signature = inspect.signature(command, eval_str=True)
+        own = [p for p in signature.parameters.values() if p.name != into]
+        keyword = inspect.Parameter.KEYWORD_ONLY
+        added = [
+            inspect.Parameter(name, keyword, default=default, annotation=annotation)
+            for name, (annotation, default) in parameters.items()
+        ]
+
+        @functools.wraps(command)
+        def wrapper(*args: Any, **kwargs: Any) -> Any:
+            given = {name: kwargs.pop(name) for name in parameters if name in kwargs}
+            return command(*args, **kwargs, **{into: convert(given)})
+
+        wrapper.__signature__ = signature.replace(parameters=[*own, *added])  # type: ignore[attr-defined]
+        wrapper.__annotations__ = {p.name: p.annotation for p in [*own, *added]}
+        return wrapper
+
+    return decorate
+
+
+# Where a run is drawn: these options sit on every command that runs filters (`with_drawing`).
+DRAWING: dict[str, tuple[Any, Any]] = {
+    "viewer": (Annotated[bool, typer.Option("--viewer", help="the native viewer (default with a display)")], False),
+    "rrd": (Annotated[Path | None, typer.Option("--rrd", help="save the recording to this .rrd file")], None),
+    "web": (Annotated[bool, typer.Option("--web", help="serve the web viewer on 127.0.0.1")], False),
+    "no_viz": (Annotated[bool, typer.Option("--no-viz", help="draw nothing")], False),
+    "max_drawn": (
+        Annotated[int, typer.Option("--max-drawn", min=1, help="most particles drawn a step")],
+        DEFAULT_MAX_DRAWN,
+    ),
+}
+with_drawing = with_parameters("drawing", DRAWING)
 
 
 def visualization(
-    viewer: bool, rrd: Path | None, web: bool, no_viz: bool, max_drawn: int = DEFAULT_MAX_DRAWN, force: bool = True
+    viewer: bool = False,
+    rrd: Path | None = None,
+    web: bool = False,
+    no_viz: bool = False,
+    max_drawn: int = DEFAULT_MAX_DRAWN,
+    force: bool = True,
 ) -> Any:
-    """The `visualize` argument of run_model for the command-line options (see draw.py); an --rrd file
+    """The `visualize` argument of run_model for the drawing options (see draw.py); an --rrd file
     replaces an existing one only with `force`."""
     if sum([viewer, rrd is not None, web, no_viz]) > 1:
         raise UserError("choose one of --viewer, --rrd, --web and --no-viz")
@@ -43,10 +95,70 @@ def visualization(
     return Visualization(target, max_drawn, replace=force)
 
 
-class UserError(Exception):
-    """An input problem reported as one line on stderr with exit code 2."""
+# -- --backend and --threads: set MAZELAB_BACKEND / MAZELAB_THREADS for the command (its worker
+# processes inherit them), and put back what was there when the command ends -------------------------
+def _set_for_the_command(ctx: typer.Context, variable: str, value: str) -> None:
+    before = os.environ.get(variable)
+    os.environ[variable] = value
+
+    def restore() -> None:
+        if before is None:
+            os.environ.pop(variable, None)
+        else:
+            os.environ[variable] = before
+
+    ctx.call_on_close(restore)
 
 
+def set_backend(ctx: typer.Context, value: str | None) -> str | None:
+    """--backend's callback: the name checked (one line, exit 2, for a wrong one or for compiled without
+    numba), MAZELAB_BACKEND set until the command's context closes."""
+    if value is None or ctx.resilient_parsing:
+        return value
+    try:
+        name = check_backend(value, "--backend")
+    except ValueError as error:
+        raise UserError(str(error)) from None
+    _set_for_the_command(ctx, ENVIRONMENT_VARIABLE, name)
+    return name
+
+
+def set_threads(ctx: typer.Context, value: int | None) -> int | None:
+    """--threads' callback: the count checked (one line, exit 2, outside 1 to the machine's cores),
+    MAZELAB_THREADS set until the command's context closes."""
+    if value is None or ctx.resilient_parsing:
+        return value
+    try:
+        count = check_threads(value, "--threads")
+    except ValueError as error:
+        raise UserError(str(error)) from None
+    _set_for_the_command(ctx, THREADS_VARIABLE, str(count))
+    return count
+
+
+BackendOption = Annotated[
+    str | None,
+    typer.Option(
+        "--backend",
+        metavar="NAME",
+        callback=set_backend,
+        show_default=False,
+        help="numpy or compiled [default: by the work]",
+    ),
+]
+ThreadsOption = Annotated[
+    int | None,
+    typer.Option(
+        "--threads",
+        metavar="N",
+        callback=set_threads,
+        show_default=False,
+        help="compiled: threads for one large run [default: 1]",
+    ),
+]
+
+
+# -- outputs --------------------------------------------------------------------------------------------
 def check_output_path(path: Path, force: bool) -> None:
     """Refuse to overwrite an existing file (or a symlink, dangling or not) without --force, anything
     but a regular file with or without it, or to write into a missing folder. (The write itself checks
@@ -63,36 +175,6 @@ def check_output_path(path: Path, force: bool) -> None:
         raise UserError(f"{path.parent} does not exist: cannot write {path.name} there")
     if not os.access(path.parent, os.W_OK):
         raise UserError(f"{path.parent} is not writable: cannot write {path.name} there")
-    if path.is_dir():
-        raise UserError(f"{path} is a folder, not a file")
-
-
-def seed_option(value: int | None) -> int | None:
-    """A --seed: a whole number in [0, 2**128) (typer names the option in its one-line error)."""
-    if value is not None:
-        try:
-            check_seed("a seed", value)
-        except ValueError as error:
-            raise typer.BadParameter(str(error)) from None
-    return value
-
-
-def parse_list(text: str, kind: type, option: str) -> list:
-    """'0.2,0.4' -> [0.2, 0.4] (of `kind`), or a one-line error naming the option; '0,3' for a number
-    is refused with what to write (a decimal comma: a list of 0 and 3 is no lab's value)."""
-    if kind is float and re.fullmatch(r"\s*0,\d+\s*", text):
-        decimal = text.strip().replace(",", ".")
-        raise UserError(
-            f"{option} {text.strip()}: the comma separates values (0 and {text.strip()[2:]}); "
-            f"for one value write {decimal}, for a list {decimal},0.4"
-        )
-    try:
-        values = [kind(part) for part in text.split(",") if part.strip()]
-    except ValueError:
-        raise UserError(f"{option} takes comma-separated {kind.__name__} values, got {text!r}") from None
-    if not values:
-        raise UserError(f"{option} is empty")
-    return list(dict.fromkeys(values))
 
 
 def check_outputs(csv_path: Path | None, plot: Path | None, force: bool, rrd: Path | None = None) -> None:
@@ -111,6 +193,59 @@ def check_outputs(csv_path: Path | None, plot: Path | None, force: bool, rrd: Pa
             raise UserError(f"--plot {plot}: cannot draw .{suffix} files; use one of .{', .'.join(sorted(formats))}")
 
 
+def file_identity(path: Path) -> tuple[str, tuple[int, int] | None]:
+    """(the path with every link resolved, (device, inode) of the file if it exists)."""
+    resolved = os.path.realpath(path)
+    try:
+        status = os.stat(resolved)
+    except OSError:  # missing (the usual case for a new output), a loop, no permission
+        return resolved, None
+    return resolved, (status.st_dev, status.st_ino)
+
+
+def check_one_file_each(outputs: Sequence[tuple[str, Path | None]]) -> None:
+    """Refuse (one line) the first two of `outputs`, (what the user calls it, its path or None), that
+    are one file: the same path once links are resolved (`./s.csv` and `s.csv`, a symlink to another
+    output), or two names of one existing file (a hard link). Checked before any run."""
+    given = [(name, Path(path), file_identity(Path(path))) for name, path in outputs if path is not None]
+    for i, (name_a, path_a, (real_a, inode_a)) in enumerate(given):
+        for name_b, path_b, (real_b, inode_b) in given[i + 1 :]:
+            if real_a == real_b or (inode_a is not None and inode_a == inode_b):
+                same = f"{path_a}" if str(path_a) == str(path_b) else f"{path_a} and {path_b}"
+                raise UserError(f"{name_a} and {name_b} are one file ({same}): give each output a name of its own")
+
+
+# -- values ---------------------------------------------------------------------------------------------
+def seed_option(value: int | None) -> int | None:
+    """A --seed: a whole number in [0, 2**128) (typer names the option in its one-line error)."""
+    if value is not None:
+        try:
+            check_seed("a seed", value)
+        except ValueError as error:
+            raise typer.BadParameter(str(error)) from None
+    return value
+
+
+def parse_list(text: str | None, kind: type, option: str) -> list | None:
+    """'0.2,0.4' -> [0.2, 0.4] (of `kind`; None stays None), or a one-line error naming the option;
+    '0,3' for a number is refused with what to write (a list of 0 and 3 is no lab's value)."""
+    if text is None:
+        return None
+    if kind is float and re.fullmatch(r"\s*0,\d+\s*", text):
+        decimal = text.strip().replace(",", ".")
+        raise UserError(
+            f"{option} {text.strip()}: the comma separates values (0 and {text.strip()[2:]}); "
+            f"for one value write {decimal}, for a list {decimal},0.4"
+        )
+    try:
+        values = [kind(part) for part in text.split(",") if part.strip()]
+    except ValueError:
+        raise UserError(f"{option} takes comma-separated {kind.__name__} values, got {text!r}") from None
+    if not values:
+        raise UserError(f"{option} is empty")
+    return list(dict.fromkeys(values))
+
+
 _warned: set[str] = set()
 
 
@@ -124,16 +259,21 @@ def warn_in_one_line(message: Warning | str, category: type[Warning], *_args: An
 __all__ = [
     "DEFAULT_DELTA",
     "DEFAULT_SIGMA",
-    "MaxDrawnOption",
-    "NoVizOption",
-    "RrdOption",
+    "DRAWING",
+    "BackendOption",
+    "ThreadsOption",
     "UserError",
-    "ViewerOption",
-    "WebOption",
+    "check_one_file_each",
     "check_output_path",
     "check_outputs",
+    "file_identity",
+    "opt",
     "parse_list",
     "seed_option",
+    "set_backend",
+    "set_threads",
     "visualization",
     "warn_in_one_line",
+    "with_drawing",
+    "with_parameters",
 ]

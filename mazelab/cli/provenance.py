@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import os
 import shlex
 import sys
 from contextvars import ContextVar
@@ -11,7 +10,6 @@ from pathlib import Path
 
 import typer
 
-from mazelab.backend import ENVIRONMENT_VARIABLE, check_backend
 from mazelab.experiments.record import package_version, program_versions
 from mazelab.invocation import command_prefix
 
@@ -39,12 +37,13 @@ def resume_command() -> str:
 
 
 def repeat_command(
-    seed: int | None, drop: tuple[str, ...] = ("--resume",), drop_with_value: tuple[str, ...] = ()
-) -> str:
-    """The command as typed with its seed given (`--seed S` set, or replaced), to be pasted back: the
-    same run or study again, bit for bit. Flags in `drop` are left out (a resumed study repeats whole),
-    and so are the options in `drop_with_value` with their values (a file the run wrote, which the
-    pasted command would find taken)."""
+    seed: int | None, drop: tuple[str, ...] = ("--resume",), drop_with_value: tuple[str, ...] = (),
+    backend: str | None = None,
+) -> str:  # fmt: skip
+    """The command as typed with its seed given (`--seed S` set, or replaced) and the backend it ran on
+    (`--backend B`, unless typed), to be pasted back: the same run or study again, bit for bit. Flags in
+    `drop` are left out (a resumed study repeats whole), and so are the options in `drop_with_value` with
+    their values (a file the run wrote, which the pasted command would find taken)."""
     arguments, kept, skip = list(_ARGUMENTS.get() or sys.argv[1:]), [], False
     valued = ("--seed", *drop_with_value)
     for token in arguments:
@@ -59,27 +58,9 @@ def repeat_command(
         kept.append(token)
     if seed is not None:
         kept += ["--seed", str(seed)]
-    kept += environment_backend(kept)
+    if backend is not None and not any(token == "--backend" or token.startswith("--backend=") for token in kept):
+        kept += ["--backend", backend]
     return f"{command_prefix()} {shlex.join(kept)}"
-
-
-def environment_backend(arguments: list[str]) -> list[str]:
-    """["--backend", name] when MAZELAB_BACKEND chose the backend (any spelling, named as checked) and
-    the command did not say --backend, else []: a pasted command runs on the same backend anywhere.
-
-    Parameters
-    ----------
-    arguments : list of str
-        The command's arguments.
-
-    Returns
-    -------
-    list of str
-    """
-    if any(token == "--backend" or token.startswith("--backend=") for token in arguments):
-        return []
-    value = os.environ.get(ENVIRONMENT_VARIABLE, "")
-    return ["--backend", check_backend(value, ENVIRONMENT_VARIABLE)] if value.strip() else []
 
 
 def show_version(value: bool) -> None:
@@ -93,7 +74,6 @@ def show_version(value: bool) -> None:
 
 __all__ = [
     "command_line",
-    "environment_backend",
     "remember_arguments",
     "repeat_command",
     "resume_command",

@@ -1,76 +1,211 @@
-"""Runs from a seed or a saved scenario: the start a seed gives, the seed of a replay, and the maze,
-sigma and delta of a scenario (flags override the stored values; a file with only the paper's four
-keys runs on the one shipped maze it fits)."""
+"""`run` and `compare`: one filter on a lost robot or on a saved scenario, and every filter on one saved
+scenario (lab steps 9-13).
+
+A run starts from a fresh lost robot (a maze, sigma, delta and a seed) or a saved scenario replayed
+(`RunSetup`): its maze, walk, measurements, particles and seed (flags override sigma, delta and the
+seed; a file with only the paper's four keys runs on the one shipped maze it fits), and its filter and
+options, so that it repeats the run that made it bit for bit, unless the user names another filter or
+option; then one line says what was overridden. A scenario never imports code: a plug-in's saved run
+replays only when the user names the plug-in (`--filter file.py:Class`), its file's sha256 checked
+against the stored one (a changed file is said in one line); `--filter sir` replays it with SIR."""
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+import warnings
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import typer
 
-from mazelab.cli.filter_options import GivenOptions
-from mazelab.cli.options import DEFAULT_DELTA, DEFAULT_SIGMA, UserError
-from mazelab.declaration import show_value
+from mazelab.cli.filter_options import GivenOptions, given_options, options_per_filter
+from mazelab.cli.hints import check_filter_name, check_filter_names
+from mazelab.cli.options import (
+    DEFAULT_DELTA,
+    DEFAULT_SIGMA,
+    UserError,
+    check_output_path,
+    check_outputs,
+    visualization,
+)
+from mazelab.cli.provenance import repeat_command
+from mazelab.cli.reports import (
+    compare_record_file,
+    finish_compare,
+    kidnap_report,
+    particle_count_report,
+    prepare_world,
+    progress_printer,
+    report_compare,
+    report_run,
+    start_compare_record,
+)
+from mazelab.declaration import show_value, to_plain_json
 from mazelab.maze import Maze
-from mazelab.mazes import load_maze, mazes_fitting
-from mazelab.registry import filter_entry
+from mazelab.mazes import DEFAULT_MAZE, load_maze, mazes_fitting
+from mazelab.model import DEFAULT_STEPS
+from mazelab.registry import FilterEntry, filter_entry, resolve_filter
 from mazelab.robot import Robot
-from mazelab.scenario import Scenario, check_measurements_within
-from mazelab.seeding import new_seed
+from mazelab.scenario import Scenario, check_measurements_within, find_scenario, load_scenario, save_scenario
+from mazelab.seeding import new_seed, start_place
 from mazelab.simulation import check_start, check_walk_in_maze
 
-
-def replay_seed(stored: Scenario, seed: int | None) -> int:
-    """The seed of a replay: --seed, else the scenario's own (as compare uses), else a new one."""
-    return seed if seed is not None else stored.seed if stored.seed is not None else new_seed()
-
-
-def refuse_counts_for_replay(
-    stored: Scenario, particles: int | None, steps: int | None, start_seed: int | None
-) -> None:
-    """A replay takes its particles, steps and start from the scenario: refuse flags that would be ignored."""
-    given = [flag for flag, value in (("--particles", particles), ("--steps", steps), ("--start-seed", start_seed))
-             if value is not None]  # fmt: skip
-    if given:
-        raise UserError(
-            f"{' and '.join(given)} cannot change a replayed scenario (it has {len(stored.init_particles_pos)} "
-            f"particles and {len(stored.robot_actual_angles)} steps); leave {'them' if len(given) > 1 else 'it'} out"
-        )
+# "Repeat this run" repeats the run, not its files: the scenario and recording it wrote would be found
+# taken by the pasted command ("exists; use --force"), and --force would replace them unasked.
+REPEAT_DROPS = ("--resume", "--force")
+RUN_FILES = ("--save-scenario", "--rrd")
+COMPARE_FILES = ("--csv", "--plot", "--traces", "--rrd")
 
 
-def from_scenario(
-    scenario: Scenario, maze: str | None, sigma: float | None, delta: float | None
-) -> tuple[Maze, Robot, float, float, list]:
-    """World, robot, sigma, delta and particles of a saved scenario; flags override stored values.
-    A scenario without a maze (the paper's four keys) runs on --maze, or on the one shipped maze
-    its start and particles fit; missing sigma and delta take the defaults, and a line says so."""
-    stored = scenario.world()
-    world = stored if stored is not None else load_maze(maze) if maze is not None else fitting_maze(scenario)
-    if stored is not None and maze is not None:
-        given = load_maze(maze)
-        if not np.array_equal(given.grid, stored.grid):
-            raise UserError(f"the scenario's maze differs from {given.source}; leave out --maze to use the stored one")
-    defaults = [f"{name} {value:g}" for name, value, flag, kept in (
-        ("sigma", DEFAULT_SIGMA, sigma, scenario.sigma), ("delta", DEFAULT_DELTA, delta, scenario.delta)
-    ) if flag is None and kept is None]  # fmt: skip
-    if defaults:
-        typer.echo(f"warning: the scenario stores no {' or '.join(d.split()[0] for d in defaults)}: using the "
-                   f"default {', '.join(defaults)} (--sigma/--delta choose)", err=True)  # fmt: skip
-    warn_overrides(scenario, sigma, delta)
-    sigma = sigma if sigma is not None else scenario.sigma if scenario.sigma is not None else DEFAULT_SIGMA
-    delta = delta if delta is not None else scenario.delta if scenario.delta is not None else DEFAULT_DELTA
-    robot = scenario.robot(sigma, delta)
-    if stored is None:  # a maze given or fitted: the scenario's start and walk must lie in its free area
+def run_one(maze: str | None, filter_name: str | None, particles: int | None, steps: int | None,
+            sigma: float | None, delta: float | None, seed: int | None, start_seed: int | None,
+            scenario: Path | None, save_scenario_path: Path | None, force: bool, quiet: bool,
+            kidnap_at: int | None, option: list[str] | None, named: dict, drawing: dict, **_: Any) -> None:  # fmt: skip
+    """`run`'s work (mazelab.cli.app): one filter on a fresh lost robot or a replayed scenario, its report."""
+    from mazelab.lab import simulate  # with drawing: imported by the commands that run one filter
+
+    visualize = visualization(**drawing, force=force)
+    stored = load_scenario(scenario) if scenario is not None else None
+    filter_name = check_filter_name(replay_filter_name(stored, filter_name, scenario))
+    options = options_per_filter([filter_name], given_options(named, option, [filter_name]),
+                                 check=stored is None)[resolve_filter(filter_name).name]  # fmt: skip
+    for path in (save_scenario_path, drawing.get("rrd")):
+        if path is not None:
+            check_output_path(path, force)
+    if stored is None:
+        setup = fresh_setup(maze, sigma, delta, seed, start_seed, particles, steps)
+    else:
+        refuse_counts_for_replay(stored, particles=particles, steps=steps, start_seed=start_seed)
+        options = replay_options(stored, filter_name, options, scenario)
+        options_per_filter([filter_name], options)  # the replay's options, checked as the filter will
+        setup = replay_setup(stored, maze, sigma, delta, seed)
+    prepare_world(setup.world)
+    progress = None if quiet else progress_printer(setup.steps or setup.robot.recorded_steps or DEFAULT_STEPS)
+    with scenario_not_saved_on_stop(save_scenario_path):
+        result = simulate(*setup.arguments, filter_name, seed=setup.seed, visualize=visualize, on_step=progress,
+                          kidnap_at=kidnap_at, **options)  # fmt: skip
+    report_run(result)
+    for line in (kidnap_report(result), particle_count_report(result) if options.get("kld") else None):
+        if line:
+            typer.echo(line)
+    if save_scenario_path is not None:
+        typer.echo(f"scenario saved to {save_scenario(result.scenario, save_scenario_path, replace=force)}")
+    typer.echo(f"Repeat this run: {repeat_command(result.seed, REPEAT_DROPS, RUN_FILES, result.extras['backend'])}")
+
+
+@contextmanager
+def scenario_not_saved_on_stop(path: Path | None) -> Iterator[None]:
+    """A run stopped (Ctrl-C; SIGTERM or SIGHUP with a recording, which exit through SystemExit) before
+    its end says that its scenario was not saved."""
+    try:
+        yield
+    except (KeyboardInterrupt, SystemExit):
+        if path is not None:
+            typer.echo(f"the run did not finish: no scenario saved to {path}", err=True)
+        raise
+
+
+def compare_scenario(
+    scenario: Path, filters: str, maze: str | None, sigma: float | None, delta: float | None, seed: int | None,
+    csv_path: Path | None, plot: Path | None, traces: Path | None, force: bool, kidnap_at: int | None,
+    option: list[str] | None, named: dict, drawing: dict, **_: Any,
+) -> None:  # fmt: skip
+    """`compare`'s work (mazelab.cli.app): every filter on the saved scenario, the table, files and record."""
+    from mazelab.experiments.compare import compare_filters
+    from mazelab.experiments.runs import parse_filters
+
+    visualize = visualization(**drawing, force=force)
+    check_filter_names(filters)
+    rrd = drawing.get("rrd")
+    record_file = compare_record_file(csv_path, plot, traces, force, rrd)  # a JSON record beside the outputs
+    check_outputs(csv_path, plot, force, rrd)
+    scenario = find_scenario(scenario)  # a shipped one by its name: its file's name in the table's title
+    stored = load_scenario(scenario)
+    setup, names = replay_setup(stored, maze, sigma, delta, seed), parse_filters(filters)
+    given = with_stored_options(stored, names, given_options(named, option, names), scenario)
+    options_per_filter(names, given)  # an option that none of the filters takes, or a bad value: one line, first
+    options = {k: to_plain_json(v) for k, v in given.items()}
+    recorder = start_compare_record(scenario, {"filters": [resolve_filter(n).name for n in names], "sigma": setup.sigma,
+                                               "delta": setup.delta, "seed": setup.seed, "kidnap_at": kidnap_at,
+                                               "options": options})  # fmt: skip
+    prepare_world(setup.world)
+    shown = f"sigma {setup.sigma:g}, delta {setup.delta:g}"
+    count = len(setup.initial_particles)
+    typer.echo(f"{scenario.name}: {count} particles, {setup.robot.recorded_steps} steps, {shown}, seed {setup.seed}")
+    results = compare_filters(setup.world, setup.robot, setup.sigma, setup.delta, setup.initial_particles, names,
+                              seed=setup.seed, visualize=visualize, kidnap_at=kidnap_at, **given)  # fmt: skip
+    title = f"Localisation error: {scenario.name} ({shown}, {count} particles)"
+    report_compare(results, kld=bool(given.get("kld")), csv_path=csv_path, plot=plot, title=title, force=force)
+    finish_compare(results, setup.seed, traces, recorder, record_file, maze=setup.world.source)
+    backend = next(iter(results.values())).extras["backend"]
+    typer.echo(f"Repeat this comparison: {repeat_command(setup.seed, REPEAT_DROPS, COMPARE_FILES, backend)}")
+
+
+@dataclass
+class RunSetup:
+    """A run's inputs: the maze, the robot, sigma and delta, the initial particles (a replay's) or the
+    count to draw (None: the library's default), the steps (None: the robot's recorded walk), the seed."""
+
+    world: Maze
+    robot: Robot
+    sigma: float
+    delta: float
+    initial_particles: Any
+    particle_count: int | None
+    steps: int | None
+    seed: int
+
+    @property
+    def arguments(self) -> tuple[Any, ...]:
+        """simulate's positional arguments (mazelab.lab.simulate)."""
+        return self.robot, self.world, self.sigma, self.delta, self.particle_count, self.steps, self.initial_particles
+
+
+def fresh_setup(maze: str | None, sigma: float | None, delta: float | None, seed: int | None,
+                start_seed: int | None, particles: int | None, steps: int | None) -> RunSetup:  # fmt: skip
+    """A fresh lost robot: the maze (default the lab's), its start drawn from the seed (new if none)."""
+    world = load_maze(maze or DEFAULT_MAZE)
+    sigma = DEFAULT_SIGMA if sigma is None else sigma
+    delta = DEFAULT_DELTA if delta is None else delta
+    seed = new_seed() if seed is None else seed
+    if start_seed is not None and start_seed != seed:
+        warnings.warn(f"--start-seed {start_seed} differs from --seed {seed}: repeat with both", stacklevel=1)
+    robot = Robot(sigma, delta, start_place(world, seed if start_seed is None else start_seed))
+    return RunSetup(world, robot, sigma, delta, None, particles, steps, seed)
+
+
+def replay_setup(stored: Scenario, maze: str | None, sigma: float | None, delta: float | None,
+                 seed: int | None) -> RunSetup:  # fmt: skip
+    """A saved scenario replayed: its maze (or --maze), walk, measurements, particles and seed (--seed,
+    else the scenario's own, else a new one); --sigma and --delta override the stored values, and a
+    scenario without a maze (the paper's four keys) runs on --maze, or on the one shipped maze its start
+    and particles fit; missing sigma and delta take the defaults, and a line says so."""
+    kept = stored.world()
+    if kept is not None and maze is not None and not np.array_equal(load_maze(maze).grid, kept.grid):
+        raise UserError(f"the scenario's maze differs from {load_maze(maze).source}; leave out --maze to use the "
+                        "stored one")  # fmt: skip
+    world = kept or (load_maze(maze) if maze is not None else fitting_maze(stored))
+    missing = [(name, value) for name, value, flag, had in (("sigma", DEFAULT_SIGMA, sigma, stored.sigma),
+               ("delta", DEFAULT_DELTA, delta, stored.delta)) if flag is None and had is None]  # fmt: skip
+    if missing:
+        typer.echo(f"warning: the scenario stores no {' or '.join(n for n, _ in missing)}: using the default "
+                   f"{', '.join(f'{n} {v:g}' for n, v in missing)} (--sigma/--delta choose)", err=True)  # fmt: skip
+    warn_overrides(stored, sigma, delta)
+    sigma = sigma if sigma is not None else stored.sigma if stored.sigma is not None else DEFAULT_SIGMA
+    delta = delta if delta is not None else stored.delta if stored.delta is not None else DEFAULT_DELTA
+    robot = stored.robot(sigma, delta)
+    if kept is None:  # a maze given or fitted: the scenario's start and walk must lie in its free area
         try:
             check_start(world, robot.initial_position, None, robot.kidnap_position)
             check_walk_in_maze(world, robot)
-            check_measurements_within(scenario.robot_measurements, world, sigma)
+            check_measurements_within(stored.robot_measurements, world, sigma)
         except ValueError as error:
             raise UserError(f"{error}; pass the maze the scenario was made on (--maze)") from None
-    return world, robot, sigma, delta, scenario.init_particles_pos
+    seed = seed if seed is not None else stored.seed if stored.seed is not None else new_seed()
+    return RunSetup(world, robot, sigma, delta, stored.init_particles_pos, None, None, seed)
 
 
 def warn_overrides(scenario: Scenario, sigma: float | None, delta: float | None) -> None:
@@ -81,27 +216,106 @@ def warn_overrides(scenario: Scenario, sigma: float | None, delta: float | None)
     for name, given, stored in (("sigma", sigma, scenario.sigma), ("delta", delta, scenario.delta)):
         replayed = name == "delta" or scenario.robot_measurements is not None  # else z is drawn with --sigma
         if given is not None and stored is not None and given != stored and replayed:
-            typer.echo(
-                f"warning: --{name} {given:g} overrides the scenario's {name} {stored:g}: the filters assume "
-                f"{given:g}, the replayed {made_with[name]} were made with {stored:g}",
-                err=True,
-            )
+            typer.echo(f"warning: --{name} {given:g} overrides the scenario's {name} {stored:g}: the filters assume "
+                       f"{given:g}, the replayed {made_with[name]} were made with {stored:g}", err=True)  # fmt: skip
 
 
-def check_plugin_name(stored: Scenario, filter_name: str, path: Path | None) -> None:
-    """Refuse, in one line, a replay whose plug-in is the file the scenario names but whose stored
-    filtering_algorithm is not that plug-in's name (see Scenario.plugin_name_problem)."""
-    reference = filter_entry(filter_name).plugin
-    if reference is None:
+def fitting_maze(scenario: Scenario) -> Maze:
+    """The shipped maze of a scenario that stores none: the only one whose free area holds its start
+    and every particle; with none or several, a one-line refusal asking for --maze."""
+    fitting = mazes_fitting(scenario.init_robot_pos, np.asarray(scenario.init_particles_pos))
+    if len(fitting) != 1:
+        which = "no shipped maze fits" if not fitting else f"several shipped mazes fit ({', '.join(fitting)})"
+        raise UserError(f"the scenario stores no maze and {which} its start and particles: pass --maze (and "
+                        "--sigma/--delta if they differ from the defaults)")  # fmt: skip
+    typer.echo(f"warning: the scenario stores no maze: using {fitting[0]}, the one shipped maze it fits", err=True)
+    return load_maze(fitting[0])
+
+
+# -- the filter and options of a replay ------------------------------------------------------------------
+def replay_filter_name(stored: Scenario | None, filter_name: str | None, path: Path | None = None) -> str:
+    """The filter of a run: --filter when given (`filter_name`), else the scenario's own when it is the
+    lab's, else SIR. A scenario made by a plug-in (or a filter this program does not have) names the
+    command that replays it: its code is never imported from the file."""
+    if filter_name is not None:
+        return filter_name
+    if stored is None or stored.filtering_algorithm is None:
+        return "sir"
+    if stored.shipped_filter is not None:
+        return stored.shipped_filter.short_name
+    where = f"{path}" if path is not None else "the scenario"
+    if stored.filter_plugin is not None:
+        plugin = stored.filter_plugin
+        raise UserError(
+            f"{where} was made by the plug-in {plugin.describe()}; a scenario never runs code: name it "
+            f"to replay it, --filter {plugin.spec} (or replay it with another filter, e.g. --filter sir)"
+        )
+    raise UserError(
+        f"{where} was made by {stored.filtering_algorithm!r}, which is not one of the lab's filters; "
+        f"name the filter to replay it with, --filter FILE.py:Class (or e.g. --filter sir)"
+    )
+
+
+def refuse_counts_for_replay(stored: Scenario, **given: Any) -> None:
+    """A replay takes its particles, steps and start from the scenario: refuse flags that would be ignored."""
+    flags = [f"--{name.replace('_', '-')}" for name, value in given.items() if value is not None]
+    if flags:
+        raise UserError(
+            f"{' and '.join(flags)} cannot change a replayed scenario (it has {len(stored.init_particles_pos)} "
+            f"particles and {len(stored.robot_actual_angles)} steps); leave {'them' if len(flags) > 1 else 'it'} out"
+        )
+
+
+def same_filter(stored: Scenario, chosen: FilterEntry) -> bool:
+    """Whether the chosen filter is the one that made the scenario (a plug-in: the same class name)."""
+    if stored.filter_plugin is not None:
+        return chosen.plugin is not None and chosen.plugin.class_name == stored.filter_plugin.class_name
+    return stored.shipped_filter is not None and stored.shipped_filter.filter_class is chosen.filter_class
+
+
+def check_plugin(stored: Scenario, chosen: FilterEntry, path: Path | None) -> None:
+    """The plug-in named to replay a scenario: refused in one line when it is the file the scenario names
+    but not the filter its filtering_algorithm says (an edited file); a line says when its file changed."""
+    plugin = stored.filter_plugin
+    if chosen.plugin is None or plugin is None:
         return
-    problem = stored.plugin_name_problem(filter_entry(filter_name).name, reference.sha256, reference.class_name)
+    problem = stored.plugin_name_problem(chosen.name, chosen.plugin.sha256, chosen.plugin.class_name)
     if problem is not None:
         raise UserError(f"{path or 'the scenario'}: {problem}")
+    if same_filter(stored, chosen) and chosen.plugin.sha256 != plugin.sha256:
+        typer.echo(f"warning: {chosen.plugin.spec} has changed since the scenario was saved (sha256 "
+                   f"{chosen.plugin.sha256[:12]}..., saved {plugin.sha256[:12]}...): the replay may differ from the "
+                   "saved run", err=True)  # fmt: skip
 
 
-def stored_options(stored: Scenario, filter_names: Sequence[str], path: Path) -> dict[str, Any]:
-    """The options the scenario's run set away from their defaults, as the compared filters that
-    declare them read them (a filter's default is not an option set: every filter keeps its own)."""
+def replay_options(stored: Scenario, filter_name: str, given: Mapping[str, Any], path: Path | None) -> dict[str, Any]:
+    """The options of a replay: the scenario's (those the chosen filter declares), then every option
+    the user gave on the command line (`given`, named flags and --option alike); one line on stderr
+    lists what differs from the stored run."""
+    chosen = filter_entry(filter_name)
+    check_plugin(stored, chosen, path)
+    if stored.filter_options is None:  # an older file: the options given, as before
+        return dict(given)
+    try:
+        kept = stored.filter_kwargs(chosen.filter_class)
+    except ValueError as error:
+        raise UserError(f"the scenario's filter_options for {chosen.name}: {error}") from None
+    changes = [] if stored.filtering_algorithm is None or same_filter(stored, chosen) else [
+        f"filter {stored.filtering_algorithm} -> {chosen.name}"]  # fmt: skip
+    for name, value in given.items():
+        before = kept.get(name, chosen.options[name].default if name in chosen.options else None)
+        if before != value:
+            changes.append(f"{name} {show_value(before)} -> {show_value(value)}")
+    if changes:
+        typer.echo(f"note: replaying with {'; '.join(changes)} (the scenario's run used the former)", err=True)
+    return {**kept, **given}
+
+
+def with_stored_options(stored: Scenario, filter_names: Sequence[str], given: GivenOptions, path: Path) -> GivenOptions:
+    """The options of a comparison on a saved scenario: those its run set away from their defaults, each
+    compared filter that declares one taking it (a filter's default is not an option set: every filter
+    keeps its own), then those given on the command line over them; one line on stderr names the stored
+    ones used, so that the scenario's own filter scores as its replay does."""
     found: dict[str, Any] = {}
     for name in filter_names:
         entry = filter_entry(name)
@@ -112,14 +326,7 @@ def stored_options(stored: Scenario, filter_names: Sequence[str], path: Path) ->
         for option, value in kept.items():
             if value != entry.options[option].default:
                 found.setdefault(option, value)
-    return found
-
-
-def with_stored_options(given: GivenOptions, stored: Mapping[str, Any], path: Path) -> GivenOptions:
-    """The options of a comparison on a saved scenario: those its run set (`stored_options`), each
-    filter that declares one taking it, then those given on the command line over them; one line on
-    stderr names the stored ones used, so that the scenario's own filter scores as its replay does."""
-    used = {name: value for name, value in stored.items() if name not in given}
+    used = {name: value for name, value in found.items() if name not in given}
     if used:
         shown = ", ".join(f"{name} {show_value(value)}" for name, value in used.items())
         typer.echo(
@@ -132,27 +339,5 @@ def with_stored_options(given: GivenOptions, stored: Mapping[str, Any], path: Pa
     return merged
 
 
-def fitting_maze(scenario: Scenario) -> Maze:
-    """The shipped maze of a scenario that stores none: the only one whose free area holds its start
-    and every particle; with none or several, a one-line refusal asking for --maze."""
-    fitting = mazes_fitting(scenario.init_robot_pos, np.asarray(scenario.init_particles_pos))
-    if len(fitting) != 1:
-        which = "no shipped maze fits" if not fitting else f"several shipped mazes fit ({', '.join(fitting)})"
-        raise UserError(
-            f"the scenario stores no maze and {which} its start and particles: "
-            "pass --maze (and --sigma/--delta if they differ from the defaults)"
-        )
-    typer.echo(f"warning: the scenario stores no maze: using {fitting[0]}, the one shipped maze it fits", err=True)
-    return load_maze(fitting[0])
-
-
-__all__ = [
-    "check_plugin_name",
-    "fitting_maze",
-    "from_scenario",
-    "refuse_counts_for_replay",
-    "replay_seed",
-    "stored_options",
-    "warn_overrides",
-    "with_stored_options",
-]
+__all__ = ["RunSetup", "compare_scenario", "fresh_setup", "replay_filter_name", "replay_options", "replay_setup",
+           "run_one"]  # fmt: skip

@@ -9,13 +9,12 @@ import signal
 import statistics
 import warnings
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
 
-from mazelab.experiments.executor import end_workers, signals_ignored, stop_signals, worker_setup
+from mazelab.experiments.executor import Units, stop_signals
 from mazelab.experiments.stats import bootstrap_interval, wilson_interval
 from mazelab.experiments.study import MazeChoice, distance_to_exact  # one definition, a study's too
 from mazelab.experiments.tables import format_optional, format_table, records_csv
@@ -130,43 +129,47 @@ def accuracy_tasks(
 
 
 class AccuracyStopped(KeyboardInterrupt):
-    """Ctrl-C, SIGTERM or SIGHUP stopped the runs: the workers are ended, `records` holds the runs that
-    finished (in task order), `signum` the signal."""
+    """Ctrl-C, SIGTERM or SIGHUP stopped the runs: the workers are ended, `signum` is the signal (the
+    runs that finished were handed to `on_records`)."""
 
-    def __init__(self, records: list[AccuracyRecord], signum: int):
+    def __init__(self, signum: int):
         super().__init__(signal.Signals(signum).name)
-        self.records, self.signum = records, signum
+        self.signum = signum
+
+
+def run_accuracy_unit(unit: Sequence[AccuracyTask]) -> list[list[AccuracyRecord]]:
+    """A unit of accuracy runs (one task: its records)."""
+    return [run_accuracy_task(task) for task in unit]
 
 
 def run_accuracy(
-    tasks: Sequence[AccuracyTask], workers: int = 1, advance: Callable[..., None] | None = None
-) -> list[AccuracyRecord]:
-    """Every task, on `workers` processes; records in task order. `advance()` is called as each run ends.
-    Ctrl-C, SIGTERM or SIGHUP end the worker processes at once and raise AccuracyStopped with the runs
-    that finished (the workers ignore Ctrl-C themselves and end with this process however it ends)."""
+    tasks: Sequence[AccuracyTask], workers: int = 1, advance: Callable[..., None] | None = None,
+    on_records: Callable[[list[AccuracyRecord]], None] | None = None,
+) -> list[AccuracyRecord]:  # fmt: skip
+    """Every task, on `workers` processes (mazelab.experiments.executor.Units: a worker that dies is
+    replaced); records in task order, each run's also handed to `on_records` as it ends, and `advance()`
+    called. Ctrl-C, SIGTERM or SIGHUP end the worker processes at once and raise AccuracyStopped."""
     advance = advance or (lambda count=1: None)
-    outcomes: list[list[AccuracyRecord]] = [[] for _ in tasks]
-    pool = None
+    finished: dict[tuple[str, int], list[AccuracyRecord]] = {}
+
+    def collect(outcomes: list[list[AccuracyRecord]]) -> None:
+        for records in outcomes:
+            if isinstance(records, list) and records:
+                finished[records[0].maze, records[0].run] = records
+                if on_records is not None:
+                    on_records(records)
+
     try:
         with stop_signals():
             if workers <= 1 or len(tasks) <= 1:
-                for i, task in enumerate(tasks):
-                    outcomes[i] = run_accuracy_task(task)
+                for task in tasks:
+                    collect(run_accuracy_unit([task]))
                     advance()
             else:
-                pool = ProcessPoolExecutor(max_workers=min(workers, len(tasks)), initializer=worker_setup)
-                futures = {pool.submit(run_accuracy_task, task): i for i, task in enumerate(tasks)}
-                for future in as_completed(futures):
-                    outcomes[futures[future]] = future.result()
-                    advance()
-                pool.shutdown(wait=True)
+                Units([(task,) for task in tasks], run_accuracy_unit, min(workers, len(tasks))).run(collect, advance)
     except KeyboardInterrupt as stop:
-        with signals_ignored():
-            if pool is not None:
-                end_workers(pool)
-        finished = [record for outcome in outcomes for record in outcome]
-        raise AccuracyStopped(finished, getattr(stop, "signum", signal.SIGINT)) from None
-    return [record for outcome in outcomes for record in outcome]
+        raise AccuracyStopped(getattr(stop, "signum", signal.SIGINT)) from None
+    return [record for task in tasks for record in finished.get((task.maze, task.run), [])]
 
 
 def accuracy_summary(records: Sequence[AccuracyRecord]) -> list[dict[str, Any]]:
@@ -245,4 +248,5 @@ __all__ = [
     "distance_to_exact",
     "run_accuracy",
     "run_accuracy_task",
+    "run_accuracy_unit",
 ]

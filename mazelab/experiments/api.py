@@ -1,5 +1,12 @@
-"""The Python entry point of studies, `mazelab.study(...)`: the same study as `mazelab study`, its
-rows as a list of dicts (`pandas.DataFrame(result.rows)`), its summary and its record."""
+"""The Python entry point of studies, `mazelab.study(...)`: the same study as `mazelab study`, its rows as
+a list of dicts (`pandas.DataFrame(result.rows)`), its summary and its record.
+
+A study is a plan value (mazelab.experiments.plan.StudyPlan) run on workers: `study_plan(**values)` makes
+one from Python values, each checked with one line naming the argument, and `mazelab.study(plan=...)` runs
+it; `mazelab.study(**values)` does both. Any declared filter option is a keyword of its own
+(`bandwidth=["optimal", "multimodal"]`, `threshold=0.5`, `**{"rpf.threshold": [0.1, 0.2]}`) or an entry
+of `options=`.
+"""
 
 from __future__ import annotations
 
@@ -7,7 +14,7 @@ import inspect
 import numbers
 import os
 import sys
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -17,7 +24,7 @@ import numpy as np
 from mazelab.checks import check_seed
 from mazelab.contract import missing_parts
 from mazelab.experiments.executor import run_study
-from mazelab.experiments.plan import plan_study, study_mazes
+from mazelab.experiments.plan import StudyPlan, plan_study, study_mazes
 from mazelab.experiments.record import Recorder
 from mazelab.experiments.summary import CSV_DTYPES, StudySummary, summarise_study, summary_rows
 from mazelab.experiments.tables import flat_row
@@ -43,23 +50,30 @@ class StudyResult:
 
     def figure(self, path: str | Path, x: str | None = None, title: str | None = None, y: str = "mean") -> Path:
         """The study's figure, as `mazelab study --plot PATH` draws it (.png, .pdf or .svg by the
-        suffix; `x` a varied parameter for the x axis, as --plot-x; `y` what it draws, as --plot-y:
-        mean, median, converged, exact or paired; `title` instead of the program's, as --title); an
-        existing file is replaced."""
+        suffix; `x` a varied parameter for the x axis, as --plot-x; `y` what it draws, as --plot-y;
+        `title` instead of the program's title and caption, as --title); an existing file is replaced."""
         from mazelab.experiments.study_plot import plot_study, study_title
 
         path = Path(path)
         parameters = self.record["parameters"]
-        maze = parameters["mazes"][0]["label"]
-        title = title or study_title(self.varied, self.summaries, parameters["runs"], maze, x, y)
-        plot_study(self.summaries, self.varied or ["maze"], path, title, x=x, y=y)
+        shown = title or study_title(
+            self.varied, self.summaries, parameters["runs"], parameters["mazes"][0]["label"], x, y
+        )
+        plot_study(self.summaries, self.varied or ["maze"], path, shown, x=x, y=y, caption=title is None)
         return path
 
 
 NUMBER = (numbers.Real,)  # int, float, numpy's numbers; bool is refused apart
 WHOLE = (numbers.Integral,)
-TEXT = (str,)
-PATH = (str, os.PathLike)
+PLAN_ARGUMENTS = {  # the plan's arguments that are not filter options: (kinds, what one value is); None: one value
+    "maze": ((str, os.PathLike), "a maze file or shipped name"),
+    "maze_size": ((str,), "a size like '20x20'"),
+    "stations": (WHOLE, "a whole number of station blocks"),
+    "wall_share": (NUMBER, "a share of walls"),
+    "sigma": (NUMBER, "a number"),
+    "delta": (NUMBER, "a number"),
+    "particles": (WHOLE, "a whole number"),
+}
 
 
 def _listed(name: str, value: Any, kinds: tuple[type, ...], what: str) -> list[Any] | None:
@@ -77,22 +91,6 @@ def _listed(name: str, value: Any, kinds: tuple[type, ...], what: str) -> list[A
         if isinstance(item, bool) or not isinstance(item, kinds):
             raise TypeError(f"{name} takes {what} or a list of them, got {item!r} ({type(item).__name__})")
     return values
-
-
-def _options(options: Any) -> dict[str, list[Any]]:
-    """The other filter options: a mapping of names to a value or a list of values (checked by the
-    filters' declarations in plan_study)."""
-    if options is None:
-        return {}
-    if not isinstance(options, Mapping):
-        raise TypeError(f"options takes a mapping of option names to values, got {type(options).__name__}")
-    listed = {}
-    for name, value in options.items():
-        values = list(value) if isinstance(value, (list, tuple, range)) else [value]
-        if not values:
-            raise ValueError(f"options[{name!r}] is empty; give a value or a list of them")
-        listed[str(name)] = values
-    return listed
 
 
 def _whole(name: str, value: Any, *, optional: bool = False) -> int | None:
@@ -116,13 +114,117 @@ def _filters(filters: Any) -> str | list[Any]:
     if isinstance(filters, str):
         return filters
     chosen = _listed("filters", filters, (str, type), "filter names or filter classes")
-    for item in chosen:
+    for item in chosen or ():
         if isinstance(item, type) and missing_parts(item):
             raise TypeError(
                 f"filters: {item.__name__} is not a filter class: it has no {', '.join(missing_parts(item))} "
                 "(mazelab.contract)"
             )
-    return chosen
+    return chosen or []
+
+
+def _options(options: Any, named: Mapping[str, Any]) -> dict[str, list[Any]]:
+    """The filter options: `options` (a mapping of names to a value or a list of values) and those given
+    as keywords of their own (`bandwidth=...`), each a list; one given both ways is refused in one line
+    (the filters' declarations check them in plan_study)."""
+    if options is not None and not isinstance(options, Mapping):
+        raise TypeError(f"options takes a mapping of option names to values, got {type(options).__name__}")
+    listed = {}
+    for name, value in [*(options or {}).items(), *named.items()]:
+        if str(name) in listed:
+            raise ValueError(f"{name} is given twice, as {name}= and in options; give it once")
+        values = list(value) if isinstance(value, (list, tuple, range, np.ndarray)) else [value]
+        if not values:
+            raise ValueError(f"options[{name!r}] is empty; give a value or a list of them")
+        listed[str(name)] = values
+    return listed
+
+
+def study_plan(
+    maze: Any = None,
+    *,
+    filters: Any = ("sir", "apf", "rpf"),
+    options: Mapping[str, Any] | None = None,
+    runs: Any = 30,
+    steps: Any = DEFAULT_STEPS,
+    seed: Any = None,
+    kidnap_at: Any = None,
+    kld: Any = False,
+    traces: Any = False,
+    reference: str | None = None,
+    **values: Any,
+) -> StudyPlan:
+    """A study's plan from Python values (a value or a list each): `maze`, `maze_size`, `stations`,
+    `wall_share` (maze files or shipped names; generated mazes, their station blocks and wall share),
+    `sigma` (default 0.3), `delta` (0.5), `particles` (1500), `filters` (names or filter classes of your
+    own), any declared filter option by name (or in `options`), `runs`, `steps`, `seed` (None: a new one,
+    in the record), `kidnap_at`, `kld`, `traces` (keep every run's per-step trace), `reference` ("grid":
+    the distance to the exact posterior). TypeError for an argument of the wrong type (runs=True,
+    sigma="0.3"), ValueError for a value out of its range or an empty list, each one line naming it."""
+    call = {**{k: v for k, v in locals().items() if k != "values"}, **values}  # the values as given, for the record
+    given = {name: _listed(name, values.pop(name, None), *PLAN_ARGUMENTS[name]) for name in PLAN_ARGUMENTS}
+    given["maze"] = _listed("maze", maze, *PLAN_ARGUMENTS["maze"])
+    seed = None if seed is None else check_seed("seed", _whole("seed", seed))
+    plan = plan_study(
+        study_mazes(*(given[name] for name in ("maze", "maze_size", "stations", "wall_share"))), _filters(filters),
+        sigma=given["sigma"] or [0.3], delta=given["delta"] or [0.5],
+        particles=given["particles"] or [DEFAULT_PARTICLE_COUNT], options=_options(options, values),
+        runs=_whole("runs", runs), steps=_whole("steps", steps), seed=seed,
+        kidnap_at=_whole("kidnap_at", kidnap_at, optional=True), kld=_flag("kld", kld), traces=_flag("traces", traces),
+        reference=reference,
+    )  # fmt: skip
+    plan.call = call_arguments(call, plan.seed)
+    return plan
+
+
+def study(
+    maze: Any = None,
+    *,
+    plan: StudyPlan | None = None,
+    paired: str | None = None,
+    workers: int | None = 1,
+    dask: Any = None,
+    **values: Any,
+) -> StudyResult:
+    """A Monte Carlo study, as `mazelab study` runs it: the plan (`plan`, or the one `study_plan(maze,
+    **values)` makes: every combination of the values given, `runs` seeded runs per setting, every filter
+    once per value of the options it takes) run on `workers` processes (None: all cores) or a Dask
+    cluster (`dask`: a scheduler address or a distributed.Client); `paired` a filter of the study, each
+    other filter's summary then gets its paired difference to it. Returns the rows, the summary, the
+    record (the same JSON record `mazelab study` writes), the failures and the traces (StudyResult); an
+    argument of the wrong type is a TypeError (runs=True, filters=[object], dask=42), a value out of its
+    range or an empty list a ValueError, each one line naming it."""
+    if plan is not None and (maze is not None or values):
+        raise TypeError("give the study's plan or its values, not both")
+    workers = _whole("workers", workers, optional=True)
+    if workers is not None and workers < 1:
+        raise ValueError(f"workers must be >= 1 (or None: all cores), got {workers}")
+    plan = plan or study_plan(maze, **values)
+    if paired is not None and resolve_filter(paired).name not in [resolve_filter(f).name for f in plan.filters]:
+        raise ValueError(f"paired={paired!r} is not one of the study's filters")
+    dask = _dask(dask)
+    recorder = Recorder("study", [sys.argv[0] or "python", "mazelab.study(...)"], plan.parameters(),
+                        csv_dtypes=CSV_DTYPES)  # fmt: skip
+    outcome = run_study(plan.tasks(), workers, dask=dask)
+    summaries = summarise_study(outcome.records, plan.settings, paired=paired)
+    summary, failures = summary_rows(summaries, plan.option_columns), [f.describe() for f in outcome.failures]
+    call = {
+        **(plan.call or {}),
+        "paired": paired,
+        "workers": workers,
+        **({"dask": dask} if isinstance(dask, str) else {}),
+    }
+    record = recorder.finish(
+        "finished" if not failures else "finished with failures", summary=summary, failures=failures,
+        runs_finished=len({(r.setting, r.run) for r in outcome.records}), backend=outcome.backend,
+        paired=None if paired is None else resolve_filter(paired).name,
+        call={"function": "mazelab.study", "arguments": call},
+        workers=[asdict(report) for report in outcome.workers.values()],
+        startup_seconds=round(outcome.startup_seconds, 3),
+    )  # fmt: skip
+    columns = trace_table_columns(study_traces(outcome.records)) if plan.traces else None
+    rows = [flat_row(r) for r in outcome.records]
+    return StudyResult(rows, summary, record, failures, columns, summaries, plan.varied)
 
 
 def _dask(dask: Any) -> Any:
@@ -141,150 +243,17 @@ def _dask(dask: Any) -> Any:
     return dask
 
 
-def study(
-    maze: str | Sequence[str] | None = None,
-    *,
-    maze_size: str | Sequence[str] | None = None,
-    stations: int | Sequence[int] | None = None,
-    wall_share: float | Sequence[float] | None = None,
-    sigma: float | Sequence[float] = 0.3,
-    delta: float | Sequence[float] = 0.5,
-    particles: int | Sequence[int] = DEFAULT_PARTICLE_COUNT,
-    threshold: float | Sequence[float] | None = None,
-    recovery: str | Sequence[str] | None = None,
-    bandwidth: str | float | Sequence[str | float] | None = None,
-    estimate: str | Sequence[str] | None = None,
-    filters: str | Sequence[Any] = ("sir", "apf", "rpf"),
-    options: Mapping[str, Any] | None = None,
-    runs: int = 30,
-    steps: int = DEFAULT_STEPS,
-    seed: int | None = None,
-    kidnap_at: int | None = None,
-    kld: bool = False,
-    traces: bool = False,
-    reference: str | None = None,
-    paired: str | None = None,
-    workers: int | None = 1,
-    dask: Any = None,
-) -> StudyResult:
-    """A Monte Carlo study, as `mazelab study` runs it: every combination of the values given (a value
-    or a list each), `runs` seeded runs per setting, every filter once per value of the options it takes.
-
-    Parameters
-    ----------
-    maze, maze_size, stations, wall_share
-        Maze files or shipped names; generated mazes ("20x20"), their station blocks and wall share.
-    sigma, delta, particles
-        The studied values of the model (see `mazelab study --help`).
-    threshold, recovery, bandwidth, estimate
-        The paper's options by their names, as `mazelab study --threshold ...` spells them: the same as
-        giving them in `options` (None: not given, each filter runs its declared default).
-    filters
-        Names ("sir", "rpf", ...) or filter classes (a student's own, meeting mazelab.contract).
-    options
-        Any declared filter option, by name: a value or a list of values to vary (e.g.
-        {"resampling": ["systematic", "residual"]}); each filter takes those it declares, and the rows
-        have a column for every option the studied filters declare.
-    runs, steps, seed, kidnap_at, kld
-        Runs per setting, steps per run, the root seed (None: a new one, in the record), a
-        kidnapping step, KLD-sampling.
-    traces
-        Keep every run's per-step trace (StudyResult.traces).
-    reference
-        "grid": every run also runs the exact grid filter, every row gets `distance_to_exact`.
-    paired
-        A filter of the study: each other filter's summary gets its paired difference to it.
-    workers, dask
-        Processes (None: all cores), or a Dask scheduler address or Client.
-
-    Returns
-    -------
-    StudyResult
-        rows, summary, record (the same JSON record `mazelab study` writes), failures, traces.
-
-    Raises
-    ------
-    TypeError
-        An argument of the wrong type (runs=True, sigma="0.3", filters=[object], dask=42), named.
-    ValueError
-        A value out of its range, or an empty list (sigma=[]), named.
-    """
-    call = dict(locals())  # the arguments as given: the record's `call` re-runs them (`call_arguments`)
-    workers = _whole("workers", workers, optional=True)
-    if workers is not None and workers < 1:
-        raise ValueError(f"workers must be >= 1 (or None: all cores), got {workers}")
-    seed = None if seed is None else check_seed("seed", _whole("seed", seed))
-    plan = plan_study(
-        study_mazes(
-            _listed("maze", maze, PATH, "a maze file or shipped name"),
-            _listed("maze_size", maze_size, TEXT, "a size like '20x20'"),
-            _listed("stations", stations, WHOLE, "a whole number of station blocks"),
-            _listed("wall_share", wall_share, NUMBER, "a share of walls"),
-        ),
-        _filters(filters),
-        sigma=_listed("sigma", sigma, NUMBER, "a number"),
-        delta=_listed("delta", delta, NUMBER, "a number"),
-        particles=_listed("particles", particles, WHOLE, "a whole number"),
-        options=_named_options(
-            _options(options),
-            threshold=_listed("threshold", threshold, NUMBER, "a number"),
-            recovery=_listed("recovery", recovery, TEXT, "a recovery name"),
-            bandwidth=_listed("bandwidth", bandwidth, (str, *NUMBER), "a kernel name or a number"),
-            estimate=_listed("estimate", estimate, TEXT, "'mean' or 'mode'"),
-        ),
-        runs=_whole("runs", runs),
-        steps=_whole("steps", steps),
-        seed=seed,
-        kidnap_at=_whole("kidnap_at", kidnap_at, optional=True),
-        kld=_flag("kld", kld),
-        traces=_flag("traces", traces),
-        reference=reference,
-    )
-    if paired is not None and resolve_filter(paired).name not in [resolve_filter(f).name for f in plan.filters]:
-        raise ValueError(f"paired={paired!r} is not one of the study's filters")
-    dask = _dask(dask)
-    recorder = Recorder(
-        "study", [sys.argv[0] or "python", "mazelab.study(...)"], plan.parameters(), csv_dtypes=CSV_DTYPES
-    )
-    outcome = run_study(plan.tasks(), workers, dask=dask)
-    summaries = summarise_study(outcome.records, plan.settings, paired=paired)
-    summary = summary_rows(summaries, plan.option_columns)
-    failures = [f.describe() for f in outcome.failures]
-    record = recorder.finish(
-        "finished" if not failures else "finished with failures",
-        summary=summary,
-        failures=failures,
-        runs_finished=len({(r.setting, r.run) for r in outcome.records}),
-        paired=None if paired is None else resolve_filter(paired).name,
-        call={"function": "mazelab.study", "arguments": call_arguments(call, plan.seed)},
-        workers=[asdict(report) for report in outcome.workers.values()],
-        startup_seconds=round(outcome.startup_seconds, 3),
-    )
-    blocks = study_traces(outcome.records) if traces else []
-    columns = trace_table_columns(blocks)
-    rows = [flat_row(r) for r in outcome.records]
-    return StudyResult(rows, summary, record, failures, columns, summaries, plan.varied)
-
-
-def _named_options(options: dict[str, list[Any]], **named: list[Any] | None) -> dict[str, list[Any]]:
-    """The options with the paper's named ones added (None: not given); one given both ways is refused."""
-    for name, values in named.items():
-        if values is not None and name in options:
-            raise ValueError(f"{name} is given twice, as {name}= and in options; give it once")
-    return {**options, **{name: values for name, values in named.items() if values is not None}}
-
-
 def call_arguments(call: Mapping[str, Any], seed: int) -> dict[str, Any]:
-    """`study`'s arguments as data, so that `mazelab.study(**record["call"]["arguments"])` makes the
-    same rows: the root seed the study drew (when none was given), a filter class as the spec of its
-    file (`path/to/file.py:Class`, what a name can say), arrays as lists; a Dask Client (not data) is
-    left out, the study then runs on this machine's workers."""
-    arguments = {name: value for name, value in call.items() if name != "dask" or isinstance(value, str)}
-    arguments["seed"] = seed
+    """A plan's arguments as data, so that `mazelab.study(**record["call"]["arguments"])` makes the same
+    rows: the root seed the study drew (when none was given), a filter class as the spec of its file
+    (`path/to/file.py:Class`, what a name can say), arrays as lists."""
+    arguments = {**call, "seed": seed}
     filters = arguments["filters"]
     if not isinstance(filters, str):
         arguments["filters"] = [
-            f"{inspect.getfile(f)}:{f.__name__}" if isinstance(f, type) and not is_lab_class(f) else _name_of(f)
+            f"{inspect.getfile(f)}:{f.__name__}"
+            if isinstance(f, type) and not is_lab_class(f)
+            else resolve_filter(f).name
             for f in filters
         ]
     return {name: _data(value) for name, value in arguments.items()}
@@ -298,12 +267,9 @@ def _data(value: Any) -> Any:
         return os.fspath(value)
     if isinstance(value, (list, tuple, range)):
         return [_data(item) for item in value]
+    if isinstance(value, Mapping):
+        return {str(k): _data(v) for k, v in value.items()}
     return value
 
 
-def _name_of(filter_name: Any) -> str:
-    """A shipped filter's registry name (a class of the lab's, or a name as given)."""
-    return resolve_filter(filter_name).name
-
-
-__all__ = ["StudyResult", "call_arguments", "study"]
+__all__ = ["StudyResult", "call_arguments", "study", "study_plan"]

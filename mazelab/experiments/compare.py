@@ -23,10 +23,11 @@ from mazelab.experiments.runs import (
     mean_particle_count,
     run_filters,
 )
+from mazelab.experiments.study import final_log_evidence
 from mazelab.experiments.tables import format_number, format_table, pyplot, save_figure
 from mazelab.maze import Maze
 from mazelab.model import CONVERGENCE_RADIUS
-from mazelab.registry import colour_of, labels, resolve_filter, rgb
+from mazelab.registry import colour_of, evidence_caveat, labels, resolve_filter, rgb
 from mazelab.robot import Robot
 from mazelab.simulation import RunResult
 from mazelab.viz.views import open_comparison
@@ -77,31 +78,29 @@ def compare_filters(
 def comparison_table(results: dict[str, RunResult], kld: bool = False, startup_seconds: float | None = None) -> str:
     """Per filter: mean error, last-20% error (the mean error over the last 20% of the steps), convergence
     step, mean ESS, the log evidence log p(z_1:K) of the whole walk (its estimate; exact for the grid
-    filter; '-' for a filter that keeps none) and milliseconds per step; with a kidnapping, whether the
-    filter re-localised and in how many steps; with `kld`, the mean particle count. With `startup_seconds`
-    (the process's one-off costs, mazelab.experiments.warmup), a line saying they are not in ms/step."""
+    filter; '-' for a filter that keeps none; marked '*' where it is not an estimate of p(z_1:K) under the
+    model, a line under the table says why) and milliseconds per step with the backend it ran on; with a
+    kidnapping, whether the filter re-localised and in how many steps; with `kld`, the mean particle
+    count. With `startup_seconds` (the process's one-off costs), a line saying what ms/step is."""
     kidnapped = any(result.kidnap_at is not None for result in results.values())
-    headers = [
-        "filter",
-        "mean error",
-        f"last-{FINAL_SHARE:.0%} error",
-        "converged at",
-        "mean ESS",
-        "log p(z_1:K)",
-        "ms/step",
-    ]
+    backends = {name: result.extras.get("backend", "numpy") for name, result in results.items()}
+    one = len(set(backends.values())) == 1
+    headers = ["filter", "mean error", f"last-{FINAL_SHARE:.0%} error", "converged at", "mean ESS", "log p(z_1:K)",
+               f"ms/step, {next(iter(backends.values()))}" if one else "ms/step, backend"]  # fmt: skip
     headers += ["re-localised", "steps to recover"] * kidnapped + ["mean N"] * kld
-    rows = []
+    rows, caveats = [], {}
     for name, result in results.items():
-        converged = result.converged_at
+        converged, label = result.converged_at, labels([name])[name]
+        if evidence_caveat(name):
+            caveats[label] = evidence_caveat(name)
         row = [
-            name,
+            label,
             f"{result.errors.mean():.3f}",
             f"{final_error(result.errors):.3f}",
             "never" if converged is None else f"step {converged}",
             format_number(mean_ess(result), "{:.0f}"),
-            format_number(final_log_evidence(result), "{:.1f}"),
-            f"{1e3 * result.step_seconds.mean():.2f}",
+            format_number(final_log_evidence(result), "{:.1f}") + ("*" if label in caveats else ""),
+            f"{1e3 * result.step_seconds.mean():.2f}" + ("" if one else f" {backends[name]}"),
         ]
         if kidnapped:
             steps = recovery_steps(result)
@@ -109,23 +108,18 @@ def comparison_table(results: dict[str, RunResult], kld: bool = False, startup_s
         if kld:
             row.append(f"{mean_particle_count(result):.0f}" if is_particle_filter(name) else "-")
         rows.append(row)
-    table = format_table(headers, rows)
-    if startup_seconds is None:
-        return table
-    return f"{table}\n{startup_note(startup_seconds)}"
+    notes = [f"[* {label}: the log evidence is {why}]" for label, why in caveats.items()]
+    if startup_seconds is not None:
+        notes.append(startup_note(startup_seconds))
+    return "\n".join([format_table(headers, rows), *notes])
 
 
 def startup_note(seconds: float) -> str:
-    """The line that reports the start-up apart from ms/step."""
+    """The line that says what ms/step is, and reports the start-up apart from it."""
     return (
-        f"[ms/step: each filter's own steps, after untimed warm-up steps; start-up (numba's kernels loaded, "
-        f"first calls) {seconds:.2f} s, not in ms/step]"
+        f"[ms/step: one run's steps of each filter, on the backend named, after untimed warm-up steps; start-up "
+        f"(numba's kernels loaded, first calls) {seconds:.2f} s, not in ms/step]"
     )
-
-
-def final_log_evidence(result: RunResult) -> float:
-    """log p(z_1:K) after the last step as the filter estimates it (NaN when it keeps none)."""
-    return float("nan") if result.log_evidence is None else float(result.log_evidence[-1])
 
 
 def errors_csv(results: dict[str, RunResult]) -> str:
@@ -141,13 +135,16 @@ def errors_csv(results: dict[str, RunResult]) -> str:
 
 
 def plot_errors(results: dict[str, RunResult], path: Path, title: str, *, replace: bool = True) -> None:
-    """The lab's figure: error against step, one line per filter, saved to `path` (png, pdf or svg)."""
+    """The lab's figure: error against step, one line per filter in its registry colour, each with a line
+    style and markers of its own (the lines stay apart in grey print), saved to `path` (png, pdf or svg)."""
     plt = pyplot()
     figure, axes = plt.subplots(figsize=(8, 4.5), layout="constrained")
     shown = labels(list(results))  # the registry's labels and colours, as in the viewer
-    for name, result in results.items():
+    for i, (name, result) in enumerate(results.items()):
         steps = np.arange(1, len(result.errors) + 1)
-        axes.plot(steps, result.errors, label=shown[name], color=rgb(colour_of(name)), linewidth=1.2)
+        axes.plot(steps, result.errors, label=shown[name], color=rgb(colour_of(name)), linewidth=1.2,
+                  linestyle=LINE_STYLES[i % len(LINE_STYLES)], marker=MARKERS[i % len(MARKERS)],
+                  markevery=(i, max(1, len(steps) // 12)), markersize=4)  # fmt: skip
     axes.axhline(CONVERGENCE_RADIUS, color="grey", linestyle="--", linewidth=0.8, label="convergence radius")
     axes.set(title=title, xlabel="step k", ylabel="error |estimate - true position| (map units)")
     axes.set_ylim(bottom=0)
@@ -156,7 +153,13 @@ def plot_errors(results: dict[str, RunResult], path: Path, title: str, *, replac
     save_figure(figure, path, replace=replace)
 
 
+MARKERS = ("o", "s", "^", "D", "v", "P", "X")  # each line of a figure a marker and a line style of its own
+LINE_STYLES = ("-", "--", ":", "-.")
+
+
 __all__ = [
+    "LINE_STYLES",
+    "MARKERS",
     "compare_filters",
     "comparison_table",
     "errors_csv",

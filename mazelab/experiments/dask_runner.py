@@ -1,20 +1,17 @@
-"""A study's runs on an existing Dask cluster (`study --dask ADDRESS`), through dask.distributed's
-Client: the optional extra `pip install -e ".[dask]"`. The workers run the same functions on the
-same seeded tasks as the local pool, so every run's figures are the same bit for bit."""
+"""An existing Dask cluster for a study's runs (`study --dask ADDRESS`), through dask.distributed's
+Client (the optional extra `pip install -e ".[dask]"`): connecting in one line or refusing, asking
+the workers before any run, and saying what is left of a cluster that stopped finishing runs. The
+runs themselves go through the Client's executor, as on the local pool (mazelab.experiments.executor),
+so every run's figures are the same bit for bit."""
 
 from __future__ import annotations
 
 import contextlib
 import logging
-import queue
 import socket
 import sys
-from collections.abc import Callable, Sequence
-from concurrent.futures import CancelledError
 from typing import Any
 
-from mazelab.experiments.study import RunFailure, RunTask
-from mazelab.experiments.units import run_unit_timed
 from mazelab.experiments.warmup import WorkerReport, worker_report
 
 CONNECT_SECONDS = 3  # a scheduler that does not answer within this is reported unreachable
@@ -24,11 +21,6 @@ SCHEMES = ("tcp",)  # what --dask takes: tls, ucx and others need a security or 
 # children a level and a handler of their own (distributed.client: warning), so each is set, not
 # only the parents.
 QUIET_LOGGERS = ("distributed", "tornado", "asyncio", "bokeh")
-
-
-class ClusterLost(RuntimeError):  # noqa: N818 (a state, as KeyboardInterrupt)
-    """The Dask cluster went away (its scheduler died) or stopped finishing runs (no worker left):
-    str() is one line saying which; the finished runs are kept."""
 
 
 def connect(address: str, timeout: float = CONNECT_SECONDS) -> Any:
@@ -98,21 +90,24 @@ def quiet_distributed() -> None:
     sys.unraisablehook = hook
 
 
-def check_workers(client: Any) -> list[WorkerReport]:
-    """Each Dask worker's report of its backend and package versions (mazelab.experiments.warmup), asked
-    before any run: workers that disagree would mix rows of two backends (or versions) under one
-    record, so they are refused in one line naming two that differ."""
+def check_workers(client: Any, backend: str) -> list[WorkerReport]:
+    """Each Dask worker's report (mazelab.experiments.warmup), asked before any run: a worker that cannot
+    run the study's `backend` (compiled without numba) or whose package versions differ from the
+    others' would make rows that do not belong together, so it is refused in one line naming it."""
     try:
         reports = client.run(worker_report)
     except Exception as error:  # a worker without mazelab, or gone
         reason = str(error).splitlines()[0] if str(error) else type(error).__name__
         raise ValueError(f"the Dask workers cannot say their backend: {reason}") from None
     reports = [reports[address] for address in sorted(reports)]
-    for report in reports[1:]:
-        if report.identity != reports[0].identity:
+    for report in reports:
+        if backend == "compiled" and report.packages.get("numba") is None:
+            raise ValueError(f"the Dask worker {report.describe()} cannot run the compiled backend: install numba "
+                             "there, or give --backend numpy")  # fmt: skip
+        if report.packages != reports[0].packages:
             raise ValueError(
                 f"the Dask workers disagree ({reports[0].describe()}; {report.describe()}): start every worker "
-                "with the same MAZELAB_BACKEND and packages"
+                "with the same packages"
             )
     return reports
 
@@ -121,73 +116,6 @@ def close_client(client: Any) -> None:
     """Close the connection (the cluster itself goes on); quietly, also when the cluster is gone."""
     with contextlib.suppress(Exception):
         client.close(timeout=CONNECT_SECONDS)
-
-
-def run_on_dask(
-    client: Any,
-    units: Sequence[tuple[RunTask, ...]],
-    run_here: Callable[[], None],
-    collect: Callable[[list], None],
-    advance: Callable[..., None],
-    timeout: float = DASK_TIMEOUT,
-) -> None:
-    """Submit every unit, run `run_here` (the drawn run) meanwhile, and collect the units as they
-    finish. On Ctrl-C (or SIGTERM/SIGHUP), cancel the remaining units, keep the finished ones and
-    raise the stop again. A lost scheduler, or `timeout` seconds without a finished unit (no worker
-    left), raises ClusterLost after the finished units are collected."""
-    futures = dict(zip(client.map(run_unit_timed, units, pure=False), units, strict=True))
-    taken: set[Any] = set()
-    finished: queue.SimpleQueue[Any] = queue.SimpleQueue()  # futures as they finish (or fail, or are cancelled)
-    for future in futures:
-        future.add_done_callback(finished.put)
-
-    def take(future: Any) -> None:
-        taken.add(future)
-        unit = futures[future]
-        try:
-            collect(future.result())
-        except CancelledError:  # the scheduler went away with it: not the run's fault
-            raise ClusterLost("lost the Dask scheduler (it cancelled the runs not finished)") from None
-        except Exception as error:
-            if future.status != "error" and isinstance(error, OSError):  # finished, but a dead cluster
-                # could not send its result (CommClosedError): the cluster's fault, not the run's
-                raise ClusterLost(f"lost the connection to the Dask cluster ({type(error).__name__})") from None
-            # the unit itself raised on the worker (e.g. mazelab missing there)
-            collect([RunFailure(task, f"on the Dask cluster: {type(error).__name__}: {error}") for task in unit])
-        advance(len(unit))
-
-    def take_finished() -> None:
-        for future in futures:  # the runs that did finish are kept
-            if future not in taken and future.status == "finished":
-                with contextlib.suppress(ClusterLost):
-                    take(future)
-
-    def cancel_rest() -> None:
-        with contextlib.suppress(Exception):
-            client.cancel([f for f in futures if f not in taken], force=True)
-
-    try:
-        run_here()
-        while len(taken) < len(futures):
-            try:
-                future = finished.get(timeout=timeout)
-            except queue.Empty:
-                raise ClusterLost(
-                    f"no run finished on the Dask cluster within {timeout:g} s (--dask-timeout): "
-                    f"{describe_workers(client)}"
-                ) from None
-            if future not in taken:
-                take(future)
-            if client.status not in ("running", "connecting"):
-                raise ClusterLost(f"lost the connection to the Dask scheduler ({client.status})")
-    except ClusterLost:
-        take_finished()
-        cancel_rest()
-        raise
-    except KeyboardInterrupt:
-        cancel_rest()
-        take_finished()
-        raise
 
 
 def describe_workers(client: Any) -> str:
@@ -205,11 +133,10 @@ __all__ = [
     "CONNECT_SECONDS",
     "DASK_TIMEOUT",
     "QUIET_LOGGERS",
-    "ClusterLost",
     "check_workers",
     "close_client",
     "connect",
+    "describe_workers",
     "parse_scheduler_address",
     "quiet_distributed",
-    "run_on_dask",
 ]

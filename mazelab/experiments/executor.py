@@ -1,13 +1,20 @@
-"""How a study's runs are executed: in this process or on a process pool, with a progress bar.
+"""How a study's runs are executed: in this process, on a local process pool, or on a Dask cluster
+through its Client's executor (`Client.get_executor`): one loop hands out units of runs to either and
+collects them as they finish, with a progress bar.
 
-Stopping keeps every finished run: the first Ctrl-C cancels the runs not started and lets the running
-ones finish; a second Ctrl-C, SIGTERM or SIGHUP ends the workers at once. Workers also end with their
-parent when it is killed outright (kill -9): a parent-death signal on Linux, a watchdog thread elsewhere.
+The backend is chosen once, for the whole study (`study_backend`: --backend's, MAZELAB_BACKEND's, else
+by the study's work), and every unit runs on it wherever it runs: in this process, in a pool worker,
+on a Dask worker. Stopping keeps every finished run: the first Ctrl-C hands out no more units and lets
+the running ones finish (on Dask: cancels the rest); a second Ctrl-C, SIGTERM or SIGHUP ends the
+workers at once. Pool workers also end with their parent when it is killed outright (kill -9): a
+parent-death signal on Linux, a watchdog thread elsewhere. A worker that dies (kill -9, out of memory)
+restarts the pool, its unfinished units handed out again, at most MAX_POOL_RESTARTS times.
 """
 
 from __future__ import annotations
 
 import ctypes
+import functools
 import os
 import signal
 import sys
@@ -16,29 +23,22 @@ import time
 import warnings
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, CancelledError, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager, suppress
 from typing import Any
 
-from mazelab.experiments.batch_runs import study_units
-from mazelab.experiments.dask_runner import (
-    DASK_TIMEOUT,
-    ClusterLost,
-    check_workers,
-    close_client,
-    connect,
-    run_on_dask,
-)
-from mazelab.experiments.study import (
-    RunFailure,
-    RunRecord,
-    RunTask,
-    StudyOutcome,
-    run_task,
-)
-from mazelab.experiments.units import UnitOutcome, run_unit_timed
-from mazelab.experiments.warmup import take_startup_seconds, worker_report
+from mazelab.backend import backend_for_work, use_backend
+from mazelab.experiments.batch_runs import MAX_BATCH, run_unit_safely, study_units
+from mazelab.experiments.dask_runner import DASK_TIMEOUT, check_workers, close_client, connect, describe_workers
+from mazelab.experiments.study import RunFailure, RunRecord, RunTask, StudyOutcome, run_task
+from mazelab.experiments.warmup import WorkerReport, take_startup_seconds, worker_report
+
+UnitOutcome = list[RunRecord] | RunFailure | WorkerReport
+MAX_POOL_RESTARTS = 3  # a pool whose workers die more often than this stops the study (rows kept)
+STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
+PR_SET_PDEATHSIG = 1  # linux/prctl.h: the signal a process gets when its parent dies
+WATCHDOG_SECONDS = 0.5
 
 
 def default_workers() -> int:
@@ -54,6 +54,54 @@ class StudyStopped(KeyboardInterrupt):
         self.signum = signum
 
 
+class StudyLost(RuntimeError):  # noqa: N818 (a state, as KeyboardInterrupt)
+    """The cluster went away (its scheduler died, no worker finishes) or the pool's workers keep dying:
+    str() is one line saying which; the finished runs are kept."""
+
+
+def study_work(tasks: Sequence[RunTask]) -> tuple[int, float]:
+    """What a study's filters do (mazelab.backend.backend_for_work): (the particles their steps move,
+    the calls of `step`, the runs of a setting advancing together, up to MAX_BATCH)."""
+    particle_steps = sum(t.setting.particles * t.steps * len(t.filters) for t in tasks)
+    runs = max((t.run for t in tasks), default=1)
+    return particle_steps, sum(t.steps * len(t.filters) for t in tasks) / min(runs, MAX_BATCH)
+
+
+def study_backend(tasks: Sequence[RunTask], processes: int) -> str:
+    """The one backend of a study's runs: MAZELAB_BACKEND's (--backend sets it), else the compiled one
+    where its start-up in each of `processes` pays for the study's work, else numpy."""
+    return backend_for_work(*study_work(tasks), processes=max(1, min(processes, len(tasks))))
+
+
+def run_unit_timed(unit: Sequence[RunTask], backend: str) -> list[UnitOutcome]:
+    """A unit of runs on `backend` (`run_unit_safely`), each finished run's records given run_seconds
+    (the unit's wall time less the start-up spent in it, divided by its runs), then this process's
+    WorkerReport. Each plug-in's spec is the one that imports its shipped code here (RunTask.here)."""
+    with use_backend(backend):
+        started = time.perf_counter()
+        outcomes: list[UnitOutcome] = list(run_unit_safely([task.here() for task in unit]))
+        startup = take_startup_seconds()
+        share = (time.perf_counter() - started - startup) / max(len(unit), 1)
+        for outcome in outcomes:
+            for record in outcome if isinstance(outcome, list) else ():
+                record.run_seconds = share
+        return [*outcomes, worker_report(startup)]
+
+
+def draw_task(task: RunTask, visualize: Any, backend: str) -> list[UnitOutcome]:
+    """The drawn run, in this process (the viewer is here): its records (or its failure), then the report."""
+    started = time.perf_counter()
+    with use_backend(backend):
+        try:
+            records = run_task(task.here(), visualize)
+        except Exception as error:
+            return [RunFailure(task, f"{type(error).__name__}: {error}"), worker_report(take_startup_seconds())]
+        startup = take_startup_seconds()
+        for record in records:
+            record.run_seconds = time.perf_counter() - started - startup
+        return [records, worker_report(startup)]
+
+
 def run_study(
     tasks: Sequence[RunTask],
     workers: int | None = None,
@@ -64,64 +112,40 @@ def run_study(
     dask: Any = None,
     ignore_signals_after_stop: bool = False,
     dask_timeout: float = DASK_TIMEOUT,
+    backend: str | None = None,
 ) -> StudyOutcome:
-    """Run every task, on `workers` processes (default: all cores) or on a Dask cluster: `dask` is its
-    scheduler's address (connected and closed here) or a dask.distributed Client; any stop keeps the
-    finished runs.
+    """Run every task, on `workers` processes (default: all cores) or on a Dask cluster (`dask`: its
+    scheduler's address, connected and closed here, or a distributed Client), on one backend (`backend`,
+    default `study_backend`'s choice for these tasks); any stop keeps the finished runs.
 
-    With `visualize`, the first run is drawn (all its filters, as compare draws them) in this process.
-    A run that raises becomes a RunFailure; the others go on. `on_records` is handed each finished
-    run's records as they come (the study's CSV appends them). A stop sets outcome.interrupted and
-    outcome.stopped_by (the signal's number: SIGINT for Ctrl-C); with `ignore_signals_after_stop` (a
-    command about to exit), further Ctrl-C, SIGTERM and SIGHUP are ignored from then on. A lost Dask
-    cluster (its scheduler gone, or `dask_timeout` seconds without a finished run) or a local pool
-    whose workers keep dying ends the study early: outcome.lost says why, in one line.
+    With `visualize`, the first run is drawn in this process. A run that raises becomes a RunFailure;
+    the others go on. `on_records` is handed each finished run's records as they come (the study's
+    journal appends them). A stop sets outcome.interrupted and outcome.stopped_by (the signal's
+    number); with `ignore_signals_after_stop` (a command about to exit) further Ctrl-C, SIGTERM and
+    SIGHUP are ignored from then on. A lost cluster (its scheduler gone, or `dask_timeout` seconds
+    without a finished unit) or a pool whose workers keep dying ends the study early: outcome.lost
+    says why, in one line.
     """
     workers = default_workers() if workers is None else workers
     if workers < 1:
         raise ValueError(f"--workers must be >= 1, got {workers}")
     client = connect(dask) if isinstance(dask, str) else dask  # a bad address: one line, before anything runs
-    if client is not None:
-        try:
-            check_workers(client)  # workers of different backends or versions: one line, before anything runs
-        except ValueError:
-            if isinstance(dask, str):
-                close_client(client)
-            raise
-    outcome = StudyOutcome(tasks=len(tasks))
-
-    def collect(results: list[list[RunRecord] | RunFailure]) -> None:
-        for result in results:
-            outcome.add(result)
-            if on_records is not None and isinstance(result, list):
-                on_records(result)
-
+    backend = backend or study_backend(tasks, workers if client is None else 1)
+    outcome = StudyOutcome(tasks=len(tasks), backend=backend)
     try:
-
-        def keep_ignoring() -> bool:
-            return ignore_signals_after_stop and outcome.interrupted
-
+        if client is not None:
+            check_workers(client, backend)  # workers that cannot run it, or of other versions: one line
+        keep_ignoring = lambda: ignore_signals_after_stop and outcome.interrupted  # noqa: E731
         with progress_bar(len(tasks), progress) as advance, stop_signals(keep_ignoring):
             try:
-                drawn, rest = (list(tasks[:1]), list(tasks[1:])) if visualize else ([], list(tasks))
-                units = study_units(rest, 1 if client is not None else workers)
-                if client is not None:
-                    here = lambda: _run_drawn(drawn, visualize, collect, advance)  # noqa: E731
-                    run_on_dask(client, units, here, collect, advance, dask_timeout)
-                elif workers == 1 or len(units) <= 1:
-                    _run_drawn(drawn, visualize, collect, advance)
-                    for unit in units:
-                        collect(run_unit_timed(unit))
-                        advance(len(unit))
-                else:
-                    _run_in_pool(units, drawn, workers, visualize, collect, advance)
-            except (ClusterLost, PoolLost) as lost:
+                run_tasks(tasks, workers, client, backend, visualize, dask_timeout, outcome.collector(on_records),
+                          advance)  # fmt: skip
+            except StudyLost as lost:
                 outcome.lost = str(lost)
             except KeyboardInterrupt as stop:
                 if ignore_signals_after_stop:
                     _ignore(STOP_SIGNALS)
-                outcome.interrupted = True
-                outcome.stopped_by = getattr(stop, "signum", signal.SIGINT)
+                outcome.interrupted, outcome.stopped_by = True, getattr(stop, "signum", signal.SIGINT)
     finally:
         if isinstance(dask, str):
             close_client(client)
@@ -129,115 +153,168 @@ def run_study(
     return outcome
 
 
-def _run_drawn(
-    drawn: list[RunTask], visualize: Any, collect: Callable[[list], None], advance: Callable[..., None]
-) -> None:
-    """The drawn run(s), in this process (the viewer is here)."""
-    for task in drawn:
-        collect(_draw_task(task, visualize))
-        advance()
+def run_tasks(tasks: Sequence[RunTask], workers: int, client: Any, backend: str, visualize: Any, timeout: float,
+              collect: Callable[[list], None], advance: Callable[..., None]) -> None:  # fmt: skip
+    """The tasks in units (mazelab.experiments.batch_runs.study_units) on `backend`, the drawn one (with
+    `visualize`, the first) in this process while the pool or the cluster runs the rest."""
+    drawn, rest = (list(tasks[:1]), list(tasks[1:])) if visualize else ([], list(tasks))
+    units = study_units(rest, 1 if client is not None else workers)
+    work = functools.partial(run_unit_timed, backend=backend)
+
+    def here() -> None:
+        for task in drawn:
+            collect(draw_task(task, visualize, backend))
+            advance()
+
+    Units(units, work, workers, client, timeout).run(collect, advance, here)
 
 
-def _draw_task(task: RunTask, visualize: Any) -> list[UnitOutcome]:
-    """The drawn run's records (or its failure), then this process's WorkerReport."""
-    started = time.perf_counter()
-    try:
-        records = run_task(task.here(), visualize)
-    except Exception as error:
-        return [RunFailure(task, f"{type(error).__name__}: {error}"), worker_report(take_startup_seconds())]
-    startup = take_startup_seconds()
-    for record in records:
-        record.run_seconds = time.perf_counter() - started - startup
-    return [records, worker_report(startup)]
+class Units:
+    """Units of runs, each `work(unit)` (picklable), handed out to a local process pool (at most two per
+    worker at a time) or to a Dask cluster (all at once, through `Client.get_executor`), collected as
+    they finish. A unit whose worker died is reported as a RunFailure of each of its tasks."""
 
+    def __init__(
+        self,
+        units: Sequence[tuple[Any, ...]],
+        work: Callable[[Any], list],
+        workers: int,
+        client: Any = None,
+        timeout: float | None = None,
+    ) -> None:
+        self.waiting = deque(units)
+        self.running: dict[Future, tuple[Any, ...]] = {}
+        self.work, self.client, self.timeout = work, client, timeout
+        self.size = min(workers, len(units))
+        self.limit = len(units) if client is not None else 2 * workers
+        self.restarts = 0
+        self.pool: Any = None
 
-def _run_in_pool(
-    units: list[tuple[RunTask, ...]],
-    drawn: list[RunTask],
-    workers: int,
-    visualize: Any,
-    collect: Callable[[list], None],
-    advance: Callable[..., None],
-) -> None:
-    """Units of runs on a process pool (the drawn ones here meanwhile), at most two per worker handed
-    out at a time. On Ctrl-C, hand out no more and let the running units finish; on a second Ctrl-C,
-    SIGTERM or SIGHUP end the workers at once. Every finished result is kept; the stop is raised again.
+    def _executor(self) -> Any:
+        if self.client is not None:
+            return self.client.get_executor(pure=False)
+        return ProcessPoolExecutor(max_workers=self.size, initializer=worker_setup)
 
-    A worker that dies (kill -9, out of memory) breaks the pool. That shows either as a unit's future
-    failing with BrokenProcessPool, or, when the worker died after the last wait returned (another
-    unit had just finished), as `submit` raising BrokenProcessPool while more units are handed out:
-    both restart the pool, at most MAX_POOL_RESTARTS times, with the units not finished handed out
-    again and the finished ones kept."""
-    size = min(workers, len(units))
-    pool = ProcessPoolExecutor(max_workers=size, initializer=worker_setup)
-    waiting = deque(units)
-    running: dict[Future, tuple[RunTask, ...]] = {}
-    restarts = 0
+    def run(
+        self, collect: Callable[[list], None], advance: Callable[..., None], here: Callable[[], None] = lambda: None
+    ) -> None:
+        """Hand out the units, run `here()` (the drawn run) meanwhile, and collect every unit as it
+        finishes; the stop, a lost cluster or pool, raised again once the finished units are collected
+        and the workers ended (or, on Dask, the rest cancelled)."""
+        self.collect, self.advance = collect, advance
+        if self.client is None and self.size <= 1:  # one worker, or one unit: in this process, in order
+            here()
+            while self.waiting:
+                unit = self.waiting.popleft()
+                collect(self.work(unit))
+                advance(len(unit))
+            return
+        self.pool = self._executor()
+        try:
+            handed = self._hand_out()
+            here()
+            while self.running or self.waiting:
+                if not handed:
+                    self._take(self._restart())
+                else:
+                    done = self._wait()
+                    broken = any(isinstance(f.exception(), BrokenProcessPool) for f in done if not f.cancelled())
+                    self._take(self._restart() if broken else done)
+                handed = self._hand_out()
+        except StudyLost:
+            with signals_ignored():
+                self._take(self._finished())
+                self._end()
+            raise
+        except KeyboardInterrupt as stop:
+            if self.client is None and not isinstance(stop, StudyStopped):
+                try:  # the pool's workers ignore Ctrl-C and finish what they were handed
+                    while self.running:
+                        self._take(wait(self.running, timeout=0.2, return_when=FIRST_COMPLETED)[0])
+                except KeyboardInterrupt as second:
+                    stop = second
+            with signals_ignored():
+                self._take(self._finished())
+                self._end()
+            raise stop from None
+        self.pool.shutdown(wait=True)
 
-    def hand_out() -> bool:
-        """Submit units until two per worker run; False if the pool is broken (the unit stays queued)."""
-        while waiting and len(running) < 2 * workers:
-            unit = waiting[0]
+    def _wait(self) -> set[Future]:
+        """The units finished next; on Dask, a scheduler gone or `timeout` seconds without a finished
+        unit (no worker left) is a lost cluster."""
+        if self.client is None:
+            return wait(self.running, return_when=FIRST_COMPLETED)[0]
+        deadline = time.monotonic() + self.timeout
+        while True:
+            left = deadline - time.monotonic()
+            done = wait(self.running, timeout=max(0.0, min(1.0, left)), return_when=FIRST_COMPLETED)[0]
+            if done:
+                return done
+            if self.client.status not in ("running", "connecting"):
+                raise StudyLost(f"lost the connection to the Dask scheduler ({self.client.status})")
+            if left <= 1.0:
+                raise StudyLost(
+                    f"no run finished on the Dask cluster within {self.timeout:g} s (--dask-timeout): "
+                    f"{describe_workers(self.client)}"
+                )
+
+    def _finished(self) -> set[Future]:
+        """The units that finished well (what a stop keeps)."""
+        return {f for f in self.running if f.done() and not f.cancelled() and f.exception() is None}
+
+    def _hand_out(self) -> bool:
+        """Submit units up to the limit; False if the pool is broken (the unit stays queued)."""
+        while self.waiting and len(self.running) < self.limit:
             try:
-                future = pool.submit(run_unit_timed, unit)
+                future = self.pool.submit(self.work, self.waiting[0])
             except BrokenProcessPool:  # a worker died since the last wait
                 return False
-            running[future] = waiting.popleft()
+            self.running[future] = self.waiting.popleft()
         return True
 
-    def take(done: set[Future], finished_only: bool = False) -> None:
+    def _take(self, done: set[Future]) -> None:
         for future in done:
-            unit = running.pop(future)
-            if not finished_only or future.exception() is None:
-                collect(_result_of(future, unit))
-                advance(len(unit))
+            unit = self.running.pop(future)
+            try:
+                results = future.result()
+            except BrokenProcessPool:
+                results = [RunFailure(task, "its worker process died (out of memory?)") for task in unit]
+            except (CancelledError, OSError) as error:  # the scheduler went away with it: not the run's fault
+                raise StudyLost(_lost(error)) from None
+            except Exception as error:  # the unit itself raised on the worker (e.g. mazelab missing there)
+                results = [RunFailure(task, f"on the Dask cluster: {type(error).__name__}: {error}") for task in unit]
+            self.collect(results)
+            self.advance(len(unit))
 
-    def restart() -> set[Future]:
-        """A new pool: the unfinished units go back in the queue, the finished futures are returned
-        (to take), at most MAX_POOL_RESTARTS times."""
-        nonlocal pool, restarts
-        restarts += 1
-        if restarts > MAX_POOL_RESTARTS:
-            raise PoolLost(f"worker processes died {restarts} times (killed, or out of memory?)")
-        finished = {f for f in running if f.done() and f.exception() is None}
-        for future in [f for f in running if f not in finished]:
-            waiting.appendleft(running.pop(future))
-        warnings.warn("a worker process died (killed, or out of memory?): its runs start again on a new pool",
-                      stacklevel=3)  # fmt: skip
-        end_workers(pool)
-        pool = ProcessPoolExecutor(max_workers=size, initializer=worker_setup)
+    def _restart(self) -> set[Future]:
+        """A new pool: the unfinished units go back in the queue, the finished futures are returned (to
+        take), at most MAX_POOL_RESTARTS times."""
+        self.restarts += 1
+        if self.restarts > MAX_POOL_RESTARTS:
+            raise StudyLost(f"worker processes died {self.restarts} times (killed, or out of memory?)")
+        finished = {f for f in self.running if f.done() and f.exception() is None}
+        for future in [f for f in self.running if f not in finished]:
+            self.waiting.appendleft(self.running.pop(future))
+        warnings.warn(
+            "a worker process died (killed, or out of memory?): its runs start again on a new pool", stacklevel=3
+        )
+        end_workers(self.pool)
+        self.pool = self._executor()
         return finished
 
-    def broken(done: set[Future]) -> bool:
-        return any(isinstance(f.exception(), BrokenProcessPool) for f in done)
+    def _end(self) -> None:
+        """Kill the pool's workers now (their unfinished runs are dropped); on Dask, cancel the rest."""
+        if self.client is None:
+            end_workers(self.pool)
+            return
+        with suppress(Exception):
+            self.pool.shutdown(wait=False)
 
-    try:
-        handed = hand_out()
-        _run_drawn(drawn, visualize, collect, advance)
-        while running or waiting:
-            if not handed:
-                take(restart())
-            else:
-                done = wait(running, return_when=FIRST_COMPLETED)[0]
-                take(restart() if broken(done) else done)
-            handed = hand_out()
-    except PoolLost:
-        with signals_ignored():
-            take({future for future in running if future.done() and future.exception() is None})
-            end_workers(pool)
-        raise
-    except KeyboardInterrupt as stop:
-        if not isinstance(stop, StudyStopped):
-            try:  # the workers ignore Ctrl-C and finish what they were handed
-                while running:
-                    take(wait(running, timeout=0.2, return_when=FIRST_COMPLETED)[0])
-            except KeyboardInterrupt as second:
-                stop = second
-        with signals_ignored():
-            take({future for future in running if future.done()}, finished_only=True)
-            end_workers(pool)
-        raise stop from None
-    pool.shutdown(wait=True)
+
+def _lost(error: BaseException) -> str:
+    if isinstance(error, CancelledError):
+        return "lost the Dask scheduler (it cancelled the runs not finished)"
+    return f"lost the connection to the Dask cluster ({type(error).__name__})"
 
 
 def end_workers(pool: ProcessPoolExecutor) -> None:
@@ -254,37 +331,14 @@ def end_workers(pool: ProcessPoolExecutor) -> None:
     pool.shutdown(wait=True)  # the pool's thread sees the workers gone and ends
 
 
-def _result_of(future: Future, unit: tuple[RunTask, ...]) -> list[list[RunRecord] | RunFailure]:
-    try:
-        return future.result()
-    except BrokenProcessPool:
-        return [RunFailure(task, "its worker process died (out of memory?)") for task in unit]
-
-
-MAX_POOL_RESTARTS = 3  # a pool whose workers die more often than this stops the study (rows kept)
-
-
-class PoolLost(RuntimeError):  # noqa: N818 (a state, as ClusterLost)
-    """The local pool's workers keep dying: str() is one line; the finished runs are kept."""
-
-
-PR_SET_PDEATHSIG = 1  # linux/prctl.h: the signal a process gets when its parent dies
-WATCHDOG_SECONDS = 0.5
-
-
 def worker_setup() -> None:
-    """In each worker: leave Ctrl-C to the main process (it stops the study and keeps what finished),
-    and end with the parent, however it ends."""
+    """In each pool worker: leave Ctrl-C to the main process (it stops the study and keeps what
+    finished), and end with the parent, however it ends: SIGKILL from the kernel on Linux
+    (PR_SET_PDEATHSIG), and on every system a daemon thread that polls os.getppid()."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)  # not the parent's handler, which a fork inherits
     if hasattr(signal, "SIGHUP"):  # a terminal's hangup reaches the whole group: the parent ends the workers
         signal.signal(signal.SIGHUP, signal.SIG_IGN)
-    die_with_parent()
-
-
-def die_with_parent() -> None:
-    """End this process when its parent ends: SIGKILL from the kernel on Linux (PR_SET_PDEATHSIG),
-    and on every system a daemon thread that polls os.getppid() (a reparented process has another)."""
     parent = os.getppid()
     if sys.platform.startswith("linux"):
         with suppress(OSError, AttributeError):
@@ -330,9 +384,6 @@ def _ignore(signals: Sequence[int]) -> None:
             signal.signal(sig, signal.SIG_IGN)
 
 
-STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
-
-
 @contextmanager
 def signals_ignored() -> Iterator[None]:
     """Ctrl-C, SIGTERM and SIGHUP ignored while the workers are ended (a third Ctrl-C changes nothing)."""
@@ -350,14 +401,17 @@ def signals_ignored() -> Iterator[None]:
 @contextmanager
 def progress_bar(total: int, show: bool, what: str = "runs") -> Iterator[Callable[..., None]]:
     """A rich progress bar on stderr (typer brings rich) over `total` `what` when stderr is a terminal,
-    else one plain line at the end (a log file gets the count, not a redrawn bar, and a study run by a
-    script does not import rich); yields the function that advances it (by one, or by the count given)."""
+    else one plain line at the end ("runs 120/120 in 4.1 s": a log file gets the count, not a redrawn
+    bar, and a study run by a script does not import rich); yields the function that advances it."""
     if not show:
         yield lambda count=1: None
         return
     if not sys.stderr.isatty():
-        with _final_line(total, what) as advance:
-            yield advance
+        done, started = [0], time.perf_counter()
+        try:
+            yield lambda count=1: done.__setitem__(0, done[0] + count)
+        finally:
+            print(f"{what} {done[0]}/{total} in {time.perf_counter() - started:.1f} s", file=sys.stderr, flush=True)
         return
     from rich.console import Console
     from rich.progress import (
@@ -382,31 +436,21 @@ def progress_bar(total: int, show: bool, what: str = "runs") -> Iterator[Callabl
         yield lambda count=1: bar.advance(task, count)
 
 
-@contextmanager
-def _final_line(total: int, what: str) -> Iterator[Callable[..., None]]:
-    """progress_bar off a terminal: "runs 120/120 in 4.1 s" on stderr when the runs end (or stop)."""
-    done, started = [0], time.perf_counter()
-
-    def advance(count: int = 1) -> None:
-        done[0] += count
-
-    try:
-        yield advance
-    finally:
-        print(f"{what} {done[0]}/{total} in {time.perf_counter() - started:.1f} s", file=sys.stderr, flush=True)
-
-
 __all__ = [
     "MAX_POOL_RESTARTS",
     "STOP_SIGNALS",
-    "PoolLost",
+    "StudyLost",
     "StudyStopped",
+    "Units",
     "default_workers",
-    "die_with_parent",
+    "draw_task",
     "end_workers",
     "progress_bar",
     "run_study",
+    "run_unit_timed",
     "signals_ignored",
     "stop_signals",
+    "study_backend",
+    "study_work",
     "worker_setup",
 ]

@@ -12,9 +12,7 @@ from typing import Any
 
 from mazelab import maze_generator
 from mazelab.checks import check_bandwidth_within, check_sigma_within
-from mazelab.contract import options_for
-from mazelab.declaration import to_plain_json
-from mazelab.experiments.batch_runs import MAX_BATCH
+from mazelab.declaration import scoped, to_plain_json
 from mazelab.experiments.plugin_code import PluginCode, plugin_codes
 from mazelab.experiments.runs import filter_key, parse_filters
 from mazelab.experiments.study import (
@@ -27,6 +25,7 @@ from mazelab.experiments.study import (
     declared_option,
     file_mazes,
     option_columns,
+    options_per_filter,
     study_parameters,
     study_settings,
     study_tasks,
@@ -111,6 +110,7 @@ class StudyPlan:
     traces: bool = False
     reference: str | None = None  # "grid": every row gets distance_to_exact (`study --reference grid`)
     plugins: tuple[PluginCode, ...] = ()  # the plug-ins' code, read once: every run carries it
+    call: dict[str, Any] | None = None  # the Python values that made it (mazelab.study_plan), as data
 
     @property
     def option_columns(self) -> list[str]:
@@ -140,13 +140,6 @@ class StudyPlan:
             plugins=self.plugins,
         )
 
-    def work(self) -> tuple[int, float]:
-        """What the study's filters do (mazelab.backend.backend_for_work): (the particles their steps move,
-        the calls of `step`, R runs of a setting advancing together, up to MAX_BATCH)."""
-        tasks = self.tasks()
-        particle_steps = sum(t.setting.particles * t.steps * len(t.filters) for t in tasks)
-        return particle_steps, sum(t.steps * len(t.filters) for t in tasks) / min(self.runs, MAX_BATCH)
-
     def parameters(self) -> dict[str, Any]:
         """The study's parameters as parsed (what the record keeps and --resume compares)."""
 
@@ -168,15 +161,16 @@ class StudyPlan:
             **({"plugins": [plugin_description(code) for code in self.plugins]} if self.plugins else {}),
         }
 
-    def header(self, where: str) -> str:
-        """The study's first lines: its size, seed and workers; the fixed parameters; the varied ones
-        with all their values."""
+    def header(self, where: str, backend: str | None = None) -> str:
+        """The study's first lines: its size, seed, workers and backend; the fixed parameters; the varied
+        ones with all their values."""
         runs = len(self.tasks()) // max(1, self.runs)
         skipped = len(self.settings) - runs
         note = f" ({skipped} setting(s) run no filter)" if skipped else ""
+        on = f", {backend} backend" if backend else ""
         lines = [
             f"Study: {len(self.settings)} setting(s){note} x {self.runs} runs x {len(self.filters)} filters, "
-            f"seed {self.seed}, {where}",
+            f"seed {self.seed}, {where}{on}",
             "fixed: " + describe_setting(self.settings[0], self.steps, self.runs, self.kidnap_at, self.varied),
         ]
         if self.varied:
@@ -197,21 +191,11 @@ def plugin_description(code: PluginCode) -> dict[str, str]:
 
 
 def plan_study(
-    mazes: Sequence[MazeChoice],
-    filters: str | Sequence[Any],
-    *,
-    sigma: Sequence[float],
-    delta: Sequence[float],
-    particles: Sequence[int],
-    options: Mapping[str, Sequence[Any]] | None = None,
-    runs: int = 30,
-    steps: int = 200,
-    seed: int | None = None,
-    kidnap_at: int | None = None,
-    kld: bool = False,
-    traces: bool = False,
+    mazes: Sequence[MazeChoice], filters: str | Sequence[Any], *, sigma: Sequence[float], delta: Sequence[float],
+    particles: Sequence[int], options: Mapping[str, Sequence[Any]] | None = None, runs: int = 30, steps: int = 200,
+    seed: int | None = None, kidnap_at: int | None = None, kld: bool = False, traces: bool = False,
     reference: str | None = None,
-) -> StudyPlan:
+) -> StudyPlan:  # fmt: skip
     """Check and combine a study's values into its plan (a new root seed if none is given).
 
     `options` are the filter options the study sets, by name, each a list of values (a plug-in's
@@ -227,9 +211,9 @@ def plan_study(
     for name, values in given.items():
         if not values:
             raise ValueError(f"option {name} has no values")
-    options_for(classes, {name: None if all_default(name, values) else values for name, values in given.items()})
+    options_per_filter(names, {name: None if all_default(name, values) else values for name, values in given.items()})
     declared = set(option_columns(classes))
-    given = {name: values for name, values in given.items() if name in declared}
+    given = {name: values for name, values in given.items() if scoped(name)[1] in declared}
     check_steps(steps)  # each run's limits, up front rather than in every worker
     check_particles(max(particles))
     settings = study_settings(mazes, sigma, delta, particles, given)
@@ -238,18 +222,8 @@ def plan_study(
     check_filter_options(settings, names)
     if reference is not None:
         check_reference(reference, settings)
-    plan = StudyPlan(
-        settings,
-        names,
-        runs,
-        steps,
-        new_seed() if seed is None else seed,
-        kidnap_at,
-        kld,
-        traces,
-        reference,
-        plugin_codes(names),
-    )
+    seed = new_seed() if seed is None else seed
+    plan = StudyPlan(settings, names, runs, steps, seed, kidnap_at, kld, traces, reference, plugin_codes(names))
     plan.tasks()  # checks runs, steps and kidnap_at
     return plan
 

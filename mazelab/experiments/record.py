@@ -1,8 +1,8 @@
 """The record of how a result was made: a JSON file beside a study's CSV (and beside compare's and
 accuracy's outputs) with the exact command, every parameter as parsed, the root seed, the program's
 version and commit, numpy's and Python's versions, the maze files with their sha256, when it ran and
-for how long, the peak memory, the summary table and the intervals' methods. `study --resume` checks
-a study's parameters against it."""
+for how long, the peak memory, the summary table and the intervals' methods. (`study --resume` checks a
+study's parameters against its journal's, mazelab.experiments.journal.)"""
 
 from __future__ import annotations
 
@@ -22,7 +22,6 @@ import numpy as np
 
 from mazelab.atomic import write_text_atomically
 from mazelab.backend import backend_versions
-from mazelab.experiments.inputs import read_regular_text
 from mazelab.experiments.stats import CONFIDENCE_LEVEL, INTERVAL_METHODS
 
 RECORD_FORMAT = 1
@@ -179,25 +178,6 @@ class Recorder:
         write_text_atomically(path, text, follow_links=follow_links)
 
 
-def read_record(path: str | Path) -> dict[str, Any]:
-    """A record written by Recorder; a ValueError of one line naming the file otherwise (a pipe or a
-    device is refused unread, see mazelab.experiments.inputs)."""
-    path = Path(path)
-    try:
-        text = read_regular_text(path, "a record")
-    except FileNotFoundError:
-        raise ValueError(f"{path}: no such record (a study's record is written beside its CSV)") from None
-    try:
-        data = json.loads(text)
-    except ValueError as error:  # not JSON; a number of more than 4300 digits
-        raise ValueError(f"{path}: not a readable record ({str(error).splitlines()[0]})") from None
-    except RecursionError:  # lists nested thousands deep
-        raise ValueError(f"{path}: not a readable record (nested too deep)") from None
-    if not isinstance(data, dict) or data.get("record_format") != RECORD_FORMAT or "parameters" not in data:
-        raise ValueError(f"{path}: not a record of this program (record_format {RECORD_FORMAT} expected)")
-    return data
-
-
 def differences(recorded: Mapping[str, Any], given: Mapping[str, Any], ignore: Sequence[str] = ()) -> list[str]:
     """The parameters that differ between a record's and the given ones, as 'name: recorded -> given'."""
     given = jsonable(given)
@@ -219,6 +199,5 @@ __all__ = [
     "package_version",
     "peak_memory",
     "program_versions",
-    "read_record",
     "record_path",
 ]

@@ -17,8 +17,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from mazelab.constants import RPF_THRESHOLD
-from mazelab.declaration import Option, options_of, show_value
+from mazelab.contract import not_taken, options_for
+from mazelab.declaration import Option, options_of, scoped, show_value
 from mazelab.experiments.kidnapping import recovery_steps, relocalised
 from mazelab.experiments.plugin_code import PluginCode, filters_here
 from mazelab.experiments.runs import filter_labels, final_error, mean_ess, mean_particle_count, run_filters
@@ -26,7 +26,7 @@ from mazelab.experiments.warmup import WorkerReport
 from mazelab.maze import STATION_WALL, Maze
 from mazelab.maze_generator import DEFAULT_WALL_SHARE, generate_maze
 from mazelab.model import check_model_parameters
-from mazelab.registry import entries, filter_entry, labels, resolve_filter
+from mazelab.registry import entries, evidence_caveat, filter_entry, labels, resolve_filter
 from mazelab.robot import Robot
 from mazelab.seeding import start_place, study_seeds
 from mazelab.simulation import RunResult, convergence_step
@@ -114,9 +114,10 @@ class StudySetting:
         return dict(self.options).get(parameter)
 
     def filter_options(self, filter_name: str | type) -> dict[str, Any]:
-        """The options of this setting that the filter declares (its declaration checks them)."""
-        declared = options_of(resolve_filter(filter_name))
-        return {name: value for name, value in self.options if name in declared and _studied(name, declared)}
+        """The options of this setting that the filter takes: those it declares, set for every filter or
+        for it alone (FILTER.NAME; its declaration checks them)."""
+        entry = filter_entry(filter_name)
+        return {name: value for key, value in self.options if (name := reaches(key, entry)) is not None}
 
     def filter_values(self, filter_name: str | type) -> dict[str, Any]:
         """Every option the filter runs with in this setting, by name in declaration order: the setting's
@@ -154,7 +155,7 @@ def is_option_parameter(parameter: str) -> bool:
 
 def takes_parameter(filter_name: str | type, parameter: str) -> bool:
     """Whether a study parameter can change a filter's results: the model's (maze, sigma, delta) always,
-    the particle count unless the filter's entry says it takes none, an option only if it declares it."""
+    the particle count unless the filter's entry says it takes none, an option only if it reaches it."""
     try:
         entry = filter_entry(filter_name)
     except ValueError:  # a filter known only by its name in a record (a student's own): assume it does
@@ -163,24 +164,48 @@ def takes_parameter(filter_name: str | type, parameter: str) -> bool:
         return entry.takes_particles
     if parameter in ("maze", "sigma", "delta"):
         return True
-    return parameter in entry.options and _studied(parameter, entry.options)
+    return reaches(parameter, entry) is not None
 
 
-def check_threshold_reaches(settings: Sequence[StudySetting], filters: Sequence[str]) -> None:
-    """Refuse, in one line, a study threshold other than the RPF's default that none of its filters
-    takes (`_studied`: SIR and the APF resample every step in a study)."""
-    if all(dict(s.options).get("threshold", RPF_THRESHOLD) == RPF_THRESHOLD for s in settings) or any(
-        takes_parameter(f, "threshold") for f in filters
-    ):
-        return
-    names = " and ".join(filter_entry(f).name for f in filters)
-    raise ValueError(f"the study's threshold is the RPF's N_T (lab step 14): {names} resample every step in a study")
+def options_per_filter(
+    filters: Sequence[str | type], given: Mapping[str, Any], spelled: Mapping[str, str] | None = None
+) -> dict[str, dict[str, Any]]:
+    """Per filter (by `name`), the given options (None: not given) that reach it (`reaches`): a plain
+    name every filter that declares it, FILTER.NAME its filter alone.
+
+    Raises
+    ------
+    ValueError
+        One line, the option as `spelled`: an option none of the filters takes (naming what they take),
+        FILTER.NAME of a filter not among them, or one option given both for every filter and for one.
+    """
+    entries_ = [filter_entry(f) for f in filters]
+    spelled = spelled or {}
+    per_filter = options_for([e.filter_class for e in entries_],
+                             {k: v for k, v in given.items() if scoped(k)[0] is None}, spelled=spelled)  # fmt: skip
+    for key, value in given.items():
+        scope, name = scoped(key)
+        if scope is None or value is None:
+            continue
+        target = filter_entry(scope)
+        if target.name not in per_filter:
+            shown = ", ".join(e.short_name for e in entries_)
+            raise ValueError(f"{spelled.get(key, key)}: {scope} is not one of the filters ({shown})")
+        if name not in target.options:
+            raise ValueError(not_taken([target.filter_class], spelled.get(key, key)))
+        if given.get(name) is not None:
+            raise ValueError(f"{name} is given for every filter and for {scope}: give one of them")
+        per_filter[target.name][name] = value
+    return per_filter
 
 
-def _studied(name: str, declared: Any) -> bool:
-    """Whether a study's option reaches a filter that declares it: the paper's RPF threshold (lab step 14)
-    only a filter that resamples adaptively by default, not SIR or the APF (theirs: every step)."""
-    return name != "threshold" or declared["threshold"].default < 1
+def reaches(key: str, entry: Any) -> str | None:
+    """The option a study's `key` sets for a filter's entry (its name), or None: `threshold` reaches every
+    filter that declares it, `rpf.threshold` the RPF alone (mazelab.declaration.scoped)."""
+    scope, name = scoped(key)
+    if name not in entry.options or (scope is not None and filter_entry(scope).name != entry.name):
+        return None
+    return name
 
 
 def study_settings(
@@ -203,17 +228,21 @@ def study_settings(
     return [StudySetting(*values[:4], options=tuple(zip(checked, values[4:], strict=True))) for values in combinations]
 
 
-def _checked(name: str, values: Sequence[Any]) -> list[Any]:
+def _checked(key: str, values: Sequence[Any]) -> list[Any]:
     """The values of a studied option, each checked by the option's declaration (the first filter of
-    the lab's that declares it; a plug-in's own options are checked by its declaration in plan_study)."""
-    option = declared_option(name)
+    the lab's that declares it, or its own filter's for FILTER.NAME; a plug-in's own options are checked
+    by its declaration in plan_study)."""
+    option = declared_option(key)
     checked = [value if option is None else option.validate(value) for value in values]
     return list(dict.fromkeys(checked))
 
 
-def declared_option(name: str) -> Option | None:
-    """The declaration of an option among the lab's filters (None: only a plug-in declares it)."""
-    return next((entry.options[name] for entry in entries() if name in entry.options), None)
+def declared_option(key: str) -> Option | None:
+    """The declaration of a study's option: its filter's for FILTER.NAME, else the first of the lab's
+    filters that declares it (None: only a plug-in declares it)."""
+    scope, name = scoped(key)
+    chosen = [filter_entry(scope)] if scope is not None else entries()
+    return next((entry.options[name] for entry in chosen if name in entry.options), None)
 
 
 def varied_parameters(settings: Sequence[StudySetting]) -> list[str]:
@@ -300,7 +329,6 @@ def study_tasks(
         raise ValueError(f"kidnap_at must be a step from 1 to {steps}, got {kidnap_at}")
     if reference not in (None, REFERENCE):
         raise ValueError(f"reference must be {REFERENCE!r} (the exact grid filter), got {reference!r}")
-    check_threshold_reaches(settings, filters)
     seeds = study_seeds(root_seed, runs)
     chosen = zip(settings, filters_per_setting(settings, filters), strict=True)
     return [
@@ -354,6 +382,8 @@ class RunRecord:
     run_seconds: float = math.nan  # wall time of the run: its share of the unit of runs it ran in
     # with a reference (`study --reference grid`): accuracy.distance_to_exact of the filter's estimates
     distance_to_exact: float = math.nan
+    log_evidence: float = math.nan  # log p(z_1:K) of the whole walk as the filter estimates it; NaN: it keeps none
+    log_evidence_caveat: str = ""  # why that is not an estimate of p(z_1:K) under the model (the registry's)
     label: str = ""  # the filter's label in the registry (what the figure and table show: SIR, APF, ...)
     backend: str = ""  # the backend the filter ran on, as the process that ran it says (mazelab.backend)
     # every option the filter ran with (`StudySetting.filter_values`) as cells (`option_cell`), by name:
@@ -361,6 +391,32 @@ class RunRecord:
     options: dict[str, Any] = field(default_factory=dict)
     # Not a column: with RunTask.traces, the filter's per-step arrays (mazelab.experiments.traces)
     trace: ClassVar[dict[str, Any] | None] = None
+
+    def to_json(self) -> dict[str, Any]:
+        """The row as a journal keeps it (mazelab.experiments.journal): its fields, its trace's arrays
+        as lists (numbers in full: the CSV and traces written from it are the same bit for bit)."""
+        data = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        if self.trace is not None:
+            data["trace"] = {k: _listed(v) for k, v in self.trace.items()}
+        return data
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any]) -> RunRecord:
+        """A row from its journal form (`to_json`); a TypeError for one that is not."""
+        data = dict(data)
+        trace = data.pop("trace", None)
+        record = cls(**data)
+        if trace is not None:
+            record.trace = {k: {n: np.asarray(a) for n, a in v.items()} if k == "diagnostics" else np.asarray(v)
+                            for k, v in trace.items()}  # fmt: skip
+        return record
+
+
+def _listed(value: Any) -> Any:
+    """A trace's array (or a dict of them) as lists."""
+    if isinstance(value, dict):
+        return {k: _listed(v) for k, v in value.items()}
+    return np.asarray(value).tolist()
 
 
 @dataclass
@@ -380,11 +436,11 @@ def run_task(task: RunTask, visualize: Any = False) -> list[RunRecord]:
     """One run of a study: one scenario, every filter on it; a record per filter."""
     s = task.setting
     world = s.maze.world(task.maze_seed)
-    robot = Robot(s.sigma, s.delta, start_place(world, task.seed))
     comparison = open_comparison(visualize, world, filter_labels(task.filters)) if visualize else None
     try:
         with warnings.catch_warnings():  # the range warnings were shown once, by study_settings
             warnings.simplefilter("ignore", UserWarning)
+            robot = Robot(s.sigma, s.delta, start_place(world, task.seed))
             results = run_filters(
                 world,
                 robot,
@@ -487,6 +543,8 @@ def run_records(task: RunTask, world: Maze, results: dict[str, RunResult]) -> li
             int(world.grid.shape[0]),
             int(world.grid.shape[1]),
             s.maze.wall_share,
+            log_evidence=final_log_evidence(result),
+            log_evidence_caveat=evidence_caveat(name),
             label=labels([name])[name],
             backend=result.extras.get("backend", "numpy"),
             options=option_cells(s, name),
@@ -519,7 +577,7 @@ def option_cell(value: Any) -> Any:
 
 def trace_of(result: RunResult) -> dict[str, Any]:
     """A run's per-step arrays: true position, estimate, ESS, confidence, step time, particle count,
-    and the filter's own diagnostics by name (mazelab.collect: the RPF's `regularised`, recovery's
+    log evidence so far, and the filter's own diagnostics by name (mazelab.collect: the RPF's `regularised`, recovery's
     `injection_probability`)."""
     return {
         "true": result.true_positions,
@@ -528,8 +586,14 @@ def trace_of(result: RunResult) -> dict[str, Any]:
         "confident": result.confident,
         "step_seconds": result.step_seconds,
         "particle_count": result.extras.get("particle_count", np.full(len(result.ess), -1)),
+        "log_evidence": np.full(len(result.ess), np.nan) if result.log_evidence is None else result.log_evidence,
         "diagnostics": result.extras.get("diagnostics", {}),
     }
+
+
+def final_log_evidence(result: RunResult) -> float:
+    """log p(z_1:K) after the last step as the filter estimates it (NaN when it keeps none)."""
+    return math.nan if result.log_evidence is None else float(result.log_evidence[-1])
 
 
 def kidnap_figures(result: RunResult) -> tuple[bool | None, int | None]:
@@ -559,6 +623,19 @@ class StudyOutcome:
     tasks: int = 0
     lost: str | None = None  # why the study stopped early without a signal (a lost cluster or pool), one line
     workers: dict[str, WorkerReport] = field(default_factory=dict)  # each process's report, start-up summed
+    backend: str = ""  # the one backend the study's runs ran on (mazelab.experiments.executor.study_backend)
+
+    def collector(self, on_records: Any = None) -> Any:
+        """The function that takes a unit's outcomes into this one, each run's records also handed to
+        `on_records` as they come (the study's journal appends them)."""
+
+        def collect(results: list) -> None:
+            for result in results:
+                self.add(result)
+                if on_records is not None and isinstance(result, list):
+                    on_records(result)
+
+        return collect
 
     def add(self, outcome: list[RunRecord] | RunFailure | WorkerReport) -> None:
         if isinstance(outcome, RunFailure):
@@ -596,11 +673,14 @@ __all__ = [
     "exact_means",
     "file_mazes",
     "filters_per_setting",
+    "final_log_evidence",
     "is_option_parameter",
     "kidnap_figures",
     "option_cell",
     "option_cells",
     "option_columns",
+    "options_per_filter",
+    "reaches",
     "run_records",
     "run_task",
     "run_task_safely",

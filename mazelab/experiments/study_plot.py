@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from mazelab.experiments.compare import LINE_STYLES, MARKERS
 from mazelab.experiments.runs import FINAL_SHARE
 from mazelab.experiments.stats import CONFIDENCE_LEVEL
 from mazelab.experiments.study import MODEL_PARAMETERS, declared_option, is_option_parameter, takes_parameter
@@ -49,8 +50,7 @@ PNG_DPI = 300
 CAPTION_WIDTH = 110  # characters per line of the title's caption (the figure's width at FONT_POINTS)
 MAX_COLUMNS = 3  # panels per row
 DODGE = 0.3  # on a categorical axis, the lines of a panel spread over this share of a category's width
-MARKERS = ("o", "s", "^", "D", "v", "P", "X")  # each line of the figure a marker ...
-LINE_STYLES = ("-", "--", ":", "-.")  # ... and a line style of its own: apart in grey print too
+NUMERIC_DODGE = 0.12  # on a numeric one over this share of the smallest spacing of the x values (bars apart)
 
 
 @dataclass(frozen=True)
@@ -64,6 +64,7 @@ class YQuantity:
     method: str
     share: bool = False  # a share: drawn in percent, from 0% to 100%
     signed: bool = False  # a difference: may be below 0 (a line at 0 drawn)
+    from_zero: bool = True  # its axis starts at 0 (or below, for a difference); else it spans the values
 
 
 Y_QUANTITIES = {
@@ -78,6 +79,10 @@ Y_QUANTITIES = {
     "paired": YQuantity(f"paired difference in last-{FINAL_SHARE:.0%} error (map units)",
                         lambda s: s.mean_difference, lambda s: s.difference_interval,
                         "paired BCa bootstrap intervals for the mean difference", signed=True),
+    "evidence": YQuantity("mean log evidence log p(z_1:K)", lambda s: s.mean_log_evidence,
+                          lambda s: (s.mean_log_evidence - 1.96 * s.log_evidence_se,
+                                     s.mean_log_evidence + 1.96 * s.log_evidence_se),
+                          "intervals of the mean, 1.96 standard errors", from_zero=False),
 }  # fmt: skip
 Y_LABEL = Y_QUANTITIES["mean"].label  # a map unit is a maze cell's side
 
@@ -249,19 +254,13 @@ def _sort_key(value: Any) -> tuple[int, Any]:
 
 
 def plot_study(
-    summaries: Sequence[StudySummary],
-    varied: Sequence[str],
-    path: Path,
-    title: str,
-    *,
-    replace: bool = True,
-    x: str | None = None,
-    y: str = "mean",
-) -> FigureLayout:
+    summaries: Sequence[StudySummary], varied: Sequence[str], path: Path, title: str, *, replace: bool = True,
+    x: str | None = None, y: str = "mean", caption: bool = True,
+) -> FigureLayout:  # fmt: skip
     """Draw the study's small multiples to `path` (.png at PNG_DPI, .pdf or .svg) and return their
-    layout with each panel's y range and box (an existing file is replaced only with `replace`).
-    `x` chooses the x axis among the varied parameters (default: `choose_x`), `y` what is drawn
-    (a key of Y_QUANTITIES)."""
+    layout with each panel's y range and box (an existing file is replaced only with `replace`). `x`
+    chooses the x axis among the varied parameters (default: `choose_x`), `y` what is drawn (a key of
+    Y_QUANTITIES); a caption under the title says how, unless `caption` is False (a user's own title)."""
     plt = pyplot()
     import matplotlib
 
@@ -282,21 +281,20 @@ def plot_study(
         ranges, references = [], []
         for k, mine in enumerate(panels.values()):
             ax = axes[k // columns][k % columns]
-            ax.set_gid(f"panel-{k + 1}")
             lines = panel_lines(mine, x, options, layout.lines)
-            bottom, top = draw_panel(ax, lines, scale, layout.lines, k + 1, quantity)
-            ax.set_ylim(bottom, top)
-            ax.set_title(layout.panels[k] or None)
-            ax.set_xlabel(axis_label(x))
+            ranges.append(draw_panel(ax, lines, scale, layout.lines, k + 1, quantity))
+            ax.set(ylim=ranges[-1], title=layout.panels[k] or None, xlabel=axis_label(x), gid=f"panel-{k + 1}")
             ax.grid(alpha=0.3, linewidth=0.5)
-            ranges.append((bottom, top))
             references.append([line.label for line in lines if line.reference])
-        for k in range(count, rows * columns):
-            axes[k // columns][k % columns].set_visible(False)
-        for row in axes:
-            row[0].set_ylabel(quantity.label)
-        _legend(figure, axes.flat[:count], layout.lines)
-        figure.suptitle(f"{title}\n{caption(scale, count, quantity)}")
+        for k, ax in enumerate(axes.flat):
+            ax.set_visible(k < count)
+            ax.set_ylabel(quantity.label if k % columns == 0 else "")
+        caveats = {line_label(s, []): s.log_evidence_caveat for s in summaries if s.log_evidence_caveat and
+                   y == "evidence"}  # fmt: skip
+        _legend(figure, axes.flat[:count], layout.lines, set(caveats))
+        marks = [f"* {label}: its log evidence is {why}" for label, why in caveats.items()]
+        lines = [title, *([describe(scale, count, quantity)] if caption else []), *marks]
+        figure.suptitle("\n".join(wrapped for line in lines for wrapped in textwrap.wrap(line, CAPTION_WIDTH)))
         save_figure(figure, path, replace=replace, dpi=PNG_DPI)
         boxes = [tuple(float(v) for v in ax.get_position().extents) for ax in axes.flat[:count]]
     return FigureLayout(layout.x, layout.panels, layout.lines, layout.shape, ranges, boxes, references)
@@ -308,7 +306,7 @@ def paired_label(summaries: Sequence[StudySummary]) -> str:
     return f"last-{FINAL_SHARE:.0%} error minus {labels([other])[other]}'s (map units)"
 
 
-def caption(scale: XScale, panels: int, quantity: YQuantity) -> str:
+def describe(scale: XScale, panels: int, quantity: YQuantity) -> str:
     """The title's second line: the intervals, each panel's own y range, where points overlap."""
     notes = [f"{CONFIDENCE_LEVEL:.0%} {quantity.method}"]
     if panels > 1 and not quantity.share:
@@ -316,7 +314,8 @@ def caption(scale: XScale, panels: int, quantity: YQuantity) -> str:
     if scale.kind == "category":
         notes.append("lines set side by side within a category")
     else:
-        notes.append("points at one x drawn there, told apart by marker and line style")
+        notes.append(f"points at one x set {NUMERIC_DODGE:.0%} of the x spacing apart, so their bars do not hide "
+                     "each other")  # fmt: skip
     return "\n".join(textwrap.wrap("(" + "; ".join(notes) + ")", CAPTION_WIDTH))
 
 
@@ -359,7 +358,7 @@ class XScale:
         if not is_numeric(summaries, x):
             return cls("category", x, tuple(dict.fromkeys(format_value(s.setting.value(x)) for s in summaries)))
         values = sorted({float(s.setting.value(x)) for s in summaries})
-        log = x == "particles" and values[0] > 0 and values[-1] / values[0] >= 10
+        log = x == "particles" and values[0] > 0 and values[-1] / values[0] >= 2  # N doubling: equal steps
         where = np.log10(values) if log else np.array(values)
         gap = float(np.diff(where).min()) if len(where) > 1 else 1.0
         return cls("log" if log else "linear", x, gap=gap, values=tuple(values))
@@ -379,17 +378,15 @@ def draw_panel(
     ax: Any, lines: Sequence[_Line], scale: XScale, all_labels: Sequence[str], panel: int,
     quantity: YQuantity = Y_QUANTITIES["mean"],
 ) -> tuple[float, float]:  # fmt: skip
-    """Draw a panel's lines (with error bars; moved apart sideways on a categorical axis only) and
-    references (dashed, shaded interval); returns its y range: from 0 (or the lowest interval of a
-    difference) to just above the highest interval or value; 0-100 for a share."""
+    """Draw a panel's lines (with error bars; points at one x set a little apart) and references (dashed,
+    shaded interval); returns its y range (`y_range`)."""
     drawn = [line for line in lines if not line.reference]
     slots = [label for label in all_labels if label in {line.label for line in drawn}]
-    unit = 100.0 if quantity.share else 1.0
-    highest, lowest = 0.0, 0.0
+    unit, shown = 100.0 if quantity.share else 1.0, []
     for line in drawn:
         j = slots.index(line.label)  # the same slot in every panel: a line keeps its place
-        dodged = scale.kind == "category" and scale.categories and len(slots) > 1
-        offset = DODGE * (j / (len(slots) - 1) - 0.5) if dodged else 0.0
+        spread = DODGE if scale.kind == "category" else NUMERIC_DODGE * scale.gap  # a share of the x spacing
+        offset = spread * (j / (len(slots) - 1) - 0.5) if len(slots) > 1 else 0.0
         if scale.kind == "category" and not scale.categories:  # nothing varied on x: a slot per line
             where = np.array([float(all_labels.index(line.label))])
         else:
@@ -400,46 +397,64 @@ def draw_panel(
         container = ax.errorbar(
             scale.back(where), value, yerr=bars, fmt=line.marker, linestyle=line.style if len(where) > 1 else "none",
             color=line.colour, label=line.label, elinewidth=0.8, markerfacecolor="white" if j % 2 else line.colour,
+            capsize=2 + j % 3,
         )  # fmt: skip
         container.lines[0].set_gid(f"panel-{panel}:line:{line.label}")
-        highest = max(highest, float(np.nanmax(np.append(high, value))))
-        lowest = min(lowest, float(np.nanmin(np.append(low, value))))
-    for line in lines:
-        if line.reference:
-            (s,) = line.points[:1]
-            value, (low, high) = unit * quantity.value(s), (unit * v for v in quantity.interval(s))
-            dashes = line.style if line.style != "-" else "--"  # a reference is never a solid line
-            ax.axhline(value, color=line.colour, linestyle=dashes, linewidth=1.0, label=line.label,
-                       gid=f"panel-{panel}:reference:{line.label}")  # fmt: skip
-            if not math.isnan(low):
-                ax.axhspan(low, high, color=line.colour, alpha=0.15, linewidth=0)
-            highest = max(highest, value, 0.0 if math.isnan(high) else high)
-            lowest = min(lowest, value, 0.0 if math.isnan(low) else low)
+        shown += [*value, *low, *high]
+    for line in (line for line in lines if line.reference):
+        value, (low, high) = (
+            unit * quantity.value(line.points[0]),
+            (unit * v for v in quantity.interval(line.points[0])),
+        )
+        dashes = line.style if line.style != "-" else "--"  # a reference is never a solid line
+        ax.axhline(value, color=line.colour, linestyle=dashes, linewidth=1.0, label=line.label,
+                   gid=f"panel-{panel}:reference:{line.label}")  # fmt: skip
+        if not math.isnan(low):
+            ax.axhspan(low, high, color=line.colour, alpha=0.15, linewidth=0)
+        shown += [value, low, high]
     if quantity.signed:
         ax.axhline(0.0, color="black", linewidth=0.6)
+    x_axis(ax, scale, all_labels)
+    return y_range(shown, quantity)
+
+
+def x_axis(ax: Any, scale: XScale, all_labels: Sequence[str]) -> None:
+    """A panel's x axis: log for particle counts that span a doubling, the studied values as its ticks;
+    a category's names on a categorical one."""
     if scale.kind == "log":
         ax.set_xscale("log")
-    if scale.kind == "linear" and 1 < len(scale.values) <= 8:
+        ax.minorticks_off()
+    if scale.kind != "category" and 1 < len(scale.values) <= 8:
         ax.set_xticks(scale.values, [format_value(v) for v in scale.values])  # the studied values, as given
     if scale.kind == "category":
         names = scale.categories or tuple(all_labels)
         ax.set_xticks(range(len(names)), names, rotation=20 if max(map(len, names)) > 8 else 0, ha="right")
         ax.set_xlim(-0.5, len(names) - 0.5)
+
+
+def y_range(shown: Sequence[float], quantity: YQuantity) -> tuple[float, float]:
+    """A panel's y range from the values and intervals it shows: 0-105% for a share; from 0 (or 10%
+    below the lowest, for a difference) to 10% above the highest; or the values' span, 5% either side."""
+    values = [v for v in shown if not math.isnan(v)]
     if quantity.share:
         return 0.0, 105.0
-    top = 1.1 * highest if highest > 0 else 1.0
-    return (1.1 * lowest if lowest < 0 else 0.0), top
+    low, high = min(values, default=0.0), max(values, default=0.0)
+    if not quantity.from_zero:
+        return low - 0.05 * (high - low or 1.0), high + 0.05 * (high - low or 1.0)
+    return (1.1 * low if low < 0 else 0.0), (1.1 * high if high > 0 else 1.0)
 
 
-def _legend(figure: Any, axes: Sequence[Any], order: Sequence[str]) -> None:
+def _legend(figure: Any, axes: Sequence[Any], order: Sequence[str], marked: set[str] = frozenset()) -> None:
     """One legend for all panels, below them, in the lines' order (each line once, a reference as its
-    dashed line)."""
+    dashed line); a line of a `marked` filter (its log evidence not of p(z_1:K)) labelled with '*'."""
     seen: dict[str, Any] = {}
     for ax in axes:
         for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
             seen.setdefault(label, handle)
     names = sorted(seen, key=lambda label: order.index(label) if label in order else len(order))
-    figure.legend([seen[n] for n in names], names, loc="outside lower center", ncols=min(4, len(names)), frameon=False)
+    shown = [name.replace(name.split(",")[0], name.split(",")[0] + "*", 1) if name.split(",")[0] in marked else name
+             for name in names]  # fmt: skip
+    figure.legend([seen[n] for n in names], shown, loc="outside lower center", ncols=min(4, len(names)), frameon=False)
 
 
 __all__ = [

@@ -76,6 +76,10 @@ class StudySummary:
     paired_runs: int = 0  # runs in both (the pairs)
     mean_difference: float = math.nan  # mean over the pairs of (this filter's - paired_with's) last-20% error
     difference_interval: Interval = (math.nan, math.nan)  # its paired BCa bootstrap interval
+    mean_log_evidence: float = math.nan  # mean over the runs of log p(z_1:K) as the filter estimates it
+    log_evidence_se: float = math.nan  # its standard error: the runs' standard deviation / sqrt(runs)
+    log_evidence_caveat: str = ""  # why the filter's estimate is not of p(z_1:K) under the model ("": it is)
+    backend: str = ""  # the backend its runs ran on (their ms_per_step's)
 
     def as_dict(self) -> dict[str, object]:
         """The summary as plain values (the setting's parameters spelled out), for a record or pandas."""
@@ -95,47 +99,40 @@ def summarise_study(
     groups: dict[tuple[int, str], list[RunRecord]] = {}
     for record in records:
         groups.setdefault((record.setting, record.filter), []).append(record)
+    summaries = [summarise_group(index, settings[index - 1], name, group) for (index, name), group in groups.items()]
     reference = None if paired is None else resolve_filter(paired).name
-    summaries = []
-    for (index, name), group in groups.items():
-        finals = [r.final_error for r in group]
-        last = last_convergence_step(group[0].steps)
-        converged = [converged_within(r.converged_at, r.steps) for r in group]
-        median_step, step_interval = km_median([min(r.converged_at or last, last) for r in group], converged)
-        relocalised, steps_to_recover = recovery_summary(group)
-        distances = [r.distance_to_exact for r in group]
-        summary = StudySummary(
-            index,
-            settings[index - 1],
-            name,
-            len(group),
-            statistics.fmean(finals),
-            bootstrap_interval(finals, "mean", method=MEAN_METHOD),
-            sum(converged) / len(group),
-            None if math.isnan(median_step) else median_step,
-            statistics.fmean(r.ms_per_step for r in group),
-            relocalised,
-            steps_to_recover,
-            statistics.fmean(r.mean_particle_count for r in group),
-            statistics.median(finals),
-            bootstrap_interval(finals, "median", method=MEDIAN_METHOD),
-            wilson_interval(sum(converged), len(group)),
-            None if relocalised is None else wilson_interval(sum(bool(r.relocalised) for r in group), len(group)),
-            statistics.fmean(r.run_seconds for r in group),
-            step_interval,
-            last,
-            *_mean_and_interval(distances),
-        )
-        if reference is not None and name != reference and pairs_exactly(name, reference, settings):
+    for s in summaries:
+        if reference is not None and s.filter != reference and pairs_exactly(s.filter, reference, settings):
+            group = groups[s.setting_index, s.filter]
             pairs = paired_finals(group, records, settings, reference)
             if pairs:
                 mine, theirs = zip(*pairs, strict=True)
-                summary.paired_with, summary.paired_runs = reference, len(pairs)
-                summary.mean_difference, summary.difference_interval = paired_difference(
-                    mine, theirs, method=MEAN_METHOD
-                )
-        summaries.append(summary)
+                s.paired_with, s.paired_runs = reference, len(pairs)
+                s.mean_difference, s.difference_interval = paired_difference(mine, theirs, method=MEAN_METHOD)
     return summaries
+
+
+def summarise_group(index: int, setting: StudySetting, name: str, group: Sequence[RunRecord]) -> StudySummary:
+    """One setting and filter's statistics over its runs (`group`, its rows)."""
+    finals, runs = [r.final_error for r in group], len(group)
+    last = last_convergence_step(group[0].steps)
+    converged = [converged_within(r.converged_at, r.steps) for r in group]
+    median_step, step_interval = km_median([min(r.converged_at or last, last) for r in group], converged)
+    relocalised, steps_to_recover = recovery_summary(group)
+    relocalised_interval = None if relocalised is None else wilson_interval(sum(bool(r.relocalised) for r in group),
+                                                                            runs)  # fmt: skip
+    summary = StudySummary(
+        index, setting, name, runs, statistics.fmean(finals), bootstrap_interval(finals, "mean", method=MEAN_METHOD),
+        sum(converged) / runs, None if math.isnan(median_step) else median_step,
+        statistics.fmean(r.ms_per_step for r in group), relocalised, steps_to_recover,
+        statistics.fmean(r.mean_particle_count for r in group), statistics.median(finals),
+        bootstrap_interval(finals, "median", method=MEDIAN_METHOD), wilson_interval(sum(converged), runs),
+        relocalised_interval, statistics.fmean(r.run_seconds for r in group), step_interval, last,
+        *_mean_and_interval([r.distance_to_exact for r in group]),
+    )  # fmt: skip
+    summary.mean_log_evidence, summary.log_evidence_se = _mean_and_error([r.log_evidence for r in group])
+    summary.log_evidence_caveat, summary.backend = group[0].log_evidence_caveat, group[0].backend
+    return summary
 
 
 def convergence_window(steps: int) -> int:
@@ -161,6 +158,15 @@ def _mean_and_interval(values: Sequence[float]) -> tuple[float, Interval]:
     if not finite:
         return math.nan, (math.nan, math.nan)
     return statistics.fmean(finite), bootstrap_interval(finite, "mean", method=MEAN_METHOD)
+
+
+def _mean_and_error(values: Sequence[float]) -> tuple[float, float]:
+    """The mean of the finite values and its standard error (NaN with fewer than two)."""
+    finite = [v for v in values if math.isfinite(v)]
+    if not finite:
+        return math.nan, math.nan
+    error = statistics.stdev(finite) / math.sqrt(len(finite)) if len(finite) > 1 else math.nan
+    return statistics.fmean(finite), error
 
 
 def pairs_exactly(name: str, reference: str, settings: Sequence[StudySetting]) -> bool:
@@ -232,6 +238,13 @@ def interval_note(summaries: Sequence[StudySummary] = ()) -> str:
         f"({steps}); median conv. step: Kaplan-Meier, the runs that never converge censored there "
         f"('>{last or 'N'}': not reached), its interval from the log-log band]",
     ]
+    caveats = {labels([s.filter])[s.filter]: s.log_evidence_caveat for s in summaries if s.log_evidence_caveat}
+    lines += [f"[* {label}: the log evidence is {why}]" for label, why in caveats.items()]
+    backend = ", ".join(sorted({s.backend for s in summaries}))
+    lines.append(
+        f"[log p(z_1:K): the mean over the runs of each run's log evidence, (its standard error); ms/step: "
+        f"one run's filter step on the {backend} backend, a step of runs advanced together shared out]"
+    )
     reference = next((s.paired_with for s in summaries if s.paired_with), None)
     if reference is not None:
         label = labels([reference])[reference]
@@ -252,61 +265,52 @@ def _step(value: float | None, last: int) -> str:
 
 
 def study_table(summaries: Sequence[StudySummary], varied: Sequence[str], kld: bool = False) -> str:
-    """A row per setting and filter: the varied parameters ('-' where the filter does not take one),
-    then the statistics with their intervals; with a kidnapping the re-localised share and median
-    steps to recover, with `kld` the mean particle count."""
-    kidnapped = any(s.relocalised_share is not None for s in summaries)
-    exact = any(not math.isnan(s.distance_to_exact) for s in summaries)
+    """A row per setting and filter: the varied parameters ('-' where the filter does not take one), the
+    filter's label, then the statistics with their intervals, the mean log evidence with its standard
+    error ('*' where it is not of p(z_1:K) under the model, a line under the table says why) and the time
+    per step with its backend; with a kidnapping the re-localised share and median steps to recover, with
+    `kld` the mean particle count, with a reference or a paired filter their columns."""
     reference = next((s.paired_with for s in summaries if s.paired_with), None)
-    ci = f"{CONFIDENCE_LEVEL:.0%} CI"
-    headers = [
-        *varied,
-        "filter",
-        "runs",
-        "mean last-20% error",
-        ci,
-        "median",
-        ci,
-        "converged",
-        ci,
-        "median conv. step",
-        ci,
-        "ms/step",
-        *(["re-localised", ci, "median steps to recover"] if kidnapped else []),
-        *(["mean N"] if kld else []),
-        *(["dist. to exact", ci] if exact else []),
-        *([f"diff. vs {labels([reference])[reference]}", ci] if reference else []),
-    ]
-    rows = []
-    for s in summaries:
-        row = [
-            *(format_value(s.setting.value(p)) if takes_parameter(s.filter, p) else "-" for p in varied),
-            s.filter,
-            str(s.runs),
-            f"{s.mean_final_error:.3f}",
-            _interval(*s.interval),
-            f"{s.median_final_error:.3f}",
-            _interval(*s.median_interval),
-            f"{s.converged_share:.0%}",
-            _interval(*s.converged_interval, spec="{:.0%}"),
-            _step(s.median_convergence_step, s.last_convergence_step),
-            _step_interval(s.convergence_interval, s.last_convergence_step),
-            f"{s.ms_per_step:.2f}",
-        ]
-        if kidnapped:
-            row += [
-                format_optional(s.relocalised_share, "{:.0%}"),
-                _interval(*(s.relocalised_interval or (math.nan, math.nan)), spec="{:.0%}"),
-                format_optional(s.median_steps_to_recover, "{:g}"),
-            ]
-        if kld:
-            row.append(f"{s.mean_particle_count:.0f}" if is_particle_filter(s.filter) else "-")
-        if exact:
-            row += [format_number(s.distance_to_exact, "{:.3f}"), _interval(*s.distance_interval)]
-        if reference:
-            row += [format_number(s.mean_difference, "{:+.3f}"), _interval(*s.difference_interval, spec="{:+.3f}")]
-        rows.append(row)
-    return format_table(headers, rows) + "\n" + interval_note(summaries)
+    backends = {s.backend for s in summaries}
+    ci, nan = f"{CONFIDENCE_LEVEL:.0%} CI", (math.nan, math.nan)
+    columns = [
+        *((p, lambda s, p=p: format_value(s.setting.value(p)) if takes_parameter(s.filter, p) else "-")
+          for p in varied),
+        ("filter", lambda s: labels([s.filter])[s.filter]), ("runs", lambda s: str(s.runs)),
+        ("mean last-20% error", lambda s: f"{s.mean_final_error:.3f}"), (ci, lambda s: _interval(*s.interval)),
+        ("median", lambda s: f"{s.median_final_error:.3f}"), (ci, lambda s: _interval(*s.median_interval)),
+        ("converged", lambda s: f"{s.converged_share:.0%}"),
+        (ci, lambda s: _interval(*s.converged_interval, spec="{:.0%}")),
+        ("median conv. step", lambda s: _step(s.median_convergence_step, s.last_convergence_step)),
+        (ci, lambda s: _step_interval(s.convergence_interval, s.last_convergence_step)),
+        ("log p(z_1:K) (SE)", _evidence),
+        (f"ms/step, {next(iter(backends))}" if len(backends) == 1 else "ms/step, backend",
+         lambda s: f"{s.ms_per_step:.2f}" + ("" if len(backends) == 1 else f" {s.backend}")),
+    ]  # fmt: skip
+    if any(s.relocalised_share is not None for s in summaries):
+        columns += [("re-localised", lambda s: format_optional(s.relocalised_share, "{:.0%}")),
+                    (ci, lambda s: _interval(*(s.relocalised_interval or nan), spec="{:.0%}")),
+                    ("median steps to recover", lambda s: format_optional(s.median_steps_to_recover, "{:g}")),
+                    ]  # fmt: skip
+    if kld:
+        columns.append(("mean N", lambda s: f"{s.mean_particle_count:.0f}" if is_particle_filter(s.filter) else "-"))
+    if any(not math.isnan(s.distance_to_exact) for s in summaries):
+        columns += [("dist. to exact", lambda s: format_number(s.distance_to_exact, "{:.3f}")),
+                    (ci, lambda s: _interval(*s.distance_interval))]  # fmt: skip
+    if reference:
+        columns += [(f"diff. vs {labels([reference])[reference]}",
+                     lambda s: format_number(s.mean_difference, "{:+.3f}")),
+                    (ci, lambda s: _interval(*s.difference_interval, spec="{:+.3f}"))]  # fmt: skip
+    rows = [[cell(s) for _, cell in columns] for s in summaries]
+    return format_table([header for header, _ in columns], rows) + "\n" + interval_note(summaries)
+
+
+def _evidence(s: StudySummary) -> str:
+    """'-71.6 (0.4)': the mean log evidence and its standard error, '*' where it is not of p(z_1:K)."""
+    if math.isnan(s.mean_log_evidence):
+        return "-"
+    error = "" if math.isnan(s.log_evidence_se) else f" ({s.log_evidence_se:.1f})"
+    return f"{s.mean_log_evidence:.1f}{error}" + ("*" if s.log_evidence_caveat else "")
 
 
 def _step_interval(bounds: Interval, last: int) -> str:
@@ -336,7 +340,11 @@ SUMMARY_STATISTICS: tuple[tuple[str, Any], ...] = (
     ("median_convergence_step", lambda s: s.median_convergence_step),
     ("median_convergence_step_low", lambda s: s.convergence_interval[0]),
     ("median_convergence_step_high", lambda s: s.convergence_interval[1]),
+    ("mean_log_evidence", lambda s: s.mean_log_evidence),
+    ("log_evidence_se", lambda s: s.log_evidence_se),
+    ("log_evidence_caveat", lambda s: s.log_evidence_caveat or None),
     ("ms_per_step", lambda s: s.ms_per_step),
+    ("backend", lambda s: s.backend),
     ("run_seconds", lambda s: s.run_seconds),
     ("mean_particle_count", lambda s: s.mean_particle_count),
     ("relocalised_share", lambda s: s.relocalised_share),

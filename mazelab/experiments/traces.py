@@ -1,16 +1,15 @@
 """Per-step traces (`study --traces`, `compare --traces`): one row per run, filter and step, in long
 format, so that pandas reads them directly (`pandas.read_csv`, or `read_parquet` for a .parquet file,
 which needs pyarrow). Columns: TRACE_COLUMNS, then each filter's own diagnostics (`regularised`,
-`injection_probability`, ...: empty where a filter has none), then the filter's label (SIR) and the
+`injection_probability`, ...: empty where a filter has none), then the filter's label (SIR), why its
+log evidence is not an estimate of p(z_1:k) under the model (the RPF's; empty for the others) and the
 row's parameters (the maze,
 sigma, delta, particles, then every option the filter ran with: empty where a filter does not declare
 one), so that a band plot of the error against the steps, by filter and parameter, is one `groupby`."""
 
 from __future__ import annotations
 
-import csv
 import io
-import os
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
@@ -18,9 +17,8 @@ from typing import Any
 import numpy as np
 
 from mazelab.atomic import write_bytes_atomically, write_text_atomically
-from mazelab.experiments.inputs import read_regular_bytes, read_regular_text
-from mazelab.experiments.study import RunRecord, RunTask, trace_of
-from mazelab.registry import labels
+from mazelab.experiments.study import RunRecord, trace_of
+from mazelab.registry import evidence_caveat, labels
 from mazelab.simulation import RunResult
 
 TRACE_COLUMNS = [
@@ -38,6 +36,7 @@ TRACE_COLUMNS = [
     "confident",  # 1: 95% of the belief within distance 1 of the estimate (the paper's green circle)
     "step_ms",  # the filter's own time for the step
     "particle_count",
+    "log_evidence",  # log p(z_1:k) so far as the filter estimates it; empty for a filter that keeps none
 ]
 PARAMETER_COLUMNS = ["maze", "sigma", "delta", "particles"]  # then the options the row's filter ran with
 PARQUET_HINT = "a .parquet trace file needs pyarrow (pip install pyarrow); or give a .csv path"
@@ -83,6 +82,7 @@ def trace_columns(
         "confident": np.asarray(trace["confident"]).astype(np.int8),
         "step_ms": 1e3 * np.asarray(trace["step_seconds"], dtype=float),
         "particle_count": np.asarray(trace["particle_count"], dtype=np.int64),
+        "log_evidence": np.asarray(trace.get("log_evidence", np.full(steps, np.nan)), dtype=float),
         **{f"{DIAGNOSTIC_PREFIX}{name_}": values for name_, values in diagnostics.items()},
         **exact_columns(trace.get("exact"), estimate),
         **constant,
@@ -110,9 +110,10 @@ def exact_columns(exact: Any, estimate: np.ndarray) -> dict[str, np.ndarray]:
 
 
 def record_parameters(record: RunRecord) -> dict[str, Any]:
-    """A study row's parameters as trace columns: its label, PARAMETER_COLUMNS, then the options its
-    filter ran with (RunRecord.options)."""
-    return {"label": record.label, **{name: getattr(record, name) for name in PARAMETER_COLUMNS}, **record.options}
+    """A study row's parameters as trace columns: its label, why its log evidence is not of p(z_1:K) (if
+    it is not), PARAMETER_COLUMNS, then the options its filter ran with (RunRecord.options)."""
+    return {"label": record.label, "log_evidence_caveat": record.log_evidence_caveat,
+            **{name: getattr(record, name) for name in PARAMETER_COLUMNS}, **record.options}  # fmt: skip
 
 
 def study_traces(records: Iterable[RunRecord]) -> list[dict[str, Any]]:
@@ -131,8 +132,8 @@ def compare_traces(results: dict[str, RunResult], seed: int, maze: str | None = 
     blocks = []
     for name, result in results.items():
         inputs = result.inputs
-        parameters = {"label": labels([name])[name], "maze": maze, "sigma": inputs.sigma, "delta": inputs.delta,
-                      "particles": len(inputs.particles)}  # fmt: skip
+        parameters = {"label": labels([name])[name], "log_evidence_caveat": evidence_caveat(name), "maze": maze,
+                      "sigma": inputs.sigma, "delta": inputs.delta, "particles": len(inputs.particles)}  # fmt: skip
         blocks.append(trace_columns(None, 1, seed, name, trace_of(result), parameters))
     return blocks
 
@@ -149,7 +150,7 @@ def trace_csv_rows(blocks: Sequence[dict[str, Any]], columns: Sequence[str] | No
     exact floats (%.17g), an empty cell for NaN, for compare's setting and for a column a block lacks."""
     columns = trace_column_names(blocks) if columns is None else list(columns)
     buffer = io.StringIO()
-    numeric = TRACE_COLUMNS[4:]  # step .. particle_count
+    numeric = TRACE_COLUMNS[4:]  # step .. log_evidence
     for block in blocks:
         setting = "" if block["setting"][0] == -1 else str(block["setting"][0])
         prefix = f"{setting},{block['run'][0]},{block['seed'][0]},{_cell(block['filter'][0])}"
@@ -159,7 +160,7 @@ def trace_csv_rows(blocks: Sequence[dict[str, Any]], columns: Sequence[str] | No
             [block[c].astype(float) for c in numeric] + [block.get(c, np.full(steps, np.nan)) for c in diagnostics]
         )
         text = io.StringIO()
-        fmt = ["%d", *["%.17g"] * 6, "%d", "%.17g", "%d", *["%.17g"] * len(diagnostics)]
+        fmt = ["%d", *["%.17g"] * 6, "%d", "%.17g", "%d", "%.17g", *["%.17g"] * len(diagnostics)]
         np.savetxt(text, numbers, fmt=fmt, delimiter=",")
         constants = [c for c in columns[len(TRACE_COLUMNS) :] if not per_step(c)]
         suffix = "".join(f",{_cell(block[c][0]) if c in block else ''}" for c in constants)
@@ -181,12 +182,8 @@ def trace_header(columns: Sequence[str] = TRACE_COLUMNS) -> str:
     return ",".join(columns) + "\n"
 
 
-def write_traces(
-    path: Path, blocks: Sequence[dict[str, Any]], kept: str | Any = None, *, follow_links: bool = True
-) -> None:
-    """Write the traces to `path`, whole (mazelab.atomic): CSV, or Parquet for a .parquet path.
-    `kept`: rows of an earlier session to keep in front (CSV text without header, or a pyarrow Table);
-    `follow_links=False` for a stopped study's partial traces (never written through a link)."""
+def write_traces(path: Path, blocks: Sequence[dict[str, Any]]) -> None:
+    """Write the traces to `path`, whole (mazelab.atomic): CSV, or Parquet for a .parquet path."""
     if path.suffix.lower() == ".parquet":
         import pyarrow as pa
         import pyarrow.parquet as pq
@@ -197,19 +194,12 @@ def write_traces(
         table = pa.table(
             {c: pa.array(list(v) if v.dtype == object or c == "setting" else v) for c, v in columns.items()}
         )
-        if kept is not None:
-            table = pa.concat_tables([kept, table], promote_options="permissive")
         buffer = io.BytesIO()
         pq.write_table(table, buffer)
-        write_bytes_atomically(path, buffer.getvalue(), follow_links=follow_links)
+        write_bytes_atomically(path, buffer.getvalue())
         return
-    kept_header, kept_rows = kept if kept else (None, "")
     columns = trace_column_names(blocks)
-    if kept_header is not None:  # an earlier session's columns and any new one, each row laid out in them
-        columns = ordered([*kept_header, *columns])
-        kept_rows = relaid(kept_rows, kept_header, columns)
-    text = trace_header(columns) + kept_rows + trace_csv_rows(blocks, columns)
-    write_text_atomically(path, text, follow_links=follow_links)
+    write_text_atomically(path, trace_header(columns) + trace_csv_rows(blocks, columns))
 
 
 def trace_table_columns(blocks: Sequence[dict[str, Any]]) -> dict[str, np.ndarray] | None:
@@ -241,131 +231,6 @@ def _filled(block: dict[str, Any], column: str) -> np.ndarray:
     return np.full(steps, np.nan) if per_step(column) else np.full(steps, None, dtype=object)
 
 
-def relaid(rows: str, have: Sequence[str], want: Sequence[str]) -> str:
-    """CSV rows of the columns `have` laid out in the columns `want` (a superset): each cell moved to its
-    column, an empty cell where a row had none."""
-    if list(have) == list(want) or not rows:
-        return rows
-    where = [list(have).index(c) if c in have else None for c in want]
-    buffer = io.StringIO()
-    writer = csv.writer(buffer, lineterminator="\n")
-    for row in csv.reader(io.StringIO(rows)):
-        writer.writerow(["" if i is None or i >= len(row) else row[i] for i in where])
-    return buffer.getvalue()
-
-
-def ordered(columns: Sequence[str]) -> list[str]:
-    """Trace columns in the order their rows are written: TRACE_COLUMNS, the per-step ones, the parameters."""
-    extra = [c for c in dict.fromkeys(columns) if c not in TRACE_COLUMNS]
-    return [*TRACE_COLUMNS, *(c for c in extra if per_step(c)), *(c for c in extra if not per_step(c))]
-
-
-def check_traces_of_study(path: Path, tasks: Sequence[RunTask]) -> set[tuple[int, int]]:
-    """The (setting, run)s an earlier session's trace file (--resume) holds, after refusing (a
-    ValueError of one line naming the first) rows that are not this study's: a (setting, run) it does
-    not have, another seed, a filter it does not run there, a step beyond its steps. An empty set if the
-    file is not there."""
-    traced: set[tuple[int, int]] = set()
-    if not os.path.lexists(path):
-        return traced
-    planned = {(t.setting_index, t.run): t for t in tasks}
-    for number, (setting, run, seed, name, step) in enumerate(_trace_keys(path), start=2):
-        task = planned.get((setting, run))
-        if task is None:
-            why = f"run {run} of setting {setting} is not in this study"
-        elif seed != task.seed:
-            why = f"its seed is {seed}, where this study's run {run} of setting {setting} has {task.seed}"
-        elif name not in task.row_filters():
-            why = f"its filter {name} is not one this study runs in setting {setting}"
-        elif not 1 <= step <= task.steps:
-            why = f"its step {step} is not one of this study's {task.steps}"
-        else:
-            traced.add((setting, run))
-            continue
-        raise ValueError(
-            f"--resume: {path} row {number} is another study's ({why}); traces of another study are never "
-            "kept: move that file away, or give another --traces"
-        )
-    return traced
-
-
-def _trace_keys(path: Path) -> Iterable[tuple[int | None, int, int, str, int]]:
-    """(setting, run, seed, filter, step) of each row of a trace file, CSV or Parquet; a ValueError
-    naming the file for one that is not a trace file (or not a regular file, or not UTF-8)."""
-    if path.suffix.lower() == ".parquet":
-        import pyarrow.parquet as pq
-
-        data = read_regular_bytes(path, "a trace file")
-        try:
-            table = pq.read_table(pa_buffer(data), columns=["setting", "run", "seed", "filter", "step"]).to_pydict()
-        except Exception as error:  # pyarrow's errors: not Parquet, other columns
-            raise ValueError(f"--resume: {path} is not a trace file of this version ({error})") from None
-        yield from zip(*(table[c] for c in ("setting", "run", "seed", "filter", "step")), strict=True)
-        return
-    lines = _trace_lines(path)
-    width = len(next(csv.reader(lines[:1]))) if lines else len(TRACE_COLUMNS)
-    try:
-        for number, row in enumerate(csv.reader(lines[1:]), start=2):
-            if len(row) != width:
-                if number == len(lines):
-                    return  # cut short
-                raise ValueError(f"--resume: {path} row {number} has {len(row)} cells, the header {width}")
-            yield int(row[0]), int(row[1]), int(row[2]), row[3], int(row[4])
-    except csv.Error as error:
-        raise ValueError(f"--resume: {path} is not a trace file ({error})") from None
-    except ValueError as error:
-        if str(error).startswith("--resume"):
-            raise
-        raise ValueError(f"--resume: {path} row {number}: not a trace row ({error})") from None
-
-
-def _trace_lines(path: Path) -> list[str]:
-    """The lines of a CSV trace file, header first (checked), read only if it is a regular file."""
-    try:
-        lines = read_regular_text(path, "a trace file").splitlines(keepends=True)
-    except ValueError as error:
-        raise ValueError(f"--resume: {error}") from None
-    if lines and next(csv.reader(lines[:1]))[: len(TRACE_COLUMNS)] != TRACE_COLUMNS:
-        raise ValueError(f"--resume: {path} is not a trace file of this version (its columns differ)")
-    return lines
-
-
-def pa_buffer(data: bytes) -> Any:
-    import pyarrow as pa
-
-    return pa.BufferReader(data)
-
-
-def kept_traces(path: Path, rerun: set[tuple[int, int]]) -> tuple[list[str], str] | Any:
-    """An earlier session's traces (for --resume), without the (setting, run)s run again: (its header's
-    columns, its rows as CSV text) for a CSV, a pyarrow Table for Parquet; None if the file is not there."""
-    if not path.exists():
-        return None
-    if path.suffix.lower() == ".parquet":
-        import pyarrow.compute as pc
-        import pyarrow.parquet as pq
-
-        table = pq.read_table(pa_buffer(read_regular_bytes(path, "a trace file")))
-        if not rerun:
-            return table
-        keys = pc.binary_join_element_wise(pc.cast(table["setting"], "string"), pc.cast(table["run"], "string"), ",")
-        wanted = pa_array_of({f"{s},{r}" for s, r in rerun})
-        return table.filter(pc.invert(pc.is_in(keys, value_set=wanted)))
-    lines = _trace_lines(path)
-    header = next(csv.reader(lines[:1])) if lines else list(TRACE_COLUMNS)
-    kept = []
-    for row, line in zip(csv.reader(lines[1:]), lines[1:], strict=True):
-        if len(row) == len(header) and line.endswith("\n") and (int(row[0]), int(row[1])) not in rerun:
-            kept.append(line)
-    return header, "".join(kept)
-
-
-def pa_array_of(values: set[str]) -> Any:
-    import pyarrow as pa
-
-    return pa.array(sorted(values))
-
-
 __all__ = [
     "DIAGNOSTIC_PREFIX",
     "EXACT_COLUMNS",
@@ -373,15 +238,11 @@ __all__ = [
     "PARQUET_HINT",
     "TRACE_COLUMNS",
     "check_trace_path",
-    "check_traces_of_study",
     "compare_traces",
     "exact_columns",
-    "kept_traces",
     "numeric",
-    "ordered",
     "per_step",
     "record_parameters",
-    "relaid",
     "study_traces",
     "trace_column_names",
     "trace_columns",

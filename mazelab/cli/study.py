@@ -1,0 +1,472 @@
+"""`mazelab study` (lab step 14): a Monte Carlo parameter study on the command line; its Python twin is
+`mazelab.study`. The flags make the study's plan (mazelab.experiments.plan), its files are checked before
+any work (`StudyFiles`), its runs go to the executor on one backend, each finished run appended to the
+study's journal (mazelab.experiments.journal), and the report writes the table, the CSV, the summary CSV,
+the traces, the figure and the record from the runs, the journal's kept ones (--resume) included."""
+
+from __future__ import annotations
+
+import dataclasses
+import signal
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import typer
+
+from mazelab.atomic import WriteError, write_text_atomically
+from mazelab.cli.filter_options import (
+    GivenOptions,
+    StudyOptionFlag,
+    given_options,
+    options_per_filter,
+    with_option_flags,
+)
+from mazelab.cli.hints import check_filter_names
+from mazelab.cli.options import (
+    DEFAULT_DELTA,
+    DEFAULT_SIGMA,
+    DRAWING,
+    BackendOption,
+    UserError,
+    check_one_file_each,
+    check_output_path,
+    check_outputs,
+    opt,
+    parse_list,
+    seed_option,
+    visualization,
+    with_parameters,
+)
+from mazelab.cli.provenance import command_line, repeat_command, resume_command
+from mazelab.experiments.dask_runner import DASK_TIMEOUT, check_workers, close_client, connect
+from mazelab.experiments.executor import STOP_SIGNALS, default_workers, run_study, study_backend
+from mazelab.experiments.journal import (
+    Journal,
+    JournalError,
+    claim_outputs,
+    journal_parameters,
+    journal_path,
+    journal_state,
+    left_over,
+    read_journal,
+    resume_study,
+)
+from mazelab.experiments.plan import StudyPlan, all_default, plan_study, study_mazes
+from mazelab.experiments.record import Recorder, record_path
+from mazelab.experiments.runs import parse_filters
+from mazelab.experiments.study import RunRecord, RunTask, StudyOutcome
+from mazelab.experiments.summary import CSV_DTYPES, study_csv, study_table, summarise_study, summary_csv, summary_path
+from mazelab.experiments.traces import check_trace_path, study_traces, write_traces
+from mazelab.mazes import DEFAULT_MAZE
+from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
+from mazelab.registry import filter_entry, resolve_filter
+from mazelab.viz.style import DEFAULT_MAX_DRAWN
+
+# "Repeat this study" repeats the study (the same table, bit for bit), not its files: the CSV, figure and
+# record it wrote would be found taken when the line is pasted back (add --csv NEW.csv to write them again)
+REPEAT_DROPS = ("--resume", "--force")
+REPEAT_DROPS_WITH_VALUE = ("--csv", "--plot", "--traces", "--record", "--summary-csv", "--rrd")
+FILES = {
+    "csv_path": (opt(Path | None, "--csv", help="one row per run and filter"), None),
+    "plot": (opt(Path | None, "--plot", help="the figure: .png, .pdf or .svg (the suffix chooses)"), None),
+    "summary_csv": (opt(Path | None, "--summary-csv", help="the table as CSV [default: CSV.summary.csv]"), None),
+    "traces": (opt(Path | None, "--traces", help="per-step rows of every run (.csv, .parquet)"), None),
+    "record": (opt(Path | None, "--record", help="JSON record [default: CSV.record.json]"), None),
+    "resume": (opt(bool, "--resume", help="run only the runs missing from --csv's journal"), False),
+    "force": (opt(bool, "--force", help="replace existing output files"), False),
+}
+FIGURE = {
+    "paired": (opt(str | None, "--paired", metavar="FILTER", help="each filter's difference to FILTER, run by run"),
+               None),
+    "plot_x": (opt(str | None, "--plot-x", metavar="PARAMETER", help="the figure's x axis, a varied parameter"), None),
+    "plot_y": (opt(str, "--plot-y", metavar="Y", show_default=False,
+                   help="mean, median, converged, exact, paired, evidence"), "mean"),
+    "title": (opt(str | None, "--title", help="the figure's title (no caption then)"), None),
+}  # fmt: skip
+# a study draws nothing unless asked (--no-viz is its default) and one run when asked (--max-drawn rarely matters)
+DRAWN = {**DRAWING, "no_viz": (opt(bool, "--no-viz", hidden=True), False),
+         "max_drawn": (opt(int, "--max-drawn", min=1, hidden=True), DEFAULT_MAX_DRAWN)}  # fmt: skip
+
+
+def positive_seconds(value: float) -> float:
+    """--dask-timeout: a positive number of seconds (typer names the option in its one-line error)."""
+    if not 0 < value < float("inf"):
+        raise typer.BadParameter(f"seconds must be a positive number, got {value}")
+    return value
+
+
+Mazes = opt(str | None, help=f"mazes (files or names) [default: {DEFAULT_MAZE}]")
+Sizes = opt(str | None, help="generated mazes ROWSxCOLUMNS, a list")
+Stations = opt(str | None, help="generated mazes' station blocks, a list")
+WallShares = opt(str | None, help="generated mazes' wall shares, a list")
+Sigmas, Deltas = opt(str, help="noise std sigma, a list"), opt(str, help="compass error, a list")
+Counts = opt(str, help="particle counts, a list")
+Filters = opt(str, metavar="NAMES", show_default=False, help="a list (mazelab filters) [default: sir,apf,rpf]")
+KidnapAt = opt(int | None, min=1, help="carry the robot elsewhere at this step")
+Runs, Steps = opt(int, min=1, help="seeded runs per setting"), opt(int, min=1, help="steps per run")
+RootSeed = opt(int | None, callback=seed_option, help="root seed (default: new, printed)")
+Reference = opt(str | None, metavar="grid", help="the exact grid filter too: distance_to_exact")
+Workers = opt(int | None, min=1, help="processes (default: all cores)")
+Dask = opt(str | None, help="a Dask scheduler, tcp://HOST:PORT")
+DaskTimeout = opt(float, metavar="<s>", callback=positive_seconds, show_default=False,
+                  help="give up after s idle seconds [default: 300]")  # fmt: skip
+DrawRun = opt(int, help="the run --viewer/--rrd/--web draw", show_default=False)
+
+
+@with_parameters("files", FILES)
+@with_parameters("figure", FIGURE)
+@with_parameters("drawing", DRAWN)
+@with_option_flags(lists=True)
+def study(
+    maze: Mazes = None,
+    maze_size: Sizes = None,
+    stations: Stations = None,
+    wall_share: WallShares = None,
+    sigma: Sigmas = str(DEFAULT_SIGMA),
+    delta: Deltas = str(DEFAULT_DELTA),
+    particles: Counts = str(DEFAULT_PARTICLE_COUNT),
+    filters: Filters = "sir,apf,rpf",
+    kidnap_at: KidnapAt = None,
+    option: StudyOptionFlag = None,
+    runs: Runs = 30,
+    steps: Steps = DEFAULT_STEPS,
+    seed: RootSeed = None,
+    reference: Reference = None,
+    workers: Workers = None,
+    dask: Dask = None,
+    dask_timeout: DaskTimeout = DASK_TIMEOUT,
+    draw_run: DrawRun = 1,
+    backend: BackendOption = None,
+    named: dict | None = None,
+    drawing: dict | None = None,
+    figure: dict | None = None,
+    files: dict | None = None,
+) -> None:
+    """Lab step 14: a study of every combination of the values (docs/studies.md)."""
+    drawing = drawing or {}
+    chosen = StudyFiles.parse(**(files or {}), rrd=drawing.get("rrd"))
+    drawn = drawing.get("viewer") or drawing.get("web") or drawing.get("rrd") is not None
+    visualize = visualization(**drawing, force=chosen.force) if drawn else False
+    mazes = study_mazes(parse_list(maze, str, "--maze"), parse_list(maze_size, str, "--maze-size"),
+                        parse_list(stations, int, "--stations"),
+                        parse_list(wall_share, float, "--wall-share"))  # fmt: skip
+    values = {"sigma": parse_list(sigma, float, "--sigma"), "delta": parse_list(delta, float, "--delta"),
+              "particles": parse_list(particles, int, "--particles"), "runs": runs, "steps": steps,
+              "kidnap_at": kidnap_at, "reference": reference}  # fmt: skip
+    plan = study_plan(chosen, mazes, filters, named or {}, option, seed, values)
+    extras = StudyExtras.parse(plan, **(figure or {}))
+    workers = workers or default_workers()
+    session = open_session(plan, chosen, study_backend(plan.tasks(), 1 if dask else workers), visualize, draw_run,
+                           dask, workers)  # fmt: skip
+    try:
+        outcome = run_study(session.tasks, workers, visualize=visualize, progress=True, on_records=session.append,
+                            dask=session.client, dask_timeout=dask_timeout, ignore_signals_after_stop=True,
+                            backend=session.backend)  # fmt: skip
+        report_study(session, outcome, extras)
+    finally:
+        session.close()
+
+
+def study_plan(files: StudyFiles, mazes: list, filters: str, named: dict[str, Any], texts: list[str] | None,
+               seed: int | None, values: dict[str, Any]) -> StudyPlan:  # fmt: skip
+    """The study's plan from the command line's lists: the named flags (spellings of declared options) and
+    --option NAME=V1,V2 (FILTER.NAME=... for one filter) for any declared option, each value parsed and
+    checked by its declaration; an option that none of the filters takes is refused first, in one line,
+    unless it is given only its default. A resumed study keeps its journal's root seed unless --seed."""
+    if files.lines and seed is None:
+        seed = journal_parameters(files.journal, files.lines)["root_seed"]
+    names = parse_filters(check_filter_names(filters))
+    given = given_options(named, texts, names, lists=True)
+    kld = given.get("kld") == [True]
+    options = {k: v for k, v in given.items() if not (kld and k == "kld")}
+    checked = GivenOptions({**{k: None if all_default(k, v) else v for k, v in options.items()}, "kld": kld or None})
+    checked.spelled = given.spelled
+    options_per_filter(names, checked, check=False)  # each value is checked by plan_study, for every filter
+    try:
+        return plan_study(mazes, names, **values, options=options, seed=seed, kld=kld, traces=files.traces is not None)
+    except ValueError as error:
+        raise UserError(str(error)) from None
+
+
+@dataclass
+class StudyExtras:
+    """What the report adds to the table and the figure: the filter of the paired differences (--paired),
+    the figure's x axis (--plot-x) and y (--plot-y), its title (--title), checked before any run."""
+
+    paired: str | None = None
+    plot_x: str | None = None
+    plot_y: str = "mean"  # a key of study_plot.Y_QUANTITIES
+    title: str | None = None
+
+    @classmethod
+    def parse(cls, plan: StudyPlan, paired: str | None = None, plot_x: str | None = None, plot_y: str = "mean",
+              title: str | None = None) -> StudyExtras:  # fmt: skip
+        """--paired names one of the study's filters, --plot-x one of its varied parameters, --plot-y
+        what the figure draws (exact needs --reference grid, paired needs --paired)."""
+        from mazelab.experiments.study_plot import Y_QUANTITIES
+
+        if plot_y not in Y_QUANTITIES:
+            raise UserError(f"--plot-y {plot_y}: choose one of {', '.join(Y_QUANTITIES)}")
+        if plot_y == "exact" and plan.reference is None:
+            raise UserError("--plot-y exact: the distance to the exact posterior needs --reference grid")
+        if plot_y == "paired" and paired is None:
+            raise UserError("--plot-y paired: the paired difference needs --paired FILTER")
+        if title is not None and ("\n" in title or not title.strip()):
+            raise UserError("--title: give one line of text")
+        if plot_x is not None and plot_x not in plan.varied:
+            varied = ", ".join(plan.varied) or "none: give a parameter two values"
+            raise UserError(f"--plot-x {plot_x}: the x axis is a varied parameter of the study ({varied})")
+        if paired is not None:
+            entries = [filter_entry(f) for f in plan.filters]
+            chosen = resolve_filter(check_filter_names(paired, "--paired")).name
+            if chosen not in [entry.name for entry in entries]:
+                shown = ", ".join(entry.reference for entry in entries)
+                raise UserError(f"--paired {paired}: not one of the study's --filters ({shown})")
+            if len(entries) == 1:
+                raise UserError(f"--paired {paired}: the study's only filter, paired with itself (every difference "
+                                "0); add the filters to compare with it to --filters")  # fmt: skip
+            paired = chosen
+        return cls(paired, plot_x, plot_y, title)
+
+
+@dataclass
+class StudyFiles:
+    """The study's files, checked before any work: the CSV and its journal, the figure, the traces, the
+    record and the summary CSV; with --resume, the journal's lines to go on with."""
+
+    csv_path: Path | None
+    plot: Path | None
+    traces: Path | None
+    record_file: Path | None
+    summary_csv: Path | None
+    journal: Path | None
+    resume: bool
+    force: bool
+    lines: list[dict[str, Any]] = dataclasses.field(default_factory=list)
+
+    @classmethod
+    def parse(cls, csv_path: Path | None = None, plot: Path | None = None, summary_csv: Path | None = None,
+              traces: Path | None = None, record: Path | None = None, resume: bool = False, force: bool = False,
+              rrd: Path | None = None) -> StudyFiles:  # fmt: skip
+        """One line for two outputs that are one file, a name that exists without --force, a folder, a
+        device, a journal another study writes or an earlier one left (without --resume or --force);
+        --resume replaces its own outputs."""
+        record_file = record or next((record_path(p) for p in (csv_path, plot, traces) if p), None)
+        summary_named = "--summary-csv" if summary_csv is not None else "the summary CSV"
+        summary_csv = summary_csv or (summary_path(csv_path) if csv_path is not None else None)
+        journal = journal_path(csv_path) if csv_path is not None else None
+        check_one_file_each([("--csv", csv_path), ("--csv's journal", journal), ("--plot", plot), ("--traces", traces),
+                             ("--record" if record else "the record", record_file), ("--rrd", rrd),
+                             (summary_named, summary_csv)])  # fmt: skip
+        files = cls(csv_path, plot, traces, record_file, summary_csv, journal, resume, force)
+        files.check_journal()
+        check_outputs(csv_path, plot, force or resume, rrd)
+        for path in (traces, record_file, summary_csv):
+            if path is not None:
+                check_output_path(path, force or resume)
+        if traces is not None:
+            check_trace_path(traces)
+        return files
+
+    def check_journal(self) -> None:
+        """The journal beside the CSV: being written by another study (refused), left by an earlier one
+        (refused without --resume or --force), or read whole for --resume."""
+        if self.journal is None:
+            if self.resume:
+                raise UserError("--resume needs the study's --csv (its journal lies beside it)")
+            return
+        state = journal_state(self.journal)
+        if state == "busy":
+            raise UserError(f"another study is writing {self.journal}: give this one another --csv")
+        if state == "left" and not (self.resume or self.force):
+            raise UserError(left_over(self.journal))
+        if self.resume and state is None:
+            raise UserError(
+                f"--resume: no journal {self.journal} beside {self.csv_path} to go on from (an earlier "
+                "version kept none): run the study again with --force"
+                if self.csv_path.exists()
+                else f"--resume: {self.csv_path} does not exist (nothing to resume; leave out --resume)"
+            )
+        if self.resume:
+            try:
+                self.lines = read_journal(self.journal)
+                journal_parameters(self.journal, self.lines)
+            except JournalError as error:
+                raise UserError(f"--resume: {error}") from None
+
+
+@dataclass
+class StudySession:
+    """One session of a study: its plan and files, the runs to go, the runs kept from earlier sessions
+    (--resume), the backend, the journal, the Dask client, the record and the claimed outputs."""
+
+    plan: StudyPlan
+    files: StudyFiles
+    tasks: list[RunTask]
+    kept: list[RunRecord]
+    backend: str
+    journal: Journal | None
+    client: Any
+    recorder: Recorder
+    release: Callable[[], None]
+
+    def append(self, records: list[RunRecord]) -> None:
+        """One finished run's rows (and traces), appended to the journal."""
+        if self.journal is not None:
+            self.journal.write({"run": [records[0].setting, records[0].run], "records": [r.to_json() for r in records]})
+
+    def close(self, status: str | None = None, **closing: Any) -> None:
+        """The session's last line in the journal (with `status`), the journal, the cluster and the claims
+        released."""
+        if self.journal is not None and status is not None:
+            self.journal.write({"closed": {"status": status, "ended": self.recorder.data.get("ended"), **closing}})
+        if self.journal is not None:
+            self.journal.close()
+        if self.client is not None:
+            close_client(self.client)
+        self.release()
+
+
+def open_session(plan: StudyPlan, files: StudyFiles, backend: str, visualize: Any, draw_run: int,
+                 dask: str | None, workers: int) -> StudySession:  # fmt: skip
+    """The runs to go (a resumed study's checked against its journal), the claims, the journal, the
+    cluster and the record; the study's header printed."""
+    tasks, kept, earlier = plan.tasks(), [], []
+    if files.resume:
+        try:
+            tasks, kept, earlier = resume_study(files.journal, files.lines, plan, backend)
+        except JournalError as error:
+            raise UserError(str(error) if str(error).startswith("--resume") else f"--resume: {error}") from None
+    tasks = _drawn_first(tasks, draw_run) if visualize else tasks
+    outputs = {k: None if v is None else str(v) for k, v in (("csv", files.csv_path), ("plot", files.plot),
+                                                              ("traces", files.traces))}  # fmt: skip
+    recorder = Recorder("study", command_line(), plan.parameters(), outputs=outputs, sessions=earlier,
+                        csv_dtypes=CSV_DTYPES, backend=backend)  # fmt: skip
+    claimed = [("--summary-csv", files.summary_csv), ("--record", files.record_file), ("--plot", files.plot),
+               ("--traces", files.traces)]  # fmt: skip
+    session = StudySession(plan, files, tasks, kept, backend, None, None, recorder, claim_outputs(claimed))
+    try:
+        session.journal = Journal(files.journal, adopt=files.resume, replace=files.force) if files.journal else None
+        session.client = connect(dask) if dask is not None else None  # a bad address: one line and exit 2
+        if session.client is not None:
+            check_workers(session.client, backend)  # workers that cannot run the backend, or of other versions
+    except BaseException:
+        session.close()
+        raise
+    typer.echo(plan.header(f"on the Dask cluster at {dask}" if dask is not None else f"{workers} worker(s)", backend))
+    if visualize:
+        typer.echo(f"drawing run {tasks[0].run} of setting {tasks[0].setting_index} (--draw-run chooses the run)")
+    if files.resume:
+        typer.echo(f"resuming: {len(kept)} rows kept from {files.journal}, {len(tasks)} run(s) to go")
+    if session.journal is not None:  # the parameters --resume compares, before any run
+        session.journal.write({"session": {k: recorder.data[k] for k in ("command", "started", "parameters",
+                                                                           "backend")}})  # fmt: skip
+    return session
+
+
+def _drawn_first(tasks: list[RunTask], run: int) -> list[RunTask]:
+    """The tasks with the drawn one (run `run` of the first setting) first: the executor draws it."""
+    chosen = next((i for i, t in enumerate(tasks) if t.run == run), None)
+    if chosen is None:
+        raise UserError(f"--draw-run {run}: the study has no such run to draw")
+    return [tasks[chosen], *tasks[:chosen], *tasks[chosen + 1 :]]
+
+
+def report_study(session: StudySession, outcome: StudyOutcome, extras: StudyExtras) -> None:
+    """The failures, then the table (first: a write error cannot lose it), the CSV, the summary CSV, the
+    traces, the figure and the record; a stopped or lost study keeps its runs in the journal and exits
+    non-zero."""
+    plan, files = session.plan, session.files
+    for failure in outcome.failures:
+        typer.echo(f"error: {failure.describe()}", err=True)
+    names = [getattr(f, "name", f) for f in plan.filters]  # rows in (setting, run, filter) order
+    order = {name: i for i, name in enumerate(dict.fromkeys([*names, *(r.filter for r in outcome.records)]))}
+    records = sorted([*session.kept, *outcome.records], key=lambda r: (r.setting, r.run, order[r.filter]))
+    summaries = summarise_study(records, plan.settings, paired=extras.paired)
+    closing = {"runs_finished": len({(r.setting, r.run) for r in records}), "runs_in_study": len(plan.tasks()),
+               "failures": [f.describe() for f in outcome.failures], "summary": [s.as_dict() for s in summaries],
+               "paired": extras.paired, "workers": [dataclasses.asdict(w) for w in outcome.workers.values()],
+               "startup_seconds": round(outcome.startup_seconds, 3),
+               **({"summary_csv": str(files.summary_csv)} if files.summary_csv is not None else {})}  # fmt: skip
+    if outcome.interrupted or outcome.lost is not None:
+        report_stopped(session, outcome, records, closing)
+    typer.echo(study_table(summaries, plan.varied, kld=plan.kld))
+    status = "finished" if not outcome.failures else "finished with failures"
+    seconds = session.recorder.finish(status, **closing)["duration_seconds"]
+    ran = len({(r.setting, r.run) for r in outcome.records})
+    typer.echo(f"{ran} runs in {seconds:.1f} s wall time on the {session.backend} backend; start-up "
+               f"{outcome.startup_seconds:.1f} s in {len(outcome.workers)} process(es) (numba's kernels loaded, first "
+               "calls; not in ms_per_step or run_seconds)")  # fmt: skip
+    repeat = repeat_command(plan.seed, REPEAT_DROPS, REPEAT_DROPS_WITH_VALUE, session.backend)
+    typer.echo(f"Repeat this study: {repeat}")
+    write_outputs(session, records, summaries, extras)
+    session.close(status, runs_finished=closing["runs_finished"])
+    if outcome.failures:
+        raise typer.Exit(1)
+
+
+def write_outputs(session: StudySession, records: list[RunRecord], summaries: list, extras: StudyExtras) -> None:
+    """The whole CSV (its record right after it, so the record beside a CSV always describes it), the
+    summary CSV, the traces, the figure and the record; a file that cannot be written is one line (and
+    the journal named, from which --resume writes them again), exit 1."""
+    plan, files = session.plan, session.files
+    replace = files.force or files.resume
+    try:
+        if files.csv_path is not None:
+            write_text_atomically(files.csv_path, study_csv(records, plan.columns), replace=replace)
+            typer.echo(f"one row per run and filter written to {files.csv_path}")
+        if files.summary_csv is not None and summaries:
+            write_text_atomically(files.summary_csv, summary_csv(summaries, plan.option_columns), replace=replace)
+            typer.echo(f"one row per setting and filter (the table, with its intervals) written to {files.summary_csv}")
+        if files.traces is not None:
+            write_traces(files.traces, study_traces(records))
+            typer.echo(f"per-step traces written to {files.traces}")
+        if files.plot is not None and summaries:
+            draw_figure(plan, summaries, files.plot, replace, extras)
+        if files.record_file is not None:
+            session.recorder.write(files.record_file)
+            typer.echo(f"the study's record (command, versions, seeds, mazes, summary) written to {files.record_file}")
+    except OSError as error:
+        kept = f"; {session.journal.kept()}" if session.journal is not None else ""
+        session.close("finished, its files not written")
+        cause = str(error) if isinstance(error, WriteError) else f"cannot write {error.filename}: {error.strerror}"
+        typer.echo(f"error: {cause}{kept}", err=True)
+        raise typer.Exit(1) from None
+
+
+def report_stopped(session: StudySession, outcome: StudyOutcome, records: list[RunRecord], closing: dict) -> None:
+    """A stopped study (Ctrl-C, SIGTERM, SIGHUP) or a lost cluster: the CSV stays the old file, the runs
+    are in the journal (the line gives the command with --resume); without a journal the traces and the
+    record are written; exits."""
+    files, journal = session.files, session.journal
+    session.recorder.finish("interrupted", **closing)
+    if journal is None:
+        if files.traces is not None:
+            write_traces(files.traces, study_traces(records))
+        if files.record_file is not None:
+            session.recorder.write(files.record_file)
+    session.close("interrupted", runs_finished=closing["runs_finished"])
+    saved = f"; {journal.kept()}; go on with: {resume_command()}" if journal is not None else ""
+    finished, total = closing["runs_finished"], closing["runs_in_study"]
+    if outcome.lost is not None:  # a lost cluster or pool: one line, exit 1
+        typer.echo(f"error: {outcome.lost}; {finished} of {total} runs finished{saved}", err=True)
+        raise typer.Exit(1)
+    typer.echo(f"interrupted after {finished} of {total} runs{saved}", err=True)
+    for sig in STOP_SIGNALS:  # stopping already: a further Ctrl-C, SIGTERM or SIGHUP changes nothing
+        signal.signal(sig, signal.SIG_IGN)
+    raise typer.Exit(128 + (outcome.stopped_by or signal.SIGINT))  # 130 Ctrl-C, 143 SIGTERM, 129 SIGHUP
+
+
+def draw_figure(plan: StudyPlan, summaries: list, plot: Path, replace: bool, extras: StudyExtras) -> None:
+    """The study's figure (mazelab.experiments.study_plot), as `mazelab.study(...).figure(...)` draws it."""
+    from mazelab.experiments.study_plot import plot_study, study_title
+
+    varied, x, y = plan.varied, extras.plot_x, extras.plot_y
+    title = extras.title or study_title(varied, summaries, plan.runs, plan.settings[0].maze.label, x, y)
+    plot_study(summaries, varied or ["maze"], plot, title, replace=replace, x=x, y=y, caption=extras.title is None)
+    typer.echo(f"figure written to {plot}")
+
+
+__all__ = ["StudyExtras", "StudyFiles", "study"]
