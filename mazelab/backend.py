@@ -18,8 +18,8 @@ seed repeats a run on each backend, and the two agree statistically, not bit for
 Both backends offer the same operations (mazelab.numpy_ops.NumpyKernels, mazelab.kernels.compiled's
 CompiledKernels):
 the move (equation (1)), the likelihood (equation (3)), systematic resampling, the normalisation with
-the step's reads, the APF's first-stage weights, the weighted covariance and the RPF's jitter. The
-cloud (mazelab.cloud) calls them; the filters' steps (mazelab.filters) do not know which runs.
+the step's reads, the weighted covariance and the RPF's jitter, and the Weights value. The model
+(mazelab.model.LostRobot) and the weights call them; the step (mazelab.smc) does not know which runs.
 """
 
 from __future__ import annotations

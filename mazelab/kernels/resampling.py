@@ -41,7 +41,7 @@ def systematic(weights, uniforms, count, bases, out):  # pragma: no cover - comp
         for i in range(size - 1):  # the last particle takes the rest: round-off may leave the sum short of 1
             cumulative += weights[b, i]
             end = math.ceil(cumulative * count - uniforms[b])
-            if end < count:
+            if 0 <= end < count:  # a NaN weight's end is neither: nothing is written outside `out`
                 out[block + end] += 1
         ancestor = bases[b]  # then the running sum: point m's ancestor is the number of ends at or below m
         for m in range(count):
