@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from mazelab.checks import as_points
-from mazelab.constants import PARTICLE_DTYPE
+from mazelab.constants import LOG_UNDERFLOW, PARTICLE_DTYPE
 from mazelab.weights import Weights
 
 # d3c536d's hooks and how each is written now (a plug-in overriding one gets this line)
@@ -81,6 +81,9 @@ class SMC:
     def __init__(self, model: Any, particles: Any, rng: Any = None, weights: type = Weights, dtype: Any = None):
         runs = as_runs(particles)  # (R, N, 2) float64, checked
         self.model, self.rngs, self.weights_class = model, generators(rng, len(runs)), weights
+        self.runs = len(runs)  # R
+        self.every_run = np.ones(len(runs), dtype=bool)  # the mask of every run (never written into)
+        self.every_run.flags.writeable = False
         self.x = particles_array(runs, PARTICLE_DTYPE if dtype is None else dtype)
         self.headings = np.zeros(self.x.shape[:2], dtype=self.x.dtype)  # each particle's last motion angle
         self.W = weights.uniform(*self.x.shape[:2])
@@ -88,7 +91,7 @@ class SMC:
         self.resampled_now = np.zeros(len(runs), dtype=bool)
         self.run_log_evidence = np.zeros(len(runs))
         self._reinitialised: list[list[int]] = [[] for _ in runs]
-        self._resampled_at: list[list[int]] = [[] for _ in runs]
+        self._resampled: list[np.ndarray] = []  # each step's due mask
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         """A plug-in written for d3c536d's hooks: the one hook whose call changed gets one line on how to port it."""
@@ -122,19 +125,19 @@ class SMC:
         self._observe(compass_angle, z)  # th0_k and z_k of each run
         W, eta = self.W, log_weights_of("log_eta", self.log_eta(), self.runs)  # the APF's eta; None: eta = 1
         Wf = W if eta is None else W.add(eta)  # W_{k-1} eta_k, normalised (the APF's first stage)
-        lost = self._lost_at_first_stage(Wf, eta)  # no eta explains z_k: the run restarts, drawing nothing first
-        due = due_of("time_to_resample", self.time_to_resample(W), self.runs) & ~lost  # RESAMPLE now?
+        lost = None if eta is None else self._lost_at_first_stage(Wf, eta)  # nothing explains z_k: no draws
+        due = due_of("time_to_resample", self.time_to_resample(W), self.runs, lost)  # RESAMPLE now? (R,)
         A = ancestors_of("ancestors", self.ancestors(Wf, due), self.runs, self.count) if due.any() else None
         x, headings = moved_of("move", self.move(self.x, A, due), self.runs)  # x_k^i ~ p(x_k | x_{k-1}^{a^i})
         log_g = log_weights_of("log_likelihood", self.log_likelihood(x), self.runs)  # log G_k(x_k^i)
         reset = None if A is None else reset_of("reweight_resampled", self.reweight_resampled(log_g, A), self.runs)
         self.x, self.headings, self.resampled_now = x, headings, due
         self.W, increment = self._reweighted(W, log_g, due, reset)  # w_k = W_{k-1} G_k, or the due rows' reset
-        increment = self._restart(self.W.lost | lost, lost, increment, Wf)  # nothing explains z_k: M0 again
+        if lost is not None or not settled(self.W.log_total):  # nothing explains z_k: M0 again
+            increment = self._restart(self.W.lost if lost is None else self.W.lost | lost, lost, increment, Wf)
         self.log_evidence_increment = increment  # log p(z_k | z_1:k-1) of each run
         self.run_log_evidence = self.run_log_evidence + increment
-        for r in np.flatnonzero(due).tolist():
-            self._resampled_at[r].append(self.steps_done)
+        self._resampled.append(due)
         self.steps_done += 1
 
     # -- the hooks: what differs between the filters ---------------------------------------------------
@@ -161,7 +164,7 @@ class SMC:
         bool array (R,) (one bool: every run)
         """
         if self.threshold >= 1:
-            return np.ones(len(self.rngs), dtype=bool)
+            return self.every_run
         return W.ess < self.threshold * self.x.shape[1]
 
     def ancestors(self, W: Weights, due: np.ndarray) -> np.ndarray:
@@ -178,9 +181,11 @@ class SMC:
         -------
         int array (R, M): indices into each run's own particles
         """
-        A = np.empty(W.W.shape, dtype=np.intp) if due.all() else identity(*W.W.shape)
+        if due.all():  # the scheme: mazelab.resampling.systematic_resample by default
+            return np.array([self.resample(w, rng) for w, rng in zip(W.W, self.rngs, strict=True)])
+        A = identity(*W.W.shape)
         for r in np.flatnonzero(due):
-            A[r] = self.resample(W.W[r], self.rngs[r])  # the scheme: mazelab.resampling.systematic_resample
+            A[r] = self.resample(W.W[r], self.rngs[r])
         return A
 
     def move(self, x: np.ndarray, A: np.ndarray | None, due: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -251,14 +256,14 @@ class SMC:
         self.th0, self.z = per_run(compass_angle, runs), per_run(z, runs)
         self.movers: Sequence[np.random.Generator | None] = self.rngs
 
-    def _lost_at_first_stage(self, Wf: Weights, eta: np.ndarray | None) -> np.ndarray:
-        """The runs whose first-stage total underflows (bool (R,)): they draw nothing this step and restart."""
-        if Wf is self.W:
-            return NONE_LOST if self.runs == 1 else np.zeros(self.runs, dtype=bool)
+    def _lost_at_first_stage(self, Wf: Weights, eta: np.ndarray) -> np.ndarray | None:
+        """The runs whose first-stage total underflows (bool (R,), or None: none): they draw nothing this
+        step and restart."""
         self._received_totals(Wf, ("log_eta", eta))
+        if settled(Wf.log_total):
+            return None
         lost = Wf.lost
-        if lost.any():
-            self.movers = [None if gone else g for g, gone in zip(self.rngs, lost.tolist(), strict=True)]
+        self.movers = [None if gone else g for g, gone in zip(self.rngs, lost.tolist(), strict=True)]
         return lost
 
     def _reweighted(
@@ -272,7 +277,7 @@ class SMC:
             self._received_totals(new, ("move", self.x), ("log_likelihood", log_g))
             return new, new.log_total
         log_w, factor = reset
-        every = due.all()
+        every = bool(due.all())
         fresh = (
             self.weights_class.from_log(log_w, self.x)
             if every
@@ -282,20 +287,18 @@ class SMC:
         if isinstance(factor, np.ndarray) and factor.ndim and not every:
             factor = factor[due]
         increment = fresh.log_total if factor is None else (fresh.log_total - math.log(log_w.shape[1])) + factor
-        if due.all():
+        if every:
             return fresh, increment
         kept = W.add(log_g, self.x)
         self._received_totals(kept, ("move", self.x), ("log_likelihood", log_g))
-        every = kept.log_total.copy()
-        every[due] = increment
-        return kept.reset(due, fresh, self.x), every
+        increments = kept.log_total.copy()
+        increments[due] = increment
+        return kept.reset(due, fresh, self.x), increments
 
-    def _restart(self, rows: np.ndarray, lost: np.ndarray, increment: np.ndarray, Wf: Weights) -> np.ndarray:
+    def _restart(self, rows: np.ndarray, lost: np.ndarray | None, increment: np.ndarray, Wf: Weights) -> np.ndarray:
         """The runs nothing explains (and the lost ones) start again from the prior M0, weighted by their
         z_k (uniformly where even the prior's sample explains nothing); a lost run's increment is its
         first stage's total. Returns the increments."""
-        if not rows.any():
-            return increment
         count = self.restart_count()
         same = count == self.count
         x = particles_array(self.x if same else np.zeros((self.runs, count, 2)), self.x.dtype)
@@ -314,7 +317,7 @@ class SMC:
         if not same:
             self.headings = np.zeros((self.runs, count), dtype=x.dtype)
         self.W = fresh if rows.all() else self.W.reset(rows, fresh, x)
-        return np.where(lost, Wf.log_total, increment) if lost.any() else increment
+        return increment if lost is None else np.where(lost, Wf.log_total, increment)
 
     def restart_count(self) -> int:
         """The particles a restarted run draws from the prior: N.
@@ -329,6 +332,8 @@ class SMC:
     def _received_totals(self, W: Weights, *suspects: tuple[str, np.ndarray]) -> None:
         """A NaN or +inf log total (one check per run, fused into the normalisation): HookError naming the
         first of the hooks (hook, what it returned) whose values hold a NaN or +inf."""
+        if settled(W.log_total):
+            return
         bad = ~(W.log_total < math.inf)  # True for NaN and +inf
         if bad.any():
             hook = next((name for name, v in suspects if np.isnan(v).any() or np.isposinf(v).any()), suspects[-1][0])
@@ -340,11 +345,6 @@ class SMC:
     def count(self) -> int:
         """N, the particles of each run now."""
         return self.x.shape[1]
-
-    @property
-    def runs(self) -> int:
-        """R, the runs advanced together."""
-        return len(self.rngs)
 
     @property
     def positions(self) -> np.ndarray:
@@ -389,15 +389,23 @@ class SMC:
     @property
     def resampled_at(self) -> list[int] | list[list[int]]:
         """The steps after which the filter resampled (a list per run for R runs)."""
-        return self._one(self._resampled_at)
+        runs = np.array(self._resampled, dtype=bool).reshape(-1, self.runs).T  # (R, steps)
+        return self._one([np.flatnonzero(row).tolist() for row in runs])
 
     def _one(self, per_run: Any) -> Any:
         """Run 0's value for one run (the paper's shapes), all runs' otherwise."""
         return per_run[0] if self.runs == 1 else per_run
 
 
-NONE_LOST = np.zeros(1, dtype=bool)
-NONE_LOST.flags.writeable = False
+UNSIGNED = {1: np.uint8, 2: np.uint16, 4: np.uint32, 8: np.uint64}  # ints viewed as unsigned, by size
+
+
+def settled(totals: np.ndarray) -> bool:
+    """Whether every log total (R,) lies in [LOG_UNDERFLOW, inf): no run to restart or to refuse (the
+    common step's one check; one run's a compare of floats)."""
+    if len(totals) == 1:
+        return LOG_UNDERFLOW <= float(totals[0]) < math.inf
+    return bool(((totals >= LOG_UNDERFLOW) & (totals < math.inf)).all())
 
 
 # -- the run axis -----------------------------------------------------------------------------------------
@@ -457,10 +465,24 @@ def particles_array(values: np.ndarray, dtype: Any) -> np.ndarray:
     -------
     array (R, N, 2), a new one
     """
-    runs, count, _ = values.shape
-    stored = np.empty((2, runs, count), dtype=dtype)
-    stored[0], stored[1] = values[..., 0], values[..., 1]
-    return stored.transpose(1, 2, 0)
+    stored = new_particles(*values.shape[:2], dtype)
+    stored[..., 0], stored[..., 1] = values[..., 0], values[..., 1]
+    return stored
+
+
+def new_particles(runs: int, count: int, dtype: Any) -> np.ndarray:
+    """An empty (R, N, 2) array of particles in their layout (`particles_array`).
+
+    Parameters
+    ----------
+    runs, count : int
+    dtype : numpy dtype
+
+    Returns
+    -------
+    array (R, N, 2)
+    """
+    return np.empty((2, runs, count), dtype=dtype).transpose(1, 2, 0)
 
 
 def identity(runs: int, count: int) -> np.ndarray:
@@ -472,7 +494,7 @@ def per_run(value: float | np.ndarray, runs: int) -> np.ndarray:
     """A step's compass angle or measurement as float64 (R,), one per run."""
     if isinstance(value, np.ndarray):
         return np.broadcast_to(value.astype(float, copy=False), (runs,))
-    return np.full(runs, float(value))
+    return np.array([float(value)] * runs)
 
 
 def describe(value: Any) -> str:
@@ -491,19 +513,20 @@ def log_weights_of(hook: str, value: Any, runs: int) -> np.ndarray | None:
     raise HookError(f"{hook} returned {describe(value)}; expected float (R, N) with R = {runs}")
 
 
-def due_of(hook: str, value: Any, runs: int) -> np.ndarray:
-    """A hook's bool (R,) mask (one bool stands for every run), or HookError."""
+def due_of(hook: str, value: Any, runs: int, lost: np.ndarray | None) -> np.ndarray:
+    """A hook's bool (R,) mask (one bool stands for every run) less the lost runs, or HookError."""
     due = np.asarray(value)
     if due.dtype != bool or due.shape not in ((), (runs,)):
         raise HookError(f"{hook} returned {describe(value)}; expected bool (R,) with R = {runs}")
-    return np.broadcast_to(due, (runs,)) if due.shape == () else due
+    due = np.broadcast_to(due, (runs,)) if due.shape == () else due
+    return due if lost is None else due & ~lost
 
 
 def ancestors_of(hook: str, value: Any, runs: int, count: int) -> np.ndarray:
     """A hook's ancestors, int (R, M) within [0, N), or HookError (so that no kernel reads outside its arrays)."""
     if not (isinstance(value, np.ndarray) and value.dtype.kind in "iu" and value.ndim == 2 and len(value) == runs):
         raise HookError(f"{hook} returned {describe(value)}; expected int (R, M) indices with R = {runs}")
-    if value.size and (value.min() < 0 or value.max() >= count):
+    if value.size and value.view(UNSIGNED[value.itemsize]).max() >= count:  # a negative index is a large unsigned one
         raise HookError(f"{hook} returned an index outside [0, {count}): {value.min()}..{value.max()}")
     return value
 
@@ -527,4 +550,4 @@ def reset_of(hook: str, value: Any, runs: int) -> tuple[np.ndarray, Any]:
     return log_weights_of(hook, value[0], runs), value[1]
 
 
-__all__ = ["PORTED", "SMC", "HookError", "as_runs", "generators", "particles_array"]
+__all__ = ["PORTED", "SMC", "HookError", "as_runs", "generators", "new_particles", "particles_array"]

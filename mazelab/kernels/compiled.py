@@ -22,7 +22,7 @@ from mazelab.constants import CONFIDENCE_RADIUS, PARTICLE_DTYPE
 from mazelab.kernels import model, resampling, weights
 from mazelab.numpy_ops import NumpyKernels, flat_ancestors
 from mazelab.regularisation import GaussianKernel
-from mazelab.smc import particles_array
+from mazelab.smc import new_particles, particles_array
 from mazelab.weights import Weights, log_sum_exp, read_only
 
 THREADED_FROM = 1 << 16  # particles in a call from which the likelihood runs on the threads
@@ -89,11 +89,13 @@ class CompiledWeights(Weights):
     """
 
     def __init__(self, log_w: np.ndarray, log_total: np.ndarray, W: np.ndarray | None = None, reads: Any = None):
-        self.log_w, self.log_total, self.reads = read_only(log_w), read_only(log_total), reads
+        log_w.flags.writeable = log_total.flags.writeable = False
+        self.log_w, self.log_total, self.reads = log_w, log_total, reads
         if W is not None:
             self.__dict__["W"] = read_only(W)
         if reads is not None:
-            self.__dict__["ess"] = read_only(reads[1])
+            self.__dict__["ess"] = reads[1]  # a row of the reads, read-only with them
+            reads[1].base.flags.writeable = False
 
     @classmethod
     def from_log(cls, log_w: np.ndarray, x: np.ndarray | None = None) -> CompiledWeights:
@@ -167,7 +169,7 @@ class CompiledKernels(NumpyKernels):
         gather and the step. float64 points go to numpy."""
         if not x.dtype == uniforms.dtype == angles.dtype == PARTICLE_DTYPE:
             return super().move(x, A, uniforms, angles, delta, speed)
-        out = particles_array(np.empty((*uniforms.shape, 2), dtype=PARTICLE_DTYPE), PARTICLE_DTYPE)
+        out = new_particles(*uniforms.shape, PARTICLE_DTYPE)
         sources = _NO_ANCESTORS if A is None else flat_ancestors(A, x.shape[1])
         model.move(
             np.asfortranarray(x.reshape(-1, 2)),
@@ -222,9 +224,8 @@ class CompiledKernels(NumpyKernels):
         -------
         int64 array (M,)
         """
-        count = len(W) if count is None else count
-        out = np.empty(count, dtype=np.int64)
-        resampling.systematic(W[None], np.array([rng.random()]), count, _ZERO_BASE, out)
+        out = np.empty(len(W) if count is None else count, dtype=np.int64)
+        resampling.systematic(W, rng.random(), out)
         return out
 
     def weighted_mean(self, W: Weights, x: np.ndarray) -> np.ndarray:
@@ -267,7 +268,7 @@ class CompiledKernels(NumpyKernels):
             return super().jitter(x, A, due, eps, kernels)
         rows = np.flatnonzero(due)
         scales = np.array([[k.scale[0, 0], k.scale[1, 0], k.scale[1, 1]] for k in kernels], dtype=PARTICLE_DTYPE)
-        moved = particles_array(np.empty((len(rows), A.shape[1], 2), dtype=PARTICLE_DTYPE), PARTICLE_DTYPE)
+        moved = new_particles(len(rows), A.shape[1], PARTICLE_DTYPE)
         sources = (A[rows] + (rows * x.shape[1])[:, None]).reshape(-1)
         model.jitter(np.asfortranarray(x.reshape(-1, 2)), sources, eps, scales, moved.reshape(-1, 2))
         if len(rows) == len(x):
@@ -278,7 +279,6 @@ class CompiledKernels(NumpyKernels):
 
 
 _NO_ANCESTORS = np.empty(0, dtype=np.int64)
-_ZERO_BASE = np.zeros(1, dtype=np.int64)
 
 
 __all__ = ["THREADED_FROM", "CompiledKernels", "CompiledWeights", "lookup_tables"]
