@@ -37,7 +37,7 @@ from mazelab.checks import as_points
 from mazelab.constants import LOG_UNDERFLOW, PARTICLE_DTYPE
 from mazelab.weights import Weights
 
-# d3c536d's hooks and how each is written now (a plug-in overriding one gets this line)
+# mazelab 0.2's hooks that are gone, and how each is written now (a plug-in overriding one gets this line)
 PORTED = {
     "move_after_resampling": "move_resampled(self, x, A, due) -> (positions (R, M, 2), headings (R, M)) "
     "(ParticleFilter's), or move(self, x, A, due) (SMC's): x (R, N, 2), A the ancestors (R, M)",
@@ -94,7 +94,7 @@ class SMC:
         self._resampled: list[np.ndarray] = []  # each step's due mask
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
-        """A plug-in written for d3c536d's hooks: the one hook whose call changed gets one line on how to port it."""
+        """A plug-in written for mazelab 0.2's hooks runs, or gets one line on how to port the hook that changed."""
         super().__init_subclass__(**kwargs)
         for old, new in PORTED.items():
             if old in cls.__dict__:
