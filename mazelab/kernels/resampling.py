@@ -1,5 +1,6 @@
-"""The resampler, compiled: systematic resampling by counting (mazelab.resampling.systematic_resample_runs
-is the numpy reference, and these are its ancestors to the bit for the same weights and offsets).
+"""The resampler, compiled: systematic resampling by counting (mazelab.resampling.systematic_resample is
+the numpy reference, the textbook inverse CDF, and these are its ancestors for the same weights and
+offset).
 
 The points u_m = (m + U) / M below the cumulative weight c_i = W_1 + ... + W_i number ceil(M c_i - U),
 so particle i is the ancestor of the points from ceil(M c_{i-1} - U) to ceil(M c_i - U): one pass over
