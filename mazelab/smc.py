@@ -82,8 +82,8 @@ class SMC:
         runs = as_runs(particles)  # (R, N, 2) float64, checked
         self.model, self.rngs, self.weights_class = model, generators(rng, len(runs)), weights
         self.runs = len(runs)  # R
-        self.every_run = np.ones(len(runs), dtype=bool)  # the mask of every run (never written into)
-        self.every_run.flags.writeable = False
+        self.all_due = np.ones(len(runs), dtype=bool)  # every run due: the mask of threshold 1 (never written into)
+        self.all_due.flags.writeable = False
         self.x = particles_array(runs, PARTICLE_DTYPE if dtype is None else dtype)
         self.headings = np.zeros(self.x.shape[:2], dtype=self.x.dtype)  # each particle's last motion angle
         self.W = weights.uniform(*self.x.shape[:2])
@@ -124,7 +124,7 @@ class SMC:
         """
         self._observe(compass_angle, z)  # th0_k and z_k of each run
         W, eta = self.W, log_weights_of("log_eta", self.log_eta(), self.runs)  # the APF's eta; None: eta = 1
-        Wf = W if eta is None else W.add(eta)  # W_{k-1} eta_k, normalised (the APF's first stage)
+        Wf = W if eta is None else W.add(eta, self.x)  # W_{k-1} eta_k, normalised (the APF's first stage)
         lost = None if eta is None else self._lost_at_first_stage(Wf, eta)  # nothing explains z_k: no draws
         due = due_of("time_to_resample", self.time_to_resample(W), self.runs, lost)  # RESAMPLE now? (R,)
         A = ancestors_of("ancestors", self.ancestors(Wf, due), self.runs, self.count) if due.any() else None
@@ -164,7 +164,7 @@ class SMC:
         bool array (R,) (one bool: every run)
         """
         if self.threshold >= 1:
-            return self.every_run
+            return self.all_due
         return W.ess < self.threshold * self.x.shape[1]
 
     def ancestors(self, W: Weights, due: np.ndarray) -> np.ndarray:
@@ -182,7 +182,8 @@ class SMC:
         int array (R, M): indices into each run's own particles
         """
         if due.all():  # the scheme: mazelab.resampling.systematic_resample by default
-            return np.array([self.resample(w, rng) for w, rng in zip(W.W, self.rngs, strict=True)])
+            rows = [self.resample(w, rng) for w, rng in zip(W.W, self.rngs, strict=True)]
+            return rows[0][None] if len(rows) == 1 else np.array(rows)
         A = identity(*W.W.shape)
         for r in np.flatnonzero(due):
             A[r] = self.resample(W.W[r], self.rngs[r])

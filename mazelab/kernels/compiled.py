@@ -257,6 +257,14 @@ class CompiledKernels(NumpyKernels):
         weights.covariance(W, np.asfortranarray(x.reshape(-1, 2)), out)
         return out
 
+    def second_stage(self, log_lik: np.ndarray, log_mu: np.ndarray, A: np.ndarray) -> np.ndarray:
+        """The APF's second-stage log weights (NumpyKernels.second_stage's) in one compiled pass."""
+        if not log_lik.dtype == log_mu.dtype == PARTICLE_DTYPE:
+            return super().second_stage(log_lik, log_mu, A)
+        out = np.empty_like(log_lik)
+        weights.second_stage(log_lik, log_mu, A, out)
+        return out
+
     def equal_weighted(self, log_lik: np.ndarray, log_weight: float) -> np.ndarray:
         """log W + log p(z_k | x_k) of resampled particles, in the likelihood's dtype (float32)."""
         return np.add(log_lik, log_lik.dtype.type(log_weight))

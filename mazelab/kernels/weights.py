@@ -206,6 +206,26 @@ def normalise(log_w, positions, radius, w, reads):  # pragma: no cover
 
 
 @jit
+def second_stage(log_lik, log_mu, ancestors, out):  # pragma: no cover - compiled
+    """The APF's second-stage log weights of R runs: out[r, m] = log p(z_k | x_m) - log p(z_k | mu_{a_m}),
+    the first stage's values gathered by run r's ancestors in the same pass (numpy's take_along_axis and
+    subtract: the same float32 values).
+
+    Parameters
+    ----------
+    log_lik : float32 array (R, M)
+    log_mu : float32 array (R, N)
+    ancestors : int array (R, M)
+        Indices into each run's own particles.
+    out : float32 array (R, M)
+    """
+    runs, size = log_lik.shape
+    for r in range(runs):
+        for m in range(size):
+            out[r, m] = log_lik[r, m] - log_mu[r, ancestors[r, m]]
+
+
+@jit
 def reweighted(log_a, shifts, log_lik, out):  # pragma: no cover - compiled
     """log w_k = log W_{k-1} + log p(z_k | x_k) of R runs that do not resample, float32 as the likelihood:
     out[r, i] = (log_a[r, i] - shifts[r]) + log_lik[r, i], the sum in float64, then rounded (log W_{k-1}
@@ -287,4 +307,5 @@ __all__ = [
     "mass_within",
     "normalise",
     "reweighted",
+    "second_stage",
 ]
