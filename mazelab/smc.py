@@ -39,8 +39,7 @@ from mazelab.weights import Weights
 
 # mazelab 0.2's hooks that are gone, and how each is written now (a plug-in overriding one gets this line)
 PORTED = {
-    "move_after_resampling": "move_resampled(self, x, A, due) -> (positions (R, M, 2), headings (R, M)) "
-    "(ParticleFilter's), or move(self, x, A, due) (SMC's): x (R, N, 2), A the ancestors (R, M)",
+    "move_after_resampling": "move_resampled(self, x, A, due) -> (positions, headings), x (R, N, 2), A (R, M)",
     "moved_after_resampling": "move(self, x, A, due)",
     "resampled": "move_resampled(self, x, A, due) (ParticleFilter's) or move(self, x, A, due)",
     "between_resamplings": "move(self, x, A, due), which gets A None when no run resamples",
