@@ -207,18 +207,6 @@ def check_threads(value: Any, source: str = "threads") -> int:
     return count
 
 
-def chosen_threads() -> int:
-    """The threads the compiled backend spreads one large run's particles over: MAZELAB_THREADS if set
-    (checked), else 1. The numpy backend runs on one.
-
-    Returns
-    -------
-    int
-    """
-    value = os.environ.get(THREADS_VARIABLE, "")
-    return check_threads(value, THREADS_VARIABLE) if value.strip() else 1
-
-
 @contextmanager
 def use_backend(name: str) -> Iterator[str]:
     """Make the filters created inside run on the backend `name` (it sets MAZELAB_BACKEND for the
@@ -296,7 +284,8 @@ def kernels_for(world: Any, name: str | None = None) -> Any:
         return NUMPY_KERNELS
     from mazelab.kernels.compiled import CompiledKernels  # imports numba: only when it runs
 
-    return CompiledKernels(world, threads=chosen_threads())
+    threads = os.environ.get(THREADS_VARIABLE, "")  # MAZELAB_THREADS (checked), else 1
+    return CompiledKernels(world, threads=check_threads(threads, THREADS_VARIABLE) if threads.strip() else 1)
 
 
 NUMPY_KERNELS = NumpyKernels()
@@ -318,7 +307,6 @@ __all__ = [
     "check_backend",
     "check_threads",
     "chosen_backend",
-    "chosen_threads",
     "compiled_pays",
     "default_backend",
     "kernels_for",

@@ -44,9 +44,6 @@ PORTED = {
     "resampled": "move_resampled(self, x, A, due) (ParticleFilter's) or move(self, x, A, due)",
     "between_resamplings": "move(self, x, A, due), which gets A None when no run resamples",
     "after_reweighting": "step: call super().step(...), then read self.log_evidence_increment (R,)",
-    "normalise": "the backend's Weights (mazelab.weights.Weights.from_log and add)",
-    "normalise_rows": "the backend's Weights (mazelab.weights.Weights.from_log)",
-    "kept_reads": "the backend's Weights value, which keeps its reads",
     "first_stage": "log_eta(self) -> log eta (R, N), or None",
 }
 
