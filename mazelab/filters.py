@@ -7,7 +7,8 @@ the APF adds the first stage (`log_eta`) and the second-stage weights (`reweight
 5); the RPF resamples when N_eff < N_T and jitters the resampled particles (`move_resampled`) before
 every particle takes the transition (Algorithm 6). `ParticleFilter`, their base, holds what they share:
 the options, the backend, the resampling scheme, the estimate and the green circle, and KLD-sampling
-and recovery from kidnapping as overrides of the ancestors and the move (one run: R = 1).
+(a scheme that draws as many ancestors as Fox's bound asks) and recovery from kidnapping (an override
+of the move), one run each (R = 1).
 
 A student reads one run: `positions` (N, 2) float32, `weights` (N,), `estimate` (2,), `ess` a float;
 the same object advances R runs of one setting together (a batched study), bit for bit R single runs.
@@ -15,6 +16,7 @@ the same object advances R runs of one setting together (a batched study), bit f
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Mapping
 from types import MappingProxyType
@@ -102,12 +104,13 @@ class ParticleFilter(SMC):
         model = LostRobot(self.world, sigma, delta, self.ops, settings["speed"], settings["outside_penalty"])
         self.threshold, self.estimate_rule = settings["threshold"], settings["estimate"]
         self.scheme_name = settings["resampling"]
+        self.kld = kld_options(settings["kld"], settings["kld_epsilon"], settings["kld_z"])
         # the scheme: mazelab.resampling's textbook function, or the backend's faster form of it
-        self.resample = self.ops.schemes.get(self.scheme_name) or resampling_scheme(self.scheme_name)
+        scheme = self.ops.schemes.get(self.scheme_name) or resampling_scheme(self.scheme_name)
+        self.resample = scheme if self.kld is None else functools.partial(self.kld_resample, scheme)
         super().__init__(model, particles, rng, self.ops.Weights)
         recovering = recovery_options(settings["recovery"], settings["alpha_slow"], settings["alpha_fast"])
         self.recovery = None if recovering is None else RecoveryTracker(recovering, world, sigma)
-        self.kld = kld_options(settings["kld"], settings["kld_epsilon"], settings["kld_z"])
         self.max_count = self.count if self.kld is None or self.kld.max_count is None else self.kld.max_count
         if self.runs > 1 and (self.recovery is not None or self.kld is not None):
             raise ValueError("recovery and KLD-sampling vary one run's particles: they run one run at a time")
@@ -138,14 +141,24 @@ class ParticleFilter(SMC):
             self.recovery.track(float(self.log_evidence_increment[0]), float(self.z[0]))
 
     # -- the ancestors and the move: KLD-sampling and recovery (one run) ---------------------------------
-    def ancestors(self, W: Weights, due: np.ndarray) -> np.ndarray:
-        """RESAMPLE: SMC.ancestors by the `resampling` scheme (mazelab.resampling.systematic_resample by
-        default); with KLD-sampling as many as Fox's bound asks, each batch moved as it is drawn."""
-        if self.kld is None:
-            return super().ancestors(W, due)
-        A, *moved = kld_resample(W.W[0], self._move_one, self.kld, self.resample, self.rngs[0], self.max_count)
+    def kld_resample(self, scheme: Callable[..., np.ndarray], W: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """KLD-sampling's scheme (one run): as many ancestors as Fox's bound asks, drawn by `scheme` in
+        batches, each batch moved as it is drawn (the moves kept for `move`).
+
+        Parameters
+        ----------
+        scheme : callable
+            The `resampling` option's scheme.
+        W : array (N,)
+        rng : numpy.random.Generator
+
+        Returns
+        -------
+        int array (M,)
+        """
+        A, *moved = kld_resample(W, self._move_one, self.kld, scheme, rng, self.max_count)
         self._kld_moved = tuple(values[None] for values in moved)
-        return A[None]
+        return A
 
     def _move_one(self, A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """KLD-sampling's batch of one run's ancestors (M,) moved: (positions (M, 2), headings (M,))."""
