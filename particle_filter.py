@@ -4,10 +4,10 @@ The robot is lost in a maze; SIR, auxiliary (APF) and regularised (RPF) particle
 (Arulampalam, Maskell, Gordon, Clapp 2002, Algorithms 4-6, with the paper's refinements). This file
 only gathers the names; where each thing's lines are:
 
-    one step of every particle filter: RESAMPLE when   mazelab/engine.py, SMC.step (a dozen lines; the hooks
-      it is time, move, reweight                         below it are what differs between the filters)
+    one step of every particle filter: RESAMPLE the    mazelab/smc.py, SMC.step (a dozen lines; the hooks
+      runs it is time for, move, reweight                below it are what differs between the filters)
     resampling (systematic, the textbook; stratified,  mazelab/resampling.py, systematic_resample, ...
-      multinomial, residual)                             (SMC.step -> ParticleFilter.ancestors -> there)
+      multinomial, residual)                             (SMC.step -> SMC.ancestors -> there)
     SIR (Algorithm 4)                                  mazelab/filters.py, SIRParticleFilter: the defaults
     APF (Algorithm 5)                                  mazelab/filters.py, AuxiliaryParticleFilter.log_eta,
                                                          .reweight_resampled
@@ -16,7 +16,7 @@ only gathers the names; where each thing's lines are:
     the model: prior, transition (1), likelihood (3)   mazelab/model.py, LostRobot (the constants:
                                                          mazelab/constants.py)
     the weights (W, ESS, the log mean increment)       mazelab/weights.py, Weights
-    the filters' options, the model and the backend    mazelab/cloud.py, ParticleFilter
+    the filters' options, the model and the backend    mazelab/filters.py, ParticleFilter
     Robot (wandering, the straight-run limit)          mazelab/robot.py, Robot.step
     what every filter provides (your own filter too)   mazelab/contract.py, Filter (with a worked example)
     a filter's options, declared once                  mazelab/declaration.py, Option; each filter's `options`

@@ -385,8 +385,8 @@ def median_cpu_step(step, walk: list[tuple[float, float]], warmup: int, clock=ti
 def kernels_stepper(world: Maze, particles: int, seed: int = 2):
     """The package's compiled kernels of a SIR step called back to back from a plain loop, into buffers
     made once: the same draws, resampling, move, likelihood and normalisation (with its reads) as the
-    package's step, without the step template, the model's calls and the buffer pool (what they cost
-    is the package's time less this)."""
+    package's step, without the step, the model's calls and the weights value (what they cost is the
+    package's time less this)."""
     from mazelab.kernels import model, resampling, weights
     from mazelab.kernels.compiled import lookup_tables
 
@@ -396,17 +396,12 @@ def kernels_stepper(world: Maze, particles: int, seed: int = 2):
         np.empty((particles, 2), F32, "F"),
     ]
     w, log_lik = np.full((1, particles), 1 / particles, F32), np.empty((1, particles), F32)
-    ancestors, uniforms, reads, bases = (
-        np.empty(particles, np.int32),
-        np.empty((1, particles), F32),
-        np.empty((5, 1)),
-        np.zeros(1, np.int64),
-    )
+    ancestors, uniforms, reads = np.empty(particles, np.int64), np.empty((1, particles), F32), np.empty((5, 1))
     tables, norm = lookup_tables(world), math.log(BENCH_SIGMA * math.sqrt(2 * math.pi))
     terms = (float(BENCH_SIGMA), -norm, math.log(OUTSIDE_PENALTY) - norm)
 
     def step(compass_angle: float, z: float) -> None:
-        resampling.systematic(w, rng.random(1), particles, bases, ancestors)
+        resampling.systematic(w[0], rng.random(), ancestors)
         rng.random(dtype=F32, out=uniforms[0])
         model.move(
             positions[0], ancestors, uniforms, np.array([compass_angle], F32), BENCH_DELTA, ROBOT_SPEED, positions[1]

@@ -7,15 +7,12 @@ process:
 
 The baseline is the resident memory after a small run of the same filter (numpy, numba and the
 kernels loaded, the walk recorded); the figure is the process's peak (getrusage's ru_maxrss) after a
-fresh filter of N particles ran 12 steps of the walk, minus that baseline. On the compiled backend the
-table is followed by what the filter's buffers hold after those steps (mazelab.kernels.compiled's
-BufferPool: arrays by name, the count kept and their size).
+fresh filter of N particles ran 12 steps of the walk, minus that baseline.
 """
 
 from __future__ import annotations
 
 import argparse
-import inspect
 import os
 import resource
 import subprocess
@@ -57,19 +54,7 @@ def measure(kind: str, name: str, particles: int) -> float:
     step = make(particles)
     for compass_angle, z in walk:
         step(compass_angle, z)
-    peak = max(0.0, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024 - baseline)
-    return peak, buffers(step)
-
-
-def buffers(step) -> str:
-    """What the compiled filter behind `step` keeps in its buffer pool: "name count x MB, ..." ("" for
-    the fused kernel and the numpy backend, which keep none)."""
-    filt = inspect.getclosurevars(step).nonlocals.get("filt")  # mazelab.bench.filter_stepper's filter
-    pool = getattr(getattr(filt, "ops", None), "pool", None)
-    if pool is None:
-        return ""
-    held = ((name, slot[-1]) for name, slot in pool._slots.items())
-    return ", ".join(f"{name} {len(arrays)} x {arrays[0].nbytes / 1e6:.1f}" for name, arrays in held if arrays)
+    return max(0.0, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024 - baseline)
 
 
 def main() -> None:
@@ -80,26 +65,16 @@ def main() -> None:
     parser.add_argument("--one", nargs=2, metavar=("KIND", "FILTER"), help=argparse.SUPPRESS)  # a child's task
     args = parser.parse_args()
     if args.one:
-        peak, held = measure(args.one[0], args.one[1], args.particles)
-        print(peak)
-        print(held)
+        print(measure(args.one[0], args.one[1], args.particles))
         return
     print(f"load average {os.getloadavg()}; peak RSS over the baseline at N = {args.particles:,}, MB")
     print(f"{'filter':<6} {'fused':>8} {args.backend:>9} {'ratio':>6}")
-    held = {}
     for name in args.filters.split(","):
         figures = []
         for kind in ("fused", args.backend):
             command = [sys.executable, __file__, "--particles", str(args.particles), "--one", kind, name]
-            peak, held[name] = subprocess.run(command, capture_output=True, text=True, check=True).stdout.split("\n")[
-                :2
-            ]
-            figures.append(float(peak))
+            figures.append(float(subprocess.run(command, capture_output=True, text=True, check=True).stdout))
         print(f"{name:<6} {figures[0]:8.1f} {figures[1]:9.1f} {figures[1] / figures[0]:5.2f}x", flush=True)
-    if any(held.values()):
-        print(f"\nwhat the {args.backend} filters' buffers hold after the steps (name, arrays kept x MB each):")
-        for name, line in held.items():
-            print(f"{name:<6} {line}")
 
 
 if __name__ == "__main__":

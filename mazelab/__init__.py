@@ -6,9 +6,9 @@ modules, bottom to top (each imports only those above it in this list):
 
     constants, checks, declaration                            the model's numbers; checks; a filter's options
     limits, lookup, maze_paths, maze, model, modes            the model: maze, motion, measurement, modes
-    seeding, run_axis, stops                                  seeds to random streams; the run axis; who stopped
+    seeding, stops                                            seeds to random streams; who stopped
     weights, resampling, regularisation, robot                the Weights value, resampling, the RPF's kernel, robot
-    contract, run_blocks, engine                              what every filter provides; its runs; the template (SMC)
+    contract, smc                                             what every filter provides; the step (SMC)
     recovery, cloud, filters, grid_filter, kalman             the filters (cloud: the template on the model)
     plugins, registry                                         one entry per filter, and a student's own (file.py:Class)
     atomic, scenario, collect, simulation                     saved scenarios; the one recording loop; one run

@@ -18,8 +18,8 @@ seed repeats a run on each backend, and the two agree statistically, not bit for
 Both backends offer the same operations (mazelab.numpy_ops.NumpyKernels, mazelab.kernels.compiled's
 CompiledKernels):
 the move (equation (1)), the likelihood (equation (3)), systematic resampling, the normalisation with
-the step's reads, the APF's first-stage weights, the weighted covariance and the RPF's jitter. The
-cloud (mazelab.cloud) calls them; the filters' steps (mazelab.filters) do not know which runs.
+the step's reads, the weighted covariance and the RPF's jitter, and the Weights value. The model
+(mazelab.model.LostRobot) and the weights call them; the step (mazelab.smc) does not know which runs.
 """
 
 from __future__ import annotations
@@ -207,18 +207,6 @@ def check_threads(value: Any, source: str = "threads") -> int:
     return count
 
 
-def chosen_threads() -> int:
-    """The threads the compiled backend spreads one large run's particles over: MAZELAB_THREADS if set
-    (checked), else 1. The numpy backend runs on one.
-
-    Returns
-    -------
-    int
-    """
-    value = os.environ.get(THREADS_VARIABLE, "")
-    return check_threads(value, THREADS_VARIABLE) if value.strip() else 1
-
-
 @contextmanager
 def use_backend(name: str) -> Iterator[str]:
     """Make the filters created inside run on the backend `name` (it sets MAZELAB_BACKEND for the
@@ -296,7 +284,8 @@ def kernels_for(world: Any, name: str | None = None) -> Any:
         return NUMPY_KERNELS
     from mazelab.kernels.compiled import CompiledKernels  # imports numba: only when it runs
 
-    return CompiledKernels(world, threads=chosen_threads())
+    threads = os.environ.get(THREADS_VARIABLE, "")  # MAZELAB_THREADS (checked), else 1
+    return CompiledKernels(world, threads=check_threads(threads, THREADS_VARIABLE) if threads.strip() else 1)
 
 
 NUMPY_KERNELS = NumpyKernels()
@@ -318,7 +307,6 @@ __all__ = [
     "check_backend",
     "check_threads",
     "chosen_backend",
-    "chosen_threads",
     "compiled_pays",
     "default_backend",
     "kernels_for",

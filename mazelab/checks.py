@@ -203,12 +203,6 @@ def check_seed(name: str, value: Any) -> int:
     return int(value)
 
 
-def check_particle_count(particle_count: Any, given: int) -> None:
-    """A particle_count handed in with initial particles must be their number (or None)."""
-    if particle_count is not None and particle_count != given:
-        raise ValueError(f"particle_count is {particle_count!r} but {given} initial particles are given")
-
-
 __all__ = [
     "MAP_MARGIN",
     "MAX_ANGLE",
@@ -227,7 +221,6 @@ __all__ = [
     "check_bandwidth_within",
     "check_grid_resolution",
     "check_kld_numbers",
-    "check_particle_count",
     "check_seed",
     "check_sigma_within",
     "check_within_map",

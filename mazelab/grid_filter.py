@@ -209,11 +209,6 @@ class GridBayesFilter:
         mass = self.workspace.mass_within(self.weights, self.positions, self.estimate, CONFIDENCE_RADIUS)
         return mass >= CONFIDENCE_SHARE
 
-    def posterior_std(self) -> float:
-        """Root of the trace of the posterior covariance (map units): how spread the belief is."""
-        centred = self.positions - self.estimate
-        return float(np.sqrt(self.weights @ (centred**2).sum(axis=1)))
-
 
 def check_grid_memory(
     width: float, height: float, resolution: float = GRID_RESOLUTION, margin: float = 1.0

@@ -12,6 +12,11 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mazelab.constants import DEFAULT_PARTICLE_COUNT
 
 try:
     import resource
@@ -65,6 +70,32 @@ def check_memory(what: str, needed: int, budget: MemoryBudget | None = None) -> 
 def check_particles(count: int) -> None:
     """Refuse a particle count whose arrays would not fit."""
     check_memory(f"particle_count {count}", count * BYTES_PER_PARTICLE)
+
+
+def particle_count(value: Any, source: str = "particle_count", given: int | None = None) -> int:
+    """A run's particle count, checked once on its way to the filter: a whole number >= 1 (the count of
+    the initial particles `given`, if any), whose arrays fit in memory; else one line naming `source`
+    (an argument, or the command line's --particles).
+
+    Parameters
+    ----------
+    value : int, or None (the given particles' count, else DEFAULT_PARTICLE_COUNT)
+    source : str
+    given : int, optional
+        The number of initial particles handed in.
+
+    Returns
+    -------
+    int
+    """
+    if value is None:
+        value = DEFAULT_PARTICLE_COUNT if given is None else given
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise ValueError(f"{source} must be a whole number >= 1, got {value!r}")
+    if given is not None and value != given:
+        raise ValueError(f"{source} is {value!r} but {given} initial particles are given")
+    check_particles(int(value))
+    return int(value)
 
 
 def check_recording(particles: int, steps: int, max_drawn: int, budget: MemoryBudget | None = None) -> None:
@@ -237,5 +268,6 @@ __all__ = [
     "check_steps",
     "check_study",
     "memory_budget",
+    "particle_count",
     "process_limit",
 ]

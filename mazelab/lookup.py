@@ -133,13 +133,14 @@ class NearestStationLookup:
         return nearest
 
     def _cells(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Each point's flat lookup-cell index (N,), and the indices of the points beyond the table."""
+        """Each point's flat lookup-cell index (N,), and the indices of the points beyond the table (a NaN
+        point among them: its distance comes out NaN, which the filter's step reports)."""
         ix = np.floor(x * self.scale)  # exact: the scale is a power of two
         iy = np.floor(y * self.scale)
         ix += self.offset
         iy += self.offset
         inside = ix.min() >= 0 and iy.min() >= 0 and ix.max() < self.nx and iy.max() < self.ny
-        beyond = _NO_POINTS if inside else np.flatnonzero((ix < 0) | (ix >= self.nx) | (iy < 0) | (iy >= self.ny))
+        beyond = _NO_POINTS if inside else np.flatnonzero(~((ix >= 0) & (ix < self.nx) & (iy >= 0) & (iy < self.ny)))
         ix[beyond] = iy[beyond] = 0  # any cell: their answers are replaced
         iy *= self.nx
         iy += ix  # whole numbers below 2**24 (see _lookup_subdivisions), exact even in float32

@@ -207,7 +207,8 @@ def log_likelihood(
 class LostRobot:
     """The lost robot's state-space model as a filter uses it (nchopin/particles' FeynmanKac: M0, M,
     logG): the prior, the transition (1) and the log-likelihood (3) with the outside penalty, for R runs
-    at once, each run's draws from its own Generator. Equations (1)-(3) are called from here only.
+    at once (arrays (R, N, ...)), each run's draws from its own Generator. The engine (mazelab.smc)
+    calls these; equations (1)-(3) are called from here only.
 
     Parameters
     ----------
@@ -237,8 +238,8 @@ class LostRobot:
         self.world, self.sigma, self.delta, self.ops = world, sigma, delta, ops
         self.speed, self.outside_penalty = speed, outside_penalty
 
-    def prior(self, count: int, rng: np.random.Generator) -> np.ndarray:
-        """x_0 ~ p(x_0), uniform over the free area (M0).
+    def M0(self, count: int, rng: np.random.Generator) -> np.ndarray:  # noqa: N802 (particles' names)
+        """x_0 ~ p(x_0), uniform over the free area: the prior a run starts (and restarts) from.
 
         Parameters
         ----------
@@ -251,52 +252,49 @@ class LostRobot:
         """
         return self.world.random_free_places(count, rng)
 
-    def transition(
-        self,
-        points: np.ndarray,
-        compass_angles: np.ndarray,
-        rngs: Sequence[np.random.Generator],
-        ancestors: np.ndarray | None = None,
+    def M(  # noqa: N802
+        self, x: np.ndarray, A: np.ndarray | None, th0: np.ndarray, rngs: Sequence[np.random.Generator | None]
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Equation (1), x_k ~ p(x_k | x_{k-1}): each point moves L along th ~ U(th0 - Delta/2, th0 +
-        Delta/2) (M). Run r's block draws its uniforms from rngs[r].
+        """Equation (1), x_k ~ p(x_k | x_{k-1}^{A}): each point moves L along th ~ U(th0 - Delta/2, th0 +
+        Delta/2), run r's uniforms from rngs[r] (None: a run that does not move this step draws nothing).
 
         Parameters
         ----------
-        points : array (R*N, 2)
-            The runs' particles, in blocks (or the particles `ancestors` indexes).
-        compass_angles : array (R,)
+        x : array (R, N, 2)
+            The runs' particles (or any float points: their dtype is the move's).
+        A : int array (R, M), or None
+            Move x[r, A[r]] (the resampled particles, gathered in the same pass); None: every particle.
+        th0 : array (R,)
             th0_k of each run (radians).
-        rngs : sequence of R Generators
-        ancestors : int array (R*M,), optional
-            Move points[ancestors] (the resampled particles, gathered in the same pass).
+        rngs : sequence of R Generators (or None)
 
         Returns
         -------
-        (positions (R*M, 2), headings (R*M,)) in the points' dtype
+        (positions (R, M, 2), headings (R, M)) in x's dtype
         """
-        dtype = points.dtype  # PARTICLE_DTYPE, or float64 for injected draws from the free area
-        moved = len(points) if ancestors is None else len(ancestors)
-        uniforms = self.ops.buffer("uniforms", (len(rngs), moved // len(rngs)), dtype)
-        for row, rng in enumerate(rngs):
-            rng.random(dtype=dtype, out=uniforms[row])
-        return self.ops.move(points, ancestors, uniforms, compass_angles.astype(dtype), self.delta, self.speed)
+        uniforms = np.empty(x.shape[:2] if A is None else A.shape, dtype=x.dtype)
+        for row, rng in zip(uniforms, rngs, strict=True):
+            if rng is None:
+                row[:] = 0.5  # it restarts from the prior after this step: no draw, no move off its heading
+            else:
+                rng.random(dtype=x.dtype, out=row)
+        return self.ops.move(x, A, uniforms, th0.astype(x.dtype), self.delta, self.speed)
 
-    def log_likelihood(self, z: np.ndarray, points: np.ndarray) -> np.ndarray:
-        """Equation (3) in logs with the outside penalty, log p(z_k | x) (logG).
+    def logG(self, x: np.ndarray, z: np.ndarray) -> np.ndarray:  # noqa: N802
+        """Equation (3) in logs with the outside penalty, log p(z_k | x).
 
         Parameters
         ----------
+        x : array (R, N, 2)
+            The runs' particles.
         z : array (R,)
             z_k of each run.
-        points : array (R*N, 2)
-            The runs' particles, in blocks.
 
         Returns
         -------
         array (R, N)
         """
-        return self.ops.log_likelihood(z, points, self.world, self.sigma, self.outside_penalty)
+        return self.ops.log_likelihood(z, x, self.world, self.sigma, self.outside_penalty)
 
 
 def check_model_parameters(

@@ -84,54 +84,12 @@ def systematic_resample(weights: np.ndarray, rng: np.random.Generator, count: in
 
     Notes
     -----
-    The filters run the same scheme in its counting form, `systematic_resample_runs` (and the compiled
-    kernel), which gives the same ancestors for R runs at once in O(N).
+    The numpy backend runs this; the compiled one its counting form (mazelab.kernels.resampling), which
+    gives the same ancestors in O(N).
     """
     count = len(weights) if count is None else count
     u = rng.random()
     return _inverse_cdf((u + np.arange(count)) / count, weights)
-
-
-def systematic_resample_runs(weights: np.ndarray, uniforms: np.ndarray, count: int | None = None) -> np.ndarray:
-    """Systematic resampling of R runs at once, run r with the offset U_r = uniforms[r].
-
-    The points u_m = (m + U) / M below cumsum(W)[i] number ceil(M cumsum(W)[i] - U), so ancestor i gets
-    the difference of two such counts: O(N) counting instead of a binary search per point (the compiled
-    backend's kernel, mazelab.kernels.resampling, gives the same ancestors).
-
-    Parameters
-    ----------
-    weights : array (R, N)
-        Each run's normalised weights.
-    uniforms : array (R,)
-        U_r ~ U[0, 1) of each run.
-    count : int, optional
-        M, the ancestors per run (default N).
-
-    Returns
-    -------
-    int64 array (R*M,)
-        Indices into the runs' (R*N,) particles, block r run r's, each block sorted.
-    """
-    runs, size = weights.shape
-    count = size if count is None else count
-    below = np.empty((runs, size + 1))  # below[:, i + 1]: how many points lie below cumsum(W)[i]
-    below[:, 0] = 0.0
-    weights.cumsum(axis=1, out=below[:, 1:])  # float64 whatever the weights' dtype: strata are 1/M wide
-    below *= count
-    below -= uniforms[:, None]
-    np.ceil(below, out=below)
-    ends = below.astype(np.int64)
-    ends[:, 0], ends[:, -1] = 0, count  # the last guards against round-off leaving cumsum(W) short of 1
-    np.minimum(ends, count, out=ends)  # ends >= 0 already
-    bins = ends[:, 1:-1]
-    if runs > 1:  # each run counts in its own bins
-        bins = bins + (count + 1) * np.arange(runs)[:, None]
-    starts = np.bincount(bins.ravel(), minlength=runs * (count + 1)).reshape(runs, count + 1)[:, :count]
-    ancestors = starts.cumsum(axis=1)  # particle i repeated ends[i + 1] - ends[i] times, sorted
-    if runs > 1:
-        ancestors += size * np.arange(runs)[:, None]
-    return ancestors.ravel()
 
 
 def residual_resample(weights: np.ndarray, rng: np.random.Generator, count: int | None = None) -> np.ndarray:
@@ -425,5 +383,4 @@ __all__ = [
     "residual_resample",
     "stratified_resample",
     "systematic_resample",
-    "systematic_resample_runs",
 ]

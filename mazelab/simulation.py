@@ -18,16 +18,16 @@ import numpy as np
 from mazelab.backend import backend_by_work, backend_of
 from mazelab.checks import (
     as_points,
-    check_particle_count,
     check_seed,
     check_within_map,
     step_number,
 )
 from mazelab.collect import record_steps
 from mazelab.contract import check_filter, takes
-from mazelab.limits import check_particles, check_recording, check_steps
+from mazelab.limits import check_recording, check_steps
+from mazelab.limits import particle_count as checked_count
 from mazelab.maze import Maze, check_world
-from mazelab.model import CONVERGENCE_RADIUS, DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, check_model_parameters
+from mazelab.model import CONVERGENCE_RADIUS, DEFAULT_STEPS, check_model_parameters
 from mazelab.plugins import student_code
 from mazelab.registry import filter_entry, is_shipped
 from mazelab.robot import Robot
@@ -306,13 +306,9 @@ def simulate(
     streams = run_streams(seed)
     if init_particles_pos is not None:
         particles = as_points("init_particles_pos", init_particles_pos)
-        check_particle_count(particle_count, len(particles))
+        checked_count(particle_count, given=len(particles))
     else:
-        count = DEFAULT_PARTICLE_COUNT if particle_count is None else particle_count
-        if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 1:
-            raise ValueError(f"particle_count must be a whole number >= 1, got {count!r}")
-        check_particles(int(count))
-        particles = world.random_free_places(int(count), streams.particles)
+        particles = world.random_free_places(checked_count(particle_count), streams.particles)
     given = particles if init_particles_pos is not None else None  # drawn ones lie in the free area
     check_start(world, robot.initial_position, given, robot.kidnap_position)
     if steps is None:

@@ -8,132 +8,108 @@ from functools import cached_property
 
 import numpy as np
 
+from mazelab.constants import LOG_UNDERFLOW
+
 
 class Weights:
     """The weights of R runs as a value (nchopin/particles' resampling.Weights, one row per run): the
-    normalised log weights in, W and the ESS derived once when asked, the log of the mean increment
-    worked out as the value is made.
+    normalised log weights, W and the ESS derived when read, every array read-only. The numpy backend's;
+    the compiled one's (mazelab.kernels.compiled.CompiledWeights) keeps W in float32 and reads the
+    step's mean and confidence in its normalisation's passes.
 
     Parameters
     ----------
-    lw : array (R, N), or None
-        log W_i of each run, normalised (each row's exp sums to 1); None: derived from `unnormalised`.
-    W, ess : arrays (R, N) and (R,), optional
-        exp(lw) and 1 / sum W^2 when the normalisation already read them (the compiled backend).
-    unnormalised : (array (R, N), array (R,)), optional
-        log w and log sum_i w_i of each run, for `lw` = log w - log total when it is read (a step that
-        resamples every time reads W only, so it never writes log W).
-    increment : (array (R,), bool array (R,) or bool, array (R,) or float, int), optional
-        For `log_mean_increment`: each run's log sum_i w_i of the reweighting (w_i = W_{k-1}^i G_k^i,
-        G the increment), which runs' w_i are fresh (resampled: G_k^i alone, W_{k-1}^i = 1/N left out;
-        True or False: every run or none), the log factor those lack (the APF's first-stage total; 0
-        otherwise) and N.
-
-    Attributes
-    ----------
-    log_mean_increment : array (R,)
-        log sum_i W_{k-1}^i G_k^i per run (given `increment`): the log of the mean increment G_k =
-        p(z_k | x_k^i) under the previous weights, the estimate of log p(z_k | z_1:k-1) (particles'
-        `loglt`). It is the log total of w_i = W_{k-1}^i G_k^i; for fresh weights (W_{k-1}^i = 1/N after
-        resampling) the log total less log N, plus the log factor they lack (the APF's first stage, as
-        Pitt and Shephard). Worked out as the value is made: every step reads it.
+    lw : array (R, N)
+        log W_i of each run, normalised (each row's exp sums to 1).
+    log_total : array (R,), optional
+        log sum_i w_i of the log weights they were normalised from (`from_log`): for `add`, the log of
+        the mean increment sum_i W_{k-1}^i G_k^i, the estimate of log p(z_k | z_1:k-1) (particles' loglt).
     """
 
-    def __init__(
-        self,
-        lw: np.ndarray | None,
-        W: np.ndarray | None = None,
-        ess: np.ndarray | None = None,
-        unnormalised: tuple[np.ndarray, np.ndarray] | None = None,
-        increment: tuple[np.ndarray, np.ndarray, np.ndarray | float, int] | None = None,
-    ):
-        values = self.__dict__
-        values["_unnormalised"] = unnormalised
-        if lw is not None:
-            values["lw"] = lw
-        if W is not None:
-            values["W"] = W
-        if ess is not None:
-            values["ess"] = ess
-        if increment is not None:
-            values["log_mean_increment"] = self._mean_increment_logs(*increment)
+    def __init__(self, lw: np.ndarray, log_total: np.ndarray | None = None):
+        self.lw = read_only(lw)
+        self.log_total = read_only(np.zeros(len(lw)) if log_total is None else log_total)
 
     @classmethod
-    def uniform(cls, runs: int, count: int) -> Weights:
-        """Equal weights W_i = 1/N of R runs, as a filter starts: W = exp(-log N), the value exp of the
-        normalised log weights gives, one number broadcast to (R, N) (read-only, no memory of its own);
-        log W = log w - log N derived when read from log w = 0 (float32 zeros, pages the system gives
-        untouched): a filter that reads W only never makes it.
+    def from_log(cls, log_w: np.ndarray, x: np.ndarray | None = None) -> Weights:
+        """Each row of log w normalised: log W = log w - log sum exp(log w), in float64 (the sums in log
+        w's dtype).
 
         Parameters
         ----------
-        runs, count : int
-            R and N.
+        log_w : array (R, N)
+        x : array (R, N, 2), optional
+            The particles they weigh (the compiled backend's reads; unused here).
 
         Returns
         -------
         Weights
         """
-        W = np.broadcast_to(np.exp(np.float64(-math.log(count))), (runs, count))
-        return cls(None, W, None, (np.zeros((runs, count), np.float32), np.full(runs, math.log(count))))
+        totals = np.atleast_1d(log_sum_exp(log_w))
+        return cls(np.subtract(log_w, totals[:, None], dtype=float), totals)
 
-    @staticmethod
-    def _mean_increment_logs(
-        log_totals: np.ndarray, fresh: np.ndarray | bool, log_factor: np.ndarray | float, count: int
-    ) -> np.ndarray:
-        """log p(z_k | z_1:k-1) estimated per run from the reweighting's log totals (`log_mean_increment`).
+    @classmethod
+    def uniform(cls, runs: int, count: int) -> Weights:
+        """W_i = 1/N in each of R runs, as a filter starts: log W = -log N, one number broadcast (R, N)."""
+        return cls(np.broadcast_to(-math.log(count), (runs, count)))
+
+    def add(self, log_g: np.ndarray, x: np.ndarray | None = None) -> Weights:
+        """W_i G_i normalised per run (log W + log G): the reweighting of a step that does not resample,
+        and the APF's first stage; its `log_total` is log sum_i W_i G_i.
 
         Parameters
         ----------
-        log_totals : array (R,)
-            log sum_i w_i of each run.
-        fresh : bool array (R,), or bool (every run or none)
-            The runs whose w_i leave out W_{k-1}^i = 1/N (resampled).
-        log_factor : array (R,), or float
-            The log factor the fresh runs' w_i lack (the APF's first-stage total; 0 otherwise).
-        count : int
-            N.
+        log_g : array (R, N)
+        x : array (R, N, 2), optional
+            The particles (the compiled backend's reads).
 
         Returns
         -------
-        float64 array (R,): the fresh runs' log total less log N plus the factor, the others' log total
+        Weights
         """
-        if fresh is False:
-            return log_totals
-        if fresh is True and len(log_totals) == 1:  # one run: the same double arithmetic on Python floats
-            factor = log_factor[0] if isinstance(log_factor, np.ndarray) and log_factor.ndim else log_factor
-            return np.array([(float(log_totals[0]) - math.log(count)) + float(factor)])
-        fresh_values = (log_totals - math.log(count)) + log_factor
-        return fresh_values if fresh is True else np.where(fresh, fresh_values, log_totals)
+        return self.from_log(self.lw + log_g, x)
 
-    def __setattr__(self, name: str, value: object) -> None:
-        if name in self.__dict__:
-            raise AttributeError(f"Weights are a value: {name} cannot change (make new Weights)")
-        super().__setattr__(name, value)
+    def reset(self, rows: np.ndarray, other: Weights, x: np.ndarray | None = None) -> Weights:
+        """These weights with the given rows replaced by `other`'s (one row each, in order).
+
+        Parameters
+        ----------
+        rows : bool array (R,)
+        other : Weights of rows.sum() runs
+        x : array (R, N, 2), optional
+            The particles (the compiled backend's reads).
+
+        Returns
+        -------
+        Weights
+        """
+        if not rows.any():
+            return self
+        lw, totals = self.lw.copy(), self.log_total.copy()
+        lw[rows], totals[rows] = other.lw, other.log_total
+        return type(self)(lw, totals)
 
     @cached_property
-    def lw(self) -> np.ndarray:
-        """log W_i = log w_i - log sum_j w_j, (R, N) float64."""
-        log_w, totals = self._unnormalised
-        return np.subtract(log_w, totals[:, None], dtype=float)
-
-    @property
-    def log_parts(self) -> tuple[np.ndarray, np.ndarray | None]:
-        """(a, shifts) with log W = a - shifts[:, None], without making log W: the log W held and None,
-        or log w and the log totals it is derived from (what the APF's first stage reads)."""
-        if "lw" in self.__dict__ or self._unnormalised is None:
-            return self.lw, None
-        return self._unnormalised
+    def lost(self) -> np.ndarray:
+        """The runs whose log total underflows (nothing explains the data): bool (R,)."""
+        return ~(self.log_total >= LOG_UNDERFLOW)
 
     @cached_property
     def W(self) -> np.ndarray:  # noqa: N802 (the paper's W, as particles names it)
         """W_i = exp(log W_i), (R, N)."""
-        return np.exp(self.lw)
+        return read_only(np.exp(self.lw))
 
     @cached_property
     def ess(self) -> np.ndarray:
         """N_eff = 1 / sum_i W_i^2 per run (eq. 51), (R,)."""
-        return effective_sample_size(self.W)
+        return read_only(effective_sample_size(self.W))
+
+
+def read_only(values: np.ndarray) -> np.ndarray:
+    """`values` with writing switched off (a value's arrays cannot change under its readers)."""
+    if values.flags.writeable:
+        values.flags.writeable = False
+    return values
 
 
 # -- weights: each function takes one run's weights (N,) or R runs' (R, N), summing along the last axis
@@ -161,42 +137,6 @@ def log_sum_exp(log_w: np.ndarray) -> float | np.ndarray:
             totals = top[..., 0] + np.log(np.exp(shifted, out=shifted).sum(axis=-1))
         totals = np.where(finite, totals, top[..., 0])
     return float(totals) if log_w.ndim == 1 else totals.astype(float)
-
-
-def exp_in_place(values: np.ndarray) -> np.ndarray:
-    """exp(values), written over `values` (a temporary of the caller's): no second array.
-
-    Parameters
-    ----------
-    values : float array
-        Overwritten.
-
-    Returns
-    -------
-    numpy.ndarray
-        `values` itself, now exp(values).
-    """
-    return np.exp(values, out=values)
-
-
-def weights_from_logs(log_w: np.ndarray, log_totals: np.ndarray) -> np.ndarray:
-    """Normalised weights exp(log w - log total) of R runs; a run whose total is -inf gets NaNs (the
-    caller does not draw from it).
-
-    Parameters
-    ----------
-    log_w : array (R, N)
-    log_totals : array (R,)
-        Each run's log sum exp(log w).
-
-    Returns
-    -------
-    float array (R, N)
-    """
-    if np.isfinite(log_totals).all():
-        return exp_in_place(np.subtract(log_w, log_totals[:, None]))
-    with np.errstate(invalid="ignore"):
-        return exp_in_place(np.subtract(log_w, log_totals[:, None]))
 
 
 def effective_sample_size(weights: np.ndarray) -> float | np.ndarray:
@@ -297,10 +237,9 @@ def mass_within(weights: np.ndarray, points: np.ndarray, centre: np.ndarray, rad
 __all__ = [
     "Weights",
     "effective_sample_size",
-    "exp_in_place",
     "log_sum_exp",
     "mass_within",
+    "read_only",
     "weighted_covariance",
     "weighted_mean",
-    "weights_from_logs",
 ]

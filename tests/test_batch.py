@@ -1,5 +1,5 @@
 """A study's runs in units of work (mazelab.experiments.batch_runs): one filter object of R runs
-(mazelab.cloud) advances them together bit for bit as R single-run filters, restarts included; a study's
+(mazelab.smc) advances them together bit for bit as R single-run filters, restarts included; a study's
 units give the records run_task gives run by run, within the particle budget; runs go together by the
 declared rule (`batchable`), and an error in a batched unit is reported for its runs, not retried quietly."""
 

@@ -1,4 +1,4 @@
-"""What every particle filter of the registry shares (mazelab.cloud on mazelab.engine), each rule on its own:
+"""What every particle filter of the registry shares (ParticleFilter on mazelab.smc), each rule on its own:
 
 - its ESS is 1 / sum_i W_i^2 of the weights it holds, for one run and per run of R;
 - the engine restarts a run that no particle explains from the prior, weighted by that run's own z;
@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 from conftest import recorded_walk
 
-from mazelab.cloud import ParticleFilter
 from mazelab.constants import CONFIDENCE_SHARE
-from mazelab.filters import SIRParticleFilter
+from mazelab.filters import ParticleFilter, SIRParticleFilter
 from mazelab.registry import entries
 from mazelab.resampling import resampling_scheme
+from mazelab.weights import Weights
 
 PARTICLE_FILTERS = [entry.filter_class for entry in entries() if issubclass(entry.filter_class, ParticleFilter)]
 
@@ -90,14 +90,18 @@ def test_particles_keep_their_last_heading(paper_world, rng):
 
 @pytest.mark.parametrize("scheme", ["systematic", "stratified", "residual"])
 def test_the_steps_resampling_hook_is_the_textbook_scheme_applied_to_each_run(paper_world, scheme):
-    """SMC.step -> ParticleFilter.ancestors -> mazelab.resampling's scheme: for R runs, run r's ancestors
-    are the scheme's of row r with run r's Generator (systematic runs on the backend's counting form,
-    which must give the very same ancestors), in run r's block of indices."""
+    """SMC.step -> SMC.ancestors -> mazelab.resampling's scheme: for R runs, run r's ancestors are the
+    scheme's of row r with run r's Generator (on the compiled backend systematic runs in its counting
+    form, which must give the very same ancestors); a run not due keeps its own particles."""
     runs, count = 3, 64
     particles = np.stack([paper_world.random_free_places(count, np.random.default_rng(s)) for s in range(runs)])
     filt = SIRParticleFilter(paper_world, 0.3, 0.5, particles, [np.random.default_rng(10 + r) for r in range(runs)],
                              resampling=scheme)  # fmt: skip
     W = np.random.default_rng(5).dirichlet(np.full(count, 0.3), size=runs)
     textbook = resampling_scheme(scheme)
-    expected = [textbook(W[r], np.random.default_rng(10 + r)) + r * count for r in range(runs)]
-    np.testing.assert_array_equal(filt.ancestors(W), np.concatenate(expected))
+    expected = [textbook(W[r], np.random.default_rng(10 + r)) for r in range(runs)]
+    np.testing.assert_array_equal(filt.ancestors(Weights(np.log(W)), np.ones(runs, dtype=bool)), expected)
+    due = np.array([False, True, False])  # the Generators of runs 0 and 2 untouched: 1 draws its own again
+    filt.rngs[1] = np.random.default_rng(11)
+    expected[0], expected[2] = np.arange(count), np.arange(count)
+    np.testing.assert_array_equal(filt.ancestors(Weights(np.log(W)), due), expected)

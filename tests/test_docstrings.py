@@ -15,7 +15,7 @@ DOCUMENTED = [
     "mazelab.registry",
     "mazelab.declaration",
     "mazelab.collect",
-    "mazelab.run_axis",
+    "mazelab.smc",
 ]
 
 

@@ -1,6 +1,9 @@
-"""The step template (mazelab.engine.SMC): one algorithm with hooks; adaptive
-resampling for every particle filter; a plug-in that overrides one hook; no hook names the runs; the
-template and what the exercise ships import no reference implementation."""
+"""The step (mazelab.smc.SMC): one algorithm with hooks over (R, N) arrays and the `due` mask; adaptive
+resampling for every particle filter; a plug-in that overrides one hook (0.2's hooks run or get one line);
+no hook names the runs; the rules the step keeps, each broken on purpose in a test of its own (masked
+resampling, identity ancestors, the due runs' draws, a lost run that draws nothing); what a hook returns
+checked where the step receives it; the engine and what the exercise ships import no reference
+implementation."""
 
 from __future__ import annotations
 
@@ -15,20 +18,27 @@ import numpy as np
 import pytest
 from conftest import ROOT
 
-from mazelab.cloud import ParticleFilter
-from mazelab.engine import SMC
-from mazelab.filters import AuxiliaryParticleFilter, RegularizedParticleFilter, SIRParticleFilter
+from mazelab.backend import use_backend
+from mazelab.filters import AuxiliaryParticleFilter, ParticleFilter, RegularizedParticleFilter, SIRParticleFilter
 from mazelab.lab import simulate
 from mazelab.robot import Robot
+from mazelab.smc import SMC, HookError
 
-HOOKS = ("step", "log_eta", "time_to_resample", "ancestors", "move_after_resampling", "reweight_resampled")
+HOOKS = ("log_eta", "time_to_resample", "ancestors", "move", "move_resampled", "reweight_resampled")
 
 
 class HalfESS(ParticleFilter):
-    """A plug-in whose only method is the resampling rule."""
+    """A plug-in whose only method is the resampling rule (0.2's form, without W: it still runs)."""
 
     def time_to_resample(self):
         return self.ess < 0.5 * self.count
+
+
+class PerRunHalfESS(ParticleFilter):
+    """The same rule in 0.3's form: a statistic per run of W (R, N), no reshaping."""
+
+    def time_to_resample(self, W):
+        return 1 / (W.W**2).sum(axis=1) < 0.5 * W.W.shape[1]
 
 
 def run(paper_world, filter_class, **options):
@@ -37,8 +47,9 @@ def run(paper_world, filter_class, **options):
     return simulate(robot, paper_world, 0.3, 0.5, 300, 40, filtering_algorithm=filter_class, seed=8, **options)
 
 
-def test_a_plugin_that_overrides_time_to_resample_is_sir_with_that_threshold_bit_for_bit(paper_world):
-    plugin = run(paper_world, HalfESS)
+@pytest.mark.parametrize("plugin_class", [HalfESS, PerRunHalfESS])
+def test_a_plugin_that_overrides_time_to_resample_is_sir_with_that_threshold_bit_for_bit(paper_world, plugin_class):
+    plugin = run(paper_world, plugin_class)
     declared = run(paper_world, "sir", threshold=0.5)
     every_step = run(paper_world, "sir")
     for field in ("estimates", "ess", "confident", "log_evidence"):
@@ -60,7 +71,7 @@ def test_the_one_hook_plugin_from_a_file_runs_as_sir_with_threshold_on_the_comma
 
 
 HALF_ESS_FILE = """
-from mazelab.cloud import ParticleFilter
+from mazelab.filters import ParticleFilter
 
 
 class HalfESS(ParticleFilter):
@@ -112,13 +123,13 @@ def test_the_template_and_the_exercise_import_no_reference_implementation():
     """The grading sandbox ships StudentFilter and what it imports: none of the model's code, of the
     resampling schemes or of the grid filter may come along (their constants may)."""
     code = (
-        "import sys; import mazelab.exercise.student, mazelab.engine; "
+        "import sys; import mazelab.exercise.student, mazelab.smc; "
         "print(','.join(sorted(m for m in sys.modules if m.startswith('mazelab'))))"
     )
     loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT)
     modules = set(loaded.stdout.strip().split(","))
-    for reference in ("mazelab.model", "mazelab.resampling", "mazelab.grid_filter", "mazelab.cloud",
-                      "mazelab.filters", "mazelab.numpy_ops"):  # fmt: skip
+    for reference in ("mazelab.model", "mazelab.resampling", "mazelab.grid_filter", "mazelab.filters",
+                      "mazelab.numpy_ops", "mazelab.backend"):  # fmt: skip
         assert reference not in modules
 
 
@@ -140,3 +151,141 @@ def test_a_studys_threshold_that_none_of_its_filters_takes_is_refused_in_one_lin
     assert main(["study", "--filters", "grid", "--threshold", "0.3", "--runs", "2", "--steps", "5", "--no-viz"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "GridBayesFilter does not take --threshold" in err
+
+
+# -- the rules the step keeps, each one a test that breaking it fails ----------------------------------------
+class OddRunsDue(SIRParticleFilter):
+    """Runs 0 and 2 resample every step, run 1 never."""
+
+    def time_to_resample(self, W):
+        return np.array([True, False, True])
+
+
+def generator_after(seed_state, *draws):
+    """A Generator from `seed_state` after the given draws (callables of it)."""
+    rng = np.random.default_rng()
+    rng.bit_generator.state = seed_state
+    for draw in draws:
+        draw(rng)
+    return rng.bit_generator.state
+
+
+def test_a_run_not_due_keeps_its_particles_and_weights_and_draws_only_its_move(paper_world):
+    """Masked resampling: the run not due gets identity ancestors (its particles moved in order), keeps
+    W_{k-1} (its new weights are W_{k-1} G_k normalised) and draws its move alone; the due runs draw
+    their offset, then their move, and their weights restart from G_k."""
+    count = 100
+    particles = np.stack([paper_world.random_free_places(count, np.random.default_rng(s)) for s in range(3)])
+    filt = OddRunsDue(paper_world, 0.3, 0.5, particles, [np.random.default_rng(10 + r) for r in range(3)])
+    filt.step(np.zeros(3), np.array([1.0, 1.2, 0.8]))
+    x, lw, states = filt.x.copy(), filt.W.lw.copy(), [g.bit_generator.state for g in filt.rngs]
+    angles, z = np.array([0.3, 0.4, 0.5]), np.array([1.1, 0.9, 1.3])
+    filt.step(angles, z)
+    move = lambda g: g.random(count, dtype=np.float32)  # noqa: E731
+    assert filt.rngs[1].bit_generator.state == generator_after(states[1], move)
+    for r in (0, 2):
+        assert filt.rngs[r].bit_generator.state == generator_after(states[r], lambda g: g.random(), move)
+    rng = np.random.default_rng()
+    rng.bit_generator.state = states[1]
+    alone, _ = filt.model.M(x[1:2], None, angles[1:2], [rng])
+    np.testing.assert_array_equal(filt.x[1], alone[0])
+    expected = filt.weights_class(lw[1:2]).add(filt.model.logG(alone, z[1:2]))
+    np.testing.assert_array_equal(filt.W.lw[1], expected.lw[0])
+    fresh = filt.weights_class.from_log(filt.model.logG(filt.x[[0, 2]], z[[0, 2]]))
+    np.testing.assert_array_equal(filt.W.lw[[0, 2]], fresh.lw)
+    assert filt.resampled_at == [[0, 1], [], [0, 1]]
+
+
+def test_a_run_nothing_explains_at_the_first_stage_draws_nothing_before_its_restart(paper_world):
+    """The APF's run 1 gets z = 400, which no auxiliary point explains: after its first stage's draws it
+    draws no offset and no move, only its restart from the prior; its evidence gains the first-stage
+    total; run 0 goes on as alone."""
+    count = 80
+    particles = np.stack([paper_world.random_free_places(count, np.random.default_rng(s)) for s in range(2)])
+    filt = AuxiliaryParticleFilter(
+        paper_world, 0.3, 0.5, particles, [np.random.default_rng(5), np.random.default_rng(6)]
+    )
+    filt.step(np.zeros(2), np.array([1.0, 1.0]))
+    lw, state, evidence = filt.W.lw.copy(), filt.rngs[1].bit_generator.state, filt.run_log_evidence.copy()
+    filt.step(np.zeros(2), np.array([1.0, 400.0]))
+    assert filt.reinitialised_at == [[], [2]] and filt.resampled_at == [[0, 1], [0]]
+    rng = np.random.default_rng()
+    rng.bit_generator.state = state
+    rng.random(count, dtype=np.float32)  # the auxiliary points' move
+    np.testing.assert_array_equal(filt.x[1], paper_world.random_free_places(count, rng).astype(np.float32))
+    assert filt.rngs[1].bit_generator.state == rng.bit_generator.state  # nothing more
+    first_stage = filt.weights_class(lw[1:2]).add(filt.log_mu[1:2])
+    assert first_stage.lost[0]
+    assert filt.run_log_evidence[1] == evidence[1] + first_stage.log_total[0]
+
+
+@pytest.mark.parametrize("filter_class", [SIRParticleFilter, AuxiliaryParticleFilter, RegularizedParticleFilter])
+def test_a_threshold_above_one_is_refused_for_every_filter(paper_world, filter_class):
+    with pytest.raises(ValueError, match="threshold"):
+        filter_class(paper_world, 0.3, 0.5, paper_world.random_free_places(10), threshold=1.5)
+
+
+# -- the boundary: what a hook returns is checked where the step receives it -----------------------------
+class OutOfRange(SIRParticleFilter):
+    def ancestors(self, W, due):
+        return np.full(W.W.shape, W.W.shape[1])
+
+
+class FloatAncestors(SIRParticleFilter):
+    def ancestors(self, W, due):
+        return np.zeros(W.W.shape)
+
+
+class NaNLikelihood(SIRParticleFilter):
+    def log_likelihood(self, x):
+        return np.full(x.shape[:2], np.nan, dtype=np.float32)
+
+
+class FlatLikelihood(SIRParticleFilter):
+    def log_likelihood(self, x):
+        return super().log_likelihood(x)[0]
+
+
+class NaNMove(SIRParticleFilter):
+    def move(self, x, A, due):
+        moved, headings = super().move(x, A, due)
+        return np.full_like(moved, np.nan), headings
+
+
+class OldMove(SIRParticleFilter):
+    def step(self, compass_angle, z):  # a method of the same name as nothing: the class builds
+        super().step(compass_angle, z)
+
+
+BACKENDS = ["numpy", pytest.param("compiled", marks=pytest.mark.skipif(
+    not __import__("importlib").util.find_spec("numba"), reason="needs numba"))]  # fmt: skip
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize(
+    ("plugin", "said"),
+    [
+        (OutOfRange, r"^ancestors returned an index outside \[0, 50\): 50\.\.50$"),
+        (FloatAncestors, r"^ancestors returned a float64 array of shape \(1, 50\); expected int"),
+        (NaNLikelihood, r"^log_likelihood returned NaN or \+inf \(run 0\)"),
+        (FlatLikelihood, r"^log_likelihood returned a float32 array of shape \(50,\); expected float \(R, N\)"),
+        (NaNMove, r"^the move returned NaN positions \(run 0\)"),
+    ],
+)
+def test_what_a_hook_returns_is_one_line_naming_the_hook_on_either_backend(paper_world, backend, plugin, said):
+    with use_backend(backend):
+        filt = plugin(paper_world, 0.3, 0.5, paper_world.random_free_places(50), np.random.default_rng(1))
+    with pytest.raises(HookError, match=said) as raised:
+        filt.step(0.0, 1.0)
+    assert "\n" not in str(raised.value)
+
+
+def test_a_plugin_of_0_2s_hooks_gets_one_line_on_how_to_port_it():
+    with pytest.raises(
+        TypeError, match=r"^Jitter.move_after_resampling is a hook of mazelab 0.2; port it to move_resampled"
+    ):
+        type("Jitter", (SIRParticleFilter,), {"move_after_resampling": lambda self, ancestors: None})
+    with pytest.raises(
+        TypeError, match=r"^Mine.ancestors\(W\) is a hook of mazelab 0.2; port it to ancestors\(self, W, due\)"
+    ):
+        type("Mine", (SIRParticleFilter,), {"ancestors": lambda self, W: None})

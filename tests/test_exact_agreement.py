@@ -58,7 +58,7 @@ def exact_walk():
         fine.step(compass, z)
         coarse_means.append(coarse.estimate)
         fine_means.append(fine.estimate)
-        spreads.append(fine.posterior_std())
+        spreads.append(math.sqrt(fine.weights @ ((fine.positions - fine.estimate) ** 2).sum(axis=1)))  # sqrt tr S
         moves.append(math.dist(fine.estimate, predicted_mean))
     return world, robot, np.array(coarse_means), np.array(fine_means), np.array(spreads), np.array(moves)
 

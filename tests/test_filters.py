@@ -14,8 +14,7 @@ import numpy as np
 import pytest
 from conftest import recorded_walk
 
-from mazelab.cloud import ParticleFilter
-from mazelab.filters import AuxiliaryParticleFilter, RegularizedParticleFilter
+from mazelab.filters import AuxiliaryParticleFilter, ParticleFilter, RegularizedParticleFilter
 from mazelab.lab import simulate
 from mazelab.model import LOG_UNDERFLOW, ROBOT_SPEED, log_likelihood
 from mazelab.registry import entries

@@ -32,12 +32,13 @@ from mazelab.experiments.executor import run_study
 from mazelab.experiments.stats import wilson_interval
 from mazelab.experiments.study import MazeChoice, study_settings, study_tasks
 from mazelab.kernels import sources_digest
-from mazelab.kernels.compiled import CompiledKernels
+from mazelab.kernels.compiled import CompiledKernels, CompiledWeights
 from mazelab.lab import simulate
 from mazelab.maze import Maze
 from mazelab.model import PARTICLE_DTYPE, ROBOT_SPEED
 from mazelab.registry import resolve_filter
 from mazelab.regularisation import GaussianKernel, mixture_kernel
+from mazelab.resampling import systematic_resample
 from mazelab.robot import Robot
 from mazelab.weights import Weights
 
@@ -64,19 +65,20 @@ def test_the_likelihood_is_the_numpy_paths_to_the_bit(maze, ten):
     rng = np.random.default_rng(1)
     points = cloud_points(world, 3 * 4000, rng)
     z = np.array([0.3, 1.7, 4.0])
-    compiled = CompiledKernels(world).log_likelihood(z, points, world, 0.4, 0.5)
-    reference = NUMPY_KERNELS.log_likelihood(z, points, world, 0.4, 0.5)
+    x = points.reshape(3, 4000, 2)  # the particles' layout: (R, N, 2) over (R*N, 2) order F
+    compiled = CompiledKernels(world).log_likelihood(z, x, world, 0.4, 0.5)
+    reference = NUMPY_KERNELS.log_likelihood(z, x, world, 0.4, 0.5)
     assert compiled.dtype == reference.dtype == F32 and compiled.shape == (3, 4000)
     np.testing.assert_array_equal(compiled, reference)
-    one = CompiledKernels(world).log_likelihood(z[1:2], points[:4000], world, 0.4, 0.5)
-    np.testing.assert_array_equal(one, NUMPY_KERNELS.log_likelihood(z[1:2], points[:4000], world, 0.4, 0.5))
+    one = CompiledKernels(world).log_likelihood(z[1:2], x[1:2], world, 0.4, 0.5)
+    np.testing.assert_array_equal(one, NUMPY_KERNELS.log_likelihood(z[1:2], x[1:2], world, 0.4, 0.5))
 
 
 @pytest.mark.parametrize("angle", [0.3, -2.0, 40.0, 1e4])
 def test_the_move_is_the_numpy_paths_to_a_rounding_over_the_whole_range_of_angles(angle, ten):
     rng = np.random.default_rng(2)
-    points = cloud_points(ten, 2 * 3000, rng)
-    ancestors = np.sort(rng.integers(0, len(points), len(points)))
+    points = cloud_points(ten, 2 * 3000, rng).reshape(2, 3000, 2)
+    ancestors = np.sort(rng.integers(0, 3000, (2, 3000)), axis=1)
     angles = np.array([angle, angle + 3.0], dtype=F32)
     delta = 2 * math.pi  # the widest compass error the lab takes
     uniforms = rng.random((2, 3000), dtype=F32)
@@ -88,10 +90,10 @@ def test_the_move_is_the_numpy_paths_to_a_rounding_over_the_whole_range_of_angle
         # 0.502), the steps L cos th three ulps of L (with their roundings), the sums one more rounding
         steps_apart = 3 * np.spacing(F32(ROBOT_SPEED))
         assert (np.abs(compiled - reference) <= np.spacing(np.abs(reference)) + steps_apart).all()
-        assert compiled.flags.f_contiguous and compiled.dtype == F32
+        assert compiled.shape == (2, 3000, 2) and compiled.dtype == F32
         # and it is the model's step: length L along the heading, exact to float32 rounding at any angle
-        start = (points if gather is None else points[gather]).astype(float)
-        step = np.column_stack([np.cos(headings.astype(float)), np.sin(headings.astype(float))]) * ROBOT_SPEED
+        start = (points if gather is None else np.take_along_axis(points, gather[..., None], axis=1)).astype(float)
+        step = np.stack([np.cos(headings.astype(float)), np.sin(headings.astype(float))], axis=-1) * ROBOT_SPEED
         assert np.abs(compiled - start - step).max() < 4e-6
 
 
@@ -110,8 +112,9 @@ def test_the_moves_cos_and_sin_are_within_half_an_ulp_and_a_little_over_the_mode
         ]
     ).astype(F32)
     moved, headings = CompiledKernels(ten).move(  # from the origin, a step of 1 along each angle (Delta 0)
-        np.zeros((len(angles), 2), F32, order="F"), None, np.full((len(angles), 1), 0.5, F32), angles, 0.0, 1.0
+        np.zeros((len(angles), 1, 2), F32), None, np.full((len(angles), 1), 0.5, F32), angles, 0.0, 1.0
     )
+    moved, headings = moved[:, 0], headings[:, 0]
     np.testing.assert_array_equal(headings, angles)
     exact = np.column_stack([np.cos(angles.astype(float)), np.sin(angles.astype(float))])
     error_in_ulps = np.abs(moved - exact) / np.spacing(np.abs(exact).astype(F32))
@@ -120,66 +123,71 @@ def test_the_moves_cos_and_sin_are_within_half_an_ulp_and_a_little_over_the_mode
     assert error_in_ulps.max() <= 0.5 + 0.0013
 
 
-def test_systematic_resampling_gives_the_numpy_paths_ancestors(ten):
+def test_systematic_resampling_gives_the_textbook_schemes_ancestors(ten):
+    """The counting form (compiled) and the textbook inverse CDF (mazelab.resampling.systematic_resample,
+    numpy's) give the same ancestors for the same weights and offset: a point u_m on a cumulative
+    boundary goes to the next particle in both (searchsorted's side "right", the count's ceil)."""
     rng = np.random.default_rng(3)
-    weights = rng.random((4, 1000)) ** 8
+    weights = rng.random((6, 1000)) ** 8
     weights[1, ::3] = 0.0  # particles without weight are never drawn
     weights[3] = 0.0
     weights[3, 17] = 1.0  # one particle with all the weight
+    weights[4] = 1.0  # equal weights: the points fall near the boundaries
+    weights[5, ::2] = 0.0
     weights /= weights.sum(axis=1, keepdims=True)
-    uniforms = rng.random(4)
     kernels = CompiledKernels(ten)
-    np.testing.assert_array_equal(
-        kernels.systematic(weights, uniforms, None, 1000), NUMPY_KERNELS.systematic(weights, uniforms, None, 1000)
-    )
-    runs = np.array([1, 3])
-    subset = kernels.systematic(weights, uniforms[:2], runs, 1000)
-    np.testing.assert_array_equal(subset, NUMPY_KERNELS.systematic(weights, uniforms[:2], runs, 1000))
-    assert not np.isin(subset[:1000] - 1000, np.arange(0, 1000, 3)).any()
-    assert (subset[1000:] == 3 * 1000 + 17).all()
+    for row in weights:
+        for seed in range(20):
+            counted = kernels.schemes["systematic"](row, np.random.default_rng(seed))
+            np.testing.assert_array_equal(counted, systematic_resample(row, np.random.default_rng(seed)))
+    assert not np.isin(kernels.systematic(weights[1], rng), np.arange(0, 1000, 3)).any()
+    assert (kernels.systematic(weights[3], rng) == 17).all()
+    row = np.full(8, 1 / 8)  # a point exactly on a boundary: u = 0 puts u_m = m / 8 on c_m
+    offset = type("Zero", (), {"random": lambda self: 0.0})()
+    np.testing.assert_array_equal(kernels.systematic(row, offset), systematic_resample(row, offset))
 
 
 def test_the_normalisation_and_its_reads_agree_with_numpy_to_rounding(ten):
     rng = np.random.default_rng(4)
-    points = cloud_points(ten, 3 * 2000, rng)
+    x = cloud_points(ten, 3 * 2000, rng).reshape(3, 2000, 2)
     log_w = (-0.5 * rng.standard_normal((3, 2000)) ** 2 * 30).astype(F32)
     log_w[2] = -np.inf  # nothing explains z: no weights, the filter restarts the run
-    totals, unwritten, reads = CompiledKernels(ten).normalise(log_w, points)
-    assert unwritten is None  # left out: the Weights derive log W from log w and the totals when read
+    compiled = CompiledWeights.from_log(log_w, x)
     with np.errstate(invalid="ignore"):  # numpy's -inf - -inf for the run nothing explains
-        log_weights = Weights(None, unnormalised=(log_w, totals)).lw
-        numpy_totals, numpy_log_weights, _ = NUMPY_KERNELS.normalise(log_w, points)
-    np.testing.assert_allclose(totals[:2], numpy_totals[:2], rtol=1e-6)  # numpy's total is summed in float32
-    np.testing.assert_allclose(log_weights[:2], numpy_log_weights[:2], rtol=0, atol=1e-5)
-    assert totals[2] == -np.inf and np.isnan(log_weights[2]).all() and np.isnan(reads["weights"][2]).all()
-    W = np.exp(numpy_log_weights[:2])
+        reference = Weights.from_log(log_w)
+        log_weights = compiled.lw
+    np.testing.assert_allclose(compiled.log_total[:2], reference.log_total[:2], rtol=1e-6)  # numpy's: float32 sums
+    np.testing.assert_allclose(log_weights[:2], reference.lw[:2], rtol=0, atol=1e-5)
+    assert compiled.log_total[2] == -np.inf and compiled.lost.tolist() == [False, False, True]
+    W = reference.W[:2]
     # float32 exponentials: 1 ulp (1.2e-7) and the difference log w - top rounded to float32 (half an ulp
     # of it, 4.8e-7 of the value while it is above -8, past that the weight is below 3.4e-4 of the top's:
     # 1e-5 relative covers both); 0 below exp(-87) = 1.6e-38 of the heaviest weight (W <= 1)
-    np.testing.assert_allclose(reads["weights"][:2], W, rtol=1e-5, atol=1.7e-38)
-    np.testing.assert_allclose(reads["ess"][:2], NUMPY_KERNELS.effective_sample_size(W), rtol=1e-5)
-    mean = NUMPY_KERNELS.weighted_mean(W, points[:4000])
-    np.testing.assert_allclose(reads["mean"][:2], mean, rtol=0, atol=1e-5)
-    share = NUMPY_KERNELS.mass_within(W, points[:4000], reads["mean"][:2], 1.0)
-    np.testing.assert_allclose(reads["share"][:2], share, rtol=1e-5)
-    assert 0 < reads["share"][0] < 1
-
-
-def test_the_apf_first_stage_and_the_covariance_agree_with_numpy_to_rounding(ten):
-    rng = np.random.default_rng(5)
-    log_a = np.log(rng.dirichlet(np.ones(1500), size=2))
-    log_b = (-3 * rng.random((2, 1500))).astype(F32)
-    weights, totals = CompiledKernels(ten).normalised(log_a, log_b)
-    numpy_weights, numpy_totals = NUMPY_KERNELS.normalised(log_a, log_b)
-    # float32 exponentials (mazelab.kernels.vector_math.exp32): 1 ulp (1.2e-7) and log a + log b - top, here
-    # above -32, rounded to float32 (half an ulp: 9.5e-7), so each weight within 1.1e-6 of numpy's and
-    # the log total (the log of their sum) within 1.2e-6
-    np.testing.assert_allclose(weights, numpy_weights, rtol=1.2e-6 * 2)  # twice: the total's error as well
-    np.testing.assert_allclose(totals, numpy_totals, rtol=0, atol=1.2e-6)
-    points = cloud_points(ten, 2 * 1500, rng)
+    assert compiled.W.dtype == F32
+    np.testing.assert_allclose(compiled.W[:2], W, rtol=1e-5, atol=1.7e-38)
+    np.testing.assert_allclose(compiled.ess[:2], reference.ess[:2], rtol=1e-5)
+    kernels = CompiledKernels(ten)
+    mean = NUMPY_KERNELS.weighted_mean(reference, x)[:2]
+    np.testing.assert_allclose(kernels.weighted_mean(compiled, x)[:2], mean, rtol=0, atol=1e-5)
+    share = NUMPY_KERNELS.mass_within(reference, x, kernels.weighted_mean(compiled, x), 1.0)[:2]
     np.testing.assert_allclose(
-        CompiledKernels(ten).weighted_covariance(weights, points),
-        NUMPY_KERNELS.weighted_covariance(weights, points),
+        kernels.mass_within(compiled, x, kernels.weighted_mean(compiled, x), 1.0)[:2], share, rtol=1e-5
+    )
+    assert 0 < share[0] < 1
+
+
+def test_the_reweighting_and_the_covariance_agree_with_numpy_to_rounding(ten):
+    rng = np.random.default_rng(5)
+    previous = CompiledWeights.from_log(np.log(rng.dirichlet(np.ones(1500), size=2)).astype(F32))
+    log_b = (-3 * rng.random((2, 1500))).astype(F32)
+    compiled, reference = previous.add(log_b), Weights(previous.lw).add(log_b)
+    # float32 log w (log W + log b rounded: 2e-6 of values near -15) and exponentials (1 ulp)
+    np.testing.assert_allclose(compiled.W, reference.W, rtol=1e-5)
+    np.testing.assert_allclose(compiled.log_total, reference.log_total, rtol=0, atol=2e-6)
+    x = cloud_points(ten, 2 * 1500, rng).reshape(2, 1500, 2)
+    np.testing.assert_allclose(
+        CompiledKernels(ten).weighted_covariance(compiled.W, x),
+        NUMPY_KERNELS.weighted_covariance(compiled.W, x),
         rtol=1e-5,
     )
 
@@ -210,38 +218,37 @@ def test_the_normalisation_of_runs_together_is_each_runs_alone_to_the_bit(dtype,
 
     rng = np.random.default_rng(7)
     size = 2 * CHUNK + LANES + 5  # three chunks, the last with a part lane's worth
-    points = cloud_points(ten, 3 * size, rng)
+    x = cloud_points(ten, 3 * size, rng).reshape(3, size, 2)
     log_w = (-0.5 * rng.standard_normal((3, size)) ** 2 * 30).astype(dtype)
     log_b = (-3 * rng.random((3, size))).astype(F32)
-    together = CompiledKernels(ten).normalise(log_w, points)
-    first_stage = CompiledKernels(ten).normalised(log_w.astype(float), log_b)
+    together = CompiledWeights.from_log(log_w, x)
+    added = together.add(log_b, x)
     for r in range(3):
-        alone = CompiledKernels(ten).normalise(log_w[r : r + 1].copy(), points[r * size : (r + 1) * size].copy())
-        np.testing.assert_array_equal(alone[0], together[0][r : r + 1])
-        for name in ("weights", "ess", "mean", "share"):
-            np.testing.assert_array_equal(alone[2][name], together[2][name][r : r + 1])
-        one = CompiledKernels(ten).normalised(log_w[r : r + 1].astype(float), log_b[r : r + 1].copy())
-        np.testing.assert_array_equal(one[0], first_stage[0][r : r + 1])
-        np.testing.assert_array_equal(one[1], first_stage[1][r : r + 1])
+        alone = CompiledWeights.from_log(log_w[r : r + 1].copy(), x[r : r + 1].copy())
+        for name in ("log_total", "W", "ess"):
+            np.testing.assert_array_equal(getattr(alone, name), getattr(together, name)[r : r + 1])
+        np.testing.assert_array_equal(alone.reads[2], together.reads[2][r : r + 1])  # the mean
+        np.testing.assert_array_equal(alone.add(log_b[r : r + 1], x[r : r + 1]).W, added.W[r : r + 1])
 
 
 def test_the_rpf_jitter_is_the_numpy_paths_to_the_bit_and_spreads_by_h_d(ten):
     rng = np.random.default_rng(6)
-    points = cloud_points(ten, 2 * 20_000, rng)
-    ancestors = rng.integers(0, len(points), len(points))
-    eps = rng.standard_normal((len(points), 2), dtype=F32)
+    x = cloud_points(ten, 3 * 20_000, rng).reshape(3, 20_000, 2)
+    A = rng.integers(0, 20_000, (3, 20_000))
+    due = np.array([True, False, True])
+    eps = rng.standard_normal((2 * 20_000, 2), dtype=F32)
     scales = [np.array([[0.3, 0.0], [0.1, 0.2]]), np.array([[0.05, 0.0], [-0.02, 0.01]])]
     kernels = [GaussianKernel(s) for s in scales]
-    moved = CompiledKernels(ten).jitter(points, ancestors, eps, kernels)
-    np.testing.assert_array_equal(moved, NUMPY_KERNELS.jitter(points, ancestors, eps, kernels))
-    for block, scale in enumerate(scales):  # the jitter of run r is N(0, (h D_r)(h D_r)^T)
-        rows = slice(block * 20_000, (block + 1) * 20_000)
-        jitter = (moved[rows] - points[ancestors[rows]]).astype(float)
+    moved = CompiledKernels(ten).jitter(x, A, due, eps, kernels)
+    np.testing.assert_array_equal(moved, NUMPY_KERNELS.jitter(x, A, due, eps, kernels))
+    np.testing.assert_array_equal(moved[1], x[1])  # a run not due: its particles as they were
+    for r, scale in zip((0, 2), scales, strict=True):  # run r's jitter: N(0, (h D_r)(h D_r)^T)
+        jitter = (moved[r] - x[r][A[r]]).astype(float)
         expected = scale @ scale.T
         # sample covariance of 20,000 normal pairs: relative standard error about sqrt(2 / 20,000) = 1%
         np.testing.assert_allclose(np.cov(jitter.T), expected, rtol=0, atol=5 * 0.01 * expected.max())
-    multimodal = CompiledKernels(ten).jitter(points, ancestors, eps, [mixture_kernel] * 2)
-    np.testing.assert_array_equal(multimodal, NUMPY_KERNELS.jitter(points, ancestors, eps, [mixture_kernel] * 2))
+    multimodal = CompiledKernels(ten).jitter(x, A, due, eps, [mixture_kernel] * 2)
+    np.testing.assert_array_equal(multimodal, NUMPY_KERNELS.jitter(x, A, due, eps, [mixture_kernel] * 2))
 
 
 def run_once(world: Maze, name: str, backend: str, seed: int = 11, particles: int = 500, steps: int = 40, **options):
@@ -332,19 +339,12 @@ def test_arrays_a_caller_keeps_are_never_written_over(name, paper_world):
     kept = []
     for _ in range(12):
         filt.step(*robot.step(paper_world))
-        arrays = (filt.positions, filt.headings, filt.run_weights, filt.log_weights, filt.run_positions(0))
+        arrays = (filt.positions, filt.headings, filt.weights, filt.log_weights)
         kept.append((arrays, [a.copy() for a in arrays]))
     for arrays, copies in kept:  # a student's list of every step's particles keeps every step's particles
         for array, copy in zip(arrays, copies, strict=True):
             np.testing.assert_array_equal(array, copy)
     assert len({id(arrays[0]) for arrays, _ in kept}) == len(kept)
-    # and when nothing else holds them the filter reuses its arrays instead of making new ones
-    del kept, arrays, copies
-    seen = set()
-    for _ in range(6):
-        filt.step(*robot.step(paper_world))
-        seen.add(id(filt.positions))
-    assert len(seen) <= 3
 
 
 def test_a_second_process_loads_the_kernels_from_the_cache(tmp_path):
@@ -481,39 +481,19 @@ def test_a_full_cache_folder_is_one_line_naming_it_and_the_run_goes_on(tmp_path)
     assert "Traceback" not in done.stderr
 
 
-needs_two_threads = pytest.mark.skipif(
-    __import__("numba").config.NUMBA_NUM_THREADS < 2, reason="numba runs one thread here (one core)"
-)
+needs_two_threads = pytest.mark.skipif((os.cpu_count() or 1) < 2, reason="one core here")
 
 
 @needs_two_threads
-def test_threads_give_the_likelihood_to_the_bit_and_the_reads_in_blocks_that_no_thread_count_changes(ten):
-    import numba
-
-    from mazelab.kernels import weights
+def test_threads_give_the_likelihood_to_the_bit(ten):
     from mazelab.kernels.compiled import THREADED_FROM
 
     rng = np.random.default_rng(6)
-    count = THREADED_FROM + 12_345  # a last block of its own size
-    points = cloud_points(ten, 2 * count, rng)
+    count = THREADED_FROM + 12_345  # a last chunk of its own size
+    x = cloud_points(ten, 2 * count, rng).reshape(2, count, 2)
     z = np.array([1.3, 2.1])
     one, two = CompiledKernels(ten, threads=1), CompiledKernels(ten, threads=2)
-    log_lik = one.log_likelihood(z, points, ten, 0.3, 0.5).copy()
-    np.testing.assert_array_equal(two.log_likelihood(z, points, ten, 0.3, 0.5), log_lik)
-    serial = one.normalise(log_lik, points)
-    threaded = two.normalise(log_lik, points)
-    np.testing.assert_allclose(threaded[0], serial[0], rtol=1e-12)
-    for name in ("weights", "ess", "mean", "share"):
-        np.testing.assert_allclose(threaded[2][name], serial[2][name], rtol=1e-9, atol=1e-300)
-    runs = []
-    for threads in (1, 2):  # the threaded kernel itself, on one thread and on two: the same bits
-        numba.set_num_threads(threads)
-        out = np.empty_like(log_lik, dtype=float)
-        reads = np.empty((5, 2))
-        weights.normalise_threads(log_lik, points, 1.0, out, reads)
-        runs.append((out, reads))
-    for first, second in zip(runs[0], runs[1], strict=True):
-        np.testing.assert_array_equal(first, second)
+    np.testing.assert_array_equal(two.log_likelihood(z, x, ten, 0.3, 0.5), one.log_likelihood(z, x, ten, 0.3, 0.5))
 
 
 @needs_two_threads

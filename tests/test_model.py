@@ -53,18 +53,27 @@ def test_sigma_outside_the_lab_range_warns():
 
 
 def test_the_lost_robot_moves_and_weighs_r_runs_as_each_run_alone(paper_world):
-    """LostRobot (the model a filter uses): R runs' particles in blocks, run r's draws from rngs[r]; the
-    transition and the log-likelihood of the blocks are each run's own, bit for bit, and the transition
-    moves every point by exactly L."""
+    """LostRobot (the model the step calls: M0, M, logG): R runs' particles (R, N, 2), run r's draws from
+    rngs[r]; the transition and the log-likelihood of the runs are each run's own, bit for bit, and the
+    transition moves every point by exactly L; a run without a Generator draws nothing."""
     model = LostRobot(paper_world, 0.3, 0.5, NUMPY_KERNELS)
-    runs = [model.prior(50, np.random.default_rng(s)).astype(np.float32) for s in (1, 2, 3)]
+    runs = np.stack([model.M0(50, np.random.default_rng(s)) for s in (1, 2, 3)]).astype(np.float32)
     angles, z = np.array([0.1, 1.0, 2.0]), np.array([0.5, 1.0, 1.5])
-    together, headings = model.transition(np.concatenate(runs), angles, [np.random.default_rng(s) for s in (4, 5, 6)])
-    weights = model.log_likelihood(z, together)
+    together, headings = model.M(runs, None, angles, [np.random.default_rng(s) for s in (4, 5, 6)])
+    weights = model.logG(together, z)
     for r, seed in enumerate((4, 5, 6)):
-        alone, _ = model.transition(runs[r], angles[r : r + 1], [np.random.default_rng(seed)])
-        np.testing.assert_array_equal(together[50 * r : 50 * (r + 1)], alone)
-        np.testing.assert_array_equal(weights[r], model.log_likelihood(z[r : r + 1], alone)[0])
-        steps = np.hypot(*(alone - runs[r]).T)
+        alone, _ = model.M(runs[r : r + 1], None, angles[r : r + 1], [np.random.default_rng(seed)])
+        np.testing.assert_array_equal(together[r], alone[0])
+        np.testing.assert_array_equal(weights[r], model.logG(alone, z[r : r + 1])[0])
+        steps = np.hypot(*(alone[0] - runs[r]).T)
         np.testing.assert_allclose(steps, ROBOT_SPEED, rtol=1e-5)
-        assert np.all(np.abs(headings[50 * r : 50 * (r + 1)] - angles[r]) <= 0.25 + 1e-6)
+        assert np.all(np.abs(headings[r] - angles[r]) <= 0.25 + 1e-6)
+    rng = np.random.default_rng(7)
+    state = rng.bit_generator.state
+    still, _ = model.M(runs, None, angles, [rng, None, rng])  # no Generator: no draw (a lost run restarts)
+    assert rng.bit_generator.state != state
+    np.testing.assert_allclose(np.hypot(*(still[1] - runs[1]).T), ROBOT_SPEED, rtol=1e-5)
+    untouched = np.random.default_rng(8)
+    before = untouched.bit_generator.state
+    model.M(runs[:1], None, angles[:1], [None])
+    assert untouched.bit_generator.state == before

@@ -31,7 +31,7 @@ RUN = ["--maze", "paper_5x5", "--steps", "25", "--particles", "200", "--seed", "
 ADAPTIVE = '''
 """SIR that resamples only when the ESS falls below ess_share * N (the contract's worked example)."""
 from helper_beside import DEFAULT_SHARE
-from mazelab.cloud import ParticleFilter
+from mazelab.filters import ParticleFilter
 from mazelab.declaration import Option, number_in
 
 
@@ -64,7 +64,7 @@ def test_the_contracts_worked_example_runs_as_written(tmp_path, capsys):
     import mazelab.contract
 
     doc = mazelab.contract.__doc__
-    code = textwrap.dedent(doc[doc.index("    from mazelab.cloud") : doc.index("Saved as my_filter.py")])
+    code = textwrap.dedent(doc[doc.index("    from mazelab.filters") : doc.index("Saved as my_filter.py")])
     (tmp_path / "my_filter.py").write_text(code.replace("'''", '"""'))
     assert main(["run", "--filter", f"{tmp_path}/my_filter.py:PeriodicSIR", "--option", "period=3", *RUN]) == 0
     assert first_line(capsys).startswith("PeriodicSIR: last-step error")

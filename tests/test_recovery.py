@@ -121,7 +121,7 @@ def test_sensor_resetting_injects_by_how_far_w_fast_is_below_the_localised_level
     """Lenser and Veloso's 1 - p_avg / p_threshold with p_avg = w_fast and p_threshold = SENSOR_RESET_LEVEL
     times the localised likelihood: w_fast at `share` of that threshold gives max(0, 1 - share)."""
     filt = SIRParticleFilter(paper_world, 0.3, 0.5, paper_world.random_free_places(10), recovery="sensor")
-    filt.track_likelihood(-50.0, 1.0)  # w_slow: a lost filter's level, which the sensor mode ignores
+    filt.recovery.track(-50.0, 1.0)  # w_slow: a lost filter's level, which the sensor mode ignores
     filt.recovery.log_w_fast = math.log(share * SENSOR_RESET_LEVEL * localised_likelihood(0.3))
     assert filt.injection_probability == pytest.approx(probability, abs=1e-12)
     with pytest.raises(ValueError, match="0 < reset_level <= 1"):
@@ -133,12 +133,14 @@ def test_a_lost_rpf_injects_without_resampling_and_keeps_the_weights(paper_world
     the replaced particles keep their weights, the others stay where they were."""
     particles = paper_world.random_free_places(400, np.random.default_rng(1))
     filt = RegularizedParticleFilter(paper_world, 0.3, 0.5, particles, np.random.default_rng(2), recovery="sensor")
-    filt.track_likelihood(math.log(1e-3 * localised_likelihood(0.3)), 1.0)  # w_fast far below the level
+    filt.recovery.track(math.log(1e-3 * localised_likelihood(0.3)), 1.0)  # w_fast far below the level
     before, weights = filt.positions.copy(), filt.log_weights
-    filt.between_resamplings()
-    injected = filt._injected  # the mask of the step about to run (`injected` shows it once the step is done)
+    filt._observe(0.0, 1.0)  # th0 and z of the step about to run
+    filt.transition = lambda x, A=None: (x, np.zeros(x.shape[:2], x.dtype))  # the move shows the injection alone
+    moved, _ = filt.move(filt.x, None, np.zeros(1, dtype=bool))  # no run resamples (ESS = N)
+    injected = filt._injected[1]  # the mask of the step about to run (`injected` shows it once the step is done)
     assert injected is not None and 0.9 * 400 < injected.sum() <= 400  # probability 1 - 1e-3 / 0.5
-    np.testing.assert_array_equal(filt.positions[~injected], before[~injected])
+    np.testing.assert_array_equal(moved[0][~injected], before[~injected])
     np.testing.assert_array_equal(filt.log_weights, weights)
     assert filt.regularised_at == []
 

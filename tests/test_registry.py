@@ -21,11 +21,10 @@ import pytest
 
 from mazelab import registry
 from mazelab.cli.app import main
-from mazelab.cloud import ParticleFilter
 from mazelab.declaration import Option, number_in
 from mazelab.experiments import batch_runs
 from mazelab.experiments.study import MazeChoice, run_task, study_settings, study_tasks
-from mazelab.filters import AuxiliaryParticleFilter, RegularizedParticleFilter, SIRParticleFilter
+from mazelab.filters import AuxiliaryParticleFilter, ParticleFilter, RegularizedParticleFilter, SIRParticleFilter
 from mazelab.grid_filter import GridBayesFilter
 from mazelab.plugins import check_declared_defaults
 from mazelab.registry import SHIPPED, FilterEntry, entries, filter_entry, register, resolve_filter

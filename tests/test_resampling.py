@@ -2,8 +2,7 @@
 
 - every scheme is unbiased, E[N_i] = N W_i, and gives no offspring to a particle without weight;
   systematic and residual keep at least floor(N W_i) copies, systematic at most ceil(N W_i);
-- systematic resampling's O(N) count is the inverse-CDF definition, for one run and for R runs at once
-  (`systematic_resample_runs`: run r is run r resampled alone, in its own block of rows);
+- systematic resampling's O(N) count (the compiled backend's) is the textbook inverse CDF's ancestors;
 - an unknown scheme's name lists the valid ones, and every scheme runs in every particle filter;
 - KLD-sampling (Fox 2003): the bound of eq. 13, its options checked, the sample stops at Fox's first
   sufficient count, and the particle count shrinks as the robot is found.
@@ -23,7 +22,6 @@ from mazelab.resampling import (
     kld_sample_size,
     resampling_scheme,
     systematic_resample,
-    systematic_resample_runs,
 )
 from mazelab.robot import Robot
 
@@ -57,11 +55,15 @@ def test_unknown_resampling_scheme_lists_the_valid_ones():
         resampling_scheme("magic")
 
 
-def test_the_textbook_systematic_and_the_counting_form_give_the_same_ancestors():
+def test_the_textbook_systematic_and_the_compiled_counting_form_give_the_same_ancestors(paper_world):
     """`systematic_resample` is the textbook (u ~ U[0, 1), u_m = (u + m) / M, the inverse CDF by a
-    binary search); the filters run its O(N) counting form (systematic_resample_runs, the backend's
-    fast path). For the same u they must pick the same ancestors, M = N and M below and above N,
-    with particles of no weight among them."""
+    binary search), the numpy backend's; the compiled backend runs its O(N) counting form. For the same
+    u they must pick the same ancestors, M = N and M below and above N, with particles of no weight
+    among them."""
+    pytest.importorskip("numba")
+    from mazelab.kernels.compiled import CompiledKernels
+
+    counting = CompiledKernels(paper_world).systematic
     rng = np.random.default_rng(21)
     for trial in range(200):
         n = int(rng.integers(1, 400))
@@ -70,26 +72,7 @@ def test_the_textbook_systematic_and_the_counting_form_give_the_same_ancestors()
         weights = weights / weights.sum() if weights.sum() > 0 else np.full(n, 1 / n)
         for count in (n, max(1, n // 3), 2 * n + 1):
             textbook = systematic_resample(weights, np.random.default_rng(trial), count)
-            offset = np.random.default_rng(trial).random()  # the u the textbook drew
-            np.testing.assert_array_equal(systematic_resample_runs(weights[None], np.array([offset]), count), textbook)
-
-
-def test_systematic_resampling_of_r_runs_is_each_run_resampled_alone():
-    """Run r of R with its own offset U_r picks, for every point u_m = (m + U_r) / M, the index i with
-    cumsum(W_r)[i-1] <= u_m < cumsum(W_r)[i] (the definition, as above), shifted to run r's block of
-    rows r*N..(r+1)*N; for M = N and for M below and above N (KLD-sampling's counts)."""
-    rng = np.random.default_rng(31)
-    runs, n = 4, 50
-    weights = rng.random((runs, n)) ** 3
-    weights[1, :40] = 0.0  # a run whose first particles have no weight
-    weights /= weights.sum(axis=1, keepdims=True)
-    offsets = rng.random(runs)
-    for count in (n, 17, 120):
-        together = systematic_resample_runs(weights, offsets, count)
-        assert together.shape == (runs * count,)
-        for r in range(runs):
-            alone = np.searchsorted(np.cumsum(weights[r]), (np.arange(count) + offsets[r]) / count, side="right")
-            np.testing.assert_array_equal(together[r * count : (r + 1) * count], r * n + alone)
+            np.testing.assert_array_equal(counting(weights, np.random.default_rng(trial), count), textbook)
 
 
 @pytest.mark.parametrize("name", PARTICLE_FILTERS)

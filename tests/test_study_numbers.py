@@ -62,11 +62,11 @@ class {name}(RegularizedParticleFilter):
     options = {{"threshold": 0.05}}
     started = False
 
-    def resampled(self, ancestors):
+    def move_resampled(self, x, A, due):
         if not {name}.started:
             {name}.started = True
             time.sleep({ONE_OFF_SECONDS})
-        super().resampled(ancestors)
+        return super().move_resampled(x, A, due)
 '''
 
 

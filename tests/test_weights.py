@@ -1,7 +1,7 @@
 """Weighted particles (mazelab.weights): each function for one run (N,) and for R runs (R, N) alike.
 
 - log_sum_exp is log(sum(exp(log w))) without overflow or underflow, -inf where every entry is -inf;
-- weights_from_logs normalises each run by its own total (NaN for a run whose total is -inf);
+- Weights.from_log normalises each run by its own total; add, a masked reset and lost; read-only arrays;
 - the effective sample size is N_eff = 1 / sum_i W_i^2 (Arulampalam et al., eq. 51): N for equal
   weights, 1 for one particle holding all;
 - weighted_mean and weighted_covariance are sum_i W_i x_i and sum_i W_i (x_i - mean)(x_i - mean)^T;
@@ -22,7 +22,6 @@ from mazelab.weights import (
     mass_within,
     weighted_covariance,
     weighted_mean,
-    weights_from_logs,
 )
 
 
@@ -43,12 +42,14 @@ def test_log_sum_exp_sums_each_run_and_a_run_without_weight_is_minus_infinity():
     assert totals[1] == -np.inf
 
 
-def test_weights_from_logs_normalise_each_run_by_its_own_total():
-    log_w = np.log([[1.0, 3.0], [2.0, 2.0]]) + np.array([[-900.0], [700.0]])  # far beyond exp's range
-    weights = weights_from_logs(log_w, log_sum_exp(log_w))
-    np.testing.assert_allclose(weights, [[0.25, 0.75], [0.5, 0.5]], rtol=1e-12)
-    lost = weights_from_logs(np.array([[-np.inf, -np.inf], [0.0, 0.0]]), np.array([-np.inf, math.log(2)]))
-    assert np.isnan(lost[0]).all() and lost[1].tolist() == [0.5, 0.5]
+def test_weights_from_log_normalise_each_run_by_its_own_total_and_a_run_nothing_explains_is_lost():
+    log_w = np.log([[1.0, 3.0], [2.0, 2.0]]) + np.array([[-600.0], [700.0]])  # beyond exp's range, not lost
+    weights = Weights.from_log(log_w)
+    np.testing.assert_allclose(weights.W, [[0.25, 0.75], [0.5, 0.5]], rtol=1e-12)
+    np.testing.assert_allclose(weights.log_total, [math.log(4) - 600, math.log(4) + 700], rtol=1e-15)
+    assert weights.lost.tolist() == [False, False]
+    lost = Weights.from_log(np.array([[-np.inf, -np.inf], [0.0, 0.0], [-800.0, -800.0]]))
+    assert lost.lost.tolist() == [True, False, True]  # -inf, and a total below the smallest float64
 
 
 def test_effective_sample_size_limits():
@@ -104,53 +105,33 @@ def test_mass_within_is_the_weight_at_most_the_radius_away():
     np.testing.assert_allclose(both, [0.3, 0.2], atol=1e-15)  # about (0.5, 2): only the third point
 
 
-def test_weights_are_a_value_whose_w_and_ess_are_derived():
+def test_weights_are_a_value_whose_arrays_are_read_only_and_whose_w_and_ess_are_derived():
     lw = np.log(np.array([[0.5, 0.25, 0.25], [1 / 3, 1 / 3, 1 / 3]]))
     weights = Weights(lw)
     np.testing.assert_allclose(weights.W, np.exp(lw))
     np.testing.assert_allclose(weights.ess, [1 / (0.25 + 1 / 16 + 1 / 16), 3.0])
-    with pytest.raises(AttributeError, match="value"):
-        weights.lw = lw[::-1]
+    for array in (weights.W, weights.lw, weights.ess, weights.log_total, Weights.uniform(2, 3).lw):
+        with pytest.raises(ValueError, match="read-only"):
+            array[0] = 1.0
 
 
-def test_the_log_mean_increment_is_the_previous_weights_mean_of_the_increments():
-    """log sum_i W_{k-1}^i G_k^i, the estimate of log p(z_k | z_1:k-1): from the total of w = W_{k-1} G
-    where the weights carry W_{k-1}; from the mean of G (W_{k-1} = 1/N after resampling) times the
-    factor fresh weights lack (the APF's first-stage total) where they are fresh. Worked by hand."""
-    previous, increments = np.array([0.5, 0.25, 0.25]), np.array([0.2, 0.4, 0.8])
-    log_w = np.stack([np.log(previous * increments), np.log(increments)])  # run 0 carries W_{k-1}; run 1 fresh
-    totals = log_sum_exp(log_w)
-    factor = math.log(0.6)
-    weights = Weights(None, unnormalised=(log_w, totals), increment=(totals, np.array([False, True]), factor, 3))
-    carried = 0.5 * 0.2 + 0.25 * 0.4 + 0.25 * 0.8  # 0.4
-    fresh = 0.6 * (0.2 + 0.4 + 0.8) / 3  # 0.28
-    np.testing.assert_allclose(weights.log_mean_increment, np.log([carried, fresh]), rtol=1e-14)
-    np.testing.assert_allclose(weights.W, [previous * increments / carried, increments / 1.4], rtol=1e-14)
+def test_add_is_the_reweighting_whose_log_total_is_the_previous_weights_mean_of_the_increments():
+    """W.add(log G): W_i G_i normalised per run, and its log total log sum_i W_{k-1}^i G_k^i, the estimate
+    of log p(z_k | z_1:k-1). Worked by hand."""
+    previous, increments = np.array([[0.5, 0.25, 0.25], [0.2, 0.2, 0.6]]), np.array([[0.2, 0.4, 0.8], [1.0, 1.0, 0.5]])
+    new = Weights(np.log(previous)).add(np.log(increments))
+    carried = (previous * increments).sum(axis=1)  # 0.4 and 0.7
+    np.testing.assert_allclose(new.log_total, np.log(carried), rtol=1e-14)
+    np.testing.assert_allclose(new.W, previous * increments / carried[:, None], rtol=1e-14)
+    uniform = Weights.uniform(2, 3).add(np.log(increments))
+    np.testing.assert_allclose(uniform.log_total, np.log(increments.mean(axis=1)), rtol=1e-14)
 
 
-@pytest.mark.parametrize("runs", [1, 3])
-@pytest.mark.parametrize("factor", [0.0, "per run"])
-def test_every_run_or_none_fresh_gives_the_masks_increments_to_the_bit(runs, factor):
-    """fresh = True (every run resampled) or False (none): the same float64 values, bit for bit, as the
-    mask of all or no runs (one run's are worked on Python floats, the same double arithmetic in the
-    same order); 32 draws, as a sum in another order differs in the last bit for about a third."""
-    rng = np.random.default_rng(5)
-    for _ in range(32):
-        totals = rng.normal(-3.0, 2.0, runs)
-        log_factor = rng.normal(-1.0, 0.5, runs) if factor == "per run" else factor
-        for fresh, mask in ((True, np.ones(runs, dtype=bool)), (False, np.zeros(runs, dtype=bool))):
-            fast = Weights(None, increment=(totals, fresh, log_factor, 1000)).log_mean_increment
-            masked = Weights(None, increment=(totals, mask, log_factor, 1000)).log_mean_increment
-            assert fast.dtype == masked.dtype == np.float64
-            np.testing.assert_array_equal(fast.view(np.int64), masked.view(np.int64))
-
-
-def test_the_log_parts_give_log_w_without_making_it():
-    log_w, totals = np.array([[-1.0, -2.5, -np.inf]], dtype=np.float32), np.array([0.75])
-    derived = Weights(None, unnormalised=(log_w, totals))
-    log_a, shifts = derived.log_parts
-    assert log_a is log_w and shifts is totals and "lw" not in vars(derived)  # nothing made
-    np.testing.assert_array_equal(np.subtract(log_a, shifts[:, None], dtype=float), derived.lw)  # the same bits
-    assert derived.log_parts[0] is derived.lw and derived.log_parts[1] is None  # once made, itself
-    held = Weights(np.array([[-0.1, -2.3]]))
-    assert held.log_parts[0] is held.lw and held.log_parts[1] is None
+def test_a_masked_reset_replaces_those_runs_and_keeps_the_others_to_the_bit():
+    rng = np.random.default_rng(3)
+    weights, other = Weights.from_log(rng.normal(size=(3, 4))), Weights.from_log(rng.normal(size=(1, 4)))
+    reset = weights.reset(np.array([False, True, False]), other)
+    np.testing.assert_array_equal(reset.lw[[0, 2]], weights.lw[[0, 2]])
+    np.testing.assert_array_equal(reset.lw[1], other.lw[0])
+    np.testing.assert_array_equal(reset.log_total, [weights.log_total[0], other.log_total[0], weights.log_total[2]])
+    assert weights.reset(np.zeros(3, dtype=bool), other) is weights

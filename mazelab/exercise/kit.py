@@ -37,17 +37,9 @@ KIT: dict[str, str | tuple[str, ...]] = {
     "mazelab.seeding": WHOLE,
     "mazelab.constants": WHOLE,  # L, the outside penalty, the green circle: numbers only
     "mazelab.model": CONSTANTS,  # the same constants as the model re-exports them: never the transition or likelihood
-    "mazelab.run_blocks": WHOLE,  # the engine's base: the runs a hook serves, what the step leaves of each
-    "mazelab.engine": WHOLE,  # the step template: its model parts (transition, likelihood, ancestors) are the student's
+    "mazelab.smc": WHOLE,  # the step: it calls the model object and the scheme it is given (the student's parts)
     # the weights' value and normalisation, not weighted_mean (the estimate is a graded part)
-    "mazelab.weights": (
-        "Weights",
-        "weights_from_logs",
-        "exp_in_place",
-        "log_sum_exp",
-        "effective_sample_size",
-        "mass_within",
-    ),
+    "mazelab.weights": ("Weights", "read_only", "log_sum_exp", "effective_sample_size", "mass_within"),
     "mazelab.exercise": WHOLE,
     "mazelab.exercise.student": WHOLE,
     "mazelab.exercise.wire": WHOLE,
@@ -56,7 +48,6 @@ KIT: dict[str, str | tuple[str, ...]] = {
 # What must never be in the sandbox: the reference implementations and the grader.
 REFERENCE_MODULES = (
     "mazelab.filters",
-    "mazelab.cloud",
     "mazelab.resampling",
     "mazelab.regularisation",
     "mazelab.grid_filter",

@@ -37,7 +37,6 @@ REFERENCE_SOURCES = (  # where the lab's implementations of the four parts live
     "mazelab.model",
     "mazelab.resampling",
     "mazelab.weights",
-    "mazelab.cloud",
     "mazelab.filters",
     "mazelab.regularisation",
 )

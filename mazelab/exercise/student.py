@@ -1,7 +1,7 @@
 """StudentFilter: Algorithm 4 (SIR) with four parts left to the student, wired into the filter contract.
 
 The student writes `predict`, `weigh`, `resample` and `estimate`; StudentFilter is the step template
-every particle filter of the lab runs (mazelab.engine.SMC.step) with those parts as its hooks: the
+every particle filter of the lab runs (mazelab.smc.SMC.step) with those parts as its hooks: the
 transition is `predict`, the log-likelihood `weigh`, the ancestors `resample`, and the point estimate
 `estimate`. The engine does the rest: log-domain normalisation, the effective sample size, the log
 evidence, and a restart from the prior when no particle explains z_k. Like the shipped filters, each
@@ -18,12 +18,11 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from mazelab.checks import as_points
 from mazelab.constants import CONFIDENCE_RADIUS, CONFIDENCE_SHARE, OUTSIDE_PENALTY, ROBOT_SPEED
 from mazelab.contract import Particles
 from mazelab.declaration import Option, Options
-from mazelab.engine import SMC
 from mazelab.maze import Maze
+from mazelab.smc import SMC
 from mazelab.weights import mass_within
 
 PARTS = ("predict", "weigh", "resample", "estimate")
@@ -62,7 +61,7 @@ class StudentFilter(SMC):
     -----
     Attributes the parts may read: `self.world`, `self.sigma`, `self.delta`, `self.ROBOT_SPEED` (L) and
     `self.OUTSIDE_PENALTY` (refinement 1's factor), also importable from mazelab.exercise. The step is
-    the lab's template (mazelab.engine.SMC), whose own methods (`move`, `reweight`, `normalise`, `due`, `resampled`,
+    the lab's template (mazelab.smc.SMC), whose own methods (`move`, `reweight`, `normalise`, `due`, `resampled`,
     ...) a helper of yours must not be named after.
     """
 
@@ -100,10 +99,7 @@ class StudentFilter(SMC):
         self.settings = type(self).options.resolve(options, self.name)
         self.world, self.sigma, self.delta = world, float(sigma), float(delta)
         self.rng = rng if rng is not None else np.random.default_rng()
-        self.positions = as_points("particles", particles).copy()
-        self.count = len(self.positions)
-        self.headings = np.zeros(self.count)
-        self.start_runs([self.rng])
+        super().__init__(StudentModel(self), particles, self.rng, dtype=float)
         self._estimate: tuple[Any, np.ndarray] | None = None  # (the weights it is of, the estimate)
 
     # -- the student's four parts --------------------------------------------------------------------
@@ -123,19 +119,10 @@ class StudentFilter(SMC):
         """The posterior mean, shape (2,): a subclass writes it as `estimate(self, positions, weights)`."""
         raise NotImplementedError("estimate is still to write")
 
-    # -- the template's hooks: the student's parts --------------------------------------------------
-    def transition(self, points: np.ndarray, ancestors: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """x_k^i ~ p(x_k | x_{k-1}^i) by the student's `predict` (of points[ancestors] after resampling)."""
-        chosen = points if ancestors is None else points[ancestors]
-        return self.call_predict(chosen, float(self.compass_angles[0])), np.zeros(len(chosen))
-
-    def log_likelihood(self, points: np.ndarray) -> np.ndarray:
-        """log p(z_k | x_k^i) by the student's `weigh`, one row (1, N)."""
-        return self.call_weigh(points, float(self.measurements[0]))[None]
-
-    def ancestors(self, weights: np.ndarray) -> np.ndarray:
-        """RESAMPLE by the student's `resample` of the normalised weights (one row)."""
-        return self.call_resample(weights[0])
+    # -- the step's resampling: the student's part ------------------------------------------------------
+    def ancestors(self, W: Any, due: np.ndarray) -> np.ndarray:
+        """RESAMPLE by the student's `resample` of the normalised weights (one run), (1, N)."""
+        return self.call_resample(W.W[0])[None]
 
     def call_predict(
         self, positions: np.ndarray, compass_angle: float, rng: np.random.Generator | None = None
@@ -183,8 +170,8 @@ class StudentFilter(SMC):
     @property
     def estimate(self) -> np.ndarray:
         """The contract's point estimate: the student's estimate of the present posterior, (2,) (once per step)."""
-        if self._estimate is None or self._estimate[0] is not self.weights_value:
-            self._estimate = (self.weights_value, self.call_estimate(self.positions, self.weights))
+        if self._estimate is None or self._estimate[0] is not self.W:
+            self._estimate = (self.W, self.call_estimate(self.positions, self.weights))
         return self._estimate[1].copy()
 
     @property
@@ -198,6 +185,28 @@ class StudentFilter(SMC):
         return Particles(self.positions, self.weights)
 
 
+class StudentModel:
+    """The model the step calls (mazelab.smc.SMC: M0, M, logG), from the student's parts: the prior is
+    uniform over the free area, the transition `predict`, the log-likelihood `weigh` (one run)."""
+
+    def __init__(self, parts: StudentFilter):
+        self.parts = parts
+
+    def M0(self, count: int, rng: np.random.Generator) -> np.ndarray:  # noqa: N802 (particles' names)
+        """The prior's sample: uniform over the free area, (count, 2)."""
+        return self.parts.world.random_free_places(count, rng)
+
+    def M(self, x: np.ndarray, A: np.ndarray | None, th0: np.ndarray, rngs: Any) -> tuple[np.ndarray, np.ndarray]:  # noqa: N802
+        """x_k^i ~ p(x_k | x_{k-1}^i) by the student's `predict` (of x[A] after resampling), (1, N, 2)."""
+        chosen = x[0] if A is None else x[0][A[0]]
+        moved = self.parts.call_predict(chosen, float(th0[0]), rngs[0])
+        return moved[None], np.zeros((1, len(moved)))
+
+    def logG(self, x: np.ndarray, z: np.ndarray) -> np.ndarray:  # noqa: N802
+        """log p(z_k | x_k^i) by the student's `weigh`, one row (1, N)."""
+        return self.parts.call_weigh(x[0], float(z[0]))[None]
+
+
 def _checked(part: str, values: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
     """A part's array, refused in one line when its shape is wrong or it holds a value that is not finite."""
     if values.shape != shape:
@@ -207,4 +216,4 @@ def _checked(part: str, values: np.ndarray, shape: tuple[int, ...]) -> np.ndarra
     return values
 
 
-__all__ = ["PARTS", "PartError", "StudentFilter"]
+__all__ = ["PARTS", "PartError", "StudentFilter", "StudentModel"]

@@ -2,10 +2,10 @@
 equations (mazelab.kernels.model: the move, the nearest station and the likelihood in one pass, the
 RPF's jitter), the resampler (mazelab.kernels.resampling: systematic resampling by counting) and the
 weighted reads (mazelab.kernels.weights: the top, then the float32 exponentials and their sums, then
-the weights and the confidence share, three passes; the APF's first stage).
-mazelab.kernels.compiled.CompiledKernels calls them for a filter, with reused buffers.
+the weights and the confidence share, three passes). mazelab.kernels.compiled.CompiledKernels calls
+them for a filter, and its CompiledWeights keeps what the normalisation read.
 
-The filters do not change: their steps call the cloud's methods (mazelab.cloud), which call these
+The filters do not change: the model (mazelab.model.LostRobot) and the weights value call these
 kernels or the numpy functions, whichever backend runs (mazelab.backend). Each kernel takes the run
 axis (R runs in one call), works on float32 particles and keeps the numpy path's float32 arithmetic
 where it has some (the likelihood and the resampling are the numpy path's to the bit, given the same
@@ -115,9 +115,10 @@ class _MendingCache(FunctionCache):
             os.unlink(self._cache_file._index_path)
 
 
-def jit(function: Callable[..., Any] | None = None, *, inline: bool = False, threads: bool = False) -> Any:
-    """`function` compiled by numba in nopython mode, cached on disk where a cache folder can be
-    written (see the module's docstring), else compiled in memory (with one warning per process).
+def jit(function: Callable[..., Any] | None = None, *, inline: bool = False) -> Any:
+    """`function` compiled by numba in nopython mode (releasing the GIL), cached on disk where a cache
+    folder can be written (see the module's docstring), else compiled in memory (with one warning per
+    process).
 
     Parameters
     ----------
@@ -126,9 +127,6 @@ def jit(function: Callable[..., Any] | None = None, *, inline: bool = False, thr
     inline : bool
         Inline it into the kernels that call it (numba's inline="always"): a helper called per
         particle, whose call would otherwise count the references of every array it is passed.
-    threads : bool
-        Run its `numba.prange` loops on numba's threads (parallel=True; numba.set_num_threads says how
-        many): the kernels whose names end in `_threads`.
 
     Returns
     -------
@@ -136,12 +134,10 @@ def jit(function: Callable[..., Any] | None = None, *, inline: bool = False, thr
         The numba dispatcher: compiled on its first call for its argument types.
     """
     if function is None:
-        return lambda f: jit(f, inline=inline, threads=threads)
+        return lambda f: jit(f, inline=inline)
     options: dict[str, Any] = {"nogil": True, "error_model": "numpy"}  # numpy's: x / 0 is inf, no check
     if inline:
         options["inline"] = "always"
-    if threads:
-        options["parallel"] = True
     dispatcher = numba.njit(**options)(function)
     try:
         dispatcher._cache = _MendingCache(function)  # what numba's cache=True sets, with the mending above

@@ -1,72 +1,31 @@
-"""The compiled backend's operations for one filter (mazelab.backend.NumpyKernels has the same
-methods): each calls one kernel for all R runs, into buffers it reuses.
+"""The compiled backend's operations (mazelab.numpy_ops.NumpyKernels has the same methods): each calls
+one kernel for all R runs, and `CompiledWeights`, the weights value this backend builds, keeps W in
+float32 and the reads its normalisation makes in the same passes (the ESS, the posterior mean and the
+weight within the green circle around it). Anything the kernels do not cover (float64 points such as
+recovery's injected draws, the multimodal kernel, the APF's gather) goes to the numpy operations.
 
-A buffer is reused only when nothing else holds it: the pool checks its reference count, so an array
-the filter still holds (its positions, the weights it cached) or one a caller kept (a student's list of
-`filt.positions`, a view of it) is never written over; the pool then makes another. Anything the
-kernels do not cover (float64 points such as recovery's injected draws, the multimodal kernel)
-goes to the numpy operations.
+Threads: from THREADED_FROM particles on, with MAZELAB_THREADS above 1, the likelihood (the step's
+dearest pass) runs on a pool of threads, each on a chunk of the particles with the same kernel (the
+kernels release the GIL): its values are the same to the bit whatever the count.
 """
 
 from __future__ import annotations
 
 import math
-import sys
-from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
+from functools import cached_property
 from typing import Any
 
-import numba
 import numpy as np
 
+from mazelab.constants import CONFIDENCE_RADIUS, PARTICLE_DTYPE
 from mazelab.kernels import model, resampling, weights
-from mazelab.model import CONFIDENCE_RADIUS, PARTICLE_DTYPE
-from mazelab.numpy_ops import NumpyKernels
+from mazelab.numpy_ops import NumpyKernels, flat_ancestors
 from mazelab.regularisation import GaussianKernel
+from mazelab.smc import new_particles, particles_array
+from mazelab.weights import Weights, log_sum_exp, read_only
 
-THREADED_FROM = 1 << 16  # particles in a call from which the likelihood and the normalisation use the threads
-_KEEP = 2  # arrays kept per buffer name and shape: the filter's and the one being filled (more are made
-# while a caller holds one, and not kept: the step lets go of what it has spent, so two are enough)
-
-
-class BufferPool:
-    """Arrays by name, handed out again once nothing outside the pool refers to them."""
-
-    def __init__(self) -> None:
-        self._slots: dict[str, tuple] = {}  # name -> (shape, dtype, order, [arrays])
-        probe = [np.empty(1)]
-        # an array only the pool holds, as `take` sees it: its list's reference, the loop's and the call's
-        self._unheld = sys.getrefcount(probe[0]) + 1
-
-    def take(self, name: str, shape: tuple[int, ...], dtype: Any, order: str = "C") -> np.ndarray:
-        """An array of this shape, dtype and order, not referred to by anything but the pool.
-
-        Parameters
-        ----------
-        name : str
-            What it holds (positions, weights, ...).
-        shape : tuple of int
-        dtype : numpy dtype
-        order : "C" or "F"
-
-        Returns
-        -------
-        numpy.ndarray
-            Uninitialised (its old values, or new memory).
-        """
-        held = self._slots.get(name)
-        if held is None or held[0] != shape or held[1] != dtype or held[2] != order:
-            held = self._slots[name] = (shape, dtype, order, [])  # new, or another shape (KLD, some runs)
-        unheld = self._unheld
-        for array in held[3]:
-            if _references(array) == unheld:
-                return array
-        array = np.empty(shape, dtype=dtype, order=order)
-        if len(held[3]) < _KEEP:
-            held[3].append(array)
-        return array
-
-
-_references = sys.getrefcount
+THREADED_FROM = 1 << 16  # particles in a call from which the likelihood runs on the threads
 
 
 def lookup_tables(world: Any) -> tuple:
@@ -113,287 +72,221 @@ def lookup_tables(world: Any) -> tuple:
     )
 
 
+class CompiledWeights(Weights):
+    """The compiled backend's weights value: W float32 (every sum over it in float64), the log total,
+    and the reads of the normalisation's passes (ESS, mean, share within the green circle of the mean)
+    for the particles it was made with; log W = log w - log total is derived when read (float64).
+
+    Parameters
+    ----------
+    log_w : array (R, N)
+        The unnormalised log weights (float32 after a reweighting), or log W itself (totals 0).
+    log_total : array (R,)
+    W : array (R, N), optional
+        exp(log w - log total), when the normalisation wrote it.
+    reads : (x, ess (R,), mean (R, 2), share (R,)), optional
+        What the normalisation read of the particles x.
+    """
+
+    def __init__(self, log_w: np.ndarray, log_total: np.ndarray, W: np.ndarray | None = None, reads: Any = None):
+        log_w.flags.writeable = log_total.flags.writeable = False
+        self.log_w, self.log_total, self.reads = log_w, log_total, reads
+        if W is not None:
+            self.__dict__["W"] = read_only(W)
+        if reads is not None:
+            self.__dict__["ess"] = reads[1]  # a row of the reads, read-only with them
+            reads[1].base.flags.writeable = False
+
+    @classmethod
+    def from_log(cls, log_w: np.ndarray, x: np.ndarray | None = None) -> CompiledWeights:
+        """Each row normalised in one compiled call of three passes, with the reads of x (float32
+        particles in their layout; other arrays are normalised by numpy's arithmetic)."""
+        runs, count = log_w.shape
+        if x is None or x.dtype != PARTICLE_DTYPE or x.shape[:2] != log_w.shape:
+            totals = np.atleast_1d(log_sum_exp(log_w))
+            return cls(log_w, totals)
+        w, reads = np.empty((runs, count), dtype=np.float32), np.empty((5, runs))
+        weights.normalise(log_w, np.asfortranarray(x.reshape(-1, 2)), CONFIDENCE_RADIUS, w, reads)
+        return cls(log_w, reads[0], w, (x, reads[3], reads[1:3].T, reads[4]))
+
+    @classmethod
+    def uniform(cls, runs: int, count: int) -> CompiledWeights:
+        """W_i = 1/N: log w = 0 (float32), log total log N; W one number broadcast."""
+        W = np.broadcast_to(np.exp(np.float64(-math.log(count))), (runs, count))
+        return cls(np.zeros((runs, count), np.float32), np.full(runs, math.log(count)), W)
+
+    def add(self, log_g: np.ndarray, x: np.ndarray | None = None) -> CompiledWeights:
+        """log W + log G per run in one compiled pass (float32, log W worked out per particle from log w
+        and its total, never stored), then `from_log`."""
+        if log_g.dtype != PARTICLE_DTYPE or log_g.shape != self.log_w.shape:
+            return self.from_log(self.lw + log_g, x)
+        out = np.empty_like(log_g)
+        weights.reweighted(self.log_w, self.log_total, log_g, out)
+        return self.from_log(out, x)
+
+    def reset(self, rows: np.ndarray, other: Weights, x: np.ndarray | None = None) -> CompiledWeights:
+        """These weights with the given rows' log w replaced by `other`'s, normalised again with the reads
+        of x (the same values, row by row, as each run's alone)."""
+        if not rows.any():
+            return self
+        log_w = np.array(self.log_w, dtype=np.result_type(self.log_w, other.log_w))
+        log_w[rows] = other.log_w
+        return self.from_log(log_w, x)
+
+    @cached_property
+    def lw(self) -> np.ndarray:
+        """log W_i = log w_i - log total, (R, N) float64."""
+        return read_only(np.subtract(self.log_w, self.log_total[:, None], dtype=float))
+
+
 class CompiledKernels(NumpyKernels):
-    """The hot parts of one filter on `world`, compiled (mazelab.kernels), with reused buffers; what
-    the kernels do not cover is NumpyKernels' (this class's parent).
+    """The hot parts of one filter on `world`, compiled (mazelab.kernels); what the kernels do not
+    cover is NumpyKernels' (this class's parent).
 
     Parameters
     ----------
     world : Maze
         The filter's maze: its lookup tables are read once.
     threads : int, optional
-        The threads one call's particles are spread over from THREADED_FROM particles on (the
-        likelihood, its values the same to the bit; the normalisation, its sums in blocks: the same
-        numbers for any count above one); default 1 (mazelab.backend.kernels_for passes MAZELAB_THREADS's).
+        The threads the likelihood's particles are spread over from THREADED_FROM particles on
+        (default 1; mazelab.backend.kernels_for passes MAZELAB_THREADS's).
     """
 
     name = "compiled"
+    Weights = CompiledWeights
 
     def __init__(self, world: Any, threads: int | None = None):
         self.tables = lookup_tables(world)
-        self.pool = BufferPool()
         self._tables_of = world
-        self.threads = min(threads or 1, numba.config.NUMBA_NUM_THREADS)
-        self._terms_of: tuple = (None, ())  # (sigma, penalty), the likelihood's constants
-        self._bases_of: tuple = (None, _NO_ANCESTORS)  # (R, N), each run's first row
-
-    def _threaded(self, particles: int) -> bool:
-        """Whether a call over `particles` runs on the threads (and numba's thread count set for it)."""
-        if self.threads < 2 or particles < THREADED_FROM:
-            return False
-        numba.set_num_threads(self.threads)
-        return True
-
-    def buffer(self, name: str, shape: tuple[int, ...], dtype: Any) -> np.ndarray:
-        """An array to be filled, C order, reused once no one else holds it (see BufferPool.take).
-
-        Parameters
-        ----------
-        name : str
-        shape : tuple of int
-        dtype : numpy dtype
-
-        Returns
-        -------
-        numpy.ndarray
-        """
-        return self.pool.take(name, shape, dtype)
+        self.threads = max(1, threads or 1)
+        self.schemes = {"systematic": self.systematic}
 
     def move(
-        self,
-        positions: np.ndarray,
-        ancestors: np.ndarray | None,
-        uniforms: np.ndarray,
-        angles: np.ndarray,
-        delta: float,
-        speed: float,
+        self, x: np.ndarray, A: np.ndarray | None, uniforms: np.ndarray, angles: np.ndarray, delta: float, speed: float
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Equation (1): NumpyKernels.move's arguments and results in one compiled pass (the headings,
-        their cos and sin, the gather and the step); the headings are numpy's to the bit, cos and sin
-        within 0.502 ulp of the exact value (mazelab.kernels.model.move). float64 points (or angles)
-        go to numpy.
-
-        Parameters
-        ----------
-        positions : array (P, 2)
-        ancestors : int array (R*M,), or None
-        uniforms : array (R, M)
-        angles : array (R,)
-        delta, speed : float
-
-        Returns
-        -------
-        (moved positions (R*M, 2) order F, headings (R*M,)): the headings are the uniforms' array
-        """
-        if not positions.dtype == uniforms.dtype == angles.dtype == PARTICLE_DTYPE:
-            return super().move(positions, ancestors, uniforms, angles, delta, speed)
-        out = self.pool.take("positions", (uniforms.size, 2), PARTICLE_DTYPE, "F")
-        sources = _NO_ANCESTORS if ancestors is None else ancestors
-        model.move(positions, sources, uniforms, angles, float(delta), float(speed), out)
-        return out, uniforms.reshape(-1)
+        """Equation (1) (NumpyKernels.move's arguments and results) in one compiled pass: the headings,
+        their cos and sin (within 0.502 ulp of the exact values: mazelab.kernels.vector_math), the
+        gather and the step. float64 points go to numpy."""
+        if not x.dtype == uniforms.dtype == angles.dtype == PARTICLE_DTYPE:
+            return super().move(x, A, uniforms, angles, delta, speed)
+        out = new_particles(*uniforms.shape, PARTICLE_DTYPE)
+        sources = _NO_ANCESTORS if A is None else flat_ancestors(A, x.shape[1])
+        model.move(
+            np.asfortranarray(x.reshape(-1, 2)),
+            sources,
+            uniforms,
+            angles,
+            float(delta),
+            float(speed),
+            out.reshape(-1, 2),
+        )
+        return out, uniforms
 
     def log_likelihood(
-        self, z: np.ndarray, positions: np.ndarray, world: Any, sigma: float, outside_penalty: float
+        self, z: np.ndarray, x: np.ndarray, world: Any, sigma: float, outside_penalty: float
     ) -> np.ndarray:
-        """Equation (3) in logs, compiled: the locate and the likelihood in one pass (float32, the
-        numpy path's values to the bit).
+        """Equation (3) in logs, compiled: the locate and the likelihood in one pass (float32, the numpy
+        path's values to the bit), on `threads` threads for a large call (chunks of the same kernel)."""
+        if x.dtype != PARTICLE_DTYPE or world is not self._tables_of:
+            return super().log_likelihood(z, x, world, sigma, outside_penalty)
+        runs, count = x.shape[:2]
+        out, points = np.empty((runs, count), dtype=PARTICLE_DTYPE), np.asfortranarray(x.reshape(-1, 2))
+        norm = math.log(sigma * math.sqrt(2 * math.pi))
+        terms = (float(sigma), -norm, math.log(outside_penalty) - norm, self.tables)
+        if self.threads < 2 or runs * count < THREADED_FROM:
+            model.log_likelihood(points, z, *terms, out)
+            return out
+        size = -(-count // self.threads)
 
-        Parameters
-        ----------
-        z : array (R,)
-        positions : array (R*N, 2)
-        world : Maze
-        sigma, outside_penalty : float
+        def chunk(job: tuple[int, int]) -> None:  # particles start..start+size of run r
+            r, start = job
+            first = r * count + start
+            model.log_likelihood(
+                points[first : first + size], z[r : r + 1], *terms, out[r : r + 1, start : start + size]
+            )
 
-        Returns
-        -------
-        float32 array (R, N)
-        """
-        if positions.dtype != PARTICLE_DTYPE or world is not self._tables_of:
-            return super().log_likelihood(z, positions, world, sigma, outside_penalty)
-        out = self.pool.take("log_likelihood", (len(z), len(positions) // len(z)), PARTICLE_DTYPE)
-        kernel = model.log_likelihood_threads if self._threaded(len(positions)) else model.log_likelihood
-        kernel(positions, z, *self._terms(sigma, outside_penalty), self.tables, out)
+        with ThreadPoolExecutor(self.threads) as pool:  # the same kernel on each chunk (it releases the GIL)
+            list(pool.map(chunk, [(r, start) for r in range(runs) for start in range(0, count, size)]))
         return out
 
-    def _terms(self, sigma: float, outside_penalty: float) -> tuple:
-        """The likelihood kernel's constants: sigma, -log(sigma sqrt(2 pi)) and that plus log(outside
-        penalty), worked out once for the filter's sigma and penalty (kept for the last pair)."""
-        if self._terms_of[0] != (sigma, outside_penalty):
-            norm = math.log(sigma * math.sqrt(2 * math.pi))
-            self._terms_of = ((sigma, outside_penalty), (float(sigma), -norm, math.log(outside_penalty) - norm))
-        return self._terms_of[1]
-
-    def systematic(self, weights_: np.ndarray, uniforms: np.ndarray, runs: np.ndarray | None, count: int) -> np.ndarray:
-        """Systematic resampling by counting, compiled (NumpyKernels.systematic's arguments and results).
+    def systematic(self, W: np.ndarray, rng: np.random.Generator, count: int | None = None) -> np.ndarray:
+        """Systematic resampling in its counting form (mazelab.kernels.resampling): the ancestors of
+        mazelab.resampling.systematic_resample for the same cumulative weights and offset u = rng.random().
 
         Parameters
         ----------
-        weights_ : array (R, N)
-            float32 as this backend's normalisation writes them (others are rounded to float32 first).
-        uniforms : array (len(runs),)
-        runs : int array, or None
-        count : int
+        W : array (N,)
+        rng : numpy.random.Generator
+        count : int, optional
+            M (default N).
 
         Returns
         -------
-        int32 array (len(runs) * N,) (int64 from 2**31 particles on)
+        int64 array (M,)
         """
-        if weights_.dtype != np.float32:  # the uniform start's (or derived) float64 W: the kernel of float32 W's
-            weights_ = weights_.astype(np.float32)
-        if runs is None:
-            chosen, bases = weights_, self._bases(len(weights_), count)
-        else:
-            rows = np.asarray(runs, dtype=np.int64)
-            chosen, bases = weights_[rows], rows * count
-        index = np.int32 if len(weights_) * count < 2**31 else np.int64  # half the memory of numpy's int64
-        out = self.pool.take("ancestors", (len(chosen) * count,), index)
-        resampling.systematic(chosen, uniforms, count, bases, out)
+        out = np.empty(len(W) if count is None else count, dtype=np.int64)
+        resampling.systematic(W, rng.random(), out)
         return out
 
-    def _bases(self, runs: int, count: int) -> np.ndarray:
-        """r * count for each of `runs` runs (int64 (R,)): the first row of each run's particles, made
-        once for the filter's R and N (kept for the last pair, never written into)."""
-        if self._bases_of[0] != (runs, count):
-            self._bases_of = ((runs, count), np.arange(runs) * count)
-        return self._bases_of[1]
+    def weighted_mean(self, W: Weights, x: np.ndarray) -> np.ndarray:
+        """The posterior mean per run: the normalisation's read for these particles, else computed."""
+        reads = getattr(W, "reads", None)
+        if reads is not None and reads[0] is x:
+            return reads[2]
+        return super().weighted_mean(W, x)
 
-    def normalise(self, log_w: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, None, dict | None]:
-        """Each run's log total and W, with the step's reads: the top, the exponentials and the sums,
-        then the normalisation, in three compiled passes over each run. log W is not written: the
-        Weights value derives it from log w and the totals when it is read (the same values as log w -
-        log total here), which saves a float64 array's writes and memory.
-
-        Parameters
-        ----------
-        log_w : array (R, N)
-        positions : array (R*N, 2)
-
-        Returns
-        -------
-        (log totals (R,), None, reads): reads holds "weights" (R, N) float32, "ess" (R,), "mean" (R, 2)
-        and "share" (R,), the weight within CONFIDENCE_RADIUS of the mean
-        """
-        if positions.dtype != PARTICLE_DTYPE or len(positions) != log_w.size:
-            return super().normalise(log_w, positions)
-        runs, size = log_w.shape
-        w = self.pool.take("weights", (runs, size), np.float32)
-        reads = np.empty((5, runs))  # the totals, the mean's x and y, the ESS, the share: one row each
-        kernel = weights.normalise_threads if self._threaded(log_w.size) else weights.normalise
-        kernel(log_w, positions, CONFIDENCE_RADIUS, w, reads)
-        return reads[0], None, {"weights": w, "ess": reads[3], "mean": reads[1:3].T, "share": reads[4]}
-
-    def normalised(
-        self, log_a: np.ndarray, log_b: np.ndarray, shifts: np.ndarray | None = None
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """W ∝ exp(log_a - shifts + log_b) per run and its log total (NumpyKernels.normalised), compiled
-        into a reused array, with one exponential per particle (numpy's log_sum_exp and weights_from_logs
-        take two); log_a - shifts is worked out per particle, never stored.
-
-        Parameters
-        ----------
-        log_a, log_b : arrays (R, N)
-        shifts : array (R,), optional
-
-        Returns
-        -------
-        (W (R, N) float32, log totals (R,)); a run whose total is -inf (or NaN) gets NaN weights
-        """
-        w = self.pool.take("first_weights", log_a.shape, np.float32)
-        totals = np.empty(len(log_a))
-        weights.first_stage(log_a, np.zeros(len(log_a)) if shifts is None else shifts, log_b, w, totals)
-        return w, totals
-
-    def reweighted(self, log_a: np.ndarray, log_lik: np.ndarray, shifts: np.ndarray | None = None) -> np.ndarray:
-        """NumpyKernels.reweighted's log W_{k-1} + log p(z_k | x_k) (its arguments) in one compiled pass:
-        its float64 sum rounded to float32, written into log_lik's array (spent after it), no float64
-        array made; float64 likelihoods (recovery's draws) go to numpy."""
-        if log_lik.dtype != PARTICLE_DTYPE:
-            return super().reweighted(log_a, log_lik, shifts)
-        weights.reweighted(log_a, np.zeros(len(log_a)) if shifts is None else shifts, log_lik, log_lik)
-        return log_lik
-
-    def equal_weighted(self, log_lik: np.ndarray, log_weight: float) -> np.ndarray:
-        """NumpyKernels.equal_weighted's log W + log p(z_k | x_k) (its arguments) in float32, into
-        log_lik's array (spent after it); float64 likelihoods go to numpy."""
-        if log_lik.dtype != PARTICLE_DTYPE:
-            return super().equal_weighted(log_lik, log_weight)
-        return np.add(log_lik, log_weight, out=log_lik)
-
-    def second_stage(
-        self, log_lik: np.ndarray, log_mu: np.ndarray, ancestors: np.ndarray, out: np.ndarray | None = None
-    ) -> np.ndarray:
-        """NumpyKernels.second_stage's log p(z_k | x^j) - log p(z_k | mu^{a^j}) (its arguments) in one
-        compiled pass, the same float32 values, into `out` (log_lik itself, say) or a new array; float64
-        values (recovery's draws) go to numpy."""
-        if not log_lik.dtype == log_mu.dtype == PARTICLE_DTYPE or (out is not None and out.dtype != PARTICLE_DTYPE):
-            return super().second_stage(log_lik, log_mu, ancestors, out)
-        out = np.empty_like(log_lik) if out is None else out
-        weights.second_stage(log_lik, log_mu, ancestors, out)
-        return out
-
-    def mass_within(
-        self, weights_: np.ndarray, positions: np.ndarray, centres: np.ndarray, radius: float
-    ) -> np.ndarray:
-        """The weight within `radius` of each run's centre (R, 2), compiled.
-
-        Parameters
-        ----------
-        weights_ : array (R, N)
-        positions : array (R*N, 2)
-        centres : array (R, 2)
-        radius : float
-
-        Returns
-        -------
-        array (R,)
-        """
-        shares = np.empty(len(weights_))
-        weights.mass_within(weights_, positions, np.asarray(centres, dtype=float).reshape(-1, 2), radius, shares)
+    def mass_within(self, W: Weights, x: np.ndarray, centres: np.ndarray, radius: float) -> np.ndarray:
+        """The weight within `radius` of each run's centre: the normalisation's read around the mean,
+        else compiled."""
+        reads = getattr(W, "reads", None)
+        if reads is not None and reads[0] is x and centres is reads[2] and radius == CONFIDENCE_RADIUS:
+            return reads[3]
+        if x.dtype != PARTICLE_DTYPE:
+            return super().mass_within(W, x, centres, radius)
+        shares = np.empty(len(W.W))
+        weights.mass_within(
+            W.W, np.asfortranarray(x.reshape(-1, 2)), np.asarray(centres, dtype=float).reshape(-1, 2), radius, shares
+        )
         return shares
 
-    def weighted_covariance(self, weights_: np.ndarray, positions: np.ndarray) -> np.ndarray:
-        """Each run's weighted covariance, compiled (two passes: the mean, then the moments).
-
-        Parameters
-        ----------
-        weights_ : array (R, N)
-        positions : array (R*N, 2)
-
-        Returns
-        -------
-        array (R, 2, 2) float64
-        """
-        if positions.dtype != PARTICLE_DTYPE:
-            return super().weighted_covariance(weights_, positions)
-        out = np.empty((len(weights_), 2, 2))
-        weights.covariance(weights_, positions, out)
+    def weighted_covariance(self, W: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """Each run's weighted covariance, compiled (the mean, then the moments), (R, 2, 2)."""
+        if x.dtype != PARTICLE_DTYPE:
+            return super().weighted_covariance(W, x)
+        out = np.empty((len(W), 2, 2))
+        weights.covariance(W, np.asfortranarray(x.reshape(-1, 2)), out)
         return out
 
-    def jitter(self, positions: np.ndarray, ancestors: np.ndarray, eps: np.ndarray, kernels: Sequence) -> np.ndarray:
-        """The RPF's gather and jitter in one pass for Gaussian kernels (h D eps, one D per run); the
-        multimodal kernel goes to numpy.
+    def second_stage(self, log_lik: np.ndarray, log_mu: np.ndarray, A: np.ndarray) -> np.ndarray:
+        """The APF's second-stage log weights (NumpyKernels.second_stage's) in one compiled pass."""
+        if not log_lik.dtype == log_mu.dtype == PARTICLE_DTYPE:
+            return super().second_stage(log_lik, log_mu, A)
+        out = np.empty_like(log_lik)
+        weights.second_stage(log_lik, log_mu, A, out)
+        return out
 
-        Parameters
-        ----------
-        positions : array (P, 2)
-        ancestors : int array (R*M,)
-        eps : array (R*M, 2)
-        kernels : sequence of R kernels
+    def equal_weighted(self, log_lik: np.ndarray, log_weight: float) -> np.ndarray:
+        """log W + log p(z_k | x_k) of resampled particles, in the likelihood's dtype (float32)."""
+        return np.add(log_lik, log_lik.dtype.type(log_weight))
 
-        Returns
-        -------
-        jittered positions (R*M, 2), order F
-        """
-        if positions.dtype != PARTICLE_DTYPE or not all(isinstance(k, GaussianKernel) for k in kernels):
-            return super().jitter(positions, ancestors, eps, kernels)
+    def jitter(self, x: np.ndarray, A: np.ndarray, due: np.ndarray, eps: np.ndarray, kernels: Any) -> np.ndarray:
+        """The RPF's gather and jitter in one pass for Gaussian kernels (h D eps, one D per due run);
+        the multimodal kernel goes to numpy."""
+        if x.dtype != PARTICLE_DTYPE or not all(isinstance(k, GaussianKernel) for k in kernels):
+            return super().jitter(x, A, due, eps, kernels)
+        rows = np.flatnonzero(due)
         scales = np.array([[k.scale[0, 0], k.scale[1, 0], k.scale[1, 1]] for k in kernels], dtype=PARTICLE_DTYPE)
-        out = self.pool.take("positions", (len(ancestors), 2), PARTICLE_DTYPE, "F")
-        model.jitter(positions, ancestors, eps, scales, out)
+        moved = new_particles(len(rows), A.shape[1], PARTICLE_DTYPE)
+        sources = (A[rows] + (rows * x.shape[1])[:, None]).reshape(-1)
+        model.jitter(np.asfortranarray(x.reshape(-1, 2)), sources, eps, scales, moved.reshape(-1, 2))
+        if len(rows) == len(x):
+            return moved
+        out = particles_array(x, x.dtype)
+        out[rows] = moved
         return out
 
 
 _NO_ANCESTORS = np.empty(0, dtype=np.int64)
 
 
-__all__ = ["THREADED_FROM", "BufferPool", "CompiledKernels", "lookup_tables"]
+__all__ = ["THREADED_FROM", "CompiledKernels", "CompiledWeights", "lookup_tables"]

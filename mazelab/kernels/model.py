@@ -18,7 +18,6 @@ two kernels.
 from __future__ import annotations
 
 import numpy as np
-from numba import prange
 
 from mazelab.kernels import jit
 from mazelab.kernels.vector_math import cos_sin
@@ -192,25 +191,6 @@ def log_likelihood(positions, z, sigma, free_term, outside_term, tables, out):  
         _beyond_the_table(positions, z, sigma, outside_term, typed, out)
 
 
-@jit(threads=True)
-def log_likelihood_threads(positions, z, sigma, free_term, outside_term, tables, out):  # pragma: no cover
-    """log_likelihood's values to the bit (its arguments), the particles spread over numba's threads."""
-    sigma, free_term, outside_term, typed = F32(sigma), F32(free_term), F32(outside_term), _typed(tables)
-    runs, size = out.shape
-    beyond = 0
-    for r in range(runs):
-        zr = F32(z[r])
-        for m in prange(size):
-            i = r * size + m
-            value, inside = _log_likelihood_at(
-                positions[i, 0], positions[i, 1], zr, sigma, free_term, outside_term, typed
-            )
-            out[r, m] = value
-            beyond += 0 if inside else 1
-    if beyond:
-        _beyond_the_table(positions, z, sigma, outside_term, typed, out)
-
-
 @jit
 def jitter(positions, ancestors, eps, scales, out):  # pragma: no cover - compiled
     """The RPF's kernel K_h for R runs: out[i] = positions[a_i] + h D_r eps_i, D_r lower triangular.
@@ -238,4 +218,4 @@ def jitter(positions, ancestors, eps, scales, out):  # pragma: no cover - compil
             out[i, 1] = positions[source, 1] + (c * e0 + d * eps[i, 1])
 
 
-__all__ = ["jitter", "log_likelihood", "log_likelihood_threads", "move"]
+__all__ = ["jitter", "log_likelihood", "move"]

@@ -31,7 +31,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import prange
 
 from mazelab.kernels import jit
 from mazelab.kernels.vector_math import exp32
@@ -206,135 +205,24 @@ def normalise(log_w, positions, radius, w, reads):  # pragma: no cover
         reads[4, r] = _second_pass(row, top, 1.0 / total, xs, ys, centre, r2, w[r], lanes, chunk)
 
 
-BLOCK = 1 << 15  # particles per block of normalise_threads' sums: their order depends on it alone
-
-
-@jit(threads=True)
-def normalise_threads(log_w, positions, radius, w, reads):  # pragma: no cover
-    """normalise's results (its arguments) with the particles in blocks of BLOCK spread over numba's
-    threads: each block's top and sums, then the runs' in block order, so the numbers depend on BLOCK,
-    not on the thread count (they agree with normalise's to rounding)."""
-    runs, size = log_w.shape
-    blocks = (size + BLOCK - 1) // BLOCK
-    partial = np.zeros((runs * blocks, 5))
-    for job in prange(runs * blocks):
-        r, start, stop = _block(job, blocks, size)
-        partial[job, 4] = _top(log_w[r, start:stop])
-    tops = np.empty(runs, dtype=log_w.dtype)  # the log weights' dtype: their differences as normalise's
-    for r in range(runs):
-        top = partial[r * blocks, 4]
-        for b in range(1, blocks):
-            top = max(partial[r * blocks + b, 4], top)
-        tops[r] = top
-    for job in prange(runs * blocks):
-        r, start, stop = _block(job, blocks, size)
-        if abs(tops[r]) < np.inf:
-            xs, ys = positions[r * size + start : r * size + stop, 0], positions[r * size + start : r * size + stop, 1]
-            lanes, chunk = np.empty((4, LANES)), np.empty(CHUNK, dtype=np.float32)
-            sums = _first_pass(log_w[r, start:stop], tops[r], xs, ys, lanes, chunk)
-            partial[job, 0], partial[job, 1], partial[job, 2], partial[job, 3] = sums
-    sums = np.zeros((runs, 4))
-    for r in range(runs):
-        for b in range(blocks):
-            for k in range(4):
-                sums[r, k] += partial[r * blocks + b, k]
-        if not (abs(tops[r]) < np.inf and sums[r, 0] == sums[r, 0]):
-            _unnormalisable(r, log_w[r], tops[r], w, reads)
-            continue
-        reads[0, r] = tops[r] + math.log(sums[r, 0])
-        reads[1, r], reads[2, r] = sums[r, 2] / sums[r, 0], sums[r, 3] / sums[r, 0]
-        reads[3, r] = sums[r, 0] * sums[r, 0] / sums[r, 1]
-    r2 = np.float32(radius * radius)
-    for job in prange(runs * blocks):
-        r, start, stop = _block(job, blocks, size)
-        if reads[3, r] == reads[3, r]:  # normalised (NaN reads: not)
-            centre = np.float32(reads[1, r]), np.float32(reads[2, r])
-            xs, ys = positions[r * size + start : r * size + stop, 0], positions[r * size + start : r * size + stop, 1]
-            row, lanes, chunk = log_w[r, start:stop], np.empty((4, LANES)), np.empty(CHUNK, dtype=np.float32)
-            out = w[r, start:stop]
-            partial[job, 4] = _second_pass(row, tops[r], 1.0 / sums[r, 0], xs, ys, centre, r2, out, lanes, chunk)
-    for r in range(runs):
-        if reads[3, r] == reads[3, r]:
-            reads[4, r] = 0.0
-            for b in range(blocks):
-                reads[4, r] += partial[r * blocks + b, 4]
-
-
-@jit(inline=True)
-def _block(job, blocks, size):  # pragma: no cover - compiled
-    """(run, first particle, end) of job number `job` of normalise_threads (`blocks` blocks a run)."""
-    r, b = job // blocks, job % blocks
-    return r, b * BLOCK, min(size, (b + 1) * BLOCK)
-
-
-@jit
-def first_stage(log_a, shifts, log_b, w, totals):  # pragma: no cover - compiled
-    """The APF's first-stage weights of R runs: W proportional to exp(log a - shift + log b), and log
-    sum exp(log a - shift + log b) (mazelab.weights' log_sum_exp and weights_from_logs, one exponential
-    per particle, exp32's; the top in LANES running maxima, the total in LANES partial sums).
-
-    Parameters
-    ----------
-    log_a : float array (R, N)
-        log W_{k-1} itself (shifts 0), or the unnormalised log w of the last normalisation (shifts its
-        log totals): log W_{k-1} = log w - log total, worked out here in float64 as the Weights value
-        would (mazelab.weights.Weights.lw), without the (R, N) float64 array.
-    shifts : float64 array (R,)
-    log_b : float array (R, N)
-        A run whose sums are all -inf, or hold a NaN, gets NaN weights and the total -inf or NaN.
-    w : float64 array (R, N)
-        Written: the normalised weights (the sums log a - shift + log b first, then their top).
-    totals : float64 array (R,)
-        Written: the log totals.
-    """
-    runs, size = log_a.shape
-    lanes, chunk = np.empty((1, LANES)), np.empty(CHUNK, dtype=np.float32)
-    for r in range(runs):
-        row, shift = w[r], shifts[r]
-        for i in range(size):
-            row[i] = (np.float64(log_a[r, i]) - shift) + log_b[r, i]
-        top = _top(row)
-        total = np.nan
-        if abs(top) < np.inf:  # else no normalisation
-            lanes[0, :] = 0.0
-            for first in range(0, size, CHUNK):
-                part, out = chunk[: min(CHUNK, size - first)], row[first : first + CHUNK]
-                _exponentials(out, top, part)
-                for i in range(len(part)):
-                    out[i] = np.float64(part[i])
-                _add_sum(part, lanes)
-            total = _lane_total(lanes, 0)
-        if total != total:  # all -inf, or a NaN: NaN weights (the filter restarts the run)
-            totals[r] = _failed_total(row, top)
-            row[:] = np.nan
-            continue
-        inverse = 1.0 / total
-        for i in range(size):
-            row[i] *= inverse
-        totals[r] = top + math.log(total)
-
-
 @jit
 def second_stage(log_lik, log_mu, ancestors, out):  # pragma: no cover - compiled
-    """The APF's second-stage log weights of R runs: out[r, m] = log p(z_k | x_i) - log p(z_k | mu_{a_i})
-    (i = r N + m), the first-stage values gathered by the ancestors in the same pass (numpy's take and
-    subtract, the same float32 values); `out` may be `log_lik` itself.
+    """The APF's second-stage log weights of R runs: out[r, m] = log p(z_k | x_m) - log p(z_k | mu_{a_m}),
+    the first stage's values gathered by run r's ancestors in the same pass (numpy's take_along_axis and
+    subtract: the same float32 values).
 
     Parameters
     ----------
-    log_lik : float32 array (R, N)
-        log p(z_k | x_k^j) of the moved particles.
+    log_lik : float32 array (R, M)
     log_mu : float32 array (R, N)
-        log p(z_k | mu_k^i) of the first stage.
-    ancestors : int array (R*N,)
-        a^j, rows of the particles of all runs.
-    out : float32 array (R, N)
+    ancestors : int array (R, M)
+        Indices into each run's own particles.
+    out : float32 array (R, M)
     """
     runs, size = log_lik.shape
-    flat = log_mu.reshape(-1)
     for r in range(runs):
         for m in range(size):
-            out[r, m] = log_lik[r, m] - flat[ancestors[r * size + m]]
+            out[r, m] = log_lik[r, m] - log_mu[r, ancestors[r, m]]
 
 
 @jit
@@ -415,12 +303,9 @@ def covariance(weights, positions, out):  # pragma: no cover - compiled
 
 
 __all__ = [
-    "BLOCK",
     "covariance",
-    "first_stage",
     "mass_within",
     "normalise",
-    "normalise_threads",
     "reweighted",
     "second_stage",
 ]
