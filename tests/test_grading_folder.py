@@ -17,6 +17,7 @@ import signal
 import subprocess
 import sys
 import textwrap
+import threading
 import time
 from pathlib import Path
 
@@ -508,8 +509,8 @@ def test_names_and_errors_are_data_everywhere(odd_class):
 # -- the secret key (issue 48, item 1) -----------------------------------------------------------------
 def test_the_key_is_made_once_kept_with_the_outputs_and_shown_nowhere(odd_class, tmp_path, capsys):
     folder, out, _, printed = odd_class
-    key = (out / "grading.key").read_text().strip()
-    assert len(bytes.fromhex(key)) >= 16 and (out / "grading.key").stat().st_mode & 0o077 == 0
+    key = (out / ".grading.key").read_text().strip()
+    assert len(bytes.fromhex(key)) >= 16 and (out / ".grading.key").stat().st_mode & 0o077 == 0
     shown = [printed, (out / "grades.csv").read_text(), *(p.read_text() for p in out.glob("*/results.json"))]
     assert not [text for text in shown if key in text or key[:12] in text]
     assert "seed" not in json.loads((out / "alice" / "results.json").read_text()).get("extra_data", {})
@@ -577,3 +578,23 @@ def test_a_full_disk_names_the_file_it_could_not_write(tmp_path):
     done = subprocess.run(["unshare", "--mount", "sh", "-c", script], capture_output=True, text=True, timeout=300)
     assert done.returncode == 1 and "[Errno" not in done.stderr, done.stderr
     assert re.search(rf"cannot write {re.escape(str(out))}\S*: No space left on device", done.stderr), done.stderr
+
+
+def test_a_link_to_a_pipe_in_a_submission_folder_is_never_read(tmp_path):
+    """A student's folder with its file and a link to a named pipe: discovery would block forever on
+    reading the pipe; it reads no link."""
+    write_submission(tmp_path / "class" / "eve" / "mine.py")
+    os.mkfifo(tmp_path / "pipe")
+    (tmp_path / "class" / "eve" / "other.py").symlink_to(tmp_path / "pipe")
+    found = []
+    worker = threading.Thread(target=lambda: found.extend(discover(tmp_path / "class")), daemon=True)
+    worker.start()
+    worker.join(20)
+    assert not worker.is_alive() and [(s.name, s.file.name) for s in found] == [("eve", "mine.py")]
+
+
+def test_check_takes_a_seed_or_a_key_not_both(tmp_path, capsys):
+    path = write_submission(tmp_path / "my_filter.py")
+    (tmp_path / "k").write_text(KEY + "\n")
+    assert main(["exercise", "check", str(path), "--seed", "1", "--key", str(tmp_path / "k")]) == 2
+    assert "--seed and --key" in capsys.readouterr().err

@@ -106,6 +106,8 @@ def check_command(
     if not is_plugin_spec(spec):
         raise ValueError(f"{spec}: give a Python file, path/to/my_filter.py or path/to/my_filter.py:MyFilter")
     catalogue = _catalogue(lang, split_spec(spec)[0])
+    if seed is not None and key is not None:
+        raise UserError("--seed and --key: give one (a seed repeats a report, the key draws secret inputs)")
     secret = _key(key, make=False) if key is not None else None
     results = _results_file(gradescope, force)
     _sandbox_or_refuse(require_sandbox)
@@ -216,6 +218,10 @@ def grade_command(
     if csv_path is not None:
         check_output_path(csv_path, force)
         check_output_path(partial_name(csv_path), True)
+        clash = [s.name for s in submissions if gradescope and (gradescope / s.name).parent == csv_path.parent
+                 and s.name in (csv_path.name, partial_name(csv_path).name)]  # fmt: skip
+        if clash:
+            raise UserError(f"--csv {csv_path}: a submission's results.json folder would be {gradescope / clash[0]}")
     _sandbox_or_refuse(require_sandbox)
     secret = _key(keyfile) if keyfile else secrets.token_bytes(32)
     from mazelab.experiments.executor import progress_bar

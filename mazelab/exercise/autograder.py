@@ -138,4 +138,4 @@ def bundle_bytes(key: bytes, lang: str | None = None, timeout: float = DEFAULT_B
     return buffer.getvalue()
 
 
-__all__ = ["BundleError", "bundle_bytes", "lab_files", "pinned_requirements", "run_script", "source_digest"]
+__all__ = ["BundleError", "bundle_bytes", "lab_files"]

@@ -59,7 +59,7 @@ try:
 except ImportError:  # Windows: no claim, outputs are still written whole (mazelab.atomic)
     fcntl = None  # type: ignore[assignment]
 
-KEY_FILE = "grading.key"
+KEY_FILE = ".grading.key"  # hidden: no submission has its name (grading skips names that start with ".")
 KEY_BYTES = 32  # 256 bits; a given key needs at least 16 (128 bits)
 ROW_NAMES = (*PARTS, WHOLE)
 CSV_COLUMNS = (
@@ -129,15 +129,15 @@ def discover(folder: Path) -> list[Submission]:
 
 
 def _in_folder(folder: Path) -> Submission:
-    files = sorted(
-        p for p in folder.glob("*.py") if not p.name.startswith((".", "_")) and (p.is_file() or p.is_symlink())
-    )
-    if (folder / FILTER_FILE) in files or (folder / FILTER_FILE).is_symlink():
+    """A subfolder's file: its my_filter.py, else its only Python file, else the only one that mentions
+    StudentFilter; a link there is refused (never read: it could lead to a pipe or another's file)."""
+    if (folder / FILTER_FILE).is_symlink():
+        return Submission(folder.name, None, f"{folder / FILTER_FILE}: a link, not the student's own file; not graded")
+    files = sorted(p for p in folder.glob("*.py") if p.is_file() and not p.is_symlink() and p.name[0] not in "._")
+    if (folder / FILTER_FILE) in files:
         files = [folder / FILTER_FILE]
     if len(files) > 1:
         files = [p for p in files if "StudentFilter" in p.read_text(errors="replace")] or files
-    if len(files) == 1 and files[0].is_symlink():
-        return Submission(folder.name, None, f"{files[0]}: a link, not the student's own file; not graded")
     if len(files) == 1:
         return Submission(folder.name, files[0], own_folder=True)
     if not files:
@@ -449,7 +449,6 @@ __all__ = [
     "GradingInterruptedError",
     "Submission",
     "claimed",
-    "csv_text",
     "discover",
     "grade_folder",
     "gradescope_json",

@@ -345,17 +345,11 @@ def request(
 
 
 __all__ = [
-    "ESTIMATE_KINDS",
     "RESAMPLE_DRAWS",
     "RESAMPLE_KINDS",
     "SCENARIO_COUNT",
-    "SCENARIO_STEPS",
-    "EstimateInputs",
     "PartInputs",
-    "PredictInputs",
-    "ResampleInputs",
     "ScenarioInputs",
-    "WeighInputs",
     "default_seed",
     "draw_part_inputs",
     "draw_scenarios",
@@ -363,5 +357,4 @@ __all__ = [
     "key_seed",
     "request",
     "resample_vector",
-    "walk_scenario",
 ]

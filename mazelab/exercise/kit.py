@@ -166,7 +166,6 @@ __all__ = [
     "KIT",
     "REFERENCE_FUNCTIONS",
     "REFERENCE_MODULES",
-    "KitError",
     "build_kit",
     "kit_file",
     "source_file",

@@ -173,4 +173,4 @@ def file_language(path: Path) -> str | None:
     return None
 
 
-__all__ = ["Catalogue", "CatalogueError", "catalogue", "catalogue_for", "file_language", "languages", "read_po"]
+__all__ = ["Catalogue", "CatalogueError", "catalogue", "catalogue_for", "read_po"]

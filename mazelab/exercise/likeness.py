@@ -211,4 +211,4 @@ def class_source(filter_class: type) -> str:
     return "\n".join(texts)
 
 
-__all__ = ["LIKENESS_LIMIT", "Likeness", "class_source", "copied_parts", "likeness"]
+__all__ = ["LIKENESS_LIMIT", "class_source", "copied_parts", "likeness"]

@@ -451,7 +451,6 @@ def check_command(filter_class: type) -> str:
 
 
 __all__ = [
-    "STAGES",
     "NotGradableError",
     "Report",
     "Row",

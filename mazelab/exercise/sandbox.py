@@ -611,11 +611,9 @@ def _how_it_ended(
 __all__ = [
     "DEFAULT_BUDGET",
     "MAX_TIMEOUT",
-    "ChildRun",
     "GradingStoppedError",
     "Sandbox",
     "SandboxError",
-    "SandboxRequiredError",
     "run_child",
     "sandbox",
     "submission_copy",

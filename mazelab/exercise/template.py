@@ -158,4 +158,4 @@ def check_exercise_file(path: Path, force: bool) -> None:
         raise ValueError(f"cannot write {path}: {error.strerror or error}") from None
 
 
-__all__ = ["FILTER_FILE", "FILTER_TEMPLATE", "README_FILE", "README_TEMPLATE", "exercise_texts", "write_exercise"]
+__all__ = ["FILTER_FILE", "FILTER_TEMPLATE", "README_TEMPLATE", "exercise_texts", "write_exercise"]

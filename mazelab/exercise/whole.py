@@ -259,16 +259,12 @@ def figures_table(figures: list[ScenarioFigures]) -> list[list[str]]:
 __all__ = [
     "FIGURE_HEADERS",
     "GRID_RESOLUTION",
-    "WORSE_LIMIT",
     "References",
-    "ScenarioFigures",
     "converged",
     "distance_to_exact",
-    "exact_estimates",
     "expected_text",
     "figures_table",
     "judge_whole",
     "sign_test_alpha",
-    "sir_estimates",
     "whole_answer",
 ]
