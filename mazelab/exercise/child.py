@@ -446,7 +446,7 @@ def _hook_with(roots: tuple[str, ...], names: frozenset, paths: frozenset, finde
 
 
 def main(answer_fd: int) -> None:
-    """The child process: read the request, say hello, set the process limit, guard, serve the request
+    """The child process: read the request, set the process limit, guard, say hello, serve the request
     answering on the descriptor `answer_fd`, then end (the student's threads with it)."""
     faulthandler.enable(file=sys.stderr, all_threads=True)  # a crash in C names the student's line
     message = decode(sys.stdin.buffer.read())
@@ -458,13 +458,13 @@ def main(answer_fd: int) -> None:
         data = encode(meta, arrays)
         answers.write(len(data).to_bytes(8, "big") + data)
 
-    emit({"kind": "hello"})
     processes = message.meta.get("processes")
     if processes:  # counted in the sandbox's own user namespace: its processes and threads only
         import resource
 
         resource.setrlimit(resource.RLIMIT_NPROC, (processes, processes))
     guard(str(Path(message.meta["file"]).parent))
+    emit({"kind": "hello"})  # the limits and the guard hold: the student's code may run now
     serve(message, emit)
     _flush()
     os._exit(0)

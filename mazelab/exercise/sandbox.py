@@ -189,8 +189,9 @@ def require_sandbox() -> Sandbox:
 # -- the limits of one sandbox ---------------------------------------------------------------------------
 @functools.cache
 def cgroup_parents() -> dict[str, Path] | None:
-    """Where this grader may make a cgroup with a process and a memory limit: {"v2": folder} (a
-    delegated one, or the root's as root) or {"pids": folder, "memory": folder} (v1, as root); None."""
+    """Where this grader may make a cgroup with a process and a memory limit: {"v2": folder} (its own
+    cgroup or the nearest above it that has both controllers for its children and that it may write:
+    a delegated one, or the root's as root) or {"pids": folder, "memory": folder} (v1, as root); None."""
     if sys.platform != "linux" or os.environ.get("MAZELAB_CGROUPS") == "off":
         return None
     own = dict(line.split(":", 2)[1:] for line in Path("/proc/self/cgroup").read_text().splitlines())
@@ -198,7 +199,8 @@ def cgroup_parents() -> dict[str, Path] | None:
     found: dict[str, Path] = {}
     for _, point, kind, options, *_ in mounts:
         if kind == "cgroup2":
-            for parent in [Path(point + own.get("", "/"))] + ([Path(point)] if os.geteuid() == 0 else []):
+            mine = Path(point + own.get("", "/"))  # its own cgroup, then those above it (a delegated one)
+            for parent in [p for p in (mine, *mine.parents) if p.is_relative_to(point)]:
                 controls = (parent / "cgroup.subtree_control").read_text().split() if parent.is_dir() else []
                 if {"pids", "memory"} <= set(controls) and os.access(parent, os.W_OK):
                     return {"v2": parent}
