@@ -47,12 +47,14 @@ import numpy as np
 from mazelab.exercise.child import MAX_MESSAGE_BYTES, Message, WireError, decode, encode
 from mazelab.exercise.kit import PACKAGE_DIR, build_kit
 
-DEFAULT_BUDGET = 60.0  # wall seconds of a submission's processes in all (a correct one needs about 1)
+DEFAULT_BUDGET = 40.0  # wall seconds of a submission's processes in all: 3 x a correct one's (1-3 s) + 30
 MAX_TIMEOUT = 86_400.0  # a day: the largest --timeout (a processor-time limit must be a finite number)
 MEMORY_LIMIT = 4 << 30  # bytes of address space per process, and of memory per sandbox (cgroup)
 FILE_LIMIT = 64 << 20  # the largest file the child may write
 PROCESS_LIMIT = 64  # processes and threads per sandbox
 TMP_LIMIT = 256 << 20  # bytes the sandbox's private /tmp (in memory) may hold, where bwrap can bound it (0.7+)
+STARTUP = 30.0  # wall seconds a sandbox may take to start the child, the grader's, not the submission's
+STARTUP_CPU = 3  # processor seconds the child's start takes at most (the interpreter, numpy, the kit, the guard)
 OUTPUT_KEPT = 2000  # characters of the child's prints kept (its first and its last)
 SANDBOX_UID = 65534  # "nobody"
 KIT_ROOT, SITE_ROOT, SUBMISSION_ROOT = "/kit", "/site", "/submission"
@@ -402,7 +404,7 @@ class ChildRun:
     answer, the stages answered twice, the stages it started, how it ended (None: it said "done"),
     its prints, and how long it took."""
 
-    hello: bool = False
+    hello: float | None = None  # when it said hello (time.perf_counter): the student's time starts there
     loaded: dict[str, Any] | None = None
     results: dict[str, Message] = field(default_factory=dict)
     twice: set[str] = field(default_factory=set)
@@ -429,8 +431,8 @@ class ChildRun:
         """Record one message (False: it ends the conversation as unreadable)."""
         meta, kind = message.meta, message.meta.get("kind")
         stage = meta.get("stage")
-        if kind == "hello":
-            self.hello = True
+        if kind == "hello" and self.hello is None:
+            self.hello = time.perf_counter()
         elif kind == "loaded":
             if self.loaded is not None:  # a second process answering beside the first: nothing it says counts
                 self.twice |= set(self.results) | {"loaded"}
@@ -500,15 +502,16 @@ def run_child(
 ) -> ChildRun:
     """Start a child on `request` (meta, arrays) in its sandbox (the submission's copy in `run_folder`)
     with `seconds` of the submission's budget left, less `reserve` seconds for each stage after the
-    one it is in (so that a part that hangs leaves time for the parts after it): its wall-clock time,
-    and a second less of processor time (a busy child meets SIGXCPU, a waiting one the grader's
-    clock). Return what it gave; SandboxError when it never ran the student's code."""
+    one it is in (so that a part that hangs leaves time for the parts after it): its wall-clock time
+    from its hello (its start, up to STARTUP, is the grader's), and a second less of processor time
+    beside the start's (a busy child meets SIGXCPU, a waiting one the grader's clock). Return what it
+    gave; SandboxError when it never ran the student's code."""
     if _stopped.is_set():
         raise GradingStoppedError("the grading was stopped")
     cgroup = Cgroup()
     meta = {**request[0], "processes": None if cgroup.folders or not made.sandboxed else PROCESS_LIMIT}
     kit_folder, _ = kit()
-    cpu = max(1, math.floor(seconds - reserve * (len(request[0]["stages"]) - 1)) - 1)
+    cpu = max(1, math.floor(seconds - reserve * (len(request[0]["stages"]) - 1)) - 1) + STARTUP_CPU
     drop, staged = None, {}
     if made.sandboxed and not cgroup.folders:
         binds = [*interpreter_folders(), *map(str, numpy_folders()), str(kit_folder), str(run_folder)]
@@ -545,8 +548,12 @@ def run_child(
         at = max([stages.index(s) for s in run.started if s in stages], default=0)
         return seconds - reserve * (len(stages) - 1 - at)
 
+    def waiting() -> bool:  # within its time: the student's from hello on (a start is the grader's, up to STARTUP)
+        now = time.perf_counter()
+        return now - run.hello < limit() if run.hello else now - started < STARTUP
+
     try:
-        while process.poll() is None and time.perf_counter() - started < limit():
+        while process.poll() is None and waiting():
             with contextlib.suppress(subprocess.TimeoutExpired):
                 process.wait(0.1)
         timed_out = process.poll() is None
@@ -559,14 +566,15 @@ def run_child(
             _running.discard(process)
     if _stopped.is_set():
         raise GradingStoppedError("the grading was stopped")
-    run.seconds = time.perf_counter() - started
+    run.seconds = time.perf_counter() - (run.hello or started)
     reader.join(5)
     printed.join(2)
     run.output = printed.text()
     if not run.hello:
         last = (run.output.strip().splitlines() or ["no message"])[-1][:200]
-        raise SandboxError(f"the sandbox did not start the student's process (exit code {process.returncode}: {last})")
-    run.ended = _how_it_ended(run, reader, process.returncode, made, limit() if timed_out else None, cpu)
+        code = f"did not start within {STARTUP:g} s" if timed_out else f"exit code {process.returncode}"
+        raise SandboxError(f"the sandbox did not start the student's process ({code}: {last})")
+    run.ended = _how_it_ended(run, reader, process.returncode, made, limit() if timed_out else None, cpu - STARTUP_CPU)
     return run
 
 
