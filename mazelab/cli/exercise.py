@@ -201,27 +201,10 @@ def grade_command(
     as it is graded, all outside DIR. Exit code 0 when every submission was checked, whatever its
     grade; Ctrl-C or SIGTERM ends every sandbox and keeps what was graded (the CSV as F.partial.csv,
     beside the last complete one)."""
-    catalogue = _catalogue(lang)
-    submissions = discover(folder)
+    catalogue, submissions = _catalogue(lang), discover(folder)
     outputs = [(path, option) for path, option in ((csv_path, "--csv"), (gradescope, "--gradescope")) if path]
     keyfile = key or next((p.parent / KEY_FILE if o == "--csv" else p / KEY_FILE for p, o in outputs), None)
-    for path, option in [*outputs, *([(keyfile, "--key")] if keyfile else [])]:
-        try:
-            check_outside(path, folder, option)
-        except ClaimError as error:
-            raise UserError(str(error)) from None
-    if gradescope is not None:
-        _made_folder(gradescope)
-        taken = [s.name for s in submissions if (gradescope / s.name / "results.json").exists()]
-        if taken and not force:
-            raise UserError(f"{gradescope / taken[0] / 'results.json'} exists; use --force to replace it")
-    if csv_path is not None:
-        check_output_path(csv_path, force)
-        check_output_path(partial_name(csv_path), True)
-        clash = [s.name for s in submissions if gradescope and (gradescope / s.name).parent == csv_path.parent
-                 and s.name in (csv_path.name, partial_name(csv_path).name)]  # fmt: skip
-        if clash:
-            raise UserError(f"--csv {csv_path}: a submission's results.json folder would be {gradescope / clash[0]}")
+    _check_outputs(folder, submissions, [*outputs, *([(keyfile, "--key")] if keyfile else [])], force)
     _sandbox_or_refuse(require_sandbox)
     secret = _key(keyfile) if keyfile else secrets.token_bytes(32)
     from mazelab.experiments.executor import progress_bar
@@ -255,6 +238,30 @@ def grade_command(
         raise typer.Exit(128 + stopped_by)
     if csv_path is not None:
         typer.echo(f"wrote {book.finish(submissions)}")
+
+
+def _check_outputs(folder: Path, submissions: list[Submission], outputs: list[tuple[Path, str]], force: bool) -> None:
+    """Refuse, before any grading, an output or the key inside the class folder, an existing output
+    without --force, and a --csv that a submission's results.json folder would take."""
+    for path, option in outputs:
+        try:
+            check_outside(path, folder, option)
+        except ClaimError as error:
+            raise UserError(str(error)) from None
+    named = dict((option, path) for path, option in outputs)
+    gradescope, csv_path = named.get("--gradescope"), named.get("--csv")
+    if gradescope is not None:
+        _made_folder(gradescope)
+        taken = [s.name for s in submissions if (gradescope / s.name / "results.json").exists()]
+        if taken and not force:
+            raise UserError(f"{gradescope / taken[0] / 'results.json'} exists; use --force to replace it")
+    if csv_path is not None:
+        check_output_path(csv_path, force)
+        check_output_path(partial_name(csv_path), True)
+        mine = (csv_path.name, partial_name(csv_path).name)
+        clash = [s.name for s in submissions if gradescope == csv_path.parent and s.name in mine]
+        if clash:
+            raise UserError(f"--csv {csv_path}: a submission's results.json folder would be {gradescope / clash[0]}")
 
 
 @exercise_app.command(name="autograder", short_help="Write Gradescope's autograder bundle (a .zip).")

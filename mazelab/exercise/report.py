@@ -240,7 +240,7 @@ def build_report(
         return report
     scheme = "systematic"
     for stage in stages:
-        message, label = answers.results.get(stage), _label(stage)
+        label, message = _label(stage), answers.results.get(stage)
         if stage in answers.ended:
             row = ended_row(label, expected[stage], answers.ended[stage], answers.output)
         elif message is None:  # it said "done" (or ended) without this stage's answer
@@ -249,20 +249,10 @@ def build_report(
             )
         else:
             try:
-                if stage != "whole":
-                    row, scheme = judges()[stage](parts, message, scheme)
-                elif any(_not_written(answers.results.get(p)) for p in PARTS):
-                    row = Row(WHOLE, NOT_RUN, whole_expected(scheme), "not run", "write every part first")
-                else:
-                    row = whole_answer(scenarios, message, scheme)
-                    if not isinstance(row, Row):
-                        sir = [references.sir(s, scheme) for s in scenarios]
-                        exact = [references.exact(s).result() for s in scenarios]
-                        row, report.figures = judge_whole(scenarios, row, exact, [f.result() for f in sir], scheme)
+                row, scheme = _judged(stage, message, scheme, report, parts, scenarios, answers, references)
             except BadAnswerError as error:
-                row = Row(
-                    label, FAIL, expected[stage], f"an answer the grader cannot read ({error})", "return plain arrays"
-                )
+                got = f"an answer the grader cannot read ({error})"
+                row = Row(label, FAIL, expected[stage], got, "return plain arrays")
         if (copies or {}).get(stage) and row.status != NOT_WRITTEN:
             row = Row(row.part, NOT_OWN, row.expected, copies[stage], COPY_HINT)
         report.rows.append(row)
@@ -274,6 +264,23 @@ def build_report(
     if whole and not whole.passed and failed and whole.hint.startswith(("the parts pass alone", "fix the error")):
         whole.hint = f"fix {', '.join(failed)} first: the whole filter runs with every part"
     return report
+
+
+def _judged(stage: str, message: Message, scheme: str, report: Report, parts: PartInputs,
+            scenarios: list[ScenarioInputs], answers: Answers, references: Any) -> tuple[Row, str]:  # fmt: skip
+    """A stage's row from its answer, and the scheme the whole filter's SIR uses (the one the student's
+    resampler resembles); the whole filter's figures into the report."""
+    if stage != "whole":
+        return judges()[stage](parts, message, scheme)
+    if any(_not_written(answers.results.get(p)) for p in PARTS):
+        return Row(WHOLE, NOT_RUN, whole_expected(scheme), "not run", "write every part first"), scheme
+    estimates = whole_answer(scenarios, message, scheme)
+    if isinstance(estimates, Row):
+        return estimates, scheme
+    sir = [references.sir(s, scheme) for s in scenarios]
+    exact = [references.exact(s).result() for s in scenarios]
+    row, report.figures = judge_whole(scenarios, estimates, exact, [f.result() for f in sir], scheme)
+    return row, scheme
 
 
 def _label(stage: str) -> str:

@@ -508,41 +508,11 @@ def run_child(
     gave; SandboxError when it never ran the student's code."""
     if _stopped.is_set():
         raise GradingStoppedError("the grading was stopped")
-    cgroup = Cgroup()
+    stages, cgroup = request[0]["stages"], Cgroup()
+    cpu = max(1, math.floor(seconds - reserve * (len(stages) - 1)) - 1)
     meta = {**request[0], "processes": None if cgroup.folders or not made.sandboxed else PROCESS_LIMIT}
-    kit_folder, _ = kit()
-    cpu = max(1, math.floor(seconds - reserve * (len(request[0]["stages"]) - 1)) - 1) + STARTUP_CPU
-    drop, staged = None, {}
-    if made.sandboxed and not cgroup.folders:
-        binds = [*interpreter_folders(), *map(str, numpy_folders()), str(kit_folder), str(run_folder)]
-        drop, staged = _dropped(binds, run_folder / "stage")
-    answers_in, answers_out = os.pipe()
     run, started = ChildRun(), time.perf_counter()
-    try:
-        with _running_lock:
-            process = subprocess.Popen(
-                made.command(kit_folder, run_folder, answers_out, staged),
-                stdin=subprocess.PIPE,
-                stdout=subprocess.PIPE,
-                stderr=subprocess.STDOUT,
-                pass_fds=(answers_out,),
-                preexec_fn=_preexec(cpu, cgroup, drop),
-                start_new_session=True,
-                env=CHILD_ENVIRONMENT,
-                cwd=run_folder,
-            )
-            _running.add(process)
-    except (OSError, subprocess.SubprocessError) as error:  # bwrap gone since the probe, no memory to fork
-        cgroup.close()
-        os.close(answers_in)
-        raise SandboxError(f"the student's process could not be started ({error})") from None
-    finally:
-        os.close(answers_out)
-    reader, printed = _Reader(os.fdopen(answers_in, "rb"), run), _Output(process.stdout.fileno())
-    reader.start()
-    printed.start()
-    threading.Thread(target=_send, args=(process, encode(meta, request[1])), daemon=True).start()
-    stages = request[0]["stages"]
+    process, reader, printed = _start(made, run, run_folder, cgroup, cpu + STARTUP_CPU, encode(meta, request[1]))
 
     def limit() -> float:  # the wait allowed so far: the budget less the reserve of the stages after this one
         at = max([stages.index(s) for s in run.started if s in stages], default=0)
@@ -574,8 +544,45 @@ def run_child(
         last = (run.output.strip().splitlines() or ["no message"])[-1][:200]
         code = f"did not start within {STARTUP:g} s" if timed_out else f"exit code {process.returncode}"
         raise SandboxError(f"the sandbox did not start the student's process ({code}: {last})")
-    run.ended = _how_it_ended(run, reader, process.returncode, made, limit() if timed_out else None, cpu - STARTUP_CPU)
+    run.ended = _how_it_ended(run, reader, process.returncode, made, limit() if timed_out else None, cpu)
     return run
+
+
+def _start(made: Sandbox, run: ChildRun, run_folder: Path, cgroup: Cgroup, cpu: int, request: bytes) -> tuple:
+    """The child's process (its prints merged on one pipe, the answer pipe kept open, its limits, a
+    session of its own), its answers' reader and its prints' collector, both started, and the request
+    sent; SandboxError when it cannot be started (bwrap gone since the probe, no memory to fork)."""
+    kit_folder, _ = kit()
+    drop, staged = None, {}
+    if made.sandboxed and not cgroup.folders:
+        binds = [*interpreter_folders(), *map(str, numpy_folders()), str(kit_folder), str(run_folder)]
+        drop, staged = _dropped(binds, run_folder / "stage")
+    answers_in, answers_out = os.pipe()
+    try:
+        with _running_lock:
+            process = subprocess.Popen(
+                made.command(kit_folder, run_folder, answers_out, staged),
+                stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE,
+                stderr=subprocess.STDOUT,
+                pass_fds=(answers_out,),
+                preexec_fn=_preexec(cpu, cgroup, drop),
+                start_new_session=True,
+                env=CHILD_ENVIRONMENT,
+                cwd=run_folder,
+            )
+            _running.add(process)
+    except (OSError, subprocess.SubprocessError) as error:
+        cgroup.close()
+        os.close(answers_in)
+        raise SandboxError(f"the student's process could not be started ({error})") from None
+    finally:
+        os.close(answers_out)
+    reader, printed = _Reader(os.fdopen(answers_in, "rb"), run), _Output(process.stdout.fileno())
+    reader.start()
+    printed.start()
+    threading.Thread(target=_send, args=(process, request), daemon=True).start()
+    return process, reader, printed
 
 
 def _send(process: subprocess.Popen, request: bytes) -> None:
