@@ -391,7 +391,7 @@ def test_the_magnitude_test_is_exact_under_exchangeable_pairs():
 
 
 # -- the exercise in Ukrainian (issue 49, item 10) --------------------------------------------------------
-def test_new_writes_the_exercise_in_ukrainian_and_the_folder_keeps_its_language(tmp_path):
+def test_new_writes_the_exercise_in_ukrainian_and_the_folder_keeps_its_language(tmp_path, capsys):
     import ast
 
     from mazelab.exercise.template import FILTER_TEMPLATE, exercise_texts
@@ -411,4 +411,6 @@ def test_new_writes_the_exercise_in_ukrainian_and_the_folder_keeps_its_language(
     assert code(mine) == code(FILTER_TEMPLATE) and exercise_texts("en") == exercise_texts()
     done = subprocess.run([sys.executable, "my_filter.py"], cwd=tmp_path, capture_output=True, text=True, timeout=120)
     assert "MyFilter: ще треба написати: predict, weigh, resample, estimate" in done.stdout, done.stderr
+    assert main(["exercise", "check", str(tmp_path / "my_filter.py"), "--timeout", "30"]) == 1  # no --lang
+    assert "Перевірка MyFilter" in capsys.readouterr().out
     assert main(["exercise", "new", str(tmp_path / "x"), "--lang", "xx"]) == 2
