@@ -47,7 +47,7 @@ from mazelab.exercise.parts import (
     judge_resample,
     resample_expected,
 )
-from mazelab.exercise.sandbox import DEFAULT_BUDGET, companions_of, run_child, sandbox, submission_copy
+from mazelab.exercise.sandbox import DEFAULT_BUDGET, ChildRun, companions_of, run_child, sandbox, submission_copy
 from mazelab.exercise.student import PARTS
 from mazelab.exercise.whole import FIGURE_HEADERS, References, figures_table, judge_whole, whole_answer
 from mazelab.exercise.whole import expected_text as whole_expected
@@ -181,19 +181,12 @@ def collect_in_process(
     filter_class: type, parts: PartInputs, scenarios: list[ScenarioInputs], stages: list[str]
 ) -> Answers:
     """Run the stages in this process (a self-check): the same work as the child's, each message
-    encoded and decoded as a child's would be."""
-    answers = Answers()
-    meta, arrays = request("", None, stages, parts, scenarios)
-
-    def emit(meta: dict[str, Any], arrays: dict | None = None) -> None:
-        message = decode(encode(meta, arrays))
-        if meta["kind"] == "loaded":
-            answers.loaded = message.meta
-        elif meta["kind"] == "result":
-            answers.results[meta["stage"]] = message
-
-    child.serve(decode(encode(meta, arrays)), emit, filter_class)
-    return answers
+    encoded, decoded and recorded as a child's would be (ChildRun.take)."""
+    run, (meta, arrays) = ChildRun(), request("", None, stages, parts, scenarios)
+    child.serve(
+        decode(encode(meta, arrays)), lambda meta, arrays=None: run.take(decode(encode(meta, arrays))), filter_class
+    )
+    return Answers(run.loaded, run.results)
 
 
 def loading_problem(answers: Answers, shown: str) -> str | None:
