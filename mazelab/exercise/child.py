@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from mazelab.exercise.student import PARTS, StudentFilter
+from mazelab.exercise.student import PARTS, PartError, StudentFilter, answer_array
 from mazelab.maze import Maze
 from mazelab.seeding import filter_rng
 
@@ -152,30 +152,19 @@ def _past_limit(error: BaseException) -> str:
 
 def student_call(function: Callable[..., Any], *args: Any) -> tuple[Any, dict[str, str] | None]:
     """(what the student's function returned, None), or (None, the error as values): not written
-    (NotImplementedError), an exit (its own sys.exit or KeyboardInterrupt), or any other error."""
+    (NotImplementedError), an answer not of the form asked for (PartError), an exit (its own sys.exit
+    or KeyboardInterrupt), or any other error."""
     try:
         return function(*args), None
     except NotImplementedError:
         return None, {"kind": "not written", "text": "not implemented"}
+    except PartError as error:  # an answer not of the form asked for (answer_array)
+        return None, {"kind": "answer", "text": _text(error)}
     except (SystemExit, KeyboardInterrupt) as error:
         return None, {"kind": "exit", "text": f"{describe_exit(error)}, which a part must not do{_where(error)}"}
     except BaseException as error:
         text = f"{type(error).__name__}: {_text(error)}{_where(error)}{_past_limit(error)}"
         return None, {"kind": "error", "text": text}
-
-
-def as_values(part: str, value: Any, shape: tuple[int, ...], whole_numbers: bool = False) -> tuple[Any, Any]:
-    """(the answer as a float64 or int64 array of `shape`, None), or (None, an error naming what came)."""
-    try:
-        array = np.asarray(value)
-        if whole_numbers and not np.issubdtype(array.dtype, np.integer):
-            return None, {"kind": "answer", "text": f"{part} returned {array.dtype} values, not whole-number indices"}
-        array = array.astype(np.int64 if whole_numbers else np.float64)
-    except BaseException as error:
-        return None, {"kind": "answer", "text": f"{part} returned {type(value).__name__}, not numbers ({_text(error)})"}
-    if array.shape != shape:
-        return None, {"kind": "answer", "text": f"{part} returned shape {array.shape}; expected {shape}"}
-    return array, None
 
 
 # -- the stages ---------------------------------------------------------------------------------
@@ -237,7 +226,7 @@ def part_stage(cls: type, stage: str, inputs: Inputs, emit: Emit) -> tuple[dict,
         for _ in range(stacked or 1):
             copies = tuple(a.copy() if isinstance(a, np.ndarray) else a for a in args)
             value, error = student_call(getattr(filt, method), *copies)
-            value, error = (None, error) if error else as_values(stage, value, shape, whole)
+            value, error = (None, error) if error else student_call(answer_array, stage, value, shape, whole)
             if error:
                 return {"error": error}, out
             values.append(value)
