@@ -126,10 +126,9 @@ def test_accuracy_runs_on_the_named_shipped_mazes_not_on_whatever_is_in_mazes(tm
     from mazelab.cli import accuracy
 
     seen = []
-    monkeypatch.setattr(accuracy, "accuracy_tasks", lambda named, *args: seen.extend(n for n, _ in named) or [])
-    monkeypatch.setattr(accuracy, "run_accuracy", lambda tasks, *args, **kwargs: [])
-    monkeypatch.setattr(accuracy, "accuracy_table", lambda records: "")
+    monkeypatch.setattr(accuracy, "run_and_report", lambda plan, *args: seen.extend(plan.parameters()["mazes"]))
     assert main(["accuracy", "--runs", "1"]) == 0
+    seen = [maze["label"] for maze in seen]
     assert seen == list(LAB_MAZES) and "random_20x20" not in seen
 
 

@@ -39,7 +39,15 @@ from mazelab.experiments.study import (
     takes_parameter,
     varied_parameters,
 )
-from mazelab.experiments.tables import csv_cell, format_number, format_optional, format_table, format_value, records_csv
+from mazelab.experiments.tables import (
+    csv_cell,
+    format_interval,
+    format_number,
+    format_optional,
+    format_table,
+    format_value,
+    records_csv,
+)
 from mazelab.model import CONVERGENCE_RADIUS
 from mazelab.registry import labels, resolve_filter
 
@@ -255,10 +263,6 @@ def interval_note(summaries: Sequence[StudySummary] = ()) -> str:
     return "\n".join(lines)
 
 
-def _interval(low: float, high: float, spec: str = "{:.3f}") -> str:
-    return "-" if math.isnan(low) else f"[{spec.format(low)}, {spec.format(high)}]"
-
-
 def _step(value: float | None, last: int) -> str:
     """A KM median step, or '>last' when not reached."""
     return f">{last}" if value is None or math.isnan(value) else f"{value:g}"
@@ -277,10 +281,10 @@ def study_table(summaries: Sequence[StudySummary], varied: Sequence[str], kld: b
         *((p, lambda s, p=p: format_value(s.setting.value(p)) if takes_parameter(s.filter, p) else "-")
           for p in varied),
         ("filter", lambda s: labels([s.filter])[s.filter]), ("runs", lambda s: str(s.runs)),
-        ("mean last-20% error", lambda s: f"{s.mean_final_error:.3f}"), (ci, lambda s: _interval(*s.interval)),
-        ("median", lambda s: f"{s.median_final_error:.3f}"), (ci, lambda s: _interval(*s.median_interval)),
+        ("mean last-20% error", lambda s: f"{s.mean_final_error:.3f}"), (ci, lambda s: format_interval(*s.interval)),
+        ("median", lambda s: f"{s.median_final_error:.3f}"), (ci, lambda s: format_interval(*s.median_interval)),
         ("converged", lambda s: f"{s.converged_share:.0%}"),
-        (ci, lambda s: _interval(*s.converged_interval, spec="{:.0%}")),
+        (ci, lambda s: format_interval(*s.converged_interval, spec="{:.0%}")),
         ("median conv. step", lambda s: _step(s.median_convergence_step, s.last_convergence_step)),
         (ci, lambda s: _step_interval(s.convergence_interval, s.last_convergence_step)),
         ("log p(z_1:K) (SE)", _evidence),
@@ -289,18 +293,18 @@ def study_table(summaries: Sequence[StudySummary], varied: Sequence[str], kld: b
     ]  # fmt: skip
     if any(s.relocalised_share is not None for s in summaries):
         columns += [("re-localised", lambda s: format_optional(s.relocalised_share, "{:.0%}")),
-                    (ci, lambda s: _interval(*(s.relocalised_interval or nan), spec="{:.0%}")),
+                    (ci, lambda s: format_interval(*(s.relocalised_interval or nan), spec="{:.0%}")),
                     ("median steps to recover", lambda s: format_optional(s.median_steps_to_recover, "{:g}")),
                     ]  # fmt: skip
     if kld:
         columns.append(("mean N", lambda s: f"{s.mean_particle_count:.0f}" if is_particle_filter(s.filter) else "-"))
     if any(not math.isnan(s.distance_to_exact) for s in summaries):
         columns += [("dist. to exact", lambda s: format_number(s.distance_to_exact, "{:.3f}")),
-                    (ci, lambda s: _interval(*s.distance_interval))]  # fmt: skip
+                    (ci, lambda s: format_interval(*s.distance_interval))]  # fmt: skip
     if reference:
         columns += [(f"diff. vs {labels([reference])[reference]}",
                      lambda s: format_number(s.mean_difference, "{:+.3f}")),
-                    (ci, lambda s: _interval(*s.difference_interval, spec="{:+.3f}"))]  # fmt: skip
+                    (ci, lambda s: format_interval(*s.difference_interval, spec="{:+.3f}"))]  # fmt: skip
     rows = [[cell(s) for _, cell in columns] for s in summaries]
     return format_table([header for header, _ in columns], rows) + "\n" + interval_note(summaries)
 

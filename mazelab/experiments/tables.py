@@ -56,6 +56,11 @@ def format_number(value: float, spec: str) -> str:
     return "-" if math.isnan(value) else spec.format(value)
 
 
+def format_interval(low: float, high: float, spec: str = "{:.3f}") -> str:
+    """'[low, high]' in `spec`, or '-' for an interval that could not be made (NaN)."""
+    return "-" if math.isnan(low) else f"[{spec.format(low)}, {spec.format(high)}]"
+
+
 def format_optional(value: float | None, spec: str) -> str:
     return "-" if value is None else spec.format(value)
 
@@ -103,6 +108,7 @@ __all__ = [
     "PLOT_INSTALL_HINT",
     "csv_cell",
     "flat_row",
+    "format_interval",
     "format_number",
     "format_optional",
     "format_table",
