@@ -76,17 +76,18 @@ def run_one(maze: str | None, filter_name: str | None, particles: int | None, st
         if path is not None:
             check_output_path(path, force)
     if stored is None:
-        setup = fresh_setup(maze, sigma, delta, seed, start_seed, particles, steps)
+        setup = fresh_setup(maze, sigma, delta, seed, start_seed)
     else:
         refuse_counts_for_replay(stored, particles=particles, steps=steps, start_seed=start_seed)
         options = replay_options(stored, filter_name, options, scenario)
         options_per_filter([filter_name], options)  # the replay's options, checked as the filter will
         setup = replay_setup(stored, maze, sigma, delta, seed)
     prepare_world(setup.world)
-    progress = None if quiet else progress_printer(setup.steps or setup.robot.recorded_steps or DEFAULT_STEPS)
+    progress = None if quiet else progress_printer(steps or setup.robot.recorded_steps or DEFAULT_STEPS)
     with scenario_not_saved_on_stop(save_scenario_path):
-        result = simulate(*setup.arguments, filter_name, seed=setup.seed, visualize=visualize, on_step=progress,
-                          kidnap_at=kidnap_at, **options)  # fmt: skip
+        result = simulate(setup.robot, setup.world, setup.sigma, setup.delta, particles, steps, setup.initial_particles,
+                          filter_name, seed=setup.seed, visualize=visualize, on_step=progress, kidnap_at=kidnap_at,
+                          **options)  # fmt: skip
     report_run(result)
     for line in (kidnap_report(result), particle_count_report(result) if options.get("kld") else None):
         if line:
@@ -146,26 +147,19 @@ def compare_scenario(
 
 @dataclass
 class RunSetup:
-    """A run's inputs: the maze, the robot, sigma and delta, the initial particles (a replay's) or the
-    count to draw (None: the library's default), the steps (None: the robot's recorded walk), the seed."""
+    """A run's inputs: the maze, the robot, sigma and delta, the initial particles (a replay's; None: drawn
+    from the seed) and the seed."""
 
     world: Maze
     robot: Robot
     sigma: float
     delta: float
     initial_particles: Any
-    particle_count: int | None
-    steps: int | None
     seed: int
-
-    @property
-    def arguments(self) -> tuple[Any, ...]:
-        """simulate's positional arguments (mazelab.lab.simulate)."""
-        return self.robot, self.world, self.sigma, self.delta, self.particle_count, self.steps, self.initial_particles
 
 
 def fresh_setup(maze: str | None, sigma: float | None, delta: float | None, seed: int | None,
-                start_seed: int | None, particles: int | None, steps: int | None) -> RunSetup:  # fmt: skip
+                start_seed: int | None) -> RunSetup:  # fmt: skip
     """A fresh lost robot: the maze (default the lab's), its start drawn from the seed (new if none)."""
     world = load_maze(maze or DEFAULT_MAZE)
     sigma = DEFAULT_SIGMA if sigma is None else sigma
@@ -174,7 +168,7 @@ def fresh_setup(maze: str | None, sigma: float | None, delta: float | None, seed
     if start_seed is not None and start_seed != seed:
         warnings.warn(f"--start-seed {start_seed} differs from --seed {seed}: repeat with both", stacklevel=1)
     robot = Robot(sigma, delta, start_place(world, seed if start_seed is None else start_seed))
-    return RunSetup(world, robot, sigma, delta, None, particles, steps, seed)
+    return RunSetup(world, robot, sigma, delta, None, seed)
 
 
 def replay_setup(stored: Scenario, maze: str | None, sigma: float | None, delta: float | None,
@@ -205,7 +199,7 @@ def replay_setup(stored: Scenario, maze: str | None, sigma: float | None, delta:
         except ValueError as error:
             raise UserError(f"{error}; pass the maze the scenario was made on (--maze)") from None
     seed = seed if seed is not None else stored.seed if stored.seed is not None else new_seed()
-    return RunSetup(world, robot, sigma, delta, stored.init_particles_pos, None, None, seed)
+    return RunSetup(world, robot, sigma, delta, stored.init_particles_pos, seed)
 
 
 def warn_overrides(scenario: Scenario, sigma: float | None, delta: float | None) -> None:
