@@ -26,7 +26,6 @@ from mazelab.cli.options import (
     parse_list,
     seed_option,
 )
-from mazelab.cli.provenance import command_line
 from mazelab.declaration import show_value
 from mazelab.experiments.accuracy import (
     AccuracyFilter,
@@ -52,6 +51,7 @@ from mazelab.experiments.plan import StudyPlan, maze_description, study_mazes
 from mazelab.experiments.record import Recorder, differences, record_path
 from mazelab.experiments.runs import parse_filters
 from mazelab.experiments.study import MazeChoice, RunRecord, RunTask
+from mazelab.invocation import command_line
 from mazelab.mazes import LAB_MAZES
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
 from mazelab.registry import resolve_filter

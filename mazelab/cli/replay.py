@@ -7,7 +7,10 @@ seed; a file with only the paper's four keys runs on the one shipped maze it fit
 options, so that it repeats the run that made it bit for bit, unless the user names another filter or
 option; then one line says what was overridden. A scenario never imports code: a plug-in's saved run
 replays only when the user names the plug-in (`--filter file.py:Class`), its file's sha256 checked
-against the stored one (a changed file is said in one line); `--filter sir` replays it with SIR."""
+against the stored one (a changed file is said in one line); `--filter sir` replays it with SIR.
+
+What they print and write: a run's kidnapping and particle count; compare's table, per-step errors
+(--csv), figure (--plot), traces (--traces) and its JSON record (beside its first output)."""
 
 from __future__ import annotations
 
@@ -21,37 +24,38 @@ from typing import Any
 import numpy as np
 import typer
 
+from mazelab.atomic import write_text_atomically
 from mazelab.cli.filter_options import GivenOptions, given_options, options_per_filter
 from mazelab.cli.hints import check_filter_name, check_filter_names
 from mazelab.cli.options import (
     DEFAULT_DELTA,
     DEFAULT_SIGMA,
     UserError,
+    check_one_file_each,
     check_output_path,
     check_outputs,
-    visualization,
-)
-from mazelab.cli.provenance import repeat_command
-from mazelab.cli.reports import (
-    compare_record_file,
-    finish_compare,
-    kidnap_report,
-    particle_count_report,
     prepare_world,
     progress_printer,
-    report_compare,
     report_run,
-    start_compare_record,
+    visualization,
 )
 from mazelab.declaration import show_value, to_plain_json
+from mazelab.experiments.compare import comparison_table, errors_csv, plot_errors
+from mazelab.experiments.kidnapping import recovery_steps
+from mazelab.experiments.record import Recorder, file_sha256, record_path
+from mazelab.experiments.runs import final_error, mean_ess
+from mazelab.experiments.study import final_log_evidence
+from mazelab.experiments.traces import check_trace_path, compare_traces, write_traces
+from mazelab.experiments.warmup import take_startup_seconds
+from mazelab.invocation import command_line, repeat_command
 from mazelab.maze import Maze
 from mazelab.mazes import DEFAULT_MAZE, load_maze, mazes_fitting
 from mazelab.model import DEFAULT_STEPS
-from mazelab.registry import FilterEntry, filter_entry, resolve_filter
+from mazelab.registry import FilterEntry, evidence_caveat, filter_entry, resolve_filter
 from mazelab.robot import Robot
 from mazelab.scenario import Scenario, check_measurements_within, find_scenario, load_scenario, save_scenario
 from mazelab.seeding import new_seed, start_place
-from mazelab.simulation import check_start, check_walk_in_maze
+from mazelab.simulation import RunResult, check_start, check_walk_in_maze
 
 # "Repeat this run" repeats the run, not its files: the scenario and recording it wrote would be found
 # taken by the pasted command ("exists; use --force"), and --force would replace them unasked.
@@ -331,6 +335,97 @@ def with_stored_options(stored: Scenario, filter_names: Sequence[str], given: Gi
     merged = GivenOptions({**used, **given})
     merged.spelled = {**{name: f"--option {name}" for name in used}, **getattr(given, "spelled", {})}
     return merged
+
+
+# -- what run and compare print and write -----------------------------------------------------------
+def kidnap_report(result: RunResult) -> str | None:
+    """Where the robot was carried, and when (if ever) the filter found it again."""
+    if result.kidnap_at is None or result.kidnap_position is None:
+        return None
+    x, y = result.kidnap_position
+    steps = recovery_steps(result)
+    found = f"re-localised {steps} steps later" if steps is not None else "not re-localised by the end"
+    return f"kidnapped at step {result.kidnap_at} to ({x:.2f}, {y:.2f}): {found}"
+
+
+def particle_count_report(result: RunResult) -> str:
+    """The particle count per step (KLD-sampling): mean, least and most."""
+    counts = result.extras["particle_count"]
+    return f"particle count: mean {counts.mean():.0f}, least {counts.min()}, most {counts.max()}"
+
+
+# -- compare's outputs ------------------------------------------------------------------------------------
+def compare_record_file(
+    csv_path: Path | None, plot: Path | None, traces: Path | None, force: bool, rrd: Path | None = None
+) -> Path | None:
+    """Where compare's record goes (beside its first output), checked like the outputs; the traces'
+    format checked too; two outputs that are one file refused first, in one line naming both."""
+    path = next((record_path(p) for p in (csv_path, plot, traces) if p is not None), None)
+    check_one_file_each(
+        [("--csv", csv_path), ("--plot", plot), ("--traces", traces), ("--rrd", rrd), ("the record", path)]
+    )
+    if traces is not None:
+        check_output_path(traces, force)
+        check_trace_path(traces)
+    if path is not None:
+        check_output_path(path, force)
+    return path
+
+
+def start_compare_record(scenario: Path, parameters: dict[str, Any]) -> Recorder:
+    """The record of a compare, started before its runs."""
+    return Recorder("compare", command_line(), {**parameters, "scenario": str(scenario)},
+                    scenario_sha256=file_sha256(scenario))  # fmt: skip
+
+
+def report_compare(
+    results: dict[str, RunResult], *, kld: bool, csv_path: Path | None, plot: Path | None, title: str, force: bool
+) -> None:
+    """The kidnapping (if any), the table, then the per-step errors and the figure."""
+    kidnapping = next(iter(results.values()))
+    if kidnapping.kidnap_at is not None and kidnapping.kidnap_position is not None:
+        x, y = kidnapping.kidnap_position
+        typer.echo(f"kidnapped at step {kidnapping.kidnap_at} to ({x:.2f}, {y:.2f})")
+    typer.echo(comparison_table(results, kld=kld, startup_seconds=take_startup_seconds()))
+    if csv_path is not None:
+        write_text_atomically(csv_path, errors_csv(results), replace=force)
+        typer.echo(f"per-step errors written to {csv_path}")
+    if plot is not None:
+        plot_errors(results, plot, title, replace=force)
+        typer.echo(f"figure written to {plot}")
+
+
+def finish_compare(
+    results: dict[str, RunResult],
+    seed: int,
+    traces: Path | None,
+    recorder: Recorder,
+    record_file: Path | None,
+    maze: str | None = None,
+) -> None:
+    """Write the traces (with the scenario's `maze`, sigma, delta and particle count) and the record
+    (with each filter's figures)."""
+    if traces is not None:
+        write_traces(traces, compare_traces(results, seed, maze))
+        typer.echo(f"per-step traces written to {traces}")
+    if record_file is not None:
+        summary = [
+            {
+                "filter": name,
+                "mean_error": float(result.errors.mean()),
+                "final_error": final_error(result.errors),
+                "converged_at": result.converged_at,
+                "mean_ess": mean_ess(result),
+                "log_evidence": final_log_evidence(result),
+                "log_evidence_caveat": evidence_caveat(name),
+                "ms_per_step": 1e3 * float(result.step_seconds.mean()),
+                "backend": result.extras.get("backend"),
+            }
+            for name, result in results.items()
+        ]
+        recorder.finish("finished", summary=summary)
+        recorder.write(record_file)
+        typer.echo(f"the record (command, versions, scenario hash, summary) written to {record_file}")
 
 
 __all__ = ["RunSetup", "compare_scenario", "fresh_setup", "replay_filter_name", "replay_options", "replay_setup",

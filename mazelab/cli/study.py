@@ -39,7 +39,6 @@ from mazelab.cli.options import (
     visualization,
     with_parameters,
 )
-from mazelab.cli.provenance import command_line, repeat_command, resume_command
 from mazelab.experiments.dask_runner import DASK_TIMEOUT, check_workers, close_client, connect
 from mazelab.experiments.executor import STOP_SIGNALS, default_workers, run_study, study_backend
 from mazelab.experiments.journal import (
@@ -59,6 +58,7 @@ from mazelab.experiments.runs import parse_filters
 from mazelab.experiments.study import RunRecord, RunTask, StudyOutcome
 from mazelab.experiments.summary import CSV_DTYPES, study_csv, study_table, summarise_study, summary_csv, summary_path
 from mazelab.experiments.traces import check_trace_path, study_traces, write_traces
+from mazelab.invocation import command_line, repeat_command, resume_command
 from mazelab.mazes import DEFAULT_MAZE
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
 from mazelab.registry import filter_entry, resolve_filter
