@@ -40,11 +40,16 @@ from mazelab.cli.options import (
     visualization,
 )
 from mazelab.declaration import show_value, to_plain_json
-from mazelab.experiments.compare import comparison_table, errors_csv, plot_errors
 from mazelab.experiments.kidnapping import recovery_steps
 from mazelab.experiments.record import Recorder, file_sha256, record_path
-from mazelab.experiments.runs import final_error, mean_ess
-from mazelab.experiments.study import final_log_evidence
+from mazelab.experiments.runs import (
+    comparison_table,
+    errors_csv,
+    final_error,
+    final_log_evidence,
+    mean_ess,
+    plot_errors,
+)
 from mazelab.experiments.traces import check_trace_path, compare_traces, write_traces
 from mazelab.experiments.warmup import take_startup_seconds
 from mazelab.invocation import command_line, repeat_command
@@ -119,8 +124,7 @@ def compare_scenario(
     option: list[str] | None, named: dict, drawing: dict, **_: Any,
 ) -> None:  # fmt: skip
     """`compare`'s work (mazelab.cli.app): every filter on the saved scenario, the table, files and record."""
-    from mazelab.experiments.compare import compare_filters
-    from mazelab.experiments.runs import parse_filters
+    from mazelab.experiments.runs import compare_filters, parse_filters
 
     visualize = visualization(**drawing, force=force)
     check_filter_names(filters)

@@ -1,4 +1,7 @@
-"""Several filters on one robot walk, and the figures of one run.
+"""Several filters on one robot walk, the figures of one run, and comparing the filters on one saved
+scenario (lab steps 12-13: every filter replays the same start, initial particles, angles and
+measurements; `compare_filters` returns their RunResults, `comparison_table`, `errors_csv` and
+`plot_errors` report them).
 
 Figures of one run:
     last-20% error    `final_error` (its CSV column): the mean error over the last FINAL_SHARE (20%) of the
@@ -8,21 +11,27 @@ Figures of one run:
 
 from __future__ import annotations
 
+import csv
+import io
 import math
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from mazelab.backend import backend_by_work
-from mazelab.contract import takes
+from mazelab.contract import options_for, takes
+from mazelab.experiments.kidnapping import recovery_steps, relocalised, walk_until
+from mazelab.experiments.tables import format_number, format_table, pyplot, save_figure
 from mazelab.experiments.warmup import warm_up_filters
 from mazelab.maze import Maze
-from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
+from mazelab.model import CONVERGENCE_RADIUS, DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
 from mazelab.plugins import canonical_spec, is_plugin_spec
-from mazelab.registry import filter_entry, resolve_filter
+from mazelab.registry import colour_of, evidence_caveat, filter_entry, labels, resolve_filter, rgb
 from mazelab.robot import Robot
 from mazelab.simulation import RunResult, simulate
+from mazelab.viz.views import open_comparison
 
 FINAL_SHARE = 0.2  # the last-20% error (`final_error`) is the mean error over this share of the last steps
 
@@ -133,15 +142,153 @@ def mean_particle_count(result: RunResult) -> float:
     return float(np.mean(result.extras["particle_count"]))
 
 
+def final_log_evidence(result: RunResult) -> float:
+    """log p(z_1:K) after the last step as the filter estimates it (NaN when it keeps none)."""
+    return math.nan if result.log_evidence is None else float(result.log_evidence[-1])
+
+
+# -- comparing the filters on one saved scenario (lab steps 12-13) ---------------------------------
+def compare_filters(
+    world: Maze,
+    robot: Robot,
+    sigma: float,
+    delta: float,
+    particles: Sequence[Sequence[float]],
+    filter_names: Sequence[str],
+    *,
+    seed: int,
+    visualize: Any = False,
+    kidnap_at: int | None = None,
+    **options: Any,
+) -> dict[str, RunResult]:
+    """Lab steps 12-13: every filter on one saved scenario, drawn side by side in one recording.
+
+    `kidnap_at=K` on a scenario recorded without a kidnapping replays its walk up to step K - 1; then
+    the robot is carried to a free place drawn from `seed` and walks on, every filter seeing the same.
+    `options` (e.g. recovery="sensor", bandwidth="multimodal") reach each filter that declares them; one
+    that none of the filters declares is refused in one line."""
+    per_filter = options_for([resolve_filter(name) for name in filter_names], options)
+    steps = robot.recorded_steps
+    if kidnap_at is not None and robot.kidnap_at is None:
+        robot = walk_until(robot, kidnap_at)
+    comparison = open_comparison(visualize, world, filter_labels(filter_names))
+    try:
+        return run_filters(
+            world,
+            robot,
+            sigma,
+            delta,
+            filter_names,
+            seed=seed,
+            particles=particles,
+            steps=steps,
+            comparison=comparison,
+            kidnap_at=kidnap_at,
+            options={name: per_filter[resolve_filter(name).name] for name in filter_names},
+        )
+    finally:
+        comparison.close()
+
+
+def comparison_table(results: dict[str, RunResult], kld: bool = False, startup_seconds: float | None = None) -> str:
+    """Per filter: mean error, last-20% error (the mean error over the last 20% of the steps), convergence
+    step, mean ESS, the log evidence log p(z_1:K) of the whole walk (its estimate; exact for the grid
+    filter; '-' for a filter that keeps none; marked '*' where it is not an estimate of p(z_1:K) under the
+    model, a line under the table says why) and milliseconds per step with the backend it ran on; with a
+    kidnapping, whether the filter re-localised and in how many steps; with `kld`, the mean particle
+    count. With `startup_seconds` (the process's one-off costs), a line saying what ms/step is."""
+    kidnapped = any(result.kidnap_at is not None for result in results.values())
+    backends = {name: result.extras.get("backend", "numpy") for name, result in results.items()}
+    one = len(set(backends.values())) == 1
+    headers = ["filter", "mean error", f"last-{FINAL_SHARE:.0%} error", "converged at", "mean ESS", "log p(z_1:K)",
+               f"ms/step, {next(iter(backends.values()))}" if one else "ms/step, backend"]  # fmt: skip
+    headers += ["re-localised", "steps to recover"] * kidnapped + ["mean N"] * kld
+    rows, caveats = [], {}
+    for name, result in results.items():
+        converged, label = result.converged_at, labels([name])[name]
+        if evidence_caveat(name):
+            caveats[label] = evidence_caveat(name)
+        row = [
+            label,
+            f"{result.errors.mean():.3f}",
+            f"{final_error(result.errors):.3f}",
+            "never" if converged is None else f"step {converged}",
+            format_number(mean_ess(result), "{:.0f}"),
+            format_number(final_log_evidence(result), "{:.1f}") + ("*" if label in caveats else ""),
+            f"{1e3 * result.step_seconds.mean():.2f}" + ("" if one else f" {backends[name]}"),
+        ]
+        if kidnapped:
+            steps = recovery_steps(result)
+            row += ["yes" if relocalised(result) else "no", "never" if steps is None else str(steps)]
+        if kld:
+            row.append(f"{mean_particle_count(result):.0f}" if is_particle_filter(name) else "-")
+        rows.append(row)
+    notes = [f"[* {label}: the log evidence is {why}]" for label, why in caveats.items()]
+    if startup_seconds is not None:
+        notes.append(startup_note(startup_seconds))
+    return "\n".join([format_table(headers, rows), *notes])
+
+
+def startup_note(seconds: float) -> str:
+    """The line that says what ms/step is, and reports the start-up apart from it."""
+    return (
+        f"[ms/step: one run's steps of each filter, on the backend named, after untimed warm-up steps; start-up "
+        f"(numba's kernels loaded, first calls) {seconds:.2f} s, not in ms/step]"
+    )
+
+
+def errors_csv(results: dict[str, RunResult]) -> str:
+    """Per-step errors as CSV: a `step` column (1..steps), then one column per filter."""
+    names = list(results)
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(["step", *names])
+    columns = [results[name].errors for name in names]
+    for k, row in enumerate(zip(*columns, strict=True), start=1):
+        writer.writerow([k, *(repr(float(e)) for e in row)])
+    return buffer.getvalue()
+
+
+def plot_errors(results: dict[str, RunResult], path: Path, title: str, *, replace: bool = True) -> None:
+    """The lab's figure: error against step, one line per filter in its registry colour, each with a line
+    style and markers of its own (the lines stay apart in grey print), saved to `path` (png, pdf or svg)."""
+    plt = pyplot()
+    figure, axes = plt.subplots(figsize=(8, 4.5), layout="constrained")
+    shown = labels(list(results))  # the registry's labels and colours, as in the viewer
+    for i, (name, result) in enumerate(results.items()):
+        steps = np.arange(1, len(result.errors) + 1)
+        axes.plot(steps, result.errors, label=shown[name], color=rgb(colour_of(name)), linewidth=1.2,
+                  linestyle=LINE_STYLES[i % len(LINE_STYLES)], marker=MARKERS[i % len(MARKERS)],
+                  markevery=(i, max(1, len(steps) // 12)), markersize=4)  # fmt: skip
+    axes.axhline(CONVERGENCE_RADIUS, color="grey", linestyle="--", linewidth=0.8, label="convergence radius")
+    axes.set(title=title, xlabel="step k", ylabel="error |estimate - true position| (map units)")
+    axes.set_ylim(bottom=0)
+    axes.grid(alpha=0.3)
+    axes.legend()
+    save_figure(figure, path, replace=replace)
+
+
+MARKERS = ("o", "s", "^", "D", "v", "P", "X")  # each line of a figure a marker and a line style of its own
+LINE_STYLES = ("-", "--", ":", "-.")
+
+
 __all__ = [
     "FINAL_SHARE",
+    "LINE_STYLES",
+    "MARKERS",
+    "compare_filters",
+    "comparison_table",
+    "errors_csv",
     "filter_key",
     "filter_labels",
     "filter_options",
     "final_error",
+    "final_log_evidence",
     "is_particle_filter",
     "mean_ess",
     "mean_particle_count",
     "parse_filters",
+    "plot_errors",
     "run_filters",
+    "startup_note",
 ]

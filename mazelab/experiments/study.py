@@ -21,7 +21,14 @@ from mazelab.contract import not_taken, options_for
 from mazelab.declaration import Option, options_of, scoped, show_value
 from mazelab.experiments.kidnapping import recovery_steps, relocalised
 from mazelab.experiments.plugin_code import PluginCode, filters_here
-from mazelab.experiments.runs import filter_labels, final_error, mean_ess, mean_particle_count, run_filters
+from mazelab.experiments.runs import (
+    filter_labels,
+    final_error,
+    final_log_evidence,
+    mean_ess,
+    mean_particle_count,
+    run_filters,
+)
 from mazelab.experiments.warmup import WorkerReport
 from mazelab.maze import STATION_WALL, Maze
 from mazelab.maze_generator import DEFAULT_WALL_SHARE, generate_maze
@@ -591,11 +598,6 @@ def trace_of(result: RunResult) -> dict[str, Any]:
     }
 
 
-def final_log_evidence(result: RunResult) -> float:
-    """log p(z_1:K) after the last step as the filter estimates it (NaN when it keeps none)."""
-    return math.nan if result.log_evidence is None else float(result.log_evidence[-1])
-
-
 def kidnap_figures(result: RunResult) -> tuple[bool | None, int | None]:
     """(re-localised, steps to recover) of a run with a kidnapping; (None, None) without one."""
     if result.kidnap_at is None:
@@ -673,7 +675,6 @@ __all__ = [
     "exact_means",
     "file_mazes",
     "filters_per_setting",
-    "final_log_evidence",
     "is_option_parameter",
     "kidnap_figures",
     "option_cell",

@@ -29,8 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from mazelab.experiments.compare import LINE_STYLES, MARKERS
-from mazelab.experiments.runs import FINAL_SHARE
+from mazelab.experiments.runs import FINAL_SHARE, LINE_STYLES, MARKERS
 from mazelab.experiments.stats import CONFIDENCE_LEVEL
 from mazelab.experiments.study import MODEL_PARAMETERS, declared_option, is_option_parameter, takes_parameter
 from mazelab.experiments.summary import StudySummary
