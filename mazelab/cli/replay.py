@@ -41,7 +41,7 @@ from mazelab.cli.options import (
 )
 from mazelab.declaration import show_value, to_plain_json
 from mazelab.experiments.kidnapping import recovery_steps
-from mazelab.experiments.record import Recorder, file_sha256, record_path
+from mazelab.experiments.record import Recorder, record_path
 from mazelab.experiments.runs import (
     comparison_table,
     errors_csv,
@@ -56,6 +56,7 @@ from mazelab.invocation import command_line, repeat_command
 from mazelab.maze import Maze
 from mazelab.mazes import DEFAULT_MAZE, load_maze, mazes_fitting
 from mazelab.model import DEFAULT_STEPS
+from mazelab.plugins import file_sha256
 from mazelab.registry import FilterEntry, evidence_caveat, filter_entry, resolve_filter
 from mazelab.robot import Robot
 from mazelab.scenario import Scenario, check_measurements_within, find_scenario, load_scenario, save_scenario

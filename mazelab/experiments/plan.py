@@ -13,7 +13,6 @@ from typing import Any
 from mazelab import maze_generator
 from mazelab.checks import check_bandwidth_within, check_sigma_within
 from mazelab.declaration import scoped, to_plain_json
-from mazelab.experiments.plugin_code import PluginCode, plugin_codes
 from mazelab.experiments.runs import filter_key, parse_filters
 from mazelab.experiments.study import (
     BASE_PARAMETERS,
@@ -37,6 +36,7 @@ from mazelab.limits import check_particles, check_steps, check_study
 from mazelab.maze_generator import DEFAULT_WALL_SHARE
 from mazelab.maze_paths import MAZES_DIR
 from mazelab.mazes import DEFAULT_MAZE, find_maze, load_maze
+from mazelab.plugins import PluginCode, plugin_codes
 from mazelab.registry import filter_entry, resolve_filter
 from mazelab.seeding import new_seed
 

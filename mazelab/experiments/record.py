@@ -7,7 +7,6 @@ study's parameters against its journal's, mazelab.experiments.journal.)"""
 from __future__ import annotations
 
 import datetime as dt
-import hashlib
 import json
 import os
 import platform
@@ -103,11 +102,6 @@ def program_versions() -> dict[str, Any]:
     }
 
 
-def file_sha256(path: str | Path) -> str:
-    """The sha256 of a file's bytes (what `sha256sum FILE` prints)."""
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
-
-
 def now() -> str:
     """The current time, UTC, ISO 8601 to the second."""
     return dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
@@ -192,7 +186,6 @@ __all__ = [
     "Recorder",
     "dependency_versions",
     "differences",
-    "file_sha256",
     "git_commit",
     "jsonable",
     "now",

@@ -20,7 +20,6 @@ import numpy as np
 from mazelab.contract import not_taken, options_for
 from mazelab.declaration import Option, options_of, scoped, show_value
 from mazelab.experiments.kidnapping import recovery_steps, relocalised
-from mazelab.experiments.plugin_code import PluginCode, filters_here
 from mazelab.experiments.runs import (
     filter_labels,
     final_error,
@@ -33,6 +32,7 @@ from mazelab.experiments.warmup import WorkerReport
 from mazelab.maze import STATION_WALL, Maze
 from mazelab.maze_generator import DEFAULT_WALL_SHARE, generate_maze
 from mazelab.model import check_model_parameters
+from mazelab.plugins import PluginCode, file_sha256, filters_here
 from mazelab.registry import entries, evidence_caveat, filter_entry, labels, resolve_filter
 from mazelab.robot import Robot
 from mazelab.seeding import start_place, study_seeds
@@ -57,7 +57,7 @@ class MazeChoice:
     @classmethod
     def from_maze(cls, label: str, world: Maze, path: str | Path | None = None) -> MazeChoice:
         """A maze file's grid; with `path`, the file's path and content hash are kept too."""
-        digest = hashlib.sha256(Path(path).read_bytes()).hexdigest() if path is not None else None
+        digest = file_sha256(path) if path is not None else None
         return cls(
             label, grid=tuple(map(tuple, world.as_lists())), path=None if path is None else str(path), sha256=digest
         )
@@ -280,7 +280,7 @@ class RunTask:
 
     def here(self) -> RunTask:
         """This run with each plug-in's spec the one that imports its shipped code in this process
-        (mazelab.experiments.plugin_code): a worker runs the code the study was planned with."""
+        (mazelab.plugins.PluginCode): a worker runs the code the study was planned with."""
         if not self.plugins:
             return self
         return dataclasses.replace(self, filters=filters_here(self.filters, self.plugins))
@@ -329,7 +329,7 @@ def study_tasks(
     (`filters_per_setting`; a setting that runs none has no tasks). `traces` keeps each run's per-step
     trace (mazelab.experiments.traces); `reference` ("grid") measures each filter against the exact
     posterior (`with_reference`); `plugins` the code of the plug-ins among the filters
-    (mazelab.experiments.plugin_code), sent with every run."""
+    (mazelab.plugins.PluginCode), sent with every run."""
     if runs < 1 or steps < 1:
         raise ValueError(f"runs and steps must be >= 1, got {runs} runs and {steps} steps")
     if kidnap_at is not None and not 1 <= kidnap_at <= steps:
