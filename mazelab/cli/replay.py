@@ -57,7 +57,7 @@ from mazelab.maze import Maze
 from mazelab.mazes import DEFAULT_MAZE, load_maze, mazes_fitting
 from mazelab.model import DEFAULT_STEPS
 from mazelab.plugins import file_sha256
-from mazelab.registry import FilterEntry, evidence_caveat, filter_entry, resolve_filter
+from mazelab.registry import FilterEntry, described, filter_entry, resolve_filter
 from mazelab.robot import Robot
 from mazelab.scenario import Scenario, check_measurements_within, find_scenario, load_scenario, save_scenario
 from mazelab.seeding import new_seed, start_place
@@ -422,7 +422,7 @@ def finish_compare(
                 "converged_at": result.converged_at,
                 "mean_ess": mean_ess(result),
                 "log_evidence": final_log_evidence(result),
-                "log_evidence_caveat": evidence_caveat(name),
+                "log_evidence_caveat": described(name).evidence,
                 "ms_per_step": 1e3 * float(result.step_seconds.mean()),
                 "backend": result.extras.get("backend"),
             }

@@ -28,7 +28,7 @@ from mazelab.experiments.warmup import warm_up_filters
 from mazelab.maze import Maze
 from mazelab.model import CONVERGENCE_RADIUS, DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
 from mazelab.plugins import canonical_spec, is_plugin_spec
-from mazelab.registry import colour_of, evidence_caveat, filter_entry, labels, resolve_filter, rgb
+from mazelab.registry import described, filter_entry, resolve_filter
 from mazelab.robot import Robot
 from mazelab.simulation import RunResult, simulate
 from mazelab.viz.views import open_comparison
@@ -205,9 +205,9 @@ def comparison_table(results: dict[str, RunResult], kld: bool = False, startup_s
     headers += ["re-localised", "steps to recover"] * kidnapped + ["mean N"] * kld
     rows, caveats = [], {}
     for name, result in results.items():
-        converged, label = result.converged_at, labels([name])[name]
-        if evidence_caveat(name):
-            caveats[label] = evidence_caveat(name)
+        converged, label = result.converged_at, described(name).label
+        if described(name).evidence:
+            caveats[label] = described(name).evidence
         row = [
             label,
             f"{result.errors.mean():.3f}",
@@ -254,10 +254,10 @@ def plot_errors(results: dict[str, RunResult], path: Path, title: str, *, replac
     style and markers of its own (the lines stay apart in grey print), saved to `path` (png, pdf or svg)."""
     plt = pyplot()
     figure, axes = plt.subplots(figsize=(8, 4.5), layout="constrained")
-    shown = labels(list(results))  # the registry's labels and colours, as in the viewer
     for i, (name, result) in enumerate(results.items()):
         steps = np.arange(1, len(result.errors) + 1)
-        axes.plot(steps, result.errors, label=shown[name], color=rgb(colour_of(name)), linewidth=1.2,
+        entry = described(name)  # the registry's label and colour, as in the viewer
+        axes.plot(steps, result.errors, label=entry.label, color=entry.rgb, linewidth=1.2,
                   linestyle=LINE_STYLES[i % len(LINE_STYLES)], marker=MARKERS[i % len(MARKERS)],
                   markevery=(i, max(1, len(steps) // 12)), markersize=4)  # fmt: skip
     axes.axhline(CONVERGENCE_RADIUS, color="grey", linestyle="--", linewidth=0.8, label="convergence radius")

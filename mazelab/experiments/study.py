@@ -33,7 +33,7 @@ from mazelab.maze import STATION_WALL, Maze
 from mazelab.maze_generator import DEFAULT_WALL_SHARE, generate_maze
 from mazelab.model import check_model_parameters
 from mazelab.plugins import PluginCode, file_sha256, filters_here
-from mazelab.registry import entries, evidence_caveat, filter_entry, labels, resolve_filter
+from mazelab.registry import described, entries, filter_entry, resolve_filter
 from mazelab.robot import Robot
 from mazelab.seeding import start_place, study_seeds
 from mazelab.simulation import RunResult, convergence_step
@@ -551,8 +551,8 @@ def run_records(task: RunTask, world: Maze, results: dict[str, RunResult]) -> li
             int(world.grid.shape[1]),
             s.maze.wall_share,
             log_evidence=final_log_evidence(result),
-            log_evidence_caveat=evidence_caveat(name),
-            label=labels([name])[name],
+            log_evidence_caveat=described(name).evidence,
+            label=described(name).label,
             backend=result.extras.get("backend", "numpy"),
             options=option_cells(s, name),
         )

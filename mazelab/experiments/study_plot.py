@@ -13,7 +13,7 @@ parameters, laid out as the design (maze x sigma: a row per maze, a column per s
 - every line has a marker and a line style of its own, so the lines stay apart in grey print;
 - the figure is PAPER_WIDTH inches wide with FONT_POINTS type (a two-column paper's full width), PNG
   at PNG_DPI, or PDF / SVG with their text as text (the path's suffix chooses);
-- the filters' colours are the registry's (mazelab.registry.colour_of), as in the viewer.
+- the filters' colours are the registry's (mazelab.registry.described), as in the viewer.
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ from mazelab.experiments.stats import CONFIDENCE_LEVEL
 from mazelab.experiments.study import MODEL_PARAMETERS, declared_option, is_option_parameter, takes_parameter
 from mazelab.experiments.summary import StudySummary
 from mazelab.experiments.tables import format_value, pyplot, save_figure
-from mazelab.registry import colour_of, labels, rgb
+from mazelab.registry import described
 
 NUMERIC_PARAMETERS = MODEL_PARAMETERS  # the x axis, first choice first (then a numeric option)
 PARAMETER_LABELS = {
@@ -196,7 +196,7 @@ def _panel_title(summary: StudySummary, facets: Sequence[str]) -> str:
 
 def line_label(summary: StudySummary, options: Sequence[str]) -> str:
     """'RPF, bandwidth multimodal': the filter and the varied options it takes."""
-    name = labels([summary.filter])[summary.filter]  # the registry's label (SIR), as the viewer's
+    name = described(summary.filter).label  # the registry's label (SIR), as the viewer's
     taken = [_named(p, summary.setting.value(p)) for p in options if takes_parameter(summary.filter, p)]
     return ", ".join([name, *taken])
 
@@ -244,7 +244,7 @@ def panel_lines(
         if x is not None and not reference:
             points = sorted(points, key=lambda s: _sort_key(s.setting.value(x)))
         marker, style = MARKERS[index % len(MARKERS)], LINE_STYLES[index % len(LINE_STYLES)]
-        lines.append(_Line(label, rgb(colour_of(name)), marker, points, reference, style))
+        lines.append(_Line(label, described(name).rgb, marker, points, reference, style))
     return lines
 
 
@@ -302,7 +302,7 @@ def plot_study(
 def paired_label(summaries: Sequence[StudySummary]) -> str:
     """The paired difference's axis: 'last-20% error minus SIR's (map units)'."""
     other = summaries[0].paired_with or ""
-    return f"last-{FINAL_SHARE:.0%} error minus {labels([other])[other]}'s (map units)"
+    return f"last-{FINAL_SHARE:.0%} error minus {described(other).label}'s (map units)"
 
 
 def describe(scale: XScale, panels: int, quantity: YQuantity) -> str:
@@ -335,7 +335,7 @@ def study_title(
     what = Y_QUANTITIES[y].label.split(" (")[0].capitalize()
     paired = next((s.paired_with for s in summaries if s.paired_with), None)
     if y == "paired" and paired is not None:
-        what = f"Paired difference to {labels([paired])[paired]} in last-{FINAL_SHARE:.0%} error"
+        what = f"Paired difference to {described(paired).label} in last-{FINAL_SHARE:.0%} error"
     return f"{what}{against}{where}{extra}, {runs} runs per point"
 
 

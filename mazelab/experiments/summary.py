@@ -49,7 +49,7 @@ from mazelab.experiments.tables import (
     records_csv,
 )
 from mazelab.model import CONVERGENCE_RADIUS
-from mazelab.registry import labels, resolve_filter
+from mazelab.registry import described, resolve_filter
 
 Interval = tuple[float, float]
 
@@ -246,7 +246,7 @@ def interval_note(summaries: Sequence[StudySummary] = ()) -> str:
         f"({steps}); median conv. step: Kaplan-Meier, the runs that never converge censored there "
         f"('>{last or 'N'}': not reached), its interval from the log-log band]",
     ]
-    caveats = {labels([s.filter])[s.filter]: s.log_evidence_caveat for s in summaries if s.log_evidence_caveat}
+    caveats = {described(s.filter).label: s.log_evidence_caveat for s in summaries if s.log_evidence_caveat}
     lines += [f"[* {label}: the log evidence is {why}]" for label, why in caveats.items()]
     backend = ", ".join(sorted({s.backend for s in summaries}))
     lines.append(
@@ -255,7 +255,7 @@ def interval_note(summaries: Sequence[StudySummary] = ()) -> str:
     )
     reference = next((s.paired_with for s in summaries if s.paired_with), None)
     if reference is not None:
-        label = labels([reference])[reference]
+        label = described(reference).label
         lines.append(
             f"[diff. vs {label}: the filter's last-20% error minus {label}'s on the same runs (negative: "
             f"smaller), mean over the pairs, paired BCa bootstrap interval (the runs resampled as pairs)]"
@@ -280,7 +280,7 @@ def study_table(summaries: Sequence[StudySummary], varied: Sequence[str], kld: b
     columns = [
         *((p, lambda s, p=p: format_value(s.setting.value(p)) if takes_parameter(s.filter, p) else "-")
           for p in varied),
-        ("filter", lambda s: labels([s.filter])[s.filter]), ("runs", lambda s: str(s.runs)),
+        ("filter", lambda s: described(s.filter).label), ("runs", lambda s: str(s.runs)),
         ("mean last-20% error", lambda s: f"{s.mean_final_error:.3f}"), (ci, lambda s: format_interval(*s.interval)),
         ("median", lambda s: f"{s.median_final_error:.3f}"), (ci, lambda s: format_interval(*s.median_interval)),
         ("converged", lambda s: f"{s.converged_share:.0%}"),
@@ -302,7 +302,7 @@ def study_table(summaries: Sequence[StudySummary], varied: Sequence[str], kld: b
         columns += [("dist. to exact", lambda s: format_number(s.distance_to_exact, "{:.3f}")),
                     (ci, lambda s: format_interval(*s.distance_interval))]  # fmt: skip
     if reference:
-        columns += [(f"diff. vs {labels([reference])[reference]}",
+        columns += [(f"diff. vs {described(reference).label}",
                      lambda s: format_number(s.mean_difference, "{:+.3f}")),
                     (ci, lambda s: format_interval(*s.difference_interval, spec="{:+.3f}"))]  # fmt: skip
     rows = [[cell(s) for _, cell in columns] for s in summaries]
@@ -381,7 +381,7 @@ def summary_rows(summaries: Sequence[StudySummary], columns: Sequence[str] = ())
                 **{p: s.setting.value(p) if takes_parameter(s.filter, p) else None for p in BASE_PARAMETERS},
                 **{name: cells.get(name) for name in columns},
                 "filter": s.filter,
-                "label": labels([s.filter])[s.filter],
+                "label": described(s.filter).label,
                 **{name: read(s) for name, read in SUMMARY_STATISTICS},
             }
         )
