@@ -42,14 +42,7 @@ from mazelab.cli.options import (
 from mazelab.declaration import show_value, to_plain_json
 from mazelab.experiments.kidnapping import recovery_steps
 from mazelab.experiments.record import Recorder, record_path
-from mazelab.experiments.runs import (
-    comparison_table,
-    errors_csv,
-    final_error,
-    final_log_evidence,
-    mean_ess,
-    plot_errors,
-)
+from mazelab.experiments.runs import comparison_table, errors_csv, plot_errors, run_figures
 from mazelab.experiments.traces import check_trace_path, compare_traces, write_traces
 from mazelab.experiments.warmup import take_startup_seconds
 from mazelab.invocation import command_line, repeat_command
@@ -57,7 +50,7 @@ from mazelab.maze import Maze
 from mazelab.mazes import DEFAULT_MAZE, load_maze, mazes_fitting
 from mazelab.model import DEFAULT_STEPS
 from mazelab.plugins import file_sha256
-from mazelab.registry import FilterEntry, described, filter_entry, resolve_filter
+from mazelab.registry import FilterEntry, filter_entry, resolve_filter
 from mazelab.robot import Robot
 from mazelab.scenario import Scenario, check_measurements_within, find_scenario, load_scenario, save_scenario
 from mazelab.seeding import new_seed, start_place
@@ -414,19 +407,10 @@ def finish_compare(
         write_traces(traces, compare_traces(results, seed, maze))
         typer.echo(f"per-step traces written to {traces}")
     if record_file is not None:
+        kept = ("mean_error", "final_error", "converged_at", "mean_ess", "log_evidence", "log_evidence_caveat",
+                "ms_per_step", "backend")  # fmt: skip
         summary = [
-            {
-                "filter": name,
-                "mean_error": float(result.errors.mean()),
-                "final_error": final_error(result.errors),
-                "converged_at": result.converged_at,
-                "mean_ess": mean_ess(result),
-                "log_evidence": final_log_evidence(result),
-                "log_evidence_caveat": described(name).evidence,
-                "ms_per_step": 1e3 * float(result.step_seconds.mean()),
-                "backend": result.extras.get("backend"),
-            }
-            for name, result in results.items()
+            {"filter": name, **{k: run_figures(name, result)[k] for k in kept}} for name, result in results.items()
         ]
         recorder.finish("finished", summary=summary)
         recorder.write(record_file)

@@ -147,6 +147,29 @@ def final_log_evidence(result: RunResult) -> float:
     return math.nan if result.log_evidence is None else float(result.log_evidence[-1])
 
 
+def run_figures(name: str, result: RunResult) -> dict[str, Any]:
+    """The figures of filter `name`'s run, by the study CSV's names (every table and record of a run reads
+    them here): last-20% and mean error, convergence step, mean ESS, ms per step, with a kidnapping whether
+    it re-localised and its steps to recover (None without), mean particle count, the final log evidence
+    and why it is not of p(z_1:K) under the model (the registry's caveat), its label and its backend."""
+    entry = described(name)
+    kidnapped = result.kidnap_at is not None
+    return {
+        "final_error": final_error(result.errors),
+        "mean_error": float(result.errors.mean()),
+        "converged_at": result.converged_at,
+        "mean_ess": mean_ess(result),
+        "ms_per_step": 1e3 * float(result.step_seconds.mean()),
+        "relocalised": relocalised(result) if kidnapped else None,
+        "steps_to_recover": recovery_steps(result) if kidnapped else None,
+        "mean_particle_count": mean_particle_count(result),
+        "log_evidence": final_log_evidence(result),
+        "log_evidence_caveat": entry.evidence,
+        "label": entry.label,
+        "backend": result.extras.get("backend", "numpy"),
+    }
+
+
 # -- comparing the filters on one saved scenario (lab steps 12-13) ---------------------------------
 def compare_filters(
     world: Maze,
@@ -197,31 +220,28 @@ def comparison_table(results: dict[str, RunResult], kld: bool = False, startup_s
     model, a line under the table says why) and milliseconds per step with the backend it ran on; with a
     kidnapping, whether the filter re-localised and in how many steps; with `kld`, the mean particle
     count. With `startup_seconds` (the process's one-off costs), a line saying what ms/step is."""
+    figures = {name: run_figures(name, result) for name, result in results.items()}
     kidnapped = any(result.kidnap_at is not None for result in results.values())
-    backends = {name: result.extras.get("backend", "numpy") for name, result in results.items()}
-    one = len(set(backends.values())) == 1
+    backends = {f["backend"] for f in figures.values()}
     headers = ["filter", "mean error", f"last-{FINAL_SHARE:.0%} error", "converged at", "mean ESS", "log p(z_1:K)",
-               f"ms/step, {next(iter(backends.values()))}" if one else "ms/step, backend"]  # fmt: skip
+               f"ms/step, {next(iter(backends))}" if len(backends) == 1 else "ms/step, backend"]  # fmt: skip
     headers += ["re-localised", "steps to recover"] * kidnapped + ["mean N"] * kld
-    rows, caveats = [], {}
-    for name, result in results.items():
-        converged, label = result.converged_at, described(name).label
-        if described(name).evidence:
-            caveats[label] = described(name).evidence
+    rows, caveats = [], {f["label"]: f["log_evidence_caveat"] for f in figures.values() if f["log_evidence_caveat"]}
+    for name, f in figures.items():
         row = [
-            label,
-            f"{result.errors.mean():.3f}",
-            f"{final_error(result.errors):.3f}",
-            "never" if converged is None else f"step {converged}",
-            format_number(mean_ess(result), "{:.0f}"),
-            format_number(final_log_evidence(result), "{:.1f}") + ("*" if label in caveats else ""),
-            f"{1e3 * result.step_seconds.mean():.2f}" + ("" if one else f" {backends[name]}"),
+            f["label"],
+            f"{f['mean_error']:.3f}",
+            f"{f['final_error']:.3f}",
+            "never" if f["converged_at"] is None else f"step {f['converged_at']}",
+            format_number(f["mean_ess"], "{:.0f}"),
+            format_number(f["log_evidence"], "{:.1f}") + ("*" if f["log_evidence_caveat"] else ""),
+            f"{f['ms_per_step']:.2f}" + ("" if len(backends) == 1 else f" {f['backend']}"),
         ]
         if kidnapped:
-            steps = recovery_steps(result)
-            row += ["yes" if relocalised(result) else "no", "never" if steps is None else str(steps)]
+            steps = f["steps_to_recover"]
+            row += ["yes" if f["relocalised"] else "no", "never" if steps is None else str(steps)]
         if kld:
-            row.append(f"{mean_particle_count(result):.0f}" if is_particle_filter(name) else "-")
+            row.append(f"{f['mean_particle_count']:.0f}" if is_particle_filter(name) else "-")
         rows.append(row)
     notes = [f"[* {label}: the log evidence is {why}]" for label, why in caveats.items()]
     if startup_seconds is not None:
@@ -289,6 +309,7 @@ __all__ = [
     "mean_particle_count",
     "parse_filters",
     "plot_errors",
+    "run_figures",
     "run_filters",
     "startup_note",
 ]

@@ -19,24 +19,16 @@ import numpy as np
 
 from mazelab.contract import not_taken, options_for
 from mazelab.declaration import Option, options_of, scoped, show_value
-from mazelab.experiments.kidnapping import recovery_steps, relocalised
-from mazelab.experiments.runs import (
-    filter_labels,
-    final_error,
-    final_log_evidence,
-    mean_ess,
-    mean_particle_count,
-    run_filters,
-)
+from mazelab.experiments.runs import filter_labels, run_figures, run_filters
 from mazelab.experiments.warmup import WorkerReport
 from mazelab.maze import STATION_WALL, Maze
 from mazelab.maze_generator import DEFAULT_WALL_SHARE, generate_maze
 from mazelab.model import check_model_parameters
 from mazelab.plugins import PluginCode, file_sha256, filters_here
-from mazelab.registry import described, entries, filter_entry, resolve_filter
+from mazelab.registry import entries, filter_entry, resolve_filter
 from mazelab.robot import Robot
 from mazelab.seeding import start_place, study_seeds
-from mazelab.simulation import RunResult, convergence_step
+from mazelab.simulation import RunResult
 from mazelab.viz.views import open_comparison
 
 
@@ -521,46 +513,25 @@ def exact_means(key: tuple[Any, ...], world: Maze, robot: Robot) -> np.ndarray:
 
 
 def run_records(task: RunTask, world: Maze, results: dict[str, RunResult]) -> list[RunRecord]:
-    """The study's rows of one run: a record per filter's result (with its per-step trace if the task
-    asks for it)."""
+    """The study's rows of one run: a record per filter's result (its figures, `run_figures`), with its
+    per-step trace if the task asks for it."""
     s = task.setting
-    stations = int((world.grid == STATION_WALL).sum())
-    records = [
-        RunRecord(
-            task.setting_index,
-            task.run,
-            task.seed,
-            s.maze.label,
-            task.maze_seed,
-            stations,
-            s.sigma,
-            s.delta,
-            s.particles,
-            task.steps,
-            name,
-            final_error(result.errors),
-            float(result.errors.mean()),
-            convergence_step(result.errors),
-            mean_ess(result),
-            1e3 * float(result.step_seconds.mean()),
-            task.kidnap_at,
-            *kidnap_figures(result),
-            mean_particle_count(result),
-            s.maze.sha256 if s.maze.sha256 is not None else maze_text_sha256(world),
-            int(world.grid.shape[0]),
-            int(world.grid.shape[1]),
-            s.maze.wall_share,
-            log_evidence=final_log_evidence(result),
-            log_evidence_caveat=described(name).evidence,
-            label=described(name).label,
-            backend=result.extras.get("backend", "numpy"),
-            options=option_cells(s, name),
-        )
-        for name, result in results.items()
-    ]
-    if task.traces:
-        for record, result in zip(records, results.values(), strict=True):
+    shared = {  # the run's cells, the same for every filter
+        **{"sigma": s.sigma, "delta": s.delta, "particles": s.particles, "steps": task.steps},
+        "kidnap_at": task.kidnap_at,
+        "station_blocks": int((world.grid == STATION_WALL).sum()),
+        "maze_sha256": s.maze.sha256 if s.maze.sha256 is not None else maze_text_sha256(world),
+        "maze_rows": int(world.grid.shape[0]),
+        "maze_columns": int(world.grid.shape[1]),
+        "wall_share": s.maze.wall_share,
+    }
+    records = []
+    for name, result in results.items():
+        cells = {"filter": name, **shared, **run_figures(name, result), "options": option_cells(s, name)}
+        record = RunRecord(task.setting_index, task.run, task.seed, s.maze.label, task.maze_seed, **cells)
+        if task.traces:
             record.trace = trace_of(result)
+        records.append(record)
     return records
 
 
@@ -596,13 +567,6 @@ def trace_of(result: RunResult) -> dict[str, Any]:
         "log_evidence": np.full(len(result.ess), np.nan) if result.log_evidence is None else result.log_evidence,
         "diagnostics": result.extras.get("diagnostics", {}),
     }
-
-
-def kidnap_figures(result: RunResult) -> tuple[bool | None, int | None]:
-    """(re-localised, steps to recover) of a run with a kidnapping; (None, None) without one."""
-    if result.kidnap_at is None:
-        return None, None
-    return relocalised(result), recovery_steps(result)
 
 
 def run_task_safely(task: RunTask) -> list[RunRecord] | RunFailure:
@@ -676,7 +640,6 @@ __all__ = [
     "file_mazes",
     "filters_per_setting",
     "is_option_parameter",
-    "kidnap_figures",
     "option_cell",
     "option_cells",
     "option_columns",
