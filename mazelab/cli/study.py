@@ -17,10 +17,8 @@ import typer
 
 from mazelab.atomic import WriteError, write_text_atomically
 from mazelab.cli.filter_options import (
-    GivenOptions,
     StudyOptionFlag,
     given_options,
-    options_per_filter,
     with_option_flags,
 )
 from mazelab.cli.hints import check_filter_names
@@ -52,7 +50,7 @@ from mazelab.experiments.journal import (
     read_journal,
     resume_study,
 )
-from mazelab.experiments.plan import StudyPlan, all_default, plan_study, study_mazes
+from mazelab.experiments.plan import StudyPlan, plan_study, study_mazes
 from mazelab.experiments.record import Recorder, record_path
 from mazelab.experiments.runs import parse_filters
 from mazelab.experiments.study import RunRecord, RunTask, StudyOutcome
@@ -179,15 +177,8 @@ def study_plan(files: StudyFiles, mazes: list, filters: str, named: dict[str, An
         seed = journal_parameters(files.journal, files.lines)["root_seed"]
     names = parse_filters(check_filter_names(filters))
     given = given_options(named, texts, names, lists=True)
-    kld = given.get("kld") == [True]
-    options = {k: v for k, v in given.items() if not (kld and k == "kld")}
-    checked = GivenOptions({**{k: None if all_default(k, v) else v for k, v in options.items()}, "kld": kld or None})
-    checked.spelled = given.spelled
-    options_per_filter(names, checked, check=False)  # each value is checked by plan_study, for every filter
-    try:
-        return plan_study(mazes, names, **values, options=options, seed=seed, kld=kld, traces=files.traces is not None)
-    except ValueError as error:
-        raise UserError(str(error)) from None
+    return plan_study(mazes, names, **values, options=given, seed=seed, traces=files.traces is not None,
+                      spelled=given.spelled)  # fmt: skip
 
 
 @dataclass

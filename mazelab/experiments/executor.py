@@ -31,7 +31,7 @@ from typing import Any
 from mazelab.backend import backend_for_work, use_backend
 from mazelab.experiments.batch_runs import MAX_BATCH, run_unit_safely, study_units
 from mazelab.experiments.dask_runner import DASK_TIMEOUT, check_workers, close_client, connect, describe_workers
-from mazelab.experiments.study import RunFailure, RunRecord, RunTask, StudyOutcome, run_task
+from mazelab.experiments.study import RunFailure, RunRecord, RunTask, StudyOutcome, run_task_safely
 from mazelab.experiments.warmup import WorkerReport, take_startup_seconds, worker_report
 
 UnitOutcome = list[RunRecord] | RunFailure | WorkerReport
@@ -73,33 +73,21 @@ def study_backend(tasks: Sequence[RunTask], processes: int) -> str:
     return backend_for_work(*study_work(tasks), processes=max(1, min(processes, len(tasks))))
 
 
-def run_unit_timed(unit: Sequence[RunTask], backend: str) -> list[UnitOutcome]:
-    """A unit of runs on `backend` (`run_unit_safely`), each finished run's records given run_seconds
-    (the unit's wall time less the start-up spent in it, divided by its runs), then this process's
-    WorkerReport. Each plug-in's spec is the one that imports its shipped code here (RunTask.here)."""
+def run_unit_timed(unit: Sequence[RunTask], backend: str, visualize: Any = False) -> list[UnitOutcome]:
+    """A unit of runs on `backend` (`run_unit_safely`; with `visualize`, its one run drawn, in this process
+    where the viewer is), each finished run's records given run_seconds (the unit's wall time less the
+    start-up spent in it, divided by its runs), then this process's WorkerReport. Each plug-in's spec is
+    the one that imports its shipped code here (RunTask.here)."""
     with use_backend(backend):
         started = time.perf_counter()
-        outcomes: list[UnitOutcome] = list(run_unit_safely([task.here() for task in unit]))
+        tasks = [task.here() for task in unit]
+        outcomes: list[UnitOutcome] = [run_task_safely(tasks[0], visualize)] if visualize else run_unit_safely(tasks)
         startup = take_startup_seconds()
         share = (time.perf_counter() - started - startup) / max(len(unit), 1)
         for outcome in outcomes:
             for record in outcome if isinstance(outcome, list) else ():
                 record.run_seconds = share
         return [*outcomes, worker_report(startup)]
-
-
-def draw_task(task: RunTask, visualize: Any, backend: str) -> list[UnitOutcome]:
-    """The drawn run, in this process (the viewer is here): its records (or its failure), then the report."""
-    started = time.perf_counter()
-    with use_backend(backend):
-        try:
-            records = run_task(task.here(), visualize)
-        except Exception as error:
-            return [RunFailure(task, f"{type(error).__name__}: {error}"), worker_report(take_startup_seconds())]
-        startup = take_startup_seconds()
-        for record in records:
-            record.run_seconds = time.perf_counter() - started - startup
-        return [records, worker_report(startup)]
 
 
 def run_study(
@@ -163,7 +151,7 @@ def run_tasks(tasks: Sequence[RunTask], workers: int, client: Any, backend: str,
 
     def here() -> None:
         for task in drawn:
-            collect(draw_task(task, visualize, backend))
+            collect(run_unit_timed((task,), backend, visualize))
             advance()
 
     Units(units, work, workers, client, timeout).run(collect, advance, here)
@@ -443,7 +431,6 @@ __all__ = [
     "StudyStopped",
     "Units",
     "default_workers",
-    "draw_task",
     "end_workers",
     "progress_bar",
     "run_study",

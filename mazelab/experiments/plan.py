@@ -194,15 +194,15 @@ def plan_study(
     mazes: Sequence[MazeChoice], filters: str | Sequence[Any], *, sigma: Sequence[float], delta: Sequence[float],
     particles: Sequence[int], options: Mapping[str, Sequence[Any]] | None = None, runs: int = 30, steps: int = 200,
     seed: int | None = None, kidnap_at: int | None = None, kld: bool = False, traces: bool = False,
-    reference: str | None = None,
+    reference: str | None = None, spelled: Mapping[str, str] | None = None,
 ) -> StudyPlan:  # fmt: skip
     """Check and combine a study's values into its plan (a new root seed if none is given).
 
     `options` are the filter options the study sets, by name, each a list of values (a plug-in's
     included; `kld` is a spelling of {"kld": [True]}). An option that no filter of the study takes,
-    given a value other than its default, is refused in one line, and one given only its default is
-    left out (no filter runs it); every value, for every filter that takes it, is checked by its
-    declaration up front."""
+    given a value other than its default, is refused in one line (naming it as `spelled` says: the
+    command line's flag), and one given only its default is left out (no filter runs it); every value,
+    for every filter that takes it, is checked by its declaration up front."""
     names = parse_filters(filters) if isinstance(filters, str) else _filter_list(filters)
     classes = [resolve_filter(name) for name in names]
     given = {name: list(values) for name, values in (options or {}).items()}
@@ -211,7 +211,8 @@ def plan_study(
     for name, values in given.items():
         if not values:
             raise ValueError(f"option {name} has no values")
-    options_per_filter(names, {name: None if all_default(name, values) else values for name, values in given.items()})
+    checked = {name: None if all_default(name, values) else values for name, values in given.items()}
+    options_per_filter(names, checked, spelled)
     declared = set(option_columns(classes))
     given = {name: values for name, values in given.items() if scoped(name)[1] in declared}
     check_steps(steps)  # each run's limits, up front rather than in every worker
@@ -223,6 +224,7 @@ def plan_study(
     if reference is not None:
         check_reference(reference, settings)
     seed = new_seed() if seed is None else seed
+    kld = given.get("kld") == [True]  # the table's mean N column
     plan = StudyPlan(settings, names, runs, steps, seed, kidnap_at, kld, traces, reference, plugin_codes(names))
     plan.tasks()  # checks runs, steps and kidnap_at
     return plan

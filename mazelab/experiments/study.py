@@ -569,10 +569,10 @@ def trace_of(result: RunResult) -> dict[str, Any]:
     }
 
 
-def run_task_safely(task: RunTask) -> list[RunRecord] | RunFailure:
+def run_task_safely(task: RunTask, visualize: Any = False) -> list[RunRecord] | RunFailure:
     """`run_task`, with an exception turned into a RunFailure so that the other runs go on."""
     try:
-        return run_task(task)
+        return run_task(task, visualize)
     except Exception as error:
         return RunFailure(task, f"{type(error).__name__}: {error}")
 
