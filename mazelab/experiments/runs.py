@@ -1,12 +1,16 @@
-"""Several filters on one robot walk, the figures of one run, and comparing the filters on one saved
-scenario (lab steps 12-13: every filter replays the same start, initial particles, angles and
+"""Several filters on one robot walk, the figures of one run (a kidnapped run's too), and comparing the
+filters on one saved scenario (lab steps 12-13: every filter replays the same start, initial particles, angles and
 measurements; `compare_filters` returns their RunResults, `comparison_table`, `errors_csv` and
 `plot_errors` report them).
 
 Figures of one run:
     last-20% error    `final_error` (its CSV column): the mean error over the last FINAL_SHARE (20%) of the
                       steps, robust to one unlucky step (the last-step error is errors[-1]);
-    convergence step  `convergence_step`: the step from which the error stays below CONVERGENCE_RADIUS.
+    convergence step  `convergence_step`: the step from which the error stays below CONVERGENCE_RADIUS;
+    re-localised      `relocalised`, after a kidnapping: the mean error over the last DEFAULT_WINDOW steps
+                      is below CONVERGENCE_RADIUS;
+    steps to recover  `recovery_steps`: R - kidnap_at, R the first step from which the error stays below
+                      CONVERGENCE_RADIUS to the end (None when the last error is not below it).
 """
 
 from __future__ import annotations
@@ -22,7 +26,6 @@ import numpy as np
 
 from mazelab.backend import backend_by_work
 from mazelab.contract import options_for, takes
-from mazelab.experiments.kidnapping import recovery_steps, relocalised, walk_until
 from mazelab.experiments.tables import format_number, format_table, pyplot, save_figure
 from mazelab.experiments.warmup import warm_up_filters
 from mazelab.maze import Maze
@@ -30,10 +33,44 @@ from mazelab.model import CONVERGENCE_RADIUS, DEFAULT_PARTICLE_COUNT, DEFAULT_ST
 from mazelab.plugins import canonical_spec, is_plugin_spec
 from mazelab.registry import described, filter_entry, resolve_filter
 from mazelab.robot import Robot
-from mazelab.simulation import RunResult, simulate
+from mazelab.simulation import RunResult, convergence_step, simulate
 from mazelab.viz.views import open_comparison
 
 FINAL_SHARE = 0.2  # the last-20% error (`final_error`) is the mean error over this share of the last steps
+DEFAULT_WINDOW = 30  # re-localised: mean error over this many final steps below CONVERGENCE_RADIUS
+
+
+def walk_until(robot: Robot, kidnap_at: int) -> Robot:
+    """A copy of `robot` replaying only the steps before `kidnap_at` (angles and measurements), so that it
+    can be kidnapped there: a recorded walk after the jump would retrace the old place's path."""
+    if isinstance(kidnap_at, bool) or not isinstance(kidnap_at, int) or kidnap_at < 1:
+        raise ValueError(f"kidnap_at must be a step number >= 1, got {kidnap_at!r}")
+    keep = kidnap_at - 1
+    return Robot(
+        robot.sigma,
+        robot.delta,
+        robot.initial_position,
+        actual_angles=robot.actual_angles[:keep],
+        compass_angles=robot.compass_angles[:keep],
+        measurements=robot.measurements[:keep] if robot.measurements else None,
+        rng=robot.rng if robot.rng_given else None,
+        max_straight_steps=robot.max_straight_steps,
+        speed=robot.speed,
+    )
+
+
+def recovery_steps(result: RunResult) -> int | None:
+    """R - K: R the first step from which the error stays below CONVERGENCE_RADIUS, K the kidnap step."""
+    kidnap_at = result.kidnap_at
+    if kidnap_at is None:
+        raise ValueError("the run has no kidnapping")
+    since = convergence_step(result.errors[kidnap_at - 1 :])  # 1-based within the errors of steps K..end
+    return None if since is None else since - 1
+
+
+def relocalised(result: RunResult, window: int = DEFAULT_WINDOW) -> bool:
+    """The mean error over the last `window` steps is below CONVERGENCE_RADIUS."""
+    return bool(result.errors[-window:].mean() < CONVERGENCE_RADIUS)
 
 
 def final_error(errors: np.ndarray, share: float = FINAL_SHARE) -> float:
@@ -293,6 +330,7 @@ LINE_STYLES = ("-", "--", ":", "-.")
 
 
 __all__ = [
+    "DEFAULT_WINDOW",
     "FINAL_SHARE",
     "LINE_STYLES",
     "MARKERS",
@@ -309,7 +347,10 @@ __all__ = [
     "mean_particle_count",
     "parse_filters",
     "plot_errors",
+    "recovery_steps",
+    "relocalised",
     "run_figures",
     "run_filters",
     "startup_note",
+    "walk_until",
 ]
