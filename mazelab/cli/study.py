@@ -37,8 +37,16 @@ from mazelab.cli.options import (
     visualization,
     with_parameters,
 )
-from mazelab.experiments.dask_runner import DASK_TIMEOUT, check_workers, close_client, connect
-from mazelab.experiments.executor import STOP_SIGNALS, default_workers, run_study, study_backend
+from mazelab.experiments.executor import (
+    DASK_TIMEOUT,
+    STOP_SIGNALS,
+    check_workers,
+    close_client,
+    connect,
+    default_workers,
+    run_study,
+    study_backend,
+)
 from mazelab.experiments.journal import (
     Journal,
     JournalError,
