@@ -104,65 +104,32 @@ def visualization(
 
 # -- --backend and --threads: set MAZELAB_BACKEND / MAZELAB_THREADS for the command (its worker
 # processes inherit them), and put back what was there when the command ends -------------------------
-def _set_for_the_command(ctx: typer.Context, variable: str, value: str) -> None:
-    before = os.environ.get(variable)
-    os.environ[variable] = value
+def environment_option(variable: str, check: Callable[[Any, str], Any], flag: str) -> Callable[..., Any]:
+    """The callback of an option that sets `variable` for the command: the value checked by `check` (one
+    line, exit 2: a wrong backend, compiled without numba, threads outside 1 to the machine's cores), the
+    variable set until the command's context closes and then put back."""
 
-    def restore() -> None:
-        if before is None:
-            os.environ.pop(variable, None)
-        else:
-            os.environ[variable] = before
-
-    ctx.call_on_close(restore)
-
-
-def set_backend(ctx: typer.Context, value: str | None) -> str | None:
-    """--backend's callback: the name checked (one line, exit 2, for a wrong one or for compiled without
-    numba), MAZELAB_BACKEND set until the command's context closes."""
-    if value is None or ctx.resilient_parsing:
+    def callback(ctx: typer.Context, value: Any) -> Any:
+        if value is None or ctx.resilient_parsing:
+            return value
+        try:
+            value = check(value, flag)
+        except ValueError as error:
+            raise UserError(str(error)) from None
+        before = os.environ.get(variable)
+        os.environ[variable] = str(value)
+        ctx.call_on_close(lambda: os.environ.pop(variable) if before is None else os.environ.update({variable: before}))
         return value
-    try:
-        name = check_backend(value, "--backend")
-    except ValueError as error:
-        raise UserError(str(error)) from None
-    _set_for_the_command(ctx, ENVIRONMENT_VARIABLE, name)
-    return name
+
+    return callback
 
 
-def set_threads(ctx: typer.Context, value: int | None) -> int | None:
-    """--threads' callback: the count checked (one line, exit 2, outside 1 to the machine's cores),
-    MAZELAB_THREADS set until the command's context closes."""
-    if value is None or ctx.resilient_parsing:
-        return value
-    try:
-        count = check_threads(value, "--threads")
-    except ValueError as error:
-        raise UserError(str(error)) from None
-    _set_for_the_command(ctx, THREADS_VARIABLE, str(count))
-    return count
-
-
-BackendOption = Annotated[
-    str | None,
-    typer.Option(
-        "--backend",
-        metavar="NAME",
-        callback=set_backend,
-        show_default=False,
-        help="numpy or compiled [default: by the work]",
-    ),
-]
-ThreadsOption = Annotated[
-    int | None,
-    typer.Option(
-        "--threads",
-        metavar="N",
-        callback=set_threads,
-        show_default=False,
-        help="compiled: threads for one large run [default: 1]",
-    ),
-]
+BackendOption = opt(str | None, "--backend", metavar="NAME", show_default=False,
+                    callback=environment_option(ENVIRONMENT_VARIABLE, check_backend, "--backend"),
+                    help="numpy or compiled [default: by the work]")  # fmt: skip
+ThreadsOption = opt(int | None, "--threads", metavar="N", show_default=False,
+                    callback=environment_option(THREADS_VARIABLE, check_threads, "--threads"),
+                    help="compiled: threads for one large run [default: 1]")  # fmt: skip
 
 
 # -- outputs --------------------------------------------------------------------------------------------
@@ -264,21 +231,17 @@ def warn_in_one_line(message: Warning | str, category: type[Warning], *_args: An
 
 
 # -- a run's summary and progress --------------------------------------------------------------------
-def summarise(result: RunResult) -> str:
+def report_run(result: RunResult) -> None:
     """A short report of a run: the last step's error, the last-20% error (the mean error over the last
-    20% of the steps, what compare and study report), the convergence step and the seed."""
+    20% of the steps, what compare and study report), the convergence step and the seed; the same text for
+    the same seed (timings, which vary, are compare's and bench's)."""
     errors = result.errors
     converged = result.converged_at
     when = f"converged at step {converged} (error < 0.5 from then on)" if converged else "not converged"
-    return (
+    typer.echo(
         f"{result.filter_name}: last-step error {errors[-1]:.3f}, last-{FINAL_SHARE:.0%} error "
         f"{final_error(errors):.3f}; {when}; seed {result.seed}"
     )
-
-
-def report_run(result: RunResult) -> None:
-    """The run's summary: the same text for the same seed (timings, which vary, are compare's and bench's)."""
-    typer.echo(summarise(result))
 
 
 def progress_printer(steps: int, every: int = 20) -> Any:
@@ -345,6 +308,7 @@ __all__ = [
     "check_one_file_each",
     "check_output_path",
     "check_outputs",
+    "environment_option",
     "file_identity",
     "generation_progress",
     "opt",
@@ -353,9 +317,6 @@ __all__ = [
     "progress_printer",
     "report_run",
     "seed_option",
-    "set_backend",
-    "set_threads",
-    "summarise",
     "visualization",
     "warn_in_one_line",
     "with_drawing",
