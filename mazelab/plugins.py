@@ -91,13 +91,6 @@ def plugin_reference(spec: str, filter_class: type) -> PluginReference:
     return PluginReference(f"{written}:{filter_class.__name__}", file_sha256(path), filter_class.__name__, str(path))
 
 
-def canonical_spec(spec: str) -> str:
-    """The spec with the file's absolute path and the class named: what a study hands its worker
-    processes (they import the file again; the class object itself is never sent)."""
-    cls = load_plugin(spec)
-    return f"{Path(inspect.getfile(cls)).resolve()}:{cls.__name__}"
-
-
 def load_plugin(spec: str) -> type:
     """The class of a plug-in spec `path/to/file.py:ClassName` (or `file.py` holding one filter class).
 
@@ -302,14 +295,6 @@ def is_student_class(filter_class: type) -> bool:
         return True
 
 
-def describe_student_error(error: BaseException, filter_name: str, step: int) -> str:
-    """`MyFilter raised ValueError at step 5: ...` and the student's frames, one line each."""
-    when = "while being built" if step == 0 else f"at step {step}"
-    return "\n".join(
-        [f"{filter_name} raised {type(error).__name__} {when}: {error}", *_frame_lines(error.__traceback__)]
-    )
-
-
 def _frame_lines(tb: TracebackType | None) -> list[str]:
     """The student's frames of a traceback, one line each: file, line, function and code."""
     lines = []
@@ -331,14 +316,15 @@ def raise_for_student(error: BaseException, filter_class: type, step: int) -> No
     passes as it is)."""
     if not is_student_class(filter_class) or isinstance(error, StudentCodeError):
         raise error
+    when = "while being built" if step == 0 else f"at step {step}"
+    frames = _frame_lines(error.__traceback__)
     if isinstance(error, (SystemExit, KeyboardInterrupt)):
         if is_users_stop(error):
             raise error
-        when = "while being built" if step == 0 else f"at step {step}"
-        lines = [f"{filter_class.name} {describe_exit(error)} {when} (a filter must not end the program)"]
-        lines += _frame_lines(error.__traceback__)
-        raise StudentCodeError("\n".join(lines)) from None
-    raise StudentCodeError(describe_student_error(error, filter_class.name, step)) from error
+        what = f"{filter_class.name} {describe_exit(error)} {when} (a filter must not end the program)"
+        raise StudentCodeError("\n".join([what, *frames])) from None
+    what = f"{filter_class.name} raised {type(error).__name__} {when}: {error}"
+    raise StudentCodeError("\n".join([what, *frames])) from error
 
 
 @contextmanager
@@ -382,9 +368,7 @@ __all__ = [
     "PluginCode",
     "PluginReference",
     "StudentCodeError",
-    "canonical_spec",
     "check_declared_defaults",
-    "describe_student_error",
     "file_sha256",
     "filters_here",
     "is_lab_class",

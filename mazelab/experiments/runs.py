@@ -30,7 +30,6 @@ from mazelab.experiments.tables import format_number, format_table, pyplot, save
 from mazelab.experiments.warmup import warm_up_filters
 from mazelab.maze import Maze
 from mazelab.model import CONVERGENCE_RADIUS, DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
-from mazelab.plugins import canonical_spec, is_plugin_spec
 from mazelab.registry import described, filter_entry, resolve_filter
 from mazelab.robot import Robot
 from mazelab.simulation import RunResult, convergence_step, simulate
@@ -99,8 +98,9 @@ def parse_filters(text: str) -> list[str]:
 
 
 def filter_key(name: str) -> str:
-    """A shipped filter's class name, or a plug-in's spec with its absolute path."""
-    return canonical_spec(name) if is_plugin_spec(name) else resolve_filter(name).name
+    """A shipped filter's class name, or a plug-in's spec with its absolute path (what worker processes import)."""
+    entry = filter_entry(name)
+    return entry.reference if entry.plugin is not None else entry.name
 
 
 def filter_labels(names: Sequence[str]) -> list[str]:
