@@ -244,9 +244,9 @@ def _dask(dask: Any) -> Any:
 
 
 def call_arguments(call: Mapping[str, Any], seed: int) -> dict[str, Any]:
-    """A plan's arguments as data, so that `mazelab.study(**record["call"]["arguments"])` makes the same
-    rows: the root seed the study drew (when none was given), a filter class as the spec of its file
-    (`path/to/file.py:Class`, what a name can say), arrays as lists."""
+    """A plan's arguments, so that `mazelab.study(**record["call"]["arguments"])` makes the same rows: the
+    root seed the study drew (when none was given), a filter class as the spec of its file
+    (`path/to/file.py:Class`, what a name can say); the record writes them as data (record.jsonable)."""
     arguments = {**call, "seed": seed}
     filters = arguments["filters"]
     if not isinstance(filters, str):
@@ -256,20 +256,7 @@ def call_arguments(call: Mapping[str, Any], seed: int) -> dict[str, Any]:
             else resolve_filter(f).name
             for f in filters
         ]
-    return {name: _data(value) for name, value in arguments.items()}
-
-
-def _data(value: Any) -> Any:
-    """An argument as JSON data: arrays and tuples as lists, paths as text."""
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, os.PathLike):
-        return os.fspath(value)
-    if isinstance(value, (list, tuple, range)):
-        return [_data(item) for item in value]
-    if isinstance(value, Mapping):
-        return {str(k): _data(v) for k, v in value.items()}
-    return value
+    return arguments
 
 
 __all__ = ["StudyResult", "call_arguments", "study", "study_plan"]

@@ -121,13 +121,16 @@ def peak_memory() -> dict[str, int | None]:
 
 
 def jsonable(value: Any) -> Any:
-    """Tuples as lists, numpy numbers as Python ones, NaN as None: what json.dumps writes and reads back."""
+    """Tuples, ranges and arrays as lists, numpy numbers as Python ones, paths as text, NaN as None: what
+    json.dumps writes and reads back."""
     if isinstance(value, Mapping):
         return {str(k): jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
+    if isinstance(value, (list, tuple, range)):
         return [jsonable(v) for v in value]
-    if isinstance(value, np.generic):
-        value = value.item()
+    if isinstance(value, os.PathLike):
+        return os.fspath(value)
+    if isinstance(value, (np.generic, np.ndarray)):
+        return jsonable(value.tolist())  # Python numbers, or lists of them
     if isinstance(value, float) and value != value:
         return None
     return value
