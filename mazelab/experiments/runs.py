@@ -15,6 +15,7 @@ Figures of one run:
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
 import math
@@ -133,7 +134,7 @@ def run_filters(
     particles: Sequence[Sequence[float]] | np.ndarray | None = None,
     particle_count: int | None = None,
     steps: int | None = None,
-    comparison: Any = None,
+    visualize: Any = False,
     kidnap_at: int | None = None,
     options: Mapping[str, Mapping[str, Any]] | None = None,
 ) -> dict[str, RunResult]:
@@ -142,15 +143,16 @@ def run_filters(
     The first run records the walk and measurements (if the robot has none) and draws the particles
     (if none are given); every later filter replays exactly those, the kidnapping (`kidnap_at`, its
     place drawn from `seed`) included. Each filter's random draws come from `seed`, and with
-    `comparison` (open_comparison) each run draws into its own view. `options` maps a filter's name
-    (as in `filter_names`) to its own options. Before the first timed step, each filter is warmed
-    once per process (mazelab.experiments.warmup): a filter's time per step is the same in any order.
+    `visualize` the runs are drawn side by side in one recording (open_comparison). `options` maps a
+    filter's name (as in `filter_names`) to its own options. Before the first timed step, each filter is
+    warmed once per process (mazelab.experiments.warmup): a filter's time per step is the same in any order.
     """
     count = particle_count if particles is None else len(particles)
     total = steps or robot.recorded_steps or DEFAULT_STEPS
     work = (count or DEFAULT_PARTICLE_COUNT) * total * len(filter_names), total * len(filter_names)
     results: dict[str, RunResult] = {}
-    with backend_by_work(*work):  # the warm-up and the runs on one backend (numba where it pays)
+    comparison = open_comparison(visualize, world, filter_labels(filter_names))  # without drawing: no recording
+    with backend_by_work(*work), contextlib.closing(comparison):  # the warm-up and the runs on one backend
         warm_up_filters(world, sigma, delta, filter_names, count, options or {})
         for name in filter_names:
             result = simulate(
@@ -163,7 +165,7 @@ def run_filters(
                 particles,
                 name,
                 seed=seed,
-                view=None if comparison is None else comparison.view_for(resolve_filter(name).name),
+                view=comparison.view_for(resolve_filter(name).name),
                 kidnap_at=kidnap_at,
                 **(options or {}).get(name, {}),
             )
@@ -231,23 +233,9 @@ def compare_filters(
     steps = robot.recorded_steps
     if kidnap_at is not None and robot.kidnap_at is None:
         robot = walk_until(robot, kidnap_at)
-    comparison = open_comparison(visualize, world, filter_labels(filter_names))
-    try:
-        return run_filters(
-            world,
-            robot,
-            sigma,
-            delta,
-            filter_names,
-            seed=seed,
-            particles=particles,
-            steps=steps,
-            comparison=comparison,
-            kidnap_at=kidnap_at,
-            options={name: per_filter[resolve_filter(name).name] for name in filter_names},
-        )
-    finally:
-        comparison.close()
+    options = {name: per_filter[resolve_filter(name).name] for name in filter_names}
+    return run_filters(world, robot, sigma, delta, filter_names, seed=seed, particles=particles, steps=steps,
+                       visualize=visualize, kidnap_at=kidnap_at, options=options)  # fmt: skip
 
 
 def comparison_table(results: dict[str, RunResult], kld: bool = False, startup_seconds: float | None = None) -> str:

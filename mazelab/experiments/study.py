@@ -19,7 +19,7 @@ import numpy as np
 
 from mazelab.contract import not_taken, options_for
 from mazelab.declaration import Option, options_of, scoped, show_value
-from mazelab.experiments.runs import filter_labels, run_figures, run_filters
+from mazelab.experiments.runs import run_figures, run_filters
 from mazelab.experiments.warmup import WorkerReport
 from mazelab.maze import STATION_WALL, Maze
 from mazelab.maze_generator import DEFAULT_WALL_SHARE, generate_maze
@@ -29,7 +29,6 @@ from mazelab.registry import entries, filter_entry, resolve_filter
 from mazelab.robot import Robot
 from mazelab.seeding import start_place, study_seeds
 from mazelab.simulation import RunResult
-from mazelab.viz.views import open_comparison
 
 
 # -- a study: settings, runs and seeds -------------------------------------------------------------
@@ -435,27 +434,13 @@ def run_task(task: RunTask, visualize: Any = False) -> list[RunRecord]:
     """One run of a study: one scenario, every filter on it; a record per filter."""
     s = task.setting
     world = s.maze.world(task.maze_seed)
-    comparison = open_comparison(visualize, world, filter_labels(task.filters)) if visualize else None
-    try:
-        with warnings.catch_warnings():  # the range warnings were shown once, by study_settings
-            warnings.simplefilter("ignore", UserWarning)
-            robot = Robot(s.sigma, s.delta, start_place(world, task.seed))
-            results = run_filters(
-                world,
-                robot,
-                s.sigma,
-                s.delta,
-                task.filters,
-                seed=task.seed,
-                particle_count=s.particles,
-                steps=task.steps,
-                comparison=comparison,
-                kidnap_at=task.kidnap_at,
-                options={name: task.filter_options(name) for name in task.filters},
-            )
-    finally:
-        if comparison is not None:
-            comparison.close()
+    with warnings.catch_warnings():  # the range warnings were shown once, by study_settings
+        warnings.simplefilter("ignore", UserWarning)
+        robot = Robot(s.sigma, s.delta, start_place(world, task.seed))
+        options = {name: task.filter_options(name) for name in task.filters}
+        results = run_filters(world, robot, s.sigma, s.delta, task.filters, seed=task.seed, visualize=visualize,
+                              particle_count=s.particles, steps=task.steps, kidnap_at=task.kidnap_at,
+                              options=options)  # fmt: skip
     records = run_records(task, world, results)
     return with_reference(task, world, robot, results, records) if task.reference else records
 
