@@ -24,6 +24,7 @@ from mazelab.cli.hints import check_filter_name
 from mazelab.cli.options import UserError, with_parameters
 from mazelab.contract import not_taken
 from mazelab.declaration import Option, parse_flag, scoped, show_value
+from mazelab.experiments.study import declared_option
 from mazelab.experiments.study import options_per_filter as reaching
 from mazelab.registry import SHIPPED, FilterEntry, entries, filter_entry
 
@@ -101,14 +102,6 @@ def _named(given: Mapping[str, Any]) -> dict[str, Any]:
             value = given[_parameter_name(chosen[0])]
             named[name] = SWITCH_VALUES.get(chosen[0], value) if value is True and len(spellings) > 1 else value
     return named
-
-
-def declared_by(filter_names: Sequence[str | type], key: str) -> list[Option]:
-    """The declarations of option `key` among the filters (the first filter's first); of a scoped key,
-    its filter's."""
-    scope, name = scoped(key)
-    chosen = [filter_entry(scope)] if scope is not None else [filter_entry(f) for f in filter_names]
-    return [entry.options[name] for entry in chosen if name in entry.options]
 
 
 def read_value(option: Option, text: str, spelled: str) -> Any:
@@ -196,19 +189,19 @@ def given_options(
 def _parsed(filter_names: Sequence[str | type], name: str, value: Any, spelled: str, lists: bool) -> Any:
     """A value (or, with `lists`, the comma-separated values) of option `name`, read by its declaration."""
     try:
-        declared = declared_by(filter_names, name)
+        declared = declared_option(name, filter_names)
     except ValueError as error:  # FILTER.NAME of an unknown filter
         raise UserError(f"{spelled.split('=')[0]}: {error}") from None
-    if not declared or declared[0].derived:
+    if declared is None or declared.derived:
         raise UserError(refusal(filter_names, name, spelled.split("=")[0]))
     if value is True:  # a switch (--kld)
         return [True] if lists else True
     if not lists:
-        return read_value(declared[0], value, spelled)
+        return read_value(declared, value, spelled)
     parts = [part for part in value.split(",") if part.strip()]
     if not parts:
         raise UserError(f"{spelled}: no values (write NAME=V1,V2)")
-    return list(dict.fromkeys(read_value(declared[0], part, spelled) for part in parts))
+    return list(dict.fromkeys(read_value(declared, part, spelled) for part in parts))
 
 
 def refusal(filter_names: Sequence[str | type], key: str, spelled: str) -> str:
@@ -307,7 +300,6 @@ __all__ = [
     "GivenOptions",
     "OptionFlag",
     "StudyOptionFlag",
-    "declared_by",
     "declared_flags",
     "filters",
     "given_options",

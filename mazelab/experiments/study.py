@@ -235,11 +235,11 @@ def _checked(key: str, values: Sequence[Any]) -> list[Any]:
     return list(dict.fromkeys(checked))
 
 
-def declared_option(key: str) -> Option | None:
-    """The declaration of a study's option: its filter's for FILTER.NAME, else the first of the lab's
-    filters that declares it (None: only a plug-in declares it)."""
+def declared_option(key: str, filters: Sequence[str | type] | None = None) -> Option | None:
+    """The declaration of an option a study or a command sets: its filter's for FILTER.NAME, else the first
+    of `filters` (default: the lab's) that declares it (None: none of them does)."""
     scope, name = scoped(key)
-    chosen = [filter_entry(scope)] if scope is not None else entries()
+    chosen = [filter_entry(scope)] if scope else entries() if filters is None else map(filter_entry, filters)
     return next((entry.options[name] for entry in chosen if name in entry.options), None)
 
 

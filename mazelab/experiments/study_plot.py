@@ -29,11 +29,12 @@ from typing import Any
 
 import numpy as np
 
+from mazelab.declaration import show_value
 from mazelab.experiments.runs import FINAL_SHARE, LINE_STYLES, MARKERS
 from mazelab.experiments.stats import CONFIDENCE_LEVEL
 from mazelab.experiments.study import MODEL_PARAMETERS, declared_option, is_option_parameter, takes_parameter
 from mazelab.experiments.summary import StudySummary
-from mazelab.experiments.tables import format_value, pyplot, save_figure
+from mazelab.experiments.tables import pyplot, save_figure
 from mazelab.registry import described
 
 NUMERIC_PARAMETERS = MODEL_PARAMETERS  # the x axis, first choice first (then a numeric option)
@@ -202,7 +203,7 @@ def line_label(summary: StudySummary, options: Sequence[str]) -> str:
 
 
 def _named(parameter: str, value: Any) -> str:
-    return format_value(value) if parameter == "maze" else f"{parameter} {format_value(value)}"
+    return show_value(value) if parameter == "maze" else f"{parameter} {show_value(value)}"
 
 
 def axis_label(parameter: str | None) -> str:
@@ -355,7 +356,7 @@ class XScale:
         if x is None:
             return cls("category")
         if not is_numeric(summaries, x):
-            return cls("category", x, tuple(dict.fromkeys(format_value(s.setting.value(x)) for s in summaries)))
+            return cls("category", x, tuple(dict.fromkeys(show_value(s.setting.value(x)) for s in summaries)))
         values = sorted({float(s.setting.value(x)) for s in summaries})
         log = x == "particles" and values[0] > 0 and values[-1] / values[0] >= 2  # N doubling: equal steps
         where = np.log10(values) if log else np.array(values)
@@ -365,7 +366,7 @@ class XScale:
     def position(self, value: Any) -> float:
         """The value's place in the transformed coordinate (log10 for a log axis)."""
         if self.kind == "category":
-            return float(self.categories.index(format_value(value)))
+            return float(self.categories.index(show_value(value)))
         return math.log10(float(value)) if self.kind == "log" else float(value)
 
     def back(self, where: np.ndarray) -> np.ndarray:
@@ -424,7 +425,7 @@ def x_axis(ax: Any, scale: XScale, all_labels: Sequence[str]) -> None:
         ax.set_xscale("log")
         ax.minorticks_off()
     if scale.kind != "category" and 1 < len(scale.values) <= 8:
-        ax.set_xticks(scale.values, [format_value(v) for v in scale.values])  # the studied values, as given
+        ax.set_xticks(scale.values, [show_value(v) for v in scale.values])  # the studied values, as given
     if scale.kind == "category":
         names = scale.categories or tuple(all_labels)
         ax.set_xticks(range(len(names)), names, rotation=20 if max(map(len, names)) > 8 else 0, ha="right")

@@ -19,6 +19,7 @@ from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any
 
+from mazelab.declaration import show_value
 from mazelab.experiments.runs import FINAL_SHARE, is_particle_filter
 from mazelab.experiments.stats import (
     BOOTSTRAP_SAMPLES,
@@ -45,7 +46,6 @@ from mazelab.experiments.tables import (
     format_number,
     format_optional,
     format_table,
-    format_value,
     records_csv,
 )
 from mazelab.model import CONVERGENCE_RADIUS
@@ -219,7 +219,7 @@ def describe_setting(
         "sigma": f"sigma {setting.sigma:g}",
         "delta": f"delta {setting.delta:g}",
         "particles": f"{setting.particles} particles",
-        **{name: f"{name} {format_value(value)}" for name, value in setting.options},
+        **{name: f"{name} {show_value(value)}" for name, value in setting.options},
     }
     kidnapping = "" if kidnap_at is None else f", kidnapped at step {kidnap_at}"
     fixed = [text for parameter, text in parts.items() if parameter not in varied]
@@ -230,7 +230,7 @@ def describe_varied(settings: Sequence[StudySetting], varied: Sequence[str]) -> 
     """The varied parameters with their values: 'varied: sigma 0.2, 0.4; bandwidth optimal, multimodal'."""
     if not varied:
         return ""
-    values = {p: list(dict.fromkeys(format_value(s.value(p)) for s in settings)) for p in varied}
+    values = {p: list(dict.fromkeys(show_value(s.value(p)) for s in settings)) for p in varied}
     return "varied: " + "; ".join(f"{p} {', '.join(v)}" for p, v in values.items())
 
 
@@ -278,7 +278,7 @@ def study_table(summaries: Sequence[StudySummary], varied: Sequence[str], kld: b
     backends = {s.backend for s in summaries}
     ci, nan = f"{CONFIDENCE_LEVEL:.0%} CI", (math.nan, math.nan)
     columns = [
-        *((p, lambda s, p=p: format_value(s.setting.value(p)) if takes_parameter(s.filter, p) else "-")
+        *((p, lambda s, p=p: show_value(s.setting.value(p)) if takes_parameter(s.filter, p) else "-")
           for p in varied),
         ("filter", lambda s: described(s.filter).label), ("runs", lambda s: str(s.runs)),
         ("mean last-20% error", lambda s: f"{s.mean_final_error:.3f}"), (ci, lambda s: format_interval(*s.interval)),

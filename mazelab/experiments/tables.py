@@ -12,7 +12,6 @@ from pathlib import Path
 from typing import Any
 
 from mazelab.atomic import write_bytes_atomically
-from mazelab.declaration import show_value
 
 PLOT_INSTALL_HINT = 'plotting needs matplotlib: pip install -e ".[plot]"'
 
@@ -65,11 +64,6 @@ def format_optional(value: float | None, spec: str) -> str:
     return "-" if value is None else spec.format(value)
 
 
-def format_value(value: Any) -> str:
-    """A parameter's value in a table or a label: 0.05, multimodal, none (mazelab.declaration)."""
-    return show_value(value)
-
-
 def csv_cell(value: Any) -> Any:
     if value is None or (isinstance(value, float) and math.isnan(value)):
         return ""
@@ -112,7 +106,6 @@ __all__ = [
     "format_number",
     "format_optional",
     "format_table",
-    "format_value",
     "pyplot",
     "records_csv",
     "save_figure",
