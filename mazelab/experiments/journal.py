@@ -354,47 +354,10 @@ def check_plugin_code(recorded: dict[str, Any], plan: Any, path: Path) -> None:
             )
 
 
-# The columns of a row that the plan fixes for its (setting, run): seed and maze first (the message
-# names the first that differs), then the parameters, then the options its filter ran with.
-PLANNED_COLUMNS = (
-    "seed",
-    "maze_sha256",
-    "maze_seed",
-    "maze",
-    "wall_share",
-    "sigma",
-    "delta",
-    "particles",
-    "steps",
-    "kidnap_at",
-)
-
-
-def planned_cells(task: RunTask, filter_name: str) -> dict[str, Any]:
-    """The cells that run `task`'s row of filter `filter_name` must hold: PLANNED_COLUMNS (a generated
-    maze's sha256 is its run's own maze's, which maze_seed fixes), then every option the filter runs
-    with in the task's setting (as the row holds them, `option_cell`)."""
-    s = task.setting
-    values = {
-        "seed": task.seed,
-        "maze_sha256": s.maze.sha256,
-        "maze_seed": task.maze_seed,
-        "maze": s.maze.label,
-        "wall_share": s.maze.wall_share,
-        "sigma": s.sigma,
-        "delta": s.delta,
-        "particles": s.particles,
-        "steps": task.steps,
-        "kidnap_at": task.kidnap_at,
-    }
-    if s.maze.grid is None:
-        del values["maze_sha256"]
-    return {**values, **option_cells(s, filter_name)}
-
-
 def foreign_row(tasks: Sequence[RunTask], records: Sequence[RunRecord]) -> str | None:
     """Why the first record that is not one of `tasks`' rows is another study's (None when every record
-    is: a (setting, run) the tasks have, one of its filters, the seed, maze and parameters the task gives it)."""
+    is: a (setting, run) the tasks have, one of its filters, the cells the task fixes (RunTask.cells) and the
+    options its filter runs with in the task's setting)."""
     planned = {(t.setting_index, t.run): t for t in tasks}
     for record in records:
         task = planned.get((record.setting, record.run))
@@ -403,12 +366,12 @@ def foreign_row(tasks: Sequence[RunTask], records: Sequence[RunRecord]) -> str |
             return f"{where} is not in this study"
         if record.filter not in task.row_filters():
             return f"{where}: its filter {record.filter} is not one this study runs in setting {record.setting}"
-        expected = planned_cells(task, task.row_filters()[record.filter])
-        for name in record.options.keys() - expected.keys():
+        options = option_cells(task.setting, task.row_filters()[record.filter])
+        for name in record.options.keys() - options.keys():
             return f"{where}: its {name} is {record.options[name]}, an option {record.filter} does not take"
-        for column, value in expected.items():
-            found = getattr(record, column) if column in PLANNED_COLUMNS else record.options.get(column)
-            if not _same(found, value):
+        found = {**{column: getattr(record, column) for column in task.cells()}, **record.options}
+        for column, value in {**task.cells(), **options}.items():  # seed and maze first, then the parameters
+            if not _same(found.get(column), value):
                 return f"{where}: its {column} is {_shown(found)}, where this study has {_shown(value)}"
     return None
 
@@ -440,7 +403,6 @@ def missing_tasks(tasks: Sequence[RunTask], records: Sequence[RunRecord]) -> tup
 __all__ = [
     "CLAIM_SUFFIX",
     "JOURNAL_SUFFIX",
-    "PLANNED_COLUMNS",
     "Journal",
     "JournalError",
     "check_own_file",
@@ -453,7 +415,6 @@ __all__ = [
     "left_over",
     "lock",
     "missing_tasks",
-    "planned_cells",
     "read_journal",
     "resume_study",
 ]

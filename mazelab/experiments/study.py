@@ -280,6 +280,18 @@ class RunTask:
         """Filter `name`'s options in this run (those of the setting it declares)."""
         return self.setting.filter_options(name)
 
+    def cells(self) -> dict[str, Any]:
+        """The cells of this run's rows that its seeds and setting fix, seed and maze first (what a journal's
+        kept row is checked by, mazelab.experiments.journal.foreign_row); a generated maze's sha256 is left
+        out (its run's own maze's, which maze_seed fixes)."""
+        s = self.setting
+        cells = {"seed": self.seed, "maze_sha256": s.maze.sha256, "maze_seed": self.maze_seed, "maze": s.maze.label,
+                 "wall_share": s.maze.wall_share, "sigma": s.sigma, "delta": s.delta, "particles": s.particles,
+                 "steps": self.steps, "kidnap_at": self.kidnap_at}  # fmt: skip
+        if s.maze.grid is None:
+            del cells["maze_sha256"]
+        return cells
+
     def row_filters(self) -> dict[str, str]:
         """The `filter` cells of this run's rows (each filter's name: a plug-in's is its class's), to
         the filters as this task names them (a plug-in by its spec, `file.py:Class`)."""
@@ -502,18 +514,16 @@ def run_records(task: RunTask, world: Maze, results: dict[str, RunResult]) -> li
     per-step trace if the task asks for it."""
     s = task.setting
     shared = {  # the run's cells, the same for every filter
-        **{"sigma": s.sigma, "delta": s.delta, "particles": s.particles, "steps": task.steps},
-        "kidnap_at": task.kidnap_at,
-        "station_blocks": int((world.grid == STATION_WALL).sum()),
+        **task.cells(),
         "maze_sha256": s.maze.sha256 if s.maze.sha256 is not None else maze_text_sha256(world),
+        "station_blocks": int((world.grid == STATION_WALL).sum()),
         "maze_rows": int(world.grid.shape[0]),
         "maze_columns": int(world.grid.shape[1]),
-        "wall_share": s.maze.wall_share,
     }
     records = []
     for name, result in results.items():
         cells = {"filter": name, **shared, **run_figures(name, result), "options": option_cells(s, name)}
-        record = RunRecord(task.setting_index, task.run, task.seed, s.maze.label, task.maze_seed, **cells)
+        record = RunRecord(task.setting_index, task.run, **cells)
         if task.traces:
             record.trace = trace_of(result)
         records.append(record)
