@@ -245,11 +245,11 @@ def declared_option(key: str, filters: Sequence[str | type] | None = None) -> Op
 
 def varied_parameters(settings: Sequence[StudySetting]) -> list[str]:
     """The parameters that take more than one value across the settings."""
-    return [p for p in study_parameters(settings) if len({_key(s.value(p)) for s in settings}) > 1]
+    return [p for p in study_parameters(settings) if len({hashable(s.value(p)) for s in settings}) > 1]
 
 
-def _key(value: Any) -> Any:
-    """A value as a set member (an object option's fields, a list as a tuple)."""
+def hashable(value: Any) -> Any:
+    """A value as a set member: a list or a dict (an object option's fields) as its repr."""
     return value if not isinstance(value, (list, dict)) else repr(value)
 
 
@@ -308,7 +308,7 @@ def filters_per_setting(settings: Sequence[StudySetting], filters: Sequence[str]
     for setting in settings:
         mine = []
         for name in filters:
-            key = (name, *(_key(setting.value(p)) if takes_parameter(name, p) else None for p in parameters))
+            key = (name, *(hashable(setting.value(p)) if takes_parameter(name, p) else None for p in parameters))
             if key not in seen:
                 seen.add(key)
                 mine.append(name)

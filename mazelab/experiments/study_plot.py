@@ -32,7 +32,7 @@ import numpy as np
 from mazelab.declaration import show_value
 from mazelab.experiments.runs import FINAL_SHARE, LINE_STYLES, MARKERS
 from mazelab.experiments.stats import CONFIDENCE_LEVEL
-from mazelab.experiments.study import MODEL_PARAMETERS, declared_option, is_option_parameter, takes_parameter
+from mazelab.experiments.study import MODEL_PARAMETERS, declared_option, hashable, is_option_parameter, takes_parameter
 from mazelab.experiments.summary import StudySummary
 from mazelab.experiments.tables import pyplot, save_figure
 from mazelab.registry import described
@@ -126,6 +126,8 @@ class FigureLayout:
     panels: list[str]
     lines: list[str]
     shape: tuple[int, int] = (1, 1)  # rows x columns of panels, as the design
+    options: list[str] = field(default_factory=list)  # the varied options the lines tell apart
+    facets: list[str] = field(default_factory=list)  # the other varied parameters, a panel per combination
     y_ranges: list[tuple[float, float]] = field(default_factory=list)
     boxes: list[tuple[float, float, float, float]] = field(default_factory=list)
     references: list[list[str]] = field(default_factory=list)  # per panel: the lines drawn as references
@@ -153,10 +155,10 @@ def choose_x(summaries: Sequence[StudySummary], varied: Sequence[str], x: str | 
 
 def figure_layout(
     summaries: Sequence[StudySummary], varied: Sequence[str], x: str | None = None
-) -> tuple[FigureLayout, dict[str, list[StudySummary]], dict[str, list[StudySummary]]]:
+) -> tuple[FigureLayout, dict[str, list[StudySummary]]]:
     """Split the varied parameters into the x axis, the lines and the panels; returns the layout and
-    the summaries by panel and by line. A filter that does not take a panel's parameter (the grid
-    filter and the RPF's bandwidth) is in every panel that agrees on the parameters it does take."""
+    the summaries by panel. A filter that does not take a panel's parameter (the grid filter and the
+    RPF's bandwidth) is in every panel that agrees on the parameters it does take."""
     x = choose_x(summaries, varied, x)
     options = [p for p in varied if is_option_parameter(p) and p != x]
     facets = [p for p in varied if p != x and p not in options]
@@ -164,13 +166,13 @@ def figure_layout(
     for s in summaries:
         panel_values.setdefault(_panel_title(s, facets), {p: s.setting.value(p) for p in facets})
     panels: dict[str, list[StudySummary]] = {title: [] for title in panel_values}
-    lines: dict[str, list[StudySummary]] = {}
     for s in summaries:
-        lines.setdefault(line_label(s, options), []).append(s)
         for title, values in panel_values.items():
             if all(not takes_parameter(s.filter, p) or s.setting.value(p) == v for p, v in values.items()):
                 panels[title].append(s)
-    return FigureLayout(x, list(panels), list(lines), panel_grid(summaries, facets, len(panels))), panels, lines
+    lines = list(dict.fromkeys(line_label(s, options) for s in summaries))
+    shape = panel_grid(summaries, facets, len(panels))
+    return FigureLayout(x, list(panels), lines, shape, options, facets), panels
 
 
 def panel_grid(summaries: Sequence[StudySummary], facets: Sequence[str], count: int) -> tuple[int, int]:
@@ -180,15 +182,11 @@ def panel_grid(summaries: Sequence[StudySummary], facets: Sequence[str], count: 
     if count <= 1:
         return 1, 1
     if len(facets) >= 2:
-        columns = len({_key(s.setting.value(facets[-1])) for s in summaries})
+        columns = len({hashable(s.setting.value(facets[-1])) for s in summaries})
         if count % columns == 0:
             return count // columns, columns
     columns = min(MAX_COLUMNS, count) if count != 4 else 2
     return math.ceil(count / columns), columns
-
-
-def _key(value: Any) -> Any:
-    return repr(value) if isinstance(value, (list, dict)) else value
 
 
 def _panel_title(summary: StudySummary, facets: Sequence[str]) -> str:
@@ -269,9 +267,8 @@ def plot_study(
         summaries = [s for s in summaries if s.paired_with]
         quantity = dataclasses.replace(quantity, label=paired_label(summaries))
     with matplotlib.rc_context(STYLE):
-        layout, panels, _ = figure_layout(summaries, varied, x)
-        x = layout.x
-        options = [p for p in varied if is_option_parameter(p) and p != x]
+        layout, panels = figure_layout(summaries, varied, x)
+        x, options = layout.x, layout.options
         count = len(layout.panels)
         rows, columns = layout.shape
         figure, axes = plt.subplots(
@@ -297,7 +294,7 @@ def plot_study(
         figure.suptitle("\n".join(wrapped for line in lines for wrapped in textwrap.wrap(line, CAPTION_WIDTH)))
         save_figure(figure, path, replace=replace, dpi=PNG_DPI)
         boxes = [tuple(float(v) for v in ax.get_position().extents) for ax in axes.flat[:count]]
-    return FigureLayout(layout.x, layout.panels, layout.lines, layout.shape, ranges, boxes, references)
+    return dataclasses.replace(layout, y_ranges=ranges, boxes=boxes, references=references)
 
 
 def paired_label(summaries: Sequence[StudySummary]) -> str:
@@ -324,13 +321,10 @@ def study_title(
 ) -> str:
     """The figure's first line: what is drawn against what (the x axis, then the panels' and the lines'
     parameters), and the runs per point."""
-    layout, _, _ = figure_layout(summaries, varied or ["maze"], x)
-    x = layout.x
-    against = f" against {x}" if x is not None and varied else " per filter"  # nothing varied: one point each
-    panel_parameters = [p for p in varied if p != x and not is_option_parameter(p)]
-    line_parameters = [p for p in varied if p != x and is_option_parameter(p)]
-    parts = [f"panels by {', '.join(panel_parameters)}"] if panel_parameters else []
-    parts += [f"lines by filter, {', '.join(line_parameters)}"] if line_parameters else []
+    layout, _ = figure_layout(summaries, varied or ["maze"], x)
+    against = f" against {layout.x}" if layout.x is not None and varied else " per filter"  # nothing varied: one point
+    parts = [f"panels by {', '.join(layout.facets)}"] if layout.facets else []
+    parts += [f"lines by filter, {', '.join(layout.options)}"] if layout.options else []
     where = "" if "maze" in varied else f" on {maze}"
     extra = f" ({'; '.join(parts)})" if parts else ""
     what = Y_QUANTITIES[y].label.split(" (")[0].capitalize()
