@@ -130,9 +130,16 @@ def compare_scenario(
     given = with_stored_options(stored, names, given_options(named, option, names), scenario)
     options_per_filter(names, given)  # an option that none of the filters takes, or a bad value: one line, first
     options = {k: to_plain_json(v) for k, v in given.items()}
-    recorder = start_compare_record(scenario, {"filters": [resolve_filter(n).name for n in names], "sigma": setup.sigma,
-                                               "delta": setup.delta, "seed": setup.seed, "kidnap_at": kidnap_at,
-                                               "options": options})  # fmt: skip
+    parameters = {
+        "filters": [resolve_filter(n).name for n in names],
+        "sigma": setup.sigma,
+        "delta": setup.delta,
+        "seed": setup.seed,
+        "kidnap_at": kidnap_at,
+        "options": options,
+        "scenario": str(scenario),
+    }
+    recorder = Recorder("compare", command_line(), parameters, scenario_sha256=file_sha256(scenario))
     prepare_world(setup.world)
     shown = f"sigma {setup.sigma:g}, delta {setup.delta:g}"
     count = len(setup.initial_particles)
@@ -140,8 +147,8 @@ def compare_scenario(
     results = compare_filters(setup.world, setup.robot, setup.sigma, setup.delta, setup.initial_particles, names,
                               seed=setup.seed, visualize=visualize, kidnap_at=kidnap_at, **given)  # fmt: skip
     title = f"Localisation error: {scenario.name} ({shown}, {count} particles)"
-    report_compare(results, kld=bool(given.get("kld")), csv_path=csv_path, plot=plot, title=title, force=force)
-    finish_compare(results, setup.seed, traces, recorder, record_file, maze=setup.world.source)
+    files = {"csv_path": csv_path, "plot": plot, "traces": traces, "record_file": record_file}
+    report_compare(results, setup, recorder, title, kld=bool(given.get("kld")), force=force, **files)
     backend = next(iter(results.values())).extras["backend"]
     typer.echo(f"Repeat this comparison: {repeat_command(setup.seed, REPEAT_DROPS, COMPARE_FILES, backend)}")
 
@@ -369,16 +376,12 @@ def compare_record_file(
     return path
 
 
-def start_compare_record(scenario: Path, parameters: dict[str, Any]) -> Recorder:
-    """The record of a compare, started before its runs."""
-    return Recorder("compare", command_line(), {**parameters, "scenario": str(scenario)},
-                    scenario_sha256=file_sha256(scenario))  # fmt: skip
-
-
 def report_compare(
-    results: dict[str, RunResult], *, kld: bool, csv_path: Path | None, plot: Path | None, title: str, force: bool
-) -> None:
-    """The kidnapping (if any), the table, then the per-step errors and the figure."""
+    results: dict[str, RunResult], setup: RunSetup, recorder: Recorder, title: str, *, kld: bool, force: bool,
+    csv_path: Path | None, plot: Path | None, traces: Path | None, record_file: Path | None,
+) -> None:  # fmt: skip
+    """The kidnapping (if any), the table, then the per-step errors, the figure, the traces (with the
+    scenario's maze, sigma, delta and particle count) and the record (with each filter's figures)."""
     kidnapping = next(iter(results.values()))
     if kidnapping.kidnap_at is not None and kidnapping.kidnap_position is not None:
         x, y = kidnapping.kidnap_position
@@ -390,20 +393,8 @@ def report_compare(
     if plot is not None:
         plot_errors(results, plot, title, replace=force)
         typer.echo(f"figure written to {plot}")
-
-
-def finish_compare(
-    results: dict[str, RunResult],
-    seed: int,
-    traces: Path | None,
-    recorder: Recorder,
-    record_file: Path | None,
-    maze: str | None = None,
-) -> None:
-    """Write the traces (with the scenario's `maze`, sigma, delta and particle count) and the record
-    (with each filter's figures)."""
     if traces is not None:
-        write_traces(traces, compare_traces(results, seed, maze))
+        write_traces(traces, compare_traces(results, setup.seed, setup.world.source))
         typer.echo(f"per-step traces written to {traces}")
     if record_file is not None:
         kept = ("mean_error", "final_error", "converged_at", "mean_ess", "log_evidence", "log_evidence_caveat",
