@@ -62,7 +62,8 @@ from mazelab.experiments.plan import StudyPlan, plan_study, study_mazes
 from mazelab.experiments.record import Recorder, record_path
 from mazelab.experiments.runs import parse_filters
 from mazelab.experiments.study import RunRecord, RunTask, StudyOutcome
-from mazelab.experiments.summary import CSV_DTYPES, study_csv, study_table, summarise_study, summary_csv, summary_path
+from mazelab.experiments.summary import CSV_DTYPES, study_table, summarise_study, summary_csv, summary_path
+from mazelab.experiments.tables import records_csv
 from mazelab.experiments.traces import check_trace_path, study_traces, write_traces
 from mazelab.invocation import command_line, repeat_command, resume_command
 from mazelab.mazes import DEFAULT_MAZE
@@ -414,7 +415,7 @@ def write_outputs(session: StudySession, records: list[RunRecord], summaries: li
     replace = files.force or files.resume
     try:
         if files.csv_path is not None:
-            write_text_atomically(files.csv_path, study_csv(records, plan.columns), replace=replace)
+            write_text_atomically(files.csv_path, records_csv(records, plan.columns), replace=replace)
             typer.echo(f"one row per run and filter written to {files.csv_path}")
         if files.summary_csv is not None and summaries:
             write_text_atomically(files.summary_csv, summary_csv(summaries, plan.option_columns), replace=replace)

@@ -16,8 +16,6 @@ Figures of one run:
 from __future__ import annotations
 
 import contextlib
-import csv
-import io
 import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -27,7 +25,7 @@ import numpy as np
 
 from mazelab.backend import backend_by_work
 from mazelab.contract import options_for, takes
-from mazelab.experiments.tables import format_number, format_table, pyplot, save_figure
+from mazelab.experiments.tables import format_number, format_table, pyplot, records_csv, save_figure
 from mazelab.experiments.warmup import warm_up_filters
 from mazelab.maze import Maze
 from mazelab.model import CONVERGENCE_RADIUS, DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
@@ -284,14 +282,10 @@ def startup_note(seconds: float) -> str:
 
 def errors_csv(results: dict[str, RunResult]) -> str:
     """Per-step errors as CSV: a `step` column (1..steps), then one column per filter."""
-    names = list(results)
-    buffer = io.StringIO()
-    writer = csv.writer(buffer, lineterminator="\n")
-    writer.writerow(["step", *names])
-    columns = [results[name].errors for name in names]
-    for k, row in enumerate(zip(*columns, strict=True), start=1):
-        writer.writerow([k, *(repr(float(e)) for e in row)])
-    return buffer.getvalue()
+    columns = {name: result.errors for name, result in results.items()}
+    steps = range(len(next(iter(columns.values()))))
+    rows = [{"step": k + 1, **{name: float(errors[k]) for name, errors in columns.items()}} for k in steps]
+    return records_csv(rows, ["step", *columns])
 
 
 def plot_errors(results: dict[str, RunResult], path: Path, title: str, *, replace: bool = True) -> None:

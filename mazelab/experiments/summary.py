@@ -10,8 +10,6 @@ the radius near its end is not counted, and "converged" agrees with a small last
 
 from __future__ import annotations
 
-import csv
-import io
 import math
 import statistics
 from collections.abc import Sequence
@@ -41,7 +39,6 @@ from mazelab.experiments.study import (
     varied_parameters,
 )
 from mazelab.experiments.tables import (
-    csv_cell,
     format_interval,
     format_number,
     format_optional,
@@ -390,23 +387,13 @@ def summary_rows(summaries: Sequence[StudySummary], columns: Sequence[str] = ())
 
 def summary_csv(summaries: Sequence[StudySummary], columns: Sequence[str] = ()) -> str:
     """The summary rows (`summary_rows`) as CSV: an empty cell for None, NaN and 'not reached'."""
-    buffer = io.StringIO()
-    writer = csv.writer(buffer, lineterminator="\n")
-    writer.writerow(["setting", *BASE_PARAMETERS, *columns, "filter", "label", *(n for n, _ in SUMMARY_STATISTICS)])
-    for row in summary_rows(summaries, columns):
-        writer.writerow([csv_cell(value) for value in row.values()])
-    return buffer.getvalue()
+    header = ["setting", *BASE_PARAMETERS, *columns, "filter", "label", *(n for n, _ in SUMMARY_STATISTICS)]
+    return records_csv(summary_rows(summaries, columns), header)
 
 
 def summary_path(csv_path: Path) -> Path:
     """Where the summary CSV goes by default: NAME.summary.csv beside the rows' NAME.csv."""
     return csv_path.with_name(f"{csv_path.stem}.summary.csv")
-
-
-def study_csv(records: Sequence[RunRecord], columns: Sequence[str] = CSV_COLUMNS) -> str:
-    """One row per run and filter, columns CSV_COLUMNS then the study's option columns; an empty cell for
-    None and NaN, and for an option the row's filter does not declare."""
-    return records_csv(records, columns)
 
 
 __all__ = [
@@ -423,7 +410,6 @@ __all__ = [
     "paired_finals",
     "pairs_exactly",
     "recovery_summary",
-    "study_csv",
     "study_table",
     "summarise_study",
     "summary_csv",

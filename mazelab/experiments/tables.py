@@ -85,10 +85,11 @@ def _field_names(record_class: type) -> tuple[str, ...]:
 
 
 def records_csv(records: Sequence[Any], columns: Sequence[str]) -> str:
-    """CSV text of dataclass records, one row each in `columns` order (then any option column the
-    records carry, in the order they first appear); an empty cell for None and NaN, floats written in
-    full (repr) so that the file reads back bit for bit."""
-    rows = [flat_row(record) for record in records]
+    """CSV text of rows (dicts, or dataclass records as `flat_row` spreads them), one row each in
+    `columns` order (then any other column the rows carry, in the order they first appear; `columns`
+    alone make the header of no rows); an empty cell for None and NaN, floats written in full (repr) so
+    that the file reads back bit for bit."""
+    rows = [record if isinstance(record, dict) else flat_row(record) for record in records]
     extra = dict.fromkeys(name for row in rows for name in row if name not in columns)
     buffer = io.StringIO()
     writer = csv.DictWriter(buffer, fieldnames=[*columns, *extra], lineterminator="\n")
