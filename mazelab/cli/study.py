@@ -39,7 +39,6 @@ from mazelab.cli.options import (
 )
 from mazelab.experiments.executor import (
     DASK_TIMEOUT,
-    STOP_SIGNALS,
     check_workers,
     close_client,
     connect,
@@ -453,19 +452,17 @@ def report_stopped(session: StudySession, outcome: StudyOutcome, records: list[R
     if outcome.lost is not None:  # a lost cluster or pool: one line, exit 1
         typer.echo(f"error: {outcome.lost}; {finished} of {total} runs finished{saved}", err=True)
         raise typer.Exit(1)
-    typer.echo(f"interrupted after {finished} of {total} runs{saved}", err=True)
-    for sig in STOP_SIGNALS:  # stopping already: a further Ctrl-C, SIGTERM or SIGHUP changes nothing
-        signal.signal(sig, signal.SIG_IGN)
+    typer.echo(f"interrupted after {finished} of {total} runs{saved}", err=True)  # further stops: ignored (run_study)
     raise typer.Exit(128 + (outcome.stopped_by or signal.SIGINT))  # 130 Ctrl-C, 143 SIGTERM, 129 SIGHUP
 
 
 def draw_figure(plan: StudyPlan, summaries: list, plot: Path, replace: bool, extras: StudyExtras) -> None:
     """The study's figure (mazelab.experiments.study_plot), as `mazelab.study(...).figure(...)` draws it."""
-    from mazelab.experiments.study_plot import plot_study, study_title
+    from mazelab.experiments.study_plot import draw_study
 
-    varied, x, y = plan.varied, extras.plot_x, extras.plot_y
-    title = extras.title or study_title(varied, summaries, plan.runs, plan.settings[0].maze.label, x, y)
-    plot_study(summaries, varied or ["maze"], plot, title, replace=replace, x=x, y=y, caption=extras.title is None)
+    maze = plan.settings[0].maze.label
+    draw_study(summaries, plan.varied, plot, plan.runs, maze, x=extras.plot_x, y=extras.plot_y, title=extras.title,
+               replace=replace)  # fmt: skip
     typer.echo(f"figure written to {plot}")
 
 

@@ -52,15 +52,12 @@ class StudyResult:
         """The study's figure, as `mazelab study --plot PATH` draws it (.png, .pdf or .svg by the
         suffix; `x` a varied parameter for the x axis, as --plot-x; `y` what it draws, as --plot-y;
         `title` instead of the program's title and caption, as --title); an existing file is replaced."""
-        from mazelab.experiments.study_plot import plot_study, study_title
+        from mazelab.experiments.study_plot import draw_study
 
-        path = Path(path)
         parameters = self.record["parameters"]
-        shown = title or study_title(
-            self.varied, self.summaries, parameters["runs"], parameters["mazes"][0]["label"], x, y
-        )
-        plot_study(self.summaries, self.varied or ["maze"], path, shown, x=x, y=y, caption=title is None)
-        return path
+        draw_study(self.summaries, self.varied, Path(path), parameters["runs"], parameters["mazes"][0]["label"], x=x,
+                   y=y, title=title)  # fmt: skip
+        return Path(path)
 
 
 NUMBER = (numbers.Real,)  # int, float, numpy's numbers; bool is refused apart

@@ -297,6 +297,16 @@ def plot_study(
     return dataclasses.replace(layout, y_ranges=ranges, boxes=boxes, references=references)
 
 
+def draw_study(
+    summaries: Sequence[StudySummary], varied: Sequence[str], path: Path, runs: int, maze: str, *, x: str | None = None,
+    y: str = "mean", title: str | None = None, replace: bool = True,
+) -> FigureLayout:  # fmt: skip
+    """The study's figure as `mazelab study --plot` and `mazelab.study(...).figure` draw it: the program's
+    title (`study_title`) and caption, or `title` alone."""
+    shown = title or study_title(varied, summaries, runs, maze, x, y)
+    return plot_study(summaries, varied or ["maze"], path, shown, replace=replace, x=x, y=y, caption=title is None)
+
+
 def paired_label(summaries: Sequence[StudySummary]) -> str:
     """The paired difference's axis: 'last-20% error minus SIR's (map units)'."""
     other = summaries[0].paired_with or ""
@@ -462,6 +472,7 @@ __all__ = [
     "XScale",
     "axis_label",
     "choose_x",
+    "draw_study",
     "figure_layout",
     "is_numeric",
     "line_label",
