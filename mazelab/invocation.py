@@ -115,14 +115,3 @@ def repeat_command(
     if backend is not None and not any(token == "--backend" or token.startswith("--backend=") for token in kept):
         kept += ["--backend", backend]
     return f"{command_prefix()} {shlex.join(kept)}"
-
-
-__all__ = [
-    "PROJECT_DIR",
-    "command_line",
-    "command_prefix",
-    "python_prefix",
-    "remember_arguments",
-    "repeat_command",
-    "resume_command",
-]

@@ -52,6 +52,3 @@ def find_shipped(
             f"name it {path.stem!r} (without a folder) to use it from any folder"
         )
     return path
-
-
-__all__ = ["DEFAULT_MAZE", "LAB_MAZES", "MAZES_DIR", "MazeError", "find_maze", "find_shipped", "shipped_mazes"]

@@ -268,6 +268,3 @@ def describe_os_error(error: OSError) -> str:
 
 if __name__ == "__main__":
     sys.exit(main())
-
-
-__all__ = ["accuracy", "app", "bench", "compare", "demo", "describe_os_error", "main", "run", "study"]

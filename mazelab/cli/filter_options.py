@@ -293,21 +293,3 @@ def options_listing(entry: FilterEntry) -> str:
         f"  set any of them: --option NAME=VALUE (e.g. --option {options[0].name}={show_value(options[0].default)})"
     )
     return "\n".join(lines)
-
-
-__all__ = [
-    "SWITCH_VALUES",
-    "GivenOptions",
-    "OptionFlag",
-    "StudyOptionFlag",
-    "declared_flags",
-    "filters",
-    "given_options",
-    "options_listing",
-    "options_per_filter",
-    "read_value",
-    "refusal",
-    "registry_help",
-    "registry_listing",
-    "with_option_flags",
-]

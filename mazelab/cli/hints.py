@@ -142,14 +142,3 @@ def filter_choices(many: bool = False) -> str:
     """The help's list of filters, from the registry: 'sir, apf, rpf, grid, ekf, or FILE.py:Class'."""
     names = ", ".join(e.short_name for e in entries())
     return f"{names}, FILE.py:Class, comma-separated" if many else f"{names}, or FILE.py:Class"
-
-
-__all__ = [
-    "check_filter_name",
-    "check_filter_names",
-    "filter_choices",
-    "option_elsewhere",
-    "plain_usage_names",
-    "refuse_option_as_value",
-    "usage_hint",
-]

@@ -70,9 +70,3 @@ def maze_show(
     typer.echo(f"{world.source}: {maze_generator.describe_maze(world)}")
     if visualize:
         open_view(visualize, world, "maze").close()  # opening a view logs the maze
-
-
-__all__ = [
-    "maze_generate",
-    "maze_show",
-]

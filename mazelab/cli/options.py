@@ -293,32 +293,3 @@ class ProgressLine:
         elif self.terminal and percent != self.shown:
             typer.echo(f"\r{self.what}: {percent}%", err=True, nl=False)
         self.shown = percent
-
-
-__all__ = [
-    "DEFAULT_DELTA",
-    "DEFAULT_SIGMA",
-    "DRAWING",
-    "GENERATE_PROGRESS_CELLS",
-    "LOOKUP_PROGRESS_CELLS",
-    "BackendOption",
-    "ProgressLine",
-    "ThreadsOption",
-    "UserError",
-    "check_one_file_each",
-    "check_output_path",
-    "check_outputs",
-    "environment_option",
-    "file_identity",
-    "generation_progress",
-    "opt",
-    "parse_list",
-    "prepare_world",
-    "progress_printer",
-    "report_run",
-    "seed_option",
-    "visualization",
-    "warn_in_one_line",
-    "with_drawing",
-    "with_parameters",
-]

@@ -405,7 +405,3 @@ def report_compare(
         recorder.finish("finished", summary=summary)
         recorder.write(record_file)
         typer.echo(f"the record (command, versions, scenario hash, summary) written to {record_file}")
-
-
-__all__ = ["RunSetup", "compare_scenario", "fresh_setup", "replay_filter_name", "replay_options", "replay_setup",
-           "run_one"]  # fmt: skip

@@ -464,6 +464,3 @@ def draw_figure(plan: StudyPlan, summaries: list, plot: Path, replace: bool, ext
     draw_study(summaries, plan.varied, plot, plan.runs, maze, x=extras.plot_x, y=extras.plot_y, title=extras.title,
                replace=replace)  # fmt: skip
     typer.echo(f"figure written to {plot}")
-
-
-__all__ = ["StudyExtras", "StudyFiles", "study"]

@@ -544,31 +544,3 @@ def progress_bar(total: int, show: bool, what: str = "runs") -> Iterator[Callabl
     with Progress(*columns, console=Console(stderr=True), transient=False) as bar:
         task = bar.add_task(what, total=total)
         yield lambda count=1: bar.advance(task, count)
-
-
-__all__ = [
-    "CONNECT_SECONDS",
-    "DASK_TIMEOUT",
-    "MAX_POOL_RESTARTS",
-    "QUIET_LOGGERS",
-    "STOP_SIGNALS",
-    "StudyLost",
-    "StudyStopped",
-    "Units",
-    "check_workers",
-    "close_client",
-    "connect",
-    "default_workers",
-    "describe_workers",
-    "end_workers",
-    "parse_scheduler_address",
-    "progress_bar",
-    "quiet_distributed",
-    "run_study",
-    "run_unit_timed",
-    "signals_ignored",
-    "stop_signals",
-    "study_backend",
-    "study_work",
-    "worker_setup",
-]

@@ -398,23 +398,3 @@ def missing_tasks(tasks: Sequence[RunTask], records: Sequence[RunRecord]) -> tup
         else:
             todo.append(task)
     return todo, kept
-
-
-__all__ = [
-    "CLAIM_SUFFIX",
-    "JOURNAL_SUFFIX",
-    "Journal",
-    "JournalError",
-    "check_own_file",
-    "claim_outputs",
-    "earlier_sessions",
-    "foreign_row",
-    "journal_parameters",
-    "journal_path",
-    "journal_state",
-    "left_over",
-    "lock",
-    "missing_tasks",
-    "read_journal",
-    "resume_study",
-]

@@ -113,6 +113,3 @@ if __name__ == "__main__":
     maze = load_maze("maze_10x10")
     count = int(sys.argv[1]) if len(sys.argv) > 1 else 40
     print(format_recovery_table(recovery_table(maze, runs=count, workers=2)))
-
-
-__all__ = ["RECOVERY_VARIANTS", "RecoveryRow", "format_recovery_table", "recovery_records", "recovery_table"]

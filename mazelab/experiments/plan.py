@@ -280,14 +280,3 @@ def _filter_list(filters: Sequence[Any]) -> list[Any]:
     if not chosen:
         raise ValueError("filters is empty; give e.g. ['sir', 'apf', 'rpf']")
     return list(dict.fromkeys(chosen))
-
-
-__all__ = [
-    "StudyPlan",
-    "all_default",
-    "is_shipped_maze",
-    "maze_description",
-    "plan_study",
-    "shipped_path",
-    "study_mazes",
-]

@@ -180,20 +180,3 @@ def differences(recorded: Mapping[str, Any], given: Mapping[str, Any], ignore: S
     given = jsonable(given)
     names = [k for k in dict.fromkeys([*recorded, *given]) if k not in ignore]
     return [f"{k}: {recorded.get(k)!r} -> {given.get(k)!r}" for k in names if recorded.get(k) != given.get(k)]
-
-
-__all__ = [
-    "DEPENDENCIES",
-    "RECORD_FORMAT",
-    "RECORD_SUFFIX",
-    "Recorder",
-    "dependency_versions",
-    "differences",
-    "git_commit",
-    "jsonable",
-    "now",
-    "package_version",
-    "peak_memory",
-    "program_versions",
-    "record_path",
-]

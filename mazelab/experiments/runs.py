@@ -309,30 +309,3 @@ def plot_errors(results: dict[str, RunResult], path: Path, title: str, *, replac
 
 MARKERS = ("o", "s", "^", "D", "v", "P", "X")  # each line of a figure a marker and a line style of its own
 LINE_STYLES = ("-", "--", ":", "-.")
-
-
-__all__ = [
-    "DEFAULT_WINDOW",
-    "FINAL_SHARE",
-    "LINE_STYLES",
-    "MARKERS",
-    "compare_filters",
-    "comparison_table",
-    "errors_csv",
-    "filter_key",
-    "filter_labels",
-    "filter_options",
-    "final_error",
-    "final_log_evidence",
-    "is_particle_filter",
-    "mean_ess",
-    "mean_particle_count",
-    "parse_filters",
-    "plot_errors",
-    "recovery_steps",
-    "relocalised",
-    "run_figures",
-    "run_filters",
-    "startup_note",
-    "walk_until",
-]

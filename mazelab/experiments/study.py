@@ -617,37 +617,3 @@ class StudyOutcome:
         order = {name: i for i, name in enumerate(dict.fromkeys(r.filter for r in self.records))}
         self.records.sort(key=lambda r: (r.setting, r.run, order[r.filter]))
         self.failures.sort(key=lambda f: (f.task.setting_index, f.task.run))
-
-
-__all__ = [
-    "BASE_PARAMETERS",
-    "MODEL_PARAMETERS",
-    "REFERENCE",
-    "MazeChoice",
-    "RunFailure",
-    "RunRecord",
-    "RunTask",
-    "StudyOutcome",
-    "StudySetting",
-    "declared_option",
-    "distance_to_exact",
-    "exact_means",
-    "file_mazes",
-    "filters_per_setting",
-    "is_option_parameter",
-    "option_cell",
-    "option_cells",
-    "option_columns",
-    "options_per_filter",
-    "reaches",
-    "run_records",
-    "run_task",
-    "run_task_safely",
-    "study_parameters",
-    "study_settings",
-    "study_tasks",
-    "takes_parameter",
-    "trace_of",
-    "varied_parameters",
-    "with_reference",
-]

@@ -459,24 +459,3 @@ def _legend(figure: Any, axes: Sequence[Any], order: Sequence[str], marked: set[
     shown = [name.replace(name.split(",")[0], name.split(",")[0] + "*", 1) if name.split(",")[0] in marked else name
              for name in names]  # fmt: skip
     figure.legend([seen[n] for n in names], shown, loc="outside lower center", ncols=min(4, len(names)), frameon=False)
-
-
-__all__ = [
-    "FONT_POINTS",
-    "NUMERIC_PARAMETERS",
-    "PAPER_WIDTH",
-    "PNG_DPI",
-    "Y_LABEL",
-    "Y_QUANTITIES",
-    "FigureLayout",
-    "XScale",
-    "axis_label",
-    "choose_x",
-    "draw_study",
-    "figure_layout",
-    "is_numeric",
-    "line_label",
-    "plot_study",
-    "study_title",
-    "y_quantity",
-]

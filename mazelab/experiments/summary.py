@@ -394,25 +394,3 @@ def summary_csv(summaries: Sequence[StudySummary], columns: Sequence[str] = ()) 
 def summary_path(csv_path: Path) -> Path:
     """Where the summary CSV goes by default: NAME.summary.csv beside the rows' NAME.csv."""
     return csv_path.with_name(f"{csv_path.stem}.summary.csv")
-
-
-__all__ = [
-    "CSV_COLUMNS",
-    "CSV_DTYPES",
-    "SUMMARY_STATISTICS",
-    "StudySummary",
-    "converged_within",
-    "convergence_window",
-    "describe_setting",
-    "describe_varied",
-    "interval_note",
-    "last_convergence_step",
-    "paired_finals",
-    "pairs_exactly",
-    "recovery_summary",
-    "study_table",
-    "summarise_study",
-    "summary_csv",
-    "summary_path",
-    "summary_rows",
-]

@@ -97,17 +97,3 @@ def records_csv(records: Sequence[Any], columns: Sequence[str]) -> str:
     for row in rows:
         writer.writerow({k: csv_cell(v) for k, v in row.items()})
     return buffer.getvalue()
-
-
-__all__ = [
-    "PLOT_INSTALL_HINT",
-    "csv_cell",
-    "flat_row",
-    "format_interval",
-    "format_number",
-    "format_optional",
-    "format_table",
-    "pyplot",
-    "records_csv",
-    "save_figure",
-]

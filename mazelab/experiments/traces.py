@@ -229,24 +229,3 @@ def _filled(block: dict[str, Any], column: str) -> np.ndarray:
         return block[column]
     steps = len(block["step"])
     return np.full(steps, np.nan) if per_step(column) else np.full(steps, None, dtype=object)
-
-
-__all__ = [
-    "DIAGNOSTIC_PREFIX",
-    "EXACT_COLUMNS",
-    "PARAMETER_COLUMNS",
-    "PARQUET_HINT",
-    "TRACE_COLUMNS",
-    "check_trace_path",
-    "compare_traces",
-    "exact_columns",
-    "numeric",
-    "per_step",
-    "record_parameters",
-    "study_traces",
-    "trace_column_names",
-    "trace_columns",
-    "trace_csv_rows",
-    "trace_table_columns",
-    "write_traces",
-]
