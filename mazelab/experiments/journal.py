@@ -92,16 +92,35 @@ def lock(handle: int) -> bool:
     return True
 
 
+def open_own(path: Path, flags: int, doing: str = "open") -> int:
+    """The program's own file at `path`, opened with `flags` without following a link or waiting on a
+    pipe, and checked again on the open file (should the name have changed meanwhile): a JournalError of
+    one line for anything else at the name, or for a file it cannot `doing` (FileNotFoundError as it is)."""
+    check_own_file(path)
+    try:
+        handle = os.open(path, flags | _NOFOLLOW | _NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    except FileNotFoundError:
+        raise
+    except OSError as error:
+        if error.errno in (errno.ELOOP, errno.EMLINK, errno.ENXIO):  # a symlink; a pipe with no reader
+            check_own_file(path)
+            raise JournalError(_not_ours(path, "not a regular file")) from None
+        raise JournalError(f"{path}: cannot {doing} it ({error.strerror or error})") from None
+    try:
+        check_own_file(path, os.fstat(handle))
+    except JournalError:
+        os.close(handle)
+        raise
+    return handle
+
+
 def journal_state(path: Path) -> str | None:
     """What holds a journal's name: None (nothing), "busy" (another study writing it), "left" (one left
     by an earlier study); one line for anything but the program's own regular file."""
     check_own_file(path)
     if not path.exists():
         return None
-    try:
-        handle = os.open(path, os.O_RDONLY | _NOFOLLOW | _NONBLOCK)
-    except OSError as error:
-        raise JournalError(f"{path}: cannot open it ({error.strerror or error})") from None
+    handle = open_own(path, os.O_RDONLY)
     try:
         return "left" if lock(handle) else "busy"
     finally:
@@ -122,7 +141,7 @@ class Journal:
             self._handle: int | None = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | _NOFOLLOW, 0o666)
             left = False
         except FileExistsError:
-            self._handle, left = self._open_left(), True
+            self._handle, left = open_own(self.path, os.O_WRONLY), True
         if not lock(self._handle):
             self.close()
             raise JournalError(f"another study is writing {self.path}: give this one another --csv")
@@ -132,22 +151,6 @@ class Journal:
         size = os.fstat(self._handle).st_size
         os.ftruncate(self._handle, 0 if not adopt else _whole_lines(self.path, size))
         os.lseek(self._handle, 0, os.SEEK_END)
-
-    def _open_left(self) -> int:
-        """An earlier journal, opened without following a link and checked again on the open file."""
-        try:
-            handle = os.open(self.path, os.O_WRONLY | _NOFOLLOW | _NONBLOCK)
-        except OSError as error:
-            if error.errno in (errno.ELOOP, errno.EMLINK, errno.ENXIO):  # a symlink; a pipe with no reader
-                check_own_file(self.path)
-                raise JournalError(_not_ours(self.path, "not a regular file")) from None
-            raise
-        try:
-            check_own_file(self.path, os.fstat(handle))
-        except JournalError:
-            os.close(handle)
-            raise
-        return handle
 
     def write(self, line: dict[str, Any]) -> None:
         """Append one line (JSON; numbers in full, NaN as NaN); after a write error nothing more."""
@@ -196,15 +199,8 @@ def read_journal(path: str | Path) -> list[dict[str, Any]]:
     as UTF-8 text that fits in memory; a last line cut short is left out, any other line that is not a
     JSON object is a JournalError of one line naming the file and line."""
     path = Path(path)
-    check_own_file(path)
+    handle = open_own(path, os.O_RDONLY, "read")
     try:
-        handle = os.open(path, os.O_RDONLY | _NOFOLLOW | _NONBLOCK | getattr(os, "O_CLOEXEC", 0))
-    except FileNotFoundError:
-        raise
-    except OSError as error:
-        raise JournalError(f"{path}: cannot read it ({error.strerror or error})") from None
-    try:
-        check_own_file(path, os.fstat(handle))  # what was opened, should the name have changed meanwhile
         size = os.fstat(handle).st_size
         check_memory(f"reading {path} ({size} bytes)", size * MEMORY_PER_BYTE)
         with os.fdopen(os.dup(handle), "rb") as stream:
