@@ -153,20 +153,9 @@ def run_filters(
     with backend_by_work(*work), contextlib.closing(comparison):  # the warm-up and the runs on one backend
         warm_up_filters(world, sigma, delta, filter_names, count, options or {})
         for name in filter_names:
-            result = simulate(
-                robot,
-                world,
-                sigma,
-                delta,
-                particle_count,
-                steps,
-                particles,
-                name,
-                seed=seed,
-                view=comparison.view_for(resolve_filter(name).name),
-                kidnap_at=kidnap_at,
-                **(options or {}).get(name, {}),
-            )
+            view = comparison.view_for(resolve_filter(name).name)
+            result = simulate(robot, world, sigma, delta, particle_count, steps, particles, name, seed=seed, view=view,
+                              kidnap_at=kidnap_at, **(options or {}).get(name, {}))  # fmt: skip
             if particles is None:
                 particles = result.initial_particles
             steps = len(result.errors)
