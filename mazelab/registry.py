@@ -12,6 +12,7 @@ entry when it is loaded (mazelab.plugins), with its file's sha256 so that a save
 from __future__ import annotations
 
 import difflib
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 from mazelab.declaration import Options, options_of
@@ -91,11 +92,6 @@ class FilterEntry:
     def options(self) -> Options:
         """Its declared options (mazelab.declaration)."""
         return options_of(self.filter_class)
-
-    @property
-    def rgb(self) -> tuple[float, float, float]:
-        """Its colour in matplotlib's 0-1 form."""
-        return self.colour[0] / 255, self.colour[1] / 255, self.colour[2] / 255
 
     @property
     def reference(self) -> str:
@@ -305,6 +301,35 @@ def described(name: str) -> FilterEntry:
     return entry or FilterEntry(type(name, (), {"name": name}), name, name, PALETTE[7], "a filter unknown here")
 
 
+def labels(names: Sequence[str]) -> dict[str, str]:
+    """Figure labels for the names results carry (`described`): the entry's label, or the name itself.
+
+    Parameters
+    ----------
+    names : sequence of str
+
+    Returns
+    -------
+    dict
+        name -> label.
+    """
+    return {name: described(name).label for name in names}
+
+
+def rgb(colour: Colour) -> tuple[float, float, float]:
+    """An RGB 0-255 colour in matplotlib's 0-1 form.
+
+    Parameters
+    ----------
+    colour : (int, int, int)
+
+    Returns
+    -------
+    (float, float, float)
+    """
+    return colour[0] / 255, colour[1] / 255, colour[2] / 255
+
+
 def colour_of(name: str) -> Colour:
     """A filter's colour by the name results carry (an unknown one: the palette's grey).
 
@@ -333,7 +358,9 @@ __all__ = [
     "entries",
     "filter_entry",
     "is_shipped",
+    "labels",
     "register",
     "resolve_filter",
+    "rgb",
     "shipped_entry",
 ]

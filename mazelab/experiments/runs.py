@@ -29,7 +29,7 @@ from mazelab.experiments.tables import format_number, format_table, pyplot, reco
 from mazelab.experiments.warmup import warm_up_filters
 from mazelab.maze import Maze
 from mazelab.model import CONVERGENCE_RADIUS, DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
-from mazelab.registry import described, filter_entry, resolve_filter
+from mazelab.registry import described, filter_entry, resolve_filter, rgb
 from mazelab.robot import Robot
 from mazelab.simulation import RunResult, convergence_step, simulate
 from mazelab.viz.views import open_comparison
@@ -285,7 +285,7 @@ def plot_errors(results: dict[str, RunResult], path: Path, title: str, *, replac
     for i, (name, result) in enumerate(results.items()):
         steps = np.arange(1, len(result.errors) + 1)
         entry = described(name)  # the registry's label and colour, as in the viewer
-        axes.plot(steps, result.errors, label=entry.label, color=entry.rgb, linewidth=1.2,
+        axes.plot(steps, result.errors, label=entry.label, color=rgb(entry.colour), linewidth=1.2,
                   linestyle=LINE_STYLES[i % len(LINE_STYLES)], marker=MARKERS[i % len(MARKERS)],
                   markevery=(i, max(1, len(steps) // 12)), markersize=4)  # fmt: skip
     axes.axhline(CONVERGENCE_RADIUS, color="grey", linestyle="--", linewidth=0.8, label="convergence radius")

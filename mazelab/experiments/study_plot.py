@@ -35,7 +35,7 @@ from mazelab.experiments.stats import CONFIDENCE_LEVEL
 from mazelab.experiments.study import MODEL_PARAMETERS, declared_option, hashable, is_option_parameter, takes_parameter
 from mazelab.experiments.summary import StudySummary
 from mazelab.experiments.tables import pyplot, save_figure
-from mazelab.registry import described
+from mazelab.registry import described, rgb
 
 NUMERIC_PARAMETERS = MODEL_PARAMETERS  # the x axis, first choice first (then a numeric option)
 PARAMETER_LABELS = {
@@ -243,7 +243,7 @@ def panel_lines(
         if x is not None and not reference:
             points = sorted(points, key=lambda s: _sort_key(s.setting.value(x)))
         marker, style = MARKERS[index % len(MARKERS)], LINE_STYLES[index % len(LINE_STYLES)]
-        lines.append(_Line(label, described(name).rgb, marker, points, reference, style))
+        lines.append(_Line(label, rgb(described(name).colour), marker, points, reference, style))
     return lines
 
 
