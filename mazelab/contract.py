@@ -99,6 +99,21 @@ class Gaussian:
 Belief = Particles | Density | Gaussian
 
 
+class NullView:
+    """A view that draws nothing: what a run without drawing uses (a view is anything with `log_step`
+    and `close`; mazelab.viz.views' draw into Rerun)."""
+
+    def log_step(self, step: int, robot_position: Sequence[float], robot_heading: float | None, state: Any) -> None:
+        """Draw step `step`: the robot (position, heading) and the filter `state` (its particles,
+        weights, headings, estimate, ESS, confidence)."""
+
+    def close(self) -> None:
+        """Finish drawing (flush and close the recording)."""
+
+    def expect_kidnapping(self, step: int, position: Sequence[float]) -> None:
+        """The robot will be carried to `position` at step `step`: draw the jump then."""
+
+
 @runtime_checkable
 class Filter(Protocol):
     """What every filter provides (see the module's docstring)."""
@@ -365,6 +380,7 @@ __all__ = [
     "Density",
     "Filter",
     "Gaussian",
+    "NullView",
     "Particles",
     "check_filter",
     "check_step_values",

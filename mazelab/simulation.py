@@ -1,12 +1,14 @@
-"""The simulation loop: one filter on one robot walk, step by step, kept as arrays in a RunResult.
+"""One run: one filter on one robot walk, step by step, kept as arrays in a RunResult (`simulate`,
+the paper's `run_model` behind it: mazelab.lab).
 
 Step k: the robot moves with its actual angle k and measures z_k; the filter predicts with compass
-angle k and updates with z_k. The loop draws into a view object its caller hands it (anything with
-log_step and close); it never imports the viewer (mazelab.lab joins the two).
+angle k and updates with z_k. The run draws where `visualize` says (mazelab.viz.views, imported only by
+a run that draws) or into a view its caller hands it (anything with log_step and close).
 """
 
 from __future__ import annotations
 
+import functools
 import math
 import warnings
 from collections.abc import Callable, Sequence
@@ -23,7 +25,7 @@ from mazelab.checks import (
     step_number,
 )
 from mazelab.collect import record_steps
-from mazelab.contract import check_filter, takes
+from mazelab.contract import NullView, check_filter, takes
 from mazelab.limits import check_recording, check_steps
 from mazelab.limits import particle_count as checked_count
 from mazelab.maze import Maze, check_world
@@ -32,6 +34,8 @@ from mazelab.plugins import student_code
 from mazelab.registry import filter_entry, is_shipped
 from mazelab.robot import Robot
 from mazelab.seeding import new_seed, run_streams
+from mazelab.viz.style import DEFAULT_MAX_DRAWN
+from mazelab.viz.targets import Visualization
 
 if TYPE_CHECKING:
     from mazelab.scenario import Scenario
@@ -231,20 +235,6 @@ def check_walk_in_maze(world: Maze, robot: Robot, steps: int | None = None) -> N
             )
 
 
-class NullView:
-    """A view that draws nothing: what a run without drawing uses."""
-
-    def log_step(self, step: int, robot_position: Sequence[float], robot_heading: float | None, state: Any) -> None:
-        """Draw step `step`: the robot (position, heading) and the filter `state` (its particles,
-        weights, headings, estimate, ESS, confidence)."""
-
-    def close(self) -> None:
-        """Finish drawing (flush and close the recording)."""
-
-    def expect_kidnapping(self, step: int, position: Sequence[float]) -> None:
-        """The robot will be carried to `position` at step `step`: draw the jump then."""
-
-
 def open_run_view(view: Any, world: Maze, filter_name: str) -> Any:
     """The view a run draws into: `view` itself, NullView for None, or what a view-opening function returns."""
     if view is None or view is False:
@@ -274,10 +264,10 @@ def simulate(
     filtering_algorithm: str | type = "SIRParticleFilter",
     *,
     seed: int | None = None,
-    view: Any = None,
+    visualize: Any = False,
     on_step: Callable[[int, Robot, Any], None] | None = None,
     kidnap_at: int | None = None,
-    recorded: int | None = None,
+    view: Any = None,
     **filter_options: Any,
 ) -> RunResult:
     """Run one filter on the robot's walk and return the full `RunResult` (what run_model summarises).
@@ -293,9 +283,10 @@ def simulate(
     compiled where numba's start-up pays for the run's work, mazelab.backend.backend_for_work).
     A filter class that declares the option `start` is also handed the robot's start (the
     EKF's `init="start"` tracks from it; the kidnapping, if any, is left for it to find out).
-    `view` is what the run draws into: None (nothing), a view (`log_step`, `close`), or a function
-    `(world, filter_name) -> view`, called once the inputs are checked (mazelab.lab passes Rerun's).
-    `recorded=M`: the view records at most M particles a step (its memory is checked up front).
+    `visualize` says where the run is drawn (mazelab.viz.views: False, True, "viewer", "web", "notebook",
+    an .rrd path, a RecordingStream, a Visualization or a view), its memory checked up front; `view`
+    (instead) is a view (`log_step`, `close`) or a function `(world, filter_name) -> view`, called once
+    the inputs are checked (a comparison's view of each filter).
     """
     check_world(world)
     sigma, delta = check_model_parameters(sigma, delta, (world.width, world.height))
@@ -317,8 +308,13 @@ def simulate(
         raise ValueError(f"steps must be a whole number >= 1, got {steps!r}")
     check_steps(int(steps))
     check_walk_in_maze(world, robot, int(steps))
+    recorded = drawn_at_most(visualize)
     if recorded is not None:
         check_recording(len(particles), int(steps), recorded)
+    if view is None and recorded is not None:
+        from mazelab.viz.views import open_view  # the viewer's code: only a run that draws imports it
+
+        view = functools.partial(open_view, visualize)
     if kidnap_at is not None:
         plan_kidnapping(robot, world, kidnap_at, steps, streams.kidnap)
 
@@ -348,7 +344,7 @@ def simulate(
     expect_kidnapping(view, robot.kidnap_at, robot.kidnap_position)
     try:
         with student_code(filter_class) as at:
-            recorded = record_steps(filt, int(steps), observe, after=after, at=at)
+            steps_of = record_steps(filt, int(steps), observe, after=after, at=at)
     finally:
         view.close()
     reference = None if entry.plugin is None else entry.plugin.as_json()
@@ -356,19 +352,26 @@ def simulate(
     inputs = RunInputs.of_run(
         robot, particles, world, sigma, delta, seed, steps, filter_class.name, dict(sorted(stored.items())), reference
     )
-    run = recorded.run(0)
+    run = steps_of.run(0)
     return RunResult(
         filter_class.name,
         true_positions,
         run["estimates"],
         run["ess"],
         run["confident"],
-        recorded.seconds,
+        steps_of.seconds,
         list(filt.reinitialised_at),
         inputs,
         extras={"particle_count": run["counts"], "diagnostics": run["diagnostics"], "backend": backend_of(filt)},
         log_evidence=run["log_evidence"],
     )
+
+
+def drawn_at_most(visualize: Any) -> int | None:
+    """How many particles a step of this `visualize` records at most (None: nothing is drawn)."""
+    if visualize is False or visualize is None:
+        return None
+    return visualize.max_drawn if isinstance(visualize, Visualization) else DEFAULT_MAX_DRAWN
 
 
 def maze_for(filter_class: type, world: Maze) -> Maze:
@@ -399,6 +402,7 @@ __all__ = [
     "check_start",
     "check_walk_in_maze",
     "convergence_step",
+    "drawn_at_most",
     "expect_kidnapping",
     "open_run_view",
     "plan_kidnapping",
