@@ -16,8 +16,10 @@ from mazelab.declaration import Option, object_from_json, parse_flag
 
 
 # -- resampling: plain functions, normalised weights W (N,) -> ancestor indices (M,) ---------------
-# Each also takes R runs' weights (R, N) with R Generators, one each, and returns (R, M): row r is what
-# the function returns for W[r] and rngs[r] alone, to the bit (the engine draws every due run in one call).
+# Every scheme is `scheme(weights, rng, count=None) -> ancestors`: weights (N,), normalised; rng a
+# numpy Generator; count M (default N); ancestors int (M,), indices into the particles. Each also takes
+# R runs' weights (R, N) with R Generators, one each, and returns (R, M): row r is what it returns for
+# W[r] and rngs[r] alone, to the bit (the engine draws every due run in one call).
 def uniforms(rng: Any, size: int | None = None) -> float | np.ndarray:
     """U[0, 1) draws: rng.random(size) of one Generator, or of R Generators one row each, (R, size)
     (size None: one draw, a float; (R, 1) for R runs)."""
@@ -40,41 +42,13 @@ def _inverse_cdf(sorted_uniforms: np.ndarray, weights: np.ndarray) -> np.ndarray
 
 
 def multinomial_resample(weights: np.ndarray, rng: Any, count: int | None = None) -> np.ndarray:
-    """M independent draws from the categorical distribution W.
-
-    Parameters
-    ----------
-    weights : array (N,), or (R, N)
-        Normalised weights.
-    rng : numpy.random.Generator, or R of them
-    count : int, optional
-        M (default N).
-
-    Returns
-    -------
-    int array (M,), or (R, M)
-        Ancestor indices, sorted.
-    """
+    """M independent draws from the categorical distribution W (sorted ancestors)."""
     count = weights.shape[-1] if count is None else count
     return _inverse_cdf(np.sort(uniforms(rng, count), axis=-1), weights)
 
 
 def stratified_resample(weights: np.ndarray, rng: Any, count: int | None = None) -> np.ndarray:
-    """One uniform draw in each of the M strata [m/M, (m+1)/M).
-
-    Parameters
-    ----------
-    weights : array (N,), or (R, N)
-        Normalised weights.
-    rng : numpy.random.Generator, or R of them
-    count : int, optional
-        M (default N).
-
-    Returns
-    -------
-    int array (M,), or (R, M)
-        Ancestor indices, sorted.
-    """
+    """One uniform draw in each of the M strata [m/M, (m+1)/M) (sorted ancestors)."""
     count = weights.shape[-1] if count is None else count
     return _inverse_cdf((np.arange(count) + uniforms(rng, count)) / count, weights)
 
@@ -82,24 +56,8 @@ def stratified_resample(weights: np.ndarray, rng: Any, count: int | None = None)
 def systematic_resample(weights: np.ndarray, rng: Any, count: int | None = None) -> np.ndarray:
     """Systematic resampling (Kitagawa 1996), the lowest-variance scheme and the default: one uniform
     offset u ~ U[0, 1) shared by the M points u_m = (u + m) / M, each taken to the particle whose
-    cumulative weight first exceeds it (the inverse CDF).
+    cumulative weight first exceeds it (the inverse CDF; sorted ancestors).
 
-    Parameters
-    ----------
-    weights : array (N,), or (R, N)
-        Normalised weights.
-    rng : numpy.random.Generator, or R of them
-        Draws u (each run's own).
-    count : int, optional
-        M (default N).
-
-    Returns
-    -------
-    int array (M,), or (R, M)
-        Ancestor indices, sorted.
-
-    Notes
-    -----
     The numpy backend runs this; the compiled one its counting form (mazelab.kernels.resampling), which
     gives the same ancestors in O(N).
     """
@@ -109,21 +67,7 @@ def systematic_resample(weights: np.ndarray, rng: Any, count: int | None = None)
 
 
 def residual_resample(weights: np.ndarray, rng: Any, count: int | None = None) -> np.ndarray:
-    """floor(M W_i) copies of each particle, the remaining draws multinomial on the remainders.
-
-    Parameters
-    ----------
-    weights : array (N,), or (R, N)
-        Normalised weights.
-    rng : numpy.random.Generator, or R of them
-    count : int, optional
-        M (default N).
-
-    Returns
-    -------
-    int array (M,), or (R, M)
-        Ancestor indices.
-    """
+    """floor(M W_i) copies of each particle, the remaining draws multinomial on the remainders."""
     if weights.ndim == 2:
         return np.array([residual_resample(w, g, count) for w, g in zip(weights, rng, strict=True)])
     count = len(weights) if count is None else count
@@ -274,37 +218,20 @@ def kld_options(
     -------
     KLDSampling or None
     """
-    if kld is None or kld is False:
-        return None
-    if kld is True:
-        return KLDSampling(epsilon=epsilon, z=z)
-    if isinstance(kld, KLDSampling):
-        return kld
-    raise ValueError(f"kld must be True, False or a KLDSampling, got {kld!r}")
+    kld = check_kld(kld)
+    return KLDSampling(epsilon=epsilon, z=z) if kld is True else kld
 
 
 def check_kld(kld: Any) -> bool | KLDSampling | None:
-    """The kld option: None/False (off), True, or a KLDSampling.
-
-    Parameters
-    ----------
-    kld : object
-
-    Returns
-    -------
-    True, KLDSampling or None
-    """
+    """The kld option: None/False (off), True, or a KLDSampling; True, the KLDSampling or None."""
     if kld is None or isinstance(kld, (bool, KLDSampling)):
         return None if kld is False else kld
     raise ValueError(f"kld must be true, false or a KLDSampling, got {kld!r}")
 
 
 def _kld_number(name: str) -> Any:
-    def check(value: Any) -> float:
-        check_kld_numbers(value if name == "epsilon" else KLD_EPSILON, value if name == "z" else KLD_QUANTILE)
-        return float(value)
-
-    return check
+    """The check of KLD-sampling's `epsilon` or `z` (the other at its default): the value as a float."""
+    return lambda value: check_kld_numbers(**{"epsilon": KLD_EPSILON, "z": KLD_QUANTILE, name: value})[name == "z"]
 
 
 KLD_OPTIONS = (
