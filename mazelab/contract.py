@@ -104,14 +104,30 @@ class NullView:
     and `close`; mazelab.viz.views' draw into Rerun)."""
 
     def log_step(self, step: int, robot_position: Sequence[float], robot_heading: float | None, state: Any) -> None:
-        """Draw step `step`: the robot (position, heading) and the filter `state` (its particles,
-        weights, headings, estimate, ESS, confidence)."""
+        """Draw step `step`: the robot and the filter `state`.
+
+        Parameters
+        ----------
+        step : int
+            k, from 1.
+        robot_position : (x, y)
+        robot_heading : float or None
+            Radians.
+        state : a filter
+            Its belief, estimate, ESS and confidence.
+        """
 
     def close(self) -> None:
         """Finish drawing (flush and close the recording)."""
 
     def expect_kidnapping(self, step: int, position: Sequence[float]) -> None:
-        """The robot will be carried to `position` at step `step`: draw the jump then."""
+        """The robot will be carried to `position` at step `step`: draw the jump then.
+
+        Parameters
+        ----------
+        step : int
+        position : (x, y)
+        """
 
 
 @runtime_checkable

@@ -276,9 +276,9 @@ class SMC:
     def _lost_at_first_stage(self, Wf: Weights, eta: np.ndarray) -> np.ndarray | None:
         """The runs whose first-stage total underflows (bool (R,), or None: none): they draw nothing this
         step and restart."""
-        self._received_totals(Wf, ("log_eta", eta))
         if settled(Wf.log_total):
             return None
+        self._received_totals(Wf, ("log_eta", eta))
         lost = Wf.lost
         self.movers = [None if gone else g for g, gone in zip(self.rngs, lost.tolist(), strict=True)]
         return lost
@@ -349,11 +349,10 @@ class SMC:
         return due is self.all_due or bool(due.all())
 
     # -- the boundary: what a hook returns, checked once where the step receives it --------------------
-    def _received_totals(self, W: Weights, *suspects: tuple[str, np.ndarray]) -> None:
-        """A NaN or +inf log total (one check per run, fused into the normalisation): HookError naming the
-        first of the hooks (hook, what it returned) whose values hold a NaN or +inf."""
-        if settled(W.log_total):
-            return
+    def _received_totals(self, W: Weights, *suspects: tuple[str, np.ndarray | None]) -> None:
+        """A NaN or +inf log total (one check per run, fused into the normalisation; the step asks once
+        its totals are not all settled): HookError naming the first of the hooks (hook, what it
+        returned) whose values hold a NaN or +inf."""
         bad = ~(W.log_total < math.inf)  # True for NaN and +inf
         if bad.any():
             hook = next(
