@@ -1,5 +1,5 @@
-"""One run: one filter on one robot walk, step by step, kept as arrays in a RunResult (`simulate`,
-the paper's `run_model` behind it: mazelab.lab).
+"""One run: one filter on one robot walk, step by step, kept as arrays in a RunResult (`simulate`), and
+the paper's entry point over it (`run_model`, which can save the run's scenario).
 
 Step k: the robot moves with its actual angle k and measures z_k; the filter predicts with compass
 angle k and updates with z_k. The run draws where `visualize` says (mazelab.viz.views, imported only by
@@ -8,11 +8,11 @@ a run that draws) or into a view its caller hands it (anything with log_step and
 
 from __future__ import annotations
 
-import functools
 import math
 import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -35,7 +35,7 @@ from mazelab.registry import filter_entry, is_shipped
 from mazelab.robot import Robot
 from mazelab.seeding import new_seed, run_streams
 from mazelab.viz.style import DEFAULT_MAX_DRAWN
-from mazelab.viz.targets import Visualization
+from mazelab.viz.targets import Visualization, in_jupyter
 
 if TYPE_CHECKING:
     from mazelab.scenario import Scenario
@@ -235,22 +235,23 @@ def check_walk_in_maze(world: Maze, robot: Robot, steps: int | None = None) -> N
             )
 
 
-def open_run_view(view: Any, world: Maze, filter_name: str) -> Any:
-    """The view a run draws into: `view` itself, NullView for None, or what a view-opening function returns."""
+def open_run_view(view: Any, world: Maze, filter_name: str, robot: Robot) -> Any:
+    """The view a run draws into, told of the robot's planned kidnapping if it draws one: `view` itself
+    (anything with log_step and close), NullView for None or False, what a view-opening function
+    `(world, filter_name) -> view` returns, or the Rerun view a `visualize` value asks for (the
+    viewer's code imported only then)."""
     if view is None or view is False:
         return NullView()
-    if hasattr(view, "log_step"):
-        return view
-    if callable(view):
-        return view(world, filter_name)
-    raise ValueError(f"view must be None, a view (with log_step and close) or a function returning one, got {view!r}")
+    if not hasattr(view, "log_step"):
+        if callable(view):
+            view = view(world, filter_name)
+        else:
+            from mazelab.viz.views import open_view
 
-
-def expect_kidnapping(view: Any, step: int | None, position: Sequence[float] | None) -> None:
-    """Tell `view` of a planned kidnapping, if there is one and the view draws it (a caller's own
-    view need not)."""
-    if step is not None and position is not None and hasattr(view, "expect_kidnapping"):
-        view.expect_kidnapping(step, position)
+            view = open_view(view, world, filter_name)
+    if robot.kidnap_at is not None and robot.kidnap_position is not None and hasattr(view, "expect_kidnapping"):
+        view.expect_kidnapping(robot.kidnap_at, robot.kidnap_position)
+    return view
 
 
 def simulate(
@@ -311,10 +312,6 @@ def simulate(
     recorded = drawn_at_most(visualize)
     if recorded is not None:
         check_recording(len(particles), int(steps), recorded)
-    if view is None and recorded is not None:
-        from mazelab.viz.views import open_view  # the viewer's code: only a run that draws imports it
-
-        view = functools.partial(open_view, visualize)
     if kidnap_at is not None:
         plan_kidnapping(robot, world, kidnap_at, steps, streams.kidnap)
 
@@ -340,8 +337,7 @@ def simulate(
     with backend_by_work(*work), student_code(filter_class):  # a failing user's filter: its frames and the step
         filt = filter_class(maze_for(filter_class, world), sigma, delta, particles, streams.filter, **filter_options)
         check_filter(filt)  # before the first step: a missing or mistyped part is one line naming it
-    view = open_run_view(view, world, filter_class.name)
-    expect_kidnapping(view, robot.kidnap_at, robot.kidnap_position)
+    view = open_run_view(visualize if view is None else view, world, filter_class.name, robot)
     try:
         with student_code(filter_class) as at:
             steps_of = record_steps(filt, int(steps), observe, after=after, at=at)
@@ -365,6 +361,55 @@ def simulate(
         extras={"particle_count": run["counts"], "diagnostics": run["diagnostics"], "backend": backend_of(filt)},
         log_evidence=run["log_evidence"],
     )
+
+
+def run_model(
+    robot: Robot,
+    world: Maze,
+    sigma: float,
+    delta: float,
+    particle_count: int | None = None,
+    steps: int | None = None,
+    save_parameters: bool = False,
+    init_particles_pos: Sequence[Sequence[float]] | np.ndarray | None = None,
+    filtering_algorithm: str | type = "SIRParticleFilter",
+    *,
+    seed: int | None = None,
+    visualize: Any = True,
+    parameters_path: str | Path | None = None,
+    kidnap_at: int | None = None,
+    **filter_options: Any,
+) -> list[tuple[tuple[float, float], tuple[float, float]]]:
+    """The paper's entry point: run a filter and return [((x_true, y_true), (x_est, y_est)), ...].
+
+    With `init_particles_pos` the particle count follows from it, and with a robot that replays
+    angles the step count follows from them. `save_parameters=True` saves the scenario so the filters
+    can be compared on identical data: to `parameters_path`, by default the paper's model_parameters.json
+    in the working folder.
+    `kidnap_at=K` kidnaps the robot at step K; filter options such as `resampling=`, `recovery=`
+    and `kld=` pass through to the filter (see ParticleFilter).
+    """
+    result = simulate(
+        robot,
+        world,
+        sigma,
+        delta,
+        particle_count,
+        steps,
+        init_particles_pos,
+        filtering_algorithm,
+        seed=seed,
+        visualize=visualize,
+        kidnap_at=kidnap_at,
+        **filter_options,
+    )
+    if save_parameters:
+        from mazelab.scenario import DEFAULT_PARAMETERS_PATH, save_scenario  # pydantic: only a run that saves
+
+        saved = save_scenario(result.scenario, DEFAULT_PARAMETERS_PATH if parameters_path is None else parameters_path)
+        if not in_jupyter():  # a notebook's cell says it in its own words (the Ukrainian one prints no English)
+            print(f"scenario saved to {saved.resolve()}")  # where: a relative path is the working folder's
+    return result.as_pairs()
 
 
 def drawn_at_most(visualize: Any) -> int | None:
@@ -403,8 +448,8 @@ __all__ = [
     "check_walk_in_maze",
     "convergence_step",
     "drawn_at_most",
-    "expect_kidnapping",
     "open_run_view",
     "plan_kidnapping",
+    "run_model",
     "simulate",
 ]

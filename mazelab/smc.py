@@ -75,8 +75,8 @@ class SMC:
     resample: Callable[[np.ndarray, np.random.Generator], np.ndarray]  # the scheme: W (N,), rng -> a (N,)
 
     def __init__(self, model: Any, particles: Any, rng: Any = None, weights: type = Weights, dtype: Any = None):
-        runs = as_runs(particles)  # (R, N, 2) float64, checked
-        self.model, self.rngs, self.weights_class = model, generators(rng, len(runs)), weights
+        runs, self.rngs = runs_of(particles, rng)  # (R, N, 2) float64, checked; a Generator each
+        self.model, self.weights_class = model, weights
         self.runs = len(runs)  # R
         self.all_due = np.ones(len(runs), dtype=bool)  # every run due: the mask of threshold 1 (never written into)
         self.all_due.flags.writeable = False
@@ -444,47 +444,33 @@ def settled(totals: np.ndarray) -> bool:
 
 
 # -- the run axis -----------------------------------------------------------------------------------------
-def as_runs(particles: Any) -> np.ndarray:
-    """Initial particles as (R, N, 2) float64, checked: (N, 2) is one run.
+def runs_of(particles: Any, rng: Any) -> tuple[np.ndarray, list[np.random.Generator]]:
+    """The runs a filter starts: initial particles as (R, N, 2) float64, checked ((N, 2) is one run),
+    and one Generator per run (`rng` itself for one run, the sequence of R given, None: fresh ones).
 
     Parameters
     ----------
     particles : array-like (N, 2) or (R, N, 2)
+    rng : numpy.random.Generator, a sequence of R of them, or None
 
     Returns
     -------
-    array (R, N, 2)
+    (array (R, N, 2), list of R numpy.random.Generator)
     """
     array = np.asarray(particles)
     if array.ndim == 3:
         if array.shape[2] != 2 or array.shape[1] < 1:
             raise ValueError(f"particles of R runs must have shape (R, N, 2), got {array.shape}")
-        return np.stack([as_points("particles", run) for run in array])
-    return as_points("particles", particles)[None]
-
-
-def generators(rng: Any, runs: int) -> list[np.random.Generator]:
-    """One Generator per run: `rng` itself for one run, or the sequence given (None: fresh ones).
-
-    Parameters
-    ----------
-    rng : numpy.random.Generator, a sequence of R of them, or None
-    runs : int
-
-    Returns
-    -------
-    list of numpy.random.Generator
-    """
+        array = np.stack([as_points("particles", run) for run in array])
+    else:
+        array = as_points("particles", particles)[None]
+    runs = len(array)
     if rng is None:
-        return [np.random.default_rng() for _ in range(runs)]
-    if isinstance(rng, np.random.Generator):
-        if runs != 1:
-            raise ValueError(f"{runs} runs need {runs} generators, one each, got one")
-        return [rng]
-    rngs = list(rng)
+        return array, [np.random.default_rng() for _ in range(runs)]
+    rngs = [rng] if isinstance(rng, np.random.Generator) else list(rng)
     if len(rngs) != runs or not all(isinstance(g, np.random.Generator) for g in rngs):
-        raise ValueError(f"{runs} runs need {runs} numpy Generators, got {len(rngs)}")
-    return rngs
+        raise ValueError(f"{runs} runs need {runs} numpy Generators, one each, got {len(rngs)}")
+    return array, rngs
 
 
 def particles_array(values: np.ndarray, dtype: Any) -> np.ndarray:
@@ -588,4 +574,4 @@ def reset_of(hook: str, value: Any, runs: int) -> tuple[np.ndarray, Any]:
     return log_weights_of(hook, value[0], runs), value[1]
 
 
-__all__ = ["PORTED", "SMC", "HookError", "as_runs", "generators", "new_particles", "particles_array"]
+__all__ = ["PORTED", "SMC", "HookError", "new_particles", "particles_array", "runs_of"]
