@@ -17,7 +17,7 @@ and class attributes `name` (how results and the viewer label it) and `options`,
 the constructor takes, declared once (mazelab.declaration: `Options(Option(name, default, help, ...))`,
 or a plain mapping of names to defaults). An option a filter does not declare is refused for it in one
 line. The contract is checked on the object before the first step (`check_filter`) and each step's
-values where they are read (`step_values`): a missing part or a bad value is one line naming it.
+values where they are read (`check_step_values`): a missing part or a bad value is one line naming it.
 
 A new filter, worked through: SIR that resamples every `period` steps, with one option. A particle
 filter is the step (mazelab.smc.SMC.step: resample the runs `time_to_resample(W)` says, move,
@@ -234,22 +234,6 @@ def check_filter(filt: Any) -> None:
         raise ContractError(f"{name}.count must be a whole number >= 1, got {_shown(count)}")
 
 
-def step_values(filt: Any, runs: int | None = None) -> tuple[np.ndarray, Any, Any, int]:
-    """A step's values as the run reads them, each checked (`check_step_values`).
-
-    Parameters
-    ----------
-    filt : a filter
-    runs : int, optional
-        R for a filter advancing R runs together.
-
-    Returns
-    -------
-    (estimate, ess, is_confident, count)
-    """
-    return check_step_values(type(filt), (filt.estimate, filt.ess, filt.is_confident, filt.count), runs)
-
-
 def check_step_values(
     filter_class: type, values: tuple[Any, Any, Any, Any], runs: int | None = None
 ) -> tuple[np.ndarray, Any, Any, int]:
@@ -403,6 +387,5 @@ __all__ = [
     "missing_parts",
     "not_taken",
     "options_for",
-    "step_values",
     "takes",
 ]

@@ -198,11 +198,6 @@ class RecoveryTracker:
         self.last_z: float | None = None
 
     @property
-    def mode(self) -> str:
-        """The recovery's mode: "augmented" or "sensor"."""
-        return self.options.mode
-
-    @property
     def injection_probability(self) -> float:
         """max(0, 1 - w_fast / reference) (see Recovery); 0 before the first measurement."""
         if self.last_z is None or self.log_w_slow == -math.inf:
