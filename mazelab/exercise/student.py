@@ -206,7 +206,7 @@ def answer_array(part: str, value: Any, shape: tuple[int, ...], indices: bool = 
     try:
         array = np.asarray(value)
         if indices and not np.issubdtype(array.dtype, np.integer):
-            raise PartError(f"{part} returned {array.dtype} values; expected whole-number indices")
+            raise PartError(f"{part} returned {array.dtype} values, not whole-number indices")
         array = array.astype(np.int64 if indices else np.float64)
     except PartError:
         raise
