@@ -1,5 +1,5 @@
 """A study's runs in units of work: the runs of one setting advanced together by one filter object of
-R runs (mazelab.cloud: the same steps as a single run, bit for bit), or one run at a time where the
+R runs (mazelab.smc: the same steps as a single run, bit for bit), or one run at a time where the
 declared rule says they cannot be (`batchable`)."""
 
 from __future__ import annotations
