@@ -49,7 +49,6 @@ from mazelab.cli.options import (
 from mazelab.cli.recordings import recordings
 from mazelab.cli.study import study
 from mazelab.cli.view import view
-from mazelab.experiments.executor import STOP_SIGNALS
 from mazelab.experiments.record import package_version, program_versions
 from mazelab.invocation import command_prefix, remember_arguments
 from mazelab.maze import MazeError
@@ -58,7 +57,7 @@ from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
 from mazelab.plugins import StudentCodeError
 from mazelab.robot import Robot
 from mazelab.seeding import new_seed, start_place
-from mazelab.stops import exit_without_strays, mark_interrupts
+from mazelab.stops import STOP_SIGNALS, exit_without_strays, mark_interrupts
 from mazelab.viz.recording import web_serving_deferred, write_errors_deferred
 
 app = typer.Typer(

@@ -6,7 +6,6 @@ from __future__ import annotations
 import contextlib
 import secrets
 import signal
-import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -39,6 +38,7 @@ from mazelab.exercise.sandbox import DEFAULT_BUDGET, MAX_TIMEOUT, SandboxError, 
 from mazelab.exercise.template import write_exercise
 from mazelab.invocation import python_prefix
 from mazelab.plugins import is_plugin_spec, split_spec
+from mazelab.stops import STOP_SIGNALS, signal_handlers
 
 exercise_app = typer.Typer(
     help="Write your own filter (new), grade it (check), a class's folder (grade), on Gradescope (autograder).",
@@ -304,22 +304,14 @@ def _stop_signals() -> Iterator[_Stop]:
     """SIGTERM and SIGHUP stop the grading as Ctrl-C does (the main thread's wait is interrupted, every
     sandbox ended, what was graded kept); a second one while stopping changes nothing."""
     stop = _Stop()
-    if threading.current_thread() is not threading.main_thread():
-        yield stop
-        return
 
     def handler(number: int, frame: object) -> None:
         if stop.number is None:
             stop.number = number
             raise KeyboardInterrupt
 
-    wanted = [getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name)]
-    previous = {number: signal.signal(number, handler) for number in wanted}
-    try:
+    with signal_handlers(STOP_SIGNALS, handler):
         yield stop
-    finally:
-        for number, old in previous.items():
-            signal.signal(number, old)
 
 
 __all__ = ["autograder_command", "check_command", "exercise_app", "grade_command", "new"]

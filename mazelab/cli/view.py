@@ -23,6 +23,7 @@ from typing import Annotated, Any
 import typer
 
 from mazelab.cli.options import UserError
+from mazelab.stops import STOP_SIGNALS
 from mazelab.viz.processes import WebServer
 from mazelab.viz.recording import rerun_switched_off
 
@@ -70,9 +71,9 @@ def stop_on_termination() -> None:
     def interrupt(_signum: int, _frame: object) -> None:
         raise KeyboardInterrupt
 
-    for name in ("SIGTERM", "SIGHUP"):
-        if hasattr(signal, name):
-            signal.signal(getattr(signal, name), interrupt)
+    for number in STOP_SIGNALS:
+        if number != signal.SIGINT:
+            signal.signal(number, interrupt)
 
 
 def recording_problem(path: Path) -> str | None:
