@@ -157,16 +157,11 @@ def run_and_report(
     """The runs not kept, each appended to the journal; then the table, the CSV and the record (an
     interrupted run's too, its status "interrupted")."""
     started = time.perf_counter()
-
-    def append(records: list[RunRecord]) -> None:
-        if journal is not None:
-            journal.write({"run": [records[0].setting, records[0].run], "records": [r.to_json() for r in records]})
-
+    append = journal.append_run if journal is not None else None
     outcome = run_study(tasks, workers, progress=True, on_records=append, ignore_signals_after_stop=True)
     stopped = outcome.interrupted or outcome.lost is not None
     if journal is not None:
-        journal.write({"closed": {"status": "interrupted" if stopped else "finished"}})
-        journal.close()
+        journal.end_session("interrupted" if stopped else "finished")
     for failure in outcome.failures:
         typer.echo(f"error: {failure.describe()}", err=True)
     records = accuracy_records(sorted([*kept, *outcome.records], key=lambda r: (r.setting, r.run)), rows)

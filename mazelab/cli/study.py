@@ -314,13 +314,13 @@ class StudySession:
     def append(self, records: list[RunRecord]) -> None:
         """One finished run's rows (and traces), appended to the journal."""
         if self.journal is not None:
-            self.journal.write({"run": [records[0].setting, records[0].run], "records": [r.to_json() for r in records]})
+            self.journal.append_run(records)
 
     def close(self, status: str | None = None, **closing: Any) -> None:
         """The session's last line in the journal (with `status`), the journal, the cluster and the claims
         released."""
         if self.journal is not None and status is not None:
-            self.journal.write({"closed": {"status": status, "ended": self.recorder.data.get("ended"), **closing}})
+            self.journal.end_session(status, ended=self.recorder.data.get("ended"), **closing)
         if self.journal is not None:
             self.journal.close()
         if self.client is not None:
@@ -360,8 +360,8 @@ def open_session(plan: StudyPlan, files: StudyFiles, backend: str, visualize: An
     if files.resume:
         typer.echo(f"resuming: {len(kept)} rows kept from {files.journal}, {len(tasks)} run(s) to go")
     if session.journal is not None:  # the parameters --resume compares, before any run
-        session.journal.write({"session": {k: recorder.data[k] for k in ("command", "started", "parameters",
-                                                                           "backend")}})  # fmt: skip
+        header = ("command", "started", "parameters", "backend")
+        session.journal.write({"session": {k: recorder.data[k] for k in header}})
     return session
 
 
