@@ -172,15 +172,3 @@ def warm_batch(
             record_steps(filt, steps, lambda k: (compass[:r, k], z[:r, k]), runs=None if r == 1 else r)
 
     warm_once(("batch", filter_class, options_key(filter_class, options), r), warm)
-
-
-__all__ = [
-    "MAX_BATCH",
-    "MAX_BATCH_PARTICLES",
-    "Walk",
-    "batchable",
-    "run_batch",
-    "run_unit_safely",
-    "study_units",
-    "walk_of",
-]
