@@ -28,8 +28,7 @@ import typer
 from mazelab.atomic import WriteError
 from mazelab.cli.accuracy import accuracy
 from mazelab.cli.exercise import exercise_app
-from mazelab.cli.filter_options import OptionFlag, filters, registry_help, with_option_flags
-from mazelab.cli.hints import filter_choices, option_elsewhere, plain_usage_names, refuse_option_as_value, usage_hint
+from mazelab.cli.filter_options import OptionFlag, filter_choices, filters, registry_help, with_option_flags
 from mazelab.cli.maze import maze_app
 from mazelab.cli.notebook import notebook
 from mazelab.cli.options import (
@@ -39,9 +38,13 @@ from mazelab.cli.options import (
     ThreadsOption,
     UserError,
     check_output_path,
+    option_elsewhere,
+    plain_usage_names,
     progress_printer,
+    refuse_option_as_value,
     report_run,
     seed_option,
+    usage_hint,
     visualization,
     warn_in_one_line,
     with_drawing,

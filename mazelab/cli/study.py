@@ -18,10 +18,10 @@ import typer
 from mazelab.atomic import WriteError, write_text_atomically
 from mazelab.cli.filter_options import (
     StudyOptionFlag,
+    check_filter_names,
     given_options,
     with_option_flags,
 )
-from mazelab.cli.hints import check_filter_names
 from mazelab.cli.options import (
     DEFAULT_DELTA,
     DEFAULT_SIGMA,
