@@ -49,9 +49,8 @@ from mazelab.cli.options import (
     warn_in_one_line,
     with_drawing,
 )
-from mazelab.cli.recordings import recordings
+from mazelab.cli.recordings import recordings, view
 from mazelab.cli.study import study
-from mazelab.cli.view import view
 from mazelab.experiments.record import package_version, program_versions
 from mazelab.invocation import command_prefix, remember_arguments
 from mazelab.maze import MazeError
