@@ -26,7 +26,6 @@ from typing import Annotated, Any
 import typer
 
 from mazelab.atomic import WriteError
-from mazelab.cli.accuracy import accuracy
 from mazelab.cli.exercise import exercise_app
 from mazelab.cli.filter_options import OptionFlag, filter_choices, filters, registry_help, with_option_flags
 from mazelab.cli.maze import maze_app
@@ -50,7 +49,7 @@ from mazelab.cli.options import (
     with_drawing,
 )
 from mazelab.cli.recordings import recordings, view
-from mazelab.cli.study import study
+from mazelab.cli.study import accuracy, study
 from mazelab.experiments.record import package_version, program_versions
 from mazelab.invocation import command_prefix, remember_arguments
 from mazelab.maze import MazeError
