@@ -54,7 +54,7 @@ class NearestStationLookup:
         self._first = candidates[:, 0]  # (C,) station indices
         self._all = candidates[ambiguous]  # (A, K) station indices, padded by repeats
         self._tables: dict[np.dtype, _StationTables] = {}
-        self._near: dict[int, tuple[tuple[int, float, float], ...]] = {}  # `nearest_at`'s, cell by cell
+        self._near: dict[int, tuple[tuple[int, float, float], ...]] = {}  # `station_at`'s, cell by cell
 
     def locate(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(distance to the nearest station, free flag) for points x, y of shape (N,), in x's dtype."""
@@ -74,7 +74,7 @@ class NearestStationLookup:
             free[beyond] = False
         return np.sqrt(d2, out=d2), free
 
-    def nearest_at(self, x: float, y: float) -> tuple[int, float]:
+    def station_at(self, x: float, y: float) -> tuple[int, float]:
         """The nearest station's index and distance for one float64 point, in plain floats: `nearest`'s
         index and `locate`'s distance (the same IEEE operations, so the same values; ties go to the
         earlier candidate), without the cost of numpy calls on arrays of one. A lookup cell's
