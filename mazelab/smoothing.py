@@ -47,11 +47,12 @@ from mazelab.checks import angle, coordinate, step_number
 from mazelab.grid_filter import BYTES_PER_GRID_CELL, GridBayesFilter, GridWorkspace, arc_kernel, arc_kernel_shape
 from mazelab.limits import check_memory
 from mazelab.maze import Maze
-from mazelab.model import check_model_parameters
+from mazelab.model import DEFAULT_PARTICLE_COUNT, check_model_parameters
 from mazelab.registry import filter_entry
 from mazelab.robot import Robot
 
 BYTES_PER_DENSITY_CELL = 8  # a float64 grid: what each checkpoint, each refiltered step and each kept density takes
+BYTES_PER_RECORDED_PARTICLE = 24  # Genealogy: a particle's float32 position, float64 weight and int64 ancestor
 
 
 @dataclass(frozen=True)
@@ -489,6 +490,10 @@ def score_smoothers(
             raise ValueError(f"a particle smoother needs a filter's genealogy: {entry.label} keeps no particles")
     if not robot.measurements:
         raise ValueError("smoothing needs the walk's measurements: the scenario stores none (robot_measurements)")
+    particles = len(initial_particles) if initial_particles is not None else particle_count or DEFAULT_PARTICLE_COUNT
+    steps = len(robot.measurements)
+    check_memory(f"the genealogy of {steps} steps of {particles} particles (the path smoother's)",
+                 (steps + lag + 2) * particles * BYTES_PER_RECORDED_PARTICLE)  # fmt: skip
     bins, count = cell_bins(world, GridBayesFilter.options.resolve(grid_options, "GridBayesFilter")["margin"])
     exact_masses: dict[int, np.ndarray] = {}
 

@@ -239,3 +239,12 @@ def test_a_particle_smoother_needs_particles_and_measurements(paper_world):
         score_smoothers(paper_world, robot, 0.3, 0.5, ["grid"])
     with pytest.raises(ValueError, match=r"^smoothing needs the walk's measurements: the scenario stores none"):
         score_smoothers(paper_world, robot, 0.3, 0.5, ["sir"])
+
+
+def test_a_genealogy_that_does_not_fit_in_memory_is_refused_saying_how_much_it_needs(paper_world, monkeypatch):
+    monkeypatch.setattr(limits, "memory_budget", lambda: MemoryBudget(10**9, "a test's budget"))
+    robot = Robot(
+        0.3, 0.5, (0.5, 0.5), actual_angles=[0.1] * 1000, compass_angles=[0.1] * 1000, measurements=[1.0] * 1000
+    )
+    with pytest.raises(MemoryLimitError, match=r"^the genealogy of 1000 steps of 100000 particles .* needs about 2\.3"):
+        score_smoothers(paper_world, robot, 0.3, 0.5, ["sir"], particle_count=100_000)
