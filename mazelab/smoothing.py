@@ -364,7 +364,14 @@ class Genealogy:
         self.distinct: dict[int, np.ndarray] = {}  # step -> (R,): the distinct ancestors at step k
 
     def record(self, filt: Any) -> None:
-        """Keep the filter's step just made (after its `step`), and estimate the step `lag` back."""
+        """Keep the filter's step just made (after its `step`), and estimate the step `lag` back.
+
+        Parameters
+        ----------
+        filt : SMC
+            A particle filter after step k: its `ancestry`, particles `x` (R, M, 2), weights `W`,
+            `reinitialised_at` and (recovery's) `injected` are read.
+        """
         A, _ = filt.ancestry
         k, runs = filt.steps_done, A.shape[0]
         restarts = filt.reinitialised_at if runs > 1 else [filt.reinitialised_at]
@@ -379,13 +386,25 @@ class Genealogy:
             self.kept.popleft()
 
     def finish(self) -> Genealogy:
-        """Estimate the steps not yet estimated from the last one (the path smoother's every step)."""
+        """Estimate the steps not yet estimated from the last one (the path smoother's every step).
+
+        Returns
+        -------
+        Genealogy
+            Itself, its `means`, `masses` and `distinct` now holding every step.
+        """
         if self.kept:  # lag 0 keeps none: every step estimated as it came
             self.trace(len(self.kept))
         return self
 
     def trace(self, count: int) -> None:
-        """The estimates of the oldest `count` kept steps from the newest one's weighted particles."""
+        """The estimates of the oldest `count` kept steps from the newest one's weighted particles.
+
+        Parameters
+        ----------
+        count : int
+            How many of the kept steps, oldest first, to estimate.
+        """
         _, x, W, _, _ = self.kept[-1]
         rows = np.arange(len(W))[:, None]
         index, w = np.broadcast_to(np.arange(W.shape[1]), W.shape), W
@@ -545,8 +564,19 @@ def score_rows(
 
 
 def cell_bins(world: Maze, margin: float) -> tuple[Callable[[np.ndarray], np.ndarray], int]:
-    """The maze's unit cells, and a ring of them over the grid's margin, as bins: (points (..., 2) ->
-    flat bin indices, the bin count). A point beyond the margin falls in the nearest outer bin."""
+    """The maze's unit cells, and a ring of them over the grid's margin, as bins. A point beyond the
+    margin falls in the nearest outer bin.
+
+    Parameters
+    ----------
+    world : Maze
+    margin : float
+        The exact grid's margin around the map (map units).
+
+    Returns
+    -------
+    (bins: points (..., 2) -> flat bin indices (...), the bin count)
+    """
     ring = math.ceil(margin)
     columns, rows = world.width + 2 * ring, world.height + 2 * ring
 
