@@ -351,10 +351,17 @@ class Genealogy:
         points (R, M, 2) -> flat bin indices (R, M) of `bin_count` bins: each estimate's weighted mass
         per bin is kept too (the distance between distributions, `binned_total_variation`).
     bin_count : int
+    clouds : bool
+        Keep each estimate's traced particles and weights of run 0 too (`clouds`, step -> (points (M, 2),
+        weights (M,))): what a viewer draws.
     """
 
     def __init__(
-        self, lag: int | None = None, bins: Callable[[np.ndarray], np.ndarray] | None = None, bin_count: int = 0
+        self,
+        lag: int | None = None,
+        bins: Callable[[np.ndarray], np.ndarray] | None = None,
+        bin_count: int = 0,
+        clouds: bool = False,
     ):
         self.lag = lag
         self.bins, self.bin_count = bins, bin_count
@@ -362,6 +369,7 @@ class Genealogy:
         self.means: dict[int, np.ndarray] = {}  # step -> (R, 2)
         self.masses: dict[int, np.ndarray] = {}  # step -> (R, bin_count)
         self.distinct: dict[int, np.ndarray] = {}  # step -> (R,): the distinct ancestors at step k
+        self.clouds: dict[int, tuple[np.ndarray, np.ndarray]] | None = {} if clouds else None
 
     def record(self, filt: Any) -> None:
         """Keep the filter's step just made (after its `step`), and estimate the step `lag` back.
@@ -429,6 +437,8 @@ class Genealogy:
         """Step k's weighted mean (R, 2), its mass per bin and the distinct ancestors among `index`."""
         self.means[k] = np.einsum("rn,rnd->rd", w, points)
         self.distinct[k] = (np.diff(np.sort(index, axis=1), axis=1) != 0).sum(axis=1) + 1
+        if self.clouds is not None:
+            self.clouds[k] = (points[0].copy(), w[0].copy())
         if self.bins is not None:
             flat = self.bins(points) + np.arange(len(w))[:, None] * self.bin_count
             self.masses[k] = np.bincount(flat.ravel(), w.ravel(), len(w) * self.bin_count).reshape(len(w), -1)
@@ -450,11 +460,15 @@ class SmootherScores:
         distinct ancestors its estimate rests on (`*_ancestors`); and the filter's distance to the exact
         filtered mean, its own target (`filter_error_to_filtered`).
     lag : int
+    recorded : dict
+        Each filter's label -> its Genealogy of each of SMOOTHERS (their means, distinct ancestors and,
+        when asked, clouds).
     """
 
     exact: SmoothedWalk
     rows: list[dict[str, Any]]
     lag: int
+    recorded: dict[str, list[Genealogy]] = field(default_factory=dict)
 
 
 SMOOTHERS = ("filter", "lag", "path")  # lag 0, the fixed lag L, the whole walk (Genealogy's lag)
@@ -476,6 +490,7 @@ def score_smoothers(
     initial_particles: Any = None,
     seed: int = 0,
     grid_options: dict[str, Any] | None = None,
+    clouds: bool = False,
     **filter_options: Any,
 ) -> SmootherScores:
     """Each particle filter's own estimate, fixed-lag and path smoothers on a recorded walk, beside the
@@ -495,6 +510,8 @@ def score_smoothers(
         As mazelab.simulation.simulate takes them (each filter starts from the same particles and seed).
     grid_options : dict, optional
         GridBayesFilter's options for the exact smoother.
+    clouds : bool
+        Keep the traced particles of every step (Genealogy's `clouds`) for a viewer.
 
     Returns
     -------
@@ -521,19 +538,18 @@ def score_smoothers(
 
     positions = GridBayesFilter(world, sigma, delta, **grid_options).positions
     exact = smooth(world, sigma, delta, robot.compass_angles, robot.measurements, visit=binned, **grid_options)
-    rows = []
+    rows, recorded = [], {}
     for entry in entries:
         recorders = {
-            name: Genealogy(length, bins, count) for name, length in zip(SMOOTHERS, (0, lag, None), strict=True)
+            n: Genealogy(length, bins, count, clouds) for n, length in zip(SMOOTHERS, (0, lag, None), strict=True)
         }
         run = simulate(
             robot, world, sigma, delta, particle_count, len(exact.means), initial_particles, entry.filter_class,
             seed=seed, on_step=functools.partial(record_step, list(recorders.values())), **filter_options,
         )  # fmt: skip
-        rows += score_rows(
-            entry.label, exact, exact_masses, run.true_positions, [g.finish() for g in recorders.values()]
-        )
-    return SmootherScores(exact, rows, lag)
+        recorded[entry.label] = [g.finish() for g in recorders.values()]
+        rows += score_rows(entry.label, exact, exact_masses, run.true_positions, recorded[entry.label])
+    return SmootherScores(exact, rows, lag, recorded)
 
 
 def record_step(recorders: list[Genealogy], k: int, robot: Robot, filt: Any) -> None:

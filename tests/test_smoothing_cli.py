@@ -6,7 +6,9 @@ from __future__ import annotations
 import csv
 import json
 
+import numpy as np
 import pytest
+from rerun.chunk import RrdReader
 
 from mazelab.cli.app import main
 from mazelab.learning import grid_log_evidence
@@ -105,3 +107,35 @@ def test_bad_input_is_one_line_and_exit_2(scenario, tmp_path, capsys, argv, mess
     assert main([a.format(s=scenario, bare=bare) for a in argv]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("error: ") and message in err
+
+
+def recorded_points(path):
+    """{entity: {step: (positions (M, 2), radii (M,))}} of the Points2D an .rrd file holds."""
+    reader = RrdReader(path)
+    (store,) = reader.recordings()
+    found = {}
+    for chunk in reader.stream(store=store):
+        batch = chunk.to_record_batch()
+        if "Points2D:positions" not in batch.schema.names or "step" not in batch.schema.names:
+            continue
+        columns = [batch.column(name).to_pylist() for name in ("step", "Points2D:positions", "Points2D:radii")]
+        for step, positions, radii in zip(*columns, strict=True):
+            found.setdefault(chunk.entity_path, {})[step] = (np.array(positions), np.array(radii))
+    return found
+
+
+def test_smooth_records_each_filters_cloud_beside_its_path_smoothers_as_the_rows_score_them(scenario, tmp_path):
+    """Read back from the recording: each view's cloud, weighted by its dots' areas, lies as far from the
+    exact smoothed mean drawn with it as the rows say (float32 positions: 1e-5 map units)."""
+    rows_file, rrd = tmp_path / "s.csv", tmp_path / "s.rrd"
+    argv = ["smooth", str(scenario), "--filters", "sir", "--resolution", "0.1", "--csv", str(rows_file)]
+    assert main([*argv, "--rrd", str(rrd)]) == 0
+    rows, points = read_rows(rows_file), recorded_points(rrd)
+    for view, column in (("sir_filtered", "filter_error"), ("sir_smoothed", "path_error")):
+        clouds, means = points[f"/map/{view}/particles"], points[f"/map/{view}/exact_smoothed_mean"]
+        assert sorted(clouds) == list(range(1, STEPS + 1))
+        for row in rows:
+            positions, radii = clouds[int(row["step"])]
+            mean = (radii**2) @ positions / (radii**2).sum()  # a dot's area is its weight
+            distance = np.hypot(*(mean - means[int(row["step"])][0][0]))
+            assert distance == pytest.approx(float(row[column]), abs=1e-5), (view, row["step"])

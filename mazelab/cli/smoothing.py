@@ -43,6 +43,7 @@ Seed = opt(int | None, callback=seed_option, help="the filters' seed [default: t
 Csv = opt(Path | None, "--csv", help="the rows (.csv)")
 PlotFile = opt(Path | None, "--plot", help="the figure (.png; plot extra)")
 Record = opt(Path | None, help="the JSON record [default: beside --csv]")
+Rrd = opt(Path | None, "--rrd", help="a Rerun recording: each filter's cloud beside its path smoother's")
 Force = opt(bool, "--force", help="replace existing output files")
 
 
@@ -55,13 +56,14 @@ def smooth(
     csv_path: Csv = None,
     plot: PlotFile = None,
     record: Record = None,
+    rrd: Rrd = None,
     force: Force = False,
 ) -> None:
     """Where the robot was at each step given every measurement: the exact smoother on the grid, and each
     filter's own estimate, fixed-lag and path smoothers scored against it step by step (the distance of
     their means to the exact smoothed mean, the total variation over the maze's cells, the distinct
     ancestors each rests on: the path degeneracy)."""
-    path, stored, outputs = opened(scenario, csv_path, plot, record, force)
+    path, stored, outputs = opened(scenario, csv_path, plot, record, force, rrd)
     names = [filter_entry(name).short_name for name in parse_filters(filters)]
     seed = seed if seed is not None else stored.seed if stored.seed is not None else 0
     world, sigma, delta = world_of(stored, path)
@@ -71,7 +73,7 @@ def smooth(
     typer.echo(f"{path.name}: {len(stored.robot_compass_angles)} steps, {len(stored.init_particles_pos)} particles, "
                f"sigma {sigma:g}, delta {delta:g}, lag {lag}, grid {resolution:g}, seed {seed}")  # fmt: skip
     scores = score_smoothers(world, stored.robot(), sigma, delta, names, lag=lag, seed=seed, grid_options={
-        "resolution": resolution}, initial_particles=stored.init_particles_pos)  # fmt: skip
+        "resolution": resolution}, initial_particles=stored.init_particles_pos, clouds=rrd is not None)  # fmt: skip
     summary = smoothing_summary(scores)
     columns = list(summary[-1])
     typer.echo(format_table(columns, [[shown(row.get(k)) for k in columns] for row in summary]))
@@ -81,7 +83,37 @@ def smooth(
     if plot is not None:
         save_figure(smoothing_figure(scores, path.name), plot, replace=force)
         typer.echo(f"the figure written to {plot}")
+    if rrd is not None:
+        smoothing_recording(scores, world, rrd, force)
     finish(recorder, outputs["record"], force, summary=summary)
+
+
+def smoothing_recording(scores: SmootherScores, world: Any, path: Path, force: bool) -> None:
+    """Each filter's weighted cloud (its own, lag 0) beside its path smoother's, step by step, with the
+    exact smoothed mean in both views: a Rerun recording written whole to `path`."""
+    import rerun as rr
+    import rerun.blueprint as rrb
+
+    from mazelab.registry import colour_of
+    from mazelab.viz.recording import Recording
+    from mazelab.viz.style import CELL_DOT_RADIUS, MAP, ROBOT_COLOR, entity_name, lab_blueprint, map_view
+
+    views = {(label, name): f"{label} {what}" for label in scores.recorded for name, what in
+             (("filter", "filtered"), ("path", "smoothed"))}  # fmt: skip
+    blueprint = lab_blueprint(rrb.Grid(*[map_view(world, title) for title in views.values()], grid_columns=2))
+    recording = Recording.open(path, world, blueprint, label="smooth", replace=force)
+    if recording is None:  # Rerun switched off: a line said so
+        return
+    for (label, name), title in views.items():
+        colour = colour_of(filter_entry(label).name)
+        for k, (points, weights) in sorted(scores.recorded[label][SMOOTHERS.index(name)].clouds.items()):
+            recording.stream.set_time("step", sequence=k)
+            radii = CELL_DOT_RADIUS * np.sqrt(weights * len(weights))  # a dot's area grows with its weight
+            cloud = rr.Points2D(points, colors=colour, radii=radii)
+            recording.stream.log(f"{MAP}/{entity_name(title)}/particles", cloud)
+            mean = rr.Points2D([scores.exact.means[k - 1]], colors=ROBOT_COLOR, radii=2 * CELL_DOT_RADIUS)
+            recording.stream.log(f"{MAP}/{entity_name(title)}/exact_smoothed_mean", mean)
+    recording.close()
 
 
 def smoothing_summary(scores: SmootherScores) -> list[dict[str, Any]]:
@@ -232,13 +264,13 @@ def posterior_figure(posterior: Any, chain: Any, title: str) -> Any:
     return figure
 
 
-def opened(scenario: Any, csv_path: Path | None, plot: Path | None, record: Path | None,
-           force: bool) -> tuple[Path, Scenario, dict[str, Path | None]]:  # fmt: skip
+def opened(scenario: Path, csv_path: Path | None, plot: Path | None, record: Path | None, force: bool,
+           rrd: Path | None = None) -> tuple[Path, Scenario, dict[str, Path | None]]:  # fmt: skip
     """The scenario (a file or a shipped name) with its measurements, and the outputs checked before any
     work: distinct files, none replaced without --force, the record beside --csv by default."""
     record_file = record if record is not None else record_path(csv_path) if csv_path is not None else None
-    check_one_file_each([("--csv", csv_path), ("--plot", plot), ("the record", record_file)])
-    for output in (csv_path, plot, record_file):
+    check_one_file_each([("--csv", csv_path), ("--plot", plot), ("the record", record_file), ("--rrd", rrd)])
+    for output in (csv_path, plot, record_file, rrd):
         if output is not None:
             check_output_path(output, force)
     path = find_scenario(scenario)
