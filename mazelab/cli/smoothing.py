@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import numpy as np
 import typer
@@ -23,8 +23,10 @@ from mazelab.learning import ParameterGrid, evidence_filter, exact_parameter_pos
 from mazelab.model import LAB_DELTA_RANGE, LAB_SIGMA_RANGE
 from mazelab.plugins import file_sha256
 from mazelab.registry import filter_entry
-from mazelab.scenario import Scenario, find_scenario, load_scenario
 from mazelab.smoothing import SCORE_COLUMNS, SMOOTHERS, SmootherScores, score_smoothers
+
+if TYPE_CHECKING:
+    from mazelab.scenario import Scenario
 
 SCENARIO_HELP = "a saved scenario with measurements (.json) or a shipped name"
 Scenario_ = Annotated[Path, typer.Argument(metavar="SCENARIO", show_default=False, help=SCENARIO_HELP)]
@@ -268,6 +270,8 @@ def opened(scenario: Path, csv_path: Path | None, plot: Path | None, record: Pat
            rrd: Path | None = None) -> tuple[Path, Scenario, dict[str, Path | None]]:  # fmt: skip
     """The scenario (a file or a shipped name) with its measurements, and the outputs checked before any
     work: distinct files, none replaced without --force, the record beside --csv by default."""
+    from mazelab.scenario import find_scenario, load_scenario  # imported by the commands that read one (a study never)
+
     record_file = record if record is not None else record_path(csv_path) if csv_path is not None else None
     check_one_file_each([("--csv", csv_path), ("--plot", plot), ("the record", record_file), ("--rrd", rrd)])
     for output in (csv_path, plot, record_file, rrd):
