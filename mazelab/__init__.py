@@ -12,6 +12,7 @@ modules, bottom to top (each imports only those above it in this list):
     recovery, cloud, filters, grid_filter, kalman             the filters (cloud: the template on the model)
     plugins, registry                                         one entry per filter, and a student's own (file.py:Class)
     atomic, scenario, collect, simulation                     saved scenarios; the one recording loop; one run
+    smoothing, learning                                       the exact smoother on the grid; parameter posterior, PMMH
     invocation                                                how this program was started (printed commands)
     viz/                                                      drawing in Rerun (never imported by the above)
     lab                                                       run_model and simulate, with drawing

@@ -12,7 +12,10 @@ executor maps), the density constant within each cell. PMMH (`pmmh`) is a random
 on (sigma, delta) whose acceptance ratio uses a particle filter's estimate of p(z_1:K) in place of the
 evidence: the chain targets the exact posterior whenever that estimate is unbiased, which SIR's and the
 APF's are (Del Moral 2004; Pitt and Shephard's for the APF), and the regularised filter's is not (its
-kernel changes the posterior it carries: docs/model.md). `UNBIASED_EVIDENCE` says which filters qualify.
+kernel changes the posterior it carries: docs/model.md). The registry's declaration says which filters
+qualify (FilterEntry.evidence, the caveat every table prints beside a log evidence; `evidence_filter`);
+recovery's injected particles, drawn from no proposal the weights account for, break the estimate's
+unbiasedness too, and a filter that keeps no log evidence (the EKF) has none to give.
 """
 
 from __future__ import annotations
@@ -33,10 +36,6 @@ from mazelab.model import LAB_DELTA_RANGE, LAB_SIGMA_RANGE, check_model_paramete
 from mazelab.registry import FilterEntry, filter_entry
 from mazelab.smoothing import check_walk
 
-# The filters whose `log_evidence` is the log of an unbiased estimate of p(z_1:K) under the model (the
-# grid filter's is its exact value on the grid: PMMH with it is plain Metropolis-Hastings). The RPF's is
-# not: its kernel widens the posterior it carries. To be read from the registry's declaration instead.
-UNBIASED_EVIDENCE = frozenset({"SIRParticleFilter", "AuxiliaryParticleFilter", "GridBayesFilter"})
 INTERVAL_LEVEL = 0.9  # the equal-tailed credible interval reported beside the posterior mean
 
 
@@ -253,25 +252,30 @@ def exact_parameter_posterior(
     return ParameterPosterior(grid, log_evidence.reshape(grid.cells))
 
 
-def evidence_filter(name: str | type) -> FilterEntry:
-    """The registry's entry of a filter whose log evidence estimates p(z_1:K) without bias (one of
-    UNBIASED_EVIDENCE), or a one-line ValueError naming the filter and those that qualify.
+def evidence_filter(name: str | type, options: dict[str, Any] | None = None) -> FilterEntry:
+    """The registry's entry of a filter whose log evidence estimates p(z_1:K) without bias with these
+    options: one whose declaration carries no caveat (FilterEntry.evidence: the RPF's has one) and runs
+    without recovery; else a one-line ValueError saying why. (The grid filter's is the exact value on the
+    grid: PMMH with it is plain Metropolis-Hastings.)
 
     Parameters
     ----------
     name : str or class
         What mazelab.registry.filter_entry takes (sir, SIRParticleFilter, ...).
+    options : dict, optional
+        The filter's options.
 
     Returns
     -------
     FilterEntry
     """
     entry = filter_entry(name)
-    if entry.name not in UNBIASED_EVIDENCE:
-        qualified = ", ".join(sorted(filter_entry(n).short_name for n in UNBIASED_EVIDENCE))
+    if entry.evidence:
+        raise ValueError(f"PMMH needs a filter whose evidence estimates p(z_1:K): {entry.label}'s is {entry.evidence}")
+    if (options or {}).get("recovery") not in (None, False, "none"):
         raise ValueError(
-            f"PMMH needs a filter whose evidence estimates p(z_1:K): {entry.label}'s does not "
-            f"(it is not one of {qualified})"
+            "PMMH needs a filter whose evidence estimates p(z_1:K): with recovery it does not (its injected "
+            "particles come from no proposal the weights account for); leave recovery out"
         )
     return entry
 
@@ -286,7 +290,7 @@ class EvidenceEstimator:
     world : Maze
     compass_angles, measurements : arrays (K,)
     entry : FilterEntry
-        A filter of UNBIASED_EVIDENCE (`evidence_filter`).
+        A filter whose evidence estimates p(z_1:K) (`evidence_filter`).
     particle_count : int
     options : dict
         The filter's options.
@@ -308,6 +312,8 @@ class EvidenceEstimator:
         filt = self.entry.filter_class(self.world, sigma, delta, particles, filter_rng, **self.options)
         for compass_angle, z in zip(self.compass_angles, self.measurements, strict=True):
             filt.step(float(compass_angle), float(z))
+        if not hasattr(filt, "log_evidence"):  # optional in the contract (mazelab.contract)
+            raise ValueError(f"PMMH needs a filter whose evidence estimates p(z_1:K): {self.entry.label} keeps none")
         log_z = float(filt.log_evidence)
         return log_z if not math.isnan(log_z) else -math.inf
 
@@ -435,7 +441,8 @@ def pmmh(
         The walk's th0_k and z_k.
     iterations : int
     filter_name : str or class
-        A filter of UNBIASED_EVIDENCE (the RPF is refused in one line).
+        A filter whose evidence estimates p(z_1:K) (`evidence_filter`: the RPF, or recovery, is
+        refused in one line).
     particle_count : int
     prior : ParameterGrid, optional
         Its box is the uniform prior's support (the lab's ranges by default).
@@ -456,7 +463,7 @@ def pmmh(
     -------
     Chain
     """
-    entry = evidence_filter(filter_name)
+    entry = evidence_filter(filter_name, filter_options)
     entry.options.resolve(filter_options, entry.name)  # each option checked once, before the first run
     angles, zs = check_walk(compass_angles, measurements)
     prior = ParameterGrid() if prior is None else prior
@@ -537,7 +544,6 @@ def quantile_error(x: np.ndarray, p: float) -> float:
 
 __all__ = [
     "INTERVAL_LEVEL",
-    "UNBIASED_EVIDENCE",
     "Chain",
     "EvidenceEstimator",
     "ParameterGrid",

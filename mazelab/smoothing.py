@@ -19,11 +19,24 @@ reaches it: about 2 sqrt(K) grids instead of K, for a second forward pass. On ma
 default resolution (600 x 600 cells, 2.75 MB a grid) a 200-step walk keeps 14 checkpoints and 15
 refiltered grids rather than 200: a peak of 165 MB allocated against 640 MB when every filtered density
 is kept (`uv run python benchmarks/smoothing_memory.py`).
+
+The particle smoothers (`Genealogy`, scored against the exact one by `score_smoothers`) read what the
+engine leaves after each step, `SMC.ancestry` (A (R, M), due (R,)), and keep it with the step's particles
+and weights: the path smoother follows every particle of the last step back to its ancestors; the
+fixed-lag smoother does so L steps back only, keeping L + 1 steps. Forward filtering backward sampling
+(FFBS) is not built, for the model admits none: it reweights x_k^i by the transition density p(x_k+1^j |
+x_k^i), but the arc motion x_k+1 = x_k + L (cos th, sin th), th uniform on [th0 - Delta/2, th0 + Delta/2]
+(mazelab.model), puts all of x_k+1's mass on an arc of radius L about x_k: a curve, of no area, so the
+transition has no density in the plane. p(x_k+1^j | x_k^i) is then zero unless x_k+1^j lies on x_k^i's
+arc, which happens (with probability one) only when x_k^i is its ancestor: FFBS's backward kernel is the
+genealogy itself, the path smoother. (The grid smoother has a density: its cells spread the arc.)
 """
 
 from __future__ import annotations
 
+import functools
 import math
+from collections import deque
 from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -34,9 +47,12 @@ from mazelab.checks import angle, coordinate, step_number
 from mazelab.grid_filter import BYTES_PER_GRID_CELL, GridBayesFilter, GridWorkspace, arc_kernel, arc_kernel_shape
 from mazelab.limits import check_memory
 from mazelab.maze import Maze
-from mazelab.model import check_model_parameters
+from mazelab.model import DEFAULT_PARTICLE_COUNT, check_model_parameters
+from mazelab.registry import filter_entry
+from mazelab.robot import Robot
 
 BYTES_PER_DENSITY_CELL = 8  # a float64 grid: what each checkpoint, each refiltered step and each kept density takes
+BYTES_PER_RECORDED_PARTICLE = 24  # Genealogy: a particle's float32 position, float64 weight and int64 ancestor
 
 
 @dataclass(frozen=True)
@@ -311,4 +327,308 @@ def check_walk(compass_angles: Sequence[float], measurements: Sequence[float]) -
     return angles, zs
 
 
-__all__ = ["BackwardStep", "SmoothedWalk", "check_walk", "smooth"]
+# -- particle smoothers: the genealogy of a particle filter, scored against the exact smoother -----------
+class Genealogy:
+    """A particle filter's R runs recorded step by step (its particles, weights and `ancestry`), and the
+    path smoother's estimates traced back through them.
+
+    The estimate of step k from step j >= k: the particles of step j with their weights W_j, each put
+    where its ancestor stood at step k (the ancestors followed back through the recorded A's). j = K, the
+    walk's end, is the genealogy (path) smoother (`lag` None); j = k + L the fixed-lag smoother (`lag` L:
+    step k's estimate made once step k + L is filtered, the last L steps' at the end); j = k the filter
+    (lag 0). A run restarted from the prior at step j has no ancestors there: the steps before it take
+    the particles of step j - 1 and their own weights; recovery's injected particles have none either
+    and leave the weight of the trace (the others' renormalised).
+
+    Memory: positions (2 float32), a weight (float64) and an ancestor (int64) of each particle of each
+    kept step, 24 R N bytes a step: every step (R N K) for the path smoother, the last L + 1 for the
+    fixed-lag one, whatever the walk's length.
+
+    Parameters
+    ----------
+    lag : int or None
+    bins : callable, optional
+        points (R, M, 2) -> flat bin indices (R, M) of `bin_count` bins: each estimate's weighted mass
+        per bin is kept too (the distance between distributions, `binned_total_variation`).
+    bin_count : int
+    clouds : bool
+        Keep each estimate's traced particles and weights of run 0 too (`clouds`, step -> (points (M, 2),
+        weights (M,))): what a viewer draws.
+    """
+
+    def __init__(
+        self,
+        lag: int | None = None,
+        bins: Callable[[np.ndarray], np.ndarray] | None = None,
+        bin_count: int = 0,
+        clouds: bool = False,
+    ):
+        self.lag = lag
+        self.bins, self.bin_count = bins, bin_count
+        self.kept: deque[tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = deque()
+        self.means: dict[int, np.ndarray] = {}  # step -> (R, 2)
+        self.masses: dict[int, np.ndarray] = {}  # step -> (R, bin_count)
+        self.distinct: dict[int, np.ndarray] = {}  # step -> (R,): the distinct ancestors at step k
+        self.clouds: dict[int, tuple[np.ndarray, np.ndarray]] | None = {} if clouds else None
+
+    def record(self, filt: Any) -> None:
+        """Keep the filter's step just made (after its `step`), and estimate the step `lag` back.
+
+        Parameters
+        ----------
+        filt : SMC
+            A particle filter after step k: its `ancestry`, particles `x` (R, M, 2), weights `W`,
+            `reinitialised_at` and (recovery's) `injected` are read.
+        """
+        A, _ = filt.ancestry
+        k, runs = filt.steps_done, A.shape[0]
+        restarts = filt.reinitialised_at if runs > 1 else [filt.reinitialised_at]
+        cut = np.zeros(A.shape, dtype=bool)  # the particles without an ancestor at step k - 1
+        cut[[k in r for r in restarts]] = True
+        injected = getattr(filt, "injected", None)
+        if injected is not None:
+            cut[0] |= injected
+        self.kept.append((k, filt.x.astype(np.float32), filt.W.W.copy(), A.astype(np.int64), cut))
+        if self.lag is not None and len(self.kept) > self.lag:
+            self.trace(1)
+            self.kept.popleft()
+
+    def finish(self) -> Genealogy:
+        """Estimate the steps not yet estimated from the last one (the path smoother's every step).
+
+        Returns
+        -------
+        Genealogy
+            Itself, its `means`, `masses` and `distinct` now holding every step.
+        """
+        if self.kept:  # lag 0 keeps none: every step estimated as it came
+            self.trace(len(self.kept))
+        return self
+
+    def trace(self, count: int) -> None:
+        """The estimates of the oldest `count` kept steps from the newest one's weighted particles.
+
+        Parameters
+        ----------
+        count : int
+            How many of the kept steps, oldest first, to estimate.
+        """
+        _, x, W, _, _ = self.kept[-1]
+        rows = np.arange(len(W))[:, None]
+        index, w = np.broadcast_to(np.arange(W.shape[1]), W.shape), W
+        for position in range(len(self.kept) - 1, -1, -1):
+            k, x, _, A, cut = self.kept[position]
+            if position < count:
+                self._estimate(k, x[rows, index], w, index)
+            if position == 0:
+                break
+            w = np.where(cut[rows, index], 0.0, w)
+            total = w.sum(axis=1, keepdims=True)
+            restart = (total[:, 0] <= 0) | cut.all(axis=1)  # a restarted run: the previous step's own particles
+            w = w / np.where(total > 0, total, 1.0)
+            index = A[rows, index]
+            if restart.any():  # R > 1 runs keep N particles (KLD-sampling's varying count runs one run)
+                previous = self.kept[position - 1][2]
+                every = np.broadcast_to(np.arange(previous.shape[1]), previous.shape)
+                index = every if restart.all() else np.where(restart[:, None], every, index)
+                w = previous if restart.all() else np.where(restart[:, None], previous, w)
+
+    def _estimate(self, k: int, points: np.ndarray, w: np.ndarray, index: np.ndarray) -> None:
+        """Step k's weighted mean (R, 2), its mass per bin and the distinct ancestors among `index`."""
+        self.means[k] = np.einsum("rn,rnd->rd", w, points)
+        self.distinct[k] = (np.diff(np.sort(index, axis=1), axis=1) != 0).sum(axis=1) + 1
+        if self.clouds is not None:
+            self.clouds[k] = (points[0].copy(), w[0].copy())
+        if self.bins is not None:
+            flat = self.bins(points) + np.arange(len(w))[:, None] * self.bin_count
+            self.masses[k] = np.bincount(flat.ravel(), w.ravel(), len(w) * self.bin_count).reshape(len(w), -1)
+
+
+@dataclass(frozen=True)
+class SmootherScores:
+    """The particle smoothers of each filter scored against the exact smoother over one walk.
+
+    Attributes
+    ----------
+    exact : SmoothedWalk
+        The exact smoother's answer (its means, the grid filter's means beside them).
+    rows : list of dict
+        One per filter and step (SCORE_COLUMNS): the distance (map units) of the exact filtered and
+        smoothed means to the truth; for the filter (lag 0), the fixed-lag and the path smoother, the
+        distance of its mean to the exact smoothed mean (`*_error`), the total variation between its
+        weighted particles and the exact smoothed posterior over the maze's unit cells (`*_tv`) and the
+        distinct ancestors its estimate rests on (`*_ancestors`); and the filter's distance to the exact
+        filtered mean, its own target (`filter_error_to_filtered`).
+    lag : int
+    recorded : dict
+        Each filter's label -> its Genealogy of each of SMOOTHERS (their means, distinct ancestors and,
+        when asked, clouds).
+    """
+
+    exact: SmoothedWalk
+    rows: list[dict[str, Any]]
+    lag: int
+    recorded: dict[str, list[Genealogy]] = field(default_factory=dict)
+
+
+SMOOTHERS = ("filter", "lag", "path")  # lag 0, the fixed lag L, the whole walk (Genealogy's lag)
+SCORE_COLUMNS = (
+    "filter", "step", "exact_filtered_to_truth", "exact_smoothed_to_truth", "filter_error_to_filtered",
+    *(f"{name}_{what}" for name in SMOOTHERS for what in ("error", "tv", "ancestors")),
+)  # fmt: skip
+
+
+def score_smoothers(
+    world: Maze,
+    robot: Robot,
+    sigma: float,
+    delta: float,
+    filters: Sequence[str],
+    *,
+    lag: int = 10,
+    particle_count: int | None = None,
+    initial_particles: Any = None,
+    seed: int = 0,
+    grid_options: dict[str, Any] | None = None,
+    clouds: bool = False,
+    **filter_options: Any,
+) -> SmootherScores:
+    """Each particle filter's own estimate, fixed-lag and path smoothers on a recorded walk, beside the
+    exact smoother (`smooth`), step by step (SmootherScores).
+
+    Parameters
+    ----------
+    world : Maze
+    robot : Robot
+        One that replays a walk with its measurements (Scenario.robot of a scenario that stores them).
+    sigma, delta : float
+    filters : sequence of str
+        Registry names of filters that keep particles (sir, apf, rpf, a plug-in's).
+    lag : int
+        L of the fixed-lag smoother (>= 1).
+    particle_count, initial_particles, seed, **filter_options
+        As mazelab.simulation.simulate takes them (each filter starts from the same particles and seed).
+    grid_options : dict, optional
+        GridBayesFilter's options for the exact smoother.
+    clouds : bool
+        Keep the traced particles of every step (Genealogy's `clouds`) for a viewer.
+
+    Returns
+    -------
+    SmootherScores
+    """
+    from mazelab.simulation import simulate  # the layer above the model's: imported by the caller that runs
+
+    lag, grid_options = step_number("lag", lag), dict(grid_options or {})
+    entries = [filter_entry(name) for name in filters]
+    for entry in entries:
+        if not entry.takes_particles:
+            raise ValueError(f"a particle smoother needs a filter's genealogy: {entry.label} keeps no particles")
+    if not robot.measurements:
+        raise ValueError("smoothing needs the walk's measurements: the scenario stores none (robot_measurements)")
+    particles = len(initial_particles) if initial_particles is not None else particle_count or DEFAULT_PARTICLE_COUNT
+    steps = len(robot.measurements)
+    check_memory(f"the genealogy of {steps} steps of {particles} particles (the path smoother's)",
+                 (steps + lag + 2) * particles * BYTES_PER_RECORDED_PARTICLE)  # fmt: skip
+    bins, count = cell_bins(world, GridBayesFilter.options.resolve(grid_options, "GridBayesFilter")["margin"])
+    exact_masses: dict[int, np.ndarray] = {}
+
+    def binned(k: int, density: np.ndarray) -> None:
+        exact_masses[k] = np.bincount(bins(positions), density.ravel(), count)
+
+    positions = GridBayesFilter(world, sigma, delta, **grid_options).positions
+    exact = smooth(world, sigma, delta, robot.compass_angles, robot.measurements, visit=binned, **grid_options)
+    rows, recorded = [], {}
+    for entry in entries:
+        recorders = {
+            n: Genealogy(length, bins, count, clouds) for n, length in zip(SMOOTHERS, (0, lag, None), strict=True)
+        }
+        run = simulate(
+            robot, world, sigma, delta, particle_count, len(exact.means), initial_particles, entry.filter_class,
+            seed=seed, on_step=functools.partial(record_step, list(recorders.values())), **filter_options,
+        )  # fmt: skip
+        recorded[entry.label] = [g.finish() for g in recorders.values()]
+        rows += score_rows(entry.label, exact, exact_masses, run.true_positions, recorded[entry.label])
+    return SmootherScores(exact, rows, lag, recorded)
+
+
+def record_step(recorders: list[Genealogy], k: int, robot: Robot, filt: Any) -> None:
+    """simulate's on_step: each recorder keeps the filter's step k."""
+    for recorder in recorders:
+        recorder.record(filt)
+
+
+def score_rows(
+    label: str, exact: SmoothedWalk, masses: dict[int, np.ndarray], truth: np.ndarray, recorded: list[Genealogy]
+) -> list[dict[str, Any]]:
+    """One filter's rows of SCORE_COLUMNS, step by step (one run: row 0 of each recorded estimate)."""
+    rows = []
+    for k in range(1, len(truth) + 1):
+        row = {
+            "filter": label,
+            "step": k,
+            "exact_filtered_to_truth": float(np.hypot(*(exact.filtered_means[k - 1] - truth[k - 1]))),
+            "exact_smoothed_to_truth": float(np.hypot(*(exact.means[k - 1] - truth[k - 1]))),
+            "filter_error_to_filtered": float(np.hypot(*(recorded[0].means[k][0] - exact.filtered_means[k - 1]))),
+        }
+        for name, g in zip(SMOOTHERS, recorded, strict=True):
+            row[f"{name}_error"] = float(np.hypot(*(g.means[k][0] - exact.means[k - 1])))
+            row[f"{name}_tv"] = float(binned_total_variation(g.masses[k][0], masses[k]))
+            row[f"{name}_ancestors"] = int(g.distinct[k][0])
+        rows.append(row)
+    return rows
+
+
+def cell_bins(world: Maze, margin: float) -> tuple[Callable[[np.ndarray], np.ndarray], int]:
+    """The maze's unit cells, and a ring of them over the grid's margin, as bins. A point beyond the
+    margin falls in the nearest outer bin.
+
+    Parameters
+    ----------
+    world : Maze
+    margin : float
+        The exact grid's margin around the map (map units).
+
+    Returns
+    -------
+    (bins: points (..., 2) -> flat bin indices (...), the bin count)
+    """
+    ring = math.ceil(margin)
+    columns, rows = world.width + 2 * ring, world.height + 2 * ring
+
+    def bins(points: np.ndarray) -> np.ndarray:
+        i = np.clip(np.floor(points[..., 0]).astype(np.int64) + ring, 0, columns - 1)
+        j = np.clip(np.floor(points[..., 1]).astype(np.int64) + ring, 0, rows - 1)
+        return j * columns + i
+
+    return bins, rows * columns
+
+
+def binned_total_variation(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """(1/2) sum_b |p_b - q_b| over the last axis: the total variation between two distributions binned
+    alike (0: the same mass in every bin; 1: none in common).
+
+    Parameters
+    ----------
+    p, q : arrays (..., B)
+
+    Returns
+    -------
+    array (...)
+    """
+    return 0.5 * np.abs(p - q).sum(axis=-1)
+
+
+__all__ = [
+    "SCORE_COLUMNS",
+    "SMOOTHERS",
+    "BackwardStep",
+    "Genealogy",
+    "SmoothedWalk",
+    "SmootherScores",
+    "binned_total_variation",
+    "cell_bins",
+    "check_walk",
+    "score_smoothers",
+    "smooth",
+]

@@ -16,6 +16,8 @@ DOCUMENTED = [
     "mazelab.declaration",
     "mazelab.collect",
     "mazelab.smc",
+    "mazelab.smoothing",
+    "mazelab.learning",
 ]
 
 

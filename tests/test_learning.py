@@ -6,6 +6,7 @@ agree with the exact posterior within the chain's Monte Carlo error plus the gri
 from __future__ import annotations
 
 import math
+import re
 from concurrent.futures import ProcessPoolExecutor
 from statistics import NormalDist
 
@@ -22,6 +23,7 @@ from mazelab.learning import (
     pmmh,
     quantile_error,
 )
+from mazelab.registry import filter_entry
 from mazelab.robot import Robot
 
 STANDARD_ERRORS = 3  # per comparison: P(|N(0, 1)| > 3) = 0.27%, so six comparisons at once false-alarm < 2%
@@ -90,8 +92,14 @@ def test_the_quantiles_monte_carlo_error_is_that_of_independent_draws():
 
 
 def test_pmmh_refuses_a_filter_whose_evidence_does_not_estimate_p_z_and_bad_settings(paper_world):
-    with pytest.raises(ValueError, match=r"^PMMH needs a filter whose evidence estimates p\(z_1:K\): RPF's does not"):
+    """The refusals read the registry's declaration: the RPF's caveat is the one every table prints."""
+    needs = r"^PMMH needs a filter whose evidence estimates p\(z_1:K\): "
+    with pytest.raises(ValueError, match=needs + re.escape(f"RPF's is {filter_entry('rpf').evidence}") + "$"):
         pmmh(paper_world, [0.1], [1.0], 10, filter_name="rpf")
+    with pytest.raises(ValueError, match=needs + "with recovery it does not"):
+        pmmh(paper_world, [0.1], [1.0], 10, filter_name="sir", recovery="augmented")
+    with pytest.raises(ValueError, match=needs + "EKF keeps none$"):
+        pmmh(paper_world, [0.1], [1.0], 10, filter_name="ekf")
     with pytest.raises(ValueError, match="outside the prior's box"):
         pmmh(paper_world, [0.1], [1.0], 10, start=(0.1, 0.3))
     with pytest.raises(ValueError, match="particle_count must be a whole number >= 1, got 0"):

@@ -125,7 +125,7 @@ def test_the_ukrainian_notebook_is_the_english_one_in_the_papers_words():
     for term in ("гранул", "гранулярн", "станці", "лабіринт"):  # the paper's own terms
         assert term in text
     headings = [cell.source.splitlines()[0] for cell in ukrainian.cells if cell.source.startswith("## Крок ")]
-    assert [int(h.split()[2].rstrip(":")) for h in headings] == list(range(1, 15))  # steps 1-14, in order
+    assert [int(h.split()[2].rstrip(":")) for h in headings] == list(range(1, 16))  # steps 1-14 and 15, in order
 
 
 @pytest.mark.slow  # about 15 s each: a kernel, then the whole lab (it still runs by default)
@@ -167,7 +167,7 @@ def check_the_executed_lab(notebook: nbformat.NotebookNode, workdir: Path, langu
     assert stdout_of(cells[-1]).strip() == sys.executable  # the kernel ran in this environment
 
     figure_cells = [cell for cell in cells if "plt.show()" in cell.source]
-    assert len(figure_cells) == 2  # lab steps 13 and 14
+    assert len(figure_cells) == 3  # lab steps 13, 14 and 15
     for cell in figure_cells:
         pngs = [output.data["image/png"] for output in cell.outputs if "image/png" in output.get("data", {})]
         assert len(pngs) == 1, f"cell {cell.id} drew no inline figure"

@@ -10,15 +10,19 @@ import math
 
 import numpy as np
 import pytest
-from conftest import PAPER_MAZE
+from conftest import PAPER_MAZE, recorded_walk
 
 from mazelab import limits
 from mazelab.constants import OUTSIDE_PENALTY
 from mazelab.grid_filter import GridBayesFilter, arc_kernel
 from mazelab.limits import MemoryBudget, MemoryLimitError
 from mazelab.maze import Maze
+from mazelab.mazes import load_maze
+from mazelab.model import ROBOT_SPEED
+from mazelab.registry import filter_entry
 from mazelab.robot import Robot
-from mazelab.smoothing import BackwardStep, smooth
+from mazelab.scenario import find_scenario, load_scenario
+from mazelab.smoothing import BackwardStep, Genealogy, score_smoothers, smooth
 
 TINY = Maze([[2, 0], [0, 0]])
 TINY_MODEL = {"sigma": 0.4, "delta": 0.6}
@@ -150,3 +154,97 @@ def test_bad_walks_are_refused_in_one_line(paper_world):
         smooth(paper_world, 0.3, 0.5, [0.1], [1.0], keep={2}, resolution=0.1)
     with pytest.raises(ValueError, match="no cell of the grid explains z_2"):
         smooth(paper_world, 0.3, 0.05, [0.1, 0.2], [1.0, 900.0], resolution=0.1)
+
+
+# -- the particle smoothers (Genealogy), against the filters' own steps and the exact smoother ------------
+PARTICLE_FILTERS = ("sir", "apf", "rpf")
+
+
+def recorded_run(world, walk, filter_name, lags, count=300, seed=5, bins=None):
+    """One seeded filter over a walk ((compass angle, z) pairs), a Genealogy per lag, and its mean after
+    each step: (recorders, means (K, 2))."""
+    recorders = [Genealogy(lag, bins, 1) for lag in lags]
+    rng = np.random.default_rng(seed)
+    filt = filter_entry(filter_name).filter_class(world, 0.3, 0.5, world.random_free_places(count, rng), rng)
+    means = []
+    for compass_angle, z in walk:
+        filt.step(compass_angle, z)
+        means.append(filt.mean)
+        for recorder in recorders:
+            recorder.record(filt)
+    return [recorder.finish() for recorder in recorders], np.array(means)
+
+
+@pytest.mark.parametrize("filter_name", ["sir", "apf"])
+def test_the_path_smoother_follows_each_particles_lineage_back_through_the_engines_ancestry(paper_world, filter_name):
+    """Each traced path moves exactly L (ROBOT_SPEED) a step, as the arc motion moves a particle from its
+    ancestor (float32 positions: 1e-5 map units); a wrong ancestor lies anywhere else in the cloud."""
+    traced = []
+    bins = lambda points: traced.append(points[0].astype(float)) or np.zeros(points.shape[:2], dtype=np.int64)  # noqa: E731
+    recorded_run(paper_world, recorded_walk(paper_world, 3, 25), filter_name, [None], bins=bins)
+    steps = np.hypot(*np.diff(np.array(traced), axis=0).transpose(2, 0, 1))  # from step k to step k - 1
+    np.testing.assert_allclose(steps, ROBOT_SPEED, atol=1e-5)
+
+
+@pytest.mark.parametrize("filter_name", PARTICLE_FILTERS)
+def test_the_fixed_lag_smoother_is_the_path_smoother_of_the_walk_cut_lag_steps_later(paper_world, filter_name):
+    """Lag 0 is the filter's mean at every step; the path smoother at K is the filter's mean at K; the
+    fixed-lag estimate of step k is the path smoother's of the same seeded run stopped at step k + L."""
+    walk, lag = recorded_walk(paper_world, 4, 20), 4
+    (filtered, fixed, path), means = recorded_run(paper_world, walk, filter_name, [0, lag, None])
+    filters_mean = np.array([filtered.means[k][0] for k in range(1, 21)])
+    np.testing.assert_allclose(filters_mean, means, atol=1e-6)  # the kernels sum float32 positions: 1e-6 map units
+    np.testing.assert_allclose(path.means[20][0], means[-1], atol=1e-6)
+    for k in (1, 9, 16):
+        (cut,), _ = recorded_run(paper_world, walk[: k + lag], filter_name, [None])
+        assert np.array_equal(fixed.means[k], cut.means[k])
+    assert path.distinct[1][0] < path.distinct[19][0] <= 300  # the path degeneracy: fewer ancestors further back
+
+
+def test_a_run_restarted_from_the_prior_is_traced_from_the_step_before_its_restart(paper_world):
+    """At a restart no particle has an ancestor: the steps before it are the path smoother's of the walk
+    stopped the step before (its own particles and weights)."""
+    walk = recorded_walk(paper_world, 6, 12)
+    walk[7] = (walk[7][0], 40.0)  # nothing in the maze lies 40 from a station: the filter restarts at step 8
+    (path,), _ = recorded_run(paper_world, walk, "sir", [None])
+    (before,), _ = recorded_run(paper_world, walk[:7], "sir", [None])
+    for k in range(1, 8):
+        assert np.array_equal(path.means[k], before.means[k])
+
+
+@pytest.mark.parametrize("filter_name", ["sir", "apf"])
+def test_the_particle_smoothers_agree_with_the_exact_smoother_within_their_monte_carlo_error(filter_name):
+    """On the paper's saved walk (1500 particles): the path smoother's mean at step k lies within 4
+    spread_k / sqrt(D_k) of the exact smoothed mean (the error of an average of D_k draws from the smoothed
+    posterior, D_k the distinct ancestors it rests on) plus one grid cell (the exact smoother's own error);
+    over the walk the path smoother is nearer the exact smoothed posterior than the filter is, in mean and
+    in total variation."""
+    stored = load_scenario(find_scenario("paper_5x5"))
+    world = stored.world() or load_maze("paper_5x5")
+    particles, grid = stored.init_particles_pos, {"resolution": 0.05}
+    scores = score_smoothers(world, stored.robot(), stored.sigma, stored.delta, [filter_name], lag=10, seed=1,
+                             initial_particles=particles, grid_options=grid)  # fmt: skip
+    rows, spreads = scores.rows, scores.exact.spreads
+    assert [row["step"] for row in rows] == list(range(1, 201))
+    for row in rows:
+        bound = 4 * spreads[row["step"] - 1] / math.sqrt(row["path_ancestors"]) + 0.05
+        assert row["path_error"] < bound, row
+    for what in ("error", "tv"):
+        assert np.mean([r[f"path_{what}"] for r in rows]) < np.mean([r[f"filter_{what}"] for r in rows])
+
+
+def test_a_particle_smoother_needs_particles_and_measurements(paper_world):
+    robot = Robot(0.3, 0.5, (0.5, 0.5), actual_angles=[0.1], compass_angles=[0.1])
+    with pytest.raises(ValueError, match=r"^a particle smoother needs a filter's genealogy: grid keeps no particles$"):
+        score_smoothers(paper_world, robot, 0.3, 0.5, ["grid"])
+    with pytest.raises(ValueError, match=r"^smoothing needs the walk's measurements: the scenario stores none"):
+        score_smoothers(paper_world, robot, 0.3, 0.5, ["sir"])
+
+
+def test_a_genealogy_that_does_not_fit_in_memory_is_refused_saying_how_much_it_needs(paper_world, monkeypatch):
+    monkeypatch.setattr(limits, "memory_budget", lambda: MemoryBudget(10**9, "a test's budget"))
+    robot = Robot(
+        0.3, 0.5, (0.5, 0.5), actual_angles=[0.1] * 1000, compass_angles=[0.1] * 1000, measurements=[1.0] * 1000
+    )
+    with pytest.raises(MemoryLimitError, match=r"^the genealogy of 1000 steps of 100000 particles .* needs about 2\.3"):
+        score_smoothers(paper_world, robot, 0.3, 0.5, ["sir"], particle_count=100_000)

@@ -49,6 +49,7 @@ from mazelab.cli.options import (
     with_drawing,
 )
 from mazelab.cli.recordings import recordings, view
+from mazelab.cli.smoothing import learn, smooth
 from mazelab.cli.study import accuracy, study
 from mazelab.experiments.record import package_version, program_versions
 from mazelab.invocation import command_prefix, remember_arguments
@@ -187,6 +188,8 @@ def compare(scenario: SavedScenario, filters: Filters = "sir,apf,rpf", maze: Sto
 app.command(short_help="Lab step 14: a Monte Carlo parameter study.")(study)
 app.command(short_help="The filters, and every option each declares.")(filters)
 app.command(short_help="Every filter against the exact grid posterior.")(accuracy)
+app.command(short_help="Lab step 15: where the robot was, the smoothers vs the exact.")(smooth)
+app.command(short_help="Lab step 15: which sigma and delta explain a scenario.")(learn)
 # each short help fits on its line of `mazelab --help` in 80 columns (click cuts a longer one with "...")
 app.add_typer(maze_app, name="maze", short_help="Random connected mazes (generate); a look at one (show).")
 app.add_typer(exercise_app, name="exercise", short_help="Your own filter: write it (new), grade it (check).")

@@ -1,0 +1,300 @@
+"""`mazelab smooth` and `mazelab learn`: where the robot was at each step of a saved scenario given all its
+measurements (the exact smoother beside each particle filter's path and fixed-lag smoothers,
+mazelab.smoothing), and which sigma and delta explain them (the exact parameter posterior and PMMH,
+mazelab.learning). Each prints a table and writes, when asked, rows (--csv), a figure (--plot) and a JSON
+record beside the rows like a study's (the command, versions, the scenario's sha256, a summary)."""
+
+from __future__ import annotations
+
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated, Any
+
+import numpy as np
+import typer
+
+from mazelab.atomic import write_text_atomically
+from mazelab.cli.options import UserError, check_one_file_each, check_output_path, opt, parse_list, seed_option
+from mazelab.experiments.record import Recorder, record_path
+from mazelab.experiments.runs import parse_filters
+from mazelab.experiments.tables import format_table, pyplot, records_csv, save_figure
+from mazelab.invocation import command_line
+from mazelab.learning import ParameterGrid, evidence_filter, exact_parameter_posterior, pmmh
+from mazelab.model import LAB_DELTA_RANGE, LAB_SIGMA_RANGE
+from mazelab.plugins import file_sha256
+from mazelab.registry import filter_entry
+from mazelab.smoothing import SCORE_COLUMNS, SMOOTHERS, SmootherScores, score_smoothers
+
+if TYPE_CHECKING:
+    from mazelab.scenario import Scenario
+
+SCENARIO_HELP = "a saved scenario with measurements (.json) or a shipped name"
+Scenario_ = Annotated[Path, typer.Argument(metavar="SCENARIO", show_default=False, help=SCENARIO_HELP)]
+ParticleFilters = opt(str, metavar="NAMES", help="particle filters, comma-separated")
+Lag = opt(int, min=1, help="L, the fixed-lag smoother's lag (steps)")
+SIGMA_RANGE, DELTA_RANGE = (",".join(map(str, r)) for r in (LAB_SIGMA_RANGE, LAB_DELTA_RANGE))
+SigmaRange = opt(str, metavar="LOW,HIGH", help="the uniform prior's sigma range (map units)")
+DeltaRange = opt(str, metavar="LOW,HIGH", help="the uniform prior's delta range (radians)")
+Cells = opt(int, min=1, help="the parameter grid's cells along sigma and along delta")
+Iterations = opt(int, "--pmmh", min=0, help="a PMMH chain of this many iterations (0: none)")
+PmmhFilter = opt(str, "--filter", help="PMMH's filter (its evidence must estimate p(z_1:K))")
+Particles = opt(int, min=1, help="PMMH's particles")
+Workers = opt(int, min=1, help="processes for the exact posterior's cells")
+Resolution = opt(float, help="the exact grid's cells, map units (memory grows as its inverse square)")
+Seed = opt(int | None, callback=seed_option, help="the filters' seed [default: the scenario's]")
+Csv = opt(Path | None, "--csv", help="the rows (.csv)")
+PlotFile = opt(Path | None, "--plot", help="the figure (.png; plot extra)")
+Record = opt(Path | None, help="the JSON record [default: beside --csv]")
+Rrd = opt(Path | None, "--rrd", help="a Rerun recording: each filter's cloud beside its path smoother's")
+Force = opt(bool, "--force", help="replace existing output files")
+
+
+def smooth(
+    scenario: Scenario_,
+    filters: ParticleFilters = "sir,apf,rpf",
+    lag: Lag = 10,
+    resolution: Resolution = 0.05,
+    seed: Seed = None,
+    csv_path: Csv = None,
+    plot: PlotFile = None,
+    record: Record = None,
+    rrd: Rrd = None,
+    force: Force = False,
+) -> None:
+    """Where the robot was at each step given every measurement: the exact smoother on the grid, and each
+    filter's own estimate, fixed-lag and path smoothers scored against it step by step (the distance of
+    their means to the exact smoothed mean, the total variation over the maze's cells, the distinct
+    ancestors each rests on: the path degeneracy)."""
+    path, stored, outputs = opened(scenario, csv_path, plot, record, force, rrd)
+    names = [filter_entry(name).short_name for name in parse_filters(filters)]
+    seed = seed if seed is not None else stored.seed if stored.seed is not None else 0
+    world, sigma, delta = world_of(stored, path)
+    parameters = {"scenario": str(path), "filters": names, "lag": lag, "resolution": resolution, "seed": seed,
+                  "sigma": sigma, "delta": delta}  # fmt: skip
+    recorder = Recorder("smooth", command_line(), parameters, scenario_sha256=file_sha256(path))
+    typer.echo(f"{path.name}: {len(stored.robot_compass_angles)} steps, {len(stored.init_particles_pos)} particles, "
+               f"sigma {sigma:g}, delta {delta:g}, lag {lag}, grid {resolution:g}, seed {seed}")  # fmt: skip
+    scores = score_smoothers(world, stored.robot(), sigma, delta, names, lag=lag, seed=seed, grid_options={
+        "resolution": resolution}, initial_particles=stored.init_particles_pos, clouds=rrd is not None)  # fmt: skip
+    summary = smoothing_summary(scores)
+    columns = list(summary[-1])
+    typer.echo(format_table(columns, [[shown(row.get(k)) for k in columns] for row in summary]))
+    if outputs["csv"] is not None:
+        write_text_atomically(outputs["csv"], records_csv(scores.rows, SCORE_COLUMNS), replace=force)
+        typer.echo(f"one row per filter and step written to {outputs['csv']}")
+    if plot is not None:
+        save_figure(smoothing_figure(scores, path.name), plot, replace=force)
+        typer.echo(f"the figure written to {plot}")
+    if rrd is not None:
+        smoothing_recording(scores, world, rrd, force)
+    finish(recorder, outputs["record"], force, summary=summary)
+
+
+def smoothing_recording(scores: SmootherScores, world: Any, path: Path, force: bool) -> None:
+    """Each filter's weighted cloud (its own, lag 0) beside its path smoother's, step by step, with the
+    exact smoothed mean in both views: a Rerun recording written whole to `path`."""
+    import rerun as rr
+    import rerun.blueprint as rrb
+
+    from mazelab.registry import colour_of
+    from mazelab.viz.recording import Recording
+    from mazelab.viz.style import CELL_DOT_RADIUS, MAP, ROBOT_COLOR, entity_name, lab_blueprint, map_view
+
+    views = {(label, name): f"{label} {what}" for label in scores.recorded for name, what in
+             (("filter", "filtered"), ("path", "smoothed"))}  # fmt: skip
+    blueprint = lab_blueprint(rrb.Grid(*[map_view(world, title) for title in views.values()], grid_columns=2))
+    recording = Recording.open(path, world, blueprint, label="smooth", replace=force)
+    if recording is None:  # Rerun switched off: a line said so
+        return
+    for (label, name), title in views.items():
+        colour = colour_of(filter_entry(label).name)
+        for k, (points, weights) in sorted(scores.recorded[label][SMOOTHERS.index(name)].clouds.items()):
+            recording.stream.set_time("step", sequence=k)
+            radii = CELL_DOT_RADIUS * np.sqrt(weights * len(weights))  # a dot's area grows with its weight
+            cloud = rr.Points2D(points, colors=colour, radii=radii)
+            recording.stream.log(f"{MAP}/{entity_name(title)}/particles", cloud)
+            mean = rr.Points2D([scores.exact.means[k - 1]], colors=ROBOT_COLOR, radii=2 * CELL_DOT_RADIUS)
+            recording.stream.log(f"{MAP}/{entity_name(title)}/exact_smoothed_mean", mean)
+    recording.close()
+
+
+def smoothing_summary(scores: SmootherScores) -> list[dict[str, Any]]:
+    """Per filter, the means over the walk of each smoother's error and total variation, and the fewest
+    distinct ancestors the path smoother rests on (at its first step); the exact smoother's error to the
+    truth first."""
+    exact = {"filter": "exact, to the truth", "filter_error": np.mean([r["exact_filtered_to_truth"] for r in
+             scores.rows]), "path_error": np.mean([r["exact_smoothed_to_truth"] for r in scores.rows])}  # fmt: skip
+    rows = [{k: float(v) if k != "filter" else v for k, v in exact.items()}]
+    for label in dict.fromkeys(r["filter"] for r in scores.rows):
+        mine = [r for r in scores.rows if r["filter"] == label]
+        row: dict[str, Any] = {"filter": label}
+        for name in SMOOTHERS:
+            row[f"{name}_error"] = float(np.mean([r[f"{name}_error"] for r in mine]))
+            row[f"{name}_tv"] = float(np.mean([r[f"{name}_tv"] for r in mine]))
+        row["path_ancestors_fewest"] = int(min(r["path_ancestors"] for r in mine))
+        rows.append(row)
+    return rows
+
+
+def shown(value: Any) -> str:
+    """A table's cell: a float to 3 decimals, nothing for none."""
+    return "" if value is None else f"{value:.3f}" if isinstance(value, float) else str(value)
+
+
+def smoothing_figure(scores: SmootherScores, title: str) -> Any:
+    """Per step: each smoother's distance to the exact smoothed mean (top), the path smoother's distinct
+    ancestors (bottom, log scale)."""
+    plt = pyplot()
+    figure, (top, bottom) = plt.subplots(2, 1, figsize=(9, 7), sharex=True)
+    for label in dict.fromkeys(r["filter"] for r in scores.rows):
+        mine = [r for r in scores.rows if r["filter"] == label]
+        steps = [r["step"] for r in mine]
+        for name, style in zip(SMOOTHERS, (":", "--", "-"), strict=True):
+            top.plot(steps, [r[f"{name}_error"] for r in mine], style, label=f"{label} {name}")
+        bottom.semilogy(steps, [r["path_ancestors"] for r in mine], label=label)
+    top.set(yscale="log", ylabel="distance to the exact smoothed mean", title=f"{title}: smoothers (lag {scores.lag})")
+    bottom.set(xlabel="step k", ylabel="path smoother's distinct ancestors")
+    top.legend(fontsize=7, ncol=3)
+    bottom.legend(fontsize=7)
+    return figure
+
+
+def learn(
+    scenario: Scenario_,
+    sigma_range: SigmaRange = SIGMA_RANGE,
+    delta_range: DeltaRange = DELTA_RANGE,
+    cells: Cells = 12,
+    resolution: Resolution = 0.1,
+    pmmh_iterations: Iterations = 0,
+    filter_name: PmmhFilter = "sir",
+    particles: Particles = 200,
+    seed: opt(int, callback=seed_option, help="PMMH's seed") = 1,
+    workers: Workers = 1,
+    csv_path: Csv = None,
+    plot: PlotFile = None,
+    record: Record = None,
+    force: Force = False,
+) -> None:
+    """Which sigma and delta explain the scenario's measurements: the exact posterior on a grid of cells
+    under the uniform prior on the ranges (the grid filter's exact evidence at each), and a PMMH chain
+    (--pmmh) with a particle filter's evidence beside it."""
+    path, stored, outputs = opened(scenario, csv_path, plot, record, force)
+    try:
+        grid = ParameterGrid(parsed_range(sigma_range, "--sigma-range"), parsed_range(delta_range, "--delta-range"),
+                             (cells, cells))  # fmt: skip
+    except ValueError as error:
+        raise UserError(f"{error} (--sigma-range, --delta-range)") from None
+    if pmmh_iterations:
+        evidence_filter(filter_name)  # a filter PMMH cannot use: one line before the exact posterior's runs
+    world, _, _ = world_of(stored, path)
+    parameters = {"scenario": str(path), "sigma_range": grid.sigma_range, "delta_range": grid.delta_range,
+                  "cells": cells, "resolution": resolution, "pmmh": pmmh_iterations, "filter": filter_name,
+                  "particles": particles, "seed": seed}  # fmt: skip
+    recorder = Recorder("learn", command_line(), parameters, scenario_sha256=file_sha256(path))
+    walk = stored.robot_compass_angles, stored.robot_measurements
+    typer.echo(f"{path.name}: {len(walk[0])} steps; the exact posterior on {cells} x {cells} cells ({workers} "
+               f"process(es))")  # fmt: skip
+    with ProcessPoolExecutor(workers) if workers > 1 else _Serial() as pool:
+        posterior = exact_parameter_posterior(world, *walk, grid, mapper=pool.map, resolution=resolution)
+    rows = [["exact", *posterior_cells(posterior.mean(), posterior.interval())]]
+    summary: dict[str, Any] = {"exact": {"mean": posterior.mean(), "interval_90": posterior.interval()}}
+    chain = None
+    if pmmh_iterations:
+        chain = pmmh(world, *walk, pmmh_iterations, filter_name=filter_name, particle_count=particles, prior=grid,
+                     burn_in=pmmh_iterations // 10, seed=seed)  # fmt: skip
+        rows.append([f"PMMH ({filter_entry(filter_name).label})", *posterior_cells(chain.mean(), chain.interval())])
+        summary["pmmh"] = {"mean": chain.mean(), "mean_error": chain.mean_error(), "interval_90": chain.interval(),
+                           "acceptance_rate": chain.acceptance_rate, "ess": chain.ess()}  # fmt: skip
+    typer.echo(format_table(["posterior", "sigma mean", "sigma 90%", "delta mean", "delta 90%"], rows))
+    if chain is not None:
+        typer.echo(f"PMMH: acceptance rate {chain.acceptance_rate:.2f}, effective sample size "
+                   f"{chain.ess()[0]:.0f} (sigma), {chain.ess()[1]:.0f} (delta), mean's Monte Carlo error "
+                   f"{chain.mean_error()[0]:.3f}, {chain.mean_error()[1]:.3f}")  # fmt: skip
+    if outputs["csv"] is not None:
+        write_text_atomically(outputs["csv"], posterior_csv(posterior), replace=force)
+        typer.echo(f"one row per (sigma, delta) cell written to {outputs['csv']}")
+    if plot is not None:
+        save_figure(posterior_figure(posterior, chain, path.name), plot, replace=force)
+        typer.echo(f"the figure written to {plot}")
+    finish(recorder, outputs["record"], force, summary=summary)
+
+
+class _Serial:
+    """The built-in map as an executor of one process (no pool to start)."""
+
+    map = staticmethod(map)
+
+    def __enter__(self) -> _Serial:
+        return self
+
+    def __exit__(self, *_: Any) -> None:
+        return None
+
+
+def parsed_range(text: str, option: str) -> tuple[float, float]:
+    """'0.2,0.8' -> (0.2, 0.8), or one line naming the option."""
+    values = parse_list(text, float, option)
+    if values is None or len(values) != 2:
+        raise UserError(f"{option} takes LOW,HIGH (two numbers), got {text!r}")
+    return values[0], values[1]
+
+
+def posterior_cells(mean: np.ndarray, interval: np.ndarray) -> list[str]:
+    """A table row's cells: sigma's mean and 90% interval, then delta's."""
+    return [cell for i in range(2) for cell in (f"{mean[i]:.3f}", f"{interval[i, 0]:.3f}-{interval[i, 1]:.3f}")]
+
+
+def posterior_csv(posterior: Any) -> str:
+    """One row per cell: its sigma and delta (centres), log p(z_1:K | sigma, delta) and posterior mass."""
+    sigmas, deltas = posterior.grid.values()
+    rows = [{"sigma": s, "delta": d, "log_evidence": float(e), "mass": float(m)} for s, d, e, m in
+            zip(sigmas, deltas, posterior.log_evidence.ravel(), posterior.mass.ravel(), strict=True)]  # fmt: skip
+    return records_csv(rows, ["sigma", "delta", "log_evidence", "mass"])
+
+
+def posterior_figure(posterior: Any, chain: Any, title: str) -> Any:
+    """The exact posterior's mass on the (sigma, delta) cells, the PMMH chain's states over it."""
+    plt = pyplot()
+    figure, axes = plt.subplots(figsize=(7, 5.5))
+    sigma_edges, delta_edges = posterior.grid.edges
+    mesh = axes.pcolormesh(sigma_edges, delta_edges, posterior.mass.T, cmap="Greys")
+    figure.colorbar(mesh, ax=axes, label="exact posterior mass of the cell")
+    if chain is not None:
+        axes.plot(*chain.kept.T, ".", markersize=2, alpha=0.3, color="tab:orange", label="PMMH chain")
+        axes.legend()
+    axes.set(xlabel="sigma (map units)", ylabel="delta (radians)", title=f"{title}: p(sigma, delta | z_1:K)")
+    return figure
+
+
+def opened(scenario: Path, csv_path: Path | None, plot: Path | None, record: Path | None, force: bool,
+           rrd: Path | None = None) -> tuple[Path, Scenario, dict[str, Path | None]]:  # fmt: skip
+    """The scenario (a file or a shipped name) with its measurements, and the outputs checked before any
+    work: distinct files, none replaced without --force, the record beside --csv by default."""
+    from mazelab.scenario import find_scenario, load_scenario  # imported by the commands that read one (a study never)
+
+    record_file = record if record is not None else record_path(csv_path) if csv_path is not None else None
+    check_one_file_each([("--csv", csv_path), ("--plot", plot), ("the record", record_file), ("--rrd", rrd)])
+    for output in (csv_path, plot, record_file, rrd):
+        if output is not None:
+            check_output_path(output, force)
+    path = find_scenario(scenario)
+    stored = load_scenario(path)
+    if stored.robot_measurements is None:
+        raise UserError(f"{path} stores no measurements (robot_measurements): save a run's scenario with them")
+    return path, stored, {"csv": csv_path, "record": record_file}
+
+
+def world_of(stored: Scenario, path: Path) -> tuple[Any, float, float]:
+    """The scenario's maze, sigma and delta (the shipped maze it fits when it stores none)."""
+    from mazelab.cli.replay import replay_setup
+
+    setup = replay_setup(stored, None, None, None, 0)
+    return setup.world, setup.sigma, setup.delta
+
+
+def finish(recorder: Recorder, record_file: Path | None, force: bool, **extra: Any) -> None:
+    """Close the record and write it (when there is a file for it)."""
+    if record_file is not None:
+        recorder.finish("finished", **extra)
+        recorder.write(record_file)
+        typer.echo(f"the record (command, versions, the scenario's sha256, summary) written to {record_file}")
