@@ -12,6 +12,8 @@ mazelab accuracy        each filter's distance to the exact grid posterior on th
 mazelab filters [NAME]  the filters, and every option each declares (--option NAME=VALUE sets one)
 mazelab recordings      the saved recordings with their sizes; --clean thins the folder
 mazelab exercise --help write your own filter (new) and grade it against the exact posterior (check)
+mazelab smooth SCENARIO where the robot was: the particle smoothers against the exact smoother
+mazelab learn SCENARIO  which sigma and delta explain it: the exact parameter posterior and PMMH
 """
 
 from __future__ import annotations
