@@ -37,7 +37,7 @@ from mazelab.numpy_ops import NumpyKernels
 
 BACKENDS = ("numpy", "compiled")
 ENVIRONMENT_VARIABLE = "MAZELAB_BACKEND"
-THREADS_VARIABLE = "MAZELAB_THREADS"  # the compiled backend's threads for one large run (--threads sets it)
+THREADS_VARIABLE = "MAZELAB_THREADS"  # the compiled backend's threads for a large call (--threads sets it)
 INSTALL_HINT = 'the compiled backend needs numba: pip install -e ".[fast]" (uv sync installs it)'
 # What the compiled backend costs and saves, CPU seconds, as measured on a 2-core AMD EPYC: a fresh `main.py run`
 # (200 steps of 1,500 particles) on each backend, and numpy's step less the compiled one's (mazelab.bench's
@@ -184,6 +184,16 @@ def backend_by_work(particle_steps: float, steps: float) -> Iterator[str]:
         _WORK_CHOICE.reset(token)
 
 
+def cores() -> int:
+    """The cores this process may run on (its CPU affinity where the system says, else the count).
+
+    Returns
+    -------
+    int
+    """
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
 def check_threads(value: Any, source: str = "threads") -> int:
     """A thread count from 1 to this machine's cores, or one line naming the range.
 
@@ -197,14 +207,102 @@ def check_threads(value: Any, source: str = "threads") -> int:
     -------
     int
     """
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
     try:
         count = int(str(value).strip())
     except ValueError:
         count = 0
-    if not 1 <= count <= cores:
-        raise ValueError(f"{source} must be a whole number from 1 to {cores} (this machine's cores), got {value!r}")
+    if not 1 <= count <= cores():
+        raise ValueError(f"{source} must be a whole number from 1 to {cores()} (this machine's cores), got {value!r}")
     return count
+
+
+_SHARING: ContextVar[int] = ContextVar("mazelab_sharing", default=1)  # sharing_cores'
+
+
+def thread_count() -> int:
+    """The threads a filter made now runs its large calls on (the compiled backend: a call of
+    mazelab.kernels.compiled.THREADED_FROM particles or more; smaller ones run on one): MAZELAB_THREADS
+    when set (--threads; checked), else this process's share of the machine's cores, cores // the runs
+    sharing them (`sharing_cores`: a study's workers), at least 1.
+
+    Returns
+    -------
+    int
+    """
+    value = os.environ.get(THREADS_VARIABLE, "")
+    if value.strip():
+        return check_threads(value, THREADS_VARIABLE)
+    return max(1, cores() // _SHARING.get())
+
+
+@contextmanager
+def sharing_cores(runs: int) -> Iterator[int]:
+    """The filters made inside (in this thread) share the machine's cores with `runs` - 1 others run
+    at the same time (a study's worker processes, a Dask worker's task threads): each takes cores // runs
+    threads, so that runs x threads <= cores. MAZELAB_THREADS (--threads) still stands.
+
+    Parameters
+    ----------
+    runs : int
+        The filters running at once on this machine.
+
+    Yields
+    ------
+    int
+        The threads each takes.
+    """
+    token = _SHARING.set(max(1, runs))
+    try:
+        yield thread_count()
+    finally:
+        _SHARING.reset(token)
+
+
+def runs_at_once(workers: int, client: Any = None) -> int:
+    """The units of a study running at once on one machine: its `workers` local processes, or on a Dask
+    cluster (`client`) the most task threads one host has (each runs a unit).
+
+    Parameters
+    ----------
+    workers : int
+    client : distributed.Client, optional
+
+    Returns
+    -------
+    int
+    """
+    if client is None:
+        return workers
+    hosts: dict[str, int] = {}
+    for worker in client.scheduler_info(n_workers=-1)["workers"].values():
+        hosts[worker["host"]] = hosts.get(worker["host"], 0) + worker["nthreads"]
+    return max(hosts.values(), default=1)
+
+
+@contextmanager
+def use_threads(count: int) -> Iterator[int]:
+    """Make the filters created inside run their large calls on `count` threads (it sets MAZELAB_THREADS
+    for the time, so processes started inside inherit it too): `exercise grade` runs on one.
+
+    Parameters
+    ----------
+    count : int
+
+    Yields
+    ------
+    int
+        The checked count.
+    """
+    chosen = check_threads(count)
+    before = os.environ.get(THREADS_VARIABLE)
+    os.environ[THREADS_VARIABLE] = str(chosen)
+    try:
+        yield chosen
+    finally:
+        if before is None:
+            os.environ.pop(THREADS_VARIABLE, None)
+        else:
+            os.environ[THREADS_VARIABLE] = before
 
 
 @contextmanager
@@ -284,8 +382,7 @@ def kernels_for(world: Any, name: str | None = None) -> Any:
         return NUMPY_KERNELS
     from mazelab.kernels.compiled import CompiledKernels  # imports numba: only when it runs
 
-    threads = os.environ.get(THREADS_VARIABLE, "")  # MAZELAB_THREADS (checked), else 1
-    return CompiledKernels(world, threads=check_threads(threads, THREADS_VARIABLE) if threads.strip() else 1)
+    return CompiledKernels(world, threads=thread_count())
 
 
 NUMPY_KERNELS = NumpyKernels()
@@ -308,8 +405,13 @@ __all__ = [
     "check_threads",
     "chosen_backend",
     "compiled_pays",
+    "cores",
     "default_backend",
     "kernels_for",
     "numba_available",
+    "runs_at_once",
+    "sharing_cores",
+    "thread_count",
     "use_backend",
+    "use_threads",
 ]

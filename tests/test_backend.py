@@ -1,6 +1,7 @@
 """Which backend runs (mazelab.backend): the default (compiled when numba imports, numpy when it does
 not), MAZELAB_BACKEND and use_backend, --backend on the commands (one line for a wrong name), and
-every RunResult and JSON record naming the backend that ran; `mazelab bench` shows both side by side."""
+every RunResult and JSON record naming the backend that ran; `mazelab bench` shows both side by side;
+the compiled backend's threads (the machine's cores, a study's share of them, MAZELAB_THREADS)."""
 
 from __future__ import annotations
 
@@ -19,14 +20,21 @@ from mazelab.backend import (
     SAVED_PER_PARTICLE,
     SAVED_PER_STEP,
     STARTUP_SECONDS,
+    THREADS_VARIABLE,
     backend_by_work,
     backend_for_work,
     backend_versions,
     check_backend,
     chosen_backend,
     compiled_pays,
+    cores,
     default_backend,
+    kernels_for,
+    runs_at_once,
+    sharing_cores,
+    thread_count,
     use_backend,
+    use_threads,
 )
 from mazelab.cli.app import main
 from mazelab.lab import simulate
@@ -244,3 +252,44 @@ def test_the_environment_variable_in_any_case_runs_and_the_repeat_line_names_the
     )  # fmt: skip
     repeat = next(line for line in typed.stdout.splitlines() if line.startswith("Repeat this run: "))
     assert repeat.count("--backend") == 1 and " --backend numpy " in repeat  # the typed choice, once
+
+
+def test_a_filter_takes_the_machines_cores_its_share_of_them_or_the_threads_chosen(monkeypatch):
+    """thread_count: MAZELAB_THREADS (--threads) when set, else cores // the runs sharing the machine
+    (a study's workers: workers x threads <= cores), at least 1; use_threads sets it for a block."""
+    monkeypatch.delenv(THREADS_VARIABLE, raising=False)
+    assert thread_count() == cores()
+    with sharing_cores(2) as each:
+        assert each == thread_count() == max(1, cores() // 2)
+        with sharing_cores(10 * cores()):
+            assert thread_count() == 1
+        monkeypatch.setenv(THREADS_VARIABLE, "1")  # the user's choice stands
+        assert thread_count() == 1
+    monkeypatch.delenv(THREADS_VARIABLE)
+    assert thread_count() == cores()
+    with use_threads(1):
+        assert os.environ[THREADS_VARIABLE] == "1" and thread_count() == 1
+    assert THREADS_VARIABLE not in os.environ
+    monkeypatch.setenv(THREADS_VARIABLE, str(cores() + 1))
+    with pytest.raises(ValueError, match=rf"^MAZELAB_THREADS must be a whole number from 1 to {cores()}"):
+        thread_count()
+
+
+@needs_numba
+def test_the_compiled_kernels_of_a_filter_take_the_thread_count(paper_world, monkeypatch):
+    monkeypatch.delenv(THREADS_VARIABLE, raising=False)
+    with use_backend("compiled"), sharing_cores(cores()):
+        assert kernels_for(paper_world).threads == 1
+    with use_backend("compiled"):
+        assert kernels_for(paper_world).threads == cores()
+
+
+def test_a_study_counts_the_runs_at_once_on_a_machine_locally_and_on_a_dask_cluster():
+    from distributed import Client, LocalCluster
+
+    assert runs_at_once(3) == 3
+    with (
+        LocalCluster(n_workers=2, threads_per_worker=1, host="127.0.0.1", dashboard_address=":0") as cluster,
+        Client(cluster) as client,
+    ):
+        assert runs_at_once(1, client) == 2  # two workers of one task thread each, on one host

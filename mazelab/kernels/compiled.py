@@ -2,30 +2,54 @@
 one kernel for all R runs, and `CompiledWeights`, the weights value this backend builds, keeps W in
 float32 and the reads its normalisation makes in the same passes (the ESS, the posterior mean and the
 weight within the green circle around it). Anything the kernels do not cover (float64 points such as
-recovery's injected draws, the multimodal kernel, the APF's gather) goes to the numpy operations.
+recovery's injected draws, the multimodal kernel) goes to the numpy operations.
 
-Threads: from THREADED_FROM particles on, with MAZELAB_THREADS above 1, the likelihood (the step's
-dearest pass) runs on a pool of threads, each on a chunk of the particles with the same kernel (the
-kernels release the GIL): its values are the same to the bit whatever the count.
+Threads: a call of THREADED_FROM particles or more (R x N: all runs together) runs on the filter's
+`threads` (mazelab.backend.thread_count: the machine's cores unless shared or chosen), a smaller one in
+order on the calling thread, where starting the threads would cost more than they save. Either way the
+values are the same to the bit (mazelab.kernels): the threads change how soon a step ends, not what it
+gives. The random draws of the move and the RPF's jitter are the kernels' own, from one 64-bit key a
+run and call drawn from the run's Generator.
 """
 
 from __future__ import annotations
 
 import math
-from concurrent.futures import ThreadPoolExecutor
-from functools import cached_property
+from functools import cache, cached_property
 from typing import Any
 
 import numpy as np
 
 from mazelab.constants import CONFIDENCE_RADIUS, PARTICLE_DTYPE
-from mazelab.kernels import model, resampling, weights
+from mazelab.kernels import CHUNK, model, resampling, weights
 from mazelab.numpy_ops import NumpyKernels, flat_ancestors
 from mazelab.regularisation import GaussianKernel
 from mazelab.smc import new_particles, particles_array
 from mazelab.weights import Weights, log_sum_exp, read_only
 
-THREADED_FROM = 1 << 16  # particles in a call from which the likelihood runs on the threads
+THREADED_FROM = 1 << 16  # particles in a call from which it runs on the threads
+
+
+def on_threads(threads: int, particles: int) -> int:
+    """The threads a call over `particles` particles runs on: `threads` from THREADED_FROM on, else 1."""
+    return threads if particles >= THREADED_FROM else 1
+
+
+def unsigned(indices: np.ndarray) -> np.ndarray:
+    """Indices the engine checked to lie in [0, N) as unsigned integers of their size (a view): a kernel
+    then checks no gather by them for wrap-around."""
+    return indices.view(f"u{indices.itemsize}")
+
+
+def columns(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The x and y coordinates of (R, N, 2) particles, (R*N,) each (views in their layout: smc.particles_array)."""
+    points = np.asfortranarray(x.reshape(-1, 2))
+    return points[:, 0], points[:, 1]
+
+
+def keys_of(rngs: Any) -> np.ndarray:
+    """One 64-bit key per run from each run's Generator (0 for None: a run that draws nothing), uint64 (R,)."""
+    return np.array([0 if rng is None else rng.bit_generator.random_raw() for rng in rngs], dtype=np.uint64)
 
 
 def lookup_tables(world: Any) -> tuple:
@@ -88,6 +112,8 @@ class CompiledWeights(Weights):
         What the normalisation read of the particles x.
     """
 
+    threads = 1  # the threads of a large normalisation (`on_threads`): each filter's subclass sets its own
+
     def __init__(self, log_w: np.ndarray, log_total: np.ndarray, W: np.ndarray | None = None, reads: Any = None):
         log_w.flags.writeable = log_total.flags.writeable = False
         self.log_w, self.log_total, self.reads = log_w, log_total, reads
@@ -105,8 +131,10 @@ class CompiledWeights(Weights):
         if x is None or x.dtype != PARTICLE_DTYPE or x.shape[:2] != log_w.shape:
             totals = np.atleast_1d(log_sum_exp(log_w))
             return cls(log_w, totals)
-        w, reads = np.empty((runs, count), dtype=np.float32), np.empty((5, runs))
-        weights.normalise(log_w, np.asfortranarray(x.reshape(-1, 2)), CONFIDENCE_RADIUS, w, reads)
+        w, reads, jobs = np.empty((runs, count), dtype=np.float32), np.empty((5, runs)), runs * -(-count // CHUNK)
+        lanes, scales = np.empty((jobs, 5, weights.LANES)), np.empty(jobs)
+        weights.normalise(on_threads(cls.threads, log_w.size), log_w, *columns(x), CONFIDENCE_RADIUS, w, reads,
+                          lanes, scales)  # fmt: skip
         return cls(log_w, reads[0], w, (x, reads[3], reads[1:3].T, reads[4]))
 
     @classmethod
@@ -121,7 +149,7 @@ class CompiledWeights(Weights):
         if log_g.dtype != PARTICLE_DTYPE or log_g.shape != self.log_w.shape:
             return self.from_log(self.lw + log_g, x)
         out = np.empty_like(log_g)
-        weights.reweighted(self.log_w, self.log_total, log_g, out)
+        weights.reweighted(on_threads(self.threads, log_g.size), self.log_w, self.log_total, log_g, out)
         return self.from_log(out, x)
 
     def reset(self, rows: np.ndarray, other: Weights, x: np.ndarray | None = None) -> CompiledWeights:
@@ -138,6 +166,12 @@ class CompiledWeights(Weights):
         """log W_i = log w_i - log total, (R, N) float64."""
         return read_only(np.subtract(self.log_w, self.log_total[:, None], dtype=float))
 
+    @staticmethod
+    @cache
+    def on(threads: int) -> type[CompiledWeights]:
+        """CompiledWeights whose large normalisations run on `threads` threads (one class per count)."""
+        return type("CompiledWeights", (CompiledWeights,), {"threads": threads, "__doc__": CompiledWeights.__doc__})
+
 
 class CompiledKernels(NumpyKernels):
     """The hot parts of one filter on `world`, compiled (mazelab.kernels); what the kernels do not
@@ -148,70 +182,67 @@ class CompiledKernels(NumpyKernels):
     world : Maze
         The filter's maze: its lookup tables are read once.
     threads : int, optional
-        The threads the likelihood's particles are spread over from THREADED_FROM particles on
-        (default 1; mazelab.backend.kernels_for passes MAZELAB_THREADS's).
+        The threads a call of THREADED_FROM particles or more runs on (default 1; mazelab.backend.
+        kernels_for passes mazelab.backend.thread_count's).
     """
 
     name = "compiled"
-    Weights = CompiledWeights
 
     def __init__(self, world: Any, threads: int | None = None):
         self.tables = lookup_tables(world)
         self._tables_of = world
         self.threads = max(1, threads or 1)
+        self.Weights = CompiledWeights.on(self.threads)
         self.schemes = {"systematic": self.systematic}
 
     def move(
-        self, x: np.ndarray, A: np.ndarray | None, uniforms: np.ndarray, angles: np.ndarray, delta: float, speed: float
+        self, x: np.ndarray, A: np.ndarray | None, rngs: Any, angles: np.ndarray, delta: float, speed: float
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Equation (1) (NumpyKernels.move's arguments and results) in one compiled pass: the headings,
-        their cos and sin (within 0.502 ulp of the exact values: mazelab.kernels.vector_math), the
-        gather and the step. float64 points go to numpy."""
-        if not x.dtype == uniforms.dtype == angles.dtype == PARTICLE_DTYPE:
-            return super().move(x, A, uniforms, angles, delta, speed)
-        out = new_particles(*uniforms.shape, PARTICLE_DTYPE)
-        sources = _NO_ANCESTORS if A is None else flat_ancestors(A, x.shape[1])
+        """Equation (1) with its draws (NumpyKernels.move's arguments and results) in one compiled pass:
+        the uniforms (each run's from a key its Generator draws), the headings, their cos and sin (within
+        0.502 ulp of the exact values: mazelab.kernels.vector_math), the gather and the step. float64
+        points go to numpy."""
+        if x.dtype != PARTICLE_DTYPE:
+            return super().move(x, A, rngs, angles, delta, speed)
+        shape = x.shape[:2] if A is None else A.shape
+        out, headings = new_particles(*shape, PARTICLE_DTYPE), np.empty(shape, dtype=PARTICLE_DTYPE)
+        sources = _NO_ANCESTORS if A is None else unsigned(flat_ancestors(A, x.shape[1]))
+        moving = np.array([rng is not None for rng in rngs])
         model.move(
-            np.asfortranarray(x.reshape(-1, 2)),
+            on_threads(self.threads, headings.size),
+            *columns(x),
             sources,
-            uniforms,
-            angles,
+            keys_of(rngs),
+            moving,
+            angles.astype(PARTICLE_DTYPE, copy=False),
             float(delta),
             float(speed),
-            out.reshape(-1, 2),
+            *columns(out),
+            headings,
         )
-        return out, uniforms
+        return out, headings
 
     def log_likelihood(
         self, z: np.ndarray, x: np.ndarray, world: Any, sigma: float, outside_penalty: float
     ) -> np.ndarray:
         """Equation (3) in logs, compiled: the locate and the likelihood in one pass (float32, the numpy
-        path's values to the bit), on `threads` threads for a large call (chunks of the same kernel)."""
+        path's values to the bit)."""
         if x.dtype != PARTICLE_DTYPE or world is not self._tables_of:
             return super().log_likelihood(z, x, world, sigma, outside_penalty)
-        runs, count = x.shape[:2]
-        out, points = np.empty((runs, count), dtype=PARTICLE_DTYPE), np.asfortranarray(x.reshape(-1, 2))
+        out, scratch = (
+            np.empty(x.shape[:2], dtype=PARTICLE_DTYPE),
+            np.empty(x.shape[0] * x.shape[1], self.tables[4].dtype),
+        )
         norm = math.log(sigma * math.sqrt(2 * math.pi))
         terms = (float(sigma), -norm, math.log(outside_penalty) - norm, self.tables)
-        if self.threads < 2 or runs * count < THREADED_FROM:
-            model.log_likelihood(points, z, *terms, out)
-            return out
-        size = -(-count // self.threads)
-
-        def chunk(job: tuple[int, int]) -> None:  # particles start..start+size of run r
-            r, start = job
-            first = r * count + start
-            model.log_likelihood(
-                points[first : first + size], z[r : r + 1], *terms, out[r : r + 1, start : start + size]
-            )
-
-        with ThreadPoolExecutor(self.threads) as pool:  # the same kernel on each chunk (it releases the GIL)
-            list(pool.map(chunk, [(r, start) for r in range(runs) for start in range(0, count, size)]))
+        model.log_likelihood(on_threads(self.threads, out.size), np.asfortranarray(x.reshape(-1, 2)), z, *terms,
+                             out, scratch)  # fmt: skip
         return out
 
     def systematic(self, W: np.ndarray, rng: np.random.Generator, count: int | None = None) -> np.ndarray:
-        """Systematic resampling in its counting form (mazelab.kernels.resampling): the ancestors of
-        mazelab.resampling.systematic_resample for the same cumulative weights and offset u = rng.random().
+        """Systematic resampling in its counting form, by blocks (mazelab.kernels.resampling): the
+        ancestors of mazelab.resampling.systematic_resample for the same cumulative weights and offset
+        u = rng.random().
 
         Parameters
         ----------
@@ -225,7 +256,7 @@ class CompiledKernels(NumpyKernels):
         int64 array (M,)
         """
         out = np.empty(len(W) if count is None else count, dtype=np.int64)
-        resampling.systematic(W, rng.random(), out)
+        resampling.systematic(on_threads(self.threads, len(W)), W, rng.random(), out)
         return out
 
     def weighted_mean(self, W: Weights, x: np.ndarray) -> np.ndarray:
@@ -243,10 +274,8 @@ class CompiledKernels(NumpyKernels):
             return reads[3]
         if x.dtype != PARTICLE_DTYPE:
             return super().mass_within(W, x, centres, radius)
-        shares = np.empty(len(W.W))
-        weights.mass_within(
-            W.W, np.asfortranarray(x.reshape(-1, 2)), np.asarray(centres, dtype=float).reshape(-1, 2), radius, shares
-        )
+        shares, centres = np.empty(len(W.W)), np.asarray(centres, dtype=float).reshape(-1, 2)
+        weights.mass_within(on_threads(self.threads, W.W.size), W.W, *columns(x), centres, radius, shares)
         return shares
 
     def weighted_covariance(self, W: np.ndarray, x: np.ndarray) -> np.ndarray:
@@ -254,7 +283,7 @@ class CompiledKernels(NumpyKernels):
         if x.dtype != PARTICLE_DTYPE:
             return super().weighted_covariance(W, x)
         out = np.empty((len(W), 2, 2))
-        weights.covariance(W, np.asfortranarray(x.reshape(-1, 2)), out)
+        weights.covariance(on_threads(self.threads, W.size), W, *columns(x), out)
         return out
 
     def second_stage(self, log_lik: np.ndarray, log_mu: np.ndarray, A: np.ndarray) -> np.ndarray:
@@ -262,23 +291,26 @@ class CompiledKernels(NumpyKernels):
         if not log_lik.dtype == log_mu.dtype == PARTICLE_DTYPE:
             return super().second_stage(log_lik, log_mu, A)
         out = np.empty_like(log_lik)
-        weights.second_stage(log_lik, log_mu, A, out)
+        weights.second_stage(on_threads(self.threads, out.size), log_lik, log_mu, unsigned(A), out)
         return out
 
     def equal_weighted(self, log_lik: np.ndarray, log_weight: float) -> np.ndarray:
         """log W + log p(z_k | x_k) of resampled particles, in the likelihood's dtype (float32)."""
         return np.add(log_lik, log_lik.dtype.type(log_weight))
 
-    def jitter(self, x: np.ndarray, A: np.ndarray, due: np.ndarray, eps: np.ndarray, kernels: Any) -> np.ndarray:
-        """The RPF's gather and jitter in one pass for Gaussian kernels (h D eps, one D per due run);
-        the multimodal kernel goes to numpy."""
+    def jitter(self, x: np.ndarray, A: np.ndarray, due: np.ndarray, rngs: Any, kernels: Any) -> np.ndarray:
+        """The RPF's gather, draws and jitter in one pass for Gaussian kernels (h D eps, one D per due
+        run, eps ~ N(0, I_2) from a key each due run's Generator draws); the multimodal kernel goes to
+        numpy."""
         if x.dtype != PARTICLE_DTYPE or not all(isinstance(k, GaussianKernel) for k in kernels):
-            return super().jitter(x, A, due, eps, kernels)
+            return super().jitter(x, A, due, rngs, kernels)
         rows = np.flatnonzero(due)
         scales = np.array([[k.scale[0, 0], k.scale[1, 0], k.scale[1, 1]] for k in kernels], dtype=PARTICLE_DTYPE)
         moved = new_particles(len(rows), A.shape[1], PARTICLE_DTYPE)
-        sources = (A[rows] + (rows * x.shape[1])[:, None]).reshape(-1)
-        model.jitter(np.asfortranarray(x.reshape(-1, 2)), sources, eps, scales, moved.reshape(-1, 2))
+        sources = unsigned((A[rows] + (rows * x.shape[1])[:, None]).reshape(-1))
+        keys = keys_of([rngs[r] for r in rows])
+        model.jitter(on_threads(self.threads, sources.size), np.asfortranarray(x.reshape(-1, 2)), sources, keys,
+                     scales, moved.reshape(-1, 2))  # fmt: skip
         if len(rows) == len(x):
             return moved
         out = particles_array(x, x.dtype)
@@ -286,7 +318,16 @@ class CompiledKernels(NumpyKernels):
         return out
 
 
-_NO_ANCESTORS = np.empty(0, dtype=np.int64)
+_NO_ANCESTORS = np.empty(0, dtype=np.uint64)
 
 
-__all__ = ["THREADED_FROM", "CompiledKernels", "CompiledWeights", "lookup_tables"]
+__all__ = [
+    "THREADED_FROM",
+    "CompiledKernels",
+    "CompiledWeights",
+    "columns",
+    "keys_of",
+    "lookup_tables",
+    "on_threads",
+    "unsigned",
+]

@@ -1,6 +1,11 @@
-"""exp, cos and sin for the compiled kernels' loops, branch-free so that the compiler vectorises the
-loops that call them (numba calls the C library once per value otherwise: 10-15 ns, against about 1 ns
-here).
+"""Random numbers, exp, cos and sin for the compiled kernels' loops, branch-free so that the compiler
+vectorises the loops that call them (numba calls the C library once per value otherwise: 10-15 ns,
+against about 1 ns here).
+
+random_bits: SplitMix64 (Steele, Lea and Flood 2014; it passes BigCrush) as a counter-based generator:
+number i of the stream `key` is SplitMix64's mix of key + (i + 1) * golden gamma, so any particle's
+draw is worked out on its own, on whichever thread takes its chunk. A kernel's keys are drawn from
+the runs' numpy Generators (one 64-bit number a run and step), so a seed fixes every draw.
 
 exp32: float32, Cephes' expf (see its docstring): within one float32 ulp of exp.
 
@@ -21,9 +26,33 @@ from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
 
-from mazelab.kernels import jit
+from mazelab.kernels import inline
 
 _LOWEST = np.float32(-87.0)  # below it exp(x) is subnormal in float32: 0 here
+_GAMMA, _MIX1, _MIX2 = np.uint64(0x9E3779B97F4A7C15), np.uint64(0xBF58476D1CE4E5B9), np.uint64(0x94D049BB133111EB)
+_S30, _S27, _S31, _ONE = np.uint64(30), np.uint64(27), np.uint64(31), np.uint64(1)
+_TO_FLOAT32, _TO_FLOAT64 = np.uint64(40), np.uint64(11)  # the bits a float32 (24) and a float64 (53) take
+
+
+@inline
+def random_bits(key, counter):  # pragma: no cover - compiled
+    """Number `counter` of the stream `key` (uint64 both): SplitMix64's output, 64 random bits."""
+    z = key + (counter + _ONE) * _GAMMA
+    z = (z ^ (z >> _S30)) * _MIX1
+    z = (z ^ (z >> _S27)) * _MIX2
+    return z ^ (z >> _S31)
+
+
+@inline
+def uniform32(bits):  # pragma: no cover - compiled
+    """A float32 uniform on [0, 1) from 64 random bits (their top 24: a multiple of 2^-24)."""
+    return np.float32(bits >> _TO_FLOAT32) * np.float32(2.0**-24)
+
+
+@inline
+def uniform64(bits):  # pragma: no cover - compiled
+    """A float64 uniform on [0, 1) from 64 random bits (their top 53)."""
+    return np.float64(bits >> _TO_FLOAT64) * 2.0**-53
 
 
 @intrinsic
@@ -37,7 +66,7 @@ def _float_from_bits(typingctx: Any, bits: Any) -> Any:  # pragma: no cover - co
     return signature, codegen
 
 
-@jit(inline=True)
+@inline
 def exp32(x):  # pragma: no cover - compiled
     """exp(x) for float32 x <= 0, branch-free (Cephes' expf: x = n ln 2 + r, |r| <= ln 2 / 2, ln 2 in
     two parts so that r is exact, a degree-6 polynomial, 2^n from its IEEE bits): within one float32 ulp
@@ -81,7 +110,7 @@ _C0, _C1, _C2, _C3 = (
 )
 
 
-@jit(inline=True)
+@inline
 def cos_sin(x):  # pragma: no cover - compiled
     """(cos x, sin x) of a float32 angle, branch-free, each within 0.502 ulp of the exact value (see the
     module's docstring).
@@ -112,4 +141,4 @@ def cos_sin(x):  # pragma: no cover - compiled
     return np.float32(cos_x), np.float32(sin_x)
 
 
-__all__ = ["cos_sin", "exp32"]
+__all__ = ["cos_sin", "exp32", "random_bits", "uniform32", "uniform64"]
