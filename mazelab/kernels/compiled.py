@@ -28,6 +28,7 @@ from mazelab.smc import new_particles, particles_array
 from mazelab.weights import Weights, log_sum_exp, read_only
 
 THREADED_FROM = 1 << 16  # particles in a call from which it runs on the threads
+QUADS = 4  # the candidates of a lookup cell the likelihood's vectorised loop reads (a few cells have more)
 
 
 def on_threads(threads: int, particles: int) -> int:
@@ -54,8 +55,8 @@ def keys_of(rngs: Any) -> np.ndarray:
 
 def lookup_tables(world: Any) -> tuple:
     """The maze's nearest-station tables (mazelab.lookup) in the layout the likelihood kernel reads:
-    float32, each cell's first two candidates side by side, the rest of the few cells with more in
-    one flat array, and one code a cell.
+    float32, each cell's first four candidates side by side, the rest of the few cells with more in one
+    flat array, and one code a cell.
 
     Parameters
     ----------
@@ -64,22 +65,23 @@ def lookup_tables(world: Any) -> tuple:
     Returns
     -------
     tuple
-        (scale, offset, nx, ny, codes (C,) uint32, pairs (C, 4), rows, width, border (b, 2)), the
-        numbers plain Python ones. pairs[c] is cell c's first and second candidate (x0, y0, x1, y1),
-        the second a repeat of the first in a cell with one; `rows` holds, for each cell with more than
-        two, its other K - 2 candidates' (x, y) (padded by repeats of its first), `width` = 2 (K - 2)
-        values a row; a cell's code is its row's first index in `rows` times 4, plus 2 if it has a
-        row, plus 1 if the cell is free.
+        (scale, offset, nx, ny, codes (C,) uint32, quads (C, 8), rows, width, border (b, 2)), the
+        numbers plain Python ones. quads[c] is cell c's first four candidates (x0, y0, ..., x3, y3),
+        padded by repeats of the first in a cell with fewer; `rows` holds, for each cell with more than
+        four, its other K - 4 candidates' (x, y) (padded by repeats of its first), `width` = 2 (K - 4)
+        values a row; a cell's code is its row's first index in `rows` times 4, plus 2 if it has a row,
+        plus 1 if the cell is free.
     """
     lookup = world.prepare()._lookup
     tables = lookup._station_tables(np.dtype(PARTICLE_DTYPE))
     ambiguous = np.flatnonzero(lookup.row >= 0)
-    pairs = np.concatenate([tables.first, tables.first], axis=1)
-    pairs[ambiguous, 2] = tables.all_x[1, lookup.row[ambiguous]]
-    pairs[ambiguous, 3] = tables.all_y[1, lookup.row[ambiguous]]
+    quads = np.tile(tables.first, (1, QUADS))
+    for k in range(1, min(len(tables.all_x), QUADS)):  # all_x (K, A): candidate k of each ambiguous cell
+        quads[ambiguous, 2 * k] = tables.all_x[k, lookup.row[ambiguous]]
+        quads[ambiguous, 2 * k + 1] = tables.all_y[k, lookup.row[ambiguous]]
     candidates = lookup._all  # (A, K) station indices, padded by repeats of the first
-    more = np.flatnonzero((candidates[:, 2:] != candidates[:, :1]).any(axis=1))  # rows with a third candidate
-    rows = np.stack([tables.all_x[2:, more].T, tables.all_y[2:, more].T], axis=-1)  # (rows, K - 2, 2)
+    more = np.flatnonzero((candidates[:, QUADS:] != candidates[:, :1]).any(axis=1))  # rows with a fifth
+    rows = np.stack([tables.all_x[QUADS:, more].T, tables.all_y[QUADS:, more].T], axis=-1)  # (rows, K - 4, 2)
     width = rows.shape[1] * 2
     codes = (lookup.kind & 1).astype(np.uint64)
     codes[ambiguous[more]] += 2 + 4 * width * np.arange(len(more), dtype=np.uint64)
@@ -89,7 +91,7 @@ def lookup_tables(world: Any) -> tuple:
         int(lookup.nx),
         int(lookup.ny),
         codes.astype(np.uint32 if codes.max(initial=0) < 2**32 else np.uint64),
-        np.ascontiguousarray(pairs),
+        np.ascontiguousarray(quads),
         np.ascontiguousarray(rows).reshape(-1),
         width,
         np.ascontiguousarray(tables.border),

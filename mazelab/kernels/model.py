@@ -29,7 +29,7 @@ F32 = np.float32
 _FREE, _MORE = 1, 2  # the low bits of a lookup cell's code (mazelab.kernels.compiled.lookup_tables)
 _ZERO, _HALF, _MINUS_HALF = F32(0.0), F32(0.5), F32(-0.5)
 # unsigned indices (numba checks a signed index for wrap-around at every load)
-_X0, _Y0, _X1, _Y1 = np.uint64(0), np.uint64(1), np.uint64(2), np.uint64(3)
+_X0, _Y0, _X1, _Y1, _X2, _Y2, _X3, _Y3 = (np.uint64(k) for k in range(8))
 _NONE, _PAIR, _TWO = np.uint64(0), np.uint64(2), np.uint64(2)
 
 
@@ -87,8 +87,8 @@ def move(x, y, ancestors, keys, moving, angles, delta, speed, out_x, out_y, head
 def _typed(tables):  # pragma: no cover - compiled
     """lookup_tables' tuple with its numbers in the kernels' types: (scale, offset, nx, ny) float32, nx
     and the row width uint64 (plain Python numbers cross into a kernel faster than numpy scalars)."""
-    scale, offset, nx, ny, codes, pairs, rows, width, border = tables
-    return F32(scale), F32(offset), F32(nx), F32(ny), np.uint64(nx), codes, pairs, rows, np.uint64(width), border
+    scale, offset, nx, ny, codes, quads, rows, width, border = tables
+    return F32(scale), F32(offset), F32(nx), F32(ny), np.uint64(nx), codes, quads, rows, np.uint64(width), border
 
 
 @inline
@@ -114,20 +114,23 @@ def _nearer(px, py, sx, sy, best):  # pragma: no cover - compiled
 
 
 @inline
-def _log_likelihood_of_two(px, py, zr, sigma, free_term, outside_term, tables):  # pragma: no cover - compiled
-    """(log p(z_r | x) for the point (px, py) from its cell's first two candidates, what is left open):
+def _log_likelihood_of_four(px, py, zr, sigma, free_term, outside_term, tables):  # pragma: no cover - compiled
+    """(log p(z_r | x) for the point (px, py) from its cell's first four candidates, what is left open):
     numpy's locate and likelihood for one point without a branch, so that the loop calling it
     vectorises (its loads gathers). Left open: 0 when the value is the answer; 1 for a point beyond the
-    table (which reads cell 0 instead, by a select); the cell's code for a cell with more than two
-    candidates (a few in a hundred; its code names them), whose value is then the squared distance to
-    the nearer two. `_close` works both out. `tables` is _typed's."""
-    scale, offset, nxf, nyf, nx, codes, pairs, _, _, _ = tables
+    table (which reads cell 0 instead, by a select); the cell's code for a cell with more than four
+    candidates (one in fifty in a large maze; its code names them), whose value is then the squared
+    distance to the nearest four. `_close` works both out. `tables` is _typed's."""
+    scale, offset, nxf, nyf, nx, codes, quads, _, _, _ = tables
     fx = np.floor(px * scale) + offset  # float32, exact: the scale is a power of two
     fy = np.floor(py * scale) + offset
     inside = (fx >= _ZERO) & (fy >= _ZERO) & (fx < nxf) & (fy < nyf)  # False for NaN
     cell = np.uint64(fy) * nx + np.uint64(fx) if inside else _NONE  # the conversions' value unused beyond it
     code = codes[cell]
-    best = _nearer(px, py, pairs[cell, _X1], pairs[cell, _Y1], _squared(px, py, pairs[cell, _X0], pairs[cell, _Y0]))
+    best = _squared(px, py, quads[cell, _X0], quads[cell, _Y0])
+    best = _nearer(px, py, quads[cell, _X1], quads[cell, _Y1], best)
+    best = _nearer(px, py, quads[cell, _X2], quads[cell, _Y2], best)
+    best = _nearer(px, py, quads[cell, _X3], quads[cell, _Y3], best)
     value = _residual(best, zr, sigma, free_term if code & _FREE else outside_term)
     more = inside & ((code & _MORE) != 0)
     return best if more else value, (code if more else 0) if inside else 1
@@ -135,9 +138,9 @@ def _log_likelihood_of_two(px, py, zr, sigma, free_term, outside_term, tables): 
 
 @inline
 def _close(px, py, value, left, zr, sigma, free_term, outside_term, tables):  # pragma: no cover - compiled
-    """log p(z_r | x) of a point `_log_likelihood_of_two` left open: beyond the table (outside the free
-    area), the nearest of the border cells' candidates by brute force; in a cell with more than two
-    candidates (`left` its code, `value` the squared distance to its first two), the nearest of them
+    """log p(z_r | x) of a point `_log_likelihood_of_four` left open: beyond the table (outside the free
+    area), the nearest of the border cells' candidates by brute force; in a cell with more than four
+    candidates (`left` its code, `value` the squared distance to its first four), the nearest of them
     all. The minimum is exact whatever the order, so the distance is numpy's to the bit."""
     _, _, _, _, _, _, _, rows, width, border = tables
     if left == 1:
@@ -155,7 +158,7 @@ def _close(px, py, value, left, zr, sigma, free_term, outside_term, tables):  # 
 def log_likelihood(positions, z, sigma, free_term, outside_term, tables, out, left):  # pragma: no cover - compiled
     """Equation (3) with the outside penalty, in logs, for R runs: out[r, m] = log p(z_r | x_i) (i = r N
     + m), float32, numpy's values to the bit (the same float32 operations, and the nearest of the same
-    candidates). Each chunk in two loops: every point from its cell's first two candidates (vectorised),
+    candidates). Each chunk in two loops: every point from its cell's first four candidates (vectorised),
     then the few left open. The numbers come as plain floats (a numpy scalar costs some 0.25 us to
     pass) and are rounded to float32 here, as numpy's float32 arithmetic rounds them.
 
@@ -187,7 +190,7 @@ def log_likelihood(positions, z, sigma, free_term, outside_term, tables, out, le
             left[first : first + stop - start],
         )
         for m in range(stop - start):
-            values[m], open_[m] = _log_likelihood_of_two(xs[m], ys[m], zr, sigma, free_term, outside_term, typed)
+            values[m], open_[m] = _log_likelihood_of_four(xs[m], ys[m], zr, sigma, free_term, outside_term, typed)
         for m in range(stop - start):
             if open_[m]:
                 values[m] = _close(xs[m], ys[m], values[m], open_[m], zr, sigma, free_term, outside_term, typed)
