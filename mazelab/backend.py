@@ -1,5 +1,5 @@
 """Which implementation of the hot parts a particle filter runs on: "numpy" (the reference, always
-there) or "compiled" (numba kernels, the `fast` extra: mazelab.kernels).
+there) or "compiled" (numba kernels, the `fast` extra: mazelab.kernels), and on how many threads.
 
 The choice, in order: `use_backend(name)` around the code, else the environment variable
 MAZELAB_BACKEND (numpy or compiled; the commands' --backend sets it, so that a study's worker
@@ -12,14 +12,19 @@ The compiled backend costs each process a start-up (numba's import and the set-u
 kernel: STARTUP_SECONDS of CPU) that its faster steps pay back only over enough work; a command that
 knows its work asks `backend_for_work`, which keeps a small run or study on numpy (and numba not
 imported) when the user chose no backend. The numpy backend is the lab's code as it always was, bit for bit; the
-compiled one does the same arithmetic but for the sums' order and the last bit of cos and sin, so a
-seed repeats a run on each backend, and the two agree statistically, not bit for bit.
+compiled one does the same arithmetic but for the sums' order, the last bit of cos and sin and its own
+random streams, so a seed repeats a run on each backend, and the two agree statistically, not bit for bit.
+
+Threads (the compiled backend's; numpy runs on one): a filter's large calls run on `thread_count()`
+threads: MAZELAB_THREADS (--threads) when set, else the machine's cores, shared within a study
+(`sharing_cores`: its workers x threads <= cores); `use_threads(1)` for `exercise grade`. The count
+changes how soon a run ends, never its numbers (mazelab.kernels).
 
 Both backends offer the same operations (mazelab.numpy_ops.NumpyKernels, mazelab.kernels.compiled's
-CompiledKernels):
-the move (equation (1)), the likelihood (equation (3)), systematic resampling, the normalisation with
-the step's reads, the weighted covariance and the RPF's jitter, and the Weights value. The model
-(mazelab.model.LostRobot) and the weights call them; the step (mazelab.smc) does not know which runs.
+CompiledKernels): the move with its draws (equation (1)), the likelihood (equation (3)), systematic
+resampling, the normalisation with the step's reads, the weighted covariance and the RPF's jitter, and
+the Weights value. The model (mazelab.model.LostRobot) and the weights call them; the step (mazelab.smc)
+does not know which runs.
 """
 
 from __future__ import annotations
@@ -45,16 +50,13 @@ INSTALL_HINT = 'the compiled backend needs numba: pip install -e ".[fast]" (uv s
 STARTUP_SECONDS = 0.5  # numba's import and first kernel set-up: the run's extra CPU with bytecode cached (1.2 s not)
 SAVED_PER_STEP = 60e-6  # a filter step's saving whatever its particles (fewer Python calls): 65-110 us at N = 100
 SAVED_PER_PARTICLE = 15e-9  # and per particle the step moves (R runs together: R x N): 9-30 ns
+_WORK_CHOICE: ContextVar[str | None] = ContextVar("mazelab_work_backend", default=None)  # backend_by_work's
+_SHARING: ContextVar[int] = ContextVar("mazelab_sharing", default=1)  # sharing_cores'
 
 
 @cache
 def numba_available() -> bool:
-    """Whether numba can be imported here (it is the `fast` extra), asked once per process.
-
-    Returns
-    -------
-    bool
-    """
+    """Whether numba can be imported here (it is the `fast` extra), asked once per process."""
     if importlib.util.find_spec("numba") is None:
         return False
     try:
@@ -65,30 +67,13 @@ def numba_available() -> bool:
 
 
 def default_backend() -> str:
-    """The backend without a choice: "compiled" when numba imports, else "numpy".
-
-    Returns
-    -------
-    str
-    """
+    """The backend without a choice: "compiled" when numba imports, else "numpy"."""
     return "compiled" if numba_available() else "numpy"
 
 
 def check_backend(name: Any, source: str = "backend") -> str:
-    """A backend's name, lower case, or one line naming the choices (and the extra for "compiled").
-
-    Parameters
-    ----------
-    name : str
-        "numpy" or "compiled".
-    source : str
-        What gave the name, for the message (an option, the environment variable).
-
-    Returns
-    -------
-    str
-        The name, lower case and stripped.
-    """
+    """A backend's name, lower case and stripped, or one line naming the choices (and the extra for
+    "compiled"); `source` names what gave it (an option, the environment variable)."""
     chosen = name.strip().lower() if isinstance(name, str) else name
     if chosen not in BACKENDS:
         raise ValueError(f"{source} must be one of {', '.join(BACKENDS)}, got {name!r}")
@@ -97,18 +82,9 @@ def check_backend(name: Any, source: str = "backend") -> str:
     return chosen
 
 
-_WORK_CHOICE: ContextVar[str | None] = ContextVar("mazelab_work_backend", default=None)  # backend_by_work's
-
-
 def chosen_backend() -> str:
     """The backend a filter made now runs on: MAZELAB_BACKEND if set (checked), else the choice of the
-    enclosing `backend_by_work`, else the default.
-
-    Returns
-    -------
-    str
-        "numpy" or "compiled".
-    """
+    enclosing `backend_by_work`, else the default."""
     value = os.environ.get(ENVIRONMENT_VARIABLE, "")
     if value.strip():
         return check_backend(value, ENVIRONMENT_VARIABLE)
@@ -137,24 +113,11 @@ def compiled_pays(particle_steps: float, steps: float, processes: int = 1) -> bo
 
 
 def backend_for_work(particle_steps: float, steps: float, processes: int = 1) -> str:
-    """The backend a command of this much work runs on: MAZELAB_BACKEND's when set (the user's choice:
-    --backend sets it), else "compiled" where numba is installed and its start-up pays (compiled_pays),
-    else "numpy", numba then not imported. A command runs inside `use_backend(backend_for_work(...))`,
+    """The backend a command of this much work (see compiled_pays) runs on: MAZELAB_BACKEND's when set
+    (the user's choice: --backend sets it), else "compiled" where numba is installed and its start-up
+    pays, else "numpy", numba then not imported. A command runs inside `use_backend(backend_for_work(...))`,
     so that its filters, its worker processes and its records take the choice; library code inside
-    `backend_by_work`. A choice already made (MAZELAB_BACKEND, an enclosing backend_by_work) stands.
-
-    Parameters
-    ----------
-    particle_steps, steps : float
-        The command's work (see compiled_pays).
-    processes : int
-        The processes it runs in.
-
-    Returns
-    -------
-    str
-        "numpy" or "compiled".
-    """
+    `backend_by_work`. A choice already made (MAZELAB_BACKEND, an enclosing backend_by_work) stands."""
     chosen = os.environ.get(ENVIRONMENT_VARIABLE, "").strip() or _WORK_CHOICE.get() is not None
     if chosen or compiled_pays(particle_steps, steps, processes):
         return chosen_backend()
@@ -163,20 +126,9 @@ def backend_for_work(particle_steps: float, steps: float, processes: int = 1) ->
 
 @contextmanager
 def backend_by_work(particle_steps: float, steps: float) -> Iterator[str]:
-    """The filters made inside (in this thread) run on `backend_for_work`'s choice for this work, without
-    touching the environment (a library call such as `simulate` may run in a thread beside others); an
-    enclosing choice (MAZELAB_BACKEND, --backend, an outer `backend_by_work` for more work) stands.
-
-    Parameters
-    ----------
-    particle_steps, steps : float
-        The work (see compiled_pays).
-
-    Yields
-    ------
-    str
-        The backend chosen.
-    """
+    """The filters made inside (in this thread) run on `backend_for_work`'s choice for this work (yielded),
+    without touching the environment (a library call such as `simulate` may run in a thread beside
+    others); an enclosing choice (MAZELAB_BACKEND, --backend, an outer `backend_by_work`) stands."""
     token = _WORK_CHOICE.set(backend_for_work(particle_steps, steps))
     try:
         yield chosen_backend()
@@ -185,28 +137,13 @@ def backend_by_work(particle_steps: float, steps: float) -> Iterator[str]:
 
 
 def cores() -> int:
-    """The cores this process may run on (its CPU affinity where the system says, else the count).
-
-    Returns
-    -------
-    int
-    """
+    """The cores this process may run on (its CPU affinity where the system says, else the count)."""
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
 def check_threads(value: Any, source: str = "threads") -> int:
-    """A thread count from 1 to this machine's cores, or one line naming the range.
-
-    Parameters
-    ----------
-    value : int or str
-    source : str
-        What gave it, for the message (an option, the environment variable).
-
-    Returns
-    -------
-    int
-    """
+    """A thread count from 1 to this machine's cores, or one line naming the range and `source` (an
+    option, the environment variable)."""
     try:
         count = int(str(value).strip())
     except ValueError:
@@ -216,19 +153,11 @@ def check_threads(value: Any, source: str = "threads") -> int:
     return count
 
 
-_SHARING: ContextVar[int] = ContextVar("mazelab_sharing", default=1)  # sharing_cores'
-
-
 def thread_count() -> int:
-    """The threads a filter made now runs its large calls on (the compiled backend: a call of
-    mazelab.kernels.compiled.THREADED_FROM particles or more; smaller ones run on one): MAZELAB_THREADS
-    when set (--threads; checked), else this process's share of the machine's cores, cores // the runs
-    sharing them (`sharing_cores`: a study's workers), at least 1.
-
-    Returns
-    -------
-    int
-    """
+    """The threads a filter made now runs its large calls on (mazelab.kernels.compiled.THREADED_FROM
+    particles and more; smaller ones run on one): MAZELAB_THREADS when set (--threads; checked), else
+    this process's share of the machine's cores, cores // the runs sharing them (`sharing_cores`), at
+    least 1."""
     value = os.environ.get(THREADS_VARIABLE, "")
     if value.strip():
         return check_threads(value, THREADS_VARIABLE)
@@ -236,21 +165,17 @@ def thread_count() -> int:
 
 
 @contextmanager
-def sharing_cores(runs: int) -> Iterator[int]:
-    """The filters made inside (in this thread) share the machine's cores with `runs` - 1 others run
-    at the same time (a study's worker processes, a Dask worker's task threads): each takes cores // runs
-    threads, so that runs x threads <= cores. MAZELAB_THREADS (--threads) still stands.
-
-    Parameters
-    ----------
-    runs : int
-        The filters running at once on this machine.
-
-    Yields
-    ------
-    int
-        The threads each takes.
-    """
+def sharing_cores(workers: int, client: Any = None) -> Iterator[int]:
+    """The filters made inside (in this thread) share the machine's cores with the other runs of a study
+    running at once: its `workers` local processes, or on a Dask cluster (`client`, a distributed.Client)
+    the most task threads one host has (each runs a unit). Each takes cores // those threads (yielded),
+    so that runs x threads <= cores; MAZELAB_THREADS (--threads) still stands."""
+    runs = workers
+    if client is not None:
+        hosts: dict[str, int] = {}
+        for worker in client.scheduler_info(n_workers=-1)["workers"].values():
+            hosts[worker["host"]] = hosts.get(worker["host"], 0) + worker["nthreads"]
+        runs = max(hosts.values(), default=1)
     token = _SHARING.set(max(1, runs))
     try:
         yield thread_count()
@@ -258,89 +183,35 @@ def sharing_cores(runs: int) -> Iterator[int]:
         _SHARING.reset(token)
 
 
-def runs_at_once(workers: int, client: Any = None) -> int:
-    """The units of a study running at once on one machine: its `workers` local processes, or on a Dask
-    cluster (`client`) the most task threads one host has (each runs a unit).
-
-    Parameters
-    ----------
-    workers : int
-    client : distributed.Client, optional
-
-    Returns
-    -------
-    int
-    """
-    if client is None:
-        return workers
-    hosts: dict[str, int] = {}
-    for worker in client.scheduler_info(n_workers=-1)["workers"].values():
-        hosts[worker["host"]] = hosts.get(worker["host"], 0) + worker["nthreads"]
-    return max(hosts.values(), default=1)
-
-
 @contextmanager
-def use_threads(count: int) -> Iterator[int]:
-    """Make the filters created inside run their large calls on `count` threads (it sets MAZELAB_THREADS
-    for the time, so processes started inside inherit it too): `exercise grade` runs on one.
-
-    Parameters
-    ----------
-    count : int
-
-    Yields
-    ------
-    int
-        The checked count.
-    """
-    chosen = check_threads(count)
-    before = os.environ.get(THREADS_VARIABLE)
-    os.environ[THREADS_VARIABLE] = str(chosen)
+def _environment(variable: str, value: str) -> Iterator[str]:
+    """`variable` set to `value` in the environment for the time (processes started inside inherit it)."""
+    before = os.environ.get(variable)
+    os.environ[variable] = value
     try:
-        yield chosen
+        yield value
     finally:
         if before is None:
-            os.environ.pop(THREADS_VARIABLE, None)
+            os.environ.pop(variable, None)
         else:
-            os.environ[THREADS_VARIABLE] = before
+            os.environ[variable] = before
 
 
-@contextmanager
-def use_backend(name: str) -> Iterator[str]:
-    """Make the filters created inside run on the backend `name` (it sets MAZELAB_BACKEND for the
-    time, so processes started inside inherit it too).
+def use_backend(name: str) -> Any:
+    """Make the filters created inside run on the backend `name` ("numpy" or "compiled", checked and
+    yielded): MAZELAB_BACKEND for the time, so processes started inside take it too."""
+    return _environment(ENVIRONMENT_VARIABLE, check_backend(name))
 
-    Parameters
-    ----------
-    name : str
-        "numpy" or "compiled".
 
-    Yields
-    ------
-    str
-        The backend's checked name.
-    """
-    chosen = check_backend(name)
-    before = os.environ.get(ENVIRONMENT_VARIABLE)
-    os.environ[ENVIRONMENT_VARIABLE] = chosen
-    try:
-        yield chosen
-    finally:
-        if before is None:
-            os.environ.pop(ENVIRONMENT_VARIABLE, None)
-        else:
-            os.environ[ENVIRONMENT_VARIABLE] = before
+def use_threads(count: int) -> Any:
+    """Make the filters created inside run their large calls on `count` threads (checked; as a string
+    yielded): MAZELAB_THREADS for the time, so processes started inside take it too."""
+    return _environment(THREADS_VARIABLE, str(check_threads(count)))
 
 
 def backend_versions() -> dict[str, str | None]:
-    """What a record says of the backend: the chosen one's name, and numba's installed version (None
-    without it; read from the package's metadata, so that a numpy run does not import numba).
-
-    Returns
-    -------
-    dict
-        {"backend": name, "numba": version or None}.
-    """
+    """What a record says of the backend: {"backend": the chosen one's name, "numba": numba's installed
+    version or None} (read from the package's metadata, so that a numpy run does not import numba)."""
     try:
         version = importlib.metadata.version("numba")
     except importlib.metadata.PackageNotFoundError:
@@ -349,35 +220,15 @@ def backend_versions() -> dict[str, str | None]:
 
 
 def backend_of(filt: Any) -> str:
-    """The backend a filter ran on: its `backend` for the particle filters, "numpy" for any other
-    (the grid filter, the EKF and plug-ins use numpy directly).
-
-    Parameters
-    ----------
-    filt : a filter
-
-    Returns
-    -------
-    str
-    """
+    """The backend a filter ran on: its `backend` for the particle filters, "numpy" for any other (the
+    grid filter, the EKF and plug-ins use numpy directly)."""
     name = getattr(filt, "backend", None)
     return name if name in BACKENDS else "numpy"
 
 
 def kernels_for(world: Any, name: str | None = None) -> Any:
-    """The operations of a filter on `world`: the numpy ones, or a new CompiledKernels (its own buffers).
-
-    Parameters
-    ----------
-    world : Maze
-        The filter's maze (the compiled likelihood reads its lookup tables).
-    name : str, optional
-        The backend (None: `chosen_backend()`).
-
-    Returns
-    -------
-    NumpyKernels or mazelab.kernels.compiled.CompiledKernels
-    """
+    """The operations of a filter on `world`: the numpy ones, or a new CompiledKernels on `thread_count()`
+    threads (it reads the maze's lookup tables) for the backend `name` (None: `chosen_backend()`)."""
     if (name or chosen_backend()) == "numpy":
         return NUMPY_KERNELS
     from mazelab.kernels.compiled import CompiledKernels  # imports numba: only when it runs
@@ -409,7 +260,6 @@ __all__ = [
     "default_backend",
     "kernels_for",
     "numba_available",
-    "runs_at_once",
     "sharing_cores",
     "thread_count",
     "use_backend",

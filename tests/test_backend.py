@@ -30,7 +30,6 @@ from mazelab.backend import (
     cores,
     default_backend,
     kernels_for,
-    runs_at_once,
     sharing_cores,
     thread_count,
     use_backend,
@@ -267,8 +266,8 @@ def test_a_filter_takes_the_machines_cores_its_share_of_them_or_the_threads_chos
         assert thread_count() == 1
     monkeypatch.delenv(THREADS_VARIABLE)
     assert thread_count() == cores()
-    with use_threads(1):
-        assert os.environ[THREADS_VARIABLE] == "1" and thread_count() == 1
+    with use_threads(1) as chosen:
+        assert chosen == os.environ[THREADS_VARIABLE] == "1" and thread_count() == 1
     assert THREADS_VARIABLE not in os.environ
     monkeypatch.setenv(THREADS_VARIABLE, str(cores() + 1))
     with pytest.raises(ValueError, match=rf"^MAZELAB_THREADS must be a whole number from 1 to {cores()}"):
@@ -284,12 +283,15 @@ def test_the_compiled_kernels_of_a_filter_take_the_thread_count(paper_world, mon
         assert kernels_for(paper_world).threads == cores()
 
 
-def test_a_study_counts_the_runs_at_once_on_a_machine_locally_and_on_a_dask_cluster():
+def test_a_studys_runs_share_the_cores_of_their_machine_locally_and_on_a_dask_cluster(monkeypatch):
     from distributed import Client, LocalCluster
 
-    assert runs_at_once(3) == 3
+    monkeypatch.delenv(THREADS_VARIABLE, raising=False)
+    with sharing_cores(cores()) as each:
+        assert each == 1
     with (
         LocalCluster(n_workers=2, threads_per_worker=1, host="127.0.0.1", dashboard_address=":0") as cluster,
         Client(cluster) as client,
+        sharing_cores(1, client) as each,
     ):
-        assert runs_at_once(1, client) == 2  # two workers of one task thread each, on one host
+        assert each == max(1, cores() // 2)  # two workers of one task thread each, on one host

@@ -246,6 +246,14 @@ def test_the_reweighting_and_the_covariance_agree_with_numpy_to_rounding(ten):
         NUMPY_KERNELS.weighted_covariance(compiled.W, x),
         rtol=1e-5,
     )
+    # a gathered cloud far from the origin (a spread of 1e-3 at (7.3, 4.1)): against float64 sums of the
+    # same float32 values, the moments around a particle of the cloud lose nothing to cancellation
+    tight = (np.array([7.3, 4.1]) + 1e-3 * rng.standard_normal((2, 1500, 2))).astype(F32)
+    exact = []
+    for w, cloud in zip(compiled.W.astype(float), tight.astype(float), strict=True):
+        deviations = cloud - w @ cloud
+        exact.append((w[:, None] * deviations).T @ deviations)
+    np.testing.assert_allclose(CompiledKernels(ten).weighted_covariance(compiled.W, tight), exact, rtol=1e-9)
 
 
 def test_the_float32_exponential_is_within_one_ulp_of_exp_and_0_below_float32s_normal_range():

@@ -126,17 +126,18 @@ class CompiledWeights(Weights):
             reads[1].base.flags.writeable = False
 
     @classmethod
-    def from_log(cls, log_w: np.ndarray, x: np.ndarray | None = None) -> CompiledWeights:
-        """Each row normalised in one compiled call of three passes, with the reads of x (float32
-        particles in their layout; other arrays are normalised by numpy's arithmetic)."""
+    def from_log(cls, log_w: np.ndarray, x: np.ndarray | None = None, added: tuple | None = None) -> CompiledWeights:
+        """Each row normalised in one compiled call of two passes, with the reads of x (float32 particles
+        in their layout; other arrays are normalised by numpy's arithmetic); `added` (log a, shifts, log
+        g): log_w is first written as (log a - shift) + log g in the same pass (`add`)."""
         runs, count = log_w.shape
         if x is None or x.dtype != PARTICLE_DTYPE or x.shape[:2] != log_w.shape:
             totals = np.atleast_1d(log_sum_exp(log_w))
             return cls(log_w, totals)
         w, reads, jobs = np.empty((runs, count), dtype=np.float32), np.empty((5, runs)), runs * -(-count // CHUNK)
         lanes, scales = np.empty((jobs, 5, weights.LANES)), np.empty(jobs)
-        weights.normalise(on_threads(cls.threads, log_w.size), log_w, *columns(x), CONFIDENCE_RADIUS, w, reads,
-                          lanes, scales)  # fmt: skip
+        weights.normalise(on_threads(cls.threads, log_w.size), log_w, *(added or (None, None, None)), *columns(x),
+                          CONFIDENCE_RADIUS, w, reads, lanes, scales)  # fmt: skip
         return cls(log_w, reads[0], w, (x, reads[3], reads[1:3].T, reads[4]))
 
     @classmethod
@@ -146,13 +147,13 @@ class CompiledWeights(Weights):
         return cls(np.zeros((runs, count), np.float32), np.full(runs, math.log(count)), W)
 
     def add(self, log_g: np.ndarray, x: np.ndarray | None = None) -> CompiledWeights:
-        """log W + log G per run in one compiled pass (float32, log W worked out per particle from log w
-        and its total, never stored), then `from_log`."""
+        """log W + log G per run in the normalisation's first pass (float32, log W worked out per particle
+        from log w and its total, never stored), then `from_log`'s."""
         if log_g.dtype != PARTICLE_DTYPE or log_g.shape != self.log_w.shape:
             return self.from_log(self.lw + log_g, x)
-        out = np.empty_like(log_g)
-        weights.reweighted(on_threads(self.threads, log_g.size), self.log_w, self.log_total, log_g, out)
-        return self.from_log(out, x)
+        if x is None:  # no reads to make: numpy's arithmetic, the same float32 log w
+            return self.from_log((np.subtract(self.log_w, self.log_total[:, None]) + log_g).astype(np.float32))
+        return self.from_log(np.empty_like(log_g), x, (self.log_w, self.log_total, log_g))
 
     def reset(self, rows: np.ndarray, other: Weights, x: np.ndarray | None = None) -> CompiledWeights:
         """These weights with the given rows' log w replaced by `other`'s, normalised again with the reads
@@ -270,15 +271,11 @@ class CompiledKernels(NumpyKernels):
 
     def mass_within(self, W: Weights, x: np.ndarray, centres: np.ndarray, radius: float) -> np.ndarray:
         """The weight within `radius` of each run's centre: the normalisation's read around the mean,
-        else compiled."""
+        else numpy's (the mode estimate's)."""
         reads = getattr(W, "reads", None)
         if reads is not None and reads[0] is x and centres is reads[2] and radius == CONFIDENCE_RADIUS:
             return reads[3]
-        if x.dtype != PARTICLE_DTYPE:
-            return super().mass_within(W, x, centres, radius)
-        shares, centres = np.empty(len(W.W)), np.asarray(centres, dtype=float).reshape(-1, 2)
-        weights.mass_within(on_threads(self.threads, W.W.size), W.W, *columns(x), centres, radius, shares)
-        return shares
+        return super().mass_within(W, x, centres, radius)
 
     def weighted_covariance(self, W: np.ndarray, x: np.ndarray) -> np.ndarray:
         """Each run's weighted covariance, compiled (the mean, then the moments), (R, 2, 2)."""

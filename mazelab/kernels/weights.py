@@ -70,52 +70,53 @@ def _top(values):  # pragma: no cover - compiled
 
 
 @inline
+def _moments(lanes, j, e, x, y):  # pragma: no cover - compiled
+    """lanes[:4, j] += e, e^2, e x, e y (float64)."""
+    weight = np.float64(e)
+    lanes[0, j] += weight
+    lanes[1, j] += weight * weight
+    lanes[2, j] += weight * x
+    lanes[3, j] += weight * y
+
+
+@inline
 def _exponentials_and_moments(log_w, top, xs, ys, w, lanes):  # pragma: no cover - compiled
     """w_i = e_i = exp32(log w_i - top) of a chunk's 1-D arrays, and lanes[:4, i % LANES] += e_i, e_i^2,
-    e_i x_i, e_i y_i (float64), in order; a chunk whose top is -inf gets e = 0 (and a NaN sum if it
-    holds a NaN: the run then cannot be normalised)."""
+    e_i x_i, e_i y_i, in order; a chunk whose top is -inf gets e = 0 (and a NaN sum if it holds a NaN:
+    the run then cannot be normalised)."""
     lanes[:, :] = 0.0
     if top == -np.inf:
         w[:] = 0.0
-        if np.isnan(log_w).any():
-            lanes[0, 0] = np.nan
+        lanes[0, 0] = np.nan if np.isnan(log_w).any() else 0.0
         return
     for i in range(len(log_w)):
         w[i] = exp32(_F32(log_w[i] - top))
     full = len(w) // LANES * LANES
-    for block in range(0, full, LANES):
-        for j in range(LANES):
-            weight = np.float64(w[block + j])
-            lanes[0, j] += weight
-            lanes[1, j] += weight * weight
-            lanes[2, j] += weight * xs[block + j]
-            lanes[3, j] += weight * ys[block + j]
+    for block in range(0, full, LANES):  # each loop from 0: numba checks no index of it for wrap-around
+        for j in range(LANES):  # a loop of LANES: the compiler keeps one vector of each sum
+            _moments(lanes, j, w[block + j], xs[block + j], ys[block + j])
     for i in range(full, len(w)):
-        weight = np.float64(w[i])
-        lanes[0, i - full] += weight
-        lanes[1, i - full] += weight * weight
-        lanes[2, i - full] += weight * xs[i]
-        lanes[3, i - full] += weight * ys[i]
+        _moments(lanes, i - full, w[i], xs[i], ys[i])
+
+
+@inline
+def _scaled_within(lanes, j, w, i, factor, dx, dy, r2):  # pragma: no cover - compiled
+    """lanes[4, j] += e_i if the particle lies within sqrt(r2) (a select), and w_i = e_i * factor."""
+    e = w[i]
+    lanes[4, j] += np.float64(e) if dx * dx + dy * dy <= r2 else 0.0
+    w[i] = np.float64(e) * factor
 
 
 @inline
 def _scale_and_keep_within(w, factor, xs, ys, centre_x, centre_y, r2, lanes):  # pragma: no cover - compiled
     """w_i = e_i * factor (float64, then float32) of a chunk's 1-D arrays, and lanes[4, i % LANES] += e_i
-    where particle i lies within sqrt(r2) of the centre (float32 distances; a select, no branch)."""
+    where particle i lies within sqrt(r2) of the centre (float32 distances)."""
     full = len(w) // LANES * LANES
     for block in range(0, full, LANES):
         for j in range(LANES):
-            e = w[block + j]
-            w[block + j] = np.float64(e) * factor
-            dx = xs[block + j] - centre_x
-            dy = ys[block + j] - centre_y
-            lanes[4, j] += np.float64(e) if dx * dx + dy * dy <= r2 else 0.0
+            _scaled_within(lanes, j, w, block + j, factor, xs[block + j] - centre_x, ys[block + j] - centre_y, r2)
     for i in range(full, len(w)):
-        e = w[i]
-        w[i] = np.float64(e) * factor
-        dx = xs[i] - centre_x
-        dy = ys[i] - centre_y
-        lanes[4, i - full] += np.float64(e) if dx * dx + dy * dy <= r2 else 0.0
+        _scaled_within(lanes, i - full, w, i, factor, xs[i] - centre_x, ys[i] - centre_y, r2)
 
 
 @inline
@@ -126,13 +127,19 @@ def _failed_total(values, top):  # pragma: no cover - compiled
 
 
 @Kernel
-def normalise(log_w, x, y, radius, w, reads, lanes, scales):  # pragma: no cover - compiled
-    """Normalise R runs' log weights and read each run's mean, ESS and confidence share, in two passes.
+def normalise(log_w, log_a, shifts, log_g, x, y, radius, w, reads, lanes, scales):  # pragma: no cover - compiled
+    """Normalise R runs' log weights and read each run's mean, ESS and confidence share, in two passes;
+    with `log_a`, first log w = log W_{k-1} + log p(z_k | x_k) of runs that do not resample, in the same
+    pass: log_w[r, i] = (log_a[r, i] - shifts[r]) + log_g[r, i], the sum in float64, then rounded to
+    float32 as the likelihood (log W_{k-1} = log a - shift, the Weights value's derivation, never stored).
 
     Parameters
     ----------
     log_w : float32 or float64 array (R, N)
-        Unnormalised log weights.
+        Unnormalised log weights (written, with `log_a`).
+    log_a : float array (R, N), or None
+    shifts : float64 array (R,), or None
+    log_g : float32 array (R, N), or None
     x, y : float32 arrays (R*N,)
         The particles' coordinates (run r's the block r*N..(r+1)*N).
     radius : float
@@ -150,11 +157,15 @@ def normalise(log_w, x, y, radius, w, reads, lanes, scales):  # pragma: no cover
     runs, size = log_w.shape
     blocks, jobs = chunks(runs, size)
     r2 = _F32(radius * radius)
-    for job in prange(jobs):  # each chunk's top, exponentials and sums
+    for job in prange(jobs):  # each chunk's log w, top, exponentials and sums
         r, start, stop = chunk_of(job, blocks, size)
-        first, last = r * size + start, r * size + stop
-        scales[job] = top = _top(log_w[r, start:stop])
-        _exponentials_and_moments(log_w[r, start:stop], top, x[first:last], y[first:last], w[r, start:stop], lanes[job])
+        first, last, row = r * size + start, r * size + stop, log_w[r, start:stop]
+        if log_a is not None:
+            previous, added, shift = log_a[r, start:stop], log_g[r, start:stop], shifts[r]
+            for i in range(stop - start):
+                row[i] = np.float64(previous[i]) - shift + np.float64(added[i])
+        scales[job] = top = _top(row)
+        _exponentials_and_moments(row, top, x[first:last], y[first:last], w[r, start:stop], lanes[job])
     for r in range(runs):  # each run's top and sums, its chunks' in order
         _combine(log_w[r], reads, r, lanes[r * blocks : (r + 1) * blocks], scales[r * blocks : (r + 1) * blocks])
     for job in prange(jobs):  # each chunk's W and weight within the circle
@@ -226,63 +237,11 @@ def second_stage(log_lik, log_mu, ancestors, out):  # pragma: no cover - compile
 
 
 @Kernel
-def reweighted(log_a, shifts, log_lik, out):  # pragma: no cover - compiled
-    """log w_k = log W_{k-1} + log p(z_k | x_k) of R runs that do not resample, float32 as the likelihood:
-    out[r, i] = (log_a[r, i] - shifts[r]) + log_lik[r, i], the sum in float64, then rounded (log W_{k-1}
-    = log a - shift, the Weights value's derivation, never stored).
-
-    Parameters
-    ----------
-    log_a : float array (R, N)
-    shifts : float64 array (R,)
-    log_lik : float32 array (R, N)
-    out : float32 array (R, N)
-    """
-    runs, size = log_lik.shape
-    blocks, jobs = chunks(runs, size)
-    for job in prange(jobs):
-        r, start, stop = chunk_of(job, blocks, size)
-        values, previous, added, shift = out[r, start:stop], log_a[r, start:stop], log_lik[r, start:stop], shifts[r]
-        for i in range(stop - start):
-            values[i] = np.float64(previous[i]) - shift + np.float64(added[i])
-
-
-@Kernel
-def mass_within(weights, x, y, centres, radius, shares):  # pragma: no cover - compiled
-    """The weight within `radius` of each run's centre (mazelab.weights.mass_within, float32 distances),
-    each chunk's in order, then the chunks'.
-
-    Parameters
-    ----------
-    weights : float array (R, N)
-    x, y : float32 arrays (R*N,)
-    centres : float64 array (R, 2)
-    radius : float
-    shares : float64 array (R,)
-        Written: each run's weight within the circle.
-    """
-    runs, size = weights.shape
-    blocks, jobs = chunks(runs, size)
-    r2, parts = _F32(radius * radius), np.empty(jobs)
-    for job in prange(jobs):
-        r, start, stop = chunk_of(job, blocks, size)
-        centre_x, centre_y, inside = _F32(centres[r, 0]), _F32(centres[r, 1]), 0.0
-        xs, ys, w = x[r * size + start : r * size + stop], y[r * size + start : r * size + stop], weights[r, start:stop]
-        for i in range(stop - start):
-            dx = xs[i] - centre_x
-            dy = ys[i] - centre_y
-            inside += w[i] if dx * dx + dy * dy <= r2 else 0.0
-        parts[job] = inside
-    for r in range(runs):
-        shares[r] = 0.0
-        for job in range(r * blocks, (r + 1) * blocks):
-            shares[r] += parts[job]
-
-
-@Kernel
 def covariance(weights, x, y, out):  # pragma: no cover - compiled
-    """sum_i W_i (x_i - mean)(x_i - mean)^T of R runs (mazelab.weights.weighted_covariance), the mean
-    first (float64 deviations: the spread may be tiny), each chunk's sums in order, then the chunks'.
+    """sum_i W_i (x_i - m)(x_i - m)^T, m = sum_i W_i x_i, of R runs (mazelab.weights.weighted_covariance)
+    in one pass: the sums of W, W d and W d d^T, d = x - c around the run's first particle c (float64:
+    the spread may be tiny beside the position), each chunk's in order, then the chunks'; then with e =
+    m - c, the covariance S - s e^T - e s^T + (sum W) e e^T (s = sum W d).
 
     Parameters
     ----------
@@ -293,31 +252,33 @@ def covariance(weights, x, y, out):  # pragma: no cover - compiled
     """
     runs, size = weights.shape
     blocks, jobs = chunks(runs, size)
-    parts, means = np.zeros((jobs, 3)), np.zeros((runs, 2))  # each chunk's sums, each run's mean
+    parts = np.empty((jobs, 6))  # each chunk's sums of W, W dx, W dy, W dx dx, W dx dy, W dy dy
     for job in prange(jobs):
         r, start, stop = chunk_of(job, blocks, size)
-        xs, ys, w = x[r * size + start : r * size + stop], y[r * size + start : r * size + stop], weights[r, start:stop]
+        first, w = r * size, weights[r, start:stop]
+        xs, ys, cx, cy = x[first + start : first + stop], y[first + start : first + stop], x[first], y[first]
+        total = sx = sy = sxx = sxy = syy = 0.0
         for i in range(stop - start):
-            parts[job, 0] += w[i] * xs[i]
-            parts[job, 1] += w[i] * ys[i]
-    for job in range(jobs):
-        means[job // blocks, 0] += parts[job, 0]
-        means[job // blocks, 1] += parts[job, 1]
-    for job in prange(jobs):
-        r, start, stop = chunk_of(job, blocks, size)
-        xs, ys, w = x[r * size + start : r * size + stop], y[r * size + start : r * size + stop], weights[r, start:stop]
-        parts[job, 0] = parts[job, 1] = 0.0
-        for i in range(stop - start):
-            dx = xs[i] - means[r, 0]
-            dy = ys[i] - means[r, 1]
-            parts[job, 0] += w[i] * dx * dx
-            parts[job, 1] += w[i] * dx * dy
-            parts[job, 2] += w[i] * dy * dy
+            weight, dx, dy = np.float64(w[i]), np.float64(xs[i] - cx), np.float64(ys[i] - cy)
+            total, sx, sy = total + weight, sx + weight * dx, sy + weight * dy
+            sxx, sxy, syy = sxx + weight * dx * dx, sxy + weight * dx * dy, syy + weight * dy * dy
+        parts[job, 0], parts[job, 1], parts[job, 2], parts[job, 3], parts[job, 4], parts[job, 5] = (
+            total,
+            sx,
+            sy,
+            sxx,
+            sxy,
+            syy,
+        )
     for r in range(runs):
-        xx = xy = yy = 0.0
+        total = sx = sy = sxx = sxy = syy = 0.0
         for job in range(r * blocks, (r + 1) * blocks):
-            xx, xy, yy = xx + parts[job, 0], xy + parts[job, 1], yy + parts[job, 2]
-        out[r, 0, 0], out[r, 0, 1], out[r, 1, 0], out[r, 1, 1] = xx, xy, xy, yy
+            total, sx, sy = total + parts[job, 0], sx + parts[job, 1], sy + parts[job, 2]
+            sxx, sxy, syy = sxx + parts[job, 3], sxy + parts[job, 4], syy + parts[job, 5]
+        ex, ey = sx + x[r * size] * (total - 1.0), sy + y[r * size] * (total - 1.0)  # e = m - c
+        out[r, 0, 0] = sxx - 2 * sx * ex + total * ex * ex
+        out[r, 1, 1] = syy - 2 * sy * ey + total * ey * ey
+        out[r, 0, 1] = out[r, 1, 0] = sxy - sx * ey - ex * sy + total * ex * ey
 
 
-__all__ = ["LANES", "covariance", "mass_within", "normalise", "reweighted", "second_stage"]
+__all__ = ["LANES", "covariance", "normalise", "second_stage"]
