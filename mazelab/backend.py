@@ -1,30 +1,24 @@
-"""Which implementation of the hot parts a particle filter runs on: "numpy" (the reference, always
-there) or "compiled" (numba kernels, the `fast` extra: mazelab.kernels), and on how many threads.
+"""Which implementation of the hot parts a particle filter runs on, "numpy" (the reference, always there)
+or "compiled" (numba kernels, the `fast` extra: mazelab.kernels), and on how many threads. Both offer
+the same operations (mazelab.numpy_ops.NumpyKernels, mazelab.kernels.compiled's CompiledKernels): the
+move with its draws, the likelihood, systematic resampling, the normalisation with the step's reads,
+the weighted covariance, the RPF's jitter and the Weights value; the model (mazelab.model.LostRobot)
+and the weights call them, and the step (mazelab.smc) does not know which runs.
 
-The choice, in order: `use_backend(name)` around the code, else the environment variable
-MAZELAB_BACKEND (numpy or compiled; the commands' --backend sets it, so that a study's worker
-processes inherit it), else the choice `backend_by_work` made for the work around it (a run, a
-comparison: `simulate`, `run_model`), else "compiled" when numba can be imported and "numpy" when it cannot. A
-filter takes the backend chosen when it is made (`filt.backend`), and RunResult.extras["backend"] and
-every record say which ran.
+The backend, in order: `use_backend(name)` around the code, else MAZELAB_BACKEND (numpy or compiled;
+the commands' --backend sets it, so that a study's worker processes inherit it), else the choice
+`backend_by_work` made for the work around it (`simulate`, `run_model`), else "compiled" when numba
+imports. A filter takes the one chosen when it is made (`filt.backend`); every result and record says
+which ran. The compiled backend costs each process a start-up (STARTUP_SECONDS of CPU) that its faster
+steps pay back only over enough work: `backend_for_work` keeps a small run or study on numpy (numba not
+imported) when the user chose none. The numpy backend is the lab's code as it always was, bit for bit;
+the compiled one does the same arithmetic but for the sums' order, the last bit of cos and sin and its
+own random streams, so a seed repeats a run on each, and the two agree statistically.
 
-The compiled backend costs each process a start-up (numba's import and the set-up of its first
-kernel: STARTUP_SECONDS of CPU) that its faster steps pay back only over enough work; a command that
-knows its work asks `backend_for_work`, which keeps a small run or study on numpy (and numba not
-imported) when the user chose no backend. The numpy backend is the lab's code as it always was, bit for bit; the
-compiled one does the same arithmetic but for the sums' order, the last bit of cos and sin and its own
-random streams, so a seed repeats a run on each backend, and the two agree statistically, not bit for bit.
-
-Threads (the compiled backend's; numpy runs on one): a filter's large calls run on `thread_count()`
-threads: MAZELAB_THREADS (--threads) when set, else the machine's cores, shared within a study
-(`sharing_cores`: its workers x threads <= cores); `use_threads(1)` for `exercise grade`. The count
-changes how soon a run ends, never its numbers (mazelab.kernels).
-
-Both backends offer the same operations (mazelab.numpy_ops.NumpyKernels, mazelab.kernels.compiled's
-CompiledKernels): the move with its draws (equation (1)), the likelihood (equation (3)), systematic
-resampling, the normalisation with the step's reads, the weighted covariance and the RPF's jitter, and
-the Weights value. The model (mazelab.model.LostRobot) and the weights call them; the step (mazelab.smc)
-does not know which runs.
+Threads (the compiled backend's): a filter's large calls run on `thread_count()` threads, MAZELAB_THREADS
+(--threads) when set, else the machine's cores, shared within a study (`sharing_cores`: workers x
+threads <= cores); `use_threads(1)` for `exercise grade`. The count changes how soon a run ends, never
+its numbers (mazelab.kernels).
 """
 
 from __future__ import annotations

@@ -250,13 +250,8 @@ def format_table(rows: list[BenchRow]) -> str:
     ]
     for r in rows:
         base = reference.get((r.maze, r.particles))
-        ratio = (
-            "(itself)"
-            if r.filter_name == "reference"
-            else f"{r.particle_steps_per_second / base:.1f}x"
-            if base
-            else "-"
-        )
+        ratio = f"{r.particle_steps_per_second / base:.1f}x" if base else "-"
+        ratio = "(itself)" if r.filter_name == "reference" else ratio
         numpy_speed = on_numpy.get((r.maze, r.filter_name, r.particles))
         versus = f"{r.particle_steps_per_second / numpy_speed:.2f}x" if numpy_speed and r.backend != "numpy" else "-"
         peak = f"{r.peak_bytes / 2**20:8.1f}" if r.peak_bytes is not None else f"{'-':>8}"
@@ -318,9 +313,8 @@ def run_benchmark(
     for name, world in ((f"small {small.height}x{small.width}", small), (f"large {large.height}x{large.width}", large)):
         rows += measure(name, world, counts, steps, warmup, backends=backends)
     echo(format_table(rows))
-    echo(
-        f"GridBayesFilter on the small maze (resolution 0.02): {grid_filter_ms(small, 10 if quick else 30):.1f} ms/step"
-    )
+    grid_ms = grid_filter_ms(small, 10 if quick else 30)
+    echo(f"GridBayesFilter on the small maze (resolution 0.02): {grid_ms:.1f} ms/step")
     reference = [r for r in rows if r.maze.startswith("small") and (r.filter_name, r.particles) == ("reference", 10**6)]
     for backend in backends:
         with use_backend(backend):
@@ -360,12 +354,21 @@ def study_of(world: Maze, runs: int, steps: int, particles: int, settings: int =
     return study_tasks(chosen, STUDY_FILTERS, runs, steps, STUDY_SEED)
 
 
-def runs_per_second(tasks: list[Any], workers: int = 1, dask: object = None) -> float:
-    """A study's runs per second of wall time (every filter of a run counts as one run)."""
+def runs_per_second(tasks: list[Any], workers: int = 1, dask: Any = False) -> float:
+    """A study's runs per second of wall time (every filter of a run counts as one run), on `workers`
+    processes, or with `dask` on a LocalCluster of `workers` processes on 127.0.0.1 (or the Client given)."""
+    from distributed import Client, LocalCluster
+
     from mazelab.experiments.executor import run_study
 
+    if dask:
+        with (
+            LocalCluster(n_workers=workers, threads_per_worker=1, host="127.0.0.1", dashboard_address=":0") as cluster,
+            Client(cluster) as client,
+        ):
+            return runs_per_second(tasks, workers, client)
     started = time.perf_counter()
-    outcome = run_study(tasks, workers, dask=dask)
+    outcome = run_study(tasks, workers, dask=dask or None)
     return len({(r.setting, r.run) for r in outcome.records}) / (time.perf_counter() - started)
 
 
@@ -386,19 +389,6 @@ def run_cost(world: Maze, runs: int, particles: int, steps: int, label: str = ""
     return label, runs, particles, len(world.stations), 1e6 * seconds / (runs * steps * len(STUDY_FILTERS))
 
 
-def local_dask_runs_per_second(tasks: list[Any], workers: int) -> float | None:
-    """runs_per_second on a LocalCluster of `workers` processes on 127.0.0.1; None without dask."""
-    try:
-        from distributed import Client, LocalCluster
-    except ImportError:
-        return None
-    with (
-        LocalCluster(n_workers=workers, threads_per_worker=1, host="127.0.0.1", dashboard_address=":0") as cluster,
-        Client(cluster) as client,
-    ):
-        return runs_per_second(tasks, dask=client)
-
-
 def run_study_benchmark(small: Maze, large: Maze, quick: bool, echo: Callable[[str], None] = print) -> None:
     """Print the study figures: per-run overhead, runs per second, and the cost's growth with R, N, B."""
     from mazelab.experiments.executor import default_workers
@@ -416,11 +406,10 @@ def run_study_benchmark(small: Maze, large: Maze, quick: bool, echo: Callable[[s
     )
     tasks = study_of(small, runs, steps, 1500, settings)
     figures = [("1 worker", runs_per_second(tasks, 1)), (f"{cores} workers", runs_per_second(tasks, cores))]
-    dask = local_dask_runs_per_second(tasks, cores)
-    figures.append((f"local Dask cluster, {cores} workers", dask))
+    figures.append((f"local Dask cluster, {cores} workers", runs_per_second(tasks, cores, dask=True)))
     echo(
         f"Study of {settings} settings x {runs} runs: "
-        + ", ".join(f"{label} {rate:.2f} runs/s" if rate else f"{label}: dask not installed" for label, rate in figures)
+        + ", ".join(f"{label} {rate:.2f} runs/s" for label, rate in figures)
     )
     echo("Cost of one run's filter step, us (the three filters' mean) as R, N and the station count grow:")
     grid = [run_cost(small, r, 1500, steps // 2, "R") for r in (1, 4, 16, 32)]

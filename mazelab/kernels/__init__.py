@@ -2,40 +2,29 @@
 equations (mazelab.kernels.model: the move with its draws, the nearest station and the likelihood,
 the RPF's jitter), the resampler (mazelab.kernels.resampling: systematic resampling by blocks) and the
 weights (mazelab.kernels.weights: the normalisation with the step's reads in two passes, the
-reweighting, the covariance). mazelab.kernels.compiled.CompiledKernels calls them for a filter, and
-its CompiledWeights keeps what the normalisation read.
-
-The filters do not change: the model (mazelab.model.LostRobot) and the weights value call these
-kernels or the numpy functions, whichever backend runs (mazelab.backend). Each kernel takes the run
-axis (R runs in one call), works on float32 particles and keeps the numpy path's float32 arithmetic
-where it has some (the likelihood is the numpy path's to the bit, given the same points); cos and sin
-are polynomials the compiler vectorises (mazelab.kernels.vector_math, within 0.501 float32 ulp of the
-exact values), the exponentials float32 ones (within one ulp).
+covariance). mazelab.kernels.compiled.CompiledKernels calls them for a filter (the model and the
+weights value call it or the numpy functions, whichever backend runs: mazelab.backend). Each takes R
+runs in one call and works on float32 particles, in the numpy path's float32 arithmetic where it has
+some; cos, sin and exp are polynomials the compiler vectorises (mazelab.kernels.vector_math).
 
 Threads: every kernel is one body over chunks of CHUNK particles (a run's particles split in order;
 a chunk never spans two runs), compiled twice: the chunks in order on the calling thread, and the
 chunks spread over numba's threads (`parallel=True`, its `prange`). The chunks, not the threads, fix
-everything a result depends on: a chunk's random draws (mazelab.kernels.vector_math.random_bits, a
-stream per run and step, numbered by particle) and the order of every sum (partial sums per chunk,
-added in chunk order), so a seed gives the same run bit for bit on any number of threads, and R runs
-together are R single runs. numba's threads come from its "workqueue" layer (it works after a fork,
-and its idle threads sleep rather than spin on a shared machine); it does not take two launches at
-once, so a kernel called while another thread's runs on the threads runs in order instead (the same
-values). The arrays a kernel takes never overlap (each output is a new array), and the compiler is
-told so (LLVM's noalias): only then does it vectorise the loops that gather (the lookup table, the
-ancestors).
+everything a result depends on: the random draws (a stream per run and call, numbered by particle:
+vector_math.random_bits) and the order of every sum (partial sums per chunk, added in chunk order),
+so a seed gives the same run bit for bit on any number of threads, and R runs together are R single
+runs. numba's threads come from its "workqueue" layer (it works after a fork, and its idle threads
+sleep rather than spin on a shared machine); it takes one launch at a time, so a kernel called while
+another thread's runs on them runs in order instead (the same values). A kernel's arrays never
+overlap (each output is a new array), and the compiler is told so (LLVM's noalias): only then does it
+vectorise the loops that gather (the lookup table, the ancestors).
 
-Importing this package imports numba, and a process's first kernel call sets numba's compiler up (its
-registries) even when the kernel comes from the cache: together 0.35 s of CPU with Python's bytecode
-cached, 1.1 s without; each further kernel then loads in a few milliseconds. A command whose work does
-not pay that back runs on numpy (mazelab.backend.backend_for_work).
-
-Each kernel is compiled on its first call and cached on disk (numba's cache), so the compile time is
-paid once per machine: in `__pycache__` beside these files,
-else in the folder NUMBA_CACHE_DIR names, else in the user's cache folder (numba's rules). Where none
-of them can be written, the kernels are compiled in memory in each process (a few seconds at its
-first step) and a warning says so once. A damaged cache file (a cut-off copy, a full disk earlier) is
-compiled over; a cache folder that cannot take the file (a full disk, a read-only mount) leaves the
+Importing this package imports numba, and a process's first kernel call sets numba's compiler up even
+when the kernel comes from the cache (about 0.35 s of CPU); a command whose work does not pay that back
+runs on numpy (mazelab.backend.backend_for_work). Each kernel is compiled on its first call and cached
+on disk (numba's cache: `__pycache__` beside these files, else NUMBA_CACHE_DIR, else the user's cache
+folder); where none can be written, in memory in each process, with one warning. A damaged cache file
+is compiled over; a cache folder that cannot take the file (a full disk, a read-only mount) leaves the
 kernel compiled in memory, with one warning naming the folder and the way out.
 """
 
@@ -69,22 +58,12 @@ def _warn_once(message: str) -> None:
 
 
 def sources_digest(folder: Path) -> str:
-    """A digest of the kernels' sources (every .py file in `folder`).
+    """A digest of the kernels' sources (every .py file in `folder`), 16 hex digits.
 
     numba keeps a cached kernel while its own file's time stamp and size are unchanged, but a kernel
     inlines helpers from the package's other modules (vector_math's cos and sin, weights' exponentials):
     an edit there alone (a `git pull`) would leave the old machine code running. Each kernel's cache
-    entry is stamped with this digest too, so that any change to these files compiles them again.
-
-    Parameters
-    ----------
-    folder : pathlib.Path
-
-    Returns
-    -------
-    str
-        16 hex digits.
-    """
+    entry is stamped with this digest too, so that any change to these files compiles them again."""
     digest = hashlib.sha256()
     for path in sorted(folder.glob("*.py")):
         digest.update(path.name.encode() + b"\0" + path.read_bytes())
@@ -171,15 +150,10 @@ _LAUNCH = threading.Lock()  # numba's workqueue takes one launch at a time
 
 
 class Kernel:
-    """One kernel body over chunks (its loop over them a `numba.prange`), compiled twice: `serial` runs
-    the chunks in order on the calling thread, `parallel` spreads them over numba's threads. Both give
-    the same values (the chunks fix the draws and the sums' order), so a call takes whichever is free.
-
-    Parameters
-    ----------
-    function : callable
-        The body: a function of numbers and numpy arrays that numba compiles.
-    """
+    """One kernel body over chunks (`function`, its loop over them a `numba.prange`), compiled twice:
+    `serial` runs the chunks in order on the calling thread, `parallel` spreads them over numba's
+    threads. Both give the same values (the chunks fix the draws and the sums' order), so a call takes
+    whichever is free."""
 
     def __init__(self, function: Callable[..., Any]):
         self.__wrapped__ = function
@@ -210,6 +184,3 @@ def chunk_of(job, blocks, size):  # pragma: no cover - compiled
     run = job // blocks
     start = (job - run * blocks) * CHUNK
     return run, start, min(start + CHUNK, size)
-
-
-__all__ = ["CHUNK", "Kernel", "chunk_of", "chunks", "inline", "sources_digest"]

@@ -1,15 +1,13 @@
-"""The compiled backend's operations (mazelab.numpy_ops.NumpyKernels has the same methods): each calls
-one kernel for all R runs, and `CompiledWeights`, the weights value this backend builds, keeps W in
-float32 and the reads its normalisation makes in the same passes (the ESS, the posterior mean and the
-weight within the green circle around it). Anything the kernels do not cover (float64 points such as
-recovery's injected draws, the multimodal kernel) goes to the numpy operations.
+"""The compiled backend's operations (mazelab.numpy_ops.NumpyKernels has the same methods, arguments and
+results): each calls one kernel for all R runs, and `CompiledWeights`, the weights value this backend
+builds, keeps W in float32 and the reads its normalisation makes in the same passes (the ESS, the
+posterior mean and the weight within the green circle around it). Anything the kernels do not cover
+(float64 points such as recovery's injected draws, the multimodal kernel) goes to the numpy operations.
 
-Threads: a call of THREADED_FROM particles or more (R x N: all runs together) runs on the filter's
-`threads` (mazelab.backend.thread_count: the machine's cores unless shared or chosen), a smaller one in
-order on the calling thread, where starting the threads would cost more than they save. Either way the
-values are the same to the bit (mazelab.kernels): the threads change how soon a step ends, not what it
-gives. The random draws of the move and the RPF's jitter are the kernels' own, from one 64-bit key a
-run and call drawn from the run's Generator.
+A call of THREADED_FROM particles or more (R x N: all runs together) runs on the filter's `threads`
+(mazelab.backend.thread_count), a smaller one on the calling thread, where starting the threads would
+cost more than they save: the same values either way (mazelab.kernels). The move's and the jitter's
+random draws are the kernels' own, from one 64-bit key a run and call drawn from the run's Generator.
 """
 
 from __future__ import annotations
@@ -55,64 +53,40 @@ def keys_of(rngs: Any) -> np.ndarray:
 
 def lookup_tables(world: Any) -> tuple:
     """The maze's nearest-station tables (mazelab.lookup) in the layout the likelihood kernel reads:
-    float32, each cell's first four candidates side by side, the rest of the few cells with more in one
-    flat array, and one code a cell.
-
-    Parameters
-    ----------
-    world : Maze
-
-    Returns
-    -------
-    tuple
-        (scale, offset, nx, ny, codes (C,) uint32, quads (C, 8), rows, width, border (b, 2)), the
-        numbers plain Python ones. quads[c] is cell c's first four candidates (x0, y0, ..., x3, y3),
-        padded by repeats of the first in a cell with fewer; `rows` holds, for each cell with more than
-        four, its other K - 4 candidates' (x, y) (padded by repeats of its first), `width` = 2 (K - 4)
-        values a row; a cell's code is its row's first index in `rows` times 4, plus 2 if it has a row,
-        plus 1 if the cell is free.
-    """
+    (scale, offset, nx, ny as plain Python numbers, codes (C,) uint32, quads (C, 8), rows, width,
+    border (b, 2)), float32 coordinates. quads[c] is cell c's first four candidates (x0, y0, ..., x3, y3),
+    padded by repeats of the first; `rows` holds, for each cell with more than four, its other K - 4
+    (padded likewise), `width` = 2 (K - 4) values a row; a cell's code is its row's first index in `rows`
+    times 4, plus 2 if it has a row, plus 1 if the cell is free."""
     lookup = world.prepare()._lookup
-    tables = lookup._station_tables(np.dtype(PARTICLE_DTYPE))
-    ambiguous = np.flatnonzero(lookup.row >= 0)
-    quads = np.tile(tables.first, (1, QUADS))
-    for k in range(1, min(len(tables.all_x), QUADS)):  # all_x (K, A): candidate k of each ambiguous cell
-        quads[ambiguous, 2 * k] = tables.all_x[k, lookup.row[ambiguous]]
-        quads[ambiguous, 2 * k + 1] = tables.all_y[k, lookup.row[ambiguous]]
-    candidates = lookup._all  # (A, K) station indices, padded by repeats of the first
-    more = np.flatnonzero((candidates[:, QUADS:] != candidates[:, :1]).any(axis=1))  # rows with a fifth
-    rows = np.stack([tables.all_x[QUADS:, more].T, tables.all_y[QUADS:, more].T], axis=-1)  # (rows, K - 4, 2)
-    width = rows.shape[1] * 2
+    xy = lookup.stations.astype(PARTICLE_DTYPE)  # the numpy path's float32 coordinates
+    count = lookup._all.shape[1]  # K: the most candidates a cell has
+    candidates = np.repeat(lookup._first[:, None], max(count, QUADS), axis=1)  # (C, K) padded by the first
+    candidates[lookup.row >= 0, :count] = lookup._all
+    more = np.flatnonzero((candidates[:, QUADS:] != candidates[:, :1]).any(axis=1))  # the cells with a fifth
+    quads, rows = xy[candidates[:, :QUADS]].reshape(-1, 2 * QUADS), xy[candidates[more, QUADS:]].reshape(-1)
+    width = 2 * (candidates.shape[1] - QUADS)
     codes = (lookup.kind & 1).astype(np.uint64)
-    codes[ambiguous[more]] += 2 + 4 * width * np.arange(len(more), dtype=np.uint64)
+    codes[more] += 2 + 4 * width * np.arange(len(more), dtype=np.uint64)
     return (
         float(lookup.scale),
         float(lookup.offset),
         int(lookup.nx),
         int(lookup.ny),
         codes.astype(np.uint32 if codes.max(initial=0) < 2**32 else np.uint64),
-        np.ascontiguousarray(quads),
-        np.ascontiguousarray(rows).reshape(-1),
+        quads,
+        rows,
         width,
-        np.ascontiguousarray(tables.border),
+        xy[lookup._border],
     )
 
 
 class CompiledWeights(Weights):
-    """The compiled backend's weights value: W float32 (every sum over it in float64), the log total,
-    and the reads of the normalisation's passes (ESS, mean, share within the green circle of the mean)
-    for the particles it was made with; log W = log w - log total is derived when read (float64).
-
-    Parameters
-    ----------
-    log_w : array (R, N)
-        The unnormalised log weights (float32 after a reweighting), or log W itself (totals 0).
-    log_total : array (R,)
-    W : array (R, N), optional
-        exp(log w - log total), when the normalisation wrote it.
-    reads : (x, ess (R,), mean (R, 2), share (R,)), optional
-        What the normalisation read of the particles x.
-    """
+    """The compiled backend's weights value: the unnormalised log weights `log_w` (R, N) (float32 after a
+    reweighting, or log W itself with totals 0), their `log_total` (R,), W = exp(log w - log total)
+    (R, N) float32 when the normalisation wrote it (every sum over it in float64), and its `reads` of
+    the particles x: (x, ESS (R,), mean (R, 2), share within the green circle of the mean (R,)). log W
+    is derived when read (float64)."""
 
     threads = 1  # the threads of a large normalisation (`on_threads`): each filter's subclass sets its own
 
@@ -177,17 +151,9 @@ class CompiledWeights(Weights):
 
 
 class CompiledKernels(NumpyKernels):
-    """The hot parts of one filter on `world`, compiled (mazelab.kernels); what the kernels do not
-    cover is NumpyKernels' (this class's parent).
-
-    Parameters
-    ----------
-    world : Maze
-        The filter's maze: its lookup tables are read once.
-    threads : int, optional
-        The threads a call of THREADED_FROM particles or more runs on (default 1; mazelab.backend.
-        kernels_for passes mazelab.backend.thread_count's).
-    """
+    """The hot parts of one filter on `world` (its lookup tables read once), compiled (mazelab.kernels),
+    a call of THREADED_FROM particles or more on `threads` threads (mazelab.backend.kernels_for passes
+    thread_count's); what the kernels do not cover is NumpyKernels' (this class's parent)."""
 
     name = "compiled"
 
@@ -232,32 +198,16 @@ class CompiledKernels(NumpyKernels):
         path's values to the bit)."""
         if x.dtype != PARTICLE_DTYPE or world is not self._tables_of:
             return super().log_likelihood(z, x, world, sigma, outside_penalty)
-        out, scratch = (
-            np.empty(x.shape[:2], dtype=PARTICLE_DTYPE),
-            np.empty(x.shape[0] * x.shape[1], self.tables[4].dtype),
-        )
+        out, left = np.empty(x.shape[:2], dtype=PARTICLE_DTYPE), np.empty(x.shape[0] * x.shape[1], self.tables[4].dtype)
         norm = math.log(sigma * math.sqrt(2 * math.pi))
         terms = (float(sigma), -norm, math.log(outside_penalty) - norm, self.tables)
-        model.log_likelihood(on_threads(self.threads, out.size), np.asfortranarray(x.reshape(-1, 2)), z, *terms,
-                             out, scratch)  # fmt: skip
+        model.log_likelihood(on_threads(self.threads, out.size), *columns(x), z, *terms, out, left)
         return out
 
     def systematic(self, W: np.ndarray, rng: np.random.Generator, count: int | None = None) -> np.ndarray:
-        """Systematic resampling in its counting form, by blocks (mazelab.kernels.resampling): the
-        ancestors of mazelab.resampling.systematic_resample for the same cumulative weights and offset
-        u = rng.random().
-
-        Parameters
-        ----------
-        W : array (N,)
-        rng : numpy.random.Generator
-        count : int, optional
-            M (default N).
-
-        Returns
-        -------
-        int64 array (M,)
-        """
+        """Systematic resampling of W (N,) into `count` (default N) int64 ancestors in its counting form,
+        by blocks (mazelab.kernels.resampling): mazelab.resampling.systematic_resample's ancestors for
+        the same cumulative weights and offset u = rng.random()."""
         out = np.empty(len(W) if count is None else count, dtype=np.int64)
         resampling.systematic(on_threads(self.threads, len(W)), W, rng.random(), out)
         return out
@@ -265,9 +215,7 @@ class CompiledKernels(NumpyKernels):
     def weighted_mean(self, W: Weights, x: np.ndarray) -> np.ndarray:
         """The posterior mean per run: the normalisation's read for these particles, else computed."""
         reads = getattr(W, "reads", None)
-        if reads is not None and reads[0] is x:
-            return reads[2]
-        return super().weighted_mean(W, x)
+        return reads[2] if reads is not None and reads[0] is x else super().weighted_mean(W, x)
 
     def mass_within(self, W: Weights, x: np.ndarray, centres: np.ndarray, radius: float) -> np.ndarray:
         """The weight within `radius` of each run's centre: the normalisation's read around the mean,
@@ -278,7 +226,7 @@ class CompiledKernels(NumpyKernels):
         return super().mass_within(W, x, centres, radius)
 
     def weighted_covariance(self, W: np.ndarray, x: np.ndarray) -> np.ndarray:
-        """Each run's weighted covariance, compiled (the mean, then the moments), (R, 2, 2)."""
+        """Each run's weighted covariance, compiled (one pass), (R, 2, 2)."""
         if x.dtype != PARTICLE_DTYPE:
             return super().weighted_covariance(W, x)
         out = np.empty((len(W), 2, 2))
@@ -308,8 +256,7 @@ class CompiledKernels(NumpyKernels):
         moved = new_particles(len(rows), A.shape[1], PARTICLE_DTYPE)
         sources = unsigned((A[rows] + (rows * x.shape[1])[:, None]).reshape(-1))
         keys = keys_of([rngs[r] for r in rows])
-        model.jitter(on_threads(self.threads, sources.size), np.asfortranarray(x.reshape(-1, 2)), sources, keys,
-                     scales, moved.reshape(-1, 2))  # fmt: skip
+        model.jitter(on_threads(self.threads, sources.size), *columns(x), sources, keys, scales, *columns(moved))
         if len(rows) == len(x):
             return moved
         out = particles_array(x, x.dtype)
@@ -318,15 +265,3 @@ class CompiledKernels(NumpyKernels):
 
 
 _NO_ANCESTORS = np.empty(0, dtype=np.uint64)
-
-
-__all__ = [
-    "THREADED_FROM",
-    "CompiledKernels",
-    "CompiledWeights",
-    "columns",
-    "keys_of",
-    "lookup_tables",
-    "on_threads",
-    "unsigned",
-]

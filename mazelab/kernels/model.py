@@ -6,13 +6,10 @@
         plus log 0.5 outside the free area, d the distance to the nearest station (mazelab.lookup's table)
     the RPF's jitter: x^{i*} + h D eps, eps ~ N(0, I_2) (mazelab.regularisation)
 
-Positions are (R*N, 2) float32 order F (run r's particles the rows r*N..(r+1)*N), written into new
-arrays. Each kernel is one body over chunks (mazelab.kernels.Kernel). The draws are the kernels' own:
-particle m of run r takes number m of the stream of run r's key (mazelab.kernels.vector_math), so the
-moved particles do not depend on the threads. The arithmetic is float32 as in the numpy path,
-operation for operation: the likelihood of given points and the headings of given uniforms are the
-numpy path's to the bit; cos and sin are vector_math's, within two ulps of numpy's (which are within
-1.5 of the exact value, these within 0.502).
+R runs' float32 particles lie in R blocks of N (run r's r*N..(r+1)*N), written into new arrays. The
+draws are the kernels' own: particle m of run r takes number m of run r's stream. The arithmetic is
+the numpy path's float32, operation for operation: the likelihood of given points and the headings of
+given uniforms are numpy's to the bit; cos and sin (vector_math's) within two ulps of numpy's.
 """
 
 from __future__ import annotations
@@ -36,43 +33,23 @@ _NONE, _PAIR, _TWO = np.uint64(0), np.uint64(2), np.uint64(2)
 @Kernel
 def move(x, y, ancestors, keys, moving, angles, delta, speed, out_x, out_y, headings):  # pragma: no cover - compiled
     """Equation (1) for R runs in one call, with its draws: th_i = th0_r + Delta (u_i - 1/2), then
-    (out_x, out_y)[i] = (x, y)[a_i] + speed (cos th_i, sin th_i).
+    (out_x, out_y)[i] = (x, y)[a_i] + L (cos th_i, sin th_i), and headings[r, m] = th_i (radians).
 
-    The headings are mazelab.model.headings_from_uniforms' float32 operations; cos and sin are
-    vector_math's, within 0.502 ulp of the exact value (numpy's float32 ones within 1.5).
-
-    Parameters
-    ----------
-    x, y : float32 arrays (P,)
-        The coordinates of the particles moved from.
-    ancestors : uint64 array (R*M,)
-        The particle each particle moves from (into x and y); empty: particle i moves from particle i.
-    keys : uint64 array (R,)
-        Each run's stream: u_m of run r is number m of keys[r]'s (vector_math.random_bits).
-    moving : bool array (R,)
-        False for a run that draws nothing (it restarts after this step): u = 1/2, th = th0.
-    angles : float32 array (R,)
-        th0 of each run (radians).
-    delta, speed : float
-        Delta (radians) and the step length L (map units), rounded to float32 here (as numpy's float32
-        arithmetic rounds them).
-    out_x, out_y : float32 arrays (R*M,)
-        The moved particles' coordinates.
-    headings : float32 array (R, M)
-        th of each particle (radians), written.
-    """
+    x, y (P,) and out_x, out_y (R*M,) are float32 coordinates; `ancestors` (R*M,) uint64 the particle
+    each moves from (empty: particle i moves from particle i); u_m of run r is number m of the stream
+    keys[r] (uint64 (R,): vector_math.random_bits), or 1/2 in a run whose `moving` is False (it draws
+    nothing: it restarts after this step); `angles` (R,) float32 the th0 of each run; `delta` and
+    `speed` (Delta in radians, L in map units) are rounded to float32 here, as numpy's float32
+    arithmetic rounds them. The headings are mazelab.model.headings_from_uniforms' float32 operations;
+    cos and sin are vector_math's, within 0.502 ulp of the exact value (numpy's float32 ones within 1.5)."""
     delta, speed = F32(delta), F32(speed)
     runs, size = headings.shape
     blocks, jobs = chunks(runs, size)
     for job in prange(jobs):
         r, start, stop = chunk_of(job, blocks, size)
-        first, key, angle, drawn = r * size + start, keys[r], angles[r], moving[r]
-        sources = ancestors[first : first + stop - start] if len(ancestors) else ancestors
-        moved_x, moved_y, taken = (
-            out_x[first : first + stop - start],
-            out_y[first : first + stop - start],
-            headings[r, start:stop],
-        )
+        first, last, key, angle, drawn = r * size + start, r * size + stop, keys[r], angles[r], moving[r]
+        sources = ancestors[first:last] if len(ancestors) else ancestors
+        moved_x, moved_y, taken = out_x[first:last], out_y[first:last], headings[r, start:stop]
         for m in range(stop - start):  # each loop from 0: numba checks no index of it for wrap-around
             u = uniform32(random_bits(key, np.uint64(start + m))) if drawn else _HALF
             heading = (u - _HALF) * delta + angle
@@ -155,40 +132,23 @@ def _close(px, py, value, left, zr, sigma, free_term, outside_term, tables):  # 
 
 
 @Kernel
-def log_likelihood(positions, z, sigma, free_term, outside_term, tables, out, left):  # pragma: no cover - compiled
+def log_likelihood(x, y, z, sigma, free_term, outside_term, tables, out, left):  # pragma: no cover - compiled
     """Equation (3) with the outside penalty, in logs, for R runs: out[r, m] = log p(z_r | x_i) (i = r N
-    + m), float32, numpy's values to the bit (the same float32 operations, and the nearest of the same
-    candidates). Each chunk in two loops: every point from its cell's first four candidates (vectorised),
-    then the few left open. The numbers come as plain floats (a numpy scalar costs some 0.25 us to
-    pass) and are rounded to float32 here, as numpy's float32 arithmetic rounds them.
+    + m) float32 (R, N), numpy's values to the bit (the same float32 operations, and the nearest of the
+    same candidates). Each chunk in two loops: every point from its cell's first four candidates
+    (vectorised), then the few left open (`left` (R*N,), of the codes' dtype, scratch).
 
-    Parameters
-    ----------
-    positions : float32 array (R*N, 2), order F
-    z : float array (R,)
-        z_k of each run (map units).
-    sigma : float
-        The measurement noise's standard deviation.
-    free_term, outside_term : float
-        -log(sigma sqrt(2 pi)), and that plus log(outside penalty): the constant of a free and of an
-        outside point.
-    tables : tuple
-        The maze's lookup tables (mazelab.kernels.compiled.lookup_tables).
-    out : float32 array (R, N)
-    left : array (R*N,) of the tables' codes' dtype
-        Scratch: what the first loop left open.
-    """
+    x, y (R*N,) are the particles' float32 coordinates, z (R,) each run's z_k (map units); `sigma` the
+    noise's standard deviation, `free_term` -log(sigma sqrt(2 pi)) and `outside_term` that plus log(the
+    outside penalty): plain floats (a numpy scalar costs some 0.25 us to pass), rounded to float32 here
+    as numpy's float32 arithmetic rounds them; `tables` the maze's (compiled.lookup_tables)."""
     sigma, free_term, outside_term, typed = F32(sigma), F32(free_term), F32(outside_term), _typed(tables)
     runs, size = out.shape
     blocks, jobs = chunks(runs, size)
     for job in prange(jobs):
         r, start, stop = chunk_of(job, blocks, size)
-        zr, first, values = F32(z[r]), r * size + start, out[r, start:stop]
-        xs, ys, open_ = (
-            positions[first : first + stop - start, 0],
-            positions[first : first + stop - start, 1],
-            left[first : first + stop - start],
-        )
+        zr, first, last, values = F32(z[r]), r * size + start, r * size + stop, out[r, start:stop]
+        xs, ys, open_ = x[first:last], y[first:last], left[first:last]
         for m in range(stop - start):
             values[m], open_[m] = _log_likelihood_of_four(xs[m], ys[m], zr, sigma, free_term, outside_term, typed)
         for m in range(stop - start):
@@ -197,37 +157,22 @@ def log_likelihood(positions, z, sigma, free_term, outside_term, tables, out, le
 
 
 @Kernel
-def jitter(positions, ancestors, keys, scales, out):  # pragma: no cover - compiled
-    """The RPF's kernel K_h for D due runs, with its draws: out[i] = positions[a_i] + h D_d eps_i, D_d
-    lower triangular, eps_i ~ N(0, I_2) by Box and Muller's transform of two float64 uniforms, numbers
-    2m and 2m + 1 of the stream keys[d] (so the points do not depend on the threads).
-
-    Parameters
-    ----------
-    positions : float32 array (P, 2), order F
-    ancestors : uint64 array (D*M,)
-        The resampled rows of `positions`.
-    keys : uint64 array (D,)
-        Each due run's stream.
-    scales : float32 array (D, 3)
-        (a, c, d) of each run's h D = [[a, 0], [c, d]].
-    out : float32 array (D*M, 2), order F
-    """
+def jitter(x, y, ancestors, keys, scales, out_x, out_y):  # pragma: no cover - compiled
+    """The RPF's kernel K_h for D due runs, with its draws: (out_x, out_y)[i] = (x, y)[a_i] + h D_d eps_i
+    (float32 coordinates; `ancestors` (D*M,) uint64), h D_d = [[a, 0], [c, d]] from scales[d] = (a, c,
+    d) (D, 3), eps_i ~ N(0, I_2) by Box and Muller's transform of two float64 uniforms, numbers 2m and
+    2m + 1 of the stream keys[d] (uint64 (D,)), so the points do not depend on the threads."""
     runs = scales.shape[0]
     size = len(ancestors) // runs
     blocks, jobs = chunks(runs, size)
     for job in prange(jobs):
         r, start, stop = chunk_of(job, blocks, size)
-        a, c, d, key, first = scales[r, 0], scales[r, 1], scales[r, 2], keys[r], r * size + start
-        sources, moved = ancestors[first : first + stop - start], out[first : first + stop - start]
+        a, c, d, key, first, last = scales[r, 0], scales[r, 1], scales[r, 2], keys[r], r * size + start, r * size + stop
+        sources, moved_x, moved_y = ancestors[first:last], out_x[first:last], out_y[first:last]
         for m in range(stop - start):
             counter = np.uint64(start + m) * _TWO
             radius = math.sqrt(-2.0 * math.log(1.0 - uniform64(random_bits(key, counter))))
             angle = 2 * math.pi * uniform64(random_bits(key, counter + np.uint64(1)))
             e0, e1 = F32(radius * math.cos(angle)), F32(radius * math.sin(angle))
-            source = sources[m]
-            moved[m, 0] = positions[source, 0] + a * e0
-            moved[m, 1] = positions[source, 1] + (c * e0 + d * e1)
-
-
-__all__ = ["jitter", "log_likelihood", "move"]
+            moved_x[m] = x[sources[m]] + a * e0
+            moved_y[m] = y[sources[m]] + (c * e0 + d * e1)

@@ -22,7 +22,7 @@ import math
 import numpy as np
 from numba import prange
 
-from mazelab.kernels import CHUNK, Kernel, chunk_of, chunks, inline
+from mazelab.kernels import Kernel, chunk_of, chunks, inline
 
 
 @inline
@@ -45,18 +45,9 @@ def _ancestors_of_block(weights, u, count, base, start, offset, out):  # pragma:
 
 @Kernel
 def systematic(weights, u, out):  # pragma: no cover - compiled
-    """Systematic resampling of one run's weights with offset u: out[m] is the ancestor of the point
-    (m + u) / M, M = len(out) (mazelab.resampling.systematic_resample's, by counting in blocks).
-
-    Parameters
-    ----------
-    weights : float array (N,)
-        Normalised weights.
-    u : float
-        U ~ U[0, 1).
-    out : int array (M,)
-        The ancestors, sorted.
-    """
+    """Systematic resampling of one run's normalised weights (N,) with offset u ~ U[0, 1): out[m] is the
+    ancestor of the point (m + u) / M, M = len(out), sorted (mazelab.resampling.systematic_resample's,
+    by counting in blocks)."""
     size, count = len(weights), len(out)
     blocks, _ = chunks(1, size)
     bases, stops = np.empty(blocks + 1), np.empty(blocks + 1, dtype=np.int64)
@@ -76,6 +67,3 @@ def systematic(weights, u, out):  # pragma: no cover - compiled
         _, start, stop = chunk_of(block, blocks, size)
         points = out[stops[block] : stops[block + 1]]
         _ancestors_of_block(weights[start : min(stop, size - 1)], u, count, bases[block], start, stops[block], points)
-
-
-__all__ = ["CHUNK", "systematic"]

@@ -1,27 +1,23 @@
 """The weights and the weighted reads, compiled (mazelab.weights is the numpy reference).
 
-`normalise` turns R runs' log weights into their log totals and normalised weights W (float32: every
-sum over them runs in float64), and reads what a step reports, in two passes over each chunk of
-CHUNK particles (mazelab.kernels): the chunk's top m_c = max log w, then e = exp(log w - m_c) (written
-in place of W) and its sums, of the squares and of the weighted positions (the total, the ESS, the
-mean); then, the run's top and total known, W = e exp(m_c - top) / total and the weight within the
-green circle around the mean. log W = log w - log total is left to the Weights value, which derives
-it when read. `reweighted` makes log W_{k-1} + log p(z | x) of a step that does not resample,
-`second_stage` the APF's second-stage log weights, both float32 as the likelihood (log W_{k-1} worked
-out from log w and its total per particle, never stored). float32 W and log w hold a million
-particles' weights in the memory the fused kernel takes (benchmarks/peak_memory.py); they round a
-weight by at most 6e-8 of it.
+`normalise` turns R runs' log weights into their log totals and normalised weights W, and reads what
+a step reports, in two passes over each chunk of CHUNK particles (mazelab.kernels): the chunk's top m_c
+= max log w, then e = exp(log w - m_c) (written in place of W) and its sums, of the squares and of the
+weighted positions (the total, the ESS, the mean); then, the run's top and total known, W = e exp(m_c
+- top) / total and the weight within the green circle around the mean. For a step that does not
+resample, log w = log W_{k-1} + log p(z | x) comes first, in the same pass. log W = log w - log total
+is left to the Weights value, which derives it when read. W and log w are float32 (a million
+particles' weights in the memory the fused kernel takes: benchmarks/peak_memory.py), a weight rounded
+by at most 6e-8 of it; every sum is float64.
 
-The exponential is float32 (vector_math.exp32, branch-free, so that the passes vectorise): one ulp,
-and x = log w - m_c rounded to float32 (half an ulp of x), so e within 1.2e-7 + 6e-8 |x| of numpy's
-float64 exp relative to its value, then one float64 product and a rounding to float32 (6e-8) for W; 0
-below exp(-87) of its chunk's top (a weight under 1e-38 of the chunk's heaviest one, never drawn); the
-sums and the totals are float64. Each chunk's sums run in LANES partial sums, added pairwise, and the
-chunks' in chunk order: an order this code fixes, not the compiler or the threads (numpy's sums are
-pairwise, so the two paths agree to rounding, not to the bit); an order the compiler chose by the
-arrays' addresses made R runs together differ from R single runs in the last bit from process to
-process. LANES is 16 because numba's loop vectoriser takes a loop of 16 and more (one of 8 it
-unrolls, and numba leaves the SLP vectoriser off): the lanes are one vector of float64 partial sums.
+The exponential is float32 (vector_math.exp32, branch-free, so that the passes vectorise): one ulp, and
+x = log w - m_c rounded to float32 (half an ulp of x), so e within 1.2e-7 + 6e-8 |x| of numpy's float64
+exp relative to its value, then a float64 product and a rounding for W; 0 below exp(-87) of its chunk's
+top (under 1e-38 of the chunk's heaviest weight, never drawn). Each chunk's sums run in LANES partial
+sums, added pairwise, and the chunks' in chunk order: an order this code fixes, not the compiler, the
+arrays' addresses or the threads (numpy's sums are pairwise: the two paths agree to rounding, not to
+the bit). LANES is 16 because numba's loop vectoriser takes a loop of 16 and more (one of 8 it
+unrolls; numba leaves the SLP vectoriser off): the lanes are one vector of float64 partial sums.
 
 A run whose log weights are all -inf (no particle explains z) or hold a NaN gets the total -inf or NaN
 and NaN weights, as in the numpy path; the filter then restarts it.
@@ -54,8 +50,9 @@ def _lane_total(lanes):  # pragma: no cover - compiled
 
 @inline
 def _top(values):  # pragma: no cover - compiled
-    """max of the 1-D `values` in their dtype (-inf for none) from LANES running maxima; a NaN is
-    passed over here (its exponential makes the run's total NaN: `normalise` checks the total)."""
+    """max of the 1-D `values` in their dtype (-inf for none) from LANES running maxima, which the
+    compiler vectorises (numba's own max checks each value for NaN: four times the time); a NaN is
+    passed over here (its exponential makes the run's total NaN: `_combine` checks the total)."""
     maxima = np.full(LANES, -np.inf, dtype=values.dtype)
     full = len(values) // LANES * LANES
     for block in range(0, full, LANES):  # each loop from 0: numba checks no index of it for wrap-around
@@ -119,41 +116,21 @@ def _scale_and_keep_within(w, factor, xs, ys, centre_x, centre_y, r2, lanes):  #
         _scaled_within(lanes, i - full, w, i, factor, xs[i] - centre_x, ys[i] - centre_y, r2)
 
 
-@inline
-def _failed_total(values, top):  # pragma: no cover - compiled
-    """The log total of a run that cannot be normalised (top -inf or +inf, or a NaN among the values):
-    NaN where a value is NaN, else the top (numpy's log_sum_exp)."""
-    return np.nan if np.isnan(values).any() else top
-
-
 @Kernel
 def normalise(log_w, log_a, shifts, log_g, x, y, radius, w, reads, lanes, scales):  # pragma: no cover - compiled
-    """Normalise R runs' log weights and read each run's mean, ESS and confidence share, in two passes;
-    with `log_a`, first log w = log W_{k-1} + log p(z_k | x_k) of runs that do not resample, in the same
-    pass: log_w[r, i] = (log_a[r, i] - shifts[r]) + log_g[r, i], the sum in float64, then rounded to
-    float32 as the likelihood (log W_{k-1} = log a - shift, the Weights value's derivation, never stored).
+    """Normalise R runs' log weights `log_w` (R, N) (float32 or float64) and read each run's mean, ESS
+    and confidence share, in two passes; with `log_a` (R, N), `shifts` (R,) and `log_g` (R, N) float32
+    (else None), first log w = log W_{k-1} + log p(z_k | x_k) of runs that do not resample, written into
+    `log_w` in the same pass: (log_a - shift) + log_g, the sum in float64, then rounded to float32 as
+    the likelihood (log W_{k-1} = log a - shift, the Weights value's derivation, never stored).
 
-    Parameters
-    ----------
-    log_w : float32 or float64 array (R, N)
-        Unnormalised log weights (written, with `log_a`).
-    log_a : float array (R, N), or None
-    shifts : float64 array (R,), or None
-    log_g : float32 array (R, N), or None
-    x, y : float32 arrays (R*N,)
-        The particles' coordinates (run r's the block r*N..(r+1)*N).
-    radius : float
-        The green circle's radius (map units).
-    w : float32 array (R, N)
-        W = w / sum(w), written.
-    reads : float64 array (5, R)
-        Written, one row each: log sum_j w_j; the mean sum_i W_i x_i (two rows, x and y); the ESS
-        1 / sum_i W_i^2; the weight of the particles at most `radius` from the run's mean (float32
-        distances, as mazelab.weights.mass_within). A run that cannot be normalised (top -inf or NaN)
-        gets its top as total and NaN reads.
-    lanes : float64 array (C, 5, LANES), scales : float64 array (C,)
-        Scratch, one row per chunk (C = R * chunks a run).
-    """
+    x, y (R*N,) are the particles' float32 coordinates (run r's the block r*N..(r+1)*N); `radius` the
+    green circle's (map units); W = w / sum(w) is written into `w` (R, N) float32, and into `reads` (5,
+    R) float64, one row each: log sum_j w_j; the mean sum_i W_i x_i (x and y); the ESS 1 / sum_i W_i^2;
+    the weight of the particles at most `radius` from the run's mean (float32 distances, as
+    mazelab.weights.mass_within). A run that cannot be normalised (top -inf or NaN) gets its top as
+    total and NaN reads. `lanes` (C, 5, LANES) and `scales` (C,), float64, are scratch, one row per
+    chunk (C = R * chunks a run)."""
     runs, size = log_w.shape
     blocks, jobs = chunks(runs, size)
     r2 = _F32(radius * radius)
@@ -202,7 +179,7 @@ def _combine(row, reads, r, lanes, scales):  # pragma: no cover - compiled
         sum_x += _lane_total(lanes[c, 2]) * scale
         sum_y += _lane_total(lanes[c, 3]) * scale
     if total != total:  # every weight is 0, or a NaN: no normalisation (the filter restarts it)
-        reads[0, r] = _failed_total(row, top)
+        reads[0, r] = np.nan if np.isnan(row).any() else top  # numpy's log_sum_exp: NaN, else -inf or +inf
         reads[1, r] = reads[2, r] = reads[3, r] = reads[4, r] = np.nan
         for c in range(len(scales)):
             scales[c] = np.nan
@@ -215,18 +192,10 @@ def _combine(row, reads, r, lanes, scales):  # pragma: no cover - compiled
 
 @Kernel
 def second_stage(log_lik, log_mu, ancestors, out):  # pragma: no cover - compiled
-    """The APF's second-stage log weights of R runs: out[r, m] = log p(z_k | x_m) - log p(z_k | mu_{a_m}),
-    the first stage's values gathered by run r's ancestors in the same pass (numpy's take_along_axis and
-    subtract: the same float32 values).
-
-    Parameters
-    ----------
-    log_lik : float32 array (R, M)
-    log_mu : float32 array (R, N)
-    ancestors : uint64 array (R, M)
-        Indices into each run's own particles.
-    out : float32 array (R, M)
-    """
+    """The APF's second-stage log weights of R runs, float32 (R, M): out[r, m] = log p(z_k | x_m) - log
+    p(z_k | mu_{a_m}) from log_lik (R, M) and log_mu (R, N), the first stage's values gathered by run
+    r's ancestors (R, M) (uint64, into its own particles) in the same pass (numpy's take_along_axis and
+    subtract: the same float32 values)."""
     runs, size = log_lik.shape
     blocks, jobs = chunks(runs, size)
     for job in prange(jobs):
@@ -238,18 +207,11 @@ def second_stage(log_lik, log_mu, ancestors, out):  # pragma: no cover - compile
 
 @Kernel
 def covariance(weights, x, y, out):  # pragma: no cover - compiled
-    """sum_i W_i (x_i - m)(x_i - m)^T, m = sum_i W_i x_i, of R runs (mazelab.weights.weighted_covariance)
-    in one pass: the sums of W, W d and W d d^T, d = x - c around the run's first particle c (float64:
-    the spread may be tiny beside the position), each chunk's in order, then the chunks'; then with e =
-    m - c, the covariance S - s e^T - e s^T + (sum W) e e^T (s = sum W d).
-
-    Parameters
-    ----------
-    weights : float array (R, N)
-    x, y : float32 arrays (R*N,)
-    out : float64 array (R, 2, 2)
-        Written: each run's covariance.
-    """
+    """sum_i W_i (x_i - m)(x_i - m)^T, m = sum_i W_i x_i, into out (R, 2, 2) float64 for R runs' weights
+    (R, N) and float32 coordinates x, y (R*N,) (mazelab.weights.weighted_covariance), in one pass: the
+    sums of W, W d and W d d^T, d = x - c around the run's first particle c (float64: the spread may be
+    tiny beside the position), each chunk's in order, then the chunks'; then with e = m - c, the
+    covariance S - s e^T - e s^T + (sum W) e e^T (s = sum W d)."""
     runs, size = weights.shape
     blocks, jobs = chunks(runs, size)
     parts = np.empty((jobs, 6))  # each chunk's sums of W, W dx, W dy, W dx dx, W dx dy, W dy dy
@@ -259,17 +221,11 @@ def covariance(weights, x, y, out):  # pragma: no cover - compiled
         xs, ys, cx, cy = x[first + start : first + stop], y[first + start : first + stop], x[first], y[first]
         total = sx = sy = sxx = sxy = syy = 0.0
         for i in range(stop - start):
-            weight, dx, dy = np.float64(w[i]), np.float64(xs[i] - cx), np.float64(ys[i] - cy)
+            weight, dx, dy = np.float64(w[i]), np.float64(xs[i]) - cx, np.float64(ys[i]) - cy
             total, sx, sy = total + weight, sx + weight * dx, sy + weight * dy
             sxx, sxy, syy = sxx + weight * dx * dx, sxy + weight * dx * dy, syy + weight * dy * dy
-        parts[job, 0], parts[job, 1], parts[job, 2], parts[job, 3], parts[job, 4], parts[job, 5] = (
-            total,
-            sx,
-            sy,
-            sxx,
-            sxy,
-            syy,
-        )
+        for k, value in enumerate((total, sx, sy, sxx, sxy, syy)):
+            parts[job, k] = value
     for r in range(runs):
         total = sx = sy = sxx = sxy = syy = 0.0
         for job in range(r * blocks, (r + 1) * blocks):
@@ -279,6 +235,3 @@ def covariance(weights, x, y, out):  # pragma: no cover - compiled
         out[r, 0, 0] = sxx - 2 * sx * ex + total * ex * ex
         out[r, 1, 1] = syy - 2 * sy * ey + total * ey * ey
         out[r, 0, 1] = out[r, 1, 0] = sxy - sx * ey - ex * sy + total * ex * ey
-
-
-__all__ = ["LANES", "covariance", "normalise", "second_stage"]
