@@ -12,7 +12,7 @@ only gathers the names; where each thing's lines are:
     APF (Algorithm 5)                                  mazelab/filters.py, AuxiliaryParticleFilter.log_eta,
                                                          .reweight_resampled
     RPF (Algorithm 6)                                  mazelab/filters.py, RegularizedParticleFilter
-                                                         .move_after_resampling (the jitter), .kernels
+                                                         .move_resampled (the jitter), .kernels
     the model: prior, transition (1), likelihood (3)   mazelab/model.py, LostRobot (the constants:
                                                          mazelab/constants.py)
     the weights (W, ESS, the log mean increment)       mazelab/weights.py, Weights
@@ -26,7 +26,7 @@ only gathers the names; where each thing's lines are:
     the exact grid Bayes filter (the reference)        mazelab/grid_filter.py, GridBayesFilter.step
     the extended Kalman filter (the baseline)          mazelab/kalman.py, ExtendedKalmanFilter.step
     recovery from kidnapping, KLD-sampling             mazelab/recovery.py, mazelab/resampling.py
-    run_model and simulate                             mazelab/lab.py (drawing), mazelab/simulation.py (one run),
+    run_model and simulate                             mazelab/lab.py (run_model), mazelab/simulation.py (one run),
                                                          mazelab/collect.py (the loop that records each step)
     how a seed becomes a run's random draws            mazelab/seeding.py
     saving and loading scenarios                       mazelab/scenario.py

@@ -28,6 +28,7 @@ from mazelab.exercise.likeness import (
     likeness,
     tokens,
 )
+from mazelab.exercise.likeness import qualified_functions as qualified
 
 
 class _Renamer(ast.NodeTransformer):
@@ -52,9 +53,9 @@ def renamed_copies() -> dict[str, str]:
     """Each long enough reference function, renamed, as a part's helper (called from its method)."""
     copies = {}
     for module in REFERENCE_SOURCES:
-        for node in ast.walk(ast.parse(source_file(module).read_text())):
+        for name, node in qualified(ast.parse(source_file(module).read_text()), module):
             if isinstance(node, ast.FunctionDef) and len(tokens(node)) >= MIN_TOKENS:
-                name, node.name = f"{module}.{node.name}", "helper"
+                node.name = "helper"
                 text = ast.unparse(_Renamer().visit(node)).replace("\n", "\n    ")
                 method = "    def estimate(self, positions, weights):\n        return self.helper()\n"
                 copies[name] = f"class Copy:\n{method}\n    {text}\n"
@@ -63,12 +64,12 @@ def renamed_copies() -> dict[str, str]:
 
 def main() -> None:
     honest = {
-        c.__name__: max((one.share for one in likeness(class_source(c)).values()), default=0.0)
+        c.__name__: max((one.share for one in likeness({"c.py": class_source(c)}).values()), default=0.0)
         for c in vars(exercise_answers).values()
         if isinstance(c, type) and c.__module__ == exercise_answers.__name__
     }
     worst = max(honest, key=honest.__getitem__)
-    copies = {name: likeness(text)["estimate"].share for name, text in renamed_copies().items()}
+    copies = {name: likeness({"copy.py": text})["estimate"].share for name, text in renamed_copies().items()}
     least = min(copies, key=copies.__getitem__)
     print(f"honest solutions: {len(honest)}; the largest likeness {honest[worst]:.3f} ({worst})")
     print(f"renamed copies: {len(copies)}; the smallest likeness {copies[least]:.3f}")

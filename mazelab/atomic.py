@@ -270,24 +270,3 @@ def zombie(pid: int) -> bool:
     except (OSError, IndexError):
         return False
     return state in ("Z", "X")
-
-
-__all__ = [
-    "NameTakenError",
-    "NotRegularFileError",
-    "ReplacedMeanwhileError",
-    "WriteError",
-    "file_kind",
-    "host_tag",
-    "move_into_place",
-    "output_target",
-    "process_alive",
-    "remove_stale_temporaries",
-    "same_file",
-    "sync_folder",
-    "temporary_name",
-    "write_all",
-    "write_bytes_atomically",
-    "write_text_atomically",
-    "zombie",
-]

@@ -183,14 +183,15 @@ MAX_KLD_EPSILON = 1.0  # the KL bound: beyond 1 it bounds nothing a particle cou
 MIN_KLD_EPSILON = 1e-9  # the count grows as 1/epsilon: below this it is no count at all
 
 
-def check_kld_numbers(epsilon: Any, z: Any) -> None:
+def check_kld_numbers(epsilon: Any, z: Any) -> tuple[float, float]:
     """KLD-sampling's error bound epsilon in [MIN_KLD_EPSILON, MAX_KLD_EPSILON] and quantile z in (0, MAX_KLD_QUANTILE]
-    (the engine's KLDSampling checks the rest), or a one-line ValueError."""
+    (the engine's KLDSampling checks the rest) as floats, or a one-line ValueError."""
     epsilon, z = finite_number("KLD epsilon", epsilon), finite_number("KLD z", z)
     if not MIN_KLD_EPSILON <= epsilon <= MAX_KLD_EPSILON:
         raise ValueError(f"KLD epsilon must lie in [{MIN_KLD_EPSILON:g}, {MAX_KLD_EPSILON:g}], got {epsilon:g}")
     if not 0 < z <= MAX_KLD_QUANTILE:
         raise ValueError(f"KLD z must lie in (0, {MAX_KLD_QUANTILE:g}] (a normal quantile), got {z:g}")
+    return epsilon, z
 
 
 def check_seed(name: str, value: Any) -> int:

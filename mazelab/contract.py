@@ -17,7 +17,7 @@ and class attributes `name` (how results and the viewer label it) and `options`,
 the constructor takes, declared once (mazelab.declaration: `Options(Option(name, default, help, ...))`,
 or a plain mapping of names to defaults). An option a filter does not declare is refused for it in one
 line. The contract is checked on the object before the first step (`check_filter`) and each step's
-values where they are read (`step_values`): a missing part or a bad value is one line naming it.
+values where they are read (`check_step_values`): a missing part or a bad value is one line naming it.
 
 A new filter, worked through: SIR that resamples every `period` steps, with one option. A particle
 filter is the step (mazelab.smc.SMC.step: resample the runs `time_to_resample(W)` says, move,
@@ -97,6 +97,37 @@ class Gaussian:
 
 
 Belief = Particles | Density | Gaussian
+
+
+class NullView:
+    """A view that draws nothing: what a run without drawing uses (a view is anything with `log_step`
+    and `close`; mazelab.viz.views' draw into Rerun)."""
+
+    def log_step(self, step: int, robot_position: Sequence[float], robot_heading: float | None, state: Any) -> None:
+        """Draw step `step`: the robot and the filter `state`.
+
+        Parameters
+        ----------
+        step : int
+            k, from 1.
+        robot_position : (x, y)
+        robot_heading : float or None
+            Radians.
+        state : a filter
+            Its belief, estimate, ESS and confidence.
+        """
+
+    def close(self) -> None:
+        """Finish drawing (flush and close the recording)."""
+
+    def expect_kidnapping(self, step: int, position: Sequence[float]) -> None:
+        """The robot will be carried to `position` at step `step`: draw the jump then.
+
+        Parameters
+        ----------
+        step : int
+        position : (x, y)
+        """
 
 
 @runtime_checkable
@@ -201,22 +232,6 @@ def check_filter(filt: Any) -> None:
     count = filt.count
     if not _whole(count) or count < 1:
         raise ContractError(f"{name}.count must be a whole number >= 1, got {_shown(count)}")
-
-
-def step_values(filt: Any, runs: int | None = None) -> tuple[np.ndarray, Any, Any, int]:
-    """A step's values as the run reads them, each checked (`check_step_values`).
-
-    Parameters
-    ----------
-    filt : a filter
-    runs : int, optional
-        R for a filter advancing R runs together.
-
-    Returns
-    -------
-    (estimate, ess, is_confident, count)
-    """
-    return check_step_values(type(filt), (filt.estimate, filt.ess, filt.is_confident, filt.count), runs)
 
 
 def check_step_values(
@@ -365,12 +380,12 @@ __all__ = [
     "Density",
     "Filter",
     "Gaussian",
+    "NullView",
     "Particles",
     "check_filter",
     "check_step_values",
     "missing_parts",
     "not_taken",
     "options_for",
-    "step_values",
     "takes",
 ]

@@ -106,8 +106,12 @@ class ParticleFilter(SMC):
         self.scheme_name = settings["resampling"]
         self.kld = kld_options(settings["kld"], settings["kld_epsilon"], settings["kld_z"])
         # the scheme: mazelab.resampling's textbook function, or the backend's faster form of it
-        scheme = self.ops.schemes.get(self.scheme_name) or resampling_scheme(self.scheme_name)
-        self.resample = scheme if self.kld is None else functools.partial(self.kld_resample, scheme)
+        fast = self.ops.schemes.get(self.scheme_name)
+        scheme = fast or resampling_scheme(self.scheme_name)
+        if not hasattr(type(self), "resample"):  # a plug-in's own `resample` is its scheme
+            self.resample = scheme if self.kld is None else functools.partial(self.kld_resample, scheme)
+            if fast is None and self.kld is None:  # mazelab.resampling's schemes draw every due run in one call
+                self.resample_rows = scheme
         super().__init__(model, particles, rng, self.ops.Weights)
         recovering = recovery_options(settings["recovery"], settings["alpha_slow"], settings["alpha_fast"])
         self.recovery = None if recovering is None else RecoveryTracker(recovering, world, sigma)

@@ -123,15 +123,34 @@ class GridBayesFilter:
             self._last_arc = (compass_angle, kernel, spectrum)
         return self._last_arc[1], self._last_arc[2]
 
+    def log_likelihood(self, z: float, out: np.ndarray | None = None) -> np.ndarray:
+        """log p(z | x) on the cells (equation (3) with the outside penalty) without the Gaussian's
+        constant -log(sigma sqrt(2 pi)), the same on every cell (the log evidence adds it once):
+        -0.5 ((z - d(x)) / sigma)^2, plus log(outside penalty) on the cells outside the free area.
+
+        Parameters
+        ----------
+        z : float
+            z_k, the measured distance (map units).
+        out : float array of the grid's shape, optional
+            Where to write it.
+
+        Returns
+        -------
+        float array (ny, nx)
+        """
+        log_lik = np.subtract(z, self._distance, out=out)
+        log_lik /= self.sigma
+        np.square(log_lik, out=log_lik)
+        np.multiply(-0.5, log_lik, out=log_lik)
+        log_lik += self._log_likelihood_constant
+        return log_lik
+
     def update(self, z: float) -> None:
         """Multiply the density by the likelihood of z (equation (3), the outside penalty), normalised:
         self.density becomes a new array."""
         work = self.workspace
-        log_lik = np.subtract(z, self._distance, out=work.log_likelihood)
-        log_lik /= self.sigma
-        np.square(log_lik, out=log_lik)
-        np.multiply(-0.5, log_lik, out=log_lik)
-        log_lik += self._log_likelihood_constant  # -0.5 ((z - d) / sigma)^2 + log penalty
+        log_lik = self.log_likelihood(z, out=work.log_likelihood)
         posterior, log_total = self._weighted(self.density, log_lik, work)
         # log p(z_k | z_1:k-1) = log sum_cells p(x_k | z_1:k-1) p(z_k | x_k), the Gaussian's constant included
         self.log_evidence += log_total + self._log_gaussian_constant

@@ -200,16 +200,3 @@ def describe_maze(world: Maze) -> str:
         f"{world.height}x{world.width}, {len(world.free_cells)} free cells ({connected}), "
         f"{blocks} station blocks, {len(world.stations)} stations"
     )
-
-
-__all__ = [
-    "CELLS_PER_STATION_BLOCK",
-    "DEFAULT_WALL_SHARE",
-    "default_station_count",
-    "describe_maze",
-    "free_area_is_connected",
-    "generate_maze",
-    "maze_file_text",
-    "maze_picture",
-    "parse_size",
-]

@@ -23,25 +23,32 @@ def shipped_mazes() -> list[str]:
 
 
 def find_maze(name_or_path: str | Path) -> Path:
-    """A maze file path, or the name of a file in mazes/ (with or without .txt), from any folder.
+    """A maze file path, or the name of a file in mazes/ (with or without .txt), from any folder
+    (`find_shipped`); a bare name that is no shipped maze is refused, naming them."""
+    return find_shipped(name_or_path, MAZES_DIR, ".txt", "maze", MazeError, bare_names=True)
 
-    A path that does not exist but ends in a shipped maze's file name (`mazes/paper_5x5.txt` typed in
-    another folder) is refused with the name that works everywhere (`paper_5x5`)."""
+
+def find_shipped(
+    name_or_path: str | Path, folder: Path, suffix: str, what: str, error: type[ValueError], bare_names: bool = False
+) -> Path:
+    """A file's path, or the name of a shipped one in `folder` (with or without `suffix`), from any folder:
+    a file in the current folder comes first. A path that does not exist but ends in a shipped file's name
+    (`mazes/paper_5x5.txt` typed in another folder) is refused with the name that works everywhere
+    (`paper_5x5`); with `bare_names`, so is a bare name that is no shipped file. Else the path as given
+    (its reader reports it missing)."""
     path = Path(name_or_path)
     if path.exists():
         return path
+    shipped = sorted(p.stem for p in folder.glob(f"*{suffix}"))
     if path.parent == Path("."):
-        for candidate in (MAZES_DIR / path.name, MAZES_DIR / f"{path.name}.txt"):
+        for candidate in (folder / path.name, folder / f"{path.name}{suffix}"):
             if candidate.is_file():
                 return candidate
-    if path.stem in shipped_mazes() and path.suffix in ("", ".txt"):
-        raise MazeError(
-            f"{path}: no such maze file in {Path.cwd()}; {path.stem} is a shipped maze: "
+        if bare_names and shipped:
+            raise error(f"{path}: no such {what} file, nor a {what} in {folder.name}/ ({', '.join(shipped)})")
+    elif path.stem in shipped and path.suffix in ("", suffix):
+        raise error(
+            f"{path}: no such {what} file in {Path.cwd()}; {path.stem} is a shipped {what}: "
             f"name it {path.stem!r} (without a folder) to use it from any folder"
         )
-    if path.parent == Path(".") and shipped_mazes():  # a bare name: perhaps a mistyped shipped maze
-        raise MazeError(f"{path}: no such maze file, nor a maze in mazes/ ({', '.join(shipped_mazes())})")
-    return path  # Maze.from_file reports it missing
-
-
-__all__ = ["DEFAULT_MAZE", "LAB_MAZES", "MAZES_DIR", "MazeError", "find_maze", "shipped_mazes"]
+    return path

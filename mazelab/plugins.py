@@ -5,6 +5,10 @@ both define `MyFilter` never clash), with the file's folder importable while it 
 my_filter.py` has it), and returns the class, refusing in one line that names the file, the class and
 what is missing. `plugin_reference` is how a saved run names it: the spec as written, the file's
 sha256 and the class (a scenario never imports it: the user names the plug-in to replay it).
+`PluginCode` is a plug-in as a study carries it: the file's bytes and their sha256, read once when the
+study is planned, so that a worker process or a Dask worker on another machine runs the very code the
+study was planned with (its own copy, by the hash, where the file is not there; a plug-in that imports
+modules beside it needs them on the worker too: only its own file travels).
 `StudentCodeError` is what a run raises when the student's code fails: the student's own frames (their
 file and line, none of the lab's) and the step at which it happened; a filter that calls sys.exit,
 raises KeyboardInterrupt or changes the working folder is reported the same way (mazelab.stops).
@@ -18,14 +22,16 @@ import inspect
 import os
 import sys
 import sysconfig
+import tempfile
 import traceback
 import warnings
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType, TracebackType
 
+from mazelab.atomic import write_bytes_atomically
 from mazelab.contract import missing_parts
 from mazelab.declaration import options_of
 from mazelab.stops import describe_exit, is_users_stop
@@ -74,7 +80,7 @@ class PluginReference:
 
 
 def file_sha256(path: str | Path) -> str:
-    """The sha256 of a file's bytes, hex."""
+    """The sha256 of a file's bytes, hex (what `sha256sum FILE` prints)."""
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
@@ -83,13 +89,6 @@ def plugin_reference(spec: str, filter_class: type) -> PluginReference:
     path = Path(inspect.getfile(filter_class)).resolve()
     written = split_spec(spec)[0]
     return PluginReference(f"{written}:{filter_class.__name__}", file_sha256(path), filter_class.__name__, str(path))
-
-
-def canonical_spec(spec: str) -> str:
-    """The spec with the file's absolute path and the class named: what a study hands its worker
-    processes (they import the file again; the class object itself is never sent)."""
-    cls = load_plugin(spec)
-    return f"{Path(inspect.getfile(cls)).resolve()}:{cls.__name__}"
 
 
 def load_plugin(spec: str) -> type:
@@ -213,6 +212,64 @@ def _student_line(tb: TracebackType | None, error: BaseException) -> str:
     return f" ({Path(frames[-1].filename).name}, line {frames[-1].lineno})" if frames else ""
 
 
+# -- a plug-in's code, sent with a study's runs ------------------------------------------------------
+CODE_FOLDER = "mazelab-plugins"  # under the system's temporary folder: the shipped plug-ins, by sha256
+
+
+@dataclass(frozen=True)
+class PluginCode:
+    """One plug-in of a study: the spec the runs name it by (`/absolute/path/file.py:Class`), the
+    file's bytes and their sha256."""
+
+    spec: str
+    source: bytes
+    sha256: str
+
+    @classmethod
+    def of(cls, spec: str) -> PluginCode:
+        """The code of a plug-in spec with an absolute path (runs.filter_key), read now."""
+        source = split_spec(spec)[0].read_bytes()
+        return cls(spec, source, hashlib.sha256(source).hexdigest())
+
+    @property
+    def path(self) -> Path:
+        return split_spec(self.spec)[0]
+
+    @property
+    def class_name(self) -> str:
+        return split_spec(self.spec)[1] or ""
+
+    def spec_here(self) -> str:
+        """The spec that imports this code in this process: the file itself when it holds these bytes,
+        else a copy written beside the other shipped plug-ins. Raises ValueError (one line) when the
+        bytes do not have the recorded sha256."""
+        if hashlib.sha256(self.source).hexdigest() != self.sha256:
+            raise ValueError(f"{self.path.name}: the plug-in's code arrived damaged (its sha256 differs)")
+        try:
+            if file_sha256(self.path) == self.sha256:
+                return self.spec
+        except OSError:  # not on this machine
+            pass
+        copy = Path(tempfile.gettempdir()) / CODE_FOLDER / self.sha256 / self.path.name
+        if not copy.is_file():
+            copy.parent.mkdir(parents=True, exist_ok=True)
+            write_bytes_atomically(copy, self.source)
+        return f"{copy}:{self.class_name}"
+
+
+def plugin_codes(filters: Sequence[object]) -> tuple[PluginCode, ...]:
+    """The code of every plug-in among a study's filters (names and specs; classes from Python are
+    sent as they are)."""
+    return tuple(PluginCode.of(f) for f in filters if isinstance(f, str) and is_plugin_spec(f))
+
+
+def filters_here(filters: Sequence[str], codes: Sequence[PluginCode]) -> tuple[str, ...]:
+    """A run's filter names with each plug-in's spec replaced by the one that imports its shipped code
+    in this process (`PluginCode.spec_here`)."""
+    here = {code.spec: code.spec_here() for code in codes}
+    return tuple(here.get(name, name) for name in filters)
+
+
 # -- the student's code failing during a run ----------------------------------------------------------
 class StudentCodeError(RuntimeError):
     """The student's filter raised during a run: the message names the filter, the step (0: while it was
@@ -238,14 +295,6 @@ def is_student_class(filter_class: type) -> bool:
         return True
 
 
-def describe_student_error(error: BaseException, filter_name: str, step: int) -> str:
-    """`MyFilter raised ValueError at step 5: ...` and the student's frames, one line each."""
-    when = "while being built" if step == 0 else f"at step {step}"
-    return "\n".join(
-        [f"{filter_name} raised {type(error).__name__} {when}: {error}", *_frame_lines(error.__traceback__)]
-    )
-
-
 def _frame_lines(tb: TracebackType | None) -> list[str]:
     """The student's frames of a traceback, one line each: file, line, function and code."""
     lines = []
@@ -267,14 +316,15 @@ def raise_for_student(error: BaseException, filter_class: type, step: int) -> No
     passes as it is)."""
     if not is_student_class(filter_class) or isinstance(error, StudentCodeError):
         raise error
+    when = "while being built" if step == 0 else f"at step {step}"
+    frames = _frame_lines(error.__traceback__)
     if isinstance(error, (SystemExit, KeyboardInterrupt)):
         if is_users_stop(error):
             raise error
-        when = "while being built" if step == 0 else f"at step {step}"
-        lines = [f"{filter_class.name} {describe_exit(error)} {when} (a filter must not end the program)"]
-        lines += _frame_lines(error.__traceback__)
-        raise StudentCodeError("\n".join(lines)) from None
-    raise StudentCodeError(describe_student_error(error, filter_class.name, step)) from error
+        what = f"{filter_class.name} {describe_exit(error)} {when} (a filter must not end the program)"
+        raise StudentCodeError("\n".join([what, *frames])) from None
+    what = f"{filter_class.name} raised {type(error).__name__} {when}: {error}"
+    raise StudentCodeError("\n".join([what, *frames])) from error
 
 
 @contextmanager
@@ -315,17 +365,18 @@ def _cwd_or_none() -> str | None:
 
 
 __all__ = [
+    "PluginCode",
     "PluginReference",
     "StudentCodeError",
-    "canonical_spec",
     "check_declared_defaults",
-    "describe_student_error",
     "file_sha256",
+    "filters_here",
     "is_lab_class",
     "is_plugin_spec",
     "is_student_class",
     "load_plugin",
     "loaded_plugin",
+    "plugin_codes",
     "plugin_reference",
     "raise_for_student",
     "split_spec",

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from mazelab.checks import finite_number
-from mazelab.declaration import Option, object_from_json
+from mazelab.declaration import Option, number_in, object_from_json
 from mazelab.maze import Maze
 from mazelab.model import log_likelihood
 from mazelab.resampling import Move
@@ -92,33 +92,6 @@ class Recovery:
         return log_w_slow
 
 
-def recovery_options(
-    recovery: bool | str | Recovery | None, alpha_slow: float = ALPHA_SLOW, alpha_fast: float = ALPHA_FAST
-) -> Recovery | None:
-    """The Recovery a filter option asks for.
-
-    Parameters
-    ----------
-    recovery : bool, str, Recovery or None
-        None/False (off), True ("augmented"), a mode name, or a Recovery (its own numbers).
-    alpha_slow, alpha_fast : float
-        The averages' rates when `recovery` is True or a name.
-
-    Returns
-    -------
-    Recovery or None
-    """
-    if recovery is None or recovery is False:
-        return None
-    if isinstance(recovery, Recovery):
-        return recovery
-    if recovery is True:
-        recovery = "augmented"
-    if not isinstance(recovery, str):
-        raise ValueError(f"recovery must be True, False, {' or '.join(RECOVERY_MODES)}, got {recovery!r}")
-    return Recovery(recovery.lower(), alpha_slow, alpha_fast)
-
-
 def check_recovery(recovery: Any) -> str | Recovery | None:
     """The recovery option, checked.
 
@@ -142,28 +115,34 @@ def check_recovery(recovery: Any) -> str | Recovery | None:
     raise ValueError(f"unknown recovery {recovery!r}; choose none, {' or '.join(RECOVERY_MODES)}")
 
 
-def _rate(name: str) -> Any:
-    """The check of a rate in (0, 1] named `name`."""
+def recovery_options(recovery: Any, alpha_slow: float = ALPHA_SLOW, alpha_fast: float = ALPHA_FAST) -> Recovery | None:
+    """The Recovery the option asks for (`check_recovery`'s values), a mode's with these rates.
 
-    def check(value: Any) -> float:
-        rate = finite_number(name, value)
-        if not 0 < rate <= 1:
-            raise ValueError(f"{name} must be in (0, 1] (a rate of an exponential average), got {value!r}")
-        return rate
+    Parameters
+    ----------
+    recovery : object
+    alpha_slow, alpha_fast : float
+        The averages' rates when `recovery` names a mode.
 
-    return check
+    Returns
+    -------
+    Recovery or None
+    """
+    recovery = check_recovery(recovery)
+    return Recovery(recovery, alpha_slow, alpha_fast) if isinstance(recovery, str) else recovery
 
 
+_RATE = " (a rate of an exponential average)"
 RECOVERY_OPTIONS = (
     Option(
         "recovery", None, "recovery from kidnapping (beyond the paper): none, augmented (MCL) or sensor (resetting)",
         parse=str.strip, check=check_recovery, from_json=object_from_json(Recovery),
         flag="--recovery/--sensor-resetting",
     ),
-    Option("alpha_slow", ALPHA_SLOW, "recovery: the long-term likelihood average's rate", check=_rate("alpha_slow"),
-           flag="--alpha-slow"),
-    Option("alpha_fast", ALPHA_FAST, "recovery: the short-term likelihood average's rate", check=_rate("alpha_fast"),
-           flag="--alpha-fast"),
+    Option("alpha_slow", ALPHA_SLOW, "recovery: the long-term likelihood average's rate",
+           check=number_in("alpha_slow", 0.0, 1.0, what=_RATE), flag="--alpha-slow"),
+    Option("alpha_fast", ALPHA_FAST, "recovery: the short-term likelihood average's rate",
+           check=number_in("alpha_fast", 0.0, 1.0, what=_RATE), flag="--alpha-fast"),
 )  # fmt: skip
 
 
@@ -217,11 +196,6 @@ class RecoveryTracker:
         self.options, self.world, self.sigma = options, world, sigma
         self.log_w_slow = self.log_w_fast = -math.inf  # log w_slow, log w_fast: set by the first w_avg
         self.last_z: float | None = None
-
-    @property
-    def mode(self) -> str:
-        """The recovery's mode: "augmented" or "sensor"."""
-        return self.options.mode
 
     @property
     def injection_probability(self) -> float:

@@ -11,6 +11,7 @@ entry when it is loaded (mazelab.plugins), with its file's sha256 so that a save
 
 from __future__ import annotations
 
+import difflib
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -164,16 +165,6 @@ def entries() -> list[FilterEntry]:
     return list(_ENTRIES)
 
 
-def short_names() -> list[str]:
-    """The registered filters' short names, in order (sir, apf, rpf, grid, ekf, ...).
-
-    Returns
-    -------
-    list of str
-    """
-    return [entry.short_name for entry in _ENTRIES]
-
-
 def is_shipped(filter_class: type) -> bool:
     """Whether a class is one of the registry's filters (the lab's, or a package's), not a plug-in or
     a user's own class.
@@ -226,21 +217,24 @@ def filter_entry(name: str | type) -> FilterEntry:
     Raises
     ------
     ValueError
-        One line naming the unknown name and the valid ones.
+        One line naming the unknown name, the nearest short name (`sri`: did you mean sir?) and the valid ones.
     """
     if isinstance(name, type):
         return _BY_CLASS.get(name) or _entry_of_class(name, None)
     text = str(name).strip()
-    if is_plugin_spec(text):
-        return plugin_entry(text)
+    if is_plugin_spec(text):  # loaded once per process; one line naming the file, the class and what is wrong
+        filter_class = load_plugin(text)
+        return _entry_of_class(filter_class, plugin_reference(text, filter_class))
     shipped = shipped_entry(text)
     if shipped is not None:
         return shipped
     loaded = loaded_plugin(text)
     if loaded is not None:
         return filter_entry(loaded)
-    valid = ", ".join(short_names())
-    raise ValueError(f"unknown filter {text!r}; choose from {valid}, or path/to/file.py:ClassName")
+    names = [entry.short_name for entry in _ENTRIES]
+    close = difflib.get_close_matches(text.lower(), names, n=1, cutoff=0.5)
+    hint = f"; did you mean {close[0]}?" if close else ""
+    raise ValueError(f"unknown filter {text!r}{hint} (choose from {', '.join(names)}, or FILE.py:Class)")
 
 
 def resolve_filter(name: str | type) -> type:
@@ -255,27 +249,6 @@ def resolve_filter(name: str | type) -> type:
     type
     """
     return filter_entry(name).filter_class
-
-
-def plugin_entry(spec: str) -> FilterEntry:
-    """The entry of a plug-in `path/to/file.py:ClassName`: the class loaded (mazelab.plugins), its
-    reference (file, sha256, class) and the next free colour.
-
-    Parameters
-    ----------
-    spec : str
-
-    Returns
-    -------
-    FilterEntry
-
-    Raises
-    ------
-    ValueError
-        One line naming the file, the class and what is wrong (mazelab.plugins.load_plugin).
-    """
-    filter_class = load_plugin(spec)
-    return _entry_of_class(filter_class, plugin_reference(spec, filter_class))
 
 
 _made: dict[type, FilterEntry] = {}
@@ -308,8 +281,10 @@ def _entry_of_class(filter_class: type, plugin: PluginReference | None) -> Filte
     return entry
 
 
-def entry_by_name(name: str) -> FilterEntry | None:
-    """The entry of a filter by the `name` results carry (a registered one, or a plug-in loaded here).
+def described(name: str) -> FilterEntry:
+    """The entry of a filter by the `name` results carry (a registered one, or a plug-in loaded here): its
+    label, colour and caveat for the tables and figures; for a name this process does not know (a student's
+    filter in a record), an entry that names it: the name as its label, the palette's grey, no caveat.
 
     Parameters
     ----------
@@ -317,17 +292,17 @@ def entry_by_name(name: str) -> FilterEntry | None:
 
     Returns
     -------
-    FilterEntry or None
+    FilterEntry
     """
     entry = _BY_NAME.get(name)
-    if entry is not None:
-        return entry
-    loaded = loaded_plugin(name)
-    return None if loaded is None else filter_entry(loaded)
+    loaded = None if entry is not None else loaded_plugin(name)
+    if loaded is not None:
+        return filter_entry(loaded)
+    return entry or FilterEntry(type(name, (), {"name": name}), name, name, PALETTE[7], "a filter unknown here")
 
 
 def labels(names: Sequence[str]) -> dict[str, str]:
-    """Figure labels for the names results carry: the entry's label, or the name itself when unknown.
+    """Figure labels for the names results carry (`described`): the entry's label, or the name itself.
 
     Parameters
     ----------
@@ -338,23 +313,7 @@ def labels(names: Sequence[str]) -> dict[str, str]:
     dict
         name -> label.
     """
-    return {name: (entry.label if (entry := entry_by_name(name)) else name) for name in names}
-
-
-def evidence_caveat(name: str) -> str:
-    """Why a filter's log evidence (by the name results carry) is not an estimate of p(z_1:K) under the
-    model (its entry's `evidence`), or "" when it is one or the filter is unknown here.
-
-    Parameters
-    ----------
-    name : str
-
-    Returns
-    -------
-    str
-    """
-    entry = entry_by_name(name)
-    return entry.evidence if entry is not None else ""
+    return {name: described(name).label for name in names}
 
 
 def rgb(colour: Colour) -> tuple[float, float, float]:
@@ -382,8 +341,7 @@ def colour_of(name: str) -> Colour:
     -------
     (int, int, int)
     """
-    entry = entry_by_name(name)
-    return entry.colour if entry is not None else PALETTE[7]
+    return described(name).colour
 
 
 FILTERS: dict[str, type] = {entry.filter_class.__name__: entry.filter_class for entry in SHIPPED}
@@ -396,16 +354,13 @@ __all__ = [
     "SHIPPED",
     "FilterEntry",
     "colour_of",
+    "described",
     "entries",
-    "entry_by_name",
-    "evidence_caveat",
     "filter_entry",
     "is_shipped",
     "labels",
-    "plugin_entry",
     "register",
     "resolve_filter",
     "rgb",
     "shipped_entry",
-    "short_names",
 ]

@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -102,7 +103,9 @@ class GaussianKernel:
         -------
         array (N, 2), order F, in eps's dtype
         """
-        return gaussian_jitter(eps, self.scale)
+        return gaussian_jitter(
+            eps, *(eps.dtype.type(v) for v in (self.scale[0, 0], self.scale[1, 0], self.scale[1, 1]))
+        )
 
 
 def mixture_kernel(points: np.ndarray, eps: np.ndarray) -> np.ndarray:
@@ -125,14 +128,8 @@ def mixture_kernel(points: np.ndarray, eps: np.ndarray) -> np.ndarray:
     _, _, covariance = cluster_moments(points, np.ones(len(points)), labels, count)
     covariance[:, 0, 0] = np.maximum(covariance[:, 0, 0], MIN_CLUSTER_VARIANCE)
     covariance[:, 1, 1] = np.maximum(covariance[:, 1, 1], MIN_CLUSTER_VARIANCE)
-    a, c, d = cholesky_2x2(covariance)
     h = MIXTURE_SHRINK * optimal_bandwidth(sizes)
-    dtype = eps.dtype
-    a, c, d = ((h * v).astype(dtype)[labels] for v in (a, c, d))
-    jitter = np.empty(eps.shape, dtype, order="F")
-    jitter[:, 0] = a * eps[:, 0]
-    jitter[:, 1] = c * eps[:, 0] + d * eps[:, 1]
-    return jitter
+    return gaussian_jitter(eps, *((h * v).astype(eps.dtype)[labels] for v in cholesky_2x2(covariance)))
 
 
 def cholesky_2x2(covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -152,22 +149,21 @@ def cholesky_2x2(covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nda
     return a, c, d
 
 
-def gaussian_jitter(eps: np.ndarray, scale: np.ndarray) -> np.ndarray:
-    """eps @ scale.T for standard normal eps and a lower-triangular scale, in eps's dtype: the kernel's
-    draws, written out (a BLAS matmul would start threads for two columns).
+def gaussian_jitter(eps: np.ndarray, a: Any, c: Any, d: Any) -> np.ndarray:
+    """[[a, 0], [c, d]] eps for standard normal eps, in eps's dtype: the kernel's draws, written out (a
+    BLAS matmul would start threads for two columns).
 
     Parameters
     ----------
     eps : array (N, 2)
-    scale : array (2, 2)
-        h D, lower triangular.
+    a, c, d : numbers, or arrays (N,) (each point's own factor)
+        The lower-triangular h D, D D^T = S.
 
     Returns
     -------
     array (N, 2), order F
     """
     jitter = np.empty(eps.shape, eps.dtype, order="F")
-    a, c, d = (eps.dtype.type(v) for v in (scale[0, 0], scale[1, 0], scale[1, 1]))
     jitter[:, 0] = a * eps[:, 0]
     jitter[:, 1] = c * eps[:, 0] + d * eps[:, 1]
     return jitter

@@ -16,98 +16,60 @@ from mazelab.declaration import Option, object_from_json, parse_flag
 
 
 # -- resampling: plain functions, normalised weights W (N,) -> ancestor indices (M,) ---------------
+# Every scheme is `scheme(weights, rng, count=None) -> ancestors`: weights (N,), normalised; rng a
+# numpy Generator; count M (default N); ancestors int (M,), indices into the particles. Each also takes
+# R runs' weights (R, N) with R Generators, one each, and returns (R, M): row r is what it returns for
+# W[r] and rngs[r] alone, to the bit (the engine draws every due run in one call).
+def uniforms(rng: Any, size: int | None = None) -> float | np.ndarray:
+    """U[0, 1) draws: rng.random(size) of one Generator, or of R Generators one row each, (R, size)
+    (size None: one draw, a float; (R, 1) for R runs)."""
+    if hasattr(rng, "random"):
+        return rng.random() if size is None else rng.random(size)
+    return np.array([g.random(1 if size is None else size) for g in rng])
+
+
 def _inverse_cdf(sorted_uniforms: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """Indices i with cumsum(W)[i-1] <= u < cumsum(W)[i] for sorted uniforms u in [0, 1)."""
-    cumulative = np.cumsum(weights)
-    cumulative[-1] = 1.0  # guard against round-off leaving the last bin short of 1
-    return np.searchsorted(cumulative, sorted_uniforms, side="right")
+    """Indices i with cumsum(W)[i-1] <= u < cumsum(W)[i] for sorted uniforms u in [0, 1), row by row.
+    One search per run: searching R runs' rows as one array (each offset by its row) takes longer."""
+    cumulative = np.cumsum(weights, axis=-1)
+    cumulative[..., -1] = 1.0  # guard against round-off leaving the last bin short of 1
+    if cumulative.ndim == 1:
+        return cumulative.searchsorted(sorted_uniforms, side="right")
+    out = np.empty(sorted_uniforms.shape, dtype=np.intp)
+    for row, bins, points in zip(out, cumulative, sorted_uniforms, strict=True):
+        row[:] = bins.searchsorted(points, side="right")
+    return out
 
 
-def multinomial_resample(weights: np.ndarray, rng: np.random.Generator, count: int | None = None) -> np.ndarray:
-    """M independent draws from the categorical distribution W.
-
-    Parameters
-    ----------
-    weights : array (N,)
-        Normalised weights.
-    rng : numpy.random.Generator
-    count : int, optional
-        M (default N).
-
-    Returns
-    -------
-    int array (M,)
-        Ancestor indices, sorted.
-    """
-    count = len(weights) if count is None else count
-    return _inverse_cdf(np.sort(rng.random(count)), weights)
+def multinomial_resample(weights: np.ndarray, rng: Any, count: int | None = None) -> np.ndarray:
+    """M independent draws from the categorical distribution W (sorted ancestors)."""
+    count = weights.shape[-1] if count is None else count
+    return _inverse_cdf(np.sort(uniforms(rng, count), axis=-1), weights)
 
 
-def stratified_resample(weights: np.ndarray, rng: np.random.Generator, count: int | None = None) -> np.ndarray:
-    """One uniform draw in each of the M strata [m/M, (m+1)/M).
-
-    Parameters
-    ----------
-    weights : array (N,)
-        Normalised weights.
-    rng : numpy.random.Generator
-    count : int, optional
-        M (default N).
-
-    Returns
-    -------
-    int array (M,)
-        Ancestor indices, sorted.
-    """
-    count = len(weights) if count is None else count
-    return _inverse_cdf((np.arange(count) + rng.random(count)) / count, weights)
+def stratified_resample(weights: np.ndarray, rng: Any, count: int | None = None) -> np.ndarray:
+    """One uniform draw in each of the M strata [m/M, (m+1)/M) (sorted ancestors)."""
+    count = weights.shape[-1] if count is None else count
+    return _inverse_cdf((np.arange(count) + uniforms(rng, count)) / count, weights)
 
 
-def systematic_resample(weights: np.ndarray, rng: np.random.Generator, count: int | None = None) -> np.ndarray:
+def systematic_resample(weights: np.ndarray, rng: Any, count: int | None = None) -> np.ndarray:
     """Systematic resampling (Kitagawa 1996), the lowest-variance scheme and the default: one uniform
     offset u ~ U[0, 1) shared by the M points u_m = (u + m) / M, each taken to the particle whose
-    cumulative weight first exceeds it (the inverse CDF).
+    cumulative weight first exceeds it (the inverse CDF; sorted ancestors).
 
-    Parameters
-    ----------
-    weights : array (N,)
-        Normalised weights.
-    rng : numpy.random.Generator
-        Draws u.
-    count : int, optional
-        M (default N).
-
-    Returns
-    -------
-    int array (M,)
-        Ancestor indices, sorted.
-
-    Notes
-    -----
     The numpy backend runs this; the compiled one its counting form (mazelab.kernels.resampling), which
     gives the same ancestors in O(N).
     """
-    count = len(weights) if count is None else count
-    u = rng.random()
+    count = weights.shape[-1] if count is None else count
+    u = uniforms(rng)  # u ~ U[0, 1): a float, or (R, 1) for R runs
     return _inverse_cdf((u + np.arange(count)) / count, weights)
 
 
-def residual_resample(weights: np.ndarray, rng: np.random.Generator, count: int | None = None) -> np.ndarray:
-    """floor(M W_i) copies of each particle, the remaining draws multinomial on the remainders.
-
-    Parameters
-    ----------
-    weights : array (N,)
-        Normalised weights.
-    rng : numpy.random.Generator
-    count : int, optional
-        M (default N).
-
-    Returns
-    -------
-    int array (M,)
-        Ancestor indices.
-    """
+def residual_resample(weights: np.ndarray, rng: Any, count: int | None = None) -> np.ndarray:
+    """floor(M W_i) copies of each particle, the remaining draws multinomial on the remainders."""
+    if weights.ndim == 2:
+        return np.array([residual_resample(w, g, count) for w, g in zip(weights, rng, strict=True)])
     count = len(weights) if count is None else count
     copies = np.floor(count * weights).astype(np.int64)
     deterministic = np.repeat(np.arange(len(weights)), copies)
@@ -256,37 +218,20 @@ def kld_options(
     -------
     KLDSampling or None
     """
-    if kld is None or kld is False:
-        return None
-    if kld is True:
-        return KLDSampling(epsilon=epsilon, z=z)
-    if isinstance(kld, KLDSampling):
-        return kld
-    raise ValueError(f"kld must be True, False or a KLDSampling, got {kld!r}")
+    kld = check_kld(kld)
+    return KLDSampling(epsilon=epsilon, z=z) if kld is True else kld
 
 
 def check_kld(kld: Any) -> bool | KLDSampling | None:
-    """The kld option: None/False (off), True, or a KLDSampling.
-
-    Parameters
-    ----------
-    kld : object
-
-    Returns
-    -------
-    True, KLDSampling or None
-    """
+    """The kld option: None/False (off), True, or a KLDSampling; True, the KLDSampling or None."""
     if kld is None or isinstance(kld, (bool, KLDSampling)):
         return None if kld is False else kld
     raise ValueError(f"kld must be true, false or a KLDSampling, got {kld!r}")
 
 
 def _kld_number(name: str) -> Any:
-    def check(value: Any) -> float:
-        check_kld_numbers(value if name == "epsilon" else KLD_EPSILON, value if name == "z" else KLD_QUANTILE)
-        return float(value)
-
-    return check
+    """The check of KLD-sampling's `epsilon` or `z` (the other at its default): the value as a float."""
+    return lambda value: check_kld_numbers(**{"epsilon": KLD_EPSILON, "z": KLD_QUANTILE, name: value})[name == "z"]
 
 
 KLD_OPTIONS = (

@@ -46,7 +46,7 @@ from mazelab.checks import (
 from mazelab.declaration import options_of
 from mazelab.limits import check_memory
 from mazelab.maze import Maze
-from mazelab.maze_paths import MAZES_DIR, shipped_mazes
+from mazelab.maze_paths import MAZES_DIR, find_shipped, shipped_mazes
 from mazelab.plugins import loaded_plugin
 from mazelab.registry import FilterEntry, filter_entry, shipped_entry
 from mazelab.robot import Robot
@@ -55,9 +55,8 @@ DEFAULT_PARAMETERS_PATH = Path("model_parameters.json")  # the paper's file (lab
 LEGACY_PARAMETERS_PATH = Path("model_parameters") / "model_parameters.json"  # where older versions saved it
 SCENARIOS_DIR = MAZES_DIR.parent / "model_parameters"  # the shipped scenarios, beside mazes/ (found by name)
 SCENARIO_FORMAT_VERSION = 4  # the newest scenario format this program reads and writes
-KIDNAP_FORMAT_VERSION = 2  # scenarios with a kidnapping are version 2 (or more)
-OPTIONS_FORMAT_VERSION = 3  # scenarios that store the filter's options are version 3; without either, version 1
-PLUGIN_FORMAT_VERSION = 4  # scenarios of a plug-in's run name it by reference (filter_plugin): version 4
+# the version that brought each key (a kidnapping, the filter's options, a plug-in's reference); without them, 1
+FORMAT_VERSIONS = {"kidnap_at": 2, "filter_options": 3, "filter_plugin": 4}
 SHA256 = r"^[0-9a-f]{64}$"
 
 
@@ -140,12 +139,8 @@ class Scenario(BaseModel):
     def _lowest_version(cls, data: Any) -> Any:
         """Without an explicit format_version, the lowest that holds the data."""
         if isinstance(data, dict) and "format_version" not in data:
-            version = OPTIONS_FORMAT_VERSION if data.get("filter_options") is not None else 1
-            if data.get("kidnap_at") is not None:
-                version = max(version, KIDNAP_FORMAT_VERSION)
-            if data.get("filter_plugin") is not None:
-                version = max(version, PLUGIN_FORMAT_VERSION)
-            data = {**data, "format_version": version}
+            versions = [v for key, v in FORMAT_VERSIONS.items() if data.get(key) is not None]
+            data = {**data, "format_version": max(versions, default=1)}
         return data
 
     @field_validator("filtering_algorithm")
@@ -170,10 +165,11 @@ class Scenario(BaseModel):
             raise ValueError(
                 f"format_version {self.format_version} is newer than this program reads ({SCENARIO_FORMAT_VERSION})"
             )
+        for key, version in FORMAT_VERSIONS.items():
+            if getattr(self, key) is not None and self.format_version < version:
+                raise ValueError(f"{key} needs format_version {version}, got {self.format_version}")
         if (self.kidnap_at is None) != (self.kidnap_position is None):
             raise ValueError("kidnap_at and kidnap_position come together: give both or neither")
-        if self.kidnap_at is not None and self.format_version < KIDNAP_FORMAT_VERSION:
-            raise ValueError(f"a kidnapping needs format_version {KIDNAP_FORMAT_VERSION}, got {self.format_version}")
         if self.kidnap_at is not None and self.kidnap_at > len(self.robot_actual_angles):
             raise ValueError(f"kidnap_at {self.kidnap_at} is after the last step ({len(self.robot_actual_angles)})")
         steps = len(self.robot_actual_angles)
@@ -233,17 +229,10 @@ class Scenario(BaseModel):
         """filter_options need format_version 3 and a filter; for a filter of the lab's they are checked
         by its declaration as its constructor checks them (a plug-in's when the user names it to replay);
         filter_plugin needs format_version 4 and the plug-in's name."""
-        if self.filter_plugin is not None:
-            if self.format_version < PLUGIN_FORMAT_VERSION:
-                raise ValueError(
-                    f"filter_plugin needs format_version {PLUGIN_FORMAT_VERSION}, got {self.format_version}"
-                )
-            if self.filtering_algorithm is None:
-                raise ValueError("filter_plugin needs the filtering_algorithm (the plug-in's name) it belongs to")
+        if self.filter_plugin is not None and self.filtering_algorithm is None:
+            raise ValueError("filter_plugin needs the filtering_algorithm (the plug-in's name) it belongs to")
         if self.filter_options is None:
             return
-        if self.format_version < OPTIONS_FORMAT_VERSION:
-            raise ValueError(f"filter_options need format_version {OPTIONS_FORMAT_VERSION}, got {self.format_version}")
         if self.filtering_algorithm is None:
             raise ValueError("filter_options need the filtering_algorithm they belong to")
         entry = self.shipped_filter
@@ -369,30 +358,10 @@ def save_scenario(scenario: Scenario, path: str | Path = DEFAULT_PARAMETERS_PATH
     return path
 
 
-def shipped_scenarios() -> list[str]:
-    """The names of the scenarios in model_parameters/ (file names without .json), sorted."""
-    return sorted(path.stem for path in SCENARIOS_DIR.glob("*.json"))
-
-
 def find_scenario(name_or_path: str | Path) -> Path:
-    """A scenario file path, or the name of a shipped one (in model_parameters/, with or without
-    .json), from any folder, as mazes are found (mazelab.maze_paths.find_maze): a file in the current
-    folder comes first. A path that does not exist but ends in a shipped scenario's file name
-    (`model_parameters/paper_5x5.json` typed in another folder) is refused with the name that works
-    everywhere."""
-    path = Path(name_or_path)
-    if path.exists():
-        return path
-    if path.parent == Path("."):
-        for candidate in (SCENARIOS_DIR / path.name, SCENARIOS_DIR / f"{path.name}.json"):
-            if candidate.is_file():
-                return candidate
-    elif path.stem in shipped_scenarios() and path.suffix in ("", ".json"):
-        raise ScenarioError(
-            f"{path}: no such scenario file in {Path.cwd()}; {path.stem} is a shipped scenario: "
-            f"name it {path.stem!r} (without a folder) to use it from any folder"
-        )
-    return path  # load_scenario reports it missing
+    """A scenario file path, or the name of a shipped one (in model_parameters/, with or without .json),
+    from any folder, as mazes are found (mazelab.maze_paths.find_shipped)."""
+    return find_shipped(name_or_path, SCENARIOS_DIR, ".json", "scenario", ScenarioError)
 
 
 def load_scenario(path: str | Path = DEFAULT_PARAMETERS_PATH) -> Scenario:
@@ -475,10 +444,8 @@ def describe_validation_error(error: ValidationError) -> str:
 
 __all__ = [
     "DEFAULT_PARAMETERS_PATH",
-    "KIDNAP_FORMAT_VERSION",
+    "FORMAT_VERSIONS",
     "MAX_JSON_DEPTH",
-    "OPTIONS_FORMAT_VERSION",
-    "PLUGIN_FORMAT_VERSION",
     "SCENARIOS_DIR",
     "SCENARIO_FORMAT_VERSION",
     "FiniteFloat",
@@ -492,5 +459,4 @@ __all__ = [
     "json_depth",
     "load_scenario",
     "save_scenario",
-    "shipped_scenarios",
 ]

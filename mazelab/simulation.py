@@ -1,8 +1,9 @@
-"""The simulation loop: one filter on one robot walk, step by step, kept as arrays in a RunResult.
+"""One run: one filter on one robot walk, step by step, kept as arrays in a RunResult (`simulate`), and
+the paper's entry point over it (`run_model`, which can save the run's scenario).
 
 Step k: the robot moves with its actual angle k and measures z_k; the filter predicts with compass
-angle k and updates with z_k. The loop draws into a view object its caller hands it (anything with
-log_step and close); it never imports the viewer (mazelab.lab joins the two).
+angle k and updates with z_k. The run draws where `visualize` says (mazelab.viz.views, imported only by
+a run that draws) or into a view its caller hands it (anything with log_step and close).
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ import math
 import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -23,7 +25,7 @@ from mazelab.checks import (
     step_number,
 )
 from mazelab.collect import record_steps
-from mazelab.contract import check_filter, takes
+from mazelab.contract import NullView, check_filter, takes
 from mazelab.limits import check_recording, check_steps
 from mazelab.limits import particle_count as checked_count
 from mazelab.maze import Maze, check_world
@@ -32,6 +34,8 @@ from mazelab.plugins import student_code
 from mazelab.registry import filter_entry, is_shipped
 from mazelab.robot import Robot
 from mazelab.seeding import new_seed, run_streams
+from mazelab.viz.style import DEFAULT_MAX_DRAWN
+from mazelab.viz.targets import Visualization, in_jupyter
 
 if TYPE_CHECKING:
     from mazelab.scenario import Scenario
@@ -231,36 +235,23 @@ def check_walk_in_maze(world: Maze, robot: Robot, steps: int | None = None) -> N
             )
 
 
-class NullView:
-    """A view that draws nothing: what a run without drawing uses."""
-
-    def log_step(self, step: int, robot_position: Sequence[float], robot_heading: float | None, state: Any) -> None:
-        """Draw step `step`: the robot (position, heading) and the filter `state` (its particles,
-        weights, headings, estimate, ESS, confidence)."""
-
-    def close(self) -> None:
-        """Finish drawing (flush and close the recording)."""
-
-    def expect_kidnapping(self, step: int, position: Sequence[float]) -> None:
-        """The robot will be carried to `position` at step `step`: draw the jump then."""
-
-
-def open_run_view(view: Any, world: Maze, filter_name: str) -> Any:
-    """The view a run draws into: `view` itself, NullView for None, or what a view-opening function returns."""
+def open_run_view(view: Any, world: Maze, filter_name: str, robot: Robot) -> Any:
+    """The view a run draws into, told of the robot's planned kidnapping if it draws one: `view` itself
+    (anything with log_step and close), NullView for None or False, what a view-opening function
+    `(world, filter_name) -> view` returns, or the Rerun view a `visualize` value asks for (the
+    viewer's code imported only then)."""
     if view is None or view is False:
         return NullView()
-    if hasattr(view, "log_step"):
-        return view
-    if callable(view):
-        return view(world, filter_name)
-    raise ValueError(f"view must be None, a view (with log_step and close) or a function returning one, got {view!r}")
+    if not hasattr(view, "log_step"):
+        if callable(view):
+            view = view(world, filter_name)
+        else:
+            from mazelab.viz.views import open_view
 
-
-def expect_kidnapping(view: Any, step: int | None, position: Sequence[float] | None) -> None:
-    """Tell `view` of a planned kidnapping, if there is one and the view draws it (a caller's own
-    view need not)."""
-    if step is not None and position is not None and hasattr(view, "expect_kidnapping"):
-        view.expect_kidnapping(step, position)
+            view = open_view(view, world, filter_name)
+    if robot.kidnap_at is not None and robot.kidnap_position is not None and hasattr(view, "expect_kidnapping"):
+        view.expect_kidnapping(robot.kidnap_at, robot.kidnap_position)
+    return view
 
 
 def simulate(
@@ -274,10 +265,10 @@ def simulate(
     filtering_algorithm: str | type = "SIRParticleFilter",
     *,
     seed: int | None = None,
-    view: Any = None,
+    visualize: Any = False,
     on_step: Callable[[int, Robot, Any], None] | None = None,
     kidnap_at: int | None = None,
-    recorded: int | None = None,
+    view: Any = None,
     **filter_options: Any,
 ) -> RunResult:
     """Run one filter on the robot's walk and return the full `RunResult` (what run_model summarises).
@@ -293,9 +284,10 @@ def simulate(
     compiled where numba's start-up pays for the run's work, mazelab.backend.backend_for_work).
     A filter class that declares the option `start` is also handed the robot's start (the
     EKF's `init="start"` tracks from it; the kidnapping, if any, is left for it to find out).
-    `view` is what the run draws into: None (nothing), a view (`log_step`, `close`), or a function
-    `(world, filter_name) -> view`, called once the inputs are checked (mazelab.lab passes Rerun's).
-    `recorded=M`: the view records at most M particles a step (its memory is checked up front).
+    `visualize` says where the run is drawn (mazelab.viz.views: False, True, "viewer", "web", "notebook",
+    an .rrd path, a RecordingStream, a Visualization or a view), its memory checked up front; `view`
+    (instead) is a view (`log_step`, `close`) or a function `(world, filter_name) -> view`, called once
+    the inputs are checked (a comparison's view of each filter).
     """
     check_world(world)
     sigma, delta = check_model_parameters(sigma, delta, (world.width, world.height))
@@ -317,6 +309,7 @@ def simulate(
         raise ValueError(f"steps must be a whole number >= 1, got {steps!r}")
     check_steps(int(steps))
     check_walk_in_maze(world, robot, int(steps))
+    recorded = drawn_at_most(visualize)
     if recorded is not None:
         check_recording(len(particles), int(steps), recorded)
     if kidnap_at is not None:
@@ -344,11 +337,10 @@ def simulate(
     with backend_by_work(*work), student_code(filter_class):  # a failing user's filter: its frames and the step
         filt = filter_class(maze_for(filter_class, world), sigma, delta, particles, streams.filter, **filter_options)
         check_filter(filt)  # before the first step: a missing or mistyped part is one line naming it
-    view = open_run_view(view, world, filter_class.name)
-    expect_kidnapping(view, robot.kidnap_at, robot.kidnap_position)
+    view = open_run_view(visualize if view is None else view, world, filter_class.name, robot)
     try:
         with student_code(filter_class) as at:
-            recorded = record_steps(filt, int(steps), observe, after=after, at=at)
+            steps_of = record_steps(filt, int(steps), observe, after=after, at=at)
     finally:
         view.close()
     reference = None if entry.plugin is None else entry.plugin.as_json()
@@ -356,19 +348,75 @@ def simulate(
     inputs = RunInputs.of_run(
         robot, particles, world, sigma, delta, seed, steps, filter_class.name, dict(sorted(stored.items())), reference
     )
-    run = recorded.run(0)
+    run = steps_of.run(0)
     return RunResult(
         filter_class.name,
         true_positions,
         run["estimates"],
         run["ess"],
         run["confident"],
-        recorded.seconds,
+        steps_of.seconds,
         list(filt.reinitialised_at),
         inputs,
         extras={"particle_count": run["counts"], "diagnostics": run["diagnostics"], "backend": backend_of(filt)},
         log_evidence=run["log_evidence"],
     )
+
+
+def run_model(
+    robot: Robot,
+    world: Maze,
+    sigma: float,
+    delta: float,
+    particle_count: int | None = None,
+    steps: int | None = None,
+    save_parameters: bool = False,
+    init_particles_pos: Sequence[Sequence[float]] | np.ndarray | None = None,
+    filtering_algorithm: str | type = "SIRParticleFilter",
+    *,
+    seed: int | None = None,
+    visualize: Any = True,
+    parameters_path: str | Path | None = None,
+    kidnap_at: int | None = None,
+    **filter_options: Any,
+) -> list[tuple[tuple[float, float], tuple[float, float]]]:
+    """The paper's entry point: run a filter and return [((x_true, y_true), (x_est, y_est)), ...].
+
+    With `init_particles_pos` the particle count follows from it, and with a robot that replays
+    angles the step count follows from them. `save_parameters=True` saves the scenario so the filters
+    can be compared on identical data: to `parameters_path`, by default the paper's model_parameters.json
+    in the working folder.
+    `kidnap_at=K` kidnaps the robot at step K; filter options such as `resampling=`, `recovery=`
+    and `kld=` pass through to the filter (see ParticleFilter).
+    """
+    result = simulate(
+        robot,
+        world,
+        sigma,
+        delta,
+        particle_count,
+        steps,
+        init_particles_pos,
+        filtering_algorithm,
+        seed=seed,
+        visualize=visualize,
+        kidnap_at=kidnap_at,
+        **filter_options,
+    )
+    if save_parameters:
+        from mazelab.scenario import DEFAULT_PARAMETERS_PATH, save_scenario  # pydantic: only a run that saves
+
+        saved = save_scenario(result.scenario, DEFAULT_PARAMETERS_PATH if parameters_path is None else parameters_path)
+        if not in_jupyter():  # a notebook's cell says it in its own words (the Ukrainian one prints no English)
+            print(f"scenario saved to {saved.resolve()}")  # where: a relative path is the working folder's
+    return result.as_pairs()
+
+
+def drawn_at_most(visualize: Any) -> int | None:
+    """How many particles a step of this `visualize` records at most (None: nothing is drawn)."""
+    if visualize is False or visualize is None:
+        return None
+    return visualize.max_drawn if isinstance(visualize, Visualization) else DEFAULT_MAX_DRAWN
 
 
 def maze_for(filter_class: type, world: Maze) -> Maze:
@@ -399,8 +447,9 @@ __all__ = [
     "check_start",
     "check_walk_in_maze",
     "convergence_step",
-    "expect_kidnapping",
+    "drawn_at_most",
     "open_run_view",
     "plan_kidnapping",
+    "run_model",
     "simulate",
 ]

@@ -35,7 +35,7 @@ import numpy as np
 
 from mazelab.checks import as_points
 from mazelab.constants import LOG_UNDERFLOW, PARTICLE_DTYPE
-from mazelab.weights import Weights
+from mazelab.weights import Weights, read_only
 
 # mazelab 0.2's hooks that are gone, and how each is written now (a plug-in overriding one gets this line)
 PORTED = {
@@ -75,8 +75,8 @@ class SMC:
     resample: Callable[[np.ndarray, np.random.Generator], np.ndarray]  # the scheme: W (N,), rng -> a (N,)
 
     def __init__(self, model: Any, particles: Any, rng: Any = None, weights: type = Weights, dtype: Any = None):
-        runs = as_runs(particles)  # (R, N, 2) float64, checked
-        self.model, self.rngs, self.weights_class = model, generators(rng, len(runs)), weights
+        runs, self.rngs = runs_of(particles, rng)  # (R, N, 2) float64, checked; a Generator each
+        self.model, self.weights_class = model, weights
         self.runs = len(runs)  # R
         self.all_due = np.ones(len(runs), dtype=bool)  # every run due: the mask of threshold 1 (never written into)
         self.all_due.flags.writeable = False
@@ -85,6 +85,7 @@ class SMC:
         self.W = weights.uniform(*self.x.shape[:2])
         self.steps_done = 0
         self.resampled_now = np.zeros(len(runs), dtype=bool)
+        self._ancestors: np.ndarray | None = None  # this step's A, None: no run resampled
         self.run_log_evidence = np.zeros(len(runs))
         self._reinitialised: list[list[int]] = [[] for _ in runs]
         self._resampled: list[np.ndarray] = []  # each step's due mask
@@ -122,14 +123,16 @@ class SMC:
         W, eta = self.W, log_weights_of("log_eta", self.log_eta(), self.runs)  # the APF's eta; None: eta = 1
         Wf = W if eta is None else W.add(eta, self.x)  # W_{k-1} eta_k, normalised (the APF's first stage)
         lost = None if eta is None else self._lost_at_first_stage(Wf, eta)  # nothing explains z_k: no draws
-        due = due_of("time_to_resample", self.time_to_resample(W), self.runs, lost)  # RESAMPLE now? (R,)
-        A = ancestors_of("ancestors", self.ancestors(Wf, due), self.runs, self.count) if due.any() else None
+        due = due_of("time_to_resample", self.time_to_resample(W), self, lost)  # RESAMPLE now? (R,)
+        A = ancestors_of("ancestors", self.ancestors(Wf, due), self) if self._some(due) else None
         x, headings = moved_of("move", self.move(self.x, A, due), self.runs)  # x_k^i ~ p(x_k | x_{k-1}^{a^i})
         log_g = log_weights_of("log_likelihood", self.log_likelihood(x), self.runs)  # log G_k(x_k^i)
         reset = None if A is None else reset_of("reweight_resampled", self.reweight_resampled(log_g, A), self.runs)
-        self.x, self.headings, self.resampled_now = x, headings, due
+        self.x, self.headings, self.resampled_now, self._ancestors = x, headings, due, A
         self.W, increment = self._reweighted(W, log_g, due, reset)  # w_k = W_{k-1} G_k, or the due rows' reset
-        if lost is not None or not settled(self.W.log_total):  # nothing explains z_k: M0 again
+        if lost is not None or not settled(self.W.log_total):  # a hook's NaN, or nothing explains z_k: M0 again
+            suspects = ("move", x), ("log_likelihood", log_g), ("reweight_resampled", reset and reset[0])
+            self._received_totals(self.W, *suspects)
             increment = self._restart(self.W.lost if lost is None else self.W.lost | lost, lost, increment, Wf)
         self.log_evidence_increment = increment  # log p(z_k | z_1:k-1) of each run
         self.run_log_evidence = self.run_log_evidence + increment
@@ -164,8 +167,8 @@ class SMC:
         return W.ess < self.threshold * self.x.shape[1]
 
     def ancestors(self, W: Weights, due: np.ndarray) -> np.ndarray:
-        """RESAMPLE: a^i ~ W in each due run by the scheme (`resample`, its own Generator); identity in
-        the others.
+        """RESAMPLE: a^i ~ W in each due run by the scheme (`resample`, or `resample_rows` for several
+        runs at once), identity in the others.
 
         Parameters
         ----------
@@ -177,13 +180,30 @@ class SMC:
         -------
         int array (R, M): indices into each run's own particles
         """
-        if due.all():  # the scheme: mazelab.resampling.systematic_resample by default
-            rows = [self.resample(w, rng) for w, rng in zip(W.W, self.rngs, strict=True)]
-            return rows[0][None] if len(rows) == 1 else np.array(rows)
+        if len(due) == 1:  # the scheme: mazelab.resampling.systematic_resample by default
+            return self.resample(W.W[0], self.rngs[0])[None]
+        if self._every(due):
+            return self.resample_rows(W.W, self.rngs)
+        rows = np.flatnonzero(due)
         A = identity(*W.W.shape)
-        for r in np.flatnonzero(due):
-            A[r] = self.resample(W.W[r], self.rngs[r])
+        A[rows] = self.resample_rows(W.W[rows], [self.rngs[r] for r in rows.tolist()])
         return A
+
+    def resample_rows(self, W: np.ndarray, rngs: Sequence[np.random.Generator]) -> np.ndarray:
+        """The scheme over the due runs: `resample` ((W (N,), rng) -> a (M,)) run by run, each with its own
+        Generator (a scheme that takes the rows at once, as mazelab.resampling's do, stands in for this).
+
+        Parameters
+        ----------
+        W : array (D, N)
+            The due runs' normalised weights.
+        rngs : sequence of D Generators
+
+        Returns
+        -------
+        int array (D, M)
+        """
+        return np.array([self.resample(w, rng) for w, rng in zip(W, rngs, strict=True)])
 
     def move(self, x: np.ndarray, A: np.ndarray | None, due: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """x_k^i ~ p(x_k | x_{k-1}^{a^i}), the transition of the ancestors.
@@ -256,9 +276,9 @@ class SMC:
     def _lost_at_first_stage(self, Wf: Weights, eta: np.ndarray) -> np.ndarray | None:
         """The runs whose first-stage total underflows (bool (R,), or None: none): they draw nothing this
         step and restart."""
-        self._received_totals(Wf, ("log_eta", eta))
         if settled(Wf.log_total):
             return None
+        self._received_totals(Wf, ("log_eta", eta))
         lost = Wf.lost
         self.movers = [None if gone else g for g, gone in zip(self.rngs, lost.tolist(), strict=True)]
         return lost
@@ -271,23 +291,18 @@ class SMC:
         the factor, or their log total when the factor is None): (weights, increments (R,))."""
         if reset is None:
             new = W.add(log_g, self.x)
-            self._received_totals(new, ("move", self.x), ("log_likelihood", log_g))
             return new, new.log_total
         log_w, factor = reset
-        every = bool(due.all())
-        fresh = (
-            self.weights_class.from_log(log_w, self.x)
-            if every
-            else self.weights_class.from_log(log_w[due], self.x[due])
-        )
-        self._received_totals(fresh, ("move", self.x), ("log_likelihood", log_g), ("reweight_resampled", log_w))
+        every = self._every(due)
+        fresh = self.weights_class.from_log(*((log_w, self.x) if every else (log_w[due], self.x[due])))
         if isinstance(factor, np.ndarray) and factor.ndim and not every:
             factor = factor[due]
-        increment = fresh.log_total if factor is None else (fresh.log_total - math.log(log_w.shape[1])) + factor
+        increment = fresh.log_total if factor is None else fresh.log_total - math.log(log_w.shape[1])
+        if factor is not None and not (isinstance(factor, float) and factor == 0):  # x + 0.0 is x
+            increment = increment + factor
         if every:
             return fresh, increment
         kept = W.add(log_g, self.x)
-        self._received_totals(kept, ("move", self.x), ("log_likelihood", log_g))
         increments = kept.log_total.copy()
         increments[due] = increment
         return kept.reset(due, fresh, self.x), increments
@@ -325,15 +340,25 @@ class SMC:
         """
         return self.x.shape[1]
 
+    def _some(self, due: np.ndarray) -> bool:
+        """Whether any run is due (no reduction for the every-run mask `time_to_resample` returns)."""
+        return due is self.all_due or bool(due.any())
+
+    def _every(self, due: np.ndarray) -> bool:
+        """Whether every run is due."""
+        return due is self.all_due or bool(due.all())
+
     # -- the boundary: what a hook returns, checked once where the step receives it --------------------
-    def _received_totals(self, W: Weights, *suspects: tuple[str, np.ndarray]) -> None:
-        """A NaN or +inf log total (one check per run, fused into the normalisation): HookError naming the
-        first of the hooks (hook, what it returned) whose values hold a NaN or +inf."""
-        if settled(W.log_total):
-            return
+    def _received_totals(self, W: Weights, *suspects: tuple[str, np.ndarray | None]) -> None:
+        """A NaN or +inf log total (one check per run, fused into the normalisation; the step asks once
+        its totals are not all settled): HookError naming the first of the hooks (hook, what it
+        returned) whose values hold a NaN or +inf."""
         bad = ~(W.log_total < math.inf)  # True for NaN and +inf
         if bad.any():
-            hook = next((name for name, v in suspects if np.isnan(v).any() or np.isposinf(v).any()), suspects[-1][0])
+            hook = next(
+                (name for name, v in suspects if v is not None and (np.isnan(v).any() or np.isposinf(v).any())),
+                suspects[-1][0],
+            )
             said = "the move returned NaN positions" if hook == "move" else f"{hook} returned NaN or +inf"
             raise HookError(f"{said} (run {int(np.flatnonzero(bad)[0])}); expected finite values")
 
@@ -379,6 +404,19 @@ class SMC:
         return float(self.run_log_evidence[0]) if self.runs == 1 else self.run_log_evidence.copy()
 
     @property
+    def ancestry(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """This step's genealogy (A, due), read-only, or None before the first step.
+
+        A, int (R, M): the index in x_{k-1} of the particle each particle of x_k descends from (identity in
+        the runs not due); due, bool (R,): the runs that resampled. A run restarted from the prior
+        (`reinitialised_at`) and recovery's injected particles (`injected`) have no ancestor, whatever A
+        says. Nothing is kept past the step: a recorder of the genealogy keeps each step's pair."""
+        if not self.steps_done:
+            return None
+        A = identity(self.runs, self.count) if self._ancestors is None else self._ancestors
+        return read_only(A.view()), read_only(self.resampled_now.view())
+
+    @property
     def reinitialised_at(self) -> list[int] | list[list[int]]:
         """The steps at which no particle explained z and the filter restarted (a list per run for R runs)."""
         return self._one(self._reinitialised)
@@ -406,47 +444,33 @@ def settled(totals: np.ndarray) -> bool:
 
 
 # -- the run axis -----------------------------------------------------------------------------------------
-def as_runs(particles: Any) -> np.ndarray:
-    """Initial particles as (R, N, 2) float64, checked: (N, 2) is one run.
+def runs_of(particles: Any, rng: Any) -> tuple[np.ndarray, list[np.random.Generator]]:
+    """The runs a filter starts: initial particles as (R, N, 2) float64, checked ((N, 2) is one run),
+    and one Generator per run (`rng` itself for one run, the sequence of R given, None: fresh ones).
 
     Parameters
     ----------
     particles : array-like (N, 2) or (R, N, 2)
+    rng : numpy.random.Generator, a sequence of R of them, or None
 
     Returns
     -------
-    array (R, N, 2)
+    (array (R, N, 2), list of R numpy.random.Generator)
     """
     array = np.asarray(particles)
     if array.ndim == 3:
         if array.shape[2] != 2 or array.shape[1] < 1:
             raise ValueError(f"particles of R runs must have shape (R, N, 2), got {array.shape}")
-        return np.stack([as_points("particles", run) for run in array])
-    return as_points("particles", particles)[None]
-
-
-def generators(rng: Any, runs: int) -> list[np.random.Generator]:
-    """One Generator per run: `rng` itself for one run, or the sequence given (None: fresh ones).
-
-    Parameters
-    ----------
-    rng : numpy.random.Generator, a sequence of R of them, or None
-    runs : int
-
-    Returns
-    -------
-    list of numpy.random.Generator
-    """
+        array = np.stack([as_points("particles", run) for run in array])
+    else:
+        array = as_points("particles", particles)[None]
+    runs = len(array)
     if rng is None:
-        return [np.random.default_rng() for _ in range(runs)]
-    if isinstance(rng, np.random.Generator):
-        if runs != 1:
-            raise ValueError(f"{runs} runs need {runs} generators, one each, got one")
-        return [rng]
-    rngs = list(rng)
+        return array, [np.random.default_rng() for _ in range(runs)]
+    rngs = [rng] if isinstance(rng, np.random.Generator) else list(rng)
     if len(rngs) != runs or not all(isinstance(g, np.random.Generator) for g in rngs):
-        raise ValueError(f"{runs} runs need {runs} numpy Generators, got {len(rngs)}")
-    return rngs
+        raise ValueError(f"{runs} runs need {runs} numpy Generators, one each, got {len(rngs)}")
+    return array, rngs
 
 
 def particles_array(values: np.ndarray, dtype: Any) -> np.ndarray:
@@ -510,20 +534,23 @@ def log_weights_of(hook: str, value: Any, runs: int) -> np.ndarray | None:
     raise HookError(f"{hook} returned {describe(value)}; expected float (R, N) with R = {runs}")
 
 
-def due_of(hook: str, value: Any, runs: int, lost: np.ndarray | None) -> np.ndarray:
+def due_of(hook: str, value: Any, filt: SMC, lost: np.ndarray | None) -> np.ndarray:
     """A hook's bool (R,) mask (one bool stands for every run) less the lost runs, or HookError."""
-    due = np.asarray(value)
+    if value is filt.all_due and lost is None:
+        return value
+    due, runs = np.asarray(value), filt.runs
     if due.dtype != bool or due.shape not in ((), (runs,)):
         raise HookError(f"{hook} returned {describe(value)}; expected bool (R,) with R = {runs}")
     due = np.broadcast_to(due, (runs,)) if due.shape == () else due
     return due if lost is None else due & ~lost
 
 
-def ancestors_of(hook: str, value: Any, runs: int, count: int) -> np.ndarray:
+def ancestors_of(hook: str, value: Any, filt: SMC) -> np.ndarray:
     """A hook's ancestors, int (R, M) within [0, N), or HookError (so that no kernel reads outside its arrays)."""
+    runs, count = filt.x.shape[:2]
     if not (isinstance(value, np.ndarray) and value.dtype.kind in "iu" and value.ndim == 2 and len(value) == runs):
         raise HookError(f"{hook} returned {describe(value)}; expected int (R, M) indices with R = {runs}")
-    if value.size and value.view(UNSIGNED[value.itemsize]).max() >= count:  # a negative index is a large unsigned one
+    if value.size and np.maximum.reduce(value.view(UNSIGNED[value.itemsize]), None) >= count:  # -1: a large unsigned
         raise HookError(f"{hook} returned an index outside [0, {count}): {value.min()}..{value.max()}")
     return value
 
@@ -547,4 +574,4 @@ def reset_of(hook: str, value: Any, runs: int) -> tuple[np.ndarray, Any]:
     return log_weights_of(hook, value[0], runs), value[1]
 
 
-__all__ = ["PORTED", "SMC", "HookError", "as_runs", "generators", "new_particles", "particles_array"]
+__all__ = ["PORTED", "SMC", "HookError", "new_particles", "particles_array", "runs_of"]

@@ -34,7 +34,7 @@ from mazelab.checks import angle, coordinate, step_number
 from mazelab.grid_filter import BYTES_PER_GRID_CELL, GridBayesFilter, GridWorkspace, arc_kernel, arc_kernel_shape
 from mazelab.limits import check_memory
 from mazelab.maze import Maze
-from mazelab.model import check_model_parameters, log_likelihood
+from mazelab.model import check_model_parameters
 
 BYTES_PER_DENSITY_CELL = 8  # a float64 grid: what each checkpoint, each refiltered step and each kept density takes
 
@@ -107,7 +107,7 @@ class BackwardStep:
         self._spectrum: np.ndarray | None = None
 
     def likelihood(self, z: float) -> np.ndarray:
-        """l_k = p(z_k | x) on the cells divided by its largest value (equation (3), mazelab.model's
+        """l_k = p(z_k | x) on the cells divided by its largest value (equation (3), the grid filter's
         log_likelihood: the one source of it).
 
         Parameters
@@ -119,9 +119,8 @@ class BackwardStep:
         -------
         array of the grid's shape, values in [0, 1]
         """
-        grid = self.grid
-        log_lik = log_likelihood(z, grid.positions, grid.world, grid.sigma, grid.settings["outside_penalty"])
-        return np.exp(log_lik - log_lik.max()).reshape(grid.shape)
+        log_lik = self.grid.log_likelihood(z)
+        return np.exp(log_lik - log_lik.max())
 
     def adjoint(self, values: np.ndarray, compass_angle: float) -> np.ndarray:
         """P^T values: the linear convolution with the flipped arc kernel of `compass_angle`, cropped to

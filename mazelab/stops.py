@@ -87,14 +87,3 @@ def exit_without_strays(code: int, warn: Callable[[str], None]) -> None:
         with contextlib.suppress(Exception):
             stream.flush()
     os._exit(code)
-
-
-__all__ = [
-    "Interrupted",
-    "StoppedBySignal",
-    "describe_exit",
-    "exit_without_strays",
-    "is_users_stop",
-    "mark_interrupts",
-    "stray_threads",
-]

@@ -56,7 +56,7 @@ def test_accuracy_refuses_an_absurd_sigma_and_a_huge_run_count_before_any_work(c
     assert "sigma must lie within" in one_error_line(capsys)
     monkeypatch.setattr(limits, "memory_budget", lambda: MemoryBudget(8 * 2**30, "test budget"))
     assert main(["accuracy", "--runs", "10000000"]) == 2
-    assert "a study of 40000000 runs needs" in one_error_line(capsys)
+    assert "a study of 80000000 runs needs" in one_error_line(capsys)  # 4 mazes x 2 RPF bandwidths
     assert capsys.readouterr().out == ""
 
 

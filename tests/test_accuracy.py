@@ -28,7 +28,7 @@ def read_csv(path: Path) -> list[dict[str, str]]:
 # -- accuracy: the second half of the steps --------------------------------------------------------
 def test_accuracy_averages_the_distance_over_the_second_half_of_the_steps():
     """The first localisation is not accuracy: 10 steps 3 units off, then 10 steps 0.1 off gives 0.1."""
-    from mazelab.experiments.accuracy import distance_to_exact
+    from mazelab.experiments.study import distance_to_exact
 
     exact = np.zeros((20, 2))
     estimates = np.r_[np.full((10, 2), [3.0, 0.0]), np.full((10, 2), [0.0, 0.1])]
@@ -101,13 +101,13 @@ def test_the_same_command_after_an_interrupted_accuracy_resumes_it_and_another_r
     """An interrupted accuracy leaves its CSV, record and journal: the same command goes on from the runs
     it finished (saying so) and ends with an uninterrupted run's CSV; one of other parameters replaces
     what it left (saying so), without --force."""
-    from mazelab.experiments import accuracy as accuracy_module
+    from mazelab.experiments import study as study_module
 
     args = ["accuracy", "--maze", "paper_5x5", "--runs", "3", "--steps", "6", "--particles", "40", "--filters", "sir",
             "--workers", "1"]  # fmt: skip
     table, whole = tmp_path / "a.csv", tmp_path / "whole.csv"
     assert main([*args, "--csv", str(whole)]) == 0
-    real, done = accuracy_module.run_accuracy_task, []
+    real, done = study_module.run_task, []
 
     def stop_at_the_third(task):
         if len(done) == 2:
@@ -115,19 +115,19 @@ def test_the_same_command_after_an_interrupted_accuracy_resumes_it_and_another_r
         done.append(task)
         return real(task)
 
-    monkeypatch.setattr(accuracy_module, "run_accuracy_task", stop_at_the_third)
+    monkeypatch.setattr(study_module, "run_task", stop_at_the_third)
     assert main([*args, "--csv", str(table)]) == 130
     assert json.loads(table.with_suffix(".record.json").read_text())["status"] == "interrupted"
-    monkeypatch.setattr(accuracy_module, "run_accuracy_task", real)
+    monkeypatch.setattr(study_module, "run_task", real)
     capsys.readouterr()
     assert main([*args, "--csv", str(table)]) == 0
     out = capsys.readouterr().out
     assert "resuming the interrupted run of" in out and "2 runs kept" in out
     assert table.read_text() == whole.read_text()
-    monkeypatch.setattr(accuracy_module, "run_accuracy_task", stop_at_the_third)
+    monkeypatch.setattr(study_module, "run_task", stop_at_the_third)
     done.clear()
     assert main([*args, "--csv", str(table), "--force"]) == 130
-    monkeypatch.setattr(accuracy_module, "run_accuracy_task", real)
+    monkeypatch.setattr(study_module, "run_task", real)
     capsys.readouterr()
     assert main([*args[:-2], "--workers", "1", "--steps", "7", "--csv", str(table)]) == 0
     assert "replacing what an interrupted run left" in capsys.readouterr().out

@@ -10,7 +10,7 @@ from conftest import PAPER_MAZE, needs_unwritable_folders
 
 from mazelab.cli.app import main
 from mazelab.maze import MAZE_FILE_LIMIT_BYTES
-from mazelab.registry import short_names
+from mazelab.registry import entries
 
 SCENARIO = {
     "init_robot_pos": [3.5, 1.5],
@@ -163,7 +163,7 @@ CASES = [
     # names and outputs
     (
         ["run", "--filter", "kalman"],
-        f"unknown filter 'kalman' (choose from {', '.join(short_names())}, or FILE.py:Class)",
+        f"unknown filter 'kalman' (choose from {', '.join(e.short_name for e in entries())}, or FILE.py:Class)",
     ),
     (["run", "--resampling", "magic"], "unknown resampling scheme"),
     (["run", "--save-scenario", "{tmp}/no/such/folder/x.json"], "does not exist"),

@@ -14,7 +14,7 @@ import time
 import pytest
 from conftest import ROOT, finished_rows
 
-from mazelab.experiments.dask_runner import QUIET_LOGGERS, quiet_distributed
+from mazelab.experiments.executor import QUIET_LOGGERS, quiet_distributed
 
 distributed = pytest.importorskip("distributed")
 

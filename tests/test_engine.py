@@ -289,3 +289,30 @@ def test_a_plugin_of_0_2s_hooks_gets_one_line_on_how_to_port_it():
         TypeError, match=r"^Mine.ancestors\(W\) is a hook of mazelab 0.2; port it to ancestors\(self, W, due\)"
     ):
         type("Mine", (SIRParticleFilter,), {"ancestors": lambda self, W: None})
+
+
+def test_the_filter_shows_each_steps_ancestors_and_due_mask_read_only(paper_world):
+    """`ancestry` after a step: the A the move received (identity rows where a run was not due) and the
+    due mask, read-only; None before the first step; nothing kept from the steps before."""
+    received = []
+
+    class Recording(SIRParticleFilter):
+        def move(self, x, A, due):
+            received.append(None if A is None else A.copy())
+            return super().move(x, A, due)
+
+    rng = np.random.default_rng(4)
+    parts = np.stack([paper_world.random_free_places(200, rng) for _ in range(3)])
+    filt = Recording(paper_world, 0.3, 0.5, parts, [np.random.default_rng(s) for s in range(3)], threshold=0.5)
+    assert filt.ancestry is None
+    partial = False
+    for k in range(25):
+        filt.step(np.full(3, 0.1 * k), np.full(3, 2.0))
+        A, due = filt.ancestry
+        assert not A.flags.writeable and not due.flags.writeable
+        np.testing.assert_array_equal(due, filt.resampled_now)
+        expected = np.broadcast_to(np.arange(200), (3, 200)) if received[-1] is None else received[-1]
+        np.testing.assert_array_equal(A, expected)
+        np.testing.assert_array_equal(A[~due], np.broadcast_to(np.arange(200), (int((~due).sum()), 200)))
+        partial |= bool(due.any() and not due.all())
+    assert partial  # some steps resampled some runs and not others

@@ -24,13 +24,19 @@ from mazelab.exercise.inputs import (
     draw_scenarios,
     resample_vector,
 )
-from mazelab.exercise.layout import WIDTH, format_report
-from mazelab.exercise.offspring import critical_z, judge_resample, offspring_counts, scheme_variances, z_scores
-from mazelab.exercise.parts import kolmogorov_p, ks_uniform
-from mazelab.exercise.report import check, collect_in_process
-from mazelab.exercise.rows import take
+from mazelab.exercise.parts import (
+    critical_z,
+    judge_resample,
+    kolmogorov_p,
+    ks_uniform,
+    offspring_counts,
+    scheme_variances,
+    take,
+    z_scores,
+)
+from mazelab.exercise.report import WIDTH, check, collect_in_process, format_report
 from mazelab.exercise.selfcheck import progress
-from mazelab.exercise.whole import sign_test_alpha
+from mazelab.exercise.whole import judge_whole, magnitude_p, sign_test_alpha
 from mazelab.plugins import load_plugin
 from mazelab.resampling import RESAMPLING_SCHEMES
 from mazelab.simulation import simulate
@@ -344,3 +350,67 @@ def test_student_filter_restarts_from_the_prior_when_no_particle_explains_z(pape
 def test_student_filter_refuses_estimate_mode(paper_world):
     with pytest.raises(ValueError, match="estimate='mode' does not apply"):
         StudentFilter(paper_world, 0.3, 0.5, [[1.5, 0.5]], estimate="mode")
+
+
+# -- the whole filter judged by magnitude too (issue 48, item 10) -----------------------------------------
+def whole_verdict(distances: list[float], sir_distances: list[float]) -> tuple[str, str]:
+    """The whole filter's (status, got) for these distances to the exact mean (steady offsets along x)."""
+    scenarios = draw_scenarios(WHOLE_SEED, count=len(distances), steps=4)
+    exact = [np.zeros((4, 2)) for _ in scenarios]
+    mine = [np.column_stack([np.full(4, d), np.zeros(4)]) for d in distances]
+    sir = [np.column_stack([np.full(4, d), np.zeros(4)]) for d in sir_distances]
+    row, _ = judge_whole(scenarios, mine, exact, sir, "systematic")
+    return row.status, row.got
+
+
+def test_a_filter_far_off_fails_though_the_sir_lost_the_robot_twice():
+    """Nine times the SIR's distance on ten walks, closer only on the two where the SIR itself lost the
+    robot: the sign test alone passes it (farther on 10 < 11); the magnitude test fails it."""
+    sir = [0.05] * 10 + [6.0, 5.5]
+    mine = [0.45] * 10 + [5.0, 4.0]
+    status, got = whole_verdict(mine, sir)
+    assert status == "fail" and "farther on 10 of 12" in got and "p 0.00098" in got
+
+
+def test_an_honest_filter_that_loses_the_robot_once_passes():
+    """One walk 10 units off where the SIR is 0.07 (the catastrophe an honest filter can meet): one log
+    ratio moves, not the verdict."""
+    rng = np.random.default_rng(1)
+    sir = list(rng.uniform(0.03, 0.08, 12))
+    mine = [s * f for s, f in zip(sir, rng.uniform(0.8, 1.25, 12), strict=True)]
+    mine[3] = 10.0
+    assert whole_verdict(mine, sir)[0] == "pass"
+
+
+def test_the_magnitude_test_is_exact_under_exchangeable_pairs():
+    """Its p-value is the share of the 4096 sign patterns reaching the observed sum: all twelve ratios
+    positive is 1/4096 whatever their sizes; a symmetric set of ratios is about 1/2."""
+    assert magnitude_p(np.full(12, 2.0), np.ones(12))[1] == 1 / 4096
+    ratio, p = magnitude_p(np.array([2.0, 0.5] * 6), np.ones(12))
+    assert ratio == pytest.approx(1.0) and 0.4 < p < 0.7
+
+
+# -- the exercise in Ukrainian (issue 49, item 10) --------------------------------------------------------
+def test_new_writes_the_exercise_in_ukrainian_and_the_folder_keeps_its_language(tmp_path, capsys):
+    import ast
+
+    from mazelab.exercise.template import FILTER_TEMPLATE, exercise_texts
+
+    assert main(["exercise", "new", str(tmp_path), "--lang", "uk"]) == 0
+    mine = (tmp_path / "my_filter.py").read_text()
+    assert 'LANGUAGE = "uk"' in mine and "гранул" in mine and "still to write" not in mine
+    assert (tmp_path / "README.md").read_text().startswith("# Ваш власний гранулярний фільтр")
+
+    def code(text: str) -> str:  # the code without its strings (docstrings, error texts) and the language
+        tree = ast.parse(text.replace('LANGUAGE = "uk"', 'LANGUAGE = "en"'))
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Constant) and isinstance(node.value, str):
+                node.value = ""
+        return ast.dump(tree)
+
+    assert code(mine) == code(FILTER_TEMPLATE) and exercise_texts("en") == exercise_texts()
+    done = subprocess.run([sys.executable, "my_filter.py"], cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert "MyFilter: ще треба написати: predict, weigh, resample, estimate" in done.stdout, done.stderr
+    assert main(["exercise", "check", str(tmp_path / "my_filter.py"), "--timeout", "30"]) == 1  # no --lang
+    assert "Перевірка MyFilter" in capsys.readouterr().out
+    assert main(["exercise", "new", str(tmp_path / "x"), "--lang", "xx"]) == 2

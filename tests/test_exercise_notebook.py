@@ -19,7 +19,7 @@ from test_notebook import CELL_TIMEOUT, kernel_spec, stdout_of  # noqa: F401 (ke
 
 from mazelab.exercise import PARTS
 from mazelab.exercise.language import catalogue
-from mazelab.exercise.layout import WIDTH
+from mazelab.exercise.report import WIDTH
 
 NOTEBOOKS = {"en": ROOT / "notebooks" / "exercise.ipynb", "uk": ROOT / "notebooks" / "exercise_uk.ipynb"}
 
@@ -39,12 +39,12 @@ def answer(part: str) -> str:
 
 
 def code_without_words(source: str) -> str:
-    """The code of a cell with its docstrings, comments and report language (`lang=`) gone (ast drops
-    the comments)."""
+    """The code of a cell with its texts (docstrings, error messages), comments and report language
+    (`lang=`) gone (ast drops the comments)."""
     tree = ast.parse(source)
     for node in ast.walk(tree):
-        if isinstance(node, ast.FunctionDef) and ast.get_docstring(node) is not None:
-            node.body = node.body[1:]
+        if isinstance(node, ast.Constant) and isinstance(node.value, str):
+            node.value = ""
         if isinstance(node, ast.Call):
             node.keywords = [k for k in node.keywords if k.arg != "lang"]
     return ast.dump(tree)

@@ -20,10 +20,8 @@ from mazelab.cli.app import main
 from mazelab.cli.replay import replay_setup
 from mazelab.experiments import batch_runs
 from mazelab.experiments import study as experiments
-from mazelab.experiments.compare import compare_filters
 from mazelab.experiments.executor import run_study
-from mazelab.experiments.kidnapping import DEFAULT_WINDOW, recovery_steps, relocalised
-from mazelab.experiments.runs import final_error
+from mazelab.experiments.runs import DEFAULT_WINDOW, compare_filters, final_error, recovery_steps, relocalised
 from mazelab.experiments.stats import (
     bootstrap_interval,
     km_median,

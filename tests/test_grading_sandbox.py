@@ -10,6 +10,7 @@ import ast
 import json
 import os
 import re
+import shutil
 import textwrap
 import time
 from pathlib import Path
@@ -25,12 +26,19 @@ from mazelab.exercise.kit import (
     REFERENCE_MODULES,
     build_kit,
     kit_file,
+    module_text,
     source_file,
-    transitive_imports,
 )
 from mazelab.exercise.report import NotGradableError, check_file
-from mazelab.exercise.runner import MEMORY_LIMIT
-from mazelab.exercise.sandbox import SANDBOX_UID, TMP_LIMIT, Sandbox, sandbox
+from mazelab.exercise.sandbox import (
+    MEMORY_LIMIT,
+    PROCESS_LIMIT,
+    SANDBOX_UID,
+    TMP_LIMIT,
+    Sandbox,
+    SandboxError,
+    sandbox,
+)
 
 SEED = 2024  # tests/test_grading.py's
 # skipped where no sandbox can be made, but never in CI, which installs bubblewrap: there a sandbox that
@@ -58,6 +66,36 @@ def said(report, key: str) -> dict:
 
 
 # -- the kit -------------------------------------------------------------------------------------------
+def lab_imports(module: str) -> set[str]:
+    """The mazelab modules `module` imports (at any depth of its code, not under TYPE_CHECKING), as the
+    kit holds it (a module of constants imports nothing)."""
+    tree = ast.parse(module_text(module) if module in KIT else source_file(module).read_text())
+    for node in ast.walk(tree):
+        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+            node.body = []
+    found: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("mazelab") and not node.level:
+            found.add(node.module)
+            found |= {f"{node.module}.{a.name}" for a in node.names if source_file(f"{node.module}.{a.name}").is_file()}
+        elif isinstance(node, ast.Import):
+            found |= {a.name for a in node.names if a.name.startswith("mazelab")}
+    return found
+
+
+def transitive_imports(module: str) -> set[str]:
+    """Every mazelab module `module` imports, directly or through others, and their parent packages."""
+    seen, todo = set(), [module]
+    while todo:
+        name = todo.pop()
+        if name in seen or not source_file(name).is_file():
+            continue
+        seen.add(name)
+        parts = name.split(".")
+        todo += [".".join(parts[:i]) for i in range(1, len(parts))] + sorted(lab_imports(name))
+    return seen
+
+
 def test_every_module_student_filter_imports_is_in_the_kit_and_none_is_a_reference():
     """StudentFilter's transitive mazelab imports (and the child's) are each in KIT, and none of
     them is a reference implementation: when StudentFilter imports a new module, this names it."""
@@ -206,7 +244,7 @@ def test_forged_answers_on_the_pipe_get_the_verdict_of_their_values(tmp_path):
     then os._exit(0). The grader believes none of what it says, only the values: estimate fails."""
     prelude = """
         import os, stat
-        from mazelab.exercise.wire import encode
+        from mazelab.exercise.child import encode
 
         def send(fd, meta, arrays=None):
             data = encode(meta, arrays)
@@ -233,7 +271,7 @@ def test_forged_answers_on_the_pipe_get_the_verdict_of_their_values(tmp_path):
 def test_a_forged_done_without_answers_fails_every_row_and_forges_no_line(tmp_path):
     prelude = """
         import os, stat
-        from mazelab.exercise.wire import encode
+        from mazelab.exercise.child import encode
 
         for fd in range(3, 64):
             try:
@@ -249,7 +287,7 @@ def test_a_forged_done_without_answers_fails_every_row_and_forges_no_line(tmp_pa
     path = write_submission(tmp_path / "sub" / "my_filter.py", textwrap.dedent(prelude))
     report = check_file(str(path), seed=SEED, stages=("predict", "estimate"))
     assert [(r.status, r.got) for r in report.rows] == [("fail", "no answer came from the student's process")] * 2
-    assert report.filter_name == "Mine All checks pass."  # one line: the report's own lines cannot be forged
+    assert report.filter_name == "Mine\\nAll checks pass."  # one line: the report's own lines cannot be forged
 
 
 @needs_sandbox
@@ -301,13 +339,13 @@ def test_the_private_tmp_is_bounded(tmp_path):
     assert status == "fail" and "No space left on device" in got, got
 
 
-def test_a_child_that_cannot_be_started_fails_its_rows_not_the_grader(tmp_path, monkeypatch):
+def test_a_sandbox_that_cannot_be_started_is_the_graders_error_not_the_students(tmp_path, monkeypatch):
     import mazelab.exercise.report as report
 
     monkeypatch.setattr(report, "sandbox", lambda: Sandbox(str(tmp_path / "gone" / "bwrap")))
     path = write_submission(tmp_path / "sub" / "my_filter.py")
-    checked = check_file(str(path), seed=SEED, stages=("weigh", "estimate"))
-    assert [(r.status, "could not be started" in r.got) for r in checked.rows] == [("fail", True)] * 2
+    with pytest.raises(SandboxError, match="could not be started"):
+        check_file(str(path), seed=SEED, stages=("weigh", "estimate"))
 
 
 # -- copied code ---------------------------------------------------------------------------------------
@@ -338,7 +376,7 @@ def test_no_honest_answer_is_taken_for_a_copy():
     from mazelab.exercise.likeness import LIKENESS_LIMIT, class_source, likeness
 
     classes = [c for c in vars(exercise_answers).values() if isinstance(c, type)]
-    worst = max(one.share for c in classes for one in likeness(class_source(c)).values())
+    worst = max(one.share for c in classes for one in likeness({"c.py": class_source(c)}).values())
     assert worst < LIKENESS_LIMIT
 
 
@@ -405,3 +443,216 @@ def test_check_refuses_a_link_to_a_file_that_is_not_python_in_one_line(tmp_path,
     assert main(["exercise", "check", str(tmp_path / "my_filter.py")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [f"error: {tmp_path / 'my_filter.py'}: a link to /etc/passwd, not a Python file"]
+
+
+# -- the sandbox on every host (issue 48, item 3, 6, 8) -------------------------------------------------
+@pytest.fixture
+def fresh_probe():
+    """The sandbox and the cgroups probed again for this test (and after it)."""
+    from mazelab.exercise.sandbox import cgroup_parents
+
+    sandbox.cache_clear()
+    cgroup_parents.cache_clear()
+    yield
+    sandbox.cache_clear()
+    cgroup_parents.cache_clear()
+
+
+def stand_in_bwrap(tmp_path: Path, refused: str) -> Path:
+    """A bwrap that exits 1 when an argument holds `refused` (as bubblewrap before 0.7 does for --size),
+    and otherwise runs the real one."""
+    script = tmp_path / "bwrap"
+    real = shutil.which("bwrap")
+    script.write_text(
+        f'#!/bin/sh\nfor a in "$@"; do case "$a" in *{refused}*) echo "bwrap: Unknown option $a" >&2; exit 1;; '
+        f'esac; done\nexec {real} "$@"\n'
+    )
+    script.chmod(0o755)
+    return script
+
+
+@needs_sandbox
+def test_a_bwrap_without_size_still_sandboxes_every_submission(tmp_path, monkeypatch, fresh_probe):
+    """Bubblewrap 0.6 (Ubuntu 22.04) has no --size: the command follows the probe, so the check passes."""
+    monkeypatch.setenv("MAZELAB_BWRAP", str(stand_in_bwrap(tmp_path, "--size")))
+    assert sandbox().sandboxed and not sandbox().bounded_tmp
+    report = estimate_only(tmp_path)
+    assert rows(report)["estimate"][0] == "pass" and report.note == ""
+
+
+@needs_sandbox
+def test_a_bwrap_that_fails_before_the_students_code_is_the_graders_error(tmp_path, monkeypatch, capsys,
+                                                                          fresh_probe):  # fmt: skip
+    """One line, exit 2, and no results.json nor CSV row giving anybody a 0."""
+    monkeypatch.setenv("MAZELAB_BWRAP", str(stand_in_bwrap(tmp_path, "mazelab.exercise.child")))
+    path = write_submission(tmp_path / "class" / "alice" / "my_filter.py")
+    (tmp_path / "out").mkdir()
+    assert main(["exercise", "check", str(path), "--gradescope", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "the sandbox did not start" in err[0] and "Unknown option" in err[0], err
+    assert not (tmp_path / "out" / "results.json").exists()
+    arguments = ["exercise", "grade", str(tmp_path / "class"), "--csv", str(tmp_path / "out" / "grades.csv")]
+    assert main([*arguments, "--quiet", "--gradescope", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "nobody graded" in err[0]
+    assert not (tmp_path / "out" / "grades.csv").exists() and not (tmp_path / "out" / "alice").exists()
+
+
+@needs_sandbox
+def test_the_graders_environment_is_not_in_the_sandbox(tmp_path, monkeypatch):
+    """bwrap itself starts with a minimal environment: /proc/1 (bwrap) shows none of the grader's."""
+    monkeypatch.setenv("MAZELAB_TEST_SECRET", "hunter2")
+    prelude = """
+        for pid in ("1", "self"):
+            with open(f"/proc/{pid}/environ", "rb") as file:
+                print("environ", pid, file.read().replace(b"\\0", b" ").decode(errors="replace"))
+    """
+    report = estimate_only(tmp_path, prelude)
+    assert "environ 1 " in report.output and "hunter2" not in report.output and "MAZELAB" not in report.output
+
+
+FORK_BOMB = f"""
+    def estimate(self, positions, weights):
+        import os, time
+        born = 0
+        try:
+            for _ in range({PROCESS_LIMIT * 3}):
+                if os.fork() == 0:
+                    time.sleep(20)
+                    os._exit(0)
+                born += 1
+        except OSError as error:
+            raise RuntimeError(f"forked {{born}}: {{error}}") from None
+        return weights @ positions
+"""
+
+
+@needs_sandbox
+@pytest.mark.parametrize("cgroups", ["as the host delegates them", "off"])
+def test_a_submission_starts_at_most_the_process_limit(tmp_path, monkeypatch, fresh_probe, cgroups):
+    """With a pids cgroup, or without (RLIMIT_NPROC in the sandbox's user namespace; as root, the
+    sandbox drops to the host's uid 65534 first, binding what it cannot reach from a staged place:
+    RLIMIT_NPROC does not hold for root, so a fork count under the limit there shows the drop)."""
+    from mazelab.exercise.sandbox import cgroup_parents
+
+    if cgroups == "off":
+        monkeypatch.setenv("MAZELAB_CGROUPS", "off")
+    elif cgroup_parents() is None:
+        pytest.skip("no cgroup this grader may make here")
+    report = estimate_only(tmp_path, estimate=textwrap.dedent(FORK_BOMB))
+    status, got = rows(report)["estimate"]
+    assert status == "fail" and "forked" in got, got
+    assert int(re.search(r"forked (\d+)", got).group(1)) < PROCESS_LIMIT
+
+
+@needs_sandbox
+def test_memory_is_limited_per_sandbox_where_there_is_a_cgroup(tmp_path, monkeypatch, fresh_probe):
+    """Three processes of 300 MB each under a cgroup of 512 MB: one of them is killed (per process,
+    each would be within its 4 GB of address space)."""
+    from mazelab.exercise.sandbox import Cgroup, cgroup_parents
+
+    if cgroup_parents() is None:
+        pytest.skip("no cgroup this grader may make here")
+    limits = {kind: {**values} for kind, values in Cgroup.LIMITS.items()}
+    for values in limits.values():
+        for name in ("memory.max", "memory.limit_in_bytes"):
+            if name in values:
+                values[name] = 512 << 20
+    monkeypatch.setattr(Cgroup, "LIMITS", limits)
+    estimate = """
+        def estimate(self, positions, weights):
+            import os
+            children = []
+            for _ in range(3):
+                pid = os.fork()
+                if pid == 0:
+                    block = np.ones(300 << 17)  # 300 MB, every page touched
+                    import time
+                    time.sleep(3)
+                    os._exit(int(block[0]) - 1)
+                children.append(pid)
+            ends = [os.waitpid(pid, 0)[1] for pid in children]
+            if any(os.WIFSIGNALED(end) for end in ends):
+                raise MemoryError("a process of the sandbox was killed at its memory limit")
+            return weights @ positions
+    """
+    status, got = rows(estimate_only(tmp_path, estimate=textwrap.dedent(estimate)))["estimate"]
+    assert status == "fail" and ("memory limit" in got or "SIGKILL" in got), got
+
+
+# -- code that is not in the files cannot run (issue 48, item 5) ----------------------------------------
+GUARDED = {
+    "exec of a text": "exec('x = 1')",
+    "an exec of an encoded text": "import base64\nexec(base64.b64decode(b'eCA9IDE='))",
+    "compile": "compile('1', 'mine', 'eval')",
+    "marshal": "import marshal\nmarshal.loads(bytes(40))",
+    "a code object made": "(lambda: 1).__code__.replace(co_name='mine')",
+    "a call through ctypes": "import ctypes\nctypes.CDLL(None).getpid()",
+    "a module written to /tmp": "import sys\nopen('/tmp/mine.py', 'w').write('x = 1')\nsys.path.append('/tmp')\n"
+    "import mine",
+    "a dataclass": "import dataclasses\n\n\n@dataclasses.dataclass\nclass Point:\n    x: int = 1",
+    "open and the paths patched first": "import builtins, posixpath\nbuiltins.open = print\n"
+    "posixpath.realpath = posixpath.abspath = lambda *a, **k: '/kit/mine.py'\nexec('x = 1')",
+}
+
+
+@pytest.mark.parametrize("how", list(GUARDED))
+def test_code_that_is_not_in_the_submissions_files_cannot_run(tmp_path, how):
+    """exec, compile, marshal, code objects, ctypes and modules from elsewhere are refused in the child,
+    sandbox or not, by a hook installed before the submission is imported."""
+    path = write_submission(tmp_path / "sub" / "my_filter.py", GUARDED[how])
+    with pytest.raises(NotGradableError, match=r"does not import: (PermissionError|ImportError): .*a submission"):
+        check_file(str(path), seed=SEED, stages=("estimate",))
+
+
+def test_an_exec_inside_a_part_fails_the_part_and_the_others_pass(tmp_path):
+    estimate = "def estimate(self, positions, weights):\n    return eval('weights @ positions')\n"
+    report = estimate_only(tmp_path, estimate=estimate)
+    assert rows(report)["estimate"][0] == "fail" and "may not compile text" in rows(report)["estimate"][1]
+    honest = estimate_only(tmp_path / "honest", "import collections, json, statistics\nimport numpy.linalg")
+    assert rows(honest)["estimate"][0] == "pass"
+
+
+# -- copied code, read as it runs (issue 48, item 5) ---------------------------------------------------
+def lab_function(qualified: str, name: str) -> str:
+    """A reference function's source, renamed `name` with its arguments and locals renamed too."""
+    module, _, function = qualified.rpartition(".")
+    tree = ast.parse(source_file(module).read_text())
+    node = next(n for n in tree.body if isinstance(n, ast.FunctionDef) and n.name == function)
+    node.name, node.returns = name, None
+    for argument in node.args.args:  # a copy without the annotations (which a copy may drop or add)
+        argument.annotation = None
+    text = ast.unparse(node)
+    for i, argument in enumerate(a.arg for a in node.args.args):
+        text = re.sub(rf"\b{argument}\b", f"v{i}", text)
+    return text
+
+
+def test_the_labs_code_bound_to_a_part_is_not_own_work():
+    """Bound by assignment, as a staticmethod, from a helper module, with annotations added: each is
+    the lab's code, named by its qualified name."""
+    from mazelab.exercise.likeness import copied_parts
+
+    systematic = lab_function("mazelab.resampling.systematic_resample", "_sr")
+    likelihood = lab_function("mazelab.model.log_likelihood", "_w")
+    cases = {
+        "resample": {"f.py": f"{systematic}\n\nclass F:\n    resample = staticmethod(_sr)\n"},
+        "weigh": {"f.py": f"{likelihood}\n\nclass F:\n    weigh = _w\n"},
+        "weigh ": {"f.py": "from helpers import _w as mine\n\nclass F:\n    def weigh(self, p, z):\n"
+                   "        return mine(z, p, self.world, self.sigma)\n", "helpers.py": likelihood},
+        "resample ": {"f.py": "import helpers\n\nclass F:\n    resample = staticmethod(lambda w, rng: "
+                      "helpers._sr(w, rng))\n", "helpers.py": systematic.replace("(v0, v1", "(v0: list, v1: int")},
+    }  # fmt: skip
+    for part, sources in cases.items():
+        copied = copied_parts(sources)
+        assert part.strip() in copied, (part, copied)
+        reference = "systematic_resample" if "resample" in part else "mazelab.model.log_likelihood "
+        assert reference.strip() in copied[part.strip()] and "100%" in copied[part.strip()], copied
+
+
+def test_a_copy_no_part_reaches_marks_the_whole_filter(tmp_path):
+    helper = lab_function("mazelab.weights.weighted_mean", "unused")
+    path = write_submission(tmp_path / "sub" / "my_filter.py", "import numpy as np\n\n" + helper)
+    report = check_file(str(path), seed=SEED, stages=("estimate", "whole"), timeout=60)
+    assert rows(report)["estimate"][0] == "pass"
+    assert rows(report)["whole filter"][0] == "not own work" and "weighted_mean" in rows(report)["whole filter"][1]

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from mazelab.grid_filter import GRID_RESOLUTION, GridBayesFilter, arc_kernel, fft_convolve_same
-from mazelab.model import ROBOT_SPEED
+from mazelab.model import ROBOT_SPEED, log_likelihood
 
 
 @pytest.mark.parametrize(("theta", "delta"), [(0.3, 0.5), (2.0, 0.05), (-1.0, 2 * math.pi), (4.0, 0.0)])
@@ -50,3 +50,14 @@ def test_grid_prediction_moves_the_belief_along_the_compass(paper_world):
     shift = grid.estimate - before
     assert shift[0] == pytest.approx(ROBOT_SPEED * math.sin(0.25) / 0.25, rel=1e-3)
     assert shift[1] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_the_grid_filters_log_likelihood_is_equation_3_less_the_gaussians_constant(paper_world):
+    """GridBayesFilter.log_likelihood (the update's and the smoother's): the model's log p(z | x) on the
+    cell centres, outside penalty included, less -log(sigma sqrt(2 pi)); written into `out` when given."""
+    grid = GridBayesFilter(paper_world, 0.3, 0.5, resolution=0.25)
+    constant = math.log(0.3 * math.sqrt(2 * math.pi))
+    expected = (log_likelihood(2.0, grid.positions, paper_world, 0.3) + constant).reshape(grid.shape)
+    np.testing.assert_allclose(grid.log_likelihood(2.0), expected, rtol=0, atol=1e-9)
+    out = np.empty(grid.shape)
+    assert grid.log_likelihood(2.0, out=out) is out

@@ -29,7 +29,7 @@ pytest.importorskip("numba")
 from mazelab.backend import NUMPY_KERNELS, THREADS_VARIABLE, use_backend
 from mazelab.bench import large_maze
 from mazelab.checks import MAX_ANGLE
-from mazelab.experiments.accuracy import accuracy_filters, accuracy_summary, accuracy_tasks, run_accuracy
+from mazelab.experiments.accuracy import accuracy_filters, accuracy_plan, accuracy_records, accuracy_summary
 from mazelab.experiments.executor import run_study
 from mazelab.experiments.study import MazeChoice, study_settings, study_tasks
 from mazelab.kernels import CHUNK, sources_digest
@@ -450,11 +450,12 @@ def mean_and_interval(rows, name):
 
 def test_the_backends_agree_on_the_distance_to_the_exact_posterior(paper_world):
     filters = accuracy_filters(["sir", "apf", "rpf"])
+    plan = accuracy_plan([MazeChoice.from_maze("paper", paper_world)], filters, sigma=0.3, delta=0.5, particles=400,
+                         runs=8, steps=60, seed=5)  # fmt: skip
     tables = {}
     for backend in ("numpy", "compiled"):
-        with use_backend(backend):
-            tasks = accuracy_tasks([("paper", paper_world)], 8, 0.3, 0.5, 400, 60, 5, filters)
-            tables[backend] = accuracy_summary(run_accuracy(tasks))
+        records = run_study(plan.tasks(), 1, backend=backend).records
+        tables[backend] = accuracy_summary(accuracy_records(records, filters))
     for label in [label for label, name, _ in filters if resolve_filter(name) is not resolve_filter("grid")]:
         mean_n, (low_n, high_n) = mean_and_interval(tables["numpy"], label)
         mean_c, (low_c, high_c) = mean_and_interval(tables["compiled"], label)

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from mazelab.cli.app import main
-from mazelab.experiments.kidnapping import DEFAULT_WINDOW, recovery_steps, relocalised
+from mazelab.experiments.runs import DEFAULT_WINDOW, recovery_steps, relocalised
 from mazelab.lab import simulate
 from mazelab.model import CONVERGENCE_RADIUS, ROBOT_SPEED
 from mazelab.robot import Robot

@@ -66,7 +66,7 @@ def test_each_particle_filter_estimates_the_exact_log_evidence_within_its_monte_
 
 
 def test_a_run_reports_the_log_evidence_of_every_step_and_compare_shows_it(paper_world):
-    from mazelab.experiments.compare import comparison_table
+    from mazelab.experiments.runs import comparison_table
     from mazelab.lab import simulate
     from mazelab.robot import Robot
 

@@ -23,7 +23,7 @@ from mazelab.cli.filter_options import declared_flags
 from mazelab.invocation import PROJECT_DIR, command_prefix
 from mazelab.maze import Maze, MazeError
 from mazelab.mazes import LAB_MAZES, shipped_mazes
-from mazelab.registry import short_names
+from mazelab.registry import entries
 from mazelab.robot import Robot
 from mazelab.simulation import check_walk_in_maze, simulate
 from mazelab.viz import processes
@@ -126,10 +126,9 @@ def test_accuracy_runs_on_the_named_shipped_mazes_not_on_whatever_is_in_mazes(tm
     from mazelab.cli import accuracy
 
     seen = []
-    monkeypatch.setattr(accuracy, "accuracy_tasks", lambda named, *args: seen.extend(n for n, _ in named) or [])
-    monkeypatch.setattr(accuracy, "run_accuracy", lambda tasks, *args, **kwargs: [])
-    monkeypatch.setattr(accuracy, "accuracy_table", lambda records: "")
+    monkeypatch.setattr(accuracy, "run_and_report", lambda plan, *args: seen.extend(plan.parameters()["mazes"]))
     assert main(["accuracy", "--runs", "1"]) == 0
+    seen = [maze["label"] for maze in seen]
     assert seen == list(LAB_MAZES) and "random_20x20" not in seen
 
 
@@ -211,7 +210,7 @@ def test_help_shows_names_and_choices_not_braces_or_types(capsys, command):
     assert usage.startswith("Usage:") and "{" not in usage
     assert "--filter <str>" not in text and "--filters <str>" not in text and "z_(1-delta)" not in text
     if command == ["run"]:  # the filters from the registry, every declared flag named (mazelab filters: their help)
-        assert "--filter NAME" in text and ", ".join(short_names()) in text
+        assert "--filter NAME" in text and ", ".join(e.short_name for e in entries()) in text
         assert all(f"--{name.replace('_', '-')}" in " ".join(text.split()) for name in declared_flags())
 
 

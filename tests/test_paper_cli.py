@@ -21,7 +21,7 @@ from conftest import ROOT
 from mazelab.cli.app import app, main
 from mazelab.lab import simulate
 from mazelab.mazes import load_maze, shipped_mazes
-from mazelab.registry import filter_entry, short_names
+from mazelab.registry import entries, filter_entry
 from mazelab.robot import Robot
 
 PAPER_KEYS = ["init_robot_pos", "init_particles_pos", "robot_actual_angles", "robot_compass_angles"]
@@ -225,7 +225,7 @@ def test_options_the_docs_and_the_programs_lines_use_are_in_the_help(capsys):
     text = capsys.readouterr().out
     for flag in ("--backend", "--stations", "--wall-share", "--summary-csv", "--dask-timeout", "--draw-run"):
         assert re.search(rf"^\s+{flag}\b", text, re.M), flag
-    for name in short_names():
+    for name in [e.short_name for e in entries()]:
         assert main(["filters", name]) == 0
         advertised = set(re.findall(r"\[(--[a-z-]+(?:/--[a-z-]+)?)\]", capsys.readouterr().out))
         for flags in advertised:

@@ -220,7 +220,7 @@ def test_study_figure_has_a_panel_per_maze_and_a_line_per_filter_and_option(tmp_
         for i, (m, s, b) in enumerate(combinations, start=1)
         for f in ("SIRParticleFilter", "RegularizedParticleFilter")
     ]
-    layout, _, _ = figure_layout(summaries, ["maze", "sigma", "bandwidth"])
+    layout, _ = figure_layout(summaries, ["maze", "sigma", "bandwidth"])
     assert layout.x == "sigma" and layout.panels == ["m", "n"]
     assert layout.lines == ["SIR", "RPF, bandwidth optimal", "RPF, bandwidth multimodal"]
 

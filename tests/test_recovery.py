@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from conftest import ROOT
 
-from mazelab.experiments.kidnapping import recovery_trial
+from mazelab.experiments.kidnapping import recovery_records
 from mazelab.filters import RegularizedParticleFilter, SIRParticleFilter
 from mazelab.lab import simulate
 from mazelab.maze import Maze
@@ -170,9 +170,9 @@ def test_recovery_relocalises_where_the_papers_filter_does_not():
     more successes with probability 1.3% and sensor resetting 6 or fewer with probability 1.3%: the
     thresholds below separate a working recovery from none. (Fixed seeds make the test repeatable.)"""
     world = Maze.from_file(ROOT / "mazes" / "maze_10x10.txt")
-    options = {"particle_count": 1000, "steps": 200, "kidnap_at": 80}
-    plain = [recovery_trial(world, "sir", "none", seed=s, **options) for s in range(10)]
-    sensor = [recovery_trial(world, "sir", "sensor", seed=s, **options) for s in range(10)]
+    records = recovery_records(world, ["sir"], ["none", "sensor"], 10, particle_count=1000, steps=200, kidnap_at=80)
+    plain = [r for r in records if r.options["recovery"] == "none"]  # trial s (seed s) in order
+    sensor = [r for r in records if r.options["recovery"] == "sensor"]
     assert sum(o.relocalised for o in plain) <= 3
     assert sum(o.relocalised for o in sensor) >= 7
     assert sum(o.relocalised and not p.relocalised for o, p in zip(sensor, plain, strict=True)) >= 5

@@ -86,10 +86,10 @@ def test_an_unknown_name_is_one_line_with_the_registrys_choices(added, request):
         request.getfixturevalue("wide_registered")
     valid = ", ".join(entry.short_name for entry in entries())
     assert ("wide" in valid) == added
-    with pytest.raises(
-        ValueError, match=rf"^unknown filter 'kalman'; choose from {valid}, or path/to/file.py:ClassName$"
-    ):
+    with pytest.raises(ValueError, match=rf"^unknown filter 'kalman' \(choose from {valid}, or FILE.py:Class\)$"):
         filter_entry("kalman")
+    with pytest.raises(ValueError, match=r"^unknown filter 'sri'; did you mean sir\? \(choose from "):
+        filter_entry("sri")
 
 
 def test_plug_ins_never_take_a_shipped_filters_colour_even_when_the_palette_is_used_up():

@@ -50,6 +50,22 @@ def test_resampling_gives_the_expected_offspring_counts(scheme):
         assert np.all(counts <= np.ceil(n * weights))
 
 
+@pytest.mark.parametrize("scheme", sorted(RESAMPLING_SCHEMES))
+def test_every_scheme_draws_several_runs_in_one_call_as_each_alone(scheme):
+    """Row r of a call on R runs' weights with R Generators is the scheme's answer for run r alone, to the
+    bit (the engine draws every due run in one call): a row drawn from another run's Generator fails."""
+    rng = np.random.default_rng(12)
+    weights = rng.random((5, 300)) ** 6
+    weights[2, ::2] = 0.0
+    weights /= weights.sum(axis=1, keepdims=True)
+    resample = RESAMPLING_SCHEMES[scheme]
+    together = resample(weights, [np.random.default_rng(seed) for seed in range(5)])
+    alone = np.array([resample(w, np.random.default_rng(seed)) for seed, w in enumerate(weights)])
+    np.testing.assert_array_equal(together, alone)
+    swapped = resample(weights, [np.random.default_rng(seed) for seed in (1, 0, 2, 3, 4)])
+    assert not np.array_equal(swapped[:2], alone[:2])
+
+
 def test_unknown_resampling_scheme_lists_the_valid_ones():
     with pytest.raises(ValueError, match="systematic"):
         resampling_scheme("magic")

@@ -17,7 +17,6 @@ import mazelab
 from mazelab.cli.app import main
 from mazelab.experiments import study as study_module
 from mazelab.experiments import warmup
-from mazelab.experiments.accuracy import distance_to_exact
 from mazelab.experiments.stats import (
     bca_levels,
     bootstrap_interval,
@@ -28,7 +27,7 @@ from mazelab.experiments.stats import (
     resampled,
     unpaired_difference,
 )
-from mazelab.experiments.study import MazeChoice, RunRecord, study_settings
+from mazelab.experiments.study import MazeChoice, RunRecord, distance_to_exact, study_settings
 from mazelab.experiments.summary import (
     SUMMARY_STATISTICS,
     converged_within,

@@ -20,7 +20,7 @@ import pytest
 
 from mazelab import registry
 from mazelab.cli.app import main
-from mazelab.registry import RPF_EVIDENCE, evidence_caveat, filter_entry
+from mazelab.registry import RPF_EVIDENCE, described, filter_entry
 
 SMALL = ["--maze", "paper_5x5", "--runs", "3", "--steps", "12", "--particles", "80", "--seed", "4", "--no-viz"]
 SCENARIO = Path(__file__).resolve().parent.parent / "model_parameters" / "paper_5x5.json"
@@ -42,7 +42,7 @@ def study(tmp_path_factory):
 
 
 def test_the_rpfs_caveat_is_declared_once_in_its_registry_entry():
-    assert filter_entry("rpf").evidence == RPF_EVIDENCE and evidence_caveat("RegularizedParticleFilter")
+    assert filter_entry("rpf").evidence == RPF_EVIDENCE and described("RegularizedParticleFilter").evidence
     assert [e.short_name for e in registry.entries() if e.evidence] == ["rpf"]
 
 

@@ -183,7 +183,7 @@ def figure_of(monkeypatch, module) -> dict:
 
 
 def test_compares_figure_tells_the_filters_apart_without_colour(tmp_path, monkeypatch):
-    from mazelab.experiments import compare as compare_module
+    from mazelab.experiments import runs as compare_module
 
     kept = figure_of(monkeypatch, compare_module)
     scenario = Path(__file__).resolve().parent.parent / "model_parameters" / "paper_5x5.json"

@@ -234,7 +234,7 @@ def test_points_of_a_numeric_axis_are_set_a_little_apart_and_a_2x2_design_is_2x2
     assert apf[0] - sir[0] < 0.2 * (sir[1] - sir[0])  # by a small share of the spacing of the x values
     from mazelab.experiments.study_plot import figure_layout
 
-    layout, _, _ = figure_layout(result.summaries, result.varied)
+    layout, _ = figure_layout(result.summaries, result.varied)
     assert layout.shape == (2, 2) and layout.x == "delta"
 
 

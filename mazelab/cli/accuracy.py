@@ -1,11 +1,12 @@
-"""`mazelab accuracy`: every filter against the exact grid posterior, with a progress bar, intervals, a CSV
-of the runs and a JSON record beside it. Each finished run is appended to a journal beside the outputs
-(mazelab.experiments.journal): the same command after an interrupted one goes on from it (the runs it
-finished are kept), and one of other parameters replaces what it left; a line says which."""
+"""`mazelab accuracy`: every filter against the exact grid posterior (mazelab.experiments.accuracy, a study
+with the grid as its reference), with a progress bar, intervals, a CSV of the runs and a JSON record beside
+it. Each finished run is appended to the study's journal beside the outputs (mazelab.experiments.journal):
+the same command after an interrupted one goes on from it (the runs it finished are kept), and one of other
+parameters replaces what it left; a line says which."""
 
 from __future__ import annotations
 
-import dataclasses
+import signal
 import time
 from pathlib import Path
 from typing import Any
@@ -13,7 +14,6 @@ from typing import Any
 import typer
 
 from mazelab.atomic import write_text_atomically
-from mazelab.checks import check_sigma_within
 from mazelab.cli.filter_options import OptionFlag, given_options, options_per_filter
 from mazelab.cli.options import (
     DEFAULT_DELTA,
@@ -26,27 +26,34 @@ from mazelab.cli.options import (
     parse_list,
     seed_option,
 )
-from mazelab.cli.provenance import command_line
 from mazelab.declaration import show_value
 from mazelab.experiments.accuracy import (
+    AccuracyFilter,
     AccuracyRecord,
-    AccuracyStopped,
     accuracy_csv,
     accuracy_filters,
+    accuracy_plan,
+    accuracy_records,
     accuracy_summary,
     accuracy_table,
-    accuracy_tasks,
-    run_accuracy,
 )
-from mazelab.experiments.executor import default_workers, progress_bar
-from mazelab.experiments.journal import Journal, JournalError, journal_path, journal_state, read_journal
-from mazelab.experiments.plan import maze_description, study_mazes
+from mazelab.experiments.executor import default_workers, run_study, study_backend
+from mazelab.experiments.journal import (
+    Journal,
+    JournalError,
+    journal_parameters,
+    journal_path,
+    journal_state,
+    read_journal,
+    resume_study,
+)
+from mazelab.experiments.plan import StudyPlan, maze_description, study_mazes
 from mazelab.experiments.record import Recorder, differences, record_path
 from mazelab.experiments.runs import parse_filters
-from mazelab.experiments.study import MazeChoice
-from mazelab.limits import check_particles, check_steps, check_study
+from mazelab.experiments.study import MazeChoice, RunRecord, RunTask
+from mazelab.invocation import command_line
 from mazelab.mazes import LAB_MAZES
-from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS, check_model_parameters
+from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
 from mazelab.registry import resolve_filter
 
 Mazes = opt(str | None, help=f"maze files or names, comma-separated (default: the shipped {', '.join(LAB_MAZES)})")
@@ -89,93 +96,95 @@ def accuracy(
     record_file = record if record is not None else record_path(csv_path) if csv_path is not None else None
     check_one_file_each([("--csv", csv_path), ("--record" if record is not None else "the record", record_file)])
     mazes = accuracy_mazes(maze, maze_size, stations)
-    chosen = with_options(accuracy_filters(None if filters is None else parse_filters(filters)), option)
-    check_accuracy(mazes, chosen, sigma, delta, particles, runs, steps)
-    labels = [label for label, _, _ in chosen]
+    rows = with_options(accuracy_filters(None if filters is None else parse_filters(filters)), option)
+    plan = accuracy_plan(mazes, rows, sigma=sigma, delta=delta, particles=particles, runs=runs, steps=steps,
+                         seed=seed)  # fmt: skip
+    labels = [label for label, _, _ in rows]
     parameters = {"mazes": [maze_description(m) for m in mazes], "filters": labels, "sigma": sigma, "delta": delta,
                   "particles": particles, "runs": runs, "steps": steps, "root_seed": seed}  # fmt: skip
-    journal, kept, replace = open_journal(csv_path, record_file, parameters, force)
-    tasks = accuracy_tasks([(m.label, m) for m in mazes], runs, sigma, delta, particles, steps, seed, chosen)
+    workers = workers or default_workers()
+    journal, tasks, kept, replace = open_journal(csv_path, record_file, plan, rows, force, workers)
     typer.echo(f"Accuracy: {len(mazes)} maze(s) ({', '.join(m.label for m in mazes)}) x {runs} runs, sigma "
                f"{sigma:g}, delta {delta:g}, {particles} particles, {steps} steps, seed {seed}; filters: "
                f"{', '.join(labels)}")  # fmt: skip
     recorder = Recorder("accuracy", command_line(), parameters, outputs={"csv": csv_path and str(csv_path)})
     outputs = {"csv_path": csv_path, "record_file": record_file, "recorder": recorder, "replace": replace}
-    run_and_report(tasks, kept, workers or default_workers(), journal, outputs)
+    run_and_report(plan, rows, tasks, kept, workers, journal, outputs)
 
 
 def open_journal(
-    csv_path: Path | None, record_file: Path | None, parameters: dict[str, Any], force: bool
-) -> tuple[Journal | None, list[AccuracyRecord], bool]:
-    """The journal beside the outputs, the runs kept from an interrupted run of the same command, and
-    whether the outputs may be replaced: an earlier run's files are refused without --force, unless it
-    was interrupted (no finished session in its journal): then it is resumed (the same parameters) or
-    replaced, and a line says which."""
+    csv_path: Path | None, record_file: Path | None, plan: StudyPlan, rows: tuple[AccuracyFilter, ...], force: bool,
+    workers: int,
+) -> tuple[Journal | None, list[RunTask], list[RunRecord], bool]:  # fmt: skip
+    """The journal beside the outputs, the runs to go and those kept from an interrupted run of the same
+    command, and whether the outputs may be replaced: an earlier run's files are refused without --force,
+    unless it was interrupted (no finished session in its journal): then it is resumed (the same
+    parameters, mazelab.experiments.journal.resume_study) or replaced, and a line says which."""
     journal = journal_path(csv_path or record_file) if csv_path or record_file else None
     lines = [] if journal is None or journal_state(journal) != "left" else read_journal(journal)
-    sessions = [line["session"] for line in lines if "session" in line]
-    interrupted = bool(sessions) and not any(line.get("closed", {}).get("status") == "finished" for line in lines)
-    kept: list[AccuracyRecord] = []
+    finished = any(line.get("closed", {}).get("status") == "finished" for line in lines)
+    interrupted = any("session" in line for line in lines) and not finished
+    tasks, kept = plan.tasks(), []
     if interrupted and not force:
-        changed = differences(sessions[-1].get("parameters", {}), parameters)
-        if changed:
-            typer.echo(
-                f"replacing what an interrupted run left ({journal} and its outputs): its parameters differ "
-                f"({changed[0]})"
-            )
+        try:
+            changed = differences(journal_parameters(journal, lines), plan.parameters(), ignore=("runs",))
+            if changed:
+                raise JournalError(f"its parameters differ ({changed[0]})")
+            tasks, kept, _ = resume_study(journal, lines, plan, study_backend(tasks, workers))
+        except JournalError as error:
+            why = str(error).removeprefix("--resume: ")
+            typer.echo(f"replacing what an interrupted run left ({journal} and its outputs): {why}")
         else:
-            kept = [AccuracyRecord(**row) for line in lines if "run" in line for row in line["records"]]
-            typer.echo(f"resuming the interrupted run of {journal}: {len({(r.maze, r.run) for r in kept})} runs kept")
+            done = {(r.maze, r.run) for r in accuracy_records(kept, rows)}
+            typer.echo(f"resuming the interrupted run of {journal}: {len(done)} runs kept")
     for path in (csv_path, record_file):
         if path is not None:
             check_output_path(path, force or interrupted)
     if journal is None:
-        return None, [], force
+        return None, tasks, [], force
     try:
         opened = Journal(journal, adopt=bool(kept), replace=True)
     except JournalError as error:
         raise UserError(str(error)) from None
-    opened.write({"session": {"command": command_line(), "parameters": parameters}})
-    return opened, kept, force or interrupted
+    opened.write({"session": {"command": command_line(), "parameters": plan.parameters()}})
+    return opened, tasks, kept, force or interrupted
 
 
 def run_and_report(
-    tasks: list, kept: list[AccuracyRecord], workers: int, journal: Journal | None, outputs: dict[str, Any]
-) -> None:
+    plan: StudyPlan, rows: tuple[AccuracyFilter, ...], tasks: list[RunTask], kept: list[RunRecord], workers: int,
+    journal: Journal | None, outputs: dict[str, Any],
+) -> None:  # fmt: skip
     """The runs not kept, each appended to the journal; then the table, the CSV and the record (an
     interrupted run's too, its status "interrupted")."""
-    done = {(r.maze, r.run) for r in kept}
-    todo = [task for task in tasks if (task.maze, task.run) not in done]
-    order = {(task.maze, task.run): i for i, task in enumerate(tasks)}
-    finished, started = list(kept), time.perf_counter()
+    started = time.perf_counter()
 
-    def append(records: list[AccuracyRecord]) -> None:
-        finished.extend(records)
+    def append(records: list[RunRecord]) -> None:
         if journal is not None:
-            rows = [dataclasses.asdict(r) for r in records]
-            journal.write({"run": [records[0].maze, records[0].run], "records": rows})
+            journal.write({"run": [records[0].setting, records[0].run], "records": [r.to_json() for r in records]})
 
-    stopped = None
-    try:
-        with progress_bar(len(todo), True) as advance:
-            run_accuracy(todo, workers, advance, on_records=append)
-    except AccuracyStopped as stop:  # the workers are ended; what finished is reported and saved
-        stopped = stop
+    outcome = run_study(tasks, workers, progress=True, on_records=append, ignore_signals_after_stop=True)
+    stopped = outcome.interrupted or outcome.lost is not None
     if journal is not None:
         journal.write({"closed": {"status": "interrupted" if stopped else "finished"}})
         journal.close()
-    runs = len({(r.maze, r.run) for r in finished})
-    if finished:
-        ordered = sorted(finished, key=lambda r: order[r.maze, r.run])
-        report_accuracy(
-            ordered, time.perf_counter() - started, runs, status="interrupted" if stopped else "finished", **outputs
-        )
-    if stopped is not None:
-        typer.echo(f"interrupted after {runs} of {len(tasks)} runs", err=True)
-        raise typer.Exit(128 + stopped.signum)
+    for failure in outcome.failures:
+        typer.echo(f"error: {failure.describe()}", err=True)
+    records = accuracy_records(sorted([*kept, *outcome.records], key=lambda r: (r.setting, r.run)), rows)
+    runs = len({(r.maze, r.run) for r in records})
+    if records:
+        seconds = time.perf_counter() - started
+        report_accuracy(records, seconds, runs, status="interrupted" if stopped else "finished", **outputs)
+    total = len({s.maze for s in plan.settings}) * plan.runs
+    if outcome.lost is not None:
+        typer.echo(f"error: {outcome.lost}; {runs} of {total} runs finished", err=True)
+    elif stopped:
+        typer.echo(f"interrupted after {runs} of {total} runs", err=True)
+        raise typer.Exit(128 + (outcome.stopped_by or signal.SIGINT))
+    if outcome.failures or outcome.lost is not None:
+        raise typer.Exit(1)
 
 
-def with_options(chosen: tuple, texts: list[str] | None) -> tuple:
+def with_options(chosen: tuple[AccuracyFilter, ...], texts: list[str] | None) -> tuple[AccuracyFilter, ...]:
     """The table's filters with the --option values each declares (its label then says so); an option
     none of them declares, or a bad value, is one line."""
     if not texts:
@@ -204,21 +213,8 @@ def accuracy_mazes(maze: str | None, maze_size: str | None, stations: str | None
     return study_mazes(files, sizes, counts)
 
 
-def check_accuracy(
-    mazes: list[MazeChoice], chosen: tuple, sigma: float, delta: float, particles: int, runs: int, steps: int
-) -> None:
-    """The table's size and numbers, refused before any work (--runs 10000000 included)."""
-    check_model_parameters(sigma, delta)
-    check_steps(steps)
-    check_particles(particles)
-    check_study(len(mazes) * runs, len(chosen))
-    for choice in mazes:
-        rows, columns = choice.size if choice.grid is None else (len(choice.grid), len(choice.grid[0]))
-        check_sigma_within(sigma, columns, rows)
-
-
 def report_accuracy(
-    records: list,
+    records: list[AccuracyRecord],
     seconds: float,
     runs: int,
     csv_path: Path | None,
@@ -237,6 +233,3 @@ def report_accuracy(
         recorder.finish(status, summary=accuracy_summary(records))
         recorder.write(record_file)
         typer.echo(f"the record (command, versions, seeds, mazes, summary) written to {record_file}")
-
-
-__all__ = ["accuracy"]

@@ -28,8 +28,7 @@ import typer
 from mazelab.atomic import WriteError
 from mazelab.cli.accuracy import accuracy
 from mazelab.cli.exercise import exercise_app
-from mazelab.cli.filter_options import OptionFlag, with_option_flags
-from mazelab.cli.filters_help import filters, registry_help
+from mazelab.cli.filter_options import OptionFlag, filters, registry_help, with_option_flags
 from mazelab.cli.hints import filter_choices, option_elsewhere, plain_usage_names, refuse_option_as_value, usage_hint
 from mazelab.cli.maze import maze_app
 from mazelab.cli.notebook import notebook
@@ -40,18 +39,19 @@ from mazelab.cli.options import (
     ThreadsOption,
     UserError,
     check_output_path,
+    progress_printer,
+    report_run,
     seed_option,
     visualization,
     warn_in_one_line,
     with_drawing,
 )
-from mazelab.cli.provenance import remember_arguments, show_version
 from mazelab.cli.recordings import recordings
-from mazelab.cli.reports import progress_printer, report_run
 from mazelab.cli.study import study
 from mazelab.cli.view import view
 from mazelab.experiments.executor import STOP_SIGNALS
-from mazelab.invocation import command_prefix
+from mazelab.experiments.record import package_version, program_versions
+from mazelab.invocation import command_prefix, remember_arguments
 from mazelab.maze import MazeError
 from mazelab.mazes import DEFAULT_MAZE, find_maze, load_maze
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
@@ -69,6 +69,15 @@ app = typer.Typer(
     help="A robot lost in a maze, found by particle filters. Without a command: the paper's example.\n\n"
     + registry_help(),
 )
+
+
+def show_version(value: bool) -> None:
+    """--version: the program's, its git commit (if any), numpy's and Python's; then exit."""
+    if value:
+        versions = program_versions()
+        commit = f" (git {versions['git_commit']})" if versions["git_commit"] else ""
+        typer.echo(f"mazelab {package_version()}{commit}, numpy {versions['numpy']}, Python {versions['python']}")
+        raise typer.Exit()
 
 
 @app.callback(invoke_without_command=True)
@@ -259,6 +268,3 @@ def describe_os_error(error: OSError) -> str:
 
 if __name__ == "__main__":
     sys.exit(main())
-
-
-__all__ = ["accuracy", "app", "bench", "compare", "demo", "describe_os_error", "main", "run", "study"]

@@ -1,9 +1,10 @@
-"""`mazelab exercise new DIR` (the student's files), `mazelab exercise check FILE[:Class]` (one grade)
-and `mazelab exercise grade DIR` (a folder of them)."""
+"""`mazelab exercise new DIR` (the student's files), `mazelab exercise check FILE[:Class]` (one grade),
+`mazelab exercise grade DIR` (a folder of them) and `mazelab exercise autograder OUT.zip` (Gradescope)."""
 
 from __future__ import annotations
 
 import contextlib
+import secrets
 import signal
 import threading
 import time
@@ -16,25 +17,28 @@ import typer
 from mazelab.atomic import write_bytes_atomically, write_text_atomically
 from mazelab.cli.options import UserError, check_output_path, seed_option
 from mazelab.exercise.autograder import BundleError, bundle_bytes
-from mazelab.exercise.claims import check_outside, claimed
 from mazelab.exercise.grading import (
+    KEY_FILE,
+    ClaimError,
+    Gradebook,
     Graded,
     GradingInterruptedError,
     Submission,
-    csv_text,
+    check_outside,
+    claimed,
     discover,
     grade_folder,
     gradescope_json,
+    partial_name,
+    read_key,
     summary,
 )
 from mazelab.exercise.language import Catalogue, catalogue_for
-from mazelab.exercise.layout import format_report
-from mazelab.exercise.report import NotGradableError, check_file
-from mazelab.exercise.runner import DEFAULT_TIMEOUT, MAX_TIMEOUT
-from mazelab.exercise.sandbox import SandboxRequiredError, require_sandbox
+from mazelab.exercise.report import NotGradableError, check_file, format_report
+from mazelab.exercise.sandbox import DEFAULT_BUDGET, MAX_TIMEOUT, SandboxError, require_sandbox
 from mazelab.exercise.template import write_exercise
 from mazelab.invocation import python_prefix
-from mazelab.plugins import is_plugin_spec
+from mazelab.plugins import is_plugin_spec, split_spec
 
 exercise_app = typer.Typer(
     help="Write your own filter (new), grade it (check), a class's folder (grade), on Gradescope (autograder).",
@@ -43,19 +47,26 @@ exercise_app = typer.Typer(
     rich_markup_mode=None,
     pretty_exceptions_enable=False,
 )
-SeedFlag = Annotated[
-    int | None,
-    typer.Option(callback=seed_option, help="the inputs' seed (default: from the file's content)", show_default=False),
-]
 TimeoutFlag = Annotated[
     float,
-    typer.Option(
-        min=1.0, max=MAX_TIMEOUT, help="seconds each run of the student's process may take before it is stopped"
-    ),
+    typer.Option(min=1.0, max=MAX_TIMEOUT, help="seconds the student's processes of one submission may take in all"),
 ]
 ForceFlag = Annotated[bool, typer.Option("--force", help="replace existing output files")]
 GradescopeFlag = Annotated[
     Path | None, typer.Option(metavar="DIR", help="write Gradescope's results.json there", show_default=False)
+]
+RequireSandboxFlag = Annotated[
+    bool, typer.Option("--require-sandbox", help="refuse to grade where no sandbox can be made (bubblewrap on Linux)")
+]
+LangFlag = Annotated[
+    str | None,
+    typer.Option(metavar="LANG", help="en or uk (default: the exercise file's, else the locale's)", show_default=False),
+]
+KeyFlag = Annotated[
+    Path | None,
+    typer.Option(
+        metavar="FILE", help=f"the grader's secret key (default: {KEY_FILE} beside the outputs)", show_default=False
+    ),
 ]
 
 
@@ -63,62 +74,65 @@ GradescopeFlag = Annotated[
 def new(
     folder: Annotated[Path, typer.Argument(metavar="DIR", help="the folder to write into (made if missing)")],
     force: Annotated[bool, typer.Option("--force", help="replace existing files")] = False,
+    lang: Annotated[str, typer.Option(metavar="LANG", help="the exercise's language: en or uk")] = "en",
 ) -> None:
-    """Write my_filter.py (a StudentFilter with four parts to write) and a short README into DIR."""
-    for path in write_exercise(folder, force):
+    """Write my_filter.py (a StudentFilter with four parts to write) and a short README into DIR, in
+    LANG; my_filter.py keeps its language, so that its checks answer in it."""
+    for path in write_exercise(folder, force, _catalogue(lang).language):
         typer.echo(f"wrote {path}")
     typer.echo(f"Next: {python_prefix()} {folder / 'my_filter.py'}  (says which parts are still to write)")
-
-
-RequireSandboxFlag = Annotated[
-    bool,
-    typer.Option("--require-sandbox", help="refuse to grade where no sandbox can be made (bubblewrap on Linux)"),
-]
-LangFlag = Annotated[
-    str | None,
-    typer.Option(metavar="LANG", help="the report's language: en or uk (default: the locale's)", show_default=False),
-]
 
 
 @exercise_app.command(name="check", short_help="Grade FILE[:Class]: each part, then the whole filter.")
 def check_command(
     spec: Annotated[str, typer.Argument(metavar="FILE[:Class]", help="the student's file, and its class if several")],
-    seed: SeedFlag = None,
-    timeout: TimeoutFlag = DEFAULT_TIMEOUT,
+    seed: Annotated[
+        int | None,
+        typer.Option(callback=seed_option, show_default=False, help="the inputs' seed (default: from the files)"),
+    ] = None,
+    key: KeyFlag = None,
+    timeout: TimeoutFlag = DEFAULT_BUDGET,
     gradescope: GradescopeFlag = None,
     force: ForceFlag = False,
     require_sandbox: RequireSandboxFlag = False,
     lang: LangFlag = None,
 ) -> None:
     """Check each part on fresh inputs and the whole filter against the exact grid posterior, with the
-    shipped SIR's figures beside it. The student's code runs in a sandbox of its own with a time
-    limit; exit code 0 only when every row passes, 1 when one does not, 2 when the file cannot be
+    shipped SIR's figures beside it. The student's code runs in a sandbox of its own within the time
+    budget; exit code 0 only when every row passes, 1 when one does not, 2 when the file cannot be
     checked (it does not import, has no such class, or the class is not a StudentFilter): then
-    --gradescope writes a results.json of score 0 saying why."""
+    --gradescope writes a results.json of score 0 saying why. With --key (the grader's, as the
+    Gradescope bundle runs it) the inputs are secret: no report shows them."""
     if not is_plugin_spec(spec):
         raise ValueError(f"{spec}: give a Python file, path/to/my_filter.py or path/to/my_filter.py:MyFilter")
-    catalogue = _catalogue(lang)
-    results = _gradescope_file(gradescope, force)
+    catalogue = _catalogue(lang, split_spec(spec)[0])
+    if seed is not None and key is not None:
+        raise UserError("--seed and --key: give one (a seed repeats a report, the key draws secret inputs)")
+    secret = _key(key, make=False) if key is not None else None
+    results = _results_file(gradescope, force)
     _sandbox_or_refuse(require_sandbox)
     started = time.perf_counter()
     try:
         with _stop_signals() as stop:
-            report = check_file(spec, seed=seed, timeout=timeout)
+            report = check_file(spec, seed=seed, key=secret, timeout=timeout)
     except KeyboardInterrupt:  # Ctrl-C or SIGTERM: the student's process has been ended with its sandbox
         typer.echo("stopped: nothing graded", err=True)
         raise typer.Exit(128 + (stop.number or signal.SIGINT)) from None
+    except SandboxError as error:
+        raise UserError(f"{error}; nothing graded (the grader's machine, not the submission)") from None
     except NotGradableError as error:
         if results is not None:
             graded = Graded(Submission(Path(spec).name, None), None, str(error), time.perf_counter() - started)
             write_text_atomically(results, gradescope_json(graded, catalogue), replace=force)
-        raise UserError(str(error)) from None
-    note = (
-        catalogue.gettext(" (given)")
-        if seed is not None
-        else catalogue.gettext(" (from the file; --seed {seed} repeats it)").format(seed=report.seed)
+        typer.echo(catalogue.numbers(catalogue.gettext("error: ") + catalogue.translate(str(error))), err=True)
+        raise typer.Exit(2) from None
+    typer.echo(format_report(report, catalogue=catalogue))
+    took = {"seconds": f"{time.perf_counter() - started:.1f}", "student": f"{report.student_seconds:.1f}"}
+    typer.echo(
+        catalogue.numbers(
+            catalogue.gettext("checked in {seconds} s (the student's processes: {student} s)").format(**took)
+        )
     )
-    typer.echo(format_report(report, seed_note=note, catalogue=catalogue))
-    typer.echo(f"checked in {time.perf_counter() - started:.1f} s")
     if results is not None:
         graded = Graded(Submission(Path(spec).name, Path(spec)), report, None, report.seconds)
         write_text_atomically(results, gradescope_json(graded, catalogue), replace=force)
@@ -126,22 +140,29 @@ def check_command(
         raise typer.Exit(1)
 
 
-def _catalogue(lang: str | None) -> Catalogue:
+def _catalogue(lang: str | None, file: Path | None = None) -> Catalogue:
     try:
-        return catalogue_for(lang)
+        return catalogue_for(lang, file)
     except ValueError as error:
         raise UserError(f"--lang {lang}: {error}") from None
+
+
+def _key(path: Path, make: bool = True) -> bytes:
+    try:
+        return read_key(path, make)
+    except ClaimError as error:
+        raise UserError(str(error)) from None
 
 
 def _sandbox_or_refuse(required: bool) -> None:
     if required:
         try:
             require_sandbox()
-        except SandboxRequiredError as error:
+        except RuntimeError as error:
             raise UserError(str(error)) from None
 
 
-def _make_folder(folder: Path) -> None:
+def _made_folder(folder: Path) -> Path:
     """--gradescope's folder, made when it is missing (as `mkdir -p`); a file of that name is one line."""
     try:
         folder.mkdir(parents=True, exist_ok=True)
@@ -149,28 +170,21 @@ def _make_folder(folder: Path) -> None:
         raise UserError(f"--gradescope {folder}: not a folder") from None
     except OSError as error:
         raise UserError(f"--gradescope {folder}: cannot make the folder ({error.strerror})") from None
+    return folder
 
 
-def _gradescope_file(folder: Path | None, force: bool) -> Path | None:
+def _results_file(folder: Path | None, force: bool) -> Path | None:
     if folder is None:
         return None
-    _make_folder(folder)
-    check_output_path(folder / "results.json", force)
+    check_output_path(_made_folder(folder) / "results.json", force)
     return folder / "results.json"
 
 
 @exercise_app.command(name="grade", short_help="Grade every submission in DIR, in parallel.")
 def grade_command(
     folder: Annotated[Path, typer.Argument(metavar="DIR", help="one subfolder or one .py file per submission")],
-    seed: Annotated[
-        int | None,
-        typer.Option(
-            callback=seed_option,
-            help="one seed for every submission (kept from the students; the exact runs are then shared)",
-            show_default=False,
-        ),
-    ] = None,
-    timeout: TimeoutFlag = DEFAULT_TIMEOUT,
+    key: KeyFlag = None,
+    timeout: TimeoutFlag = DEFAULT_BUDGET,
     jobs: Annotated[int | None, typer.Option(min=1, help="submissions at once (default: the cores)")] = None,
     csv_path: Annotated[
         Path | None, typer.Option("--csv", metavar="F", help="one row per submission", show_default=False)
@@ -181,79 +195,99 @@ def grade_command(
     require_sandbox: RequireSandboxFlag = False,
     lang: LangFlag = None,
 ) -> None:
-    """Check every submission of DIR (each in a sandbox of its own, with the time limit), several at
-    once, then print a summary table; --csv writes a row per submission, --gradescope a results.json
-    per submission (DIR/NAME/results.json), both outside DIR. Exit code 0 when every submission was
-    checked, whatever its grade; Ctrl-C or SIGTERM ends every sandbox and keeps what was graded."""
-    catalogue = _catalogue(lang)
-    submissions = discover(folder)
+    """Check every submission of DIR (each in a sandbox of its own, within the time budget), several
+    at once, on inputs from the grader's secret key; then print a summary table. --csv writes a row
+    per submission, --gradescope a results.json per submission (DIR/NAME/results.json), each as soon
+    as it is graded, all outside DIR. Exit code 0 when every submission was checked, whatever its
+    grade; Ctrl-C or SIGTERM ends every sandbox and keeps what was graded (the CSV as F.partial.csv,
+    beside the last complete one)."""
+    catalogue, submissions = _catalogue(lang), discover(folder)
     outputs = [(path, option) for path, option in ((csv_path, "--csv"), (gradescope, "--gradescope")) if path]
-    for path, option in outputs:
-        check_outside(path, folder, option)
-    if csv_path is not None:
-        check_output_path(csv_path, force)
-    targets = _gradescope_targets(gradescope, submissions, force)
+    keyfile = key or next((p.parent / KEY_FILE if o == "--csv" else p / KEY_FILE for p, o in outputs), None)
+    _check_outputs(folder, submissions, [*outputs, *([(keyfile, "--key")] if keyfile else [])], force)
     _sandbox_or_refuse(require_sandbox)
+    secret = _key(keyfile) if keyfile else secrets.token_bytes(32)
     from mazelab.experiments.executor import progress_bar
 
-    started, stopped_by = time.perf_counter(), None
-    with claimed(outputs), _stop_signals() as stop:
-        try:
-            with progress_bar(len(submissions), not quiet, what="submissions") as advance:
-                graded = grade_folder(submissions, seed=seed, timeout=timeout, jobs=jobs, on_done=lambda _: advance())
-        except GradingInterruptedError as stopped_early:
-            graded, stopped_by = stopped_early.graded, stop.number or signal.SIGINT
-        typer.echo(summary(graded))
-        typer.echo(f"graded in {time.perf_counter() - started:.1f} s")
-        if csv_path is not None:
-            typer.echo(f"wrote {write_text_atomically(csv_path, csv_text(graded), replace=force)}")
-        for one in graded:
-            target = targets.get(one.submission.name)
-            if target is not None:
-                target.parent.mkdir(exist_ok=True)
-                write_text_atomically(target, gradescope_json(one, catalogue), replace=True)  # refused above if there
-        if targets:
-            typer.echo(f"wrote {sum(one.submission.name in targets for one in graded)} results.json under {gradescope}")
+    book, started, stopped_by = Gradebook(csv_path, gradescope, force, catalogue), time.perf_counter(), None
+    try:
+        with claimed(outputs), _stop_signals() as stop:
+            try:
+                with progress_bar(len(submissions), not quiet, what="submissions") as advance:
+
+                    def done(one: Graded) -> None:
+                        book.add(one)
+                        advance()
+
+                    grade_folder(submissions, key=secret, timeout=timeout, jobs=jobs, on_done=done)
+            except GradingInterruptedError:
+                stopped_by = stop.number or signal.SIGINT
+    except SandboxError as error:
+        raise UserError(f"{error}; grading stopped, nobody graded by it") from None
+    except ClaimError as error:
+        raise UserError(str(error)) from None
+    typer.echo(summary(book.graded))
+    typer.echo(f"graded in {time.perf_counter() - started:.1f} s")
+    if not keyfile:
+        typer.echo("inputs from a new secret key, not kept (give --key FILE, --csv or --gradescope to keep it)")
+    if book.gradescope is not None:
+        typer.echo(f"wrote {len(book.graded)} results.json under {gradescope}")
     if stopped_by is not None:
-        typer.echo(f"stopped: {len(graded)} of {len(submissions)} submissions graded (written above)", err=True)
+        kept = f"; the rows so far are in {partial_name(csv_path)}" if csv_path is not None and book.graded else ""
+        typer.echo(f"stopped: {len(book.graded)} of {len(submissions)} submissions graded{kept}", err=True)
         raise typer.Exit(128 + stopped_by)
+    if csv_path is not None:
+        typer.echo(f"wrote {book.finish(submissions)}")
 
 
-def _gradescope_targets(gradescope: Path | None, submissions: list[Submission], force: bool) -> dict[str, Path]:
-    """Each submission's results.json under --gradescope (an existing one refused without --force)."""
-    if gradescope is None:
-        return {}
-    _make_folder(gradescope)
-    targets = {}
-    for submission in submissions:
-        target = gradescope / submission.name / "results.json"
-        if target.exists() and not force:
-            raise UserError(f"{target} exists; use --force to replace it")
-        targets[submission.name] = target
-    return targets
+def _check_outputs(folder: Path, submissions: list[Submission], outputs: list[tuple[Path, str]], force: bool) -> None:
+    """Refuse, before any grading, an output or the key inside the class folder, an existing output
+    without --force, and a --csv that a submission's results.json folder would take."""
+    for path, option in outputs:
+        try:
+            check_outside(path, folder, option)
+        except ClaimError as error:
+            raise UserError(str(error)) from None
+    named = dict((option, path) for path, option in outputs)
+    gradescope, csv_path = named.get("--gradescope"), named.get("--csv")
+    if gradescope is not None:
+        _made_folder(gradescope)
+        taken = [s.name for s in submissions if (gradescope / s.name / "results.json").exists()]
+        if taken and not force:
+            raise UserError(f"{gradescope / taken[0] / 'results.json'} exists; use --force to replace it")
+    if csv_path is not None:
+        check_output_path(csv_path, force)
+        check_output_path(partial_name(csv_path), True)
+        mine = (csv_path.name, partial_name(csv_path).name)
+        clash = [s.name for s in submissions if gradescope == csv_path.parent and s.name in mine]
+        if clash:
+            raise UserError(f"--csv {csv_path}: a submission's results.json folder would be {gradescope / clash[0]}")
 
 
 @exercise_app.command(name="autograder", short_help="Write Gradescope's autograder bundle (a .zip).")
 def autograder_command(
     bundle: Annotated[Path, typer.Argument(metavar="OUT.zip", help="the bundle to write")],
-    seed: Annotated[
-        int | None,
-        typer.Option(callback=seed_option, help="one secret seed for every submission", show_default=False),
+    key: Annotated[
+        Path | None,
+        typer.Option(
+            metavar="FILE", show_default=False, help="the grader's secret key (default: a new one, in the bundle)"
+        ),
     ] = None,
-    timeout: TimeoutFlag = DEFAULT_TIMEOUT,
+    timeout: TimeoutFlag = DEFAULT_BUDGET,
     lang: LangFlag = None,
     force: ForceFlag = False,
 ) -> None:
     """Write the zip to upload as Gradescope's autograder: setup.sh (bubblewrap, and this lab at this
-    version with its locked dependencies) and run_autograder (the check of
-    /autograder/submission/my_filter.py, its results.json in /autograder/results)."""
+    version with its pinned dependencies), the secret key (read only by the grader), and run_autograder
+    (the check of /autograder/submission/my_filter.py, its results.json in /autograder/results)."""
     if bundle.suffix != ".zip":
         raise UserError(f"{bundle}: the bundle is a .zip file (OUT.zip)")
     if lang is not None:
         _catalogue(lang)
+    secret = _key(key, make=False) if key is not None else secrets.token_bytes(32)
     check_output_path(bundle, force)
     try:
-        data = bundle_bytes(seed, lang, timeout)
+        data = bundle_bytes(secret, lang, timeout)
     except BundleError as error:
         raise UserError(str(error)) from None
     typer.echo(f"wrote {write_bytes_atomically(bundle, data, replace=force)} (upload it as the autograder)")

@@ -7,22 +7,26 @@ options: `--bandwidth 0.05` and `--option bandwidth=0.05` give the same value, p
 same declaration. `--option NAME=VALUE` (repeatable) sets any declared option of any filter, a plug-in's
 included, and `--option FILTER.NAME=VALUE` (e.g. `rpf.threshold`) sets it for that filter alone. An
 option that no filter of the command declares is refused in one line naming what they take, before any
-work; so is a value the declaration refuses.
+work; so is a value the declaration refuses. `mazelab filters [NAME]` lists the registry's filters and one
+filter's options from the same declarations, so the list is never out of date, a plug-in's included.
 """
 
 from __future__ import annotations
 
 import inspect
+import textwrap
 from collections.abc import Callable, Mapping, Sequence
 from typing import Annotated, Any
 
 import typer
 
+from mazelab.cli.hints import check_filter_name
 from mazelab.cli.options import UserError, with_parameters
 from mazelab.contract import not_taken
-from mazelab.declaration import Option, parse_flag, scoped
+from mazelab.declaration import Option, parse_flag, scoped, show_value
+from mazelab.experiments.study import declared_option
 from mazelab.experiments.study import options_per_filter as reaching
-from mazelab.registry import SHIPPED, filter_entry
+from mazelab.registry import SHIPPED, FilterEntry, entries, filter_entry
 
 # A declared flag "--a/--b" is a pair of switches on run and compare, each setting the option to a value
 # (the study's flag takes a list of the values instead); the one place these values are written.
@@ -98,14 +102,6 @@ def _named(given: Mapping[str, Any]) -> dict[str, Any]:
             value = given[_parameter_name(chosen[0])]
             named[name] = SWITCH_VALUES.get(chosen[0], value) if value is True and len(spellings) > 1 else value
     return named
-
-
-def declared_by(filter_names: Sequence[str | type], key: str) -> list[Option]:
-    """The declarations of option `key` among the filters (the first filter's first); of a scoped key,
-    its filter's."""
-    scope, name = scoped(key)
-    chosen = [filter_entry(scope)] if scope is not None else [filter_entry(f) for f in filter_names]
-    return [entry.options[name] for entry in chosen if name in entry.options]
 
 
 def read_value(option: Option, text: str, spelled: str) -> Any:
@@ -193,19 +189,19 @@ def given_options(
 def _parsed(filter_names: Sequence[str | type], name: str, value: Any, spelled: str, lists: bool) -> Any:
     """A value (or, with `lists`, the comma-separated values) of option `name`, read by its declaration."""
     try:
-        declared = declared_by(filter_names, name)
+        declared = declared_option(name, filter_names)
     except ValueError as error:  # FILTER.NAME of an unknown filter
         raise UserError(f"{spelled.split('=')[0]}: {error}") from None
-    if not declared or declared[0].derived:
+    if declared is None or declared.derived:
         raise UserError(refusal(filter_names, name, spelled.split("=")[0]))
     if value is True:  # a switch (--kld)
         return [True] if lists else True
     if not lists:
-        return read_value(declared[0], value, spelled)
+        return read_value(declared, value, spelled)
     parts = [part for part in value.split(",") if part.strip()]
     if not parts:
         raise UserError(f"{spelled}: no values (write NAME=V1,V2)")
-    return list(dict.fromkeys(read_value(declared[0], part, spelled) for part in parts))
+    return list(dict.fromkeys(read_value(declared, part, spelled) for part in parts))
 
 
 def refusal(filter_names: Sequence[str | type], key: str, spelled: str) -> str:
@@ -233,16 +229,67 @@ def options_per_filter(
     return per_filter
 
 
-__all__ = [
-    "SWITCH_VALUES",
-    "GivenOptions",
-    "OptionFlag",
-    "StudyOptionFlag",
-    "declared_by",
-    "declared_flags",
-    "given_options",
-    "options_per_filter",
-    "read_value",
-    "refusal",
-    "with_option_flags",
-]
+# -- `mazelab filters [NAME]` ----------------------------------------------------------------------------
+WIDTH = 100  # columns of the listing
+
+
+def filters(
+    name: Annotated[
+        str | None,
+        typer.Argument(
+            metavar="[NAME]", help="one filter: sir, apf, rpf, grid, ekf or FILE.py:Class", show_default=False
+        ),
+    ] = None,
+) -> None:
+    """The filters, or one filter's options: name, default, the flag that sets it, what it does.
+    Every option is set with --option NAME=VALUE on run, compare and study."""
+    if name is None:
+        typer.echo(registry_listing())
+    else:
+        typer.echo(options_listing(filter_entry(check_filter_name(name, "filters"))))
+
+
+def registry_listing() -> str:
+    """One line per shipped filter: short name, label, help, what it can do."""
+    lines = ["filter  label  what it is", *(_entry_line(entry) for entry in entries())]
+    lines += [
+        "",
+        "Your own: --filter FILE.py:Class (see `mazelab exercise new`); its options: mazelab filters FILE.py:Class",
+        "One filter's options: mazelab filters rpf",
+    ]
+    return "\n".join(lines)
+
+
+def registry_help() -> str:
+    """The filters for `mazelab --help`, one short line each (from the registry)."""
+    names = ", ".join(entry.short_name for entry in entries())
+    return f"Filters (--filter NAME): {names}, or FILE.py:Class; `mazelab filters` lists them and their options."
+
+
+def _entry_line(entry: FilterEntry) -> str:
+    can = ", ".join(
+        [*(["particles"] if entry.takes_particles else ["no particles"]), *(["runs batched"] if entry.batched else [])]
+    )
+    return f"{entry.short_name:<6}  {entry.label:<5}  {entry.help} ({can})"
+
+
+def options_listing(entry: FilterEntry) -> str:
+    """A filter's declared options: name, default, flag, help (wrapped to WIDTH columns)."""
+    options = entry.options.settable()
+    head = f"{entry.label} ({entry.name}): {entry.help}" if entry.label != entry.name else f"{entry.name}: {entry.help}"
+    if entry.plugin is not None:
+        head += f"\n  from {entry.plugin.spec} (sha256 {entry.plugin.sha256[:12]}...)"
+    if not options:
+        return f"{head}\n  it declares no options"
+    rows = [(o.name, show_value(o.default), o.help + (f" [{o.flag}]" if o.flag else "")) for o in options]
+    widths = [max(len(row[i]) for row in [("option", "default", ""), *rows]) for i in range(2)]
+    indent = 2 + widths[0] + 2 + widths[1] + 2
+    lines = [head, f"  {'option'.ljust(widths[0])}  {'default'.ljust(widths[1])}  what it does [its named flag]"]
+    for name, default, text in rows:
+        wrapped = textwrap.wrap(text, max(30, WIDTH - indent)) or [""]
+        lines.append(f"  {name.ljust(widths[0])}  {default.ljust(widths[1])}  {wrapped[0]}")
+        lines += [" " * indent + more for more in wrapped[1:]]
+    lines.append(
+        f"  set any of them: --option NAME=VALUE (e.g. --option {options[0].name}={show_value(options[0].default)})"
+    )
+    return "\n".join(lines)

@@ -4,7 +4,6 @@ usage lines without typer's braces."""
 
 from __future__ import annotations
 
-import difflib
 import re
 import shlex
 from collections.abc import Sequence
@@ -16,7 +15,7 @@ import typer.core
 from mazelab.cli.options import UserError
 from mazelab.invocation import command_prefix
 from mazelab.plugins import is_plugin_spec
-from mazelab.registry import resolve_filter, short_names
+from mazelab.registry import entries, resolve_filter
 
 
 def plain_usage_names() -> None:
@@ -121,19 +120,13 @@ def refuse_option_as_value(argv: Sequence[str], group: Any) -> None:
 
 
 def check_filter_name(name: str, option: str = "--filter") -> str:
-    """A filter name the registry knows, else one line with the nearest short name (`sri`: did you
-    mean `sir`?) and the choices."""
-    if is_plugin_spec(name):  # FILE.py:Class, the registry's own errors say what is wrong with it
-        return name
-    try:
-        resolve_filter(name)
-    except ValueError:
-        names = short_names()
-        close = difflib.get_close_matches(name.lower(), names, n=1, cutoff=0.5)
-        hint = f"; did you mean {close[0]}?" if close else ""
-        raise UserError(
-            f"{option}: unknown filter {name!r}{hint} (choose from {', '.join(names)}, or FILE.py:Class)"
-        ) from None
+    """A filter name the registry knows, else one line naming the option and the registry's words (the
+    nearest short name, `sri`: did you mean sir?, and the choices)."""
+    if not is_plugin_spec(name):  # FILE.py:Class: the registry's own errors say what is wrong with it
+        try:
+            resolve_filter(name)
+        except ValueError as error:
+            raise UserError(f"{option}: {error}") from None
     return name
 
 
@@ -147,16 +140,5 @@ def check_filter_names(names: str, option: str = "--filters") -> str:
 
 def filter_choices(many: bool = False) -> str:
     """The help's list of filters, from the registry: 'sir, apf, rpf, grid, ekf, or FILE.py:Class'."""
-    names = ", ".join(short_names())
+    names = ", ".join(e.short_name for e in entries())
     return f"{names}, FILE.py:Class, comma-separated" if many else f"{names}, or FILE.py:Class"
-
-
-__all__ = [
-    "check_filter_name",
-    "check_filter_names",
-    "filter_choices",
-    "option_elsewhere",
-    "plain_usage_names",
-    "refuse_option_as_value",
-    "usage_hint",
-]

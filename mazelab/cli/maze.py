@@ -10,8 +10,7 @@ import typer
 
 from mazelab import maze_generator
 from mazelab.atomic import write_text_atomically
-from mazelab.cli.options import check_output_path, seed_option, visualization, with_drawing
-from mazelab.cli.reports import generation_progress
+from mazelab.cli.options import check_output_path, generation_progress, seed_option, visualization, with_drawing
 from mazelab.invocation import command_prefix
 from mazelab.mazes import load_maze
 from mazelab.seeding import new_seed
@@ -71,9 +70,3 @@ def maze_show(
     typer.echo(f"{world.source}: {maze_generator.describe_maze(world)}")
     if visualize:
         open_view(visualize, world, "maze").close()  # opening a view logs the maze
-
-
-__all__ = [
-    "maze_generate",
-    "maze_show",
-]

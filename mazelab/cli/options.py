@@ -1,6 +1,6 @@
 """What the commands share: the drawing and backend options, output-path checks (one file per output),
-list parsing, and the one-line errors and warnings of the command line. The filters' own options are
-in mazelab.cli.filter_options, read from their declarations."""
+list parsing, the one-line errors and warnings of the command line, a run's summary and progress lines.
+The filters' own options are in mazelab.cli.filter_options, read from their declarations."""
 
 from __future__ import annotations
 
@@ -8,16 +8,23 @@ import functools
 import inspect
 import os
 import re
+import sys
+import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Annotated, Any
 
+import numpy as np
 import typer
 
 from mazelab.atomic import NameTakenError, NotRegularFileError, output_target
 from mazelab.backend import ENVIRONMENT_VARIABLE, THREADS_VARIABLE, check_backend, check_threads
 from mazelab.checks import check_seed
+from mazelab.experiments.runs import FINAL_SHARE, final_error
 from mazelab.experiments.tables import pyplot
+from mazelab.maze import Maze
+from mazelab.robot import Robot
+from mazelab.simulation import RunResult
 from mazelab.viz.style import DEFAULT_MAX_DRAWN
 from mazelab.viz.targets import Visualization
 
@@ -97,65 +104,32 @@ def visualization(
 
 # -- --backend and --threads: set MAZELAB_BACKEND / MAZELAB_THREADS for the command (its worker
 # processes inherit them), and put back what was there when the command ends -------------------------
-def _set_for_the_command(ctx: typer.Context, variable: str, value: str) -> None:
-    before = os.environ.get(variable)
-    os.environ[variable] = value
+def environment_option(variable: str, check: Callable[[Any, str], Any], flag: str) -> Callable[..., Any]:
+    """The callback of an option that sets `variable` for the command: the value checked by `check` (one
+    line, exit 2: a wrong backend, compiled without numba, threads outside 1 to the machine's cores), the
+    variable set until the command's context closes and then put back."""
 
-    def restore() -> None:
-        if before is None:
-            os.environ.pop(variable, None)
-        else:
-            os.environ[variable] = before
-
-    ctx.call_on_close(restore)
-
-
-def set_backend(ctx: typer.Context, value: str | None) -> str | None:
-    """--backend's callback: the name checked (one line, exit 2, for a wrong one or for compiled without
-    numba), MAZELAB_BACKEND set until the command's context closes."""
-    if value is None or ctx.resilient_parsing:
+    def callback(ctx: typer.Context, value: Any) -> Any:
+        if value is None or ctx.resilient_parsing:
+            return value
+        try:
+            value = check(value, flag)
+        except ValueError as error:
+            raise UserError(str(error)) from None
+        before = os.environ.get(variable)
+        os.environ[variable] = str(value)
+        ctx.call_on_close(lambda: os.environ.pop(variable) if before is None else os.environ.update({variable: before}))
         return value
-    try:
-        name = check_backend(value, "--backend")
-    except ValueError as error:
-        raise UserError(str(error)) from None
-    _set_for_the_command(ctx, ENVIRONMENT_VARIABLE, name)
-    return name
+
+    return callback
 
 
-def set_threads(ctx: typer.Context, value: int | None) -> int | None:
-    """--threads' callback: the count checked (one line, exit 2, outside 1 to the machine's cores),
-    MAZELAB_THREADS set until the command's context closes."""
-    if value is None or ctx.resilient_parsing:
-        return value
-    try:
-        count = check_threads(value, "--threads")
-    except ValueError as error:
-        raise UserError(str(error)) from None
-    _set_for_the_command(ctx, THREADS_VARIABLE, str(count))
-    return count
-
-
-BackendOption = Annotated[
-    str | None,
-    typer.Option(
-        "--backend",
-        metavar="NAME",
-        callback=set_backend,
-        show_default=False,
-        help="numpy or compiled [default: by the work]",
-    ),
-]
-ThreadsOption = Annotated[
-    int | None,
-    typer.Option(
-        "--threads",
-        metavar="N",
-        callback=set_threads,
-        show_default=False,
-        help="compiled: threads for one large run [default: 1]",
-    ),
-]
+BackendOption = opt(str | None, "--backend", metavar="NAME", show_default=False,
+                    callback=environment_option(ENVIRONMENT_VARIABLE, check_backend, "--backend"),
+                    help="numpy or compiled [default: by the work]")  # fmt: skip
+ThreadsOption = opt(int | None, "--threads", metavar="N", show_default=False,
+                    callback=environment_option(THREADS_VARIABLE, check_threads, "--threads"),
+                    help="compiled: threads for one large run [default: 1]")  # fmt: skip
 
 
 # -- outputs --------------------------------------------------------------------------------------------
@@ -256,24 +230,66 @@ def warn_in_one_line(message: Warning | str, category: type[Warning], *_args: An
         typer.echo(f"warning: {message}", err=True)
 
 
-__all__ = [
-    "DEFAULT_DELTA",
-    "DEFAULT_SIGMA",
-    "DRAWING",
-    "BackendOption",
-    "ThreadsOption",
-    "UserError",
-    "check_one_file_each",
-    "check_output_path",
-    "check_outputs",
-    "file_identity",
-    "opt",
-    "parse_list",
-    "seed_option",
-    "set_backend",
-    "set_threads",
-    "visualization",
-    "warn_in_one_line",
-    "with_drawing",
-    "with_parameters",
-]
+# -- a run's summary and progress --------------------------------------------------------------------
+def report_run(result: RunResult) -> None:
+    """A short report of a run: the last step's error, the last-20% error (the mean error over the last
+    20% of the steps, what compare and study report), the convergence step and the seed; the same text for
+    the same seed (timings, which vary, are compare's and bench's)."""
+    errors = result.errors
+    converged = result.converged_at
+    when = f"converged at step {converged} (error < 0.5 from then on)" if converged else "not converged"
+    typer.echo(
+        f"{result.filter_name}: last-step error {errors[-1]:.3f}, last-{FINAL_SHARE:.0%} error "
+        f"{final_error(errors):.3f}; {when}; seed {result.seed}"
+    )
+
+
+def progress_printer(steps: int, every: int = 20) -> Any:
+    """A per-step callback that prints the error every `every` steps."""
+
+    def report(k: int, robot: Robot, filt: Any) -> None:
+        if k % every == 0 or k == steps:
+            error = float(np.hypot(*(filt.estimate - np.array(robot.position))))
+            state = "confident" if filt.is_confident else "searching"
+            typer.echo(f"  step {k:4d}/{steps}: error {error:6.3f}  ({state})")
+
+    return report
+
+
+LOOKUP_PROGRESS_CELLS = 2**18  # a nearest-station table this large takes seconds: say so while building it
+GENERATE_PROGRESS_CELLS = 2**18  # generating a maze this large takes seconds (512 x 512)
+
+
+def prepare_world(world: Maze, min_cells: int = LOOKUP_PROGRESS_CELLS) -> Maze:
+    """Build a large maze's nearest-station table up front, with a progress line on stderr (a 1000 x
+    1000 maze takes tens of seconds); a small maze's table is built on first use, silently."""
+    if world.lookup_cells >= min_cells and not world.has_lookup:
+        world.prepare(ProgressLine(f"building the nearest-station table of {world.source}"))
+    return world
+
+
+def generation_progress(rows: int, columns: int) -> ProgressLine | None:
+    """A progress line for generating a large maze (None for a small one, made in a blink)."""
+    return ProgressLine(f"generating a {rows}x{columns} maze") if rows * columns >= GENERATE_PROGRESS_CELLS else None
+
+
+class ProgressLine:
+    """progress(done, total) as one line on stderr: redrawn in place on a terminal, else a line at the
+    start and one at the end (a log file gets no carriage returns)."""
+
+    def __init__(self, what: str):
+        self.what = what
+        self.started = time.perf_counter()
+        self.shown = -1  # the last percentage drawn
+        self.terminal = sys.stderr.isatty()
+        typer.echo(f"{what} ...", err=True, nl=not self.terminal)
+
+    def __call__(self, done: int, total: int) -> None:
+        percent = 100 * done // max(total, 1)
+        if done == total:
+            seconds = time.perf_counter() - self.started
+            start = "\r" if self.terminal else ""
+            typer.echo(f"{start}{self.what}: done in {seconds:.1f} s", err=True)
+        elif self.terminal and percent != self.shown:
+            typer.echo(f"\r{self.what}: {percent}%", err=True, nl=False)
+        self.shown = percent

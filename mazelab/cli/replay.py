@@ -7,7 +7,10 @@ seed; a file with only the paper's four keys runs on the one shipped maze it fit
 options, so that it repeats the run that made it bit for bit, unless the user names another filter or
 option; then one line says what was overridden. A scenario never imports code: a plug-in's saved run
 replays only when the user names the plug-in (`--filter file.py:Class`), its file's sha256 checked
-against the stored one (a changed file is said in one line); `--filter sir` replays it with SIR."""
+against the stored one (a changed file is said in one line); `--filter sir` replays it with SIR.
+
+What they print and write: a run's kidnapping and particle count; compare's table, per-step errors
+(--csv), figure (--plot), traces (--traces) and its JSON record (beside its first output)."""
 
 from __future__ import annotations
 
@@ -21,37 +24,36 @@ from typing import Any
 import numpy as np
 import typer
 
+from mazelab.atomic import write_text_atomically
 from mazelab.cli.filter_options import GivenOptions, given_options, options_per_filter
 from mazelab.cli.hints import check_filter_name, check_filter_names
 from mazelab.cli.options import (
     DEFAULT_DELTA,
     DEFAULT_SIGMA,
     UserError,
+    check_one_file_each,
     check_output_path,
     check_outputs,
-    visualization,
-)
-from mazelab.cli.provenance import repeat_command
-from mazelab.cli.reports import (
-    compare_record_file,
-    finish_compare,
-    kidnap_report,
-    particle_count_report,
     prepare_world,
     progress_printer,
-    report_compare,
     report_run,
-    start_compare_record,
+    visualization,
 )
 from mazelab.declaration import show_value, to_plain_json
+from mazelab.experiments.record import Recorder, record_path
+from mazelab.experiments.runs import comparison_table, errors_csv, plot_errors, recovery_steps, run_figures
+from mazelab.experiments.traces import check_trace_path, compare_traces, write_traces
+from mazelab.experiments.warmup import take_startup_seconds
+from mazelab.invocation import command_line, repeat_command
 from mazelab.maze import Maze
 from mazelab.mazes import DEFAULT_MAZE, load_maze, mazes_fitting
 from mazelab.model import DEFAULT_STEPS
+from mazelab.plugins import file_sha256
 from mazelab.registry import FilterEntry, filter_entry, resolve_filter
 from mazelab.robot import Robot
 from mazelab.scenario import Scenario, check_measurements_within, find_scenario, load_scenario, save_scenario
 from mazelab.seeding import new_seed, start_place
-from mazelab.simulation import check_start, check_walk_in_maze
+from mazelab.simulation import RunResult, check_start, check_walk_in_maze
 
 # "Repeat this run" repeats the run, not its files: the scenario and recording it wrote would be found
 # taken by the pasted command ("exists; use --force"), and --force would replace them unasked.
@@ -76,17 +78,18 @@ def run_one(maze: str | None, filter_name: str | None, particles: int | None, st
         if path is not None:
             check_output_path(path, force)
     if stored is None:
-        setup = fresh_setup(maze, sigma, delta, seed, start_seed, particles, steps)
+        setup = fresh_setup(maze, sigma, delta, seed, start_seed)
     else:
         refuse_counts_for_replay(stored, particles=particles, steps=steps, start_seed=start_seed)
         options = replay_options(stored, filter_name, options, scenario)
         options_per_filter([filter_name], options)  # the replay's options, checked as the filter will
         setup = replay_setup(stored, maze, sigma, delta, seed)
     prepare_world(setup.world)
-    progress = None if quiet else progress_printer(setup.steps or setup.robot.recorded_steps or DEFAULT_STEPS)
+    progress = None if quiet else progress_printer(steps or setup.robot.recorded_steps or DEFAULT_STEPS)
     with scenario_not_saved_on_stop(save_scenario_path):
-        result = simulate(*setup.arguments, filter_name, seed=setup.seed, visualize=visualize, on_step=progress,
-                          kidnap_at=kidnap_at, **options)  # fmt: skip
+        result = simulate(setup.robot, setup.world, setup.sigma, setup.delta, particles, steps, setup.initial_particles,
+                          filter_name, seed=setup.seed, visualize=visualize, on_step=progress, kidnap_at=kidnap_at,
+                          **options)  # fmt: skip
     report_run(result)
     for line in (kidnap_report(result), particle_count_report(result) if options.get("kld") else None):
         if line:
@@ -114,8 +117,7 @@ def compare_scenario(
     option: list[str] | None, named: dict, drawing: dict, **_: Any,
 ) -> None:  # fmt: skip
     """`compare`'s work (mazelab.cli.app): every filter on the saved scenario, the table, files and record."""
-    from mazelab.experiments.compare import compare_filters
-    from mazelab.experiments.runs import parse_filters
+    from mazelab.experiments.runs import compare_filters, parse_filters
 
     visualize = visualization(**drawing, force=force)
     check_filter_names(filters)
@@ -128,9 +130,16 @@ def compare_scenario(
     given = with_stored_options(stored, names, given_options(named, option, names), scenario)
     options_per_filter(names, given)  # an option that none of the filters takes, or a bad value: one line, first
     options = {k: to_plain_json(v) for k, v in given.items()}
-    recorder = start_compare_record(scenario, {"filters": [resolve_filter(n).name for n in names], "sigma": setup.sigma,
-                                               "delta": setup.delta, "seed": setup.seed, "kidnap_at": kidnap_at,
-                                               "options": options})  # fmt: skip
+    parameters = {
+        "filters": [resolve_filter(n).name for n in names],
+        "sigma": setup.sigma,
+        "delta": setup.delta,
+        "seed": setup.seed,
+        "kidnap_at": kidnap_at,
+        "options": options,
+        "scenario": str(scenario),
+    }
+    recorder = Recorder("compare", command_line(), parameters, scenario_sha256=file_sha256(scenario))
     prepare_world(setup.world)
     shown = f"sigma {setup.sigma:g}, delta {setup.delta:g}"
     count = len(setup.initial_particles)
@@ -138,34 +147,27 @@ def compare_scenario(
     results = compare_filters(setup.world, setup.robot, setup.sigma, setup.delta, setup.initial_particles, names,
                               seed=setup.seed, visualize=visualize, kidnap_at=kidnap_at, **given)  # fmt: skip
     title = f"Localisation error: {scenario.name} ({shown}, {count} particles)"
-    report_compare(results, kld=bool(given.get("kld")), csv_path=csv_path, plot=plot, title=title, force=force)
-    finish_compare(results, setup.seed, traces, recorder, record_file, maze=setup.world.source)
+    files = {"csv_path": csv_path, "plot": plot, "traces": traces, "record_file": record_file}
+    report_compare(results, setup, recorder, title, kld=bool(given.get("kld")), force=force, **files)
     backend = next(iter(results.values())).extras["backend"]
     typer.echo(f"Repeat this comparison: {repeat_command(setup.seed, REPEAT_DROPS, COMPARE_FILES, backend)}")
 
 
 @dataclass
 class RunSetup:
-    """A run's inputs: the maze, the robot, sigma and delta, the initial particles (a replay's) or the
-    count to draw (None: the library's default), the steps (None: the robot's recorded walk), the seed."""
+    """A run's inputs: the maze, the robot, sigma and delta, the initial particles (a replay's; None: drawn
+    from the seed) and the seed."""
 
     world: Maze
     robot: Robot
     sigma: float
     delta: float
     initial_particles: Any
-    particle_count: int | None
-    steps: int | None
     seed: int
-
-    @property
-    def arguments(self) -> tuple[Any, ...]:
-        """simulate's positional arguments (mazelab.lab.simulate)."""
-        return self.robot, self.world, self.sigma, self.delta, self.particle_count, self.steps, self.initial_particles
 
 
 def fresh_setup(maze: str | None, sigma: float | None, delta: float | None, seed: int | None,
-                start_seed: int | None, particles: int | None, steps: int | None) -> RunSetup:  # fmt: skip
+                start_seed: int | None) -> RunSetup:  # fmt: skip
     """A fresh lost robot: the maze (default the lab's), its start drawn from the seed (new if none)."""
     world = load_maze(maze or DEFAULT_MAZE)
     sigma = DEFAULT_SIGMA if sigma is None else sigma
@@ -174,7 +176,7 @@ def fresh_setup(maze: str | None, sigma: float | None, delta: float | None, seed
     if start_seed is not None and start_seed != seed:
         warnings.warn(f"--start-seed {start_seed} differs from --seed {seed}: repeat with both", stacklevel=1)
     robot = Robot(sigma, delta, start_place(world, seed if start_seed is None else start_seed))
-    return RunSetup(world, robot, sigma, delta, None, particles, steps, seed)
+    return RunSetup(world, robot, sigma, delta, None, seed)
 
 
 def replay_setup(stored: Scenario, maze: str | None, sigma: float | None, delta: float | None,
@@ -205,7 +207,7 @@ def replay_setup(stored: Scenario, maze: str | None, sigma: float | None, delta:
         except ValueError as error:
             raise UserError(f"{error}; pass the maze the scenario was made on (--maze)") from None
     seed = seed if seed is not None else stored.seed if stored.seed is not None else new_seed()
-    return RunSetup(world, robot, sigma, delta, stored.init_particles_pos, None, None, seed)
+    return RunSetup(world, robot, sigma, delta, stored.init_particles_pos, seed)
 
 
 def warn_overrides(scenario: Scenario, sigma: float | None, delta: float | None) -> None:
@@ -339,5 +341,67 @@ def with_stored_options(stored: Scenario, filter_names: Sequence[str], given: Gi
     return merged
 
 
-__all__ = ["RunSetup", "compare_scenario", "fresh_setup", "replay_filter_name", "replay_options", "replay_setup",
-           "run_one"]  # fmt: skip
+# -- what run and compare print and write -----------------------------------------------------------
+def kidnap_report(result: RunResult) -> str | None:
+    """Where the robot was carried, and when (if ever) the filter found it again."""
+    if result.kidnap_at is None or result.kidnap_position is None:
+        return None
+    x, y = result.kidnap_position
+    steps = recovery_steps(result)
+    found = f"re-localised {steps} steps later" if steps is not None else "not re-localised by the end"
+    return f"kidnapped at step {result.kidnap_at} to ({x:.2f}, {y:.2f}): {found}"
+
+
+def particle_count_report(result: RunResult) -> str:
+    """The particle count per step (KLD-sampling): mean, least and most."""
+    counts = result.extras["particle_count"]
+    return f"particle count: mean {counts.mean():.0f}, least {counts.min()}, most {counts.max()}"
+
+
+# -- compare's outputs ------------------------------------------------------------------------------------
+def compare_record_file(
+    csv_path: Path | None, plot: Path | None, traces: Path | None, force: bool, rrd: Path | None = None
+) -> Path | None:
+    """Where compare's record goes (beside its first output), checked like the outputs; the traces'
+    format checked too; two outputs that are one file refused first, in one line naming both."""
+    path = next((record_path(p) for p in (csv_path, plot, traces) if p is not None), None)
+    check_one_file_each(
+        [("--csv", csv_path), ("--plot", plot), ("--traces", traces), ("--rrd", rrd), ("the record", path)]
+    )
+    if traces is not None:
+        check_output_path(traces, force)
+        check_trace_path(traces)
+    if path is not None:
+        check_output_path(path, force)
+    return path
+
+
+def report_compare(
+    results: dict[str, RunResult], setup: RunSetup, recorder: Recorder, title: str, *, kld: bool, force: bool,
+    csv_path: Path | None, plot: Path | None, traces: Path | None, record_file: Path | None,
+) -> None:  # fmt: skip
+    """The kidnapping (if any), the table, then the per-step errors, the figure, the traces (with the
+    scenario's maze, sigma, delta and particle count) and the record (with each filter's figures)."""
+    kidnapping = next(iter(results.values()))
+    if kidnapping.kidnap_at is not None and kidnapping.kidnap_position is not None:
+        x, y = kidnapping.kidnap_position
+        typer.echo(f"kidnapped at step {kidnapping.kidnap_at} to ({x:.2f}, {y:.2f})")
+    typer.echo(comparison_table(results, kld=kld, startup_seconds=take_startup_seconds()))
+    if csv_path is not None:
+        write_text_atomically(csv_path, errors_csv(results), replace=force)
+        typer.echo(f"per-step errors written to {csv_path}")
+    if plot is not None:
+        plot_errors(results, plot, title, replace=force)
+        typer.echo(f"figure written to {plot}")
+    if traces is not None:
+        write_traces(traces, compare_traces(results, setup.seed, setup.world.source))
+        typer.echo(f"per-step traces written to {traces}")
+    if record_file is not None:
+        kept = ("mean_error", "final_error", "converged_at", "mean_ess", "log_evidence", "log_evidence_caveat",
+                "ms_per_step", "backend")  # fmt: skip
+        summary = [
+            {"filter": name, **{k: run_figures(name, result)[k] for k in kept}} for name, result in results.items()
+        ]
+        recorder.finish("finished", summary=summary)
+        recorder.write(record_file)
+        typer.echo(f"the record (command, versions, scenario hash, summary) written to {record_file}")

@@ -17,10 +17,8 @@ import typer
 
 from mazelab.atomic import WriteError, write_text_atomically
 from mazelab.cli.filter_options import (
-    GivenOptions,
     StudyOptionFlag,
     given_options,
-    options_per_filter,
     with_option_flags,
 )
 from mazelab.cli.hints import check_filter_names
@@ -39,9 +37,15 @@ from mazelab.cli.options import (
     visualization,
     with_parameters,
 )
-from mazelab.cli.provenance import command_line, repeat_command, resume_command
-from mazelab.experiments.dask_runner import DASK_TIMEOUT, check_workers, close_client, connect
-from mazelab.experiments.executor import STOP_SIGNALS, default_workers, run_study, study_backend
+from mazelab.experiments.executor import (
+    DASK_TIMEOUT,
+    check_workers,
+    close_client,
+    connect,
+    default_workers,
+    run_study,
+    study_backend,
+)
 from mazelab.experiments.journal import (
     Journal,
     JournalError,
@@ -53,12 +57,14 @@ from mazelab.experiments.journal import (
     read_journal,
     resume_study,
 )
-from mazelab.experiments.plan import StudyPlan, all_default, plan_study, study_mazes
+from mazelab.experiments.plan import StudyPlan, plan_study, study_mazes
 from mazelab.experiments.record import Recorder, record_path
 from mazelab.experiments.runs import parse_filters
 from mazelab.experiments.study import RunRecord, RunTask, StudyOutcome
-from mazelab.experiments.summary import CSV_DTYPES, study_csv, study_table, summarise_study, summary_csv, summary_path
+from mazelab.experiments.summary import CSV_DTYPES, study_table, summarise_study, summary_csv, summary_path
+from mazelab.experiments.tables import records_csv
 from mazelab.experiments.traces import check_trace_path, study_traces, write_traces
+from mazelab.invocation import command_line, repeat_command, resume_command
 from mazelab.mazes import DEFAULT_MAZE
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
 from mazelab.registry import filter_entry, resolve_filter
@@ -179,15 +185,8 @@ def study_plan(files: StudyFiles, mazes: list, filters: str, named: dict[str, An
         seed = journal_parameters(files.journal, files.lines)["root_seed"]
     names = parse_filters(check_filter_names(filters))
     given = given_options(named, texts, names, lists=True)
-    kld = given.get("kld") == [True]
-    options = {k: v for k, v in given.items() if not (kld and k == "kld")}
-    checked = GivenOptions({**{k: None if all_default(k, v) else v for k, v in options.items()}, "kld": kld or None})
-    checked.spelled = given.spelled
-    options_per_filter(names, checked, check=False)  # each value is checked by plan_study, for every filter
-    try:
-        return plan_study(mazes, names, **values, options=options, seed=seed, kld=kld, traces=files.traces is not None)
-    except ValueError as error:
-        raise UserError(str(error)) from None
+    return plan_study(mazes, names, **values, options=given, seed=seed, traces=files.traces is not None,
+                      spelled=given.spelled)  # fmt: skip
 
 
 @dataclass
@@ -415,7 +414,7 @@ def write_outputs(session: StudySession, records: list[RunRecord], summaries: li
     replace = files.force or files.resume
     try:
         if files.csv_path is not None:
-            write_text_atomically(files.csv_path, study_csv(records, plan.columns), replace=replace)
+            write_text_atomically(files.csv_path, records_csv(records, plan.columns), replace=replace)
             typer.echo(f"one row per run and filter written to {files.csv_path}")
         if files.summary_csv is not None and summaries:
             write_text_atomically(files.summary_csv, summary_csv(summaries, plan.option_columns), replace=replace)
@@ -453,20 +452,15 @@ def report_stopped(session: StudySession, outcome: StudyOutcome, records: list[R
     if outcome.lost is not None:  # a lost cluster or pool: one line, exit 1
         typer.echo(f"error: {outcome.lost}; {finished} of {total} runs finished{saved}", err=True)
         raise typer.Exit(1)
-    typer.echo(f"interrupted after {finished} of {total} runs{saved}", err=True)
-    for sig in STOP_SIGNALS:  # stopping already: a further Ctrl-C, SIGTERM or SIGHUP changes nothing
-        signal.signal(sig, signal.SIG_IGN)
+    typer.echo(f"interrupted after {finished} of {total} runs{saved}", err=True)  # further stops: ignored (run_study)
     raise typer.Exit(128 + (outcome.stopped_by or signal.SIGINT))  # 130 Ctrl-C, 143 SIGTERM, 129 SIGHUP
 
 
 def draw_figure(plan: StudyPlan, summaries: list, plot: Path, replace: bool, extras: StudyExtras) -> None:
     """The study's figure (mazelab.experiments.study_plot), as `mazelab.study(...).figure(...)` draws it."""
-    from mazelab.experiments.study_plot import plot_study, study_title
+    from mazelab.experiments.study_plot import draw_study
 
-    varied, x, y = plan.varied, extras.plot_x, extras.plot_y
-    title = extras.title or study_title(varied, summaries, plan.runs, plan.settings[0].maze.label, x, y)
-    plot_study(summaries, varied or ["maze"], plot, title, replace=replace, x=x, y=y, caption=extras.title is None)
+    maze = plan.settings[0].maze.label
+    draw_study(summaries, plan.varied, plot, plan.runs, maze, x=extras.plot_x, y=extras.plot_y, title=extras.title,
+               replace=replace)  # fmt: skip
     typer.echo(f"figure written to {plot}")
-
-
-__all__ = ["StudyExtras", "StudyFiles", "study"]

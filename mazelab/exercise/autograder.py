@@ -4,12 +4,15 @@ Gradescope unpacks the zip into /autograder/source, runs `setup.sh` once to buil
 `run_autograder` for each submission, with the student's files in /autograder/submission, and reads
 /autograder/results/results.json. The bundle holds:
 
-- `lab/`: this lab's source as it is now (the package, the shipped mazes, pyproject.toml and uv.lock),
-  so that the image grades with exactly the version that made the bundle;
-- `setup.sh`: bubblewrap (each submission's sandbox), uv, and `uv sync --frozen --no-dev` in lab/
-  (the lab and its locked dependencies, with the Python version the lab needs);
-- `run_autograder`: `mazelab exercise check /autograder/submission/my_filter.py --gradescope
-  /autograder/results` (with the instructor's seed and language if given), and a results.json of
+- `lab/`: this lab's source as it is now (the package, the shipped mazes, pyproject.toml, and uv.lock,
+  or where it was installed without uv, `requirements.txt`: the exact versions of its dependencies
+  installed here), so that the image grades with exactly the version that made the bundle;
+- `grading.key`: the grader's secret key, from which each submission's inputs are drawn (keyed with
+  its files): only run_autograder reads it, the student's sandbox never holds it;
+- `setup.sh`: bubblewrap (each submission's sandbox), uv, and the lab with its pinned dependencies
+  in lab/.venv (`uv sync --frozen --no-dev`, or `uv pip install -r requirements.txt`);
+- `run_autograder`: `mazelab exercise check /autograder/submission/my_filter.py --key grading.key
+  --gradescope /autograder/results` (with the instructor's language if given), and a results.json of
   score 0 saying why if the check wrote none.
 
 `MAZELAB_AUTOGRADER_ROOT` (default /autograder) and `MAZELAB_COMMAND` (default the lab's own
@@ -21,17 +24,20 @@ from __future__ import annotations
 
 import hashlib
 import io
+import re
 import shlex
 import stat
 import zipfile
+from importlib import metadata
 from pathlib import Path
 
 from mazelab import __version__
 from mazelab.exercise.kit import PACKAGE_DIR
-from mazelab.exercise.runner import DEFAULT_TIMEOUT
+from mazelab.exercise.sandbox import DEFAULT_BUDGET
 
 ROOT = PACKAGE_DIR.parent
 LAB_FILES = ("pyproject.toml", "uv.lock", "README.md", "MANIFEST.in", "main.py", "draw.py", "particle_filter.py")
+DISTRIBUTION = "maze-particle-filter-lab"
 LAB_FOLDERS = {"mazelab": ("*.py", "*.po"), "mazes": ("*.txt",), "model_parameters": ("*.json",)}
 SETUP = """#!/usr/bin/env bash
 # Gradescope's image: bubblewrap (the sandbox each submission is graded in), uv, and mazelab {version}
@@ -42,19 +48,24 @@ apt-get update -qq
 apt-get install -y -qq bubblewrap python3 python3-pip python3-venv ca-certificates >/dev/null
 python3 -m pip install --quiet --break-system-packages uv 2>/dev/null || python3 -m pip install --quiet uv
 cd /autograder/source/lab
-python3 -m uv sync --frozen --no-dev
+if [ -f uv.lock ]; then
+    python3 -m uv sync --frozen --no-dev
+else
+    python3 -m uv venv --python ">=3.11" && python3 -m uv pip install --python .venv/bin/python -r requirements.txt .
+fi
 .venv/bin/mazelab exercise --help >/dev/null
 """
 RUN = """#!/usr/bin/env bash
 # Gradescope runs this for each submission: the check of my_filter.py, its results.json where Gradescope
 # reads it (a 0 with the reason when the file cannot be checked). Made by mazelab {version}.
 set -uo pipefail
+here="$(cd "$(dirname "$0")" && pwd)"
 root="${{MAZELAB_AUTOGRADER_ROOT:-/autograder}}"
 read -r -a mazelab <<< "${{MAZELAB_COMMAND:-$root/source/lab/.venv/bin/mazelab}}"
 mkdir -p "$root/results"
 rm -f "$root/results/results.json"
 "${{mazelab[@]}}" exercise check "$root/submission/my_filter.py" --gradescope "$root/results" --force \\
-    --timeout {timeout} {options}
+    --key "$here/grading.key" --timeout {timeout} {options}
 code=$?
 if [ ! -s "$root/results/results.json" ]; then
     printf '{{"score": 0.0, "output": "the autograder could not check my_filter.py (exit code %s)", "tests": []}}\\n' \\
@@ -70,9 +81,11 @@ class BundleError(ValueError):
 
 def lab_files() -> list[Path]:
     """The lab's files the bundle carries (relative to the repository), sorted."""
-    missing = [name for name in LAB_FILES[:2] if not (ROOT / name).is_file()]
-    if missing:
-        raise BundleError(f"the bundle is made from a checkout of the lab: {', '.join(missing)} missing in {ROOT}")
+    if not (ROOT / "pyproject.toml").is_file():
+        raise BundleError(
+            f"the bundle is made from the lab's source: pyproject.toml missing in {ROOT} (an install from a clone, "
+            "`pip install -e CLONE` or `uv sync`, makes it from there)"
+        )
     found = [Path(name) for name in LAB_FILES if (ROOT / name).is_file()]
     for folder, patterns in LAB_FOLDERS.items():
         for pattern in patterns:
@@ -88,30 +101,41 @@ def source_digest(files: list[Path]) -> str:
     return digest.hexdigest()
 
 
-def run_script(seed: int | None = None, lang: str | None = None, timeout: float = DEFAULT_TIMEOUT) -> str:
-    """run_autograder's text (the instructor's seed and language baked in)."""
-    options = [*(["--seed", str(seed)] if seed is not None else []), *(["--lang", lang] if lang else [])]
-    return RUN.format(version=__version__, timeout=f"{timeout:g}", options=shlex.join(options)).replace(" \n", "\n")
+def pinned_requirements() -> str:
+    """The lab's dependencies at the versions installed here (requirements.txt, where there is no uv.lock)."""
+    lines = []
+    for requirement in metadata.requires(DISTRIBUTION) or []:
+        if "extra ==" not in requirement:
+            name = re.match(r"[A-Za-z0-9_.-]+", requirement).group(0)
+            lines.append(f"{name}=={metadata.version(name)}")
+    return "\n".join(sorted(lines)) + "\n"
 
 
-def bundle_bytes(seed: int | None = None, lang: str | None = None, timeout: float = DEFAULT_TIMEOUT) -> bytes:
-    """The zip: setup.sh and run_autograder (executable) at its top, the lab's source under lab/."""
+def run_script(lang: str | None = None, timeout: float = DEFAULT_BUDGET) -> str:
+    """run_autograder's text (the instructor's language and time budget baked in)."""
+    options = shlex.join(["--lang", lang] if lang else [])
+    return RUN.format(version=__version__, timeout=f"{timeout:g}", options=options).replace(" \n", "\n")
+
+
+def bundle_bytes(key: bytes, lang: str | None = None, timeout: float = DEFAULT_BUDGET) -> bytes:
+    """The zip: setup.sh and run_autograder (executable) and the key at its top, the lab's source under lab/."""
     files = lab_files()
+    texts = {
+        "setup.sh": SETUP.format(version=__version__, digest=source_digest(files)),
+        "run_autograder": run_script(lang, timeout),
+        "grading.key": key.hex() + "\n",
+    }
+    texts |= {f"lab/{n.as_posix()}": (ROOT / n).read_bytes() for n in files}
+    if not (ROOT / "uv.lock").is_file():
+        texts["lab/requirements.txt"] = pinned_requirements()
     buffer = io.BytesIO()
     with zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as bundle:
-        scripts = {
-            "setup.sh": SETUP.format(version=__version__, digest=source_digest(files)),
-            "run_autograder": run_script(seed, lang, timeout),
-        }
-        for name, text in scripts.items():
+        for name, text in texts.items():
             info = zipfile.ZipInfo(name, date_time=(2020, 1, 1, 0, 0, 0))
-            info.external_attr = (stat.S_IFREG | 0o755) << 16
+            mode = 0o755 if name in ("setup.sh", "run_autograder") else 0o600 if name == "grading.key" else 0o644
+            info.external_attr = (stat.S_IFREG | mode) << 16
             bundle.writestr(info, text)
-        for name in files:
-            info = zipfile.ZipInfo(f"lab/{name.as_posix()}", date_time=(2020, 1, 1, 0, 0, 0))
-            info.external_attr = (stat.S_IFREG | 0o644) << 16
-            bundle.writestr(info, (ROOT / name).read_bytes())
     return buffer.getvalue()
 
 
-__all__ = ["BundleError", "bundle_bytes", "lab_files", "run_script", "source_digest"]
+__all__ = ["BundleError", "bundle_bytes", "lab_files"]

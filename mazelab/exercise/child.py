@@ -1,48 +1,134 @@
-"""The student's process: the one place a submission's code runs when it is graded.
+"""The student's process: the one place a submission's code runs when it is graded, and the messages
+it exchanges with the grader.
 
 It runs in the submission's sandbox (mazelab.exercise.sandbox), where the lab is not installed: this
-module imports only numpy and the student kit (mazelab.exercise.kit), so that it runs there as it is.
-The grader (mazelab.exercise.runner) starts it in `python -P -S -s` (mazelab.exercise.sandbox), writes
-the request on its standard input (the file and class to load, the stages and their inputs: points,
-weights, angles, a maze's cells, the scenarios' compass angles and measurements; never the true path,
-the exact posterior or a reference answer) and reads its answers on a pipe whose descriptor it names, as messages
-of mazelab.exercise.wire, each preceded by its length. The child loads the file, builds a fresh
-filter for each part, calls the student's methods on the inputs and sends back, stage by stage, only
-values: the arrays the student's code returned and its errors as text. Nothing it says about itself
-is believed: every verdict is the grader's, from these values. Before each stage it sends that
-stage's name, so that a child that ends mid-way is reported at the stage where it happened.
+module imports only numpy and the student kit (mazelab.exercise.kit). The grader writes the request on
+its standard input (the file and class to load, the stages, their inputs: points, weights, angles, a
+maze's cells, the scenarios' compass angles and measurements; never the true path, the exact
+posterior, a reference answer or the seed) and reads the answers on a pipe whose descriptor it names.
+The child says "hello" before any of the student's code runs (so that a sandbox that never started is
+the grader's error, not the student's), loads the file, builds a fresh filter for each part, calls the
+student's methods on the inputs and sends back, stage by stage, only values: the arrays the student's
+code returned and its errors as text. Nothing it says about itself is believed: every verdict is the
+grader's, from these values.
 
-`serve` is the same work in any process: `main` calls it, and the notebook's checks call it in their
-own process (a self-check, not a grade).
+Messages: MAGIC, the length of a JSON header, the header (`meta` and each array's name, dtype and
+shape), then the arrays' bytes; on the pipe each is preceded by its length (8 bytes). `decode` checks
+the whole message before it makes an array (never pickle: unpickling what the student's process sends
+would run its code in the grader).
+
+Before the submission is imported, `guard` installs an audit hook (which nothing can remove) that
+refuses what would hide code from the grader's reading of the submission's files: compiling or
+unmarshalling code that is not a file of the submission, the kit, numpy or the standard library, making
+code objects, calls through ctypes (numpy imports the module itself: its audit events are refused), and
+imports of modules outside the kit, numpy, the standard library and the submission's own files.
 """
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import faulthandler
 import importlib.util
+import json
+import math
 import os
 import sys
+import sysconfig
 import time
 import traceback
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from mazelab.exercise.student import StudentFilter
-from mazelab.exercise.wire import Message, decode, encode
 from mazelab.maze import Maze
 from mazelab.seeding import filter_rng
 
-STAGES = ("predict", "weigh", "resample", "estimate", "whole")
-Emit = Callable[..., None]  # emit(meta, arrays=None): one message to the grader
-Answer = tuple[dict[str, Any], dict[str, np.ndarray]]  # a stage's meta (its error, if any) and arrays
+MAGIC = b"MZL1"
+MAX_HEADER_BYTES = 1 << 20
+MAX_MESSAGE_BYTES = 1 << 28  # 256 MB: the largest message a child may send (the grader reads no more)
+DTYPES = ("<f8", "<i8", "|b1")  # float64, int64, bool: all the checks exchange
 TEXT_LIMIT = 600  # characters of an error's text
+Emit = Callable[..., None]  # emit(meta, arrays=None): one message to the grader
 _LIBRARIES = tuple(
     str(Path(p).resolve()) for p in {sys.prefix, sys.base_prefix, Path(np.__file__).parent, Path(__file__).parents[1]}
 )
+
+
+# -- the messages ---------------------------------------------------------------------------------
+class WireError(ValueError):
+    """A message that is not one of ours: what is wrong with it, in one line."""
+
+
+@dataclass
+class Message:
+    """A decoded message: its JSON `meta` and its arrays by name."""
+
+    meta: dict[str, Any]
+    arrays: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+def _wire_array(array: Any) -> np.ndarray:
+    array = np.asarray(array)
+    kind = "|b1" if array.dtype == bool else "<i8" if np.issubdtype(array.dtype, np.integer) else "<f8"
+    return np.ascontiguousarray(array, dtype=np.dtype(kind))
+
+
+def encode(meta: dict[str, Any], arrays: dict[str, Any] | None = None) -> bytes:
+    """One message: `meta` (JSON; finite floats only) and the arrays (as float64, int64 or bool)."""
+    wired = {name: _wire_array(value) for name, value in (arrays or {}).items()}
+    entries = [{"name": name, "dtype": a.dtype.str, "shape": list(a.shape)} for name, a in wired.items()]
+    text = json.dumps({"meta": meta, "arrays": entries}, allow_nan=False, separators=(",", ":")).encode()
+    return b"".join([MAGIC, len(text).to_bytes(4, "big"), text, *(a.tobytes() for a in wired.values())])
+
+
+def decode(data: bytes) -> Message:
+    """The message in `data`, checked whole (the module docstring); WireError otherwise."""
+    if len(data) > MAX_MESSAGE_BYTES or data[:4] != MAGIC or len(data) < 8:
+        raise WireError("not a message of the grader's (no header)")
+    size = int.from_bytes(data[4:8], "big")
+    if size > MAX_HEADER_BYTES or 8 + size > len(data):
+        raise WireError(f"a header of {size} bytes")
+    try:
+        header = json.loads(data[8 : 8 + size], parse_constant=_no_constant)
+    except (ValueError, RecursionError) as error:
+        raise WireError(f"a header that is not JSON ({error})") from None
+    if not isinstance(header, dict) or set(header) != {"meta", "arrays"} or not isinstance(header["meta"], dict):
+        raise WireError("a header without meta and arrays")
+    if not isinstance(header["arrays"], list):
+        raise WireError("a header whose arrays are not a list")
+    arrays, offset = {}, 8 + size
+    for entry in header["arrays"]:
+        name, dtype, shape = _array_entry(entry)
+        nbytes = math.prod(shape) * dtype.itemsize
+        if name in arrays or offset + nbytes > len(data):
+            raise WireError(f"the array {name!r} twice or cut short")
+        arrays[name] = np.frombuffer(data, dtype=dtype, count=math.prod(shape), offset=offset).reshape(shape)
+        offset += nbytes
+    if offset != len(data):
+        raise WireError(f"{len(data) - offset} bytes after the last array")
+    return Message(header["meta"], arrays)
+
+
+def _no_constant(name: str) -> None:
+    raise ValueError(f"{name} is not JSON")
+
+
+def _array_entry(entry: Any) -> tuple[str, np.dtype, tuple[int, ...]]:
+    """(name, dtype, shape) of a header's array entry, checked."""
+    if not isinstance(entry, dict) or set(entry) != {"name", "dtype", "shape"}:
+        raise WireError("an array entry without name, dtype and shape")
+    name, dtype, shape = entry["name"], entry["dtype"], entry["shape"]
+    if not isinstance(name, str) or len(name) > 200 or dtype not in DTYPES:
+        raise WireError(f"an array entry {str(name)[:40]!r} of dtype {str(dtype)[:10]!r} (one of {', '.join(DTYPES)})")
+    whole = all(isinstance(n, int) and not isinstance(n, bool) and 0 <= n <= MAX_MESSAGE_BYTES for n in shape)
+    if not isinstance(shape, list) or len(shape) > 4 or not whole:
+        raise WireError(f"the array {name!r} has shape {shape!r}")
+    return name, np.dtype(dtype), tuple(shape)
 
 
 # -- the student's calls ------------------------------------------------------------------------
@@ -54,14 +140,11 @@ def _text(error: BaseException) -> str:
     return text if len(text) <= TEXT_LIMIT else text[: TEXT_LIMIT - 3] + "..."
 
 
-def student_frames(tb: Any) -> list[traceback.FrameSummary]:
-    """The frames of a traceback outside the kit, Python and numpy: the student's."""
-    return [f for f in traceback.extract_tb(tb) if not str(Path(f.filename).resolve()).startswith(_LIBRARIES)]
-
-
 def _where(error: BaseException) -> str:
-    frames = student_frames(error.__traceback__)
-    return f" ({Path(frames[-1].filename).name}, line {frames[-1].lineno})" if frames else ""
+    """' (my_filter.py, line 12)': the student's last frame of the error's traceback, if any."""
+    frames = traceback.extract_tb(error.__traceback__)
+    mine = [f for f in frames if not str(Path(f.filename).resolve()).startswith(_LIBRARIES)]
+    return f" ({Path(mine[-1].filename).name}, line {mine[-1].lineno})" if mine else ""
 
 
 def describe_exit(error: BaseException) -> str:
@@ -69,6 +152,18 @@ def describe_exit(error: BaseException) -> str:
     if isinstance(error, SystemExit):
         return f"called sys.exit({error.code!r})" if error.code is not None else "called sys.exit()"
     return f"raised {type(error).__name__}"
+
+
+def _past_limit(error: BaseException) -> str:
+    """' (past the memory limit of 4 GB)' for a MemoryError under the grader's limit, else ''."""
+    try:
+        import resource
+
+        limit = resource.getrlimit(resource.RLIMIT_AS)[0]
+    except (ImportError, OSError, ValueError):
+        return ""
+    unlimited = not isinstance(error, MemoryError) or limit == resource.RLIM_INFINITY
+    return "" if unlimited else f" (past the memory limit of {limit / 2**30:g} GB)"
 
 
 def student_call(function: Callable[..., Any], *args: Any) -> tuple[Any, dict[str, str] | None]:
@@ -85,32 +180,13 @@ def student_call(function: Callable[..., Any], *args: Any) -> tuple[Any, dict[st
         return None, {"kind": "error", "text": text}
 
 
-def _past_limit(error: BaseException) -> str:
-    """' (past the memory limit of 4 GB)' for a MemoryError under the grader's limit, else ''."""
-    if not isinstance(error, MemoryError):
-        return ""
-    try:
-        import resource
-
-        limit = resource.getrlimit(resource.RLIMIT_AS)[0]
-    except (ImportError, OSError, ValueError):
-        return ""
-    return "" if limit == resource.RLIM_INFINITY else f" (past the memory limit of {limit / 2**30:g} GB)"
-
-
 def as_values(part: str, value: Any, shape: tuple[int, ...], whole_numbers: bool = False) -> tuple[Any, Any]:
     """(the answer as a float64 or int64 array of `shape`, None), or (None, an error naming what came)."""
     try:
         array = np.asarray(value)
-        if whole_numbers:
-            if not np.issubdtype(array.dtype, np.integer):
-                return None, {
-                    "kind": "answer",
-                    "text": f"{part} returned {array.dtype} values, not whole-number indices",
-                }
-            array = array.astype(np.int64)
-        else:
-            array = array.astype(np.float64)
+        if whole_numbers and not np.issubdtype(array.dtype, np.integer):
+            return None, {"kind": "answer", "text": f"{part} returned {array.dtype} values, not whole-number indices"}
+        array = array.astype(np.int64 if whole_numbers else np.float64)
     except BaseException as error:
         return None, {"kind": "answer", "text": f"{part} returned {type(value).__name__}, not numbers ({_text(error)})"}
     if array.shape != shape:
@@ -118,152 +194,121 @@ def as_values(part: str, value: Any, shape: tuple[int, ...], whole_numbers: bool
     return array, None
 
 
-def _answered(part: str, function: Callable[..., Any], args: tuple, shape: tuple, whole: bool = False) -> tuple:
-    value, error = student_call(function, *args)
-    return (None, error) if error else as_values(part, value, shape, whole)
-
-
 # -- the stages ---------------------------------------------------------------------------------
-class Worlds:
-    """The mazes of a request, each built once (its nearest-station table too); a filter gets a copy."""
+class Inputs(dict):
+    """A request's inputs by name (mazelab.exercise.inputs.request: scalars and arrays), its mazes built
+    once each (the nearest-station table too); a filter gets a copy."""
 
-    def __init__(self) -> None:
-        self._built: dict[bytes, Maze] = {}
-
-    def copy_of(self, grid: np.ndarray, name: str) -> Maze:
-        key = np.ascontiguousarray(grid).tobytes() + str(grid.shape).encode()
-        if key not in self._built:
-            self._built[key] = Maze(np.array(grid), source=name).prepare()
-        return self._built[key].copy()
+    def world(self, prefix: str) -> Maze:
+        key = f"{prefix}.built"
+        if key not in self:
+            self[key] = Maze(np.array(self[f"{prefix}.grid"]), source=self[f"{prefix}.maze"]).prepare()
+        return self[key].copy()
 
 
-def part_filter(cls: type, request: Message, worlds: Worlds) -> tuple[Any, dict | None]:
-    """A fresh filter for one part check: the parts' maze, sigma and delta, prior and Generator."""
-    parts = request.meta["parts"]
-    world = worlds.copy_of(request.arrays["parts/grid"], parts["maze"])
-    prior = request.arrays["parts/prior"].copy()
-    return student_call(cls, world, parts["sigma"], parts["delta"], prior, np.random.default_rng(parts["filter_seed"]))
+Call = tuple[str, str, tuple, tuple, bool]  # (answer's name, method, arguments, shape, whole numbers)
 
 
-def predict_stage(cls: type, request: Message, worlds: Worlds, emit: Emit) -> Answer:
+def _predict_calls(inputs: Inputs) -> list[Call]:
     """moved/j at each angle j (from default_rng(seed_j)); at angle 0 also `again` (the same
     Generator, continued) and `repeat` (an equally seeded one)."""
-    filt, error = part_filter(cls, request, worlds)
-    if error:
-        return {"error": error}, {}
-    spec, start = request.meta["parts"]["predict"], request.arrays["predict/start"]
-    angles, seeds = spec["angles"], spec["seeds"]
+    start, angles, seeds = inputs["parts.predict.start"], inputs["parts.predict.angles"], inputs["parts.predict.seeds"]
     first = np.random.default_rng(seeds[0])
-    calls = [("moved/0", 0, first), ("again", 0, first), ("repeat", 0, None)]
-    calls += [(f"moved/{j}", j, None) for j in range(1, len(angles))]
-    out: dict[str, np.ndarray] = {}
-    for name, j, rng in calls:
-        rng = rng if rng is not None else np.random.default_rng(seeds[j])
-        moved, error = _answered("predict", filt.predict, (start.copy(), angles[j], rng), start.shape)
-        if error:
-            return {"error": error}, out
-        out[name] = moved
-    return {}, out
+    order = [("moved/0", 0, first), ("again", 0, first), ("repeat", 0, None)]
+    order += [(f"moved/{j}", j, None) for j in range(1, len(angles))]
+    return [
+        (name, "predict", (start, angles[j], rng or np.random.default_rng(seeds[j])), start.shape, False)
+        for name, j, rng in order
+    ]
 
 
-def weigh_stage(cls: type, request: Message, worlds: Worlds, emit: Emit) -> Answer:
+def _weigh_calls(inputs: Inputs) -> list[Call]:
     """log_w/j: weigh on the points for each measurement z_j."""
-    filt, error = part_filter(cls, request, worlds)
-    if error:
-        return {"error": error}, {}
-    points, out = request.arrays["weigh/points"], {}
-    for j, z in enumerate(request.meta["parts"]["weigh"]["z"]):
-        log_w, error = _answered("weigh", filt.weigh, (points.copy(), z), (len(points),))
-        if error:
-            return {"error": error}, out
-        out[f"log_w/{j}"] = log_w
-    return {}, out
+    points = inputs["parts.weigh.points"]
+    return [(f"log_w/{j}", "weigh", (points, z), (len(points),), False) for j, z in enumerate(inputs["parts.weigh.z"])]
 
 
-def resample_stage(cls: type, request: Message, worlds: Worlds, emit: Emit) -> Answer:
-    """ancestors/k (R, N): R calls on weight vector k from one Generator; repeat/k: the first call
-    again from an equally seeded one."""
-    filt, error = part_filter(cls, request, worlds)
-    if error:
-        return {"error": error}, {}
-    spec, out = request.meta["parts"]["resample"], {}
-    for k, seed in enumerate(spec["seeds"]):
-        weights = request.arrays[f"resample/weights/{k}"]
-        n, rng = len(weights), np.random.default_rng(seed)
-        rows = np.empty((spec["draws"], n), dtype=np.int64)
-        for r in range(spec["draws"]):
-            ancestors, error = _answered("resample", filt.resample, (weights.copy(), rng), (n,), True)
-            if error:
-                return {"error": error}, out
-            rows[r] = ancestors
-        again, error = _answered("resample", filt.resample, (weights.copy(), np.random.default_rng(seed)), (n,), True)
-        if error:
-            return {"error": error}, out
-        out[f"ancestors/{k}"], out[f"repeat/{k}"] = rows, again
-    return {}, out
+def _resample_calls(inputs: Inputs) -> list[Call]:
+    """ancestors/k/r: R calls on weight vector k from one Generator; repeat/k: the first call again from
+    an equally seeded one (the rows of ancestors/k are stacked into one (R, N) answer)."""
+    calls = []
+    for k, seed in enumerate(inputs["parts.resample.seeds"]):
+        weights, rng = inputs[f"parts.resample.weights.{k}"], np.random.default_rng(seed)
+        draw = ("resample", (weights, rng), (len(weights),), True)
+        calls += [(f"ancestors/{k}/{r}", *draw) for r in range(inputs["parts.resample.draws"])]
+        calls.append((f"repeat/{k}", "resample", (weights, np.random.default_rng(seed)), (len(weights),), True))
+    return calls
 
 
-def estimate_stage(cls: type, request: Message, worlds: Worlds, emit: Emit) -> Answer:
+def _estimate_calls(inputs: Inputs) -> list[Call]:
     """point/k: estimate of the points under weight vector k."""
-    filt, error = part_filter(cls, request, worlds)
-    if error:
-        return {"error": error}, {}
-    points, out = request.arrays["estimate/points"], {}
-    for k in range(len(request.meta["parts"]["estimate"]["kinds"])):
-        weights = request.arrays[f"estimate/weights/{k}"]
-        point, error = _answered("estimate", filt.estimate_part, (points.copy(), weights.copy()), (2,))
+    points = inputs["parts.estimate.points"]
+    kinds = inputs["parts.estimate.kinds"]
+    return [
+        (f"point/{k}", "estimate_part", (points, inputs[f"parts.estimate.weights.{k}"]), (2,), False)
+        for k in range(len(kinds))
+    ]
+
+
+PART_CALLS = {
+    "predict": _predict_calls,
+    "weigh": _weigh_calls,
+    "resample": _resample_calls,
+    "estimate": _estimate_calls,
+}
+
+
+def part_stage(cls: type, stage: str, inputs: Inputs, emit: Emit) -> tuple[dict, dict]:
+    """One part's answers: a fresh filter (the parts' maze, sigma, delta, prior and Generator), then
+    each call on copies of its inputs; the first error ends the stage."""
+    world = inputs.world("parts")
+    arguments = (inputs["parts.sigma"], inputs["parts.delta"], inputs["parts.prior"].copy())
+    filt, error = student_call(cls, world, *arguments, np.random.default_rng(inputs["parts.filter_seed"]))
+    out: dict[str, Any] = {}
+    for name, method, args, shape, whole in [] if error else PART_CALLS[stage](inputs):
+        copies = tuple(a.copy() if isinstance(a, np.ndarray) else a for a in args)
+        value, error = student_call(getattr(filt, method), *copies)
+        value, error = (None, error) if error else as_values(stage, value, shape, whole)
         if error:
-            return {"error": error}, out
-        out[f"point/{k}"] = point
-    return {}, out
+            break
+        out[name] = value
+    rows = sorted((n for n in out if n.count("/") == 2), key=lambda n: tuple(int(i) for i in n.split("/")[1:]))
+    for k in sorted({n.split("/")[1] for n in rows}):
+        out[f"ancestors/{k}"] = np.stack([out.pop(n) for n in rows if n.split("/")[1] == k])
+    return ({"error": error} if error else {}), out
 
 
-def whole_stage(cls: type, request: Message, worlds: Worlds, emit: Emit) -> Answer:
+def whole_stage(cls: type, stage: str, inputs: Inputs, emit: Emit) -> tuple[dict, dict]:
     """estimates/i (steps, 2): the filter stepped along scenario i's compass angles and measurements,
     its estimate read after each step; the first error ends the stage (naming scenario and step)."""
     out: dict[str, np.ndarray] = {}
-    for i, scenario in enumerate(request.meta["scenarios"]):
+    for i in range(inputs["whole.count"]):
         emit({"kind": "stage", "stage": "whole", "scenario": i})
-        world = worlds.copy_of(request.arrays[f"scenario/{i}/grid"], scenario["maze"])
-        compass, z = request.arrays[f"scenario/{i}/compass"], request.arrays[f"scenario/{i}/z"]
+        prefix = f"whole.{i}"
+        compass, z = inputs[f"{prefix}.compass_angles"], inputs[f"{prefix}.measurements"]
         estimates, step = np.empty((len(z), 2)), 0
         try:
-            particles = request.arrays[f"scenario/{i}/particles"].copy()
-            filt = cls(world, scenario["sigma"], scenario["delta"], particles, filter_rng(scenario["seed"]))
+            particles, seed = inputs[f"{prefix}.particles"].copy(), inputs[f"{prefix}.seed"]
+            noise = (inputs[f"{prefix}.sigma"], inputs[f"{prefix}.delta"])
+            filt = cls(inputs.world(prefix), *noise, particles, filter_rng(seed))
             for step in range(1, len(z) + 1):
                 filt.step(float(compass[step - 1]), float(z[step - 1]))
-                estimates[step - 1] = _estimate_of(filt)
-        except (SystemExit, KeyboardInterrupt) as error:
-            text = f"{cls.__name__} {describe_exit(error)}{_when(step)}{_where(error)}"
-            return {"error": {"kind": "exit", "text": text}, "scenario": i, "step": step}, out
+                point = np.asarray(filt.estimate, dtype=float)
+                if point.shape != (2,):
+                    raise ValueError(f"estimate has shape {point.shape}; expected (2,)")
+                estimates[step - 1] = point
         except BaseException as error:
-            text = f"{cls.__name__} raised {type(error).__name__}{_when(step)}: {_text(error)}{_where(error)}"
-            text += _past_limit(error)
-            text = "; ".join(line.strip() for line in text.splitlines())  # one line: a table cell
-            return {"error": {"kind": "error", "text": text}, "scenario": i, "step": step}, out
+            when = " while being built" if step == 0 else f" at step {step}"
+            exited = isinstance(error, (SystemExit, KeyboardInterrupt))
+            said = describe_exit(error) if exited else f"raised {type(error).__name__}"
+            text = f"{cls.__name__} {said}{when}{'' if exited else ': ' + _text(error)}{_where(error)}"
+            text = "; ".join(line.strip() for line in (text + _past_limit(error)).splitlines())  # one table cell
+            return {"error": {"kind": "exit" if exited else "error", "text": text}, "scenario": i, "step": step}, out
         out[f"estimates/{i}"] = estimates
     return {}, out
 
 
-def _when(step: int) -> str:
-    return " while being built" if step == 0 else f" at step {step}"
-
-
-def _estimate_of(filt: Any) -> np.ndarray:
-    """The filter's estimate as (2,) floats (whatever they are: NaN is the grader's to judge)."""
-    point = np.asarray(filt.estimate, dtype=float)
-    if point.shape != (2,):
-        raise ValueError(f"estimate has shape {point.shape}; expected (2,)")
-    return point
-
-
-STAGE_RUNNERS = {
-    "predict": predict_stage,
-    "weigh": weigh_stage,
-    "resample": resample_stage,
-    "estimate": estimate_stage,
-    "whole": whole_stage,
-}
+STAGE_RUNNERS = {**dict.fromkeys(PART_CALLS, part_stage), "whole": whole_stage}
 
 
 # -- loading and serving ----------------------------------------------------------------------
@@ -292,18 +337,13 @@ def load(meta: dict[str, Any]) -> tuple[type | None, dict[str, Any]]:
     finally:
         with contextlib.suppress(ValueError):
             sys.path.remove(str(path.parent))
-    return _chosen_class(module, class_name, shown)
-
-
-def _chosen_class(module: Any, class_name: str | None, shown: str) -> tuple[type | None, dict[str, Any]]:
-    """The named class, or the one class the file defines that subclasses StudentFilter."""
     defined = [c for c in vars(module).values() if isinstance(c, type) and c.__module__ == module.__name__]
     if class_name is None:
         students = [c for c in defined if issubclass(c, StudentFilter)]
-        if len(students) != 1:
-            found = ", ".join(c.__name__ for c in students) or "none"
-            return None, {"error": f"{shown}: name the class as {shown}:ClassName (StudentFilter classes: {found})"}
-        return students[0], describe_class(students[0])
+        if len(students) == 1:
+            return students[0], describe_class(students[0])
+        found = ", ".join(c.__name__ for c in students) or "none"
+        return None, {"error": f"{shown}: name the class as {shown}:ClassName (StudentFilter classes: {found})"}
     cls = getattr(module, class_name, None)
     if not isinstance(cls, type) or cls not in defined:
         names = ", ".join(c.__name__ for c in defined) or "no classes"
@@ -326,16 +366,14 @@ def serve(request: Message, emit: Emit, filter_class: type | None = None) -> Non
     start and its answer; then "done"."""
     cls, loaded = (filter_class, describe_class(filter_class)) if filter_class else load(request.meta)
     emit({"kind": "loaded", **loaded})
-    if cls is None or not loaded["student_filter"]:
-        emit({"kind": "done"})
-        return
-    worlds = Worlds()
-    for stage in request.meta["stages"]:
-        emit({"kind": "stage", "stage": stage})
-        started = time.perf_counter()
-        meta, arrays = STAGE_RUNNERS[stage](cls, request, worlds, emit)
-        _flush()
-        emit({**meta, "kind": "result", "stage": stage, "seconds": time.perf_counter() - started}, arrays)
+    if cls is not None and loaded["student_filter"]:
+        inputs = Inputs({**request.meta["inputs"], **request.arrays})
+        for stage in request.meta["stages"]:
+            emit({"kind": "stage", "stage": stage})
+            started = time.perf_counter()
+            meta, arrays = STAGE_RUNNERS[stage](cls, stage, inputs, emit)
+            _flush()
+            emit({**meta, "kind": "result", "stage": stage, "seconds": time.perf_counter() - started}, arrays)
     emit({"kind": "done"})
 
 
@@ -345,27 +383,91 @@ def _flush() -> None:
             stream.flush()
 
 
-def _read_request() -> Message:
-    """The request, whole, from standard input (then closed: the student's code reads nothing there)."""
-    data = sys.stdin.buffer.read()
-    os.close(0)
-    os.open(os.devnull, os.O_RDONLY)
-    return decode(data)
+# -- the guard ---------------------------------------------------------------------------------------
+def guard(folder: str) -> None:
+    """Install the audit hook of the module docstring for a submission in `folder` (the roots whose
+    files may be compiled or unmarshalled: the kit, numpy, the standard library and `folder`). The hook
+    keeps every value it reads in its defaults (a patched builtin or module changes nothing in it)."""
+    import numpy
+    import numpy.ma
+
+    site = os.path.dirname(os.path.dirname(numpy.__file__))
+    paths = sysconfig.get_paths()
+    roots = (sys.path[0], f"{site}/numpy/", f"{site}/numpy.libs/", paths["stdlib"], paths["platstdlib"], folder)
+    roots = tuple(r.rstrip("/") + "/" for r in roots)
+    own = {p.stem for p in Path(folder).glob("*.py")}
+    names = frozenset(sys.stdlib_module_names - {"ctypes", "_ctypes"} | {"numpy", "mazelab"} | own)
+    paths = frozenset([*sys.path, folder])
+    finders = (tuple(map(id, sys.meta_path)), tuple(map(id, sys.path_hooks)))
+    sys.addaudithook(_hook_with(roots, names, paths, finders, collections.namedtuple.__code__))
+
+
+def _hook_with(roots: tuple[str, ...], names: frozenset, paths: frozenset, finders: tuple, named: Any) -> Callable:
+    """The audit hook; its defaults hold all it reads (a patched builtin or module changes nothing in it).
+    `named` is namedtuple's code, which compiles a text of identifiers only (checked with the real
+    `type` and `str`: the standard library makes namedtuples as it is imported)."""
+
+    def hook(event, args, roots=roots, names=names, paths=paths, finders=finders, named=named,
+             frame=sys._getframe, read=open, type=type, str=str, bytes=bytes, tuple=tuple, map=map, id=id,
+             all=all, range=range):  # fmt: skip
+        def namedtuple(caller):  # namedtuple's own code, run with the real builtins (its checks hold)
+            real = caller.f_builtins.get("type") is type and caller.f_builtins.get("str") is str
+            return caller.f_code is named and real
+
+        def own(path, data, skip=0):  # the bytes of a file under the roots, reached without ".."
+            if type(path) is not str or type(data) is not bytes or "/.." in path or not path.startswith(roots):
+                return False
+            with read(path, "rb") as file:
+                return file.read()[skip:] == data
+
+        if event == "compile" and not own(args[1], args[0]) and not namedtuple(frame(1)):
+            raise PermissionError("a submission may not compile text (nor use dataclasses or namedtuple, which do)")
+        if event in ("marshal.loads", "marshal.load"):
+            for depth in range(1, 6):  # importlib's own reading of a .pyc under the roots
+                try:
+                    if own(frame(depth).f_locals.get("bytecode_path"), args[0], 16):
+                        return
+                except ValueError:  # no frame that deep
+                    break
+            raise PermissionError("a submission may not unmarshal code")
+        if (
+            event == "code.__new__"
+            or event.startswith("ctypes.")
+            or (event == "object.__setattr__" and args[0] is hook)
+        ):
+            raise PermissionError(f"a submission may not use {event}")
+        if event == "import" and args[2] is not None:
+            where = all(type(p) is str and p in paths for p in args[2])
+            same = where and (tuple(map(id, args[3])), tuple(map(id, args[4]))) == finders
+            if str.partition(args[0], ".")[0] not in names or not same:
+                raise ImportError(f"{args[0]}: a submission imports only numpy, the standard library and its own files")
+
+    return hook
 
 
 def main(answer_fd: int) -> None:
-    """The child process: read the request, serve it, answering on the descriptor `answer_fd`."""
+    """The child process: read the request, set the process limit, guard, say hello, serve the request
+    answering on the descriptor `answer_fd`, then end (the student's threads with it)."""
     faulthandler.enable(file=sys.stderr, all_threads=True)  # a crash in C names the student's line
-    message = _read_request()
+    message = decode(sys.stdin.buffer.read())
+    os.close(0)
+    os.open(os.devnull, os.O_RDONLY)  # the student's code reads nothing there
     answers = os.fdopen(answer_fd, "wb", buffering=0)
 
-    def emit(meta: dict[str, Any], arrays: dict[str, np.ndarray] | None = None) -> None:
+    def emit(meta: dict[str, Any], arrays: dict[str, Any] | None = None) -> None:
         data = encode(meta, arrays)
         answers.write(len(data).to_bytes(8, "big") + data)
 
+    processes = message.meta.get("processes")
+    if processes:  # counted in the sandbox's own user namespace: its processes and threads only
+        import resource
+
+        resource.setrlimit(resource.RLIMIT_NPROC, (processes, processes))
+    guard(str(Path(message.meta["file"]).parent))
+    emit({"kind": "hello"})  # the limits and the guard hold: the student's code may run now
     serve(message, emit)
     _flush()
-    os._exit(0)  # the student's threads, daemons or not, end with the process
+    os._exit(0)
 
 
-__all__ = ["STAGES", "STAGE_RUNNERS", "as_values", "describe_exit", "load", "main", "serve", "student_call"]
+__all__ = ["Message", "WireError", "decode", "encode", "main", "serve"]

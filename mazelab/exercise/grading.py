@@ -1,12 +1,23 @@
 """Grading a folder of submissions: each one checked in child processes of its own (mazelab.exercise.
-report.check_file), several at once over the cores, the grader's reference runs computed once per
-scenario in a pool of worker processes; then one CSV row per submission, Gradescope's results.json
-per submission, and a summary table.
+report.check_file), several at once over the cores, the grader's reference runs in a pool of worker
+processes; its CSV row and Gradescope's results.json written as soon as it is graded, and a summary.
 
 A submission is a subfolder (its my_filter.py, else its only Python file, else the only one that
 mentions StudentFilter) or a .py file directly in the folder; names starting with "." or "_" are
-skipped. One that cannot be checked (no file to grade, an import error, not a StudentFilter) gets a
-row saying why, never a pass.
+skipped. A link, to a folder or a file, is no submission: it is named and refused, and what it leads
+to is graded under its own name. One that cannot be checked (no file to grade, an import error, not a
+StudentFilter), and one whose check fails in the grader itself, gets a row saying why, never a pass:
+nothing one submission does spoils another's row. Only a sandbox that cannot start (the grader's
+machine, not a submission) stops the grading.
+
+The inputs come from the grader's secret key (`KEY_FILE` beside the outputs, made at the first grading
+and reused by a regrade), keyed with each submission's files: no report, CSV or results.json shows it.
+
+The outputs are guarded before any grading: never inside the class folder (a submission could see
+them, or be replaced by them), and claimed by one grader at a time (an exclusive lock on a hidden
+`.NAME.grading` beside each, released by the system if the grader dies). The CSV grows as
+`NAME.partial.csv` and replaces NAME only once every submission is graded: an interrupted grading
+leaves the partial one beside the last complete gradebook.
 """
 
 from __future__ import annotations
@@ -17,31 +28,49 @@ import io
 import json
 import multiprocessing
 import os
+import secrets
+import signal
 import textwrap
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from mazelab.atomic import WriteError, write_text_atomically
 from mazelab.exercise.language import Catalogue
-from mazelab.exercise.layout import format_report
-from mazelab.exercise.outcome import Report
-from mazelab.exercise.report import STAGES, WHOLE, NotGradableError, check_file
-from mazelab.exercise.rows import FAIL, NOT_OWN, NOT_RUN, NOT_WRITTEN, PASS
-from mazelab.exercise.runner import DEFAULT_TIMEOUT, allow_children, stop_children
+from mazelab.exercise.parts import FAIL, NOT_OWN, NOT_RUN, NOT_WRITTEN, PASS, clean
+from mazelab.exercise.report import WHOLE, NotGradableError, Report, check_file, format_report
+from mazelab.exercise.sandbox import (
+    DEFAULT_BUDGET,
+    GradingStoppedError,
+    SandboxError,
+    allow_children,
+    stop_children,
+)
 from mazelab.exercise.student import PARTS
 from mazelab.exercise.template import FILTER_FILE
 from mazelab.exercise.whole import References
 
+try:
+    import fcntl
+except ImportError:  # Windows: no claim, outputs are still written whole (mazelab.atomic)
+    fcntl = None  # type: ignore[assignment]
+
+KEY_FILE = ".grading.key"  # hidden: no submission has its name (grading skips names that start with ".")
+KEY_BYTES = 32  # 256 bits; a given key needs at least 16 (128 bits)
 ROW_NAMES = (*PARTS, WHOLE)
 CSV_COLUMNS = (
-    "submission", "file", "seed", *PARTS, "whole_filter", "farther_on", "to_exact", "sir_to_exact",
+    "submission", "file", *PARTS, "whole_filter", "farther_on", "to_exact", "sir_to_exact",
     "converged", "sir_converged", "seconds", "problem",
 )  # fmt: skip
 SHORT = {PASS: "pass", FAIL: "FAIL", NOT_WRITTEN: "todo", NOT_RUN: "-", NOT_OWN: "REF", None: "-"}
+
+
+class ClaimError(ValueError):
+    """An output or key that cannot be used: one line naming it and the way out."""
 
 
 @dataclass
@@ -52,6 +81,10 @@ class Submission:
     file: Path | None
     problem: str | None = None
     own_folder: bool = False  # a subfolder of its own: the Python files beside the file are its too
+
+    def __post_init__(self) -> None:
+        self.name = clean(self.name, 200)
+        self.problem = None if self.problem is None else clean(self.problem)
 
 
 @dataclass
@@ -74,76 +107,61 @@ class Graded:
 
 
 def discover(folder: Path) -> list[Submission]:
-    """The submissions in `folder`, by name: a link that leads out of the folder or to a file that is
-    not Python is refused (named), and two names for one file are graded once."""
+    """The submissions in `folder`, by name: a link is refused (named), and a file that is not Python."""
     if not folder.exists():
         raise ValueError(f"{folder}: no such folder of submissions (check the path)")
     if not folder.is_dir():
         raise ValueError(f"{folder}: not a folder; grade one file with `exercise check {folder}`")
-    found, by_file = [], {}
+    found = []
     for entry in sorted(folder.iterdir(), key=lambda p: p.name):
-        if entry.name.startswith((".", "_")):
+        if entry.name.startswith((".", "_")) or not (entry.is_dir() or entry.suffix == ".py" or entry.is_symlink()):
             continue
-        if entry.is_dir():
-            submission = _in_folder(entry)
-        elif entry.suffix == ".py" or entry.is_symlink():
-            submission = Submission(entry.name, entry)
+        if entry.is_symlink():
+            why = f"{entry}: a link (to {os.readlink(entry)}), not a submission; not graded (what it leads to is "
+            found.append(Submission(entry.name, None, why + "graded under its own name)"))
+        elif entry.is_dir():
+            found.append(_in_folder(entry))
         else:
-            continue
-        submission = _refused_link(submission, folder) if submission.file else submission
-        if submission.file is not None:
-            real = submission.file.resolve()
-            if real in by_file:
-                first = by_file[real]
-                why = f"{submission.file}: the same file as {first.file} (a link); graded once, as {first.name}"
-                submission = Submission(submission.name, None, why)
-            else:
-                by_file[real] = submission
-        found.append(submission)
+            found.append(Submission(entry.name, entry))
     if not found:
         raise ValueError(f"{folder}: no submissions (a subfolder or a .py file each)")
     return found
 
 
-def _refused_link(submission: Submission, folder: Path) -> Submission:
-    """The submission, or why its file is refused: a link out of the class folder, or to what is not
-    a Python file (a student's link to /etc/passwd is never read)."""
-    file = submission.file
-    real = file.resolve()
-    if not real.is_relative_to(folder.resolve()):
-        return Submission(submission.name, None, f"{file}: a link out of the class folder; not graded")
-    if submission.own_folder and file.parent.resolve() != real.parent:
-        return Submission(submission.name, None, f"{file}: a link to another folder's file; not graded")
-    if real.suffix != ".py" or not real.is_file():
-        return Submission(submission.name, None, f"{file}: a link to {real.name}, not a Python file; not graded")
-    return submission
-
-
 def _in_folder(folder: Path) -> Submission:
-    if (folder / FILTER_FILE).is_file() or (folder / FILTER_FILE).is_symlink():
-        return Submission(folder.name, folder / FILTER_FILE, own_folder=True)
-    files = sorted(p for p in folder.glob("*.py") if p.is_file() and not p.name.startswith((".", "_")))
-    mentioning = [p for p in files if "StudentFilter" in p.read_text(errors="replace")]
-    for candidates in (files, mentioning):
-        if len(candidates) == 1:
-            return Submission(folder.name, candidates[0], own_folder=True)
+    """A subfolder's file: its my_filter.py, else its only Python file, else the only one that mentions
+    StudentFilter; a link there is refused (never read: it could lead to a pipe or another's file)."""
+    if (folder / FILTER_FILE).is_symlink():
+        return Submission(folder.name, None, f"{folder / FILTER_FILE}: a link, not the student's own file; not graded")
+    files = sorted(p for p in folder.glob("*.py") if p.is_file() and not p.is_symlink() and p.name[0] not in "._")
+    if (folder / FILTER_FILE) in files:
+        files = [folder / FILTER_FILE]
+    if len(files) > 1:
+        files = [p for p in files if "StudentFilter" in p.read_text(errors="replace")] or files
+    if len(files) == 1:
+        return Submission(folder.name, files[0], own_folder=True)
     if not files:
         return Submission(folder.name, None, f"{folder}: no Python file to grade")
     names = ", ".join(p.name for p in files[:5])
     return Submission(folder.name, None, f"{folder}: which file? {names} (call the one to grade {FILTER_FILE})")
 
 
-def grade_one(submission: Submission, seed: int | None, timeout: float, references: References) -> Graded:
-    """Check one submission (never raises for the submission's own problems)."""
+def grade_one(submission: Submission, key: bytes, timeout: float, references: References) -> Graded:
+    """Check one submission: never raises for the submission, nor for the grader's own failure on it
+    (its row says so); only a sandbox that cannot start (SandboxError) and a stop propagate."""
     started = time.perf_counter()
     if submission.file is None:
         return Graded(submission, None, submission.problem, 0.0)
     try:
-        report = check_file(
-            str(submission.file), seed=seed, timeout=timeout, references=references, companions=submission.own_folder
-        )
+        file, own = str(submission.file), submission.own_folder
+        report = check_file(file, key=key, timeout=timeout, references=references, companions=own)
     except NotGradableError as error:
         return Graded(submission, None, str(error), time.perf_counter() - started)
+    except (SandboxError, GradingStoppedError, KeyboardInterrupt):
+        raise
+    except Exception as error:  # the grader's own failure on this submission: its row, not the class's
+        why = clean(f"the grader could not check it: {type(error).__name__}: {error}")
+        return Graded(submission, None, why, time.perf_counter() - started)
     return Graded(submission, report, None, time.perf_counter() - started)
 
 
@@ -155,40 +173,50 @@ class GradingInterruptedError(Exception):
         self.graded = graded
 
 
+def _quiet_thread() -> None:
+    """A grading thread blocks the stop signals: the main thread takes them, and the processes this
+    thread starts (the reference runs' workers) inherit the mask, so Ctrl-C never prints their tracebacks."""
+    signal.pthread_sigmask(signal.SIG_BLOCK, [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
+
+
 def grade_folder(
     submissions: list[Submission],
     *,
-    seed: int | None = None,
-    timeout: float = DEFAULT_TIMEOUT,
+    key: bytes,
+    timeout: float = DEFAULT_BUDGET,
     jobs: int | None = None,
     on_done: Callable[[Graded], None] | None = None,
 ) -> list[Graded]:
-    """Grade the submissions, `jobs` at a time (default: the cores), in their order."""
+    """Grade the submissions, `jobs` at a time (default: the cores), in their order, calling `on_done`
+    with each as soon as it is graded."""
     jobs = jobs or os.cpu_count() or 1
     lock = threading.Lock()
     allow_children()
-    pool = ProcessPoolExecutor(max_workers=jobs, mp_context=_reference_context())
+    methods = multiprocessing.get_all_start_methods()  # a fresh interpreter each, never a fork of threads
+    pool = ProcessPoolExecutor(jobs, multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn"))
     references = References(pool)
 
     def one(submission: Submission) -> Graded:
-        graded = grade_one(submission, seed, timeout, references)
+        graded = grade_one(submission, key, timeout, references)
         if on_done is not None:
             with lock:
                 on_done(graded)
         return graded
 
-    threads = ThreadPoolExecutor(max_workers=jobs, thread_name_prefix="mazelab-grade")
+    threads = ThreadPoolExecutor(jobs, "mazelab-grade", initializer=_quiet_thread if os.name == "posix" else None)
     futures = [threads.submit(one, submission) for submission in submissions]
     try:
         return [future.result() for future in futures]
-    except BaseException as error:  # Ctrl-C, SIGTERM: end the running children, start no new one, keep what was graded
+    except BaseException as error:  # Ctrl-C, SIGTERM, a sandbox that cannot start: end every child, keep the rest
         stop_children()
-        _end_workers(pool)
+        for process in list((getattr(pool, "_processes", None) or {}).values()):
+            with contextlib.suppress(OSError, AttributeError):
+                process.kill()  # a grid run in progress would hold shutdown for seconds
         for future in futures:
             future.cancel()
         threads.shutdown(wait=True, cancel_futures=True)
         if not isinstance(error, KeyboardInterrupt):
-            raise  # the grader's own error is not a stop: it is shown as it is
+            raise
         done = [f.result() for f in futures if f.done() and not f.cancelled() and f.exception() is None]
         raise GradingInterruptedError(done) from None
     finally:
@@ -197,32 +225,123 @@ def grade_folder(
         allow_children()
 
 
-def _end_workers(pool: ProcessPoolExecutor) -> None:
-    """Kill the reference runs' workers now (a grid run in progress would hold shutdown for seconds)."""
-    for process in list((getattr(pool, "_processes", None) or {}).values()):
-        with contextlib.suppress(OSError, AttributeError):
-            process.kill()
+# -- the key and the outputs --------------------------------------------------------------------------
+def read_key(path: Path, make: bool = True) -> bytes:
+    """The secret key in `path` (hexadecimal, at least 128 bits); made there (mode 0600) when missing and
+    `make`. ClaimError in one line otherwise."""
+    try:
+        text = path.read_text().strip()
+    except FileNotFoundError:
+        if not make:
+            raise ClaimError(f"--key {path}: no such file") from None
+        try:
+            descriptor = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0), 0o600)
+            with os.fdopen(descriptor, "w") as file:
+                file.write(secrets.token_hex(KEY_BYTES) + "\n")
+        except OSError as error:
+            raise ClaimError(f"cannot write the key {path}: {error.strerror or error}") from None
+        return read_key(path, make=False)
+    except (OSError, UnicodeDecodeError) as error:
+        raise ClaimError(f"--key {path}: cannot be read ({getattr(error, 'strerror', None) or error})") from None
+    try:
+        key = bytes.fromhex(text)
+    except ValueError:
+        key = b""
+    if len(key) < 16:
+        raise ClaimError(f"--key {path}: not a key of at least 128 bits (32 hexadecimal digits)")
+    return key
 
 
-def _reference_context() -> Any:
-    """The reference runs' workers: a fresh interpreter each (forkserver, or spawn where there is none),
-    never a fork of the grader's threads."""
-    methods = multiprocessing.get_all_start_methods()
-    return multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn")
+def check_outside(output: Path, folder: Path, option: str) -> None:
+    """Refuse an output path inside the class folder (or the folder itself)."""
+    where, classes = output.resolve(), folder.resolve()
+    if where == classes or where.is_relative_to(classes):
+        raise ClaimError(
+            f"{option} {output}: inside the class folder {folder}; write the grader's outputs outside it "
+            "(a submission must not see them, nor be replaced by them)"
+        )
 
 
-# -- what grading writes ----------------------------------------------------------------------------
+@contextlib.contextmanager
+def claimed(outputs: list[tuple[Path, str]]) -> Iterator[None]:
+    """Hold the claims of `outputs` ((path, option) each) while grading; ClaimError at once when another
+    grader holds one."""
+    held: list[tuple[int, Path]] = []
+    try:
+        for output, option in outputs if fcntl is not None else []:
+            lock = output.parent / f".{output.name}.grading"
+            try:
+                handle = os.open(lock, os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o644)
+            except OSError as error:
+                raise WriteError(error.errno, error.strerror, str(lock)) from None
+            try:
+                fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                os.close(handle)
+                raise ClaimError(
+                    f"{option} {output}: another grader is writing it now; wait for it or choose another name"
+                ) from None
+            held.append((handle, lock))
+            try:
+                os.ftruncate(handle, 0)
+                os.write(handle, f"{os.getpid()}\n".encode())
+            except OSError as error:  # a full disk: named
+                raise WriteError(error.errno, error.strerror, str(lock)) from None
+        yield
+    finally:
+        for handle, lock in held:
+            with contextlib.suppress(OSError):
+                lock.unlink()
+            os.close(handle)
+
+
+def partial_name(path: Path) -> Path:
+    """Where the CSV grows until every submission is graded: grades.csv -> grades.partial.csv."""
+    return path.with_name(f"{path.stem}.partial{path.suffix}")
+
+
+class Gradebook:
+    """The grading's outputs, written as each submission is graded: its results.json (under
+    `gradescope`, a folder per submission) and the CSV so far (`partial_name(csv)`); `finish` puts the
+    complete CSV in place. A write that fails is a WriteError naming the file."""
+
+    def __init__(self, csv_path: Path | None, gradescope: Path | None, force: bool, catalogue: Catalogue):
+        self.csv, self.gradescope, self.force, self.catalogue = csv_path, gradescope, force, catalogue
+        self.graded: list[Graded] = []
+
+    def add(self, graded: Graded) -> None:
+        self.graded.append(graded)
+        if self.gradescope is not None:
+            target = self.gradescope / graded.submission.name / "results.json"
+            try:
+                target.parent.mkdir(exist_ok=True)
+            except OSError as error:
+                raise WriteError(error.errno, error.strerror, str(target.parent)) from None
+            write_text_atomically(target, gradescope_json(graded, self.catalogue), replace=True)
+        if self.csv is not None:
+            write_text_atomically(partial_name(self.csv), csv_text(self.graded), replace=True)
+
+    def finish(self, order: list[Submission]) -> Path | None:
+        """The complete CSV, in the submissions' order, in place of the partial one."""
+        if self.csv is None:
+            return None
+        rank = {id(s): i for i, s in enumerate(order)}
+        self.graded.sort(key=lambda g: rank.get(id(g.submission), len(rank)))
+        written = write_text_atomically(self.csv, csv_text(self.graded), replace=self.force)
+        partial_name(self.csv).unlink(missing_ok=True)
+        return written
+
+
 def csv_row(graded: Graded) -> dict[str, Any]:
     """One submission's CSV row: its statuses, the whole filter's figures, time and what went wrong."""
     report, row = graded.report, {name: "" for name in CSV_COLUMNS}
     row.update(submission=graded.submission.name, seconds=f"{graded.seconds:.1f}")
-    row["file"] = graded.submission.file.name if graded.submission.file else ""
+    row["file"] = clean(graded.submission.file.name) if graded.submission.file else ""
     for part in ROW_NAMES:
         row[part.replace(" ", "_")] = graded.status(part) or NOT_RUN
     if report is None:
         row["problem"] = graded.problem or ""
         return row
-    row["seed"] = report.seed
     if report.figures:
         figures = report.figures
         row["farther_on"] = sum(not f.distance <= f.sir_distance for f in figures)
@@ -245,22 +364,23 @@ def problems_of(report: Report) -> list[str]:
 
 
 def csv_text(graded: list[Graded]) -> str:
+    """The CSV of the graded submissions: every field quoted (a name holding a comma or a quote is one
+    field; what does not print was escaped before)."""
     buffer = io.StringIO()
-    writer = csv.DictWriter(buffer, fieldnames=CSV_COLUMNS, lineterminator="\n")
+    writer = csv.DictWriter(buffer, fieldnames=CSV_COLUMNS, lineterminator="\n", quoting=csv.QUOTE_ALL)
     writer.writeheader()
-    for one in graded:
-        writer.writerow(csv_row(one))
+    writer.writerows(csv_row(one) for one in graded)
     return buffer.getvalue()
 
 
 def gradescope_results(graded: Graded, catalogue: Catalogue | None = None) -> dict[str, Any]:
     """Gradescope's results.json for one submission: a test per row (1 point each), the report as
     the submission's output (its published autograder format), in the catalogue's language; a
-    submission that could not be checked scores 0 with the reason."""
+    submission that could not be checked scores 0 with the reason. No seed nor key is in it."""
     words, report = catalogue or Catalogue(), graded.report
     _ = words.gettext
     if report is None:
-        text = graded.problem or "not checked"
+        text = words.numbers(words.translate(graded.problem or "not checked"))
         tests = [_test(i, _(part), 0.0, text) for i, part in enumerate(ROW_NAMES, 1)]
         return {"score": 0.0, "execution_time": round(graded.seconds), "output": text, "tests": tests}
     tests = []
@@ -268,24 +388,25 @@ def gradescope_results(graded: Graded, catalogue: Catalogue | None = None) -> di
         status = _(FAIL.upper() if row.status == FAIL else row.status)
         lines = [f"{status}: {words.translate(row.got)}", _("expected: ") + words.translate(row.expected)]
         lines += [_("hint: ") + words.translate(row.hint)] if row.hint and not row.passed else []
-        tests.append(_test(i, _(row.part), 1.0 if row.passed else 0.0, "\n".join(lines)))
+        tests.append(_test(i, _(row.part), 1.0 if row.passed else 0.0, words.numbers("\n".join(lines))))
     return {
         "score": float(sum(t["score"] for t in tests)),
         "execution_time": round(graded.seconds),
         "output": format_report(report, catalogue=words),
         "stdout_visibility": "hidden",
         "tests": tests,
-        "extra_data": {"seed": report.seed, "problems": report.problems, "sandboxed": not report.note},
+        "extra_data": {"problems": report.problems, "sandboxed": not report.note},
     }
 
 
 def _test(number: int, name: str, score: float, output: str) -> dict[str, Any]:
+    status = "passed" if score == 1.0 else "failed"
     return {
         "name": name,
         "number": str(number),
         "score": score,
         "max_score": 1.0,
-        "status": "passed" if score == 1.0 else "failed",
+        "status": status,
         "output": output,
         "visibility": "visible",
     }
@@ -305,15 +426,16 @@ def summary(graded: list[Graded], width: int = 100) -> str:
         cells = "  ".join(f"{SHORT.get(one.status(p), '?'):<8}" for p in ROW_NAMES)
         lines.append(f"{one.submission.name[:name_width]:<{name_width}}  {cells}  {one.seconds:7.1f}")
         problem = one.problem or ("; ".join(problems_of(one.report)) if one.report else "")
-        if problem:
-            wrapped = textwrap.wrap(problem, width - 4, break_long_words=True, break_on_hyphens=False)
-            lines += ["    " + line for line in wrapped[:2]]
-            if len(wrapped) > 2:
-                lines[-1] = lines[-1][: width - 3] + "..."
+        wrapped = textwrap.wrap(problem, width - 4, break_long_words=True, break_on_hyphens=False)
+        lines += ["    " + line for line in wrapped[:2]]
+        if len(wrapped) > 2:
+            lines[-1] = lines[-1][: width - 3] + "..."
     passed = sum(one.passed for one in graded)
     counts = ", ".join(f"{p} {sum(one.status(p) == PASS for one in graded)}" for p in ROW_NAMES)
     lines += ["", *textwrap.wrap(f"{len(graded)} submissions, {passed} pass every row; passing each: {counts}", width)]
     lines.append("pass, FAIL; todo: not written; REF: the lab's code with its names changed; -: not run")
+    failed = sum(bool(g.problem and g.problem.startswith("the grader could not check it")) for g in graded)
+    lines += [f"{failed} could not be checked by the grader itself (their rows say why)"] if failed else []
     notes = {one.report.note for one in graded if one.report and one.report.note}
     lines += [line for note in sorted(notes) for line in textwrap.wrap(note, width)]
     return "\n".join(lines)
@@ -321,16 +443,15 @@ def summary(graded: list[Graded], width: int = 100) -> str:
 
 __all__ = [
     "CSV_COLUMNS",
-    "STAGES",
+    "KEY_FILE",
+    "Gradebook",
     "Graded",
     "GradingInterruptedError",
     "Submission",
-    "csv_row",
-    "csv_text",
+    "claimed",
     "discover",
     "grade_folder",
-    "grade_one",
     "gradescope_json",
-    "gradescope_results",
+    "read_key",
     "summary",
 ]

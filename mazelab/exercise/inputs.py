@@ -1,20 +1,24 @@
 """Every check's inputs, drawn from one seed: the points, weights, angles, sizes, sigma, delta and the
 whole filter's scenarios are fresh for every seed, so a part cannot be tuned to public inputs.
 
-`default_seed(data)` is the seed of a submission: the first 63 bits of the sha256 of its file, so a
-file gets the same inputs (and the same report) every time, and any edit of it gets new ones. An
-instructor's `--seed S` replaces it (the same inputs for every submission, which the students do not
-know). Each check draws from its own stream `default_rng([seed, tag])`: changing one check's inputs
-leaves the others'.
+A student's own check draws from `files_seed`: the first 63 bits of the sha256 of the submission's
+files (the file, then each helper module copied with it), so a submission gets the same inputs (and
+the same report) every time, at home too, and any edit of any of its files gets new ones; `--seed S`
+repeats a report. A grading draws from `key_seed`: the same digest keyed with the grader's secret key
+(mazelab.exercise.grading), which no report shows, so that no student can compute the inputs, and
+inputs that leaked from one submission are no use to another. Each check draws from its own stream
+`default_rng([seed, tag])`: changing one check's inputs leaves the others'.
 
 The grader keeps these objects; the student's process (mazelab.exercise.child) is sent only what a
-filter is given (`child_request`): never a scenario's true path.
+filter is given (`request`): never the seed, a scenario's true path or where the robot started.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -45,8 +49,26 @@ PARTS_TAG, PREDICT_TAG, WEIGH_TAG, RESAMPLE_TAG, ESTIMATE_TAG, WHOLE_TAG = range
 
 
 def default_seed(data: bytes) -> int:
-    """A submission's seed: the first 63 bits of the sha256 of its file's bytes."""
+    """The seed of `data`: the first 63 bits of its sha256."""
     return int.from_bytes(hashlib.sha256(data).digest()[:8], "big") >> 1
+
+
+def files_bytes(path: Path, companions: list[Path]) -> bytes:
+    """A submission's files as one text: the file's bytes, then each helper module's name and bytes."""
+    return path.read_bytes() + b"".join(b"\0" + p.name.encode() + b"\0" + p.read_bytes() for p in companions)
+
+
+def files_seed(path: Path, companions: list[Path]) -> int:
+    """A student's own check's seed: from every file copied into the sandbox (the file's alone: the
+    seed of its bytes)."""
+    return default_seed(files_bytes(path, companions))
+
+
+def key_seed(key: bytes, path: Path, companions: list[Path]) -> int:
+    """A grading's seed: the submission's files keyed with the grader's secret key (HMAC-SHA256)."""
+    import hmac
+
+    return int.from_bytes(hmac.digest(key, files_bytes(path, companions), "sha256")[:8], "big") >> 1
 
 
 @dataclass(frozen=True)
@@ -283,21 +305,56 @@ def walk_scenario(maze: str, sigma: float, delta: float, seed: int, particles: i
     )
 
 
+SENT = {  # what the student's process is sent of each: only what a filter is given
+    "parts": ("maze", "grid", "sigma", "delta", "prior", "filter_seed", "predict", "weigh", "resample", "estimate"),
+    "scenario": ("maze", "grid", "sigma", "delta", "seed", "particles", "compass_angles", "measurements"),
+}
+
+
+def _flatten(prefix: str, thing: object, fields: tuple[str, ...], inputs: dict, arrays: dict) -> None:
+    """The named fields of a dataclass as `prefix.NAME` (nested ones as `prefix.NAME.FIELD`): arrays (a
+    tuple of them as NAME.0, NAME.1, ...) into `arrays`, other values into `inputs`."""
+    for name in fields:
+        value, key = getattr(thing, name), f"{prefix}.{name}"
+        if dataclasses.is_dataclass(value):
+            _flatten(key, value, tuple(f.name for f in dataclasses.fields(value)), inputs, arrays)
+        elif isinstance(value, np.ndarray):
+            arrays[key] = value
+        elif isinstance(value, tuple) and value and isinstance(value[0], np.ndarray):
+            arrays.update({f"{key}.{k}": v for k, v in enumerate(value)})
+        else:
+            inputs[key] = list(value) if isinstance(value, tuple) else value
+
+
+def request(
+    file: str,
+    class_name: str | None,
+    stages: list[str],
+    parts: PartInputs,
+    scenarios: list[ScenarioInputs],
+    shown: str = "",
+) -> tuple[dict, dict]:
+    """The request to the student's process (meta, arrays): what to load (`file` as the child sees it,
+    `shown` its name in messages), the stages, and their inputs (mazelab.exercise.child.Inputs)."""
+    inputs: dict = {"whole.count": len(scenarios)}
+    arrays: dict = {}
+    _flatten("parts", parts, SENT["parts"], inputs, arrays)
+    for i, scenario in enumerate(scenarios):
+        _flatten(f"whole.{i}", scenario, SENT["scenario"], inputs, arrays)
+    return {"file": file, "class": class_name, "shown": shown, "stages": stages, "inputs": inputs}, arrays
+
+
 __all__ = [
-    "ESTIMATE_KINDS",
     "RESAMPLE_DRAWS",
     "RESAMPLE_KINDS",
     "SCENARIO_COUNT",
-    "SCENARIO_STEPS",
-    "EstimateInputs",
     "PartInputs",
-    "PredictInputs",
-    "ResampleInputs",
     "ScenarioInputs",
-    "WeighInputs",
     "default_seed",
     "draw_part_inputs",
     "draw_scenarios",
+    "files_seed",
+    "key_seed",
+    "request",
     "resample_vector",
-    "walk_scenario",
 ]

@@ -3,14 +3,14 @@
 A graded submission runs where the lab is not installed (mazelab.exercise.sandbox): it sees Python,
 numpy, its own file and this kit, a folder the grader builds from the list below. The kit carries
 StudentFilter and what it imports (the step's wiring, the maze's geometry the exercise allows, the
-model's constants) and the child's side of the grading (mazelab.exercise.child, .wire); never an
+model's constants) and the child's side of the grading (mazelab.exercise.child); never an
 implementation of a graded part: not the model's transition or likelihood, not a resampling scheme,
 not the weighted mean, not the shipped filters, the grid filter or the grader. There is nothing to
 delegate to, copy or exec.
 
 `KIT` is the one list to extend when StudentFilter imports a new module: an entry is a module copied
 whole (`WHOLE`), only its constants (`CONSTANTS`: their values, written as literals), or only the
-named top-level functions and classes (with the private helpers they use). `tests/test_exercise_kit.py`
+named top-level functions and classes (with the private helpers they use). tests/test_grading_sandbox.py
 checks that every module StudentFilter imports, directly or not, is here, and that no reference
 implementation is.
 """
@@ -42,7 +42,6 @@ KIT: dict[str, str | tuple[str, ...]] = {
     "mazelab.weights": ("Weights", "read_only", "log_sum_exp", "effective_sample_size", "mass_within"),
     "mazelab.exercise": WHOLE,
     "mazelab.exercise.student": WHOLE,
-    "mazelab.exercise.wire": WHOLE,
     "mazelab.exercise.child": WHOLE,
 }
 # What must never be in the sandbox: the reference implementations and the grader.
@@ -57,10 +56,12 @@ REFERENCE_MODULES = (
     "mazelab.kernels",
     "mazelab.experiments",
     "mazelab.exercise.parts",
-    "mazelab.exercise.offspring",
     "mazelab.exercise.whole",
     "mazelab.exercise.report",
     "mazelab.exercise.inputs",
+    "mazelab.exercise.sandbox",
+    "mazelab.exercise.grading",
+    "mazelab.exercise.likeness",
 )
 REFERENCE_FUNCTIONS = ("mazelab.model.log_likelihood", "mazelab.model.move", "mazelab.weights.weighted_mean")
 
@@ -152,44 +153,11 @@ def build_kit(folder: Path) -> str:
     return digest.hexdigest()
 
 
-def lab_imports(module: str) -> set[str]:
-    """The mazelab modules `module` imports (at any depth of its code, not under TYPE_CHECKING), as the
-    kit holds it (a module of constants imports nothing)."""
-    tree = ast.parse(module_text(module) if module in KIT else source_file(module).read_text())
-    found: set[str] = set()
-    for node in ast.walk(tree):
-        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
-            node.body = []
-    for node in ast.walk(tree):
-        if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("mazelab") and not node.level:
-            found.add(node.module)
-            found |= {f"{node.module}.{a.name}" for a in node.names if source_file(f"{node.module}.{a.name}").is_file()}
-        elif isinstance(node, ast.Import):
-            found |= {a.name for a in node.names if a.name.startswith("mazelab")}
-    return found
-
-
-def transitive_imports(module: str) -> set[str]:
-    """Every mazelab module `module` imports, directly or through others, and their parent packages."""
-    seen, todo = set(), [module]
-    while todo:
-        name = todo.pop()
-        if name in seen or not source_file(name).is_file():
-            continue
-        seen.add(name)
-        parts = name.split(".")
-        todo += [".".join(parts[:i]) for i in range(1, len(parts))]
-        todo += sorted(lab_imports(name))
-    return seen
-
-
 __all__ = [
     "KIT",
     "REFERENCE_FUNCTIONS",
     "REFERENCE_MODULES",
-    "KitError",
     "build_kit",
     "kit_file",
     "source_file",
-    "transitive_imports",
 ]

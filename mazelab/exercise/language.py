@@ -9,8 +9,10 @@ matches a text with any values there (a hint that names a number; a value that i
 a weight vector's kind, is translated too), and a text made of several msgids (a hint added to
 another) has each translated.
 
-The language is `--lang` where given, else the locale's (LANGUAGE, LC_ALL, LC_MESSAGES, LANG: the
-first whose language has a catalogue), else English.
+Numbers are written as the language writes them (`Catalogue.numbers`: a decimal comma in Ukrainian,
+and a semicolon between two numbers of a list). The language is `--lang` where given, else the
+exercise file's own (`LANGUAGE = "uk"` at its top, as `exercise new --lang uk` writes it), else the
+locale's (LANGUAGE, LC_ALL, LC_MESSAGES, LANG: the first whose language has a catalogue), else English.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ LOCALE_DIR = Path(__file__).resolve().parent / "locale"
 ENGLISH = "en"
 FIELD = re.compile(r"\{(\w+)\}")
 MIN_PIECE = 12  # a msgid shorter than this is translated only as a whole text (never inside another)
+DECIMAL_COMMA = ("uk",)  # languages that write 0,5 for 0.5
 
 
 class CatalogueError(ValueError):
@@ -102,6 +105,13 @@ class Catalogue(gettext.NullTranslations):
             text = text.replace(message, translation)
         return text
 
+    def numbers(self, text: str) -> str:
+        """`text` with its numbers as the language writes them: 0.25, 0.5 -> 0,25; 0,5 in Ukrainian."""
+        if self.language not in DECIMAL_COMMA:
+            return text
+        text = re.sub(r"(\d),(\s+)(?=[-+]?\d)", r"\1;\2", text)
+        return re.sub(r"(?<=\d)\.(?=\d)", ",", text)
+
     def _values(self, values: dict[str, str]) -> dict[str, str]:
         """A pattern's field values, each translated where it is a msgid (a weight vector's kind)."""
         return {name: self.entries.get(value, value) for name, value in values.items()}
@@ -110,11 +120,14 @@ class Catalogue(gettext.NullTranslations):
 def _pattern(message: str) -> re.Pattern[str]:
     """A msgid with `{name}` fields as a pattern matching any value there (within one clause; a field
     at the end takes the clause's rest)."""
-    parts = FIELD.split(message)
+    parts, seen, regex = FIELD.split(message), set(), ""
     last = len(parts) - 2 if parts[-1] == "" else -1
-    regex = "".join(
-        re.escape(p) if i % 2 == 0 else f"(?P<{p}>[^;]+{'' if i == last else '?'})" for i, p in enumerate(parts)
-    )
+    for i, part in enumerate(parts):
+        if i % 2 == 0:
+            regex += re.escape(part)
+        else:  # a field named twice matches the same value twice
+            regex += f"(?P={part})" if part in seen else f"(?P<{part}>[^;]+{'' if i == last else '?'})"
+            seen.add(part)
     return re.compile(regex)
 
 
@@ -141,9 +154,23 @@ def locale_language() -> str:
     return ENGLISH
 
 
-def catalogue_for(language: str | None) -> Catalogue:
-    """The catalogue of `language` (a code: en, uk), or of the locale's language when None."""
-    return catalogue(locale_language() if language is None else language.strip().lower())
+def catalogue_for(language: str | None, file: Path | None = None) -> Catalogue:
+    """The catalogue of `language` (a code: en, uk), else of the exercise `file`'s, else the locale's."""
+    chosen = language or (file_language(file) if file is not None else None) or locale_language()
+    return catalogue(chosen.strip().lower())
 
 
-__all__ = ["Catalogue", "CatalogueError", "catalogue", "catalogue_for", "languages", "locale_language", "read_po"]
+def file_language(path: Path) -> str | None:
+    """The language an exercise file asks for (its top-level `LANGUAGE = "uk"`), read without running it."""
+    try:
+        tree = ast.parse(path.read_text(errors="replace"))
+    except (OSError, SyntaxError, ValueError):
+        return None
+    for node in tree.body:
+        if isinstance(node, ast.Assign) and [getattr(t, "id", None) for t in node.targets] == ["LANGUAGE"]:
+            value = getattr(node.value, "value", None)
+            return value if value in languages() else None
+    return None
+
+
+__all__ = ["Catalogue", "CatalogueError", "catalogue", "catalogue_for", "read_po"]

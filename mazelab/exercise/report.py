@@ -1,16 +1,19 @@
 """The checker: a report of one submission, a row per part and one for the whole filter, from the
-inputs of a seed, the values the student's code returned, and the grader's own reference runs.
+inputs of a seed, the values the student's code returned, and the grader's own reference runs; and the
+report as text of at most WIDTH columns (a terminal, a notebook cell, a Gradescope box).
 
-`check_file(path)` is the grade: the student's code runs in a child process (mazelab.exercise.runner)
-with a time limit, and every verdict is made here from the values it returned. A child that ends
-in a part (an exit of any code, a signal, a hang, output that is not an answer) fails that part's row,
-naming what happened, and a new child goes on with the parts after it (one try per part); a child
-that ends while the file is imported fails every row. `check(filter_class)` runs the same work in this
-process: the notebook's and `python my_filter.py`'s self-check, which nothing isolates.
+`check_file(path)` is the grade: the student's code runs in child processes (mazelab.exercise.sandbox)
+within one time budget, and every verdict is made here from the values they returned. A child that
+ends in a part (an exit of any code, a signal, the time limit, output that is not an answer) fails
+that part's row, naming what happened, and a new child goes on with the parts after it while the
+budget lasts; a child that ends while the file is imported fails every row; a stage answered twice
+fails its row. `check(filter_class)` runs the same work in this process: the notebook's and `python
+my_filter.py`'s self-check, which nothing isolates.
 
 Loading problems are the submission's, not a part's: a file that does not import, a missing class, or
 a class that is not a StudentFilter raise NotGradableError (one line; `check` exits 2, `grade` gives the
-submission a row of that).
+submission a row of that). Every text that reaches a report is `clean`: one line at most as long as its
+limit, its characters that do not print (a carriage return, a backspace, an escape) written as escapes.
 """
 
 from __future__ import annotations
@@ -18,81 +21,165 @@ from __future__ import annotations
 import contextlib
 import inspect
 import shlex
+import textwrap
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from mazelab.exercise import child
-from mazelab.exercise.inputs import PartInputs, ScenarioInputs, default_seed, draw_part_inputs, draw_scenarios
-from mazelab.exercise.layout import format_rows
+from mazelab.exercise.child import Message, decode, encode
+from mazelab.exercise.inputs import (
+    PartInputs,
+    ScenarioInputs,
+    default_seed,
+    draw_part_inputs,
+    draw_scenarios,
+    files_seed,
+    key_seed,
+    request,
+)
+from mazelab.exercise.language import Catalogue
 from mazelab.exercise.likeness import class_source, copied_parts
-from mazelab.exercise.offspring import expected_text as resample_expected
-from mazelab.exercise.offspring import judge_resample
-from mazelab.exercise.outcome import Report
-from mazelab.exercise.parts import EXPECTED, judge_estimate, judge_predict, judge_weigh
-from mazelab.exercise.rows import COPY_HINT, FAIL, NOT_OWN, NOT_WRITTEN, BadAnswerError, Row, ended_row, not_run_row
-from mazelab.exercise.runner import DEFAULT_TIMEOUT, child_request, run_child, submission_copy
-from mazelab.exercise.sandbox import sandbox
+from mazelab.exercise.parts import (
+    EXPECTED,
+    FAIL,
+    NOT_OWN,
+    NOT_RUN,
+    NOT_WRITTEN,
+    PASS,
+    BadAnswerError,
+    Row,
+    clean,
+    judges,
+    resample_expected,
+)
+from mazelab.exercise.sandbox import DEFAULT_BUDGET, companions_of, run_child, sandbox, submission_copy
 from mazelab.exercise.student import PARTS
-from mazelab.exercise.whole import References, ScenarioFigures, judge_whole, whole_answer
+from mazelab.exercise.whole import FIGURE_HEADERS, References, figures_table, judge_whole, whole_answer
 from mazelab.exercise.whole import expected_text as whole_expected
-from mazelab.exercise.wire import Message, decode, encode
+from mazelab.experiments.tables import format_table
 from mazelab.invocation import command_prefix
 from mazelab.plugins import split_spec
 
 STAGES = (*PARTS, "whole")
 WHOLE = "whole filter"
+COPY_HINT = "write it yourself: a part may not be the lab's reference implementation with its names changed"
+RESERVE = 5.0  # seconds of the budget kept for each stage after the one running (a hang leaves time for the rest)
+ENDED_HINT = "a part returns its answer: no exit, no endless loop, nothing that kills the process"
+WIDTH = 100
+PART_WIDTH, RESULT_WIDTH = 12, 12  # "whole filter", "not own work" (wider where a language's words are)
+SHOWN = {FAIL: "FAIL"}  # how a status reads in the table (the others as they are)
+
+
+@dataclass
+class Report:
+    """One submission's check: its rows (the parts, then the whole filter), the whole filter's figures
+    per scenario, where its inputs came from (`source`: "given", "files", "key" or "class"; `seed` None
+    for a key, which no report shows), what went wrong beyond the rows, the time it took (and the
+    student's processes' share), and whether it ran unsandboxed."""
+
+    filter_name: str
+    seed: int | None
+    source: str = "given"
+    rows: list[Row] = field(default_factory=list)
+    figures: list = field(default_factory=list)
+    problems: list[str] = field(default_factory=list)
+    seconds: float = 0.0
+    student_seconds: float = 0.0
+    output: str = ""
+    note: str = ""  # where the child was not sandboxed: the one line saying its verdict cannot be trusted
+
+    def __post_init__(self) -> None:
+        self.filter_name = clean(self.filter_name, 80)
+
+    @property
+    def passed(self) -> bool:
+        """Every row passed (exit code 0)."""
+        return bool(self.rows) and all(row.passed for row in self.rows)
+
+    def row(self, part: str) -> Row:
+        """The row of one part (or "whole filter")."""
+        return next(row for row in self.rows if row.part == part)
 
 
 class NotGradableError(ValueError):
     """The submission cannot be checked at all: one line naming the file and why."""
 
+    def __init__(self, text: str):
+        super().__init__(clean(text))
 
+
+def ended_row(part: str, expected: str, ended: str, output: str) -> Row:
+    """The row of the stage in which the student's process ended: how, and its last printed line."""
+    last = next((line.strip() for line in reversed(output.splitlines()) if line.strip()), "")
+    got = f"the student's process {ended}" + (f"; its last line: {last[:200]}" if last else "")
+    return Row(part, FAIL, expected, got, ENDED_HINT)
+
+
+# -- collecting the answers ---------------------------------------------------------------------------
 @dataclass
 class Answers:
-    """What the student's process (or processes) gave: the loaded class's description, each stage's
-    answer, how a process ended in a stage, why nothing loaded, and what it printed."""
+    """What the student's processes gave: the loaded class's description, each stage's answer, how a
+    process ended in a stage (or why a stage's answer is void), why nothing loaded, what happened
+    after the answers, what they printed and how long they took."""
 
     loaded: dict[str, Any] | None = None
     results: dict[str, Message] = field(default_factory=dict)
     ended: dict[str, str] = field(default_factory=dict)
     problem: str | None = None
+    notes: list[str] = field(default_factory=list)
     output: str = ""
+    seconds: float = 0.0
 
 
-# -- collecting the answers ---------------------------------------------------------------------------
+TWICE = "answered twice (two processes answering, or a forged answer beside its own): no answer counts"
+
+
 def collect_isolated(
     path: Path,
     class_name: str | None,
     parts: PartInputs,
     scenarios: list[ScenarioInputs],
-    timeout: float,
+    budget: float,
     stages: tuple[str, ...] = STAGES,
     shown: str = "",
     companions: bool = True,
 ) -> Answers:
-    """Run the stages in child processes, each in the sandbox of the submission's own copy (and the
-    Python files beside it, with `companions`); a new child after a stage in which one ended."""
-    answers, todo = Answers(), list(stages)
-    made = sandbox()
+    """Run the stages in child processes, each in the sandbox of the submission's own copy (and its
+    helper modules, with `companions`), within `budget` seconds in all: a new child after a stage in
+    which one ended, while the budget lasts."""
+    answers, todo, made = Answers(), list(stages), sandbox()
     with submission_copy(path, companions) as run_folder:
         while todo:
-            file = made.inside(run_folder, path.name)
-            request = child_request(file, class_name, todo, parts, scenarios, shown or path.name)
-            run = run_child(request, run_folder, timeout, made)
-            answers.output += run.output
+            left = budget - answers.seconds
+            if left < 1:
+                answers.ended.update(dict.fromkeys(todo, f"was not started: the time budget ({budget:g} s) is spent"))
+                break
+            wanted = request(made.inside(run_folder, path.name), class_name, todo, parts, scenarios, shown)
+            run = run_child(wanted, run_folder, left, made, reserve=min(RESERVE, left / (2 * len(todo))))
+            answers.output, answers.seconds = answers.output + run.output, answers.seconds + run.seconds
             if run.loaded is None:
                 answers.problem = f"the student's process {run.ended or 'sent nothing'}"
-                return answers
+                break
             answers.loaded = run.loaded
-            answers.results.update(run.results)
-            if run.ended is None or run.loaded.get("error") or not run.loaded.get("student_filter"):
-                return answers
-            stage = run.stage if run.stage in todo and run.stage not in run.results else None
-            stage = stage or next(s for s in todo if s not in run.results)
+            void = set(todo) if "loaded" in run.twice else run.twice & set(todo)
+            answers.ended.update(dict.fromkeys(void, TWICE))
+            answers.results.update({s: m for s, m in run.results.items() if s in todo and s not in void})
+            if (
+                run.ended is None
+                or void == set(todo)
+                or run.loaded.get("error")
+                or not run.loaded.get("student_filter")
+            ):
+                break
+            left_over = [s for s in todo if s not in run.results and s not in void]
+            if not left_over:  # every stage answered, then it ended: the values are judged, the ending noted
+                answers.notes.append(f"after its answers the student's process {run.ended}")
+                break
+            stage = run.stage if run.stage in left_over else left_over[0]
             answers.ended[stage] = run.ended
-            todo = [s for s in todo if s not in run.results and s != stage]
+            todo = [s for s in left_over if s != stage]
     return answers
 
 
@@ -100,7 +187,8 @@ def collect_in_process(
     filter_class: type, parts: PartInputs, scenarios: list[ScenarioInputs], stages: list[str]
 ) -> Answers:
     """Run the stages in this process (a self-check): the same work as the child's."""
-    answers, request = Answers(), decode(child_request("", None, stages, parts, scenarios))
+    answers = Answers()
+    meta, arrays = request("", None, stages, parts, scenarios)
 
     def emit(meta: dict[str, Any], arrays: dict | None = None) -> None:
         message = decode(encode(meta, arrays))  # exactly what a child would send
@@ -109,15 +197,8 @@ def collect_in_process(
         elif meta["kind"] == "result":
             answers.results[meta["stage"]] = message
 
-    child.serve(request, emit, filter_class)
+    child.serve(decode(encode(meta, arrays)), emit, filter_class)
     return answers
-
-
-# -- the rows ----------------------------------------------------------------------------------------
-def expected_of(stage: str, parts: PartInputs) -> str:
-    if stage == "resample":
-        return resample_expected(parts)
-    return whole_expected() if stage == "whole" else EXPECTED[stage]
 
 
 def loading_problem(answers: Answers, shown: str) -> str | None:
@@ -126,106 +207,88 @@ def loading_problem(answers: Answers, shown: str) -> str | None:
     if loaded is None:
         return None
     if loaded.get("error"):
-        return one_line(loaded["error"])
+        return clean(loaded["error"])
     if not loaded.get("student_filter"):
-        bases = one_line(", ".join(map(str, loaded.get("bases") or [])) or "object", 200)
+        bases = clean(", ".join(map(str, loaded.get("bases") or [])) or "object", 200)
         return (
-            f"{shown}: {one_line(loaded.get('class'), 80)} is not a StudentFilter (it subclasses {bases}); the "
+            f"{shown}: {clean(loaded.get('class'), 80)} is not a StudentFilter (it subclasses {bases}); the "
             "exercise grades a subclass of mazelab.exercise.StudentFilter with your own predict, weigh, resample "
             "and estimate"
         )
     return None
 
 
-def one_line(text: object, limit: int = 600) -> str:
-    """What the student's process said, as one line of at most `limit` characters (never a forged line)."""
-    return " ".join(str(text).split())[:limit]
-
-
-@dataclass
-class _Judging:
-    """What one stage's verdict hands the next: the scheme resample resembles, the whole's figures."""
-
-    parts: PartInputs
-    scenarios: list[ScenarioInputs]
-    answers: Answers
-    references: References
-    exact: list
-    scheme: str = "systematic"
-    figures: list[ScenarioFigures] = field(default_factory=list)
-
-
+# -- the rows ----------------------------------------------------------------------------------------
 def build_report(
-    name: str,
-    seed: int,
+    report: Report,
     parts: PartInputs,
     scenarios: list[ScenarioInputs],
     answers: Answers,
-    references: References,
+    references: Any,
     stages: tuple[str, ...] = STAGES,
-    copies: dict[str, str] | None = None,
+    copies: dict | None = None,
 ) -> Report:
-    """The report from the answers: each part judged (or failed for how the process ended in it, or
-    for being the lab's code: `copies`, mazelab.exercise.likeness), then the whole filter against the
-    reference runs."""
-    report = Report(name, seed, output=answers.output)
+    """The report's rows from the answers: each part judged (or failed for how the process ended in it,
+    or for being the lab's code: `copies`, mazelab.exercise.likeness), then the whole filter against
+    the reference runs; the failing parts named in the whole filter's hint."""
+    report.output, report.student_seconds = answers.output, answers.seconds
+    expected = {**EXPECTED, "resample": resample_expected(parts), "whole": whole_expected()}
     if answers.problem:
-        report.problems.append(answers.problem)
+        report.problems.append(clean(answers.problem))
         how = answers.problem.removeprefix("the student's process ")
-        report.rows = [ended_row(_label(s), expected_of(s, parts), how, answers.output) for s in stages]
+        report.rows = [ended_row(_label(s), expected[s], how, answers.output) for s in stages]
         return report
-    judging = _Judging(parts, scenarios, answers, references, [references.exact(s) for s in scenarios])
+    scheme = "systematic"
     for stage in stages:
-        row = _stage_row(stage, judging)
-        copied = (copies or {}).get(stage)
-        if copied and row.status != NOT_WRITTEN:
-            row = Row(row.part, NOT_OWN, row.expected, copied, COPY_HINT)
+        label, message = _label(stage), answers.results.get(stage)
+        if stage in answers.ended:
+            row = ended_row(label, expected[stage], answers.ended[stage], answers.output)
+        elif message is None:  # it said "done" (or ended) without this stage's answer
+            row = Row(
+                label, FAIL, expected[stage], "no answer came from the student's process", "a part returns its answer"
+            )
+        else:
+            try:
+                row, scheme = _judged(stage, message, scheme, report, parts, scenarios, answers, references)
+            except BadAnswerError as error:
+                got = f"an answer the grader cannot read ({error})"
+                row = Row(label, FAIL, expected[stage], got, "return plain arrays")
+        if (copies or {}).get(stage) and row.status != NOT_WRITTEN:
+            row = Row(row.part, NOT_OWN, row.expected, copies[stage], COPY_HINT)
         report.rows.append(row)
-    report.figures = judging.figures
-    report.problems += [f"{_label(stage)}: the student's process {how}" for stage, how in answers.ended.items()]
+    report.problems += [clean(f"{_label(s)}: the student's process {how}") for s, how in answers.ended.items()]
+    report.problems += [clean(note) for note in answers.notes]
     report.problems += [f"{r.part}: {r.got}" for r in report.rows if r.status == NOT_OWN]
+    failed = [r.part for r in report.rows if not r.passed and r.part != WHOLE]
+    whole = next((r for r in report.rows if r.part == WHOLE), None)
+    if whole and not whole.passed and failed and whole.hint.startswith(("the parts pass alone", "fix the error")):
+        whole.hint = f"fix {', '.join(failed)} first: the whole filter runs with every part"
     return report
+
+
+def _judged(stage: str, message: Message, scheme: str, report: Report, parts: PartInputs,
+            scenarios: list[ScenarioInputs], answers: Answers, references: Any) -> tuple[Row, str]:  # fmt: skip
+    """A stage's row from its answer, and the scheme the whole filter's SIR uses (the one the student's
+    resampler resembles); the whole filter's figures into the report."""
+    if stage != "whole":
+        return judges()[stage](parts, message, scheme)
+    if any(_not_written(answers.results.get(p)) for p in PARTS):
+        return Row(WHOLE, NOT_RUN, whole_expected(scheme), "not run", "write every part first"), scheme
+    estimates = whole_answer(scenarios, message, scheme)
+    if isinstance(estimates, Row):
+        return estimates, scheme
+    sir = [references.sir(s, scheme) for s in scenarios]
+    exact = [references.exact(s).result() for s in scenarios]
+    row, report.figures = judge_whole(scenarios, estimates, exact, [f.result() for f in sir], scheme)
+    return row, scheme
 
 
 def _label(stage: str) -> str:
     return WHOLE if stage == "whole" else stage
 
 
-def _stage_row(stage: str, judging: _Judging) -> Row:
-    label, expected, answers = _label(stage), expected_of(stage, judging.parts), judging.answers
-    if stage in answers.ended:
-        return ended_row(label, expected, answers.ended[stage], answers.output)
-    message = answers.results.get(stage)
-    if message is None:  # it said "done" (or ended) without this stage's answer
-        return Row(label, FAIL, expected, "no answer came from the student's process", "a part returns its answer")
-    try:
-        if stage == "whole":
-            return _whole_row(judging, message)
-        if stage == "resample":
-            row, judging.scheme = judge_resample(judging.parts, message)
-            return row
-        return {"predict": judge_predict, "weigh": judge_weigh, "estimate": judge_estimate}[stage](
-            judging.parts, message
-        )
-    except BadAnswerError as error:
-        return Row(label, "fail", expected, f"an answer the grader cannot read ({error})", "return plain arrays")
-
-
-def _whole_row(judging: _Judging, message: Message) -> Row:
-    results = judging.answers.results
-    if any(p in results and _not_written(results[p]) for p in PARTS):
-        return not_run_row(WHOLE, whole_expected(judging.scheme), "write every part first")
-    estimates = whole_answer(judging.scenarios, message, judging.scheme)
-    if isinstance(estimates, Row):
-        return estimates
-    sir = [judging.references.sir(s, judging.scheme) for s in judging.scenarios]
-    exact, sir = [f.result() for f in judging.exact], [f.result() for f in sir]
-    row, judging.figures = judge_whole(judging.scenarios, estimates, exact, sir, judging.scheme)
-    return row
-
-
-def _not_written(message: Message) -> bool:
-    error = message.meta.get("error")
+def _not_written(message: Message | None) -> bool:
+    error = None if message is None else message.meta.get("error")
     return isinstance(error, dict) and error.get("kind") == "not written"
 
 
@@ -234,23 +297,29 @@ def check_file(
     spec: str,
     *,
     seed: int | None = None,
-    timeout: float = DEFAULT_TIMEOUT,
-    references: References | None = None,
+    key: bytes | None = None,
+    timeout: float = DEFAULT_BUDGET,
+    references: Any = None,
     stages: tuple[str, ...] = STAGES,
     companions: bool = True,
 ) -> Report:
     """Grade `path/to/file.py[:Class]` in child processes (the given stages: every part and the whole
-    filter by default), the Python files beside it copied with it unless `companions` is False (a
-    file directly in a class folder: the others are other students'); NotGradableError when it
-    cannot be checked."""
+    filter by default) within `timeout` seconds in all, the Python files beside it copied with it
+    unless `companions` is False (a file directly in a class folder: the others are other students');
+    its inputs from `seed`, else from the grader's secret `key` and the files, else from the files
+    alone. NotGradableError when it cannot be checked."""
     started = time.perf_counter()
     path, class_name = split_spec(spec)
-    shown = f"{path}:{class_name}" if class_name else str(path)
+    shown = clean(f"{path}:{class_name}" if class_name else str(path))
     if not path.is_file():
         raise NotGradableError(f"{shown}: no such file {path}" + ("" if path.exists() else " (check the path)"))
     if path.resolve().suffix != ".py":
         raise NotGradableError(f"{shown}: a link to {path.resolve()}, not a Python file")
-    seed = default_seed(path.read_bytes()) if seed is None else seed
+    beside = companions_of(path) if companions else []
+    if seed is None:
+        seed, source = (key_seed(key, path, beside), "key") if key else (files_seed(path, beside), "files")
+    else:
+        source = "given"
     parts = draw_part_inputs(seed)
     scenarios = draw_scenarios(seed) if "whole" in stages else []
     references = references or References()
@@ -260,11 +329,10 @@ def check_file(
     problem = loading_problem(answers, shown)
     if problem:
         raise NotGradableError(problem)
-    said = str((answers.loaded or {}).get("name") or class_name or path.stem)
-    name = one_line(said, 80)  # the child's word for its name
-    copies = copied_parts(path.read_text(errors="replace"))
-    report = finish(build_report(name, seed, parts, scenarios, answers, references, stages, copies))
-    report.note = sandbox().note
+    name = str((answers.loaded or {}).get("name") or class_name or path.stem)  # the child's word for its name
+    report = Report(name, None if source == "key" else seed, source, note=sandbox().note)
+    copies = copied_parts({p.name: p.read_text(errors="replace") for p in [path, *beside]})
+    build_report(report, parts, scenarios, answers, references, stages, copies)
     report.seconds = time.perf_counter() - started
     return report
 
@@ -273,26 +341,16 @@ def check(filter_class: type, *, seed: int | None = None, stages: tuple[str, ...
     """Check a class in this process (a self-check: nothing isolates it), the given stages (every
     part and the whole filter by default); the seed defaults to one from the class's source, or 0."""
     started = time.perf_counter()
-    seed = source_seed(filter_class) if seed is None else seed
-    parts = draw_part_inputs(seed)
-    scenarios = draw_scenarios(seed) if "whole" in stages else []
+    report = Report(str(filter_class.name), source_seed(filter_class) if seed is None else seed, "class")
+    parts = draw_part_inputs(report.seed)
+    scenarios = draw_scenarios(report.seed) if "whole" in stages else []
     answers = collect_in_process(filter_class, parts, scenarios, list(stages))
     problem = loading_problem(answers, filter_class.__name__)
     if problem:
         raise NotGradableError(problem)
-    copies = copied_parts(class_source(filter_class))
-    report = build_report(str(filter_class.name), seed, parts, scenarios, answers, References(), stages, copies)
-    report = finish(report)
+    copies = copied_parts({"class.py": class_source(filter_class)})
+    build_report(report, parts, scenarios, answers, References(), stages, copies)
     report.seconds = time.perf_counter() - started
-    return report
-
-
-def finish(report: Report) -> Report:
-    """Name the failing parts in the whole filter's hint (they are why it fails)."""
-    failed = [r.part for r in report.rows if not r.passed and r.part != WHOLE]
-    whole = next((r for r in report.rows if r.part == WHOLE), None)
-    if whole and not whole.passed and failed and whole.hint.startswith(("the parts pass alone", "fix the error")):
-        whole.hint = f"fix {', '.join(failed)} first: the whole filter runs with every part"
     return report
 
 
@@ -305,17 +363,81 @@ def source_seed(thing: Any) -> int:
         return 0
 
 
-def progress(filter_class: type) -> str:
+# -- the report as text ---------------------------------------------------------------------------------
+def _wrapped(text: str, first: str, indent: int, width: int) -> list[str]:
+    """`first` then `text`, wrapped to `width`, continuation lines indented by `indent`."""
+    lines = textwrap.wrap(text, width - indent, break_long_words=True, break_on_hyphens=False) or [""]
+    return [first + lines[0], *(" " * indent + line for line in lines[1:])]
+
+
+def format_rows(rows: list[Row], width: int = WIDTH, catalogue: Catalogue | None = None) -> str:
+    """The rows: part, result, what came; under a row that did not pass, "expected:" and "hint:" (in
+    the catalogue's language: English by default)."""
+    words = catalogue or Catalogue()
+    _ = words.gettext
+    part_width = max(PART_WIDTH, *(len(_(row.part)) for row in rows))
+    result_width = max(RESULT_WIDTH, *(len(_(SHOWN.get(s, s))) for s in (PASS, FAIL, NOT_WRITTEN, NOT_RUN, NOT_OWN)))
+    indent = part_width + result_width + 4
+    lines = [f"{_('part'):<{part_width}}  {_('result'):<{result_width}}  {_('got')}", "-" * min(width, 80)]
+    for row in rows:
+        first = f"{_(row.part):<{part_width}}  {_(SHOWN.get(row.status, row.status)):<{result_width}}  "
+        lines += _wrapped(words.translate(row.got), first, indent, width)
+        if row.status not in (PASS, NOT_WRITTEN, NOT_RUN):
+            lines += _wrapped(_("expected: ") + words.translate(row.expected), " " * indent, indent, width)
+        if not row.passed and row.hint:
+            lines += _wrapped(_("hint: ") + words.translate(row.hint), " " * indent, indent, width)
+    return words.numbers("\n".join(lines))
+
+
+FIGURES_INTRO = (
+    "The whole filter on each scenario (distance to the exact mean over the second half of the steps; "
+    "yours, then the SIR's):"
+)
+HEADINGS = {
+    "given": "Checking {name}: inputs from seed {seed} (given)",
+    "files": "Checking {name}: inputs from seed {seed} (from the files; --seed {seed} repeats it)",
+    "class": "Checking {name}: inputs from seed {seed} (from the class's source)",
+    "key": "Checking {name}: inputs from the grader's secret key",
+}
+
+
+def format_report(report: Report, width: int = WIDTH, catalogue: Catalogue | None = None) -> str:
+    """The whole report: the heading, the rows, the figures per scenario, and the verdict."""
+    words = catalogue or Catalogue()
+    _ = words.gettext
+    heading = _(HEADINGS[report.source]).format(name=report.filter_name, seed=report.seed)
+    lines = [*_wrapped(heading, "", 0, width), "", format_rows(report.rows, width, words)]
+    if report.note:
+        lines[1:1] = _wrapped(words.translate(report.note), "", 0, width)
+    if report.figures:
+        intro = _(FIGURES_INTRO)
+        table = [[words.translate(cell) for cell in row] for row in figures_table(report.figures)]
+        lines += ["", *_wrapped(intro, "", 0, width), format_table([_(h) for h in FIGURE_HEADERS], table)]
+    failed = [_(r.part) for r in report.rows if not r.passed]
+    lines += ["", _("All checks pass.") if not failed else _("To fix: {parts}.").format(parts=", ".join(failed))]
+    return words.numbers("\n".join(lines))
+
+
+# -- the student's own process ---------------------------------------------------------------------------
+def progress(filter_class: type, lang: str | None = None) -> str:
     """Which parts are still to write, and the checks of those written (what `python my_filter.py`
-    prints: a self-check in the student's process)."""
+    prints: a self-check in the student's process), in `lang` (default: the file's LANGUAGE, else the
+    locale's)."""
+    from mazelab.exercise.language import catalogue_for
+
+    module = inspect.getmodule(filter_class)
+    words = catalogue_for(lang or getattr(module, "LANGUAGE", None))
     report = check(filter_class, stages=PARTS)
     todo = [row.part for row in report.rows if row.not_written]
-    lines = [f"{filter_class.name}: " + (f"still to write: {', '.join(todo)}" if todo else "all four parts written")]
+    left = words.gettext("still to write: {parts}").format(parts=", ".join(todo))
+    lines = [f"{filter_class.name}: " + (left if todo else words.gettext("all four parts written"))]
     written = [row for row in report.rows if not row.not_written]
-    if written:
-        lines.append(format_rows(written))
+    lines += [format_rows(written, catalogue=words)] if written else []
     if not todo:
-        lines.append(f"Grade the whole filter against the exact posterior: {check_command(filter_class)}")
+        command = check_command(filter_class)
+        lines.append(
+            words.gettext("Grade the whole filter against the exact posterior: {command}").format(command=command)
+        )
     return "\n".join(lines)
 
 
@@ -336,17 +458,13 @@ def check_command(filter_class: type) -> str:
 
 
 __all__ = [
-    "STAGES",
-    "Answers",
     "NotGradableError",
     "Report",
-    "build_report",
+    "Row",
     "check",
     "check_command",
     "check_file",
-    "collect_in_process",
-    "collect_isolated",
-    "finish",
+    "format_report",
+    "format_rows",
     "progress",
-    "source_seed",
 ]

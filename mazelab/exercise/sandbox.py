@@ -1,55 +1,91 @@
-"""Where a submission's code runs: a bubblewrap sandbox of its own (Linux), or, where none can be made,
-a plain process (macOS, Windows, no `bwrap`) whose verdict a hostile submission can forge.
+"""Where and how a submission's code runs: a bubblewrap sandbox of its own (Linux), or, where none can
+be made, a plain process (macOS, Windows, no `bwrap`) whose verdict a hostile submission can forge;
+and one run of the student's process, read without trusting it.
 
-The sandbox (`bwrap`, the one Flatpak uses) is a new user, PID, network, IPC, UTS and mount
-namespace: an unprivileged uid (65534), no network, a private /tmp, a new /proc and /dev, and
-read-only views of only the interpreter, the system's libraries, numpy, the student kit
-(mazelab.exercise.kit) and the submission's own copy. The lab's source, the other submissions, the
-grader's output folders and the user's home are not there. Every process the submission starts is
-in the sandbox's PID namespace and dies with it (`--die-with-parent`; the namespace ends when its
-first process does). The time and memory limits are set by the grader on the sandbox's first
-process before it runs (setrlimit), outside the student's reach, and inherited by everything inside.
+The sandbox (`bwrap`, the one Flatpak uses) is a new user, PID, network, IPC, UTS and mount namespace:
+an unprivileged uid (65534), no network, a private /tmp, a new /proc and /dev, and read-only views of
+only the interpreter, the system's libraries, numpy, the student kit (mazelab.exercise.kit) and the
+submission's own copy; bwrap itself is started with a minimal environment. The command follows what
+the probe found (`--size` only where this bwrap has it, 0.7 and later). Every process the submission
+starts is in the sandbox's PID namespace and ends with it.
 
-`bwrap` is the Debian and Ubuntu package `bubblewrap`; where it is missing or cannot make namespaces
-(a container that forbids them), `sandbox()` says why in one line, and grading runs unsandboxed
-unless the caller requires the sandbox.
+The limits are set outside the student's reach before any of its code runs: processor time and wall
+time (what is left of the submission's budget), 4 GB of address space per process, no file over 64 MB;
+and per sandbox, where the host delegates a cgroup (v2, or v1 as root), at most 64 processes and 4 GB
+in all; else RLIMIT_NPROC, counted in the sandbox's own user namespace (its processes only), the
+sandbox dropping to the unprivileged uid 65534 first when the grader runs as root.
+
+One run ends in one of these states (`ChildRun`): it answered and said "done"; it ended after its
+answers; it ended in a stage (an exit of any code, a signal, the time limit, output that is not a
+message, a pipe held open after it ended); it answered a stage twice (two processes answering, or a
+forged answer beside the real one). A run that never said "hello" never ran the student's code: the
+sandbox failed, which is the grader's error (SandboxError), never the student's grade.
 """
 
 from __future__ import annotations
 
+import atexit
+import contextlib
+import ctypes
 import functools
+import math
 import os
 import shutil
+import signal
+import stat
 import subprocess
 import sys
-from dataclasses import dataclass
+import tempfile
+import threading
+import time
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any, ClassVar
 
 import numpy as np
 
-from mazelab.exercise.kit import PACKAGE_DIR
+from mazelab.exercise.child import MAX_MESSAGE_BYTES, Message, WireError, decode, encode
+from mazelab.exercise.kit import PACKAGE_DIR, build_kit
 
-SANDBOX_UID = 65534  # "nobody"
+DEFAULT_BUDGET = 40.0  # wall seconds of a submission's processes in all: 3 x a correct one's (1-3 s) + 30
+MAX_TIMEOUT = 86_400.0  # a day: the largest --timeout (a processor-time limit must be a finite number)
+MEMORY_LIMIT = 4 << 30  # bytes of address space per process, and of memory per sandbox (cgroup)
+FILE_LIMIT = 64 << 20  # the largest file the child may write
+PROCESS_LIMIT = 64  # processes and threads per sandbox
 TMP_LIMIT = 256 << 20  # bytes the sandbox's private /tmp (in memory) may hold, where bwrap can bound it (0.7+)
+STARTUP = 30.0  # wall seconds a sandbox may take to start the child, the grader's, not the submission's
+STARTUP_CPU = 3  # processor seconds the child's start takes at most (the interpreter, numpy, the kit, the guard)
+OUTPUT_KEPT = 2000  # characters of the child's prints kept (its first and its last)
+SANDBOX_UID = 65534  # "nobody"
 KIT_ROOT, SITE_ROOT, SUBMISSION_ROOT = "/kit", "/site", "/submission"
 UNSANDBOXED = (
     "not sandboxed ({why}): the student's code ran with the grader's rights, so a hostile submission's "
     "verdict cannot be trusted here"
 )
-CHILD_ENVIRONMENT = {  # the child's whole environment: one thread each, a fixed str hash
-    # (python -P -S -s -B -u: no folder of the grader's on sys.path, no site, no bytecode, prints unbuffered)
+CHILD_ENVIRONMENT = {  # the child's whole environment, and bwrap's: one thread each, a fixed str hash
     "OMP_NUM_THREADS": "1",
     "OPENBLAS_NUM_THREADS": "1",
     "MKL_NUM_THREADS": "1",
     "PYTHONHASHSEED": "0",
     "HOME": "/tmp",
     "LANG": "C.UTF-8",
+    "PATH": "/usr/bin:/bin",
 }
+# python -P -S -s -B -u: no folder of the grader's on sys.path, no site, no bytecode, prints unbuffered
 ENTRY = "import sys; sys.path[:0] = [{kit!r}, {site!r}]; from mazelab.exercise.child import main; main({fd})"
+_LIBC = ctypes.CDLL(None, use_errno=True) if sys.platform == "linux" else None  # loaded before any fork
 
 
 class SandboxRequiredError(RuntimeError):
     """--require-sandbox, and no sandbox can be made here: one line saying why."""
+
+
+class SandboxError(RuntimeError):
+    """The sandbox failed before the student's code ran: the grader's error, one line."""
+
+
+class GradingStoppedError(Exception):
+    """The grading was stopped (Ctrl-C, SIGTERM): no new child is started, and the running ones are ended."""
 
 
 @dataclass(frozen=True)
@@ -58,7 +94,7 @@ class Sandbox:
 
     bwrap: str | None
     why: str = ""
-    bounded_tmp: bool = True  # bwrap bounds the private /tmp (--size, bubblewrap 0.7 and later)
+    bounded_tmp: bool = True  # this bwrap bounds the private /tmp (--size, bubblewrap 0.7 and later)
 
     @property
     def sandboxed(self) -> bool:
@@ -69,28 +105,15 @@ class Sandbox:
         """'' in a sandbox; else the one line the report, the CSV and results.json carry."""
         return "" if self.sandboxed else UNSANDBOXED.format(why=self.why)
 
-    def command(self, kit: Path, run: Path, answers: int) -> list[str]:
+    def command(self, kit: Path, run: Path, answers: int, staged: dict[str, str] | None = None) -> list[str]:
         """The command that runs mazelab.exercise.child on the kit with `run/submission/` as the only
         student files (`run/site/` holds links to numpy where there is no sandbox), answering on the
-        descriptor `answers`."""
-        python = os.path.realpath(sys.executable)
+        descriptor `answers`; `staged` binds a folder from another place (the root's drop to nobody)."""
+        flags = [os.path.realpath(sys.executable), "-P", "-S", "-s", "-B", "-u", "-c"]
         if not self.sandboxed:
-            entry = ENTRY.format(kit=str(kit), site=str(run / "site"), fd=answers)
-            return [python, "-P", "-S", "-s", "-B", "-u", "-c", entry]
-        entry = ENTRY.format(kit=KIT_ROOT, site=SITE_ROOT, fd=answers)
-        return [
-            self.bwrap,
-            *bwrap_arguments(kit, run / "submission"),
-            "--",
-            python,
-            "-P",
-            "-S",
-            "-s",
-            "-B",
-            "-u",
-            "-c",
-            entry,
-        ]
+            return [*flags, ENTRY.format(kit=str(kit), site=str(run / "site"), fd=answers)]
+        binds = bwrap_arguments(kit, run / "submission", self.bounded_tmp, staged)
+        return [self.bwrap, *binds, "--", *flags, ENTRY.format(kit=KIT_ROOT, site=SITE_ROOT, fd=answers)]
 
     def inside(self, run: Path, name: str) -> str:
         """The submission's path as the child sees it."""
@@ -103,15 +126,29 @@ def numpy_folders() -> list[Path]:
     return [p for p in (package, package.parent / "numpy.libs") if p.is_dir()]
 
 
-def _system_binds() -> list[str]:
-    """The system's libraries, read-only, as the host lays them out (/lib a link to /usr/lib or not)."""
-    arguments: list[str] = []
-    for top in ("/usr/lib", "/usr/lib64", "/lib", "/lib64", "/lib32", "/usr/lib32"):
-        path = Path(top)
-        if path.is_symlink():
-            arguments += ["--symlink", os.readlink(path), top]
-        elif path.is_dir():
+def bwrap_arguments(kit: Path, submission: Path, bounded_tmp: bool = True, staged: dict | None = None) -> list[str]:
+    """bwrap's options: the namespaces, the uid, a private /tmp (of at most TMP_LIMIT bytes where
+    `bounded_tmp`), the read-only binds (from `staged[source]` where given), and the lab hidden where
+    an interpreter folder holds it (a lab installed into the system's Python)."""
+    size = ["--size", str(TMP_LIMIT)] if bounded_tmp else []
+    arguments = [
+        "--unshare-all", "--unshare-user", "--uid", str(SANDBOX_UID), "--gid", str(SANDBOX_UID),
+        "--die-with-parent", "--new-session", "--cap-drop", "ALL", "--hostname", "sandbox",
+        "--proc", "/proc", "--dev", "/dev", *size, "--tmpfs", "/tmp",
+    ]  # fmt: skip
+    for top in ("/usr/lib", "/usr/lib64", "/lib", "/lib64", "/lib32", "/usr/lib32"):  # as the host lays them out
+        if Path(top).is_symlink():
+            arguments += ["--symlink", os.readlink(top), top]
+        elif Path(top).is_dir():
             arguments += ["--ro-bind", top, top]
+    binds = [(f, f) for f in interpreter_folders()] + [(str(f), f"{SITE_ROOT}/{f.name}") for f in numpy_folders()]
+    for source, target in [*binds, (str(kit), KIT_ROOT), (str(submission), SUBMISSION_ROOT)]:
+        arguments += ["--ro-bind", (staged or {}).get(source, source), target]
+        if target != KIT_ROOT and PACKAGE_DIR.is_relative_to(source):
+            arguments += ["--tmpfs", str(PACKAGE_DIR)]
+    arguments += ["--chdir", "/tmp", "--clearenv"]
+    for name, value in CHILD_ENVIRONMENT.items():
+        arguments += ["--setenv", name, value]
     return arguments
 
 
@@ -121,45 +158,20 @@ def interpreter_folders() -> list[str]:
     return sorted(f for f in folders if not any(f != g and f.startswith(g + os.sep) for g in folders))
 
 
-def bwrap_arguments(kit: Path, submission: Path, bounded_tmp: bool = True) -> list[str]:
-    """bwrap's options: the namespaces, the uid, a private /tmp (of at most TMP_LIMIT bytes where
-    `bounded_tmp`), the read-only binds, and the lab hidden where an interpreter folder holds it (a
-    lab installed into the system's Python)."""
-    size = ["--size", str(TMP_LIMIT)] if bounded_tmp else []
-    arguments = [
-        "--unshare-all", "--unshare-user", "--uid", str(SANDBOX_UID), "--gid", str(SANDBOX_UID),
-        "--die-with-parent", "--new-session", "--cap-drop", "ALL", "--hostname", "sandbox",
-        "--proc", "/proc", "--dev", "/dev", *size, "--tmpfs", "/tmp", *_system_binds(),
-    ]  # fmt: skip
-    for folder in interpreter_folders():
-        arguments += ["--ro-bind", folder, folder]
-        hidden = Path(folder)
-        if PACKAGE_DIR.is_relative_to(hidden):
-            arguments += ["--tmpfs", str(PACKAGE_DIR)]
-    for folder in numpy_folders():
-        arguments += ["--ro-bind", str(folder), f"{SITE_ROOT}/{folder.name}"]
-    arguments += ["--ro-bind", str(kit), KIT_ROOT, "--ro-bind", str(submission), SUBMISSION_ROOT]
-    arguments += ["--chdir", "/tmp", "--clearenv"]
-    for name, value in CHILD_ENVIRONMENT.items():
-        arguments += ["--setenv", name, value]
-    return arguments
-
-
 @functools.cache
 def sandbox() -> Sandbox:
-    """The sandbox of this machine: bwrap if it is installed and makes a sandbox here (tried once),
-    else plain, saying why."""
+    """The sandbox of this machine: bwrap if it is installed and makes a sandbox here (tried once, with
+    and without --size), else plain, saying why."""
     if sys.platform != "linux":
         return Sandbox(None, f"no bubblewrap sandbox on {sys.platform}")
     found = os.environ.get("MAZELAB_BWRAP") or shutil.which("bwrap")
     if not found:
         return Sandbox(None, "bwrap is not installed; on Debian or Ubuntu: apt-get install bubblewrap")
-    empty = Path(os.path.realpath(sys.base_prefix))
-    why = "no reason given"
+    empty, why = Path(os.path.realpath(sys.base_prefix)), "no reason given"
     for bounded in (True, False):  # an older bwrap (before 0.7) cannot bound /tmp: a sandbox all the same
         probe = [found, *bwrap_arguments(empty, empty, bounded), "--", os.path.realpath(sys.executable), "-S", "-c", ""]
         try:
-            done = subprocess.run(probe, capture_output=True, timeout=30, check=False)
+            done = subprocess.run(probe, capture_output=True, timeout=30, check=False, env=CHILD_ENVIRONMENT)
         except (OSError, subprocess.TimeoutExpired) as error:
             return Sandbox(None, f"bwrap cannot run here ({error})")
         if done.returncode == 0:
@@ -176,13 +188,450 @@ def require_sandbox() -> Sandbox:
     return made
 
 
+# -- the limits of one sandbox ---------------------------------------------------------------------------
+@functools.cache
+def cgroup_parents() -> dict[str, Path] | None:
+    """Where this grader may make a cgroup with a process and a memory limit: {"v2": folder} (its own
+    cgroup or the nearest above it that has both controllers for its children and that it may write:
+    a delegated one, or the root's as root) or {"pids": folder, "memory": folder} (v1, as root); None."""
+    if sys.platform != "linux" or os.environ.get("MAZELAB_CGROUPS") == "off":
+        return None
+    own = dict(line.split(":", 2)[1:] for line in Path("/proc/self/cgroup").read_text().splitlines())
+    mounts = [line.split() for line in Path("/proc/self/mounts").read_text().splitlines()]
+    found: dict[str, Path] = {}
+    for _, point, kind, options, *_ in mounts:
+        if kind == "cgroup2":
+            mine = Path(point + own.get("", "/"))  # its own cgroup, then those above it (a delegated one)
+            for parent in [p for p in (mine, *mine.parents) if p.is_relative_to(point)]:
+                controls = (parent / "cgroup.subtree_control").read_text().split() if parent.is_dir() else []
+                if {"pids", "memory"} <= set(controls) and os.access(parent, os.W_OK):
+                    return {"v2": parent}
+        elif kind == "cgroup":
+            for controller in ("pids", "memory"):
+                parent = Path(point + own.get(controller, "/"))
+                if controller in options.split(",") and os.access(parent, os.W_OK):
+                    found[controller] = parent
+    return found if set(found) == {"pids", "memory"} else None
+
+
+class Cgroup:
+    """A cgroup of its own for one child (made, the child moved in before it starts, emptied and
+    removed at the end); `folders` is empty where none can be made."""
+
+    LIMITS: ClassVar[dict[str, dict[str, int]]] = {
+        "v2": {"pids.max": PROCESS_LIMIT, "memory.max": MEMORY_LIMIT, "memory.swap.max": 0},
+        "pids": {"pids.max": PROCESS_LIMIT},
+        "memory": {"memory.limit_in_bytes": MEMORY_LIMIT},
+    }
+
+    def __init__(self) -> None:
+        self.folders: list[Path] = []
+        name = f"mazelab-{os.getpid()}-{threading.get_ident()}-{time.monotonic_ns()}"
+        for kind, parent in (cgroup_parents() or {}).items():
+            try:
+                (parent / name).mkdir()
+                self.folders.append(parent / name)
+                for limit, value in self.LIMITS[kind].items():
+                    with contextlib.suppress(FileNotFoundError):  # memory.swap.max: only with swap accounting
+                        (parent / name / limit).write_text(str(value))
+            except OSError:
+                self.close()
+                return
+        self._procs = [os.fsencode(f / "cgroup.procs") for f in self.folders]
+
+    def enter(self) -> None:
+        """Move this process in (run in the child before exec: everything it starts stays in)."""
+        for path in self._procs:
+            fd = os.open(path, os.O_WRONLY)
+            os.write(fd, b"0")
+            os.close(fd)
+
+    def close(self) -> None:
+        """End every process left in it (an escaped one of a plain child too), then remove it."""
+        for folder in self.folders:
+            for _ in range(50):
+                with contextlib.suppress(OSError, ValueError):
+                    for pid in (folder / "cgroup.procs").read_text().split():
+                        os.kill(int(pid), signal.SIGKILL)
+                with contextlib.suppress(OSError):
+                    folder.rmdir()
+                    break
+                time.sleep(0.02)
+        self.folders = []
+
+
+def _reachable_by_nobody(path: str) -> bool:
+    """Whether every folder on the way to `path` may be searched by others (uid 65534)."""
+    parts = Path(path).parts
+    return all(os.stat(Path(*parts[:i])).st_mode & stat.S_IXOTH for i in range(1, len(parts) + 1))
+
+
+def _dropped(bound: list[str], stage: Path) -> Any:
+    """As root without a cgroup: the preexec step that drops the sandbox to uid 65534 (RLIMIT_NPROC then
+    counts), binding each source nobody cannot reach onto a folder under `stage` first (in a mount
+    namespace of the child's own); and the staged places. Elsewhere (None, {})."""
+    if os.geteuid() != 0 or _LIBC is None:
+        return None, {}
+    staged = {s: str(stage / str(i)) for i, s in enumerate(bound) if not _reachable_by_nobody(s)}
+    for place in staged.values():
+        Path(place).mkdir(parents=True, exist_ok=True)
+    stage.chmod(0o755)
+
+    def drop() -> None:
+        if staged:  # CLONE_NEWNS, then / private, then each bind (MS_BIND | MS_REC)
+            if _LIBC.unshare(0x00020000) or _LIBC.mount(None, b"/", None, (1 << 14) | (1 << 18), None):
+                raise OSError(ctypes.get_errno(), "cannot make a mount namespace to stage the sandbox's binds")
+            for source, place in staged.items():
+                if _LIBC.mount(os.fsencode(source), os.fsencode(place), None, 4096 | (1 << 14), None):
+                    raise OSError(ctypes.get_errno(), f"cannot stage {source}")
+        os.setgroups([])
+        os.setresgid(SANDBOX_UID, SANDBOX_UID, SANDBOX_UID)
+        os.setresuid(SANDBOX_UID, SANDBOX_UID, SANDBOX_UID)
+
+    return drop, staged
+
+
+def _preexec(seconds: float, cgroup: Cgroup, drop: Any) -> Any:
+    """What runs in the child before exec: its cgroup, its processor time (SIGXCPU at the limit,
+    SIGKILL two seconds later), memory, no core file, a bounded file size, the drop to nobody."""
+    try:
+        import resource
+    except ImportError:  # Windows: the grader's clock is all there is
+        return None
+    cpu = math.ceil(min(seconds, MAX_TIMEOUT))  # seconds of processor time: SIGXCPU, then SIGKILL 2 s later
+    wanted = [
+        (resource.RLIMIT_CPU, cpu, cpu + 2),
+        (resource.RLIMIT_AS, MEMORY_LIMIT, MEMORY_LIMIT),
+        (resource.RLIMIT_CORE, 0, 0),
+        (resource.RLIMIT_FSIZE, FILE_LIMIT, FILE_LIMIT),
+    ]
+    settings = []  # never above the hard limits the grader itself has
+    for which, soft, top in wanted:
+        hard = resource.getrlimit(which)[1]
+        settings.append(
+            (which, soft, top) if hard == resource.RLIM_INFINITY else (which, min(soft, hard), min(top, hard))
+        )
+
+    def apply() -> None:
+        signal.pthread_sigmask(signal.SIG_SETMASK, [])  # a grading thread blocks the stop signals
+        cgroup.enter()
+        for which, soft, top in settings:
+            resource.setrlimit(which, (soft, top))
+        if drop is not None:
+            drop()
+
+    return apply
+
+
+# -- the kit and the submission's copy --------------------------------------------------------------------
+_kit_lock = threading.Lock()
+_kit: tuple[Path, str] | None = None
+
+
+def kit() -> tuple[Path, str]:
+    """The student kit of this process (built once, in a temporary folder removed at exit) and its sha256."""
+    global _kit
+    with _kit_lock:
+        if _kit is None:
+            folder = Path(tempfile.mkdtemp(prefix="mazelab-kit-"))
+            folder.chmod(0o755)  # the sandbox may run as nobody (as root without a cgroup)
+            atexit.register(_remove, folder)
+            _kit = (folder, build_kit(folder / "kit"))
+        return _kit[0] / "kit", _kit[1]
+
+
+def _remove(folder: Path) -> None:
+    """Remove a folder of read-only files and folders."""
+    for path in [folder, *folder.rglob("*")]:
+        with contextlib.suppress(OSError):
+            path.chmod(0o755 if path.is_dir() else 0o644)
+    shutil.rmtree(folder, ignore_errors=True)
+
+
+COMPANIONS_KEPT = 50  # at most this many Python files beside a submission are copied with it
+
+
+def companions_of(path: Path) -> list[Path]:
+    """The Python files beside a submission (its helper modules), regular files only, by name."""
+    beside = [p for p in path.parent.glob("*.py") if p.name != path.name and p.is_file() and not p.is_symlink()]
+    return sorted(beside)[:COMPANIONS_KEPT]
+
+
+@contextlib.contextmanager
+def submission_copy(path: Path, companions: bool = True) -> Any:
+    """A folder holding only read-only copies of the submission (`submission/NAME`) and, with
+    `companions`, its helper modules, and for a plain child `site/` with links to numpy; removed
+    afterwards. Yields the folder."""
+    run = Path(tempfile.mkdtemp(prefix="mazelab-run-"))
+    try:
+        (run / "submission").mkdir()
+        for source in [path, *companions_of(path)] if companions else [path]:
+            shutil.copyfile(source, run / "submission" / source.name)
+            (run / "submission" / source.name).chmod(0o444)
+        (run / "site").mkdir()
+        (run / "stage").mkdir()  # where a root grader without a cgroup stages the binds nobody cannot reach
+        for folder in numpy_folders():
+            (run / "site" / folder.name).symlink_to(folder)
+        for folder in (run / "submission", run / "site", run):
+            folder.chmod(0o555)
+        yield run
+    finally:
+        _remove(run)
+
+
+# -- one run -------------------------------------------------------------------------------------------
+_running: set[subprocess.Popen] = set()  # the children alive now (what `stop_children` ends)
+_running_lock = threading.Lock()
+_stopped = threading.Event()
+
+
+def stop_children() -> None:
+    """End every running child (and its sandbox) and start no new one until `allow_children`."""
+    _stopped.set()
+    with _running_lock:
+        running = list(_running)
+    for process in running:
+        _end_session(process)
+
+
+def allow_children() -> None:
+    _stopped.clear()
+
+
+@dataclass
+class ChildRun:
+    """What one run gave: whether it said hello, what it said of the class it loaded, each stage's
+    answer, the stages answered twice, the stages it started, how it ended (None: it said "done"),
+    its prints, and how long it took."""
+
+    hello: float | None = None  # when it said hello (time.perf_counter): the student's time starts there
+    loaded: dict[str, Any] | None = None
+    results: dict[str, Message] = field(default_factory=dict)
+    twice: set[str] = field(default_factory=set)
+    started: list[str] = field(default_factory=list)
+    scenario: int | None = None  # the last whole-filter scenario it started
+    ended: str | None = None
+    output: str = ""
+    seconds: float = 0.0
+
+    @property
+    def stage(self) -> str:
+        """Where it was: the last stage it started ("import" before any)."""
+        return self.started[-1] if self.started else "import"
+
+    def where(self) -> str:
+        """'while importing the file', 'in predict', 'in the whole filter (scenario 3)'."""
+        if self.loaded is None or not self.started:
+            return "while importing the file"
+        if self.stage == "whole":
+            return "in the whole filter" + ("" if self.scenario is None else f" (scenario {self.scenario + 1})")
+        return f"in {self.stage}"
+
+    def take(self, message: Message) -> bool:
+        """Record one message (False: it ends the conversation as unreadable)."""
+        meta, kind = message.meta, message.meta.get("kind")
+        stage = meta.get("stage")
+        if kind == "hello" and self.hello is None:
+            self.hello = time.perf_counter()
+        elif kind == "loaded":
+            if self.loaded is not None:  # a second process answering beside the first: nothing it says counts
+                self.twice |= set(self.results) | {"loaded"}
+            self.loaded = meta
+        elif kind == "stage" and isinstance(stage, str):
+            self.started += [] if stage in self.started else [stage]
+            scenario = meta.get("scenario")
+            self.scenario = scenario if isinstance(scenario, int) and not isinstance(scenario, bool) else self.scenario
+        elif kind == "result" and isinstance(stage, str):
+            if stage in self.results or "loaded" in self.twice:
+                self.twice.add(stage)
+            self.results[stage] = message
+        elif kind != "done":
+            return False
+        return True
+
+
+class _Reader(threading.Thread):
+    """Reads the child's messages as they come (a daemon: a pipe kept open by an escaped grandchild
+    cannot hold the grader); stops at the end of the pipe or the first unreadable message."""
+
+    def __init__(self, stream: Any, run: ChildRun):
+        super().__init__(daemon=True)
+        self.stream, self.run_, self.problem, self.done = stream, run, None, False
+
+    def run(self) -> None:
+        received = 0
+        try:
+            while header := self.stream.read(8):
+                size = int.from_bytes(header, "big")
+                received += size
+                if len(header) < 8 or received > MAX_MESSAGE_BYTES:
+                    raise WireError(f"more than {MAX_MESSAGE_BYTES >> 20} MB" if len(header) == 8 else "a cut header")
+                data = self.stream.read(size)
+                message = decode(data) if len(data) == size else None
+                if message is None or not self.run_.take(message):
+                    raise WireError("a message cut short" if message is None else "an unexpected message")
+                self.done = message.meta.get("kind") == "done"
+        except (WireError, OSError, ValueError) as error:
+            self.problem = f"sent output the grader cannot read ({error})"
+
+
+class _Output(threading.Thread):
+    """Collects what the child prints, keeping its first and last OUTPUT_KEPT characters."""
+
+    def __init__(self, fd: int):
+        super().__init__(daemon=True)
+        self.fd, self.head, self.tail, self.total = fd, b"", b"", 0
+
+    def run(self) -> None:
+        with contextlib.suppress(OSError):
+            while chunk := os.read(self.fd, 1 << 16):
+                self.total += len(chunk)
+                if len(self.head) < OUTPUT_KEPT:
+                    taken = OUTPUT_KEPT - len(self.head)
+                    self.head, chunk = self.head + chunk[:taken], chunk[taken:]
+                self.tail = (self.tail + chunk)[-OUTPUT_KEPT:]
+
+    def text(self) -> str:
+        skipped = self.total - len(self.head) - len(self.tail)
+        middle = f"\n[... {skipped} bytes not kept ...]\n".encode() if skipped > 0 else b""
+        return (self.head + middle + self.tail).decode(errors="replace")
+
+
+def run_child(
+    request: tuple[dict, dict], run_folder: Path, seconds: float, made: Sandbox, reserve: float = 0.0
+) -> ChildRun:
+    """Start a child on `request` (meta, arrays) in its sandbox (the submission's copy in `run_folder`)
+    with `seconds` of the submission's budget left, less `reserve` seconds for each stage after the
+    one it is in (so that a part that hangs leaves time for the parts after it): its wall-clock time
+    from its hello (its start, up to STARTUP, is the grader's), and a second less of processor time
+    beside the start's (a busy child meets SIGXCPU, a waiting one the grader's clock). Return what it
+    gave; SandboxError when it never ran the student's code."""
+    if _stopped.is_set():
+        raise GradingStoppedError("the grading was stopped")
+    stages, cgroup = request[0]["stages"], Cgroup()
+    cpu = max(1, math.floor(seconds - reserve * (len(stages) - 1)) - 1)
+    meta = {**request[0], "processes": None if cgroup.folders or not made.sandboxed else PROCESS_LIMIT}
+    run, started = ChildRun(), time.perf_counter()
+    process, reader, printed = _start(made, run, run_folder, cgroup, cpu + STARTUP_CPU, encode(meta, request[1]))
+
+    def limit() -> float:  # the wait allowed so far: the budget less the reserve of the stages after this one
+        at = max([stages.index(s) for s in run.started if s in stages], default=0)
+        return seconds - reserve * (len(stages) - 1 - at)
+
+    def waiting() -> bool:  # within its time: the student's from hello on (a start is the grader's, up to STARTUP)
+        now = time.perf_counter()
+        return now - run.hello < limit() if run.hello else now - started < STARTUP
+
+    try:
+        while process.poll() is None and waiting():
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                process.wait(0.1)
+        timed_out = process.poll() is None
+    finally:
+        _end_session(process)
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            process.wait(5)
+        cgroup.close()
+        with _running_lock:
+            _running.discard(process)
+    if _stopped.is_set():
+        raise GradingStoppedError("the grading was stopped")
+    run.seconds = time.perf_counter() - (run.hello or started)
+    reader.join(5)
+    printed.join(2)
+    run.output = printed.text()
+    if not run.hello:
+        last = (run.output.strip().splitlines() or ["no message"])[-1][:200]
+        code = f"did not start within {STARTUP:g} s" if timed_out else f"exit code {process.returncode}"
+        raise SandboxError(f"the sandbox did not start the student's process ({code}: {last})")
+    run.ended = _how_it_ended(run, reader, process.returncode, made, limit() if timed_out else None, cpu)
+    return run
+
+
+def _start(made: Sandbox, run: ChildRun, run_folder: Path, cgroup: Cgroup, cpu: int, request: bytes) -> tuple:
+    """The child's process (its prints merged on one pipe, the answer pipe kept open, its limits, a
+    session of its own), its answers' reader and its prints' collector, both started, and the request
+    sent; SandboxError when it cannot be started (bwrap gone since the probe, no memory to fork)."""
+    kit_folder, _ = kit()
+    drop, staged = None, {}
+    if made.sandboxed and not cgroup.folders:
+        binds = [*interpreter_folders(), *map(str, numpy_folders()), str(kit_folder), str(run_folder)]
+        drop, staged = _dropped(binds, run_folder / "stage")
+    answers_in, answers_out = os.pipe()
+    try:
+        with _running_lock:
+            process = subprocess.Popen(
+                made.command(kit_folder, run_folder, answers_out, staged),
+                stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE,
+                stderr=subprocess.STDOUT,
+                pass_fds=(answers_out,),
+                preexec_fn=_preexec(cpu, cgroup, drop),
+                start_new_session=True,
+                env=CHILD_ENVIRONMENT,
+                cwd=run_folder,
+            )
+            _running.add(process)
+    except (OSError, subprocess.SubprocessError) as error:
+        cgroup.close()
+        os.close(answers_in)
+        raise SandboxError(f"the student's process could not be started ({error})") from None
+    finally:
+        os.close(answers_out)
+    reader, printed = _Reader(os.fdopen(answers_in, "rb"), run), _Output(process.stdout.fileno())
+    reader.start()
+    printed.start()
+    threading.Thread(target=_send, args=(process, request), daemon=True).start()
+    return process, reader, printed
+
+
+def _send(process: subprocess.Popen, request: bytes) -> None:
+    """Write the request to the child's standard input and close it (a child that reads none is its own)."""
+    with contextlib.suppress(OSError):
+        process.stdin.write(request)
+    with contextlib.suppress(OSError):
+        process.stdin.close()
+
+
+def _end_session(process: subprocess.Popen) -> None:
+    """Kill the child's session (bwrap and so its whole sandbox; a plain child and what it started)."""
+    for kill in (lambda: os.killpg(process.pid, signal.SIGKILL), process.kill):
+        with contextlib.suppress(OSError):
+            kill()
+
+
+def _how_it_ended(
+    run: ChildRun, reader: _Reader, code: int | None, made: Sandbox, waited: float | None, seconds: float
+) -> str | None:
+    """None when it said "done" and exited 0; else one phrase naming how it ended and where."""
+    # the signal: a negative return code, or bwrap's 128 + the signal of its child
+    number = -code if code is not None and code < 0 else None
+    if made.sandboxed and code is not None and 128 < code < 128 + 65:
+        number = code - 128
+    where = run.where()
+    if waited is not None:
+        return f"ran past its time ({waited:.0f} s of the budget) {where} and was stopped"
+    if number == getattr(signal, "SIGXCPU", 0):
+        return f"ran past the time limit ({math.ceil(seconds)} s of processor time) {where} and was stopped"
+    if reader.problem:
+        return f"{reader.problem} {where}"
+    if reader.is_alive():
+        return f"kept its answer pipe open after it ended {where}"
+    if reader.done and code == 0:
+        return None
+    if number is not None:
+        name = signal.Signals(number).name if number in signal.Signals._value2member_map_ else "unknown"
+        return f"was killed by signal {number} ({name}) {where}"
+    return f"exited with code {code} {where}, before answering"
+
+
 __all__ = [
-    "CHILD_ENVIRONMENT",
-    "UNSANDBOXED",
+    "DEFAULT_BUDGET",
+    "MAX_TIMEOUT",
+    "GradingStoppedError",
     "Sandbox",
-    "SandboxRequiredError",
-    "bwrap_arguments",
-    "numpy_folders",
-    "require_sandbox",
+    "SandboxError",
+    "run_child",
     "sandbox",
+    "submission_copy",
 ]

@@ -9,10 +9,8 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from mazelab.exercise.language import catalogue_for
-from mazelab.exercise.layout import format_report, format_rows
-from mazelab.exercise.outcome import Report
-from mazelab.exercise.report import check, check_command, progress, source_seed
-from mazelab.exercise.rows import Row
+from mazelab.exercise.parts import Row
+from mazelab.exercise.report import Report, check, check_command, format_report, format_rows, progress, source_seed
 from mazelab.exercise.student import PARTS, StudentFilter
 
 
@@ -31,8 +29,7 @@ def check_and_print(filter_class: type, lang: str = "en") -> Report:
     """Check every part and the whole filter, and print the report (the notebook's last check cell),
     in `lang` (en or uk)."""
     report = check(filter_class)
-    words = catalogue_for(lang)
-    print(format_report(report, seed_note=words.gettext(" (from the class's source)"), catalogue=words))
+    print(format_report(report, catalogue=catalogue_for(lang)))
     return report
 
 

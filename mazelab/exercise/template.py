@@ -1,11 +1,17 @@
-"""The files `mazelab exercise new DIR` writes: the student's filter (four parts to write) and a README."""
+"""The files `mazelab exercise new DIR` writes: the student's filter (four parts to write) and a README,
+in English or in a language of mazelab.exercise.language (`--lang uk`): each docstring and error text
+of my_filter.py and each paragraph of the README looked up whole in the catalogue, the code the same.
+my_filter.py keeps its language (`LANGUAGE = "uk"`), so that `python my_filter.py` and `exercise check`
+answer in it."""
 
 from __future__ import annotations
 
+import ast
 import os
 from pathlib import Path
 
 from mazelab.atomic import NameTakenError, NotRegularFileError, output_target, write_text_atomically
+from mazelab.exercise.language import catalogue_for
 
 FILTER_FILE = "my_filter.py"
 README_FILE = "README.md"
@@ -13,12 +19,15 @@ README_FILE = "README.md"
 FILTER_TEMPLATE = '''"""My particle filter: the four parts of Algorithm 4 (SIR) for the maze lab.
 
 Run `python my_filter.py` to see which parts are still to write, and
-`mazelab exercise check my_filter.py` to grade them against the exact posterior.
+`mazelab exercise check my_filter.py` to grade them against the exact posterior. LANGUAGE is the
+language of their reports (en or uk).
 """
 
 import numpy as np
 
 from mazelab.exercise import OUTSIDE_PENALTY, ROBOT_SPEED, StudentFilter
+
+LANGUAGE = "en"
 
 
 class MyFilter(StudentFilter):
@@ -88,11 +97,12 @@ arrays (no loops over particles) and draw random numbers only from the `rng` you
 - `python my_filter.py` says which parts are still to write and checks those you wrote.
 - `mazelab exercise check my_filter.py` grades every part and the whole filter against the exact
   posterior (a row per part: pass or fail, what came, and under a failing row what was expected and a
-  hint). Exit code 0 means all pass. It runs your file in a sandbox of its own, on inputs drawn from
-  the file's content (an edit gets new ones; `--seed S` repeats a report) and judges only what your
+  hint). Exit code 0 means all pass. It runs your files in a sandbox of their own, on inputs drawn
+  from their content (an edit gets new ones; `--seed S` repeats a report) and judges only what your
   code returns. The lab's reference implementation (mazelab.model's functions, mazelab.resampling,
   the shipped filters) is not in that sandbox: each part must be your own code, and one copied from
-  the lab's with its names changed is marked "not own work". `--lang uk`: the report in Ukrainian.
+  the lab's with its names changed is marked "not own work". The reports speak the language of
+  `LANGUAGE` in my_filter.py (`--lang en` or `--lang uk` chooses another).
 - `mazelab run --filter my_filter.py:MyFilter` runs it in the viewer; `mazelab compare SCENARIO
   --filters sir,my_filter.py:MyFilter` puts it beside the shipped SIR.
 
@@ -103,13 +113,25 @@ my_filter.py` prints the grading command written your way, to paste.
 """
 
 
-def write_exercise(folder: Path, force: bool = False) -> list[Path]:
+def exercise_texts(language: str = "en") -> tuple[str, str]:
+    """my_filter.py and README.md in `language`: each string literal of the filter (its docstrings and
+    error texts) and each paragraph of the README translated whole; ValueError for an unknown language."""
+    words = catalogue_for(language)
+    text = FILTER_TEMPLATE.replace('LANGUAGE = "en"', f'LANGUAGE = "{words.language}"')
+    for node in ast.walk(ast.parse(FILTER_TEMPLATE)):
+        if isinstance(node, ast.Constant) and isinstance(node.value, str) and node.value in words.entries:
+            text = text.replace(node.value, words.entries[node.value])
+    readme = "\n\n".join(words.gettext(paragraph) for paragraph in README_TEMPLATE.split("\n\n"))
+    return text, readme
+
+
+def write_exercise(folder: Path, force: bool = False, language: str = "en") -> list[Path]:
     """Write my_filter.py and README.md into `folder` (made if missing) through mazelab.atomic: each
     file is the old one or the new whole one, a folder, pipe, device or symlink loop at either name is
     refused, and without `force` so is any name that exists (a symlink too, dangling or not). Both
     names are checked before either file is written (a ValueError of one line); a write that fails
     (a full disk) is a WriteError naming the file, with the old file left whole. Returns the paths."""
-    paths = [folder / FILTER_FILE, folder / README_FILE]
+    paths, texts = [folder / FILTER_FILE, folder / README_FILE], exercise_texts(language)
     if os.path.lexists(folder) and not folder.is_dir():
         raise ValueError(f"{folder} is not a folder (give a folder to write the exercise into)")
     if folder.is_dir() and not os.access(folder, os.W_OK):
@@ -121,7 +143,7 @@ def write_exercise(folder: Path, force: bool = False) -> list[Path]:
     except OSError as error:
         raise ValueError(f"cannot make the folder {folder}: {error.strerror or error}") from None
     # The README first: should a write fail, the student's my_filter.py is the one left as it was.
-    for path, text in reversed(list(zip(paths, (FILTER_TEMPLATE, README_TEMPLATE), strict=True))):
+    for path, text in reversed(list(zip(paths, texts, strict=True))):
         write_text_atomically(path, text, replace=force)
     return paths
 
@@ -136,4 +158,4 @@ def check_exercise_file(path: Path, force: bool) -> None:
         raise ValueError(f"cannot write {path}: {error.strerror or error}") from None
 
 
-__all__ = ["FILTER_FILE", "FILTER_TEMPLATE", "README_FILE", "README_TEMPLATE", "write_exercise"]
+__all__ = ["FILTER_FILE", "FILTER_TEMPLATE", "README_TEMPLATE", "exercise_texts", "write_exercise"]

@@ -10,8 +10,16 @@ The verdict is a one-sided sign test: on each scenario the student's filter and 
 the resampling scheme the student's resembles) see the same walk, measurements and initial particles.
 A filter that is the SIR in distribution is the farther of the two from the exact mean with probability
 1/2 on each scenario, independently; it fails when it is farther on at least WORSE_LIMIT of the
-scenarios, which happens with probability P(Binomial(12, 1/2) >= 11) = 13/4096 = 0.0032. An estimate
-that is not a number at some step fails outright (a NaN distance is never "no farther").
+scenarios, which happens with probability P(Binomial(12, 1/2) >= 11) = 13/4096 = 0.0032. The sign test
+counts, so a filter far off (one that ignores the measurements: 9 times the SIR's distance) could pass
+on the scenarios where the SIR itself lost the robot; the magnitude test beside it weighs how far:
+under the same hypothesis each scenario's log distance ratio log(d_i / s_i) (yours over the SIR's) is
+as likely positive as negative whatever its size, so the sum of the 12 ratios is compared with its
+sums under all 4096 sign patterns (a randomization test, exact given the sizes); the filter fails
+when at most MAGNITUDE_ALPHA of them reach it. Log ratios, not distances: an honest filter that loses
+the robot on one scenario (10 units off where the SIR is 0.07) moves one ratio, not the verdict. The
+two tests together fail a filter that is the SIR in distribution with probability at most 0.0042. An
+estimate that is not a number at some step fails outright (a NaN distance is never "no farther").
 """
 
 from __future__ import annotations
@@ -27,13 +35,14 @@ from typing import Any
 
 import numpy as np
 
+from mazelab.exercise.child import Message
 from mazelab.exercise.inputs import SCENARIO_COUNT, ScenarioInputs
-from mazelab.exercise.rows import FAIL, PASS, Row, error_of, take
-from mazelab.exercise.wire import Message
+from mazelab.exercise.parts import FAIL, PASS, Row, error_of, take
 from mazelab.simulation import convergence_step, simulate
 
 GRID_RESOLUTION = 0.05  # the exact filter's cells: fine next to L = 0.2, coarse enough to be quick
 WORSE_LIMIT = 11  # fail when farther than the SIR from the exact mean on this many of the 12 scenarios
+MAGNITUDE_ALPHA = 0.001  # the magnitude test's level (its p-value is a multiple of 1/4096)
 NAN_HINT = "the estimate must be a number at every step: check the weights (all 0 or NaN?) and estimate"
 
 
@@ -44,8 +53,19 @@ def sign_test_alpha(limit: int = WORSE_LIMIT, scenarios: int = SCENARIO_COUNT) -
 
 def expected_text(scheme: str = "systematic") -> str:
     return (
-        f"no worse than SIR ({scheme}): farther on < {WORSE_LIMIT} of {SCENARIO_COUNT} (alpha {sign_test_alpha():.4f})"
+        f"no worse than SIR ({scheme}): farther on < {WORSE_LIMIT} of {SCENARIO_COUNT} (alpha "
+        f"{sign_test_alpha():.4f}), distance ratio p > {MAGNITUDE_ALPHA:g}"
     )
+
+
+def magnitude_p(distances: np.ndarray, sir_distances: np.ndarray) -> tuple[float, float]:
+    """(the geometric mean of the distance ratios, the randomization test's p-value): the share of the
+    2^n sign patterns of the log ratios whose sum reaches theirs (the module docstring)."""
+    ratios = np.log((np.asarray(distances) + 1e-12) / (np.asarray(sir_distances) + 1e-12))
+    n = len(ratios)
+    signs = ((np.arange(2**n)[:, None] >> np.arange(n)) & 1) * 2 - 1
+    sums = signs @ np.abs(ratios)
+    return float(np.exp(ratios.mean())), float(np.mean(sums >= ratios.sum() - 1e-9))
 
 
 # -- the grader's own runs ------------------------------------------------------------------------
@@ -187,7 +207,7 @@ def judge_whole(
     sir: list[np.ndarray],
     scheme: str,
 ) -> tuple[Row, list[ScenarioFigures]]:
-    """The whole filter's row (the sign test against the SIR) and the figures per scenario."""
+    """The whole filter's row (the sign and magnitude tests against the SIR) and the figures per scenario."""
     figures = [
         ScenarioFigures(
             s.maze,
@@ -204,11 +224,13 @@ def judge_whole(
     ]
     worse = sum(not f.distance <= f.sir_distance for f in figures)  # NaN counts as worse
     mean, sir_mean = np.mean([f.distance for f in figures]), np.mean([f.sir_distance for f in figures])
+    ratio, p = magnitude_p(np.array([f.distance for f in figures]), np.array([f.sir_distance for f in figures]))
     got = (
         f"farther on {worse} of {len(figures)}; to exact {mean:.3f} (SIR {sir_mean:.3f}); "
-        f"converged {sum(f.converged for f in figures)}/{len(figures)} (SIR {sum(f.sir_converged for f in figures)})"
+        f"converged {sum(f.converged for f in figures)}/{len(figures)} (SIR {sum(f.sir_converged for f in figures)}); "
+        f"distance ratio {ratio:.2f} (p {p:.2g})"
     )
-    if worse < WORSE_LIMIT:
+    if worse < WORSE_LIMIT and p > MAGNITUDE_ALPHA:
         return Row("whole filter", PASS, expected_text(scheme), got), figures
     hint = "the parts pass alone but not together: check what weigh and predict assume of each other"
     return Row("whole filter", FAIL, expected_text(scheme), got, hint), figures
@@ -237,16 +259,12 @@ def figures_table(figures: list[ScenarioFigures]) -> list[list[str]]:
 __all__ = [
     "FIGURE_HEADERS",
     "GRID_RESOLUTION",
-    "WORSE_LIMIT",
     "References",
-    "ScenarioFigures",
     "converged",
     "distance_to_exact",
-    "exact_estimates",
     "expected_text",
     "figures_table",
     "judge_whole",
     "sign_test_alpha",
-    "sir_estimates",
     "whole_answer",
 ]

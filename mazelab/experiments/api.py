@@ -52,15 +52,12 @@ class StudyResult:
         """The study's figure, as `mazelab study --plot PATH` draws it (.png, .pdf or .svg by the
         suffix; `x` a varied parameter for the x axis, as --plot-x; `y` what it draws, as --plot-y;
         `title` instead of the program's title and caption, as --title); an existing file is replaced."""
-        from mazelab.experiments.study_plot import plot_study, study_title
+        from mazelab.experiments.study_plot import draw_study
 
-        path = Path(path)
         parameters = self.record["parameters"]
-        shown = title or study_title(
-            self.varied, self.summaries, parameters["runs"], parameters["mazes"][0]["label"], x, y
-        )
-        plot_study(self.summaries, self.varied or ["maze"], path, shown, x=x, y=y, caption=title is None)
-        return path
+        draw_study(self.summaries, self.varied, Path(path), parameters["runs"], parameters["mazes"][0]["label"], x=x,
+                   y=y, title=title)  # fmt: skip
+        return Path(path)
 
 
 NUMBER = (numbers.Real,)  # int, float, numpy's numbers; bool is refused apart
@@ -244,9 +241,9 @@ def _dask(dask: Any) -> Any:
 
 
 def call_arguments(call: Mapping[str, Any], seed: int) -> dict[str, Any]:
-    """A plan's arguments as data, so that `mazelab.study(**record["call"]["arguments"])` makes the same
-    rows: the root seed the study drew (when none was given), a filter class as the spec of its file
-    (`path/to/file.py:Class`, what a name can say), arrays as lists."""
+    """A plan's arguments, so that `mazelab.study(**record["call"]["arguments"])` makes the same rows: the
+    root seed the study drew (when none was given), a filter class as the spec of its file
+    (`path/to/file.py:Class`, what a name can say); the record writes them as data (record.jsonable)."""
     arguments = {**call, "seed": seed}
     filters = arguments["filters"]
     if not isinstance(filters, str):
@@ -256,20 +253,7 @@ def call_arguments(call: Mapping[str, Any], seed: int) -> dict[str, Any]:
             else resolve_filter(f).name
             for f in filters
         ]
-    return {name: _data(value) for name, value in arguments.items()}
-
-
-def _data(value: Any) -> Any:
-    """An argument as JSON data: arrays and tuples as lists, paths as text."""
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, os.PathLike):
-        return os.fspath(value)
-    if isinstance(value, (list, tuple, range)):
-        return [_data(item) for item in value]
-    if isinstance(value, Mapping):
-        return {str(k): _data(v) for k, v in value.items()}
-    return value
+    return arguments
 
 
 __all__ = ["StudyResult", "call_arguments", "study", "study_plan"]

@@ -9,14 +9,20 @@ the running ones finish (on Dask: cancels the rest); a second Ctrl-C, SIGTERM or
 workers at once. Pool workers also end with their parent when it is killed outright (kill -9): a
 parent-death signal on Linux, a watchdog thread elsewhere. A worker that dies (kill -9, out of memory)
 restarts the pool, its unfinished units handed out again, at most MAX_POOL_RESTARTS times.
+
+A Dask cluster (`study --dask ADDRESS`, the optional extra `pip install -e ".[dask]"`) is connected in one
+line or refused, its workers asked before any run (`check_workers`), and a cluster that stops finishing
+runs is said in one line with what is left of it.
 """
 
 from __future__ import annotations
 
 import ctypes
 import functools
+import logging
 import os
 import signal
+import socket
 import sys
 import threading
 import time
@@ -30,8 +36,7 @@ from typing import Any
 
 from mazelab.backend import backend_for_work, use_backend
 from mazelab.experiments.batch_runs import MAX_BATCH, run_unit_safely, study_units
-from mazelab.experiments.dask_runner import DASK_TIMEOUT, check_workers, close_client, connect, describe_workers
-from mazelab.experiments.study import RunFailure, RunRecord, RunTask, StudyOutcome, run_task
+from mazelab.experiments.study import RunFailure, RunRecord, RunTask, StudyOutcome, run_task_safely
 from mazelab.experiments.warmup import WorkerReport, take_startup_seconds, worker_report
 
 UnitOutcome = list[RunRecord] | RunFailure | WorkerReport
@@ -41,6 +46,123 @@ PR_SET_PDEATHSIG = 1  # linux/prctl.h: the signal a process gets when its parent
 WATCHDOG_SECONDS = 0.5
 
 
+# -- an existing Dask cluster ---------------------------------------------------------------------------
+CONNECT_SECONDS = 3  # a scheduler that does not answer within this is reported unreachable
+DASK_TIMEOUT = 300.0  # seconds without any finished run after which a study on Dask gives up (--dask-timeout)
+SCHEMES = ("tcp",)  # what --dask takes: tls, ucx and others need a security or transport setup of their own
+# The loggers silenced while a study runs on Dask: distributed's configuration gives some of their
+# children a level and a handler of their own (distributed.client: warning), so each is set, not
+# only the parents.
+QUIET_LOGGERS = ("distributed", "tornado", "asyncio", "bokeh")
+
+
+def connect(address: str, timeout: float = CONNECT_SECONDS) -> Any:
+    """A dask.distributed Client of the scheduler at `address` (e.g. tcp://10.0.0.5:8786), or a
+    ValueError of one line: dask missing, another scheme than tcp://, or the scheduler unreachable
+    within `timeout` seconds (probed with a plain socket first, so no half-made Client lingers)."""
+    try:
+        from distributed import Client
+    except ImportError:
+        raise ValueError('--dask needs dask.distributed: pip install -e ".[dask]"') from None
+    host, port = parse_scheduler_address(address)
+    quiet_distributed()
+    try:
+        with socket.create_connection((host, port), timeout=timeout):
+            pass
+    except OSError as error:
+        reason = error.strerror or type(error).__name__ if not isinstance(error, TimeoutError) else "no answer"
+        raise ValueError(f"cannot reach the Dask scheduler at {address!r}: {reason} within {timeout:g} s") from None
+    try:
+        return Client(address, timeout=timeout, set_as_default=False)
+    except MemoryError:  # something answers there, but not Dask's protocol (a frame of exabytes)
+        raise ValueError(f"cannot reach the Dask scheduler at {address!r}: what answers there is not one") from None
+    except Exception as error:  # OSError, TimeoutError, ValueError (not a scheduler there), ...
+        reason = str(error).splitlines()[0] if str(error) else type(error).__name__
+        raise ValueError(f"cannot reach the Dask scheduler at {address!r}: {reason}") from None
+
+
+def parse_scheduler_address(address: str) -> tuple[str, int]:
+    """(host, port) of tcp://HOST:PORT, or a one-line ValueError naming --dask."""
+    from distributed.comm import parse_address
+    from distributed.comm.addressing import parse_host_port
+
+    usage = f"--dask {address!r} is not a scheduler address like tcp://HOST:8786"
+    try:  # a malformed address is refused here: a Client that fails to parse it lingers at exit
+        scheme, location = parse_address(address)
+        if scheme not in SCHEMES:
+            raise ValueError(f"{usage} (only tcp:// is supported, not {scheme}://)")
+        host, port = parse_host_port(location)
+    except ValueError as error:
+        raise ValueError(str(error) if str(error).startswith(usage) else f"{usage} ({error})") from None
+    except TypeError as error:
+        raise ValueError(f"{usage} ({error})") from None
+    if not port or not 0 < int(port) < 65536:
+        raise ValueError(f"{usage} (no port)")
+    return host, int(port)
+
+
+def quiet_distributed() -> None:
+    """distributed's own logging (retries, lost connections, tracebacks) off, and the noise of a
+    Client collected late ("Exception ignored in Client.__del__") dropped: this program says in one
+    line what went wrong."""
+    names = [n for n in list(logging.Logger.manager.loggerDict) if n.split(".")[0] in QUIET_LOGGERS]
+    for name in dict.fromkeys([*QUIET_LOGGERS, *names]):
+        logging.getLogger(name).setLevel(logging.CRITICAL + 1)
+    previous = sys.unraisablehook
+    if getattr(previous, "_mazelab_quiet", False):
+        return
+
+    def hook(unraisable: Any) -> None:
+        where = " ".join(
+            str(getattr(thing, "__module__", "") or "") for thing in (unraisable.object, type(unraisable.object))
+        )
+        if "distributed" not in where and "tornado" not in where:
+            previous(unraisable)
+
+    hook._mazelab_quiet = True  # type: ignore[attr-defined]
+    sys.unraisablehook = hook
+
+
+def check_workers(client: Any, backend: str) -> list[WorkerReport]:
+    """Each Dask worker's report (mazelab.experiments.warmup), asked before any run: a worker that cannot
+    run the study's `backend` (compiled without numba) or whose package versions differ from the
+    others' would make rows that do not belong together, so it is refused in one line naming it."""
+    try:
+        reports = client.run(worker_report)
+    except Exception as error:  # a worker without mazelab, or gone
+        reason = str(error).splitlines()[0] if str(error) else type(error).__name__
+        raise ValueError(f"the Dask workers cannot say their backend: {reason}") from None
+    reports = [reports[address] for address in sorted(reports)]
+    for report in reports:
+        if backend == "compiled" and report.packages.get("numba") is None:
+            raise ValueError(f"the Dask worker {report.describe()} cannot run the compiled backend: install numba "
+                             "there, or give --backend numpy")  # fmt: skip
+        if report.packages != reports[0].packages:
+            raise ValueError(
+                f"the Dask workers disagree ({reports[0].describe()}; {report.describe()}): start every worker "
+                "with the same packages"
+            )
+    return reports
+
+
+def close_client(client: Any) -> None:
+    """Close the connection (the cluster itself goes on); quietly, also when the cluster is gone."""
+    with suppress(Exception):
+        client.close(timeout=CONNECT_SECONDS)
+
+
+def describe_workers(client: Any) -> str:
+    """'no worker is left' or 'N worker(s) connected', for the timeout's message."""
+    try:
+        count = len(client.scheduler_info(n_workers=-1).get("workers", {}))
+    except TypeError:  # an older distributed without n_workers
+        count = len(client.scheduler_info().get("workers", {}))
+    except Exception:
+        return "the scheduler does not answer"
+    return "no worker is left" if count == 0 else f"{count} worker(s) connected, none finishing"
+
+
+# -- the runs --------------------------------------------------------------------------------------------
 def default_workers() -> int:
     """All the cores this process may use."""
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
@@ -73,33 +195,21 @@ def study_backend(tasks: Sequence[RunTask], processes: int) -> str:
     return backend_for_work(*study_work(tasks), processes=max(1, min(processes, len(tasks))))
 
 
-def run_unit_timed(unit: Sequence[RunTask], backend: str) -> list[UnitOutcome]:
-    """A unit of runs on `backend` (`run_unit_safely`), each finished run's records given run_seconds
-    (the unit's wall time less the start-up spent in it, divided by its runs), then this process's
-    WorkerReport. Each plug-in's spec is the one that imports its shipped code here (RunTask.here)."""
+def run_unit_timed(unit: Sequence[RunTask], backend: str, visualize: Any = False) -> list[UnitOutcome]:
+    """A unit of runs on `backend` (`run_unit_safely`; with `visualize`, its one run drawn, in this process
+    where the viewer is), each finished run's records given run_seconds (the unit's wall time less the
+    start-up spent in it, divided by its runs), then this process's WorkerReport. Each plug-in's spec is
+    the one that imports its shipped code here (RunTask.here)."""
     with use_backend(backend):
         started = time.perf_counter()
-        outcomes: list[UnitOutcome] = list(run_unit_safely([task.here() for task in unit]))
+        tasks = [task.here() for task in unit]
+        outcomes: list[UnitOutcome] = [run_task_safely(tasks[0], visualize)] if visualize else run_unit_safely(tasks)
         startup = take_startup_seconds()
         share = (time.perf_counter() - started - startup) / max(len(unit), 1)
         for outcome in outcomes:
             for record in outcome if isinstance(outcome, list) else ():
                 record.run_seconds = share
         return [*outcomes, worker_report(startup)]
-
-
-def draw_task(task: RunTask, visualize: Any, backend: str) -> list[UnitOutcome]:
-    """The drawn run, in this process (the viewer is here): its records (or its failure), then the report."""
-    started = time.perf_counter()
-    with use_backend(backend):
-        try:
-            records = run_task(task.here(), visualize)
-        except Exception as error:
-            return [RunFailure(task, f"{type(error).__name__}: {error}"), worker_report(take_startup_seconds())]
-        startup = take_startup_seconds()
-        for record in records:
-            record.run_seconds = time.perf_counter() - started - startup
-        return [records, worker_report(startup)]
 
 
 def run_study(
@@ -163,7 +273,7 @@ def run_tasks(tasks: Sequence[RunTask], workers: int, client: Any, backend: str,
 
     def here() -> None:
         for task in drawn:
-            collect(draw_task(task, visualize, backend))
+            collect(run_unit_timed((task,), backend, visualize))
             advance()
 
     Units(units, work, workers, client, timeout).run(collect, advance, here)
@@ -434,23 +544,3 @@ def progress_bar(total: int, show: bool, what: str = "runs") -> Iterator[Callabl
     with Progress(*columns, console=Console(stderr=True), transient=False) as bar:
         task = bar.add_task(what, total=total)
         yield lambda count=1: bar.advance(task, count)
-
-
-__all__ = [
-    "MAX_POOL_RESTARTS",
-    "STOP_SIGNALS",
-    "StudyLost",
-    "StudyStopped",
-    "Units",
-    "default_workers",
-    "draw_task",
-    "end_workers",
-    "progress_bar",
-    "run_study",
-    "run_unit_timed",
-    "signals_ignored",
-    "stop_signals",
-    "study_backend",
-    "study_work",
-    "worker_setup",
-]

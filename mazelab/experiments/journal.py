@@ -92,16 +92,35 @@ def lock(handle: int) -> bool:
     return True
 
 
+def open_own(path: Path, flags: int, doing: str = "open") -> int:
+    """The program's own file at `path`, opened with `flags` without following a link or waiting on a
+    pipe, and checked again on the open file (should the name have changed meanwhile): a JournalError of
+    one line for anything else at the name, or for a file it cannot `doing` (FileNotFoundError as it is)."""
+    check_own_file(path)
+    try:
+        handle = os.open(path, flags | _NOFOLLOW | _NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    except FileNotFoundError:
+        raise
+    except OSError as error:
+        if error.errno in (errno.ELOOP, errno.EMLINK, errno.ENXIO):  # a symlink; a pipe with no reader
+            check_own_file(path)
+            raise JournalError(_not_ours(path, "not a regular file")) from None
+        raise JournalError(f"{path}: cannot {doing} it ({error.strerror or error})") from None
+    try:
+        check_own_file(path, os.fstat(handle))
+    except JournalError:
+        os.close(handle)
+        raise
+    return handle
+
+
 def journal_state(path: Path) -> str | None:
     """What holds a journal's name: None (nothing), "busy" (another study writing it), "left" (one left
     by an earlier study); one line for anything but the program's own regular file."""
     check_own_file(path)
     if not path.exists():
         return None
-    try:
-        handle = os.open(path, os.O_RDONLY | _NOFOLLOW | _NONBLOCK)
-    except OSError as error:
-        raise JournalError(f"{path}: cannot open it ({error.strerror or error})") from None
+    handle = open_own(path, os.O_RDONLY)
     try:
         return "left" if lock(handle) else "busy"
     finally:
@@ -122,7 +141,7 @@ class Journal:
             self._handle: int | None = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | _NOFOLLOW, 0o666)
             left = False
         except FileExistsError:
-            self._handle, left = self._open_left(), True
+            self._handle, left = open_own(self.path, os.O_WRONLY), True
         if not lock(self._handle):
             self.close()
             raise JournalError(f"another study is writing {self.path}: give this one another --csv")
@@ -132,22 +151,6 @@ class Journal:
         size = os.fstat(self._handle).st_size
         os.ftruncate(self._handle, 0 if not adopt else _whole_lines(self.path, size))
         os.lseek(self._handle, 0, os.SEEK_END)
-
-    def _open_left(self) -> int:
-        """An earlier journal, opened without following a link and checked again on the open file."""
-        try:
-            handle = os.open(self.path, os.O_WRONLY | _NOFOLLOW | _NONBLOCK)
-        except OSError as error:
-            if error.errno in (errno.ELOOP, errno.EMLINK, errno.ENXIO):  # a symlink; a pipe with no reader
-                check_own_file(self.path)
-                raise JournalError(_not_ours(self.path, "not a regular file")) from None
-            raise
-        try:
-            check_own_file(self.path, os.fstat(handle))
-        except JournalError:
-            os.close(handle)
-            raise
-        return handle
 
     def write(self, line: dict[str, Any]) -> None:
         """Append one line (JSON; numbers in full, NaN as NaN); after a write error nothing more."""
@@ -196,15 +199,8 @@ def read_journal(path: str | Path) -> list[dict[str, Any]]:
     as UTF-8 text that fits in memory; a last line cut short is left out, any other line that is not a
     JSON object is a JournalError of one line naming the file and line."""
     path = Path(path)
-    check_own_file(path)
+    handle = open_own(path, os.O_RDONLY, "read")
     try:
-        handle = os.open(path, os.O_RDONLY | _NOFOLLOW | _NONBLOCK | getattr(os, "O_CLOEXEC", 0))
-    except FileNotFoundError:
-        raise
-    except OSError as error:
-        raise JournalError(f"{path}: cannot read it ({error.strerror or error})") from None
-    try:
-        check_own_file(path, os.fstat(handle))  # what was opened, should the name have changed meanwhile
         size = os.fstat(handle).st_size
         check_memory(f"reading {path} ({size} bytes)", size * MEMORY_PER_BYTE)
         with os.fdopen(os.dup(handle), "rb") as stream:
@@ -354,47 +350,10 @@ def check_plugin_code(recorded: dict[str, Any], plan: Any, path: Path) -> None:
             )
 
 
-# The columns of a row that the plan fixes for its (setting, run): seed and maze first (the message
-# names the first that differs), then the parameters, then the options its filter ran with.
-PLANNED_COLUMNS = (
-    "seed",
-    "maze_sha256",
-    "maze_seed",
-    "maze",
-    "wall_share",
-    "sigma",
-    "delta",
-    "particles",
-    "steps",
-    "kidnap_at",
-)
-
-
-def planned_cells(task: RunTask, filter_name: str) -> dict[str, Any]:
-    """The cells that run `task`'s row of filter `filter_name` must hold: PLANNED_COLUMNS (a generated
-    maze's sha256 is its run's own maze's, which maze_seed fixes), then every option the filter runs
-    with in the task's setting (as the row holds them, `option_cell`)."""
-    s = task.setting
-    values = {
-        "seed": task.seed,
-        "maze_sha256": s.maze.sha256,
-        "maze_seed": task.maze_seed,
-        "maze": s.maze.label,
-        "wall_share": s.maze.wall_share,
-        "sigma": s.sigma,
-        "delta": s.delta,
-        "particles": s.particles,
-        "steps": task.steps,
-        "kidnap_at": task.kidnap_at,
-    }
-    if s.maze.grid is None:
-        del values["maze_sha256"]
-    return {**values, **option_cells(s, filter_name)}
-
-
 def foreign_row(tasks: Sequence[RunTask], records: Sequence[RunRecord]) -> str | None:
     """Why the first record that is not one of `tasks`' rows is another study's (None when every record
-    is: a (setting, run) the tasks have, one of its filters, the seed, maze and parameters the task gives it)."""
+    is: a (setting, run) the tasks have, one of its filters, the cells the task fixes (RunTask.cells) and the
+    options its filter runs with in the task's setting)."""
     planned = {(t.setting_index, t.run): t for t in tasks}
     for record in records:
         task = planned.get((record.setting, record.run))
@@ -403,12 +362,12 @@ def foreign_row(tasks: Sequence[RunTask], records: Sequence[RunRecord]) -> str |
             return f"{where} is not in this study"
         if record.filter not in task.row_filters():
             return f"{where}: its filter {record.filter} is not one this study runs in setting {record.setting}"
-        expected = planned_cells(task, task.row_filters()[record.filter])
-        for name in record.options.keys() - expected.keys():
+        options = option_cells(task.setting, task.row_filters()[record.filter])
+        for name in record.options.keys() - options.keys():
             return f"{where}: its {name} is {record.options[name]}, an option {record.filter} does not take"
-        for column, value in expected.items():
-            found = getattr(record, column) if column in PLANNED_COLUMNS else record.options.get(column)
-            if not _same(found, value):
+        found = {**{column: getattr(record, column) for column in task.cells()}, **record.options}
+        for column, value in {**task.cells(), **options}.items():  # seed and maze first, then the parameters
+            if not _same(found.get(column), value):
                 return f"{where}: its {column} is {_shown(found)}, where this study has {_shown(value)}"
     return None
 
@@ -435,25 +394,3 @@ def missing_tasks(tasks: Sequence[RunTask], records: Sequence[RunRecord]) -> tup
         else:
             todo.append(task)
     return todo, kept
-
-
-__all__ = [
-    "CLAIM_SUFFIX",
-    "JOURNAL_SUFFIX",
-    "PLANNED_COLUMNS",
-    "Journal",
-    "JournalError",
-    "check_own_file",
-    "claim_outputs",
-    "earlier_sessions",
-    "foreign_row",
-    "journal_parameters",
-    "journal_path",
-    "journal_state",
-    "left_over",
-    "lock",
-    "missing_tasks",
-    "planned_cells",
-    "read_journal",
-    "resume_study",
-]

@@ -13,7 +13,6 @@ from typing import Any
 from mazelab import maze_generator
 from mazelab.checks import check_bandwidth_within, check_sigma_within
 from mazelab.declaration import scoped, to_plain_json
-from mazelab.experiments.plugin_code import PluginCode, plugin_codes
 from mazelab.experiments.runs import filter_key, parse_filters
 from mazelab.experiments.study import (
     BASE_PARAMETERS,
@@ -37,6 +36,7 @@ from mazelab.limits import check_particles, check_steps, check_study
 from mazelab.maze_generator import DEFAULT_WALL_SHARE
 from mazelab.maze_paths import MAZES_DIR
 from mazelab.mazes import DEFAULT_MAZE, find_maze, load_maze
+from mazelab.plugins import PluginCode, plugin_codes
 from mazelab.registry import filter_entry, resolve_filter
 from mazelab.seeding import new_seed
 
@@ -194,15 +194,15 @@ def plan_study(
     mazes: Sequence[MazeChoice], filters: str | Sequence[Any], *, sigma: Sequence[float], delta: Sequence[float],
     particles: Sequence[int], options: Mapping[str, Sequence[Any]] | None = None, runs: int = 30, steps: int = 200,
     seed: int | None = None, kidnap_at: int | None = None, kld: bool = False, traces: bool = False,
-    reference: str | None = None,
+    reference: str | None = None, spelled: Mapping[str, str] | None = None,
 ) -> StudyPlan:  # fmt: skip
     """Check and combine a study's values into its plan (a new root seed if none is given).
 
     `options` are the filter options the study sets, by name, each a list of values (a plug-in's
     included; `kld` is a spelling of {"kld": [True]}). An option that no filter of the study takes,
-    given a value other than its default, is refused in one line, and one given only its default is
-    left out (no filter runs it); every value, for every filter that takes it, is checked by its
-    declaration up front."""
+    given a value other than its default, is refused in one line (naming it as `spelled` says: the
+    command line's flag), and one given only its default is left out (no filter runs it); every value,
+    for every filter that takes it, is checked by its declaration up front."""
     names = parse_filters(filters) if isinstance(filters, str) else _filter_list(filters)
     classes = [resolve_filter(name) for name in names]
     given = {name: list(values) for name, values in (options or {}).items()}
@@ -211,7 +211,8 @@ def plan_study(
     for name, values in given.items():
         if not values:
             raise ValueError(f"option {name} has no values")
-    options_per_filter(names, {name: None if all_default(name, values) else values for name, values in given.items()})
+    checked = {name: None if all_default(name, values) else values for name, values in given.items()}
+    options_per_filter(names, checked, spelled)
     declared = set(option_columns(classes))
     given = {name: values for name, values in given.items() if scoped(name)[1] in declared}
     check_steps(steps)  # each run's limits, up front rather than in every worker
@@ -223,6 +224,7 @@ def plan_study(
     if reference is not None:
         check_reference(reference, settings)
     seed = new_seed() if seed is None else seed
+    kld = given.get("kld") == [True]  # the table's mean N column
     plan = StudyPlan(settings, names, runs, steps, seed, kidnap_at, kld, traces, reference, plugin_codes(names))
     plan.tasks()  # checks runs, steps and kidnap_at
     return plan
@@ -278,14 +280,3 @@ def _filter_list(filters: Sequence[Any]) -> list[Any]:
     if not chosen:
         raise ValueError("filters is empty; give e.g. ['sir', 'apf', 'rpf']")
     return list(dict.fromkeys(chosen))
-
-
-__all__ = [
-    "StudyPlan",
-    "all_default",
-    "is_shipped_maze",
-    "maze_description",
-    "plan_study",
-    "shipped_path",
-    "study_mazes",
-]

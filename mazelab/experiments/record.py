@@ -7,7 +7,6 @@ study's parameters against its journal's, mazelab.experiments.journal.)"""
 from __future__ import annotations
 
 import datetime as dt
-import hashlib
 import json
 import os
 import platform
@@ -103,11 +102,6 @@ def program_versions() -> dict[str, Any]:
     }
 
 
-def file_sha256(path: str | Path) -> str:
-    """The sha256 of a file's bytes (what `sha256sum FILE` prints)."""
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
-
-
 def now() -> str:
     """The current time, UTC, ISO 8601 to the second."""
     return dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
@@ -127,13 +121,16 @@ def peak_memory() -> dict[str, int | None]:
 
 
 def jsonable(value: Any) -> Any:
-    """Tuples as lists, numpy numbers as Python ones, NaN as None: what json.dumps writes and reads back."""
+    """Tuples, ranges and arrays as lists, numpy numbers as Python ones, paths as text, NaN as None: what
+    json.dumps writes and reads back."""
     if isinstance(value, Mapping):
         return {str(k): jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
+    if isinstance(value, (list, tuple, range)):
         return [jsonable(v) for v in value]
-    if isinstance(value, np.generic):
-        value = value.item()
+    if isinstance(value, os.PathLike):
+        return os.fspath(value)
+    if isinstance(value, (np.generic, np.ndarray)):
+        return jsonable(value.tolist())  # Python numbers, or lists of them
     if isinstance(value, float) and value != value:
         return None
     return value
@@ -183,21 +180,3 @@ def differences(recorded: Mapping[str, Any], given: Mapping[str, Any], ignore: S
     given = jsonable(given)
     names = [k for k in dict.fromkeys([*recorded, *given]) if k not in ignore]
     return [f"{k}: {recorded.get(k)!r} -> {given.get(k)!r}" for k in names if recorded.get(k) != given.get(k)]
-
-
-__all__ = [
-    "DEPENDENCIES",
-    "RECORD_FORMAT",
-    "RECORD_SUFFIX",
-    "Recorder",
-    "dependency_versions",
-    "differences",
-    "file_sha256",
-    "git_commit",
-    "jsonable",
-    "now",
-    "package_version",
-    "peak_memory",
-    "program_versions",
-    "record_path",
-]

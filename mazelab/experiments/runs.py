@@ -1,30 +1,74 @@
-"""Several filters on one robot walk, and the figures of one run.
+"""Several filters on one robot walk, the figures of one run (a kidnapped run's too), and comparing the
+filters on one saved scenario (lab steps 12-13: every filter replays the same start, initial particles, angles and
+measurements; `compare_filters` returns their RunResults, `comparison_table`, `errors_csv` and
+`plot_errors` report them).
 
 Figures of one run:
     last-20% error    `final_error` (its CSV column): the mean error over the last FINAL_SHARE (20%) of the
                       steps, robust to one unlucky step (the last-step error is errors[-1]);
-    convergence step  `convergence_step`: the step from which the error stays below CONVERGENCE_RADIUS.
+    convergence step  `convergence_step`: the step from which the error stays below CONVERGENCE_RADIUS;
+    re-localised      `relocalised`, after a kidnapping: the mean error over the last DEFAULT_WINDOW steps
+                      is below CONVERGENCE_RADIUS;
+    steps to recover  `recovery_steps`: R - kidnap_at, R the first step from which the error stays below
+                      CONVERGENCE_RADIUS to the end (None when the last error is not below it).
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from mazelab.backend import backend_by_work
-from mazelab.contract import takes
+from mazelab.contract import options_for, takes
+from mazelab.experiments.tables import format_number, format_table, pyplot, records_csv, save_figure
 from mazelab.experiments.warmup import warm_up_filters
 from mazelab.maze import Maze
-from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
-from mazelab.plugins import canonical_spec, is_plugin_spec
-from mazelab.registry import filter_entry, resolve_filter
+from mazelab.model import CONVERGENCE_RADIUS, DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
+from mazelab.registry import described, filter_entry, resolve_filter, rgb
 from mazelab.robot import Robot
-from mazelab.simulation import RunResult, simulate
+from mazelab.simulation import RunResult, convergence_step, simulate
+from mazelab.viz.views import open_comparison
 
 FINAL_SHARE = 0.2  # the last-20% error (`final_error`) is the mean error over this share of the last steps
+DEFAULT_WINDOW = 30  # re-localised: mean error over this many final steps below CONVERGENCE_RADIUS
+
+
+def walk_until(robot: Robot, kidnap_at: int) -> Robot:
+    """A copy of `robot` replaying only the steps before `kidnap_at` (angles and measurements), so that it
+    can be kidnapped there: a recorded walk after the jump would retrace the old place's path."""
+    if isinstance(kidnap_at, bool) or not isinstance(kidnap_at, int) or kidnap_at < 1:
+        raise ValueError(f"kidnap_at must be a step number >= 1, got {kidnap_at!r}")
+    keep = kidnap_at - 1
+    return Robot(
+        robot.sigma,
+        robot.delta,
+        robot.initial_position,
+        actual_angles=robot.actual_angles[:keep],
+        compass_angles=robot.compass_angles[:keep],
+        measurements=robot.measurements[:keep] if robot.measurements else None,
+        rng=robot.rng if robot.rng_given else None,
+        max_straight_steps=robot.max_straight_steps,
+        speed=robot.speed,
+    )
+
+
+def recovery_steps(result: RunResult) -> int | None:
+    """R - K: R the first step from which the error stays below CONVERGENCE_RADIUS, K the kidnap step."""
+    kidnap_at = result.kidnap_at
+    if kidnap_at is None:
+        raise ValueError("the run has no kidnapping")
+    since = convergence_step(result.errors[kidnap_at - 1 :])  # 1-based within the errors of steps K..end
+    return None if since is None else since - 1
+
+
+def relocalised(result: RunResult, window: int = DEFAULT_WINDOW) -> bool:
+    """The mean error over the last `window` steps is below CONVERGENCE_RADIUS."""
+    return bool(result.errors[-window:].mean() < CONVERGENCE_RADIUS)
 
 
 def final_error(errors: np.ndarray, share: float = FINAL_SHARE) -> float:
@@ -53,8 +97,9 @@ def parse_filters(text: str) -> list[str]:
 
 
 def filter_key(name: str) -> str:
-    """A shipped filter's class name, or a plug-in's spec with its absolute path."""
-    return canonical_spec(name) if is_plugin_spec(name) else resolve_filter(name).name
+    """A shipped filter's class name, or a plug-in's spec with its absolute path (what worker processes import)."""
+    entry = filter_entry(name)
+    return entry.reference if entry.plugin is not None else entry.name
 
 
 def filter_labels(names: Sequence[str]) -> list[str]:
@@ -87,7 +132,7 @@ def run_filters(
     particles: Sequence[Sequence[float]] | np.ndarray | None = None,
     particle_count: int | None = None,
     steps: int | None = None,
-    comparison: Any = None,
+    visualize: Any = False,
     kidnap_at: int | None = None,
     options: Mapping[str, Mapping[str, Any]] | None = None,
 ) -> dict[str, RunResult]:
@@ -96,31 +141,21 @@ def run_filters(
     The first run records the walk and measurements (if the robot has none) and draws the particles
     (if none are given); every later filter replays exactly those, the kidnapping (`kidnap_at`, its
     place drawn from `seed`) included. Each filter's random draws come from `seed`, and with
-    `comparison` (open_comparison) each run draws into its own view. `options` maps a filter's name
-    (as in `filter_names`) to its own options. Before the first timed step, each filter is warmed
-    once per process (mazelab.experiments.warmup): a filter's time per step is the same in any order.
+    `visualize` the runs are drawn side by side in one recording (open_comparison). `options` maps a
+    filter's name (as in `filter_names`) to its own options. Before the first timed step, each filter is
+    warmed once per process (mazelab.experiments.warmup): a filter's time per step is the same in any order.
     """
     count = particle_count if particles is None else len(particles)
     total = steps or robot.recorded_steps or DEFAULT_STEPS
     work = (count or DEFAULT_PARTICLE_COUNT) * total * len(filter_names), total * len(filter_names)
     results: dict[str, RunResult] = {}
-    with backend_by_work(*work):  # the warm-up and the runs on one backend (numba where it pays)
+    comparison = open_comparison(visualize, world, filter_labels(filter_names))  # without drawing: no recording
+    with backend_by_work(*work), contextlib.closing(comparison):  # the warm-up and the runs on one backend
         warm_up_filters(world, sigma, delta, filter_names, count, options or {})
         for name in filter_names:
-            result = simulate(
-                robot,
-                world,
-                sigma,
-                delta,
-                particle_count,
-                steps,
-                particles,
-                name,
-                seed=seed,
-                view=None if comparison is None else comparison.view_for(resolve_filter(name).name),
-                kidnap_at=kidnap_at,
-                **(options or {}).get(name, {}),
-            )
+            view = comparison.view_for(resolve_filter(name).name)
+            result = simulate(robot, world, sigma, delta, particle_count, steps, particles, name, seed=seed, view=view,
+                              kidnap_at=kidnap_at, **(options or {}).get(name, {}))  # fmt: skip
             if particles is None:
                 particles = result.initial_particles
             steps = len(result.errors)
@@ -133,15 +168,133 @@ def mean_particle_count(result: RunResult) -> float:
     return float(np.mean(result.extras["particle_count"]))
 
 
-__all__ = [
-    "FINAL_SHARE",
-    "filter_key",
-    "filter_labels",
-    "filter_options",
-    "final_error",
-    "is_particle_filter",
-    "mean_ess",
-    "mean_particle_count",
-    "parse_filters",
-    "run_filters",
-]
+def final_log_evidence(result: RunResult) -> float:
+    """log p(z_1:K) after the last step as the filter estimates it (NaN when it keeps none)."""
+    return math.nan if result.log_evidence is None else float(result.log_evidence[-1])
+
+
+def run_figures(name: str, result: RunResult) -> dict[str, Any]:
+    """The figures of filter `name`'s run, by the study CSV's names (every table and record of a run reads
+    them here): last-20% and mean error, convergence step, mean ESS, ms per step, with a kidnapping whether
+    it re-localised and its steps to recover (None without), mean particle count, the final log evidence
+    and why it is not of p(z_1:K) under the model (the registry's caveat), its label and its backend."""
+    entry = described(name)
+    kidnapped = result.kidnap_at is not None
+    return {
+        "final_error": final_error(result.errors),
+        "mean_error": float(result.errors.mean()),
+        "converged_at": result.converged_at,
+        "mean_ess": mean_ess(result),
+        "ms_per_step": 1e3 * float(result.step_seconds.mean()),
+        "relocalised": relocalised(result) if kidnapped else None,
+        "steps_to_recover": recovery_steps(result) if kidnapped else None,
+        "mean_particle_count": mean_particle_count(result),
+        "log_evidence": final_log_evidence(result),
+        "log_evidence_caveat": entry.evidence,
+        "label": entry.label,
+        "backend": result.extras.get("backend", "numpy"),
+    }
+
+
+# -- comparing the filters on one saved scenario (lab steps 12-13) ---------------------------------
+def compare_filters(
+    world: Maze,
+    robot: Robot,
+    sigma: float,
+    delta: float,
+    particles: Sequence[Sequence[float]],
+    filter_names: Sequence[str],
+    *,
+    seed: int,
+    visualize: Any = False,
+    kidnap_at: int | None = None,
+    **options: Any,
+) -> dict[str, RunResult]:
+    """Lab steps 12-13: every filter on one saved scenario, drawn side by side in one recording.
+
+    `kidnap_at=K` on a scenario recorded without a kidnapping replays its walk up to step K - 1; then
+    the robot is carried to a free place drawn from `seed` and walks on, every filter seeing the same.
+    `options` (e.g. recovery="sensor", bandwidth="multimodal") reach each filter that declares them; one
+    that none of the filters declares is refused in one line."""
+    per_filter = options_for([resolve_filter(name) for name in filter_names], options)
+    steps = robot.recorded_steps
+    if kidnap_at is not None and robot.kidnap_at is None:
+        robot = walk_until(robot, kidnap_at)
+    options = {name: per_filter[resolve_filter(name).name] for name in filter_names}
+    return run_filters(world, robot, sigma, delta, filter_names, seed=seed, particles=particles, steps=steps,
+                       visualize=visualize, kidnap_at=kidnap_at, options=options)  # fmt: skip
+
+
+def comparison_table(results: dict[str, RunResult], kld: bool = False, startup_seconds: float | None = None) -> str:
+    """Per filter: mean error, last-20% error (the mean error over the last 20% of the steps), convergence
+    step, mean ESS, the log evidence log p(z_1:K) of the whole walk (its estimate; exact for the grid
+    filter; '-' for a filter that keeps none; marked '*' where it is not an estimate of p(z_1:K) under the
+    model, a line under the table says why) and milliseconds per step with the backend it ran on; with a
+    kidnapping, whether the filter re-localised and in how many steps; with `kld`, the mean particle
+    count. With `startup_seconds` (the process's one-off costs), a line saying what ms/step is."""
+    figures = {name: run_figures(name, result) for name, result in results.items()}
+    kidnapped = any(result.kidnap_at is not None for result in results.values())
+    backends = {f["backend"] for f in figures.values()}
+    headers = ["filter", "mean error", f"last-{FINAL_SHARE:.0%} error", "converged at", "mean ESS", "log p(z_1:K)",
+               f"ms/step, {next(iter(backends))}" if len(backends) == 1 else "ms/step, backend"]  # fmt: skip
+    headers += ["re-localised", "steps to recover"] * kidnapped + ["mean N"] * kld
+    rows, caveats = [], {f["label"]: f["log_evidence_caveat"] for f in figures.values() if f["log_evidence_caveat"]}
+    for name, f in figures.items():
+        row = [
+            f["label"],
+            f"{f['mean_error']:.3f}",
+            f"{f['final_error']:.3f}",
+            "never" if f["converged_at"] is None else f"step {f['converged_at']}",
+            format_number(f["mean_ess"], "{:.0f}"),
+            format_number(f["log_evidence"], "{:.1f}") + ("*" if f["log_evidence_caveat"] else ""),
+            f"{f['ms_per_step']:.2f}" + ("" if len(backends) == 1 else f" {f['backend']}"),
+        ]
+        if kidnapped:
+            steps = f["steps_to_recover"]
+            row += ["yes" if f["relocalised"] else "no", "never" if steps is None else str(steps)]
+        if kld:
+            row.append(f"{f['mean_particle_count']:.0f}" if is_particle_filter(name) else "-")
+        rows.append(row)
+    notes = [f"[* {label}: the log evidence is {why}]" for label, why in caveats.items()]
+    if startup_seconds is not None:
+        notes.append(startup_note(startup_seconds))
+    return "\n".join([format_table(headers, rows), *notes])
+
+
+def startup_note(seconds: float) -> str:
+    """The line that says what ms/step is, and reports the start-up apart from it."""
+    return (
+        f"[ms/step: one run's steps of each filter, on the backend named, after untimed warm-up steps; start-up "
+        f"(numba's kernels loaded, first calls) {seconds:.2f} s, not in ms/step]"
+    )
+
+
+def errors_csv(results: dict[str, RunResult]) -> str:
+    """Per-step errors as CSV: a `step` column (1..steps), then one column per filter."""
+    columns = {name: result.errors for name, result in results.items()}
+    steps = range(len(next(iter(columns.values()))))
+    rows = [{"step": k + 1, **{name: float(errors[k]) for name, errors in columns.items()}} for k in steps]
+    return records_csv(rows, ["step", *columns])
+
+
+def plot_errors(results: dict[str, RunResult], path: Path, title: str, *, replace: bool = True) -> None:
+    """The lab's figure: error against step, one line per filter in its registry colour, each with a line
+    style and markers of its own (the lines stay apart in grey print), saved to `path` (png, pdf or svg)."""
+    plt = pyplot()
+    figure, axes = plt.subplots(figsize=(8, 4.5), layout="constrained")
+    for i, (name, result) in enumerate(results.items()):
+        steps = np.arange(1, len(result.errors) + 1)
+        entry = described(name)  # the registry's label and colour, as in the viewer
+        axes.plot(steps, result.errors, label=entry.label, color=rgb(entry.colour), linewidth=1.2,
+                  linestyle=LINE_STYLES[i % len(LINE_STYLES)], marker=MARKERS[i % len(MARKERS)],
+                  markevery=(i, max(1, len(steps) // 12)), markersize=4)  # fmt: skip
+    axes.axhline(CONVERGENCE_RADIUS, color="grey", linestyle="--", linewidth=0.8, label="convergence radius")
+    axes.set(title=title, xlabel="step k", ylabel="error |estimate - true position| (map units)")
+    axes.set_ylim(bottom=0)
+    axes.grid(alpha=0.3)
+    axes.legend()
+    save_figure(figure, path, replace=replace)
+
+
+MARKERS = ("o", "s", "^", "D", "v", "P", "X")  # each line of a figure a marker and a line style of its own
+LINE_STYLES = ("-", "--", ":", "-.")

@@ -19,18 +19,16 @@ import numpy as np
 
 from mazelab.contract import not_taken, options_for
 from mazelab.declaration import Option, options_of, scoped, show_value
-from mazelab.experiments.kidnapping import recovery_steps, relocalised
-from mazelab.experiments.plugin_code import PluginCode, filters_here
-from mazelab.experiments.runs import filter_labels, final_error, mean_ess, mean_particle_count, run_filters
+from mazelab.experiments.runs import run_figures, run_filters
 from mazelab.experiments.warmup import WorkerReport
 from mazelab.maze import STATION_WALL, Maze
 from mazelab.maze_generator import DEFAULT_WALL_SHARE, generate_maze
 from mazelab.model import check_model_parameters
-from mazelab.registry import entries, evidence_caveat, filter_entry, labels, resolve_filter
+from mazelab.plugins import PluginCode, file_sha256, filters_here
+from mazelab.registry import entries, filter_entry, resolve_filter
 from mazelab.robot import Robot
 from mazelab.seeding import start_place, study_seeds
-from mazelab.simulation import RunResult, convergence_step
-from mazelab.viz.views import open_comparison
+from mazelab.simulation import RunResult
 
 
 # -- a study: settings, runs and seeds -------------------------------------------------------------
@@ -50,7 +48,7 @@ class MazeChoice:
     @classmethod
     def from_maze(cls, label: str, world: Maze, path: str | Path | None = None) -> MazeChoice:
         """A maze file's grid; with `path`, the file's path and content hash are kept too."""
-        digest = hashlib.sha256(Path(path).read_bytes()).hexdigest() if path is not None else None
+        digest = file_sha256(path) if path is not None else None
         return cls(
             label, grid=tuple(map(tuple, world.as_lists())), path=None if path is None else str(path), sha256=digest
         )
@@ -237,21 +235,21 @@ def _checked(key: str, values: Sequence[Any]) -> list[Any]:
     return list(dict.fromkeys(checked))
 
 
-def declared_option(key: str) -> Option | None:
-    """The declaration of a study's option: its filter's for FILTER.NAME, else the first of the lab's
-    filters that declares it (None: only a plug-in declares it)."""
+def declared_option(key: str, filters: Sequence[str | type] | None = None) -> Option | None:
+    """The declaration of an option a study or a command sets: its filter's for FILTER.NAME, else the first
+    of `filters` (default: the lab's) that declares it (None: none of them does)."""
     scope, name = scoped(key)
-    chosen = [filter_entry(scope)] if scope is not None else entries()
+    chosen = [filter_entry(scope)] if scope else entries() if filters is None else map(filter_entry, filters)
     return next((entry.options[name] for entry in chosen if name in entry.options), None)
 
 
 def varied_parameters(settings: Sequence[StudySetting]) -> list[str]:
     """The parameters that take more than one value across the settings."""
-    return [p for p in study_parameters(settings) if len({_key(s.value(p)) for s in settings}) > 1]
+    return [p for p in study_parameters(settings) if len({hashable(s.value(p)) for s in settings}) > 1]
 
 
-def _key(value: Any) -> Any:
-    """A value as a set member (an object option's fields, a list as a tuple)."""
+def hashable(value: Any) -> Any:
+    """A value as a set member: a list or a dict (an object option's fields) as its repr."""
     return value if not isinstance(value, (list, dict)) else repr(value)
 
 
@@ -273,7 +271,7 @@ class RunTask:
 
     def here(self) -> RunTask:
         """This run with each plug-in's spec the one that imports its shipped code in this process
-        (mazelab.experiments.plugin_code): a worker runs the code the study was planned with."""
+        (mazelab.plugins.PluginCode): a worker runs the code the study was planned with."""
         if not self.plugins:
             return self
         return dataclasses.replace(self, filters=filters_here(self.filters, self.plugins))
@@ -281,6 +279,18 @@ class RunTask:
     def filter_options(self, name: str) -> dict[str, Any]:
         """Filter `name`'s options in this run (those of the setting it declares)."""
         return self.setting.filter_options(name)
+
+    def cells(self) -> dict[str, Any]:
+        """The cells of this run's rows that its seeds and setting fix, seed and maze first (what a journal's
+        kept row is checked by, mazelab.experiments.journal.foreign_row); a generated maze's sha256 is left
+        out (its run's own maze's, which maze_seed fixes)."""
+        s = self.setting
+        cells = {"seed": self.seed, "maze_sha256": s.maze.sha256, "maze_seed": self.maze_seed, "maze": s.maze.label,
+                 "wall_share": s.maze.wall_share, "sigma": s.sigma, "delta": s.delta, "particles": s.particles,
+                 "steps": self.steps, "kidnap_at": self.kidnap_at}  # fmt: skip
+        if s.maze.grid is None:
+            del cells["maze_sha256"]
+        return cells
 
     def row_filters(self) -> dict[str, str]:
         """The `filter` cells of this run's rows (each filter's name: a plug-in's is its class's), to
@@ -298,7 +308,7 @@ def filters_per_setting(settings: Sequence[StudySetting], filters: Sequence[str]
     for setting in settings:
         mine = []
         for name in filters:
-            key = (name, *(_key(setting.value(p)) if takes_parameter(name, p) else None for p in parameters))
+            key = (name, *(hashable(setting.value(p)) if takes_parameter(name, p) else None for p in parameters))
             if key not in seen:
                 seen.add(key)
                 mine.append(name)
@@ -322,7 +332,7 @@ def study_tasks(
     (`filters_per_setting`; a setting that runs none has no tasks). `traces` keeps each run's per-step
     trace (mazelab.experiments.traces); `reference` ("grid") measures each filter against the exact
     posterior (`with_reference`); `plugins` the code of the plug-ins among the filters
-    (mazelab.experiments.plugin_code), sent with every run."""
+    (mazelab.plugins.PluginCode), sent with every run."""
     if runs < 1 or steps < 1:
         raise ValueError(f"runs and steps must be >= 1, got {runs} runs and {steps} steps")
     if kidnap_at is not None and not 1 <= kidnap_at <= steps:
@@ -436,27 +446,13 @@ def run_task(task: RunTask, visualize: Any = False) -> list[RunRecord]:
     """One run of a study: one scenario, every filter on it; a record per filter."""
     s = task.setting
     world = s.maze.world(task.maze_seed)
-    comparison = open_comparison(visualize, world, filter_labels(task.filters)) if visualize else None
-    try:
-        with warnings.catch_warnings():  # the range warnings were shown once, by study_settings
-            warnings.simplefilter("ignore", UserWarning)
-            robot = Robot(s.sigma, s.delta, start_place(world, task.seed))
-            results = run_filters(
-                world,
-                robot,
-                s.sigma,
-                s.delta,
-                task.filters,
-                seed=task.seed,
-                particle_count=s.particles,
-                steps=task.steps,
-                comparison=comparison,
-                kidnap_at=task.kidnap_at,
-                options={name: task.filter_options(name) for name in task.filters},
-            )
-    finally:
-        if comparison is not None:
-            comparison.close()
+    with warnings.catch_warnings():  # the range warnings were shown once, by study_settings
+        warnings.simplefilter("ignore", UserWarning)
+        robot = Robot(s.sigma, s.delta, start_place(world, task.seed))
+        options = {name: task.filter_options(name) for name in task.filters}
+        results = run_filters(world, robot, s.sigma, s.delta, task.filters, seed=task.seed, visualize=visualize,
+                              particle_count=s.particles, steps=task.steps, kidnap_at=task.kidnap_at,
+                              options=options)  # fmt: skip
     records = run_records(task, world, results)
     return with_reference(task, world, robot, results, records) if task.reference else records
 
@@ -514,46 +510,23 @@ def exact_means(key: tuple[Any, ...], world: Maze, robot: Robot) -> np.ndarray:
 
 
 def run_records(task: RunTask, world: Maze, results: dict[str, RunResult]) -> list[RunRecord]:
-    """The study's rows of one run: a record per filter's result (with its per-step trace if the task
-    asks for it)."""
+    """The study's rows of one run: a record per filter's result (its figures, `run_figures`), with its
+    per-step trace if the task asks for it."""
     s = task.setting
-    stations = int((world.grid == STATION_WALL).sum())
-    records = [
-        RunRecord(
-            task.setting_index,
-            task.run,
-            task.seed,
-            s.maze.label,
-            task.maze_seed,
-            stations,
-            s.sigma,
-            s.delta,
-            s.particles,
-            task.steps,
-            name,
-            final_error(result.errors),
-            float(result.errors.mean()),
-            convergence_step(result.errors),
-            mean_ess(result),
-            1e3 * float(result.step_seconds.mean()),
-            task.kidnap_at,
-            *kidnap_figures(result),
-            mean_particle_count(result),
-            s.maze.sha256 if s.maze.sha256 is not None else maze_text_sha256(world),
-            int(world.grid.shape[0]),
-            int(world.grid.shape[1]),
-            s.maze.wall_share,
-            log_evidence=final_log_evidence(result),
-            log_evidence_caveat=evidence_caveat(name),
-            label=labels([name])[name],
-            backend=result.extras.get("backend", "numpy"),
-            options=option_cells(s, name),
-        )
-        for name, result in results.items()
-    ]
-    if task.traces:
-        for record, result in zip(records, results.values(), strict=True):
+    shared = {  # the run's cells, the same for every filter
+        **task.cells(),
+        "maze_sha256": s.maze.sha256 if s.maze.sha256 is not None else maze_text_sha256(world),
+        "station_blocks": int((world.grid == STATION_WALL).sum()),
+        "maze_rows": int(world.grid.shape[0]),
+        "maze_columns": int(world.grid.shape[1]),
+    }
+    records = []
+    for name, result in results.items():
+        cells = {"filter": name, **shared, **run_figures(name, result), "options": option_cells(s, name)}
+        record = RunRecord(task.setting_index, task.run, **cells)
+        if task.traces:
             record.trace = trace_of(result)
+        records.append(record)
     return records
 
 
@@ -591,22 +564,10 @@ def trace_of(result: RunResult) -> dict[str, Any]:
     }
 
 
-def final_log_evidence(result: RunResult) -> float:
-    """log p(z_1:K) after the last step as the filter estimates it (NaN when it keeps none)."""
-    return math.nan if result.log_evidence is None else float(result.log_evidence[-1])
-
-
-def kidnap_figures(result: RunResult) -> tuple[bool | None, int | None]:
-    """(re-localised, steps to recover) of a run with a kidnapping; (None, None) without one."""
-    if result.kidnap_at is None:
-        return None, None
-    return relocalised(result), recovery_steps(result)
-
-
-def run_task_safely(task: RunTask) -> list[RunRecord] | RunFailure:
+def run_task_safely(task: RunTask, visualize: Any = False) -> list[RunRecord] | RunFailure:
     """`run_task`, with an exception turned into a RunFailure so that the other runs go on."""
     try:
-        return run_task(task)
+        return run_task(task, visualize)
     except Exception as error:
         return RunFailure(task, f"{type(error).__name__}: {error}")
 
@@ -656,39 +617,3 @@ class StudyOutcome:
         order = {name: i for i, name in enumerate(dict.fromkeys(r.filter for r in self.records))}
         self.records.sort(key=lambda r: (r.setting, r.run, order[r.filter]))
         self.failures.sort(key=lambda f: (f.task.setting_index, f.task.run))
-
-
-__all__ = [
-    "BASE_PARAMETERS",
-    "MODEL_PARAMETERS",
-    "REFERENCE",
-    "MazeChoice",
-    "RunFailure",
-    "RunRecord",
-    "RunTask",
-    "StudyOutcome",
-    "StudySetting",
-    "declared_option",
-    "distance_to_exact",
-    "exact_means",
-    "file_mazes",
-    "filters_per_setting",
-    "final_log_evidence",
-    "is_option_parameter",
-    "kidnap_figures",
-    "option_cell",
-    "option_cells",
-    "option_columns",
-    "options_per_filter",
-    "reaches",
-    "run_records",
-    "run_task",
-    "run_task_safely",
-    "study_parameters",
-    "study_settings",
-    "study_tasks",
-    "takes_parameter",
-    "trace_of",
-    "varied_parameters",
-    "with_reference",
-]

@@ -13,7 +13,7 @@ parameters, laid out as the design (maze x sigma: a row per maze, a column per s
 - every line has a marker and a line style of its own, so the lines stay apart in grey print;
 - the figure is PAPER_WIDTH inches wide with FONT_POINTS type (a two-column paper's full width), PNG
   at PNG_DPI, or PDF / SVG with their text as text (the path's suffix chooses);
-- the filters' colours are the registry's (mazelab.registry.colour_of), as in the viewer.
+- the filters' colours are the registry's (mazelab.registry.described), as in the viewer.
 """
 
 from __future__ import annotations
@@ -29,13 +29,13 @@ from typing import Any
 
 import numpy as np
 
-from mazelab.experiments.compare import LINE_STYLES, MARKERS
-from mazelab.experiments.runs import FINAL_SHARE
+from mazelab.declaration import show_value
+from mazelab.experiments.runs import FINAL_SHARE, LINE_STYLES, MARKERS
 from mazelab.experiments.stats import CONFIDENCE_LEVEL
-from mazelab.experiments.study import MODEL_PARAMETERS, declared_option, is_option_parameter, takes_parameter
+from mazelab.experiments.study import MODEL_PARAMETERS, declared_option, hashable, is_option_parameter, takes_parameter
 from mazelab.experiments.summary import StudySummary
-from mazelab.experiments.tables import format_value, pyplot, save_figure
-from mazelab.registry import colour_of, labels, rgb
+from mazelab.experiments.tables import pyplot, save_figure
+from mazelab.registry import described, rgb
 
 NUMERIC_PARAMETERS = MODEL_PARAMETERS  # the x axis, first choice first (then a numeric option)
 PARAMETER_LABELS = {
@@ -126,6 +126,8 @@ class FigureLayout:
     panels: list[str]
     lines: list[str]
     shape: tuple[int, int] = (1, 1)  # rows x columns of panels, as the design
+    options: list[str] = field(default_factory=list)  # the varied options the lines tell apart
+    facets: list[str] = field(default_factory=list)  # the other varied parameters, a panel per combination
     y_ranges: list[tuple[float, float]] = field(default_factory=list)
     boxes: list[tuple[float, float, float, float]] = field(default_factory=list)
     references: list[list[str]] = field(default_factory=list)  # per panel: the lines drawn as references
@@ -153,10 +155,10 @@ def choose_x(summaries: Sequence[StudySummary], varied: Sequence[str], x: str | 
 
 def figure_layout(
     summaries: Sequence[StudySummary], varied: Sequence[str], x: str | None = None
-) -> tuple[FigureLayout, dict[str, list[StudySummary]], dict[str, list[StudySummary]]]:
+) -> tuple[FigureLayout, dict[str, list[StudySummary]]]:
     """Split the varied parameters into the x axis, the lines and the panels; returns the layout and
-    the summaries by panel and by line. A filter that does not take a panel's parameter (the grid
-    filter and the RPF's bandwidth) is in every panel that agrees on the parameters it does take."""
+    the summaries by panel. A filter that does not take a panel's parameter (the grid filter and the
+    RPF's bandwidth) is in every panel that agrees on the parameters it does take."""
     x = choose_x(summaries, varied, x)
     options = [p for p in varied if is_option_parameter(p) and p != x]
     facets = [p for p in varied if p != x and p not in options]
@@ -164,13 +166,13 @@ def figure_layout(
     for s in summaries:
         panel_values.setdefault(_panel_title(s, facets), {p: s.setting.value(p) for p in facets})
     panels: dict[str, list[StudySummary]] = {title: [] for title in panel_values}
-    lines: dict[str, list[StudySummary]] = {}
     for s in summaries:
-        lines.setdefault(line_label(s, options), []).append(s)
         for title, values in panel_values.items():
             if all(not takes_parameter(s.filter, p) or s.setting.value(p) == v for p, v in values.items()):
                 panels[title].append(s)
-    return FigureLayout(x, list(panels), list(lines), panel_grid(summaries, facets, len(panels))), panels, lines
+    lines = list(dict.fromkeys(line_label(s, options) for s in summaries))
+    shape = panel_grid(summaries, facets, len(panels))
+    return FigureLayout(x, list(panels), lines, shape, options, facets), panels
 
 
 def panel_grid(summaries: Sequence[StudySummary], facets: Sequence[str], count: int) -> tuple[int, int]:
@@ -180,15 +182,11 @@ def panel_grid(summaries: Sequence[StudySummary], facets: Sequence[str], count: 
     if count <= 1:
         return 1, 1
     if len(facets) >= 2:
-        columns = len({_key(s.setting.value(facets[-1])) for s in summaries})
+        columns = len({hashable(s.setting.value(facets[-1])) for s in summaries})
         if count % columns == 0:
             return count // columns, columns
     columns = min(MAX_COLUMNS, count) if count != 4 else 2
     return math.ceil(count / columns), columns
-
-
-def _key(value: Any) -> Any:
-    return repr(value) if isinstance(value, (list, dict)) else value
 
 
 def _panel_title(summary: StudySummary, facets: Sequence[str]) -> str:
@@ -197,13 +195,13 @@ def _panel_title(summary: StudySummary, facets: Sequence[str]) -> str:
 
 def line_label(summary: StudySummary, options: Sequence[str]) -> str:
     """'RPF, bandwidth multimodal': the filter and the varied options it takes."""
-    name = labels([summary.filter])[summary.filter]  # the registry's label (SIR), as the viewer's
+    name = described(summary.filter).label  # the registry's label (SIR), as the viewer's
     taken = [_named(p, summary.setting.value(p)) for p in options if takes_parameter(summary.filter, p)]
     return ", ".join([name, *taken])
 
 
 def _named(parameter: str, value: Any) -> str:
-    return format_value(value) if parameter == "maze" else f"{parameter} {format_value(value)}"
+    return show_value(value) if parameter == "maze" else f"{parameter} {show_value(value)}"
 
 
 def axis_label(parameter: str | None) -> str:
@@ -245,7 +243,7 @@ def panel_lines(
         if x is not None and not reference:
             points = sorted(points, key=lambda s: _sort_key(s.setting.value(x)))
         marker, style = MARKERS[index % len(MARKERS)], LINE_STYLES[index % len(LINE_STYLES)]
-        lines.append(_Line(label, rgb(colour_of(name)), marker, points, reference, style))
+        lines.append(_Line(label, rgb(described(name).colour), marker, points, reference, style))
     return lines
 
 
@@ -269,9 +267,8 @@ def plot_study(
         summaries = [s for s in summaries if s.paired_with]
         quantity = dataclasses.replace(quantity, label=paired_label(summaries))
     with matplotlib.rc_context(STYLE):
-        layout, panels, _ = figure_layout(summaries, varied, x)
-        x = layout.x
-        options = [p for p in varied if is_option_parameter(p) and p != x]
+        layout, panels = figure_layout(summaries, varied, x)
+        x, options = layout.x, layout.options
         count = len(layout.panels)
         rows, columns = layout.shape
         figure, axes = plt.subplots(
@@ -297,13 +294,23 @@ def plot_study(
         figure.suptitle("\n".join(wrapped for line in lines for wrapped in textwrap.wrap(line, CAPTION_WIDTH)))
         save_figure(figure, path, replace=replace, dpi=PNG_DPI)
         boxes = [tuple(float(v) for v in ax.get_position().extents) for ax in axes.flat[:count]]
-    return FigureLayout(layout.x, layout.panels, layout.lines, layout.shape, ranges, boxes, references)
+    return dataclasses.replace(layout, y_ranges=ranges, boxes=boxes, references=references)
+
+
+def draw_study(
+    summaries: Sequence[StudySummary], varied: Sequence[str], path: Path, runs: int, maze: str, *, x: str | None = None,
+    y: str = "mean", title: str | None = None, replace: bool = True,
+) -> FigureLayout:  # fmt: skip
+    """The study's figure as `mazelab study --plot` and `mazelab.study(...).figure` draw it: the program's
+    title (`study_title`) and caption, or `title` alone."""
+    shown = title or study_title(varied, summaries, runs, maze, x, y)
+    return plot_study(summaries, varied or ["maze"], path, shown, replace=replace, x=x, y=y, caption=title is None)
 
 
 def paired_label(summaries: Sequence[StudySummary]) -> str:
     """The paired difference's axis: 'last-20% error minus SIR's (map units)'."""
     other = summaries[0].paired_with or ""
-    return f"last-{FINAL_SHARE:.0%} error minus {labels([other])[other]}'s (map units)"
+    return f"last-{FINAL_SHARE:.0%} error minus {described(other).label}'s (map units)"
 
 
 def describe(scale: XScale, panels: int, quantity: YQuantity) -> str:
@@ -324,19 +331,16 @@ def study_title(
 ) -> str:
     """The figure's first line: what is drawn against what (the x axis, then the panels' and the lines'
     parameters), and the runs per point."""
-    layout, _, _ = figure_layout(summaries, varied or ["maze"], x)
-    x = layout.x
-    against = f" against {x}" if x is not None and varied else " per filter"  # nothing varied: one point each
-    panel_parameters = [p for p in varied if p != x and not is_option_parameter(p)]
-    line_parameters = [p for p in varied if p != x and is_option_parameter(p)]
-    parts = [f"panels by {', '.join(panel_parameters)}"] if panel_parameters else []
-    parts += [f"lines by filter, {', '.join(line_parameters)}"] if line_parameters else []
+    layout, _ = figure_layout(summaries, varied or ["maze"], x)
+    against = f" against {layout.x}" if layout.x is not None and varied else " per filter"  # nothing varied: one point
+    parts = [f"panels by {', '.join(layout.facets)}"] if layout.facets else []
+    parts += [f"lines by filter, {', '.join(layout.options)}"] if layout.options else []
     where = "" if "maze" in varied else f" on {maze}"
     extra = f" ({'; '.join(parts)})" if parts else ""
     what = Y_QUANTITIES[y].label.split(" (")[0].capitalize()
     paired = next((s.paired_with for s in summaries if s.paired_with), None)
     if y == "paired" and paired is not None:
-        what = f"Paired difference to {labels([paired])[paired]} in last-{FINAL_SHARE:.0%} error"
+        what = f"Paired difference to {described(paired).label} in last-{FINAL_SHARE:.0%} error"
     return f"{what}{against}{where}{extra}, {runs} runs per point"
 
 
@@ -356,7 +360,7 @@ class XScale:
         if x is None:
             return cls("category")
         if not is_numeric(summaries, x):
-            return cls("category", x, tuple(dict.fromkeys(format_value(s.setting.value(x)) for s in summaries)))
+            return cls("category", x, tuple(dict.fromkeys(show_value(s.setting.value(x)) for s in summaries)))
         values = sorted({float(s.setting.value(x)) for s in summaries})
         log = x == "particles" and values[0] > 0 and values[-1] / values[0] >= 2  # N doubling: equal steps
         where = np.log10(values) if log else np.array(values)
@@ -366,7 +370,7 @@ class XScale:
     def position(self, value: Any) -> float:
         """The value's place in the transformed coordinate (log10 for a log axis)."""
         if self.kind == "category":
-            return float(self.categories.index(format_value(value)))
+            return float(self.categories.index(show_value(value)))
         return math.log10(float(value)) if self.kind == "log" else float(value)
 
     def back(self, where: np.ndarray) -> np.ndarray:
@@ -425,7 +429,7 @@ def x_axis(ax: Any, scale: XScale, all_labels: Sequence[str]) -> None:
         ax.set_xscale("log")
         ax.minorticks_off()
     if scale.kind != "category" and 1 < len(scale.values) <= 8:
-        ax.set_xticks(scale.values, [format_value(v) for v in scale.values])  # the studied values, as given
+        ax.set_xticks(scale.values, [show_value(v) for v in scale.values])  # the studied values, as given
     if scale.kind == "category":
         names = scale.categories or tuple(all_labels)
         ax.set_xticks(range(len(names)), names, rotation=20 if max(map(len, names)) > 8 else 0, ha="right")
@@ -455,23 +459,3 @@ def _legend(figure: Any, axes: Sequence[Any], order: Sequence[str], marked: set[
     shown = [name.replace(name.split(",")[0], name.split(",")[0] + "*", 1) if name.split(",")[0] in marked else name
              for name in names]  # fmt: skip
     figure.legend([seen[n] for n in names], shown, loc="outside lower center", ncols=min(4, len(names)), frameon=False)
-
-
-__all__ = [
-    "FONT_POINTS",
-    "NUMERIC_PARAMETERS",
-    "PAPER_WIDTH",
-    "PNG_DPI",
-    "Y_LABEL",
-    "Y_QUANTITIES",
-    "FigureLayout",
-    "XScale",
-    "axis_label",
-    "choose_x",
-    "figure_layout",
-    "is_numeric",
-    "line_label",
-    "plot_study",
-    "study_title",
-    "y_quantity",
-]

@@ -10,8 +10,6 @@ the radius near its end is not counted, and "converged" agrees with a small last
 
 from __future__ import annotations
 
-import csv
-import io
 import math
 import statistics
 from collections.abc import Sequence
@@ -19,6 +17,7 @@ from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any
 
+from mazelab.declaration import show_value
 from mazelab.experiments.runs import FINAL_SHARE, is_particle_filter
 from mazelab.experiments.stats import (
     BOOTSTRAP_SAMPLES,
@@ -39,9 +38,15 @@ from mazelab.experiments.study import (
     takes_parameter,
     varied_parameters,
 )
-from mazelab.experiments.tables import csv_cell, format_number, format_optional, format_table, format_value, records_csv
+from mazelab.experiments.tables import (
+    format_interval,
+    format_number,
+    format_optional,
+    format_table,
+    records_csv,
+)
 from mazelab.model import CONVERGENCE_RADIUS
-from mazelab.registry import labels, resolve_filter
+from mazelab.registry import described, resolve_filter
 
 Interval = tuple[float, float]
 
@@ -211,7 +216,7 @@ def describe_setting(
         "sigma": f"sigma {setting.sigma:g}",
         "delta": f"delta {setting.delta:g}",
         "particles": f"{setting.particles} particles",
-        **{name: f"{name} {format_value(value)}" for name, value in setting.options},
+        **{name: f"{name} {show_value(value)}" for name, value in setting.options},
     }
     kidnapping = "" if kidnap_at is None else f", kidnapped at step {kidnap_at}"
     fixed = [text for parameter, text in parts.items() if parameter not in varied]
@@ -222,7 +227,7 @@ def describe_varied(settings: Sequence[StudySetting], varied: Sequence[str]) -> 
     """The varied parameters with their values: 'varied: sigma 0.2, 0.4; bandwidth optimal, multimodal'."""
     if not varied:
         return ""
-    values = {p: list(dict.fromkeys(format_value(s.value(p)) for s in settings)) for p in varied}
+    values = {p: list(dict.fromkeys(show_value(s.value(p)) for s in settings)) for p in varied}
     return "varied: " + "; ".join(f"{p} {', '.join(v)}" for p, v in values.items())
 
 
@@ -238,7 +243,7 @@ def interval_note(summaries: Sequence[StudySummary] = ()) -> str:
         f"({steps}); median conv. step: Kaplan-Meier, the runs that never converge censored there "
         f"('>{last or 'N'}': not reached), its interval from the log-log band]",
     ]
-    caveats = {labels([s.filter])[s.filter]: s.log_evidence_caveat for s in summaries if s.log_evidence_caveat}
+    caveats = {described(s.filter).label: s.log_evidence_caveat for s in summaries if s.log_evidence_caveat}
     lines += [f"[* {label}: the log evidence is {why}]" for label, why in caveats.items()]
     backend = ", ".join(sorted({s.backend for s in summaries}))
     lines.append(
@@ -247,16 +252,12 @@ def interval_note(summaries: Sequence[StudySummary] = ()) -> str:
     )
     reference = next((s.paired_with for s in summaries if s.paired_with), None)
     if reference is not None:
-        label = labels([reference])[reference]
+        label = described(reference).label
         lines.append(
             f"[diff. vs {label}: the filter's last-20% error minus {label}'s on the same runs (negative: "
             f"smaller), mean over the pairs, paired BCa bootstrap interval (the runs resampled as pairs)]"
         )
     return "\n".join(lines)
-
-
-def _interval(low: float, high: float, spec: str = "{:.3f}") -> str:
-    return "-" if math.isnan(low) else f"[{spec.format(low)}, {spec.format(high)}]"
 
 
 def _step(value: float | None, last: int) -> str:
@@ -274,13 +275,13 @@ def study_table(summaries: Sequence[StudySummary], varied: Sequence[str], kld: b
     backends = {s.backend for s in summaries}
     ci, nan = f"{CONFIDENCE_LEVEL:.0%} CI", (math.nan, math.nan)
     columns = [
-        *((p, lambda s, p=p: format_value(s.setting.value(p)) if takes_parameter(s.filter, p) else "-")
+        *((p, lambda s, p=p: show_value(s.setting.value(p)) if takes_parameter(s.filter, p) else "-")
           for p in varied),
-        ("filter", lambda s: labels([s.filter])[s.filter]), ("runs", lambda s: str(s.runs)),
-        ("mean last-20% error", lambda s: f"{s.mean_final_error:.3f}"), (ci, lambda s: _interval(*s.interval)),
-        ("median", lambda s: f"{s.median_final_error:.3f}"), (ci, lambda s: _interval(*s.median_interval)),
+        ("filter", lambda s: described(s.filter).label), ("runs", lambda s: str(s.runs)),
+        ("mean last-20% error", lambda s: f"{s.mean_final_error:.3f}"), (ci, lambda s: format_interval(*s.interval)),
+        ("median", lambda s: f"{s.median_final_error:.3f}"), (ci, lambda s: format_interval(*s.median_interval)),
         ("converged", lambda s: f"{s.converged_share:.0%}"),
-        (ci, lambda s: _interval(*s.converged_interval, spec="{:.0%}")),
+        (ci, lambda s: format_interval(*s.converged_interval, spec="{:.0%}")),
         ("median conv. step", lambda s: _step(s.median_convergence_step, s.last_convergence_step)),
         (ci, lambda s: _step_interval(s.convergence_interval, s.last_convergence_step)),
         ("log p(z_1:K) (SE)", _evidence),
@@ -289,18 +290,18 @@ def study_table(summaries: Sequence[StudySummary], varied: Sequence[str], kld: b
     ]  # fmt: skip
     if any(s.relocalised_share is not None for s in summaries):
         columns += [("re-localised", lambda s: format_optional(s.relocalised_share, "{:.0%}")),
-                    (ci, lambda s: _interval(*(s.relocalised_interval or nan), spec="{:.0%}")),
+                    (ci, lambda s: format_interval(*(s.relocalised_interval or nan), spec="{:.0%}")),
                     ("median steps to recover", lambda s: format_optional(s.median_steps_to_recover, "{:g}")),
                     ]  # fmt: skip
     if kld:
         columns.append(("mean N", lambda s: f"{s.mean_particle_count:.0f}" if is_particle_filter(s.filter) else "-"))
     if any(not math.isnan(s.distance_to_exact) for s in summaries):
         columns += [("dist. to exact", lambda s: format_number(s.distance_to_exact, "{:.3f}")),
-                    (ci, lambda s: _interval(*s.distance_interval))]  # fmt: skip
+                    (ci, lambda s: format_interval(*s.distance_interval))]  # fmt: skip
     if reference:
-        columns += [(f"diff. vs {labels([reference])[reference]}",
+        columns += [(f"diff. vs {described(reference).label}",
                      lambda s: format_number(s.mean_difference, "{:+.3f}")),
-                    (ci, lambda s: _interval(*s.difference_interval, spec="{:+.3f}"))]  # fmt: skip
+                    (ci, lambda s: format_interval(*s.difference_interval, spec="{:+.3f}"))]  # fmt: skip
     rows = [[cell(s) for _, cell in columns] for s in summaries]
     return format_table([header for header, _ in columns], rows) + "\n" + interval_note(summaries)
 
@@ -377,7 +378,7 @@ def summary_rows(summaries: Sequence[StudySummary], columns: Sequence[str] = ())
                 **{p: s.setting.value(p) if takes_parameter(s.filter, p) else None for p in BASE_PARAMETERS},
                 **{name: cells.get(name) for name in columns},
                 "filter": s.filter,
-                "label": labels([s.filter])[s.filter],
+                "label": described(s.filter).label,
                 **{name: read(s) for name, read in SUMMARY_STATISTICS},
             }
         )
@@ -386,43 +387,10 @@ def summary_rows(summaries: Sequence[StudySummary], columns: Sequence[str] = ())
 
 def summary_csv(summaries: Sequence[StudySummary], columns: Sequence[str] = ()) -> str:
     """The summary rows (`summary_rows`) as CSV: an empty cell for None, NaN and 'not reached'."""
-    buffer = io.StringIO()
-    writer = csv.writer(buffer, lineterminator="\n")
-    writer.writerow(["setting", *BASE_PARAMETERS, *columns, "filter", "label", *(n for n, _ in SUMMARY_STATISTICS)])
-    for row in summary_rows(summaries, columns):
-        writer.writerow([csv_cell(value) for value in row.values()])
-    return buffer.getvalue()
+    header = ["setting", *BASE_PARAMETERS, *columns, "filter", "label", *(n for n, _ in SUMMARY_STATISTICS)]
+    return records_csv(summary_rows(summaries, columns), header)
 
 
 def summary_path(csv_path: Path) -> Path:
     """Where the summary CSV goes by default: NAME.summary.csv beside the rows' NAME.csv."""
     return csv_path.with_name(f"{csv_path.stem}.summary.csv")
-
-
-def study_csv(records: Sequence[RunRecord], columns: Sequence[str] = CSV_COLUMNS) -> str:
-    """One row per run and filter, columns CSV_COLUMNS then the study's option columns; an empty cell for
-    None and NaN, and for an option the row's filter does not declare."""
-    return records_csv(records, columns)
-
-
-__all__ = [
-    "CSV_COLUMNS",
-    "CSV_DTYPES",
-    "SUMMARY_STATISTICS",
-    "StudySummary",
-    "converged_within",
-    "convergence_window",
-    "describe_setting",
-    "describe_varied",
-    "interval_note",
-    "last_convergence_step",
-    "paired_finals",
-    "pairs_exactly",
-    "recovery_summary",
-    "study_csv",
-    "study_table",
-    "summarise_study",
-    "summary_csv",
-    "summary_path",
-    "summary_rows",
-]

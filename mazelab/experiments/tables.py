@@ -12,7 +12,6 @@ from pathlib import Path
 from typing import Any
 
 from mazelab.atomic import write_bytes_atomically
-from mazelab.declaration import show_value
 
 PLOT_INSTALL_HINT = 'plotting needs matplotlib: pip install -e ".[plot]"'
 
@@ -56,13 +55,13 @@ def format_number(value: float, spec: str) -> str:
     return "-" if math.isnan(value) else spec.format(value)
 
 
+def format_interval(low: float, high: float, spec: str = "{:.3f}") -> str:
+    """'[low, high]' in `spec`, or '-' for an interval that could not be made (NaN)."""
+    return "-" if math.isnan(low) else f"[{spec.format(low)}, {spec.format(high)}]"
+
+
 def format_optional(value: float | None, spec: str) -> str:
     return "-" if value is None else spec.format(value)
-
-
-def format_value(value: Any) -> str:
-    """A parameter's value in a table or a label: 0.05, multimodal, none (mazelab.declaration)."""
-    return show_value(value)
 
 
 def csv_cell(value: Any) -> Any:
@@ -86,10 +85,11 @@ def _field_names(record_class: type) -> tuple[str, ...]:
 
 
 def records_csv(records: Sequence[Any], columns: Sequence[str]) -> str:
-    """CSV text of dataclass records, one row each in `columns` order (then any option column the
-    records carry, in the order they first appear); an empty cell for None and NaN, floats written in
-    full (repr) so that the file reads back bit for bit."""
-    rows = [flat_row(record) for record in records]
+    """CSV text of rows (dicts, or dataclass records as `flat_row` spreads them), one row each in
+    `columns` order (then any other column the rows carry, in the order they first appear; `columns`
+    alone make the header of no rows); an empty cell for None and NaN, floats written in full (repr) so
+    that the file reads back bit for bit."""
+    rows = [record if isinstance(record, dict) else flat_row(record) for record in records]
     extra = dict.fromkeys(name for row in rows for name in row if name not in columns)
     buffer = io.StringIO()
     writer = csv.DictWriter(buffer, fieldnames=[*columns, *extra], lineterminator="\n")
@@ -97,17 +97,3 @@ def records_csv(records: Sequence[Any], columns: Sequence[str]) -> str:
     for row in rows:
         writer.writerow({k: csv_cell(v) for k, v in row.items()})
     return buffer.getvalue()
-
-
-__all__ = [
-    "PLOT_INSTALL_HINT",
-    "csv_cell",
-    "flat_row",
-    "format_number",
-    "format_optional",
-    "format_table",
-    "format_value",
-    "pyplot",
-    "records_csv",
-    "save_figure",
-]

@@ -18,7 +18,7 @@ import numpy as np
 
 from mazelab.atomic import write_bytes_atomically, write_text_atomically
 from mazelab.experiments.study import RunRecord, trace_of
-from mazelab.registry import evidence_caveat, labels
+from mazelab.registry import described
 from mazelab.simulation import RunResult
 
 TRACE_COLUMNS = [
@@ -132,7 +132,7 @@ def compare_traces(results: dict[str, RunResult], seed: int, maze: str | None = 
     blocks = []
     for name, result in results.items():
         inputs = result.inputs
-        parameters = {"label": labels([name])[name], "log_evidence_caveat": evidence_caveat(name), "maze": maze,
+        parameters = {"label": described(name).label, "log_evidence_caveat": described(name).evidence, "maze": maze,
                       "sigma": inputs.sigma, "delta": inputs.delta, "particles": len(inputs.particles)}  # fmt: skip
         blocks.append(trace_columns(None, 1, seed, name, trace_of(result), parameters))
     return blocks
@@ -229,24 +229,3 @@ def _filled(block: dict[str, Any], column: str) -> np.ndarray:
         return block[column]
     steps = len(block["step"])
     return np.full(steps, np.nan) if per_step(column) else np.full(steps, None, dtype=object)
-
-
-__all__ = [
-    "DIAGNOSTIC_PREFIX",
-    "EXACT_COLUMNS",
-    "PARAMETER_COLUMNS",
-    "PARQUET_HINT",
-    "TRACE_COLUMNS",
-    "check_trace_path",
-    "compare_traces",
-    "exact_columns",
-    "numeric",
-    "per_step",
-    "record_parameters",
-    "study_traces",
-    "trace_column_names",
-    "trace_columns",
-    "trace_csv_rows",
-    "trace_table_columns",
-    "write_traces",
-]

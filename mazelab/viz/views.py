@@ -23,13 +23,12 @@ from typing import Any
 
 import numpy as np
 
-from mazelab.contract import Density, Gaussian, Particles
+from mazelab.contract import Density, Gaussian, NullView, Particles
 from mazelab.kalman import covariance_ellipse
 from mazelab.maze import Maze
 from mazelab.model import CONFIDENCE_RADIUS
 from mazelab.modes import Mode
 from mazelab.registry import colour_of
-from mazelab.simulation import NullView
 from mazelab.viz.recording import Recording, heading_vectors
 from mazelab.viz.style import (
     CELL_DOT_RADIUS,
