@@ -16,7 +16,7 @@ the compiled one does the same arithmetic but for the sums' order, the last bit 
 own random streams, so a seed repeats a run on each, and the two agree statistically.
 
 Threads (the compiled backend's): a filter's large calls run on `thread_count()` threads, MAZELAB_THREADS
-(--threads) when set, else the machine's cores, shared within a study (`sharing_cores`: workers x
+(--threads) when set, else the machine's cores, shared within a study (`shared_threads`: workers x
 threads <= cores); `use_threads(1)` for `exercise grade`. The count changes how soon a run ends, never
 its numbers (mazelab.kernels).
 """
@@ -45,7 +45,6 @@ STARTUP_SECONDS = 0.5  # numba's import and first kernel set-up: the run's extra
 SAVED_PER_STEP = 60e-6  # a filter step's saving whatever its particles (fewer Python calls): 65-110 us at N = 100
 SAVED_PER_PARTICLE = 15e-9  # and per particle the step moves (R runs together: R x N): 9-30 ns
 _WORK_CHOICE: ContextVar[str | None] = ContextVar("mazelab_work_backend", default=None)  # backend_by_work's
-_SHARING: ContextVar[int] = ContextVar("mazelab_sharing", default=1)  # sharing_cores'
 
 
 @cache
@@ -149,32 +148,26 @@ def check_threads(value: Any, source: str = "threads") -> int:
 
 def thread_count() -> int:
     """The threads a filter made now runs its large calls on (mazelab.kernels.compiled.THREADED_FROM
-    particles and more; smaller ones run on one): MAZELAB_THREADS when set (--threads; checked), else
-    this process's share of the machine's cores, cores // the runs sharing them (`sharing_cores`), at
-    least 1."""
+    particles and more; smaller ones run on one): MAZELAB_THREADS when set (--threads, `use_threads`;
+    checked), else this machine's cores."""
     value = os.environ.get(THREADS_VARIABLE, "")
-    if value.strip():
-        return check_threads(value, THREADS_VARIABLE)
-    return max(1, cores() // _SHARING.get())
+    return check_threads(value, THREADS_VARIABLE) if value.strip() else cores()
 
 
-@contextmanager
-def sharing_cores(workers: int, client: Any = None) -> Iterator[int]:
-    """The filters made inside (in this thread) share the machine's cores with the other runs of a study
-    running at once: its `workers` local processes, or on a Dask cluster (`client`, a distributed.Client)
-    the most task threads one host has (each runs a unit). Each takes cores // those threads (yielded),
-    so that runs x threads <= cores; MAZELAB_THREADS (--threads) still stands."""
+def shared_threads(workers: int, client: Any = None) -> int:
+    """The threads each run of a study takes (its units run inside `use_threads` of it), so that the runs
+    at once x their threads <= cores: `thread_count()` when MAZELAB_THREADS (--threads) is set, else the
+    machine's cores // the runs at once on it, its `workers` local processes or, on a Dask cluster
+    (`client`, a distributed.Client), the most task threads one host has; at least 1."""
+    if os.environ.get(THREADS_VARIABLE, "").strip():
+        return thread_count()
     runs = workers
     if client is not None:
         hosts: dict[str, int] = {}
         for worker in client.scheduler_info(n_workers=-1)["workers"].values():
             hosts[worker["host"]] = hosts.get(worker["host"], 0) + worker["nthreads"]
         runs = max(hosts.values(), default=1)
-    token = _SHARING.set(max(1, runs))
-    try:
-        yield thread_count()
-    finally:
-        _SHARING.reset(token)
+    return max(1, cores() // max(1, runs))
 
 
 @contextmanager
@@ -254,7 +247,7 @@ __all__ = [
     "default_backend",
     "kernels_for",
     "numba_available",
-    "sharing_cores",
+    "shared_threads",
     "thread_count",
     "use_backend",
     "use_threads",

@@ -30,7 +30,7 @@ from mazelab.backend import (
     cores,
     default_backend,
     kernels_for,
-    sharing_cores,
+    shared_threads,
     thread_count,
     use_backend,
     use_threads,
@@ -254,20 +254,15 @@ def test_the_environment_variable_in_any_case_runs_and_the_repeat_line_names_the
 
 
 def test_a_filter_takes_the_machines_cores_its_share_of_them_or_the_threads_chosen(monkeypatch):
-    """thread_count: MAZELAB_THREADS (--threads) when set, else cores // the runs sharing the machine
-    (a study's workers: workers x threads <= cores), at least 1; use_threads sets it for a block."""
+    """thread_count: MAZELAB_THREADS (--threads) when set, else the machine's cores; a study's runs take
+    shared_threads: cores // the runs at once (workers x threads <= cores), at least 1, unless the user
+    chose; use_threads sets the count for a block."""
     monkeypatch.delenv(THREADS_VARIABLE, raising=False)
     assert thread_count() == cores()
-    with sharing_cores(2) as each:
-        assert each == thread_count() == max(1, cores() // 2)
-        with sharing_cores(10 * cores()):
-            assert thread_count() == 1
-        monkeypatch.setenv(THREADS_VARIABLE, "1")  # the user's choice stands
-        assert thread_count() == 1
-    monkeypatch.delenv(THREADS_VARIABLE)
-    assert thread_count() == cores()
+    assert shared_threads(2) == max(1, cores() // 2) and shared_threads(10 * cores()) == 1
     with use_threads(1) as chosen:
         assert chosen == os.environ[THREADS_VARIABLE] == "1" and thread_count() == 1
+        assert shared_threads(1) == 1  # the user's choice stands
     assert THREADS_VARIABLE not in os.environ
     monkeypatch.setenv(THREADS_VARIABLE, str(cores() + 1))
     with pytest.raises(ValueError, match=rf"^MAZELAB_THREADS must be a whole number from 1 to {cores()}"):
@@ -277,21 +272,28 @@ def test_a_filter_takes_the_machines_cores_its_share_of_them_or_the_threads_chos
 @needs_numba
 def test_the_compiled_kernels_of_a_filter_take_the_thread_count(paper_world, monkeypatch):
     monkeypatch.delenv(THREADS_VARIABLE, raising=False)
-    with use_backend("compiled"), sharing_cores(cores()):
+    with use_backend("compiled"), use_threads(shared_threads(cores())):
         assert kernels_for(paper_world).threads == 1
     with use_backend("compiled"):
         assert kernels_for(paper_world).threads == cores()
 
 
 def test_a_studys_runs_share_the_cores_of_their_machine_locally_and_on_a_dask_cluster(monkeypatch):
+    """Each unit of a study runs on shared_threads' count (run_unit_timed inside use_threads), from the
+    local workers or the Dask cluster's task threads on one host."""
     from distributed import Client, LocalCluster
 
+    from mazelab.experiments import executor
+
     monkeypatch.delenv(THREADS_VARIABLE, raising=False)
-    with sharing_cores(cores()) as each:
-        assert each == 1
+    assert shared_threads(cores()) == 1
     with (
         LocalCluster(n_workers=2, threads_per_worker=1, host="127.0.0.1", dashboard_address=":0") as cluster,
         Client(cluster) as client,
-        sharing_cores(1, client) as each,
     ):
-        assert each == max(1, cores() // 2)  # two workers of one task thread each, on one host
+        assert shared_threads(1, client) == max(1, cores() // 2)  # two workers of one task thread each, on one host
+    seen = []
+    monkeypatch.setattr(executor, "run_unit_safely", lambda tasks: seen.append(thread_count()) or [])
+    monkeypatch.setattr(executor, "worker_report", lambda startup: None)
+    executor.run_unit_timed([], "numpy", threads=cores() + 5)  # at most this machine's cores
+    assert seen == [cores()] and THREADS_VARIABLE not in os.environ

@@ -15,6 +15,7 @@ from typing import Annotated
 import typer
 
 from mazelab.atomic import write_bytes_atomically, write_text_atomically
+from mazelab.backend import use_threads
 from mazelab.cli.options import UserError, check_output_path, seed_option
 from mazelab.exercise.autograder import BundleError, bundle_bytes
 from mazelab.exercise.grading import (
@@ -211,7 +212,7 @@ def grade_command(
 
     book, started, stopped_by = Gradebook(csv_path, gradescope, force, catalogue), time.perf_counter(), None
     try:
-        with claimed(outputs), _stop_signals() as stop:
+        with claimed(outputs), _stop_signals() as stop, use_threads(1):  # submissions at once: a thread each
             try:
                 with progress_bar(len(submissions), not quiet, what="submissions") as advance:
 
