@@ -49,7 +49,12 @@ _WORK_CHOICE: ContextVar[str | None] = ContextVar("mazelab_work_backend", defaul
 
 @cache
 def numba_available() -> bool:
-    """Whether numba can be imported here (it is the `fast` extra), asked once per process."""
+    """Whether numba can be imported here (it is the `fast` extra), asked once per process.
+
+    Returns
+    -------
+    bool
+    """
     if importlib.util.find_spec("numba") is None:
         return False
     try:
@@ -60,13 +65,30 @@ def numba_available() -> bool:
 
 
 def default_backend() -> str:
-    """The backend without a choice: "compiled" when numba imports, else "numpy"."""
+    """The backend without a choice: "compiled" when numba imports, else "numpy".
+
+    Returns
+    -------
+    str
+    """
     return "compiled" if numba_available() else "numpy"
 
 
 def check_backend(name: Any, source: str = "backend") -> str:
-    """A backend's name, lower case and stripped, or one line naming the choices (and the extra for
-    "compiled"); `source` names what gave it (an option, the environment variable)."""
+    """A backend's name, lower case, or one line naming the choices (and the extra for "compiled").
+
+    Parameters
+    ----------
+    name : str
+        "numpy" or "compiled".
+    source : str
+        What gave the name, for the message (an option, the environment variable).
+
+    Returns
+    -------
+    str
+        The name, lower case and stripped.
+    """
     chosen = name.strip().lower() if isinstance(name, str) else name
     if chosen not in BACKENDS:
         raise ValueError(f"{source} must be one of {', '.join(BACKENDS)}, got {name!r}")
@@ -77,7 +99,13 @@ def check_backend(name: Any, source: str = "backend") -> str:
 
 def chosen_backend() -> str:
     """The backend a filter made now runs on: MAZELAB_BACKEND if set (checked), else the choice of the
-    enclosing `backend_by_work`, else the default."""
+    enclosing `backend_by_work`, else the default.
+
+    Returns
+    -------
+    str
+        "numpy" or "compiled".
+    """
     value = os.environ.get(ENVIRONMENT_VARIABLE, "")
     if value.strip():
         return check_backend(value, ENVIRONMENT_VARIABLE)
@@ -106,11 +134,24 @@ def compiled_pays(particle_steps: float, steps: float, processes: int = 1) -> bo
 
 
 def backend_for_work(particle_steps: float, steps: float, processes: int = 1) -> str:
-    """The backend a command of this much work (see compiled_pays) runs on: MAZELAB_BACKEND's when set
-    (the user's choice: --backend sets it), else "compiled" where numba is installed and its start-up
-    pays, else "numpy", numba then not imported. A command runs inside `use_backend(backend_for_work(...))`,
+    """The backend a command of this much work runs on: MAZELAB_BACKEND's when set (the user's choice:
+    --backend sets it), else "compiled" where numba is installed and its start-up pays (compiled_pays),
+    else "numpy", numba then not imported. A command runs inside `use_backend(backend_for_work(...))`,
     so that its filters, its worker processes and its records take the choice; library code inside
-    `backend_by_work`. A choice already made (MAZELAB_BACKEND, an enclosing backend_by_work) stands."""
+    `backend_by_work`. A choice already made (MAZELAB_BACKEND, an enclosing backend_by_work) stands.
+
+    Parameters
+    ----------
+    particle_steps, steps : float
+        The command's work (see compiled_pays).
+    processes : int
+        The processes it runs in.
+
+    Returns
+    -------
+    str
+        "numpy" or "compiled".
+    """
     chosen = os.environ.get(ENVIRONMENT_VARIABLE, "").strip() or _WORK_CHOICE.get() is not None
     if chosen or compiled_pays(particle_steps, steps, processes):
         return chosen_backend()
@@ -119,9 +160,20 @@ def backend_for_work(particle_steps: float, steps: float, processes: int = 1) ->
 
 @contextmanager
 def backend_by_work(particle_steps: float, steps: float) -> Iterator[str]:
-    """The filters made inside (in this thread) run on `backend_for_work`'s choice for this work (yielded),
-    without touching the environment (a library call such as `simulate` may run in a thread beside
-    others); an enclosing choice (MAZELAB_BACKEND, --backend, an outer `backend_by_work`) stands."""
+    """The filters made inside (in this thread) run on `backend_for_work`'s choice for this work, without
+    touching the environment (a library call such as `simulate` may run in a thread beside others); an
+    enclosing choice (MAZELAB_BACKEND, --backend, an outer `backend_by_work` for more work) stands.
+
+    Parameters
+    ----------
+    particle_steps, steps : float
+        The work (see compiled_pays).
+
+    Yields
+    ------
+    str
+        The backend chosen.
+    """
     token = _WORK_CHOICE.set(backend_for_work(particle_steps, steps))
     try:
         yield chosen_backend()
@@ -130,13 +182,28 @@ def backend_by_work(particle_steps: float, steps: float) -> Iterator[str]:
 
 
 def cores() -> int:
-    """The cores this process may run on (its CPU affinity where the system says, else the count)."""
+    """The cores this process may run on (its CPU affinity where the system says, else the count).
+
+    Returns
+    -------
+    int
+    """
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
 def check_threads(value: Any, source: str = "threads") -> int:
-    """A thread count from 1 to this machine's cores, or one line naming the range and `source` (an
-    option, the environment variable)."""
+    """A thread count from 1 to this machine's cores, or one line naming the range.
+
+    Parameters
+    ----------
+    value : int or str
+    source : str
+        What gave it, for the message (an option, the environment variable).
+
+    Returns
+    -------
+    int
+    """
     try:
         count = int(str(value).strip())
     except ValueError:
@@ -149,7 +216,12 @@ def check_threads(value: Any, source: str = "threads") -> int:
 def thread_count() -> int:
     """The threads a filter made now runs its large calls on (mazelab.kernels.compiled.THREADED_FROM
     particles and more; smaller ones run on one): MAZELAB_THREADS when set (--threads, `use_threads`;
-    checked), else this machine's cores."""
+    checked), else this machine's cores.
+
+    Returns
+    -------
+    int
+    """
     value = os.environ.get(THREADS_VARIABLE, "")
     return check_threads(value, THREADS_VARIABLE) if value.strip() else cores()
 
@@ -157,8 +229,20 @@ def thread_count() -> int:
 def shared_threads(workers: int, client: Any = None) -> int:
     """The threads each run of a study takes (its units run inside `use_threads` of it), so that the runs
     at once x their threads <= cores: `thread_count()` when MAZELAB_THREADS (--threads) is set, else the
-    machine's cores // the runs at once on it, its `workers` local processes or, on a Dask cluster
-    (`client`, a distributed.Client), the most task threads one host has; at least 1."""
+    machine's cores // the runs at once on it.
+
+    Parameters
+    ----------
+    workers : int
+        The study's local worker processes.
+    client : distributed.Client, optional
+        A Dask cluster's client: the runs at once are then the most task threads one host has.
+
+    Returns
+    -------
+    int
+        At least 1.
+    """
     if os.environ.get(THREADS_VARIABLE, "").strip():
         return thread_count()
     runs = workers
@@ -185,20 +269,48 @@ def _environment(variable: str, value: str) -> Iterator[str]:
 
 
 def use_backend(name: str) -> Any:
-    """Make the filters created inside run on the backend `name` ("numpy" or "compiled", checked and
-    yielded): MAZELAB_BACKEND for the time, so processes started inside take it too."""
+    """Make the filters created inside run on the backend `name` (it sets MAZELAB_BACKEND for the
+    time, so processes started inside inherit it too).
+
+    Parameters
+    ----------
+    name : str
+        "numpy" or "compiled".
+
+    Returns
+    -------
+    context manager
+        Yields the backend's checked name.
+    """
     return _environment(ENVIRONMENT_VARIABLE, check_backend(name))
 
 
 def use_threads(count: int) -> Any:
-    """Make the filters created inside run their large calls on `count` threads (checked; as a string
-    yielded): MAZELAB_THREADS for the time, so processes started inside take it too."""
+    """Make the filters created inside run their large calls on `count` threads (it sets MAZELAB_THREADS
+    for the time, so processes started inside inherit it too).
+
+    Parameters
+    ----------
+    count : int
+        From 1 to this machine's cores (checked).
+
+    Returns
+    -------
+    context manager
+        Yields the count as a string.
+    """
     return _environment(THREADS_VARIABLE, str(check_threads(count)))
 
 
 def backend_versions() -> dict[str, str | None]:
-    """What a record says of the backend: {"backend": the chosen one's name, "numba": numba's installed
-    version or None} (read from the package's metadata, so that a numpy run does not import numba)."""
+    """What a record says of the backend: the chosen one's name, and numba's installed version (None
+    without it; read from the package's metadata, so that a numpy run does not import numba).
+
+    Returns
+    -------
+    dict
+        {"backend": name, "numba": version or None}.
+    """
     try:
         version = importlib.metadata.version("numba")
     except importlib.metadata.PackageNotFoundError:
@@ -207,15 +319,36 @@ def backend_versions() -> dict[str, str | None]:
 
 
 def backend_of(filt: Any) -> str:
-    """The backend a filter ran on: its `backend` for the particle filters, "numpy" for any other (the
-    grid filter, the EKF and plug-ins use numpy directly)."""
+    """The backend a filter ran on: its `backend` for the particle filters, "numpy" for any other
+    (the grid filter, the EKF and plug-ins use numpy directly).
+
+    Parameters
+    ----------
+    filt : a filter
+
+    Returns
+    -------
+    str
+    """
     name = getattr(filt, "backend", None)
     return name if name in BACKENDS else "numpy"
 
 
 def kernels_for(world: Any, name: str | None = None) -> Any:
     """The operations of a filter on `world`: the numpy ones, or a new CompiledKernels on `thread_count()`
-    threads (it reads the maze's lookup tables) for the backend `name` (None: `chosen_backend()`)."""
+    threads.
+
+    Parameters
+    ----------
+    world : Maze
+        The filter's maze (the compiled likelihood reads its lookup tables).
+    name : str, optional
+        The backend (None: `chosen_backend()`).
+
+    Returns
+    -------
+    NumpyKernels or mazelab.kernels.compiled.CompiledKernels
+    """
     if (name or chosen_backend()) == "numpy":
         return NUMPY_KERNELS
     from mazelab.kernels.compiled import CompiledKernels  # imports numba: only when it runs
