@@ -66,7 +66,6 @@ CHILD_ENVIRONMENT = {  # the child's whole environment, and bwrap's: one thread 
     "OMP_NUM_THREADS": "1",
     "OPENBLAS_NUM_THREADS": "1",
     "MKL_NUM_THREADS": "1",
-    "MAZELAB_THREADS": "1",  # the compiled backend's too (mazelab.backend.thread_count)
     "PYTHONHASHSEED": "0",
     "HOME": "/tmp",
     "LANG": "C.UTF-8",
