@@ -23,7 +23,7 @@ modules, bottom to top (each imports only those above it in this list):
 
 from typing import Any
 
-__version__ = "0.2.0"
+__version__ = "0.3.0"
 
 
 def __getattr__(name: str) -> Any:

@@ -109,11 +109,11 @@ def test_the_same_command_after_an_interrupted_accuracy_resumes_it_and_another_r
     assert main([*args, "--csv", str(whole)]) == 0
     real, done = study_module.run_task, []
 
-    def stop_at_the_third(task):
+    def stop_at_the_third(task, visualize=False):
         if len(done) == 2:
             raise KeyboardInterrupt
         done.append(task)
-        return real(task)
+        return real(task, visualize)
 
     monkeypatch.setattr(study_module, "run_task", stop_at_the_third)
     assert main([*args, "--csv", str(table)]) == 130
