@@ -248,26 +248,3 @@ def _stat_value(path: Path, key: str) -> int:
 def _gib(size: float) -> str:
     """Bytes in GiB for a message: one decimal, or two below 1 GiB."""
     return f"{size / 2**30:.1f}" if size >= 2**30 else f"{size / 2**30:.2f}"
-
-
-__all__ = [
-    "BYTES_PER_LOOKUP_CELL",
-    "BYTES_PER_MAZE_CELL",
-    "BYTES_PER_PARTICLE",
-    "BYTES_PER_STEP",
-    "BYTES_PER_STUDY_RECORD",
-    "BYTES_PER_STUDY_RUN",
-    "MEMORY_SHARE",
-    "MemoryBudget",
-    "MemoryLimitError",
-    "available_ram",
-    "cgroup_limit",
-    "check_memory",
-    "check_particles",
-    "check_recording",
-    "check_steps",
-    "check_study",
-    "memory_budget",
-    "particle_count",
-    "process_limit",
-]

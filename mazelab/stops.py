@@ -10,8 +10,10 @@ import os
 import signal
 import sys
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Iterator
 from typing import Any
+
+STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
 
 
 class StoppedBySignal(SystemExit):
@@ -48,6 +50,22 @@ def mark_interrupts() -> Callable[[], None]:
         _marking = False
 
     return restore
+
+
+@contextlib.contextmanager
+def signal_handlers(signals: Iterable[int], handler: Any) -> Iterator[None]:
+    """`handler` (a function, or signal.SIG_IGN) for each of `signals` while the block runs, the previous
+    handlers put back after it; in a thread other than the main one (which cannot set handlers) nothing
+    changes. The one place the lab's commands set and restore their stop handlers."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {number: signal.signal(number, handler) for number in signals}
+    try:
+        yield
+    finally:
+        for number, old in previous.items():
+            signal.signal(number, old)
 
 
 def is_users_stop(error: BaseException) -> bool:

@@ -123,7 +123,7 @@ def test_accuracy_runs_on_the_named_shipped_mazes_not_on_whatever_is_in_mazes(tm
         (tmp_path / f"{name}.txt").write_text((mazes.MAZES_DIR / f"{name}.txt").read_text())
     (tmp_path / "random_20x20.txt").write_text((mazes.MAZES_DIR / "maze_20x20.txt").read_text())  # a student's
     monkeypatch.setattr(maze_paths, "MAZES_DIR", tmp_path)
-    from mazelab.cli import accuracy
+    from mazelab.cli import study as accuracy
 
     seen = []
     monkeypatch.setattr(accuracy, "run_and_report", lambda plan, *args: seen.extend(plan.parameters()["mazes"]))

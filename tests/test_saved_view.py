@@ -27,7 +27,7 @@ from headless_browser import DevToolsError, HeadlessBrowser, find_browser
 from rerun.chunk import RrdReader
 
 from mazelab.cli.app import main
-from mazelab.cli.view import recording_problem, replay_with_layout
+from mazelab.cli.recordings import recording_problem, replay_with_layout
 from mazelab.lab import simulate
 from mazelab.maze import Maze
 from mazelab.robot import Robot

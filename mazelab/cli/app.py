@@ -26,10 +26,8 @@ from typing import Annotated, Any
 import typer
 
 from mazelab.atomic import WriteError
-from mazelab.cli.accuracy import accuracy
 from mazelab.cli.exercise import exercise_app
-from mazelab.cli.filter_options import OptionFlag, filters, registry_help, with_option_flags
-from mazelab.cli.hints import filter_choices, option_elsewhere, plain_usage_names, refuse_option_as_value, usage_hint
+from mazelab.cli.filter_options import OptionFlag, filter_choices, filters, registry_help, with_option_flags
 from mazelab.cli.maze import maze_app
 from mazelab.cli.notebook import notebook
 from mazelab.cli.options import (
@@ -39,17 +37,19 @@ from mazelab.cli.options import (
     ThreadsOption,
     UserError,
     check_output_path,
+    option_elsewhere,
+    plain_usage_names,
     progress_printer,
+    refuse_option_as_value,
     report_run,
     seed_option,
+    usage_hint,
     visualization,
     warn_in_one_line,
     with_drawing,
 )
-from mazelab.cli.recordings import recordings
-from mazelab.cli.study import study
-from mazelab.cli.view import view
-from mazelab.experiments.executor import STOP_SIGNALS
+from mazelab.cli.recordings import recordings, view
+from mazelab.cli.study import accuracy, study
 from mazelab.experiments.record import package_version, program_versions
 from mazelab.invocation import command_prefix, remember_arguments
 from mazelab.maze import MazeError
@@ -58,7 +58,7 @@ from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
 from mazelab.plugins import StudentCodeError
 from mazelab.robot import Robot
 from mazelab.seeding import new_seed, start_place
-from mazelab.stops import exit_without_strays, mark_interrupts
+from mazelab.stops import STOP_SIGNALS, exit_without_strays, mark_interrupts
 from mazelab.viz.recording import web_serving_deferred, write_errors_deferred
 
 app = typer.Typer(

@@ -4,11 +4,11 @@
 from __future__ import annotations
 
 import contextlib
+import functools
 import secrets
 import signal
-import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Annotated
 
@@ -40,6 +40,7 @@ from mazelab.exercise.sandbox import DEFAULT_BUDGET, MAX_TIMEOUT, SandboxError, 
 from mazelab.exercise.template import write_exercise
 from mazelab.invocation import python_prefix
 from mazelab.plugins import is_plugin_spec, split_spec
+from mazelab.stops import STOP_SIGNALS, signal_handlers
 
 exercise_app = typer.Typer(
     help="Write your own filter (new), grade it (check), a class's folder (grade), on Gradescope (autograder).",
@@ -122,23 +123,24 @@ def check_command(
     except SandboxError as error:
         raise UserError(f"{error}; nothing graded (the grader's machine, not the submission)") from None
     except NotGradableError as error:
-        if results is not None:
-            graded = Graded(Submission(Path(spec).name, None), None, str(error), time.perf_counter() - started)
-            write_text_atomically(results, gradescope_json(graded, catalogue), replace=force)
+        graded = Graded(Submission(Path(spec).name, None), None, str(error), time.perf_counter() - started)
+        _write_results(results, graded, catalogue, force)
         typer.echo(catalogue.numbers(catalogue.gettext("error: ") + catalogue.translate(str(error))), err=True)
         raise typer.Exit(2) from None
     typer.echo(format_report(report, catalogue=catalogue))
     took = {"seconds": f"{time.perf_counter() - started:.1f}", "student": f"{report.student_seconds:.1f}"}
-    typer.echo(
-        catalogue.numbers(
-            catalogue.gettext("checked in {seconds} s (the student's processes: {student} s)").format(**took)
-        )
-    )
-    if results is not None:
-        graded = Graded(Submission(Path(spec).name, Path(spec)), report, None, report.seconds)
-        write_text_atomically(results, gradescope_json(graded, catalogue), replace=force)
+    line = catalogue.gettext("checked in {seconds} s (the student's processes: {student} s)").format(**took)
+    typer.echo(catalogue.numbers(line))
+    _write_results(results, Graded(Submission(Path(spec).name, Path(spec)), report, None, report.seconds), catalogue,
+                   force)  # fmt: skip
     if not report.passed:
         raise typer.Exit(1)
+
+
+def _write_results(results: Path | None, graded: Graded, catalogue: Catalogue, force: bool) -> None:
+    """--gradescope's results.json of the submission checked (nothing without --gradescope)."""
+    if results is not None:
+        write_text_atomically(results, gradescope_json(graded, catalogue), replace=force)
 
 
 def _catalogue(lang: str | None, file: Path | None = None) -> Catalogue:
@@ -208,25 +210,9 @@ def grade_command(
     _check_outputs(folder, submissions, [*outputs, *([(keyfile, "--key")] if keyfile else [])], force)
     _sandbox_or_refuse(require_sandbox)
     secret = _key(keyfile) if keyfile else secrets.token_bytes(32)
-    from mazelab.experiments.executor import progress_bar
-
-    book, started, stopped_by = Gradebook(csv_path, gradescope, force, catalogue), time.perf_counter(), None
-    try:
-        with claimed(outputs), _stop_signals() as stop, use_threads(1):  # submissions at once: a thread each
-            try:
-                with progress_bar(len(submissions), not quiet, what="submissions") as advance:
-
-                    def done(one: Graded) -> None:
-                        book.add(one)
-                        advance()
-
-                    grade_folder(submissions, key=secret, timeout=timeout, jobs=jobs, on_done=done)
-            except GradingInterruptedError:
-                stopped_by = stop.number or signal.SIGINT
-    except SandboxError as error:
-        raise UserError(f"{error}; grading stopped, nobody graded by it") from None
-    except ClaimError as error:
-        raise UserError(str(error)) from None
+    book, started = Gradebook(csv_path, gradescope, force, catalogue), time.perf_counter()
+    grade = functools.partial(grade_folder, submissions, key=secret, timeout=timeout, jobs=jobs)
+    stopped_by = _grade_into(book, grade, outputs, len(submissions), quiet)
     typer.echo(summary(book.graded))
     typer.echo(f"graded in {time.perf_counter() - started:.1f} s")
     if not keyfile:
@@ -239,6 +225,31 @@ def grade_command(
         raise typer.Exit(128 + stopped_by)
     if csv_path is not None:
         typer.echo(f"wrote {book.finish(submissions)}")
+
+
+def _grade_into(book: Gradebook, grade: Callable[..., None], outputs: list[tuple[Path, str]], count: int,
+                quiet: bool) -> int | None:  # fmt: skip
+    """`grade(on_done=...)` with the outputs claimed, each graded submission added to `book` as it comes,
+    under a progress bar; the number of the signal that stopped it (None: it went to the end)."""
+    from mazelab.experiments.executor import progress_bar
+
+    try:
+        with claimed(outputs), _stop_signals() as stop, use_threads(1):  # submissions at once: a thread each
+            try:
+                with progress_bar(count, not quiet, what="submissions") as advance:
+
+                    def done(one: Graded) -> None:
+                        book.add(one)
+                        advance()
+
+                    grade(on_done=done)
+            except GradingInterruptedError:
+                return stop.number or signal.SIGINT
+    except SandboxError as error:
+        raise UserError(f"{error}; grading stopped, nobody graded by it") from None
+    except ClaimError as error:
+        raise UserError(str(error)) from None
+    return None
 
 
 def _check_outputs(folder: Path, submissions: list[Submission], outputs: list[tuple[Path, str]], force: bool) -> None:
@@ -305,22 +316,14 @@ def _stop_signals() -> Iterator[_Stop]:
     """SIGTERM and SIGHUP stop the grading as Ctrl-C does (the main thread's wait is interrupted, every
     sandbox ended, what was graded kept); a second one while stopping changes nothing."""
     stop = _Stop()
-    if threading.current_thread() is not threading.main_thread():
-        yield stop
-        return
 
     def handler(number: int, frame: object) -> None:
         if stop.number is None:
             stop.number = number
             raise KeyboardInterrupt
 
-    wanted = [getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name)]
-    previous = {number: signal.signal(number, handler) for number in wanted}
-    try:
+    with signal_handlers(STOP_SIGNALS, handler):
         yield stop
-    finally:
-        for number, old in previous.items():
-            signal.signal(number, old)
 
 
 __all__ = ["autograder_command", "check_command", "exercise_app", "grade_command", "new"]

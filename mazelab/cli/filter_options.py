@@ -20,13 +20,13 @@ from typing import Annotated, Any
 
 import typer
 
-from mazelab.cli.hints import check_filter_name
 from mazelab.cli.options import UserError, with_parameters
 from mazelab.contract import not_taken
 from mazelab.declaration import Option, parse_flag, scoped, show_value
 from mazelab.experiments.study import declared_option
 from mazelab.experiments.study import options_per_filter as reaching
-from mazelab.registry import SHIPPED, FilterEntry, entries, filter_entry
+from mazelab.plugins import is_plugin_spec
+from mazelab.registry import SHIPPED, FilterEntry, entries, filter_entry, resolve_filter
 
 # A declared flag "--a/--b" is a pair of switches on run and compare, each setting the option to a value
 # (the study's flag takes a list of the values instead); the one place these values are written.
@@ -227,6 +227,32 @@ def options_per_filter(
     except ValueError as error:
         raise UserError(str(error)) from None
     return per_filter
+
+
+# -- filter names ------------------------------------------------------------------------------------------
+def check_filter_name(name: str, option: str = "--filter") -> str:
+    """A filter name the registry knows, else one line naming the option and the registry's words (the
+    nearest short name, `sri`: did you mean sir?, and the choices)."""
+    if not is_plugin_spec(name):  # FILE.py:Class: the registry's own errors say what is wrong with it
+        try:
+            resolve_filter(name)
+        except ValueError as error:
+            raise UserError(f"{option}: {error}") from None
+    return name
+
+
+def check_filter_names(names: str, option: str = "--filters") -> str:
+    """Every name of a comma-separated --filters list, checked as check_filter_name does."""
+    for name in names.split(","):
+        if name.strip():
+            check_filter_name(name.strip(), option)
+    return names
+
+
+def filter_choices(many: bool = False) -> str:
+    """The help's list of filters, from the registry: 'sir, apf, rpf, grid, ekf, or FILE.py:Class'."""
+    names = ", ".join(e.short_name for e in entries())
+    return f"{names}, FILE.py:Class, comma-separated" if many else f"{names}, or FILE.py:Class"
 
 
 # -- `mazelab filters [NAME]` ----------------------------------------------------------------------------

@@ -25,8 +25,13 @@ import numpy as np
 import typer
 
 from mazelab.atomic import write_text_atomically
-from mazelab.cli.filter_options import GivenOptions, given_options, options_per_filter
-from mazelab.cli.hints import check_filter_name, check_filter_names
+from mazelab.cli.filter_options import (
+    GivenOptions,
+    check_filter_name,
+    check_filter_names,
+    given_options,
+    options_per_filter,
+)
 from mazelab.cli.options import (
     DEFAULT_DELTA,
     DEFAULT_SIGMA,

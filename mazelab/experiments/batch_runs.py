@@ -1,5 +1,5 @@
 """A study's runs in units of work: the runs of one setting advanced together by one filter object of
-R runs (mazelab.cloud: the same steps as a single run, bit for bit), or one run at a time where the
+R runs (mazelab.smc: the same steps as a single run, bit for bit), or one run at a time where the
 declared rule says they cannot be (`batchable`)."""
 
 from __future__ import annotations
@@ -172,15 +172,3 @@ def warm_batch(
             record_steps(filt, steps, lambda k: (compass[:r, k], z[:r, k]), runs=None if r == 1 else r)
 
     warm_once(("batch", filter_class, options_key(filter_class, options), r), warm)
-
-
-__all__ = [
-    "MAX_BATCH",
-    "MAX_BATCH_PARTICLES",
-    "Walk",
-    "batchable",
-    "run_batch",
-    "run_unit_safely",
-    "study_units",
-    "walk_of",
-]

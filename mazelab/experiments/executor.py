@@ -31,17 +31,17 @@ from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, CancelledError, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
-from contextlib import contextmanager, suppress
+from contextlib import AbstractContextManager, contextmanager, suppress
 from typing import Any
 
 from mazelab.backend import backend_for_work, cores, shared_threads, use_backend, use_threads
 from mazelab.experiments.batch_runs import MAX_BATCH, run_unit_safely, study_units
 from mazelab.experiments.study import RunFailure, RunRecord, RunTask, StudyOutcome, run_task_safely
 from mazelab.experiments.warmup import WorkerReport, take_startup_seconds, worker_report
+from mazelab.stops import STOP_SIGNALS, signal_handlers
 
 UnitOutcome = list[RunRecord] | RunFailure | WorkerReport
 MAX_POOL_RESTARTS = 3  # a pool whose workers die more often than this stops the study (rows kept)
-STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
 PR_SET_PDEATHSIG = 1  # linux/prctl.h: the signal a process gets when its parent dies
 WATCHDOG_SECONDS = 0.5
 
@@ -472,22 +472,16 @@ def stop_signals(keep_ignoring: Callable[[], bool] = lambda: False) -> Iterator[
     """While the study runs: SIGTERM and SIGHUP raise StudyStopped in the main thread (as Ctrl-C raises
     KeyboardInterrupt), so that they too keep the finished runs and end the workers. Afterwards the
     previous handlers come back, unless `keep_ignoring()` (the stop signals stay ignored then)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
 
     def stop(signum: int, _frame: Any) -> None:
         raise StudyStopped(signum)
 
-    previous = {sig: signal.signal(sig, stop) for sig in STOP_SIGNALS if sig != signal.SIGINT}
     try:
-        yield
+        with signal_handlers([sig for sig in STOP_SIGNALS if sig != signal.SIGINT], stop):
+            yield
     finally:
         if keep_ignoring():
             _ignore(STOP_SIGNALS)
-        else:
-            for sig, handler in previous.items():
-                signal.signal(sig, handler)
 
 
 def _ignore(signals: Sequence[int]) -> None:
@@ -497,18 +491,9 @@ def _ignore(signals: Sequence[int]) -> None:
             signal.signal(sig, signal.SIG_IGN)
 
 
-@contextmanager
-def signals_ignored() -> Iterator[None]:
+def signals_ignored() -> AbstractContextManager[None]:
     """Ctrl-C, SIGTERM and SIGHUP ignored while the workers are ended (a third Ctrl-C changes nothing)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    previous = {sig: signal.signal(sig, signal.SIG_IGN) for sig in STOP_SIGNALS}
-    try:
-        yield
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+    return signal_handlers(STOP_SIGNALS, signal.SIG_IGN)
 
 
 @contextmanager

@@ -165,6 +165,15 @@ class Journal:
                 os.ftruncate(self._handle, size)
             self.close()
 
+    def append_run(self, records: Sequence[RunRecord]) -> None:
+        """One finished run's rows (and traces), as `read_journal` reads them back."""
+        self.write({"run": [records[0].setting, records[0].run], "records": [r.to_json() for r in records]})
+
+    def end_session(self, status: str, **closing: Any) -> None:
+        """A session's last line (its `status`, and what it says of itself), then the journal released."""
+        self.write({"closed": {"status": status, **closing}})
+        self.close()
+
     def close(self) -> None:
         """Stop appending and release the journal (it stays where it is)."""
         if self._handle is not None:

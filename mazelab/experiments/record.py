@@ -73,12 +73,13 @@ DEPENDENCIES = (
 )  # fmt: skip
 
 
-def dependency_versions() -> dict[str, str | None]:
-    """The installed version of each of DEPENDENCIES, None for one that is not installed."""
+def dependency_versions(names: Sequence[str] = DEPENDENCIES) -> dict[str, str | None]:
+    """The installed version of each of `names` (default DEPENDENCIES), None for one that is not
+    installed; read from the distributions' metadata, without importing them."""
     from importlib.metadata import PackageNotFoundError, version
 
     versions: dict[str, str | None] = {}
-    for name in DEPENDENCIES:
+    for name in names:
         try:
             versions[name] = version(name)
         except PackageNotFoundError:

@@ -17,11 +17,11 @@ import time
 import warnings
 from collections.abc import Callable, Hashable, Mapping, Sequence
 from dataclasses import dataclass, field
-from importlib.metadata import PackageNotFoundError, version
 from typing import Any
 
 from mazelab.backend import chosen_backend
 from mazelab.declaration import options_of
+from mazelab.experiments.record import dependency_versions
 from mazelab.maze import Maze
 from mazelab.registry import resolve_filter
 from mazelab.robot import Robot
@@ -123,31 +123,8 @@ class WorkerReport:
 def worker_report(startup_seconds: float = 0.0) -> WorkerReport:
     """This process's report (mazelab.backend.chosen_backend, the installed versions)."""
     return WorkerReport(
-        f"{socket.gethostname()}:{os.getpid()}", chosen_backend(), installed_versions(), startup_seconds
+        f"{socket.gethostname()}:{os.getpid()}",
+        chosen_backend(),
+        dependency_versions(REPORTED_PACKAGES),
+        startup_seconds,
     )
-
-
-def installed_versions() -> dict[str, str | None]:
-    """The installed version of each of REPORTED_PACKAGES (None: not installed), without importing them."""
-    versions: dict[str, str | None] = {}
-    for name in REPORTED_PACKAGES:
-        try:
-            versions[name] = version(name)
-        except PackageNotFoundError:
-            versions[name] = None
-    return versions
-
-
-__all__ = [
-    "REPORTED_PACKAGES",
-    "WARM_UP_SEED",
-    "WARM_UP_STEPS",
-    "WorkerReport",
-    "installed_versions",
-    "options_key",
-    "take_startup_seconds",
-    "warm_once",
-    "warm_up_filters",
-    "warm_up_options",
-    "worker_report",
-]

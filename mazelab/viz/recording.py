@@ -112,7 +112,7 @@ class Recording:
         sinks = [sink] if server is None else [rr.GrpcSink(server.grpc_url), sink]
         stream.set_sinks(*sinks)
         # the layout made active as well as default: Rerun's web viewer reads a file's recording before
-        # its layout and, with a default alone, shows its automatic grid (see mazelab.cli.view)
+        # its layout and, with a default alone, shows its automatic grid (see mazelab.cli.recordings, `view`)
         stream.send_blueprint(blueprint, make_active=True, make_default=True)
         if server is not None:
             print(f"Serving the web viewer at {server.url}")
