@@ -26,6 +26,7 @@ import numpy as np
 from mazelab.exercise import OUTSIDE_PENALTY, ROBOT_SPEED, StudentFilter
 from mazelab.exercise.inputs import draw_part_inputs
 from mazelab.exercise.parts import (
+    PREDICT_LEVEL,
     PREDICT_TESTS,
     critical_z,
     heading_deviations,
@@ -36,7 +37,6 @@ from mazelab.exercise.parts import (
     kolmogorov_p,
     ks_uniform,
     offspring_counts,
-    predict_alpha_each,
     take,
     z_scores,
 )
@@ -147,7 +147,7 @@ def main() -> None:
     seeds = range(options.first, options.first + options.seeds)
     started = time.perf_counter()
     rows = []
-    alpha_each = predict_alpha_each()
+    alpha_each = PREDICT_LEVEL
     for name, cls in PREDICTS.items():
         figures = _run(predict_figures, [(s, cls) for s in seeds], options.workers)
         failed = sum(not passed for passed, _, _ in figures)

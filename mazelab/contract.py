@@ -56,11 +56,11 @@ import math
 import numbers
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, ClassVar, Protocol, runtime_checkable
+from typing import Any
 
 import numpy as np
 
-from mazelab.declaration import Options, options_of
+from mazelab.declaration import options_of
 
 # -- what a filter has to draw ---------------------------------------------------------------------
 
@@ -127,47 +127,6 @@ class NullView:
         ----------
         step : int
         position : (x, y)
-        """
-
-
-@runtime_checkable
-class Filter(Protocol):
-    """What every filter provides (see the module's docstring)."""
-
-    name: ClassVar[str]
-    options: ClassVar[Options | Mapping[str, Any]]
-    count: int
-    reinitialised_at: list[int]
-
-    def step(self, compass_angle: float, z: float) -> None:
-        """Predict with the compass angle th0_k, then update with the measurement z_k.
-
-        Parameters
-        ----------
-        compass_angle : float
-            th0_k, the heading the compass reports for this step (radians).
-        z : float
-            z_k, the measured distance to the nearest station (map units).
-        """
-
-    @property
-    def estimate(self) -> np.ndarray:
-        """The point estimate of the position, shape (2,)."""
-
-    @property
-    def ess(self) -> float:
-        """The effective sample size 1 / sum W_i^2, or NaN when the belief is not a sample."""
-
-    @property
-    def is_confident(self) -> bool:
-        """At least 95% of the belief lies within distance 1 of the estimate."""
-
-    def belief(self) -> Belief:
-        """What the viewer draws this step.
-
-        Returns
-        -------
-        Particles, Density or Gaussian
         """
 
 
@@ -378,7 +337,6 @@ __all__ = [
     "Belief",
     "ContractError",
     "Density",
-    "Filter",
     "Gaussian",
     "NullView",
     "Particles",

@@ -55,14 +55,13 @@ class GridBayesFilter:
         rng: np.random.Generator | None = None,
         **options: Any,
     ):
-        del particles  # the exact filter starts from the exact prior, not from a sample of it
+        del particles, rng  # the exact filter starts from the exact prior, not from a sample, and draws nothing
         settings = type(self).options.resolve(options, self.name)
         self.settings = MappingProxyType(settings)
         resolution, margin, outside_penalty = settings["resolution"], settings["margin"], settings["outside_penalty"]
         self.world, self.sigma, self.delta, self.speed = check_world(world), sigma, delta, settings["speed"]
         check_sigma_within(sigma, world.width, world.height)
         self.estimate_rule = settings["estimate"]
-        self.rng = rng if rng is not None else np.random.default_rng()
         self.resolution = resolution
         self.origin = -margin
         ny, nx = check_grid_memory(world.width, world.height, resolution, margin)
@@ -283,9 +282,11 @@ class GridWorkspace:
         return float(np.sum(weights[None], axis=1, where=np.less_equal(dx, radius * radius, out=self.within))[0])
 
     def convolve(self, image: np.ndarray, kernel_shape: tuple[int, int], kernel_spectrum: np.ndarray) -> np.ndarray:
-        """`fft_convolve_same(image, kernel, kernel_spectrum)` in these buffers, the same numbers bit
-        for bit (the same 1-D transforms, axis by axis, as np.fft.rfft2 and irfft2; only the rows the
-        crop keeps are transformed back along x). A view of the workspace: valid until the next call."""
+        """Linear 2-D convolution of `image` with an odd-sized centred kernel (of `kernel_shape`, its
+        spectrum `kernel_spectrum`), cropped to the image's shape, in these buffers: the numbers of
+        np.fft.irfft2(np.fft.rfft2(image, s) * spectrum, s) cropped, bit for bit (the same 1-D transforms,
+        axis by axis; only the rows the crop keeps are transformed back along x). A view of the
+        workspace: valid until the next call."""
         (ny, nx), (ky, kx), (py, px) = image.shape, kernel_shape, self.fft_shape
         np.fft.rfft(image, px, axis=1, out=self.rows)
         np.fft.fft(self.rows, py, axis=0, out=self.spectrum)
@@ -319,17 +320,6 @@ def arc_kernel_shape(speed: float, resolution: float) -> tuple[int, int]:
     return 2 * radius + 1, 2 * radius + 1
 
 
-def fft_convolve_same(image: np.ndarray, kernel: np.ndarray, kernel_spectrum: np.ndarray | None = None) -> np.ndarray:
-    """Linear 2-D convolution of `image` with an odd-sized centred `kernel`, cropped to image's shape.
-    `kernel_spectrum`, if given, is `np.fft.rfft2(kernel, fft_shape(image.shape, kernel.shape))`."""
-    ky, kx = kernel.shape
-    shape = fft_shape(image.shape, kernel.shape)
-    if kernel_spectrum is None:
-        kernel_spectrum = np.fft.rfft2(kernel, shape)
-    full = np.fft.irfft2(np.fft.rfft2(image, shape) * kernel_spectrum, shape)
-    return full[ky // 2 : ky // 2 + image.shape[0], kx // 2 : kx // 2 + image.shape[1]]
-
-
 def fft_shape(image_shape: tuple[int, ...], kernel_shape: tuple[int, ...]) -> tuple[int, int]:
     """The padded size of a linear (not circular) FFT convolution of image and kernel, fast lengths."""
     return _fast_fft_length(image_shape[0] + kernel_shape[0] - 1), _fast_fft_length(
@@ -350,6 +340,5 @@ __all__ = [
     "arc_kernel",
     "arc_kernel_shape",
     "check_grid_memory",
-    "fft_convolve_same",
     "fft_shape",
 ]

@@ -54,7 +54,7 @@ class NearestStationLookup:
         self._first = candidates[:, 0]  # (C,) station indices
         self._all = candidates[ambiguous]  # (A, K) station indices, padded by repeats
         self._tables: dict[np.dtype, _StationTables] = {}
-        self._near: dict[int, tuple[tuple[int, float, float], ...]] = {}  # `_candidates_at`'s, cell by cell
+        self._near: dict[int, tuple[tuple[int, float, float], ...]] = {}  # `station_at`'s, cell by cell
 
     def locate(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(distance to the nearest station, free flag) for points x, y of shape (N,), in x's dtype."""
@@ -74,41 +74,29 @@ class NearestStationLookup:
             free[beyond] = False
         return np.sqrt(d2, out=d2), free
 
-    def distance_at(self, x: float, y: float) -> float:
-        """`locate`'s distance for one float64 point, in plain floats (the same IEEE operations, so the
-        same value), without the cost of numpy calls on arrays of one."""
-        near = self._candidates_at(x, y)
-        if near is None:
-            return float(self.distances(np.array([[x, y]]))[0])
-        nearest = math.inf
-        for _, sx, sy in near:  # _squared_distance inlined: a call per candidate is most of the cost here
-            dx, dy = sx - x, sy - y
-            d2 = dx * dx + dy * dy
-            if d2 < nearest:
-                nearest = d2
-        return math.sqrt(nearest)
-
-    def nearest_at(self, x: float, y: float) -> int:
-        """`nearest`'s station index for one float64 point, in plain floats (as `distance_at`)."""
-        near = self._candidates_at(x, y)
-        if near is None:
-            return int(self.nearest(np.array([[x, y]]))[0])
-        return min(near, key=lambda c: _squared_distance(c[1], c[2], x, y))[0]
-
-    def _candidates_at(self, x: float, y: float) -> tuple[tuple[int, float, float], ...] | None:
-        """The candidates of the lookup cell of one point as (station index, sx, sy) in plain floats, in
-        the table's order without repeats (made once per cell: the robot's walk revisits its cells);
-        None for a point beyond the table."""
+    def station_at(self, x: float, y: float) -> tuple[int, float]:
+        """The nearest station's index and distance for one float64 point, in plain floats: `nearest`'s
+        index and `locate`'s distance (the same IEEE operations, so the same values; ties go to the
+        earlier candidate), without the cost of numpy calls on arrays of one. A lookup cell's
+        candidates are made once, as (station index, sx, sy) without repeats: the robot's walk
+        revisits its cells."""
         ix, iy = math.floor(x * self.scale) + self.offset, math.floor(y * self.scale) + self.offset
-        if not (0 <= ix < self.nx and 0 <= iy < self.ny):
-            return None
+        if not (0 <= ix < self.nx and 0 <= iy < self.ny):  # beyond the table
+            point = np.array([[x, y]])
+            return int(self.nearest(point)[0]), float(self.distances(point)[0])
         cell = iy * self.nx + ix
         near = self._near.get(cell)
         if near is None:
             row = int(self.row[cell])
             candidates = dict.fromkeys((self._all[row] if row >= 0 else self._first[cell : cell + 1]).tolist())
             near = self._near[cell] = tuple((i, *self.stations[i].tolist()) for i in candidates)
-        return near
+        best, nearest = -1, math.inf
+        for index, sx, sy in near:  # `_squared_distances`' order of operations, in plain floats
+            dx, dy = sx - x, sy - y
+            d2 = dx * dx + dy * dy
+            if d2 < nearest:
+                best, nearest = index, d2
+        return best, math.sqrt(nearest)
 
     def distances(self, points: np.ndarray) -> np.ndarray:
         """Distance to the nearest station for points of shape (N, 2)."""
@@ -220,12 +208,6 @@ def _squared_distances(sx: np.ndarray, sy: np.ndarray, x: np.ndarray, y: np.ndar
     dy *= dy
     dx += dy
     return dx
-
-
-def _squared_distance(sx: float, sy: float, x: float, y: float) -> float:
-    """(sx - x)^2 + (sy - y)^2 in plain floats, in `_squared_distances`' order of operations."""
-    dx, dy = sx - x, sy - y
-    return dx * dx + dy * dy
 
 
 def is_scalar(value: Any) -> bool:

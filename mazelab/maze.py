@@ -189,14 +189,14 @@ class Maze:
     def distance_at(self, x: float, y: float) -> float:
         """`distance_to_nearest_station` of one point in plain floats, without its dispatch (the
         robot's measurement, once a step): the same value."""
-        return self._lookup.distance_at(x, y)
+        return self._lookup.station_at(x, y)[1]
 
     def nearest_station(self, points: Any) -> np.ndarray:
         """Coordinates of the station nearest each point: points (..., 2) -> (..., 2), map units.
         The station whose distance `distance_to_nearest_station` gives (the EKF's data association)."""
         points = _point_array(points)
         if points.shape == (2,):  # the EKF's one mean a step
-            return self.stations[self._lookup.nearest_at(float(points[0]), float(points[1]))]
+            return self.stations[self._lookup.station_at(float(points[0]), float(points[1]))[0]]
         return self.stations[self._lookup.nearest(points.reshape(-1, 2))].reshape(points.shape)
 
     def station_distances_and_free(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -73,24 +73,6 @@ class Recovery:
         if not 0 < finite_number("reset_level", self.reset_level) <= 1:
             raise ValueError(f"recovery needs 0 < reset_level <= 1, got {self.reset_level}")
 
-    def log_reference(self, log_w_slow: float, sigma: float) -> float:
-        """log of the likelihood level below which w_fast means "lost": w_slow, or the sensor's level.
-
-        Parameters
-        ----------
-        log_w_slow : float
-            log w_slow.
-        sigma : float
-            The measurement noise's standard deviation.
-
-        Returns
-        -------
-        float
-        """
-        if self.mode == "sensor":
-            return math.log(self.reset_level * localised_likelihood(sigma))
-        return log_w_slow
-
 
 def check_recovery(recovery: Any) -> str | Recovery | None:
     """The recovery option, checked.
@@ -199,10 +181,16 @@ class RecoveryTracker:
 
     @property
     def injection_probability(self) -> float:
-        """max(0, 1 - w_fast / reference) (see Recovery); 0 before the first measurement."""
+        """max(0, 1 - w_fast / reference) (see Recovery), the reference the likelihood level below which
+        w_fast means "lost": w_slow ("augmented"), or the sensor's reset_level * localised_likelihood(sigma)
+        ("sensor"); 0 before the first measurement."""
         if self.last_z is None or self.log_w_slow == -math.inf:
             return 0.0
-        return max(0.0, 1.0 - math.exp(self.log_w_fast - self.options.log_reference(self.log_w_slow, self.sigma)))
+        if self.options.mode == "sensor":
+            log_reference = math.log(self.options.reset_level * localised_likelihood(self.sigma))
+        else:
+            log_reference = self.log_w_slow
+        return max(0.0, 1.0 - math.exp(self.log_w_fast - log_reference))
 
     def track(self, log_w_avg: float, z: float) -> None:
         """w_slow += alpha_slow (w_avg - w_slow), w_fast likewise; in logs, w <- (1 - a) w + a w_avg.

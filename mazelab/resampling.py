@@ -101,10 +101,7 @@ def resampling_scheme(name: str) -> Callable[..., np.ndarray]:
     callable
         (weights, rng, count=None) -> ancestor indices.
     """
-    try:
-        return RESAMPLING_SCHEMES[name.lower()]
-    except (KeyError, AttributeError):
-        raise ValueError(f"unknown resampling scheme {name!r}; choose one of {', '.join(RESAMPLING_SCHEMES)}") from None
+    return RESAMPLING_SCHEMES[check_scheme(name)]
 
 
 def check_scheme(name: Any) -> str:
@@ -113,6 +110,7 @@ def check_scheme(name: Any) -> str:
     Parameters
     ----------
     name : str
+        Any case.
 
     Returns
     -------
@@ -120,7 +118,8 @@ def check_scheme(name: Any) -> str:
     """
     if not isinstance(name, str):
         raise ValueError(f"resampling must be one of {', '.join(RESAMPLING_SCHEMES)}, got {name!r}")
-    resampling_scheme(name)
+    if name.lower() not in RESAMPLING_SCHEMES:
+        raise ValueError(f"unknown resampling scheme {name!r}; choose one of {', '.join(RESAMPLING_SCHEMES)}")
     return name.lower()
 
 

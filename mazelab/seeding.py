@@ -3,7 +3,7 @@ root seed becomes its runs' seeds. run, replay, compare, study, accuracy and kid
 `run --seed S` repeats run S of any of them.
 
 A run's seed S gives:
-    start_place(maze, S) the robot's start place, drawn from start_rng(S) = default_rng(S)
+    start_place(maze, S) the robot's start place, drawn from default_rng(S)
     run_streams(S)      four independent streams (default_rng(S).spawn(4)): the robot's walk and noise,
                         the initial particles, the filter's draws, the kidnapping's place
 A study's root seed gives run r the same seeds in every setting (common random numbers) whatever
@@ -29,14 +29,9 @@ def new_seed() -> int:
     return int(np.random.SeedSequence().entropy % 2**63)
 
 
-def start_rng(seed: int) -> np.random.Generator:
-    """The stream that draws the robot's start place of run `seed`."""
-    return np.random.default_rng(seed)
-
-
 def start_place(world: Any, seed: int) -> tuple[float, float]:
-    """The robot's start of run `seed`: a free place of `world` (a Maze) drawn from start_rng(seed)."""
-    return world.random_free_place(start_rng(seed))
+    """The robot's start of run `seed`: a free place of `world` (a Maze) drawn from default_rng(seed)."""
+    return world.random_free_place(np.random.default_rng(seed))
 
 
 def run_streams(seed: int) -> RunStreams:
@@ -57,4 +52,4 @@ def study_seeds(root_seed: int, runs: int) -> list[tuple[int, int]]:
     return [tuple(int(v >> np.uint64(1)) for v in child.generate_state(2, np.uint64)) for child in children]
 
 
-__all__ = ["RunStreams", "filter_rng", "new_seed", "run_streams", "start_place", "start_rng", "study_seeds"]
+__all__ = ["RunStreams", "filter_rng", "new_seed", "run_streams", "start_place", "study_seeds"]

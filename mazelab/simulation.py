@@ -12,6 +12,7 @@ import math
 import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -33,7 +34,7 @@ from mazelab.model import CONVERGENCE_RADIUS, DEFAULT_STEPS, check_model_paramet
 from mazelab.plugins import student_code
 from mazelab.registry import filter_entry, is_shipped
 from mazelab.robot import Robot
-from mazelab.seeding import new_seed, run_streams
+from mazelab.seeding import RunStreams, new_seed, run_streams
 from mazelab.viz.style import DEFAULT_MAX_DRAWN
 from mazelab.viz.targets import Visualization, in_jupyter
 
@@ -56,13 +57,11 @@ class RunResult:
     extras: dict[str, Any] = field(default_factory=dict)
     log_evidence: np.ndarray | None = None  # (steps,), log p(z_1:k) as the filter estimates it (NaN: none kept)
 
-    @property
+    @cached_property
     def scenario(self) -> Scenario:
         """The run as a Scenario (what save_scenario writes), built on first use: lists and validation
         cost more than a large run's filter steps, so a run that is not saved never pays for them."""
-        if "scenario" not in self.__dict__:
-            self.__dict__["scenario"] = self.inputs.scenario()
-        return self.__dict__["scenario"]
+        return self.inputs.scenario()
 
     @property
     def seed(self) -> int:
@@ -213,16 +212,12 @@ def check_start(
 
 
 def check_walk_in_maze(world: Maze, robot: Robot, steps: int | None = None) -> None:
-    """A recorded walk (a replayed scenario's start and robot_actual_angles, its first `steps` steps)
-    must stay in the free area of `world`, as every walk made on it does: the start or the first step
-    that leaves it is refused in one line (a hand-edited walk through walls, or another maze's).
+    """A recorded walk (a replayed scenario's robot_actual_angles, its first `steps` steps, from a start
+    `check_start` passed) must stay in the free area of `world`, as every walk made on it does: the first
+    step that leaves it is refused in one line (a hand-edited walk through walls, or another maze's).
     Positions are computed in Robot.step's own arithmetic, so a walk made on `world` always passes."""
     count = robot.recorded_steps if steps is None else min(steps, robot.recorded_steps)
-    x, y = robot.initial_position
-    if not world.is_free(x, y):
-        raise ValueError(
-            f"the robot's start ({x:.2f}, {y:.2f}) lies outside the free area of the maze ({world.source})"
-        )
+    x, y = robot.initial_position  # in the free area: `check_start`, which every caller calls first
     for k in range(1, count + 1):
         if k == robot.kidnap_at:
             x, y = robot.kidnap_position
@@ -296,25 +291,9 @@ def simulate(
     settings = entry.options.resolve(filter_options, filter_class.name)  # declared, checked, defaults filled in
     seed = new_seed() if seed is None else check_seed("seed", seed)
     streams = run_streams(seed)
-    if init_particles_pos is not None:
-        particles = as_points("init_particles_pos", init_particles_pos)
-        checked_count(particle_count, given=len(particles))
-    else:
-        particles = world.random_free_places(checked_count(particle_count), streams.particles)
-    given = particles if init_particles_pos is not None else None  # drawn ones lie in the free area
-    check_start(world, robot.initial_position, given, robot.kidnap_position)
-    if steps is None:
-        steps = robot.recorded_steps or DEFAULT_STEPS
-    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
-        raise ValueError(f"steps must be a whole number >= 1, got {steps!r}")
-    check_steps(int(steps))
-    check_walk_in_maze(world, robot, int(steps))
-    recorded = drawn_at_most(visualize)
-    if recorded is not None:
-        check_recording(len(particles), int(steps), recorded)
+    particles, steps = checked_walk(robot, world, particle_count, steps, init_particles_pos, visualize, streams)
     if kidnap_at is not None:
         plan_kidnapping(robot, world, kidnap_at, steps, streams.kidnap)
-
     robot.reset()
     if not robot.rng_given:
         robot.rng = streams.robot
@@ -333,34 +312,54 @@ def simulate(
         if on_step is not None:
             on_step(k, robot, filt)
 
-    work = len(particles) * int(steps), int(steps)  # numba's start-up only where the run repays it
-    with backend_by_work(*work), student_code(filter_class):  # a failing user's filter: its frames and the step
+    with backend_by_work(len(particles) * steps, steps), student_code(filter_class):  # numba where it repays
         filt = filter_class(maze_for(filter_class, world), sigma, delta, particles, streams.filter, **filter_options)
         check_filter(filt)  # before the first step: a missing or mistyped part is one line naming it
     view = open_run_view(visualize if view is None else view, world, filter_class.name, robot)
     try:
-        with student_code(filter_class) as at:
-            steps_of = record_steps(filt, int(steps), observe, after=after, at=at)
+        with student_code(filter_class) as at:  # a failing user's filter: its frames and the step
+            steps_of = record_steps(filt, steps, observe, after=after, at=at)
     finally:
         view.close()
-    reference = None if entry.plugin is None else entry.plugin.as_json()
     stored = entry.options.to_json(settings)  # every option, defaults filled in, as the declaration writes them
-    inputs = RunInputs.of_run(
-        robot, particles, world, sigma, delta, seed, steps, filter_class.name, dict(sorted(stored.items())), reference
-    )
+    reference = None if entry.plugin is None else entry.plugin.as_json()
+    inputs = RunInputs.of_run(robot, particles, world, sigma, delta, seed, steps, filter_class.name,
+                              dict(sorted(stored.items())), reference)  # fmt: skip
     run = steps_of.run(0)
-    return RunResult(
-        filter_class.name,
-        true_positions,
-        run["estimates"],
-        run["ess"],
-        run["confident"],
-        steps_of.seconds,
-        list(filt.reinitialised_at),
-        inputs,
-        extras={"particle_count": run["counts"], "diagnostics": run["diagnostics"], "backend": backend_of(filt)},
-        log_evidence=run["log_evidence"],
-    )
+    extras = {"particle_count": run["counts"], "diagnostics": run["diagnostics"], "backend": backend_of(filt)}
+    return RunResult(filter_class.name, true_positions, run["estimates"], run["ess"], run["confident"],
+                     steps_of.seconds, list(filt.reinitialised_at), inputs, extras, run["log_evidence"])  # fmt: skip
+
+
+def checked_walk(
+    robot: Robot,
+    world: Maze,
+    particle_count: int | None,
+    steps: int | None,
+    init_particles_pos: Any,
+    visualize: Any,
+    streams: RunStreams,
+) -> tuple[np.ndarray, int]:
+    """A run's initial particles (N, 2) (given, or drawn from `streams.particles`) and its step count
+    (given, else the robot's recorded steps, else DEFAULT_STEPS), each checked, with the robot's start,
+    its kidnapping's place, its recorded walk and the recording's memory: one line for the first wrong."""
+    if init_particles_pos is not None:
+        particles = as_points("init_particles_pos", init_particles_pos)
+        checked_count(particle_count, given=len(particles))
+    else:
+        particles = world.random_free_places(checked_count(particle_count), streams.particles)
+    given = particles if init_particles_pos is not None else None  # drawn ones lie in the free area
+    check_start(world, robot.initial_position, given, robot.kidnap_position)
+    if steps is None:
+        steps = robot.recorded_steps or DEFAULT_STEPS
+    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
+        raise ValueError(f"steps must be a whole number >= 1, got {steps!r}")
+    check_steps(int(steps))
+    check_walk_in_maze(world, robot, int(steps))
+    recorded = drawn_at_most(visualize)
+    if recorded is not None:
+        check_recording(len(particles), int(steps), recorded)
+    return particles, int(steps)
 
 
 def run_model(

@@ -553,12 +553,9 @@ def test_memory_is_limited_per_sandbox_where_there_is_a_cgroup(tmp_path, monkeyp
 
     if cgroup_parents() is None:
         pytest.skip("no cgroup this grader may make here")
-    limits = {kind: {**values} for kind, values in Cgroup.LIMITS.items()}
-    for values in limits.values():
-        for name in ("memory.max", "memory.limit_in_bytes"):
-            if name in values:
-                values[name] = 512 << 20
-    monkeypatch.setattr(Cgroup, "LIMITS", limits)
+    monkeypatch.setattr(
+        Cgroup, "LIMITS", {**Cgroup.LIMITS, "memory.max": 512 << 20, "memory.limit_in_bytes": 512 << 20}
+    )
     estimate = """
         def estimate(self, positions, weights):
             import os

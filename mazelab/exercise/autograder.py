@@ -136,6 +136,3 @@ def bundle_bytes(key: bytes, lang: str | None = None, timeout: float = DEFAULT_B
             info.external_attr = (stat.S_IFREG | mode) << 16
             bundle.writestr(info, text)
     return buffer.getvalue()
-
-
-__all__ = ["BundleError", "bundle_bytes", "lab_files"]

@@ -1,27 +1,11 @@
-"""The student's process: the one place a submission's code runs when it is graded, and the messages
-it exchanges with the grader.
-
-It runs in the submission's sandbox (mazelab.exercise.sandbox), where the lab is not installed: this
-module imports only numpy and the student kit (mazelab.exercise.kit). The grader writes the request on
-its standard input (the file and class to load, the stages, their inputs: points, weights, angles, a
-maze's cells, the scenarios' compass angles and measurements; never the true path, the exact
-posterior, a reference answer or the seed) and reads the answers on a pipe whose descriptor it names.
-The child says "hello" before any of the student's code runs (so that a sandbox that never started is
-the grader's error, not the student's), loads the file, builds a fresh filter for each part, calls the
-student's methods on the inputs and sends back, stage by stage, only values: the arrays the student's
-code returned and its errors as text. Nothing it says about itself is believed: every verdict is the
-grader's, from these values.
-
-Messages: MAGIC, the length of a JSON header, the header (`meta` and each array's name, dtype and
-shape), then the arrays' bytes; on the pipe each is preceded by its length (8 bytes). `decode` checks
-the whole message before it makes an array (never pickle: unpickling what the student's process sends
-would run its code in the grader).
-
-Before the submission is imported, `guard` installs an audit hook (which nothing can remove) that
-refuses what would hide code from the grader's reading of the submission's files: compiling or
-unmarshalling code that is not a file of the submission, the kit, numpy or the standard library, making
-code objects, calls through ctypes (numpy imports the module itself: its audit events are refused), and
-imports of modules outside the kit, numpy, the standard library and the submission's own files.
+"""The student's process: the one place a submission's code runs when it is graded (in its sandbox,
+where of the lab there is only the student kit), and the messages it exchanges with the grader
+(docs/exercise.md, "Values only"). It reads the request on its standard input, says "hello" before any
+of the student's code runs, installs the audit hook (`guard`, "Only the files run"), loads the file,
+and sends back, stage by stage, only values: the arrays the student's code returned and its errors
+as text. A message is MAGIC, the length of a JSON header (`meta` and each array's name, dtype and
+shape), the header, then the arrays' bytes, checked whole by `decode` before any array is made (never
+pickle: unpickling what the student's process sends would run its code in the grader).
 """
 
 from __future__ import annotations
@@ -44,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from mazelab.exercise.student import StudentFilter
+from mazelab.exercise.student import PARTS, PartError, StudentFilter, answer_array
 from mazelab.maze import Maze
 from mazelab.seeding import filter_rng
 
@@ -168,11 +152,14 @@ def _past_limit(error: BaseException) -> str:
 
 def student_call(function: Callable[..., Any], *args: Any) -> tuple[Any, dict[str, str] | None]:
     """(what the student's function returned, None), or (None, the error as values): not written
-    (NotImplementedError), an exit (its own sys.exit or KeyboardInterrupt), or any other error."""
+    (NotImplementedError), an answer not of the form asked for (PartError), an exit (its own sys.exit
+    or KeyboardInterrupt), or any other error."""
     try:
         return function(*args), None
     except NotImplementedError:
         return None, {"kind": "not written", "text": "not implemented"}
+    except PartError as error:  # an answer not of the form asked for (answer_array)
+        return None, {"kind": "answer", "text": _text(error)}
     except (SystemExit, KeyboardInterrupt) as error:
         return None, {"kind": "exit", "text": f"{describe_exit(error)}, which a part must not do{_where(error)}"}
     except BaseException as error:
@@ -180,24 +167,14 @@ def student_call(function: Callable[..., Any], *args: Any) -> tuple[Any, dict[st
         return None, {"kind": "error", "text": text}
 
 
-def as_values(part: str, value: Any, shape: tuple[int, ...], whole_numbers: bool = False) -> tuple[Any, Any]:
-    """(the answer as a float64 or int64 array of `shape`, None), or (None, an error naming what came)."""
-    try:
-        array = np.asarray(value)
-        if whole_numbers and not np.issubdtype(array.dtype, np.integer):
-            return None, {"kind": "answer", "text": f"{part} returned {array.dtype} values, not whole-number indices"}
-        array = array.astype(np.int64 if whole_numbers else np.float64)
-    except BaseException as error:
-        return None, {"kind": "answer", "text": f"{part} returned {type(value).__name__}, not numbers ({_text(error)})"}
-    if array.shape != shape:
-        return None, {"kind": "answer", "text": f"{part} returned shape {array.shape}; expected {shape}"}
-    return array, None
-
-
 # -- the stages ---------------------------------------------------------------------------------
 class Inputs(dict):
     """A request's inputs by name (mazelab.exercise.inputs.request: scalars and arrays), its mazes built
     once each (the nearest-station table too); a filter gets a copy."""
+
+    def of(self, prefix: str) -> dict[str, Any]:
+        """The inputs under `prefix.`, by the rest of their names."""
+        return {name.removeprefix(prefix + "."): v for name, v in self.items() if name.startswith(prefix + ".")}
 
     def world(self, prefix: str) -> Maze:
         key = f"{prefix}.built"
@@ -206,75 +183,54 @@ class Inputs(dict):
         return self[key].copy()
 
 
-Call = tuple[str, str, tuple, tuple, bool]  # (answer's name, method, arguments, shape, whole numbers)
+Call = tuple[str, str, tuple, tuple, bool, int]  # (answer, method, arguments, shape, whole numbers, calls stacked)
 
 
-def _predict_calls(inputs: Inputs) -> list[Call]:
-    """moved/j at each angle j (from default_rng(seed_j)); at angle 0 also `again` (the same
-    Generator, continued) and `repeat` (an equally seeded one)."""
-    start, angles, seeds = inputs["parts.predict.start"], inputs["parts.predict.angles"], inputs["parts.predict.seeds"]
-    first = np.random.default_rng(seeds[0])
-    order = [("moved/0", 0, first), ("again", 0, first), ("repeat", 0, None)]
-    order += [(f"moved/{j}", j, None) for j in range(1, len(angles))]
-    return [
-        (name, "predict", (start, angles[j], rng or np.random.default_rng(seeds[j])), start.shape, False)
-        for name, j, rng in order
-    ]
-
-
-def _weigh_calls(inputs: Inputs) -> list[Call]:
-    """log_w/j: weigh on the points for each measurement z_j."""
-    points = inputs["parts.weigh.points"]
-    return [(f"log_w/{j}", "weigh", (points, z), (len(points),), False) for j, z in enumerate(inputs["parts.weigh.z"])]
-
-
-def _resample_calls(inputs: Inputs) -> list[Call]:
-    """ancestors/k/r: R calls on weight vector k from one Generator; repeat/k: the first call again from
-    an equally seeded one (the rows of ancestors/k are stacked into one (R, N) answer)."""
+def part_calls(stage: str, inputs: Inputs) -> list[Call]:
+    """One part's calls, named as the grader's judges read them (mazelab.exercise.parts). predict:
+    moved/j at each angle j (from default_rng(seed_j)), at angle 0 also `again` (the same Generator,
+    continued) and `repeat` (an equally seeded one); weigh: log_w/j for each measurement z_j; resample:
+    ancestors/k, R calls on weight vector k from one Generator stacked (R, N), and repeat/k from an
+    equally seeded one; estimate: point/k under weight vector k."""
+    given = inputs.of(f"parts.{stage}")
+    if stage == "predict":
+        start, angles, seeds = given["start"], given["angles"], given["seeds"]
+        first = np.random.default_rng(seeds[0])
+        order = [("moved/0", 0, first), ("again", 0, first), ("repeat", 0, None)]
+        order += [(f"moved/{j}", j, None) for j in range(1, len(angles))]
+        rngs = [(name, j, rng or np.random.default_rng(seeds[j])) for name, j, rng in order]
+        return [(name, stage, (start, angles[j], rng), start.shape, False, 0) for name, j, rng in rngs]
+    if stage == "weigh":
+        points = given["points"]
+        return [(f"log_w/{j}", stage, (points, z), (len(points),), False, 0) for j, z in enumerate(given["z"])]
+    if stage == "estimate":
+        points, count = given["points"], len(given["kinds"])
+        return [(f"point/{k}", "estimate_part", (points, given[f"weights.{k}"]), (2,), False, 0) for k in range(count)]
     calls = []
-    for k, seed in enumerate(inputs["parts.resample.seeds"]):
-        weights, rng = inputs[f"parts.resample.weights.{k}"], np.random.default_rng(seed)
-        draw = ("resample", (weights, rng), (len(weights),), True)
-        calls += [(f"ancestors/{k}/{r}", *draw) for r in range(inputs["parts.resample.draws"])]
-        calls.append((f"repeat/{k}", "resample", (weights, np.random.default_rng(seed)), (len(weights),), True))
+    for k, seed in enumerate(given["seeds"]):
+        weights = given[f"weights.{k}"]
+        for name, stacked in ((f"ancestors/{k}", given["draws"]), (f"repeat/{k}", 0)):
+            calls.append((name, stage, (weights, np.random.default_rng(seed)), weights.shape, True, stacked))
     return calls
-
-
-def _estimate_calls(inputs: Inputs) -> list[Call]:
-    """point/k: estimate of the points under weight vector k."""
-    points = inputs["parts.estimate.points"]
-    kinds = inputs["parts.estimate.kinds"]
-    return [
-        (f"point/{k}", "estimate_part", (points, inputs[f"parts.estimate.weights.{k}"]), (2,), False)
-        for k in range(len(kinds))
-    ]
-
-
-PART_CALLS = {
-    "predict": _predict_calls,
-    "weigh": _weigh_calls,
-    "resample": _resample_calls,
-    "estimate": _estimate_calls,
-}
 
 
 def part_stage(cls: type, stage: str, inputs: Inputs, emit: Emit) -> tuple[dict, dict]:
     """One part's answers: a fresh filter (the parts' maze, sigma, delta, prior and Generator), then
     each call on copies of its inputs; the first error ends the stage."""
-    world = inputs.world("parts")
-    arguments = (inputs["parts.sigma"], inputs["parts.delta"], inputs["parts.prior"].copy())
-    filt, error = student_call(cls, world, *arguments, np.random.default_rng(inputs["parts.filter_seed"]))
+    given = inputs.of("parts")
+    rng = np.random.default_rng(given["filter_seed"])
+    filt, error = student_call(cls, inputs.world("parts"), given["sigma"], given["delta"], given["prior"].copy(), rng)
     out: dict[str, Any] = {}
-    for name, method, args, shape, whole in [] if error else PART_CALLS[stage](inputs):
-        copies = tuple(a.copy() if isinstance(a, np.ndarray) else a for a in args)
-        value, error = student_call(getattr(filt, method), *copies)
-        value, error = (None, error) if error else as_values(stage, value, shape, whole)
-        if error:
-            break
-        out[name] = value
-    rows = sorted((n for n in out if n.count("/") == 2), key=lambda n: tuple(int(i) for i in n.split("/")[1:]))
-    for k in sorted({n.split("/")[1] for n in rows}):
-        out[f"ancestors/{k}"] = np.stack([out.pop(n) for n in rows if n.split("/")[1] == k])
+    for name, method, args, shape, whole, stacked in [] if error else part_calls(stage, inputs):
+        values = []
+        for _ in range(stacked or 1):
+            copies = tuple(a.copy() if isinstance(a, np.ndarray) else a for a in args)
+            value, error = student_call(getattr(filt, method), *copies)
+            value, error = (None, error) if error else student_call(answer_array, stage, value, shape, whole)
+            if error:
+                return {"error": error}, out
+            values.append(value)
+        out[name] = np.stack(values) if stacked else values[0]
     return ({"error": error} if error else {}), out
 
 
@@ -284,13 +240,12 @@ def whole_stage(cls: type, stage: str, inputs: Inputs, emit: Emit) -> tuple[dict
     out: dict[str, np.ndarray] = {}
     for i in range(inputs["whole.count"]):
         emit({"kind": "stage", "stage": "whole", "scenario": i})
-        prefix = f"whole.{i}"
-        compass, z = inputs[f"{prefix}.compass_angles"], inputs[f"{prefix}.measurements"]
+        given = inputs.of(f"whole.{i}")
+        compass, z = given["compass_angles"], given["measurements"]
         estimates, step = np.empty((len(z), 2)), 0
         try:
-            particles, seed = inputs[f"{prefix}.particles"].copy(), inputs[f"{prefix}.seed"]
-            noise = (inputs[f"{prefix}.sigma"], inputs[f"{prefix}.delta"])
-            filt = cls(inputs.world(prefix), *noise, particles, filter_rng(seed))
+            noise = (given["sigma"], given["delta"], given["particles"].copy())
+            filt = cls(inputs.world(f"whole.{i}"), *noise, filter_rng(given["seed"]))
             for step in range(1, len(z) + 1):
                 filt.step(float(compass[step - 1]), float(z[step - 1]))
                 point = np.asarray(filt.estimate, dtype=float)
@@ -308,7 +263,7 @@ def whole_stage(cls: type, stage: str, inputs: Inputs, emit: Emit) -> tuple[dict
     return {}, out
 
 
-STAGE_RUNNERS = {**dict.fromkeys(PART_CALLS, part_stage), "whole": whole_stage}
+STAGE_RUNNERS = {**dict.fromkeys(PARTS, part_stage), "whole": whole_stage}
 
 
 # -- loading and serving ----------------------------------------------------------------------
@@ -385,9 +340,9 @@ def _flush() -> None:
 
 # -- the guard ---------------------------------------------------------------------------------------
 def guard(folder: str) -> None:
-    """Install the audit hook of the module docstring for a submission in `folder` (the roots whose
-    files may be compiled or unmarshalled: the kit, numpy, the standard library and `folder`). The hook
-    keeps every value it reads in its defaults (a patched builtin or module changes nothing in it)."""
+    """Install the audit hook (docs/exercise.md, "Only the files run") for a submission in `folder`:
+    the files under the kit, numpy, the standard library and `folder` may be compiled or unmarshalled,
+    modules outside them and the submission's own files may not be imported."""
     import numpy
     import numpy.ma
 
@@ -468,6 +423,3 @@ def main(answer_fd: int) -> None:
     serve(message, emit)
     _flush()
     os._exit(0)
-
-
-__all__ = ["Message", "WireError", "decode", "encode", "main", "serve"]

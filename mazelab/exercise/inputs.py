@@ -1,22 +1,15 @@
-"""Every check's inputs, drawn from one seed: the points, weights, angles, sizes, sigma, delta and the
-whole filter's scenarios are fresh for every seed, so a part cannot be tuned to public inputs.
-
-A student's own check draws from `files_seed`: the first 63 bits of the sha256 of the submission's
-files (the file, then each helper module copied with it), so a submission gets the same inputs (and
-the same report) every time, at home too, and any edit of any of its files gets new ones; `--seed S`
-repeats a report. A grading draws from `key_seed`: the same digest keyed with the grader's secret key
-(mazelab.exercise.grading), which no report shows, so that no student can compute the inputs, and
-inputs that leaked from one submission are no use to another. Each check draws from its own stream
-`default_rng([seed, tag])`: changing one check's inputs leaves the others'.
-
-The grader keeps these objects; the student's process (mazelab.exercise.child) is sent only what a
-filter is given (`request`): never the seed, a scenario's true path or where the robot started.
+"""Every check's inputs, drawn from one seed (docs/exercise.md, "Inputs a student cannot know"): the
+seed of a student's own check comes from the submission's files, a grading's from the grader's secret
+key and the files. Each check draws from its own stream `default_rng([seed, tag])`, so changing one
+check's inputs leaves the others'. The grader keeps these objects; the student's process is sent only
+what a filter is given (`request`): never the seed, a scenario's true path or where the robot started.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import hashlib
+import hmac
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -53,29 +46,17 @@ def default_seed(data: bytes) -> int:
     return int.from_bytes(hashlib.sha256(data).digest()[:8], "big") >> 1
 
 
-def files_bytes(path: Path, companions: list[Path]) -> bytes:
-    """A submission's files as one text: the file's bytes, then each helper module's name and bytes."""
-    return path.read_bytes() + b"".join(b"\0" + p.name.encode() + b"\0" + p.read_bytes() for p in companions)
-
-
-def files_seed(path: Path, companions: list[Path]) -> int:
-    """A student's own check's seed: from every file copied into the sandbox (the file's alone: the
-    seed of its bytes)."""
-    return default_seed(files_bytes(path, companions))
-
-
-def key_seed(key: bytes, path: Path, companions: list[Path]) -> int:
-    """A grading's seed: the submission's files keyed with the grader's secret key (HMAC-SHA256)."""
-    import hmac
-
-    return int.from_bytes(hmac.digest(key, files_bytes(path, companions), "sha256")[:8], "big") >> 1
+def files_seed(path: Path, companions: list[Path], key: bytes | None = None) -> int:
+    """A submission's seed: the first 63 bits of the sha256 of its files (the file's bytes, then each
+    helper module's name and bytes), or with the grader's secret `key` of their HMAC-SHA256."""
+    data = path.read_bytes() + b"".join(b"\0" + p.name.encode() + b"\0" + p.read_bytes() for p in companions)
+    return default_seed(data) if key is None else int.from_bytes(hmac.digest(key, data, "sha256")[:8], "big") >> 1
 
 
 @dataclass(frozen=True)
 class PredictInputs:
-    """predict on `start` (N, 2) at three compass angles (one anywhere, one straddling +-pi, one
-    straddling 0), each call from default_rng(seed); the first angle is also called again with the
-    same Generator (fresh noise) and with an equally seeded one (the same draws)."""
+    """predict on `start` (N, 2) at each compass angle from default_rng(its seed); the first angle also
+    again on the same Generator (fresh noise) and on an equally seeded one (the same draws)."""
 
     start: np.ndarray
     angles: tuple[float, ...]
@@ -92,8 +73,7 @@ class WeighInputs:
 
 @dataclass(frozen=True)
 class ResampleInputs:
-    """resample called `draws` times on each weight vector (from one Generator per vector, seeded
-    `seeds[k]`), then once more from an equally seeded one."""
+    """resample `draws` times on each weight vector (one Generator each), then once on an equally seeded one."""
 
     weights: tuple[np.ndarray, ...]
     kinds: tuple[str, ...]
@@ -111,21 +91,13 @@ class EstimateInputs:
 
 
 @dataclass(frozen=True)
-class PartInputs:
-    """The inputs of the four part checks: one maze, sigma and delta, the prior particles the
-    filter is built with (and its Generator's seed), and each part's inputs."""
+class _OnAMaze:
+    """A maze by name and cells, and the noise: what a filter is built on."""
 
-    seed: int
     maze: str
     grid: np.ndarray
     sigma: float
     delta: float
-    prior: np.ndarray
-    filter_seed: int
-    predict: PredictInputs
-    weigh: WeighInputs
-    resample: ResampleInputs
-    estimate: EstimateInputs
 
     @property
     def world(self) -> Maze:
@@ -133,30 +105,36 @@ class PartInputs:
 
 
 @dataclass(frozen=True)
-class ScenarioInputs:
-    """One scenario of the whole-filter check: a maze, the noise, a seeded walk (what the filter is
-    told: compass angles and measurements; what it is not: the true path) and initial particles."""
+class PartInputs(_OnAMaze):
+    """The part checks' inputs: the seed, the prior the filter is built with (and its Generator's
+    seed), and each part's."""
 
-    maze: str
-    grid: np.ndarray
-    sigma: float
-    delta: float
+    seed: int
+    prior: np.ndarray
+    filter_seed: int
+    predict: PredictInputs
+    weigh: WeighInputs
+    resample: ResampleInputs
+    estimate: EstimateInputs
+
+
+@dataclass(frozen=True)
+class ScenarioInputs(_OnAMaze):
+    """One scenario of the whole-filter check: a seeded walk (the filter is told the compass angles and
+    measurements, never the true path or the start) and the initial particles."""
+
     seed: int  # the run's seed: the robot's start and walk, the particles, the filters' draws
-    start: tuple[float, float]  # the robot's start: the grader's, like the path
+    start: tuple[float, float]
     particles: np.ndarray
     actual_angles: tuple[float, ...]
     compass_angles: tuple[float, ...]
     measurements: tuple[float, ...]
-    true_positions: np.ndarray  # (steps, 2): the grader's, never sent to the student's process
+    true_positions: np.ndarray  # (steps, 2)
 
     @property
     def key(self) -> tuple:
         """What identifies the scenario (its reference runs are computed once per key)."""
         return (self.maze, self.sigma, self.delta, self.seed, len(self.particles), len(self.measurements))
-
-    @property
-    def world(self) -> Maze:
-        return Maze(self.grid, source=self.maze)
 
     def robot(self) -> Robot:
         """A robot that replays the walk (for the exact and the shipped filter's runs)."""
@@ -190,11 +168,11 @@ def draw_part_inputs(seed: int) -> PartInputs:
     sigma, delta = _between(rng, PART_SIGMA), _between(rng, PART_DELTA)
     prior = world.random_free_places(PRIOR_COUNT, rng)
     return PartInputs(
-        seed,
         maze,
         world.grid.copy(),
         sigma,
         delta,
+        seed,
         prior,
         _seeds(rng, 1)[0],
         _predict_inputs(seed, world, delta),
@@ -342,19 +320,3 @@ def request(
     for i, scenario in enumerate(scenarios):
         _flatten(f"whole.{i}", scenario, SENT["scenario"], inputs, arrays)
     return {"file": file, "class": class_name, "shown": shown, "stages": stages, "inputs": inputs}, arrays
-
-
-__all__ = [
-    "RESAMPLE_DRAWS",
-    "RESAMPLE_KINDS",
-    "SCENARIO_COUNT",
-    "PartInputs",
-    "ScenarioInputs",
-    "default_seed",
-    "draw_part_inputs",
-    "draw_scenarios",
-    "files_seed",
-    "key_seed",
-    "request",
-    "resample_vector",
-]

@@ -151,13 +151,3 @@ def build_kit(folder: Path) -> str:
     for directory in sorted({p for p in folder.rglob("*") if p.is_dir()} | {folder}):
         directory.chmod(0o555)
     return digest.hexdigest()
-
-
-__all__ = [
-    "KIT",
-    "REFERENCE_FUNCTIONS",
-    "REFERENCE_MODULES",
-    "build_kit",
-    "kit_file",
-    "source_file",
-]

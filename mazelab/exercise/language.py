@@ -4,7 +4,7 @@ A catalogue is a GNU gettext .po file read by the small reader below (msgid, msg
 of their strings: nothing in it is run, and no compiled .mo or new tool is needed). `Catalogue` is
 a `gettext.NullTranslations`, so `catalogue.gettext(text)` is the standard call. The report's texts
 are made in English where they are computed (the grader's verdicts) and translated where they are
-shown (mazelab.exercise.layout): a text is looked up whole; a msgid with `{name}` fields also
+shown (mazelab.exercise.report): a text is looked up whole; a msgid with `{name}` fields also
 matches a text with any values there (a hint that names a number; a value that is itself a msgid,
 a weight vector's kind, is translated too), and a text made of several msgids (a hint added to
 another) has each translated.
@@ -171,6 +171,3 @@ def file_language(path: Path) -> str | None:
             value = getattr(node.value, "value", None)
             return value if value in languages() else None
     return None
-
-
-__all__ = ["Catalogue", "CatalogueError", "catalogue", "catalogue_for", "read_po"]

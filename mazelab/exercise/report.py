@@ -1,19 +1,8 @@
-"""The checker: a report of one submission, a row per part and one for the whole filter, from the
-inputs of a seed, the values the student's code returned, and the grader's own reference runs; and the
-report as text of at most WIDTH columns (a terminal, a notebook cell, a Gradescope box).
-
-`check_file(path)` is the grade: the student's code runs in child processes (mazelab.exercise.sandbox)
-within one time budget, and every verdict is made here from the values they returned. A child that
-ends in a part (an exit of any code, a signal, the time limit, output that is not an answer) fails
-that part's row, naming what happened, and a new child goes on with the parts after it while the
-budget lasts; a child that ends while the file is imported fails every row; a stage answered twice
-fails its row. `check(filter_class)` runs the same work in this process: the notebook's and `python
-my_filter.py`'s self-check, which nothing isolates.
-
-Loading problems are the submission's, not a part's: a file that does not import, a missing class, or
-a class that is not a StudentFilter raise NotGradableError (one line; `check` exits 2, `grade` gives the
-submission a row of that). Every text that reaches a report is `clean`: one line at most as long as its
-limit, its characters that do not print (a carriage return, a backspace, an escape) written as escapes.
+"""The check of one submission (docs/exercise.md, "Grading one submission"): its inputs drawn, its
+stages run in child processes within one time budget (`check_file`, the grade) or in this process
+(`check`, the self-check, which nothing isolates), each row judged here from the values they returned,
+and the report as text of at most WIDTH columns. A submission that cannot be checked at all raises
+NotGradableError (one line). Every text that reaches a report is `clean` (parts.py).
 """
 
 from __future__ import annotations
@@ -23,6 +12,7 @@ import inspect
 import shlex
 import textwrap
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -36,7 +26,6 @@ from mazelab.exercise.inputs import (
     draw_part_inputs,
     draw_scenarios,
     files_seed,
-    key_seed,
     request,
 )
 from mazelab.exercise.language import Catalogue
@@ -44,6 +33,8 @@ from mazelab.exercise.likeness import class_source, copied_parts
 from mazelab.exercise.parts import (
     EXPECTED,
     FAIL,
+    HINTS,
+    JUDGES,
     NOT_OWN,
     NOT_RUN,
     NOT_WRITTEN,
@@ -51,10 +42,12 @@ from mazelab.exercise.parts import (
     BadAnswerError,
     Row,
     clean,
-    judges,
+    error_of,
+    error_row,
+    judge_resample,
     resample_expected,
 )
-from mazelab.exercise.sandbox import DEFAULT_BUDGET, companions_of, run_child, sandbox, submission_copy
+from mazelab.exercise.sandbox import DEFAULT_BUDGET, ChildRun, companions_of, run_child, sandbox, submission_copy
 from mazelab.exercise.student import PARTS
 from mazelab.exercise.whole import FIGURE_HEADERS, References, figures_table, judge_whole, whole_answer
 from mazelab.exercise.whole import expected_text as whole_expected
@@ -67,17 +60,28 @@ WHOLE = "whole filter"
 COPY_HINT = "write it yourself: a part may not be the lab's reference implementation with its names changed"
 RESERVE = 5.0  # seconds of the budget kept for each stage after the one running (a hang leaves time for the rest)
 ENDED_HINT = "a part returns its answer: no exit, no endless loop, nothing that kills the process"
+TWICE = "answered twice (two processes answering, or a forged answer beside its own): no answer counts"
 WIDTH = 100
 PART_WIDTH, RESULT_WIDTH = 12, 12  # "whole filter", "not own work" (wider where a language's words are)
 SHOWN = {FAIL: "FAIL"}  # how a status reads in the table (the others as they are)
+HEADINGS = {
+    "given": "Checking {name}: inputs from seed {seed} (given)",
+    "files": "Checking {name}: inputs from seed {seed} (from the files; --seed {seed} repeats it)",
+    "class": "Checking {name}: inputs from seed {seed} (from the class's source)",
+    "key": "Checking {name}: inputs from the grader's secret key",
+}
+FIGURES_INTRO = (
+    "The whole filter on each scenario (distance to the exact mean over the second half of the steps; "
+    "yours, then the SIR's):"
+)
 
 
 @dataclass
 class Report:
     """One submission's check: its rows (the parts, then the whole filter), the whole filter's figures
-    per scenario, where its inputs came from (`source`: "given", "files", "key" or "class"; `seed` None
-    for a key, which no report shows), what went wrong beyond the rows, the time it took (and the
-    student's processes' share), and whether it ran unsandboxed."""
+    per scenario, where its inputs came from (`source`: a key of HEADINGS; `seed` None for a key, which
+    no report shows), what went wrong beyond the rows, the time it took (and the student's processes'
+    share), their prints, and the line saying it ran unsandboxed."""
 
     filter_name: str
     seed: int | None
@@ -88,7 +92,7 @@ class Report:
     seconds: float = 0.0
     student_seconds: float = 0.0
     output: str = ""
-    note: str = ""  # where the child was not sandboxed: the one line saying its verdict cannot be trusted
+    note: str = ""
 
     def __post_init__(self) -> None:
         self.filter_name = clean(self.filter_name, 80)
@@ -110,19 +114,12 @@ class NotGradableError(ValueError):
         super().__init__(clean(text))
 
 
-def ended_row(part: str, expected: str, ended: str, output: str) -> Row:
-    """The row of the stage in which the student's process ended: how, and its last printed line."""
-    last = next((line.strip() for line in reversed(output.splitlines()) if line.strip()), "")
-    got = f"the student's process {ended}" + (f"; its last line: {last[:200]}" if last else "")
-    return Row(part, FAIL, expected, got, ENDED_HINT)
-
-
 # -- collecting the answers ---------------------------------------------------------------------------
 @dataclass
 class Answers:
     """What the student's processes gave: the loaded class's description, each stage's answer, how a
-    process ended in a stage (or why a stage's answer is void), why nothing loaded, what happened
-    after the answers, what they printed and how long they took."""
+    process ended in a stage (or why its answer is void), why nothing loaded, what happened after the
+    answers, what they printed and how long they took."""
 
     loaded: dict[str, Any] | None = None
     results: dict[str, Message] = field(default_factory=dict)
@@ -131,9 +128,6 @@ class Answers:
     notes: list[str] = field(default_factory=list)
     output: str = ""
     seconds: float = 0.0
-
-
-TWICE = "answered twice (two processes answering, or a forged answer beside its own): no answer counts"
 
 
 def collect_isolated(
@@ -148,7 +142,7 @@ def collect_isolated(
 ) -> Answers:
     """Run the stages in child processes, each in the sandbox of the submission's own copy (and its
     helper modules, with `companions`), within `budget` seconds in all: a new child after a stage in
-    which one ended, while the budget lasts."""
+    which one ended, while the budget lasts. Each way a child ends is one branch below."""
     answers, todo, made = Answers(), list(stages), sandbox()
     with submission_copy(path, companions) as run_folder:
         while todo:
@@ -159,7 +153,7 @@ def collect_isolated(
             wanted = request(made.inside(run_folder, path.name), class_name, todo, parts, scenarios, shown)
             run = run_child(wanted, run_folder, left, made, reserve=min(RESERVE, left / (2 * len(todo))))
             answers.output, answers.seconds = answers.output + run.output, answers.seconds + run.seconds
-            if run.loaded is None:
+            if run.loaded is None:  # it ended while the file was imported: every row fails
                 answers.problem = f"the student's process {run.ended or 'sent nothing'}"
                 break
             answers.loaded = run.loaded
@@ -177,7 +171,7 @@ def collect_isolated(
             if not left_over:  # every stage answered, then it ended: the values are judged, the ending noted
                 answers.notes.append(f"after its answers the student's process {run.ended}")
                 break
-            stage = run.stage if run.stage in left_over else left_over[0]
+            stage = run.stage if run.stage in left_over else left_over[0]  # it ended there: a new child goes on
             answers.ended[stage] = run.ended
             todo = [s for s in left_over if s != stage]
     return answers
@@ -186,29 +180,21 @@ def collect_isolated(
 def collect_in_process(
     filter_class: type, parts: PartInputs, scenarios: list[ScenarioInputs], stages: list[str]
 ) -> Answers:
-    """Run the stages in this process (a self-check): the same work as the child's."""
-    answers = Answers()
-    meta, arrays = request("", None, stages, parts, scenarios)
-
-    def emit(meta: dict[str, Any], arrays: dict | None = None) -> None:
-        message = decode(encode(meta, arrays))  # exactly what a child would send
-        if meta["kind"] == "loaded":
-            answers.loaded = message.meta
-        elif meta["kind"] == "result":
-            answers.results[meta["stage"]] = message
-
-    child.serve(decode(encode(meta, arrays)), emit, filter_class)
-    return answers
+    """Run the stages in this process (a self-check): the same work as the child's, each message
+    encoded, decoded and recorded as a child's would be (ChildRun.take)."""
+    run, (meta, arrays) = ChildRun(), request("", None, stages, parts, scenarios)
+    child.serve(
+        decode(encode(meta, arrays)), lambda meta, arrays=None: run.take(decode(encode(meta, arrays))), filter_class
+    )
+    return Answers(run.loaded, run.results)
 
 
 def loading_problem(answers: Answers, shown: str) -> str | None:
     """The one line for a submission that cannot be checked at all, or None."""
-    loaded = answers.loaded
-    if loaded is None:
-        return None
+    loaded = answers.loaded or {}
     if loaded.get("error"):
         return clean(loaded["error"])
-    if not loaded.get("student_filter"):
+    if loaded and not loaded.get("student_filter"):
         bases = clean(", ".join(map(str, loaded.get("bases") or [])) or "object", 200)
         return (
             f"{shown}: {clean(loaded.get('class'), 80)} is not a StudentFilter (it subclasses {bases}); the "
@@ -228,9 +214,9 @@ def build_report(
     stages: tuple[str, ...] = STAGES,
     copies: dict | None = None,
 ) -> Report:
-    """The report's rows from the answers: each part judged (or failed for how the process ended in it,
-    or for being the lab's code: `copies`, mazelab.exercise.likeness), then the whole filter against
-    the reference runs; the failing parts named in the whole filter's hint."""
+    """The report's rows from the answers: each stage's row (`_row`), a part that is the lab's code
+    (`copies`, mazelab.exercise.likeness) marked not own work; what went wrong beyond the rows; the
+    failing parts named in the whole filter's hint."""
     report.output, report.student_seconds = answers.output, answers.seconds
     expected = {**EXPECTED, "resample": resample_expected(parts), "whole": whole_expected()}
     if answers.problem:
@@ -238,21 +224,9 @@ def build_report(
         how = answers.problem.removeprefix("the student's process ")
         report.rows = [ended_row(_label(s), expected[s], how, answers.output) for s in stages]
         return report
-    scheme = "systematic"
+    scheme = "systematic"  # the whole filter's SIR resamples as the student's resampler does
     for stage in stages:
-        label, message = _label(stage), answers.results.get(stage)
-        if stage in answers.ended:
-            row = ended_row(label, expected[stage], answers.ended[stage], answers.output)
-        elif message is None:  # it said "done" (or ended) without this stage's answer
-            row = Row(
-                label, FAIL, expected[stage], "no answer came from the student's process", "a part returns its answer"
-            )
-        else:
-            try:
-                row, scheme = _judged(stage, message, scheme, report, parts, scenarios, answers, references)
-            except BadAnswerError as error:
-                got = f"an answer the grader cannot read ({error})"
-                row = Row(label, FAIL, expected[stage], got, "return plain arrays")
+        row, scheme = _row(stage, expected[stage], scheme, report, parts, scenarios, answers, references)
         if (copies or {}).get(stage) and row.status != NOT_WRITTEN:
             row = Row(row.part, NOT_OWN, row.expected, copies[stage], COPY_HINT)
         report.rows.append(row)
@@ -266,21 +240,42 @@ def build_report(
     return report
 
 
-def _judged(stage: str, message: Message, scheme: str, report: Report, parts: PartInputs,
-            scenarios: list[ScenarioInputs], answers: Answers, references: Any) -> tuple[Row, str]:  # fmt: skip
-    """A stage's row from its answer, and the scheme the whole filter's SIR uses (the one the student's
-    resampler resembles); the whole filter's figures into the report."""
-    if stage != "whole":
-        return judges()[stage](parts, message, scheme)
-    if any(_not_written(answers.results.get(p)) for p in PARTS):
-        return Row(WHOLE, NOT_RUN, whole_expected(scheme), "not run", "write every part first"), scheme
-    estimates = whole_answer(scenarios, message, scheme)
-    if isinstance(estimates, Row):
-        return estimates, scheme
-    sir = [references.sir(s, scheme) for s in scenarios]
-    exact = [references.exact(s).result() for s in scenarios]
-    row, report.figures = judge_whole(scenarios, estimates, exact, [f.result() for f in sir], scheme)
-    return row, scheme
+def _row(stage: str, expected: str, scheme: str, report: Report, parts: PartInputs,
+         scenarios: list[ScenarioInputs], answers: Answers, references: Any) -> tuple[Row, str]:  # fmt: skip
+    """One stage's row, and the scheme the whole filter's SIR then uses: the process ended in it, no
+    answer came, an answer the grader cannot read, the student's code failed, or its values judged
+    (the whole filter's figures into the report)."""
+    label, message = _label(stage), answers.results.get(stage)
+    if stage in answers.ended:
+        return ended_row(label, expected, answers.ended[stage], answers.output), scheme
+    if message is None:  # it said "done" (or ended) without this stage's answer
+        return Row(
+            label, FAIL, expected, "no answer came from the student's process", "a part returns its answer"
+        ), scheme
+    try:
+        error = error_of(message)
+        if stage == "resample" and not error:
+            return judge_resample(parts, message)
+        if stage != "whole":
+            return (error_row(stage, expected, error, HINTS[stage]) if error else JUDGES[stage](parts, message)), scheme
+        if any(_not_written(answers.results.get(p)) for p in PARTS):
+            return Row(WHOLE, NOT_RUN, whole_expected(scheme), "not run", "write every part first"), scheme
+        estimates = whole_answer(scenarios, message, scheme)
+        if isinstance(estimates, Row):
+            return estimates, scheme
+        sir = [references.sir(s, scheme) for s in scenarios]
+        exact = [references.exact(s).result() for s in scenarios]
+        row, report.figures = judge_whole(scenarios, estimates, exact, [f.result() for f in sir], scheme)
+        return row, scheme
+    except BadAnswerError as error:
+        return Row(label, FAIL, expected, f"an answer the grader cannot read ({error})", "return plain arrays"), scheme
+
+
+def ended_row(part: str, expected: str, ended: str, output: str) -> Row:
+    """The row of the stage in which the student's process ended: how, and its last printed line."""
+    last = next((line.strip() for line in reversed(output.splitlines()) if line.strip()), "")
+    got = f"the student's process {ended}" + (f"; its last line: {last[:200]}" if last else "")
+    return Row(part, FAIL, expected, got, ENDED_HINT)
 
 
 def _label(stage: str) -> str:
@@ -308,7 +303,6 @@ def check_file(
     unless `companions` is False (a file directly in a class folder: the others are other students');
     its inputs from `seed`, else from the grader's secret `key` and the files, else from the files
     alone. NotGradableError when it cannot be checked."""
-    started = time.perf_counter()
     path, class_name = split_spec(spec)
     shown = clean(f"{path}:{class_name}" if class_name else str(path))
     if not path.is_file():
@@ -316,40 +310,67 @@ def check_file(
     if path.resolve().suffix != ".py":
         raise NotGradableError(f"{shown}: a link to {path.resolve()}, not a Python file")
     beside = companions_of(path) if companions else []
-    if seed is None:
-        seed, source = (key_seed(key, path, beside), "key") if key else (files_seed(path, beside), "files")
-    else:
+    if seed is not None:
         source = "given"
-    parts = draw_part_inputs(seed)
-    scenarios = draw_scenarios(seed) if "whole" in stages else []
-    references = references or References()
-    for scenario in scenarios:
-        references.exact(scenario)  # start the exact runs while the student's process works
-    answers = collect_isolated(path.resolve(), class_name, parts, scenarios, timeout, stages, shown, companions)
-    problem = loading_problem(answers, shown)
-    if problem:
-        raise NotGradableError(problem)
-    name = str((answers.loaded or {}).get("name") or class_name or path.stem)  # the child's word for its name
-    report = Report(name, None if source == "key" else seed, source, note=sandbox().note)
-    copies = copied_parts({p.name: p.read_text(errors="replace") for p in [path, *beside]})
-    build_report(report, parts, scenarios, answers, references, stages, copies)
-    report.seconds = time.perf_counter() - started
-    return report
+    elif key:
+        source, seed = "key", files_seed(path, beside, key)
+    else:
+        source, seed = "files", files_seed(path, beside)
+    return _check(
+        seed,
+        source,
+        stages,
+        lambda parts, scenarios: collect_isolated(
+            path.resolve(), class_name, parts, scenarios, timeout, stages, shown, companions
+        ),
+        shown,
+        {p.name: p.read_text(errors="replace") for p in [path, *beside]},
+        class_name or path.stem,
+        references,
+        sandbox().note,
+    )
 
 
 def check(filter_class: type, *, seed: int | None = None, stages: tuple[str, ...] = STAGES) -> Report:
     """Check a class in this process (a self-check: nothing isolates it), the given stages (every
     part and the whole filter by default); the seed defaults to one from the class's source, or 0."""
+    return _check(
+        source_seed(filter_class) if seed is None else seed,
+        "class",
+        stages,
+        lambda parts, scenarios: collect_in_process(filter_class, parts, scenarios, list(stages)),
+        filter_class.__name__,
+        {"class.py": class_source(filter_class)},
+        filter_class.__name__,
+    )
+
+
+def _check(
+    seed: int,
+    source: str,
+    stages: tuple[str, ...],
+    collect: Callable[[PartInputs, list[ScenarioInputs]], Answers],
+    shown: str,
+    sources: dict[str, str],
+    name: str,
+    references: Any = None,
+    note: str = "",
+) -> Report:
+    """The check both ways: the seed's inputs, the exact runs started while the student's code works,
+    its answers collected, the report built (the class named as the student's process says)."""
     started = time.perf_counter()
-    report = Report(str(filter_class.name), source_seed(filter_class) if seed is None else seed, "class")
-    parts = draw_part_inputs(report.seed)
-    scenarios = draw_scenarios(report.seed) if "whole" in stages else []
-    answers = collect_in_process(filter_class, parts, scenarios, list(stages))
-    problem = loading_problem(answers, filter_class.__name__)
+    parts = draw_part_inputs(seed)
+    scenarios = draw_scenarios(seed) if "whole" in stages else []
+    references = references or References()
+    for scenario in scenarios:
+        references.exact(scenario)
+    answers = collect(parts, scenarios)
+    problem = loading_problem(answers, shown)
     if problem:
         raise NotGradableError(problem)
-    copies = copied_parts({"class.py": class_source(filter_class)})
-    build_report(report, parts, scenarios, answers, References(), stages, copies)
+    name = str((answers.loaded or {}).get("name") or name)
+    report = Report(name, None if source == "key" else seed, source, note=note)
+    build_report(report, parts, scenarios, answers, references, stages, copied_parts(sources))
     report.seconds = time.perf_counter() - started
     return report
 
@@ -389,18 +410,6 @@ def format_rows(rows: list[Row], width: int = WIDTH, catalogue: Catalogue | None
     return words.numbers("\n".join(lines))
 
 
-FIGURES_INTRO = (
-    "The whole filter on each scenario (distance to the exact mean over the second half of the steps; "
-    "yours, then the SIR's):"
-)
-HEADINGS = {
-    "given": "Checking {name}: inputs from seed {seed} (given)",
-    "files": "Checking {name}: inputs from seed {seed} (from the files; --seed {seed} repeats it)",
-    "class": "Checking {name}: inputs from seed {seed} (from the class's source)",
-    "key": "Checking {name}: inputs from the grader's secret key",
-}
-
-
 def format_report(report: Report, width: int = WIDTH, catalogue: Catalogue | None = None) -> str:
     """The whole report: the heading, the rows, the figures per scenario, and the verdict."""
     words = catalogue or Catalogue()
@@ -410,9 +419,8 @@ def format_report(report: Report, width: int = WIDTH, catalogue: Catalogue | Non
     if report.note:
         lines[1:1] = _wrapped(words.translate(report.note), "", 0, width)
     if report.figures:
-        intro = _(FIGURES_INTRO)
         table = [[words.translate(cell) for cell in row] for row in figures_table(report.figures)]
-        lines += ["", *_wrapped(intro, "", 0, width), format_table([_(h) for h in FIGURE_HEADERS], table)]
+        lines += ["", *_wrapped(_(FIGURES_INTRO), "", 0, width), format_table([_(h) for h in FIGURE_HEADERS], table)]
     failed = [_(r.part) for r in report.rows if not r.passed]
     lines += ["", _("All checks pass.") if not failed else _("To fix: {parts}.").format(parts=", ".join(failed))]
     return words.numbers("\n".join(lines))
@@ -425,8 +433,7 @@ def progress(filter_class: type, lang: str | None = None) -> str:
     locale's)."""
     from mazelab.exercise.language import catalogue_for
 
-    module = inspect.getmodule(filter_class)
-    words = catalogue_for(lang or getattr(module, "LANGUAGE", None))
+    words = catalogue_for(lang or getattr(inspect.getmodule(filter_class), "LANGUAGE", None))
     report = check(filter_class, stages=PARTS)
     todo = [row.part for row in report.rows if row.not_written]
     left = words.gettext("still to write: {parts}").format(parts=", ".join(todo))
@@ -455,16 +462,3 @@ def check_command(filter_class: type) -> str:
         shown = shown.relative_to(Path.cwd().resolve())
     spec = str(shown) if filter_class.__name__ == "MyFilter" else f"{shown}:{filter_class.__name__}"
     return f"{command_prefix()} exercise check {shlex.quote(spec)}"
-
-
-__all__ = [
-    "NotGradableError",
-    "Report",
-    "Row",
-    "check",
-    "check_command",
-    "check_file",
-    "format_report",
-    "format_rows",
-    "progress",
-]

@@ -1,25 +1,8 @@
-"""Where and how a submission's code runs: a bubblewrap sandbox of its own (Linux), or, where none can
-be made, a plain process (macOS, Windows, no `bwrap`) whose verdict a hostile submission can forge;
-and one run of the student's process, read without trusting it.
-
-The sandbox (`bwrap`, the one Flatpak uses) is a new user, PID, network, IPC, UTS and mount namespace:
-an unprivileged uid (65534), no network, a private /tmp, a new /proc and /dev, and read-only views of
-only the interpreter, the system's libraries, numpy, the student kit (mazelab.exercise.kit) and the
-submission's own copy; bwrap itself is started with a minimal environment. The command follows what
-the probe found (`--size` only where this bwrap has it, 0.7 and later). Every process the submission
-starts is in the sandbox's PID namespace and ends with it.
-
-The limits are set outside the student's reach before any of its code runs: processor time and wall
-time (what is left of the submission's budget), 4 GB of address space per process, no file over 64 MB;
-and per sandbox, where the host delegates a cgroup (v2, or v1 as root), at most 64 processes and 4 GB
-in all; else RLIMIT_NPROC, counted in the sandbox's own user namespace (its processes only), the
-sandbox dropping to the unprivileged uid 65534 first when the grader runs as root.
-
-One run ends in one of these states (`ChildRun`): it answered and said "done"; it ended after its
-answers; it ended in a stage (an exit of any code, a signal, the time limit, output that is not a
-message, a pipe held open after it ended); it answered a stage twice (two processes answering, or a
-forged answer beside the real one). A run that never said "hello" never ran the student's code: the
-sandbox failed, which is the grader's error (SandboxError), never the student's grade.
+"""Where and how a submission's code runs: a bubblewrap sandbox of its own, or a plain process where
+none can be made, with the limits set before any of its code runs; and one run of the student's
+process, read without trusting it. docs/exercise.md ("The sandbox") says what each holds, which limits
+hold on which host, and how a run may end (`ChildRun`); a run that never said "hello" never ran the
+student's code: the sandbox failed, the grader's error (SandboxError), never the student's grade.
 """
 
 from __future__ import annotations
@@ -57,6 +40,7 @@ STARTUP = 30.0  # wall seconds a sandbox may take to start the child, the grader
 STARTUP_CPU = 3  # processor seconds the child's start takes at most (the interpreter, numpy, the kit, the guard)
 OUTPUT_KEPT = 2000  # characters of the child's prints kept (its first and its last)
 SANDBOX_UID = 65534  # "nobody"
+COMPANIONS_KEPT = 50  # at most this many Python files beside a submission are copied with it
 KIT_ROOT, SITE_ROOT, SUBMISSION_ROOT = "/kit", "/site", "/submission"
 UNSANDBOXED = (
     "not sandboxed ({why}): the student's code ran with the grader's rights, so a hostile submission's "
@@ -73,16 +57,14 @@ CHILD_ENVIRONMENT = {  # the child's whole environment, and bwrap's: one thread 
     "PATH": "/usr/bin:/bin",
 }
 # python -P -S -s -B -u: no folder of the grader's on sys.path, no site, no bytecode, prints unbuffered
+PYTHON = ("-P", "-S", "-s", "-B", "-u")
 ENTRY = "import sys; sys.path[:0] = [{kit!r}, {site!r}]; from mazelab.exercise.child import main; main({fd})"
 _LIBC = ctypes.CDLL(None, use_errno=True) if sys.platform == "linux" else None  # loaded before any fork
 
 
-class SandboxRequiredError(RuntimeError):
-    """--require-sandbox, and no sandbox can be made here: one line saying why."""
-
-
 class SandboxError(RuntimeError):
-    """The sandbox failed before the student's code ran: the grader's error, one line."""
+    """The sandbox failed before the student's code ran (or --require-sandbox where there is none):
+    the grader's error, one line."""
 
 
 class GradingStoppedError(Exception):
@@ -106,15 +88,17 @@ class Sandbox:
         """'' in a sandbox; else the one line the report, the CSV and results.json carry."""
         return "" if self.sandboxed else UNSANDBOXED.format(why=self.why)
 
-    def command(self, kit: Path, run: Path, answers: int, staged: dict[str, str] | None = None) -> list[str]:
+    def command(self, kit: Path, run: Path, answers: int | None, staged: dict[str, str] | None = None) -> list[str]:
         """The command that runs mazelab.exercise.child on the kit with `run/submission/` as the only
         student files (`run/site/` holds links to numpy where there is no sandbox), answering on the
-        descriptor `answers`; `staged` binds a folder from another place (the root's drop to nobody)."""
-        flags = [os.path.realpath(sys.executable), "-P", "-S", "-s", "-B", "-u", "-c"]
+        descriptor `answers` (None: nothing runs, the probe); `staged` binds a folder from another place
+        (the root's drop to nobody)."""
+        python = [os.path.realpath(sys.executable), *PYTHON, "-c"]
+        roots = (KIT_ROOT, SITE_ROOT) if self.sandboxed else (str(kit), str(run / "site"))
+        code = "" if answers is None else ENTRY.format(kit=roots[0], site=roots[1], fd=answers)
         if not self.sandboxed:
-            return [*flags, ENTRY.format(kit=str(kit), site=str(run / "site"), fd=answers)]
-        binds = bwrap_arguments(kit, run / "submission", self.bounded_tmp, staged)
-        return [self.bwrap, *binds, "--", *flags, ENTRY.format(kit=KIT_ROOT, site=SITE_ROOT, fd=answers)]
+            return [*python, code]
+        return [self.bwrap, *bwrap_arguments(kit, run / "submission", self.bounded_tmp, staged), "--", *python, code]
 
     def inside(self, run: Path, name: str) -> str:
         """The submission's path as the child sees it."""
@@ -127,10 +111,16 @@ def numpy_folders() -> list[Path]:
     return [p for p in (package, package.parent / "numpy.libs") if p.is_dir()]
 
 
+def interpreter_folders() -> list[str]:
+    """The folders the interpreter needs: its installation (the standard library) and its binary's."""
+    folders = {os.path.realpath(sys.base_prefix), os.path.dirname(os.path.realpath(sys.executable))}
+    return sorted(f for f in folders if not any(f != g and f.startswith(g + os.sep) for g in folders))
+
+
 def bwrap_arguments(kit: Path, submission: Path, bounded_tmp: bool = True, staged: dict | None = None) -> list[str]:
     """bwrap's options: the namespaces, the uid, a private /tmp (of at most TMP_LIMIT bytes where
-    `bounded_tmp`), the read-only binds (from `staged[source]` where given), and the lab hidden where
-    an interpreter folder holds it (a lab installed into the system's Python)."""
+    `bounded_tmp`), the read-only binds (from `staged[source]` where given), the lab hidden where an
+    interpreter folder holds it (a lab installed into the system's Python), a minimal environment."""
     size = ["--size", str(TMP_LIMIT)] if bounded_tmp else []
     arguments = [
         "--unshare-all", "--unshare-user", "--uid", str(SANDBOX_UID), "--gid", str(SANDBOX_UID),
@@ -153,91 +143,91 @@ def bwrap_arguments(kit: Path, submission: Path, bounded_tmp: bool = True, stage
     return arguments
 
 
-def interpreter_folders() -> list[str]:
-    """The folders the interpreter needs: its installation (the standard library) and its binary's."""
-    folders = {os.path.realpath(sys.base_prefix), os.path.dirname(os.path.realpath(sys.executable))}
-    return sorted(f for f in folders if not any(f != g and f.startswith(g + os.sep) for g in folders))
-
-
 @functools.cache
 def sandbox() -> Sandbox:
-    """The sandbox of this machine: bwrap if it is installed and makes a sandbox here (tried once, with
-    and without --size), else plain, saying why."""
+    """The sandbox of this machine: bwrap if it is installed and makes a sandbox here (its command tried
+    once with --size and once without), else plain, saying why."""
     if sys.platform != "linux":
         return Sandbox(None, f"no bubblewrap sandbox on {sys.platform}")
     found = os.environ.get("MAZELAB_BWRAP") or shutil.which("bwrap")
     if not found:
         return Sandbox(None, "bwrap is not installed; on Debian or Ubuntu: apt-get install bubblewrap")
-    empty, why = Path(os.path.realpath(sys.base_prefix)), "no reason given"
-    for bounded in (True, False):  # an older bwrap (before 0.7) cannot bound /tmp: a sandbox all the same
-        probe = [found, *bwrap_arguments(empty, empty, bounded), "--", os.path.realpath(sys.executable), "-S", "-c", ""]
-        try:
-            done = subprocess.run(probe, capture_output=True, timeout=30, check=False, env=CHILD_ENVIRONMENT)
-        except (OSError, subprocess.TimeoutExpired) as error:
-            return Sandbox(None, f"bwrap cannot run here ({error})")
-        if done.returncode == 0:
-            return Sandbox(found, bounded_tmp=bounded)
-        why = (done.stderr.decode(errors="replace").strip().splitlines() or [why])[-1]
+    why = "no reason given"
+    with tempfile.TemporaryDirectory(prefix="mazelab-probe-") as run:
+        (Path(run) / "submission").mkdir()
+        for made in (Sandbox(found), Sandbox(found, bounded_tmp=False)):  # before 0.7, /tmp cannot be bounded
+            try:  # the command a child runs, on an empty submission, running nothing
+                probe = made.command(Path(run), Path(run), None)
+                done = subprocess.run(probe, capture_output=True, timeout=30, check=False, env=CHILD_ENVIRONMENT)
+            except (OSError, subprocess.TimeoutExpired) as error:
+                return Sandbox(None, f"bwrap cannot run here ({error})")
+            if done.returncode == 0:
+                return made
+            why = (done.stderr.decode(errors="replace").strip().splitlines() or [why])[-1]
     return Sandbox(None, f"bwrap cannot make a sandbox here ({why[:120]})")
 
 
 def require_sandbox() -> Sandbox:
-    """The sandbox, or SandboxRequiredError naming why there is none."""
+    """The sandbox, or SandboxError naming why there is none (--require-sandbox)."""
     made = sandbox()
     if not made.sandboxed:
-        raise SandboxRequiredError(f"--require-sandbox: {made.why}")
+        raise SandboxError(f"--require-sandbox: {made.why}")
     return made
 
 
 # -- the limits of one sandbox ---------------------------------------------------------------------------
 @functools.cache
-def cgroup_parents() -> dict[str, Path] | None:
-    """Where this grader may make a cgroup with a process and a memory limit: {"v2": folder} (its own
-    cgroup or the nearest above it that has both controllers for its children and that it may write:
-    a delegated one, or the root's as root) or {"pids": folder, "memory": folder} (v1, as root); None."""
+def cgroup_parents() -> list[Path] | None:
+    """The folders under which this grader may make a cgroup with a process and a memory limit: cgroup
+    v2's (its own cgroup or the nearest above it with both controllers for its children that it may
+    write: a delegated one, or the root's as root), else v1's pids and memory folders (as root); None."""
     if sys.platform != "linux" or os.environ.get("MAZELAB_CGROUPS") == "off":
         return None
     own = dict(line.split(":", 2)[1:] for line in Path("/proc/self/cgroup").read_text().splitlines())
-    mounts = [line.split() for line in Path("/proc/self/mounts").read_text().splitlines()]
     found: dict[str, Path] = {}
-    for _, point, kind, options, *_ in mounts:
+    for _, point, kind, options, *_ in (line.split() for line in Path("/proc/self/mounts").read_text().splitlines()):
         if kind == "cgroup2":
             mine = Path(point + own.get("", "/"))  # its own cgroup, then those above it (a delegated one)
             for parent in [p for p in (mine, *mine.parents) if p.is_relative_to(point)]:
                 controls = (parent / "cgroup.subtree_control").read_text().split() if parent.is_dir() else []
                 if {"pids", "memory"} <= set(controls) and os.access(parent, os.W_OK):
-                    return {"v2": parent}
+                    return [parent]
         elif kind == "cgroup":
-            for controller in ("pids", "memory"):
-                parent = Path(point + own.get(controller, "/"))
-                if controller in options.split(",") and os.access(parent, os.W_OK):
-                    found[controller] = parent
-    return found if set(found) == {"pids", "memory"} else None
+            for controller in {"pids", "memory"} & set(options.split(",")):
+                if os.access(Path(point + own.get(controller, "/")), os.W_OK):
+                    found[controller] = Path(point + own.get(controller, "/"))
+    return sorted(found.values()) if len(found) == 2 else None
 
 
 class Cgroup:
-    """A cgroup of its own for one child (made, the child moved in before it starts, emptied and
-    removed at the end); `folders` is empty where none can be made."""
+    """A cgroup of its own for one child (made with its LIMITS, the child moved in before it starts,
+    emptied and removed at the end); `folders` is empty where none can be made."""
 
-    LIMITS: ClassVar[dict[str, dict[str, int]]] = {
-        "v2": {"pids.max": PROCESS_LIMIT, "memory.max": MEMORY_LIMIT, "memory.swap.max": 0},
-        "pids": {"pids.max": PROCESS_LIMIT},
-        "memory": {"memory.limit_in_bytes": MEMORY_LIMIT},
+    # each written where the controller has the file (v2: the first three, memory.swap.max only with swap
+    # accounting; v1: pids.max in the pids hierarchy, memory.limit_in_bytes in the memory one)
+    LIMITS: ClassVar[dict[str, int]] = {
+        "pids.max": PROCESS_LIMIT,
+        "memory.max": MEMORY_LIMIT,
+        "memory.swap.max": 0,
+        "memory.limit_in_bytes": MEMORY_LIMIT,
     }
 
     def __init__(self) -> None:
         self.folders: list[Path] = []
         name = f"mazelab-{os.getpid()}-{threading.get_ident()}-{time.monotonic_ns()}"
-        for kind, parent in (cgroup_parents() or {}).items():
-            try:
+        written = set()
+        try:
+            for parent in cgroup_parents() or []:
                 (parent / name).mkdir()
                 self.folders.append(parent / name)
-                for limit, value in self.LIMITS[kind].items():
-                    with contextlib.suppress(FileNotFoundError):  # memory.swap.max: only with swap accounting
+                for limit, value in self.LIMITS.items():
+                    if (parent / name / limit).exists():
                         (parent / name / limit).write_text(str(value))
-            except OSError:
-                self.close()
-                return
+                        written.add(limit)
+        except OSError:
+            written = set()
+        if self.folders and ("pids.max" not in written or not written & {"memory.max", "memory.limit_in_bytes"}):
+            self.close()  # no process or no memory limit: the fallback's RLIMIT_NPROC holds instead
         self._procs = [os.fsencode(f / "cgroup.procs") for f in self.folders]
 
     def enter(self) -> None:
@@ -256,6 +246,7 @@ class Cgroup:
                         os.kill(int(pid), signal.SIGKILL)
                 with contextlib.suppress(OSError):
                     folder.rmdir()
+                if not folder.exists():
                     break
                 time.sleep(0.02)
         self.folders = []
@@ -294,30 +285,30 @@ def _dropped(bound: list[str], stage: Path) -> Any:
 
 def _preexec(seconds: float, cgroup: Cgroup, drop: Any) -> Any:
     """What runs in the child before exec: its cgroup, its processor time (SIGXCPU at the limit,
-    SIGKILL two seconds later), memory, no core file, a bounded file size, the drop to nobody."""
+    SIGKILL two seconds later), memory, no core file, a bounded file size (each never above the
+    grader's own hard limit), the drop to nobody."""
     try:
         import resource
     except ImportError:  # Windows: the grader's clock is all there is
         return None
-    cpu = math.ceil(min(seconds, MAX_TIMEOUT))  # seconds of processor time: SIGXCPU, then SIGKILL 2 s later
-    wanted = [
-        (resource.RLIMIT_CPU, cpu, cpu + 2),
-        (resource.RLIMIT_AS, MEMORY_LIMIT, MEMORY_LIMIT),
-        (resource.RLIMIT_CORE, 0, 0),
-        (resource.RLIMIT_FSIZE, FILE_LIMIT, FILE_LIMIT),
+    cpu = math.ceil(min(seconds, MAX_TIMEOUT))
+    wanted = {
+        resource.RLIMIT_CPU: (cpu, cpu + 2),
+        resource.RLIMIT_AS: (MEMORY_LIMIT, MEMORY_LIMIT),
+        resource.RLIMIT_CORE: (0, 0),
+        resource.RLIMIT_FSIZE: (FILE_LIMIT, FILE_LIMIT),
+    }
+    hard = {which: resource.getrlimit(which)[1] for which in wanted}
+    settings = [
+        (which, values if hard[which] == resource.RLIM_INFINITY else tuple(min(v, hard[which]) for v in values))
+        for which, values in wanted.items()
     ]
-    settings = []  # never above the hard limits the grader itself has
-    for which, soft, top in wanted:
-        hard = resource.getrlimit(which)[1]
-        settings.append(
-            (which, soft, top) if hard == resource.RLIM_INFINITY else (which, min(soft, hard), min(top, hard))
-        )
 
     def apply() -> None:
         signal.pthread_sigmask(signal.SIG_SETMASK, [])  # a grading thread blocks the stop signals
         cgroup.enter()
-        for which, soft, top in settings:
-            resource.setrlimit(which, (soft, top))
+        for which, values in settings:
+            resource.setrlimit(which, values)
         if drop is not None:
             drop()
 
@@ -326,19 +317,21 @@ def _preexec(seconds: float, cgroup: Cgroup, drop: Any) -> Any:
 
 # -- the kit and the submission's copy --------------------------------------------------------------------
 _kit_lock = threading.Lock()
-_kit: tuple[Path, str] | None = None
 
 
-def kit() -> tuple[Path, str]:
-    """The student kit of this process (built once, in a temporary folder removed at exit) and its sha256."""
-    global _kit
+def kit() -> Path:
+    """The student kit of this process: built once, in a temporary folder removed at exit."""
     with _kit_lock:
-        if _kit is None:
-            folder = Path(tempfile.mkdtemp(prefix="mazelab-kit-"))
-            folder.chmod(0o755)  # the sandbox may run as nobody (as root without a cgroup)
-            atexit.register(_remove, folder)
-            _kit = (folder, build_kit(folder / "kit"))
-        return _kit[0] / "kit", _kit[1]
+        return _built_kit()
+
+
+@functools.cache
+def _built_kit() -> Path:
+    folder = Path(tempfile.mkdtemp(prefix="mazelab-kit-"))
+    folder.chmod(0o755)  # the sandbox may run as nobody (as root without a cgroup)
+    atexit.register(_remove, folder)
+    build_kit(folder / "kit")
+    return folder / "kit"
 
 
 def _remove(folder: Path) -> None:
@@ -347,9 +340,6 @@ def _remove(folder: Path) -> None:
         with contextlib.suppress(OSError):
             path.chmod(0o755 if path.is_dir() else 0o644)
     shutil.rmtree(folder, ignore_errors=True)
-
-
-COMPANIONS_KEPT = 50  # at most this many Python files beside a submission are copied with it
 
 
 def companions_of(path: Path) -> list[Path]:
@@ -401,16 +391,16 @@ def allow_children() -> None:
 
 @dataclass
 class ChildRun:
-    """What one run gave: whether it said hello, what it said of the class it loaded, each stage's
-    answer, the stages answered twice, the stages it started, how it ended (None: it said "done"),
-    its prints, and how long it took."""
+    """What one run gave: when it said hello, what it said of the class it loaded, each stage's answer,
+    the stages answered twice, the stages (and the whole filter's scenario) it started, how it ended
+    (None: it said "done"), its prints, and how long it took (from its hello: the student's time)."""
 
-    hello: float | None = None  # when it said hello (time.perf_counter): the student's time starts there
+    hello: float | None = None
     loaded: dict[str, Any] | None = None
     results: dict[str, Message] = field(default_factory=dict)
     twice: set[str] = field(default_factory=set)
     started: list[str] = field(default_factory=list)
-    scenario: int | None = None  # the last whole-filter scenario it started
+    scenario: int | None = None
     ended: str | None = None
     output: str = ""
     seconds: float = 0.0
@@ -429,13 +419,14 @@ class ChildRun:
         return f"in {self.stage}"
 
     def take(self, message: Message) -> bool:
-        """Record one message (False: it ends the conversation as unreadable)."""
+        """Record one message (False: it ends the conversation as unreadable). A second "loaded" (two
+        processes answering) voids every answer; a stage answered twice voids that stage."""
         meta, kind = message.meta, message.meta.get("kind")
         stage = meta.get("stage")
         if kind == "hello" and self.hello is None:
             self.hello = time.perf_counter()
         elif kind == "loaded":
-            if self.loaded is not None:  # a second process answering beside the first: nothing it says counts
+            if self.loaded is not None:
                 self.twice |= set(self.results) | {"loaded"}
             self.loaded = meta
         elif kind == "stage" and isinstance(stage, str):
@@ -502,11 +493,8 @@ def run_child(
     request: tuple[dict, dict], run_folder: Path, seconds: float, made: Sandbox, reserve: float = 0.0
 ) -> ChildRun:
     """Start a child on `request` (meta, arrays) in its sandbox (the submission's copy in `run_folder`)
-    with `seconds` of the submission's budget left, less `reserve` seconds for each stage after the
-    one it is in (so that a part that hangs leaves time for the parts after it): its wall-clock time
-    from its hello (its start, up to STARTUP, is the grader's), and a second less of processor time
-    beside the start's (a busy child meets SIGXCPU, a waiting one the grader's clock). Return what it
-    gave; SandboxError when it never ran the student's code."""
+    with `seconds` of the budget left, less `reserve` for each stage after the one it is in (the time
+    budget of docs/exercise.md); return what it gave, or SandboxError when it never ran the student's code."""
     if _stopped.is_set():
         raise GradingStoppedError("the grading was stopped")
     stages, cgroup = request[0]["stages"], Cgroup()
@@ -553,16 +541,15 @@ def _start(made: Sandbox, run: ChildRun, run_folder: Path, cgroup: Cgroup, cpu: 
     """The child's process (its prints merged on one pipe, the answer pipe kept open, its limits, a
     session of its own), its answers' reader and its prints' collector, both started, and the request
     sent; SandboxError when it cannot be started (bwrap gone since the probe, no memory to fork)."""
-    kit_folder, _ = kit()
     drop, staged = None, {}
     if made.sandboxed and not cgroup.folders:
-        binds = [*interpreter_folders(), *map(str, numpy_folders()), str(kit_folder), str(run_folder)]
+        binds = [*interpreter_folders(), *map(str, numpy_folders()), str(kit()), str(run_folder)]
         drop, staged = _dropped(binds, run_folder / "stage")
     answers_in, answers_out = os.pipe()
     try:
         with _running_lock:
             process = subprocess.Popen(
-                made.command(kit_folder, run_folder, answers_out, staged),
+                made.command(kit(), run_folder, answers_out, staged),
                 stdin=subprocess.PIPE,
                 stdout=subprocess.PIPE,
                 stderr=subprocess.STDOUT,
@@ -624,15 +611,3 @@ def _how_it_ended(
         name = signal.Signals(number).name if number in signal.Signals._value2member_map_ else "unknown"
         return f"was killed by signal {number} ({name}) {where}"
     return f"exited with code {code} {where}, before answering"
-
-
-__all__ = [
-    "DEFAULT_BUDGET",
-    "MAX_TIMEOUT",
-    "GradingStoppedError",
-    "Sandbox",
-    "SandboxError",
-    "run_child",
-    "sandbox",
-    "submission_copy",
-]

@@ -129,16 +129,12 @@ class StudentFilter(SMC):
     ) -> np.ndarray:
         """`predict` on a copy of the positions (drawing from `rng`, default the filter's), its answer
         checked: (N, 2), finite."""
-        moved = np.asarray(self.predict(positions.copy(), compass_angle, self.rng if rng is None else rng), dtype=float)
-        return _checked("predict", moved, (len(positions), 2))
+        moved = self.predict(positions.copy(), compass_angle, self.rng if rng is None else rng)
+        return _finite("predict", answer_array("predict", moved, (len(positions), 2)))
 
     def call_weigh(self, positions: np.ndarray, z: float) -> np.ndarray:
         """`weigh` on a copy of the positions, its answer checked: (N,), no NaN or +inf."""
-        log_w = np.asarray(self.weigh(positions.copy(), z), dtype=float)
-        if log_w.shape != (len(positions),):
-            raise PartError(
-                f"weigh returned shape {log_w.shape}; expected ({len(positions)},), one log-likelihood each"
-            )
+        log_w = answer_array("weigh", self.weigh(positions.copy(), z), (len(positions),))
         if np.isnan(log_w).any() or np.isposinf(log_w).any():
             raise PartError("weigh returned NaN or +inf; expected log-likelihoods (finite, or -inf for zero)")
         return log_w
@@ -146,19 +142,15 @@ class StudentFilter(SMC):
     def call_resample(self, weights: np.ndarray, rng: np.random.Generator | None = None) -> np.ndarray:
         """`resample` on a copy of the weights (drawing from `rng`, default the filter's), its answer
         checked: N whole numbers in [0, N)."""
-        ancestors = np.asarray(self.resample(weights.copy(), self.rng if rng is None else rng))
-        if ancestors.shape != (len(weights),):
-            raise PartError(f"resample returned shape {ancestors.shape}; expected ({len(weights)},), one index each")
-        if not np.issubdtype(ancestors.dtype, np.integer):
-            raise PartError(f"resample returned {ancestors.dtype} values; expected whole-number indices")
+        drawn = self.resample(weights.copy(), self.rng if rng is None else rng)
+        ancestors = answer_array("resample", drawn, (len(weights),), indices=True)
         if len(ancestors) and (ancestors.min() < 0 or ancestors.max() >= len(weights)):
             raise PartError(f"resample returned an index outside [0, {len(weights)})")
         return ancestors
 
     def call_estimate(self, positions: np.ndarray, weights: np.ndarray) -> np.ndarray:
         """`estimate` on copies, its answer checked: (2,), finite."""
-        point = np.asarray(self.estimate_part(positions.copy(), weights.copy()), dtype=float)
-        return _checked("estimate", point, (2,))
+        return _finite("estimate", answer_array("estimate", self.estimate_part(positions.copy(), weights.copy()), (2,)))
 
     # -- the filter contract (the weights, the ESS and the log evidence are the engine's) ------------
     @property
@@ -207,13 +199,29 @@ class StudentModel:
         return self.parts.call_weigh(x[0], float(z[0]))[None]
 
 
-def _checked(part: str, values: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
-    """A part's array, refused in one line when its shape is wrong or it holds a value that is not finite."""
-    if values.shape != shape:
-        raise PartError(f"{part} returned shape {values.shape}; expected {shape}")
+def answer_array(part: str, value: Any, shape: tuple[int, ...], indices: bool = False) -> np.ndarray:
+    """A part's answer as a float64 array of `shape` (int64 where it returns `indices`: whole numbers
+    only), else PartError in one line naming the part and what came. The one check of an answer's form:
+    the filter's own steps (`call_*`) and the grading's child (mazelab.exercise.child) both use it."""
+    try:
+        array = np.asarray(value)
+        if indices and not np.issubdtype(array.dtype, np.integer):
+            raise PartError(f"{part} returned {array.dtype} values, not whole-number indices")
+        array = array.astype(np.int64 if indices else np.float64)
+    except PartError:
+        raise
+    except Exception as error:
+        raise PartError(f"{part} returned {type(value).__name__}, not numbers ({error})") from None
+    if array.shape != shape:
+        raise PartError(f"{part} returned shape {array.shape}; expected {shape}")
+    return array
+
+
+def _finite(part: str, values: np.ndarray) -> np.ndarray:
+    """A part's array, refused in one line when it holds a value that is not finite."""
     if not np.isfinite(values).all():
         raise PartError(f"{part} returned a value that is not finite (NaN or inf)")
     return values
 
 
-__all__ = ["PARTS", "PartError", "StudentFilter", "StudentModel"]
+__all__ = ["PARTS", "PartError", "StudentFilter", "StudentModel", "answer_array"]

@@ -156,6 +156,3 @@ def check_exercise_file(path: Path, force: bool) -> None:
         raise ValueError(str(error).removeprefix("cannot write ")) from None
     except OSError as error:  # e.g. a part of the folder's path is a file
         raise ValueError(f"cannot write {path}: {error.strerror or error}") from None
-
-
-__all__ = ["FILTER_FILE", "FILTER_TEMPLATE", "README_TEMPLATE", "exercise_texts", "write_exercise"]
