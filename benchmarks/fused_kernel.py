@@ -383,32 +383,24 @@ def median_cpu_step(step, walk: list[tuple[float, float]], warmup: int, clock=ti
 
 
 def kernels_stepper(world: Maze, particles: int, seed: int = 2):
-    """The package's compiled kernels of a SIR step called back to back from a plain loop, into buffers
-    made once: the same draws, resampling, move, likelihood and normalisation (with its reads) as the
-    package's step, without the step, the model's calls and the weights value (what they cost is the
-    package's time less this)."""
-    from mazelab.kernels import model, resampling, weights
-    from mazelab.kernels.compiled import lookup_tables
+    """The package's compiled operations of a SIR step called back to back from a plain loop: the same
+    resampling, move (with its draws), likelihood and normalisation (with its reads) as the package's
+    step, without the step, the model's calls and the hooks' checks (what they cost is the package's
+    time less this)."""
+    from mazelab.backend import thread_count
+    from mazelab.kernels.compiled import CompiledKernels
+    from mazelab.smc import particles_array
 
     rng = np.random.default_rng(seed)
-    positions = [
-        np.asfortranarray(world.random_free_places(particles, rng), dtype=F32),
-        np.empty((particles, 2), F32, "F"),
-    ]
-    w, log_lik = np.full((1, particles), 1 / particles, F32), np.empty((1, particles), F32)
-    ancestors, uniforms, reads = np.empty(particles, np.int64), np.empty((1, particles), F32), np.empty((5, 1))
-    tables, norm = lookup_tables(world), math.log(BENCH_SIGMA * math.sqrt(2 * math.pi))
-    terms = (float(BENCH_SIGMA), -norm, math.log(OUTSIDE_PENALTY) - norm)
+    kernels = CompiledKernels(world, threads=thread_count())
+    state = {"x": particles_array(world.random_free_places(particles, rng)[None], F32)}
+    state["W"] = kernels.Weights.uniform(1, particles)
 
     def step(compass_angle: float, z: float) -> None:
-        resampling.systematic(w[0], rng.random(), ancestors)
-        rng.random(dtype=F32, out=uniforms[0])
-        model.move(
-            positions[0], ancestors, uniforms, np.array([compass_angle], F32), BENCH_DELTA, ROBOT_SPEED, positions[1]
-        )
-        positions.reverse()
-        model.log_likelihood(positions[0], np.array([z]), *terms, tables, log_lik)
-        weights.normalise(log_lik, positions[0], 1.0, w, reads)
+        A = kernels.systematic(state["W"].W[0], rng)[None]
+        x, _ = kernels.move(state["x"], A, [rng], np.array([compass_angle], F32), BENCH_DELTA, ROBOT_SPEED)
+        log_g = kernels.log_likelihood(np.array([z]), x, world, BENCH_SIGMA, OUTSIDE_PENALTY)
+        state["x"], state["W"] = x, kernels.Weights.from_log(log_g, x)
 
     return step
 

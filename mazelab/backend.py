@@ -1,25 +1,24 @@
-"""Which implementation of the hot parts a particle filter runs on: "numpy" (the reference, always
-there) or "compiled" (numba kernels, the `fast` extra: mazelab.kernels).
+"""Which implementation of the hot parts a particle filter runs on, "numpy" (the reference, always there)
+or "compiled" (numba kernels, the `fast` extra: mazelab.kernels), and on how many threads. Both offer
+the same operations (mazelab.numpy_ops.NumpyKernels, mazelab.kernels.compiled's CompiledKernels): the
+move with its draws, the likelihood, systematic resampling, the normalisation with the step's reads,
+the weighted covariance, the RPF's jitter and the Weights value; the model (mazelab.model.LostRobot)
+and the weights call them, and the step (mazelab.smc) does not know which runs.
 
-The choice, in order: `use_backend(name)` around the code, else the environment variable
-MAZELAB_BACKEND (numpy or compiled; the commands' --backend sets it, so that a study's worker
-processes inherit it), else the choice `backend_by_work` made for the work around it (a run, a
-comparison: `simulate`, `run_model`), else "compiled" when numba can be imported and "numpy" when it cannot. A
-filter takes the backend chosen when it is made (`filt.backend`), and RunResult.extras["backend"] and
-every record say which ran.
+The backend, in order: `use_backend(name)` around the code, else MAZELAB_BACKEND (numpy or compiled;
+the commands' --backend sets it, so that a study's worker processes inherit it), else the choice
+`backend_by_work` made for the work around it (`simulate`, `run_model`), else "compiled" when numba
+imports. A filter takes the one chosen when it is made (`filt.backend`); every result and record says
+which ran. The compiled backend costs each process a start-up (STARTUP_SECONDS of CPU) that its faster
+steps pay back only over enough work: `backend_for_work` keeps a small run or study on numpy (numba not
+imported) when the user chose none. The numpy backend is the lab's code as it always was, bit for bit;
+the compiled one does the same arithmetic but for the sums' order, the last bit of cos and sin and its
+own random streams, so a seed repeats a run on each, and the two agree statistically.
 
-The compiled backend costs each process a start-up (numba's import and the set-up of its first
-kernel: STARTUP_SECONDS of CPU) that its faster steps pay back only over enough work; a command that
-knows its work asks `backend_for_work`, which keeps a small run or study on numpy (and numba not
-imported) when the user chose no backend. The numpy backend is the lab's code as it always was, bit for bit; the
-compiled one does the same arithmetic but for the sums' order and the last bit of cos and sin, so a
-seed repeats a run on each backend, and the two agree statistically, not bit for bit.
-
-Both backends offer the same operations (mazelab.numpy_ops.NumpyKernels, mazelab.kernels.compiled's
-CompiledKernels):
-the move (equation (1)), the likelihood (equation (3)), systematic resampling, the normalisation with
-the step's reads, the weighted covariance and the RPF's jitter, and the Weights value. The model
-(mazelab.model.LostRobot) and the weights call them; the step (mazelab.smc) does not know which runs.
+Threads (the compiled backend's): a filter's large calls run on `thread_count()` threads, MAZELAB_THREADS
+(--threads) when set, else the machine's cores, shared within a study (`shared_threads`: workers x
+threads <= cores); `use_threads(1)` for `exercise grade`. The count changes how soon a run ends, never
+its numbers (mazelab.kernels).
 """
 
 from __future__ import annotations
@@ -37,7 +36,7 @@ from mazelab.numpy_ops import NumpyKernels
 
 BACKENDS = ("numpy", "compiled")
 ENVIRONMENT_VARIABLE = "MAZELAB_BACKEND"
-THREADS_VARIABLE = "MAZELAB_THREADS"  # the compiled backend's threads for one large run (--threads sets it)
+THREADS_VARIABLE = "MAZELAB_THREADS"  # the compiled backend's threads for a large call (--threads sets it)
 INSTALL_HINT = 'the compiled backend needs numba: pip install -e ".[fast]" (uv sync installs it)'
 # What the compiled backend costs and saves, CPU seconds, as measured on a 2-core AMD EPYC: a fresh `main.py run`
 # (200 steps of 1,500 particles) on each backend, and numpy's step less the compiled one's (mazelab.bench's
@@ -45,6 +44,7 @@ INSTALL_HINT = 'the compiled backend needs numba: pip install -e ".[fast]" (uv s
 STARTUP_SECONDS = 0.5  # numba's import and first kernel set-up: the run's extra CPU with bytecode cached (1.2 s not)
 SAVED_PER_STEP = 60e-6  # a filter step's saving whatever its particles (fewer Python calls): 65-110 us at N = 100
 SAVED_PER_PARTICLE = 15e-9  # and per particle the step moves (R runs together: R x N): 9-30 ns
+_WORK_CHOICE: ContextVar[str | None] = ContextVar("mazelab_work_backend", default=None)  # backend_by_work's
 
 
 @cache
@@ -95,9 +95,6 @@ def check_backend(name: Any, source: str = "backend") -> str:
     if chosen == "compiled" and not numba_available():
         raise ValueError(f"{source} {chosen}: {INSTALL_HINT}")
     return chosen
-
-
-_WORK_CHOICE: ContextVar[str | None] = ContextVar("mazelab_work_backend", default=None)  # backend_by_work's
 
 
 def chosen_backend() -> str:
@@ -184,6 +181,16 @@ def backend_by_work(particle_steps: float, steps: float) -> Iterator[str]:
         _WORK_CHOICE.reset(token)
 
 
+def cores() -> int:
+    """The cores this process may run on (its CPU affinity where the system says, else the count).
+
+    Returns
+    -------
+    int
+    """
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
 def check_threads(value: Any, source: str = "threads") -> int:
     """A thread count from 1 to this machine's cores, or one line naming the range.
 
@@ -197,18 +204,71 @@ def check_threads(value: Any, source: str = "threads") -> int:
     -------
     int
     """
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
     try:
         count = int(str(value).strip())
     except ValueError:
         count = 0
-    if not 1 <= count <= cores:
-        raise ValueError(f"{source} must be a whole number from 1 to {cores} (this machine's cores), got {value!r}")
+    if not 1 <= count <= cores():
+        raise ValueError(f"{source} must be a whole number from 1 to {cores()} (this machine's cores), got {value!r}")
     return count
 
 
+def thread_count() -> int:
+    """The threads a filter made now runs its large calls on (mazelab.kernels.compiled.THREADED_FROM
+    particles and more; smaller ones run on one): MAZELAB_THREADS when set (--threads, `use_threads`;
+    checked), else this machine's cores.
+
+    Returns
+    -------
+    int
+    """
+    value = os.environ.get(THREADS_VARIABLE, "")
+    return check_threads(value, THREADS_VARIABLE) if value.strip() else cores()
+
+
+def shared_threads(workers: int, client: Any = None) -> int:
+    """The threads each run of a study takes (its units run inside `use_threads` of it), so that the runs
+    at once x their threads <= cores: `thread_count()` when MAZELAB_THREADS (--threads) is set, else the
+    machine's cores // the runs at once on it.
+
+    Parameters
+    ----------
+    workers : int
+        The study's local worker processes.
+    client : distributed.Client, optional
+        A Dask cluster's client: the runs at once are then the most task threads one host has.
+
+    Returns
+    -------
+    int
+        At least 1.
+    """
+    if os.environ.get(THREADS_VARIABLE, "").strip():
+        return thread_count()
+    runs = workers
+    if client is not None:
+        hosts: dict[str, int] = {}
+        for worker in client.scheduler_info(n_workers=-1)["workers"].values():
+            hosts[worker["host"]] = hosts.get(worker["host"], 0) + worker["nthreads"]
+        runs = max(hosts.values(), default=1)
+    return max(1, cores() // max(1, runs))
+
+
 @contextmanager
-def use_backend(name: str) -> Iterator[str]:
+def _environment(variable: str, value: str) -> Iterator[str]:
+    """`variable` set to `value` in the environment for the time (processes started inside inherit it)."""
+    before = os.environ.get(variable)
+    os.environ[variable] = value
+    try:
+        yield value
+    finally:
+        if before is None:
+            os.environ.pop(variable, None)
+        else:
+            os.environ[variable] = before
+
+
+def use_backend(name: str) -> Any:
     """Make the filters created inside run on the backend `name` (it sets MAZELAB_BACKEND for the
     time, so processes started inside inherit it too).
 
@@ -217,21 +277,29 @@ def use_backend(name: str) -> Iterator[str]:
     name : str
         "numpy" or "compiled".
 
-    Yields
-    ------
-    str
-        The backend's checked name.
+    Returns
+    -------
+    context manager
+        Yields the backend's checked name.
     """
-    chosen = check_backend(name)
-    before = os.environ.get(ENVIRONMENT_VARIABLE)
-    os.environ[ENVIRONMENT_VARIABLE] = chosen
-    try:
-        yield chosen
-    finally:
-        if before is None:
-            os.environ.pop(ENVIRONMENT_VARIABLE, None)
-        else:
-            os.environ[ENVIRONMENT_VARIABLE] = before
+    return _environment(ENVIRONMENT_VARIABLE, check_backend(name))
+
+
+def use_threads(count: int) -> Any:
+    """Make the filters created inside run their large calls on `count` threads (it sets MAZELAB_THREADS
+    for the time, so processes started inside inherit it too).
+
+    Parameters
+    ----------
+    count : int
+        From 1 to this machine's cores (checked).
+
+    Returns
+    -------
+    context manager
+        Yields the count as a string.
+    """
+    return _environment(THREADS_VARIABLE, str(check_threads(count)))
 
 
 def backend_versions() -> dict[str, str | None]:
@@ -267,7 +335,8 @@ def backend_of(filt: Any) -> str:
 
 
 def kernels_for(world: Any, name: str | None = None) -> Any:
-    """The operations of a filter on `world`: the numpy ones, or a new CompiledKernels (its own buffers).
+    """The operations of a filter on `world`: the numpy ones, or a new CompiledKernels on `thread_count()`
+    threads.
 
     Parameters
     ----------
@@ -284,8 +353,7 @@ def kernels_for(world: Any, name: str | None = None) -> Any:
         return NUMPY_KERNELS
     from mazelab.kernels.compiled import CompiledKernels  # imports numba: only when it runs
 
-    threads = os.environ.get(THREADS_VARIABLE, "")  # MAZELAB_THREADS (checked), else 1
-    return CompiledKernels(world, threads=check_threads(threads, THREADS_VARIABLE) if threads.strip() else 1)
+    return CompiledKernels(world, threads=thread_count())
 
 
 NUMPY_KERNELS = NumpyKernels()
@@ -308,8 +376,12 @@ __all__ = [
     "check_threads",
     "chosen_backend",
     "compiled_pays",
+    "cores",
     "default_backend",
     "kernels_for",
     "numba_available",
+    "shared_threads",
+    "thread_count",
     "use_backend",
+    "use_threads",
 ]

@@ -170,21 +170,12 @@ def grid_filter_ms(world: Maze, steps: int) -> float:
     return 1e3 * time_steps(step, walk, 2)
 
 
-def small_run_ms(world: Maze, particles: int = 1500, steps: int = 200) -> tuple[float, float]:
-    """A whole `simulate` run of SIR at the lab's N (on the chosen backend): (wall-clock ms per step, the
-    filter's own ms per step)."""
-    robot = Robot(BENCH_SIGMA, BENCH_DELTA, world.random_free_place(np.random.default_rng(3)))
+def sir_run(world: Maze, particles: int, steps: int, seed: int) -> tuple[float, Any]:
+    """A whole `simulate` run of SIR on the chosen backend: (wall-clock seconds, its RunResult)."""
+    robot = Robot(BENCH_SIGMA, BENCH_DELTA, world.random_free_place(np.random.default_rng(seed)))
     started = time.perf_counter()
-    result = simulate(robot, world, BENCH_SIGMA, BENCH_DELTA, particles, steps, seed=3)
-    return 1e3 * (time.perf_counter() - started) / steps, 1e3 * float(np.mean(result.step_seconds))
-
-
-def big_run_seconds(world: Maze, particles: int = 1_000_000, steps: int = 200) -> tuple[float, float]:
-    """A whole `simulate` run of SIR with a million particles: (seconds, last-step error in map units)."""
-    robot = Robot(BENCH_SIGMA, BENCH_DELTA, world.random_free_place(np.random.default_rng(4)))
-    started = time.perf_counter()
-    result = simulate(robot, world, BENCH_SIGMA, BENCH_DELTA, particles, steps, seed=4)
-    return time.perf_counter() - started, float(result.errors[-1])
+    result = simulate(robot, world, BENCH_SIGMA, BENCH_DELTA, particles, steps, seed=seed)
+    return time.perf_counter() - started, result
 
 
 @dataclass(frozen=True)
@@ -259,13 +250,8 @@ def format_table(rows: list[BenchRow]) -> str:
     ]
     for r in rows:
         base = reference.get((r.maze, r.particles))
-        ratio = (
-            "(itself)"
-            if r.filter_name == "reference"
-            else f"{r.particle_steps_per_second / base:.1f}x"
-            if base
-            else "-"
-        )
+        ratio = f"{r.particle_steps_per_second / base:.1f}x" if base else "-"
+        ratio = "(itself)" if r.filter_name == "reference" else ratio
         numpy_speed = on_numpy.get((r.maze, r.filter_name, r.particles))
         versus = f"{r.particle_steps_per_second / numpy_speed:.2f}x" if numpy_speed and r.backend != "numpy" else "-"
         peak = f"{r.peak_bytes / 2**20:8.1f}" if r.peak_bytes is not None else f"{'-':>8}"
@@ -283,27 +269,14 @@ def speed(millions: float) -> str:
 
 
 def available_backends() -> tuple[str, ...]:
-    """The backends this machine has: numpy, and compiled where numba imports.
-
-    Returns
-    -------
-    tuple of str
-    """
+    """The backends this machine has: numpy, and compiled where numba imports."""
     return ("numpy", "compiled") if numba_available() else ("numpy",)
 
 
 def kernels_start_seconds(world: Maze) -> tuple[float, int]:
     """The compiled backend's start in this process: (seconds to import numba and the kernels and run
-    two steps of each filter, how many kernels had to be compiled rather than loaded from the cache).
-
-    Parameters
-    ----------
-    world : Maze
-
-    Returns
-    -------
-    (float, int)
-    """
+    two steps of each filter on `world`, how many kernels had to be compiled rather than loaded from
+    the cache)."""
     started = time.perf_counter()
     from mazelab.kernels import model, resampling, weights  # imports numba
 
@@ -312,32 +285,17 @@ def kernels_start_seconds(world: Maze) -> tuple[float, int]:
         step = filter_stepper(name, world, 200, backend="compiled")
         for compass_angle, z in walk:
             step(compass_angle, z)
-    kernels = (model.move, model.log_likelihood, resampling.systematic, weights.normalise)
-    kernels += (weights.covariance,)
-    return time.perf_counter() - started, sum(sum(k.stats.cache_misses.values()) for k in kernels)
+    kernels = (model.move, model.log_likelihood, resampling.systematic, weights.normalise, weights.covariance)
+    return time.perf_counter() - started, sum(sum(k.serial.stats.cache_misses.values()) for k in kernels)
 
 
 def run_benchmark(
     small: Maze, quick: bool = False, echo: Callable[[str], None] = print, backends: tuple[str, ...] | None = None
 ) -> list[BenchRow]:
-    """Measure and print everything (`quick`: 40 s a backend on a 2-core virtual machine; the full run,
-    minutes), on `backends` side by side (None: every backend this machine has).
-
-    Parameters
-    ----------
-    small : Maze
-        The small maze (the large one is generated: `large_maze`).
-    quick : bool
-        Fewer sizes and steps.
-    echo : callable
-        Prints a line.
-    backends : tuple of str, optional
-
-    Returns
-    -------
-    list of BenchRow
-        The table's rows.
-    """
+    """Measure and print everything (with `echo`, one line a call) and return the table's rows: on the
+    `small` maze and a generated large one (`large_maze`), on `backends` side by side (None: every
+    backend this machine has); `quick`: fewer sizes and steps (40 s a backend on a 2-core virtual
+    machine; the full run, minutes)."""
     backends = backends or available_backends()
     counts, steps, warmup = (QUICK_COUNTS, 8, 4) if quick else (FULL_COUNTS, 30, 10)
     large = large_maze()
@@ -352,20 +310,18 @@ def run_benchmark(
     for label, world in (("small", small), ("large", large)):
         echo(f"{label}: {Path(world.source).name}, {world.height}x{world.width}, {len(world.stations)} stations")
     rows: list[BenchRow] = []
-    for name, world in (("small " + _size(small), small), ("large " + _size(large), large)):
+    for name, world in ((f"small {small.height}x{small.width}", small), (f"large {large.height}x{large.width}", large)):
         rows += measure(name, world, counts, steps, warmup, backends=backends)
     echo(format_table(rows))
-    echo(
-        f"GridBayesFilter on the small maze (resolution 0.02): {grid_filter_ms(small, 10 if quick else 30):.1f} ms/step"
-    )
+    grid_ms = grid_filter_ms(small, 10 if quick else 30)
+    echo(f"GridBayesFilter on the small maze (resolution 0.02): {grid_ms:.1f} ms/step")
     reference = [r for r in rows if r.maze.startswith("small") and (r.filter_name, r.particles) == ("reference", 10**6)]
     for backend in backends:
         with use_backend(backend):
-            total_ms, filter_ms = small_run_ms(small, steps=50 if quick else 200)
-            echo(
-                f"[{backend}] simulate(), SIR, N = 1,500 on the small maze: {total_ms:.2f} ms/step, "
-                f"of which the filter {filter_ms:.2f}"
-            )
+            seconds, result = sir_run(small, 1500, 50 if quick else 200, 3)
+            per_step, own = 1e3 * seconds / len(result.step_seconds), 1e3 * float(np.mean(result.step_seconds))
+            echo(f"[{backend}] simulate(), SIR, N = 1,500 on the small maze: {per_step:.2f} ms/step, of which the "
+                 f"filter {own:.2f}")  # fmt: skip
             figures = run_model_figures(small, reference=reference[0].seconds_per_step if reference else None)
             echo(
                 f"[{backend}] run_model(), SIR, N = {figures.particles:,}, {figures.steps} steps, visualize=False: "
@@ -373,10 +329,10 @@ def run_benchmark(
                 f"({figures.filter_seconds:.2f} s), {figures.times_reference:.1f}x the reference step"
             )
             if not quick:
-                seconds, error = big_run_seconds(small)
+                seconds, result = sir_run(small, 1_000_000, 200, 4)
                 echo(
                     f"[{backend}] simulate(), SIR, N = 1,000,000, 200 steps on the small maze: {seconds:.1f} s "
-                    f"(last-step error {error:.3f})"
+                    f"(last-step error {float(result.errors[-1]):.3f})"
                 )
     for backend in backends:
         with use_backend(backend):
@@ -398,29 +354,28 @@ def study_of(world: Maze, runs: int, steps: int, particles: int, settings: int =
     return study_tasks(chosen, STUDY_FILTERS, runs, steps, STUDY_SEED)
 
 
-def runs_per_second(tasks: list[Any], workers: int = 1, dask: object = None) -> float:
-    """A study's runs per second of wall time (every filter of a run counts as one run)."""
+def runs_per_second(tasks: list[Any], workers: int = 1, dask: Any = False) -> float:
+    """A study's runs per second of wall time (every filter of a run counts as one run), on `workers`
+    processes, or with `dask` on a LocalCluster of `workers` processes on 127.0.0.1 (or the Client given)."""
+    from distributed import Client, LocalCluster
+
     from mazelab.experiments.executor import run_study
 
+    if dask:
+        with (
+            LocalCluster(n_workers=workers, threads_per_worker=1, host="127.0.0.1", dashboard_address=":0") as cluster,
+            Client(cluster) as client,
+        ):
+            return runs_per_second(tasks, workers, client)
     started = time.perf_counter()
-    outcome = run_study(tasks, workers, dask=dask)
+    outcome = run_study(tasks, workers, dask=dask or None)
     return len({(r.setting, r.run) for r in outcome.records}) / (time.perf_counter() - started)
 
 
-@dataclass(frozen=True)
-class RunCost:
-    """The cost of one run's filter step when R runs advance together: microseconds per run and step."""
-
-    label: str
-    runs: int
-    particles: int
-    stations: int
-    microseconds: float
-
-
-def run_cost(world: Maze, runs: int, particles: int, steps: int, label: str = "") -> RunCost:
-    """Microseconds per filter step of one run (the three filters' mean), R = `runs` advancing together;
-    R = 1 is the one-by-one path (run_task), with its robot walk and bookkeeping included alike."""
+def run_cost(world: Maze, runs: int, particles: int, steps: int, label: str = "") -> tuple:
+    """(label, R, N, stations, microseconds per filter step of one run: the three filters' mean) with R =
+    `runs` advancing together; R = 1 is the one-by-one path (run_task), its robot walk and bookkeeping
+    included alike."""
     from mazelab.experiments.batch_runs import run_batch
     from mazelab.experiments.study import run_task
 
@@ -431,20 +386,7 @@ def run_cost(world: Maze, runs: int, particles: int, steps: int, label: str = ""
     else:
         run_batch(tasks)
     seconds = time.perf_counter() - started
-    return RunCost(label, runs, particles, len(world.stations), 1e6 * seconds / (runs * steps * len(STUDY_FILTERS)))
-
-
-def local_dask_runs_per_second(tasks: list[Any], workers: int) -> float | None:
-    """runs_per_second on a LocalCluster of `workers` processes on 127.0.0.1; None without dask."""
-    try:
-        from distributed import Client, LocalCluster
-    except ImportError:
-        return None
-    with (
-        LocalCluster(n_workers=workers, threads_per_worker=1, host="127.0.0.1", dashboard_address=":0") as cluster,
-        Client(cluster) as client,
-    ):
-        return runs_per_second(tasks, dask=client)
+    return label, runs, particles, len(world.stations), 1e6 * seconds / (runs * steps * len(STUDY_FILTERS))
 
 
 def run_study_benchmark(small: Maze, large: Maze, quick: bool, echo: Callable[[str], None] = print) -> None:
@@ -457,68 +399,22 @@ def run_study_benchmark(small: Maze, large: Maze, quick: bool, echo: Callable[[s
         run_cost(world, 2, 100, 2)
     one = run_cost(small, 1, 1500, steps)
     batched = run_cost(small, runs, 1500, steps)
-    gain = one.microseconds / batched.microseconds
+    gain = one[-1] / batched[-1]
     echo(
-        f"Study runs (3 filters, N = 1,500, {steps} steps): {one.microseconds:.0f} us per filter step run by run, "
-        f"{batched.microseconds:.0f} us with {runs} runs advanced together ({gain:.1f}x)"
+        f"Study runs (3 filters, N = 1,500, {steps} steps): {one[-1]:.0f} us per filter step run by run, "
+        f"{batched[-1]:.0f} us with {runs} runs advanced together ({gain:.1f}x)"
     )
     tasks = study_of(small, runs, steps, 1500, settings)
     figures = [("1 worker", runs_per_second(tasks, 1)), (f"{cores} workers", runs_per_second(tasks, cores))]
-    dask = local_dask_runs_per_second(tasks, cores)
-    figures.append((f"local Dask cluster, {cores} workers", dask))
+    figures.append((f"local Dask cluster, {cores} workers", runs_per_second(tasks, cores, dask=True)))
     echo(
         f"Study of {settings} settings x {runs} runs: "
-        + ", ".join(f"{label} {rate:.2f} runs/s" if rate else f"{label}: dask not installed" for label, rate in figures)
+        + ", ".join(f"{label} {rate:.2f} runs/s" for label, rate in figures)
     )
     echo("Cost of one run's filter step, us (the three filters' mean) as R, N and the station count grow:")
     grid = [run_cost(small, r, 1500, steps // 2, "R") for r in (1, 4, 16, 32)]
     grid += [run_cost(small, runs, n, steps // 2, "N") for n in (500, 1500, 5000)]
     grid += [run_cost(world, runs, 1500, steps // 2, "stations") for world in (small, large)]
     echo(f"  {'varied':<9} {'R':>4} {'N':>6} {'stations':>9} {'us/step':>9} {'ns/particle':>12}")
-    for cost in grid:
-        echo(
-            f"  {cost.label:<9} {cost.runs:>4} {cost.particles:>6,} {cost.stations:>9,} {cost.microseconds:>9.0f} "
-            f"{1e3 * cost.microseconds / cost.particles:>12.1f}"
-        )
-
-
-def _size(world: Maze) -> str:
-    return f"{world.height}x{world.width}"
-
-
-__all__ = [
-    "BENCH_DELTA",
-    "BENCH_FILTERS",
-    "BENCH_SIGMA",
-    "FULL_COUNTS",
-    "LARGE_MAZE_CELLS",
-    "LARGE_MAZE_SIZE",
-    "QUICK_COUNTS",
-    "REFERENCE_LIMIT",
-    "STUDY_FILTERS",
-    "BenchRow",
-    "RunCost",
-    "RunModelFigures",
-    "available_backends",
-    "big_run_seconds",
-    "cpu_model",
-    "filter_stepper",
-    "format_table",
-    "grid_filter_ms",
-    "kernels_start_seconds",
-    "large_maze",
-    "local_dask_runs_per_second",
-    "measure",
-    "peak_memory",
-    "record_walk",
-    "reference_stepper",
-    "run_benchmark",
-    "run_cost",
-    "run_model_figures",
-    "run_study_benchmark",
-    "runs_per_second",
-    "small_run_ms",
-    "speed",
-    "study_of",
-    "time_steps",
-]
+    for label, r, n, stations, microseconds in grid:
+        echo(f"  {label:<9} {r:>4} {n:>6,} {stations:>9,} {microseconds:>9.0f} {1e3 * microseconds / n:>12.1f}")

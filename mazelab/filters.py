@@ -412,10 +412,7 @@ class RegularizedParticleFilter(ParticleFilter):
         """
         rows = np.flatnonzero(due)
         kernels = self.kernels(self.W.W[rows], x[rows])
-        eps = np.empty((len(rows) * A.shape[1], 2), dtype=x.dtype)  # eps ~ N(0, I_2), each run's block its own
-        for block, r in enumerate(rows):
-            self.rngs[r].standard_normal(dtype=x.dtype, out=eps[block * A.shape[1] : (block + 1) * A.shape[1]])
-        jittered = self.ops.jitter(x, A, due, eps, kernels)
+        jittered = self.ops.jitter(x, A, due, self.rngs, kernels)  # eps ~ N(0, I_2) from each due run's rng
         return jittered, np.zeros(jittered.shape[:2], dtype=x.dtype)
 
     def reweight_resampled(self, log_g: np.ndarray, A: np.ndarray) -> tuple[np.ndarray, None]:

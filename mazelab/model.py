@@ -272,13 +272,7 @@ class LostRobot:
         -------
         (positions (R, M, 2), headings (R, M)) in x's dtype
         """
-        uniforms = np.empty(x.shape[:2] if A is None else A.shape, dtype=x.dtype)
-        for row, rng in zip(uniforms, rngs, strict=True):
-            if rng is None:
-                row[:] = 0.5  # it restarts from the prior after this step: no draw, no move off its heading
-            else:
-                rng.random(dtype=x.dtype, out=row)
-        return self.ops.move(x, A, uniforms, th0.astype(x.dtype), self.delta, self.speed)
+        return self.ops.move(x, A, rngs, th0.astype(x.dtype), self.delta, self.speed)
 
     def logG(self, x: np.ndarray, z: np.ndarray) -> np.ndarray:  # noqa: N802
         """Equation (3) in logs with the outside penalty, log p(z_k | x).

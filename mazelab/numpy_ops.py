@@ -38,16 +38,16 @@ class NumpyKernels:
     schemes: Mapping[str, Callable[..., np.ndarray]] = MappingProxyType({})
 
     def move(
-        self, x: np.ndarray, A: np.ndarray | None, uniforms: np.ndarray, angles: np.ndarray, delta: float, speed: float
+        self, x: np.ndarray, A: np.ndarray | None, rngs: Sequence, angles: np.ndarray, delta: float, speed: float
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Equation (1): x[r, A[r]] moved along th = th0_r + Delta (u - 1/2), for R runs.
+        """Equation (1): x[r, A[r]] moved along th = th0_r + Delta (u - 1/2), u ~ U[0, 1) from rngs[r]
+        (None: a run that draws nothing, u = 1/2), for R runs.
 
         Parameters
         ----------
         x : array (R, N, 2)
         A : int array (R, M), or None for every particle in order
-        uniforms : array (R, M)
-            u ~ U[0, 1) in x's dtype, run r's in row r (overwritten by the headings).
+        rngs : sequence of R Generators (or None)
         angles : array (R,)
             th0_k of each run, in x's dtype.
         delta, speed : float
@@ -57,6 +57,12 @@ class NumpyKernels:
         -------
         (moved positions (R, M, 2), headings (R, M)), in x's dtype
         """
+        uniforms = np.empty(x.shape[:2] if A is None else A.shape, dtype=x.dtype)
+        for row, rng in zip(uniforms, rngs, strict=True):
+            if rng is None:
+                row[:] = 0.5  # it restarts from the prior after this step: no draw, no move off its heading
+            else:
+                rng.random(dtype=x.dtype, out=row)
         points = x.reshape(-1, 2)
         if A is not None:
             points = take_particles(points, flat_ancestors(A, x.shape[1]))
@@ -120,16 +126,16 @@ class NumpyKernels:
         """Each run's weighted covariance of W (R, N) and x (R, N, 2), (R, 2, 2) float64."""
         return weighted_covariance(W, x.reshape(-1, 2))
 
-    def jitter(self, x: np.ndarray, A: np.ndarray, due: np.ndarray, eps: np.ndarray, kernels: Sequence) -> np.ndarray:
-        """The RPF's resampled particles: each due run's x[r, A[r]] jittered by its kernel (mazelab.regularisation).
+    def jitter(self, x: np.ndarray, A: np.ndarray, due: np.ndarray, rngs: Sequence, kernels: Sequence) -> np.ndarray:
+        """The RPF's resampled particles: each due run's x[r, A[r]] jittered by its kernel (mazelab.regularisation)
+        with eps ~ N(0, I_2) from its Generator rngs[r].
 
         Parameters
         ----------
         x : array (R, N, 2)
         A : int array (R, M)
         due : bool array (R,)
-        eps : array (D*M, 2)
-            Standard normal draws of the D due runs, block d the d-th due run's.
+        rngs : sequence of R Generators
         kernels : sequence of D kernels
             (points, eps) -> jitter, each due run's.
 
@@ -140,6 +146,9 @@ class NumpyKernels:
         rows = np.flatnonzero(due)
         moved = take_particles(x.reshape(-1, 2), (A[rows] + (rows * x.shape[1])[:, None]).reshape(-1))
         size = A.shape[1]
+        eps = np.empty((len(rows) * size, 2), dtype=x.dtype)  # eps ~ N(0, I_2), each run's block its own
+        for block, r in enumerate(rows):
+            rngs[r].standard_normal(dtype=x.dtype, out=eps[block * size : (block + 1) * size])
         for block, kernel in enumerate(kernels):
             part = slice(block * size, (block + 1) * size)
             moved[part] += kernel(moved[part], eps[part])

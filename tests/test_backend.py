@@ -1,6 +1,7 @@
 """Which backend runs (mazelab.backend): the default (compiled when numba imports, numpy when it does
 not), MAZELAB_BACKEND and use_backend, --backend on the commands (one line for a wrong name), and
-every RunResult and JSON record naming the backend that ran; `mazelab bench` shows both side by side."""
+every RunResult and JSON record naming the backend that ran; `mazelab bench` shows both side by side;
+the compiled backend's threads (the machine's cores, a study's share of them, MAZELAB_THREADS)."""
 
 from __future__ import annotations
 
@@ -19,14 +20,20 @@ from mazelab.backend import (
     SAVED_PER_PARTICLE,
     SAVED_PER_STEP,
     STARTUP_SECONDS,
+    THREADS_VARIABLE,
     backend_by_work,
     backend_for_work,
     backend_versions,
     check_backend,
     chosen_backend,
     compiled_pays,
+    cores,
     default_backend,
+    kernels_for,
+    shared_threads,
+    thread_count,
     use_backend,
+    use_threads,
 )
 from mazelab.cli.app import main
 from mazelab.lab import simulate
@@ -244,3 +251,49 @@ def test_the_environment_variable_in_any_case_runs_and_the_repeat_line_names_the
     )  # fmt: skip
     repeat = next(line for line in typed.stdout.splitlines() if line.startswith("Repeat this run: "))
     assert repeat.count("--backend") == 1 and " --backend numpy " in repeat  # the typed choice, once
+
+
+def test_a_filter_takes_the_machines_cores_its_share_of_them_or_the_threads_chosen(monkeypatch):
+    """thread_count: MAZELAB_THREADS (--threads) when set, else the machine's cores; a study's runs take
+    shared_threads: cores // the runs at once (workers x threads <= cores), at least 1, unless the user
+    chose; use_threads sets the count for a block."""
+    monkeypatch.delenv(THREADS_VARIABLE, raising=False)
+    assert thread_count() == cores()
+    assert shared_threads(2) == max(1, cores() // 2) and shared_threads(10 * cores()) == 1
+    with use_threads(1) as chosen:
+        assert chosen == os.environ[THREADS_VARIABLE] == "1" and thread_count() == 1
+        assert shared_threads(1) == 1  # the user's choice stands
+    assert THREADS_VARIABLE not in os.environ
+    monkeypatch.setenv(THREADS_VARIABLE, str(cores() + 1))
+    with pytest.raises(ValueError, match=rf"^MAZELAB_THREADS must be a whole number from 1 to {cores()}"):
+        thread_count()
+
+
+@needs_numba
+def test_the_compiled_kernels_of_a_filter_take_the_thread_count(paper_world, monkeypatch):
+    monkeypatch.delenv(THREADS_VARIABLE, raising=False)
+    with use_backend("compiled"), use_threads(shared_threads(cores())):
+        assert kernels_for(paper_world).threads == 1
+    with use_backend("compiled"):
+        assert kernels_for(paper_world).threads == cores()
+
+
+def test_a_studys_runs_share_the_cores_of_their_machine_locally_and_on_a_dask_cluster(monkeypatch):
+    """Each unit of a study runs on shared_threads' count (run_unit_timed inside use_threads), from the
+    local workers or the Dask cluster's task threads on one host."""
+    from distributed import Client, LocalCluster
+
+    from mazelab.experiments import executor
+
+    monkeypatch.delenv(THREADS_VARIABLE, raising=False)
+    assert shared_threads(cores()) == 1
+    with (
+        LocalCluster(n_workers=2, threads_per_worker=1, host="127.0.0.1", dashboard_address=":0") as cluster,
+        Client(cluster) as client,
+    ):
+        assert shared_threads(1, client) == max(1, cores() // 2)  # two workers of one task thread each, on one host
+    seen = []
+    monkeypatch.setattr(executor, "run_unit_safely", lambda tasks: seen.append(thread_count()) or [])
+    monkeypatch.setattr(executor, "worker_report", lambda startup: None)
+    executor.run_unit_timed([], "numpy", threads=cores() + 5)  # at most this machine's cores
+    assert seen == [cores()] and THREADS_VARIABLE not in os.environ

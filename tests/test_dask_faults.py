@@ -83,10 +83,10 @@ def test_a_cluster_without_workers_ends_after_the_dask_timeout(tmp_path, capsys)
 REAL_RUN_UNIT = executor.run_unit_timed
 
 
-def kill_the_worker_always(unit, backend):
+def kill_the_worker_always(unit, backend, **options):
     if any(task.run == 2 for task in unit):
         os.kill(os.getpid(), signal.SIGKILL)
-    return REAL_RUN_UNIT(unit, backend)
+    return REAL_RUN_UNIT(unit, backend, **options)
 
 
 def test_a_killed_local_worker_restarts_the_pool_and_the_study_goes_on(tmp_path, monkeypatch, capsys):

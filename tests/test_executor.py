@@ -25,7 +25,7 @@ WAIT_SECONDS = 60  # for a condition that comes within milliseconds: a bound, no
 REAL_RUN_UNIT = executor.run_unit_timed
 
 
-def die_once_another_run_has_finished(unit, backend):
+def die_once_another_run_has_finished(unit, backend, **options):
     """run_unit_timed, but run 2's first attempt waits until the main process has taken another run's
     rows (the file `go`), then dies as with kill -9 (the file `killed` says it did)."""
     folder = Path(os.environ["MAZELAB_TEST_DIR"])
@@ -35,7 +35,7 @@ def die_once_another_run_has_finished(unit, backend):
             time.sleep(0.01)  # waits for a condition; the outcome does not depend on how long
         (folder / "killed").touch()
         os.kill(os.getpid(), signal.SIGKILL)
-    return REAL_RUN_UNIT(unit, backend)
+    return REAL_RUN_UNIT(unit, backend, **options)
 
 
 def wait_until_broken(pool: ProcessPoolExecutor) -> None:

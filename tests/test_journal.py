@@ -117,13 +117,13 @@ BLOCKED_STUDY = """
 import sys, time
 from mazelab.experiments import executor
 done, run_unit_timed = 0, executor.run_unit_timed
-def run_two_then_wait(unit, backend):  # runs 1 and 2 finish (their rows appended), run 3 waits to be killed
+def run_two_then_wait(unit, backend, **options):  # runs 1 and 2 finish (their rows appended), run 3 waits to be killed
     global done
     if done == 2:
         print("blocked", flush=True)
         time.sleep(600)
     done += 1
-    return run_unit_timed(unit, backend)
+    return run_unit_timed(unit, backend, **options)
 executor.run_unit_timed = run_two_then_wait
 executor.study_units = lambda tasks, workers: [(task,) for task in tasks]
 from mazelab.cli.app import main

@@ -37,9 +37,9 @@ def test_force_keeps_the_old_csv_until_the_new_one_is_whole(tmp_path, monkeypatc
     seen = []
     real = executor.run_unit_timed
 
-    def look(unit, backend):
+    def look(unit, backend, **options):
         seen.append(table.read_text())  # what a reader of the CSV sees while the study runs
-        return real(unit, backend)
+        return real(unit, backend, **options)
 
     monkeypatch.setattr(executor, "run_unit_timed", look)
     assert main([*STUDY, "--csv", str(table), "--force"]) == 0

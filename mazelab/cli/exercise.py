@@ -15,6 +15,7 @@ from typing import Annotated
 import typer
 
 from mazelab.atomic import write_bytes_atomically, write_text_atomically
+from mazelab.backend import use_threads
 from mazelab.cli.options import UserError, check_output_path, seed_option
 from mazelab.exercise.autograder import BundleError, bundle_bytes
 from mazelab.exercise.grading import (
@@ -233,7 +234,7 @@ def _grade_into(book: Gradebook, grade: Callable[..., None], outputs: list[tuple
     from mazelab.experiments.executor import progress_bar
 
     try:
-        with claimed(outputs), _stop_signals() as stop:
+        with claimed(outputs), _stop_signals() as stop, use_threads(1):  # submissions at once: a thread each
             try:
                 with progress_bar(count, not quiet, what="submissions") as advance:
 

@@ -134,7 +134,7 @@ BackendOption = opt(str | None, "--backend", metavar="NAME", show_default=False,
                     help="numpy or compiled [default: by the work]")  # fmt: skip
 ThreadsOption = opt(int | None, "--threads", metavar="N", show_default=False,
                     callback=environment_option(THREADS_VARIABLE, check_threads, "--threads"),
-                    help="compiled: threads for one large run [default: 1]")  # fmt: skip
+                    help="compiled: threads for a large run [default: the cores]")  # fmt: skip
 
 
 # -- outputs --------------------------------------------------------------------------------------------

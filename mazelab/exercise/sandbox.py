@@ -50,6 +50,7 @@ CHILD_ENVIRONMENT = {  # the child's whole environment, and bwrap's: one thread 
     "OMP_NUM_THREADS": "1",
     "OPENBLAS_NUM_THREADS": "1",
     "MKL_NUM_THREADS": "1",
+    "NUMBA_NUM_THREADS": "1",  # the compiled backend's kernels too
     "PYTHONHASHSEED": "0",
     "HOME": "/tmp",
     "LANG": "C.UTF-8",

@@ -34,7 +34,7 @@ from concurrent.futures.process import BrokenProcessPool
 from contextlib import AbstractContextManager, contextmanager, suppress
 from typing import Any
 
-from mazelab.backend import backend_for_work, use_backend
+from mazelab.backend import backend_for_work, cores, shared_threads, use_backend, use_threads
 from mazelab.experiments.batch_runs import MAX_BATCH, run_unit_safely, study_units
 from mazelab.experiments.study import RunFailure, RunRecord, RunTask, StudyOutcome, run_task_safely
 from mazelab.experiments.warmup import WorkerReport, take_startup_seconds, worker_report
@@ -195,12 +195,14 @@ def study_backend(tasks: Sequence[RunTask], processes: int) -> str:
     return backend_for_work(*study_work(tasks), processes=max(1, min(processes, len(tasks))))
 
 
-def run_unit_timed(unit: Sequence[RunTask], backend: str, visualize: Any = False) -> list[UnitOutcome]:
-    """A unit of runs on `backend` (`run_unit_safely`; with `visualize`, its one run drawn, in this process
-    where the viewer is), each finished run's records given run_seconds (the unit's wall time less the
-    start-up spent in it, divided by its runs), then this process's WorkerReport. Each plug-in's spec is
-    the one that imports its shipped code here (RunTask.here)."""
-    with use_backend(backend):
+def run_unit_timed(
+    unit: Sequence[RunTask], backend: str, visualize: Any = False, threads: int = 1
+) -> list[UnitOutcome]:
+    """A unit of runs on `backend` and `threads` threads at most (`run_unit_safely`; with `visualize`, its one
+    run drawn, in this process where the viewer is), each finished run's records given run_seconds (the unit's
+    wall time less the start-up spent in it, divided by its runs), then this process's WorkerReport. Each
+    plug-in's spec is the one that imports its shipped code here (RunTask.here)."""
+    with use_backend(backend), use_threads(min(threads, cores())):
         started = time.perf_counter()
         tasks = [task.here() for task in unit]
         outcomes: list[UnitOutcome] = [run_task_safely(tasks[0], visualize)] if visualize else run_unit_safely(tasks)
@@ -269,11 +271,12 @@ def run_tasks(tasks: Sequence[RunTask], workers: int, client: Any, backend: str,
     `visualize`, the first) in this process while the pool or the cluster runs the rest."""
     drawn, rest = (list(tasks[:1]), list(tasks[1:])) if visualize else ([], list(tasks))
     units = study_units(rest, 1 if client is not None else workers)
-    work = functools.partial(run_unit_timed, backend=backend)
+    threads = shared_threads(workers, client)  # the runs at once x their threads <= cores
+    work = functools.partial(run_unit_timed, backend=backend, threads=threads)
 
     def here() -> None:
         for task in drawn:
-            collect(run_unit_timed((task,), backend, visualize))
+            collect(run_unit_timed((task,), backend, visualize, threads))
             advance()
 
     Units(units, work, workers, client, timeout).run(collect, advance, here)

@@ -1,28 +1,30 @@
 """Compiled kernels (numba, the `fast` extra) for the hot parts of the particle filters: the model's
-equations (mazelab.kernels.model: the move, the nearest station and the likelihood in one pass, the
-RPF's jitter), the resampler (mazelab.kernels.resampling: systematic resampling by counting) and the
-weighted reads (mazelab.kernels.weights: the top, then the float32 exponentials and their sums, then
-the weights and the confidence share, three passes). mazelab.kernels.compiled.CompiledKernels calls
-them for a filter, and its CompiledWeights keeps what the normalisation read.
+equations (mazelab.kernels.model: the move with its draws, the nearest station and the likelihood,
+the RPF's jitter), the resampler (mazelab.kernels.resampling: systematic resampling by blocks) and the
+weights (mazelab.kernels.weights: the normalisation with the step's reads in two passes, the
+covariance). mazelab.kernels.compiled.CompiledKernels calls them for a filter (the model and the
+weights value call it or the numpy functions, whichever backend runs: mazelab.backend). Each takes R
+runs in one call and works on float32 particles, in the numpy path's float32 arithmetic where it has
+some; cos, sin and exp are polynomials the compiler vectorises (mazelab.kernels.vector_math).
 
-The filters do not change: the model (mazelab.model.LostRobot) and the weights value call these
-kernels or the numpy functions, whichever backend runs (mazelab.backend). Each kernel takes the run
-axis (R runs in one call), works on float32 particles and keeps the numpy path's float32 arithmetic
-where it has some (the likelihood and the resampling are the numpy path's to the bit, given the same
-inputs); cos and sin are polynomials the compiler vectorises (mazelab.kernels.vector_math, within
-0.501 float32 ulp of the exact values), the exponentials float32 ones (within one ulp).
+Threads: every kernel is one body over chunks of CHUNK particles (a run's particles split in order;
+a chunk never spans two runs), compiled twice: the chunks in order on the calling thread, and the
+chunks spread over numba's threads (`parallel=True`, its `prange`). The chunks, not the threads, fix
+everything a result depends on: the random draws (a stream per run and call, numbered by particle:
+vector_math.random_bits) and the order of every sum (partial sums per chunk, added in chunk order),
+so a seed gives the same run bit for bit on any number of threads, and R runs together are R single
+runs. numba's threads come from its "workqueue" layer (it works after a fork, and its idle threads
+sleep rather than spin on a shared machine); it takes one launch at a time, so a kernel called while
+another thread's runs on them runs in order instead (the same values). A kernel's arrays never
+overlap (each output is a new array), and the compiler is told so (LLVM's noalias): only then does it
+vectorise the loops that gather (the lookup table, the ancestors).
 
-Importing this package imports numba, and a process's first kernel call sets numba's compiler up (its
-registries) even when the kernel comes from the cache: together 0.35 s of CPU with Python's bytecode
-cached, 1.1 s without; each further kernel then loads in a few milliseconds. A command whose work does
-not pay that back runs on numpy (mazelab.backend.backend_for_work).
-
-Each kernel is compiled on its first call and cached on disk (numba's cache), so the compile time is
-paid once per machine: in `__pycache__` beside these files,
-else in the folder NUMBA_CACHE_DIR names, else in the user's cache folder (numba's rules). Where none
-of them can be written, the kernels are compiled in memory in each process (a few seconds at its
-first step) and a warning says so once. A damaged cache file (a cut-off copy, a full disk earlier) is
-compiled over; a cache folder that cannot take the file (a full disk, a read-only mount) leaves the
+Importing this package imports numba, and a process's first kernel call sets numba's compiler up even
+when the kernel comes from the cache (about 0.35 s of CPU); a command whose work does not pay that back
+runs on numpy (mazelab.backend.backend_for_work). Each kernel is compiled on its first call and cached
+on disk (numba's cache: `__pycache__` beside these files, else NUMBA_CACHE_DIR, else the user's cache
+folder); where none can be written, in memory in each process, with one warning. A damaged cache file
+is compiled over; a cache folder that cannot take the file (a full disk, a read-only mount) leaves the
 kernel compiled in memory, with one warning naming the folder and the way out.
 """
 
@@ -31,13 +33,19 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import os
+import threading
 import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numba
-from numba.core.caching import FunctionCache
+from numba.core.caching import FunctionCache, IndexDataCacheFile
+from numba.core.compiler import Compiler
+
+CHUNK = 4096  # particles a chunk: what a thread takes at a time, and what fixes the draws' and the sums' order
+if "NUMBA_THREADING_LAYER" not in os.environ:  # the user's choice stands
+    numba.config.THREADING_LAYER = "workqueue"
 
 _warned: set[str] = set()
 
@@ -50,22 +58,12 @@ def _warn_once(message: str) -> None:
 
 
 def sources_digest(folder: Path) -> str:
-    """A digest of the kernels' sources (every .py file in `folder`).
+    """A digest of the kernels' sources (every .py file in `folder`), 16 hex digits.
 
     numba keeps a cached kernel while its own file's time stamp and size are unchanged, but a kernel
     inlines helpers from the package's other modules (vector_math's cos and sin, weights' exponentials):
     an edit there alone (a `git pull`) would leave the old machine code running. Each kernel's cache
-    entry is stamped with this digest too, so that any change to these files compiles them again.
-
-    Parameters
-    ----------
-    folder : pathlib.Path
-
-    Returns
-    -------
-    str
-        16 hex digits.
-    """
+    entry is stamped with this digest too, so that any change to these files compiles them again."""
     digest = hashlib.sha256()
     for path in sorted(folder.glob("*.py")):
         digest.update(path.name.encode() + b"\0" + path.read_bytes())
@@ -81,10 +79,11 @@ class _MendingCache(FunctionCache):
     kernel compiled again (and saved over it), and a folder that cannot take the file leaves the
     kernel compiled in memory, with one warning naming the folder."""
 
-    def __init__(self, py_func: Callable[..., Any]):
+    def __init__(self, py_func: Callable[..., Any], variant: str = ""):
         super().__init__(py_func)
-        cache_file = self._cache_file
-        cache_file._source_stamp = (cache_file._source_stamp, _SOURCES)  # numba's (time, size), and ours
+        stamp = (self._cache_file._source_stamp, _SOURCES)  # numba's (time, size), and ours
+        # a kernel's two compilations (in order, on the threads) in files of their own
+        self._cache_file = IndexDataCacheFile(self._cache_path, self._impl.filename_base + variant, stamp)
 
     def load_overload(self, sig: Any, target_context: Any) -> Any:
         try:
@@ -115,32 +114,24 @@ class _MendingCache(FunctionCache):
             os.unlink(self._cache_file._index_path)
 
 
-def jit(function: Callable[..., Any] | None = None, *, inline: bool = False) -> Any:
-    """`function` compiled by numba in nopython mode (releasing the GIL), cached on disk where a cache
-    folder can be written (see the module's docstring), else compiled in memory (with one warning per
-    process).
+class _NoAliasCompiler(Compiler):
+    """numba's compiler, with the arrays a kernel takes marked as not overlapping (LLVM's noalias): a
+    loop that gathers (from the lookup table, by the ancestors) vectorises only then."""
 
-    Parameters
-    ----------
-    function : callable
-        A function of numbers and numpy arrays that numba compiles (`@jit` or `@jit(inline=True)`).
-    inline : bool
-        Inline it into the kernels that call it (numba's inline="always"): a helper called per
-        particle, whose call would otherwise count the references of every array it is passed.
+    def __init__(self, typingctx: Any, targetctx: Any, library: Any, args: Any, return_type: Any, flags: Any,
+                 locals: Any) -> None:  # fmt: skip
+        flags.noalias = True
+        super().__init__(typingctx, targetctx, library, args, return_type, flags, locals)
 
-    Returns
-    -------
-    callable
-        The numba dispatcher: compiled on its first call for its argument types.
-    """
-    if function is None:
-        return lambda f: jit(f, inline=inline)
-    options: dict[str, Any] = {"nogil": True, "error_model": "numpy"}  # numpy's: x / 0 is inf, no check
-    if inline:
-        options["inline"] = "always"
+
+def _compiled(function: Callable[..., Any], variant: str = "", **options: Any) -> Any:
+    """`function` compiled by numba in nopython mode (releasing the GIL, numpy's error model: x / 0 is
+    inf), cached on disk where a cache folder can be written (see the module's docstring), else
+    compiled in memory (with one warning per process)."""
+    options = {"nogil": True, "error_model": "numpy", "pipeline_class": _NoAliasCompiler, **options}
     dispatcher = numba.njit(**options)(function)
     try:
-        dispatcher._cache = _MendingCache(function)  # what numba's cache=True sets, with the mending above
+        dispatcher._cache = _MendingCache(function, variant)  # what numba's cache=True sets, with the mending
     except RuntimeError:  # numba found no writable cache folder ("cannot cache function ...")
         _warn_once(
             "mazelab's compiled kernels cannot be cached (no writable cache folder; set NUMBA_CACHE_DIR): "
@@ -149,4 +140,47 @@ def jit(function: Callable[..., Any] | None = None, *, inline: bool = False) -> 
     return dispatcher
 
 
-__all__ = ["jit", "sources_digest"]
+def inline(function: Callable[..., Any]) -> Any:
+    """A helper inlined into the kernels that call it (numba's inline="always"): a function called per
+    particle, whose call would otherwise count the references of every array it is passed."""
+    return numba.njit(inline="always", nogil=True, error_model="numpy")(function)
+
+
+_LAUNCH = threading.Lock()  # numba's workqueue takes one launch at a time
+
+
+class Kernel:
+    """One kernel body over chunks (`function`, its loop over them a `numba.prange`), compiled twice:
+    `serial` runs the chunks in order on the calling thread, `parallel` spreads them over numba's
+    threads. Both give the same values (the chunks fix the draws and the sums' order), so a call takes
+    whichever is free."""
+
+    def __init__(self, function: Callable[..., Any]):
+        self.__wrapped__ = function
+        self.serial = _compiled(function)
+        self.parallel = _compiled(function, "-threads", parallel=True)
+
+    def __call__(self, threads: int, *args: Any) -> Any:
+        """The kernel on `threads` threads (1: in order here; numba's threads when they are free)."""
+        if threads > 1 and _LAUNCH.acquire(blocking=False):
+            try:
+                numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+                return self.parallel(*args)
+            finally:
+                _LAUNCH.release()
+        return self.serial(*args)
+
+
+@inline
+def chunks(runs, size):  # pragma: no cover - compiled
+    """(the chunks of one run, of all runs): ceil(size / CHUNK) each, at least one."""
+    blocks = max(1, (size + CHUNK - 1) // CHUNK)
+    return blocks, runs * blocks
+
+
+@inline
+def chunk_of(job, blocks, size):  # pragma: no cover - compiled
+    """Chunk `job`'s (run, first particle, end) in its run's particles."""
+    run = job // blocks
+    start = (job - run * blocks) * CHUNK
+    return run, start, min(start + CHUNK, size)

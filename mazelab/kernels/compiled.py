@@ -1,92 +1,94 @@
-"""The compiled backend's operations (mazelab.numpy_ops.NumpyKernels has the same methods): each calls
-one kernel for all R runs, and `CompiledWeights`, the weights value this backend builds, keeps W in
-float32 and the reads its normalisation makes in the same passes (the ESS, the posterior mean and the
-weight within the green circle around it). Anything the kernels do not cover (float64 points such as
-recovery's injected draws, the multimodal kernel, the APF's gather) goes to the numpy operations.
+"""The compiled backend's operations (mazelab.numpy_ops.NumpyKernels has the same methods, arguments and
+results): each calls one kernel for all R runs, and `CompiledWeights`, the weights value this backend
+builds, keeps W in float32 and the reads its normalisation makes in the same passes (the ESS, the
+posterior mean and the weight within the green circle around it). Anything the kernels do not cover
+(float64 points such as recovery's injected draws, the multimodal kernel) goes to the numpy operations.
 
-Threads: from THREADED_FROM particles on, with MAZELAB_THREADS above 1, the likelihood (the step's
-dearest pass) runs on a pool of threads, each on a chunk of the particles with the same kernel (the
-kernels release the GIL): its values are the same to the bit whatever the count.
+A call of THREADED_FROM particles or more (R x N: all runs together) runs on the filter's `threads`
+(mazelab.backend.thread_count), a smaller one on the calling thread, where starting the threads would
+cost more than they save: the same values either way (mazelab.kernels). The move's and the jitter's
+random draws are the kernels' own, from one 64-bit key a run and call drawn from the run's Generator.
 """
 
 from __future__ import annotations
 
 import math
-from concurrent.futures import ThreadPoolExecutor
-from functools import cached_property
+from functools import cache, cached_property
 from typing import Any
 
 import numpy as np
 
 from mazelab.constants import CONFIDENCE_RADIUS, PARTICLE_DTYPE
-from mazelab.kernels import model, resampling, weights
+from mazelab.kernels import CHUNK, model, resampling, weights
 from mazelab.numpy_ops import NumpyKernels, flat_ancestors
 from mazelab.regularisation import GaussianKernel
 from mazelab.smc import new_particles, particles_array
 from mazelab.weights import Weights, log_sum_exp, read_only
 
-THREADED_FROM = 1 << 16  # particles in a call from which the likelihood runs on the threads
+THREADED_FROM = 1 << 16  # particles in a call from which it runs on the threads
+QUADS = 4  # the candidates of a lookup cell the likelihood's vectorised loop reads (a few cells have more)
+
+
+def on_threads(threads: int, particles: int) -> int:
+    """The threads a call over `particles` particles runs on: `threads` from THREADED_FROM on, else 1."""
+    return threads if particles >= THREADED_FROM else 1
+
+
+def unsigned(indices: np.ndarray) -> np.ndarray:
+    """Indices the engine checked to lie in [0, N) as unsigned integers of their size (a view): a kernel
+    then checks no gather by them for wrap-around."""
+    return indices.view(f"u{indices.itemsize}")
+
+
+def columns(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The x and y coordinates of (R, N, 2) particles, (R*N,) each (views in their layout: smc.particles_array)."""
+    points = np.asfortranarray(x.reshape(-1, 2))
+    return points[:, 0], points[:, 1]
+
+
+def keys_of(rngs: Any) -> np.ndarray:
+    """One 64-bit key per run from each run's Generator (0 for None: a run that draws nothing), uint64 (R,)."""
+    return np.array([0 if rng is None else rng.bit_generator.random_raw() for rng in rngs], dtype=np.uint64)
 
 
 def lookup_tables(world: Any) -> tuple:
     """The maze's nearest-station tables (mazelab.lookup) in the layout the likelihood kernel reads:
-    float32, each cell's first two candidates side by side, the rest of the few cells with more in
-    one flat array, and one code a cell.
-
-    Parameters
-    ----------
-    world : Maze
-
-    Returns
-    -------
-    tuple
-        (scale, offset, nx, ny, codes (C,) uint32, pairs (C, 4), rows, width, border (b, 2)), the
-        numbers plain Python ones. pairs[c] is cell c's first and second candidate (x0, y0, x1, y1),
-        the second a repeat of the first in a cell with one; `rows` holds, for each cell with more than
-        two, its other K - 2 candidates' (x, y) (padded by repeats of its first), `width` = 2 (K - 2)
-        values a row; a cell's code is its row's first index in `rows` times 4, plus 2 if it has a
-        row, plus 1 if the cell is free.
-    """
+    (scale, offset, nx, ny as plain Python numbers, codes (C,) uint32, quads (C, 8), rows, width,
+    border (b, 2)), float32 coordinates. quads[c] is cell c's first four candidates (x0, y0, ..., x3, y3),
+    padded by repeats of the first; `rows` holds, for each cell with more than four, its other K - 4
+    (padded likewise), `width` = 2 (K - 4) values a row; a cell's code is its row's first index in `rows`
+    times 4, plus 2 if it has a row, plus 1 if the cell is free."""
     lookup = world.prepare()._lookup
-    tables = lookup._station_tables(np.dtype(PARTICLE_DTYPE))
-    ambiguous = np.flatnonzero(lookup.row >= 0)
-    pairs = np.concatenate([tables.first, tables.first], axis=1)
-    pairs[ambiguous, 2] = tables.all_x[1, lookup.row[ambiguous]]
-    pairs[ambiguous, 3] = tables.all_y[1, lookup.row[ambiguous]]
-    candidates = lookup._all  # (A, K) station indices, padded by repeats of the first
-    more = np.flatnonzero((candidates[:, 2:] != candidates[:, :1]).any(axis=1))  # rows with a third candidate
-    rows = np.stack([tables.all_x[2:, more].T, tables.all_y[2:, more].T], axis=-1)  # (rows, K - 2, 2)
-    width = rows.shape[1] * 2
+    xy = lookup.stations.astype(PARTICLE_DTYPE)  # the numpy path's float32 coordinates
+    count = lookup._all.shape[1]  # K: the most candidates a cell has
+    candidates = np.repeat(lookup._first[:, None], max(count, QUADS), axis=1)  # (C, K) padded by the first
+    candidates[lookup.row >= 0, :count] = lookup._all
+    more = np.flatnonzero((candidates[:, QUADS:] != candidates[:, :1]).any(axis=1))  # the cells with a fifth
+    quads, rows = xy[candidates[:, :QUADS]].reshape(-1, 2 * QUADS), xy[candidates[more, QUADS:]].reshape(-1)
+    width = 2 * (candidates.shape[1] - QUADS)
     codes = (lookup.kind & 1).astype(np.uint64)
-    codes[ambiguous[more]] += 2 + 4 * width * np.arange(len(more), dtype=np.uint64)
+    codes[more] += 2 + 4 * width * np.arange(len(more), dtype=np.uint64)
     return (
         float(lookup.scale),
         float(lookup.offset),
         int(lookup.nx),
         int(lookup.ny),
         codes.astype(np.uint32 if codes.max(initial=0) < 2**32 else np.uint64),
-        np.ascontiguousarray(pairs),
-        np.ascontiguousarray(rows).reshape(-1),
+        quads,
+        rows,
         width,
-        np.ascontiguousarray(tables.border),
+        xy[lookup._border],
     )
 
 
 class CompiledWeights(Weights):
-    """The compiled backend's weights value: W float32 (every sum over it in float64), the log total,
-    and the reads of the normalisation's passes (ESS, mean, share within the green circle of the mean)
-    for the particles it was made with; log W = log w - log total is derived when read (float64).
+    """The compiled backend's weights value: the unnormalised log weights `log_w` (R, N) (float32 after a
+    reweighting, or log W itself with totals 0), their `log_total` (R,), W = exp(log w - log total)
+    (R, N) float32 when the normalisation wrote it (every sum over it in float64), and its `reads` of
+    the particles x: (x, ESS (R,), mean (R, 2), share within the green circle of the mean (R,)). log W
+    is derived when read (float64)."""
 
-    Parameters
-    ----------
-    log_w : array (R, N)
-        The unnormalised log weights (float32 after a reweighting), or log W itself (totals 0).
-    log_total : array (R,)
-    W : array (R, N), optional
-        exp(log w - log total), when the normalisation wrote it.
-    reads : (x, ess (R,), mean (R, 2), share (R,)), optional
-        What the normalisation read of the particles x.
-    """
+    threads = 1  # the threads of a large normalisation (`on_threads`): each filter's subclass sets its own
 
     def __init__(self, log_w: np.ndarray, log_total: np.ndarray, W: np.ndarray | None = None, reads: Any = None):
         log_w.flags.writeable = log_total.flags.writeable = False
@@ -98,15 +100,18 @@ class CompiledWeights(Weights):
             reads[1].base.flags.writeable = False
 
     @classmethod
-    def from_log(cls, log_w: np.ndarray, x: np.ndarray | None = None) -> CompiledWeights:
-        """Each row normalised in one compiled call of three passes, with the reads of x (float32
-        particles in their layout; other arrays are normalised by numpy's arithmetic)."""
+    def from_log(cls, log_w: np.ndarray, x: np.ndarray | None = None, added: tuple | None = None) -> CompiledWeights:
+        """Each row normalised in one compiled call of two passes, with the reads of x (float32 particles
+        in their layout; other arrays are normalised by numpy's arithmetic); `added` (log a, shifts, log
+        g): log_w is first written as (log a - shift) + log g in the same pass (`add`)."""
         runs, count = log_w.shape
         if x is None or x.dtype != PARTICLE_DTYPE or x.shape[:2] != log_w.shape:
             totals = np.atleast_1d(log_sum_exp(log_w))
             return cls(log_w, totals)
-        w, reads = np.empty((runs, count), dtype=np.float32), np.empty((5, runs))
-        weights.normalise(log_w, np.asfortranarray(x.reshape(-1, 2)), CONFIDENCE_RADIUS, w, reads)
+        w, reads, jobs = np.empty((runs, count), dtype=np.float32), np.empty((5, runs)), runs * -(-count // CHUNK)
+        lanes, scales = np.empty((jobs, 5, weights.LANES)), np.empty(jobs)
+        weights.normalise(on_threads(cls.threads, log_w.size), log_w, *(added or (None, None, None)), *columns(x),
+                          CONFIDENCE_RADIUS, w, reads, lanes, scales)  # fmt: skip
         return cls(log_w, reads[0], w, (x, reads[3], reads[1:3].T, reads[4]))
 
     @classmethod
@@ -116,13 +121,13 @@ class CompiledWeights(Weights):
         return cls(np.zeros((runs, count), np.float32), np.full(runs, math.log(count)), W)
 
     def add(self, log_g: np.ndarray, x: np.ndarray | None = None) -> CompiledWeights:
-        """log W + log G per run in one compiled pass (float32, log W worked out per particle from log w
-        and its total, never stored), then `from_log`."""
+        """log W + log G per run in the normalisation's first pass (float32, log W worked out per particle
+        from log w and its total, never stored), then `from_log`'s."""
         if log_g.dtype != PARTICLE_DTYPE or log_g.shape != self.log_w.shape:
             return self.from_log(self.lw + log_g, x)
-        out = np.empty_like(log_g)
-        weights.reweighted(self.log_w, self.log_total, log_g, out)
-        return self.from_log(out, x)
+        if x is None:  # no reads to make: numpy's arithmetic, the same float32 log w
+            return self.from_log((np.subtract(self.log_w, self.log_total[:, None]) + log_g).astype(np.float32))
+        return self.from_log(np.empty_like(log_g), x, (self.log_w, self.log_total, log_g))
 
     def reset(self, rows: np.ndarray, other: Weights, x: np.ndarray | None = None) -> CompiledWeights:
         """These weights with the given rows' log w replaced by `other`'s, normalised again with the reads
@@ -138,123 +143,94 @@ class CompiledWeights(Weights):
         """log W_i = log w_i - log total, (R, N) float64."""
         return read_only(np.subtract(self.log_w, self.log_total[:, None], dtype=float))
 
+    @staticmethod
+    @cache
+    def on(threads: int) -> type[CompiledWeights]:
+        """CompiledWeights whose large normalisations run on `threads` threads (one class per count)."""
+        return type("CompiledWeights", (CompiledWeights,), {"threads": threads, "__doc__": CompiledWeights.__doc__})
+
 
 class CompiledKernels(NumpyKernels):
-    """The hot parts of one filter on `world`, compiled (mazelab.kernels); what the kernels do not
-    cover is NumpyKernels' (this class's parent).
-
-    Parameters
-    ----------
-    world : Maze
-        The filter's maze: its lookup tables are read once.
-    threads : int, optional
-        The threads the likelihood's particles are spread over from THREADED_FROM particles on
-        (default 1; mazelab.backend.kernels_for passes MAZELAB_THREADS's).
-    """
+    """The hot parts of one filter on `world` (its lookup tables read once), compiled (mazelab.kernels),
+    a call of THREADED_FROM particles or more on `threads` threads (mazelab.backend.kernels_for passes
+    thread_count's); what the kernels do not cover is NumpyKernels' (this class's parent)."""
 
     name = "compiled"
-    Weights = CompiledWeights
 
     def __init__(self, world: Any, threads: int | None = None):
         self.tables = lookup_tables(world)
         self._tables_of = world
         self.threads = max(1, threads or 1)
+        self.Weights = CompiledWeights.on(self.threads)
         self.schemes = {"systematic": self.systematic}
 
     def move(
-        self, x: np.ndarray, A: np.ndarray | None, uniforms: np.ndarray, angles: np.ndarray, delta: float, speed: float
+        self, x: np.ndarray, A: np.ndarray | None, rngs: Any, angles: np.ndarray, delta: float, speed: float
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Equation (1) (NumpyKernels.move's arguments and results) in one compiled pass: the headings,
-        their cos and sin (within 0.502 ulp of the exact values: mazelab.kernels.vector_math), the
-        gather and the step. float64 points go to numpy."""
-        if not x.dtype == uniforms.dtype == angles.dtype == PARTICLE_DTYPE:
-            return super().move(x, A, uniforms, angles, delta, speed)
-        out = new_particles(*uniforms.shape, PARTICLE_DTYPE)
-        sources = _NO_ANCESTORS if A is None else flat_ancestors(A, x.shape[1])
+        """Equation (1) with its draws (NumpyKernels.move's arguments and results) in one compiled pass:
+        the uniforms (each run's from a key its Generator draws), the headings, their cos and sin (within
+        0.502 ulp of the exact values: mazelab.kernels.vector_math), the gather and the step. float64
+        points go to numpy."""
+        if x.dtype != PARTICLE_DTYPE:
+            return super().move(x, A, rngs, angles, delta, speed)
+        shape = x.shape[:2] if A is None else A.shape
+        out, headings = new_particles(*shape, PARTICLE_DTYPE), np.empty(shape, dtype=PARTICLE_DTYPE)
+        sources = _NO_ANCESTORS if A is None else unsigned(flat_ancestors(A, x.shape[1]))
+        moving = np.array([rng is not None for rng in rngs])
         model.move(
-            np.asfortranarray(x.reshape(-1, 2)),
+            on_threads(self.threads, headings.size),
+            *columns(x),
             sources,
-            uniforms,
-            angles,
+            keys_of(rngs),
+            moving,
+            angles.astype(PARTICLE_DTYPE, copy=False),
             float(delta),
             float(speed),
-            out.reshape(-1, 2),
+            *columns(out),
+            headings,
         )
-        return out, uniforms
+        return out, headings
 
     def log_likelihood(
         self, z: np.ndarray, x: np.ndarray, world: Any, sigma: float, outside_penalty: float
     ) -> np.ndarray:
         """Equation (3) in logs, compiled: the locate and the likelihood in one pass (float32, the numpy
-        path's values to the bit), on `threads` threads for a large call (chunks of the same kernel)."""
+        path's values to the bit)."""
         if x.dtype != PARTICLE_DTYPE or world is not self._tables_of:
             return super().log_likelihood(z, x, world, sigma, outside_penalty)
-        runs, count = x.shape[:2]
-        out, points = np.empty((runs, count), dtype=PARTICLE_DTYPE), np.asfortranarray(x.reshape(-1, 2))
+        out, left = np.empty(x.shape[:2], dtype=PARTICLE_DTYPE), np.empty(x.shape[0] * x.shape[1], self.tables[4].dtype)
         norm = math.log(sigma * math.sqrt(2 * math.pi))
         terms = (float(sigma), -norm, math.log(outside_penalty) - norm, self.tables)
-        if self.threads < 2 or runs * count < THREADED_FROM:
-            model.log_likelihood(points, z, *terms, out)
-            return out
-        size = -(-count // self.threads)
-
-        def chunk(job: tuple[int, int]) -> None:  # particles start..start+size of run r
-            r, start = job
-            first = r * count + start
-            model.log_likelihood(
-                points[first : first + size], z[r : r + 1], *terms, out[r : r + 1, start : start + size]
-            )
-
-        with ThreadPoolExecutor(self.threads) as pool:  # the same kernel on each chunk (it releases the GIL)
-            list(pool.map(chunk, [(r, start) for r in range(runs) for start in range(0, count, size)]))
+        model.log_likelihood(on_threads(self.threads, out.size), *columns(x), z, *terms, out, left)
         return out
 
     def systematic(self, W: np.ndarray, rng: np.random.Generator, count: int | None = None) -> np.ndarray:
-        """Systematic resampling in its counting form (mazelab.kernels.resampling): the ancestors of
-        mazelab.resampling.systematic_resample for the same cumulative weights and offset u = rng.random().
-
-        Parameters
-        ----------
-        W : array (N,)
-        rng : numpy.random.Generator
-        count : int, optional
-            M (default N).
-
-        Returns
-        -------
-        int64 array (M,)
-        """
+        """Systematic resampling of W (N,) into `count` (default N) int64 ancestors in its counting form,
+        by blocks (mazelab.kernels.resampling): mazelab.resampling.systematic_resample's ancestors for
+        the same cumulative weights and offset u = rng.random()."""
         out = np.empty(len(W) if count is None else count, dtype=np.int64)
-        resampling.systematic(W, rng.random(), out)
+        resampling.systematic(on_threads(self.threads, len(W)), W, rng.random(), out)
         return out
 
     def weighted_mean(self, W: Weights, x: np.ndarray) -> np.ndarray:
         """The posterior mean per run: the normalisation's read for these particles, else computed."""
         reads = getattr(W, "reads", None)
-        if reads is not None and reads[0] is x:
-            return reads[2]
-        return super().weighted_mean(W, x)
+        return reads[2] if reads is not None and reads[0] is x else super().weighted_mean(W, x)
 
     def mass_within(self, W: Weights, x: np.ndarray, centres: np.ndarray, radius: float) -> np.ndarray:
         """The weight within `radius` of each run's centre: the normalisation's read around the mean,
-        else compiled."""
+        else numpy's (the mode estimate's)."""
         reads = getattr(W, "reads", None)
         if reads is not None and reads[0] is x and centres is reads[2] and radius == CONFIDENCE_RADIUS:
             return reads[3]
-        if x.dtype != PARTICLE_DTYPE:
-            return super().mass_within(W, x, centres, radius)
-        shares = np.empty(len(W.W))
-        weights.mass_within(
-            W.W, np.asfortranarray(x.reshape(-1, 2)), np.asarray(centres, dtype=float).reshape(-1, 2), radius, shares
-        )
-        return shares
+        return super().mass_within(W, x, centres, radius)
 
     def weighted_covariance(self, W: np.ndarray, x: np.ndarray) -> np.ndarray:
-        """Each run's weighted covariance, compiled (the mean, then the moments), (R, 2, 2)."""
+        """Each run's weighted covariance, compiled (one pass), (R, 2, 2)."""
         if x.dtype != PARTICLE_DTYPE:
             return super().weighted_covariance(W, x)
         out = np.empty((len(W), 2, 2))
-        weights.covariance(W, np.asfortranarray(x.reshape(-1, 2)), out)
+        weights.covariance(on_threads(self.threads, W.size), W, *columns(x), out)
         return out
 
     def second_stage(self, log_lik: np.ndarray, log_mu: np.ndarray, A: np.ndarray) -> np.ndarray:
@@ -262,23 +238,25 @@ class CompiledKernels(NumpyKernels):
         if not log_lik.dtype == log_mu.dtype == PARTICLE_DTYPE:
             return super().second_stage(log_lik, log_mu, A)
         out = np.empty_like(log_lik)
-        weights.second_stage(log_lik, log_mu, A, out)
+        weights.second_stage(on_threads(self.threads, out.size), log_lik, log_mu, unsigned(A), out)
         return out
 
     def equal_weighted(self, log_lik: np.ndarray, log_weight: float) -> np.ndarray:
         """log W + log p(z_k | x_k) of resampled particles, in the likelihood's dtype (float32)."""
         return np.add(log_lik, log_lik.dtype.type(log_weight))
 
-    def jitter(self, x: np.ndarray, A: np.ndarray, due: np.ndarray, eps: np.ndarray, kernels: Any) -> np.ndarray:
-        """The RPF's gather and jitter in one pass for Gaussian kernels (h D eps, one D per due run);
-        the multimodal kernel goes to numpy."""
+    def jitter(self, x: np.ndarray, A: np.ndarray, due: np.ndarray, rngs: Any, kernels: Any) -> np.ndarray:
+        """The RPF's gather, draws and jitter in one pass for Gaussian kernels (h D eps, one D per due
+        run, eps ~ N(0, I_2) from a key each due run's Generator draws); the multimodal kernel goes to
+        numpy."""
         if x.dtype != PARTICLE_DTYPE or not all(isinstance(k, GaussianKernel) for k in kernels):
-            return super().jitter(x, A, due, eps, kernels)
+            return super().jitter(x, A, due, rngs, kernels)
         rows = np.flatnonzero(due)
         scales = np.array([[k.scale[0, 0], k.scale[1, 0], k.scale[1, 1]] for k in kernels], dtype=PARTICLE_DTYPE)
         moved = new_particles(len(rows), A.shape[1], PARTICLE_DTYPE)
-        sources = (A[rows] + (rows * x.shape[1])[:, None]).reshape(-1)
-        model.jitter(np.asfortranarray(x.reshape(-1, 2)), sources, eps, scales, moved.reshape(-1, 2))
+        sources = unsigned((A[rows] + (rows * x.shape[1])[:, None]).reshape(-1))
+        keys = keys_of([rngs[r] for r in rows])
+        model.jitter(on_threads(self.threads, sources.size), *columns(x), sources, keys, scales, *columns(moved))
         if len(rows) == len(x):
             return moved
         out = particles_array(x, x.dtype)
@@ -286,7 +264,4 @@ class CompiledKernels(NumpyKernels):
         return out
 
 
-_NO_ANCESTORS = np.empty(0, dtype=np.int64)
-
-
-__all__ = ["THREADED_FROM", "CompiledKernels", "CompiledWeights", "lookup_tables"]
+_NO_ANCESTORS = np.empty(0, dtype=np.uint64)

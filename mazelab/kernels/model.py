@@ -1,221 +1,178 @@
 """The model's equations, compiled (mazelab.model is the numpy reference; the paper's numbering):
 
-    (1) the move: th = th0 + Delta (u - 1/2), then x_k = x_{k-1} + L (cos th, sin th), gathered from
-        the resampled ancestors
+    (1) the move: th = th0 + Delta (u - 1/2), u ~ U[0, 1), then x_k = x_{k-1} + L (cos th, sin th),
+        gathered from the resampled ancestors
     (3) the likelihood: log p(z_k | x_k) = -((d(x_k) - z_k) / sigma)^2 / 2 - log(sigma sqrt(2 pi)),
         plus log 0.5 outside the free area, d the distance to the nearest station (mazelab.lookup's table)
     the RPF's jitter: x^{i*} + h D eps, eps ~ N(0, I_2) (mazelab.regularisation)
 
-Positions are (R*N, 2) float32 (run r's particles the rows r*N..(r+1)*N), written into buffers the
-caller owns. The arithmetic is float32 as in the numpy path, operation for operation, so the
-likelihood of given points, the jitter and the move's headings are the numpy path's to the bit. The
-move's cos and sin are mazelab.kernels.vector_math's, within two ulps of numpy's (which are within
-1.5 of the exact value, these within 0.502): the moved particles are the numpy path's or a float32
-rounding from them, the price of a move in one vectorised call instead of numpy's cos and sin and
-two kernels.
+R runs' float32 particles lie in R blocks of N (run r's r*N..(r+1)*N), written into new arrays. The
+draws are the kernels' own: particle m of run r takes number m of run r's stream. The arithmetic is
+the numpy path's float32, operation for operation: the likelihood of given points and the headings of
+given uniforms are numpy's to the bit; cos and sin (vector_math's) within two ulps of numpy's.
 """
 
 from __future__ import annotations
 
-import numpy as np
+import math
 
-from mazelab.kernels import jit
-from mazelab.kernels.vector_math import cos_sin
+import numpy as np
+from numba import prange
+
+from mazelab.kernels import Kernel, chunk_of, chunks, inline
+from mazelab.kernels.vector_math import cos_sin, random_bits, uniform32, uniform64
 
 F32 = np.float32
 _FREE, _MORE = 1, 2  # the low bits of a lookup cell's code (mazelab.kernels.compiled.lookup_tables)
 _ZERO, _HALF, _MINUS_HALF = F32(0.0), F32(0.5), F32(-0.5)
 # unsigned indices (numba checks a signed index for wrap-around at every load)
-_X0, _Y0, _X1, _Y1 = np.uint64(0), np.uint64(1), np.uint64(2), np.uint64(3)
-_NONE, _PAIR = np.uint64(0), np.uint64(2)
+_X0, _Y0, _X1, _Y1, _X2, _Y2, _X3, _Y3 = (np.uint64(k) for k in range(8))
+_NONE, _PAIR, _TWO = np.uint64(0), np.uint64(2), np.uint64(2)
 
 
-@jit
-def _headings_cos_sin(uniforms, angle, delta, cos_h, sin_h):  # pragma: no cover - compiled
-    """th = th0 + Delta (u - 1/2) in place of the uniforms (1-D), and cos th, sin th into cos_h, sin_h: a
-    loop of its own, which the compiler vectorises (no gather in it, three arrays to check for overlap)."""
-    for m in range(len(uniforms)):
-        heading = (uniforms[m] - _HALF) * delta + angle
-        uniforms[m] = heading
-        cos_h[m], sin_h[m] = cos_sin(heading)
+@Kernel
+def move(x, y, ancestors, keys, moving, angles, delta, speed, out_x, out_y, headings):  # pragma: no cover - compiled
+    """Equation (1) for R runs in one call, with its draws: th_i = th0_r + Delta (u_i - 1/2), then
+    (out_x, out_y)[i] = (x, y)[a_i] + L (cos th_i, sin th_i), and headings[r, m] = th_i (radians).
 
-
-@jit
-def move(positions, ancestors, uniforms, angles, delta, speed, out):  # pragma: no cover - compiled
-    """Equation (1) for R runs in one call: th_i = th0_r + Delta (u_i - 1/2), then out[i] =
-    positions[a_i] + speed (cos th_i, sin th_i).
-
-    The headings are mazelab.model.headings_from_uniforms' float32 operations (its values to the
-    bit); cos and sin are vector_math's, within 0.502 ulp of the exact value (numpy's float32 ones
-    within 1.5; the two agree for about 85% of angles), so a moved particle is the numpy path's or a
-    float32 rounding away from it. cos and sin go into `out` first, in a vectorised loop; the gather and
-    the step follow.
-
-    Parameters
-    ----------
-    positions : float32 array (P, 2), order F
-        The particles moved from.
-    ancestors : int array (R*M,)
-        Row of `positions` each particle moves from; empty: particle i moves from row i.
-    uniforms : float32 array (R, M)
-        u ~ U[0, 1), overwritten by the headings (radians).
-    angles : float32 array (R,)
-        th0 of each run (radians).
-    delta, speed : float
-        Delta (radians) and the step length L (map units), rounded to float32 here (as numpy's float32
-        arithmetic rounds them).
-    out : float32 array (R*M, 2), order F
-        The moved particles.
-    """
+    x, y (P,) and out_x, out_y (R*M,) are float32 coordinates; `ancestors` (R*M,) uint64 the particle
+    each moves from (empty: particle i moves from particle i); u_m of run r is number m of the stream
+    keys[r] (uint64 (R,): vector_math.random_bits), or 1/2 in a run whose `moving` is False (it draws
+    nothing: it restarts after this step); `angles` (R,) float32 the th0 of each run; `delta` and
+    `speed` (Delta in radians, L in map units) are rounded to float32 here, as numpy's float32
+    arithmetic rounds them. The headings are mazelab.model.headings_from_uniforms' float32 operations;
+    cos and sin are vector_math's, within 0.502 ulp of the exact value (numpy's float32 ones within 1.5)."""
     delta, speed = F32(delta), F32(speed)
-    runs, size = uniforms.shape
-    x, y = positions.T[0], positions.T[1]
-    out_x, out_y = out.T[0], out.T[1]
-    for r in range(runs):
-        block = slice(r * size, (r + 1) * size)
-        _headings_cos_sin(uniforms[r], angles[r], delta, out_x[block], out_y[block])
-    if len(ancestors):
-        for i in range(len(out_x)):
-            source = ancestors[i]
-            out_x[i] = x[source] + out_x[i] * speed
-            out_y[i] = y[source] + out_y[i] * speed
-    else:
-        for i in range(len(out_x)):
-            out_x[i] = x[i] + out_x[i] * speed
-            out_y[i] = y[i] + out_y[i] * speed
+    runs, size = headings.shape
+    blocks, jobs = chunks(runs, size)
+    for job in prange(jobs):
+        r, start, stop = chunk_of(job, blocks, size)
+        first, last, key, angle, drawn = r * size + start, r * size + stop, keys[r], angles[r], moving[r]
+        sources = ancestors[first:last] if len(ancestors) else ancestors
+        moved_x, moved_y, taken = out_x[first:last], out_y[first:last], headings[r, start:stop]
+        for m in range(stop - start):  # each loop from 0: numba checks no index of it for wrap-around
+            u = uniform32(random_bits(key, np.uint64(start + m))) if drawn else _HALF
+            heading = (u - _HALF) * delta + angle
+            taken[m] = heading
+            cos_h, sin_h = cos_sin(heading)
+            source = sources[m] if len(ancestors) else np.uint64(first + m)
+            moved_x[m] = x[source] + cos_h * speed
+            moved_y[m] = y[source] + sin_h * speed
 
 
-@jit(inline=True)
+@inline
 def _typed(tables):  # pragma: no cover - compiled
     """lookup_tables' tuple with its numbers in the kernels' types: (scale, offset, nx, ny) float32, nx
     and the row width uint64 (plain Python numbers cross into a kernel faster than numpy scalars)."""
-    scale, offset, nx, ny, codes, pairs, rows, width, border = tables
-    return F32(scale), F32(offset), F32(nx), F32(ny), np.uint64(nx), codes, pairs, rows, np.uint64(width), border
+    scale, offset, nx, ny, codes, quads, rows, width, border = tables
+    return F32(scale), F32(offset), F32(nx), F32(ny), np.uint64(nx), codes, quads, rows, np.uint64(width), border
 
 
-@jit(inline=True)
-def _log_likelihood_at(px, py, zr, sigma, free_term, outside_term, tables):  # pragma: no cover - compiled
-    """(log p(z_r | x) for the point (px, py) from its lookup cell, whether the point is inside the
-    table): numpy's locate and likelihood for one point, with no branch but a loop that runs for few.
+@inline
+def _residual(best, zr, sigma, term):  # pragma: no cover - compiled
+    """-((sqrt(best) - z) / sigma)^2 / 2 + term: numpy's float32 operations, in its order."""
+    residual = (np.sqrt(best) - zr) / sigma
+    return residual * residual * _MINUS_HALF + term
 
-    A point beyond the table reads cell 0 instead, by a select (it gets a wrong value and False: the
-    caller redoes it; clamping its cell into the table measured 0.6 ns a particle slower). Every cell
-    has two candidates (the second a repeat of the first in a cell with one), read in one load, and
-    the nearer kept by a select; the cells with more than two (a few in a hundred) loop over the rest
-    of their row, which their code names. The minimum is exact whatever the order, so the distance is
-    numpy's to the bit. `tables` is _typed's."""
-    scale, offset, nxf, nyf, nx, codes, pairs, rows, width, _ = tables
+
+@inline
+def _squared(px, py, sx, sy):  # pragma: no cover - compiled
+    """The squared distance from (px, py) to the station (sx, sy), numpy's float32 operations."""
+    dx = sx - px
+    dy = sy - py
+    return dx * dx + dy * dy
+
+
+@inline
+def _nearer(px, py, sx, sy, best):  # pragma: no cover - compiled
+    """The smaller of `best` and the squared distance from (px, py) to (sx, sy) (a NaN best stays)."""
+    d2 = _squared(px, py, sx, sy)
+    return d2 if d2 < best else best
+
+
+@inline
+def _log_likelihood_of_four(px, py, zr, sigma, free_term, outside_term, tables):  # pragma: no cover - compiled
+    """(log p(z_r | x) for the point (px, py) from its cell's first four candidates, what is left open):
+    numpy's locate and likelihood for one point without a branch, so that the loop calling it
+    vectorises (its loads gathers). Left open: 0 when the value is the answer; 1 for a point beyond the
+    table (which reads cell 0 instead, by a select); the cell's code for a cell with more than four
+    candidates (one in fifty in a large maze; its code names them), whose value is then the squared
+    distance to the nearest four. `_close` works both out. `tables` is _typed's."""
+    scale, offset, nxf, nyf, nx, codes, quads, _, _, _ = tables
     fx = np.floor(px * scale) + offset  # float32, exact: the scale is a power of two
     fy = np.floor(py * scale) + offset
     inside = (fx >= _ZERO) & (fy >= _ZERO) & (fx < nxf) & (fy < nyf)  # False for NaN
     cell = np.uint64(fy) * nx + np.uint64(fx) if inside else _NONE  # the conversions' value unused beyond it
     code = codes[cell]
-    dx = pairs[cell, _X0] - px
-    dy = pairs[cell, _Y0] - py
-    best = dx * dx + dy * dy
-    dx = pairs[cell, _X1] - px
-    dy = pairs[cell, _Y1] - py
-    d2 = dx * dx + dy * dy
-    best = d2 if d2 < best else best
-    start = np.uint64(code >> 2)
-    for c in range(start, start + (width if code & _MORE else _NONE), _PAIR):
-        dx = rows[c] - px
-        dy = rows[c + _Y0] - py
-        d2 = dx * dx + dy * dy
-        best = d2 if d2 < best else best
-    residual = (np.sqrt(best) - zr) / sigma
-    return residual * residual * _MINUS_HALF + (free_term if code & _FREE else outside_term), inside
+    best = _squared(px, py, quads[cell, _X0], quads[cell, _Y0])
+    best = _nearer(px, py, quads[cell, _X1], quads[cell, _Y1], best)
+    best = _nearer(px, py, quads[cell, _X2], quads[cell, _Y2], best)
+    best = _nearer(px, py, quads[cell, _X3], quads[cell, _Y3], best)
+    value = _residual(best, zr, sigma, free_term if code & _FREE else outside_term)
+    more = inside & ((code & _MORE) != 0)
+    return best if more else value, (code if more else 0) if inside else 1
 
 
-@jit
-def _beyond_the_table(positions, z, sigma, outside_term, tables, out):  # pragma: no cover - compiled
-    """out[r, m] = log p(z_r | x_i) again for the points beyond the table (outside the free area), the
-    distance to the nearest of the border cells' candidates by brute force: the rare particle that
-    drifted off the map (a pass of its own, so that the common one has no branch on it). The numbers
-    are log_likelihood's, typed."""
-    scale, offset, nxf, nyf, _, _, _, _, _, border = tables
-    runs, size = out.shape
-    for r in range(runs):
-        zr = F32(z[r])
-        for m in range(size):
-            px, py = positions[r * size + m, 0], positions[r * size + m, 1]
-            fx = np.floor(px * scale) + offset
-            fy = np.floor(py * scale) + offset
-            if not ((fx >= _ZERO) & (fy >= _ZERO) & (fx < nxf) & (fy < nyf)):
-                dx = border[0, 0] - px
-                dy = border[0, 1] - py
-                best = dx * dx + dy * dy
-                for b in range(1, border.shape[0]):
-                    dx = border[b, 0] - px
-                    dy = border[b, 1] - py
-                    d2 = dx * dx + dy * dy
-                    best = d2 if d2 < best else best
-                residual = (np.sqrt(best) - zr) / sigma
-                out[r, m] = residual * residual * _MINUS_HALF + outside_term
+@inline
+def _close(px, py, value, left, zr, sigma, free_term, outside_term, tables):  # pragma: no cover - compiled
+    """log p(z_r | x) of a point `_log_likelihood_of_four` left open: beyond the table (outside the free
+    area), the nearest of the border cells' candidates by brute force; in a cell with more than four
+    candidates (`left` its code, `value` the squared distance to its first four), the nearest of them
+    all. The minimum is exact whatever the order, so the distance is numpy's to the bit."""
+    _, _, _, _, _, _, _, rows, width, border = tables
+    if left == 1:
+        best = _squared(px, py, border[0, 0], border[0, 1])
+        for b in range(1, border.shape[0]):
+            best = _nearer(px, py, border[b, 0], border[b, 1], best)
+        return _residual(best, zr, sigma, outside_term)
+    best, start = value, np.uint64(left >> _TWO)
+    for c in range(start, start + width, _PAIR):
+        best = _nearer(px, py, rows[c], rows[c + _Y0], best)
+    return _residual(best, zr, sigma, free_term if left & _FREE else outside_term)
 
 
-@jit
-def log_likelihood(positions, z, sigma, free_term, outside_term, tables, out):  # pragma: no cover - compiled
+@Kernel
+def log_likelihood(x, y, z, sigma, free_term, outside_term, tables, out, left):  # pragma: no cover - compiled
     """Equation (3) with the outside penalty, in logs, for R runs: out[r, m] = log p(z_r | x_i) (i = r N
-    + m), float32, numpy's values to the bit (the same float32 operations, and the nearest of the same
-    candidates). The numbers come as plain floats (a numpy scalar costs some 0.25 us to pass) and are
-    rounded to float32 here, as numpy's float32 arithmetic rounds them.
+    + m) float32 (R, N), numpy's values to the bit (the same float32 operations, and the nearest of the
+    same candidates). Each chunk in two loops: every point from its cell's first four candidates
+    (vectorised), then the few left open (`left` (R*N,), of the codes' dtype, scratch).
 
-    Parameters
-    ----------
-    positions : float32 array (R*N, 2)
-    z : float array (R,)
-        z_k of each run (map units).
-    sigma : float
-        The measurement noise's standard deviation.
-    free_term, outside_term : float
-        -log(sigma sqrt(2 pi)), and that plus log(outside penalty): the constant of a free and of an
-        outside point.
-    tables : tuple
-        The maze's lookup tables (mazelab.kernels.compiled.lookup_tables).
-    out : float32 array (R, N)
-    """
+    x, y (R*N,) are the particles' float32 coordinates, z (R,) each run's z_k (map units); `sigma` the
+    noise's standard deviation, `free_term` -log(sigma sqrt(2 pi)) and `outside_term` that plus log(the
+    outside penalty): plain floats (a numpy scalar costs some 0.25 us to pass), rounded to float32 here
+    as numpy's float32 arithmetic rounds them; `tables` the maze's (compiled.lookup_tables)."""
     sigma, free_term, outside_term, typed = F32(sigma), F32(free_term), F32(outside_term), _typed(tables)
     runs, size = out.shape
-    beyond = 0
-    for r in range(runs):
-        zr = F32(z[r])
-        for m in range(size):
-            i = r * size + m
-            value, inside = _log_likelihood_at(
-                positions[i, 0], positions[i, 1], zr, sigma, free_term, outside_term, typed
-            )
-            out[r, m] = value
-            beyond += 0 if inside else 1
-    if beyond:
-        _beyond_the_table(positions, z, sigma, outside_term, typed, out)
+    blocks, jobs = chunks(runs, size)
+    for job in prange(jobs):
+        r, start, stop = chunk_of(job, blocks, size)
+        zr, first, last, values = F32(z[r]), r * size + start, r * size + stop, out[r, start:stop]
+        xs, ys, open_ = x[first:last], y[first:last], left[first:last]
+        for m in range(stop - start):
+            values[m], open_[m] = _log_likelihood_of_four(xs[m], ys[m], zr, sigma, free_term, outside_term, typed)
+        for m in range(stop - start):
+            if open_[m]:
+                values[m] = _close(xs[m], ys[m], values[m], open_[m], zr, sigma, free_term, outside_term, typed)
 
 
-@jit
-def jitter(positions, ancestors, eps, scales, out):  # pragma: no cover - compiled
-    """The RPF's kernel K_h for R runs: out[i] = positions[a_i] + h D_r eps_i, D_r lower triangular.
-
-    Parameters
-    ----------
-    positions : float32 array (P, 2)
-    ancestors : int array (R*M,)
-        The resampled rows of `positions`.
-    eps : float32 array (R*M, 2)
-        Standard normal draws, block r run r's.
-    scales : float32 array (R, 3)
-        (a, c, d) of each run's h D = [[a, 0], [c, d]].
-    out : float32 array (R*M, 2)
-    """
+@Kernel
+def jitter(x, y, ancestors, keys, scales, out_x, out_y):  # pragma: no cover - compiled
+    """The RPF's kernel K_h for D due runs, with its draws: (out_x, out_y)[i] = (x, y)[a_i] + h D_d eps_i
+    (float32 coordinates; `ancestors` (D*M,) uint64), h D_d = [[a, 0], [c, d]] from scales[d] = (a, c,
+    d) (D, 3), eps_i ~ N(0, I_2) by Box and Muller's transform of two float64 uniforms, numbers 2m and
+    2m + 1 of the stream keys[d] (uint64 (D,)), so the points do not depend on the threads."""
     runs = scales.shape[0]
     size = len(ancestors) // runs
-    for r in range(runs):
-        a, c, d = scales[r, 0], scales[r, 1], scales[r, 2]
-        for m in range(size):
-            i = r * size + m
-            source = ancestors[i]
-            e0 = eps[i, 0]
-            out[i, 0] = positions[source, 0] + a * e0
-            out[i, 1] = positions[source, 1] + (c * e0 + d * eps[i, 1])
-
-
-__all__ = ["jitter", "log_likelihood", "move"]
+    blocks, jobs = chunks(runs, size)
+    for job in prange(jobs):
+        r, start, stop = chunk_of(job, blocks, size)
+        a, c, d, key, first, last = scales[r, 0], scales[r, 1], scales[r, 2], keys[r], r * size + start, r * size + stop
+        sources, moved_x, moved_y = ancestors[first:last], out_x[first:last], out_y[first:last]
+        for m in range(stop - start):
+            counter = np.uint64(start + m) * _TWO
+            radius = math.sqrt(-2.0 * math.log(1.0 - uniform64(random_bits(key, counter))))
+            angle = 2 * math.pi * uniform64(random_bits(key, counter + np.uint64(1)))
+            e0, e1 = F32(radius * math.cos(angle)), F32(radius * math.sin(angle))
+            moved_x[m] = x[sources[m]] + a * e0
+            moved_y[m] = y[sources[m]] + (c * e0 + d * e1)

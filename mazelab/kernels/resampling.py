@@ -1,45 +1,69 @@
-"""The resampler, compiled: systematic resampling by counting (mazelab.resampling.systematic_resample is
-the numpy reference, the textbook inverse CDF, and these are its ancestors for the same weights and
-offset).
+"""The resampler, compiled: systematic resampling by counting, in blocks (mazelab.resampling.
+systematic_resample is the numpy reference, the textbook inverse CDF, and these are its ancestors for
+the same cumulative weights and offset).
 
 The points u_m = (m + U) / M below the cumulative weight c_i = W_1 + ... + W_i number ceil(M c_i - U),
-so particle i is the ancestor of the points from ceil(M c_{i-1} - U) to ceil(M c_i - U): one pass over
-the weights counts where each particle's points end, a running sum over the points turns the counts
-into the ancestors, in order, with no search and no branch that depends on the weights.
+so particle i is the ancestor of the points from ceil(M c_{i-1} - U) to ceil(M c_i - U) (its offspring
+count is their difference). In blocks of CHUNK particles (mazelab.kernels): each block's total (a
+pass over the weights); the blocks' starting sums b_k in order; then in each block, c_i = b_k plus the
+block's running sum (so a block's last c_i is b_{k+1}, to the bit), the end of each particle's points
+counted where it falls among the block's own points, and a running sum over those points turns the
+counts into the ancestors, with no search. Blocks write disjoint points, so they run on any thread.
+The cumulative weights are float64 (numpy's cumsum into a float64 array) summed in that order: the
+textbook's own, to the bit, for N <= CHUNK, and otherwise different from them by rounding, which moves
+an ancestor only where a point lies within that rounding of a boundary. A point exactly on a boundary
+(u_m = c_i) goes to the next particle, as searchsorted(..., side="right") sends it.
 """
 
 from __future__ import annotations
 
 import math
 
-from mazelab.kernels import jit
+import numpy as np
+from numba import prange
+
+from mazelab.kernels import Kernel, chunk_of, chunks, inline
 
 
-@jit
-def systematic(weights, u, out):  # pragma: no cover - compiled
-    """Systematic resampling of one run's weights with offset u: out[m] is the ancestor of the point
-    (m + u) / M, M = len(out) (mazelab.resampling.systematic_resample's, by counting).
-
-    Parameters
-    ----------
-    weights : float array (N,)
-        Normalised weights.
-    u : float
-        U ~ U[0, 1).
-    out : int array (M,)
-        The ancestors, sorted.
-    """
-    count, size = len(out), len(weights)
-    for m in range(count):
-        out[m] = 0
-    # out[e] counts the particles whose points end at e: numpy's bincount of the ends
-    cumulative = 0.0  # float64 whatever the weights' dtype (numpy's cumsum into a float64 array)
-    for i in range(size - 1):  # the last particle takes the rest: round-off may leave the sum short of 1
+@inline
+def _ancestors_of_block(weights, u, count, base, start, offset, out):  # pragma: no cover - compiled
+    """`out`: the points offset.. of the particles start.. (their weights `weights`; the last particle
+    of all is left out: it takes the rest). out[e] counts the particles whose points end at point
+    offset + e, then their running sum, from `start`."""
+    out[:] = 0
+    cumulative = 0.0
+    for i in range(len(weights)):
         cumulative += weights[i]
-        end = math.ceil(cumulative * count - u)
-        if 0 <= end < count:  # a NaN weight's end is neither: nothing is written outside `out`
-            out[end] += 1
-    ancestor = 0  # then the running sum: point m's ancestor is the number of ends at or below m
-    for m in range(count):
+        end = ((base + cumulative) * count - u) - offset  # particle i's points end at offset + ceil(end)
+        if end > -1 and end <= len(out) - 1:  # a NaN weight's end is neither: nothing is written outside
+            out[math.ceil(end)] += 1
+    ancestor = start
+    for m in range(len(out)):
         ancestor += out[m]
         out[m] = ancestor
+
+
+@Kernel
+def systematic(weights, u, out):  # pragma: no cover - compiled
+    """Systematic resampling of one run's normalised weights (N,) with offset u ~ U[0, 1): out[m] is the
+    ancestor of the point (m + u) / M, M = len(out), sorted (mazelab.resampling.systematic_resample's,
+    by counting in blocks)."""
+    size, count = len(weights), len(out)
+    blocks, _ = chunks(1, size)
+    bases, stops = np.empty(blocks + 1), np.empty(blocks + 1, dtype=np.int64)
+    for block in prange(blocks):  # each block's total, in order
+        _, start, stop = chunk_of(block, blocks, size)
+        total, part = 0.0, weights[start:stop]  # float64 whatever the weights' dtype
+        for i in range(len(part)):
+            total += part[i]
+        bases[block + 1] = total
+    bases[0], stops[0], stops[blocks] = 0.0, 0, count
+    for block in range(1, blocks + 1):  # the blocks' starting sums b_k, and where their points end
+        bases[block] += bases[block - 1]
+        if block < blocks:
+            end = bases[block] * count - u  # the points below b_k: ceil(end), within [the last, M]
+            stops[block] = stops[block - 1] if not end > stops[block - 1] - 1 else min(math.ceil(end), count)
+    for block in prange(blocks):
+        _, start, stop = chunk_of(block, blocks, size)
+        points = out[stops[block] : stops[block + 1]]
+        _ancestors_of_block(weights[start : min(stop, size - 1)], u, count, bases[block], start, stops[block], points)

@@ -1,26 +1,23 @@
 """The weights and the weighted reads, compiled (mazelab.weights is the numpy reference).
 
-`normalise` turns R runs' log weights into their log totals and normalised weights W (float32: every
-sum over them runs in float64), and reads what a step reports, in three passes over each run: the top
-(max log w), then w = exp(log w - top) and the sums of the weights, their squares and the weighted
-positions (the total, the ESS, the mean), then W = w / total and the weight within the green circle
-around the mean. log W = log w - log total is left to the Weights value, which derives it when read.
-`first_stage` is the APF's: W proportional to exp(log a - shift + log b) and the log of their sum;
-`reweighted` makes log W_{k-1} + log p(z | x) of a step that does not resample, `second_stage` the APF's
-second-stage log weights, both float32 as the likelihood (log W_{k-1} worked out from log w and its
-total per particle, never stored). float32 W and log w hold a million particles' weights in the
-memory the fused kernel takes (benchmarks/peak_memory.py); they round a weight by at most 6e-8 of it.
+`normalise` turns R runs' log weights into their log totals and normalised weights W, and reads what
+a step reports, in two passes over each chunk of CHUNK particles (mazelab.kernels): the chunk's top m_c
+= max log w, then e = exp(log w - m_c) (written in place of W) and its sums, of the squares and of the
+weighted positions (the total, the ESS, the mean); then, the run's top and total known, W = e exp(m_c
+- top) / total and the weight within the green circle around the mean. For a step that does not
+resample, log w = log W_{k-1} + log p(z | x) comes first, in the same pass. log W = log w - log total
+is left to the Weights value, which derives it when read. W and log w are float32 (a million
+particles' weights in the memory the fused kernel takes: benchmarks/peak_memory.py), a weight rounded
+by at most 6e-8 of it; every sum is float64.
 
-The exponential is float32 (vector_math.exp32, branch-free, so that the passes vectorise): one ulp,
-and x = log w - top rounded to float32 (half an ulp of x), so w within 1.2e-7 + 6e-8 |x| of numpy's
-float64 exp relative to its value (6e-7 for the weights above exp(-8) of the top), 0 below exp(-87) of
-the top (a weight under 1e-38 of the heaviest one, never drawn); the sums and the totals are float64.
-Sums run in LANES partial sums in
-an order this code fixes, not the compiler (numpy's are pairwise, so the two paths agree to rounding,
-not to the bit); an order the compiler chose by the arrays' addresses made a run's sums, and so R runs
-against R single runs, differ in the last bit from process to process. LANES is 16 because numba's
-loop vectoriser takes a loop of 16 and more (one of 8 it unrolls, and numba leaves the SLP vectoriser
-off): the lanes are one vector of float64 partial sums each.
+The exponential is float32 (vector_math.exp32, branch-free, so that the passes vectorise): one ulp, and
+x = log w - m_c rounded to float32 (half an ulp of x), so e within 1.2e-7 + 6e-8 |x| of numpy's float64
+exp relative to its value, then a float64 product and a rounding for W; 0 below exp(-87) of its chunk's
+top (under 1e-38 of the chunk's heaviest weight, never drawn). Each chunk's sums run in LANES partial
+sums, added pairwise, and the chunks' in chunk order: an order this code fixes, not the compiler, the
+arrays' addresses or the threads (numpy's sums are pairwise: the two paths agree to rounding, not to
+the bit). LANES is 16 because numba's loop vectoriser takes a loop of 16 and more (one of 8 it
+unrolls; numba leaves the SLP vectoriser off): the lanes are one vector of float64 partial sums.
 
 A run whose log weights are all -inf (no particle explains z) or hold a NaN gets the total -inf or NaN
 and NaN weights, as in the numpy path; the filter then restarts it.
@@ -31,281 +28,210 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import prange
 
-from mazelab.kernels import jit
+from mazelab.kernels import Kernel, chunk_of, chunks, inline
 from mazelab.kernels.vector_math import exp32
 
-LANES = 16  # partial sums each sum keeps: their order is this code's, not the compiler's
-CHUNK = 1024  # exponentials worked out at a time (a float32 array the passes' loops read)
+LANES = 16  # partial sums each sum keeps in a chunk: their order is this code's, not the compiler's
 _F32 = np.float32
 
 
-@jit(inline=True)
-def _lane_total(lanes, k):  # pragma: no cover - compiled
-    """The LANES partial sums of row k, added in a fixed order (pairwise)."""
+@inline
+def _lane_total(lanes):  # pragma: no cover - compiled
+    """The LANES partial sums `lanes` (1-D, overwritten), added in a fixed order (pairwise)."""
     width = LANES
     while width > 1:
         width //= 2
         for j in range(width):
-            lanes[k, j] += lanes[k, j + width]
-    return lanes[k, 0]
+            lanes[j] += lanes[j + width]
+    return lanes[0]
 
 
-@jit(inline=True)
+@inline
 def _top(values):  # pragma: no cover - compiled
-    """max of the 1-D `values` in their dtype (-inf for none) from LANES running maxima; a NaN is
-    passed over here (its exponential makes the run's total NaN: `normalise` checks the total)."""
+    """max of the 1-D `values` in their dtype (-inf for none) from LANES running maxima, which the
+    compiler vectorises (numba's own max checks each value for NaN: four times the time); a NaN is
+    passed over here (its exponential makes the run's total NaN: `_combine` checks the total)."""
     maxima = np.full(LANES, -np.inf, dtype=values.dtype)
-    size = len(values)
-    full = size // LANES * LANES
-    for chunk in range(0, full, LANES):
+    full = len(values) // LANES * LANES
+    for block in range(0, full, LANES):  # each loop from 0: numba checks no index of it for wrap-around
         for j in range(LANES):
-            maxima[j] = max(values[chunk + j], maxima[j])
+            maxima[j] = max(values[block + j], maxima[j])
     top = maxima[0]
     for j in range(1, LANES):
         top = max(maxima[j], top)
-    for i in range(full, size):
+    for i in range(full, len(values)):
         top = max(values[i], top)
     return top
 
 
-@jit(inline=True)
-def _exponentials(log_w, top, out):  # pragma: no cover - compiled
-    """out[i] = exp32(log w_i - top) for the 1-D `log_w` (the difference in log w's dtype, then float32)."""
+@inline
+def _moments(lanes, j, e, x, y):  # pragma: no cover - compiled
+    """lanes[:4, j] += e, e^2, e x, e y (float64)."""
+    weight = np.float64(e)
+    lanes[0, j] += weight
+    lanes[1, j] += weight * weight
+    lanes[2, j] += weight * x
+    lanes[3, j] += weight * y
+
+
+@inline
+def _exponentials_and_moments(log_w, top, xs, ys, w, lanes):  # pragma: no cover - compiled
+    """w_i = e_i = exp32(log w_i - top) of a chunk's 1-D arrays, and lanes[:4, i % LANES] += e_i, e_i^2,
+    e_i x_i, e_i y_i, in order; a chunk whose top is -inf gets e = 0 (and a NaN sum if it holds a NaN:
+    the run then cannot be normalised)."""
+    lanes[:, :] = 0.0
+    if top == -np.inf:
+        w[:] = 0.0
+        lanes[0, 0] = np.nan if np.isnan(log_w).any() else 0.0
+        return
     for i in range(len(log_w)):
-        out[i] = exp32(np.float32(log_w[i] - top))
+        w[i] = exp32(_F32(log_w[i] - top))
+    full = len(w) // LANES * LANES
+    for block in range(0, full, LANES):  # each loop from 0: numba checks no index of it for wrap-around
+        for j in range(LANES):  # a loop of LANES: the compiler keeps one vector of each sum
+            _moments(lanes, j, w[block + j], xs[block + j], ys[block + j])
+    for i in range(full, len(w)):
+        _moments(lanes, i - full, w[i], xs[i], ys[i])
 
 
-@jit(inline=True)
-def _add_moments(w, xs, ys, lanes):  # pragma: no cover - compiled
-    """lanes[:4, i % LANES] += w_i, w_i^2, w_i x_i, w_i y_i for each i, in order (float64)."""
+@inline
+def _scaled_within(lanes, j, w, i, factor, dx, dy, r2):  # pragma: no cover - compiled
+    """lanes[4, j] += e_i if the particle lies within sqrt(r2) (a select), and w_i = e_i * factor."""
+    e = w[i]
+    lanes[4, j] += np.float64(e) if dx * dx + dy * dy <= r2 else 0.0
+    w[i] = np.float64(e) * factor
+
+
+@inline
+def _scale_and_keep_within(w, factor, xs, ys, centre_x, centre_y, r2, lanes):  # pragma: no cover - compiled
+    """w_i = e_i * factor (float64, then float32) of a chunk's 1-D arrays, and lanes[4, i % LANES] += e_i
+    where particle i lies within sqrt(r2) of the centre (float32 distances)."""
     full = len(w) // LANES * LANES
     for block in range(0, full, LANES):
         for j in range(LANES):
-            weight = np.float64(w[block + j])
-            lanes[0, j] += weight
-            lanes[1, j] += weight * weight
-            lanes[2, j] += weight * xs[block + j]
-            lanes[3, j] += weight * ys[block + j]
+            _scaled_within(lanes, j, w, block + j, factor, xs[block + j] - centre_x, ys[block + j] - centre_y, r2)
     for i in range(full, len(w)):
-        weight = np.float64(w[i])
-        lanes[0, i - full] += weight
-        lanes[1, i - full] += weight * weight
-        lanes[2, i - full] += weight * xs[i]
-        lanes[3, i - full] += weight * ys[i]
+        _scaled_within(lanes, i - full, w, i, factor, xs[i] - centre_x, ys[i] - centre_y, r2)
 
 
-@jit(inline=True)
-def _add_sum(w, lanes):  # pragma: no cover - compiled
-    """lanes[0, i % LANES] += w_i for each i, in order (float64)."""
-    full = len(w) // LANES * LANES
-    for block in range(0, full, LANES):
-        for j in range(LANES):
-            lanes[0, j] += np.float64(w[block + j])
-    for i in range(full, len(w)):
-        lanes[0, i - full] += np.float64(w[i])
+@Kernel
+def normalise(log_w, log_a, shifts, log_g, x, y, radius, w, reads, lanes, scales):  # pragma: no cover - compiled
+    """Normalise R runs' log weights `log_w` (R, N) (float32 or float64) and read each run's mean, ESS
+    and confidence share, in two passes; with `log_a` (R, N), `shifts` (R,) and `log_g` (R, N) float32
+    (else None), first log w = log W_{k-1} + log p(z_k | x_k) of runs that do not resample, written into
+    `log_w` in the same pass: (log_a - shift) + log_g, the sum in float64, then rounded to float32 as
+    the likelihood (log W_{k-1} = log a - shift, the Weights value's derivation, never stored).
 
-
-@jit(inline=True)
-def _scale_and_keep_within(w, inverse, out, xs, ys, centre, r2):  # pragma: no cover - compiled
-    """out[i] = w_i * inverse (float64), then w_i kept where particle i lies within sqrt(r2) of the
-    centre (float32 distances) and 0 elsewhere (a select the loop vectorises: no branch, no sum)."""
-    for i in range(len(w)):
-        weight = w[i]
-        out[i] = np.float64(weight) * inverse
-        dx = xs[i] - centre[0]
-        dy = ys[i] - centre[1]
-        w[i] = weight if dx * dx + dy * dy <= r2 else np.float32(0.0)
-
-
-@jit(inline=True)
-def _first_pass(log_w, top, xs, ys, lanes, chunk):  # pragma: no cover - compiled
-    """(sum w, sum w^2, sum w x, sum w y) over the 1-D log weights `log_w` and their particles' xs and
-    ys, w_i = exp(log w_i - top), in LANES partial sums each: particle i goes to lane i % LANES, so the
-    sums' order is fixed by this code and not by how the compiler vectorises the loop (or by the
-    addresses). The exponentials go through `chunk` (float32, a multiple of LANES long) and each loop
-    indexes from 0, so that it vectorises."""
-    lanes[:4, :] = 0.0
-    size, step = len(log_w), len(chunk)
-    for first in range(0, size, step):
-        stop = min(first + step, size)
-        part = chunk[: stop - first]
-        _exponentials(log_w[first:stop], top, part)
-        _add_moments(part, xs[first:stop], ys[first:stop], lanes)
-    return _lane_total(lanes, 0), _lane_total(lanes, 1), _lane_total(lanes, 2), _lane_total(lanes, 3)
-
-
-@jit(inline=True)
-def _second_pass(log_w, top, inverse, xs, ys, centre, r2, w, lanes, chunk):  # pragma: no cover - compiled
-    """W_i = exp(log w_i - top) / total (inverse = 1 / total) of the 1-D `log_w`, written into `w`, and
-    the weight within sqrt(r2) of the centre (float32 distances): the sum of those w_i in LANES partial
-    sums, over the total."""
-    lanes[0, :] = 0.0
-    size, step = len(log_w), len(chunk)
-    for first in range(0, size, step):
-        stop = min(first + step, size)
-        part, out = chunk[: stop - first], w[first:stop]
-        _exponentials(log_w[first:stop], top, part)
-        _scale_and_keep_within(part, inverse, out, xs[first:stop], ys[first:stop], centre, r2)
-        _add_sum(part, lanes)
-    return _lane_total(lanes, 0) * inverse
-
-
-@jit(inline=True)
-def _failed_total(values, top):  # pragma: no cover - compiled
-    """The log total of a run that cannot be normalised (top -inf or +inf, or a NaN among the values):
-    NaN where a value is NaN, else the top (numpy's log_sum_exp)."""
-    return np.nan if np.isnan(values).any() else top
-
-
-@jit(inline=True)
-def _unnormalisable(r, row, top, w, reads):  # pragma: no cover - compiled
-    """NaN weights and reads for run r, whose weights are all 0 or hold a NaN (the filter
-    restarts it); its total is -inf where every log weight is -inf, else NaN (as numpy's)."""
-    reads[0, r] = _failed_total(row, top)
-    reads[1, r] = reads[2, r] = reads[3, r] = reads[4, r] = np.nan
-    w[r, :] = np.nan
-
-
-@jit
-def normalise(log_w, positions, radius, w, reads):  # pragma: no cover
-    """Normalise R runs' log weights and read each run's mean, ESS and confidence share, in three passes.
-
-    Parameters
-    ----------
-    log_w : float32 or float64 array (R, N)
-        Unnormalised log weights.
-    positions : float32 array (R*N, 2)
-        The particles (run r's the block r*N..(r+1)*N).
-    radius : float
-        The green circle's radius (map units).
-    w : float64 array (R, N)
-        W = w / sum(w), written.
-    reads : float64 array (5, R)
-        Written, one row each: log sum_j w_j; the mean sum_i W_i x_i (two rows, x and y); the ESS
-        1 / sum_i W_i^2; the weight of the particles at most `radius` from the run's mean (float32
-        distances, as mazelab.weights.mass_within). A run that cannot be normalised (top -inf or NaN)
-        gets its top as total and NaN reads.
-    """
+    x, y (R*N,) are the particles' float32 coordinates (run r's the block r*N..(r+1)*N); `radius` the
+    green circle's (map units); W = w / sum(w) is written into `w` (R, N) float32, and into `reads` (5,
+    R) float64, one row each: log sum_j w_j; the mean sum_i W_i x_i (x and y); the ESS 1 / sum_i W_i^2;
+    the weight of the particles at most `radius` from the run's mean (float32 distances, as
+    mazelab.weights.mass_within). A run that cannot be normalised (top -inf or NaN) gets its top as
+    total and NaN reads. `lanes` (C, 5, LANES) and `scales` (C,), float64, are scratch, one row per
+    chunk (C = R * chunks a run)."""
     runs, size = log_w.shape
-    r2 = np.float32(radius * radius)
-    lanes, chunk = np.empty((4, LANES)), np.empty(CHUNK, dtype=np.float32)
+    blocks, jobs = chunks(runs, size)
+    r2 = _F32(radius * radius)
+    for job in prange(jobs):  # each chunk's log w, top, exponentials and sums
+        r, start, stop = chunk_of(job, blocks, size)
+        first, last, row = r * size + start, r * size + stop, log_w[r, start:stop]
+        if log_a is not None:
+            previous, added, shift = log_a[r, start:stop], log_g[r, start:stop], shifts[r]
+            for i in range(stop - start):
+                row[i] = np.float64(previous[i]) - shift + np.float64(added[i])
+        scales[job] = top = _top(row)
+        _exponentials_and_moments(row, top, x[first:last], y[first:last], w[r, start:stop], lanes[job])
+    for r in range(runs):  # each run's top and sums, its chunks' in order
+        _combine(log_w[r], reads, r, lanes[r * blocks : (r + 1) * blocks], scales[r * blocks : (r + 1) * blocks])
+    for job in prange(jobs):  # each chunk's W and weight within the circle
+        r, start, stop = chunk_of(job, blocks, size)
+        first, last = r * size + start, r * size + stop
+        if scales[job] == scales[job]:
+            centre_x, centre_y = _F32(reads[1, r]), _F32(reads[2, r])
+            _scale_and_keep_within(w[r, start:stop], scales[job], x[first:last], y[first:last], centre_x, centre_y, r2,
+                                   lanes[job])  # fmt: skip
+        else:
+            w[r, start:stop] = np.nan
     for r in range(runs):
-        row, xs, ys = log_w[r], positions[r * size : (r + 1) * size, 0], positions[r * size : (r + 1) * size, 1]
-        top = _top(row)
-        sums = _first_pass(row, top, xs, ys, lanes, chunk) if abs(top) < np.inf else (np.nan, np.nan, np.nan, np.nan)
-        total, squares, sum_x, sum_y = sums
-        if total != total:  # every weight is 0, or a NaN: no normalisation (the filter restarts it)
-            _unnormalisable(r, row, top, w, reads)
-            continue
-        log_total = top + math.log(total)
-        mean_x, mean_y = sum_x / total, sum_y / total
-        reads[0, r], reads[1, r], reads[2, r], reads[3, r] = log_total, mean_x, mean_y, total * total / squares
-        centre = np.float32(mean_x), np.float32(mean_y)
-        reads[4, r] = _second_pass(row, top, 1.0 / total, xs, ys, centre, r2, w[r], lanes, chunk)
+        if reads[4, r] == reads[4, r]:
+            share = 0.0
+            for c in range(r * blocks, (r + 1) * blocks):
+                share += _lane_total(lanes[c, 4]) * scales[c]
+            reads[4, r] = share
 
 
-@jit
+@inline
+def _combine(row, reads, r, lanes, scales):  # pragma: no cover - compiled
+    """Run r's log total, mean and ESS into reads[:4, r] from its chunks' tops (`scales`) and sums, in
+    chunk order; `scales` then holds each chunk's factor exp(m_c - top) / total (NaN for a run that
+    cannot be normalised, whose reads are NaN)."""
+    top = -np.inf
+    for c in range(len(scales)):
+        top = max(scales[c], top)
+    total = squares = sum_x = sum_y = 0.0
+    for c in range(len(scales)):
+        scale = math.exp(scales[c] - top) if abs(top) < np.inf else np.nan
+        scales[c] = scale
+        total += _lane_total(lanes[c, 0]) * scale
+        squares += _lane_total(lanes[c, 1]) * (scale * scale)
+        sum_x += _lane_total(lanes[c, 2]) * scale
+        sum_y += _lane_total(lanes[c, 3]) * scale
+    if total != total:  # every weight is 0, or a NaN: no normalisation (the filter restarts it)
+        reads[0, r] = np.nan if np.isnan(row).any() else top  # numpy's log_sum_exp: NaN, else -inf or +inf
+        reads[1, r] = reads[2, r] = reads[3, r] = reads[4, r] = np.nan
+        for c in range(len(scales)):
+            scales[c] = np.nan
+        return
+    reads[0, r], reads[1, r], reads[2, r] = top + math.log(total), sum_x / total, sum_y / total
+    reads[3, r], reads[4, r] = total * total / squares, 0.0
+    for c in range(len(scales)):
+        scales[c] /= total
+
+
+@Kernel
 def second_stage(log_lik, log_mu, ancestors, out):  # pragma: no cover - compiled
-    """The APF's second-stage log weights of R runs: out[r, m] = log p(z_k | x_m) - log p(z_k | mu_{a_m}),
-    the first stage's values gathered by run r's ancestors in the same pass (numpy's take_along_axis and
-    subtract: the same float32 values).
-
-    Parameters
-    ----------
-    log_lik : float32 array (R, M)
-    log_mu : float32 array (R, N)
-    ancestors : int array (R, M)
-        Indices into each run's own particles.
-    out : float32 array (R, M)
-    """
+    """The APF's second-stage log weights of R runs, float32 (R, M): out[r, m] = log p(z_k | x_m) - log
+    p(z_k | mu_{a_m}) from log_lik (R, M) and log_mu (R, N), the first stage's values gathered by run
+    r's ancestors (R, M) (uint64, into its own particles) in the same pass (numpy's take_along_axis and
+    subtract: the same float32 values)."""
     runs, size = log_lik.shape
-    for r in range(runs):
-        for m in range(size):
-            out[r, m] = log_lik[r, m] - log_mu[r, ancestors[r, m]]
+    blocks, jobs = chunks(runs, size)
+    for job in prange(jobs):
+        r, start, stop = chunk_of(job, blocks, size)
+        values, gathered, sources, mu = out[r, start:stop], log_lik[r, start:stop], ancestors[r, start:stop], log_mu[r]
+        for m in range(stop - start):
+            values[m] = gathered[m] - mu[sources[m]]
 
 
-@jit
-def reweighted(log_a, shifts, log_lik, out):  # pragma: no cover - compiled
-    """log w_k = log W_{k-1} + log p(z_k | x_k) of R runs that do not resample, float32 as the likelihood:
-    out[r, i] = (log_a[r, i] - shifts[r]) + log_lik[r, i], the sum in float64, then rounded (log W_{k-1}
-    = log a - shift, the Weights value's derivation, never stored); `out` may be `log_lik` itself.
-
-    Parameters
-    ----------
-    log_a : float array (R, N)
-    shifts : float64 array (R,)
-    log_lik : float32 array (R, N)
-    out : float32 array (R, N)
-    """
-    runs, size = log_lik.shape
-    for r in range(runs):
-        shift = shifts[r]
-        for i in range(size):
-            out[r, i] = np.float32((np.float64(log_a[r, i]) - shift) + np.float64(log_lik[r, i]))
-
-
-@jit
-def mass_within(weights, positions, centres, radius, shares):  # pragma: no cover - compiled
-    """The weight within `radius` of each run's centre (mazelab.weights.mass_within, float32 distances).
-
-    Parameters
-    ----------
-    weights : float array (R, N)
-    positions : float32 array (R*N, 2)
-    centres : float64 array (R, 2)
-    radius : float
-    shares : float64 array (R,)
-        Written: each run's weight within the circle.
-    """
+@Kernel
+def covariance(weights, x, y, out):  # pragma: no cover - compiled
+    """sum_i W_i (x_i - m)(x_i - m)^T, m = sum_i W_i x_i, into out (R, 2, 2) float64 for R runs' weights
+    (R, N) and float32 coordinates x, y (R*N,) (mazelab.weights.weighted_covariance), in one pass: the
+    sums of W, W d and W d d^T, d = x - c around the run's first particle c (float64: the spread may be
+    tiny beside the position), each chunk's in order, then the chunks'; then with e = m - c, the
+    covariance S - s e^T - e s^T + (sum W) e e^T (s = sum W d)."""
     runs, size = weights.shape
-    r2 = np.float32(radius * radius)
+    blocks, jobs = chunks(runs, size)
+    parts = np.empty((jobs, 6))  # each chunk's sums of W, W dx, W dy, W dx dx, W dx dy, W dy dy
+    for job in prange(jobs):
+        r, start, stop = chunk_of(job, blocks, size)
+        first, w = r * size, weights[r, start:stop]
+        xs, ys, cx, cy = x[first + start : first + stop], y[first + start : first + stop], x[first], y[first]
+        total = sx = sy = sxx = sxy = syy = 0.0
+        for i in range(stop - start):
+            weight, dx, dy = np.float64(w[i]), np.float64(xs[i]) - cx, np.float64(ys[i]) - cy
+            total, sx, sy = total + weight, sx + weight * dx, sy + weight * dy
+            sxx, sxy, syy = sxx + weight * dx * dx, sxy + weight * dx * dy, syy + weight * dy * dy
+        for k, value in enumerate((total, sx, sy, sxx, sxy, syy)):
+            parts[job, k] = value
     for r in range(runs):
-        block = r * size
-        centre_x, centre_y = np.float32(centres[r, 0]), np.float32(centres[r, 1])
-        inside = 0.0
-        for i in range(size):
-            dx = positions[block + i, 0] - centre_x
-            dy = positions[block + i, 1] - centre_y
-            if dx * dx + dy * dy <= r2:
-                inside += weights[r, i]
-        shares[r] = inside
-
-
-@jit
-def covariance(weights, positions, out):  # pragma: no cover - compiled
-    """sum_i W_i (x_i - mean)(x_i - mean)^T of R runs (mazelab.weights.weighted_covariance), the mean
-    first (float64 deviations: the spread may be tiny).
-
-    Parameters
-    ----------
-    weights : float array (R, N)
-    positions : float32 array (R*N, 2)
-    out : float64 array (R, 2, 2)
-        Written: each run's covariance.
-    """
-    runs, size = weights.shape
-    for r in range(runs):
-        block = r * size
-        sum_x = sum_y = 0.0
-        for i in range(size):
-            sum_x += weights[r, i] * positions[block + i, 0]
-            sum_y += weights[r, i] * positions[block + i, 1]
-        xx = xy = yy = 0.0
-        for i in range(size):
-            w = weights[r, i]
-            dx = positions[block + i, 0] - sum_x
-            dy = positions[block + i, 1] - sum_y
-            xx += w * dx * dx
-            xy += w * dx * dy
-            yy += w * dy * dy
-        out[r, 0, 0], out[r, 0, 1], out[r, 1, 0], out[r, 1, 1] = xx, xy, xy, yy
-
-
-__all__ = [
-    "covariance",
-    "mass_within",
-    "normalise",
-    "reweighted",
-    "second_stage",
-]
+        total = sx = sy = sxx = sxy = syy = 0.0
+        for job in range(r * blocks, (r + 1) * blocks):
+            total, sx, sy = total + parts[job, 0], sx + parts[job, 1], sy + parts[job, 2]
+            sxx, sxy, syy = sxx + parts[job, 3], sxy + parts[job, 4], syy + parts[job, 5]
+        ex, ey = sx + x[r * size] * (total - 1.0), sy + y[r * size] * (total - 1.0)  # e = m - c
+        out[r, 0, 0] = sxx - 2 * sx * ex + total * ex * ex
+        out[r, 1, 1] = syy - 2 * sy * ey + total * ey * ey
+        out[r, 0, 1] = out[r, 1, 0] = sxy - sx * ey - ex * sy + total * ex * ey

@@ -1,0 +1,87 @@
+"""One run on 1 thread and on more, side by side: the compiled step's wall and CPU time per step at
+each N, in alternating rounds (1 thread, then 2, then 1 ...), and whether the same seed gave the same
+run on each count (the estimates of every step compared bit for bit).
+
+    uv run python benchmarks/threads.py                                   # SIR, APF, RPF at N = 1e4, 1e5, 1e6
+    uv run python benchmarks/threads.py --counts 1000000 --filters sir --rounds 7
+
+A round times `steps` steps of a fresh filter (mazelab.bench.filter_stepper: the step and the reads
+`simulate` makes) on the bench's walk on the 10 x 10 maze, after warm-up steps; a figure is the median
+over the rounds of each round's median step. CPU time is the process's (every thread's). The speed-up
+is 1 thread's time over the others'. The machine's load average is printed before and after: on a
+machine shared with other work, a thread speed-up reads low (the second core is not free).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import time
+
+import numpy as np
+
+from mazelab.backend import use_backend, use_threads
+from mazelab.bench import BENCH_DELTA, BENCH_SIGMA, filter_stepper, record_walk
+from mazelab.maze import Maze
+from mazelab.registry import resolve_filter
+
+
+def timed_round(name: str, world: Maze, particles: int, threads: int, walk: list, warmup: int) -> tuple:
+    """(median wall s, median CPU s) of one fresh filter's steps on `threads` threads."""
+    with use_threads(threads):
+        step = filter_stepper(name, world, particles, backend="compiled")
+    walls, cpus = [], []
+    for k, (compass_angle, z) in enumerate(walk):
+        wall, cpu = time.perf_counter(), time.process_time()
+        step(compass_angle, z)
+        if k >= warmup:
+            walls.append(time.perf_counter() - wall)
+            cpus.append(time.process_time() - cpu)
+    return statistics.median(walls), statistics.median(cpus)
+
+
+def estimates(name: str, world: Maze, particles: int, threads: int, walk: list) -> np.ndarray:
+    """The estimate after every step of a seeded run on `threads` threads."""
+    rng = np.random.default_rng(2)
+    with use_backend("compiled"), use_threads(threads):
+        filt = resolve_filter(name)(world, BENCH_SIGMA, BENCH_DELTA, world.random_free_places(particles, rng), rng)
+    out = []
+    for compass_angle, z in walk:
+        filt.step(compass_angle, z)
+        out.append(np.asarray(filt.estimate, dtype=float).copy())
+    return np.array(out)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--counts", default="10000,100000,1000000")
+    parser.add_argument("--filters", default="sir,apf,rpf")
+    parser.add_argument("--threads", type=int, default=2, help="the count set against 1")
+    parser.add_argument("--rounds", type=int, default=5)
+    parser.add_argument("--maze", default="maze_10x10")
+    args = parser.parse_args()
+    world = Maze.from_file(args.maze)
+    world.prepare()
+    print(f"load average before {os.getloadavg()}; median of {args.rounds} alternating rounds, ms per step")
+    print(f"{'filter':<6} {'N':>9} {'1: wall':>9} {'cpu':>8} {f'{args.threads}: wall':>9} {'cpu':>8} "
+          f"{'speed-up wall':>13} {'same run':>9}")  # fmt: skip
+    for n in (int(c) for c in args.counts.split(",")):
+        steps = max(12, min(40, 4_000_000 // n))
+        walk = record_walk(world, steps + 3)
+        for name in args.filters.split(","):
+            figures: dict[int, list] = {1: [], args.threads: []}
+            for _ in range(args.rounds):
+                for threads in (1, args.threads):
+                    figures[threads].append(timed_round(name, world, n, threads, walk, 3))
+            (w1, c1), (w2, c2) = ([statistics.median(f[i] for f in figures[t]) for i in (0, 1)] for t in figures)
+            same = np.array_equal(
+                estimates(name, world, n, 1, walk[:8]), estimates(name, world, n, args.threads, walk[:8])
+            )
+            print(f"{name:<6} {n:>9,} {1e3 * w1:9.2f} {1e3 * c1:8.2f} {1e3 * w2:9.2f} {1e3 * c2:8.2f} "
+                  f"{w1 / w2:12.2f}x {'yes' if same else 'NO':>9}", flush=True)  # fmt: skip
+    print(f"load average after {os.getloadavg()}")
+
+
+if __name__ == "__main__":
+    main()
