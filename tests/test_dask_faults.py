@@ -8,6 +8,7 @@ import csv
 import io
 import os
 import signal
+import threading
 from pathlib import Path
 
 import pytest
@@ -30,6 +31,20 @@ def local_cluster(workers: int):
     )  # fmt: skip
 
 
+REAL_RUN_UNIT = executor.run_unit_timed
+
+
+SCHEDULER_KILLED = threading.Event()
+
+
+def hold_until_killed(unit, backend, **options):
+    """Run 1 as it is; a later run waits until the test has killed the scheduler (bounded: closing
+    the cluster may wait for this thread). The worker runs in the test's process (processes=False)."""
+    if unit[0].run > 1:
+        SCHEDULER_KILLED.wait(5)
+    return REAL_RUN_UNIT(unit, backend, **options)
+
+
 def rows(path: Path) -> list[dict[str, str]]:
     return list(csv.DictReader(io.StringIO(path.read_text())))
 
@@ -42,17 +57,22 @@ def test_another_scheme_than_tcp_is_one_line_and_exit_2(address, capsys):
 
 
 def test_a_dead_scheduler_is_one_line_keeps_the_rows_and_the_old_csv(tmp_path, monkeypatch, capsys):
+    """The scheduler dies at a known point: just after the study appended run 1's rows, while the
+    cluster's one worker holds the next run until it is gone; no timing decides how many runs finish."""
     table = tmp_path / "s.csv"
     table.write_text("old\n")
-    cluster = local_cluster(1)
+    cluster, killed = local_cluster(1), SCHEDULER_KILLED
+    killed.clear()
     real_write = Journal.write
 
     def write_then_kill_the_scheduler(journal, line):
         real_write(journal, line)
-        if "run" in line and not getattr(journal, "_killed", False):
-            journal._killed = True
+        if "run" in line and not killed.is_set():
+            killed.set()
             cluster.close()  # the scheduler (and its worker) go away mid-study
 
+    monkeypatch.setattr(executor, "run_unit_timed", hold_until_killed)
+    monkeypatch.setattr(executor, "study_units", lambda tasks, workers: [(task,) for task in tasks])
     monkeypatch.setattr(Journal, "write", write_then_kill_the_scheduler)
     try:
         code = main([*STUDY, "--runs", "60", "--dask", cluster.scheduler_address, "--csv", str(table), "--force"])
@@ -78,9 +98,6 @@ def test_a_cluster_without_workers_ends_after_the_dask_timeout(tmp_path, capsys)
     (line,) = [line for line in err.splitlines() if line.startswith("error")]
     assert "no run finished on the Dask cluster within 0.5 s (--dask-timeout): no worker is left" in line
     assert "0 of 3 runs finished" in line and not table.exists()
-
-
-REAL_RUN_UNIT = executor.run_unit_timed
 
 
 def kill_the_worker_always(unit, backend, **options):
