@@ -182,7 +182,8 @@ def test_each_submission_gets_the_statuses_it_earned(graded):
     for name, statuses in EXPECTED.items():
         got = tuple(table[name][part] for part in ("predict", "weigh", "resample", "estimate", "whole_filter"))
         assert all(map(matches, got, statuses)), (name, got)
-    assert "ran past its time" in table["dave"]["problem"]
+    # a busy part meets its processor limit, or under load the grader's clock first (docs/exercise.md)
+    assert re.search(r"ran past (its time|the time limit) .* and was stopped", table["dave"]["problem"])
     assert "exited with code 0 while importing" in table["frank"]["problem"]
     assert "does not import" in table["erin"]["problem"] and "mazelab.filters" in table["grace"]["problem"]
     assert "cannot import name 'log_likelihood'" in table["heidi"]["problem"]  # the kit's model: constants only
