@@ -25,7 +25,9 @@ from mazelab.regularisation import GaussianKernel
 from mazelab.smc import new_particles, particles_array
 from mazelab.weights import Weights, log_sum_exp, read_only
 
-THREADED_FROM = 1 << 16  # particles in a call from which it runs on the threads
+# particles in a call from which it runs on the threads: on an idle 2-core machine 2 threads were slower
+# than 1 up to 250,000 particles and faster from 500,000 (benchmarks/threads.py, docs/speed.md)
+THREADED_FROM = 1 << 19
 QUADS = 4  # the candidates of a lookup cell the likelihood's vectorised loop reads (a few cells have more)
 
 
