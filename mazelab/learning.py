@@ -280,42 +280,29 @@ def evidence_filter(name: str | type, options: dict[str, Any] | None = None) -> 
     return entry
 
 
-@dataclass(frozen=True)
-class EvidenceEstimator:
-    """log p_hat(z_1:K | sigma, delta) by one fresh run of a filter over the walk: its particles drawn
-    from the model's prior (uniform over the free area) and its own draws from the Generators handed in.
-
-    Parameters
-    ----------
-    world : Maze
-    compass_angles, measurements : arrays (K,)
-    entry : FilterEntry
-        A filter whose evidence estimates p(z_1:K) (`evidence_filter`).
-    particle_count : int
-    options : dict
-        The filter's options.
-    """
-
-    world: Maze
-    compass_angles: np.ndarray
-    measurements: np.ndarray
-    entry: FilterEntry
-    particle_count: int
-    options: dict[str, Any]
-
-    def __call__(self, sigma: float, delta: float, rng: np.random.Generator) -> float:
-        """The filter's log evidence after the walk's last step; -inf where it is not a number."""
-        particles_rng, filter_rng = rng.spawn(2)
-        particles = None
-        if self.entry.takes_particles:
-            particles = self.world.random_free_places(self.particle_count, particles_rng)
-        filt = self.entry.filter_class(self.world, sigma, delta, particles, filter_rng, **self.options)
-        for compass_angle, z in zip(self.compass_angles, self.measurements, strict=True):
-            filt.step(float(compass_angle), float(z))
-        if not hasattr(filt, "log_evidence"):  # optional in the contract (mazelab.contract)
-            raise ValueError(f"PMMH needs a filter whose evidence estimates p(z_1:K): {self.entry.label} keeps none")
-        log_z = float(filt.log_evidence)
-        return log_z if not math.isnan(log_z) else -math.inf
+def estimated_log_evidence(
+    world: Maze,
+    compass_angles: np.ndarray,
+    measurements: np.ndarray,
+    entry: FilterEntry,
+    particle_count: int,
+    options: dict[str, Any],
+    sigma: float,
+    delta: float,
+    rng: np.random.Generator,
+) -> float:
+    """log p_hat(z_1:K | sigma, delta) by one fresh run of a filter (`evidence_filter`'s entry, with its
+    options) over the walk: its particle_count particles drawn from the model's prior (uniform over the free
+    area) and its own draws, both from Generators spawned from `rng`; -inf where it is not a number."""
+    particles_rng, filter_rng = rng.spawn(2)
+    particles = world.random_free_places(particle_count, particles_rng) if entry.takes_particles else None
+    filt = entry.filter_class(world, sigma, delta, particles, filter_rng, **options)
+    for compass_angle, z in zip(compass_angles, measurements, strict=True):
+        filt.step(float(compass_angle), float(z))
+    if not hasattr(filt, "log_evidence"):  # optional in the contract (mazelab.contract)
+        raise ValueError(f"PMMH needs a filter whose evidence estimates p(z_1:K): {entry.label} keeps none")
+    log_z = float(filt.log_evidence)
+    return log_z if not math.isnan(log_z) else -math.inf
 
 
 @dataclass(frozen=True)
@@ -331,21 +318,12 @@ class Chain:
     accepted : int
         The proposals accepted (burn-in included).
     burn_in : int
-    filter_name : str
-    particle_count : int
-    seed : int
-    proposal_scale : (2,)
-        The random walk's standard deviations along sigma and delta.
     """
 
     samples: np.ndarray
     log_evidence: np.ndarray
     accepted: int
     burn_in: int
-    filter_name: str
-    particle_count: int
-    seed: int
-    proposal_scale: tuple[float, float]
 
     @property
     def kept(self) -> np.ndarray:
@@ -412,21 +390,10 @@ class Chain:
         return np.array([[quantile_error(column, p) for p in tails] for column in self.kept.T])
 
 
-def pmmh(
-    world: Maze,
-    compass_angles: Sequence[float],
-    measurements: Sequence[float],
-    iterations: int,
-    *,
-    filter_name: str | type = "sir",
-    particle_count: int = 1000,
-    prior: ParameterGrid | None = None,
-    start: tuple[float, float] | None = None,
-    proposal_scale: tuple[float, float] = (0.08, 0.3),
-    burn_in: int = 0,
-    seed: int = 0,
-    **filter_options: Any,
-) -> Chain:
+def pmmh(world: Maze, compass_angles: Sequence[float], measurements: Sequence[float], iterations: int, *,
+         filter_name: str | type = "sir", particle_count: int = 1000, prior: ParameterGrid | None = None,
+         start: tuple[float, float] | None = None, proposal_scale: tuple[float, float] = (0.08, 0.3),
+         burn_in: int = 0, seed: int = 0, **filter_options: Any) -> Chain:  # fmt: skip
     """Particle marginal Metropolis-Hastings on (sigma, delta) under the uniform prior on `prior`'s box.
 
     Each iteration proposes (sigma', delta') = (sigma, delta) + proposal_scale * N(0, I); one inside the
@@ -467,18 +434,33 @@ def pmmh(
     entry.options.resolve(filter_options, entry.name)  # each option checked once, before the first run
     angles, zs = check_walk(compass_angles, measurements)
     prior = ParameterGrid() if prior is None else prior
-    iterations, seed = step_number("iterations", iterations), check_seed("seed", seed)
+    state = np.array(start if start is not None else [np.mean(prior.sigma_range), np.mean(prior.delta_range)])
+    scale = check_chain(prior, state, iterations, particle_count, burn_in, proposal_scale)
+    estimate = functools.partial(estimated_log_evidence, world, angles, zs, entry, particle_count, filter_options)
+    rng = np.random.default_rng(check_seed("seed", seed))
+    return Chain(*random_walk(estimate, prior, state, scale, iterations, rng), burn_in)
+
+
+def check_chain(prior: ParameterGrid, start: np.ndarray, iterations: int, particle_count: int, burn_in: int,
+                proposal_scale: tuple[float, float]) -> np.ndarray:  # fmt: skip
+    """The proposal's scale (2,) once pmmh's settings are checked: a one-line ValueError for a start outside
+    the prior's box, a count that is not a whole number >= 1, a burn-in outside [0, iterations)."""
+    iterations = step_number("iterations", iterations)
     if isinstance(particle_count, bool) or not isinstance(particle_count, (int, np.integer)) or particle_count < 1:
         raise ValueError(f"particle_count must be a whole number >= 1, got {particle_count!r}")
     check_particles(int(particle_count))
     if not 0 <= burn_in < iterations:
         raise ValueError(f"burn_in must lie in [0, iterations), got {burn_in!r}")
-    scale = np.array([finite_number("proposal scale", s) for s in proposal_scale])
-    state = np.array(start if start is not None else [np.mean(prior.sigma_range), np.mean(prior.delta_range)])
-    if not prior.contains(*state):
-        raise ValueError(f"the chain's start {tuple(state)} lies outside the prior's box")
-    estimate = EvidenceEstimator(world, angles, zs, entry, particle_count, filter_options)
-    rng = np.random.default_rng(seed)
+    if not prior.contains(*start):
+        raise ValueError(f"the chain's start {tuple(start)} lies outside the prior's box")
+    return np.array([finite_number("proposal scale", s) for s in proposal_scale])
+
+
+def random_walk(estimate: Callable[[float, float, np.random.Generator], float], prior: ParameterGrid,
+                state: np.ndarray, scale: np.ndarray, iterations: int,
+                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, int]:  # fmt: skip
+    """PMMH's iterations (`pmmh`): (the states (iterations, 2), the evidence estimate each held
+    (iterations,), the proposals accepted), `estimate(sigma, delta, rng)` a run's log p_hat(z_1:K)."""
     log_z = estimate(*state, rng)
     samples, log_evidence, accepted = np.empty((iterations, 2)), np.empty(iterations), 0
     for i in range(iterations):
@@ -488,7 +470,7 @@ def pmmh(
             if math.log(rng.random()) < proposed_log_z - log_z:  # the prior is flat on the box
                 state, log_z, accepted = proposal, proposed_log_z, accepted + 1
         samples[i], log_evidence[i] = state, log_z
-    return Chain(samples, log_evidence, accepted, burn_in, entry.name, particle_count, seed, tuple(scale.tolist()))
+    return samples, log_evidence, accepted
 
 
 def chain_ess(x: np.ndarray) -> float:
@@ -545,10 +527,10 @@ def quantile_error(x: np.ndarray, p: float) -> float:
 __all__ = [
     "INTERVAL_LEVEL",
     "Chain",
-    "EvidenceEstimator",
     "ParameterGrid",
     "ParameterPosterior",
     "chain_ess",
+    "estimated_log_evidence",
     "evidence_filter",
     "exact_parameter_posterior",
     "grid_log_evidence",

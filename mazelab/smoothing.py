@@ -37,7 +37,7 @@ from __future__ import annotations
 import functools
 import math
 from collections import deque
-from collections.abc import Callable, Collection, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -207,18 +207,28 @@ def smooth(
     SmoothedWalk
     """
     angles, zs = check_walk(compass_angles, measurements)
-    steps = len(angles)
     sigma, delta = check_model_parameters(sigma, delta, (world.width, world.height))
     grid = GridBayesFilter(world, sigma, delta, **grid_options)
-    block = checkpoint_block(steps, checkpoint_every)
-    outside = [k for k in keep if not (isinstance(k, (int, np.integer)) and 1 <= k <= steps)]
+    block = checkpoint_block(len(angles), checkpoint_every)
+    outside = [k for k in keep if not (isinstance(k, (int, np.integer)) and 1 <= k <= len(angles))]
     if outside:
-        raise ValueError(f"keep names steps 1..{steps} of the walk, got {outside[0]!r}")
-    check_smoother_memory(grid.shape, steps, block, len(set(keep)))
+        raise ValueError(f"keep names steps 1..{len(angles)} of the walk, got {outside[0]!r}")
+    check_smoother_memory(grid.shape, len(angles), block, len(set(keep)))
     checkpoints, filtered_means = forward(grid, angles, zs, block)
     log_evidence = grid.log_evidence  # the refiltering below adds to it again
+    means, spreads, kept = backward(grid, checkpoints, angles, zs, block, keep, visit)
+    return SmoothedWalk(means, spreads, filtered_means, log_evidence, grid.positions, grid.shape, block, kept)
+
+
+def backward(grid: GridBayesFilter, checkpoints: dict[int, np.ndarray], angles: np.ndarray, zs: np.ndarray,
+             block: int, keep: Collection[int], visit: Callable[[int, np.ndarray], Any] | None,
+             ) -> tuple[np.ndarray, np.ndarray, dict[int, np.ndarray]]:  # fmt: skip
+    """The backward pass from k = K down to 1, each block of B steps refiltered from its checkpoint (taken
+    from `checkpoints`): the smoothed means (K, 2), spreads (K,) and the densities of the steps in `keep`
+    (each handed to `visit` too: `smooth`)."""
+    steps = len(angles)
     means, spreads, kept = np.empty((steps, 2)), np.empty(steps), {}
-    backward, beta = BackwardStep(grid), np.ones(grid.shape)
+    step_back, beta = BackwardStep(grid), np.ones(grid.shape)
     for start in reversed(range(0, steps, block)):  # the block of steps start+1 .. end
         end = min(start + block, steps)
         filtered = refilter(grid, checkpoints.pop(start), angles[start:end], zs[start:end])
@@ -231,8 +241,8 @@ def smooth(
                 smoothed.flags.writeable = False
                 visit(k, smoothed)
             if k > 1:
-                beta = backward(beta, angles[k - 1], zs[k - 1], k)
-    return SmoothedWalk(means, spreads, filtered_means, log_evidence, grid.positions, grid.shape, block, kept)
+                beta = step_back(beta, angles[k - 1], zs[k - 1], k)
+    return means, spreads, kept
 
 
 def forward(
@@ -478,21 +488,10 @@ SCORE_COLUMNS = (
 )  # fmt: skip
 
 
-def score_smoothers(
-    world: Maze,
-    robot: Robot,
-    sigma: float,
-    delta: float,
-    filters: Sequence[str],
-    *,
-    lag: int = 10,
-    particle_count: int | None = None,
-    initial_particles: Any = None,
-    seed: int = 0,
-    grid_options: dict[str, Any] | None = None,
-    clouds: bool = False,
-    **filter_options: Any,
-) -> SmootherScores:
+def score_smoothers(world: Maze, robot: Robot, sigma: float, delta: float, filters: Sequence[str], *, lag: int = 10,
+                    particle_count: int | None = None, initial_particles: Any = None, seed: int = 0,
+                    grid_options: dict[str, Any] | None = None, clouds: bool = False,
+                    options: Mapping[str, Mapping[str, Any]] | None = None) -> SmootherScores:  # fmt: skip
     """Each particle filter's own estimate, fixed-lag and path smoothers on a recorded walk, beside the
     exact smoother (`smooth`), step by step (SmootherScores).
 
@@ -506,12 +505,14 @@ def score_smoothers(
         Registry names of filters that keep particles (sir, apf, rpf, a plug-in's).
     lag : int
         L of the fixed-lag smoother (>= 1).
-    particle_count, initial_particles, seed, **filter_options
+    particle_count, initial_particles, seed
         As mazelab.simulation.simulate takes them (each filter starts from the same particles and seed).
     grid_options : dict, optional
         GridBayesFilter's options for the exact smoother.
     clouds : bool
         Keep the traced particles of every step (Genealogy's `clouds`) for a viewer.
+    options : mapping, optional
+        Each filter's own options, by its name as in `filters` (e.g. {"rpf": {"bandwidth": 0.05}}).
 
     Returns
     -------
@@ -519,37 +520,50 @@ def score_smoothers(
     """
     from mazelab.simulation import simulate  # the layer above the model's: imported by the caller that runs
 
-    lag, grid_options = step_number("lag", lag), dict(grid_options or {})
-    entries = [filter_entry(name) for name in filters]
-    for entry in entries:
+    lag = check_smoothers(robot, filters, lag, particle_count, initial_particles)
+    grid_options = dict(grid_options or {})
+    bins, count = cell_bins(world, GridBayesFilter.options.resolve(grid_options, "GridBayesFilter")["margin"])
+    exact, exact_masses = binned_smoother(world, sigma, delta, robot, bins, count, grid_options)
+    rows, recorded = [], {}
+    for name in filters:
+        entry = filter_entry(name)
+        recorders = [Genealogy(length, bins, count, clouds) for length in (0, lag, None)]  # SMOOTHERS' lags
+        run = simulate(robot, world, sigma, delta, particle_count, len(exact.means), initial_particles,
+                       entry.filter_class, seed=seed, on_step=functools.partial(record_step, recorders),
+                       **(options or {}).get(name, {}))  # fmt: skip
+        recorded[entry.label] = [g.finish() for g in recorders]
+        rows += score_rows(entry.label, exact, exact_masses, run.true_positions, recorded[entry.label])
+    return SmootherScores(exact, rows, lag, recorded)
+
+
+def binned_smoother(world: Maze, sigma: float, delta: float, robot: Robot, bins: Callable[[np.ndarray], np.ndarray],
+                    count: int, grid_options: dict[str, Any]
+                    ) -> tuple[SmoothedWalk, dict[int, np.ndarray]]:  # fmt: skip
+    """The exact smoother of the robot's walk (`smooth`), and its mass in each of the `count` bins at every step
+    (step -> (count,)): what a particle smoother's binned mass is compared with."""
+    positions, masses = GridBayesFilter(world, sigma, delta, **grid_options).positions, {}
+
+    def binned(k: int, density: np.ndarray) -> None:
+        masses[k] = np.bincount(bins(positions), density.ravel(), count)
+
+    exact = smooth(world, sigma, delta, robot.compass_angles, robot.measurements, visit=binned, **grid_options)
+    return exact, masses
+
+
+def check_smoothers(robot: Robot, filters: Sequence[str], lag: int, particle_count: int | None,
+                    initial_particles: Any) -> int:  # fmt: skip
+    """The lag, once `score_smoothers`' inputs are checked: a one-line ValueError for a filter that keeps no
+    particles, a walk without measurements, a genealogy that does not fit in memory."""
+    lag = step_number("lag", lag)
+    for entry in map(filter_entry, filters):
         if not entry.takes_particles:
             raise ValueError(f"a particle smoother needs a filter's genealogy: {entry.label} keeps no particles")
     if not robot.measurements:
         raise ValueError("smoothing needs the walk's measurements: the scenario stores none (robot_measurements)")
     particles = len(initial_particles) if initial_particles is not None else particle_count or DEFAULT_PARTICLE_COUNT
-    steps = len(robot.measurements)
-    check_memory(f"the genealogy of {steps} steps of {particles} particles (the path smoother's)",
-                 (steps + lag + 2) * particles * BYTES_PER_RECORDED_PARTICLE)  # fmt: skip
-    bins, count = cell_bins(world, GridBayesFilter.options.resolve(grid_options, "GridBayesFilter")["margin"])
-    exact_masses: dict[int, np.ndarray] = {}
-
-    def binned(k: int, density: np.ndarray) -> None:
-        exact_masses[k] = np.bincount(bins(positions), density.ravel(), count)
-
-    positions = GridBayesFilter(world, sigma, delta, **grid_options).positions
-    exact = smooth(world, sigma, delta, robot.compass_angles, robot.measurements, visit=binned, **grid_options)
-    rows, recorded = [], {}
-    for entry in entries:
-        recorders = {
-            n: Genealogy(length, bins, count, clouds) for n, length in zip(SMOOTHERS, (0, lag, None), strict=True)
-        }
-        run = simulate(
-            robot, world, sigma, delta, particle_count, len(exact.means), initial_particles, entry.filter_class,
-            seed=seed, on_step=functools.partial(record_step, list(recorders.values())), **filter_options,
-        )  # fmt: skip
-        recorded[entry.label] = [g.finish() for g in recorders.values()]
-        rows += score_rows(entry.label, exact, exact_masses, run.true_positions, recorded[entry.label])
-    return SmootherScores(exact, rows, lag, recorded)
+    check_memory(f"the genealogy of {len(robot.measurements)} steps of {particles} particles (the path smoother's)",
+                 (len(robot.measurements) + lag + 2) * particles * BYTES_PER_RECORDED_PARTICLE)  # fmt: skip
+    return lag
 
 
 def record_step(recorders: list[Genealogy], k: int, robot: Robot, filt: Any) -> None:

@@ -6,7 +6,8 @@ record beside the rows like a study's (the command, versions, the scenario's sha
 
 from __future__ import annotations
 
-from concurrent.futures import ProcessPoolExecutor
+import functools
+import signal
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -14,12 +15,26 @@ import numpy as np
 import typer
 
 from mazelab.atomic import write_text_atomically
+from mazelab.cli.filter_options import OptionFlag, given_options, with_option_flags
 from mazelab.cli.options import UserError, check_one_file_each, check_output_path, opt, parse_list, seed_option
-from mazelab.experiments.record import Recorder, record_path
+from mazelab.experiments.executor import (
+    DASK_TIMEOUT,
+    StudyLost,
+    Units,
+    check_workers,
+    close_client,
+    connect,
+    default_workers,
+    progress_bar,
+    stop_signals,
+)
+from mazelab.experiments.journal import Journal, journal_path, journal_state, left_over, read_journal
+from mazelab.experiments.record import Recorder, differences, record_path
 from mazelab.experiments.runs import parse_filters
+from mazelab.experiments.study import RunFailure, options_per_filter
 from mazelab.experiments.tables import format_table, pyplot, records_csv, save_figure
-from mazelab.invocation import command_line
-from mazelab.learning import ParameterGrid, evidence_filter, exact_parameter_posterior, pmmh
+from mazelab.invocation import command_line, resume_command
+from mazelab.learning import ParameterGrid, ParameterPosterior, evidence_filter, grid_log_evidence, pmmh
 from mazelab.model import LAB_DELTA_RANGE, LAB_SIGMA_RANGE
 from mazelab.plugins import file_sha256
 from mazelab.registry import filter_entry
@@ -39,43 +54,44 @@ Cells = opt(int, min=1, help="the parameter grid's cells along sigma and along d
 Iterations = opt(int, "--pmmh", min=0, help="a PMMH chain of this many iterations (0: none)")
 PmmhFilter = opt(str, "--filter", help="PMMH's filter (its evidence must estimate p(z_1:K))")
 Particles = opt(int, min=1, help="PMMH's particles")
-Workers = opt(int, min=1, help="processes for the exact posterior's cells")
+Workers = opt(int | None, min=1, help="processes for the exact posterior's cells (default: all cores)")
+Dask = opt(str | None, help="a Dask scheduler for the exact posterior's cells, tcp://HOST:PORT")
+Resume = opt(bool, "--resume", help="compute only the cells missing from --csv's journal")
 Resolution = opt(float, help="the exact grid's cells, map units (memory grows as its inverse square)")
 Seed = opt(int | None, callback=seed_option, help="the filters' seed [default: the scenario's]")
 Csv = opt(Path | None, "--csv", help="the rows (.csv)")
 PlotFile = opt(Path | None, "--plot", help="the figure (.png; plot extra)")
 Record = opt(Path | None, help="the JSON record [default: beside --csv]")
 Rrd = opt(Path | None, "--rrd", help="a Rerun recording: each filter's cloud beside its path smoother's")
+ChainRrd = opt(Path | None, "--rrd", help="a Rerun recording: the PMMH chain over the exact posterior")
 Force = opt(bool, "--force", help="replace existing output files")
 
 
-def smooth(
-    scenario: Scenario_,
-    filters: ParticleFilters = "sir,apf,rpf",
-    lag: Lag = 10,
-    resolution: Resolution = 0.05,
-    seed: Seed = None,
-    csv_path: Csv = None,
-    plot: PlotFile = None,
-    record: Record = None,
-    rrd: Rrd = None,
-    force: Force = False,
-) -> None:
+@with_option_flags()
+def smooth(scenario: Scenario_, filters: ParticleFilters = "sir,apf,rpf", lag: Lag = 10,
+           resolution: Resolution = 0.05, seed: Seed = None, csv_path: Csv = None, plot: PlotFile = None,
+           record: Record = None, rrd: Rrd = None, force: Force = False, option: OptionFlag = None,
+           named: dict | None = None) -> None:  # fmt: skip
     """Where the robot was at each step given every measurement: the exact smoother on the grid, and each
     filter's own estimate, fixed-lag and path smoothers scored against it step by step (the distance of
     their means to the exact smoothed mean, the total variation over the maze's cells, the distinct
-    ancestors each rests on: the path degeneracy)."""
+    ancestors each rests on: the path degeneracy). Each filter takes the options it declares (--option
+    NAME=VALUE; `mazelab filters` lists them)."""
     path, stored, outputs = opened(scenario, csv_path, plot, record, force, rrd)
     names = [filter_entry(name).short_name for name in parse_filters(filters)]
+    given = given_options(named or {}, option, names)
+    per_filter = options_per_filter(names, given, given.spelled)  # an option none of them takes: one line
+    options = {name: {k: v for k, v in per_filter[filter_entry(name).name].items() if v is not None} for name in names}
     seed = seed if seed is not None else stored.seed if stored.seed is not None else 0
     world, sigma, delta = world_of(stored, path)
     parameters = {"scenario": str(path), "filters": names, "lag": lag, "resolution": resolution, "seed": seed,
-                  "sigma": sigma, "delta": delta}  # fmt: skip
+                  "sigma": sigma, "delta": delta, "options": options}  # fmt: skip
     recorder = Recorder("smooth", command_line(), parameters, scenario_sha256=file_sha256(path))
     typer.echo(f"{path.name}: {len(stored.robot_compass_angles)} steps, {len(stored.init_particles_pos)} particles, "
                f"sigma {sigma:g}, delta {delta:g}, lag {lag}, grid {resolution:g}, seed {seed}")  # fmt: skip
     scores = score_smoothers(world, stored.robot(), sigma, delta, names, lag=lag, seed=seed, grid_options={
-        "resolution": resolution}, initial_particles=stored.init_particles_pos, clouds=rrd is not None)  # fmt: skip
+        "resolution": resolution}, initial_particles=stored.init_particles_pos, clouds=rrd is not None,
+        options=options)  # fmt: skip
     summary = smoothing_summary(scores)
     columns = list(summary[-1])
     typer.echo(format_table(columns, [[shown(row.get(k)) for k in columns] for row in summary]))
@@ -159,31 +175,18 @@ def smoothing_figure(scores: SmootherScores, title: str) -> Any:
     return figure
 
 
-def learn(
-    scenario: Scenario_,
-    sigma_range: SigmaRange = SIGMA_RANGE,
-    delta_range: DeltaRange = DELTA_RANGE,
-    cells: Cells = 12,
-    resolution: Resolution = 0.1,
-    pmmh_iterations: Iterations = 0,
-    filter_name: PmmhFilter = "sir",
-    particles: Particles = 200,
-    seed: opt(int, callback=seed_option, help="PMMH's seed") = 1,
-    workers: Workers = 1,
-    csv_path: Csv = None,
-    plot: PlotFile = None,
-    record: Record = None,
-    force: Force = False,
-) -> None:
+def learn(scenario: Scenario_, sigma_range: SigmaRange = SIGMA_RANGE, delta_range: DeltaRange = DELTA_RANGE,
+          cells: Cells = 12, resolution: Resolution = 0.1, pmmh_iterations: Iterations = 0,
+          filter_name: PmmhFilter = "sir", particles: Particles = 200,
+          seed: opt(int, callback=seed_option, help="PMMH's seed") = 1, workers: Workers = None, dask: Dask = None,
+          csv_path: Csv = None, plot: PlotFile = None, record: Record = None, rrd: ChainRrd = None,
+          resume: Resume = False, force: Force = False) -> None:  # fmt: skip
     """Which sigma and delta explain the scenario's measurements: the exact posterior on a grid of cells
-    under the uniform prior on the ranges (the grid filter's exact evidence at each), and a PMMH chain
-    (--pmmh) with a particle filter's evidence beside it."""
-    path, stored, outputs = opened(scenario, csv_path, plot, record, force)
-    try:
-        grid = ParameterGrid(parsed_range(sigma_range, "--sigma-range"), parsed_range(delta_range, "--delta-range"),
-                             (cells, cells))  # fmt: skip
-    except ValueError as error:
-        raise UserError(f"{error} (--sigma-range, --delta-range)") from None
+    under the uniform prior on the ranges (the grid filter's exact evidence at each, spread over --workers
+    processes or a --dask cluster, each finished cell kept in a journal beside --csv that --resume goes on
+    from), and a PMMH chain (--pmmh) with a particle filter's evidence beside it."""
+    path, stored, outputs = opened(scenario, csv_path, plot, record, force or resume, rrd)
+    grid = parameter_grid(sigma_range, delta_range, cells)
     if pmmh_iterations:
         evidence_filter(filter_name)  # a filter PMMH cannot use: one line before the exact posterior's runs
     world, _, _ = world_of(stored, path)
@@ -192,16 +195,128 @@ def learn(
                   "particles": particles, "seed": seed}  # fmt: skip
     recorder = Recorder("learn", command_line(), parameters, scenario_sha256=file_sha256(path))
     walk = stored.robot_compass_angles, stored.robot_measurements
-    typer.echo(f"{path.name}: {len(walk[0])} steps; the exact posterior on {cells} x {cells} cells ({workers} "
-               f"process(es))")  # fmt: skip
-    with ProcessPoolExecutor(workers) if workers > 1 else _Serial() as pool:
-        posterior = exact_parameter_posterior(world, *walk, grid, mapper=pool.map, resolution=resolution)
-    rows = [["exact", *posterior_cells(posterior.mean(), posterior.interval())]]
-    summary: dict[str, Any] = {"exact": {"mean": posterior.mean(), "interval_90": posterior.interval()}}
+    cell = functools.partial(grid_log_evidence, world, *map(list, walk), resolution=resolution)
+    journal = cells_journal(csv_path, resume, force, recorder)
+    posterior = ParameterPosterior(grid, exact_cells(grid, cell, journal, workers, dask).reshape(grid.cells))
     chain = None
     if pmmh_iterations:
         chain = pmmh(world, *walk, pmmh_iterations, filter_name=filter_name, particle_count=particles, prior=grid,
                      burn_in=pmmh_iterations // 10, seed=seed)  # fmt: skip
+    summary = learning_summary(posterior, chain, filter_name)
+    if outputs["csv"] is not None:
+        write_text_atomically(outputs["csv"], posterior_csv(posterior), replace=force or resume)
+        typer.echo(f"one row per (sigma, delta) cell written to {outputs['csv']}")
+    if plot is not None:
+        save_figure(posterior_figure(posterior, chain, path.name), plot, replace=force or resume)
+        typer.echo(f"the figure written to {plot}")
+    if rrd is not None:
+        chain_recording(posterior, chain, world, rrd, force or resume)
+    finish(recorder, outputs["record"], force or resume, summary=summary)
+
+
+def cells_journal(csv_path: Path | None, resume: bool, force: bool, recorder: Recorder) -> tuple[Journal, dict] | None:
+    """The journal of the exact posterior's cells beside --csv (a study's, mazelab.experiments.journal) and
+    the cells an earlier session finished (--resume: its parameters must be this command's); one line for
+    a journal another command writes, or one an earlier left without --resume or --force."""
+    file = journal_path(csv_path) if csv_path is not None else None
+    state = journal_state(file) if file is not None else None
+    if state == "busy" or (state == "left" and not (resume or force)):
+        raise UserError(f"another command is writing {file}: give this one another --csv" if state == "busy"
+                        else left_over(file))  # fmt: skip
+    if resume and state is None:
+        raise UserError(f"--resume: no journal of the cells beside {csv_path} to go on from; leave out --resume")
+    done: dict[int, float] = {}
+    if resume:
+        lines = read_journal(file)
+        sessions = [line["session"]["parameters"] for line in lines if "session" in line]
+        changed = differences(sessions[-1], journal_parameters(recorder)) if sessions else ["no session line"]
+        if changed:
+            raise UserError(f"--resume: the command differs from {file} ({changed[0]}); give the same parameters, "
+                            "or --force to start again")  # fmt: skip
+        done = {int(line["cell"]): float(line["log_evidence"]) for line in lines if "cell" in line}
+        typer.echo(f"resuming: {len(done)} cell(s) kept from {file}")
+    if file is None:
+        return None
+    journal = Journal(file, adopt=resume, replace=force)
+    journal.write({"session": {"command": recorder.data["command"], "started": recorder.data["started"],
+                               "parameters": journal_parameters(recorder)}})  # fmt: skip
+    return journal, done
+
+
+def journal_parameters(recorder: Recorder) -> dict[str, Any]:
+    """What the exact posterior's cells depend on, which --resume compares: the scenario's sha256, the
+    ranges, the cells and the grid's resolution."""
+    parameters = recorder.data["parameters"]
+    return {"scenario_sha256": recorder.data["scenario_sha256"],
+            **{k: parameters[k] for k in ("sigma_range", "delta_range", "cells", "resolution")}}  # fmt: skip
+
+
+def exact_cells(grid: ParameterGrid, cell: Any, journal: tuple[Journal, dict] | None, workers: int | None,
+                dask: str | None) -> np.ndarray:  # fmt: skip
+    """log p(z_1:K | sigma, delta) of every cell (S D,), each `cell(sigma, delta)` run on the study's executor
+    (mazelab.experiments.executor: --workers processes or the --dask cluster) unless the journal holds it;
+    each one finished is appended to the journal. A stop keeps them there and says how to go on (exit 130,
+    143 or 129); a lost cluster or a cell that failed: one line, exit 1."""
+    (log, done), sigmas, deltas = journal or (None, {}), *grid.values()
+    log_evidence = np.array([done.get(i, np.nan) for i in range(len(sigmas))])
+    units = [((i, sigmas[i], deltas[i]),) for i in range(len(sigmas)) if i not in done]
+    workers = workers or default_workers()
+    failed: list[str] = []
+
+    def collect(results: list) -> None:
+        for result in results:
+            if isinstance(result, RunFailure):
+                failed.append(f"the cell sigma {result.task[1]:g}, delta {result.task[2]:g}: {result.message}")
+                continue
+            log_evidence[result[0]] = result[1]
+            if log is not None:
+                log.write({"cell": result[0], "log_evidence": result[1]})
+
+    client = connect(dask) if dask is not None else None  # a bad address: one line, before any cell
+    where = f"the Dask cluster at {dask}" if client is not None else f"{min(workers, max(len(units), 1))} process(es)"
+    typer.echo(f"the exact posterior on {grid.cells[0]} x {grid.cells[1]} cells: {len(units)} to go on {where}")
+    try:
+        if client is not None:
+            check_workers(client, "numpy")  # workers of other versions: one line
+        with progress_bar(len(units), True, "cells") as advance, stop_signals():
+            Units(units, functools.partial(cell_unit, cell), workers, client, DASK_TIMEOUT).run(collect, advance)
+    except (KeyboardInterrupt, StudyLost) as stop:
+        cells_stopped(stop, log, int((~np.isnan(log_evidence)).sum()), len(sigmas))
+    finally:
+        if client is not None:
+            close_client(client)
+        if log is not None:
+            log.end_session("finished" if not failed else "failed")
+    if failed:
+        typer.echo(f"error: {failed[0]} ({len(failed)} cell(s) failed)", err=True)
+        raise typer.Exit(1)
+    return log_evidence
+
+
+def cell_unit(cell: Any, unit: tuple[tuple[int, float, float], ...]) -> list[tuple[int, float]]:
+    """A unit of the executor: (index, log evidence) of each of its cells (index, sigma, delta)."""
+    return [(index, cell(sigma, delta)) for index, sigma, delta in unit]
+
+
+def cells_stopped(stop: BaseException, journal: Journal | None, finished: int, total: int) -> None:
+    """A stop (Ctrl-C, SIGTERM, SIGHUP) or a lost cluster: one line saying how many cells finished and where
+    they are kept, the command that goes on with them; exits."""
+    kept = f"; {journal.kept()}; go on with: {resume_command()}" if journal is not None else ""
+    if journal is not None:
+        journal.end_session("lost" if isinstance(stop, StudyLost) else "interrupted")
+    if isinstance(stop, StudyLost):
+        typer.echo(f"error: {stop}; {finished} of {total} cells finished{kept}", err=True)
+        raise typer.Exit(1)
+    typer.echo(f"interrupted after {finished} of {total} cells{kept}", err=True)
+    raise typer.Exit(128 + getattr(stop, "signum", signal.SIGINT))  # 130 Ctrl-C, 143 SIGTERM, 129 SIGHUP
+
+
+def learning_summary(posterior: ParameterPosterior, chain: Any, filter_name: str) -> dict[str, Any]:
+    """Print the exact posterior's (and the chain's) mean and 90% interval of sigma and delta, the chain's
+    acceptance rate, effective sample size and Monte Carlo error; return them for the record."""
+    rows = [["exact", *posterior_cells(posterior.mean(), posterior.interval())]]
+    summary: dict[str, Any] = {"exact": {"mean": posterior.mean(), "interval_90": posterior.interval()}}
+    if chain is not None:
         rows.append([f"PMMH ({filter_entry(filter_name).label})", *posterior_cells(chain.mean(), chain.interval())])
         summary["pmmh"] = {"mean": chain.mean(), "mean_error": chain.mean_error(), "interval_90": chain.interval(),
                            "acceptance_rate": chain.acceptance_rate, "ess": chain.ess()}  # fmt: skip
@@ -210,25 +325,44 @@ def learn(
         typer.echo(f"PMMH: acceptance rate {chain.acceptance_rate:.2f}, effective sample size "
                    f"{chain.ess()[0]:.0f} (sigma), {chain.ess()[1]:.0f} (delta), mean's Monte Carlo error "
                    f"{chain.mean_error()[0]:.3f}, {chain.mean_error()[1]:.3f}")  # fmt: skip
-    if outputs["csv"] is not None:
-        write_text_atomically(outputs["csv"], posterior_csv(posterior), replace=force)
-        typer.echo(f"one row per (sigma, delta) cell written to {outputs['csv']}")
-    if plot is not None:
-        save_figure(posterior_figure(posterior, chain, path.name), plot, replace=force)
-        typer.echo(f"the figure written to {plot}")
-    finish(recorder, outputs["record"], force, summary=summary)
+    return summary
 
 
-class _Serial:
-    """The built-in map as an executor of one process (no pool to start)."""
+def parameter_grid(sigma_range: str, delta_range: str, cells: int) -> ParameterGrid:
+    """The ParameterGrid of --sigma-range, --delta-range and --cells, or one line naming them."""
+    ranges = parsed_range(sigma_range, "--sigma-range"), parsed_range(delta_range, "--delta-range")
+    try:
+        return ParameterGrid(*ranges, (cells, cells))
+    except ValueError as error:
+        raise UserError(f"{error} (--sigma-range, --delta-range)") from None
 
-    map = staticmethod(map)
 
-    def __enter__(self) -> _Serial:
-        return self
+def chain_recording(posterior: ParameterPosterior, chain: Any, world: Any, path: Path, force: bool) -> None:
+    """The exact posterior's cells (a dot at each cell's centre, its area the cell's mass, the largest one
+    filling its cell) and the PMMH chain's state at every iteration over them: a Rerun recording written
+    whole to `path`, the chain's states so far in sight at each iteration."""
+    import rerun as rr
+    import rerun.blueprint as rrb
 
-    def __exit__(self, *_: Any) -> None:
-        return None
+    from mazelab.viz.recording import Recording
+    from mazelab.viz.style import ROBOT_COLOR, lab_blueprint
+
+    everything = rrb.VisibleTimeRange("iteration", start=rrb.TimeRangeBoundary.infinite(),
+                                      end=rrb.TimeRangeBoundary.cursor_relative())  # fmt: skip
+    view = rrb.Spatial2DView(name="p(sigma, delta | z_1:K)", origin="/posterior", time_ranges=everything)
+    recording = Recording.open(path, world, lab_blueprint(view), label="learn", replace=force)
+    if recording is None:  # Rerun switched off: a line said so
+        return
+    recording.stream.set_time("iteration", sequence=0)
+    half_width = min(e[1] - e[0] for e in posterior.grid.edges) / 2
+    radii = half_width * np.sqrt(posterior.mass.ravel() / posterior.mass.max())
+    cells = rr.Points2D(np.column_stack(posterior.grid.values()), radii=radii, colors=(120, 120, 120))
+    recording.stream.log("/posterior/cells", cells)
+    for i, state in enumerate(chain.samples if chain is not None else (), start=1):
+        recording.stream.set_time("iteration", sequence=i)
+        dot = rr.Points2D([state], radii=half_width / 8, colors=ROBOT_COLOR if i > chain.burn_in else (255, 160, 0))
+        recording.stream.log("/posterior/chain", dot)
+    recording.close()
 
 
 def parsed_range(text: str, option: str) -> tuple[float, float]:
