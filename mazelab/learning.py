@@ -6,16 +6,12 @@ delta in [0.05, 0.6]. Then
 
     p(sigma, delta | z_1:K) ∝ p(z_1:K | sigma, delta)   inside the box, 0 outside.
 
-The exact posterior (`exact_parameter_posterior`) cuts the box into equal cells and takes the grid
-filter's exact evidence at each cell's centre (`grid_log_evidence`, a function of one cell that an
-executor maps), the density constant within each cell. PMMH (`pmmh`) is a random-walk Metropolis chain
-on (sigma, delta) whose acceptance ratio uses a particle filter's estimate of p(z_1:K) in place of the
-evidence: the chain targets the exact posterior whenever that estimate is unbiased, which SIR's and the
-APF's are (Del Moral 2004; Pitt and Shephard's for the APF), and the regularised filter's is not (its
-kernel changes the posterior it carries: docs/model.md). The registry's declaration says which filters
-qualify (FilterEntry.evidence, the caveat every table prints beside a log evidence; `evidence_filter`);
-recovery's injected particles, drawn from no proposal the weights account for, break the estimate's
-unbiasedness too, and a filter that keeps no log evidence (the EKF) has none to give.
+The exact posterior (`exact_parameter_posterior`) takes the grid filter's exact evidence at each cell's
+centre of a ParameterGrid (`grid_log_evidence`, a function of one cell that an executor maps). PMMH
+(`pmmh`) is a random-walk Metropolis chain on (sigma, delta) whose acceptance ratio uses a particle
+filter's estimate of p(z_1:K) in place of the evidence: it targets the exact posterior whenever that
+estimate is unbiased, which SIR's and the APF's are (Del Moral 2004) and the regularised filter's is not
+(`evidence_filter` says which filters qualify, from the registry's declaration).
 """
 
 from __future__ import annotations
@@ -90,15 +86,6 @@ class ParameterGrid:
         sigmas, deltas = np.meshgrid(*self.centres, indexing="ij")
         return sigmas.ravel().tolist(), deltas.ravel().tolist()
 
-    def halved(self) -> ParameterGrid:
-        """The same box with cells half as wide (twice as many along each axis): the grid's own error.
-
-        Returns
-        -------
-        ParameterGrid
-        """
-        return ParameterGrid(self.sigma_range, self.delta_range, (2 * self.cells[0], 2 * self.cells[1]))
-
     def contains(self, sigma: float, delta: float) -> bool:
         """Whether (sigma, delta) lies in the box, where the prior is positive.
 
@@ -115,14 +102,8 @@ class ParameterGrid:
         )
 
 
-def grid_log_evidence(
-    world: Maze,
-    compass_angles: Sequence[float],
-    measurements: Sequence[float],
-    sigma: float,
-    delta: float,
-    **grid_options: Any,
-) -> float:
+def grid_log_evidence(world: Maze, compass_angles: Sequence[float], measurements: Sequence[float], sigma: float,
+                      delta: float, **grid_options: Any) -> float:  # fmt: skip
     """log p(z_1:K | sigma, delta): the grid filter's exact evidence of the walk (one cell of a
     ParameterGrid; plain values in and out, so that an executor can map it).
 
@@ -171,12 +152,6 @@ class ParameterPosterior:
         mass = np.exp(self.log_evidence - finite.max())
         return mass / mass.sum()
 
-    @property
-    def log_marginal_likelihood(self) -> float:
-        """log p(z_1:K), the evidence averaged over the prior (the midpoint rule over the cells)."""
-        top = self.log_evidence.max()
-        return float(top + math.log(np.mean(np.exp(self.log_evidence - top))))
-
     def marginals(self) -> tuple[np.ndarray, np.ndarray]:
         """The marginal posteriors.
 
@@ -218,14 +193,9 @@ class ParameterPosterior:
         return np.array(rows)
 
 
-def exact_parameter_posterior(
-    world: Maze,
-    compass_angles: Sequence[float],
-    measurements: Sequence[float],
-    grid: ParameterGrid | None = None,
-    mapper: Callable[..., Iterable[float]] = map,
-    **grid_options: Any,
-) -> ParameterPosterior:
+def exact_parameter_posterior(world: Maze, compass_angles: Sequence[float], measurements: Sequence[float],
+                              grid: ParameterGrid | None = None, mapper: Callable[..., Iterable[float]] = map,
+                              **grid_options: Any) -> ParameterPosterior:  # fmt: skip
     """The exact parameter posterior of a walk on a ParameterGrid (the lab's ranges, 12 x 12 cells, by
     default): `grid_log_evidence` at every cell.
 
@@ -280,17 +250,9 @@ def evidence_filter(name: str | type, options: dict[str, Any] | None = None) -> 
     return entry
 
 
-def estimated_log_evidence(
-    world: Maze,
-    compass_angles: np.ndarray,
-    measurements: np.ndarray,
-    entry: FilterEntry,
-    particle_count: int,
-    options: dict[str, Any],
-    sigma: float,
-    delta: float,
-    rng: np.random.Generator,
-) -> float:
+def estimated_log_evidence(world: Maze, compass_angles: np.ndarray, measurements: np.ndarray, entry: FilterEntry,
+                           particle_count: int, options: dict[str, Any], sigma: float, delta: float,
+                           rng: np.random.Generator) -> float:  # fmt: skip
     """log p_hat(z_1:K | sigma, delta) by one fresh run of a filter (`evidence_filter`'s entry, with its
     options) over the walk: its particle_count particles drawn from the model's prior (uniform over the free
     area) and its own draws, both from Generators spawned from `rng`; -inf where it is not a number."""
@@ -530,7 +492,6 @@ __all__ = [
     "ParameterGrid",
     "ParameterPosterior",
     "chain_ess",
-    "estimated_log_evidence",
     "evidence_filter",
     "exact_parameter_posterior",
     "grid_log_evidence",

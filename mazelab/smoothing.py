@@ -14,22 +14,17 @@ are the discretised model's exact answer: a brute-force sum over every path of c
 (tests/test_smoothing.py).
 
 Memory: the forward pass keeps alpha_k at every B-th step only (checkpoints, B = ceil(sqrt(K)) unless
-told), and the backward pass refilters one block of B steps at a time from its checkpoint when it
-reaches it: about 2 sqrt(K) grids instead of K, for a second forward pass. On maze_10x10 at the
-default resolution (600 x 600 cells, 2.75 MB a grid) a 200-step walk keeps 14 checkpoints and 15
-refiltered grids rather than 200: a peak of 165 MB allocated against 640 MB when every filtered density
-is kept (`uv run python benchmarks/smoothing_memory.py`).
+told), and the backward pass refilters one block of B steps at a time from its checkpoint: about 2 sqrt(K)
+grids instead of K, for a second forward pass (docs/smoothing.md has the figures of a 200-step walk on
+maze_10x10: `uv run python benchmarks/smoothing_memory.py`).
 
 The particle smoothers (`Genealogy`, scored against the exact one by `score_smoothers`) read what the
 engine leaves after each step, `SMC.ancestry` (A (R, M), due (R,)), and keep it with the step's particles
 and weights: the path smoother follows every particle of the last step back to its ancestors; the
 fixed-lag smoother does so L steps back only, keeping L + 1 steps. Forward filtering backward sampling
-(FFBS) is not built, for the model admits none: it reweights x_k^i by the transition density p(x_k+1^j |
-x_k^i), but the arc motion x_k+1 = x_k + L (cos th, sin th), th uniform on [th0 - Delta/2, th0 + Delta/2]
-(mazelab.model), puts all of x_k+1's mass on an arc of radius L about x_k: a curve, of no area, so the
-transition has no density in the plane. p(x_k+1^j | x_k^i) is then zero unless x_k+1^j lies on x_k^i's
-arc, which happens (with probability one) only when x_k^i is its ancestor: FFBS's backward kernel is the
-genealogy itself, the path smoother. (The grid smoother has a density: its cells spread the arc.)
+(FFBS) is not built: it needs the transition density p(x_k+1 | x_k), and the model's arc motion puts all
+of x_k+1's mass on an arc of radius L about x_k, a curve with no density in the plane, so FFBS's backward
+kernel is the genealogy itself, the path smoother (docs/smoothing.md says why in full).
 """
 
 from __future__ import annotations
@@ -88,20 +83,6 @@ class SmoothedWalk:
     checkpoint_every: int
     densities: dict[int, np.ndarray] = field(default_factory=dict)
 
-    def errors(self, true_positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The distance of the smoothed and of the filtered mean to the truth, per step.
-
-        Parameters
-        ----------
-        true_positions : array (K, 2)
-            The robot's position after each step's move (map units).
-
-        Returns
-        -------
-        (smoothed (K,), filtered (K,)), map units
-        """
-        return np.hypot(*(self.means - true_positions).T), np.hypot(*(self.filtered_means - true_positions).T)
-
 
 class BackwardStep:
     """The backward pass's step on a grid filter's cells: beta_{k-1} = P_k^T (l_k beta_k), scaled.
@@ -121,22 +102,6 @@ class BackwardStep:
         self._angle: float | None = None
         self._kernel_shape = arc_kernel_shape(grid.speed, grid.resolution)
         self._spectrum: np.ndarray | None = None
-
-    def likelihood(self, z: float) -> np.ndarray:
-        """l_k = p(z_k | x) on the cells divided by its largest value (equation (3), the grid filter's
-        log_likelihood: the one source of it).
-
-        Parameters
-        ----------
-        z : float
-            z_k, the measured distance (map units).
-
-        Returns
-        -------
-        array of the grid's shape, values in [0, 1]
-        """
-        log_lik = self.grid.log_likelihood(z)
-        return np.exp(log_lik - log_lik.max())
 
     def adjoint(self, values: np.ndarray, compass_angle: float) -> np.ndarray:
         """P^T values: the linear convolution with the flipped arc kernel of `compass_angle`, cropped to
@@ -162,7 +127,8 @@ class BackwardStep:
     def __call__(self, beta: np.ndarray, compass_angle: float, z: float, k: int) -> np.ndarray:
         """beta_{k-1} from beta_k and step k's compass angle and measurement, scaled so that its largest
         value is 1 (beta matters only up to a constant: the smoothed density is normalised)."""
-        previous = np.clip(self.adjoint(self.likelihood(z) * beta, compass_angle), 0.0, None)  # FFT round-off < 0
+        log_lik = self.grid.log_likelihood(z)  # equation (3), the grid filter's: the one source of it
+        previous = np.clip(self.adjoint(np.exp(log_lik - log_lik.max()) * beta, compass_angle), 0.0, None)  # FFT: < 0
         top = previous.max()
         if not top > 0:
             raise ValueError(f"the measurements after step {k - 1} are impossible from every cell of the grid")
@@ -170,18 +136,9 @@ class BackwardStep:
         return previous
 
 
-def smooth(
-    world: Maze,
-    sigma: float,
-    delta: float,
-    compass_angles: Sequence[float],
-    measurements: Sequence[float],
-    *,
-    keep: Collection[int] = (),
-    visit: Callable[[int, np.ndarray], Any] | None = None,
-    checkpoint_every: int | None = None,
-    **grid_options: Any,
-) -> SmoothedWalk:
+def smooth(world: Maze, sigma: float, delta: float, compass_angles: Sequence[float], measurements: Sequence[float],
+           *, keep: Collection[int] = (), visit: Callable[[int, np.ndarray], Any] | None = None,
+           checkpoint_every: int | None = None, **grid_options: Any) -> SmoothedWalk:  # fmt: skip
     """p(x_k | z_1:K) for k = 1..K on the grid filter's grid, by forward-backward with checkpoints.
 
     Parameters
@@ -359,7 +316,7 @@ class Genealogy:
     lag : int or None
     bins : callable, optional
         points (R, M, 2) -> flat bin indices (R, M) of `bin_count` bins: each estimate's weighted mass
-        per bin is kept too (the distance between distributions, `binned_total_variation`).
+        per bin is kept too (the total variation to the exact smoother's, `score_rows`).
     bin_count : int
     clouds : bool
         Keep each estimate's traced particles and weights of run 0 too (`clouds`, step -> (points (M, 2),
@@ -587,7 +544,7 @@ def score_rows(
         }
         for name, g in zip(SMOOTHERS, recorded, strict=True):
             row[f"{name}_error"] = float(np.hypot(*(g.means[k][0] - exact.means[k - 1])))
-            row[f"{name}_tv"] = float(binned_total_variation(g.masses[k][0], masses[k]))
+            row[f"{name}_tv"] = 0.5 * float(np.abs(g.masses[k][0] - masses[k]).sum())  # the total variation
             row[f"{name}_ancestors"] = int(g.distinct[k][0])
         rows.append(row)
     return rows
@@ -618,21 +575,6 @@ def cell_bins(world: Maze, margin: float) -> tuple[Callable[[np.ndarray], np.nda
     return bins, rows * columns
 
 
-def binned_total_variation(p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """(1/2) sum_b |p_b - q_b| over the last axis: the total variation between two distributions binned
-    alike (0: the same mass in every bin; 1: none in common).
-
-    Parameters
-    ----------
-    p, q : arrays (..., B)
-
-    Returns
-    -------
-    array (...)
-    """
-    return 0.5 * np.abs(p - q).sum(axis=-1)
-
-
 __all__ = [
     "SCORE_COLUMNS",
     "SMOOTHERS",
@@ -640,7 +582,6 @@ __all__ = [
     "Genealogy",
     "SmoothedWalk",
     "SmootherScores",
-    "binned_total_variation",
     "cell_bins",
     "check_walk",
     "score_smoothers",

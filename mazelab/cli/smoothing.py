@@ -17,24 +17,14 @@ import typer
 from mazelab.atomic import write_text_atomically
 from mazelab.cli.filter_options import OptionFlag, given_options, with_option_flags
 from mazelab.cli.options import UserError, check_one_file_each, check_output_path, opt, parse_list, seed_option
-from mazelab.experiments.executor import (
-    DASK_TIMEOUT,
-    StudyLost,
-    Units,
-    check_workers,
-    close_client,
-    connect,
-    default_workers,
-    progress_bar,
-    stop_signals,
-)
-from mazelab.experiments.journal import Journal, journal_path, journal_state, left_over, read_journal
+from mazelab.experiments import executor
+from mazelab.experiments.journal import Journal, journal_path, read_journal
 from mazelab.experiments.record import Recorder, differences, record_path
 from mazelab.experiments.runs import parse_filters
 from mazelab.experiments.study import RunFailure, options_per_filter
 from mazelab.experiments.tables import format_table, pyplot, records_csv, save_figure
 from mazelab.invocation import command_line, resume_command
-from mazelab.learning import ParameterGrid, ParameterPosterior, evidence_filter, grid_log_evidence, pmmh
+from mazelab.learning import ParameterGrid, ParameterPosterior, evidence_filter, exact_parameter_posterior, pmmh
 from mazelab.model import LAB_DELTA_RANGE, LAB_SIGMA_RANGE
 from mazelab.plugins import file_sha256
 from mazelab.registry import filter_entry
@@ -81,7 +71,7 @@ def smooth(scenario: Scenario_, filters: ParticleFilters = "sir,apf,rpf", lag: L
     names = [filter_entry(name).short_name for name in parse_filters(filters)]
     given = given_options(named or {}, option, names)
     per_filter = options_per_filter(names, given, given.spelled)  # an option none of them takes: one line
-    options = {name: {k: v for k, v in per_filter[filter_entry(name).name].items() if v is not None} for name in names}
+    options = {name: per_filter[filter_entry(name).name] for name in names}
     seed = seed if seed is not None else stored.seed if stored.seed is not None else 0
     world, sigma, delta = world_of(stored, path)
     parameters = {"scenario": str(path), "filters": names, "lag": lag, "resolution": resolution, "seed": seed,
@@ -103,7 +93,7 @@ def smooth(scenario: Scenario_, filters: ParticleFilters = "sir,apf,rpf", lag: L
         typer.echo(f"the figure written to {plot}")
     if rrd is not None:
         smoothing_recording(scores, world, rrd, force)
-    finish(recorder, outputs["record"], force, summary=summary)
+    finish(recorder, outputs["record"], summary=summary)
 
 
 def smoothing_recording(scores: SmootherScores, world: Any, path: Path, force: bool) -> None:
@@ -195,9 +185,8 @@ def learn(scenario: Scenario_, sigma_range: SigmaRange = SIGMA_RANGE, delta_rang
                   "particles": particles, "seed": seed}  # fmt: skip
     recorder = Recorder("learn", command_line(), parameters, scenario_sha256=file_sha256(path))
     walk = stored.robot_compass_angles, stored.robot_measurements
-    cell = functools.partial(grid_log_evidence, world, *map(list, walk), resolution=resolution)
-    journal = cells_journal(csv_path, resume, force, recorder)
-    posterior = ParameterPosterior(grid, exact_cells(grid, cell, journal, workers, dask).reshape(grid.cells))
+    cells_map = functools.partial(run_cells, cells_journal(csv_path, resume, force, recorder), workers, dask)
+    posterior = exact_parameter_posterior(world, *walk, grid, mapper=cells_map, resolution=resolution)
     chain = None
     if pmmh_iterations:
         chain = pmmh(world, *walk, pmmh_iterations, filter_name=filter_name, particle_count=particles, prior=grid,
@@ -211,56 +200,46 @@ def learn(scenario: Scenario_, sigma_range: SigmaRange = SIGMA_RANGE, delta_rang
         typer.echo(f"the figure written to {plot}")
     if rrd is not None:
         chain_recording(posterior, chain, world, rrd, force or resume)
-    finish(recorder, outputs["record"], force or resume, summary=summary)
+    finish(recorder, outputs["record"], summary=summary)
 
 
 def cells_journal(csv_path: Path | None, resume: bool, force: bool, recorder: Recorder) -> tuple[Journal, dict] | None:
-    """The journal of the exact posterior's cells beside --csv (a study's, mazelab.experiments.journal) and
-    the cells an earlier session finished (--resume: its parameters must be this command's); one line for
-    a journal another command writes, or one an earlier left without --resume or --force."""
+    """The journal of the exact posterior's cells beside --csv (a study's: mazelab.experiments.journal, which
+    refuses one another command writes, or one an earlier left without --resume or --force), and the cells
+    an earlier session finished (--resume: what they depend on must be this command's, else one line)."""
     file = journal_path(csv_path) if csv_path is not None else None
-    state = journal_state(file) if file is not None else None
-    if state == "busy" or (state == "left" and not (resume or force)):
-        raise UserError(f"another command is writing {file}: give this one another --csv" if state == "busy"
-                        else left_over(file))  # fmt: skip
-    if resume and state is None:
+    if resume and (file is None or not file.exists()):
         raise UserError(f"--resume: no journal of the cells beside {csv_path} to go on from; leave out --resume")
+    if file is None:
+        return None
+    parameters = recorder.data["parameters"]  # what the cells depend on, which --resume compares
+    compared = {"scenario_sha256": recorder.data["scenario_sha256"],
+                **{k: parameters[k] for k in ("sigma_range", "delta_range", "cells", "resolution")}}  # fmt: skip
     done: dict[int, float] = {}
     if resume:
         lines = read_journal(file)
         sessions = [line["session"]["parameters"] for line in lines if "session" in line]
-        changed = differences(sessions[-1], journal_parameters(recorder)) if sessions else ["no session line"]
+        changed = differences(sessions[-1], compared) if sessions else ["no session line"]
         if changed:
             raise UserError(f"--resume: the command differs from {file} ({changed[0]}); give the same parameters, "
                             "or --force to start again")  # fmt: skip
         done = {int(line["cell"]): float(line["log_evidence"]) for line in lines if "cell" in line}
         typer.echo(f"resuming: {len(done)} cell(s) kept from {file}")
-    if file is None:
-        return None
     journal = Journal(file, adopt=resume, replace=force)
     journal.write({"session": {"command": recorder.data["command"], "started": recorder.data["started"],
-                               "parameters": journal_parameters(recorder)}})  # fmt: skip
+                               "parameters": compared}})  # fmt: skip
     return journal, done
 
 
-def journal_parameters(recorder: Recorder) -> dict[str, Any]:
-    """What the exact posterior's cells depend on, which --resume compares: the scenario's sha256, the
-    ranges, the cells and the grid's resolution."""
-    parameters = recorder.data["parameters"]
-    return {"scenario_sha256": recorder.data["scenario_sha256"],
-            **{k: parameters[k] for k in ("sigma_range", "delta_range", "cells", "resolution")}}  # fmt: skip
-
-
-def exact_cells(grid: ParameterGrid, cell: Any, journal: tuple[Journal, dict] | None, workers: int | None,
-                dask: str | None) -> np.ndarray:  # fmt: skip
-    """log p(z_1:K | sigma, delta) of every cell (S D,), each `cell(sigma, delta)` run on the study's executor
+def run_cells(journal: tuple[Journal, dict] | None, workers: int | None, dask: str | None, cell: Any,
+              sigmas: list[float], deltas: list[float]) -> np.ndarray:  # fmt: skip
+    """exact_parameter_posterior's map: `cell(sigma, delta)` of every cell (S D,) on the study's executor
     (mazelab.experiments.executor: --workers processes or the --dask cluster) unless the journal holds it;
     each one finished is appended to the journal. A stop keeps them there and says how to go on (exit 130,
     143 or 129); a lost cluster or a cell that failed: one line, exit 1."""
-    (log, done), sigmas, deltas = journal or (None, {}), *grid.values()
+    (log, done), workers = journal or (None, {}), workers or executor.default_workers()
     log_evidence = np.array([done.get(i, np.nan) for i in range(len(sigmas))])
     units = [((i, sigmas[i], deltas[i]),) for i in range(len(sigmas)) if i not in done]
-    workers = workers or default_workers()
     failed: list[str] = []
 
     def collect(results: list) -> None:
@@ -272,19 +251,20 @@ def exact_cells(grid: ParameterGrid, cell: Any, journal: tuple[Journal, dict] | 
             if log is not None:
                 log.write({"cell": result[0], "log_evidence": result[1]})
 
-    client = connect(dask) if dask is not None else None  # a bad address: one line, before any cell
+    client = executor.connect(dask) if dask is not None else None  # a bad address: one line, before any cell
     where = f"the Dask cluster at {dask}" if client is not None else f"{min(workers, max(len(units), 1))} process(es)"
-    typer.echo(f"the exact posterior on {grid.cells[0]} x {grid.cells[1]} cells: {len(units)} to go on {where}")
+    typer.echo(f"the exact posterior's cells: {len(units)} of {len(sigmas)} to go on {where}")
     try:
         if client is not None:
-            check_workers(client, "numpy")  # workers of other versions: one line
-        with progress_bar(len(units), True, "cells") as advance, stop_signals():
-            Units(units, functools.partial(cell_unit, cell), workers, client, DASK_TIMEOUT).run(collect, advance)
-    except (KeyboardInterrupt, StudyLost) as stop:
+            executor.check_workers(client, "numpy")  # workers of other versions: one line
+        with executor.progress_bar(len(units), True, "cells") as advance, executor.stop_signals():
+            work = functools.partial(cell_unit, cell)
+            executor.Units(units, work, workers, client, executor.DASK_TIMEOUT).run(collect, advance)
+    except (KeyboardInterrupt, executor.StudyLost) as stop:
         cells_stopped(stop, log, int((~np.isnan(log_evidence)).sum()), len(sigmas))
     finally:
         if client is not None:
-            close_client(client)
+            executor.close_client(client)
         if log is not None:
             log.end_session("finished" if not failed else "failed")
     if failed:
@@ -301,14 +281,13 @@ def cell_unit(cell: Any, unit: tuple[tuple[int, float, float], ...]) -> list[tup
 def cells_stopped(stop: BaseException, journal: Journal | None, finished: int, total: int) -> None:
     """A stop (Ctrl-C, SIGTERM, SIGHUP) or a lost cluster: one line saying how many cells finished and where
     they are kept, the command that goes on with them; exits."""
-    kept = f"; {journal.kept()}; go on with: {resume_command()}" if journal is not None else ""
+    lost = isinstance(stop, executor.StudyLost)
     if journal is not None:
-        journal.end_session("lost" if isinstance(stop, StudyLost) else "interrupted")
-    if isinstance(stop, StudyLost):
-        typer.echo(f"error: {stop}; {finished} of {total} cells finished{kept}", err=True)
-        raise typer.Exit(1)
-    typer.echo(f"interrupted after {finished} of {total} cells{kept}", err=True)
-    raise typer.Exit(128 + getattr(stop, "signum", signal.SIGINT))  # 130 Ctrl-C, 143 SIGTERM, 129 SIGHUP
+        journal.end_session("lost" if lost else "interrupted")
+    kept = f"; {journal.kept()}; go on with: {resume_command()}" if journal is not None else ""
+    typer.echo(f"error: {stop}; {finished} of {total} cells finished{kept}" if lost else
+               f"interrupted after {finished} of {total} cells{kept}", err=True)  # fmt: skip
+    raise typer.Exit(1 if lost else 128 + getattr(stop, "signum", signal.SIGINT))  # 130 Ctrl-C, 143 SIGTERM
 
 
 def learning_summary(posterior: ParameterPosterior, chain: Any, filter_name: str) -> dict[str, Any]:
@@ -329,8 +308,13 @@ def learning_summary(posterior: ParameterPosterior, chain: Any, filter_name: str
 
 
 def parameter_grid(sigma_range: str, delta_range: str, cells: int) -> ParameterGrid:
-    """The ParameterGrid of --sigma-range, --delta-range and --cells, or one line naming them."""
-    ranges = parsed_range(sigma_range, "--sigma-range"), parsed_range(delta_range, "--delta-range")
+    """The ParameterGrid of --sigma-range, --delta-range ('0.2,0.8': LOW,HIGH) and --cells, or one line."""
+    ranges = []
+    for text, option in ((sigma_range, "--sigma-range"), (delta_range, "--delta-range")):
+        values = parse_list(text, float, option)
+        if values is None or len(values) != 2:
+            raise UserError(f"{option} takes LOW,HIGH (two numbers), got {text!r}")
+        ranges.append(tuple(values))
     try:
         return ParameterGrid(*ranges, (cells, cells))
     except ValueError as error:
@@ -363,14 +347,6 @@ def chain_recording(posterior: ParameterPosterior, chain: Any, world: Any, path:
         dot = rr.Points2D([state], radii=half_width / 8, colors=ROBOT_COLOR if i > chain.burn_in else (255, 160, 0))
         recording.stream.log("/posterior/chain", dot)
     recording.close()
-
-
-def parsed_range(text: str, option: str) -> tuple[float, float]:
-    """'0.2,0.8' -> (0.2, 0.8), or one line naming the option."""
-    values = parse_list(text, float, option)
-    if values is None or len(values) != 2:
-        raise UserError(f"{option} takes LOW,HIGH (two numbers), got {text!r}")
-    return values[0], values[1]
 
 
 def posterior_cells(mean: np.ndarray, interval: np.ndarray) -> list[str]:
@@ -407,7 +383,8 @@ def opened(scenario: Path, csv_path: Path | None, plot: Path | None, record: Pat
     from mazelab.scenario import find_scenario, load_scenario  # imported by the commands that read one (a study never)
 
     record_file = record if record is not None else record_path(csv_path) if csv_path is not None else None
-    check_one_file_each([("--csv", csv_path), ("--plot", plot), ("the record", record_file), ("--rrd", rrd)])
+    named = [("--csv", csv_path), ("--csv's journal", journal_path(csv_path) if csv_path else None), ("--plot", plot)]
+    check_one_file_each([*named, ("the record", record_file), ("--rrd", rrd)])  # learn's journal: smooth's too
     for output in (csv_path, plot, record_file, rrd):
         if output is not None:
             check_output_path(output, force)
@@ -426,7 +403,7 @@ def world_of(stored: Scenario, path: Path) -> tuple[Any, float, float]:
     return setup.world, setup.sigma, setup.delta
 
 
-def finish(recorder: Recorder, record_file: Path | None, force: bool, **extra: Any) -> None:
+def finish(recorder: Recorder, record_file: Path | None, **extra: Any) -> None:
     """Close the record and write it (when there is a file for it)."""
     if record_file is not None:
         recorder.finish("finished", **extra)
