@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from mazelab.checks import check_seed, finite_number, step_number
-from mazelab.grid_filter import GridBayesFilter
+from mazelab.grid_filter import GridBayesFilter, check_grid_memory
 from mazelab.limits import check_particles
 from mazelab.maze import Maze
 from mazelab.model import LAB_DELTA_RANGE, LAB_SIGMA_RANGE, check_model_parameters
@@ -217,6 +217,8 @@ def exact_parameter_posterior(world: Maze, compass_angles: Sequence[float], meas
     """
     grid = ParameterGrid() if grid is None else grid
     angles, zs = check_walk(compass_angles, measurements)
+    resolved = GridBayesFilter.options.resolve(grid_options, "GridBayesFilter")  # checked here, not in each cell
+    check_grid_memory(world.width, world.height, resolved["resolution"], resolved["margin"])
     cell = functools.partial(grid_log_evidence, world, angles.tolist(), zs.tolist(), **grid_options)
     log_evidence = np.array(list(mapper(cell, *grid.values())), dtype=float)
     return ParameterPosterior(grid, log_evidence.reshape(grid.cells))

@@ -105,6 +105,7 @@ def test_learn_writes_the_exact_posterior_and_the_chain(scenario, tmp_path, caps
         (["smooth", "{s}", "--csv", "{s}"], "exists"),
         (["smooth", "{s}", "--filters", "sir", "--option", "bandwidth=0.05"], "does not take --option bandwidth"),
         (["learn", "{s}", "--resume"], "--resume: no journal of the cells beside"),
+        (["learn", "{s}", "--resolution", "0.0001", "--workers", "2"], "cells (resolution 0.0001) needs about"),
         (["learn", "{s}", "--dask", "tcp://127.0.0.1:1"], "cannot reach the Dask scheduler"),
     ],
 )

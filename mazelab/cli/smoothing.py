@@ -187,10 +187,8 @@ def learn(scenario: Scenario_, sigma_range: SigmaRange = SIGMA_RANGE, delta_rang
     walk = stored.robot_compass_angles, stored.robot_measurements
     cells_map = functools.partial(run_cells, cells_journal(csv_path, resume, force, recorder), workers, dask)
     posterior = exact_parameter_posterior(world, *walk, grid, mapper=cells_map, resolution=resolution)
-    chain = None
-    if pmmh_iterations:
-        chain = pmmh(world, *walk, pmmh_iterations, filter_name=filter_name, particle_count=particles, prior=grid,
-                     burn_in=pmmh_iterations // 10, seed=seed)  # fmt: skip
+    chain = pmmh(world, *walk, pmmh_iterations, filter_name=filter_name, particle_count=particles, prior=grid,
+                 burn_in=pmmh_iterations // 10, seed=seed) if pmmh_iterations else None  # fmt: skip
     summary = learning_summary(posterior, chain, filter_name)
     if outputs["csv"] is not None:
         write_text_atomically(outputs["csv"], posterior_csv(posterior), replace=force or resume)
