@@ -65,8 +65,7 @@ def smooth(scenario: Scenario_, filters: ParticleFilters = "sir,apf,rpf", lag: L
     """Where the robot was at each step given every measurement: the exact smoother on the grid, and each
     filter's own estimate, fixed-lag and path smoothers scored against it step by step (the distance of
     their means to the exact smoothed mean, the total variation over the maze's cells, the distinct
-    ancestors each rests on: the path degeneracy). Each filter takes the options it declares (--option
-    NAME=VALUE; `mazelab filters` lists them)."""
+    ancestors each rests on: the path degeneracy). Each filter takes the options it declares."""
     path, stored, outputs = opened(scenario, csv_path, plot, record, force, rrd)
     names = [filter_entry(name).short_name for name in parse_filters(filters)]
     given = given_options(named or {}, option, names)
