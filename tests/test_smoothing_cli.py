@@ -182,11 +182,14 @@ def test_learn_goes_on_from_its_journal_and_refuses_a_changed_input(scenario, tm
     journal = tmp_path / "cut.runs.jsonl"
     lines = journal.read_text().splitlines()
     assert [json.loads(line)["cell"] for line in lines[1:10]] == list(range(9))
-    kept = [lines[0], json.dumps({"cell": 0, "log_evidence": -123.0}), *lines[2:5], lines[5][:12]]
-    journal.write_text("\n".join(kept))
     cut.unlink()
     (tmp_path / "cut.record.json").unlink()  # what a killed command leaves: its journal alone
+    journal.write_text(f'{lines[0]}\n{{"cell": "first", "log_evidence": 1}}\n')
     capsys.readouterr()
+    assert main(["learn", str(scenario), *LEARN, "--csv", str(cut), "--resume"]) == 2
+    assert "holds a line that is not a cell's" in capsys.readouterr().err
+    kept = [lines[0], json.dumps({"cell": 0, "log_evidence": -123.0}), *lines[2:5], lines[5][:12]]
+    journal.write_text("\n".join(kept))
     assert main(["learn", str(scenario), *LEARN, "--resolution", "0.1", "--csv", str(cut), "--resume"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--resume: the command differs from" in err and "resolution: 0.2 -> 0.1" in err

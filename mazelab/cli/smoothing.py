@@ -66,13 +66,12 @@ def smooth(scenario: Scenario_, filters: ParticleFilters = "sir,apf,rpf", lag: L
     filter's own estimate, fixed-lag and path smoothers scored against it step by step (the distance of
     their means to the exact smoothed mean, the total variation over the maze's cells, the distinct
     ancestors each rests on: the path degeneracy). Each filter takes the options it declares."""
-    path, stored, outputs = opened(scenario, csv_path, plot, record, force, rrd)
+    path, stored, outputs, (world, sigma, delta) = opened(scenario, csv_path, plot, record, force, rrd)
     names = [filter_entry(name).short_name for name in parse_filters(filters)]
     given = given_options(named or {}, option, names)
     per_filter = options_per_filter(names, given, given.spelled)  # an option none of them takes: one line
     options = {name: per_filter[filter_entry(name).name] for name in names}
     seed = seed if seed is not None else stored.seed if stored.seed is not None else 0
-    world, sigma, delta = world_of(stored, path)
     parameters = {"scenario": str(path), "filters": names, "lag": lag, "resolution": resolution, "seed": seed,
                   "sigma": sigma, "delta": delta, "options": options}  # fmt: skip
     recorder = Recorder("smooth", command_line(), parameters, scenario_sha256=file_sha256(path))
@@ -174,11 +173,10 @@ def learn(scenario: Scenario_, sigma_range: SigmaRange = SIGMA_RANGE, delta_rang
     under the uniform prior on the ranges (the grid filter's exact evidence at each, spread over --workers
     processes or a --dask cluster, each finished cell kept in a journal beside --csv that --resume goes on
     from), and a PMMH chain (--pmmh) with a particle filter's evidence beside it."""
-    path, stored, outputs = opened(scenario, csv_path, plot, record, force or resume, rrd)
+    path, stored, outputs, (world, _, _) = opened(scenario, csv_path, plot, record, force or resume, rrd)
     grid = parameter_grid(sigma_range, delta_range, cells)
     if pmmh_iterations:
         evidence_filter(filter_name)  # a filter PMMH cannot use: one line before the exact posterior's runs
-    world, _, _ = world_of(stored, path)
     parameters = {"scenario": str(path), "sigma_range": grid.sigma_range, "delta_range": grid.delta_range,
                   "cells": cells, "resolution": resolution, "pmmh": pmmh_iterations, "filter": filter_name,
                   "particles": particles, "seed": seed}  # fmt: skip
@@ -220,7 +218,10 @@ def cells_journal(csv_path: Path | None, resume: bool, force: bool, recorder: Re
         if changed:
             raise UserError(f"--resume: the command differs from {file} ({changed[0]}); give the same parameters, "
                             "or --force to start again")  # fmt: skip
-        done = {int(line["cell"]): float(line["log_evidence"]) for line in lines if "cell" in line}
+        try:
+            done = {int(line["cell"]): float(line["log_evidence"]) for line in lines if "cell" in line}
+        except (KeyError, TypeError, ValueError) as error:
+            raise UserError(f"--resume: {file} holds a line that is not a cell's ({error!r})") from None
         typer.echo(f"resuming: {len(done)} cell(s) kept from {file}")
     journal = Journal(file, adopt=resume, replace=force)
     journal.write({"session": {"command": recorder.data["command"], "started": recorder.data["started"],
@@ -374,9 +375,11 @@ def posterior_figure(posterior: Any, chain: Any, title: str) -> Any:
 
 
 def opened(scenario: Path, csv_path: Path | None, plot: Path | None, record: Path | None, force: bool,
-           rrd: Path | None = None) -> tuple[Path, Scenario, dict[str, Path | None]]:  # fmt: skip
-    """The scenario (a file or a shipped name) with its measurements, and the outputs checked before any
-    work: distinct files, none replaced without --force, the record beside --csv by default."""
+           rrd: Path | None) -> tuple[Path, Scenario, dict[str, Path | None], tuple[Any, float, float]]:  # fmt: skip
+    """The scenario (a file or a shipped name) with its measurements, the outputs checked before any work
+    (distinct files, none replaced without --force, the record beside --csv by default), and the scenario's
+    maze (the shipped one it fits when it stores none), sigma and delta."""
+    from mazelab.cli.replay import replay_setup
     from mazelab.scenario import find_scenario, load_scenario  # imported by the commands that read one (a study never)
 
     record_file = record if record is not None else record_path(csv_path) if csv_path is not None else None
@@ -389,15 +392,8 @@ def opened(scenario: Path, csv_path: Path | None, plot: Path | None, record: Pat
     stored = load_scenario(path)
     if stored.robot_measurements is None:
         raise UserError(f"{path} stores no measurements (robot_measurements): save a run's scenario with them")
-    return path, stored, {"csv": csv_path, "record": record_file}
-
-
-def world_of(stored: Scenario, path: Path) -> tuple[Any, float, float]:
-    """The scenario's maze, sigma and delta (the shipped maze it fits when it stores none)."""
-    from mazelab.cli.replay import replay_setup
-
     setup = replay_setup(stored, None, None, None, 0)
-    return setup.world, setup.sigma, setup.delta
+    return path, stored, {"csv": csv_path, "record": record_file}, (setup.world, setup.sigma, setup.delta)
 
 
 def finish(recorder: Recorder, record_file: Path | None, **extra: Any) -> None:
