@@ -204,7 +204,8 @@ def test_learn_goes_on_from_its_journal_and_refuses_a_changed_input(scenario, tm
     assert len(sessions) == 2
 
 
-def test_ctrl_c_keeps_the_finished_cells_and_resume_finishes_them(scenario, tmp_path, capsys):
+@pytest.mark.parametrize(("stop", "code"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_a_stop_keeps_the_finished_cells_and_resume_finishes_them(scenario, tmp_path, capsys, stop, code):
     table = tmp_path / "l.csv"
     journal = tmp_path / "l.runs.jsonl"
     argv = ["learn", str(scenario), "--cells", "20", "--resolution", "0.1", "--csv", str(table)]
@@ -214,9 +215,9 @@ def test_ctrl_c_keeps_the_finished_cells_and_resume_finishes_them(scenario, tmp_
     deadline = time.monotonic() + 60
     while (not journal.exists() or journal.read_text().count('"cell"') < 3) and time.monotonic() < deadline:
         time.sleep(0.05)
-    os.killpg(process.pid, signal.SIGINT)
+    os.killpg(process.pid, stop)
     _, err = process.communicate(timeout=60)
-    assert process.returncode == 130 and "interrupted after" in err and "--resume" in err, err
+    assert process.returncode == code and "interrupted after" in err and "--resume" in err, err
     done = journal.read_text().count('"cell"')
     assert 3 <= done < 400 and not table.exists()
     assert main([*argv, "--resume"]) == 0
