@@ -7,9 +7,10 @@ run on each count (the estimates of every step compared bit for bit).
 
 A round times `steps` steps of a fresh filter (mazelab.bench.filter_stepper: the step and the reads
 `simulate` makes) on the bench's walk on the 10 x 10 maze, after warm-up steps; a figure is the median
-over the rounds of each round's median step. CPU time is the process's (every thread's). The speed-up
-is 1 thread's time over the others'. The machine's load average is printed before and after: on a
-machine shared with other work, a thread speed-up reads low (the second core is not free).
+over the rounds of each round's median step (CPU: of each round's mean step, the process's CPU, every
+thread's; spinning threads count). The speed-up is 1 thread's time over the others'. The machine's load
+average is printed before and after: on a machine shared with other work, a thread speed-up reads low
+(the second core is not free).
 """
 
 from __future__ import annotations
@@ -28,17 +29,20 @@ from mazelab.registry import resolve_filter
 
 
 def timed_round(name: str, world: Maze, particles: int, threads: int, walk: list, warmup: int) -> tuple:
-    """(median wall s, median CPU s) of one fresh filter's steps on `threads` threads."""
+    """(median wall s, mean CPU s) of one fresh filter's steps on `threads` threads: the CPU over all
+    the timed steps (the system counts a running thread's CPU at its clock ticks, so one step's would
+    leave out the other threads')."""
     with use_threads(threads):
         step = filter_stepper(name, world, particles, backend="compiled")
-    walls, cpus = [], []
+    walls = []
     for k, (compass_angle, z) in enumerate(walk):
-        wall, cpu = time.perf_counter(), time.process_time()
+        if k == warmup:
+            cpu = time.process_time()
+        wall = time.perf_counter()
         step(compass_angle, z)
         if k >= warmup:
             walls.append(time.perf_counter() - wall)
-            cpus.append(time.process_time() - cpu)
-    return statistics.median(walls), statistics.median(cpus)
+    return statistics.median(walls), (time.process_time() - cpu) / len(walls)
 
 
 def estimates(name: str, world: Maze, particles: int, threads: int, walk: list) -> np.ndarray:

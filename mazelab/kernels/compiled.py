@@ -25,9 +25,9 @@ from mazelab.regularisation import GaussianKernel
 from mazelab.smc import new_particles, particles_array
 from mazelab.weights import Weights, log_sum_exp, read_only
 
-# particles in a call from which it runs on the threads: on an idle 2-core machine 2 threads were slower
-# than 1 up to 250,000 particles and faster from 500,000 (benchmarks/threads.py, docs/speed.md)
-THREADED_FROM = 1 << 19
+# particles in a call from which it runs on the threads (benchmarks/threads.py, docs/speed.md): a pass over
+# fewer takes under 0.1 ms, where a second thread's start (TBB: microseconds) and the Python around it count
+THREADED_FROM = 1 << 16
 QUADS = 4  # the candidates of a lookup cell the likelihood's vectorised loop reads (a few cells have more)
 
 
