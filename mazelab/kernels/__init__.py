@@ -64,8 +64,9 @@ def threading_layer() -> str:
     return "workqueue"
 
 
+_LAYER = threading_layer()  # TBB's library loaded where it is installed, for a user's choice of "tbb" too
 if "NUMBA_THREADING_LAYER" not in os.environ:  # the user's choice stands
-    numba.config.THREADING_LAYER = threading_layer()
+    numba.config.THREADING_LAYER = _LAYER
 
 _warned: set[str] = set()
 
