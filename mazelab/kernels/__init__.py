@@ -15,17 +15,13 @@ vector_math.random_bits) and the order of every sum (partial sums per chunk, add
 so a seed gives the same run bit for bit on any number of threads, and R runs together are R single
 runs. numba's threads come from Intel's TBB where it is installed, else numba's workqueue
 (`threading_layer`); a kernel called while another thread's runs on them runs in order instead (the
-same values: the workqueue takes one launch at a time). A kernel's arrays never
-overlap (each output is a new array), and the compiler is told so (LLVM's noalias): only then does it
-vectorise the loops that gather (the lookup table, the ancestors).
+same values). A kernel's arrays never overlap (each output is a new array), and the compiler is told
+so (`_NoAliasCompiler`): only then does it vectorise the loops that gather.
 
 Importing this package imports numba, and a process's first kernel call sets numba's compiler up even
 when the kernel comes from the cache (about 0.35 s of CPU); a command whose work does not pay that back
 runs on numpy (mazelab.backend.backend_for_work). Each kernel is compiled on its first call and cached
-on disk (numba's cache: `__pycache__` beside these files, else NUMBA_CACHE_DIR, else the user's cache
-folder); where none can be written, in memory in each process, with one warning. A damaged cache file
-is compiled over; a cache folder that cannot take the file (a full disk, a read-only mount) leaves the
-kernel compiled in memory, with one warning naming the folder and the way out.
+on disk where a cache folder can be written (`_compiled`, `_MendingCache`).
 """
 
 from __future__ import annotations

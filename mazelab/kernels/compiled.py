@@ -4,10 +4,8 @@ builds, keeps W in float32 and the reads its normalisation makes in the same pas
 posterior mean and the weight within the green circle around it). Anything the kernels do not cover
 (float64 points such as recovery's injected draws, the multimodal kernel) goes to the numpy operations.
 
-A call of THREADED_FROM particles or more (R x N: all runs together) runs on the filter's `threads`
-(mazelab.backend.thread_count), a smaller one on the calling thread, where starting the threads would
-cost more than they save: the same values either way (mazelab.kernels). The move's and the jitter's
-random draws are the kernels' own, from one 64-bit key a run and call drawn from the run's Generator.
+A call runs on the filter's threads from THREADED_FROM particles on (`on_threads`); the move's and the
+jitter's draws are the kernels' own, from one 64-bit key a run and call drawn from its Generator.
 """
 
 from __future__ import annotations
