@@ -197,6 +197,10 @@ def test_systematic_resampling_gives_the_textbook_ancestors_for_the_same_cumulat
         np.testing.assert_array_equal(counted, systematic_resample(dyadic, np.random.default_rng(seed)))
     assert not np.isin(one.systematic(weights[1], rng), np.arange(0, size, 3)).any()
     assert (one.systematic(weights[3], rng) == 17).all()
+    alone = [one.systematic(row, np.random.default_rng(seed)) for seed, row in enumerate(weights)]
+    for kernels in (one, two):  # the rows in one call, a Generator each: each row's ancestors as alone
+        rngs = [np.random.default_rng(seed) for seed in range(len(weights))]
+        np.testing.assert_array_equal(kernels.systematic(weights, rngs), alone)
     row = np.full(8, 1 / 8)  # a point exactly on a boundary: u = 0 puts u_m = m / 8 on c_m
     offset = type("Zero", (), {"random": lambda self: 0.0})()
     np.testing.assert_array_equal(one.systematic(row, offset), systematic_resample(row, offset))
