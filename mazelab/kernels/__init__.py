@@ -54,9 +54,10 @@ def threading_layer() -> str:
     the library in the environment's lib folder, which the loader does not search: it is loaded here by
     its path first, so that numba finds it."""
     for path in (Path(sys.prefix) / "lib" / "libtbb.so.12", "libtbb.so.12"):
-        with contextlib.suppress(OSError):
-            ctypes.CDLL(str(path), mode=ctypes.RTLD_GLOBAL)
-            return "tbb"
+        with contextlib.suppress(OSError, AttributeError):
+            library = ctypes.CDLL(str(path), mode=ctypes.RTLD_GLOBAL)
+            if library.TBB_runtime_interface_version() >= 12060:  # numba takes 2021.6 and later
+                return "tbb"
     return "workqueue"
 
 
