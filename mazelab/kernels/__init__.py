@@ -48,8 +48,8 @@ def threading_layer() -> str:
     """numba's threading layer for the kernels: "tbb" where Intel's TBB library loads, else "workqueue".
 
     TBB's threads take the chunks of a call as they come (the calling thread too), wake within
-    microseconds and never wait for a thread the system has paused; numba's workqueue wakes its sleeping
-    threads for every call (about 100 us on a virtual machine: more than a pass over 10^5 particles
+    microseconds and leave a paused thread at most the chunk it holds; numba's workqueue wakes its sleeping
+    threads for every call (some 130 us on a virtual machine: more than a pass over 10^5 particles
     saves) and waits for the slowest. Both work after a fork. The `tbb` package (the fast extra) puts
     the library in the environment's lib folder, which the loader does not search: it is loaded here by
     its path first, so that numba finds it."""
