@@ -34,45 +34,14 @@ from pathlib import Path
 from mazelab import __version__
 from mazelab.exercise.kit import PACKAGE_DIR
 from mazelab.exercise.sandbox import DEFAULT_BUDGET
+from mazelab.exercise.template import TEMPLATES
 
 ROOT = PACKAGE_DIR.parent
 LAB_FILES = ("pyproject.toml", "uv.lock", "README.md", "MANIFEST.in", "main.py", "draw.py", "particle_filter.py")
 DISTRIBUTION = "maze-particle-filter-lab"
-LAB_FOLDERS = {"mazelab": ("*.py", "*.po"), "mazes": ("*.txt",), "model_parameters": ("*.json",)}
-SETUP = """#!/usr/bin/env bash
-# Gradescope's image: bubblewrap (the sandbox each submission is graded in), uv, and mazelab {version}
-# (source sha256 {digest}) with its locked dependencies, from the lab/ folder of this bundle.
-set -euo pipefail
-export DEBIAN_FRONTEND=noninteractive
-apt-get update -qq
-apt-get install -y -qq bubblewrap python3 python3-pip python3-venv ca-certificates >/dev/null
-python3 -m pip install --quiet --break-system-packages uv 2>/dev/null || python3 -m pip install --quiet uv
-cd /autograder/source/lab
-if [ -f uv.lock ]; then
-    python3 -m uv sync --frozen --no-dev
-else
-    python3 -m uv venv --python ">=3.11" && python3 -m uv pip install --python .venv/bin/python -r requirements.txt .
-fi
-.venv/bin/mazelab exercise --help >/dev/null
-"""
-RUN = """#!/usr/bin/env bash
-# Gradescope runs this for each submission: the check of my_filter.py, its results.json where Gradescope
-# reads it (a 0 with the reason when the file cannot be checked). Made by mazelab {version}.
-set -uo pipefail
-here="$(cd "$(dirname "$0")" && pwd)"
-root="${{MAZELAB_AUTOGRADER_ROOT:-/autograder}}"
-read -r -a mazelab <<< "${{MAZELAB_COMMAND:-$root/source/lab/.venv/bin/mazelab}}"
-mkdir -p "$root/results"
-rm -f "$root/results/results.json"
-"${{mazelab[@]}}" exercise check "$root/submission/my_filter.py" --gradescope "$root/results" --force \\
-    --key "$here/grading.key" --timeout {timeout} {options}
-code=$?
-if [ ! -s "$root/results/results.json" ]; then
-    printf '{{"score": 0.0, "output": "the autograder could not check my_filter.py (exit code %s)", "tests": []}}\\n' \\
-        "$code" > "$root/results/results.json"
-fi
-exit 0
-"""
+LAB_FOLDERS = {"mazelab": ("*.py", "*.po", "*.txt"), "mazes": ("*.txt",), "model_parameters": ("*.json",)}
+SETUP = (TEMPLATES / "setup.sh.txt").read_text()  # str.format fields: version, digest
+RUN = (TEMPLATES / "run_autograder.txt").read_text()  # version, timeout, options
 
 
 class BundleError(ValueError):
