@@ -17,10 +17,9 @@ import typer
 from mazelab.atomic import write_bytes_atomically, write_text_atomically
 from mazelab.backend import use_threads
 from mazelab.cli.options import UserError, check_output_path, seed_option
-from mazelab.exercise.autograder import BundleError, bundle_bytes
+from mazelab.exercise.autograder import bundle_bytes
 from mazelab.exercise.grading import (
     KEY_FILE,
-    ClaimError,
     Gradebook,
     Graded,
     GradingInterruptedError,
@@ -110,7 +109,7 @@ def check_command(
     catalogue = _catalogue(lang, split_spec(spec)[0])
     if seed is not None and key is not None:
         raise UserError("--seed and --key: give one (a seed repeats a report, the key draws secret inputs)")
-    secret = _key(key, make=False) if key is not None else None
+    secret = read_key(key, make=False) if key is not None else None  # a ClaimError is one line, exit 2
     results = _results_file(gradescope, force)
     _sandbox_or_refuse(require_sandbox)
     started = time.perf_counter()
@@ -148,13 +147,6 @@ def _catalogue(lang: str | None, file: Path | None = None) -> Catalogue:
         return catalogue_for(lang, file)
     except ValueError as error:
         raise UserError(f"--lang {lang}: {error}") from None
-
-
-def _key(path: Path, make: bool = True) -> bytes:
-    try:
-        return read_key(path, make)
-    except ClaimError as error:
-        raise UserError(str(error)) from None
 
 
 def _sandbox_or_refuse(required: bool) -> None:
@@ -209,7 +201,7 @@ def grade_command(
     keyfile = key or next((p.parent / KEY_FILE if o == "--csv" else p / KEY_FILE for p, o in outputs), None)
     _check_outputs(folder, submissions, [*outputs, *([(keyfile, "--key")] if keyfile else [])], force)
     _sandbox_or_refuse(require_sandbox)
-    secret = _key(keyfile) if keyfile else secrets.token_bytes(32)
+    secret = read_key(keyfile) if keyfile else secrets.token_bytes(32)
     book, started = Gradebook(csv_path, gradescope, force, catalogue), time.perf_counter()
     grade = functools.partial(grade_folder, submissions, key=secret, timeout=timeout, jobs=jobs)
     stopped_by = _grade_into(book, grade, outputs, len(submissions), quiet)
@@ -247,8 +239,6 @@ def _grade_into(book: Gradebook, grade: Callable[..., None], outputs: list[tuple
                 return stop.number or signal.SIGINT
     except SandboxError as error:
         raise UserError(f"{error}; grading stopped, nobody graded by it") from None
-    except ClaimError as error:
-        raise UserError(str(error)) from None
     return None
 
 
@@ -256,10 +246,7 @@ def _check_outputs(folder: Path, submissions: list[Submission], outputs: list[tu
     """Refuse, before any grading, an output or the key inside the class folder, an existing output
     without --force, and a --csv that a submission's results.json folder would take."""
     for path, option in outputs:
-        try:
-            check_outside(path, folder, option)
-        except ClaimError as error:
-            raise UserError(str(error)) from None
+        check_outside(path, folder, option)
     named = dict((option, path) for path, option in outputs)
     gradescope, csv_path = named.get("--gradescope"), named.get("--csv")
     if gradescope is not None:
@@ -296,12 +283,9 @@ def autograder_command(
         raise UserError(f"{bundle}: the bundle is a .zip file (OUT.zip)")
     if lang is not None:
         _catalogue(lang)
-    secret = _key(key, make=False) if key is not None else secrets.token_bytes(32)
+    secret = read_key(key, make=False) if key is not None else secrets.token_bytes(32)
     check_output_path(bundle, force)
-    try:
-        data = bundle_bytes(secret, lang, timeout)
-    except BundleError as error:
-        raise UserError(str(error)) from None
+    data = bundle_bytes(secret, lang, timeout)  # a BundleError is one line, exit 2
     typer.echo(f"wrote {write_bytes_atomically(bundle, data, replace=force)} (upload it as the autograder)")
 
 

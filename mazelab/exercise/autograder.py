@@ -1,23 +1,8 @@
-"""Gradescope's autograder bundle: `mazelab exercise autograder OUT.zip`.
-
-Gradescope unpacks the zip into /autograder/source, runs `setup.sh` once to build its image, then
-`run_autograder` for each submission, with the student's files in /autograder/submission, and reads
-/autograder/results/results.json. The bundle holds:
-
-- `lab/`: this lab's source as it is now (the package, the shipped mazes, pyproject.toml, and uv.lock,
-  or where it was installed without uv, `requirements.txt`: the exact versions of its dependencies
-  installed here), so that the image grades with exactly the version that made the bundle;
-- `grading.key`: the grader's secret key, from which each submission's inputs are drawn (keyed with
-  its files): only run_autograder reads it, the student's sandbox never holds it;
-- `setup.sh`: bubblewrap (each submission's sandbox), uv, and the lab with its pinned dependencies
-  in lab/.venv (`uv sync --frozen --no-dev`, or `uv pip install -r requirements.txt`);
-- `run_autograder`: `mazelab exercise check /autograder/submission/my_filter.py --key grading.key
-  --gradescope /autograder/results` (with the instructor's language if given), and a results.json of
-  score 0 saying why if the check wrote none.
-
+"""Gradescope's autograder bundle, `mazelab exercise autograder OUT.zip` (docs/exercise.md, "On
+Gradescope"): `lab/` (this lab's source, and uv.lock or the pinned `requirements.txt`), `grading.key`
+(read only by run_autograder, never by the sandbox), `setup.sh` and `run_autograder` (templates/).
 `MAZELAB_AUTOGRADER_ROOT` (default /autograder) and `MAZELAB_COMMAND` (default the lab's own
-`.venv/bin/mazelab`) let `run_autograder` run in a simulated tree against any installed lab: the
-tests run it so, on this checkout.
+`.venv/bin/mazelab`) let `run_autograder` run in a simulated tree: the tests run it so, on this checkout.
 """
 
 from __future__ import annotations

@@ -1,12 +1,6 @@
-"""The student kit: the only lab code a submission's sandbox holds.
-
-A graded submission runs where the lab is not installed (mazelab.exercise.sandbox): it sees Python,
-numpy, its own file and this kit, a folder the grader builds from the list below. The kit carries
-StudentFilter and what it imports (the step's wiring, the maze's geometry the exercise allows, the
-model's constants) and the child's side of the grading (mazelab.exercise.child); never an
-implementation of a graded part: not the model's transition or likelihood, not a resampling scheme,
-not the weighted mean, not the shipped filters, the grid filter or the grader. There is nothing to
-delegate to, copy or exec.
+"""The student kit: the only lab code a submission's sandbox holds (docs/exercise.md, "The kit"):
+StudentFilter and what it imports, and the child's side of the grading; never an implementation of a
+graded part, the shipped filters, the grid filter or the grader.
 
 `KIT` is the one list to extend when StudentFilter imports a new module: an entry is a module copied
 whole (`WHOLE`), only its constants (`CONSTANTS`: their values, written as literals), or only the
@@ -39,6 +33,7 @@ KIT: dict[str, str | tuple[str, ...]] = {
     "mazelab.model": CONSTANTS,  # the same constants as the model re-exports them: never the transition or likelihood
     "mazelab.smc": WHOLE,  # the step: it calls the model object and the scheme it is given (the student's parts)
     # the weights' value and normalisation, not weighted_mean (the estimate is a graded part)
+    "mazelab.stops": ("describe_exit",),  # what the student's code did when it exits (the child's words)
     "mazelab.weights": ("Weights", "read_only", "log_sum_exp", "effective_sample_size", "mass_within"),
     "mazelab.exercise": WHOLE,
     "mazelab.exercise.student": WHOLE,
