@@ -10,6 +10,7 @@ import signal
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Annotated
 
 import typer
@@ -35,7 +36,7 @@ from mazelab.exercise.grading import (
 )
 from mazelab.exercise.language import Catalogue, catalogue_for
 from mazelab.exercise.report import NotGradableError, check_file, format_report
-from mazelab.exercise.sandbox import DEFAULT_BUDGET, MAX_TIMEOUT, SandboxError, require_sandbox
+from mazelab.exercise.sandbox import DEFAULT_BUDGET, MAX_TIMEOUT, SandboxError, sandbox
 from mazelab.exercise.template import write_exercise
 from mazelab.invocation import python_prefix
 from mazelab.plugins import is_plugin_spec, split_spec
@@ -150,11 +151,9 @@ def _catalogue(lang: str | None, file: Path | None = None) -> Catalogue:
 
 
 def _sandbox_or_refuse(required: bool) -> None:
-    if required:
-        try:
-            require_sandbox()
-        except RuntimeError as error:
-            raise UserError(str(error)) from None
+    """--require-sandbox: one line saying why where no sandbox can be made."""
+    if required and not sandbox().sandboxed:
+        raise UserError(f"--require-sandbox: {sandbox().why}")
 
 
 def _made_folder(folder: Path) -> Path:
@@ -289,17 +288,12 @@ def autograder_command(
     typer.echo(f"wrote {write_bytes_atomically(bundle, data, replace=force)} (upload it as the autograder)")
 
 
-class _Stop:
-    """The signal that stopped the grading (None: none yet)."""
-
-    number: int | None = None
-
-
 @contextlib.contextmanager
-def _stop_signals() -> Iterator[_Stop]:
+def _stop_signals() -> Iterator[SimpleNamespace]:
     """SIGTERM and SIGHUP stop the grading as Ctrl-C does (the main thread's wait is interrupted, every
-    sandbox ended, what was graded kept); a second one while stopping changes nothing."""
-    stop = _Stop()
+    sandbox ended, what was graded kept); a second one while stopping changes nothing. Yields where the
+    signal that stopped it is noted (`number`, None: none yet)."""
+    stop = SimpleNamespace(number=None)
 
     def handler(number: int, frame: object) -> None:
         if stop.number is None:

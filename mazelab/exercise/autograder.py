@@ -65,18 +65,13 @@ def pinned_requirements() -> str:
     return "\n".join(sorted(lines)) + "\n"
 
 
-def run_script(lang: str | None = None, timeout: float = DEFAULT_BUDGET) -> str:
-    """run_autograder's text (the instructor's language and time budget baked in)."""
-    options = shlex.join(["--lang", lang] if lang else [])
-    return RUN.format(version=__version__, timeout=f"{timeout:g}", options=options).replace(" \n", "\n")
-
-
 def bundle_bytes(key: bytes, lang: str | None = None, timeout: float = DEFAULT_BUDGET) -> bytes:
-    """The zip: setup.sh and run_autograder (executable) and the key at its top, the lab's source under lab/."""
-    files = lab_files()
+    """The zip: setup.sh and run_autograder (executable, the instructor's language and time budget baked
+    in) and the key at its top, the lab's source under lab/."""
+    files, options = lab_files(), shlex.join(["--lang", lang] if lang else [])
     texts = {
         "setup.sh": SETUP.format(version=__version__, digest=source_digest(files)),
-        "run_autograder": run_script(lang, timeout),
+        "run_autograder": RUN.format(version=__version__, timeout=f"{timeout:g}", options=options).replace(" \n", "\n"),
         "grading.key": key.hex() + "\n",
     }
     texts |= {f"lab/{n.as_posix()}": (ROOT / n).read_bytes() for n in files}

@@ -18,6 +18,7 @@ from pathlib import Path
 
 WHOLE = "whole"
 CONSTANTS = "constants"
+PLAIN = (bool, int, float, str)  # the values a constant may hold (a tuple of them too)
 PACKAGE_DIR = Path(__file__).resolve().parents[1]  # mazelab/
 KIT: dict[str, str | tuple[str, ...]] = {
     "mazelab": CONSTANTS,  # the package's __init__: its version only (the real one reaches the studies)
@@ -84,15 +85,10 @@ def constants_text(module: str) -> str:
     lines = [f'"""The constants of {module}, as the student kit carries them."""', ""]
     for name, value in vars(loaded).items():
         upper = name.isupper() and not name.startswith("_") and name != "TYPE_CHECKING"
-        if (name == "__version__" or upper) and _literal(value):
+        literal = isinstance(value, PLAIN) or (isinstance(value, tuple) and all(isinstance(v, PLAIN) for v in value))
+        if (name == "__version__" or upper) and literal:  # a repr that reads back as the same value
             lines.append(f"{name} = {value!r}")
     return "\n".join(lines) + "\n"
-
-
-def _literal(value: object) -> bool:
-    """Whether `value`'s repr is a literal that reads back as the same value."""
-    plain = (bool, int, float, str)
-    return isinstance(value, plain) or (isinstance(value, tuple) and all(isinstance(v, plain) for v in value))
 
 
 def selected_text(module: str, names: tuple[str, ...]) -> str:

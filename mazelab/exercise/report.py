@@ -93,6 +93,7 @@ class Report:
     student_seconds: float = 0.0
     output: str = ""
     note: str = ""
+    scheme: str = "systematic"  # the shipped scheme the student's resampler resembles: the whole filter's SIR uses it
 
     def __post_init__(self) -> None:
         self.filter_name = clean(self.filter_name, 80)
@@ -224,9 +225,8 @@ def build_report(
         how = answers.problem.removeprefix("the student's process ")
         report.rows = [ended_row(_label(s), expected[s], how, answers.output) for s in stages]
         return report
-    scheme = "systematic"  # the whole filter's SIR resamples as the student's resampler does
     for stage in stages:
-        row, scheme = _row(stage, expected[stage], scheme, report, parts, scenarios, answers, references)
+        row = _row(stage, expected[stage], report, parts, scenarios, answers, references)
         if (copies or {}).get(stage) and row.status != NOT_WRITTEN:
             row = Row(row.part, NOT_OWN, row.expected, copies[stage], COPY_HINT)
         report.rows.append(row)
@@ -240,35 +240,34 @@ def build_report(
     return report
 
 
-def _row(stage: str, expected: str, scheme: str, report: Report, parts: PartInputs,
-         scenarios: list[ScenarioInputs], answers: Answers, references: Any) -> tuple[Row, str]:  # fmt: skip
-    """One stage's row, and the scheme the whole filter's SIR then uses: the process ended in it, no
-    answer came, an answer the grader cannot read, the student's code failed, or its values judged
-    (the whole filter's figures into the report)."""
-    label, message = _label(stage), answers.results.get(stage)
+def _row(stage: str, expected: str, report: Report, parts: PartInputs, scenarios: list[ScenarioInputs],
+         answers: Answers, references: Any) -> Row:  # fmt: skip
+    """One stage's row: the process ended in it, no answer came, an answer the grader cannot read, the
+    student's code failed, or its values judged (the resampler's scheme and the whole filter's figures
+    into the report)."""
+    label, message, scheme = _label(stage), answers.results.get(stage), report.scheme
     if stage in answers.ended:
-        return ended_row(label, expected, answers.ended[stage], answers.output), scheme
+        return ended_row(label, expected, answers.ended[stage], answers.output)
     if message is None:  # it said "done" (or ended) without this stage's answer
-        return Row(
-            label, FAIL, expected, "no answer came from the student's process", "a part returns its answer"
-        ), scheme
+        return Row(label, FAIL, expected, "no answer came from the student's process", "a part returns its answer")
     try:
         error = error_of(message)
         if stage == "resample" and not error:
-            return judge_resample(parts, message)
+            row, report.scheme = judge_resample(parts, message)
+            return row
         if stage != "whole":
-            return (error_row(stage, expected, error, HINTS[stage]) if error else JUDGES[stage](parts, message)), scheme
+            return error_row(stage, expected, error, HINTS[stage]) if error else JUDGES[stage](parts, message)
         if any(_not_written(answers.results.get(p)) for p in PARTS):
-            return Row(WHOLE, NOT_RUN, whole_expected(scheme), "not run", "write every part first"), scheme
+            return Row(WHOLE, NOT_RUN, whole_expected(scheme), "not run", "write every part first")
         estimates = whole_answer(scenarios, message, scheme)
         if isinstance(estimates, Row):
-            return estimates, scheme
+            return estimates
         sir = [references.sir(s, scheme) for s in scenarios]
         exact = [references.exact(s).result() for s in scenarios]
         row, report.figures = judge_whole(scenarios, estimates, exact, [f.result() for f in sir], scheme)
-        return row, scheme
+        return row
     except BadAnswerError as error:
-        return Row(label, FAIL, expected, f"an answer the grader cannot read ({error})", "return plain arrays"), scheme
+        return Row(label, FAIL, expected, f"an answer the grader cannot read ({error})", "return plain arrays")
 
 
 def ended_row(part: str, expected: str, ended: str, output: str) -> Row:

@@ -44,8 +44,13 @@ def write_exercise(folder: Path, force: bool = False, language: str = "en") -> l
         raise ValueError(f"{folder} is not a folder (give a folder to write the exercise into)")
     if folder.is_dir() and not os.access(folder, os.W_OK):
         raise ValueError(f"{folder} is not writable: cannot write the exercise there")
-    for path in paths:
-        check_exercise_file(path, force)
+    for path in paths:  # each name refused in one line where mazelab.atomic would not write it
+        try:
+            output_target(path, force)
+        except (NameTakenError, NotRegularFileError) as error:  # "X: it exists; use --force to replace it"
+            raise ValueError(str(error).removeprefix("cannot write ")) from None
+        except OSError as error:  # e.g. a part of the folder's path is a file
+            raise ValueError(f"cannot write {path}: {error.strerror or error}") from None
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as error:
@@ -54,13 +59,3 @@ def write_exercise(folder: Path, force: bool = False, language: str = "en") -> l
     for path, text in reversed(list(zip(paths, texts, strict=True))):
         write_text_atomically(path, text, replace=force)
     return paths
-
-
-def check_exercise_file(path: Path, force: bool) -> None:
-    """Refuse, in one line, an exercise file's name that mazelab.atomic would not write."""
-    try:
-        output_target(path, force)
-    except (NameTakenError, NotRegularFileError) as error:  # "X: it exists; use --force to replace it"
-        raise ValueError(str(error).removeprefix("cannot write ")) from None
-    except OSError as error:  # e.g. a part of the folder's path is a file
-        raise ValueError(f"cannot write {path}: {error.strerror or error}") from None
