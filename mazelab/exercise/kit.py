@@ -74,9 +74,8 @@ def source_file(module: str) -> Path:
 
 
 def kit_file(module: str) -> Path:
-    """Where `module` lies inside the kit folder (relative)."""
-    relative = Path(*module.split("."))
-    return relative / "__init__.py" if source_file(module).name == "__init__.py" else relative.with_suffix(".py")
+    """Where `module` lies inside the kit folder (relative): where it lies beside the package."""
+    return source_file(module).relative_to(PACKAGE_DIR.parent)
 
 
 def constants_text(module: str) -> str:

@@ -309,51 +309,44 @@ def check_file(
     if path.resolve().suffix != ".py":
         raise NotGradableError(f"{shown}: a link to {path.resolve()}, not a Python file")
     beside = companions_of(path) if companions else []
-    if seed is not None:
-        source = "given"
-    elif key:
-        source, seed = "key", files_seed(path, beside, key)
-    else:
-        source, seed = "files", files_seed(path, beside)
+    source = "given" if seed is not None else "key" if key else "files"
+    seed = files_seed(path, beside, key or None) if seed is None else seed
+    report = Report(class_name or path.stem, None if source == "key" else seed, source, note=sandbox().note)
     return _check(
+        report,
         seed,
-        source,
         stages,
         lambda parts, scenarios: collect_isolated(
             path.resolve(), class_name, parts, scenarios, timeout, stages, shown, companions
         ),
         shown,
         {p.name: p.read_text(errors="replace") for p in [path, *beside]},
-        class_name or path.stem,
         references,
-        sandbox().note,
     )
 
 
 def check(filter_class: type, *, seed: int | None = None, stages: tuple[str, ...] = STAGES) -> Report:
     """Check a class in this process (a self-check: nothing isolates it), the given stages (every
     part and the whole filter by default); the seed defaults to one from the class's source, or 0."""
+    seed = source_seed(filter_class) if seed is None else seed
     return _check(
-        source_seed(filter_class) if seed is None else seed,
-        "class",
+        Report(filter_class.__name__, seed, "class"),
+        seed,
         stages,
         lambda parts, scenarios: collect_in_process(filter_class, parts, scenarios, list(stages)),
         filter_class.__name__,
         {"class.py": class_source(filter_class)},
-        filter_class.__name__,
     )
 
 
 def _check(
+    report: Report,
     seed: int,
-    source: str,
     stages: tuple[str, ...],
     collect: Callable[[PartInputs, list[ScenarioInputs]], Answers],
     shown: str,
     sources: dict[str, str],
-    name: str,
     references: Any = None,
-    note: str = "",
 ) -> Report:
     """The check both ways: the seed's inputs, the exact runs started while the student's code works,
     its answers collected, the report built (the class named as the student's process says)."""
@@ -367,8 +360,7 @@ def _check(
     problem = loading_problem(answers, shown)
     if problem:
         raise NotGradableError(problem)
-    name = str((answers.loaded or {}).get("name") or name)
-    report = Report(name, None if source == "key" else seed, source, note=note)
+    report.filter_name = clean((answers.loaded or {}).get("name") or report.filter_name, 80)
     build_report(report, parts, scenarios, answers, references, stages, copied_parts(sources))
     report.seconds = time.perf_counter() - started
     return report
