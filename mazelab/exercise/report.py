@@ -49,7 +49,7 @@ from mazelab.exercise.parts import (
 )
 from mazelab.exercise.sandbox import DEFAULT_BUDGET, ChildRun, companions_of, run_child, sandbox, submission_copy
 from mazelab.exercise.student import PARTS
-from mazelab.exercise.whole import FIGURE_HEADERS, References, figures_table, judge_whole, whole_answer
+from mazelab.exercise.whole import FIGURE_COLUMNS, References, judge_whole, whole_answer
 from mazelab.exercise.whole import expected_text as whole_expected
 from mazelab.experiments.tables import format_table
 from mazelab.invocation import command_prefix
@@ -410,8 +410,9 @@ def format_report(report: Report, width: int = WIDTH, catalogue: Catalogue | Non
     if report.note:
         lines[1:1] = _wrapped(words.translate(report.note), "", 0, width)
     if report.figures:
-        table = [[words.translate(cell) for cell in row] for row in figures_table(report.figures)]
-        lines += ["", *_wrapped(_(FIGURES_INTRO), "", 0, width), format_table([_(h) for h in FIGURE_HEADERS], table)]
+        table = [[words.translate(cell(f)) for _heading, cell in FIGURE_COLUMNS] for f in report.figures]
+        headers = [_(heading) for heading, _cell in FIGURE_COLUMNS]
+        lines += ["", *_wrapped(_(FIGURES_INTRO), "", 0, width), format_table(headers, table)]
     failed = [_(r.part) for r in report.rows if not r.passed]
     lines += ["", _("All checks pass.") if not failed else _("To fix: {parts}.").format(parts=", ".join(failed))]
     return words.numbers("\n".join(lines))

@@ -154,12 +154,6 @@ FIGURE_COLUMNS = (  # the per-scenario table: each column's heading and its cell
     ("converged", lambda f: "yes" if f.converged else "no"),
     ("SIR's", lambda f: "yes" if f.sir_converged else "no"),
 )
-FIGURE_HEADERS = [heading for heading, _ in FIGURE_COLUMNS]
-
-
-def figures_table(figures: list[ScenarioFigures]) -> list[list[str]]:
-    """Rows of the per-scenario table: maze, noise, particles, distances to the exact mean, convergence."""
-    return [[cell(f) for _, cell in FIGURE_COLUMNS] for f in figures]
 
 
 def distance_to_exact(estimates: np.ndarray, exact: np.ndarray) -> float:
