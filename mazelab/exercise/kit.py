@@ -33,33 +33,13 @@ KIT: dict[str, str | tuple[str, ...]] = {
     "mazelab.constants": WHOLE,  # L, the outside penalty, the green circle: numbers only
     "mazelab.model": CONSTANTS,  # the same constants as the model re-exports them: never the transition or likelihood
     "mazelab.smc": WHOLE,  # the step: it calls the model object and the scheme it is given (the student's parts)
-    # the weights' value and normalisation, not weighted_mean (the estimate is a graded part)
     "mazelab.stops": ("describe_exit",),  # what the student's code did when it exits (the child's words)
+    # the weights' value and normalisation, not weighted_mean (the estimate is a graded part)
     "mazelab.weights": ("Weights", "read_only", "log_sum_exp", "effective_sample_size", "mass_within"),
     "mazelab.exercise": WHOLE,
     "mazelab.exercise.student": WHOLE,
     "mazelab.exercise.child": WHOLE,
 }
-# What must never be in the sandbox: the reference implementations and the grader.
-REFERENCE_MODULES = (
-    "mazelab.filters",
-    "mazelab.resampling",
-    "mazelab.regularisation",
-    "mazelab.grid_filter",
-    "mazelab.kalman",
-    "mazelab.simulation",
-    "mazelab.robot",
-    "mazelab.kernels",
-    "mazelab.experiments",
-    "mazelab.exercise.parts",
-    "mazelab.exercise.whole",
-    "mazelab.exercise.report",
-    "mazelab.exercise.inputs",
-    "mazelab.exercise.sandbox",
-    "mazelab.exercise.grading",
-    "mazelab.exercise.likeness",
-)
-REFERENCE_FUNCTIONS = ("mazelab.model.log_likelihood", "mazelab.model.move", "mazelab.weights.weighted_mean")
 
 
 class KitError(RuntimeError):
