@@ -22,8 +22,6 @@ from mazelab.cli.app import main
 from mazelab.exercise.kit import (
     KIT,
     PACKAGE_DIR,
-    REFERENCE_FUNCTIONS,
-    REFERENCE_MODULES,
     build_kit,
     kit_file,
     module_text,
@@ -41,6 +39,26 @@ from mazelab.exercise.sandbox import (
 )
 
 SEED = 2024  # tests/test_grading.py's
+# What must never be in the sandbox (mazelab.exercise.kit.KIT): the reference implementations and the grader.
+REFERENCE_MODULES = (
+    "mazelab.filters",
+    "mazelab.resampling",
+    "mazelab.regularisation",
+    "mazelab.grid_filter",
+    "mazelab.kalman",
+    "mazelab.simulation",
+    "mazelab.robot",
+    "mazelab.kernels",
+    "mazelab.experiments",
+    "mazelab.exercise.parts",
+    "mazelab.exercise.whole",
+    "mazelab.exercise.report",
+    "mazelab.exercise.inputs",
+    "mazelab.exercise.sandbox",
+    "mazelab.exercise.grading",
+    "mazelab.exercise.likeness",
+)
+REFERENCE_FUNCTIONS = ("mazelab.model.log_likelihood", "mazelab.model.move", "mazelab.weights.weighted_mean")
 # skipped where no sandbox can be made, but never in CI, which installs bubblewrap: there a sandbox that
 # cannot start fails these tests instead of hiding them
 needs_sandbox = pytest.mark.skipif(

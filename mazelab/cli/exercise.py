@@ -10,6 +10,7 @@ import signal
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Annotated
 
 import typer
@@ -17,10 +18,9 @@ import typer
 from mazelab.atomic import write_bytes_atomically, write_text_atomically
 from mazelab.backend import use_threads
 from mazelab.cli.options import UserError, check_output_path, seed_option
-from mazelab.exercise.autograder import BundleError, bundle_bytes
+from mazelab.exercise.autograder import bundle_bytes
 from mazelab.exercise.grading import (
     KEY_FILE,
-    ClaimError,
     Gradebook,
     Graded,
     GradingInterruptedError,
@@ -36,7 +36,7 @@ from mazelab.exercise.grading import (
 )
 from mazelab.exercise.language import Catalogue, catalogue_for
 from mazelab.exercise.report import NotGradableError, check_file, format_report
-from mazelab.exercise.sandbox import DEFAULT_BUDGET, MAX_TIMEOUT, SandboxError, require_sandbox
+from mazelab.exercise.sandbox import DEFAULT_BUDGET, MAX_TIMEOUT, SandboxError, sandbox
 from mazelab.exercise.template import write_exercise
 from mazelab.invocation import python_prefix
 from mazelab.plugins import is_plugin_spec, split_spec
@@ -110,7 +110,7 @@ def check_command(
     catalogue = _catalogue(lang, split_spec(spec)[0])
     if seed is not None and key is not None:
         raise UserError("--seed and --key: give one (a seed repeats a report, the key draws secret inputs)")
-    secret = _key(key, make=False) if key is not None else None
+    secret = read_key(key, make=False) if key is not None else None  # a ClaimError is one line, exit 2
     results = _results_file(gradescope, force)
     _sandbox_or_refuse(require_sandbox)
     started = time.perf_counter()
@@ -150,19 +150,10 @@ def _catalogue(lang: str | None, file: Path | None = None) -> Catalogue:
         raise UserError(f"--lang {lang}: {error}") from None
 
 
-def _key(path: Path, make: bool = True) -> bytes:
-    try:
-        return read_key(path, make)
-    except ClaimError as error:
-        raise UserError(str(error)) from None
-
-
 def _sandbox_or_refuse(required: bool) -> None:
-    if required:
-        try:
-            require_sandbox()
-        except RuntimeError as error:
-            raise UserError(str(error)) from None
+    """--require-sandbox: one line saying why where no sandbox can be made."""
+    if required and not sandbox().sandboxed:
+        raise UserError(f"--require-sandbox: {sandbox().why}")
 
 
 def _made_folder(folder: Path) -> Path:
@@ -209,7 +200,7 @@ def grade_command(
     keyfile = key or next((p.parent / KEY_FILE if o == "--csv" else p / KEY_FILE for p, o in outputs), None)
     _check_outputs(folder, submissions, [*outputs, *([(keyfile, "--key")] if keyfile else [])], force)
     _sandbox_or_refuse(require_sandbox)
-    secret = _key(keyfile) if keyfile else secrets.token_bytes(32)
+    secret = read_key(keyfile) if keyfile else secrets.token_bytes(32)
     book, started = Gradebook(csv_path, gradescope, force, catalogue), time.perf_counter()
     grade = functools.partial(grade_folder, submissions, key=secret, timeout=timeout, jobs=jobs)
     stopped_by = _grade_into(book, grade, outputs, len(submissions), quiet)
@@ -247,8 +238,6 @@ def _grade_into(book: Gradebook, grade: Callable[..., None], outputs: list[tuple
                 return stop.number or signal.SIGINT
     except SandboxError as error:
         raise UserError(f"{error}; grading stopped, nobody graded by it") from None
-    except ClaimError as error:
-        raise UserError(str(error)) from None
     return None
 
 
@@ -256,10 +245,7 @@ def _check_outputs(folder: Path, submissions: list[Submission], outputs: list[tu
     """Refuse, before any grading, an output or the key inside the class folder, an existing output
     without --force, and a --csv that a submission's results.json folder would take."""
     for path, option in outputs:
-        try:
-            check_outside(path, folder, option)
-        except ClaimError as error:
-            raise UserError(str(error)) from None
+        check_outside(path, folder, option)
     named = dict((option, path) for path, option in outputs)
     gradescope, csv_path = named.get("--gradescope"), named.get("--csv")
     if gradescope is not None:
@@ -296,26 +282,18 @@ def autograder_command(
         raise UserError(f"{bundle}: the bundle is a .zip file (OUT.zip)")
     if lang is not None:
         _catalogue(lang)
-    secret = _key(key, make=False) if key is not None else secrets.token_bytes(32)
+    secret = read_key(key, make=False) if key is not None else secrets.token_bytes(32)
     check_output_path(bundle, force)
-    try:
-        data = bundle_bytes(secret, lang, timeout)
-    except BundleError as error:
-        raise UserError(str(error)) from None
+    data = bundle_bytes(secret, lang, timeout)  # a BundleError is one line, exit 2
     typer.echo(f"wrote {write_bytes_atomically(bundle, data, replace=force)} (upload it as the autograder)")
 
 
-class _Stop:
-    """The signal that stopped the grading (None: none yet)."""
-
-    number: int | None = None
-
-
 @contextlib.contextmanager
-def _stop_signals() -> Iterator[_Stop]:
+def _stop_signals() -> Iterator[SimpleNamespace]:
     """SIGTERM and SIGHUP stop the grading as Ctrl-C does (the main thread's wait is interrupted, every
-    sandbox ended, what was graded kept); a second one while stopping changes nothing."""
-    stop = _Stop()
+    sandbox ended, what was graded kept); a second one while stopping changes nothing. Yields where the
+    signal that stopped it is noted (`number`, None: none yet)."""
+    stop = SimpleNamespace(number=None)
 
     def handler(number: int, frame: object) -> None:
         if stop.number is None:

@@ -1,23 +1,8 @@
-"""Gradescope's autograder bundle: `mazelab exercise autograder OUT.zip`.
-
-Gradescope unpacks the zip into /autograder/source, runs `setup.sh` once to build its image, then
-`run_autograder` for each submission, with the student's files in /autograder/submission, and reads
-/autograder/results/results.json. The bundle holds:
-
-- `lab/`: this lab's source as it is now (the package, the shipped mazes, pyproject.toml, and uv.lock,
-  or where it was installed without uv, `requirements.txt`: the exact versions of its dependencies
-  installed here), so that the image grades with exactly the version that made the bundle;
-- `grading.key`: the grader's secret key, from which each submission's inputs are drawn (keyed with
-  its files): only run_autograder reads it, the student's sandbox never holds it;
-- `setup.sh`: bubblewrap (each submission's sandbox), uv, and the lab with its pinned dependencies
-  in lab/.venv (`uv sync --frozen --no-dev`, or `uv pip install -r requirements.txt`);
-- `run_autograder`: `mazelab exercise check /autograder/submission/my_filter.py --key grading.key
-  --gradescope /autograder/results` (with the instructor's language if given), and a results.json of
-  score 0 saying why if the check wrote none.
-
+"""Gradescope's autograder bundle, `mazelab exercise autograder OUT.zip` (docs/exercise.md, "On
+Gradescope"): `lab/` (this lab's source, and uv.lock or the pinned `requirements.txt`), `grading.key`
+(read only by run_autograder, never by the sandbox), `setup.sh` and `run_autograder` (templates/).
 `MAZELAB_AUTOGRADER_ROOT` (default /autograder) and `MAZELAB_COMMAND` (default the lab's own
-`.venv/bin/mazelab`) let `run_autograder` run in a simulated tree against any installed lab: the
-tests run it so, on this checkout.
+`.venv/bin/mazelab`) let `run_autograder` run in a simulated tree: the tests run it so, on this checkout.
 """
 
 from __future__ import annotations
@@ -34,45 +19,14 @@ from pathlib import Path
 from mazelab import __version__
 from mazelab.exercise.kit import PACKAGE_DIR
 from mazelab.exercise.sandbox import DEFAULT_BUDGET
+from mazelab.exercise.template import TEMPLATES
 
 ROOT = PACKAGE_DIR.parent
 LAB_FILES = ("pyproject.toml", "uv.lock", "README.md", "MANIFEST.in", "main.py", "draw.py", "particle_filter.py")
 DISTRIBUTION = "maze-particle-filter-lab"
-LAB_FOLDERS = {"mazelab": ("*.py", "*.po"), "mazes": ("*.txt",), "model_parameters": ("*.json",)}
-SETUP = """#!/usr/bin/env bash
-# Gradescope's image: bubblewrap (the sandbox each submission is graded in), uv, and mazelab {version}
-# (source sha256 {digest}) with its locked dependencies, from the lab/ folder of this bundle.
-set -euo pipefail
-export DEBIAN_FRONTEND=noninteractive
-apt-get update -qq
-apt-get install -y -qq bubblewrap python3 python3-pip python3-venv ca-certificates >/dev/null
-python3 -m pip install --quiet --break-system-packages uv 2>/dev/null || python3 -m pip install --quiet uv
-cd /autograder/source/lab
-if [ -f uv.lock ]; then
-    python3 -m uv sync --frozen --no-dev
-else
-    python3 -m uv venv --python ">=3.11" && python3 -m uv pip install --python .venv/bin/python -r requirements.txt .
-fi
-.venv/bin/mazelab exercise --help >/dev/null
-"""
-RUN = """#!/usr/bin/env bash
-# Gradescope runs this for each submission: the check of my_filter.py, its results.json where Gradescope
-# reads it (a 0 with the reason when the file cannot be checked). Made by mazelab {version}.
-set -uo pipefail
-here="$(cd "$(dirname "$0")" && pwd)"
-root="${{MAZELAB_AUTOGRADER_ROOT:-/autograder}}"
-read -r -a mazelab <<< "${{MAZELAB_COMMAND:-$root/source/lab/.venv/bin/mazelab}}"
-mkdir -p "$root/results"
-rm -f "$root/results/results.json"
-"${{mazelab[@]}}" exercise check "$root/submission/my_filter.py" --gradescope "$root/results" --force \\
-    --key "$here/grading.key" --timeout {timeout} {options}
-code=$?
-if [ ! -s "$root/results/results.json" ]; then
-    printf '{{"score": 0.0, "output": "the autograder could not check my_filter.py (exit code %s)", "tests": []}}\\n' \\
-        "$code" > "$root/results/results.json"
-fi
-exit 0
-"""
+LAB_FOLDERS = {"mazelab": ("*.py", "*.po", "*.txt"), "mazes": ("*.txt",), "model_parameters": ("*.json",)}
+SETUP = (TEMPLATES / "setup.sh.txt").read_text()  # str.format fields: version, digest
+RUN = (TEMPLATES / "run_autograder.txt").read_text()  # version, timeout, options
 
 
 class BundleError(ValueError):
@@ -111,18 +65,13 @@ def pinned_requirements() -> str:
     return "\n".join(sorted(lines)) + "\n"
 
 
-def run_script(lang: str | None = None, timeout: float = DEFAULT_BUDGET) -> str:
-    """run_autograder's text (the instructor's language and time budget baked in)."""
-    options = shlex.join(["--lang", lang] if lang else [])
-    return RUN.format(version=__version__, timeout=f"{timeout:g}", options=options).replace(" \n", "\n")
-
-
 def bundle_bytes(key: bytes, lang: str | None = None, timeout: float = DEFAULT_BUDGET) -> bytes:
-    """The zip: setup.sh and run_autograder (executable) and the key at its top, the lab's source under lab/."""
-    files = lab_files()
+    """The zip: setup.sh and run_autograder (executable, the instructor's language and time budget baked
+    in) and the key at its top, the lab's source under lab/."""
+    files, options = lab_files(), shlex.join(["--lang", lang] if lang else [])
     texts = {
         "setup.sh": SETUP.format(version=__version__, digest=source_digest(files)),
-        "run_autograder": run_script(lang, timeout),
+        "run_autograder": RUN.format(version=__version__, timeout=f"{timeout:g}", options=options).replace(" \n", "\n"),
         "grading.key": key.hex() + "\n",
     }
     texts |= {f"lab/{n.as_posix()}": (ROOT / n).read_bytes() for n in files}

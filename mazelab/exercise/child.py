@@ -31,6 +31,7 @@ import numpy as np
 from mazelab.exercise.student import PARTS, PartError, StudentFilter, answer_array
 from mazelab.maze import Maze
 from mazelab.seeding import filter_rng
+from mazelab.stops import describe_exit
 
 MAGIC = b"MZL1"
 MAX_HEADER_BYTES = 1 << 20
@@ -129,13 +130,6 @@ def _where(error: BaseException) -> str:
     frames = traceback.extract_tb(error.__traceback__)
     mine = [f for f in frames if not str(Path(f.filename).resolve()).startswith(_LIBRARIES)]
     return f" ({Path(mine[-1].filename).name}, line {mine[-1].lineno})" if mine else ""
-
-
-def describe_exit(error: BaseException) -> str:
-    """What the student's code did, in a few words: 'called sys.exit(3)', 'raised KeyboardInterrupt'."""
-    if isinstance(error, SystemExit):
-        return f"called sys.exit({error.code!r})" if error.code is not None else "called sys.exit()"
-    return f"raised {type(error).__name__}"
 
 
 def _past_limit(error: BaseException) -> str:

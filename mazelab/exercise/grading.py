@@ -1,23 +1,9 @@
-"""Grading a folder of submissions: each one checked in child processes of its own (mazelab.exercise.
-report.check_file), several at once over the cores, the grader's reference runs in a pool of worker
-processes; its CSV row and Gradescope's results.json written as soon as it is graded, and a summary.
-
-A submission is a subfolder (its my_filter.py, else its only Python file, else the only one that
-mentions StudentFilter) or a .py file directly in the folder; names starting with "." or "_" are
-skipped. A link, to a folder or a file, is no submission: it is named and refused, and what it leads
-to is graded under its own name. One that cannot be checked (no file to grade, an import error, not a
-StudentFilter), and one whose check fails in the grader itself, gets a row saying why, never a pass:
-nothing one submission does spoils another's row. Only a sandbox that cannot start (the grader's
-machine, not a submission) stops the grading.
-
-The inputs come from the grader's secret key (`KEY_FILE` beside the outputs, made at the first grading
-and reused by a regrade), keyed with each submission's files: no report, CSV or results.json shows it.
-
-The outputs are guarded before any grading: never inside the class folder (a submission could see
-them, or be replaced by them), and claimed by one grader at a time (an exclusive lock on a hidden
-`.NAME.grading` beside each, released by the system if the grader dies). The CSV grows as
-`NAME.partial.csv` and replaces NAME only once every submission is graded: an interrupted grading
-leaves the partial one beside the last complete gradebook.
+"""Grading a folder of submissions (docs/exercise.md, "Grading a folder"): each one checked in child
+processes of its own (mazelab.exercise.report.check_file), several at once, the grader's reference runs
+in a pool of worker processes, its CSV row and results.json written as soon as it is graded, and a
+summary. Nothing one submission does spoils another's row; only a sandbox that cannot start stops the
+grading. The inputs come from the grader's secret key (`KEY_FILE`); the outputs lie outside the class
+folder, claimed by one grader at a time, the CSV growing as `NAME.partial.csv` until the end.
 """
 
 from __future__ import annotations

@@ -7,11 +7,11 @@ what a filter is given (`request`): never the seed, a scenario's true path or wh
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import hmac
 from dataclasses import dataclass
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -54,43 +54,6 @@ def files_seed(path: Path, companions: list[Path], key: bytes | None = None) -> 
 
 
 @dataclass(frozen=True)
-class PredictInputs:
-    """predict on `start` (N, 2) at each compass angle from default_rng(its seed); the first angle also
-    again on the same Generator (fresh noise) and on an equally seeded one (the same draws)."""
-
-    start: np.ndarray
-    angles: tuple[float, ...]
-    seeds: tuple[int, ...]
-
-
-@dataclass(frozen=True)
-class WeighInputs:
-    """weigh on `points` (N, 2), inside and outside the free area, for each measurement in `z`."""
-
-    points: np.ndarray
-    z: tuple[float, ...]
-
-
-@dataclass(frozen=True)
-class ResampleInputs:
-    """resample `draws` times on each weight vector (one Generator each), then once on an equally seeded one."""
-
-    weights: tuple[np.ndarray, ...]
-    kinds: tuple[str, ...]
-    seeds: tuple[int, ...]
-    draws: int
-
-
-@dataclass(frozen=True)
-class EstimateInputs:
-    """estimate on `points` (N, 2) under each weight vector (normalised)."""
-
-    points: np.ndarray
-    weights: tuple[np.ndarray, ...]
-    kinds: tuple[str, ...]
-
-
-@dataclass(frozen=True)
 class _OnAMaze:
     """A maze by name and cells, and the noise: what a filter is built on."""
 
@@ -107,15 +70,15 @@ class _OnAMaze:
 @dataclass(frozen=True)
 class PartInputs(_OnAMaze):
     """The part checks' inputs: the seed, the prior the filter is built with (and its Generator's
-    seed), and each part's."""
+    seed), and each part's by name (how each call uses them: mazelab.exercise.child.part_calls)."""
 
     seed: int
     prior: np.ndarray
     filter_seed: int
-    predict: PredictInputs
-    weigh: WeighInputs
-    resample: ResampleInputs
-    estimate: EstimateInputs
+    predict: SimpleNamespace  # start (N, 2), angles, seeds
+    weigh: SimpleNamespace  # points (N, 2), z
+    resample: SimpleNamespace  # weights (a vector each), kinds, seeds, draws
+    estimate: SimpleNamespace  # points (N, 2), weights (a vector each), kinds
 
 
 @dataclass(frozen=True)
@@ -182,15 +145,15 @@ def draw_part_inputs(seed: int) -> PartInputs:
     )
 
 
-def _predict_inputs(seed: int, world: Maze, delta: float) -> PredictInputs:
+def _predict_inputs(seed: int, world: Maze, delta: float) -> SimpleNamespace:
     rng = np.random.default_rng([seed, PREDICT_TAG])
     start = world.random_free_places(_count(rng, PREDICT_COUNT), rng)
     near = rng.uniform(-delta / 4, delta / 4, size=2)  # headings on both sides of pi, and of 0 (2 pi)
     angles = (float(rng.uniform(0, 2 * np.pi)), float(np.pi + near[0]), float(near[1] % (2 * np.pi)))
-    return PredictInputs(start, angles, _seeds(rng, len(angles)))
+    return SimpleNamespace(start=start, angles=angles, seeds=_seeds(rng, len(angles)))
 
 
-def _weigh_inputs(seed: int, world: Maze, sigma: float) -> WeighInputs:
+def _weigh_inputs(seed: int, world: Maze, sigma: float) -> SimpleNamespace:
     """Points over the map and half a unit beyond (inside and outside the free area); measurements
     as the robot would make them at three free places."""
     rng = np.random.default_rng([seed, WEIGH_TAG])
@@ -198,7 +161,7 @@ def _weigh_inputs(seed: int, world: Maze, sigma: float) -> WeighInputs:
     points = rng.uniform([-0.5, -0.5], [world.width + 0.5, world.height + 0.5], size=(count, 2))
     places = world.random_free_places(3, rng)
     z = world.distance_to_nearest_station(places) + rng.normal(0.0, sigma, size=3)
-    return WeighInputs(points, tuple(float(v) for v in z))
+    return SimpleNamespace(points=points, z=tuple(float(v) for v in z))
 
 
 def resample_vector(kind: str, count: int, rng: np.random.Generator) -> np.ndarray:
@@ -231,19 +194,19 @@ def resample_vector(kind: str, count: int, rng: np.random.Generator) -> np.ndarr
     return rng.permutation(weights / weights.sum())
 
 
-def _resample_inputs(seed: int) -> ResampleInputs:
+def _resample_inputs(seed: int) -> SimpleNamespace:
     rng = np.random.default_rng([seed, RESAMPLE_TAG])
     weights = tuple(resample_vector(kind, _count(rng, RESAMPLE_COUNT), rng) for kind in RESAMPLE_KINDS)
-    return ResampleInputs(weights, RESAMPLE_KINDS, _seeds(rng, len(weights)), RESAMPLE_DRAWS)
+    return SimpleNamespace(weights=weights, kinds=RESAMPLE_KINDS, seeds=_seeds(rng, len(weights)), draws=RESAMPLE_DRAWS)
 
 
-def _estimate_inputs(seed: int, world: Maze) -> EstimateInputs:
+def _estimate_inputs(seed: int, world: Maze) -> SimpleNamespace:
     rng = np.random.default_rng([seed, ESTIMATE_TAG])
     points = world.random_free_places(_count(rng, ESTIMATE_COUNT), rng)
     n = len(points)
     vectors = [np.ones(n), rng.exponential(size=n) ** 4, rng.exponential(size=n) ** 12, np.full(n, 0.1 / n)]
     vectors[3][rng.integers(n)] = 0.9
-    return EstimateInputs(points, tuple(v / v.sum() for v in vectors), ESTIMATE_KINDS)
+    return SimpleNamespace(points=points, weights=tuple(v / v.sum() for v in vectors), kinds=ESTIMATE_KINDS)
 
 
 def draw_scenarios(seed: int, count: int = SCENARIO_COUNT, steps: int = SCENARIO_STEPS) -> list[ScenarioInputs]:
@@ -290,12 +253,12 @@ SENT = {  # what the student's process is sent of each: only what a filter is gi
 
 
 def _flatten(prefix: str, thing: object, fields: tuple[str, ...], inputs: dict, arrays: dict) -> None:
-    """The named fields of a dataclass as `prefix.NAME` (nested ones as `prefix.NAME.FIELD`): arrays (a
-    tuple of them as NAME.0, NAME.1, ...) into `arrays`, other values into `inputs`."""
+    """The named fields of `thing` as `prefix.NAME` (a part's as `prefix.NAME.FIELD`): arrays (a tuple
+    of them as NAME.0, NAME.1, ...) into `arrays`, other values into `inputs`."""
     for name in fields:
         value, key = getattr(thing, name), f"{prefix}.{name}"
-        if dataclasses.is_dataclass(value):
-            _flatten(key, value, tuple(f.name for f in dataclasses.fields(value)), inputs, arrays)
+        if isinstance(value, SimpleNamespace):
+            _flatten(key, value, tuple(vars(value)), inputs, arrays)
         elif isinstance(value, np.ndarray):
             arrays[key] = value
         elif isinstance(value, tuple) and value and isinstance(value[0], np.ndarray):

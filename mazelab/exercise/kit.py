@@ -1,12 +1,6 @@
-"""The student kit: the only lab code a submission's sandbox holds.
-
-A graded submission runs where the lab is not installed (mazelab.exercise.sandbox): it sees Python,
-numpy, its own file and this kit, a folder the grader builds from the list below. The kit carries
-StudentFilter and what it imports (the step's wiring, the maze's geometry the exercise allows, the
-model's constants) and the child's side of the grading (mazelab.exercise.child); never an
-implementation of a graded part: not the model's transition or likelihood, not a resampling scheme,
-not the weighted mean, not the shipped filters, the grid filter or the grader. There is nothing to
-delegate to, copy or exec.
+"""The student kit: the only lab code a submission's sandbox holds (docs/exercise.md, "The kit"):
+StudentFilter and what it imports, and the child's side of the grading; never an implementation of a
+graded part, the shipped filters, the grid filter or the grader.
 
 `KIT` is the one list to extend when StudentFilter imports a new module: an entry is a module copied
 whole (`WHOLE`), only its constants (`CONSTANTS`: their values, written as literals), or only the
@@ -24,6 +18,7 @@ from pathlib import Path
 
 WHOLE = "whole"
 CONSTANTS = "constants"
+PLAIN = (bool, int, float, str)  # the values a constant may hold (a tuple of them too)
 PACKAGE_DIR = Path(__file__).resolve().parents[1]  # mazelab/
 KIT: dict[str, str | tuple[str, ...]] = {
     "mazelab": CONSTANTS,  # the package's __init__: its version only (the real one reaches the studies)
@@ -38,32 +33,13 @@ KIT: dict[str, str | tuple[str, ...]] = {
     "mazelab.constants": WHOLE,  # L, the outside penalty, the green circle: numbers only
     "mazelab.model": CONSTANTS,  # the same constants as the model re-exports them: never the transition or likelihood
     "mazelab.smc": WHOLE,  # the step: it calls the model object and the scheme it is given (the student's parts)
+    "mazelab.stops": ("describe_exit",),  # what the student's code did when it exits (the child's words)
     # the weights' value and normalisation, not weighted_mean (the estimate is a graded part)
     "mazelab.weights": ("Weights", "read_only", "log_sum_exp", "effective_sample_size", "mass_within"),
     "mazelab.exercise": WHOLE,
     "mazelab.exercise.student": WHOLE,
     "mazelab.exercise.child": WHOLE,
 }
-# What must never be in the sandbox: the reference implementations and the grader.
-REFERENCE_MODULES = (
-    "mazelab.filters",
-    "mazelab.resampling",
-    "mazelab.regularisation",
-    "mazelab.grid_filter",
-    "mazelab.kalman",
-    "mazelab.simulation",
-    "mazelab.robot",
-    "mazelab.kernels",
-    "mazelab.experiments",
-    "mazelab.exercise.parts",
-    "mazelab.exercise.whole",
-    "mazelab.exercise.report",
-    "mazelab.exercise.inputs",
-    "mazelab.exercise.sandbox",
-    "mazelab.exercise.grading",
-    "mazelab.exercise.likeness",
-)
-REFERENCE_FUNCTIONS = ("mazelab.model.log_likelihood", "mazelab.model.move", "mazelab.weights.weighted_mean")
 
 
 class KitError(RuntimeError):
@@ -78,9 +54,8 @@ def source_file(module: str) -> Path:
 
 
 def kit_file(module: str) -> Path:
-    """Where `module` lies inside the kit folder (relative)."""
-    relative = Path(*module.split("."))
-    return relative / "__init__.py" if source_file(module).name == "__init__.py" else relative.with_suffix(".py")
+    """Where `module` lies inside the kit folder (relative): where it lies beside the package."""
+    return source_file(module).relative_to(PACKAGE_DIR.parent)
 
 
 def constants_text(module: str) -> str:
@@ -89,15 +64,10 @@ def constants_text(module: str) -> str:
     lines = [f'"""The constants of {module}, as the student kit carries them."""', ""]
     for name, value in vars(loaded).items():
         upper = name.isupper() and not name.startswith("_") and name != "TYPE_CHECKING"
-        if (name == "__version__" or upper) and _literal(value):
+        literal = isinstance(value, PLAIN) or (isinstance(value, tuple) and all(isinstance(v, PLAIN) for v in value))
+        if (name == "__version__" or upper) and literal:  # a repr that reads back as the same value
             lines.append(f"{name} = {value!r}")
     return "\n".join(lines) + "\n"
-
-
-def _literal(value: object) -> bool:
-    """Whether `value`'s repr is a literal that reads back as the same value."""
-    plain = (bool, int, float, str)
-    return isinstance(value, plain) or (isinstance(value, tuple) and all(isinstance(v, plain) for v in value))
 
 
 def selected_text(module: str, names: tuple[str, ...]) -> str:

@@ -1,18 +1,8 @@
-"""The check report's language: gettext catalogues, English by default, Ukrainian in `locale/uk.po`.
-
-A catalogue is a GNU gettext .po file read by the small reader below (msgid, msgstr and the C escapes
-of their strings: nothing in it is run, and no compiled .mo or new tool is needed). `Catalogue` is
-a `gettext.NullTranslations`, so `catalogue.gettext(text)` is the standard call. The report's texts
-are made in English where they are computed (the grader's verdicts) and translated where they are
-shown (mazelab.exercise.report): a text is looked up whole; a msgid with `{name}` fields also
-matches a text with any values there (a hint that names a number; a value that is itself a msgid,
-a weight vector's kind, is translated too), and a text made of several msgids (a hint added to
-another) has each translated.
-
-Numbers are written as the language writes them (`Catalogue.numbers`: a decimal comma in Ukrainian,
-and a semicolon between two numbers of a list). The language is `--lang` where given, else the
-exercise file's own (`LANGUAGE = "uk"` at its top, as `exercise new --lang uk` writes it), else the
-locale's (LANGUAGE, LC_ALL, LC_MESSAGES, LANG: the first whose language has a catalogue), else English.
+"""The check report's language (docs/exercise.md, "The report in Ukrainian"): gettext catalogues,
+English by default, Ukrainian in `locale/uk.po`, read by the small reader below (nothing in it runs).
+The texts are made in English where they are computed (the grader's verdicts) and translated where
+they are shown (`Catalogue.translate`), numbers written as the language writes them
+(`Catalogue.numbers`). The language: `--lang`, else the exercise file's `LANGUAGE`, else the locale's.
 """
 
 from __future__ import annotations

@@ -1,24 +1,8 @@
 """Copied code, found in the grader (never in the student's process): what each part of a submission
-runs compared with the lab's reference functions by their normalised tokens, as MOSS and JPlag do.
-
-A function's text is parsed, its docstrings and annotations dropped and its layout made canonical
-(ast.unparse); its tokens are then read with every name that is not an attribute replaced by one
-placeholder, so that renaming variables, annotating them or reformatting changes nothing. Its
-fingerprint is the set of runs of K consecutive tokens. A part's text is what it resolves to in the
-submission's files (the file and the helper modules beside it): its method, or what the class binds
-to its name (`predict = _p`, `resample = staticmethod(_sr)`, a lambda, a function imported from a
-helper module), and every function of the files those call or name, followed to any depth. Its
-likeness to a reference function (each keyed by its qualified name: `mazelab.model.log_likelihood`
-and `mazelab.robot.LostRobot.log_likelihood` are two) is the share of the reference's fingerprint
-found in it (containment). A part is "not own work" when some reference function of at least
-MIN_TOKENS tokens is contained at LIKENESS_LIMIT or more; a copy in the files that no part reaches
-marks the whole filter. Code that is not in the files (a string exec'd, a code object made at run
-time) cannot run in the student's process (mazelab.exercise.child.guard).
-
-The limit is measured on the honest solutions (tests/exercise_answers.py: the reference answers,
-every resampling scheme, the planted bugs and the slightly wrong parts): `uv run python
-benchmarks/copy_likeness.py` prints the largest likeness of any of them and the smallest of the lab's
-functions copied with their names changed; docs/exercise.md quotes both.
+runs compared with the lab's reference functions by their normalised tokens, as MOSS and JPlag do
+(docs/exercise.md, "Copied code": what a part resolves to, the fingerprints of K tokens, containment,
+and the limit measured on the honest solutions by `benchmarks/copy_likeness.py`). Code that is not in
+the files cannot run in the student's process (mazelab.exercise.child.guard).
 """
 
 from __future__ import annotations
@@ -38,7 +22,7 @@ from mazelab.exercise.student import PARTS
 
 K = 8  # tokens per fingerprint run
 MIN_TOKENS = 24  # a reference shorter than this is an idiom anyone writes (np.average), not a copy
-LIKENESS_LIMIT = 0.6  # measured: honest solutions reach at most 0.31, renamed copies 1.0 (module docstring)
+LIKENESS_LIMIT = 0.6  # measured: honest solutions reach at most 0.31, renamed copies 1.0 (docs/exercise.md)
 REFERENCE_SOURCES = (  # where the lab's implementations of the four parts live
     "mazelab.model",
     "mazelab.resampling",

@@ -265,14 +265,14 @@ def _weigh_hint(
             "d = self.world.distance_to_nearest_station(positions), the nearest of all stations"
         )
     scale, penalty = float(np.mean([f[0] for f in fits])), float(np.mean([f[1] for f in fits]))
-    if abs(scale + 1) < 0.02:
-        return "the sign: log N = -(z - d)^2 / (2 sigma^2); a particle far from z must weigh less (eq. 3)"
-    if abs(scale - sigma) < 0.02 * sigma:
-        return "sigma where sigma^2 belongs: (z - d)^2 / (2 sigma^2), sigma = the noise's std (eq. 3)"
-    if abs(scale - sigma**2) < 0.02 * sigma**2:
-        return "sigma is missing: -(z - d)^2 / (2 sigma^2), sigma = self.sigma (eq. 3)"
-    if abs(scale - 2) < 0.02:
-        return "the 2 of 2 sigma^2 is missing: -(z - d)^2 / (2 sigma^2) (eq. 3)"
+    for factor, within, hint in (  # the exponent's factor a mistake gives, how near, and its hint
+        (-1, 0.02, "the sign: log N = -(z - d)^2 / (2 sigma^2); a particle far from z must weigh less (eq. 3)"),
+        (sigma, 0.02 * sigma, "sigma where sigma^2 belongs: (z - d)^2 / (2 sigma^2), sigma = the noise's std (eq. 3)"),
+        (sigma**2, 0.02 * sigma**2, "sigma is missing: -(z - d)^2 / (2 sigma^2), sigma = self.sigma (eq. 3)"),
+        (2, 0.02, "the 2 of 2 sigma^2 is missing: -(z - d)^2 / (2 sigma^2) (eq. 3)"),
+    ):
+        if abs(scale - factor) < within:
+            return hint
     if abs(scale - 1) > 1e-3:
         return f"the exponent is {scale:.4g} times -(z - d)^2 / (2 sigma^2) of eq. (3)"
     log_penalty = math.log(OUTSIDE_PENALTY)

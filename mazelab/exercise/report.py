@@ -49,7 +49,7 @@ from mazelab.exercise.parts import (
 )
 from mazelab.exercise.sandbox import DEFAULT_BUDGET, ChildRun, companions_of, run_child, sandbox, submission_copy
 from mazelab.exercise.student import PARTS
-from mazelab.exercise.whole import FIGURE_HEADERS, References, figures_table, judge_whole, whole_answer
+from mazelab.exercise.whole import FIGURE_COLUMNS, References, judge_whole, whole_answer
 from mazelab.exercise.whole import expected_text as whole_expected
 from mazelab.experiments.tables import format_table
 from mazelab.invocation import command_prefix
@@ -93,6 +93,7 @@ class Report:
     student_seconds: float = 0.0
     output: str = ""
     note: str = ""
+    scheme: str = "systematic"  # the shipped scheme the student's resampler resembles: the whole filter's SIR uses it
 
     def __post_init__(self) -> None:
         self.filter_name = clean(self.filter_name, 80)
@@ -224,9 +225,8 @@ def build_report(
         how = answers.problem.removeprefix("the student's process ")
         report.rows = [ended_row(_label(s), expected[s], how, answers.output) for s in stages]
         return report
-    scheme = "systematic"  # the whole filter's SIR resamples as the student's resampler does
     for stage in stages:
-        row, scheme = _row(stage, expected[stage], scheme, report, parts, scenarios, answers, references)
+        row = _row(stage, expected[stage], report, parts, scenarios, answers, references)
         if (copies or {}).get(stage) and row.status != NOT_WRITTEN:
             row = Row(row.part, NOT_OWN, row.expected, copies[stage], COPY_HINT)
         report.rows.append(row)
@@ -240,35 +240,34 @@ def build_report(
     return report
 
 
-def _row(stage: str, expected: str, scheme: str, report: Report, parts: PartInputs,
-         scenarios: list[ScenarioInputs], answers: Answers, references: Any) -> tuple[Row, str]:  # fmt: skip
-    """One stage's row, and the scheme the whole filter's SIR then uses: the process ended in it, no
-    answer came, an answer the grader cannot read, the student's code failed, or its values judged
-    (the whole filter's figures into the report)."""
-    label, message = _label(stage), answers.results.get(stage)
+def _row(stage: str, expected: str, report: Report, parts: PartInputs, scenarios: list[ScenarioInputs],
+         answers: Answers, references: Any) -> Row:  # fmt: skip
+    """One stage's row: the process ended in it, no answer came, an answer the grader cannot read, the
+    student's code failed, or its values judged (the resampler's scheme and the whole filter's figures
+    into the report)."""
+    label, message, scheme = _label(stage), answers.results.get(stage), report.scheme
     if stage in answers.ended:
-        return ended_row(label, expected, answers.ended[stage], answers.output), scheme
+        return ended_row(label, expected, answers.ended[stage], answers.output)
     if message is None:  # it said "done" (or ended) without this stage's answer
-        return Row(
-            label, FAIL, expected, "no answer came from the student's process", "a part returns its answer"
-        ), scheme
+        return Row(label, FAIL, expected, "no answer came from the student's process", "a part returns its answer")
     try:
         error = error_of(message)
         if stage == "resample" and not error:
-            return judge_resample(parts, message)
+            row, report.scheme = judge_resample(parts, message)
+            return row
         if stage != "whole":
-            return (error_row(stage, expected, error, HINTS[stage]) if error else JUDGES[stage](parts, message)), scheme
+            return error_row(stage, expected, error, HINTS[stage]) if error else JUDGES[stage](parts, message)
         if any(_not_written(answers.results.get(p)) for p in PARTS):
-            return Row(WHOLE, NOT_RUN, whole_expected(scheme), "not run", "write every part first"), scheme
+            return Row(WHOLE, NOT_RUN, whole_expected(scheme), "not run", "write every part first")
         estimates = whole_answer(scenarios, message, scheme)
         if isinstance(estimates, Row):
-            return estimates, scheme
+            return estimates
         sir = [references.sir(s, scheme) for s in scenarios]
         exact = [references.exact(s).result() for s in scenarios]
         row, report.figures = judge_whole(scenarios, estimates, exact, [f.result() for f in sir], scheme)
-        return row, scheme
+        return row
     except BadAnswerError as error:
-        return Row(label, FAIL, expected, f"an answer the grader cannot read ({error})", "return plain arrays"), scheme
+        return Row(label, FAIL, expected, f"an answer the grader cannot read ({error})", "return plain arrays")
 
 
 def ended_row(part: str, expected: str, ended: str, output: str) -> Row:
@@ -310,51 +309,44 @@ def check_file(
     if path.resolve().suffix != ".py":
         raise NotGradableError(f"{shown}: a link to {path.resolve()}, not a Python file")
     beside = companions_of(path) if companions else []
-    if seed is not None:
-        source = "given"
-    elif key:
-        source, seed = "key", files_seed(path, beside, key)
-    else:
-        source, seed = "files", files_seed(path, beside)
+    source = "given" if seed is not None else "key" if key else "files"
+    seed = files_seed(path, beside, key or None) if seed is None else seed
+    report = Report(class_name or path.stem, None if source == "key" else seed, source, note=sandbox().note)
     return _check(
+        report,
         seed,
-        source,
         stages,
         lambda parts, scenarios: collect_isolated(
             path.resolve(), class_name, parts, scenarios, timeout, stages, shown, companions
         ),
         shown,
         {p.name: p.read_text(errors="replace") for p in [path, *beside]},
-        class_name or path.stem,
         references,
-        sandbox().note,
     )
 
 
 def check(filter_class: type, *, seed: int | None = None, stages: tuple[str, ...] = STAGES) -> Report:
     """Check a class in this process (a self-check: nothing isolates it), the given stages (every
     part and the whole filter by default); the seed defaults to one from the class's source, or 0."""
+    seed = source_seed(filter_class) if seed is None else seed
     return _check(
-        source_seed(filter_class) if seed is None else seed,
-        "class",
+        Report(filter_class.__name__, seed, "class"),
+        seed,
         stages,
         lambda parts, scenarios: collect_in_process(filter_class, parts, scenarios, list(stages)),
         filter_class.__name__,
         {"class.py": class_source(filter_class)},
-        filter_class.__name__,
     )
 
 
 def _check(
+    report: Report,
     seed: int,
-    source: str,
     stages: tuple[str, ...],
     collect: Callable[[PartInputs, list[ScenarioInputs]], Answers],
     shown: str,
     sources: dict[str, str],
-    name: str,
     references: Any = None,
-    note: str = "",
 ) -> Report:
     """The check both ways: the seed's inputs, the exact runs started while the student's code works,
     its answers collected, the report built (the class named as the student's process says)."""
@@ -368,8 +360,7 @@ def _check(
     problem = loading_problem(answers, shown)
     if problem:
         raise NotGradableError(problem)
-    name = str((answers.loaded or {}).get("name") or name)
-    report = Report(name, None if source == "key" else seed, source, note=note)
+    report.filter_name = clean((answers.loaded or {}).get("name") or report.filter_name, 80)
     build_report(report, parts, scenarios, answers, references, stages, copied_parts(sources))
     report.seconds = time.perf_counter() - started
     return report
@@ -419,8 +410,9 @@ def format_report(report: Report, width: int = WIDTH, catalogue: Catalogue | Non
     if report.note:
         lines[1:1] = _wrapped(words.translate(report.note), "", 0, width)
     if report.figures:
-        table = [[words.translate(cell) for cell in row] for row in figures_table(report.figures)]
-        lines += ["", *_wrapped(_(FIGURES_INTRO), "", 0, width), format_table([_(h) for h in FIGURE_HEADERS], table)]
+        table = [[words.translate(cell(f)) for _heading, cell in FIGURE_COLUMNS] for f in report.figures]
+        headers = [_(heading) for heading, _cell in FIGURE_COLUMNS]
+        lines += ["", *_wrapped(_(FIGURES_INTRO), "", 0, width), format_table(headers, table)]
     failed = [_(r.part) for r in report.rows if not r.passed]
     lines += ["", _("All checks pass.") if not failed else _("To fix: {parts}.").format(parts=", ".join(failed))]
     return words.numbers("\n".join(lines))

@@ -51,7 +51,9 @@ def magnitude_p(distances: np.ndarray, sir_distances: np.ndarray) -> tuple[float
 
 
 # -- the grader's own runs ------------------------------------------------------------------------
-def _quiet_run(scenario: ScenarioInputs, filter_name: str, **options: object) -> np.ndarray:
+def reference_run(scenario: ScenarioInputs, filter_name: str, **options: object) -> np.ndarray:
+    """A shipped filter's estimates (steps, 2) on the scenario: the exact grid filter's posterior means
+    ("grid"), or the SIR's ("sir", resampling with the student's scheme)."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)
         result = simulate(
@@ -67,16 +69,6 @@ def _quiet_run(scenario: ScenarioInputs, filter_name: str, **options: object) ->
             **options,
         )
     return result.estimates
-
-
-def exact_estimates(scenario: ScenarioInputs) -> np.ndarray:
-    """The exact grid filter's posterior means (steps, 2) on the scenario."""
-    return _quiet_run(scenario, "grid", resolution=GRID_RESOLUTION)
-
-
-def sir_estimates(scenario: ScenarioInputs, scheme: str) -> np.ndarray:
-    """The shipped SIR's estimates (steps, 2) on the scenario, resampling with `scheme`."""
-    return _quiet_run(scenario, "sir", resampling=scheme)
 
 
 _memo: dict[tuple, Future] = {}
@@ -117,7 +109,7 @@ class References:
     def __init__(self, executor: Executor | None = None):
         self.executor = executor
 
-    def _submit(self, key: tuple, function: object, *args: object) -> Future:
+    def _submit(self, key: tuple, scenario: ScenarioInputs, filter_name: str, **options: object) -> Future:
         global _background
         with _memo_lock:
             future = _memo.get(key)
@@ -125,15 +117,15 @@ class References:
                 return future
             if self.executor is None and _background is None:
                 _background = Background()
-            future = (self.executor or _background).submit(function, *args)
+            future = (self.executor or _background).submit(reference_run, scenario, filter_name, **options)
             _memo[key] = future
             return future
 
     def exact(self, scenario: ScenarioInputs) -> Future:
-        return self._submit(("exact", scenario.key), exact_estimates, scenario)
+        return self._submit(("exact", scenario.key), scenario, "grid", resolution=GRID_RESOLUTION)
 
     def sir(self, scenario: ScenarioInputs, scheme: str) -> Future:
-        return self._submit(("sir", scheme, scenario.key), sir_estimates, scenario, scheme)
+        return self._submit(("sir", scheme, scenario.key), scenario, "sir", resampling=scheme)
 
 
 # -- the verdict ------------------------------------------------------------------------------------
@@ -162,12 +154,6 @@ FIGURE_COLUMNS = (  # the per-scenario table: each column's heading and its cell
     ("converged", lambda f: "yes" if f.converged else "no"),
     ("SIR's", lambda f: "yes" if f.sir_converged else "no"),
 )
-FIGURE_HEADERS = [heading for heading, _ in FIGURE_COLUMNS]
-
-
-def figures_table(figures: list[ScenarioFigures]) -> list[list[str]]:
-    """Rows of the per-scenario table: maze, noise, particles, distances to the exact mean, convergence."""
-    return [[cell(f) for _, cell in FIGURE_COLUMNS] for f in figures]
 
 
 def distance_to_exact(estimates: np.ndarray, exact: np.ndarray) -> float:
