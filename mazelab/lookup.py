@@ -50,7 +50,8 @@ class NearestStationLookup:
         self.row[ambiguous] = np.arange(len(ambiguous))
         # The nearest station to a point beyond the table is the nearest to the point where the segment
         # between them crosses the table's border, so it is a candidate of a border cell.
-        self._border = np.unique(candidates.reshape(self.ny, self.nx, -1)[_border_of(self.ny, self.nx)])
+        border = candidates.reshape(self.ny, self.nx, -1)[_border_of(self.ny, self.nx)]
+        self._border = np.flatnonzero(np.bincount(border.ravel(), minlength=len(stations)))  # sorted, once each
         self._first = candidates[:, 0]  # (C,) station indices
         self._all = candidates[ambiguous]  # (A, K) station indices, padded by repeats
         self._tables: dict[np.dtype, _StationTables] = {}
@@ -67,7 +68,7 @@ class NearestStationLookup:
         ambiguous = np.flatnonzero(kinds >= _AMBIGUOUS)
         if len(ambiguous):
             rows = self.row.take(cells.take(ambiguous))
-            d2[ambiguous] = _nearest_candidate(tables, rows, x.take(ambiguous), y.take(ambiguous))
+            d2[ambiguous] = _nearest_candidate(tables, rows, x.take(ambiguous), y.take(ambiguous), d2.take(ambiguous))
         free = np.bitwise_and(kinds, _FREE, out=kinds).view(bool)
         if len(beyond):
             d2[beyond] = _brute_force_squared_distances(tables.border, x[beyond], y[beyond])
@@ -138,9 +139,8 @@ class NearestStationLookup:
         """The candidates' coordinates in `dtype`, made once per dtype."""
         if dtype not in self._tables:
             xy = self.stations.astype(dtype)
-            every = xy[self._all]
-            columns_x, columns_y = every[..., 0].T.copy(), every[..., 1].T.copy()  # (K, A): candidate k of each row
-            self._tables[dtype] = _StationTables(xy[self._first], columns_x, columns_y, xy[self._border])
+            others = xy[self._all[:, 1:]].reshape(len(self._all), -1)  # (A, 2 (K - 1)): x1, y1, x2, y2, ...
+            self._tables[dtype] = _StationTables(xy[self._first], others, xy[self._border])
         return self._tables[dtype]
 
 
@@ -155,12 +155,11 @@ def _cell_kinds(free: np.ndarray, ambiguous: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class _StationTables:
-    """Coordinates of each lookup cell's first candidate (C, 2), of the ambiguous cells' candidates
-    (K, A: row k holds every ambiguous cell's k-th candidate), and of the border cells' candidates (b, 2)."""
+    """Coordinates of each lookup cell's first candidate (C, 2), of the ambiguous cells' other candidates
+    (A, 2 (K - 1): a row's x1, y1, x2, y2, ..., one gather a point), and of the border cells' candidates (b, 2)."""
 
     first: np.ndarray
-    all_x: np.ndarray
-    all_y: np.ndarray
+    others: np.ndarray
     border: np.ndarray
 
 
@@ -192,12 +191,15 @@ def _lookup_cells_free(free_grid: np.ndarray, scale: int, margin: int) -> np.nda
     return np.repeat(np.repeat(free_up, scale, axis=0), scale, axis=1)
 
 
-def _nearest_candidate(tables: _StationTables, rows: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Squared distance from each point to the nearest candidate of its ambiguous cell (row of the table)."""
-    nearest = _squared_distances(tables.all_x[0].take(rows), tables.all_y[0].take(rows), x, y)
-    for candidate_x, candidate_y in zip(tables.all_x[1:], tables.all_y[1:], strict=True):
-        np.minimum(nearest, _squared_distances(candidate_x.take(rows), candidate_y.take(rows), x, y), out=nearest)
-    return nearest
+def _nearest_candidate(
+    tables: _StationTables, rows: np.ndarray, x: np.ndarray, y: np.ndarray, first: np.ndarray
+) -> np.ndarray:
+    """Squared distance from each point to the nearest candidate of its ambiguous cell (row of the table),
+    given `first`, its squared distance to the first candidate (written over)."""
+    others = tables.others.take(rows, axis=0)  # (n, 2 (K - 1))
+    for k in range(0, others.shape[1], 2):
+        np.minimum(first, _squared_distances(others[:, k], others[:, k + 1], x, y), out=first)
+    return first
 
 
 def _squared_distances(sx: np.ndarray, sy: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
