@@ -111,7 +111,7 @@ class NumpyKernels:
         -------
         array (R, M)
         """
-        gathered = np.take_along_axis(log_mu, A, axis=1)  # log p(z_k | mu_k^{a^j})
+        gathered = log_mu.reshape(-1).take(flat_ancestors(A, log_mu.shape[1])).reshape(A.shape)  # p(z_k | mu^{a^j})
         return np.subtract(log_lik, gathered, out=gathered if log_lik.dtype == gathered.dtype else None)
 
     def weighted_mean(self, W: Weights, x: np.ndarray) -> np.ndarray:
