@@ -14,8 +14,10 @@ import numpy as np
 # points farther out (rare: particles only drift out by a step length at a time) use brute force.
 _LOOKUP_MARGIN = 2
 # Lookup cells per map unit, a power of two (so x * scale and its floor are exact): the finer the
-# cells, the fewer have more than one candidate station (at 4, about one in five on the shipped mazes).
+# cells, the fewer have more than one candidate station (at 4, about one in five on the shipped mazes;
+# each halving of the side halves that share, so a small maze takes up to 16, its table still built in ms).
 _LOOKUP_SUBDIVISIONS = 4
+_LOOKUP_FINEST, _LOOKUP_FINE_CELLS = 16, 2**15  # a map whose table stays within this many cells at 8 or 16 takes it
 _LOOKUP_MAX_CELLS = 2**22  # a larger map gets coarser lookup cells (flat indices stay exact in float32)
 _LOOKUP_TILE = 16  # the table is built in square tiles of this many lookup cells a side
 _LOOKUP_TOLERANCE = 1e-9  # map units: candidate tests keep near-ties (rounding cannot drop the nearest)
@@ -177,10 +179,15 @@ def lookup_cell_count(width: int, height: int) -> int:
 
 
 def _lookup_subdivisions(width: int, height: int) -> int:
-    """Lookup cells per map unit: _LOOKUP_SUBDIVISIONS, halved while the table would exceed
-    _LOOKUP_MAX_CELLS (which keeps flat cell indices exact in float32)."""
-    scale = _LOOKUP_SUBDIVISIONS
-    while scale > 1 and (width + 2 * _LOOKUP_MARGIN) * (height + 2 * _LOOKUP_MARGIN) * scale**2 > _LOOKUP_MAX_CELLS:
+    """Lookup cells per map unit: the finest of _LOOKUP_FINEST, ..., _LOOKUP_SUBDIVISIONS whose table stays
+    within _LOOKUP_FINE_CELLS, else _LOOKUP_SUBDIVISIONS halved while the table would exceed
+    _LOOKUP_MAX_CELLS (which keeps flat cell indices exact in float32). The candidates of a finer cell
+    are fewer, never other: the nearest distance of a point is the same at every scale."""
+    area = (width + 2 * _LOOKUP_MARGIN) * (height + 2 * _LOOKUP_MARGIN)
+    scale = _LOOKUP_FINEST
+    while scale > _LOOKUP_SUBDIVISIONS and area * scale**2 > _LOOKUP_FINE_CELLS:
+        scale //= 2
+    while scale > 1 and area * scale**2 > _LOOKUP_MAX_CELLS:
         scale //= 2
     return scale
 
