@@ -34,7 +34,7 @@ from mazelab.model import OUTSIDE_PENALTY_OPTION, SPEED_OPTION, LostRobot
 from mazelab.modes import ESTIMATE_OPTION, Mode, find_modes
 from mazelab.recovery import RECOVERY_OPTIONS, RecoveryTracker, recovery_options
 from mazelab.regularisation import BANDWIDTH_OPTION, GaussianKernel, Kernel, mixture_kernel, optimal_bandwidth
-from mazelab.resampling import KLD_OPTIONS, RESAMPLING_OPTION, kld_options, kld_resample, resampling_scheme
+from mazelab.resampling import KLD_OPTIONS, RESAMPLING_OPTION, RESAMPLING_SCHEMES, kld_options, kld_resample
 from mazelab.smc import SMC, particles_array
 from mazelab.weights import Weights
 
@@ -107,7 +107,7 @@ class ParticleFilter(SMC):
         self.kld = kld_options(settings["kld"], settings["kld_epsilon"], settings["kld_z"])
         # the scheme: mazelab.resampling's textbook function, or the backend's faster form of it
         fast = self.ops.schemes.get(self.scheme_name)
-        scheme = fast or resampling_scheme(self.scheme_name)
+        scheme = fast or RESAMPLING_SCHEMES[self.scheme_name]
         if not hasattr(type(self), "resample"):  # a plug-in's own `resample` is its scheme
             self.resample = scheme if self.kld is None else functools.partial(self.kld_resample, scheme)
             if fast is None and self.kld is None:  # mazelab.resampling's schemes draw every due run in one call
