@@ -25,7 +25,7 @@ def uniforms(rng: Any, size: int | None = None) -> float | np.ndarray:
     (size None: one draw, a float; (R, 1) for R runs)."""
     if hasattr(rng, "random"):
         return rng.random() if size is None else rng.random(size)
-    return np.array([g.random(1 if size is None else size) for g in rng])
+    return np.array([[g.random()] if size is None else g.random(size) for g in rng])  # random(): random(1)'s
 
 
 def _inverse_cdf(sorted_uniforms: np.ndarray, weights: np.ndarray) -> np.ndarray:
