@@ -32,6 +32,7 @@ from mazelab.declaration import Option, Options, number_in, options_of
 from mazelab.maze import Maze, check_world
 from mazelab.model import OUTSIDE_PENALTY_OPTION, SPEED_OPTION, LostRobot
 from mazelab.modes import ESTIMATE_OPTION, Mode, find_modes
+from mazelab.numpy_ops import keep_freed_memory
 from mazelab.recovery import RECOVERY_OPTIONS, RecoveryTracker, recovery_options
 from mazelab.regularisation import BANDWIDTH_OPTION, GaussianKernel, Kernel, mixture_kernel, optimal_bandwidth
 from mazelab.resampling import KLD_OPTIONS, RESAMPLING_OPTION, RESAMPLING_SCHEMES, kld_options, kld_resample
@@ -100,6 +101,7 @@ class ParticleFilter(SMC):
         self.world, self.sigma, self.delta = check_world(world), sigma, delta
         check_sigma_within(sigma, world.width, world.height)
         self.ops = kernels_for(self.world)  # the hot operations: numpy's or compiled (mazelab.backend)
+        keep_freed_memory()  # a step's freed arrays reused, not given back and faulted in again
         self.backend: str = self.ops.name
         model = LostRobot(self.world, sigma, delta, self.ops, settings["speed"], settings["outside_penalty"])
         self.threshold, self.estimate_rule = settings["threshold"], settings["estimate"]

@@ -47,13 +47,14 @@ class NearestStationLookup:
         free = _lookup_cells_free(free_grid, self.scale, _LOOKUP_MARGIN).ravel()  # (C,) bool
         candidates, counts = _candidate_stations(stations, self.nx, self.ny, self.offset, self.scale, progress)
         ambiguous = np.flatnonzero(counts > 1)
-        self.kind = _cell_kinds(free, counts > 1)  # (C,) int8
+        self.kind = (free * _FREE + (counts > 1) * _AMBIGUOUS).astype(np.int8)  # (C,) each cell's bits
         self.row = np.full(len(counts), -1, dtype=np.int32)  # each cell's row of `_all`, -1: one candidate
         self.row[ambiguous] = np.arange(len(ambiguous))
         # The nearest station to a point beyond the table is the nearest to the point where the segment
         # between them crosses the table's border, so it is a candidate of a border cell.
-        border = candidates.reshape(self.ny, self.nx, -1)[_border_of(self.ny, self.nx)]
-        self._border = np.flatnonzero(np.bincount(border.ravel(), minlength=len(stations)))  # sorted, once each
+        grid = candidates.reshape(self.ny, self.nx, -1)  # the outermost ring of cells' candidates, sorted:
+        border = np.concatenate([grid[0], grid[-1], grid[:, 0], grid[:, -1]]).ravel()
+        self._border = np.flatnonzero(np.bincount(border, minlength=len(stations)))
         self._first = candidates[:, 0]  # (C,) station indices
         self._all = candidates[ambiguous]  # (A, K) station indices, padded by repeats
         self._tables: dict[np.dtype, _StationTables] = {}
@@ -150,11 +151,6 @@ _NO_POINTS = np.empty(0, dtype=np.intp)
 _FREE, _AMBIGUOUS = 1, 2  # bits of a lookup cell's kind
 
 
-def _cell_kinds(free: np.ndarray, ambiguous: np.ndarray) -> np.ndarray:
-    """Each lookup cell's kind, int8 (C,): _FREE if free, plus _AMBIGUOUS if it has several candidates."""
-    return (free * _FREE + ambiguous * _AMBIGUOUS).astype(np.int8)
-
-
 @dataclass(frozen=True)
 class _StationTables:
     """Coordinates of each lookup cell's first candidate (C, 2), of the ambiguous cells' other candidates
@@ -163,13 +159,6 @@ class _StationTables:
     first: np.ndarray
     others: np.ndarray
     border: np.ndarray
-
-
-def _border_of(ny: int, nx: int) -> np.ndarray:
-    """(ny, nx) mask of the outermost ring of cells."""
-    ring = np.ones((ny, nx), dtype=bool)
-    ring[1:-1, 1:-1] = False
-    return ring
 
 
 def lookup_cell_count(width: int, height: int) -> int:
