@@ -170,8 +170,9 @@ def lookup_cell_count(width: int, height: int) -> int:
 def _lookup_subdivisions(width: int, height: int) -> int:
     """Lookup cells per map unit: the finest of _LOOKUP_FINEST, ..., _LOOKUP_SUBDIVISIONS whose table stays
     within _LOOKUP_FINE_CELLS, else _LOOKUP_SUBDIVISIONS halved while the table would exceed
-    _LOOKUP_MAX_CELLS (which keeps flat cell indices exact in float32). The candidates of a finer cell
-    are fewer, never other: the nearest distance of a point is the same at every scale."""
+    _LOOKUP_MAX_CELLS (which keeps flat cell indices exact in float32). A finer cell's candidates are
+    some of its coarser cell's, the nearest always among them, so a point's distance is the same at
+    every scale (bit for bit: the stations lie on the grid's corners, whole numbers)."""
     area = (width + 2 * _LOOKUP_MARGIN) * (height + 2 * _LOOKUP_MARGIN)
     scale = _LOOKUP_FINEST
     while scale > _LOOKUP_SUBDIVISIONS and area * scale**2 > _LOOKUP_FINE_CELLS:
