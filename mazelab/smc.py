@@ -510,7 +510,8 @@ def identity(runs: int, count: int) -> np.ndarray:
 def per_run(value: float | np.ndarray, runs: int) -> np.ndarray:
     """A step's compass angle or measurement as float64 (R,), one per run."""
     if isinstance(value, np.ndarray):
-        return np.broadcast_to(value.astype(float, copy=False), (runs,))
+        value = value.astype(float, copy=False)  # read-only as broadcast_to's view, without its cost
+        return read_only(value.view()) if value.shape == (runs,) else np.broadcast_to(value, (runs,))
     return np.array([float(value)] * runs)
 
 
