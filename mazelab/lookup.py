@@ -17,7 +17,7 @@ _LOOKUP_MARGIN = 2
 # cells, the fewer have more than one candidate station (at 4, about one in five on the shipped mazes;
 # each halving of the side halves that share, so a small maze takes up to 16, its table still built in ms).
 _LOOKUP_SUBDIVISIONS = 4
-_LOOKUP_FINEST, _LOOKUP_FINE_CELLS = 16, 2**15  # a map whose table stays within this many cells at 8 or 16 takes it
+_LOOKUP_FINEST, _LOOKUP_FINE_CELLS = 16, 2**14  # a map whose table stays within this many cells at 8 or 16 takes it
 _LOOKUP_MAX_CELLS = 2**22  # a larger map gets coarser lookup cells (flat indices stay exact in float32)
 _LOOKUP_TILE = 16  # the table is built in square tiles of this many lookup cells a side
 _LOOKUP_TOLERANCE = 1e-9  # map units: candidate tests keep near-ties (rounding cannot drop the nearest)
