@@ -71,10 +71,9 @@ def lookup_arrays(world: Maze) -> tuple:
     """
     lookup = world._lookup
     tables = lookup._station_tables(np.dtype(F32))
-    count, ambiguous = tables.all_x.shape
+    ambiguous, count = lookup._all.shape
     rows = np.full((ambiguous + 1, count, 2), FAR, dtype=F32)
-    rows[1:, :, 0] = tables.all_x.T
-    rows[1:, :, 1] = tables.all_y.T
+    rows[1:] = lookup.stations.astype(F32)[lookup._all]  # each ambiguous cell's K candidates' (x, y)
     offsets = np.where(lookup.kind & 2, (lookup.row + 1) * (2 * count), 0)
     return (
         F32(lookup.scale),

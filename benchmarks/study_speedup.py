@@ -30,8 +30,9 @@ TIMING = {"ms_per_step", "run_seconds"}
 SETTING_ONLY = {"threshold"}
 
 
-def run_study(checkout: Path, backend: str | None) -> tuple[float, float, list[dict[str, str]]]:
-    """(wall seconds, CPU seconds of the process and its children, the CSV's rows without timing)."""
+def run_study(checkout: Path, backend: str | None) -> tuple[float, float, int, list[dict[str, str]]]:
+    """(wall seconds, CPU seconds of the process and its children, their page faults, the CSV's rows
+    without timing)."""
     folder = Path(tempfile.mkdtemp())
     env = dict(os.environ)
     env.pop("PYTHONDONTWRITEBYTECODE", None)  # as a user runs it: imports read their cached bytecode
@@ -48,7 +49,7 @@ def run_study(checkout: Path, backend: str | None) -> tuple[float, float, list[d
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     with open(folder / "s.csv", encoding="utf-8") as rows:
         kept = [{k: v for k, v in row.items() if k not in TIMING} for row in csv.DictReader(rows)]
-    return wall, cpu, kept
+    return wall, cpu, after.ru_minflt - before.ru_minflt, kept
 
 
 def main() -> None:
@@ -66,9 +67,10 @@ def main() -> None:
     for r in range(args.rounds):
         order = subjects if r % 2 == 0 else subjects[::-1]
         for label, checkout, backend in order:
-            wall, cpu, rows[label] = run_study(checkout, backend)
+            wall, cpu, faults, rows[label] = run_study(checkout, backend)
             times[label].append((wall, cpu))
-            print(f"round {r + 1} {label:<9} wall {wall:6.1f} s  CPU {cpu:6.1f} s  load {os.getloadavg()[0]:.1f}")
+            figures = f"wall {wall:6.1f} s  CPU {cpu:6.1f} s  page faults {faults:7,}"
+            print(f"round {r + 1} {label:<9} {figures}  load {os.getloadavg()[0]:.1f}")
     for label in ("numpy", "compiled"):
         cpu_other = sum(c for _, c in times["other"])
         cpu_here = sum(c for _, c in times[label])

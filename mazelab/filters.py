@@ -32,9 +32,10 @@ from mazelab.declaration import Option, Options, number_in, options_of
 from mazelab.maze import Maze, check_world
 from mazelab.model import OUTSIDE_PENALTY_OPTION, SPEED_OPTION, LostRobot
 from mazelab.modes import ESTIMATE_OPTION, Mode, find_modes
+from mazelab.numpy_ops import keep_freed_memory
 from mazelab.recovery import RECOVERY_OPTIONS, RecoveryTracker, recovery_options
 from mazelab.regularisation import BANDWIDTH_OPTION, GaussianKernel, Kernel, mixture_kernel, optimal_bandwidth
-from mazelab.resampling import KLD_OPTIONS, RESAMPLING_OPTION, kld_options, kld_resample, resampling_scheme
+from mazelab.resampling import KLD_OPTIONS, RESAMPLING_OPTION, RESAMPLING_SCHEMES, kld_options, kld_resample
 from mazelab.smc import SMC, particles_array
 from mazelab.weights import Weights
 
@@ -100,6 +101,7 @@ class ParticleFilter(SMC):
         self.world, self.sigma, self.delta = check_world(world), sigma, delta
         check_sigma_within(sigma, world.width, world.height)
         self.ops = kernels_for(self.world)  # the hot operations: numpy's or compiled (mazelab.backend)
+        keep_freed_memory()  # a step's freed arrays reused, not given back and faulted in again
         self.backend: str = self.ops.name
         model = LostRobot(self.world, sigma, delta, self.ops, settings["speed"], settings["outside_penalty"])
         self.threshold, self.estimate_rule = settings["threshold"], settings["estimate"]
@@ -107,7 +109,7 @@ class ParticleFilter(SMC):
         self.kld = kld_options(settings["kld"], settings["kld_epsilon"], settings["kld_z"])
         # the scheme: mazelab.resampling's textbook function, or the backend's faster form of it
         fast = self.ops.schemes.get(self.scheme_name)
-        scheme = fast or resampling_scheme(self.scheme_name)
+        scheme = fast or RESAMPLING_SCHEMES[self.scheme_name]
         if not hasattr(type(self), "resample"):  # a plug-in's own `resample` is its scheme
             self.resample = scheme if self.kld is None else functools.partial(self.kld_resample, scheme)
             if self.kld is None:  # mazelab.resampling's schemes and the backend's draw every due run in one call

@@ -14,8 +14,10 @@ import numpy as np
 # points farther out (rare: particles only drift out by a step length at a time) use brute force.
 _LOOKUP_MARGIN = 2
 # Lookup cells per map unit, a power of two (so x * scale and its floor are exact): the finer the
-# cells, the fewer have more than one candidate station (at 4, about one in five on the shipped mazes).
+# cells, the fewer have more than one candidate station (at 4, about one in five on the shipped mazes;
+# each halving of the side halves that share, so a small maze takes up to 16, its table still built in ms).
 _LOOKUP_SUBDIVISIONS = 4
+_LOOKUP_FINEST, _LOOKUP_FINE_CELLS = 16, 2**14  # a map whose table stays within this many cells at 8 or 16 takes it
 _LOOKUP_MAX_CELLS = 2**22  # a larger map gets coarser lookup cells (flat indices stay exact in float32)
 _LOOKUP_TILE = 16  # the table is built in square tiles of this many lookup cells a side
 _LOOKUP_TOLERANCE = 1e-9  # map units: candidate tests keep near-ties (rounding cannot drop the nearest)
@@ -45,12 +47,14 @@ class NearestStationLookup:
         free = _lookup_cells_free(free_grid, self.scale, _LOOKUP_MARGIN).ravel()  # (C,) bool
         candidates, counts = _candidate_stations(stations, self.nx, self.ny, self.offset, self.scale, progress)
         ambiguous = np.flatnonzero(counts > 1)
-        self.kind = _cell_kinds(free, counts > 1)  # (C,) int8
+        self.kind = (free * _FREE + (counts > 1) * _AMBIGUOUS).astype(np.int8)  # (C,) each cell's bits
         self.row = np.full(len(counts), -1, dtype=np.int32)  # each cell's row of `_all`, -1: one candidate
         self.row[ambiguous] = np.arange(len(ambiguous))
         # The nearest station to a point beyond the table is the nearest to the point where the segment
         # between them crosses the table's border, so it is a candidate of a border cell.
-        self._border = np.unique(candidates.reshape(self.ny, self.nx, -1)[_border_of(self.ny, self.nx)])
+        grid = candidates.reshape(self.ny, self.nx, -1)  # the outermost ring of cells' candidates, sorted:
+        border = np.concatenate([grid[0], grid[-1], grid[:, 0], grid[:, -1]]).ravel()
+        self._border = np.flatnonzero(np.bincount(border, minlength=len(stations)))
         self._first = candidates[:, 0]  # (C,) station indices
         self._all = candidates[ambiguous]  # (A, K) station indices, padded by repeats
         self._tables: dict[np.dtype, _StationTables] = {}
@@ -67,7 +71,7 @@ class NearestStationLookup:
         ambiguous = np.flatnonzero(kinds >= _AMBIGUOUS)
         if len(ambiguous):
             rows = self.row.take(cells.take(ambiguous))
-            d2[ambiguous] = _nearest_candidate(tables, rows, x.take(ambiguous), y.take(ambiguous))
+            d2[ambiguous] = _nearest_candidate(tables, rows, x.take(ambiguous), y.take(ambiguous), d2.take(ambiguous))
         free = np.bitwise_and(kinds, _FREE, out=kinds).view(bool)
         if len(beyond):
             d2[beyond] = _brute_force_squared_distances(tables.border, x[beyond], y[beyond])
@@ -138,9 +142,8 @@ class NearestStationLookup:
         """The candidates' coordinates in `dtype`, made once per dtype."""
         if dtype not in self._tables:
             xy = self.stations.astype(dtype)
-            every = xy[self._all]
-            columns_x, columns_y = every[..., 0].T.copy(), every[..., 1].T.copy()  # (K, A): candidate k of each row
-            self._tables[dtype] = _StationTables(xy[self._first], columns_x, columns_y, xy[self._border])
+            others = xy[self._all[:, 1:]].reshape(len(self._all), -1)  # (A, 2 (K - 1)): x1, y1, x2, y2, ...
+            self._tables[dtype] = _StationTables(xy[self._first], others, xy[self._border])
         return self._tables[dtype]
 
 
@@ -148,27 +151,14 @@ _NO_POINTS = np.empty(0, dtype=np.intp)
 _FREE, _AMBIGUOUS = 1, 2  # bits of a lookup cell's kind
 
 
-def _cell_kinds(free: np.ndarray, ambiguous: np.ndarray) -> np.ndarray:
-    """Each lookup cell's kind, int8 (C,): _FREE if free, plus _AMBIGUOUS if it has several candidates."""
-    return (free * _FREE + ambiguous * _AMBIGUOUS).astype(np.int8)
-
-
 @dataclass(frozen=True)
 class _StationTables:
-    """Coordinates of each lookup cell's first candidate (C, 2), of the ambiguous cells' candidates
-    (K, A: row k holds every ambiguous cell's k-th candidate), and of the border cells' candidates (b, 2)."""
+    """Coordinates of each lookup cell's first candidate (C, 2), of the ambiguous cells' other candidates
+    (A, 2 (K - 1): a row's x1, y1, x2, y2, ..., one gather a point), and of the border cells' candidates (b, 2)."""
 
     first: np.ndarray
-    all_x: np.ndarray
-    all_y: np.ndarray
+    others: np.ndarray
     border: np.ndarray
-
-
-def _border_of(ny: int, nx: int) -> np.ndarray:
-    """(ny, nx) mask of the outermost ring of cells."""
-    ring = np.ones((ny, nx), dtype=bool)
-    ring[1:-1, 1:-1] = False
-    return ring
 
 
 def lookup_cell_count(width: int, height: int) -> int:
@@ -178,10 +168,16 @@ def lookup_cell_count(width: int, height: int) -> int:
 
 
 def _lookup_subdivisions(width: int, height: int) -> int:
-    """Lookup cells per map unit: _LOOKUP_SUBDIVISIONS, halved while the table would exceed
-    _LOOKUP_MAX_CELLS (which keeps flat cell indices exact in float32)."""
-    scale = _LOOKUP_SUBDIVISIONS
-    while scale > 1 and (width + 2 * _LOOKUP_MARGIN) * (height + 2 * _LOOKUP_MARGIN) * scale**2 > _LOOKUP_MAX_CELLS:
+    """Lookup cells per map unit: the finest of _LOOKUP_FINEST, ..., _LOOKUP_SUBDIVISIONS whose table stays
+    within _LOOKUP_FINE_CELLS, else _LOOKUP_SUBDIVISIONS halved while the table would exceed
+    _LOOKUP_MAX_CELLS (which keeps flat cell indices exact in float32). A finer cell's candidates are
+    some of its coarser cell's, the nearest always among them, so a point's distance is the same at
+    every scale (bit for bit: the stations lie on the grid's corners, whole numbers)."""
+    area = (width + 2 * _LOOKUP_MARGIN) * (height + 2 * _LOOKUP_MARGIN)
+    scale = _LOOKUP_FINEST
+    while scale > _LOOKUP_SUBDIVISIONS and area * scale**2 > _LOOKUP_FINE_CELLS:
+        scale //= 2
+    while scale > 1 and area * scale**2 > _LOOKUP_MAX_CELLS:
         scale //= 2
     return scale
 
@@ -192,12 +188,15 @@ def _lookup_cells_free(free_grid: np.ndarray, scale: int, margin: int) -> np.nda
     return np.repeat(np.repeat(free_up, scale, axis=0), scale, axis=1)
 
 
-def _nearest_candidate(tables: _StationTables, rows: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Squared distance from each point to the nearest candidate of its ambiguous cell (row of the table)."""
-    nearest = _squared_distances(tables.all_x[0].take(rows), tables.all_y[0].take(rows), x, y)
-    for candidate_x, candidate_y in zip(tables.all_x[1:], tables.all_y[1:], strict=True):
-        np.minimum(nearest, _squared_distances(candidate_x.take(rows), candidate_y.take(rows), x, y), out=nearest)
-    return nearest
+def _nearest_candidate(
+    tables: _StationTables, rows: np.ndarray, x: np.ndarray, y: np.ndarray, first: np.ndarray
+) -> np.ndarray:
+    """Squared distance from each point to the nearest candidate of its ambiguous cell (row of the table),
+    given `first`, its squared distance to the first candidate (written over)."""
+    others = tables.others.take(rows, axis=0)  # (n, 2 (K - 1))
+    for k in range(0, others.shape[1], 2):
+        np.minimum(first, _squared_distances(others[:, k], others[:, k + 1], x, y), out=first)
+    return first
 
 
 def _squared_distances(sx: np.ndarray, sy: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:

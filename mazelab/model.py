@@ -59,32 +59,9 @@ LAB_DELTA_RANGE = (0.05, 0.6)
 
 
 # -- the model -------------------------------------------------------------------------------------
-def sample_headings(
-    compass_angle: float, delta: float, count: int, rng: np.random.Generator, dtype: type = np.float64
-) -> np.ndarray:
-    """Headings actually taken, th ~ U(th0 - Delta/2, th0 + Delta/2) (equation (1)'s angle).
-
-    Parameters
-    ----------
-    compass_angle : float
-        th0, the compass's heading (radians).
-    delta : float
-        Delta, the compass error's full width (radians).
-    count : int
-    rng : numpy.random.Generator
-    dtype : type
-        The headings' float type.
-
-    Returns
-    -------
-    array (count,), radians
-    """
-    return headings_from_uniforms(rng.random(count, dtype=dtype), compass_angle, delta)
-
-
 def sample_heading(compass_angle: float, delta: float, rng: np.random.Generator) -> float:
-    """One heading th ~ U(th0 - Delta/2, th0 + Delta/2) (the robot's, once a step): sample_headings'
-    draw and operations in plain floats, so the same value without numpy calls on an array of one.
+    """One heading th ~ U(th0 - Delta/2, th0 + Delta/2) (the robot's, once a step): the particles'
+    draw and operations (`headings_from_uniforms`) in plain floats: the same value, without numpy calls.
 
     Parameters
     ----------
@@ -344,6 +321,5 @@ __all__ = [
     "log_likelihood",
     "move",
     "sample_heading",
-    "sample_headings",
     "take_particles",
 ]

@@ -25,7 +25,7 @@ def uniforms(rng: Any, size: int | None = None) -> float | np.ndarray:
     (size None: one draw, a float; (R, 1) for R runs)."""
     if hasattr(rng, "random"):
         return rng.random() if size is None else rng.random(size)
-    return np.array([g.random(1 if size is None else size) for g in rng])
+    return np.array([[g.random()] if size is None else g.random(size) for g in rng])  # random(): random(1)'s
 
 
 def _inverse_cdf(sorted_uniforms: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -86,22 +86,6 @@ RESAMPLING_SCHEMES: dict[str, Callable[..., np.ndarray]] = {
     "multinomial": multinomial_resample,
     "residual": residual_resample,
 }
-
-
-def resampling_scheme(name: str) -> Callable[..., np.ndarray]:
-    """The resampling function called `name` (systematic, stratified, multinomial, residual).
-
-    Parameters
-    ----------
-    name : str
-        Any case.
-
-    Returns
-    -------
-    callable
-        (weights, rng, count=None) -> ancestor indices.
-    """
-    return RESAMPLING_SCHEMES[check_scheme(name)]
 
 
 def check_scheme(name: Any) -> str:
@@ -285,11 +269,7 @@ def kld_resample(
         batch = min(max(target - drawn, drawn, 64), max_count - drawn)  # at least doubles: O(log n) batches
         ancestors = rng.permutation(resample(weights, rng, batch))
         positions, headings = move(ancestors)
-        keys, first = np.unique(_bin_keys(positions, options.bin_size), return_index=True)
-        new = np.zeros(batch, dtype=bool)
-        new[first[~np.isin(keys, occupied, assume_unique=True)]] = True
-        bins = len(occupied) + np.cumsum(new)  # occupied bins after each sample of the batch
-        enough = drawn + np.arange(1, batch + 1) >= np.maximum(least, options.required_count(bins))
+        enough, keys = _enough(positions, occupied, drawn, least, options)
         stop = int(np.argmax(enough)) + 1 if enough.any() else batch
         parts.append((ancestors[:stop], positions[:stop], headings[:stop]))
         drawn += stop
@@ -299,6 +279,19 @@ def kld_resample(
         target = int(options.required_count(len(occupied)))
     ancestors, positions, headings = (np.concatenate(part) for part in zip(*parts, strict=True))
     return ancestors, positions, headings
+
+
+def _enough(
+    positions: np.ndarray, occupied: np.ndarray, drawn: int, least: int, options: KLDSampling
+) -> tuple[np.ndarray, np.ndarray]:
+    """Whether the sample reaches KLD-sampling's bound after each point of a batch (n >= least and n >=
+    required_count(k), k the bins occupied by then, `occupied` before the batch), bool (batch,); and the
+    sorted keys of the bins the batch occupies."""
+    keys, first = np.unique(_bin_keys(positions, options.bin_size), return_index=True)
+    new = np.zeros(len(positions), dtype=bool)
+    new[first[~np.isin(keys, occupied, assume_unique=True)]] = True
+    bins = len(occupied) + np.cumsum(new)  # occupied bins after each point of the batch
+    return drawn + np.arange(1, len(positions) + 1) >= np.maximum(least, options.required_count(bins)), keys
 
 
 def _bin_keys(positions: np.ndarray, size: float) -> np.ndarray:
@@ -323,7 +316,6 @@ __all__ = [
     "kld_resample",
     "kld_sample_size",
     "multinomial_resample",
-    "resampling_scheme",
     "residual_resample",
     "stratified_resample",
     "systematic_resample",

@@ -124,7 +124,7 @@ class SMC:
         Wf = W if eta is None else W.add(eta, self.x)  # W_{k-1} eta_k, normalised (the APF's first stage)
         lost = None if eta is None else self._lost_at_first_stage(Wf, eta)  # nothing explains z_k: no draws
         due = due_of("time_to_resample", self.time_to_resample(W), self, lost)  # RESAMPLE now? (R,)
-        A = ancestors_of("ancestors", self.ancestors(Wf, due), self) if self._some(due) else None
+        A = ancestors_of("ancestors", self.ancestors(Wf, due), self) if due is self.all_due or due.any() else None
         x, headings = moved_of("move", self.move(self.x, A, due), self.runs)  # x_k^i ~ p(x_k | x_{k-1}^{a^i})
         log_g = log_weights_of("log_likelihood", self.log_likelihood(x), self.runs)  # log G_k(x_k^i)
         reset = None if A is None else reset_of("reweight_resampled", self.reweight_resampled(log_g, A), self.runs)
@@ -340,10 +340,6 @@ class SMC:
         """
         return self.x.shape[1]
 
-    def _some(self, due: np.ndarray) -> bool:
-        """Whether any run is due (no reduction for the every-run mask `time_to_resample` returns)."""
-        return due is self.all_due or bool(due.any())
-
     def _every(self, due: np.ndarray) -> bool:
         """Whether every run is due."""
         return due is self.all_due or bool(due.all())
@@ -514,7 +510,8 @@ def identity(runs: int, count: int) -> np.ndarray:
 def per_run(value: float | np.ndarray, runs: int) -> np.ndarray:
     """A step's compass angle or measurement as float64 (R,), one per run."""
     if isinstance(value, np.ndarray):
-        return np.broadcast_to(value.astype(float, copy=False), (runs,))
+        value = value.astype(float, copy=False)  # read-only as broadcast_to's view, without its cost
+        return read_only(value.view()) if value.shape == (runs,) else np.broadcast_to(value, (runs,))
     return np.array([float(value)] * runs)
 
 

@@ -15,7 +15,7 @@ from conftest import recorded_walk
 from mazelab.constants import CONFIDENCE_SHARE
 from mazelab.filters import ParticleFilter, SIRParticleFilter
 from mazelab.registry import entries
-from mazelab.resampling import resampling_scheme
+from mazelab.resampling import RESAMPLING_SCHEMES
 from mazelab.weights import Weights
 
 PARTICLE_FILTERS = [entry.filter_class for entry in entries() if issubclass(entry.filter_class, ParticleFilter)]
@@ -98,7 +98,7 @@ def test_the_steps_resampling_hook_is_the_textbook_scheme_applied_to_each_run(pa
     filt = SIRParticleFilter(paper_world, 0.3, 0.5, particles, [np.random.default_rng(10 + r) for r in range(runs)],
                              resampling=scheme)  # fmt: skip
     W = np.random.default_rng(5).dirichlet(np.full(count, 0.3), size=runs)
-    textbook = resampling_scheme(scheme)
+    textbook = RESAMPLING_SCHEMES[scheme]
     expected = [textbook(W[r], np.random.default_rng(10 + r)) for r in range(runs)]
     np.testing.assert_array_equal(filt.ancestors(Weights(np.log(W)), np.ones(runs, dtype=bool)), expected)
     due = np.array([False, True, False])  # the Generators of runs 0 and 2 untouched: 1 draws its own again

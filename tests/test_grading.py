@@ -189,10 +189,10 @@ DELEGATIONS = {
         "predict",
         """
         def predict(self, positions, compass_angle, rng):
-            from mazelab.model import move, sample_headings
-            return move(positions, sample_headings(compass_angle, self.delta, len(positions), rng))
+            from mazelab.model import headings_from_uniforms, move
+            return move(positions, headings_from_uniforms(rng.random(len(positions)), compass_angle, self.delta))
         """,
-        "mazelab.model.sample_headings",
+        "mazelab.model.headings_from_uniforms",
     ),
 }
 

@@ -23,7 +23,7 @@ from mazelab.kalman import (
 from mazelab.lab import simulate
 from mazelab.maze import Maze
 from mazelab.mazes import load_maze
-from mazelab.model import CONFIDENCE_RADIUS, LAB_DELTA_RANGE, LAB_SIGMA_RANGE, ROBOT_SPEED, move, sample_headings
+from mazelab.model import CONFIDENCE_RADIUS, LAB_DELTA_RANGE, LAB_SIGMA_RANGE, ROBOT_SPEED, headings_from_uniforms, move
 from mazelab.registry import resolve_filter
 from mazelab.robot import Robot
 from mazelab.viz.style import COVARIANCE_SIGMAS, entity_name
@@ -34,8 +34,9 @@ SAMPLES = 400_000
 # -- the motion moments ----------------------------------------------------------------------------
 @pytest.mark.parametrize(("theta", "delta"), [(0.3, 0.5), (2.0, 0.05), (-1.0, 0.6), (4.0, 2 * math.pi)])
 def test_q_is_the_covariance_of_the_sampled_arc(theta, delta):
-    """The model's own sampler (sample_headings, move) against arc_moments."""
-    steps = move(np.zeros((SAMPLES, 2)), sample_headings(theta, delta, SAMPLES, np.random.default_rng(1)))
+    """The model's own sampler (headings_from_uniforms, move) against arc_moments."""
+    headings = headings_from_uniforms(np.random.default_rng(1).random(SAMPLES), theta, delta)
+    steps = move(np.zeros((SAMPLES, 2)), headings)
     assert_sample_moments(steps, *arc_moments(theta, delta, ROBOT_SPEED))
 
 

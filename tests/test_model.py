@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from mazelab.backend import NUMPY_KERNELS
-from mazelab.model import OUTSIDE_PENALTY, ROBOT_SPEED, LostRobot, log_likelihood, move, sample_headings
+from mazelab.model import OUTSIDE_PENALTY, ROBOT_SPEED, LostRobot, headings_from_uniforms, log_likelihood, move
 from mazelab.robot import Robot
 
 
@@ -21,7 +21,7 @@ def test_move_is_equation_one():
 
 
 def test_headings_are_uniform_on_the_compass_interval(rng):
-    headings = sample_headings(1.0, 0.5, 100_000, rng)
+    headings = headings_from_uniforms(rng.random(100_000), 1.0, 0.5)
     assert headings.min() >= 0.75 and headings.max() <= 1.25
     # U(a, b) has mean (a+b)/2 and std (b-a)/sqrt(12); the sample mean's std is that over sqrt(n)
     assert abs(headings.mean() - 1.0) < 5 * 0.5 / math.sqrt(12) / math.sqrt(len(headings))

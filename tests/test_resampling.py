@@ -18,9 +18,9 @@ from mazelab.resampling import (
     KLD_QUANTILE,
     RESAMPLING_SCHEMES,
     KLDSampling,
+    check_scheme,
     kld_resample,
     kld_sample_size,
-    resampling_scheme,
     systematic_resample,
 )
 from mazelab.robot import Robot
@@ -32,7 +32,7 @@ PARTICLE_FILTERS = ["sir", "apf", "rpf"]
 @pytest.mark.parametrize("scheme", sorted(RESAMPLING_SCHEMES))
 def test_resampling_gives_the_expected_offspring_counts(scheme):
     weights = np.array([0.05, 0.4, 0.25, 0.1, 0.2, 0.0, 0.0, 0.0])
-    resample, rng, draws = resampling_scheme(scheme), np.random.default_rng(11), 4000
+    resample, rng, draws = RESAMPLING_SCHEMES[scheme], np.random.default_rng(11), 4000
     n = len(weights)
     counts = np.zeros((draws, n))
     for r in range(draws):
@@ -68,7 +68,8 @@ def test_every_scheme_draws_several_runs_in_one_call_as_each_alone(scheme):
 
 def test_unknown_resampling_scheme_lists_the_valid_ones():
     with pytest.raises(ValueError, match="systematic"):
-        resampling_scheme("magic")
+        check_scheme("magic")
+    assert check_scheme("Stratified") == "stratified"
 
 
 def test_the_textbook_systematic_and_the_compiled_counting_form_give_the_same_ancestors(paper_world):
