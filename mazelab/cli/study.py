@@ -23,6 +23,7 @@ from typing import Any
 import typer
 
 from mazelab.atomic import WriteError, write_text_atomically
+from mazelab.backend import cores
 from mazelab.cli.filter_options import (
     OptionFlag,
     StudyOptionFlag,
@@ -49,7 +50,6 @@ from mazelab.cli.options import (
 from mazelab.declaration import show_value
 from mazelab.experiments.accuracy import (
     AccuracyFilter,
-    AccuracyRecord,
     accuracy_csv,
     accuracy_filters,
     accuracy_plan,
@@ -62,7 +62,6 @@ from mazelab.experiments.executor import (
     check_workers,
     close_client,
     connect,
-    default_workers,
     run_study,
     study_backend,
 )
@@ -78,7 +77,7 @@ from mazelab.experiments.journal import (
     resume_study,
 )
 from mazelab.experiments.plan import StudyPlan, maze_description, plan_study, study_mazes
-from mazelab.experiments.record import Recorder, differences, record_path
+from mazelab.experiments.record import Recorder, differences, jsonable, record_path
 from mazelab.experiments.runs import parse_filters
 from mazelab.experiments.study import MazeChoice, RunRecord, RunTask, StudyOutcome
 from mazelab.experiments.summary import CSV_DTYPES, study_table, summarise_study, summary_csv, summary_path
@@ -183,9 +182,13 @@ def study(
               "kidnap_at": kidnap_at, "reference": reference}  # fmt: skip
     plan = study_plan(chosen, mazes, filters, named or {}, option, seed, values)
     extras = StudyExtras.parse(plan, **(figure or {}))
-    workers = workers or default_workers()
-    session = open_session(plan, chosen, study_backend(plan.tasks(), 1 if dask else workers), visualize, draw_run,
-                           dask, workers)  # fmt: skip
+    workers = workers or cores()
+    backend = study_backend(plan.tasks(), 1 if dask else workers)
+    where = f"on the Dask cluster at {dask}" if dask is not None else f"{workers} worker(s)"
+    session = open_session(plan, chosen, backend, plan.header(where, backend), visualize=visualize,
+                           draw_run=draw_run, dask=dask)  # fmt: skip
+    if chosen.resume:
+        typer.echo(f"resuming: {len(session.kept)} rows kept from {chosen.journal}, {len(session.tasks)} run(s) to go")
     try:
         outcome = run_study(session.tasks, workers, visualize=visualize, progress=True, on_records=session.append,
                             dask=session.client, dask_timeout=dask_timeout, ignore_signals_after_stop=True,
@@ -224,14 +227,9 @@ class StudyExtras:
               title: str | None = None) -> StudyExtras:  # fmt: skip
         """--paired names one of the study's filters, --plot-x one of its varied parameters, --plot-y
         what the figure draws (exact needs --reference grid, paired needs --paired)."""
-        from mazelab.experiments.study_plot import Y_QUANTITIES
+        from mazelab.experiments.study_plot import y_quantity
 
-        if plot_y not in Y_QUANTITIES:
-            raise UserError(f"--plot-y {plot_y}: choose one of {', '.join(Y_QUANTITIES)}")
-        if plot_y == "exact" and plan.reference is None:
-            raise UserError("--plot-y exact: the distance to the exact posterior needs --reference grid")
-        if plot_y == "paired" and paired is None:
-            raise UserError("--plot-y paired: the paired difference needs --paired FILTER")
+        y_quantity(plot_y, plan.reference is not None, paired is not None)  # a ValueError: one line, exit 2
         if title is not None and ("\n" in title or not title.strip()):
             raise UserError("--title: give one line of text")
         if plot_x is not None and plot_x not in plan.varied:
@@ -348,10 +346,11 @@ class StudySession:
         self.release()
 
 
-def open_session(plan: StudyPlan, files: StudyFiles, backend: str, visualize: Any, draw_run: int,
-                 dask: str | None, workers: int) -> StudySession:  # fmt: skip
+def open_session(plan: StudyPlan, files: StudyFiles, backend: str, header: str, *, kind: str = "study",
+                 parameters: dict[str, Any] | None = None, visualize: Any = False, draw_run: int = 1,
+                 dask: str | None = None) -> StudySession:  # fmt: skip
     """The runs to go (a resumed study's checked against its journal), the claims, the journal, the
-    cluster and the record; the study's header printed."""
+    cluster and the record (of `kind`, its `parameters` the plan's unless given); the `header` printed."""
     tasks, kept, earlier = plan.tasks(), [], []
     if files.resume:
         try:
@@ -361,7 +360,7 @@ def open_session(plan: StudyPlan, files: StudyFiles, backend: str, visualize: An
     tasks = _drawn_first(tasks, draw_run) if visualize else tasks
     outputs = {k: None if v is None else str(v) for k, v in (("csv", files.csv_path), ("plot", files.plot),
                                                               ("traces", files.traces))}  # fmt: skip
-    recorder = Recorder("study", command_line(), plan.parameters(), outputs=outputs, sessions=earlier,
+    recorder = Recorder(kind, command_line(), parameters or plan.parameters(), outputs=outputs, sessions=earlier,
                         csv_dtypes=CSV_DTYPES, backend=backend)  # fmt: skip
     claimed = [("--summary-csv", files.summary_csv), ("--record", files.record_file), ("--plot", files.plot),
                ("--traces", files.traces)]  # fmt: skip
@@ -374,14 +373,13 @@ def open_session(plan: StudyPlan, files: StudyFiles, backend: str, visualize: An
     except BaseException:
         session.close()
         raise
-    typer.echo(plan.header(f"on the Dask cluster at {dask}" if dask is not None else f"{workers} worker(s)", backend))
+    typer.echo(header)
     if visualize:
         typer.echo(f"drawing run {tasks[0].run} of setting {tasks[0].setting_index} (--draw-run chooses the run)")
-    if files.resume:
-        typer.echo(f"resuming: {len(kept)} rows kept from {files.journal}, {len(tasks)} run(s) to go")
     if session.journal is not None:  # the parameters --resume compares, before any run
-        header = ("command", "started", "parameters", "backend")
-        session.journal.write({"session": {k: recorder.data[k] for k in header}})
+        line = {"command": recorder.data["command"], "started": recorder.data["started"],
+                "parameters": jsonable(plan.parameters()), "backend": backend}  # fmt: skip
+        session.journal.write({"session": line})
     return session
 
 
@@ -534,74 +532,72 @@ def accuracy(
     labels = [label for label, _, _ in rows]
     parameters = {"mazes": [maze_description(m) for m in mazes], "filters": labels, "sigma": sigma, "delta": delta,
                   "particles": particles, "runs": runs, "steps": steps, "root_seed": seed}  # fmt: skip
-    workers = workers or default_workers()
-    journal, tasks, kept, replace = open_journal(csv_path, record_file, plan, rows, force, workers)
-    typer.echo(f"Accuracy: {len(mazes)} maze(s) ({', '.join(m.label for m in mazes)}) x {runs} runs, sigma "
-               f"{sigma:g}, delta {delta:g}, {particles} particles, {steps} steps, seed {seed}; filters: "
-               f"{', '.join(labels)}")  # fmt: skip
-    recorder = Recorder("accuracy", command_line(), parameters, outputs={"csv": csv_path and str(csv_path)})
-    outputs = {"csv_path": csv_path, "record_file": record_file, "recorder": recorder, "replace": replace}
-    run_and_report(plan, rows, tasks, kept, workers, journal, outputs)
+    workers = workers or cores()
+    backend = study_backend(plan.tasks(), workers)
+    files = accuracy_files(csv_path, record_file, plan, rows, force, backend)
+    header = (f"Accuracy: {len(mazes)} maze(s) ({', '.join(m.label for m in mazes)}) x {runs} runs, sigma "
+              f"{sigma:g}, delta {delta:g}, {particles} particles, {steps} steps, seed {seed}; filters: "
+              f"{', '.join(labels)}")  # fmt: skip
+    session = open_session(plan, files, backend, header, kind="accuracy", parameters=parameters)
+    try:
+        outcome = run_study(session.tasks, workers, progress=True, on_records=session.append,
+                            ignore_signals_after_stop=True, backend=backend)  # fmt: skip
+        report_accuracy(session, rows, outcome)
+    finally:
+        session.close()
 
 
-def open_journal(
-    csv_path: Path | None, record_file: Path | None, plan: StudyPlan, rows: tuple[AccuracyFilter, ...], force: bool,
-    workers: int,
-) -> tuple[Journal | None, list[RunTask], list[RunRecord], bool]:  # fmt: skip
-    """The journal beside the outputs, the runs to go and those kept from an interrupted run of the same
-    command, and whether the outputs may be replaced: an earlier run's files are refused without --force,
-    unless it was interrupted (no finished session in its journal): then it is resumed (the same
-    parameters, mazelab.experiments.journal.resume_study) or replaced, and a line says which."""
+def accuracy_files(csv_path: Path | None, record_file: Path | None, plan: StudyPlan, rows: tuple[AccuracyFilter, ...],
+                   force: bool, backend: str) -> StudyFiles:  # fmt: skip
+    """The outputs and their journal (beside the CSV, else the record): an earlier run's files are refused
+    without --force, unless it was interrupted (no finished session in its journal): then it is resumed
+    (the same parameters, mazelab.experiments.journal.resume_study) or replaced, and a line says which."""
     journal = journal_path(csv_path or record_file) if csv_path or record_file else None
     lines = [] if journal is None or journal_state(journal) != "left" else read_journal(journal)
     finished = any(line.get("closed", {}).get("status") == "finished" for line in lines)
     interrupted = any("session" in line for line in lines) and not finished
-    tasks, kept = plan.tasks(), []
+    for path in (csv_path, record_file):
+        if path is not None:
+            check_output_path(path, force or interrupted)
+    files = StudyFiles(csv_path, None, None, record_file, None, journal, False, force or bool(lines))
     if interrupted and not force:
         try:
             changed = differences(journal_parameters(journal, lines), plan.parameters(), ignore=("runs",))
             if changed:
                 raise JournalError(f"its parameters differ ({changed[0]})")
-            tasks, kept, _ = resume_study(journal, lines, plan, study_backend(tasks, workers))
+            _, kept, _ = resume_study(journal, lines, plan, backend)
         except JournalError as error:
             why = str(error).removeprefix("--resume: ")
             typer.echo(f"replacing what an interrupted run left ({journal} and its outputs): {why}")
         else:
+            files.resume, files.lines = True, lines
             done = {(r.maze, r.run) for r in accuracy_records(kept, rows)}
             typer.echo(f"resuming the interrupted run of {journal}: {len(done)} runs kept")
-    for path in (csv_path, record_file):
-        if path is not None:
-            check_output_path(path, force or interrupted)
-    if journal is None:
-        return None, tasks, [], force
-    try:
-        opened = Journal(journal, adopt=bool(kept), replace=True)
-    except JournalError as error:
-        raise UserError(str(error)) from None
-    opened.write({"session": {"command": command_line(), "parameters": plan.parameters()}})
-    return opened, tasks, kept, force or interrupted
+    return files
 
 
-def run_and_report(
-    plan: StudyPlan, rows: tuple[AccuracyFilter, ...], tasks: list[RunTask], kept: list[RunRecord], workers: int,
-    journal: Journal | None, outputs: dict[str, Any],
-) -> None:  # fmt: skip
-    """The runs not kept, each appended to the journal; then the table, the CSV and the record (an
-    interrupted run's too, its status "interrupted")."""
-    started = time.perf_counter()
-    append = journal.append_run if journal is not None else None
-    outcome = run_study(tasks, workers, progress=True, on_records=append, ignore_signals_after_stop=True)
+def report_accuracy(session: StudySession, rows: tuple[AccuracyFilter, ...], outcome: StudyOutcome) -> None:
+    """The failures, the table, the time, the CSV and the record (an interrupted run's too, its status
+    "interrupted"), the journal closed; a stopped or lost run, or one with failures, exits non-zero."""
+    files, recorder = session.files, session.recorder
     stopped = outcome.interrupted or outcome.lost is not None
-    if journal is not None:
-        journal.end_session("interrupted" if stopped else "finished")
+    status = "interrupted" if stopped else "finished"
     for failure in outcome.failures:
         typer.echo(f"error: {failure.describe()}", err=True)
-    records = accuracy_records(sorted([*kept, *outcome.records], key=lambda r: (r.setting, r.run)), rows)
+    records = accuracy_records(sorted([*session.kept, *outcome.records], key=lambda r: (r.setting, r.run)), rows)
     runs = len({(r.maze, r.run) for r in records})
     if records:
-        seconds = time.perf_counter() - started
-        report_accuracy(records, seconds, runs, status="interrupted" if stopped else "finished", **outputs)
-    total = len({s.maze for s in plan.settings}) * plan.runs
+        typer.echo(accuracy_table(records))
+        typer.echo(f"{runs} runs in {time.perf_counter() - recorder.started_clock:.1f} s wall time")
+        if files.csv_path is not None:
+            write_text_atomically(files.csv_path, accuracy_csv(records), replace=files.force or files.resume)
+            typer.echo(f"one row per maze, run and filter written to {files.csv_path}")
+        if files.record_file is not None:
+            recorder.finish(status, summary=accuracy_summary(records))
+            recorder.write(files.record_file)
+            typer.echo(f"the record (command, versions, seeds, mazes, summary) written to {files.record_file}")
+    session.close(status, runs_finished=runs)
+    total = len({s.maze for s in session.plan.settings}) * session.plan.runs
     if outcome.lost is not None:
         typer.echo(f"error: {outcome.lost}; {runs} of {total} runs finished", err=True)
     elif stopped:
@@ -638,25 +634,3 @@ def accuracy_mazes(maze: str | None, maze_size: str | None, stations: str | None
     if files is None and sizes is None and counts is None:
         files = list(LAB_MAZES)
     return study_mazes(files, sizes, counts)
-
-
-def report_accuracy(
-    records: list[AccuracyRecord],
-    seconds: float,
-    runs: int,
-    csv_path: Path | None,
-    record_file: Path | None,
-    recorder: Recorder,
-    replace: bool,
-    status: str = "finished",
-) -> None:
-    """The table, the time, the CSV and the record (its `status`: finished, or interrupted)."""
-    typer.echo(accuracy_table(records))
-    typer.echo(f"{runs} runs in {seconds:.1f} s wall time")
-    if csv_path is not None:
-        write_text_atomically(csv_path, accuracy_csv(records), replace=replace)
-        typer.echo(f"one row per maze, run and filter written to {csv_path}")
-    if record_file is not None:
-        recorder.finish(status, summary=accuracy_summary(records))
-        recorder.write(record_file)
-        typer.echo(f"the record (command, versions, seeds, mazes, summary) written to {record_file}")

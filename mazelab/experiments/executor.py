@@ -163,9 +163,7 @@ def describe_workers(client: Any) -> str:
 
 
 # -- the runs --------------------------------------------------------------------------------------------
-def default_workers() -> int:
-    """All the cores this process may use."""
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+default_workers = cores  # a study's processes by default: all the cores this process may use
 
 
 class StudyStopped(KeyboardInterrupt):
@@ -238,7 +236,7 @@ def run_study(
     without a finished unit) or a pool whose workers keep dying ends the study early: outcome.lost
     says why, in one line.
     """
-    workers = default_workers() if workers is None else workers
+    workers = cores() if workers is None else workers
     if workers < 1:
         raise ValueError(f"--workers must be >= 1, got {workers}")
     client = connect(dask) if isinstance(dask, str) else dask  # a bad address: one line, before anything runs

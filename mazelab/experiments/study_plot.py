@@ -87,15 +87,16 @@ Y_QUANTITIES = {
 Y_LABEL = Y_QUANTITIES["mean"].label  # a map unit is a maze cell's side
 
 
-def y_quantity(y: str, summaries: Sequence[StudySummary]) -> YQuantity:
+def y_quantity(y: str, exact: bool, paired: bool) -> YQuantity:
     """The y axis `y` (a key of Y_QUANTITIES), or a one-line ValueError: an unknown one, the distance to
-    exact without a reference, the paired difference without a filter to pair with."""
+    exact without it (`exact`: the study has a reference), the paired difference without a filter to pair
+    with (`paired`). `mazelab study` asks before any run, the figure when it is drawn."""
     if y not in Y_QUANTITIES:
-        raise ValueError(f"the figure's y {y!r} is not one of {', '.join(Y_QUANTITIES)}")
-    if y == "exact" and all(math.isnan(s.distance_to_exact) for s in summaries):
-        raise ValueError("the figure's y 'exact' needs the distance to the exact posterior: --reference grid")
-    if y == "paired" and not any(s.paired_with for s in summaries):
-        raise ValueError("the figure's y 'paired' needs a filter to pair with: --paired FILTER")
+        raise ValueError(f"--plot-y {y}: choose one of {', '.join(Y_QUANTITIES)}")
+    if y == "exact" and not exact:
+        raise ValueError("--plot-y exact: the distance to the exact posterior needs --reference grid")
+    if y == "paired" and not paired:
+        raise ValueError("--plot-y paired: the paired difference needs --paired FILTER")
     return Y_QUANTITIES[y]
 
 
@@ -262,7 +263,8 @@ def plot_study(
     plt = pyplot()
     import matplotlib
 
-    quantity = y_quantity(y, summaries)
+    exact = not all(math.isnan(s.distance_to_exact) for s in summaries)
+    quantity = y_quantity(y, exact, any(s.paired_with for s in summaries))
     if y == "paired":  # the filter paired with has no difference to itself; the axis names it
         summaries = [s for s in summaries if s.paired_with]
         quantity = dataclasses.replace(quantity, label=paired_label(summaries))
