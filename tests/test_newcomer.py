@@ -20,7 +20,7 @@ from test_visualization import _ctrl_c_once, latest, load
 
 from mazelab import maze_paths, mazes
 from mazelab.cli.app import main
-from mazelab.cli.filter_options import declared_flags
+from mazelab.cli.options import declared_flags
 from mazelab.invocation import PROJECT_DIR, command_prefix
 from mazelab.maze import Maze, MazeError
 from mazelab.mazes import LAB_MAZES, shipped_mazes

@@ -24,27 +24,25 @@ import typer
 
 from mazelab.atomic import WriteError, write_text_atomically
 from mazelab.backend import cores
-from mazelab.cli.filter_options import (
-    OptionFlag,
-    StudyOptionFlag,
-    check_filter_names,
-    given_options,
-    options_per_filter,
-    with_option_flags,
-)
 from mazelab.cli.options import (
     DEFAULT_DELTA,
     DEFAULT_SIGMA,
     DRAWING,
     BackendOption,
+    OptionFlag,
+    StudyOptionFlag,
     UserError,
+    check_filter_names,
     check_one_file_each,
     check_output_path,
     check_outputs,
+    given_options,
     opt,
+    options_per_filter,
     parse_list,
     seed_option,
     visualization,
+    with_option_flags,
     with_parameters,
 )
 from mazelab.declaration import show_value
