@@ -429,7 +429,12 @@ def _lost(error: BaseException) -> str:
 
 
 def end_workers(pool: ProcessPoolExecutor) -> None:
-    """Kill the pool's worker processes now and reap them (their unfinished runs are dropped)."""
+    """Kill the pool's worker processes now and reap them (their unfinished runs are dropped).
+
+    A worker killed while it wrote a unit's rows (SIGTERM to the process group, kill -9) leaves a message
+    cut short in the result pipe, and the pool's thread waits for its rest for ever: this process closes
+    its own end of the pipe too, once the workers are gone, so that the thread reads the end of the pipe,
+    and `shutdown` returns."""
     kill_workers = getattr(pool, "kill_workers", None)  # Python 3.14
     processes = list((getattr(pool, "_processes", None) or {}).values())  # no public API before 3.14
     if kill_workers is not None:
@@ -439,6 +444,9 @@ def end_workers(pool: ProcessPoolExecutor) -> None:
             process.kill()
     for process in processes:
         process.join(timeout=5)
+    writer = getattr(getattr(pool, "_result_queue", None), "_writer", None)  # no public API either
+    if writer is not None and not any(process.is_alive() for process in processes):
+        writer.close()
     pool.shutdown(wait=True)  # the pool's thread sees the workers gone and ends
 
 
