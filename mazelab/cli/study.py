@@ -179,7 +179,7 @@ def study(
               "particles": parse_list(particles, int, "--particles"), "runs": runs, "steps": steps,
               "kidnap_at": kidnap_at, "reference": reference}  # fmt: skip
     plan = study_plan(chosen, mazes, filters, named or {}, option, seed, values)
-    extras = StudyExtras.parse(plan, **(figure or {}))
+    figure = check_figure(plan, **(figure or {}))
     workers = workers or cores()
     backend = study_backend(plan.tasks(), 1 if dask else workers)
     where = f"on the Dask cluster at {dask}" if dask is not None else f"{workers} worker(s)"
@@ -191,7 +191,7 @@ def study(
         outcome = run_study(session.tasks, workers, visualize=visualize, progress=True, on_records=session.append,
                             dask=session.client, dask_timeout=dask_timeout, ignore_signals_after_stop=True,
                             backend=session.backend)  # fmt: skip
-        report_study(session, outcome, extras)
+        report_study(session, outcome, figure)
     finally:
         session.close()
 
@@ -210,40 +210,25 @@ def study_plan(files: StudyFiles, mazes: list, filters: str, named: dict[str, An
                       spelled=given.spelled)  # fmt: skip
 
 
-@dataclass
-class StudyExtras:
-    """What the report adds to the table and the figure: the filter of the paired differences (--paired),
-    the figure's x axis (--plot-x) and y (--plot-y), its title (--title), checked before any run."""
+def check_figure(plan: StudyPlan, paired: str | None = None, plot_x: str | None = None, plot_y: str = "mean",
+                 title: str | None = None) -> dict[str, Any]:  # fmt: skip
+    """What the report adds to the table and the figure, checked before any run: --paired one of the
+    study's filters (given by its name), --plot-x, --plot-y and --title as the figure takes them
+    (study_plot.figure_axes)."""
+    from mazelab.experiments.study_plot import figure_axes
 
-    paired: str | None = None
-    plot_x: str | None = None
-    plot_y: str = "mean"  # a key of study_plot.Y_QUANTITIES
-    title: str | None = None
-
-    @classmethod
-    def parse(cls, plan: StudyPlan, paired: str | None = None, plot_x: str | None = None, plot_y: str = "mean",
-              title: str | None = None) -> StudyExtras:  # fmt: skip
-        """--paired names one of the study's filters, --plot-x one of its varied parameters, --plot-y
-        what the figure draws (exact needs --reference grid, paired needs --paired)."""
-        from mazelab.experiments.study_plot import y_quantity
-
-        y_quantity(plot_y, plan.reference is not None, paired is not None)  # a ValueError: one line, exit 2
-        if title is not None and ("\n" in title or not title.strip()):
-            raise UserError("--title: give one line of text")
-        if plot_x is not None and plot_x not in plan.varied:
-            varied = ", ".join(plan.varied) or "none: give a parameter two values"
-            raise UserError(f"--plot-x {plot_x}: the x axis is a varied parameter of the study ({varied})")
-        if paired is not None:
-            entries = [filter_entry(f) for f in plan.filters]
-            chosen = resolve_filter(check_filter_names(paired, "--paired")).name
-            if chosen not in [entry.name for entry in entries]:
-                shown = ", ".join(entry.reference for entry in entries)
-                raise UserError(f"--paired {paired}: not one of the study's --filters ({shown})")
-            if len(entries) == 1:
-                raise UserError(f"--paired {paired}: the study's only filter, paired with itself (every difference "
-                                "0); add the filters to compare with it to --filters")  # fmt: skip
-            paired = chosen
-        return cls(paired, plot_x, plot_y, title)
+    figure_axes(plan.varied, plot_x, plot_y, title, exact=plan.reference is not None, paired=paired is not None)
+    if paired is not None:
+        entries = [filter_entry(f) for f in plan.filters]
+        chosen = resolve_filter(check_filter_names(paired, "--paired")).name
+        if chosen not in [entry.name for entry in entries]:
+            shown = ", ".join(entry.reference for entry in entries)
+            raise UserError(f"--paired {paired}: not one of the study's --filters ({shown})")
+        if len(entries) == 1:
+            raise UserError(f"--paired {paired}: the study's only filter, paired with itself (every difference "
+                            "0); add the filters to compare with it to --filters")  # fmt: skip
+        paired = chosen
+    return {"paired": paired, "plot_x": plot_x, "plot_y": plot_y, "title": title}
 
 
 @dataclass
@@ -389,7 +374,7 @@ def _drawn_first(tasks: list[RunTask], run: int) -> list[RunTask]:
     return [tasks[chosen], *tasks[:chosen], *tasks[chosen + 1 :]]
 
 
-def report_study(session: StudySession, outcome: StudyOutcome, extras: StudyExtras) -> None:
+def report_study(session: StudySession, outcome: StudyOutcome, figure: dict[str, Any]) -> None:
     """The failures, then the table (first: a write error cannot lose it), the CSV, the summary CSV, the
     traces, the figure and the record; a stopped or lost study keeps its runs in the journal and exits
     non-zero."""
@@ -399,10 +384,10 @@ def report_study(session: StudySession, outcome: StudyOutcome, extras: StudyExtr
     names = [getattr(f, "name", f) for f in plan.filters]  # rows in (setting, run, filter) order
     order = {name: i for i, name in enumerate(dict.fromkeys([*names, *(r.filter for r in outcome.records)]))}
     records = sorted([*session.kept, *outcome.records], key=lambda r: (r.setting, r.run, order[r.filter]))
-    summaries = summarise_study(records, plan.settings, paired=extras.paired)
+    summaries = summarise_study(records, plan.settings, paired=figure["paired"])
     closing = {"runs_finished": len({(r.setting, r.run) for r in records}), "runs_in_study": len(plan.tasks()),
                "failures": [f.describe() for f in outcome.failures], "summary": [s.as_dict() for s in summaries],
-               "paired": extras.paired, "workers": [dataclasses.asdict(w) for w in outcome.workers.values()],
+               "paired": figure["paired"], "workers": [dataclasses.asdict(w) for w in outcome.workers.values()],
                "startup_seconds": round(outcome.startup_seconds, 3),
                **({"summary_csv": str(files.summary_csv)} if files.summary_csv is not None else {})}  # fmt: skip
     if outcome.interrupted or outcome.lost is not None:
@@ -416,13 +401,13 @@ def report_study(session: StudySession, outcome: StudyOutcome, extras: StudyExtr
                "calls; not in ms_per_step or run_seconds)")  # fmt: skip
     repeat = repeat_command(plan.seed, REPEAT_DROPS, REPEAT_DROPS_WITH_VALUE, session.backend)
     typer.echo(f"Repeat this study: {repeat}")
-    write_outputs(session, records, summaries, extras)
+    write_outputs(session, records, summaries, figure)
     session.close(status, runs_finished=closing["runs_finished"])
     if outcome.failures:
         raise typer.Exit(1)
 
 
-def write_outputs(session: StudySession, records: list[RunRecord], summaries: list, extras: StudyExtras) -> None:
+def write_outputs(session: StudySession, records: list[RunRecord], summaries: list, figure: dict[str, Any]) -> None:
     """The whole CSV (its record right after it, so the record beside a CSV always describes it), the
     summary CSV, the traces, the figure and the record; a file that cannot be written is one line (and
     the journal named, from which --resume writes them again), exit 1."""
@@ -439,7 +424,7 @@ def write_outputs(session: StudySession, records: list[RunRecord], summaries: li
             write_traces(files.traces, study_traces(records))
             typer.echo(f"per-step traces written to {files.traces}")
         if files.plot is not None and summaries:
-            draw_figure(plan, summaries, files.plot, replace, extras)
+            draw_figure(plan, summaries, files.plot, replace, figure)
         if files.record_file is not None:
             session.recorder.write(files.record_file)
             typer.echo(f"the study's record (command, versions, seeds, mazes, summary) written to {files.record_file}")
@@ -472,13 +457,13 @@ def report_stopped(session: StudySession, outcome: StudyOutcome, records: list[R
     raise typer.Exit(128 + (outcome.stopped_by or signal.SIGINT))  # 130 Ctrl-C, 143 SIGTERM, 129 SIGHUP
 
 
-def draw_figure(plan: StudyPlan, summaries: list, plot: Path, replace: bool, extras: StudyExtras) -> None:
+def draw_figure(plan: StudyPlan, summaries: list, plot: Path, replace: bool, figure: dict[str, Any]) -> None:
     """The study's figure (mazelab.experiments.study_plot), as `mazelab.study(...).figure(...)` draws it."""
     from mazelab.experiments.study_plot import draw_study
 
     maze = plan.settings[0].maze.label
-    draw_study(summaries, plan.varied, plot, plan.runs, maze, x=extras.plot_x, y=extras.plot_y, title=extras.title,
-               replace=replace)  # fmt: skip
+    draw_study(summaries, plan.varied, plot, plan.runs, maze, x=figure["plot_x"], y=figure["plot_y"],
+               title=figure["title"], replace=replace)  # fmt: skip
     typer.echo(f"figure written to {plot}")
 
 
