@@ -172,9 +172,7 @@ def study(
     chosen = StudyFiles.parse(**(files or {}), rrd=drawing.get("rrd"))
     drawn = drawing.get("viewer") or drawing.get("web") or drawing.get("rrd") is not None
     visualize = visualization(**drawing, force=chosen.force) if drawn else False
-    mazes = study_mazes(parse_list(maze, str, "--maze"), parse_list(maze_size, str, "--maze-size"),
-                        parse_list(stations, int, "--stations"),
-                        parse_list(wall_share, float, "--wall-share"))  # fmt: skip
+    mazes = parse_mazes(maze, maze_size, stations, wall_share)
     values = {"sigma": parse_list(sigma, float, "--sigma"), "delta": parse_list(delta, float, "--delta"),
               "particles": parse_list(particles, int, "--particles"), "runs": runs, "steps": steps,
               "kidnap_at": kidnap_at, "reference": reference}  # fmt: skip
@@ -508,7 +506,7 @@ def accuracy(
     Wilson interval)."""
     record_file = record if record is not None else record_path(csv_path) if csv_path is not None else None
     check_one_file_each([("--csv", csv_path), ("--record" if record is not None else "the record", record_file)])
-    mazes = accuracy_mazes(maze, maze_size, stations)
+    mazes = parse_mazes(maze, maze_size, stations, default=list(LAB_MAZES))
     rows = with_options(accuracy_filters(None if filters is None else parse_filters(filters)), option)
     plan = accuracy_plan(mazes, rows, sigma=sigma, delta=delta, particles=particles, runs=runs, steps=steps,
                          seed=seed)  # fmt: skip
@@ -606,14 +604,16 @@ def with_options(chosen: tuple[AccuracyFilter, ...], texts: list[str] | None) ->
     return tuple(result)
 
 
-def accuracy_mazes(maze: str | None, maze_size: str | None, stations: str | None) -> list[MazeChoice]:
-    """The mazes of the table: the files named, the generated sizes, or the lab's shipped set (named,
-    so that a maze a student adds to mazes/ does not join it)."""
+def parse_mazes(maze: str | None, maze_size: str | None, stations: str | None, wall_share: str | None = None,
+                default: list[str] | None = None) -> list[MazeChoice]:  # fmt: skip
+    """The mazes of --maze, --maze-size, --stations and --wall-share (lists; plan.study_mazes), or the
+    `default` names when none is given (accuracy's: the lab's shipped set, named, so that a maze a
+    student adds to mazes/ does not join it; the study's: the default maze)."""
     files, sizes, counts = (
         parse_list(maze, str, "--maze"),
         parse_list(maze_size, str, "--maze-size"),
         parse_list(stations, int, "--stations"),
     )
-    if files is None and sizes is None and counts is None:
-        files = list(LAB_MAZES)
-    return study_mazes(files, sizes, counts)
+    if files is None and sizes is None and counts is None and wall_share is None:
+        files = default
+    return study_mazes(files, sizes, counts, parse_list(wall_share, float, "--wall-share"))
