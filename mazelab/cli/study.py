@@ -447,12 +447,18 @@ def report_stopped(session: StudySession, outcome: StudyOutcome, records: list[R
             session.recorder.write(files.record_file)
     session.close("interrupted", runs_finished=closing["runs_finished"])
     saved = f"; {journal.kept()}; go on with: {resume_command()}" if journal is not None else ""
-    finished, total = closing["runs_finished"], closing["runs_in_study"]
-    if outcome.lost is not None:  # a lost cluster or pool: one line, exit 1
+    exit_stopped(outcome, closing["runs_finished"], closing["runs_in_study"], saved)
+
+
+def exit_stopped(outcome: StudyOutcome, finished: int, total: int, saved: str = "") -> None:
+    """The line and the exit of a study or an accuracy that did not run to its end: a lost cluster or pool,
+    exit 1; a stop, exit 128 + its signal (130 Ctrl-C, 143 SIGTERM, 129 SIGHUP; further stops are ignored,
+    run_study)."""
+    if outcome.lost is not None:
         typer.echo(f"error: {outcome.lost}; {finished} of {total} runs finished{saved}", err=True)
         raise typer.Exit(1)
-    typer.echo(f"interrupted after {finished} of {total} runs{saved}", err=True)  # further stops: ignored (run_study)
-    raise typer.Exit(128 + (outcome.stopped_by or signal.SIGINT))  # 130 Ctrl-C, 143 SIGTERM, 129 SIGHUP
+    typer.echo(f"interrupted after {finished} of {total} runs{saved}", err=True)
+    raise typer.Exit(128 + (outcome.stopped_by or signal.SIGINT))
 
 
 def draw_figure(plan: StudyPlan, summaries: list, plot: Path, replace: bool, figure: dict[str, Any]) -> None:
@@ -578,13 +584,9 @@ def report_accuracy(session: StudySession, rows: tuple[AccuracyFilter, ...], out
             recorder.write(files.record_file)
             typer.echo(f"the record (command, versions, seeds, mazes, summary) written to {files.record_file}")
     session.close(status, runs_finished=runs)
-    total = len({s.maze for s in session.plan.settings}) * session.plan.runs
-    if outcome.lost is not None:
-        typer.echo(f"error: {outcome.lost}; {runs} of {total} runs finished", err=True)
-    elif stopped:
-        typer.echo(f"interrupted after {runs} of {total} runs", err=True)
-        raise typer.Exit(128 + (outcome.stopped_by or signal.SIGINT))
-    if outcome.failures or outcome.lost is not None:
+    if stopped:
+        exit_stopped(outcome, runs, len({s.maze for s in session.plan.settings}) * session.plan.runs)
+    if outcome.failures:
         raise typer.Exit(1)
 
 
