@@ -75,7 +75,7 @@ from mazelab.experiments.journal import (
     resume_study,
 )
 from mazelab.experiments.plan import StudyPlan, maze_description, plan_study, study_mazes
-from mazelab.experiments.record import Recorder, differences, jsonable, record_path
+from mazelab.experiments.record import Recorder, jsonable, record_path
 from mazelab.experiments.runs import parse_filters
 from mazelab.experiments.study import MazeChoice, RunRecord, RunTask, StudyOutcome
 from mazelab.experiments.summary import CSV_DTYPES, study_table, summarise_study, summary_csv, summary_path
@@ -549,12 +549,9 @@ def accuracy_files(csv_path: Path | None, record_file: Path | None, plan: StudyP
     files = StudyFiles(csv_path, None, None, record_file, None, journal, False, force or bool(lines))
     if interrupted and not force:
         try:
-            changed = differences(journal_parameters(journal, lines), plan.parameters(), ignore=("runs",))
-            if changed:
-                raise JournalError(f"its parameters differ ({changed[0]})")
             _, kept, _ = resume_study(journal, lines, plan, backend)
         except JournalError as error:
-            why = str(error).removeprefix("--resume: ")
+            why = str(error).removeprefix("--resume: ").removesuffix("; give the same parameters")
             typer.echo(f"replacing what an interrupted run left ({journal} and its outputs): {why}")
         else:
             files.resume, files.lines = True, lines
