@@ -20,6 +20,7 @@ from __future__ import annotations
 import ctypes
 import functools
 import logging
+import math
 import os
 import signal
 import socket
@@ -328,8 +329,7 @@ class Units:
                 if not handed:
                     self._take(self._restart())
                 else:
-                    done = self._wait()
-                    broken = any(isinstance(f.exception(), BrokenProcessPool) for f in done if not f.cancelled())
+                    done, broken = self._wait()
                     self._take(self._restart() if broken else done)
                 handed = self._hand_out()
         except StudyLost:
@@ -350,20 +350,25 @@ class Units:
             raise stop from None
         self.pool.shutdown(wait=True)
 
-    def _wait(self) -> set[Future]:
-        """The units finished next; on Dask, a scheduler gone or `timeout` seconds without a finished
-        unit (no worker left) is a lost cluster."""
-        if self.client is None:
-            return wait(self.running, return_when=FIRST_COMPLETED)[0]
-        deadline = time.monotonic() + self.timeout
+    def _wait(self) -> tuple[set[Future], bool]:
+        """The units finished next, and whether the pool is broken: a worker died, whether its future
+        says so or not (killed while it wrote a unit's rows, the pool's thread waits for the rest of the
+        message; end_workers frees it). On Dask, a scheduler gone or `timeout` seconds without a
+        finished unit (no worker left) is a lost cluster."""
+        deadline = time.monotonic() + self.timeout if self.client is not None else math.inf  # the pool's: none
         while True:
             left = deadline - time.monotonic()
             done = wait(self.running, timeout=max(0.0, min(1.0, left)), return_when=FIRST_COMPLETED)[0]
-            if done:
-                return done
-            if self.client.status not in ("running", "connecting"):
+            if self.client is None:
+                processes = (getattr(self.pool, "_processes", None) or {}).values()  # no public API
+                broken = any(isinstance(f.exception(), BrokenProcessPool) for f in done if not f.cancelled())
+                if done or broken or not all(process.is_alive() for process in processes):
+                    return done, broken or not done
+            elif done:
+                return done, False
+            elif self.client.status not in ("running", "connecting"):
                 raise StudyLost(f"lost the connection to the Dask scheduler ({self.client.status})")
-            if left <= 1.0:
+            elif left <= 1.0:
                 raise StudyLost(
                     f"no run finished on the Dask cluster within {self.timeout:g} s (--dask-timeout): "
                     f"{describe_workers(self.client)}"
