@@ -393,20 +393,20 @@ def declared_flags() -> dict[str, Option]:
     return flags
 
 
-def _flag_parameters(lists: bool) -> dict[str, inspect.Parameter]:
-    """A typer parameter per declared flag: a switch for a flag option (`--kld`) and for each half of
-    a pair (`--recovery`, `--sensor-resetting`) on run and compare; a value (a list of them for a
-    study, `lists`) otherwise. They are listed in the command's help in one paragraph (`flags_line`)."""
+def _flag_parameters(lists: bool) -> dict[str, tuple[Any, Any]]:
+    """A typer parameter per declared flag, as `with_parameters` takes them (name -> (annotated type,
+    default)): a switch for a flag option (`--kld`) and for each half of a pair (`--recovery`,
+    `--sensor-resetting`) on run and compare; a value (a list of them for a study, `lists`) otherwise.
+    They are listed in the command's help in one paragraph (`flags_line`)."""
     parameters = {}
     for option in declared_flags().values():
         spellings = (option.flag or "").split("/")
         switches = [spellings[0]] if option.parse is parse_flag else spellings if len(spellings) > 1 else []
         for flag in [] if lists and option.parse is not parse_flag else switches:
-            typer_option = typer.Option(flag, hidden=True, help=option.help)
-            parameters[_parameter_name(flag)] = _parameter(flag, bool, False, typer_option)
+            parameters[_parameter_name(flag)] = (opt(bool, flag, hidden=True, help=option.help), False)
         if (lists and option.parse is not parse_flag) or not switches:
-            typer_option = typer.Option(spellings[0], hidden=True, help=option.help)
-            parameters[_parameter_name(spellings[0])] = _parameter(spellings[0], str | None, None, typer_option)
+            parameters[_parameter_name(spellings[0])] = (opt(str | None, spellings[0], hidden=True, help=option.help),
+                                                         None)  # fmt: skip
     return parameters
 
 
@@ -421,19 +421,13 @@ def _parameter_name(flag: str) -> str:
     return flag.removeprefix("--").replace("-", "_")
 
 
-def _parameter(flag: str, kind: Any, default: Any, typer_option: Any) -> inspect.Parameter:
-    kind_ = inspect.Parameter.KEYWORD_ONLY
-    return inspect.Parameter(_parameter_name(flag), kind_, default=default, annotation=Annotated[kind, typer_option])
-
-
 def with_option_flags(lists: bool = False) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
     """Add the declared flags (`_flag_parameters`) to a command's parameters, named in its help; the
     command receives the ones given as `named`: {option name: its text, a list's text, or True for a
     switch}."""
-    flags = {name: (p.annotation, p.default) for name, p in _flag_parameters(lists).items()}
 
     def decorate(command: Callable[..., Any]) -> Callable[..., Any]:
-        wrapper = with_parameters("named", flags, _named)(command)
+        wrapper = with_parameters("named", _flag_parameters(lists), _named)(command)
         wrapper.__doc__ = f"{inspect.cleandoc(command.__doc__ or '')} {flags_line(lists)}"
         return wrapper
 
