@@ -555,7 +555,7 @@ def accuracy_files(csv_path: Path | None, record_file: Path | None, plan: StudyP
             typer.echo(f"replacing what an interrupted run left ({journal} and its outputs): {why}")
         else:
             files.resume, files.lines = True, lines
-            done = {(r.maze, r.run) for r in accuracy_records(kept, rows)}
+            done = {(r["maze"], r["run"]) for r in accuracy_records(kept, rows)}
             typer.echo(f"resuming the interrupted run of {journal}: {len(done)} runs kept")
     return files
 
@@ -569,7 +569,7 @@ def report_accuracy(session: StudySession, rows: tuple[AccuracyFilter, ...], out
     for failure in outcome.failures:
         typer.echo(f"error: {failure.describe()}", err=True)
     records = accuracy_records(sorted([*session.kept, *outcome.records], key=lambda r: (r.setting, r.run)), rows)
-    runs = len({(r.maze, r.run) for r in records})
+    runs = len({(r["maze"], r["run"]) for r in records})
     if records:
         typer.echo(accuracy_table(records))
         typer.echo(f"{runs} runs in {time.perf_counter() - recorder.started_clock:.1f} s wall time")
