@@ -38,7 +38,7 @@ def batchable(task: RunTask) -> bool:
     for name in task.filters:
         entry = filter_entry(name)
         runs_together = getattr(entry.filter_class, "runs_together", None)
-        if not entry.batched or (runs_together is not None and not runs_together(task.filter_options(name))):
+        if not entry.batched or (runs_together is not None and not runs_together(task.setting.filter_options(name))):
             return False
     return True
 
@@ -123,7 +123,7 @@ def run_batch(tasks: Sequence[RunTask]) -> list[list[RunRecord]]:
     world.prepare()
     for name in tasks[0].filters:
         filter_class = filter_entry(name).filter_class
-        options = tasks[0].filter_options(name)
+        options = tasks[0].setting.filter_options(name)
         warm_batch(filter_class, world, tasks, particles, compass, z, options)
         rngs = [filter_rng(task.seed) for task in tasks]  # each run's filter stream, as simulate's
         filt = filter_class(maze_for(filter_class, world), s.sigma, s.delta, particles, rngs, **options)
