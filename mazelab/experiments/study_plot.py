@@ -84,7 +84,6 @@ Y_QUANTITIES = {
                                      s.mean_log_evidence + 1.96 * s.log_evidence_se),
                           "intervals of the mean, 1.96 standard errors", from_zero=False),
 }  # fmt: skip
-Y_LABEL = Y_QUANTITIES["mean"].label  # a map unit is a maze cell's side
 
 
 def figure_axes(varied: Sequence[str], x: str | None, y: str, title: str | None, *, exact: bool,
