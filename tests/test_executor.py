@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import os
 import signal
+import subprocess
+import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -88,3 +90,78 @@ def test_a_worker_dying_just_after_another_run_finished_restarts_the_pool(tmp_pa
     assert (tmp_path / "killed").exists() and len(pools) == 2  # one restart
     assert outcome.lost is None and outcome.failures == [] and not outcome.interrupted
     assert sorted(taken) == list(range(1, 9)) and [r.run for r in outcome.records] == list(range(1, 9))
+
+
+CUT_SHORT = """
+import os, signal, struct, threading
+from concurrent.futures import ProcessPoolExecutor
+from mazelab.experiments.executor import end_workers
+
+def write_half_and_die(_):
+    # what a worker killed while it wrote a unit's rows leaves: a message cut short in the result pipe
+    RESULTS._writer._send(struct.pack("!i", 1_000_000) + b"rows")
+    os.kill(os.getpid(), signal.SIGKILL)
+
+pool = ProcessPoolExecutor(1)
+RESULTS = pool._result_queue  # the forked worker's own handle on it
+future = pool.submit(write_half_and_die, 0)
+for process in list(pool._processes.values()):
+    process.join(60)
+ending = threading.Thread(target=end_workers, args=(pool,), daemon=True)
+ending.start()
+ending.join(60)
+print("ended" if not ending.is_alive() else "hung", flush=True)
+os._exit(0 if not ending.is_alive() else 1)
+"""
+
+
+def test_ending_the_workers_returns_when_one_was_killed_while_it_wrote_its_rows():
+    """SIGTERM to a study's process group can kill a worker in the middle of writing a unit's rows (a
+    large result is written in several pieces): the pool's thread then waits for the rest of the message
+    for ever, and the study, ending its workers, with it. Deterministic: the worker writes the start of a
+    message and kills itself; ending the workers must return (in a process of its own: a hung pool
+    thread would keep the test process from exiting)."""
+    if os.name != "posix":
+        pytest.skip("the forked worker shares the pool's result queue (POSIX)")
+    done = subprocess.run([sys.executable, "-c", CUT_SHORT], capture_output=True, text=True, timeout=120)
+    assert done.stdout.strip() == "ended", done.stderr
+
+
+CUT_SHORT_IN_A_STUDY = """
+import gc, os, signal, struct, sys
+from multiprocessing.queues import SimpleQueue
+from pathlib import Path
+from mazelab.experiments import executor
+from mazelab.experiments.plan import plan_study, study_mazes
+
+real = executor.run_unit_timed
+
+def cut_short_once(unit, backend, **options):
+    flag = Path(sys.argv[1])
+    if any(task.run == 2 for task in unit) and not flag.exists():
+        flag.touch()
+        results = next(o for o in gc.get_objects() if isinstance(o, SimpleQueue))  # the pool's result queue
+        results._writer._send(struct.pack("!i", 1_000_000) + b"rows")  # the start of a unit's rows
+        os.kill(os.getpid(), signal.SIGKILL)
+    return real(unit, backend, **options)
+
+executor.run_unit_timed = cut_short_once
+plan = plan_study(study_mazes(["paper_5x5"]), ["sir"], sigma=[0.3], delta=[0.5], particles=[50], runs=4, steps=5,
+                  seed=1)
+outcome = executor.run_study(plan.tasks(), 2)
+print(sorted({record.run for record in outcome.records}), len(outcome.failures), flush=True)
+"""
+
+
+def test_a_worker_killed_while_it_wrote_its_rows_restarts_the_pool(tmp_path):
+    """A worker killed in the middle of writing a unit's rows (kill -9, out of memory) leaves the pool's
+    thread waiting for the rest of the message, and no future says the pool is broken: the study sees
+    the dead worker itself, restarts the pool and ends with every run. Deterministic: the worker of run 2
+    writes the start of a message and kills itself, once (in a process of its own: a hang would keep the
+    test process from exiting)."""
+    if os.name != "posix":
+        pytest.skip("the forked worker shares the pool's result queue (POSIX)")
+    flag = tmp_path / "killed"
+    done = subprocess.run([sys.executable, "-c", CUT_SHORT_IN_A_STUDY, str(flag)], capture_output=True, text=True,
+                          timeout=300)  # fmt: skip
+    assert flag.exists() and done.stdout.strip() == "[1, 2, 3, 4] 0", done.stderr

@@ -1,4 +1,4 @@
-"""Filter options on the command line (mazelab.cli.filter_options), read from the filters' declarations:
+"""Filter options on the command line (mazelab.cli.options), read from the filters' declarations:
 an option that no chosen filter takes is refused in one line naming the filters and what they take (a
 flag that tunes an option, such as recovery's rates or KLD's bounds, where the option is); a refusal
 names the flags of the command it refuses; an option that some chosen filters take goes to those and

@@ -15,7 +15,7 @@ from conftest import PAPER_MAZE, ROOT
 
 from mazelab import limits
 from mazelab.checks import MAX_ANGLE, angle, check_within_map
-from mazelab.cli.options import prepare_world
+from mazelab.cli.maze import prepare_world
 from mazelab.grid_filter import GridBayesFilter
 from mazelab.limits import MemoryBudget, MemoryLimitError, cgroup_limit, check_memory, process_limit
 from mazelab.lookup import _LOOKUP_TILE, NearestStationLookup

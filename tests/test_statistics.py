@@ -18,6 +18,8 @@ from mazelab.cli.app import main
 from mazelab.experiments import study as study_module
 from mazelab.experiments import warmup
 from mazelab.experiments.stats import (
+    BOOTSTRAP_SAMPLES,
+    BOOTSTRAP_SEED,
     bca_levels,
     bootstrap_interval,
     kaplan_meier,
@@ -25,7 +27,6 @@ from mazelab.experiments.stats import (
     leave_one_out,
     paired_difference,
     resampled,
-    unpaired_difference,
 )
 from mazelab.experiments.study import MazeChoice, RunRecord, distance_to_exact, study_settings
 from mazelab.experiments.summary import (
@@ -47,6 +48,16 @@ TINY = ["--runs", "3", "--steps", "20", "--particles", "100", "--seed", "5", "--
 
 def read_csv(text: str) -> list[dict[str, str]]:
     return list(csv.DictReader(io.StringIO(text)))
+
+
+def unpaired_difference(values, reference, level=0.95, samples=BOOTSTRAP_SAMPLES, seed=BOOTSTRAP_SEED):
+    """What the paired interval is measured against: the difference of the two means with its percentile
+    bootstrap interval, each sample resampled on its own (two independent groups)."""
+    a, b = (np.asarray(v, dtype=float) for v in (values, reference))
+    rng = np.random.default_rng(seed)
+    means = [x[rng.integers(0, len(x), size=(samples, len(x)))].mean(axis=1) for x in (a, b)]
+    low, high = np.quantile(means[0] - means[1], [(1 - level) / 2, (1 + level) / 2])
+    return float(a.mean() - b.mean()), (float(low), float(high))
 
 
 # -- Kaplan-Meier ------------------------------------------------------------------------------------

@@ -1,15 +1,21 @@
-"""The study's statistics (mazelab.experiments.stats): Student's t quantiles as the tables give them, the
+"""The study's statistics (mazelab.experiments.stats): Student's t quantiles as the tables give them (the
+t-interval of benchmarks/interval_coverage.py, which the bootstrap intervals are measured against), the
 percentile bootstrap interval covering the mean at its level, intervals within the quantity's range, and
 the Wilson interval in closed form and from the tables."""
 
 from __future__ import annotations
 
 import math
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from mazelab.experiments.stats import bootstrap_interval, student_t_quantile, wilson_interval
+from mazelab.experiments.stats import bootstrap_interval, wilson_interval
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))  # the t-interval is a benchmark's
+from interval_coverage import student_t_quantile, t_interval
 
 # With 2 degrees of freedom Student's t has F(t) = 1/2 + t / (2 sqrt(2 + t^2)), so F(t) = q at
 # t = (2q - 1) / sqrt(2 q (1 - q)): the 97.5% quantile in closed form.
@@ -24,6 +30,15 @@ T_975_DF2 = 0.95 / math.sqrt(2 * 0.975 * 0.025)
 def test_student_t_quantile_matches_the_tables(df, quantile):
     assert student_t_quantile(0.95, df) == pytest.approx(quantile, rel=1e-9)
     assert student_t_quantile(0.95, 2) == pytest.approx(T_975_DF2, rel=1e-11)
+
+
+def test_the_t_interval_of_three_errors_reaches_below_zero():
+    """Final errors 0.1, 0.2, 0.6: mean 0.3, half width T_975_DF2 sqrt(0.07 / 3) = 0.657, so the interval
+    of a quantity that is never negative reaches below zero (the study's bootstrap stays within the
+    values: test_experiments); one run gives no interval."""
+    half = T_975_DF2 * math.sqrt(0.07 / 3)
+    assert t_interval([0.1, 0.2, 0.6]) == pytest.approx((0.3 - half, 0.3 + half)) and 0.3 - half < 0
+    assert all(math.isnan(v) for v in t_interval([0.4]))
 
 
 def test_bootstrap_interval_covers_the_mean_at_its_level():

@@ -16,10 +16,11 @@ import pytest
 import mazelab
 from mazelab.cli.app import main
 from mazelab.experiments.study import MazeChoice, StudySetting
-from mazelab.experiments.study_plot import FONT_POINTS, PAPER_WIDTH, PNG_DPI, Y_LABEL, plot_study
+from mazelab.experiments.study_plot import FONT_POINTS, PAPER_WIDTH, PNG_DPI, Y_QUANTITIES, plot_study
 from mazelab.experiments.summary import StudySummary
 from mazelab.registry import colour_of
 
+Y_LABEL = Y_QUANTITIES["mean"].label  # the default figure's y axis
 SVG = "{http://www.w3.org/2000/svg}"
 FILTERS = ("SIRParticleFilter", "RegularizedParticleFilter", "GridBayesFilter")
 TINY = ["--runs", "2", "--steps", "10", "--particles", "60", "--seed", "2", "--workers", "1", "--no-viz"]

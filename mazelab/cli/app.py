@@ -29,26 +29,30 @@ import typer
 
 from mazelab.atomic import WriteError
 from mazelab.cli.exercise import exercise_app
-from mazelab.cli.filter_options import OptionFlag, filter_choices, filters, registry_help, with_option_flags
 from mazelab.cli.maze import maze_app
 from mazelab.cli.notebook import notebook
 from mazelab.cli.options import (
     DEFAULT_DELTA,
     DEFAULT_SIGMA,
     BackendOption,
+    OptionFlag,
     ThreadsOption,
     UserError,
     check_output_path,
+    filter_choices,
+    filters,
     option_elsewhere,
     plain_usage_names,
     progress_printer,
     refuse_option_as_value,
+    registry_help,
     report_run,
     seed_option,
     usage_hint,
     visualization,
     warn_in_one_line,
     with_drawing,
+    with_option_flags,
 )
 from mazelab.cli.recordings import recordings, view
 from mazelab.cli.smoothing import learn, smooth

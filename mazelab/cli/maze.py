@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import sys
+import time
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -10,8 +12,9 @@ import typer
 
 from mazelab import maze_generator
 from mazelab.atomic import write_text_atomically
-from mazelab.cli.options import check_output_path, generation_progress, seed_option, visualization, with_drawing
+from mazelab.cli.options import check_output_path, seed_option, visualization, with_drawing
 from mazelab.invocation import command_prefix
+from mazelab.maze import Maze
 from mazelab.mazes import load_maze
 from mazelab.seeding import new_seed
 from mazelab.viz.views import open_view
@@ -70,3 +73,43 @@ def maze_show(
     typer.echo(f"{world.source}: {maze_generator.describe_maze(world)}")
     if visualize:
         open_view(visualize, world, "maze").close()  # opening a view logs the maze
+
+
+# -- progress lines for a large maze ---------------------------------------------------------------------
+LOOKUP_PROGRESS_CELLS = 2**18  # a nearest-station table this large takes seconds: say so while building it
+GENERATE_PROGRESS_CELLS = 2**18  # generating a maze this large takes seconds (512 x 512)
+
+
+def prepare_world(world: Maze, min_cells: int = LOOKUP_PROGRESS_CELLS) -> Maze:
+    """Build a large maze's nearest-station table up front, with a progress line on stderr (a 1000 x
+    1000 maze takes tens of seconds); a small maze's table is built on first use, silently."""
+    if world.lookup_cells >= min_cells and not world.has_lookup:
+        world.prepare(ProgressLine(f"building the nearest-station table of {world.source}"))
+    return world
+
+
+def generation_progress(rows: int, columns: int) -> ProgressLine | None:
+    """A progress line for generating a large maze (None for a small one, made in a blink)."""
+    return ProgressLine(f"generating a {rows}x{columns} maze") if rows * columns >= GENERATE_PROGRESS_CELLS else None
+
+
+class ProgressLine:
+    """progress(done, total) as one line on stderr: redrawn in place on a terminal, else a line at the
+    start and one at the end (a log file gets no carriage returns)."""
+
+    def __init__(self, what: str):
+        self.what = what
+        self.started = time.perf_counter()
+        self.shown = -1  # the last percentage drawn
+        self.terminal = sys.stderr.isatty()
+        typer.echo(f"{what} ...", err=True, nl=not self.terminal)
+
+    def __call__(self, done: int, total: int) -> None:
+        percent = 100 * done // max(total, 1)
+        if done == total:
+            seconds = time.perf_counter() - self.started
+            start = "\r" if self.terminal else ""
+            typer.echo(f"{start}{self.what}: done in {seconds:.1f} s", err=True)
+        elif self.terminal and percent != self.shown:
+            typer.echo(f"\r{self.what}: {percent}%", err=True, nl=False)
+        self.shown = percent

@@ -149,9 +149,6 @@ def show(found: list[SavedRecording], doomed: list[SavedRecording], folder: Path
         typer.echo(f"To remove old ones: {command} --keep {targets.KEEP_HINT} (shows them), then add --clean")
 
 
-__all__ = ["chosen", "parse_amount", "recordings", "remove"]
-
-
 # -- `mazelab view FILE` ---------------------------------------------------------------------------------
 RRD_MAGIC = b"RRF2"  # the first bytes of a Rerun recording file
 
@@ -279,4 +276,4 @@ def replay_with_layout(path: Path, connect: Callable[[Any], None]) -> None:
             stream.disconnect()
 
 
-__all__ = ["recording_problem", "replay_with_layout", "view"]
+__all__ = ["chosen", "parse_amount", "recording_problem", "recordings", "remove", "replay_with_layout", "view"]

@@ -25,21 +25,19 @@ import numpy as np
 import typer
 
 from mazelab.atomic import write_text_atomically
-from mazelab.cli.filter_options import (
-    GivenOptions,
-    check_filter_name,
-    check_filter_names,
-    given_options,
-    options_per_filter,
-)
+from mazelab.cli.maze import prepare_world
 from mazelab.cli.options import (
     DEFAULT_DELTA,
     DEFAULT_SIGMA,
+    GivenOptions,
     UserError,
+    check_filter_name,
+    check_filter_names,
     check_one_file_each,
     check_output_path,
     check_outputs,
-    prepare_world,
+    given_options,
+    options_per_filter,
     progress_printer,
     report_run,
     visualization,

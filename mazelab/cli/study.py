@@ -23,33 +23,31 @@ from typing import Any
 import typer
 
 from mazelab.atomic import WriteError, write_text_atomically
-from mazelab.cli.filter_options import (
-    OptionFlag,
-    StudyOptionFlag,
-    check_filter_names,
-    given_options,
-    options_per_filter,
-    with_option_flags,
-)
+from mazelab.backend import cores
 from mazelab.cli.options import (
     DEFAULT_DELTA,
     DEFAULT_SIGMA,
     DRAWING,
     BackendOption,
+    OptionFlag,
+    StudyOptionFlag,
     UserError,
+    check_filter_names,
     check_one_file_each,
     check_output_path,
     check_outputs,
+    given_options,
     opt,
+    options_per_filter,
     parse_list,
     seed_option,
     visualization,
+    with_option_flags,
     with_parameters,
 )
 from mazelab.declaration import show_value
 from mazelab.experiments.accuracy import (
     AccuracyFilter,
-    AccuracyRecord,
     accuracy_csv,
     accuracy_filters,
     accuracy_plan,
@@ -62,7 +60,6 @@ from mazelab.experiments.executor import (
     check_workers,
     close_client,
     connect,
-    default_workers,
     run_study,
     study_backend,
 )
@@ -78,7 +75,7 @@ from mazelab.experiments.journal import (
     resume_study,
 )
 from mazelab.experiments.plan import StudyPlan, maze_description, plan_study, study_mazes
-from mazelab.experiments.record import Recorder, differences, record_path
+from mazelab.experiments.record import Recorder, jsonable, record_path
 from mazelab.experiments.runs import parse_filters
 from mazelab.experiments.study import MazeChoice, RunRecord, RunTask, StudyOutcome
 from mazelab.experiments.summary import CSV_DTYPES, study_table, summarise_study, summary_csv, summary_path
@@ -175,22 +172,24 @@ def study(
     chosen = StudyFiles.parse(**(files or {}), rrd=drawing.get("rrd"))
     drawn = drawing.get("viewer") or drawing.get("web") or drawing.get("rrd") is not None
     visualize = visualization(**drawing, force=chosen.force) if drawn else False
-    mazes = study_mazes(parse_list(maze, str, "--maze"), parse_list(maze_size, str, "--maze-size"),
-                        parse_list(stations, int, "--stations"),
-                        parse_list(wall_share, float, "--wall-share"))  # fmt: skip
+    mazes = parse_mazes(maze, maze_size, stations, wall_share)
     values = {"sigma": parse_list(sigma, float, "--sigma"), "delta": parse_list(delta, float, "--delta"),
               "particles": parse_list(particles, int, "--particles"), "runs": runs, "steps": steps,
               "kidnap_at": kidnap_at, "reference": reference}  # fmt: skip
     plan = study_plan(chosen, mazes, filters, named or {}, option, seed, values)
-    extras = StudyExtras.parse(plan, **(figure or {}))
-    workers = workers or default_workers()
-    session = open_session(plan, chosen, study_backend(plan.tasks(), 1 if dask else workers), visualize, draw_run,
-                           dask, workers)  # fmt: skip
+    figure = check_figure(plan, **(figure or {}))
+    workers = workers or cores()
+    backend = study_backend(plan.tasks(), 1 if dask else workers)
+    where = f"on the Dask cluster at {dask}" if dask is not None else f"{workers} worker(s)"
+    session = open_session(plan, chosen, backend, plan.header(where, backend), visualize=visualize,
+                           draw_run=draw_run, dask=dask)  # fmt: skip
+    if chosen.resume:
+        typer.echo(f"resuming: {len(session.kept)} rows kept from {chosen.journal}, {len(session.tasks)} run(s) to go")
     try:
         outcome = run_study(session.tasks, workers, visualize=visualize, progress=True, on_records=session.append,
                             dask=session.client, dask_timeout=dask_timeout, ignore_signals_after_stop=True,
                             backend=session.backend)  # fmt: skip
-        report_study(session, outcome, extras)
+        report_study(session, outcome, figure)
     finally:
         session.close()
 
@@ -209,45 +208,25 @@ def study_plan(files: StudyFiles, mazes: list, filters: str, named: dict[str, An
                       spelled=given.spelled)  # fmt: skip
 
 
-@dataclass
-class StudyExtras:
-    """What the report adds to the table and the figure: the filter of the paired differences (--paired),
-    the figure's x axis (--plot-x) and y (--plot-y), its title (--title), checked before any run."""
+def check_figure(plan: StudyPlan, paired: str | None = None, plot_x: str | None = None, plot_y: str = "mean",
+                 title: str | None = None) -> dict[str, Any]:  # fmt: skip
+    """What the report adds to the table and the figure, checked before any run: --paired one of the
+    study's filters (given by its name), --plot-x, --plot-y and --title as the figure takes them
+    (study_plot.figure_axes)."""
+    from mazelab.experiments.study_plot import figure_axes
 
-    paired: str | None = None
-    plot_x: str | None = None
-    plot_y: str = "mean"  # a key of study_plot.Y_QUANTITIES
-    title: str | None = None
-
-    @classmethod
-    def parse(cls, plan: StudyPlan, paired: str | None = None, plot_x: str | None = None, plot_y: str = "mean",
-              title: str | None = None) -> StudyExtras:  # fmt: skip
-        """--paired names one of the study's filters, --plot-x one of its varied parameters, --plot-y
-        what the figure draws (exact needs --reference grid, paired needs --paired)."""
-        from mazelab.experiments.study_plot import Y_QUANTITIES
-
-        if plot_y not in Y_QUANTITIES:
-            raise UserError(f"--plot-y {plot_y}: choose one of {', '.join(Y_QUANTITIES)}")
-        if plot_y == "exact" and plan.reference is None:
-            raise UserError("--plot-y exact: the distance to the exact posterior needs --reference grid")
-        if plot_y == "paired" and paired is None:
-            raise UserError("--plot-y paired: the paired difference needs --paired FILTER")
-        if title is not None and ("\n" in title or not title.strip()):
-            raise UserError("--title: give one line of text")
-        if plot_x is not None and plot_x not in plan.varied:
-            varied = ", ".join(plan.varied) or "none: give a parameter two values"
-            raise UserError(f"--plot-x {plot_x}: the x axis is a varied parameter of the study ({varied})")
-        if paired is not None:
-            entries = [filter_entry(f) for f in plan.filters]
-            chosen = resolve_filter(check_filter_names(paired, "--paired")).name
-            if chosen not in [entry.name for entry in entries]:
-                shown = ", ".join(entry.reference for entry in entries)
-                raise UserError(f"--paired {paired}: not one of the study's --filters ({shown})")
-            if len(entries) == 1:
-                raise UserError(f"--paired {paired}: the study's only filter, paired with itself (every difference "
-                                "0); add the filters to compare with it to --filters")  # fmt: skip
-            paired = chosen
-        return cls(paired, plot_x, plot_y, title)
+    figure_axes(plan.varied, plot_x, plot_y, title, exact=plan.reference is not None, paired=paired is not None)
+    if paired is not None:
+        entries = [filter_entry(f) for f in plan.filters]
+        chosen = resolve_filter(check_filter_names(paired, "--paired")).name
+        if chosen not in [entry.name for entry in entries]:
+            shown = ", ".join(entry.reference for entry in entries)
+            raise UserError(f"--paired {paired}: not one of the study's --filters ({shown})")
+        if len(entries) == 1:
+            raise UserError(f"--paired {paired}: the study's only filter, paired with itself (every difference "
+                            "0); add the filters to compare with it to --filters")  # fmt: skip
+        paired = chosen
+    return {"paired": paired, "plot_x": plot_x, "plot_y": plot_y, "title": title}
 
 
 @dataclass
@@ -348,10 +327,11 @@ class StudySession:
         self.release()
 
 
-def open_session(plan: StudyPlan, files: StudyFiles, backend: str, visualize: Any, draw_run: int,
-                 dask: str | None, workers: int) -> StudySession:  # fmt: skip
+def open_session(plan: StudyPlan, files: StudyFiles, backend: str, header: str, *, kind: str = "study",
+                 parameters: dict[str, Any] | None = None, visualize: Any = False, draw_run: int = 1,
+                 dask: str | None = None) -> StudySession:  # fmt: skip
     """The runs to go (a resumed study's checked against its journal), the claims, the journal, the
-    cluster and the record; the study's header printed."""
+    cluster and the record (of `kind`, its `parameters` the plan's unless given); the `header` printed."""
     tasks, kept, earlier = plan.tasks(), [], []
     if files.resume:
         try:
@@ -361,7 +341,7 @@ def open_session(plan: StudyPlan, files: StudyFiles, backend: str, visualize: An
     tasks = _drawn_first(tasks, draw_run) if visualize else tasks
     outputs = {k: None if v is None else str(v) for k, v in (("csv", files.csv_path), ("plot", files.plot),
                                                               ("traces", files.traces))}  # fmt: skip
-    recorder = Recorder("study", command_line(), plan.parameters(), outputs=outputs, sessions=earlier,
+    recorder = Recorder(kind, command_line(), parameters or plan.parameters(), outputs=outputs, sessions=earlier,
                         csv_dtypes=CSV_DTYPES, backend=backend)  # fmt: skip
     claimed = [("--summary-csv", files.summary_csv), ("--record", files.record_file), ("--plot", files.plot),
                ("--traces", files.traces)]  # fmt: skip
@@ -374,14 +354,13 @@ def open_session(plan: StudyPlan, files: StudyFiles, backend: str, visualize: An
     except BaseException:
         session.close()
         raise
-    typer.echo(plan.header(f"on the Dask cluster at {dask}" if dask is not None else f"{workers} worker(s)", backend))
+    typer.echo(header)
     if visualize:
         typer.echo(f"drawing run {tasks[0].run} of setting {tasks[0].setting_index} (--draw-run chooses the run)")
-    if files.resume:
-        typer.echo(f"resuming: {len(kept)} rows kept from {files.journal}, {len(tasks)} run(s) to go")
     if session.journal is not None:  # the parameters --resume compares, before any run
-        header = ("command", "started", "parameters", "backend")
-        session.journal.write({"session": {k: recorder.data[k] for k in header}})
+        line = {"command": recorder.data["command"], "started": recorder.data["started"],
+                "parameters": jsonable(plan.parameters()), "backend": backend}  # fmt: skip
+        session.journal.write({"session": line})
     return session
 
 
@@ -393,7 +372,7 @@ def _drawn_first(tasks: list[RunTask], run: int) -> list[RunTask]:
     return [tasks[chosen], *tasks[:chosen], *tasks[chosen + 1 :]]
 
 
-def report_study(session: StudySession, outcome: StudyOutcome, extras: StudyExtras) -> None:
+def report_study(session: StudySession, outcome: StudyOutcome, figure: dict[str, Any]) -> None:
     """The failures, then the table (first: a write error cannot lose it), the CSV, the summary CSV, the
     traces, the figure and the record; a stopped or lost study keeps its runs in the journal and exits
     non-zero."""
@@ -403,10 +382,10 @@ def report_study(session: StudySession, outcome: StudyOutcome, extras: StudyExtr
     names = [getattr(f, "name", f) for f in plan.filters]  # rows in (setting, run, filter) order
     order = {name: i for i, name in enumerate(dict.fromkeys([*names, *(r.filter for r in outcome.records)]))}
     records = sorted([*session.kept, *outcome.records], key=lambda r: (r.setting, r.run, order[r.filter]))
-    summaries = summarise_study(records, plan.settings, paired=extras.paired)
+    summaries = summarise_study(records, plan.settings, paired=figure["paired"])
     closing = {"runs_finished": len({(r.setting, r.run) for r in records}), "runs_in_study": len(plan.tasks()),
                "failures": [f.describe() for f in outcome.failures], "summary": [s.as_dict() for s in summaries],
-               "paired": extras.paired, "workers": [dataclasses.asdict(w) for w in outcome.workers.values()],
+               "paired": figure["paired"], "workers": [dataclasses.asdict(w) for w in outcome.workers.values()],
                "startup_seconds": round(outcome.startup_seconds, 3),
                **({"summary_csv": str(files.summary_csv)} if files.summary_csv is not None else {})}  # fmt: skip
     if outcome.interrupted or outcome.lost is not None:
@@ -420,13 +399,13 @@ def report_study(session: StudySession, outcome: StudyOutcome, extras: StudyExtr
                "calls; not in ms_per_step or run_seconds)")  # fmt: skip
     repeat = repeat_command(plan.seed, REPEAT_DROPS, REPEAT_DROPS_WITH_VALUE, session.backend)
     typer.echo(f"Repeat this study: {repeat}")
-    write_outputs(session, records, summaries, extras)
+    write_outputs(session, records, summaries, figure)
     session.close(status, runs_finished=closing["runs_finished"])
     if outcome.failures:
         raise typer.Exit(1)
 
 
-def write_outputs(session: StudySession, records: list[RunRecord], summaries: list, extras: StudyExtras) -> None:
+def write_outputs(session: StudySession, records: list[RunRecord], summaries: list, figure: dict[str, Any]) -> None:
     """The whole CSV (its record right after it, so the record beside a CSV always describes it), the
     summary CSV, the traces, the figure and the record; a file that cannot be written is one line (and
     the journal named, from which --resume writes them again), exit 1."""
@@ -443,7 +422,7 @@ def write_outputs(session: StudySession, records: list[RunRecord], summaries: li
             write_traces(files.traces, study_traces(records))
             typer.echo(f"per-step traces written to {files.traces}")
         if files.plot is not None and summaries:
-            draw_figure(plan, summaries, files.plot, replace, extras)
+            draw_figure(plan, summaries, files.plot, replace, figure)
         if files.record_file is not None:
             session.recorder.write(files.record_file)
             typer.echo(f"the study's record (command, versions, seeds, mazes, summary) written to {files.record_file}")
@@ -468,21 +447,27 @@ def report_stopped(session: StudySession, outcome: StudyOutcome, records: list[R
             session.recorder.write(files.record_file)
     session.close("interrupted", runs_finished=closing["runs_finished"])
     saved = f"; {journal.kept()}; go on with: {resume_command()}" if journal is not None else ""
-    finished, total = closing["runs_finished"], closing["runs_in_study"]
-    if outcome.lost is not None:  # a lost cluster or pool: one line, exit 1
+    exit_stopped(outcome, closing["runs_finished"], closing["runs_in_study"], saved)
+
+
+def exit_stopped(outcome: StudyOutcome, finished: int, total: int, saved: str = "") -> None:
+    """The line and the exit of a study or an accuracy that did not run to its end: a lost cluster or pool,
+    exit 1; a stop, exit 128 + its signal (130 Ctrl-C, 143 SIGTERM, 129 SIGHUP; further stops are ignored,
+    run_study)."""
+    if outcome.lost is not None:
         typer.echo(f"error: {outcome.lost}; {finished} of {total} runs finished{saved}", err=True)
         raise typer.Exit(1)
-    typer.echo(f"interrupted after {finished} of {total} runs{saved}", err=True)  # further stops: ignored (run_study)
-    raise typer.Exit(128 + (outcome.stopped_by or signal.SIGINT))  # 130 Ctrl-C, 143 SIGTERM, 129 SIGHUP
+    typer.echo(f"interrupted after {finished} of {total} runs{saved}", err=True)
+    raise typer.Exit(128 + (outcome.stopped_by or signal.SIGINT))
 
 
-def draw_figure(plan: StudyPlan, summaries: list, plot: Path, replace: bool, extras: StudyExtras) -> None:
+def draw_figure(plan: StudyPlan, summaries: list, plot: Path, replace: bool, figure: dict[str, Any]) -> None:
     """The study's figure (mazelab.experiments.study_plot), as `mazelab.study(...).figure(...)` draws it."""
     from mazelab.experiments.study_plot import draw_study
 
     maze = plan.settings[0].maze.label
-    draw_study(summaries, plan.varied, plot, plan.runs, maze, x=extras.plot_x, y=extras.plot_y, title=extras.title,
-               replace=replace)  # fmt: skip
+    draw_study(summaries, plan.varied, plot, plan.runs, maze, x=figure["plot_x"], y=figure["plot_y"],
+               title=figure["title"], replace=replace)  # fmt: skip
     typer.echo(f"figure written to {plot}")
 
 
@@ -527,87 +512,78 @@ def accuracy(
     Wilson interval)."""
     record_file = record if record is not None else record_path(csv_path) if csv_path is not None else None
     check_one_file_each([("--csv", csv_path), ("--record" if record is not None else "the record", record_file)])
-    mazes = accuracy_mazes(maze, maze_size, stations)
+    mazes = parse_mazes(maze, maze_size, stations, default=list(LAB_MAZES))
     rows = with_options(accuracy_filters(None if filters is None else parse_filters(filters)), option)
     plan = accuracy_plan(mazes, rows, sigma=sigma, delta=delta, particles=particles, runs=runs, steps=steps,
                          seed=seed)  # fmt: skip
     labels = [label for label, _, _ in rows]
     parameters = {"mazes": [maze_description(m) for m in mazes], "filters": labels, "sigma": sigma, "delta": delta,
                   "particles": particles, "runs": runs, "steps": steps, "root_seed": seed}  # fmt: skip
-    workers = workers or default_workers()
-    journal, tasks, kept, replace = open_journal(csv_path, record_file, plan, rows, force, workers)
-    typer.echo(f"Accuracy: {len(mazes)} maze(s) ({', '.join(m.label for m in mazes)}) x {runs} runs, sigma "
-               f"{sigma:g}, delta {delta:g}, {particles} particles, {steps} steps, seed {seed}; filters: "
-               f"{', '.join(labels)}")  # fmt: skip
-    recorder = Recorder("accuracy", command_line(), parameters, outputs={"csv": csv_path and str(csv_path)})
-    outputs = {"csv_path": csv_path, "record_file": record_file, "recorder": recorder, "replace": replace}
-    run_and_report(plan, rows, tasks, kept, workers, journal, outputs)
+    workers = workers or cores()
+    backend = study_backend(plan.tasks(), workers)
+    files = accuracy_files(csv_path, record_file, plan, rows, force, backend)
+    header = (f"Accuracy: {len(mazes)} maze(s) ({', '.join(m.label for m in mazes)}) x {runs} runs, sigma "
+              f"{sigma:g}, delta {delta:g}, {particles} particles, {steps} steps, seed {seed}; filters: "
+              f"{', '.join(labels)}")  # fmt: skip
+    session = open_session(plan, files, backend, header, kind="accuracy", parameters=parameters)
+    try:
+        outcome = run_study(session.tasks, workers, progress=True, on_records=session.append,
+                            ignore_signals_after_stop=True, backend=backend)  # fmt: skip
+        report_accuracy(session, rows, outcome)
+    finally:
+        session.close()
 
 
-def open_journal(
-    csv_path: Path | None, record_file: Path | None, plan: StudyPlan, rows: tuple[AccuracyFilter, ...], force: bool,
-    workers: int,
-) -> tuple[Journal | None, list[RunTask], list[RunRecord], bool]:  # fmt: skip
-    """The journal beside the outputs, the runs to go and those kept from an interrupted run of the same
-    command, and whether the outputs may be replaced: an earlier run's files are refused without --force,
-    unless it was interrupted (no finished session in its journal): then it is resumed (the same
-    parameters, mazelab.experiments.journal.resume_study) or replaced, and a line says which."""
+def accuracy_files(csv_path: Path | None, record_file: Path | None, plan: StudyPlan, rows: tuple[AccuracyFilter, ...],
+                   force: bool, backend: str) -> StudyFiles:  # fmt: skip
+    """The outputs and their journal (beside the CSV, else the record): an earlier run's files are refused
+    without --force, unless it was interrupted (no finished session in its journal): then it is resumed
+    (the same parameters, mazelab.experiments.journal.resume_study) or replaced, and a line says which."""
     journal = journal_path(csv_path or record_file) if csv_path or record_file else None
     lines = [] if journal is None or journal_state(journal) != "left" else read_journal(journal)
     finished = any(line.get("closed", {}).get("status") == "finished" for line in lines)
     interrupted = any("session" in line for line in lines) and not finished
-    tasks, kept = plan.tasks(), []
-    if interrupted and not force:
-        try:
-            changed = differences(journal_parameters(journal, lines), plan.parameters(), ignore=("runs",))
-            if changed:
-                raise JournalError(f"its parameters differ ({changed[0]})")
-            tasks, kept, _ = resume_study(journal, lines, plan, study_backend(tasks, workers))
-        except JournalError as error:
-            why = str(error).removeprefix("--resume: ")
-            typer.echo(f"replacing what an interrupted run left ({journal} and its outputs): {why}")
-        else:
-            done = {(r.maze, r.run) for r in accuracy_records(kept, rows)}
-            typer.echo(f"resuming the interrupted run of {journal}: {len(done)} runs kept")
     for path in (csv_path, record_file):
         if path is not None:
             check_output_path(path, force or interrupted)
-    if journal is None:
-        return None, tasks, [], force
-    try:
-        opened = Journal(journal, adopt=bool(kept), replace=True)
-    except JournalError as error:
-        raise UserError(str(error)) from None
-    opened.write({"session": {"command": command_line(), "parameters": plan.parameters()}})
-    return opened, tasks, kept, force or interrupted
+    files = StudyFiles(csv_path, None, None, record_file, None, journal, False, force or bool(lines))
+    if interrupted and not force:
+        try:
+            _, kept, _ = resume_study(journal, lines, plan, backend)
+        except JournalError as error:
+            why = str(error).removeprefix("--resume: ").removesuffix("; give the same parameters")
+            typer.echo(f"replacing what an interrupted run left ({journal} and its outputs): {why}")
+        else:
+            files.resume, files.lines = True, lines
+            done = {(r["maze"], r["run"]) for r in accuracy_records(kept, rows)}
+            typer.echo(f"resuming the interrupted run of {journal}: {len(done)} runs kept")
+    return files
 
 
-def run_and_report(
-    plan: StudyPlan, rows: tuple[AccuracyFilter, ...], tasks: list[RunTask], kept: list[RunRecord], workers: int,
-    journal: Journal | None, outputs: dict[str, Any],
-) -> None:  # fmt: skip
-    """The runs not kept, each appended to the journal; then the table, the CSV and the record (an
-    interrupted run's too, its status "interrupted")."""
-    started = time.perf_counter()
-    append = journal.append_run if journal is not None else None
-    outcome = run_study(tasks, workers, progress=True, on_records=append, ignore_signals_after_stop=True)
+def report_accuracy(session: StudySession, rows: tuple[AccuracyFilter, ...], outcome: StudyOutcome) -> None:
+    """The failures, the table, the time, the CSV and the record (an interrupted run's too, its status
+    "interrupted"), the journal closed; a stopped or lost run, or one with failures, exits non-zero."""
+    files, recorder = session.files, session.recorder
     stopped = outcome.interrupted or outcome.lost is not None
-    if journal is not None:
-        journal.end_session("interrupted" if stopped else "finished")
+    status = "interrupted" if stopped else "finished"
     for failure in outcome.failures:
         typer.echo(f"error: {failure.describe()}", err=True)
-    records = accuracy_records(sorted([*kept, *outcome.records], key=lambda r: (r.setting, r.run)), rows)
-    runs = len({(r.maze, r.run) for r in records})
+    records = accuracy_records(sorted([*session.kept, *outcome.records], key=lambda r: (r.setting, r.run)), rows)
+    runs = len({(r["maze"], r["run"]) for r in records})
     if records:
-        seconds = time.perf_counter() - started
-        report_accuracy(records, seconds, runs, status="interrupted" if stopped else "finished", **outputs)
-    total = len({s.maze for s in plan.settings}) * plan.runs
-    if outcome.lost is not None:
-        typer.echo(f"error: {outcome.lost}; {runs} of {total} runs finished", err=True)
-    elif stopped:
-        typer.echo(f"interrupted after {runs} of {total} runs", err=True)
-        raise typer.Exit(128 + (outcome.stopped_by or signal.SIGINT))
-    if outcome.failures or outcome.lost is not None:
+        typer.echo(accuracy_table(records))
+        typer.echo(f"{runs} runs in {time.perf_counter() - recorder.started_clock:.1f} s wall time")
+        if files.csv_path is not None:
+            write_text_atomically(files.csv_path, accuracy_csv(records), replace=files.force or files.resume)
+            typer.echo(f"one row per maze, run and filter written to {files.csv_path}")
+        if files.record_file is not None:
+            recorder.finish(status, summary=accuracy_summary(records))
+            recorder.write(files.record_file)
+            typer.echo(f"the record (command, versions, seeds, mazes, summary) written to {files.record_file}")
+    session.close(status, runs_finished=runs)
+    if stopped:
+        exit_stopped(outcome, runs, len({s.maze for s in session.plan.settings}) * session.plan.runs)
+    if outcome.failures:
         raise typer.Exit(1)
 
 
@@ -627,36 +603,16 @@ def with_options(chosen: tuple[AccuracyFilter, ...], texts: list[str] | None) ->
     return tuple(result)
 
 
-def accuracy_mazes(maze: str | None, maze_size: str | None, stations: str | None) -> list[MazeChoice]:
-    """The mazes of the table: the files named, the generated sizes, or the lab's shipped set (named,
-    so that a maze a student adds to mazes/ does not join it)."""
+def parse_mazes(maze: str | None, maze_size: str | None, stations: str | None, wall_share: str | None = None,
+                default: list[str] | None = None) -> list[MazeChoice]:  # fmt: skip
+    """The mazes of --maze, --maze-size, --stations and --wall-share (lists; plan.study_mazes), or the
+    `default` names when none is given (accuracy's: the lab's shipped set, named, so that a maze a
+    student adds to mazes/ does not join it; the study's: the default maze)."""
     files, sizes, counts = (
         parse_list(maze, str, "--maze"),
         parse_list(maze_size, str, "--maze-size"),
         parse_list(stations, int, "--stations"),
     )
-    if files is None and sizes is None and counts is None:
-        files = list(LAB_MAZES)
-    return study_mazes(files, sizes, counts)
-
-
-def report_accuracy(
-    records: list[AccuracyRecord],
-    seconds: float,
-    runs: int,
-    csv_path: Path | None,
-    record_file: Path | None,
-    recorder: Recorder,
-    replace: bool,
-    status: str = "finished",
-) -> None:
-    """The table, the time, the CSV and the record (its `status`: finished, or interrupted)."""
-    typer.echo(accuracy_table(records))
-    typer.echo(f"{runs} runs in {seconds:.1f} s wall time")
-    if csv_path is not None:
-        write_text_atomically(csv_path, accuracy_csv(records), replace=replace)
-        typer.echo(f"one row per maze, run and filter written to {csv_path}")
-    if record_file is not None:
-        recorder.finish(status, summary=accuracy_summary(records))
-        recorder.write(record_file)
-        typer.echo(f"the record (command, versions, seeds, mazes, summary) written to {record_file}")
+    if files is None and sizes is None and counts is None and wall_share is None:
+        files = default
+    return study_mazes(files, sizes, counts, parse_list(wall_share, float, "--wall-share"))

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import statistics
 from collections.abc import Sequence
-from dataclasses import dataclass, fields
 from typing import Any
 
 from mazelab.experiments.plan import StudyPlan, plan_study
@@ -66,23 +65,16 @@ def accuracy_plan(
                       steps=steps, seed=seed, reference=REFERENCE)  # fmt: skip
 
 
-@dataclass(frozen=True)
-class AccuracyRecord:
-    """One filter in one run: its mean distance to the exact posterior mean over the second half of the
-    steps (map units; 0 for the grid itself) and its convergence step against the truth (None: never)."""
-
-    maze: str
-    seed: int
-    filter: str
-    distance_to_exact: float
-    converged_at: int | None
-    run: int = 1
-    maze_seed: int | None = None
+# a row of the table's CSV, one filter in one run: its mean distance to the exact posterior mean over the
+# second half of the steps (map units; 0 for the grid itself) and its convergence step against the truth
+# (None: never); `filter` is the table's label of the row
+ACCURACY_COLUMNS = ["maze", "seed", "filter", "distance_to_exact", "converged_at", "run", "maze_seed"]
 
 
-def accuracy_records(records: Sequence[RunRecord], rows: Sequence[AccuracyFilter]) -> list[AccuracyRecord]:
-    """Each row's record of every run whose rows have all finished, by maze and run in the records' order:
-    the study's row of the row's filter with the row's options (its declared defaults for the rest)."""
+def accuracy_records(records: Sequence[RunRecord], rows: Sequence[AccuracyFilter]) -> list[dict[str, Any]]:
+    """Each row's record of every run whose rows have all finished (ACCURACY_COLUMNS), by maze and run in
+    the records' order: the study's row of the row's filter with the row's options (its declared defaults
+    for the rest)."""
     wanted = []
     for label, name, given in rows:
         entry = filter_entry(name)
@@ -95,21 +87,22 @@ def accuracy_records(records: Sequence[RunRecord], rows: Sequence[AccuracyFilter
     for (maze, run), mine in runs.items():
         chosen = [next((r for r in mine if r.filter == name and r.options == cells), None) for _, name, cells in wanted]
         if all(chosen):
-            found += [AccuracyRecord(maze, r.seed, label, r.distance_to_exact, r.converged_at, run, r.maze_seed)
+            found += [dict(zip(ACCURACY_COLUMNS, (maze, r.seed, label, r.distance_to_exact, r.converged_at, run,
+                                                  r.maze_seed), strict=True))
                       for (label, _, _), r in zip(wanted, chosen, strict=True)]  # fmt: skip
     return found
 
 
-def accuracy_summary(records: Sequence[AccuracyRecord]) -> list[dict[str, Any]]:
+def accuracy_summary(records: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     """Per maze and filter: runs, the mean distance to the exact mean with its percentile bootstrap
     interval, the worst run, the converged share with its Wilson interval, the median convergence step."""
-    groups: dict[tuple[str, str], list[AccuracyRecord]] = {}
+    groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
     for record in records:
-        groups.setdefault((record.maze, record.filter), []).append(record)
+        groups.setdefault((record["maze"], record["filter"]), []).append(record)
     rows = []
     for (maze, name), group in groups.items():
-        distances = [r.distance_to_exact for r in group]
-        converged = [r.converged_at for r in group if r.converged_at is not None]
+        distances = [r["distance_to_exact"] for r in group]
+        converged = [r["converged_at"] for r in group if r["converged_at"] is not None]
         rows.append(
             {
                 "maze": maze,
@@ -126,7 +119,7 @@ def accuracy_summary(records: Sequence[AccuracyRecord]) -> list[dict[str, Any]]:
     return rows
 
 
-def accuracy_table(records: Sequence[AccuracyRecord]) -> str:
+def accuracy_table(records: Sequence[dict[str, Any]]) -> str:
     """Per maze and filter: the mean (and worst) distance to the exact posterior mean over the second
     half of the steps with its 95% bootstrap interval, the converged share with its Wilson interval
     and the median convergence step."""
@@ -150,9 +143,6 @@ def accuracy_table(records: Sequence[AccuracyRecord]) -> str:
     return format_table(headers, rows) + "\n" + note
 
 
-ACCURACY_COLUMNS = [f.name for f in fields(AccuracyRecord)]
-
-
-def accuracy_csv(records: Sequence[AccuracyRecord]) -> str:
+def accuracy_csv(records: Sequence[dict[str, Any]]) -> str:
     """One row per maze, run and filter, columns ACCURACY_COLUMNS; an empty cell for "never"."""
     return records_csv(records, ACCURACY_COLUMNS)

@@ -8,7 +8,6 @@ import math
 import traceback
 import warnings
 from collections.abc import Sequence
-from dataclasses import dataclass
 from itertools import groupby
 
 import numpy as np
@@ -38,7 +37,7 @@ def batchable(task: RunTask) -> bool:
     for name in task.filters:
         entry = filter_entry(name)
         runs_together = getattr(entry.filter_class, "runs_together", None)
-        if not entry.batched or (runs_together is not None and not runs_together(task.filter_options(name))):
+        if not entry.batched or (runs_together is not None and not runs_together(task.setting.filter_options(name))):
             return False
     return True
 
@@ -75,24 +74,9 @@ def run_unit_safely(unit: Sequence[RunTask]) -> list[list[RunRecord] | RunFailur
     return [run_task_safely(task) for task in unit]
 
 
-@dataclass
-class Walk:
-    """One run's scenario, as run_task makes it: the robot's walk and the initial particles."""
-
-    inputs: RunInputs
-    true_positions: np.ndarray  # (steps, 2)
-
-    @property
-    def compass_angles(self) -> list[float]:
-        return self.inputs.compass_angles
-
-    @property
-    def measurements(self) -> list[float]:
-        return self.inputs.measurements
-
-
-def walk_of(task: RunTask, world: Maze) -> Walk:
-    """The run's walk and particles from its seed: the draws simulate makes (robot, particles, kidnapping)."""
+def walk_of(task: RunTask, world: Maze) -> tuple[RunInputs, np.ndarray]:
+    """The run's walk and particles from its seed, the draws simulate makes (robot, particles, kidnapping):
+    the run's inputs, as run_task makes them, and the true positions (steps, 2)."""
     s = task.setting
     robot = Robot(s.sigma, s.delta, start_place(world, task.seed))
     streams = run_streams(task.seed)
@@ -106,7 +90,7 @@ def walk_of(task: RunTask, world: Maze) -> Walk:
         robot.step(world)
         positions.append(robot.position)
     inputs = RunInputs.of_run(robot, particles, world, s.sigma, s.delta, task.seed, task.steps, task.filters[0])
-    return Walk(inputs, np.array(positions).reshape(task.steps, 2))
+    return inputs, np.array(positions).reshape(task.steps, 2)
 
 
 def run_batch(tasks: Sequence[RunTask]) -> list[list[RunRecord]]:
@@ -116,14 +100,14 @@ def run_batch(tasks: Sequence[RunTask]) -> list[list[RunRecord]]:
     with warnings.catch_warnings():  # the range warnings were shown once, by study_settings
         warnings.simplefilter("ignore", UserWarning)
         walks = [walk_of(task, world) for task in tasks]
-    particles = np.stack([walk.inputs.particles for walk in walks])  # (R, N, 2)
-    compass = np.array([walk.compass_angles for walk in walks])  # (R, steps)
-    z = np.array([walk.measurements for walk in walks])
+    particles = np.stack([inputs.particles for inputs, _ in walks])  # (R, N, 2)
+    compass = np.array([inputs.compass_angles for inputs, _ in walks])  # (R, steps)
+    z = np.array([inputs.measurements for inputs, _ in walks])
     results: list[dict[str, RunResult]] = [{} for _ in tasks]
     world.prepare()
     for name in tasks[0].filters:
         filter_class = filter_entry(name).filter_class
-        options = tasks[0].filter_options(name)
+        options = tasks[0].setting.filter_options(name)
         warm_batch(filter_class, world, tasks, particles, compass, z, options)
         rngs = [filter_rng(task.seed) for task in tasks]  # each run's filter stream, as simulate's
         filt = filter_class(maze_for(filter_class, world), s.sigma, s.delta, particles, rngs, **options)
@@ -132,12 +116,12 @@ def run_batch(tasks: Sequence[RunTask]) -> list[list[RunRecord]]:
             check_filter(filt)
         steps_of = record_steps(filt, steps, lambda k: (compass[:, k], z[:, k]), runs=runs)
         restarts = filt.reinitialised_at if len(tasks) > 1 else [filt.reinitialised_at]  # one run: one list
-        for r, walk in enumerate(walks):
-            inputs = RunInputs(**{**walk.inputs.__dict__, "filtering_algorithm": filter_class.name})
+        for r, (walk, true_positions) in enumerate(walks):
+            inputs = RunInputs(**{**walk.__dict__, "filtering_algorithm": filter_class.name})
             run = steps_of.run(r)
             results[r][filter_class.name] = RunResult(
                 filter_class.name,
-                walk.true_positions,
+                true_positions,
                 run["estimates"],
                 run["ess"],
                 run["confident"],

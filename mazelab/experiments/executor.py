@@ -20,6 +20,7 @@ from __future__ import annotations
 import ctypes
 import functools
 import logging
+import math
 import os
 import signal
 import socket
@@ -163,9 +164,7 @@ def describe_workers(client: Any) -> str:
 
 
 # -- the runs --------------------------------------------------------------------------------------------
-def default_workers() -> int:
-    """All the cores this process may use."""
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+default_workers = cores  # a study's processes by default: all the cores this process may use
 
 
 class StudyStopped(KeyboardInterrupt):
@@ -238,7 +237,7 @@ def run_study(
     without a finished unit) or a pool whose workers keep dying ends the study early: outcome.lost
     says why, in one line.
     """
-    workers = default_workers() if workers is None else workers
+    workers = cores() if workers is None else workers
     if workers < 1:
         raise ValueError(f"--workers must be >= 1, got {workers}")
     client = connect(dask) if isinstance(dask, str) else dask  # a bad address: one line, before anything runs
@@ -330,8 +329,7 @@ class Units:
                 if not handed:
                     self._take(self._restart())
                 else:
-                    done = self._wait()
-                    broken = any(isinstance(f.exception(), BrokenProcessPool) for f in done if not f.cancelled())
+                    done, broken = self._wait()
                     self._take(self._restart() if broken else done)
                 handed = self._hand_out()
         except StudyLost:
@@ -352,20 +350,25 @@ class Units:
             raise stop from None
         self.pool.shutdown(wait=True)
 
-    def _wait(self) -> set[Future]:
-        """The units finished next; on Dask, a scheduler gone or `timeout` seconds without a finished
-        unit (no worker left) is a lost cluster."""
-        if self.client is None:
-            return wait(self.running, return_when=FIRST_COMPLETED)[0]
-        deadline = time.monotonic() + self.timeout
+    def _wait(self) -> tuple[set[Future], bool]:
+        """The units finished next, and whether the pool is broken: a worker died, whether its future
+        says so or not (killed while it wrote a unit's rows, the pool's thread waits for the rest of the
+        message; end_workers frees it). On Dask, a scheduler gone or `timeout` seconds without a
+        finished unit (no worker left) is a lost cluster."""
+        deadline = time.monotonic() + self.timeout if self.client is not None else math.inf  # the pool's: none
         while True:
             left = deadline - time.monotonic()
             done = wait(self.running, timeout=max(0.0, min(1.0, left)), return_when=FIRST_COMPLETED)[0]
-            if done:
-                return done
-            if self.client.status not in ("running", "connecting"):
+            if self.client is None:
+                processes = (getattr(self.pool, "_processes", None) or {}).values()  # no public API
+                broken = any(isinstance(f.exception(), BrokenProcessPool) for f in done if not f.cancelled())
+                if done or broken or not all(process.is_alive() for process in processes):
+                    return done, broken or not done
+            elif done:
+                return done, False
+            elif self.client.status not in ("running", "connecting"):
                 raise StudyLost(f"lost the connection to the Dask scheduler ({self.client.status})")
-            if left <= 1.0:
+            elif left <= 1.0:
                 raise StudyLost(
                     f"no run finished on the Dask cluster within {self.timeout:g} s (--dask-timeout): "
                     f"{describe_workers(self.client)}"
@@ -431,7 +434,12 @@ def _lost(error: BaseException) -> str:
 
 
 def end_workers(pool: ProcessPoolExecutor) -> None:
-    """Kill the pool's worker processes now and reap them (their unfinished runs are dropped)."""
+    """Kill the pool's worker processes now and reap them (their unfinished runs are dropped).
+
+    A worker killed while it wrote a unit's rows (SIGTERM to the process group, kill -9) leaves a message
+    cut short in the result pipe, and the pool's thread waits for its rest for ever: this process closes
+    its own end of the pipe too, once the workers are gone, so that the thread reads the end of the pipe,
+    and `shutdown` returns."""
     kill_workers = getattr(pool, "kill_workers", None)  # Python 3.14
     processes = list((getattr(pool, "_processes", None) or {}).values())  # no public API before 3.14
     if kill_workers is not None:
@@ -441,6 +449,9 @@ def end_workers(pool: ProcessPoolExecutor) -> None:
             process.kill()
     for process in processes:
         process.join(timeout=5)
+    writer = getattr(getattr(pool, "_result_queue", None), "_writer", None)  # no public API either
+    if writer is not None and not any(process.is_alive() for process in processes):
+        writer.close()
     pool.shutdown(wait=True)  # the pool's thread sees the workers gone and ends
 
 

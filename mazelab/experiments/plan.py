@@ -219,25 +219,13 @@ def plan_study(
     check_particles(max(particles))
     settings = study_settings(mazes, sigma, delta, particles, given)
     check_study(len(settings) * runs, len(names))
-    check_study_numbers(settings)
+    check_study_numbers(settings, reference)
     check_filter_options(settings, names)
-    if reference is not None:
-        check_reference(reference, settings)
     seed = new_seed() if seed is None else seed
     kld = given.get("kld") == [True]  # the table's mean N column
     plan = StudyPlan(settings, names, runs, steps, seed, kidnap_at, kld, traces, reference, plugin_codes(names))
     plan.tasks()  # checks runs, steps and kidnap_at
     return plan
-
-
-def check_reference(reference: str, settings: Sequence[StudySetting]) -> None:
-    """--reference: only "grid", and the grid filter's cells must fit in memory on every maze (its
-    constructor's own check, for each maze's size), before any run starts."""
-    if reference != REFERENCE:
-        raise ValueError(f"--reference {reference}: the reference is the exact grid filter, --reference {REFERENCE}")
-    for maze in dict.fromkeys(s.maze for s in settings):
-        rows, columns = maze.size if maze.grid is None else (len(maze.grid), len(maze.grid[0]))
-        check_grid_memory(columns, rows)
 
 
 def all_default(name: str, values: Sequence[Any]) -> bool:
@@ -263,15 +251,20 @@ def check_filter_options(settings: Sequence[StudySetting], names: Sequence[Any])
                 entry.options.resolve(given, entry.name)
 
 
-def check_study_numbers(settings: Sequence[Any]) -> None:
+def check_study_numbers(settings: Sequence[Any], reference: str | None = None) -> None:
     """Each setting's sigma, and a numeric kernel bandwidth if it sets one, within the ranges of its maze
-    (mazelab.checks), before any run starts."""
+    (mazelab.checks); with --reference, only "grid", whose cells must fit in memory on every maze (its
+    constructor's own check, for each maze's size); before any run starts."""
+    if reference is not None and reference != REFERENCE:
+        raise ValueError(f"--reference {reference}: the reference is the exact grid filter, --reference {REFERENCE}")
     for setting in settings:
         maze = setting.maze
         rows, columns = maze.size if maze.grid is None else (len(maze.grid), len(maze.grid[0]))
         check_sigma_within(setting.sigma, columns, rows)
         if setting.value("bandwidth") is not None:
             check_bandwidth_within(setting.value("bandwidth"), columns, rows)
+        if reference is not None:
+            check_grid_memory(columns, rows)
 
 
 def _filter_list(filters: Sequence[Any]) -> list[Any]:

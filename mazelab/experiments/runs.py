@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from mazelab.backend import backend_by_work
-from mazelab.contract import options_for, takes
+from mazelab.contract import options_for
 from mazelab.experiments.tables import format_number, format_table, pyplot, records_csv, save_figure
 from mazelab.experiments.warmup import warm_up_filters
 from mazelab.maze import Maze
@@ -102,20 +102,7 @@ def filter_key(name: str) -> str:
     return entry.reference if entry.plugin is not None else entry.name
 
 
-def filter_labels(names: Sequence[str]) -> list[str]:
-    """How the results and the viewer name the filters: their `name` (a plug-in's is its class name)."""
-    return [resolve_filter(name).name for name in names]
-
-
 # -- several filters on one scenario ---------------------------------------------------------------
-def filter_options(filter_name: str | type, **options: Any) -> dict[str, Any]:
-    """Of the options given (None: not given), those the filter declares (mazelab.declaration): the
-    RPF's threshold and bandwidth reach the RPF only, recovery and KLD-sampling the particle filters,
-    the point estimate every filter that has one."""
-    filter_class = resolve_filter(filter_name)
-    return {name: value for name, value in options.items() if value is not None and takes(filter_class, name)}
-
-
 def is_particle_filter(filter_name: str) -> bool:
     """Whether a filter is a sample of particles (its registry entry says it takes a particle count)."""
     return filter_entry(filter_name).takes_particles
@@ -149,7 +136,8 @@ def run_filters(
     total = steps or robot.recorded_steps or DEFAULT_STEPS
     work = (count or DEFAULT_PARTICLE_COUNT) * total * len(filter_names), total * len(filter_names)
     results: dict[str, RunResult] = {}
-    comparison = open_comparison(visualize, world, filter_labels(filter_names))  # without drawing: no recording
+    labels = [resolve_filter(name).name for name in filter_names]  # a plug-in's: its class name
+    comparison = open_comparison(visualize, world, labels)  # without drawing: no recording
     with backend_by_work(*work), contextlib.closing(comparison):  # the warm-up and the runs on one backend
         warm_up_filters(world, sigma, delta, filter_names, count, options or {})
         for name in filter_names:
@@ -161,16 +149,6 @@ def run_filters(
             steps = len(result.errors)
             results[result.filter_name] = result
     return results
-
-
-def mean_particle_count(result: RunResult) -> float:
-    """The particle count averaged over the steps (it varies with KLD-sampling)."""
-    return float(np.mean(result.extras["particle_count"]))
-
-
-def final_log_evidence(result: RunResult) -> float:
-    """log p(z_1:K) after the last step as the filter estimates it (NaN when it keeps none)."""
-    return math.nan if result.log_evidence is None else float(result.log_evidence[-1])
 
 
 def run_figures(name: str, result: RunResult) -> dict[str, Any]:
@@ -188,8 +166,8 @@ def run_figures(name: str, result: RunResult) -> dict[str, Any]:
         "ms_per_step": 1e3 * float(result.step_seconds.mean()),
         "relocalised": relocalised(result) if kidnapped else None,
         "steps_to_recover": recovery_steps(result) if kidnapped else None,
-        "mean_particle_count": mean_particle_count(result),
-        "log_evidence": final_log_evidence(result),
+        "mean_particle_count": float(np.mean(result.extras["particle_count"])),  # KLD-sampling varies it
+        "log_evidence": math.nan if result.log_evidence is None else float(result.log_evidence[-1]),
         "log_evidence_caveat": entry.evidence,
         "label": entry.label,
         "backend": result.extras.get("backend", "numpy"),

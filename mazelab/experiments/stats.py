@@ -8,14 +8,13 @@
   pairs) rather than each filter's values apart (`paired_difference`);
 - a share (converged, re-localised): the Wilson score interval (`wilson_interval`), within [0, 1];
 - a time to an event that some runs never reach (the convergence step): the Kaplan-Meier estimate,
-  its median and that median's interval from the log-log pointwise band (`kaplan_meier`, `km_median`);
-- Student's t-interval for a mean, exact, kept for comparison (`t_interval`).
+  its median and that median's interval from the log-log pointwise band (`kaplan_meier`, `km_median`).
+(Student's t-interval, for comparison: benchmarks/interval_coverage.py.)
 """
 
 from __future__ import annotations
 
 import math
-import statistics
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from statistics import NormalDist
@@ -142,9 +141,9 @@ def paired_difference(
     paired bootstrap interval: the runs are resampled, each keeping its pair, so the luck the two
     share (an easy or a hard walk) cancels. Pairs with a NaN are left out; (NaN, (NaN, NaN)) for no pair.
 
-    The unpaired interval (each filter's runs resampled apart, `unpaired_difference`) is wider when the
-    two are positively correlated, as filters on the same walk are: its variance adds both spreads,
-    the paired one subtracts twice their covariance."""
+    The unpaired interval (each filter's runs resampled apart) is wider when the two are positively
+    correlated, as filters on the same walk are: its variance adds both spreads, the paired one subtracts
+    twice their covariance (tests/test_statistics.py compares the two)."""
     a, b = np.asarray(values, dtype=float), np.asarray(reference, dtype=float)
     if a.shape != b.shape:
         raise ValueError(f"paired values need one reference each, got {len(a)} and {len(b)}")
@@ -153,25 +152,6 @@ def paired_difference(
     if len(differences) == 0:
         return math.nan, (math.nan, math.nan)
     return float(differences.mean()), bootstrap_interval(differences, "mean", level, samples, seed, method)
-
-
-def unpaired_difference(
-    values: Sequence[float],
-    reference: Sequence[float],
-    level: float = CONFIDENCE_LEVEL,
-    samples: int = BOOTSTRAP_SAMPLES,
-    seed: int = BOOTSTRAP_SEED,
-) -> tuple[float, tuple[float, float]]:
-    """The difference of the two means and its percentile bootstrap interval, each sample resampled
-    on its own (two independent groups): for comparison with `paired_difference`."""
-    a, b = (np.asarray(v, dtype=float) for v in (values, reference))
-    a, b = a[~np.isnan(a)], b[~np.isnan(b)]
-    if len(a) < 2 or len(b) < 2:
-        return math.nan, (math.nan, math.nan)
-    rng = np.random.default_rng(seed)
-    means = [x[rng.integers(0, len(x), size=(samples, len(x)))].mean(axis=1) for x in (a, b)]
-    low, high = np.quantile(means[0] - means[1], [(1 - level) / 2, (1 + level) / 2])
-    return float(a.mean() - b.mean()), (float(low), float(high))
 
 
 @dataclass(frozen=True)
@@ -253,49 +233,6 @@ def wilson_interval(successes: int, trials: int, level: float = CONFIDENCE_LEVEL
     return low, 1.0 if successes == trials else min(1.0, (centre + half) / scale)
 
 
-def student_t_two_sided(t: float, df: int) -> float:
-    """P(|T| <= t) for Student's t with `df` degrees of freedom (Abramowitz & Stegun 26.7.3-4, exact)."""
-    theta = math.atan(t / math.sqrt(df))
-    c2, s = math.cos(theta) ** 2, math.sin(theta)
-    if df % 2 == 0:  # sin th [1 + 1/2 cos^2 th + (1*3)/(2*4) cos^4 th + ... up to cos^(df-2) th]
-        term = total = 1.0
-        for j in range(0, df - 2, 2):
-            term *= c2 * (j + 1) / (j + 2)
-            total += term
-        return s * total
-    if df == 1:
-        return 2 * theta / math.pi
-    term = total = math.cos(theta)  # 2/pi [th + sin th (cos th + 2/3 cos^3 th + ... up to cos^(df-2) th)]
-    for j in range(1, df - 2, 2):
-        term *= c2 * (j + 1) / (j + 2)
-        total += term
-    return 2 / math.pi * (theta + s * total)
-
-
-def student_t_quantile(level: float, df: int) -> float:
-    """The t with P(|T| <= t) = level, e.g. level 0.95 gives the 97.5% quantile (bisection to 1e-12)."""
-    if not 0 < level < 1 or df < 1:
-        raise ValueError(f"need 0 < level < 1 and df >= 1, got {level} and {df}")
-    low, high = 0.0, 1.0
-    while student_t_two_sided(high, df) < level:
-        low, high = high, 2 * high
-    while high - low > 1e-12 * high:
-        middle = (low + high) / 2
-        low, high = (middle, high) if student_t_two_sided(middle, df) < level else (low, middle)
-    return (low + high) / 2
-
-
-def t_interval(values: Sequence[float], level: float = CONFIDENCE_LEVEL) -> tuple[float, float]:
-    """Confidence interval for the mean: mean -/+ t_{(1+level)/2, n-1} s / sqrt(n), s the sample
-    standard deviation; (NaN, NaN) for fewer than two values."""
-    n = len(values)
-    if n < 2:
-        return math.nan, math.nan
-    mean = statistics.fmean(values)
-    half = student_t_quantile(level, n - 1) * statistics.stdev(values) / math.sqrt(n)
-    return mean - half, mean + half
-
-
 __all__ = [
     "BOOTSTRAP_SAMPLES",
     "BOOTSTRAP_SEED",
@@ -312,9 +249,5 @@ __all__ = [
     "leave_one_out",
     "paired_difference",
     "resampled",
-    "student_t_quantile",
-    "student_t_two_sided",
-    "t_interval",
-    "unpaired_difference",
     "wilson_interval",
 ]

@@ -276,10 +276,6 @@ class RunTask:
             return self
         return dataclasses.replace(self, filters=filters_here(self.filters, self.plugins))
 
-    def filter_options(self, name: str) -> dict[str, Any]:
-        """Filter `name`'s options in this run (those of the setting it declares)."""
-        return self.setting.filter_options(name)
-
     def cells(self) -> dict[str, Any]:
         """The cells of this run's rows that its seeds and setting fix, seed and maze first (what a journal's
         kept row is checked by, mazelab.experiments.journal.foreign_row); a generated maze's sha256 is left
@@ -342,23 +338,12 @@ def study_tasks(
     seeds = study_seeds(root_seed, runs)
     chosen = zip(settings, filters_per_setting(settings, filters), strict=True)
     return [
-        RunTask(
-            i,
-            setting,
-            r,
-            seed,
-            None if setting.maze.grid else maze_seed,
-            mine,
-            steps,
-            kidnap_at,
-            traces,
-            reference,
-            tuple(code for code in plugins if code.spec in mine),
-        )
+        RunTask(i, setting, r, seed, None if setting.maze.grid else maze_seed, mine, steps, kidnap_at, traces,
+                reference, tuple(code for code in plugins if code.spec in mine))
         for i, (setting, mine) in enumerate(chosen, start=1)
         if mine
         for r, (seed, maze_seed) in enumerate(seeds, start=1)
-    ]
+    ]  # fmt: skip
 
 
 @dataclass
@@ -449,7 +434,7 @@ def run_task(task: RunTask, visualize: Any = False) -> list[RunRecord]:
     with warnings.catch_warnings():  # the range warnings were shown once, by study_settings
         warnings.simplefilter("ignore", UserWarning)
         robot = Robot(s.sigma, s.delta, start_place(world, task.seed))
-        options = {name: task.filter_options(name) for name in task.filters}
+        options = {name: task.setting.filter_options(name) for name in task.filters}
         results = run_filters(world, robot, s.sigma, s.delta, task.filters, seed=task.seed, visualize=visualize,
                               particle_count=s.particles, steps=task.steps, kidnap_at=task.kidnap_at,
                               options=options)  # fmt: skip
@@ -473,7 +458,7 @@ def with_reference(
     s = task.setting
     key = (s.maze, task.maze_seed, s.sigma, s.delta, task.seed, task.steps, task.kidnap_at)
     declared = filter_entry(REFERENCE).options
-    defaults = all(value == declared[name].default for name, value in task.filter_options(grid).items())
+    defaults = all(value == declared[name].default for name, value in task.setting.filter_options(grid).items())
     if grid in results and defaults:  # the study's own grid row, with the default options, is the reference
         _EXACT_MEANS[key] = results[grid].estimates
     exact = exact_means(key, world, robot)

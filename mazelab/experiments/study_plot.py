@@ -84,18 +84,30 @@ Y_QUANTITIES = {
                                      s.mean_log_evidence + 1.96 * s.log_evidence_se),
                           "intervals of the mean, 1.96 standard errors", from_zero=False),
 }  # fmt: skip
-Y_LABEL = Y_QUANTITIES["mean"].label  # a map unit is a maze cell's side
 
 
-def y_quantity(y: str, summaries: Sequence[StudySummary]) -> YQuantity:
-    """The y axis `y` (a key of Y_QUANTITIES), or a one-line ValueError: an unknown one, the distance to
-    exact without a reference, the paired difference without a filter to pair with."""
+def figure_axes(varied: Sequence[str], x: str | None, y: str, title: str | None, *, exact: bool,
+                paired: bool) -> YQuantity:  # fmt: skip
+    """What the figure draws, checked in one place (`mazelab study` before any run, the figure when it is
+    drawn): `x` a varied parameter (None: `choose_x`'s), `y` a key of Y_QUANTITIES (exact needs the
+    distance to the exact posterior, `exact`; paired a filter to pair with, `paired`), `title` one line.
+
+    Raises
+    ------
+    ValueError
+        One line naming the option (--plot-x, --plot-y, --title) and what it takes.
+    """
+    if x is not None and x not in varied:
+        shown = ", ".join(varied) or "none: give a parameter two values"
+        raise ValueError(f"--plot-x {x}: the x axis is a varied parameter of the study ({shown})")
     if y not in Y_QUANTITIES:
-        raise ValueError(f"the figure's y {y!r} is not one of {', '.join(Y_QUANTITIES)}")
-    if y == "exact" and all(math.isnan(s.distance_to_exact) for s in summaries):
-        raise ValueError("the figure's y 'exact' needs the distance to the exact posterior: --reference grid")
-    if y == "paired" and not any(s.paired_with for s in summaries):
-        raise ValueError("the figure's y 'paired' needs a filter to pair with: --paired FILTER")
+        raise ValueError(f"--plot-y {y}: choose one of {', '.join(Y_QUANTITIES)}")
+    if y == "exact" and not exact:
+        raise ValueError("--plot-y exact: the distance to the exact posterior needs --reference grid")
+    if y == "paired" and not paired:
+        raise ValueError("--plot-y paired: the paired difference needs --paired FILTER")
+    if title is not None and ("\n" in title or not title.strip()):
+        raise ValueError("--title: give one line of text")
     return Y_QUANTITIES[y]
 
 
@@ -140,11 +152,10 @@ def is_numeric(summaries: Sequence[StudySummary], parameter: str) -> bool:
 
 
 def choose_x(summaries: Sequence[StudySummary], varied: Sequence[str], x: str | None = None) -> str | None:
-    """The x axis: `x` if given (a varied parameter), else the first numeric varied one (sigma, delta,
-    N, then any numeric option, e.g. the RPF's threshold), else the first varied parameter that is not an option."""
+    """The x axis: `x` if given (a varied parameter: `figure_axes` checks it), else the first numeric
+    varied one (sigma, delta, N, then any numeric option, e.g. the RPF's threshold), else the first varied
+    parameter that is not an option."""
     if x is not None:
-        if x not in varied:
-            raise ValueError(f"the figure's x axis {x!r} is not a varied parameter ({', '.join(varied) or 'none'})")
         return x
     numeric = [p for p in varied if is_numeric(summaries, p)]
     ordered = [p for p in NUMERIC_PARAMETERS if p in numeric] + [p for p in numeric if p not in NUMERIC_PARAMETERS]
@@ -262,7 +273,8 @@ def plot_study(
     plt = pyplot()
     import matplotlib
 
-    quantity = y_quantity(y, summaries)
+    exact = not all(math.isnan(s.distance_to_exact) for s in summaries)
+    quantity = figure_axes(varied, x, y, None, exact=exact, paired=any(s.paired_with for s in summaries))
     if y == "paired":  # the filter paired with has no difference to itself; the axis names it
         summaries = [s for s in summaries if s.paired_with]
         quantity = dataclasses.replace(quantity, label=paired_label(summaries))

@@ -178,10 +178,6 @@ def _cell(value: Any) -> str:
     return text
 
 
-def trace_header(columns: Sequence[str] = TRACE_COLUMNS) -> str:
-    return ",".join(columns) + "\n"
-
-
 def write_traces(path: Path, blocks: Sequence[dict[str, Any]]) -> None:
     """Write the traces to `path`, whole (mazelab.atomic): CSV, or Parquet for a .parquet path."""
     if path.suffix.lower() == ".parquet":
@@ -199,7 +195,7 @@ def write_traces(path: Path, blocks: Sequence[dict[str, Any]]) -> None:
         write_bytes_atomically(path, buffer.getvalue())
         return
     columns = trace_column_names(blocks)
-    write_text_atomically(path, trace_header(columns) + trace_csv_rows(blocks, columns))
+    write_text_atomically(path, ",".join(columns) + "\n" + trace_csv_rows(blocks, columns))
 
 
 def trace_table_columns(blocks: Sequence[dict[str, Any]]) -> dict[str, np.ndarray] | None:

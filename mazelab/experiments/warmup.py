@@ -110,11 +110,6 @@ class WorkerReport:
     packages: dict[str, str | None] = field(default_factory=dict)
     startup_seconds: float = 0.0
 
-    @property
-    def identity(self) -> tuple[str, tuple[tuple[str, str | None], ...]]:
-        """What must agree between the workers of one study: the backend and the package versions."""
-        return self.backend, tuple(sorted(self.packages.items()))
-
     def describe(self) -> str:
         versions = ", ".join(f"{name} {v or 'none'}" for name, v in self.packages.items())
         return f"{self.worker}: backend {self.backend} ({versions})"
