@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from mazelab.backend import chosen_backend, numba_available, use_backend
+from mazelab.backend import chosen_backend, cores, numba_available, use_backend
 from mazelab.grid_filter import GridBayesFilter
 from mazelab.maze import EMPTY, STATION_WALL, WALL, Maze
 from mazelab.model import OUTSIDE_PENALTY, ROBOT_SPEED
@@ -371,10 +371,8 @@ def run_cost(world: Maze, runs: int, particles: int, steps: int, label: str = ""
 
 def run_study_benchmark(small: Maze, large: Maze, quick: bool, echo: Callable[[str], None] = print) -> None:
     """Print the study figures: per-run overhead, runs per second, and the cost's growth with R, N, B."""
-    from mazelab.experiments.executor import default_workers
-
     steps, runs, settings = (40, 12, 2) if quick else (200, 30, 4)
-    cores = default_workers()
+    workers = cores()
     for world in (small, large):  # warm up: each maze's lookup tables are built on first use
         run_cost(world, 2, 100, 2)
     one = run_cost(small, 1, 1500, steps)
@@ -385,8 +383,8 @@ def run_study_benchmark(small: Maze, large: Maze, quick: bool, echo: Callable[[s
         f"{batched[-1]:.0f} us with {runs} runs advanced together ({gain:.1f}x)"
     )
     tasks = study_of(small, runs, steps, 1500, settings)
-    figures = [("1 worker", runs_per_second(tasks, 1)), (f"{cores} workers", runs_per_second(tasks, cores))]
-    figures.append((f"local Dask cluster, {cores} workers", runs_per_second(tasks, cores, dask=True)))
+    figures = [("1 worker", runs_per_second(tasks, 1)), (f"{workers} workers", runs_per_second(tasks, workers))]
+    figures.append((f"local Dask cluster, {workers} workers", runs_per_second(tasks, workers, dask=True)))
     echo(
         f"Study of {settings} settings x {runs} runs: "
         + ", ".join(f"{label} {rate:.2f} runs/s" for label, rate in figures)

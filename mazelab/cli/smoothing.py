@@ -15,8 +15,18 @@ import numpy as np
 import typer
 
 from mazelab.atomic import write_text_atomically
-from mazelab.cli.filter_options import OptionFlag, given_options, with_option_flags
-from mazelab.cli.options import UserError, check_one_file_each, check_output_path, opt, parse_list, seed_option
+from mazelab.backend import cores
+from mazelab.cli.options import (
+    OptionFlag,
+    UserError,
+    check_one_file_each,
+    check_output_path,
+    given_options,
+    opt,
+    parse_list,
+    seed_option,
+    with_option_flags,
+)
 from mazelab.experiments import executor
 from mazelab.experiments.journal import Journal, journal_path, read_journal
 from mazelab.experiments.record import Recorder, differences, record_path
@@ -235,7 +245,7 @@ def run_cells(journal: tuple[Journal, dict] | None, workers: int | None, dask: s
     (mazelab.experiments.executor: --workers processes or the --dask cluster) unless the journal holds it;
     each one finished is appended to the journal. A stop keeps them there and says how to go on (exit 130,
     143 or 129); a lost cluster or a cell that failed: one line, exit 1."""
-    (log, done), workers = journal or (None, {}), workers or executor.default_workers()
+    (log, done), workers = journal or (None, {}), workers or cores()
     log_evidence = np.array([done.get(i, np.nan) for i in range(len(sigmas))])
     units = [((i, sigmas[i], deltas[i]),) for i in range(len(sigmas)) if i not in done]
     failed: list[str] = []

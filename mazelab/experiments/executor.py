@@ -164,9 +164,6 @@ def describe_workers(client: Any) -> str:
 
 
 # -- the runs --------------------------------------------------------------------------------------------
-default_workers = cores  # a study's processes by default: all the cores this process may use
-
-
 class StudyStopped(KeyboardInterrupt):
     """SIGTERM or SIGHUP stopped the study (raised in the main thread, as Ctrl-C raises KeyboardInterrupt)."""
 
