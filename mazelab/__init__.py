@@ -5,7 +5,7 @@ The paper's three files (particle_filter.py, draw.py, main.py) are faces over th
 modules, bottom to top (each imports only those above it in this list):
 
     constants, checks, declaration                            the model's numbers; checks; a filter's options
-    limits, lookup, maze_paths, maze, model, modes            the model: maze, motion, measurement, modes
+    limits, lookup, maze, model, modes                        the model: maze, motion, measurement, modes
     seeding, stops                                            seeds to random streams; who stopped
     weights, resampling, regularisation, robot                the Weights value, resampling, the RPF's kernel, robot
     contract, smc                                             what every filter provides; the step (SMC)
@@ -16,7 +16,7 @@ modules, bottom to top (each imports only those above it in this list):
     invocation                                                how this program was started (printed commands)
     viz/                                                      drawing in Rerun (never imported by the above)
     lab                                                       run_model and simulate, with drawing
-    mazes, maze_generator                                     shipped and random mazes
+    maze_generator                                            random mazes
     experiments/, bench                                       compare, study, accuracy, kidnapping; the benchmark
     exercise/                                                 the students' exercise: StudentFilter and its checker
     cli/                                                      the command line (`mazelab`, `python main.py`)

@@ -45,8 +45,7 @@ from mazelab.checks import (
 )
 from mazelab.declaration import options_of
 from mazelab.limits import check_memory
-from mazelab.maze import Maze
-from mazelab.maze_paths import MAZES_DIR, find_shipped, shipped_mazes
+from mazelab.maze import MAZES_DIR, Maze, find_shipped, shipped_mazes
 from mazelab.plugins import loaded_plugin
 from mazelab.registry import FilterEntry, filter_entry, shipped_entry
 from mazelab.robot import Robot
@@ -360,7 +359,7 @@ def save_scenario(scenario: Scenario, path: str | Path = DEFAULT_PARAMETERS_PATH
 
 def find_scenario(name_or_path: str | Path) -> Path:
     """A scenario file path, or the name of a shipped one (in model_parameters/, with or without .json),
-    from any folder, as mazes are found (mazelab.maze_paths.find_shipped)."""
+    from any folder, as mazes are found (mazelab.maze.find_shipped)."""
     return find_shipped(name_or_path, SCENARIOS_DIR, ".json", "scenario", ScenarioError)
 
 

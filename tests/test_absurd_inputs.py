@@ -16,8 +16,7 @@ from mazelab.checks import check_grid_resolution, sigma_range
 from mazelab.cli.app import main
 from mazelab.lab import simulate
 from mazelab.limits import ADDRESS_SPACE_SOURCE, MemoryBudget, check_recording
-from mazelab.maze import Maze
-from mazelab.mazes import load_maze
+from mazelab.maze import Maze, load_maze
 from mazelab.robot import Robot
 from mazelab.simulation import convergence_step
 

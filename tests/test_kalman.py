@@ -21,8 +21,7 @@ from mazelab.kalman import (
     range_update,
 )
 from mazelab.lab import simulate
-from mazelab.maze import Maze
-from mazelab.mazes import load_maze
+from mazelab.maze import Maze, load_maze
 from mazelab.model import CONFIDENCE_RADIUS, LAB_DELTA_RANGE, LAB_SIGMA_RANGE, ROBOT_SPEED, move, sample_headings
 from mazelab.registry import resolve_filter
 from mazelab.robot import Robot

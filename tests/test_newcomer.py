@@ -17,12 +17,11 @@ import pytest
 from conftest import ROOT
 from test_visualization import _ctrl_c_once, latest, load
 
-from mazelab import maze_paths, mazes
+from mazelab import maze as maze_module
 from mazelab.cli.app import main
 from mazelab.cli.filter_options import declared_flags
 from mazelab.invocation import PROJECT_DIR, command_prefix
-from mazelab.maze import Maze, MazeError
-from mazelab.mazes import LAB_MAZES, shipped_mazes
+from mazelab.maze import LAB_MAZES, Maze, MazeError, shipped_mazes
 from mazelab.registry import entries
 from mazelab.robot import Robot
 from mazelab.simulation import check_walk_in_maze, simulate
@@ -120,9 +119,9 @@ def test_shipped_mazes_are_found_by_name_from_any_folder(tmp_path, monkeypatch, 
 
 def test_accuracy_runs_on_the_named_shipped_mazes_not_on_whatever_is_in_mazes(tmp_path, monkeypatch):
     for name in shipped_mazes():
-        (tmp_path / f"{name}.txt").write_text((mazes.MAZES_DIR / f"{name}.txt").read_text())
-    (tmp_path / "random_20x20.txt").write_text((mazes.MAZES_DIR / "maze_20x20.txt").read_text())  # a student's
-    monkeypatch.setattr(maze_paths, "MAZES_DIR", tmp_path)
+        (tmp_path / f"{name}.txt").write_text((maze_module.MAZES_DIR / f"{name}.txt").read_text())
+    (tmp_path / "random_20x20.txt").write_text((maze_module.MAZES_DIR / "maze_20x20.txt").read_text())  # a student's
+    monkeypatch.setattr(maze_module, "MAZES_DIR", tmp_path)
     from mazelab.cli import study as accuracy
 
     seen = []

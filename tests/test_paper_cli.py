@@ -20,7 +20,7 @@ from conftest import ROOT
 
 from mazelab.cli.app import app, main
 from mazelab.lab import simulate
-from mazelab.mazes import load_maze, shipped_mazes
+from mazelab.maze import load_maze, shipped_mazes
 from mazelab.registry import entries, filter_entry
 from mazelab.robot import Robot
 

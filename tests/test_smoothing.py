@@ -16,8 +16,7 @@ from mazelab import limits
 from mazelab.constants import OUTSIDE_PENALTY
 from mazelab.grid_filter import GridBayesFilter, arc_kernel
 from mazelab.limits import MemoryBudget, MemoryLimitError
-from mazelab.maze import Maze
-from mazelab.mazes import load_maze
+from mazelab.maze import Maze, load_maze
 from mazelab.model import ROBOT_SPEED
 from mazelab.registry import filter_entry
 from mazelab.robot import Robot

@@ -55,8 +55,7 @@ from mazelab.cli.smoothing import learn, smooth
 from mazelab.cli.study import accuracy, study
 from mazelab.experiments.record import package_version, program_versions
 from mazelab.invocation import command_prefix, remember_arguments
-from mazelab.maze import MazeError
-from mazelab.mazes import DEFAULT_MAZE, find_maze, load_maze
+from mazelab.maze import DEFAULT_MAZE, MazeError, find_maze, load_maze
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
 from mazelab.plugins import StudentCodeError
 from mazelab.robot import Robot

@@ -50,8 +50,7 @@ from mazelab.experiments.runs import comparison_table, errors_csv, plot_errors, 
 from mazelab.experiments.traces import check_trace_path, compare_traces, write_traces
 from mazelab.experiments.warmup import take_startup_seconds
 from mazelab.invocation import command_line, repeat_command
-from mazelab.maze import Maze
-from mazelab.mazes import DEFAULT_MAZE, load_maze, mazes_fitting
+from mazelab.maze import DEFAULT_MAZE, Maze, load_maze, mazes_fitting
 from mazelab.model import DEFAULT_STEPS
 from mazelab.plugins import file_sha256
 from mazelab.registry import FilterEntry, filter_entry, resolve_filter

@@ -33,9 +33,8 @@ from mazelab.experiments.study import (
 from mazelab.experiments.summary import CSV_COLUMNS, describe_setting, describe_varied
 from mazelab.grid_filter import check_grid_memory
 from mazelab.limits import check_particles, check_steps, check_study
+from mazelab.maze import DEFAULT_MAZE, MAZES_DIR, find_maze, load_maze
 from mazelab.maze_generator import DEFAULT_WALL_SHARE
-from mazelab.maze_paths import MAZES_DIR
-from mazelab.mazes import DEFAULT_MAZE, find_maze, load_maze
 from mazelab.plugins import PluginCode, plugin_codes
 from mazelab.registry import filter_entry, resolve_filter
 from mazelab.seeding import new_seed
