@@ -15,7 +15,6 @@ modules, bottom to top (each imports only those above it in this list):
     smoothing, learning                                       the exact smoother on the grid; parameter posterior, PMMH
     invocation                                                how this program was started (printed commands)
     viz/                                                      drawing in Rerun (never imported by the above)
-    lab                                                       run_model and simulate, with drawing
     maze_generator                                            random mazes
     experiments/, bench                                       compare, study, accuracy, kidnapping; the benchmark
     exercise/                                                 the students' exercise: StudentFilter and its checker

@@ -204,7 +204,7 @@ def run_model_figures(
 ) -> RunModelFigures:
     """Time run_model(..., visualize=False) end to end, the same seeded run's filter steps (simulate
     records them), and the reference step at the same N (unless given, seconds per step), in this process."""
-    from mazelab.lab import run_model  # the paper's entry point, as a notebook calls it
+    from mazelab.simulation import run_model  # the paper's entry point, as a notebook calls it
 
     def robot() -> Robot:
         return Robot(BENCH_SIGMA, BENCH_DELTA, world.random_free_place(np.random.default_rng(seed)))

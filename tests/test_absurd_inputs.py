@@ -14,11 +14,10 @@ import pytest
 from mazelab import limits
 from mazelab.checks import check_grid_resolution, sigma_range
 from mazelab.cli.app import main
-from mazelab.lab import simulate
 from mazelab.limits import ADDRESS_SPACE_SOURCE, MemoryBudget, check_recording
 from mazelab.maze import Maze, load_maze
 from mazelab.robot import Robot
-from mazelab.simulation import convergence_step
+from mazelab.simulation import convergence_step, simulate
 
 RUN = ["run", "--maze", "paper_5x5", "--steps", "5", "--particles", "50", "--seed", "1", "--quiet", "--no-viz"]
 

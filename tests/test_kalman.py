@@ -20,11 +20,11 @@ from mazelab.kalman import (
     gaussian_mass_within,
     range_update,
 )
-from mazelab.lab import simulate
 from mazelab.maze import Maze, load_maze
 from mazelab.model import CONFIDENCE_RADIUS, LAB_DELTA_RANGE, LAB_SIGMA_RANGE, ROBOT_SPEED, move, sample_headings
 from mazelab.registry import resolve_filter
 from mazelab.robot import Robot
+from mazelab.simulation import simulate
 from mazelab.viz.style import COVARIANCE_SIGMAS, entity_name
 
 SAMPLES = 400_000

@@ -95,7 +95,7 @@ def demo(
     """The paper's example: a lost robot, the SIR filter, 1500 particles, 200 steps."""
     if ctx.invoked_subcommand is not None:
         return
-    from mazelab.lab import simulate  # with drawing: imported by the commands that run one filter
+    from mazelab.simulation import simulate  # imported by the commands that run one filter
 
     visualize = visualization(**(drawing or {}), force=force)
     if (drawing or {}).get("rrd") is not None:

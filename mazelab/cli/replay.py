@@ -71,7 +71,7 @@ def run_one(maze: str | None, filter_name: str | None, particles: int | None, st
             scenario: Path | None, save_scenario_path: Path | None, force: bool, quiet: bool,
             kidnap_at: int | None, option: list[str] | None, named: dict, drawing: dict, **_: Any) -> None:  # fmt: skip
     """`run`'s work (mazelab.cli.app): one filter on a fresh lost robot or a replayed scenario, its report."""
-    from mazelab.lab import simulate  # with drawing: imported by the commands that run one filter
+    from mazelab.simulation import simulate  # imported by the commands that run one filter
 
     visualize = visualization(**drawing, force=force)
     stored = load_scenario(scenario) if scenario is not None else None
