@@ -4,8 +4,8 @@ an extended Kalman filter as the baseline.
 The paper's three files (particle_filter.py, draw.py, main.py) are faces over this package. Its
 modules, bottom to top (each imports only those above it in this list):
 
-    constants, checks, declaration                            the model's numbers; checks; a filter's options
-    limits, lookup, maze, model, modes                        the model: maze, motion, measurement, modes
+    constants, checks, declaration                            the model's numbers; every guard; a filter's options
+    lookup, maze, model, modes                                the model: maze, motion, measurement, modes
     seeding, stops                                            seeds to random streams; who stopped
     weights, resampling, regularisation, robot                the Weights value, resampling, the RPF's kernel, robot
     contract, smc                                             what every filter provides; the step (SMC)

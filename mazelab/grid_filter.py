@@ -9,10 +9,9 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from mazelab.checks import MAP_MARGIN, check_grid_resolution, check_sigma_within
+from mazelab.checks import MAP_MARGIN, check_grid_resolution, check_memory, check_sigma_within
 from mazelab.contract import Density
 from mazelab.declaration import Option, Options, number_in
-from mazelab.limits import check_memory
 from mazelab.maze import Maze, check_world
 from mazelab.model import (
     CONFIDENCE_RADIUS,

@@ -18,8 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from mazelab.checks import MAX_MAZE_SIDE, regular_file_size
-from mazelab.limits import BYTES_PER_LOOKUP_CELL, BYTES_PER_MAZE_CELL, check_memory
+from mazelab.checks import BYTES_PER_LOOKUP_CELL, BYTES_PER_MAZE_CELL, MAX_MAZE_SIDE, check_memory, regular_file_size
 from mazelab.lookup import NearestStationLookup, Progress, is_scalar, lookup_cell_count
 
 

@@ -39,12 +39,12 @@ from mazelab.checks import (
     MAX_SEED,
     NORMAL_TAIL,
     check_all_within,
+    check_memory,
     check_within_map,
     map_diagonal,
     regular_file_size,
 )
 from mazelab.declaration import options_of
-from mazelab.limits import check_memory
 from mazelab.maze import MAZES_DIR, Maze, find_shipped, shipped_mazes
 from mazelab.plugins import loaded_plugin
 from mazelab.registry import FilterEntry, filter_entry, shipped_entry

@@ -21,14 +21,15 @@ import numpy as np
 from mazelab.backend import backend_by_work, backend_of
 from mazelab.checks import (
     as_points,
+    check_recording,
     check_seed,
+    check_steps,
     check_within_map,
     step_number,
 )
+from mazelab.checks import particle_count as checked_count
 from mazelab.collect import record_steps
 from mazelab.contract import NullView, check_filter, takes
-from mazelab.limits import check_recording, check_steps
-from mazelab.limits import particle_count as checked_count
 from mazelab.maze import Maze, check_world
 from mazelab.model import CONVERGENCE_RADIUS, DEFAULT_STEPS, check_model_parameters
 from mazelab.plugins import student_code

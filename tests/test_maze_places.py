@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mazelab.limits import MemoryLimitError, memory_budget
+from mazelab.checks import MemoryLimitError, memory_budget
 from mazelab.maze import load_maze
 
 

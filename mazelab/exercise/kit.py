@@ -30,7 +30,6 @@ KIT: dict[str, str | tuple[str, ...]] = {
     "mazelab.checks": WHOLE,
     "mazelab.declaration": WHOLE,
     "mazelab.contract": WHOLE,
-    "mazelab.limits": WHOLE,
     "mazelab.lookup": WHOLE,
     "mazelab.maze": WHOLE,
     "mazelab.seeding": WHOLE,

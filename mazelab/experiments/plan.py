@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from mazelab import maze_generator
-from mazelab.checks import check_bandwidth_within, check_sigma_within
+from mazelab.checks import check_bandwidth_within, check_particles, check_sigma_within, check_steps, check_study
 from mazelab.declaration import scoped, to_plain_json
 from mazelab.experiments.runs import filter_key, parse_filters
 from mazelab.experiments.study import (
@@ -32,7 +32,6 @@ from mazelab.experiments.study import (
 )
 from mazelab.experiments.summary import CSV_COLUMNS, describe_setting, describe_varied
 from mazelab.grid_filter import check_grid_memory
-from mazelab.limits import check_particles, check_steps, check_study
 from mazelab.maze import DEFAULT_MAZE, MAZES_DIR, find_maze, load_maze
 from mazelab.maze_generator import DEFAULT_WALL_SHARE
 from mazelab.plugins import PluginCode, plugin_codes
