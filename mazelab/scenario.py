@@ -218,7 +218,7 @@ class Scenario(BaseModel):
 
     def _check_places(self, world: Maze, particles: np.ndarray) -> None:
         """Particles within the stored maze plus a margin, and a kidnap position in its free area (the
-        robot's start is checked where every run is, in simulation.check_start)."""
+        robot's start is checked where every run is, in simulation.check_walk)."""
         check_within_map("init_particles_pos", particles, world.width, world.height)
         if self.kidnap_position is not None and not world.is_free(*self.kidnap_position):
             raise ValueError(f"kidnap_position {self.kidnap_position} is not in the free area of the scenario's maze")

@@ -24,7 +24,7 @@ from mazelab.invocation import PROJECT_DIR, command_prefix
 from mazelab.maze import LAB_MAZES, Maze, MazeError, shipped_mazes
 from mazelab.registry import entries
 from mazelab.robot import Robot
-from mazelab.simulation import check_walk_in_maze, simulate
+from mazelab.simulation import check_walk, simulate
 from mazelab.viz import processes
 
 PAPER_MAZE = ((2, 0, 1, 0, 0), (0, 0, 0, 0, 1), (1, 1, 1, 0, 0), (1, 0, 0, 0, 0), (0, 0, 2, 0, 1))
@@ -139,12 +139,15 @@ def test_a_walk_into_a_wall_is_refused_and_a_walk_made_on_the_maze_is_not():
         ValueError,
         match=r"robot_actual_angles\[2\]: step 3 of the replayed walk leaves the free area .* at \(0.50, 2.90\)",
     ):
-        check_walk_in_maze(world, down)
+        check_walk(world, down)
     wandered = simulate(Robot(0.3, 0.5, (3.5, 1.5)), world, 0.3, 0.5, 100, 300, seed=5)
-    check_walk_in_maze(world, wandered.scenario.robot())  # 300 steps of wandering stay in the free area
+    check_walk(world, wandered.scenario.robot())  # 300 steps of wandering stay in the free area
     kidnapped = Robot(0.3, 0.5, (0.5, 3.5), [0.0] * 3, [0.0] * 3, kidnap_at=2, kidnap_position=(0.5, 2.5))
-    with pytest.raises(ValueError, match="step 2"):  # put down in a wall
-        check_walk_in_maze(world, kidnapped)
+    with pytest.raises(ValueError, match=r"the kidnap position \(0.5, 2.5\) is not in the free area"):  # in a wall
+        check_walk(world, kidnapped)
+    kidnapped = Robot(0.3, 0.5, (0.5, 3.5), [0.0] * 4, [0.0] * 4, kidnap_at=2, kidnap_position=(3.5, 3.5))
+    with pytest.raises(ValueError, match="step 4"):  # put down in the free area, then walked into a wall
+        check_walk(world, kidnapped)
 
 
 @pytest.fixture

@@ -57,7 +57,7 @@ from mazelab.registry import FilterEntry, filter_entry, resolve_filter
 from mazelab.robot import Robot
 from mazelab.scenario import Scenario, check_measurements_within, find_scenario, load_scenario, save_scenario
 from mazelab.seeding import new_seed, start_place
-from mazelab.simulation import RunResult, check_start, check_walk_in_maze
+from mazelab.simulation import RunResult, check_walk
 
 # "Repeat this run" repeats the run, not its files: the scenario and recording it wrote would be found
 # taken by the pasted command ("exists; use --force"), and --force would replace them unasked.
@@ -205,8 +205,7 @@ def replay_setup(stored: Scenario, maze: str | None, sigma: float | None, delta:
     robot = stored.robot(sigma, delta)
     if kept is None:  # a maze given or fitted: the scenario's start and walk must lie in its free area
         try:
-            check_start(world, robot.initial_position, None, robot.kidnap_position)
-            check_walk_in_maze(world, robot)
+            check_walk(world, robot)
             check_measurements_within(stored.robot_measurements, world, sigma)
         except ValueError as error:
             raise UserError(f"{error}; pass the maze the scenario was made on (--maze)") from None
