@@ -29,7 +29,8 @@ from mazelab.checks import (
 )
 from mazelab.checks import particle_count as checked_count
 from mazelab.collect import Recorded, record_steps
-from mazelab.contract import NullView, check_filter, takes
+from mazelab.contract import NullView, check_filter
+from mazelab.declaration import options_of
 from mazelab.maze import Maze, check_world
 from mazelab.model import CONVERGENCE_RADIUS, DEFAULT_STEPS, check_model_parameters
 from mazelab.plugins import student_code
@@ -326,7 +327,7 @@ def build_filter(
     """The run's filter, built on the backend its work repays (numba where it does) and checked against
     the contract before its first step (a missing or mistyped part is one line naming it). A class that
     declares the option `start` is handed the robot's start too (the EKF's `init="start"` tracks from it)."""
-    if takes(filter_class, "start"):
+    if "start" in options_of(filter_class):
         options = {"start": robot.initial_position, **options}
     with backend_by_work(len(particles) * steps, steps), student_code(filter_class):
         filt = filter_class(maze_for(filter_class, world), sigma, delta, particles, rng, **options)

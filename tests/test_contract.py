@@ -23,8 +23,8 @@ from mazelab.contract import (
     check_filter,
     check_step_values,
     missing_parts,
-    options_for,
 )
+from mazelab.declaration import options_for
 from mazelab.filters import RegularizedParticleFilter, SIRParticleFilter
 from mazelab.grid_filter import GridBayesFilter
 from mazelab.kalman import ExtendedKalmanFilter

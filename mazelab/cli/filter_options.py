@@ -21,8 +21,7 @@ from typing import Annotated, Any
 import typer
 
 from mazelab.cli.options import UserError, with_parameters
-from mazelab.contract import not_taken
-from mazelab.declaration import Option, parse_flag, scoped, show_value
+from mazelab.declaration import Option, not_taken, parse_flag, scoped, show_value
 from mazelab.experiments.study import declared_option
 from mazelab.experiments.study import options_per_filter as reaching
 from mazelab.plugins import is_plugin_spec

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from mazelab.backend import backend_by_work
-from mazelab.contract import options_for, takes
+from mazelab.declaration import options_for, options_of
 from mazelab.experiments.tables import format_number, format_table, pyplot, records_csv, save_figure
 from mazelab.experiments.warmup import warm_up_filters
 from mazelab.maze import Maze
@@ -113,7 +113,7 @@ def filter_options(filter_name: str | type, **options: Any) -> dict[str, Any]:
     RPF's threshold and bandwidth reach the RPF only, recovery and KLD-sampling the particle filters,
     the point estimate every filter that has one."""
     filter_class = resolve_filter(filter_name)
-    return {name: value for name, value in options.items() if value is not None and takes(filter_class, name)}
+    return {name: value for name, value in options.items() if value is not None and name in options_of(filter_class)}
 
 
 def is_particle_filter(filter_name: str) -> bool:

@@ -17,8 +17,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from mazelab.contract import not_taken, options_for
-from mazelab.declaration import Option, options_of, scoped, show_value
+from mazelab.declaration import Option, not_taken, options_for, options_of, scoped, show_value
 from mazelab.experiments.runs import run_figures, run_filters
 from mazelab.experiments.warmup import WorkerReport
 from mazelab.maze import STATION_WALL, Maze
