@@ -165,26 +165,6 @@ def check_sigma_within(sigma: float, width: float | None, height: float | None, 
     return sigma
 
 
-def check_bandwidth_within(bandwidth: Any, width: float, height: float) -> Any:
-    """An RPF bandwidth: a name ("optimal", "multimodal", checked by the engine) or a number h within
-    [MIN_BANDWIDTH, MAX_BANDWIDTH]; a numeric string counts as its number. One-line ValueError."""
-    if isinstance(bandwidth, str):
-        try:
-            number = float(bandwidth)
-        except ValueError:
-            return bandwidth
-    else:
-        number = bandwidth
-    number = finite_number("bandwidth", number)
-    if not MIN_BANDWIDTH <= number <= MAX_BANDWIDTH:
-        raise ValueError(
-            f"bandwidth must be optimal, multimodal or a number h within [{MIN_BANDWIDTH:g}, {MAX_BANDWIDTH:g}] "
-            f"(h scales the cloud's spread, at most the {map_diagonal(width, height):.3g}-unit diagonal), "
-            f"got {number:g}"
-        )
-    return bandwidth
-
-
 def check_grid_resolution(resolution: Any) -> float:
     """The grid filter's cell size: a finite number in (0, MAX_GRID_RESOLUTION] map units (memory is
     checked where the grid is made). For GridBayesFilter(resolution=...)."""
