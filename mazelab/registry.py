@@ -12,7 +12,6 @@ entry when it is loaded (mazelab.plugins), with its file's sha256 so that a save
 from __future__ import annotations
 
 import difflib
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 from mazelab.declaration import Options, options_of
@@ -301,21 +300,6 @@ def described(name: str) -> FilterEntry:
     return entry or FilterEntry(type(name, (), {"name": name}), name, name, PALETTE[7], "a filter unknown here")
 
 
-def labels(names: Sequence[str]) -> dict[str, str]:
-    """Figure labels for the names results carry (`described`): the entry's label, or the name itself.
-
-    Parameters
-    ----------
-    names : sequence of str
-
-    Returns
-    -------
-    dict
-        name -> label.
-    """
-    return {name: described(name).label for name in names}
-
-
 def rgb(colour: Colour) -> tuple[float, float, float]:
     """An RGB 0-255 colour in matplotlib's 0-1 form.
 
@@ -330,35 +314,15 @@ def rgb(colour: Colour) -> tuple[float, float, float]:
     return colour[0] / 255, colour[1] / 255, colour[2] / 255
 
 
-def colour_of(name: str) -> Colour:
-    """A filter's colour by the name results carry (an unknown one: the palette's grey).
-
-    Parameters
-    ----------
-    name : str
-
-    Returns
-    -------
-    (int, int, int)
-    """
-    return described(name).colour
-
-
-FILTERS: dict[str, type] = {entry.filter_class.__name__: entry.filter_class for entry in SHIPPED}
-
-
 __all__ = [
-    "FILTERS",
     "PALETTE",
     "RPF_EVIDENCE",
     "SHIPPED",
     "FilterEntry",
-    "colour_of",
     "described",
     "entries",
     "filter_entry",
     "is_shipped",
-    "labels",
     "register",
     "resolve_filter",
     "rgb",

@@ -96,7 +96,6 @@ def smoothing_recording(scores: SmootherScores, world: Any, path: Path, force: b
     import rerun as rr
     import rerun.blueprint as rrb
 
-    from mazelab.registry import colour_of
     from mazelab.viz.recording import Recording
     from mazelab.viz.style import CELL_DOT_RADIUS, MAP, ROBOT_COLOR, entity_name, lab_blueprint, map_view
 
@@ -107,7 +106,7 @@ def smoothing_recording(scores: SmootherScores, world: Any, path: Path, force: b
     if recording is None:  # Rerun switched off: a line said so
         return
     for (label, name), title in views.items():
-        colour = colour_of(filter_entry(label).name)
+        colour = filter_entry(label).colour
         for k, (points, weights) in sorted(scores.recorded[label][SMOOTHERS.index(name)].clouds.items()):
             recording.stream.set_time("step", sequence=k)
             radii = CELL_DOT_RADIUS * np.sqrt(weights * len(weights))  # a dot's area grows with its weight
