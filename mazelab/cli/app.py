@@ -61,7 +61,7 @@ from mazelab.plugins import StudentCodeError
 from mazelab.robot import Robot
 from mazelab.seeding import new_seed, start_place
 from mazelab.stops import STOP_SIGNALS, exit_without_strays, mark_interrupts
-from mazelab.viz.recording import web_serving_deferred, write_errors_deferred
+from mazelab.viz.recording import deferred_to_the_end
 
 app = typer.Typer(
     add_completion=False,
@@ -241,7 +241,7 @@ def _main(argv: list[str] | None) -> int:
     group, args = typer.main.get_command(app), sys.argv[1:] if argv is None else argv
     try:
         refuse_option_as_value(args, group)
-        with write_errors_deferred(), web_serving_deferred():
+        with deferred_to_the_end():
             code = group.main(args=argv, standalone_mode=False)
     except typer.TyperException as error:  # typer's usage errors: bad option, bad value, missing argument
         hint = option_elsewhere(error, group, args) or usage_hint(error, args)
