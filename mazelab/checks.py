@@ -165,17 +165,6 @@ def check_sigma_within(sigma: float, width: float | None, height: float | None, 
     return sigma
 
 
-def check_grid_resolution(resolution: Any) -> float:
-    """The grid filter's cell size: a finite number in (0, MAX_GRID_RESOLUTION] map units (memory is
-    checked where the grid is made). For GridBayesFilter(resolution=...)."""
-    resolution = finite_number("resolution", resolution)
-    if not 0 < resolution <= MAX_GRID_RESOLUTION:
-        raise ValueError(
-            f"resolution must lie in (0, {MAX_GRID_RESOLUTION:g}] map units (at most a maze cell), got {resolution:g}"
-        )
-    return resolution
-
-
 MAX_KLD_QUANTILE = 40.0  # z_(1-delta) beyond this is no probability float64 can tell from 1
 MAX_KLD_EPSILON = 1.0  # the KL bound: beyond 1 it bounds nothing a particle count can reach
 MIN_KLD_EPSILON = 1e-9  # the count grows as 1/epsilon: below this it is no count at all

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from mazelab import checks
-from mazelab.checks import ADDRESS_SPACE_SOURCE, MemoryBudget, check_grid_resolution, check_recording, sigma_range
+from mazelab.checks import ADDRESS_SPACE_SOURCE, MemoryBudget, check_recording, sigma_range
 from mazelab.cli.app import main
 from mazelab.maze import Maze, load_maze
 from mazelab.robot import Robot
@@ -185,8 +185,6 @@ def test_the_python_api_checks_world_seed_count_and_resolution(paper_world):
     for resolution in (0, 100, float("nan")):
         with pytest.raises(ValueError, match="resolution must"):
             simulate(robot, paper_world, 0.3, 0.5, 10, 3, filtering_algorithm="grid", resolution=resolution)
-        with pytest.raises(ValueError, match="resolution must"):
-            check_grid_resolution(resolution)
 
 
 @pytest.mark.parametrize("option", [["--kld-epsilon", "1e300"], ["--kld-epsilon", "1e-320"], ["--kld-z", "1e300"]])
