@@ -110,22 +110,9 @@ def show_value(value: Any) -> str:
     return str(value)
 
 
-def parse_literal(text: str) -> Any:
-    """Command-line text as the value it spells: a number, true/false, none, or the word itself.
-
-    Parameters
-    ----------
-    text : str
-
-    Returns
-    -------
-    int, float, bool, None or str
-
-    Raises
-    ------
-    ValueError
-        For a number that is not finite (1e999).
-    """
+def _parse_literal(text: str) -> Any:
+    """Command-line text as the value it spells: a number, true/false, none, or the word itself; a
+    number that is not finite (1e999) is a ValueError."""
     stripped = text.strip()
     lowered = stripped.lower()
     if lowered in ("true", "false"):
@@ -198,7 +185,7 @@ def _parse_like(default: Any) -> Parse:
         return _parse_whole
     if isinstance(default, float):
         return _parse_number
-    return parse_literal
+    return _parse_literal
 
 
 # -- checks: value -> the value the filter uses, or a ValueError of one line -------------------------
@@ -627,7 +614,6 @@ __all__ = [
     "options_for",
     "options_of",
     "parse_flag",
-    "parse_literal",
     "scoped",
     "show_value",
     "to_plain_json",
