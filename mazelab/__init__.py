@@ -6,12 +6,12 @@ modules, bottom to top (each imports only those above it in this list):
 
     constants, checks, declaration                            the model's numbers; every guard; a filter's options
     lookup, maze, model, modes                                the model: maze, motion, measurement, modes
-    seeding, stops                                            seeds to random streams; who stopped
+    seeding, stops, atomic                                    seeds to random streams; who stopped a run; whole files
     weights, resampling, regularisation, robot                the Weights value, resampling, the RPF's kernel, robot
     contract, smc                                             what every filter provides; the step (SMC)
     recovery, cloud, filters, grid_filter, kalman             the filters (cloud: the template on the model)
-    plugins, registry                                         one entry per filter, and a student's own (file.py:Class)
-    atomic, scenario, collect, simulation                     saved scenarios; the one recording loop; one run
+    registry                                                  one entry per filter, and a student's own (file.py:Class)
+    scenario, collect, simulation                             saved scenarios; the one recording loop; one run
     smoothing, learning                                       the exact smoother on the grid; parameter posterior, PMMH
     invocation                                                how this program was started (printed commands)
     viz/                                                      drawing in Rerun (never imported by the above)

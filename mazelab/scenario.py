@@ -46,8 +46,7 @@ from mazelab.checks import (
 )
 from mazelab.declaration import options_of
 from mazelab.maze import MAZES_DIR, Maze, find_shipped, shipped_mazes
-from mazelab.plugins import loaded_plugin
-from mazelab.registry import FilterEntry, filter_entry, shipped_entry
+from mazelab.registry import FilterEntry, filter_entry, loaded_plugin, shipped_entry
 from mazelab.robot import Robot
 
 DEFAULT_PARAMETERS_PATH = Path("model_parameters.json")  # the paper's file (lab steps 9-10), in the working folder

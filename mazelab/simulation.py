@@ -33,10 +33,10 @@ from mazelab.contract import NullView, check_filter
 from mazelab.declaration import options_of
 from mazelab.maze import Maze, check_world
 from mazelab.model import CONVERGENCE_RADIUS, DEFAULT_STEPS, check_model_parameters
-from mazelab.plugins import student_code
 from mazelab.registry import filter_entry, is_shipped
 from mazelab.robot import Robot
 from mazelab.seeding import RunStreams, new_seed, run_streams
+from mazelab.stops import student_code
 from mazelab.viz.style import DEFAULT_MAX_DRAWN
 from mazelab.viz.targets import Visualization, in_jupyter
 

@@ -13,7 +13,7 @@ from rerun.chunk import RrdReader
 from mazelab.cli.app import main
 from mazelab.learning import grid_log_evidence
 from mazelab.maze import load_maze
-from mazelab.plugins import file_sha256
+from mazelab.registry import file_sha256
 from mazelab.scenario import load_scenario
 from mazelab.smoothing import SCORE_COLUMNS, score_smoothers
 

@@ -57,10 +57,9 @@ from mazelab.experiments.record import package_version, program_versions
 from mazelab.invocation import command_prefix, remember_arguments
 from mazelab.maze import DEFAULT_MAZE, MazeError, find_maze, load_maze
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
-from mazelab.plugins import StudentCodeError
 from mazelab.robot import Robot
 from mazelab.seeding import new_seed, start_place
-from mazelab.stops import STOP_SIGNALS, exit_without_strays, mark_interrupts
+from mazelab.stops import STOP_SIGNALS, StudentCodeError, exit_without_strays, mark_interrupts
 from mazelab.viz.recording import deferred_to_the_end
 
 app = typer.Typer(

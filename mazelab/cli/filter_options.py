@@ -24,8 +24,7 @@ from mazelab.cli.options import UserError, with_parameters
 from mazelab.declaration import Option, not_taken, parse_flag, scoped, show_value
 from mazelab.experiments.study import declared_option
 from mazelab.experiments.study import options_per_filter as reaching
-from mazelab.plugins import is_plugin_spec
-from mazelab.registry import SHIPPED, FilterEntry, entries, filter_entry, resolve_filter
+from mazelab.registry import SHIPPED, FilterEntry, entries, filter_entry, is_plugin_spec, resolve_filter
 
 # A declared flag "--a/--b" is a pair of switches on run and compare, each setting the option to a value
 # (the study's flag takes a list of the values instead); the one place these values are written.

@@ -52,8 +52,7 @@ from mazelab.experiments.warmup import take_startup_seconds
 from mazelab.invocation import command_line, repeat_command
 from mazelab.maze import DEFAULT_MAZE, Maze, load_maze, mazes_fitting
 from mazelab.model import DEFAULT_STEPS
-from mazelab.plugins import file_sha256
-from mazelab.registry import FilterEntry, filter_entry, resolve_filter
+from mazelab.registry import FilterEntry, file_sha256, filter_entry, resolve_filter
 from mazelab.robot import Robot
 from mazelab.scenario import Scenario, check_measurements_within, find_scenario, load_scenario, save_scenario
 from mazelab.seeding import new_seed, start_place

@@ -21,8 +21,7 @@ from mazelab.experiments.tables import format_table, pyplot, records_csv, save_f
 from mazelab.invocation import command_line
 from mazelab.learning import ParameterGrid, evidence_filter, exact_parameter_posterior, pmmh
 from mazelab.model import LAB_DELTA_RANGE, LAB_SIGMA_RANGE
-from mazelab.plugins import file_sha256
-from mazelab.registry import filter_entry
+from mazelab.registry import file_sha256, filter_entry
 from mazelab.smoothing import SCORE_COLUMNS, SMOOTHERS, SmootherScores, score_smoothers
 
 if TYPE_CHECKING:

@@ -34,8 +34,7 @@ from mazelab.experiments.summary import CSV_COLUMNS, describe_setting, describe_
 from mazelab.grid_filter import check_grid_memory
 from mazelab.maze import DEFAULT_MAZE, MAZES_DIR, find_maze, load_maze
 from mazelab.maze_generator import DEFAULT_WALL_SHARE
-from mazelab.plugins import PluginCode, plugin_codes
-from mazelab.registry import filter_entry, resolve_filter
+from mazelab.registry import PluginCode, filter_entry, plugin_codes, resolve_filter
 from mazelab.regularisation import check_bandwidth
 from mazelab.seeding import new_seed
 
