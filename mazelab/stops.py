@@ -99,16 +99,11 @@ def describe_exit(error: BaseException) -> str:
     return f"raised {type(error).__name__}"
 
 
-def stray_threads() -> list[threading.Thread]:
-    """Threads that would keep the process alive at its exit (not daemons, still running), but the main one."""
-    return [t for t in threading.enumerate() if t.is_alive() and not t.daemon and t is not threading.main_thread()]
-
-
 def exit_without_strays(code: int, warn: Callable[[str], None]) -> None:
     """End the process with `code` now if threads that are not the lab's own would keep it alive (a
     plug-in's forgotten thread): one warning line naming them, the output flushed, then os._exit;
     without such threads, return (the caller exits as usual)."""
-    strays = stray_threads()
+    strays = [t for t in threading.enumerate() if t.is_alive() and not t.daemon and t is not threading.main_thread()]
     if not strays:
         return
     names = ", ".join(t.name for t in strays[:3]) + (", ..." if len(strays) > 3 else "")
