@@ -96,9 +96,6 @@ class Gaussian:
     covariance: np.ndarray
 
 
-Belief = Particles | Density | Gaussian
-
-
 class NullView:
     """A view that draws nothing: what a run without drawing uses (a view is anything with `log_step`
     and `close`; mazelab.viz.views' draw into Rerun)."""
@@ -261,7 +258,6 @@ def _shown(value: Any) -> str:
 
 
 __all__ = [
-    "Belief",
     "ContractError",
     "Density",
     "Gaussian",
