@@ -1,15 +1,17 @@
 """One run on 1 thread and on more, side by side: the compiled step's wall and CPU time per step at
 each N, in alternating rounds (1 thread, then 2, then 1 ...), and whether the same seed gave the same
-run on each count (the estimates of every step compared bit for bit).
+run on each count (the estimates of every step compared bit for bit); then what one call over a
+single chunk costs on 1 thread and on more, with TBB's threads and with numba's workqueue.
 
     uv run python benchmarks/threads.py                                   # SIR, APF, RPF at N = 1e4, 1e5, 1e6
     uv run python benchmarks/threads.py --counts 1000000 --filters sir --rounds 7
 
 A round times `steps` steps of a fresh filter (mazelab.bench.filter_stepper: the step and the reads
 `simulate` makes) on the bench's walk on the 10 x 10 maze, after warm-up steps; a figure is the median
-over the rounds of each round's median step. CPU time is the process's (every thread's). The speed-up
-is 1 thread's time over the others'. The machine's load average is printed before and after: on a
-machine shared with other work, a thread speed-up reads low (the second core is not free).
+over the rounds of each round's median step (CPU: of each round's mean step, the process's CPU, every
+thread's; spinning threads count). The speed-up is 1 thread's time over the others'. The machine's load
+average is printed before and after: on a machine shared with other work, a thread speed-up reads low
+(the second core is not free).
 """
 
 from __future__ import annotations
@@ -17,7 +19,10 @@ from __future__ import annotations
 import argparse
 import os
 import statistics
+import subprocess
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -28,17 +33,20 @@ from mazelab.registry import resolve_filter
 
 
 def timed_round(name: str, world: Maze, particles: int, threads: int, walk: list, warmup: int) -> tuple:
-    """(median wall s, median CPU s) of one fresh filter's steps on `threads` threads."""
+    """(median wall s, mean CPU s) of one fresh filter's steps on `threads` threads: the CPU over all
+    the timed steps (the system counts a running thread's CPU at its clock ticks, so one step's would
+    leave out the other threads')."""
     with use_threads(threads):
         step = filter_stepper(name, world, particles, backend="compiled")
-    walls, cpus = [], []
+    walls = []
     for k, (compass_angle, z) in enumerate(walk):
-        wall, cpu = time.perf_counter(), time.process_time()
+        if k == warmup:
+            cpu = time.process_time()
+        wall = time.perf_counter()
         step(compass_angle, z)
         if k >= warmup:
             walls.append(time.perf_counter() - wall)
-            cpus.append(time.process_time() - cpu)
-    return statistics.median(walls), statistics.median(cpus)
+    return statistics.median(walls), (time.process_time() - cpu) / len(walls)
 
 
 def estimates(name: str, world: Maze, particles: int, threads: int, walk: list) -> np.ndarray:
@@ -51,6 +59,39 @@ def estimates(name: str, world: Maze, particles: int, threads: int, walk: list) 
         filt.step(compass_angle, z)
         out.append(np.asarray(filt.estimate, dtype=float).copy())
     return np.array(out)
+
+
+def call_overhead(threads: int, calls: int = 400) -> float:
+    """Median wall seconds of one kernel call over one chunk (4,096 values, a microsecond's work) on
+    `threads` threads, each call 0.2 ms after the last, as the passes of a step at N = 10^5 follow each
+    other: what a call pays to start the threads and wait for them."""
+    from mazelab.kernels import CHUNK
+    from mazelab.kernels.weights import second_stage
+
+    log_lik, log_mu = np.zeros((1, CHUNK), np.float32), np.zeros((1, CHUNK), np.float32)
+    ancestors, out = np.zeros((1, CHUNK), np.uint64), np.empty((1, CHUNK), np.float32)
+    times = []
+    for _ in range(calls):
+        started = time.perf_counter()
+        second_stage(threads, log_lik, log_mu, ancestors, out)
+        times.append(time.perf_counter() - started)
+        while time.perf_counter() < started + 2e-4:
+            pass
+    return statistics.median(times[10:])
+
+
+def print_call_overheads(threads: int) -> None:
+    """One line per threading layer (each in a fresh process: numba takes one a process) of call_overhead."""
+    for layer in ("tbb", "workqueue"):
+        code = f"import threads; print(*(threads.call_overhead(t) for t in (1, {threads})))"
+        env = {**os.environ, "NUMBA_THREADING_LAYER": layer}
+        done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
+                              cwd=Path(__file__).parent, check=False)  # fmt: skip
+        if done.returncode:
+            print(f"{layer}: does not load here ({done.stderr.strip().splitlines()[-1]})")
+            continue
+        one, more = (1e6 * float(value) for value in done.stdout.split())
+        print(f"a call over one chunk, {layer}: {one:.1f} us on 1 thread, {more:.1f} us on {threads}")
 
 
 def main() -> None:
@@ -80,6 +121,7 @@ def main() -> None:
             )
             print(f"{name:<6} {n:>9,} {1e3 * w1:9.2f} {1e3 * c1:8.2f} {1e3 * w2:9.2f} {1e3 * c2:8.2f} "
                   f"{w1 / w2:12.2f}x {'yes' if same else 'NO':>9}", flush=True)  # fmt: skip
+    print_call_overheads(args.threads)
     print(f"load average after {os.getloadavg()}")
 
 

@@ -64,16 +64,6 @@ def numba_available() -> bool:
     return True
 
 
-def default_backend() -> str:
-    """The backend without a choice: "compiled" when numba imports, else "numpy".
-
-    Returns
-    -------
-    str
-    """
-    return "compiled" if numba_available() else "numpy"
-
-
 def check_backend(name: Any, source: str = "backend") -> str:
     """A backend's name, lower case, or one line naming the choices (and the extra for "compiled").
 
@@ -99,7 +89,7 @@ def check_backend(name: Any, source: str = "backend") -> str:
 
 def chosen_backend() -> str:
     """The backend a filter made now runs on: MAZELAB_BACKEND if set (checked), else the choice of the
-    enclosing `backend_by_work`, else the default.
+    enclosing `backend_by_work`, else "compiled" when numba imports, else "numpy".
 
     Returns
     -------
@@ -109,11 +99,16 @@ def chosen_backend() -> str:
     value = os.environ.get(ENVIRONMENT_VARIABLE, "")
     if value.strip():
         return check_backend(value, ENVIRONMENT_VARIABLE)
-    return _WORK_CHOICE.get() or default_backend()
+    return _WORK_CHOICE.get() or ("compiled" if numba_available() else "numpy")
 
 
-def compiled_pays(particle_steps: float, steps: float, processes: int = 1) -> bool:
-    """Whether the compiled backend's faster steps pay back its start-up in each process.
+def backend_for_work(particle_steps: float, steps: float, processes: int = 1) -> str:
+    """The backend a command of this much work runs on: MAZELAB_BACKEND's when set (the user's choice:
+    --backend sets it), else "compiled" where numba is installed and its faster steps pay back its
+    start-up in each process, else "numpy", numba then not imported. A command runs inside
+    `use_backend(backend_for_work(...))`, so that its filters, its worker processes and its records
+    take the choice; library code inside `backend_by_work`. A choice already made (MAZELAB_BACKEND, an
+    enclosing backend_by_work) stands.
 
     Parameters
     ----------
@@ -127,35 +122,12 @@ def compiled_pays(particle_steps: float, steps: float, processes: int = 1) -> bo
 
     Returns
     -------
-    bool
-    """
-    saved = steps * SAVED_PER_STEP + particle_steps * SAVED_PER_PARTICLE
-    return saved > processes * STARTUP_SECONDS
-
-
-def backend_for_work(particle_steps: float, steps: float, processes: int = 1) -> str:
-    """The backend a command of this much work runs on: MAZELAB_BACKEND's when set (the user's choice:
-    --backend sets it), else "compiled" where numba is installed and its start-up pays (compiled_pays),
-    else "numpy", numba then not imported. A command runs inside `use_backend(backend_for_work(...))`,
-    so that its filters, its worker processes and its records take the choice; library code inside
-    `backend_by_work`. A choice already made (MAZELAB_BACKEND, an enclosing backend_by_work) stands.
-
-    Parameters
-    ----------
-    particle_steps, steps : float
-        The command's work (see compiled_pays).
-    processes : int
-        The processes it runs in.
-
-    Returns
-    -------
     str
         "numpy" or "compiled".
     """
     chosen = os.environ.get(ENVIRONMENT_VARIABLE, "").strip() or _WORK_CHOICE.get() is not None
-    if chosen or compiled_pays(particle_steps, steps, processes):
-        return chosen_backend()
-    return "numpy"
+    saved = steps * SAVED_PER_STEP + particle_steps * SAVED_PER_PARTICLE
+    return chosen_backend() if chosen or saved > processes * STARTUP_SECONDS else "numpy"
 
 
 @contextmanager
@@ -167,7 +139,7 @@ def backend_by_work(particle_steps: float, steps: float) -> Iterator[str]:
     Parameters
     ----------
     particle_steps, steps : float
-        The work (see compiled_pays).
+        The work (see backend_for_work).
 
     Yields
     ------
@@ -375,9 +347,7 @@ __all__ = [
     "check_backend",
     "check_threads",
     "chosen_backend",
-    "compiled_pays",
     "cores",
-    "default_backend",
     "kernels_for",
     "numba_available",
     "shared_threads",

@@ -178,32 +178,12 @@ def sir_run(world: Maze, particles: int, steps: int, seed: int) -> tuple[float, 
     return time.perf_counter() - started, result
 
 
-@dataclass(frozen=True)
-class RunModelFigures:
-    """run_model at N particles without drawing, against its own filter steps and the reference step."""
-
-    particles: int
-    steps: int
-    total_seconds: float  # the whole run_model call
-    filter_seconds: float  # the sum of its filter steps (step, estimate, ESS, confidence)
-    reference_seconds_per_step: float  # the plain numpy reference step at the same N, same process
-
-    @property
-    def overhead(self) -> float:
-        """The whole call's time as a multiple of its filter steps' own time (1.0: no overhead)."""
-        return self.total_seconds / self.filter_seconds
-
-    @property
-    def times_reference(self) -> float:
-        """run_model's particle-steps per second as a multiple of the reference step's."""
-        return (self.particles * self.steps / self.total_seconds) / (self.particles / self.reference_seconds_per_step)
-
-
-def run_model_figures(
+def run_model_line(
     world: Maze, particles: int = 1_000_000, steps: int = 12, seed: int = 4, reference: float | None = None
-) -> RunModelFigures:
-    """Time run_model(..., visualize=False) end to end, the same seeded run's filter steps (simulate
-    records them), and the reference step at the same N (unless given, seconds per step), in this process."""
+) -> str:
+    """run_model(..., visualize=False) timed end to end against the same seeded run's filter steps
+    (simulate records them: 1.00x is no overhead) and the reference step at the same N (unless given,
+    seconds per step), in this process: the bench's line."""
     from mazelab.simulation import run_model  # the paper's entry point, as a notebook calls it
 
     def robot() -> Robot:
@@ -216,7 +196,11 @@ def run_model_figures(
     result = simulate(robot(), world, BENCH_SIGMA, BENCH_DELTA, particles, steps, seed=seed)
     if reference is None:
         reference = time_steps(reference_stepper(world, particles), record_walk(world, 4), 1)
-    return RunModelFigures(particles, steps, total, float(result.step_seconds.sum()), reference)
+    own = float(result.step_seconds.sum())
+    return (
+        f"run_model(), SIR, N = {particles:,}, {steps} steps, visualize=False: {total:.2f} s, {total / own:.2f}x "
+        f"its filter steps' own time ({own:.2f} s), {steps * reference / total:.1f}x the reference step"
+    )
 
 
 def cpu_model() -> str:
@@ -322,12 +306,8 @@ def run_benchmark(
             per_step, own = 1e3 * seconds / len(result.step_seconds), 1e3 * float(np.mean(result.step_seconds))
             echo(f"[{backend}] simulate(), SIR, N = 1,500 on the small maze: {per_step:.2f} ms/step, of which the "
                  f"filter {own:.2f}")  # fmt: skip
-            figures = run_model_figures(small, reference=reference[0].seconds_per_step if reference else None)
-            echo(
-                f"[{backend}] run_model(), SIR, N = {figures.particles:,}, {figures.steps} steps, visualize=False: "
-                f"{figures.total_seconds:.2f} s, {figures.overhead:.2f}x its filter steps' own time "
-                f"({figures.filter_seconds:.2f} s), {figures.times_reference:.1f}x the reference step"
-            )
+            reference_seconds = reference[0].seconds_per_step if reference else None
+            echo(f"[{backend}] " + run_model_line(small, reference=reference_seconds))
             if not quick:
                 seconds, result = sir_run(small, 1_000_000, 200, 4)
                 echo(

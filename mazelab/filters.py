@@ -110,7 +110,7 @@ class ParticleFilter(SMC):
         scheme = fast or resampling_scheme(self.scheme_name)
         if not hasattr(type(self), "resample"):  # a plug-in's own `resample` is its scheme
             self.resample = scheme if self.kld is None else functools.partial(self.kld_resample, scheme)
-            if fast is None and self.kld is None:  # mazelab.resampling's schemes draw every due run in one call
+            if self.kld is None:  # mazelab.resampling's schemes and the backend's draw every due run in one call
                 self.resample_rows = scheme
         super().__init__(model, particles, rng, self.ops.Weights)
         recovering = recovery_options(settings["recovery"], settings["alpha_slow"], settings["alpha_fast"])

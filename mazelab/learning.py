@@ -6,16 +6,12 @@ delta in [0.05, 0.6]. Then
 
     p(sigma, delta | z_1:K) ∝ p(z_1:K | sigma, delta)   inside the box, 0 outside.
 
-The exact posterior (`exact_parameter_posterior`) cuts the box into equal cells and takes the grid
-filter's exact evidence at each cell's centre (`grid_log_evidence`, a function of one cell that an
-executor maps), the density constant within each cell. PMMH (`pmmh`) is a random-walk Metropolis chain
-on (sigma, delta) whose acceptance ratio uses a particle filter's estimate of p(z_1:K) in place of the
-evidence: the chain targets the exact posterior whenever that estimate is unbiased, which SIR's and the
-APF's are (Del Moral 2004; Pitt and Shephard's for the APF), and the regularised filter's is not (its
-kernel changes the posterior it carries: docs/model.md). The registry's declaration says which filters
-qualify (FilterEntry.evidence, the caveat every table prints beside a log evidence; `evidence_filter`);
-recovery's injected particles, drawn from no proposal the weights account for, break the estimate's
-unbiasedness too, and a filter that keeps no log evidence (the EKF) has none to give.
+The exact posterior (`exact_parameter_posterior`) takes the grid filter's exact evidence at each cell's
+centre of a ParameterGrid (`grid_log_evidence`, a function of one cell that an executor maps). PMMH
+(`pmmh`) is a random-walk Metropolis chain on (sigma, delta) whose acceptance ratio uses a particle
+filter's estimate of p(z_1:K) in place of the evidence: it targets the exact posterior whenever that
+estimate is unbiased, which SIR's and the APF's are (Del Moral 2004) and the regularised filter's is not
+(`evidence_filter` says which filters qualify, from the registry's declaration).
 """
 
 from __future__ import annotations
@@ -29,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from mazelab.checks import check_particles, check_seed, finite_number, step_number
-from mazelab.grid_filter import GridBayesFilter
+from mazelab.grid_filter import GridBayesFilter, check_grid_memory
 from mazelab.maze import Maze
 from mazelab.model import LAB_DELTA_RANGE, LAB_SIGMA_RANGE, check_model_parameters
 from mazelab.registry import FilterEntry, filter_entry
@@ -89,15 +85,6 @@ class ParameterGrid:
         sigmas, deltas = np.meshgrid(*self.centres, indexing="ij")
         return sigmas.ravel().tolist(), deltas.ravel().tolist()
 
-    def halved(self) -> ParameterGrid:
-        """The same box with cells half as wide (twice as many along each axis): the grid's own error.
-
-        Returns
-        -------
-        ParameterGrid
-        """
-        return ParameterGrid(self.sigma_range, self.delta_range, (2 * self.cells[0], 2 * self.cells[1]))
-
     def contains(self, sigma: float, delta: float) -> bool:
         """Whether (sigma, delta) lies in the box, where the prior is positive.
 
@@ -114,14 +101,8 @@ class ParameterGrid:
         )
 
 
-def grid_log_evidence(
-    world: Maze,
-    compass_angles: Sequence[float],
-    measurements: Sequence[float],
-    sigma: float,
-    delta: float,
-    **grid_options: Any,
-) -> float:
+def grid_log_evidence(world: Maze, compass_angles: Sequence[float], measurements: Sequence[float], sigma: float,
+                      delta: float, **grid_options: Any) -> float:  # fmt: skip
     """log p(z_1:K | sigma, delta): the grid filter's exact evidence of the walk (one cell of a
     ParameterGrid; plain values in and out, so that an executor can map it).
 
@@ -170,12 +151,6 @@ class ParameterPosterior:
         mass = np.exp(self.log_evidence - finite.max())
         return mass / mass.sum()
 
-    @property
-    def log_marginal_likelihood(self) -> float:
-        """log p(z_1:K), the evidence averaged over the prior (the midpoint rule over the cells)."""
-        top = self.log_evidence.max()
-        return float(top + math.log(np.mean(np.exp(self.log_evidence - top))))
-
     def marginals(self) -> tuple[np.ndarray, np.ndarray]:
         """The marginal posteriors.
 
@@ -217,14 +192,9 @@ class ParameterPosterior:
         return np.array(rows)
 
 
-def exact_parameter_posterior(
-    world: Maze,
-    compass_angles: Sequence[float],
-    measurements: Sequence[float],
-    grid: ParameterGrid | None = None,
-    mapper: Callable[..., Iterable[float]] = map,
-    **grid_options: Any,
-) -> ParameterPosterior:
+def exact_parameter_posterior(world: Maze, compass_angles: Sequence[float], measurements: Sequence[float],
+                              grid: ParameterGrid | None = None, mapper: Callable[..., Iterable[float]] = map,
+                              **grid_options: Any) -> ParameterPosterior:  # fmt: skip
     """The exact parameter posterior of a walk on a ParameterGrid (the lab's ranges, 12 x 12 cells, by
     default): `grid_log_evidence` at every cell.
 
@@ -246,6 +216,8 @@ def exact_parameter_posterior(
     """
     grid = ParameterGrid() if grid is None else grid
     angles, zs = check_walk(compass_angles, measurements)
+    resolved = GridBayesFilter.options.resolve(grid_options, "GridBayesFilter")  # checked here, not in each cell
+    check_grid_memory(world.width, world.height, resolved["resolution"], resolved["margin"])
     cell = functools.partial(grid_log_evidence, world, angles.tolist(), zs.tolist(), **grid_options)
     log_evidence = np.array(list(mapper(cell, *grid.values())), dtype=float)
     return ParameterPosterior(grid, log_evidence.reshape(grid.cells))
@@ -279,42 +251,21 @@ def evidence_filter(name: str | type, options: dict[str, Any] | None = None) -> 
     return entry
 
 
-@dataclass(frozen=True)
-class EvidenceEstimator:
-    """log p_hat(z_1:K | sigma, delta) by one fresh run of a filter over the walk: its particles drawn
-    from the model's prior (uniform over the free area) and its own draws from the Generators handed in.
-
-    Parameters
-    ----------
-    world : Maze
-    compass_angles, measurements : arrays (K,)
-    entry : FilterEntry
-        A filter whose evidence estimates p(z_1:K) (`evidence_filter`).
-    particle_count : int
-    options : dict
-        The filter's options.
-    """
-
-    world: Maze
-    compass_angles: np.ndarray
-    measurements: np.ndarray
-    entry: FilterEntry
-    particle_count: int
-    options: dict[str, Any]
-
-    def __call__(self, sigma: float, delta: float, rng: np.random.Generator) -> float:
-        """The filter's log evidence after the walk's last step; -inf where it is not a number."""
-        particles_rng, filter_rng = rng.spawn(2)
-        particles = None
-        if self.entry.takes_particles:
-            particles = self.world.random_free_places(self.particle_count, particles_rng)
-        filt = self.entry.filter_class(self.world, sigma, delta, particles, filter_rng, **self.options)
-        for compass_angle, z in zip(self.compass_angles, self.measurements, strict=True):
-            filt.step(float(compass_angle), float(z))
-        if not hasattr(filt, "log_evidence"):  # optional in the contract (mazelab.contract)
-            raise ValueError(f"PMMH needs a filter whose evidence estimates p(z_1:K): {self.entry.label} keeps none")
-        log_z = float(filt.log_evidence)
-        return log_z if not math.isnan(log_z) else -math.inf
+def estimated_log_evidence(world: Maze, compass_angles: np.ndarray, measurements: np.ndarray, entry: FilterEntry,
+                           particle_count: int, options: dict[str, Any], sigma: float, delta: float,
+                           rng: np.random.Generator) -> float:  # fmt: skip
+    """log p_hat(z_1:K | sigma, delta) by one fresh run of a filter (`evidence_filter`'s entry, with its
+    options) over the walk: its particle_count particles drawn from the model's prior (uniform over the free
+    area) and its own draws, both from Generators spawned from `rng`; -inf where it is not a number."""
+    particles_rng, filter_rng = rng.spawn(2)
+    particles = world.random_free_places(particle_count, particles_rng) if entry.takes_particles else None
+    filt = entry.filter_class(world, sigma, delta, particles, filter_rng, **options)
+    for compass_angle, z in zip(compass_angles, measurements, strict=True):
+        filt.step(float(compass_angle), float(z))
+    if not hasattr(filt, "log_evidence"):  # optional in the contract (mazelab.contract)
+        raise ValueError(f"PMMH needs a filter whose evidence estimates p(z_1:K): {entry.label} keeps none")
+    log_z = float(filt.log_evidence)
+    return log_z if not math.isnan(log_z) else -math.inf
 
 
 @dataclass(frozen=True)
@@ -330,21 +281,12 @@ class Chain:
     accepted : int
         The proposals accepted (burn-in included).
     burn_in : int
-    filter_name : str
-    particle_count : int
-    seed : int
-    proposal_scale : (2,)
-        The random walk's standard deviations along sigma and delta.
     """
 
     samples: np.ndarray
     log_evidence: np.ndarray
     accepted: int
     burn_in: int
-    filter_name: str
-    particle_count: int
-    seed: int
-    proposal_scale: tuple[float, float]
 
     @property
     def kept(self) -> np.ndarray:
@@ -411,21 +353,10 @@ class Chain:
         return np.array([[quantile_error(column, p) for p in tails] for column in self.kept.T])
 
 
-def pmmh(
-    world: Maze,
-    compass_angles: Sequence[float],
-    measurements: Sequence[float],
-    iterations: int,
-    *,
-    filter_name: str | type = "sir",
-    particle_count: int = 1000,
-    prior: ParameterGrid | None = None,
-    start: tuple[float, float] | None = None,
-    proposal_scale: tuple[float, float] = (0.08, 0.3),
-    burn_in: int = 0,
-    seed: int = 0,
-    **filter_options: Any,
-) -> Chain:
+def pmmh(world: Maze, compass_angles: Sequence[float], measurements: Sequence[float], iterations: int, *,
+         filter_name: str | type = "sir", particle_count: int = 1000, prior: ParameterGrid | None = None,
+         start: tuple[float, float] | None = None, proposal_scale: tuple[float, float] = (0.08, 0.3),
+         burn_in: int = 0, seed: int = 0, **filter_options: Any) -> Chain:  # fmt: skip
     """Particle marginal Metropolis-Hastings on (sigma, delta) under the uniform prior on `prior`'s box.
 
     Each iteration proposes (sigma', delta') = (sigma, delta) + proposal_scale * N(0, I); one inside the
@@ -466,18 +397,33 @@ def pmmh(
     entry.options.resolve(filter_options, entry.name)  # each option checked once, before the first run
     angles, zs = check_walk(compass_angles, measurements)
     prior = ParameterGrid() if prior is None else prior
-    iterations, seed = step_number("iterations", iterations), check_seed("seed", seed)
+    state = np.array(start if start is not None else [np.mean(prior.sigma_range), np.mean(prior.delta_range)])
+    scale = check_chain(prior, state, iterations, particle_count, burn_in, proposal_scale)
+    estimate = functools.partial(estimated_log_evidence, world, angles, zs, entry, particle_count, filter_options)
+    rng = np.random.default_rng(check_seed("seed", seed))
+    return Chain(*random_walk(estimate, prior, state, scale, iterations, rng), burn_in)
+
+
+def check_chain(prior: ParameterGrid, start: np.ndarray, iterations: int, particle_count: int, burn_in: int,
+                proposal_scale: tuple[float, float]) -> np.ndarray:  # fmt: skip
+    """The proposal's scale (2,) once pmmh's settings are checked: a one-line ValueError for a start outside
+    the prior's box, a count that is not a whole number >= 1, a burn-in outside [0, iterations)."""
+    iterations = step_number("iterations", iterations)
     if isinstance(particle_count, bool) or not isinstance(particle_count, (int, np.integer)) or particle_count < 1:
         raise ValueError(f"particle_count must be a whole number >= 1, got {particle_count!r}")
     check_particles(int(particle_count))
     if not 0 <= burn_in < iterations:
         raise ValueError(f"burn_in must lie in [0, iterations), got {burn_in!r}")
-    scale = np.array([finite_number("proposal scale", s) for s in proposal_scale])
-    state = np.array(start if start is not None else [np.mean(prior.sigma_range), np.mean(prior.delta_range)])
-    if not prior.contains(*state):
-        raise ValueError(f"the chain's start {tuple(state)} lies outside the prior's box")
-    estimate = EvidenceEstimator(world, angles, zs, entry, particle_count, filter_options)
-    rng = np.random.default_rng(seed)
+    if not prior.contains(*start):
+        raise ValueError(f"the chain's start {tuple(start)} lies outside the prior's box")
+    return np.array([finite_number("proposal scale", s) for s in proposal_scale])
+
+
+def random_walk(estimate: Callable[[float, float, np.random.Generator], float], prior: ParameterGrid,
+                state: np.ndarray, scale: np.ndarray, iterations: int,
+                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, int]:  # fmt: skip
+    """PMMH's iterations (`pmmh`): (the states (iterations, 2), the evidence estimate each held
+    (iterations,), the proposals accepted), `estimate(sigma, delta, rng)` a run's log p_hat(z_1:K)."""
     log_z = estimate(*state, rng)
     samples, log_evidence, accepted = np.empty((iterations, 2)), np.empty(iterations), 0
     for i in range(iterations):
@@ -487,7 +433,7 @@ def pmmh(
             if math.log(rng.random()) < proposed_log_z - log_z:  # the prior is flat on the box
                 state, log_z, accepted = proposal, proposed_log_z, accepted + 1
         samples[i], log_evidence[i] = state, log_z
-    return Chain(samples, log_evidence, accepted, burn_in, entry.name, particle_count, seed, tuple(scale.tolist()))
+    return samples, log_evidence, accepted
 
 
 def chain_ess(x: np.ndarray) -> float:
@@ -544,7 +490,6 @@ def quantile_error(x: np.ndarray, p: float) -> float:
 __all__ = [
     "INTERVAL_LEVEL",
     "Chain",
-    "EvidenceEstimator",
     "ParameterGrid",
     "ParameterPosterior",
     "chain_ess",

@@ -14,22 +14,17 @@ are the discretised model's exact answer: a brute-force sum over every path of c
 (tests/test_smoothing.py).
 
 Memory: the forward pass keeps alpha_k at every B-th step only (checkpoints, B = ceil(sqrt(K)) unless
-told), and the backward pass refilters one block of B steps at a time from its checkpoint when it
-reaches it: about 2 sqrt(K) grids instead of K, for a second forward pass. On maze_10x10 at the
-default resolution (600 x 600 cells, 2.75 MB a grid) a 200-step walk keeps 14 checkpoints and 15
-refiltered grids rather than 200: a peak of 165 MB allocated against 640 MB when every filtered density
-is kept (`uv run python benchmarks/smoothing_memory.py`).
+told), and the backward pass refilters one block of B steps at a time from its checkpoint: about 2 sqrt(K)
+grids instead of K, for a second forward pass (docs/smoothing.md has the figures of a 200-step walk on
+maze_10x10: `uv run python benchmarks/smoothing_memory.py`).
 
 The particle smoothers (`Genealogy`, scored against the exact one by `score_smoothers`) read what the
 engine leaves after each step, `SMC.ancestry` (A (R, M), due (R,)), and keep it with the step's particles
 and weights: the path smoother follows every particle of the last step back to its ancestors; the
 fixed-lag smoother does so L steps back only, keeping L + 1 steps. Forward filtering backward sampling
-(FFBS) is not built, for the model admits none: it reweights x_k^i by the transition density p(x_k+1^j |
-x_k^i), but the arc motion x_k+1 = x_k + L (cos th, sin th), th uniform on [th0 - Delta/2, th0 + Delta/2]
-(mazelab.model), puts all of x_k+1's mass on an arc of radius L about x_k: a curve, of no area, so the
-transition has no density in the plane. p(x_k+1^j | x_k^i) is then zero unless x_k+1^j lies on x_k^i's
-arc, which happens (with probability one) only when x_k^i is its ancestor: FFBS's backward kernel is the
-genealogy itself, the path smoother. (The grid smoother has a density: its cells spread the arc.)
+(FFBS) is not built: it needs the transition density p(x_k+1 | x_k), and the model's arc motion puts all
+of x_k+1's mass on an arc of radius L about x_k, a curve with no density in the plane, so FFBS's backward
+kernel is the genealogy itself, the path smoother (docs/smoothing.md says why in full).
 """
 
 from __future__ import annotations
@@ -37,7 +32,7 @@ from __future__ import annotations
 import functools
 import math
 from collections import deque
-from collections.abc import Callable, Collection, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -87,20 +82,6 @@ class SmoothedWalk:
     checkpoint_every: int
     densities: dict[int, np.ndarray] = field(default_factory=dict)
 
-    def errors(self, true_positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The distance of the smoothed and of the filtered mean to the truth, per step.
-
-        Parameters
-        ----------
-        true_positions : array (K, 2)
-            The robot's position after each step's move (map units).
-
-        Returns
-        -------
-        (smoothed (K,), filtered (K,)), map units
-        """
-        return np.hypot(*(self.means - true_positions).T), np.hypot(*(self.filtered_means - true_positions).T)
-
 
 class BackwardStep:
     """The backward pass's step on a grid filter's cells: beta_{k-1} = P_k^T (l_k beta_k), scaled.
@@ -120,22 +101,6 @@ class BackwardStep:
         self._angle: float | None = None
         self._kernel_shape = arc_kernel_shape(grid.speed, grid.resolution)
         self._spectrum: np.ndarray | None = None
-
-    def likelihood(self, z: float) -> np.ndarray:
-        """l_k = p(z_k | x) on the cells divided by its largest value (equation (3), the grid filter's
-        log_likelihood: the one source of it).
-
-        Parameters
-        ----------
-        z : float
-            z_k, the measured distance (map units).
-
-        Returns
-        -------
-        array of the grid's shape, values in [0, 1]
-        """
-        log_lik = self.grid.log_likelihood(z)
-        return np.exp(log_lik - log_lik.max())
 
     def adjoint(self, values: np.ndarray, compass_angle: float) -> np.ndarray:
         """P^T values: the linear convolution with the flipped arc kernel of `compass_angle`, cropped to
@@ -161,7 +126,8 @@ class BackwardStep:
     def __call__(self, beta: np.ndarray, compass_angle: float, z: float, k: int) -> np.ndarray:
         """beta_{k-1} from beta_k and step k's compass angle and measurement, scaled so that its largest
         value is 1 (beta matters only up to a constant: the smoothed density is normalised)."""
-        previous = np.clip(self.adjoint(self.likelihood(z) * beta, compass_angle), 0.0, None)  # FFT round-off < 0
+        log_lik = self.grid.log_likelihood(z)  # equation (3), the grid filter's: the one source of it
+        previous = np.clip(self.adjoint(np.exp(log_lik - log_lik.max()) * beta, compass_angle), 0.0, None)  # FFT: < 0
         top = previous.max()
         if not top > 0:
             raise ValueError(f"the measurements after step {k - 1} are impossible from every cell of the grid")
@@ -169,18 +135,9 @@ class BackwardStep:
         return previous
 
 
-def smooth(
-    world: Maze,
-    sigma: float,
-    delta: float,
-    compass_angles: Sequence[float],
-    measurements: Sequence[float],
-    *,
-    keep: Collection[int] = (),
-    visit: Callable[[int, np.ndarray], Any] | None = None,
-    checkpoint_every: int | None = None,
-    **grid_options: Any,
-) -> SmoothedWalk:
+def smooth(world: Maze, sigma: float, delta: float, compass_angles: Sequence[float], measurements: Sequence[float],
+           *, keep: Collection[int] = (), visit: Callable[[int, np.ndarray], Any] | None = None,
+           checkpoint_every: int | None = None, **grid_options: Any) -> SmoothedWalk:  # fmt: skip
     """p(x_k | z_1:K) for k = 1..K on the grid filter's grid, by forward-backward with checkpoints.
 
     Parameters
@@ -206,18 +163,28 @@ def smooth(
     SmoothedWalk
     """
     angles, zs = check_walk(compass_angles, measurements)
-    steps = len(angles)
     sigma, delta = check_model_parameters(sigma, delta, (world.width, world.height))
     grid = GridBayesFilter(world, sigma, delta, **grid_options)
-    block = checkpoint_block(steps, checkpoint_every)
-    outside = [k for k in keep if not (isinstance(k, (int, np.integer)) and 1 <= k <= steps)]
+    block = checkpoint_block(len(angles), checkpoint_every)
+    outside = [k for k in keep if not (isinstance(k, (int, np.integer)) and 1 <= k <= len(angles))]
     if outside:
-        raise ValueError(f"keep names steps 1..{steps} of the walk, got {outside[0]!r}")
-    check_smoother_memory(grid.shape, steps, block, len(set(keep)))
+        raise ValueError(f"keep names steps 1..{len(angles)} of the walk, got {outside[0]!r}")
+    check_smoother_memory(grid.shape, len(angles), block, len(set(keep)))
     checkpoints, filtered_means = forward(grid, angles, zs, block)
     log_evidence = grid.log_evidence  # the refiltering below adds to it again
+    means, spreads, kept = backward(grid, checkpoints, angles, zs, block, keep, visit)
+    return SmoothedWalk(means, spreads, filtered_means, log_evidence, grid.positions, grid.shape, block, kept)
+
+
+def backward(grid: GridBayesFilter, checkpoints: dict[int, np.ndarray], angles: np.ndarray, zs: np.ndarray,
+             block: int, keep: Collection[int], visit: Callable[[int, np.ndarray], Any] | None,
+             ) -> tuple[np.ndarray, np.ndarray, dict[int, np.ndarray]]:  # fmt: skip
+    """The backward pass from k = K down to 1, each block of B steps refiltered from its checkpoint (taken
+    from `checkpoints`): the smoothed means (K, 2), spreads (K,) and the densities of the steps in `keep`
+    (each handed to `visit` too: `smooth`)."""
+    steps = len(angles)
     means, spreads, kept = np.empty((steps, 2)), np.empty(steps), {}
-    backward, beta = BackwardStep(grid), np.ones(grid.shape)
+    step_back, beta = BackwardStep(grid), np.ones(grid.shape)
     for start in reversed(range(0, steps, block)):  # the block of steps start+1 .. end
         end = min(start + block, steps)
         filtered = refilter(grid, checkpoints.pop(start), angles[start:end], zs[start:end])
@@ -230,8 +197,8 @@ def smooth(
                 smoothed.flags.writeable = False
                 visit(k, smoothed)
             if k > 1:
-                beta = backward(beta, angles[k - 1], zs[k - 1], k)
-    return SmoothedWalk(means, spreads, filtered_means, log_evidence, grid.positions, grid.shape, block, kept)
+                beta = step_back(beta, angles[k - 1], zs[k - 1], k)
+    return means, spreads, kept
 
 
 def forward(
@@ -348,7 +315,7 @@ class Genealogy:
     lag : int or None
     bins : callable, optional
         points (R, M, 2) -> flat bin indices (R, M) of `bin_count` bins: each estimate's weighted mass
-        per bin is kept too (the distance between distributions, `binned_total_variation`).
+        per bin is kept too (the total variation to the exact smoother's, `score_rows`).
     bin_count : int
     clouds : bool
         Keep each estimate's traced particles and weights of run 0 too (`clouds`, step -> (points (M, 2),
@@ -477,21 +444,10 @@ SCORE_COLUMNS = (
 )  # fmt: skip
 
 
-def score_smoothers(
-    world: Maze,
-    robot: Robot,
-    sigma: float,
-    delta: float,
-    filters: Sequence[str],
-    *,
-    lag: int = 10,
-    particle_count: int | None = None,
-    initial_particles: Any = None,
-    seed: int = 0,
-    grid_options: dict[str, Any] | None = None,
-    clouds: bool = False,
-    **filter_options: Any,
-) -> SmootherScores:
+def score_smoothers(world: Maze, robot: Robot, sigma: float, delta: float, filters: Sequence[str], *, lag: int = 10,
+                    particle_count: int | None = None, initial_particles: Any = None, seed: int = 0,
+                    grid_options: dict[str, Any] | None = None, clouds: bool = False,
+                    options: Mapping[str, Mapping[str, Any]] | None = None) -> SmootherScores:  # fmt: skip
     """Each particle filter's own estimate, fixed-lag and path smoothers on a recorded walk, beside the
     exact smoother (`smooth`), step by step (SmootherScores).
 
@@ -505,12 +461,14 @@ def score_smoothers(
         Registry names of filters that keep particles (sir, apf, rpf, a plug-in's).
     lag : int
         L of the fixed-lag smoother (>= 1).
-    particle_count, initial_particles, seed, **filter_options
+    particle_count, initial_particles, seed
         As mazelab.simulation.simulate takes them (each filter starts from the same particles and seed).
     grid_options : dict, optional
         GridBayesFilter's options for the exact smoother.
     clouds : bool
         Keep the traced particles of every step (Genealogy's `clouds`) for a viewer.
+    options : mapping, optional
+        Each filter's own options, by its name as in `filters` (e.g. {"rpf": {"bandwidth": 0.05}}).
 
     Returns
     -------
@@ -518,37 +476,50 @@ def score_smoothers(
     """
     from mazelab.simulation import simulate  # the layer above the model's: imported by the caller that runs
 
-    lag, grid_options = step_number("lag", lag), dict(grid_options or {})
-    entries = [filter_entry(name) for name in filters]
-    for entry in entries:
+    lag = check_smoothers(robot, filters, lag, particle_count, initial_particles)
+    grid_options = dict(grid_options or {})
+    bins, count = cell_bins(world, GridBayesFilter.options.resolve(grid_options, "GridBayesFilter")["margin"])
+    exact, exact_masses = binned_smoother(world, sigma, delta, robot, bins, count, grid_options)
+    rows, recorded = [], {}
+    for name in filters:
+        entry = filter_entry(name)
+        recorders = [Genealogy(length, bins, count, clouds) for length in (0, lag, None)]  # SMOOTHERS' lags
+        run = simulate(robot, world, sigma, delta, particle_count, len(exact.means), initial_particles,
+                       entry.filter_class, seed=seed, on_step=functools.partial(record_step, recorders),
+                       **(options or {}).get(name, {}))  # fmt: skip
+        recorded[entry.label] = [g.finish() for g in recorders]
+        rows += score_rows(entry.label, exact, exact_masses, run.true_positions, recorded[entry.label])
+    return SmootherScores(exact, rows, lag, recorded)
+
+
+def binned_smoother(world: Maze, sigma: float, delta: float, robot: Robot, bins: Callable[[np.ndarray], np.ndarray],
+                    count: int, grid_options: dict[str, Any]
+                    ) -> tuple[SmoothedWalk, dict[int, np.ndarray]]:  # fmt: skip
+    """The exact smoother of the robot's walk (`smooth`), and its mass in each of the `count` bins at every step
+    (step -> (count,)): what a particle smoother's binned mass is compared with."""
+    positions, masses = GridBayesFilter(world, sigma, delta, **grid_options).positions, {}
+
+    def binned(k: int, density: np.ndarray) -> None:
+        masses[k] = np.bincount(bins(positions), density.ravel(), count)
+
+    exact = smooth(world, sigma, delta, robot.compass_angles, robot.measurements, visit=binned, **grid_options)
+    return exact, masses
+
+
+def check_smoothers(robot: Robot, filters: Sequence[str], lag: int, particle_count: int | None,
+                    initial_particles: Any) -> int:  # fmt: skip
+    """The lag, once `score_smoothers`' inputs are checked: a one-line ValueError for a filter that keeps no
+    particles, a walk without measurements, a genealogy that does not fit in memory."""
+    lag = step_number("lag", lag)
+    for entry in map(filter_entry, filters):
         if not entry.takes_particles:
             raise ValueError(f"a particle smoother needs a filter's genealogy: {entry.label} keeps no particles")
     if not robot.measurements:
         raise ValueError("smoothing needs the walk's measurements: the scenario stores none (robot_measurements)")
     particles = len(initial_particles) if initial_particles is not None else particle_count or DEFAULT_PARTICLE_COUNT
-    steps = len(robot.measurements)
-    check_memory(f"the genealogy of {steps} steps of {particles} particles (the path smoother's)",
-                 (steps + lag + 2) * particles * BYTES_PER_RECORDED_PARTICLE)  # fmt: skip
-    bins, count = cell_bins(world, GridBayesFilter.options.resolve(grid_options, "GridBayesFilter")["margin"])
-    exact_masses: dict[int, np.ndarray] = {}
-
-    def binned(k: int, density: np.ndarray) -> None:
-        exact_masses[k] = np.bincount(bins(positions), density.ravel(), count)
-
-    positions = GridBayesFilter(world, sigma, delta, **grid_options).positions
-    exact = smooth(world, sigma, delta, robot.compass_angles, robot.measurements, visit=binned, **grid_options)
-    rows, recorded = [], {}
-    for entry in entries:
-        recorders = {
-            n: Genealogy(length, bins, count, clouds) for n, length in zip(SMOOTHERS, (0, lag, None), strict=True)
-        }
-        run = simulate(
-            robot, world, sigma, delta, particle_count, len(exact.means), initial_particles, entry.filter_class,
-            seed=seed, on_step=functools.partial(record_step, list(recorders.values())), **filter_options,
-        )  # fmt: skip
-        recorded[entry.label] = [g.finish() for g in recorders.values()]
-        rows += score_rows(entry.label, exact, exact_masses, run.true_positions, recorded[entry.label])
-    return SmootherScores(exact, rows, lag, recorded)
+    check_memory(f"the genealogy of {len(robot.measurements)} steps of {particles} particles (the path smoother's)",
+                 (len(robot.measurements) + lag + 2) * particles * BYTES_PER_RECORDED_PARTICLE)  # fmt: skip
+    return lag
 
 
 def record_step(recorders: list[Genealogy], k: int, robot: Robot, filt: Any) -> None:
@@ -572,7 +543,7 @@ def score_rows(
         }
         for name, g in zip(SMOOTHERS, recorded, strict=True):
             row[f"{name}_error"] = float(np.hypot(*(g.means[k][0] - exact.means[k - 1])))
-            row[f"{name}_tv"] = float(binned_total_variation(g.masses[k][0], masses[k]))
+            row[f"{name}_tv"] = 0.5 * float(np.abs(g.masses[k][0] - masses[k]).sum())  # the total variation
             row[f"{name}_ancestors"] = int(g.distinct[k][0])
         rows.append(row)
     return rows
@@ -603,21 +574,6 @@ def cell_bins(world: Maze, margin: float) -> tuple[Callable[[np.ndarray], np.nda
     return bins, rows * columns
 
 
-def binned_total_variation(p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """(1/2) sum_b |p_b - q_b| over the last axis: the total variation between two distributions binned
-    alike (0: the same mass in every bin; 1: none in common).
-
-    Parameters
-    ----------
-    p, q : arrays (..., B)
-
-    Returns
-    -------
-    array (...)
-    """
-    return 0.5 * np.abs(p - q).sum(axis=-1)
-
-
 __all__ = [
     "SCORE_COLUMNS",
     "SMOOTHERS",
@@ -625,7 +581,6 @@ __all__ = [
     "Genealogy",
     "SmoothedWalk",
     "SmootherScores",
-    "binned_total_variation",
     "cell_bins",
     "check_walk",
     "score_smoothers",

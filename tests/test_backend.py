@@ -26,9 +26,7 @@ from mazelab.backend import (
     backend_versions,
     check_backend,
     chosen_backend,
-    compiled_pays,
     cores,
-    default_backend,
     kernels_for,
     shared_threads,
     thread_count,
@@ -41,6 +39,7 @@ from mazelab.robot import Robot
 from mazelab.simulation import simulate
 
 HAS_NUMBA = subprocess.run([sys.executable, "-c", "import numba"], capture_output=True).returncode == 0
+DEFAULT = "compiled" if HAS_NUMBA else "numpy"  # the backend without a choice
 needs_numba = pytest.mark.skipif(not HAS_NUMBA, reason="the compiled backend needs numba (the fast extra)")
 
 # a Python that cannot import numba, as on an install without the fast extra
@@ -151,12 +150,12 @@ def test_the_work_choice_of_a_run_leaves_the_environment_alone_and_an_outer_choi
         with backend_by_work(big, 200) as inner:  # a run inside a small comparison keeps its choice
             assert inner == "numpy"
     with backend_by_work(big, 200) as outer:
-        assert outer == default_backend()
+        assert outer == DEFAULT
         with backend_by_work(1500 * 200, 200) as inner:  # the comparison's warm-up and runs: one backend
             assert inner == outer
-    monkeypatch.setenv(ENVIRONMENT_VARIABLE, default_backend())
+    monkeypatch.setenv(ENVIRONMENT_VARIABLE, DEFAULT)
     with backend_by_work(1500 * 200, 200) as chosen:  # the user's choice stands
-        assert chosen == default_backend()
+        assert chosen == DEFAULT
 
 
 @needs_numba
@@ -167,13 +166,12 @@ def test_work_that_pays_back_numbas_start_up_runs_compiled_and_a_choice_override
 
 
 def test_the_compiled_backend_pays_when_its_savings_exceed_each_processs_start_up(monkeypatch):
-    steps = STARTUP_SECONDS / SAVED_PER_STEP  # the steps whose fixed savings alone pay the start-up
-    assert not compiled_pays(0, 0.99 * steps) and compiled_pays(0, 1.01 * steps)
-    particle_steps = STARTUP_SECONDS / SAVED_PER_PARTICLE
-    assert not compiled_pays(0.99 * particle_steps, 0) and compiled_pays(1.01 * particle_steps, 0)
-    assert not compiled_pays(1.01 * particle_steps, 0, processes=2)  # each process pays the start-up
     monkeypatch.delenv(ENVIRONMENT_VARIABLE, raising=False)
-    assert backend_for_work(0.99 * particle_steps, 0) == "numpy"
+    steps = STARTUP_SECONDS / SAVED_PER_STEP  # the steps whose fixed savings alone pay the start-up
+    assert backend_for_work(0, 0.99 * steps) == "numpy" and backend_for_work(0, 1.01 * steps) == DEFAULT
+    moved = STARTUP_SECONDS / SAVED_PER_PARTICLE  # the particle-steps whose savings pay it
+    assert backend_for_work(0.99 * moved, 0) == "numpy" and backend_for_work(1.01 * moved, 0) == DEFAULT
+    assert backend_for_work(1.01 * moved, 0, processes=2) == "numpy"  # each process pays the start-up
 
 
 @pytest.mark.parametrize("name", ["sir", "grid"])

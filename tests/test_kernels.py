@@ -197,6 +197,10 @@ def test_systematic_resampling_gives_the_textbook_ancestors_for_the_same_cumulat
         np.testing.assert_array_equal(counted, systematic_resample(dyadic, np.random.default_rng(seed)))
     assert not np.isin(one.systematic(weights[1], rng), np.arange(0, size, 3)).any()
     assert (one.systematic(weights[3], rng) == 17).all()
+    alone = [one.systematic(row, np.random.default_rng(seed)) for seed, row in enumerate(weights)]
+    for kernels in (one, two):  # the rows in one call, a Generator each: each row's ancestors as alone
+        rngs = [np.random.default_rng(seed) for seed in range(len(weights))]
+        np.testing.assert_array_equal(kernels.systematic(weights, rngs), alone)
     row = np.full(8, 1 / 8)  # a point exactly on a boundary: u = 0 puts u_m = m / 8 on c_m
     offset = type("Zero", (), {"random": lambda self: 0.0})()
     np.testing.assert_array_equal(one.systematic(row, offset), systematic_resample(row, offset))
@@ -634,10 +638,25 @@ def test_a_kernel_called_while_the_threads_are_busy_runs_in_order_with_the_same_
     assert len(done) == 4 and all(np.array_equal(d, threaded) for d in done)
 
 
+def test_the_threads_come_from_tbb_where_the_fast_extra_installed_it():
+    """The fast extra installs Intel's TBB on Linux x86-64, whose library the loader does not find by
+    itself: the kernels must load it (numba's workqueue, which wakes its threads for every call, would
+    run instead and make two threads slower than one below some 300,000 particles)."""
+    import importlib.metadata
+
+    try:
+        importlib.metadata.version("tbb")
+    except importlib.metadata.PackageNotFoundError:
+        pytest.skip("no tbb package here (only Linux x86-64 installs it)")
+    from mazelab.kernels import threading_layer
+
+    assert threading_layer() == "tbb"
+
+
 @needs_two_threads
 def test_the_threads_work_in_a_process_forked_after_they_ran():
-    """The study's worker processes are forked: numba's threads must start again in them (the
-    workqueue layer; GNU OpenMP's would abort the child)."""
+    """The study's worker processes are forked: numba's threads must start again in them (TBB's and
+    the workqueue layer do; GNU OpenMP's would abort the child)."""
     script = (
         "import multiprocessing, numpy as np\n"
         "from mazelab.kernels.compiled import THREADED_FROM, CompiledKernels\n"
@@ -650,5 +669,7 @@ def test_the_threads_work_in_a_process_forked_after_they_ran():
         "with multiprocessing.get_context('fork').Pool(1) as pool:\n"
         "    print(pool.apply(run) == here, __import__('numba').threading_layer())\n"
     )
+    import numba
+
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=600, check=False)
-    assert done.returncode == 0 and done.stdout.split() == ["True", "workqueue"], done.stderr
+    assert done.returncode == 0 and done.stdout.split() == ["True", numba.config.THREADING_LAYER], done.stderr

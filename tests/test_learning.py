@@ -61,7 +61,6 @@ def test_the_posteriors_mean_and_interval_are_those_of_its_density_constant_on_e
     peaked = ParameterPosterior(grid, one_cell)
     np.testing.assert_allclose(peaked.mean(), [0.45, 0.25])
     np.testing.assert_allclose(peaked.interval(0.9), [[0.405, 0.495], [0.205, 0.295]])
-    assert peaked.log_marginal_likelihood == pytest.approx(-3.0 - math.log(24))
 
 
 @pytest.mark.parametrize("phi", [0.0, 0.6])
@@ -135,7 +134,7 @@ def test_the_pmmh_chain_agrees_with_the_exact_posterior(paper_world):
     cells = ParameterGrid(cells=(8, 8))
     exact = exact_parameter_posterior(paper_world, angles, zs, cells, resolution=0.1)
     finer = exact_parameter_posterior(paper_world, angles, zs, cells, resolution=0.05)
-    narrower = exact_parameter_posterior(paper_world, angles, zs, cells.halved(), resolution=0.1)
+    narrower = exact_parameter_posterior(paper_world, angles, zs, ParameterGrid(cells=(16, 16)), resolution=0.1)
 
     def summary(posterior):
         return np.column_stack([posterior.mean(), posterior.interval()])  # rows sigma, delta: mean, low, high

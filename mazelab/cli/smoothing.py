@@ -6,7 +6,8 @@ record beside the rows like a study's (the command, versions, the scenario's sha
 
 from __future__ import annotations
 
-from concurrent.futures import ProcessPoolExecutor
+import functools
+import signal
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -14,12 +15,16 @@ import numpy as np
 import typer
 
 from mazelab.atomic import write_text_atomically
+from mazelab.cli.filter_options import OptionFlag, given_options, with_option_flags
 from mazelab.cli.options import UserError, check_one_file_each, check_output_path, opt, parse_list, seed_option
-from mazelab.experiments.record import Recorder, record_path
+from mazelab.experiments import executor
+from mazelab.experiments.journal import Journal, journal_path, read_journal
+from mazelab.experiments.record import Recorder, differences, record_path
 from mazelab.experiments.runs import parse_filters
+from mazelab.experiments.study import RunFailure, options_per_filter
 from mazelab.experiments.tables import format_table, pyplot, records_csv, save_figure
-from mazelab.invocation import command_line
-from mazelab.learning import ParameterGrid, evidence_filter, exact_parameter_posterior, pmmh
+from mazelab.invocation import command_line, resume_command
+from mazelab.learning import ParameterGrid, ParameterPosterior, evidence_filter, exact_parameter_posterior, pmmh
 from mazelab.model import LAB_DELTA_RANGE, LAB_SIGMA_RANGE
 from mazelab.registry import file_sha256, filter_entry
 from mazelab.smoothing import SCORE_COLUMNS, SMOOTHERS, SmootherScores, score_smoothers
@@ -38,43 +43,42 @@ Cells = opt(int, min=1, help="the parameter grid's cells along sigma and along d
 Iterations = opt(int, "--pmmh", min=0, help="a PMMH chain of this many iterations (0: none)")
 PmmhFilter = opt(str, "--filter", help="PMMH's filter (its evidence must estimate p(z_1:K))")
 Particles = opt(int, min=1, help="PMMH's particles")
-Workers = opt(int, min=1, help="processes for the exact posterior's cells")
+Workers = opt(int | None, min=1, help="processes for the exact posterior's cells (default: all cores)")
+Dask = opt(str | None, help="a Dask scheduler for the exact posterior's cells, tcp://HOST:PORT")
+Resume = opt(bool, "--resume", help="compute only the cells missing from --csv's journal")
 Resolution = opt(float, help="the exact grid's cells, map units (memory grows as its inverse square)")
 Seed = opt(int | None, callback=seed_option, help="the filters' seed [default: the scenario's]")
 Csv = opt(Path | None, "--csv", help="the rows (.csv)")
 PlotFile = opt(Path | None, "--plot", help="the figure (.png; plot extra)")
 Record = opt(Path | None, help="the JSON record [default: beside --csv]")
 Rrd = opt(Path | None, "--rrd", help="a Rerun recording: each filter's cloud beside its path smoother's")
+ChainRrd = opt(Path | None, "--rrd", help="a Rerun recording: the PMMH chain over the exact posterior")
 Force = opt(bool, "--force", help="replace existing output files")
 
 
-def smooth(
-    scenario: Scenario_,
-    filters: ParticleFilters = "sir,apf,rpf",
-    lag: Lag = 10,
-    resolution: Resolution = 0.05,
-    seed: Seed = None,
-    csv_path: Csv = None,
-    plot: PlotFile = None,
-    record: Record = None,
-    rrd: Rrd = None,
-    force: Force = False,
-) -> None:
+@with_option_flags()
+def smooth(scenario: Scenario_, filters: ParticleFilters = "sir,apf,rpf", lag: Lag = 10,
+           resolution: Resolution = 0.05, seed: Seed = None, csv_path: Csv = None, plot: PlotFile = None,
+           record: Record = None, rrd: Rrd = None, force: Force = False, option: OptionFlag = None,
+           named: dict | None = None) -> None:  # fmt: skip
     """Where the robot was at each step given every measurement: the exact smoother on the grid, and each
     filter's own estimate, fixed-lag and path smoothers scored against it step by step (the distance of
     their means to the exact smoothed mean, the total variation over the maze's cells, the distinct
-    ancestors each rests on: the path degeneracy)."""
-    path, stored, outputs = opened(scenario, csv_path, plot, record, force, rrd)
+    ancestors each rests on: the path degeneracy). Each filter takes the options it declares."""
+    path, stored, outputs, (world, sigma, delta) = opened(scenario, csv_path, plot, record, force, rrd)
     names = [filter_entry(name).short_name for name in parse_filters(filters)]
+    given = given_options(named or {}, option, names)
+    per_filter = options_per_filter(names, given, given.spelled)  # an option none of them takes: one line
+    options = {name: per_filter[filter_entry(name).name] for name in names}
     seed = seed if seed is not None else stored.seed if stored.seed is not None else 0
-    world, sigma, delta = world_of(stored, path)
     parameters = {"scenario": str(path), "filters": names, "lag": lag, "resolution": resolution, "seed": seed,
-                  "sigma": sigma, "delta": delta}  # fmt: skip
+                  "sigma": sigma, "delta": delta, "options": options}  # fmt: skip
     recorder = Recorder("smooth", command_line(), parameters, scenario_sha256=file_sha256(path))
     typer.echo(f"{path.name}: {len(stored.robot_compass_angles)} steps, {len(stored.init_particles_pos)} particles, "
                f"sigma {sigma:g}, delta {delta:g}, lag {lag}, grid {resolution:g}, seed {seed}")  # fmt: skip
     scores = score_smoothers(world, stored.robot(), sigma, delta, names, lag=lag, seed=seed, grid_options={
-        "resolution": resolution}, initial_particles=stored.init_particles_pos, clouds=rrd is not None)  # fmt: skip
+        "resolution": resolution}, initial_particles=stored.init_particles_pos, clouds=rrd is not None,
+        options=options)  # fmt: skip
     summary = smoothing_summary(scores)
     columns = list(summary[-1])
     typer.echo(format_table(columns, [[shown(row.get(k)) for k in columns] for row in summary]))
@@ -86,7 +90,7 @@ def smooth(
         typer.echo(f"the figure written to {plot}")
     if rrd is not None:
         smoothing_recording(scores, world, rrd, force)
-    finish(recorder, outputs["record"], force, summary=summary)
+    finish(recorder, outputs["record"], summary=summary)
 
 
 def smoothing_recording(scores: SmootherScores, world: Any, path: Path, force: bool) -> None:
@@ -157,49 +161,137 @@ def smoothing_figure(scores: SmootherScores, title: str) -> Any:
     return figure
 
 
-def learn(
-    scenario: Scenario_,
-    sigma_range: SigmaRange = SIGMA_RANGE,
-    delta_range: DeltaRange = DELTA_RANGE,
-    cells: Cells = 12,
-    resolution: Resolution = 0.1,
-    pmmh_iterations: Iterations = 0,
-    filter_name: PmmhFilter = "sir",
-    particles: Particles = 200,
-    seed: opt(int, callback=seed_option, help="PMMH's seed") = 1,
-    workers: Workers = 1,
-    csv_path: Csv = None,
-    plot: PlotFile = None,
-    record: Record = None,
-    force: Force = False,
-) -> None:
+def learn(scenario: Scenario_, sigma_range: SigmaRange = SIGMA_RANGE, delta_range: DeltaRange = DELTA_RANGE,
+          cells: Cells = 12, resolution: Resolution = 0.1, pmmh_iterations: Iterations = 0,
+          filter_name: PmmhFilter = "sir", particles: Particles = 200,
+          seed: opt(int, callback=seed_option, help="PMMH's seed") = 1, workers: Workers = None, dask: Dask = None,
+          csv_path: Csv = None, plot: PlotFile = None, record: Record = None, rrd: ChainRrd = None,
+          resume: Resume = False, force: Force = False) -> None:  # fmt: skip
     """Which sigma and delta explain the scenario's measurements: the exact posterior on a grid of cells
-    under the uniform prior on the ranges (the grid filter's exact evidence at each), and a PMMH chain
-    (--pmmh) with a particle filter's evidence beside it."""
-    path, stored, outputs = opened(scenario, csv_path, plot, record, force)
-    try:
-        grid = ParameterGrid(parsed_range(sigma_range, "--sigma-range"), parsed_range(delta_range, "--delta-range"),
-                             (cells, cells))  # fmt: skip
-    except ValueError as error:
-        raise UserError(f"{error} (--sigma-range, --delta-range)") from None
+    under the uniform prior on the ranges (the grid filter's exact evidence at each, spread over --workers
+    processes or a --dask cluster, each finished cell kept in a journal beside --csv that --resume goes on
+    from), and a PMMH chain (--pmmh) with a particle filter's evidence beside it."""
+    path, stored, outputs, (world, _, _) = opened(scenario, csv_path, plot, record, force or resume, rrd)
+    grid = parameter_grid(sigma_range, delta_range, cells)
     if pmmh_iterations:
         evidence_filter(filter_name)  # a filter PMMH cannot use: one line before the exact posterior's runs
-    world, _, _ = world_of(stored, path)
     parameters = {"scenario": str(path), "sigma_range": grid.sigma_range, "delta_range": grid.delta_range,
                   "cells": cells, "resolution": resolution, "pmmh": pmmh_iterations, "filter": filter_name,
                   "particles": particles, "seed": seed}  # fmt: skip
     recorder = Recorder("learn", command_line(), parameters, scenario_sha256=file_sha256(path))
     walk = stored.robot_compass_angles, stored.robot_measurements
-    typer.echo(f"{path.name}: {len(walk[0])} steps; the exact posterior on {cells} x {cells} cells ({workers} "
-               f"process(es))")  # fmt: skip
-    with ProcessPoolExecutor(workers) if workers > 1 else _Serial() as pool:
-        posterior = exact_parameter_posterior(world, *walk, grid, mapper=pool.map, resolution=resolution)
+    cells_map = functools.partial(run_cells, cells_journal(csv_path, resume, force, recorder), workers, dask)
+    posterior = exact_parameter_posterior(world, *walk, grid, mapper=cells_map, resolution=resolution)
+    chain = pmmh(world, *walk, pmmh_iterations, filter_name=filter_name, particle_count=particles, prior=grid,
+                 burn_in=pmmh_iterations // 10, seed=seed) if pmmh_iterations else None  # fmt: skip
+    summary = learning_summary(posterior, chain, filter_name)
+    if outputs["csv"] is not None:
+        write_text_atomically(outputs["csv"], posterior_csv(posterior), replace=force or resume)
+        typer.echo(f"one row per (sigma, delta) cell written to {outputs['csv']}")
+    if plot is not None:
+        save_figure(posterior_figure(posterior, chain, path.name), plot, replace=force or resume)
+        typer.echo(f"the figure written to {plot}")
+    if rrd is not None:
+        chain_recording(posterior, chain, world, rrd, force or resume)
+    finish(recorder, outputs["record"], summary=summary)
+
+
+def cells_journal(csv_path: Path | None, resume: bool, force: bool, recorder: Recorder) -> tuple[Journal, dict] | None:
+    """The journal of the exact posterior's cells beside --csv (a study's: mazelab.experiments.journal, which
+    refuses one another command writes, or one an earlier left without --resume or --force), and the cells
+    an earlier session finished (--resume: what they depend on must be this command's, else one line)."""
+    file = journal_path(csv_path) if csv_path is not None else None
+    if resume and (file is None or not file.exists()):
+        raise UserError(f"--resume: no journal of the cells beside {csv_path} to go on from; leave out --resume")
+    if file is None:
+        return None
+    parameters = recorder.data["parameters"]  # what the cells depend on, which --resume compares
+    compared = {"scenario_sha256": recorder.data["scenario_sha256"],
+                **{k: parameters[k] for k in ("sigma_range", "delta_range", "cells", "resolution")}}  # fmt: skip
+    done: dict[int, float] = {}
+    if resume:
+        lines = read_journal(file)
+        sessions = [line["session"]["parameters"] for line in lines if "session" in line]
+        changed = differences(sessions[-1], compared) if sessions else ["no session line"]
+        if changed:
+            raise UserError(f"--resume: the command differs from {file} ({changed[0]}); give the same parameters, "
+                            "or --force to start again")  # fmt: skip
+        try:
+            done = {int(line["cell"]): float(line["log_evidence"]) for line in lines if "cell" in line}
+        except (KeyError, TypeError, ValueError) as error:
+            raise UserError(f"--resume: {file} holds a line that is not a cell's ({error!r})") from None
+        typer.echo(f"resuming: {len(done)} cell(s) kept from {file}")
+    journal = Journal(file, adopt=resume, replace=force)
+    journal.write({"session": {"command": recorder.data["command"], "started": recorder.data["started"],
+                               "parameters": compared}})  # fmt: skip
+    return journal, done
+
+
+def run_cells(journal: tuple[Journal, dict] | None, workers: int | None, dask: str | None, cell: Any,
+              sigmas: list[float], deltas: list[float]) -> np.ndarray:  # fmt: skip
+    """exact_parameter_posterior's map: `cell(sigma, delta)` of every cell (S D,) on the study's executor
+    (mazelab.experiments.executor: --workers processes or the --dask cluster) unless the journal holds it;
+    each one finished is appended to the journal. A stop keeps them there and says how to go on (exit 130,
+    143 or 129); a lost cluster or a cell that failed: one line, exit 1."""
+    (log, done), workers = journal or (None, {}), workers or executor.default_workers()
+    log_evidence = np.array([done.get(i, np.nan) for i in range(len(sigmas))])
+    units = [((i, sigmas[i], deltas[i]),) for i in range(len(sigmas)) if i not in done]
+    failed: list[str] = []
+
+    def collect(results: list) -> None:
+        for result in results:
+            if isinstance(result, RunFailure):
+                failed.append(f"the cell sigma {result.task[1]:g}, delta {result.task[2]:g}: {result.message}")
+                continue
+            log_evidence[result[0]] = result[1]
+            if log is not None:
+                log.write({"cell": result[0], "log_evidence": result[1]})
+
+    client = executor.connect(dask) if dask is not None else None  # a bad address: one line, before any cell
+    where = f"the Dask cluster at {dask}" if client is not None else f"{min(workers, max(len(units), 1))} process(es)"
+    typer.echo(f"the exact posterior's cells: {len(units)} of {len(sigmas)} to go on {where}")
+    try:
+        if client is not None:
+            executor.check_workers(client, "numpy")  # workers of other versions: one line
+        with executor.progress_bar(len(units), True, "cells") as advance, executor.stop_signals():
+            work = functools.partial(cell_unit, cell)
+            executor.Units(units, work, workers, client, executor.DASK_TIMEOUT).run(collect, advance)
+    except (KeyboardInterrupt, executor.StudyLost) as stop:
+        cells_stopped(stop, log, int((~np.isnan(log_evidence)).sum()), len(sigmas))
+    finally:
+        if client is not None:
+            executor.close_client(client)
+        if log is not None:
+            log.end_session("finished" if not failed else "failed")
+    if failed:
+        typer.echo(f"error: {failed[0]} ({len(failed)} cell(s) failed)", err=True)
+        raise typer.Exit(1)
+    return log_evidence
+
+
+def cell_unit(cell: Any, unit: tuple[tuple[int, float, float], ...]) -> list[tuple[int, float]]:
+    """A unit of the executor: (index, log evidence) of each of its cells (index, sigma, delta)."""
+    return [(index, cell(sigma, delta)) for index, sigma, delta in unit]
+
+
+def cells_stopped(stop: BaseException, journal: Journal | None, finished: int, total: int) -> None:
+    """A stop (Ctrl-C, SIGTERM, SIGHUP) or a lost cluster: one line saying how many cells finished and where
+    they are kept, the command that goes on with them; exits."""
+    lost = isinstance(stop, executor.StudyLost)
+    if journal is not None:
+        journal.end_session("lost" if lost else "interrupted")
+    kept = f"; {journal.kept()}; go on with: {resume_command()}" if journal is not None else ""
+    typer.echo(f"error: {stop}; {finished} of {total} cells finished{kept}" if lost else
+               f"interrupted after {finished} of {total} cells{kept}", err=True)  # fmt: skip
+    raise typer.Exit(1 if lost else 128 + getattr(stop, "signum", signal.SIGINT))  # 130 Ctrl-C, 143 SIGTERM
+
+
+def learning_summary(posterior: ParameterPosterior, chain: Any, filter_name: str) -> dict[str, Any]:
+    """Print the exact posterior's (and the chain's) mean and 90% interval of sigma and delta, the chain's
+    acceptance rate, effective sample size and Monte Carlo error; return them for the record."""
     rows = [["exact", *posterior_cells(posterior.mean(), posterior.interval())]]
     summary: dict[str, Any] = {"exact": {"mean": posterior.mean(), "interval_90": posterior.interval()}}
-    chain = None
-    if pmmh_iterations:
-        chain = pmmh(world, *walk, pmmh_iterations, filter_name=filter_name, particle_count=particles, prior=grid,
-                     burn_in=pmmh_iterations // 10, seed=seed)  # fmt: skip
+    if chain is not None:
         rows.append([f"PMMH ({filter_entry(filter_name).label})", *posterior_cells(chain.mean(), chain.interval())])
         summary["pmmh"] = {"mean": chain.mean(), "mean_error": chain.mean_error(), "interval_90": chain.interval(),
                            "acceptance_rate": chain.acceptance_rate, "ess": chain.ess()}  # fmt: skip
@@ -208,33 +300,49 @@ def learn(
         typer.echo(f"PMMH: acceptance rate {chain.acceptance_rate:.2f}, effective sample size "
                    f"{chain.ess()[0]:.0f} (sigma), {chain.ess()[1]:.0f} (delta), mean's Monte Carlo error "
                    f"{chain.mean_error()[0]:.3f}, {chain.mean_error()[1]:.3f}")  # fmt: skip
-    if outputs["csv"] is not None:
-        write_text_atomically(outputs["csv"], posterior_csv(posterior), replace=force)
-        typer.echo(f"one row per (sigma, delta) cell written to {outputs['csv']}")
-    if plot is not None:
-        save_figure(posterior_figure(posterior, chain, path.name), plot, replace=force)
-        typer.echo(f"the figure written to {plot}")
-    finish(recorder, outputs["record"], force, summary=summary)
+    return summary
 
 
-class _Serial:
-    """The built-in map as an executor of one process (no pool to start)."""
+def parameter_grid(sigma_range: str, delta_range: str, cells: int) -> ParameterGrid:
+    """The ParameterGrid of --sigma-range, --delta-range ('0.2,0.8': LOW,HIGH) and --cells, or one line."""
+    ranges = []
+    for text, option in ((sigma_range, "--sigma-range"), (delta_range, "--delta-range")):
+        values = parse_list(text, float, option)
+        if values is None or len(values) != 2:
+            raise UserError(f"{option} takes LOW,HIGH (two numbers), got {text!r}")
+        ranges.append(tuple(values))
+    try:
+        return ParameterGrid(*ranges, (cells, cells))
+    except ValueError as error:
+        raise UserError(f"{error} (--sigma-range, --delta-range)") from None
 
-    map = staticmethod(map)
 
-    def __enter__(self) -> _Serial:
-        return self
+def chain_recording(posterior: ParameterPosterior, chain: Any, world: Any, path: Path, force: bool) -> None:
+    """The exact posterior's cells (a dot at each cell's centre, its area the cell's mass, the largest one
+    filling its cell) and the PMMH chain's state at every iteration over them: a Rerun recording written
+    whole to `path`, the chain's states so far in sight at each iteration."""
+    import rerun as rr
+    import rerun.blueprint as rrb
 
-    def __exit__(self, *_: Any) -> None:
-        return None
+    from mazelab.viz.recording import Recording
+    from mazelab.viz.style import ROBOT_COLOR, lab_blueprint
 
-
-def parsed_range(text: str, option: str) -> tuple[float, float]:
-    """'0.2,0.8' -> (0.2, 0.8), or one line naming the option."""
-    values = parse_list(text, float, option)
-    if values is None or len(values) != 2:
-        raise UserError(f"{option} takes LOW,HIGH (two numbers), got {text!r}")
-    return values[0], values[1]
+    everything = rrb.VisibleTimeRange("iteration", start=rrb.TimeRangeBoundary.infinite(),
+                                      end=rrb.TimeRangeBoundary.cursor_relative())  # fmt: skip
+    view = rrb.Spatial2DView(name="p(sigma, delta | z_1:K)", origin="/posterior", time_ranges=everything)
+    recording = Recording.open(path, world, lab_blueprint(view), label="learn", replace=force)
+    if recording is None:  # Rerun switched off: a line said so
+        return
+    recording.stream.set_time("iteration", sequence=0)
+    half_width = min(e[1] - e[0] for e in posterior.grid.edges) / 2
+    radii = half_width * np.sqrt(posterior.mass.ravel() / posterior.mass.max())
+    cells = rr.Points2D(np.column_stack(posterior.grid.values()), radii=radii, colors=(120, 120, 120))
+    recording.stream.log("/posterior/cells", cells)
+    for i, state in enumerate(chain.samples if chain is not None else (), start=1):
+        recording.stream.set_time("iteration", sequence=i)
+        dot = rr.Points2D([state], radii=half_width / 8, colors=ROBOT_COLOR if i > chain.burn_in else (255, 160, 0))
+        recording.stream.log("/posterior/chain", dot)
+    recording.close()
 
 
 def posterior_cells(mean: np.ndarray, interval: np.ndarray) -> list[str]:
@@ -265,13 +373,16 @@ def posterior_figure(posterior: Any, chain: Any, title: str) -> Any:
 
 
 def opened(scenario: Path, csv_path: Path | None, plot: Path | None, record: Path | None, force: bool,
-           rrd: Path | None = None) -> tuple[Path, Scenario, dict[str, Path | None]]:  # fmt: skip
-    """The scenario (a file or a shipped name) with its measurements, and the outputs checked before any
-    work: distinct files, none replaced without --force, the record beside --csv by default."""
+           rrd: Path | None) -> tuple[Path, Scenario, dict[str, Path | None], tuple[Any, float, float]]:  # fmt: skip
+    """The scenario (a file or a shipped name) with its measurements, the outputs checked before any work
+    (distinct files, none replaced without --force, the record beside --csv by default), and the scenario's
+    maze (the shipped one it fits when it stores none), sigma and delta."""
+    from mazelab.cli.replay import replay_setup
     from mazelab.scenario import find_scenario, load_scenario  # imported by the commands that read one (a study never)
 
     record_file = record if record is not None else record_path(csv_path) if csv_path is not None else None
-    check_one_file_each([("--csv", csv_path), ("--plot", plot), ("the record", record_file), ("--rrd", rrd)])
+    named = [("--csv", csv_path), ("--csv's journal", journal_path(csv_path) if csv_path else None), ("--plot", plot)]
+    check_one_file_each([*named, ("the record", record_file), ("--rrd", rrd)])  # learn's journal: smooth's too
     for output in (csv_path, plot, record_file, rrd):
         if output is not None:
             check_output_path(output, force)
@@ -279,18 +390,11 @@ def opened(scenario: Path, csv_path: Path | None, plot: Path | None, record: Pat
     stored = load_scenario(path)
     if stored.robot_measurements is None:
         raise UserError(f"{path} stores no measurements (robot_measurements): save a run's scenario with them")
-    return path, stored, {"csv": csv_path, "record": record_file}
-
-
-def world_of(stored: Scenario, path: Path) -> tuple[Any, float, float]:
-    """The scenario's maze, sigma and delta (the shipped maze it fits when it stores none)."""
-    from mazelab.cli.replay import replay_setup
-
     setup = replay_setup(stored, None, None, None, 0)
-    return setup.world, setup.sigma, setup.delta
+    return path, stored, {"csv": csv_path, "record": record_file}, (setup.world, setup.sigma, setup.delta)
 
 
-def finish(recorder: Recorder, record_file: Path | None, force: bool, **extra: Any) -> None:
+def finish(recorder: Recorder, record_file: Path | None, **extra: Any) -> None:
     """Close the record and write it (when there is a file for it)."""
     if record_file is not None:
         recorder.finish("finished", **extra)

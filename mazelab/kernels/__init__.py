@@ -13,26 +13,24 @@ chunks spread over numba's threads (`parallel=True`, its `prange`). The chunks, 
 everything a result depends on: the random draws (a stream per run and call, numbered by particle:
 vector_math.random_bits) and the order of every sum (partial sums per chunk, added in chunk order),
 so a seed gives the same run bit for bit on any number of threads, and R runs together are R single
-runs. numba's threads come from its "workqueue" layer (it works after a fork, and its idle threads
-sleep rather than spin on a shared machine); it takes one launch at a time, so a kernel called while
-another thread's runs on them runs in order instead (the same values). A kernel's arrays never
-overlap (each output is a new array), and the compiler is told so (LLVM's noalias): only then does it
-vectorise the loops that gather (the lookup table, the ancestors).
+runs. numba's threads come from Intel's TBB where it is installed, else numba's workqueue
+(`threading_layer`); a kernel called while another thread's runs on them runs in order instead (the
+same values). A kernel's arrays never overlap (each output is a new array), and the compiler is told
+so (`_NoAliasCompiler`): only then does it vectorise the loops that gather.
 
 Importing this package imports numba, and a process's first kernel call sets numba's compiler up even
 when the kernel comes from the cache (about 0.35 s of CPU); a command whose work does not pay that back
 runs on numpy (mazelab.backend.backend_for_work). Each kernel is compiled on its first call and cached
-on disk (numba's cache: `__pycache__` beside these files, else NUMBA_CACHE_DIR, else the user's cache
-folder); where none can be written, in memory in each process, with one warning. A damaged cache file
-is compiled over; a cache folder that cannot take the file (a full disk, a read-only mount) leaves the
-kernel compiled in memory, with one warning naming the folder and the way out.
+on disk where a cache folder can be written (`_compiled`, `_MendingCache`).
 """
 
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import hashlib
 import os
+import sys
 import threading
 import warnings
 from collections.abc import Callable
@@ -44,8 +42,28 @@ from numba.core.caching import FunctionCache, IndexDataCacheFile
 from numba.core.compiler import Compiler
 
 CHUNK = 4096  # particles a chunk: what a thread takes at a time, and what fixes the draws' and the sums' order
+
+
+def threading_layer() -> str:
+    """numba's threading layer for the kernels: "tbb" where Intel's TBB library loads, else "workqueue".
+
+    TBB's threads take the chunks of a call as they come (the calling thread too), wake within
+    microseconds and leave a paused thread at most the chunk it holds; numba's workqueue wakes its sleeping
+    threads for every call (some 130 us on a virtual machine: more than a pass over 10^5 particles
+    saves) and waits for the slowest. Both work after a fork. The `tbb` package (the fast extra) puts
+    the library in the environment's lib folder, which the loader does not search: it is loaded here by
+    its path first, so that numba finds it."""
+    for path in (Path(sys.prefix) / "lib" / "libtbb.so.12", "libtbb.so.12"):
+        with contextlib.suppress(OSError, AttributeError):
+            library = ctypes.CDLL(str(path), mode=ctypes.RTLD_GLOBAL)
+            if library.TBB_runtime_interface_version() >= 12060:  # numba takes 2021.6 and later
+                return "tbb"
+    return "workqueue"
+
+
+_LAYER = threading_layer()  # TBB's library loaded where it is installed, for a user's choice of "tbb" too
 if "NUMBA_THREADING_LAYER" not in os.environ:  # the user's choice stands
-    numba.config.THREADING_LAYER = "workqueue"
+    numba.config.THREADING_LAYER = _LAYER
 
 _warned: set[str] = set()
 
@@ -165,6 +183,7 @@ class Kernel:
         if threads > 1 and _LAUNCH.acquire(blocking=False):
             try:
                 numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+                numba.set_parallel_chunksize(1)  # each chunk a task of its own: a free thread takes the next
                 return self.parallel(*args)
             finally:
                 _LAUNCH.release()

@@ -4,10 +4,8 @@ builds, keeps W in float32 and the reads its normalisation makes in the same pas
 posterior mean and the weight within the green circle around it). Anything the kernels do not cover
 (float64 points such as recovery's injected draws, the multimodal kernel) goes to the numpy operations.
 
-A call of THREADED_FROM particles or more (R x N: all runs together) runs on the filter's `threads`
-(mazelab.backend.thread_count), a smaller one on the calling thread, where starting the threads would
-cost more than they save: the same values either way (mazelab.kernels). The move's and the jitter's
-random draws are the kernels' own, from one 64-bit key a run and call drawn from the run's Generator.
+A call runs on the filter's threads from THREADED_FROM particles on (`on_threads`); the move's and the
+jitter's draws are the kernels' own, from one 64-bit key a run and call drawn from its Generator.
 """
 
 from __future__ import annotations
@@ -20,14 +18,14 @@ import numpy as np
 
 from mazelab.constants import CONFIDENCE_RADIUS, PARTICLE_DTYPE
 from mazelab.kernels import CHUNK, model, resampling, weights
-from mazelab.numpy_ops import NumpyKernels, flat_ancestors
+from mazelab.numpy_ops import NumpyKernels
 from mazelab.regularisation import GaussianKernel
 from mazelab.smc import new_particles, particles_array
 from mazelab.weights import Weights, log_sum_exp, read_only
 
-# particles in a call from which it runs on the threads: on an idle 2-core machine 2 threads were slower
-# than 1 up to 250,000 particles and faster from 500,000 (benchmarks/threads.py, docs/speed.md)
-THREADED_FROM = 1 << 19
+# particles in a call from which it runs on the threads (benchmarks/threads.py, docs/speed.md): a pass over
+# fewer takes under 0.1 ms, where a second thread's start (TBB: microseconds) and the Python around it count
+THREADED_FROM = 1 << 16
 QUADS = 4  # the candidates of a lookup cell the likelihood's vectorised loop reads (a few cells have more)
 
 
@@ -177,7 +175,7 @@ class CompiledKernels(NumpyKernels):
             return super().move(x, A, rngs, angles, delta, speed)
         shape = x.shape[:2] if A is None else A.shape
         out, headings = new_particles(*shape, PARTICLE_DTYPE), np.empty(shape, dtype=PARTICLE_DTYPE)
-        sources = _NO_ANCESTORS if A is None else unsigned(flat_ancestors(A, x.shape[1]))
+        sources = np.empty((len(x), 0), np.uint64) if A is None else unsigned(A)
         moving = np.array([rng is not None for rng in rngs])
         model.move(
             on_threads(self.threads, headings.size),
@@ -206,13 +204,16 @@ class CompiledKernels(NumpyKernels):
         model.log_likelihood(on_threads(self.threads, out.size), *columns(x), z, *terms, out, left)
         return out
 
-    def systematic(self, W: np.ndarray, rng: np.random.Generator, count: int | None = None) -> np.ndarray:
-        """Systematic resampling of W (N,) into `count` (default N) int64 ancestors in its counting form,
-        by blocks (mazelab.kernels.resampling): mazelab.resampling.systematic_resample's ancestors for
-        the same cumulative weights and offset u = rng.random()."""
-        out = np.empty(len(W) if count is None else count, dtype=np.int64)
-        resampling.systematic(on_threads(self.threads, len(W)), W, rng.random(), out)
-        return out
+    def systematic(self, W: np.ndarray, rng: Any, count: int | None = None) -> np.ndarray:
+        """Systematic resampling of W (N,), or of D runs' (D, N) with a Generator each (a sequence), into
+        `count` (default N) int64 ancestors a run, in its counting form by blocks, all runs in one call
+        (mazelab.kernels.resampling): mazelab.resampling.systematic_resample's ancestors for the same
+        cumulative weights and offsets u = rng.random() (a run's as alone)."""
+        rows, rngs = (W[None], [rng]) if W.ndim == 1 else (W, rng)
+        out = np.empty((len(rows), rows.shape[1] if count is None else count), dtype=np.int64)
+        offsets = np.array([generator.random() for generator in rngs])
+        resampling.systematic(on_threads(self.threads, rows.size), rows, offsets, out)
+        return out[0] if W.ndim == 1 else out
 
     def weighted_mean(self, W: Weights, x: np.ndarray) -> np.ndarray:
         """The posterior mean per run: the normalisation's read for these particles, else computed."""
@@ -264,6 +265,3 @@ class CompiledKernels(NumpyKernels):
         out = particles_array(x, x.dtype)
         out[rows] = moved
         return out
-
-
-_NO_ANCESTORS = np.empty(0, dtype=np.uint64)

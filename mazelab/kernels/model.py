@@ -35,29 +35,35 @@ def move(x, y, ancestors, keys, moving, angles, delta, speed, out_x, out_y, head
     """Equation (1) for R runs in one call, with its draws: th_i = th0_r + Delta (u_i - 1/2), then
     (out_x, out_y)[i] = (x, y)[a_i] + L (cos th_i, sin th_i), and headings[r, m] = th_i (radians).
 
-    x, y (P,) and out_x, out_y (R*M,) are float32 coordinates; `ancestors` (R*M,) uint64 the particle
-    each moves from (empty: particle i moves from particle i); u_m of run r is number m of the stream
-    keys[r] (uint64 (R,): vector_math.random_bits), or 1/2 in a run whose `moving` is False (it draws
-    nothing: it restarts after this step); `angles` (R,) float32 the th0 of each run; `delta` and
-    `speed` (Delta in radians, L in map units) are rounded to float32 here, as numpy's float32
-    arithmetic rounds them. The headings are mazelab.model.headings_from_uniforms' float32 operations;
-    cos and sin are vector_math's, within 0.502 ulp of the exact value (numpy's float32 ones within 1.5)."""
+    x, y (R*N,) and out_x, out_y (R*M,) are float32 coordinates; `ancestors` (R, M) uint64 the particle
+    of its own run each moves from ((R, 0): particle i moves from particle i); u_m of run r is number m
+    of the stream keys[r] (uint64 (R,): vector_math.random_bits), or 1/2 in a run whose `moving` is
+    False (it draws nothing: it restarts after this step); `angles` (R,) float32 the th0 of each run;
+    `delta` and `speed` (Delta in radians, L in map units) are rounded to float32 here, as numpy's
+    float32 arithmetic rounds them. The headings are mazelab.model.headings_from_uniforms' float32
+    operations; cos and sin are vector_math's, within 0.502 ulp of the exact value (numpy's float32
+    ones within 1.5)."""
     delta, speed = F32(delta), F32(speed)
     runs, size = headings.shape
     blocks, jobs = chunks(runs, size)
+    gathered = ancestors.shape[1] > 0
     for job in prange(jobs):
         r, start, stop = chunk_of(job, blocks, size)
         first, last, key, angle, drawn = r * size + start, r * size + stop, keys[r], angles[r], moving[r]
-        sources = ancestors[first:last] if len(ancestors) else ancestors
+        base = np.uint64(r * (len(x) // runs))  # run r's first particle in x
+        sources = ancestors[r, start:stop]  # empty when there are none
         moved_x, moved_y, taken = out_x[first:last], out_y[first:last], headings[r, start:stop]
+        for m in range(stop - start):  # the gather alone: in the loop below it cost a third of the pass
+            source = base + sources[m] if gathered else np.uint64(first + m)
+            moved_x[m] = x[source]
+            moved_y[m] = y[source]
         for m in range(stop - start):  # each loop from 0: numba checks no index of it for wrap-around
             u = uniform32(random_bits(key, np.uint64(start + m))) if drawn else _HALF
             heading = (u - _HALF) * delta + angle
             taken[m] = heading
             cos_h, sin_h = cos_sin(heading)
-            source = sources[m] if len(ancestors) else np.uint64(first + m)
-            moved_x[m] = x[source] + cos_h * speed
-            moved_y[m] = y[source] + sin_h * speed
+            moved_x[m] += cos_h * speed
+            moved_y[m] += sin_h * speed
 
 
 @inline

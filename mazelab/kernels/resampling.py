@@ -45,25 +45,30 @@ def _ancestors_of_block(weights, u, count, base, start, offset, out):  # pragma:
 
 @Kernel
 def systematic(weights, u, out):  # pragma: no cover - compiled
-    """Systematic resampling of one run's normalised weights (N,) with offset u ~ U[0, 1): out[m] is the
-    ancestor of the point (m + u) / M, M = len(out), sorted (mazelab.resampling.systematic_resample's,
-    by counting in blocks)."""
-    size, count = len(weights), len(out)
-    blocks, _ = chunks(1, size)
-    bases, stops = np.empty(blocks + 1), np.empty(blocks + 1, dtype=np.int64)
-    for block in prange(blocks):  # each block's total, in order
-        _, start, stop = chunk_of(block, blocks, size)
-        total, part = 0.0, weights[start:stop]  # float64 whatever the weights' dtype
+    """Systematic resampling of R runs' normalised weights (R, N) with offsets u (R,) ~ U[0, 1): out[r, m]
+    is the ancestor of the point (m + u_r) / M in run r, M = out.shape[1], sorted
+    (mazelab.resampling.systematic_resample's, by counting in blocks; each run's as alone)."""
+    runs, size = weights.shape
+    count = out.shape[1]
+    blocks, jobs = chunks(runs, size)
+    bases, stops = np.empty((runs, blocks + 1)), np.empty((runs, blocks + 1), dtype=np.int64)
+    for job in prange(jobs):  # each block's total, in order
+        r, start, stop = chunk_of(job, blocks, size)
+        total, part = 0.0, weights[r, start:stop]  # float64 whatever the weights' dtype
         for i in range(len(part)):
             total += part[i]
-        bases[block + 1] = total
-    bases[0], stops[0], stops[blocks] = 0.0, 0, count
-    for block in range(1, blocks + 1):  # the blocks' starting sums b_k, and where their points end
-        bases[block] += bases[block - 1]
-        if block < blocks:
-            end = bases[block] * count - u  # the points below b_k: ceil(end), within [the last, M]
-            stops[block] = stops[block - 1] if not end > stops[block - 1] - 1 else min(math.ceil(end), count)
-    for block in prange(blocks):
-        _, start, stop = chunk_of(block, blocks, size)
-        points = out[stops[block] : stops[block + 1]]
-        _ancestors_of_block(weights[start : min(stop, size - 1)], u, count, bases[block], start, stops[block], points)
+        bases[r, job - r * blocks + 1] = total
+    for r in range(runs):  # each run's blocks' starting sums b_k, and where their points end
+        base, stop = bases[r], stops[r]
+        base[0], stop[0], stop[blocks] = 0.0, 0, count
+        for block in range(1, blocks + 1):
+            base[block] += base[block - 1]
+            if block < blocks:
+                end = base[block] * count - u[r]  # the points below b_k: ceil(end), within [the last, M]
+                stop[block] = stop[block - 1] if not end > stop[block - 1] - 1 else min(math.ceil(end), count)
+    for job in prange(jobs):
+        r, start, stop = chunk_of(job, blocks, size)
+        block = job - r * blocks
+        points = out[r, stops[r, block] : stops[r, block + 1]]
+        _ancestors_of_block(weights[r, start : min(stop, size - 1)], u[r], count, bases[r, block], start,
+                            stops[r, block], points)  # fmt: skip
