@@ -26,7 +26,7 @@ only gathers the names; where each thing's lines are:
     the exact grid Bayes filter (the reference)        mazelab/grid_filter.py, GridBayesFilter.step
     the extended Kalman filter (the baseline)          mazelab/kalman.py, ExtendedKalmanFilter.step
     recovery from kidnapping, KLD-sampling             mazelab/recovery.py, mazelab/resampling.py
-    run_model and simulate                             mazelab/lab.py (run_model), mazelab/simulation.py (one run),
+    run_model and simulate                             mazelab/simulation.py (one run, and run_model over it),
                                                          mazelab/collect.py (the loop that records each step)
     how a seed becomes a run's random draws            mazelab/seeding.py
     saving and loading scenarios                       mazelab/scenario.py
@@ -39,12 +39,11 @@ from mazelab.constants import MAX_STRAIGHT_STEPS, OUTSIDE_PENALTY, ROBOT_SPEED, 
 from mazelab.filters import AuxiliaryParticleFilter, ParticleFilter, RegularizedParticleFilter, SIRParticleFilter
 from mazelab.grid_filter import GridBayesFilter
 from mazelab.kalman import ExtendedKalmanFilter
-from mazelab.lab import run_model, simulate
 from mazelab.recovery import Recovery
 from mazelab.resampling import KLDSampling
 from mazelab.robot import Robot
 from mazelab.scenario import Scenario, ScenarioError, load_scenario, save_scenario
-from mazelab.simulation import RunResult
+from mazelab.simulation import RunResult, run_model, simulate
 
 __all__ = [
     "MAX_STRAIGHT_STEPS",

@@ -18,10 +18,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from mazelab.lab import simulate
-from mazelab.mazes import load_maze
+from mazelab.maze import load_maze
 from mazelab.model import CONFIDENCE_RADIUS, CONFIDENCE_SHARE
 from mazelab.robot import Robot
+from mazelab.simulation import simulate
 
 FILTERS = ["SIRParticleFilter", "AuxiliaryParticleFilter", "RegularizedParticleFilter"]
 

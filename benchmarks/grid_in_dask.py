@@ -45,7 +45,7 @@ def grid_step_costs(maze: str = "paper_5x5", steps: int = 60, seed: int = 3) -> 
     """The grid filter on a seeded walk of `maze`, measured in the calling thread: per step its CPU
     time (ms), wall time (ms) and minor page faults, with the environment variables that matter."""
     from mazelab.grid_filter import GridBayesFilter
-    from mazelab.mazes import find_maze, load_maze
+    from mazelab.maze import find_maze, load_maze
     from mazelab.robot import Robot
     from mazelab.seeding import start_place
 

@@ -21,7 +21,7 @@ import time
 import numpy as np
 
 from mazelab.learning import ParameterGrid, exact_parameter_posterior, pmmh
-from mazelab.mazes import load_maze
+from mazelab.maze import load_maze
 from mazelab.robot import Robot
 
 TRUE_SIGMA, TRUE_DELTA = 0.4, 0.3

@@ -19,7 +19,7 @@ import time
 
 import numpy as np
 
-from mazelab.mazes import load_maze
+from mazelab.maze import load_maze
 from mazelab.scenario import find_scenario, load_scenario
 from mazelab.smoothing import SMOOTHERS, score_smoothers
 

@@ -21,7 +21,7 @@ import numpy as np
 
 from mazelab.bench import BENCH_DELTA, BENCH_SIGMA, record_walk
 from mazelab.grid_filter import GRID_RESOLUTION
-from mazelab.mazes import load_maze
+from mazelab.maze import load_maze
 from mazelab.smoothing import checkpoint_block, smooth
 
 

@@ -184,7 +184,7 @@ def run_model_line(
     """run_model(..., visualize=False) timed end to end against the same seeded run's filter steps
     (simulate records them: 1.00x is no overhead) and the reference step at the same N (unless given,
     seconds per step), in this process: the bench's line."""
-    from mazelab.lab import run_model  # the paper's entry point, as a notebook calls it
+    from mazelab.simulation import run_model  # the paper's entry point, as a notebook calls it
 
     def robot() -> Robot:
         return Robot(BENCH_SIGMA, BENCH_DELTA, world.random_free_place(np.random.default_rng(seed)))

@@ -104,7 +104,7 @@ def record_steps(
     after : callable, optional
         (k, filt) after step k (1-based): the viewer, a progress line.
     at : object with a `number` attribute, optional
-        Set to the step being run (for the error that names it, mazelab.plugins.student_code).
+        Set to the step being run (for the error that names it, mazelab.stops.student_code).
 
     Returns
     -------

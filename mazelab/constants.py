@@ -22,18 +22,3 @@ LOG_UNDERFLOW = math.log(np.finfo(float).tiny)
 # Particle positions and headings are float32 (half the memory traffic of float64; the map is at most
 # a few hundred units, where float32 resolves 1e-5). The robot's own path stays float64 and exact.
 PARTICLE_DTYPE = np.float32
-
-
-__all__ = [
-    "CONFIDENCE_RADIUS",
-    "CONFIDENCE_SHARE",
-    "CONVERGENCE_RADIUS",
-    "DEFAULT_PARTICLE_COUNT",
-    "DEFAULT_STEPS",
-    "LOG_UNDERFLOW",
-    "MAX_STRAIGHT_STEPS",
-    "OUTSIDE_PENALTY",
-    "PARTICLE_DTYPE",
-    "ROBOT_SPEED",
-    "RPF_THRESHOLD",
-]

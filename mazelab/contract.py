@@ -54,7 +54,7 @@ from __future__ import annotations
 
 import math
 import numbers
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -94,9 +94,6 @@ class Gaussian:
 
     mean: np.ndarray
     covariance: np.ndarray
-
-
-Belief = Particles | Density | Gaussian
 
 
 class NullView:
@@ -260,81 +257,7 @@ def _shown(value: Any) -> str:
     return text if len(text) <= 60 else text[:57] + "..."
 
 
-def options_for(
-    filter_classes: Sequence[type], given: Mapping[str, Any], *, spelled: Mapping[str, str] | None = None
-) -> dict[str, dict[str, Any]]:
-    """Per filter (by `name`), the given options (None: not given) that it declares; several filters
-    share the options given, each taking its own.
-
-    Parameters
-    ----------
-    filter_classes : sequence of type
-    given : mapping
-        Option name -> value, None for an option not given.
-    spelled : mapping, optional
-        Option name -> how the user wrote it, for the message.
-
-    Returns
-    -------
-    dict
-        Filter name -> {option: value} of the options it declares.
-
-    Raises
-    ------
-    ValueError
-        One line for an option that none of them declares: the option as spelled, the filters and what
-        they take.
-    """
-    spelled = spelled or {}
-    chosen = {option: value for option, value in given.items() if value is not None}
-    for option in chosen:
-        if not any(takes(cls, option) for cls in filter_classes):
-            raise ValueError(not_taken(filter_classes, spelled.get(option, option)))
-    return {cls.name: {o: v for o, v in chosen.items() if takes(cls, o)} for cls in filter_classes}
-
-
-def not_taken(filter_classes: Sequence[type], spelled: str) -> str:
-    """The line for an option that none of the filters declares: 'GridBayesFilter does not take
-    --recovery (it takes: resolution, margin, ...)', each filter's options named for several.
-
-    Parameters
-    ----------
-    filter_classes : sequence of type
-    spelled : str
-        The option as the user wrote it.
-
-    Returns
-    -------
-    str
-    """
-
-    def declared(cls: type) -> str:
-        return ", ".join(o.name for o in options_of(cls).settable()) or "no options"
-
-    if len(filter_classes) == 1:
-        return f"{filter_classes[0].name} does not take {spelled} (it takes: {declared(filter_classes[0])})"
-    names = " and ".join(cls.name for cls in filter_classes)
-    each = "; ".join(f"{cls.name}: {declared(cls)}" for cls in filter_classes)
-    return f"{names} do not take {spelled} ({each})"
-
-
-def takes(filter_class: type, option: str) -> bool:
-    """Whether `filter_class` declares `option`.
-
-    Parameters
-    ----------
-    filter_class : type
-    option : str
-
-    Returns
-    -------
-    bool
-    """
-    return option in options_of(filter_class)
-
-
 __all__ = [
-    "Belief",
     "ContractError",
     "Density",
     "Gaussian",
@@ -343,7 +266,4 @@ __all__ = [
     "check_filter",
     "check_step_values",
     "missing_parts",
-    "not_taken",
-    "options_for",
-    "takes",
 ]

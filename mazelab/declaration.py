@@ -18,7 +18,7 @@ from __future__ import annotations
 import ast
 import dataclasses
 import math
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -110,22 +110,9 @@ def show_value(value: Any) -> str:
     return str(value)
 
 
-def parse_literal(text: str) -> Any:
-    """Command-line text as the value it spells: a number, true/false, none, or the word itself.
-
-    Parameters
-    ----------
-    text : str
-
-    Returns
-    -------
-    int, float, bool, None or str
-
-    Raises
-    ------
-    ValueError
-        For a number that is not finite (1e999).
-    """
+def _parse_literal(text: str) -> Any:
+    """Command-line text as the value it spells: a number, true/false, none, or the word itself; a
+    number that is not finite (1e999) is a ValueError."""
     stripped = text.strip()
     lowered = stripped.lower()
     if lowered in ("true", "false"):
@@ -198,7 +185,7 @@ def _parse_like(default: Any) -> Parse:
         return _parse_whole
     if isinstance(default, float):
         return _parse_number
-    return parse_literal
+    return _parse_literal
 
 
 # -- checks: value -> the value the filter uses, or a ValueError of one line -------------------------
@@ -490,8 +477,12 @@ class Options(Mapping[str, Option]):
         """Refuse the first option of `given` that is not declared, naming what `owner` takes."""
         for name in given:
             if name not in self._by_name:
-                takes = ", ".join(o.name for o in self.settable()) or "no options"
-                raise ValueError(f"{owner} does not take the option {name} (it takes: {takes})")
+                raise ValueError(f"{owner} does not take the option {name} (it takes: {_taken(self)})")
+
+
+def _taken(options: Options) -> str:
+    """The options a user sets, named for the messages: "resolution, margin", or "no options"."""
+    return ", ".join(o.name for o in options.settable()) or "no options"
 
 
 def scoped(key: str) -> tuple[str | None, str]:
@@ -558,15 +549,71 @@ def _declared_by(name: str, value: Any, inherited: Options) -> Option:
     return Option(name, value, "(declared by its default)")
 
 
+def options_for(
+    filter_classes: Sequence[type], given: Mapping[str, Any], *, spelled: Mapping[str, str] | None = None
+) -> dict[str, dict[str, Any]]:
+    """Per filter (by `name`), the given options (None: not given) that it declares; several filters
+    share the options given, each taking its own.
+
+    Parameters
+    ----------
+    filter_classes : sequence of type
+    given : mapping
+        Option name -> value, None for an option not given.
+    spelled : mapping, optional
+        Option name -> how the user wrote it, for the message.
+
+    Returns
+    -------
+    dict
+        Filter name -> {option: value} of the options it declares.
+
+    Raises
+    ------
+    ValueError
+        One line for an option that none of them declares: the option as spelled, the filters and what
+        they take.
+    """
+    spelled = spelled or {}
+    chosen = {option: value for option, value in given.items() if value is not None}
+    for option in chosen:
+        if not any(option in options_of(cls) for cls in filter_classes):
+            raise ValueError(not_taken(filter_classes, spelled.get(option, option)))
+    return {cls.name: {o: v for o, v in chosen.items() if o in options_of(cls)} for cls in filter_classes}
+
+
+def not_taken(filter_classes: Sequence[type], spelled: str) -> str:
+    """The line for an option that none of the filters declares: 'GridBayesFilter does not take
+    --recovery (it takes: resolution, margin, ...)', each filter's options named for several.
+
+    Parameters
+    ----------
+    filter_classes : sequence of type
+    spelled : str
+        The option as the user wrote it.
+
+    Returns
+    -------
+    str
+    """
+
+    if len(filter_classes) == 1:
+        return f"{filter_classes[0].name} does not take {spelled} (it takes: {_taken(options_of(filter_classes[0]))})"
+    names = " and ".join(cls.name for cls in filter_classes)
+    each = "; ".join(f"{cls.name}: {_taken(options_of(cls))}" for cls in filter_classes)
+    return f"{names} do not take {spelled} ({each})"
+
+
 __all__ = [
     "Option",
     "Options",
     "choice",
+    "not_taken",
     "number_in",
     "object_from_json",
+    "options_for",
     "options_of",
     "parse_flag",
-    "parse_literal",
     "scoped",
     "show_value",
     "to_plain_json",

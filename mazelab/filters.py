@@ -25,7 +25,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from mazelab.backend import kernels_for
-from mazelab.checks import check_bandwidth_within, check_sigma_within
+from mazelab.checks import check_sigma_within
 from mazelab.constants import CONFIDENCE_RADIUS, CONFIDENCE_SHARE, PARTICLE_DTYPE, RPF_THRESHOLD
 from mazelab.contract import Particles
 from mazelab.declaration import Option, Options, number_in, options_of
@@ -383,7 +383,7 @@ class RegularizedParticleFilter(ParticleFilter):
 
     def __init__(self, *args: Any, **options: Any):
         super().__init__(*args, **options)
-        self.bandwidth_rule = check_bandwidth_within(self.settings["bandwidth"], self.world.width, self.world.height)
+        self.bandwidth_rule = self.settings["bandwidth"]  # checked by its declaration (check_bandwidth)
 
     @property
     def bandwidth(self) -> float:

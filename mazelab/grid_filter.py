@@ -9,10 +9,9 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from mazelab.checks import MAP_MARGIN, check_grid_resolution, check_sigma_within
+from mazelab.checks import MAP_MARGIN, MAX_GRID_RESOLUTION, check_memory, check_sigma_within
 from mazelab.contract import Density
 from mazelab.declaration import Option, Options, number_in
-from mazelab.limits import check_memory
 from mazelab.maze import Maze, check_world
 from mazelab.model import (
     CONFIDENCE_RADIUS,
@@ -38,7 +37,7 @@ class GridBayesFilter:
     name: ClassVar[str] = "GridBayesFilter"
     options: ClassVar[Options] = Options(
         Option("resolution", GRID_RESOLUTION, "the cells' side, map units (memory grows as its inverse square)",
-               check=check_grid_resolution),
+               check=number_in("resolution", 0.0, MAX_GRID_RESOLUTION, what=" map units (at most a maze cell)")),
         Option("margin", 1.0, "the grid's margin around the map, map units (mass leaving it is dropped)",
                check=number_in("margin", 0.0, MAP_MARGIN, low_open=False, what=" map units")),
         OUTSIDE_PENALTY_OPTION,

@@ -24,11 +24,8 @@ def command_prefix(argv0: str | None = None, environ: Mapping[str, str] | None =
     one on the PATH, else `python -m mazelab` with this interpreter."""
     argv0 = sys.argv[0] if argv0 is None else argv0
     environ = os.environ if environ is None else environ
-    cwd = Path.cwd() if cwd is None else cwd
-    uv = "UV" in environ
-    project = ""
-    if uv and (PROJECT_DIR / "pyproject.toml").is_file() and not _inside(cwd, PROJECT_DIR):
-        project = f"--project {shlex.quote(str(PROJECT_DIR))} "
+    project = _uv_project(environ, cwd)
+    uv = project is not None
     if Path(argv0).name == "main.py":
         return f"uv run {project}{shlex.quote(argv0)}" if uv else f"python {shlex.quote(argv0)}"
     if uv:
@@ -42,12 +39,18 @@ def command_prefix(argv0: str | None = None, environ: Mapping[str, str] | None =
 def python_prefix(environ: Mapping[str, str] | None = None, cwd: Path | None = None) -> str:
     """The words that run a Python file with the lab importable: `uv run [--project CLONE] python`
     under uv, else `python` (an activated environment or a pip install)."""
-    environ = os.environ if environ is None else environ
-    cwd = Path.cwd() if cwd is None else cwd
+    project = _uv_project(os.environ if environ is None else environ, cwd)
+    return "python" if project is None else f"uv run {project}python"
+
+
+def _uv_project(environ: Mapping[str, str], cwd: Path | None) -> str | None:
+    """Under `uv run` (which sets UV): "" in the clone's folder, else "--project CLONE " (uv needs it to
+    find the project); None when not under uv."""
     if "UV" not in environ:
-        return "python"
-    inside = _inside(cwd, PROJECT_DIR) or not (PROJECT_DIR / "pyproject.toml").is_file()
-    return "uv run python" if inside else f"uv run --project {shlex.quote(str(PROJECT_DIR))} python"
+        return None
+    cwd = Path.cwd() if cwd is None else cwd
+    outside = (PROJECT_DIR / "pyproject.toml").is_file() and not _inside(cwd, PROJECT_DIR)
+    return f"--project {shlex.quote(str(PROJECT_DIR))} " if outside else ""
 
 
 def _inside(folder: Path, root: Path) -> bool:

@@ -24,9 +24,8 @@ from typing import Any
 
 import numpy as np
 
-from mazelab.checks import check_seed, finite_number, step_number
+from mazelab.checks import check_particles, check_seed, finite_number, step_number
 from mazelab.grid_filter import GridBayesFilter, check_grid_memory
-from mazelab.limits import check_particles
 from mazelab.maze import Maze
 from mazelab.model import LAB_DELTA_RANGE, LAB_SIGMA_RANGE, check_model_parameters
 from mazelab.registry import FilterEntry, filter_entry

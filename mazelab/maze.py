@@ -1,4 +1,5 @@
-"""The maze of the lab: its grid, maze files, free area and stations.
+"""The maze of the lab: its grid, maze files, free area and stations, and the shipped mazes (the folder
+mazes/ at the top of the repository), found by name or path.
 
 Map frame (a convention the paper leaves open, fixed here): maze row 0 is the top row; the cell in
 row r, column c of an H x W maze covers x in [c, c+1), y in [H-1-r, H-r), so the map spans
@@ -17,10 +18,69 @@ from typing import Any
 
 import numpy as np
 
-from mazelab.checks import MAX_MAZE_SIDE, regular_file_size
-from mazelab.limits import BYTES_PER_LOOKUP_CELL, BYTES_PER_MAZE_CELL, check_memory
+from mazelab.checks import BYTES_PER_LOOKUP_CELL, BYTES_PER_MAZE_CELL, MAX_MAZE_SIDE, check_memory, regular_file_size
 from mazelab.lookup import NearestStationLookup, Progress, is_scalar, lookup_cell_count
-from mazelab.maze_paths import MazeError, find_maze
+
+
+class MazeError(ValueError):
+    """A maze map or maze file that cannot be used; the message names the problem (and file:line)."""
+
+
+MAZES_DIR = Path(__file__).resolve().parent.parent / "mazes"  # the repository's mazes/ (an editable install)
+DEFAULT_MAZE = "maze_10x10"
+# The mazes the lab ships, named: what `accuracy` runs on by default (a maze a student adds to mazes/
+# is found by its name too, but does not change the lab's default set).
+LAB_MAZES = ("maze_10x10", "maze_20x20", "paper_5x5", "twin_rooms_6x12")
+
+
+def shipped_mazes() -> list[str]:
+    """The names of the mazes in mazes/ (file names without .txt), sorted."""
+    return sorted(path.stem for path in MAZES_DIR.glob("*.txt"))
+
+
+def find_maze(name_or_path: str | Path) -> Path:
+    """A maze file path, or the name of a file in mazes/ (with or without .txt), from any folder
+    (`find_shipped`); a bare name that is no shipped maze is refused, naming them."""
+    return find_shipped(name_or_path, MAZES_DIR, ".txt", "maze", MazeError, bare_names=True)
+
+
+def find_shipped(
+    name_or_path: str | Path, folder: Path, suffix: str, what: str, error: type[ValueError], bare_names: bool = False
+) -> Path:
+    """A file's path, or the name of a shipped one in `folder` (with or without `suffix`), from any folder:
+    a file in the current folder comes first. A path that does not exist but ends in a shipped file's name
+    (`mazes/paper_5x5.txt` typed in another folder) is refused with the name that works everywhere
+    (`paper_5x5`); with `bare_names`, so is a bare name that is no shipped file. Else the path as given
+    (its reader reports it missing)."""
+    path = Path(name_or_path)
+    if path.exists():
+        return path
+    shipped = sorted(p.stem for p in folder.glob(f"*{suffix}"))
+    if path.parent == Path("."):
+        for candidate in (folder / path.name, folder / f"{path.name}{suffix}"):
+            if candidate.is_file():
+                return candidate
+        if bare_names and shipped:
+            raise error(f"{path}: no such {what} file, nor a {what} in {folder.name}/ ({', '.join(shipped)})")
+    elif path.stem in shipped and path.suffix in ("", suffix):
+        raise error(
+            f"{path}: no such {what} file in {Path.cwd()}; {path.stem} is a shipped {what}: "
+            f"name it {path.stem!r} (without a folder) to use it from any folder"
+        )
+    return path
+
+
+def load_maze(name_or_path: str | Path) -> Maze:
+    """The maze of a file, or of a shipped maze's name (`Maze.from_file`)."""
+    return Maze.from_file(name_or_path)
+
+
+def mazes_fitting(start: Sequence[float], particles: np.ndarray) -> list[str]:
+    """The shipped mazes in whose free area the robot's start and every particle lie (a scenario
+    that stores no maze was made on one of these)."""
+    points = np.vstack([np.asarray(start, dtype=float).reshape(1, 2), np.asarray(particles, dtype=float)])
+    return [name for name in shipped_mazes() if np.all(load_maze(name).is_free(points[:, 0], points[:, 1]))]
+
 
 EMPTY, WALL, STATION_WALL = 0, 1, 2
 # At most this many rows and columns: the nearest-station table's flat cell indices stay exact in
@@ -350,8 +410,11 @@ def check_world(world: Any) -> Maze:
 
 
 __all__ = [
+    "DEFAULT_MAZE",
     "EMPTY",
+    "LAB_MAZES",
     "MAX_MAZE_SIDE",
+    "MAZES_DIR",
     "MAZE_FILE_LIMIT_BYTES",
     "STATION_WALL",
     "WALL",
@@ -359,5 +422,10 @@ __all__ = [
     "MazeError",
     "check_maze_size",
     "check_world",
+    "find_maze",
+    "find_shipped",
+    "load_maze",
+    "mazes_fitting",
     "parse_maze_text",
+    "shipped_mazes",
 ]

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mazelab.declaration import Option
+from mazelab.declaration import Option, choice
 
 MODE_CELL = 0.5  # bin size of the clustering, map units: half a maze cell, so a wall cell keeps modes apart
 MIN_BIN_MASS = 1e-4  # a bin holding less than this share of the weight counts as empty
@@ -28,16 +28,9 @@ class Mode:
     spread: float
 
 
-def check_estimate(estimate: str) -> str:
-    """The point-estimate rule, checked: "mean" (the paper's) or "mode"."""
-    if not isinstance(estimate, str) or estimate not in ESTIMATES:
-        raise ValueError(f"estimate must be one of {', '.join(ESTIMATES)}, got {estimate!r}")
-    return estimate
-
-
 ESTIMATE_OPTION = Option(
     "estimate", "mean", "the point estimate: mean (the paper's posterior mean) or mode (the heaviest mode's mean)",
-    parse=str.strip, check=check_estimate, flag="--estimate",
+    parse=str.strip, check=choice("estimate", ESTIMATES), flag="--estimate",
 )  # fmt: skip
 
 
@@ -152,7 +145,6 @@ __all__ = [
     "MIN_BIN_MASS",
     "MODE_CELL",
     "Mode",
-    "check_estimate",
     "cluster_labels",
     "cluster_moments",
     "find_modes",

@@ -15,13 +15,13 @@ bandwidth=h (a number): h D eps with the whole cloud's D, h given.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from mazelab.checks import MAX_BANDWIDTH, MIN_BANDWIDTH
 from mazelab.declaration import Option
 from mazelab.modes import MODE_CELL, cluster_labels, cluster_moments
 
@@ -51,7 +51,8 @@ def optimal_bandwidth(count: int | np.ndarray, dimension: int = 2) -> float | np
 
 
 def check_bandwidth(bandwidth: str | float) -> str | float:
-    """ "optimal", "multimodal" or a positive number h; a numeric string counts as its number.
+    """ "optimal", "multimodal" or a number h within [MIN_BANDWIDTH, MAX_BANDWIDTH] (mazelab.checks: h
+    scales the cloud's spread, at most the map's diagonal); a numeric string counts as its number.
 
     Parameters
     ----------
@@ -61,16 +62,18 @@ def check_bandwidth(bandwidth: str | float) -> str | float:
     -------
     str or float
     """
-    if isinstance(bandwidth, str):
-        if bandwidth in BANDWIDTHS:
-            return bandwidth
-        try:
-            bandwidth = float(bandwidth)
-        except ValueError:
-            raise ValueError(f"bandwidth must be optimal, multimodal or a positive number, got {bandwidth!r}") from None
-    if isinstance(bandwidth, bool) or not isinstance(bandwidth, (int, float)) or not 0 < bandwidth < math.inf:
-        raise ValueError(f"bandwidth must be optimal, multimodal or a positive number, got {bandwidth!r}")
-    return float(bandwidth)
+    if isinstance(bandwidth, str) and bandwidth in BANDWIDTHS:
+        return bandwidth
+    try:
+        number = float(bandwidth) if isinstance(bandwidth, str) else bandwidth
+    except ValueError:
+        number = None
+    if isinstance(number, bool) or not isinstance(number, (int, float)) or not MIN_BANDWIDTH <= number <= MAX_BANDWIDTH:
+        raise ValueError(
+            f"bandwidth must be optimal, multimodal or a positive number h within [{MIN_BANDWIDTH:g}, "
+            f"{MAX_BANDWIDTH:g}] (h scales the cloud's spread, at most the map's diagonal), got {bandwidth!r}"
+        )
+    return float(number)
 
 
 BANDWIDTH_OPTION = Option(

@@ -39,16 +39,14 @@ from mazelab.checks import (
     MAX_SEED,
     NORMAL_TAIL,
     check_all_within,
+    check_memory,
     check_within_map,
     map_diagonal,
     regular_file_size,
 )
 from mazelab.declaration import options_of
-from mazelab.limits import check_memory
-from mazelab.maze import Maze
-from mazelab.maze_paths import MAZES_DIR, find_shipped, shipped_mazes
-from mazelab.plugins import loaded_plugin
-from mazelab.registry import FilterEntry, filter_entry, shipped_entry
+from mazelab.maze import MAZES_DIR, Maze, find_shipped, shipped_mazes
+from mazelab.registry import FilterEntry, filter_entry, loaded_plugin, shipped_entry
 from mazelab.robot import Robot
 
 DEFAULT_PARAMETERS_PATH = Path("model_parameters.json")  # the paper's file (lab steps 9-10), in the working folder
@@ -219,7 +217,7 @@ class Scenario(BaseModel):
 
     def _check_places(self, world: Maze, particles: np.ndarray) -> None:
         """Particles within the stored maze plus a margin, and a kidnap position in its free area (the
-        robot's start is checked where every run is, in simulation.check_start)."""
+        robot's start is checked where every run is, in simulation.check_walk)."""
         check_within_map("init_particles_pos", particles, world.width, world.height)
         if self.kidnap_position is not None and not world.is_free(*self.kidnap_position):
             raise ValueError(f"kidnap_position {self.kidnap_position} is not in the free area of the scenario's maze")
@@ -360,7 +358,7 @@ def save_scenario(scenario: Scenario, path: str | Path = DEFAULT_PARAMETERS_PATH
 
 def find_scenario(name_or_path: str | Path) -> Path:
     """A scenario file path, or the name of a shipped one (in model_parameters/, with or without .json),
-    from any folder, as mazes are found (mazelab.maze_paths.find_shipped)."""
+    from any folder, as mazes are found (mazelab.maze.find_shipped)."""
     return find_shipped(name_or_path, SCENARIOS_DIR, ".json", "scenario", ScenarioError)
 
 

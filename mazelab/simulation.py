@@ -21,20 +21,22 @@ import numpy as np
 from mazelab.backend import backend_by_work, backend_of
 from mazelab.checks import (
     as_points,
+    check_recording,
     check_seed,
+    check_steps,
     check_within_map,
     step_number,
 )
-from mazelab.collect import record_steps
-from mazelab.contract import NullView, check_filter, takes
-from mazelab.limits import check_recording, check_steps
-from mazelab.limits import particle_count as checked_count
+from mazelab.checks import particle_count as checked_count
+from mazelab.collect import Recorded, record_steps
+from mazelab.contract import NullView, check_filter
+from mazelab.declaration import options_of
 from mazelab.maze import Maze, check_world
 from mazelab.model import CONVERGENCE_RADIUS, DEFAULT_STEPS, check_model_parameters
-from mazelab.plugins import student_code
 from mazelab.registry import filter_entry, is_shipped
 from mazelab.robot import Robot
 from mazelab.seeding import RunStreams, new_seed, run_streams
+from mazelab.stops import student_code
 from mazelab.viz.style import DEFAULT_MAX_DRAWN
 from mazelab.viz.targets import Visualization, in_jupyter
 
@@ -56,6 +58,23 @@ class RunResult:
     inputs: RunInputs
     extras: dict[str, Any] = field(default_factory=dict)
     log_evidence: np.ndarray | None = None  # (steps,), log p(z_1:k) as the filter estimates it (NaN: none kept)
+
+    @classmethod
+    def of_recorded(
+        cls,
+        recorded: Recorded,
+        r: int,
+        true_positions: np.ndarray,
+        restarts: list[int],
+        inputs: RunInputs,
+        backend: str,
+    ) -> RunResult:
+        """Run `r` of what the recording loop kept (mazelab.collect.Recorded), named by `inputs`' filter:
+        the robot's `true_positions` (steps, 2), the filter's restarts and the backend it ran on."""
+        run = recorded.run(r)
+        extras = {"particle_count": run["counts"], "diagnostics": run["diagnostics"], "backend": backend}
+        return cls(inputs.filtering_algorithm, true_positions, run["estimates"], run["ess"], run["confident"],
+                   recorded.seconds, list(restarts), inputs, extras, run["log_evidence"])  # fmt: skip
 
     @cached_property
     def scenario(self) -> Scenario:
@@ -190,35 +209,28 @@ def convergence_step(errors: np.ndarray, radius: float = CONVERGENCE_RADIUS) -> 
     return None if outside[-1] == len(errors) - 1 else int(outside[-1]) + 2
 
 
-def check_start(
-    world: Maze,
-    robot_position: tuple[float, float],
-    particles: np.ndarray | None,
-    kidnap_position: tuple[float, float] | None = None,
-) -> None:
-    """The robot must start (and be put down by a kidnapping) in the free area; particles handed in
-    may lie anywhere within the map plus a margin (but we say when they lie outside the free area;
-    None: drawn from the free area, nothing to check)."""
-    if not world.is_free(*robot_position):
-        raise ValueError(f"the robot's start {robot_position} is not in the free area of the maze ({world.source})")
-    if kidnap_position is not None and not world.is_free(*kidnap_position):
-        raise ValueError(f"the kidnap position {kidnap_position} is not in the free area of the maze ({world.source})")
-    if particles is None:
-        return
-    check_within_map("init_particles_pos", particles, world.width, world.height)
-    outside = int((~world.is_free(particles[:, 0], particles[:, 1])).sum())
-    if outside:
-        warnings.warn(f"{outside} of the {len(particles)} initial particles lie outside the free area", stacklevel=3)
+def check_walk(world: Maze, robot: Robot, particles: np.ndarray | None = None, steps: int | None = None) -> None:
+    """A run's walk on `world`, checked before the run: one line for the first thing wrong.
 
-
-def check_walk_in_maze(world: Maze, robot: Robot, steps: int | None = None) -> None:
-    """A recorded walk (a replayed scenario's robot_actual_angles, its first `steps` steps, from a start
-    `check_start` passed) must stay in the free area of `world`, as every walk made on it does: the first
-    step that leaves it is refused in one line (a hand-edited walk through walls, or another maze's).
-    Positions are computed in Robot.step's own arithmetic, so a walk made on `world` always passes."""
-    count = robot.recorded_steps if steps is None else min(steps, robot.recorded_steps)
-    x, y = robot.initial_position  # in the free area: `check_start`, which every caller calls first
-    for k in range(1, count + 1):
+    The robot must start (and be put down by a kidnapping) in the free area; particles handed in may lie
+    anywhere within the map plus a margin (a warning says how many lie outside the free area; None:
+    drawn from the free area, nothing to check). A recorded walk (a replayed scenario's
+    robot_actual_angles, its first `steps` steps) must stay in the free area, as every walk made on
+    `world` does: the first step that leaves it is refused (a hand-edited walk through walls, or another
+    maze's). Positions are computed in Robot.step's own arithmetic, so a walk made on `world` always passes.
+    """
+    for what, place in (("the robot's start", robot.initial_position), ("the kidnap position", robot.kidnap_position)):
+        if place is not None and not world.is_free(*place):
+            raise ValueError(f"{what} {place} is not in the free area of the maze ({world.source})")
+    if particles is not None:
+        check_within_map("init_particles_pos", particles, world.width, world.height)
+        outside = int((~world.is_free(particles[:, 0], particles[:, 1])).sum())
+        if outside:
+            warnings.warn(
+                f"{outside} of the {len(particles)} initial particles lie outside the free area", stacklevel=3
+            )
+    x, y = robot.initial_position
+    for k in range(1, (robot.recorded_steps if steps is None else min(steps, robot.recorded_steps)) + 1):
         if k == robot.kidnap_at:
             x, y = robot.kidnap_position
         heading = robot.actual_angles[k - 1]
@@ -268,17 +280,14 @@ def simulate(
 ) -> RunResult:
     """Run one filter on the robot's walk and return the full `RunResult` (what run_model summarises).
 
-    Step k: the robot moves with its actual angle k and measures z_k; the filter predicts with
-    compass angle k and updates with z_k; `on_step(k, robot, filter)` is called after each step.
-    `seed` seeds the robot (unless it has its own rng), the
-    initial particles and the filter; the same seed gives the same result bit for bit.
+    Step k is the module's (`walk_and_record`); `on_step(k, robot, filter)` is called after each step.
+    `seed` seeds the robot (unless it has its own rng), the initial particles and the filter; the same
+    seed gives the same result bit for bit.
     `kidnap_at=K`: at step K, before its move, the robot is carried to a free place drawn from the
     seed (see Robot.kidnap); a robot that replays a kidnapping keeps it. The scenario stores it.
-    result.extras["particle_count"] holds the particle count per step (it varies with KLD-sampling),
-    result.extras["backend"] the backend the filter ran on (numpy or compiled: MAZELAB_BACKEND's, else
-    compiled where numba's start-up pays for the run's work, mazelab.backend.backend_for_work).
-    A filter class that declares the option `start` is also handed the robot's start (the
-    EKF's `init="start"` tracks from it; the kidnapping, if any, is left for it to find out).
+    `result.extras` holds the particle count per step ("particle_count": KLD-sampling varies it) and the
+    backend the filter ran on ("backend": MAZELAB_BACKEND's, else mazelab.backend.backend_for_work's).
+    A filter class that declares the option `start` is also handed the robot's start (`build_filter`).
     `visualize` says where the run is drawn (mazelab.viz.views: False, True, "viewer", "web", "notebook",
     an .rrd path, a RecordingStream, a Visualization or a view), its memory checked up front; `view`
     (instead) is a view (`log_step`, `close`) or a function `(world, filter_name) -> view`, called once
@@ -287,22 +296,55 @@ def simulate(
     check_world(world)
     sigma, delta = check_model_parameters(sigma, delta, (world.width, world.height))
     entry = filter_entry(filtering_algorithm)
-    filter_class = entry.filter_class
-    settings = entry.options.resolve(filter_options, filter_class.name)  # declared, checked, defaults filled in
+    settings = entry.options.resolve(filter_options, entry.name)  # declared, checked, defaults filled in
     seed = new_seed() if seed is None else check_seed("seed", seed)
     streams = run_streams(seed)
-    particles, steps = checked_walk(robot, world, particle_count, steps, init_particles_pos, visualize, streams)
-    if kidnap_at is not None:
-        plan_kidnapping(robot, world, kidnap_at, steps, streams.kidnap)
-    robot.reset()
-    if not robot.rng_given:
-        robot.rng = streams.robot
-    if takes(filter_class, "start"):  # a filter that can track from the known start (the EKF)
-        filter_options = {"start": robot.initial_position, **filter_options}
+    particles, steps = checked_walk(robot, world, particle_count, steps, init_particles_pos, visualize, streams,
+                                    kidnap_at)  # fmt: skip
+    filt = build_filter(
+        entry.filter_class, world, sigma, delta, particles, streams.filter, steps, robot, filter_options
+    )
+    view = open_run_view(visualize if view is None else view, world, entry.name, robot)
+    true_positions, recorded = walk_and_record(entry.filter_class, filt, robot, world, steps, view, on_step)
+    stored = entry.options.to_json(settings)  # every option, defaults filled in, as the declaration writes them
+    reference = None if entry.plugin is None else entry.plugin.as_json()
+    inputs = RunInputs.of_run(robot, particles, world, sigma, delta, seed, steps, entry.name,
+                              dict(sorted(stored.items())), reference)  # fmt: skip
+    return RunResult.of_recorded(recorded, 0, true_positions, filt.reinitialised_at, inputs, backend_of(filt))
+
+
+def build_filter(
+    filter_class: type,
+    world: Maze,
+    sigma: float,
+    delta: float,
+    particles: np.ndarray,
+    rng: np.random.Generator,
+    steps: int,
+    robot: Robot,
+    options: dict[str, Any],
+) -> Any:
+    """The run's filter, built on the backend its work repays (numba where it does) and checked against
+    the contract before its first step (a missing or mistyped part is one line naming it). A class that
+    declares the option `start` is handed the robot's start too (the EKF's `init="start"` tracks from it)."""
+    if "start" in options_of(filter_class):
+        options = {"start": robot.initial_position, **options}
+    with backend_by_work(len(particles) * steps, steps), student_code(filter_class):
+        filt = filter_class(maze_for(filter_class, world), sigma, delta, particles, rng, **options)
+        check_filter(filt)
+    return filt
+
+
+def walk_and_record(
+    filter_class: type, filt: Any, robot: Robot, world: Maze, steps: int, view: Any, on_step: Callable | None
+) -> tuple[np.ndarray, Recorded]:
+    """The run's steps: at step k the robot moves with its actual angle and measures z_k, the filter
+    steps on them (mazelab.collect.record_steps), then the view draws it and `on_step(k, robot, filt)`
+    is called; the view is closed however the run ends. Returns the robot's positions (steps, 2) and
+    what the filter's steps recorded."""
     true_positions = np.empty((steps, 2))
 
     def observe(k: int) -> tuple[float, float]:
-        """Step k: the robot moves with its actual angle and measures z_k."""
         compass_angle, z = robot.step(world)
         true_positions[k] = robot.position
         return compass_angle, z
@@ -312,23 +354,12 @@ def simulate(
         if on_step is not None:
             on_step(k, robot, filt)
 
-    with backend_by_work(len(particles) * steps, steps), student_code(filter_class):  # numba where it repays
-        filt = filter_class(maze_for(filter_class, world), sigma, delta, particles, streams.filter, **filter_options)
-        check_filter(filt)  # before the first step: a missing or mistyped part is one line naming it
-    view = open_run_view(visualize if view is None else view, world, filter_class.name, robot)
     try:
         with student_code(filter_class) as at:  # a failing user's filter: its frames and the step
-            steps_of = record_steps(filt, steps, observe, after=after, at=at)
+            recorded = record_steps(filt, steps, observe, after=after, at=at)
     finally:
         view.close()
-    stored = entry.options.to_json(settings)  # every option, defaults filled in, as the declaration writes them
-    reference = None if entry.plugin is None else entry.plugin.as_json()
-    inputs = RunInputs.of_run(robot, particles, world, sigma, delta, seed, steps, filter_class.name,
-                              dict(sorted(stored.items())), reference)  # fmt: skip
-    run = steps_of.run(0)
-    extras = {"particle_count": run["counts"], "diagnostics": run["diagnostics"], "backend": backend_of(filt)}
-    return RunResult(filter_class.name, true_positions, run["estimates"], run["ess"], run["confident"],
-                     steps_of.seconds, list(filt.reinitialised_at), inputs, extras, run["log_evidence"])  # fmt: skip
+    return true_positions, recorded
 
 
 def checked_walk(
@@ -339,26 +370,33 @@ def checked_walk(
     init_particles_pos: Any,
     visualize: Any,
     streams: RunStreams,
+    kidnap_at: int | None = None,
 ) -> tuple[np.ndarray, int]:
     """A run's initial particles (N, 2) (given, or drawn from `streams.particles`) and its step count
     (given, else the robot's recorded steps, else DEFAULT_STEPS), each checked, with the robot's start,
-    its kidnapping's place, its recorded walk and the recording's memory: one line for the first wrong."""
+    its kidnapping's place, its recorded walk and the recording's memory: one line for the first wrong.
+    The robot is then made ready to walk: kidnapped at `kidnap_at` (`plan_kidnapping`), back at its
+    start, and drawing from `streams.robot` unless it has its own rng."""
     if init_particles_pos is not None:
         particles = as_points("init_particles_pos", init_particles_pos)
         checked_count(particle_count, given=len(particles))
     else:
         particles = world.random_free_places(checked_count(particle_count), streams.particles)
-    given = particles if init_particles_pos is not None else None  # drawn ones lie in the free area
-    check_start(world, robot.initial_position, given, robot.kidnap_position)
     if steps is None:
         steps = robot.recorded_steps or DEFAULT_STEPS
     if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
         raise ValueError(f"steps must be a whole number >= 1, got {steps!r}")
     check_steps(int(steps))
-    check_walk_in_maze(world, robot, int(steps))
+    given = particles if init_particles_pos is not None else None  # drawn ones lie in the free area
+    check_walk(world, robot, given, int(steps))
     recorded = drawn_at_most(visualize)
     if recorded is not None:
         check_recording(len(particles), int(steps), recorded)
+    if kidnap_at is not None:
+        plan_kidnapping(robot, world, kidnap_at, int(steps), streams.kidnap)
+    robot.reset()
+    if not robot.rng_given:
+        robot.rng = streams.robot
     return particles, int(steps)
 
 
@@ -443,8 +481,7 @@ __all__ = [
     "NullView",
     "RunInputs",
     "RunResult",
-    "check_start",
-    "check_walk_in_maze",
+    "check_walk",
     "convergence_step",
     "drawn_at_most",
     "open_run_view",

@@ -38,9 +38,8 @@ from typing import Any
 
 import numpy as np
 
-from mazelab.checks import angle, coordinate, step_number
+from mazelab.checks import angle, check_memory, coordinate, step_number
 from mazelab.grid_filter import BYTES_PER_GRID_CELL, GridBayesFilter, GridWorkspace, arc_kernel, arc_kernel_shape
-from mazelab.limits import check_memory
 from mazelab.maze import Maze
 from mazelab.model import DEFAULT_PARTICLE_COUNT, check_model_parameters
 from mazelab.registry import filter_entry

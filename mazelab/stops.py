@@ -1,18 +1,32 @@
-"""What stops a run: the user (Ctrl-C, SIGTERM, SIGHUP, through the lab's own handlers), or code that
-is not the lab's calling sys.exit or raising KeyboardInterrupt. The lab's handlers raise the marked
-exceptions below, so that a filter's own `sys.exit(0)` or `raise KeyboardInterrupt` can be told apart
-from the user's stop and reported as the filter's error, not passed on as the program's exit."""
+"""What stops or breaks a run: the user (Ctrl-C, SIGTERM, SIGHUP, through the lab's own handlers), or
+code that is not the lab's calling sys.exit, raising KeyboardInterrupt or failing. The lab's handlers
+raise the marked exceptions below, so that a filter's own `sys.exit(0)` or `raise KeyboardInterrupt`
+can be told apart from the user's stop and reported as the filter's error, not passed on as the
+program's exit. `StudentCodeError` is what a run raises when the student's code fails: the student's
+own frames (their file and line, none of the lab's) and the step at which it happened; a filter that
+calls sys.exit, raises KeyboardInterrupt or changes the working folder is reported the same way."""
 
 from __future__ import annotations
 
 import contextlib
+import inspect
 import os
 import signal
 import sys
+import sysconfig
 import threading
+import traceback
+import warnings
 from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from types import TracebackType
 from typing import Any
 
+PACKAGE_DIR = Path(__file__).resolve().parent  # mazelab/: frames here are the lab's, not the student's
+_LIBRARY_DIRS = tuple(
+    Path(p).resolve() for p in {sysconfig.get_paths()[k] for k in ("stdlib", "platstdlib", "purelib", "platlib")}
+)
 STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
 
 
@@ -85,16 +99,11 @@ def describe_exit(error: BaseException) -> str:
     return f"raised {type(error).__name__}"
 
 
-def stray_threads() -> list[threading.Thread]:
-    """Threads that would keep the process alive at its exit (not daemons, still running), but the main one."""
-    return [t for t in threading.enumerate() if t.is_alive() and not t.daemon and t is not threading.main_thread()]
-
-
 def exit_without_strays(code: int, warn: Callable[[str], None]) -> None:
     """End the process with `code` now if threads that are not the lab's own would keep it alive (a
     plug-in's forgotten thread): one warning line naming them, the output flushed, then os._exit;
     without such threads, return (the caller exits as usual)."""
-    strays = stray_threads()
+    strays = [t for t in threading.enumerate() if t.is_alive() and not t.daemon and t is not threading.main_thread()]
     if not strays:
         return
     names = ", ".join(t.name for t in strays[:3]) + (", ..." if len(strays) > 3 else "")
@@ -105,3 +114,105 @@ def exit_without_strays(code: int, warn: Callable[[str], None]) -> None:
         with contextlib.suppress(Exception):
             stream.flush()
     os._exit(code)
+
+
+# -- the student's code failing during a run ----------------------------------------------------------
+class StudentCodeError(RuntimeError):
+    """The student's filter raised during a run: the message names the filter, the step (0: while it was
+    built), the error, and the student's own frames (file, line, code); the original is its __cause__."""
+
+
+def is_lab_file(filename: str) -> bool:
+    """Whether a frame's file is the lab's (mazelab/) or Python's or an installed library's."""
+    path = Path(filename).resolve()
+    return path.is_relative_to(PACKAGE_DIR) or any(path.is_relative_to(d) for d in _LIBRARY_DIRS)
+
+
+def student_frames(tb: TracebackType | None) -> list[traceback.FrameSummary]:
+    """The frames of a traceback outside the lab, Python and installed libraries: the student's."""
+    return [frame for frame in traceback.extract_tb(tb) if not is_lab_file(frame.filename)]
+
+
+def is_student_class(filter_class: type) -> bool:
+    """Whether a filter class is the user's (its file lies outside the lab), not a shipped one."""
+    try:
+        return not is_lab_file(inspect.getfile(filter_class))
+    except (TypeError, OSError):  # defined in a notebook cell or the interpreter: the user's
+        return True
+
+
+def _frame_lines(tb: TracebackType | None) -> list[str]:
+    """The student's frames of a traceback, one line each: file, line, function and code."""
+    lines = []
+    for frame in student_frames(tb):
+        code = f": {frame.line.strip()}" if frame.line else ""
+        lines.append(f"  {frame.filename}, line {frame.lineno}, in {frame.name}{code}")
+    return lines
+
+
+class _Step:
+    """The step a run is at (0 while the filter is built), for `student_code`."""
+
+    number = 0
+
+
+def raise_for_student(error: BaseException, filter_class: type, step: int) -> None:
+    """Raise `error` as it is for a shipped filter; for a user's, a StudentCodeError naming the step and
+    the user's frames, from `error` (a sys.exit or KeyboardInterrupt of its own too; the user's stop
+    passes as it is)."""
+    if not is_student_class(filter_class) or isinstance(error, StudentCodeError):
+        raise error
+    when = "while being built" if step == 0 else f"at step {step}"
+    frames = _frame_lines(error.__traceback__)
+    if isinstance(error, (SystemExit, KeyboardInterrupt)):
+        if is_users_stop(error):
+            raise error
+        what = f"{filter_class.name} {describe_exit(error)} {when} (a filter must not end the program)"
+        raise StudentCodeError("\n".join([what, *frames])) from None
+    what = f"{filter_class.name} raised {type(error).__name__} {when}: {error}"
+    raise StudentCodeError("\n".join([what, *frames])) from error
+
+
+@contextmanager
+def student_code(filter_class: type) -> Iterator[_Step]:
+    """Around the calls of a user's filter: an Exception inside (or its own sys.exit) becomes a
+    StudentCodeError naming the step (set `.number` on what this yields) and the user's frames; the
+    working folder it changes is put back; a shipped filter's errors pass as they are."""
+    step = _Step()
+    try:
+        with working_folder_kept(filter_class.name if is_student_class(filter_class) else None):
+            yield step
+    except BaseException as error:  # the student's own sys.exit becomes their error too
+        raise_for_student(error, filter_class, step.number)
+
+
+@contextmanager
+def working_folder_kept(owner: str | None) -> Iterator[None]:
+    """Put back the working folder if `owner`'s code changes it (outputs are written where the user
+    asked), with a one-line warning; None: nothing to watch (a shipped filter)."""
+    if owner is None:
+        yield
+        return
+    before = os.getcwd()
+    try:
+        yield
+    finally:
+        after = _cwd_or_none()
+        if after != before:
+            os.chdir(before)
+            warnings.warn(f"{owner} changed the working folder to {after}; it was put back to {before}", stacklevel=3)
+
+
+def _cwd_or_none() -> str | None:
+    try:
+        return os.getcwd()
+    except OSError:  # the folder it moved to was removed
+        return None
+
+
+def student_line(tb: TracebackType | None, error: BaseException) -> str:
+    """' (file.py, line 12)' for the innermost of the student's frames, or '' (a SyntaxError names its line)."""
+    if isinstance(error, SyntaxError):
+        return ""
+    frames = student_frames(tb)
+    return f" ({Path(frames[-1].filename).name}, line {frames[-1].lineno})" if frames else ""

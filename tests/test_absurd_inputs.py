@@ -11,15 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mazelab import limits
-from mazelab.checks import check_grid_resolution, sigma_range
+from mazelab import checks
+from mazelab.checks import ADDRESS_SPACE_SOURCE, MemoryBudget, check_recording, sigma_range
 from mazelab.cli.app import main
-from mazelab.lab import simulate
-from mazelab.limits import ADDRESS_SPACE_SOURCE, MemoryBudget, check_recording
-from mazelab.maze import Maze
-from mazelab.mazes import load_maze
+from mazelab.maze import Maze, load_maze
 from mazelab.robot import Robot
-from mazelab.simulation import convergence_step
+from mazelab.simulation import convergence_step, simulate
 
 RUN = ["run", "--maze", "paper_5x5", "--steps", "5", "--particles", "50", "--seed", "1", "--quiet", "--no-viz"]
 
@@ -54,7 +51,7 @@ def test_an_absurd_bandwidth_is_refused_in_one_line(bandwidth, capsys):
 def test_accuracy_refuses_an_absurd_sigma_and_a_huge_run_count_before_any_work(capsys, monkeypatch):
     assert main(["accuracy", "--sigma", "1e300"]) == 2
     assert "sigma must lie within" in one_error_line(capsys)
-    monkeypatch.setattr(limits, "memory_budget", lambda: MemoryBudget(8 * 2**30, "test budget"))
+    monkeypatch.setattr(checks, "memory_budget", lambda: MemoryBudget(8 * 2**30, "test budget"))
     assert main(["accuracy", "--runs", "10000000"]) == 2
     assert "a study of 80000000 runs needs" in one_error_line(capsys)  # 4 mazes x 2 RPF bandwidths
     assert capsys.readouterr().out == ""
@@ -152,10 +149,10 @@ def test_study_refuses_what_run_refuses_before_any_run(capsys):
 def test_the_recording_counts_in_the_memory_check(tmp_path, monkeypatch, capsys):
     budget = MemoryBudget(800 * 2**20, ADDRESS_SPACE_SOURCE)  # ulimit -v of about 1 GB, less Python's share
     check_recording(100, 200, 5000, budget)
-    limits.check_memory("particles alone", 250_000 * limits.BYTES_PER_PARTICLE, budget)  # fits without Rerun
-    with pytest.raises(limits.MemoryLimitError):
+    checks.check_memory("particles alone", 250_000 * checks.BYTES_PER_PARTICLE, budget)  # fits without Rerun
+    with pytest.raises(checks.MemoryLimitError):
         check_recording(250_000, 20, 5000, budget)
-    monkeypatch.setattr(limits, "memory_budget", lambda: budget)
+    monkeypatch.setattr(checks, "memory_budget", lambda: budget)
     target = tmp_path / "out.rrd"
     assert main([*RUN[:3], "--particles", "1000000", "--steps", "3", "--rrd", str(target)]) == 2
     assert "with a recording of 3 steps needs" in one_error_line(capsys)
@@ -188,8 +185,6 @@ def test_the_python_api_checks_world_seed_count_and_resolution(paper_world):
     for resolution in (0, 100, float("nan")):
         with pytest.raises(ValueError, match="resolution must"):
             simulate(robot, paper_world, 0.3, 0.5, 10, 3, filtering_algorithm="grid", resolution=resolution)
-        with pytest.raises(ValueError, match="resolution must"):
-            check_grid_resolution(resolution)
 
 
 @pytest.mark.parametrize("option", [["--kld-epsilon", "1e300"], ["--kld-epsilon", "1e-320"], ["--kld-z", "1e300"]])

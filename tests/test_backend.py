@@ -34,9 +34,9 @@ from mazelab.backend import (
     use_threads,
 )
 from mazelab.cli.app import main
-from mazelab.lab import simulate
 from mazelab.registry import resolve_filter
 from mazelab.robot import Robot
+from mazelab.simulation import simulate
 
 HAS_NUMBA = subprocess.run([sys.executable, "-c", "import numba"], capture_output=True).returncode == 0
 DEFAULT = "compiled" if HAS_NUMBA else "numpy"  # the backend without a choice

@@ -23,19 +23,20 @@ from mazelab.contract import (
     check_filter,
     check_step_values,
     missing_parts,
-    options_for,
 )
+from mazelab.declaration import options_for
 from mazelab.filters import RegularizedParticleFilter, SIRParticleFilter
 from mazelab.grid_filter import GridBayesFilter
 from mazelab.kalman import ExtendedKalmanFilter
-from mazelab.registry import FILTERS
+from mazelab.registry import SHIPPED
 from mazelab.robot import Robot
 from mazelab.simulation import simulate
 
+SHIPPED_CLASSES = {entry.filter_class.__name__: entry.filter_class for entry in SHIPPED}
 BAD_OPTIONS = {"recovery": True, "resampling": "nonsense", "bandwidth": "typo", "threshold": 0.3, "init": "prior"}
 
 
-@pytest.mark.parametrize("cls", list(FILTERS.values()), ids=list(FILTERS))
+@pytest.mark.parametrize("cls", list(SHIPPED_CLASSES.values()), ids=list(SHIPPED_CLASSES))
 def test_every_filter_refuses_each_option_it_does_not_declare_naming_it(paper_world, cls, monkeypatch):
     robot = Robot(0.3, 0.5, (3.5, 1.5))
     refused = [option for option in BAD_OPTIONS if option not in cls.options]
@@ -46,7 +47,7 @@ def test_every_filter_refuses_each_option_it_does_not_declare_naming_it(paper_wo
                      **{option: BAD_OPTIONS[option]})  # fmt: skip
 
 
-@pytest.mark.parametrize("cls", list(FILTERS.values()), ids=list(FILTERS))
+@pytest.mark.parametrize("cls", list(SHIPPED_CLASSES.values()), ids=list(SHIPPED_CLASSES))
 def test_every_shipped_filter_meets_the_contract_and_says_what_to_draw(paper_world, cls):
     assert missing_parts(cls) == []
     options = {"resolution": 0.1} if cls is GridBayesFilter else {}

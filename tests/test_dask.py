@@ -15,7 +15,7 @@ from conftest import finished_rows, start_study_process, wait_for_rows
 from mazelab.cli.app import main
 from mazelab.experiments.executor import run_study
 from mazelab.experiments.study import MazeChoice, study_settings, study_tasks
-from mazelab.mazes import load_maze
+from mazelab.maze import load_maze
 
 distributed = pytest.importorskip("distributed")
 

@@ -18,7 +18,7 @@ from typing import ClassVar
 import numpy as np
 import pytest
 
-from mazelab.declaration import Option, Options, number_in, options_of, parse_literal
+from mazelab.declaration import Option, Options, number_in, options_of
 from mazelab.filters import RegularizedParticleFilter, SIRParticleFilter
 from mazelab.recovery import Recovery
 from mazelab.registry import SHIPPED
@@ -177,7 +177,8 @@ def test_a_plug_ins_plain_mapping_of_defaults_is_read_by_each_defaults_type():
 
     options = options_of(Plain)
     assert [options[n].parse_text(t) for n, t in (("alpha", "0.7"), ("count", "4"), ("flag", "yes"))] == [0.7, 4, True]
-    assert options["word"].parse_text("y") == "y" and parse_literal("none") is None and parse_literal("2") == 2
+    word = options["word"]
+    assert word.parse_text("y") == "y" and word.parse_text("none") is None and word.parse_text("2") == 2
     with pytest.raises(ValueError, match="expected a whole number"):
         options["count"].parse_text("3.5")
 
@@ -198,9 +199,10 @@ def test_a_number_typed_option_refuses_what_is_not_a_finite_number_naming_it(tex
 
 
 def test_a_literal_that_is_an_infinite_number_is_refused():
-    with pytest.raises(ValueError, match="expected a finite number"):
-        parse_literal("1e999")
-    assert parse_literal("nan") == "nan"  # a word, as any other
+    word = Option("word", "on", "a word: its text is read as any literal")
+    with pytest.raises(ValueError, match="option word: expected a finite number"):
+        word.parse_text("1e999")
+    assert word.parse_text("nan") == "nan"  # a word, as any other
 
 
 @pytest.mark.parametrize("text", ["0.5\nRepeat this run: rm -rf", "a\tb", "x\r", "y\u2028z"])

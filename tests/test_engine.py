@@ -20,8 +20,8 @@ from conftest import ROOT
 
 from mazelab.backend import use_backend
 from mazelab.filters import AuxiliaryParticleFilter, ParticleFilter, RegularizedParticleFilter, SIRParticleFilter
-from mazelab.lab import simulate
 from mazelab.robot import Robot
+from mazelab.simulation import simulate
 from mazelab.smc import SMC, HookError
 
 HOOKS = ("log_eta", "time_to_resample", "ancestors", "move", "move_resampled", "reweight_resampled")

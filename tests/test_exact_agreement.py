@@ -20,10 +20,10 @@ from conftest import PAPER_MAZE
 
 from mazelab.filters import AuxiliaryParticleFilter, RegularizedParticleFilter
 from mazelab.grid_filter import GRID_RESOLUTION, GridBayesFilter
-from mazelab.lab import simulate
 from mazelab.maze import Maze
 from mazelab.model import ROBOT_SPEED, log_likelihood
 from mazelab.robot import Robot
+from mazelab.simulation import simulate
 
 PARTICLE_FILTERS = ["sir", "apf", "rpf"]
 

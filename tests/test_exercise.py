@@ -37,7 +37,7 @@ from mazelab.exercise.parts import (
 from mazelab.exercise.report import WIDTH, check, collect_in_process, format_report
 from mazelab.exercise.selfcheck import progress
 from mazelab.exercise.whole import judge_whole, magnitude_p, sign_test_alpha
-from mazelab.plugins import load_plugin
+from mazelab.registry import load_plugin
 from mazelab.resampling import RESAMPLING_SCHEMES
 from mazelab.simulation import simulate
 

@@ -28,13 +28,12 @@ from mazelab.experiments.stats import (
 )
 from mazelab.experiments.study import MazeChoice, RunRecord, study_settings, study_tasks
 from mazelab.experiments.summary import CSV_COLUMNS, study_table, summarise_study
-from mazelab.lab import simulate
 from mazelab.maze import Maze
 from mazelab.model import CONVERGENCE_RADIUS
 from mazelab.registry import filter_entry
 from mazelab.robot import Robot
 from mazelab.scenario import load_scenario, save_scenario
-from mazelab.simulation import convergence_step
+from mazelab.simulation import convergence_step, simulate
 
 FILTERS = ["SIRParticleFilter", "AuxiliaryParticleFilter", "RegularizedParticleFilter"]
 

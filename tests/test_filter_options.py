@@ -15,7 +15,7 @@ import pytest
 
 from mazelab.cli.app import main
 from mazelab.experiments.runs import final_error
-from mazelab.mazes import load_maze
+from mazelab.maze import load_maze
 from mazelab.robot import Robot
 from mazelab.seeding import start_place
 from mazelab.simulation import simulate

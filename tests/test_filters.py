@@ -15,10 +15,10 @@ import pytest
 from conftest import recorded_walk
 
 from mazelab.filters import AuxiliaryParticleFilter, ParticleFilter, RegularizedParticleFilter
-from mazelab.lab import simulate
 from mazelab.model import LOG_UNDERFLOW, ROBOT_SPEED, log_likelihood
 from mazelab.registry import entries
 from mazelab.robot import Robot
+from mazelab.simulation import simulate
 
 PARTICLE_FILTERS = [entry.name for entry in entries() if issubclass(entry.filter_class, ParticleFilter)]
 

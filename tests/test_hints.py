@@ -22,7 +22,7 @@ import pytest
 
 from mazelab.cli.app import main
 from mazelab.invocation import command_prefix
-from mazelab.mazes import load_maze
+from mazelab.maze import load_maze
 
 ROOT = Path(__file__).resolve().parent.parent
 

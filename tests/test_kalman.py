@@ -10,7 +10,7 @@ import pytest
 from test_visualization import load
 
 from mazelab.cli.app import main
-from mazelab.contract import takes
+from mazelab.declaration import options_of
 from mazelab.kalman import (
     START_STD,
     ExtendedKalmanFilter,
@@ -20,12 +20,11 @@ from mazelab.kalman import (
     gaussian_mass_within,
     range_update,
 )
-from mazelab.lab import simulate
-from mazelab.maze import Maze
-from mazelab.mazes import load_maze
+from mazelab.maze import Maze, load_maze
 from mazelab.model import CONFIDENCE_RADIUS, LAB_DELTA_RANGE, LAB_SIGMA_RANGE, ROBOT_SPEED, headings_from_uniforms, move
 from mazelab.registry import resolve_filter
 from mazelab.robot import Robot
+from mazelab.simulation import simulate
 from mazelab.viz.style import COVARIANCE_SIGMAS, entity_name
 
 SAMPLES = 400_000
@@ -169,7 +168,7 @@ def test_from_the_prior_it_starts_lost_and_simulate_hands_it_the_start(paper_wor
 def test_it_is_registered_and_gets_no_particle_filter_options():
     for name in ["ekf", "EKF", "ExtendedKalmanFilter", "Extended Kalman Filter"]:
         assert resolve_filter(name) is ExtendedKalmanFilter
-    assert not any(takes(ExtendedKalmanFilter, option) for option in ("threshold", "recovery", "kld"))
+    assert not any(option in options_of(ExtendedKalmanFilter) for option in ("threshold", "recovery", "kld"))
 
 
 @pytest.mark.parametrize(

@@ -34,13 +34,13 @@ from mazelab.experiments.executor import run_study
 from mazelab.experiments.study import MazeChoice, study_settings, study_tasks
 from mazelab.kernels import CHUNK, sources_digest
 from mazelab.kernels.compiled import THREADED_FROM, CompiledKernels, CompiledWeights
-from mazelab.lab import simulate
 from mazelab.maze import Maze
 from mazelab.model import PARTICLE_DTYPE, ROBOT_SPEED, headings_from_uniforms, move
 from mazelab.registry import resolve_filter
 from mazelab.regularisation import GaussianKernel, mixture_kernel
 from mazelab.resampling import systematic_resample
 from mazelab.robot import Robot
+from mazelab.simulation import simulate
 from mazelab.weights import Weights
 
 F32 = PARTICLE_DTYPE
@@ -427,7 +427,7 @@ def test_a_second_process_loads_the_kernels_from_the_cache(tmp_path):
     script = (
         "import numpy as np\n"
         "from mazelab.backend import use_backend\n"
-        "from mazelab.lab import simulate\n"
+        "from mazelab.simulation import simulate\n"
         "from mazelab.maze import Maze\n"
         "from mazelab.robot import Robot\n"
         "from mazelab.kernels import model, resampling, weights\n"

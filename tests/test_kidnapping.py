@@ -20,10 +20,10 @@ import pytest
 
 from mazelab.cli.app import main
 from mazelab.experiments.runs import DEFAULT_WINDOW, recovery_steps, relocalised
-from mazelab.lab import simulate
 from mazelab.model import CONVERGENCE_RADIUS, ROBOT_SPEED
 from mazelab.robot import Robot
 from mazelab.scenario import Scenario, ScenarioError, load_scenario, save_scenario
+from mazelab.simulation import simulate
 
 PARTICLE_FILTERS = ["sir", "apf", "rpf"]
 

@@ -13,11 +13,19 @@ import numpy as np
 import pytest
 from conftest import PAPER_MAZE, ROOT
 
-from mazelab import limits
-from mazelab.checks import MAX_ANGLE, angle, check_within_map
+from mazelab import checks
+from mazelab.checks import (
+    MAX_ANGLE,
+    MemoryBudget,
+    MemoryLimitError,
+    angle,
+    cgroup_limit,
+    check_memory,
+    check_within_map,
+    process_limit,
+)
 from mazelab.cli.maze import prepare_world
 from mazelab.grid_filter import GridBayesFilter
-from mazelab.limits import MemoryBudget, MemoryLimitError, cgroup_limit, check_memory, process_limit
 from mazelab.lookup import _LOOKUP_TILE, NearestStationLookup
 from mazelab.maze import Maze, MazeError
 from mazelab.maze_generator import generate_maze, parse_size
@@ -107,9 +115,9 @@ def test_rlimit_as_in_a_real_process_lowers_the_budget_so_a_moderate_particle_co
     assert refused.stderr.startswith("error: particle_count 3000000 needs about 1.1 GiB, but only 1.")
     assert refused.stderr.endswith("GiB of memory is available (the address-space limit, ulimit -v)\n")
     assert len(refused.stderr.splitlines()) == 1
-    budget = limits.memory_budget()
+    budget = checks.memory_budget()
     if budget is not None and budget.available > 2 * GIB:  # without the limit, this machine takes them
-        limits.check_particles(3_000_000)
+        checks.check_particles(3_000_000)
 
 
 def test_a_maze_too_large_is_refused_before_it_is_allocated():

@@ -67,8 +67,8 @@ def test_each_particle_filter_estimates_the_exact_log_evidence_within_its_monte_
 
 def test_a_run_reports_the_log_evidence_of_every_step_and_compare_shows_it(paper_world):
     from mazelab.experiments.runs import comparison_table
-    from mazelab.lab import simulate
     from mazelab.robot import Robot
+    from mazelab.simulation import simulate
 
     rng = np.random.default_rng(5)
     robot = Robot(0.3, 0.5, paper_world.random_free_place(rng), rng=rng)

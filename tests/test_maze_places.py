@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mazelab.limits import MemoryLimitError, memory_budget
-from mazelab.mazes import load_maze
+from mazelab.checks import MemoryLimitError, memory_budget
+from mazelab.maze import load_maze
 
 
 def test_random_free_places_takes_a_whole_count_that_fits():

@@ -14,7 +14,6 @@ from test_visualization import load
 from mazelab.cli.app import main
 from mazelab.filters import RegularizedParticleFilter, SIRParticleFilter
 from mazelab.grid_filter import GridBayesFilter
-from mazelab.lab import simulate
 from mazelab.maze import Maze
 from mazelab.modes import cluster_labels, find_modes, label_components
 from mazelab.regularisation import (
@@ -25,6 +24,7 @@ from mazelab.regularisation import (
     optimal_bandwidth,
 )
 from mazelab.robot import Robot
+from mazelab.simulation import simulate
 from mazelab.viz.style import MODE_DRAWN_SHARE, MODE_MIN_RADIUS, entity_name
 
 

@@ -18,15 +18,14 @@ import typer
 from conftest import ROOT
 from test_visualization import _ctrl_c_once, latest, load
 
-from mazelab import maze_paths, mazes
+from mazelab import maze as maze_module
 from mazelab.cli.app import main
 from mazelab.cli.options import declared_flags
 from mazelab.invocation import PROJECT_DIR, command_prefix
-from mazelab.maze import Maze, MazeError
-from mazelab.mazes import LAB_MAZES, shipped_mazes
+from mazelab.maze import LAB_MAZES, Maze, MazeError, shipped_mazes
 from mazelab.registry import entries
 from mazelab.robot import Robot
-from mazelab.simulation import check_walk_in_maze, simulate
+from mazelab.simulation import check_walk, simulate
 from mazelab.viz import processes
 
 PAPER_MAZE = ((2, 0, 1, 0, 0), (0, 0, 0, 0, 1), (1, 1, 1, 0, 0), (1, 0, 0, 0, 0), (0, 0, 2, 0, 1))
@@ -121,9 +120,9 @@ def test_shipped_mazes_are_found_by_name_from_any_folder(tmp_path, monkeypatch, 
 
 def test_accuracy_runs_on_the_named_shipped_mazes_not_on_whatever_is_in_mazes(tmp_path, monkeypatch):
     for name in shipped_mazes():
-        (tmp_path / f"{name}.txt").write_text((mazes.MAZES_DIR / f"{name}.txt").read_text())
-    (tmp_path / "random_20x20.txt").write_text((mazes.MAZES_DIR / "maze_20x20.txt").read_text())  # a student's
-    monkeypatch.setattr(maze_paths, "MAZES_DIR", tmp_path)
+        (tmp_path / f"{name}.txt").write_text((maze_module.MAZES_DIR / f"{name}.txt").read_text())
+    (tmp_path / "random_20x20.txt").write_text((maze_module.MAZES_DIR / "maze_20x20.txt").read_text())  # a student's
+    monkeypatch.setattr(maze_module, "MAZES_DIR", tmp_path)
     from mazelab.cli import study as accuracy
 
     seen = []
@@ -145,12 +144,15 @@ def test_a_walk_into_a_wall_is_refused_and_a_walk_made_on_the_maze_is_not():
         ValueError,
         match=r"robot_actual_angles\[2\]: step 3 of the replayed walk leaves the free area .* at \(0.50, 2.90\)",
     ):
-        check_walk_in_maze(world, down)
+        check_walk(world, down)
     wandered = simulate(Robot(0.3, 0.5, (3.5, 1.5)), world, 0.3, 0.5, 100, 300, seed=5)
-    check_walk_in_maze(world, wandered.scenario.robot())  # 300 steps of wandering stay in the free area
+    check_walk(world, wandered.scenario.robot())  # 300 steps of wandering stay in the free area
     kidnapped = Robot(0.3, 0.5, (0.5, 3.5), [0.0] * 3, [0.0] * 3, kidnap_at=2, kidnap_position=(0.5, 2.5))
-    with pytest.raises(ValueError, match="step 2"):  # put down in a wall
-        check_walk_in_maze(world, kidnapped)
+    with pytest.raises(ValueError, match=r"the kidnap position \(0.5, 2.5\) is not in the free area"):  # in a wall
+        check_walk(world, kidnapped)
+    kidnapped = Robot(0.3, 0.5, (0.5, 3.5), [0.0] * 4, [0.0] * 4, kidnap_at=2, kidnap_position=(3.5, 3.5))
+    with pytest.raises(ValueError, match="step 4"):  # put down in the free area, then walked into a wall
+        check_walk(world, kidnapped)
 
 
 @pytest.fixture

@@ -23,7 +23,7 @@ from nbclient import NotebookClient
 
 from mazelab.cli.app import main
 from mazelab.invocation import PROJECT_DIR
-from mazelab.registry import colour_of, rgb
+from mazelab.registry import described, rgb
 from mazelab.scenario import load_scenario
 from mazelab.viz.targets import notebook_viewer_installed
 
@@ -174,7 +174,7 @@ def check_the_executed_lab(notebook: nbformat.NotebookNode, workdir: Path, langu
         image = matplotlib.image.imread(io.BytesIO(base64.b64decode(pngs[0])), format="png")
         assert image.shape[0] > 100 and image.shape[1] > 100
         for name in FILTERS:  # each filter drawn in its registry colour, as the viewer and the CLI draw it
-            distance = np.abs(image[..., :3] - np.array(rgb(colour_of(name)))).max(axis=-1)
+            distance = np.abs(image[..., :3] - np.array(rgb(described(name).colour))).max(axis=-1)
             assert (distance < COLOUR_TOLERANCE).sum() >= LEAST_PIXELS, f"cell {cell.id}: no {name} in its colour"
 
     viewer_cells = [cell for cell in cells if "visualize=VIEWER" in cell.source]

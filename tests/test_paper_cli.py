@@ -19,10 +19,10 @@ import typer
 from conftest import ROOT
 
 from mazelab.cli.app import app, main
-from mazelab.lab import simulate
-from mazelab.mazes import load_maze, shipped_mazes
+from mazelab.maze import load_maze, shipped_mazes
 from mazelab.registry import entries, filter_entry
 from mazelab.robot import Robot
+from mazelab.simulation import simulate
 
 PAPER_KEYS = ["init_robot_pos", "init_particles_pos", "robot_actual_angles", "robot_compass_angles"]
 SMALL = ["--particles", "300", "--steps", "60"]

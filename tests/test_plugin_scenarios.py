@@ -1,4 +1,4 @@
-"""Plug-ins are first-class and contained; scenarios never run code (mazelab.plugins, mazelab.scenario).
+"""Plug-ins are first-class and contained; scenarios never run code (mazelab.registry, mazelab.scenario).
 
 - loading a scenario that names a file never imports it (compare, run --filter sir, load_scenario);
 - a plug-in's saved run replays bit for bit with its options once the user names it, its file's hash

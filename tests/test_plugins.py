@@ -10,9 +10,9 @@ import pytest
 from conftest import ROOT
 
 from mazelab.cli.app import main
-from mazelab.plugins import StudentCodeError, load_plugin
-from mazelab.registry import resolve_filter
+from mazelab.registry import load_plugin, resolve_filter
 from mazelab.simulation import simulate
+from mazelab.stops import StudentCodeError
 
 ANSWERS = ROOT / "tests" / "exercise_answers.py"
 REFERENCE = f"{ANSWERS}:ReferenceFilter"

@@ -19,7 +19,7 @@ from mazelab.experiments.runs import final_error
 from mazelab.experiments.study import MazeChoice, StudySetting, filters_per_setting
 from mazelab.experiments.study_plot import figure_layout
 from mazelab.experiments.summary import StudySummary
-from mazelab.mazes import MAZES_DIR
+from mazelab.maze import MAZES_DIR
 from mazelab.scenario import ScenarioError, load_scenario
 
 TINY = ["--runs", "3", "--steps", "20", "--particles", "120", "--seed", "5", "--workers", "1", "--no-viz"]

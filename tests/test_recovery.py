@@ -19,11 +19,11 @@ from conftest import ROOT
 
 from mazelab.experiments.kidnapping import recovery_records
 from mazelab.filters import RegularizedParticleFilter, SIRParticleFilter
-from mazelab.lab import simulate
 from mazelab.maze import Maze
 from mazelab.model import CONVERGENCE_RADIUS, log_likelihood
 from mazelab.recovery import SENSOR_RESET_LEVEL, Recovery, localised_likelihood, measurement_matched_places
 from mazelab.robot import Robot
+from mazelab.simulation import simulate
 
 PARTICLE_FILTERS = ["sir", "apf", "rpf"]
 

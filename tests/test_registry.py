@@ -26,8 +26,15 @@ from mazelab.experiments import batch_runs
 from mazelab.experiments.study import MazeChoice, run_task, study_settings, study_tasks
 from mazelab.filters import AuxiliaryParticleFilter, ParticleFilter, RegularizedParticleFilter, SIRParticleFilter
 from mazelab.grid_filter import GridBayesFilter
-from mazelab.plugins import check_declared_defaults
-from mazelab.registry import SHIPPED, FilterEntry, entries, filter_entry, register, resolve_filter
+from mazelab.registry import (
+    SHIPPED,
+    FilterEntry,
+    check_declared_defaults,
+    entries,
+    filter_entry,
+    register,
+    resolve_filter,
+)
 from mazelab.scenario import load_scenario
 
 

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from conftest import PAPER_MAZE
 
-from mazelab.lab import simulate
 from mazelab.maze import Maze
 from mazelab.robot import Robot
+from mazelab.simulation import simulate
 
 # filter -> (estimate after step 30, ESS after step 30): paper maze, start from default_rng(3), seed 11,
 # 500 particles, sigma 0.3, delta 0.5 (the grid filter at resolution 0.05)

@@ -13,7 +13,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mazelab.lab import run_model, simulate
 from mazelab.resampling import (
     KLD_QUANTILE,
     RESAMPLING_SCHEMES,
@@ -24,6 +23,7 @@ from mazelab.resampling import (
     systematic_resample,
 )
 from mazelab.robot import Robot
+from mazelab.simulation import run_model, simulate
 
 PARTICLE_FILTERS = ["sir", "apf", "rpf"]
 

@@ -28,9 +28,9 @@ from rerun.chunk import RrdReader
 
 from mazelab.cli.app import main
 from mazelab.cli.recordings import recording_problem, replay_with_layout
-from mazelab.lab import simulate
 from mazelab.maze import Maze
 from mazelab.robot import Robot
+from mazelab.simulation import simulate
 from mazelab.viz.processes import WebServer, rerun_environment, viewer_executable
 from mazelab.viz.style import APPLICATION_ID, STATION_COLOR
 

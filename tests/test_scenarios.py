@@ -11,8 +11,8 @@ import pytest
 
 from mazelab.atomic import write_text_atomically
 from mazelab.cli.app import main
-from mazelab.lab import simulate
 from mazelab.scenario import Scenario, ScenarioError, load_scenario, save_scenario
+from mazelab.simulation import simulate
 
 PAPER_KEYS = ["init_robot_pos", "init_particles_pos", "robot_actual_angles", "robot_compass_angles"]
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from mazelab.cli.app import main
-from mazelab.mazes import load_maze
+from mazelab.maze import load_maze
 from mazelab.model import CONVERGENCE_RADIUS
 from mazelab.scenario import ScenarioError, load_scenario
 from mazelab.simulation import simulate

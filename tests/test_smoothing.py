@@ -12,12 +12,11 @@ import numpy as np
 import pytest
 from conftest import PAPER_MAZE, recorded_walk
 
-from mazelab import limits
+from mazelab import checks
+from mazelab.checks import MemoryBudget, MemoryLimitError
 from mazelab.constants import OUTSIDE_PENALTY
 from mazelab.grid_filter import GridBayesFilter, arc_kernel
-from mazelab.limits import MemoryBudget, MemoryLimitError
-from mazelab.maze import Maze
-from mazelab.mazes import load_maze
+from mazelab.maze import Maze, load_maze
 from mazelab.model import ROBOT_SPEED
 from mazelab.registry import filter_entry
 from mazelab.robot import Robot
@@ -141,7 +140,7 @@ def test_the_smoothed_mean_is_nearer_the_truth_than_the_filtered_mean_in_nine_of
 def test_a_smoothing_that_does_not_fit_in_memory_is_refused_saying_how_much_it_needs(paper_world, monkeypatch):
     """The grid (70 x 70 cells, 1.2 MB for the filter) fits a 4 MB budget; 10,000 steps' checkpoints and
     one block (100 + 100 grids of 38 kB) do not."""
-    monkeypatch.setattr(limits, "memory_budget", lambda: MemoryBudget(5 * 2**20, "test budget"))
+    monkeypatch.setattr(checks, "memory_budget", lambda: MemoryBudget(5 * 2**20, "test budget"))
     with pytest.raises(MemoryLimitError, match=r"^smoothing 10000 steps on the grid's 70x70 cells \(203 grids\) needs"):
         smooth(paper_world, 0.3, 0.5, [0.1] * 10_000, [1.0] * 10_000, resolution=0.1)
 
@@ -243,7 +242,7 @@ def test_a_particle_smoother_needs_particles_and_measurements(paper_world):
 
 
 def test_a_genealogy_that_does_not_fit_in_memory_is_refused_saying_how_much_it_needs(paper_world, monkeypatch):
-    monkeypatch.setattr(limits, "memory_budget", lambda: MemoryBudget(10**9, "a test's budget"))
+    monkeypatch.setattr(checks, "memory_budget", lambda: MemoryBudget(10**9, "a test's budget"))
     robot = Robot(
         0.3, 0.5, (0.5, 0.5), actual_angles=[0.1] * 1000, compass_angles=[0.1] * 1000, measurements=[1.0] * 1000
     )

@@ -18,8 +18,8 @@ from rerun.chunk import RrdReader
 
 from mazelab.cli.app import main
 from mazelab.learning import grid_log_evidence
-from mazelab.mazes import load_maze
-from mazelab.plugins import file_sha256
+from mazelab.maze import load_maze
+from mazelab.registry import file_sha256
 from mazelab.scenario import load_scenario
 from mazelab.smoothing import SCORE_COLUMNS, score_smoothers
 

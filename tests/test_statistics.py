@@ -37,7 +37,7 @@ from mazelab.experiments.summary import (
     summary_csv,
 )
 from mazelab.grid_filter import GridBayesFilter
-from mazelab.mazes import find_maze, load_maze
+from mazelab.maze import find_maze, load_maze
 from mazelab.robot import Robot
 from mazelab.seeding import start_place
 from mazelab.simulation import simulate

@@ -18,7 +18,7 @@ from mazelab.cli.app import main
 from mazelab.experiments.study import MazeChoice, StudySetting
 from mazelab.experiments.study_plot import FONT_POINTS, PAPER_WIDTH, PNG_DPI, Y_QUANTITIES, plot_study
 from mazelab.experiments.summary import StudySummary
-from mazelab.registry import colour_of
+from mazelab.registry import described
 
 Y_LABEL = Y_QUANTITIES["mean"].label  # the default figure's y axis
 SVG = "{http://www.w3.org/2000/svg}"
@@ -71,7 +71,7 @@ def test_png_panels_have_their_own_range_the_reference_and_nothing_clipped(tmp_p
         left, right = round(x0 * width), round(x1 * width)
         inside = pixels[top + 3 : bottom - 3, left + 3 : right - 3]  # within the frame
         for name in FILTERS:
-            rows = np.flatnonzero(near(inside, colour_of(name)).any(axis=1))
+            rows = np.flatnonzero(near(inside, described(name).colour).any(axis=1))
             assert len(rows) > 0, f"{name} missing from a panel"  # the grid reference too, in every panel
             assert rows.min() > 0.03 * (bottom - top), f"{name} reaches the panel's top: clipped"
 

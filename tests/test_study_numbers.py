@@ -17,8 +17,8 @@ from mazelab.experiments import warmup
 from mazelab.experiments.executor import run_study
 from mazelab.experiments.plan import plan_study, study_mazes
 from mazelab.experiments.runs import run_filters
-from mazelab.mazes import load_maze
-from mazelab.plugins import file_sha256
+from mazelab.maze import load_maze
+from mazelab.registry import file_sha256
 from mazelab.robot import Robot
 from mazelab.seeding import start_place
 

@@ -12,7 +12,7 @@ from conftest import ROOT
 
 # what such a study must not import: the figure's, the viewer's, the cluster's and the progress bar's
 # libraries, numba on the numpy backend, and the code of the commands that replay or compare a scenario
-NOT_NEEDED = ("matplotlib", "rerun", "dask", "distributed", "rich", "numba", "mazelab.lab", "mazelab.cli.replay")
+NOT_NEEDED = ("matplotlib", "rerun", "dask", "distributed", "rich", "numba", "mazelab.cli.replay")
 NOT_NEEDED += ("mazelab.scenario",)  # the pydantic models of a saved run
 
 

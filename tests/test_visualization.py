@@ -21,10 +21,10 @@ from rerun.chunk import RrdReader
 
 from mazelab.cli.app import main
 from mazelab.grid_filter import GRID_RESOLUTION
-from mazelab.lab import simulate
 from mazelab.maze import Maze
 from mazelab.model import CONFIDENCE_RADIUS
 from mazelab.robot import Robot
+from mazelab.simulation import simulate
 from mazelab.viz import processes, targets
 from mazelab.viz.recording import NO_DISPLAY, heading_vectors
 from mazelab.viz.style import (

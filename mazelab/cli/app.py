@@ -59,14 +59,12 @@ from mazelab.cli.smoothing import learn, smooth
 from mazelab.cli.study import accuracy, study
 from mazelab.experiments.record import package_version, program_versions
 from mazelab.invocation import command_prefix, remember_arguments
-from mazelab.maze import MazeError
-from mazelab.mazes import DEFAULT_MAZE, find_maze, load_maze
+from mazelab.maze import DEFAULT_MAZE, MazeError, find_maze, load_maze
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
-from mazelab.plugins import StudentCodeError
 from mazelab.robot import Robot
 from mazelab.seeding import new_seed, start_place
-from mazelab.stops import STOP_SIGNALS, exit_without_strays, mark_interrupts
-from mazelab.viz.recording import web_serving_deferred, write_errors_deferred
+from mazelab.stops import STOP_SIGNALS, StudentCodeError, exit_without_strays, mark_interrupts
+from mazelab.viz.recording import deferred_to_the_end
 
 app = typer.Typer(
     add_completion=False,
@@ -100,7 +98,7 @@ def demo(
     """The paper's example: a lost robot, the SIR filter, 1500 particles, 200 steps."""
     if ctx.invoked_subcommand is not None:
         return
-    from mazelab.lab import simulate  # with drawing: imported by the commands that run one filter
+    from mazelab.simulation import simulate  # imported by the commands that run one filter
 
     visualize = visualization(**(drawing or {}), force=force)
     if (drawing or {}).get("rrd") is not None:
@@ -246,7 +244,7 @@ def _main(argv: list[str] | None) -> int:
     group, args = typer.main.get_command(app), sys.argv[1:] if argv is None else argv
     try:
         refuse_option_as_value(args, group)
-        with write_errors_deferred(), web_serving_deferred():
+        with deferred_to_the_end():
             code = group.main(args=argv, standalone_mode=False)
     except typer.TyperException as error:  # typer's usage errors: bad option, bad value, missing argument
         hint = option_elsewhere(error, group, args) or usage_hint(error, args)

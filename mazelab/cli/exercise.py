@@ -39,7 +39,7 @@ from mazelab.exercise.report import NotGradableError, check_file, format_report
 from mazelab.exercise.sandbox import DEFAULT_BUDGET, MAX_TIMEOUT, SandboxError, sandbox
 from mazelab.exercise.template import write_exercise
 from mazelab.invocation import python_prefix
-from mazelab.plugins import is_plugin_spec, split_spec
+from mazelab.registry import is_plugin_spec, split_spec
 from mazelab.stops import STOP_SIGNALS, signal_handlers
 
 exercise_app = typer.Typer(

@@ -14,8 +14,7 @@ from mazelab import maze_generator
 from mazelab.atomic import write_text_atomically
 from mazelab.cli.options import check_output_path, seed_option, visualization, with_drawing
 from mazelab.invocation import command_prefix
-from mazelab.maze import Maze
-from mazelab.mazes import load_maze
+from mazelab.maze import Maze, load_maze
 from mazelab.seeding import new_seed
 from mazelab.viz.views import open_view
 

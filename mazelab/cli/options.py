@@ -33,15 +33,13 @@ import typer.core
 from mazelab.atomic import NameTakenError, NotRegularFileError, output_target
 from mazelab.backend import ENVIRONMENT_VARIABLE, THREADS_VARIABLE, check_backend, check_threads
 from mazelab.checks import check_seed
-from mazelab.contract import not_taken
-from mazelab.declaration import Option, parse_flag, scoped, show_value
+from mazelab.declaration import Option, not_taken, parse_flag, scoped, show_value
 from mazelab.experiments.runs import FINAL_SHARE, final_error
 from mazelab.experiments.study import declared_option
 from mazelab.experiments.study import options_per_filter as reaching
 from mazelab.experiments.tables import pyplot
 from mazelab.invocation import command_prefix
-from mazelab.plugins import is_plugin_spec
-from mazelab.registry import SHIPPED, FilterEntry, entries, filter_entry, resolve_filter
+from mazelab.registry import SHIPPED, FilterEntry, entries, filter_entry, is_plugin_spec, resolve_filter
 from mazelab.robot import Robot
 from mazelab.simulation import RunResult
 from mazelab.viz.style import DEFAULT_MAX_DRAWN

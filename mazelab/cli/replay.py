@@ -48,15 +48,13 @@ from mazelab.experiments.runs import comparison_table, errors_csv, plot_errors, 
 from mazelab.experiments.traces import check_trace_path, compare_traces, write_traces
 from mazelab.experiments.warmup import take_startup_seconds
 from mazelab.invocation import command_line, repeat_command
-from mazelab.maze import Maze
-from mazelab.mazes import DEFAULT_MAZE, load_maze, mazes_fitting
+from mazelab.maze import DEFAULT_MAZE, Maze, load_maze, mazes_fitting
 from mazelab.model import DEFAULT_STEPS
-from mazelab.plugins import file_sha256
-from mazelab.registry import FilterEntry, filter_entry, resolve_filter
+from mazelab.registry import FilterEntry, file_sha256, filter_entry, resolve_filter
 from mazelab.robot import Robot
 from mazelab.scenario import Scenario, check_measurements_within, find_scenario, load_scenario, save_scenario
 from mazelab.seeding import new_seed, start_place
-from mazelab.simulation import RunResult, check_start, check_walk_in_maze
+from mazelab.simulation import RunResult, check_walk
 
 # "Repeat this run" repeats the run, not its files: the scenario and recording it wrote would be found
 # taken by the pasted command ("exists; use --force"), and --force would replace them unasked.
@@ -70,7 +68,7 @@ def run_one(maze: str | None, filter_name: str | None, particles: int | None, st
             scenario: Path | None, save_scenario_path: Path | None, force: bool, quiet: bool,
             kidnap_at: int | None, option: list[str] | None, named: dict, drawing: dict, **_: Any) -> None:  # fmt: skip
     """`run`'s work (mazelab.cli.app): one filter on a fresh lost robot or a replayed scenario, its report."""
-    from mazelab.lab import simulate  # with drawing: imported by the commands that run one filter
+    from mazelab.simulation import simulate  # imported by the commands that run one filter
 
     visualize = visualization(**drawing, force=force)
     stored = load_scenario(scenario) if scenario is not None else None
@@ -204,8 +202,7 @@ def replay_setup(stored: Scenario, maze: str | None, sigma: float | None, delta:
     robot = stored.robot(sigma, delta)
     if kept is None:  # a maze given or fitted: the scenario's start and walk must lie in its free area
         try:
-            check_start(world, robot.initial_position, None, robot.kidnap_position)
-            check_walk_in_maze(world, robot)
+            check_walk(world, robot)
             check_measurements_within(stored.robot_measurements, world, sigma)
         except ValueError as error:
             raise UserError(f"{error}; pass the maze the scenario was made on (--maze)") from None

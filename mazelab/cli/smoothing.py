@@ -36,8 +36,7 @@ from mazelab.experiments.tables import format_table, pyplot, records_csv, save_f
 from mazelab.invocation import command_line, resume_command
 from mazelab.learning import ParameterGrid, ParameterPosterior, evidence_filter, exact_parameter_posterior, pmmh
 from mazelab.model import LAB_DELTA_RANGE, LAB_SIGMA_RANGE
-from mazelab.plugins import file_sha256
-from mazelab.registry import filter_entry
+from mazelab.registry import file_sha256, filter_entry
 from mazelab.smoothing import SCORE_COLUMNS, SMOOTHERS, SmootherScores, score_smoothers
 
 if TYPE_CHECKING:
@@ -110,7 +109,6 @@ def smoothing_recording(scores: SmootherScores, world: Any, path: Path, force: b
     import rerun as rr
     import rerun.blueprint as rrb
 
-    from mazelab.registry import colour_of
     from mazelab.viz.recording import Recording
     from mazelab.viz.style import CELL_DOT_RADIUS, MAP, ROBOT_COLOR, entity_name, lab_blueprint, map_view
 
@@ -121,7 +119,7 @@ def smoothing_recording(scores: SmootherScores, world: Any, path: Path, force: b
     if recording is None:  # Rerun switched off: a line said so
         return
     for (label, name), title in views.items():
-        colour = colour_of(filter_entry(label).name)
+        colour = filter_entry(label).colour
         for k, (points, weights) in sorted(scores.recorded[label][SMOOTHERS.index(name)].clouds.items()):
             recording.stream.set_time("step", sequence=k)
             radii = CELL_DOT_RADIUS * np.sqrt(weights * len(weights))  # a dot's area grows with its weight

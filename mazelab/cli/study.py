@@ -82,7 +82,7 @@ from mazelab.experiments.summary import CSV_DTYPES, study_table, summarise_study
 from mazelab.experiments.tables import records_csv
 from mazelab.experiments.traces import check_trace_path, study_traces, write_traces
 from mazelab.invocation import command_line, repeat_command, resume_command
-from mazelab.mazes import DEFAULT_MAZE, LAB_MAZES
+from mazelab.maze import DEFAULT_MAZE, LAB_MAZES
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
 from mazelab.registry import filter_entry, resolve_filter
 from mazelab.viz.style import DEFAULT_MAX_DRAWN

@@ -15,8 +15,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from mazelab.maze import Maze
-from mazelab.mazes import load_maze
+from mazelab.maze import Maze, load_maze
 from mazelab.robot import Robot
 from mazelab.seeding import run_streams, start_place
 

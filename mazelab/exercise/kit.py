@@ -25,9 +25,7 @@ KIT: dict[str, str | tuple[str, ...]] = {
     "mazelab.checks": WHOLE,
     "mazelab.declaration": WHOLE,
     "mazelab.contract": WHOLE,
-    "mazelab.limits": WHOLE,
     "mazelab.lookup": WHOLE,
-    "mazelab.maze_paths": WHOLE,
     "mazelab.maze": WHOLE,
     "mazelab.seeding": WHOLE,
     "mazelab.constants": WHOLE,  # L, the outside penalty, the green circle: numbers only

@@ -53,7 +53,7 @@ from mazelab.exercise.whole import FIGURE_COLUMNS, References, judge_whole, whol
 from mazelab.exercise.whole import expected_text as whole_expected
 from mazelab.experiments.tables import format_table
 from mazelab.invocation import command_prefix
-from mazelab.plugins import split_spec
+from mazelab.registry import split_spec
 
 STAGES = (*PARTS, "whole")
 WHOLE = "whole filter"

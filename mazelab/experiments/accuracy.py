@@ -16,8 +16,7 @@ from mazelab.experiments.plan import StudyPlan, plan_study
 from mazelab.experiments.stats import bootstrap_interval, wilson_interval
 from mazelab.experiments.study import REFERENCE, MazeChoice, RunRecord, option_cell
 from mazelab.experiments.tables import format_interval, format_optional, format_table, records_csv
-from mazelab.plugins import is_plugin_spec
-from mazelab.registry import filter_entry, resolve_filter
+from mazelab.registry import filter_entry, is_plugin_spec, resolve_filter
 
 AccuracyFilter = tuple[str, Any, dict[str, Any]]  # (label, filter name or class, options)
 # the filters of the default table, each against the exact grid filter

@@ -30,8 +30,7 @@ from mazelab.experiments.summary import CSV_DTYPES, StudySummary, summarise_stud
 from mazelab.experiments.tables import flat_row
 from mazelab.experiments.traces import study_traces, trace_table_columns
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
-from mazelab.plugins import is_lab_class
-from mazelab.registry import resolve_filter
+from mazelab.registry import is_lab_class, resolve_filter
 
 
 @dataclass

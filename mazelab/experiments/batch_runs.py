@@ -118,22 +118,8 @@ def run_batch(tasks: Sequence[RunTask]) -> list[list[RunRecord]]:
         restarts = filt.reinitialised_at if len(tasks) > 1 else [filt.reinitialised_at]  # one run: one list
         for r, (walk, true_positions) in enumerate(walks):
             inputs = RunInputs(**{**walk.__dict__, "filtering_algorithm": filter_class.name})
-            run = steps_of.run(r)
-            results[r][filter_class.name] = RunResult(
-                filter_class.name,
-                true_positions,
-                run["estimates"],
-                run["ess"],
-                run["confident"],
-                steps_of.seconds,
-                restarts[r],
-                inputs,
-                extras={
-                    "particle_count": run["counts"],
-                    "diagnostics": run["diagnostics"],
-                    "backend": backend_of(filt),
-                },
-                log_evidence=run["log_evidence"],
+            results[r][filter_class.name] = RunResult.of_recorded(
+                steps_of, r, true_positions, restarts[r], inputs, backend_of(filt)
             )
     return [run_records(task, world, result) for task, result in zip(tasks, results, strict=True)]
 

@@ -30,10 +30,9 @@ from pathlib import Path
 from typing import Any
 
 from mazelab.atomic import file_kind, write_all
-from mazelab.checks import check_seed
+from mazelab.checks import check_memory, check_seed
 from mazelab.experiments.record import differences
 from mazelab.experiments.study import RunRecord, RunTask, option_cells
-from mazelab.limits import check_memory
 
 try:
     import fcntl

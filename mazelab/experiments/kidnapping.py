@@ -108,7 +108,7 @@ def format_recovery_table(rows: Iterable[RecoveryRow]) -> str:
 
 
 if __name__ == "__main__":
-    from mazelab.mazes import load_maze
+    from mazelab.maze import load_maze
 
     maze = load_maze("maze_10x10")
     count = int(sys.argv[1]) if len(sys.argv) > 1 else 40

@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from mazelab import maze_generator
-from mazelab.checks import check_bandwidth_within, check_sigma_within
+from mazelab.checks import check_particles, check_sigma_within, check_steps, check_study
 from mazelab.declaration import scoped, to_plain_json
 from mazelab.experiments.runs import filter_key, parse_filters
 from mazelab.experiments.study import (
@@ -32,12 +32,10 @@ from mazelab.experiments.study import (
 )
 from mazelab.experiments.summary import CSV_COLUMNS, describe_setting, describe_varied
 from mazelab.grid_filter import check_grid_memory
-from mazelab.limits import check_particles, check_steps, check_study
+from mazelab.maze import DEFAULT_MAZE, MAZES_DIR, find_maze, load_maze
 from mazelab.maze_generator import DEFAULT_WALL_SHARE
-from mazelab.maze_paths import MAZES_DIR
-from mazelab.mazes import DEFAULT_MAZE, find_maze, load_maze
-from mazelab.plugins import PluginCode, plugin_codes
-from mazelab.registry import filter_entry, resolve_filter
+from mazelab.registry import PluginCode, filter_entry, plugin_codes, resolve_filter
+from mazelab.regularisation import check_bandwidth
 from mazelab.seeding import new_seed
 
 
@@ -262,7 +260,7 @@ def check_study_numbers(settings: Sequence[Any], reference: str | None = None) -
         rows, columns = maze.size if maze.grid is None else (len(maze.grid), len(maze.grid[0]))
         check_sigma_within(setting.sigma, columns, rows)
         if setting.value("bandwidth") is not None:
-            check_bandwidth_within(setting.value("bandwidth"), columns, rows)
+            check_bandwidth(setting.value("bandwidth"))
         if reference is not None:
             check_grid_memory(columns, rows)
 

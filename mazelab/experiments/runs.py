@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from mazelab.backend import backend_by_work
-from mazelab.contract import options_for
+from mazelab.declaration import options_for
 from mazelab.experiments.tables import format_number, format_table, pyplot, records_csv, save_figure
 from mazelab.experiments.warmup import warm_up_filters
 from mazelab.maze import Maze

@@ -17,15 +17,13 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from mazelab.contract import not_taken, options_for
-from mazelab.declaration import Option, options_of, scoped, show_value
+from mazelab.declaration import Option, not_taken, options_for, options_of, scoped, show_value
 from mazelab.experiments.runs import run_figures, run_filters
 from mazelab.experiments.warmup import WorkerReport
 from mazelab.maze import STATION_WALL, Maze
 from mazelab.maze_generator import DEFAULT_WALL_SHARE, generate_maze
 from mazelab.model import check_model_parameters
-from mazelab.plugins import PluginCode, file_sha256, filters_here
-from mazelab.registry import entries, filter_entry, resolve_filter
+from mazelab.registry import PluginCode, entries, file_sha256, filter_entry, filters_here, resolve_filter
 from mazelab.robot import Robot
 from mazelab.seeding import start_place, study_seeds
 from mazelab.simulation import RunResult
@@ -271,7 +269,7 @@ class RunTask:
 
     def here(self) -> RunTask:
         """This run with each plug-in's spec the one that imports its shipped code in this process
-        (mazelab.plugins.PluginCode): a worker runs the code the study was planned with."""
+        (mazelab.registry.PluginCode): a worker runs the code the study was planned with."""
         if not self.plugins:
             return self
         return dataclasses.replace(self, filters=filters_here(self.filters, self.plugins))
@@ -328,7 +326,7 @@ def study_tasks(
     (`filters_per_setting`; a setting that runs none has no tasks). `traces` keeps each run's per-step
     trace (mazelab.experiments.traces); `reference` ("grid") measures each filter against the exact
     posterior (`with_reference`); `plugins` the code of the plug-ins among the filters
-    (mazelab.plugins.PluginCode), sent with every run."""
+    (mazelab.registry.PluginCode), sent with every run."""
     if runs < 1 or steps < 1:
         raise ValueError(f"runs and steps must be >= 1, got {runs} runs and {steps} steps")
     if kidnap_at is not None and not 1 <= kidnap_at <= steps:

@@ -25,10 +25,9 @@ from pathlib import Path
 from typing import Any
 
 from mazelab.invocation import command_prefix
-from mazelab.stops import StoppedBySignal
+from mazelab.stops import STOP_SIGNALS, StoppedBySignal
 
 VIEWER_PORT = 9876  # the native viewer's gRPC port, rerun's default: later runs reuse its window
-STOP_SIGNALS = ("SIGTERM", "SIGHUP")  # besides Ctrl-C, what ends this program and must end its children
 
 _children: set[Any] = set()  # the running processes that end with this program
 _holders: set[object] = set()  # while any: SIGTERM/SIGHUP handled by us (see hold_stop_signals)
@@ -116,13 +115,10 @@ def hold_stop_signals(holder: object) -> None:
     _holders.add(holder)
     if threading.current_thread() is not threading.main_thread():
         return  # handlers can only be set in the main thread
-    for name in STOP_SIGNALS:
-        number = getattr(signal, name, None)
-        if number is None or number in _previous_handlers:
-            continue
+    for number in STOP_SIGNALS:
         previous = signal.getsignal(number)
-        if previous == signal.SIG_IGN:
-            continue  # ignored on purpose (nohup): stays ignored
+        if number == signal.SIGINT or number in _previous_handlers or previous == signal.SIG_IGN:
+            continue  # Ctrl-C is handled where it waits; an ignored one (nohup) stays ignored
         _previous_handlers[number] = previous
         signal.signal(number, _stop_children_then_go_on)
 

@@ -153,7 +153,7 @@ class Recording:
 
     def close(self) -> None:
         """Flush; a file is written whole and its path printed (a write error is raised, or deferred,
-        see write_errors_deferred); a web viewer is served until Ctrl-C. A caller's own recording is
+        see deferred_to_the_end); a web viewer is served until Ctrl-C. A caller's own recording is
         only flushed."""
         if self.closed:
             return
@@ -203,7 +203,7 @@ class Recording:
 
     @staticmethod
     def _defer_or_raise(error: OSError) -> None:
-        """Raise a write error now, or keep it for the end of write_errors_deferred."""
+        """Raise a write error now, or keep it for the end of deferred_to_the_end."""
         deferred = _deferred_errors.get()
         if deferred is None:
             raise error
@@ -216,36 +216,27 @@ def rerun_switched_off() -> bool:
 
 
 @contextmanager
-def write_errors_deferred() -> Iterator[None]:
-    """Within this block a recording that cannot be written does not end the run: the error is
-    raised when the block ends, after the command printed its results."""
+def deferred_to_the_end() -> Iterator[None]:
+    """Within this block a command prints its results first: a recording that cannot be written does
+    not end the run (the error is raised when the block ends), and a web viewer is served (until
+    Ctrl-C) when the block ends, not when its run ends; an error in the block stops it at once."""
     errors: list[WriteError] = []
-    token = _deferred_errors.set(errors)
-    try:
-        yield
-    finally:
-        _deferred_errors.reset(token)
-    if errors:
-        raise errors[0]
-
-
-@contextmanager
-def web_serving_deferred() -> Iterator[None]:
-    """Within this block a web viewer is served (until Ctrl-C) when the block ends, not when its run
-    ends, so that a command prints its results first; an error in the block stops it at once."""
     servers: list[WebServer] = []
-    token = _deferred_servers.set(servers)
+    tokens = _deferred_errors.set(errors), _deferred_servers.set(servers)
     finished = False
     try:
         yield
         finished = True
     finally:
-        _deferred_servers.reset(token)
+        _deferred_servers.reset(tokens[1])
+        _deferred_errors.reset(tokens[0])
         for index, server in enumerate(servers):
             if finished and index == 0:
                 server.serve_until_interrupted()
             else:
                 server.stop()
+    if errors:
+        raise errors[0]
 
 
 def log_maze(stream: Any, world: Maze) -> None:

@@ -28,7 +28,7 @@ from mazelab.kalman import covariance_ellipse
 from mazelab.maze import Maze
 from mazelab.model import CONFIDENCE_RADIUS
 from mazelab.modes import Mode
-from mazelab.registry import colour_of
+from mazelab.registry import described
 from mazelab.viz.recording import Recording, heading_vectors
 from mazelab.viz.style import (
     CELL_DOT_RADIUS,
@@ -145,7 +145,7 @@ class RunView:
         self.owns_recording = owns_recording
         self.metric = entity_name(filter_name)
         self.path = f"{MAP}/{self.metric}"
-        self.color = colour_of(filter_name)  # each filter in its registry colour, as in the figures
+        self.color = described(filter_name).colour  # each filter in its registry colour, as in the figures
         self.count_series_styled = False
         style = rr.SeriesLines(names=filter_name, colors=self.color, widths=2)
         for series in SERIES:
