@@ -469,24 +469,10 @@ def _list_hint(option: Option, text: str) -> str:
     return f"; a list of values is for mazelab study (study --option {option.name}={text})" if "," in text else ""
 
 
-OptionFlag = Annotated[
-    list[str] | None,
-    typer.Option(
-        "--option",
-        metavar="NAME=VALUE",
-        show_default=False,
-        help="a filter option, repeatable (FILTER.NAME=...: one filter's)",
-    ),
-]
-StudyOptionFlag = Annotated[
-    list[str] | None,
-    typer.Option(
-        "--option",
-        metavar="NAME=V1,V2",
-        show_default=False,
-        help="filter option values (FILTER.NAME: one's)",
-    ),
-]
+OptionFlag = opt(list[str] | None, "--option", metavar="NAME=VALUE", show_default=False,
+                 help="a filter option, repeatable (FILTER.NAME=...: one filter's)")  # fmt: skip
+StudyOptionFlag = opt(list[str] | None, "--option", metavar="NAME=V1,V2", show_default=False,
+                      help="filter option values (FILTER.NAME: one's)")  # fmt: skip
 
 
 class GivenOptions(dict):
