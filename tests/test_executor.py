@@ -165,3 +165,19 @@ def test_a_worker_killed_while_it_wrote_its_rows_restarts_the_pool(tmp_path):
     done = subprocess.run([sys.executable, "-c", CUT_SHORT_IN_A_STUDY, str(flag)], capture_output=True, text=True,
                           timeout=300)  # fmt: skip
     assert flag.exists() and done.stdout.strip() == "[1, 2, 3, 4] 0", done.stderr
+
+
+def raise_in_the_worker(unit):
+    """A unit whose work raises where it runs (picklable: the pool's workers import it)."""
+    raise ValueError(f"unit {unit[0]} cannot run")
+
+
+def test_a_unit_that_raises_in_a_local_worker_is_a_failure_that_says_where():
+    """On the local pool a unit that raises is a RunFailure of each of its tasks, said to have failed in
+    a worker process (not on a Dask cluster, which this run never had)."""
+    collected: list = []
+    executor.Units([(1,), (2,)], raise_in_the_worker, workers=2).run(collected.extend, lambda count: None)
+    assert sorted(failure.message for failure in collected) == [
+        "in a worker process: ValueError: unit 1 cannot run",
+        "in a worker process: ValueError: unit 2 cannot run",
+    ]

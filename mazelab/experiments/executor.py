@@ -395,7 +395,8 @@ class Units:
             except (CancelledError, OSError) as error:  # the scheduler went away with it: not the run's fault
                 raise StudyLost(_lost(error)) from None
             except Exception as error:  # the unit itself raised on the worker (e.g. mazelab missing there)
-                results = [RunFailure(task, f"on the Dask cluster: {type(error).__name__}: {error}") for task in unit]
+                where = "on the Dask cluster" if self.client is not None else "in a worker process"
+                results = [RunFailure(task, f"{where}: {type(error).__name__}: {error}") for task in unit]
             self.collect(results)
             self.advance(len(unit))
 
