@@ -38,7 +38,7 @@ from mazelab.cli.options import (
     OptionFlag,
     ThreadsOption,
     UserError,
-    check_output_path,
+    check_outputs,
     filter_choices,
     filters,
     option_elsewhere,
@@ -101,8 +101,7 @@ def demo(
     from mazelab.simulation import simulate  # imported by the commands that run one filter
 
     visualize = visualization(**(drawing or {}), force=force)
-    if (drawing or {}).get("rrd") is not None:
-        check_output_path(drawing["rrd"], force)
+    check_outputs([("--rrd", (drawing or {}).get("rrd"))], force)
     world = load_maze(DEFAULT_MAZE)
     seed = new_seed()
     robot = Robot(DEFAULT_SIGMA, DEFAULT_DELTA, start_place(world, seed))

@@ -12,7 +12,7 @@ import typer
 
 from mazelab import maze_generator
 from mazelab.atomic import write_text_atomically
-from mazelab.cli.options import check_output_path, seed_option, visualization, with_drawing
+from mazelab.cli.options import check_outputs, seed_option, visualization, with_drawing
 from mazelab.invocation import command_prefix
 from mazelab.maze import Maze, load_maze
 from mazelab.seeding import new_seed
@@ -39,8 +39,7 @@ def maze_generate(
 ) -> None:
     """A random maze whose free area is connected, in the mazes/ file format."""
     walls = walls if old_walls is None else old_walls  # --walls: its earlier spelling
-    if out is not None:
-        check_output_path(out, force)
+    check_outputs([("--out", out)], force)
     rows, columns = maze_generator.parse_size(size)
     stations = maze_generator.default_station_count(rows, columns) if stations is None else stations
     seed = new_seed() if seed is None else seed

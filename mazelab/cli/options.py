@@ -38,6 +38,7 @@ from mazelab.experiments.runs import FINAL_SHARE, final_error
 from mazelab.experiments.study import declared_option
 from mazelab.experiments.study import options_per_filter as reaching
 from mazelab.experiments.tables import pyplot
+from mazelab.experiments.traces import check_trace_path
 from mazelab.invocation import command_prefix
 from mazelab.registry import SHIPPED, FilterEntry, entries, filter_entry, is_plugin_spec, resolve_filter
 from mazelab.robot import Robot
@@ -168,12 +169,16 @@ def check_output_path(path: Path, force: bool) -> None:
         raise UserError(f"{path.parent} is not writable: cannot write {path.name} there")
 
 
-def check_outputs(csv_path: Path | None, plot: Path | None, force: bool, rrd: Path | None = None) -> None:
-    """Check the output paths, and that matplotlib is there for --plot and writes its format, before
-    any run starts."""
-    for path in (csv_path, plot, rrd):
-        if path is not None:
+def check_outputs(outputs: Sequence[tuple[str, Path | None]], force: bool, apart: str = "") -> None:
+    """Check a command's outputs, (what the user calls each, its path or None), before any run: two that
+    are one file refused first (check_one_file_each), then each as check_output_path does (but the one
+    named `apart`, a journal, checked by its owner), a --plot in a format matplotlib draws (matplotlib
+    there) and --traces in one this program writes (.csv, .parquet)."""
+    check_one_file_each(outputs)
+    for name, path in outputs:
+        if path is not None and name != apart:
             check_output_path(path, force)
+    plot = dict(outputs).get("--plot")
     if plot is not None:
         pyplot()
         from matplotlib.backend_bases import FigureCanvasBase
@@ -182,6 +187,8 @@ def check_outputs(csv_path: Path | None, plot: Path | None, force: bool, rrd: Pa
         suffix = plot.suffix.lstrip(".").lower() or "png"
         if suffix not in formats:
             raise UserError(f"--plot {plot}: cannot draw .{suffix} files; use one of .{', .'.join(sorted(formats))}")
+    if dict(outputs).get("--traces") is not None:
+        check_trace_path(dict(outputs)["--traces"])
 
 
 def file_identity(path: Path) -> tuple[str, tuple[int, int] | None]:

@@ -33,8 +33,6 @@ from mazelab.cli.options import (
     UserError,
     check_filter_name,
     check_filter_names,
-    check_one_file_each,
-    check_output_path,
     check_outputs,
     given_options,
     options_per_filter,
@@ -45,7 +43,7 @@ from mazelab.cli.options import (
 from mazelab.declaration import show_value, to_plain_json
 from mazelab.experiments.record import Recorder, record_path
 from mazelab.experiments.runs import comparison_table, errors_csv, plot_errors, recovery_steps, run_figures
-from mazelab.experiments.traces import check_trace_path, compare_traces, write_traces
+from mazelab.experiments.traces import compare_traces, write_traces
 from mazelab.experiments.warmup import take_startup_seconds
 from mazelab.invocation import command_line, repeat_command
 from mazelab.maze import DEFAULT_MAZE, Maze, load_maze, mazes_fitting
@@ -75,9 +73,7 @@ def run_one(maze: str | None, filter_name: str | None, particles: int | None, st
     filter_name = check_filter_name(replay_filter_name(stored, filter_name, scenario))
     options = options_per_filter([filter_name], given_options(named, option, [filter_name]),
                                  check=stored is None)[resolve_filter(filter_name).name]  # fmt: skip
-    for path in (save_scenario_path, drawing.get("rrd")):
-        if path is not None:
-            check_output_path(path, force)
+    check_outputs([("--save-scenario", save_scenario_path), ("--rrd", drawing.get("rrd"))], force)
     if stored is None:
         setup = fresh_setup(maze, sigma, delta, seed, start_seed)
     else:
@@ -122,9 +118,9 @@ def compare_scenario(
 
     visualize = visualization(**drawing, force=force)
     check_filter_names(filters)
-    rrd = drawing.get("rrd")
-    record_file = compare_record_file(csv_path, plot, traces, force, rrd)  # a JSON record beside the outputs
-    check_outputs(csv_path, plot, force, rrd)
+    record_file = next((record_path(p) for p in (csv_path, plot, traces) if p is not None), None)  # beside them
+    outputs = [("--csv", csv_path), ("--plot", plot), ("--traces", traces), ("--rrd", drawing.get("rrd"))]
+    check_outputs([*outputs, ("the record", record_file)], force)
     scenario = find_scenario(scenario)  # a shipped one by its name: its file's name in the table's title
     stored = load_scenario(scenario)
     setup, names = replay_setup(stored, maze, sigma, delta, seed), parse_filters(filters)
@@ -359,23 +355,6 @@ def particle_count_report(result: RunResult) -> str:
 
 
 # -- compare's outputs ------------------------------------------------------------------------------------
-def compare_record_file(
-    csv_path: Path | None, plot: Path | None, traces: Path | None, force: bool, rrd: Path | None = None
-) -> Path | None:
-    """Where compare's record goes (beside its first output), checked like the outputs; the traces'
-    format checked too; two outputs that are one file refused first, in one line naming both."""
-    path = next((record_path(p) for p in (csv_path, plot, traces) if p is not None), None)
-    check_one_file_each(
-        [("--csv", csv_path), ("--plot", plot), ("--traces", traces), ("--rrd", rrd), ("the record", path)]
-    )
-    if traces is not None:
-        check_output_path(traces, force)
-        check_trace_path(traces)
-    if path is not None:
-        check_output_path(path, force)
-    return path
-
-
 def report_compare(
     results: dict[str, RunResult], setup: RunSetup, recorder: Recorder, title: str, *, kld: bool, force: bool,
     csv_path: Path | None, plot: Path | None, traces: Path | None, record_file: Path | None,

@@ -33,8 +33,6 @@ from mazelab.cli.options import (
     StudyOptionFlag,
     UserError,
     check_filter_names,
-    check_one_file_each,
-    check_output_path,
     check_outputs,
     given_options,
     opt,
@@ -80,7 +78,7 @@ from mazelab.experiments.runs import parse_filters
 from mazelab.experiments.study import MazeChoice, RunRecord, RunTask, StudyOutcome
 from mazelab.experiments.summary import CSV_DTYPES, study_table, summarise_study, summary_csv, summary_path
 from mazelab.experiments.tables import records_csv
-from mazelab.experiments.traces import check_trace_path, study_traces, write_traces
+from mazelab.experiments.traces import study_traces, write_traces
 from mazelab.invocation import command_line, repeat_command, resume_command
 from mazelab.maze import DEFAULT_MAZE, LAB_MAZES
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
@@ -255,17 +253,12 @@ class StudyFiles:
         summary_named = "--summary-csv" if summary_csv is not None else "the summary CSV"
         summary_csv = summary_csv or (summary_path(csv_path) if csv_path is not None else None)
         journal = journal_path(csv_path) if csv_path is not None else None
-        check_one_file_each([("--csv", csv_path), ("--csv's journal", journal), ("--plot", plot), ("--traces", traces),
-                             ("--record" if record else "the record", record_file), ("--rrd", rrd),
-                             (summary_named, summary_csv)])  # fmt: skip
         files = cls(csv_path, plot, traces, record_file, summary_csv, journal, resume, force)
         files.check_journal()
-        check_outputs(csv_path, plot, force or resume, rrd)
-        for path in (traces, record_file, summary_csv):
-            if path is not None:
-                check_output_path(path, force or resume)
-        if traces is not None:
-            check_trace_path(traces)
+        outputs = [("--csv", csv_path), ("--csv's journal", journal), ("--plot", plot), ("--traces", traces),
+                   ("--record" if record else "the record", record_file), ("--rrd", rrd),
+                   (summary_named, summary_csv)]  # fmt: skip
+        check_outputs(outputs, force or resume, apart="--csv's journal")
         return files
 
     def check_journal(self) -> None:
@@ -510,8 +503,6 @@ def accuracy(
     estimate and the exact grid filter's posterior mean over the second half of the steps (with a 95%
     bootstrap interval), and the share of runs that converged (error below 0.5 from some step on;
     Wilson interval)."""
-    record_file = record if record is not None else record_path(csv_path) if csv_path is not None else None
-    check_one_file_each([("--csv", csv_path), ("--record" if record is not None else "the record", record_file)])
     mazes = parse_mazes(maze, maze_size, stations, default=list(LAB_MAZES))
     rows = with_options(accuracy_filters(None if filters is None else parse_filters(filters)), option)
     plan = accuracy_plan(mazes, rows, sigma=sigma, delta=delta, particles=particles, runs=runs, steps=steps,
@@ -521,7 +512,7 @@ def accuracy(
                   "particles": particles, "runs": runs, "steps": steps, "root_seed": seed}  # fmt: skip
     workers = workers or cores()
     backend = study_backend(plan.tasks(), workers)
-    files = accuracy_files(csv_path, record_file, plan, rows, force, backend)
+    files = accuracy_files(csv_path, record, plan, rows, force, backend)
     header = (f"Accuracy: {len(mazes)} maze(s) ({', '.join(m.label for m in mazes)}) x {runs} runs, sigma "
               f"{sigma:g}, delta {delta:g}, {particles} particles, {steps} steps, seed {seed}; filters: "
               f"{', '.join(labels)}")  # fmt: skip
@@ -534,18 +525,19 @@ def accuracy(
         session.close()
 
 
-def accuracy_files(csv_path: Path | None, record_file: Path | None, plan: StudyPlan, rows: tuple[AccuracyFilter, ...],
+def accuracy_files(csv_path: Path | None, record: Path | None, plan: StudyPlan, rows: tuple[AccuracyFilter, ...],
                    force: bool, backend: str) -> StudyFiles:  # fmt: skip
-    """The outputs and their journal (beside the CSV, else the record): an earlier run's files are refused
-    without --force, unless it was interrupted (no finished session in its journal): then it is resumed
-    (the same parameters, mazelab.experiments.journal.resume_study) or replaced, and a line says which."""
+    """The outputs (the record --record, else beside the CSV) and their journal (beside the CSV, else the
+    record): an earlier run's files are refused without --force, unless it was interrupted (no finished
+    session in its journal): then it is resumed (the same parameters, mazelab.experiments.journal.resume_study)
+    or replaced, and a line says which."""
+    record_file = record if record is not None else record_path(csv_path) if csv_path is not None else None
     journal = journal_path(csv_path or record_file) if csv_path or record_file else None
     lines = [] if journal is None or journal_state(journal) != "left" else read_journal(journal)
     finished = any(line.get("closed", {}).get("status") == "finished" for line in lines)
     interrupted = any("session" in line for line in lines) and not finished
-    for path in (csv_path, record_file):
-        if path is not None:
-            check_output_path(path, force or interrupted)
+    named = "the record" if record is None else "--record"
+    check_outputs([("--csv", csv_path), (named, record_file)], force or interrupted)
     files = StudyFiles(csv_path, None, None, record_file, None, journal, False, force or bool(lines))
     if interrupted and not force:
         try:
