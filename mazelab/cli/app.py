@@ -23,7 +23,7 @@ import signal
 import sys
 import warnings
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Any
 
 import typer
 
@@ -35,12 +35,16 @@ from mazelab.cli.options import (
     DEFAULT_DELTA,
     DEFAULT_SIGMA,
     BackendOption,
+    Force,
+    KidnapAt,
     OptionFlag,
     ThreadsOption,
     UserError,
+    arg,
     check_outputs,
     filter_choices,
     filters,
+    opt,
     option_elsewhere,
     plain_usage_names,
     progress_printer,
@@ -89,10 +93,8 @@ def show_version(value: bool) -> None:
 @with_drawing
 def demo(
     ctx: typer.Context,
-    force: Annotated[bool, typer.Option("--force", help="replace an existing --rrd file")] = False,
-    version: Annotated[
-        bool, typer.Option("--version", is_eager=True, callback=show_version, help="the versions, then exit")
-    ] = False,
+    force: opt(bool, "--force", help="replace an existing --rrd file") = False,
+    version: opt(bool, "--version", is_eager=True, callback=show_version, help="the versions, then exit") = False,
     drawing: dict[str, Any] | None = None,
 ) -> None:
     """The paper's example: a lost robot, the SIR filter, 1500 particles, 200 steps."""
@@ -125,34 +127,26 @@ def demo(
     typer.echo(f"Repeat this run: {command_prefix()} {shlex.join(words)}")
 
 
-Maze_ = Annotated[
-    str | None,
-    typer.Option("--maze", metavar="MAZE", help=f"a maze file or a name in mazes/ [default: {DEFAULT_MAZE}]"),
-]
-Filter = Annotated[str | None, typer.Option("--filter", metavar="NAME", help=f"{filter_choices()} [default: sir]")]
-Particles = Annotated[int | None, typer.Option(help=f"particle count N_S [default: {DEFAULT_PARTICLE_COUNT}]")]
-Steps = Annotated[int | None, typer.Option(min=1, help=f"number of steps [default: {DEFAULT_STEPS}]")]
-Sigma = Annotated[float | None, typer.Option(help=f"noise std, lab 0.2-0.8 [default: {DEFAULT_SIGMA}]")]
-Delta = Annotated[float | None, typer.Option(help=f"compass error, rad, lab 0.05-0.6 [default: {DEFAULT_DELTA}]")]
-Seed = Annotated[int | None, typer.Option(callback=seed_option, help="seed of the whole run (default: new, printed)")]
-StartSeed = Annotated[int | None, typer.Option(callback=seed_option, hidden=True, help="seed of the start only")]
-ScenarioFile = Annotated[Path | None, typer.Option(help="replay a saved scenario (.json), or a shipped one by name")]
-SaveScenario = Annotated[Path | None, typer.Option("--save-scenario", help="save the run (.json)")]
-Force = Annotated[bool, typer.Option("--force", help="replace existing output files")]
-Quiet = Annotated[bool, typer.Option("--quiet", help="no per-step progress")]
-KidnapAt = Annotated[int | None, typer.Option(min=1, help="carry the robot elsewhere at this step")]
-SavedScenario = Annotated[Path, typer.Argument(metavar="SCENARIO", show_default=False,
-                                               help="a saved scenario (.json) or a shipped name")]  # fmt: skip
-Filters = Annotated[str, typer.Option(metavar="NAMES", help=filter_choices(many=True))]
-StoredMaze = Annotated[str | None, typer.Option(metavar="MAZE", help="the maze, if the scenario stores none")]
-NewSigma = Annotated[float | None, typer.Option("--sigma", help="override the scenario's sigma")]
-NewDelta = Annotated[float | None, typer.Option("--delta", help="override the scenario's delta")]
-ReplaySeed = Annotated[
-    int | None, typer.Option("--seed", callback=seed_option, help="the filters' seed (default: the scenario's)")
-]
-ErrorsCsv = Annotated[Path | None, typer.Option("--csv", help="per-step errors, a column per filter")]
-Plot = Annotated[Path | None, typer.Option(help="the lab's error figure (.png; plot extra)")]
-Traces = Annotated[Path | None, typer.Option(help="per-step rows of every filter (.csv, or .parquet)")]
+Maze_ = opt(str | None, "--maze", metavar="MAZE", help=f"a maze file or a name in mazes/ [default: {DEFAULT_MAZE}]")
+Filter = opt(str | None, "--filter", metavar="NAME", help=f"{filter_choices()} [default: sir]")
+Particles = opt(int | None, help=f"particle count N_S [default: {DEFAULT_PARTICLE_COUNT}]")
+Steps = opt(int | None, min=1, help=f"number of steps [default: {DEFAULT_STEPS}]")
+Sigma = opt(float | None, help=f"noise std, lab 0.2-0.8 [default: {DEFAULT_SIGMA}]")
+Delta = opt(float | None, help=f"compass error, rad, lab 0.05-0.6 [default: {DEFAULT_DELTA}]")
+Seed = opt(int | None, callback=seed_option, help="seed of the whole run (default: new, printed)")
+StartSeed = opt(int | None, callback=seed_option, hidden=True, help="seed of the start only")
+ScenarioFile = opt(Path | None, help="replay a saved scenario (.json), or a shipped one by name")
+SaveScenario = opt(Path | None, "--save-scenario", help="save the run (.json)")
+Quiet = opt(bool, "--quiet", help="no per-step progress")
+SavedScenario = arg(Path, "SCENARIO", "a saved scenario (.json) or a shipped name")
+Filters = opt(str, metavar="NAMES", help=filter_choices(many=True))
+StoredMaze = opt(str | None, metavar="MAZE", help="the maze, if the scenario stores none")
+NewSigma = opt(float | None, "--sigma", help="override the scenario's sigma")
+NewDelta = opt(float | None, "--delta", help="override the scenario's delta")
+ReplaySeed = opt(int | None, "--seed", callback=seed_option, help="the filters' seed (default: the scenario's)")
+ErrorsCsv = opt(Path | None, "--csv", help="per-step errors, a column per filter")
+Plot = opt(Path | None, help="the lab's error figure (.png; plot extra)")
+Traces = opt(Path | None, help="per-step rows of every filter (.csv, or .parquet)")
 
 
 @app.command(short_help="One filter on a lost robot, or on a saved scenario.")
@@ -203,7 +197,7 @@ app.command(short_help="The saved recordings, with sizes; --clean removes old on
 
 @app.command(short_help="The filters' speed against a plain numpy step.")
 def bench(
-    quick: Annotated[bool, typer.Option("--quick", help="fewer sizes and steps (41 s on a 2-core machine)")] = False,
+    quick: opt(bool, "--quick", help="fewer sizes and steps (41 s on a 2-core machine)") = False,
     backend: BackendOption = None,
 ) -> None:
     """Measure the filters' speed (particle-steps per second) against a plain numpy reference step, on

@@ -5,14 +5,14 @@ from __future__ import annotations
 import sys
 import time
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Any
 
 import numpy as np
 import typer
 
 from mazelab import maze_generator
 from mazelab.atomic import write_text_atomically
-from mazelab.cli.options import check_outputs, seed_option, visualization, with_drawing
+from mazelab.cli.options import arg, check_outputs, opt, seed_option, visualization, with_drawing
 from mazelab.invocation import command_prefix
 from mazelab.maze import Maze, load_maze
 from mazelab.seeding import new_seed
@@ -25,17 +25,13 @@ maze_app = typer.Typer(
 
 @maze_app.command("generate", short_help="A random maze with a connected free area.")
 def maze_generate(
-    size: Annotated[str, typer.Option(help="ROWSxCOLUMNS")] = "10x10",
-    stations: Annotated[
-        int | None, typer.Option(min=1, help="station blocks (default: one per 25 cells)", show_default=False)
-    ] = None,
-    walls: Annotated[
-        float, typer.Option("--wall-share", help="share of the cells that are walls")
-    ] = maze_generator.DEFAULT_WALL_SHARE,
-    old_walls: Annotated[float | None, typer.Option("--walls", hidden=True, help="the former --wall-share")] = None,
-    seed: Annotated[int | None, typer.Option(callback=seed_option, help="the same seed gives the same maze")] = None,
-    out: Annotated[Path | None, typer.Option(help="write the maze file here (default: print it)")] = None,
-    force: Annotated[bool, typer.Option("--force", help="replace an existing file")] = False,
+    size: opt(str, help="ROWSxCOLUMNS") = "10x10",
+    stations: opt(int | None, min=1, help="station blocks (default: one per 25 cells)", show_default=False) = None,
+    walls: opt(float, "--wall-share", help="share of the cells that are walls") = maze_generator.DEFAULT_WALL_SHARE,
+    old_walls: opt(float | None, "--walls", hidden=True, help="the former --wall-share") = None,
+    seed: opt(int | None, callback=seed_option, help="the same seed gives the same maze") = None,
+    out: opt(Path | None, help="write the maze file here (default: print it)") = None,
+    force: opt(bool, "--force", help="replace an existing file") = False,
 ) -> None:
     """A random maze whose free area is connected, in the mazes/ file format."""
     walls = walls if old_walls is None else old_walls  # --walls: its earlier spelling
@@ -59,7 +55,7 @@ def maze_generate(
 @maze_app.command("show", short_help="Print a maze; --viewer, --rrd or --web draw it.")
 @with_drawing
 def maze_show(
-    path: Annotated[str, typer.Argument(metavar="MAZE", help="a maze file, or a name in mazes/", show_default=False)],
+    path: arg(str, "MAZE", "a maze file, or a name in mazes/"),
     drawing: dict[str, Any] | None = None,
 ) -> None:
     """Print a maze as text ('##' wall, '[]' station block, '. ' free); --viewer/--rrd/--web also log it to Rerun."""

@@ -14,12 +14,11 @@ import shlex
 import shutil
 import sys
 from pathlib import Path
-from typing import Annotated
 
 import typer
 
 from mazelab.atomic import write_bytes_atomically
-from mazelab.cli.options import UserError, check_output_path
+from mazelab.cli.options import UserError, arg, check_output_path, opt
 from mazelab.invocation import PROJECT_DIR, python_prefix
 
 NOTEBOOKS_DIR = PROJECT_DIR / "notebooks"  # the lab's notebooks, in the clone (an editable install)
@@ -50,11 +49,8 @@ def jupyter_command(path: Path) -> str:
 
 
 def notebook(
-    name: Annotated[
-        str,
-        typer.Argument(metavar="NAME", help="lab, lab_uk (in Ukrainian), exercise or exercise_uk", show_default=False),
-    ],
-    force: Annotated[bool, typer.Option("--force", help="replace a copy made before (and its outputs)")] = False,
+    name: arg(str, "NAME", "lab, lab_uk (in Ukrainian), exercise or exercise_uk"),
+    force: opt(bool, "--force", help="replace a copy made before (and its outputs)") = False,
 ) -> None:
     """Copy the lab's notebook NAME (notebooks/NAME.ipynb) into the folder you are in, and say how to open
     it: run the notebooks from a copy in a folder of your own, never in the clone."""

@@ -58,6 +58,16 @@ def opt(kind: Any, *flags: str, **typer_options: Any) -> Any:
     return Annotated[kind, typer.Option(*flags, **typer_options)]
 
 
+def arg(kind: Any, metavar: str, help: str) -> Any:
+    """A typer argument's annotated type, shown as `metavar` without a default: `arg(Path, "FILE", help=...)`."""
+    return Annotated[kind, typer.Argument(metavar=metavar, help=help, show_default=False)]
+
+
+# options that several commands take, with the same meaning
+Force = opt(bool, "--force", help="replace existing output files")
+KidnapAt = opt(int | None, min=1, help="carry the robot elsewhere at this step")
+
+
 def with_parameters(
     into: str, parameters: Mapping[str, tuple[Any, Any]], convert: Callable[[dict[str, Any]], Any] = dict
 ) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
@@ -88,14 +98,11 @@ def with_parameters(
 
 # Where a run is drawn: these options sit on every command that runs filters (`with_drawing`).
 DRAWING: dict[str, tuple[Any, Any]] = {
-    "viewer": (Annotated[bool, typer.Option("--viewer", help="the native viewer (default with a display)")], False),
-    "rrd": (Annotated[Path | None, typer.Option("--rrd", help="save the recording to this .rrd file")], None),
-    "web": (Annotated[bool, typer.Option("--web", help="serve the web viewer on 127.0.0.1")], False),
-    "no_viz": (Annotated[bool, typer.Option("--no-viz", help="draw nothing")], False),
-    "max_drawn": (
-        Annotated[int, typer.Option("--max-drawn", min=1, help="most particles drawn a step")],
-        DEFAULT_MAX_DRAWN,
-    ),
+    "viewer": (opt(bool, "--viewer", help="the native viewer (default with a display)"), False),
+    "rrd": (opt(Path | None, "--rrd", help="save the recording to this .rrd file"), None),
+    "web": (opt(bool, "--web", help="serve the web viewer on 127.0.0.1"), False),
+    "no_viz": (opt(bool, "--no-viz", help="draw nothing"), False),
+    "max_drawn": (opt(int, "--max-drawn", min=1, help="most particles drawn a step"), DEFAULT_MAX_DRAWN),
 }
 with_drawing = with_parameters("drawing", DRAWING)
 
@@ -594,14 +601,7 @@ def filter_choices(many: bool = False) -> str:
 WIDTH = 100  # columns of the listing
 
 
-def filters(
-    name: Annotated[
-        str | None,
-        typer.Argument(
-            metavar="[NAME]", help="one filter: sir, apf, rpf, grid, ekf or FILE.py:Class", show_default=False
-        ),
-    ] = None,
-) -> None:
+def filters(name: arg(str | None, "[NAME]", "one filter: sir, apf, rpf, grid, ekf or FILE.py:Class") = None) -> None:
     """The filters, or one filter's options: name, default, the flag that sets it, what it does.
     Every option is set with --option NAME=VALUE on run, compare and study."""
     if name is None:

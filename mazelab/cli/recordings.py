@@ -29,12 +29,12 @@ import warnings
 from collections.abc import Callable, Iterable
 from datetime import datetime
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Any
 
 import numpy as np
 import typer
 
-from mazelab.cli.options import UserError
+from mazelab.cli.options import UserError, arg, opt
 from mazelab.invocation import command_prefix
 from mazelab.stops import STOP_SIGNALS
 from mazelab.viz import targets
@@ -90,22 +90,11 @@ def remove(doomed: list[SavedRecording]) -> list[SavedRecording]:
 
 
 def recordings(
-    folder: Annotated[
-        Path | None,
-        typer.Argument(metavar="FOLDER", help="where (default: recordings/ here)", show_default=False),
-    ] = None,
-    keep: Annotated[
-        int | None, typer.Option("--keep", metavar="N", min=0, help="remove all but the N newest", show_default=False)
-    ] = None,
-    older_than: Annotated[
-        str | None, typer.Option("--older-than", metavar="AGE", help="remove older ones: 30m, 12h, 7d, 2w")
-    ] = None,
-    max_size: Annotated[
-        str | None, typer.Option("--max-size", metavar="SIZE", help="keep the newest within SIZE: 500MB, 2GB")
-    ] = None,
-    clean: Annotated[
-        bool, typer.Option("--clean", help="remove the recordings chosen (without: only show them)")
-    ] = False,
+    folder: arg(Path | None, "FOLDER", "where (default: recordings/ here)") = None,
+    keep: opt(int | None, "--keep", metavar="N", min=0, help="remove all but the N newest", show_default=False) = None,
+    older_than: opt(str | None, "--older-than", metavar="AGE", help="remove older ones: 30m, 12h, 7d, 2w") = None,
+    max_size: opt(str | None, "--max-size", metavar="SIZE", help="keep the newest within SIZE: 500MB, 2GB") = None,
+    clean: opt(bool, "--clean", help="remove the recordings chosen (without: only show them)") = False,
 ) -> None:
     """List the recordings of runs without a display, with their sizes; remove old ones with --clean."""
     folder = targets.RECORDINGS_DIR if folder is None else folder
@@ -153,9 +142,7 @@ def show(found: list[SavedRecording], doomed: list[SavedRecording], folder: Path
 RRD_MAGIC = b"RRF2"  # the first bytes of a Rerun recording file
 
 
-def view(
-    recording: Annotated[Path, typer.Argument(metavar="FILE", help="a saved recording (.rrd)", show_default=False)],
-) -> None:
+def view(recording: arg(Path, "FILE", "a saved recording (.rrd)")) -> None:
     """Serve a saved recording (.rrd) in the web viewer on 127.0.0.1 until Ctrl-C; needs no display."""
     if recording.is_dir():
         found = sorted(recording.glob("*.rrd"))

@@ -29,6 +29,8 @@ from mazelab.cli.options import (
     DEFAULT_SIGMA,
     DRAWING,
     BackendOption,
+    Force,
+    KidnapAt,
     OptionFlag,
     StudyOptionFlag,
     UserError,
@@ -96,7 +98,7 @@ FILES = {
     "traces": (opt(Path | None, "--traces", help="per-step rows of every run (.csv, .parquet)"), None),
     "record": (opt(Path | None, "--record", help="JSON record [default: CSV.record.json]"), None),
     "resume": (opt(bool, "--resume", help="run only the runs missing from --csv's journal"), False),
-    "force": (opt(bool, "--force", help="replace existing output files"), False),
+    "force": (Force, False),
 }
 FIGURE = {
     "paired": (opt(str | None, "--paired", metavar="FILTER", help="each filter's difference to FILTER, run by run"),
@@ -125,7 +127,6 @@ WallShares = opt(str | None, help="generated mazes' wall shares, a list")
 Sigmas, Deltas = opt(str, help="noise std sigma, a list"), opt(str, help="compass error, a list")
 Counts = opt(str, help="particle counts, a list")
 Filters = opt(str, metavar="NAMES", show_default=False, help="a list (mazelab filters) [default: sir,apf,rpf]")
-KidnapAt = opt(int | None, min=1, help="carry the robot elsewhere at this step")
 Runs, Steps = opt(int, min=1, help="seeded runs per setting"), opt(int, min=1, help="steps per run")
 RootSeed = opt(int | None, callback=seed_option, help="root seed (default: new, printed)")
 Reference = opt(str | None, metavar="grid", help="the exact grid filter too: distance_to_exact")
@@ -478,7 +479,6 @@ AccuracySteps = opt(int, min=2, help="steps per run (the distance is averaged ov
 Seed = opt(int, callback=seed_option, help="root seed (run r has the same seed on every maze)")
 Csv = opt(Path | None, "--csv", help="one row per maze, run and filter")
 Record = opt(Path | None, help="the JSON record [default: beside --csv]")
-Force = opt(bool, "--force", help="replace existing output files")
 
 
 def accuracy(
