@@ -1,20 +1,6 @@
-"""The command-line interface (typer): `python main.py ...` or `mazelab ...` from any folder.
-
-mazelab                 the paper's example: a lost robot, SIR, 1500 particles, 200 steps
-mazelab run --help      one run, with any maze, filter and parameters, or a saved scenario
-mazelab compare --help  every filter on one saved scenario: a table, a CSV, the lab's figure
-mazelab study --help    a Monte Carlo parameter study over seeded runs, on all cores
-mazelab maze --help     random connected mazes (generate) and a look at any maze (show)
-mazelab view FILE       a saved recording in the web viewer on 127.0.0.1 (no display needed)
-mazelab notebook NAME   a copy of the lab's notebook NAME (lab, lab_uk, ...) here, to run in Jupyter
-mazelab bench [--quick] the filters' speed against a plain numpy reference step
-mazelab accuracy        each filter's distance to the exact grid posterior on the shipped mazes
-mazelab filters [NAME]  the filters, and every option each declares (--option NAME=VALUE sets one)
-mazelab recordings      the saved recordings with their sizes; --clean thins the folder
-mazelab exercise --help write your own filter (new) and grade it against the exact posterior (check)
-mazelab smooth SCENARIO where the robot was: the particle smoothers against the exact smoother
-mazelab learn SCENARIO  which sigma and delta explain it: the exact parameter posterior and PMMH
-"""
+"""The command-line interface (typer): `python main.py ...` or `mazelab ...` from any folder. Without a
+command, `demo`: the paper's example (a lost robot, SIR, 1500 particles, 200 steps); the commands are
+registered below, each with the one line `mazelab --help` shows, and `main` turns errors into one line."""
 
 from __future__ import annotations
 

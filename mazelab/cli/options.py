@@ -1,18 +1,8 @@
-"""What the commands share, and the filters' options on the command line, read from each filter's
-declaration (mazelab.declaration): the drawing and backend options, output-path checks (one file per
-output), list parsing, the one-line errors and warnings and what turns a puzzling one into one a student
-can act on (an option given to the wrong command, an option swallowed as another option's value, the help's
-usage lines without typer's braces), a run's summary and progress lines.
-
-The named flags of run, compare and study (`--threshold`, `--bandwidth`, `--kld`, ...) are generated from
-the declarations' `Option.flag` (`with_option_flags`), so a declared flag is taken by every command that
-runs filters and `mazelab filters` never lists one that a command refuses. They are spellings of the
-options: `--bandwidth 0.05` and `--option bandwidth=0.05` give the same value, parsed and checked by the
-same declaration. `--option NAME=VALUE` (repeatable) sets any declared option of any filter, a plug-in's
-included, and `--option FILTER.NAME=VALUE` (e.g. `rpf.threshold`) sets it for that filter alone. An
-option that no filter of the command declares is refused in one line naming what they take, before any
-work; so is a value the declaration refuses. `mazelab filters [NAME]` lists the registry's filters and one
-filter's options from the same declarations, so the list is never out of date, a plug-in's included."""
+"""What the commands share: the drawing, backend and output options and their checks, list parsing, the
+one-line errors and the hints that name the fix (`usage_hint`), a run's summary and progress lines, and
+the filters' options on the command line, read from each filter's declaration (mazelab.declaration): the
+named flags generated from `Option.flag` (`with_option_flags`), `--option NAME=VALUE` (`given_options`)
+and `mazelab filters [NAME]`, so a declared option is taken by every command that runs filters."""
 
 from __future__ import annotations
 

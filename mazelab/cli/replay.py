@@ -1,16 +1,7 @@
-"""`run` and `compare`: one filter on a lost robot or on a saved scenario, and every filter on one saved
-scenario (lab steps 9-13).
-
-A run starts from a fresh lost robot (a maze, sigma, delta and a seed) or a saved scenario replayed
-(`RunSetup`): its maze, walk, measurements, particles and seed (flags override sigma, delta and the
-seed; a file with only the paper's four keys runs on the one shipped maze it fits), and its filter and
-options, so that it repeats the run that made it bit for bit, unless the user names another filter or
-option; then one line says what was overridden. A scenario never imports code: a plug-in's saved run
-replays only when the user names the plug-in (`--filter file.py:Class`), its file's sha256 checked
-against the stored one (a changed file is said in one line); `--filter sir` replays it with SIR.
-
-What they print and write: a run's kidnapping and particle count; compare's table, per-step errors
-(--csv), figure (--plot), traces (--traces) and its JSON record (beside its first output)."""
+"""`run` and `compare` (lab steps 9-13): one filter on a fresh lost robot or a saved scenario replayed
+(`RunSetup`: `replay_setup` says what flags override), and every filter on one saved scenario; a replay
+takes the scenario's filter and options (`replay_filter_name`, `replay_options`: a plug-in's run replays
+only when the user names the plug-in, a scenario never imports code); their reports and files."""
 
 from __future__ import annotations
 

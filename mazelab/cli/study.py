@@ -1,14 +1,8 @@
-"""`mazelab study` (lab step 14): a Monte Carlo parameter study on the command line; its Python twin is
-`mazelab.study`. The flags make the study's plan (mazelab.experiments.plan), its files are checked before
-any work (`StudyFiles`), its runs go to the executor on one backend, each finished run appended to the
-study's journal (mazelab.experiments.journal), and the report writes the table, the CSV, the summary CSV,
-the traces, the figure and the record from the runs, the journal's kept ones (--resume) included.
-
-`mazelab accuracy`: every filter against the exact grid posterior (mazelab.experiments.accuracy, a study
-with the grid as its reference), with a progress bar, intervals, a CSV of the runs and a JSON record beside
-it. Each finished run is appended to the study's journal beside the outputs (mazelab.experiments.journal):
-the same command after an interrupted one goes on from it (the runs it finished are kept), and one of other
-parameters replaces what it left; a line says which."""
+"""`mazelab study` (lab step 14, docs/studies.md; its Python twin is `mazelab.study`) and `mazelab
+accuracy` (every filter against the exact grid posterior, mazelab.experiments.accuracy): the flags make
+the plan (mazelab.experiments.plan), the files are checked before any work (`StudyFiles`), the runs go to
+the executor, each finished run appended to the journal (mazelab.experiments.journal) from which an
+interrupted study goes on (--resume; accuracy by itself), and the report writes the table and the files."""
 
 from __future__ import annotations
 
