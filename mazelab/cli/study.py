@@ -114,21 +114,15 @@ def positive_seconds(value: float) -> float:
     return value
 
 
-Mazes = opt(str | None, help=f"mazes (files or names) [default: {DEFAULT_MAZE}]")
-Sizes = opt(str | None, help="generated mazes ROWSxCOLUMNS, a list")
-Stations = opt(str | None, help="generated mazes' station blocks, a list")
-WallShares = opt(str | None, help="generated mazes' wall shares, a list")
-Sigmas, Deltas = opt(str, help="noise std sigma, a list"), opt(str, help="compass error, a list")
-Counts = opt(str, help="particle counts, a list")
-Filters = opt(str, metavar="NAMES", show_default=False, help="a list (mazelab filters) [default: sir,apf,rpf]")
-Runs, Steps = opt(int, min=1, help="seeded runs per setting"), opt(int, min=1, help="steps per run")
-RootSeed = opt(int | None, callback=seed_option, help="root seed (default: new, printed)")
-Reference = opt(str | None, metavar="grid", help="the exact grid filter too: distance_to_exact")
 Workers = opt(int | None, min=1, help="processes (default: all cores)")
-Dask = opt(str | None, help="a Dask scheduler, tcp://HOST:PORT")
+StudyFilters = opt(str, metavar="NAMES", show_default=False, help="a list (mazelab filters) [default: sir,apf,rpf]")
 DaskTimeout = opt(float, metavar="<s>", callback=positive_seconds, show_default=False,
                   help="give up after s idle seconds [default: 300]")  # fmt: skip
-DrawRun = opt(int, help="the run --viewer/--rrd/--web draw", show_default=False)
+AccuracyMazes = opt(
+    str | None, help=f"maze files or names, comma-separated (default: the shipped {', '.join(LAB_MAZES)})"
+)
+AccuracyFilters = opt(str | None, metavar="NAMES",
+              help="sir, apf, rpf, ekf or FILE.py:Class, comma-separated [default: SIR, APF, both RPFs]")  # fmt: skip
 
 
 @with_parameters("files", FILES)
@@ -136,24 +130,24 @@ DrawRun = opt(int, help="the run --viewer/--rrd/--web draw", show_default=False)
 @with_parameters("drawing", DRAWN)
 @with_option_flags(lists=True)
 def study(
-    maze: Mazes = None,
-    maze_size: Sizes = None,
-    stations: Stations = None,
-    wall_share: WallShares = None,
-    sigma: Sigmas = str(DEFAULT_SIGMA),
-    delta: Deltas = str(DEFAULT_DELTA),
-    particles: Counts = str(DEFAULT_PARTICLE_COUNT),
-    filters: Filters = "sir,apf,rpf",
+    maze: opt(str | None, help=f"mazes (files or names) [default: {DEFAULT_MAZE}]") = None,
+    maze_size: opt(str | None, help="generated mazes ROWSxCOLUMNS, a list") = None,
+    stations: opt(str | None, help="generated mazes' station blocks, a list") = None,
+    wall_share: opt(str | None, help="generated mazes' wall shares, a list") = None,
+    sigma: opt(str, help="noise std sigma, a list") = str(DEFAULT_SIGMA),
+    delta: opt(str, help="compass error, a list") = str(DEFAULT_DELTA),
+    particles: opt(str, help="particle counts, a list") = str(DEFAULT_PARTICLE_COUNT),
+    filters: StudyFilters = "sir,apf,rpf",
     kidnap_at: KidnapAt = None,
     option: StudyOptionFlag = None,
-    runs: Runs = 30,
-    steps: Steps = DEFAULT_STEPS,
-    seed: RootSeed = None,
-    reference: Reference = None,
+    runs: opt(int, min=1, help="seeded runs per setting") = 30,
+    steps: opt(int, min=1, help="steps per run") = DEFAULT_STEPS,
+    seed: opt(int | None, callback=seed_option, help="root seed (default: new, printed)") = None,
+    reference: opt(str | None, metavar="grid", help="the exact grid filter too: distance_to_exact") = None,
     workers: Workers = None,
-    dask: Dask = None,
+    dask: opt(str | None, help="a Dask scheduler, tcp://HOST:PORT") = None,
     dask_timeout: DaskTimeout = DASK_TIMEOUT,
-    draw_run: DrawRun = 1,
+    draw_run: opt(int, help="the run --viewer/--rrd/--web draw", show_default=False) = 1,
     backend: BackendOption = None,
     named: dict | None = None,
     drawing: dict | None = None,
@@ -460,36 +454,21 @@ def draw_figure(plan: StudyPlan, summaries: list, plot: Path, replace: bool, fig
 
 
 # -- `mazelab accuracy` ---------------------------------------------------------------------------------
-AccuracyMazes = opt(
-    str | None, help=f"maze files or names, comma-separated (default: the shipped {', '.join(LAB_MAZES)})"
-)
-AccuracySizes = opt(str | None, help="generated mazes ROWSxCOLUMNS, comma-separated")
-AccuracyStations = opt(str | None, help="generated mazes' station blocks, comma-separated")
-AccuracyFilters = opt(str | None, metavar="NAMES",
-              help="sir, apf, rpf, ekf or FILE.py:Class, comma-separated [default: SIR, APF, both RPFs]")  # fmt: skip
-Sigma, Delta = opt(float, help="measurement noise std"), opt(float, help="compass error width, radians")
-Particles, AccuracyRuns = opt(int, help="particle count N_S"), opt(int, min=1, help="seeded runs per maze")
-AccuracySteps = opt(int, min=2, help="steps per run (the distance is averaged over the second half)")
-Seed = opt(int, callback=seed_option, help="root seed (run r has the same seed on every maze)")
-Csv = opt(Path | None, "--csv", help="one row per maze, run and filter")
-Record = opt(Path | None, help="the JSON record [default: beside --csv]")
-
-
 def accuracy(
     maze: AccuracyMazes = None,
-    maze_size: AccuracySizes = None,
-    stations: AccuracyStations = None,
+    maze_size: opt(str | None, help="generated mazes ROWSxCOLUMNS, comma-separated") = None,
+    stations: opt(str | None, help="generated mazes' station blocks, comma-separated") = None,
     filters: AccuracyFilters = None,
-    sigma: Sigma = DEFAULT_SIGMA,
-    delta: Delta = DEFAULT_DELTA,
-    particles: Particles = DEFAULT_PARTICLE_COUNT,
-    runs: AccuracyRuns = 10,
-    steps: AccuracySteps = DEFAULT_STEPS,
-    seed: Seed = 1,
+    sigma: opt(float, help="measurement noise std") = DEFAULT_SIGMA,
+    delta: opt(float, help="compass error width, radians") = DEFAULT_DELTA,
+    particles: opt(int, help="particle count N_S") = DEFAULT_PARTICLE_COUNT,
+    runs: opt(int, min=1, help="seeded runs per maze") = 10,
+    steps: opt(int, min=2, help="steps per run (the distance is averaged over the second half)") = DEFAULT_STEPS,
+    seed: opt(int, callback=seed_option, help="root seed (run r has the same seed on every maze)") = 1,
     option: OptionFlag = None,
     workers: Workers = None,
-    csv_path: Csv = None,
-    record: Record = None,
+    csv_path: opt(Path | None, "--csv", help="one row per maze, run and filter") = None,
+    record: opt(Path | None, help="the JSON record [default: beside --csv]") = None,
     force: Force = False,
     backend: BackendOption = None,
 ) -> None:
