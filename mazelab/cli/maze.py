@@ -59,9 +59,7 @@ def maze_show(
     drawing: dict[str, Any] | None = None,
 ) -> None:
     """Print a maze as text ('##' wall, '[]' station block, '. ' free); --viewer/--rrd/--web also log it to Rerun."""
-    chosen = drawing or {}
-    drawn = chosen.get("viewer") or chosen.get("web") or chosen.get("rrd") is not None
-    visualize = visualization(**chosen) if drawn else False
+    visualize = visualization(**(drawing or {}), unasked=False)
     world = load_maze(path)
     typer.echo(maze_generator.maze_picture(world), nl=False)
     typer.echo(f"{world.source}: {maze_generator.describe_maze(world)}")

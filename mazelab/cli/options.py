@@ -104,17 +104,19 @@ def visualization(
     no_viz: bool = False,
     max_drawn: int = DEFAULT_MAX_DRAWN,
     force: bool = True,
+    unasked: Any = True,
 ) -> Any:
     """The `visualize` argument of run_model for the drawing options (see draw.py); an --rrd file
-    replaces an existing one only with `force`."""
+    replaces an existing one only with `force`. Given none of them: `unasked` (True: the viewer, or a
+    file without a display; False for what draws only when asked, a study or a maze)."""
     if sum([viewer, rrd is not None, web, no_viz]) > 1:
         raise UserError("choose one of --viewer, --rrd, --web and --no-viz")
     if no_viz:
         return False
     if rrd is not None and rrd.suffix.lower() != ".rrd":
         raise UserError(f"--rrd {rrd}: a recording is an .rrd file (e.g. --rrd {rrd.with_suffix('.rrd')})")
-    target = rrd if rrd is not None else "viewer" if viewer else "web" if web else True
-    return Visualization(target, max_drawn, replace=force)
+    target = rrd if rrd is not None else "viewer" if viewer else "web" if web else unasked
+    return Visualization(target, max_drawn, replace=force) if target else False
 
 
 # -- --backend and --threads: set MAZELAB_BACKEND / MAZELAB_THREADS for the command (its worker
@@ -127,10 +129,7 @@ def environment_option(variable: str, check: Callable[[Any, str], Any], flag: st
     def callback(ctx: typer.Context, value: Any) -> Any:
         if value is None or ctx.resilient_parsing:
             return value
-        try:
-            value = check(value, flag)
-        except ValueError as error:
-            raise UserError(str(error)) from None
+        value = check(value, flag)  # a ValueError: one line and exit 2 (mazelab.cli.app.main)
         before = os.environ.get(variable)
         os.environ[variable] = str(value)
         ctx.call_on_close(lambda: os.environ.pop(variable) if before is None else os.environ.update({variable: before}))
@@ -551,13 +550,10 @@ def options_per_filter(
     how the user spelled it and what they take. With `check`, each filter's options are checked by its
     declaration as its constructor will check them, in one line."""
     spelled = getattr(given, "spelled", {})
-    try:
-        per_filter = reaching(filter_names, given, {k: spelled.get(k, f"--option {k}=...") for k in given})
-        if check:
-            for entry in map(filter_entry, filter_names):
-                entry.options.resolve(per_filter[entry.name], entry.name)
-    except ValueError as error:
-        raise UserError(str(error)) from None
+    per_filter = reaching(filter_names, given, {k: spelled.get(k, f"--option {k}=...") for k in given})
+    if check:
+        for entry in map(filter_entry, filter_names):
+            entry.options.resolve(per_filter[entry.name], entry.name)
     return per_filter
 
 
@@ -613,8 +609,7 @@ def registry_listing() -> str:
 
 def registry_help() -> str:
     """The filters for `mazelab --help`, one short line each (from the registry)."""
-    names = ", ".join(entry.short_name for entry in entries())
-    return f"Filters (--filter NAME): {names}, or FILE.py:Class; `mazelab filters` lists them and their options."
+    return f"Filters (--filter NAME): {filter_choices()}; `mazelab filters` lists them and their options."
 
 
 def _entry_line(entry: FilterEntry) -> str:

@@ -157,13 +157,15 @@ def study(
     """Lab step 14: a study of every combination of the values (docs/studies.md)."""
     drawing = drawing or {}
     chosen = StudyFiles.parse(**(files or {}), rrd=drawing.get("rrd"))
-    drawn = drawing.get("viewer") or drawing.get("web") or drawing.get("rrd") is not None
-    visualize = visualization(**drawing, force=chosen.force) if drawn else False
-    mazes = parse_mazes(maze, maze_size, stations, wall_share)
-    values = {"sigma": parse_list(sigma, float, "--sigma"), "delta": parse_list(delta, float, "--delta"),
-              "particles": parse_list(particles, int, "--particles"), "runs": runs, "steps": steps,
-              "kidnap_at": kidnap_at, "reference": reference}  # fmt: skip
-    plan = study_plan(chosen, mazes, filters, named or {}, option, seed, values)
+    visualize = visualization(**drawing, force=chosen.force, unasked=False)
+    if chosen.lines and seed is None:  # a resumed study keeps its journal's root seed unless --seed
+        seed = journal_parameters(chosen.journal, chosen.lines)["root_seed"]
+    names = parse_filters(check_filter_names(filters))
+    given = given_options(named or {}, option, names, lists=True)  # the named flags and --option NAME=V1,V2
+    mazes, sigmas = parse_mazes(maze, maze_size, stations, wall_share), parse_list(sigma, float, "--sigma")
+    plan = plan_study(mazes, names, sigma=sigmas, delta=parse_list(delta, float, "--delta"), runs=runs, steps=steps,
+                      particles=parse_list(particles, int, "--particles"), kidnap_at=kidnap_at, reference=reference,
+                      options=given, seed=seed, traces=chosen.traces is not None, spelled=given.spelled)  # fmt: skip
     figure = check_figure(plan, **(figure or {}))
     workers = workers or cores()
     backend = study_backend(plan.tasks(), 1 if dask else workers)
@@ -179,20 +181,6 @@ def study(
         report_study(session, outcome, figure)
     finally:
         session.close()
-
-
-def study_plan(files: StudyFiles, mazes: list, filters: str, named: dict[str, Any], texts: list[str] | None,
-               seed: int | None, values: dict[str, Any]) -> StudyPlan:  # fmt: skip
-    """The study's plan from the command line's lists: the named flags (spellings of declared options) and
-    --option NAME=V1,V2 (FILTER.NAME=... for one filter) for any declared option, each value parsed and
-    checked by its declaration; an option that none of the filters takes is refused first, in one line,
-    unless it is given only its default. A resumed study keeps its journal's root seed unless --seed."""
-    if files.lines and seed is None:
-        seed = journal_parameters(files.journal, files.lines)["root_seed"]
-    names = parse_filters(check_filter_names(filters))
-    given = given_options(named, texts, names, lists=True)
-    return plan_study(mazes, names, **values, options=given, seed=seed, traces=files.traces is not None,
-                      spelled=given.spelled)  # fmt: skip
 
 
 def check_figure(plan: StudyPlan, paired: str | None = None, plot_x: str | None = None, plot_y: str = "mean",
@@ -573,11 +561,8 @@ def parse_mazes(maze: str | None, maze_size: str | None, stations: str | None, w
     """The mazes of --maze, --maze-size, --stations and --wall-share (lists; plan.study_mazes), or the
     `default` names when none is given (accuracy's: the lab's shipped set, named, so that a maze a
     student adds to mazes/ does not join it; the study's: the default maze)."""
-    files, sizes, counts = (
-        parse_list(maze, str, "--maze"),
-        parse_list(maze_size, str, "--maze-size"),
-        parse_list(stations, int, "--stations"),
-    )
+    files, sizes = parse_list(maze, str, "--maze"), parse_list(maze_size, str, "--maze-size")
+    counts = parse_list(stations, int, "--stations")
     if files is None and sizes is None and counts is None and wall_share is None:
         files = default
     return study_mazes(files, sizes, counts, parse_list(wall_share, float, "--wall-share"))
