@@ -39,7 +39,8 @@ def maze_generate(
     rows, columns = maze_generator.parse_size(size)
     stations = maze_generator.default_station_count(rows, columns) if stations is None else stations
     seed = new_seed() if seed is None else seed
-    progress = generation_progress(rows, columns)
+    big = rows * columns >= GENERATE_PROGRESS_CELLS  # a small maze is made in a blink
+    progress = ProgressLine(f"generating a {rows}x{columns} maze") if big else None
     world = maze_generator.generate_maze(rows, columns, stations, np.random.default_rng(seed), walls, progress)
     command = f"{command_prefix()} maze generate --size {rows}x{columns} --stations {stations} --seed {seed}"
     if walls != maze_generator.DEFAULT_WALL_SHARE:
@@ -78,11 +79,6 @@ def prepare_world(world: Maze, min_cells: int = LOOKUP_PROGRESS_CELLS) -> Maze:
     if world.lookup_cells >= min_cells and not world.has_lookup:
         world.prepare(ProgressLine(f"building the nearest-station table of {world.source}"))
     return world
-
-
-def generation_progress(rows: int, columns: int) -> ProgressLine | None:
-    """A progress line for generating a large maze (None for a small one, made in a blink)."""
-    return ProgressLine(f"generating a {rows}x{columns} maze") if rows * columns >= GENERATE_PROGRESS_CELLS else None
 
 
 class ProgressLine:

@@ -6,6 +6,7 @@ and `mazelab filters [NAME]`, so a declared option is taken by every command tha
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import inspect
 import os
@@ -187,26 +188,22 @@ def check_outputs(outputs: Sequence[tuple[str, Path | None]], force: bool, apart
         check_trace_path(dict(outputs)["--traces"])
 
 
-def file_identity(path: Path) -> tuple[str, tuple[int, int] | None]:
-    """(the path with every link resolved, (device, inode) of the file if it exists)."""
-    resolved = os.path.realpath(path)
-    try:
-        status = os.stat(resolved)
-    except OSError:  # missing (the usual case for a new output), a loop, no permission
-        return resolved, None
-    return resolved, (status.st_dev, status.st_ino)
-
-
 def check_one_file_each(outputs: Sequence[tuple[str, Path | None]]) -> None:
     """Refuse (one line) the first two of `outputs`, (what the user calls it, its path or None), that
     are one file: the same path once links are resolved (`./s.csv` and `s.csv`, a symlink to another
-    output), or two names of one existing file (a hard link). Checked before any run."""
-    given = [(name, Path(path), file_identity(Path(path))) for name, path in outputs if path is not None]
-    for i, (name_a, path_a, (real_a, inode_a)) in enumerate(given):
-        for name_b, path_b, (real_b, inode_b) in given[i + 1 :]:
-            if real_a == real_b or (inode_a is not None and inode_a == inode_b):
-                same = f"{path_a}" if str(path_a) == str(path_b) else f"{path_a} and {path_b}"
-                raise UserError(f"{name_a} and {name_b} are one file ({same}): give each output a name of its own")
+    output), or two names of one existing file (a hard link, the same device and inode). Checked before
+    any run."""
+    seen: list[tuple[str, Path, str, tuple[int, int] | None]] = []
+    for name, path in ((name, Path(path)) for name, path in outputs if path is not None):
+        real, inode = os.path.realpath(path), None
+        with contextlib.suppress(OSError):  # missing (the usual case for a new output), a loop, no permission
+            status = os.stat(real)
+            inode = (status.st_dev, status.st_ino)
+        for name_a, path_a, real_a, inode_a in seen:
+            if real == real_a or (inode is not None and inode == inode_a):
+                same = f"{path_a}" if str(path_a) == str(path) else f"{path_a} and {path}"
+                raise UserError(f"{name_a} and {name} are one file ({same}): give each output a name of its own")
+        seen.append((name, path, real, inode))
 
 
 # -- values ---------------------------------------------------------------------------------------------
@@ -524,7 +521,9 @@ def _parsed(filter_names: Sequence[str | type], name: str, value: Any, spelled: 
     except ValueError as error:  # FILTER.NAME of an unknown filter
         raise UserError(f"{spelled.split('=')[0]}: {error}") from None
     if declared is None or declared.derived:
-        raise UserError(refusal(filter_names, name, spelled.split("=")[0]))
+        scope, _ = scoped(name)  # FILTER.NAME: that filter's options, else every filter's
+        chosen = [filter_entry(scope)] if scope is not None else [filter_entry(f) for f in filter_names]
+        raise UserError(not_taken([entry.filter_class for entry in chosen], spelled.split("=")[0]))
     if value is True:  # a switch (--kld)
         return [True] if lists else True
     if not lists:
@@ -533,13 +532,6 @@ def _parsed(filter_names: Sequence[str | type], name: str, value: Any, spelled: 
     if not parts:
         raise UserError(f"{spelled}: no values (write NAME=V1,V2)")
     return list(dict.fromkeys(read_value(declared, part, spelled) for part in parts))
-
-
-def refusal(filter_names: Sequence[str | type], key: str, spelled: str) -> str:
-    """The line for an option none of the filters declares (or its FILTER.NAME's filter does not)."""
-    scope, _ = scoped(key)
-    chosen = [filter_entry(scope)] if scope is not None else [filter_entry(f) for f in filter_names]
-    return not_taken([entry.filter_class for entry in chosen], spelled)
 
 
 def options_per_filter(
@@ -598,7 +590,10 @@ def filters(name: arg(str | None, "[NAME]", "one filter: sir, apf, rpf, grid, ek
 
 def registry_listing() -> str:
     """One line per shipped filter: short name, label, help, what it can do."""
-    lines = ["filter  label  what it is", *(_entry_line(entry) for entry in entries())]
+    lines = ["filter  label  what it is"]
+    for entry in entries():
+        can = ["particles" if entry.takes_particles else "no particles", *(["runs batched"] if entry.batched else [])]
+        lines.append(f"{entry.short_name:<6}  {entry.label:<5}  {entry.help} ({', '.join(can)})")
     lines += [
         "",
         "Your own: --filter FILE.py:Class (see `mazelab exercise new`); its options: mazelab filters FILE.py:Class",
@@ -610,13 +605,6 @@ def registry_listing() -> str:
 def registry_help() -> str:
     """The filters for `mazelab --help`, one short line each (from the registry)."""
     return f"Filters (--filter NAME): {filter_choices()}; `mazelab filters` lists them and their options."
-
-
-def _entry_line(entry: FilterEntry) -> str:
-    can = ", ".join(
-        [*(["particles"] if entry.takes_particles else ["no particles"]), *(["runs batched"] if entry.batched else [])]
-    )
-    return f"{entry.short_name:<6}  {entry.label:<5}  {entry.help} ({can})"
 
 
 def options_listing(entry: FilterEntry) -> str:

@@ -79,9 +79,11 @@ def run_one(maze: str | None, filter_name: str | None, particles: int | None, st
                           filter_name, seed=setup.seed, visualize=visualize, on_step=progress, kidnap_at=kidnap_at,
                           **options)  # fmt: skip
     report_run(result)
-    for line in (kidnap_report(result), particle_count_report(result) if options.get("kld") else None):
-        if line:
-            typer.echo(line)
+    if (kidnapping := kidnap_report(result)) is not None:
+        typer.echo(kidnapping)
+    if options.get("kld"):  # KLD-sampling: the particle count per step
+        counts = result.extras["particle_count"]
+        typer.echo(f"particle count: mean {counts.mean():.0f}, least {counts.min()}, most {counts.max()}")
     if save_scenario_path is not None:
         typer.echo(f"scenario saved to {save_scenario(result.scenario, save_scenario_path, replace=force)}")
     typer.echo(f"Repeat this run: {repeat_command(result.seed, REPEAT_DROPS, RUN_FILES, result.extras['backend'])}")
@@ -337,12 +339,6 @@ def kidnap_report(result: RunResult) -> str | None:
     steps = recovery_steps(result)
     found = f"re-localised {steps} steps later" if steps is not None else "not re-localised by the end"
     return f"kidnapped at step {result.kidnap_at} to ({x:.2f}, {y:.2f}): {found}"
-
-
-def particle_count_report(result: RunResult) -> str:
-    """The particle count per step (KLD-sampling): mean, least and most."""
-    counts = result.extras["particle_count"]
-    return f"particle count: mean {counts.mean():.0f}, least {counts.min()}, most {counts.max()}"
 
 
 # -- compare's outputs ------------------------------------------------------------------------------------
