@@ -142,12 +142,12 @@ def run(maze: Maze_ = None, filter_name: Filter = None, particles: Particles = N
         sigma: Sigma = None, delta: Delta = None, seed: Seed = None, start_seed: StartSeed = None,
         scenario: ScenarioFile = None, save_scenario_path: SaveScenario = None, force: Force = False,
         quiet: Quiet = False, kidnap_at: KidnapAt = None, option: OptionFlag = None, backend: BackendOption = None,
-        threads: ThreadsOption = None, named: dict | None = None, drawing: dict | None = None) -> None:  # fmt: skip
+        threads: ThreadsOption = None, *, named: dict, drawing: dict) -> None:  # fmt: skip
     """Run one filter on a lost robot, or replay a saved scenario (--scenario) with its filter and
     options. Every filter option: --option NAME=VALUE (`mazelab filters` lists them)."""
     from mazelab.cli.replay import run_one  # scenarios and drawing: imported by the commands that use them
 
-    run_one(**{**locals(), "named": named or {}, "drawing": drawing or {}})
+    run_one(**locals())
 
 
 @app.command(short_help="Lab steps 12-13: every filter on one saved scenario.")
@@ -156,7 +156,7 @@ def run(maze: Maze_ = None, filter_name: Filter = None, particles: Particles = N
 def compare(scenario: SavedScenario, filters: Filters = "sir,apf,rpf", maze: StoredMaze = None, sigma: NewSigma = None,
             delta: NewDelta = None, seed: ReplaySeed = None, csv_path: ErrorsCsv = None, plot: Plot = None,
             traces: Traces = None, force: Force = False, kidnap_at: KidnapAt = None, option: OptionFlag = None,
-            backend: BackendOption = None, named: dict | None = None, drawing: dict | None = None) -> None:  # fmt: skip
+            backend: BackendOption = None, *, named: dict, drawing: dict) -> None:  # fmt: skip
     """Lab steps 12-13: every filter on one saved scenario (the same start, particles, walk). Each
     filter takes the options it declares (--option NAME=VALUE; `mazelab filters` lists them), and
     those the scenario's run set away from their defaults unless given here (a line names them).
@@ -165,7 +165,7 @@ def compare(scenario: SavedScenario, filters: Filters = "sir,apf,rpf", maze: Sto
     over the last 30 steps) and the steps it took."""
     from mazelab.cli.replay import compare_scenario  # scenarios and drawing: imported by the commands that use them
 
-    compare_scenario(**{**locals(), "named": named or {}, "drawing": drawing or {}})
+    compare_scenario(**locals())
 
 
 app.command(short_help="Lab step 14: a Monte Carlo parameter study.")(study)

@@ -160,7 +160,8 @@ def view(recording: arg(Path, "FILE", "a saved recording (.rrd)")) -> None:
         server = WebServer.start()
     except (RuntimeError, OSError) as error:
         raise UserError(f"{recording}: cannot serve it ({error})") from None
-    stop_on_termination()
+    for number in set(STOP_SIGNALS) - {signal.SIGINT}:  # SIGTERM, SIGHUP (`timeout`, a closed terminal) stop
+        signal.signal(number, signal.default_int_handler)  # serving as Ctrl-C does: the server ends, exit 0
     try:
         replay_with_layout(recording, lambda stream: stream.connect_grpc(server.grpc_url))
     except RuntimeError as error:  # rerun could not read or send it after all
@@ -172,18 +173,6 @@ def view(recording: arg(Path, "FILE", "a saved recording (.rrd)")) -> None:
         raise
     print(f"Serving {recording}")
     server.serve_until_interrupted()
-
-
-def stop_on_termination() -> None:
-    """SIGTERM and SIGHUP (`timeout`, a closed terminal) stop serving as Ctrl-C does, so the server
-    process ends with this one instead of holding its ports, and the command ends cleanly (exit 0)."""
-
-    def interrupt(_signum: int, _frame: object) -> None:
-        raise KeyboardInterrupt
-
-    for number in STOP_SIGNALS:
-        if number != signal.SIGINT:
-            signal.signal(number, interrupt)
 
 
 def recording_problem(path: Path) -> str | None:

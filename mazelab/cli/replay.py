@@ -6,8 +6,7 @@ only when the user names the plug-in, a scenario never imports code); their repo
 from __future__ import annotations
 
 import warnings
-from collections.abc import Iterator, Mapping, Sequence
-from contextlib import contextmanager
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -74,10 +73,14 @@ def run_one(maze: str | None, filter_name: str | None, particles: int | None, st
         setup = replay_setup(stored, maze, sigma, delta, seed)
     prepare_world(setup.world)
     progress = None if quiet else progress_printer(steps or setup.robot.recorded_steps or DEFAULT_STEPS)
-    with scenario_not_saved_on_stop(save_scenario_path):
+    try:
         result = simulate(setup.robot, setup.world, setup.sigma, setup.delta, particles, steps, setup.initial_particles,
                           filter_name, seed=setup.seed, visualize=visualize, on_step=progress, kidnap_at=kidnap_at,
                           **options)  # fmt: skip
+    except (KeyboardInterrupt, SystemExit):  # Ctrl-C; SIGTERM or SIGHUP with a recording exit through SystemExit
+        if save_scenario_path is not None:
+            typer.echo(f"the run did not finish: no scenario saved to {save_scenario_path}", err=True)
+        raise
     report_run(result)
     if (kidnapping := kidnap_report(result)) is not None:
         typer.echo(kidnapping)
@@ -87,18 +90,6 @@ def run_one(maze: str | None, filter_name: str | None, particles: int | None, st
     if save_scenario_path is not None:
         typer.echo(f"scenario saved to {save_scenario(result.scenario, save_scenario_path, replace=force)}")
     typer.echo(f"Repeat this run: {repeat_command(result.seed, REPEAT_DROPS, RUN_FILES, result.extras['backend'])}")
-
-
-@contextmanager
-def scenario_not_saved_on_stop(path: Path | None) -> Iterator[None]:
-    """A run stopped (Ctrl-C; SIGTERM or SIGHUP with a recording, which exit through SystemExit) before
-    its end says that its scenario was not saved."""
-    try:
-        yield
-    except (KeyboardInterrupt, SystemExit):
-        if path is not None:
-            typer.echo(f"the run did not finish: no scenario saved to {path}", err=True)
-        raise
 
 
 def compare_scenario(
@@ -120,15 +111,9 @@ def compare_scenario(
     given = with_stored_options(stored, names, given_options(named, option, names), scenario)
     options_per_filter(names, given)  # an option that none of the filters takes, or a bad value: one line, first
     options = {k: to_plain_json(v) for k, v in given.items()}
-    parameters = {
-        "filters": [resolve_filter(n).name for n in names],
-        "sigma": setup.sigma,
-        "delta": setup.delta,
-        "seed": setup.seed,
-        "kidnap_at": kidnap_at,
-        "options": options,
-        "scenario": str(scenario),
-    }
+    parameters = {"filters": [resolve_filter(n).name for n in names], "sigma": setup.sigma, "delta": setup.delta,
+                  "seed": setup.seed, "kidnap_at": kidnap_at, "options": options,
+                  "scenario": str(scenario)}  # fmt: skip
     recorder = Recorder("compare", command_line(), parameters, scenario_sha256=file_sha256(scenario))
     prepare_world(setup.world)
     shown = f"sigma {setup.sigma:g}, delta {setup.delta:g}"

@@ -149,29 +149,27 @@ def study(
     dask_timeout: DaskTimeout = DASK_TIMEOUT,
     draw_run: opt(int, help="the run --viewer/--rrd/--web draw", show_default=False) = 1,
     backend: BackendOption = None,
-    named: dict | None = None,
-    drawing: dict | None = None,
-    figure: dict | None = None,
-    files: dict | None = None,
+    *,
+    named: dict[str, Any],
+    drawing: dict[str, Any],
+    figure: dict[str, Any],
+    files: dict[str, Any],
 ) -> None:
     """Lab step 14: a study of every combination of the values (docs/studies.md)."""
-    drawing = drawing or {}
-    chosen = StudyFiles.parse(**(files or {}), rrd=drawing.get("rrd"))
+    chosen = StudyFiles.parse(**files, rrd=drawing.get("rrd"))
     visualize = visualization(**drawing, force=chosen.force, unasked=False)
-    if chosen.lines and seed is None:  # a resumed study keeps its journal's root seed unless --seed
-        seed = journal_parameters(chosen.journal, chosen.lines)["root_seed"]
+    seed = chosen.seed if seed is None else seed  # a resumed study keeps its journal's root seed unless --seed
     names = parse_filters(check_filter_names(filters))
-    given = given_options(named or {}, option, names, lists=True)  # the named flags and --option NAME=V1,V2
+    given = given_options(named, option, names, lists=True)  # the named flags and --option NAME=V1,V2
     mazes, sigmas = parse_mazes(maze, maze_size, stations, wall_share), parse_list(sigma, float, "--sigma")
     plan = plan_study(mazes, names, sigma=sigmas, delta=parse_list(delta, float, "--delta"), runs=runs, steps=steps,
                       particles=parse_list(particles, int, "--particles"), kidnap_at=kidnap_at, reference=reference,
                       options=given, seed=seed, traces=chosen.traces is not None, spelled=given.spelled)  # fmt: skip
-    figure = check_figure(plan, **(figure or {}))
+    figure = check_figure(plan, **figure)
     workers = workers or cores()
     backend = study_backend(plan.tasks(), 1 if dask else workers)
-    where = f"on the Dask cluster at {dask}" if dask is not None else f"{workers} worker(s)"
-    session = open_session(plan, chosen, backend, plan.header(where, backend), visualize=visualize,
-                           draw_run=draw_run, dask=dask)  # fmt: skip
+    header = plan.header(f"on the Dask cluster at {dask}" if dask is not None else f"{workers} worker(s)", backend)
+    session = open_session(plan, chosen, backend, header, visualize=visualize, draw_run=draw_run, dask=dask)
     if chosen.resume:
         typer.echo(f"resuming: {len(session.kept)} rows kept from {chosen.journal}, {len(session.tasks)} run(s) to go")
     try:
@@ -218,6 +216,7 @@ class StudyFiles:
     resume: bool
     force: bool
     lines: list[dict[str, Any]] = dataclasses.field(default_factory=list)
+    seed: int | None = None  # a resumed study's root seed, its journal's
 
     @classmethod
     def parse(cls, csv_path: Path | None = None, plot: Path | None = None, summary_csv: Path | None = None,
@@ -260,7 +259,7 @@ class StudyFiles:
         if self.resume:
             try:
                 self.lines = read_journal(self.journal)
-                journal_parameters(self.journal, self.lines)
+                self.seed = journal_parameters(self.journal, self.lines)["root_seed"]
             except JournalError as error:
                 raise UserError(f"--resume: {error}") from None
 
@@ -308,7 +307,11 @@ def open_session(plan: StudyPlan, files: StudyFiles, backend: str, header: str, 
             tasks, kept, earlier = resume_study(files.journal, files.lines, plan, backend)
         except JournalError as error:
             raise UserError(str(error) if str(error).startswith("--resume") else f"--resume: {error}") from None
-    tasks = _drawn_first(tasks, draw_run) if visualize else tasks
+    if visualize:  # the drawn run (run `draw_run` of the first setting) first: the executor draws it
+        chosen = next((i for i, t in enumerate(tasks) if t.run == draw_run), None)
+        if chosen is None:
+            raise UserError(f"--draw-run {draw_run}: the study has no such run to draw")
+        tasks = [tasks[chosen], *tasks[:chosen], *tasks[chosen + 1 :]]
     outputs = {k: None if v is None else str(v) for k, v in (("csv", files.csv_path), ("plot", files.plot),
                                                               ("traces", files.traces))}  # fmt: skip
     recorder = Recorder(kind, command_line(), parameters or plan.parameters(), outputs=outputs, sessions=earlier,
@@ -332,14 +335,6 @@ def open_session(plan: StudyPlan, files: StudyFiles, backend: str, header: str, 
                 "parameters": jsonable(plan.parameters()), "backend": backend}  # fmt: skip
         session.journal.write({"session": line})
     return session
-
-
-def _drawn_first(tasks: list[RunTask], run: int) -> list[RunTask]:
-    """The tasks with the drawn one (run `run` of the first setting) first: the executor draws it."""
-    chosen = next((i for i, t in enumerate(tasks) if t.run == run), None)
-    if chosen is None:
-        raise UserError(f"--draw-run {run}: the study has no such run to draw")
-    return [tasks[chosen], *tasks[:chosen], *tasks[chosen + 1 :]]
 
 
 def report_study(session: StudySession, outcome: StudyOutcome, figure: dict[str, Any]) -> None:
@@ -391,8 +386,12 @@ def write_outputs(session: StudySession, records: list[RunRecord], summaries: li
         if files.traces is not None:
             write_traces(files.traces, study_traces(records))
             typer.echo(f"per-step traces written to {files.traces}")
-        if files.plot is not None and summaries:
-            draw_figure(plan, summaries, files.plot, replace, figure)
+        if files.plot is not None and summaries:  # as `mazelab.study(...).figure(...)` draws it
+            from mazelab.experiments.study_plot import draw_study
+
+            draw_study(summaries, plan.varied, files.plot, plan.runs, plan.settings[0].maze.label, x=figure["plot_x"],
+                       y=figure["plot_y"], title=figure["title"], replace=replace)  # fmt: skip
+            typer.echo(f"figure written to {files.plot}")
         if files.record_file is not None:
             session.recorder.write(files.record_file)
             typer.echo(f"the study's record (command, versions, seeds, mazes, summary) written to {files.record_file}")
@@ -429,16 +428,6 @@ def exit_stopped(outcome: StudyOutcome, finished: int, total: int, saved: str = 
         raise typer.Exit(1)
     typer.echo(f"interrupted after {finished} of {total} runs{saved}", err=True)
     raise typer.Exit(128 + (outcome.stopped_by or signal.SIGINT))
-
-
-def draw_figure(plan: StudyPlan, summaries: list, plot: Path, replace: bool, figure: dict[str, Any]) -> None:
-    """The study's figure (mazelab.experiments.study_plot), as `mazelab.study(...).figure(...)` draws it."""
-    from mazelab.experiments.study_plot import draw_study
-
-    maze = plan.settings[0].maze.label
-    draw_study(summaries, plan.varied, plot, plan.runs, maze, x=figure["plot_x"], y=figure["plot_y"],
-               title=figure["title"], replace=replace)  # fmt: skip
-    typer.echo(f"figure written to {plot}")
 
 
 # -- `mazelab accuracy` ---------------------------------------------------------------------------------
