@@ -391,59 +391,50 @@ def declared_flags() -> dict[str, Option]:
     return flags
 
 
-def _flag_parameters(lists: bool) -> dict[str, tuple[Any, Any]]:
-    """A typer parameter per declared flag, as `with_parameters` takes them (name -> (annotated type,
-    default)): a switch for a flag option (`--kld`) and for each half of a pair (`--recovery`,
-    `--sensor-resetting`) on run and compare; a value (a list of them for a study, `lists`) otherwise.
-    They are listed in the command's help in one paragraph (`flags_line`)."""
-    parameters = {}
+def _flag_spellings(lists: bool) -> list[tuple[str, Option, bool]]:
+    """Each command-line spelling of the declared flags: (flag, its option, whether it is a switch). A flag
+    option (`--kld`) is a switch, and so is each half of a pair (`--recovery/--sensor-resetting`) on run
+    and compare; any other flag, and a pair's first half in a study (`lists`), takes a value (a list)."""
+    spellings = []
     for option in declared_flags().values():
-        spellings = (option.flag or "").split("/")
-        switches = [spellings[0]] if option.parse is parse_flag else spellings if len(spellings) > 1 else []
-        for flag in [] if lists and option.parse is not parse_flag else switches:
-            parameters[_parameter_name(flag)] = (opt(bool, flag, hidden=True, help=option.help), False)
-        if (lists and option.parse is not parse_flag) or not switches:
-            parameters[_parameter_name(spellings[0])] = (opt(str | None, spellings[0], hidden=True, help=option.help),
-                                                         None)  # fmt: skip
-    return parameters
-
-
-def flags_line(lists: bool) -> str:
-    """The help's paragraph naming the declared flags (each a spelling of --option NAME=VALUE)."""
-    flags = ", ".join(f"--{name.replace('_', '-')}" for name in _flag_parameters(lists))
-    values = "V1,V2" if lists else "VALUE"
-    return f"Filter options, each also --option NAME={values} (mazelab filters NAME says what they do): {flags}."
-
-
-def _parameter_name(flag: str) -> str:
-    return flag.removeprefix("--").replace("-", "_")
+        flags = (option.flag or "").split("/")
+        if option.parse is parse_flag:
+            spellings.append((flags[0], option, True))
+        elif len(flags) > 1 and not lists:
+            spellings += [(flag, option, True) for flag in flags]
+        else:
+            spellings.append((flags[0], option, False))
+    return spellings
 
 
 def with_option_flags(lists: bool = False) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
-    """Add the declared flags (`_flag_parameters`) to a command's parameters, named in its help; the
-    command receives the ones given as `named`: {option name: its text, a list's text, or True for a
-    switch}."""
+    """Add a hidden typer option per declared flag (`_flag_spellings`) to a command, named together in one
+    paragraph of its help; the command receives the ones given as `named`: {option name: (the flag as
+    typed, its text, a list's text, or True for a switch; a pair's half: the value it sets)}, and both
+    halves of a pair given is one line."""
+    spellings = _flag_spellings(lists)
+    parameters = {flag.removeprefix("--").replace("-", "_"): (opt(bool if switch else str | None, flag, hidden=True,
+                  help=option.help), False if switch else None) for flag, option, switch in spellings}  # fmt: skip
+
+    def named(given: Mapping[str, Any]) -> dict[str, tuple[str, Any]]:
+        chosen: dict[str, tuple[str, Any]] = {}
+        for (flag, option, _), parameter in zip(spellings, parameters, strict=True):
+            if given.get(parameter) in (None, False):
+                continue
+            if option.name in chosen:
+                raise UserError(f"choose one of {' and '.join((option.flag or '').split('/'))}")
+            value = given[parameter]
+            chosen[option.name] = (flag, SWITCH_VALUES.get(flag, value) if value is True else value)
+        return chosen
 
     def decorate(command: Callable[..., Any]) -> Callable[..., Any]:
-        wrapper = with_parameters("named", _flag_parameters(lists), _named)(command)
-        wrapper.__doc__ = f"{inspect.cleandoc(command.__doc__ or '')} {flags_line(lists)}"
+        wrapper = with_parameters("named", parameters, named)(command)
+        flags, values = ", ".join(flag for flag, _, _ in spellings), "V1,V2" if lists else "VALUE"
+        wrapper.__doc__ = (f"{inspect.cleandoc(command.__doc__ or '')} Filter options, each also --option "
+                           f"NAME={values} (mazelab filters NAME says what they do): {flags}.")  # fmt: skip
         return wrapper
 
     return decorate
-
-
-def _named(given: Mapping[str, Any]) -> dict[str, Any]:
-    """The flags given, by option name; both halves of a pair is one line."""
-    named: dict[str, Any] = {}
-    for name, option in declared_flags().items():
-        spellings = (option.flag or "").split("/")
-        chosen = [f for f in spellings if given.get(_parameter_name(f)) not in (None, False)]
-        if len(chosen) > 1:
-            raise UserError(f"choose one of {' and '.join(spellings)}")
-        if chosen:
-            value = given[_parameter_name(chosen[0])]
-            named[name] = SWITCH_VALUES.get(chosen[0], value) if value is True and len(spellings) > 1 else value
-    return named
 
 
 def read_value(option: Option, text: str, spelled: str) -> Any:
@@ -496,10 +487,9 @@ def given_options(
     """
     given = GivenOptions()
     given.spelled = {}
-    for name, value in named.items():
-        spellings = (declared_flags()[name].flag or f"--{name}").split("/")
-        given.spelled[name] = next((f for f in spellings if SWITCH_VALUES.get(f) == value), spellings[0])
-        given[name] = _parsed(filter_names, name, value, given.spelled[name], lists)
+    for name, (spelled, value) in named.items():
+        given.spelled[name] = spelled
+        given[name] = _parsed(filter_names, name, value, spelled, lists)
     for text in texts or ():
         if not text.isprintable():  # a newline would print as a line of its own in the messages
             raise UserError(f"--option {text!r}: an option cannot hold a control character (a newline, a tab)")
