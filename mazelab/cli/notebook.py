@@ -69,6 +69,3 @@ def notebook(
     write_bytes_atomically(target, (NOTEBOOKS_DIR / f"{stem}.ipynb").read_bytes(), replace=force)
     typer.echo(f"{target.name} copied here from the lab's notebooks; open it with:")
     typer.echo(jupyter_command(target))
-
-
-__all__ = ["NOTEBOOKS_DIR", "jupyter_command", "notebook", "shipped_notebooks"]

@@ -30,7 +30,7 @@ from mazelab.experiments.study import declared_option
 from mazelab.experiments.study import options_per_filter as reaching
 from mazelab.experiments.tables import pyplot
 from mazelab.experiments.traces import check_trace_path
-from mazelab.invocation import command_prefix
+from mazelab.invocation import command_prefix, repeat_command
 from mazelab.registry import SHIPPED, FilterEntry, entries, filter_entry, is_plugin_spec, resolve_filter
 from mazelab.robot import Robot
 from mazelab.simulation import RunResult
@@ -361,6 +361,14 @@ def report_run(result: RunResult) -> None:
         f"{result.filter_name}: last-step error {errors[-1]:.3f}, last-{FINAL_SHARE:.0%} error "
         f"{final_error(errors):.3f}; {when}; seed {result.seed}"
     )
+
+
+def repeat_line(what: str, seed: int | None, files: tuple[str, ...], backend: str) -> None:
+    """ "Repeat this run" (comparison, study): the command as typed, with its seed and backend, that repeats
+    it bit for bit, but not its files (`files`, with their values): a file it wrote would be found taken
+    when the line is pasted back ("exists; use --force"), and --force would replace them unasked; a
+    resumed study repeats whole (mazelab.invocation.repeat_command)."""
+    typer.echo(f"Repeat this {what}: {repeat_command(seed, ('--resume', '--force'), files, backend)}")
 
 
 def progress_printer(steps: int, every: int = 20) -> Any:

@@ -250,6 +250,3 @@ def replay_with_layout(path: Path, connect: Callable[[Any], None]) -> None:
             stream.send_chunks(reader.stream(store=entry))
             stream.flush()
             stream.disconnect()
-
-
-__all__ = ["chosen", "parse_amount", "recording_problem", "recordings", "remove", "replay_with_layout", "view"]

@@ -27,6 +27,7 @@ from mazelab.cli.options import (
     given_options,
     options_per_filter,
     progress_printer,
+    repeat_line,
     report_run,
     visualization,
 )
@@ -35,7 +36,7 @@ from mazelab.experiments.record import Recorder, record_path
 from mazelab.experiments.runs import comparison_table, errors_csv, plot_errors, recovery_steps, run_figures
 from mazelab.experiments.traces import compare_traces, write_traces
 from mazelab.experiments.warmup import take_startup_seconds
-from mazelab.invocation import command_line, repeat_command
+from mazelab.invocation import command_line
 from mazelab.maze import DEFAULT_MAZE, Maze, load_maze, mazes_fitting
 from mazelab.model import DEFAULT_STEPS
 from mazelab.registry import FilterEntry, file_sha256, filter_entry, resolve_filter
@@ -43,12 +44,6 @@ from mazelab.robot import Robot
 from mazelab.scenario import Scenario, check_measurements_within, find_scenario, load_scenario, save_scenario
 from mazelab.seeding import new_seed, start_place
 from mazelab.simulation import RunResult, check_walk
-
-# "Repeat this run" repeats the run, not its files: the scenario and recording it wrote would be found
-# taken by the pasted command ("exists; use --force"), and --force would replace them unasked.
-REPEAT_DROPS = ("--resume", "--force")
-RUN_FILES = ("--save-scenario", "--rrd")
-COMPARE_FILES = ("--csv", "--plot", "--traces", "--rrd")
 
 
 def run_one(maze: str | None, filter_name: str | None, particles: int | None, steps: int | None,
@@ -89,7 +84,7 @@ def run_one(maze: str | None, filter_name: str | None, particles: int | None, st
         typer.echo(f"particle count: mean {counts.mean():.0f}, least {counts.min()}, most {counts.max()}")
     if save_scenario_path is not None:
         typer.echo(f"scenario saved to {save_scenario(result.scenario, save_scenario_path, replace=force)}")
-    typer.echo(f"Repeat this run: {repeat_command(result.seed, REPEAT_DROPS, RUN_FILES, result.extras['backend'])}")
+    repeat_line("run", result.seed, ("--save-scenario", "--rrd"), result.extras["backend"])
 
 
 def compare_scenario(
@@ -125,7 +120,7 @@ def compare_scenario(
     files = {"csv_path": csv_path, "plot": plot, "traces": traces, "record_file": record_file}
     report_compare(results, setup, recorder, title, kld=bool(given.get("kld")), force=force, **files)
     backend = next(iter(results.values())).extras["backend"]
-    typer.echo(f"Repeat this comparison: {repeat_command(setup.seed, REPEAT_DROPS, COMPARE_FILES, backend)}")
+    repeat_line("comparison", setup.seed, ("--csv", "--plot", "--traces", "--rrd"), backend)
 
 
 @dataclass

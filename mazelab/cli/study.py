@@ -34,6 +34,7 @@ from mazelab.cli.options import (
     opt,
     options_per_filter,
     parse_list,
+    repeat_line,
     seed_option,
     visualization,
     with_option_flags,
@@ -75,16 +76,12 @@ from mazelab.experiments.study import MazeChoice, RunRecord, RunTask, StudyOutco
 from mazelab.experiments.summary import CSV_DTYPES, study_table, summarise_study, summary_csv, summary_path
 from mazelab.experiments.tables import records_csv
 from mazelab.experiments.traces import study_traces, write_traces
-from mazelab.invocation import command_line, repeat_command, resume_command
+from mazelab.invocation import command_line, resume_command
 from mazelab.maze import DEFAULT_MAZE, LAB_MAZES
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
 from mazelab.registry import filter_entry, resolve_filter
 from mazelab.viz.style import DEFAULT_MAX_DRAWN
 
-# "Repeat this study" repeats the study (the same table, bit for bit), not its files: the CSV, figure and
-# record it wrote would be found taken when the line is pasted back (add --csv NEW.csv to write them again)
-REPEAT_DROPS = ("--resume", "--force")
-REPEAT_DROPS_WITH_VALUE = ("--csv", "--plot", "--traces", "--record", "--summary-csv", "--rrd")
 FILES = {
     "csv_path": (opt(Path | None, "--csv", help="one row per run and filter"), None),
     "plot": (opt(Path | None, "--plot", help="the figure: .png, .pdf or .svg (the suffix chooses)"), None),
@@ -362,8 +359,9 @@ def report_study(session: StudySession, outcome: StudyOutcome, figure: dict[str,
     typer.echo(f"{ran} runs in {seconds:.1f} s wall time on the {session.backend} backend; start-up "
                f"{outcome.startup_seconds:.1f} s in {len(outcome.workers)} process(es) (numba's kernels loaded, first "
                "calls; not in ms_per_step or run_seconds)")  # fmt: skip
-    repeat = repeat_command(plan.seed, REPEAT_DROPS, REPEAT_DROPS_WITH_VALUE, session.backend)
-    typer.echo(f"Repeat this study: {repeat}")
+    repeat_line(
+        "study", plan.seed, ("--csv", "--plot", "--traces", "--record", "--summary-csv", "--rrd"), session.backend
+    )
     write_outputs(session, records, summaries, figure)
     session.close(status, runs_finished=closing["runs_finished"])
     if outcome.failures:
