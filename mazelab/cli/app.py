@@ -35,7 +35,6 @@ from mazelab.cli.options import (
     plain_usage_names,
     progress_printer,
     refuse_option_as_value,
-    registry_help,
     report_run,
     seed_option,
     usage_hint,
@@ -62,7 +61,7 @@ app = typer.Typer(
     no_args_is_help=False,
     pretty_exceptions_enable=False,
     help="A robot lost in a maze, found by particle filters. Without a command: the paper's example.\n\n"
-    + registry_help(),
+    f"Filters (--filter NAME): {filter_choices()}; `mazelab filters` lists them and their options.",
 )
 
 
@@ -236,20 +235,14 @@ def _main(argv: list[str] | None) -> int:
     except StudentCodeError as error:  # the student's filter raised: their frames and the step, not ours
         typer.echo(f"error: {error}", err=True)
         return 1
-    except OSError as error:  # a full disk, a file size limit, a read-only folder, a name too long
-        typer.echo(f"error: {describe_os_error(error)}", err=True)
+    except OSError as error:  # a full disk, a file size limit, a read-only folder, a name too long: its file, why
+        plain = isinstance(error, WriteError) or error.filename is None
+        typer.echo(f"error: {error if plain else f'{error.filename}: {error.strerror or error}'}", err=True)
         return 1
     except (KeyboardInterrupt, typer.Abort):
         typer.echo("interrupted", err=True)
         return 130
     return code if isinstance(code, int) else 0
-
-
-def describe_os_error(error: OSError) -> str:
-    """One line naming the file and the cause."""
-    if isinstance(error, WriteError) or error.filename is None:
-        return str(error)
-    return f"{error.filename}: {error.strerror or error}"
 
 
 if __name__ == "__main__":

@@ -24,11 +24,6 @@ from mazelab.invocation import PROJECT_DIR, python_prefix
 NOTEBOOKS_DIR = PROJECT_DIR / "notebooks"  # the lab's notebooks, in the clone (an editable install)
 
 
-def shipped_notebooks() -> list[str]:
-    """The names of the lab's notebooks (file names without .ipynb), sorted."""
-    return sorted(path.stem for path in NOTEBOOKS_DIR.glob("*.ipynb"))
-
-
 def jupyter_command(path: Path) -> str:
     """The command that opens the notebook `path` in JupyterLab from the folder it is in, in the lab's
     own environment (JupyterLab finds the inline viewer's front end only among its own packages).
@@ -54,7 +49,7 @@ def notebook(
 ) -> None:
     """Copy the lab's notebook NAME (notebooks/NAME.ipynb) into the folder you are in, and say how to open
     it: run the notebooks from a copy in a folder of your own, never in the clone."""
-    names = shipped_notebooks()
+    names = sorted(path.stem for path in NOTEBOOKS_DIR.glob("*.ipynb"))  # the lab's notebooks
     stem = name.removesuffix(".ipynb")
     if stem not in names:
         raise UserError(f"{name}: no such notebook; the lab's notebooks are {', '.join(names)}")

@@ -261,11 +261,6 @@ def plain_usage_names() -> None:
         argument._usage_display_name = usage_name
 
 
-def commands_of(group: Any) -> dict[str, Any]:
-    """The subcommands of a click group, by name (the group's own, one level down for groups)."""
-    return dict(getattr(group, "commands", {}))
-
-
 def option_elsewhere(error: Exception, group: Any, argv: Sequence[str] = ()) -> str:
     """For "No such option" at the top level: the commands that take that option, and the command to
     type instead (`uv run main.py --seed 1` means `run --seed 1`); '' when there is nothing to add."""
@@ -275,7 +270,7 @@ def option_elsewhere(error: Exception, group: Any, argv: Sequence[str] = ()) -> 
         return ""
     takers = [
         command
-        for command, cmd in commands_of(group).items()
+        for command, cmd in getattr(group, "commands", {}).items()
         if any(name in param.opts for param in getattr(cmd, "params", []))
     ]
     if not takers:
@@ -336,7 +331,7 @@ def refuse_option_as_value(argv: Sequence[str], group: Any) -> None:
     argv = list(argv)
     command = group
     for index, token in enumerate(argv):
-        sub = commands_of(command).get(token)
+        sub = getattr(command, "commands", {}).get(token)  # a subcommand (one level down for groups)
         if sub is not None:
             command = sub
             continue
@@ -598,11 +593,6 @@ def registry_listing() -> str:
         "One filter's options: mazelab filters rpf",
     ]
     return "\n".join(lines)
-
-
-def registry_help() -> str:
-    """The filters for `mazelab --help`, one short line each (from the registry)."""
-    return f"Filters (--filter NAME): {filter_choices()}; `mazelab filters` lists them and their options."
 
 
 def options_listing(entry: FilterEntry) -> str:
