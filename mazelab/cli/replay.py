@@ -300,25 +300,25 @@ def with_stored_options(stored: Scenario, filter_names: Sequence[str], given: Gi
     used = {name: value for name, value in found.items() if name not in given}
     if used:
         shown = ", ".join(f"{name} {show_value(value)}" for name, value in used.items())
-        typer.echo(
-            f"note: {path.name} was saved by a run with {shown}: each filter that takes "
-            f"{'them' if len(used) > 1 else 'it'} does so here (--option NAME=VALUE to change)",
-            err=True,
-        )
+        them = "them" if len(used) > 1 else "it"
+        typer.echo(f"note: {path.name} was saved by a run with {shown}: each filter that takes {them} does so here "
+                   "(--option NAME=VALUE to change)", err=True)  # fmt: skip
     merged = GivenOptions({**used, **given})
     merged.spelled = {**{name: f"--option {name}" for name in used}, **getattr(given, "spelled", {})}
     return merged
 
 
 # -- what run and compare print and write -----------------------------------------------------------
-def kidnap_report(result: RunResult) -> str | None:
-    """Where the robot was carried, and when (if ever) the filter found it again."""
+def kidnap_report(result: RunResult, found: bool = True) -> str | None:
+    """Where the robot was carried, and (`found`) when, if ever, the filter found it again."""
     if result.kidnap_at is None or result.kidnap_position is None:
         return None
     x, y = result.kidnap_position
+    line = f"kidnapped at step {result.kidnap_at} to ({x:.2f}, {y:.2f})"
+    if not found:
+        return line
     steps = recovery_steps(result)
-    found = f"re-localised {steps} steps later" if steps is not None else "not re-localised by the end"
-    return f"kidnapped at step {result.kidnap_at} to ({x:.2f}, {y:.2f}): {found}"
+    return line + (f": re-localised {steps} steps later" if steps is not None else ": not re-localised by the end")
 
 
 # -- compare's outputs ------------------------------------------------------------------------------------
@@ -328,10 +328,8 @@ def report_compare(
 ) -> None:  # fmt: skip
     """The kidnapping (if any), the table, then the per-step errors, the figure, the traces (with the
     scenario's maze, sigma, delta and particle count) and the record (with each filter's figures)."""
-    kidnapping = next(iter(results.values()))
-    if kidnapping.kidnap_at is not None and kidnapping.kidnap_position is not None:
-        x, y = kidnapping.kidnap_position
-        typer.echo(f"kidnapped at step {kidnapping.kidnap_at} to ({x:.2f}, {y:.2f})")
+    if (kidnapping := kidnap_report(next(iter(results.values())), found=False)) is not None:
+        typer.echo(kidnapping)  # where each filter found the robot again is in the table
     typer.echo(comparison_table(results, kld=kld, startup_seconds=take_startup_seconds()))
     if csv_path is not None:
         write_text_atomically(csv_path, errors_csv(results), replace=force)
