@@ -55,12 +55,9 @@ def maze_generate(
 
 @maze_app.command("show", short_help="Print a maze; --viewer, --rrd or --web draw it.")
 @with_drawing
-def maze_show(
-    path: arg(str, "MAZE", "a maze file, or a name in mazes/"),
-    drawing: dict[str, Any] | None = None,
-) -> None:
+def maze_show(path: arg(str, "MAZE", "a maze file, or a name in mazes/"), *, drawing: dict[str, Any]) -> None:
     """Print a maze as text ('##' wall, '[]' station block, '. ' free); --viewer/--rrd/--web also log it to Rerun."""
-    visualize = visualization(**(drawing or {}), unasked=False)
+    visualize = visualization(**drawing, unasked=False)
     world = load_maze(path)
     typer.echo(maze_generator.maze_picture(world), nl=False)
     typer.echo(f"{world.source}: {maze_generator.describe_maze(world)}")

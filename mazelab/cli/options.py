@@ -98,15 +98,8 @@ DRAWING: dict[str, tuple[Any, Any]] = {
 with_drawing = with_parameters("drawing", DRAWING)
 
 
-def visualization(
-    viewer: bool = False,
-    rrd: Path | None = None,
-    web: bool = False,
-    no_viz: bool = False,
-    max_drawn: int = DEFAULT_MAX_DRAWN,
-    force: bool = True,
-    unasked: Any = True,
-) -> Any:
+def visualization(viewer: bool = False, rrd: Path | None = None, web: bool = False, no_viz: bool = False,
+                  max_drawn: int = DEFAULT_MAX_DRAWN, force: bool = True, unasked: Any = True) -> Any:  # fmt: skip
     """The `visualize` argument of run_model for the drawing options (see draw.py); an --rrd file
     replaces an existing one only with `force`. Given none of them: `unasked` (True: the viewer, or a
     file without a display; False for what draws only when asked, a study or a maze)."""

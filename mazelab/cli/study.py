@@ -50,14 +50,7 @@ from mazelab.experiments.accuracy import (
     accuracy_summary,
     accuracy_table,
 )
-from mazelab.experiments.executor import (
-    DASK_TIMEOUT,
-    check_workers,
-    close_client,
-    connect,
-    run_study,
-    study_backend,
-)
+from mazelab.experiments.executor import DASK_TIMEOUT, check_workers, close_client, connect, run_study, study_backend
 from mazelab.experiments.journal import (
     Journal,
     JournalError,
