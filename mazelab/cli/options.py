@@ -261,11 +261,8 @@ def option_elsewhere(error: Exception, group: Any, argv: Sequence[str] = ()) -> 
     ctx = getattr(error, "ctx", None)
     if not name or ctx is None or ctx.command is not group:
         return ""
-    takers = [
-        command
-        for command, cmd in getattr(group, "commands", {}).items()
-        if any(name in param.opts for param in getattr(cmd, "params", []))
-    ]
+    commands = getattr(group, "commands", {}).items()
+    takers = [command for command, cmd in commands if any(name in p.opts for p in getattr(cmd, "params", []))]
     if not takers:
         return ""
     first = "run" if "run" in takers else takers[0]
