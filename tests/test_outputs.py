@@ -89,3 +89,11 @@ def test_compares_outputs_of_one_name_are_refused_before_any_run(tmp_path, argum
     assert done.returncode == 2, done.stderr
     (line,) = done.stderr.splitlines()
     assert expected in line and done.stdout == "" and list(tmp_path.iterdir()) == []
+
+
+def test_a_runs_scenario_and_recording_of_one_name_are_refused_before_the_run(tmp_path):
+    done = command(tmp_path, "run", "--steps", "5", "--save-scenario", "r.rrd", "--rrd", "r.rrd")
+    assert done.returncode == 2, done.stderr
+    (line,) = done.stderr.splitlines()
+    assert "--save-scenario and --rrd are one file (r.rrd)" in line and done.stdout == ""
+    assert list(tmp_path.iterdir()) == []
