@@ -15,8 +15,8 @@ import pytest
 
 import mazelab
 from mazelab.cli.app import main
+from mazelab.experiments import runs as run_module
 from mazelab.experiments import study as study_module
-from mazelab.experiments import warmup
 from mazelab.experiments.stats import (
     BOOTSTRAP_SAMPLES,
     BOOTSTRAP_SEED,
@@ -224,7 +224,7 @@ def test_reference_grid_gives_every_row_its_distance_to_the_exact_posterior(monk
 
     monkeypatch.setattr(GridBayesFilter, "__init__", counting)
     monkeypatch.setattr(study_module, "_EXACT_MEANS", {})
-    monkeypatch.setattr(warmup, "_warmed", set())  # as in a new process: the grid is warmed up once, untimed
+    monkeypatch.setattr(run_module, "_warmed", set())  # as in a new process: the grid is warmed up once, untimed
     result = mazelab.study("paper_5x5", filters=["sir"], particles=[60, 90], runs=2, steps=16, seed=6,
                            reference="grid")  # fmt: skip
     assert len(made) == 2 + 1  # two runs' scenarios, shared by both particle counts; the warm-up

@@ -57,6 +57,7 @@ from mazelab.experiments.accuracy import (
 )
 from mazelab.experiments.executor import (
     DASK_TIMEOUT,
+    StudyOutcome,
     check_workers,
     close_client,
     connect,
@@ -77,7 +78,7 @@ from mazelab.experiments.journal import (
 from mazelab.experiments.plan import StudyPlan, maze_description, plan_study, study_mazes
 from mazelab.experiments.record import Recorder, jsonable, record_path
 from mazelab.experiments.runs import parse_filters
-from mazelab.experiments.study import MazeChoice, RunRecord, RunTask, StudyOutcome
+from mazelab.experiments.study import MazeChoice, RunRecord, RunTask
 from mazelab.experiments.summary import CSV_DTYPES, study_table, summarise_study, summary_csv, summary_path
 from mazelab.experiments.tables import records_csv
 from mazelab.experiments.traces import check_trace_path, study_traces, write_traces

@@ -18,6 +18,7 @@ runs is said in one line with what is left of it.
 from __future__ import annotations
 
 import ctypes
+import dataclasses
 import functools
 import logging
 import math
@@ -33,19 +34,96 @@ from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, CancelledError, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from contextlib import AbstractContextManager, contextmanager, suppress
+from dataclasses import dataclass, field
 from typing import Any
 
-from mazelab.backend import backend_for_work, cores, shared_threads, use_backend, use_threads
+from mazelab.backend import backend_for_work, chosen_backend, cores, shared_threads, use_backend, use_threads
 from mazelab.experiments.batch_runs import MAX_BATCH, run_unit_safely, study_units
-from mazelab.experiments.study import RunFailure, RunRecord, RunTask, StudyOutcome, run_task_safely
-from mazelab.experiments.warmup import WorkerReport, take_startup_seconds, worker_report
+from mazelab.experiments.record import dependency_versions
+from mazelab.experiments.runs import take_startup_seconds
+from mazelab.experiments.study import RunFailure, RunRecord, RunTask, run_task_safely
 from mazelab.stops import STOP_SIGNALS, signal_handlers
 
-UnitOutcome = list[RunRecord] | RunFailure | WorkerReport
+REPORTED_PACKAGES = ("numpy", "numba", "llvmlite")  # the versions a worker reports with its backend
 MAX_POOL_RESTARTS = 3  # a pool whose workers die more often than this stops the study (rows kept)
 PR_SET_PDEATHSIG = 1  # linux/prctl.h: the signal a process gets when its parent dies
 WATCHDOG_SECONDS = 0.5
 
+
+# -- what a study produced, and what each process says of itself ----------------------------------------
+@dataclass
+class WorkerReport:
+    """What a process that ran a study's runs says of itself with its results: where it ran, its
+    backend and package versions (a study refuses workers that disagree), and the start-up it spent."""
+
+    worker: str  # host:pid
+    backend: str
+    packages: dict[str, str | None] = field(default_factory=dict)
+    startup_seconds: float = 0.0
+
+    def describe(self) -> str:
+        versions = ", ".join(f"{name} {v or 'none'}" for name, v in self.packages.items())
+        return f"{self.worker}: backend {self.backend} ({versions})"
+
+
+def worker_report(startup_seconds: float = 0.0) -> WorkerReport:
+    """This process's report (mazelab.backend.chosen_backend, the installed versions)."""
+    return WorkerReport(
+        f"{socket.gethostname()}:{os.getpid()}",
+        chosen_backend(),
+        dependency_versions(REPORTED_PACKAGES),
+        startup_seconds,
+    )
+
+
+@dataclass
+class StudyOutcome:
+    """What a study produced: a record per finished run and filter, the failed runs, and whether
+    the user interrupted it (then the records are the runs that finished before)."""
+
+    records: list[RunRecord] = field(default_factory=list)
+    failures: list[RunFailure] = field(default_factory=list)
+    interrupted: bool = False
+    stopped_by: int | None = None  # the signal that stopped it (2: Ctrl-C), None if it ran to the end
+    tasks: int = 0
+    lost: str | None = None  # why the study stopped early without a signal (a lost cluster or pool), one line
+    workers: dict[str, WorkerReport] = field(default_factory=dict)  # each process's report, start-up summed
+    backend: str = ""  # the one backend the study's runs ran on (mazelab.experiments.executor.study_backend)
+
+    def collector(self, on_records: Any = None) -> Any:
+        """The function that takes a unit's outcomes into this one, each run's records also handed to
+        `on_records` as they come (the study's journal appends them)."""
+
+        def collect(results: list) -> None:
+            for result in results:
+                self.add(result)
+                if on_records is not None and isinstance(result, list):
+                    on_records(result)
+
+        return collect
+
+    def add(self, outcome: list[RunRecord] | RunFailure | WorkerReport) -> None:
+        if isinstance(outcome, RunFailure):
+            self.failures.append(outcome)
+        elif isinstance(outcome, WorkerReport):
+            known = self.workers.setdefault(outcome.worker, dataclasses.replace(outcome, startup_seconds=0.0))
+            known.startup_seconds += outcome.startup_seconds
+        else:
+            self.records.extend(outcome)
+
+    @property
+    def startup_seconds(self) -> float:
+        """The start-up of every process that ran runs (numba's load, first-call warm-ups), summed."""
+        return sum(report.startup_seconds for report in self.workers.values())
+
+    def sort(self) -> None:
+        """Records in (setting, run, filter order) order, whatever order the workers finished in."""
+        order = {name: i for i, name in enumerate(dict.fromkeys(r.filter for r in self.records))}
+        self.records.sort(key=lambda r: (r.setting, r.run, order[r.filter]))
+        self.failures.sort(key=lambda f: (f.task.setting_index, f.task.run))
+
+
+UnitOutcome = list[RunRecord] | RunFailure | WorkerReport
 
 # -- an existing Dask cluster ---------------------------------------------------------------------------
 CONNECT_SECONDS = 3  # a scheduler that does not answer within this is reported unreachable
@@ -125,7 +203,7 @@ def quiet_distributed() -> None:
 
 
 def check_workers(client: Any, backend: str) -> list[WorkerReport]:
-    """Each Dask worker's report (mazelab.experiments.warmup), asked before any run: a worker that cannot
+    """Each Dask worker's report (`worker_report`), asked before any run: a worker that cannot
     run the study's `backend` (compiled without numba) or whose package versions differ from the
     others' would make rows that do not belong together, so it is refused in one line naming it."""
     try:

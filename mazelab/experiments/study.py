@@ -19,7 +19,6 @@ import numpy as np
 
 from mazelab.declaration import Option, not_taken, options_for, options_of, scoped, show_value
 from mazelab.experiments.runs import run_figures, run_filters
-from mazelab.experiments.warmup import WorkerReport
 from mazelab.maze import STATION_WALL, Maze
 from mazelab.maze_generator import DEFAULT_WALL_SHARE, generate_maze
 from mazelab.model import check_model_parameters
@@ -553,50 +552,3 @@ def run_task_safely(task: RunTask, visualize: Any = False) -> list[RunRecord] | 
         return run_task(task, visualize)
     except Exception as error:
         return RunFailure(task, f"{type(error).__name__}: {error}")
-
-
-@dataclass
-class StudyOutcome:
-    """What a study produced: a record per finished run and filter, the failed runs, and whether
-    the user interrupted it (then the records are the runs that finished before)."""
-
-    records: list[RunRecord] = field(default_factory=list)
-    failures: list[RunFailure] = field(default_factory=list)
-    interrupted: bool = False
-    stopped_by: int | None = None  # the signal that stopped it (2: Ctrl-C), None if it ran to the end
-    tasks: int = 0
-    lost: str | None = None  # why the study stopped early without a signal (a lost cluster or pool), one line
-    workers: dict[str, WorkerReport] = field(default_factory=dict)  # each process's report, start-up summed
-    backend: str = ""  # the one backend the study's runs ran on (mazelab.experiments.executor.study_backend)
-
-    def collector(self, on_records: Any = None) -> Any:
-        """The function that takes a unit's outcomes into this one, each run's records also handed to
-        `on_records` as they come (the study's journal appends them)."""
-
-        def collect(results: list) -> None:
-            for result in results:
-                self.add(result)
-                if on_records is not None and isinstance(result, list):
-                    on_records(result)
-
-        return collect
-
-    def add(self, outcome: list[RunRecord] | RunFailure | WorkerReport) -> None:
-        if isinstance(outcome, RunFailure):
-            self.failures.append(outcome)
-        elif isinstance(outcome, WorkerReport):
-            known = self.workers.setdefault(outcome.worker, dataclasses.replace(outcome, startup_seconds=0.0))
-            known.startup_seconds += outcome.startup_seconds
-        else:
-            self.records.extend(outcome)
-
-    @property
-    def startup_seconds(self) -> float:
-        """The start-up of every process that ran runs (numba's load, first-call warm-ups), summed."""
-        return sum(report.startup_seconds for report in self.workers.values())
-
-    def sort(self) -> None:
-        """Records in (setting, run, filter order) order, whatever order the workers finished in."""
-        order = {name: i for i, name in enumerate(dict.fromkeys(r.filter for r in self.records))}
-        self.records.sort(key=lambda r: (r.setting, r.run, order[r.filter]))
-        self.failures.sort(key=lambda f: (f.task.setting_index, f.task.run))
