@@ -17,22 +17,20 @@ import mazelab
 from mazelab.cli.app import main
 from mazelab.experiments import runs as run_module
 from mazelab.experiments import study as study_module
-from mazelab.experiments.stats import (
+from mazelab.experiments.study import MazeChoice, RunRecord, distance_to_exact, study_settings
+from mazelab.experiments.summary import (
     BOOTSTRAP_SAMPLES,
     BOOTSTRAP_SEED,
+    SUMMARY_STATISTICS,
     bca_levels,
     bootstrap_interval,
+    converged_within,
+    convergence_window,
     kaplan_meier,
     km_median,
     leave_one_out,
     paired_difference,
     resampled,
-)
-from mazelab.experiments.study import MazeChoice, RunRecord, distance_to_exact, study_settings
-from mazelab.experiments.summary import (
-    SUMMARY_STATISTICS,
-    converged_within,
-    convergence_window,
     summarise_study,
     summary_csv,
 )

@@ -21,7 +21,7 @@ import numpy as np
 
 from mazelab.atomic import write_text_atomically
 from mazelab.backend import backend_versions
-from mazelab.experiments.stats import CONFIDENCE_LEVEL, INTERVAL_METHODS
+from mazelab.experiments.summary import CONFIDENCE_LEVEL, INTERVAL_METHODS
 
 RECORD_FORMAT = 1
 RECORD_SUFFIX = ".record.json"
