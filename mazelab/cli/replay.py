@@ -52,7 +52,7 @@ from mazelab.experiments.runs import (
     run_figures,
     take_startup_seconds,
 )
-from mazelab.experiments.traces import check_trace_path, compare_traces, write_traces
+from mazelab.experiments.tables import check_trace_path, compare_traces, write_traces
 from mazelab.invocation import command_line, repeat_command
 from mazelab.maze import DEFAULT_MAZE, Maze, load_maze, mazes_fitting
 from mazelab.model import DEFAULT_STEPS

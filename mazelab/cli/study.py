@@ -80,8 +80,7 @@ from mazelab.experiments.record import Recorder, jsonable, record_path
 from mazelab.experiments.runs import parse_filters
 from mazelab.experiments.study import MazeChoice, RunRecord, RunTask
 from mazelab.experiments.summary import CSV_DTYPES, study_table, summarise_study, summary_csv, summary_path
-from mazelab.experiments.tables import records_csv
-from mazelab.experiments.traces import check_trace_path, study_traces, write_traces
+from mazelab.experiments.tables import check_trace_path, records_csv, study_traces, write_traces
 from mazelab.invocation import command_line, repeat_command, resume_command
 from mazelab.maze import DEFAULT_MAZE, LAB_MAZES
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS

@@ -27,8 +27,7 @@ from mazelab.experiments.executor import run_study
 from mazelab.experiments.plan import StudyPlan, plan_study, study_mazes
 from mazelab.experiments.record import Recorder
 from mazelab.experiments.summary import CSV_DTYPES, StudySummary, summarise_study, summary_rows
-from mazelab.experiments.tables import flat_row
-from mazelab.experiments.traces import study_traces, trace_table_columns
+from mazelab.experiments.tables import flat_row, study_traces, trace_table_columns
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
 from mazelab.registry import is_lab_class, resolve_filter
 

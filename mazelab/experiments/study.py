@@ -19,6 +19,7 @@ import numpy as np
 
 from mazelab.declaration import Option, not_taken, options_for, options_of, scoped, show_value
 from mazelab.experiments.runs import run_figures, run_filters
+from mazelab.experiments.tables import trace_of
 from mazelab.maze import STATION_WALL, Maze
 from mazelab.maze_generator import DEFAULT_WALL_SHARE, generate_maze
 from mazelab.model import check_model_parameters
@@ -323,7 +324,7 @@ def study_tasks(
 ) -> list[RunTask]:
     """One task per setting and run, in order, each with the filters that setting runs
     (`filters_per_setting`; a setting that runs none has no tasks). `traces` keeps each run's per-step
-    trace (mazelab.experiments.traces); `reference` ("grid") measures each filter against the exact
+    trace (mazelab.experiments.tables); `reference` ("grid") measures each filter against the exact
     posterior (`with_reference`); `plugins` the code of the plug-ins among the filters
     (mazelab.registry.PluginCode), sent with every run."""
     if runs < 1 or steps < 1:
@@ -381,7 +382,7 @@ class RunRecord:
     # every option the filter ran with (`StudySetting.filter_values`) as cells (`option_cell`), by name:
     # a column each, after these; an option the filter does not declare has no key (an empty cell)
     options: dict[str, Any] = field(default_factory=dict)
-    # Not a column: with RunTask.traces, the filter's per-step arrays (mazelab.experiments.traces)
+    # Not a column: with RunTask.traces, the filter's per-step arrays (mazelab.experiments.tables)
     trace: ClassVar[dict[str, Any] | None] = None
 
     def to_json(self) -> dict[str, Any]:
@@ -528,22 +529,6 @@ def option_cell(value: Any) -> Any:
     object's fields) in the declaration's words ("none", "Recovery(...)")."""
     plain = isinstance(value, (bool, int, float, str))
     return value if plain else show_value(value)
-
-
-def trace_of(result: RunResult) -> dict[str, Any]:
-    """A run's per-step arrays: true position, estimate, ESS, confidence, step time, particle count,
-    log evidence so far, and the filter's own diagnostics by name (mazelab.collect: the RPF's `regularised`, recovery's
-    `injection_probability`)."""
-    return {
-        "true": result.true_positions,
-        "estimate": result.estimates,
-        "ess": result.ess,
-        "confident": result.confident,
-        "step_seconds": result.step_seconds,
-        "particle_count": result.extras.get("particle_count", np.full(len(result.ess), -1)),
-        "log_evidence": np.full(len(result.ess), np.nan) if result.log_evidence is None else result.log_evidence,
-        "diagnostics": result.extras.get("diagnostics", {}),
-    }
 
 
 def run_task_safely(task: RunTask, visualize: Any = False) -> list[RunRecord] | RunFailure:
