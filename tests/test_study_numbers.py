@@ -14,8 +14,8 @@ import pytest
 import mazelab
 from mazelab.cli.app import main
 from mazelab.experiments import runs as run_module
+from mazelab.experiments.api import plan_study, study_mazes
 from mazelab.experiments.executor import run_study
-from mazelab.experiments.plan import plan_study, study_mazes
 from mazelab.experiments.runs import run_filters
 from mazelab.maze import load_maze
 from mazelab.registry import file_sha256

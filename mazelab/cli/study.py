@@ -1,5 +1,5 @@
 """`mazelab study` (lab step 14): a Monte Carlo parameter study on the command line; its Python twin is
-`mazelab.study`. The flags make the study's plan (mazelab.experiments.plan), its files are checked before
+`mazelab.study`. The flags make the study's plan (mazelab.experiments.api), its files are checked before
 any work (`StudyFiles`), its runs go to the executor on one backend, each finished run appended to the
 study's journal (mazelab.experiments.journal), and the report writes the table, the CSV, the summary CSV,
 the traces, the figure and the record from the runs, the journal's kept ones (--resume) included.
@@ -55,6 +55,7 @@ from mazelab.experiments.accuracy import (
     accuracy_summary,
     accuracy_table,
 )
+from mazelab.experiments.api import StudyPlan, maze_description, plan_study, study_mazes
 from mazelab.experiments.executor import (
     DASK_TIMEOUT,
     StudyOutcome,
@@ -75,7 +76,6 @@ from mazelab.experiments.journal import (
     read_journal,
     resume_study,
 )
-from mazelab.experiments.plan import StudyPlan, maze_description, plan_study, study_mazes
 from mazelab.experiments.record import Recorder, jsonable, record_path
 from mazelab.experiments.runs import parse_filters
 from mazelab.experiments.study import MazeChoice, RunRecord, RunTask

@@ -12,7 +12,7 @@ import statistics
 from collections.abc import Sequence
 from typing import Any
 
-from mazelab.experiments.plan import StudyPlan, plan_study
+from mazelab.experiments.api import StudyPlan, plan_study
 from mazelab.experiments.study import REFERENCE, MazeChoice, RunRecord, option_cell
 from mazelab.experiments.summary import bootstrap_interval, wilson_interval
 from mazelab.experiments.tables import format_interval, format_optional, format_table, records_csv
