@@ -43,7 +43,7 @@ from mazelab.cli.options import (
     visualization,
 )
 from mazelab.declaration import show_value, to_plain_json
-from mazelab.experiments.record import Recorder, record_path
+from mazelab.experiments.journal import Recorder, record_path
 from mazelab.experiments.runs import (
     comparison_table,
     errors_csv,

@@ -68,15 +68,17 @@ from mazelab.experiments.executor import (
 from mazelab.experiments.journal import (
     Journal,
     JournalError,
+    Recorder,
     claim_outputs,
     journal_parameters,
     journal_path,
     journal_state,
+    jsonable,
     left_over,
     read_journal,
+    record_path,
     resume_study,
 )
-from mazelab.experiments.record import Recorder, jsonable, record_path
 from mazelab.experiments.runs import parse_filters
 from mazelab.experiments.study import MazeChoice, RunRecord, RunTask
 from mazelab.experiments.summary import CSV_DTYPES, study_table, summarise_study, summary_csv, summary_path

@@ -28,7 +28,7 @@ from mazelab.checks import check_particles, check_seed, check_sigma_within, chec
 from mazelab.contract import missing_parts
 from mazelab.declaration import scoped, to_plain_json
 from mazelab.experiments.executor import run_study
-from mazelab.experiments.record import Recorder
+from mazelab.experiments.journal import Recorder
 from mazelab.experiments.runs import filter_key, parse_filters
 from mazelab.experiments.study import (
     BASE_PARAMETERS,

@@ -39,7 +39,7 @@ from typing import Any
 
 from mazelab.backend import backend_for_work, chosen_backend, cores, shared_threads, use_backend, use_threads
 from mazelab.experiments.batch_runs import MAX_BATCH, run_unit_safely, study_units
-from mazelab.experiments.record import dependency_versions
+from mazelab.experiments.journal import dependency_versions
 from mazelab.experiments.runs import take_startup_seconds
 from mazelab.experiments.study import RunFailure, RunRecord, RunTask, run_task_safely
 from mazelab.stops import STOP_SIGNALS, signal_handlers
