@@ -94,22 +94,19 @@ class StudyOutcome:
         """The function that takes a unit's outcomes into this one, each run's records also handed to
         `on_records` as they come (the study's journal appends them)."""
 
-        def collect(results: list) -> None:
-            for result in results:
-                self.add(result)
-                if on_records is not None and isinstance(result, list):
-                    on_records(result)
+        def collect(outcomes: list[list[RunRecord] | RunFailure | WorkerReport]) -> None:
+            for outcome in outcomes:
+                if isinstance(outcome, RunFailure):
+                    self.failures.append(outcome)
+                elif isinstance(outcome, WorkerReport):
+                    known = self.workers.setdefault(outcome.worker, dataclasses.replace(outcome, startup_seconds=0.0))
+                    known.startup_seconds += outcome.startup_seconds
+                else:
+                    self.records.extend(outcome)
+                    if on_records is not None:
+                        on_records(outcome)
 
         return collect
-
-    def add(self, outcome: list[RunRecord] | RunFailure | WorkerReport) -> None:
-        if isinstance(outcome, RunFailure):
-            self.failures.append(outcome)
-        elif isinstance(outcome, WorkerReport):
-            known = self.workers.setdefault(outcome.worker, dataclasses.replace(outcome, startup_seconds=0.0))
-            known.startup_seconds += outcome.startup_seconds
-        else:
-            self.records.extend(outcome)
 
     @property
     def startup_seconds(self) -> float:
@@ -401,19 +398,11 @@ class Units:
             handed = self._hand_out()
             here()
             while self.running or self.waiting:
-                if not handed:
-                    self._take(self._restart())
-                else:
-                    done, broken = self._wait()
-                    self._take(self._restart() if broken else done)
+                done, broken = self._wait() if handed else (set(), True)
+                self._take(self._restart() if broken else done)
                 handed = self._hand_out()
-        except StudyLost:
-            with signals_ignored():
-                self._take(self._finished())
-                self._end()
-            raise
-        except KeyboardInterrupt as stop:
-            if self.client is None and not isinstance(stop, StudyStopped):
+        except (StudyLost, KeyboardInterrupt) as stop:
+            if self.client is None and not isinstance(stop, (StudyLost, StudyStopped)):
                 try:  # the pool's workers ignore Ctrl-C and finish what they were handed
                     while self.running:
                         self._take(wait(self.running, timeout=0.2, return_when=FIRST_COMPLETED)[0])
@@ -470,8 +459,10 @@ class Units:
                 results = future.result()
             except BrokenProcessPool:
                 results = [RunFailure(task, "its worker process died (out of memory?)") for task in unit]
-            except (CancelledError, OSError) as error:  # the scheduler went away with it: not the run's fault
-                raise StudyLost(_lost(error)) from None
+            except CancelledError:  # the scheduler went away with it: not the run's fault
+                raise StudyLost("lost the Dask scheduler (it cancelled the runs not finished)") from None
+            except OSError as error:
+                raise StudyLost(f"lost the connection to the Dask cluster ({type(error).__name__})") from None
             except Exception as error:  # the unit itself raised on the worker (e.g. mazelab missing there)
                 where = "on the Dask cluster" if self.client is not None else "in a worker process"
                 results = [RunFailure(task, f"{where}: {type(error).__name__}: {error}") for task in unit]
@@ -484,7 +475,7 @@ class Units:
         self.restarts += 1
         if self.restarts > MAX_POOL_RESTARTS:
             raise StudyLost(f"worker processes died {self.restarts} times (killed, or out of memory?)")
-        finished = {f for f in self.running if f.done() and f.exception() is None}
+        finished = self._finished()
         for future in [f for f in self.running if f not in finished]:
             self.waiting.appendleft(self.running.pop(future))
         warnings.warn(
@@ -501,12 +492,6 @@ class Units:
             return
         with suppress(Exception):
             self.pool.shutdown(wait=False)
-
-
-def _lost(error: BaseException) -> str:
-    if isinstance(error, CancelledError):
-        return "lost the Dask scheduler (it cancelled the runs not finished)"
-    return f"lost the connection to the Dask cluster ({type(error).__name__})"
 
 
 def end_workers(pool: ProcessPoolExecutor) -> None:
@@ -598,24 +583,11 @@ def progress_bar(total: int, show: bool, what: str = "runs") -> Iterator[Callabl
         finally:
             print(f"{what} {done[0]}/{total} in {time.perf_counter() - started:.1f} s", file=sys.stderr, flush=True)
         return
+    from rich import progress as rich
     from rich.console import Console
-    from rich.progress import (
-        BarColumn,
-        MofNCompleteColumn,
-        Progress,
-        TextColumn,
-        TimeElapsedColumn,
-        TimeRemainingColumn,
-    )
 
-    columns = (
-        TextColumn(what),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeElapsedColumn(),
-        TextColumn("left"),
-        TimeRemainingColumn(),
-    )
-    with Progress(*columns, console=Console(stderr=True), transient=False) as bar:
+    columns = (rich.BarColumn(), rich.MofNCompleteColumn(), rich.TimeElapsedColumn(), rich.TextColumn("left"))
+    columns = (rich.TextColumn(what), *columns, rich.TimeRemainingColumn())
+    with rich.Progress(*columns, console=Console(stderr=True), transient=False) as bar:
         task = bar.add_task(what, total=total)
         yield lambda count=1: bar.advance(task, count)
