@@ -85,14 +85,15 @@ def study_mazes(
 
 
 def maze_description(choice: MazeChoice) -> dict[str, Any]:
-    """A maze as the record lists it: a file's path (a shipped maze's as mazes/NAME.txt, the project's
-    own; another file's as given, relative to the record's working folder) and sha256, or what
-    generates it."""
+    """A maze as the record lists it: a file's path (a shipped maze's, one of the project's own in mazes/,
+    as mazes/NAME.txt: no machine's folder in it; another file's as given, relative to the record's
+    working folder) and sha256, or what generates it."""
     if choice.grid is not None:
+        shipped = choice.path is not None and Path(choice.path).resolve().parent == MAZES_DIR.resolve()
         return {
             "label": choice.label,
-            "file": shipped_path(choice.path),
-            "shipped": choice.path is not None and is_shipped_maze(choice.path),
+            "file": f"mazes/{Path(choice.path).name}" if shipped else choice.path,
+            "shipped": shipped,
             "sha256": choice.sha256,
             "rows": len(choice.grid),
             "columns": len(choice.grid[0]),
@@ -107,18 +108,6 @@ def maze_description(choice: MazeChoice) -> dict[str, Any]:
         "note": "a new maze per run, from the run's maze_seed (mazelab maze generate --seed); each run's "
         "maze_sha256 in the CSV is the sha256 of its grid as maze text (Maze.to_text())",
     }
-
-
-def is_shipped_maze(path: str | Path) -> bool:
-    """Whether a maze file is one of the project's own (in mazes/)."""
-    return Path(path).resolve().parent == MAZES_DIR.resolve()
-
-
-def shipped_path(path: str | None) -> str | None:
-    """A maze file's path for a record: mazes/NAME.txt for a shipped one (no machine's folder in it)."""
-    if path is None or not is_shipped_maze(path):
-        return path
-    return f"mazes/{Path(path).name}"
 
 
 @dataclass

@@ -19,7 +19,7 @@ import numpy as np
 from mazelab.experiments.executor import run_study
 from mazelab.experiments.study import MazeChoice, RunRecord, RunTask, StudySetting
 from mazelab.experiments.summary import recovery_summary
-from mazelab.experiments.tables import format_optional, format_table
+from mazelab.experiments.tables import format_number, format_table
 from mazelab.maze import Maze
 from mazelab.model import CONVERGENCE_RADIUS
 from mazelab.registry import described
@@ -72,7 +72,7 @@ def recovery_table(world: Maze, filters: Sequence[str] = ("sir", "apf", "rpf"), 
         relocalised, steps = recovery_summary(group)
         before, count = np.mean([localised_before(r) for r in group]), np.mean([r.mean_particle_count for r in group])
         rows.append([described(name).label, variant, str(len(group)), f"{before:.0%}", f"{relocalised:.0%}",
-                     format_optional(steps, "{:g}"), f"{count:.0f}"])  # fmt: skip
+                     format_number(steps, "{:g}"), f"{count:.0f}"])  # fmt: skip
     return format_table([*RECOVERY_HEADERS, "mean N"], rows)
 
 

@@ -331,8 +331,6 @@ def study_tasks(
         raise ValueError(f"runs and steps must be >= 1, got {runs} runs and {steps} steps")
     if kidnap_at is not None and not 1 <= kidnap_at <= steps:
         raise ValueError(f"kidnap_at must be a step from 1 to {steps}, got {kidnap_at}")
-    if reference not in (None, REFERENCE):
-        raise ValueError(f"reference must be {REFERENCE!r} (the exact grid filter), got {reference!r}")
     seeds = study_seeds(root_seed, runs)
     chosen = zip(settings, filters_per_setting(settings, filters), strict=True)
     return [

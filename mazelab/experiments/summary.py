@@ -45,13 +45,7 @@ from mazelab.experiments.study import (
     takes_parameter,
     varied_parameters,
 )
-from mazelab.experiments.tables import (
-    format_interval,
-    format_number,
-    format_optional,
-    format_table,
-    records_csv,
-)
+from mazelab.experiments.tables import format_interval, format_number, format_table, records_csv
 from mazelab.model import CONVERGENCE_RADIUS
 from mazelab.registry import described, resolve_filter
 
@@ -508,9 +502,9 @@ def study_table(summaries: Sequence[StudySummary], varied: Sequence[str], kld: b
          lambda s: f"{s.ms_per_step:.2f}" + ("" if len(backends) == 1 else f" {s.backend}")),
     ]  # fmt: skip
     if any(s.relocalised_share is not None for s in summaries):
-        columns += [("re-localised", lambda s: format_optional(s.relocalised_share, "{:.0%}")),
+        columns += [("re-localised", lambda s: format_number(s.relocalised_share, "{:.0%}")),
                     (ci, lambda s: format_interval(*(s.relocalised_interval or nan), spec="{:.0%}")),
-                    ("median steps to recover", lambda s: format_optional(s.median_steps_to_recover, "{:g}")),
+                    ("median steps to recover", lambda s: format_number(s.median_steps_to_recover, "{:g}")),
                     ]  # fmt: skip
     if kld:
         columns.append(("mean N", lambda s: f"{s.mean_particle_count:.0f}" if is_particle_filter(s.filter) else "-"))

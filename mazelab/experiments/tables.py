@@ -64,17 +64,14 @@ def format_table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
     return "\n".join([line(headers), line(["-" * w for w in widths]), *map(line, rows)])
 
 
-def format_number(value: float, spec: str) -> str:
-    return "-" if math.isnan(value) else spec.format(value)
+def format_number(value: float | None, spec: str) -> str:
+    """`value` in `spec`, or '-' for none (None, NaN)."""
+    return "-" if value is None or math.isnan(value) else spec.format(value)
 
 
 def format_interval(low: float, high: float, spec: str = "{:.3f}") -> str:
     """'[low, high]' in `spec`, or '-' for an interval that could not be made (NaN)."""
     return "-" if math.isnan(low) else f"[{spec.format(low)}, {spec.format(high)}]"
-
-
-def format_optional(value: float | None, spec: str) -> str:
-    return "-" if value is None else spec.format(value)
 
 
 def csv_cell(value: Any) -> Any:
