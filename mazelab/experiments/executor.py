@@ -252,18 +252,14 @@ class StudyLost(RuntimeError):  # noqa: N818 (a state, as KeyboardInterrupt)
     str() is one line saying which; the finished runs are kept."""
 
 
-def study_work(tasks: Sequence[RunTask]) -> tuple[int, float]:
-    """What a study's filters do (mazelab.backend.backend_for_work): (the particles their steps move,
-    the calls of `step`, the runs of a setting advancing together, up to MAX_BATCH)."""
-    particle_steps = sum(t.setting.particles * t.steps * len(t.filters) for t in tasks)
-    runs = max((t.run for t in tasks), default=1)
-    return particle_steps, sum(t.steps * len(t.filters) for t in tasks) / min(runs, MAX_BATCH)
-
-
 def study_backend(tasks: Sequence[RunTask], processes: int) -> str:
     """The one backend of a study's runs: MAZELAB_BACKEND's (--backend sets it), else the compiled one
-    where its start-up in each of `processes` pays for the study's work, else numpy."""
-    return backend_for_work(*study_work(tasks), processes=max(1, min(processes, len(tasks))))
+    where its start-up in each of `processes` pays for the study's work (mazelab.backend.backend_for_work:
+    the particles the filters' steps move, and the calls of `step`, the runs of a setting advancing
+    together up to MAX_BATCH), else numpy."""
+    particle_steps = sum(t.setting.particles * t.steps * len(t.filters) for t in tasks)
+    calls = sum(t.steps * len(t.filters) for t in tasks) / min(max((t.run for t in tasks), default=1), MAX_BATCH)
+    return backend_for_work(particle_steps, calls, processes=max(1, min(processes, len(tasks))))
 
 
 def run_unit_timed(
