@@ -191,15 +191,41 @@ def check_seed(name: str, value: Any) -> int:
     return int(value)
 
 
-def regular_file_size(path: Path, kind: str, contents: str) -> int:
-    """The size in bytes of `path`, which must be a regular file: a folder, device (/dev/zero), pipe or
-    socket is refused with a ValueError naming it. OSError (a missing file, no permission) passes through."""
-    status = path.stat()
-    if stat.S_ISDIR(status.st_mode):
-        raise ValueError(f"{path}: is a folder, not a {kind} file")
-    if not stat.S_ISREG(status.st_mode):
-        raise ValueError(f"{path}: not a regular file (a device, pipe or socket); a {kind} is a {contents} file")
-    return status.st_size
+def read_text_file(
+    path: Path, kind: str, contents: str, error: type[ValueError], *, limit: int | None = None, per_byte: int = 0
+) -> str:
+    """The text of a `kind` file (a maze, a scenario), refusing at once and in one line (`error`) anything
+    that is not a regular file (a folder, a device such as /dev/zero, a pipe, a socket), a file beyond `limit` bytes
+    or whose parsing (`per_byte` bytes of memory per byte) would not fit, an unreadable or binary one.
+    FileNotFoundError passes through: the caller says what to try instead."""
+    try:
+        status = path.stat()
+        if stat.S_ISDIR(status.st_mode):
+            raise error(f"{path}: is a folder, not a {kind} file")
+        if not stat.S_ISREG(status.st_mode):
+            raise error(f"{path}: not a regular file (a device, pipe or socket); a {kind} is a {contents} file")
+        size = status.st_size
+        if limit is not None and size > limit:
+            raise error(f"{path}: {size} bytes is too large for a {kind} file (limit {limit})")
+        if per_byte:
+            check_memory(f"{path}: a {kind} file of {size} bytes", size * per_byte)
+        with path.open("rb") as file:
+            data = file.read(-1 if limit is None else limit + 1)  # at most one byte past the limit, whatever stat said
+    except (FileNotFoundError, error):
+        raise
+    except MemoryLimitError as problem:  # too large to parse
+        raise error(str(problem)) from None
+    except PermissionError:
+        raise error(f"{path}: not readable (permission denied)") from None
+    except OSError as problem:
+        raise error(f"{path}: cannot be read ({problem.strerror or problem})") from None
+    if limit is not None and len(data) > limit:
+        raise error(f"{path}: too large for a {kind} file (more than {limit} bytes)")
+    try:
+        return data.decode("utf-8-sig")  # a byte-order mark (some editors write one) is fine
+    except UnicodeDecodeError as problem:
+        where = f"not UTF-8 at byte {problem.start}"
+        raise error(f"{path}: not a text file ({where}; a {kind} is a {contents} file)") from None
 
 
 # -- memory ----------------------------------------------------------------------------------------

@@ -39,10 +39,9 @@ from mazelab.checks import (
     MAX_SEED,
     NORMAL_TAIL,
     check_all_within,
-    check_memory,
     check_within_map,
     map_diagonal,
-    regular_file_size,
+    read_text_file,
 )
 from mazelab.declaration import options_of
 from mazelab.maze import MAZES_DIR, Maze, find_shipped, shipped_mazes
@@ -399,23 +398,15 @@ def _what_it_is(path: Path, text: str) -> str:
 
 
 def _read_scenario_file(path: Path) -> str:
-    """The text of a scenario file: a regular file (not a device or pipe) whose parsing fits in memory."""
+    """The text of a scenario file (mazelab.checks.read_text_file), or what to try when there is none."""
     try:
-        size = regular_file_size(path, "scenario", "json")
-        check_memory(f"{path}: a scenario file of {size} bytes", size * BYTES_PER_JSON_BYTE)
-        return path.read_text(encoding="utf-8-sig")  # a byte-order mark, as some editors write, is fine
-    except UnicodeDecodeError as error:  # binary, UTF-16, ...: before ValueError, of which it is one
-        raise ScenarioError(f"{path}: not a UTF-8 text file (a scenario is json; byte {error.start})") from None
-    except ValueError as error:  # not a regular file, or too large to parse (MemoryLimitError)
-        raise ScenarioError(str(error)) from None
+        return read_text_file(path, "scenario", "json", ScenarioError, per_byte=BYTES_PER_JSON_BYTE)
     except FileNotFoundError:
         older = LEGACY_PARAMETERS_PATH.is_file() and path.name == "model_parameters.json"
         hint = f" (older versions saved to {LEGACY_PARAMETERS_PATH})" if older else ""
         if not hint and path.parent == Path(".") and path.stem in shipped_mazes() and path.suffix in ("", ".txt"):
             hint = f"; {path.stem} is a maze: --maze {path.stem} (a scenario is a .json saved by run --save-scenario)"
         raise ScenarioError(f"{path}: no such scenario file{hint}") from None
-    except OSError as error:
-        raise ScenarioError(f"{path}: cannot be read ({error.strerror or error})") from None
 
 
 _JSON_STRING = re.compile(r'"(?:[^"\\]|\\.)*"')
