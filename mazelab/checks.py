@@ -289,10 +289,6 @@ def particle_count(value: Any, source: str = "particle_count", given: int | None
     source : str
     given : int, optional
         The number of initial particles handed in.
-
-    Returns
-    -------
-    int
     """
     if value is None:
         value = DEFAULT_PARTICLE_COUNT if given is None else given
