@@ -351,8 +351,6 @@ SHIPPED: tuple[FilterEntry, ...] = (
                 takes_particles=False),
 )  # fmt: skip
 _ENTRIES: list[FilterEntry] = list(SHIPPED)  # SHIPPED, then any registered by a package (`register`)
-_BY_CLASS: dict[type, FilterEntry] = {entry.filter_class: entry for entry in SHIPPED}
-_BY_NAME: dict[str, FilterEntry] = {entry.name: entry for entry in SHIPPED}
 
 
 def register(entry: FilterEntry) -> FilterEntry:
@@ -379,8 +377,6 @@ def register(entry: FilterEntry) -> FilterEntry:
             raise ValueError(f"the {what} {mine!r} is taken by {other.name}: a registry entry needs its own")
     check_declared_defaults(entry.filter_class, entry.short_name)
     _ENTRIES.append(entry)
-    _BY_CLASS[entry.filter_class] = entry
-    _BY_NAME[entry.name] = entry
     return entry
 
 
@@ -393,7 +389,7 @@ def is_shipped(filter_class: type) -> bool:
     """Whether a class is one of the registry's filters (the lab's, or a package's), not a plug-in or
     a user's own class.
     """
-    return filter_class in _BY_CLASS
+    return any(entry.filter_class is filter_class for entry in _ENTRIES)
 
 
 def shipped_entry(name: str) -> FilterEntry | None:
@@ -420,7 +416,7 @@ def filter_entry(name: str | type) -> FilterEntry:
         One line naming the unknown name, the nearest short name (`sri`: did you mean sir?) and the valid ones.
     """
     if isinstance(name, type):
-        return _BY_CLASS.get(name) or _entry_of_class(name, None)
+        return next((e for e in _ENTRIES if e.filter_class is name), None) or _entry_of_class(name, None)
     text = str(name).strip()
     if is_plugin_spec(text):  # loaded once per process; one line naming the file, the class and what is wrong
         filter_class = load_plugin(text)
@@ -477,7 +473,7 @@ def described(name: str) -> FilterEntry:
     label, colour and caveat for the tables and figures; for a name this process does not know (a student's
     filter in a record), an entry that names it: the name as its label, the palette's grey, no caveat.
     """
-    entry = _BY_NAME.get(name)
+    entry = next((e for e in _ENTRIES if e.name == name), None)
     loaded = None if entry is not None else loaded_plugin(name)
     if loaded is not None:
         return filter_entry(loaded)
