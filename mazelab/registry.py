@@ -22,12 +22,14 @@ import difflib
 import hashlib
 import importlib.util
 import inspect
+import re
 import sys
 import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
+from typing import Any
 
 from mazelab.atomic import write_bytes_atomically
 from mazelab.contract import missing_parts
@@ -60,12 +62,13 @@ def split_spec(spec: str) -> tuple[Path, str | None]:
 @dataclass(frozen=True)
 class PluginReference:
     """How a saved run names a plug-in: the spec as the user wrote it, the file's sha256 and the class.
-    A scenario stores it and never imports it; a replay needs the user to name the plug-in again."""
+    A scenario stores it (`as_json`, read back by `from_json`) and never imports it; a replay needs the
+    user to name the plug-in again."""
 
     spec: str
     sha256: str
     class_name: str
-    path: str  # the file's absolute path when it was loaded (for the worker processes of a study)
+    path: str = ""  # the file's absolute path when it was loaded (for the worker processes of a study)
 
     @property
     def canonical(self) -> str:
@@ -75,6 +78,31 @@ class PluginReference:
     def as_json(self) -> dict[str, str]:
         """What a scenario stores (the absolute path is the machine's, so it is left out)."""
         return {"spec": self.spec, "sha256": self.sha256, "class": self.class_name}
+
+    def describe(self) -> str:
+        """'my_filter.py:MyFilter (sha256 1a2b3c4d...)'."""
+        return f"{self.spec} (sha256 {self.sha256[:12]}...)"
+
+    @classmethod
+    def from_json(cls, stored: Any) -> PluginReference:
+        """A stored reference, checked: the spec is one printable line naming a .py file and this class
+        (`file.py:Class`, as `as_json` writes it), since it is printed in messages and commands, where a
+        newline would forge a line. Raises ValueError of one line."""
+        if not isinstance(stored, dict) or sorted(stored) != ["class", "sha256", "spec"]:
+            raise ValueError('must be {"spec": "FILE.py:Class", "sha256": "...", "class": "Class"}')
+        spec, sha256, class_name = (stored[key] for key in ("spec", "sha256", "class"))
+        if not isinstance(sha256, str) or not re.fullmatch("[0-9a-f]{64}", sha256):
+            raise ValueError(f"sha256 must be 64 hexadecimal digits, got {str(sha256)[:70]!r}")
+        if not isinstance(class_name, str) or not class_name.isidentifier() or len(class_name) > 256:
+            raise ValueError(f"class must be a Python class name, got {str(class_name)[:60]!r}")
+        if not isinstance(spec, str) or not spec.isprintable() or len(spec) > 4096:
+            raise ValueError(f"spec must be one printable line, got {str(spec)[:60]!r}")
+        path, _, named = spec.rpartition(":")
+        if not path.strip().endswith(".py") or named != class_name:
+            raise ValueError(
+                f"spec must name a .py file and the class {class_name} (FILE.py:{class_name}), got {spec[:60]!r}"
+            )
+        return cls(spec, sha256, class_name)
 
 
 def file_sha256(path: str | Path) -> str:
