@@ -278,7 +278,8 @@ def zombie(pid: int) -> bool:
 def lock(handle: int) -> bool:
     """Lock an open file for this process (exclusive, without waiting: flock, released when the file is
     closed or the process ends); False if another process holds it. Where there is no flock (Windows),
-    True. The one lock of the program's own files (a study's journal, a grader's claims)."""
+    True (a study's journal is still claimed by its exclusive creation). The one lock of the program's
+    own files (a study's journal, a grader's claims)."""
     if fcntl is None:
         return True
     try:
