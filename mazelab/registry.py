@@ -1,16 +1,9 @@
-"""Every filter by name, one entry each: its class, short name, label, colour, one-line help, and what it
-can do (take particles, run R runs together). The command line's choices and hints, the figures' labels
-and colours (the same in Rerun and in the PNGs), `mazelab --help` and a study's columns read it.
-
-A filter of the package is one entry in `SHIPPED`; a student's own, `path/to/file.py:ClassName` wherever
-a filter name goes, gets an entry when it is loaded (`load_plugin`: the file imported under a module name
-of its own, so that two files that both define `MyFilter` never clash, with its folder importable while
-it loads, as `python my_filter.py` has it; one line naming the file, the class and what is missing),
-with its file's sha256 so that a saved run names it exactly (`plugin_reference`: a scenario never
-imports it, the user names the plug-in to replay it). `PluginCode` is a plug-in as a study carries it:
-the file's bytes and their sha256, read once when the study is planned, so that a worker process or a
-Dask worker on another machine runs the very code the study was planned with (only its own file
-travels). The student's code failing during a run is mazelab.stops.StudentCodeError.
+"""Every filter by name, one entry each (`FilterEntry`): its class, short name, label, colour, one-line
+help, and what it can do. The command line's choices and hints, the figures' labels and colours (the
+same in Rerun and in the PNGs), `mazelab --help` and a study's columns read it. A filter of the package
+is one entry in `SHIPPED`; a student's own, `path/to/file.py:ClassName` wherever a filter name goes,
+gets one when it is loaded (`load_plugin`), named in a saved run by its `PluginReference` and carried by
+a study as its `PluginCode`. The student's code failing during a run is mazelab.stops.StudentCodeError.
 
     entry = filter_entry("rpf")          # also "RegularizedParticleFilter", "Regularized Particle Filter"
     entry.filter_class, entry.label      # RegularizedParticleFilter, "RPF"
@@ -118,7 +111,9 @@ def plugin_reference(spec: str, filter_class: type) -> PluginReference:
 
 
 def load_plugin(spec: str) -> type:
-    """The class of a plug-in spec `path/to/file.py:ClassName` (or `file.py` holding one filter class).
+    """The class of a plug-in spec `path/to/file.py:ClassName` (or `file.py` holding one filter class),
+    the file imported under a module name of its own, so that two files that both define `MyFilter`
+    never clash, with its folder importable while it loads, as `python my_filter.py` has it.
 
     Raises
     ------
@@ -237,7 +232,8 @@ CODE_FOLDER = "mazelab-plugins"  # under the system's temporary folder: the ship
 @dataclass(frozen=True)
 class PluginCode:
     """One plug-in of a study: the spec the runs name it by (`/absolute/path/file.py:Class`), the
-    file's bytes and their sha256."""
+    file's bytes and their sha256, read once when the study is planned, so that a worker process or a
+    Dask worker on another machine runs the very code the study was planned with (only its file travels)."""
 
     spec: str
     source: bytes
