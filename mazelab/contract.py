@@ -108,6 +108,10 @@ REQUIRED_ATTRIBUTES = ("estimate", "ess", "is_confident", "count", "reinitialise
 def missing_parts(filter_class: type) -> list[str]:
     """The parts of the contract a class lacks (empty when it meets it), by name.
 
+    Parameters
+    ----------
+    filter_class : type
+
     Returns
     -------
     list of str

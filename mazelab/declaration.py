@@ -66,6 +66,10 @@ def object_from_json(kind: type) -> Callable[[Any], Any]:
     """The `from_json` of an option whose value may be an object given as its fields (Recovery,
     KLDSampling): a dict becomes `kind(**fields)`, an unknown field is one line; anything else stays.
 
+    Parameters
+    ----------
+    kind : a dataclass
+
     Returns
     -------
     callable
@@ -86,6 +90,10 @@ def object_from_json(kind: type) -> Callable[[Any], Any]:
 
 def show_value(value: Any) -> str:
     """A value in a few words (tables, labels, messages): 0.05, multimodal, none.
+
+    Parameters
+    ----------
+    value : Any
 
     Returns
     -------
@@ -121,7 +129,16 @@ def _parse_literal(text: str) -> Any:
 
 
 def parse_flag(text: str) -> bool:
-    """true/false (also yes/no, on/off, 1/0)."""
+    """true/false (also yes/no, on/off, 1/0).
+
+    Parameters
+    ----------
+    text : str
+
+    Returns
+    -------
+    bool
+    """
     lowered = text.strip().lower()
     if lowered in ("true", "yes", "on", "1"):
         return True
@@ -271,6 +288,10 @@ class Option:
         text : str
             What follows `--option NAME=`, or a named flag's text.
 
+        Returns
+        -------
+        Any
+
         Raises
         ------
         ValueError
@@ -286,7 +307,16 @@ class Option:
             raise ValueError(f"option {self.name}: {error}") from None
 
     def validate(self, value: Any) -> Any:
-        """The value the filter uses (the declared check applied), or a ValueError naming the option."""
+        """The value the filter uses (the declared check applied), or a ValueError naming the option.
+
+        Parameters
+        ----------
+        value : Any
+
+        Returns
+        -------
+        Any
+        """
         return value if self.check is None else self.check(value)
 
 
@@ -325,6 +355,10 @@ class Options(Mapping[str, Option]):
     def extend(self, *options: Option) -> Options:
         """These options and more (an option of the same name replaces the inherited one in place).
 
+        Parameters
+        ----------
+        *options : Option
+
         Returns
         -------
         Options
@@ -335,11 +369,21 @@ class Options(Mapping[str, Option]):
         return Options(*kept, *new.values(), check=self.check)
 
     def defaults(self) -> dict[str, Any]:
-        """Every option's default, by name."""
+        """Every option's default, by name.
+
+        Returns
+        -------
+        dict
+        """
         return {o.name: o.default for o in self.declared}
 
     def settable(self) -> list[Option]:
-        """The options a user sets (the derived ones left out)."""
+        """The options a user sets (the derived ones left out).
+
+        Returns
+        -------
+        list of Option
+        """
         return [o for o in self.declared if not o.derived]
 
     def resolve(self, given: Mapping[str, Any], owner: str) -> dict[str, Any]:
@@ -469,6 +513,14 @@ def options_of(filter_class: type) -> Options:
     checked). What the nearest base that declares options declares and the mapping leaves out is kept, with
     its combined check: a subclass runs the base's constructor, which needs every option.
 
+    Parameters
+    ----------
+    filter_class : type
+
+    Returns
+    -------
+    Options
+
     Raises
     ------
     TypeError
@@ -539,6 +591,10 @@ def not_taken(filter_classes: Sequence[type], spelled: str) -> str:
     filter_classes : sequence of type
     spelled : str
         The option as the user wrote it.
+
+    Returns
+    -------
+    str
     """
 
     if len(filter_classes) == 1:

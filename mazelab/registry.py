@@ -381,6 +381,10 @@ def register(entry: FilterEntry) -> FilterEntry:
     """Add a package's filter to the registry (what SHIPPED's lines do for the lab's own): every command,
     figure and study then knows it by its short name.
 
+    Parameters
+    ----------
+    entry : FilterEntry
+
     Returns
     -------
     FilterEntry
@@ -405,13 +409,26 @@ def register(entry: FilterEntry) -> FilterEntry:
 
 
 def entries() -> list[FilterEntry]:
-    """Every registered filter: the lab's (SHIPPED), then a package's (`register`)."""
+    """Every registered filter: the lab's (SHIPPED), then a package's (`register`).
+
+    Returns
+    -------
+    list of FilterEntry
+    """
     return list(_ENTRIES)
 
 
 def is_shipped(filter_class: type) -> bool:
     """Whether a class is one of the registry's filters (the lab's, or a package's), not a plug-in or
     a user's own class.
+
+    Parameters
+    ----------
+    filter_class : type
+
+    Returns
+    -------
+    bool
     """
     return any(entry.filter_class is filter_class for entry in _ENTRIES)
 
@@ -419,6 +436,14 @@ def is_shipped(filter_class: type) -> bool:
 def shipped_entry(name: str) -> FilterEntry | None:
     """The registry's filter of a name (short, class or spaced name, as `filter_entry` reads them), or
     None; never a plug-in, and nothing is imported (what a scenario's loader may ask).
+
+    Parameters
+    ----------
+    name : str
+
+    Returns
+    -------
+    FilterEntry or None
     """
     key = "".join(str(name).split()).lower()
     for entry in _ENTRIES:
@@ -433,6 +458,14 @@ def filter_entry(name: str | type) -> FilterEntry:
     name ("SIR Particle Filter"), case-insensitive; a class itself (a user's own gets an entry made
     from its attributes); a plug-in `path/to/file.py:ClassName` (imported once per process); or the
     `name` of a plug-in already loaded in this process.
+
+    Parameters
+    ----------
+    name : str or type
+
+    Returns
+    -------
+    FilterEntry
 
     Raises
     ------
@@ -458,7 +491,16 @@ def filter_entry(name: str | type) -> FilterEntry:
 
 
 def resolve_filter(name: str | type) -> type:
-    """The filter class of a name, a class or a plug-in spec (see `filter_entry`)."""
+    """The filter class of a name, a class or a plug-in spec (see `filter_entry`).
+
+    Parameters
+    ----------
+    name : str or type
+
+    Returns
+    -------
+    type
+    """
     return filter_entry(name).filter_class
 
 
@@ -496,6 +538,14 @@ def described(name: str) -> FilterEntry:
     """The entry of a filter by the `name` results carry (a registered one, or a plug-in loaded here): its
     label, colour and caveat for the tables and figures; for a name this process does not know (a student's
     filter in a record), an entry that names it: the name as its label, the palette's grey, no caveat.
+
+    Parameters
+    ----------
+    name : str
+
+    Returns
+    -------
+    FilterEntry
     """
     entry = next((e for e in _ENTRIES if e.name == name), None)
     loaded = None if entry is not None else loaded_plugin(name)
