@@ -17,7 +17,7 @@ import typer
 
 from mazelab.atomic import write_bytes_atomically, write_text_atomically
 from mazelab.backend import use_threads
-from mazelab.cli.options import UserError, check_output_path, seed_option
+from mazelab.cli.options import UserError, check_output_path, opt, seed_option
 from mazelab.exercise.autograder import bundle_bytes
 from mazelab.exercise.grading import (
     KEY_FILE,
@@ -49,34 +49,23 @@ exercise_app = typer.Typer(
     rich_markup_mode=None,
     pretty_exceptions_enable=False,
 )
-TimeoutFlag = Annotated[
-    float,
-    typer.Option(min=1.0, max=MAX_TIMEOUT, help="seconds the student's processes of one submission may take in all"),
-]
-ForceFlag = Annotated[bool, typer.Option("--force", help="replace existing output files")]
-GradescopeFlag = Annotated[
-    Path | None, typer.Option(metavar="DIR", help="write Gradescope's results.json there", show_default=False)
-]
-RequireSandboxFlag = Annotated[
-    bool, typer.Option("--require-sandbox", help="refuse to grade where no sandbox can be made (bubblewrap on Linux)")
-]
-LangFlag = Annotated[
-    str | None,
-    typer.Option(metavar="LANG", help="en or uk (default: the exercise file's, else the locale's)", show_default=False),
-]
-KeyFlag = Annotated[
-    Path | None,
-    typer.Option(
-        metavar="FILE", help=f"the grader's secret key (default: {KEY_FILE} beside the outputs)", show_default=False
-    ),
-]
+TimeoutFlag = opt(float, min=1.0, max=MAX_TIMEOUT,
+                  help="seconds the student's processes of one submission may take in all")  # fmt: skip
+ForceFlag = opt(bool, "--force", help="replace existing output files")
+GradescopeFlag = opt(Path | None, metavar="DIR", help="write Gradescope's results.json there", show_default=False)
+RequireSandboxFlag = opt(bool, "--require-sandbox",
+                         help="refuse to grade where no sandbox can be made (bubblewrap on Linux)")  # fmt: skip
+LangFlag = opt(str | None, metavar="LANG", show_default=False,
+               help="en or uk (default: the exercise file's, else the locale's)")  # fmt: skip
+KeyFlag = opt(Path | None, metavar="FILE", show_default=False,
+              help=f"the grader's secret key (default: {KEY_FILE} beside the outputs)")  # fmt: skip
 
 
 @exercise_app.command(short_help="Write the exercise (my_filter.py, README.md) into DIR.")
 def new(
     folder: Annotated[Path, typer.Argument(metavar="DIR", help="the folder to write into (made if missing)")],
-    force: Annotated[bool, typer.Option("--force", help="replace existing files")] = False,
-    lang: Annotated[str, typer.Option(metavar="LANG", help="the exercise's language: en or uk")] = "en",
+    force: opt(bool, "--force", help="replace existing files") = False,
+    lang: opt(str, metavar="LANG", help="the exercise's language: en or uk") = "en",
 ) -> None:
     """Write my_filter.py (a StudentFilter with four parts to write) and a short README into DIR, in
     LANG; my_filter.py keeps its language, so that its checks answer in it."""
@@ -88,10 +77,9 @@ def new(
 @exercise_app.command(name="check", short_help="Grade FILE[:Class]: each part, then the whole filter.")
 def check_command(
     spec: Annotated[str, typer.Argument(metavar="FILE[:Class]", help="the student's file, and its class if several")],
-    seed: Annotated[
-        int | None,
-        typer.Option(callback=seed_option, show_default=False, help="the inputs' seed (default: from the files)"),
-    ] = None,
+    seed: opt(
+        int | None, callback=seed_option, show_default=False, help="the inputs' seed (default: from the files)"
+    ) = None,
     key: KeyFlag = None,
     timeout: TimeoutFlag = DEFAULT_BUDGET,
     gradescope: GradescopeFlag = None,
@@ -179,13 +167,11 @@ def grade_command(
     folder: Annotated[Path, typer.Argument(metavar="DIR", help="one subfolder or one .py file per submission")],
     key: KeyFlag = None,
     timeout: TimeoutFlag = DEFAULT_BUDGET,
-    jobs: Annotated[int | None, typer.Option(min=1, help="submissions at once (default: the cores)")] = None,
-    csv_path: Annotated[
-        Path | None, typer.Option("--csv", metavar="F", help="one row per submission", show_default=False)
-    ] = None,
+    jobs: opt(int | None, min=1, help="submissions at once (default: the cores)") = None,
+    csv_path: opt(Path | None, "--csv", metavar="F", help="one row per submission", show_default=False) = None,
     gradescope: GradescopeFlag = None,
     force: ForceFlag = False,
-    quiet: Annotated[bool, typer.Option("--quiet", help="no progress bar")] = False,
+    quiet: opt(bool, "--quiet", help="no progress bar") = False,
     require_sandbox: RequireSandboxFlag = False,
     lang: LangFlag = None,
 ) -> None:
@@ -265,12 +251,12 @@ def _check_outputs(folder: Path, submissions: list[Submission], outputs: list[tu
 @exercise_app.command(name="autograder", short_help="Write Gradescope's autograder bundle (a .zip).")
 def autograder_command(
     bundle: Annotated[Path, typer.Argument(metavar="OUT.zip", help="the bundle to write")],
-    key: Annotated[
+    key: opt(
         Path | None,
-        typer.Option(
-            metavar="FILE", show_default=False, help="the grader's secret key (default: a new one, in the bundle)"
-        ),
-    ] = None,
+        metavar="FILE",
+        show_default=False,
+        help="the grader's secret key (default: a new one, in the bundle)",
+    ) = None,
     timeout: TimeoutFlag = DEFAULT_BUDGET,
     lang: LangFlag = None,
     force: ForceFlag = False,
