@@ -18,7 +18,6 @@ import typer
 from mazelab.atomic import write_bytes_atomically, write_text_atomically
 from mazelab.backend import use_threads
 from mazelab.cli.options import UserError, check_output_path, opt, seed_option
-from mazelab.exercise.autograder import bundle_bytes
 from mazelab.exercise.grading import (
     KEY_FILE,
     Gradebook,
@@ -37,7 +36,7 @@ from mazelab.exercise.grading import (
 from mazelab.exercise.language import Catalogue, catalogue_for
 from mazelab.exercise.report import NotGradableError, check_file, format_report
 from mazelab.exercise.sandbox import DEFAULT_BUDGET, MAX_TIMEOUT, SandboxError, sandbox
-from mazelab.exercise.template import write_exercise
+from mazelab.exercise.template import bundle_bytes, write_exercise
 from mazelab.invocation import python_prefix
 from mazelab.registry import is_plugin_spec, split_spec
 from mazelab.stops import STOP_SIGNALS, signal_handlers
