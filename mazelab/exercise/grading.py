@@ -39,11 +39,7 @@ from mazelab.exercise.sandbox import (
 from mazelab.exercise.student import PARTS
 from mazelab.exercise.template import FILTER_FILE
 from mazelab.exercise.whole import References
-
-try:
-    import fcntl
-except ImportError:  # Windows: no claim, outputs are still written whole (mazelab.atomic)
-    fcntl = None  # type: ignore[assignment]
+from mazelab.experiments.journal import lock
 
 KEY_FILE = ".grading.key"  # hidden: no submission has its name (grading skips names that start with ".")
 KEY_BYTES = 32  # 256 bits; a given key needs at least 16 (128 bits)
@@ -254,30 +250,25 @@ def claimed(outputs: list[tuple[Path, str]]) -> Iterator[None]:
     grader holds one."""
     held: list[tuple[int, Path]] = []
     try:
-        for output, option in outputs if fcntl is not None else []:
-            lock = output.parent / f".{output.name}.grading"
+        for output, option in outputs:
+            claim = output.parent / f".{output.name}.grading"
             try:
-                handle = os.open(lock, os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o644)
-            except OSError as error:
-                raise WriteError(error.errno, error.strerror, str(lock)) from None
-            try:
-                fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except OSError:
-                os.close(handle)
-                raise ClaimError(
-                    f"{option} {output}: another grader is writing it now; wait for it or choose another name"
-                ) from None
-            held.append((handle, lock))
-            try:
+                handle = os.open(claim, os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o644)
+                if not lock(handle):  # another grader holds it (Windows has no claim: writes are whole anyway)
+                    os.close(handle)
+                    raise ClaimError(
+                        f"{option} {output}: another grader is writing it now; wait for it or choose another name"
+                    )
+                held.append((handle, claim))
                 os.ftruncate(handle, 0)
                 os.write(handle, f"{os.getpid()}\n".encode())
             except OSError as error:  # a full disk: named
-                raise WriteError(error.errno, error.strerror, str(lock)) from None
+                raise WriteError(error.errno, error.strerror, str(claim)) from None
         yield
     finally:
-        for handle, lock in held:
+        for handle, claim in held:
             with contextlib.suppress(OSError):
-                lock.unlink()
+                claim.unlink()
             os.close(handle)
 
 
