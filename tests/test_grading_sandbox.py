@@ -51,7 +51,6 @@ REFERENCE_MODULES = (
     "mazelab.kernels",
     "mazelab.experiments",
     "mazelab.exercise.parts",
-    "mazelab.exercise.whole",
     "mazelab.exercise.report",
     "mazelab.exercise.inputs",
     "mazelab.exercise.sandbox",

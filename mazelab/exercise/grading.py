@@ -28,7 +28,7 @@ from typing import Any
 from mazelab.atomic import WriteError, write_text_atomically
 from mazelab.exercise.language import Catalogue
 from mazelab.exercise.parts import FAIL, NOT_OWN, NOT_RUN, NOT_WRITTEN, PASS, clean
-from mazelab.exercise.report import WHOLE, NotGradableError, Report, check_file, format_report
+from mazelab.exercise.report import WHOLE, NotGradableError, References, Report, check_file, format_report
 from mazelab.exercise.sandbox import (
     DEFAULT_BUDGET,
     GradingStoppedError,
@@ -38,7 +38,6 @@ from mazelab.exercise.sandbox import (
 )
 from mazelab.exercise.student import PARTS
 from mazelab.exercise.template import FILTER_FILE
-from mazelab.exercise.whole import References
 from mazelab.experiments.journal import lock
 
 KEY_FILE = ".grading.key"  # hidden: no submission has its name (grading skips names that start with ".")

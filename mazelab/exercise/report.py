@@ -1,7 +1,8 @@
 """The check of one submission (docs/exercise.md, "Grading one submission"): its inputs drawn, its
 stages run in child processes within one time budget (`check_file`, the grade) or in this process
-(`check`, the self-check, which nothing isolates), each row judged here from the values they returned,
-and the report as text of at most WIDTH columns. A submission that cannot be checked at all raises
+(`check`, the self-check, which nothing isolates), the grader's own runs of the exact and the SIR
+filters beside them (`References`), each row judged here from the values they returned, and the report
+as text of at most WIDTH columns. A submission that cannot be checked at all raises
 NotGradableError (one line). Every text that reaches a report is `clean` (parts.py).
 """
 
@@ -9,13 +10,19 @@ from __future__ import annotations
 
 import contextlib
 import inspect
+import queue
 import shlex
 import textwrap
+import threading
 import time
+import warnings
 from collections.abc import Callable
+from concurrent.futures import Executor, Future
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from mazelab.exercise import child
 from mazelab.exercise.child import Message, decode, encode
@@ -33,6 +40,7 @@ from mazelab.exercise.likeness import class_source, copied_parts
 from mazelab.exercise.parts import (
     EXPECTED,
     FAIL,
+    FIGURE_COLUMNS,
     HINTS,
     JUDGES,
     NOT_OWN,
@@ -45,15 +53,17 @@ from mazelab.exercise.parts import (
     error_of,
     error_row,
     judge_resample,
+    judge_whole,
     resample_expected,
+    whole_answer,
+    whole_expected,
 )
 from mazelab.exercise.sandbox import DEFAULT_BUDGET, ChildRun, companions_of, run_child, sandbox, submission_copy
 from mazelab.exercise.student import PARTS
-from mazelab.exercise.whole import FIGURE_COLUMNS, References, judge_whole, whole_answer
-from mazelab.exercise.whole import expected_text as whole_expected
 from mazelab.experiments.tables import format_table
 from mazelab.invocation import command_prefix
 from mazelab.registry import split_spec
+from mazelab.simulation import simulate
 
 STAGES = (*PARTS, "whole")
 WHOLE = "whole filter"
@@ -64,6 +74,7 @@ TWICE = "answered twice (two processes answering, or a forged answer beside its 
 WIDTH = 100
 PART_WIDTH, RESULT_WIDTH = 12, 12  # "whole filter", "not own work" (wider where a language's words are)
 SHOWN = {FAIL: "FAIL"}  # how a status reads in the table (the others as they are)
+GRID_RESOLUTION = 0.05  # the exact filter's cells: fine next to L = 0.2, coarse enough to be quick
 HEADINGS = {
     "given": "Checking {name}: inputs from seed {seed} (given)",
     "files": "Checking {name}: inputs from seed {seed} (from the files; --seed {seed} repeats it)",
@@ -113,6 +124,84 @@ class NotGradableError(ValueError):
 
     def __init__(self, text: str):
         super().__init__(clean(text))
+
+
+# -- the grader's own runs ------------------------------------------------------------------------
+def reference_run(scenario: ScenarioInputs, filter_name: str, **options: object) -> np.ndarray:
+    """A shipped filter's estimates (steps, 2) on the scenario: the exact grid filter's posterior means
+    ("grid"), or the SIR's ("sir", resampling with the student's scheme)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        result = simulate(
+            scenario.robot(),
+            scenario.world,
+            scenario.sigma,
+            scenario.delta,
+            None,
+            len(scenario.measurements),
+            scenario.particles,
+            filter_name,
+            seed=scenario.seed,
+            **options,
+        )
+    return result.estimates
+
+
+_memo: dict[tuple, Future] = {}
+_memo_lock = threading.Lock()
+
+
+class Background(Executor):
+    """One daemon thread working through what is submitted: a check that ends early does not wait
+    for the reference runs it no longer needs (nor count them as threads left running)."""
+
+    def __init__(self) -> None:
+        self._queue: queue.SimpleQueue = queue.SimpleQueue()
+        threading.Thread(target=self._work, name="mazelab-references", daemon=True).start()
+
+    def submit(self, function: Callable[..., Any], /, *args: Any, **kwargs: Any) -> Future:
+        future: Future = Future()
+        self._queue.put((future, function, args, kwargs))
+        return future
+
+    def _work(self) -> None:
+        while True:
+            future, function, args, kwargs = self._queue.get()
+            if not future.set_running_or_notify_cancel():
+                continue
+            try:
+                future.set_result(function(*args, **kwargs))
+            except BaseException as error:  # the future carries it to whoever waits
+                future.set_exception(error)
+
+
+_background: Background | None = None
+
+
+class References:
+    """The exact and the SIR runs of scenarios, each computed once per process (a memo of futures
+    shared by every References), on `executor` (default: one background thread)."""
+
+    def __init__(self, executor: Executor | None = None):
+        self.executor = executor
+
+    def _submit(self, key: tuple, scenario: ScenarioInputs, filter_name: str, **options: object) -> Future:
+        global _background
+        with _memo_lock:
+            future = _memo.get(key)
+            if future is not None and not (future.done() and (future.cancelled() or future.exception())):
+                return future
+            if self.executor is None and _background is None:
+                _background = Background()
+            future = (self.executor or _background).submit(reference_run, scenario, filter_name, **options)
+            _memo[key] = future
+            return future
+
+    def exact(self, scenario: ScenarioInputs) -> Future:
+        return self._submit(("exact", scenario.key), scenario, "grid", resolution=GRID_RESOLUTION)
+
+    def sir(self, scenario: ScenarioInputs, scheme: str) -> Future:
+        return self._submit(("sir", scheme, scenario.key), scenario, "sir", resampling=scheme)
 
 
 # -- collecting the answers ---------------------------------------------------------------------------
