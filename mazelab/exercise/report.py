@@ -35,8 +35,8 @@ from mazelab.exercise.inputs import (
     files_seed,
     request,
 )
+from mazelab.exercise.kit import class_source, copied_parts
 from mazelab.exercise.language import Catalogue
-from mazelab.exercise.likeness import class_source, copied_parts
 from mazelab.exercise.parts import (
     EXPECTED,
     FAIL,
@@ -305,7 +305,7 @@ def build_report(
     copies: dict | None = None,
 ) -> Report:
     """The report's rows from the answers: each stage's row (`_row`), a part that is the lab's code
-    (`copies`, mazelab.exercise.likeness) marked not own work; what went wrong beyond the rows; the
+    (`copies`, mazelab.exercise.kit.copied_parts) marked not own work; what went wrong beyond the rows; the
     failing parts named in the whole filter's hint."""
     report.output, report.student_seconds = answers.output, answers.seconds
     expected = {**EXPECTED, "resample": resample_expected(parts), "whole": whole_expected()}
