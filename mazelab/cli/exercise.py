@@ -28,13 +28,14 @@ from mazelab.exercise.grading import (
     claimed,
     discover,
     grade_folder,
+    grade_one,
     gradescope_json,
     partial_name,
     read_key,
     summary,
 )
 from mazelab.exercise.language import Catalogue, catalogue_for
-from mazelab.exercise.report import NotGradableError, check_file, format_report
+from mazelab.exercise.report import format_report
 from mazelab.exercise.sandbox import DEFAULT_BUDGET, MAX_TIMEOUT, SandboxError, sandbox
 from mazelab.exercise.template import bundle_bytes, write_exercise
 from mazelab.invocation import python_prefix
@@ -100,34 +101,27 @@ def check_command(
     secret = read_key(key, make=False) if key is not None else None  # a ClaimError is one line, exit 2
     results = _results_file(gradescope, force)
     _sandbox_or_refuse(require_sandbox)
-    started = time.perf_counter()
+    submission = Submission(Path(spec).name, Path(spec), own_folder=True)  # the files beside it are its own
     try:
         with _stop_signals() as stop:
-            report = check_file(spec, seed=seed, key=secret, timeout=timeout)
+            graded = grade_one(submission, timeout, seed=seed, key=secret)
     except KeyboardInterrupt:  # Ctrl-C or SIGTERM: the student's process has been ended with its sandbox
         typer.echo("stopped: nothing graded", err=True)
         raise typer.Exit(128 + (stop.number or signal.SIGINT)) from None
     except SandboxError as error:
         raise UserError(f"{error}; nothing graded (the grader's machine, not the submission)") from None
-    except NotGradableError as error:
-        graded = Graded(Submission(Path(spec).name, None), None, str(error), time.perf_counter() - started)
-        _write_results(results, graded, catalogue, force)
-        typer.echo(catalogue.numbers(catalogue.gettext("error: ") + catalogue.translate(str(error))), err=True)
-        raise typer.Exit(2) from None
-    typer.echo(format_report(report, catalogue=catalogue))
-    took = {"seconds": f"{time.perf_counter() - started:.1f}", "student": f"{report.student_seconds:.1f}"}
-    line = catalogue.gettext("checked in {seconds} s (the student's processes: {student} s)").format(**took)
-    typer.echo(catalogue.numbers(line))
-    _write_results(results, Graded(Submission(Path(spec).name, Path(spec)), report, None, report.seconds), catalogue,
-                   force)  # fmt: skip
-    if not report.passed:
-        raise typer.Exit(1)
-
-
-def _write_results(results: Path | None, graded: Graded, catalogue: Catalogue, force: bool) -> None:
-    """--gradescope's results.json of the submission checked (nothing without --gradescope)."""
-    if results is not None:
+    if graded.report is not None:
+        typer.echo(format_report(graded.report, catalogue=catalogue))
+        took = {"seconds": f"{graded.seconds:.1f}", "student": f"{graded.report.student_seconds:.1f}"}
+        line = catalogue.gettext("checked in {seconds} s (the student's processes: {student} s)").format(**took)
+        typer.echo(catalogue.numbers(line))
+    if results is not None:  # score 0 and why for a file that cannot be checked
         write_text_atomically(results, gradescope_json(graded, catalogue), replace=force)
+    if graded.report is None:
+        typer.echo(catalogue.numbers(catalogue.gettext("error: ") + catalogue.translate(graded.problem)), err=True)
+        raise typer.Exit(2)
+    if not graded.passed:
+        raise typer.Exit(1)
 
 
 def _catalogue(lang: str | None, file: Path | None = None) -> Catalogue:

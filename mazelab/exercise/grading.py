@@ -127,15 +127,16 @@ def _in_folder(folder: Path) -> Submission:
     return Submission(folder.name, None, f"{folder}: which file? {names} (call the one to grade {FILTER_FILE})")
 
 
-def grade_one(submission: Submission, key: bytes, timeout: float, references: References) -> Graded:
-    """Check one submission: never raises for the submission, nor for the grader's own failure on it
-    (its row says so); only a sandbox that cannot start (SandboxError) and a stop propagate."""
+def grade_one(submission: Submission, timeout: float, references: References | None = None, **inputs: Any) -> Graded:
+    """Check one submission (`exercise check`'s, or one of a class's), its inputs from `inputs` (the
+    key, or a seed: check_file): never raises for the submission, nor for the grader's own failure on
+    it (its row says so); only a sandbox that cannot start (SandboxError) and a stop propagate."""
     started = time.perf_counter()
     if submission.file is None:
         return Graded(submission, None, submission.problem, 0.0)
     try:
         file, own = str(submission.file), submission.own_folder
-        report = check_file(file, key=key, timeout=timeout, references=references, companions=own)
+        report = check_file(file, timeout=timeout, references=references, companions=own, **inputs)
     except NotGradableError as error:
         return Graded(submission, None, str(error), time.perf_counter() - started)
     except (SandboxError, GradingStoppedError, KeyboardInterrupt):
@@ -178,7 +179,7 @@ def grade_folder(
     references = References(pool)
 
     def one(submission: Submission) -> Graded:
-        graded = grade_one(submission, key, timeout, references)
+        graded = grade_one(submission, timeout, references, key=key)
         if on_done is not None:
             with lock:
                 on_done(graded)
