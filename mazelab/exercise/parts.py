@@ -49,10 +49,6 @@ class Row:
     def passed(self) -> bool:
         return self.status == PASS
 
-    @property
-    def not_written(self) -> bool:
-        return self.status == NOT_WRITTEN
-
 
 class BadAnswerError(ValueError):
     """What the student's process sent is not of the form the grader asked for (one line)."""

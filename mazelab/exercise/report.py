@@ -346,7 +346,7 @@ def _row(stage: str, expected: str, report: Report, parts: PartInputs, scenarios
             return row
         if stage != "whole":
             return error_row(stage, expected, error, HINTS[stage]) if error else JUDGES[stage](parts, message)
-        if any(_not_written(answers.results.get(p)) for p in PARTS):
+        if any(row.status == NOT_WRITTEN for row in report.rows):  # the parts' rows come first
             return Row(WHOLE, NOT_RUN, whole_expected(scheme), "not run", "write every part first")
         estimates = whole_answer(scenarios, message, scheme)
         if isinstance(estimates, Row):
@@ -368,11 +368,6 @@ def ended_row(part: str, expected: str, ended: str, output: str) -> Row:
 
 def _label(stage: str) -> str:
     return WHOLE if stage == "whole" else stage
-
-
-def _not_written(message: Message | None) -> bool:
-    error = None if message is None else message.meta.get("error")
-    return isinstance(error, dict) and error.get("kind") == "not written"
 
 
 # -- the checks ----------------------------------------------------------------------------------------
@@ -516,10 +511,10 @@ def progress(filter_class: type, lang: str | None = None) -> str:
 
     words = catalogue_for(lang or getattr(inspect.getmodule(filter_class), "LANGUAGE", None))
     report = check(filter_class, stages=PARTS)
-    todo = [row.part for row in report.rows if row.not_written]
+    todo = [row.part for row in report.rows if row.status == NOT_WRITTEN]
     left = words.gettext("still to write: {parts}").format(parts=", ".join(todo))
     lines = [f"{filter_class.name}: " + (left if todo else words.gettext("all four parts written"))]
-    written = [row for row in report.rows if not row.not_written]
+    written = [row for row in report.rows if row.status != NOT_WRITTEN]
     lines += [format_rows(written, catalogue=words)] if written else []
     if not todo:
         command = check_command(filter_class)
