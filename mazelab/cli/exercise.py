@@ -21,7 +21,6 @@ from mazelab.cli.options import UserError, check_output_path, opt, seed_option
 from mazelab.exercise.grading import (
     KEY_FILE,
     Gradebook,
-    Graded,
     GradingInterruptedError,
     Submission,
     check_outside,
@@ -35,7 +34,7 @@ from mazelab.exercise.grading import (
     summary,
 )
 from mazelab.exercise.language import Catalogue, catalogue_for
-from mazelab.exercise.report import format_report
+from mazelab.exercise.report import Report, format_report
 from mazelab.exercise.sandbox import DEFAULT_BUDGET, MAX_TIMEOUT, SandboxError, sandbox
 from mazelab.exercise.template import bundle_bytes, write_exercise
 from mazelab.invocation import python_prefix
@@ -104,23 +103,23 @@ def check_command(
     submission = Submission(Path(spec).name, Path(spec), own_folder=True)  # the files beside it are its own
     try:
         with _stop_signals() as stop:
-            graded = grade_one(submission, timeout, seed=seed, key=secret)
+            report = grade_one(submission, timeout, seed=seed, key=secret)
     except KeyboardInterrupt:  # Ctrl-C or SIGTERM: the student's process has been ended with its sandbox
         typer.echo("stopped: nothing graded", err=True)
         raise typer.Exit(128 + (stop.number or signal.SIGINT)) from None
     except SandboxError as error:
         raise UserError(f"{error}; nothing graded (the grader's machine, not the submission)") from None
-    if graded.report is not None:
-        typer.echo(format_report(graded.report, catalogue=catalogue))
-        took = {"seconds": f"{graded.seconds:.1f}", "student": f"{graded.report.student_seconds:.1f}"}
+    if report.problem is None:
+        typer.echo(format_report(report, catalogue=catalogue))
+        took = {"seconds": f"{report.seconds:.1f}", "student": f"{report.student_seconds:.1f}"}
         line = catalogue.gettext("checked in {seconds} s (the student's processes: {student} s)").format(**took)
         typer.echo(catalogue.numbers(line))
     if results is not None:  # score 0 and why for a file that cannot be checked
-        write_text_atomically(results, gradescope_json(graded, catalogue), replace=force)
-    if graded.report is None:
-        typer.echo(catalogue.numbers(catalogue.gettext("error: ") + catalogue.translate(graded.problem)), err=True)
+        write_text_atomically(results, gradescope_json(report, catalogue), replace=force)
+    if report.problem is not None:
+        typer.echo(catalogue.numbers(catalogue.gettext("error: ") + catalogue.translate(report.problem)), err=True)
         raise typer.Exit(2)
-    if not graded.passed:
+    if not report.passed:
         raise typer.Exit(1)
 
 
@@ -208,7 +207,7 @@ def _grade_into(book: Gradebook, grade: Callable[..., None], outputs: list[tuple
             try:
                 with progress_bar(count, not quiet, what="submissions") as advance:
 
-                    def done(one: Graded) -> None:
+                    def done(one: Report) -> None:
                         book.add(one)
                         advance()
 

@@ -88,11 +88,26 @@ FIGURES_INTRO = (
 
 
 @dataclass
+class Submission:
+    """One submission: its name (the folder's or the file's), the file to grade, or why there is none."""
+
+    name: str
+    file: Path | None
+    problem: str | None = None
+    own_folder: bool = False  # a subfolder of its own: the Python files beside the file are its too
+
+    def __post_init__(self) -> None:
+        self.name = clean(self.name, 200)
+        self.problem = None if self.problem is None else clean(self.problem)
+
+
+@dataclass
 class Report:
     """One submission's check: its rows (the parts, then the whole filter), the whole filter's figures
     per scenario, where its inputs came from (`source`: a key of HEADINGS; `seed` None for a key, which
     no report shows), what went wrong beyond the rows, the time it took (and the student's processes'
-    share), their prints, and the line saying it ran unsandboxed."""
+    share), their prints, the line saying it ran unsandboxed; in a grading, the submission, or the one
+    line why it could not be checked."""
 
     filter_name: str
     seed: int | None
@@ -105,6 +120,8 @@ class Report:
     output: str = ""
     note: str = ""
     scheme: str = "systematic"  # the shipped scheme the student's resampler resembles: the whole filter's SIR uses it
+    submission: Submission | None = None  # in a grading (mazelab.exercise.grading)
+    problem: str | None = None  # why it could not be checked at all (then it has no rows)
 
     def __post_init__(self) -> None:
         self.filter_name = clean(self.filter_name, 80)
@@ -113,6 +130,12 @@ class Report:
     def passed(self) -> bool:
         """Every row passed (exit code 0)."""
         return bool(self.rows) and all(row.passed for row in self.rows)
+
+    def status(self, part: str) -> str | None:
+        """A row's status (FAIL for every row where it could not be checked; None: not run)."""
+        if self.problem is not None:
+            return FAIL
+        return next((row.status for row in self.rows if row.part == part), None)
 
     def row(self, part: str) -> Row:
         """The row of one part (or "whole filter")."""
