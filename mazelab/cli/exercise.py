@@ -176,7 +176,7 @@ def grade_command(
     catalogue, submissions = _catalogue(lang), discover(folder)
     outputs = [(path, option) for path, option in ((csv_path, "--csv"), (gradescope, "--gradescope")) if path]
     keyfile = key or next((p.parent / KEY_FILE if o == "--csv" else p / KEY_FILE for p, o in outputs), None)
-    _check_outputs(folder, submissions, [*outputs, *([(keyfile, "--key")] if keyfile else [])], force)
+    _check_outputs(folder, submissions, csv_path, gradescope, keyfile, force)
     _sandbox_or_refuse(require_sandbox)
     secret = read_key(keyfile) if keyfile else secrets.token_bytes(32)
     book, started = Gradebook(csv_path, gradescope, force, catalogue), time.perf_counter()
@@ -219,13 +219,13 @@ def _grade_into(book: Gradebook, grade: Callable[..., None], outputs: list[tuple
     return None
 
 
-def _check_outputs(folder: Path, submissions: list[Submission], outputs: list[tuple[Path, str]], force: bool) -> None:
+def _check_outputs(folder: Path, submissions: list[Submission], csv_path: Path | None, gradescope: Path | None,
+                   keyfile: Path | None, force: bool) -> None:  # fmt: skip
     """Refuse, before any grading, an output or the key inside the class folder, an existing output
     without --force, and a --csv that a submission's results.json folder would take."""
-    for path, option in outputs:
-        check_outside(path, folder, option)
-    named = dict((option, path) for path, option in outputs)
-    gradescope, csv_path = named.get("--gradescope"), named.get("--csv")
+    for path, option in ((csv_path, "--csv"), (gradescope, "--gradescope"), (keyfile, "--key")):
+        if path is not None:
+            check_outside(path, folder, option)
     if gradescope is not None:
         _made_folder(gradescope)
         taken = [s.name for s in submissions if (gradescope / s.name / "results.json").exists()]
