@@ -98,7 +98,9 @@ def check_command(
     if seed is not None and key is not None:
         raise UserError("--seed and --key: give one (a seed repeats a report, the key draws secret inputs)")
     secret = read_key(key, make=False) if key is not None else None  # a ClaimError is one line, exit 2
-    results = _results_file(gradescope, force)
+    results = None if gradescope is None else _made_folder(gradescope) / "results.json"
+    if results is not None:
+        check_output_path(results, force)
     _sandbox_or_refuse(require_sandbox)
     submission = Submission(Path(spec).name, Path(spec), own_folder=True)  # the files beside it are its own
     try:
@@ -145,13 +147,6 @@ def _made_folder(folder: Path) -> Path:
     except OSError as error:
         raise UserError(f"--gradescope {folder}: cannot make the folder ({error.strerror})") from None
     return folder
-
-
-def _results_file(folder: Path | None, force: bool) -> Path | None:
-    if folder is None:
-        return None
-    check_output_path(_made_folder(folder) / "results.json", force)
-    return folder / "results.json"
 
 
 @exercise_app.command(name="grade", short_help="Grade every submission in DIR, in parallel.")
