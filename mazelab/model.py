@@ -177,7 +177,8 @@ def log_likelihood(
     log_p *= residual
     log_p *= -0.5
     norm = math.log(sigma * math.sqrt(2 * math.pi))
-    log_p += np.where(free, log_p.dtype.type(-norm), log_p.dtype.type(math.log(outside_penalty) - norm))
+    levels = np.array([math.log(outside_penalty) - norm, -norm], dtype=log_p.dtype)  # outside, free
+    log_p += levels.take(free.view(np.uint8))  # np.where's values, by one gather
     return log_p
 
 

@@ -46,7 +46,9 @@ class Weights:
         Weights
         """
         totals = np.atleast_1d(log_sum_exp(log_w))
-        return cls(np.subtract(log_w, totals[:, None], dtype=float), totals)
+        lw = log_w.astype(float)  # a float64 copy, then in place: no buffered cast against a broadcast row
+        lw -= totals[:, None]
+        return cls(lw, totals)
 
     @classmethod
     def uniform(cls, runs: int, count: int) -> Weights:
