@@ -187,19 +187,8 @@ def weighted_mean(weights: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 
 def weighted_covariance(weights: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """sum_i W_i (x_i - mean)(x_i - mean)^T per run, float64.
-
-    Parameters
-    ----------
-    weights : array (N,) or (R, N)
-        Normalised weights.
-    points : array (N, 2) or (R*N, 2)
-        The particles, run r's in the block of rows r*N..(r+1)*N.
-
-    Returns
-    -------
-    float64 array (2, 2) for one run, (R, 2, 2) for R runs
-    """
+    """sum_i W_i (x_i - mean)(x_i - mean)^T per run, float64: (2, 2) for one run, (R, 2, 2) for R runs (the
+    weights and points as `weighted_mean` takes them)."""
     W = weights if weights.ndim > 1 else weights[None]
     mean = weighted_mean(W, points)
     x, y = _columns(points, len(W))
