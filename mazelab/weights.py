@@ -199,21 +199,9 @@ def weighted_covariance(weights: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 
 def mass_within(weights: np.ndarray, points: np.ndarray, centre: np.ndarray, radius: float) -> float | np.ndarray:
-    """The total weight of the points at most `radius` from `centre` (distances in the points' dtype).
-
-    Parameters
-    ----------
-    weights : array (N,) or (R, N)
-        Normalised weights.
-    points : array (N, 2) or (R*N, 2)
-    centre : array (2,), or (R, 2) per run
-    radius : float
-        Map units.
-
-    Returns
-    -------
-    float for one run, array (R,) for R runs
-    """
+    """The total weight of the points at most `radius` (map units) from `centre` ((2,), or (R, 2) per run),
+    distances in the points' dtype: a float for one run, (R,) for R runs (the weights and points as
+    `weighted_mean` takes them)."""
     W = weights if weights.ndim > 1 else weights[None]
     c = (centre if centre.ndim > 1 else centre[None]).astype(points.dtype)
     x, y = _columns(points, len(W))
