@@ -30,18 +30,13 @@ def uniforms(rng: Any, size: int | None = None) -> float | np.ndarray:
 
 def _inverse_cdf(sorted_uniforms: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """Indices i with cumsum(W)[i-1] <= u < cumsum(W)[i] for sorted uniforms u in [0, 1), row by row.
-
-    The cumulative weights are float64 whatever W's dtype. R runs: one search per run (searching their
-    rows as one array, each offset by its row, takes longer), on the int64 bit patterns of the float64
-    rows: non-negative doubles are ordered as their bits, and an integer search skips the NaN-aware
-    float compare (a fifth less time, the same indices)."""
-    cumulative = np.cumsum(weights, axis=-1, dtype=float)
+    One search per run: searching R runs' rows as one array (each offset by its row) takes longer."""
+    cumulative = np.cumsum(weights, axis=-1)
     cumulative[..., -1] = 1.0  # guard against round-off leaving the last bin short of 1
     if cumulative.ndim == 1:
         return cumulative.searchsorted(sorted_uniforms, side="right")
     out = np.empty(sorted_uniforms.shape, dtype=np.intp)
-    keys = np.ascontiguousarray(sorted_uniforms, dtype=float).view(np.int64)
-    for row, bins, points in zip(out, cumulative.view(np.int64), keys, strict=True):
+    for row, bins, points in zip(out, cumulative, sorted_uniforms, strict=True):
         row[:] = bins.searchsorted(points, side="right")
     return out
 
