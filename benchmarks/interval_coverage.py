@@ -25,7 +25,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from mazelab.experiments.stats import CONFIDENCE_LEVEL, bootstrap_interval
+from mazelab.experiments.summary import CONFIDENCE_LEVEL, bootstrap_interval
 
 Draw = Callable[[np.random.Generator, int], np.ndarray]
 LARGE = 2_000_000  # draws that fix a population's median (and a mean without a closed form)

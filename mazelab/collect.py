@@ -37,27 +37,6 @@ class Recorded:
     seconds: np.ndarray
     diagnostics: dict[str, np.ndarray] = field(default_factory=dict)
 
-    @classmethod
-    def empty(cls, steps: int, runs: int) -> Recorded:
-        """Arrays for `steps` steps of `runs` runs, to be filled.
-
-        Parameters
-        ----------
-        steps, runs : int
-
-        Returns
-        -------
-        Recorded
-        """
-        return cls(
-            np.empty((runs, steps, 2)),
-            np.empty((runs, steps)),
-            np.empty((runs, steps), dtype=bool),
-            np.empty((runs, steps), dtype=np.int64),
-            np.empty((runs, steps)),
-            np.empty(steps),
-        )
-
     def run(self, r: int) -> dict[str, Any]:
         """Run r's per-step arrays, by name.
 
@@ -113,7 +92,15 @@ def record_steps(
         and its reads (estimate, ESS, confidence), divided among the R runs.
     """
     count = 1 if runs is None else runs
-    recorded = Recorded.empty(steps, count)
+    shape = (count, steps)  # filled step by step below
+    recorded = Recorded(
+        np.empty((*shape, 2)),
+        np.empty(shape),
+        np.empty(shape, dtype=bool),
+        np.empty(shape, dtype=np.int64),
+        np.empty(shape),
+        np.empty(steps),
+    )
     diagnostics: dict[str, list[Any]] = {}
     for k in range(steps):
         if at is not None:

@@ -331,36 +331,14 @@ class AuxiliaryParticleFilter(ParticleFilter):
         (log w (R, N), log F (R,), or 0.0 when the weights carry F already: recovery's)
         """
         second_stage = self.ops.second_stage(log_g, self.log_mu, A)  # log p(z|x^j) - log p(z|mu^{i^j})
-        if self.recovery is not None:  # on recovery's scale: injected particles carry p(z | x^j)
-            step, injected = self._injected
-            return predictive_scale(second_stage, self.log_F, log_g, injected if step > self.steps_done else None), 0.0
-        return second_stage, self.log_F
-
-
-def predictive_scale(
-    second_stage: np.ndarray, log_F: np.ndarray, log_lik: np.ndarray, injected: np.ndarray | None
-) -> np.ndarray:
-    """The APF's weights on the scale of p(z_k | z_1:k-1), for recovery's w_avg: F p(z|x^j) / p(z|mu^{i^j}),
-    whose mean is Pitt and Shephard's estimate of it; an injected particle has no ancestor and carries
-    p(z|x^j). Normalising them gives the second-stage weights again.
-
-    Parameters
-    ----------
-    second_stage : array (R, N)
-        log p(z | x^j) - log p(z | mu^{i^j}).
-    log_F : array (R,)
-        log F, the first stage's total.
-    log_lik : array (R, N)
-        log p(z | x^j).
-    injected : bool array (N,), or None
-        Recovery's injected particles.
-
-    Returns
-    -------
-    array (R, N)
-    """
-    log_w = second_stage + log_F.astype(second_stage.dtype)[:, None]
-    return log_w if injected is None else np.where(injected, log_lik, log_w)
+        if self.recovery is None:
+            return second_stage, self.log_F
+        # recovery's w_avg reads them on the scale of p(z_k | z_1:k-1): F p(z|x^j) / p(z|mu^{i^j}), whose mean
+        # is Pitt and Shephard's estimate (normalised: the second stage again); an injected particle has no
+        # ancestor and carries p(z|x^j)
+        log_w = second_stage + self.log_F.astype(second_stage.dtype)[:, None]
+        step, injected = self._injected
+        return (log_w if injected is None or step <= self.steps_done else np.where(injected, log_g, log_w)), 0.0
 
 
 class RegularizedParticleFilter(ParticleFilter):
@@ -448,5 +426,4 @@ __all__ = [
     "ParticleFilter",
     "RegularizedParticleFilter",
     "SIRParticleFilter",
-    "predictive_scale",
 ]

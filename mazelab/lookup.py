@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -57,24 +56,24 @@ class NearestStationLookup:
         self._border = np.flatnonzero(np.bincount(border, minlength=len(stations)))
         self._first = candidates[:, 0]  # (C,) station indices
         self._all = candidates[ambiguous]  # (A, K) station indices, padded by repeats
-        self._tables: dict[np.dtype, _StationTables] = {}
+        self._tables: dict[np.dtype, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}  # `_station_tables`
         self._near: dict[int, tuple[tuple[int, float, float], ...]] = {}  # `station_at`'s, cell by cell
 
     def locate(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(distance to the nearest station, free flag) for points x, y of shape (N,), in x's dtype."""
-        tables = self._station_tables(x.dtype)
+        first_xy, others, border = self._station_tables(x.dtype)
         cells, beyond = self._cells(x, y)
-        first = tables.first.take(cells, axis=0)  # (N, 2): one gather for both coordinates
+        first = first_xy.take(cells, axis=0)  # (N, 2): one gather for both coordinates
         d2 = _squared_distances(first[:, 0], first[:, 1], x, y)
         del first
         kinds = self.kind.take(cells)
         ambiguous = np.flatnonzero(kinds >= _AMBIGUOUS)
         if len(ambiguous):
             rows = self.row.take(cells.take(ambiguous))
-            d2[ambiguous] = _nearest_candidate(tables, rows, x.take(ambiguous), y.take(ambiguous), d2.take(ambiguous))
+            d2[ambiguous] = _nearest_candidate(others, rows, x.take(ambiguous), y.take(ambiguous), d2.take(ambiguous))
         free = np.bitwise_and(kinds, _FREE, out=kinds).view(bool)
         if len(beyond):
-            d2[beyond] = _brute_force_squared_distances(tables.border, x[beyond], y[beyond])
+            d2[beyond] = _brute_force_squared_distances(border, x[beyond], y[beyond])
             free[beyond] = False
         return np.sqrt(d2, out=d2), free
 
@@ -138,27 +137,19 @@ class NearestStationLookup:
         iy += ix  # whole numbers below 2**24 (see _lookup_subdivisions), exact even in float32
         return iy.astype(np.intp), beyond
 
-    def _station_tables(self, dtype: np.dtype) -> _StationTables:
-        """The candidates' coordinates in `dtype`, made once per dtype."""
+    def _station_tables(self, dtype: np.dtype) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The candidates' coordinates in `dtype`, made once per dtype: each lookup cell's first candidate's
+        (C, 2), the ambiguous cells' other candidates' (A, 2 (K - 1): a row's x1, y1, x2, y2, ..., one
+        gather a point), and the border cells' candidates' (b, 2)."""
         if dtype not in self._tables:
             xy = self.stations.astype(dtype)
-            others = xy[self._all[:, 1:]].reshape(len(self._all), -1)  # (A, 2 (K - 1)): x1, y1, x2, y2, ...
-            self._tables[dtype] = _StationTables(xy[self._first], others, xy[self._border])
+            others = xy[self._all[:, 1:]].reshape(len(self._all), -1)
+            self._tables[dtype] = xy[self._first], others, xy[self._border]
         return self._tables[dtype]
 
 
 _NO_POINTS = np.empty(0, dtype=np.intp)
 _FREE, _AMBIGUOUS = 1, 2  # bits of a lookup cell's kind
-
-
-@dataclass(frozen=True)
-class _StationTables:
-    """Coordinates of each lookup cell's first candidate (C, 2), of the ambiguous cells' other candidates
-    (A, 2 (K - 1): a row's x1, y1, x2, y2, ..., one gather a point), and of the border cells' candidates (b, 2)."""
-
-    first: np.ndarray
-    others: np.ndarray
-    border: np.ndarray
 
 
 def lookup_cell_count(width: int, height: int) -> int:
@@ -189,11 +180,11 @@ def _lookup_cells_free(free_grid: np.ndarray, scale: int, margin: int) -> np.nda
 
 
 def _nearest_candidate(
-    tables: _StationTables, rows: np.ndarray, x: np.ndarray, y: np.ndarray, first: np.ndarray
+    others: np.ndarray, rows: np.ndarray, x: np.ndarray, y: np.ndarray, first: np.ndarray
 ) -> np.ndarray:
-    """Squared distance from each point to the nearest candidate of its ambiguous cell (row of the table),
-    given `first`, its squared distance to the first candidate (written over)."""
-    others = tables.others.take(rows, axis=0)  # (n, 2 (K - 1))
+    """Squared distance from each point to the nearest candidate of its ambiguous cell (its row of
+    `others`), given `first`, its squared distance to the first candidate (written over)."""
+    others = others.take(rows, axis=0)  # (n, 2 (K - 1))
     for k in range(0, others.shape[1], 2):
         np.minimum(first, _squared_distances(others[:, k], others[:, k + 1], x, y), out=first)
     return first

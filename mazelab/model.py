@@ -60,21 +60,9 @@ LAB_DELTA_RANGE = (0.05, 0.6)
 
 # -- the model -------------------------------------------------------------------------------------
 def sample_heading(compass_angle: float, delta: float, rng: np.random.Generator) -> float:
-    """One heading th ~ U(th0 - Delta/2, th0 + Delta/2) (the robot's, once a step): the particles'
-    draw and operations (`headings_from_uniforms`) in plain floats: the same value, without numpy calls.
-
-    Parameters
-    ----------
-    compass_angle : float
-        th0 (radians).
-    delta : float
-        Delta (radians).
-    rng : numpy.random.Generator
-
-    Returns
-    -------
-    float, radians
-    """
+    """One heading th ~ U(th0 - Delta/2, th0 + Delta/2), radians (the robot's, once a step): the particles'
+    draw and operations (`headings_from_uniforms`, whose th0 and Delta these are) in plain floats, the
+    same value without numpy calls."""
     return (rng.random() - 0.5) * delta + float(compass_angle)
 
 
@@ -177,7 +165,8 @@ def log_likelihood(
     log_p *= residual
     log_p *= -0.5
     norm = math.log(sigma * math.sqrt(2 * math.pi))
-    log_p += np.where(free, log_p.dtype.type(-norm), log_p.dtype.type(math.log(outside_penalty) - norm))
+    levels = np.array([math.log(outside_penalty) - norm, -norm], dtype=log_p.dtype)  # outside, free
+    log_p += levels.take(free.view(np.uint8))  # np.where's values, by one gather
     return log_p
 
 

@@ -59,22 +59,8 @@ class NumpyKernels:
         self, x: np.ndarray, A: np.ndarray | None, rngs: Sequence, angles: np.ndarray, delta: float, speed: float
     ) -> tuple[np.ndarray, np.ndarray]:
         """Equation (1): x[r, A[r]] moved along th = th0_r + Delta (u - 1/2), u ~ U[0, 1) from rngs[r]
-        (None: a run that draws nothing, u = 1/2), for R runs.
-
-        Parameters
-        ----------
-        x : array (R, N, 2)
-        A : int array (R, M), or None for every particle in order
-        rngs : sequence of R Generators (or None)
-        angles : array (R,)
-            th0_k of each run, in x's dtype.
-        delta, speed : float
-            Delta (radians) and L (map units).
-
-        Returns
-        -------
-        (moved positions (R, M, 2), headings (R, M)), in x's dtype
-        """
+        (None: a run that draws nothing, u = 1/2), for R runs: mazelab.model.LostRobot.M, with th0 as
+        `angles` (R,) in x's dtype, Delta (radians) and L (map units) given."""
         uniforms = np.empty(x.shape[:2] if A is None else A.shape, dtype=x.dtype)
         for row, rng in zip(uniforms, rngs, strict=True):
             if rng is None:
@@ -90,19 +76,8 @@ class NumpyKernels:
     def log_likelihood(
         self, z: np.ndarray, x: np.ndarray, world: Any, sigma: float, outside_penalty: float
     ) -> np.ndarray:
-        """Equation (3) in logs with the outside penalty, for R runs (mazelab.model.log_likelihood).
-
-        Parameters
-        ----------
-        z : array (R,)
-        x : array (R, N, 2)
-        world : Maze
-        sigma, outside_penalty : float
-
-        Returns
-        -------
-        array (R, N), in x's dtype
-        """
+        """Equation (3) in logs with the outside penalty (mazelab.model.log_likelihood) for R runs: z (R,)
+        and x (R, N, 2) -> (R, N) in x's dtype (mazelab.model.LostRobot.logG)."""
         one = float(z[0]) if len(z) == 1 else z  # one run: a plain number (the same float32 arithmetic)
         return log_likelihood(one, x.reshape(-1, 2), world, sigma, outside_penalty).reshape(len(z), -1)
 

@@ -46,7 +46,9 @@ class Weights:
         Weights
         """
         totals = np.atleast_1d(log_sum_exp(log_w))
-        return cls(np.subtract(log_w, totals[:, None], dtype=float), totals)
+        lw = log_w.astype(float)  # a float64 copy, then in place: no buffered cast against a broadcast row
+        lw -= totals[:, None]
+        return cls(lw, totals)
 
     @classmethod
     def uniform(cls, runs: int, count: int) -> Weights:
@@ -185,19 +187,8 @@ def weighted_mean(weights: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 
 def weighted_covariance(weights: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """sum_i W_i (x_i - mean)(x_i - mean)^T per run, float64.
-
-    Parameters
-    ----------
-    weights : array (N,) or (R, N)
-        Normalised weights.
-    points : array (N, 2) or (R*N, 2)
-        The particles, run r's in the block of rows r*N..(r+1)*N.
-
-    Returns
-    -------
-    float64 array (2, 2) for one run, (R, 2, 2) for R runs
-    """
+    """sum_i W_i (x_i - mean)(x_i - mean)^T per run, float64: (2, 2) for one run, (R, 2, 2) for R runs (the
+    weights and points as `weighted_mean` takes them)."""
     W = weights if weights.ndim > 1 else weights[None]
     mean = weighted_mean(W, points)
     x, y = _columns(points, len(W))
@@ -208,21 +199,9 @@ def weighted_covariance(weights: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 
 def mass_within(weights: np.ndarray, points: np.ndarray, centre: np.ndarray, radius: float) -> float | np.ndarray:
-    """The total weight of the points at most `radius` from `centre` (distances in the points' dtype).
-
-    Parameters
-    ----------
-    weights : array (N,) or (R, N)
-        Normalised weights.
-    points : array (N, 2) or (R*N, 2)
-    centre : array (2,), or (R, 2) per run
-    radius : float
-        Map units.
-
-    Returns
-    -------
-    float for one run, array (R,) for R runs
-    """
+    """The total weight of the points at most `radius` (map units) from `centre` ((2,), or (R, 2) per run),
+    distances in the points' dtype: a float for one run, (R,) for R runs (the weights and points as
+    `weighted_mean` takes them)."""
     W = weights if weights.ndim > 1 else weights[None]
     c = (centre if centre.ndim > 1 else centre[None]).astype(points.dtype)
     x, y = _columns(points, len(W))

@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 
 from mazelab.experiments import executor
-from mazelab.experiments.plan import plan_study, study_mazes
+from mazelab.experiments.api import plan_study, study_mazes
 
 WAIT_SECONDS = 60  # for a condition that comes within milliseconds: a bound, not a timing
 
@@ -132,7 +132,7 @@ import gc, os, signal, struct, sys
 from multiprocessing.queues import SimpleQueue
 from pathlib import Path
 from mazelab.experiments import executor
-from mazelab.experiments.plan import plan_study, study_mazes
+from mazelab.experiments.api import plan_study, study_mazes
 
 real = executor.run_unit_timed
 

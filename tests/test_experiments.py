@@ -21,13 +21,15 @@ from mazelab.experiments import batch_runs
 from mazelab.experiments import study as experiments
 from mazelab.experiments.executor import run_study
 from mazelab.experiments.runs import DEFAULT_WINDOW, compare_filters, final_error, recovery_steps, relocalised
-from mazelab.experiments.stats import (
+from mazelab.experiments.study import MazeChoice, RunRecord, study_settings, study_tasks
+from mazelab.experiments.summary import (
+    CSV_COLUMNS,
     bootstrap_interval,
     km_median,
+    study_table,
+    summarise_study,
     wilson_interval,
 )
-from mazelab.experiments.study import MazeChoice, RunRecord, study_settings, study_tasks
-from mazelab.experiments.summary import CSV_COLUMNS, study_table, summarise_study
 from mazelab.maze import Maze
 from mazelab.model import CONVERGENCE_RADIUS
 from mazelab.registry import filter_entry

@@ -175,4 +175,5 @@ def test_the_recovery_table_runs_as_the_readme_says_from_any_folder(tmp_path):
     )
     assert done.returncode == 0, done.stderr
     lines = done.stdout.strip().splitlines()
-    assert lines[0].startswith("filter") and len(lines) == 1 + 3 * 3  # three filters, three recovery variants
+    assert lines[0].startswith("filter") and len(lines) == 2 + 3 * 3  # header, rule, three filters x three variants
+    assert [line.split()[0] for line in lines[2::3]] == ["SIR", "APF", "RPF"]  # the registry's labels

@@ -1,4 +1,4 @@
-"""The record of how a result was made (mazelab.experiments.record), as a reader of a paper needs it:
+"""The record of how a result was made (mazelab.experiments.journal), as a reader of a paper needs it:
 the working folder, every dependency's version, shipped mazes named without the machine's folders, a
 generated maze's hash per run (that of `maze generate --seed`'s grid), and the seeds' dtype said."""
 
@@ -12,7 +12,7 @@ import os
 import numpy as np
 
 from mazelab.cli.app import main
-from mazelab.experiments.record import DEPENDENCIES
+from mazelab.experiments.journal import DEPENDENCIES
 from mazelab.maze import Maze
 from mazelab.maze_generator import generate_maze
 

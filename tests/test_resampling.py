@@ -155,3 +155,15 @@ def test_kld_particle_count_shrinks_as_the_robot_is_found(paper_world, name):
     assert counts.shape == (120,) and counts.min() >= 100 and counts.max() <= 2000
     assert counts[0] > 3 * counts[-20:].mean()  # the prior covers the maze; the posterior a few bins
     assert result.converged_at is not None
+
+
+def test_the_inverse_cdf_of_several_runs_is_each_runs_search_on_ties_and_empty_bins():
+    """R runs' rows are searched on their float64 bits (mazelab.resampling._inverse_cdf): points exactly on
+    a cumulative weight, before the first and at 1, and particles of no weight give each row's float search."""
+    from mazelab.resampling import _inverse_cdf
+
+    weights = np.array([[0.0, 0.25, 0.0, 0.5, 0.25, 0.0], [0.5, 0.0, 0.0, 0.0, 0.0, 0.5]])
+    points = np.array([[0.0, 0.25, 0.5, 0.75, 0.999, 1.0], [0.0, 0.1, 0.5, 0.5, 0.75, 1.0]])
+    together = _inverse_cdf(points, weights)
+    np.testing.assert_array_equal(together, [[1, 3, 3, 4, 4, 6], [0, 0, 5, 5, 5, 6]])  # u = 1: N, as a search
+    np.testing.assert_array_equal(together, [_inverse_cdf(p, w) for p, w in zip(points, weights, strict=True)])

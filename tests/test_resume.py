@@ -122,7 +122,7 @@ def test_this_studys_own_rows_and_traces_are_kept(tmp_path, capsys):
 def test_foreign_row_checks_every_planned_column(tmp_path):
     """Each column the plan fixes, changed alone in one row, makes that row another study's: the run's
     seeds, maze and model, and each option the row's filter ran with (or one it does not take, set)."""
-    from mazelab.experiments.plan import plan_study, study_mazes
+    from mazelab.experiments.api import plan_study, study_mazes
 
     plan = plan_study(study_mazes(["paper_5x5"]), "sir", sigma=[0.3], delta=[0.5], particles=[30],
                       runs=2, steps=5, seed=1)  # fmt: skip

@@ -15,24 +15,22 @@ import pytest
 
 import mazelab
 from mazelab.cli.app import main
+from mazelab.experiments import runs as run_module
 from mazelab.experiments import study as study_module
-from mazelab.experiments import warmup
-from mazelab.experiments.stats import (
+from mazelab.experiments.study import MazeChoice, RunRecord, distance_to_exact, study_settings
+from mazelab.experiments.summary import (
     BOOTSTRAP_SAMPLES,
     BOOTSTRAP_SEED,
+    SUMMARY_STATISTICS,
     bca_levels,
     bootstrap_interval,
+    converged_within,
+    convergence_window,
     kaplan_meier,
     km_median,
     leave_one_out,
     paired_difference,
     resampled,
-)
-from mazelab.experiments.study import MazeChoice, RunRecord, distance_to_exact, study_settings
-from mazelab.experiments.summary import (
-    SUMMARY_STATISTICS,
-    converged_within,
-    convergence_window,
     summarise_study,
     summary_csv,
 )
@@ -224,7 +222,7 @@ def test_reference_grid_gives_every_row_its_distance_to_the_exact_posterior(monk
 
     monkeypatch.setattr(GridBayesFilter, "__init__", counting)
     monkeypatch.setattr(study_module, "_EXACT_MEANS", {})
-    monkeypatch.setattr(warmup, "_warmed", set())  # as in a new process: the grid is warmed up once, untimed
+    monkeypatch.setattr(run_module, "_warmed", set())  # as in a new process: the grid is warmed up once, untimed
     result = mazelab.study("paper_5x5", filters=["sir"], particles=[60, 90], runs=2, steps=16, seed=6,
                            reference="grid")  # fmt: skip
     assert len(made) == 2 + 1  # two runs' scenarios, shared by both particle counts; the warm-up

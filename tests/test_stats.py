@@ -1,4 +1,4 @@
-"""The study's statistics (mazelab.experiments.stats): Student's t quantiles as the tables give them (the
+"""The study's statistics (mazelab.experiments.summary): Student's t quantiles as the tables give them (the
 t-interval of benchmarks/interval_coverage.py, which the bootstrap intervals are measured against), the
 percentile bootstrap interval covering the mean at its level, intervals within the quantity's range, and
 the Wilson interval in closed form and from the tables."""
@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mazelab.experiments.stats import bootstrap_interval, wilson_interval
+from mazelab.experiments.summary import bootstrap_interval, wilson_interval
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))  # the t-interval is a benchmark's
 from interval_coverage import student_t_quantile, t_interval

@@ -13,9 +13,9 @@ import pytest
 
 import mazelab
 from mazelab.cli.app import main
-from mazelab.experiments import warmup
+from mazelab.experiments import runs as run_module
+from mazelab.experiments.api import plan_study, study_mazes
 from mazelab.experiments.executor import run_study
-from mazelab.experiments.plan import plan_study, study_mazes
 from mazelab.experiments.runs import run_filters
 from mazelab.maze import load_maze
 from mazelab.registry import file_sha256
@@ -99,23 +99,23 @@ def rows_of(path: Path) -> list[dict[str, str]]:
 def test_a_one_off_cost_is_in_no_timed_step_whichever_filter_runs_first(tmp_path, first, monkeypatch):
     """By construction: the plug-in's one-off cost (its first step in this process) falls in the untimed
     warm-up, never in a timed step, whether it runs before or after SIR; it is the start-up instead."""
-    monkeypatch.setattr(warmup, "_warmed", set())  # a fresh process's state
-    warmup.take_startup_seconds()
+    monkeypatch.setattr(run_module, "_warmed", set())  # a fresh process's state
+    run_module.take_startup_seconds()
     spec = plugin(tmp_path, SLOW_START, "SlowStart")
     world = load_maze("paper_5x5")
     order = [spec, "sir"] if first else ["sir", spec]
     robot = Robot(0.3, 0.5, start_place(world, 1))
     results = run_filters(world, robot, 0.3, 0.5, order, seed=1, particle_count=50, steps=10)
     assert max(results["Slow start"].step_seconds) < ONE_OFF_SECONDS
-    assert warmup.take_startup_seconds() >= ONE_OFF_SECONDS
+    assert run_module.take_startup_seconds() >= ONE_OFF_SECONDS
 
 
 def test_the_warm_up_reaches_a_resampling_that_waits_for_n_eff(tmp_path, monkeypatch):
     """A filter that resamples only when N_eff < threshold N may not in the warm-up's few steps: it is warmed
     with threshold 1 too, so its first resampling's one-off cost is start-up, never a timed step's (a
     study's batch of runs, and a run of its own)."""
-    monkeypatch.setattr(warmup, "_warmed", set())
-    warmup.take_startup_seconds()
+    monkeypatch.setattr(run_module, "_warmed", set())
+    run_module.take_startup_seconds()
     batch = plugin(tmp_path, slow_resampling("SlowBatch"), "SlowBatch")
     plan = plan_study(study_mazes(["paper_5x5"]), batch, sigma=[0.3], delta=[0.5], particles=[300], runs=3,
                       steps=30, seed=1)  # fmt: skip

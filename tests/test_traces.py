@@ -1,4 +1,4 @@
-"""mazelab.experiments.traces: per-step rows that a band plot reads without glue.
+"""mazelab.experiments.tables: per-step rows that a band plot reads without glue.
 
 - every trace row carries its run's parameters (maze, sigma, delta, particles, the four options, any
   other option) and its filter's own diagnostics (the RPF's `regularised`; empty for a filter with none);
@@ -12,7 +12,7 @@ import csv
 import numpy as np
 
 from mazelab.cli.app import main
-from mazelab.experiments.traces import DIAGNOSTIC_PREFIX, PARAMETER_COLUMNS, TRACE_COLUMNS
+from mazelab.experiments.tables import DIAGNOSTIC_PREFIX, PARAMETER_COLUMNS, TRACE_COLUMNS
 from mazelab.registry import filter_entry
 
 STUDY = ["study", "--maze", "paper_5x5", "--filters", "sir,rpf", "--sigma", "0.3,0.5", "--runs", "2", "--steps", "15"]

@@ -46,7 +46,7 @@ from mazelab.cli.options import (
 from mazelab.cli.recordings import recordings, view
 from mazelab.cli.smoothing import learn, smooth
 from mazelab.cli.study import accuracy, study
-from mazelab.experiments.record import package_version, program_versions
+from mazelab.experiments.journal import package_version, program_versions
 from mazelab.invocation import command_prefix, remember_arguments
 from mazelab.maze import DEFAULT_MAZE, MazeError, find_maze, load_maze
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS

@@ -28,8 +28,7 @@ from mazelab.declaration import Option, not_taken, parse_flag, scoped, show_valu
 from mazelab.experiments.runs import FINAL_SHARE, final_error
 from mazelab.experiments.study import declared_option
 from mazelab.experiments.study import options_per_filter as reaching
-from mazelab.experiments.tables import pyplot
-from mazelab.experiments.traces import check_trace_path
+from mazelab.experiments.tables import check_trace_path, pyplot
 from mazelab.invocation import command_prefix, repeat_command
 from mazelab.registry import SHIPPED, FilterEntry, entries, filter_entry, is_plugin_spec, resolve_filter
 from mazelab.robot import Robot

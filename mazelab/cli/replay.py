@@ -32,10 +32,16 @@ from mazelab.cli.options import (
     visualization,
 )
 from mazelab.declaration import show_value, to_plain_json
-from mazelab.experiments.record import Recorder, record_path
-from mazelab.experiments.runs import comparison_table, errors_csv, plot_errors, recovery_steps, run_figures
-from mazelab.experiments.traces import compare_traces, write_traces
-from mazelab.experiments.warmup import take_startup_seconds
+from mazelab.experiments.journal import Recorder, record_path
+from mazelab.experiments.runs import (
+    comparison_table,
+    errors_csv,
+    plot_errors,
+    recovery_steps,
+    run_figures,
+    take_startup_seconds,
+)
+from mazelab.experiments.tables import compare_traces, write_traces
 from mazelab.invocation import command_line
 from mazelab.maze import DEFAULT_MAZE, Maze, load_maze, mazes_fitting
 from mazelab.model import DEFAULT_STEPS

@@ -28,8 +28,7 @@ from mazelab.cli.options import (
     with_option_flags,
 )
 from mazelab.experiments import executor
-from mazelab.experiments.journal import Journal, journal_path, read_journal
-from mazelab.experiments.record import Recorder, differences, record_path
+from mazelab.experiments.journal import Journal, Recorder, differences, journal_path, read_journal, record_path
 from mazelab.experiments.runs import parse_filters
 from mazelab.experiments.study import RunFailure, options_per_filter
 from mazelab.experiments.tables import format_table, pyplot, records_csv, save_figure

@@ -1,6 +1,6 @@
 """`mazelab study` (lab step 14, docs/studies.md; its Python twin is `mazelab.study`) and `mazelab
 accuracy` (every filter against the exact grid posterior, mazelab.experiments.accuracy): the flags make
-the plan (mazelab.experiments.plan), the files are checked before any work (`StudyFiles`), the runs go to
+the plan (mazelab.experiments.api), the files are checked before any work (`StudyFiles`), the runs go to
 the executor, each finished run appended to the journal (mazelab.experiments.journal) from which an
 interrupted study goes on (--resume; accuracy by itself), and the report writes the table and the files."""
 
@@ -50,25 +50,34 @@ from mazelab.experiments.accuracy import (
     accuracy_summary,
     accuracy_table,
 )
-from mazelab.experiments.executor import DASK_TIMEOUT, check_workers, close_client, connect, run_study, study_backend
+from mazelab.experiments.api import StudyPlan, maze_description, plan_study, study_mazes
+from mazelab.experiments.executor import (
+    DASK_TIMEOUT,
+    StudyOutcome,
+    check_workers,
+    close_client,
+    connect,
+    run_study,
+    study_backend,
+)
 from mazelab.experiments.journal import (
     Journal,
     JournalError,
+    Recorder,
     claim_outputs,
     journal_parameters,
     journal_path,
     journal_state,
+    jsonable,
     left_over,
     read_journal,
+    record_path,
     resume_study,
 )
-from mazelab.experiments.plan import StudyPlan, maze_description, plan_study, study_mazes
-from mazelab.experiments.record import Recorder, jsonable, record_path
 from mazelab.experiments.runs import parse_filters
-from mazelab.experiments.study import MazeChoice, RunRecord, RunTask, StudyOutcome
+from mazelab.experiments.study import MazeChoice, RunRecord, RunTask
 from mazelab.experiments.summary import CSV_DTYPES, study_table, summarise_study, summary_csv, summary_path
-from mazelab.experiments.tables import records_csv
-from mazelab.experiments.traces import study_traces, write_traces
+from mazelab.experiments.tables import records_csv, study_traces, write_traces
 from mazelab.invocation import command_line, resume_command
 from mazelab.maze import DEFAULT_MAZE, LAB_MAZES
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS

@@ -12,10 +12,10 @@ import statistics
 from collections.abc import Sequence
 from typing import Any
 
-from mazelab.experiments.plan import StudyPlan, plan_study
-from mazelab.experiments.stats import bootstrap_interval, wilson_interval
+from mazelab.experiments.api import StudyPlan, plan_study
 from mazelab.experiments.study import REFERENCE, MazeChoice, RunRecord, option_cell
-from mazelab.experiments.tables import format_interval, format_optional, format_table, records_csv
+from mazelab.experiments.summary import bootstrap_interval, wilson_interval
+from mazelab.experiments.tables import format_interval, format_number, format_table, records_csv
 from mazelab.registry import filter_entry, is_plugin_spec, resolve_filter
 
 AccuracyFilter = tuple[str, Any, dict[str, Any]]  # (label, filter name or class, options)
@@ -132,7 +132,7 @@ def accuracy_table(records: Sequence[dict[str, Any]]) -> str:
             format_interval(*s["interval"]),
             f"{s['converged_share']:.0%}",
             format_interval(*s["converged_interval"], "{:.0%}"),
-            format_optional(s["median_convergence_step"], "{:g}"),
+            format_number(s["median_convergence_step"], "{:g}"),
         ]
         for s in accuracy_summary(records)
     ]

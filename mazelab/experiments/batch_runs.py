@@ -15,8 +15,8 @@ import numpy as np
 from mazelab.backend import backend_of
 from mazelab.collect import record_steps
 from mazelab.contract import check_filter
+from mazelab.experiments.runs import WARM_UP_SEED, WARM_UP_STEPS, options_key, warm_once, warm_up_options
 from mazelab.experiments.study import RunFailure, RunRecord, RunTask, run_records, run_task_safely
-from mazelab.experiments.warmup import WARM_UP_SEED, WARM_UP_STEPS, options_key, warm_once, warm_up_options
 from mazelab.maze import Maze
 from mazelab.registry import filter_entry
 from mazelab.robot import Robot
@@ -129,7 +129,7 @@ def warm_batch(
     z: np.ndarray, options: dict,
 ) -> None:  # fmt: skip
     """Before the batch's timed steps: the filter advancing one or two runs together (as the batch
-    will) for a few untimed steps, once per process, options and shape (mazelab.experiments.warmup);
+    will) for a few untimed steps, once per process, options and shape (mazelab.experiments.runs.warm_once);
     its random draws come from a stream of its own, its numbers are discarded."""
     r = min(2, len(tasks))
     s = tasks[0].setting

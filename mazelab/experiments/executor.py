@@ -18,6 +18,7 @@ runs is said in one line with what is left of it.
 from __future__ import annotations
 
 import ctypes
+import dataclasses
 import functools
 import logging
 import math
@@ -33,19 +34,93 @@ from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, CancelledError, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from contextlib import AbstractContextManager, contextmanager, suppress
+from dataclasses import dataclass, field
 from typing import Any
 
-from mazelab.backend import backend_for_work, cores, shared_threads, use_backend, use_threads
+from mazelab.backend import backend_for_work, chosen_backend, cores, shared_threads, use_backend, use_threads
 from mazelab.experiments.batch_runs import MAX_BATCH, run_unit_safely, study_units
-from mazelab.experiments.study import RunFailure, RunRecord, RunTask, StudyOutcome, run_task_safely
-from mazelab.experiments.warmup import WorkerReport, take_startup_seconds, worker_report
+from mazelab.experiments.journal import dependency_versions
+from mazelab.experiments.runs import take_startup_seconds
+from mazelab.experiments.study import RunFailure, RunRecord, RunTask, run_task_safely
 from mazelab.stops import STOP_SIGNALS, signal_handlers
 
-UnitOutcome = list[RunRecord] | RunFailure | WorkerReport
+REPORTED_PACKAGES = ("numpy", "numba", "llvmlite")  # the versions a worker reports with its backend
 MAX_POOL_RESTARTS = 3  # a pool whose workers die more often than this stops the study (rows kept)
 PR_SET_PDEATHSIG = 1  # linux/prctl.h: the signal a process gets when its parent dies
 WATCHDOG_SECONDS = 0.5
 
+
+# -- what a study produced, and what each process says of itself ----------------------------------------
+@dataclass
+class WorkerReport:
+    """What a process that ran a study's runs says of itself with its results: where it ran, its
+    backend and package versions (a study refuses workers that disagree), and the start-up it spent."""
+
+    worker: str  # host:pid
+    backend: str
+    packages: dict[str, str | None] = field(default_factory=dict)
+    startup_seconds: float = 0.0
+
+    def describe(self) -> str:
+        versions = ", ".join(f"{name} {v or 'none'}" for name, v in self.packages.items())
+        return f"{self.worker}: backend {self.backend} ({versions})"
+
+
+def worker_report(startup_seconds: float = 0.0) -> WorkerReport:
+    """This process's report (mazelab.backend.chosen_backend, the installed versions)."""
+    return WorkerReport(
+        f"{socket.gethostname()}:{os.getpid()}",
+        chosen_backend(),
+        dependency_versions(REPORTED_PACKAGES),
+        startup_seconds,
+    )
+
+
+@dataclass
+class StudyOutcome:
+    """What a study produced: a record per finished run and filter, the failed runs, and whether
+    the user interrupted it (then the records are the runs that finished before)."""
+
+    records: list[RunRecord] = field(default_factory=list)
+    failures: list[RunFailure] = field(default_factory=list)
+    interrupted: bool = False
+    stopped_by: int | None = None  # the signal that stopped it (2: Ctrl-C), None if it ran to the end
+    tasks: int = 0
+    lost: str | None = None  # why the study stopped early without a signal (a lost cluster or pool), one line
+    workers: dict[str, WorkerReport] = field(default_factory=dict)  # each process's report, start-up summed
+    backend: str = ""  # the one backend the study's runs ran on (mazelab.experiments.executor.study_backend)
+
+    def collector(self, on_records: Any = None) -> Any:
+        """The function that takes a unit's outcomes into this one, each run's records also handed to
+        `on_records` as they come (the study's journal appends them)."""
+
+        def collect(outcomes: list[list[RunRecord] | RunFailure | WorkerReport]) -> None:
+            for outcome in outcomes:
+                if isinstance(outcome, RunFailure):
+                    self.failures.append(outcome)
+                elif isinstance(outcome, WorkerReport):
+                    known = self.workers.setdefault(outcome.worker, dataclasses.replace(outcome, startup_seconds=0.0))
+                    known.startup_seconds += outcome.startup_seconds
+                else:
+                    self.records.extend(outcome)
+                    if on_records is not None:
+                        on_records(outcome)
+
+        return collect
+
+    @property
+    def startup_seconds(self) -> float:
+        """The start-up of every process that ran runs (numba's load, first-call warm-ups), summed."""
+        return sum(report.startup_seconds for report in self.workers.values())
+
+    def sort(self) -> None:
+        """Records in (setting, run, filter order) order, whatever order the workers finished in."""
+        order = {name: i for i, name in enumerate(dict.fromkeys(r.filter for r in self.records))}
+        self.records.sort(key=lambda r: (r.setting, r.run, order[r.filter]))
+        self.failures.sort(key=lambda f: (f.task.setting_index, f.task.run))
+
+
+UnitOutcome = list[RunRecord] | RunFailure | WorkerReport
 
 # -- an existing Dask cluster ---------------------------------------------------------------------------
 CONNECT_SECONDS = 3  # a scheduler that does not answer within this is reported unreachable
@@ -125,7 +200,7 @@ def quiet_distributed() -> None:
 
 
 def check_workers(client: Any, backend: str) -> list[WorkerReport]:
-    """Each Dask worker's report (mazelab.experiments.warmup), asked before any run: a worker that cannot
+    """Each Dask worker's report (`worker_report`), asked before any run: a worker that cannot
     run the study's `backend` (compiled without numba) or whose package versions differ from the
     others' would make rows that do not belong together, so it is refused in one line naming it."""
     try:
@@ -177,18 +252,14 @@ class StudyLost(RuntimeError):  # noqa: N818 (a state, as KeyboardInterrupt)
     str() is one line saying which; the finished runs are kept."""
 
 
-def study_work(tasks: Sequence[RunTask]) -> tuple[int, float]:
-    """What a study's filters do (mazelab.backend.backend_for_work): (the particles their steps move,
-    the calls of `step`, the runs of a setting advancing together, up to MAX_BATCH)."""
-    particle_steps = sum(t.setting.particles * t.steps * len(t.filters) for t in tasks)
-    runs = max((t.run for t in tasks), default=1)
-    return particle_steps, sum(t.steps * len(t.filters) for t in tasks) / min(runs, MAX_BATCH)
-
-
 def study_backend(tasks: Sequence[RunTask], processes: int) -> str:
     """The one backend of a study's runs: MAZELAB_BACKEND's (--backend sets it), else the compiled one
-    where its start-up in each of `processes` pays for the study's work, else numpy."""
-    return backend_for_work(*study_work(tasks), processes=max(1, min(processes, len(tasks))))
+    where its start-up in each of `processes` pays for the study's work (mazelab.backend.backend_for_work:
+    the particles the filters' steps move, and the calls of `step`, the runs of a setting advancing
+    together up to MAX_BATCH), else numpy."""
+    particle_steps = sum(t.setting.particles * t.steps * len(t.filters) for t in tasks)
+    calls = sum(t.steps * len(t.filters) for t in tasks) / min(max((t.run for t in tasks), default=1), MAX_BATCH)
+    return backend_for_work(particle_steps, calls, processes=max(1, min(processes, len(tasks))))
 
 
 def run_unit_timed(
@@ -323,19 +394,11 @@ class Units:
             handed = self._hand_out()
             here()
             while self.running or self.waiting:
-                if not handed:
-                    self._take(self._restart())
-                else:
-                    done, broken = self._wait()
-                    self._take(self._restart() if broken else done)
+                done, broken = self._wait() if handed else (set(), True)
+                self._take(self._restart() if broken else done)
                 handed = self._hand_out()
-        except StudyLost:
-            with signals_ignored():
-                self._take(self._finished())
-                self._end()
-            raise
-        except KeyboardInterrupt as stop:
-            if self.client is None and not isinstance(stop, StudyStopped):
+        except (StudyLost, KeyboardInterrupt) as stop:
+            if self.client is None and not isinstance(stop, (StudyLost, StudyStopped)):
                 try:  # the pool's workers ignore Ctrl-C and finish what they were handed
                     while self.running:
                         self._take(wait(self.running, timeout=0.2, return_when=FIRST_COMPLETED)[0])
@@ -392,8 +455,10 @@ class Units:
                 results = future.result()
             except BrokenProcessPool:
                 results = [RunFailure(task, "its worker process died (out of memory?)") for task in unit]
-            except (CancelledError, OSError) as error:  # the scheduler went away with it: not the run's fault
-                raise StudyLost(_lost(error)) from None
+            except CancelledError:  # the scheduler went away with it: not the run's fault
+                raise StudyLost("lost the Dask scheduler (it cancelled the runs not finished)") from None
+            except OSError as error:
+                raise StudyLost(f"lost the connection to the Dask cluster ({type(error).__name__})") from None
             except Exception as error:  # the unit itself raised on the worker (e.g. mazelab missing there)
                 where = "on the Dask cluster" if self.client is not None else "in a worker process"
                 results = [RunFailure(task, f"{where}: {type(error).__name__}: {error}") for task in unit]
@@ -406,7 +471,7 @@ class Units:
         self.restarts += 1
         if self.restarts > MAX_POOL_RESTARTS:
             raise StudyLost(f"worker processes died {self.restarts} times (killed, or out of memory?)")
-        finished = {f for f in self.running if f.done() and f.exception() is None}
+        finished = self._finished()
         for future in [f for f in self.running if f not in finished]:
             self.waiting.appendleft(self.running.pop(future))
         warnings.warn(
@@ -423,12 +488,6 @@ class Units:
             return
         with suppress(Exception):
             self.pool.shutdown(wait=False)
-
-
-def _lost(error: BaseException) -> str:
-    if isinstance(error, CancelledError):
-        return "lost the Dask scheduler (it cancelled the runs not finished)"
-    return f"lost the connection to the Dask cluster ({type(error).__name__})"
 
 
 def end_workers(pool: ProcessPoolExecutor) -> None:
@@ -520,24 +579,11 @@ def progress_bar(total: int, show: bool, what: str = "runs") -> Iterator[Callabl
         finally:
             print(f"{what} {done[0]}/{total} in {time.perf_counter() - started:.1f} s", file=sys.stderr, flush=True)
         return
+    from rich import progress as rich
     from rich.console import Console
-    from rich.progress import (
-        BarColumn,
-        MofNCompleteColumn,
-        Progress,
-        TextColumn,
-        TimeElapsedColumn,
-        TimeRemainingColumn,
-    )
 
-    columns = (
-        TextColumn(what),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeElapsedColumn(),
-        TextColumn("left"),
-        TimeRemainingColumn(),
-    )
-    with Progress(*columns, console=Console(stderr=True), transient=False) as bar:
+    columns = (rich.BarColumn(), rich.MofNCompleteColumn(), rich.TimeElapsedColumn(), rich.TextColumn("left"))
+    columns = (rich.TextColumn(what), *columns, rich.TimeRemainingColumn())
+    with rich.Progress(*columns, console=Console(stderr=True), transient=False) as bar:
         task = bar.add_task(what, total=total)
         yield lambda count=1: bar.advance(task, count)

@@ -11,18 +11,18 @@ the table compares like with like.
 
 from __future__ import annotations
 
-import math
-import statistics
 import sys
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
 
 import numpy as np
 
 from mazelab.experiments.executor import run_study
 from mazelab.experiments.study import MazeChoice, RunRecord, RunTask, StudySetting
+from mazelab.experiments.summary import recovery_summary
+from mazelab.experiments.tables import format_number, format_table
 from mazelab.maze import Maze
 from mazelab.model import CONVERGENCE_RADIUS
+from mazelab.registry import described
 
 RECOVERY_VARIANTS = {"none": None, "augmented": "augmented", "sensor": "sensor"}  # table label -> recovery=
 
@@ -54,23 +54,14 @@ def localised_before(record: RunRecord) -> bool:
     return bool(k and k > 1 and np.hypot(*(trace["estimate"][k - 2] - trace["true"][k - 2])) < CONVERGENCE_RADIUS)
 
 
-@dataclass(frozen=True)
-class RecoveryRow:
-    """One line of the recovery table: a filter and a recovery variant over `runs` seeded trials."""
-
-    filter_name: str
-    variant: str
-    runs: int
-    localised_before: float  # share of runs localised just before the kidnapping
-    relocalised: float  # share of runs re-localised at the end
-    median_steps_to_recover: float  # over the runs that recovered; NaN if none did
-    mean_particle_count: float
+RECOVERY_HEADERS = ["filter", "recovery", "runs", "localised before", "re-localised", "median steps to recover"]
 
 
-def recovery_table(world: Maze, filters: Sequence[str] = ("sir", "apf", "rpf"), **trials: object) -> list[RecoveryRow]:
-    """The recovery trials (`recovery_records`, with `trials` its other arguments), summarised per filter and
-    variant: the share localised before the kidnapping and re-localised at the end, the median steps to
-    recover over the runs that recovered, the mean particle count."""
+def recovery_table(world: Maze, filters: Sequence[str] = ("sir", "apf", "rpf"), **trials: object) -> str:
+    """The recovery trials (`recovery_records`, with `trials` its other arguments) as a table, a row per
+    filter (its registry label) and variant: the share of the runs localised before the kidnapping and
+    re-localised at the end, the median steps to recover over the runs that recovered ('-': none did;
+    mazelab.experiments.summary.recovery_summary), the mean particle count."""
     groups: dict[tuple[str, str], list[RunRecord]] = {}
     for record in recovery_records(world, filters, **trials):  # type: ignore[arg-type]
         groups.setdefault((record.filter, record.options["recovery"]), []).append(record)
@@ -78,33 +69,11 @@ def recovery_table(world: Maze, filters: Sequence[str] = ("sir", "apf", "rpf"), 
     rows = []
     for name, variant in sorted(groups, key=lambda key: (names.index(key[0]), variants.index(key[1]))):
         group = groups[name, variant]
-        recovered = [r.steps_to_recover for r in group if r.steps_to_recover is not None]
-        rows.append(
-            RecoveryRow(
-                filter_name=name,
-                variant=variant,
-                runs=len(group),
-                localised_before=float(np.mean([localised_before(r) for r in group])),
-                relocalised=float(np.mean([bool(r.relocalised) for r in group])),
-                median_steps_to_recover=float(statistics.median(recovered)) if recovered else math.nan,
-                mean_particle_count=float(np.mean([r.mean_particle_count for r in group])),
-            )
-        )
-    return rows
-
-
-def format_recovery_table(rows: Iterable[RecoveryRow]) -> str:
-    """The table as aligned text, one row per filter and variant."""
-    lines = [
-        f"{'filter':<26} {'recovery':<10} {'runs':>4} {'localised before':>16} {'re-localised':>12} "
-        f"{'median steps to recover':>23} {'mean N':>7}"
-    ]
-    for row in rows:
-        lines.append(
-            f"{row.filter_name:<26} {row.variant:<10} {row.runs:>4} {row.localised_before:>16.0%} "
-            f"{row.relocalised:>12.0%} {row.median_steps_to_recover:>23.1f} {row.mean_particle_count:>7.0f}"
-        )
-    return "\n".join(lines)
+        relocalised, steps = recovery_summary(group)
+        before, count = np.mean([localised_before(r) for r in group]), np.mean([r.mean_particle_count for r in group])
+        rows.append([described(name).label, variant, str(len(group)), f"{before:.0%}", f"{relocalised:.0%}",
+                     format_number(steps, "{:g}"), f"{count:.0f}"])  # fmt: skip
+    return format_table([*RECOVERY_HEADERS, "mean N"], rows)
 
 
 if __name__ == "__main__":
@@ -112,4 +81,4 @@ if __name__ == "__main__":
 
     maze = load_maze("maze_10x10")
     count = int(sys.argv[1]) if len(sys.argv) > 1 else 40
-    print(format_recovery_table(recovery_table(maze, runs=count, workers=2)))
+    print(recovery_table(maze, runs=count, workers=2))

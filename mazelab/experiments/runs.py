@@ -17,20 +17,22 @@ from __future__ import annotations
 
 import contextlib
 import math
-from collections.abc import Mapping, Sequence
+import time
+import warnings
+from collections.abc import Callable, Hashable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from mazelab.backend import backend_by_work
-from mazelab.declaration import options_for
+from mazelab.backend import backend_by_work, chosen_backend
+from mazelab.declaration import options_for, options_of
 from mazelab.experiments.tables import format_number, format_table, pyplot, records_csv, save_figure
-from mazelab.experiments.warmup import warm_up_filters
 from mazelab.maze import Maze
 from mazelab.model import CONVERGENCE_RADIUS, DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
 from mazelab.registry import described, filter_entry, resolve_filter, rgb
 from mazelab.robot import Robot
+from mazelab.seeding import start_place
 from mazelab.simulation import RunResult, convergence_step, simulate
 from mazelab.viz.views import open_comparison
 
@@ -102,6 +104,85 @@ def filter_key(name: str) -> str:
     return entry.reference if entry.plugin is not None else entry.name
 
 
+# -- start-up apart from the time per step --------------------------------------------------------
+# The one-off costs of a process (importing numba and loading the compiled kernels, numpy's and the
+# filters' first calls, lazily imported modules) are paid before any timed step, so that a filter's ms/step
+# is the same whichever order the filters run in and whether or not it is the first run of a worker. Each
+# filter is warmed once per process, backend and set of options (a different option can reach different
+# kernels), by a few untimed steps on a walk of its own (its numbers are thrown away; no seed of the study
+# is drawn from). The time spent is kept as the process's start-up (`take_startup_seconds`), which the
+# study and compare report apart, once. A maze's nearest-station table is built before the timed steps too
+# (`Maze.prepare`): a run on a new maze (a generated one) would otherwise charge it to the first step.
+WARM_UP_STEPS = 3  # untimed steps per filter: the first loads the kernels, the next ones reach the resampling
+# (a filter that resamples when N_eff < threshold N is warmed again with threshold 1, which resamples at once)
+WARM_UP_SEED = 0  # the warm-up walk's seed (its numbers are discarded)
+
+_warmed: set[Hashable] = set()  # what this process has warmed: (filter, backend, options, shape)
+_startup_seconds = [0.0]  # start-up spent in this process and not yet reported
+
+
+def warm_once(key: Hashable, warm: Callable[[], Any]) -> None:
+    """Run `warm()` the first time this process sees `key` (with the chosen backend), its time kept
+    as start-up; the warnings it raises are dropped (the study or compare shows its own)."""
+    key = (key, chosen_backend())
+    if key in _warmed:
+        return
+    started = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        warm()
+    _warmed.add(key)
+    _startup_seconds[0] += time.perf_counter() - started
+
+
+def options_key(filter_class: type, options: Mapping[str, Any]) -> str:
+    """A filter's options as part of a warm-up key: those that differ from their declared default (a
+    filter given its defaults runs the same code as one given nothing)."""
+    declared = options_of(filter_class)
+    return repr(sorted((k, v) for k, v in options.items() if k not in declared or declared[k].default != v))
+
+
+def warm_up_options(filter_class: type, options: Mapping[str, Any]) -> list[dict[str, Any]]:
+    """The options to warm a filter with: its own, and, for one that resamples only when N_eff falls below
+    threshold N (the RPF's 0.2 N: a few steps may not reach it), the same with threshold 1, so that its
+    resampling's code (the RPF's covariance and jitter) is loaded before the timed steps too."""
+    declared = options_of(filter_class).get("threshold")
+    own = dict(options)
+    if declared is None or own.get("threshold", declared.default) >= 1:
+        return [own]
+    return [own, {**own, "threshold": 1.0}]
+
+
+def warm_up_filters(
+    world: Maze,
+    sigma: float,
+    delta: float,
+    filter_names: Sequence[str],
+    particle_count: int | None,
+    options: Mapping[str, Mapping[str, Any]],
+) -> None:
+    """Before a run's timed steps: the maze's table built, and each filter (with its options) warmed
+    once per process by WARM_UP_STEPS steps on a walk of its own (mazelab.simulation.simulate)."""
+    world.prepare()
+    for name in filter_names:
+        own = dict(options.get(name, {}))
+        filter_class = resolve_filter(name)
+
+        def warm(name: str = name, filter_class: type = filter_class, own: dict[str, Any] = own) -> None:
+            for warmed in warm_up_options(filter_class, own):
+                robot = Robot(sigma, delta, start_place(world, WARM_UP_SEED))
+                simulate(robot, world, sigma, delta, particle_count, WARM_UP_STEPS, None, name, seed=WARM_UP_SEED,
+                         **warmed)  # fmt: skip
+
+        warm_once(("single", filter_class, options_key(filter_class, own)), warm)
+
+
+def take_startup_seconds() -> float:
+    """The start-up this process spent since it was last taken (then 0 until more is spent)."""
+    seconds, _startup_seconds[0] = _startup_seconds[0], 0.0
+    return seconds
+
+
 # -- several filters on one scenario ---------------------------------------------------------------
 def is_particle_filter(filter_name: str) -> bool:
     """Whether a filter is a sample of particles (its registry entry says it takes a particle count)."""
@@ -130,7 +211,7 @@ def run_filters(
     place drawn from `seed`) included. Each filter's random draws come from `seed`, and with
     `visualize` the runs are drawn side by side in one recording (open_comparison). `options` maps a
     filter's name (as in `filter_names`) to its own options. Before the first timed step, each filter is
-    warmed once per process (mazelab.experiments.warmup): a filter's time per step is the same in any order.
+    warmed once per process (`warm_up_filters`): a filter's time per step is the same in any order.
     """
     count = particle_count if particles is None else len(particles)
     total = steps or robot.recorded_steps or DEFAULT_STEPS

@@ -19,7 +19,7 @@ import numpy as np
 
 from mazelab.declaration import Option, not_taken, options_for, options_of, scoped, show_value
 from mazelab.experiments.runs import run_figures, run_filters
-from mazelab.experiments.warmup import WorkerReport
+from mazelab.experiments.tables import trace_of
 from mazelab.maze import STATION_WALL, Maze
 from mazelab.maze_generator import DEFAULT_WALL_SHARE, generate_maze
 from mazelab.model import check_model_parameters
@@ -324,15 +324,13 @@ def study_tasks(
 ) -> list[RunTask]:
     """One task per setting and run, in order, each with the filters that setting runs
     (`filters_per_setting`; a setting that runs none has no tasks). `traces` keeps each run's per-step
-    trace (mazelab.experiments.traces); `reference` ("grid") measures each filter against the exact
+    trace (mazelab.experiments.tables); `reference` ("grid") measures each filter against the exact
     posterior (`with_reference`); `plugins` the code of the plug-ins among the filters
     (mazelab.registry.PluginCode), sent with every run."""
     if runs < 1 or steps < 1:
         raise ValueError(f"runs and steps must be >= 1, got {runs} runs and {steps} steps")
     if kidnap_at is not None and not 1 <= kidnap_at <= steps:
         raise ValueError(f"kidnap_at must be a step from 1 to {steps}, got {kidnap_at}")
-    if reference not in (None, REFERENCE):
-        raise ValueError(f"reference must be {REFERENCE!r} (the exact grid filter), got {reference!r}")
     seeds = study_seeds(root_seed, runs)
     chosen = zip(settings, filters_per_setting(settings, filters), strict=True)
     return [
@@ -382,7 +380,7 @@ class RunRecord:
     # every option the filter ran with (`StudySetting.filter_values`) as cells (`option_cell`), by name:
     # a column each, after these; an option the filter does not declare has no key (an empty cell)
     options: dict[str, Any] = field(default_factory=dict)
-    # Not a column: with RunTask.traces, the filter's per-step arrays (mazelab.experiments.traces)
+    # Not a column: with RunTask.traces, the filter's per-step arrays (mazelab.experiments.tables)
     trace: ClassVar[dict[str, Any] | None] = None
 
     def to_json(self) -> dict[str, Any]:
@@ -531,72 +529,9 @@ def option_cell(value: Any) -> Any:
     return value if plain else show_value(value)
 
 
-def trace_of(result: RunResult) -> dict[str, Any]:
-    """A run's per-step arrays: true position, estimate, ESS, confidence, step time, particle count,
-    log evidence so far, and the filter's own diagnostics by name (mazelab.collect: the RPF's `regularised`, recovery's
-    `injection_probability`)."""
-    return {
-        "true": result.true_positions,
-        "estimate": result.estimates,
-        "ess": result.ess,
-        "confident": result.confident,
-        "step_seconds": result.step_seconds,
-        "particle_count": result.extras.get("particle_count", np.full(len(result.ess), -1)),
-        "log_evidence": np.full(len(result.ess), np.nan) if result.log_evidence is None else result.log_evidence,
-        "diagnostics": result.extras.get("diagnostics", {}),
-    }
-
-
 def run_task_safely(task: RunTask, visualize: Any = False) -> list[RunRecord] | RunFailure:
     """`run_task`, with an exception turned into a RunFailure so that the other runs go on."""
     try:
         return run_task(task, visualize)
     except Exception as error:
         return RunFailure(task, f"{type(error).__name__}: {error}")
-
-
-@dataclass
-class StudyOutcome:
-    """What a study produced: a record per finished run and filter, the failed runs, and whether
-    the user interrupted it (then the records are the runs that finished before)."""
-
-    records: list[RunRecord] = field(default_factory=list)
-    failures: list[RunFailure] = field(default_factory=list)
-    interrupted: bool = False
-    stopped_by: int | None = None  # the signal that stopped it (2: Ctrl-C), None if it ran to the end
-    tasks: int = 0
-    lost: str | None = None  # why the study stopped early without a signal (a lost cluster or pool), one line
-    workers: dict[str, WorkerReport] = field(default_factory=dict)  # each process's report, start-up summed
-    backend: str = ""  # the one backend the study's runs ran on (mazelab.experiments.executor.study_backend)
-
-    def collector(self, on_records: Any = None) -> Any:
-        """The function that takes a unit's outcomes into this one, each run's records also handed to
-        `on_records` as they come (the study's journal appends them)."""
-
-        def collect(results: list) -> None:
-            for result in results:
-                self.add(result)
-                if on_records is not None and isinstance(result, list):
-                    on_records(result)
-
-        return collect
-
-    def add(self, outcome: list[RunRecord] | RunFailure | WorkerReport) -> None:
-        if isinstance(outcome, RunFailure):
-            self.failures.append(outcome)
-        elif isinstance(outcome, WorkerReport):
-            known = self.workers.setdefault(outcome.worker, dataclasses.replace(outcome, startup_seconds=0.0))
-            known.startup_seconds += outcome.startup_seconds
-        else:
-            self.records.extend(outcome)
-
-    @property
-    def startup_seconds(self) -> float:
-        """The start-up of every process that ran runs (numba's load, first-call warm-ups), summed."""
-        return sum(report.startup_seconds for report in self.workers.values())
-
-    def sort(self) -> None:
-        """Records in (setting, run, filter order) order, whatever order the workers finished in."""
-        order = {name: i for i, name in enumerate(dict.fromkeys(r.filter for r in self.records))}
-        self.records.sort(key=lambda r: (r.setting, r.run, order[r.filter]))
-        self.failures.sort(key=lambda f: (f.task.setting_index, f.task.run))

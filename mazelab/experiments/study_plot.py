@@ -31,9 +31,8 @@ import numpy as np
 
 from mazelab.declaration import show_value
 from mazelab.experiments.runs import FINAL_SHARE, LINE_STYLES, MARKERS
-from mazelab.experiments.stats import CONFIDENCE_LEVEL
 from mazelab.experiments.study import MODEL_PARAMETERS, declared_option, hashable, is_option_parameter, takes_parameter
-from mazelab.experiments.summary import StudySummary
+from mazelab.experiments.summary import CONFIDENCE_LEVEL, StudySummary
 from mazelab.experiments.tables import pyplot, save_figure
 from mazelab.registry import described, rgb
 
