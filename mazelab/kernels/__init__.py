@@ -18,8 +18,8 @@ runs. numba's threads come from Intel's TBB where it is installed, else numba's 
 same values). A kernel's arrays never overlap (each output is a new array), and the compiler is told
 so (`_NoAliasCompiler`): only then does it vectorise the loops that gather.
 
-Importing this package imports numba, and a process's first kernel call sets numba's compiler up even
-when the kernel comes from the cache (about 0.35 s of CPU); a command whose work does not pay that back
+Importing this package imports numba, and a process's first kernel call sets numba's runtime up (a
+kernel loaded from the cache: some 0.2 s of CPU in all, with the import); a command whose work does not pay that back
 runs on numpy (mazelab.backend.backend_for_work). Each kernel is compiled on its first call and cached
 on disk where a cache folder can be written (`_compiled`, `_MendingCache`).
 """
@@ -40,6 +40,7 @@ from typing import Any
 import numba
 from numba.core.caching import FunctionCache, IndexDataCacheFile
 from numba.core.compiler import Compiler
+from numba.core.runtime import rtsys
 
 CHUNK = 4096  # particles a chunk: what a thread takes at a time, and what fixes the draws' and the sums' order
 
@@ -104,8 +105,12 @@ class _MendingCache(FunctionCache):
         self._cache_file = IndexDataCacheFile(self._cache_path, self._impl.filename_base + variant, stamp)
 
     def load_overload(self, sig: Any, target_context: Any) -> Any:
+        """The cached kernel, with numba's runtime (NRT) set up first, but not the compiler's registries
+        numba refreshes before each load (some 0.15 s of imports a process: machine code loaded from the
+        cache runs without them; a kernel compiled after all sets them up itself)."""
         try:
-            return super().load_overload(sig, target_context)
+            rtsys.initialize(target_context)
+            return self._load_overload(sig, target_context)
         except Exception:  # a damaged index or data file: pickle, EOF, value errors; compile again
             self._drop_index()
             return None
