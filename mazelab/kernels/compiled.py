@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from mazelab.constants import CONFIDENCE_RADIUS, PARTICLE_DTYPE
-from mazelab.kernels import CHUNK, model, resampling, weights
+from mazelab.kernels import model, resampling, weights
 from mazelab.numpy_ops import NumpyKernels
 from mazelab.regularisation import GaussianKernel
 from mazelab.smc import new_particles, particles_array
@@ -26,6 +26,7 @@ from mazelab.weights import Weights, log_sum_exp, read_only
 # particles in a call from which it runs on the threads (benchmarks/threads.py, docs/speed.md): a pass over
 # fewer takes under 0.1 ms, where a second thread's start (TBB: microseconds) and the Python around it count
 THREADED_FROM = 1 << 16
+EVERY_RUN = np.empty(0, dtype=bool)  # the move's `moving` when every run draws (model.move)
 QUADS = 4  # the candidates of a lookup cell the likelihood's vectorised loop reads (a few cells have more)
 
 
@@ -40,10 +41,10 @@ def unsigned(indices: np.ndarray) -> np.ndarray:
     return indices.view(f"u{indices.itemsize}")
 
 
-def columns(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The x and y coordinates of (R, N, 2) particles, (R*N,) each (views in their layout: smc.particles_array)."""
-    points = np.asfortranarray(x.reshape(-1, 2))
-    return points[:, 0], points[:, 1]
+def planes(x: np.ndarray) -> np.ndarray:
+    """(R, N, 2) particles as the (2, R*N) array the kernels read: the x coordinates, then the y ones (a
+    view of particles in their layout: smc.particles_array)."""
+    return np.asfortranarray(x.reshape(-1, 2)).T
 
 
 def keys_of(rngs: Any) -> np.ndarray:
@@ -108,10 +109,9 @@ class CompiledWeights(Weights):
         if x is None or x.dtype != PARTICLE_DTYPE or x.shape[:2] != log_w.shape:
             totals = np.atleast_1d(log_sum_exp(log_w))
             return cls(log_w, totals)
-        w, reads, jobs = np.empty((runs, count), dtype=np.float32), np.empty((5, runs)), runs * -(-count // CHUNK)
-        lanes, scales = np.empty((jobs, 5, weights.LANES)), np.empty(jobs)
-        weights.normalise(on_threads(cls.threads, log_w.size), log_w, *(added or (None, None, None)), *columns(x),
-                          CONFIDENCE_RADIUS, w, reads, lanes, scales)  # fmt: skip
+        w, reads = np.empty((runs, count), dtype=np.float32), np.empty((5, runs))
+        weights.normalise(on_threads(cls.threads, log_w.size), log_w, *(added or (None, None, None)), planes(x),
+                          CONFIDENCE_RADIUS, w, reads)  # fmt: skip
         return cls(log_w, reads[0], w, (x, reads[3], reads[1:3].T, reads[4]))
 
     @classmethod
@@ -176,19 +176,9 @@ class CompiledKernels(NumpyKernels):
         shape = x.shape[:2] if A is None else A.shape
         out, headings = new_particles(*shape, PARTICLE_DTYPE), np.empty(shape, dtype=PARTICLE_DTYPE)
         sources = np.empty((len(x), 0), np.uint64) if A is None else unsigned(A)
-        moving = np.array([rng is not None for rng in rngs])
-        model.move(
-            on_threads(self.threads, headings.size),
-            *columns(x),
-            sources,
-            keys_of(rngs),
-            moving,
-            angles.astype(PARTICLE_DTYPE, copy=False),
-            float(delta),
-            float(speed),
-            *columns(out),
-            headings,
-        )
+        moving = np.array([rng is not None for rng in rngs]) if None in rngs else EVERY_RUN
+        threads = on_threads(self.threads, headings.size)
+        model.move(threads, planes(x), sources, keys_of(rngs), moving, angles, delta, speed, planes(out), headings)
         return out, headings
 
     def log_likelihood(
@@ -198,10 +188,10 @@ class CompiledKernels(NumpyKernels):
         path's values to the bit)."""
         if x.dtype != PARTICLE_DTYPE or world is not self._tables_of:
             return super().log_likelihood(z, x, world, sigma, outside_penalty)
-        out, left = np.empty(x.shape[:2], dtype=PARTICLE_DTYPE), np.empty(x.shape[0] * x.shape[1], self.tables[4].dtype)
+        out = np.empty(x.shape[:2], dtype=PARTICLE_DTYPE)
         norm = math.log(sigma * math.sqrt(2 * math.pi))
         terms = (float(sigma), -norm, math.log(outside_penalty) - norm, self.tables)
-        model.log_likelihood(on_threads(self.threads, out.size), *columns(x), z, *terms, out, left)
+        model.log_likelihood(on_threads(self.threads, out.size), planes(x), z, *terms, out)
         return out
 
     def systematic(self, W: np.ndarray, rng: Any, count: int | None = None) -> np.ndarray:
@@ -233,7 +223,7 @@ class CompiledKernels(NumpyKernels):
         if x.dtype != PARTICLE_DTYPE:
             return super().weighted_covariance(W, x)
         out = np.empty((len(W), 2, 2))
-        weights.covariance(on_threads(self.threads, W.size), W, *columns(x), out)
+        weights.covariance(on_threads(self.threads, W.size), W, planes(x), out)
         return out
 
     def second_stage(self, log_lik: np.ndarray, log_mu: np.ndarray, A: np.ndarray) -> np.ndarray:
@@ -259,7 +249,7 @@ class CompiledKernels(NumpyKernels):
         moved = new_particles(len(rows), A.shape[1], PARTICLE_DTYPE)
         sources = unsigned((A[rows] + (rows * x.shape[1])[:, None]).reshape(-1))
         keys = keys_of([rngs[r] for r in rows])
-        model.jitter(on_threads(self.threads, sources.size), *columns(x), sources, keys, scales, *columns(moved))
+        model.jitter(on_threads(self.threads, sources.size), planes(x), sources, keys, scales, planes(moved))
         if len(rows) == len(x):
             return moved
         out = particles_array(x, x.dtype)
