@@ -1,27 +1,21 @@
 """Compiled kernels (numba, the `fast` extra) for the hot parts of the particle filters: the model's
-equations (mazelab.kernels.model: the move with its draws, the nearest station and the likelihood,
-the RPF's jitter), the resampler (mazelab.kernels.resampling: systematic resampling by blocks) and the
-weights (mazelab.kernels.weights: the normalisation with the step's reads in two passes, the
-covariance). mazelab.kernels.compiled.CompiledKernels calls them for a filter (the model and the
-weights value call it or the numpy functions, whichever backend runs: mazelab.backend). Each takes R
-runs in one call and works on float32 particles, in the numpy path's float32 arithmetic where it has
-some; cos, sin and exp are polynomials the compiler vectorises (mazelab.kernels.vector_math).
+equations (mazelab.kernels.model), the resampler (mazelab.kernels.resampling) and the weights
+(mazelab.kernels.weights), which mazelab.kernels.compiled.CompiledKernels calls for a filter
+(mazelab.backend chooses it or numpy's). Each takes R runs in one call and works on float32 particles,
+in the numpy path's float32 arithmetic where it has some; cos, sin and exp are polynomials the
+compiler vectorises (mazelab.kernels.vector_math).
 
-Threads: every kernel is one body over chunks of CHUNK particles (a run's particles split in order;
-a chunk never spans two runs), compiled twice: the chunks in order on the calling thread, and the
-chunks spread over numba's threads (`parallel=True`, its `prange`). The chunks, not the threads, fix
-everything a result depends on: the random draws (a stream per run and call, numbered by particle:
-vector_math.random_bits) and the order of every sum (partial sums per chunk, added in chunk order),
-so a seed gives the same run bit for bit on any number of threads, and R runs together are R single
-runs. numba's threads come from Intel's TBB where it is installed, else numba's workqueue
-(`threading_layer`); a kernel called while another thread's runs on them runs in order instead (the
-same values). A kernel's arrays never overlap (each output is a new array), and the compiler is told
-so (`_NoAliasCompiler`): only then does it vectorise the loops that gather.
+Threads: every kernel is one body over chunks of CHUNK particles (a run's particles split in order; a
+chunk never spans two runs), compiled to run them in order and over numba's threads (`Kernel`,
+`threading_layer`). The chunks, not the threads, fix everything a result depends on: the random draws
+(a stream per run and call, numbered by particle: vector_math.random_bits) and the order of every sum
+(partial sums per chunk, added in chunk order), so a seed gives the same run bit for bit on any number
+of threads, and R runs together are R single runs.
 
 Importing this package imports numba, and a process's first kernel call sets numba's runtime up (a
-kernel loaded from the cache: some 0.2 s of CPU in all, with the import); a command whose work does not pay that back
-runs on numpy (mazelab.backend.backend_for_work). Each kernel is compiled on its first call and cached
-on disk where a cache folder can be written (`_compiled`, `_MendingCache`).
+kernel loaded from the cache: some 0.2 s of CPU in all, with the import); a command whose work does not
+pay that back runs on numpy (mazelab.backend.backend_for_work). Each kernel is compiled on its first
+call and cached on disk where a cache folder can be written (`_compiled`, `_MendingCache`).
 """
 
 from __future__ import annotations

@@ -69,17 +69,9 @@ def lookup_tables(world: Any) -> tuple:
     width = 2 * (candidates.shape[1] - QUADS)
     codes = (lookup.kind & 1).astype(np.uint64)
     codes[more] += 2 + 4 * width * np.arange(len(more), dtype=np.uint64)
-    return (
-        float(lookup.scale),
-        float(lookup.offset),
-        int(lookup.nx),
-        int(lookup.ny),
-        codes.astype(np.uint32 if codes.max(initial=0) < 2**32 else np.uint64),
-        quads,
-        rows,
-        width,
-        xy[lookup._border],
-    )
+    codes = codes.astype(np.uint32 if codes.max(initial=0) < 2**32 else np.uint64)
+    grid = float(lookup.scale), float(lookup.offset), int(lookup.nx), int(lookup.ny)
+    return (*grid, codes, quads, rows, width, xy[lookup._border])
 
 
 class CompiledWeights(Weights):

@@ -125,12 +125,11 @@ def normalise(log_w, log_a, shifts, log_g, xy, radius, w, reads):  # pragma: no 
     the likelihood (log W_{k-1} = log a - shift, the Weights value's derivation, never stored).
 
     xy (2, R*N) holds the particles' float32 coordinates (x's row, then y's; run r's the columns r*N..
-    (r+1)*N); `radius` the
-    green circle's (map units); W = w / sum(w) is written into `w` (R, N) float32, and into `reads` (5,
-    R) float64, one row each: log sum_j w_j; the mean sum_i W_i x_i (x and y); the ESS 1 / sum_i W_i^2;
-    the weight of the particles at most `radius` from the run's mean (float32 distances, as
-    mazelab.weights.mass_within). A run that cannot be normalised (top -inf or NaN) gets its top as
-    total and NaN reads."""
+    (r+1)*N); `radius` the green circle's (map units); W = w / sum(w) is written into `w` (R, N)
+    float32, and into `reads` (5, R) float64, one row each: log sum_j w_j; the mean sum_i W_i x_i (x and
+    y); the ESS 1 / sum_i W_i^2; the weight of the particles at most `radius` from the run's mean
+    (float32 distances, as mazelab.weights.mass_within). A run that cannot be normalised (top -inf or
+    NaN) gets its top as total and NaN reads."""
     runs, size = log_w.shape
     blocks, jobs = chunks(runs, size)
     x, y, lanes, scales = xy[0], xy[1], np.empty((jobs, 5, LANES)), np.empty(jobs)  # each chunk's sums and top
