@@ -84,13 +84,11 @@ class CompiledWeights(Weights):
     threads = 1  # the threads of a large normalisation (`on_threads`): each filter's subclass sets its own
 
     def __init__(self, log_w: np.ndarray, log_total: np.ndarray, W: np.ndarray | None = None, reads: Any = None):
-        log_w.flags.writeable = log_total.flags.writeable = False
-        self.log_w, self.log_total, self.reads = log_w, log_total, reads
+        self.log_w, self.log_total, self.reads = read_only(log_w), read_only(log_total), reads
         if W is not None:
             self.__dict__["W"] = read_only(W)
         if reads is not None:
-            self.__dict__["ess"] = reads[1]  # a row of the reads, read-only with them
-            reads[1].base.flags.writeable = False
+            self.__dict__["ess"] = reads[1]  # a row of the reads (from_log's, read-only)
 
     @classmethod
     def from_log(cls, log_w: np.ndarray, x: np.ndarray | None = None, added: tuple | None = None) -> CompiledWeights:
@@ -104,6 +102,7 @@ class CompiledWeights(Weights):
         w, reads = np.empty((runs, count), dtype=np.float32), np.empty((5, runs))
         weights.normalise(on_threads(cls.threads, log_w.size), log_w, *(added or (None, None, None)), planes(x),
                           CONFIDENCE_RADIUS, w, reads)  # fmt: skip
+        reads.flags.writeable = False  # and the rows taken below, the log totals and the ESS with them
         return cls(log_w, reads[0], w, (x, reads[3], reads[1:3].T, reads[4]))
 
     @classmethod
