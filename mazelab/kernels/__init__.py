@@ -37,6 +37,9 @@ from numba.core.compiler import Compiler
 from numba.core.runtime import rtsys
 
 CHUNK = 4096  # particles a chunk: what a thread takes at a time, and what fixes the draws' and the sums' order
+# particles in a call from which it runs on the threads (benchmarks/threads.py, docs/speed.md): a pass over
+# fewer takes under 0.1 ms, where a second thread's start (TBB: microseconds) and the Python around it count
+THREADED_FROM = 1 << 16
 
 
 def threading_layer() -> str:
@@ -177,9 +180,10 @@ class Kernel:
         self.serial = _compiled(function)
         self.parallel = _compiled(function, "-threads", parallel=True)
 
-    def __call__(self, threads: int, *args: Any) -> Any:
-        """The kernel on `threads` threads (1: in order here; numba's threads when they are free)."""
-        if threads > 1 and _LAUNCH.acquire(blocking=False):
+    def __call__(self, threads: int, particles: int, *args: Any) -> Any:
+        """The kernel over `particles` particles on `threads` threads: in order here on one thread or below
+        THREADED_FROM particles, else on numba's threads when they are free."""
+        if threads > 1 and particles >= THREADED_FROM and _LAUNCH.acquire(blocking=False):
             try:
                 numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
                 numba.set_parallel_chunksize(1)  # each chunk a task of its own: a free thread takes the next
