@@ -159,9 +159,12 @@ def log_likelihood(xy, z, sigma, free_term, outside_term, tables, out):  # pragm
         r, start, stop = chunk_of(job, blocks, size)
         zr, first, last, values = F32(z[r]), r * size + start, r * size + stop, out[r, start:stop]
         xs, ys, open_ = x[first:last], y[first:last], left[first:last]
+        opened = 0  # any point left open in the chunk
         for m in range(stop - start):
-            values[m], open_[m] = _log_likelihood_of_four(xs[m], ys[m], zr, sigma, free_term, outside_term, typed)
-        for m in range(stop - start):
+            value, code = _log_likelihood_of_four(xs[m], ys[m], zr, sigma, free_term, outside_term, typed)
+            values[m], open_[m] = value, code
+            opened |= code
+        for m in range(stop - start if opened else 0):
             if open_[m]:
                 values[m] = _close(xs[m], ys[m], values[m], open_[m], zr, sigma, free_term, outside_term, typed)
 
