@@ -20,7 +20,7 @@ import numpy as np
 from numba import prange
 
 from mazelab.kernels import Kernel, chunk_of, chunks, inline
-from mazelab.kernels.vector_math import cos_sin, random_bits, uniform32, uniform64
+from mazelab.kernels.vector_math import cos_sin, log64, random_bits, uniform32, uniform64
 
 F32 = np.float32
 _FREE, _MORE = 1, 2  # the low bits of a lookup cell's code (mazelab.kernels.compiled.lookup_tables)
@@ -175,7 +175,8 @@ def jitter(xy, ancestors, keys, scales, out):  # pragma: no cover - compiled
     (float32 coordinates (2, R*N) and (2, D*M), x's row then y's; `ancestors` (D*M,) uint64), h D_d =
     [[a, 0], [c, d]] from scales[d] = (a, c, d) (D, 3), eps_i ~ N(0, I_2) by Box and Muller's transform
     of two float64 uniforms, numbers 2m and 2m + 1 of the stream keys[d] (uint64 (D,)), so the points do
-    not depend on the threads."""
+    not depend on the threads (the log, and the cos and sin of the angle rounded to float32, are
+    vector_math's, so that the loop vectorises)."""
     runs, x, y, out_x, out_y = scales.shape[0], xy[0], xy[1], out[0], out[1]
     size = len(ancestors) // runs
     blocks, jobs = chunks(runs, size)
@@ -185,8 +186,8 @@ def jitter(xy, ancestors, keys, scales, out):  # pragma: no cover - compiled
         sources, moved_x, moved_y = ancestors[first:last], out_x[first:last], out_y[first:last]
         for m in range(stop - start):
             counter = np.uint64(start + m) * _TWO
-            radius = math.sqrt(-2.0 * math.log(1.0 - uniform64(random_bits(key, counter))))
-            angle = 2 * math.pi * uniform64(random_bits(key, counter + np.uint64(1)))
-            e0, e1 = F32(radius * math.cos(angle)), F32(radius * math.sin(angle))
+            radius = math.sqrt(-2.0 * log64(1.0 - uniform64(random_bits(key, counter))))
+            cos_a, sin_a = cos_sin(F32(2 * math.pi * uniform64(random_bits(key, counter + np.uint64(1)))))
+            e0, e1 = F32(radius * cos_a), F32(radius * sin_a)
             moved_x[m] = x[sources[m]] + a * e0
             moved_y[m] = y[sources[m]] + (c * e0 + d * e1)
