@@ -53,37 +53,23 @@ def uniform64(bits):  # pragma: no cover - compiled
     return np.float64(bits >> _TO_FLOAT64) * 2.0**-53
 
 
-@intrinsic
-def _float_from_bits(typingctx: Any, bits: Any) -> Any:  # pragma: no cover - compiled
-    """The float32 whose IEEE bits are the int32 `bits` (a bitcast: no instruction)."""
-    signature = types.float32(types.int32)
+def _bitcast(source: Any, target: Any, llvm_type: Any) -> Any:
+    """A compiled function from `source` to `target` (numba types) that keeps the IEEE bits (a bitcast:
+    no instruction)."""
 
-    def codegen(context: Any, builder: Any, sig: Any, args: Any) -> Any:
-        return builder.bitcast(args[0], ir.FloatType())
+    @intrinsic
+    def cast(typingctx: Any, value: Any) -> Any:  # pragma: no cover - compiled
+        def codegen(context: Any, builder: Any, sig: Any, args: Any) -> Any:
+            return builder.bitcast(args[0], llvm_type)
 
-    return signature, codegen
+        return target(source), codegen
 
-
-@intrinsic
-def _bits_of_double(typingctx: Any, x: Any) -> Any:  # pragma: no cover - compiled
-    """The int64 IEEE bits of the float64 `x` (a bitcast: no instruction)."""
-    signature = types.int64(types.float64)
-
-    def codegen(context: Any, builder: Any, sig: Any, args: Any) -> Any:
-        return builder.bitcast(args[0], ir.IntType(64))
-
-    return signature, codegen
+    return cast
 
 
-@intrinsic
-def _double_from_bits(typingctx: Any, bits: Any) -> Any:  # pragma: no cover - compiled
-    """The float64 whose IEEE bits are the int64 `bits` (a bitcast: no instruction)."""
-    signature = types.float64(types.int64)
-
-    def codegen(context: Any, builder: Any, sig: Any, args: Any) -> Any:
-        return builder.bitcast(args[0], ir.DoubleType())
-
-    return signature, codegen
+_float_from_bits = _bitcast(types.int32, types.float32, ir.FloatType())  # the float32 of these int32 bits
+_bits_of_double = _bitcast(types.float64, types.int64, ir.IntType(64))
+_double_from_bits = _bitcast(types.int64, types.float64, ir.DoubleType())
 
 
 @inline
