@@ -18,7 +18,7 @@ only gathers the names; where each thing's lines are:
     the weights (W, ESS, the log mean increment)       mazelab/weights.py, Weights
     the filters' options, the model and the backend    mazelab/filters.py, ParticleFilter
     Robot (wandering, the straight-run limit)          mazelab/robot.py, Robot.step
-    what every filter provides (your own filter too)   mazelab/contract.py (with a worked example)
+    what every filter provides (your own filter too)   mazelab/contract.py (worked example: docs/architecture.md)
     a filter's options, declared once                  mazelab/declaration.py, Option; each filter's `options`
     every filter by name, label and colour             mazelab/registry.py, SHIPPED (one entry each)
     the RPF's kernel (bandwidth optimal, multimodal)   mazelab/regularisation.py

@@ -1,5 +1,5 @@
 """How like the lab's reference functions honest solutions are, and how like them a renamed copy is:
-the measurement behind mazelab.exercise.likeness.LIKENESS_LIMIT.
+the measurement behind mazelab.exercise.kit.LIKENESS_LIMIT.
 
     uv run python benchmarks/copy_likeness.py
 
@@ -19,16 +19,16 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 import exercise_answers
 
-from mazelab.exercise.kit import source_file
-from mazelab.exercise.likeness import (
+from mazelab.exercise.kit import (
     LIKENESS_LIMIT,
     MIN_TOKENS,
     REFERENCE_SOURCES,
     class_source,
     likeness,
+    source_file,
     tokens,
 )
-from mazelab.exercise.likeness import qualified_functions as qualified
+from mazelab.exercise.kit import qualified_functions as qualified
 
 
 class _Renamer(ast.NodeTransformer):

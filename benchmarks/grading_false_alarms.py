@@ -26,6 +26,7 @@ import numpy as np
 from mazelab.exercise import OUTSIDE_PENALTY, ROBOT_SPEED, StudentFilter
 from mazelab.exercise.inputs import draw_part_inputs
 from mazelab.exercise.parts import (
+    MAGNITUDE_ALPHA,
     PREDICT_LEVEL,
     PREDICT_TESTS,
     critical_z,
@@ -37,11 +38,11 @@ from mazelab.exercise.parts import (
     kolmogorov_p,
     ks_uniform,
     offspring_counts,
+    sign_test_alpha,
     take,
     z_scores,
 )
 from mazelab.exercise.report import check, collect_in_process
-from mazelab.exercise.whole import MAGNITUDE_ALPHA, sign_test_alpha
 
 
 class Correct(StudentFilter):

@@ -30,6 +30,11 @@ import socket
 import stat
 from pathlib import Path
 
+try:
+    import fcntl
+except ImportError:  # Windows: no advisory locks
+    fcntl = None  # type: ignore[assignment]
+
 TEMPORARY_PATTERN = re.compile(r"^\..*\.([A-Za-z0-9_-]+)\.(\d+)-[0-9a-f]{8}\.tmp$")  # .NAME.HOST.PID-RANDOM.tmp
 HOST_TAG_LENGTH = 40  # characters of the host name a temporary's name keeps (a hash of the rest joins them)
 DEFAULT_NAME_MAX = 255  # bytes in one file name on the usual file systems
@@ -254,9 +259,7 @@ def process_alive(pid: int) -> bool:
         return False
     try:
         os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except OverflowError:
+    except (ProcessLookupError, OverflowError):  # gone, or a number no process can have
         return False
     except PermissionError:
         return True
@@ -270,3 +273,17 @@ def zombie(pid: int) -> bool:
     except (OSError, IndexError):
         return False
     return state in ("Z", "X")
+
+
+def lock(handle: int) -> bool:
+    """Lock an open file for this process (exclusive, without waiting: flock, released when the file is
+    closed or the process ends); False if another process holds it. Where there is no flock (Windows),
+    True (a study's journal is still claimed by its exclusive creation). The one lock of the program's
+    own files (a study's journal, a grader's claims)."""
+    if fcntl is None:
+        return True
+    try:
+        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        return False
+    return True

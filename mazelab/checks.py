@@ -191,15 +191,41 @@ def check_seed(name: str, value: Any) -> int:
     return int(value)
 
 
-def regular_file_size(path: Path, kind: str, contents: str) -> int:
-    """The size in bytes of `path`, which must be a regular file: a folder, device (/dev/zero), pipe or
-    socket is refused with a ValueError naming it. OSError (a missing file, no permission) passes through."""
-    status = path.stat()
-    if stat.S_ISDIR(status.st_mode):
-        raise ValueError(f"{path}: is a folder, not a {kind} file")
-    if not stat.S_ISREG(status.st_mode):
-        raise ValueError(f"{path}: not a regular file (a device, pipe or socket); a {kind} is a {contents} file")
-    return status.st_size
+def read_text_file(
+    path: Path, kind: str, contents: str, error: type[ValueError], *, limit: int | None = None, per_byte: int = 0
+) -> str:
+    """The text of a `kind` file (a maze, a scenario), refusing at once and in one line (`error`) anything
+    that is not a regular file (a folder, a device such as /dev/zero, a pipe, a socket), a file beyond `limit` bytes
+    or whose parsing (`per_byte` bytes of memory per byte) would not fit, an unreadable or binary one.
+    FileNotFoundError passes through: the caller says what to try instead."""
+    try:
+        status = path.stat()
+        if stat.S_ISDIR(status.st_mode):
+            raise error(f"{path}: is a folder, not a {kind} file")
+        if not stat.S_ISREG(status.st_mode):
+            raise error(f"{path}: not a regular file (a device, pipe or socket); a {kind} is a {contents} file")
+        size = status.st_size
+        if limit is not None and size > limit:
+            raise error(f"{path}: {size} bytes is too large for a {kind} file (limit {limit})")
+        if per_byte:
+            check_memory(f"{path}: a {kind} file of {size} bytes", size * per_byte)
+        with path.open("rb") as file:
+            data = file.read(-1 if limit is None else limit + 1)  # at most one byte past the limit, whatever stat said
+    except (FileNotFoundError, error):
+        raise
+    except MemoryLimitError as problem:  # too large to parse
+        raise error(str(problem)) from None
+    except PermissionError:
+        raise error(f"{path}: not readable (permission denied)") from None
+    except OSError as problem:
+        raise error(f"{path}: cannot be read ({problem.strerror or problem})") from None
+    if limit is not None and len(data) > limit:
+        raise error(f"{path}: too large for a {kind} file (more than {limit} bytes)")
+    try:
+        return data.decode("utf-8-sig")  # a byte-order mark (some editors write one) is fine
+    except UnicodeDecodeError as problem:
+        where = f"not UTF-8 at byte {problem.start}"
+        raise error(f"{path}: not a text file ({where}; a {kind} is a {contents} file)") from None
 
 
 # -- memory ----------------------------------------------------------------------------------------
@@ -263,10 +289,6 @@ def particle_count(value: Any, source: str = "particle_count", given: int | None
     source : str
     given : int, optional
         The number of initial particles handed in.
-
-    Returns
-    -------
-    int
     """
     if value is None:
         value = DEFAULT_PARTICLE_COUNT if given is None else given
@@ -314,12 +336,9 @@ def memory_budget() -> MemoryBudget | None:
 
 def available_ram(proc: Path = Path("/proc")) -> MemoryBudget | None:
     """MemAvailable of /proc/meminfo (free memory plus reclaimable cache), else the free pages."""
-    try:
-        for line in (proc / "meminfo").read_text().splitlines():
-            if line.startswith("MemAvailable:"):
-                return MemoryBudget(int(line.split()[1]) * 1024, "available RAM")
-    except (OSError, ValueError, IndexError):
-        pass
+    available = _numbers_in(proc / "meminfo").get("MemAvailable")
+    if available is not None:
+        return MemoryBudget(available, "available RAM")
     try:
         return MemoryBudget(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"), "available RAM")
     except (AttributeError, ValueError, OSError):
@@ -330,7 +349,7 @@ def process_limit(proc_self: Path = PROC_SELF) -> MemoryBudget | None:
     """What RLIMIT_AS (ulimit -v) and RLIMIT_DATA (ulimit -d) leave beyond this process's current use."""
     if resource is None:
         return None
-    sizes = _process_sizes(proc_self)
+    sizes = _numbers_in(proc_self / "status")  # VmSize and VmData
     budgets = []
     for limit, used_key, source in (
         (resource.RLIMIT_AS, "VmSize", ADDRESS_SPACE_SOURCE),
@@ -342,17 +361,18 @@ def process_limit(proc_self: Path = PROC_SELF) -> MemoryBudget | None:
     return min(budgets, key=lambda budget: budget.available) if budgets else None
 
 
-def _process_sizes(proc_self: Path) -> dict[str, int]:
-    """VmSize and VmData of /proc/self/status in bytes (empty where there is no /proc)."""
-    sizes = {}
+def _numbers_in(path: Path) -> dict[str, int]:
+    """The numbers of a /proc or cgroup file of `key: value` or `key value` lines (meminfo, status,
+    memory.stat), in bytes where the line says kB; empty where the file cannot be read."""
+    numbers = {}
     try:
-        for line in (proc_self / "status").read_text().splitlines():
-            key, _, value = line.partition(":")
-            if key in ("VmSize", "VmData"):
-                sizes[key] = int(value.split()[0]) * 1024
-    except (OSError, ValueError, IndexError):
+        for line in path.read_text().splitlines():
+            words = line.replace(":", " ", 1).split()
+            if len(words) > 1 and words[1].isdigit():
+                numbers[words[0]] = int(words[1]) * (1024 if words[-1] == "kB" else 1)
+    except OSError:
         pass
-    return sizes
+    return numbers
 
 
 def cgroup_limit(root: Path = CGROUP_ROOT, proc_self: Path = PROC_SELF) -> MemoryBudget | None:
@@ -372,7 +392,7 @@ def cgroup_limit(root: Path = CGROUP_ROOT, proc_self: Path = PROC_SELF) -> Memor
         limit = _read_number(folder / names[0])
         if limit is None or limit >= _UNLIMITED:
             continue
-        used = (_read_number(folder / names[1]) or 0) - _stat_value(folder / "memory.stat", names[2])
+        used = (_read_number(folder / names[1]) or 0) - _numbers_in(folder / "memory.stat").get(names[2], 0)
         source = f"the cgroup memory limit, {folder / names[0]}"
         budgets.append(MemoryBudget(max(0, limit - max(used, 0)), source))
     return min(budgets, key=lambda budget: budget.available) if budgets else None
@@ -411,18 +431,6 @@ def _read_number(path: Path) -> int | None:
         return int(path.read_text().strip())
     except (OSError, ValueError):
         return None
-
-
-def _stat_value(path: Path, key: str) -> int:
-    """One value of a memory.stat file, 0 if absent."""
-    try:
-        for line in path.read_text().splitlines():
-            name, _, value = line.partition(" ")
-            if name == key:
-                return int(value)
-    except (OSError, ValueError):
-        pass
-    return 0
 
 
 def _gib(size: float) -> str:

@@ -19,35 +19,9 @@ or a plain mapping of names to defaults). An option a filter does not declare is
 line. The contract is checked on the object before the first step (`check_filter`) and each step's
 values where they are read (`check_step_values`): a missing part or a bad value is one line naming it.
 
-A new filter, worked through: SIR that resamples every `period` steps, with one option. A particle
-filter is the step (mazelab.smc.SMC.step: resample the runs `time_to_resample(W)` says, move,
-reweight); a new one declares its option once and overrides the hook that differs:
-
-    from mazelab.filters import ParticleFilter
-    from mazelab.declaration import Option, number_in
-
-    class PeriodicSIR(ParticleFilter):
-        '''SIR that resamples every `period` steps.'''
-
-        options = ParticleFilter.options.extend(
-            Option("period", 5, "resample every period steps", check=number_in("period", 1, 1000, low_open=False)),
-        )
-
-        def time_to_resample(self, W):  # W: the Weights of the R runs, (R, N)
-            return self.steps_done % self.settings["period"] == 0  # every run, at steps 0, period, 2 period...
-
-Saved as my_filter.py it runs wherever the shipped filters run: `mazelab run --filter
-my_filter.py:PeriodicSIR --option period=3`, `compare`, `study --option period=1,3,10`; its saved runs
-replay with it. Added to the package, it is one entry in mazelab.registry.SHIPPED (`batched=True`:
-its hooks serve R runs together, as the shipped filters' do).
-
-The other hooks: `log_eta` (the APF's first stage), `ancestors(W, due)` (or the scheme `resample(W,
-rng)`), `move_resampled` (the RPF's jitter), `reweight_resampled` (the weights of the resampled
-particles), and the model's `transition` and `log_likelihood` (a tempered likelihood is `temper *
-super().log_likelihood(x)`). Every array a hook sees has the run axis first (R = 1 for one run): the
-same lines serve one run and R runs of a study together.
-
-mazelab.exercise.StudentFilter is the gentler start: four parts to write, the rest wired.
+A new filter, worked through (SIR that resamples every `period` steps: one option declared once, one
+hook overridden), and the other hooks a particle filter may override: docs/architecture.md, "A new
+filter". mazelab.exercise.StudentFilter is the gentler start: four parts to write, the rest wired.
 """
 
 from __future__ import annotations

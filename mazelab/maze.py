@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from mazelab.checks import BYTES_PER_LOOKUP_CELL, BYTES_PER_MAZE_CELL, MAX_MAZE_SIDE, check_memory, regular_file_size
+from mazelab.checks import BYTES_PER_LOOKUP_CELL, BYTES_PER_MAZE_CELL, MAX_MAZE_SIDE, check_memory, read_text_file
 from mazelab.lookup import NearestStationLookup, Progress, is_scalar, lookup_cell_count
 
 
@@ -144,7 +144,10 @@ class Maze:
         """Read a maze text file: one row per line, cells 0/1/2 (spaces optional), '#' comments; a
         shipped maze also by its name from any folder (`Maze.from_file("paper_5x5")`)."""
         path = find_maze(path)
-        text = _read_maze_file(path)
+        try:
+            text = read_text_file(path, "maze", "text", MazeError, limit=MAZE_FILE_LIMIT_BYTES)
+        except FileNotFoundError:
+            raise MazeError(f"{path}: no such maze file") from None
         if text.lstrip().startswith("{"):
             raise MazeError(f"{path}: looks like a saved scenario (json), not a maze; replay it with run --scenario")
         return cls(parse_maze_text(text, source=str(path)), source=str(path))
@@ -309,33 +312,6 @@ def _validate_grid(maze_map: Any, source: str) -> np.ndarray:
     if not (grid == STATION_WALL).any():
         raise MazeError(f"{source}: the maze has no station block (2)")
     return grid
-
-
-def _read_maze_file(path: Path) -> str:
-    """The text of a maze file, refusing missing, unreadable, binary or enormous files, and anything
-    that is not a regular file (a folder, a device such as /dev/zero, a pipe), clearly and at once."""
-    try:
-        size = regular_file_size(path, "maze", "text")
-        if size > MAZE_FILE_LIMIT_BYTES:
-            raise MazeError(f"{path}: {size} bytes is too large for a maze file (limit {MAZE_FILE_LIMIT_BYTES})")
-        with path.open("rb") as file:
-            data = file.read(MAZE_FILE_LIMIT_BYTES + 1)  # at most one byte past the limit, whatever stat said
-    except MazeError:
-        raise
-    except ValueError as error:  # a folder, device, pipe or socket
-        raise MazeError(str(error)) from None
-    except FileNotFoundError:
-        raise MazeError(f"{path}: no such maze file") from None
-    except PermissionError:
-        raise MazeError(f"{path}: not readable (permission denied)") from None
-    except OSError as error:
-        raise MazeError(f"{path}: cannot be read ({error.strerror or error})") from None
-    if len(data) > MAZE_FILE_LIMIT_BYTES:
-        raise MazeError(f"{path}: too large for a maze file (more than {MAZE_FILE_LIMIT_BYTES} bytes)")
-    try:
-        return data.decode("utf-8-sig")  # a byte-order mark (some editors write one) is fine
-    except UnicodeDecodeError:
-        raise MazeError(f"{path}: not a text file (not UTF-8)") from None
 
 
 def parse_maze_text(text: str, source: str = "maze text") -> list[list[int]]:

@@ -105,10 +105,6 @@ def recovery_options(recovery: Any, alpha_slow: float = ALPHA_SLOW, alpha_fast: 
     recovery : object
     alpha_slow, alpha_fast : float
         The averages' rates when `recovery` names a mode.
-
-    Returns
-    -------
-    Recovery or None
     """
     recovery = check_recovery(recovery)
     return Recovery(recovery, alpha_slow, alpha_fast) if isinstance(recovery, str) else recovery

@@ -1,16 +1,9 @@
-"""Every filter by name, one entry each: its class, short name, label, colour, one-line help, and what it
-can do (take particles, run R runs together). The command line's choices and hints, the figures' labels
-and colours (the same in Rerun and in the PNGs), `mazelab --help` and a study's columns read it.
-
-A filter of the package is one entry in `SHIPPED`; a student's own, `path/to/file.py:ClassName` wherever
-a filter name goes, gets an entry when it is loaded (`load_plugin`: the file imported under a module name
-of its own, so that two files that both define `MyFilter` never clash, with its folder importable while
-it loads, as `python my_filter.py` has it; one line naming the file, the class and what is missing),
-with its file's sha256 so that a saved run names it exactly (`plugin_reference`: a scenario never
-imports it, the user names the plug-in to replay it). `PluginCode` is a plug-in as a study carries it:
-the file's bytes and their sha256, read once when the study is planned, so that a worker process or a
-Dask worker on another machine runs the very code the study was planned with (only its own file
-travels). The student's code failing during a run is mazelab.stops.StudentCodeError.
+"""Every filter by name, one entry each (`FilterEntry`): its class, short name, label, colour, one-line
+help, and what it can do. The command line's choices and hints, the figures' labels and colours (the
+same in Rerun and in the PNGs), `mazelab --help` and a study's columns read it. A filter of the package
+is one entry in `SHIPPED`; a student's own, `path/to/file.py:ClassName` wherever a filter name goes,
+gets one when it is loaded (`load_plugin`), named in a saved run by its `PluginReference` and carried by
+a study as its `PluginCode`. The student's code failing during a run is mazelab.stops.StudentCodeError.
 
     entry = filter_entry("rpf")          # also "RegularizedParticleFilter", "Regularized Particle Filter"
     entry.filter_class, entry.label      # RegularizedParticleFilter, "RPF"
@@ -22,12 +15,14 @@ import difflib
 import hashlib
 import importlib.util
 import inspect
+import re
 import sys
 import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
+from typing import Any
 
 from mazelab.atomic import write_bytes_atomically
 from mazelab.contract import missing_parts
@@ -60,12 +55,13 @@ def split_spec(spec: str) -> tuple[Path, str | None]:
 @dataclass(frozen=True)
 class PluginReference:
     """How a saved run names a plug-in: the spec as the user wrote it, the file's sha256 and the class.
-    A scenario stores it and never imports it; a replay needs the user to name the plug-in again."""
+    A scenario stores it (`as_json`, read back by `from_json`) and never imports it; a replay needs the
+    user to name the plug-in again."""
 
     spec: str
     sha256: str
     class_name: str
-    path: str  # the file's absolute path when it was loaded (for the worker processes of a study)
+    path: str = ""  # the file's absolute path when it was loaded (for the worker processes of a study)
 
     @property
     def canonical(self) -> str:
@@ -75,6 +71,31 @@ class PluginReference:
     def as_json(self) -> dict[str, str]:
         """What a scenario stores (the absolute path is the machine's, so it is left out)."""
         return {"spec": self.spec, "sha256": self.sha256, "class": self.class_name}
+
+    def describe(self) -> str:
+        """'my_filter.py:MyFilter (sha256 1a2b3c4d...)'."""
+        return f"{self.spec} (sha256 {self.sha256[:12]}...)"
+
+    @classmethod
+    def from_json(cls, stored: Any) -> PluginReference:
+        """A stored reference, checked: the spec is one printable line naming a .py file and this class
+        (`file.py:Class`, as `as_json` writes it), since it is printed in messages and commands, where a
+        newline would forge a line. Raises ValueError of one line."""
+        if not isinstance(stored, dict) or sorted(stored) != ["class", "sha256", "spec"]:
+            raise ValueError('must be {"spec": "FILE.py:Class", "sha256": "...", "class": "Class"}')
+        spec, sha256, class_name = (stored[key] for key in ("spec", "sha256", "class"))
+        if not isinstance(sha256, str) or not re.fullmatch("[0-9a-f]{64}", sha256):
+            raise ValueError(f"sha256 must be 64 hexadecimal digits, got {str(sha256)[:70]!r}")
+        if not isinstance(class_name, str) or not class_name.isidentifier() or len(class_name) > 256:
+            raise ValueError(f"class must be a Python class name, got {str(class_name)[:60]!r}")
+        if not isinstance(spec, str) or not spec.isprintable() or len(spec) > 4096:
+            raise ValueError(f"spec must be one printable line, got {str(spec)[:60]!r}")
+        path, _, named = spec.rpartition(":")
+        if not path.strip().endswith(".py") or named != class_name:
+            raise ValueError(
+                f"spec must name a .py file and the class {class_name} (FILE.py:{class_name}), got {spec[:60]!r}"
+            )
+        return cls(spec, sha256, class_name)
 
 
 def file_sha256(path: str | Path) -> str:
@@ -90,7 +111,9 @@ def plugin_reference(spec: str, filter_class: type) -> PluginReference:
 
 
 def load_plugin(spec: str) -> type:
-    """The class of a plug-in spec `path/to/file.py:ClassName` (or `file.py` holding one filter class).
+    """The class of a plug-in spec `path/to/file.py:ClassName` (or `file.py` holding one filter class),
+    the file imported under a module name of its own, so that two files that both define `MyFilter`
+    never clash, with its folder importable while it loads, as `python my_filter.py` has it.
 
     Raises
     ------
@@ -209,7 +232,8 @@ CODE_FOLDER = "mazelab-plugins"  # under the system's temporary folder: the ship
 @dataclass(frozen=True)
 class PluginCode:
     """One plug-in of a study: the spec the runs name it by (`/absolute/path/file.py:Class`), the
-    file's bytes and their sha256."""
+    file's bytes and their sha256, read once when the study is planned, so that a worker process or a
+    Dask worker on another machine runs the very code the study was planned with (only its file travels)."""
 
     spec: str
     source: bytes
@@ -351,8 +375,6 @@ SHIPPED: tuple[FilterEntry, ...] = (
                 takes_particles=False),
 )  # fmt: skip
 _ENTRIES: list[FilterEntry] = list(SHIPPED)  # SHIPPED, then any registered by a package (`register`)
-_BY_CLASS: dict[type, FilterEntry] = {entry.filter_class: entry for entry in SHIPPED}
-_BY_NAME: dict[str, FilterEntry] = {entry.name: entry for entry in SHIPPED}
 
 
 def register(entry: FilterEntry) -> FilterEntry:
@@ -383,8 +405,6 @@ def register(entry: FilterEntry) -> FilterEntry:
             raise ValueError(f"the {what} {mine!r} is taken by {other.name}: a registry entry needs its own")
     check_declared_defaults(entry.filter_class, entry.short_name)
     _ENTRIES.append(entry)
-    _BY_CLASS[entry.filter_class] = entry
-    _BY_NAME[entry.name] = entry
     return entry
 
 
@@ -410,7 +430,7 @@ def is_shipped(filter_class: type) -> bool:
     -------
     bool
     """
-    return filter_class in _BY_CLASS
+    return any(entry.filter_class is filter_class for entry in _ENTRIES)
 
 
 def shipped_entry(name: str) -> FilterEntry | None:
@@ -453,7 +473,7 @@ def filter_entry(name: str | type) -> FilterEntry:
         One line naming the unknown name, the nearest short name (`sri`: did you mean sir?) and the valid ones.
     """
     if isinstance(name, type):
-        return _BY_CLASS.get(name) or _entry_of_class(name, None)
+        return next((e for e in _ENTRIES if e.filter_class is name), None) or _entry_of_class(name, None)
     text = str(name).strip()
     if is_plugin_spec(text):  # loaded once per process; one line naming the file, the class and what is wrong
         filter_class = load_plugin(text)
@@ -527,7 +547,7 @@ def described(name: str) -> FilterEntry:
     -------
     FilterEntry
     """
-    entry = _BY_NAME.get(name)
+    entry = next((e for e in _ENTRIES if e.name == name), None)
     loaded = None if entry is not None else loaded_plugin(name)
     if loaded is not None:
         return filter_entry(loaded)

@@ -53,14 +53,6 @@ def optimal_bandwidth(count: int | np.ndarray, dimension: int = 2) -> float | np
 def check_bandwidth(bandwidth: str | float) -> str | float:
     """ "optimal", "multimodal" or a number h within [MIN_BANDWIDTH, MAX_BANDWIDTH] (mazelab.checks: h
     scales the cloud's spread, at most the map's diagonal); a numeric string counts as its number.
-
-    Parameters
-    ----------
-    bandwidth : str or float
-
-    Returns
-    -------
-    str or float
     """
     if isinstance(bandwidth, str) and bandwidth in BANDWIDTHS:
         return bandwidth

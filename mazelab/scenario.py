@@ -28,6 +28,7 @@ from pydantic import (
     StrictInt,
     StrictStr,
     ValidationError,
+    field_serializer,
     field_validator,
     model_validator,
 )
@@ -39,14 +40,13 @@ from mazelab.checks import (
     MAX_SEED,
     NORMAL_TAIL,
     check_all_within,
-    check_memory,
     check_within_map,
     map_diagonal,
-    regular_file_size,
+    read_text_file,
 )
 from mazelab.declaration import options_of
 from mazelab.maze import MAZES_DIR, Maze, find_shipped, shipped_mazes
-from mazelab.registry import FilterEntry, filter_entry, loaded_plugin, shipped_entry
+from mazelab.registry import FilterEntry, PluginReference, filter_entry, loaded_plugin, shipped_entry
 from mazelab.robot import Robot
 
 DEFAULT_PARAMETERS_PATH = Path("model_parameters.json")  # the paper's file (lab steps 9-10), in the working folder
@@ -55,7 +55,6 @@ SCENARIOS_DIR = MAZES_DIR.parent / "model_parameters"  # the shipped scenarios, 
 SCENARIO_FORMAT_VERSION = 4  # the newest scenario format this program reads and writes
 # the version that brought each key (a kidnapping, the filter's options, a plug-in's reference); without them, 1
 FORMAT_VERSIONS = {"kidnap_at": 2, "filter_options": 3, "filter_plugin": 4}
-SHA256 = r"^[0-9a-f]{64}$"
 
 
 MAX_JSON_DEPTH = 16  # a scenario nests 3 deep; deeper files are refused before parsing (no RecursionError)
@@ -71,37 +70,6 @@ OptionScalar = StrictBool | StrictInt | FiniteFloat | StrictStr | None
 OptionValue = OptionScalar | dict[str, OptionScalar]  # a number, a word, or an object's fields (Recovery, KLD)
 
 
-class PluginSource(BaseModel):
-    """A plug-in named by reference: the spec as the user wrote it, the sha256 of its file, its class.
-    Never imported on loading; a replay runs it only when the user names it (`--filter`)."""
-
-    model_config = ConfigDict(extra="forbid", populate_by_name=True)
-
-    spec: StrictStr = Field(min_length=1, max_length=4096)
-    sha256: Annotated[str, Field(strict=True, pattern=SHA256)]
-    class_name: StrictStr = Field(alias="class", min_length=1, max_length=256)
-
-    @model_validator(mode="after")
-    def _one_reference(self) -> PluginSource:
-        """The spec is one printable line naming a .py file and this class (`file.py:Class`, as the
-        program writes it): it is printed in messages and commands, where a newline would forge a line."""
-        if not self.class_name.isidentifier():
-            raise ValueError(f"class must be a Python class name, got {self.class_name[:60]!r}")
-        if not self.spec.isprintable():
-            raise ValueError(f"spec must be one printable line, got {self.spec[:60]!r}")
-        path, _, class_name = self.spec.rpartition(":")
-        if not path.strip().endswith(".py") or class_name != self.class_name:
-            raise ValueError(
-                f"spec must name a .py file and the class {self.class_name} "
-                f"(FILE.py:{self.class_name}), got {self.spec[:60]!r}"
-            )
-        return self
-
-    def describe(self) -> str:
-        """'my_filter.py:MyFilter (sha256 1a2b3c4d...)'."""
-        return f"{self.spec} (sha256 {self.sha256[:12]}...)"
-
-
 class Scenario(BaseModel):
     """A saved run (lab step 9): the paper's four keys, the measurements, and metadata.
 
@@ -113,7 +81,7 @@ class Scenario(BaseModel):
     and older readers still read them.
     """
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", arbitrary_types_allowed=True)  # filter_plugin: a PluginReference
 
     format_version: Whole = Field(1, ge=1)
     init_robot_pos: Point
@@ -130,7 +98,7 @@ class Scenario(BaseModel):
     kidnap_at: Whole | None = Field(None, ge=1)
     kidnap_position: Point | None = None
     filter_options: dict[str, OptionValue] | None = None
-    filter_plugin: PluginSource | None = None
+    filter_plugin: PluginReference | None = None
 
     @model_validator(mode="before")
     @classmethod
@@ -140,6 +108,16 @@ class Scenario(BaseModel):
             versions = [v for key, v in FORMAT_VERSIONS.items() if data.get(key) is not None]
             data = {**data, "format_version": max(versions, default=1)}
         return data
+
+    @field_validator("filter_plugin", mode="before")
+    @classmethod
+    def _a_reference(cls, stored: Any) -> PluginReference | None:
+        """A plug-in's reference as stored (mazelab.registry.PluginReference.from_json); never imported."""
+        return stored if stored is None or isinstance(stored, PluginReference) else PluginReference.from_json(stored)
+
+    @field_serializer("filter_plugin")
+    def _stored(self, plugin: PluginReference | None) -> dict[str, str] | None:
+        return None if plugin is None else plugin.as_json()
 
     @field_validator("filtering_algorithm")
     @classmethod
@@ -304,7 +282,7 @@ class Scenario(BaseModel):
 
     def to_json(self) -> str:
         """Json with the paper's keys first, one particle per line (readable, and diff-able)."""
-        data = self.model_dump(exclude_none=True, by_alias=True)
+        data = self.model_dump(exclude_none=True)
         lines = []
         for key, value in data.items():
             if key in ("filter_options", "filter_plugin"):
@@ -399,23 +377,15 @@ def _what_it_is(path: Path, text: str) -> str:
 
 
 def _read_scenario_file(path: Path) -> str:
-    """The text of a scenario file: a regular file (not a device or pipe) whose parsing fits in memory."""
+    """The text of a scenario file (mazelab.checks.read_text_file), or what to try when there is none."""
     try:
-        size = regular_file_size(path, "scenario", "json")
-        check_memory(f"{path}: a scenario file of {size} bytes", size * BYTES_PER_JSON_BYTE)
-        return path.read_text(encoding="utf-8-sig")  # a byte-order mark, as some editors write, is fine
-    except UnicodeDecodeError as error:  # binary, UTF-16, ...: before ValueError, of which it is one
-        raise ScenarioError(f"{path}: not a UTF-8 text file (a scenario is json; byte {error.start})") from None
-    except ValueError as error:  # not a regular file, or too large to parse (MemoryLimitError)
-        raise ScenarioError(str(error)) from None
+        return read_text_file(path, "scenario", "json", ScenarioError, per_byte=BYTES_PER_JSON_BYTE)
     except FileNotFoundError:
         older = LEGACY_PARAMETERS_PATH.is_file() and path.name == "model_parameters.json"
         hint = f" (older versions saved to {LEGACY_PARAMETERS_PATH})" if older else ""
         if not hint and path.parent == Path(".") and path.stem in shipped_mazes() and path.suffix in ("", ".txt"):
             hint = f"; {path.stem} is a maze: --maze {path.stem} (a scenario is a .json saved by run --save-scenario)"
         raise ScenarioError(f"{path}: no such scenario file{hint}") from None
-    except OSError as error:
-        raise ScenarioError(f"{path}: cannot be read ({error.strerror or error})") from None
 
 
 _JSON_STRING = re.compile(r'"(?:[^"\\]|\\.)*"')
@@ -447,7 +417,6 @@ __all__ = [
     "SCENARIOS_DIR",
     "SCENARIO_FORMAT_VERSION",
     "FiniteFloat",
-    "PluginSource",
     "Point",
     "Scenario",
     "ScenarioError",

@@ -67,19 +67,19 @@ def mark_interrupts() -> Callable[[], None]:
 
 
 @contextlib.contextmanager
-def signal_handlers(signals: Iterable[int], handler: Any) -> Iterator[None]:
+def signal_handlers(signals: Iterable[int], handler: Any) -> Iterator[dict[int, Any]]:
     """`handler` (a function, or signal.SIG_IGN) for each of `signals` while the block runs, the previous
-    handlers put back after it; in a thread other than the main one (which cannot set handlers) nothing
-    changes. The one place the lab's commands set and restore their stop handlers."""
+    handlers (what the block gets) put back after it; in a thread other than the main one (which cannot
+    set handlers) nothing changes. The one place the lab sets and restores its stop handlers."""
     if threading.current_thread() is not threading.main_thread():
-        yield
+        yield {}
         return
     previous = {number: signal.signal(number, handler) for number in signals}
     try:
-        yield
+        yield previous
     finally:
         for number, old in previous.items():
-            signal.signal(number, old)
+            signal.signal(number, signal.SIG_DFL if old is None else old)  # None: set outside Python
 
 
 def is_users_stop(error: BaseException) -> bool:

@@ -279,8 +279,8 @@ class ForgetsResampling(ReferenceFilter):
     weights are the last measurement's alone."""
 
     def step(self, compass_angle, z):
-        self.positions = self.call_predict(self.positions, float(compass_angle))
-        log_w = self.call_weigh(self.positions, float(z))
+        self.positions = self.predict(self.positions.copy(), float(compass_angle), self.rng)
+        log_w = self.weigh(self.positions.copy(), float(z))
         self.log_weights = log_w - np.logaddexp.reduce(log_w)
         self._estimate = None
         self.steps_done += 1

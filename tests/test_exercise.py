@@ -27,16 +27,18 @@ from mazelab.exercise.inputs import (
 from mazelab.exercise.parts import (
     critical_z,
     judge_resample,
+    judge_whole,
     kolmogorov_p,
     ks_uniform,
+    magnitude_p,
     offspring_counts,
     scheme_variances,
+    sign_test_alpha,
     take,
     z_scores,
 )
 from mazelab.exercise.report import WIDTH, check, collect_in_process, format_report
 from mazelab.exercise.selfcheck import progress
-from mazelab.exercise.whole import judge_whole, magnitude_p, sign_test_alpha
 from mazelab.registry import load_plugin
 from mazelab.resampling import RESAMPLING_SCHEMES
 from mazelab.simulation import simulate

@@ -19,7 +19,7 @@ from exercise_answers import write_submission
 
 from mazelab import __version__
 from mazelab.cli.app import main
-from mazelab.exercise.autograder import ROOT, lab_files
+from mazelab.exercise.template import ROOT, lab_files
 
 KEY = "0123456789abcdef0123456789abcdef"
 
@@ -90,7 +90,7 @@ def test_run_autograder_writes_results_json_in_a_simulated_tree(bundle, tmp_path
 def test_the_bundle_is_made_from_an_install_without_uv_lock(tmp_path, monkeypatch):
     """Installed with pip from a clone (no uv.lock): the bundle pins the dependencies installed here in
     requirements.txt, and setup.sh installs them with the lab."""
-    from mazelab.exercise import autograder
+    from mazelab.exercise import template as autograder
 
     for name in lab_files():
         if name.name != "uv.lock":

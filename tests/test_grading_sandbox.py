@@ -51,12 +51,11 @@ REFERENCE_MODULES = (
     "mazelab.kernels",
     "mazelab.experiments",
     "mazelab.exercise.parts",
-    "mazelab.exercise.whole",
     "mazelab.exercise.report",
     "mazelab.exercise.inputs",
     "mazelab.exercise.sandbox",
     "mazelab.exercise.grading",
-    "mazelab.exercise.likeness",
+    "mazelab.exercise.kit",
 )
 REFERENCE_FUNCTIONS = ("mazelab.model.log_likelihood", "mazelab.model.move", "mazelab.weights.weighted_mean")
 # skipped where no sandbox can be made, but never in CI, which installs bubblewrap: there a sandbox that
@@ -391,7 +390,7 @@ def test_no_honest_answer_is_taken_for_a_copy():
     the slightly wrong parts) stays under the limit (docs/exercise.md: the measured largest)."""
     import exercise_answers
 
-    from mazelab.exercise.likeness import LIKENESS_LIMIT, class_source, likeness
+    from mazelab.exercise.kit import LIKENESS_LIMIT, class_source, likeness
 
     classes = [c for c in vars(exercise_answers).values() if isinstance(c, type)]
     worst = max(one.share for c in classes for one in likeness({"c.py": class_source(c)}).values())
@@ -646,7 +645,7 @@ def lab_function(qualified: str, name: str) -> str:
 def test_the_labs_code_bound_to_a_part_is_not_own_work():
     """Bound by assignment, as a staticmethod, from a helper module, with annotations added: each is
     the lab's code, named by its qualified name."""
-    from mazelab.exercise.likeness import copied_parts
+    from mazelab.exercise.kit import copied_parts
 
     systematic = lab_function("mazelab.resampling.systematic_resample", "_sr")
     likelihood = lab_function("mazelab.model.log_likelihood", "_w")

@@ -61,11 +61,10 @@ def first_line(capsys) -> str:
 
 
 def test_the_contracts_worked_example_runs_as_written(tmp_path, capsys):
-    import mazelab.contract
-
-    doc = mazelab.contract.__doc__
-    code = textwrap.dedent(doc[doc.index("    from mazelab.filters") : doc.index("Saved as my_filter.py")])
-    (tmp_path / "my_filter.py").write_text(code.replace("'''", '"""'))
+    doc = (ROOT / "docs" / "architecture.md").read_text()
+    example = doc[doc.index("### A new filter") :]
+    code = example[example.index("```python\n") + len("```python\n") : example.index("```\n\nSaved as my_filter.py")]
+    (tmp_path / "my_filter.py").write_text(code)
     assert main(["run", "--filter", f"{tmp_path}/my_filter.py:PeriodicSIR", "--option", "period=3", *RUN]) == 0
     assert first_line(capsys).startswith("PeriodicSIR: last-step error")
 

@@ -158,8 +158,7 @@ class WideSIR(ParticleFilter):
 @pytest.fixture
 def wide_registered(monkeypatch):
     """WideSIR registered for the test (the registry's tables as they were afterwards)."""
-    for table in ("_ENTRIES", "_BY_CLASS", "_BY_NAME"):
-        monkeypatch.setattr(registry, table, getattr(registry, table).copy())
+    monkeypatch.setattr(registry, "_ENTRIES", registry._ENTRIES.copy())
     return register(FilterEntry(WideSIR, "wide", "wide SIR", (23, 190, 207), "SIR with a tempered likelihood"))
 
 

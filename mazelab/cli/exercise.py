@@ -17,27 +17,26 @@ import typer
 
 from mazelab.atomic import write_bytes_atomically, write_text_atomically
 from mazelab.backend import use_threads
-from mazelab.cli.options import UserError, check_output_path, seed_option
-from mazelab.exercise.autograder import bundle_bytes
+from mazelab.cli.options import UserError, check_output_path, opt, seed_option
 from mazelab.exercise.grading import (
     KEY_FILE,
     Gradebook,
-    Graded,
     GradingInterruptedError,
     Submission,
     check_outside,
     claimed,
     discover,
     grade_folder,
+    grade_one,
     gradescope_json,
     partial_name,
     read_key,
     summary,
 )
 from mazelab.exercise.language import Catalogue, catalogue_for
-from mazelab.exercise.report import NotGradableError, check_file, format_report
+from mazelab.exercise.report import Report, format_report
 from mazelab.exercise.sandbox import DEFAULT_BUDGET, MAX_TIMEOUT, SandboxError, sandbox
-from mazelab.exercise.template import write_exercise
+from mazelab.exercise.template import bundle_bytes, write_exercise
 from mazelab.invocation import python_prefix
 from mazelab.registry import is_plugin_spec, split_spec
 from mazelab.stops import STOP_SIGNALS, signal_handlers
@@ -49,34 +48,23 @@ exercise_app = typer.Typer(
     rich_markup_mode=None,
     pretty_exceptions_enable=False,
 )
-TimeoutFlag = Annotated[
-    float,
-    typer.Option(min=1.0, max=MAX_TIMEOUT, help="seconds the student's processes of one submission may take in all"),
-]
-ForceFlag = Annotated[bool, typer.Option("--force", help="replace existing output files")]
-GradescopeFlag = Annotated[
-    Path | None, typer.Option(metavar="DIR", help="write Gradescope's results.json there", show_default=False)
-]
-RequireSandboxFlag = Annotated[
-    bool, typer.Option("--require-sandbox", help="refuse to grade where no sandbox can be made (bubblewrap on Linux)")
-]
-LangFlag = Annotated[
-    str | None,
-    typer.Option(metavar="LANG", help="en or uk (default: the exercise file's, else the locale's)", show_default=False),
-]
-KeyFlag = Annotated[
-    Path | None,
-    typer.Option(
-        metavar="FILE", help=f"the grader's secret key (default: {KEY_FILE} beside the outputs)", show_default=False
-    ),
-]
+TimeoutFlag = opt(float, min=1.0, max=MAX_TIMEOUT,
+                  help="seconds the student's processes of one submission may take in all")  # fmt: skip
+ForceFlag = opt(bool, "--force", help="replace existing output files")
+GradescopeFlag = opt(Path | None, metavar="DIR", help="write Gradescope's results.json there", show_default=False)
+RequireSandboxFlag = opt(bool, "--require-sandbox",
+                         help="refuse to grade where no sandbox can be made (bubblewrap on Linux)")  # fmt: skip
+LangFlag = opt(str | None, metavar="LANG", show_default=False,
+               help="en or uk (default: the exercise file's, else the locale's)")  # fmt: skip
+KeyFlag = opt(Path | None, metavar="FILE", show_default=False,
+              help=f"the grader's secret key (default: {KEY_FILE} beside the outputs)")  # fmt: skip
 
 
 @exercise_app.command(short_help="Write the exercise (my_filter.py, README.md) into DIR.")
 def new(
     folder: Annotated[Path, typer.Argument(metavar="DIR", help="the folder to write into (made if missing)")],
-    force: Annotated[bool, typer.Option("--force", help="replace existing files")] = False,
-    lang: Annotated[str, typer.Option(metavar="LANG", help="the exercise's language: en or uk")] = "en",
+    force: opt(bool, "--force", help="replace existing files") = False,
+    lang: opt(str, metavar="LANG", help="the exercise's language: en or uk") = "en",
 ) -> None:
     """Write my_filter.py (a StudentFilter with four parts to write) and a short README into DIR, in
     LANG; my_filter.py keeps its language, so that its checks answer in it."""
@@ -88,10 +76,9 @@ def new(
 @exercise_app.command(name="check", short_help="Grade FILE[:Class]: each part, then the whole filter.")
 def check_command(
     spec: Annotated[str, typer.Argument(metavar="FILE[:Class]", help="the student's file, and its class if several")],
-    seed: Annotated[
-        int | None,
-        typer.Option(callback=seed_option, show_default=False, help="the inputs' seed (default: from the files)"),
-    ] = None,
+    seed: opt(
+        int | None, callback=seed_option, show_default=False, help="the inputs' seed (default: from the files)"
+    ) = None,
     key: KeyFlag = None,
     timeout: TimeoutFlag = DEFAULT_BUDGET,
     gradescope: GradescopeFlag = None,
@@ -111,36 +98,31 @@ def check_command(
     if seed is not None and key is not None:
         raise UserError("--seed and --key: give one (a seed repeats a report, the key draws secret inputs)")
     secret = read_key(key, make=False) if key is not None else None  # a ClaimError is one line, exit 2
-    results = _results_file(gradescope, force)
+    results = None if gradescope is None else _made_folder(gradescope) / "results.json"
+    if results is not None:
+        check_output_path(results, force)
     _sandbox_or_refuse(require_sandbox)
-    started = time.perf_counter()
+    submission = Submission(Path(spec).name, Path(spec), own_folder=True)  # the files beside it are its own
     try:
         with _stop_signals() as stop:
-            report = check_file(spec, seed=seed, key=secret, timeout=timeout)
+            report = grade_one(submission, timeout, seed=seed, key=secret)
     except KeyboardInterrupt:  # Ctrl-C or SIGTERM: the student's process has been ended with its sandbox
         typer.echo("stopped: nothing graded", err=True)
         raise typer.Exit(128 + (stop.number or signal.SIGINT)) from None
     except SandboxError as error:
         raise UserError(f"{error}; nothing graded (the grader's machine, not the submission)") from None
-    except NotGradableError as error:
-        graded = Graded(Submission(Path(spec).name, None), None, str(error), time.perf_counter() - started)
-        _write_results(results, graded, catalogue, force)
-        typer.echo(catalogue.numbers(catalogue.gettext("error: ") + catalogue.translate(str(error))), err=True)
-        raise typer.Exit(2) from None
-    typer.echo(format_report(report, catalogue=catalogue))
-    took = {"seconds": f"{time.perf_counter() - started:.1f}", "student": f"{report.student_seconds:.1f}"}
-    line = catalogue.gettext("checked in {seconds} s (the student's processes: {student} s)").format(**took)
-    typer.echo(catalogue.numbers(line))
-    _write_results(results, Graded(Submission(Path(spec).name, Path(spec)), report, None, report.seconds), catalogue,
-                   force)  # fmt: skip
+    if report.problem is None:
+        typer.echo(format_report(report, catalogue=catalogue))
+        took = {"seconds": f"{report.seconds:.1f}", "student": f"{report.student_seconds:.1f}"}
+        line = catalogue.gettext("checked in {seconds} s (the student's processes: {student} s)").format(**took)
+        typer.echo(catalogue.numbers(line))
+    if results is not None:  # score 0 and why for a file that cannot be checked
+        write_text_atomically(results, gradescope_json(report, catalogue), replace=force)
+    if report.problem is not None:
+        typer.echo(catalogue.numbers(catalogue.gettext("error: ") + catalogue.translate(report.problem)), err=True)
+        raise typer.Exit(2)
     if not report.passed:
         raise typer.Exit(1)
-
-
-def _write_results(results: Path | None, graded: Graded, catalogue: Catalogue, force: bool) -> None:
-    """--gradescope's results.json of the submission checked (nothing without --gradescope)."""
-    if results is not None:
-        write_text_atomically(results, gradescope_json(graded, catalogue), replace=force)
 
 
 def _catalogue(lang: str | None, file: Path | None = None) -> Catalogue:
@@ -167,25 +149,16 @@ def _made_folder(folder: Path) -> Path:
     return folder
 
 
-def _results_file(folder: Path | None, force: bool) -> Path | None:
-    if folder is None:
-        return None
-    check_output_path(_made_folder(folder) / "results.json", force)
-    return folder / "results.json"
-
-
 @exercise_app.command(name="grade", short_help="Grade every submission in DIR, in parallel.")
 def grade_command(
     folder: Annotated[Path, typer.Argument(metavar="DIR", help="one subfolder or one .py file per submission")],
     key: KeyFlag = None,
     timeout: TimeoutFlag = DEFAULT_BUDGET,
-    jobs: Annotated[int | None, typer.Option(min=1, help="submissions at once (default: the cores)")] = None,
-    csv_path: Annotated[
-        Path | None, typer.Option("--csv", metavar="F", help="one row per submission", show_default=False)
-    ] = None,
+    jobs: opt(int | None, min=1, help="submissions at once (default: the cores)") = None,
+    csv_path: opt(Path | None, "--csv", metavar="F", help="one row per submission", show_default=False) = None,
     gradescope: GradescopeFlag = None,
     force: ForceFlag = False,
-    quiet: Annotated[bool, typer.Option("--quiet", help="no progress bar")] = False,
+    quiet: opt(bool, "--quiet", help="no progress bar") = False,
     require_sandbox: RequireSandboxFlag = False,
     lang: LangFlag = None,
 ) -> None:
@@ -198,7 +171,7 @@ def grade_command(
     catalogue, submissions = _catalogue(lang), discover(folder)
     outputs = [(path, option) for path, option in ((csv_path, "--csv"), (gradescope, "--gradescope")) if path]
     keyfile = key or next((p.parent / KEY_FILE if o == "--csv" else p / KEY_FILE for p, o in outputs), None)
-    _check_outputs(folder, submissions, [*outputs, *([(keyfile, "--key")] if keyfile else [])], force)
+    _check_outputs(folder, submissions, csv_path, gradescope, keyfile, force)
     _sandbox_or_refuse(require_sandbox)
     secret = read_key(keyfile) if keyfile else secrets.token_bytes(32)
     book, started = Gradebook(csv_path, gradescope, force, catalogue), time.perf_counter()
@@ -229,7 +202,7 @@ def _grade_into(book: Gradebook, grade: Callable[..., None], outputs: list[tuple
             try:
                 with progress_bar(count, not quiet, what="submissions") as advance:
 
-                    def done(one: Graded) -> None:
+                    def done(one: Report) -> None:
                         book.add(one)
                         advance()
 
@@ -241,13 +214,13 @@ def _grade_into(book: Gradebook, grade: Callable[..., None], outputs: list[tuple
     return None
 
 
-def _check_outputs(folder: Path, submissions: list[Submission], outputs: list[tuple[Path, str]], force: bool) -> None:
+def _check_outputs(folder: Path, submissions: list[Submission], csv_path: Path | None, gradescope: Path | None,
+                   keyfile: Path | None, force: bool) -> None:  # fmt: skip
     """Refuse, before any grading, an output or the key inside the class folder, an existing output
     without --force, and a --csv that a submission's results.json folder would take."""
-    for path, option in outputs:
-        check_outside(path, folder, option)
-    named = dict((option, path) for path, option in outputs)
-    gradescope, csv_path = named.get("--gradescope"), named.get("--csv")
+    for path, option in ((csv_path, "--csv"), (gradescope, "--gradescope"), (keyfile, "--key")):
+        if path is not None:
+            check_outside(path, folder, option)
     if gradescope is not None:
         _made_folder(gradescope)
         taken = [s.name for s in submissions if (gradescope / s.name / "results.json").exists()]
@@ -265,12 +238,12 @@ def _check_outputs(folder: Path, submissions: list[Submission], outputs: list[tu
 @exercise_app.command(name="autograder", short_help="Write Gradescope's autograder bundle (a .zip).")
 def autograder_command(
     bundle: Annotated[Path, typer.Argument(metavar="OUT.zip", help="the bundle to write")],
-    key: Annotated[
+    key: opt(
         Path | None,
-        typer.Option(
-            metavar="FILE", show_default=False, help="the grader's secret key (default: a new one, in the bundle)"
-        ),
-    ] = None,
+        metavar="FILE",
+        show_default=False,
+        help="the grader's secret key (default: a new one, in the bundle)",
+    ) = None,
     timeout: TimeoutFlag = DEFAULT_BUDGET,
     lang: LangFlag = None,
     force: ForceFlag = False,

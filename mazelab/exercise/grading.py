@@ -21,14 +21,13 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from mazelab.atomic import WriteError, write_text_atomically
 from mazelab.exercise.language import Catalogue
 from mazelab.exercise.parts import FAIL, NOT_OWN, NOT_RUN, NOT_WRITTEN, PASS, clean
-from mazelab.exercise.report import WHOLE, NotGradableError, Report, check_file, format_report
+from mazelab.exercise.report import WHOLE, NotGradableError, References, Report, Submission, check_file, format_report
 from mazelab.exercise.sandbox import (
     DEFAULT_BUDGET,
     GradingStoppedError,
@@ -38,12 +37,7 @@ from mazelab.exercise.sandbox import (
 )
 from mazelab.exercise.student import PARTS
 from mazelab.exercise.template import FILTER_FILE
-from mazelab.exercise.whole import References
-
-try:
-    import fcntl
-except ImportError:  # Windows: no claim, outputs are still written whole (mazelab.atomic)
-    fcntl = None  # type: ignore[assignment]
+from mazelab.experiments.journal import lock
 
 KEY_FILE = ".grading.key"  # hidden: no submission has its name (grading skips names that start with ".")
 KEY_BYTES = 32  # 256 bits; a given key needs at least 16 (128 bits)
@@ -57,39 +51,6 @@ SHORT = {PASS: "pass", FAIL: "FAIL", NOT_WRITTEN: "todo", NOT_RUN: "-", NOT_OWN:
 
 class ClaimError(ValueError):
     """An output or key that cannot be used: one line naming it and the way out."""
-
-
-@dataclass
-class Submission:
-    """One submission: its name (the folder's or the file's), the file to grade, or why there is none."""
-
-    name: str
-    file: Path | None
-    problem: str | None = None
-    own_folder: bool = False  # a subfolder of its own: the Python files beside the file are its too
-
-    def __post_init__(self) -> None:
-        self.name = clean(self.name, 200)
-        self.problem = None if self.problem is None else clean(self.problem)
-
-
-@dataclass
-class Graded:
-    """A submission's outcome: its report, or the one line why it could not be checked."""
-
-    submission: Submission
-    report: Report | None
-    problem: str | None
-    seconds: float
-
-    def status(self, part: str) -> str | None:
-        if self.report is None:
-            return FAIL
-        return next((row.status for row in self.report.rows if row.part == part), None)
-
-    @property
-    def passed(self) -> bool:
-        return self.report is not None and self.report.passed
 
 
 def discover(folder: Path) -> list[Submission]:
@@ -132,29 +93,30 @@ def _in_folder(folder: Path) -> Submission:
     return Submission(folder.name, None, f"{folder}: which file? {names} (call the one to grade {FILTER_FILE})")
 
 
-def grade_one(submission: Submission, key: bytes, timeout: float, references: References) -> Graded:
-    """Check one submission: never raises for the submission, nor for the grader's own failure on it
-    (its row says so); only a sandbox that cannot start (SandboxError) and a stop propagate."""
-    started = time.perf_counter()
-    if submission.file is None:
-        return Graded(submission, None, submission.problem, 0.0)
-    try:
-        file, own = str(submission.file), submission.own_folder
-        report = check_file(file, key=key, timeout=timeout, references=references, companions=own)
-    except NotGradableError as error:
-        return Graded(submission, None, str(error), time.perf_counter() - started)
-    except (SandboxError, GradingStoppedError, KeyboardInterrupt):
-        raise
-    except Exception as error:  # the grader's own failure on this submission: its row, not the class's
-        why = clean(f"the grader could not check it: {type(error).__name__}: {error}")
-        return Graded(submission, None, why, time.perf_counter() - started)
-    return Graded(submission, report, None, time.perf_counter() - started)
+def grade_one(submission: Submission, timeout: float, references: References | None = None, **inputs: Any) -> Report:
+    """Check one submission (`exercise check`'s, or one of a class's), its inputs from `inputs` (the
+    key, or a seed: check_file): never raises for the submission, nor for the grader's own failure on
+    it (its row says so); only a sandbox that cannot start (SandboxError) and a stop propagate."""
+    started, problem = time.perf_counter(), submission.problem
+    if submission.file is not None:
+        try:
+            file, own = str(submission.file), submission.own_folder
+            report = check_file(file, timeout=timeout, references=references, companions=own, **inputs)
+            report.submission = submission
+            return report
+        except NotGradableError as error:
+            problem = str(error)
+        except (SandboxError, GradingStoppedError, KeyboardInterrupt):
+            raise
+        except Exception as error:  # the grader's own failure on this submission: its row, not the class's
+            problem = clean(f"the grader could not check it: {type(error).__name__}: {error}")
+    return Report(submission.name, None, submission=submission, problem=problem, seconds=time.perf_counter() - started)
 
 
 class GradingInterruptedError(Exception):
     """Ctrl-C or SIGTERM stopped the grading: the submissions graded before it (`graded`, in order)."""
 
-    def __init__(self, graded: list[Graded]):
+    def __init__(self, graded: list[Report]):
         super().__init__("the grading was stopped")
         self.graded = graded
 
@@ -171,8 +133,8 @@ def grade_folder(
     key: bytes,
     timeout: float = DEFAULT_BUDGET,
     jobs: int | None = None,
-    on_done: Callable[[Graded], None] | None = None,
-) -> list[Graded]:
+    on_done: Callable[[Report], None] | None = None,
+) -> list[Report]:
     """Grade the submissions, `jobs` at a time (default: the cores), in their order, calling `on_done`
     with each as soon as it is graded."""
     jobs = jobs or os.cpu_count() or 1
@@ -182,8 +144,8 @@ def grade_folder(
     pool = ProcessPoolExecutor(jobs, multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn"))
     references = References(pool)
 
-    def one(submission: Submission) -> Graded:
-        graded = grade_one(submission, key, timeout, references)
+    def one(submission: Submission) -> Report:
+        graded = grade_one(submission, timeout, references, key=key)
         if on_done is not None:
             with lock:
                 on_done(graded)
@@ -254,30 +216,25 @@ def claimed(outputs: list[tuple[Path, str]]) -> Iterator[None]:
     grader holds one."""
     held: list[tuple[int, Path]] = []
     try:
-        for output, option in outputs if fcntl is not None else []:
-            lock = output.parent / f".{output.name}.grading"
+        for output, option in outputs:
+            claim = output.parent / f".{output.name}.grading"
             try:
-                handle = os.open(lock, os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o644)
-            except OSError as error:
-                raise WriteError(error.errno, error.strerror, str(lock)) from None
-            try:
-                fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except OSError:
-                os.close(handle)
-                raise ClaimError(
-                    f"{option} {output}: another grader is writing it now; wait for it or choose another name"
-                ) from None
-            held.append((handle, lock))
-            try:
+                handle = os.open(claim, os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o644)
+                if not lock(handle):  # another grader holds it (Windows has no claim: writes are whole anyway)
+                    os.close(handle)
+                    raise ClaimError(
+                        f"{option} {output}: another grader is writing it now; wait for it or choose another name"
+                    )
+                held.append((handle, claim))
                 os.ftruncate(handle, 0)
                 os.write(handle, f"{os.getpid()}\n".encode())
             except OSError as error:  # a full disk: named
-                raise WriteError(error.errno, error.strerror, str(lock)) from None
+                raise WriteError(error.errno, error.strerror, str(claim)) from None
         yield
     finally:
-        for handle, lock in held:
+        for handle, claim in held:
             with contextlib.suppress(OSError):
-                lock.unlink()
+                claim.unlink()
             os.close(handle)
 
 
@@ -293,17 +250,17 @@ class Gradebook:
 
     def __init__(self, csv_path: Path | None, gradescope: Path | None, force: bool, catalogue: Catalogue):
         self.csv, self.gradescope, self.force, self.catalogue = csv_path, gradescope, force, catalogue
-        self.graded: list[Graded] = []
+        self.graded: list[Report] = []
 
-    def add(self, graded: Graded) -> None:
-        self.graded.append(graded)
+    def add(self, report: Report) -> None:
+        self.graded.append(report)
         if self.gradescope is not None:
-            target = self.gradescope / graded.submission.name / "results.json"
+            target = self.gradescope / report.submission.name / "results.json"
             try:
                 target.parent.mkdir(exist_ok=True)
             except OSError as error:
                 raise WriteError(error.errno, error.strerror, str(target.parent)) from None
-            write_text_atomically(target, gradescope_json(graded, self.catalogue), replace=True)
+            write_text_atomically(target, gradescope_json(report, self.catalogue), replace=True)
         if self.csv is not None:
             write_text_atomically(partial_name(self.csv), csv_text(self.graded), replace=True)
 
@@ -318,15 +275,16 @@ class Gradebook:
         return written
 
 
-def csv_row(graded: Graded) -> dict[str, Any]:
+def csv_row(report: Report) -> dict[str, Any]:
     """One submission's CSV row: its statuses, the whole filter's figures, time and what went wrong."""
-    report, row = graded.report, {name: "" for name in CSV_COLUMNS}
-    row.update(submission=graded.submission.name, seconds=f"{graded.seconds:.1f}")
-    row["file"] = clean(graded.submission.file.name) if graded.submission.file else ""
+    row, file = {name: "" for name in CSV_COLUMNS}, report.submission.file
+    row.update(
+        submission=report.submission.name, file=clean(file.name) if file else "", seconds=f"{report.seconds:.1f}"
+    )
     for part in ROW_NAMES:
-        row[part.replace(" ", "_")] = graded.status(part) or NOT_RUN
-    if report is None:
-        row["problem"] = graded.problem or ""
+        row[part.replace(" ", "_")] = report.status(part) or NOT_RUN
+    if report.problem is not None:
+        row["problem"] = report.problem
         return row
     if report.figures:
         figures = report.figures
@@ -349,7 +307,7 @@ def problems_of(report: Report) -> list[str]:
     return list(dict.fromkeys([*report.problems, *wrong]))
 
 
-def csv_text(graded: list[Graded]) -> str:
+def csv_text(graded: list[Report]) -> str:
     """The CSV of the graded submissions: every field quoted (a name holding a comma or a quote is one
     field; what does not print was escaped before)."""
     buffer = io.StringIO()
@@ -359,16 +317,16 @@ def csv_text(graded: list[Graded]) -> str:
     return buffer.getvalue()
 
 
-def gradescope_results(graded: Graded, catalogue: Catalogue | None = None) -> dict[str, Any]:
+def gradescope_results(report: Report, catalogue: Catalogue | None = None) -> dict[str, Any]:
     """Gradescope's results.json for one submission: a test per row (1 point each), the report as
     the submission's output (its published autograder format), in the catalogue's language; a
     submission that could not be checked scores 0 with the reason. No seed nor key is in it."""
-    words, report = catalogue or Catalogue(), graded.report
+    words = catalogue or Catalogue()
     _ = words.gettext
-    if report is None:
-        text = words.numbers(words.translate(graded.problem or "not checked"))
+    if report.problem is not None:
+        text = words.numbers(words.translate(report.problem))
         tests = [_test(i, _(part), 0.0, text) for i, part in enumerate(ROW_NAMES, 1)]
-        return {"score": 0.0, "execution_time": round(graded.seconds), "output": text, "tests": tests}
+        return {"score": 0.0, "execution_time": round(report.seconds), "output": text, "tests": tests}
     tests = []
     for i, row in enumerate(report.rows, 1):
         status = _(FAIL.upper() if row.status == FAIL else row.status)
@@ -377,7 +335,7 @@ def gradescope_results(graded: Graded, catalogue: Catalogue | None = None) -> di
         tests.append(_test(i, _(row.part), 1.0 if row.passed else 0.0, words.numbers("\n".join(lines))))
     return {
         "score": float(sum(t["score"] for t in tests)),
-        "execution_time": round(graded.seconds),
+        "execution_time": round(report.seconds),
         "output": format_report(report, catalogue=words),
         "stdout_visibility": "hidden",
         "tests": tests,
@@ -398,11 +356,11 @@ def _test(number: int, name: str, score: float, output: str) -> dict[str, Any]:
     }
 
 
-def gradescope_json(graded: Graded, catalogue: Catalogue | None = None) -> str:
-    return json.dumps(gradescope_results(graded, catalogue), indent=2, allow_nan=False) + "\n"
+def gradescope_json(report: Report, catalogue: Catalogue | None = None) -> str:
+    return json.dumps(gradescope_results(report, catalogue), indent=2, allow_nan=False) + "\n"
 
 
-def summary(graded: list[Graded], width: int = 100) -> str:
+def summary(graded: list[Report], width: int = 100) -> str:
     """A line per submission (each row's status and the time), what went wrong on its own indented
     line under it (at most two lines), and the counts."""
     name_width = min(24, max([len("submission"), *(len(g.submission.name) for g in graded)]))
@@ -411,7 +369,7 @@ def summary(graded: list[Graded], width: int = 100) -> str:
     for one in graded:
         cells = "  ".join(f"{SHORT.get(one.status(p), '?'):<8}" for p in ROW_NAMES)
         lines.append(f"{one.submission.name[:name_width]:<{name_width}}  {cells}  {one.seconds:7.1f}")
-        problem = one.problem or ("; ".join(problems_of(one.report)) if one.report else "")
+        problem = one.problem or "; ".join(problems_of(one))
         wrapped = textwrap.wrap(problem, width - 4, break_long_words=True, break_on_hyphens=False)
         lines += ["    " + line for line in wrapped[:2]]
         if len(wrapped) > 2:
@@ -422,7 +380,7 @@ def summary(graded: list[Graded], width: int = 100) -> str:
     lines.append("pass, FAIL; todo: not written; REF: the lab's code with its names changed; -: not run")
     failed = sum(bool(g.problem and g.problem.startswith("the grader could not check it")) for g in graded)
     lines += [f"{failed} could not be checked by the grader itself (their rows say why)"] if failed else []
-    notes = {one.report.note for one in graded if one.report and one.report.note}
+    notes = {one.note for one in graded if one.note}
     lines += [line for note in sorted(notes) for line in textwrap.wrap(note, width)]
     return "\n".join(lines)
 
@@ -431,7 +389,6 @@ __all__ = [
     "CSV_COLUMNS",
     "KEY_FILE",
     "Gradebook",
-    "Graded",
     "GradingInterruptedError",
     "Submission",
     "claimed",

@@ -52,20 +52,15 @@ def read_po(path: Path) -> dict[str, str]:
             field, line = keyword, rest.strip()
         if field is None or not (line.startswith('"') and line.endswith('"') and len(line) >= 2):
             raise CatalogueError(f"{path}, line {number}: not a msgid, a msgstr or a quoted string")
-        values[field].append(_unquote(line, path, number))
+        try:  # its C escapes read as a Python string literal: a literal, never code
+            value = ast.literal_eval(line)
+        except (ValueError, SyntaxError):
+            raise CatalogueError(f"{path}, line {number}: a string the reader cannot read") from None
+        if not isinstance(value, str):
+            raise CatalogueError(f"{path}, line {number}: not a string")
+        values[field].append(value)
     flush()
     return entries
-
-
-def _unquote(text: str, path: Path, number: int) -> str:
-    """A .po string's value (its C escapes read as a Python string literal: a literal, never code)."""
-    try:
-        value = ast.literal_eval(text)
-    except (ValueError, SyntaxError):
-        raise CatalogueError(f"{path}, line {number}: a string the reader cannot read") from None
-    if not isinstance(value, str):
-        raise CatalogueError(f"{path}, line {number}: not a string")
-    return value
 
 
 class Catalogue(gettext.NullTranslations):

@@ -1,6 +1,10 @@
-"""A row of the report, and the verdicts on the four parts, made by the grader from the values the
-student's process returned for the inputs of mazelab.exercise.inputs: what each check tests, its
-tolerance and its false-alarm rate are docs/exercise.md's "What each check promises".
+"""A row of the report, and the verdicts on the four parts and the whole filter, made by the grader from
+the values the student's process returned for the inputs of mazelab.exercise.inputs: what each check
+tests, its tolerance and its false-alarm rate are docs/exercise.md's "What each check promises". The
+whole filter is judged on the seed's scenarios by the distance between the student's estimates and the
+exact grid filter's posterior means, beside the shipped SIR's (both run by the grader,
+mazelab.exercise.report.References): the sign and the magnitude tests fail a filter that is the SIR in
+distribution with probability at most 0.0042.
 """
 
 from __future__ import annotations
@@ -12,8 +16,9 @@ from statistics import NormalDist
 import numpy as np
 
 from mazelab.exercise.child import Message
-from mazelab.exercise.inputs import PartInputs
+from mazelab.exercise.inputs import SCENARIO_COUNT, PartInputs, ScenarioInputs
 from mazelab.model import OUTSIDE_PENALTY, ROBOT_SPEED, log_likelihood
+from mazelab.simulation import convergence_step
 from mazelab.weights import effective_sample_size
 
 PASS, FAIL, NOT_WRITTEN, NOT_RUN, NOT_OWN = "pass", "fail", "not written", "not run", "not own work"
@@ -43,10 +48,6 @@ class Row:
     @property
     def passed(self) -> bool:
         return self.status == PASS
-
-    @property
-    def not_written(self) -> bool:
-        return self.status == NOT_WRITTEN
 
 
 class BadAnswerError(ValueError):
@@ -488,3 +489,124 @@ JUDGES = {
     "weigh": judge_weigh,
     "estimate": judge_estimate,
 }  # resample: its own (a scheme too)
+
+
+# -- the whole filter ----------------------------------------------------------------------------
+WORSE_LIMIT = 11  # fail when farther than the SIR from the exact mean on this many of the 12 scenarios
+MAGNITUDE_ALPHA = 0.001  # the magnitude test's level (its p-value is a multiple of 1/4096)
+NAN_HINT = "the estimate must be a number at every step: check the weights (all 0 or NaN?) and estimate"
+
+
+def sign_test_alpha(limit: int = WORSE_LIMIT, scenarios: int = SCENARIO_COUNT) -> float:
+    """P(Binomial(scenarios, 1/2) >= limit): the whole-filter check's false-alarm rate."""
+    return sum(math.comb(scenarios, k) for k in range(limit, scenarios + 1)) / 2**scenarios
+
+
+def whole_expected(scheme: str = "systematic") -> str:
+    return (
+        f"no worse than SIR ({scheme}): farther on < {WORSE_LIMIT} of {SCENARIO_COUNT} (alpha "
+        f"{sign_test_alpha():.4f}), distance ratio p > {MAGNITUDE_ALPHA:g}"
+    )
+
+
+def magnitude_p(distances: np.ndarray, sir_distances: np.ndarray) -> tuple[float, float]:
+    """(the geometric mean of the distance ratios, the randomization test's p-value): the share of the
+    2^n sign patterns of the log ratios whose sum reaches theirs (exact given the ratios' sizes)."""
+    ratios = np.log((np.asarray(distances) + 1e-12) / (np.asarray(sir_distances) + 1e-12))
+    n = len(ratios)
+    signs = ((np.arange(2**n)[:, None] >> np.arange(n)) & 1) * 2 - 1
+    sums = signs @ np.abs(ratios)
+    return float(np.exp(ratios.mean())), float(np.mean(sums >= ratios.sum() - 1e-9))
+
+
+@dataclass
+class ScenarioFigures:
+    """One scenario: the student's and the SIR's distance to the exact mean (second half) and convergence."""
+
+    maze: str
+    seed: int
+    sigma: float
+    delta: float
+    particles: int
+    distance: float
+    sir_distance: float
+    converged: bool
+    sir_converged: bool
+
+
+FIGURE_COLUMNS = (  # the per-scenario table: each column's heading and its cell
+    ("maze", lambda f: f.maze),
+    ("sigma", lambda f: f"{f.sigma:.2f}"),
+    ("delta", lambda f: f"{f.delta:.2f}"),
+    ("N", lambda f: str(f.particles)),
+    ("to exact", lambda f: f"{f.distance:.3f}"),
+    ("SIR's", lambda f: f"{f.sir_distance:.3f}"),
+    ("converged", lambda f: "yes" if f.converged else "no"),
+    ("SIR's", lambda f: "yes" if f.sir_converged else "no"),
+)
+
+
+def distance_to_exact(estimates: np.ndarray, exact: np.ndarray) -> float:
+    """Mean distance between a run's estimates and the exact posterior means over the second half."""
+    window = slice(len(exact) // 2, None)
+    return float(np.hypot(*(estimates - exact)[window].T).mean())
+
+
+def converged(estimates: np.ndarray, truth: np.ndarray) -> bool:
+    return convergence_step(np.hypot(*(estimates - truth).T)) is not None
+
+
+def whole_answer(scenarios: list[ScenarioInputs], answer: Message, scheme: str) -> Row | list[np.ndarray]:
+    """The student's estimates per scenario, or the failing row when there are none to compare: an
+    error (naming the scenario) or an estimate that is not a number (naming the step)."""
+    expected, error = whole_expected(scheme), error_of(answer)
+    if error:
+        where = answer.meta.get("scenario")
+        prefix = f"scenario {where + 1}: " if isinstance(where, int) and not isinstance(where, bool) else ""
+        hint = NAN_HINT if "not finite" in error["text"] else "fix the error first"
+        return Row("whole filter", FAIL, expected, prefix + error["text"], hint)
+    estimates = []
+    for i, scenario in enumerate(scenarios):
+        mine = take(answer, f"estimates/{i}", (len(scenario.measurements), 2))
+        if not np.isfinite(mine).all():
+            step = int(np.argmin(np.isfinite(mine).all(axis=1))) + 1
+            got = f"scenario {i + 1}: the estimate is {mine[step - 1].tolist()} at step {step}"
+            return Row("whole filter", FAIL, expected, got, NAN_HINT)
+        estimates.append(mine)
+    return estimates
+
+
+def judge_whole(
+    scenarios: list[ScenarioInputs],
+    estimates: list[np.ndarray],
+    exact: list[np.ndarray],
+    sir: list[np.ndarray],
+    scheme: str,
+) -> tuple[Row, list[ScenarioFigures]]:
+    """The whole filter's row (the sign and magnitude tests against the SIR) and the figures per scenario."""
+    figures = [
+        ScenarioFigures(
+            s.maze,
+            s.seed,
+            s.sigma,
+            s.delta,
+            len(s.particles),
+            distance_to_exact(mine, exact[i]),
+            distance_to_exact(sir[i], exact[i]),
+            converged(mine, s.true_positions),
+            converged(sir[i], s.true_positions),
+        )
+        for i, (s, mine) in enumerate(zip(scenarios, estimates, strict=True))
+    ]
+    worse = sum(not f.distance <= f.sir_distance for f in figures)  # NaN counts as worse
+    mean, sir_mean = np.mean([f.distance for f in figures]), np.mean([f.sir_distance for f in figures])
+    ratio, p = magnitude_p(np.array([f.distance for f in figures]), np.array([f.sir_distance for f in figures]))
+    got = (
+        f"farther on {worse} of {len(figures)}; to exact {mean:.3f} (SIR {sir_mean:.3f}); "
+        f"converged {sum(f.converged for f in figures)}/{len(figures)} (SIR {sum(f.sir_converged for f in figures)}); "
+        f"distance ratio {ratio:.2f} (p {p:.2g})"
+    )
+    if worse < WORSE_LIMIT and p > MAGNITUDE_ALPHA:
+        return Row("whole filter", PASS, whole_expected(scheme), got), figures
+    hint = "the parts pass alone but not together: check what weigh and predict assume of each other"
+    return Row("whole filter", FAIL, whole_expected(scheme), got, hint), figures

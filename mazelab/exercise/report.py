@@ -1,7 +1,8 @@
 """The check of one submission (docs/exercise.md, "Grading one submission"): its inputs drawn, its
 stages run in child processes within one time budget (`check_file`, the grade) or in this process
-(`check`, the self-check, which nothing isolates), each row judged here from the values they returned,
-and the report as text of at most WIDTH columns. A submission that cannot be checked at all raises
+(`check`, the self-check, which nothing isolates), the grader's own runs of the exact and the SIR
+filters beside them (`References`), each row judged here from the values they returned, and the report
+as text of at most WIDTH columns. A submission that cannot be checked at all raises
 NotGradableError (one line). Every text that reaches a report is `clean` (parts.py).
 """
 
@@ -9,13 +10,19 @@ from __future__ import annotations
 
 import contextlib
 import inspect
+import queue
 import shlex
 import textwrap
+import threading
 import time
+import warnings
 from collections.abc import Callable
+from concurrent.futures import Executor, Future
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from mazelab.exercise import child
 from mazelab.exercise.child import Message, decode, encode
@@ -28,11 +35,12 @@ from mazelab.exercise.inputs import (
     files_seed,
     request,
 )
+from mazelab.exercise.kit import class_source, copied_parts
 from mazelab.exercise.language import Catalogue
-from mazelab.exercise.likeness import class_source, copied_parts
 from mazelab.exercise.parts import (
     EXPECTED,
     FAIL,
+    FIGURE_COLUMNS,
     HINTS,
     JUDGES,
     NOT_OWN,
@@ -45,15 +53,17 @@ from mazelab.exercise.parts import (
     error_of,
     error_row,
     judge_resample,
+    judge_whole,
     resample_expected,
+    whole_answer,
+    whole_expected,
 )
 from mazelab.exercise.sandbox import DEFAULT_BUDGET, ChildRun, companions_of, run_child, sandbox, submission_copy
 from mazelab.exercise.student import PARTS
-from mazelab.exercise.whole import FIGURE_COLUMNS, References, judge_whole, whole_answer
-from mazelab.exercise.whole import expected_text as whole_expected
 from mazelab.experiments.tables import format_table
 from mazelab.invocation import command_prefix
 from mazelab.registry import split_spec
+from mazelab.simulation import simulate
 
 STAGES = (*PARTS, "whole")
 WHOLE = "whole filter"
@@ -64,6 +74,7 @@ TWICE = "answered twice (two processes answering, or a forged answer beside its 
 WIDTH = 100
 PART_WIDTH, RESULT_WIDTH = 12, 12  # "whole filter", "not own work" (wider where a language's words are)
 SHOWN = {FAIL: "FAIL"}  # how a status reads in the table (the others as they are)
+GRID_RESOLUTION = 0.05  # the exact filter's cells: fine next to L = 0.2, coarse enough to be quick
 HEADINGS = {
     "given": "Checking {name}: inputs from seed {seed} (given)",
     "files": "Checking {name}: inputs from seed {seed} (from the files; --seed {seed} repeats it)",
@@ -77,11 +88,26 @@ FIGURES_INTRO = (
 
 
 @dataclass
+class Submission:
+    """One submission: its name (the folder's or the file's), the file to grade, or why there is none."""
+
+    name: str
+    file: Path | None
+    problem: str | None = None
+    own_folder: bool = False  # a subfolder of its own: the Python files beside the file are its too
+
+    def __post_init__(self) -> None:
+        self.name = clean(self.name, 200)
+        self.problem = None if self.problem is None else clean(self.problem)
+
+
+@dataclass
 class Report:
     """One submission's check: its rows (the parts, then the whole filter), the whole filter's figures
     per scenario, where its inputs came from (`source`: a key of HEADINGS; `seed` None for a key, which
     no report shows), what went wrong beyond the rows, the time it took (and the student's processes'
-    share), their prints, and the line saying it ran unsandboxed."""
+    share), their prints, the line saying it ran unsandboxed; in a grading, the submission, or the one
+    line why it could not be checked."""
 
     filter_name: str
     seed: int | None
@@ -94,6 +120,8 @@ class Report:
     output: str = ""
     note: str = ""
     scheme: str = "systematic"  # the shipped scheme the student's resampler resembles: the whole filter's SIR uses it
+    submission: Submission | None = None  # in a grading (mazelab.exercise.grading)
+    problem: str | None = None  # why it could not be checked at all (then it has no rows)
 
     def __post_init__(self) -> None:
         self.filter_name = clean(self.filter_name, 80)
@@ -102,6 +130,12 @@ class Report:
     def passed(self) -> bool:
         """Every row passed (exit code 0)."""
         return bool(self.rows) and all(row.passed for row in self.rows)
+
+    def status(self, part: str) -> str | None:
+        """A row's status (FAIL for every row where it could not be checked; None: not run)."""
+        if self.problem is not None:
+            return FAIL
+        return next((row.status for row in self.rows if row.part == part), None)
 
     def row(self, part: str) -> Row:
         """The row of one part (or "whole filter")."""
@@ -113,6 +147,84 @@ class NotGradableError(ValueError):
 
     def __init__(self, text: str):
         super().__init__(clean(text))
+
+
+# -- the grader's own runs ------------------------------------------------------------------------
+def reference_run(scenario: ScenarioInputs, filter_name: str, **options: object) -> np.ndarray:
+    """A shipped filter's estimates (steps, 2) on the scenario: the exact grid filter's posterior means
+    ("grid"), or the SIR's ("sir", resampling with the student's scheme)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        result = simulate(
+            scenario.robot(),
+            scenario.world,
+            scenario.sigma,
+            scenario.delta,
+            None,
+            len(scenario.measurements),
+            scenario.particles,
+            filter_name,
+            seed=scenario.seed,
+            **options,
+        )
+    return result.estimates
+
+
+_memo: dict[tuple, Future] = {}
+_memo_lock = threading.Lock()
+
+
+class Background(Executor):
+    """One daemon thread working through what is submitted: a check that ends early does not wait
+    for the reference runs it no longer needs (nor count them as threads left running)."""
+
+    def __init__(self) -> None:
+        self._queue: queue.SimpleQueue = queue.SimpleQueue()
+        threading.Thread(target=self._work, name="mazelab-references", daemon=True).start()
+
+    def submit(self, function: Callable[..., Any], /, *args: Any, **kwargs: Any) -> Future:
+        future: Future = Future()
+        self._queue.put((future, function, args, kwargs))
+        return future
+
+    def _work(self) -> None:
+        while True:
+            future, function, args, kwargs = self._queue.get()
+            if not future.set_running_or_notify_cancel():
+                continue
+            try:
+                future.set_result(function(*args, **kwargs))
+            except BaseException as error:  # the future carries it to whoever waits
+                future.set_exception(error)
+
+
+_background: Background | None = None
+
+
+class References:
+    """The exact and the SIR runs of scenarios, each computed once per process (a memo of futures
+    shared by every References), on `executor` (default: one background thread)."""
+
+    def __init__(self, executor: Executor | None = None):
+        self.executor = executor
+
+    def _submit(self, key: tuple, scenario: ScenarioInputs, filter_name: str, **options: object) -> Future:
+        global _background
+        with _memo_lock:
+            future = _memo.get(key)
+            if future is not None and not (future.done() and (future.cancelled() or future.exception())):
+                return future
+            if self.executor is None and _background is None:
+                _background = Background()
+            future = (self.executor or _background).submit(reference_run, scenario, filter_name, **options)
+            _memo[key] = future
+            return future
+
+    def exact(self, scenario: ScenarioInputs) -> Future:
+        return self._submit(("exact", scenario.key), scenario, "grid", resolution=GRID_RESOLUTION)
+
+    def sir(self, scenario: ScenarioInputs, scheme: str) -> Future:
+        return self._submit(("sir", scheme, scenario.key), scenario, "sir", resampling=scheme)
 
 
 # -- collecting the answers ---------------------------------------------------------------------------
@@ -216,7 +328,7 @@ def build_report(
     copies: dict | None = None,
 ) -> Report:
     """The report's rows from the answers: each stage's row (`_row`), a part that is the lab's code
-    (`copies`, mazelab.exercise.likeness) marked not own work; what went wrong beyond the rows; the
+    (`copies`, mazelab.exercise.kit.copied_parts) marked not own work; what went wrong beyond the rows; the
     failing parts named in the whole filter's hint."""
     report.output, report.student_seconds = answers.output, answers.seconds
     expected = {**EXPECTED, "resample": resample_expected(parts), "whole": whole_expected()}
@@ -257,7 +369,7 @@ def _row(stage: str, expected: str, report: Report, parts: PartInputs, scenarios
             return row
         if stage != "whole":
             return error_row(stage, expected, error, HINTS[stage]) if error else JUDGES[stage](parts, message)
-        if any(_not_written(answers.results.get(p)) for p in PARTS):
+        if any(row.status == NOT_WRITTEN for row in report.rows):  # the parts' rows come first
             return Row(WHOLE, NOT_RUN, whole_expected(scheme), "not run", "write every part first")
         estimates = whole_answer(scenarios, message, scheme)
         if isinstance(estimates, Row):
@@ -279,11 +391,6 @@ def ended_row(part: str, expected: str, ended: str, output: str) -> Row:
 
 def _label(stage: str) -> str:
     return WHOLE if stage == "whole" else stage
-
-
-def _not_written(message: Message | None) -> bool:
-    error = None if message is None else message.meta.get("error")
-    return isinstance(error, dict) and error.get("kind") == "not written"
 
 
 # -- the checks ----------------------------------------------------------------------------------------
@@ -427,10 +534,10 @@ def progress(filter_class: type, lang: str | None = None) -> str:
 
     words = catalogue_for(lang or getattr(inspect.getmodule(filter_class), "LANGUAGE", None))
     report = check(filter_class, stages=PARTS)
-    todo = [row.part for row in report.rows if row.not_written]
+    todo = [row.part for row in report.rows if row.status == NOT_WRITTEN]
     left = words.gettext("still to write: {parts}").format(parts=", ".join(todo))
     lines = [f"{filter_class.name}: " + (left if todo else words.gettext("all four parts written"))]
-    written = [row for row in report.rows if not row.not_written]
+    written = [row for row in report.rows if row.status != NOT_WRITTEN]
     lines += [format_rows(written, catalogue=words)] if written else []
     if not todo:
         command = check_command(filter_class)

@@ -395,6 +395,8 @@ class ChildRun:
     ended: str | None = None
     output: str = ""
     seconds: float = 0.0
+    done: bool = False  # its last message was "done"
+    unreadable: str | None = None  # what made its answers unreadable
 
     @property
     def stage(self) -> str:
@@ -433,29 +435,24 @@ class ChildRun:
         return True
 
 
-class _Reader(threading.Thread):
-    """Reads the child's messages as they come (a daemon: a pipe kept open by an escaped grandchild
-    cannot hold the grader); stops at the end of the pipe or the first unreadable message."""
-
-    def __init__(self, stream: Any, run: ChildRun):
-        super().__init__(daemon=True)
-        self.stream, self.run_, self.problem, self.done = stream, run, None, False
-
-    def run(self) -> None:
-        received = 0
-        try:
-            while header := self.stream.read(8):
-                size = int.from_bytes(header, "big")
-                received += size
-                if len(header) < 8 or received > MAX_MESSAGE_BYTES:
-                    raise WireError(f"more than {MAX_MESSAGE_BYTES >> 20} MB" if len(header) == 8 else "a cut header")
-                data = self.stream.read(size)
-                message = decode(data) if len(data) == size else None
-                if message is None or not self.run_.take(message):
-                    raise WireError("a message cut short" if message is None else "an unexpected message")
-                self.done = message.meta.get("kind") == "done"
-        except (WireError, OSError, ValueError) as error:
-            self.problem = f"sent output the grader cannot read ({error})"
+def _read(stream: Any, run: ChildRun) -> None:
+    """Read the child's messages as they come into `run` (in a daemon thread: a pipe kept open by an
+    escaped grandchild cannot hold the grader), until the end of the pipe or the first unreadable
+    message (`run.unreadable` says what was wrong)."""
+    received = 0
+    try:
+        while header := stream.read(8):
+            size = int.from_bytes(header, "big")
+            received += size
+            if len(header) < 8 or received > MAX_MESSAGE_BYTES:
+                raise WireError(f"more than {MAX_MESSAGE_BYTES >> 20} MB" if len(header) == 8 else "a cut header")
+            data = stream.read(size)
+            message = decode(data) if len(data) == size else None
+            if message is None or not run.take(message):
+                raise WireError("a message cut short" if message is None else "an unexpected message")
+            run.done = message.meta.get("kind") == "done"
+    except (WireError, OSError, ValueError) as error:
+        run.unreadable = f"sent output the grader cannot read ({error})"
 
 
 class _Output(threading.Thread):
@@ -557,7 +554,8 @@ def _start(made: Sandbox, run: ChildRun, run_folder: Path, cgroup: Cgroup, cpu: 
         raise SandboxError(f"the student's process could not be started ({error})") from None
     finally:
         os.close(answers_out)
-    reader, printed = _Reader(os.fdopen(answers_in, "rb"), run), _Output(process.stdout.fileno())
+    reader = threading.Thread(target=_read, args=(os.fdopen(answers_in, "rb"), run), daemon=True)
+    printed = _Output(process.stdout.fileno())
     reader.start()
     printed.start()
     threading.Thread(target=_send, args=(process, request), daemon=True).start()
@@ -580,7 +578,7 @@ def _end_session(process: subprocess.Popen) -> None:
 
 
 def _how_it_ended(
-    run: ChildRun, reader: _Reader, code: int | None, made: Sandbox, waited: float | None, seconds: float
+    run: ChildRun, reader: threading.Thread, code: int | None, made: Sandbox, waited: float | None, seconds: float
 ) -> str | None:
     """None when it said "done" and exited 0; else one phrase naming how it ended and where."""
     # the signal: a negative return code, or bwrap's 128 + the signal of its child
@@ -592,11 +590,11 @@ def _how_it_ended(
         return f"ran past its time ({waited:.0f} s of the budget) {where} and was stopped"
     if number == getattr(signal, "SIGXCPU", 0):
         return f"ran past the time limit ({math.ceil(seconds)} s of processor time) {where} and was stopped"
-    if reader.problem:
-        return f"{reader.problem} {where}"
+    if run.unreadable:
+        return f"{run.unreadable} {where}"
     if reader.is_alive():
         return f"kept its answer pipe open after it ended {where}"
-    if reader.done and code == 0:
+    if run.done and code == 0:
         return None
     if number is not None:
         name = signal.Signals(number).name if number in signal.Signals._value2member_map_ else "unknown"

@@ -62,7 +62,7 @@ class StudentFilter(SMC):
     Attributes the parts may read: `self.world`, `self.sigma`, `self.delta`, `self.ROBOT_SPEED` (L) and
     `self.OUTSIDE_PENALTY` (refinement 1's factor), also importable from mazelab.exercise. The step is
     the lab's template (mazelab.smc.SMC), whose own methods (`move`, `reweight`, `normalise`, `due`, `resampled`,
-    ...) a helper of yours must not be named after.
+    ...) and the model's it calls here (`M0`, `M`, `logG`) a helper of yours must not be named after.
     """
 
     name: ClassVar[str] = "StudentFilter"
@@ -99,7 +99,7 @@ class StudentFilter(SMC):
         self.settings = type(self).options.resolve(options, self.name)
         self.world, self.sigma, self.delta = world, float(sigma), float(delta)
         self.rng = rng if rng is not None else np.random.default_rng()
-        super().__init__(StudentModel(self), particles, self.rng, dtype=float)
+        super().__init__(self, particles, self.rng, dtype=float)  # its own model: M0, M and logG below
         self._estimate: tuple[Any, np.ndarray] | None = None  # (the weights it is of, the estimate)
 
     # -- the student's four parts --------------------------------------------------------------------
@@ -119,38 +119,34 @@ class StudentFilter(SMC):
         """The posterior mean, shape (2,): a subclass writes it as `estimate(self, positions, weights)`."""
         raise NotImplementedError("estimate is still to write")
 
-    # -- the step's resampling: the student's part ------------------------------------------------------
-    def ancestors(self, W: Any, due: np.ndarray) -> np.ndarray:
-        """RESAMPLE by the student's `resample` of the normalised weights (one run), (1, N)."""
-        return self.call_resample(W.W[0])[None]
+    # -- the model and the scheme the step calls (mazelab.smc.SMC), from the student's parts ----------
+    def M0(self, count: int, rng: np.random.Generator) -> np.ndarray:  # noqa: N802 (particles' names)
+        """The prior's sample: uniform over the free area, (count, 2)."""
+        return self.world.random_free_places(count, rng)
 
-    def call_predict(
-        self, positions: np.ndarray, compass_angle: float, rng: np.random.Generator | None = None
-    ) -> np.ndarray:
-        """`predict` on a copy of the positions (drawing from `rng`, default the filter's), its answer
-        checked: (N, 2), finite."""
-        moved = self.predict(positions.copy(), compass_angle, self.rng if rng is None else rng)
-        return _finite("predict", answer_array("predict", moved, (len(positions), 2)))
+    def M(self, x: np.ndarray, A: np.ndarray | None, th0: np.ndarray, rngs: Any) -> tuple[np.ndarray, np.ndarray]:  # noqa: N802
+        """x_k^i ~ p(x_k | x_{k-1}^i) by the student's `predict` on a copy of x[A] (after resampling),
+        its answer checked: (1, N, 2), finite."""
+        chosen = x[0] if A is None else x[0][A[0]]
+        moved = answer_array("predict", self.predict(chosen.copy(), float(th0[0]), rngs[0]), (len(chosen), 2))
+        return _finite("predict", moved)[None], np.zeros((1, len(moved)))
 
-    def call_weigh(self, positions: np.ndarray, z: float) -> np.ndarray:
-        """`weigh` on a copy of the positions, its answer checked: (N,), no NaN or +inf."""
-        log_w = answer_array("weigh", self.weigh(positions.copy(), z), (len(positions),))
+    def logG(self, x: np.ndarray, z: np.ndarray) -> np.ndarray:  # noqa: N802
+        """log p(z_k | x_k^i) by the student's `weigh` on a copy of x, its answer checked: (1, N), no NaN
+        or +inf."""
+        log_w = answer_array("weigh", self.weigh(x[0].copy(), float(z[0])), (x.shape[1],))
         if np.isnan(log_w).any() or np.isposinf(log_w).any():
             raise PartError("weigh returned NaN or +inf; expected log-likelihoods (finite, or -inf for zero)")
-        return log_w
+        return log_w[None]
 
-    def call_resample(self, weights: np.ndarray, rng: np.random.Generator | None = None) -> np.ndarray:
-        """`resample` on a copy of the weights (drawing from `rng`, default the filter's), its answer
-        checked: N whole numbers in [0, N)."""
-        drawn = self.resample(weights.copy(), self.rng if rng is None else rng)
-        ancestors = answer_array("resample", drawn, (len(weights),), indices=True)
-        if len(ancestors) and (ancestors.min() < 0 or ancestors.max() >= len(weights)):
+    def ancestors(self, W: Any, due: np.ndarray) -> np.ndarray:
+        """RESAMPLE by the student's `resample` on a copy of the normalised weights (one run), its answer
+        checked: N whole numbers in [0, N), (1, N)."""
+        weights = W.W[0]
+        drawn = answer_array("resample", self.resample(weights.copy(), self.rng), (len(weights),), indices=True)
+        if len(drawn) and (drawn.min() < 0 or drawn.max() >= len(weights)):
             raise PartError(f"resample returned an index outside [0, {len(weights)})")
-        return ancestors
-
-    def call_estimate(self, positions: np.ndarray, weights: np.ndarray) -> np.ndarray:
-        """`estimate` on copies, its answer checked: (2,), finite."""
-        return _finite("estimate", answer_array("estimate", self.estimate_part(positions.copy(), weights.copy()), (2,)))
+        return drawn[None]
 
     # -- the filter contract (the weights, the ESS and the log evidence are the engine's) ------------
     @property
@@ -163,7 +159,8 @@ class StudentFilter(SMC):
     def estimate(self) -> np.ndarray:
         """The contract's point estimate: the student's estimate of the present posterior, (2,) (once per step)."""
         if self._estimate is None or self._estimate[0] is not self.W:
-            self._estimate = (self.W, self.call_estimate(self.positions, self.weights))
+            point = self.estimate_part(self.positions.copy(), self.weights.copy())
+            self._estimate = (self.W, _finite("estimate", answer_array("estimate", point, (2,))))
         return self._estimate[1].copy()
 
     @property
@@ -175,28 +172,6 @@ class StudentFilter(SMC):
     def belief(self) -> Particles:
         """What the viewer draws: the particles and their weights."""
         return Particles(self.positions, self.weights)
-
-
-class StudentModel:
-    """The model the step calls (mazelab.smc.SMC: M0, M, logG), from the student's parts: the prior is
-    uniform over the free area, the transition `predict`, the log-likelihood `weigh` (one run)."""
-
-    def __init__(self, parts: StudentFilter):
-        self.parts = parts
-
-    def M0(self, count: int, rng: np.random.Generator) -> np.ndarray:  # noqa: N802 (particles' names)
-        """The prior's sample: uniform over the free area, (count, 2)."""
-        return self.parts.world.random_free_places(count, rng)
-
-    def M(self, x: np.ndarray, A: np.ndarray | None, th0: np.ndarray, rngs: Any) -> tuple[np.ndarray, np.ndarray]:  # noqa: N802
-        """x_k^i ~ p(x_k | x_{k-1}^i) by the student's `predict` (of x[A] after resampling), (1, N, 2)."""
-        chosen = x[0] if A is None else x[0][A[0]]
-        moved = self.parts.call_predict(chosen, float(th0[0]), rngs[0])
-        return moved[None], np.zeros((1, len(moved)))
-
-    def logG(self, x: np.ndarray, z: np.ndarray) -> np.ndarray:  # noqa: N802
-        """log p(z_k | x_k^i) by the student's `weigh`, one row (1, N)."""
-        return self.parts.call_weigh(x[0], float(z[0]))[None]
 
 
 def answer_array(part: str, value: Any, shape: tuple[int, ...], indices: bool = False) -> np.ndarray:
@@ -224,4 +199,4 @@ def _finite(part: str, values: np.ndarray) -> np.ndarray:
     return values
 
 
-__all__ = ["PARTS", "PartError", "StudentFilter", "StudentModel", "answer_array"]
+__all__ = ["PARTS", "PartError", "StudentFilter", "answer_array"]

@@ -29,15 +29,10 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from mazelab.atomic import file_kind, write_all
+from mazelab.atomic import file_kind, lock, write_all
 from mazelab.checks import check_memory, check_seed
 from mazelab.experiments.record import differences
 from mazelab.experiments.study import RunRecord, RunTask, option_cells
-
-try:
-    import fcntl
-except ImportError:  # Windows: no advisory locks; the exclusive creation still refuses a second study
-    fcntl = None  # type: ignore[assignment]
 
 JOURNAL_SUFFIX = ".runs.jsonl"
 CLAIM_SUFFIX = ".lock"
@@ -78,17 +73,6 @@ def check_own_file(path: Path, status: os.stat_result | None = None) -> None:
         raise JournalError(_not_ours(path, file_kind(status.st_mode)))
     if status.st_nlink > 1:
         raise JournalError(_not_ours(path, "a second name of another file (a hard link)"))
-
-
-def lock(handle: int) -> bool:
-    """Lock an open file for this process; False if another process holds it."""
-    if fcntl is None:
-        return True
-    try:
-        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
-        return False
-    return True
 
 
 def open_own(path: Path, flags: int, doing: str = "open") -> int:

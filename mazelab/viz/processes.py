@@ -25,13 +25,14 @@ from pathlib import Path
 from typing import Any
 
 from mazelab.invocation import command_prefix
-from mazelab.stops import STOP_SIGNALS, StoppedBySignal
+from mazelab.stops import STOP_SIGNALS, StoppedBySignal, signal_handlers
 
 VIEWER_PORT = 9876  # the native viewer's gRPC port, rerun's default: later runs reuse its window
 
 _children: set[Any] = set()  # the running processes that end with this program
 _holders: set[object] = set()  # while any: SIGTERM/SIGHUP handled by us (see hold_stop_signals)
-_previous_handlers: dict[int, Any] = {}
+_handlers = contextlib.ExitStack()  # ours, while installed (stops.signal_handlers)
+_previous_handlers: dict[int, Any] = {}  # the handlers before ours
 
 
 def viewer_executable() -> str:
@@ -111,27 +112,20 @@ def end_with_this_program(process: Any) -> None:
 
 def hold_stop_signals(holder: object) -> None:
     """While `holder` (a child process, an open recording) is held, SIGTERM and SIGHUP end this
-    program through its `finally` clauses, as Ctrl-C does: children stopped, the recording saved."""
+    program through its `finally` clauses, as Ctrl-C does: children stopped, the recording saved.
+    Ctrl-C is handled where it waits; a signal ignored (nohup) stays ignored."""
     _holders.add(holder)
-    if threading.current_thread() is not threading.main_thread():
-        return  # handlers can only be set in the main thread
-    for number in STOP_SIGNALS:
-        previous = signal.getsignal(number)
-        if number == signal.SIGINT or number in _previous_handlers or previous == signal.SIG_IGN:
-            continue  # Ctrl-C is handled where it waits; an ignored one (nohup) stays ignored
-        _previous_handlers[number] = previous
-        signal.signal(number, _stop_children_then_go_on)
+    if not _previous_handlers and threading.current_thread() is threading.main_thread():
+        ours = [n for n in STOP_SIGNALS if n != signal.SIGINT and signal.getsignal(n) != signal.SIG_IGN]
+        _previous_handlers.update(_handlers.enter_context(signal_handlers(ours, _stop_children_then_go_on)))
 
 
 def release_stop_signals(holder: object) -> None:
     """`holder` is done; with none left, SIGTERM and SIGHUP do what they did before we set ours."""
     _holders.discard(holder)
-    if _holders or threading.current_thread() is not threading.main_thread():
-        return
-    for number, previous in list(_previous_handlers.items()):
-        if signal.getsignal(number) is _stop_children_then_go_on:
-            signal.signal(number, previous if previous is not None else signal.SIG_DFL)
-        del _previous_handlers[number]
+    if not _holders and threading.current_thread() is threading.main_thread():
+        _handlers.close()
+        _previous_handlers.clear()
 
 
 def _stop_children_then_go_on(number: int, frame: Any) -> None:

@@ -38,8 +38,8 @@ from mazelab.viz.targets import crowded_folder_hint, default_recording_path, hum
 
 RERUN_OFF_NOTE = "Rerun is switched off (RERUN=off in the environment): nothing is recorded"
 NO_DISPLAY = "no display found (DISPLAY and WAYLAND_DISPLAY unset)"
-_deferred_errors: ContextVar[list[WriteError] | None] = ContextVar("deferred_write_errors", default=None)
-_deferred_servers: ContextVar[list[WebServer] | None] = ContextVar("deferred_web_servers", default=None)
+# within deferred_to_the_end: the write errors and the web servers kept for the end of the block
+_deferred: ContextVar[tuple[list[WriteError], list[WebServer]] | None] = ContextVar("deferred", default=None)
 
 
 class Recording:
@@ -171,9 +171,9 @@ class Recording:
                 self.save()
         finally:
             release_stop_signals(self)
-            deferred = _deferred_servers.get()
+            deferred = _deferred.get()
             if self.server is not None and deferred is not None and not interrupted:
-                deferred.append(self.server)  # served once the command has printed its results
+                deferred[1].append(self.server)  # served once the command has printed its results
             elif self.server is not None:
                 # close() runs in simulate's `finally`: a run being interrupted stops serving at once.
                 self.server.serve_until_interrupted(already_interrupted=interrupted)
@@ -204,10 +204,10 @@ class Recording:
     @staticmethod
     def _defer_or_raise(error: OSError) -> None:
         """Raise a write error now, or keep it for the end of deferred_to_the_end."""
-        deferred = _deferred_errors.get()
+        deferred = _deferred.get()
         if deferred is None:
             raise error
-        deferred.append(error if isinstance(error, WriteError) else WriteError(error.errno, error.strerror))
+        deferred[0].append(error if isinstance(error, WriteError) else WriteError(error.errno, error.strerror))
 
 
 def rerun_switched_off() -> bool:
@@ -222,14 +222,13 @@ def deferred_to_the_end() -> Iterator[None]:
     Ctrl-C) when the block ends, not when its run ends; an error in the block stops it at once."""
     errors: list[WriteError] = []
     servers: list[WebServer] = []
-    tokens = _deferred_errors.set(errors), _deferred_servers.set(servers)
+    token = _deferred.set((errors, servers))
     finished = False
     try:
         yield
         finished = True
     finally:
-        _deferred_servers.reset(tokens[1])
-        _deferred_errors.reset(tokens[0])
+        _deferred.reset(token)
         for index, server in enumerate(servers):
             if finished and index == 0:
                 server.serve_until_interrupted()
