@@ -65,7 +65,7 @@ def call_overhead(threads: int, calls: int = 400) -> float:
     """Median wall seconds of one kernel call over one chunk (4,096 values, a microsecond's work) on
     `threads` threads, each call 0.2 ms after the last, as the passes of a step at N = 10^5 follow each
     other: what a call pays to start the threads and wait for them."""
-    from mazelab.kernels import CHUNK
+    from mazelab.kernels import CHUNK, THREADED_FROM
     from mazelab.kernels.weights import second_stage
 
     log_lik, log_mu = np.zeros((1, CHUNK), np.float32), np.zeros((1, CHUNK), np.float32)
@@ -73,7 +73,7 @@ def call_overhead(threads: int, calls: int = 400) -> float:
     times = []
     for _ in range(calls):
         started = time.perf_counter()
-        second_stage(threads, log_lik, log_mu, ancestors, out)
+        second_stage(threads, THREADED_FROM, log_lik, log_mu, ancestors, out)  # as large: on the threads
         times.append(time.perf_counter() - started)
         while time.perf_counter() < started + 2e-4:
             pass

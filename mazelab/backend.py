@@ -186,7 +186,7 @@ def check_threads(value: Any, source: str = "threads") -> int:
 
 
 def thread_count() -> int:
-    """The threads a filter made now runs its large calls on (mazelab.kernels.compiled.THREADED_FROM
+    """The threads a filter made now runs its large calls on (mazelab.kernels.THREADED_FROM
     particles and more; smaller ones run on one): MAZELAB_THREADS when set (--threads, `use_threads`;
     checked), else this machine's cores.
 

@@ -32,8 +32,8 @@ from mazelab.checks import MAX_ANGLE
 from mazelab.experiments.accuracy import accuracy_filters, accuracy_plan, accuracy_records, accuracy_summary
 from mazelab.experiments.executor import run_study
 from mazelab.experiments.study import MazeChoice, study_settings, study_tasks
-from mazelab.kernels import CHUNK, sources_digest
-from mazelab.kernels.compiled import THREADED_FROM, CompiledKernels, CompiledWeights
+from mazelab.kernels import CHUNK, THREADED_FROM, sources_digest
+from mazelab.kernels.compiled import CompiledKernels, CompiledWeights
 from mazelab.maze import Maze
 from mazelab.model import PARTICLE_DTYPE, ROBOT_SPEED, headings_from_uniforms, move
 from mazelab.registry import resolve_filter
@@ -659,7 +659,8 @@ def test_the_threads_work_in_a_process_forked_after_they_ran():
     the workqueue layer do; GNU OpenMP's would abort the child)."""
     script = (
         "import multiprocessing, numpy as np\n"
-        "from mazelab.kernels.compiled import THREADED_FROM, CompiledKernels\n"
+        "from mazelab.kernels import THREADED_FROM\n"
+        "from mazelab.kernels.compiled import CompiledKernels\n"
         "from mazelab.maze import Maze\n"
         "world = Maze.from_file('paper_5x5')\n"
         "x = world.random_free_places(THREADED_FROM, np.random.default_rng(1)).astype(np.float32)[None]\n"

@@ -1,27 +1,21 @@
 """Compiled kernels (numba, the `fast` extra) for the hot parts of the particle filters: the model's
-equations (mazelab.kernels.model: the move with its draws, the nearest station and the likelihood,
-the RPF's jitter), the resampler (mazelab.kernels.resampling: systematic resampling by blocks) and the
-weights (mazelab.kernels.weights: the normalisation with the step's reads in two passes, the
-covariance). mazelab.kernels.compiled.CompiledKernels calls them for a filter (the model and the
-weights value call it or the numpy functions, whichever backend runs: mazelab.backend). Each takes R
-runs in one call and works on float32 particles, in the numpy path's float32 arithmetic where it has
-some; cos, sin and exp are polynomials the compiler vectorises (mazelab.kernels.vector_math).
+equations (mazelab.kernels.model), the resampler (mazelab.kernels.resampling) and the weights
+(mazelab.kernels.weights), which mazelab.kernels.compiled.CompiledKernels calls for a filter
+(mazelab.backend chooses it or numpy's). Each takes R runs in one call and works on float32 particles,
+in the numpy path's float32 arithmetic where it has some; cos, sin and exp are polynomials the
+compiler vectorises (mazelab.kernels.vector_math).
 
-Threads: every kernel is one body over chunks of CHUNK particles (a run's particles split in order;
-a chunk never spans two runs), compiled twice: the chunks in order on the calling thread, and the
-chunks spread over numba's threads (`parallel=True`, its `prange`). The chunks, not the threads, fix
-everything a result depends on: the random draws (a stream per run and call, numbered by particle:
-vector_math.random_bits) and the order of every sum (partial sums per chunk, added in chunk order),
-so a seed gives the same run bit for bit on any number of threads, and R runs together are R single
-runs. numba's threads come from Intel's TBB where it is installed, else numba's workqueue
-(`threading_layer`); a kernel called while another thread's runs on them runs in order instead (the
-same values). A kernel's arrays never overlap (each output is a new array), and the compiler is told
-so (`_NoAliasCompiler`): only then does it vectorise the loops that gather.
+Threads: every kernel is one body over chunks of CHUNK particles (a run's particles split in order; a
+chunk never spans two runs), compiled to run them in order and over numba's threads (`Kernel`,
+`threading_layer`). The chunks, not the threads, fix everything a result depends on: the random draws
+(a stream per run and call, numbered by particle: vector_math.random_bits) and the order of every sum
+(partial sums per chunk, added in chunk order), so a seed gives the same run bit for bit on any number
+of threads, and R runs together are R single runs.
 
-Importing this package imports numba, and a process's first kernel call sets numba's compiler up even
-when the kernel comes from the cache (about 0.35 s of CPU); a command whose work does not pay that back
-runs on numpy (mazelab.backend.backend_for_work). Each kernel is compiled on its first call and cached
-on disk where a cache folder can be written (`_compiled`, `_MendingCache`).
+Importing this package imports numba, and a process's first kernel call sets numba's runtime up (a
+kernel loaded from the cache: some 0.2 s of CPU in all, with the import); a command whose work does not
+pay that back runs on numpy (mazelab.backend.backend_for_work). Each kernel is compiled on its first
+call and cached on disk where a cache folder can be written (`_compiled`, `_MendingCache`).
 """
 
 from __future__ import annotations
@@ -40,8 +34,12 @@ from typing import Any
 import numba
 from numba.core.caching import FunctionCache, IndexDataCacheFile
 from numba.core.compiler import Compiler
+from numba.core.runtime import rtsys
 
 CHUNK = 4096  # particles a chunk: what a thread takes at a time, and what fixes the draws' and the sums' order
+# particles in a call from which it runs on the threads (benchmarks/threads.py, docs/speed.md): a pass over
+# fewer takes under 0.1 ms, where a second thread's start (TBB: microseconds) and the Python around it count
+THREADED_FROM = 1 << 16
 
 
 def threading_layer() -> str:
@@ -104,8 +102,12 @@ class _MendingCache(FunctionCache):
         self._cache_file = IndexDataCacheFile(self._cache_path, self._impl.filename_base + variant, stamp)
 
     def load_overload(self, sig: Any, target_context: Any) -> Any:
+        """The cached kernel, with numba's runtime (NRT) set up first, but not the compiler's registries
+        numba refreshes before each load (some 0.15 s of imports a process: machine code loaded from the
+        cache runs without them; a kernel compiled after all sets them up itself)."""
         try:
-            return super().load_overload(sig, target_context)
+            rtsys.initialize(target_context)
+            return self._load_overload(sig, target_context)
         except Exception:  # a damaged index or data file: pickle, EOF, value errors; compile again
             self._drop_index()
             return None
@@ -178,9 +180,10 @@ class Kernel:
         self.serial = _compiled(function)
         self.parallel = _compiled(function, "-threads", parallel=True)
 
-    def __call__(self, threads: int, *args: Any) -> Any:
-        """The kernel on `threads` threads (1: in order here; numba's threads when they are free)."""
-        if threads > 1 and _LAUNCH.acquire(blocking=False):
+    def __call__(self, threads: int, particles: int, *args: Any) -> Any:
+        """The kernel over `particles` particles on `threads` threads: in order here on one thread or below
+        THREADED_FROM particles, else on numba's threads when they are free."""
+        if threads > 1 and particles >= THREADED_FROM and _LAUNCH.acquire(blocking=False):
             try:
                 numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
                 numba.set_parallel_chunksize(1)  # each chunk a task of its own: a free thread takes the next

@@ -4,8 +4,9 @@ builds, keeps W in float32 and the reads its normalisation makes in the same pas
 posterior mean and the weight within the green circle around it). Anything the kernels do not cover
 (float64 points such as recovery's injected draws, the multimodal kernel) goes to the numpy operations.
 
-A call runs on the filter's threads from THREADED_FROM particles on (`on_threads`); the move's and the
-jitter's draws are the kernels' own, from one 64-bit key a run and call drawn from its Generator.
+A call runs on the filter's threads from mazelab.kernels.THREADED_FROM particles on (`Kernel`); the
+move's and the jitter's draws are the kernels' own, from one 64-bit key a run and call drawn from its
+Generator.
 """
 
 from __future__ import annotations
@@ -17,21 +18,14 @@ from typing import Any
 import numpy as np
 
 from mazelab.constants import CONFIDENCE_RADIUS, PARTICLE_DTYPE
-from mazelab.kernels import CHUNK, model, resampling, weights
+from mazelab.kernels import model, resampling, weights
 from mazelab.numpy_ops import NumpyKernels
 from mazelab.regularisation import GaussianKernel
 from mazelab.smc import new_particles, particles_array
 from mazelab.weights import Weights, log_sum_exp, read_only
 
-# particles in a call from which it runs on the threads (benchmarks/threads.py, docs/speed.md): a pass over
-# fewer takes under 0.1 ms, where a second thread's start (TBB: microseconds) and the Python around it count
-THREADED_FROM = 1 << 16
+EVERY_RUN = np.empty(0, dtype=bool)  # the move's `moving` when every run draws (model.move)
 QUADS = 4  # the candidates of a lookup cell the likelihood's vectorised loop reads (a few cells have more)
-
-
-def on_threads(threads: int, particles: int) -> int:
-    """The threads a call over `particles` particles runs on: `threads` from THREADED_FROM on, else 1."""
-    return threads if particles >= THREADED_FROM else 1
 
 
 def unsigned(indices: np.ndarray) -> np.ndarray:
@@ -40,14 +34,16 @@ def unsigned(indices: np.ndarray) -> np.ndarray:
     return indices.view(f"u{indices.itemsize}")
 
 
-def columns(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The x and y coordinates of (R, N, 2) particles, (R*N,) each (views in their layout: smc.particles_array)."""
-    points = np.asfortranarray(x.reshape(-1, 2))
-    return points[:, 0], points[:, 1]
+def planes(x: np.ndarray) -> np.ndarray:
+    """(R, N, 2) particles as the (2, R*N) array the kernels read: the x coordinates, then the y ones (a
+    view of particles in their layout: smc.particles_array)."""
+    return np.asfortranarray(x.reshape(-1, 2)).T
 
 
 def keys_of(rngs: Any) -> np.ndarray:
     """One 64-bit key per run from each run's Generator (0 for None: a run that draws nothing), uint64 (R,)."""
+    if len(rngs) == 1 and rngs[0] is not None:  # one run: its key in one call, as an array
+        return rngs[0].bit_generator.random_raw(1)
     return np.array([0 if rng is None else rng.bit_generator.random_raw() for rng in rngs], dtype=np.uint64)
 
 
@@ -68,17 +64,9 @@ def lookup_tables(world: Any) -> tuple:
     width = 2 * (candidates.shape[1] - QUADS)
     codes = (lookup.kind & 1).astype(np.uint64)
     codes[more] += 2 + 4 * width * np.arange(len(more), dtype=np.uint64)
-    return (
-        float(lookup.scale),
-        float(lookup.offset),
-        int(lookup.nx),
-        int(lookup.ny),
-        codes.astype(np.uint32 if codes.max(initial=0) < 2**32 else np.uint64),
-        quads,
-        rows,
-        width,
-        xy[lookup._border],
-    )
+    codes = codes.astype(np.uint32 if codes.max(initial=0) < 2**32 else np.uint64)
+    grid = float(lookup.scale), float(lookup.offset), int(lookup.nx), int(lookup.ny)
+    return (*grid, codes, quads, rows, width, xy[lookup._border])
 
 
 class CompiledWeights(Weights):
@@ -88,16 +76,14 @@ class CompiledWeights(Weights):
     the particles x: (x, ESS (R,), mean (R, 2), share within the green circle of the mean (R,)). log W
     is derived when read (float64)."""
 
-    threads = 1  # the threads of a large normalisation (`on_threads`): each filter's subclass sets its own
+    threads = 1  # the threads of a large normalisation (mazelab.kernels.Kernel): each filter's subclass sets its own
 
     def __init__(self, log_w: np.ndarray, log_total: np.ndarray, W: np.ndarray | None = None, reads: Any = None):
-        log_w.flags.writeable = log_total.flags.writeable = False
-        self.log_w, self.log_total, self.reads = log_w, log_total, reads
+        self.log_w, self.log_total, self.reads = read_only(log_w), read_only(log_total), reads
         if W is not None:
             self.__dict__["W"] = read_only(W)
         if reads is not None:
-            self.__dict__["ess"] = reads[1]  # a row of the reads, read-only with them
-            reads[1].base.flags.writeable = False
+            self.__dict__["ess"] = reads[1]  # a row of the reads (from_log's, read-only)
 
     @classmethod
     def from_log(cls, log_w: np.ndarray, x: np.ndarray | None = None, added: tuple | None = None) -> CompiledWeights:
@@ -108,10 +94,10 @@ class CompiledWeights(Weights):
         if x is None or x.dtype != PARTICLE_DTYPE or x.shape[:2] != log_w.shape:
             totals = np.atleast_1d(log_sum_exp(log_w))
             return cls(log_w, totals)
-        w, reads, jobs = np.empty((runs, count), dtype=np.float32), np.empty((5, runs)), runs * -(-count // CHUNK)
-        lanes, scales = np.empty((jobs, 5, weights.LANES)), np.empty(jobs)
-        weights.normalise(on_threads(cls.threads, log_w.size), log_w, *(added or (None, None, None)), *columns(x),
-                          CONFIDENCE_RADIUS, w, reads, lanes, scales)  # fmt: skip
+        w, reads = np.empty((runs, count), dtype=np.float32), np.empty((5, runs))
+        weights.normalise(cls.threads, log_w.size, log_w, *(added or (None, None, None)), planes(x),
+                          CONFIDENCE_RADIUS, w, reads)  # fmt: skip
+        reads.flags.writeable = False  # and the rows taken below, the log totals and the ESS with them
         return cls(log_w, reads[0], w, (x, reads[3], reads[1:3].T, reads[4]))
 
     @classmethod
@@ -152,7 +138,7 @@ class CompiledWeights(Weights):
 
 class CompiledKernels(NumpyKernels):
     """The hot parts of one filter on `world` (its lookup tables read once), compiled (mazelab.kernels),
-    a call of THREADED_FROM particles or more on `threads` threads (mazelab.backend.kernels_for passes
+    a call of mazelab.kernels.THREADED_FROM particles or more on `threads` threads (mazelab.backend.kernels_for passes
     thread_count's); what the kernels do not cover is NumpyKernels' (this class's parent)."""
 
     name = "compiled"
@@ -176,19 +162,9 @@ class CompiledKernels(NumpyKernels):
         shape = x.shape[:2] if A is None else A.shape
         out, headings = new_particles(*shape, PARTICLE_DTYPE), np.empty(shape, dtype=PARTICLE_DTYPE)
         sources = np.empty((len(x), 0), np.uint64) if A is None else unsigned(A)
-        moving = np.array([rng is not None for rng in rngs])
-        model.move(
-            on_threads(self.threads, headings.size),
-            *columns(x),
-            sources,
-            keys_of(rngs),
-            moving,
-            angles.astype(PARTICLE_DTYPE, copy=False),
-            float(delta),
-            float(speed),
-            *columns(out),
-            headings,
-        )
+        moving = np.array([rng is not None for rng in rngs]) if None in rngs else EVERY_RUN
+        keys, size = keys_of(rngs), headings.size
+        model.move(self.threads, size, planes(x), sources, keys, moving, angles, delta, speed, planes(out), headings)
         return out, headings
 
     def log_likelihood(
@@ -198,10 +174,10 @@ class CompiledKernels(NumpyKernels):
         path's values to the bit)."""
         if x.dtype != PARTICLE_DTYPE or world is not self._tables_of:
             return super().log_likelihood(z, x, world, sigma, outside_penalty)
-        out, left = np.empty(x.shape[:2], dtype=PARTICLE_DTYPE), np.empty(x.shape[0] * x.shape[1], self.tables[4].dtype)
+        out = np.empty(x.shape[:2], dtype=PARTICLE_DTYPE)
         norm = math.log(sigma * math.sqrt(2 * math.pi))
         terms = (float(sigma), -norm, math.log(outside_penalty) - norm, self.tables)
-        model.log_likelihood(on_threads(self.threads, out.size), *columns(x), z, *terms, out, left)
+        model.log_likelihood(self.threads, out.size, planes(x), z, *terms, out)
         return out
 
     def systematic(self, W: np.ndarray, rng: Any, count: int | None = None) -> np.ndarray:
@@ -212,7 +188,7 @@ class CompiledKernels(NumpyKernels):
         rows, rngs = (W[None], [rng]) if W.ndim == 1 else (W, rng)
         out = np.empty((len(rows), rows.shape[1] if count is None else count), dtype=np.int64)
         offsets = np.array([generator.random() for generator in rngs])
-        resampling.systematic(on_threads(self.threads, rows.size), rows, offsets, out)
+        resampling.systematic(self.threads, rows.size, rows, offsets, out)
         return out[0] if W.ndim == 1 else out
 
     def weighted_mean(self, W: Weights, x: np.ndarray) -> np.ndarray:
@@ -233,7 +209,7 @@ class CompiledKernels(NumpyKernels):
         if x.dtype != PARTICLE_DTYPE:
             return super().weighted_covariance(W, x)
         out = np.empty((len(W), 2, 2))
-        weights.covariance(on_threads(self.threads, W.size), W, *columns(x), out)
+        weights.covariance(self.threads, W.size, W, planes(x), out)
         return out
 
     def second_stage(self, log_lik: np.ndarray, log_mu: np.ndarray, A: np.ndarray) -> np.ndarray:
@@ -241,7 +217,7 @@ class CompiledKernels(NumpyKernels):
         if not log_lik.dtype == log_mu.dtype == PARTICLE_DTYPE:
             return super().second_stage(log_lik, log_mu, A)
         out = np.empty_like(log_lik)
-        weights.second_stage(on_threads(self.threads, out.size), log_lik, log_mu, unsigned(A), out)
+        weights.second_stage(self.threads, out.size, log_lik, log_mu, unsigned(A), out)
         return out
 
     def equal_weighted(self, log_lik: np.ndarray, log_weight: float) -> np.ndarray:
@@ -259,7 +235,7 @@ class CompiledKernels(NumpyKernels):
         moved = new_particles(len(rows), A.shape[1], PARTICLE_DTYPE)
         sources = unsigned((A[rows] + (rows * x.shape[1])[:, None]).reshape(-1))
         keys = keys_of([rngs[r] for r in rows])
-        model.jitter(on_threads(self.threads, sources.size), *columns(x), sources, keys, scales, *columns(moved))
+        model.jitter(self.threads, sources.size, planes(x), sources, keys, scales, planes(moved))
         if len(rows) == len(x):
             return moved
         out = particles_array(x, x.dtype)

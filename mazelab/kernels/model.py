@@ -20,7 +20,7 @@ import numpy as np
 from numba import prange
 
 from mazelab.kernels import Kernel, chunk_of, chunks, inline
-from mazelab.kernels.vector_math import cos_sin, random_bits, uniform32, uniform64
+from mazelab.kernels.vector_math import cos_sin, log64, random_bits, uniform32, uniform64
 
 F32 = np.float32
 _FREE, _MORE = 1, 2  # the low bits of a lookup cell's code (mazelab.kernels.compiled.lookup_tables)
@@ -31,25 +31,27 @@ _NONE, _PAIR, _TWO = np.uint64(0), np.uint64(2), np.uint64(2)
 
 
 @Kernel
-def move(x, y, ancestors, keys, moving, angles, delta, speed, out_x, out_y, headings):  # pragma: no cover - compiled
+def move(xy, ancestors, keys, moving, angles, delta, speed, out, headings):  # pragma: no cover - compiled
     """Equation (1) for R runs in one call, with its draws: th_i = th0_r + Delta (u_i - 1/2), then
-    (out_x, out_y)[i] = (x, y)[a_i] + L (cos th_i, sin th_i), and headings[r, m] = th_i (radians).
+    out[:, i] = xy[:, a_i] + L (cos th_i, sin th_i), and headings[r, m] = th_i (radians).
 
-    x, y (R*N,) and out_x, out_y (R*M,) are float32 coordinates; `ancestors` (R, M) uint64 the particle
-    of its own run each moves from ((R, 0): particle i moves from particle i); u_m of run r is number m
-    of the stream keys[r] (uint64 (R,): vector_math.random_bits), or 1/2 in a run whose `moving` is
-    False (it draws nothing: it restarts after this step); `angles` (R,) float32 the th0 of each run;
+    xy (2, R*N) and out (2, R*M) are float32 coordinates (x's row, then y's); `ancestors` (R, M) uint64
+    the particle of its own run each moves from ((R, 0): particle i moves from particle i); u_m of run r
+    is number m of the stream keys[r] (uint64 (R,): vector_math.random_bits), or 1/2 in a run whose
+    `moving` is False (it draws nothing: it restarts after this step; an empty `moving`: every run
+    draws); `angles` (R,) the th0 of each run (float32, or rounded to it here);
     `delta` and `speed` (Delta in radians, L in map units) are rounded to float32 here, as numpy's
     float32 arithmetic rounds them. The headings are mazelab.model.headings_from_uniforms' float32
     operations; cos and sin are vector_math's, within 0.502 ulp of the exact value (numpy's float32
     ones within 1.5)."""
-    delta, speed = F32(delta), F32(speed)
+    delta, speed, x, y, out_x, out_y = F32(delta), F32(speed), xy[0], xy[1], out[0], out[1]
     runs, size = headings.shape
     blocks, jobs = chunks(runs, size)
     gathered = ancestors.shape[1] > 0
     for job in prange(jobs):
         r, start, stop = chunk_of(job, blocks, size)
-        first, last, key, angle, drawn = r * size + start, r * size + stop, keys[r], angles[r], moving[r]
+        first, last, key, angle = r * size + start, r * size + stop, keys[r], F32(angles[r])
+        drawn = moving[r] if len(moving) else True
         base = np.uint64(r * (len(x) // runs))  # run r's first particle in x
         sources = ancestors[r, start:stop]  # empty when there are none
         moved_x, moved_y, taken = out_x[first:last], out_y[first:last], headings[r, start:stop]
@@ -138,37 +140,44 @@ def _close(px, py, value, left, zr, sigma, free_term, outside_term, tables):  # 
 
 
 @Kernel
-def log_likelihood(x, y, z, sigma, free_term, outside_term, tables, out, left):  # pragma: no cover - compiled
+def log_likelihood(xy, z, sigma, free_term, outside_term, tables, out):  # pragma: no cover - compiled
     """Equation (3) with the outside penalty, in logs, for R runs: out[r, m] = log p(z_r | x_i) (i = r N
     + m) float32 (R, N), numpy's values to the bit (the same float32 operations, and the nearest of the
     same candidates). Each chunk in two loops: every point from its cell's first four candidates
-    (vectorised), then the few left open (`left` (R*N,), of the codes' dtype, scratch).
+    (vectorised), then the few left open.
 
-    x, y (R*N,) are the particles' float32 coordinates, z (R,) each run's z_k (map units); `sigma` the
-    noise's standard deviation, `free_term` -log(sigma sqrt(2 pi)) and `outside_term` that plus log(the
-    outside penalty): plain floats (a numpy scalar costs some 0.25 us to pass), rounded to float32 here
-    as numpy's float32 arithmetic rounds them; `tables` the maze's (compiled.lookup_tables)."""
+    xy (2, R*N) holds the particles' float32 coordinates (x's row, then y's), z (R,) each run's z_k (map
+    units); `sigma` the noise's standard deviation, `free_term` -log(sigma sqrt(2 pi)) and
+    `outside_term` that plus log(the outside penalty): plain floats (a numpy scalar costs some 0.25 us
+    to pass), rounded to float32 here as numpy's float32 arithmetic rounds them; `tables` the maze's
+    (compiled.lookup_tables)."""
     sigma, free_term, outside_term, typed = F32(sigma), F32(free_term), F32(outside_term), _typed(tables)
     runs, size = out.shape
     blocks, jobs = chunks(runs, size)
+    x, y, left = xy[0], xy[1], np.empty(runs * size, tables[4].dtype)  # left: what each point leaves open
     for job in prange(jobs):
         r, start, stop = chunk_of(job, blocks, size)
         zr, first, last, values = F32(z[r]), r * size + start, r * size + stop, out[r, start:stop]
         xs, ys, open_ = x[first:last], y[first:last], left[first:last]
+        opened = 0  # any point left open in the chunk
         for m in range(stop - start):
-            values[m], open_[m] = _log_likelihood_of_four(xs[m], ys[m], zr, sigma, free_term, outside_term, typed)
-        for m in range(stop - start):
+            value, code = _log_likelihood_of_four(xs[m], ys[m], zr, sigma, free_term, outside_term, typed)
+            values[m], open_[m] = value, code
+            opened |= code
+        for m in range(stop - start if opened else 0):
             if open_[m]:
                 values[m] = _close(xs[m], ys[m], values[m], open_[m], zr, sigma, free_term, outside_term, typed)
 
 
 @Kernel
-def jitter(x, y, ancestors, keys, scales, out_x, out_y):  # pragma: no cover - compiled
-    """The RPF's kernel K_h for D due runs, with its draws: (out_x, out_y)[i] = (x, y)[a_i] + h D_d eps_i
-    (float32 coordinates; `ancestors` (D*M,) uint64), h D_d = [[a, 0], [c, d]] from scales[d] = (a, c,
-    d) (D, 3), eps_i ~ N(0, I_2) by Box and Muller's transform of two float64 uniforms, numbers 2m and
-    2m + 1 of the stream keys[d] (uint64 (D,)), so the points do not depend on the threads."""
-    runs = scales.shape[0]
+def jitter(xy, ancestors, keys, scales, out):  # pragma: no cover - compiled
+    """The RPF's kernel K_h for D due runs, with its draws: out[:, i] = xy[:, a_i] + h D_d eps_i
+    (float32 coordinates (2, R*N) and (2, D*M), x's row then y's; `ancestors` (D*M,) uint64), h D_d =
+    [[a, 0], [c, d]] from scales[d] = (a, c, d) (D, 3), eps_i ~ N(0, I_2) by Box and Muller's transform
+    of two float64 uniforms, numbers 2m and 2m + 1 of the stream keys[d] (uint64 (D,)), so the points do
+    not depend on the threads (the log, and the cos and sin of the angle rounded to float32, are
+    vector_math's, so that the loop vectorises)."""
+    runs, x, y, out_x, out_y = scales.shape[0], xy[0], xy[1], out[0], out[1]
     size = len(ancestors) // runs
     blocks, jobs = chunks(runs, size)
     for job in prange(jobs):
@@ -177,8 +186,8 @@ def jitter(x, y, ancestors, keys, scales, out_x, out_y):  # pragma: no cover - c
         sources, moved_x, moved_y = ancestors[first:last], out_x[first:last], out_y[first:last]
         for m in range(stop - start):
             counter = np.uint64(start + m) * _TWO
-            radius = math.sqrt(-2.0 * math.log(1.0 - uniform64(random_bits(key, counter))))
-            angle = 2 * math.pi * uniform64(random_bits(key, counter + np.uint64(1)))
-            e0, e1 = F32(radius * math.cos(angle)), F32(radius * math.sin(angle))
+            radius = math.sqrt(-2.0 * log64(1.0 - uniform64(random_bits(key, counter))))
+            cos_a, sin_a = cos_sin(F32(2 * math.pi * uniform64(random_bits(key, counter + np.uint64(1)))))
+            e0, e1 = F32(radius * cos_a), F32(radius * sin_a)
             moved_x[m] = x[sources[m]] + a * e0
             moved_y[m] = y[sources[m]] + (c * e0 + d * e1)

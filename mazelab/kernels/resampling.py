@@ -51,8 +51,8 @@ def systematic(weights, u, out):  # pragma: no cover - compiled
     runs, size = weights.shape
     count = out.shape[1]
     blocks, jobs = chunks(runs, size)
-    bases, stops = np.empty((runs, blocks + 1)), np.empty((runs, blocks + 1), dtype=np.int64)
-    for job in prange(jobs):  # each block's total, in order
+    bases, stops = np.zeros((runs, blocks + 1)), np.empty((runs, blocks + 1), dtype=np.int64)
+    for job in prange(jobs if blocks > 1 else 0):  # each block's total, in order (a run of one block: none read)
         r, start, stop = chunk_of(job, blocks, size)
         total, part = 0.0, weights[r, start:stop]  # float64 whatever the weights' dtype
         for i in range(len(part)):

@@ -117,22 +117,22 @@ def _scale_and_keep_within(w, factor, xs, ys, centre_x, centre_y, r2, lanes):  #
 
 
 @Kernel
-def normalise(log_w, log_a, shifts, log_g, x, y, radius, w, reads, lanes, scales):  # pragma: no cover - compiled
+def normalise(log_w, log_a, shifts, log_g, xy, radius, w, reads):  # pragma: no cover - compiled
     """Normalise R runs' log weights `log_w` (R, N) (float32 or float64) and read each run's mean, ESS
     and confidence share, in two passes; with `log_a` (R, N), `shifts` (R,) and `log_g` (R, N) float32
     (else None), first log w = log W_{k-1} + log p(z_k | x_k) of runs that do not resample, written into
     `log_w` in the same pass: (log_a - shift) + log_g, the sum in float64, then rounded to float32 as
     the likelihood (log W_{k-1} = log a - shift, the Weights value's derivation, never stored).
 
-    x, y (R*N,) are the particles' float32 coordinates (run r's the block r*N..(r+1)*N); `radius` the
-    green circle's (map units); W = w / sum(w) is written into `w` (R, N) float32, and into `reads` (5,
-    R) float64, one row each: log sum_j w_j; the mean sum_i W_i x_i (x and y); the ESS 1 / sum_i W_i^2;
-    the weight of the particles at most `radius` from the run's mean (float32 distances, as
-    mazelab.weights.mass_within). A run that cannot be normalised (top -inf or NaN) gets its top as
-    total and NaN reads. `lanes` (C, 5, LANES) and `scales` (C,), float64, are scratch, one row per
-    chunk (C = R * chunks a run)."""
+    xy (2, R*N) holds the particles' float32 coordinates (x's row, then y's; run r's the columns r*N..
+    (r+1)*N); `radius` the green circle's (map units); W = w / sum(w) is written into `w` (R, N)
+    float32, and into `reads` (5, R) float64, one row each: log sum_j w_j; the mean sum_i W_i x_i (x and
+    y); the ESS 1 / sum_i W_i^2; the weight of the particles at most `radius` from the run's mean
+    (float32 distances, as mazelab.weights.mass_within). A run that cannot be normalised (top -inf or
+    NaN) gets its top as total and NaN reads."""
     runs, size = log_w.shape
     blocks, jobs = chunks(runs, size)
+    x, y, lanes, scales = xy[0], xy[1], np.empty((jobs, 5, LANES)), np.empty(jobs)  # each chunk's sums and top
     r2 = _F32(radius * radius)
     for job in prange(jobs):  # each chunk's log w, top, exponentials and sums
         r, start, stop = chunk_of(job, blocks, size)
@@ -206,15 +206,15 @@ def second_stage(log_lik, log_mu, ancestors, out):  # pragma: no cover - compile
 
 
 @Kernel
-def covariance(weights, x, y, out):  # pragma: no cover - compiled
+def covariance(weights, xy, out):  # pragma: no cover - compiled
     """sum_i W_i (x_i - m)(x_i - m)^T, m = sum_i W_i x_i, into out (R, 2, 2) float64 for R runs' weights
-    (R, N) and float32 coordinates x, y (R*N,) (mazelab.weights.weighted_covariance), in one pass: the
+    (R, N) and float32 coordinates xy (2, R*N) (mazelab.weights.weighted_covariance), in one pass: the
     sums of W, W d and W d d^T, d = x - c around the run's first particle c (float64: the spread may be
     tiny beside the position), each chunk's in order, then the chunks'; then with e = m - c, the
     covariance S - s e^T - e s^T + (sum W) e e^T (s = sum W d)."""
     runs, size = weights.shape
     blocks, jobs = chunks(runs, size)
-    parts = np.empty((jobs, 6))  # each chunk's sums of W, W dx, W dy, W dx dx, W dx dy, W dy dy
+    x, y, parts = xy[0], xy[1], np.empty((jobs, 6))  # each chunk's sums of W, W dx, W dy, W dx dx, W dx dy, W dy dy
     for job in prange(jobs):
         r, start, stop = chunk_of(job, blocks, size)
         first, w = r * size, weights[r, start:stop]
