@@ -92,15 +92,7 @@ def record_steps(
         and its reads (estimate, ESS, confidence), divided among the R runs.
     """
     count = 1 if runs is None else runs
-    shape = (count, steps)  # filled step by step below
-    recorded = Recorded(
-        np.empty((*shape, 2)),
-        np.empty(shape),
-        np.empty(shape, dtype=bool),
-        np.empty(shape, dtype=np.int64),
-        np.empty(shape),
-        np.empty(steps),
-    )
+    recorded = _unfilled(count, steps)
     diagnostics: dict[str, list[Any]] = {}
     for k in range(steps):
         if at is not None:
@@ -110,15 +102,33 @@ def record_steps(
         filt.step(compass_angle, z)
         values = filt.estimate, filt.ess, filt.is_confident, filt.count
         recorded.seconds[k] = (time.perf_counter() - started) / count
-        estimate, ess, confident, particles = check_step_values(type(filt), values, runs)
-        recorded.estimates[:, k], recorded.ess[:, k], recorded.confident[:, k] = estimate, ess, confident
-        recorded.counts[:, k] = particles
-        recorded.log_evidence[:, k] = getattr(filt, "log_evidence", np.nan)  # optional in the contract
+        _keep_step(recorded, k, check_step_values(type(filt), values, runs), filt)
         _keep_diagnostics(diagnostics, getattr(filt, "diagnostics", None), k, type(filt))
         if after is not None:
             after(k + 1, filt)
     recorded.diagnostics = {name: _per_run(values, count) for name, values in diagnostics.items()}
     return recorded
+
+
+def _unfilled(count: int, steps: int) -> Recorded:
+    """Recorded's arrays for `count` runs of `steps` steps, filled step by step by record_steps."""
+    shape = (count, steps)
+    return Recorded(
+        np.empty((*shape, 2)),
+        np.empty(shape),
+        np.empty(shape, dtype=bool),
+        np.empty(shape, dtype=np.int64),
+        np.empty(shape),
+        np.empty(steps),
+    )
+
+
+def _keep_step(recorded: Recorded, k: int, values: tuple[Any, Any, Any, Any], filt: Any) -> None:
+    """Step k's checked reads (estimate, ESS, green circle, particle count) into column k of every run."""
+    estimate, ess, confident, particles = values
+    recorded.estimates[:, k], recorded.ess[:, k], recorded.confident[:, k] = estimate, ess, confident
+    recorded.counts[:, k] = particles
+    recorded.log_evidence[:, k] = getattr(filt, "log_evidence", np.nan)  # optional in the contract
 
 
 def _keep_diagnostics(kept: dict[str, list[Any]], now: Any, k: int, filter_class: type) -> None:
