@@ -70,7 +70,7 @@ def lookup_arrays(world: Maze) -> tuple:
     candidate) times 2, plus 1 if the cell is free: one load per point, as the package's kind byte.
     """
     lookup = world._lookup
-    tables = lookup._station_tables(np.dtype(F32))
+    first, _, border = lookup._station_tables(np.dtype(F32))  # (C, 2), the others, (b, 2)
     ambiguous, count = lookup._all.shape
     rows = np.full((ambiguous + 1, count, 2), FAR, dtype=F32)
     rows[1:] = lookup.stations.astype(F32)[lookup._all]  # each ambiguous cell's K candidates' (x, y)
@@ -82,10 +82,10 @@ def lookup_arrays(world: Maze) -> tuple:
         F32(lookup.ny),
         np.uint32(lookup.nx),
         (offsets * 2 + (lookup.kind & 1)).astype(np.uint32),
-        np.ascontiguousarray(tables.first),
+        np.ascontiguousarray(first),
         rows.reshape(-1),
         np.uint32(2 * count),
-        np.ascontiguousarray(tables.border),
+        np.ascontiguousarray(border),
     )
 
 
