@@ -7,7 +7,6 @@ from __future__ import annotations
 import shlex
 import signal
 import sys
-import warnings
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +29,7 @@ from mazelab.cli.options import (
     check_outputs,
     filter_choices,
     filters,
+    one_line_warnings,
     opt,
     option_elsewhere,
     plain_usage_names,
@@ -39,7 +39,6 @@ from mazelab.cli.options import (
     seed_option,
     usage_hint,
     visualization,
-    warn_in_one_line,
     with_drawing,
     with_option_flags,
 )
@@ -201,7 +200,7 @@ def main(argv: list[str] | None = None) -> int:
     A stopped study leaves Ctrl-C, SIGTERM and SIGHUP ignored until the process exits (a further one
     can neither hang nor interrupt the exit); called with `argv` (in-process), main puts the signal
     handlers back as it found them."""
-    warnings.showwarning = warn_in_one_line
+    one_line_warnings()
     remember_arguments(argv)
     handlers = {sig: signal.getsignal(sig) for sig in STOP_SIGNALS}
     unmark = mark_interrupts()  # Ctrl-C raises a marked KeyboardInterrupt: a filter's own is told apart

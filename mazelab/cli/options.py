@@ -13,6 +13,7 @@ import os
 import re
 import shlex
 import textwrap
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Annotated, Any
@@ -229,7 +230,15 @@ def parse_list(text: str | None, kind: type, option: str) -> list | None:
     return list(dict.fromkeys(values))
 
 
-_warned: set[str] = set()
+_warned: set[str] = set()  # this command's warnings so far
+
+
+def one_line_warnings() -> None:
+    """A command's warnings from here on as `warn_in_one_line` prints them, each once in the command: the
+    warnings printed start empty for each command, so an earlier `main(argv)` in the same process
+    (a test) does not silence them."""
+    _warned.clear()
+    warnings.showwarning = warn_in_one_line
 
 
 def warn_in_one_line(message: Warning | str, category: type[Warning], *_args: Any, **_kwargs: Any) -> None:
