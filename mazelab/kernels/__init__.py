@@ -28,6 +28,7 @@ import sys
 import threading
 import warnings
 from collections.abc import Callable
+from functools import cache
 from pathlib import Path
 from typing import Any
 
@@ -63,14 +64,11 @@ _LAYER = threading_layer()  # TBB's library loaded where it is installed, for a 
 if "NUMBA_THREADING_LAYER" not in os.environ:  # the user's choice stands
     numba.config.THREADING_LAYER = _LAYER
 
-_warned: set[str] = set()
 
-
+@cache
 def _warn_once(message: str) -> None:
     """One warning per process for each message (the CLI prints it as one line)."""
-    if message not in _warned:
-        _warned.add(message)
-        warnings.warn(message, stacklevel=3)
+    warnings.warn(message, stacklevel=3)
 
 
 def sources_digest(folder: Path) -> str:
