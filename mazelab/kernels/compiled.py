@@ -189,7 +189,8 @@ class CompiledKernels(NumpyKernels):
         cumulative weights and offsets u = rng.random() (a run's as alone)."""
         rows, rngs = (W[None], [rng]) if W.ndim == 1 else (W, rng)
         out = np.empty((len(rows), rows.shape[1] if count is None else count), dtype=np.int64)
-        offsets, blocks = np.array([generator.random() for generator in rngs]), max(1, -(-rows.shape[1] // CHUNK))
+        offsets = np.array([generator.random() for generator in rngs])
+        blocks = max(1, -(-rows.shape[1] // CHUNK))
         scratch = np.empty((len(rows), blocks + 1)), np.empty((len(rows), blocks + 1), np.int64)
         resampling.systematic(self.threads, rows.size, rows, offsets, out, *scratch)
         return out[0] if W.ndim == 1 else out
