@@ -191,11 +191,6 @@ class Kernel:
         return self.serial(*args)
 
 
-def chunk_count(runs: int, size: int) -> int:
-    """The chunks of R runs of `size` particles each (`chunks`' second value): a kernel's scratch rows."""
-    return runs * max(1, -(-size // CHUNK))
-
-
 @inline
 def chunks(runs, size):  # pragma: no cover - compiled
     """(the chunks of one run, of all runs): ceil(size / CHUNK) each, at least one."""

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from mazelab.constants import CONFIDENCE_RADIUS, PARTICLE_DTYPE
-from mazelab.kernels import CHUNK, chunk_count, model, resampling, weights
+from mazelab.kernels import model, resampling, weights
 from mazelab.numpy_ops import NumpyKernels
 from mazelab.regularisation import GaussianKernel
 from mazelab.smc import UNSIGNED, new_particles, particles_array
@@ -94,10 +94,9 @@ class CompiledWeights(Weights):
         if x is None or x.dtype != PARTICLE_DTYPE or x.shape[:2] != log_w.shape:
             totals = np.atleast_1d(log_sum_exp(log_w))
             return cls(log_w, totals)
-        w, reads, jobs = np.empty((runs, count), dtype=np.float32), np.empty((5, runs)), chunk_count(runs, count)
-        scratch = np.empty((jobs, 6, weights.LANES)), np.empty((jobs, weights.LANES), log_w.dtype)
+        w, reads = np.empty((runs, count), dtype=np.float32), np.empty((5, runs))
         weights.normalise(cls.threads, log_w.size, log_w, *(added or (None, None, None)), planes(x),
-                          CONFIDENCE_RADIUS, w, reads, *scratch)  # fmt: skip
+                          CONFIDENCE_RADIUS, w, reads)  # fmt: skip
         reads.flags.writeable = False  # and the rows taken below, the log totals and the ESS with them
         return cls(log_w, reads[0], w, (x, reads[3], reads[1:3].T, reads[4]))
 
@@ -178,8 +177,7 @@ class CompiledKernels(NumpyKernels):
         out = np.empty(x.shape[:2], dtype=PARTICLE_DTYPE)
         norm = math.log(sigma * math.sqrt(2 * math.pi))
         terms = (float(sigma), -norm, math.log(outside_penalty) - norm, self.tables)
-        left = np.empty(out.size, self.tables[4].dtype)  # the kernel's scratch
-        model.log_likelihood(self.threads, out.size, planes(x), z, *terms, out, left)
+        model.log_likelihood(self.threads, out.size, planes(x), z, *terms, out)
         return out
 
     def systematic(self, W: np.ndarray, rng: Any, count: int | None = None) -> np.ndarray:
@@ -190,9 +188,7 @@ class CompiledKernels(NumpyKernels):
         rows, rngs = (W[None], [rng]) if W.ndim == 1 else (W, rng)
         out = np.empty((len(rows), rows.shape[1] if count is None else count), dtype=np.int64)
         offsets = np.array([generator.random() for generator in rngs])
-        blocks = max(1, -(-rows.shape[1] // CHUNK))
-        scratch = np.empty((len(rows), blocks + 1)), np.empty((len(rows), blocks + 1), np.int64)
-        resampling.systematic(self.threads, rows.size, rows, offsets, out, *scratch)
+        resampling.systematic(self.threads, rows.size, rows, offsets, out)
         return out[0] if W.ndim == 1 else out
 
     def weighted_mean(self, W: Weights, x: np.ndarray) -> np.ndarray:
@@ -213,7 +209,7 @@ class CompiledKernels(NumpyKernels):
         if x.dtype != PARTICLE_DTYPE:
             return super().weighted_covariance(W, x)
         out = np.empty((len(W), 2, 2))
-        weights.covariance(self.threads, W.size, W, planes(x), out, np.empty((chunk_count(*W.shape), 6)))
+        weights.covariance(self.threads, W.size, W, planes(x), out)
         return out
 
     def second_stage(self, log_lik: np.ndarray, log_mu: np.ndarray, A: np.ndarray) -> np.ndarray:

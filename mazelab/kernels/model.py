@@ -140,7 +140,7 @@ def _close(px, py, value, left, zr, sigma, free_term, outside_term, tables):  # 
 
 
 @Kernel
-def log_likelihood(xy, z, sigma, free_term, outside_term, tables, out, left):  # pragma: no cover - compiled
+def log_likelihood(xy, z, sigma, free_term, outside_term, tables, out):  # pragma: no cover - compiled
     """Equation (3) with the outside penalty, in logs, for R runs: out[r, m] = log p(z_r | x_i) (i = r N
     + m) float32 (R, N), numpy's values to the bit (the same float32 operations, and the nearest of the
     same candidates). Each chunk in two loops: every point from its cell's first four candidates
@@ -150,11 +150,11 @@ def log_likelihood(xy, z, sigma, free_term, outside_term, tables, out, left):  #
     units); `sigma` the noise's standard deviation, `free_term` -log(sigma sqrt(2 pi)) and
     `outside_term` that plus log(the outside penalty): plain floats (a numpy scalar costs some 0.25 us
     to pass), rounded to float32 here as numpy's float32 arithmetic rounds them; `tables` the maze's
-    (compiled.lookup_tables); `left` (R*N,) of the codes' dtype: scratch, what each point leaves open."""
+    (compiled.lookup_tables)."""
     sigma, free_term, outside_term, typed = F32(sigma), F32(free_term), F32(outside_term), _typed(tables)
     runs, size = out.shape
     blocks, jobs = chunks(runs, size)
-    x, y = xy[0], xy[1]
+    x, y, left = xy[0], xy[1], np.empty(runs * size, tables[4].dtype)  # left: what each point leaves open
     for job in prange(jobs):
         r, start, stop = chunk_of(job, blocks, size)
         zr, first, last, values = F32(z[r]), r * size + start, r * size + stop, out[r, start:stop]

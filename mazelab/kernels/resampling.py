@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from numba import prange
 
 from mazelab.kernels import Kernel, chunk_of, chunks, inline
@@ -43,14 +44,14 @@ def _ancestors_of_block(weights, u, count, base, start, offset, out):  # pragma:
 
 
 @Kernel
-def systematic(weights, u, out, bases, stops):  # pragma: no cover - compiled
+def systematic(weights, u, out):  # pragma: no cover - compiled
     """Systematic resampling of R runs' normalised weights (R, N) with offsets u (R,) ~ U[0, 1): out[r, m]
     is the ancestor of the point (m + u_r) / M in run r, M = out.shape[1], sorted
-    (mazelab.resampling.systematic_resample's, by counting in blocks; each run's as alone). `bases`
-    (R, B + 1) float64 and `stops` (R, B + 1) int64 are scratch, B a run's blocks."""
+    (mazelab.resampling.systematic_resample's, by counting in blocks; each run's as alone)."""
     runs, size = weights.shape
     count = out.shape[1]
     blocks, jobs = chunks(runs, size)
+    bases, stops = np.empty((runs, blocks + 1)), np.empty((runs, blocks + 1), dtype=np.int64)  # each written first
     for job in prange(jobs if blocks > 1 else 0):  # each block's total, in order (a run of one block: none read)
         r, start, stop = chunk_of(job, blocks, size)
         total, part = 0.0, weights[r, start:stop]  # float64 whatever the weights' dtype

@@ -49,11 +49,11 @@ def _lane_total(lanes):  # pragma: no cover - compiled
 
 
 @inline
-def _top(values, maxima):  # pragma: no cover - compiled
-    """max of the 1-D `values` (-inf for none) from LANES running maxima (`maxima`, LANES of their
-    dtype, overwritten), which the compiler vectorises (numba's own max checks each value for NaN: four
-    times the time); a NaN is passed over here (its exponential makes the run's total NaN: `_combine`
-    checks the total)."""
+def _top(values):  # pragma: no cover - compiled
+    """max of the 1-D `values` in their dtype (-inf for none) from LANES running maxima, which the
+    compiler vectorises (numba's own max checks each value for NaN: four times the time); a NaN is
+    passed over here (its exponential makes the run's total NaN: `_combine` checks the total)."""
+    maxima = np.empty(LANES, dtype=values.dtype)  # np.full's broadcast would import numba's ufunc modules
     maxima[:] = -np.inf
     full = len(values) // LANES * LANES
     for block in range(0, full, LANES):  # each loop from 0: numba checks no index of it for wrap-around
@@ -69,8 +69,8 @@ def _top(values, maxima):  # pragma: no cover - compiled
 
 @inline
 def _holds_nan(values):  # pragma: no cover - compiled
-    """Whether the 1-D `values` hold a NaN (np.isnan(values).any(), without numpy's array machinery, whose
-    loading from the cache imports a dozen more of numba's modules)."""
+    """np.isnan(values).any() of 1-D `values` by a loop: numpy's form would make a kernel loaded from the
+    cache import a dozen of numba's ufunc and array-math modules (some 15 ms of a process's start-up)."""
     nan = False
     for value in values:
         nan |= value != value
@@ -92,7 +92,7 @@ def _exponentials_and_moments(log_w, top, xs, ys, w, lanes):  # pragma: no cover
     """w_i = e_i = exp32(log w_i - top) of a chunk's 1-D arrays, and lanes[:4, i % LANES] += e_i, e_i^2,
     e_i x_i, e_i y_i, in order; a chunk whose top is -inf gets e = 0 (and a NaN sum if it holds a NaN:
     the run then cannot be normalised)."""
-    lanes[:5, :] = 0.0  # row 5 holds the chunk's top (normalise)
+    lanes[:, :] = 0.0
     if top == -np.inf:
         w[:] = 0.0
         lanes[0, 0] = np.nan if _holds_nan(log_w) else 0.0
@@ -128,7 +128,7 @@ def _scale_and_keep_within(w, factor, xs, ys, centre_x, centre_y, r2, lanes):  #
 
 
 @Kernel
-def normalise(log_w, log_a, shifts, log_g, xy, radius, w, reads, lanes, maxima):  # pragma: no cover - compiled
+def normalise(log_w, log_a, shifts, log_g, xy, radius, w, reads):  # pragma: no cover - compiled
     """Normalise R runs' log weights `log_w` (R, N) (float32 or float64) and read each run's mean, ESS
     and confidence share, in two passes; with `log_a` (R, N), `shifts` (R,) and `log_g` (R, N) float32
     (else None), first log w = log W_{k-1} + log p(z_k | x_k) of runs that do not resample, written into
@@ -140,12 +140,10 @@ def normalise(log_w, log_a, shifts, log_g, xy, radius, w, reads, lanes, maxima):
     float32, and into `reads` (5, R) float64, one row each: log sum_j w_j; the mean sum_i W_i x_i (x and
     y); the ESS 1 / sum_i W_i^2; the weight of the particles at most `radius` from the run's mean
     (float32 distances, as mazelab.weights.mass_within). A run that cannot be normalised (top -inf or
-    NaN) gets its top as total and NaN reads. `lanes` (J, 6, LANES) float64 and `maxima` (J, LANES) of
-    log_w's dtype are scratch, J the chunks (mazelab.kernels.chunk_count: a kernel that allocates
-    imports numba's array modules when it loads from the cache)."""
+    NaN) gets its top as total and NaN reads."""
     runs, size = log_w.shape
     blocks, jobs = chunks(runs, size)
-    x, y, scales = xy[0], xy[1], lanes[:, 5, 0]  # each chunk's sums (rows 0-4) and top
+    x, y, lanes, scales = xy[0], xy[1], np.empty((jobs, 5, LANES)), np.empty(jobs)  # each chunk's sums and top
     r2 = _F32(radius * radius)
     for job in prange(jobs):  # each chunk's log w, top, exponentials and sums
         r, start, stop = chunk_of(job, blocks, size)
@@ -154,7 +152,7 @@ def normalise(log_w, log_a, shifts, log_g, xy, radius, w, reads, lanes, maxima):
             previous, added, shift = log_a[r, start:stop], log_g[r, start:stop], shifts[r]
             for i in range(stop - start):
                 row[i] = np.float64(previous[i]) - shift + np.float64(added[i])
-        scales[job] = top = _top(row, maxima[job])
+        scales[job] = top = _top(row)
         _exponentials_and_moments(row, top, x[first:last], y[first:last], w[r, start:stop], lanes[job])
     for r in range(runs):  # each run's top and sums, its chunks' in order
         _combine(log_w[r], reads, r, lanes[r * blocks : (r + 1) * blocks], scales[r * blocks : (r + 1) * blocks])
@@ -219,16 +217,15 @@ def second_stage(log_lik, log_mu, ancestors, out):  # pragma: no cover - compile
 
 
 @Kernel
-def covariance(weights, xy, out, parts):  # pragma: no cover - compiled
+def covariance(weights, xy, out):  # pragma: no cover - compiled
     """sum_i W_i (x_i - m)(x_i - m)^T, m = sum_i W_i x_i, into out (R, 2, 2) float64 for R runs' weights
     (R, N) and float32 coordinates xy (2, R*N) (mazelab.weights.weighted_covariance), in one pass: the
     sums of W, W d and W d d^T, d = x - c around the run's first particle c (float64: the spread may be
     tiny beside the position), each chunk's in order, then the chunks'; then with e = m - c, the
-    covariance S - s e^T - e s^T + (sum W) e e^T (s = sum W d). `parts` (J, 6) float64: scratch, J the
-    chunks."""
+    covariance S - s e^T - e s^T + (sum W) e e^T (s = sum W d)."""
     runs, size = weights.shape
     blocks, jobs = chunks(runs, size)
-    x, y = xy[0], xy[1]  # parts: each chunk's sums of W, W dx, W dy, W dx dx, W dx dy, W dy dy
+    x, y, parts = xy[0], xy[1], np.empty((jobs, 6))  # each chunk's sums of W, W dx, W dy, W dx dx, W dx dy, W dy dy
     for job in prange(jobs):
         r, start, stop = chunk_of(job, blocks, size)
         first, w = r * size, weights[r, start:stop]
