@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import inspect
+import io
 import queue
 import shlex
 import textwrap
@@ -25,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from mazelab.exercise import child
-from mazelab.exercise.child import Message, decode, encode
+from mazelab.exercise.child import Message, encode, messages
 from mazelab.exercise.inputs import (
     PartInputs,
     ScenarioInputs,
@@ -294,11 +295,13 @@ def collect_in_process(
     filter_class: type, parts: PartInputs, scenarios: list[ScenarioInputs], stages: list[str]
 ) -> Answers:
     """Run the stages in this process (a self-check): the same work as the child's, each message
-    encoded, decoded and recorded as a child's would be (ChildRun.take)."""
-    run, (meta, arrays) = ChildRun(), request("", None, stages, parts, scenarios)
-    child.serve(
-        decode(encode(meta, arrays)), lambda meta, arrays=None: run.take(decode(encode(meta, arrays))), filter_class
-    )
+    written and read as a child's would be, and recorded as a child's is (ChildRun.take)."""
+
+    def wired(meta: dict, arrays: dict | None = None) -> Message:
+        return next(messages(io.BytesIO(encode(meta, arrays))))
+
+    run = ChildRun()
+    child.serve(wired(*request("", None, stages, parts, scenarios)), lambda *sent: run.take(wired(*sent)), filter_class)
     return Answers(run.loaded, run.results)
 
 

@@ -27,7 +27,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from mazelab.exercise.child import MAX_MESSAGE_BYTES, Message, WireError, decode, encode
+from mazelab.exercise.child import Message, WireError, encode, messages
 from mazelab.exercise.kit import PACKAGE_DIR, build_kit
 
 DEFAULT_BUDGET = 40.0  # wall seconds of a submission's processes in all: 3 x a correct one's (1-3 s) + 30
@@ -439,17 +439,10 @@ def _read(stream: Any, run: ChildRun) -> None:
     """Read the child's messages as they come into `run` (in a daemon thread: a pipe kept open by an
     escaped grandchild cannot hold the grader), until the end of the pipe or the first unreadable
     message (`run.unreadable` says what was wrong)."""
-    received = 0
     try:
-        while header := stream.read(8):
-            size = int.from_bytes(header, "big")
-            received += size
-            if len(header) < 8 or received > MAX_MESSAGE_BYTES:
-                raise WireError(f"more than {MAX_MESSAGE_BYTES >> 20} MB" if len(header) == 8 else "a cut header")
-            data = stream.read(size)
-            message = decode(data) if len(data) == size else None
-            if message is None or not run.take(message):
-                raise WireError("a message cut short" if message is None else "an unexpected message")
+        for message in messages(stream):
+            if not run.take(message):
+                raise WireError("an unexpected message")
             run.done = message.meta.get("kind") == "done"
     except (WireError, OSError, ValueError) as error:
         run.unreadable = f"sent output the grader cannot read ({error})"
