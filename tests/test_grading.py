@@ -14,7 +14,7 @@ import textwrap
 import time
 
 import pytest
-from exercise_answers import write_submission
+from exercise_answers import row_of, write_submission
 
 from mazelab.cli.app import main
 from mazelab.exercise.inputs import default_seed, draw_scenarios, files_seed
@@ -222,7 +222,7 @@ def test_a_nan_estimate_never_passes_the_whole_filter(tmp_path):
     report = check_file(f"{path}:NanFilter", seed=SEED, stages=("estimate", "whole"))
     assert rows(report)["estimate"][0] == "pass"
     status, got = rows(report)["whole filter"]
-    assert status == "fail" and "nan" in got and "a number at every step" in report.row("whole filter").hint
+    assert status == "fail" and "nan" in got and "a number at every step" in row_of(report, "whole filter").hint
 
 
 def test_the_child_holds_none_of_the_graders_objects(tmp_path):

@@ -138,10 +138,6 @@ class Report:
             return FAIL
         return next((row.status for row in self.rows if row.part == part), None)
 
-    def row(self, part: str) -> Row:
-        """The row of one part (or "whole filter")."""
-        return next(row for row in self.rows if row.part == part)
-
 
 class NotGradableError(ValueError):
     """The submission cannot be checked at all: one line naming the file and why."""

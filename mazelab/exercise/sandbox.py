@@ -519,19 +519,22 @@ def run_child(
 
 
 def _start(made: Sandbox, run: ChildRun, run_folder: Path, cgroup: Cgroup, cpu: int, request: bytes) -> tuple:
-    """The child's process (its prints merged on one pipe, the answer pipe kept open, its limits, a
-    session of its own), its answers' reader and its prints' collector, both started, and the request
-    sent; SandboxError when it cannot be started (bwrap gone since the probe, no memory to fork)."""
+    """The child's process (the request on its standard input, from a file of its own; its prints merged
+    on one pipe, the answer pipe kept open, its limits, a session of its own), its answers' reader and
+    its prints' collector, both started; SandboxError when it cannot be started (bwrap gone since the
+    probe, no memory to fork)."""
     drop, staged = None, {}
     if made.sandboxed and not cgroup.folders:
         binds = [*interpreter_folders(), *map(str, numpy_folders()), str(kit()), str(run_folder)]
         drop, staged = _dropped(binds, run_folder / "stage")
     answers_in, answers_out = os.pipe()
     try:
-        with _running_lock:
+        with _running_lock, tempfile.TemporaryFile() as sent:
+            sent.write(request)
+            sent.seek(0)
             process = subprocess.Popen(
                 made.command(kit(), run_folder, answers_out, staged),
-                stdin=subprocess.PIPE,
+                stdin=sent,
                 stdout=subprocess.PIPE,
                 stderr=subprocess.STDOUT,
                 pass_fds=(answers_out,),
@@ -551,16 +554,7 @@ def _start(made: Sandbox, run: ChildRun, run_folder: Path, cgroup: Cgroup, cpu: 
     printed = _Output(process.stdout.fileno())
     reader.start()
     printed.start()
-    threading.Thread(target=_send, args=(process, request), daemon=True).start()
     return process, reader, printed
-
-
-def _send(process: subprocess.Popen, request: bytes) -> None:
-    """Write the request to the child's standard input and close it (a child that reads none is its own)."""
-    with contextlib.suppress(OSError):
-        process.stdin.write(request)
-    with contextlib.suppress(OSError):
-        process.stdin.close()
 
 
 def _end_session(process: subprocess.Popen) -> None:
