@@ -9,6 +9,7 @@ NotGradableError (one line). Every text that reaches a report is `clean` (parts.
 from __future__ import annotations
 
 import contextlib
+import functools
 import inspect
 import io
 import queue
@@ -418,31 +419,19 @@ def check_file(
     source = "given" if seed is not None else "key" if key else "files"
     seed = files_seed(path, beside, key or None) if seed is None else seed
     report = Report(class_name or path.stem, None if source == "key" else seed, source, note=sandbox().note)
-    return _check(
-        report,
-        seed,
-        stages,
-        lambda parts, scenarios: collect_isolated(
-            path.resolve(), class_name, parts, scenarios, timeout, stages, shown, companions
-        ),
-        shown,
-        {p.name: p.read_text(errors="replace") for p in [path, *beside]},
-        references,
-    )
+    collect = functools.partial(collect_isolated, path.resolve(), class_name, budget=timeout, stages=stages,
+                                shown=shown, companions=companions)  # fmt: skip
+    sources = {p.name: p.read_text(errors="replace") for p in [path, *beside]}
+    return _check(report, seed, stages, collect, shown, sources, references)
 
 
 def check(filter_class: type, *, seed: int | None = None, stages: tuple[str, ...] = STAGES) -> Report:
     """Check a class in this process (a self-check: nothing isolates it), the given stages (every
     part and the whole filter by default); the seed defaults to one from the class's source, or 0."""
     seed = source_seed(filter_class) if seed is None else seed
-    return _check(
-        Report(filter_class.__name__, seed, "class"),
-        seed,
-        stages,
-        lambda parts, scenarios: collect_in_process(filter_class, parts, scenarios, list(stages)),
-        filter_class.__name__,
-        {"class.py": class_source(filter_class)},
-    )
+    collect = functools.partial(collect_in_process, filter_class, stages=list(stages))
+    sources = {"class.py": class_source(filter_class)}
+    return _check(Report(filter_class.__name__, seed, "class"), seed, stages, collect, filter_class.__name__, sources)
 
 
 def _check(
