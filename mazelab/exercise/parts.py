@@ -1,10 +1,7 @@
-"""A row of the report, and the verdicts on the four parts and the whole filter, made by the grader from
-the values the student's process returned for the inputs of mazelab.exercise.inputs: what each check
-tests, its tolerance and its false-alarm rate are docs/exercise.md's "What each check promises". The
-whole filter is judged on the seed's scenarios by the distance between the student's estimates and the
-exact grid filter's posterior means, beside the shipped SIR's (both run by the grader,
-mazelab.exercise.report.References): the sign and the magnitude tests fail a filter that is the SIR in
-distribution with probability at most 0.0042.
+"""A row of the report, and the verdicts on the four parts and the whole filter (against the exact grid
+filter's posterior means, beside the shipped SIR's: mazelab.exercise.report.References), made by the
+grader from the values the student's process returned for the inputs of mazelab.exercise.inputs: what
+each check tests, its tolerance and its false-alarm rate are docs/exercise.md's "What each check promises".
 """
 
 from __future__ import annotations

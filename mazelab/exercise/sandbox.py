@@ -415,7 +415,7 @@ class ChildRun:
         """Record one message (False: it ends the conversation as unreadable). A second "loaded" (two
         processes answering) voids every answer; a stage answered twice voids that stage."""
         meta, kind = message.meta, message.meta.get("kind")
-        stage = meta.get("stage")
+        stage, self.done = meta.get("stage"), kind == "done"
         if kind == "hello" and self.hello is None:
             self.hello = time.perf_counter()
         elif kind == "loaded":
@@ -443,7 +443,6 @@ def _read(stream: Any, run: ChildRun) -> None:
         for message in messages(stream):
             if not run.take(message):
                 raise WireError("an unexpected message")
-            run.done = message.meta.get("kind") == "done"
     except (WireError, OSError, ValueError) as error:
         run.unreadable = f"sent output the grader cannot read ({error})"
 
