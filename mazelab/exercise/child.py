@@ -79,10 +79,13 @@ def messages(stream: Any, limit: int = MAX_MESSAGE_BYTES) -> Iterator[Message]:
     received = 0
     while start := stream.read(8):
         size = int.from_bytes(start[4:], "big")
-        if len(start) < 8 or start[:4] != MAGIC or size > MAX_HEADER_BYTES:
-            raise WireError("not a message of the grader's" + (f" (a header of {size} bytes)" if size else ""))
+        if len(start) < 8 or start[:4] != MAGIC:
+            raise WireError("not a message of the grader's (no header)")
+        if size > MAX_HEADER_BYTES:
+            raise WireError(f"a header of {size} bytes")
+        text = _exactly(stream, size)
         try:
-            header = json.loads(_exactly(stream, size), parse_constant=_no_constant)
+            header = json.loads(text, parse_constant=_no_constant)
         except (ValueError, RecursionError) as error:
             raise WireError(f"a header that is not JSON ({error})") from None
         if not isinstance(header, dict) or set(header) != {"meta", "arrays"} or not isinstance(header["meta"], dict):
