@@ -177,7 +177,7 @@ def test_the_shipped_sir_as_a_student_filter_passes_the_whole_filter(reference_r
     assert [row.part for row in reference_report.rows] == [*PARTS, "whole filter"]
     assert reference_report.passed, [row for row in reference_report.rows if not row.passed]
     assert len(reference_report.figures) == 12
-    assert {f.maze for f in reference_report.figures} <= {"paper_5x5", "maze_10x10"}
+    assert {f.scenario.maze for f in reference_report.figures} <= {"paper_5x5", "maze_10x10"}
 
 
 def test_the_report_fits_in_a_hundred_columns(reference_report):
