@@ -289,7 +289,7 @@ def test_output_that_is_not_an_answer_is_named(tmp_path):
     assert status == "fail" and "sent output the grader cannot read" in got
 
 
-def test_the_wire_reads_whole_messages_of_its_own_format_only():
+def test_the_wire_reads_whole_messages_of_its_own_format_only(monkeypatch):
     """Both ways one format (child.encode, child.messages): messages read back as sent, one after
     another; a foreign start, a cut header or array, a header past its limit, JSON's NaN, a name twice
     and more than the limit in all are each one WireError naming it, before any array is made."""
@@ -316,8 +316,9 @@ def test_the_wire_reads_whole_messages_of_its_own_format_only():
     ):
         with pytest.raises(WireError, match=said):
             list(messages(io.BytesIO(data)))
+    monkeypatch.setattr("mazelab.exercise.child.MAX_MESSAGE_BYTES", len(sent) - 1)
     with pytest.raises(WireError, match="more than 0 MB"):
-        list(messages(io.BytesIO(sent), limit=len(sent) - 1))
+        list(messages(io.BytesIO(sent)))
 
 
 def test_a_hang_is_stopped_within_the_budget_and_the_next_parts_still_run(tmp_path):

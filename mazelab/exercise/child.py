@@ -73,9 +73,9 @@ def encode(meta: dict[str, Any], arrays: dict[str, Any] | None = None) -> bytes:
     return b"".join([MAGIC, len(text).to_bytes(4, "big"), text, *(a.tobytes() for a in wired.values())])
 
 
-def messages(stream: Any, limit: int = MAX_MESSAGE_BYTES) -> Iterator[Message]:
+def messages(stream: Any) -> Iterator[Message]:
     """The messages on `stream` until its end, each checked whole (the module docstring) before any of
-    its arrays is made; WireError at the first that is not one of ours, or past `limit` bytes in all."""
+    its arrays is made; WireError at the first that is not one of ours, or past MAX_MESSAGE_BYTES in all."""
     received = 0
     while start := stream.read(8):
         size = int.from_bytes(start[4:], "big")
@@ -95,8 +95,8 @@ def messages(stream: Any, limit: int = MAX_MESSAGE_BYTES) -> Iterator[Message]:
             raise WireError("a header whose arrays are not a list of names each given once")
         sizes = [math.prod(shape) * dtype.itemsize for _, dtype, shape in entries]
         received += 8 + size + sum(sizes)
-        if received > limit:
-            raise WireError(f"more than {limit >> 20} MB")
+        if received > MAX_MESSAGE_BYTES:
+            raise WireError(f"more than {MAX_MESSAGE_BYTES >> 20} MB")
         data, offsets = _exactly(stream, sum(sizes)), itertools.accumulate(sizes, initial=0)
         arrays = {}
         for (name, dtype, shape), offset in zip(entries, offsets, strict=False):  # the offsets: one more
