@@ -76,7 +76,14 @@ from mazelab.experiments.journal import (
 )
 from mazelab.experiments.runs import parse_filters
 from mazelab.experiments.study import MazeChoice, RunRecord, RunTask
-from mazelab.experiments.summary import CSV_DTYPES, study_table, summarise_study, summary_csv, summary_path
+from mazelab.experiments.summary import (
+    CSV_DTYPES,
+    study_table,
+    summarise_study,
+    summary_csv,
+    summary_path,
+    summary_rows,
+)
 from mazelab.experiments.tables import records_csv, study_traces, write_traces
 from mazelab.invocation import command_line, resume_command
 from mazelab.maze import DEFAULT_MAZE, LAB_MAZES
@@ -348,8 +355,9 @@ def report_study(session: StudySession, outcome: StudyOutcome, figure: dict[str,
     records = sorted([*session.kept, *outcome.records], key=lambda r: (r.setting, r.run, order[r.filter]))
     summaries = summarise_study(records, plan.settings, paired=figure["paired"])
     closing = {"runs_finished": len({(r.setting, r.run) for r in records}), "runs_in_study": len(plan.tasks()),
-               "failures": [f.describe() for f in outcome.failures], "summary": [s.as_dict() for s in summaries],
-               "paired": figure["paired"], "workers": [dataclasses.asdict(w) for w in outcome.workers.values()],
+               "failures": [f.describe() for f in outcome.failures],
+               "summary": summary_rows(summaries, plan.option_columns), "paired": figure["paired"],
+               "workers": [dataclasses.asdict(w) for w in outcome.workers.values()],
                "startup_seconds": round(outcome.startup_seconds, 3),
                **({"summary_csv": str(files.summary_csv)} if files.summary_csv is not None else {})}  # fmt: skip
     if outcome.interrupted or outcome.lost is not None:

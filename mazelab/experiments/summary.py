@@ -27,7 +27,7 @@ from __future__ import annotations
 import math
 import statistics
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass, fields
 from pathlib import Path
 from statistics import NormalDist
 from typing import Any
@@ -298,15 +298,6 @@ class StudySummary:
     log_evidence_se: float = math.nan  # its standard error: the runs' standard deviation / sqrt(runs)
     log_evidence_caveat: str = ""  # why the filter's estimate is not of p(z_1:K) under the model ("": it is)
     backend: str = ""  # the backend its runs ran on (their ms_per_step's)
-
-    def as_dict(self) -> dict[str, object]:
-        """The summary as plain values (the setting's parameters spelled out), for a record or pandas."""
-        data = {k: v for k, v in asdict(self).items() if k != "setting"}
-        data["setting"] = data.pop("setting_index")
-        for parameter in BASE_PARAMETERS:
-            data[parameter] = self.setting.value(parameter)
-        data.update(option_cells(self.setting, self.filter))  # every option the filter ran with, one key each
-        return data
 
 
 def summarise_study(
