@@ -50,7 +50,7 @@ from mazelab.experiments.accuracy import (
     accuracy_summary,
     accuracy_table,
 )
-from mazelab.experiments.api import StudyPlan, maze_description, plan_study, study_mazes
+from mazelab.experiments.api import StudyPlan, maze_description, plan_study, study_closing, study_mazes
 from mazelab.experiments.executor import (
     DASK_TIMEOUT,
     StudyOutcome,
@@ -82,7 +82,6 @@ from mazelab.experiments.summary import (
     summarise_study,
     summary_csv,
     summary_path,
-    summary_rows,
 )
 from mazelab.experiments.tables import records_csv, study_traces, write_traces
 from mazelab.invocation import command_line, resume_command
@@ -354,16 +353,13 @@ def report_study(session: StudySession, outcome: StudyOutcome, figure: dict[str,
     order = {name: i for i, name in enumerate(dict.fromkeys([*names, *(r.filter for r in outcome.records)]))}
     records = sorted([*session.kept, *outcome.records], key=lambda r: (r.setting, r.run, order[r.filter]))
     summaries = summarise_study(records, plan.settings, paired=figure["paired"])
-    closing = {"runs_finished": len({(r.setting, r.run) for r in records}), "runs_in_study": len(plan.tasks()),
-               "failures": [f.describe() for f in outcome.failures],
-               "summary": summary_rows(summaries, plan.option_columns), "paired": figure["paired"],
-               "workers": [dataclasses.asdict(w) for w in outcome.workers.values()],
-               "startup_seconds": round(outcome.startup_seconds, 3),
-               **({"summary_csv": str(files.summary_csv)} if files.summary_csv is not None else {})}  # fmt: skip
+    closing = study_closing(plan, outcome, records, summaries, figure["paired"])
+    if files.summary_csv is not None:
+        closing["summary_csv"] = str(files.summary_csv)
     if outcome.interrupted or outcome.lost is not None:
         report_stopped(session, outcome, records, closing)
     typer.echo(study_table(summaries, plan.varied, kld=plan.kld))
-    status = "finished" if not outcome.failures else "finished with failures"
+    status = outcome.status
     seconds = session.recorder.finish(status, **closing)["duration_seconds"]
     ran = len({(r.setting, r.run) for r in outcome.records})
     typer.echo(f"{ran} runs in {seconds:.1f} s wall time on the {session.backend} backend; start-up "

@@ -27,7 +27,7 @@ from mazelab import maze_generator
 from mazelab.checks import check_particles, check_seed, check_sigma_within, check_steps, check_study
 from mazelab.contract import missing_parts
 from mazelab.declaration import scoped, to_plain_json
-from mazelab.experiments.executor import run_study
+from mazelab.experiments.executor import StudyOutcome, run_study
 from mazelab.experiments.journal import Recorder
 from mazelab.experiments.runs import filter_key, parse_filters
 from mazelab.experiments.study import (
@@ -35,6 +35,7 @@ from mazelab.experiments.study import (
     MODEL_PARAMETERS,
     REFERENCE,
     MazeChoice,
+    RunRecord,
     RunTask,
     StudySetting,
     declared_option,
@@ -453,24 +454,37 @@ def study(
                         csv_dtypes=CSV_DTYPES)  # fmt: skip
     outcome = run_study(plan.tasks(), workers, dask=dask)
     summaries = summarise_study(outcome.records, plan.settings, paired=paired)
-    summary, failures = summary_rows(summaries, plan.option_columns), [f.describe() for f in outcome.failures]
+    closing = study_closing(plan, outcome, outcome.records, summaries, paired)
     call = {
         **(plan.call or {}),
         "paired": paired,
         "workers": workers,
         **({"dask": dask} if isinstance(dask, str) else {}),
     }
-    record = recorder.finish(
-        "finished" if not failures else "finished with failures", summary=summary, failures=failures,
-        runs_finished=len({(r.setting, r.run) for r in outcome.records}), backend=outcome.backend,
-        paired=None if paired is None else resolve_filter(paired).name,
-        call={"function": "mazelab.study", "arguments": call},
-        workers=[asdict(report) for report in outcome.workers.values()],
-        startup_seconds=round(outcome.startup_seconds, 3),
-    )  # fmt: skip
+    record = recorder.finish(outcome.status, **closing, call={"function": "mazelab.study", "arguments": call})
     columns = trace_table_columns(study_traces(outcome.records)) if plan.traces else None
     rows = [flat_row(r) for r in outcome.records]
-    return StudyResult(rows, summary, record, failures, columns, summaries, plan.varied)
+    return StudyResult(rows, closing["summary"], record, closing["failures"], columns, summaries, plan.varied)
+
+
+def study_closing(
+    plan: StudyPlan, outcome: StudyOutcome, records: Sequence[RunRecord], summaries: Sequence[StudySummary],
+    paired: str | None,
+) -> dict[str, Any]:  # fmt: skip
+    """What a study's record says at its end, the same from `mazelab study` and `mazelab.study`: the runs
+    finished (among `records`, a resumed study's kept ones too) and in the study, the failures, the summary
+    (the summary CSV's rows, `summary_rows`), the filter paired with, the backend, each process's report
+    and their start-up."""
+    return {
+        "runs_finished": len({(r.setting, r.run) for r in records}),
+        "runs_in_study": len(plan.tasks()),
+        "failures": [f.describe() for f in outcome.failures],
+        "summary": summary_rows(summaries, plan.option_columns),
+        "paired": None if paired is None else resolve_filter(paired).name,
+        "backend": outcome.backend,
+        "workers": [asdict(report) for report in outcome.workers.values()],
+        "startup_seconds": round(outcome.startup_seconds, 3),
+    }
 
 
 def _dask(dask: Any) -> Any:

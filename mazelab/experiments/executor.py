@@ -109,6 +109,11 @@ class StudyOutcome:
         return collect
 
     @property
+    def status(self) -> str:
+        """A study that ran to its end: "finished", or "finished with failures" (a run raised)."""
+        return "finished" if not self.failures else "finished with failures"
+
+    @property
     def startup_seconds(self) -> float:
         """The start-up of every process that ran runs (numba's load, first-call warm-ups), summed."""
         return sum(report.startup_seconds for report in self.workers.values())
