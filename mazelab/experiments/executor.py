@@ -418,22 +418,19 @@ class Units:
     def _wait(self) -> tuple[set[Future], bool]:
         """The units finished next, and whether the pool is broken: a worker died, whether its future
         says so or not (killed while it wrote a unit's rows, the pool's thread waits for the rest of the
-        message; end_workers frees it). On Dask, a scheduler gone or `timeout` seconds without a
-        finished unit (no worker left) is a lost cluster."""
-        deadline = time.monotonic() + self.timeout if self.client is not None else math.inf  # the pool's: none
+        message; end_workers frees it). A lost cluster raises StudyLost: its scheduler gone, or `timeout`
+        seconds without a finished unit (no worker left); a local pool has no deadline."""
+        deadline = time.monotonic() + (self.timeout if self.client is not None else math.inf)
         while True:
             left = deadline - time.monotonic()
             done = wait(self.running, timeout=max(0.0, min(1.0, left)), return_when=FIRST_COMPLETED)[0]
-            if self.client is None:
-                processes = (getattr(self.pool, "_processes", None) or {}).values()  # no public API
-                broken = any(isinstance(f.exception(), BrokenProcessPool) for f in done if not f.cancelled())
-                if done or broken or not all(process.is_alive() for process in processes):
-                    return done, broken or not done
-            elif done:
-                return done, False
-            elif self.client.status not in ("running", "connecting"):
+            processes = (getattr(self.pool, "_processes", None) or {}).values()  # a local pool's (no public API)
+            broken = any(isinstance(f.exception(), BrokenProcessPool) for f in done if not f.cancelled())
+            if done or broken or not all(process.is_alive() for process in processes):
+                return done, broken or not done
+            if self.client is not None and self.client.status not in ("running", "connecting"):
                 raise StudyLost(f"lost the connection to the Dask scheduler ({self.client.status})")
-            elif left <= 1.0:
+            if left <= 1.0:
                 raise StudyLost(
                     f"no run finished on the Dask cluster within {self.timeout:g} s (--dask-timeout): "
                     f"{describe_workers(self.client)}"
