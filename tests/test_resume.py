@@ -131,20 +131,20 @@ def test_foreign_row_checks_every_planned_column(tmp_path):
                  "--workers", "1", "--csv", str(table)]) == 0  # fmt: skip
     lines = journal_lines(tmp_path / "s.runs.jsonl")
     records = [RunRecord.from_json(row) for line in lines if "run" in line for row in line["records"]]
-    assert foreign_row(plan.tasks(), records) is None
+    assert foreign_row(plan.tasks, records) is None
     changed = {"seed": 7, "maze_sha256": "0" * 64, "maze_seed": 3, "maze": "other", "wall_share": 0.3,
                "sigma": 0.31, "delta": 0.4, "particles": 31, "steps": 6, "kidnap_at": 2}  # fmt: skip
-    assert set(changed) == set(plan.tasks()[0].cells())  # every cell the plan fixes
+    assert set(changed) == set(plan.tasks[0].cells())  # every cell the plan fixes
     options = {"recovery": "sensor", "estimate": "mode", "resampling": "residual", "bandwidth": "multimodal"}
     for column, value in [*changed.items(), *options.items()]:
         cell = {column: value} if column in changed else {"options": {**records[1].options, column: value}}
         edited = [RunRecord(**{**vars(r), **cell}) if i == 1 else r for i, r in enumerate(records)]
-        why = foreign_row(plan.tasks(), edited)
+        why = foreign_row(plan.tasks, edited)
         assert why.startswith(f"run 2 of setting 1: its {column} is "), (column, why)
     moved = [RunRecord(**{**vars(records[0]), "run": 9})]
-    assert foreign_row(plan.tasks(), moved) == "run 9 of setting 1 is not in this study"
+    assert foreign_row(plan.tasks, moved) == "run 9 of setting 1 is not in this study"
     renamed = [RunRecord(**{**vars(records[0]), "filter": "AuxiliaryParticleFilter"})]
-    assert "filter AuxiliaryParticleFilter is not one this study runs" in foreign_row(plan.tasks(), renamed)
+    assert "filter AuxiliaryParticleFilter is not one this study runs" in foreign_row(plan.tasks, renamed)
 
 
 def test_a_journal_made_on_another_backend_is_refused_or_named(tmp_path, finished, capsys):

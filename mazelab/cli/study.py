@@ -172,7 +172,7 @@ def study(
                       options=given, seed=seed, traces=chosen.traces is not None, spelled=given.spelled)  # fmt: skip
     figure = check_figure(plan, **figure)
     workers = workers or cores()
-    backend = study_backend(plan.tasks(), 1 if dask else workers)
+    backend = study_backend(plan.tasks, 1 if dask else workers)
     header = plan.header(f"on the Dask cluster at {dask}" if dask is not None else f"{workers} worker(s)", backend)
     session = open_session(plan, chosen, backend, header, visualize=visualize, draw_run=draw_run, dask=dask)
     if chosen.resume:
@@ -306,7 +306,7 @@ def open_session(plan: StudyPlan, files: StudyFiles, backend: str, header: str, 
                  dask: str | None = None) -> StudySession:  # fmt: skip
     """The runs to go (a resumed study's checked against its journal), the claims, the journal, the
     cluster and the record (of `kind`, its `parameters` the plan's unless given); the `header` printed."""
-    tasks, kept, earlier = plan.tasks(), [], []
+    tasks, kept, earlier = plan.tasks, [], []
     if files.resume:
         try:
             tasks, kept, earlier = resume_study(files.journal, files.lines, plan, backend)
@@ -465,7 +465,7 @@ def accuracy(
     parameters = {"mazes": [maze_description(m) for m in mazes], "filters": labels, "sigma": sigma, "delta": delta,
                   "particles": particles, "runs": runs, "steps": steps, "root_seed": seed}  # fmt: skip
     workers = workers or cores()
-    backend = study_backend(plan.tasks(), workers)
+    backend = study_backend(plan.tasks, workers)
     files = accuracy_files(csv_path, record, plan, rows, force, backend)
     header = (f"Accuracy: {len(mazes)} maze(s) ({', '.join(m.label for m in mazes)}) x {runs} runs, sigma "
               f"{sigma:g}, delta {delta:g}, {particles} particles, {steps} steps, seed {seed}; filters: "

@@ -126,6 +126,8 @@ class StudyPlan:
     reference: str | None = None  # "grid": every row gets distance_to_exact (`study --reference grid`)
     plugins: tuple[PluginCode, ...] = ()  # the plug-ins' code, read once: every run carries it
     call: dict[str, Any] | None = None  # the Python values that made it (mazelab.study_plan), as data
+    # every run of the study, each with the filters its setting runs (study.study_tasks), made once by plan_study
+    tasks: list[RunTask] = field(default_factory=list, repr=False)
 
     @property
     def option_columns(self) -> list[str]:
@@ -140,20 +142,6 @@ class StudyPlan:
     @property
     def varied(self) -> list[str]:
         return varied_parameters(self.settings)
-
-    def tasks(self) -> list[RunTask]:
-        """Every run of the study, each with the filters its setting runs."""
-        return study_tasks(
-            self.settings,
-            self.filters,
-            self.runs,
-            self.steps,
-            self.seed,
-            kidnap_at=self.kidnap_at,
-            traces=self.traces,
-            reference=self.reference,
-            plugins=self.plugins,
-        )
 
     def parameters(self) -> dict[str, Any]:
         """The study's parameters as parsed (what the record keeps and --resume compares)."""
@@ -179,7 +167,7 @@ class StudyPlan:
     def header(self, where: str, backend: str | None = None) -> str:
         """The study's first lines: its size, seed, workers and backend; the fixed parameters; the varied
         ones with all their values."""
-        runs = len(self.tasks()) // max(1, self.runs)
+        runs = len(self.tasks) // max(1, self.runs)
         skipped = len(self.settings) - runs
         note = f" ({skipped} setting(s) run no filter)" if skipped else ""
         on = f", {backend} backend" if backend else ""
@@ -238,9 +226,10 @@ def plan_study(
     check_filter_options(settings, names)
     seed = new_seed() if seed is None else seed
     kld = given.get("kld") == [True]  # the table's mean N column
-    plan = StudyPlan(settings, names, runs, steps, seed, kidnap_at, kld, traces, reference, plugin_codes(names))
-    plan.tasks()  # checks runs, steps and kidnap_at
-    return plan
+    plugins = plugin_codes(names)
+    tasks = study_tasks(settings, names, runs, steps, seed, kidnap_at=kidnap_at, traces=traces, reference=reference,
+                        plugins=plugins)  # fmt: skip
+    return StudyPlan(settings, names, runs, steps, seed, kidnap_at, kld, traces, reference, plugins, tasks=tasks)
 
 
 def all_default(name: str, values: Sequence[Any]) -> bool:
@@ -452,7 +441,7 @@ def study(
     dask = _dask(dask)
     recorder = Recorder("study", [sys.argv[0] or "python", "mazelab.study(...)"], plan.parameters(),
                         csv_dtypes=CSV_DTYPES)  # fmt: skip
-    outcome = run_study(plan.tasks(), workers, dask=dask)
+    outcome = run_study(plan.tasks, workers, dask=dask)
     summaries = summarise_study(outcome.records, plan.settings, paired=paired)
     closing = study_closing(plan, outcome, outcome.records, summaries, paired)
     call = {
@@ -477,7 +466,7 @@ def study_closing(
     and their start-up."""
     return {
         "runs_finished": len({(r.setting, r.run) for r in records}),
-        "runs_in_study": len(plan.tasks()),
+        "runs_in_study": len(plan.tasks),
         "failures": [f.describe() for f in outcome.failures],
         "summary": summary_rows(summaries, plan.option_columns),
         "paired": None if paired is None else resolve_filter(paired).name,

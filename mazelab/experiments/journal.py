@@ -464,7 +464,7 @@ def resume_study(
                 runs[tuple(line["run"])] = [RunRecord.from_json(row) for row in line["records"]]
             except (TypeError, KeyError, ValueError) as error:
                 raise JournalError(f"--resume: {path} line {number}: not a run's rows ({error})") from None
-    records, tasks = [r for rows in runs.values() for r in rows], plan.tasks()
+    records, tasks = [r for rows in runs.values() for r in rows], plan.tasks
     found = foreign_row(tasks, records)
     if found is not None:
         raise JournalError(
