@@ -529,42 +529,33 @@ CSV_COLUMNS = [f.name for f in fields(RunRecord) if f.name != "options"]  # then
 # column as float64 and round a seed above 2**53 (the record says so; pandas: dtype={"maze_seed": str})
 CSV_DTYPES = {"seed": "int64", "maze_seed": "str (empty for a maze file; as float64 a seed loses digits)"}
 
-# the summary CSV's statistics, after `setting`, the study's parameters and `filter`: (column, how to read it)
-SUMMARY_STATISTICS: tuple[tuple[str, Any], ...] = (
-    ("runs", lambda s: s.runs),
-    ("mean_final_error", lambda s: s.mean_final_error),
-    ("mean_final_error_low", lambda s: s.interval[0]),
-    ("mean_final_error_high", lambda s: s.interval[1]),
-    ("median_final_error", lambda s: s.median_final_error),
-    ("median_final_error_low", lambda s: s.median_interval[0]),
-    ("median_final_error_high", lambda s: s.median_interval[1]),
-    ("converged_share", lambda s: s.converged_share),
-    ("converged_low", lambda s: s.converged_interval[0]),
-    ("converged_high", lambda s: s.converged_interval[1]),
-    ("last_convergence_step", lambda s: s.last_convergence_step),
-    ("median_convergence_step", lambda s: s.median_convergence_step),
-    ("median_convergence_step_low", lambda s: s.convergence_interval[0]),
-    ("median_convergence_step_high", lambda s: s.convergence_interval[1]),
-    ("mean_log_evidence", lambda s: s.mean_log_evidence),
-    ("log_evidence_se", lambda s: s.log_evidence_se),
-    ("log_evidence_caveat", lambda s: s.log_evidence_caveat or None),
-    ("ms_per_step", lambda s: s.ms_per_step),
-    ("backend", lambda s: s.backend),
-    ("run_seconds", lambda s: s.run_seconds),
-    ("mean_particle_count", lambda s: s.mean_particle_count),
-    ("relocalised_share", lambda s: s.relocalised_share),
-    ("relocalised_low", lambda s: (s.relocalised_interval or (None, None))[0]),
-    ("relocalised_high", lambda s: (s.relocalised_interval or (None, None))[1]),
-    ("median_steps_to_recover", lambda s: s.median_steps_to_recover),
-    ("distance_to_exact", lambda s: s.distance_to_exact),
-    ("distance_to_exact_low", lambda s: s.distance_interval[0]),
-    ("distance_to_exact_high", lambda s: s.distance_interval[1]),
-    ("paired_with", lambda s: s.paired_with),
-    ("paired_runs", lambda s: s.paired_runs or None),
-    ("mean_difference", lambda s: s.mean_difference),
-    ("difference_low", lambda s: s.difference_interval[0]),
-    ("difference_high", lambda s: s.difference_interval[1]),
+# the summary CSV's statistics, after `setting`, the study's parameters and `filter`: a StudySummary field each,
+# an interval (FIELD, NAME) as two columns, NAME_low and NAME_high
+SUMMARY_FIELDS: tuple[str | tuple[str, str], ...] = (
+    "runs", "mean_final_error", ("interval", "mean_final_error"), "median_final_error",
+    ("median_interval", "median_final_error"), "converged_share", ("converged_interval", "converged"),
+    "last_convergence_step", "median_convergence_step", ("convergence_interval", "median_convergence_step"),
+    "mean_log_evidence", "log_evidence_se", "log_evidence_caveat", "ms_per_step", "backend", "run_seconds",
+    "mean_particle_count", "relocalised_share", ("relocalised_interval", "relocalised"), "median_steps_to_recover",
+    "distance_to_exact", ("distance_interval", "distance_to_exact"), "paired_with", "paired_runs", "mean_difference",
+    ("difference_interval", "difference"),
+)  # fmt: skip
+SUMMARY_STATISTICS = tuple(
+    name for f in SUMMARY_FIELDS for name in ((f"{f[1]}_low", f"{f[1]}_high") if isinstance(f, tuple) else (f,))
 )
+
+
+def summary_statistics(s: StudySummary) -> dict[str, Any]:
+    """A summary's SUMMARY_FIELDS as cells (SUMMARY_STATISTICS): None for a missing interval, no caveat
+    and no pairs."""
+    cells: dict[str, Any] = {}
+    for spec in SUMMARY_FIELDS:
+        if isinstance(spec, tuple):
+            cells[f"{spec[1]}_low"], cells[f"{spec[1]}_high"] = getattr(s, spec[0]) or (None, None)
+        else:
+            value = getattr(s, spec)
+            cells[spec] = None if spec in ("log_evidence_caveat", "paired_runs") and not value else value
+    return cells
 
 
 def summary_rows(summaries: Sequence[StudySummary], columns: Sequence[str] = ()) -> list[dict[str, Any]]:
@@ -583,7 +574,7 @@ def summary_rows(summaries: Sequence[StudySummary], columns: Sequence[str] = ())
                 **{name: cells.get(name) for name in columns},
                 "filter": s.filter,
                 "label": described(s.filter).label,
-                **{name: read(s) for name, read in SUMMARY_STATISTICS},
+                **summary_statistics(s),
             }
         )
     return rows
@@ -591,7 +582,7 @@ def summary_rows(summaries: Sequence[StudySummary], columns: Sequence[str] = ())
 
 def summary_csv(summaries: Sequence[StudySummary], columns: Sequence[str] = ()) -> str:
     """The summary rows (`summary_rows`) as CSV: an empty cell for None, NaN and 'not reached'."""
-    header = ["setting", *BASE_PARAMETERS, *columns, "filter", "label", *(n for n, _ in SUMMARY_STATISTICS)]
+    header = ["setting", *BASE_PARAMETERS, *columns, "filter", "label", *SUMMARY_STATISTICS]
     return records_csv(summary_rows(summaries, columns), header)
 
 
