@@ -222,6 +222,7 @@ class StudyFiles:
     force: bool
     lines: list[dict[str, Any]] = dataclasses.field(default_factory=list)
     seed: int | None = None  # a resumed study's root seed, its journal's
+    replaces: bool = False  # an interrupted run's journal that does not match is replaced (accuracy's), not refused
 
     @classmethod
     def parse(cls, csv_path: Path | None = None, plot: Path | None = None, summary_csv: Path | None = None,
@@ -241,6 +242,21 @@ class StudyFiles:
                    (summary_named, summary_csv)]  # fmt: skip
         check_outputs(outputs, force or resume, apart="--csv's journal")
         return files
+
+    @classmethod
+    def left_by_accuracy(cls, csv_path: Path | None, record: Path | None, force: bool) -> StudyFiles:
+        """accuracy's outputs (the record --record, else beside the CSV) and their journal (beside the CSV, else
+        the record): an earlier run's files are refused without --force, unless it was interrupted (no finished
+        session in its journal): then it is resumed, or replaced if it is not this run's (`open_session`)."""
+        record_file = record if record is not None else record_path(csv_path) if csv_path is not None else None
+        journal = journal_path(csv_path or record_file) if csv_path or record_file else None
+        lines = [] if journal is None or journal_state(journal) != "left" else read_journal(journal)
+        finished = any(line.get("closed", {}).get("status") == "finished" for line in lines)
+        interrupted = any("session" in line for line in lines) and not finished
+        check_outputs([("--csv", csv_path), ("the record" if record is None else "--record", record_file)],
+                      force or interrupted)  # fmt: skip
+        resume = interrupted and not force
+        return cls(csv_path, None, None, record_file, None, journal, resume, force or bool(lines), lines, replaces=True)
 
     def check_journal(self) -> None:
         """The journal beside the CSV: being written by another study (refused), left by an earlier one
@@ -311,7 +327,11 @@ def open_session(plan: StudyPlan, files: StudyFiles, backend: str, header: str, 
         try:
             tasks, kept, earlier = resume_study(files.journal, files.lines, plan, backend)
         except JournalError as error:
-            raise UserError(str(error) if str(error).startswith("--resume") else f"--resume: {error}") from None
+            if not files.replaces:
+                raise UserError(str(error) if str(error).startswith("--resume") else f"--resume: {error}") from None
+            why = str(error).removeprefix("--resume: ").removesuffix("; give the same parameters")
+            typer.echo(f"replacing what an interrupted run left ({files.journal} and its outputs): {why}")
+            files.resume = False
     if visualize:  # the drawn run (run `draw_run` of the first setting) first: the executor draws it
         chosen = next((i for i, t in enumerate(tasks) if t.run == draw_run), None)
         if chosen is None:
@@ -466,44 +486,20 @@ def accuracy(
                   "particles": particles, "runs": runs, "steps": steps, "root_seed": seed}  # fmt: skip
     workers = workers or cores()
     backend = study_backend(plan.tasks, workers)
-    files = accuracy_files(csv_path, record, plan, rows, force, backend)
+    files = StudyFiles.left_by_accuracy(csv_path, record, force)
     header = (f"Accuracy: {len(mazes)} maze(s) ({', '.join(m.label for m in mazes)}) x {runs} runs, sigma "
               f"{sigma:g}, delta {delta:g}, {particles} particles, {steps} steps, seed {seed}; filters: "
               f"{', '.join(labels)}")  # fmt: skip
     session = open_session(plan, files, backend, header, kind="accuracy", parameters=parameters)
+    if files.resume:
+        done = {(r["maze"], r["run"]) for r in accuracy_records(session.kept, rows)}
+        typer.echo(f"resuming the interrupted run of {files.journal}: {len(done)} runs kept")
     try:
         outcome = run_study(session.tasks, workers, progress=True, on_records=session.append,
                             ignore_signals_after_stop=True, backend=backend)  # fmt: skip
         report_accuracy(session, rows, outcome)
     finally:
         session.close()
-
-
-def accuracy_files(csv_path: Path | None, record: Path | None, plan: StudyPlan, rows: tuple[AccuracyFilter, ...],
-                   force: bool, backend: str) -> StudyFiles:  # fmt: skip
-    """The outputs (the record --record, else beside the CSV) and their journal (beside the CSV, else the
-    record): an earlier run's files are refused without --force, unless it was interrupted (no finished
-    session in its journal): then it is resumed (the same parameters, mazelab.experiments.journal.resume_study)
-    or replaced, and a line says which."""
-    record_file = record if record is not None else record_path(csv_path) if csv_path is not None else None
-    journal = journal_path(csv_path or record_file) if csv_path or record_file else None
-    lines = [] if journal is None or journal_state(journal) != "left" else read_journal(journal)
-    finished = any(line.get("closed", {}).get("status") == "finished" for line in lines)
-    interrupted = any("session" in line for line in lines) and not finished
-    named = "the record" if record is None else "--record"
-    check_outputs([("--csv", csv_path), (named, record_file)], force or interrupted)
-    files = StudyFiles(csv_path, None, None, record_file, None, journal, False, force or bool(lines))
-    if interrupted and not force:
-        try:
-            _, kept, _ = resume_study(journal, lines, plan, backend)
-        except JournalError as error:
-            why = str(error).removeprefix("--resume: ").removesuffix("; give the same parameters")
-            typer.echo(f"replacing what an interrupted run left ({journal} and its outputs): {why}")
-        else:
-            files.resume, files.lines = True, lines
-            done = {(r["maze"], r["run"]) for r in accuracy_records(kept, rows)}
-            typer.echo(f"resuming the interrupted run of {journal}: {len(done)} runs kept")
-    return files
 
 
 def report_accuracy(session: StudySession, rows: tuple[AccuracyFilter, ...], outcome: StudyOutcome) -> None:
