@@ -432,9 +432,7 @@ def study(
     range or an empty list a ValueError, each one line naming it."""
     if plan is not None and (maze is not None or values):
         raise TypeError("give the study's plan or its values, not both")
-    workers = _whole("workers", workers, optional=True)
-    if workers is not None and workers < 1:
-        raise ValueError(f"workers must be >= 1 (or None: all cores), got {workers}")
+    workers = _whole("workers", workers, optional=True)  # >= 1, checked by run_study
     plan = plan or study_plan(maze, **values)
     if paired is not None and resolve_filter(paired).name not in [resolve_filter(f).name for f in plan.filters]:
         raise ValueError(f"paired={paired!r} is not one of the study's filters")

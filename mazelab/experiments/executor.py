@@ -312,7 +312,7 @@ def run_study(
     """
     workers = cores() if workers is None else workers
     if workers < 1:
-        raise ValueError(f"--workers must be >= 1, got {workers}")
+        raise ValueError(f"workers must be >= 1 (or None: all cores), got {workers}")
     client = connect(dask) if isinstance(dask, str) else dask  # a bad address: one line, before anything runs
     backend = backend or study_backend(tasks, workers if client is None else 1)
     outcome = StudyOutcome(tasks=len(tasks), backend=backend)
