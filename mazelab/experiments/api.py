@@ -26,7 +26,7 @@ import numpy as np
 from mazelab import maze_generator
 from mazelab.checks import check_particles, check_seed, check_sigma_within, check_steps, check_study
 from mazelab.contract import missing_parts
-from mazelab.declaration import scoped, to_plain_json
+from mazelab.declaration import scoped, show_value, to_plain_json
 from mazelab.experiments.executor import StudyOutcome, run_study
 from mazelab.experiments.journal import Recorder
 from mazelab.experiments.runs import filter_key, parse_filters
@@ -51,8 +51,6 @@ from mazelab.experiments.summary import (
     CSV_COLUMNS,
     CSV_DTYPES,
     StudySummary,
-    describe_setting,
-    describe_varied,
     summarise_study,
     summary_rows,
 )
@@ -165,19 +163,27 @@ class StudyPlan:
         }
 
     def header(self, where: str, backend: str | None = None) -> str:
-        """The study's first lines: its size, seed, workers and backend; the fixed parameters; the varied
-        ones with all their values."""
-        runs = len(self.tasks) // max(1, self.runs)
-        skipped = len(self.settings) - runs
+        """The study's first lines: its size, seed, workers and backend; the fixed parameters (the maze, the
+        model's, each option the study sets: an option not set runs at its default); the varied ones with all
+        their values."""
+        skipped = len(self.settings) - len(self.tasks) // max(1, self.runs)
         note = f" ({skipped} setting(s) run no filter)" if skipped else ""
         on = f", {backend} backend" if backend else ""
+        first, varied = self.settings[0], self.varied
+        parts = {"maze": f"maze {first.maze.label}", "sigma": f"sigma {first.sigma:g}",
+                 "delta": f"delta {first.delta:g}", "particles": f"{first.particles} particles",
+                 **{name: f"{name} {show_value(value)}" for name, value in first.options}}  # fmt: skip
+        kidnapping = "" if self.kidnap_at is None else f", kidnapped at step {self.kidnap_at}"
+        fixed = [text for parameter, text in parts.items() if parameter not in varied]
         lines = [
             f"Study: {len(self.settings)} setting(s){note} x {self.runs} runs x {len(self.filters)} filters, "
             f"seed {self.seed}, {where}{on}",
-            "fixed: " + describe_setting(self.settings[0], self.steps, self.runs, self.kidnap_at, self.varied),
+            "fixed: " + ", ".join([*fixed, f"{self.steps} steps{kidnapping}", f"{self.runs} runs per setting"]),
         ]
-        if self.varied:
-            lines.append(describe_varied(self.settings, self.varied) + " (each filter once per value it takes)")
+        if varied:
+            values = {p: ", ".join(dict.fromkeys(show_value(s.value(p)) for s in self.settings)) for p in varied}
+            lines.append("varied: " + "; ".join(f"{p} {v}" for p, v in values.items()) + " (each filter once per "
+                         "value it takes)")  # fmt: skip
         if self.reference:
             lines.append("reference: the exact grid filter, once per run's scenario (distance_to_exact)")
         return "\n".join(lines)

@@ -410,31 +410,6 @@ def recovery_summary(group: Sequence[RunRecord]) -> tuple[float | None, float | 
     return sum(r.relocalised for r in group) / len(group), statistics.median(recovered) if recovered else None
 
 
-def describe_setting(
-    setting: StudySetting, steps: int, runs: int, kidnap_at: int | None = None, varied: Sequence[str] = ()
-) -> str:
-    """The fixed parameters of a study in one line: the maze, the model's, and each option the study
-    sets (a varied one is left out: `describe_varied` says it; an option not set runs at its default)."""
-    parts = {
-        "maze": f"maze {setting.maze.label}",
-        "sigma": f"sigma {setting.sigma:g}",
-        "delta": f"delta {setting.delta:g}",
-        "particles": f"{setting.particles} particles",
-        **{name: f"{name} {show_value(value)}" for name, value in setting.options},
-    }
-    kidnapping = "" if kidnap_at is None else f", kidnapped at step {kidnap_at}"
-    fixed = [text for parameter, text in parts.items() if parameter not in varied]
-    return ", ".join([*fixed, f"{steps} steps{kidnapping}", f"{runs} runs per setting"])
-
-
-def describe_varied(settings: Sequence[StudySetting], varied: Sequence[str]) -> str:
-    """The varied parameters with their values: 'varied: sigma 0.2, 0.4; bandwidth optimal, multimodal'."""
-    if not varied:
-        return ""
-    values = {p: list(dict.fromkeys(show_value(s.value(p)) for s in settings)) for p in varied}
-    return "varied: " + "; ".join(f"{p} {', '.join(v)}" for p, v in values.items())
-
-
 def interval_note(summaries: Sequence[StudySummary] = ()) -> str:
     """The lines under the table: its intervals' methods, what converged means, and the paired columns."""
     last = max((s.last_convergence_step for s in summaries), default=0)
