@@ -1,18 +1,10 @@
 """How a study's runs are executed: in this process, on a local process pool, or on a Dask cluster
-through its Client's executor (`Client.get_executor`): one loop hands out units of runs to either and
-collects them as they finish, with a progress bar.
-
-The backend is chosen once, for the whole study (`study_backend`: --backend's, MAZELAB_BACKEND's, else
-by the study's work), and every unit runs on it wherever it runs: in this process, in a pool worker,
-on a Dask worker. Stopping keeps every finished run: the first Ctrl-C hands out no more units and lets
-the running ones finish (on Dask: cancels the rest); a second Ctrl-C, SIGTERM or SIGHUP ends the
-workers at once. Pool workers also end with their parent when it is killed outright (kill -9): a
-parent-death signal on Linux, a watchdog thread elsewhere. A worker that dies (kill -9, out of memory)
-restarts the pool, its unfinished units handed out again, at most MAX_POOL_RESTARTS times.
-
-A Dask cluster (`study --dask ADDRESS`, the optional extra `pip install -e ".[dask]"`) is connected in one
-line or refused, its workers asked before any run (`check_workers`), and a cluster that stops finishing
-runs is said in one line with what is left of it.
+through its Client's executor (`Client.get_executor`): one loop (`Units`) hands out units of runs to
+either and collects them as they finish, with a progress bar; on one backend for the whole study
+(`study_backend`). Stopping keeps every finished run (`run_study`); a pool's workers end with their parent
+(`worker_setup`) and a dead one restarts the pool (`Units`); a Dask cluster (`study --dask ADDRESS`, the
+optional extra `pip install -e ".[dask]"`) is connected in one line or refused (`connect`), its workers
+asked before any run (`check_workers`).
 """
 
 from __future__ import annotations
@@ -300,7 +292,9 @@ def run_study(
 ) -> StudyOutcome:
     """Run every task, on `workers` processes (default: all cores) or on a Dask cluster (`dask`: its
     scheduler's address, connected and closed here, or a distributed Client), on one backend (`backend`,
-    default `study_backend`'s choice for these tasks); any stop keeps the finished runs.
+    default `study_backend`'s choice for these tasks); any stop keeps the finished runs: the first Ctrl-C
+    hands out no more units and lets the running ones finish (on Dask: cancels the rest), a second Ctrl-C,
+    SIGTERM or SIGHUP ends the workers at once.
 
     With `visualize`, the first run is drawn in this process. A run that raises becomes a RunFailure;
     the others go on. `on_records` is handed each finished run's records as they come (the study's

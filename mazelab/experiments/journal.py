@@ -10,12 +10,9 @@ from the journal's runs at the end, in order. The journal stays beside the CSV: 
 from it (a larger --runs extends the study), and a study that finds one without --resume or --force
 is refused, as it is when another study is writing it.
 
-The journal is the program's own file: created exclusively and locked while its study runs; a
-symlink, a second name of another file (a hard link), a pipe, a device or a folder at its name is
-refused, never followed or read; it is read back only whole, as UTF-8 text that fits in memory, and a
-last line cut short by a kill is dropped (the run it held runs again). The other outputs of a study
-(the summary CSV, the record, the figure, the traces) are claimed the same way while it runs, by a
-locked `NAME.lock` beside each (`claim_outputs`): a second study given one of them is refused at once.
+The journal is the program's own file, never followed through a link nor read from a pipe or a device
+(`check_own_file`), created exclusively and locked while its study runs (`Journal`), read back whole
+(`read_journal`); the other outputs of a study are claimed by a locked NAME.lock beside each (`claim_outputs`).
 
 The record of how a result was made: a JSON file beside a study's CSV (and beside compare's and
 accuracy's outputs) with the exact command, every parameter as parsed, the root seed, the program's
