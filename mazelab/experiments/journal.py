@@ -406,11 +406,9 @@ class Recorder:
         )
         return self.data
 
-    def write(self, path: str | Path, follow_links: bool = True) -> None:
-        """Write the record, whole (mazelab.atomic); `follow_links=False` for a partial record, which
-        is the program's own file (a symlink at its name is refused, never written through)."""
-        text = json.dumps(self.data, indent=2, allow_nan=False) + "\n"
-        write_text_atomically(path, text, follow_links=follow_links)
+    def write(self, path: str | Path) -> None:
+        """Write the record, whole (mazelab.atomic)."""
+        write_text_atomically(path, json.dumps(self.data, indent=2, allow_nan=False) + "\n")
 
 
 def differences(recorded: Mapping[str, Any], given: Mapping[str, Any], ignore: Sequence[str] = ()) -> list[str]:
