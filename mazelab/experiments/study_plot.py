@@ -141,7 +141,6 @@ class FigureLayout:
     facets: list[str] = field(default_factory=list)  # the other varied parameters, a panel per combination
     y_ranges: list[tuple[float, float]] = field(default_factory=list)
     boxes: list[tuple[float, float, float, float]] = field(default_factory=list)
-    references: list[list[str]] = field(default_factory=list)  # per panel: the lines drawn as references
 
 
 def is_numeric(summaries: Sequence[StudySummary], parameter: str) -> bool:
@@ -304,19 +303,18 @@ def draw_panels(
     axes: Any, layout: FigureLayout, panels: Sequence[Sequence[StudySummary]], scale: XScale, quantity: YQuantity
 ) -> FigureLayout:
     """Each panel's lines and references (`draw_panel`), its title and axes' labels; the panels past
-    the last hidden. Returns the layout with each panel's y range and references."""
-    columns, ranges, references = layout.shape[1], [], []
+    the last hidden. Returns the layout with each panel's y range."""
+    columns, ranges = layout.shape[1], []
     for k, mine in enumerate(panels):
         ax = axes[k // columns][k % columns]
         lines = panel_lines(mine, layout.x, layout.options, layout.lines)
         ranges.append(draw_panel(ax, lines, scale, layout.lines, k + 1, quantity))
         ax.set(ylim=ranges[-1], title=layout.panels[k] or None, xlabel=axis_label(layout.x), gid=f"panel-{k + 1}")
         ax.grid(alpha=0.3, linewidth=0.5)
-        references.append([line.label for line in lines if line.reference])
     for k, ax in enumerate(axes.flat):
         ax.set_visible(k < len(panels))
         ax.set_ylabel(quantity.label if k % columns == 0 else "")
-    return dataclasses.replace(layout, y_ranges=ranges, references=references)
+    return dataclasses.replace(layout, y_ranges=ranges)
 
 
 def describe(scale: XScale, panels: int, quantity: YQuantity) -> str:
