@@ -182,8 +182,8 @@ class StudyPlan:
         ]
         if varied:
             values = {p: ", ".join(dict.fromkeys(show_value(s.value(p)) for s in self.settings)) for p in varied}
-            lines.append("varied: " + "; ".join(f"{p} {v}" for p, v in values.items()) + " (each filter once per "
-                         "value it takes)")  # fmt: skip
+            shown = "; ".join(f"{p} {v}" for p, v in values.items())
+            lines.append(f"varied: {shown} (each filter once per value it takes)")
         if self.reference:
             lines.append("reference: the exact grid filter, once per run's scenario (distance_to_exact)")
         return "\n".join(lines)
