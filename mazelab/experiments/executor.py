@@ -1,7 +1,7 @@
 """How a study's runs are executed: in this process, on a local process pool, or on a Dask cluster
 through its Client's executor (`Client.get_executor`): one loop (`Units`) hands out units of runs to
 either and collects them as they finish, with a progress bar; on one backend for the whole study
-(`study_backend`). Stopping keeps every finished run (`run_study`); a pool's workers end with their parent
+(`study_backend`). Stopping keeps every finished run (`Units.run`); a pool's workers end with their parent
 (`worker_setup`) and a dead one restarts the pool (`Units`); a Dask cluster (`study --dask ADDRESS`, the
 optional extra `pip install -e ".[dask]"`) is connected in one line or refused (`connect`), its workers
 asked before any run (`check_workers`).
@@ -292,9 +292,7 @@ def run_study(
 ) -> StudyOutcome:
     """Run every task, on `workers` processes (default: all cores) or on a Dask cluster (`dask`: its
     scheduler's address, connected and closed here, or a distributed Client), on one backend (`backend`,
-    default `study_backend`'s choice for these tasks); any stop keeps the finished runs: the first Ctrl-C
-    hands out no more units and lets the running ones finish (on Dask: cancels the rest), a second Ctrl-C,
-    SIGTERM or SIGHUP ends the workers at once.
+    default `study_backend`'s choice for these tasks); any stop keeps the finished runs (`Units.run`).
 
     With `visualize`, the first run is drawn in this process. A run that raises becomes a RunFailure;
     the others go on. `on_records` is handed each finished run's records as they come (the study's
@@ -378,8 +376,9 @@ class Units:
         self, collect: Callable[[list], None], advance: Callable[..., None], here: Callable[[], None] = lambda: None
     ) -> None:
         """Hand out the units, run `here()` (the drawn run) meanwhile, and collect every unit as it
-        finishes; the stop, a lost cluster or pool, raised again once the finished units are collected
-        and the workers ended (or, on Dask, the rest cancelled)."""
+        finishes. The first Ctrl-C hands out no more units and lets the running ones finish (on Dask:
+        cancels the rest), a second Ctrl-C, SIGTERM or SIGHUP ends the workers at once; the stop, a lost
+        cluster or pool, is raised again once the finished units are collected and the workers ended."""
         self.collect, self.advance = collect, advance
         if self.client is None and self.size <= 1:  # one worker, or one unit: in this process, in order
             here()
