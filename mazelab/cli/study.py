@@ -76,13 +76,7 @@ from mazelab.experiments.journal import (
 )
 from mazelab.experiments.runs import parse_filters
 from mazelab.experiments.study import MazeChoice, RunRecord, RunTask
-from mazelab.experiments.summary import (
-    CSV_DTYPES,
-    study_table,
-    summarise_study,
-    summary_csv,
-    summary_path,
-)
+from mazelab.experiments.summary import CSV_DTYPES, study_table, summarise_study, summary_csv, summary_path
 from mazelab.experiments.tables import records_csv, study_traces, write_traces
 from mazelab.invocation import command_line, resume_command
 from mazelab.maze import DEFAULT_MAZE, LAB_MAZES
