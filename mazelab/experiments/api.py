@@ -47,13 +47,7 @@ from mazelab.experiments.study import (
     study_tasks,
     varied_parameters,
 )
-from mazelab.experiments.summary import (
-    CSV_COLUMNS,
-    CSV_DTYPES,
-    StudySummary,
-    summarise_study,
-    summary_rows,
-)
+from mazelab.experiments.summary import CSV_COLUMNS, CSV_DTYPES, StudySummary, summarise_study, summary_rows
 from mazelab.experiments.tables import flat_row, study_traces, trace_table_columns
 from mazelab.grid_filter import check_grid_memory
 from mazelab.maze import DEFAULT_MAZE, MAZES_DIR, find_maze, load_maze
