@@ -2,18 +2,14 @@
 (`Y_QUANTITIES`: the mean or median last-20% error, the converged share, the distance to the exact
 posterior, the paired difference) against one varied parameter (the x axis), one line per filter and
 varied option (e.g. "RPF, bandwidth multimodal"), and one panel per combination of the other varied
-parameters, laid out as the design (maze x sigma: a row per maze, a column per sigma).
+parameters, laid out as the design (maze x sigma: a row per maze, a column per sigma; `figure_layout`).
 
-- each panel has its own y range, from 0 (or below 0 for a difference) to just above its highest
-  interval (the figure says so); a share runs from 0% to 100%;
-- a filter that does not take the x parameter (the grid filter against N) is a reference: a dashed
-  line at its value with its interval shaded, in every panel whose parameters it shares;
-- on a numeric x axis every point stays at its x (lines that overlap are told apart by marker and line
-  style); only on a categorical axis are the lines moved apart sideways (the caption says so);
-- every line has a marker and a line style of its own, so the lines stay apart in grey print;
-- the figure is PAPER_WIDTH inches wide with FONT_POINTS type (a two-column paper's full width), PNG
-  at PNG_DPI, or PDF / SVG with their text as text (the path's suffix chooses);
-- the filters' colours are the registry's (mazelab.registry.described), as in the viewer.
+Each panel has its own y range (`y_range`); a filter that does not take the x parameter (the grid filter
+against N) is a reference, a dashed line with its interval shaded (`draw_panel`); points at one x are set
+a little apart, so that their bars do not hide each other (`XScale`); every line has a marker and a line
+style of its own, so the lines stay apart in grey print, and its filter's colour in the registry
+(`panel_lines`). The figure is PAPER_WIDTH inches wide with FONT_POINTS type (a two-column paper's full
+width), PNG at PNG_DPI, or PDF / SVG with their text as text (the path's suffix chooses).
 """
 
 from __future__ import annotations
