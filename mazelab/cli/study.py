@@ -326,6 +326,7 @@ def open_session(plan: StudyPlan, files: StudyFiles, backend: str, header: str, 
             why = str(error).removeprefix("--resume: ").removesuffix("; give the same parameters")
             typer.echo(f"replacing what an interrupted run left ({files.journal} and its outputs): {why}")
             files.resume = False
+        files.lines = []  # now the kept rows: the journal's text is not held twice
     if visualize:  # the drawn run (run `draw_run` of the first setting) first: the executor draws it
         chosen = next((i for i, t in enumerate(tasks) if t.run == draw_run), None)
         if chosen is None:
