@@ -124,12 +124,11 @@ def journal_state(path: Path) -> str | None:
 class Journal:
     """A journal open for appending, locked by this process: created exclusively, or an earlier one
     taken over, either to go on with it (`adopt`: a last line cut short is dropped) or, with `replace`,
-    emptied. A write error stops the appending and is kept in `error` (the study goes on, and the CSV is
-    still written at the end from the runs in memory)."""
+    emptied. A write error stops the appending (the study goes on, and the CSV is still written at the end
+    from the runs in memory)."""
 
     def __init__(self, path: str | Path, *, adopt: bool = False, replace: bool = False):
         self.path = Path(path)
-        self.error: OSError | None = None
         check_own_file(self.path)
         try:
             self._handle: int | None = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | _NOFOLLOW, 0o666)
@@ -153,8 +152,7 @@ class Journal:
         size = os.lseek(self._handle, 0, os.SEEK_END)
         try:
             write_all(self._handle, (json.dumps(line, separators=(",", ":")) + "\n").encode("utf-8"))
-        except OSError as error:  # a full disk, a file size limit: the journal cut back to its whole lines
-            self.error = self.error or error
+        except OSError:  # a full disk, a file size limit: the journal cut back to its whole lines
             with contextlib.suppress(OSError):
                 os.ftruncate(self._handle, size)
             self.close()
