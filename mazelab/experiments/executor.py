@@ -77,7 +77,6 @@ class StudyOutcome:
     failures: list[RunFailure] = field(default_factory=list)
     interrupted: bool = False
     stopped_by: int | None = None  # the signal that stopped it (2: Ctrl-C), None if it ran to the end
-    tasks: int = 0
     lost: str | None = None  # why the study stopped early without a signal (a lost cluster or pool), one line
     workers: dict[str, WorkerReport] = field(default_factory=dict)  # each process's report, start-up summed
     backend: str = ""  # the one backend the study's runs ran on (mazelab.experiments.executor.study_backend)
@@ -307,7 +306,7 @@ def run_study(
         raise ValueError(f"workers must be >= 1 (or None: all cores), got {workers}")
     client = connect(dask) if isinstance(dask, str) else dask  # a bad address: one line, before anything runs
     backend = backend or study_backend(tasks, workers if client is None else 1)
-    outcome = StudyOutcome(tasks=len(tasks), backend=backend)
+    outcome = StudyOutcome(backend=backend)
     try:
         if client is not None:
             check_workers(client, backend)  # workers that cannot run it, or of other versions: one line
