@@ -285,3 +285,18 @@ def test_a_study_of_an_earlier_version_is_refused_in_one_line_saying_why(tmp_pat
     assert main([*STUDY, "--csv", str(table), "--resume"]) == 2
     line = one_error(capsys)
     assert f"no journal {tmp_path / 's.runs.jsonl'} beside {table} to go on from" in line and "--force" in line
+
+
+def test_a_plugin_changed_since_the_rows_were_made_is_named_with_both_hashes(tmp_path, capsys):
+    plugin = tmp_path / "mine.py"
+    shutil.copy(ROOT / "tests" / "exercise_answers.py", plugin)
+    table = tmp_path / "s.csv"
+    args = ["study", "--maze", "paper_5x5", "--filters", f"sir,{plugin}:ReferenceFilter", "--runs", "2", "--steps",
+            "5", "--particles", "30", "--workers", "1", "--seed", "1", "--no-viz", "--csv", str(table)]  # fmt: skip
+    assert main(args) == 0
+    table.unlink()
+    plugin.write_text(plugin.read_text() + "\n# changed since\n")
+    capsys.readouterr()
+    assert main([*args, "--resume"]) == 2
+    line = one_error(capsys)
+    assert f"--resume: {plugin} is not the code that made the rows" in line and "restore it" in line

@@ -444,12 +444,12 @@ def resume_study(
     sha256, each kept row against the plan (another study's rows are refused) and its backend against
     this session's (rows of two backends never mix); with traces, a run kept only with its traces."""
     recorded = journal_parameters(path, lines)
+    check_plugin_code(recorded, plan, path)  # before the parameters: its line names the file and both hashes
     changed = differences(recorded, plan.parameters(), ignore=("runs",))
     if changed:
         raise JournalError(f"--resume: the study differs from its journal ({changed[0]}); give the same parameters")
     if plan.runs < recorded["runs"]:
         raise JournalError(f"--resume: --runs {plan.runs} is fewer than the study's {recorded['runs']}")
-    check_plugin_code(recorded, plan, path)
     runs: dict[tuple[int, int], list[RunRecord]] = {}
     for number, line in enumerate(lines, start=1):
         if "run" in line:
