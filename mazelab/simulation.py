@@ -243,20 +243,16 @@ def check_walk(world: Maze, robot: Robot, particles: np.ndarray | None = None, s
 
 
 def open_run_view(view: Any, world: Maze, filter_name: str, robot: Robot) -> Any:
-    """The view a run draws into, told of the robot's planned kidnapping if it draws one: `view` itself
-    (anything with log_step and close), NullView for None or False, what a view-opening function
-    `(world, filter_name) -> view` returns, or the Rerun view a `visualize` value asks for (the
-    viewer's code imported only then)."""
+    """The view a run draws into, told of the robot's planned kidnapping: `view` itself (anything with
+    log_step and close), NullView for None or False, what a view-opening function `(world, filter_name)
+    -> view` returns, or the Rerun view a `visualize` value asks for (the viewer's code imported only then)."""
     if view is None or view is False:
-        return NullView()
-    if not hasattr(view, "log_step"):
-        if callable(view):
-            view = view(world, filter_name)
-        else:
-            from mazelab.viz.views import open_view
+        view = NullView()
+    elif not hasattr(view, "log_step"):
+        from mazelab.viz.views import open_view
 
-            view = open_view(view, world, filter_name)
-    if robot.kidnap_at is not None and robot.kidnap_position is not None and hasattr(view, "expect_kidnapping"):
+        view = view(world, filter_name) if callable(view) else open_view(view, world, filter_name)
+    if robot.kidnap_at is not None and hasattr(view, "expect_kidnapping"):
         view.expect_kidnapping(robot.kidnap_at, robot.kidnap_position)
     return view
 
@@ -281,17 +277,13 @@ def simulate(
     """Run one filter on the robot's walk and return the full `RunResult` (what run_model summarises).
 
     Step k is the module's (`walk_and_record`); `on_step(k, robot, filter)` is called after each step.
-    `seed` seeds the robot (unless it has its own rng), the initial particles and the filter; the same
-    seed gives the same result bit for bit.
-    `kidnap_at=K`: at step K, before its move, the robot is carried to a free place drawn from the
-    seed (see Robot.kidnap); a robot that replays a kidnapping keeps it. The scenario stores it.
-    `result.extras` holds the particle count per step ("particle_count": KLD-sampling varies it) and the
-    backend the filter ran on ("backend": MAZELAB_BACKEND's, else mazelab.backend.backend_for_work's).
-    A filter class that declares the option `start` is also handed the robot's start (`build_filter`).
-    `visualize` says where the run is drawn (mazelab.viz.views: False, True, "viewer", "web", "notebook",
-    an .rrd path, a RecordingStream, a Visualization or a view), its memory checked up front; `view`
-    (instead) is a view (`log_step`, `close`) or a function `(world, filter_name) -> view`, called once
-    the inputs are checked (a comparison's view of each filter).
+    `seed` seeds the robot (unless it has its own rng), the initial particles and the filter (mazelab.seeding):
+    the same seed gives the same result bit for bit. `kidnap_at=K`: at step K the robot is carried to a free
+    place drawn from the seed (`plan_kidnapping`). `result.extras` holds the particle count per step
+    ("particle_count": KLD-sampling varies it) and the backend the filter ran on ("backend").
+    `visualize` says where the run is drawn (the values mazelab.viz.views lists), its memory checked up
+    front; `view` (instead) is a view or a function `(world, filter_name) -> view` (`open_run_view`),
+    called once the inputs are checked (a comparison's view of each filter).
     """
     check_world(world)
     sigma, delta = check_model_parameters(sigma, delta, (world.width, world.height))
@@ -382,22 +374,18 @@ def checked_walk(
         checked_count(particle_count, given=len(particles))
     else:
         particles = world.random_free_places(checked_count(particle_count), streams.particles)
-    if steps is None:
-        steps = robot.recorded_steps or DEFAULT_STEPS
-    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
-        raise ValueError(f"steps must be a whole number >= 1, got {steps!r}")
-    check_steps(int(steps))
+    steps = check_steps((robot.recorded_steps or DEFAULT_STEPS) if steps is None else steps)
     given = particles if init_particles_pos is not None else None  # drawn ones lie in the free area
-    check_walk(world, robot, given, int(steps))
+    check_walk(world, robot, given, steps)
     recorded = drawn_at_most(visualize)
     if recorded is not None:
-        check_recording(len(particles), int(steps), recorded)
+        check_recording(len(particles), steps, recorded)
     if kidnap_at is not None:
-        plan_kidnapping(robot, world, kidnap_at, int(steps), streams.kidnap)
+        plan_kidnapping(robot, world, kidnap_at, steps, streams.kidnap)
     robot.reset()
     if not robot.rng_given:
         robot.rng = streams.robot
-    return particles, int(steps)
+    return particles, steps
 
 
 def run_model(
