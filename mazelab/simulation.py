@@ -180,9 +180,6 @@ class RunInputs:
         builds one)."""
         from mazelab.scenario import Scenario
 
-        kidnapping = {}
-        if self.kidnap_at is not None:
-            kidnapping = {"kidnap_at": self.kidnap_at, "kidnap_position": self.kidnap_position}
         return Scenario(
             init_robot_pos=self.robot_position,
             init_particles_pos=self.particles.tolist(),
@@ -197,7 +194,8 @@ class RunInputs:
             filtering_algorithm=self.filtering_algorithm,
             filter_options=self.filter_options,
             filter_plugin=self.filter_plugin,
-            **kidnapping,
+            kidnap_at=self.kidnap_at,  # None: the key is left out (and the format's version stays below 2)
+            kidnap_position=self.kidnap_position,
         )
 
 
