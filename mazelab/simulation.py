@@ -99,7 +99,7 @@ class RunResult:
     @property
     def initial_particles(self) -> np.ndarray:
         """The initial particles (N, 2), as given or drawn (float64)."""
-        return self.inputs.particles
+        return self.inputs.init_particles_pos
 
     @property
     def errors(self) -> np.ndarray:
@@ -121,15 +121,16 @@ class RunResult:
 
 @dataclass(frozen=True)
 class RunInputs:
-    """What a run started from and walked, as arrays and plain values: a Scenario's content before
-    it is turned into lists and validated (RunResult.scenario does that on demand)."""
+    """What a run started from and walked, under its Scenario's keys (mazelab.scenario.Scenario says what
+    each is) as arrays and plain values: the Scenario's content before it is turned into lists and
+    validated, which `scenario` does on demand (a study never builds one)."""
 
-    robot_position: tuple[float, float]
-    particles: np.ndarray  # (N, 2) float64
-    actual_angles: list[float]
-    compass_angles: list[float]
-    measurements: list[float]
-    world: Maze
+    init_robot_pos: tuple[float, float]
+    init_particles_pos: np.ndarray  # (N, 2) float64
+    robot_actual_angles: list[float]
+    robot_compass_angles: list[float]
+    robot_measurements: list[float]
+    maze: Maze  # the run's maze itself (the scenario stores its grid)
     sigma: float
     delta: float
     seed: int
@@ -176,27 +177,12 @@ class RunInputs:
         )
 
     def scenario(self) -> Scenario:
-        """The validated Scenario of these inputs (the pydantic models imported here: a study never
-        builds one)."""
+        """The validated Scenario of these inputs, key for key (None keys stay out of the file); the
+        pydantic models are imported here."""
         from mazelab.scenario import Scenario
 
-        return Scenario(
-            init_robot_pos=self.robot_position,
-            init_particles_pos=self.particles.tolist(),
-            robot_actual_angles=self.actual_angles,
-            robot_compass_angles=self.compass_angles,
-            robot_measurements=self.measurements,
-            maze=self.world.as_lists(),
-            sigma=self.sigma,
-            delta=self.delta,
-            seed=self.seed,
-            steps=self.steps,
-            filtering_algorithm=self.filtering_algorithm,
-            filter_options=self.filter_options,
-            filter_plugin=self.filter_plugin,
-            kidnap_at=self.kidnap_at,  # None: the key is left out (and the format's version stays below 2)
-            kidnap_position=self.kidnap_position,
-        )
+        return Scenario(**{**vars(self), "init_particles_pos": self.init_particles_pos.tolist(),
+                           "maze": self.maze.as_lists()})  # fmt: skip
 
 
 def convergence_step(errors: np.ndarray, radius: float = CONVERGENCE_RADIUS) -> int | None:
