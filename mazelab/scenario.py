@@ -226,20 +226,6 @@ class Scenario(BaseModel):
             self.filter_plugin.sha256, self.filter_plugin.class_name)  # fmt: skip
         return loaded if same else None
 
-    def plugin_name_problem(self, name: str, sha256: str, class_name: str) -> str | None:
-        """Why the plug-in `class_name` loaded now (its `name`, its file's `sha256`) cannot be the one
-        this scenario names, or None: the same file's class must carry the stored filtering_algorithm
-        (a file whose filtering_algorithm and filter_plugin disagree was edited by hand)."""
-        plugin = self.filter_plugin
-        if plugin is None or plugin.class_name != class_name or plugin.sha256 != sha256:
-            return None  # another filter, or the file changed since (which the replay says)
-        if name != self.filtering_algorithm:
-            return (
-                f"filtering_algorithm {self.filtering_algorithm!r} is not the name of the plug-in {plugin.spec} "
-                f"that filter_plugin names ({name!r}): one of the two was edited"
-            )
-        return None
-
     def world(self) -> Maze | None:
         """The maze stored in the scenario, if any."""
         return None if self.maze is None else Maze(self.maze, source="the scenario's maze")

@@ -251,14 +251,18 @@ def same_filter(stored: Scenario, chosen: FilterEntry) -> bool:
 
 
 def check_plugin(stored: Scenario, chosen: FilterEntry, path: Path | None) -> None:
-    """The plug-in named to replay a scenario: refused in one line when it is the file the scenario names
-    but not the filter its filtering_algorithm says (an edited file); a line says when its file changed."""
+    """The plug-in named to replay a scenario: refused in one line when it is the file and class the
+    scenario names (the same sha256) but carries another name than its filtering_algorithm (one of the two
+    was edited by hand); a line says when its file changed."""
     plugin = stored.filter_plugin
     if chosen.plugin is None or plugin is None:
         return
-    problem = stored.plugin_name_problem(chosen.name, chosen.plugin.sha256, chosen.plugin.class_name)
-    if problem is not None:
-        raise UserError(f"{path or 'the scenario'}: {problem}")
+    same_file = (plugin.class_name, plugin.sha256) == (chosen.plugin.class_name, chosen.plugin.sha256)
+    if same_file and chosen.name != stored.filtering_algorithm:
+        raise UserError(
+            f"{path or 'the scenario'}: filtering_algorithm {stored.filtering_algorithm!r} is not the name of the "
+            f"plug-in {plugin.spec} that filter_plugin names ({chosen.name!r}): one of the two was edited"
+        )
     if same_filter(stored, chosen) and chosen.plugin.sha256 != plugin.sha256:
         typer.echo(f"warning: {chosen.plugin.spec} has changed since the scenario was saved (sha256 "
                    f"{chosen.plugin.sha256[:12]}..., saved {plugin.sha256[:12]}...): the replay may differ from the "
