@@ -34,20 +34,20 @@ ESTIMATE_OPTION = Option(
 )  # fmt: skip
 
 
-def label_components(occupied: np.ndarray) -> np.ndarray:
-    """Connected components (8-neighbours) of a boolean grid: labels 0..K-1, -1 where unoccupied.
+def label_components(occupied: np.ndarray, diagonal: bool = True) -> np.ndarray:
+    """Connected components of a boolean grid, of 8-neighbours (of 4 without `diagonal`): labels 0..K-1,
+    -1 where unoccupied.
 
     Each occupied bin starts with its own flat index; every round takes the smallest label of its
-    3x3 neighbourhood and then follows labels as pointers (pointer jumping), until nothing changes."""
+    neighbourhood and then follows labels as pointers (pointer jumping), until nothing changes."""
     rows, columns = occupied.shape
     empty = rows * columns  # larger than any index
     labels = np.where(occupied, np.arange(empty).reshape(occupied.shape), empty)
     while True:
         padded = np.pad(labels, 1, constant_values=empty)
         smallest = labels.copy()
-        for dy in range(3):
-            for dx in range(3):
-                np.minimum(smallest, padded[dy : dy + rows, dx : dx + columns], out=smallest)
+        for dy, dx in ((dy, dx) for dy in range(3) for dx in range(3) if diagonal or 1 in (dy, dx)):
+            np.minimum(smallest, padded[dy : dy + rows, dx : dx + columns], out=smallest)
         smallest = np.where(occupied, smallest, empty)
         flat = smallest.ravel()
         for _ in range(2):  # a label is a bin index: point at that bin's label
