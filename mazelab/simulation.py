@@ -361,9 +361,9 @@ def checked_walk(
     steps = check_steps((robot.recorded_steps or DEFAULT_STEPS) if steps is None else steps)
     given = particles if init_particles_pos is not None else None  # drawn ones lie in the free area
     check_walk(world, robot, given, steps)
-    recorded = drawn_at_most(visualize)
-    if recorded is not None:
-        check_recording(len(particles), steps, recorded)
+    if visualize is not False and visualize is not None:  # what a drawn step records, at most
+        drawn = visualize.max_drawn if isinstance(visualize, Visualization) else DEFAULT_MAX_DRAWN
+        check_recording(len(particles), steps, drawn)
     if kidnap_at is not None:
         plan_kidnapping(robot, world, kidnap_at, steps, streams.kidnap)
     robot.reset()
@@ -421,13 +421,6 @@ def run_model(
     return result.as_pairs()
 
 
-def drawn_at_most(visualize: Any) -> int | None:
-    """How many particles a step of this `visualize` records at most (None: nothing is drawn)."""
-    if visualize is False or visualize is None:
-        return None
-    return visualize.max_drawn if isinstance(visualize, Visualization) else DEFAULT_MAX_DRAWN
-
-
 def maze_for(filter_class: type, world: Maze) -> Maze:
     """The maze a filter is handed: the run's own for a filter of the lab's; for any other (a plug-in,
     a class of the user's) a copy that shares no array with it, its nearest-station table built first
@@ -455,7 +448,6 @@ __all__ = [
     "RunResult",
     "check_walk",
     "convergence_step",
-    "drawn_at_most",
     "open_run_view",
     "plan_kidnapping",
     "run_model",
