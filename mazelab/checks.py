@@ -2,11 +2,8 @@
 
 Numbers and points: finite, within the bounds below (angles, places, sigma, the RPF's bandwidth, the
 grid's cells, KLD-sampling's numbers, seeds). Memory: particle counts, step counts and maze sizes that
-would not fit are refused with one line before anything is allocated. The budget is the least of what
-is free: the available RAM (MemAvailable), the address-space and data limits of this process
-(RLIMIT_AS, `ulimit -v`; RLIMIT_DATA, `ulimit -d`) less what it already uses, and the cgroup memory
-limit (v2 memory.max, v1 memory.limit_in_bytes) less the group's usage. A request is refused when it
-needs more than MEMORY_SHARE of that budget.
+would not fit are refused with one line before anything is allocated: a request that needs more than
+MEMORY_SHARE of the least of the available RAM, this process's limits and its cgroup's (`memory_budget`).
 """
 
 from __future__ import annotations
