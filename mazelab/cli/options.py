@@ -26,6 +26,7 @@ import typer.core
 from mazelab.atomic import NameTakenError, NotRegularFileError, output_target
 from mazelab.backend import ENVIRONMENT_VARIABLE, THREADS_VARIABLE, check_backend, check_threads
 from mazelab.checks import check_seed
+from mazelab.constants import DEFAULT_DELTA, DEFAULT_SIGMA
 from mazelab.declaration import Option, not_taken, parse_flag, scoped, show_value
 from mazelab.experiments.runs import FINAL_SHARE, final_error
 from mazelab.experiments.study import declared_option
@@ -39,8 +40,6 @@ from mazelab.seeding import new_seed, start_place
 from mazelab.simulation import RunResult
 from mazelab.viz.style import DEFAULT_MAX_DRAWN
 from mazelab.viz.targets import Visualization
-
-DEFAULT_SIGMA, DEFAULT_DELTA = 0.3, 0.5
 
 
 class UserError(Exception):
