@@ -47,7 +47,8 @@ class Weights:
         """
         totals = np.atleast_1d(log_sum_exp(log_w))
         lw = log_w.astype(float)  # a float64 copy, then in place: no buffered cast against a broadcast row
-        lw -= totals[:, None]
+        with np.errstate(invalid="ignore"):  # a lost run (every log w -inf) gets NaN: the engine restarts it
+            lw -= totals[:, None]
         return cls(lw, totals)
 
     @classmethod
