@@ -377,9 +377,10 @@ def report_study(session: StudySession, outcome: StudyOutcome, figure: dict[str,
     status = outcome.status
     seconds = session.recorder.finish(status, **closing)["duration_seconds"]
     ran = len({(r.setting, r.run) for r in outcome.records})
+    loaded = "numba's kernels loaded, first calls" if session.backend == "compiled" else "first calls"
     typer.echo(f"{ran} runs in {seconds:.1f} s wall time on the {session.backend} backend; start-up "
-               f"{outcome.startup_seconds:.1f} s in {len(outcome.workers)} process(es) (numba's kernels loaded, first "
-               "calls; not in ms_per_step or run_seconds)")  # fmt: skip
+               f"{outcome.startup_seconds:.1f} s in {len(outcome.workers)} process(es) ({loaded}; not in "
+               "ms_per_step or run_seconds)")  # fmt: skip
     repeat_line(
         "study", plan.seed, ("--csv", "--plot", "--traces", "--record", "--summary-csv", "--rrd"), session.backend
     )
