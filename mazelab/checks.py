@@ -2,11 +2,8 @@
 
 Numbers and points: finite, within the bounds below (angles, places, sigma, the RPF's bandwidth, the
 grid's cells, KLD-sampling's numbers, seeds). Memory: particle counts, step counts and maze sizes that
-would not fit are refused with one line before anything is allocated. The budget is the least of what
-is free: the available RAM (MemAvailable), the address-space and data limits of this process
-(RLIMIT_AS, `ulimit -v`; RLIMIT_DATA, `ulimit -d`) less what it already uses, and the cgroup memory
-limit (v2 memory.max, v1 memory.limit_in_bytes) less the group's usage. A request is refused when it
-needs more than MEMORY_SHARE of that budget.
+would not fit are refused with one line before anything is allocated: a request that needs more than
+MEMORY_SHARE of the least of the available RAM, this process's limits and its cgroup's (`memory_budget`).
 """
 
 from __future__ import annotations
@@ -247,6 +244,9 @@ ADDRESS_SPACE_SOURCE = "the address-space limit, ulimit -v"
 _UNLIMITED = 2**60  # cgroup v1 writes "no limit" as a huge number near 2**63
 
 CGROUP_ROOT = Path("/sys/fs/cgroup")
+# a memory cgroup's limit, usage and reclaimable cache (a key of memory.stat), v2 (True) and v1 (False)
+CGROUP_FILES = {True: ("memory.max", "memory.current", "inactive_file"),
+                False: ("memory.limit_in_bytes", "memory.usage_in_bytes", "total_inactive_file")}  # fmt: skip
 PROC_SELF = Path("/proc/self")
 
 
@@ -316,9 +316,12 @@ def check_recording(particles: int, steps: int, max_drawn: int, budget: MemoryBu
     check_memory(f"particle_count {particles} with a recording of {steps} steps", needed, budget)
 
 
-def check_steps(steps: int) -> None:
-    """Refuse a step count whose per-step results would not fit."""
+def check_steps(steps: Any) -> int:
+    """A run's step count: a whole number >= 1 whose per-step results fit in memory, else one line."""
+    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
+        raise ValueError(f"steps must be a whole number >= 1, got {steps!r}")
     check_memory(f"steps {steps}", steps * BYTES_PER_STEP)
+    return int(steps)
 
 
 def check_study(runs: int, filters: int) -> None:
@@ -380,15 +383,7 @@ def cgroup_limit(root: Path = CGROUP_ROOT, proc_self: Path = PROC_SELF) -> Memor
     limit less usage (usage less inactive file cache, which the kernel reclaims first)."""
     budgets = []
     for folder, v2 in _cgroup_folders(root, proc_self):
-        names = (
-            ("memory.max", "memory.current", "inactive_file")
-            if v2
-            else (
-                "memory.limit_in_bytes",
-                "memory.usage_in_bytes",
-                "total_inactive_file",
-            )
-        )
+        names = CGROUP_FILES[v2]
         limit = _read_number(folder / names[0])
         if limit is None or limit >= _UNLIMITED:
             continue

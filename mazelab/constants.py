@@ -15,6 +15,7 @@ CONFIDENCE_SHARE = 0.95
 CONVERGENCE_RADIUS = 0.5  # a run has converged from the step after which its error stays below this
 DEFAULT_PARTICLE_COUNT = 1500
 DEFAULT_STEPS = 200
+DEFAULT_SIGMA, DEFAULT_DELTA = 0.3, 0.5  # the example's noise std (map units) and compass error (radians)
 
 # exp(x) is 0 in float64 below this: when the filter's whole predictive likelihood p(z_k | z_1:k-1)
 # is that small no particle explains z_k, and the filter starts again from the prior.

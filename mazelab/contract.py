@@ -14,10 +14,9 @@ A filter is a class built as `cls(world, sigma, delta, particles, rng, **options
     log_evidence (optional)  log p(z_1:k), its estimate of the log evidence so far, recorded per step
 
 and class attributes `name` (how results and the viewer label it) and `options`, every keyword option
-the constructor takes, declared once (mazelab.declaration: `Options(Option(name, default, help, ...))`,
-or a plain mapping of names to defaults). An option a filter does not declare is refused for it in one
-line. The contract is checked on the object before the first step (`check_filter`) and each step's
-values where they are read (`check_step_values`): a missing part or a bad value is one line naming it.
+the constructor takes, declared once (mazelab.declaration says how). The contract is checked on the
+object before the first step (`check_filter`) and each step's values where they are read
+(`check_step_values`): a missing part or a bad value is one line naming it.
 
 A new filter, worked through (SIR that resamples every `period` steps: one option declared once, one
 hook overridden), and the other hooks a particle filter may override: docs/architecture.md, "A new

@@ -9,8 +9,7 @@ values in their JSON form (`Options.to_json`, `Options.from_json`).
         Option("spread", 0.1, "the jitter's std, map units", check=number_in("spread", 0.0, 1.0)),
     )
 
-A plug-in may declare its options as a plain mapping of names to defaults (`{"spread": 0.1}`), also in a
-subclass (`{**SIRParticleFilter.options, "inflation": 1.0}`): `options_of` reads it as Options.
+A plug-in may declare its options as a plain mapping of names to defaults (`{"spread": 0.1}`, see `options_of`).
 """
 
 from __future__ import annotations
@@ -261,8 +260,7 @@ class Option:
         number or a finite number, else any literal).
     check : callable, optional
         Value -> the value the filter uses, raising ValueError of one line for a bad one (default:
-        any value). The one place the option is validated: the constructor calls it, and so do the
-        command line and the study, early, through `Options.resolve`.
+        any value): the one place the option is validated (`Options.resolve`).
     flag : str, optional
         The paper's named flag that spells this option too (e.g. "--bandwidth"), for the messages.
     from_json : callable, optional

@@ -21,6 +21,7 @@ from mazelab.model import (
     SPEED_OPTION,
 )
 from mazelab.modes import ESTIMATE_OPTION, MODE_CELL, Mode, find_modes, modes_of_bins
+from mazelab.weights import mass_within, weighted_mean
 
 GRID_RESOLUTION = 0.02  # cell size of GridBayesFilter, map units (divides 1, so cells never straddle walls)
 BYTES_PER_GRID_CELL = 250  # the density, positions, distances and FFT buffers per cell (about 130 measured)
@@ -205,7 +206,7 @@ class GridBayesFilter:
     @property
     def mean(self) -> np.ndarray:
         """The posterior mean over the cell centres, shape (2,)."""
-        return self.workspace.weighted_mean(self.weights, self.positions)
+        return weighted_mean(self.weights, self.positions, out=self.workspace.cells)
 
     @property
     def modes(self) -> list[Mode]:
@@ -223,8 +224,9 @@ class GridBayesFilter:
     @property
     def is_confident(self) -> bool:
         """At least 95% of the mass lies within distance 1 of the estimate (as for the particle filters)."""
-        mass = self.workspace.mass_within(self.weights, self.positions, self.estimate, CONFIDENCE_RADIUS)
-        return mass >= CONFIDENCE_SHARE
+        work = self.workspace
+        out = (work.cells, work.cells_y, work.within)
+        return mass_within(self.weights, self.positions, self.estimate, CONFIDENCE_RADIUS, out=out) >= CONFIDENCE_SHARE
 
 
 def check_grid_memory(
@@ -240,8 +242,9 @@ def check_grid_memory(
 
 class GridWorkspace:
     """The buffers of a grid filter's step, made once: its FFT convolution's (`convolve`), the
-    predicted density, the log-likelihood, the support and the weighted product (each the grid's
-    shape). Reusing them gives the same numbers, bit for bit, as fresh arrays."""
+    predicted density, the log-likelihood, the support, the weighted product (each the grid's
+    shape) and the mean's and confidence's (flat). Reusing them gives the same numbers, bit for bit,
+    as fresh arrays."""
 
     def __init__(self, shape: tuple[int, int], kernel_shape: tuple[int, int]):
         self.shape, self.fft_shape = shape, fft_shape(shape, kernel_shape)
@@ -254,7 +257,7 @@ class GridWorkspace:
         self.support, self.outside = np.empty(shape, dtype=bool), np.empty(shape, dtype=bool)
         self.kernel_rows = np.empty((kernel_shape[0], px // 2 + 1), dtype=complex)
         self.kernel_fft = np.empty_like(self.spectrum)
-        cells = shape[0] * shape[1]
+        cells = shape[0] * shape[1]  # the mean's products, the confidence's distances and mask (weights' out=)
         self.cells, self.cells_y, self.within = np.empty((1, cells)), np.empty((1, cells)), np.empty((1, cells), bool)
 
     def kernel_spectrum(self, kernel: np.ndarray) -> np.ndarray:
@@ -262,23 +265,6 @@ class GridWorkspace:
         py, px = self.fft_shape
         np.fft.rfft(kernel, px, axis=1, out=self.kernel_rows)
         return np.fft.fft(self.kernel_rows, py, axis=0, out=self.kernel_fft)
-
-    def weighted_mean(self, weights: np.ndarray, points: np.ndarray) -> np.ndarray:
-        """mazelab.weights.weighted_mean of one run's weights (M,) and points (M, 2), bit for bit (the
-        same products and sums), its products in the workspace: (2,)."""
-        means = np.empty(2)
-        for column in (0, 1):
-            means[column] = np.multiply(weights[None], points[:, column][None], out=self.cells).sum(axis=1)[0]
-        return means
-
-    def mass_within(self, weights: np.ndarray, points: np.ndarray, centre: np.ndarray, radius: float) -> float:
-        """mazelab.weights.mass_within of one run, bit for bit, its distances in the workspace."""
-        dx = np.subtract(points[:, 0][None], centre[0], out=self.cells)
-        dy = np.subtract(points[:, 1][None], centre[1], out=self.cells_y)
-        dx *= dx
-        dy *= dy
-        dx += dy
-        return float(np.sum(weights[None], axis=1, where=np.less_equal(dx, radius * radius, out=self.within))[0])
 
     def convolve(self, image: np.ndarray, kernel_shape: tuple[int, int], kernel_spectrum: np.ndarray) -> np.ndarray:
         """Linear 2-D convolution of `image` with an odd-sized centred kernel (of `kernel_shape`, its

@@ -13,13 +13,13 @@ station blocks (2).
 from __future__ import annotations
 
 import re
-from collections import deque
 from collections.abc import Callable
 
 import numpy as np
 
 from mazelab.lookup import Progress
 from mazelab.maze import EMPTY, STATION_WALL, WALL, Maze, check_maze_size
+from mazelab.modes import label_components
 
 DEFAULT_WALL_SHARE = 0.3  # share of the cells that become walls (station blocks included)
 CELLS_PER_STATION_BLOCK = 25  # the default station count: one block per this many cells
@@ -159,21 +159,8 @@ def _place_stations(grid: np.ndarray, stations: int, rng: np.random.Generator) -
 
 
 def free_area_is_connected(grid: np.ndarray) -> bool:
-    """Whether the free cells (0) of a grid form one 4-connected region (a breadth-first search)."""
-    free = np.asarray(grid) == EMPTY
-    cells = np.argwhere(free)
-    if len(cells) == 0:
-        return False
-    seen = np.zeros_like(free)
-    queue = deque([tuple(cells[0])])
-    seen[tuple(cells[0])] = True
-    while queue:
-        r, c = queue.popleft()
-        for nr, nc in ((r - 1, c), (r + 1, c), (r, c - 1), (r, c + 1)):
-            if 0 <= nr < free.shape[0] and 0 <= nc < free.shape[1] and free[nr, nc] and not seen[nr, nc]:
-                seen[nr, nc] = True
-                queue.append((nr, nc))
-    return int(seen.sum()) == len(cells)
+    """Whether the free cells (0) of a grid form one 4-connected region."""
+    return bool(label_components(np.asarray(grid) == EMPTY, diagonal=False).max(initial=-1) == 0)
 
 
 def maze_file_text(world: Maze, command: str) -> str:

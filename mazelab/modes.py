@@ -34,20 +34,20 @@ ESTIMATE_OPTION = Option(
 )  # fmt: skip
 
 
-def label_components(occupied: np.ndarray) -> np.ndarray:
-    """Connected components (8-neighbours) of a boolean grid: labels 0..K-1, -1 where unoccupied.
+def label_components(occupied: np.ndarray, diagonal: bool = True) -> np.ndarray:
+    """Connected components of a boolean grid, of 8-neighbours (of 4 without `diagonal`): labels 0..K-1,
+    -1 where unoccupied.
 
     Each occupied bin starts with its own flat index; every round takes the smallest label of its
-    3x3 neighbourhood and then follows labels as pointers (pointer jumping), until nothing changes."""
+    neighbourhood and then follows labels as pointers (pointer jumping), until nothing changes."""
     rows, columns = occupied.shape
     empty = rows * columns  # larger than any index
     labels = np.where(occupied, np.arange(empty).reshape(occupied.shape), empty)
     while True:
         padded = np.pad(labels, 1, constant_values=empty)
         smallest = labels.copy()
-        for dy in range(3):
-            for dx in range(3):
-                np.minimum(smallest, padded[dy : dy + rows, dx : dx + columns], out=smallest)
+        for dy, dx in ((dy, dx) for dy in range(3) for dx in range(3) if diagonal or 1 in (dy, dx)):
+            np.minimum(smallest, padded[dy : dy + rows, dx : dx + columns], out=smallest)
         smallest = np.where(occupied, smallest, empty)
         flat = smallest.ravel()
         for _ in range(2):  # a label is a bin index: point at that bin's label
@@ -61,45 +61,39 @@ def label_components(occupied: np.ndarray) -> np.ndarray:
     return out
 
 
-def cluster_labels(
-    positions: np.ndarray, weights: np.ndarray | None = None, cell: float = MODE_CELL, min_mass: float = MIN_BIN_MASS
-) -> tuple[np.ndarray, int]:
-    """Each point's cluster (N,) (-1 in a bin lighter than `min_mass` of the total) and the cluster count.
-
-    With `weights` None every point counts alike and any bin holding a point is occupied (a resampled cloud)."""
-    points = np.asarray(positions, dtype=float)
-    if len(points) == 0:
-        return np.zeros(0, dtype=np.int64), 0
+def _binned(points: np.ndarray, cell: float = MODE_CELL) -> tuple[np.ndarray, int, int]:
+    """Each point's bin (N,), a flat index into a grid of square `cell` bins over the points (N, 2) (N >= 1),
+    and the grid's rows and columns."""
     bins = np.floor(points / cell).astype(np.int64)
     bins -= bins.min(axis=0)
     rows, columns = int(bins[:, 1].max()) + 1, int(bins[:, 0].max()) + 1
-    flat = bins[:, 1] * columns + bins[:, 0]
-    if weights is None:
-        occupied = np.bincount(flat, minlength=rows * columns) > 0
-    else:
-        w = np.asarray(weights, dtype=float)
-        occupied = np.bincount(flat, w, minlength=rows * columns) > min_mass * w.sum()
-    grid = label_components(occupied.reshape(rows, columns))
+    return bins[:, 1] * columns + bins[:, 0], rows, columns
+
+
+def cluster_labels(positions: np.ndarray, cell: float = MODE_CELL) -> tuple[np.ndarray, int]:
+    """Each point's cluster (N,) of an unweighted cloud (a resampled one: every bin holding a point is
+    occupied) and the cluster count."""
+    points = np.asarray(positions, dtype=float)
+    if len(points) == 0:
+        return np.zeros(0, dtype=np.int64), 0
+    flat, rows, columns = _binned(points, cell)
+    grid = label_components((np.bincount(flat, minlength=rows * columns) > 0).reshape(rows, columns))
     return grid.ravel()[flat], int(grid.max()) + 1
 
 
-def cluster_moments(
-    positions: np.ndarray, weights: np.ndarray, labels: np.ndarray, count: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per cluster: total weight (K,), weighted mean (K, 2), weighted covariance (K, 2, 2); float64."""
-    inside = labels >= 0
-    lab, w = labels[inside], np.asarray(weights, dtype=float)[inside]
-    x, y = (np.asarray(positions, dtype=float)[inside, i] for i in (0, 1))
-    total = np.bincount(lab, w, minlength=count)
-    safe = np.where(total > 0, total, 1.0)
-    mean = np.column_stack([np.bincount(lab, w * x, minlength=count), np.bincount(lab, w * y, minlength=count)])
-    mean /= safe[:, None]
-    dx, dy = x - mean[lab, 0], y - mean[lab, 1]  # centred first: the spread may be tiny beside the position
+def cluster_covariance(positions: np.ndarray, labels: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per cluster of an unweighted cloud (`labels` as cluster_labels gives them): its size (K,) and the
+    covariance of its points (K, 2, 2), float64."""
+    x, y = (np.asarray(positions, dtype=float)[:, i] for i in (0, 1))
+    sizes = np.bincount(labels, minlength=count)
+    safe = np.where(sizes > 0, sizes, 1)
+    dx = x - (np.bincount(labels, x, minlength=count) / safe)[labels]  # centred first: the spread may be tiny
+    dy = y - (np.bincount(labels, y, minlength=count) / safe)[labels]  # beside the position
     covariance = np.empty((count, 2, 2))
-    covariance[:, 0, 0] = np.bincount(lab, w * dx * dx, minlength=count) / safe
-    covariance[:, 0, 1] = covariance[:, 1, 0] = np.bincount(lab, w * dx * dy, minlength=count) / safe
-    covariance[:, 1, 1] = np.bincount(lab, w * dy * dy, minlength=count) / safe
-    return total, mean, covariance
+    covariance[:, 0, 0] = np.bincount(labels, dx * dx, minlength=count) / safe
+    covariance[:, 0, 1] = covariance[:, 1, 0] = np.bincount(labels, dx * dy, minlength=count) / safe
+    covariance[:, 1, 1] = np.bincount(labels, dy * dy, minlength=count) / safe
+    return sizes, covariance
 
 
 def find_modes(
@@ -110,10 +104,7 @@ def find_modes(
     points, w = np.asarray(positions, dtype=float), np.asarray(weights, dtype=float)
     if len(points) == 0:
         return []
-    bins = np.floor(points / cell).astype(np.int64)
-    bins -= bins.min(axis=0)
-    rows, columns = int(bins[:, 1].max()) + 1, int(bins[:, 0].max()) + 1
-    flat = bins[:, 1] * columns + bins[:, 0]
+    flat, rows, columns = _binned(points, cell)
     x, y = points[:, 0], points[:, 1]
     terms = (w, w * x, w * y, w * x * x, w * x * y, w * y * y)
     sums = np.stack([np.bincount(flat, t, minlength=rows * columns) for t in terms]).reshape(6, rows, columns)
@@ -145,8 +136,8 @@ __all__ = [
     "MIN_BIN_MASS",
     "MODE_CELL",
     "Mode",
+    "cluster_covariance",
     "cluster_labels",
-    "cluster_moments",
     "find_modes",
     "label_components",
     "modes_of_bins",

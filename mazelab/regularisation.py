@@ -23,7 +23,7 @@ import numpy as np
 
 from mazelab.checks import MAX_BANDWIDTH, MIN_BANDWIDTH
 from mazelab.declaration import Option
-from mazelab.modes import MODE_CELL, cluster_labels, cluster_moments
+from mazelab.modes import MODE_CELL, cluster_covariance, cluster_labels
 
 BANDWIDTHS = ("optimal", "multimodal")
 MIXTURE_SHRINK = 0.5  # h_c = MIXTURE_SHRINK * h_opt(n_c) in the multimodal kernel (measured, see docs/multimodal.md)
@@ -119,8 +119,7 @@ def mixture_kernel(points: np.ndarray, eps: np.ndarray) -> np.ndarray:
     array (N, 2), order F, in eps's dtype
     """
     labels, count = cluster_labels(points)  # every resampled point lies in an occupied bin: no -1
-    sizes = np.bincount(labels, minlength=count)
-    _, _, covariance = cluster_moments(points, np.ones(len(points)), labels, count)
+    sizes, covariance = cluster_covariance(points, labels, count)
     covariance[:, 0, 0] = np.maximum(covariance[:, 0, 0], MIN_CLUSTER_VARIANCE)
     covariance[:, 1, 1] = np.maximum(covariance[:, 1, 1], MIN_CLUSTER_VARIANCE)
     h = MIXTURE_SHRINK * optimal_bandwidth(sizes)

@@ -157,26 +157,16 @@ class Scenario(BaseModel):
             raise ValueError(f"robot_measurements has {len(self.robot_measurements)} entries, {steps} expected")
         if self.steps is not None and self.steps != steps:
             raise ValueError(f"steps is {self.steps} but there are {steps} angles")
-        self._check_measurements()
+        world = self.world()
+        check_measurements_within(self.robot_measurements, world, self.sigma)
         self._check_filter_options()
-        if self.maze is not None:
-            self._check_places(Maze(self.maze, source="the scenario's maze"), particles)
+        if world is not None:  # the robot's start is checked where every run is, in simulation.check_walk
+            check_within_map("init_particles_pos", particles, world.width, world.height)
+            if self.kidnap_position is not None and not world.is_free(*self.kidnap_position):
+                raise ValueError(
+                    f"kidnap_position {self.kidnap_position} is not in the free area of the scenario's maze"
+                )
         return self
-
-    def _check_measurements(self) -> None:
-        """A measurement is a distance plus N(0, sigma^2) noise: it may be a little negative, but not
-        below -NORMAL_TAIL sigma (no draw of the noise reaches that far; without a stored sigma, 0)."""
-        if not self.robot_measurements:
-            return
-        floor = -NORMAL_TAIL * (self.sigma or 0.0)
-        z = _numbers(self.robot_measurements)
-        below = np.flatnonzero(z < floor)
-        if len(below):
-            i = int(below[0])
-            raise ValueError(
-                f"robot_measurements[{i}] = {z[i]:g} is below {floor:g}: a noisy distance is at least "
-                f"-{NORMAL_TAIL:g} sigma" + ("" if self.sigma else " (the scenario stores no sigma)")
-            )
 
     def _check_bounds(self) -> np.ndarray:
         """Angles within MAX_ANGLE radians, places and distances within MAX_COORDINATE map units,
@@ -192,14 +182,6 @@ class Scenario(BaseModel):
         ):
             check_all_within(name, values, bound, unit)
         return particles
-
-    def _check_places(self, world: Maze, particles: np.ndarray) -> None:
-        """Particles within the stored maze plus a margin, and a kidnap position in its free area (the
-        robot's start is checked where every run is, in simulation.check_walk)."""
-        check_within_map("init_particles_pos", particles, world.width, world.height)
-        if self.kidnap_position is not None and not world.is_free(*self.kidnap_position):
-            raise ValueError(f"kidnap_position {self.kidnap_position} is not in the free area of the scenario's maze")
-        check_measurements_within(self.robot_measurements, world, self.sigma)
 
     def _check_filter_options(self) -> None:
         """filter_options need format_version 3 and a filter; for a filter of the lab's they are checked
@@ -244,20 +226,6 @@ class Scenario(BaseModel):
             self.filter_plugin.sha256, self.filter_plugin.class_name)  # fmt: skip
         return loaded if same else None
 
-    def plugin_name_problem(self, name: str, sha256: str, class_name: str) -> str | None:
-        """Why the plug-in `class_name` loaded now (its `name`, its file's `sha256`) cannot be the one
-        this scenario names, or None: the same file's class must carry the stored filtering_algorithm
-        (a file whose filtering_algorithm and filter_plugin disagree was edited by hand)."""
-        plugin = self.filter_plugin
-        if plugin is None or plugin.class_name != class_name or plugin.sha256 != sha256:
-            return None  # another filter, or the file changed since (which the replay says)
-        if name != self.filtering_algorithm:
-            return (
-                f"filtering_algorithm {self.filtering_algorithm!r} is not the name of the plug-in {plugin.spec} "
-                f"that filter_plugin names ({name!r}): one of the two was edited"
-            )
-        return None
-
     def world(self) -> Maze | None:
         """The maze stored in the scenario, if any."""
         return None if self.maze is None else Maze(self.maze, source="the scenario's maze")
@@ -295,13 +263,23 @@ class Scenario(BaseModel):
         return "{\n" + ",\n".join(lines) + "\n}\n"
 
 
-def check_measurements_within(measurements: list[float] | None, world: Maze, sigma: float | None) -> None:
-    """A measured distance on `world` is at most its diagonal plus NORMAL_TAIL sigma (no station lies
-    farther from a free place than the map's diagonal); the first beyond is refused in one line."""
+def check_measurements_within(measurements: list[float] | None, world: Maze | None, sigma: float | None) -> None:
+    """A measurement is a distance plus N(0, sigma^2) noise, and no draw of the noise reaches NORMAL_TAIL
+    sigma (without a stored sigma, 0): it is at least -NORMAL_TAIL sigma and, on `world` (if given), at
+    most its diagonal plus NORMAL_TAIL sigma (no station lies farther from a free place than the map's
+    diagonal). The first beyond is refused in one line."""
     if not measurements:
         return
-    ceiling = map_diagonal(world.width, world.height) + NORMAL_TAIL * (sigma or 0.0)
+    tail = NORMAL_TAIL * (sigma or 0.0)
     z = _numbers(measurements)
+    below = np.flatnonzero(z < -tail)
+    if len(below):
+        i = int(below[0])
+        raise ValueError(
+            f"robot_measurements[{i}] = {z[i]:g} is below {-tail:g}: a noisy distance is at least "
+            f"-{NORMAL_TAIL:g} sigma" + ("" if sigma else " (the scenario stores no sigma)")
+        )
+    ceiling = math.inf if world is None else map_diagonal(world.width, world.height) + tail
     above = np.flatnonzero(z > ceiling)
     if len(above):
         i = int(above[0])

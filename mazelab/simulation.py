@@ -99,7 +99,7 @@ class RunResult:
     @property
     def initial_particles(self) -> np.ndarray:
         """The initial particles (N, 2), as given or drawn (float64)."""
-        return self.inputs.particles
+        return self.inputs.init_particles_pos
 
     @property
     def errors(self) -> np.ndarray:
@@ -121,15 +121,16 @@ class RunResult:
 
 @dataclass(frozen=True)
 class RunInputs:
-    """What a run started from and walked, as arrays and plain values: a Scenario's content before
-    it is turned into lists and validated (RunResult.scenario does that on demand)."""
+    """What a run started from and walked, under its Scenario's keys (mazelab.scenario.Scenario says what
+    each is) as arrays and plain values: the Scenario's content before it is turned into lists and
+    validated, which `scenario` does on demand (a study never builds one)."""
 
-    robot_position: tuple[float, float]
-    particles: np.ndarray  # (N, 2) float64
-    actual_angles: list[float]
-    compass_angles: list[float]
-    measurements: list[float]
-    world: Maze
+    init_robot_pos: tuple[float, float]
+    init_particles_pos: np.ndarray  # (N, 2) float64
+    robot_actual_angles: list[float]
+    robot_compass_angles: list[float]
+    robot_measurements: list[float]
+    maze: Maze  # the run's maze itself (the scenario stores its grid)
     sigma: float
     delta: float
     seed: int
@@ -176,29 +177,12 @@ class RunInputs:
         )
 
     def scenario(self) -> Scenario:
-        """The validated Scenario of these inputs (the pydantic models imported here: a study never
-        builds one)."""
+        """The validated Scenario of these inputs, key for key (None keys stay out of the file); the
+        pydantic models are imported here."""
         from mazelab.scenario import Scenario
 
-        kidnapping = {}
-        if self.kidnap_at is not None:
-            kidnapping = {"kidnap_at": self.kidnap_at, "kidnap_position": self.kidnap_position}
-        return Scenario(
-            init_robot_pos=self.robot_position,
-            init_particles_pos=self.particles.tolist(),
-            robot_actual_angles=self.actual_angles,
-            robot_compass_angles=self.compass_angles,
-            robot_measurements=self.measurements,
-            maze=self.world.as_lists(),
-            sigma=self.sigma,
-            delta=self.delta,
-            seed=self.seed,
-            steps=self.steps,
-            filtering_algorithm=self.filtering_algorithm,
-            filter_options=self.filter_options,
-            filter_plugin=self.filter_plugin,
-            **kidnapping,
-        )
+        return Scenario(**{**vars(self), "init_particles_pos": self.init_particles_pos.tolist(),
+                           "maze": self.maze.as_lists()})  # fmt: skip
 
 
 def convergence_step(errors: np.ndarray, radius: float = CONVERGENCE_RADIUS) -> int | None:
@@ -243,20 +227,16 @@ def check_walk(world: Maze, robot: Robot, particles: np.ndarray | None = None, s
 
 
 def open_run_view(view: Any, world: Maze, filter_name: str, robot: Robot) -> Any:
-    """The view a run draws into, told of the robot's planned kidnapping if it draws one: `view` itself
-    (anything with log_step and close), NullView for None or False, what a view-opening function
-    `(world, filter_name) -> view` returns, or the Rerun view a `visualize` value asks for (the
-    viewer's code imported only then)."""
+    """The view a run draws into, told of the robot's planned kidnapping: `view` itself (anything with
+    log_step and close), NullView for None or False, what a view-opening function `(world, filter_name)
+    -> view` returns, or the Rerun view a `visualize` value asks for (the viewer's code imported only then)."""
     if view is None or view is False:
-        return NullView()
-    if not hasattr(view, "log_step"):
-        if callable(view):
-            view = view(world, filter_name)
-        else:
-            from mazelab.viz.views import open_view
+        view = NullView()
+    elif not hasattr(view, "log_step"):
+        from mazelab.viz.views import open_view
 
-            view = open_view(view, world, filter_name)
-    if robot.kidnap_at is not None and robot.kidnap_position is not None and hasattr(view, "expect_kidnapping"):
+        view = view(world, filter_name) if callable(view) else open_view(view, world, filter_name)
+    if robot.kidnap_at is not None and hasattr(view, "expect_kidnapping"):
         view.expect_kidnapping(robot.kidnap_at, robot.kidnap_position)
     return view
 
@@ -281,17 +261,14 @@ def simulate(
     """Run one filter on the robot's walk and return the full `RunResult` (what run_model summarises).
 
     Step k is the module's (`walk_and_record`); `on_step(k, robot, filter)` is called after each step.
-    `seed` seeds the robot (unless it has its own rng), the initial particles and the filter; the same
-    seed gives the same result bit for bit.
-    `kidnap_at=K`: at step K, before its move, the robot is carried to a free place drawn from the
-    seed (see Robot.kidnap); a robot that replays a kidnapping keeps it. The scenario stores it.
-    `result.extras` holds the particle count per step ("particle_count": KLD-sampling varies it) and the
-    backend the filter ran on ("backend": MAZELAB_BACKEND's, else mazelab.backend.backend_for_work's).
-    A filter class that declares the option `start` is also handed the robot's start (`build_filter`).
-    `visualize` says where the run is drawn (mazelab.viz.views: False, True, "viewer", "web", "notebook",
-    an .rrd path, a RecordingStream, a Visualization or a view), its memory checked up front; `view`
-    (instead) is a view (`log_step`, `close`) or a function `(world, filter_name) -> view`, called once
-    the inputs are checked (a comparison's view of each filter).
+    `seed` seeds the robot (unless it has its own rng), the initial particles and the filter (mazelab.seeding):
+    the same seed gives the same result bit for bit. `kidnap_at=K`: at step K the robot is carried to a free
+    place drawn from the seed (`plan_kidnapping`). `result.extras` holds the particle count per step
+    ("particle_count": KLD-sampling varies it) and the backend the filter ran on ("backend"). A filter
+    class that declares the option `start` is handed the robot's start too (`build_filter`).
+    `visualize` says where the run is drawn (the values mazelab.viz.views lists), its memory checked up
+    front; `view` (instead) is a view or a function `(world, filter_name) -> view` (`open_run_view`),
+    called once the inputs are checked (a comparison's view of each filter).
     """
     check_world(world)
     sigma, delta = check_model_parameters(sigma, delta, (world.width, world.height))
@@ -382,22 +359,18 @@ def checked_walk(
         checked_count(particle_count, given=len(particles))
     else:
         particles = world.random_free_places(checked_count(particle_count), streams.particles)
-    if steps is None:
-        steps = robot.recorded_steps or DEFAULT_STEPS
-    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
-        raise ValueError(f"steps must be a whole number >= 1, got {steps!r}")
-    check_steps(int(steps))
+    steps = check_steps((robot.recorded_steps or DEFAULT_STEPS) if steps is None else steps)
     given = particles if init_particles_pos is not None else None  # drawn ones lie in the free area
-    check_walk(world, robot, given, int(steps))
-    recorded = drawn_at_most(visualize)
-    if recorded is not None:
-        check_recording(len(particles), int(steps), recorded)
+    check_walk(world, robot, given, steps)
+    if visualize is not False and visualize is not None:  # what a drawn step records, at most
+        drawn = visualize.max_drawn if isinstance(visualize, Visualization) else DEFAULT_MAX_DRAWN
+        check_recording(len(particles), steps, drawn)
     if kidnap_at is not None:
-        plan_kidnapping(robot, world, kidnap_at, int(steps), streams.kidnap)
+        plan_kidnapping(robot, world, kidnap_at, steps, streams.kidnap)
     robot.reset()
     if not robot.rng_given:
         robot.rng = streams.robot
-    return particles, int(steps)
+    return particles, steps
 
 
 def run_model(
@@ -449,13 +422,6 @@ def run_model(
     return result.as_pairs()
 
 
-def drawn_at_most(visualize: Any) -> int | None:
-    """How many particles a step of this `visualize` records at most (None: nothing is drawn)."""
-    if visualize is False or visualize is None:
-        return None
-    return visualize.max_drawn if isinstance(visualize, Visualization) else DEFAULT_MAX_DRAWN
-
-
 def maze_for(filter_class: type, world: Maze) -> Maze:
     """The maze a filter is handed: the run's own for a filter of the lab's; for any other (a plug-in,
     a class of the user's) a copy that shares no array with it, its nearest-station table built first
@@ -483,7 +449,6 @@ __all__ = [
     "RunResult",
     "check_walk",
     "convergence_step",
-    "drawn_at_most",
     "open_run_view",
     "plan_kidnapping",
     "run_model",

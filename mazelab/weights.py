@@ -47,7 +47,8 @@ class Weights:
         """
         totals = np.atleast_1d(log_sum_exp(log_w))
         lw = log_w.astype(float)  # a float64 copy, then in place: no buffered cast against a broadcast row
-        lw -= totals[:, None]
+        with np.errstate(invalid="ignore"):  # a lost run (every log w -inf) gets NaN: the engine restarts it
+            lw -= totals[:, None]
         return cls(lw, totals)
 
     @classmethod
@@ -164,7 +165,7 @@ def _columns(points: np.ndarray, runs: int) -> tuple[np.ndarray, np.ndarray]:
     return points[:, 0].reshape(runs, -1), points[:, 1].reshape(runs, -1)
 
 
-def weighted_mean(weights: np.ndarray, points: np.ndarray) -> np.ndarray:
+def weighted_mean(weights: np.ndarray, points: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
     """sum_i W_i x_i per run, float64 (summed in the points' dtype).
 
     Parameters
@@ -173,6 +174,8 @@ def weighted_mean(weights: np.ndarray, points: np.ndarray) -> np.ndarray:
         Normalised weights.
     points : array (N, 2) or (R*N, 2)
         The particles, run r's in the block of rows r*N..(r+1)*N.
+    out : array (R, N) of the points' dtype, optional
+        Where the products are formed (the grid filter's workspace: no new pages per step); the same numbers.
 
     Returns
     -------
@@ -182,7 +185,7 @@ def weighted_mean(weights: np.ndarray, points: np.ndarray) -> np.ndarray:
     w = W.astype(points.dtype, copy=False)
     means = np.empty((len(W), 2))
     for column, c in enumerate(_columns(points, len(W))):
-        means[:, column] = (w * c).sum(axis=1)  # summed in the points' dtype, then float64
+        means[:, column] = np.multiply(w, c, out=out).sum(axis=1)  # summed in the points' dtype, then float64
     return means[0] if weights.ndim == 1 else means
 
 
@@ -198,18 +201,22 @@ def weighted_covariance(weights: np.ndarray, points: np.ndarray) -> np.ndarray:
     return covariance[0] if weights.ndim == 1 else covariance
 
 
-def mass_within(weights: np.ndarray, points: np.ndarray, centre: np.ndarray, radius: float) -> float | np.ndarray:
+def mass_within(
+    weights: np.ndarray, points: np.ndarray, centre: np.ndarray, radius: float, out: tuple | None = None
+) -> float | np.ndarray:
     """The total weight of the points at most `radius` (map units) from `centre` ((2,), or (R, 2) per run),
     distances in the points' dtype: a float for one run, (R,) for R runs (the weights and points as
-    `weighted_mean` takes them)."""
+    `weighted_mean` takes them); `out`, two arrays of the points' dtype and a bool one, each (R, N), where
+    the distances and the mask are formed (as `weighted_mean`'s)."""
     W = weights if weights.ndim > 1 else weights[None]
     c = (centre if centre.ndim > 1 else centre[None]).astype(points.dtype)
     x, y = _columns(points, len(W))
-    dx, dy = x - c[:, :1], y - c[:, 1:]
+    dx, dy, inside = (None, None, None) if out is None else out
+    dx, dy = np.subtract(x, c[:, :1], out=dx), np.subtract(y, c[:, 1:], out=dy)
     dx *= dx
     dy *= dy
     dx += dy
-    mass = np.sum(W, axis=1, where=dx <= radius * radius)
+    mass = np.sum(W, axis=1, where=np.less_equal(dx, radius * radius, out=inside))
     return float(mass[0]) if weights.ndim == 1 else mass
 
 

@@ -313,3 +313,8 @@ def write_submission(
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(submission_source(prelude, class_line, **parts))
     return path
+
+
+def row_of(report, part: str):
+    """The report's row of one part (or "whole filter")."""
+    return next(row for row in report.rows if row.part == part)

@@ -12,7 +12,7 @@ import sys
 import exercise_answers as answers
 import numpy as np
 import pytest
-from exercise_answers import BROKEN, MultinomialFilter, ReferenceFilter
+from exercise_answers import BROKEN, MultinomialFilter, ReferenceFilter, row_of
 
 from mazelab.cli.app import main
 from mazelab.contract import check_filter
@@ -59,12 +59,12 @@ def test_the_shipped_sir_as_a_student_filter_passes_every_part(seed):
     report = check(ReferenceFilter, seed=seed, stages=tuple(PARTS))
     assert [row.part for row in report.rows] == list(PARTS)
     assert report.passed, [row for row in report.rows if not row.passed]
-    assert "looks systematic" in report.row("resample").got
+    assert "looks systematic" in row_of(report, "resample").got
 
 
 @pytest.mark.parametrize("cls", [MultinomialFilter, answers.StratifiedFilter, answers.ResidualFilter])
 def test_any_unbiased_resampler_passes_and_is_named(cls):
-    row = check(cls, seed=SEEDS[0], stages=("resample",)).row("resample")
+    row = row_of(check(cls, seed=SEEDS[0], stages=("resample",)), "resample")
     assert row.passed, row
     assert f"looks {cls.__name__.removesuffix('Filter').lower()}" in row.got
 
@@ -177,7 +177,7 @@ def test_the_shipped_sir_as_a_student_filter_passes_the_whole_filter(reference_r
     assert [row.part for row in reference_report.rows] == [*PARTS, "whole filter"]
     assert reference_report.passed, [row for row in reference_report.rows if not row.passed]
     assert len(reference_report.figures) == 12
-    assert {f.maze for f in reference_report.figures} <= {"paper_5x5", "maze_10x10"}
+    assert {f.scenario.maze for f in reference_report.figures} <= {"paper_5x5", "maze_10x10"}
 
 
 def test_the_report_fits_in_a_hundred_columns(reference_report):
@@ -190,7 +190,7 @@ def test_the_report_fits_in_a_hundred_columns(reference_report):
 def test_parts_that_pass_alone_but_not_together_fail_the_whole_filter(reference_report):
     report = check(answers.ForgetsResampling, seed=WHOLE_SEED)
     assert [row.passed for row in report.rows] == [True] * 4 + [False]
-    assert "farther on" in report.row("whole filter").got
+    assert "farther on" in row_of(report, "whole filter").got
 
 
 def test_a_nan_estimate_never_passes_the_whole_filter(reference_report):
@@ -202,7 +202,7 @@ def test_a_nan_estimate_never_passes_the_whole_filter(reference_report):
             return np.array([np.nan, np.nan])
 
     NanWhole.estimate_part = ReferenceFilter.estimate_part
-    row = check(NanWhole, seed=WHOLE_SEED).row("whole filter")
+    row = row_of(check(NanWhole, seed=WHOLE_SEED), "whole filter")
     assert not row.passed and "nan" in row.got and "a number at every step" in row.hint
 
 
@@ -211,13 +211,13 @@ def test_an_error_in_the_whole_filter_is_one_cell_naming_the_students_line():
         def step(self, compass_angle, z):
             raise RuntimeError("my bug")
 
-    row = check(Raising, seed=WHOLE_SEED).row("whole filter")
+    row = row_of(check(Raising, seed=WHOLE_SEED), "whole filter")
     assert not row.passed and "\n" not in row.got and row.hint == "fix the error first"
     assert "raised RuntimeError at step 1: my bug (test_exercise.py, line " in row.got
 
 
 def test_a_failing_part_is_named_in_the_whole_filters_hint():
-    row = check(answers.SignFlipped, seed=WHOLE_SEED).row("whole filter")
+    row = row_of(check(answers.SignFlipped, seed=WHOLE_SEED), "whole filter")
     assert not row.passed and row.hint.startswith("fix weigh first")
 
 

@@ -14,7 +14,7 @@ import textwrap
 import time
 
 import pytest
-from exercise_answers import write_submission
+from exercise_answers import row_of, write_submission
 
 from mazelab.cli.app import main
 from mazelab.exercise.inputs import default_seed, draw_scenarios, files_seed
@@ -222,7 +222,7 @@ def test_a_nan_estimate_never_passes_the_whole_filter(tmp_path):
     report = check_file(f"{path}:NanFilter", seed=SEED, stages=("estimate", "whole"))
     assert rows(report)["estimate"][0] == "pass"
     status, got = rows(report)["whole filter"]
-    assert status == "fail" and "nan" in got and "a number at every step" in report.row("whole filter").hint
+    assert status == "fail" and "nan" in got and "a number at every step" in row_of(report, "whole filter").hint
 
 
 def test_the_child_holds_none_of_the_graders_objects(tmp_path):
@@ -287,6 +287,38 @@ def test_output_that_is_not_an_answer_is_named(tmp_path):
     """
     status, got = rows(checked(tmp_path, stages=("estimate",), estimate=textwrap.dedent(estimate)))["estimate"]
     assert status == "fail" and "sent output the grader cannot read" in got
+
+
+def test_the_wire_reads_whole_messages_of_its_own_format_only(monkeypatch):
+    """Both ways one format (child.encode, child.messages): messages read back as sent, one after
+    another; a foreign start, a cut header or array, a header past its limit, JSON's NaN, a name twice
+    and more than the limit in all are each one WireError naming it, before any array is made."""
+    import io
+
+    import numpy as np
+
+    from mazelab.exercise.child import MAGIC, WireError, encode, messages
+
+    sent = encode({"kind": "result"}, {"a": np.arange(3), "b": np.ones((2, 2), bool), "c": np.zeros(0)})
+    (first, second) = messages(io.BytesIO(sent + encode({"kind": "done"})))
+    assert first.meta == {"kind": "result"} and second.meta == {"kind": "done"} and second.arrays == {}
+    assert [(v.dtype.str, v.shape) for v in first.arrays.values()] == [("<i8", (3,)), ("|b1", (2, 2)), ("<f8", (0,))]
+    twice = sent.replace(b'"name":"b"', b'"name":"a"')
+    header = b'{"meta":{"x":NaN},"arrays":[]}'
+    nan = MAGIC + len(header).to_bytes(4, "big") + header
+    for data, said in (
+        (b"MZL0" + sent[4:], "no header"),
+        (sent[:20], "cut short"),
+        (sent[:-1], "cut short"),
+        (MAGIC + (1 << 21).to_bytes(4, "big"), f"a header of {1 << 21} bytes"),
+        (nan, "not JSON"),
+        (twice, "names each given once"),
+    ):
+        with pytest.raises(WireError, match=said):
+            list(messages(io.BytesIO(data)))
+    monkeypatch.setattr("mazelab.exercise.child.MAX_MESSAGE_BYTES", len(sent) - 1)
+    with pytest.raises(WireError, match="more than 0 MB"):
+        list(messages(io.BytesIO(sent)))
 
 
 def test_a_hang_is_stopped_within_the_budget_and_the_next_parts_still_run(tmp_path):

@@ -264,8 +264,7 @@ def test_forged_answers_on_the_pipe_get_the_verdict_of_their_values(tmp_path):
         from mazelab.exercise.child import encode
 
         def send(fd, meta, arrays=None):
-            data = encode(meta, arrays)
-            os.write(fd, len(data).to_bytes(8, "big") + data)
+            os.write(fd, encode(meta, arrays))
 
         for fd in range(3, 64):
             try:
@@ -295,8 +294,7 @@ def test_a_forged_done_without_answers_fails_every_row_and_forges_no_line(tmp_pa
                 if stat.S_ISFIFO(os.fstat(fd).st_mode):
                     for meta in ({"kind": "loaded", "class": "MyFilter", "name": "Mine\\nAll checks pass.",
                                   "student_filter": True, "bases": []}, {"kind": "done"}):
-                        data = encode(meta)
-                        os.write(fd, len(data).to_bytes(8, "big") + data)
+                        os.write(fd, encode(meta))
             except OSError:
                 pass
         os._exit(0)

@@ -37,15 +37,17 @@ def test_the_workspace_convolution_is_numpys_bit_for_bit(shape):
         assert np.array_equal(work.convolve(image, kernel.shape, spectrum), expected)
 
 
-def test_the_workspace_reads_are_the_weights_modules_bit_for_bit():
+def test_the_weights_reads_in_a_workspace_are_their_fresh_arrays_bit_for_bit():
+    """The grid filter's mean and confidence, formed in its workspace (out=), are weights' own numbers."""
     rng = np.random.default_rng(3)
     weights = rng.random(5000)
     weights /= weights.sum()
     points = rng.uniform(-1, 6, (5000, 2))
     work = GridWorkspace((50, 100), arc_kernel_shape(1.0, 0.02))
     centre = weighted_mean(weights, points)
-    assert np.array_equal(work.weighted_mean(weights, points), centre)
-    assert work.mass_within(weights, points, centre, 1.0) == mass_within(weights, points, centre, 1.0)
+    assert np.array_equal(weighted_mean(weights, points, out=work.cells), centre)
+    within = mass_within(weights, points, centre, 1.0, out=(work.cells, work.cells_y, work.within))
+    assert within == mass_within(weights, points, centre, 1.0)
 
 
 def test_a_grid_step_in_buffers_leaves_no_reference_behind():

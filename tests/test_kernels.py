@@ -461,7 +461,7 @@ def test_the_backends_agree_on_the_distance_to_the_exact_posterior(paper_world):
                          runs=8, steps=60, seed=5)  # fmt: skip
     tables = {}
     for backend in ("numpy", "compiled"):
-        records = run_study(plan.tasks(), 1, backend=backend).records
+        records = run_study(plan.tasks, 1, backend=backend).records
         tables[backend] = accuracy_summary(accuracy_records(records, filters))
     for label in [label for label, name, _ in filters if resolve_filter(name) is not resolve_filter("grid")]:
         mean_n, (low_n, high_n) = mean_and_interval(tables["numpy"], label)

@@ -69,7 +69,7 @@ def test_find_modes_is_exact_on_a_constructed_cloud():
     variance = weights[:6] @ ((points[:6] - mean_ab) ** 2).sum(axis=1) / 0.7
     assert first.spread == pytest.approx(math.sqrt(variance), abs=1e-9)
     np.testing.assert_allclose(second.mean, (0.2 * c[0] + 0.1 * c[1]) / 0.3, atol=1e-12)
-    labels, count = cluster_labels(points, weights)
+    labels, count = cluster_labels(points)  # unweighted: the bins that hold a point
     assert count == 2 and labels.tolist() == [0, 0, 0, 0, 0, 0, 1, 1]
 
 

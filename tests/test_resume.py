@@ -131,20 +131,20 @@ def test_foreign_row_checks_every_planned_column(tmp_path):
                  "--workers", "1", "--csv", str(table)]) == 0  # fmt: skip
     lines = journal_lines(tmp_path / "s.runs.jsonl")
     records = [RunRecord.from_json(row) for line in lines if "run" in line for row in line["records"]]
-    assert foreign_row(plan.tasks(), records) is None
+    assert foreign_row(plan.tasks, records) is None
     changed = {"seed": 7, "maze_sha256": "0" * 64, "maze_seed": 3, "maze": "other", "wall_share": 0.3,
                "sigma": 0.31, "delta": 0.4, "particles": 31, "steps": 6, "kidnap_at": 2}  # fmt: skip
-    assert set(changed) == set(plan.tasks()[0].cells())  # every cell the plan fixes
+    assert set(changed) == set(plan.tasks[0].cells())  # every cell the plan fixes
     options = {"recovery": "sensor", "estimate": "mode", "resampling": "residual", "bandwidth": "multimodal"}
     for column, value in [*changed.items(), *options.items()]:
         cell = {column: value} if column in changed else {"options": {**records[1].options, column: value}}
         edited = [RunRecord(**{**vars(r), **cell}) if i == 1 else r for i, r in enumerate(records)]
-        why = foreign_row(plan.tasks(), edited)
+        why = foreign_row(plan.tasks, edited)
         assert why.startswith(f"run 2 of setting 1: its {column} is "), (column, why)
     moved = [RunRecord(**{**vars(records[0]), "run": 9})]
-    assert foreign_row(plan.tasks(), moved) == "run 9 of setting 1 is not in this study"
+    assert foreign_row(plan.tasks, moved) == "run 9 of setting 1 is not in this study"
     renamed = [RunRecord(**{**vars(records[0]), "filter": "AuxiliaryParticleFilter"})]
-    assert "filter AuxiliaryParticleFilter is not one this study runs" in foreign_row(plan.tasks(), renamed)
+    assert "filter AuxiliaryParticleFilter is not one this study runs" in foreign_row(plan.tasks, renamed)
 
 
 def test_a_journal_made_on_another_backend_is_refused_or_named(tmp_path, finished, capsys):
@@ -285,3 +285,18 @@ def test_a_study_of_an_earlier_version_is_refused_in_one_line_saying_why(tmp_pat
     assert main([*STUDY, "--csv", str(table), "--resume"]) == 2
     line = one_error(capsys)
     assert f"no journal {tmp_path / 's.runs.jsonl'} beside {table} to go on from" in line and "--force" in line
+
+
+def test_a_plugin_changed_since_the_rows_were_made_is_named_with_both_hashes(tmp_path, capsys):
+    plugin = tmp_path / "mine.py"
+    shutil.copy(ROOT / "tests" / "exercise_answers.py", plugin)
+    table = tmp_path / "s.csv"
+    args = ["study", "--maze", "paper_5x5", "--filters", f"sir,{plugin}:ReferenceFilter", "--runs", "2", "--steps",
+            "5", "--particles", "30", "--workers", "1", "--seed", "1", "--no-viz", "--csv", str(table)]  # fmt: skip
+    assert main(args) == 0
+    table.unlink()
+    plugin.write_text(plugin.read_text() + "\n# changed since\n")
+    capsys.readouterr()
+    assert main([*args, "--resume"]) == 2
+    line = one_error(capsys)
+    assert f"--resume: {plugin} is not the code that made the rows" in line and "restore it" in line

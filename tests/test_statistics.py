@@ -251,7 +251,15 @@ def test_the_study_writes_a_summary_csv_beside_its_rows(tmp_path, capsys):
     assert len(grid) == 3 and all(float(r["distance_to_exact"]) == 0 for r in grid)
     summary = read_csv((tmp_path / "s.summary.csv").read_text())
     assert [s["filter"] for s in summary] == ["SIRParticleFilter", "AuxiliaryParticleFilter", "GridBayesFilter"]
-    assert list(summary[0])[-len(SUMMARY_STATISTICS) :] == [name for name, _ in SUMMARY_STATISTICS]
+    assert list(summary[0])[-len(SUMMARY_STATISTICS) :] == list(SUMMARY_STATISTICS) == [
+        "runs", "mean_final_error", "mean_final_error_low", "mean_final_error_high", "median_final_error",
+        "median_final_error_low", "median_final_error_high", "converged_share", "converged_low", "converged_high",
+        "last_convergence_step", "median_convergence_step", "median_convergence_step_low",
+        "median_convergence_step_high", "mean_log_evidence", "log_evidence_se", "log_evidence_caveat", "ms_per_step",
+        "backend", "run_seconds", "mean_particle_count", "relocalised_share", "relocalised_low", "relocalised_high",
+        "median_steps_to_recover", "distance_to_exact", "distance_to_exact_low", "distance_to_exact_high",
+        "paired_with", "paired_runs", "mean_difference", "difference_low", "difference_high",
+    ]  # fmt: skip
     assert summary[2]["particles"] == "" and summary[0]["particles"] == "100"  # the grid takes no N
     for s in summary:
         mine = [float(r["final_error"]) for r in rows if r["filter"] == s["filter"]]

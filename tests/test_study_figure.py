@@ -16,7 +16,7 @@ import pytest
 import mazelab
 from mazelab.cli.app import main
 from mazelab.experiments.study import MazeChoice, StudySetting
-from mazelab.experiments.study_plot import FONT_POINTS, PAPER_WIDTH, PNG_DPI, Y_QUANTITIES, plot_study
+from mazelab.experiments.study_plot import FONT_POINTS, PAPER_WIDTH, PNG_DPI, Y_QUANTITIES, draw_study
 from mazelab.experiments.summary import StudySummary
 from mazelab.registry import described
 
@@ -60,7 +60,7 @@ def test_png_panels_have_their_own_range_the_reference_and_nothing_clipped(tmp_p
     import matplotlib.image
 
     path = tmp_path / "f.png"
-    layout = plot_study(summaries(), VARIED, path, "test")
+    layout = draw_study(summaries(), VARIED, path, 5, "m", title="test")
     pixels = matplotlib.image.imread(path)
     height, width = pixels.shape[:2]
     assert width == round(PAPER_WIDTH * PNG_DPI)
@@ -78,7 +78,7 @@ def test_png_panels_have_their_own_range_the_reference_and_nothing_clipped(tmp_p
 
 def test_svg_text_units_titles_size_and_references(tmp_path):
     path = tmp_path / "f.svg"
-    plot_study(summaries(), VARIED, path, "Last-20% error against N")
+    draw_study(summaries(), VARIED, path, 5, "m")  # the program's title and caption
     root = ET.parse(path).getroot()
     assert root.get("width") == f"{PAPER_WIDTH * 72:g}pt"
     texts = {"".join(t.itertext()).strip(): t.get("style", "") for t in root.iter(f"{SVG}text")}
@@ -111,7 +111,7 @@ def pdf_text(path: Path) -> str:
 
 def test_pdf_is_seven_inches_wide_with_its_text_as_text(tmp_path):
     path = tmp_path / "f.pdf"
-    plot_study(summaries(), VARIED, path, "test")
+    draw_study(summaries(), VARIED, path, 5, "m", title="test")
     width = float(re.search(rb"/MediaBox \[ 0 0 ([0-9.]+) ", path.read_bytes()).group(1))
     assert width == PAPER_WIDTH * 72
     text = pdf_text(path)
@@ -150,7 +150,7 @@ def test_the_grid_reference_is_in_every_panel_of_a_facet_it_does_not_take(tmp_pa
         for name in ("SIRParticleFilter", "GridBayesFilter") if particles == 100 else ("SIRParticleFilter",):
             out.append(StudySummary(index, setting, name, 5, sigma, (0.5 * sigma, 2 * sigma), 1.0, 5, 1.0))
     path = tmp_path / "g.svg"
-    layout = plot_study(out, ["sigma", "particles"], path, "test")
+    layout = draw_study(out, ["sigma", "particles"], path, 5, "m", title="test")
     assert layout.x == "sigma" and layout.panels == ["particles 100", "particles 1000"]
     ids = {element.get("id") for element in ET.parse(path).getroot().iter() if element.get("id")}
     assert {"panel-1:line:grid", "panel-2:line:grid", "panel-1:line:SIR", "panel-2:line:SIR"} <= ids
@@ -198,7 +198,7 @@ def test_error_bars_at_one_x_are_set_apart_and_capped_apart(monkeypatch, tmp_pat
     from mazelab.experiments import study_plot
 
     kept = figure_of(monkeypatch, study_plot)
-    plot_study(summaries(), VARIED, tmp_path / "f.png", "t")
+    draw_study(summaries(), VARIED, tmp_path / "f.png", 5, "m", title="t")
     ax = kept["figure"].axes[0]
     wanted = ("SIR", "RPF, bandwidth optimal")
     xs = {c.get_label(): tuple(c.lines[0].get_xdata()) for c in ax.containers if c.get_label() in wanted}

@@ -119,7 +119,7 @@ def test_the_warm_up_reaches_a_resampling_that_waits_for_n_eff(tmp_path, monkeyp
     batch = plugin(tmp_path, slow_resampling("SlowBatch"), "SlowBatch")
     plan = plan_study(study_mazes(["paper_5x5"]), batch, sigma=[0.3], delta=[0.5], particles=[300], runs=3,
                       steps=30, seed=1)  # fmt: skip
-    outcome = run_study(plan.tasks(), 1)
+    outcome = run_study(plan.tasks, 1)
     assert all(record.run_seconds < ONE_OFF_SECONDS for record in outcome.records)
     assert outcome.startup_seconds >= ONE_OFF_SECONDS
     single = plugin(tmp_path, slow_resampling("SlowSingle"), "SlowSingle")
@@ -132,7 +132,7 @@ def test_a_study_reports_the_start_up_apart_from_ms_per_step(tmp_path):
     spec = plugin(tmp_path, SLOW_START, "SlowStart")
     plan = plan_study(study_mazes(["paper_5x5"]), f"{spec},sir", sigma=[0.3], delta=[0.5], particles=[50],
                       runs=2, steps=10, seed=1)  # fmt: skip
-    outcome = run_study(plan.tasks(), 2)  # two fresh worker processes: each pays the one-off cost once
+    outcome = run_study(plan.tasks, 2)  # two fresh worker processes: each pays the one-off cost once
     assert all(record.ms_per_step < 1e3 * ONE_OFF_SECONDS / 10 for record in outcome.records)
     assert all(record.run_seconds < ONE_OFF_SECONDS for record in outcome.records)
     assert outcome.startup_seconds >= ONE_OFF_SECONDS and len(outcome.workers) >= 1
@@ -173,11 +173,11 @@ def test_the_plugins_code_travels_with_the_runs(cluster, tmp_path):
     spec = plugin(tmp_path, MY_SIR, "MySIR")
     plan = plan_study(study_mazes(["paper_5x5"]), f"sir,{spec}", sigma=[0.3], delta=[0.5], particles=[60],
                       runs=2, steps=10, seed=5)  # fmt: skip
-    local = run_study(plan.tasks(), 1)
+    local = run_study(plan.tasks, 1)
     broken = MY_SIR + "\n    def step(self, compass_angle, z):\n        raise RuntimeError('not the planned code')\n"
     (tmp_path / "mysir.py").write_text(broken)
     with distributed.Client(cluster.scheduler_address) as client:
-        remote = run_study(plan.tasks(), dask=client)
+        remote = run_study(plan.tasks, dask=client)
     assert not remote.failures and len(remote.records) == 4
     assert [r.final_error for r in remote.records] == [r.final_error for r in local.records]
 

@@ -29,6 +29,7 @@ from mazelab.cli.options import (
     check_outputs,
     filter_choices,
     filters,
+    fresh_setup,
     one_line_warnings,
     opt,
     option_elsewhere,
@@ -49,8 +50,6 @@ from mazelab.experiments.journal import package_version, program_versions
 from mazelab.invocation import command_prefix, remember_arguments
 from mazelab.maze import DEFAULT_MAZE, MazeError, find_maze, load_maze
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
-from mazelab.robot import Robot
-from mazelab.seeding import new_seed, start_place
 from mazelab.stops import STOP_SIGNALS, StudentCodeError, exit_without_strays, mark_interrupts
 from mazelab.viz.recording import deferred_to_the_end
 
@@ -88,26 +87,16 @@ def demo(
 
     visualize = visualization(**(drawing or {}), force=force)
     check_outputs([("--rrd", (drawing or {}).get("rrd"))], force)
-    world = load_maze(DEFAULT_MAZE)
-    seed = new_seed()
-    robot = Robot(DEFAULT_SIGMA, DEFAULT_DELTA, start_place(world, seed))
+    setup = fresh_setup(None, None, None, None, None)  # `run`'s: the lab's maze, sigma and delta, a new seed
+    world = setup.world
     typer.echo(
         f"A robot is lost in {find_maze(DEFAULT_MAZE).name} ({world.height}x{world.width}, "
         f"{len(world.stations)} stations); SIR with {DEFAULT_PARTICLE_COUNT} particles looks for it."
     )
-    result = simulate(
-        robot,
-        world,
-        DEFAULT_SIGMA,
-        DEFAULT_DELTA,
-        DEFAULT_PARTICLE_COUNT,
-        DEFAULT_STEPS,
-        seed=seed,
-        visualize=visualize,
-        on_step=progress_printer(DEFAULT_STEPS),
-    )
+    result = simulate(setup.robot, world, setup.sigma, setup.delta, DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS,
+                      seed=setup.seed, visualize=visualize, on_step=progress_printer(DEFAULT_STEPS))  # fmt: skip
     report_run(result)
-    words = ["run", "--seed", str(seed), "--backend", result.extras["backend"]]
+    words = ["run", "--seed", str(setup.seed), "--backend", result.extras["backend"]]
     typer.echo(f"Repeat this run: {command_prefix()} {shlex.join(words)}")
 
 

@@ -21,7 +21,6 @@ from mazelab.cli.options import UserError, check_output_path, opt, seed_option
 from mazelab.exercise.grading import (
     KEY_FILE,
     Gradebook,
-    GradingInterruptedError,
     Submission,
     check_outside,
     claimed,
@@ -207,7 +206,7 @@ def _grade_into(book: Gradebook, grade: Callable[..., None], outputs: list[tuple
                         advance()
 
                     grade(on_done=done)
-            except GradingInterruptedError:
+            except KeyboardInterrupt:  # Ctrl-C or SIGTERM (_stop_signals): what was graded is in the book
                 return stop.number or signal.SIGINT
     except SandboxError as error:
         raise UserError(f"{error}; grading stopped, nobody graded by it") from None

@@ -15,6 +15,7 @@ import shlex
 import textwrap
 import warnings
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -25,19 +26,20 @@ import typer.core
 from mazelab.atomic import NameTakenError, NotRegularFileError, output_target
 from mazelab.backend import ENVIRONMENT_VARIABLE, THREADS_VARIABLE, check_backend, check_threads
 from mazelab.checks import check_seed
+from mazelab.constants import DEFAULT_DELTA, DEFAULT_SIGMA
 from mazelab.declaration import Option, not_taken, parse_flag, scoped, show_value
 from mazelab.experiments.runs import FINAL_SHARE, final_error
 from mazelab.experiments.study import declared_option
 from mazelab.experiments.study import options_per_filter as reaching
 from mazelab.experiments.tables import check_trace_path, pyplot
 from mazelab.invocation import command_prefix, repeat_command
+from mazelab.maze import DEFAULT_MAZE, Maze, load_maze
 from mazelab.registry import SHIPPED, FilterEntry, entries, filter_entry, is_plugin_spec, resolve_filter
 from mazelab.robot import Robot
+from mazelab.seeding import new_seed, start_place
 from mazelab.simulation import RunResult
 from mazelab.viz.style import DEFAULT_MAX_DRAWN
 from mazelab.viz.targets import Visualization
-
-DEFAULT_SIGMA, DEFAULT_DELTA = 0.3, 0.5
 
 
 class UserError(Exception):
@@ -374,6 +376,32 @@ def progress_printer(steps: int, every: int = 20) -> Any:
             typer.echo(f"  step {k:4d}/{steps}: error {error:6.3f}  ({state})")
 
     return report
+
+
+@dataclass
+class RunSetup:
+    """A run's inputs: the maze, the robot, sigma and delta, the initial particles (a replay's; None: drawn
+    from the seed) and the seed."""
+
+    world: Maze
+    robot: Robot
+    sigma: float
+    delta: float
+    initial_particles: Any
+    seed: int
+
+
+def fresh_setup(maze: str | None, sigma: float | None, delta: float | None, seed: int | None,
+                start_seed: int | None) -> RunSetup:  # fmt: skip
+    """A fresh lost robot: the maze (default the lab's), its start drawn from the seed (new if none)."""
+    world = load_maze(maze or DEFAULT_MAZE)
+    sigma = DEFAULT_SIGMA if sigma is None else sigma
+    delta = DEFAULT_DELTA if delta is None else delta
+    seed = new_seed() if seed is None else seed
+    if start_seed is not None and start_seed != seed:
+        warnings.warn(f"--start-seed {start_seed} differs from --seed {seed}: repeat with both", stacklevel=1)
+    robot = Robot(sigma, delta, start_place(world, seed if start_seed is None else start_seed))
+    return RunSetup(world, robot, sigma, delta, None, seed)
 
 
 # -- the filters' options, from their declarations ----------------------------------------------------

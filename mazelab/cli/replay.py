@@ -5,9 +5,7 @@ only when the user names the plug-in, a scenario never imports code); their repo
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -20,10 +18,12 @@ from mazelab.cli.options import (
     DEFAULT_DELTA,
     DEFAULT_SIGMA,
     GivenOptions,
+    RunSetup,
     UserError,
     check_filter_name,
     check_filter_names,
     check_outputs,
+    fresh_setup,
     given_options,
     options_per_filter,
     progress_printer,
@@ -43,12 +43,11 @@ from mazelab.experiments.runs import (
 )
 from mazelab.experiments.tables import compare_traces, write_traces
 from mazelab.invocation import command_line
-from mazelab.maze import DEFAULT_MAZE, Maze, load_maze, mazes_fitting
+from mazelab.maze import Maze, load_maze, mazes_fitting
 from mazelab.model import DEFAULT_STEPS
 from mazelab.registry import FilterEntry, file_sha256, filter_entry, resolve_filter
-from mazelab.robot import Robot
 from mazelab.scenario import Scenario, check_measurements_within, find_scenario, load_scenario, save_scenario
-from mazelab.seeding import new_seed, start_place
+from mazelab.seeding import new_seed
 from mazelab.simulation import RunResult, check_walk
 
 
@@ -127,32 +126,6 @@ def compare_scenario(
     report_compare(results, setup, recorder, title, kld=bool(given.get("kld")), force=force, **files)
     backend = next(iter(results.values())).extras["backend"]
     repeat_line("comparison", setup.seed, ("--csv", "--plot", "--traces", "--rrd"), backend)
-
-
-@dataclass
-class RunSetup:
-    """A run's inputs: the maze, the robot, sigma and delta, the initial particles (a replay's; None: drawn
-    from the seed) and the seed."""
-
-    world: Maze
-    robot: Robot
-    sigma: float
-    delta: float
-    initial_particles: Any
-    seed: int
-
-
-def fresh_setup(maze: str | None, sigma: float | None, delta: float | None, seed: int | None,
-                start_seed: int | None) -> RunSetup:  # fmt: skip
-    """A fresh lost robot: the maze (default the lab's), its start drawn from the seed (new if none)."""
-    world = load_maze(maze or DEFAULT_MAZE)
-    sigma = DEFAULT_SIGMA if sigma is None else sigma
-    delta = DEFAULT_DELTA if delta is None else delta
-    seed = new_seed() if seed is None else seed
-    if start_seed is not None and start_seed != seed:
-        warnings.warn(f"--start-seed {start_seed} differs from --seed {seed}: repeat with both", stacklevel=1)
-    robot = Robot(sigma, delta, start_place(world, seed if start_seed is None else start_seed))
-    return RunSetup(world, robot, sigma, delta, None, seed)
 
 
 def replay_setup(stored: Scenario, maze: str | None, sigma: float | None, delta: float | None,
@@ -251,14 +224,18 @@ def same_filter(stored: Scenario, chosen: FilterEntry) -> bool:
 
 
 def check_plugin(stored: Scenario, chosen: FilterEntry, path: Path | None) -> None:
-    """The plug-in named to replay a scenario: refused in one line when it is the file the scenario names
-    but not the filter its filtering_algorithm says (an edited file); a line says when its file changed."""
+    """The plug-in named to replay a scenario: refused in one line when it is the file and class the
+    scenario names (the same sha256) but carries another name than its filtering_algorithm (one of the two
+    was edited by hand); a line says when its file changed."""
     plugin = stored.filter_plugin
     if chosen.plugin is None or plugin is None:
         return
-    problem = stored.plugin_name_problem(chosen.name, chosen.plugin.sha256, chosen.plugin.class_name)
-    if problem is not None:
-        raise UserError(f"{path or 'the scenario'}: {problem}")
+    same_file = (plugin.class_name, plugin.sha256) == (chosen.plugin.class_name, chosen.plugin.sha256)
+    if same_file and chosen.name != stored.filtering_algorithm:
+        raise UserError(
+            f"{path or 'the scenario'}: filtering_algorithm {stored.filtering_algorithm!r} is not the name of the "
+            f"plug-in {plugin.spec} that filter_plugin names ({chosen.name!r}): one of the two was edited"
+        )
     if same_filter(stored, chosen) and chosen.plugin.sha256 != plugin.sha256:
         typer.echo(f"warning: {chosen.plugin.spec} has changed since the scenario was saved (sha256 "
                    f"{chosen.plugin.sha256[:12]}..., saved {plugin.sha256[:12]}...): the replay may differ from the "

@@ -17,10 +17,10 @@ import typer
 from mazelab.atomic import write_text_atomically
 from mazelab.backend import cores
 from mazelab.cli.options import (
+    Force,
     OptionFlag,
     UserError,
-    check_one_file_each,
-    check_output_path,
+    check_outputs,
     given_options,
     opt,
     parse_list,
@@ -62,7 +62,6 @@ PlotFile = opt(Path | None, "--plot", help="the figure (.png; plot extra)")
 Record = opt(Path | None, help="the JSON record [default: beside --csv]")
 Rrd = opt(Path | None, "--rrd", help="a Rerun recording: each filter's cloud beside its path smoother's")
 ChainRrd = opt(Path | None, "--rrd", help="a Rerun recording: the PMMH chain over the exact posterior")
-Force = opt(bool, "--force", help="replace existing output files")
 
 
 @with_option_flags()
@@ -390,11 +389,9 @@ def opened(scenario: Path, csv_path: Path | None, plot: Path | None, record: Pat
     from mazelab.scenario import find_scenario, load_scenario  # imported by the commands that read one (a study never)
 
     record_file = record if record is not None else record_path(csv_path) if csv_path is not None else None
-    named = [("--csv", csv_path), ("--csv's journal", journal_path(csv_path) if csv_path else None), ("--plot", plot)]
-    check_one_file_each([*named, ("the record", record_file), ("--rrd", rrd)])  # learn's journal: smooth's too
-    for output in (csv_path, plot, record_file, rrd):
-        if output is not None:
-            check_output_path(output, force)
+    journal = journal_path(csv_path) if csv_path else None  # learn's, checked by its owner; smooth's too
+    named = [("--csv", csv_path), ("--csv's journal", journal), ("--plot", plot), ("the record", record_file)]
+    check_outputs([*named, ("--rrd", rrd)], force, apart="--csv's journal")
     path = find_scenario(scenario)
     stored = load_scenario(path)
     if stored.robot_measurements is None:

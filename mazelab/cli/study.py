@@ -50,7 +50,7 @@ from mazelab.experiments.accuracy import (
     accuracy_summary,
     accuracy_table,
 )
-from mazelab.experiments.api import StudyPlan, maze_description, plan_study, study_mazes
+from mazelab.experiments.api import StudyPlan, maze_description, plan_study, study_closing, study_mazes
 from mazelab.experiments.executor import (
     DASK_TIMEOUT,
     StudyOutcome,
@@ -166,7 +166,7 @@ def study(
                       options=given, seed=seed, traces=chosen.traces is not None, spelled=given.spelled)  # fmt: skip
     figure = check_figure(plan, **figure)
     workers = workers or cores()
-    backend = study_backend(plan.tasks(), 1 if dask else workers)
+    backend = study_backend(plan.tasks, 1 if dask else workers)
     header = plan.header(f"on the Dask cluster at {dask}" if dask is not None else f"{workers} worker(s)", backend)
     session = open_session(plan, chosen, backend, header, visualize=visualize, draw_run=draw_run, dask=dask)
     if chosen.resume:
@@ -216,6 +216,7 @@ class StudyFiles:
     force: bool
     lines: list[dict[str, Any]] = dataclasses.field(default_factory=list)
     seed: int | None = None  # a resumed study's root seed, its journal's
+    replaces: bool = False  # an interrupted run's journal that does not match is replaced (accuracy's), not refused
 
     @classmethod
     def parse(cls, csv_path: Path | None = None, plot: Path | None = None, summary_csv: Path | None = None,
@@ -235,6 +236,21 @@ class StudyFiles:
                    (summary_named, summary_csv)]  # fmt: skip
         check_outputs(outputs, force or resume, apart="--csv's journal")
         return files
+
+    @classmethod
+    def left_by_accuracy(cls, csv_path: Path | None, record: Path | None, force: bool) -> StudyFiles:
+        """accuracy's outputs (the record --record, else beside the CSV) and their journal (beside the CSV, else
+        the record): an earlier run's files are refused without --force, unless it was interrupted (no finished
+        session in its journal): then it is resumed, or replaced if it is not this run's (`open_session`)."""
+        record_file = record if record is not None else record_path(csv_path) if csv_path is not None else None
+        journal = journal_path(csv_path or record_file) if csv_path or record_file else None
+        lines = [] if journal is None or journal_state(journal) != "left" else read_journal(journal)
+        finished = any(line.get("closed", {}).get("status") == "finished" for line in lines)
+        interrupted = any("session" in line for line in lines) and not finished
+        check_outputs([("--csv", csv_path), ("the record" if record is None else "--record", record_file)],
+                      force or interrupted)  # fmt: skip
+        resume = interrupted and not force
+        return cls(csv_path, None, None, record_file, None, journal, resume, force or bool(lines), lines, replaces=True)
 
     def check_journal(self) -> None:
         """The journal beside the CSV: being written by another study (refused), left by an earlier one
@@ -300,12 +316,17 @@ def open_session(plan: StudyPlan, files: StudyFiles, backend: str, header: str, 
                  dask: str | None = None) -> StudySession:  # fmt: skip
     """The runs to go (a resumed study's checked against its journal), the claims, the journal, the
     cluster and the record (of `kind`, its `parameters` the plan's unless given); the `header` printed."""
-    tasks, kept, earlier = plan.tasks(), [], []
+    tasks, kept, earlier = plan.tasks, [], []
     if files.resume:
         try:
             tasks, kept, earlier = resume_study(files.journal, files.lines, plan, backend)
         except JournalError as error:
-            raise UserError(str(error) if str(error).startswith("--resume") else f"--resume: {error}") from None
+            if not files.replaces:
+                raise UserError(str(error) if str(error).startswith("--resume") else f"--resume: {error}") from None
+            why = str(error).removeprefix("--resume: ").removesuffix("; give the same parameters")
+            typer.echo(f"replacing what an interrupted run left ({files.journal} and its outputs): {why}")
+            files.resume = False
+        files.lines = []  # now the kept rows: the journal's text is not held twice
     if visualize:  # the drawn run (run `draw_run` of the first setting) first: the executor draws it
         chosen = next((i for i, t in enumerate(tasks) if t.run == draw_run), None)
         if chosen is None:
@@ -347,20 +368,19 @@ def report_study(session: StudySession, outcome: StudyOutcome, figure: dict[str,
     order = {name: i for i, name in enumerate(dict.fromkeys([*names, *(r.filter for r in outcome.records)]))}
     records = sorted([*session.kept, *outcome.records], key=lambda r: (r.setting, r.run, order[r.filter]))
     summaries = summarise_study(records, plan.settings, paired=figure["paired"])
-    closing = {"runs_finished": len({(r.setting, r.run) for r in records}), "runs_in_study": len(plan.tasks()),
-               "failures": [f.describe() for f in outcome.failures], "summary": [s.as_dict() for s in summaries],
-               "paired": figure["paired"], "workers": [dataclasses.asdict(w) for w in outcome.workers.values()],
-               "startup_seconds": round(outcome.startup_seconds, 3),
-               **({"summary_csv": str(files.summary_csv)} if files.summary_csv is not None else {})}  # fmt: skip
+    closing = study_closing(plan, outcome, records, summaries, figure["paired"])
+    if files.summary_csv is not None:
+        closing["summary_csv"] = str(files.summary_csv)
     if outcome.interrupted or outcome.lost is not None:
         report_stopped(session, outcome, records, closing)
     typer.echo(study_table(summaries, plan.varied, kld=plan.kld))
-    status = "finished" if not outcome.failures else "finished with failures"
+    status = outcome.status
     seconds = session.recorder.finish(status, **closing)["duration_seconds"]
     ran = len({(r.setting, r.run) for r in outcome.records})
+    loaded = "numba's kernels loaded, first calls" if session.backend == "compiled" else "first calls"
     typer.echo(f"{ran} runs in {seconds:.1f} s wall time on the {session.backend} backend; start-up "
-               f"{outcome.startup_seconds:.1f} s in {len(outcome.workers)} process(es) (numba's kernels loaded, first "
-               "calls; not in ms_per_step or run_seconds)")  # fmt: skip
+               f"{outcome.startup_seconds:.1f} s in {len(outcome.workers)} process(es) ({loaded}; not in "
+               "ms_per_step or run_seconds)")  # fmt: skip
     repeat_line(
         "study", plan.seed, ("--csv", "--plot", "--traces", "--record", "--summary-csv", "--rrd"), session.backend
     )
@@ -461,45 +481,21 @@ def accuracy(
     parameters = {"mazes": [maze_description(m) for m in mazes], "filters": labels, "sigma": sigma, "delta": delta,
                   "particles": particles, "runs": runs, "steps": steps, "root_seed": seed}  # fmt: skip
     workers = workers or cores()
-    backend = study_backend(plan.tasks(), workers)
-    files = accuracy_files(csv_path, record, plan, rows, force, backend)
+    backend = study_backend(plan.tasks, workers)
+    files = StudyFiles.left_by_accuracy(csv_path, record, force)
     header = (f"Accuracy: {len(mazes)} maze(s) ({', '.join(m.label for m in mazes)}) x {runs} runs, sigma "
               f"{sigma:g}, delta {delta:g}, {particles} particles, {steps} steps, seed {seed}; filters: "
               f"{', '.join(labels)}")  # fmt: skip
     session = open_session(plan, files, backend, header, kind="accuracy", parameters=parameters)
+    if files.resume:
+        done = {(r["maze"], r["run"]) for r in accuracy_records(session.kept, rows)}
+        typer.echo(f"resuming the interrupted run of {files.journal}: {len(done)} runs kept")
     try:
         outcome = run_study(session.tasks, workers, progress=True, on_records=session.append,
                             ignore_signals_after_stop=True, backend=backend)  # fmt: skip
         report_accuracy(session, rows, outcome)
     finally:
         session.close()
-
-
-def accuracy_files(csv_path: Path | None, record: Path | None, plan: StudyPlan, rows: tuple[AccuracyFilter, ...],
-                   force: bool, backend: str) -> StudyFiles:  # fmt: skip
-    """The outputs (the record --record, else beside the CSV) and their journal (beside the CSV, else the
-    record): an earlier run's files are refused without --force, unless it was interrupted (no finished
-    session in its journal): then it is resumed (the same parameters, mazelab.experiments.journal.resume_study)
-    or replaced, and a line says which."""
-    record_file = record if record is not None else record_path(csv_path) if csv_path is not None else None
-    journal = journal_path(csv_path or record_file) if csv_path or record_file else None
-    lines = [] if journal is None or journal_state(journal) != "left" else read_journal(journal)
-    finished = any(line.get("closed", {}).get("status") == "finished" for line in lines)
-    interrupted = any("session" in line for line in lines) and not finished
-    named = "the record" if record is None else "--record"
-    check_outputs([("--csv", csv_path), (named, record_file)], force or interrupted)
-    files = StudyFiles(csv_path, None, None, record_file, None, journal, False, force or bool(lines))
-    if interrupted and not force:
-        try:
-            _, kept, _ = resume_study(journal, lines, plan, backend)
-        except JournalError as error:
-            why = str(error).removeprefix("--resume: ").removesuffix("; give the same parameters")
-            typer.echo(f"replacing what an interrupted run left ({journal} and its outputs): {why}")
-        else:
-            files.resume, files.lines = True, lines
-            done = {(r["maze"], r["run"]) for r in accuracy_records(kept, rows)}
-            typer.echo(f"resuming the interrupted run of {journal}: {len(done)} runs kept")
-    return files
 
 
 def report_accuracy(session: StudySession, rows: tuple[AccuracyFilter, ...], outcome: StudyOutcome) -> None:

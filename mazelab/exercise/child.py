@@ -3,9 +3,10 @@ where of the lab there is only the student kit), and the messages it exchanges w
 (docs/exercise.md, "Values only"). It reads the request on its standard input, says "hello" before any
 of the student's code runs, installs the audit hook (`guard`, "Only the files run"), loads the file,
 and sends back, stage by stage, only values: the arrays the student's code returned and its errors
-as text. A message is MAGIC, the length of a JSON header (`meta` and each array's name, dtype and
-shape), the header, then the arrays' bytes, checked whole by `decode` before any array is made (never
-pickle: unpickling what the student's process sends would run its code in the grader).
+as text. Both ways a message is MAGIC, the length of a JSON header (`meta` and each array's name, dtype
+and shape), the header, then the arrays' bytes: written by `encode`, read by `messages`, which checks
+each whole before any array is made (never pickle: unpickling what the student's process sends would
+run its code in the grader).
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import collections
 import contextlib
 import faulthandler
 import importlib.util
+import itertools
 import json
 import math
 import os
@@ -21,7 +23,7 @@ import sys
 import sysconfig
 import time
 import traceback
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -35,7 +37,7 @@ from mazelab.stops import describe_exit
 
 MAGIC = b"MZL1"
 MAX_HEADER_BYTES = 1 << 20
-MAX_MESSAGE_BYTES = 1 << 28  # 256 MB: the largest message a child may send (the grader reads no more)
+MAX_MESSAGE_BYTES = 1 << 28  # 256 MB: the most a child may send in all (the grader reads no more)
 DTYPES = ("<f8", "<i8", "|b1")  # float64, int64, bool: all the checks exchange
 TEXT_LIMIT = 600  # characters of an error's text
 Emit = Callable[..., None]  # emit(meta, arrays=None): one message to the grader
@@ -71,32 +73,42 @@ def encode(meta: dict[str, Any], arrays: dict[str, Any] | None = None) -> bytes:
     return b"".join([MAGIC, len(text).to_bytes(4, "big"), text, *(a.tobytes() for a in wired.values())])
 
 
-def decode(data: bytes) -> Message:
-    """The message in `data`, checked whole (the module docstring); WireError otherwise."""
-    if len(data) > MAX_MESSAGE_BYTES or data[:4] != MAGIC or len(data) < 8:
-        raise WireError("not a message of the grader's (no header)")
-    size = int.from_bytes(data[4:8], "big")
-    if size > MAX_HEADER_BYTES or 8 + size > len(data):
-        raise WireError(f"a header of {size} bytes")
-    try:
-        header = json.loads(data[8 : 8 + size], parse_constant=_no_constant)
-    except (ValueError, RecursionError) as error:
-        raise WireError(f"a header that is not JSON ({error})") from None
-    if not isinstance(header, dict) or set(header) != {"meta", "arrays"} or not isinstance(header["meta"], dict):
-        raise WireError("a header without meta and arrays")
-    if not isinstance(header["arrays"], list):
-        raise WireError("a header whose arrays are not a list")
-    arrays, offset = {}, 8 + size
-    for entry in header["arrays"]:
-        name, dtype, shape = _array_entry(entry)
-        nbytes = math.prod(shape) * dtype.itemsize
-        if name in arrays or offset + nbytes > len(data):
-            raise WireError(f"the array {name!r} twice or cut short")
-        arrays[name] = np.frombuffer(data, dtype=dtype, count=math.prod(shape), offset=offset).reshape(shape)
-        offset += nbytes
-    if offset != len(data):
-        raise WireError(f"{len(data) - offset} bytes after the last array")
-    return Message(header["meta"], arrays)
+def messages(stream: Any) -> Iterator[Message]:
+    """The messages on `stream` until its end, each checked whole (the module docstring) before any of
+    its arrays is made; WireError at the first that is not one of ours, or past MAX_MESSAGE_BYTES in all."""
+    received = 0
+    while start := stream.read(8):
+        size = int.from_bytes(start[4:], "big")
+        if len(start) < 8 or start[:4] != MAGIC:
+            raise WireError("not a message of the grader's (no header)")
+        if size > MAX_HEADER_BYTES:
+            raise WireError(f"a header of {size} bytes")
+        text = _exactly(stream, size)
+        try:
+            header = json.loads(text, parse_constant=_no_constant)
+        except (ValueError, RecursionError) as error:
+            raise WireError(f"a header that is not JSON ({error})") from None
+        if not isinstance(header, dict) or set(header) != {"meta", "arrays"} or not isinstance(header["meta"], dict):
+            raise WireError("a header without meta and arrays")
+        entries = [_array_entry(entry) for entry in header["arrays"]] if isinstance(header["arrays"], list) else None
+        if entries is None or len({name for name, _, _ in entries}) < len(entries):
+            raise WireError("a header whose arrays are not a list of names each given once")
+        sizes = [math.prod(shape) * dtype.itemsize for _, dtype, shape in entries]
+        received += 8 + size + sum(sizes)
+        if received > MAX_MESSAGE_BYTES:
+            raise WireError(f"more than {MAX_MESSAGE_BYTES >> 20} MB")
+        data, offsets = _exactly(stream, sum(sizes)), itertools.accumulate(sizes, initial=0)
+        arrays = {}
+        for (name, dtype, shape), offset in zip(entries, offsets, strict=False):  # the offsets: one more
+            arrays[name] = np.frombuffer(data, dtype=dtype, count=math.prod(shape), offset=offset).reshape(shape)
+        yield Message(header["meta"], arrays)
+
+
+def _exactly(stream: Any, size: int) -> bytes:
+    data = stream.read(size)
+    if len(data) < size:
+        raise WireError("a message cut short")
+    return data
 
 
 def _no_constant(name: str) -> None:
@@ -398,14 +410,13 @@ def main(answer_fd: int) -> None:
     """The child process: read the request, set the process limit, guard, say hello, serve the request
     answering on the descriptor `answer_fd`, then end (the student's threads with it)."""
     faulthandler.enable(file=sys.stderr, all_threads=True)  # a crash in C names the student's line
-    message = decode(sys.stdin.buffer.read())
+    message = next(messages(sys.stdin.buffer))
     os.close(0)
     os.open(os.devnull, os.O_RDONLY)  # the student's code reads nothing there
     answers = os.fdopen(answer_fd, "wb", buffering=0)
 
     def emit(meta: dict[str, Any], arrays: dict[str, Any] | None = None) -> None:
-        data = encode(meta, arrays)
-        answers.write(len(data).to_bytes(8, "big") + data)
+        answers.write(encode(meta, arrays))
 
     processes = message.meta.get("processes")
     if processes:  # counted in the sandbox's own user namespace: its processes and threads only

@@ -112,14 +112,6 @@ def grade_one(submission: Submission, timeout: float, references: References | N
     return Report(submission.name, None, submission=submission, problem=problem, seconds=time.perf_counter() - started)
 
 
-class GradingInterruptedError(Exception):
-    """Ctrl-C or SIGTERM stopped the grading: the submissions graded before it (`graded`, in order)."""
-
-    def __init__(self, graded: list[Report]):
-        super().__init__("the grading was stopped")
-        self.graded = graded
-
-
 def _quiet_thread() -> None:
     """A grading thread blocks the stop signals: the main thread takes them, and the processes this
     thread starts (the reference runs' workers) inherit the mask, so Ctrl-C never prints their tracebacks."""
@@ -135,7 +127,8 @@ def grade_folder(
     on_done: Callable[[Report], None] | None = None,
 ) -> list[Report]:
     """Grade the submissions, `jobs` at a time (default: the cores), in their order, calling `on_done`
-    with each as soon as it is graded."""
+    with each as soon as it is graded. Ctrl-C (a KeyboardInterrupt), SIGTERM and a sandbox that cannot
+    start end every child and the reference runs, and propagate: what `on_done` was given is kept."""
     jobs = jobs or os.cpu_count() or 1
     lock = threading.Lock()
     allow_children()
@@ -154,18 +147,12 @@ def grade_folder(
     futures = [threads.submit(one, submission) for submission in submissions]
     try:
         return [future.result() for future in futures]
-    except BaseException as error:  # Ctrl-C, SIGTERM, a sandbox that cannot start: end every child, keep the rest
+    except BaseException:  # the waiting ones are cancelled below
         stop_children()
         for process in list((getattr(pool, "_processes", None) or {}).values()):
             with contextlib.suppress(OSError, AttributeError):
                 process.kill()  # a grid run in progress would hold shutdown for seconds
-        for future in futures:
-            future.cancel()
-        threads.shutdown(wait=True, cancel_futures=True)
-        if not isinstance(error, KeyboardInterrupt):
-            raise
-        done = [f.result() for f in futures if f.done() and not f.cancelled() and f.exception() is None]
-        raise GradingInterruptedError(done) from None
+        raise
     finally:
         threads.shutdown(wait=True, cancel_futures=True)
         pool.shutdown(wait=True, cancel_futures=True)
@@ -388,7 +375,6 @@ __all__ = [
     "CSV_COLUMNS",
     "KEY_FILE",
     "Gradebook",
-    "GradingInterruptedError",
     "Submission",
     "claimed",
     "discover",

@@ -1,10 +1,7 @@
-"""A row of the report, and the verdicts on the four parts and the whole filter, made by the grader from
-the values the student's process returned for the inputs of mazelab.exercise.inputs: what each check
-tests, its tolerance and its false-alarm rate are docs/exercise.md's "What each check promises". The
-whole filter is judged on the seed's scenarios by the distance between the student's estimates and the
-exact grid filter's posterior means, beside the shipped SIR's (both run by the grader,
-mazelab.exercise.report.References): the sign and the magnitude tests fail a filter that is the SIR in
-distribution with probability at most 0.0042.
+"""A row of the report, and the verdicts on the four parts and the whole filter (against the exact grid
+filter's posterior means, beside the shipped SIR's: mazelab.exercise.report.References), made by the
+grader from the values the student's process returned for the inputs of mazelab.exercise.inputs: what
+each check tests, its tolerance and its false-alarm rate are docs/exercise.md's "What each check promises".
 """
 
 from __future__ import annotations
@@ -345,23 +342,11 @@ def offspring_counts(ancestors: np.ndarray, n: int) -> np.ndarray:
 
 
 def z_scores(counts: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """Each particle's z: its mean count's deviation over the standard error, or for a count that never
-    varies the z of its p-value (+-inf for d >= 1).
-
-    Unbiased means E[N_i] = N W_i for every particle i. Over R calls on one vector, particle i's mean
-    offspring count m_i has standard error s_i / sqrt(R), and z_i = (m_i - N W_i) / (s_i / sqrt(R)) is
-    close to standard normal for any unbiased scheme (every N W_i is at least about 0.2, so R N W_i >=
-    800 offspring are averaged). s_i^2 is the larger of the sample variance and f(1 - f), f the
-    fractional part of N W_i: no integer count with mean N W_i varies less (systematic resampling attains
-    it), and where the count leaves its usual value rarely (N W_i = 1.002: 8 times in 4000 calls on
-    average) the sample variance of a run with fewer such calls is far too small (one call: z = -6.4 for
-    a correct systematic resampler). The check fails when some |z_i| exceeds the normal quantile at
-    RESAMPLE_ALPHA / (2 M), M the particles of all the vectors together: by Bonferroni's inequality a
-    correct resampler fails with probability at most RESAMPLE_ALPHA, whatever the correlations between
-    its counts. A count k that never varies, d = |k - N W_i| < 1 from its expectation, is shown likeliest
-    by the scheme of least variance (floor or ceil of N W_i), which gives k at all R calls with
-    probability (1 - d)^R: that is its p-value, read as the z of the same two-sided p. So N W_i = 0.99995,
-    always 1 in 4000 calls (probability 0.82), passes, and always 1 for N W_i = 0.99 (4e-18) fails."""
+    """Each particle's z: its mean count's deviation from N W_i over the standard error, or for a count
+    that never varies the z of its p-value (+-inf for d >= 1). Why the variance has a floor, and why a
+    correct resampler fails with probability at most RESAMPLE_ALPHA whatever the correlations between
+    its counts (Bonferroni over every particle, `critical_z`): docs/exercise.md, "What each check
+    promises"."""
     target = len(weights) * weights
     mean, std = counts.mean(axis=0), counts.std(axis=0, ddof=1)
     fraction = target - np.floor(target)
@@ -521,13 +506,9 @@ def magnitude_p(distances: np.ndarray, sir_distances: np.ndarray) -> tuple[float
 
 @dataclass
 class ScenarioFigures:
-    """One scenario: the student's and the SIR's distance to the exact mean (second half) and convergence."""
+    """One scenario, and the student's and the SIR's distance to the exact mean (second half) and convergence."""
 
-    maze: str
-    seed: int
-    sigma: float
-    delta: float
-    particles: int
+    scenario: ScenarioInputs
     distance: float
     sir_distance: float
     converged: bool
@@ -535,10 +516,10 @@ class ScenarioFigures:
 
 
 FIGURE_COLUMNS = (  # the per-scenario table: each column's heading and its cell
-    ("maze", lambda f: f.maze),
-    ("sigma", lambda f: f"{f.sigma:.2f}"),
-    ("delta", lambda f: f"{f.delta:.2f}"),
-    ("N", lambda f: str(f.particles)),
+    ("maze", lambda f: f.scenario.maze),
+    ("sigma", lambda f: f"{f.scenario.sigma:.2f}"),
+    ("delta", lambda f: f"{f.scenario.delta:.2f}"),
+    ("N", lambda f: str(len(f.scenario.particles))),
     ("to exact", lambda f: f"{f.distance:.3f}"),
     ("SIR's", lambda f: f"{f.sir_distance:.3f}"),
     ("converged", lambda f: "yes" if f.converged else "no"),
@@ -584,20 +565,11 @@ def judge_whole(
     scheme: str,
 ) -> tuple[Row, list[ScenarioFigures]]:
     """The whole filter's row (the sign and magnitude tests against the SIR) and the figures per scenario."""
-    figures = [
-        ScenarioFigures(
-            s.maze,
-            s.seed,
-            s.sigma,
-            s.delta,
-            len(s.particles),
-            distance_to_exact(mine, exact[i]),
-            distance_to_exact(sir[i], exact[i]),
-            converged(mine, s.true_positions),
-            converged(sir[i], s.true_positions),
-        )
-        for i, (s, mine) in enumerate(zip(scenarios, estimates, strict=True))
-    ]
+    figures = []
+    for s, mine, exact_means, sir_means in zip(scenarios, estimates, exact, sir, strict=True):
+        distances = (distance_to_exact(mine, exact_means), distance_to_exact(sir_means, exact_means))
+        convergence = (converged(mine, s.true_positions), converged(sir_means, s.true_positions))
+        figures.append(ScenarioFigures(s, *distances, *convergence))
     worse = sum(not f.distance <= f.sir_distance for f in figures)  # NaN counts as worse
     mean, sir_mean = np.mean([f.distance for f in figures]), np.mean([f.sir_distance for f in figures])
     ratio, p = magnitude_p(np.array([f.distance for f in figures]), np.array([f.sir_distance for f in figures]))

@@ -9,7 +9,9 @@ NotGradableError (one line). Every text that reaches a report is `clean` (parts.
 from __future__ import annotations
 
 import contextlib
+import functools
 import inspect
+import io
 import queue
 import shlex
 import textwrap
@@ -25,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from mazelab.exercise import child
-from mazelab.exercise.child import Message, decode, encode
+from mazelab.exercise.child import Message, encode, messages
 from mazelab.exercise.inputs import (
     PartInputs,
     ScenarioInputs,
@@ -136,10 +138,6 @@ class Report:
         if self.problem is not None:
             return FAIL
         return next((row.status for row in self.rows if row.part == part), None)
-
-    def row(self, part: str) -> Row:
-        """The row of one part (or "whole filter")."""
-        return next(row for row in self.rows if row.part == part)
 
 
 class NotGradableError(ValueError):
@@ -294,11 +292,13 @@ def collect_in_process(
     filter_class: type, parts: PartInputs, scenarios: list[ScenarioInputs], stages: list[str]
 ) -> Answers:
     """Run the stages in this process (a self-check): the same work as the child's, each message
-    encoded, decoded and recorded as a child's would be (ChildRun.take)."""
-    run, (meta, arrays) = ChildRun(), request("", None, stages, parts, scenarios)
-    child.serve(
-        decode(encode(meta, arrays)), lambda meta, arrays=None: run.take(decode(encode(meta, arrays))), filter_class
-    )
+    written and read as a child's would be, and recorded as a child's is (ChildRun.take)."""
+
+    def wired(meta: dict, arrays: dict | None = None) -> Message:
+        return next(messages(io.BytesIO(encode(meta, arrays))))
+
+    run = ChildRun()
+    child.serve(wired(*request("", None, stages, parts, scenarios)), lambda *sent: run.take(wired(*sent)), filter_class)
     return Answers(run.loaded, run.results)
 
 
@@ -419,31 +419,19 @@ def check_file(
     source = "given" if seed is not None else "key" if key else "files"
     seed = files_seed(path, beside, key or None) if seed is None else seed
     report = Report(class_name or path.stem, None if source == "key" else seed, source, note=sandbox().note)
-    return _check(
-        report,
-        seed,
-        stages,
-        lambda parts, scenarios: collect_isolated(
-            path.resolve(), class_name, parts, scenarios, timeout, stages, shown, companions
-        ),
-        shown,
-        {p.name: p.read_text(errors="replace") for p in [path, *beside]},
-        references,
-    )
+    collect = functools.partial(collect_isolated, path.resolve(), class_name, budget=timeout, stages=stages,
+                                shown=shown, companions=companions)  # fmt: skip
+    sources = {p.name: p.read_text(errors="replace") for p in [path, *beside]}
+    return _check(report, seed, stages, collect, shown, sources, references)
 
 
 def check(filter_class: type, *, seed: int | None = None, stages: tuple[str, ...] = STAGES) -> Report:
     """Check a class in this process (a self-check: nothing isolates it), the given stages (every
     part and the whole filter by default); the seed defaults to one from the class's source, or 0."""
     seed = source_seed(filter_class) if seed is None else seed
-    return _check(
-        Report(filter_class.__name__, seed, "class"),
-        seed,
-        stages,
-        lambda parts, scenarios: collect_in_process(filter_class, parts, scenarios, list(stages)),
-        filter_class.__name__,
-        {"class.py": class_source(filter_class)},
-    )
+    collect = functools.partial(collect_in_process, filter_class, stages=list(stages))
+    sources = {"class.py": class_source(filter_class)}
+    return _check(Report(filter_class.__name__, seed, "class"), seed, stages, collect, filter_class.__name__, sources)
 
 
 def _check(

@@ -27,7 +27,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from mazelab.exercise.child import MAX_MESSAGE_BYTES, Message, WireError, decode, encode
+from mazelab.exercise.child import Message, WireError, encode, messages
 from mazelab.exercise.kit import PACKAGE_DIR, build_kit
 
 DEFAULT_BUDGET = 40.0  # wall seconds of a submission's processes in all: 3 x a correct one's (1-3 s) + 30
@@ -415,7 +415,7 @@ class ChildRun:
         """Record one message (False: it ends the conversation as unreadable). A second "loaded" (two
         processes answering) voids every answer; a stage answered twice voids that stage."""
         meta, kind = message.meta, message.meta.get("kind")
-        stage = meta.get("stage")
+        stage, self.done = meta.get("stage"), kind == "done"
         if kind == "hello" and self.hello is None:
             self.hello = time.perf_counter()
         elif kind == "loaded":
@@ -439,18 +439,10 @@ def _read(stream: Any, run: ChildRun) -> None:
     """Read the child's messages as they come into `run` (in a daemon thread: a pipe kept open by an
     escaped grandchild cannot hold the grader), until the end of the pipe or the first unreadable
     message (`run.unreadable` says what was wrong)."""
-    received = 0
     try:
-        while header := stream.read(8):
-            size = int.from_bytes(header, "big")
-            received += size
-            if len(header) < 8 or received > MAX_MESSAGE_BYTES:
-                raise WireError(f"more than {MAX_MESSAGE_BYTES >> 20} MB" if len(header) == 8 else "a cut header")
-            data = stream.read(size)
-            message = decode(data) if len(data) == size else None
-            if message is None or not run.take(message):
-                raise WireError("a message cut short" if message is None else "an unexpected message")
-            run.done = message.meta.get("kind") == "done"
+        for message in messages(stream):
+            if not run.take(message):
+                raise WireError("an unexpected message")
     except (WireError, OSError, ValueError) as error:
         run.unreadable = f"sent output the grader cannot read ({error})"
 
@@ -526,19 +518,22 @@ def run_child(
 
 
 def _start(made: Sandbox, run: ChildRun, run_folder: Path, cgroup: Cgroup, cpu: int, request: bytes) -> tuple:
-    """The child's process (its prints merged on one pipe, the answer pipe kept open, its limits, a
-    session of its own), its answers' reader and its prints' collector, both started, and the request
-    sent; SandboxError when it cannot be started (bwrap gone since the probe, no memory to fork)."""
+    """The child's process (the request on its standard input, from a file of its own; its prints merged
+    on one pipe, the answer pipe kept open, its limits, a session of its own), its answers' reader and
+    its prints' collector, both started; SandboxError when it cannot be started (bwrap gone since the
+    probe, no memory to fork)."""
     drop, staged = None, {}
     if made.sandboxed and not cgroup.folders:
         binds = [*interpreter_folders(), *map(str, numpy_folders()), str(kit()), str(run_folder)]
         drop, staged = _dropped(binds, run_folder / "stage")
     answers_in, answers_out = os.pipe()
     try:
-        with _running_lock:
+        with _running_lock, tempfile.TemporaryFile() as sent:
+            sent.write(request)
+            sent.seek(0)
             process = subprocess.Popen(
                 made.command(kit(), run_folder, answers_out, staged),
-                stdin=subprocess.PIPE,
+                stdin=sent,
                 stdout=subprocess.PIPE,
                 stderr=subprocess.STDOUT,
                 pass_fds=(answers_out,),
@@ -558,16 +553,7 @@ def _start(made: Sandbox, run: ChildRun, run_folder: Path, cgroup: Cgroup, cpu: 
     printed = _Output(process.stdout.fileno())
     reader.start()
     printed.start()
-    threading.Thread(target=_send, args=(process, request), daemon=True).start()
     return process, reader, printed
-
-
-def _send(process: subprocess.Popen, request: bytes) -> None:
-    """Write the request to the child's standard input and close it (a child that reads none is its own)."""
-    with contextlib.suppress(OSError):
-        process.stdin.write(request)
-    with contextlib.suppress(OSError):
-        process.stdin.close()
 
 
 def _end_session(process: subprocess.Popen) -> None:

@@ -26,8 +26,8 @@ import numpy as np
 from mazelab import maze_generator
 from mazelab.checks import check_particles, check_seed, check_sigma_within, check_steps, check_study
 from mazelab.contract import missing_parts
-from mazelab.declaration import scoped, to_plain_json
-from mazelab.experiments.executor import run_study
+from mazelab.declaration import scoped, show_value, to_plain_json
+from mazelab.experiments.executor import StudyOutcome, run_study
 from mazelab.experiments.journal import Recorder
 from mazelab.experiments.runs import filter_key, parse_filters
 from mazelab.experiments.study import (
@@ -35,6 +35,7 @@ from mazelab.experiments.study import (
     MODEL_PARAMETERS,
     REFERENCE,
     MazeChoice,
+    RunRecord,
     RunTask,
     StudySetting,
     declared_option,
@@ -46,15 +47,7 @@ from mazelab.experiments.study import (
     study_tasks,
     varied_parameters,
 )
-from mazelab.experiments.summary import (
-    CSV_COLUMNS,
-    CSV_DTYPES,
-    StudySummary,
-    describe_setting,
-    describe_varied,
-    summarise_study,
-    summary_rows,
-)
+from mazelab.experiments.summary import CSV_COLUMNS, CSV_DTYPES, StudySummary, summarise_study, summary_rows
 from mazelab.experiments.tables import flat_row, study_traces, trace_table_columns
 from mazelab.grid_filter import check_grid_memory
 from mazelab.maze import DEFAULT_MAZE, MAZES_DIR, find_maze, load_maze
@@ -125,6 +118,8 @@ class StudyPlan:
     reference: str | None = None  # "grid": every row gets distance_to_exact (`study --reference grid`)
     plugins: tuple[PluginCode, ...] = ()  # the plug-ins' code, read once: every run carries it
     call: dict[str, Any] | None = None  # the Python values that made it (mazelab.study_plan), as data
+    # every run of the study, each with the filters its setting runs (study.study_tasks), made once by plan_study
+    tasks: list[RunTask] = field(default_factory=list, repr=False)
 
     @property
     def option_columns(self) -> list[str]:
@@ -139,20 +134,6 @@ class StudyPlan:
     @property
     def varied(self) -> list[str]:
         return varied_parameters(self.settings)
-
-    def tasks(self) -> list[RunTask]:
-        """Every run of the study, each with the filters its setting runs."""
-        return study_tasks(
-            self.settings,
-            self.filters,
-            self.runs,
-            self.steps,
-            self.seed,
-            kidnap_at=self.kidnap_at,
-            traces=self.traces,
-            reference=self.reference,
-            plugins=self.plugins,
-        )
 
     def parameters(self) -> dict[str, Any]:
         """The study's parameters as parsed (what the record keeps and --resume compares)."""
@@ -176,19 +157,27 @@ class StudyPlan:
         }
 
     def header(self, where: str, backend: str | None = None) -> str:
-        """The study's first lines: its size, seed, workers and backend; the fixed parameters; the varied
-        ones with all their values."""
-        runs = len(self.tasks()) // max(1, self.runs)
-        skipped = len(self.settings) - runs
+        """The study's first lines: its size, seed, workers and backend; the fixed parameters (the maze, the
+        model's, each option the study sets: an option not set runs at its default); the varied ones with all
+        their values."""
+        skipped = len(self.settings) - len(self.tasks) // max(1, self.runs)
         note = f" ({skipped} setting(s) run no filter)" if skipped else ""
         on = f", {backend} backend" if backend else ""
+        first, varied = self.settings[0], self.varied
+        parts = {"maze": f"maze {first.maze.label}", "sigma": f"sigma {first.sigma:g}",
+                 "delta": f"delta {first.delta:g}", "particles": f"{first.particles} particles",
+                 **{name: f"{name} {show_value(value)}" for name, value in first.options}}  # fmt: skip
+        kidnapping = "" if self.kidnap_at is None else f", kidnapped at step {self.kidnap_at}"
+        fixed = [text for parameter, text in parts.items() if parameter not in varied]
         lines = [
             f"Study: {len(self.settings)} setting(s){note} x {self.runs} runs x {len(self.filters)} filters, "
             f"seed {self.seed}, {where}{on}",
-            "fixed: " + describe_setting(self.settings[0], self.steps, self.runs, self.kidnap_at, self.varied),
+            "fixed: " + ", ".join([*fixed, f"{self.steps} steps{kidnapping}", f"{self.runs} runs per setting"]),
         ]
-        if self.varied:
-            lines.append(describe_varied(self.settings, self.varied) + " (each filter once per value it takes)")
+        if varied:
+            values = {p: ", ".join(dict.fromkeys(show_value(s.value(p)) for s in self.settings)) for p in varied}
+            shown = "; ".join(f"{p} {v}" for p, v in values.items())
+            lines.append(f"varied: {shown} (each filter once per value it takes)")
         if self.reference:
             lines.append("reference: the exact grid filter, once per run's scenario (distance_to_exact)")
         return "\n".join(lines)
@@ -237,9 +226,10 @@ def plan_study(
     check_filter_options(settings, names)
     seed = new_seed() if seed is None else seed
     kld = given.get("kld") == [True]  # the table's mean N column
-    plan = StudyPlan(settings, names, runs, steps, seed, kidnap_at, kld, traces, reference, plugin_codes(names))
-    plan.tasks()  # checks runs, steps and kidnap_at
-    return plan
+    plugins = plugin_codes(names)
+    tasks = study_tasks(settings, names, runs, steps, seed, kidnap_at=kidnap_at, traces=traces, reference=reference,
+                        plugins=plugins)  # fmt: skip
+    return StudyPlan(settings, names, runs, steps, seed, kidnap_at, kld, traces, reference, plugins, tasks=tasks)
 
 
 def all_default(name: str, values: Sequence[Any]) -> bool:
@@ -442,35 +432,46 @@ def study(
     range or an empty list a ValueError, each one line naming it."""
     if plan is not None and (maze is not None or values):
         raise TypeError("give the study's plan or its values, not both")
-    workers = _whole("workers", workers, optional=True)
-    if workers is not None and workers < 1:
-        raise ValueError(f"workers must be >= 1 (or None: all cores), got {workers}")
+    workers = _whole("workers", workers, optional=True)  # >= 1, checked by run_study
     plan = plan or study_plan(maze, **values)
     if paired is not None and resolve_filter(paired).name not in [resolve_filter(f).name for f in plan.filters]:
         raise ValueError(f"paired={paired!r} is not one of the study's filters")
     dask = _dask(dask)
     recorder = Recorder("study", [sys.argv[0] or "python", "mazelab.study(...)"], plan.parameters(),
                         csv_dtypes=CSV_DTYPES)  # fmt: skip
-    outcome = run_study(plan.tasks(), workers, dask=dask)
+    outcome = run_study(plan.tasks, workers, dask=dask)
     summaries = summarise_study(outcome.records, plan.settings, paired=paired)
-    summary, failures = summary_rows(summaries, plan.option_columns), [f.describe() for f in outcome.failures]
+    closing = study_closing(plan, outcome, outcome.records, summaries, paired)
     call = {
         **(plan.call or {}),
         "paired": paired,
         "workers": workers,
         **({"dask": dask} if isinstance(dask, str) else {}),
     }
-    record = recorder.finish(
-        "finished" if not failures else "finished with failures", summary=summary, failures=failures,
-        runs_finished=len({(r.setting, r.run) for r in outcome.records}), backend=outcome.backend,
-        paired=None if paired is None else resolve_filter(paired).name,
-        call={"function": "mazelab.study", "arguments": call},
-        workers=[asdict(report) for report in outcome.workers.values()],
-        startup_seconds=round(outcome.startup_seconds, 3),
-    )  # fmt: skip
+    record = recorder.finish(outcome.status, **closing, call={"function": "mazelab.study", "arguments": call})
     columns = trace_table_columns(study_traces(outcome.records)) if plan.traces else None
     rows = [flat_row(r) for r in outcome.records]
-    return StudyResult(rows, summary, record, failures, columns, summaries, plan.varied)
+    return StudyResult(rows, closing["summary"], record, closing["failures"], columns, summaries, plan.varied)
+
+
+def study_closing(
+    plan: StudyPlan, outcome: StudyOutcome, records: Sequence[RunRecord], summaries: Sequence[StudySummary],
+    paired: str | None,
+) -> dict[str, Any]:  # fmt: skip
+    """What a study's record says at its end, the same from `mazelab study` and `mazelab.study`: the runs
+    finished (among `records`, a resumed study's kept ones too) and in the study, the failures, the summary
+    (the summary CSV's rows, `summary_rows`), the filter paired with, the backend, each process's report
+    and their start-up."""
+    return {
+        "runs_finished": len({(r.setting, r.run) for r in records}),
+        "runs_in_study": len(plan.tasks),
+        "failures": [f.describe() for f in outcome.failures],
+        "summary": summary_rows(summaries, plan.option_columns),
+        "paired": None if paired is None else resolve_filter(paired).name,
+        "backend": outcome.backend,
+        "workers": [asdict(report) for report in outcome.workers.values()],
+        "startup_seconds": round(outcome.startup_seconds, 3),
+    }
 
 
 def _dask(dask: Any) -> Any:

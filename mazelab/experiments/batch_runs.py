@@ -100,9 +100,9 @@ def run_batch(tasks: Sequence[RunTask]) -> list[list[RunRecord]]:
     with warnings.catch_warnings():  # the range warnings were shown once, by study_settings
         warnings.simplefilter("ignore", UserWarning)
         walks = [walk_of(task, world) for task in tasks]
-    particles = np.stack([inputs.particles for inputs, _ in walks])  # (R, N, 2)
-    compass = np.array([inputs.compass_angles for inputs, _ in walks])  # (R, steps)
-    z = np.array([inputs.measurements for inputs, _ in walks])
+    particles = np.stack([inputs.init_particles_pos for inputs, _ in walks])  # (R, N, 2)
+    compass = np.array([inputs.robot_compass_angles for inputs, _ in walks])  # (R, steps)
+    z = np.array([inputs.robot_measurements for inputs, _ in walks])
     results: list[dict[str, RunResult]] = [{} for _ in tasks]
     world.prepare()
     for name in tasks[0].filters:

@@ -1,18 +1,10 @@
 """How a study's runs are executed: in this process, on a local process pool, or on a Dask cluster
-through its Client's executor (`Client.get_executor`): one loop hands out units of runs to either and
-collects them as they finish, with a progress bar.
-
-The backend is chosen once, for the whole study (`study_backend`: --backend's, MAZELAB_BACKEND's, else
-by the study's work), and every unit runs on it wherever it runs: in this process, in a pool worker,
-on a Dask worker. Stopping keeps every finished run: the first Ctrl-C hands out no more units and lets
-the running ones finish (on Dask: cancels the rest); a second Ctrl-C, SIGTERM or SIGHUP ends the
-workers at once. Pool workers also end with their parent when it is killed outright (kill -9): a
-parent-death signal on Linux, a watchdog thread elsewhere. A worker that dies (kill -9, out of memory)
-restarts the pool, its unfinished units handed out again, at most MAX_POOL_RESTARTS times.
-
-A Dask cluster (`study --dask ADDRESS`, the optional extra `pip install -e ".[dask]"`) is connected in one
-line or refused, its workers asked before any run (`check_workers`), and a cluster that stops finishing
-runs is said in one line with what is left of it.
+through its Client's executor (`Client.get_executor`): one loop (`Units`) hands out units of runs to
+either and collects them as they finish, with a progress bar; on one backend for the whole study
+(`study_backend`). Stopping keeps every finished run (`Units.run`); a pool's workers end with their parent
+(`worker_setup`) and a dead one restarts the pool (`Units`); a Dask cluster (`study --dask ADDRESS`, the
+optional extra `pip install -e ".[dask]"`) is connected in one line or refused (`connect`), its workers
+asked before any run (`check_workers`).
 """
 
 from __future__ import annotations
@@ -85,7 +77,6 @@ class StudyOutcome:
     failures: list[RunFailure] = field(default_factory=list)
     interrupted: bool = False
     stopped_by: int | None = None  # the signal that stopped it (2: Ctrl-C), None if it ran to the end
-    tasks: int = 0
     lost: str | None = None  # why the study stopped early without a signal (a lost cluster or pool), one line
     workers: dict[str, WorkerReport] = field(default_factory=dict)  # each process's report, start-up summed
     backend: str = ""  # the one backend the study's runs ran on (mazelab.experiments.executor.study_backend)
@@ -107,6 +98,11 @@ class StudyOutcome:
                         on_records(outcome)
 
         return collect
+
+    @property
+    def status(self) -> str:
+        """A study that ran to its end: "finished", or "finished with failures" (a run raised)."""
+        return "finished" if not self.failures else "finished with failures"
 
     @property
     def startup_seconds(self) -> float:
@@ -295,7 +291,7 @@ def run_study(
 ) -> StudyOutcome:
     """Run every task, on `workers` processes (default: all cores) or on a Dask cluster (`dask`: its
     scheduler's address, connected and closed here, or a distributed Client), on one backend (`backend`,
-    default `study_backend`'s choice for these tasks); any stop keeps the finished runs.
+    default `study_backend`'s choice for these tasks); any stop keeps the finished runs (`Units.run`).
 
     With `visualize`, the first run is drawn in this process. A run that raises becomes a RunFailure;
     the others go on. `on_records` is handed each finished run's records as they come (the study's
@@ -307,10 +303,10 @@ def run_study(
     """
     workers = cores() if workers is None else workers
     if workers < 1:
-        raise ValueError(f"--workers must be >= 1, got {workers}")
+        raise ValueError(f"workers must be >= 1 (or None: all cores), got {workers}")
     client = connect(dask) if isinstance(dask, str) else dask  # a bad address: one line, before anything runs
     backend = backend or study_backend(tasks, workers if client is None else 1)
-    outcome = StudyOutcome(tasks=len(tasks), backend=backend)
+    outcome = StudyOutcome(backend=backend)
     try:
         if client is not None:
             check_workers(client, backend)  # workers that cannot run it, or of other versions: one line
@@ -379,8 +375,9 @@ class Units:
         self, collect: Callable[[list], None], advance: Callable[..., None], here: Callable[[], None] = lambda: None
     ) -> None:
         """Hand out the units, run `here()` (the drawn run) meanwhile, and collect every unit as it
-        finishes; the stop, a lost cluster or pool, raised again once the finished units are collected
-        and the workers ended (or, on Dask, the rest cancelled)."""
+        finishes. The first Ctrl-C hands out no more units and lets the running ones finish (on Dask:
+        cancels the rest), a second Ctrl-C, SIGTERM or SIGHUP ends the workers at once; the stop, a lost
+        cluster or pool, is raised again once the finished units are collected and the workers ended."""
         self.collect, self.advance = collect, advance
         if self.client is None and self.size <= 1:  # one worker, or one unit: in this process, in order
             here()
@@ -413,22 +410,19 @@ class Units:
     def _wait(self) -> tuple[set[Future], bool]:
         """The units finished next, and whether the pool is broken: a worker died, whether its future
         says so or not (killed while it wrote a unit's rows, the pool's thread waits for the rest of the
-        message; end_workers frees it). On Dask, a scheduler gone or `timeout` seconds without a
-        finished unit (no worker left) is a lost cluster."""
-        deadline = time.monotonic() + self.timeout if self.client is not None else math.inf  # the pool's: none
+        message; end_workers frees it). A lost cluster raises StudyLost: its scheduler gone, or `timeout`
+        seconds without a finished unit (no worker left); a local pool has no deadline."""
+        deadline = time.monotonic() + (self.timeout if self.client is not None else math.inf)
         while True:
             left = deadline - time.monotonic()
             done = wait(self.running, timeout=max(0.0, min(1.0, left)), return_when=FIRST_COMPLETED)[0]
-            if self.client is None:
-                processes = (getattr(self.pool, "_processes", None) or {}).values()  # no public API
-                broken = any(isinstance(f.exception(), BrokenProcessPool) for f in done if not f.cancelled())
-                if done or broken or not all(process.is_alive() for process in processes):
-                    return done, broken or not done
-            elif done:
-                return done, False
-            elif self.client.status not in ("running", "connecting"):
+            processes = (getattr(self.pool, "_processes", None) or {}).values()  # a local pool's (no public API)
+            broken = any(isinstance(f.exception(), BrokenProcessPool) for f in done if not f.cancelled())
+            if done or broken or not all(process.is_alive() for process in processes):
+                return done, broken or not done
+            if self.client is not None and self.client.status not in ("running", "connecting"):
                 raise StudyLost(f"lost the connection to the Dask scheduler ({self.client.status})")
-            elif left <= 1.0:
+            if left <= 1.0:
                 raise StudyLost(
                     f"no run finished on the Dask cluster within {self.timeout:g} s (--dask-timeout): "
                     f"{describe_workers(self.client)}"

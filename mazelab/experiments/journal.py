@@ -10,12 +10,9 @@ from the journal's runs at the end, in order. The journal stays beside the CSV: 
 from it (a larger --runs extends the study), and a study that finds one without --resume or --force
 is refused, as it is when another study is writing it.
 
-The journal is the program's own file: created exclusively and locked while its study runs; a
-symlink, a second name of another file (a hard link), a pipe, a device or a folder at its name is
-refused, never followed or read; it is read back only whole, as UTF-8 text that fits in memory, and a
-last line cut short by a kill is dropped (the run it held runs again). The other outputs of a study
-(the summary CSV, the record, the figure, the traces) are claimed the same way while it runs, by a
-locked `NAME.lock` beside each (`claim_outputs`): a second study given one of them is refused at once.
+The journal is the program's own file, never followed through a link nor read from a pipe or a device
+(`check_own_file`), created exclusively and locked while its study runs (`Journal`), read back whole
+(`read_journal`); the other outputs of a study are claimed by a locked NAME.lock beside each (`claim_outputs`).
 
 The record of how a result was made: a JSON file beside a study's CSV (and beside compare's and
 accuracy's outputs) with the exact command, every parameter as parsed, the root seed, the program's
@@ -127,12 +124,11 @@ def journal_state(path: Path) -> str | None:
 class Journal:
     """A journal open for appending, locked by this process: created exclusively, or an earlier one
     taken over, either to go on with it (`adopt`: a last line cut short is dropped) or, with `replace`,
-    emptied. A write error stops the appending and is kept in `error` (the study goes on, and the CSV is
-    still written at the end from the runs in memory)."""
+    emptied. A write error stops the appending (the study goes on, and the CSV is still written at the end
+    from the runs in memory)."""
 
     def __init__(self, path: str | Path, *, adopt: bool = False, replace: bool = False):
         self.path = Path(path)
-        self.error: OSError | None = None
         check_own_file(self.path)
         try:
             self._handle: int | None = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | _NOFOLLOW, 0o666)
@@ -156,8 +152,7 @@ class Journal:
         size = os.lseek(self._handle, 0, os.SEEK_END)
         try:
             write_all(self._handle, (json.dumps(line, separators=(",", ":")) + "\n").encode("utf-8"))
-        except OSError as error:  # a full disk, a file size limit: the journal cut back to its whole lines
-            self.error = self.error or error
+        except OSError:  # a full disk, a file size limit: the journal cut back to its whole lines
             with contextlib.suppress(OSError):
                 os.ftruncate(self._handle, size)
             self.close()
@@ -409,11 +404,9 @@ class Recorder:
         )
         return self.data
 
-    def write(self, path: str | Path, follow_links: bool = True) -> None:
-        """Write the record, whole (mazelab.atomic); `follow_links=False` for a partial record, which
-        is the program's own file (a symlink at its name is refused, never written through)."""
-        text = json.dumps(self.data, indent=2, allow_nan=False) + "\n"
-        write_text_atomically(path, text, follow_links=follow_links)
+    def write(self, path: str | Path) -> None:
+        """Write the record, whole (mazelab.atomic)."""
+        write_text_atomically(path, json.dumps(self.data, indent=2, allow_nan=False) + "\n")
 
 
 def differences(recorded: Mapping[str, Any], given: Mapping[str, Any], ignore: Sequence[str] = ()) -> list[str]:
@@ -451,12 +444,12 @@ def resume_study(
     sha256, each kept row against the plan (another study's rows are refused) and its backend against
     this session's (rows of two backends never mix); with traces, a run kept only with its traces."""
     recorded = journal_parameters(path, lines)
+    check_plugin_code(recorded, plan, path)  # before the parameters: its line names the file and both hashes
     changed = differences(recorded, plan.parameters(), ignore=("runs",))
     if changed:
         raise JournalError(f"--resume: the study differs from its journal ({changed[0]}); give the same parameters")
     if plan.runs < recorded["runs"]:
         raise JournalError(f"--resume: --runs {plan.runs} is fewer than the study's {recorded['runs']}")
-    check_plugin_code(recorded, plan, path)
     runs: dict[tuple[int, int], list[RunRecord]] = {}
     for number, line in enumerate(lines, start=1):
         if "run" in line:
@@ -464,7 +457,7 @@ def resume_study(
                 runs[tuple(line["run"])] = [RunRecord.from_json(row) for row in line["records"]]
             except (TypeError, KeyError, ValueError) as error:
                 raise JournalError(f"--resume: {path} line {number}: not a run's rows ({error})") from None
-    records, tasks = [r for rows in runs.values() for r in rows], plan.tasks()
+    records, tasks = [r for rows in runs.values() for r in rows], plan.tasks
     found = foreign_row(tasks, records)
     if found is not None:
         raise JournalError(

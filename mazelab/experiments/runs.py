@@ -324,7 +324,7 @@ def startup_note(seconds: float) -> str:
     """The line that says what ms/step is, and reports the start-up apart from it."""
     return (
         f"[ms/step: one run's steps of each filter, on the backend named, after untimed warm-up steps; start-up "
-        f"(numba's kernels loaded, first calls) {seconds:.2f} s, not in ms/step]"
+        f"(first calls, and numba's kernels loaded on the compiled backend) {seconds:.2f} s, not in ms/step]"
     )
 
 

@@ -2,18 +2,14 @@
 (`Y_QUANTITIES`: the mean or median last-20% error, the converged share, the distance to the exact
 posterior, the paired difference) against one varied parameter (the x axis), one line per filter and
 varied option (e.g. "RPF, bandwidth multimodal"), and one panel per combination of the other varied
-parameters, laid out as the design (maze x sigma: a row per maze, a column per sigma).
+parameters, laid out as the design (maze x sigma: a row per maze, a column per sigma; `figure_layout`).
 
-- each panel has its own y range, from 0 (or below 0 for a difference) to just above its highest
-  interval (the figure says so); a share runs from 0% to 100%;
-- a filter that does not take the x parameter (the grid filter against N) is a reference: a dashed
-  line at its value with its interval shaded, in every panel whose parameters it shares;
-- on a numeric x axis every point stays at its x (lines that overlap are told apart by marker and line
-  style); only on a categorical axis are the lines moved apart sideways (the caption says so);
-- every line has a marker and a line style of its own, so the lines stay apart in grey print;
-- the figure is PAPER_WIDTH inches wide with FONT_POINTS type (a two-column paper's full width), PNG
-  at PNG_DPI, or PDF / SVG with their text as text (the path's suffix chooses);
-- the filters' colours are the registry's (mazelab.registry.described), as in the viewer.
+Each panel has its own y range (`y_range`); a filter that does not take the x parameter (the grid filter
+against N) is a reference, a dashed line with its interval shaded (`draw_panel`); points at one x are set
+a little apart, so that their bars do not hide each other (`XScale`); every line has a marker and a line
+style of its own, so the lines stay apart in grey print, and its filter's colour in the registry
+(`panel_lines`). The figure is PAPER_WIDTH inches wide with FONT_POINTS type (a two-column paper's full
+width), PNG at PNG_DPI, or PDF / SVG with their text as text (the path's suffix chooses).
 """
 
 from __future__ import annotations
@@ -141,7 +137,6 @@ class FigureLayout:
     facets: list[str] = field(default_factory=list)  # the other varied parameters, a panel per combination
     y_ranges: list[tuple[float, float]] = field(default_factory=list)
     boxes: list[tuple[float, float, float, float]] = field(default_factory=list)
-    references: list[list[str]] = field(default_factory=list)  # per panel: the lines drawn as references
 
 
 def is_numeric(summaries: Sequence[StudySummary], parameter: str) -> bool:
@@ -261,67 +256,61 @@ def _sort_key(value: Any) -> tuple[int, Any]:
     return (0, value) if isinstance(value, numbers.Real) else (1, str(value))
 
 
-def plot_study(
-    summaries: Sequence[StudySummary], varied: Sequence[str], path: Path, title: str, *, replace: bool = True,
-    x: str | None = None, y: str = "mean", caption: bool = True,
-) -> FigureLayout:  # fmt: skip
-    """Draw the study's small multiples to `path` (.png at PNG_DPI, .pdf or .svg) and return their
-    layout with each panel's y range and box (an existing file is replaced only with `replace`). `x`
-    chooses the x axis among the varied parameters (default: `choose_x`), `y` what is drawn (a key of
-    Y_QUANTITIES); a caption under the title says how, unless `caption` is False (a user's own title)."""
-    plt = pyplot()
-    import matplotlib
-
-    exact = not all(math.isnan(s.distance_to_exact) for s in summaries)
-    quantity = figure_axes(varied, x, y, None, exact=exact, paired=any(s.paired_with for s in summaries))
-    if y == "paired":  # the filter paired with has no difference to itself; the axis names it
-        summaries = [s for s in summaries if s.paired_with]
-        quantity = dataclasses.replace(quantity, label=paired_label(summaries))
-    with matplotlib.rc_context(STYLE):
-        layout, panels = figure_layout(summaries, varied, x)
-        x, options = layout.x, layout.options
-        count = len(layout.panels)
-        rows, columns = layout.shape
-        figure, axes = plt.subplots(
-            rows, columns, figsize=(PAPER_WIDTH, PANEL_HEIGHT * rows + 1.0), squeeze=False, layout="constrained"
-        )
-        scale = XScale.of(summaries, x)
-        ranges, references = [], []
-        for k, mine in enumerate(panels.values()):
-            ax = axes[k // columns][k % columns]
-            lines = panel_lines(mine, x, options, layout.lines)
-            ranges.append(draw_panel(ax, lines, scale, layout.lines, k + 1, quantity))
-            ax.set(ylim=ranges[-1], title=layout.panels[k] or None, xlabel=axis_label(x), gid=f"panel-{k + 1}")
-            ax.grid(alpha=0.3, linewidth=0.5)
-            references.append([line.label for line in lines if line.reference])
-        for k, ax in enumerate(axes.flat):
-            ax.set_visible(k < count)
-            ax.set_ylabel(quantity.label if k % columns == 0 else "")
-        caveats = {line_label(s, []): s.log_evidence_caveat for s in summaries if s.log_evidence_caveat and
-                   y == "evidence"}  # fmt: skip
-        _legend(figure, axes.flat[:count], layout.lines, set(caveats))
-        marks = [f"* {label}: its log evidence is {why}" for label, why in caveats.items()]
-        lines = [title, *([describe(scale, count, quantity)] if caption else []), *marks]
-        figure.suptitle("\n".join(wrapped for line in lines for wrapped in textwrap.wrap(line, CAPTION_WIDTH)))
-        save_figure(figure, path, replace=replace, dpi=PNG_DPI)
-        boxes = [tuple(float(v) for v in ax.get_position().extents) for ax in axes.flat[:count]]
-    return dataclasses.replace(layout, y_ranges=ranges, boxes=boxes, references=references)
-
-
 def draw_study(
     summaries: Sequence[StudySummary], varied: Sequence[str], path: Path, runs: int, maze: str, *, x: str | None = None,
     y: str = "mean", title: str | None = None, replace: bool = True,
 ) -> FigureLayout:  # fmt: skip
-    """The study's figure as `mazelab study --plot` and `mazelab.study(...).figure` draw it: the program's
-    title (`study_title`) and caption, or `title` alone."""
-    shown = title or study_title(varied, summaries, runs, maze, x, y)
-    return plot_study(summaries, varied or ["maze"], path, shown, replace=replace, x=x, y=y, caption=title is None)
+    """Draw the study's small multiples to `path` (.png at PNG_DPI, .pdf or .svg), as `mazelab study --plot`
+    and `mazelab.study(...).figure` draw them, and return their layout with each panel's y range and box
+    (an existing file is replaced only with `replace`). `x` chooses the x axis among the varied parameters
+    (default: `choose_x`), `y` what is drawn (a key of Y_QUANTITIES); the program's title (`study_title`,
+    of `runs` per point on `maze`) with a caption under it saying how, or `title` alone."""
+    plt = pyplot()
+    import matplotlib
+
+    shown_varied = varied or ["maze"]  # nothing varied: a panel of one point per filter
+    exact = not all(math.isnan(s.distance_to_exact) for s in summaries)
+    quantity = figure_axes(shown_varied, x, y, None, exact=exact, paired=any(s.paired_with for s in summaries))
+    if y == "paired":  # the filter paired with has no difference to itself; the axis names it
+        summaries = [s for s in summaries if s.paired_with]
+        other = described(summaries[0].paired_with or "").label
+        quantity = dataclasses.replace(quantity, label=f"last-{FINAL_SHARE:.0%} error minus {other}'s (map units)")
+    with matplotlib.rc_context(STYLE):
+        layout, panels = figure_layout(summaries, shown_varied, x)
+        rows, columns = layout.shape
+        figure, axes = plt.subplots(
+            rows, columns, figsize=(PAPER_WIDTH, PANEL_HEIGHT * rows + 1.0), squeeze=False, layout="constrained"
+        )
+        scale = XScale.of(summaries, layout.x)
+        layout = draw_panels(axes, layout, list(panels.values()), scale, quantity)
+        caveats = {line_label(s, []): s.log_evidence_caveat for s in summaries if s.log_evidence_caveat and
+                   y == "evidence"}  # fmt: skip
+        _legend(figure, axes.flat[: len(layout.panels)], layout.lines, set(caveats))
+        marks = [f"* {label}: its log evidence is {why}" for label, why in caveats.items()]
+        how = [describe(scale, len(layout.panels), quantity)] if title is None else []
+        lines = [title or study_title(layout, varied, summaries, runs, maze, y), *how, *marks]
+        figure.suptitle("\n".join(wrapped for line in lines for wrapped in textwrap.wrap(line, CAPTION_WIDTH)))
+        save_figure(figure, path, replace=replace, dpi=PNG_DPI)
+        boxes = [tuple(float(v) for v in ax.get_position().extents) for ax in axes.flat[: len(layout.panels)]]
+    return dataclasses.replace(layout, boxes=boxes)
 
 
-def paired_label(summaries: Sequence[StudySummary]) -> str:
-    """The paired difference's axis: 'last-20% error minus SIR's (map units)'."""
-    other = summaries[0].paired_with or ""
-    return f"last-{FINAL_SHARE:.0%} error minus {described(other).label}'s (map units)"
+def draw_panels(
+    axes: Any, layout: FigureLayout, panels: Sequence[Sequence[StudySummary]], scale: XScale, quantity: YQuantity
+) -> FigureLayout:
+    """Each panel's lines and references (`draw_panel`), its title and axes' labels; the panels past
+    the last hidden. Returns the layout with each panel's y range."""
+    columns, ranges = layout.shape[1], []
+    for k, mine in enumerate(panels):
+        ax = axes[k // columns][k % columns]
+        lines = panel_lines(mine, layout.x, layout.options, layout.lines)
+        ranges.append(draw_panel(ax, lines, scale, layout.lines, k + 1, quantity))
+        ax.set(ylim=ranges[-1], title=layout.panels[k] or None, xlabel=axis_label(layout.x), gid=f"panel-{k + 1}")
+        ax.grid(alpha=0.3, linewidth=0.5)
+    for k, ax in enumerate(axes.flat):
+        ax.set_visible(k < len(panels))
+        ax.set_ylabel(quantity.label if k % columns == 0 else "")
+    return dataclasses.replace(layout, y_ranges=ranges)
 
 
 def describe(scale: XScale, panels: int, quantity: YQuantity) -> str:
@@ -338,11 +327,10 @@ def describe(scale: XScale, panels: int, quantity: YQuantity) -> str:
 
 
 def study_title(
-    varied: Sequence[str], summaries: Sequence[StudySummary], runs: int, maze: str, x: str | None, y: str
+    layout: FigureLayout, varied: Sequence[str], summaries: Sequence[StudySummary], runs: int, maze: str, y: str
 ) -> str:
     """The figure's first line: what is drawn against what (the x axis, then the panels' and the lines'
     parameters), and the runs per point."""
-    layout, _ = figure_layout(summaries, varied or ["maze"], x)
     against = f" against {layout.x}" if layout.x is not None and varied else " per filter"  # nothing varied: one point
     parts = [f"panels by {', '.join(layout.facets)}"] if layout.facets else []
     parts += [f"lines by filter, {', '.join(layout.options)}"] if layout.options else []

@@ -27,7 +27,7 @@ from __future__ import annotations
 import math
 import statistics
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass, fields
 from pathlib import Path
 from statistics import NormalDist
 from typing import Any
@@ -299,15 +299,6 @@ class StudySummary:
     log_evidence_caveat: str = ""  # why the filter's estimate is not of p(z_1:K) under the model ("": it is)
     backend: str = ""  # the backend its runs ran on (their ms_per_step's)
 
-    def as_dict(self) -> dict[str, object]:
-        """The summary as plain values (the setting's parameters spelled out), for a record or pandas."""
-        data = {k: v for k, v in asdict(self).items() if k != "setting"}
-        data["setting"] = data.pop("setting_index")
-        for parameter in BASE_PARAMETERS:
-            data[parameter] = self.setting.value(parameter)
-        data.update(option_cells(self.setting, self.filter))  # every option the filter ran with, one key each
-        return data
-
 
 def summarise_study(
     records: Sequence[RunRecord], settings: Sequence[StudySetting], paired: str | None = None
@@ -419,31 +410,6 @@ def recovery_summary(group: Sequence[RunRecord]) -> tuple[float | None, float | 
     return sum(r.relocalised for r in group) / len(group), statistics.median(recovered) if recovered else None
 
 
-def describe_setting(
-    setting: StudySetting, steps: int, runs: int, kidnap_at: int | None = None, varied: Sequence[str] = ()
-) -> str:
-    """The fixed parameters of a study in one line: the maze, the model's, and each option the study
-    sets (a varied one is left out: `describe_varied` says it; an option not set runs at its default)."""
-    parts = {
-        "maze": f"maze {setting.maze.label}",
-        "sigma": f"sigma {setting.sigma:g}",
-        "delta": f"delta {setting.delta:g}",
-        "particles": f"{setting.particles} particles",
-        **{name: f"{name} {show_value(value)}" for name, value in setting.options},
-    }
-    kidnapping = "" if kidnap_at is None else f", kidnapped at step {kidnap_at}"
-    fixed = [text for parameter, text in parts.items() if parameter not in varied]
-    return ", ".join([*fixed, f"{steps} steps{kidnapping}", f"{runs} runs per setting"])
-
-
-def describe_varied(settings: Sequence[StudySetting], varied: Sequence[str]) -> str:
-    """The varied parameters with their values: 'varied: sigma 0.2, 0.4; bandwidth optimal, multimodal'."""
-    if not varied:
-        return ""
-    values = {p: list(dict.fromkeys(show_value(s.value(p)) for s in settings)) for p in varied}
-    return "varied: " + "; ".join(f"{p} {', '.join(v)}" for p, v in values.items())
-
-
 def interval_note(summaries: Sequence[StudySummary] = ()) -> str:
     """The lines under the table: its intervals' methods, what converged means, and the paired columns."""
     last = max((s.last_convergence_step for s in summaries), default=0)
@@ -538,42 +504,33 @@ CSV_COLUMNS = [f.name for f in fields(RunRecord) if f.name != "options"]  # then
 # column as float64 and round a seed above 2**53 (the record says so; pandas: dtype={"maze_seed": str})
 CSV_DTYPES = {"seed": "int64", "maze_seed": "str (empty for a maze file; as float64 a seed loses digits)"}
 
-# the summary CSV's statistics, after `setting`, the study's parameters and `filter`: (column, how to read it)
-SUMMARY_STATISTICS: tuple[tuple[str, Any], ...] = (
-    ("runs", lambda s: s.runs),
-    ("mean_final_error", lambda s: s.mean_final_error),
-    ("mean_final_error_low", lambda s: s.interval[0]),
-    ("mean_final_error_high", lambda s: s.interval[1]),
-    ("median_final_error", lambda s: s.median_final_error),
-    ("median_final_error_low", lambda s: s.median_interval[0]),
-    ("median_final_error_high", lambda s: s.median_interval[1]),
-    ("converged_share", lambda s: s.converged_share),
-    ("converged_low", lambda s: s.converged_interval[0]),
-    ("converged_high", lambda s: s.converged_interval[1]),
-    ("last_convergence_step", lambda s: s.last_convergence_step),
-    ("median_convergence_step", lambda s: s.median_convergence_step),
-    ("median_convergence_step_low", lambda s: s.convergence_interval[0]),
-    ("median_convergence_step_high", lambda s: s.convergence_interval[1]),
-    ("mean_log_evidence", lambda s: s.mean_log_evidence),
-    ("log_evidence_se", lambda s: s.log_evidence_se),
-    ("log_evidence_caveat", lambda s: s.log_evidence_caveat or None),
-    ("ms_per_step", lambda s: s.ms_per_step),
-    ("backend", lambda s: s.backend),
-    ("run_seconds", lambda s: s.run_seconds),
-    ("mean_particle_count", lambda s: s.mean_particle_count),
-    ("relocalised_share", lambda s: s.relocalised_share),
-    ("relocalised_low", lambda s: (s.relocalised_interval or (None, None))[0]),
-    ("relocalised_high", lambda s: (s.relocalised_interval or (None, None))[1]),
-    ("median_steps_to_recover", lambda s: s.median_steps_to_recover),
-    ("distance_to_exact", lambda s: s.distance_to_exact),
-    ("distance_to_exact_low", lambda s: s.distance_interval[0]),
-    ("distance_to_exact_high", lambda s: s.distance_interval[1]),
-    ("paired_with", lambda s: s.paired_with),
-    ("paired_runs", lambda s: s.paired_runs or None),
-    ("mean_difference", lambda s: s.mean_difference),
-    ("difference_low", lambda s: s.difference_interval[0]),
-    ("difference_high", lambda s: s.difference_interval[1]),
+# the summary CSV's statistics, after `setting`, the study's parameters and `filter`: a StudySummary field each,
+# an interval (FIELD, NAME) as two columns, NAME_low and NAME_high
+SUMMARY_FIELDS: tuple[str | tuple[str, str], ...] = (
+    "runs", "mean_final_error", ("interval", "mean_final_error"), "median_final_error",
+    ("median_interval", "median_final_error"), "converged_share", ("converged_interval", "converged"),
+    "last_convergence_step", "median_convergence_step", ("convergence_interval", "median_convergence_step"),
+    "mean_log_evidence", "log_evidence_se", "log_evidence_caveat", "ms_per_step", "backend", "run_seconds",
+    "mean_particle_count", "relocalised_share", ("relocalised_interval", "relocalised"), "median_steps_to_recover",
+    "distance_to_exact", ("distance_interval", "distance_to_exact"), "paired_with", "paired_runs", "mean_difference",
+    ("difference_interval", "difference"),
+)  # fmt: skip
+SUMMARY_STATISTICS = tuple(
+    name for f in SUMMARY_FIELDS for name in ((f"{f[1]}_low", f"{f[1]}_high") if isinstance(f, tuple) else (f,))
 )
+
+
+def summary_statistics(s: StudySummary) -> dict[str, Any]:
+    """A summary's SUMMARY_FIELDS as cells (SUMMARY_STATISTICS): None for a missing interval, no caveat
+    and no pairs."""
+    cells: dict[str, Any] = {}
+    for spec in SUMMARY_FIELDS:
+        if isinstance(spec, tuple):
+            cells[f"{spec[1]}_low"], cells[f"{spec[1]}_high"] = getattr(s, spec[0]) or (None, None)
+        else:
+            value = getattr(s, spec)
+            cells[spec] = None if spec in ("log_evidence_caveat", "paired_runs") and not value else value
+    return cells
 
 
 def summary_rows(summaries: Sequence[StudySummary], columns: Sequence[str] = ()) -> list[dict[str, Any]]:
@@ -592,7 +549,7 @@ def summary_rows(summaries: Sequence[StudySummary], columns: Sequence[str] = ())
                 **{name: cells.get(name) for name in columns},
                 "filter": s.filter,
                 "label": described(s.filter).label,
-                **{name: read(s) for name, read in SUMMARY_STATISTICS},
+                **summary_statistics(s),
             }
         )
     return rows
@@ -600,7 +557,7 @@ def summary_rows(summaries: Sequence[StudySummary], columns: Sequence[str] = ())
 
 def summary_csv(summaries: Sequence[StudySummary], columns: Sequence[str] = ()) -> str:
     """The summary rows (`summary_rows`) as CSV: an empty cell for None, NaN and 'not reached'."""
-    header = ["setting", *BASE_PARAMETERS, *columns, "filter", "label", *(n for n, _ in SUMMARY_STATISTICS)]
+    header = ["setting", *BASE_PARAMETERS, *columns, "filter", "label", *SUMMARY_STATISTICS]
     return records_csv(summary_rows(summaries, columns), header)
 
 

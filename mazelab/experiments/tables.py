@@ -234,7 +234,8 @@ def compare_traces(results: dict[str, RunResult], seed: int, maze: str | None = 
     for name, result in results.items():
         inputs = result.inputs
         parameters = {"label": described(name).label, "log_evidence_caveat": described(name).evidence, "maze": maze,
-                      "sigma": inputs.sigma, "delta": inputs.delta, "particles": len(inputs.particles)}  # fmt: skip
+                      "sigma": inputs.sigma, "delta": inputs.delta,
+                      "particles": len(inputs.init_particles_pos)}  # fmt: skip
         blocks.append(trace_columns(None, 1, seed, name, trace_of(result), parameters))
     return blocks
 
