@@ -1,30 +1,24 @@
 """Which implementation of the hot parts a particle filter runs on, "numpy" (the reference, always there)
 or "compiled" (numba kernels, the `fast` extra: mazelab.kernels), and on how many threads. Both offer
-the same operations (mazelab.numpy_ops.NumpyKernels, mazelab.kernels.compiled's CompiledKernels): the
-move with its draws, the likelihood, systematic resampling, the normalisation with the step's reads,
-the weighted covariance, the RPF's jitter and the Weights value; the model (mazelab.model.LostRobot)
-and the weights call them, and the step (mazelab.smc) does not know which runs.
+the operations the model (mazelab.model.LostRobot) and the weights call (mazelab.numpy_ops.NumpyKernels,
+mazelab.kernels.compiled.CompiledKernels), so the step (mazelab.smc) does not know which runs.
 
-The backend, in order: `use_backend(name)` around the code, else MAZELAB_BACKEND (numpy or compiled;
-the commands' --backend sets it, so that a study's worker processes inherit it), else the choice
-`backend_by_work` made for the work around it (`simulate`, `run_model`), else "compiled" when numba
-imports. A filter takes the one chosen when it is made (`filt.backend`); every result and record says
-which ran. The compiled backend costs each process a start-up (STARTUP_SECONDS of CPU) that its faster
-steps pay back only over enough work: `backend_for_work` keeps a small run or study on numpy (numba not
-imported) when the user chose none. The numpy backend is the lab's code as it always was, bit for bit;
-the compiled one does the same arithmetic but for the sums' order, the last bit of cos and sin and its
-own random streams, so a seed repeats a run on each, and the two agree statistically.
+The backend, in order: `use_backend(name)` around the code, else MAZELAB_BACKEND (--backend sets it, so
+that a study's worker processes inherit it), else `backend_by_work`'s choice for the work around it
+(`simulate`, `run_model`), else "compiled" when numba imports. A filter takes the one chosen when it is
+made (`filt.backend`); every result and record says which ran. The compiled backend costs each process
+a start-up (STARTUP_SECONDS of CPU) that its faster steps repay only over enough work
+(`backend_for_work`). The numpy backend is the lab's code as it always was, bit for bit; the compiled
+one does the same arithmetic but for the sums' order, the last bit of cos and sin and its own random
+streams, so a seed repeats a run on each, and the two agree statistically.
 
-Threads (the compiled backend's): a filter's large calls run on `thread_count()` threads, MAZELAB_THREADS
-(--threads) when set, else the machine's cores, shared within a study (`shared_threads`: workers x
-threads <= cores); `use_threads(1)` for `exercise grade`. The count changes how soon a run ends, never
-its numbers (mazelab.kernels).
+Threads (the compiled backend's): `thread_count()`, shared within a study (`shared_threads`); the count
+changes how soon a run ends, never its numbers (mazelab.kernels).
 """
 
 from __future__ import annotations
 
 import importlib.metadata
-import importlib.util
 import os
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -55,11 +49,9 @@ def numba_available() -> bool:
     -------
     bool
     """
-    if importlib.util.find_spec("numba") is None:
-        return False
     try:
         import numba  # noqa: F401
-    except Exception:  # a numba that does not import with this numpy or Python counts as none
+    except Exception:  # none, or a numba that does not import with this numpy or Python
         return False
     return True
 
@@ -329,29 +321,3 @@ def kernels_for(world: Any, name: str | None = None) -> Any:
 
 
 NUMPY_KERNELS = NumpyKernels()
-
-
-__all__ = [
-    "BACKENDS",
-    "ENVIRONMENT_VARIABLE",
-    "INSTALL_HINT",
-    "NUMPY_KERNELS",
-    "SAVED_PER_PARTICLE",
-    "SAVED_PER_STEP",
-    "STARTUP_SECONDS",
-    "THREADS_VARIABLE",
-    "backend_by_work",
-    "backend_for_work",
-    "backend_of",
-    "backend_versions",
-    "check_backend",
-    "check_threads",
-    "chosen_backend",
-    "cores",
-    "kernels_for",
-    "numba_available",
-    "shared_threads",
-    "thread_count",
-    "use_backend",
-    "use_threads",
-]

@@ -28,13 +28,16 @@ import sys
 import threading
 import warnings
 from collections.abc import Callable
+from functools import cache
 from pathlib import Path
 from typing import Any
 
 import numba
+from numba import types
 from numba.core.caching import FunctionCache, IndexDataCacheFile
 from numba.core.compiler import Compiler
 from numba.core.runtime import rtsys
+from numba.extending import intrinsic
 
 CHUNK = 4096  # particles a chunk: what a thread takes at a time, and what fixes the draws' and the sums' order
 # particles in a call from which it runs on the threads (benchmarks/threads.py, docs/speed.md): a pass over
@@ -63,14 +66,11 @@ _LAYER = threading_layer()  # TBB's library loaded where it is installed, for a 
 if "NUMBA_THREADING_LAYER" not in os.environ:  # the user's choice stands
     numba.config.THREADING_LAYER = _LAYER
 
-_warned: set[str] = set()
 
-
+@cache
 def _warn_once(message: str) -> None:
     """One warning per process for each message (the CLI prints it as one line)."""
-    if message not in _warned:
-        _warned.add(message)
-        warnings.warn(message, stacklevel=3)
+    warnings.warn(message, stacklevel=3)
 
 
 def sources_digest(folder: Path) -> str:
@@ -191,6 +191,33 @@ class Kernel:
             finally:
                 _LAUNCH.release()
         return self.serial(*args)
+
+
+@intrinsic
+def scratch(typingctx, shape, dtype):  # pragma: no cover - compiled
+    """An uninitialised C-order array of `shape` (an int or a tuple of ints) and `dtype`, np.empty's,
+    allocated by numba's runtime here: np.empty's implementation (and reshape's) carry environments that
+    make a kernel loaded from the cache import numba's array modules (some 25 ms of a process's start-up)."""
+    from numba.core import cgutils
+    from numba.np.arrayobj import make_array, populate_array  # building the kernel only
+
+    sizes_of = list(shape) if isinstance(shape, types.BaseTuple) else [shape]
+    array_type = types.Array(dtype.dtype, len(sizes_of), "C")
+
+    def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
+        values = cgutils.unpack_tuple(builder, args[0]) if isinstance(shape, types.BaseTuple) else [args[0]]
+        sizes = [context.cast(builder, v, t, types.intp) for v, t in zip(values, sizes_of, strict=True)]
+        item = context.get_data_type(array_type.dtype)
+        strides = [context.get_constant(types.intp, context.get_abi_sizeof(item))]
+        for size in reversed(sizes[1:]):
+            strides.insert(0, builder.mul(strides[0], size))
+        meminfo = context.nrt.meminfo_alloc_aligned(builder, builder.mul(strides[0], sizes[0]), 32)
+        array = make_array(array_type)(context, builder)
+        data = builder.bitcast(context.nrt.meminfo_data(builder, meminfo), item.as_pointer())
+        populate_array(array, data=data, shape=sizes, strides=strides, itemsize=strides[-1], meminfo=meminfo)
+        return array._getvalue()
+
+    return array_type(shape, dtype), codegen
 
 
 @inline

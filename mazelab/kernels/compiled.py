@@ -21,7 +21,7 @@ from mazelab.constants import CONFIDENCE_RADIUS, PARTICLE_DTYPE
 from mazelab.kernels import model, resampling, weights
 from mazelab.numpy_ops import NumpyKernels
 from mazelab.regularisation import GaussianKernel
-from mazelab.smc import new_particles, particles_array
+from mazelab.smc import UNSIGNED, new_particles, particles_array
 from mazelab.weights import Weights, log_sum_exp, read_only
 
 EVERY_RUN = np.empty(0, dtype=bool)  # the move's `moving` when every run draws (model.move)
@@ -31,13 +31,13 @@ QUADS = 4  # the candidates of a lookup cell the likelihood's vectorised loop re
 def unsigned(indices: np.ndarray) -> np.ndarray:
     """Indices the engine checked to lie in [0, N) as unsigned integers of their size (a view): a kernel
     then checks no gather by them for wrap-around."""
-    return indices.view(f"u{indices.itemsize}")
+    return indices.view(UNSIGNED[indices.itemsize])
 
 
 def planes(x: np.ndarray) -> np.ndarray:
     """(R, N, 2) particles as the (2, R*N) array the kernels read: the x coordinates, then the y ones (a
-    view of particles in their layout: smc.particles_array)."""
-    return np.asfortranarray(x.reshape(-1, 2)).T
+    view of particles in their layout, smc.particles_array; a copy of others)."""
+    return x.transpose(2, 0, 1).reshape(2, -1)
 
 
 def keys_of(rngs: Any) -> np.ndarray:

@@ -19,7 +19,7 @@ import math
 import numpy as np
 from numba import prange
 
-from mazelab.kernels import Kernel, chunk_of, chunks, inline
+from mazelab.kernels import Kernel, chunk_of, chunks, inline, scratch
 from mazelab.kernels.vector_math import cos_sin, log64, random_bits, uniform32, uniform64
 
 F32 = np.float32
@@ -154,7 +154,7 @@ def log_likelihood(xy, z, sigma, free_term, outside_term, tables, out):  # pragm
     sigma, free_term, outside_term, typed = F32(sigma), F32(free_term), F32(outside_term), _typed(tables)
     runs, size = out.shape
     blocks, jobs = chunks(runs, size)
-    x, y, left = xy[0], xy[1], np.empty(runs * size, tables[4].dtype)  # left: what each point leaves open
+    x, y, left = xy[0], xy[1], scratch(runs * size, tables[4].dtype)  # left: what each point leaves open
     for job in prange(jobs):
         r, start, stop = chunk_of(job, blocks, size)
         zr, first, last, values = F32(z[r]), r * size + start, r * size + stop, out[r, start:stop]

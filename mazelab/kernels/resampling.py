@@ -22,7 +22,7 @@ import math
 import numpy as np
 from numba import prange
 
-from mazelab.kernels import Kernel, chunk_of, chunks, inline
+from mazelab.kernels import Kernel, chunk_of, chunks, inline, scratch
 
 
 @inline
@@ -51,7 +51,8 @@ def systematic(weights, u, out):  # pragma: no cover - compiled
     runs, size = weights.shape
     count = out.shape[1]
     blocks, jobs = chunks(runs, size)
-    bases, stops = np.zeros((runs, blocks + 1)), np.empty((runs, blocks + 1), dtype=np.int64)
+    bases = scratch((runs, blocks + 1), np.float64)  # each value written first
+    stops = scratch((runs, blocks + 1), np.int64)
     for job in prange(jobs if blocks > 1 else 0):  # each block's total, in order (a run of one block: none read)
         r, start, stop = chunk_of(job, blocks, size)
         total, part = 0.0, weights[r, start:stop]  # float64 whatever the weights' dtype

@@ -30,7 +30,7 @@ import math
 import numpy as np
 from numba import prange
 
-from mazelab.kernels import Kernel, chunk_of, chunks, inline
+from mazelab.kernels import Kernel, chunk_of, chunks, inline, scratch
 from mazelab.kernels.vector_math import exp32
 
 LANES = 16  # partial sums each sum keeps in a chunk: their order is this code's, not the compiler's
@@ -53,7 +53,8 @@ def _top(values):  # pragma: no cover - compiled
     """max of the 1-D `values` in their dtype (-inf for none) from LANES running maxima, which the
     compiler vectorises (numba's own max checks each value for NaN: four times the time); a NaN is
     passed over here (its exponential makes the run's total NaN: `_combine` checks the total)."""
-    maxima = np.full(LANES, -np.inf, dtype=values.dtype)
+    maxima = scratch(LANES, values.dtype)  # np.full's broadcast would import numba's ufunc modules
+    maxima[:] = -np.inf
     full = len(values) // LANES * LANES
     for block in range(0, full, LANES):  # each loop from 0: numba checks no index of it for wrap-around
         for j in range(LANES):
@@ -64,6 +65,16 @@ def _top(values):  # pragma: no cover - compiled
     for i in range(full, len(values)):
         top = max(values[i], top)
     return top
+
+
+@inline
+def _holds_nan(values):  # pragma: no cover - compiled
+    """np.isnan(values).any() of 1-D `values` by a loop: numpy's form would make a kernel loaded from the
+    cache import a dozen of numba's ufunc and array-math modules (some 15 ms of a process's start-up)."""
+    nan = False
+    for value in values:
+        nan |= value != value
+    return nan
 
 
 @inline
@@ -84,7 +95,7 @@ def _exponentials_and_moments(log_w, top, xs, ys, w, lanes):  # pragma: no cover
     lanes[:, :] = 0.0
     if top == -np.inf:
         w[:] = 0.0
-        lanes[0, 0] = np.nan if np.isnan(log_w).any() else 0.0
+        lanes[0, 0] = np.nan if _holds_nan(log_w) else 0.0
         return
     for i in range(len(log_w)):
         w[i] = exp32(_F32(log_w[i] - top))
@@ -132,7 +143,8 @@ def normalise(log_w, log_a, shifts, log_g, xy, radius, w, reads):  # pragma: no 
     NaN) gets its top as total and NaN reads."""
     runs, size = log_w.shape
     blocks, jobs = chunks(runs, size)
-    x, y, lanes, scales = xy[0], xy[1], np.empty((jobs, 5, LANES)), np.empty(jobs)  # each chunk's sums and top
+    x, y = xy[0], xy[1]
+    lanes, scales = scratch((jobs, 5, LANES), np.float64), scratch(jobs, np.float64)  # each chunk's sums and top
     r2 = _F32(radius * radius)
     for job in prange(jobs):  # each chunk's log w, top, exponentials and sums
         r, start, stop = chunk_of(job, blocks, size)
@@ -179,7 +191,7 @@ def _combine(row, reads, r, lanes, scales):  # pragma: no cover - compiled
         sum_x += _lane_total(lanes[c, 2]) * scale
         sum_y += _lane_total(lanes[c, 3]) * scale
     if total != total:  # every weight is 0, or a NaN: no normalisation (the filter restarts it)
-        reads[0, r] = np.nan if np.isnan(row).any() else top  # numpy's log_sum_exp: NaN, else -inf or +inf
+        reads[0, r] = np.nan if _holds_nan(row) else top  # numpy's log_sum_exp: NaN, else -inf or +inf
         reads[1, r] = reads[2, r] = reads[3, r] = reads[4, r] = np.nan
         for c in range(len(scales)):
             scales[c] = np.nan
@@ -214,7 +226,11 @@ def covariance(weights, xy, out):  # pragma: no cover - compiled
     covariance S - s e^T - e s^T + (sum W) e e^T (s = sum W d)."""
     runs, size = weights.shape
     blocks, jobs = chunks(runs, size)
-    x, y, parts = xy[0], xy[1], np.empty((jobs, 6))  # each chunk's sums of W, W dx, W dy, W dx dx, W dx dy, W dy dy
+    x, y, parts = (
+        xy[0],
+        xy[1],
+        scratch((jobs, 6), np.float64),
+    )  # each chunk's sums of W, W dx, W dy, W dx dx, W dx dy, W dy dy
     for job in prange(jobs):
         r, start, stop = chunk_of(job, blocks, size)
         first, w = r * size, weights[r, start:stop]
