@@ -199,7 +199,8 @@ def test_resume_refuses_rows_of_other_code(tmp_path, capsys):
 def test_the_chosen_backend_reaches_every_dask_worker_whatever_its_own(tmp_path, capsys):
     """Workers started with different MAZELAB_BACKEND run the study's one backend (--backend, sent with
     every unit): every row says it, and the rows are the local study's bit for bit."""
-    scheduler = {"cls": distributed.Scheduler, "options": {"host": "127.0.0.1", "dashboard_address": None}}
+    # its HTTP routes on 127.0.0.1 and a free port (None would take 8787 on every interface)
+    scheduler = {"cls": distributed.Scheduler, "options": {"host": "127.0.0.1", "dashboard_address": "127.0.0.1:0"}}
     workers = {
         name: {"cls": distributed.Nanny, "options": {"nthreads": 1, "env": {"MAZELAB_BACKEND": backend}}}
         for name, backend in (("a", "numpy"), ("b", "compiled"))
