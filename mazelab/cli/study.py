@@ -54,9 +54,8 @@ from mazelab.experiments.api import StudyPlan, maze_description, plan_study, stu
 from mazelab.experiments.executor import (
     DASK_TIMEOUT,
     StudyOutcome,
-    check_workers,
     close_client,
-    connect,
+    open_cluster,
     run_study,
     study_backend,
 )
@@ -341,9 +340,7 @@ def open_session(plan: StudyPlan, files: StudyFiles, backend: str, header: str, 
     session = StudySession(plan, files, tasks, kept, backend, None, None, recorder, claim_outputs(claimed))
     try:
         session.journal = Journal(files.journal, adopt=files.resume, replace=files.force) if files.journal else None
-        session.client = connect(dask) if dask is not None else None  # a bad address: one line and exit 2
-        if session.client is not None:
-            check_workers(session.client, backend)  # workers that cannot run the backend, or of other versions
+        session.client = open_cluster(dask, backend)  # a bad address, or workers that cannot run it: one line
     except BaseException:
         session.close()
         raise
@@ -439,14 +436,14 @@ def report_stopped(session: StudySession, outcome: StudyOutcome, records: list[R
     exit_stopped(outcome, closing["runs_finished"], closing["runs_in_study"], saved)
 
 
-def exit_stopped(outcome: StudyOutcome, finished: int, total: int, saved: str = "") -> None:
-    """The line and the exit of a study or an accuracy that did not run to its end: a lost cluster or pool,
-    exit 1; a stop, exit 128 + its signal (130 Ctrl-C, 143 SIGTERM, 129 SIGHUP; further stops are ignored,
-    run_study)."""
+def exit_stopped(outcome: StudyOutcome, finished: int, total: int, saved: str = "", what: str = "runs") -> None:
+    """The line and the exit of a study, an accuracy or learn's cells (`what`) that did not run to its end: a
+    lost cluster or pool, exit 1; a stop, exit 128 + its signal (130 Ctrl-C, 143 SIGTERM, 129 SIGHUP; further
+    stops are ignored, run_study)."""
     if outcome.lost is not None:
-        typer.echo(f"error: {outcome.lost}; {finished} of {total} runs finished{saved}", err=True)
+        typer.echo(f"error: {outcome.lost}; {finished} of {total} {what} finished{saved}", err=True)
         raise typer.Exit(1)
-    typer.echo(f"interrupted after {finished} of {total} runs{saved}", err=True)
+    typer.echo(f"interrupted after {finished} of {total} {what}{saved}", err=True)
     raise typer.Exit(128 + (outcome.stopped_by or signal.SIGINT))
 
 

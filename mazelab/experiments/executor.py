@@ -290,8 +290,9 @@ def run_study(
     backend: str | None = None,
 ) -> StudyOutcome:
     """Run every task, on `workers` processes (default: all cores) or on a Dask cluster (`dask`: its
-    scheduler's address, connected and closed here, or a distributed Client), on one backend (`backend`,
-    default `study_backend`'s choice for these tasks); any stop keeps the finished runs (`Units.run`).
+    scheduler's address, connected, checked (`open_cluster`) and closed here, or a distributed Client that
+    `open_cluster` gave), on one backend (`backend`, default `study_backend`'s choice for these tasks); any
+    stop keeps the finished runs (`run_units`).
 
     With `visualize`, the first run is drawn in this process. A run that raises becomes a RunFailure;
     the others go on. `on_records` is handed each finished run's records as they come (the study's
@@ -301,26 +302,23 @@ def run_study(
     without a finished unit) or a pool whose workers keep dying ends the study early: outcome.lost
     says why, in one line.
     """
-    workers = cores() if workers is None else workers
-    if workers < 1:
-        raise ValueError(f"workers must be >= 1 (or None: all cores), got {workers}")
-    client = connect(dask) if isinstance(dask, str) else dask  # a bad address: one line, before anything runs
-    backend = backend or study_backend(tasks, workers if client is None else 1)
+    workers = worker_count(workers)
+    backend = backend or study_backend(tasks, workers if dask is None else 1)
+    client = open_cluster(dask, backend) if isinstance(dask, str) else dask  # a bad address: one line
     outcome = StudyOutcome(backend=backend)
+    drawn, rest = (list(tasks[:1]), list(tasks[1:])) if visualize else ([], list(tasks))
+    threads = shared_threads(workers, client)  # the runs at once x their threads <= cores
+    work = functools.partial(run_unit_timed, backend=backend, threads=threads)
+    units = Units(study_units(rest, 1 if client is not None else workers), work, workers, client, dask_timeout)
+    collect = outcome.collector(on_records)
+
+    def here(advance: Callable[..., None]) -> None:  # the drawn run, in this process where the viewer is
+        for task in drawn:
+            collect(run_unit_timed((task,), backend, visualize, threads))
+            advance()
+
     try:
-        if client is not None:
-            check_workers(client, backend)  # workers that cannot run it, or of other versions: one line
-        keep_ignoring = lambda: ignore_signals_after_stop and outcome.interrupted  # noqa: E731
-        with progress_bar(len(tasks), progress) as advance, stop_signals(keep_ignoring):
-            try:
-                run_tasks(tasks, workers, client, backend, visualize, dask_timeout, outcome.collector(on_records),
-                          advance)  # fmt: skip
-            except StudyLost as lost:
-                outcome.lost = str(lost)
-            except KeyboardInterrupt as stop:
-                if ignore_signals_after_stop:
-                    _ignore(STOP_SIGNALS)
-                outcome.interrupted, outcome.stopped_by = True, getattr(stop, "signum", signal.SIGINT)
+        run_units(outcome, units, collect, len(tasks), progress, here=here, ignore_after_stop=ignore_signals_after_stop)
     finally:
         if isinstance(dask, str):
             close_client(client)
@@ -328,21 +326,46 @@ def run_study(
     return outcome
 
 
-def run_tasks(tasks: Sequence[RunTask], workers: int, client: Any, backend: str, visualize: Any, timeout: float,
-              collect: Callable[[list], None], advance: Callable[..., None]) -> None:  # fmt: skip
-    """The tasks in units (mazelab.experiments.batch_runs.study_units) on `backend`, the drawn one (with
-    `visualize`, the first) in this process while the pool or the cluster runs the rest."""
-    drawn, rest = (list(tasks[:1]), list(tasks[1:])) if visualize else ([], list(tasks))
-    units = study_units(rest, 1 if client is not None else workers)
-    threads = shared_threads(workers, client)  # the runs at once x their threads <= cores
-    work = functools.partial(run_unit_timed, backend=backend, threads=threads)
+def worker_count(workers: int | None) -> int:
+    """The processes of a study: `workers`, or all cores for None; fewer than one is one line."""
+    if workers is not None and workers < 1:
+        raise ValueError(f"workers must be >= 1 (or None: all cores), got {workers}")
+    return cores() if workers is None else workers
 
-    def here() -> None:
-        for task in drawn:
-            collect(run_unit_timed((task,), backend, visualize, threads))
-            advance()
 
-    Units(units, work, workers, client, timeout).run(collect, advance, here)
+def open_cluster(dask: Any, backend: str) -> Any:
+    """The Dask client of `dask` (an address, connected here, or a distributed.Client), its workers asked
+    once, before any run, whether they can run the study's `backend` (`check_workers`); None without
+    `dask`. A client connected here is closed again when its workers are refused."""
+    if dask is None:
+        return None
+    client = connect(dask) if isinstance(dask, str) else dask  # a bad address: one line, before anything runs
+    try:
+        check_workers(client, backend)  # workers that cannot run it, or of other versions: one line
+    except BaseException:
+        if isinstance(dask, str):
+            close_client(client)
+        raise
+    return client
+
+
+def run_units(outcome: StudyOutcome, units: Units, collect: Callable[[list], None], total: int, progress: bool,
+              what: str = "runs", here: Callable[..., None] = lambda advance: None,
+              ignore_after_stop: bool = False) -> None:  # fmt: skip
+    """Run the units (`Units.run`, `here(advance)` in this process meanwhile) with a progress bar over
+    `total` `what`; SIGTERM and SIGHUP stop them as Ctrl-C does (`stop_signals`), and a stop sets
+    outcome.interrupted and outcome.stopped_by, a lost cluster or pool outcome.lost (the finished units
+    collected either way); with `ignore_after_stop`, the stop signals are ignored after a stop."""
+    keep_ignoring = lambda: ignore_after_stop and outcome.interrupted  # noqa: E731
+    with progress_bar(total, progress, what) as advance, stop_signals(keep_ignoring):
+        try:
+            units.run(collect, advance, functools.partial(here, advance))
+        except StudyLost as lost:
+            outcome.lost = str(lost)
+        except KeyboardInterrupt as stop:
+            if ignore_after_stop:
+                _ignore(STOP_SIGNALS)
+            outcome.interrupted, outcome.stopped_by = True, getattr(stop, "signum", signal.SIGINT)
 
 
 class Units:
