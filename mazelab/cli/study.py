@@ -74,7 +74,7 @@ from mazelab.experiments.journal import (
     resume_study,
 )
 from mazelab.experiments.runs import parse_filters
-from mazelab.experiments.study import MazeChoice, RunRecord, RunTask
+from mazelab.experiments.study import MazeChoice, RunRecord, RunTask, study_order
 from mazelab.experiments.summary import CSV_DTYPES, study_table, summarise_study, summary_csv, summary_path
 from mazelab.experiments.tables import records_csv, study_traces, write_traces
 from mazelab.invocation import command_line, resume_command
@@ -361,9 +361,7 @@ def report_study(session: StudySession, outcome: StudyOutcome, figure: dict[str,
     plan, files = session.plan, session.files
     for failure in outcome.failures:
         typer.echo(f"error: {failure.describe()}", err=True)
-    names = [getattr(f, "name", f) for f in plan.filters]  # rows in (setting, run, filter) order
-    order = {name: i for i, name in enumerate(dict.fromkeys([*names, *(r.filter for r in outcome.records)]))}
-    records = sorted([*session.kept, *outcome.records], key=lambda r: (r.setting, r.run, order[r.filter]))
+    records = study_order([*session.kept, *outcome.records], plan.tasks)
     summaries = summarise_study(records, plan.settings, paired=figure["paired"])
     closing = study_closing(plan, outcome, records, summaries, figure["paired"])
     if files.summary_csv is not None:
@@ -503,7 +501,7 @@ def report_accuracy(session: StudySession, rows: tuple[AccuracyFilter, ...], out
     status = "interrupted" if stopped else "finished"
     for failure in outcome.failures:
         typer.echo(f"error: {failure.describe()}", err=True)
-    records = accuracy_records(sorted([*session.kept, *outcome.records], key=lambda r: (r.setting, r.run)), rows)
+    records = accuracy_records(study_order([*session.kept, *outcome.records], session.plan.tasks), rows)
     runs = len({(r["maze"], r["run"]) for r in records})
     if records:
         typer.echo(accuracy_table(records))

@@ -33,7 +33,7 @@ from mazelab.backend import backend_for_work, chosen_backend, cores, shared_thre
 from mazelab.experiments.batch_runs import MAX_BATCH, run_unit_safely, study_units
 from mazelab.experiments.journal import dependency_versions
 from mazelab.experiments.runs import take_startup_seconds
-from mazelab.experiments.study import RunFailure, RunRecord, RunTask, run_task_safely
+from mazelab.experiments.study import RunFailure, RunRecord, RunTask, run_task_safely, study_order
 from mazelab.stops import STOP_SIGNALS, signal_handlers
 
 REPORTED_PACKAGES = ("numpy", "numba", "llvmlite")  # the versions a worker reports with its backend
@@ -109,10 +109,10 @@ class StudyOutcome:
         """The start-up of every process that ran runs (numba's load, first-call warm-ups), summed."""
         return sum(report.startup_seconds for report in self.workers.values())
 
-    def sort(self) -> None:
-        """Records in (setting, run, filter order) order, whatever order the workers finished in."""
-        order = {name: i for i, name in enumerate(dict.fromkeys(r.filter for r in self.records))}
-        self.records.sort(key=lambda r: (r.setting, r.run, order[r.filter]))
+    def sort(self, tasks: Sequence[RunTask]) -> None:
+        """Records in the study's order (`study_order`), failures by setting and run, whatever order the
+        workers finished in."""
+        self.records = study_order(self.records, tasks)
         self.failures.sort(key=lambda f: (f.task.setting_index, f.task.run))
 
 
@@ -322,7 +322,7 @@ def run_study(
     finally:
         if isinstance(dask, str):
             close_client(client)
-    outcome.sort()
+    outcome.sort(tasks)
     return outcome
 
 

@@ -410,6 +410,13 @@ def _listed(value: Any) -> Any:
     return np.asarray(value).tolist()
 
 
+def study_order(records: Sequence[RunRecord], tasks: Sequence[RunTask]) -> list[RunRecord]:
+    """The records in (setting, run, filter) order, the filters in the study's order (its tasks'): the
+    order of the CSV, `mazelab.study`'s rows, the summary and the table, however the runs finished."""
+    order = {name: i for i, name in enumerate(dict.fromkeys(n for task in tasks for n in task.row_filters()))}
+    return sorted(records, key=lambda r: (r.setting, r.run, order.get(r.filter, len(order))))
+
+
 @dataclass
 class RunFailure:
     """A run that raised: which one, its seeds, and the error on one line."""
