@@ -16,10 +16,12 @@ Figures of one run:
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import math
 import time
 import warnings
 from collections.abc import Callable, Hashable, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -232,27 +234,62 @@ def run_filters(
     return results
 
 
+@dataclass(frozen=True)
+class Figure:
+    """A column of a study's rows after its filter (a RunRecord field, a CSV column): a figure of one
+    filter's run, computed by `of(result, entry)` from its RunResult and its filter's registry entry (None:
+    a cell the study sets, of the run's scenario or its timing; `default` its value until then, REQUIRED:
+    none, every RunRecord is made with it), and how a study summarises it: with `summary` "mean", the mean
+    over the runs that have one, a summary CSV column of its name and a table column `header` (each value
+    in `spec`, shown where a run has one); "interval" adds its BCa bootstrap interval (NAME_low, NAME_high).
+    The figures summarised by statistics of their own (the final error, convergence, re-localisation, log
+    evidence) leave `summary` None (mazelab.experiments.summary)."""
+
+    name: str
+    of: Callable[[RunResult, Any], Any] | None = None
+    default: Any = None
+    summary: str | None = None
+    header: str = ""
+    spec: str = "{:.3f}"
+
+
+REQUIRED = dataclasses.MISSING  # a Figure's `default`: none (every RunRecord is made with the figure)
+
+
+def _kidnapped(figure: Callable[[RunResult], Any]) -> Callable[[RunResult, Any], Any]:
+    """A figure of a kidnapped run, None without a kidnapping."""
+    return lambda result, entry: None if result.kidnap_at is None else figure(result)
+
+
+FIGURES = (  # in the CSV's order; a new figure of a run is one more line here (and its words in docs/studies.md)
+    Figure("final_error", lambda r, e: final_error(r.errors), REQUIRED),  # the last-20% error, map units
+    Figure("mean_error", lambda r, e: float(r.errors.mean()), REQUIRED),
+    Figure("converged_at", lambda r, e: r.converged_at, REQUIRED),  # convergence_step of the errors; None: never
+    Figure("mean_ess", lambda r, e: mean_ess(r), REQUIRED),  # NaN for the grid filter
+    Figure("ms_per_step", lambda r, e: 1e3 * float(r.step_seconds.mean()), REQUIRED),
+    Figure("kidnap_at"),  # the step the robot is kidnapped at
+    Figure("relocalised", _kidnapped(relocalised), None),
+    Figure("steps_to_recover", _kidnapped(recovery_steps), None),  # None: never, or no kidnapping
+    Figure("mean_particle_count", lambda r, e: float(np.mean(r.extras["particle_count"])), math.nan),  # KLD varies it
+    Figure("maze_sha256"),  # of the maze file's bytes; a generated maze's: of its grid as maze text
+    Figure("maze_rows", default=0),  # the run's maze size
+    Figure("maze_columns", default=0),
+    Figure("wall_share"),  # a generated maze's requested share of walls; None for a file
+    Figure("run_seconds", default=math.nan),  # wall time of the run: its share of the unit of runs it ran in
+    # with `study --reference grid`: the distance of the filter's estimates to the exact posterior means
+    Figure("distance_to_exact", default=math.nan, summary="interval", header="dist. to exact"),
+    Figure("log_evidence", lambda r, e: math.nan if r.log_evidence is None else float(r.log_evidence[-1]), math.nan),
+    Figure("log_evidence_caveat", lambda r, e: e.evidence, ""),  # why it is not of p(z_1:K) (the registry's)
+    Figure("label", lambda r, e: e.label, ""),  # the filter's label in the registry (SIR, APF, ...)
+    Figure("backend", lambda r, e: r.extras.get("backend", "numpy"), ""),  # as the process that ran it says
+)
+
+
 def run_figures(name: str, result: RunResult) -> dict[str, Any]:
-    """The figures of filter `name`'s run, by the study CSV's names (every table and record of a run reads
-    them here): last-20% and mean error, convergence step, mean ESS, ms per step, with a kidnapping whether
-    it re-localised and its steps to recover (None without), mean particle count, the final log evidence
-    and why it is not of p(z_1:K) under the model (the registry's caveat), its label and its backend."""
+    """The figures of filter `name`'s run (FIGURES), by the study CSV's names: every table and record of a
+    run reads them here."""
     entry = described(name)
-    kidnapped = result.kidnap_at is not None
-    return {
-        "final_error": final_error(result.errors),
-        "mean_error": float(result.errors.mean()),
-        "converged_at": result.converged_at,
-        "mean_ess": mean_ess(result),
-        "ms_per_step": 1e3 * float(result.step_seconds.mean()),
-        "relocalised": relocalised(result) if kidnapped else None,
-        "steps_to_recover": recovery_steps(result) if kidnapped else None,
-        "mean_particle_count": float(np.mean(result.extras["particle_count"])),  # KLD-sampling varies it
-        "log_evidence": math.nan if result.log_evidence is None else float(result.log_evidence[-1]),
-        "log_evidence_caveat": entry.evidence,
-        "label": entry.label,
-        "backend": result.extras.get("backend", "numpy"),
-    }
+    return {figure.name: figure.of(result, entry) for figure in FIGURES if figure.of is not None}
 
 
 # -- comparing the filters on one saved scenario (lab steps 12-13) ---------------------------------

@@ -70,7 +70,7 @@ Y_QUANTITIES = {
     "converged": YQuantity("runs converged (%)", lambda s: s.converged_share, lambda s: s.converged_interval,
                            "Wilson score intervals for the share", share=True),
     "exact": YQuantity("distance to the exact posterior mean (map units)", lambda s: s.distance_to_exact,
-                       lambda s: s.distance_interval, "BCa bootstrap intervals for the mean distance"),
+                       lambda s: s.distance_to_exact_interval, "BCa bootstrap intervals for the mean distance"),
     "paired": YQuantity(f"paired difference in last-{FINAL_SHARE:.0%} error (map units)",
                         lambda s: s.mean_difference, lambda s: s.difference_interval,
                         "paired BCa bootstrap intervals for the mean difference", signed=True),

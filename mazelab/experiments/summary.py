@@ -27,7 +27,7 @@ from __future__ import annotations
 import math
 import statistics
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from statistics import NormalDist
 from typing import Any
@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from mazelab.declaration import show_value
-from mazelab.experiments.runs import FINAL_SHARE, is_particle_filter
+from mazelab.experiments.runs import FIGURES, FINAL_SHARE, is_particle_filter
 from mazelab.experiments.study import (
     BASE_PARAMETERS,
     RunRecord,
@@ -262,6 +262,8 @@ def wilson_interval(successes: int, trials: int, level: float = CONFIDENCE_LEVEL
 
 
 Interval = tuple[float, float]
+SUMMARISED = [figure for figure in FIGURES if figure.summary]  # the figures a study summarises by their mean
+NO_FIGURES = {k: v for f in SUMMARISED for k, v in ((f.name, math.nan), (f"{f.name}_interval", (math.nan, math.nan)))}
 
 
 # -- a study's statistics ---------------------------------------------------------------------------
@@ -288,8 +290,6 @@ class StudySummary:
     run_seconds: float = math.nan  # mean wall time per run
     convergence_interval: Interval = (math.nan, math.nan)  # the KM median's interval; NaN: not reached
     last_convergence_step: int = 0  # the last step a convergence can count from (steps - K + 1): the censoring time
-    distance_to_exact: float = math.nan  # mean over the runs of the distance to the exact posterior mean
-    distance_interval: Interval = (math.nan, math.nan)  # its BCa bootstrap interval
     paired_with: str | None = None  # the filter the paired difference is taken to (`--paired`)
     paired_runs: int = 0  # runs in both (the pairs)
     mean_difference: float = math.nan  # mean over the pairs of (this filter's - paired_with's) last-20% error
@@ -298,6 +298,15 @@ class StudySummary:
     log_evidence_se: float = math.nan  # its standard error: the runs' standard deviation / sqrt(runs)
     log_evidence_caveat: str = ""  # why the filter's estimate is not of p(z_1:K) under the model ("": it is)
     backend: str = ""  # the backend its runs ran on (their ms_per_step's)
+    # the figures summarised by their mean (Figure.summary): NAME the mean over the runs that have one (NaN:
+    # none), NAME_interval its BCa bootstrap interval for "interval"; read as attributes (s.distance_to_exact)
+    figures: dict[str, Any] = field(default_factory=lambda: dict(NO_FIGURES))
+
+    def __getattr__(self, name: str) -> Any:
+        try:
+            return self.__dict__["figures"][name]
+        except KeyError:
+            raise AttributeError(name) from None
 
 
 def summarise_study(
@@ -337,8 +346,10 @@ def summarise_group(index: int, setting: StudySetting, name: str, group: Sequenc
         statistics.fmean(r.mean_particle_count for r in group), statistics.median(finals),
         bootstrap_interval(finals, "median", method=MEDIAN_METHOD), wilson_interval(sum(converged), runs),
         relocalised_interval, statistics.fmean(r.run_seconds for r in group), step_interval, last,
-        *_mean_and_interval([r.distance_to_exact for r in group]),
     )  # fmt: skip
+    for figure in SUMMARISED:
+        mean, summary.figures[f"{figure.name}_interval"] = _mean_and_interval([getattr(r, figure.name) for r in group])
+        summary.figures[figure.name] = mean
     summary.mean_log_evidence, summary.log_evidence_se = _mean_and_error([r.log_evidence for r in group])
     summary.log_evidence_caveat, summary.backend = group[0].log_evidence_caveat, group[0].backend
     return summary
@@ -363,7 +374,7 @@ def converged_within(converged_at: int | None, steps: int) -> bool:
 
 def _mean_and_interval(values: Sequence[float]) -> tuple[float, Interval]:
     """The mean of the finite values with its BCa bootstrap interval; NaN when there are none."""
-    finite = [v for v in values if not math.isnan(v)]
+    finite = [v for v in values if v is not None and not math.isnan(v)]
     if not finite:
         return math.nan, (math.nan, math.nan)
     return statistics.fmean(finite), bootstrap_interval(finite, "mean", method=MEAN_METHOD)
@@ -474,9 +485,10 @@ def study_table(summaries: Sequence[StudySummary], varied: Sequence[str], kld: b
                     ]  # fmt: skip
     if kld:
         columns.append(("mean N", lambda s: f"{s.mean_particle_count:.0f}" if is_particle_filter(s.filter) else "-"))
-    if any(not math.isnan(s.distance_to_exact) for s in summaries):
-        columns += [("dist. to exact", lambda s: format_number(s.distance_to_exact, "{:.3f}")),
-                    (ci, lambda s: format_interval(*s.distance_interval))]  # fmt: skip
+    for f in (f for f in SUMMARISED if any(not math.isnan(getattr(s, f.name)) for s in summaries)):
+        columns.append((f.header, lambda s, f=f: format_number(getattr(s, f.name), f.spec)))
+        if f.summary == "interval":
+            columns.append((ci, lambda s, f=f: format_interval(*getattr(s, f"{f.name}_interval"), spec=f.spec)))
     if reference:
         columns += [(f"diff. vs {described(reference).label}",
                      lambda s: format_number(s.mean_difference, "{:+.3f}")),
@@ -512,8 +524,8 @@ SUMMARY_FIELDS: tuple[str | tuple[str, str], ...] = (
     "last_convergence_step", "median_convergence_step", ("convergence_interval", "median_convergence_step"),
     "mean_log_evidence", "log_evidence_se", "log_evidence_caveat", "ms_per_step", "backend", "run_seconds",
     "mean_particle_count", "relocalised_share", ("relocalised_interval", "relocalised"), "median_steps_to_recover",
-    "distance_to_exact", ("distance_interval", "distance_to_exact"), "paired_with", "paired_runs", "mean_difference",
-    ("difference_interval", "difference"),
+    *(name for f in SUMMARISED for name in [f.name, *[(f"{f.name}_interval", f.name)] * (f.summary == "interval")]),
+    "paired_with", "paired_runs", "mean_difference", ("difference_interval", "difference"),
 )  # fmt: skip
 SUMMARY_STATISTICS = tuple(
     name for f in SUMMARY_FIELDS for name in ((f"{f[1]}_low", f"{f[1]}_high") if isinstance(f, tuple) else (f,))
