@@ -25,7 +25,7 @@ from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, CancelledError, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
-from contextlib import AbstractContextManager, contextmanager, suppress
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -290,18 +290,12 @@ def run_study(
     backend: str | None = None,
 ) -> StudyOutcome:
     """Run every task, on `workers` processes (default: all cores) or on a Dask cluster (`dask`: its
-    scheduler's address, connected, checked (`open_cluster`) and closed here, or a distributed Client that
-    `open_cluster` gave), on one backend (`backend`, default `study_backend`'s choice for these tasks); any
-    stop keeps the finished runs (`run_units`).
-
-    With `visualize`, the first run is drawn in this process. A run that raises becomes a RunFailure;
-    the others go on. `on_records` is handed each finished run's records as they come (the study's
-    journal appends them). A stop sets outcome.interrupted and outcome.stopped_by (the signal's
-    number); with `ignore_signals_after_stop` (a command about to exit) further Ctrl-C, SIGTERM and
-    SIGHUP are ignored from then on. A lost cluster (its scheduler gone, or `dask_timeout` seconds
-    without a finished unit) or a pool whose workers keep dying ends the study early: outcome.lost
-    says why, in one line.
-    """
+    scheduler's address, opened (`open_cluster`) and closed here, or the Client `open_cluster` gave), on one
+    backend (`backend`, default `study_backend`'s choice); with `visualize`, the first run drawn in this
+    process. A run that raises becomes a RunFailure, the others go on; `on_records` is handed each finished
+    run's records as they come (the journal appends them). A stop (`ignore_signals_after_stop`: the next
+    ones ignored), a lost cluster (`dask_timeout` seconds without a finished unit) or a pool whose workers
+    keep dying ends the study early, its finished runs kept (`run_units`)."""
     workers = worker_count(workers)
     backend = backend or study_backend(tasks, workers if dask is None else 1)
     client = open_cluster(dask, backend) if isinstance(dask, str) else dask  # a bad address: one line
@@ -424,7 +418,7 @@ class Units:
                         self._take(wait(self.running, timeout=0.2, return_when=FIRST_COMPLETED)[0])
                 except KeyboardInterrupt as second:
                     stop = second
-            with signals_ignored():
+            with signal_handlers(STOP_SIGNALS, signal.SIG_IGN):  # a third Ctrl-C changes nothing
                 self._take(self._finished())
                 self._end()
             raise stop from None
@@ -574,11 +568,6 @@ def _ignore(signals: Sequence[int]) -> None:
     if threading.current_thread() is threading.main_thread():
         for sig in signals:
             signal.signal(sig, signal.SIG_IGN)
-
-
-def signals_ignored() -> AbstractContextManager[None]:
-    """Ctrl-C, SIGTERM and SIGHUP ignored while the workers are ended (a third Ctrl-C changes nothing)."""
-    return signal_handlers(STOP_SIGNALS, signal.SIG_IGN)
 
 
 @contextmanager

@@ -186,11 +186,6 @@ def take_startup_seconds() -> float:
 
 
 # -- several filters on one scenario ---------------------------------------------------------------
-def is_particle_filter(filter_name: str) -> bool:
-    """Whether a filter is a sample of particles (its registry entry says it takes a particle count)."""
-    return filter_entry(filter_name).takes_particles
-
-
 def run_filters(
     world: Maze,
     robot: Robot,
@@ -349,20 +344,16 @@ def comparison_table(results: dict[str, RunResult], kld: bool = False, startup_s
             steps = f["steps_to_recover"]
             row += ["yes" if f["relocalised"] else "no", "never" if steps is None else str(steps)]
         if kld:
-            row.append(f"{f['mean_particle_count']:.0f}" if is_particle_filter(name) else "-")
+            row.append(f"{f['mean_particle_count']:.0f}" if filter_entry(name).takes_particles else "-")
         rows.append(row)
     notes = [f"[* {label}: the log evidence is {why}]" for label, why in caveats.items()]
     if startup_seconds is not None:
-        notes.append(startup_note(startup_seconds))
+        notes.append(
+            f"[ms/step: one run's steps of each filter, on the backend named, after untimed warm-up steps; start-up "
+            f"(first calls, and numba's kernels loaded on the compiled backend) {startup_seconds:.2f} s, not in "
+            "ms/step]"
+        )
     return "\n".join([format_table(headers, rows), *notes])
-
-
-def startup_note(seconds: float) -> str:
-    """The line that says what ms/step is, and reports the start-up apart from it."""
-    return (
-        f"[ms/step: one run's steps of each filter, on the backend named, after untimed warm-up steps; start-up "
-        f"(first calls, and numba's kernels loaded on the compiled backend) {seconds:.2f} s, not in ms/step]"
-    )
 
 
 def errors_csv(results: dict[str, RunResult]) -> str:

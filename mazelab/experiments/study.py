@@ -143,11 +143,6 @@ def option_columns(filters: Sequence[str | type]) -> tuple[str, ...]:
     return tuple(names)
 
 
-def is_option_parameter(parameter: str) -> bool:
-    """Whether a study parameter is a filter option (not the maze or a model parameter)."""
-    return parameter not in BASE_PARAMETERS
-
-
 def takes_parameter(filter_name: str | type, parameter: str) -> bool:
     """Whether a study parameter can change a filter's results: the model's (maze, sigma, delta) always,
     the particle count unless the filter's entry says it takes none, an option only if it reaches it."""

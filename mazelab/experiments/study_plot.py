@@ -27,7 +27,7 @@ import numpy as np
 
 from mazelab.declaration import show_value
 from mazelab.experiments.runs import FINAL_SHARE, LINE_STYLES, MARKERS
-from mazelab.experiments.study import MODEL_PARAMETERS, declared_option, hashable, is_option_parameter, takes_parameter
+from mazelab.experiments.study import BASE_PARAMETERS, MODEL_PARAMETERS, declared_option, hashable, takes_parameter
 from mazelab.experiments.summary import CONFIDENCE_LEVEL, StudySummary
 from mazelab.experiments.tables import pyplot, save_figure
 from mazelab.registry import described, rgb
@@ -155,7 +155,7 @@ def choose_x(summaries: Sequence[StudySummary], varied: Sequence[str], x: str | 
     ordered = [p for p in NUMERIC_PARAMETERS if p in numeric] + [p for p in numeric if p not in NUMERIC_PARAMETERS]
     if ordered:
         return ordered[0]
-    return next((p for p in varied if not is_option_parameter(p)), None)
+    return next((p for p in varied if p in BASE_PARAMETERS), None)
 
 
 def figure_layout(
@@ -165,7 +165,7 @@ def figure_layout(
     the summaries by panel. A filter that does not take a panel's parameter (the grid filter and the
     RPF's bandwidth) is in every panel that agrees on the parameters it does take."""
     x = choose_x(summaries, varied, x)
-    options = [p for p in varied if is_option_parameter(p) and p != x]
+    options = [p for p in varied if p not in BASE_PARAMETERS and p != x]  # the filter options
     facets = [p for p in varied if p != x and p not in options]
     panel_values: dict[str, dict[str, Any]] = {}
     for s in summaries:

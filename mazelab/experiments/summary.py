@@ -1,25 +1,10 @@
-"""A study's statistics per setting and filter: the mean final error with its BCa bootstrap interval
-and the median with its percentile one, the converged share with its Wilson interval, the Kaplan-Meier median
-convergence step (the runs that never converge count, as censored), with `--reference grid` the
-distance to the exact posterior, with `--paired NAME` the paired difference to that filter; the
-table, the rows' CSV and the summary CSV (the figure: mazelab.experiments.study_plot).
-
-Converged, defined: the error stays below CONVERGENCE_RADIUS for at least the last K steps, K the
-last-20% window (`convergence_window`, the steps `final_error` averages): a run that only gets below
-the radius near its end is not counted, and "converged" agrees with a small last-20% error.
-
-The intervals fit the quantities (no scipy):
-
-- a mean or a median of errors (heavy-tailed, often two-peaked, never negative): the percentile
-  bootstrap, B = BOOTSTRAP_SAMPLES resamples from a fixed seed (`bootstrap_interval`); its bounds lie
-  within the observed values, so an error's interval never reaches below zero. `method="bca"` gives
-  the bias-corrected and accelerated interval (Efron 1987) from the same resamples;
-- the difference between two filters on the same runs: the paired bootstrap, resampling runs (the
-  pairs) rather than each filter's values apart (`paired_difference`);
-- a share (converged, re-localised): the Wilson score interval (`wilson_interval`), within [0, 1];
-- a time to an event that some runs never reach (the convergence step): the Kaplan-Meier estimate,
-  its median and that median's interval from the log-log pointwise band (`kaplan_meier`, `km_median`).
-(Student's t-interval, for comparison: benchmarks/interval_coverage.py.)
+"""A study's statistics per setting and filter (`StudySummary`), the table, the rows' CSV and the summary
+CSV (the figure: mazelab.experiments.study_plot), with intervals that fit the quantities (no scipy; Student's
+t-interval for comparison: benchmarks/interval_coverage.py): a mean or median of errors (heavy-tailed, never
+negative), the bootstrap, percentile or BCa (`bootstrap_interval`), paired for the difference of two filters
+on the same runs (`paired_difference`); a share, the Wilson score interval (`wilson_interval`); the
+convergence step, which some runs never reach, the Kaplan-Meier median and its log-log band (`km_median`).
+Converged: the error stays below CONVERGENCE_RADIUS for at least the last-20% window (`converged_within`).
 """
 
 from __future__ import annotations
@@ -35,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from mazelab.declaration import show_value
-from mazelab.experiments.runs import FIGURES, FINAL_SHARE, is_particle_filter
+from mazelab.experiments.runs import FIGURES, FINAL_SHARE
 from mazelab.experiments.study import (
     BASE_PARAMETERS,
     RunRecord,
@@ -368,7 +353,8 @@ def last_convergence_step(steps: int) -> int:
 
 
 def converged_within(converged_at: int | None, steps: int) -> bool:
-    """Converged: below the radius from `converged_at` on, for at least the last K steps."""
+    """Converged: below the radius from `converged_at` on, for at least the last K steps (a run that gets
+    below it only near its end is not counted: "converged" agrees with a small last-20% error)."""
     return converged_at is not None and converged_at <= last_convergence_step(steps)
 
 
@@ -484,7 +470,9 @@ def study_table(summaries: Sequence[StudySummary], varied: Sequence[str], kld: b
                     ("median steps to recover", lambda s: format_number(s.median_steps_to_recover, "{:g}")),
                     ]  # fmt: skip
     if kld:
-        columns.append(("mean N", lambda s: f"{s.mean_particle_count:.0f}" if is_particle_filter(s.filter) else "-"))
+        columns.append(
+            ("mean N", lambda s: f"{s.mean_particle_count:.0f}" if described(s.filter).takes_particles else "-")
+        )
     for f in (f for f in SUMMARISED if any(not math.isnan(getattr(s, f.name)) for s in summaries)):
         columns.append((f.header, lambda s, f=f: format_number(getattr(s, f.name), f.spec)))
         if f.summary == "interval":
