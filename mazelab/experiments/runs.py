@@ -123,25 +123,23 @@ _warmed: set[Hashable] = set()  # what this process has warmed: (filter, backend
 _startup_seconds = [0.0]  # start-up spent in this process and not yet reported
 
 
-def warm_once(key: Hashable, warm: Callable[[], Any]) -> None:
-    """Run `warm()` the first time this process sees `key` (with the chosen backend), its time kept
-    as start-up; the warnings it raises are dropped (the study or compare shows its own)."""
-    key = (key, chosen_backend())
+def warm_once(key: Hashable, filter_class: type, options: Mapping[str, Any], warm: Callable[[dict], Any]) -> None:
+    """Run `warm(options)` with each of `warm_up_options` the first time this process sees `key`, the filter,
+    the options that differ from their declared default (a filter given its defaults runs the same code as
+    one given nothing) and the chosen backend; its time kept as start-up, the warnings it raises dropped (the
+    study or compare shows its own)."""
+    declared = options_of(filter_class)
+    changed = repr(sorted((k, v) for k, v in options.items() if k not in declared or declared[k].default != v))
+    key = (key, filter_class, changed, chosen_backend())
     if key in _warmed:
         return
     started = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        warm()
+        for warmed in warm_up_options(filter_class, options):
+            warm(warmed)
     _warmed.add(key)
     _startup_seconds[0] += time.perf_counter() - started
-
-
-def options_key(filter_class: type, options: Mapping[str, Any]) -> str:
-    """A filter's options as part of a warm-up key: those that differ from their declared default (a
-    filter given its defaults runs the same code as one given nothing)."""
-    declared = options_of(filter_class)
-    return repr(sorted((k, v) for k, v in options.items() if k not in declared or declared[k].default != v))
 
 
 def warm_up_options(filter_class: type, options: Mapping[str, Any]) -> list[dict[str, Any]]:
@@ -167,16 +165,13 @@ def warm_up_filters(
     once per process by WARM_UP_STEPS steps on a walk of its own (mazelab.simulation.simulate)."""
     world.prepare()
     for name in filter_names:
-        own = dict(options.get(name, {}))
-        filter_class = resolve_filter(name)
 
-        def warm(name: str = name, filter_class: type = filter_class, own: dict[str, Any] = own) -> None:
-            for warmed in warm_up_options(filter_class, own):
-                robot = Robot(sigma, delta, start_place(world, WARM_UP_SEED))
-                simulate(robot, world, sigma, delta, particle_count, WARM_UP_STEPS, None, name, seed=WARM_UP_SEED,
-                         **warmed)  # fmt: skip
+        def warm(warmed: dict[str, Any], name: str = name) -> None:
+            robot = Robot(sigma, delta, start_place(world, WARM_UP_SEED))
+            simulate(robot, world, sigma, delta, particle_count, WARM_UP_STEPS, None, name, seed=WARM_UP_SEED,
+                     **warmed)  # fmt: skip
 
-        warm_once(("single", filter_class, options_key(filter_class, own)), warm)
+        warm_once("single", resolve_filter(name), dict(options.get(name, {})), warm)
 
 
 def take_startup_seconds() -> float:
