@@ -504,13 +504,14 @@ def report_accuracy(session: StudySession, rows: tuple[AccuracyFilter, ...], out
     records = accuracy_records(study_order([*session.kept, *outcome.records], session.plan.tasks), rows)
     runs = len({(r["maze"], r["run"]) for r in records})
     if records:
-        typer.echo(accuracy_table(records))
+        summary = accuracy_summary(records)
+        typer.echo(accuracy_table(summary))
         typer.echo(f"{runs} runs in {time.perf_counter() - recorder.started_clock:.1f} s wall time")
         if files.csv_path is not None:
             write_text_atomically(files.csv_path, accuracy_csv(records), replace=files.force or files.resume)
             typer.echo(f"one row per maze, run and filter written to {files.csv_path}")
         if files.record_file is not None:
-            recorder.finish(status, summary=accuracy_summary(records))
+            recorder.finish(status, summary=summary)
             recorder.write(files.record_file)
             typer.echo(f"the record (command, versions, seeds, mazes, summary) written to {files.record_file}")
     session.close(status, runs_finished=runs)
