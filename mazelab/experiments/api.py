@@ -443,7 +443,6 @@ def study(
     plan = plan or study_plan(maze, **values)
     if paired is not None and resolve_filter(paired).name not in [resolve_filter(f).name for f in plan.filters]:
         raise ValueError(f"paired={paired!r} is not one of the study's filters")
-    dask = _dask(dask)
     recorder = Recorder("study", [sys.argv[0] or "python", "mazelab.study(...)"], plan.parameters(),
                         csv_dtypes=CSV_DTYPES)  # fmt: skip
     backend = study_backend(plan.tasks, 1 if dask is not None else worker_count(workers))
@@ -485,22 +484,6 @@ def study_closing(
         "workers": [asdict(report) for report in outcome.workers.values()],
         "startup_seconds": round(outcome.startup_seconds, 3),
     }
-
-
-def _dask(dask: Any) -> Any:
-    """None, a scheduler address (text), or a distributed.Client; anything else a TypeError."""
-    if dask is None or isinstance(dask, str):
-        return dask
-    try:
-        from distributed import Client
-    except ImportError:
-        Client = None
-    if Client is None or not isinstance(dask, Client):
-        raise TypeError(
-            f"dask must be a scheduler address like 'tcp://HOST:8786' or a distributed.Client, got {dask!r} "
-            f"({type(dask).__name__})"
-        )
-    return dask
 
 
 def call_arguments(call: Mapping[str, Any], seed: int) -> dict[str, Any]:

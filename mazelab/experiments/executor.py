@@ -330,9 +330,16 @@ def worker_count(workers: int | None) -> int:
 def open_cluster(dask: Any, backend: str) -> Any:
     """The Dask client of `dask` (an address, connected here, or a distributed.Client), its workers asked
     once, before any run, whether they can run the study's `backend` (`check_workers`); None without
-    `dask`. A client connected here is closed again when its workers are refused."""
+    `dask`; anything else is a TypeError. A client connected here is closed again when its workers are refused."""
     if dask is None:
         return None
+    try:
+        from distributed import Client
+    except ImportError:
+        Client = None
+    if not isinstance(dask, str) and (Client is None or not isinstance(dask, Client)):
+        raise TypeError(f"dask must be a scheduler address like 'tcp://HOST:8786' or a distributed.Client, got "
+                        f"{dask!r} ({type(dask).__name__})")  # fmt: skip
     client = connect(dask) if isinstance(dask, str) else dask  # a bad address: one line, before anything runs
     try:
         check_workers(client, backend)  # workers that cannot run it, or of other versions: one line
