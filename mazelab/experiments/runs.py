@@ -246,11 +246,6 @@ class Figure:
 REQUIRED = dataclasses.MISSING  # a Figure's `default`: none (every RunRecord is made with the figure)
 
 
-def _kidnapped(figure: Callable[[RunResult], Any]) -> Callable[[RunResult, Any], Any]:
-    """A figure of a kidnapped run, None without a kidnapping."""
-    return lambda result, entry: None if result.kidnap_at is None else figure(result)
-
-
 FIGURES = (  # in the CSV's order; a new figure of a run is one more line here (and its words in docs/studies.md)
     Figure("final_error", lambda r, e: final_error(r.errors), REQUIRED),  # the last-20% error, map units
     Figure("mean_error", lambda r, e: float(r.errors.mean()), REQUIRED),
@@ -258,8 +253,8 @@ FIGURES = (  # in the CSV's order; a new figure of a run is one more line here (
     Figure("mean_ess", lambda r, e: mean_ess(r), REQUIRED),  # NaN for the grid filter
     Figure("ms_per_step", lambda r, e: 1e3 * float(r.step_seconds.mean()), REQUIRED),
     Figure("kidnap_at"),  # the step the robot is kidnapped at
-    Figure("relocalised", _kidnapped(relocalised), None),
-    Figure("steps_to_recover", _kidnapped(recovery_steps), None),  # None: never, or no kidnapping
+    Figure("relocalised", lambda r, e: None if r.kidnap_at is None else relocalised(r), None),
+    Figure("steps_to_recover", lambda r, e: None if r.kidnap_at is None else recovery_steps(r), None),  # None: never
     Figure("mean_particle_count", lambda r, e: float(np.mean(r.extras["particle_count"])), math.nan),  # KLD varies it
     Figure("maze_sha256"),  # of the maze file's bytes; a generated maze's: of its grid as maze text
     Figure("maze_rows", default=0),  # the run's maze size
