@@ -27,14 +27,7 @@ from mazelab import maze_generator
 from mazelab.checks import check_particles, check_seed, check_sigma_within, check_steps, check_study
 from mazelab.contract import missing_parts
 from mazelab.declaration import scoped, show_value, to_plain_json
-from mazelab.experiments.executor import (
-    StudyOutcome,
-    close_client,
-    open_cluster,
-    run_study,
-    study_backend,
-    worker_count,
-)
+from mazelab.experiments.executor import StudyOutcome, open_cluster, run_study, study_backend
 from mazelab.experiments.journal import Recorder
 from mazelab.experiments.runs import filter_key, parse_filters
 from mazelab.experiments.study import (
@@ -445,13 +438,9 @@ def study(
         raise ValueError(f"paired={paired!r} is not one of the study's filters")
     recorder = Recorder("study", [sys.argv[0] or "python", "mazelab.study(...)"], plan.parameters(),
                         csv_dtypes=CSV_DTYPES)  # fmt: skip
-    backend = study_backend(plan.tasks, 1 if dask is not None else worker_count(workers))
-    client = open_cluster(dask, backend)  # its workers asked once, before any run
-    try:
-        outcome = run_study(plan.tasks, workers, dask=client, backend=backend)
-    finally:
-        if isinstance(dask, str):
-            close_client(client)
+    if dask is not None and not isinstance(dask, str):  # the caller's Client: run_study opens only an address
+        open_cluster(dask, study_backend(plan.tasks, 1))  # its workers asked once, before any run
+    outcome = run_study(plan.tasks, workers, dask=dask)
     summaries = summarise_study(outcome.records, plan.settings, paired=paired)
     closing = study_closing(plan, outcome, outcome.records, summaries, paired)
     call = {
