@@ -313,29 +313,27 @@ def comparison_table(results: dict[str, RunResult], kld: bool = False, startup_s
     model, a line under the table says why) and milliseconds per step with the backend it ran on; with a
     kidnapping, whether the filter re-localised and in how many steps; with `kld`, the mean particle
     count. With `startup_seconds` (the process's one-off costs), a line saying what ms/step is."""
-    figures = {name: run_figures(name, result) for name, result in results.items()}
-    kidnapped = any(result.kidnap_at is not None for result in results.values())
-    backends = {f["backend"] for f in figures.values()}
-    headers = ["filter", "mean error", f"last-{FINAL_SHARE:.0%} error", "converged at", "mean ESS", "log p(z_1:K)",
-               f"ms/step, {next(iter(backends))}" if len(backends) == 1 else "ms/step, backend"]  # fmt: skip
-    headers += ["re-localised", "steps to recover"] * kidnapped + ["mean N"] * kld
-    rows, caveats = [], {f["label"]: f["log_evidence_caveat"] for f in figures.values() if f["log_evidence_caveat"]}
-    for name, f in figures.items():
-        row = [
-            f["label"],
-            f"{f['mean_error']:.3f}",
-            f"{f['final_error']:.3f}",
-            "never" if f["converged_at"] is None else f"step {f['converged_at']}",
-            format_number(f["mean_ess"], "{:.0f}"),
-            format_number(f["log_evidence"], "{:.1f}") + ("*" if f["log_evidence_caveat"] else ""),
-            f"{f['ms_per_step']:.2f}" + ("" if len(backends) == 1 else f" {f['backend']}"),
-        ]
-        if kidnapped:
-            steps = f["steps_to_recover"]
-            row += ["yes" if f["relocalised"] else "no", "never" if steps is None else str(steps)]
-        if kld:
-            row.append(f"{f['mean_particle_count']:.0f}" if filter_entry(name).takes_particles else "-")
-        rows.append(row)
+    figures = [{**run_figures(name, result), "name": name} for name, result in results.items()]
+    backends = {f["backend"] for f in figures}
+    one = len(backends) == 1
+    columns = [
+        ("filter", lambda f: f["label"]), ("mean error", lambda f: f"{f['mean_error']:.3f}"),
+        (f"last-{FINAL_SHARE:.0%} error", lambda f: f"{f['final_error']:.3f}"),
+        ("converged at", lambda f: "never" if f["converged_at"] is None else f"step {f['converged_at']}"),
+        ("mean ESS", lambda f: format_number(f["mean_ess"], "{:.0f}")),
+        ("log p(z_1:K)", lambda f: format_number(f["log_evidence"], "{:.1f}") + "*" * bool(f["log_evidence_caveat"])),
+        (f"ms/step, {next(iter(backends))}" if one else "ms/step, backend",
+         lambda f: f"{f['ms_per_step']:.2f}" + ("" if one else f" {f['backend']}")),
+    ]  # fmt: skip
+    if any(result.kidnap_at is not None for result in results.values()):
+        columns += [("re-localised", lambda f: "yes" if f["relocalised"] else "no"),
+                    ("steps to recover", lambda f: "never" if f["steps_to_recover"] is None else
+                     str(f["steps_to_recover"]))]  # fmt: skip
+    if kld:
+        columns.append(("mean N", lambda f: f"{f['mean_particle_count']:.0f}" if filter_entry(f["name"]).takes_particles
+                        else "-"))  # fmt: skip
+    rows = [[cell(f) for _, cell in columns] for f in figures]
+    caveats = {f["label"]: f["log_evidence_caveat"] for f in figures if f["log_evidence_caveat"]}
     notes = [f"[* {label}: the log evidence is {why}]" for label, why in caveats.items()]
     if startup_seconds is not None:
         notes.append(
@@ -343,7 +341,7 @@ def comparison_table(results: dict[str, RunResult], kld: bool = False, startup_s
             f"(first calls, and numba's kernels loaded on the compiled backend) {startup_seconds:.2f} s, not in "
             "ms/step]"
         )
-    return "\n".join([format_table(headers, rows), *notes])
+    return "\n".join([format_table([header for header, _ in columns], rows), *notes])
 
 
 def errors_csv(results: dict[str, RunResult]) -> str:
