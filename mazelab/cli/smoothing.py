@@ -131,17 +131,16 @@ def smoothing_summary(scores: SmootherScores) -> list[dict[str, Any]]:
     """Per filter, the means over the walk of each smoother's error and total variation, and the fewest
     distinct ancestors the path smoother rests on (at its first step); the exact smoother's error to the
     truth first."""
-    exact = {"filter": "exact, to the truth", "filter_error": np.mean([r["exact_filtered_to_truth"] for r in
-             scores.rows]), "path_error": np.mean([r["exact_smoothed_to_truth"] for r in scores.rows])}  # fmt: skip
-    rows = [{k: float(v) if k != "filter" else v for k, v in exact.items()}]
+    exact = (("filter_error", "exact_filtered_to_truth"), ("path_error", "exact_smoothed_to_truth"))
+    rows = [{"filter": "exact, to the truth", **{k: float(np.mean([r[c] for r in scores.rows])) for k, c in exact}}]
     for label in dict.fromkeys(r["filter"] for r in scores.rows):
         mine = [r for r in scores.rows if r["filter"] == label]
-        row: dict[str, Any] = {"filter": label}
-        for name in SMOOTHERS:
-            row[f"{name}_error"] = float(np.mean([r[f"{name}_error"] for r in mine]))
-            row[f"{name}_tv"] = float(np.mean([r[f"{name}_tv"] for r in mine]))
-        row["path_ancestors_fewest"] = int(min(r["path_ancestors"] for r in mine))
-        rows.append(row)
+        means = {
+            f"{name}_{k}": float(np.mean([r[f"{name}_{k}"] for r in mine]))
+            for name in SMOOTHERS
+            for k in ("error", "tv")
+        }
+        rows.append({"filter": label, **means, "path_ancestors_fewest": int(min(r["path_ancestors"] for r in mine))})
     return rows
 
 
