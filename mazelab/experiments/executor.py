@@ -4,7 +4,7 @@ either and collects them as they finish, with a progress bar; on one backend for
 (`study_backend`). Stopping keeps every finished run (`Units.run`); a pool's workers end with their parent
 (`worker_setup`) and a dead one restarts the pool (`Units`); a Dask cluster (`study --dask ADDRESS`, the
 optional extra `pip install -e ".[dask]"`) is connected in one line or refused (`connect`), its workers
-asked before any run (`check_workers`).
+asked once, before any run (`open_cluster`).
 """
 
 from __future__ import annotations
