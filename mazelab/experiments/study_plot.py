@@ -405,10 +405,8 @@ def draw_panel(
         container.lines[0].set_gid(f"panel-{panel}:line:{line.label}")
         shown += [*value, *low, *high]
     for line in (line for line in lines if line.reference):
-        value, (low, high) = (
-            unit * quantity.value(line.points[0]),
-            (unit * v for v in quantity.interval(line.points[0])),
-        )
+        value = unit * quantity.value(line.points[0])
+        low, high = (unit * v for v in quantity.interval(line.points[0]))
         dashes = line.style if line.style != "-" else "--"  # a reference is never a solid line
         ax.axhline(value, color=line.colour, linestyle=dashes, linewidth=1.0, label=line.label,
                    gid=f"panel-{panel}:reference:{line.label}")  # fmt: skip
