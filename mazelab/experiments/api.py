@@ -362,17 +362,14 @@ def _flag(name: str, value: Any) -> bool:
 def _options(options: Any, named: Mapping[str, Any]) -> dict[str, list[Any]]:
     """The filter options: `options` (a mapping of names to a value or a list of values) and those given
     as keywords of their own (`bandwidth=...`), each a list; one given both ways is refused in one line
-    (the filters' declarations check them in plan_study)."""
+    (plan_study refuses an empty list, and the filters' declarations check the values)."""
     if options is not None and not isinstance(options, Mapping):
         raise TypeError(f"options takes a mapping of option names to values, got {type(options).__name__}")
     listed = {}
     for name, value in [*(options or {}).items(), *named.items()]:
         if str(name) in listed:
             raise ValueError(f"{name} is given twice, as {name}= and in options; give it once")
-        values = list(value) if isinstance(value, (list, tuple, range, np.ndarray)) else [value]
-        if not values:
-            raise ValueError(f"options[{name!r}] is empty; give a value or a list of them")
-        listed[str(name)] = values
+        listed[str(name)] = list(value) if isinstance(value, (list, tuple, range, np.ndarray)) else [value]
     return listed
 
 
