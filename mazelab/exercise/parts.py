@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from statistics import NormalDist
+from typing import Any
 
 import numpy as np
 
@@ -324,11 +325,6 @@ EXACT = 1e-6  # a count that never varies must equal N W_i to this (rounding of 
 RESEMBLANCE_VECTOR = "fractional"  # the vector whose offspring variance names the scheme
 
 
-def resample_expected(inputs: PartInputs) -> str:
-    resample = inputs.resample
-    return f"E[offspring] = N W_i under {len(resample.weights)} weight vectors, {resample.draws} calls each"
-
-
 def critical_z(particles: int, alpha: float = RESAMPLE_ALPHA) -> float:
     """The two-sided normal quantile of each particle's z-test: alpha / (2 particles) in each tail."""
     return NormalDist().inv_cdf(1 - alpha / (2 * particles))
@@ -374,7 +370,7 @@ def constant_count_z(deviation: float, calls: int) -> float:
 
 def judge_resample(inputs: PartInputs, answer: Message) -> tuple[Row, str]:
     """resample's row from its answer (ancestors/k (R, N_k), repeat/k), and the scheme it resembles."""
-    expected = resample_expected(inputs)
+    expected = expectations(inputs)["resample"]
     vectors, kinds, draws = inputs.resample.weights, inputs.resample.kinds, inputs.resample.draws
     ancestors = [take(answer, f"ancestors/{k}", (draws, len(w)), "<i8") for k, w in enumerate(vectors)]
     repeats = [take(answer, f"repeat/{k}", (len(w),), "<i8") for k, w in enumerate(vectors)]
@@ -469,11 +465,35 @@ def scheme_variances(weights: np.ndarray) -> dict[str, float]:
     }
 
 
-JUDGES = {
-    "predict": judge_predict,
-    "weigh": judge_weigh,
-    "estimate": judge_estimate,
-}  # resample: its own (a scheme too)
+def expectations(inputs: PartInputs) -> dict[str, str]:
+    """What each stage's row expects (its "expected:" line), by stage."""
+    resample = inputs.resample
+    draws = f"E[offspring] = N W_i under {len(resample.weights)} weight vectors, {resample.draws} calls each"
+    return {**EXPECTED, "resample": draws, "whole": whole_expected()}
+
+
+def judge(stage: str, inputs: PartInputs, scenarios: list[ScenarioInputs], answer: Message, report: Any,
+          references: Any) -> Row:  # fmt: skip
+    """A stage's row from its answer: the error the student's code reported, or its values judged; the
+    scheme the resampler resembles and the whole filter's figures go into `report` (the whole filter's SIR
+    resamples with that scheme, on the scenarios' reference runs from `references`)."""
+    error, scheme = error_of(answer), report.scheme
+    if error and stage != "whole":
+        return error_row(stage, expectations(inputs)[stage], error, HINTS[stage])
+    if stage == "resample":
+        row, report.scheme = judge_resample(inputs, answer)
+        return row
+    if stage != "whole":
+        return {"predict": judge_predict, "weigh": judge_weigh, "estimate": judge_estimate}[stage](inputs, answer)
+    if any(row.status == NOT_WRITTEN for row in report.rows):  # the parts' rows come first
+        return Row("whole filter", NOT_RUN, whole_expected(scheme), "not run", "write every part first")
+    estimates = whole_answer(scenarios, answer, scheme)
+    if isinstance(estimates, Row):
+        return estimates
+    sir = [references.sir(s, scheme) for s in scenarios]
+    exact = [references.exact(s).result() for s in scenarios]
+    row, report.figures = judge_whole(scenarios, estimates, exact, [f.result() for f in sir], scheme)
+    return row
 
 
 # -- the whole filter ----------------------------------------------------------------------------

@@ -38,13 +38,10 @@ from mazelab.exercise.inputs import (
     request,
 )
 from mazelab.exercise.kit import class_source, copied_parts
-from mazelab.exercise.language import Catalogue
+from mazelab.exercise.language import Catalogue, catalogue_for
 from mazelab.exercise.parts import (
-    EXPECTED,
     FAIL,
     FIGURE_COLUMNS,
-    HINTS,
-    JUDGES,
     NOT_OWN,
     NOT_RUN,
     NOT_WRITTEN,
@@ -52,16 +49,11 @@ from mazelab.exercise.parts import (
     BadAnswerError,
     Row,
     clean,
-    error_of,
-    error_row,
-    judge_resample,
-    judge_whole,
-    resample_expected,
-    whole_answer,
-    whole_expected,
+    expectations,
+    judge,
 )
 from mazelab.exercise.sandbox import DEFAULT_BUDGET, ChildRun, companions_of, run_child, sandbox, submission_copy
-from mazelab.exercise.student import PARTS
+from mazelab.exercise.student import PARTS, StudentFilter
 from mazelab.experiments.tables import format_table
 from mazelab.invocation import command_prefix
 from mazelab.registry import split_spec
@@ -327,18 +319,35 @@ def build_report(
     stages: tuple[str, ...] = STAGES,
     copies: dict | None = None,
 ) -> Report:
-    """The report's rows from the answers: each stage's row (`_row`), a part that is the lab's code
-    (`copies`, mazelab.exercise.kit.copied_parts) marked not own work; what went wrong beyond the rows; the
-    failing parts named in the whole filter's hint."""
+    """The report's rows from the answers: each stage's row (its values judged by parts.judge), a part that
+    is the lab's code (`copies`, mazelab.exercise.kit.copied_parts) marked not own work; what went wrong
+    beyond the rows; the failing parts named in the whole filter's hint."""
     report.output, report.student_seconds = answers.output, answers.seconds
-    expected = {**EXPECTED, "resample": resample_expected(parts), "whole": whole_expected()}
+    expected = expectations(parts)
     if answers.problem:
         report.problems.append(clean(answers.problem))
         how = answers.problem.removeprefix("the student's process ")
         report.rows = [ended_row(_label(s), expected[s], how, answers.output) for s in stages]
         return report
-    for stage in stages:
-        row = _row(stage, expected[stage], report, parts, scenarios, answers, references)
+    for stage in stages:  # the process ended in it, no answer came, an answer the grader cannot read, or judged
+        label, message = _label(stage), answers.results.get(stage)
+        try:
+            if stage in answers.ended:
+                row = ended_row(label, expected[stage], answers.ended[stage], answers.output)
+            elif message is None:  # it said "done" (or ended) without this stage's answer
+                row = Row(
+                    label,
+                    FAIL,
+                    expected[stage],
+                    "no answer came from the student's process",
+                    "a part returns its answer",
+                )
+            else:
+                row = judge(stage, parts, scenarios, message, report, references)
+        except BadAnswerError as error:
+            row = Row(
+                label, FAIL, expected[stage], f"an answer the grader cannot read ({error})", "return plain arrays"
+            )
         if (copies or {}).get(stage) and row.status != NOT_WRITTEN:
             row = Row(row.part, NOT_OWN, row.expected, copies[stage], COPY_HINT)
         report.rows.append(row)
@@ -350,36 +359,6 @@ def build_report(
     if whole and not whole.passed and failed and whole.hint.startswith(("the parts pass alone", "fix the error")):
         whole.hint = f"fix {', '.join(failed)} first: the whole filter runs with every part"
     return report
-
-
-def _row(stage: str, expected: str, report: Report, parts: PartInputs, scenarios: list[ScenarioInputs],
-         answers: Answers, references: Any) -> Row:  # fmt: skip
-    """One stage's row: the process ended in it, no answer came, an answer the grader cannot read, the
-    student's code failed, or its values judged (the resampler's scheme and the whole filter's figures
-    into the report)."""
-    label, message, scheme = _label(stage), answers.results.get(stage), report.scheme
-    if stage in answers.ended:
-        return ended_row(label, expected, answers.ended[stage], answers.output)
-    if message is None:  # it said "done" (or ended) without this stage's answer
-        return Row(label, FAIL, expected, "no answer came from the student's process", "a part returns its answer")
-    try:
-        error = error_of(message)
-        if stage == "resample" and not error:
-            row, report.scheme = judge_resample(parts, message)
-            return row
-        if stage != "whole":
-            return error_row(stage, expected, error, HINTS[stage]) if error else JUDGES[stage](parts, message)
-        if any(row.status == NOT_WRITTEN for row in report.rows):  # the parts' rows come first
-            return Row(WHOLE, NOT_RUN, whole_expected(scheme), "not run", "write every part first")
-        estimates = whole_answer(scenarios, message, scheme)
-        if isinstance(estimates, Row):
-            return estimates
-        sir = [references.sir(s, scheme) for s in scenarios]
-        exact = [references.exact(s).result() for s in scenarios]
-        row, report.figures = judge_whole(scenarios, estimates, exact, [f.result() for f in sir], scheme)
-        return row
-    except BadAnswerError as error:
-        return Row(label, FAIL, expected, f"an answer the grader cannot read ({error})", "return plain arrays")
 
 
 def ended_row(part: str, expected: str, ended: str, output: str) -> Row:
@@ -513,13 +492,30 @@ def format_report(report: Report, width: int = WIDTH, catalogue: Catalogue | Non
     return words.numbers("\n".join(lines))
 
 
-# -- the student's own process ---------------------------------------------------------------------------
+# -- the student's own process (mazelab.exercise.selfcheck) -------------------------------------------------
+def check_part(part: str, function: Callable[..., object], lang: str = "en") -> Row:
+    """Check one part written as a plain function `part(self, ...)` (a notebook cell), print its row
+    (in `lang`: en or uk)."""
+    if part not in PARTS:
+        raise ValueError(f"unknown part {part!r}; the parts are {', '.join(PARTS)}")
+    notebook_filter = type("NotebookFilter", (StudentFilter,), {part: function})
+    row = check(notebook_filter, seed=source_seed(function), stages=(part,)).rows[0]
+    print(format_rows([row], catalogue=catalogue_for(lang)))
+    return row
+
+
+def check_and_print(filter_class: type, lang: str = "en") -> Report:
+    """Check every part and the whole filter, and print the report (the notebook's last check cell),
+    in `lang` (en or uk)."""
+    report = check(filter_class)
+    print(format_report(report, catalogue=catalogue_for(lang)))
+    return report
+
+
 def progress(filter_class: type, lang: str | None = None) -> str:
     """Which parts are still to write, and the checks of those written (what `python my_filter.py`
     prints: a self-check in the student's process), in `lang` (default: the file's LANGUAGE, else the
     locale's)."""
-    from mazelab.exercise.language import catalogue_for
-
     words = catalogue_for(lang or getattr(inspect.getmodule(filter_class), "LANGUAGE", None))
     report = check(filter_class, stages=PARTS)
     todo = [row.part for row in report.rows if row.status == NOT_WRITTEN]
