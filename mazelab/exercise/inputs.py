@@ -10,7 +10,6 @@ from __future__ import annotations
 import hashlib
 import hmac
 from dataclasses import dataclass
-from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -45,10 +44,12 @@ def default_seed(data: bytes) -> int:
     return int.from_bytes(hashlib.sha256(data).digest()[:8], "big") >> 1
 
 
-def files_seed(path: Path, companions: list[Path], key: bytes | None = None) -> int:
-    """A submission's seed: the first 63 bits of the sha256 of its files (the file's bytes, then each
-    helper module's name and bytes), or with the grader's secret `key` of their HMAC-SHA256."""
-    data = path.read_bytes() + b"".join(b"\0" + p.name.encode() + b"\0" + p.read_bytes() for p in companions)
+def files_seed(files: dict[str, bytes], key: bytes | None = None) -> int:
+    """A submission's seed from its files ({name: bytes}, the graded file first): the first 63 bits of
+    the sha256 of the file's bytes, then each helper module's name and bytes, or with the grader's
+    secret `key` of their HMAC-SHA256."""
+    first, *helpers = files.items()
+    data = first[1] + b"".join(b"\0" + name.encode() + b"\0" + text for name, text in helpers)
     return default_seed(data) if key is None else int.from_bytes(hmac.digest(key, data, "sha256")[:8], "big") >> 1
 
 

@@ -241,13 +241,14 @@ def collect_isolated(
     budget: float,
     stages: tuple[str, ...] = STAGES,
     shown: str = "",
-    companions: bool = True,
+    *,
+    files: dict[str, bytes],
 ) -> Answers:
-    """Run the stages in child processes, each in the sandbox of the submission's own copy (and its
-    helper modules, with `companions`), within `budget` seconds in all: a new child after a stage in
-    which one ended, while the budget lasts. Each way a child ends is one branch below."""
+    """Run the stages in child processes, each in the sandbox of the submission's own copy (`files`,
+    {name: bytes}: the file and its helper modules), within `budget` seconds in all: a new child after a
+    stage in which one ended, while the budget lasts. Each way a child ends is one branch below."""
     answers, todo, made = Answers(), list(stages), sandbox()
-    with submission_copy(path, companions) as run_folder:
+    with submission_copy(files) as run_folder:
         while todo:
             left = budget - answers.seconds
             if left < 1:
@@ -394,13 +395,13 @@ def check_file(
         raise NotGradableError(f"{shown}: no such file {path}" + ("" if path.exists() else " (check the path)"))
     if path.resolve().suffix != ".py":
         raise NotGradableError(f"{shown}: a link to {path.resolve()}, not a Python file")
-    beside = companions_of(path) if companions else []
+    files = {p.name: p.read_bytes() for p in [path, *(companions_of(path) if companions else [])]}  # read once
     source = "given" if seed is not None else "key" if key else "files"
-    seed = files_seed(path, beside, key or None) if seed is None else seed
+    seed = files_seed(files, key or None) if seed is None else seed
     report = Report(class_name or path.stem, None if source == "key" else seed, source, note=sandbox().note)
     collect = functools.partial(collect_isolated, path.resolve(), class_name, budget=timeout, stages=stages,
-                                shown=shown, companions=companions)  # fmt: skip
-    sources = {p.name: p.read_text(errors="replace") for p in [path, *beside]}
+                                shown=shown, files=files)  # fmt: skip
+    sources = {name: data.decode(errors="replace") for name, data in files.items()}
     return _check(report, seed, stages, collect, shown, sources, references)
 
 

@@ -340,16 +340,16 @@ def companions_of(path: Path) -> list[Path]:
 
 
 @contextlib.contextmanager
-def submission_copy(path: Path, companions: bool = True) -> Any:
-    """A folder holding only read-only copies of the submission (`submission/NAME`) and, with
-    `companions`, its helper modules, and for a plain child `site/` with links to numpy; removed
+def submission_copy(files: dict[str, bytes]) -> Any:
+    """A folder holding only read-only copies of the submission's files ({name: bytes} as the grader
+    read them, in `submission/`), and for a plain child `site/` with links to numpy; removed
     afterwards. Yields the folder."""
     run = Path(tempfile.mkdtemp(prefix="mazelab-run-"))
     try:
         (run / "submission").mkdir()
-        for source in [path, *companions_of(path)] if companions else [path]:
-            shutil.copyfile(source, run / "submission" / source.name)
-            (run / "submission" / source.name).chmod(0o444)
+        for name, data in files.items():
+            (run / "submission" / name).write_bytes(data)
+            (run / "submission" / name).chmod(0o444)
         (run / "site").mkdir()
         (run / "stage").mkdir()  # where a root grader without a cgroup stages the binds nobody cannot reach
         for folder in numpy_folders():
