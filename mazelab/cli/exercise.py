@@ -32,10 +32,9 @@ from mazelab.exercise.grading import (
     read_key,
     summary,
 )
-from mazelab.exercise.language import Catalogue, catalogue_for
 from mazelab.exercise.report import Report, format_report
 from mazelab.exercise.sandbox import DEFAULT_BUDGET, MAX_TIMEOUT, SandboxError, sandbox
-from mazelab.exercise.template import bundle_bytes, write_exercise
+from mazelab.exercise.template import Catalogue, bundle_bytes, catalogue_for, write_exercise
 from mazelab.invocation import python_prefix
 from mazelab.registry import is_plugin_spec, split_spec
 from mazelab.stops import STOP_SIGNALS, signal_handlers

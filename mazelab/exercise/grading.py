@@ -25,7 +25,6 @@ from pathlib import Path
 from typing import Any
 
 from mazelab.atomic import WriteError, lock, write_text_atomically
-from mazelab.exercise.language import Catalogue
 from mazelab.exercise.parts import FAIL, NOT_OWN, NOT_RUN, NOT_WRITTEN, PASS, clean
 from mazelab.exercise.report import WHOLE, NotGradableError, References, Report, Submission, check_file, format_report
 from mazelab.exercise.sandbox import (
@@ -36,7 +35,7 @@ from mazelab.exercise.sandbox import (
     stop_children,
 )
 from mazelab.exercise.student import PARTS
-from mazelab.exercise.template import FILTER_FILE
+from mazelab.exercise.template import FILTER_FILE, Catalogue
 
 KEY_FILE = ".grading.key"  # hidden: no submission has its name (grading skips names that start with ".")
 KEY_BYTES = 32  # 256 bits; a given key needs at least 16 (128 bits)

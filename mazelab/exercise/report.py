@@ -38,7 +38,6 @@ from mazelab.exercise.inputs import (
     request,
 )
 from mazelab.exercise.kit import class_source, copied_parts
-from mazelab.exercise.language import Catalogue, catalogue_for
 from mazelab.exercise.parts import (
     FAIL,
     FIGURE_COLUMNS,
@@ -54,6 +53,7 @@ from mazelab.exercise.parts import (
 )
 from mazelab.exercise.sandbox import DEFAULT_BUDGET, ChildRun, companions_of, run_child, sandbox, submission_copy
 from mazelab.exercise.student import PARTS, StudentFilter
+from mazelab.exercise.template import Catalogue, catalogue_for
 from mazelab.experiments.tables import format_table
 from mazelab.invocation import command_prefix
 from mazelab.registry import split_spec
