@@ -234,7 +234,6 @@ class Answers:
 
 
 def collect_isolated(
-    path: Path,
     class_name: str | None,
     parts: PartInputs,
     scenarios: list[ScenarioInputs],
@@ -245,7 +244,7 @@ def collect_isolated(
     files: dict[str, bytes],
 ) -> Answers:
     """Run the stages in child processes, each in the sandbox of the submission's own copy (`files`,
-    {name: bytes}: the file and its helper modules), within `budget` seconds in all: a new child after a
+    {name: bytes}: the file, then its helper modules), within `budget` seconds in all: a new child after a
     stage in which one ended, while the budget lasts. Each way a child ends is one branch below."""
     answers, todo, made = Answers(), list(stages), sandbox()
     with submission_copy(files) as run_folder:
@@ -254,7 +253,7 @@ def collect_isolated(
             if left < 1:
                 answers.ended.update(dict.fromkeys(todo, f"was not started: the time budget ({budget:g} s) is spent"))
                 break
-            wanted = request(made.inside(run_folder, path.name), class_name, todo, parts, scenarios, shown)
+            wanted = request(made.inside(run_folder, next(iter(files))), class_name, todo, parts, scenarios, shown)
             run = run_child(wanted, run_folder, left, made, reserve=min(RESERVE, left / (2 * len(todo))))
             answers.output, answers.seconds = answers.output + run.output, answers.seconds + run.seconds
             if run.loaded is None:  # it ended while the file was imported: every row fails
@@ -264,12 +263,7 @@ def collect_isolated(
             void = set(todo) if "loaded" in run.twice else run.twice & set(todo)
             answers.ended.update(dict.fromkeys(void, TWICE))
             answers.results.update({s: m for s, m in run.results.items() if s in todo and s not in void})
-            if (
-                run.ended is None
-                or void == set(todo)
-                or run.loaded.get("error")
-                or not run.loaded.get("student_filter")
-            ):
+            if run.ended is None or void == set(todo) or run.loaded.get("error"):
                 break
             left_over = [s for s in todo if s not in run.results and s not in void]
             if not left_over:  # every stage answered, then it ended: the values are judged, the ending noted
@@ -293,21 +287,6 @@ def collect_in_process(
     run = ChildRun()
     child.serve(wired(*request("", None, stages, parts, scenarios)), lambda *sent: run.take(wired(*sent)), filter_class)
     return Answers(run.loaded, run.results)
-
-
-def loading_problem(answers: Answers, shown: str) -> str | None:
-    """The one line for a submission that cannot be checked at all, or None."""
-    loaded = answers.loaded or {}
-    if loaded.get("error"):
-        return clean(loaded["error"])
-    if loaded and not loaded.get("student_filter"):
-        bases = clean(", ".join(map(str, loaded.get("bases") or [])) or "object", 200)
-        return (
-            f"{shown}: {clean(loaded.get('class'), 80)} is not a StudentFilter (it subclasses {bases}); the "
-            "exercise grades a subclass of mazelab.exercise.StudentFilter with your own predict, weigh, resample "
-            "and estimate"
-        )
-    return None
 
 
 # -- the rows ----------------------------------------------------------------------------------------
@@ -399,10 +378,10 @@ def check_file(
     source = "given" if seed is not None else "key" if key else "files"
     seed = files_seed(files, key or None) if seed is None else seed
     report = Report(class_name or path.stem, None if source == "key" else seed, source, note=sandbox().note)
-    collect = functools.partial(collect_isolated, path.resolve(), class_name, budget=timeout, stages=stages,
+    collect = functools.partial(collect_isolated, class_name, budget=timeout, stages=stages,
                                 shown=shown, files=files)  # fmt: skip
     sources = {name: data.decode(errors="replace") for name, data in files.items()}
-    return _check(report, seed, stages, collect, shown, sources, references)
+    return _check(report, seed, stages, collect, sources, references)
 
 
 def check(filter_class: type, *, seed: int | None = None, stages: tuple[str, ...] = STAGES) -> Report:
@@ -411,7 +390,7 @@ def check(filter_class: type, *, seed: int | None = None, stages: tuple[str, ...
     seed = source_seed(filter_class) if seed is None else seed
     collect = functools.partial(collect_in_process, filter_class, stages=list(stages))
     sources = {"class.py": class_source(filter_class)}
-    return _check(Report(filter_class.__name__, seed, "class"), seed, stages, collect, filter_class.__name__, sources)
+    return _check(Report(filter_class.__name__, seed, "class"), seed, stages, collect, sources)
 
 
 def _check(
@@ -419,7 +398,6 @@ def _check(
     seed: int,
     stages: tuple[str, ...],
     collect: Callable[[PartInputs, list[ScenarioInputs]], Answers],
-    shown: str,
     sources: dict[str, str],
     references: Any = None,
 ) -> Report:
@@ -432,10 +410,10 @@ def _check(
     for scenario in scenarios:
         references.exact(scenario)
     answers = collect(parts, scenarios)
-    problem = loading_problem(answers, shown)
-    if problem:
-        raise NotGradableError(problem)
-    report.filter_name = clean((answers.loaded or {}).get("name") or report.filter_name, 80)
+    loaded = answers.loaded or {}
+    if loaded.get("error"):  # it does not import, has no such class, or the class is not a StudentFilter
+        raise NotGradableError(loaded["error"])
+    report.filter_name = clean(loaded.get("name") or report.filter_name, 80)
     build_report(report, parts, scenarios, answers, references, stages, copied_parts(sources))
     report.seconds = time.perf_counter() - started
     return report
