@@ -17,7 +17,7 @@ import typer
 
 from mazelab.atomic import write_bytes_atomically, write_text_atomically
 from mazelab.backend import use_threads
-from mazelab.cli.options import UserError, check_output_path, opt, seed_option
+from mazelab.cli.options import Force, UserError, check_output_path, opt, seed_option
 from mazelab.exercise.grading import (
     KEY_FILE,
     Gradebook,
@@ -48,7 +48,6 @@ exercise_app = typer.Typer(
 )
 TimeoutFlag = opt(float, min=1.0, max=MAX_TIMEOUT,
                   help="seconds the student's processes of one submission may take in all")  # fmt: skip
-ForceFlag = opt(bool, "--force", help="replace existing output files")
 GradescopeFlag = opt(Path | None, metavar="DIR", help="write Gradescope's results.json there", show_default=False)
 RequireSandboxFlag = opt(bool, "--require-sandbox",
                          help="refuse to grade where no sandbox can be made (bubblewrap on Linux)")  # fmt: skip
@@ -80,7 +79,7 @@ def check_command(
     key: KeyFlag = None,
     timeout: TimeoutFlag = DEFAULT_BUDGET,
     gradescope: GradescopeFlag = None,
-    force: ForceFlag = False,
+    force: Force = False,
     require_sandbox: RequireSandboxFlag = False,
     lang: LangFlag = None,
 ) -> None:
@@ -155,7 +154,7 @@ def grade_command(
     jobs: opt(int | None, min=1, help="submissions at once (default: the cores)") = None,
     csv_path: opt(Path | None, "--csv", metavar="F", help="one row per submission", show_default=False) = None,
     gradescope: GradescopeFlag = None,
-    force: ForceFlag = False,
+    force: Force = False,
     quiet: opt(bool, "--quiet", help="no progress bar") = False,
     require_sandbox: RequireSandboxFlag = False,
     lang: LangFlag = None,
@@ -244,7 +243,7 @@ def autograder_command(
     ) = None,
     timeout: TimeoutFlag = DEFAULT_BUDGET,
     lang: LangFlag = None,
-    force: ForceFlag = False,
+    force: Force = False,
 ) -> None:
     """Write the zip to upload as Gradescope's autograder: setup.sh (bubblewrap, and this lab at this
     version with its pinned dependencies), the secret key (read only by the grader), and run_autograder
