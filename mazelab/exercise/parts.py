@@ -72,15 +72,6 @@ def error_of(message: Message) -> dict[str, str] | None:
     return {"kind": error["kind"], "text": error["text"]}
 
 
-def error_row(part: str, expected: str, error: dict[str, str], hint: str) -> Row:
-    """The row of a stage whose student code did not answer: not written, an exit of its own, the wrong
-    form, or an error (naming the student's line)."""
-    if error["kind"] == "not written":
-        return Row(part, NOT_WRITTEN, expected, "not implemented", f"write {part} (see its docstring)")
-    hint = "a part returns its answer; it never ends the program" if error["kind"] == "exit" else hint
-    return Row(part, FAIL, expected, error["text"], hint)
-
-
 # -- the parts ------------------------------------------------------------------------------------------
 WEIGH_TOLERANCE = 1e-3  # log-likelihood units: a weight off by 0.1%
 ESTIMATE_TOLERANCE = 1e-4  # map units
@@ -478,8 +469,12 @@ def judge(stage: str, inputs: PartInputs, scenarios: list[ScenarioInputs], answe
     scheme the resampler resembles and the whole filter's figures go into `report` (the whole filter's SIR
     resamples with that scheme, on the scenarios' reference runs from `references`)."""
     error, scheme = error_of(answer), report.scheme
-    if error and stage != "whole":
-        return error_row(stage, expectations(inputs)[stage], error, HINTS[stage])
+    if error and stage != "whole":  # not written, an exit of its own, the wrong form, or an error (its line)
+        expected = expectations(inputs)[stage]
+        if error["kind"] == "not written":
+            return Row(stage, NOT_WRITTEN, expected, "not implemented", f"write {stage} (see its docstring)")
+        hint = "a part returns its answer; it never ends the program" if error["kind"] == "exit" else HINTS[stage]
+        return Row(stage, FAIL, expected, error["text"], hint)
     if stage == "resample":
         row, report.scheme = judge_resample(inputs, answer)
         return row
