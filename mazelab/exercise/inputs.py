@@ -111,10 +111,6 @@ class ScenarioInputs(_OnAMaze):
         )
 
 
-def _between(rng: np.random.Generator, bounds: tuple[float, float]) -> float:
-    return float(rng.uniform(*bounds))
-
-
 def _count(rng: np.random.Generator, bounds: tuple[int, int]) -> int:
     return int(rng.integers(bounds[0], bounds[1] + 1))
 
@@ -128,7 +124,7 @@ def draw_part_inputs(seed: int) -> PartInputs:
     rng = np.random.default_rng([seed, PARTS_TAG])
     maze = str(rng.choice(PART_MAZES))
     world = load_maze(maze)
-    sigma, delta = _between(rng, PART_SIGMA), _between(rng, PART_DELTA)
+    sigma, delta = float(rng.uniform(*PART_SIGMA)), float(rng.uniform(*PART_DELTA))
     prior = world.random_free_places(PRIOR_COUNT, rng)
     return PartInputs(
         maze,
@@ -216,7 +212,7 @@ def draw_scenarios(seed: int, count: int = SCENARIO_COUNT, steps: int = SCENARIO
     scenarios = []
     for run_seed in _seeds(rng, count):
         maze = str(rng.choice(WHOLE_MAZES))
-        sigma, delta = _between(rng, WHOLE_SIGMA), _between(rng, WHOLE_DELTA)
+        sigma, delta = float(rng.uniform(*WHOLE_SIGMA)), float(rng.uniform(*WHOLE_DELTA))
         scenarios.append(walk_scenario(maze, sigma, delta, run_seed, _count(rng, SCENARIO_PARTICLES), steps))
     return scenarios
 
