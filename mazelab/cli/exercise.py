@@ -3,15 +3,13 @@
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import secrets
 import signal
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
-from types import SimpleNamespace
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -100,14 +98,11 @@ def check_command(
         check_output_path(results, force)
     _sandbox_or_refuse(require_sandbox)
     submission = Submission(Path(spec).name, Path(spec), own_folder=True)  # the files beside it are its own
-    try:
-        with _stop_signals() as stop:
-            report = grade_one(submission, timeout, seed=seed, key=secret)
-    except KeyboardInterrupt:  # Ctrl-C or SIGTERM: the student's process has been ended with its sandbox
+    graded = functools.partial(grade_one, submission, timeout, seed=seed, key=secret)
+    report, stopped_by = _until_stopped(graded, "nothing graded (the grader's machine, not the submission)")
+    if stopped_by is not None:  # Ctrl-C or SIGTERM: the student's process has been ended with its sandbox
         typer.echo("stopped: nothing graded", err=True)
-        raise typer.Exit(128 + (stop.number or signal.SIGINT)) from None
-    except SandboxError as error:
-        raise UserError(f"{error}; nothing graded (the grader's machine, not the submission)") from None
+        raise typer.Exit(128 + stopped_by)
     if report.problem is None:
         typer.echo(format_report(report, catalogue=catalogue))
         took = {"seconds": f"{report.seconds:.1f}", "student": f"{report.student_seconds:.1f}"}
@@ -194,21 +189,16 @@ def _grade_into(book: Gradebook, grade: Callable[..., None], outputs: list[tuple
     under a progress bar; the number of the signal that stopped it (None: it went to the end)."""
     from mazelab.experiments.executor import progress_bar
 
-    try:
-        with claimed(outputs), _stop_signals() as stop, use_threads(1):  # submissions at once: a thread each
-            try:
-                with progress_bar(count, not quiet, what="submissions") as advance:
+    def work() -> None:  # use_threads(1): the submissions at once are a thread each
+        with claimed(outputs), use_threads(1), progress_bar(count, not quiet, what="submissions") as advance:
 
-                    def done(one: Report) -> None:
-                        book.add(one)
-                        advance()
+            def done(one: Report) -> None:
+                book.add(one)
+                advance()
 
-                    grade(on_done=done)
-            except KeyboardInterrupt:  # Ctrl-C or SIGTERM (_stop_signals): what was graded is in the book
-                return stop.number or signal.SIGINT
-    except SandboxError as error:
-        raise UserError(f"{error}; grading stopped, nobody graded by it") from None
-    return None
+            grade(on_done=done)
+
+    return _until_stopped(work, "grading stopped, nobody graded by it")[1]  # what was graded is in the book
 
 
 def _check_outputs(folder: Path, submissions: list[Submission], csv_path: Path | None, gradescope: Path | None,
@@ -258,20 +248,25 @@ def autograder_command(
     typer.echo(f"wrote {write_bytes_atomically(bundle, data, replace=force)} (upload it as the autograder)")
 
 
-@contextlib.contextmanager
-def _stop_signals() -> Iterator[SimpleNamespace]:
-    """SIGTERM and SIGHUP stop the grading as Ctrl-C does (the main thread's wait is interrupted, every
-    sandbox ended, what was graded kept); a second one while stopping changes nothing. Yields where the
-    signal that stopped it is noted (`number`, None: none yet)."""
-    stop = SimpleNamespace(number=None)
+def _until_stopped(work: Callable[[], Any], graded: str) -> tuple[Any, int | None]:
+    """`work()` with SIGTERM and SIGHUP stopping it as Ctrl-C does (the main thread's wait is interrupted,
+    every sandbox ended, what was graded kept; a second signal while stopping changes nothing): its
+    result and None, or None and the number of the signal that stopped it. A sandbox that cannot start is
+    one line, `graded` saying what was graded."""
+    stopped: list[int] = []
 
     def handler(number: int, frame: object) -> None:
-        if stop.number is None:
-            stop.number = number
+        if not stopped:
+            stopped.append(number)
             raise KeyboardInterrupt
 
-    with signal_handlers(STOP_SIGNALS, handler):
-        yield stop
+    try:
+        with signal_handlers(STOP_SIGNALS, handler):
+            return work(), None
+    except KeyboardInterrupt:
+        return None, (stopped or [signal.SIGINT])[0]
+    except SandboxError as error:
+        raise UserError(f"{error}; {graded}") from None
 
 
 __all__ = ["autograder_command", "check_command", "exercise_app", "grade_command", "new"]
