@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import hmac
+import warnings
 from dataclasses import dataclass
 from types import SimpleNamespace
 
@@ -17,6 +18,7 @@ import numpy as np
 from mazelab.maze import Maze, load_maze
 from mazelab.robot import Robot
 from mazelab.seeding import run_streams, start_place
+from mazelab.simulation import simulate
 
 PART_MAZES = ("paper_5x5", "twin_rooms_6x12", "maze_10x10", "maze_20x20")
 WHOLE_MAZES = ("paper_5x5", "maze_10x10")  # quick for the grid filter; not the twin rooms (a coin flip)
@@ -99,16 +101,17 @@ class ScenarioInputs(_OnAMaze):
         """What identifies the scenario (its reference runs are computed once per key)."""
         return (self.maze, self.sigma, self.delta, self.seed, len(self.particles), len(self.measurements))
 
-    def robot(self) -> Robot:
-        """A robot that replays the walk (for the exact and the shipped filter's runs)."""
-        return Robot(
-            self.sigma,
-            self.delta,
-            self.start,
-            actual_angles=self.actual_angles,
-            compass_angles=self.compass_angles,
-            measurements=self.measurements,
-        )
+    def replay(self, filter_name: str, **options: object) -> np.ndarray:
+        """A shipped filter's estimates (steps, 2) on the scenario's walk, replayed: the exact grid filter's
+        posterior means ("grid"), or the SIR's ("sir", resampling with the student's scheme)."""
+        robot = Robot(self.sigma, self.delta, self.start, actual_angles=self.actual_angles,
+                      compass_angles=self.compass_angles, measurements=self.measurements)  # fmt: skip
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)
+            result = simulate(robot, self.world, self.sigma, self.delta, steps=len(self.measurements),
+                              init_particles_pos=self.particles, filtering_algorithm=filter_name, seed=self.seed,
+                              **options)  # fmt: skip
+        return result.estimates
 
 
 def _count(rng: np.random.Generator, bounds: tuple[int, int]) -> int:

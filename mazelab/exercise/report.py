@@ -17,14 +17,11 @@ import shlex
 import textwrap
 import threading
 import time
-import warnings
 from collections.abc import Callable
 from concurrent.futures import Executor, Future
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
-
-import numpy as np
 
 from mazelab.exercise import child
 from mazelab.exercise.child import Message, encode, messages
@@ -57,7 +54,6 @@ from mazelab.exercise.template import Catalogue, catalogue_for
 from mazelab.experiments.tables import format_table
 from mazelab.invocation import command_prefix
 from mazelab.registry import split_spec
-from mazelab.simulation import simulate
 
 STAGES = (*PARTS, "whole")
 WHOLE = "whole filter"
@@ -140,26 +136,6 @@ class NotGradableError(ValueError):
 
 
 # -- the grader's own runs ------------------------------------------------------------------------
-def reference_run(scenario: ScenarioInputs, filter_name: str, **options: object) -> np.ndarray:
-    """A shipped filter's estimates (steps, 2) on the scenario: the exact grid filter's posterior means
-    ("grid"), or the SIR's ("sir", resampling with the student's scheme)."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)
-        result = simulate(
-            scenario.robot(),
-            scenario.world,
-            scenario.sigma,
-            scenario.delta,
-            None,
-            len(scenario.measurements),
-            scenario.particles,
-            filter_name,
-            seed=scenario.seed,
-            **options,
-        )
-    return result.estimates
-
-
 _memo: dict[tuple, Future] = {}
 _memo_lock = threading.Lock()
 
@@ -206,7 +182,7 @@ class References:
                 return future
             if self.executor is None and _background is None:
                 _background = Background()
-            future = (self.executor or _background).submit(reference_run, scenario, filter_name, **options)
+            future = (self.executor or _background).submit(ScenarioInputs.replay, scenario, filter_name, **options)
             _memo[key] = future
             return future
 
