@@ -107,7 +107,7 @@ def grade_one(submission: Submission, timeout: float, references: References | N
         except (SandboxError, GradingStoppedError, KeyboardInterrupt):
             raise
         except Exception as error:  # the grader's own failure on this submission: its row, not the class's
-            problem = clean(f"the grader could not check it: {type(error).__name__}: {error}")
+            problem = f"the grader could not check it: {type(error).__name__}: {error}"
     return Report(submission.name, None, submission=submission, problem=problem, seconds=time.perf_counter() - started)
 
 

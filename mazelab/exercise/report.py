@@ -88,7 +88,6 @@ class Submission:
 
     def __post_init__(self) -> None:
         self.name = clean(self.name, 200)
-        self.problem = None if self.problem is None else clean(self.problem)
 
 
 @dataclass
@@ -113,8 +112,9 @@ class Report:
     submission: Submission | None = None  # in a grading (mazelab.exercise.grading)
     problem: str | None = None  # why it could not be checked at all (then it has no rows)
 
-    def __post_init__(self) -> None:
+    def __post_init__(self) -> None:  # every text that reaches an output is data (clean)
         self.filter_name = clean(self.filter_name, 80)
+        self.problem = None if self.problem is None else clean(self.problem)
 
     @property
     def passed(self) -> bool:
@@ -129,10 +129,7 @@ class Report:
 
 
 class NotGradableError(ValueError):
-    """The submission cannot be checked at all: one line naming the file and why."""
-
-    def __init__(self, text: str):
-        super().__init__(clean(text))
+    """The submission cannot be checked at all: one line naming the file and why (its Report's `problem`)."""
 
 
 # -- the grader's own runs ------------------------------------------------------------------------
