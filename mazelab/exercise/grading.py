@@ -27,13 +27,7 @@ from typing import Any
 from mazelab.atomic import WriteError, lock, write_text_atomically
 from mazelab.exercise.parts import FAIL, NOT_OWN, NOT_RUN, NOT_WRITTEN, PASS, clean
 from mazelab.exercise.report import WHOLE, NotGradableError, References, Report, Submission, check_file, format_report
-from mazelab.exercise.sandbox import (
-    DEFAULT_BUDGET,
-    GradingStoppedError,
-    SandboxError,
-    allow_children,
-    stop_children,
-)
+from mazelab.exercise.sandbox import DEFAULT_BUDGET, SandboxError, allow_children, stop_children
 from mazelab.exercise.student import PARTS
 from mazelab.exercise.template import FILTER_FILE, Catalogue
 
@@ -104,7 +98,7 @@ def grade_one(submission: Submission, timeout: float, references: References | N
             return report
         except NotGradableError as error:
             problem = str(error)
-        except (SandboxError, GradingStoppedError, KeyboardInterrupt):
+        except SandboxError:  # the grader's machine: no one's row (a stop is no Exception: it passes too)
             raise
         except Exception as error:  # the grader's own failure on this submission: its row, not the class's
             problem = f"the grader could not check it: {type(error).__name__}: {error}"

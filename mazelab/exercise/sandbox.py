@@ -66,8 +66,9 @@ class SandboxError(RuntimeError):
     """The sandbox failed before the student's code ran: the grader's error, one line."""
 
 
-class GradingStoppedError(Exception):
-    """The grading was stopped (Ctrl-C, SIGTERM): no new child is started, and the running ones are ended."""
+class GradingStoppedError(KeyboardInterrupt):
+    """The grading was stopped (Ctrl-C, SIGTERM): no new child is started, and the running ones are ended
+    (an interrupt, so no handler of the grader's own errors takes it)."""
 
 
 @dataclass(frozen=True)
