@@ -296,7 +296,7 @@ def csv_text(graded: list[Report]) -> str:
     return buffer.getvalue()
 
 
-def gradescope_results(report: Report, catalogue: Catalogue | None = None) -> dict[str, Any]:
+def gradescope_json(report: Report, catalogue: Catalogue | None = None) -> str:
     """Gradescope's results.json for one submission: a test per row (1 point each), the report as
     the submission's output (its published autograder format), in the catalogue's language; a
     submission that could not be checked scores 0 with the reason. No seed nor key is in it."""
@@ -305,21 +305,23 @@ def gradescope_results(report: Report, catalogue: Catalogue | None = None) -> di
     if report.problem is not None:
         text = words.numbers(words.translate(report.problem))
         tests = [_test(i, _(part), 0.0, text) for i, part in enumerate(ROW_NAMES, 1)]
-        return {"score": 0.0, "execution_time": round(report.seconds), "output": text, "tests": tests}
-    tests = []
-    for i, row in enumerate(report.rows, 1):
-        status = _(FAIL.upper() if row.status == FAIL else row.status)
-        lines = [f"{status}: {words.translate(row.got)}", _("expected: ") + words.translate(row.expected)]
-        lines += [_("hint: ") + words.translate(row.hint)] if row.hint and not row.passed else []
-        tests.append(_test(i, _(row.part), 1.0 if row.passed else 0.0, words.numbers("\n".join(lines))))
-    return {
-        "score": float(sum(t["score"] for t in tests)),
-        "execution_time": round(report.seconds),
-        "output": format_report(report, catalogue=words),
-        "stdout_visibility": "hidden",
-        "tests": tests,
-        "extra_data": {"problems": report.problems, "sandboxed": not report.note},
-    }
+        results = {"score": 0.0, "execution_time": round(report.seconds), "output": text, "tests": tests}
+    else:
+        tests = []
+        for i, row in enumerate(report.rows, 1):
+            status = _(FAIL.upper() if row.status == FAIL else row.status)
+            lines = [f"{status}: {words.translate(row.got)}", _("expected: ") + words.translate(row.expected)]
+            lines += [_("hint: ") + words.translate(row.hint)] if row.hint and not row.passed else []
+            tests.append(_test(i, _(row.part), 1.0 if row.passed else 0.0, words.numbers("\n".join(lines))))
+        results = {
+            "score": float(sum(t["score"] for t in tests)),
+            "execution_time": round(report.seconds),
+            "output": format_report(report, catalogue=words),
+            "stdout_visibility": "hidden",
+            "tests": tests,
+            "extra_data": {"problems": report.problems, "sandboxed": not report.note},
+        }
+    return json.dumps(results, indent=2, allow_nan=False) + "\n"
 
 
 def _test(number: int, name: str, score: float, output: str) -> dict[str, Any]:
@@ -333,10 +335,6 @@ def _test(number: int, name: str, score: float, output: str) -> dict[str, Any]:
         "output": output,
         "visibility": "visible",
     }
-
-
-def gradescope_json(report: Report, catalogue: Catalogue | None = None) -> str:
-    return json.dumps(gradescope_results(report, catalogue), indent=2, allow_nan=False) + "\n"
 
 
 def summary(graded: list[Report], width: int = 100) -> str:
