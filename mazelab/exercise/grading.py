@@ -26,14 +26,14 @@ from typing import Any
 
 from mazelab.atomic import WriteError, lock, write_text_atomically
 from mazelab.exercise.parts import FAIL, NOT_OWN, NOT_RUN, NOT_WRITTEN, PASS, clean
-from mazelab.exercise.report import WHOLE, NotGradableError, References, Report, Submission, check_file, format_report
+from mazelab.exercise.report import ROWS, NotGradableError, References, Report, Submission, check_file, format_report
 from mazelab.exercise.sandbox import DEFAULT_BUDGET, SandboxError, allow_children, stop_children
 from mazelab.exercise.student import PARTS
 from mazelab.exercise.template import FILTER_FILE, Catalogue
 
 KEY_FILE = ".grading.key"  # hidden: no submission has its name (grading skips names that start with ".")
 KEY_BYTES = 32  # 256 bits; a given key needs at least 16 (128 bits)
-ROW_NAMES = (*PARTS, WHOLE)
+ROW_NAMES = tuple(ROWS.values())
 CSV_COLUMNS = (
     "submission", "file", *PARTS, "whole_filter", "farther_on", "to_exact", "sir_to_exact",
     "converged", "sir_converged", "seconds", "problem",

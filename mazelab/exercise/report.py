@@ -57,6 +57,7 @@ from mazelab.registry import split_spec
 
 STAGES = (*PARTS, "whole")
 WHOLE = "whole filter"
+ROWS = dict(zip(STAGES, (*PARTS, WHOLE), strict=True))  # each stage's row (the parts', then the whole filter's)
 COPY_HINT = "write it yourself: a part may not be the lab's reference implementation with its names changed"
 RESERVE = 5.0  # seconds of the budget kept for each stage after the one running (a hang leaves time for the rest)
 ENDED_HINT = "a part returns its answer: no exit, no endless loop, nothing that kills the process"
@@ -280,10 +281,10 @@ def build_report(
     if answers.problem:
         report.problems.append(clean(answers.problem))
         how = answers.problem.removeprefix("the student's process ")
-        report.rows = [ended_row(_label(s), expected[s], how, answers.output) for s in stages]
+        report.rows = [ended_row(ROWS[s], expected[s], how, answers.output) for s in stages]
         return report
     for stage in stages:  # the process ended in it, no answer came, an answer the grader cannot read, or judged
-        label, message = _label(stage), answers.results.get(stage)
+        label, message = ROWS[stage], answers.results.get(stage)
         try:
             if stage in answers.ended:
                 row = ended_row(label, expected[stage], answers.ended[stage], answers.output)
@@ -304,7 +305,7 @@ def build_report(
         if (copies or {}).get(stage) and row.status != NOT_WRITTEN:
             row = Row(row.part, NOT_OWN, row.expected, copies[stage], COPY_HINT)
         report.rows.append(row)
-    report.problems += [clean(f"{_label(s)}: the student's process {how}") for s, how in answers.ended.items()]
+    report.problems += [clean(f"{ROWS[s]}: the student's process {how}") for s, how in answers.ended.items()]
     report.problems += [clean(note) for note in answers.notes]
     report.problems += [f"{r.part}: {r.got}" for r in report.rows if r.status == NOT_OWN]
     failed = [r.part for r in report.rows if not r.passed and r.part != WHOLE]
@@ -319,10 +320,6 @@ def ended_row(part: str, expected: str, ended: str, output: str) -> Row:
     last = next((line.strip() for line in reversed(output.splitlines()) if line.strip()), "")
     got = f"the student's process {ended}" + (f"; its last line: {last[:200]}" if last else "")
     return Row(part, FAIL, expected, got, ENDED_HINT)
-
-
-def _label(stage: str) -> str:
-    return WHOLE if stage == "whole" else stage
 
 
 # -- the checks ----------------------------------------------------------------------------------------
