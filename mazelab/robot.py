@@ -9,7 +9,7 @@ import numpy as np
 
 from mazelab.checks import angle, as_point, coordinate, step_number
 from mazelab.maze import Maze
-from mazelab.model import MAX_STRAIGHT_STEPS, ROBOT_SPEED, check_model_parameters, sample_heading
+from mazelab.model import MAX_STRAIGHT_STEPS, ROBOT_SPEED, Sensor, check_model_parameters, sample_heading
 
 
 class Robot:
@@ -37,6 +37,7 @@ class Robot:
         kidnap_position: Sequence[float] | None = None,
     ):
         self.sigma, self.delta = check_model_parameters(sigma, delta)
+        self.sensor = Sensor(self.sigma)  # the model's measurement: what the filters' likelihood scores
         self.initial_position = as_point("robot position", position)
         if (actual_angles is None) != (compass_angles is None):
             raise ValueError("give both actual_angles and compass_angles, or neither")
@@ -130,8 +131,8 @@ class Robot:
         return self.compass_angles[k], self.measurements[k]
 
     def measure(self, world: Maze) -> float:
-        """Equation (2): a fresh noisy distance to the nearest station, N(distance, sigma^2)."""
-        return world.distance_at(self.x, self.y) + self.rng.normal(0.0, self.sigma)
+        """Equation (2): a fresh reading of the robot's sensor (mazelab.model.Sensor.sample)."""
+        return self.sensor.sample(world, self.x, self.y, self.rng)
 
     def _choose_heading(self, world: Maze, tries: int = 1000) -> tuple[float, float]:
         """The wandering rule: keep th0 unless the step would leave the free area or ran too long."""

@@ -507,12 +507,15 @@ def identity(runs: int, count: int) -> np.ndarray:
     return np.broadcast_to(np.arange(count), (runs, count)).copy()
 
 
-def per_run(value: float | np.ndarray, runs: int) -> np.ndarray:
-    """A step's compass angle or measurement as float64 (R,), one per run."""
-    if isinstance(value, np.ndarray):
-        value = value.astype(float, copy=False)  # read-only as broadcast_to's view, without its cost
-        return read_only(value.view()) if value.shape == (runs,) else np.broadcast_to(value, (runs,))
-    return np.array([float(value)] * runs)
+def per_run(value: Any, runs: int) -> np.ndarray:
+    """A step's compass angle or measurement as float64, one per run: (R,), or (R, k) for a reading of
+    k numbers (a model with several sensors), given once for every run or with the run axis first."""
+    if not isinstance(value, (np.ndarray, list, tuple)):
+        return np.array([float(value)] * runs)
+    value = np.asarray(value).astype(float, copy=False)
+    if value.ndim and len(value) == runs:
+        return read_only(value.view())  # read-only as broadcast_to's view, without its cost
+    return np.broadcast_to(value, (runs, *value.shape) if value.size > 1 else (runs,))
 
 
 def describe(value: Any) -> str:
