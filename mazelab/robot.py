@@ -19,6 +19,7 @@ class Robot:
     U(-delta/2, delta/2) each step, and picks a new uniform heading when the next step would hit a
     wall or leave the maze, or after `max_straight_steps` straight steps. Every step it takes (and
     every measurement) is recorded, so a second run of the same robot replays the first exactly.
+    Its readings are the model's (mazelab.model.Sensor: by default the paper's, of noise `sigma`).
     """
 
     def __init__(
@@ -35,9 +36,10 @@ class Robot:
         speed: float = ROBOT_SPEED,
         kidnap_at: int | None = None,
         kidnap_position: Sequence[float] | None = None,
+        sensor: Sensor | None = None,
     ):
         self.sigma, self.delta = check_model_parameters(sigma, delta)
-        self.sensor = Sensor(self.sigma)  # the model's measurement: what the filters' likelihood scores
+        self.sensor = Sensor(self.sigma) if sensor is None else sensor  # what the filters' likelihood scores
         self.initial_position = as_point("robot position", position)
         if (actual_angles is None) != (compass_angles is None):
             raise ValueError("give both actual_angles and compass_angles, or neither")
