@@ -384,11 +384,9 @@ def run_model(
     init_particles_pos: Sequence[Sequence[float]] | np.ndarray | None = None,
     filtering_algorithm: str | type = "SIRParticleFilter",
     *,
-    seed: int | None = None,
     visualize: Any = True,
     parameters_path: str | Path | None = None,
-    kidnap_at: int | None = None,
-    **filter_options: Any,
+    **options: Any,
 ) -> list[tuple[tuple[float, float], tuple[float, float]]]:
     """The paper's entry point: run a filter and return [((x_true, y_true), (x_est, y_est)), ...].
 
@@ -396,23 +394,11 @@ def run_model(
     angles the step count follows from them. `save_parameters=True` saves the scenario so the filters
     can be compared on identical data: to `parameters_path`, by default the paper's model_parameters.json
     in the working folder.
-    `kidnap_at=K` kidnaps the robot at step K; filter options such as `resampling=`, `recovery=`
-    and `kld=` pass through to the filter (see ParticleFilter).
+    The other keywords are `simulate`'s: `seed=`, `kidnap_at=K` (the robot kidnapped at step K), and
+    filter options such as `resampling=`, `recovery=` and `kld=` (see ParticleFilter).
     """
-    result = simulate(
-        robot,
-        world,
-        sigma,
-        delta,
-        particle_count,
-        steps,
-        init_particles_pos,
-        filtering_algorithm,
-        seed=seed,
-        visualize=visualize,
-        kidnap_at=kidnap_at,
-        **filter_options,
-    )
+    result = simulate(robot, world, sigma, delta, particle_count, steps, init_particles_pos, filtering_algorithm,
+                      visualize=visualize, **options)  # fmt: skip
     if save_parameters:
         from mazelab.scenario import DEFAULT_PARAMETERS_PATH, save_scenario  # pydantic: only a run that saves
 
