@@ -15,7 +15,8 @@ from __future__ import annotations
 import math
 import warnings
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any
+from types import MappingProxyType
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
@@ -33,7 +34,8 @@ from mazelab.constants import (
     ROBOT_SPEED,
     RPF_THRESHOLD,
 )
-from mazelab.declaration import Option, number_in
+from mazelab.declaration import Option, Options, number_in
+from mazelab.maze import check_world
 
 if TYPE_CHECKING:
     from mazelab.maze import Maze
@@ -290,6 +292,32 @@ class LostRobot:
         return self.sensor.log_pdf(z, x, self.world, self.ops)
 
 
+class ModelFilter:
+    """What a filter of the model that holds no sample shares (the exact grid filter,
+    mazelab.grid_filter, and the EKF, mazelab.kalman): made from the map, sigma, delta and its declared
+    options (`settings`, L among them), and stepped by `predict` with th0_k, then `update` with z_k.
+    Not a sample: no ESS (NaN), and no random draws (`particles` and `rng` are not used).
+    """
+
+    name: ClassVar[str]
+    options: ClassVar[Options]
+    ess = math.nan  # not a sample, so no effective sample size
+
+    def __init__(self, world: Maze, sigma: float, delta: float, particles: Any = None, rng: Any = None, **options: Any):
+        self.settings = MappingProxyType(type(self).options.resolve(options, self.name))
+        self.world, self.sigma, self.delta, self.speed = check_world(world), sigma, delta, self.settings["speed"]
+        check_sigma_within(sigma, world.width, world.height)
+        self.steps_done = 0
+        self.reinitialised_at: list[int] = []
+
+    def step(self, compass_angle: float, z: float) -> None:
+        """One step: predict with th0_k, the heading the compass reports (radians), then update with z_k,
+        the measured distance to the nearest station (map units)."""
+        self.advance(compass_angle)
+        self.update(z)
+        self.steps_done += 1
+
+
 def check_model_parameters(
     sigma: float, delta: float, map_size: tuple[float, float] | None = None
 ) -> tuple[float, float]:
@@ -339,6 +367,7 @@ __all__ = [
     "RPF_THRESHOLD",
     "SPEED_OPTION",
     "LostRobot",
+    "ModelFilter",
     "Sensor",
     "check_model_parameters",
     "headings_from_uniforms",
