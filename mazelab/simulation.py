@@ -71,10 +71,11 @@ class RunResult:
     ) -> RunResult:
         """Run `r` of what the recording loop kept (mazelab.collect.Recorded), named by `inputs`' filter:
         the robot's `true_positions` (steps, 2), the filter's restarts and the backend it ran on."""
-        run = recorded.run(r)
-        extras = {"particle_count": run["counts"], "diagnostics": run["diagnostics"], "backend": backend}
-        return cls(inputs.filtering_algorithm, true_positions, run["estimates"], run["ess"], run["confident"],
-                   recorded.seconds, list(restarts), inputs, extras, run["log_evidence"])  # fmt: skip
+        diagnostics = {name: values[r] for name, values in recorded.diagnostics.items()}
+        extras = {"particle_count": recorded.counts[r], "diagnostics": diagnostics, "backend": backend}
+        return cls(inputs.filtering_algorithm, true_positions, recorded.estimates[r], recorded.ess[r],
+                   recorded.confident[r], recorded.seconds, list(restarts), inputs, extras,
+                   recorded.log_evidence[r])  # fmt: skip
 
     @cached_property
     def scenario(self) -> Scenario:
