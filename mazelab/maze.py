@@ -256,11 +256,11 @@ class Maze:
 
     def nearest_station(self, points: Any) -> np.ndarray:
         """Coordinates of the station nearest each point: points (..., 2) -> (..., 2), map units.
-        The station whose distance `distance_to_nearest_station` gives (the EKF's data association)."""
+        The station whose distance `distance_to_nearest_station` gives (the EKF's data association, one
+        mean a step): each point's from the lookup in plain floats (`NearestStationLookup.station_at`)."""
         points = _point_array(points)
-        if points.shape == (2,):  # the EKF's one mean a step
-            return self.stations[self._lookup.station_at(float(points[0]), float(points[1]))[0]]
-        return self.stations[self._lookup.nearest(points.reshape(-1, 2))].reshape(points.shape)
+        nearest = [self._lookup.station_at(x, y)[0] for x, y in points.reshape(-1, 2).tolist()]
+        return self.stations[nearest].reshape(points.shape)
 
     def station_distances_and_free(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Distance to the nearest station and the free flag of each point, both from one cell lookup:
