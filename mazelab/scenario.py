@@ -47,7 +47,7 @@ from mazelab.checks import (
 from mazelab.declaration import options_of
 from mazelab.maze import MAZES_DIR, Maze, find_shipped, shipped_mazes
 from mazelab.registry import FilterEntry, PluginReference, filter_entry, loaded_plugin, shipped_entry
-from mazelab.robot import Robot
+from mazelab.robot import Robot, check_walk_lists
 
 DEFAULT_PARAMETERS_PATH = Path("model_parameters.json")  # the paper's file (lab steps 9-10), in the working folder
 LEGACY_PARAMETERS_PATH = Path("model_parameters") / "model_parameters.json"  # where older versions saved it
@@ -144,17 +144,11 @@ class Scenario(BaseModel):
         for key, version in FORMAT_VERSIONS.items():
             if getattr(self, key) is not None and self.format_version < version:
                 raise ValueError(f"{key} needs format_version {version}, got {self.format_version}")
-        if (self.kidnap_at is None) != (self.kidnap_position is None):
-            raise ValueError("kidnap_at and kidnap_position come together: give both or neither")
-        if self.kidnap_at is not None and self.kidnap_at > len(self.robot_actual_angles):
-            raise ValueError(f"kidnap_at {self.kidnap_at} is after the last step ({len(self.robot_actual_angles)})")
         steps = len(self.robot_actual_angles)
-        if len(self.robot_compass_angles) != steps:
-            raise ValueError(
-                f"robot_actual_angles has {steps} entries but robot_compass_angles has {len(self.robot_compass_angles)}"
-            )
-        if self.robot_measurements is not None and len(self.robot_measurements) != steps:
-            raise ValueError(f"robot_measurements has {len(self.robot_measurements)} entries, {steps} expected")
+        check_walk_lists(self.robot_actual_angles, self.robot_compass_angles, self.robot_measurements,
+                         self.kidnap_at, self.kidnap_position, keys="robot_")  # fmt: skip
+        if self.kidnap_at is not None and self.kidnap_at > steps:
+            raise ValueError(f"kidnap_at {self.kidnap_at} is after the last step ({steps})")
         if self.steps is not None and self.steps != steps:
             raise ValueError(f"steps is {self.steps} but there are {steps} angles")
         world = self.world()
