@@ -295,7 +295,7 @@ class LostRobot:
 class ModelFilter:
     """What a filter of the model that holds no sample shares (the exact grid filter,
     mazelab.grid_filter, and the EKF, mazelab.kalman): made from the map, sigma, delta and its declared
-    options (`settings`, L among them), and stepped by `predict` with th0_k, then `update` with z_k.
+    options (`settings`, L among them), and stepped by `advance` with th0_k, then `update` with z_k.
     Not a sample: no ESS (NaN), and no random draws (`particles` and `rng` are not used).
     """
 
