@@ -117,7 +117,7 @@ class ParticleFilter(SMC):
         recovering = recovery_options(settings["recovery"], settings["alpha_slow"], settings["alpha_fast"])
         self.recovery = None if recovering is None else RecoveryTracker(recovering, world, sigma)
         self.max_count = self.count if self.kld is None or self.kld.max_count is None else self.kld.max_count
-        if self.runs > 1 and (self.recovery is not None or self.kld is not None):
+        if self.runs > 1 and not self.runs_together(settings):
             raise ValueError("recovery and KLD-sampling vary one run's particles: they run one run at a time")
         self._injected: tuple[int, np.ndarray | None] = (0, None)  # (the step, recovery's injected particles)
         self._reads: tuple[Any, dict[str, Any]] = (None, {})  # (the x and W read, the reads)
