@@ -102,10 +102,6 @@ class NearestStationLookup:
                 best, nearest = index, d2
         return best, math.sqrt(nearest)
 
-    def distances(self, points: np.ndarray) -> np.ndarray:
-        """Distance to the nearest station for points of shape (N, 2)."""
-        return self.locate(points[:, 0], points[:, 1])[0]
-
     def _cells(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Each point's flat lookup-cell index (N,), and the indices of the points beyond the table (a NaN
         point among them: its distance comes out NaN, which the filter's step reports)."""

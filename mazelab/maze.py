@@ -246,7 +246,7 @@ class Maze:
             return self.distance_at(float(x), float(y))
         points = _point_array(x) if y is None else np.stack(np.broadcast_arrays(x, y), -1).astype(float)
         flat = points.reshape(-1, 2)
-        distances = self._lookup.distances(flat).reshape(points.shape[:-1])
+        distances = self.station_distances_and_free(flat[:, 0], flat[:, 1])[0].reshape(points.shape[:-1])
         return float(distances) if distances.ndim == 0 else distances
 
     def distance_at(self, x: float, y: float) -> float:
