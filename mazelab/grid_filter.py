@@ -62,7 +62,6 @@ class GridBayesFilter(ModelFilter):
         self._distance = world.distance_to_nearest_station(self.positions).reshape(self.shape)
         self.density = self._prior()
         self._work: GridWorkspace | None = None  # made at the first step (a filter only read never needs it)
-        self._last_arc: tuple[float, np.ndarray, np.ndarray] | None = None
         self.log_evidence = 0.0  # log p(z_1:k), exact on the grid
         self._log_gaussian_constant = -math.log(self.sigma * math.sqrt(2 * math.pi))
 
@@ -84,17 +83,13 @@ class GridBayesFilter(ModelFilter):
     def predict(self, density: np.ndarray, compass_angle: float, out: np.ndarray | None = None) -> np.ndarray:
         """Convolve with the arc kernel of this step's compass angle (linear, not circular, FFT), into
         `out` if given (an array of the grid's shape), else a new array."""
-        kernel, spectrum = self._arc(compass_angle)
-        return np.clip(self.workspace.convolve(density, kernel.shape, spectrum), 0.0, None, out=out)
 
-    def _arc(self, compass_angle: float) -> tuple[np.ndarray, np.ndarray]:
-        """The arc kernel of this compass angle and its FFT, kept while the angle repeats (the robot
-        holds a compass heading for up to MAX_STRAIGHT_STEPS steps)."""
-        if self._last_arc is None or self._last_arc[0] != compass_angle:
-            kernel = arc_kernel(compass_angle, self.delta, self.speed, self.resolution)
-            spectrum = self.workspace.kernel_spectrum(kernel)  # np.fft.rfft2(kernel, fft_shape(...)), in place
-            self._last_arc = (compass_angle, kernel, spectrum)
-        return self._last_arc[1], self._last_arc[2]
+        def arc(angle: float) -> tuple[np.ndarray, np.ndarray]:  # the arc kernel and its FFT, kept per angle
+            kernel = arc_kernel(angle, self.delta, self.speed, self.resolution)
+            return kernel, self.workspace.kernel_spectrum(kernel)  # np.fft.rfft2(kernel, fft_shape(...)), in place
+
+        kernel, spectrum = self.per_angle(compass_angle, arc)
+        return np.clip(self.workspace.convolve(density, kernel.shape, spectrum), 0.0, None, out=out)
 
     def log_likelihood(self, z: float, out: np.ndarray | None = None) -> np.ndarray:
         """log p(z | x) on the cells (equation (3) with the outside penalty) without the Gaussian's

@@ -65,22 +65,14 @@ class ExtendedKalmanFilter(ModelFilter):
             self.mean = np.array(start, dtype=float).reshape(2)
             self.covariance = start_std**2 * np.eye(2)
         self.init = init
-        self._last_q: tuple[float, np.ndarray, np.ndarray] | None = None
         self.station = np.full(2, np.nan)  # the station the last update measured to
         self.innovation = math.nan  # z_k - |m_k|k-1 - station|, map units
 
     def advance(self, compass_angle: float) -> None:
         """The prediction, m <- m + E[displacement], P <- P + Q: the exact first two moments of equation (1)."""
-        displacement, q = self._motion(compass_angle)
+        displacement, q = self.per_angle(compass_angle, lambda angle: arc_moments(angle, self.delta, self.speed))
         self.mean = self.mean + displacement
         self.covariance = self.covariance + q
-
-    def _motion(self, compass_angle: float) -> tuple[np.ndarray, np.ndarray]:
-        """The arc's mean and covariance, kept while the compass angle repeats."""
-        if self._last_q is None or self._last_q[0] != compass_angle:
-            moments = arc_moments(compass_angle, self.delta, self.speed)
-            self._last_q = (compass_angle, *moments)
-        return self._last_q[1], self._last_q[2]
 
     def update(self, z: float) -> None:
         """The EKF update with the range to the station nearest the predicted mean (Joseph form)."""

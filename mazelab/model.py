@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from types import MappingProxyType
 from typing import TYPE_CHECKING, Any, ClassVar
 
@@ -309,6 +309,14 @@ class ModelFilter:
         check_sigma_within(sigma, world.width, world.height)
         self.steps_done = 0
         self.reinitialised_at: list[int] = []
+        self._motion: tuple[float, Any] | None = None  # (th0, what `per_angle` computed for it)
+
+    def per_angle(self, compass_angle: float, compute: Callable[[float], Any]) -> Any:
+        """`compute(compass_angle)`, the step's motion (the EKF's arc moments, the grid's arc kernel), kept
+        while the compass angle repeats (the robot holds a heading for up to MAX_STRAIGHT_STEPS steps)."""
+        if self._motion is None or self._motion[0] != compass_angle:
+            self._motion = (compass_angle, compute(compass_angle))
+        return self._motion[1]
 
     def step(self, compass_angle: float, z: float) -> None:
         """One step: predict with th0_k, the heading the compass reports (radians), then update with z_k,
