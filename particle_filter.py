@@ -14,7 +14,8 @@ only gathers the names; where each thing's lines are:
     RPF (Algorithm 6)                                  mazelab/filters.py, RegularizedParticleFilter
                                                          .move_resampled (the jitter), .kernels
     the model: prior, transition (1), likelihood (3)   mazelab/model.py, LostRobot (the constants:
-                                                         mazelab/constants.py)
+                                                         mazelab/constants.py); the measurement (2)-(3),
+                                                         the robot's and the filters' alike: Sensor
     the weights (W, ESS, the log mean increment)       mazelab/weights.py, Weights
     the filters' options, the model and the backend    mazelab/filters.py, ParticleFilter
     Robot (wandering, the straight-run limit)          mazelab/robot.py, Robot.step

@@ -37,29 +37,6 @@ class Recorded:
     seconds: np.ndarray
     diagnostics: dict[str, np.ndarray] = field(default_factory=dict)
 
-    def run(self, r: int) -> dict[str, Any]:
-        """Run r's per-step arrays, by name.
-
-        Parameters
-        ----------
-        r : int
-            The run (0 for one run).
-
-        Returns
-        -------
-        dict
-            estimates (steps, 2), ess, confident, counts, log_evidence (steps,) and diagnostics
-            (name -> (steps,)).
-        """
-        return {
-            "estimates": self.estimates[r],
-            "ess": self.ess[r],
-            "confident": self.confident[r],
-            "counts": self.counts[r],
-            "log_evidence": self.log_evidence[r],
-            "diagnostics": {name: values[r] for name, values in self.diagnostics.items()},
-        }
-
 
 def record_steps(
     filt: Any,

@@ -30,7 +30,7 @@ from mazelab.constants import CONFIDENCE_RADIUS, CONFIDENCE_SHARE, PARTICLE_DTYP
 from mazelab.contract import Particles
 from mazelab.declaration import Option, Options, number_in, options_of
 from mazelab.maze import Maze, check_world
-from mazelab.model import OUTSIDE_PENALTY_OPTION, SPEED_OPTION, LostRobot
+from mazelab.model import MODEL_OPTIONS, LostRobot
 from mazelab.modes import ESTIMATE_OPTION, Mode, find_modes
 from mazelab.numpy_ops import keep_freed_memory
 from mazelab.recovery import RECOVERY_OPTIONS, RecoveryTracker, recovery_options
@@ -77,8 +77,7 @@ class ParticleFilter(SMC):
     options: ClassVar[Options] = Options(
         THRESHOLD_OPTION,
         RESAMPLING_OPTION,
-        OUTSIDE_PENALTY_OPTION,
-        SPEED_OPTION,
+        *MODEL_OPTIONS,
         *RECOVERY_OPTIONS,
         *KLD_OPTIONS,
         ESTIMATE_OPTION,
@@ -103,7 +102,7 @@ class ParticleFilter(SMC):
         self.ops = kernels_for(self.world)  # the hot operations: numpy's or compiled (mazelab.backend)
         keep_freed_memory()  # a step's freed arrays reused, not given back and faulted in again
         self.backend: str = self.ops.name
-        model = LostRobot(self.world, sigma, delta, self.ops, settings["speed"], settings["outside_penalty"])
+        model = LostRobot.of_settings(self.world, sigma, delta, self.ops, settings)
         self.threshold, self.estimate_rule = settings["threshold"], settings["estimate"]
         self.scheme_name = settings["resampling"]
         self.kld = kld_options(settings["kld"], settings["kld_epsilon"], settings["kld_z"])
@@ -118,7 +117,7 @@ class ParticleFilter(SMC):
         recovering = recovery_options(settings["recovery"], settings["alpha_slow"], settings["alpha_fast"])
         self.recovery = None if recovering is None else RecoveryTracker(recovering, world, sigma)
         self.max_count = self.count if self.kld is None or self.kld.max_count is None else self.kld.max_count
-        if self.runs > 1 and (self.recovery is not None or self.kld is not None):
+        if self.runs > 1 and not self.runs_together(settings):
             raise ValueError("recovery and KLD-sampling vary one run's particles: they run one run at a time")
         self._injected: tuple[int, np.ndarray | None] = (0, None)  # (the step, recovery's injected particles)
         self._reads: tuple[Any, dict[str, Any]] = (None, {})  # (the x and W read, the reads)

@@ -4,21 +4,20 @@ and the oracle the tests and the accuracy table measure them against."""
 from __future__ import annotations
 
 import math
-from types import MappingProxyType
 from typing import Any, ClassVar
 
 import numpy as np
 
-from mazelab.checks import MAP_MARGIN, MAX_GRID_RESOLUTION, check_memory, check_sigma_within
+from mazelab.checks import MAP_MARGIN, MAX_GRID_RESOLUTION, check_memory
 from mazelab.contract import Density
 from mazelab.declaration import Option, Options, number_in
-from mazelab.maze import Maze, check_world
 from mazelab.model import (
     CONFIDENCE_RADIUS,
     CONFIDENCE_SHARE,
     LOG_UNDERFLOW,
     OUTSIDE_PENALTY_OPTION,
     SPEED_OPTION,
+    ModelFilter,
 )
 from mazelab.modes import ESTIMATE_OPTION, MODE_CELL, Mode, find_modes, modes_of_bins
 from mazelab.weights import mass_within, weighted_mean
@@ -27,7 +26,7 @@ GRID_RESOLUTION = 0.02  # cell size of GridBayesFilter, map units (divides 1, so
 BYTES_PER_GRID_CELL = 250  # the density, positions, distances and FFT buffers per cell (about 130 measured)
 
 
-class GridBayesFilter:
+class GridBayesFilter(ModelFilter):
     """The exact Bayes filter of the same model on a fine grid: the accuracy limit of the particle filters.
 
     The density lives on cells of size `resolution` covering the map plus a `margin` (mass that leaves
@@ -46,22 +45,10 @@ class GridBayesFilter:
         ESTIMATE_OPTION,
     )  # fmt: skip
 
-    def __init__(
-        self,
-        world: Maze,
-        sigma: float,
-        delta: float,
-        particles: np.ndarray | None = None,
-        rng: np.random.Generator | None = None,
-        **options: Any,
-    ):
-        del particles, rng  # the exact filter starts from the exact prior, not from a sample, and draws nothing
-        settings = type(self).options.resolve(options, self.name)
-        self.settings = MappingProxyType(settings)
-        resolution, margin, outside_penalty = settings["resolution"], settings["margin"], settings["outside_penalty"]
-        self.world, self.sigma, self.delta, self.speed = check_world(world), sigma, delta, settings["speed"]
-        check_sigma_within(sigma, world.width, world.height)
-        self.estimate_rule = settings["estimate"]
+    def __init__(self, *args: Any, **options: Any):
+        super().__init__(*args, **options)  # the exact filter starts from the exact prior, not from a sample
+        world, resolution, margin = self.world, self.settings["resolution"], self.settings["margin"]
+        self.estimate_rule = self.settings["estimate"]
         self.resolution = resolution
         self.origin = -margin
         ny, nx = check_grid_memory(world.width, world.height, resolution, margin)
@@ -71,34 +58,20 @@ class GridBayesFilter:
         self.positions = np.column_stack([gx.ravel(), gy.ravel()])  # (M, 2) cell centres
         self.shape = (ny, nx)
         self.free = world.is_free(gx, gy)
-        self._log_likelihood_constant = np.where(self.free, 0.0, math.log(outside_penalty))
+        self._log_likelihood_constant = np.where(self.free, 0.0, math.log(self.settings["outside_penalty"]))
         self._distance = world.distance_to_nearest_station(self.positions).reshape(self.shape)
         self.density = self._prior()
         self._work: GridWorkspace | None = None  # made at the first step (a filter only read never needs it)
-        self._last_arc: tuple[float, np.ndarray, np.ndarray] | None = None
-        self.steps_done = 0
-        self.reinitialised_at: list[int] = []
         self.log_evidence = 0.0  # log p(z_1:k), exact on the grid
-        self._log_gaussian_constant = -math.log(sigma * math.sqrt(2 * math.pi))
+        self._log_gaussian_constant = -math.log(self.sigma * math.sqrt(2 * math.pi))
 
     def _prior(self) -> np.ndarray:
         return self.free / self.free.sum()
 
-    def step(self, compass_angle: float, z: float) -> None:
-        """One step of the exact Bayes filter: predict, then update.
-
-        Parameters
-        ----------
-        compass_angle : float
-            th0_k, the heading the compass reports for this step (radians).
-        z : float
-            z_k, the measured distance to the nearest station (map units).
-        """
-        work = self.workspace
-        # p(x_k | z_1:k-1), Chapman-Kolmogorov, into the workspace: update replaces it with a new array
-        self.density = self.predict(self.density, compass_angle, out=work.predicted)
-        self.update(z)  # p(x_k | z_1:k) ∝ p(z_k | x_k) p(x_k | z_1:k-1)
-        self.steps_done += 1
+    def advance(self, compass_angle: float) -> None:
+        """p(x_k | z_1:k-1), Chapman-Kolmogorov (`predict`), into the workspace: `update` then replaces it
+        with p(x_k | z_1:k) ∝ p(z_k | x_k) p(x_k | z_1:k-1), a new array."""
+        self.density = self.predict(self.density, compass_angle, out=self.workspace.predicted)
 
     @property
     def workspace(self) -> GridWorkspace:
@@ -110,17 +83,13 @@ class GridBayesFilter:
     def predict(self, density: np.ndarray, compass_angle: float, out: np.ndarray | None = None) -> np.ndarray:
         """Convolve with the arc kernel of this step's compass angle (linear, not circular, FFT), into
         `out` if given (an array of the grid's shape), else a new array."""
-        kernel, spectrum = self._arc(compass_angle)
-        return np.clip(self.workspace.convolve(density, kernel.shape, spectrum), 0.0, None, out=out)
 
-    def _arc(self, compass_angle: float) -> tuple[np.ndarray, np.ndarray]:
-        """The arc kernel of this compass angle and its FFT, kept while the angle repeats (the robot
-        holds a compass heading for up to MAX_STRAIGHT_STEPS steps)."""
-        if self._last_arc is None or self._last_arc[0] != compass_angle:
-            kernel = arc_kernel(compass_angle, self.delta, self.speed, self.resolution)
-            spectrum = self.workspace.kernel_spectrum(kernel)  # np.fft.rfft2(kernel, fft_shape(...)), in place
-            self._last_arc = (compass_angle, kernel, spectrum)
-        return self._last_arc[1], self._last_arc[2]
+        def arc(angle: float) -> tuple[np.ndarray, np.ndarray]:  # the arc kernel and its FFT, kept per angle
+            kernel = arc_kernel(angle, self.delta, self.speed, self.resolution)
+            return kernel, self.workspace.kernel_spectrum(kernel)  # np.fft.rfft2(kernel, fft_shape(...)), in place
+
+        kernel, spectrum = self.per_angle(compass_angle, arc)
+        return np.clip(self.workspace.convolve(density, kernel.shape, spectrum), 0.0, None, out=out)
 
     def log_likelihood(self, z: float, out: np.ndarray | None = None) -> np.ndarray:
         """log p(z | x) on the cells (equation (3) with the outside penalty) without the Gaussian's
@@ -189,11 +158,6 @@ class GridBayesFilter:
     @property
     def count(self) -> int:
         return len(self.positions)
-
-    @property
-    def ess(self) -> float:
-        """Not a sample, so no effective sample size: NaN."""
-        return math.nan
 
     @property
     def estimate(self) -> np.ndarray:

@@ -12,16 +12,15 @@ are not in a Gaussian.
 from __future__ import annotations
 
 import math
-from types import MappingProxyType
 from typing import Any, ClassVar
 
 import numpy as np
 
-from mazelab.checks import MAP_MARGIN, check_sigma_within
+from mazelab.checks import MAP_MARGIN
 from mazelab.contract import Gaussian
 from mazelab.declaration import Option, Options, choice, number_in
-from mazelab.maze import Maze, check_world
-from mazelab.model import CONFIDENCE_RADIUS, CONFIDENCE_SHARE, ROBOT_SPEED, SPEED_OPTION
+from mazelab.maze import Maze
+from mazelab.model import CONFIDENCE_RADIUS, CONFIDENCE_SHARE, ROBOT_SPEED, SPEED_OPTION, ModelFilter
 from mazelab.modes import ESTIMATE_OPTION
 
 START_STD = 0.05  # std of each coordinate of init="start"'s covariance, map units: the start is known
@@ -34,13 +33,13 @@ _PSI = (np.arange(256) + 0.5) * (math.pi / 2 / 256)
 _COS2, _SIN2 = np.cos(_PSI) ** 2, np.sin(_PSI) ** 2
 
 
-class ExtendedKalmanFilter:
+class ExtendedKalmanFilter(ModelFilter):
     """The EKF of the lab's model: state (x, y), mean `mean` (2,) and covariance `covariance` (2, 2).
 
     `init="prior"` (default) starts from the free area's exact mean and covariance (global
     localisation, the lab's problem); `init="start"` from the robot's true start `start` with
     covariance START_STD^2 I (position tracking). simulate hands every filter class that declares
-    the option `start` the robot's start. Not a sample: no particles, no ESS.
+    the option `start` the robot's start. A Kalman filter never restarts (`reinitialised_at` stays empty).
     """
 
     name: ClassVar[str] = "ExtendedKalmanFilter"
@@ -55,61 +54,25 @@ class ExtendedKalmanFilter:
         ESTIMATE_OPTION,
     )  # fmt: skip
 
-    def __init__(
-        self,
-        world: Maze,
-        sigma: float,
-        delta: float,
-        particles: np.ndarray | None = None,
-        rng: np.random.Generator | None = None,
-        **options: Any,
-    ):
-        del particles, rng  # a Gaussian needs neither a sample nor random draws
-        settings = type(self).options.resolve(options, self.name)
-        self.settings = MappingProxyType(settings)
-        init, start, start_std = settings["init"], settings["start"], settings["start_std"]
-        self.world, self.sigma, self.delta, self.speed = check_world(world), sigma, delta, settings["speed"]
-        check_sigma_within(sigma, world.width, world.height)
+    def __init__(self, *args: Any, **options: Any):
+        super().__init__(*args, **options)
+        init, start, start_std = self.settings["init"], self.settings["start"], self.settings["start_std"]
         if init == "prior":
-            self.mean, self.covariance = free_area_moments(world)
+            self.mean, self.covariance = free_area_moments(self.world)
         else:  # "start"
             if start is None:
                 raise ValueError('init="start" needs the robot\'s start: give start=(x, y)')
             self.mean = np.array(start, dtype=float).reshape(2)
             self.covariance = start_std**2 * np.eye(2)
         self.init = init
-        self._last_q: tuple[float, np.ndarray, np.ndarray] | None = None
         self.station = np.full(2, np.nan)  # the station the last update measured to
         self.innovation = math.nan  # z_k - |m_k|k-1 - station|, map units
-        self.steps_done = 0
-        self.reinitialised_at: list[int] = []  # never: a Kalman filter has no "no hypothesis explains z"
 
-    def step(self, compass_angle: float, z: float) -> None:
-        """Predict with compass angle th0_k, then update with the range z_k.
-
-        Parameters
-        ----------
-        compass_angle : float
-            th0_k, the heading the compass reports for this step (radians).
-        z : float
-            z_k, the measured distance to the nearest station (map units).
-        """
-        self.predict(compass_angle)
-        self.update(z)
-        self.steps_done += 1
-
-    def predict(self, compass_angle: float) -> None:
-        """m <- m + E[displacement], P <- P + Q: the exact first two moments of equation (1)."""
-        displacement, q = self._motion(compass_angle)
+    def advance(self, compass_angle: float) -> None:
+        """The prediction, m <- m + E[displacement], P <- P + Q: the exact first two moments of equation (1)."""
+        displacement, q = self.per_angle(compass_angle, lambda angle: arc_moments(angle, self.delta, self.speed))
         self.mean = self.mean + displacement
         self.covariance = self.covariance + q
-
-    def _motion(self, compass_angle: float) -> tuple[np.ndarray, np.ndarray]:
-        """The arc's mean and covariance, kept while the compass angle repeats."""
-        if self._last_q is None or self._last_q[0] != compass_angle:
-            moments = arc_moments(compass_angle, self.delta, self.speed)
-            self._last_q = (compass_angle, *moments)
-        return self._last_q[1], self._last_q[2]
 
     def update(self, z: float) -> None:
         """The EKF update with the range to the station nearest the predicted mean (Joseph form)."""
@@ -132,11 +95,6 @@ class ExtendedKalmanFilter:
     def count(self) -> int:
         """One Gaussian."""
         return 1
-
-    @property
-    def ess(self) -> float:
-        """Not a sample, so no effective sample size: NaN."""
-        return math.nan
 
     @property
     def is_confident(self) -> bool:

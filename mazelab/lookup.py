@@ -78,15 +78,16 @@ class NearestStationLookup:
         return np.sqrt(d2, out=d2), free
 
     def station_at(self, x: float, y: float) -> tuple[int, float]:
-        """The nearest station's index and distance for one float64 point, in plain floats: `nearest`'s
-        index and `locate`'s distance (the same IEEE operations, so the same values; ties go to the
-        earlier candidate), without the cost of numpy calls on arrays of one. A lookup cell's
+        """The nearest station's index and distance for one float64 point, in plain floats: `locate`'s
+        distance (the same IEEE operations, so the same values; ties go to the earlier candidate),
+        without the cost of numpy calls on arrays of one. A lookup cell's
         candidates are made once, as (station index, sx, sy) without repeats: the robot's walk
         revisits its cells."""
         ix, iy = math.floor(x * self.scale) + self.offset, math.floor(y * self.scale) + self.offset
-        if not (0 <= ix < self.nx and 0 <= iy < self.ny):  # beyond the table
-            point = np.array([[x, y]])
-            return int(self.nearest(point)[0]), float(self.distances(point)[0])
+        if not (0 <= ix < self.nx and 0 <= iy < self.ny):  # beyond the table: every station, as `locate`'s border
+            d2 = _squared_distances(self.stations[:, 0], self.stations[:, 1], x, y)
+            best = int(d2.argmin())
+            return best, math.sqrt(d2[best])
         cell = iy * self.nx + ix
         near = self._near.get(cell)
         if near is None:
@@ -100,28 +101,6 @@ class NearestStationLookup:
             if d2 < nearest:
                 best, nearest = index, d2
         return best, math.sqrt(nearest)
-
-    def distances(self, points: np.ndarray) -> np.ndarray:
-        """Distance to the nearest station for points of shape (N, 2)."""
-        return self.locate(points[:, 0], points[:, 1])[0]
-
-    def nearest(self, points: np.ndarray) -> np.ndarray:
-        """Index into `stations` of the station nearest each point (N, 2) float64, shape (N,): the
-        nearest of the point's lookup cell's candidates (brute force beyond the table), exact as
-        `locate` (ties go to the earlier candidate)."""
-        x, y = points[:, 0], points[:, 1]
-        cells, beyond = self._cells(x, y)
-        rows = self.row.take(cells)
-        candidates = np.where(
-            (rows >= 0)[:, None], self._all[np.maximum(rows, 0)], self._first.take(cells)[:, None]
-        )  # (N, K): every candidate of each point's cell (a cell with one candidate repeats it)
-        xy = self.stations[candidates]  # (N, K, 2)
-        d2 = _squared_distances(xy[..., 0], xy[..., 1], x[:, None], y[:, None])
-        nearest = np.take_along_axis(candidates, d2.argmin(axis=1)[:, None], axis=1)[:, 0]
-        if len(beyond):
-            d2 = _squared_distances(self.stations[:, 0], self.stations[:, 1], x[beyond, None], y[beyond, None])
-            nearest[beyond] = d2.argmin(axis=1)
-        return nearest
 
     def _cells(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Each point's flat lookup-cell index (N,), and the indices of the points beyond the table (a NaN

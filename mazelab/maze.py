@@ -246,7 +246,7 @@ class Maze:
             return self.distance_at(float(x), float(y))
         points = _point_array(x) if y is None else np.stack(np.broadcast_arrays(x, y), -1).astype(float)
         flat = points.reshape(-1, 2)
-        distances = self._lookup.distances(flat).reshape(points.shape[:-1])
+        distances = self.station_distances_and_free(flat[:, 0], flat[:, 1])[0].reshape(points.shape[:-1])
         return float(distances) if distances.ndim == 0 else distances
 
     def distance_at(self, x: float, y: float) -> float:
@@ -256,11 +256,11 @@ class Maze:
 
     def nearest_station(self, points: Any) -> np.ndarray:
         """Coordinates of the station nearest each point: points (..., 2) -> (..., 2), map units.
-        The station whose distance `distance_to_nearest_station` gives (the EKF's data association)."""
+        The station whose distance `distance_to_nearest_station` gives (the EKF's data association, one
+        mean a step): each point's from the lookup in plain floats (`NearestStationLookup.station_at`)."""
         points = _point_array(points)
-        if points.shape == (2,):  # the EKF's one mean a step
-            return self.stations[self._lookup.station_at(float(points[0]), float(points[1]))[0]]
-        return self.stations[self._lookup.nearest(points.reshape(-1, 2))].reshape(points.shape)
+        nearest = [self._lookup.station_at(x, y)[0] for x, y in points.reshape(-1, 2).tolist()]
+        return self.stations[nearest].reshape(points.shape)
 
     def station_distances_and_free(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Distance to the nearest station and the free flag of each point, both from one cell lookup:

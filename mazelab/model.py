@@ -14,8 +14,9 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any
+from collections.abc import Callable, Sequence
+from types import MappingProxyType
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
@@ -33,7 +34,8 @@ from mazelab.constants import (
     ROBOT_SPEED,
     RPF_THRESHOLD,
 )
-from mazelab.declaration import Option, number_in
+from mazelab.declaration import Option, Options, number_in
+from mazelab.maze import check_world
 
 if TYPE_CHECKING:
     from mazelab.maze import Maze
@@ -52,6 +54,7 @@ OUTSIDE_PENALTY_OPTION = Option(
     "outside_penalty", OUTSIDE_PENALTY, "the likelihood factor outside the free area (refinement 1: 0.5)",
     check=number_in("outside_penalty", 0.0, 1.0, what=" (a factor on a likelihood)"),
 )  # fmt: skip
+MODEL_OPTIONS = (OUTSIDE_PENALTY_OPTION, SPEED_OPTION)  # what a filter of the model declares and LostRobot reads
 
 
 LAB_SIGMA_RANGE = (0.2, 0.8)  # the lab's recommended ranges: outside them we warn, not refuse
@@ -170,6 +173,32 @@ def log_likelihood(
     return log_p
 
 
+class Sensor:
+    """The measurement model, equations (2) and (3) as one definition: the robot's reading z ~ p(z | x)
+    (`sample`) and the filters' log p(z | x) (`log_pdf`), with the station geometry (the maze's), sigma
+    and the outside penalty. A second sensor is added here (and to the compiled likelihood it mirrors).
+
+    Parameters
+    ----------
+    sigma : float
+        The measurement noise's standard deviation (map units).
+    outside_penalty : float
+        The likelihood's factor outside the free area (refinement 1).
+    """
+
+    def __init__(self, sigma: float, outside_penalty: float = OUTSIDE_PENALTY):
+        self.sigma, self.outside_penalty = sigma, outside_penalty
+
+    def sample(self, world: Maze, x: float, y: float, rng: np.random.Generator) -> float:
+        """Equation (2): the robot's reading at (x, y), N(distance to the nearest station, sigma^2)."""
+        return world.distance_at(x, y) + rng.normal(0.0, self.sigma)
+
+    def log_pdf(self, z: np.ndarray, x: np.ndarray, world: Maze, ops: Any) -> np.ndarray:
+        """Equation (3) in logs with the outside penalty, log p(z | x), on the backend's operations `ops`
+        (numpy's `log_likelihood`, or the compiled likelihood): z (R,), x (R, N, 2) -> (R, N)."""
+        return ops.log_likelihood(z, x, world, self.sigma, self.outside_penalty)
+
+
 class LostRobot:
     """The lost robot's state-space model as a filter uses it (nchopin/particles' FeynmanKac: M0, M,
     logG): the prior, the transition (1) and the log-likelihood (3) with the outside penalty, for R runs
@@ -201,8 +230,14 @@ class LostRobot:
         speed: float = ROBOT_SPEED,
         outside_penalty: float = OUTSIDE_PENALTY,
     ):
-        self.world, self.sigma, self.delta, self.ops = world, sigma, delta, ops
-        self.speed, self.outside_penalty = speed, outside_penalty
+        self.world, self.delta, self.ops, self.speed = world, delta, ops, speed
+        self.sensor = Sensor(sigma, outside_penalty)  # equations (2)-(3), the robot's own measurement model
+
+    @classmethod
+    def of_settings(cls, world: Maze, sigma: float, delta: float, ops: Any, settings: Any) -> LostRobot:
+        """The model with a filter's values of MODEL_OPTIONS (its settings, by name): a model option is
+        declared and read in this module alone."""
+        return cls(world, sigma, delta, ops, **{option.name: settings[option.name] for option in MODEL_OPTIONS})
 
     def M0(self, count: int, rng: np.random.Generator) -> np.ndarray:  # noqa: N802 (particles' names)
         """x_0 ~ p(x_0), uniform over the free area: the prior a run starts (and restarts) from.
@@ -241,7 +276,7 @@ class LostRobot:
         return self.ops.move(x, A, rngs, th0.astype(x.dtype), self.delta, self.speed)
 
     def logG(self, x: np.ndarray, z: np.ndarray) -> np.ndarray:  # noqa: N802
-        """Equation (3) in logs with the outside penalty, log p(z_k | x).
+        """Equation (3) in logs with the outside penalty, log p(z_k | x) (`Sensor.log_pdf`).
 
         Parameters
         ----------
@@ -254,7 +289,41 @@ class LostRobot:
         -------
         array (R, N)
         """
-        return self.ops.log_likelihood(z, x, self.world, self.sigma, self.outside_penalty)
+        return self.sensor.log_pdf(z, x, self.world, self.ops)
+
+
+class ModelFilter:
+    """What a filter of the model that holds no sample shares (the exact grid filter,
+    mazelab.grid_filter, and the EKF, mazelab.kalman): made from the map, sigma, delta and its declared
+    options (`settings`, L among them), and stepped by `advance` with th0_k, then `update` with z_k.
+    Not a sample: no ESS (NaN), and no random draws (`particles` and `rng` are not used).
+    """
+
+    name: ClassVar[str]
+    options: ClassVar[Options]
+    ess = math.nan  # not a sample, so no effective sample size
+
+    def __init__(self, world: Maze, sigma: float, delta: float, particles: Any = None, rng: Any = None, **options: Any):
+        self.settings = MappingProxyType(type(self).options.resolve(options, self.name))
+        self.world, self.sigma, self.delta, self.speed = check_world(world), sigma, delta, self.settings["speed"]
+        check_sigma_within(sigma, world.width, world.height)
+        self.steps_done = 0
+        self.reinitialised_at: list[int] = []
+        self._motion: tuple[float, Any] | None = None  # (th0, what `per_angle` computed for it)
+
+    def per_angle(self, compass_angle: float, compute: Callable[[float], Any]) -> Any:
+        """`compute(compass_angle)`, the step's motion (the EKF's arc moments, the grid's arc kernel), kept
+        while the compass angle repeats (the robot holds a heading for up to MAX_STRAIGHT_STEPS steps)."""
+        if self._motion is None or self._motion[0] != compass_angle:
+            self._motion = (compass_angle, compute(compass_angle))
+        return self._motion[1]
+
+    def step(self, compass_angle: float, z: float) -> None:
+        """One step: predict with th0_k, the heading the compass reports (radians), then update with z_k,
+        the measured distance to the nearest station (map units)."""
+        self.advance(compass_angle)
+        self.update(z)
+        self.steps_done += 1
 
 
 def check_model_parameters(
@@ -298,6 +367,7 @@ __all__ = [
     "LOG_UNDERFLOW",
     "MAX_SPEED",
     "MAX_STRAIGHT_STEPS",
+    "MODEL_OPTIONS",
     "OUTSIDE_PENALTY",
     "OUTSIDE_PENALTY_OPTION",
     "PARTICLE_DTYPE",
@@ -305,6 +375,8 @@ __all__ = [
     "RPF_THRESHOLD",
     "SPEED_OPTION",
     "LostRobot",
+    "ModelFilter",
+    "Sensor",
     "check_model_parameters",
     "headings_from_uniforms",
     "log_likelihood",

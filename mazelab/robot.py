@@ -9,7 +9,7 @@ import numpy as np
 
 from mazelab.checks import angle, as_point, coordinate, step_number
 from mazelab.maze import Maze
-from mazelab.model import MAX_STRAIGHT_STEPS, ROBOT_SPEED, check_model_parameters, sample_heading
+from mazelab.model import MAX_STRAIGHT_STEPS, ROBOT_SPEED, Sensor, check_model_parameters, sample_heading
 
 
 class Robot:
@@ -19,6 +19,7 @@ class Robot:
     U(-delta/2, delta/2) each step, and picks a new uniform heading when the next step would hit a
     wall or leave the maze, or after `max_straight_steps` straight steps. Every step it takes (and
     every measurement) is recorded, so a second run of the same robot replays the first exactly.
+    Its readings are the model's (mazelab.model.Sensor: by default the paper's, of noise `sigma`).
     """
 
     def __init__(
@@ -35,37 +36,26 @@ class Robot:
         speed: float = ROBOT_SPEED,
         kidnap_at: int | None = None,
         kidnap_position: Sequence[float] | None = None,
+        sensor: Sensor | None = None,
     ):
         self.sigma, self.delta = check_model_parameters(sigma, delta)
+        self.sensor = Sensor(self.sigma) if sensor is None else sensor  # what the filters' likelihood scores
         self.initial_position = as_point("robot position", position)
         if (actual_angles is None) != (compass_angles is None):
             raise ValueError("give both actual_angles and compass_angles, or neither")
         self.actual_angles = [angle("actual angle", a) for a in actual_angles or []]
         self.compass_angles = [angle("compass angle", a) for a in compass_angles or []]
-        if len(self.actual_angles) != len(self.compass_angles):
-            raise ValueError(
-                f"actual_angles has {len(self.actual_angles)} entries but compass_angles has {len(self.compass_angles)}"
-            )
         self.measurements = [coordinate("measurement", z) for z in measurements or []]
-        if measurements is not None and len(self.measurements) != len(self.actual_angles):
-            raise ValueError(
-                f"measurements has {len(self.measurements)} entries, one per step ({len(self.actual_angles)}) expected"
-            )
+        check_walk_lists(self.actual_angles, self.compass_angles, measurements, kidnap_at, kidnap_position)
         if max_straight_steps < 1:
             raise ValueError(f"max_straight_steps must be >= 1, got {max_straight_steps}")
         self.max_straight_steps = max_straight_steps
         self.speed = speed
         self.rng_given = rng is not None
         self.rng = rng if rng is not None else np.random.default_rng()
-        self.kidnap_at: int | None = None
-        self.kidnap_position: tuple[float, float] | None = None
-        if (kidnap_at is None) != (kidnap_position is None):
-            raise ValueError("give both kidnap_at and kidnap_position, or neither")
-        if kidnap_at is not None:  # recorded angles given with a kidnapping were walked with the jump
-            self.kidnap_at, self.kidnap_position = (
-                step_number("kidnap_at", kidnap_at),
-                as_point("kidnap position", kidnap_position),
-            )
+        # recorded angles given with a kidnapping were walked with the jump
+        self.kidnap_at = None if kidnap_at is None else step_number("kidnap_at", kidnap_at)
+        self.kidnap_position = None if kidnap_position is None else as_point("kidnap position", kidnap_position)
         self.reset()
 
     def kidnap(self, step: int, position: Sequence[float]) -> None:
@@ -130,8 +120,8 @@ class Robot:
         return self.compass_angles[k], self.measurements[k]
 
     def measure(self, world: Maze) -> float:
-        """Equation (2): a fresh noisy distance to the nearest station, N(distance, sigma^2)."""
-        return world.distance_at(self.x, self.y) + self.rng.normal(0.0, self.sigma)
+        """Equation (2): a fresh reading of the robot's sensor (mazelab.model.Sensor.sample)."""
+        return self.sensor.sample(world, self.x, self.y, self.rng)
 
     def _choose_heading(self, world: Maze, tries: int = 1000) -> tuple[float, float]:
         """The wandering rule: keep th0 unless the step would leave the free area or ran too long."""
@@ -149,6 +139,23 @@ class Robot:
         raise RuntimeError(f"the robot at {self.position} found no free direction in {tries} tries")
 
 
+def check_walk_lists(
+    actual: Sequence[float], compass: Sequence[float], measurements: Sequence[float] | None, kidnap_at: int | None,
+    kidnap_position: Sequence[float] | None, keys: str = "",
+) -> None:  # fmt: skip
+    """A recorded walk's lists, one entry per step each (measurements may be None), and its kidnapping's
+    step and place, both or neither: one line for the first wrong, naming the lists `keys` + name (a
+    scenario's keys: "robot_")."""
+    steps = len(actual)
+    if len(compass) != steps:
+        raise ValueError(f"{keys}actual_angles has {steps} entries but {keys}compass_angles has {len(compass)}")
+    if measurements is not None and len(measurements) != steps:
+        raise ValueError(f"{keys}measurements has {len(measurements)} entries, {steps} expected")
+    if (kidnap_at is None) != (kidnap_position is None):
+        raise ValueError("kidnap_at and kidnap_position come together: give both or neither")
+
+
 __all__ = [
     "Robot",
+    "check_walk_lists",
 ]

@@ -47,7 +47,7 @@ from mazelab.checks import (
 from mazelab.declaration import options_of
 from mazelab.maze import MAZES_DIR, Maze, find_shipped, shipped_mazes
 from mazelab.registry import FilterEntry, PluginReference, filter_entry, loaded_plugin, shipped_entry
-from mazelab.robot import Robot
+from mazelab.robot import Robot, check_walk_lists
 
 DEFAULT_PARAMETERS_PATH = Path("model_parameters.json")  # the paper's file (lab steps 9-10), in the working folder
 LEGACY_PARAMETERS_PATH = Path("model_parameters") / "model_parameters.json"  # where older versions saved it
@@ -144,17 +144,11 @@ class Scenario(BaseModel):
         for key, version in FORMAT_VERSIONS.items():
             if getattr(self, key) is not None and self.format_version < version:
                 raise ValueError(f"{key} needs format_version {version}, got {self.format_version}")
-        if (self.kidnap_at is None) != (self.kidnap_position is None):
-            raise ValueError("kidnap_at and kidnap_position come together: give both or neither")
-        if self.kidnap_at is not None and self.kidnap_at > len(self.robot_actual_angles):
-            raise ValueError(f"kidnap_at {self.kidnap_at} is after the last step ({len(self.robot_actual_angles)})")
         steps = len(self.robot_actual_angles)
-        if len(self.robot_compass_angles) != steps:
-            raise ValueError(
-                f"robot_actual_angles has {steps} entries but robot_compass_angles has {len(self.robot_compass_angles)}"
-            )
-        if self.robot_measurements is not None and len(self.robot_measurements) != steps:
-            raise ValueError(f"robot_measurements has {len(self.robot_measurements)} entries, {steps} expected")
+        check_walk_lists(self.robot_actual_angles, self.robot_compass_angles, self.robot_measurements,
+                         self.kidnap_at, self.kidnap_position, keys="robot_")  # fmt: skip
+        if self.kidnap_at is not None and self.kidnap_at > steps:
+            raise ValueError(f"kidnap_at {self.kidnap_at} is after the last step ({steps})")
         if self.steps is not None and self.steps != steps:
             raise ValueError(f"steps is {self.steps} but there are {steps} angles")
         world = self.world()
@@ -171,7 +165,8 @@ class Scenario(BaseModel):
     def _check_bounds(self) -> np.ndarray:
         """Angles within MAX_ANGLE radians, places and distances within MAX_COORDINATE map units,
         checked in numpy (a scenario may hold a million particles); returns the particles (N, 2)."""
-        particles = _pairs(self.init_particles_pos)
+        pairs = self.init_particles_pos  # as an (N, 2) array, at fromiter's speed
+        particles = np.fromiter(itertools.chain.from_iterable(pairs), dtype=float, count=2 * len(pairs)).reshape(-1, 2)
         for name, values, bound, unit in (
             ("robot_actual_angles", _numbers(self.robot_actual_angles), MAX_ANGLE, "radians"),
             ("robot_compass_angles", _numbers(self.robot_compass_angles), MAX_ANGLE, "radians"),
@@ -292,11 +287,6 @@ def check_measurements_within(measurements: list[float] | None, world: Maze | No
 def _numbers(values: Any) -> np.ndarray:
     """A list of floats as an array (fromiter: several times faster than asarray on long lists)."""
     return np.fromiter(values, dtype=float, count=len(values))
-
-
-def _pairs(points: list[tuple[float, float]]) -> np.ndarray:
-    """A list of (x, y) pairs as an (N, 2) array, at fromiter's speed."""
-    return np.fromiter(itertools.chain.from_iterable(points), dtype=float, count=2 * len(points)).reshape(-1, 2)
 
 
 class ScenarioError(ValueError):

@@ -71,10 +71,11 @@ class RunResult:
     ) -> RunResult:
         """Run `r` of what the recording loop kept (mazelab.collect.Recorded), named by `inputs`' filter:
         the robot's `true_positions` (steps, 2), the filter's restarts and the backend it ran on."""
-        run = recorded.run(r)
-        extras = {"particle_count": run["counts"], "diagnostics": run["diagnostics"], "backend": backend}
-        return cls(inputs.filtering_algorithm, true_positions, run["estimates"], run["ess"], run["confident"],
-                   recorded.seconds, list(restarts), inputs, extras, run["log_evidence"])  # fmt: skip
+        diagnostics = {name: values[r] for name, values in recorded.diagnostics.items()}
+        extras = {"particle_count": recorded.counts[r], "diagnostics": diagnostics, "backend": backend}
+        return cls(inputs.filtering_algorithm, true_positions, recorded.estimates[r], recorded.ess[r],
+                   recorded.confident[r], recorded.seconds, list(restarts), inputs, extras,
+                   recorded.log_evidence[r])  # fmt: skip
 
     @cached_property
     def scenario(self) -> Scenario:
@@ -384,11 +385,9 @@ def run_model(
     init_particles_pos: Sequence[Sequence[float]] | np.ndarray | None = None,
     filtering_algorithm: str | type = "SIRParticleFilter",
     *,
-    seed: int | None = None,
     visualize: Any = True,
     parameters_path: str | Path | None = None,
-    kidnap_at: int | None = None,
-    **filter_options: Any,
+    **options: Any,
 ) -> list[tuple[tuple[float, float], tuple[float, float]]]:
     """The paper's entry point: run a filter and return [((x_true, y_true), (x_est, y_est)), ...].
 
@@ -396,23 +395,11 @@ def run_model(
     angles the step count follows from them. `save_parameters=True` saves the scenario so the filters
     can be compared on identical data: to `parameters_path`, by default the paper's model_parameters.json
     in the working folder.
-    `kidnap_at=K` kidnaps the robot at step K; filter options such as `resampling=`, `recovery=`
-    and `kld=` pass through to the filter (see ParticleFilter).
+    The other keywords are `simulate`'s: `seed=`, `kidnap_at=K` (the robot kidnapped at step K), and
+    filter options such as `resampling=`, `recovery=` and `kld=` (see ParticleFilter).
     """
-    result = simulate(
-        robot,
-        world,
-        sigma,
-        delta,
-        particle_count,
-        steps,
-        init_particles_pos,
-        filtering_algorithm,
-        seed=seed,
-        visualize=visualize,
-        kidnap_at=kidnap_at,
-        **filter_options,
-    )
+    result = simulate(robot, world, sigma, delta, particle_count, steps, init_particles_pos, filtering_algorithm,
+                      visualize=visualize, **options)  # fmt: skip
     if save_parameters:
         from mazelab.scenario import DEFAULT_PARAMETERS_PATH, save_scenario  # pydantic: only a run that saves
 

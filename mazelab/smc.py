@@ -318,17 +318,15 @@ class SMC:
             self._reinitialised[r].append(self.steps_done + 1)
             x[r] = self.model.M0(count, self.rngs[r])
         log_g = log_weights_of("log_likelihood", self.log_likelihood(x), self.runs)
-        fresh = (
-            self.weights_class.from_log(log_g, x) if rows.all() else self.weights_class.from_log(log_g[rows], x[rows])
-        )
+        every = bool(rows.all())
+        restarted = (log_g, x) if every else (log_g[rows], x[rows])  # the restarted runs' log G and particles
+        fresh = self.weights_class.from_log(*restarted)
         self._received_totals(fresh, ("log_likelihood", log_g))
-        fresh = fresh.reset(
-            fresh.lost, self.weights_class.uniform(int(fresh.lost.sum()), count), x if rows.all() else x[rows]
-        )
+        fresh = fresh.reset(fresh.lost, self.weights_class.uniform(int(fresh.lost.sum()), count), restarted[1])
         self.x = x
         if not same:
             self.headings = np.zeros((self.runs, count), dtype=x.dtype)
-        self.W = fresh if rows.all() else self.W.reset(rows, fresh, x)
+        self.W = fresh if every else self.W.reset(rows, fresh, x)
         return increment if lost is None else np.where(lost, Wf.log_total, increment)
 
     def restart_count(self) -> int:
@@ -507,12 +505,15 @@ def identity(runs: int, count: int) -> np.ndarray:
     return np.broadcast_to(np.arange(count), (runs, count)).copy()
 
 
-def per_run(value: float | np.ndarray, runs: int) -> np.ndarray:
-    """A step's compass angle or measurement as float64 (R,), one per run."""
-    if isinstance(value, np.ndarray):
-        value = value.astype(float, copy=False)  # read-only as broadcast_to's view, without its cost
-        return read_only(value.view()) if value.shape == (runs,) else np.broadcast_to(value, (runs,))
-    return np.array([float(value)] * runs)
+def per_run(value: Any, runs: int) -> np.ndarray:
+    """A step's compass angle or measurement as float64, one per run: (R,), or (R, k) for a reading of
+    k numbers (a model with several sensors), given once for every run or with the run axis first."""
+    if not isinstance(value, (np.ndarray, list, tuple)):
+        return np.array([float(value)] * runs)
+    value = np.asarray(value).astype(float, copy=False)
+    if value.ndim and len(value) == runs:
+        return read_only(value.view())  # read-only as broadcast_to's view, without its cost
+    return np.broadcast_to(value, (runs, *value.shape) if value.size > 1 else (runs,))
 
 
 def describe(value: Any) -> str:

@@ -85,7 +85,7 @@ def test_the_grid_filter_takes_no_fresh_pages_per_step_in_a_dask_worker():
         grid.step(0.0, 1.0)
         before = resource.getrusage(resource.RUSAGE_THREAD).ru_minflt
         for k in range(20):
-            grid.step(float(rng.uniform(-3, 3)) if k % 4 == 0 else grid._last_arc[0], float(rng.uniform(0.2, 2)))
+            grid.step(float(rng.uniform(-3, 3)) if k % 4 == 0 else grid._motion[0], float(rng.uniform(0.2, 2)))
             _ = grid.estimate, grid.is_confident
         faults = (resource.getrusage(resource.RUSAGE_THREAD).ru_minflt - before) / 20
         return faults, os.environ.get("MALLOC_TRIM_THRESHOLD_")

@@ -10,8 +10,19 @@ import numpy as np
 import pytest
 
 from mazelab.backend import NUMPY_KERNELS
-from mazelab.model import OUTSIDE_PENALTY, ROBOT_SPEED, LostRobot, headings_from_uniforms, log_likelihood, move
+from mazelab.filters import SIRParticleFilter
+from mazelab.model import (
+    CONVERGENCE_RADIUS,
+    OUTSIDE_PENALTY,
+    ROBOT_SPEED,
+    LostRobot,
+    Sensor,
+    headings_from_uniforms,
+    log_likelihood,
+    move,
+)
 from mazelab.robot import Robot
+from mazelab.simulation import simulate
 
 
 def test_move_is_equation_one():
@@ -77,3 +88,41 @@ def test_the_lost_robot_moves_and_weighs_r_runs_as_each_run_alone(paper_world):
     before = untouched.bit_generator.state
     model.M(runs[:1], None, angles[:1], [None])
     assert untouched.bit_generator.state == before
+
+
+class _TwoRanges(Sensor):
+    """A second range sensor beside the paper's (noise sigma2): what a maintainer adds to the model."""
+
+    def __init__(self, sigma, outside_penalty=OUTSIDE_PENALTY, sigma2=0.2):
+        super().__init__(sigma, outside_penalty)
+        self.sigma2 = sigma2
+
+    def sample(self, world, x, y, rng):
+        return (super().sample(world, x, y, rng), world.distance_at(x, y) + rng.normal(0.0, self.sigma2))
+
+    def log_pdf(self, z, x, world, ops):
+        second = log_likelihood(z[:, 1], x.reshape(-1, 2), world, self.sigma2, 1.0).reshape(x.shape[:2])
+        return super().log_pdf(np.ascontiguousarray(z[:, 0]), x, world, ops) + second
+
+
+def test_the_robot_reads_and_the_filters_weigh_with_one_measurement_model(paper_world):
+    """The robot's reading and the filters' likelihood are one definition (Sensor): the robot measures with
+    its sensor's `sample` (the paper's by default, equation (2)), LostRobot's logG is its sensor's
+    `log_pdf`, and a sensor of two readings runs through the step (z (R, 2)) with no other change."""
+    robot = Robot(0.3, 0.5, (1.5, 1.5), rng=np.random.default_rng(1))
+    alone = np.random.default_rng(1)
+    assert robot.measure(paper_world) == paper_world.distance_at(1.5, 1.5) + alone.normal(0.0, 0.3)
+    model = LostRobot(paper_world, 0.3, 0.5, NUMPY_KERNELS, outside_penalty=0.25)
+    points = model.M0(40, np.random.default_rng(2)).astype(np.float32)[None]
+    expected = log_likelihood(1.0, points[0], paper_world, 0.3, 0.25)
+    np.testing.assert_array_equal(model.logG(points, np.array([1.0]))[0], expected)
+
+    class TwoRangeSIR(SIRParticleFilter):
+        def __init__(self, *args, **options):
+            super().__init__(*args, **options)
+            self.model.sensor = _TwoRanges(self.sigma)
+
+    robot = Robot(0.3, 0.5, (1.5, 1.5), sensor=_TwoRanges(0.3))
+    result = simulate(robot, paper_world, 0.3, 0.5, 500, 60, filtering_algorithm=TwoRangeSIR, seed=3)
+    assert all(len(z) == 2 for z in robot.measurements)
+    assert result.errors[-10:].mean() < CONVERGENCE_RADIUS  # both readings weighed: it finds the robot

@@ -61,9 +61,7 @@ def open_recording(visualize: Any, world: Maze, blueprint: Callable[[], Any], la
 
 
 def open_view(visualize: Any, world: Maze, filter_name: str) -> Any:
-    """The view one run draws to (see the `visualize` values above)."""
-    if hasattr(visualize, "log_step"):
-        return visualize
+    """The view one run draws to (see the `visualize` values above; a view itself is simulate's to pass on)."""
     layout = functools.partial(run_blueprint, world, filter_name)
     recording, max_drawn = open_recording(visualize, world, layout, entity_name(filter_name))
     return NullView() if recording is None else RunView(recording, filter_name, max_drawn, owns_recording=True)
