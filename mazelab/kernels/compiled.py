@@ -3,16 +3,12 @@ results): each calls one kernel for all R runs, and `CompiledWeights`, the weigh
 builds, keeps W in float32 and the reads its normalisation makes in the same passes (the ESS, the
 posterior mean and the weight within the green circle around it). Anything the kernels do not cover
 (float64 points such as recovery's injected draws, the multimodal kernel) goes to the numpy operations.
-
-A call runs on the filter's threads from mazelab.kernels.THREADED_FROM particles on (`Kernel`); the
-move's and the jitter's draws are the kernels' own, from one 64-bit key a run and call drawn from its
-Generator.
 """
 
 from __future__ import annotations
 
 import math
-from functools import cache, cached_property
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -130,12 +126,6 @@ class CompiledWeights(Weights):
         """log W_i = log w_i - log total, (R, N) float64."""
         return read_only(np.subtract(self.log_w, self.log_total[:, None], dtype=float))
 
-    @staticmethod
-    @cache
-    def on(threads: int) -> type[CompiledWeights]:
-        """CompiledWeights whose large normalisations run on `threads` threads (one class per count)."""
-        return type("CompiledWeights", (CompiledWeights,), {"threads": threads, "__doc__": CompiledWeights.__doc__})
-
 
 class CompiledKernels(NumpyKernels):
     """The hot parts of one filter on `world` (its lookup tables read once), compiled (mazelab.kernels),
@@ -148,7 +138,7 @@ class CompiledKernels(NumpyKernels):
         self.tables = lookup_tables(world)
         self._tables_of, self._likelihood_terms = world, (None, None, ())
         self.threads = max(1, threads or 1)
-        self.Weights = CompiledWeights.on(self.threads)
+        self.Weights = type("CompiledWeights", (CompiledWeights,), {"threads": self.threads})  # its normalisations
         self.schemes = {"systematic": self.systematic}
 
     def move(
