@@ -46,8 +46,8 @@ def keys_of(rngs: Any) -> np.ndarray:
 
 def lookup_tables(world: Any) -> tuple:
     """The maze's nearest-station tables (mazelab.lookup) in the layout the likelihood kernel reads:
-    (scale, offset, nx, ny as plain Python numbers, codes (C,) uint32, quads (C, 8), rows, width,
-    border (b, 2)), float32 coordinates. quads[c] is cell c's first four candidates (x0, y0, ..., x3, y3),
+    (grid: scale, offset, nx, ny, width as float64 (5,), codes (C,) uint32, quads (C, 8), rows, border
+    (b, 2)), float32 coordinates. quads[c] is cell c's first four candidates (x0, y0, ..., x3, y3),
     padded by repeats of the first; `rows` holds, for each cell with more than four, its other K - 4
     (padded likewise), `width` = 2 (K - 4) values a row; a cell's code is its row's first index in `rows`
     times 4, plus 2 if it has a row, plus 1 if the cell is free."""
@@ -62,8 +62,8 @@ def lookup_tables(world: Any) -> tuple:
     codes = (lookup.kind & 1).astype(np.uint64)
     codes[more] += 2 + 4 * width * np.arange(len(more), dtype=np.uint64)
     codes = codes.astype(np.uint32 if codes.max(initial=0) < 2**32 else np.uint64)
-    grid = float(lookup.scale), float(lookup.offset), int(lookup.nx), int(lookup.ny)
-    return (*grid, codes, quads, rows, width, xy[lookup._border])
+    grid = np.array([lookup.scale, lookup.offset, lookup.nx, lookup.ny, width], dtype=float)
+    return grid, codes, quads, rows, xy[lookup._border]
 
 
 class CompiledWeights(Weights):
@@ -168,13 +168,14 @@ class CompiledKernels(NumpyKernels):
         return out
 
     def _terms(self, sigma: float, outside_penalty: float) -> tuple:
-        """The likelihood kernel's constants (sigma, -log(sigma sqrt(2 pi)), that plus log(the penalty), the
-        tables), worked out once for a filter's sigma and penalty."""
+        """The likelihood kernel's constants, worked out once for a filter's sigma and penalty: (sigma,
+        -log(sigma sqrt(2 pi)), that plus log(the penalty), then the tables' grid: float64 (8,)) and the
+        tables' arrays (one array of numbers: a kernel call types each argument it is passed)."""
         terms = self._likelihood_terms
         if terms[0] != sigma or terms[1] != outside_penalty:
             norm = math.log(sigma * math.sqrt(2 * math.pi))
-            constants = (float(sigma), -norm, math.log(outside_penalty) - norm, self.tables)
-            terms = self._likelihood_terms = (sigma, outside_penalty, constants)
+            constants = np.array([sigma, -norm, math.log(outside_penalty) - norm, *self.tables[0]])
+            terms = self._likelihood_terms = (sigma, outside_penalty, (constants, *self.tables[1:]))
         return terms[2]
 
     def systematic(self, W: np.ndarray, rng: Any, count: int | None = None) -> np.ndarray:

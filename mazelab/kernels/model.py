@@ -68,10 +68,10 @@ def move(xy, ancestors, keys, moving, angles, delta, speed, out):  # pragma: no 
 
 
 @inline
-def _typed(tables):  # pragma: no cover - compiled
-    """lookup_tables' tuple with its numbers in the kernels' types: (scale, offset, nx, ny) float32, nx
-    and the row width uint64 (plain Python numbers cross into a kernel faster than numpy scalars)."""
-    scale, offset, nx, ny, codes, quads, rows, width, border = tables
+def _typed(constants, codes, quads, rows, border):  # pragma: no cover - compiled
+    """The likelihood's tables in the kernels' types: (scale, offset, nx, ny) float32 from constants[3:7],
+    nx and the row width (constants[7]) uint64, and the arrays."""
+    scale, offset, nx, ny, width = constants[3], constants[4], constants[5], constants[6], constants[7]
     return F32(scale), F32(offset), F32(nx), F32(ny), np.uint64(nx), codes, quads, rows, np.uint64(width), border
 
 
@@ -139,21 +139,22 @@ def _close(px, py, value, left, zr, sigma, free_term, outside_term, tables):  # 
 
 
 @Kernel
-def log_likelihood(xy, z, sigma, free_term, outside_term, tables, out):  # pragma: no cover - compiled
+def log_likelihood(xy, z, constants, codes, quads, rows, border, out):  # pragma: no cover - compiled
     """Equation (3) with the outside penalty, in logs, for R runs: out[r, m] = log p(z_r | x_{r, m})
     float32 (R, N), numpy's values to the bit (the same float32 operations, and the nearest of the
     same candidates). Each chunk in two loops: every point from its cell's first four candidates
     (vectorised), then the few left open.
 
     xy (2, R, N) holds the particles' float32 coordinates (x's plane, then y's), z (R,) each run's z_k (map
-    units); `sigma` the noise's standard deviation, `free_term` -log(sigma sqrt(2 pi)) and
-    `outside_term` that plus log(the outside penalty): plain floats (a numpy scalar costs some 0.25 us
-    to pass), rounded to float32 here as numpy's float32 arithmetic rounds them; `tables` the maze's
+    units); `constants` (8,) float64: the noise's standard deviation sigma, -log(sigma sqrt(2 pi)),
+    that plus log(the outside penalty), rounded to float32 here as numpy's float32 arithmetic rounds
+    them, then the tables' grid; codes, quads, rows and border the maze's tables
     (compiled.lookup_tables)."""
-    sigma, free_term, outside_term, typed = F32(sigma), F32(free_term), F32(outside_term), _typed(tables)
+    sigma, free_term, outside_term = F32(constants[0]), F32(constants[1]), F32(constants[2])
+    typed = _typed(constants, codes, quads, rows, border)
     runs, size = out.shape
     blocks, jobs = chunks(runs, size)
-    left = scratch(runs * size, tables[4].dtype)  # what each point leaves open
+    left = scratch(runs * size, codes.dtype)  # what each point leaves open
     for job in prange(jobs):
         r, start, stop = chunk_of(job, blocks, size)
         zr, values, open_ = F32(z[r]), out[r, start:stop], left[r * size + start : r * size + stop]
