@@ -140,12 +140,11 @@ def measure(
     counts: tuple[int, ...],
     steps: int,
     warmup: int,
-    walk_seed: int = 1,
     backends: tuple[str, ...] | None = None,
 ) -> Iterator[BenchRow]:
     """The rows of one maze: every filter at every N on each backend (default: the chosen one), then
     the reference step where it is affordable."""
-    walk = record_walk(world, warmup + steps, walk_seed)
+    walk = record_walk(world, warmup + steps)
     world.station_distances_and_free(np.zeros(1, np.float32), np.zeros(1, np.float32))  # build the float32 tables
     for n in counts:
         for name in BENCH_FILTERS:
