@@ -212,11 +212,7 @@ def format_table(rows: list[BenchRow]) -> str:
     """The rows as a text table, each filter's speed also as a multiple of the reference step's and, on
     the compiled backend, of the same filter's on numpy."""
     reference = {(r.maze, r.particles): r.particle_steps_per_second for r in rows if r.filter_name == "reference"}
-    on_numpy = {
-        (r.maze, r.filter_name, r.particles): r.particle_steps_per_second
-        for r in rows
-        if r.backend == "numpy" and r.filter_name != "reference"
-    }
+    on_numpy = {(r.maze, r.filter_name, r.particles): r.particle_steps_per_second for r in rows if r.backend == "numpy"}
     lines = [
         "Speed in millions of particle-steps per second (N particles x steps / time); x numpy: a compiled row's",
         "speed over the same filter's on the numpy backend; x reference: the filter's speed over the plain numpy",
