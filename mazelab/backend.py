@@ -26,9 +26,9 @@ BACKENDS = ("numpy", "compiled")
 ENVIRONMENT_VARIABLE = "MAZELAB_BACKEND"
 THREADS_VARIABLE = "MAZELAB_THREADS"  # the compiled backend's threads for a large call (--threads sets it)
 INSTALL_HINT = 'the compiled backend needs numba: pip install -e ".[fast]" (uv sync installs it)'
-# What the compiled backend costs and saves, CPU seconds, as measured on a 2-core Xeon (docs/speed.md): a one-run
-# study on each backend, and numpy's step less the compiled one's (mazelab.bench's filter_stepper; SIR, APF and RPF,
-# one run of N = 100 and 10,000, 30 runs of 1,500 together).
+# What the compiled backend costs and saves, CPU seconds (docs/speed.md): a one-run study on each backend (a 2-core
+# Xeon), and numpy's step less the compiled one's (a 2-core AMD EPYC; mazelab.bench's filter_stepper; SIR, APF and
+# RPF, one run of N = 100 and 10,000, 30 runs of 1,500 together).
 STARTUP_SECONDS = 0.2  # numba's import and its kernels loaded from numba's cache: a process's extra CPU
 SAVED_PER_STEP = 60e-6  # a filter step's saving whatever its particles (fewer Python calls): 65-110 us at N = 100
 SAVED_PER_PARTICLE = 15e-9  # and per particle the step moves (R runs together: R x N): 9-30 ns
