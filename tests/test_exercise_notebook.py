@@ -18,8 +18,8 @@ from nbclient import NotebookClient
 from test_notebook import CELL_TIMEOUT, kernel_spec, stdout_of  # noqa: F401 (kernel_spec is a fixture)
 
 from mazelab.exercise import PARTS
-from mazelab.exercise.language import catalogue
 from mazelab.exercise.report import WIDTH
+from mazelab.exercise.template import catalogue
 
 NOTEBOOKS = {"en": ROOT / "notebooks" / "exercise.ipynb", "uk": ROOT / "notebooks" / "exercise_uk.ipynb"}
 

@@ -16,8 +16,7 @@ from conftest import ROOT
 from exercise_answers import write_submission
 
 from mazelab.cli.app import main
-from mazelab.exercise.language import catalogue
-from mazelab.exercise.template import exercise_texts
+from mazelab.exercise.template import catalogue, exercise_texts
 
 NAMES = {  # words in Latin letters a Ukrainian text may hold: names, and the code's own names
     "SIR", "APF", "RPF", "Rerun", "Arulampalam",

@@ -62,7 +62,7 @@ def test_the_default_seed_is_every_file_copied_with_the_submission(tmp_path):
     alone = default_seed(path.read_bytes())
     (tmp_path / "table.py").write_text("ANSWERS = {}\n")
     with_table = check_file(str(path), stages=("estimate",)).seed
-    assert with_table == files_seed(path, [tmp_path / "table.py"]) != alone
+    assert with_table == files_seed({p.name: p.read_bytes() for p in (path, tmp_path / "table.py")}) != alone
     (tmp_path / "table.py").write_text("ANSWERS = {1: 2}\n")
     assert check_file(str(path), stages=("estimate",)).seed != with_table
 

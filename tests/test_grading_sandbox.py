@@ -443,7 +443,7 @@ def test_the_uk_report_speaks_ukrainian(tmp_path, capsys):
 
 
 def test_the_catalogue_is_read_without_running_it(tmp_path):
-    from mazelab.exercise.language import CatalogueError, read_po
+    from mazelab.exercise.template import CatalogueError, read_po
 
     po = tmp_path / "xx.po"
     po.write_text('msgid "a"\nmsgstr __import__("os").system("echo run")\n')

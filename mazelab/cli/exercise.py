@@ -3,21 +3,19 @@
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import secrets
 import signal
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
-from types import SimpleNamespace
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
 from mazelab.atomic import write_bytes_atomically, write_text_atomically
 from mazelab.backend import use_threads
-from mazelab.cli.options import UserError, check_output_path, opt, seed_option
+from mazelab.cli.options import Force, UserError, check_output_path, opt, seed_option
 from mazelab.exercise.grading import (
     KEY_FILE,
     Gradebook,
@@ -32,10 +30,9 @@ from mazelab.exercise.grading import (
     read_key,
     summary,
 )
-from mazelab.exercise.language import Catalogue, catalogue_for
 from mazelab.exercise.report import Report, format_report
 from mazelab.exercise.sandbox import DEFAULT_BUDGET, MAX_TIMEOUT, SandboxError, sandbox
-from mazelab.exercise.template import bundle_bytes, write_exercise
+from mazelab.exercise.template import Catalogue, bundle_bytes, catalogue_for, write_exercise
 from mazelab.invocation import python_prefix
 from mazelab.registry import is_plugin_spec, split_spec
 from mazelab.stops import STOP_SIGNALS, signal_handlers
@@ -49,7 +46,6 @@ exercise_app = typer.Typer(
 )
 TimeoutFlag = opt(float, min=1.0, max=MAX_TIMEOUT,
                   help="seconds the student's processes of one submission may take in all")  # fmt: skip
-ForceFlag = opt(bool, "--force", help="replace existing output files")
 GradescopeFlag = opt(Path | None, metavar="DIR", help="write Gradescope's results.json there", show_default=False)
 RequireSandboxFlag = opt(bool, "--require-sandbox",
                          help="refuse to grade where no sandbox can be made (bubblewrap on Linux)")  # fmt: skip
@@ -81,7 +77,7 @@ def check_command(
     key: KeyFlag = None,
     timeout: TimeoutFlag = DEFAULT_BUDGET,
     gradescope: GradescopeFlag = None,
-    force: ForceFlag = False,
+    force: Force = False,
     require_sandbox: RequireSandboxFlag = False,
     lang: LangFlag = None,
 ) -> None:
@@ -102,14 +98,11 @@ def check_command(
         check_output_path(results, force)
     _sandbox_or_refuse(require_sandbox)
     submission = Submission(Path(spec).name, Path(spec), own_folder=True)  # the files beside it are its own
-    try:
-        with _stop_signals() as stop:
-            report = grade_one(submission, timeout, seed=seed, key=secret)
-    except KeyboardInterrupt:  # Ctrl-C or SIGTERM: the student's process has been ended with its sandbox
+    graded = functools.partial(grade_one, submission, timeout, seed=seed, key=secret)
+    report, stopped_by = _until_stopped(graded, "nothing graded (the grader's machine, not the submission)")
+    if stopped_by is not None:  # Ctrl-C or SIGTERM: the student's process has been ended with its sandbox
         typer.echo("stopped: nothing graded", err=True)
-        raise typer.Exit(128 + (stop.number or signal.SIGINT)) from None
-    except SandboxError as error:
-        raise UserError(f"{error}; nothing graded (the grader's machine, not the submission)") from None
+        raise typer.Exit(128 + stopped_by)
     if report.problem is None:
         typer.echo(format_report(report, catalogue=catalogue))
         took = {"seconds": f"{report.seconds:.1f}", "student": f"{report.student_seconds:.1f}"}
@@ -156,7 +149,7 @@ def grade_command(
     jobs: opt(int | None, min=1, help="submissions at once (default: the cores)") = None,
     csv_path: opt(Path | None, "--csv", metavar="F", help="one row per submission", show_default=False) = None,
     gradescope: GradescopeFlag = None,
-    force: ForceFlag = False,
+    force: Force = False,
     quiet: opt(bool, "--quiet", help="no progress bar") = False,
     require_sandbox: RequireSandboxFlag = False,
     lang: LangFlag = None,
@@ -196,21 +189,16 @@ def _grade_into(book: Gradebook, grade: Callable[..., None], outputs: list[tuple
     under a progress bar; the number of the signal that stopped it (None: it went to the end)."""
     from mazelab.experiments.executor import progress_bar
 
-    try:
-        with claimed(outputs), _stop_signals() as stop, use_threads(1):  # submissions at once: a thread each
-            try:
-                with progress_bar(count, not quiet, what="submissions") as advance:
+    def work() -> None:  # use_threads(1): the submissions at once are a thread each
+        with claimed(outputs), use_threads(1), progress_bar(count, not quiet, what="submissions") as advance:
 
-                    def done(one: Report) -> None:
-                        book.add(one)
-                        advance()
+            def done(one: Report) -> None:
+                book.add(one)
+                advance()
 
-                    grade(on_done=done)
-            except KeyboardInterrupt:  # Ctrl-C or SIGTERM (_stop_signals): what was graded is in the book
-                return stop.number or signal.SIGINT
-    except SandboxError as error:
-        raise UserError(f"{error}; grading stopped, nobody graded by it") from None
-    return None
+            grade(on_done=done)
+
+    return _until_stopped(work, "grading stopped, nobody graded by it")[1]  # what was graded is in the book
 
 
 def _check_outputs(folder: Path, submissions: list[Submission], csv_path: Path | None, gradescope: Path | None,
@@ -245,7 +233,7 @@ def autograder_command(
     ) = None,
     timeout: TimeoutFlag = DEFAULT_BUDGET,
     lang: LangFlag = None,
-    force: ForceFlag = False,
+    force: Force = False,
 ) -> None:
     """Write the zip to upload as Gradescope's autograder: setup.sh (bubblewrap, and this lab at this
     version with its pinned dependencies), the secret key (read only by the grader), and run_autograder
@@ -260,20 +248,25 @@ def autograder_command(
     typer.echo(f"wrote {write_bytes_atomically(bundle, data, replace=force)} (upload it as the autograder)")
 
 
-@contextlib.contextmanager
-def _stop_signals() -> Iterator[SimpleNamespace]:
-    """SIGTERM and SIGHUP stop the grading as Ctrl-C does (the main thread's wait is interrupted, every
-    sandbox ended, what was graded kept); a second one while stopping changes nothing. Yields where the
-    signal that stopped it is noted (`number`, None: none yet)."""
-    stop = SimpleNamespace(number=None)
+def _until_stopped(work: Callable[[], Any], graded: str) -> tuple[Any, int | None]:
+    """`work()` with SIGTERM and SIGHUP stopping it as Ctrl-C does (the main thread's wait is interrupted,
+    every sandbox ended, what was graded kept; a second signal while stopping changes nothing): its
+    result and None, or None and the number of the signal that stopped it. A sandbox that cannot start is
+    one line, `graded` saying what was graded."""
+    stopped: list[int] = []
 
     def handler(number: int, frame: object) -> None:
-        if stop.number is None:
-            stop.number = number
+        if not stopped:
+            stopped.append(number)
             raise KeyboardInterrupt
 
-    with signal_handlers(STOP_SIGNALS, handler):
-        yield stop
+    try:
+        with signal_handlers(STOP_SIGNALS, handler):
+            return work(), None
+    except KeyboardInterrupt:
+        return None, (stopped or [signal.SIGINT])[0]
+    except SandboxError as error:
+        raise UserError(f"{error}; {graded}") from None
 
 
 __all__ = ["autograder_command", "check_command", "exercise_app", "grade_command", "new"]

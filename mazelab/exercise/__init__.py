@@ -4,12 +4,12 @@ exact posterior.
 
     from mazelab.exercise import OUTSIDE_PENALTY, ROBOT_SPEED, StudentFilter
 
-Modules: student (StudentFilter, the wiring), template (the files `exercise new` and `exercise
-autograder` write), inputs (the inputs of a seed), parts (a row of the report, the verdict on each part
-and on the whole filter), report (the checker, the grader's reference runs and the text), kit (the
-student kit, and copied code found), child and sandbox (where and how a submission runs: a bubblewrap
-sandbox holding only the student kit, and the messages it sends), language (the catalogues), grading
-(a class's folder), selfcheck (the student's own checks).
+Modules: student (StudentFilter, the wiring), template (the catalogues of the languages, and the files
+`exercise new` and `exercise autograder` write), inputs (the inputs of a seed), parts (a row of the
+report, the verdict on each part and on the whole filter), report (the checker, the grader's reference
+runs, the text, the student's own checks), kit (the student kit, and copied code found), child and
+sandbox (where and how a submission runs: a bubblewrap sandbox holding only the student kit, and the
+messages it sends), grading (a class's folder), selfcheck (the notebook's names for the own checks).
 """
 
 from __future__ import annotations

@@ -302,32 +302,39 @@ def load(meta: dict[str, Any]) -> tuple[type | None, dict[str, Any]]:
     if class_name is None:
         students = [c for c in defined if issubclass(c, StudentFilter)]
         if len(students) == 1:
-            return students[0], describe_class(students[0])
+            return students[0], describe_class(students[0], shown)
         found = ", ".join(c.__name__ for c in students) or "none"
         return None, {"error": f"{shown}: name the class as {shown}:ClassName (StudentFilter classes: {found})"}
     cls = getattr(module, class_name, None)
     if not isinstance(cls, type) or cls not in defined:
         names = ", ".join(c.__name__ for c in defined) or "no classes"
         return None, {"error": f"{shown}: no class {class_name!r} of its own (it defines: {names})"}
-    return cls, describe_class(cls)
+    return cls, describe_class(cls, shown)
 
 
-def describe_class(cls: type) -> dict[str, Any]:
-    """The class's name, whether it is a StudentFilter, and its first bases (for the one line)."""
+def describe_class(cls: type, shown: str) -> dict[str, Any]:
+    """The class's names (its own and its `name`), or the one line why it cannot be graded: it is not a
+    StudentFilter (naming its first bases)."""
+    if not issubclass(cls, StudentFilter):
+        bases = ", ".join(f"{b.__module__}.{b.__qualname__}" for b in cls.__mro__[1:-1][:3]) or "object"
+        return {
+            "error": f"{shown}: {cls.__name__} is not a StudentFilter (it subclasses {bases}); the exercise grades "
+            "a subclass of mazelab.exercise.StudentFilter with your own predict, weigh, resample and estimate"
+        }
     try:
         name = str(cls.name)
     except BaseException:
         name = cls.__name__
-    bases = [f"{b.__module__}.{b.__qualname__}" for b in cls.__mro__[1:-1]][:3]
-    return {"class": cls.__name__, "name": name[:80], "student_filter": issubclass(cls, StudentFilter), "bases": bases}
+    return {"class": cls.__name__, "name": name[:80]}
 
 
 def serve(request: Message, emit: Emit, filter_class: type | None = None) -> None:
     """Load the class (or take `filter_class`), then run the request's stages, sending each one's
     start and its answer; then "done"."""
-    cls, loaded = (filter_class, describe_class(filter_class)) if filter_class else load(request.meta)
+    shown = request.meta.get("shown") or getattr(filter_class, "__name__", "")
+    cls, loaded = (filter_class, describe_class(filter_class, shown)) if filter_class else load(request.meta)
     emit({"kind": "loaded", **loaded})
-    if cls is not None and loaded["student_filter"]:
+    if cls is not None and "error" not in loaded:
         inputs = Inputs({**request.meta["inputs"], **request.arrays})
         for stage in request.meta["stages"]:
             emit({"kind": "stage", "stage": stage})

@@ -25,22 +25,15 @@ from pathlib import Path
 from typing import Any
 
 from mazelab.atomic import WriteError, lock, write_text_atomically
-from mazelab.exercise.language import Catalogue
 from mazelab.exercise.parts import FAIL, NOT_OWN, NOT_RUN, NOT_WRITTEN, PASS, clean
-from mazelab.exercise.report import WHOLE, NotGradableError, References, Report, Submission, check_file, format_report
-from mazelab.exercise.sandbox import (
-    DEFAULT_BUDGET,
-    GradingStoppedError,
-    SandboxError,
-    allow_children,
-    stop_children,
-)
+from mazelab.exercise.report import ROWS, NotGradableError, References, Report, Submission, check_file, format_report
+from mazelab.exercise.sandbox import DEFAULT_BUDGET, SandboxError, allow_children, stop_children
 from mazelab.exercise.student import PARTS
-from mazelab.exercise.template import FILTER_FILE
+from mazelab.exercise.template import FILTER_FILE, Catalogue
 
 KEY_FILE = ".grading.key"  # hidden: no submission has its name (grading skips names that start with ".")
 KEY_BYTES = 32  # 256 bits; a given key needs at least 16 (128 bits)
-ROW_NAMES = (*PARTS, WHOLE)
+ROW_NAMES = tuple(ROWS.values())
 CSV_COLUMNS = (
     "submission", "file", *PARTS, "whole_filter", "farther_on", "to_exact", "sir_to_exact",
     "converged", "sir_converged", "seconds", "problem",
@@ -105,10 +98,10 @@ def grade_one(submission: Submission, timeout: float, references: References | N
             return report
         except NotGradableError as error:
             problem = str(error)
-        except (SandboxError, GradingStoppedError, KeyboardInterrupt):
+        except SandboxError:  # the grader's machine: no one's row (a stop is no Exception: it passes too)
             raise
         except Exception as error:  # the grader's own failure on this submission: its row, not the class's
-            problem = clean(f"the grader could not check it: {type(error).__name__}: {error}")
+            problem = f"the grader could not check it: {type(error).__name__}: {error}"
     return Report(submission.name, None, submission=submission, problem=problem, seconds=time.perf_counter() - started)
 
 
@@ -303,7 +296,7 @@ def csv_text(graded: list[Report]) -> str:
     return buffer.getvalue()
 
 
-def gradescope_results(report: Report, catalogue: Catalogue | None = None) -> dict[str, Any]:
+def gradescope_json(report: Report, catalogue: Catalogue | None = None) -> str:
     """Gradescope's results.json for one submission: a test per row (1 point each), the report as
     the submission's output (its published autograder format), in the catalogue's language; a
     submission that could not be checked scores 0 with the reason. No seed nor key is in it."""
@@ -312,21 +305,23 @@ def gradescope_results(report: Report, catalogue: Catalogue | None = None) -> di
     if report.problem is not None:
         text = words.numbers(words.translate(report.problem))
         tests = [_test(i, _(part), 0.0, text) for i, part in enumerate(ROW_NAMES, 1)]
-        return {"score": 0.0, "execution_time": round(report.seconds), "output": text, "tests": tests}
-    tests = []
-    for i, row in enumerate(report.rows, 1):
-        status = _(FAIL.upper() if row.status == FAIL else row.status)
-        lines = [f"{status}: {words.translate(row.got)}", _("expected: ") + words.translate(row.expected)]
-        lines += [_("hint: ") + words.translate(row.hint)] if row.hint and not row.passed else []
-        tests.append(_test(i, _(row.part), 1.0 if row.passed else 0.0, words.numbers("\n".join(lines))))
-    return {
-        "score": float(sum(t["score"] for t in tests)),
-        "execution_time": round(report.seconds),
-        "output": format_report(report, catalogue=words),
-        "stdout_visibility": "hidden",
-        "tests": tests,
-        "extra_data": {"problems": report.problems, "sandboxed": not report.note},
-    }
+        results = {"score": 0.0, "execution_time": round(report.seconds), "output": text, "tests": tests}
+    else:
+        tests = []
+        for i, row in enumerate(report.rows, 1):
+            status = _(FAIL.upper() if row.status == FAIL else row.status)
+            lines = [f"{status}: {words.translate(row.got)}", _("expected: ") + words.translate(row.expected)]
+            lines += [_("hint: ") + words.translate(row.hint)] if row.hint and not row.passed else []
+            tests.append(_test(i, _(row.part), 1.0 if row.passed else 0.0, words.numbers("\n".join(lines))))
+        results = {
+            "score": float(sum(t["score"] for t in tests)),
+            "execution_time": round(report.seconds),
+            "output": format_report(report, catalogue=words),
+            "stdout_visibility": "hidden",
+            "tests": tests,
+            "extra_data": {"problems": report.problems, "sandboxed": not report.note},
+        }
+    return json.dumps(results, indent=2, allow_nan=False) + "\n"
 
 
 def _test(number: int, name: str, score: float, output: str) -> dict[str, Any]:
@@ -340,10 +335,6 @@ def _test(number: int, name: str, score: float, output: str) -> dict[str, Any]:
         "output": output,
         "visibility": "visible",
     }
-
-
-def gradescope_json(report: Report, catalogue: Catalogue | None = None) -> str:
-    return json.dumps(gradescope_results(report, catalogue), indent=2, allow_nan=False) + "\n"
 
 
 def summary(graded: list[Report], width: int = 100) -> str:

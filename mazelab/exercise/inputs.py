@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import hashlib
 import hmac
+import warnings
 from dataclasses import dataclass
-from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -18,6 +18,7 @@ import numpy as np
 from mazelab.maze import Maze, load_maze
 from mazelab.robot import Robot
 from mazelab.seeding import run_streams, start_place
+from mazelab.simulation import simulate
 
 PART_MAZES = ("paper_5x5", "twin_rooms_6x12", "maze_10x10", "maze_20x20")
 WHOLE_MAZES = ("paper_5x5", "maze_10x10")  # quick for the grid filter; not the twin rooms (a coin flip)
@@ -45,10 +46,12 @@ def default_seed(data: bytes) -> int:
     return int.from_bytes(hashlib.sha256(data).digest()[:8], "big") >> 1
 
 
-def files_seed(path: Path, companions: list[Path], key: bytes | None = None) -> int:
-    """A submission's seed: the first 63 bits of the sha256 of its files (the file's bytes, then each
-    helper module's name and bytes), or with the grader's secret `key` of their HMAC-SHA256."""
-    data = path.read_bytes() + b"".join(b"\0" + p.name.encode() + b"\0" + p.read_bytes() for p in companions)
+def files_seed(files: dict[str, bytes], key: bytes | None = None) -> int:
+    """A submission's seed from its files ({name: bytes}, the graded file first): the first 63 bits of
+    the sha256 of the file's bytes, then each helper module's name and bytes, or with the grader's
+    secret `key` of their HMAC-SHA256."""
+    first, *helpers = files.items()
+    data = first[1] + b"".join(b"\0" + name.encode() + b"\0" + text for name, text in helpers)
     return default_seed(data) if key is None else int.from_bytes(hmac.digest(key, data, "sha256")[:8], "big") >> 1
 
 
@@ -98,20 +101,17 @@ class ScenarioInputs(_OnAMaze):
         """What identifies the scenario (its reference runs are computed once per key)."""
         return (self.maze, self.sigma, self.delta, self.seed, len(self.particles), len(self.measurements))
 
-    def robot(self) -> Robot:
-        """A robot that replays the walk (for the exact and the shipped filter's runs)."""
-        return Robot(
-            self.sigma,
-            self.delta,
-            self.start,
-            actual_angles=self.actual_angles,
-            compass_angles=self.compass_angles,
-            measurements=self.measurements,
-        )
-
-
-def _between(rng: np.random.Generator, bounds: tuple[float, float]) -> float:
-    return float(rng.uniform(*bounds))
+    def replay(self, filter_name: str, **options: object) -> np.ndarray:
+        """A shipped filter's estimates (steps, 2) on the scenario's walk, replayed: the exact grid filter's
+        posterior means ("grid"), or the SIR's ("sir", resampling with the student's scheme)."""
+        robot = Robot(self.sigma, self.delta, self.start, actual_angles=self.actual_angles,
+                      compass_angles=self.compass_angles, measurements=self.measurements)  # fmt: skip
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)
+            result = simulate(robot, self.world, self.sigma, self.delta, steps=len(self.measurements),
+                              init_particles_pos=self.particles, filtering_algorithm=filter_name, seed=self.seed,
+                              **options)  # fmt: skip
+        return result.estimates
 
 
 def _count(rng: np.random.Generator, bounds: tuple[int, int]) -> int:
@@ -127,7 +127,7 @@ def draw_part_inputs(seed: int) -> PartInputs:
     rng = np.random.default_rng([seed, PARTS_TAG])
     maze = str(rng.choice(PART_MAZES))
     world = load_maze(maze)
-    sigma, delta = _between(rng, PART_SIGMA), _between(rng, PART_DELTA)
+    sigma, delta = float(rng.uniform(*PART_SIGMA)), float(rng.uniform(*PART_DELTA))
     prior = world.random_free_places(PRIOR_COUNT, rng)
     return PartInputs(
         maze,
@@ -215,7 +215,7 @@ def draw_scenarios(seed: int, count: int = SCENARIO_COUNT, steps: int = SCENARIO
     scenarios = []
     for run_seed in _seeds(rng, count):
         maze = str(rng.choice(WHOLE_MAZES))
-        sigma, delta = _between(rng, WHOLE_SIGMA), _between(rng, WHOLE_DELTA)
+        sigma, delta = float(rng.uniform(*WHOLE_SIGMA)), float(rng.uniform(*WHOLE_DELTA))
         scenarios.append(walk_scenario(maze, sigma, delta, run_seed, _count(rng, SCENARIO_PARTICLES), steps))
     return scenarios
 

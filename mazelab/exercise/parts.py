@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from statistics import NormalDist
+from typing import Any
 
 import numpy as np
 
@@ -69,15 +70,6 @@ def error_of(message: Message) -> dict[str, str] | None:
     if not isinstance(error, dict) or not isinstance(error.get("text"), str) or not isinstance(error.get("kind"), str):
         raise BadAnswerError("an error that is not a kind and a text")
     return {"kind": error["kind"], "text": error["text"]}
-
-
-def error_row(part: str, expected: str, error: dict[str, str], hint: str) -> Row:
-    """The row of a stage whose student code did not answer: not written, an exit of its own, the wrong
-    form, or an error (naming the student's line)."""
-    if error["kind"] == "not written":
-        return Row(part, NOT_WRITTEN, expected, "not implemented", f"write {part} (see its docstring)")
-    hint = "a part returns its answer; it never ends the program" if error["kind"] == "exit" else hint
-    return Row(part, FAIL, expected, error["text"], hint)
 
 
 # -- the parts ------------------------------------------------------------------------------------------
@@ -324,11 +316,6 @@ EXACT = 1e-6  # a count that never varies must equal N W_i to this (rounding of 
 RESEMBLANCE_VECTOR = "fractional"  # the vector whose offspring variance names the scheme
 
 
-def resample_expected(inputs: PartInputs) -> str:
-    resample = inputs.resample
-    return f"E[offspring] = N W_i under {len(resample.weights)} weight vectors, {resample.draws} calls each"
-
-
 def critical_z(particles: int, alpha: float = RESAMPLE_ALPHA) -> float:
     """The two-sided normal quantile of each particle's z-test: alpha / (2 particles) in each tail."""
     return NormalDist().inv_cdf(1 - alpha / (2 * particles))
@@ -374,7 +361,7 @@ def constant_count_z(deviation: float, calls: int) -> float:
 
 def judge_resample(inputs: PartInputs, answer: Message) -> tuple[Row, str]:
     """resample's row from its answer (ancestors/k (R, N_k), repeat/k), and the scheme it resembles."""
-    expected = resample_expected(inputs)
+    expected = expectations(inputs)["resample"]
     vectors, kinds, draws = inputs.resample.weights, inputs.resample.kinds, inputs.resample.draws
     ancestors = [take(answer, f"ancestors/{k}", (draws, len(w)), "<i8") for k, w in enumerate(vectors)]
     repeats = [take(answer, f"repeat/{k}", (len(w),), "<i8") for k, w in enumerate(vectors)]
@@ -469,11 +456,39 @@ def scheme_variances(weights: np.ndarray) -> dict[str, float]:
     }
 
 
-JUDGES = {
-    "predict": judge_predict,
-    "weigh": judge_weigh,
-    "estimate": judge_estimate,
-}  # resample: its own (a scheme too)
+def expectations(inputs: PartInputs) -> dict[str, str]:
+    """What each stage's row expects (its "expected:" line), by stage."""
+    resample = inputs.resample
+    draws = f"E[offspring] = N W_i under {len(resample.weights)} weight vectors, {resample.draws} calls each"
+    return {**EXPECTED, "resample": draws, "whole": whole_expected()}
+
+
+def judge(stage: str, inputs: PartInputs, scenarios: list[ScenarioInputs], answer: Message, report: Any,
+          references: Any) -> Row:  # fmt: skip
+    """A stage's row from its answer: the error the student's code reported, or its values judged; the
+    scheme the resampler resembles and the whole filter's figures go into `report` (the whole filter's SIR
+    resamples with that scheme, on the scenarios' reference runs from `references`)."""
+    error, scheme = error_of(answer), report.scheme
+    if error and stage != "whole":  # not written, an exit of its own, the wrong form, or an error (its line)
+        expected = expectations(inputs)[stage]
+        if error["kind"] == "not written":
+            return Row(stage, NOT_WRITTEN, expected, "not implemented", f"write {stage} (see its docstring)")
+        hint = "a part returns its answer; it never ends the program" if error["kind"] == "exit" else HINTS[stage]
+        return Row(stage, FAIL, expected, error["text"], hint)
+    if stage == "resample":
+        row, report.scheme = judge_resample(inputs, answer)
+        return row
+    if stage != "whole":
+        return {"predict": judge_predict, "weigh": judge_weigh, "estimate": judge_estimate}[stage](inputs, answer)
+    if any(row.status == NOT_WRITTEN for row in report.rows):  # the parts' rows come first
+        return Row("whole filter", NOT_RUN, whole_expected(scheme), "not run", "write every part first")
+    estimates = whole_answer(scenarios, answer, scheme)
+    if isinstance(estimates, Row):
+        return estimates
+    sir = [references.sir(s, scheme) for s in scenarios]
+    exact = [references.exact(s).result() for s in scenarios]
+    row, report.figures = judge_whole(scenarios, estimates, exact, [f.result() for f in sir], scheme)
+    return row
 
 
 # -- the whole filter ----------------------------------------------------------------------------

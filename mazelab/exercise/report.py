@@ -17,14 +17,11 @@ import shlex
 import textwrap
 import threading
 import time
-import warnings
 from collections.abc import Callable
 from concurrent.futures import Executor, Future
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
-
-import numpy as np
 
 from mazelab.exercise import child
 from mazelab.exercise.child import Message, encode, messages
@@ -38,13 +35,9 @@ from mazelab.exercise.inputs import (
     request,
 )
 from mazelab.exercise.kit import class_source, copied_parts
-from mazelab.exercise.language import Catalogue
 from mazelab.exercise.parts import (
-    EXPECTED,
     FAIL,
     FIGURE_COLUMNS,
-    HINTS,
-    JUDGES,
     NOT_OWN,
     NOT_RUN,
     NOT_WRITTEN,
@@ -52,23 +45,19 @@ from mazelab.exercise.parts import (
     BadAnswerError,
     Row,
     clean,
-    error_of,
-    error_row,
-    judge_resample,
-    judge_whole,
-    resample_expected,
-    whole_answer,
-    whole_expected,
+    expectations,
+    judge,
 )
 from mazelab.exercise.sandbox import DEFAULT_BUDGET, ChildRun, companions_of, run_child, sandbox, submission_copy
-from mazelab.exercise.student import PARTS
+from mazelab.exercise.student import PARTS, StudentFilter
+from mazelab.exercise.template import Catalogue, catalogue_for
 from mazelab.experiments.tables import format_table
 from mazelab.invocation import command_prefix
 from mazelab.registry import split_spec
-from mazelab.simulation import simulate
 
 STAGES = (*PARTS, "whole")
 WHOLE = "whole filter"
+ROWS = dict(zip(STAGES, (*PARTS, WHOLE), strict=True))  # each stage's row (the parts', then the whole filter's)
 COPY_HINT = "write it yourself: a part may not be the lab's reference implementation with its names changed"
 RESERVE = 5.0  # seconds of the budget kept for each stage after the one running (a hang leaves time for the rest)
 ENDED_HINT = "a part returns its answer: no exit, no endless loop, nothing that kills the process"
@@ -100,7 +89,6 @@ class Submission:
 
     def __post_init__(self) -> None:
         self.name = clean(self.name, 200)
-        self.problem = None if self.problem is None else clean(self.problem)
 
 
 @dataclass
@@ -125,8 +113,9 @@ class Report:
     submission: Submission | None = None  # in a grading (mazelab.exercise.grading)
     problem: str | None = None  # why it could not be checked at all (then it has no rows)
 
-    def __post_init__(self) -> None:
+    def __post_init__(self) -> None:  # every text that reaches an output is data (clean)
         self.filter_name = clean(self.filter_name, 80)
+        self.problem = None if self.problem is None else clean(self.problem)
 
     @property
     def passed(self) -> bool:
@@ -141,33 +130,10 @@ class Report:
 
 
 class NotGradableError(ValueError):
-    """The submission cannot be checked at all: one line naming the file and why."""
-
-    def __init__(self, text: str):
-        super().__init__(clean(text))
+    """The submission cannot be checked at all: one line naming the file and why (its Report's `problem`)."""
 
 
 # -- the grader's own runs ------------------------------------------------------------------------
-def reference_run(scenario: ScenarioInputs, filter_name: str, **options: object) -> np.ndarray:
-    """A shipped filter's estimates (steps, 2) on the scenario: the exact grid filter's posterior means
-    ("grid"), or the SIR's ("sir", resampling with the student's scheme)."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)
-        result = simulate(
-            scenario.robot(),
-            scenario.world,
-            scenario.sigma,
-            scenario.delta,
-            None,
-            len(scenario.measurements),
-            scenario.particles,
-            filter_name,
-            seed=scenario.seed,
-            **options,
-        )
-    return result.estimates
-
-
 _memo: dict[tuple, Future] = {}
 _memo_lock = threading.Lock()
 
@@ -214,7 +180,7 @@ class References:
                 return future
             if self.executor is None and _background is None:
                 _background = Background()
-            future = (self.executor or _background).submit(reference_run, scenario, filter_name, **options)
+            future = (self.executor or _background).submit(ScenarioInputs.replay, scenario, filter_name, **options)
             _memo[key] = future
             return future
 
@@ -242,26 +208,26 @@ class Answers:
 
 
 def collect_isolated(
-    path: Path,
     class_name: str | None,
     parts: PartInputs,
     scenarios: list[ScenarioInputs],
     budget: float,
     stages: tuple[str, ...] = STAGES,
     shown: str = "",
-    companions: bool = True,
+    *,
+    files: dict[str, bytes],
 ) -> Answers:
-    """Run the stages in child processes, each in the sandbox of the submission's own copy (and its
-    helper modules, with `companions`), within `budget` seconds in all: a new child after a stage in
-    which one ended, while the budget lasts. Each way a child ends is one branch below."""
+    """Run the stages in child processes, each in the sandbox of the submission's own copy (`files`,
+    {name: bytes}: the file, then its helper modules), within `budget` seconds in all: a new child after a
+    stage in which one ended, while the budget lasts. Each way a child ends is one branch below."""
     answers, todo, made = Answers(), list(stages), sandbox()
-    with submission_copy(path, companions) as run_folder:
+    with submission_copy(files) as run_folder:
         while todo:
             left = budget - answers.seconds
             if left < 1:
                 answers.ended.update(dict.fromkeys(todo, f"was not started: the time budget ({budget:g} s) is spent"))
                 break
-            wanted = request(made.inside(run_folder, path.name), class_name, todo, parts, scenarios, shown)
+            wanted = request(made.inside(run_folder, next(iter(files))), class_name, todo, parts, scenarios, shown)
             run = run_child(wanted, run_folder, left, made, reserve=min(RESERVE, left / (2 * len(todo))))
             answers.output, answers.seconds = answers.output + run.output, answers.seconds + run.seconds
             if run.loaded is None:  # it ended while the file was imported: every row fails
@@ -271,12 +237,7 @@ def collect_isolated(
             void = set(todo) if "loaded" in run.twice else run.twice & set(todo)
             answers.ended.update(dict.fromkeys(void, TWICE))
             answers.results.update({s: m for s, m in run.results.items() if s in todo and s not in void})
-            if (
-                run.ended is None
-                or void == set(todo)
-                or run.loaded.get("error")
-                or not run.loaded.get("student_filter")
-            ):
+            if run.ended is None or void == set(todo) or run.loaded.get("error"):
                 break
             left_over = [s for s in todo if s not in run.results and s not in void]
             if not left_over:  # every stage answered, then it ended: the values are judged, the ending noted
@@ -302,21 +263,6 @@ def collect_in_process(
     return Answers(run.loaded, run.results)
 
 
-def loading_problem(answers: Answers, shown: str) -> str | None:
-    """The one line for a submission that cannot be checked at all, or None."""
-    loaded = answers.loaded or {}
-    if loaded.get("error"):
-        return clean(loaded["error"])
-    if loaded and not loaded.get("student_filter"):
-        bases = clean(", ".join(map(str, loaded.get("bases") or [])) or "object", 200)
-        return (
-            f"{shown}: {clean(loaded.get('class'), 80)} is not a StudentFilter (it subclasses {bases}); the "
-            "exercise grades a subclass of mazelab.exercise.StudentFilter with your own predict, weigh, resample "
-            "and estimate"
-        )
-    return None
-
-
 # -- the rows ----------------------------------------------------------------------------------------
 def build_report(
     report: Report,
@@ -327,22 +273,39 @@ def build_report(
     stages: tuple[str, ...] = STAGES,
     copies: dict | None = None,
 ) -> Report:
-    """The report's rows from the answers: each stage's row (`_row`), a part that is the lab's code
-    (`copies`, mazelab.exercise.kit.copied_parts) marked not own work; what went wrong beyond the rows; the
-    failing parts named in the whole filter's hint."""
+    """The report's rows from the answers: each stage's row (its values judged by parts.judge), a part that
+    is the lab's code (`copies`, mazelab.exercise.kit.copied_parts) marked not own work; what went wrong
+    beyond the rows; the failing parts named in the whole filter's hint."""
     report.output, report.student_seconds = answers.output, answers.seconds
-    expected = {**EXPECTED, "resample": resample_expected(parts), "whole": whole_expected()}
+    expected = expectations(parts)
     if answers.problem:
         report.problems.append(clean(answers.problem))
         how = answers.problem.removeprefix("the student's process ")
-        report.rows = [ended_row(_label(s), expected[s], how, answers.output) for s in stages]
+        report.rows = [ended_row(ROWS[s], expected[s], how, answers.output) for s in stages]
         return report
-    for stage in stages:
-        row = _row(stage, expected[stage], report, parts, scenarios, answers, references)
+    for stage in stages:  # the process ended in it, no answer came, an answer the grader cannot read, or judged
+        label, message = ROWS[stage], answers.results.get(stage)
+        try:
+            if stage in answers.ended:
+                row = ended_row(label, expected[stage], answers.ended[stage], answers.output)
+            elif message is None:  # it said "done" (or ended) without this stage's answer
+                row = Row(
+                    label,
+                    FAIL,
+                    expected[stage],
+                    "no answer came from the student's process",
+                    "a part returns its answer",
+                )
+            else:
+                row = judge(stage, parts, scenarios, message, report, references)
+        except BadAnswerError as error:
+            row = Row(
+                label, FAIL, expected[stage], f"an answer the grader cannot read ({error})", "return plain arrays"
+            )
         if (copies or {}).get(stage) and row.status != NOT_WRITTEN:
             row = Row(row.part, NOT_OWN, row.expected, copies[stage], COPY_HINT)
         report.rows.append(row)
-    report.problems += [clean(f"{_label(s)}: the student's process {how}") for s, how in answers.ended.items()]
+    report.problems += [clean(f"{ROWS[s]}: the student's process {how}") for s, how in answers.ended.items()]
     report.problems += [clean(note) for note in answers.notes]
     report.problems += [f"{r.part}: {r.got}" for r in report.rows if r.status == NOT_OWN]
     failed = [r.part for r in report.rows if not r.passed and r.part != WHOLE]
@@ -352,45 +315,11 @@ def build_report(
     return report
 
 
-def _row(stage: str, expected: str, report: Report, parts: PartInputs, scenarios: list[ScenarioInputs],
-         answers: Answers, references: Any) -> Row:  # fmt: skip
-    """One stage's row: the process ended in it, no answer came, an answer the grader cannot read, the
-    student's code failed, or its values judged (the resampler's scheme and the whole filter's figures
-    into the report)."""
-    label, message, scheme = _label(stage), answers.results.get(stage), report.scheme
-    if stage in answers.ended:
-        return ended_row(label, expected, answers.ended[stage], answers.output)
-    if message is None:  # it said "done" (or ended) without this stage's answer
-        return Row(label, FAIL, expected, "no answer came from the student's process", "a part returns its answer")
-    try:
-        error = error_of(message)
-        if stage == "resample" and not error:
-            row, report.scheme = judge_resample(parts, message)
-            return row
-        if stage != "whole":
-            return error_row(stage, expected, error, HINTS[stage]) if error else JUDGES[stage](parts, message)
-        if any(row.status == NOT_WRITTEN for row in report.rows):  # the parts' rows come first
-            return Row(WHOLE, NOT_RUN, whole_expected(scheme), "not run", "write every part first")
-        estimates = whole_answer(scenarios, message, scheme)
-        if isinstance(estimates, Row):
-            return estimates
-        sir = [references.sir(s, scheme) for s in scenarios]
-        exact = [references.exact(s).result() for s in scenarios]
-        row, report.figures = judge_whole(scenarios, estimates, exact, [f.result() for f in sir], scheme)
-        return row
-    except BadAnswerError as error:
-        return Row(label, FAIL, expected, f"an answer the grader cannot read ({error})", "return plain arrays")
-
-
 def ended_row(part: str, expected: str, ended: str, output: str) -> Row:
     """The row of the stage in which the student's process ended: how, and its last printed line."""
     last = next((line.strip() for line in reversed(output.splitlines()) if line.strip()), "")
     got = f"the student's process {ended}" + (f"; its last line: {last[:200]}" if last else "")
     return Row(part, FAIL, expected, got, ENDED_HINT)
-
-
-def _label(stage: str) -> str:
-    return WHOLE if stage == "whole" else stage
 
 
 # -- the checks ----------------------------------------------------------------------------------------
@@ -415,14 +344,14 @@ def check_file(
         raise NotGradableError(f"{shown}: no such file {path}" + ("" if path.exists() else " (check the path)"))
     if path.resolve().suffix != ".py":
         raise NotGradableError(f"{shown}: a link to {path.resolve()}, not a Python file")
-    beside = companions_of(path) if companions else []
+    files = {p.name: p.read_bytes() for p in [path, *(companions_of(path) if companions else [])]}  # read once
     source = "given" if seed is not None else "key" if key else "files"
-    seed = files_seed(path, beside, key or None) if seed is None else seed
+    seed = files_seed(files, key or None) if seed is None else seed
     report = Report(class_name or path.stem, None if source == "key" else seed, source, note=sandbox().note)
-    collect = functools.partial(collect_isolated, path.resolve(), class_name, budget=timeout, stages=stages,
-                                shown=shown, companions=companions)  # fmt: skip
-    sources = {p.name: p.read_text(errors="replace") for p in [path, *beside]}
-    return _check(report, seed, stages, collect, shown, sources, references)
+    collect = functools.partial(collect_isolated, class_name, budget=timeout, stages=stages,
+                                shown=shown, files=files)  # fmt: skip
+    sources = {name: data.decode(errors="replace") for name, data in files.items()}
+    return _check(report, seed, stages, collect, sources, references)
 
 
 def check(filter_class: type, *, seed: int | None = None, stages: tuple[str, ...] = STAGES) -> Report:
@@ -431,7 +360,7 @@ def check(filter_class: type, *, seed: int | None = None, stages: tuple[str, ...
     seed = source_seed(filter_class) if seed is None else seed
     collect = functools.partial(collect_in_process, filter_class, stages=list(stages))
     sources = {"class.py": class_source(filter_class)}
-    return _check(Report(filter_class.__name__, seed, "class"), seed, stages, collect, filter_class.__name__, sources)
+    return _check(Report(filter_class.__name__, seed, "class"), seed, stages, collect, sources)
 
 
 def _check(
@@ -439,7 +368,6 @@ def _check(
     seed: int,
     stages: tuple[str, ...],
     collect: Callable[[PartInputs, list[ScenarioInputs]], Answers],
-    shown: str,
     sources: dict[str, str],
     references: Any = None,
 ) -> Report:
@@ -452,10 +380,10 @@ def _check(
     for scenario in scenarios:
         references.exact(scenario)
     answers = collect(parts, scenarios)
-    problem = loading_problem(answers, shown)
-    if problem:
-        raise NotGradableError(problem)
-    report.filter_name = clean((answers.loaded or {}).get("name") or report.filter_name, 80)
+    loaded = answers.loaded or {}
+    if loaded.get("error"):  # it does not import, has no such class, or the class is not a StudentFilter
+        raise NotGradableError(loaded["error"])
+    report.filter_name = clean(loaded.get("name") or report.filter_name, 80)
     build_report(report, parts, scenarios, answers, references, stages, copied_parts(sources))
     report.seconds = time.perf_counter() - started
     return report
@@ -513,13 +441,30 @@ def format_report(report: Report, width: int = WIDTH, catalogue: Catalogue | Non
     return words.numbers("\n".join(lines))
 
 
-# -- the student's own process ---------------------------------------------------------------------------
+# -- the student's own process (mazelab.exercise.selfcheck) -------------------------------------------------
+def check_part(part: str, function: Callable[..., object], lang: str = "en") -> Row:
+    """Check one part written as a plain function `part(self, ...)` (a notebook cell), print its row
+    (in `lang`: en or uk)."""
+    if part not in PARTS:
+        raise ValueError(f"unknown part {part!r}; the parts are {', '.join(PARTS)}")
+    notebook_filter = type("NotebookFilter", (StudentFilter,), {part: function})
+    row = check(notebook_filter, seed=source_seed(function), stages=(part,)).rows[0]
+    print(format_rows([row], catalogue=catalogue_for(lang)))
+    return row
+
+
+def check_and_print(filter_class: type, lang: str = "en") -> Report:
+    """Check every part and the whole filter, and print the report (the notebook's last check cell),
+    in `lang` (en or uk)."""
+    report = check(filter_class)
+    print(format_report(report, catalogue=catalogue_for(lang)))
+    return report
+
+
 def progress(filter_class: type, lang: str | None = None) -> str:
     """Which parts are still to write, and the checks of those written (what `python my_filter.py`
     prints: a self-check in the student's process), in `lang` (default: the file's LANGUAGE, else the
     locale's)."""
-    from mazelab.exercise.language import catalogue_for
-
     words = catalogue_for(lang or getattr(inspect.getmodule(filter_class), "LANGUAGE", None))
     report = check(filter_class, stages=PARTS)
     todo = [row.part for row in report.rows if row.status == NOT_WRITTEN]

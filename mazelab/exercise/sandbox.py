@@ -66,8 +66,9 @@ class SandboxError(RuntimeError):
     """The sandbox failed before the student's code ran: the grader's error, one line."""
 
 
-class GradingStoppedError(Exception):
-    """The grading was stopped (Ctrl-C, SIGTERM): no new child is started, and the running ones are ended."""
+class GradingStoppedError(KeyboardInterrupt):
+    """The grading was stopped (Ctrl-C, SIGTERM): no new child is started, and the running ones are ended
+    (an interrupt, so no handler of the grader's own errors takes it)."""
 
 
 @dataclass(frozen=True)
@@ -90,14 +91,35 @@ class Sandbox:
     def command(self, kit: Path, run: Path, answers: int | None, staged: dict[str, str] | None = None) -> list[str]:
         """The command that runs mazelab.exercise.child on the kit with `run/submission/` as the only
         student files (`run/site/` holds links to numpy where there is no sandbox), answering on the
-        descriptor `answers` (None: nothing runs, the probe); `staged` binds a folder from another place
-        (the root's drop to nobody)."""
+        descriptor `answers` (None: nothing runs, the probe). bwrap's options: the namespaces, the uid, a
+        private /tmp (of at most TMP_LIMIT bytes where `bounded_tmp`), the read-only binds (from
+        `staged[source]` where given: the root's drop to nobody), the lab hidden where an interpreter
+        folder holds it (a lab installed into the system's Python), a minimal environment."""
         python = [os.path.realpath(sys.executable), *PYTHON, "-c"]
         roots = (KIT_ROOT, SITE_ROOT) if self.sandboxed else (str(kit), str(run / "site"))
         code = "" if answers is None else ENTRY.format(kit=roots[0], site=roots[1], fd=answers)
         if not self.sandboxed:
             return [*python, code]
-        return [self.bwrap, *bwrap_arguments(kit, run / "submission", self.bounded_tmp, staged), "--", *python, code]
+        size = ["--size", str(TMP_LIMIT)] if self.bounded_tmp else []
+        arguments = [
+            "--unshare-all", "--unshare-user", "--uid", str(SANDBOX_UID), "--gid", str(SANDBOX_UID),
+            "--die-with-parent", "--new-session", "--cap-drop", "ALL", "--hostname", "sandbox",
+            "--proc", "/proc", "--dev", "/dev", *size, "--tmpfs", "/tmp",
+        ]  # fmt: skip
+        for top in ("/usr/lib", "/usr/lib64", "/lib", "/lib64", "/lib32", "/usr/lib32"):  # as the host lays them out
+            if Path(top).is_symlink():
+                arguments += ["--symlink", os.readlink(top), top]
+            elif Path(top).is_dir():
+                arguments += ["--ro-bind", top, top]
+        binds = [(f, f) for f in interpreter_folders()] + [(str(f), f"{SITE_ROOT}/{f.name}") for f in numpy_folders()]
+        for source, target in [*binds, (str(kit), KIT_ROOT), (str(run / "submission"), SUBMISSION_ROOT)]:
+            arguments += ["--ro-bind", (staged or {}).get(source, source), target]
+            if target != KIT_ROOT and PACKAGE_DIR.is_relative_to(source):
+                arguments += ["--tmpfs", str(PACKAGE_DIR)]
+        arguments += ["--chdir", "/tmp", "--clearenv"]
+        for name, value in CHILD_ENVIRONMENT.items():
+            arguments += ["--setenv", name, value]
+        return [self.bwrap, *arguments, "--", *python, code]
 
     def inside(self, run: Path, name: str) -> str:
         """The submission's path as the child sees it."""
@@ -114,32 +136,6 @@ def interpreter_folders() -> list[str]:
     """The folders the interpreter needs: its installation (the standard library) and its binary's."""
     folders = {os.path.realpath(sys.base_prefix), os.path.dirname(os.path.realpath(sys.executable))}
     return sorted(f for f in folders if not any(f != g and f.startswith(g + os.sep) for g in folders))
-
-
-def bwrap_arguments(kit: Path, submission: Path, bounded_tmp: bool = True, staged: dict | None = None) -> list[str]:
-    """bwrap's options: the namespaces, the uid, a private /tmp (of at most TMP_LIMIT bytes where
-    `bounded_tmp`), the read-only binds (from `staged[source]` where given), the lab hidden where an
-    interpreter folder holds it (a lab installed into the system's Python), a minimal environment."""
-    size = ["--size", str(TMP_LIMIT)] if bounded_tmp else []
-    arguments = [
-        "--unshare-all", "--unshare-user", "--uid", str(SANDBOX_UID), "--gid", str(SANDBOX_UID),
-        "--die-with-parent", "--new-session", "--cap-drop", "ALL", "--hostname", "sandbox",
-        "--proc", "/proc", "--dev", "/dev", *size, "--tmpfs", "/tmp",
-    ]  # fmt: skip
-    for top in ("/usr/lib", "/usr/lib64", "/lib", "/lib64", "/lib32", "/usr/lib32"):  # as the host lays them out
-        if Path(top).is_symlink():
-            arguments += ["--symlink", os.readlink(top), top]
-        elif Path(top).is_dir():
-            arguments += ["--ro-bind", top, top]
-    binds = [(f, f) for f in interpreter_folders()] + [(str(f), f"{SITE_ROOT}/{f.name}") for f in numpy_folders()]
-    for source, target in [*binds, (str(kit), KIT_ROOT), (str(submission), SUBMISSION_ROOT)]:
-        arguments += ["--ro-bind", (staged or {}).get(source, source), target]
-        if target != KIT_ROOT and PACKAGE_DIR.is_relative_to(source):
-            arguments += ["--tmpfs", str(PACKAGE_DIR)]
-    arguments += ["--chdir", "/tmp", "--clearenv"]
-    for name, value in CHILD_ENVIRONMENT.items():
-        arguments += ["--setenv", name, value]
-    return arguments
 
 
 @functools.cache
@@ -340,16 +336,16 @@ def companions_of(path: Path) -> list[Path]:
 
 
 @contextlib.contextmanager
-def submission_copy(path: Path, companions: bool = True) -> Any:
-    """A folder holding only read-only copies of the submission (`submission/NAME`) and, with
-    `companions`, its helper modules, and for a plain child `site/` with links to numpy; removed
+def submission_copy(files: dict[str, bytes]) -> Any:
+    """A folder holding only read-only copies of the submission's files ({name: bytes} as the grader
+    read them, in `submission/`), and for a plain child `site/` with links to numpy; removed
     afterwards. Yields the folder."""
     run = Path(tempfile.mkdtemp(prefix="mazelab-run-"))
     try:
         (run / "submission").mkdir()
-        for source in [path, *companions_of(path)] if companions else [path]:
-            shutil.copyfile(source, run / "submission" / source.name)
-            (run / "submission" / source.name).chmod(0o444)
+        for name, data in files.items():
+            (run / "submission" / name).write_bytes(data)
+            (run / "submission" / name).chmod(0o444)
         (run / "site").mkdir()
         (run / "stage").mkdir()  # where a root grader without a cgroup stages the binds nobody cannot reach
         for folder in numpy_folders():
