@@ -1,25 +1,19 @@
-"""Which implementation of the hot parts a particle filter runs on, "numpy" (the reference, always there)
-or "compiled" (numba kernels, the `fast` extra: mazelab.kernels), and on how many threads. Both offer
-the operations the model (mazelab.model.LostRobot) and the weights call (mazelab.numpy_ops.NumpyKernels,
-mazelab.kernels.compiled.CompiledKernels), so the step (mazelab.smc) does not know which runs.
+"""Which implementation of the hot parts a particle filter runs on, and on how many threads.
 
-The backend, in order: `use_backend(name)` around the code, else MAZELAB_BACKEND (--backend sets it, so
-that a study's worker processes inherit it), else `backend_by_work`'s choice for the work around it
-(`simulate`, `run_model`), else "compiled" when numba imports. A filter takes the one chosen when it is
-made (`filt.backend`); every result and record says which ran. The compiled backend costs each process
-a start-up (STARTUP_SECONDS of CPU) that its faster steps repay only over enough work
-(`backend_for_work`). The numpy backend is the lab's code as it always was, bit for bit; the compiled
-one does the same arithmetic but for the sums' order, the last bit of cos and sin and its own random
-streams, so a seed repeats a run on each, and the two agree statistically.
-
-Threads (the compiled backend's): `thread_count()`, shared within a study (`shared_threads`); the count
-changes how soon a run ends, never its numbers (mazelab.kernels).
+"numpy" (mazelab.numpy_ops.NumpyKernels) is the reference, always there: the lab's code as it always
+was, bit for bit. "compiled" (mazelab.kernels.compiled.CompiledKernels: numba, the `fast` extra) does
+the same arithmetic but for the sums' order, the last bit of cos and sin and its own random streams, so
+a seed repeats a run on each and the two agree statistically. Both offer the operations the model and
+the weights call, so the step (mazelab.smc) does not know which runs. A filter takes the backend chosen
+when it is made (`chosen_backend`, its `backend`); every result and record says which ran. The compiled
+backend's threads (`thread_count`) change how soon a run ends, never its numbers (mazelab.kernels).
 """
 
 from __future__ import annotations
 
 import importlib.metadata
 import os
+from collections import Counter
 from collections.abc import Iterator
 from contextlib import contextmanager
 from contextvars import ContextVar
@@ -32,10 +26,10 @@ BACKENDS = ("numpy", "compiled")
 ENVIRONMENT_VARIABLE = "MAZELAB_BACKEND"
 THREADS_VARIABLE = "MAZELAB_THREADS"  # the compiled backend's threads for a large call (--threads sets it)
 INSTALL_HINT = 'the compiled backend needs numba: pip install -e ".[fast]" (uv sync installs it)'
-# What the compiled backend costs and saves, CPU seconds, as measured on a 2-core AMD EPYC: a fresh `main.py run`
-# (200 steps of 1,500 particles) on each backend, and numpy's step less the compiled one's (mazelab.bench's
-# filter_stepper; SIR, APF and RPF, one run of N = 100 and 10,000, 30 runs of 1,500 together).
-STARTUP_SECONDS = 0.5  # numba's import and first kernel set-up: the run's extra CPU with bytecode cached (1.2 s not)
+# What the compiled backend costs and saves, CPU seconds (docs/speed.md): a one-run study on each backend (a 2-core
+# Xeon), and numpy's step less the compiled one's (a 2-core AMD EPYC; mazelab.bench's filter_stepper; SIR, APF and
+# RPF, one run of N = 100 and 10,000, 30 runs of 1,500 together).
+STARTUP_SECONDS = 0.2  # numba's import and its kernels loaded from numba's cache: a process's extra CPU
 SAVED_PER_STEP = 60e-6  # a filter step's saving whatever its particles (fewer Python calls): 65-110 us at N = 100
 SAVED_PER_PARTICLE = 15e-9  # and per particle the step moves (R runs together: R x N): 9-30 ns
 _WORK_CHOICE: ContextVar[str | None] = ContextVar("mazelab_work_backend", default=None)  # backend_by_work's
@@ -69,7 +63,6 @@ def check_backend(name: Any, source: str = "backend") -> str:
     Returns
     -------
     str
-        The name, lower case and stripped.
     """
     chosen = name.strip().lower() if isinstance(name, str) else name
     if chosen not in BACKENDS:
@@ -80,13 +73,13 @@ def check_backend(name: Any, source: str = "backend") -> str:
 
 
 def chosen_backend() -> str:
-    """The backend a filter made now runs on: MAZELAB_BACKEND if set (checked), else the choice of the
-    enclosing `backend_by_work`, else "compiled" when numba imports, else "numpy".
+    """The backend a filter made now runs on, the first of: MAZELAB_BACKEND (--backend and `use_backend`
+    set it, so that a study's worker processes inherit it; checked), the enclosing `backend_by_work`'s
+    choice, "compiled" where numba imports, "numpy".
 
     Returns
     -------
     str
-        "numpy" or "compiled".
     """
     value = os.environ.get(ENVIRONMENT_VARIABLE, "")
     if value.strip():
@@ -95,18 +88,16 @@ def chosen_backend() -> str:
 
 
 def backend_for_work(particle_steps: float, steps: float, processes: int = 1) -> str:
-    """The backend a command of this much work runs on: MAZELAB_BACKEND's when set (the user's choice:
-    --backend sets it), else "compiled" where numba is installed and its faster steps pay back its
-    start-up in each process, else "numpy", numba then not imported. A command runs inside
-    `use_backend(backend_for_work(...))`, so that its filters, its worker processes and its records
-    take the choice; library code inside `backend_by_work`. A choice already made (MAZELAB_BACKEND, an
-    enclosing backend_by_work) stands.
+    """The backend for this much work: a choice already made stands (`chosen_backend`'s first two), else
+    the compiled one where its faster steps pay back its start-up in each process (STARTUP_SECONDS),
+    else "numpy", numba then never imported. A command runs inside `use_backend(backend_for_work(...))`,
+    library code inside `backend_by_work`.
 
     Parameters
     ----------
     particle_steps : float
-        The particles moved over the whole command: the sum over its filter steps of the particles
-        each step moves (N for one run, R x N for R runs advanced together).
+        The particles moved over the whole work: the sum over its filter steps of the particles each
+        moves (N for one run, R x N for R runs advanced together).
     steps : float
         The filter steps (calls of `step`: R runs advanced together take one call a step).
     processes : int
@@ -124,9 +115,8 @@ def backend_for_work(particle_steps: float, steps: float, processes: int = 1) ->
 
 @contextmanager
 def backend_by_work(particle_steps: float, steps: float) -> Iterator[str]:
-    """The filters made inside (in this thread) run on `backend_for_work`'s choice for this work, without
-    touching the environment (a library call such as `simulate` may run in a thread beside others); an
-    enclosing choice (MAZELAB_BACKEND, --backend, an outer `backend_by_work` for more work) stands.
+    """The filters made inside (in this thread) run on `backend_for_work`'s choice, without touching the
+    environment (a library call such as `simulate` may run in a thread beside others).
 
     Parameters
     ----------
@@ -177,45 +167,45 @@ def check_threads(value: Any, source: str = "threads") -> int:
     return count
 
 
-def thread_count() -> int:
-    """The threads a filter made now runs its large calls on (mazelab.kernels.THREADED_FROM
-    particles and more; smaller ones run on one): MAZELAB_THREADS when set (--threads, `use_threads`;
-    checked), else this machine's cores.
+def thread_count(runs_at_once: int = 1) -> int:
+    """The threads a filter made now runs its large calls on (mazelab.kernels.THREADED_FROM particles and
+    more): MAZELAB_THREADS when set (--threads, `use_threads`; checked), else this machine's cores
+    shared by the runs at once on it (at least 1 each: runs x threads <= cores).
+
+    Parameters
+    ----------
+    runs_at_once : int
 
     Returns
     -------
     int
     """
     value = os.environ.get(THREADS_VARIABLE, "")
-    return check_threads(value, THREADS_VARIABLE) if value.strip() else cores()
+    return check_threads(value, THREADS_VARIABLE) if value.strip() else max(1, cores() // max(1, runs_at_once))
 
 
 def shared_threads(workers: int, client: Any = None) -> int:
-    """The threads each run of a study takes (its units run inside `use_threads` of it), so that the runs
-    at once x their threads <= cores: `thread_count()` when MAZELAB_THREADS (--threads) is set, else the
-    machine's cores // the runs at once on it.
+    """The threads each run of a study takes (its units run inside `use_threads` of it): `thread_count`
+    of the runs at once, its local worker processes or the most task threads one host of its Dask
+    cluster has.
 
     Parameters
     ----------
     workers : int
         The study's local worker processes.
     client : distributed.Client, optional
-        A Dask cluster's client: the runs at once are then the most task threads one host has.
+        A Dask cluster's client.
 
     Returns
     -------
     int
-        At least 1.
     """
-    if os.environ.get(THREADS_VARIABLE, "").strip():
-        return thread_count()
-    runs = workers
-    if client is not None:
-        hosts: dict[str, int] = {}
-        for worker in client.scheduler_info(n_workers=-1)["workers"].values():
-            hosts[worker["host"]] = hosts.get(worker["host"], 0) + worker["nthreads"]
-        runs = max(hosts.values(), default=1)
-    return max(1, cores() // max(1, runs))
+    if client is None:
+        return thread_count(workers)
+    hosts: Counter[str] = Counter()
+    for worker in client.scheduler_info(n_workers=-1)["workers"].values():
+        hosts[worker["host"]] += worker["nthreads"]
+    return thread_count(max(hosts.values(), default=1))
 
 
 @contextmanager
@@ -233,8 +223,7 @@ def _environment(variable: str, value: str) -> Iterator[str]:
 
 
 def use_backend(name: str) -> Any:
-    """Make the filters created inside run on the backend `name` (it sets MAZELAB_BACKEND for the
-    time, so processes started inside inherit it too).
+    """Make the filters created inside, and the processes started inside, run on the backend `name`.
 
     Parameters
     ----------
@@ -250,8 +239,8 @@ def use_backend(name: str) -> Any:
 
 
 def use_threads(count: int) -> Any:
-    """Make the filters created inside run their large calls on `count` threads (it sets MAZELAB_THREADS
-    for the time, so processes started inside inherit it too).
+    """Make the filters created inside, and the processes started inside, run their large calls on
+    `count` threads.
 
     Parameters
     ----------
@@ -283,8 +272,8 @@ def backend_versions() -> dict[str, str | None]:
 
 
 def backend_of(filt: Any) -> str:
-    """The backend a filter ran on: its `backend` for the particle filters, "numpy" for any other
-    (the grid filter, the EKF and plug-ins use numpy directly).
+    """The backend a filter ran on: its `backend` for the particle filters, "numpy" for any other (the
+    grid filter, the EKF and plug-ins use numpy directly).
 
     Parameters
     ----------

@@ -10,6 +10,7 @@ with tracemalloc (every numpy array counts): the filter's creation and two of it
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import platform
@@ -23,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from mazelab.backend import chosen_backend, numba_available, use_backend
+from mazelab.backend import BACKENDS, chosen_backend, numba_available, use_backend
 from mazelab.grid_filter import GridBayesFilter
 from mazelab.maze import EMPTY, STATION_WALL, WALL, Maze
 from mazelab.model import OUTSIDE_PENALTY, ROBOT_SPEED
@@ -139,12 +140,11 @@ def measure(
     counts: tuple[int, ...],
     steps: int,
     warmup: int,
-    walk_seed: int = 1,
     backends: tuple[str, ...] | None = None,
 ) -> Iterator[BenchRow]:
     """The rows of one maze: every filter at every N on each backend (default: the chosen one), then
     the reference step where it is affordable."""
-    walk = record_walk(world, warmup + steps, walk_seed)
+    walk = record_walk(world, warmup + steps)
     world.station_distances_and_free(np.zeros(1, np.float32), np.zeros(1, np.float32))  # build the float32 tables
     for n in counts:
         for name in BENCH_FILTERS:
@@ -186,17 +186,14 @@ def run_model_line(
     seconds per step), in this process: the bench's line."""
     from mazelab.simulation import run_model  # the paper's entry point, as a notebook calls it
 
-    def robot() -> Robot:
-        return Robot(BENCH_SIGMA, BENCH_DELTA, world.random_free_place(np.random.default_rng(seed)))
-
-    simulate(robot(), world, BENCH_SIGMA, BENCH_DELTA, particles, 2, seed=seed)  # warm the lookup tables
+    sir_run(world, particles, 2, seed)  # warm the lookup tables
+    robot = Robot(BENCH_SIGMA, BENCH_DELTA, world.random_free_place(np.random.default_rng(seed)))
     started = time.perf_counter()
-    run_model(robot(), world, BENCH_SIGMA, BENCH_DELTA, particles, steps, seed=seed, visualize=False)
+    run_model(robot, world, BENCH_SIGMA, BENCH_DELTA, particles, steps, seed=seed, visualize=False)
     total = time.perf_counter() - started
-    result = simulate(robot(), world, BENCH_SIGMA, BENCH_DELTA, particles, steps, seed=seed)
+    own = float(sir_run(world, particles, steps, seed)[1].step_seconds.sum())
     if reference is None:
         reference = time_steps(reference_stepper(world, particles), record_walk(world, 4), 1)
-    own = float(result.step_seconds.sum())
     return (
         f"run_model(), SIR, N = {particles:,}, {steps} steps, visualize=False: {total:.2f} s, {total / own:.2f}x "
         f"its filter steps' own time ({own:.2f} s), {steps * reference / total:.1f}x the reference step"
@@ -205,25 +202,17 @@ def run_model_line(
 
 def cpu_model() -> str:
     """The CPU's model name from /proc/cpuinfo (Linux), else what platform knows."""
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as info:
-            for line in info:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
+    name = ""
+    with contextlib.suppress(OSError), open("/proc/cpuinfo", encoding="utf-8") as info:
+        name = next((line.split(":", 1)[1].strip() for line in info if line.startswith("model name")), "")
+    return name or platform.processor() or platform.machine()
 
 
 def format_table(rows: list[BenchRow]) -> str:
     """The rows as a text table, each filter's speed also as a multiple of the reference step's and, on
     the compiled backend, of the same filter's on numpy."""
     reference = {(r.maze, r.particles): r.particle_steps_per_second for r in rows if r.filter_name == "reference"}
-    on_numpy = {
-        (r.maze, r.filter_name, r.particles): r.particle_steps_per_second
-        for r in rows
-        if r.backend == "numpy" and r.filter_name != "reference"
-    }
+    on_numpy = {(r.maze, r.filter_name, r.particles): r.particle_steps_per_second for r in rows if r.backend == "numpy"}
     lines = [
         "Speed in millions of particle-steps per second (N particles x steps / time); x numpy: a compiled row's",
         "speed over the same filter's on the numpy backend; x reference: the filter's speed over the plain numpy",
@@ -239,22 +228,19 @@ def format_table(rows: list[BenchRow]) -> str:
         numpy_speed = on_numpy.get((r.maze, r.filter_name, r.particles))
         versus = f"{r.particle_steps_per_second / numpy_speed:.2f}x" if numpy_speed and r.backend != "numpy" else "-"
         peak = f"{r.peak_bytes / 2**20:8.1f}" if r.peak_bytes is not None else f"{'-':>8}"
+        speed = r.particle_steps_per_second / 1e6  # three significant figures: 0.0088, not 0.00; 25.6
+        millions = f"{speed:.3g}" if speed < 100 else f"{speed:.0f}"
         lines.append(
             f"{r.maze:<22} {r.filter_name:<26} {r.backend:<9} {r.particles:>9,} "
-            f"{speed(r.particle_steps_per_second / 1e6):>9} {1e3 * r.seconds_per_step:9.2f} {peak} {versus:>8} "
+            f"{millions:>9} {1e3 * r.seconds_per_step:9.2f} {peak} {versus:>8} "
             f"{ratio:>12}"
         )
     return "\n".join(lines)
 
 
-def speed(millions: float) -> str:
-    """Millions per second to three significant figures (0.0088, not 0.00; 25.6)."""
-    return f"{millions:.3g}" if millions < 100 else f"{millions:.0f}"
-
-
 def available_backends() -> tuple[str, ...]:
     """The backends this machine has: numpy, and compiled where numba imports."""
-    return ("numpy", "compiled") if numba_available() else ("numpy",)
+    return BACKENDS if numba_available() else BACKENDS[:1]
 
 
 def kernels_start_seconds(world: Maze) -> tuple[float, int]:

@@ -82,28 +82,14 @@ class NumpyKernels:
         return log_likelihood(one, x.reshape(-1, 2), world, sigma, outside_penalty).reshape(len(z), -1)
 
     def equal_weighted(self, log_lik: np.ndarray, log_weight: float) -> np.ndarray:
-        """log W + log p(z_k | x_k) of resampled particles, whose weights are equal (log_weight = -log N).
-
-        Returns
-        -------
-        float64 array (R, N)
-        """
+        """log W + log p(z_k | x_k) of resampled particles, whose weights are equal (log_weight = -log N):
+        float64 (R, N)."""
         return np.add(log_lik, log_weight, dtype=float)
 
     def second_stage(self, log_lik: np.ndarray, log_mu: np.ndarray, A: np.ndarray) -> np.ndarray:
-        """The APF's second-stage log weights log p(z_k | x^j) - log p(z_k | mu^{a^j}): the first stage's
-        values gathered by the ancestors, then subtracted (into the gathered array where the dtypes agree).
-
-        Parameters
-        ----------
-        log_lik : array (R, M)
-        log_mu : array (R, N)
-        A : int array (R, M)
-
-        Returns
-        -------
-        array (R, M)
-        """
+        """The APF's second-stage log weights log p(z_k | x^j) - log p(z_k | mu^{a^j}), (R, M): the first
+        stage's values log_mu (R, N) gathered by the ancestors A (R, M), then subtracted from log_lik (R,
+        M) (into the gathered array where the dtypes agree)."""
         gathered = log_mu.reshape(-1).take(flat_ancestors(A, log_mu.shape[1])).reshape(A.shape)  # p(z_k | mu^{a^j})
         return np.subtract(log_lik, gathered, out=gathered if log_lik.dtype == gathered.dtype else None)
 
@@ -120,22 +106,9 @@ class NumpyKernels:
         return weighted_covariance(W, x.reshape(-1, 2))
 
     def jitter(self, x: np.ndarray, A: np.ndarray, due: np.ndarray, rngs: Sequence, kernels: Sequence) -> np.ndarray:
-        """The RPF's resampled particles: each due run's x[r, A[r]] jittered by its kernel (mazelab.regularisation)
-        with eps ~ N(0, I_2) from its Generator rngs[r].
-
-        Parameters
-        ----------
-        x : array (R, N, 2)
-        A : int array (R, M)
-        due : bool array (R,)
-        rngs : sequence of R Generators
-        kernels : sequence of D kernels
-            (points, eps) -> jitter, each due run's.
-
-        Returns
-        -------
-        array (R, M, 2): the due runs' jittered particles, the others' as they were
-        """
+        """The RPF's resampled particles (R, M, 2): each due run's x[r, A[r]] (x (R, N, 2), A (R, M), due
+        bool (R,)) jittered by its kernel (D `kernels`, (points, eps) -> jitter: mazelab.regularisation)
+        with eps ~ N(0, I_2) from its Generator rngs[r]; the other runs' particles as they were."""
         rows = np.flatnonzero(due)
         moved = take_particles(x.reshape(-1, 2), (A[rows] + (rows * x.shape[1])[:, None]).reshape(-1))
         size = A.shape[1]
@@ -150,6 +123,3 @@ class NumpyKernels:
         out = particles_array(x, x.dtype)
         out[rows] = moved.reshape(len(rows), size, 2)
         return out
-
-
-__all__ = ["MALLOC_KEEPS", "NumpyKernels", "flat_ancestors", "keep_freed_memory"]

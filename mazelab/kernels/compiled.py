@@ -3,16 +3,12 @@ results): each calls one kernel for all R runs, and `CompiledWeights`, the weigh
 builds, keeps W in float32 and the reads its normalisation makes in the same passes (the ESS, the
 posterior mean and the weight within the green circle around it). Anything the kernels do not cover
 (float64 points such as recovery's injected draws, the multimodal kernel) goes to the numpy operations.
-
-A call runs on the filter's threads from mazelab.kernels.THREADED_FROM particles on (`Kernel`); the
-move's and the jitter's draws are the kernels' own, from one 64-bit key a run and call drawn from its
-Generator.
 """
 
 from __future__ import annotations
 
 import math
-from functools import cache, cached_property
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -25,6 +21,7 @@ from mazelab.smc import UNSIGNED, new_particles, particles_array
 from mazelab.weights import Weights, log_sum_exp, read_only
 
 EVERY_RUN = np.empty(0, dtype=bool)  # the move's `moving` when every run draws (model.move)
+NO_ANCESTORS = np.empty((1, 0), dtype=np.uint64)  # the move's `ancestors` when each particle moves itself
 QUADS = 4  # the candidates of a lookup cell the likelihood's vectorised loop reads (a few cells have more)
 
 
@@ -35,9 +32,9 @@ def unsigned(indices: np.ndarray) -> np.ndarray:
 
 
 def planes(x: np.ndarray) -> np.ndarray:
-    """(R, N, 2) particles as the (2, R*N) array the kernels read: the x coordinates, then the y ones (a
-    view of particles in their layout, smc.particles_array; a copy of others)."""
-    return x.transpose(2, 0, 1).reshape(2, -1)
+    """(R, N, 2) particles as the (2, R, N) planes the kernels read, x's then y's (a view of particles in
+    their layout, smc.particles_array; a copy of others)."""
+    return np.ascontiguousarray(x.transpose(2, 0, 1))
 
 
 def keys_of(rngs: Any) -> np.ndarray:
@@ -49,8 +46,8 @@ def keys_of(rngs: Any) -> np.ndarray:
 
 def lookup_tables(world: Any) -> tuple:
     """The maze's nearest-station tables (mazelab.lookup) in the layout the likelihood kernel reads:
-    (scale, offset, nx, ny as plain Python numbers, codes (C,) uint32, quads (C, 8), rows, width,
-    border (b, 2)), float32 coordinates. quads[c] is cell c's first four candidates (x0, y0, ..., x3, y3),
+    (grid: scale, offset, nx, ny, width as float64 (5,), codes (C,) uint32, quads (C, 8), rows, border
+    (b, 2)), float32 coordinates. quads[c] is cell c's first four candidates (x0, y0, ..., x3, y3),
     padded by repeats of the first; `rows` holds, for each cell with more than four, its other K - 4
     (padded likewise), `width` = 2 (K - 4) values a row; a cell's code is its row's first index in `rows`
     times 4, plus 2 if it has a row, plus 1 if the cell is free."""
@@ -65,40 +62,40 @@ def lookup_tables(world: Any) -> tuple:
     codes = (lookup.kind & 1).astype(np.uint64)
     codes[more] += 2 + 4 * width * np.arange(len(more), dtype=np.uint64)
     codes = codes.astype(np.uint32 if codes.max(initial=0) < 2**32 else np.uint64)
-    grid = float(lookup.scale), float(lookup.offset), int(lookup.nx), int(lookup.ny)
-    return (*grid, codes, quads, rows, width, xy[lookup._border])
+    grid = np.array([lookup.scale, lookup.offset, lookup.nx, lookup.ny, width], dtype=float)
+    return grid, codes, quads, rows, xy[lookup._border]
 
 
 class CompiledWeights(Weights):
     """The compiled backend's weights value: the unnormalised log weights `log_w` (R, N) (float32 after a
     reweighting, or log W itself with totals 0), their `log_total` (R,), W = exp(log w - log total)
-    (R, N) float32 when the normalisation wrote it (every sum over it in float64), and its `reads` of
-    the particles x: (x, ESS (R,), mean (R, 2), share within the green circle of the mean (R,)). log W
-    is derived when read (float64)."""
+    (R, N) float32 when the normalisation wrote it (every sum over it in float64), and its `reads`:
+    (the particles x it read, its (5, R) rows: log total, mean x, mean y, ESS, share within the green
+    circle of the mean), read-only, with the ESS and the `mean` (R, 2) views of them. log W is derived
+    when read (float64)."""
 
     threads = 1  # the threads of a large normalisation (mazelab.kernels.Kernel): each filter's subclass sets its own
 
     def __init__(self, log_w: np.ndarray, log_total: np.ndarray, W: np.ndarray | None = None, reads: Any = None):
-        self.log_w, self.log_total, self.reads = read_only(log_w), read_only(log_total), reads
+        log_w.setflags(write=False)  # setflags: half the time of read_only's flags object
+        self.log_w, self.log_total, self.reads = log_w, read_only(log_total), reads
         if W is not None:
             self.__dict__["W"] = read_only(W)
-        if reads is not None:
-            self.__dict__["ess"] = reads[1]  # a row of the reads (from_log's, read-only)
+        if reads is not None:  # the normalisation's reads (read-only rows)
+            self.__dict__["ess"], self.mean = reads[1][3], reads[1][1:3].T
 
     @classmethod
-    def from_log(cls, log_w: np.ndarray, x: np.ndarray | None = None, added: tuple | None = None) -> CompiledWeights:
-        """Each row normalised in one compiled call of two passes, with the reads of x (float32 particles
-        in their layout; other arrays are normalised by numpy's arithmetic); `added` (log a, shifts, log
-        g): log_w is first written as (log a - shift) + log g in the same pass (`add`)."""
-        runs, count = log_w.shape
+    def from_log(cls, log_w: np.ndarray, x: np.ndarray | None = None, added: tuple = (None,) * 3) -> CompiledWeights:
+        """Each row normalised in one compiled call of two passes, with the reads of x (float32 particles;
+        other arrays are normalised by numpy's arithmetic); `added` (log a, shifts, log g): log_w is
+        first written as (log a - shift) + log g in the same pass (`add`)."""
         if x is None or x.dtype != PARTICLE_DTYPE or x.shape[:2] != log_w.shape:
-            totals = np.atleast_1d(log_sum_exp(log_w))
-            return cls(log_w, totals)
-        w, reads = np.empty((runs, count), dtype=np.float32), np.empty((5, runs))
-        weights.normalise(cls.threads, log_w.size, log_w, *(added or (None, None, None)), planes(x),
-                          CONFIDENCE_RADIUS, w, reads)  # fmt: skip
-        reads.flags.writeable = False  # and the rows taken below, the log totals and the ESS with them
-        return cls(log_w, reads[0], w, (x, reads[3], reads[1:3].T, reads[4]))
+            return cls(log_w, np.atleast_1d(log_sum_exp(log_w)))
+        w, reads = np.empty(log_w.shape, dtype=np.float32), np.empty((5, len(log_w)))
+        weights.normalise(cls.threads, log_w.size, log_w, *added, planes(x), CONFIDENCE_RADIUS, w, reads)
+        w.setflags(write=False)
+        reads.setflags(write=False)  # and its rows with it
+        return cls(log_w, reads[0], w, (x, reads))
 
     @classmethod
     def uniform(cls, runs: int, count: int) -> CompiledWeights:
@@ -113,7 +110,7 @@ class CompiledWeights(Weights):
             return self.from_log(self.lw + log_g, x)
         if x is None:  # no reads to make: numpy's arithmetic, the same float32 log w
             return self.from_log((np.subtract(self.log_w, self.log_total[:, None]) + log_g).astype(np.float32))
-        return self.from_log(np.empty_like(log_g), x, (self.log_w, self.log_total, log_g))
+        return self.from_log(np.empty(log_g.shape, PARTICLE_DTYPE), x, (self.log_w, self.log_total, log_g))
 
     def reset(self, rows: np.ndarray, other: Weights, x: np.ndarray | None = None) -> CompiledWeights:
         """These weights with the given rows' log w replaced by `other`'s, normalised again with the reads
@@ -129,12 +126,6 @@ class CompiledWeights(Weights):
         """log W_i = log w_i - log total, (R, N) float64."""
         return read_only(np.subtract(self.log_w, self.log_total[:, None], dtype=float))
 
-    @staticmethod
-    @cache
-    def on(threads: int) -> type[CompiledWeights]:
-        """CompiledWeights whose large normalisations run on `threads` threads (one class per count)."""
-        return type("CompiledWeights", (CompiledWeights,), {"threads": threads, "__doc__": CompiledWeights.__doc__})
-
 
 class CompiledKernels(NumpyKernels):
     """The hot parts of one filter on `world` (its lookup tables read once), compiled (mazelab.kernels),
@@ -145,9 +136,9 @@ class CompiledKernels(NumpyKernels):
 
     def __init__(self, world: Any, threads: int | None = None):
         self.tables = lookup_tables(world)
-        self._tables_of = world
+        self._tables_of, self._likelihood_terms = world, (None, None, ())
         self.threads = max(1, threads or 1)
-        self.Weights = CompiledWeights.on(self.threads)
+        self.Weights = type("CompiledWeights", (CompiledWeights,), {"threads": self.threads})  # its normalisations
         self.schemes = {"systematic": self.systematic}
 
     def move(
@@ -159,13 +150,11 @@ class CompiledKernels(NumpyKernels):
         points go to numpy."""
         if x.dtype != PARTICLE_DTYPE:
             return super().move(x, A, rngs, angles, delta, speed)
-        shape = x.shape[:2] if A is None else A.shape
-        out, headings = new_particles(*shape, PARTICLE_DTYPE), np.empty(shape, dtype=PARTICLE_DTYPE)
-        sources = np.empty((len(x), 0), np.uint64) if A is None else unsigned(A)
+        out = np.empty((3, *(x.shape[:2] if A is None else A.shape)), dtype=PARTICLE_DTYPE)  # x, y, the headings
         moving = np.array([rng is not None for rng in rngs]) if None in rngs else EVERY_RUN
-        keys, size = keys_of(rngs), headings.size
-        model.move(self.threads, size, planes(x), sources, keys, moving, angles, delta, speed, planes(out), headings)
-        return out, headings
+        sources = NO_ANCESTORS if A is None else unsigned(A)
+        model.move(self.threads, out[2].size, planes(x), sources, keys_of(rngs), moving, angles, delta, speed, out)
+        return out[:2].transpose(1, 2, 0), out[2]
 
     def log_likelihood(
         self, z: np.ndarray, x: np.ndarray, world: Any, sigma: float, outside_penalty: float
@@ -175,10 +164,19 @@ class CompiledKernels(NumpyKernels):
         if x.dtype != PARTICLE_DTYPE or world is not self._tables_of:
             return super().log_likelihood(z, x, world, sigma, outside_penalty)
         out = np.empty(x.shape[:2], dtype=PARTICLE_DTYPE)
-        norm = math.log(sigma * math.sqrt(2 * math.pi))
-        terms = (float(sigma), -norm, math.log(outside_penalty) - norm, self.tables)
-        model.log_likelihood(self.threads, out.size, planes(x), z, *terms, out)
+        model.log_likelihood(self.threads, out.size, planes(x), z, *self._terms(sigma, outside_penalty), out)
         return out
+
+    def _terms(self, sigma: float, outside_penalty: float) -> tuple:
+        """The likelihood kernel's constants, worked out once for a filter's sigma and penalty: (sigma,
+        -log(sigma sqrt(2 pi)), that plus log(the penalty), then the tables' grid: float64 (8,)) and the
+        tables' arrays (one array of numbers: a kernel call types each argument it is passed)."""
+        terms = self._likelihood_terms
+        if terms[0] != sigma or terms[1] != outside_penalty:
+            norm = math.log(sigma * math.sqrt(2 * math.pi))
+            constants = np.array([sigma, -norm, math.log(outside_penalty) - norm, *self.tables[0]])
+            terms = self._likelihood_terms = (sigma, outside_penalty, (constants, *self.tables[1:]))
+        return terms[2]
 
     def systematic(self, W: np.ndarray, rng: Any, count: int | None = None) -> np.ndarray:
         """Systematic resampling of W (N,), or of D runs' (D, N) with a Generator each (a sequence), into
@@ -194,14 +192,14 @@ class CompiledKernels(NumpyKernels):
     def weighted_mean(self, W: Weights, x: np.ndarray) -> np.ndarray:
         """The posterior mean per run: the normalisation's read for these particles, else computed."""
         reads = getattr(W, "reads", None)
-        return reads[2] if reads is not None and reads[0] is x else super().weighted_mean(W, x)
+        return W.mean if reads is not None and reads[0] is x else super().weighted_mean(W, x)
 
     def mass_within(self, W: Weights, x: np.ndarray, centres: np.ndarray, radius: float) -> np.ndarray:
         """The weight within `radius` of each run's centre: the normalisation's read around the mean,
         else numpy's (the mode estimate's)."""
         reads = getattr(W, "reads", None)
-        if reads is not None and reads[0] is x and centres is reads[2] and radius == CONFIDENCE_RADIUS:
-            return reads[3]
+        if reads is not None and reads[0] is x and centres is W.mean and radius == CONFIDENCE_RADIUS:
+            return reads[1][4]
         return super().mass_within(W, x, centres, radius)
 
     def weighted_covariance(self, W: np.ndarray, x: np.ndarray) -> np.ndarray:
@@ -233,9 +231,8 @@ class CompiledKernels(NumpyKernels):
         rows = np.flatnonzero(due)
         scales = np.array([[k.scale[0, 0], k.scale[1, 0], k.scale[1, 1]] for k in kernels], dtype=PARTICLE_DTYPE)
         moved = new_particles(len(rows), A.shape[1], PARTICLE_DTYPE)
-        sources = unsigned((A[rows] + (rows * x.shape[1])[:, None]).reshape(-1))
         keys = keys_of([rngs[r] for r in rows])
-        model.jitter(self.threads, sources.size, planes(x), sources, keys, scales, planes(moved))
+        model.jitter(self.threads, moved[..., 0].size, planes(x), rows, unsigned(A[rows]), keys, scales, planes(moved))
         if len(rows) == len(x):
             return moved
         out = particles_array(x, x.dtype)

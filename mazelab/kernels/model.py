@@ -6,7 +6,7 @@
         plus log 0.5 outside the free area, d the distance to the nearest station (mazelab.lookup's table)
     the RPF's jitter: x^{i*} + h D eps, eps ~ N(0, I_2) (mazelab.regularisation)
 
-R runs' float32 particles lie in R blocks of N (run r's r*N..(r+1)*N), written into new arrays. The
+R runs' float32 particles come as (2, R, N) planes (x's, then y's), written into new arrays. The
 draws are the kernels' own: particle m of run r takes number m of run r's stream. The arithmetic is
 the numpy path's float32, operation for operation: the likelihood of given points and the headings of
 given uniforms are numpy's to the bit; cos and sin (vector_math's) within two ulps of numpy's.
@@ -31,32 +31,31 @@ _NONE, _PAIR, _TWO = np.uint64(0), np.uint64(2), np.uint64(2)
 
 
 @Kernel
-def move(xy, ancestors, keys, moving, angles, delta, speed, out, headings):  # pragma: no cover - compiled
+def move(xy, ancestors, keys, moving, angles, delta, speed, out):  # pragma: no cover - compiled
     """Equation (1) for R runs in one call, with its draws: th_i = th0_r + Delta (u_i - 1/2), then
-    out[:, i] = xy[:, a_i] + L (cos th_i, sin th_i), and headings[r, m] = th_i (radians).
+    out[:2, r, m] = xy[:, r, a_m] + L (cos th_i, sin th_i), and out[2, r, m] = th_i (radians).
 
-    xy (2, R*N) and out (2, R*M) are float32 coordinates (x's row, then y's); `ancestors` (R, M) uint64
-    the particle of its own run each moves from ((R, 0): particle i moves from particle i); u_m of run r
-    is number m of the stream keys[r] (uint64 (R,): vector_math.random_bits), or 1/2 in a run whose
-    `moving` is False (it draws nothing: it restarts after this step; an empty `moving`: every run
-    draws); `angles` (R,) the th0 of each run (float32, or rounded to it here);
-    `delta` and `speed` (Delta in radians, L in map units) are rounded to float32 here, as numpy's
-    float32 arithmetic rounds them. The headings are mazelab.model.headings_from_uniforms' float32
-    operations; cos and sin are vector_math's, within 0.502 ulp of the exact value (numpy's float32
-    ones within 1.5)."""
-    delta, speed, x, y, out_x, out_y = F32(delta), F32(speed), xy[0], xy[1], out[0], out[1]
-    runs, size = headings.shape
+    xy (2, R, N) and out (3, R, M) are float32 (x's plane, then y's; out's third the headings);
+    `ancestors` (R, M) uint64 the particle of its own run each moves from ((1, 0): particle m moves
+    from particle m); u_m of run r is number m of the stream keys[r] (uint64 (R,):
+    vector_math.random_bits), or 1/2 in a run whose `moving` is False (it draws nothing: it restarts
+    after this step; an empty `moving`: every run draws); `angles` (R,) the th0 of each run (float32,
+    or rounded to it here); `delta` and `speed` (Delta in radians, L in map units) are rounded to
+    float32 here, as numpy's float32 arithmetic rounds them. The headings are
+    mazelab.model.headings_from_uniforms' float32 operations; cos and sin are vector_math's, within
+    0.502 ulp of the exact value (numpy's float32 ones within 1.5)."""
+    delta, speed = F32(delta), F32(speed)
+    runs, size = out.shape[1:]
     blocks, jobs = chunks(runs, size)
     gathered = ancestors.shape[1] > 0
     for job in prange(jobs):
         r, start, stop = chunk_of(job, blocks, size)
-        first, last, key, angle = r * size + start, r * size + stop, keys[r], F32(angles[r])
+        key, angle, x, y = keys[r], F32(angles[r]), xy[0, r], xy[1, r]
         drawn = moving[r] if len(moving) else True
-        base = np.uint64(r * (len(x) // runs))  # run r's first particle in x
-        sources = ancestors[r, start:stop]  # empty when there are none
-        moved_x, moved_y, taken = out_x[first:last], out_y[first:last], headings[r, start:stop]
+        sources = ancestors[r if gathered else 0, start:stop]  # empty when there are none
+        moved_x, moved_y, taken = out[0, r, start:stop], out[1, r, start:stop], out[2, r, start:stop]
         for m in range(stop - start):  # the gather alone: in the loop below it cost a third of the pass
-            source = base + sources[m] if gathered else np.uint64(first + m)
+            source = sources[m] if gathered else np.uint64(start + m)
             moved_x[m] = x[source]
             moved_y[m] = y[source]
         for m in range(stop - start):  # each loop from 0: numba checks no index of it for wrap-around
@@ -69,10 +68,10 @@ def move(xy, ancestors, keys, moving, angles, delta, speed, out, headings):  # p
 
 
 @inline
-def _typed(tables):  # pragma: no cover - compiled
-    """lookup_tables' tuple with its numbers in the kernels' types: (scale, offset, nx, ny) float32, nx
-    and the row width uint64 (plain Python numbers cross into a kernel faster than numpy scalars)."""
-    scale, offset, nx, ny, codes, quads, rows, width, border = tables
+def _typed(constants, codes, quads, rows, border):  # pragma: no cover - compiled
+    """The likelihood's tables in the kernels' types: (scale, offset, nx, ny) float32 from constants[3:7],
+    nx and the row width (constants[7]) uint64, and the arrays."""
+    scale, offset, nx, ny, width = constants[3], constants[4], constants[5], constants[6], constants[7]
     return F32(scale), F32(offset), F32(nx), F32(ny), np.uint64(nx), codes, quads, rows, np.uint64(width), border
 
 
@@ -140,25 +139,26 @@ def _close(px, py, value, left, zr, sigma, free_term, outside_term, tables):  # 
 
 
 @Kernel
-def log_likelihood(xy, z, sigma, free_term, outside_term, tables, out):  # pragma: no cover - compiled
-    """Equation (3) with the outside penalty, in logs, for R runs: out[r, m] = log p(z_r | x_i) (i = r N
-    + m) float32 (R, N), numpy's values to the bit (the same float32 operations, and the nearest of the
+def log_likelihood(xy, z, constants, codes, quads, rows, border, out):  # pragma: no cover - compiled
+    """Equation (3) with the outside penalty, in logs, for R runs: out[r, m] = log p(z_r | x_{r, m})
+    float32 (R, N), numpy's values to the bit (the same float32 operations, and the nearest of the
     same candidates). Each chunk in two loops: every point from its cell's first four candidates
     (vectorised), then the few left open.
 
-    xy (2, R*N) holds the particles' float32 coordinates (x's row, then y's), z (R,) each run's z_k (map
-    units); `sigma` the noise's standard deviation, `free_term` -log(sigma sqrt(2 pi)) and
-    `outside_term` that plus log(the outside penalty): plain floats (a numpy scalar costs some 0.25 us
-    to pass), rounded to float32 here as numpy's float32 arithmetic rounds them; `tables` the maze's
+    xy (2, R, N) holds the particles' float32 coordinates (x's plane, then y's), z (R,) each run's z_k (map
+    units); `constants` (8,) float64: the noise's standard deviation sigma, -log(sigma sqrt(2 pi)),
+    that plus log(the outside penalty), rounded to float32 here as numpy's float32 arithmetic rounds
+    them, then the tables' grid; codes, quads, rows and border the maze's tables
     (compiled.lookup_tables)."""
-    sigma, free_term, outside_term, typed = F32(sigma), F32(free_term), F32(outside_term), _typed(tables)
+    sigma, free_term, outside_term = F32(constants[0]), F32(constants[1]), F32(constants[2])
+    typed = _typed(constants, codes, quads, rows, border)
     runs, size = out.shape
     blocks, jobs = chunks(runs, size)
-    x, y, left = xy[0], xy[1], scratch(runs * size, tables[4].dtype)  # left: what each point leaves open
+    left = scratch(runs * size, codes.dtype)  # what each point leaves open
     for job in prange(jobs):
         r, start, stop = chunk_of(job, blocks, size)
-        zr, first, last, values = F32(z[r]), r * size + start, r * size + stop, out[r, start:stop]
-        xs, ys, open_ = x[first:last], y[first:last], left[first:last]
+        zr, values, open_ = F32(z[r]), out[r, start:stop], left[r * size + start : r * size + stop]
+        xs, ys = xy[0, r, start:stop], xy[1, r, start:stop]
         opened = 0  # any point left open in the chunk
         for m in range(stop - start):
             value, code = _log_likelihood_of_four(xs[m], ys[m], zr, sigma, free_term, outside_term, typed)
@@ -170,20 +170,19 @@ def log_likelihood(xy, z, sigma, free_term, outside_term, tables, out):  # pragm
 
 
 @Kernel
-def jitter(xy, ancestors, keys, scales, out):  # pragma: no cover - compiled
-    """The RPF's kernel K_h for D due runs, with its draws: out[:, i] = xy[:, a_i] + h D_d eps_i
-    (float32 coordinates (2, R*N) and (2, D*M), x's row then y's; `ancestors` (D*M,) uint64), h D_d =
-    [[a, 0], [c, d]] from scales[d] = (a, c, d) (D, 3), eps_i ~ N(0, I_2) by Box and Muller's transform
-    of two float64 uniforms, numbers 2m and 2m + 1 of the stream keys[d] (uint64 (D,)), so the points do
-    not depend on the threads (the log, and the cos and sin of the angle rounded to float32, are
-    vector_math's, so that the loop vectorises)."""
-    runs, x, y, out_x, out_y = scales.shape[0], xy[0], xy[1], out[0], out[1]
-    size = len(ancestors) // runs
+def jitter(xy, rows, ancestors, keys, scales, out):  # pragma: no cover - compiled
+    """The RPF's kernel K_h for D due runs, with its draws: out[:, d, m] = xy[:, rows[d], a_m] + h D_d
+    eps_m (float32 coordinates (2, R, N) and (2, D, M), x's plane then y's; `rows` (D,) the due runs,
+    `ancestors` (D, M) uint64), h D_d = [[a, 0], [c, d]] from scales[d] = (a, c, d) (D, 3), eps_m ~
+    N(0, I_2) by Box and Muller's transform of two float64 uniforms, numbers 2m and 2m + 1 of the
+    stream keys[d] (uint64 (D,)), so the points do not depend on the threads (the log, and the cos and
+    sin of the angle rounded to float32, are vector_math's, so that the loop vectorises)."""
+    runs, size = ancestors.shape
     blocks, jobs = chunks(runs, size)
     for job in prange(jobs):
         r, start, stop = chunk_of(job, blocks, size)
-        a, c, d, key, first, last = scales[r, 0], scales[r, 1], scales[r, 2], keys[r], r * size + start, r * size + stop
-        sources, moved_x, moved_y = ancestors[first:last], out_x[first:last], out_y[first:last]
+        a, c, d, key, x, y = scales[r, 0], scales[r, 1], scales[r, 2], keys[r], xy[0, rows[r]], xy[1, rows[r]]
+        sources, moved_x, moved_y = ancestors[r, start:stop], out[0, r, start:stop], out[1, r, start:stop]
         for m in range(stop - start):
             counter = np.uint64(start + m) * _TWO
             radius = math.sqrt(-2.0 * log64(1.0 - uniform64(random_bits(key, counter))))

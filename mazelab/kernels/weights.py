@@ -135,35 +135,33 @@ def normalise(log_w, log_a, shifts, log_g, xy, radius, w, reads):  # pragma: no 
     `log_w` in the same pass: (log_a - shift) + log_g, the sum in float64, then rounded to float32 as
     the likelihood (log W_{k-1} = log a - shift, the Weights value's derivation, never stored).
 
-    xy (2, R*N) holds the particles' float32 coordinates (x's row, then y's; run r's the columns r*N..
-    (r+1)*N); `radius` the green circle's (map units); W = w / sum(w) is written into `w` (R, N)
-    float32, and into `reads` (5, R) float64, one row each: log sum_j w_j; the mean sum_i W_i x_i (x and
-    y); the ESS 1 / sum_i W_i^2; the weight of the particles at most `radius` from the run's mean
-    (float32 distances, as mazelab.weights.mass_within). A run that cannot be normalised (top -inf or
+    xy (2, R, N) holds the particles' float32 coordinates (x's plane, then y's); `radius` the green
+    circle's (map units); W = w / sum(w) is written into `w` (R, N) float32, and into `reads` (5, R)
+    float64, one row each: log sum_j w_j; the mean sum_i W_i x_i (x and y); the ESS 1 / sum_i W_i^2;
+    the weight of the particles at most `radius` from the run's mean (float32 distances, as
+    mazelab.weights.mass_within). A run that cannot be normalised (top -inf or
     NaN) gets its top as total and NaN reads."""
     runs, size = log_w.shape
     blocks, jobs = chunks(runs, size)
-    x, y = xy[0], xy[1]
     lanes, scales = scratch((jobs, 5, LANES), np.float64), scratch(jobs, np.float64)  # each chunk's sums and top
     r2 = _F32(radius * radius)
     for job in prange(jobs):  # each chunk's log w, top, exponentials and sums
         r, start, stop = chunk_of(job, blocks, size)
-        first, last, row = r * size + start, r * size + stop, log_w[r, start:stop]
+        row, xs, ys = log_w[r, start:stop], xy[0, r, start:stop], xy[1, r, start:stop]
         if log_a is not None:
             previous, added, shift = log_a[r, start:stop], log_g[r, start:stop], shifts[r]
             for i in range(stop - start):
                 row[i] = np.float64(previous[i]) - shift + np.float64(added[i])
         scales[job] = top = _top(row)
-        _exponentials_and_moments(row, top, x[first:last], y[first:last], w[r, start:stop], lanes[job])
+        _exponentials_and_moments(row, top, xs, ys, w[r, start:stop], lanes[job])
     for r in range(runs):  # each run's top and sums, its chunks' in order
         _combine(log_w[r], reads, r, lanes[r * blocks : (r + 1) * blocks], scales[r * blocks : (r + 1) * blocks])
     for job in prange(jobs):  # each chunk's W and weight within the circle
         r, start, stop = chunk_of(job, blocks, size)
-        first, last = r * size + start, r * size + stop
         if scales[job] == scales[job]:
             centre_x, centre_y = _F32(reads[1, r]), _F32(reads[2, r])
-            _scale_and_keep_within(w[r, start:stop], scales[job], x[first:last], y[first:last], centre_x, centre_y, r2,
-                                   lanes[job])  # fmt: skip
+            xs, ys = xy[0, r, start:stop], xy[1, r, start:stop]
+            _scale_and_keep_within(w[r, start:stop], scales[job], xs, ys, centre_x, centre_y, r2, lanes[job])
         else:
             w[r, start:stop] = np.nan
     for r in range(runs):
@@ -220,21 +218,16 @@ def second_stage(log_lik, log_mu, ancestors, out):  # pragma: no cover - compile
 @Kernel
 def covariance(weights, xy, out):  # pragma: no cover - compiled
     """sum_i W_i (x_i - m)(x_i - m)^T, m = sum_i W_i x_i, into out (R, 2, 2) float64 for R runs' weights
-    (R, N) and float32 coordinates xy (2, R*N) (mazelab.weights.weighted_covariance), in one pass: the
+    (R, N) and float32 coordinates xy (2, R, N) (mazelab.weights.weighted_covariance), in one pass: the
     sums of W, W d and W d d^T, d = x - c around the run's first particle c (float64: the spread may be
     tiny beside the position), each chunk's in order, then the chunks'; then with e = m - c, the
     covariance S - s e^T - e s^T + (sum W) e e^T (s = sum W d)."""
     runs, size = weights.shape
     blocks, jobs = chunks(runs, size)
-    x, y, parts = (
-        xy[0],
-        xy[1],
-        scratch((jobs, 6), np.float64),
-    )  # each chunk's sums of W, W dx, W dy, W dx dx, W dx dy, W dy dy
+    parts = scratch((jobs, 6), np.float64)  # each chunk's sums of W, W dx, W dy, W dx dx, W dx dy, W dy dy
     for job in prange(jobs):
         r, start, stop = chunk_of(job, blocks, size)
-        first, w = r * size, weights[r, start:stop]
-        xs, ys, cx, cy = x[first + start : first + stop], y[first + start : first + stop], x[first], y[first]
+        w, xs, ys, cx, cy = weights[r, start:stop], xy[0, r, start:stop], xy[1, r, start:stop], xy[0, r, 0], xy[1, r, 0]
         total = sx = sy = sxx = sxy = syy = 0.0
         for i in range(stop - start):
             weight, dx, dy = np.float64(w[i]), np.float64(xs[i]) - cx, np.float64(ys[i]) - cy
@@ -247,7 +240,7 @@ def covariance(weights, xy, out):  # pragma: no cover - compiled
         for job in range(r * blocks, (r + 1) * blocks):
             total, sx, sy = total + parts[job, 0], sx + parts[job, 1], sy + parts[job, 2]
             sxx, sxy, syy = sxx + parts[job, 3], sxy + parts[job, 4], syy + parts[job, 5]
-        ex, ey = sx + x[r * size] * (total - 1.0), sy + y[r * size] * (total - 1.0)  # e = m - c
+        ex, ey = sx + xy[0, r, 0] * (total - 1.0), sy + xy[1, r, 0] * (total - 1.0)  # e = m - c
         out[r, 0, 0] = sxx - 2 * sx * ex + total * ex * ex
         out[r, 1, 1] = syy - 2 * sy * ey + total * ey * ey
         out[r, 0, 1] = out[r, 1, 0] = sxy - sx * ey - ex * sy + total * ex * ey
