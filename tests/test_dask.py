@@ -12,7 +12,9 @@ import time
 import pytest
 from conftest import finished_rows, start_study_process, wait_for_rows
 
+import mazelab
 from mazelab.cli.app import main
+from mazelab.experiments import executor
 from mazelab.experiments.executor import run_study
 from mazelab.experiments.study import MazeChoice, study_settings, study_tasks
 from mazelab.maze import load_maze
@@ -43,6 +45,20 @@ def test_a_study_on_dask_gives_the_local_studys_runs(cluster, tmp_path, capsys):
     assert f"on the Dask cluster at {cluster.scheduler_address}" in out
     local, remote = (rows_without_timing((tmp_path / f"{n}.csv").read_text()) for n in ("local", "dask"))
     assert len(local) == 2 * 3 * 3 and remote == local  # every run's final error, convergence, ESS ... alike
+
+
+def test_the_workers_are_asked_once(cluster, monkeypatch, capsys):
+    """study --dask and mazelab.study(dask=...) ask the cluster's workers whether they can run the study
+    once, before any run (executor.open_cluster)."""
+    asked = []
+    check = executor.check_workers
+    monkeypatch.setattr(
+        executor, "check_workers", lambda client, backend: asked.append(backend) or check(client, backend)
+    )
+    args = ["study", "--maze", "paper_5x5", "--runs", "2", "--steps", "10", "--particles", "50", "--seed", "3"]
+    assert main([*args, "--filters", "sir", "--no-viz", "--dask", cluster.scheduler_address]) == 0
+    mazelab.study("paper_5x5", filters="sir", runs=2, steps=10, particles=50, seed=3, dask=cluster.scheduler_address)
+    assert len(asked) == 2  # one per study
 
 
 def test_run_study_takes_a_client(cluster):

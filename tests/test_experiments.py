@@ -200,6 +200,22 @@ def record(final: float, converged: int | None, run: int) -> RunRecord:
     return RunRecord(1, run, run, "m", None, 1, 0.3, 0.5, 10, 10, "SIR", final, final, converged, 5.0, 1.0)
 
 
+def test_rows_are_in_the_studys_order_however_the_runs_finished():
+    """A setting that runs only the RPF (its second bandwidth) finishing first does not put the RPF first:
+    the rows are in (setting, run, filter) order, the filters as the study gives them (study_order)."""
+    world = Maze(PAPER_MAZE)
+    settings = study_settings([MazeChoice.from_maze("m", world)], [0.3], [0.5], [10],
+                              {"bandwidth": ["optimal", "multimodal"]})  # fmt: skip
+    names = ["SIRParticleFilter", "AuxiliaryParticleFilter", "RegularizedParticleFilter"]
+    tasks = study_tasks(settings, names, 1, 5, 1)
+    assert [t.filters for t in tasks] == [tuple(names), ("RegularizedParticleFilter",)]
+    finished = [(2, "RegularizedParticleFilter"), (1, "RegularizedParticleFilter"), (1, "AuxiliaryParticleFilter"),
+                (1, "SIRParticleFilter")]  # fmt: skip
+    rows = [RunRecord(s, 1, 1, "m", None, 1, 0.3, 0.5, 10, 5, name, 0.1, 0.1, None, 5.0, 1.0) for s, name in finished]
+    ordered = [(r.setting, r.filter) for r in experiments.study_order(rows, tasks)]
+    assert ordered == [(1, name) for name in names] + [(2, "RegularizedParticleFilter")]
+
+
 def test_summary_of_known_numbers():
     """Final errors 0.1, 0.2, 0.6: mean 0.3, whose t-interval reaches below zero (test_stats); the
     bootstrap's resampled means lie within [0.1, 0.6] and its

@@ -7,7 +7,6 @@ record beside the rows like a study's (the command, versions, the scenario's sha
 from __future__ import annotations
 
 import functools
-import signal
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -15,7 +14,6 @@ import numpy as np
 import typer
 
 from mazelab.atomic import write_text_atomically
-from mazelab.backend import cores
 from mazelab.cli.options import (
     Force,
     OptionFlag,
@@ -27,6 +25,7 @@ from mazelab.cli.options import (
     seed_option,
     with_option_flags,
 )
+from mazelab.cli.study import exit_stopped
 from mazelab.experiments import executor
 from mazelab.experiments.journal import Journal, Recorder, differences, journal_path, read_journal, record_path
 from mazelab.experiments.runs import parse_filters
@@ -132,17 +131,16 @@ def smoothing_summary(scores: SmootherScores) -> list[dict[str, Any]]:
     """Per filter, the means over the walk of each smoother's error and total variation, and the fewest
     distinct ancestors the path smoother rests on (at its first step); the exact smoother's error to the
     truth first."""
-    exact = {"filter": "exact, to the truth", "filter_error": np.mean([r["exact_filtered_to_truth"] for r in
-             scores.rows]), "path_error": np.mean([r["exact_smoothed_to_truth"] for r in scores.rows])}  # fmt: skip
-    rows = [{k: float(v) if k != "filter" else v for k, v in exact.items()}]
+    exact = (("filter_error", "exact_filtered_to_truth"), ("path_error", "exact_smoothed_to_truth"))
+    rows = [{"filter": "exact, to the truth", **{k: float(np.mean([r[c] for r in scores.rows])) for k, c in exact}}]
     for label in dict.fromkeys(r["filter"] for r in scores.rows):
         mine = [r for r in scores.rows if r["filter"] == label]
-        row: dict[str, Any] = {"filter": label}
-        for name in SMOOTHERS:
-            row[f"{name}_error"] = float(np.mean([r[f"{name}_error"] for r in mine]))
-            row[f"{name}_tv"] = float(np.mean([r[f"{name}_tv"] for r in mine]))
-        row["path_ancestors_fewest"] = int(min(r["path_ancestors"] for r in mine))
-        rows.append(row)
+        means = {
+            f"{name}_{k}": float(np.mean([r[f"{name}_{k}"] for r in mine]))
+            for name in SMOOTHERS
+            for k in ("error", "tv")
+        }
+        rows.append({"filter": label, **means, "path_ancestors_fewest": int(min(r["path_ancestors"] for r in mine))})
     return rows
 
 
@@ -238,10 +236,10 @@ def cells_journal(csv_path: Path | None, resume: bool, force: bool, recorder: Re
 def run_cells(journal: tuple[Journal, dict] | None, workers: int | None, dask: str | None, cell: Any,
               sigmas: list[float], deltas: list[float]) -> np.ndarray:  # fmt: skip
     """exact_parameter_posterior's map: `cell(sigma, delta)` of every cell (S D,) on the study's executor
-    (mazelab.experiments.executor: --workers processes or the --dask cluster) unless the journal holds it;
-    each one finished is appended to the journal. A stop keeps them there and says how to go on (exit 130,
-    143 or 129); a lost cluster or a cell that failed: one line, exit 1."""
-    (log, done), workers = journal or (None, {}), workers or cores()
+    (mazelab.experiments.executor.run_units: --workers processes or the --dask cluster) unless the journal
+    holds it; each one finished is appended to the journal. A stop keeps them there and says how to go on
+    (exit 130, 143 or 129); a lost cluster or a cell that failed: one line, exit 1."""
+    (log, done), workers = journal or (None, {}), executor.worker_count(workers)
     log_evidence = np.array([done.get(i, np.nan) for i in range(len(sigmas))])
     units = [((i, sigmas[i], deltas[i]),) for i in range(len(sigmas)) if i not in done]
     failed: list[str] = []
@@ -255,22 +253,22 @@ def run_cells(journal: tuple[Journal, dict] | None, workers: int | None, dask: s
             if log is not None:
                 log.write({"cell": result[0], "log_evidence": result[1]})
 
-    client = executor.connect(dask) if dask is not None else None  # a bad address: one line, before any cell
+    client = executor.open_cluster(dask, "numpy")  # a bad address, workers of other versions: one line
     where = f"the Dask cluster at {dask}" if client is not None else f"{min(workers, max(len(units), 1))} process(es)"
     typer.echo(f"the exact posterior's cells: {len(units)} of {len(sigmas)} to go on {where}")
+    outcome = executor.StudyOutcome()
     try:
-        if client is not None:
-            executor.check_workers(client, "numpy")  # workers of other versions: one line
-        with executor.progress_bar(len(units), True, "cells") as advance, executor.stop_signals():
-            work = functools.partial(cell_unit, cell)
-            executor.Units(units, work, workers, client, executor.DASK_TIMEOUT).run(collect, advance)
-    except (KeyboardInterrupt, executor.StudyLost) as stop:
-        cells_stopped(stop, log, int((~np.isnan(log_evidence)).sum()), len(sigmas))
+        work = executor.Units(units, functools.partial(cell_unit, cell), workers, client, executor.DASK_TIMEOUT)
+        executor.run_units(outcome, work, collect, len(units), True, "cells")
     finally:
         if client is not None:
             executor.close_client(client)
-        if log is not None:
-            log.end_session("finished" if not failed else "failed")
+    stopped = "lost" if outcome.lost is not None else "interrupted" if outcome.interrupted else None
+    if log is not None:
+        log.end_session(stopped or ("finished" if not failed else "failed"))
+    if stopped:
+        kept = f"; {log.kept()}; go on with: {resume_command()}" if log is not None else ""
+        exit_stopped(outcome, int((~np.isnan(log_evidence)).sum()), len(sigmas), kept, what="cells")
     if failed:
         typer.echo(f"error: {failed[0]} ({len(failed)} cell(s) failed)", err=True)
         raise typer.Exit(1)
@@ -280,18 +278,6 @@ def run_cells(journal: tuple[Journal, dict] | None, workers: int | None, dask: s
 def cell_unit(cell: Any, unit: tuple[tuple[int, float, float], ...]) -> list[tuple[int, float]]:
     """A unit of the executor: (index, log evidence) of each of its cells (index, sigma, delta)."""
     return [(index, cell(sigma, delta)) for index, sigma, delta in unit]
-
-
-def cells_stopped(stop: BaseException, journal: Journal | None, finished: int, total: int) -> None:
-    """A stop (Ctrl-C, SIGTERM, SIGHUP) or a lost cluster: one line saying how many cells finished and where
-    they are kept, the command that goes on with them; exits."""
-    lost = isinstance(stop, executor.StudyLost)
-    if journal is not None:
-        journal.end_session("lost" if lost else "interrupted")
-    kept = f"; {journal.kept()}; go on with: {resume_command()}" if journal is not None else ""
-    typer.echo(f"error: {stop}; {finished} of {total} cells finished{kept}" if lost else
-               f"interrupted after {finished} of {total} cells{kept}", err=True)  # fmt: skip
-    raise typer.Exit(1 if lost else 128 + getattr(stop, "signum", signal.SIGINT))  # 130 Ctrl-C, 143 SIGTERM
 
 
 def learning_summary(posterior: ParameterPosterior, chain: Any, filter_name: str) -> dict[str, Any]:

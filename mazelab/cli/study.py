@@ -54,9 +54,8 @@ from mazelab.experiments.api import StudyPlan, maze_description, plan_study, stu
 from mazelab.experiments.executor import (
     DASK_TIMEOUT,
     StudyOutcome,
-    check_workers,
     close_client,
-    connect,
+    open_cluster,
     run_study,
     study_backend,
 )
@@ -75,7 +74,7 @@ from mazelab.experiments.journal import (
     resume_study,
 )
 from mazelab.experiments.runs import parse_filters
-from mazelab.experiments.study import MazeChoice, RunRecord, RunTask
+from mazelab.experiments.study import MazeChoice, RunRecord, RunTask, study_order
 from mazelab.experiments.summary import CSV_DTYPES, study_table, summarise_study, summary_csv, summary_path
 from mazelab.experiments.tables import records_csv, study_traces, write_traces
 from mazelab.invocation import command_line, resume_command
@@ -341,9 +340,7 @@ def open_session(plan: StudyPlan, files: StudyFiles, backend: str, header: str, 
     session = StudySession(plan, files, tasks, kept, backend, None, None, recorder, claim_outputs(claimed))
     try:
         session.journal = Journal(files.journal, adopt=files.resume, replace=files.force) if files.journal else None
-        session.client = connect(dask) if dask is not None else None  # a bad address: one line and exit 2
-        if session.client is not None:
-            check_workers(session.client, backend)  # workers that cannot run the backend, or of other versions
+        session.client = open_cluster(dask, backend)  # a bad address, or workers that cannot run it: one line
     except BaseException:
         session.close()
         raise
@@ -364,9 +361,7 @@ def report_study(session: StudySession, outcome: StudyOutcome, figure: dict[str,
     plan, files = session.plan, session.files
     for failure in outcome.failures:
         typer.echo(f"error: {failure.describe()}", err=True)
-    names = [getattr(f, "name", f) for f in plan.filters]  # rows in (setting, run, filter) order
-    order = {name: i for i, name in enumerate(dict.fromkeys([*names, *(r.filter for r in outcome.records)]))}
-    records = sorted([*session.kept, *outcome.records], key=lambda r: (r.setting, r.run, order[r.filter]))
+    records = study_order([*session.kept, *outcome.records], plan.tasks)
     summaries = summarise_study(records, plan.settings, paired=figure["paired"])
     closing = study_closing(plan, outcome, records, summaries, figure["paired"])
     if files.summary_csv is not None:
@@ -439,14 +434,14 @@ def report_stopped(session: StudySession, outcome: StudyOutcome, records: list[R
     exit_stopped(outcome, closing["runs_finished"], closing["runs_in_study"], saved)
 
 
-def exit_stopped(outcome: StudyOutcome, finished: int, total: int, saved: str = "") -> None:
-    """The line and the exit of a study or an accuracy that did not run to its end: a lost cluster or pool,
-    exit 1; a stop, exit 128 + its signal (130 Ctrl-C, 143 SIGTERM, 129 SIGHUP; further stops are ignored,
-    run_study)."""
+def exit_stopped(outcome: StudyOutcome, finished: int, total: int, saved: str = "", what: str = "runs") -> None:
+    """The line and the exit of a study, an accuracy or learn's cells (`what`) that did not run to its end: a
+    lost cluster or pool, exit 1; a stop, exit 128 + its signal (130 Ctrl-C, 143 SIGTERM, 129 SIGHUP; further
+    stops are ignored, run_study)."""
     if outcome.lost is not None:
-        typer.echo(f"error: {outcome.lost}; {finished} of {total} runs finished{saved}", err=True)
+        typer.echo(f"error: {outcome.lost}; {finished} of {total} {what} finished{saved}", err=True)
         raise typer.Exit(1)
-    typer.echo(f"interrupted after {finished} of {total} runs{saved}", err=True)
+    typer.echo(f"interrupted after {finished} of {total} {what}{saved}", err=True)
     raise typer.Exit(128 + (outcome.stopped_by or signal.SIGINT))
 
 
@@ -506,16 +501,17 @@ def report_accuracy(session: StudySession, rows: tuple[AccuracyFilter, ...], out
     status = "interrupted" if stopped else "finished"
     for failure in outcome.failures:
         typer.echo(f"error: {failure.describe()}", err=True)
-    records = accuracy_records(sorted([*session.kept, *outcome.records], key=lambda r: (r.setting, r.run)), rows)
+    records = accuracy_records(study_order([*session.kept, *outcome.records], session.plan.tasks), rows)
     runs = len({(r["maze"], r["run"]) for r in records})
     if records:
-        typer.echo(accuracy_table(records))
+        summary = accuracy_summary(records)
+        typer.echo(accuracy_table(summary))
         typer.echo(f"{runs} runs in {time.perf_counter() - recorder.started_clock:.1f} s wall time")
         if files.csv_path is not None:
             write_text_atomically(files.csv_path, accuracy_csv(records), replace=files.force or files.resume)
             typer.echo(f"one row per maze, run and filter written to {files.csv_path}")
         if files.record_file is not None:
-            recorder.finish(status, summary=accuracy_summary(records))
+            recorder.finish(status, summary=summary)
             recorder.write(files.record_file)
             typer.echo(f"the record (command, versions, seeds, mazes, summary) written to {files.record_file}")
     session.close(status, runs_finished=runs)

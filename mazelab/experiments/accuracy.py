@@ -118,10 +118,10 @@ def accuracy_summary(records: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     return rows
 
 
-def accuracy_table(records: Sequence[dict[str, Any]]) -> str:
-    """Per maze and filter: the mean (and worst) distance to the exact posterior mean over the second
-    half of the steps with its 95% bootstrap interval, the converged share with its Wilson interval
-    and the median convergence step."""
+def accuracy_table(summary: Sequence[dict[str, Any]]) -> str:
+    """The summary (`accuracy_summary`) as a table, per maze and filter: the mean (and worst) distance to the
+    exact posterior mean over the second half of the steps with its 95% bootstrap interval, the converged
+    share with its Wilson interval and the median convergence step."""
     rows = [
         [
             s["maze"],
@@ -134,7 +134,7 @@ def accuracy_table(records: Sequence[dict[str, Any]]) -> str:
             format_interval(*s["converged_interval"], "{:.0%}"),
             format_number(s["median_convergence_step"], "{:g}"),
         ]
-        for s in accuracy_summary(records)
+        for s in summary
     ]
     headers = ["maze", "filter", "runs", "distance to exact mean", "worst run", "95% CI", "converged", "95% CI"]
     headers.append("median conv. step")

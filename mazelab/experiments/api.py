@@ -27,7 +27,7 @@ from mazelab import maze_generator
 from mazelab.checks import check_particles, check_seed, check_sigma_within, check_steps, check_study
 from mazelab.contract import missing_parts
 from mazelab.declaration import scoped, show_value, to_plain_json
-from mazelab.experiments.executor import StudyOutcome, run_study
+from mazelab.experiments.executor import StudyOutcome, open_cluster, run_study, study_backend
 from mazelab.experiments.journal import Recorder
 from mazelab.experiments.runs import filter_key, parse_filters
 from mazelab.experiments.study import (
@@ -362,17 +362,14 @@ def _flag(name: str, value: Any) -> bool:
 def _options(options: Any, named: Mapping[str, Any]) -> dict[str, list[Any]]:
     """The filter options: `options` (a mapping of names to a value or a list of values) and those given
     as keywords of their own (`bandwidth=...`), each a list; one given both ways is refused in one line
-    (the filters' declarations check them in plan_study)."""
+    (plan_study refuses an empty list, and the filters' declarations check the values)."""
     if options is not None and not isinstance(options, Mapping):
         raise TypeError(f"options takes a mapping of option names to values, got {type(options).__name__}")
     listed = {}
     for name, value in [*(options or {}).items(), *named.items()]:
         if str(name) in listed:
             raise ValueError(f"{name} is given twice, as {name}= and in options; give it once")
-        values = list(value) if isinstance(value, (list, tuple, range, np.ndarray)) else [value]
-        if not values:
-            raise ValueError(f"options[{name!r}] is empty; give a value or a list of them")
-        listed[str(name)] = values
+        listed[str(name)] = list(value) if isinstance(value, (list, tuple, range, np.ndarray)) else [value]
     return listed
 
 
@@ -436,9 +433,10 @@ def study(
     plan = plan or study_plan(maze, **values)
     if paired is not None and resolve_filter(paired).name not in [resolve_filter(f).name for f in plan.filters]:
         raise ValueError(f"paired={paired!r} is not one of the study's filters")
-    dask = _dask(dask)
     recorder = Recorder("study", [sys.argv[0] or "python", "mazelab.study(...)"], plan.parameters(),
                         csv_dtypes=CSV_DTYPES)  # fmt: skip
+    if dask is not None and not isinstance(dask, str):  # the caller's Client: run_study opens only an address
+        open_cluster(dask, study_backend(plan.tasks, 1))  # its workers asked once, before any run
     outcome = run_study(plan.tasks, workers, dask=dask)
     summaries = summarise_study(outcome.records, plan.settings, paired=paired)
     closing = study_closing(plan, outcome, outcome.records, summaries, paired)
@@ -472,22 +470,6 @@ def study_closing(
         "workers": [asdict(report) for report in outcome.workers.values()],
         "startup_seconds": round(outcome.startup_seconds, 3),
     }
-
-
-def _dask(dask: Any) -> Any:
-    """None, a scheduler address (text), or a distributed.Client; anything else a TypeError."""
-    if dask is None or isinstance(dask, str):
-        return dask
-    try:
-        from distributed import Client
-    except ImportError:
-        Client = None
-    if Client is None or not isinstance(dask, Client):
-        raise TypeError(
-            f"dask must be a scheduler address like 'tcp://HOST:8786' or a distributed.Client, got {dask!r} "
-            f"({type(dask).__name__})"
-        )
-    return dask
 
 
 def call_arguments(call: Mapping[str, Any], seed: int) -> dict[str, Any]:

@@ -15,7 +15,7 @@ import numpy as np
 from mazelab.backend import backend_of
 from mazelab.collect import record_steps
 from mazelab.contract import check_filter
-from mazelab.experiments.runs import WARM_UP_SEED, WARM_UP_STEPS, options_key, warm_once, warm_up_options
+from mazelab.experiments.runs import WARM_UP_SEED, WARM_UP_STEPS, warm_once
 from mazelab.experiments.study import RunFailure, RunRecord, RunTask, run_records, run_task_safely
 from mazelab.maze import Maze
 from mazelab.registry import filter_entry
@@ -134,11 +134,10 @@ def warm_batch(
     r = min(2, len(tasks))
     s = tasks[0].setting
 
-    def warm() -> None:
-        for warmed in warm_up_options(filter_class, options):
-            rngs = [filter_rng(WARM_UP_SEED) for _ in range(r)]
-            filt = filter_class(maze_for(filter_class, world), s.sigma, s.delta, particles[:r].copy(), rngs, **warmed)
-            steps = min(WARM_UP_STEPS, tasks[0].steps)
-            record_steps(filt, steps, lambda k: (compass[:r, k], z[:r, k]), runs=None if r == 1 else r)
+    def warm(warmed: dict) -> None:
+        rngs = [filter_rng(WARM_UP_SEED) for _ in range(r)]
+        filt = filter_class(maze_for(filter_class, world), s.sigma, s.delta, particles[:r].copy(), rngs, **warmed)
+        steps = min(WARM_UP_STEPS, tasks[0].steps)
+        record_steps(filt, steps, lambda k: (compass[:r, k], z[:r, k]), runs=None if r == 1 else r)
 
-    warm_once(("batch", filter_class, options_key(filter_class, options), r), warm)
+    warm_once(("batch", r), filter_class, options, warm)

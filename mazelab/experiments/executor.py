@@ -4,7 +4,7 @@ either and collects them as they finish, with a progress bar; on one backend for
 (`study_backend`). Stopping keeps every finished run (`Units.run`); a pool's workers end with their parent
 (`worker_setup`) and a dead one restarts the pool (`Units`); a Dask cluster (`study --dask ADDRESS`, the
 optional extra `pip install -e ".[dask]"`) is connected in one line or refused (`connect`), its workers
-asked before any run (`check_workers`).
+asked once, before any run (`open_cluster`).
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, CancelledError, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
-from contextlib import AbstractContextManager, contextmanager, suppress
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -33,7 +33,7 @@ from mazelab.backend import backend_for_work, chosen_backend, cores, shared_thre
 from mazelab.experiments.batch_runs import MAX_BATCH, run_unit_safely, study_units
 from mazelab.experiments.journal import dependency_versions
 from mazelab.experiments.runs import take_startup_seconds
-from mazelab.experiments.study import RunFailure, RunRecord, RunTask, run_task_safely
+from mazelab.experiments.study import RunFailure, RunRecord, RunTask, run_task_safely, study_order
 from mazelab.stops import STOP_SIGNALS, signal_handlers
 
 REPORTED_PACKAGES = ("numpy", "numba", "llvmlite")  # the versions a worker reports with its backend
@@ -109,10 +109,10 @@ class StudyOutcome:
         """The start-up of every process that ran runs (numba's load, first-call warm-ups), summed."""
         return sum(report.startup_seconds for report in self.workers.values())
 
-    def sort(self) -> None:
-        """Records in (setting, run, filter order) order, whatever order the workers finished in."""
-        order = {name: i for i, name in enumerate(dict.fromkeys(r.filter for r in self.records))}
-        self.records.sort(key=lambda r: (r.setting, r.run, order[r.filter]))
+    def sort(self, tasks: Sequence[RunTask]) -> None:
+        """Records in the study's order (`study_order`), failures by setting and run, whatever order the
+        workers finished in."""
+        self.records = study_order(self.records, tasks)
         self.failures.sort(key=lambda f: (f.task.setting_index, f.task.run))
 
 
@@ -290,59 +290,83 @@ def run_study(
     backend: str | None = None,
 ) -> StudyOutcome:
     """Run every task, on `workers` processes (default: all cores) or on a Dask cluster (`dask`: its
-    scheduler's address, connected and closed here, or a distributed Client), on one backend (`backend`,
-    default `study_backend`'s choice for these tasks); any stop keeps the finished runs (`Units.run`).
-
-    With `visualize`, the first run is drawn in this process. A run that raises becomes a RunFailure;
-    the others go on. `on_records` is handed each finished run's records as they come (the study's
-    journal appends them). A stop sets outcome.interrupted and outcome.stopped_by (the signal's
-    number); with `ignore_signals_after_stop` (a command about to exit) further Ctrl-C, SIGTERM and
-    SIGHUP are ignored from then on. A lost cluster (its scheduler gone, or `dask_timeout` seconds
-    without a finished unit) or a pool whose workers keep dying ends the study early: outcome.lost
-    says why, in one line.
-    """
-    workers = cores() if workers is None else workers
-    if workers < 1:
-        raise ValueError(f"workers must be >= 1 (or None: all cores), got {workers}")
-    client = connect(dask) if isinstance(dask, str) else dask  # a bad address: one line, before anything runs
-    backend = backend or study_backend(tasks, workers if client is None else 1)
+    scheduler's address, opened (`open_cluster`) and closed here, or the Client `open_cluster` gave), on one
+    backend (`backend`, default `study_backend`'s choice); with `visualize`, the first run drawn in this
+    process. A run that raises becomes a RunFailure, the others go on; `on_records` is handed each finished
+    run's records as they come (the journal appends them). A stop (`ignore_signals_after_stop`: the next
+    ones ignored), a lost cluster (`dask_timeout` seconds without a finished unit) or a pool whose workers
+    keep dying ends the study early, its finished runs kept (`run_units`)."""
+    workers = worker_count(workers)
+    backend = backend or study_backend(tasks, workers if dask is None else 1)
+    client = open_cluster(dask, backend) if isinstance(dask, str) else dask  # a bad address: one line
     outcome = StudyOutcome(backend=backend)
-    try:
-        if client is not None:
-            check_workers(client, backend)  # workers that cannot run it, or of other versions: one line
-        keep_ignoring = lambda: ignore_signals_after_stop and outcome.interrupted  # noqa: E731
-        with progress_bar(len(tasks), progress) as advance, stop_signals(keep_ignoring):
-            try:
-                run_tasks(tasks, workers, client, backend, visualize, dask_timeout, outcome.collector(on_records),
-                          advance)  # fmt: skip
-            except StudyLost as lost:
-                outcome.lost = str(lost)
-            except KeyboardInterrupt as stop:
-                if ignore_signals_after_stop:
-                    _ignore(STOP_SIGNALS)
-                outcome.interrupted, outcome.stopped_by = True, getattr(stop, "signum", signal.SIGINT)
-    finally:
-        if isinstance(dask, str):
-            close_client(client)
-    outcome.sort()
-    return outcome
-
-
-def run_tasks(tasks: Sequence[RunTask], workers: int, client: Any, backend: str, visualize: Any, timeout: float,
-              collect: Callable[[list], None], advance: Callable[..., None]) -> None:  # fmt: skip
-    """The tasks in units (mazelab.experiments.batch_runs.study_units) on `backend`, the drawn one (with
-    `visualize`, the first) in this process while the pool or the cluster runs the rest."""
     drawn, rest = (list(tasks[:1]), list(tasks[1:])) if visualize else ([], list(tasks))
-    units = study_units(rest, 1 if client is not None else workers)
     threads = shared_threads(workers, client)  # the runs at once x their threads <= cores
     work = functools.partial(run_unit_timed, backend=backend, threads=threads)
+    units = Units(study_units(rest, 1 if client is not None else workers), work, workers, client, dask_timeout)
+    collect = outcome.collector(on_records)
 
-    def here() -> None:
+    def here(advance: Callable[..., None]) -> None:  # the drawn run, in this process where the viewer is
         for task in drawn:
             collect(run_unit_timed((task,), backend, visualize, threads))
             advance()
 
-    Units(units, work, workers, client, timeout).run(collect, advance, here)
+    try:
+        run_units(outcome, units, collect, len(tasks), progress, here=here, ignore_after_stop=ignore_signals_after_stop)
+    finally:
+        if isinstance(dask, str):
+            close_client(client)
+    outcome.sort(tasks)
+    return outcome
+
+
+def worker_count(workers: int | None) -> int:
+    """The processes of a study: `workers`, or all cores for None; fewer than one is one line."""
+    if workers is not None and workers < 1:
+        raise ValueError(f"workers must be >= 1 (or None: all cores), got {workers}")
+    return cores() if workers is None else workers
+
+
+def open_cluster(dask: Any, backend: str) -> Any:
+    """The Dask client of `dask` (an address, connected here, or a distributed.Client), its workers asked
+    once, before any run, whether they can run the study's `backend` (`check_workers`); None without
+    `dask`; anything else is a TypeError. A client connected here is closed again when its workers are refused."""
+    if dask is None:
+        return None
+    try:
+        from distributed import Client
+    except ImportError:
+        Client = None
+    if not isinstance(dask, str) and (Client is None or not isinstance(dask, Client)):
+        raise TypeError(f"dask must be a scheduler address like 'tcp://HOST:8786' or a distributed.Client, got "
+                        f"{dask!r} ({type(dask).__name__})")  # fmt: skip
+    client = connect(dask) if isinstance(dask, str) else dask  # a bad address: one line, before anything runs
+    try:
+        check_workers(client, backend)  # workers that cannot run it, or of other versions: one line
+    except BaseException:
+        if isinstance(dask, str):
+            close_client(client)
+        raise
+    return client
+
+
+def run_units(outcome: StudyOutcome, units: Units, collect: Callable[[list], None], total: int, progress: bool,
+              what: str = "runs", here: Callable[..., None] = lambda advance: None,
+              ignore_after_stop: bool = False) -> None:  # fmt: skip
+    """Run the units (`Units.run`, `here(advance)` in this process meanwhile) with a progress bar over
+    `total` `what`; SIGTERM and SIGHUP stop them as Ctrl-C does (`stop_signals`), and a stop sets
+    outcome.interrupted and outcome.stopped_by, a lost cluster or pool outcome.lost (the finished units
+    collected either way); with `ignore_after_stop`, the stop signals are ignored after a stop."""
+    keep_ignoring = lambda: ignore_after_stop and outcome.interrupted  # noqa: E731
+    with progress_bar(total, progress, what) as advance, stop_signals(keep_ignoring):
+        try:
+            units.run(collect, advance, functools.partial(here, advance))
+        except StudyLost as lost:
+            outcome.lost = str(lost)
+        except KeyboardInterrupt as stop:
+            if ignore_after_stop:
+                _ignore(STOP_SIGNALS)
+            outcome.interrupted, outcome.stopped_by = True, getattr(stop, "signum", signal.SIGINT)
 
 
 class Units:
@@ -401,7 +425,7 @@ class Units:
                         self._take(wait(self.running, timeout=0.2, return_when=FIRST_COMPLETED)[0])
                 except KeyboardInterrupt as second:
                     stop = second
-            with signals_ignored():
+            with signal_handlers(STOP_SIGNALS, signal.SIG_IGN):  # a third Ctrl-C changes nothing
                 self._take(self._finished())
                 self._end()
             raise stop from None
@@ -551,11 +575,6 @@ def _ignore(signals: Sequence[int]) -> None:
     if threading.current_thread() is threading.main_thread():
         for sig in signals:
             signal.signal(sig, signal.SIG_IGN)
-
-
-def signals_ignored() -> AbstractContextManager[None]:
-    """Ctrl-C, SIGTERM and SIGHUP ignored while the workers are ended (a third Ctrl-C changes nothing)."""
-    return signal_handlers(STOP_SIGNALS, signal.SIG_IGN)
 
 
 @contextmanager

@@ -16,10 +16,12 @@ Figures of one run:
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import math
 import time
 import warnings
 from collections.abc import Callable, Hashable, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -121,25 +123,23 @@ _warmed: set[Hashable] = set()  # what this process has warmed: (filter, backend
 _startup_seconds = [0.0]  # start-up spent in this process and not yet reported
 
 
-def warm_once(key: Hashable, warm: Callable[[], Any]) -> None:
-    """Run `warm()` the first time this process sees `key` (with the chosen backend), its time kept
-    as start-up; the warnings it raises are dropped (the study or compare shows its own)."""
-    key = (key, chosen_backend())
+def warm_once(key: Hashable, filter_class: type, options: Mapping[str, Any], warm: Callable[[dict], Any]) -> None:
+    """Run `warm(options)` with each of `warm_up_options` the first time this process sees `key`, the filter,
+    the options that differ from their declared default (a filter given its defaults runs the same code as
+    one given nothing) and the chosen backend; its time kept as start-up, the warnings it raises dropped (the
+    study or compare shows its own)."""
+    declared = options_of(filter_class)
+    changed = repr(sorted((k, v) for k, v in options.items() if k not in declared or declared[k].default != v))
+    key = (key, filter_class, changed, chosen_backend())
     if key in _warmed:
         return
     started = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        warm()
+        for warmed in warm_up_options(filter_class, options):
+            warm(warmed)
     _warmed.add(key)
     _startup_seconds[0] += time.perf_counter() - started
-
-
-def options_key(filter_class: type, options: Mapping[str, Any]) -> str:
-    """A filter's options as part of a warm-up key: those that differ from their declared default (a
-    filter given its defaults runs the same code as one given nothing)."""
-    declared = options_of(filter_class)
-    return repr(sorted((k, v) for k, v in options.items() if k not in declared or declared[k].default != v))
 
 
 def warm_up_options(filter_class: type, options: Mapping[str, Any]) -> list[dict[str, Any]]:
@@ -165,16 +165,13 @@ def warm_up_filters(
     once per process by WARM_UP_STEPS steps on a walk of its own (mazelab.simulation.simulate)."""
     world.prepare()
     for name in filter_names:
-        own = dict(options.get(name, {}))
-        filter_class = resolve_filter(name)
 
-        def warm(name: str = name, filter_class: type = filter_class, own: dict[str, Any] = own) -> None:
-            for warmed in warm_up_options(filter_class, own):
-                robot = Robot(sigma, delta, start_place(world, WARM_UP_SEED))
-                simulate(robot, world, sigma, delta, particle_count, WARM_UP_STEPS, None, name, seed=WARM_UP_SEED,
-                         **warmed)  # fmt: skip
+        def warm(warmed: dict[str, Any], name: str = name) -> None:
+            robot = Robot(sigma, delta, start_place(world, WARM_UP_SEED))
+            simulate(robot, world, sigma, delta, particle_count, WARM_UP_STEPS, None, name, seed=WARM_UP_SEED,
+                     **warmed)  # fmt: skip
 
-        warm_once(("single", filter_class, options_key(filter_class, own)), warm)
+        warm_once("single", resolve_filter(name), dict(options.get(name, {})), warm)
 
 
 def take_startup_seconds() -> float:
@@ -184,11 +181,6 @@ def take_startup_seconds() -> float:
 
 
 # -- several filters on one scenario ---------------------------------------------------------------
-def is_particle_filter(filter_name: str) -> bool:
-    """Whether a filter is a sample of particles (its registry entry says it takes a particle count)."""
-    return filter_entry(filter_name).takes_particles
-
-
 def run_filters(
     world: Maze,
     robot: Robot,
@@ -232,27 +224,57 @@ def run_filters(
     return results
 
 
+@dataclass(frozen=True)
+class Figure:
+    """A column of a study's rows after its filter (a RunRecord field, a CSV column): a figure of one
+    filter's run, computed by `of(result, entry)` from its RunResult and its filter's registry entry (None:
+    a cell the study sets, of the run's scenario or its timing; `default` its value until then, REQUIRED:
+    none, every RunRecord is made with it), and how a study summarises it: with `summary` "mean", the mean
+    over the runs that have one, a summary CSV column of its name and a table column `header` (each value
+    in `spec`, shown where a run has one); "interval" adds its BCa bootstrap interval (NAME_low, NAME_high).
+    The figures summarised by statistics of their own (the final error, convergence, re-localisation, log
+    evidence) leave `summary` None (mazelab.experiments.summary)."""
+
+    name: str
+    of: Callable[[RunResult, Any], Any] | None = None
+    default: Any = None
+    summary: str | None = None
+    header: str = ""
+    spec: str = "{:.3f}"
+
+
+REQUIRED = dataclasses.MISSING  # a Figure's `default`: none (every RunRecord is made with the figure)
+
+
+FIGURES = (  # in the CSV's order; a new figure of a run is one more line here (and its words in docs/studies.md)
+    Figure("final_error", lambda r, e: final_error(r.errors), REQUIRED),  # the last-20% error, map units
+    Figure("mean_error", lambda r, e: float(r.errors.mean()), REQUIRED),
+    Figure("converged_at", lambda r, e: r.converged_at, REQUIRED),  # convergence_step of the errors; None: never
+    Figure("mean_ess", lambda r, e: mean_ess(r), REQUIRED),  # NaN for the grid filter
+    Figure("ms_per_step", lambda r, e: 1e3 * float(r.step_seconds.mean()), REQUIRED),
+    Figure("kidnap_at"),  # the step the robot is kidnapped at
+    Figure("relocalised", lambda r, e: None if r.kidnap_at is None else relocalised(r), None),
+    Figure("steps_to_recover", lambda r, e: None if r.kidnap_at is None else recovery_steps(r), None),  # None: never
+    Figure("mean_particle_count", lambda r, e: float(np.mean(r.extras["particle_count"])), math.nan),  # KLD varies it
+    Figure("maze_sha256"),  # of the maze file's bytes; a generated maze's: of its grid as maze text
+    Figure("maze_rows", default=0),  # the run's maze size
+    Figure("maze_columns", default=0),
+    Figure("wall_share"),  # a generated maze's requested share of walls; None for a file
+    Figure("run_seconds", default=math.nan),  # wall time of the run: its share of the unit of runs it ran in
+    # with `study --reference grid`: the distance of the filter's estimates to the exact posterior means
+    Figure("distance_to_exact", default=math.nan, summary="interval", header="dist. to exact"),
+    Figure("log_evidence", lambda r, e: math.nan if r.log_evidence is None else float(r.log_evidence[-1]), math.nan),
+    Figure("log_evidence_caveat", lambda r, e: e.evidence, ""),  # why it is not of p(z_1:K) (the registry's)
+    Figure("label", lambda r, e: e.label, ""),  # the filter's label in the registry (SIR, APF, ...)
+    Figure("backend", lambda r, e: r.extras.get("backend", "numpy"), ""),  # as the process that ran it says
+)
+
+
 def run_figures(name: str, result: RunResult) -> dict[str, Any]:
-    """The figures of filter `name`'s run, by the study CSV's names (every table and record of a run reads
-    them here): last-20% and mean error, convergence step, mean ESS, ms per step, with a kidnapping whether
-    it re-localised and its steps to recover (None without), mean particle count, the final log evidence
-    and why it is not of p(z_1:K) under the model (the registry's caveat), its label and its backend."""
+    """The figures of filter `name`'s run (FIGURES), by the study CSV's names: every table and record of a
+    run reads them here."""
     entry = described(name)
-    kidnapped = result.kidnap_at is not None
-    return {
-        "final_error": final_error(result.errors),
-        "mean_error": float(result.errors.mean()),
-        "converged_at": result.converged_at,
-        "mean_ess": mean_ess(result),
-        "ms_per_step": 1e3 * float(result.step_seconds.mean()),
-        "relocalised": relocalised(result) if kidnapped else None,
-        "steps_to_recover": recovery_steps(result) if kidnapped else None,
-        "mean_particle_count": float(np.mean(result.extras["particle_count"])),  # KLD-sampling varies it
-        "log_evidence": math.nan if result.log_evidence is None else float(result.log_evidence[-1]),
-        "log_evidence_caveat": entry.evidence,
-        "label": entry.label,
-        "backend": result.extras.get("backend", "numpy"),
-    }
+    return {figure.name: figure.of(result, entry) for figure in FIGURES if figure.of is not None}
 
 
 # -- comparing the filters on one saved scenario (lab steps 12-13) ---------------------------------
@@ -291,41 +313,35 @@ def comparison_table(results: dict[str, RunResult], kld: bool = False, startup_s
     model, a line under the table says why) and milliseconds per step with the backend it ran on; with a
     kidnapping, whether the filter re-localised and in how many steps; with `kld`, the mean particle
     count. With `startup_seconds` (the process's one-off costs), a line saying what ms/step is."""
-    figures = {name: run_figures(name, result) for name, result in results.items()}
-    kidnapped = any(result.kidnap_at is not None for result in results.values())
-    backends = {f["backend"] for f in figures.values()}
-    headers = ["filter", "mean error", f"last-{FINAL_SHARE:.0%} error", "converged at", "mean ESS", "log p(z_1:K)",
-               f"ms/step, {next(iter(backends))}" if len(backends) == 1 else "ms/step, backend"]  # fmt: skip
-    headers += ["re-localised", "steps to recover"] * kidnapped + ["mean N"] * kld
-    rows, caveats = [], {f["label"]: f["log_evidence_caveat"] for f in figures.values() if f["log_evidence_caveat"]}
-    for name, f in figures.items():
-        row = [
-            f["label"],
-            f"{f['mean_error']:.3f}",
-            f"{f['final_error']:.3f}",
-            "never" if f["converged_at"] is None else f"step {f['converged_at']}",
-            format_number(f["mean_ess"], "{:.0f}"),
-            format_number(f["log_evidence"], "{:.1f}") + ("*" if f["log_evidence_caveat"] else ""),
-            f"{f['ms_per_step']:.2f}" + ("" if len(backends) == 1 else f" {f['backend']}"),
-        ]
-        if kidnapped:
-            steps = f["steps_to_recover"]
-            row += ["yes" if f["relocalised"] else "no", "never" if steps is None else str(steps)]
-        if kld:
-            row.append(f"{f['mean_particle_count']:.0f}" if is_particle_filter(name) else "-")
-        rows.append(row)
+    figures = [{**run_figures(name, result), "name": name} for name, result in results.items()]
+    backends = {f["backend"] for f in figures}
+    one = len(backends) == 1
+    columns = [
+        ("filter", lambda f: f["label"]), ("mean error", lambda f: f"{f['mean_error']:.3f}"),
+        (f"last-{FINAL_SHARE:.0%} error", lambda f: f"{f['final_error']:.3f}"),
+        ("converged at", lambda f: "never" if f["converged_at"] is None else f"step {f['converged_at']}"),
+        ("mean ESS", lambda f: format_number(f["mean_ess"], "{:.0f}")),
+        ("log p(z_1:K)", lambda f: format_number(f["log_evidence"], "{:.1f}") + "*" * bool(f["log_evidence_caveat"])),
+        (f"ms/step, {next(iter(backends))}" if one else "ms/step, backend",
+         lambda f: f"{f['ms_per_step']:.2f}" + ("" if one else f" {f['backend']}")),
+    ]  # fmt: skip
+    if any(result.kidnap_at is not None for result in results.values()):
+        columns += [("re-localised", lambda f: "yes" if f["relocalised"] else "no"),
+                    ("steps to recover", lambda f: "never" if f["steps_to_recover"] is None else
+                     str(f["steps_to_recover"]))]  # fmt: skip
+    if kld:
+        columns.append(("mean N", lambda f: f"{f['mean_particle_count']:.0f}" if filter_entry(f["name"]).takes_particles
+                        else "-"))  # fmt: skip
+    rows = [[cell(f) for _, cell in columns] for f in figures]
+    caveats = {f["label"]: f["log_evidence_caveat"] for f in figures if f["log_evidence_caveat"]}
     notes = [f"[* {label}: the log evidence is {why}]" for label, why in caveats.items()]
     if startup_seconds is not None:
-        notes.append(startup_note(startup_seconds))
-    return "\n".join([format_table(headers, rows), *notes])
-
-
-def startup_note(seconds: float) -> str:
-    """The line that says what ms/step is, and reports the start-up apart from it."""
-    return (
-        f"[ms/step: one run's steps of each filter, on the backend named, after untimed warm-up steps; start-up "
-        f"(first calls, and numba's kernels loaded on the compiled backend) {seconds:.2f} s, not in ms/step]"
-    )
+        notes.append(
+            f"[ms/step: one run's steps of each filter, on the backend named, after untimed warm-up steps; start-up "
+            f"(first calls, and numba's kernels loaded on the compiled backend) {startup_seconds:.2f} s, not in "
+            "ms/step]"
+        )
+    return "\n".join([format_table([header for header, _ in columns], rows), *notes])
 
 
 def errors_csv(results: dict[str, RunResult]) -> str:

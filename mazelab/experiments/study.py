@@ -8,7 +8,6 @@ import dataclasses
 import functools
 import hashlib
 import itertools
-import math
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -18,7 +17,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from mazelab.declaration import Option, not_taken, options_for, options_of, scoped, show_value
-from mazelab.experiments.runs import run_figures, run_filters
+from mazelab.experiments.runs import FIGURES, run_figures, run_filters
 from mazelab.experiments.tables import trace_of
 from mazelab.maze import STATION_WALL, Maze
 from mazelab.maze_generator import DEFAULT_WALL_SHARE, generate_maze
@@ -142,11 +141,6 @@ def option_columns(filters: Sequence[str | type]) -> tuple[str, ...]:
     for name in filters:
         names.update(dict.fromkeys(o.name for o in options_of(resolve_filter(name)).settable()))
     return tuple(names)
-
-
-def is_option_parameter(parameter: str) -> bool:
-    """Whether a study parameter is a filter option (not the maze or a model parameter)."""
-    return parameter not in BASE_PARAMETERS
 
 
 def takes_parameter(filter_name: str | type, parameter: str) -> bool:
@@ -343,8 +337,9 @@ def study_tasks(
 
 
 @dataclass
-class RunRecord:
-    """One filter in one run of a study: a row of the study's CSV."""
+class RunCells:
+    """The cells that say which run a study's row is of: its setting, run and seeds, its scenario and its filter;
+    RunRecord adds the run's figures (mazelab.experiments.runs.FIGURES) and options."""
 
     setting: int
     run: int
@@ -357,29 +352,6 @@ class RunRecord:
     particles: int
     steps: int
     filter: str
-    final_error: float  # mean error over the last FINAL_SHARE of the steps
-    mean_error: float
-    converged_at: int | None  # convergence_step of the errors; None: never
-    mean_ess: float  # NaN for the grid filter
-    ms_per_step: float
-    kidnap_at: int | None = None
-    relocalised: bool | None = None  # kidnapping.relocalised; None without a kidnapping
-    steps_to_recover: int | None = None  # kidnapping.recovery_steps; None: never, or no kidnapping
-    mean_particle_count: float = math.nan  # over the steps (KLD-sampling varies it)
-    maze_sha256: str | None = None  # sha256 of the maze file's bytes; a generated maze's: of its grid as maze text
-    maze_rows: int = 0  # the run's maze size
-    maze_columns: int = 0
-    wall_share: float | None = None  # a generated maze's requested share of walls; None for a file
-    run_seconds: float = math.nan  # wall time of the run: its share of the unit of runs it ran in
-    # with a reference (`study --reference grid`): accuracy.distance_to_exact of the filter's estimates
-    distance_to_exact: float = math.nan
-    log_evidence: float = math.nan  # log p(z_1:K) of the whole walk as the filter estimates it; NaN: it keeps none
-    log_evidence_caveat: str = ""  # why that is not an estimate of p(z_1:K) under the model (the registry's)
-    label: str = ""  # the filter's label in the registry (what the figure and table show: SIR, APF, ...)
-    backend: str = ""  # the backend the filter ran on, as the process that ran it says (mazelab.backend)
-    # every option the filter ran with (`StudySetting.filter_values`) as cells (`option_cell`), by name:
-    # a column each, after these; an option the filter does not declare has no key (an empty cell)
-    options: dict[str, Any] = field(default_factory=dict)
     # Not a column: with RunTask.traces, the filter's per-step arrays (mazelab.experiments.tables)
     trace: ClassVar[dict[str, Any] | None] = None
 
@@ -403,11 +375,29 @@ class RunRecord:
         return record
 
 
+# One filter in one run of a study, a row of its CSV: RunCells, then a field per figure (FIGURES, in order), then
+# every option the filter ran with (`StudySetting.filter_values`) as cells (`option_cell`), by name: a column
+# each, after the figures; an option the filter does not declare has no key (an empty cell).
+RunRecord = dataclasses.make_dataclass(
+    "RunRecord",
+    [*((f.name, Any, field(default=f.default)) for f in FIGURES), ("options", dict, field(default_factory=dict))],
+    bases=(RunCells,),
+    namespace={"__module__": __name__, "__doc__": "One filter in one run of a study: a row of the study's CSV."},
+)
+
+
 def _listed(value: Any) -> Any:
     """A trace's array (or a dict of them) as lists."""
     if isinstance(value, dict):
         return {k: _listed(v) for k, v in value.items()}
     return np.asarray(value).tolist()
+
+
+def study_order(records: Sequence[RunRecord], tasks: Sequence[RunTask]) -> list[RunRecord]:
+    """The records in (setting, run, filter) order, the filters in the study's order (its tasks'): the
+    order of the CSV, `mazelab.study`'s rows, the summary and the table, however the runs finished."""
+    order = {name: i for i, name in enumerate(dict.fromkeys(n for task in tasks for n in task.row_filters()))}
+    return sorted(records, key=lambda r: (r.setting, r.run, order.get(r.filter, len(order))))
 
 
 @dataclass

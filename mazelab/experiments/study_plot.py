@@ -27,7 +27,7 @@ import numpy as np
 
 from mazelab.declaration import show_value
 from mazelab.experiments.runs import FINAL_SHARE, LINE_STYLES, MARKERS
-from mazelab.experiments.study import MODEL_PARAMETERS, declared_option, hashable, is_option_parameter, takes_parameter
+from mazelab.experiments.study import BASE_PARAMETERS, MODEL_PARAMETERS, declared_option, hashable, takes_parameter
 from mazelab.experiments.summary import CONFIDENCE_LEVEL, StudySummary
 from mazelab.experiments.tables import pyplot, save_figure
 from mazelab.registry import described, rgb
@@ -70,7 +70,7 @@ Y_QUANTITIES = {
     "converged": YQuantity("runs converged (%)", lambda s: s.converged_share, lambda s: s.converged_interval,
                            "Wilson score intervals for the share", share=True),
     "exact": YQuantity("distance to the exact posterior mean (map units)", lambda s: s.distance_to_exact,
-                       lambda s: s.distance_interval, "BCa bootstrap intervals for the mean distance"),
+                       lambda s: s.distance_to_exact_interval, "BCa bootstrap intervals for the mean distance"),
     "paired": YQuantity(f"paired difference in last-{FINAL_SHARE:.0%} error (map units)",
                         lambda s: s.mean_difference, lambda s: s.difference_interval,
                         "paired BCa bootstrap intervals for the mean difference", signed=True),
@@ -155,7 +155,7 @@ def choose_x(summaries: Sequence[StudySummary], varied: Sequence[str], x: str | 
     ordered = [p for p in NUMERIC_PARAMETERS if p in numeric] + [p for p in numeric if p not in NUMERIC_PARAMETERS]
     if ordered:
         return ordered[0]
-    return next((p for p in varied if not is_option_parameter(p)), None)
+    return next((p for p in varied if p in BASE_PARAMETERS), None)
 
 
 def figure_layout(
@@ -165,7 +165,7 @@ def figure_layout(
     the summaries by panel. A filter that does not take a panel's parameter (the grid filter and the
     RPF's bandwidth) is in every panel that agrees on the parameters it does take."""
     x = choose_x(summaries, varied, x)
-    options = [p for p in varied if is_option_parameter(p) and p != x]
+    options = [p for p in varied if p not in BASE_PARAMETERS and p != x]  # the filter options
     facets = [p for p in varied if p != x and p not in options]
     panel_values: dict[str, dict[str, Any]] = {}
     for s in summaries:
@@ -405,10 +405,8 @@ def draw_panel(
         container.lines[0].set_gid(f"panel-{panel}:line:{line.label}")
         shown += [*value, *low, *high]
     for line in (line for line in lines if line.reference):
-        value, (low, high) = (
-            unit * quantity.value(line.points[0]),
-            (unit * v for v in quantity.interval(line.points[0])),
-        )
+        value = unit * quantity.value(line.points[0])
+        low, high = (unit * v for v in quantity.interval(line.points[0]))
         dashes = line.style if line.style != "-" else "--"  # a reference is never a solid line
         ax.axhline(value, color=line.colour, linestyle=dashes, linewidth=1.0, label=line.label,
                    gid=f"panel-{panel}:reference:{line.label}")  # fmt: skip

@@ -1,25 +1,10 @@
-"""A study's statistics per setting and filter: the mean final error with its BCa bootstrap interval
-and the median with its percentile one, the converged share with its Wilson interval, the Kaplan-Meier median
-convergence step (the runs that never converge count, as censored), with `--reference grid` the
-distance to the exact posterior, with `--paired NAME` the paired difference to that filter; the
-table, the rows' CSV and the summary CSV (the figure: mazelab.experiments.study_plot).
-
-Converged, defined: the error stays below CONVERGENCE_RADIUS for at least the last K steps, K the
-last-20% window (`convergence_window`, the steps `final_error` averages): a run that only gets below
-the radius near its end is not counted, and "converged" agrees with a small last-20% error.
-
-The intervals fit the quantities (no scipy):
-
-- a mean or a median of errors (heavy-tailed, often two-peaked, never negative): the percentile
-  bootstrap, B = BOOTSTRAP_SAMPLES resamples from a fixed seed (`bootstrap_interval`); its bounds lie
-  within the observed values, so an error's interval never reaches below zero. `method="bca"` gives
-  the bias-corrected and accelerated interval (Efron 1987) from the same resamples;
-- the difference between two filters on the same runs: the paired bootstrap, resampling runs (the
-  pairs) rather than each filter's values apart (`paired_difference`);
-- a share (converged, re-localised): the Wilson score interval (`wilson_interval`), within [0, 1];
-- a time to an event that some runs never reach (the convergence step): the Kaplan-Meier estimate,
-  its median and that median's interval from the log-log pointwise band (`kaplan_meier`, `km_median`).
-(Student's t-interval, for comparison: benchmarks/interval_coverage.py.)
+"""A study's statistics per setting and filter (`StudySummary`), the table, the rows' CSV and the summary
+CSV (the figure: mazelab.experiments.study_plot), with intervals that fit the quantities (no scipy; Student's
+t-interval for comparison: benchmarks/interval_coverage.py): a mean or median of errors (heavy-tailed, never
+negative), the bootstrap, percentile or BCa (`bootstrap_interval`), paired for the difference of two filters
+on the same runs (`paired_difference`); a share, the Wilson score interval (`wilson_interval`); the
+convergence step, which some runs never reach, the Kaplan-Meier median and its log-log band (`km_median`).
+Converged: the error stays below CONVERGENCE_RADIUS for at least the last-20% window (`converged_within`).
 """
 
 from __future__ import annotations
@@ -27,7 +12,7 @@ from __future__ import annotations
 import math
 import statistics
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from statistics import NormalDist
 from typing import Any
@@ -35,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from mazelab.declaration import show_value
-from mazelab.experiments.runs import FINAL_SHARE, is_particle_filter
+from mazelab.experiments.runs import FIGURES, FINAL_SHARE
 from mazelab.experiments.study import (
     BASE_PARAMETERS,
     RunRecord,
@@ -262,6 +247,8 @@ def wilson_interval(successes: int, trials: int, level: float = CONFIDENCE_LEVEL
 
 
 Interval = tuple[float, float]
+SUMMARISED = [figure for figure in FIGURES if figure.summary]  # the figures a study summarises by their mean
+NO_FIGURES = {k: v for f in SUMMARISED for k, v in ((f.name, math.nan), (f"{f.name}_interval", (math.nan, math.nan)))}
 
 
 # -- a study's statistics ---------------------------------------------------------------------------
@@ -288,8 +275,6 @@ class StudySummary:
     run_seconds: float = math.nan  # mean wall time per run
     convergence_interval: Interval = (math.nan, math.nan)  # the KM median's interval; NaN: not reached
     last_convergence_step: int = 0  # the last step a convergence can count from (steps - K + 1): the censoring time
-    distance_to_exact: float = math.nan  # mean over the runs of the distance to the exact posterior mean
-    distance_interval: Interval = (math.nan, math.nan)  # its BCa bootstrap interval
     paired_with: str | None = None  # the filter the paired difference is taken to (`--paired`)
     paired_runs: int = 0  # runs in both (the pairs)
     mean_difference: float = math.nan  # mean over the pairs of (this filter's - paired_with's) last-20% error
@@ -298,6 +283,15 @@ class StudySummary:
     log_evidence_se: float = math.nan  # its standard error: the runs' standard deviation / sqrt(runs)
     log_evidence_caveat: str = ""  # why the filter's estimate is not of p(z_1:K) under the model ("": it is)
     backend: str = ""  # the backend its runs ran on (their ms_per_step's)
+    # the figures summarised by their mean (Figure.summary): NAME the mean over the runs that have one (NaN:
+    # none), NAME_interval its BCa bootstrap interval for "interval"; read as attributes (s.distance_to_exact)
+    figures: dict[str, Any] = field(default_factory=lambda: dict(NO_FIGURES))
+
+    def __getattr__(self, name: str) -> Any:
+        try:
+            return self.__dict__["figures"][name]
+        except KeyError:
+            raise AttributeError(name) from None
 
 
 def summarise_study(
@@ -337,8 +331,10 @@ def summarise_group(index: int, setting: StudySetting, name: str, group: Sequenc
         statistics.fmean(r.mean_particle_count for r in group), statistics.median(finals),
         bootstrap_interval(finals, "median", method=MEDIAN_METHOD), wilson_interval(sum(converged), runs),
         relocalised_interval, statistics.fmean(r.run_seconds for r in group), step_interval, last,
-        *_mean_and_interval([r.distance_to_exact for r in group]),
     )  # fmt: skip
+    for figure in SUMMARISED:
+        mean, summary.figures[f"{figure.name}_interval"] = _mean_and_interval([getattr(r, figure.name) for r in group])
+        summary.figures[figure.name] = mean
     summary.mean_log_evidence, summary.log_evidence_se = _mean_and_error([r.log_evidence for r in group])
     summary.log_evidence_caveat, summary.backend = group[0].log_evidence_caveat, group[0].backend
     return summary
@@ -357,13 +353,14 @@ def last_convergence_step(steps: int) -> int:
 
 
 def converged_within(converged_at: int | None, steps: int) -> bool:
-    """Converged: below the radius from `converged_at` on, for at least the last K steps."""
+    """Converged: below the radius from `converged_at` on, for at least the last K steps (a run that gets
+    below it only near its end is not counted: "converged" agrees with a small last-20% error)."""
     return converged_at is not None and converged_at <= last_convergence_step(steps)
 
 
 def _mean_and_interval(values: Sequence[float]) -> tuple[float, Interval]:
     """The mean of the finite values with its BCa bootstrap interval; NaN when there are none."""
-    finite = [v for v in values if not math.isnan(v)]
+    finite = [v for v in values if v is not None and not math.isnan(v)]
     if not finite:
         return math.nan, (math.nan, math.nan)
     return statistics.fmean(finite), bootstrap_interval(finite, "mean", method=MEAN_METHOD)
@@ -473,10 +470,13 @@ def study_table(summaries: Sequence[StudySummary], varied: Sequence[str], kld: b
                     ("median steps to recover", lambda s: format_number(s.median_steps_to_recover, "{:g}")),
                     ]  # fmt: skip
     if kld:
-        columns.append(("mean N", lambda s: f"{s.mean_particle_count:.0f}" if is_particle_filter(s.filter) else "-"))
-    if any(not math.isnan(s.distance_to_exact) for s in summaries):
-        columns += [("dist. to exact", lambda s: format_number(s.distance_to_exact, "{:.3f}")),
-                    (ci, lambda s: format_interval(*s.distance_interval))]  # fmt: skip
+        columns.append(
+            ("mean N", lambda s: f"{s.mean_particle_count:.0f}" if described(s.filter).takes_particles else "-")
+        )
+    for f in (f for f in SUMMARISED if any(not math.isnan(getattr(s, f.name)) for s in summaries)):
+        columns.append((f.header, lambda s, f=f: format_number(getattr(s, f.name), f.spec)))
+        if f.summary == "interval":
+            columns.append((ci, lambda s, f=f: format_interval(*getattr(s, f"{f.name}_interval"), spec=f.spec)))
     if reference:
         columns += [(f"diff. vs {described(reference).label}",
                      lambda s: format_number(s.mean_difference, "{:+.3f}")),
@@ -512,8 +512,8 @@ SUMMARY_FIELDS: tuple[str | tuple[str, str], ...] = (
     "last_convergence_step", "median_convergence_step", ("convergence_interval", "median_convergence_step"),
     "mean_log_evidence", "log_evidence_se", "log_evidence_caveat", "ms_per_step", "backend", "run_seconds",
     "mean_particle_count", "relocalised_share", ("relocalised_interval", "relocalised"), "median_steps_to_recover",
-    "distance_to_exact", ("distance_interval", "distance_to_exact"), "paired_with", "paired_runs", "mean_difference",
-    ("difference_interval", "difference"),
+    *(name for f in SUMMARISED for name in [f.name, *[(f"{f.name}_interval", f.name)] * (f.summary == "interval")]),
+    "paired_with", "paired_runs", "mean_difference", ("difference_interval", "difference"),
 )  # fmt: skip
 SUMMARY_STATISTICS = tuple(
     name for f in SUMMARY_FIELDS for name in ((f"{f[1]}_low", f"{f[1]}_high") if isinstance(f, tuple) else (f,))

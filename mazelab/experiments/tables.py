@@ -284,12 +284,9 @@ def write_traces(path: Path, blocks: Sequence[dict[str, Any]]) -> None:
         import pyarrow as pa
         import pyarrow.parquet as pq
 
-        names = trace_column_names(blocks)
-        columns = {c: np.concatenate([_filled(b, c) for b in blocks]) if blocks else np.array([]) for c in names}
-        columns["setting"] = np.where(columns["setting"] == -1, None, columns["setting"]) if blocks else []
-        table = pa.table(
-            {c: pa.array(list(v) if v.dtype == object or c == "setting" else v) for c, v in columns.items()}
-        )
+        columns = trace_table_columns(blocks) or {c: np.array([]) for c in TRACE_COLUMNS}
+        columns["setting"] = np.where(columns["setting"] == -1, None, columns["setting"])  # compare's: none
+        table = pa.table({c: pa.array(list(v) if v.dtype == object else v) for c, v in columns.items()})
         buffer = io.BytesIO()
         pq.write_table(table, buffer)
         write_bytes_atomically(path, buffer.getvalue())
