@@ -17,6 +17,7 @@ from __future__ import annotations
 import ast
 import dataclasses
 import math
+import re
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
@@ -146,25 +147,24 @@ def parse_flag(text: str) -> bool:
     raise ValueError(f"expected true or false, got {text!r}")
 
 
+def decimal_comma(text: str) -> str | None:
+    """'0,3' -> '0.3': the number that text written with a decimal comma means, else None (the one
+    reading of a decimal comma for every hint: an option's value, a typer number, a study's list)."""
+    match = re.fullmatch(r"\s*(-?\d+),(\d+)\s*", text)
+    return None if match is None else f"{match[1]}.{match[2]}"
+
+
 def _parse_number(text: str) -> float:
     """A finite number: "0.3", "1e-3"; NaN and infinities are refused, and "0,3" says to write 0.3."""
     try:
         number = float(text)
     except ValueError:
-        decimal = text.replace(",", ".", 1)
-        hint = f" (write {decimal})" if text.count(",") == 1 and _is_number(decimal) else ""
+        decimal = decimal_comma(text)
+        hint = f" (write {decimal})" if decimal is not None else ""
         raise ValueError(f"expected a number, got {text!r}{hint}") from None
     if not math.isfinite(number):
         raise ValueError(f"expected a finite number, got {text!r}")
     return number
-
-
-def _is_number(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
 
 
 def _parse_whole(text: str) -> int:

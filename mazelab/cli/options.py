@@ -27,7 +27,7 @@ from mazelab.atomic import NameTakenError, NotRegularFileError, output_target
 from mazelab.backend import ENVIRONMENT_VARIABLE, THREADS_VARIABLE, check_backend, check_threads
 from mazelab.checks import check_seed
 from mazelab.constants import DEFAULT_DELTA, DEFAULT_SIGMA
-from mazelab.declaration import Option, not_taken, parse_flag, scoped, show_value
+from mazelab.declaration import Option, decimal_comma, not_taken, parse_flag, scoped, show_value
 from mazelab.experiments.runs import FINAL_SHARE, final_error
 from mazelab.experiments.study import declared_option
 from mazelab.experiments.study import options_per_filter as reaching
@@ -217,8 +217,8 @@ def parse_list(text: str | None, kind: type, option: str) -> list | None:
     '0,3' for a number is refused with what to write (a list of 0 and 3 is no lab's value)."""
     if text is None:
         return None
-    if kind is float and re.fullmatch(r"\s*0,\d+\s*", text):
-        decimal = text.strip().replace(",", ".")
+    decimal = decimal_comma(text) if kind is float and text.strip().startswith("0,") else None
+    if decimal is not None:
         raise UserError(
             f"{option} {text.strip()}: the comma separates values (0 and {text.strip()[2:]}); "
             f"for one value write {decimal}, for a list {decimal},0.4"
@@ -298,9 +298,9 @@ def usage_hint(error: Exception, argv: Sequence[str] = ()) -> str:
     args = list(argv)
     name = getattr(getattr(error, "param", None), "opts", None)
     if name and "valid number" in message:
-        value = _value_of(args, name)
-        if value is not None and re.fullmatch(r"-?\d+,\d+", value.strip()):
-            return f"; write {value.strip().replace(',', '.')} (a decimal point, not a comma)"
+        decimal = decimal_comma(_value_of(args, name) or "")
+        if decimal is not None:
+            return f"; write {decimal} (a decimal point, not a comma)"
     extra = re.search(r"unexpected extra argument(?:s|\(s\))? \((.+)\)", message)
     if extra:
         first = extra.group(1).split()[0]
