@@ -4,7 +4,6 @@ registered below, each with the one line `mazelab --help` shows, and `main` turn
 
 from __future__ import annotations
 
-import shlex
 import signal
 import sys
 from pathlib import Path
@@ -17,8 +16,6 @@ from mazelab.cli.exercise import exercise_app
 from mazelab.cli.maze import maze_app
 from mazelab.cli.notebook import notebook
 from mazelab.cli.options import (
-    DEFAULT_DELTA,
-    DEFAULT_SIGMA,
     BackendOption,
     Force,
     KidnapAt,
@@ -26,30 +23,25 @@ from mazelab.cli.options import (
     ThreadsOption,
     UserError,
     arg,
-    check_outputs,
     filter_choices,
     filters,
-    fresh_setup,
     one_line_warnings,
     opt,
     option_elsewhere,
     plain_usage_names,
-    progress_printer,
     refuse_option_as_value,
-    report_run,
     seed_option,
     usage_hint,
-    visualization,
     with_drawing,
     with_option_flags,
 )
 from mazelab.cli.recordings import recordings, view
 from mazelab.cli.smoothing import learn, smooth
 from mazelab.cli.study import accuracy, study
+from mazelab.constants import DEFAULT_DELTA, DEFAULT_PARTICLE_COUNT, DEFAULT_SIGMA, DEFAULT_STEPS
 from mazelab.experiments.journal import package_version, program_versions
-from mazelab.invocation import command_prefix, remember_arguments
-from mazelab.maze import DEFAULT_MAZE, MazeError, find_maze, load_maze
-from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
+from mazelab.invocation import remember_arguments
+from mazelab.maze import DEFAULT_MAZE, MazeError, load_maze
 from mazelab.stops import STOP_SIGNALS, StudentCodeError, exit_without_strays, mark_interrupts
 from mazelab.viz.recording import deferred_to_the_end
 
@@ -83,21 +75,9 @@ def demo(
     """The paper's example: a lost robot, the SIR filter, 1500 particles, 200 steps."""
     if ctx.invoked_subcommand is not None:
         return
-    from mazelab.simulation import simulate  # imported by the commands that run one filter
+    from mazelab.cli.replay import run_demo  # scenarios and drawing: imported by the commands that use them
 
-    visualize = visualization(**(drawing or {}), force=force)
-    check_outputs([("--rrd", (drawing or {}).get("rrd"))], force)
-    setup = fresh_setup(None, None, None, None, None)  # `run`'s: the lab's maze, sigma and delta, a new seed
-    world = setup.world
-    typer.echo(
-        f"A robot is lost in {find_maze(DEFAULT_MAZE).name} ({world.height}x{world.width}, "
-        f"{len(world.stations)} stations); SIR with {DEFAULT_PARTICLE_COUNT} particles looks for it."
-    )
-    result = simulate(setup.robot, world, setup.sigma, setup.delta, DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS,
-                      seed=setup.seed, visualize=visualize, on_step=progress_printer(DEFAULT_STEPS))  # fmt: skip
-    report_run(result)
-    words = ["run", "--seed", str(setup.seed), "--backend", result.extras["backend"]]
-    typer.echo(f"Repeat this run: {command_prefix()} {shlex.join(words)}")
+    run_demo(drawing or {}, force)
 
 
 Maze_ = opt(str | None, "--maze", metavar="MAZE", help=f"a maze file or a name in mazes/ [default: {DEFAULT_MAZE}]")

@@ -1,5 +1,5 @@
 """What the commands share: the drawing, backend and output options and their checks, list parsing, the
-one-line errors and the hints that name the fix (`usage_hint`), a run's summary and progress lines, and
+one-line errors and the hints that name the fix (`usage_hint`), the line that repeats a command, and
 the filters' options on the command line, read from each filter's declaration (mazelab.declaration): the
 named flags generated from `Option.flag` (`with_option_flags`), `--option NAME=VALUE` (`given_options`)
 and `mazelab filters [NAME]`, so a declared option is taken by every command that runs filters."""
@@ -15,29 +15,22 @@ import shlex
 import textwrap
 import warnings
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any
 
-import numpy as np
 import typer
 import typer.core
 
 from mazelab.atomic import NameTakenError, NotRegularFileError, output_target
 from mazelab.backend import ENVIRONMENT_VARIABLE, THREADS_VARIABLE, check_backend, check_threads
 from mazelab.checks import check_seed
-from mazelab.constants import DEFAULT_DELTA, DEFAULT_SIGMA
+from mazelab.constants import DEFAULT_DELTA, DEFAULT_SIGMA  # noqa: F401 (mazelab.cli.study reads them here)
 from mazelab.declaration import Option, decimal_comma, not_taken, parse_flag, scoped, show_value
-from mazelab.experiments.runs import FINAL_SHARE, final_error
 from mazelab.experiments.study import declared_option
 from mazelab.experiments.study import options_per_filter as reaching
 from mazelab.experiments.tables import check_trace_path, pyplot
 from mazelab.invocation import command_prefix, repeat_command
-from mazelab.maze import DEFAULT_MAZE, Maze, load_maze
 from mazelab.registry import SHIPPED, FilterEntry, entries, filter_entry, is_plugin_spec, resolve_filter
-from mazelab.robot import Robot
-from mazelab.seeding import new_seed, start_place
-from mazelab.simulation import RunResult
 from mazelab.viz.style import DEFAULT_MAX_DRAWN
 from mazelab.viz.targets import Visualization
 
@@ -344,64 +337,12 @@ def refuse_option_as_value(argv: Sequence[str], group: Any) -> None:
             raise UserError(f"{token} needs a value, got the option {following}")
 
 
-# -- a run's summary and progress --------------------------------------------------------------------
-def report_run(result: RunResult) -> None:
-    """A short report of a run: the last step's error, the last-20% error (the mean error over the last
-    20% of the steps, what compare and study report), the convergence step and the seed; the same text for
-    the same seed (timings, which vary, are compare's and bench's)."""
-    errors = result.errors
-    converged = result.converged_at
-    when = f"converged at step {converged} (error < 0.5 from then on)" if converged else "not converged"
-    typer.echo(
-        f"{result.filter_name}: last-step error {errors[-1]:.3f}, last-{FINAL_SHARE:.0%} error "
-        f"{final_error(errors):.3f}; {when}; seed {result.seed}"
-    )
-
-
 def repeat_line(what: str, seed: int | None, files: tuple[str, ...], backend: str) -> None:
     """ "Repeat this run" (comparison, study): the command as typed, with its seed and backend, that repeats
     it bit for bit, but not its files (`files`, with their values): a file it wrote would be found taken
     when the line is pasted back ("exists; use --force"), and --force would replace them unasked; a
     resumed study repeats whole (mazelab.invocation.repeat_command)."""
     typer.echo(f"Repeat this {what}: {repeat_command(seed, ('--resume', '--force'), files, backend)}")
-
-
-def progress_printer(steps: int, every: int = 20) -> Any:
-    """A per-step callback that prints the error every `every` steps."""
-
-    def report(k: int, robot: Robot, filt: Any) -> None:
-        if k % every == 0 or k == steps:
-            error = float(np.hypot(*(filt.estimate - np.array(robot.position))))
-            state = "confident" if filt.is_confident else "searching"
-            typer.echo(f"  step {k:4d}/{steps}: error {error:6.3f}  ({state})")
-
-    return report
-
-
-@dataclass
-class RunSetup:
-    """A run's inputs: the maze, the robot, sigma and delta, the initial particles (a replay's; None: drawn
-    from the seed) and the seed."""
-
-    world: Maze
-    robot: Robot
-    sigma: float
-    delta: float
-    initial_particles: Any
-    seed: int
-
-
-def fresh_setup(maze: str | None, sigma: float | None, delta: float | None, seed: int | None,
-                start_seed: int | None) -> RunSetup:  # fmt: skip
-    """A fresh lost robot: the maze (default the lab's), its start drawn from the seed (new if none)."""
-    world = load_maze(maze or DEFAULT_MAZE)
-    sigma = DEFAULT_SIGMA if sigma is None else sigma
-    delta = DEFAULT_DELTA if delta is None else delta
-    seed = new_seed() if seed is None else seed
-    if start_seed is not None and start_seed != seed:
-        warnings.warn(f"--start-seed {start_seed} differs from --seed {seed}: repeat with both", stacklevel=1)
-    robot = Robot(sigma, delta, start_place(world, seed if start_seed is None else start_seed))
-    return RunSetup(world, robot, sigma, delta, None, seed)
 
 
 # -- the filters' options, from their declarations ----------------------------------------------------

@@ -1,11 +1,14 @@
-"""`run` and `compare` (lab steps 9-13): one filter on a fresh lost robot or a saved scenario replayed
-(`RunSetup`: `replay_setup` says what flags override), and every filter on one saved scenario; a replay
+"""The demo, `run` and `compare` (lab steps 9-13): one filter on a fresh lost robot or a saved scenario
+replayed (`RunSetup`: `replay_setup` says what flags override), and every filter on one saved scenario; a replay
 takes the scenario's filter and options (`replay_filter_name`, `replay_options`: a plug-in's run replays
 only when the user names the plug-in, a scenario never imports code); their reports and files."""
 
 from __future__ import annotations
 
+import shlex
+import warnings
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -15,39 +18,36 @@ import typer
 from mazelab.atomic import write_text_atomically
 from mazelab.cli.maze import prepare_world
 from mazelab.cli.options import (
-    DEFAULT_DELTA,
-    DEFAULT_SIGMA,
     GivenOptions,
-    RunSetup,
     UserError,
     check_filter_name,
     check_filter_names,
     check_outputs,
-    fresh_setup,
     given_options,
     options_per_filter,
-    progress_printer,
     repeat_line,
-    report_run,
     visualization,
 )
+from mazelab.constants import DEFAULT_DELTA, DEFAULT_PARTICLE_COUNT, DEFAULT_SIGMA, DEFAULT_STEPS
 from mazelab.declaration import show_value, to_plain_json
 from mazelab.experiments.journal import Recorder, record_path
 from mazelab.experiments.runs import (
+    FINAL_SHARE,
     comparison_table,
     errors_csv,
+    final_error,
     plot_errors,
     recovery_steps,
     run_figures,
     take_startup_seconds,
 )
 from mazelab.experiments.tables import compare_traces, write_traces
-from mazelab.invocation import command_line
-from mazelab.maze import Maze, load_maze, mazes_fitting
-from mazelab.model import DEFAULT_STEPS
+from mazelab.invocation import command_line, command_prefix
+from mazelab.maze import DEFAULT_MAZE, Maze, find_maze, load_maze, mazes_fitting
 from mazelab.registry import FilterEntry, file_sha256, filter_entry, resolve_filter
+from mazelab.robot import Robot
 from mazelab.scenario import Scenario, check_measurements_within, find_scenario, load_scenario, save_scenario
-from mazelab.seeding import new_seed
+from mazelab.seeding import new_seed, start_place
 from mazelab.simulation import RunResult, check_walk
 
 
@@ -92,6 +92,25 @@ def run_one(maze: str | None, filter_name: str | None, particles: int | None, st
     repeat_line("run", result.seed, ("--save-scenario", "--rrd"), result.extras["backend"])
 
 
+def run_demo(drawing: dict[str, Any], force: bool) -> None:
+    """The demo's work (mazelab.cli.app): the paper's example, `run`'s fresh lost robot with every default."""
+    from mazelab.simulation import simulate  # imported by the commands that run one filter
+
+    visualize = visualization(**drawing, force=force)
+    check_outputs([("--rrd", drawing.get("rrd"))], force)
+    setup = fresh_setup(None, None, None, None, None)  # `run`'s: the lab's maze, sigma and delta, a new seed
+    world = setup.world
+    typer.echo(
+        f"A robot is lost in {find_maze(DEFAULT_MAZE).name} ({world.height}x{world.width}, "
+        f"{len(world.stations)} stations); SIR with {DEFAULT_PARTICLE_COUNT} particles looks for it."
+    )
+    result = simulate(setup.robot, world, setup.sigma, setup.delta, DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS,
+                      seed=setup.seed, visualize=visualize, on_step=progress_printer(DEFAULT_STEPS))  # fmt: skip
+    report_run(result)
+    words = ["run", "--seed", str(setup.seed), "--backend", result.extras["backend"]]
+    typer.echo(f"Repeat this run: {command_prefix()} {shlex.join(words)}")
+
+
 def compare_scenario(
     scenario: Path, filters: str, maze: str | None, sigma: float | None, delta: float | None, seed: int | None,
     csv_path: Path | None, plot: Path | None, traces: Path | None, force: bool, kidnap_at: int | None,
@@ -126,6 +145,58 @@ def compare_scenario(
     report_compare(results, setup, recorder, title, kld=bool(given.get("kld")), force=force, **files)
     backend = next(iter(results.values())).extras["backend"]
     repeat_line("comparison", setup.seed, ("--csv", "--plot", "--traces", "--rrd"), backend)
+
+
+# -- a run's inputs, summary and progress ---------------------------------------------------------------
+def report_run(result: RunResult) -> None:
+    """A short report of a run: the last step's error, the last-20% error (the mean error over the last
+    20% of the steps, what compare and study report), the convergence step and the seed; the same text for
+    the same seed (timings, which vary, are compare's and bench's)."""
+    errors = result.errors
+    converged = result.converged_at
+    when = f"converged at step {converged} (error < 0.5 from then on)" if converged else "not converged"
+    typer.echo(
+        f"{result.filter_name}: last-step error {errors[-1]:.3f}, last-{FINAL_SHARE:.0%} error "
+        f"{final_error(errors):.3f}; {when}; seed {result.seed}"
+    )
+
+
+def progress_printer(steps: int, every: int = 20) -> Any:
+    """A per-step callback that prints the error every `every` steps."""
+
+    def report(k: int, robot: Robot, filt: Any) -> None:
+        if k % every == 0 or k == steps:
+            error = float(np.hypot(*(filt.estimate - np.array(robot.position))))
+            state = "confident" if filt.is_confident else "searching"
+            typer.echo(f"  step {k:4d}/{steps}: error {error:6.3f}  ({state})")
+
+    return report
+
+
+@dataclass
+class RunSetup:
+    """A run's inputs: the maze, the robot, sigma and delta, the initial particles (a replay's; None: drawn
+    from the seed) and the seed."""
+
+    world: Maze
+    robot: Robot
+    sigma: float
+    delta: float
+    initial_particles: Any
+    seed: int
+
+
+def fresh_setup(maze: str | None, sigma: float | None, delta: float | None, seed: int | None,
+                start_seed: int | None) -> RunSetup:  # fmt: skip
+    """A fresh lost robot: the maze (default the lab's), its start drawn from the seed (new if none)."""
+    world = load_maze(maze or DEFAULT_MAZE)
+    sigma = DEFAULT_SIGMA if sigma is None else sigma
+    delta = DEFAULT_DELTA if delta is None else delta
+    seed = new_seed() if seed is None else seed
+    if start_seed is not None and start_seed != seed:
+        warnings.warn(f"--start-seed {start_seed} differs from --seed {seed}: repeat with both", stacklevel=1)
+    robot = Robot(sigma, delta, start_place(world, seed if start_seed is None else start_seed))
+    return RunSetup(world, robot, sigma, delta, None, seed)
 
 
 def replay_setup(stored: Scenario, maze: str | None, sigma: float | None, delta: float | None,
