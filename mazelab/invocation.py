@@ -78,39 +78,38 @@ def remember_arguments(argv: list[str] | None) -> None:
     _ARGUMENTS.set(list(argv) if argv is not None else sys.argv[1:])
 
 
+def _typed() -> list[str]:
+    """The command's arguments as typed (kept by `remember_arguments`, else the process's)."""
+    return list(_ARGUMENTS.get() or sys.argv[1:])
+
+
 def command_line() -> list[str]:
     """The command as typed: the program's name, then every argument."""
-    arguments = _ARGUMENTS.get()
     program = Path(sys.argv[0]).name if sys.argv and sys.argv[0] else "mazelab"
-    return ["mazelab" if program in ("", "-c", "__main__.py") else program, *(arguments or sys.argv[1:])]
+    return ["mazelab" if program in ("", "-c", "__main__.py") else program, *_typed()]
 
 
 def resume_command() -> str:
     """The command as typed, with --resume, written to be pasted back (see mazelab.invocation)."""
-    arguments = list(_ARGUMENTS.get() or sys.argv[1:])
-    if "--resume" not in arguments:
-        arguments.append("--resume")
-    return f"{command_prefix()} {shlex.join(arguments)}"
+    arguments = _typed()
+    return f"{command_prefix()} {shlex.join(arguments if '--resume' in arguments else [*arguments, '--resume'])}"
 
 
-def repeat_command(
-    seed: int | None, drop: tuple[str, ...] = ("--resume",), drop_with_value: tuple[str, ...] = (),
-    backend: str | None = None,
-) -> str:  # fmt: skip
+def repeat_command(seed: int | None, files: tuple[str, ...] = (), backend: str | None = None) -> str:
     """The command as typed with its seed given (`--seed S` set, or replaced) and the backend it ran on
-    (`--backend B`, unless typed), to be pasted back: the same run or study again, bit for bit. Flags in
-    `drop` are left out (a resumed study repeats whole), and so are the options in `drop_with_value` with
-    their values (a file the run wrote, which the pasted command would find taken)."""
-    arguments, kept, skip = list(_ARGUMENTS.get() or sys.argv[1:]), [], False
-    valued = ("--seed", *drop_with_value)
-    for token in arguments:
+    (`--backend B`, unless typed), to be pasted back: the same run or study again, bit for bit. Left out:
+    --resume and --force (a resumed study repeats whole; --force would replace files unasked), and the
+    options in `files` with their values (a file the run wrote, which the pasted command would find taken)."""
+    kept, skip = [], False
+    valued = ("--seed", *files)
+    for token in _typed():
         if skip:
             skip = False
             continue
         if token in valued:
             skip = True
             continue
-        if token.startswith(tuple(f"{option}=" for option in valued)) or token in drop:
+        if token.startswith(tuple(f"{option}=" for option in valued)) or token in ("--resume", "--force"):
             continue
         kept.append(token)
     if seed is not None:

@@ -338,11 +338,9 @@ def refuse_option_as_value(argv: Sequence[str], group: Any) -> None:
 
 
 def repeat_line(what: str, seed: int | None, files: tuple[str, ...], backend: str) -> None:
-    """ "Repeat this run" (comparison, study): the command as typed, with its seed and backend, that repeats
-    it bit for bit, but not its files (`files`, with their values): a file it wrote would be found taken
-    when the line is pasted back ("exists; use --force"), and --force would replace them unasked; a
-    resumed study repeats whole (mazelab.invocation.repeat_command)."""
-    typer.echo(f"Repeat this {what}: {repeat_command(seed, ('--resume', '--force'), files, backend)}")
+    """ "Repeat this run" (comparison, study): the command that repeats it bit for bit, but not its files
+    (mazelab.invocation.repeat_command)."""
+    typer.echo(f"Repeat this {what}: {repeat_command(seed, files, backend)}")
 
 
 # -- the filters' options, from their declarations ----------------------------------------------------
