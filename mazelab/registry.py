@@ -33,14 +33,12 @@ from mazelab.kalman import ExtendedKalmanFilter
 from mazelab.stops import describe_exit, is_users_stop, student_line, working_folder_kept
 
 # -- a student's own filter as a plug-in: `path/to/my_filter.py:MyFilter` wherever a filter name goes
-_loaded: dict[tuple[str, int, str], type] = {}  # (file, modification time, class) -> the class
 _by_name: dict[str, type] = {}  # the loaded plug-ins by their `name`, for the names results carry
 
 
 def is_plugin_spec(text: str) -> bool:
     """Whether `text` names a file's class (`file.py:Class`) or a file (`file.py`), not a shipped filter."""
-    path = text.rsplit(":", 1)[0] if ":" in text and not text.endswith(".py") else text
-    return path.strip().endswith(".py")
+    return str(split_spec(text)[0]).strip().endswith(".py")
 
 
 def split_spec(spec: str) -> tuple[Path, str | None]:
@@ -125,8 +123,7 @@ def load_plugin(spec: str) -> type:
     shown = f"{path}:{class_name}" if class_name else str(path)
     if not path.is_file():
         raise ValueError(f"{shown}: no such file {path}" + ("" if path.exists() else " (check the path)"))
-    resolved = path.resolve()
-    module = _import_file(resolved, path)
+    module = _import_file(path.resolve(), path)  # imported once per version of the file
     if class_name is None:
         classes = [c for c in vars(module).values() if _defined_filter(c, module)]
         if len(classes) != 1:
@@ -134,9 +131,6 @@ def load_plugin(spec: str) -> type:
             raise ValueError(f"{path}: name the filter class as {path}:ClassName (filter classes found: {found})")
         class_name = classes[0].__name__
         shown = f"{path}:{class_name}"
-    key = (str(resolved), resolved.stat().st_mtime_ns, class_name)
-    if key in _loaded:
-        return _loaded[key]
     cls = getattr(module, class_name, None)
     defined = ", ".join(n for n, c in vars(module).items() if isinstance(c, type) and c.__module__ == module.__name__)
     if not isinstance(cls, type):
@@ -152,7 +146,6 @@ def load_plugin(spec: str) -> type:
             f"{shown}: class {class_name} does not meet the filter contract: it has no {', '.join(missing)}"
         )
     check_declared_defaults(cls, shown)
-    _loaded[key] = cls
     _by_name[cls.name] = cls
     return cls
 
