@@ -404,7 +404,9 @@ class Options(Mapping[str, Option]):
         ValueError
             One line: an undeclared option, a bad value, or a combination the declaration's `check` refuses.
         """
-        self._refuse_undeclared(given, owner)
+        for name in given:
+            if name not in self._by_name:
+                raise ValueError(f"{owner} does not take the option {name} (it takes: {_taken(self)})")
         values = {o.name: o.validate(given[o.name]) if o.name in given else o.default for o in self.declared}
         if self.check is not None:
             self.check(values)
@@ -458,24 +460,17 @@ class Options(Mapping[str, Option]):
         ValueError
             One line naming the option and the problem.
         """
-        self._refuse_undeclared(stored, owner)
         values = {}
         for name, value in stored.items():
-            option = self._by_name[name]
+            option = self._by_name.get(name, Option(name, None, "undeclared"))  # refused by `resolve` below
             if option.derived:
                 raise ValueError(f"{owner} option {name} is handed in by the run itself, not stored")
             try:
                 values[name] = option.from_json(value)
             except (TypeError, ValueError) as error:
                 raise ValueError(f"{owner} option {name}: {error}") from None
-        self.resolve(values, owner)  # each value and their combination, checked as the constructor checks them
+        self.resolve(values, owner)  # names, values and their combination checked as the constructor checks them
         return values
-
-    def _refuse_undeclared(self, given: Mapping[str, Any], owner: str) -> None:
-        """Refuse the first option of `given` that is not declared, naming what `owner` takes."""
-        for name in given:
-            if name not in self._by_name:
-                raise ValueError(f"{owner} does not take the option {name} (it takes: {_taken(self)})")
 
 
 def _taken(options: Options) -> str:
