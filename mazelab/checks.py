@@ -97,10 +97,15 @@ def as_point(name: str, value: Any) -> tuple[float, float]:
     return coordinate(f"{name} x", x), coordinate(f"{name} y", y)
 
 
-def step_number(name: str, value: Any) -> int:
-    """A whole step number >= 1, or a clear ValueError."""
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-        raise ValueError(f"{name} must be a step number >= 1, got {value!r}")
+def is_whole(value: Any) -> bool:
+    """Whether a value is a whole number: a Python or numpy integer, not True or False."""
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+
+
+def step_number(name: str, value: Any, what: str = "a step number") -> int:
+    """A whole number >= 1 (a step number, a count: `what`, for the message), or a clear ValueError."""
+    if not is_whole(value) or value < 1:
+        raise ValueError(f"{name} must be {what} >= 1, got {value!r}")
     return int(value)
 
 
@@ -180,7 +185,7 @@ def check_kld_numbers(epsilon: Any, z: Any) -> tuple[float, float]:
 
 def check_seed(name: str, value: Any) -> int:
     """A seed: a whole number in [0, MAX_SEED) (1.5 or True are refused, not rounded), or a ValueError."""
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+    if not is_whole(value):
         raise ValueError(f"{name} must be a whole number >= 0, got {value!r}")
     if not 0 <= value < MAX_SEED:
         shown = f"{value}" if abs(value) < 10**40 else "a number of more than 40 digits"
@@ -292,12 +297,11 @@ def particle_count(value: Any, source: str = "particle_count", given: int | None
     """
     if value is None:
         value = DEFAULT_PARTICLE_COUNT if given is None else given
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-        raise ValueError(f"{source} must be a whole number >= 1, got {value!r}")
+    value = step_number(source, value, "a whole number")
     if given is not None and value != given:
         raise ValueError(f"{source} is {value!r} but {given} initial particles are given")
-    check_particles(int(value))
-    return int(value)
+    check_particles(value)
+    return value
 
 
 def check_recording(particles: int, steps: int, max_drawn: int, budget: MemoryBudget | None = None) -> None:
@@ -318,10 +322,9 @@ def check_recording(particles: int, steps: int, max_drawn: int, budget: MemoryBu
 
 def check_steps(steps: Any) -> int:
     """A run's step count: a whole number >= 1 whose per-step results fit in memory, else one line."""
-    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
-        raise ValueError(f"steps must be a whole number >= 1, got {steps!r}")
+    steps = step_number("steps", steps, "a whole number")
     check_memory(f"steps {steps}", steps * BYTES_PER_STEP)
-    return int(steps)
+    return steps
 
 
 def check_study(runs: int, filters: int) -> None:

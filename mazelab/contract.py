@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from mazelab.checks import is_whole
 from mazelab.declaration import options_of
 
 # -- what a filter has to draw ---------------------------------------------------------------------
@@ -139,9 +140,9 @@ def check_filter(filt: Any) -> None:
     Parameters
     ----------
     filt : object
-        A filter just built, before its first step: its parts are there, `reinitialised_at` is a list
-        of step numbers and `count` a whole number >= 1 (estimate, ess and is_confident are checked
-        where they are read, after each step: `check_step_values`).
+        A filter just built, before its first step: its parts are there and `reinitialised_at` is a
+        list of step numbers (estimate, ess, is_confident and count are checked where they are read,
+        after each step: `check_step_values`).
 
     Raises
     ------
@@ -154,13 +155,10 @@ def check_filter(filt: Any) -> None:
     if missing:
         raise ContractError(f"{name} does not meet the filter contract: it has no {', '.join(missing)}")
     restarts = filt.reinitialised_at
-    if not isinstance(restarts, (list, tuple)) or not all(_whole(s) for s in restarts):
+    if not isinstance(restarts, (list, tuple)) or not all(is_whole(s) for s in restarts):
         raise ContractError(
             f"{name}.reinitialised_at must be a list of step numbers (whole numbers), got {_shown(restarts)}"
         )
-    count = filt.count
-    if not _whole(count) or count < 1:
-        raise ContractError(f"{name}.count must be a whole number >= 1, got {_shown(count)}")
 
 
 def check_step_values(
@@ -204,7 +202,7 @@ def check_step_values(
         ess = float(ess)
         if not isinstance(confident, (bool, np.bool_)):
             raise ContractError(f"{name}.is_confident must be True or False, got {_shown(confident)}")
-    if not _whole(count) or count < 1:
+    if not is_whole(count) or count < 1:
         raise ContractError(f"{name}.count must be a whole number >= 1, got {_shown(count)}")
     return estimate, ess, confident, int(count)
 
@@ -219,10 +217,6 @@ def _has(filt: Any, attribute: str) -> bool:
     except AttributeError:
         return False
     return True
-
-
-def _whole(value: Any) -> bool:
-    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
 
 
 def _shown(value: Any) -> str:
