@@ -49,17 +49,8 @@ def _uv_project(environ: Mapping[str, str], cwd: Path | None) -> str | None:
     if "UV" not in environ:
         return None
     cwd = Path.cwd() if cwd is None else cwd
-    outside = (PROJECT_DIR / "pyproject.toml").is_file() and not _inside(cwd, PROJECT_DIR)
+    outside = (PROJECT_DIR / "pyproject.toml").is_file() and not cwd.resolve().is_relative_to(PROJECT_DIR)
     return f"--project {shlex.quote(str(PROJECT_DIR))} " if outside else ""
-
-
-def _inside(folder: Path, root: Path) -> bool:
-    """Whether `folder` is `root` or lies below it."""
-    try:
-        folder.resolve().relative_to(root)
-    except ValueError:
-        return False
-    return True
 
 
 def _same_file(a: str, b: str) -> bool:

@@ -565,7 +565,7 @@ def options_listing(entry: FilterEntry) -> str:
     options = entry.options.settable()
     head = f"{entry.label} ({entry.name}): {entry.help}" if entry.label != entry.name else f"{entry.name}: {entry.help}"
     if entry.plugin is not None:
-        head += f"\n  from {entry.plugin.spec} (sha256 {entry.plugin.sha256[:12]}...)"
+        head += f"\n  from {entry.plugin.describe()}"
     if not options:
         return f"{head}\n  it declares no options"
     rows = [(o.name, show_value(o.default), o.help + (f" [{o.flag}]" if o.flag else "")) for o in options]
