@@ -415,17 +415,13 @@ def read_value(option: Option, text: str, spelled: str) -> Any:
         return value
     except ValueError as error:
         message = str(error).removeprefix(f"option {option.name}: ")
-        raise UserError(f"{spelled}: {message}{_list_hint(option, text)}") from None
-
-
-def _list_hint(option: Option, text: str) -> str:
-    """'; ...' when `text` reads as a list of values of `option` (V1,V2), else nothing."""
     try:
         for part in text.split(","):
             option.validate(option.parse_text(part))
+        hint = f"; a list of values is for mazelab study (study --option {option.name}={text})" if "," in text else ""
     except ValueError:
-        return ""
-    return f"; a list of values is for mazelab study (study --option {option.name}={text})" if "," in text else ""
+        hint = ""
+    raise UserError(f"{spelled}: {message}{hint}")
 
 
 OptionFlag = opt(list[str] | None, "--option", metavar="NAME=VALUE", show_default=False,
