@@ -124,21 +124,22 @@ def load_plugin(spec: str) -> type:
     if not path.is_file():
         raise ValueError(f"{shown}: no such file {path}" + ("" if path.exists() else " (check the path)"))
     module = _import_file(path.resolve(), path)  # imported once per version of the file
+    own = {n: c for n, c in vars(module).items() if isinstance(c, type) and c.__module__ == module.__name__}
+    defined = ", ".join(own) or "no classes"
     if class_name is None:
-        classes = [c for c in vars(module).values() if _defined_filter(c, module)]
+        classes = [c for c in own.values() if not missing_parts(c)]
         if len(classes) != 1:
             found = ", ".join(c.__name__ for c in classes) or "none"
             raise ValueError(f"{path}: name the filter class as {path}:ClassName (filter classes found: {found})")
         class_name = classes[0].__name__
         shown = f"{path}:{class_name}"
     cls = getattr(module, class_name, None)
-    defined = ", ".join(n for n, c in vars(module).items() if isinstance(c, type) and c.__module__ == module.__name__)
     if not isinstance(cls, type):
-        raise ValueError(f"{shown}: {path} has no class {class_name!r} (it defines: {defined or 'no classes'})")
+        raise ValueError(f"{shown}: {path} has no class {class_name!r} (it defines: {defined})")
     if cls.__module__ != module.__name__ and is_lab_class(cls):
         raise ValueError(
             f"{shown}: {class_name} is the lab's own class, which {path.name} imports; name the class you wrote "
-            f"(it defines: {defined or 'no classes'})"
+            f"(it defines: {defined})"
         )
     missing = missing_parts(cls)
     if missing:
@@ -176,10 +177,6 @@ def is_lab_class(cls: type) -> bool:
 def loaded_plugin(name: str) -> type | None:
     """A plug-in already loaded in this process, by its `name` (what results and tables carry)."""
     return _by_name.get(name)
-
-
-def _defined_filter(value: object, module: ModuleType) -> bool:
-    return isinstance(value, type) and value.__module__ == module.__name__ and not missing_parts(value)
 
 
 def _import_file(resolved: Path, shown: Path) -> ModuleType:
