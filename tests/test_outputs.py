@@ -1,4 +1,4 @@
-"""One file per output (mazelab.cli.options.check_one_file_each): two outputs of `study`, `compare` or
+"""One file per output (mazelab.cli.options.check_outputs): two outputs of `study`, `compare` or
 `accuracy` that are one file, by name, through a symlink or as a hard link, are refused in one line
 (exit 2) before any run, with nothing written. Real processes for the commands, real links."""
 

@@ -155,11 +155,22 @@ def check_output_path(path: Path, force: bool) -> None:
 
 
 def check_outputs(outputs: Sequence[tuple[str, Path | None]], force: bool, apart: str = "") -> None:
-    """Check a command's outputs, (what the user calls each, its path or None), before any run: two that
-    are one file refused first (check_one_file_each), then each as check_output_path does (but the one
-    named `apart`, a journal, checked by its owner), a --plot in a format matplotlib draws (matplotlib
-    there) and --traces in one this program writes (.csv, .parquet)."""
-    check_one_file_each(outputs)
+    """Check a command's outputs, (what the user calls each, its path or None), before any run: first that
+    no two are one file (the same path once links are resolved, `./s.csv` and `s.csv` or a symlink to
+    another output, or two names of one existing file, a hard link), then each as check_output_path does
+    (but the one named `apart`, a journal, checked by its owner), a --plot in a format matplotlib draws
+    (matplotlib there) and --traces in one this program writes (.csv, .parquet)."""
+    seen: list[tuple[str, Path, str, tuple[int, int] | None]] = []
+    for name, path in ((name, Path(path)) for name, path in outputs if path is not None):
+        real, inode = os.path.realpath(path), None
+        with contextlib.suppress(OSError):  # missing (the usual case for a new output), a loop, no permission
+            status = os.stat(real)
+            inode = (status.st_dev, status.st_ino)
+        for name_a, path_a, real_a, inode_a in seen:
+            if real == real_a or (inode is not None and inode == inode_a):
+                same = f"{path_a}" if str(path_a) == str(path) else f"{path_a} and {path}"
+                raise UserError(f"{name_a} and {name} are one file ({same}): give each output a name of its own")
+        seen.append((name, path, real, inode))
     for name, path in outputs:
         if path is not None and name != apart:
             check_output_path(path, force)
@@ -174,24 +185,6 @@ def check_outputs(outputs: Sequence[tuple[str, Path | None]], force: bool, apart
             raise UserError(f"--plot {plot}: cannot draw .{suffix} files; use one of .{', .'.join(sorted(formats))}")
     if dict(outputs).get("--traces") is not None:
         check_trace_path(dict(outputs)["--traces"])
-
-
-def check_one_file_each(outputs: Sequence[tuple[str, Path | None]]) -> None:
-    """Refuse (one line) the first two of `outputs`, (what the user calls it, its path or None), that
-    are one file: the same path once links are resolved (`./s.csv` and `s.csv`, a symlink to another
-    output), or two names of one existing file (a hard link, the same device and inode). Checked before
-    any run."""
-    seen: list[tuple[str, Path, str, tuple[int, int] | None]] = []
-    for name, path in ((name, Path(path)) for name, path in outputs if path is not None):
-        real, inode = os.path.realpath(path), None
-        with contextlib.suppress(OSError):  # missing (the usual case for a new output), a loop, no permission
-            status = os.stat(real)
-            inode = (status.st_dev, status.st_ino)
-        for name_a, path_a, real_a, inode_a in seen:
-            if real == real_a or (inode is not None and inode == inode_a):
-                same = f"{path_a}" if str(path_a) == str(path) else f"{path_a} and {path}"
-                raise UserError(f"{name_a} and {name} are one file ({same}): give each output a name of its own")
-        seen.append((name, path, real, inode))
 
 
 # -- values ---------------------------------------------------------------------------------------------
