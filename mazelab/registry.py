@@ -101,13 +101,6 @@ def file_sha256(path: str | Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
-def plugin_reference(spec: str, filter_class: type) -> PluginReference:
-    """The reference of a plug-in loaded from `spec` (its class already loaded)."""
-    path = Path(inspect.getfile(filter_class)).resolve()
-    written = split_spec(spec)[0]
-    return PluginReference(f"{written}:{filter_class.__name__}", file_sha256(path), filter_class.__name__, str(path))
-
-
 def load_plugin(spec: str) -> type:
     """The class of a plug-in spec `path/to/file.py:ClassName` (or `file.py` holding one filter class),
     the file imported under a module name of its own, so that two files that both define `MyFilter`
@@ -467,7 +460,9 @@ def filter_entry(name: str | type) -> FilterEntry:
     text = str(name).strip()
     if is_plugin_spec(text):  # loaded once per process; one line naming the file, the class and what is wrong
         filter_class = load_plugin(text)
-        return _entry_of_class(filter_class, plugin_reference(text, filter_class))
+        class_name, path = filter_class.__name__, Path(inspect.getfile(filter_class)).resolve()
+        plugin = PluginReference(f"{split_spec(text)[0]}:{class_name}", file_sha256(path), class_name, str(path))
+        return _entry_of_class(filter_class, plugin)
     shipped = shipped_entry(text)
     if shipped is not None:
         return shipped
