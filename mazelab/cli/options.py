@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import inspect
+import itertools
 import os
 import re
 import shlex
@@ -283,8 +284,10 @@ def usage_hint(error: Exception, argv: Sequence[str] = ()) -> str:
     message = format_message() if callable(format_message) else str(error)
     args = list(argv)
     name = getattr(getattr(error, "param", None), "opts", None)
-    if name and "valid number" in message:
-        decimal = decimal_comma(_value_of(args, name) or "")
+    if name and "valid number" in message:  # the option's value as typed: --sigma 0,3 or --sigma=0,3
+        values = [after for before, after in itertools.pairwise(args) if before in name]
+        values += [token.split("=", 1)[1] for token in args if token.split("=", 1)[0] in name and "=" in token]
+        decimal = next((decimal for decimal in map(decimal_comma, values) if decimal is not None), None)
         if decimal is not None:
             return f"; write {decimal} (a decimal point, not a comma)"
     extra = re.search(r"unexpected extra argument(?:s|\(s\))? \((.+)\)", message)
@@ -298,17 +301,6 @@ def usage_hint(error: Exception, argv: Sequence[str] = ()) -> str:
         if command in ARGUMENT_EXAMPLES:
             return f"; e.g. {command_prefix()} {ARGUMENT_EXAMPLES[command]}"
     return ""
-
-
-def _value_of(args: list[str], names: Sequence[str]) -> str | None:
-    """The value given to an option in argv (`--sigma 0,3` or `--sigma=0,3`), or None."""
-    for index, token in enumerate(args):
-        for name in names:
-            if token == name and index + 1 < len(args):
-                return args[index + 1]
-            if token.startswith(name + "="):
-                return token[len(name) + 1 :]
-    return None
 
 
 def refuse_option_as_value(argv: Sequence[str], group: Any) -> None:
