@@ -190,8 +190,7 @@ def recording_problem(path: Path) -> str | None:
     from rerun.chunk import RrdReader
 
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # "no footer/manifest": a file without an end marker, refused below
+        with warnings.catch_warnings(action="ignore"):  # "no footer/manifest": no end marker, refused below
             reader = RrdReader(path)
             recordings = reader.recordings()
             if not recordings:
@@ -203,8 +202,7 @@ def recording_problem(path: Path) -> str | None:
     except Exception:
         return "not a whole Rerun recording: something follows the end of the recording, or it was cut short"
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
+        with warnings.catch_warnings(action="ignore"):
             for entry in [*recordings, *reader.blueprints()]:  # every chunk decoded, as sending it will
                 collections.deque(reader.stream(store=entry), maxlen=0)
     except Exception:  # a frame damaged in the middle: its checksum or its compressed data does not decode
@@ -237,8 +235,7 @@ def replay_with_layout(path: Path, connect: Callable[[Any], None]) -> None:
     import rerun as rr
     from rerun.chunk import RrdReader
 
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
+    with warnings.catch_warnings(action="ignore"):
         reader = RrdReader(path)
         blueprints = {entry.application_id: entry for entry in reader.blueprints()}  # the last of each application
         for entry in reader.recordings():
