@@ -1,15 +1,24 @@
 """The command-line interface (typer): `python main.py ...` or `mazelab ...` from any folder. Without a
 command, `demo`: the paper's example (a lost robot, SIR, 1500 particles, 200 steps); the commands are
-registered below, each with the one line `mazelab --help` shows, and `main` turns errors into one line."""
+registered below, each with the one line `mazelab --help` shows, with `mazelab filters [NAME]` (the
+registry's filters, and the options each declares); `main` turns errors into one line that names the fix
+(`usage_hint`, `option_elsewhere`)."""
 
 from __future__ import annotations
 
+import itertools
+import re
+import shlex
 import signal
 import sys
+import textwrap
+import warnings
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import typer
+import typer.core
 
 from mazelab.atomic import WriteError
 from mazelab.cli.exercise import exercise_app
@@ -23,15 +32,9 @@ from mazelab.cli.options import (
     ThreadsOption,
     UserError,
     arg,
-    filter_choices,
-    filters,
-    one_line_warnings,
+    check_filter_name,
     opt,
-    option_elsewhere,
-    plain_usage_names,
-    refuse_option_as_value,
     seed_option,
-    usage_hint,
     with_drawing,
     with_option_flags,
 )
@@ -39,11 +42,20 @@ from mazelab.cli.recordings import recordings, view
 from mazelab.cli.smoothing import learn, smooth
 from mazelab.cli.study import accuracy, study
 from mazelab.constants import DEFAULT_DELTA, DEFAULT_PARTICLE_COUNT, DEFAULT_SIGMA, DEFAULT_STEPS
+from mazelab.declaration import decimal_comma, show_value
 from mazelab.experiments.journal import package_version, program_versions
-from mazelab.invocation import remember_arguments
+from mazelab.invocation import command_prefix, remember_arguments
 from mazelab.maze import DEFAULT_MAZE, MazeError, load_maze
+from mazelab.registry import FilterEntry, entries, filter_entry
 from mazelab.stops import STOP_SIGNALS, StudentCodeError, exit_without_strays, mark_interrupts
 from mazelab.viz.recording import deferred_to_the_end
+
+
+def filter_choices(many: bool = False) -> str:
+    """The help's list of filters, from the registry: 'sir, apf, rpf, grid, ekf, or FILE.py:Class'."""
+    names = ", ".join(e.short_name for e in entries())
+    return f"{names}, FILE.py:Class, comma-separated" if many else f"{names}, or FILE.py:Class"
+
 
 app = typer.Typer(
     add_completion=False,
@@ -135,6 +147,55 @@ def compare(scenario: SavedScenario, filters: Filters = "sir,apf,rpf", maze: Sto
     compare_scenario(**locals())
 
 
+# -- `mazelab filters [NAME]` ----------------------------------------------------------------------------
+WIDTH = 100  # columns of the listing
+
+
+def filters(name: arg(str | None, "[NAME]", "one filter: sir, apf, rpf, grid, ekf or FILE.py:Class") = None) -> None:
+    """The filters, or one filter's options: name, default, the flag that sets it, what it does.
+    Every option is set with --option NAME=VALUE on run, compare and study."""
+    if name is None:
+        typer.echo(registry_listing())
+    else:
+        typer.echo(options_listing(filter_entry(check_filter_name(name, "filters"))))
+
+
+def registry_listing() -> str:
+    """One line per shipped filter: short name, label, help, what it can do."""
+    lines = ["filter  label  what it is"]
+    for entry in entries():
+        can = ["particles" if entry.takes_particles else "no particles", *(["runs batched"] if entry.batched else [])]
+        lines.append(f"{entry.short_name:<6}  {entry.label:<5}  {entry.help} ({', '.join(can)})")
+    lines += [
+        "",
+        "Your own: --filter FILE.py:Class (see `mazelab exercise new`); its options: mazelab filters FILE.py:Class",
+        "One filter's options: mazelab filters rpf",
+    ]
+    return "\n".join(lines)
+
+
+def options_listing(entry: FilterEntry) -> str:
+    """A filter's declared options: name, default, flag, help (wrapped to WIDTH columns)."""
+    options = entry.options.settable()
+    head = f"{entry.label} ({entry.name}): {entry.help}" if entry.label != entry.name else f"{entry.name}: {entry.help}"
+    if entry.plugin is not None:
+        head += f"\n  from {entry.plugin.describe()}"
+    if not options:
+        return f"{head}\n  it declares no options"
+    rows = [(o.name, show_value(o.default), o.help + (f" [{o.flag}]" if o.flag else "")) for o in options]
+    widths = [max(len(row[i]) for row in [("option", "default", ""), *rows]) for i in range(2)]
+    indent = 2 + widths[0] + 2 + widths[1] + 2
+    lines = [head, f"  {'option'.ljust(widths[0])}  {'default'.ljust(widths[1])}  what it does [its named flag]"]
+    for name, default, text in rows:
+        wrapped = textwrap.wrap(text, max(30, WIDTH - indent)) or [""]
+        lines.append(f"  {name.ljust(widths[0])}  {default.ljust(widths[1])}  {wrapped[0]}")
+        lines += [" " * indent + more for more in wrapped[1:]]
+    lines.append(
+        f"  set any of them: --option NAME=VALUE (e.g. --option {options[0].name}={show_value(options[0].default)})"
+    )
+    return "\n".join(lines)
+
+
 app.command(short_help="Lab step 14: a Monte Carlo parameter study.")(study)
 app.command(short_help="The filters, and every option each declares.")(filters)
 app.command(short_help="Every filter against the exact grid posterior.")(accuracy)
@@ -160,6 +221,110 @@ def bench(
     run_benchmark(
         load_maze(DEFAULT_MAZE), quick=quick, echo=typer.echo, backends=None if backend is None else (backend,)
     )
+
+
+# -- errors that name the fix, warnings in one line ------------------------------------------------------
+_warned: set[str] = set()  # this command's warnings so far
+
+
+def one_line_warnings() -> None:
+    """A command's warnings from here on as `warn_in_one_line` prints them, each once in the command: the
+    warnings printed start empty for each command, so an earlier `main(argv)` in the same process
+    (a test) does not silence them."""
+    _warned.clear()
+    warnings.showwarning = warn_in_one_line
+
+
+def warn_in_one_line(message: Warning | str, category: type[Warning], *_args: Any, **_kwargs: Any) -> None:
+    """Warnings (e.g. sigma outside the lab's range) as one line on stderr, each once, no source lines."""
+    if str(message) not in _warned:
+        _warned.add(str(message))
+        typer.echo(f"warning: {message}", err=True)
+
+
+# -- errors that name the fix ----------------------------------------------------------------------------
+def plain_usage_names() -> None:
+    """Usage lines name a required argument as `SCENARIO`, not typer's `{SCENARIO}` (which reads as
+    a placeholder to type with its braces)."""
+    argument = typer.core.TyperArgument
+    if hasattr(argument, "_usage_display_name"):
+
+        def usage_name(self: Any) -> str:
+            name = self.display_name_raw if self.required else f"[{self.display_name_raw}]"
+            return name + ("..." if self.nargs != 1 else "")
+
+        argument._usage_display_name = usage_name
+
+
+def option_elsewhere(error: Exception, group: Any, argv: Sequence[str] = ()) -> str:
+    """For "No such option" at the top level: the commands that take that option, and the command to
+    type instead (`uv run main.py --seed 1` means `run --seed 1`); '' when there is nothing to add."""
+    name = getattr(error, "option_name", None)
+    ctx = getattr(error, "ctx", None)
+    if not name or ctx is None or ctx.command is not group:
+        return ""
+    commands = getattr(group, "commands", {}).items()
+    takers = [command for command, cmd in commands if any(name in p.opts for p in getattr(cmd, "params", []))]
+    if not takers:
+        return ""
+    first = "run" if "run" in takers else takers[0]
+    given = shlex.join(argv) if argv else f"{name} ..."
+    return f"; {name} is an option of {', '.join(takers)}: {command_prefix()} {first} {given}"
+
+
+# what to type for a command's missing argument
+ARGUMENT_EXAMPLES = {
+    "compare": "compare paper_5x5 (a shipped scenario, or a .json saved by run --save-scenario FILE.json)",
+    "view": "view recordings/FILE.rrd",
+    "new": "exercise new my_exercise",
+    "check": "exercise check my_exercise/my_filter.py",
+    "show": "maze show paper_5x5",
+}
+
+
+def usage_hint(error: Exception, argv: Sequence[str] = ()) -> str:
+    """What to add to typer's usage errors so that they name the fix: a decimal comma ("write 0.3"), a
+    list given as several arguments ("--sigma 0.2,0.4"), a missing argument (an example); '' else."""
+    format_message = getattr(error, "format_message", None)
+    message = format_message() if callable(format_message) else str(error)
+    args = list(argv)
+    name = getattr(getattr(error, "param", None), "opts", None)
+    if name and "valid number" in message:  # the option's value as typed: --sigma 0,3 or --sigma=0,3
+        values = [after for before, after in itertools.pairwise(args) if before in name]
+        values += [token.split("=", 1)[1] for token in args if token.split("=", 1)[0] in name and "=" in token]
+        decimal = next((decimal for decimal in map(decimal_comma, values) if decimal is not None), None)
+        if decimal is not None:
+            return f"; write {decimal} (a decimal point, not a comma)"
+    extra = re.search(r"unexpected extra argument(?:s|\(s\))? \((.+)\)", message)
+    if extra:
+        first = extra.group(1).split()[0]
+        at = args.index(first) if first in args else -1
+        if at >= 2 and args[at - 2].startswith("--"):
+            return f"; a list is one argument, comma-separated: {args[at - 2]} {args[at - 1]},{first}"
+    if "Missing argument" in message or "Missing parameter" in message:
+        command = getattr(getattr(error, "ctx", None), "info_name", None)
+        if command in ARGUMENT_EXAMPLES:
+            return f"; e.g. {command_prefix()} {ARGUMENT_EXAMPLES[command]}"
+    return ""
+
+
+def refuse_option_as_value(argv: Sequence[str], group: Any) -> None:
+    """`run --filter --no-viz` would take `--no-viz` as the filter's name: refuse an option that takes a
+    value when what follows it is another option of the same command."""
+    argv = list(argv)
+    command = group
+    for index, token in enumerate(argv):
+        sub = getattr(command, "commands", {}).get(token)  # a subcommand (one level down for groups)
+        if sub is not None:
+            command = sub
+            continue
+        known = {opt for param in getattr(command, "params", []) for opt in param.opts}
+        param = next((p for p in getattr(command, "params", []) if token in p.opts), None)
+        if param is None or getattr(param, "is_flag", True) or index + 1 >= len(argv):
+            continue
+        following = argv[index + 1]
+        if following in known or following.split("=", 1)[0] in known:
+            raise UserError(f"{token} needs a value, got the option {following}")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,37 +1,31 @@
-"""What the commands share: the drawing, backend and output options and their checks, list parsing, the
-one-line errors and the hints that name the fix (`usage_hint`), the line that repeats a command, and
-the filters' options on the command line, read from each filter's declaration (mazelab.declaration): the
-named flags generated from `Option.flag` (`with_option_flags`), `--option NAME=VALUE` (`given_options`)
-and `mazelab filters [NAME]`, so a declared option is taken by every command that runs filters."""
+"""What the commands share: the drawing, backend and output options and their checks, list parsing,
+filter names, the line that repeats a command, and the filters' options on the command line, read from
+each filter's declaration (mazelab.declaration): the named flags generated from `Option.flag`
+(`with_option_flags`) and `--option NAME=VALUE` (`given_options`), so that a declared option is taken by
+every command that runs filters."""
 
 from __future__ import annotations
 
 import contextlib
 import functools
 import inspect
-import itertools
 import os
-import re
-import shlex
-import textwrap
-import warnings
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Annotated, Any
 
 import typer
-import typer.core
 
 from mazelab.atomic import NameTakenError, NotRegularFileError, output_target
 from mazelab.backend import ENVIRONMENT_VARIABLE, THREADS_VARIABLE, check_backend, check_threads
 from mazelab.checks import check_seed
 from mazelab.constants import DEFAULT_DELTA, DEFAULT_SIGMA  # noqa: F401 (mazelab.cli.study reads them here)
-from mazelab.declaration import Option, decimal_comma, not_taken, parse_flag, scoped, show_value
+from mazelab.declaration import Option, decimal_comma, not_taken, parse_flag, scoped
 from mazelab.experiments.study import declared_option
 from mazelab.experiments.study import options_per_filter as reaching
 from mazelab.experiments.tables import check_trace_path, pyplot
-from mazelab.invocation import command_prefix, repeat_command
-from mazelab.registry import SHIPPED, FilterEntry, entries, filter_entry, is_plugin_spec, resolve_filter
+from mazelab.invocation import repeat_command
+from mazelab.registry import SHIPPED, filter_entry, is_plugin_spec, resolve_filter
 from mazelab.viz.style import DEFAULT_MAX_DRAWN
 from mazelab.viz.targets import Visualization
 
@@ -219,109 +213,6 @@ def parse_list(text: str | None, kind: type, option: str) -> list | None:
     return list(dict.fromkeys(values))
 
 
-_warned: set[str] = set()  # this command's warnings so far
-
-
-def one_line_warnings() -> None:
-    """A command's warnings from here on as `warn_in_one_line` prints them, each once in the command: the
-    warnings printed start empty for each command, so an earlier `main(argv)` in the same process
-    (a test) does not silence them."""
-    _warned.clear()
-    warnings.showwarning = warn_in_one_line
-
-
-def warn_in_one_line(message: Warning | str, category: type[Warning], *_args: Any, **_kwargs: Any) -> None:
-    """Warnings (e.g. sigma outside the lab's range) as one line on stderr, each once, no source lines."""
-    if str(message) not in _warned:
-        _warned.add(str(message))
-        typer.echo(f"warning: {message}", err=True)
-
-
-# -- errors that name the fix ----------------------------------------------------------------------------
-def plain_usage_names() -> None:
-    """Usage lines name a required argument as `SCENARIO`, not typer's `{SCENARIO}` (which reads as
-    a placeholder to type with its braces)."""
-    argument = typer.core.TyperArgument
-    if hasattr(argument, "_usage_display_name"):
-
-        def usage_name(self: Any) -> str:
-            name = self.display_name_raw if self.required else f"[{self.display_name_raw}]"
-            return name + ("..." if self.nargs != 1 else "")
-
-        argument._usage_display_name = usage_name
-
-
-def option_elsewhere(error: Exception, group: Any, argv: Sequence[str] = ()) -> str:
-    """For "No such option" at the top level: the commands that take that option, and the command to
-    type instead (`uv run main.py --seed 1` means `run --seed 1`); '' when there is nothing to add."""
-    name = getattr(error, "option_name", None)
-    ctx = getattr(error, "ctx", None)
-    if not name or ctx is None or ctx.command is not group:
-        return ""
-    commands = getattr(group, "commands", {}).items()
-    takers = [command for command, cmd in commands if any(name in p.opts for p in getattr(cmd, "params", []))]
-    if not takers:
-        return ""
-    first = "run" if "run" in takers else takers[0]
-    given = shlex.join(argv) if argv else f"{name} ..."
-    return f"; {name} is an option of {', '.join(takers)}: {command_prefix()} {first} {given}"
-
-
-# what to type for a command's missing argument
-ARGUMENT_EXAMPLES = {
-    "compare": "compare paper_5x5 (a shipped scenario, or a .json saved by run --save-scenario FILE.json)",
-    "view": "view recordings/FILE.rrd",
-    "new": "exercise new my_exercise",
-    "check": "exercise check my_exercise/my_filter.py",
-    "show": "maze show paper_5x5",
-}
-
-
-def usage_hint(error: Exception, argv: Sequence[str] = ()) -> str:
-    """What to add to typer's usage errors so that they name the fix: a decimal comma ("write 0.3"), a
-    list given as several arguments ("--sigma 0.2,0.4"), a missing argument (an example); '' else."""
-    format_message = getattr(error, "format_message", None)
-    message = format_message() if callable(format_message) else str(error)
-    args = list(argv)
-    name = getattr(getattr(error, "param", None), "opts", None)
-    if name and "valid number" in message:  # the option's value as typed: --sigma 0,3 or --sigma=0,3
-        values = [after for before, after in itertools.pairwise(args) if before in name]
-        values += [token.split("=", 1)[1] for token in args if token.split("=", 1)[0] in name and "=" in token]
-        decimal = next((decimal for decimal in map(decimal_comma, values) if decimal is not None), None)
-        if decimal is not None:
-            return f"; write {decimal} (a decimal point, not a comma)"
-    extra = re.search(r"unexpected extra argument(?:s|\(s\))? \((.+)\)", message)
-    if extra:
-        first = extra.group(1).split()[0]
-        at = args.index(first) if first in args else -1
-        if at >= 2 and args[at - 2].startswith("--"):
-            return f"; a list is one argument, comma-separated: {args[at - 2]} {args[at - 1]},{first}"
-    if "Missing argument" in message or "Missing parameter" in message:
-        command = getattr(getattr(error, "ctx", None), "info_name", None)
-        if command in ARGUMENT_EXAMPLES:
-            return f"; e.g. {command_prefix()} {ARGUMENT_EXAMPLES[command]}"
-    return ""
-
-
-def refuse_option_as_value(argv: Sequence[str], group: Any) -> None:
-    """`run --filter --no-viz` would take `--no-viz` as the filter's name: refuse an option that takes a
-    value when what follows it is another option of the same command."""
-    argv = list(argv)
-    command = group
-    for index, token in enumerate(argv):
-        sub = getattr(command, "commands", {}).get(token)  # a subcommand (one level down for groups)
-        if sub is not None:
-            command = sub
-            continue
-        known = {opt for param in getattr(command, "params", []) for opt in param.opts}
-        param = next((p for p in getattr(command, "params", []) if token in p.opts), None)
-        if param is None or getattr(param, "is_flag", True) or index + 1 >= len(argv):
-            continue
-        following = argv[index + 1]
-        if following in known or following.split("=", 1)[0] in known:
-            raise UserError(f"{token} needs a value, got the option {following}")
-
-
 def repeat_line(what: str, seed: int | None, files: tuple[str, ...], backend: str) -> None:
     """ "Repeat this run" (comparison, study): the command that repeats it bit for bit, but not its files
     (mazelab.invocation.repeat_command)."""
@@ -506,58 +397,3 @@ def check_filter_names(names: str, option: str = "--filters") -> str:
         if name.strip():
             check_filter_name(name.strip(), option)
     return names
-
-
-def filter_choices(many: bool = False) -> str:
-    """The help's list of filters, from the registry: 'sir, apf, rpf, grid, ekf, or FILE.py:Class'."""
-    names = ", ".join(e.short_name for e in entries())
-    return f"{names}, FILE.py:Class, comma-separated" if many else f"{names}, or FILE.py:Class"
-
-
-# -- `mazelab filters [NAME]` ----------------------------------------------------------------------------
-WIDTH = 100  # columns of the listing
-
-
-def filters(name: arg(str | None, "[NAME]", "one filter: sir, apf, rpf, grid, ekf or FILE.py:Class") = None) -> None:
-    """The filters, or one filter's options: name, default, the flag that sets it, what it does.
-    Every option is set with --option NAME=VALUE on run, compare and study."""
-    if name is None:
-        typer.echo(registry_listing())
-    else:
-        typer.echo(options_listing(filter_entry(check_filter_name(name, "filters"))))
-
-
-def registry_listing() -> str:
-    """One line per shipped filter: short name, label, help, what it can do."""
-    lines = ["filter  label  what it is"]
-    for entry in entries():
-        can = ["particles" if entry.takes_particles else "no particles", *(["runs batched"] if entry.batched else [])]
-        lines.append(f"{entry.short_name:<6}  {entry.label:<5}  {entry.help} ({', '.join(can)})")
-    lines += [
-        "",
-        "Your own: --filter FILE.py:Class (see `mazelab exercise new`); its options: mazelab filters FILE.py:Class",
-        "One filter's options: mazelab filters rpf",
-    ]
-    return "\n".join(lines)
-
-
-def options_listing(entry: FilterEntry) -> str:
-    """A filter's declared options: name, default, flag, help (wrapped to WIDTH columns)."""
-    options = entry.options.settable()
-    head = f"{entry.label} ({entry.name}): {entry.help}" if entry.label != entry.name else f"{entry.name}: {entry.help}"
-    if entry.plugin is not None:
-        head += f"\n  from {entry.plugin.describe()}"
-    if not options:
-        return f"{head}\n  it declares no options"
-    rows = [(o.name, show_value(o.default), o.help + (f" [{o.flag}]" if o.flag else "")) for o in options]
-    widths = [max(len(row[i]) for row in [("option", "default", ""), *rows]) for i in range(2)]
-    indent = 2 + widths[0] + 2 + widths[1] + 2
-    lines = [head, f"  {'option'.ljust(widths[0])}  {'default'.ljust(widths[1])}  what it does [its named flag]"]
-    for name, default, text in rows:
-        wrapped = textwrap.wrap(text, max(30, WIDTH - indent)) or [""]
-        lines.append(f"  {name.ljust(widths[0])}  {default.ljust(widths[1])}  {wrapped[0]}")
-        lines += [" " * indent + more for more in wrapped[1:]]
-    lines.append(
-        f"  set any of them: --option NAME=VALUE (e.g. --option {options[0].name}={show_value(options[0].default)})"
-    )
-    return "\n".join(lines)
