@@ -33,9 +33,11 @@ from mazelab.declaration import show_value, to_plain_json
 from mazelab.experiments.journal import Recorder, record_path
 from mazelab.experiments.runs import (
     FINAL_SHARE,
+    compare_filters,
     comparison_table,
     errors_csv,
     final_error,
+    parse_filters,
     plot_errors,
     recovery_steps,
     run_figures,
@@ -48,7 +50,7 @@ from mazelab.registry import FilterEntry, file_sha256, filter_entry, resolve_fil
 from mazelab.robot import Robot
 from mazelab.scenario import Scenario, check_measurements_within, find_scenario, load_scenario, save_scenario
 from mazelab.seeding import new_seed, start_place
-from mazelab.simulation import RunResult, check_walk
+from mazelab.simulation import RunResult, check_walk, simulate
 
 
 def run_one(maze: str | None, filter_name: str | None, particles: int | None, steps: int | None,
@@ -56,8 +58,6 @@ def run_one(maze: str | None, filter_name: str | None, particles: int | None, st
             scenario: Path | None, save_scenario_path: Path | None, force: bool, quiet: bool,
             kidnap_at: int | None, option: list[str] | None, named: dict, drawing: dict, **_: Any) -> None:  # fmt: skip
     """`run`'s work (mazelab.cli.app): one filter on a fresh lost robot or a replayed scenario, its report."""
-    from mazelab.simulation import simulate  # imported by the commands that run one filter
-
     visualize = visualization(**drawing, force=force)
     stored = load_scenario(scenario) if scenario is not None else None
     filter_name = check_filter_name(replay_filter_name(stored, filter_name, scenario))
@@ -94,8 +94,6 @@ def run_one(maze: str | None, filter_name: str | None, particles: int | None, st
 
 def run_demo(drawing: dict[str, Any], force: bool) -> None:
     """The demo's work (mazelab.cli.app): the paper's example, `run`'s fresh lost robot with every default."""
-    from mazelab.simulation import simulate  # imported by the commands that run one filter
-
     visualize = visualization(**drawing, force=force)
     check_outputs([("--rrd", drawing.get("rrd"))], force)
     setup = fresh_setup(None, None, None, None, None)  # `run`'s: the lab's maze, sigma and delta, a new seed
@@ -117,8 +115,6 @@ def compare_scenario(
     option: list[str] | None, named: dict, drawing: dict, **_: Any,
 ) -> None:  # fmt: skip
     """`compare`'s work (mazelab.cli.app): every filter on the saved scenario, the table, files and record."""
-    from mazelab.experiments.runs import compare_filters, parse_filters
-
     visualize = visualization(**drawing, force=force)
     check_filter_names(filters)
     record_file = next((record_path(p) for p in (csv_path, plot, traces) if p is not None), None)  # beside them
