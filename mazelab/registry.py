@@ -61,11 +61,6 @@ class PluginReference:
     class_name: str
     path: str = ""  # the file's absolute path when it was loaded (for the worker processes of a study)
 
-    @property
-    def canonical(self) -> str:
-        """`/absolute/path/file.py:Class`: what worker processes import again."""
-        return f"{self.path}:{self.class_name}"
-
     def as_json(self) -> dict[str, str]:
         """What a scenario stores (the absolute path is the machine's, so it is left out)."""
         return {"spec": self.spec, "sha256": self.sha256, "class": self.class_name}
@@ -335,8 +330,8 @@ class FilterEntry:
 
     @property
     def reference(self) -> str:
-        """What a worker process or a record resolves again: the short name, or a plug-in's path:Class."""
-        return self.short_name if self.plugin is None else self.plugin.canonical
+        """What a worker process or a record resolves again: the short name, or a plug-in's /abs/file.py:Class."""
+        return self.short_name if self.plugin is None else f"{self.plugin.path}:{self.plugin.class_name}"
 
 
 # the RPF's log evidence: the kernel's jitter after resampling is a move of the particles that is not the
