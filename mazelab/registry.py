@@ -217,12 +217,6 @@ class PluginCode:
     source: bytes
     sha256: str
 
-    @classmethod
-    def of(cls, spec: str) -> PluginCode:
-        """The code of a plug-in spec with an absolute path (runs.filter_key), read now."""
-        source = split_spec(spec)[0].read_bytes()
-        return cls(spec, source, hashlib.sha256(source).hexdigest())
-
     @property
     def path(self) -> Path:
         return split_spec(self.spec)[0]
@@ -250,9 +244,10 @@ class PluginCode:
 
 
 def plugin_codes(filters: Sequence[object]) -> tuple[PluginCode, ...]:
-    """The code of every plug-in among a study's filters (names and specs; classes from Python are
-    sent as they are)."""
-    return tuple(PluginCode.of(f) for f in filters if isinstance(f, str) and is_plugin_spec(f))
+    """The code of every plug-in among a study's filters, read now (names and specs, each spec with an
+    absolute path, runs.filter_key; classes from Python are sent as they are)."""
+    sources = {f: split_spec(f)[0].read_bytes() for f in filters if isinstance(f, str) and is_plugin_spec(f)}
+    return tuple(PluginCode(spec, source, hashlib.sha256(source).hexdigest()) for spec, source in sources.items())
 
 
 def filters_here(filters: Sequence[str], codes: Sequence[PluginCode]) -> tuple[str, ...]:
