@@ -335,9 +335,8 @@ def check_study(runs: int, filters: int) -> None:
 
 def memory_budget() -> MemoryBudget | None:
     """The least of the available RAM, the process limits and the cgroup limit; None if none is known."""
-    budgets = [available_ram(), process_limit(), cgroup_limit()]
-    known = [budget for budget in budgets if budget is not None]
-    return min(known, key=lambda budget: budget.available) if known else None
+    known = [budget for budget in (available_ram(), process_limit(), cgroup_limit()) if budget is not None]
+    return min(known, key=lambda budget: budget.available, default=None)
 
 
 def available_ram(proc: Path = Path("/proc")) -> MemoryBudget | None:

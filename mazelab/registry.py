@@ -522,10 +522,8 @@ def described(name: str) -> FilterEntry:
     -------
     FilterEntry
     """
-    entry = next((e for e in _ENTRIES if e.name == name), None)
-    loaded = None if entry is not None else loaded_plugin(name)
-    if loaded is not None:
-        return filter_entry(loaded)
+    loaded = loaded_plugin(name)
+    entry = next((e for e in _ENTRIES if e.name == name), None) or (loaded and filter_entry(loaded))
     return entry or FilterEntry(type(name, (), {"name": name}), name, name, PALETTE[7], "a filter unknown here")
 
 
