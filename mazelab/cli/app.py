@@ -376,7 +376,3 @@ def _main(argv: list[str] | None) -> int:
         typer.echo("interrupted", err=True)
         return 130
     return code if isinstance(code, int) else 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
