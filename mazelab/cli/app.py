@@ -223,7 +223,7 @@ def bench(
     )
 
 
-# -- errors that name the fix, warnings in one line ------------------------------------------------------
+# -- warnings in one line --------------------------------------------------------------------------------
 _warned: set[str] = set()  # this command's warnings so far
 
 
