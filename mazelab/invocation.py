@@ -91,18 +91,12 @@ def repeat_command(seed: int | None, files: tuple[str, ...] = (), backend: str |
     (`--backend B`, unless typed), to be pasted back: the same run or study again, bit for bit. Left out:
     --resume and --force (a resumed study repeats whole; --force would replace files unasked), and the
     options in `files` with their values (a file the run wrote, which the pasted command would find taken)."""
-    kept, skip = [], False
-    valued = ("--seed", *files)
-    for token in _typed():
-        if skip:
-            skip = False
-            continue
+    tokens, kept, valued = iter(_typed()), [], ("--seed", *files)
+    for token in tokens:
         if token in valued:
-            skip = True
-            continue
-        if token.startswith(tuple(f"{option}=" for option in valued)) or token in ("--resume", "--force"):
-            continue
-        kept.append(token)
+            next(tokens, None)  # and its value
+        elif not token.startswith(tuple(f"{option}=" for option in valued)) and token not in ("--resume", "--force"):
+            kept.append(token)
     if seed is not None:
         kept += ["--seed", str(seed)]
     if backend is not None and not any(token == "--backend" or token.startswith("--backend=") for token in kept):
