@@ -2,7 +2,8 @@
 the SIR filter, 1500 particles, 200 steps); `python main.py --help` lists the commands (run, compare,
 study, maze, bench). The same commands run from any folder as `mazelab ...`.
 
-The example, step by step, is mazelab/cli/replay.py, `run_demo`; every command is in mazelab/cli/.
+The example, step by step, is mazelab/cli/replay.py, `run_one` (`run` with every default); every
+command is in mazelab/cli/.
 """
 
 import sys

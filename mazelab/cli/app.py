@@ -87,9 +87,9 @@ def demo(
     """The paper's example: a lost robot, the SIR filter, 1500 particles, 200 steps."""
     if ctx.invoked_subcommand is not None:
         return
-    from mazelab.cli.replay import run_demo  # scenarios and drawing: imported by the commands that use them
+    from mazelab.cli.replay import run_one  # scenarios and drawing: imported by the commands that use them
 
-    run_demo(drawing or {}, force)
+    run_one(drawing or {}, force, demo=True)
 
 
 Maze_ = opt(str | None, "--maze", metavar="MAZE", help=f"a maze file or a name in mazes/ [default: {DEFAULT_MAZE}]")

@@ -53,15 +53,18 @@ from mazelab.seeding import new_seed, start_place
 from mazelab.simulation import RunResult, check_walk, simulate
 
 
-def run_one(maze: str | None, filter_name: str | None, particles: int | None, steps: int | None,
-            sigma: float | None, delta: float | None, seed: int | None, start_seed: int | None,
-            scenario: Path | None, save_scenario_path: Path | None, force: bool, quiet: bool,
-            kidnap_at: int | None, option: list[str] | None, named: dict, drawing: dict, **_: Any) -> None:  # fmt: skip
-    """`run`'s work (mazelab.cli.app): one filter on a fresh lost robot or a replayed scenario, its report."""
+def run_one(drawing: dict, force: bool, maze: str | None = None, filter_name: str | None = None,
+            particles: int | None = None, steps: int | None = None, sigma: float | None = None,
+            delta: float | None = None, seed: int | None = None, start_seed: int | None = None,
+            scenario: Path | None = None, save_scenario_path: Path | None = None, quiet: bool = False,
+            kidnap_at: int | None = None, option: list[str] | None = None, named: dict | None = None,
+            demo: bool = False, **_: Any) -> None:  # fmt: skip
+    """`run`'s work (mazelab.cli.app): one filter on a fresh lost robot or a replayed scenario, its report;
+    the `demo` is `run` with every default (the paper's example), said in a line first."""
     visualize = visualization(**drawing, force=force)
     stored = load_scenario(scenario) if scenario is not None else None
     filter_name = check_filter_name(replay_filter_name(stored, filter_name, scenario))
-    options = options_per_filter([filter_name], given_options(named, option, [filter_name]),
+    options = options_per_filter([filter_name], given_options(named or {}, option, [filter_name]),
                                  check=stored is None)[resolve_filter(filter_name).name]  # fmt: skip
     check_outputs([("--save-scenario", save_scenario_path), ("--rrd", drawing.get("rrd"))], force)
     if stored is None:
@@ -72,6 +75,10 @@ def run_one(maze: str | None, filter_name: str | None, particles: int | None, st
         options_per_filter([filter_name], options)  # the replay's options, checked as the filter will
         setup = replay_setup(stored, maze, sigma, delta, seed)
     prepare_world(setup.world)
+    if demo:
+        world, lab = setup.world, find_maze(DEFAULT_MAZE).name
+        typer.echo(f"A robot is lost in {lab} ({world.height}x{world.width}, {len(world.stations)} stations); SIR "
+                   f"with {DEFAULT_PARTICLE_COUNT} particles looks for it.")  # fmt: skip
     progress = None if quiet else progress_printer(steps or setup.robot.recorded_steps or DEFAULT_STEPS)
     try:
         result = simulate(setup.robot, setup.world, setup.sigma, setup.delta, particles, steps, setup.initial_particles,
@@ -89,24 +96,11 @@ def run_one(maze: str | None, filter_name: str | None, particles: int | None, st
         typer.echo(f"particle count: mean {counts.mean():.0f}, least {counts.min()}, most {counts.max()}")
     if save_scenario_path is not None:
         typer.echo(f"scenario saved to {save_scenario(result.scenario, save_scenario_path, replace=force)}")
-    repeat_line("run", result.seed, ("--save-scenario", "--rrd"), result.extras["backend"])
-
-
-def run_demo(drawing: dict[str, Any], force: bool) -> None:
-    """The demo's work (mazelab.cli.app): the paper's example, `run`'s fresh lost robot with every default."""
-    visualize = visualization(**drawing, force=force)
-    check_outputs([("--rrd", drawing.get("rrd"))], force)
-    setup = fresh_setup(None, None, None, None, None)  # `run`'s: the lab's maze, sigma and delta, a new seed
-    world = setup.world
-    typer.echo(
-        f"A robot is lost in {find_maze(DEFAULT_MAZE).name} ({world.height}x{world.width}, "
-        f"{len(world.stations)} stations); SIR with {DEFAULT_PARTICLE_COUNT} particles looks for it."
-    )
-    result = simulate(setup.robot, world, setup.sigma, setup.delta, DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS,
-                      seed=setup.seed, visualize=visualize, on_step=progress_printer(DEFAULT_STEPS))  # fmt: skip
-    report_run(result)
-    words = ["run", "--seed", str(setup.seed), "--backend", result.extras["backend"]]
-    typer.echo(f"Repeat this run: {command_prefix()} {shlex.join(words)}")
+    if demo:  # typed without a command: the command that repeats it is `run`
+        words = ["run", "--seed", str(result.seed), "--backend", result.extras["backend"]]
+        typer.echo(f"Repeat this run: {command_prefix()} {shlex.join(words)}")
+    else:
+        repeat_line("run", result.seed, ("--save-scenario", "--rrd"), result.extras["backend"])
 
 
 def compare_scenario(
