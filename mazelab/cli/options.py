@@ -193,9 +193,10 @@ def seed_option(value: int | None) -> int | None:
     return value
 
 
-def parse_list(text: str | None, kind: type, option: str) -> list | None:
-    """'0.2,0.4' -> [0.2, 0.4] (of `kind`; None stays None), or a one-line error naming the option;
-    '0,3' for a number is refused with what to write (a list of 0 and 3 is no lab's value)."""
+def parse_list(text: str | None, kind: Callable[[str], Any], option: str) -> list | None:
+    """'0.2,0.4' -> [0.2, 0.4] (each part read by `kind`, a type or an option's reader; None stays None),
+    or a one-line error naming the option; '0,3' for a number is refused with what to write (a list of 0
+    and 3 is no lab's value)."""
     if text is None:
         return None
     decimal = decimal_comma(text) if kind is float and text.strip().startswith("0,") else None
@@ -358,10 +359,7 @@ def _parsed(filter_names: Sequence[str | type], name: str, value: Any, spelled: 
         return [True] if lists else True
     if not lists:
         return read_value(declared, value, spelled)
-    parts = [part for part in value.split(",") if part.strip()]
-    if not parts:
-        raise UserError(f"{spelled}: no values (write NAME=V1,V2)")
-    return list(dict.fromkeys(read_value(declared, part, spelled) for part in parts))
+    return parse_list(value, lambda part: read_value(declared, part, spelled), spelled.split("=")[0])
 
 
 def options_per_filter(
