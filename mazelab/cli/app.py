@@ -362,12 +362,9 @@ def _main(argv: list[str] | None) -> int:
         message = error.format_message()
         typer.echo(f"error: {message.rstrip('.') if hint else message}{hint}", err=True)
         return 2
-    except (UserError, MazeError, ValueError) as error:  # a ScenarioError is a ValueError
+    except (UserError, MazeError, ValueError, StudentCodeError) as error:  # a ScenarioError is a ValueError
         typer.echo(f"error: {error}", err=True)
-        return 2
-    except StudentCodeError as error:  # the student's filter raised: their frames and the step, not ours
-        typer.echo(f"error: {error}", err=True)
-        return 1
+        return 1 if isinstance(error, StudentCodeError) else 2  # the student's filter raised: not an input problem
     except OSError as error:  # a full disk, a file size limit, a read-only folder, a name too long: its file, why
         plain = isinstance(error, WriteError) or error.filename is None
         typer.echo(f"error: {error if plain else f'{error.filename}: {error.strerror or error}'}", err=True)
