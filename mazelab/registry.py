@@ -187,16 +187,13 @@ def _import_file(resolved: Path, shown: Path) -> ModuleType:
     try:
         with working_folder_kept(shown.name):
             spec.loader.exec_module(module)
-    except (SystemExit, KeyboardInterrupt) as error:
+    except (Exception, SystemExit, KeyboardInterrupt) as error:
         del sys.modules[module_name]
         if is_users_stop(error):
             raise
-        line = student_line(error.__traceback__, error)
-        raise ValueError(f"{shown} does not import: it {describe_exit(error)} while being imported{line}") from None
-    except Exception as error:
-        del sys.modules[module_name]
-        line = student_line(error.__traceback__, error)
-        raise ValueError(f"{shown} does not import: {type(error).__name__}: {error}{line}") from None
+        exited = isinstance(error, (SystemExit, KeyboardInterrupt))  # sys.exit() in the file, say
+        what = f"it {describe_exit(error)} while being imported" if exited else f"{type(error).__name__}: {error}"
+        raise ValueError(f"{shown} does not import: {what}{student_line(error.__traceback__, error)}") from None
     finally:
         if added and folder in sys.path:
             sys.path.remove(folder)
