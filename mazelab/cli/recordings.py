@@ -189,24 +189,20 @@ def recording_problem(path: Path) -> str | None:
         return f"cannot be read ({error.strerror})"
     from rerun.chunk import RrdReader
 
+    problem = "not a Rerun recording (.rrd), or a damaged one: Rerun cannot read it (cut short?)"  # a bad frame
     try:
         with warnings.catch_warnings(action="ignore"):  # "no footer/manifest": no end marker, refused below
             reader = RrdReader(path)
             recordings = reader.recordings()
             if not recordings:
                 return "not a Rerun recording (.rrd): it holds no recording"
-    except Exception:  # Rerun's reader refuses it: a bad frame, an unknown encoding, a file cut in a frame
-        return "not a Rerun recording (.rrd), or a damaged one: Rerun cannot read it (cut short?)"
-    try:
-        reader.store(store=recordings[0])  # needs the footer: refused by rerun when the file does not end with it
-    except Exception:
-        return "not a whole Rerun recording: something follows the end of the recording, or it was cut short"
-    try:
-        with warnings.catch_warnings(action="ignore"):
+            problem = "not a whole Rerun recording: something follows the end of the recording, or it was cut short"
+            reader.store(store=recordings[0])  # needs the footer: refused by rerun when the file does not end with it
+            problem = "a damaged Rerun recording: part of it cannot be decoded (changed on disk?)"
             for entry in [*recordings, *reader.blueprints()]:  # every chunk decoded, as sending it will
                 collections.deque(reader.stream(store=entry), maxlen=0)
-    except Exception:  # a frame damaged in the middle: its checksum or its compressed data does not decode
-        return "a damaged Rerun recording: part of it cannot be decoded (changed on disk?)"
+    except Exception:  # Rerun refuses it at the stage `problem` names (a frame's checksum, its compressed data)
+        return problem
     return None
 
 
