@@ -24,12 +24,13 @@ from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
-from mazelab.atomic import WriteError, lock, write_text_atomically
+from mazelab.atomic import WriteError, write_text_atomically
 from mazelab.exercise.parts import FAIL, NOT_OWN, NOT_RUN, NOT_WRITTEN, PASS, clean
 from mazelab.exercise.report import ROWS, NotGradableError, References, Report, Submission, check_file, format_report
 from mazelab.exercise.sandbox import DEFAULT_BUDGET, SandboxError, allow_children, stop_children
 from mazelab.exercise.student import PARTS
 from mazelab.exercise.template import FILTER_FILE, Catalogue
+from mazelab.experiments.journal import JournalError, claim_outputs
 
 KEY_FILE = ".grading.key"  # hidden: no submission has its name (grading skips names that start with ".")
 KEY_BYTES = 32  # 256 bits; a given key needs at least 16 (128 bits)
@@ -191,30 +192,20 @@ def check_outside(output: Path, folder: Path, option: str) -> None:
 
 @contextlib.contextmanager
 def claimed(outputs: list[tuple[Path, str]]) -> Iterator[None]:
-    """Hold the claims of `outputs` ((path, option) each) while grading; ClaimError at once when another
-    grader holds one."""
-    held: list[tuple[int, Path]] = []
+    """Hold the claims of `outputs` ((path, option) each: a study's locked NAME.lock beside each,
+    mazelab.experiments.journal.claim_outputs) while grading; ClaimError at once when another holds one."""
+    releases = []
     try:
         for output, option in outputs:
-            claim = output.parent / f".{output.name}.grading"
             try:
-                handle = os.open(claim, os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o644)
-                if not lock(handle):  # another grader holds it (Windows has no claim: writes are whole anyway)
-                    os.close(handle)
-                    raise ClaimError(
-                        f"{option} {output}: another grader is writing it now; wait for it or choose another name"
-                    )
-                held.append((handle, claim))
-                os.ftruncate(handle, 0)
-                os.write(handle, f"{os.getpid()}\n".encode())
-            except OSError as error:  # a full disk: named
-                raise WriteError(error.errno, error.strerror, str(claim)) from None
+                releases.append(claim_outputs([(option, output)]))
+            except JournalError as error:  # held by another grader (or a study), or not a file at its name
+                held = f"{option} {output}: another grader is writing it now; wait for it or choose another name"
+                raise ClaimError(held if str(error).startswith("another") else str(error)) from None
         yield
     finally:
-        for handle, claim in held:
-            with contextlib.suppress(OSError):
-                claim.unlink()
-            os.close(handle)
+        for release in releases:
+            release()
 
 
 def partial_name(path: Path) -> Path:
