@@ -53,10 +53,6 @@ KIT: dict[str, str | tuple[str, ...]] = {
 }
 
 
-class KitError(RuntimeError):
-    """The kit cannot be built: a module's constant is not a plain value (the list needs a look)."""
-
-
 def source_file(module: str) -> Path:
     """The lab's source file of `module` (a package's __init__.py)."""
     relative = Path(*module.split("."))
@@ -89,7 +85,7 @@ def selected_text(module: str, names: tuple[str, ...]) -> str:
     defined = {n.name: n for n in tree.body if isinstance(n, (ast.FunctionDef, ast.ClassDef))}
     missing = [name for name in names if name not in defined]
     if missing:
-        raise KitError(f"{module} has no {', '.join(missing)} (mazelab.exercise.kit.KIT)")
+        raise LookupError(f"{module} has no {', '.join(missing)} (mazelab.exercise.kit.KIT)")
     keep, todo = set(), list(names)
     while todo:
         name = todo.pop()
