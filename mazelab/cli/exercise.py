@@ -20,7 +20,6 @@ from mazelab.exercise.grading import (
     KEY_FILE,
     Gradebook,
     Submission,
-    check_outside,
     claimed,
     discover,
     grade_folder,
@@ -206,8 +205,9 @@ def _check_outputs(folder: Path, submissions: list[Submission], csv_path: Path |
     """Refuse, before any grading, an output or the key inside the class folder, an existing output
     without --force, and a --csv that a submission's results.json folder would take."""
     for path, option in ((csv_path, "--csv"), (gradescope, "--gradescope"), (keyfile, "--key")):
-        if path is not None:
-            check_outside(path, folder, option)
+        if path is not None and path.resolve().is_relative_to(folder.resolve()):  # or the folder itself
+            raise UserError(f"{option} {path}: inside the class folder {folder}; write the grader's outputs outside "
+                            "it (a submission must not see them, nor be replaced by them)")  # fmt: skip
     if gradescope is not None:
         _made_folder(gradescope)
         taken = [s.name for s in submissions if (gradescope / s.name / "results.json").exists()]

@@ -180,16 +180,6 @@ def read_key(path: Path, make: bool = True) -> bytes:
     return key
 
 
-def check_outside(output: Path, folder: Path, option: str) -> None:
-    """Refuse an output path inside the class folder (or the folder itself)."""
-    where, classes = output.resolve(), folder.resolve()
-    if where == classes or where.is_relative_to(classes):
-        raise ClaimError(
-            f"{option} {output}: inside the class folder {folder}; write the grader's outputs outside it "
-            "(a submission must not see them, nor be replaced by them)"
-        )
-
-
 @contextlib.contextmanager
 def claimed(outputs: list[tuple[Path, str]]) -> Iterator[None]:
     """Hold the claims of `outputs` ((path, option) each: a study's locked NAME.lock beside each,
