@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from mazelab.atomic import WriteError, write_text_atomically
+from mazelab.backend import use_threads
 from mazelab.exercise.parts import FAIL, NOT_OWN, NOT_RUN, NOT_WRITTEN, PASS, clean
 from mazelab.exercise.report import ROWS, NotGradableError, References, Report, Submission, check_file, format_report
 from mazelab.exercise.sandbox import DEFAULT_BUDGET, SandboxError, allow_children, stop_children
@@ -119,11 +120,24 @@ def grade_folder(
     timeout: float = DEFAULT_BUDGET,
     jobs: int | None = None,
     on_done: Callable[[Report], None] | None = None,
+    claims: list[tuple[Path, str]] | None = None,
+    progress: bool = False,
 ) -> list[Report]:
     """Grade the submissions, `jobs` at a time (default: the cores), in their order, calling `on_done`
-    with each as soon as it is graded. Ctrl-C (a KeyboardInterrupt), SIGTERM and a sandbox that cannot
-    start end every child and the reference runs, and propagate: what `on_done` was given is kept."""
-    jobs = jobs or os.cpu_count() or 1
+    with each as soon as it is graded, the outputs `claims` ((path, option) each) held meanwhile
+    (`claimed`), under a progress bar on stderr where `progress`. Ctrl-C (a KeyboardInterrupt), SIGTERM
+    and a sandbox that cannot start end every child and the reference runs, and propagate: what
+    `on_done` was given is kept."""
+    from mazelab.experiments.executor import progress_bar
+
+    bar = progress_bar(len(submissions), progress, what="submissions")
+    with claimed(claims or []), use_threads(1), bar as advance:  # use_threads(1): a submission is a thread
+        return _in_threads(submissions, key, timeout, jobs or os.cpu_count() or 1, on_done, advance)
+
+
+def _in_threads(submissions: list[Submission], key: bytes, timeout: float, jobs: int,
+                on_done: Callable[[Report], None] | None, advance: Callable[[], None]) -> list[Report]:  # fmt: skip
+    """grade_folder's work: a thread per submission being graded, the reference runs in a process pool."""
     lock = threading.Lock()
     allow_children()
     methods = multiprocessing.get_all_start_methods()  # a fresh interpreter each, never a fork of threads
@@ -132,9 +146,10 @@ def grade_folder(
 
     def one(submission: Submission) -> Report:
         graded = grade_one(submission, timeout, references, key=key)
-        if on_done is not None:
-            with lock:
+        with lock:
+            if on_done is not None:
                 on_done(graded)
+            advance()
         return graded
 
     threads = ThreadPoolExecutor(jobs, "mazelab-grade", initializer=_quiet_thread if os.name == "posix" else None)
