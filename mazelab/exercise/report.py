@@ -23,8 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from mazelab.exercise import child
-from mazelab.exercise.child import Message, encode, messages
+from mazelab.exercise.child import Message, encode, messages, serve
 from mazelab.exercise.inputs import (
     PartInputs,
     ScenarioInputs,
@@ -259,7 +258,7 @@ def collect_in_process(
         return next(messages(io.BytesIO(encode(meta, arrays))))
 
     run = ChildRun()
-    child.serve(wired(*request("", None, stages, parts, scenarios)), lambda *sent: run.take(wired(*sent)), filter_class)
+    serve(wired(*request("", None, stages, parts, scenarios)), lambda *sent: run.take(wired(*sent)), filter_class)
     return Answers(run.loaded, run.results)
 
 
