@@ -166,7 +166,7 @@ def grade_command(
     book, started = Gradebook(csv_path, gradescope, force, catalogue), time.perf_counter()
     grade = functools.partial(grade_folder, submissions, key=secret, timeout=timeout, jobs=jobs, on_done=book.add,
                               claims=outputs, progress=not quiet)  # fmt: skip
-    stopped_by = _until_stopped(grade, "grading stopped, nobody graded by it")[1]  # what was graded is in the book
+    graded, stopped_by = _until_stopped(grade, "grading stopped, nobody graded by it")  # a stop: book.graded so far
     typer.echo(summary(book.graded))
     typer.echo(f"graded in {time.perf_counter() - started:.1f} s")
     if not keyfile:
@@ -178,7 +178,7 @@ def grade_command(
         typer.echo(f"stopped: {len(book.graded)} of {len(submissions)} submissions graded{kept}", err=True)
         raise typer.Exit(128 + stopped_by)
     if csv_path is not None:
-        typer.echo(f"wrote {book.finish(submissions)}")
+        typer.echo(f"wrote {book.finish(graded)}")
 
 
 def _check_outputs(folder: Path, submissions: list[Submission], csv_path: Path | None, gradescope: Path | None,

@@ -239,13 +239,11 @@ class Gradebook:
         if self.csv is not None:
             write_text_atomically(partial_name(self.csv), csv_text(self.graded), replace=True)
 
-    def finish(self, order: list[Submission]) -> Path | None:
-        """The complete CSV, in the submissions' order, in place of the partial one."""
+    def finish(self, graded: list[Report]) -> Path | None:
+        """The complete CSV of `graded` (grade_folder's, in the submissions' order) in place of the partial one."""
         if self.csv is None:
             return None
-        rank = {id(s): i for i, s in enumerate(order)}
-        self.graded.sort(key=lambda g: rank.get(id(g.submission), len(rank)))
-        written = write_text_atomically(self.csv, csv_text(self.graded), replace=self.force)
+        written = write_text_atomically(self.csv, csv_text(graded), replace=self.force)
         partial_name(self.csv).unlink(missing_ok=True)
         return written
 
