@@ -1,4 +1,4 @@
-"""mazelab.collect: the one recording loop, for one run and for R runs together.
+"""mazelab.simulation.record_steps: the one recording loop, for one run and for R runs together.
 
 - a filter's own diagnostics reach RunResult (the RPF's `regularised` at exactly its regularisation
   steps, recovery's injection probability) and a study's traces, batched or not, with the same values;
@@ -11,14 +11,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mazelab.collect import record_steps
 from mazelab.contract import ContractError
 from mazelab.experiments import batch_runs
 from mazelab.experiments.study import MazeChoice, run_task, study_settings, study_tasks
 from mazelab.filters import RegularizedParticleFilter, SIRParticleFilter
 from mazelab.robot import Robot
 from mazelab.seeding import start_place
-from mazelab.simulation import simulate
+from mazelab.simulation import record_steps, simulate
 
 
 def test_the_rpfs_regularisation_steps_reach_the_run_result(paper_world):

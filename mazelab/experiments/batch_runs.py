@@ -13,7 +13,6 @@ from itertools import groupby
 import numpy as np
 
 from mazelab.backend import backend_of
-from mazelab.collect import record_steps
 from mazelab.contract import check_filter
 from mazelab.experiments.runs import WARM_UP_SEED, WARM_UP_STEPS, warm_once
 from mazelab.experiments.study import RunFailure, RunRecord, RunTask, run_records, run_task_safely
@@ -21,7 +20,7 @@ from mazelab.maze import Maze
 from mazelab.registry import filter_entry
 from mazelab.robot import Robot
 from mazelab.seeding import filter_rng, run_streams, start_place
-from mazelab.simulation import RunInputs, RunResult, maze_for, plan_kidnapping
+from mazelab.simulation import RunInputs, RunResult, maze_for, plan_kidnapping, record_steps
 
 MAX_BATCH = 32  # runs advanced together: beyond this the fixed cost per step is already small
 MAX_BATCH_PARTICLES = 1_000_000  # R x N at most: a batch needs no more memory than a run of 10^6 particles
