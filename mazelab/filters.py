@@ -115,7 +115,7 @@ class ParticleFilter(SMC):
                 self.resample_rows = scheme
         super().__init__(model, particles, rng, self.ops.Weights)
         recovering = recovery_options(settings["recovery"], settings["alpha_slow"], settings["alpha_fast"])
-        self.recovery = None if recovering is None else RecoveryTracker(recovering, world, sigma)
+        self.recovery = None if recovering is None else RecoveryTracker(recovering, world, model.sensor)
         self.max_count = self.count if self.kld is None or self.kld.max_count is None else self.kld.max_count
         if self.runs > 1 and not self.runs_together(settings):
             raise ValueError("recovery and KLD-sampling vary one run's particles: they run one run at a time")
@@ -143,7 +143,7 @@ class ParticleFilter(SMC):
         """
         super().step(compass_angle, z)
         if self.recovery is not None:
-            self.recovery.track(float(self.log_evidence_increment[0]), float(self.z[0]))
+            self.recovery.track(float(self.log_evidence_increment[0]), self.z[0])  # run 0's reading, as it came
 
     # -- the ancestors and the move: KLD-sampling and recovery (one run) ---------------------------------
     def kld_resample(self, scheme: Callable[..., np.ndarray], W: np.ndarray, rng: np.random.Generator) -> np.ndarray:
