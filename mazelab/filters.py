@@ -346,7 +346,8 @@ class RegularizedParticleFilter(ParticleFilter):
 
     `threshold`: N_T / N_S (the paper's 0.2). `bandwidth`: "optimal" (the paper's h_opt with the whole
     cloud's covariance), "multimodal" (one kernel per mode, beyond the paper) or a number h; see
-    mazelab.regularisation. The other options are ParticleFilter's."""
+    mazelab.regularisation. The other options are ParticleFilter's; `resampled_at` lists the steps after
+    which it regularised."""
 
     name = "RegularizedParticleFilter"
     options: ClassVar[Options] = ParticleFilter.options.extend(
@@ -369,11 +370,6 @@ class RegularizedParticleFilter(ParticleFilter):
         if isinstance(self.bandwidth_rule, float):
             return self.bandwidth_rule
         return optimal_bandwidth(self.count)
-
-    @property
-    def regularised_at(self) -> list[int] | list[list[int]]:
-        """The steps after which the filter regularised (a list per run for R runs)."""
-        return self.resampled_at
 
     @property
     def diagnostics(self) -> dict[str, Any]:

@@ -30,10 +30,10 @@ def test_the_rpfs_regularisation_steps_reach_the_run_result(paper_world):
     rpf_runs = []
 
     def keep(k, robot_, filt):
-        rpf_runs.append(list(filt.regularised_at))
+        rpf_runs.append(list(filt.resampled_at))
 
     simulate(robot, paper_world, 0.3, 0.5, 300, 60, None, "rpf", seed=3, threshold=0.5, on_step=keep)
-    assert filt_steps == rpf_runs[-1]  # regularised_at lists the steps done before it regularised
+    assert filt_steps == rpf_runs[-1]  # resampled_at lists the steps done before it regularised
 
 
 def test_recoverys_injection_probability_is_recorded_per_step(paper_world):

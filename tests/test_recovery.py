@@ -143,7 +143,7 @@ def test_a_lost_rpf_injects_without_resampling_and_keeps_the_weights(paper_world
     assert injected is not None and 0.9 * 400 < injected.sum() <= 400  # probability 1 - 1e-3 / 0.5
     np.testing.assert_array_equal(moved[0][~injected], before[~injected])
     np.testing.assert_array_equal(filt.log_weights, weights)
-    assert filt.regularised_at == []
+    assert filt.resampled_at == []
 
 
 def test_sensor_resetting_keeps_a_reading_of_several_numbers_for_the_models_sensor(paper_world, rng):
