@@ -25,14 +25,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from mazelab.backend import backend_by_work, backend_of
-from mazelab.checks import (
-    as_points,
-    check_recording,
-    check_seed,
-    check_steps,
-    check_within_map,
-    step_number,
-)
+from mazelab.checks import as_points, check_recording, check_seed, check_steps, check_within_map, step_number
 from mazelab.checks import particle_count as checked_count
 from mazelab.contract import ContractError, NullView, check_filter, check_step_values
 from mazelab.declaration import options_of
@@ -270,8 +263,7 @@ def simulate(
     `seed` seeds the robot (unless it has its own rng), the initial particles and the filter (mazelab.seeding):
     the same seed gives the same result bit for bit. `kidnap_at=K`: at step K the robot is carried to a free
     place drawn from the seed (`plan_kidnapping`). `result.extras` holds the particle count per step
-    ("particle_count": KLD-sampling varies it) and the backend the filter ran on ("backend"). A filter
-    class that declares the option `start` is handed the robot's start too (`build_filter`).
+    ("particle_count": KLD-sampling varies it) and the backend the filter ran on ("backend").
     `visualize` says where the run is drawn (the values mazelab.viz.views lists), its memory checked up
     front; `view` (instead) is a view or a function `(world, filter_name) -> view` (`open_run_view`),
     called once the inputs are checked (a comparison's view of each filter).

@@ -141,15 +141,6 @@ def is_student_class(filter_class: type) -> bool:
         return True
 
 
-def _frame_lines(tb: TracebackType | None) -> list[str]:
-    """The student's frames of a traceback, one line each: file, line, function and code."""
-    lines = []
-    for frame in student_frames(tb):
-        code = f": {frame.line.strip()}" if frame.line else ""
-        lines.append(f"  {frame.filename}, line {frame.lineno}, in {frame.name}{code}")
-    return lines
-
-
 class _Step:
     """The step a run is at (0 while the filter is built), for `student_code`."""
 
@@ -163,7 +154,10 @@ def raise_for_student(error: BaseException, filter_class: type, step: int) -> No
     if not is_student_class(filter_class) or isinstance(error, StudentCodeError):
         raise error
     when = "while being built" if step == 0 else f"at step {step}"
-    frames = _frame_lines(error.__traceback__)
+    frames = [  # the student's frames, one line each: file, line, function and code
+        f"  {f.filename}, line {f.lineno}, in {f.name}" + (f": {f.line.strip()}" if f.line else "")
+        for f in student_frames(error.__traceback__)
+    ]
     if isinstance(error, (SystemExit, KeyboardInterrupt)):
         if is_users_stop(error):
             raise error
@@ -197,17 +191,12 @@ def working_folder_kept(owner: str | None) -> Iterator[None]:
     try:
         yield
     finally:
-        after = _cwd_or_none()
+        after = None  # the folder it moved to may have been removed
+        with contextlib.suppress(OSError):
+            after = os.getcwd()
         if after != before:
             os.chdir(before)
             warnings.warn(f"{owner} changed the working folder to {after}; it was put back to {before}", stacklevel=3)
-
-
-def _cwd_or_none() -> str | None:
-    try:
-        return os.getcwd()
-    except OSError:  # the folder it moved to was removed
-        return None
 
 
 def student_line(tb: TracebackType | None, error: BaseException) -> str:
