@@ -191,7 +191,8 @@ class RecoveryTracker:
             self.log_w_slow = self.log_w_fast = float(log_w_avg)
         else:
             self.log_w_slow = float(np.logaddexp(math.log1p(-slow) + self.log_w_slow, math.log(slow) + log_w_avg))
-            self.log_w_fast = float(np.logaddexp(_log1m(fast) + self.log_w_fast, math.log(fast) + log_w_avg))
+            keep_fast = math.log1p(-fast) if fast < 1 else -math.inf  # log(1 - alpha_fast)
+            self.log_w_fast = float(np.logaddexp(keep_fast + self.log_w_fast, math.log(fast) + log_w_avg))
         self.last_z = z
 
     def inject(
@@ -220,17 +221,12 @@ class RecoveryTracker:
         injected = rng.random(len(positions)) < probability
         count = int(injected.sum())
         if count:
-            if self.options.mode == "sensor" and self.last_z is not None:
+            if self.options.mode == "sensor":  # a probability above 0 has a last z
                 places = measurement_matched_places(self.world, self.last_z, self.sensor, count, rng)
             else:
                 places = self.world.random_free_places(count, rng)
             positions[injected], headings[injected] = move_injected(places)
         return injected
-
-
-def _log1m(a: float) -> float:
-    """log(1 - a), -inf for a = 1."""
-    return math.log1p(-a) if a < 1 else -math.inf
 
 
 __all__ = [
