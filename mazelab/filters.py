@@ -103,12 +103,10 @@ class ParticleFilter(SMC):
         keep_freed_memory()  # a step's freed arrays reused, not given back and faulted in again
         self.backend: str = self.ops.name
         model = LostRobot.of_settings(self.world, sigma, delta, self.ops, settings)
-        self.threshold, self.estimate_rule = settings["threshold"], settings["estimate"]
-        self.scheme_name = settings["resampling"]
+        self.threshold = settings["threshold"]
         self.kld = kld_options(settings["kld"], settings["kld_epsilon"], settings["kld_z"])
         # the scheme: mazelab.resampling's textbook function, or the backend's faster form of it
-        fast = self.ops.schemes.get(self.scheme_name)
-        scheme = fast or RESAMPLING_SCHEMES[self.scheme_name]
+        scheme = self.ops.schemes.get(settings["resampling"]) or RESAMPLING_SCHEMES[settings["resampling"]]
         if not hasattr(type(self), "resample"):  # a plug-in's own `resample` is its scheme
             self.resample = scheme if self.kld is None else functools.partial(self.kld_resample, scheme)
             if self.kld is None:  # mazelab.resampling's schemes and the backend's draw every due run in one call
@@ -255,7 +253,7 @@ class ParticleFilter(SMC):
 
     def _estimates(self) -> np.ndarray:
         """The estimate of each run, (R, 2) float64."""
-        if self.estimate_rule == "mode":
+        if self.settings["estimate"] == "mode":
             return np.stack(
                 [m[0].mean if m else mean for m, mean in zip(self._run_modes(), self._means(), strict=True)]
             )
@@ -359,17 +357,12 @@ class RegularizedParticleFilter(ParticleFilter):
     )  # fmt: skip
     moved_by_resampling = False  # the jittered particles take the transition with the rest
 
-    def __init__(self, *args: Any, **options: Any):
-        super().__init__(*args, **options)
-        self.bandwidth_rule = self.settings["bandwidth"]  # checked by its declaration (check_bandwidth)
-
     @property
     def bandwidth(self) -> float:
         """h of the whole-cloud kernel: h_opt = A N^(-1/(n+4)), A = (4/(n+2))^(1/(n+4)) in n = 2
         dimensions, or the number given (with "multimodal" each mode has its own h_opt(n_c))."""
-        if isinstance(self.bandwidth_rule, float):
-            return self.bandwidth_rule
-        return optimal_bandwidth(self.count)
+        rule = self.settings["bandwidth"]  # checked by its declaration (check_bandwidth)
+        return rule if isinstance(rule, float) else optimal_bandwidth(self.count)
 
     @property
     def diagnostics(self) -> dict[str, Any]:
@@ -408,7 +401,7 @@ class RegularizedParticleFilter(ParticleFilter):
         -------
         list of Kernel, one per run
         """
-        if self.bandwidth_rule == "multimodal":
+        if self.settings["bandwidth"] == "multimodal":
             return [mixture_kernel] * len(weights)
         covariance = self.ops.weighted_covariance(weights, clouds)  # S_k per run, the weighted covariance
         D = np.linalg.cholesky(covariance + 1e-12 * np.eye(2))  # D_k D_k^T = S_k (tiny ridge: S may be 0)

@@ -48,7 +48,6 @@ class GridBayesFilter(ModelFilter):
     def __init__(self, *args: Any, **options: Any):
         super().__init__(*args, **options)  # the exact filter starts from the exact prior, not from a sample
         world, resolution, margin = self.world, self.settings["resolution"], self.settings["margin"]
-        self.estimate_rule = self.settings["estimate"]
         self.resolution = resolution
         self.origin = -margin
         ny, nx = check_grid_memory(world.width, world.height, resolution, margin)
@@ -162,7 +161,7 @@ class GridBayesFilter(ModelFilter):
     @property
     def estimate(self) -> np.ndarray:
         """The posterior mean over the cell centres (or, with estimate="mode", the heaviest mode's), (2,)."""
-        if self.estimate_rule == "mode":
+        if self.settings["estimate"] == "mode":
             modes = self.modes
             return modes[0].mean.copy() if modes else self.mean
         return self.mean

@@ -64,7 +64,6 @@ class ExtendedKalmanFilter(ModelFilter):
                 raise ValueError('init="start" needs the robot\'s start: give start=(x, y)')
             self.mean = np.array(start, dtype=float).reshape(2)
             self.covariance = start_std**2 * np.eye(2)
-        self.init = init
         self.station = np.full(2, np.nan)  # the station the last update measured to
         self.innovation = math.nan  # z_k - |m_k|k-1 - station|, map units
 
