@@ -270,9 +270,8 @@ def arc_kernel_shape(speed: float, resolution: float) -> tuple[int, int]:
 
 def fft_shape(image_shape: tuple[int, ...], kernel_shape: tuple[int, ...]) -> tuple[int, int]:
     """The padded size of a linear (not circular) FFT convolution of image and kernel, fast lengths."""
-    return _fast_fft_length(image_shape[0] + kernel_shape[0] - 1), _fast_fft_length(
-        image_shape[1] + kernel_shape[1] - 1
-    )
+    rows, columns = (_fast_fft_length(i + k - 1) for i, k in zip(image_shape, kernel_shape, strict=True))
+    return rows, columns
 
 
 def _fast_fft_length(n: int) -> int:

@@ -83,7 +83,7 @@ def mazes_fitting(start: Sequence[float], particles: np.ndarray) -> list[str]:
 
 
 EMPTY, WALL, STATION_WALL = 0, 1, 2
-# At most this many rows and columns: the nearest-station table's flat cell indices stay exact in
+# At most MAX_MAZE_SIDE rows and columns: the nearest-station table's flat cell indices stay exact in
 # float32 ((4000 + 4)**2 < 2**24) and float32 particle positions resolve 2**-11 map units.
 # A maze file larger than this is refused, not read: room for the largest maze written with ", "
 # between cells (3 bytes a cell, 48 MB), comments included.
