@@ -398,7 +398,10 @@ def record_steps(
         filt.step(compass_angle, z)
         values = filt.estimate, filt.ess, filt.is_confident, filt.count
         recorded.seconds[k] = (time.perf_counter() - started) / count
-        _keep_step(recorded, k, check_step_values(type(filt), values, runs), filt)
+        estimate, ess, confident, particles = check_step_values(type(filt), values, runs)  # into column k
+        recorded.estimates[:, k], recorded.ess[:, k], recorded.confident[:, k] = estimate, ess, confident
+        recorded.counts[:, k] = particles
+        recorded.log_evidence[:, k] = getattr(filt, "log_evidence", np.nan)  # optional in the contract
         _keep_diagnostics(diagnostics, getattr(filt, "diagnostics", None), k, type(filt))
         if after is not None:
             after(k + 1, filt)
@@ -417,14 +420,6 @@ def _unfilled(count: int, steps: int) -> Recorded:
         np.empty(shape),
         np.empty(steps),
     )
-
-
-def _keep_step(recorded: Recorded, k: int, values: tuple[Any, Any, Any, Any], filt: Any) -> None:
-    """Step k's checked reads (estimate, ESS, green circle, particle count) into column k of every run."""
-    estimate, ess, confident, particles = values
-    recorded.estimates[:, k], recorded.ess[:, k], recorded.confident[:, k] = estimate, ess, confident
-    recorded.counts[:, k] = particles
-    recorded.log_evidence[:, k] = getattr(filt, "log_evidence", np.nan)  # optional in the contract
 
 
 def _keep_diagnostics(kept: dict[str, list[Any]], now: Any, k: int, filter_class: type) -> None:
