@@ -542,7 +542,6 @@ def plan_kidnapping(robot: Robot, world: Maze, kidnap_at: int, steps: int, rng: 
 
 
 __all__ = [
-    "NullView",
     "Recorded",
     "RunInputs",
     "RunResult",
