@@ -49,10 +49,9 @@ class GridBayesFilter(ModelFilter):
         super().__init__(*args, **options)  # the exact filter starts from the exact prior, not from a sample
         world, resolution, margin = self.world, self.settings["resolution"], self.settings["margin"]
         self.resolution = resolution
-        self.origin = -margin
         ny, nx = check_grid_memory(world.width, world.height, resolution, margin)
-        centres_x = self.origin + (np.arange(nx) + 0.5) * resolution
-        centres_y = self.origin + (np.arange(ny) + 0.5) * resolution
+        centres_x = -margin + (np.arange(nx) + 0.5) * resolution  # the grid starts `margin` before the map
+        centres_y = -margin + (np.arange(ny) + 0.5) * resolution
         gx, gy = np.meshgrid(centres_x, centres_y)  # row j is y, column i is x
         self.positions = np.column_stack([gx.ravel(), gy.ravel()])  # (M, 2) cell centres
         self.shape = (ny, nx)
