@@ -338,10 +338,6 @@ def walk_and_record(
 
 
 # -- the recording loop: a filter stepped along a walk, each step's reads kept ------------------------
-Observe = Callable[[int], tuple[Any, Any]]  # step index k (0-based) -> (compass angle, z) of every run
-AfterStep = Callable[[int, Any], None]  # (step number k (1-based), the filter) after each step
-
-
 @dataclass
 class Recorded:
     """Per step k = 1..steps, for R runs: the estimate (R, steps, 2), ESS, green circle, particle count
@@ -360,10 +356,10 @@ class Recorded:
 def record_steps(
     filt: Any,
     steps: int,
-    observe: Observe,
+    observe: Callable[[int], tuple[Any, Any]],
     *,
     runs: int | None = None,
-    after: AfterStep | None = None,
+    after: Callable[[int, Any], None] | None = None,
     at: Any = None,
 ) -> Recorded:
     """Step `filt` `steps` times and keep what each step reads.
