@@ -16,12 +16,11 @@ from mazelab.experiments import batch_runs
 from mazelab.experiments.study import MazeChoice, run_task, study_settings, study_tasks
 from mazelab.filters import RegularizedParticleFilter, SIRParticleFilter
 from mazelab.robot import Robot
-from mazelab.seeding import start_place
 from mazelab.simulation import record_steps, simulate
 
 
 def test_the_rpfs_regularisation_steps_reach_the_run_result(paper_world):
-    robot = Robot(0.3, 0.5, start_place(paper_world, 3))
+    robot = Robot.of_seed(paper_world, 0.3, 0.5, 3)
     result = simulate(robot, paper_world, 0.3, 0.5, 300, 60, None, "rpf", seed=3, threshold=0.5)
     regularised = result.extras["diagnostics"]["regularised"]
     filt_steps = [k for k in range(60) if regularised[k]]  # step k+1 began by regularising
@@ -37,7 +36,7 @@ def test_the_rpfs_regularisation_steps_reach_the_run_result(paper_world):
 
 
 def test_recoverys_injection_probability_is_recorded_per_step(paper_world):
-    robot = Robot(0.3, 0.5, start_place(paper_world, 4))
+    robot = Robot.of_seed(paper_world, 0.3, 0.5, 4)
     result = simulate(robot, paper_world, 0.3, 0.5, 300, 60, None, "sir", seed=4, recovery="sensor", kidnap_at=30)
     probability = result.extras["diagnostics"]["injection_probability"]
     assert probability.shape == (60,) and ((probability >= 0) & (probability <= 1)).all() and probability.max() > 0
