@@ -191,12 +191,6 @@ class Maze:
         return lookup
 
     # -- geometry --------------------------------------------------------------------------------
-    def cell_of(self, x: Any, y: Any) -> tuple[np.ndarray, np.ndarray]:
-        """(row, column) indices of the cells containing the points; may lie outside the grid."""
-        col = np.floor(np.asarray(x, dtype=float)).astype(np.int64)
-        row = self.height - 1 - np.floor(np.asarray(y, dtype=float)).astype(np.int64)
-        return row, col
-
     def is_free(self, x: Any, y: Any) -> bool | np.ndarray:
         """True where (x, y) lies in [0, W) x [0, H) in a cell of type 0; vectorised over arrays."""
         if is_scalar(x) and is_scalar(y):
@@ -204,7 +198,8 @@ class Maze:
         x = np.asarray(x, dtype=float)
         y = np.asarray(y, dtype=float)
         inside = (x >= 0) & (x < self.width) & (y >= 0) & (y < self.height)
-        row, col = self.cell_of(np.where(inside, x, 0.0), np.where(inside, y, 0.0))
+        col = np.floor(np.where(inside, x, 0.0)).astype(np.int64)  # the cell (row, col) of each point
+        row = self.height - 1 - np.floor(np.where(inside, y, 0.0)).astype(np.int64)
         free = inside & (self.grid[row, col] == EMPTY)
         return bool(free) if free.ndim == 0 else free
 
