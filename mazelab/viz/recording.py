@@ -244,15 +244,10 @@ def log_maze(stream: Any, world: Maze) -> None:
     import rerun as rr
 
     stream.log(MAP, rr.Transform3D(translation=[0, world.height, 0], scale=[1, -1, 1]), static=True)
-    stream.log(f"{MAP}/maze", rr.Image(maze_image(world), draw_order=-10.0), static=True)
+    walls = world.grid[::-1] != EMPTY  # pixel (row j, column i): the cell over x in [i, i+1), y in [j, j+1)
+    image = np.where(walls[..., None], np.uint8(WALL_COLOR), np.uint8(FREE_COLOR)).astype(np.uint8)
+    stream.log(f"{MAP}/maze", rr.Image(image, draw_order=-10.0), static=True)
     stream.log(f"{MAP}/stations", rr.Points2D(world.stations, colors=STATION_COLOR, radii=STATION_RADIUS), static=True)
-
-
-def maze_image(world: Maze) -> np.ndarray:
-    """RGB image of the maze, shape (H, W, 3): pixel (row j, column i) is the cell covering
-    x in [i, i+1), y in [j, j+1) of the map frame, so grid row H-1-j."""
-    walls = world.grid[::-1] != EMPTY
-    return np.where(walls[..., None], np.uint8(WALL_COLOR), np.uint8(FREE_COLOR)).astype(np.uint8)
 
 
 def heading_vectors(angles: np.ndarray, length: float) -> np.ndarray:
