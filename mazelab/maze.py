@@ -94,16 +94,6 @@ BYTES_PER_DRAWN_POINT = 64  # random_free_places: the cell indices, the cells an
 MEMORY_CHECKED_POINTS = 1_000_000  # counts above this are checked against the memory budget (it reads /proc)
 
 
-def check_point_count(count: Any) -> None:
-    """`count` of random_free_places: a whole number >= 0 whose arrays fit in memory, or one line."""
-    if isinstance(count, bool) or not isinstance(count, (int, np.integer)):
-        raise TypeError(f"random_free_places: count must be a whole number, got {count!r}")
-    if count < 0:
-        raise ValueError(f"random_free_places: count must be >= 0, got {count}")
-    if count > MEMORY_CHECKED_POINTS:
-        check_memory(f"random_free_places({count})", int(count) * BYTES_PER_DRAWN_POINT)
-
-
 class Maze:
     """A rectangular maze of 0/1/2 cells: free area, walls, stations and nearest-station distances.
 
@@ -226,7 +216,12 @@ class Maze:
         A count that is not a whole number >= 0 (1.5, True, -1) is a TypeError or ValueError, and one
         whose arrays would not fit in memory (10**12) a MemoryLimitError (a ValueError): one line each.
         """
-        check_point_count(count)
+        if isinstance(count, bool) or not isinstance(count, (int, np.integer)):
+            raise TypeError(f"random_free_places: count must be a whole number, got {count!r}")
+        if count < 0:
+            raise ValueError(f"random_free_places: count must be >= 0, got {count}")
+        if count > MEMORY_CHECKED_POINTS:
+            check_memory(f"random_free_places({count})", int(count) * BYTES_PER_DRAWN_POINT)
         rng = np.random.default_rng() if rng is None else rng
         cells = self.free_cells[rng.integers(len(self.free_cells), size=count)]
         return cells + rng.random((count, 2))
