@@ -108,7 +108,8 @@ class Maze:
         state["source"] = source
         state["height"], state["width"] = self.grid.shape
         state["stations"] = _station_corners(self.grid)
-        state["free_cells"] = _free_cell_origins(self.grid)
+        rows, columns = np.nonzero(self.grid == EMPTY)  # the free cells' lower-left corners (x, y), (F, 2)
+        state["free_cells"] = np.column_stack([columns, self.height - 1 - rows]).astype(float)
         _read_only(self)
 
     def __setattr__(self, name: str, value: Any) -> None:
@@ -340,12 +341,6 @@ def _station_corners(grid: np.ndarray) -> np.ndarray:
         for dy in (0, 1)
     }
     return np.array(sorted(corners), dtype=float)
-
-
-def _free_cell_origins(grid: np.ndarray) -> np.ndarray:
-    """Lower-left corners (x, y) of the free cells, shape (F, 2)."""
-    rows, cols = np.nonzero(grid == EMPTY)
-    return np.column_stack([cols, grid.shape[0] - 1 - rows]).astype(float)
 
 
 def _point_array(points: Any) -> np.ndarray:
