@@ -43,7 +43,8 @@ class NearestStationLookup:
         self.nx = (width + 2 * _LOOKUP_MARGIN) * self.scale
         self.ny = (height + 2 * _LOOKUP_MARGIN) * self.scale
         self.stations = stations
-        free = _lookup_cells_free(free_grid, self.scale, _LOOKUP_MARGIN).ravel()  # (C,) bool
+        free_up = np.pad(free_grid[::-1], _LOOKUP_MARGIN, constant_values=False)  # row 0: y in [-margin, ...)
+        free = np.repeat(np.repeat(free_up, self.scale, axis=0), self.scale, axis=1).ravel()  # (C,) bool
         candidates, counts = _candidate_stations(stations, self.nx, self.ny, self.offset, self.scale, progress)
         ambiguous = np.flatnonzero(counts > 1)
         self.kind = (free * _FREE + (counts > 1) * _AMBIGUOUS).astype(np.int8)  # (C,) each cell's bits
@@ -150,12 +151,6 @@ def _lookup_subdivisions(width: int, height: int) -> int:
     while scale > 1 and area * scale**2 > _LOOKUP_MAX_CELLS:
         scale //= 2
     return scale
-
-
-def _lookup_cells_free(free_grid: np.ndarray, scale: int, margin: int) -> np.ndarray:
-    """Free flags of the lookup cells, shape (ny, nx), row j covering y in [j/scale - margin, ...)."""
-    free_up = np.pad(free_grid[::-1], margin, constant_values=False)  # row 0 is y in [-margin, ...)
-    return np.repeat(np.repeat(free_up, scale, axis=0), scale, axis=1)
 
 
 def _nearest_candidate(
