@@ -121,7 +121,8 @@ class Recording:
 
     def log_robot(self, step: int, position: Sequence[float], heading: float | None) -> None:
         """The robot (a green dot and its heading) and the step number, once per step of the recording:
-        every filter of a comparison replays the same robot."""
+        every filter of a comparison replays the same robot. At the step of its kidnapping, the jump: a
+        line from where it was to where it was put down (drawn from that step on) and a ring there."""
         import rerun as rr
 
         if step in self.robot_steps:
@@ -134,22 +135,17 @@ class Recording:
             self.stream.log(f"{MAP}/robot/heading", arrow)
         title = f"### Step {step}"
         if self.kidnapping is not None and self.kidnapping[0] == step:
-            self.log_kidnapping(step, self.kidnapping[1])
+            place, label = self.kidnapping[1], f"kidnapped at step {step}"
+            if self.last_robot_position is not None:
+                jump = rr.LineStrips2D(
+                    [[self.last_robot_position, place]], colors=KIDNAP_COLOR, radii=0.03, labels=label
+                )
+                self.stream.log(f"{MAP}/robot/kidnapping", jump)
+            ring = rr.Ellipses2D(centers=[place], half_sizes=[[0.25, 0.25]], colors=KIDNAP_COLOR, line_radii=0.03)
+            self.stream.log(f"{MAP}/robot/kidnapping/place", ring)
             title += ": the robot is kidnapped"
         self.stream.log("/title", rr.TextDocument(title, media_type=rr.MediaType.MARKDOWN))
         self.last_robot_position = (float(position[0]), float(position[1]))
-
-    def log_kidnapping(self, step: int, place: tuple[float, float]) -> None:
-        """The jump of step `step`: a line from where the robot was to `place`, where it was put down
-        (it stays drawn from that step on), and a ring at `place`."""
-        import rerun as rr
-
-        label = f"kidnapped at step {step}"
-        if self.last_robot_position is not None:
-            jump = rr.LineStrips2D([[self.last_robot_position, place]], colors=KIDNAP_COLOR, radii=0.03, labels=label)
-            self.stream.log(f"{MAP}/robot/kidnapping", jump)
-        ring = rr.Ellipses2D(centers=[place], half_sizes=[[0.25, 0.25]], colors=KIDNAP_COLOR, line_radii=0.03)
-        self.stream.log(f"{MAP}/robot/kidnapping/place", ring)
 
     def close(self) -> None:
         """Flush; a file is written whole and its path printed (a write error is raised, or deferred,

@@ -164,8 +164,10 @@ class RunView:
         stream.set_time("step", sequence=step)
         self.recording.log_robot(step, robot_position, robot_heading)
         belief = state.belief()
-        if isinstance(belief, Gaussian):
-            self.log_gaussian(belief)
+        if isinstance(belief, Gaussian):  # the EKF's: a polygon (rerun's Ellipses2D cannot be rotated)
+            outline = covariance_ellipse(np.asarray(belief.mean), np.asarray(belief.covariance), COVARIANCE_SIGMAS)
+            strip = rr.LineStrips2D([outline], colors=self.color, radii=COVARIANCE_LINE_RADIUS)
+            stream.log(f"{self.path}/covariance", strip)
         else:
             self.log_particles(belief)
         estimate, confident = np.asarray(state.estimate, dtype=float), bool(state.is_confident)
@@ -214,15 +216,6 @@ class RunView:
             show_labels=True,
         )
         self.recording.stream.log(f"{self.path}/modes", circles)
-
-    def log_gaussian(self, belief: Gaussian) -> None:
-        """A Gaussian belief (the EKF's): its COVARIANCE_SIGMAS ellipse, a polygon in the filter's colour
-        (rerun's Ellipses2D are axis-aligned: they cannot be rotated)."""
-        import rerun as rr
-
-        outline = covariance_ellipse(np.asarray(belief.mean), np.asarray(belief.covariance), COVARIANCE_SIGMAS)
-        strip = rr.LineStrips2D([outline], colors=self.color, radii=COVARIANCE_LINE_RADIUS)
-        self.recording.stream.log(f"{self.path}/covariance", strip)
 
     def log_particle_count(self, count: int) -> None:
         """The particle count N of this step (KLD-sampling varies it), in the ESS panel: ESS <= N."""
