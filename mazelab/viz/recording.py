@@ -70,9 +70,11 @@ class Recording:
 
     @classmethod
     def open(cls, target: Any, world: Maze, blueprint: Any, *, label: str, replace: bool = True) -> Recording | None:
-        """A recording going where `target` says (see the `visualize` values), with the maze logged;
-        None, after a line saying so, when Rerun is switched off (RERUN=off). A named file replaces an
-        existing one only with `replace`."""
+        """A recording going where `target` says (see the `visualize` values), with the static map logged:
+        walls black and free cells white (an image, one pixel per cell), stations as cyan dots, all under
+        MAP, whose transform turns the map frame (y up) into the view's (y down). None, after a line
+        saying so, when Rerun is switched off (RERUN=off). A named file replaces an existing one only
+        with `replace`."""
         import rerun as rr
 
         if isinstance(target, rr.RecordingStream):
@@ -84,7 +86,13 @@ class Recording:
                 return None
             stream = rr.RecordingStream(APPLICATION_ID, recording_id=str(uuid.uuid4()))
             recording = cls._to(stream, target, blueprint, label, replace)
-        log_maze(recording.stream, world)
+        stream = recording.stream
+        stream.log(MAP, rr.Transform3D(translation=[0, world.height, 0], scale=[1, -1, 1]), static=True)
+        walls = world.grid[::-1] != EMPTY  # pixel (row j, column i): the cell over x in [i, i+1), y in [j, j+1)
+        image = np.where(walls[..., None], np.uint8(WALL_COLOR), np.uint8(FREE_COLOR)).astype(np.uint8)
+        stream.log(f"{MAP}/maze", rr.Image(image, draw_order=-10.0), static=True)
+        stations = rr.Points2D(world.stations, colors=STATION_COLOR, radii=STATION_RADIUS)
+        stream.log(f"{MAP}/stations", stations, static=True)
         return recording
 
     @classmethod
@@ -232,18 +240,6 @@ def deferred_to_the_end() -> Iterator[None]:
                 server.stop()
     if errors:
         raise errors[0]
-
-
-def log_maze(stream: Any, world: Maze) -> None:
-    """The static map: walls black and free cells white (an image, one pixel per cell), stations as
-    cyan dots, all under MAP, whose transform turns the map frame (y up) into the view's (y down)."""
-    import rerun as rr
-
-    stream.log(MAP, rr.Transform3D(translation=[0, world.height, 0], scale=[1, -1, 1]), static=True)
-    walls = world.grid[::-1] != EMPTY  # pixel (row j, column i): the cell over x in [i, i+1), y in [j, j+1)
-    image = np.where(walls[..., None], np.uint8(WALL_COLOR), np.uint8(FREE_COLOR)).astype(np.uint8)
-    stream.log(f"{MAP}/maze", rr.Image(image, draw_order=-10.0), static=True)
-    stream.log(f"{MAP}/stations", rr.Points2D(world.stations, colors=STATION_COLOR, radii=STATION_RADIUS), static=True)
 
 
 def heading_vectors(angles: np.ndarray, length: float) -> np.ndarray:
