@@ -107,7 +107,15 @@ class Maze:
         state["grid"] = _validate_grid(maze_map, source)
         state["source"] = source
         state["height"], state["width"] = self.grid.shape
-        state["stations"] = _station_corners(self.grid)
+        # the stations: the four corners of every station block, in map coordinates, each point once (B, 2)
+        rows, columns = np.nonzero(self.grid == STATION_WALL)
+        corners = {
+            (int(c + dx), int(self.height - 1 - r + dy))
+            for r, c in zip(rows, columns, strict=True)
+            for dx in (0, 1)
+            for dy in (0, 1)
+        }
+        state["stations"] = np.array(sorted(corners), dtype=float)
         rows, columns = np.nonzero(self.grid == EMPTY)  # the free cells' lower-left corners (x, y), (F, 2)
         state["free_cells"] = np.column_stack([columns, self.height - 1 - rows]).astype(float)
         _read_only(self)
@@ -330,19 +338,6 @@ def parse_maze_text(text: str, source: str = "maze text") -> list[list[int]]:
 
 
 # -- derived geometry ----------------------------------------------------------------------------
-def _station_corners(grid: np.ndarray) -> np.ndarray:
-    """The four corners of every type-2 cell in map coordinates, each point once, shape (B, 2)."""
-    height = grid.shape[0]
-    rows, cols = np.nonzero(grid == STATION_WALL)
-    corners = {
-        (int(c + dx), int(height - 1 - r + dy))
-        for r, c in zip(rows, cols, strict=True)
-        for dx in (0, 1)
-        for dy in (0, 1)
-    }
-    return np.array(sorted(corners), dtype=float)
-
-
 def _point_array(points: Any) -> np.ndarray:
     """Points of shape (..., 2) as floats, or one line saying what the Maze's methods take."""
     array = np.asarray(points, dtype=float)
