@@ -69,9 +69,12 @@ class NearestStationLookup:
         del first
         kinds = self.kind.take(cells)
         ambiguous = np.flatnonzero(kinds >= _AMBIGUOUS)
-        if len(ambiguous):
-            rows = self.row.take(cells.take(ambiguous))
-            d2[ambiguous] = _nearest_candidate(others, rows, x.take(ambiguous), y.take(ambiguous), d2.take(ambiguous))
+        if len(ambiguous):  # the nearest of the other candidates of each ambiguous cell (its row of `others`)
+            near, xs, ys = d2.take(ambiguous), x.take(ambiguous), y.take(ambiguous)
+            candidates = others.take(self.row.take(cells.take(ambiguous)), axis=0)  # (n, 2 (K - 1))
+            for k in range(0, candidates.shape[1], 2):
+                np.minimum(near, _squared_distances(candidates[:, k], candidates[:, k + 1], xs, ys), out=near)
+            d2[ambiguous] = near
         free = np.bitwise_and(kinds, _FREE, out=kinds).view(bool)
         if len(beyond):
             d2[beyond] = _brute_force_squared_distances(border, x[beyond], y[beyond])
@@ -151,17 +154,6 @@ def _lookup_subdivisions(width: int, height: int) -> int:
     while scale > 1 and area * scale**2 > _LOOKUP_MAX_CELLS:
         scale //= 2
     return scale
-
-
-def _nearest_candidate(
-    others: np.ndarray, rows: np.ndarray, x: np.ndarray, y: np.ndarray, first: np.ndarray
-) -> np.ndarray:
-    """Squared distance from each point to the nearest candidate of its ambiguous cell (its row of
-    `others`), given `first`, its squared distance to the first candidate (written over)."""
-    others = others.take(rows, axis=0)  # (n, 2 (K - 1))
-    for k in range(0, others.shape[1], 2):
-        np.minimum(first, _squared_distances(others[:, k], others[:, k + 1], x, y), out=first)
-    return first
 
 
 def _squared_distances(sx: np.ndarray, sy: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
