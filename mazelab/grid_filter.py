@@ -268,15 +268,12 @@ def arc_kernel_shape(speed: float, resolution: float) -> tuple[int, int]:
 
 
 def fft_shape(image_shape: tuple[int, ...], kernel_shape: tuple[int, ...]) -> tuple[int, int]:
-    """The padded size of a linear (not circular) FFT convolution of image and kernel, fast lengths."""
-    rows, columns = (_fast_fft_length(i + k - 1) for i, k in zip(image_shape, kernel_shape, strict=True))
+    """The padded size of a linear (not circular) FFT convolution of image and kernel: along each axis the
+    smallest 2^a, 3 * 2^a or 5 * 2^a >= n, the full size n, as numpy's FFT is fastest on such lengths (640
+    takes a third of the time of 625 = 5^4)."""
+    full = [i + k - 1 for i, k in zip(image_shape, kernel_shape, strict=True)]
+    rows, columns = (min(odd * 2 ** max(0, math.ceil(math.log2(n / odd))) for odd in (1, 3, 5)) for n in full)
     return rows, columns
-
-
-def _fast_fft_length(n: int) -> int:
-    """The smallest 2^a, 3 * 2^a or 5 * 2^a >= n: numpy's FFT is fastest on such lengths (640 takes a
-    third of the time of 625 = 5^4)."""
-    return min(odd * 2 ** max(0, math.ceil(math.log2(n / odd))) for odd in (1, 3, 5))
 
 
 __all__ = [
