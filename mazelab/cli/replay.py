@@ -49,7 +49,7 @@ from mazelab.maze import DEFAULT_MAZE, Maze, find_maze, load_maze, mazes_fitting
 from mazelab.registry import FilterEntry, file_sha256, filter_entry, resolve_filter
 from mazelab.robot import Robot
 from mazelab.scenario import Scenario, check_measurements_within, find_scenario, load_scenario, save_scenario
-from mazelab.seeding import new_seed, start_place
+from mazelab.seeding import new_seed
 from mazelab.simulation import RunResult, check_walk, simulate
 
 
@@ -185,7 +185,7 @@ def fresh_setup(maze: str | None, sigma: float | None, delta: float | None, seed
     seed = new_seed() if seed is None else seed
     if start_seed is not None and start_seed != seed:
         warnings.warn(f"--start-seed {start_seed} differs from --seed {seed}: repeat with both", stacklevel=1)
-    robot = Robot(sigma, delta, start_place(world, seed if start_seed is None else start_seed))
+    robot = Robot.of_seed(world, sigma, delta, seed if start_seed is None else start_seed)
     return RunSetup(world, robot, sigma, delta, None, seed)
 
 
