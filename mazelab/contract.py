@@ -72,7 +72,8 @@ class Gaussian:
 
 class NullView:
     """A view that draws nothing: what a run without drawing uses (a view is anything with `log_step`
-    and `close`; mazelab.viz.views' draw into Rerun)."""
+    and `close`, and may have `expect_kidnapping(step, position)`, told of the robot's planned jump;
+    mazelab.viz.views' draw into Rerun)."""
 
     def log_step(self, step: int, robot_position: Sequence[float], robot_heading: float | None, state: Any) -> None:
         """Draw step `step`: the robot and the filter `state`.
@@ -90,15 +91,6 @@ class NullView:
 
     def close(self) -> None:
         """Finish drawing (flush and close the recording)."""
-
-    def expect_kidnapping(self, step: int, position: Sequence[float]) -> None:
-        """The robot will be carried to `position` at step `step`: draw the jump then.
-
-        Parameters
-        ----------
-        step : int
-        position : (x, y)
-        """
 
 
 REQUIRED_METHODS = ("step", "belief")
