@@ -248,14 +248,14 @@ def kernels_start_seconds(world: Maze) -> tuple[float, int]:
     two steps of each filter on `world`, how many kernels had to be compiled rather than loaded from
     the cache)."""
     started = time.perf_counter()
-    from mazelab.kernels import model, resampling, weights  # imports numba
+    from mazelab.kernels import model, weights  # imports numba
 
     walk = record_walk(world, 2)
     for name in BENCH_FILTERS:
         step = filter_stepper(name, world, 200, backend="compiled")
         for compass_angle, z in walk:
             step(compass_angle, z)
-    kernels = (model.move, model.log_likelihood, resampling.systematic, weights.normalise, weights.covariance)
+    kernels = (model.move, model.log_likelihood, weights.systematic, weights.normalise, weights.covariance)
     return time.perf_counter() - started, sum(sum(k.serial.stats.cache_misses.values()) for k in kernels)
 
 

@@ -157,7 +157,7 @@ def test_the_moves_cos_and_sin_are_within_half_an_ulp_and_a_little_over_the_mode
 
 
 def blocked_cumulative(W: np.ndarray) -> np.ndarray:
-    """The cumulative weights the compiled resampler uses (mazelab.kernels.resampling): in blocks of
+    """The cumulative weights the compiled resampler uses (mazelab.kernels.weights): in blocks of
     CHUNK, b_k (each block's sequential float64 total, added in order) plus the block's running sum."""
     blocks = [np.cumsum(W[i : i + CHUNK], dtype=float) for i in range(0, len(W), CHUNK)]
     bases = np.cumsum([0.0] + [block[-1] for block in blocks[:-1]])
@@ -430,13 +430,13 @@ def test_a_second_process_loads_the_kernels_from_the_cache(tmp_path):
         "from mazelab.simulation import simulate\n"
         "from mazelab.maze import Maze\n"
         "from mazelab.robot import Robot\n"
-        "from mazelab.kernels import model, resampling, weights\n"
+        "from mazelab.kernels import model, weights\n"
         "w = Maze.from_file('paper_5x5')\n"
         "with use_backend('compiled'):\n"
         "    for name in ('sir', 'apf', 'rpf'):\n"
         "        start = w.random_free_place(np.random.default_rng(3))\n"
         "        simulate(Robot(0.3, 0.5, start), w, 0.3, 0.5, 200, 5, filtering_algorithm=name, seed=1)\n"
-        "kernels = [k.serial for k in (model.move, model.log_likelihood, model.jitter, resampling.systematic,\n"
+        "kernels = [k.serial for k in (model.move, model.log_likelihood, model.jitter, weights.systematic,\n"
         "           weights.normalise, weights.covariance)]\n"
         "import sys\n"
         "print(sum(sum(k.stats.cache_misses.values()) for k in kernels),"

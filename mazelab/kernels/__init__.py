@@ -1,9 +1,8 @@
 """Compiled kernels (numba, the `fast` extra) for the hot parts of the particle filters: the model's
-equations (mazelab.kernels.model), the resampler (mazelab.kernels.resampling) and the weights
-(mazelab.kernels.weights), which mazelab.kernels.compiled.CompiledKernels calls for a filter
-(mazelab.backend chooses it or numpy's). Each takes R runs in one call and works on float32 particles,
-in the numpy path's float32 arithmetic where it has some; cos, sin and exp are polynomials the
-compiler vectorises (mazelab.kernels.vector_math).
+equations (mazelab.kernels.model), the weights and the resampler (mazelab.kernels.weights), which
+mazelab.kernels.compiled.CompiledKernels calls for a filter (mazelab.backend chooses it or numpy's).
+Each takes R runs in one call and works on float32 particles, in the numpy path's float32 arithmetic
+where it has some; cos, sin and exp are polynomials the compiler vectorises (mazelab.kernels.vector_math).
 
 Threads: every kernel is one body over chunks of CHUNK particles (a run's particles split in order; a
 chunk never spans two runs), compiled to run them in order and over numba's threads (`Kernel`,

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from mazelab.constants import CONFIDENCE_RADIUS, PARTICLE_DTYPE
-from mazelab.kernels import model, resampling, weights
+from mazelab.kernels import model, weights
 from mazelab.numpy_ops import NumpyKernels
 from mazelab.regularisation import GaussianKernel
 from mazelab.smc import UNSIGNED, new_particles, particles_array
@@ -181,12 +181,12 @@ class CompiledKernels(NumpyKernels):
     def systematic(self, W: np.ndarray, rng: Any, count: int | None = None) -> np.ndarray:
         """Systematic resampling of W (N,), or of D runs' (D, N) with a Generator each (a sequence), into
         `count` (default N) int64 ancestors a run, in its counting form by blocks, all runs in one call
-        (mazelab.kernels.resampling): mazelab.resampling.systematic_resample's ancestors for the same
+        (mazelab.kernels.weights): mazelab.resampling.systematic_resample's ancestors for the same
         cumulative weights and offsets u = rng.random() (a run's as alone)."""
         rows, rngs = (W[None], [rng]) if W.ndim == 1 else (W, rng)
         out = np.empty((len(rows), rows.shape[1] if count is None else count), dtype=np.int64)
         offsets = np.array([generator.random() for generator in rngs])
-        resampling.systematic(self.threads, rows.size, rows, offsets, out)
+        weights.systematic(self.threads, rows.size, rows, offsets, out)
         return out[0] if W.ndim == 1 else out
 
     def weighted_mean(self, W: Weights, x: np.ndarray) -> np.ndarray:
