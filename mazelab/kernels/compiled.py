@@ -202,22 +202,6 @@ class CompiledKernels(NumpyKernels):
             return reads[1][4]
         return super().mass_within(W, x, centres, radius)
 
-    def weighted_covariance(self, W: np.ndarray, x: np.ndarray) -> np.ndarray:
-        """Each run's weighted covariance, compiled (one pass), (R, 2, 2)."""
-        if x.dtype != PARTICLE_DTYPE:
-            return super().weighted_covariance(W, x)
-        out = np.empty((len(W), 2, 2))
-        weights.covariance(self.threads, W.size, W, planes(x), out)
-        return out
-
-    def second_stage(self, log_lik: np.ndarray, log_mu: np.ndarray, A: np.ndarray) -> np.ndarray:
-        """The APF's second-stage log weights (NumpyKernels.second_stage's) in one compiled pass."""
-        if not log_lik.dtype == log_mu.dtype == PARTICLE_DTYPE:
-            return super().second_stage(log_lik, log_mu, A)
-        out = np.empty_like(log_lik)
-        weights.second_stage(self.threads, out.size, log_lik, log_mu, unsigned(A), out)
-        return out
-
     def equal_weighted(self, log_lik: np.ndarray, log_weight: float) -> np.ndarray:
         """log W + log p(z_k | x_k) of resampled particles, in the likelihood's dtype (float32)."""
         return np.add(log_lik, log_lik.dtype.type(log_weight))

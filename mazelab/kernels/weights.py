@@ -215,52 +215,6 @@ def _combine(row, reads, r, lanes, scales):  # pragma: no cover - compiled
         scales[c] /= total
 
 
-@Kernel
-def second_stage(log_lik, log_mu, ancestors, out):  # pragma: no cover - compiled
-    """The APF's second-stage log weights of R runs, float32 (R, M): out[r, m] = log p(z_k | x_m) - log
-    p(z_k | mu_{a_m}) from log_lik (R, M) and log_mu (R, N), the first stage's values gathered by run
-    r's ancestors (R, M) (uint64, into its own particles) in the same pass (numpy's take_along_axis and
-    subtract: the same float32 values)."""
-    runs, size = log_lik.shape
-    blocks, jobs = chunks(runs, size)
-    for job in prange(jobs):
-        r, start, stop = chunk_of(job, blocks, size)
-        values, gathered, sources, mu = out[r, start:stop], log_lik[r, start:stop], ancestors[r, start:stop], log_mu[r]
-        for m in range(stop - start):
-            values[m] = gathered[m] - mu[sources[m]]
-
-
-@Kernel
-def covariance(weights, xy, out):  # pragma: no cover - compiled
-    """sum_i W_i (x_i - m)(x_i - m)^T, m = sum_i W_i x_i, into out (R, 2, 2) float64 for R runs' weights
-    (R, N) and float32 coordinates xy (2, R, N) (mazelab.weights.weighted_covariance), in one pass: the
-    sums of W, W d and W d d^T, d = x - c around the run's first particle c (float64: the spread may be
-    tiny beside the position), each chunk's in order, then the chunks'; then with e = m - c, the
-    covariance S - s e^T - e s^T + (sum W) e e^T (s = sum W d)."""
-    runs, size = weights.shape
-    blocks, jobs = chunks(runs, size)
-    parts = scratch((jobs, 6), np.float64)  # each chunk's sums of W, W dx, W dy, W dx dx, W dx dy, W dy dy
-    for job in prange(jobs):
-        r, start, stop = chunk_of(job, blocks, size)
-        w, xs, ys, cx, cy = weights[r, start:stop], xy[0, r, start:stop], xy[1, r, start:stop], xy[0, r, 0], xy[1, r, 0]
-        total = sx = sy = sxx = sxy = syy = 0.0
-        for i in range(stop - start):
-            weight, dx, dy = np.float64(w[i]), np.float64(xs[i]) - cx, np.float64(ys[i]) - cy
-            total, sx, sy = total + weight, sx + weight * dx, sy + weight * dy
-            sxx, sxy, syy = sxx + weight * dx * dx, sxy + weight * dx * dy, syy + weight * dy * dy
-        for k, value in enumerate((total, sx, sy, sxx, sxy, syy)):
-            parts[job, k] = value
-    for r in range(runs):
-        total = sx = sy = sxx = sxy = syy = 0.0
-        for job in range(r * blocks, (r + 1) * blocks):
-            total, sx, sy = total + parts[job, 0], sx + parts[job, 1], sy + parts[job, 2]
-            sxx, sxy, syy = sxx + parts[job, 3], sxy + parts[job, 4], syy + parts[job, 5]
-        ex, ey = sx + xy[0, r, 0] * (total - 1.0), sy + xy[1, r, 0] * (total - 1.0)  # e = m - c
-        out[r, 0, 0] = sxx - 2 * sx * ex + total * ex * ex
-        out[r, 1, 1] = syy - 2 * sy * ey + total * ey * ey
-        out[r, 0, 1] = out[r, 1, 0] = sxy - sx * ey - ex * sy + total * ex * ey
-
-
 @inline
 def _ancestors_of_block(weights, u, count, base, start, offset, out):  # pragma: no cover - compiled
     """`out`: the points offset.. of the particles start.. (their weights `weights`; the last particle
