@@ -129,8 +129,8 @@ class CompiledWeights(Weights):
 
 class CompiledKernels(NumpyKernels):
     """The hot parts of one filter on `world` (its lookup tables read once), compiled (mazelab.kernels),
-    a call of mazelab.kernels.THREADED_FROM particles or more on `threads` threads (mazelab.backend.kernels_for passes
-    thread_count's); what the kernels do not cover is NumpyKernels' (this class's parent)."""
+    a call of mazelab.kernels.THREADED_FROM particles or more on `threads` threads (mazelab.backend.
+    kernels_for passes shared_threads'); what the kernels do not cover is NumpyKernels' (its parent)."""
 
     name = "compiled"
 
