@@ -14,7 +14,7 @@ of threads, and R runs together are R single runs.
 Importing this package imports numba, and a process's first kernel call sets numba's runtime up (a
 kernel loaded from the cache: some 0.2 s of CPU in all, with the import); a command whose work does not
 pay that back runs on numpy (mazelab.backend.backend_for_work). Each kernel is compiled on its first
-call and cached on disk where a cache folder can be written (`_compiled`, `_MendingCache`).
+call and cached on disk where a cache folder can be written (`Kernel`, `_MendingCache`).
 """
 
 from __future__ import annotations
@@ -143,41 +143,35 @@ class _NoAliasCompiler(Compiler):
         super().__init__(typingctx, targetctx, library, args, return_type, flags, locals)
 
 
-def _compiled(function: Callable[..., Any], variant: str = "", **options: Any) -> Any:
-    """`function` compiled by numba in nopython mode (releasing the GIL, numpy's error model: x / 0 is
-    inf), cached on disk where a cache folder can be written (see the module's docstring), else
-    compiled in memory (with one warning per process)."""
-    options = {"nogil": True, "error_model": "numpy", "pipeline_class": _NoAliasCompiler, **options}
-    dispatcher = numba.njit(**options)(function)
-    try:
-        dispatcher._cache = _MendingCache(function, variant)  # what numba's cache=True sets, with the mending
-    except RuntimeError:  # numba found no writable cache folder ("cannot cache function ...")
-        _warn_once(
-            "mazelab's compiled kernels cannot be cached (no writable cache folder; set NUMBA_CACHE_DIR): "
-            "they are compiled again in each process"
-        )
-    return dispatcher
-
-
-def inline(function: Callable[..., Any]) -> Any:
-    """A helper inlined into the kernels that call it (numba's inline="always"): a function called per
-    particle, whose call would otherwise count the references of every array it is passed."""
-    return numba.njit(inline="always", nogil=True, error_model="numpy")(function)
-
-
+# a helper inlined into the kernels that call it: a function called per particle, whose call would
+# otherwise count the references of every array it is passed
+inline = numba.njit(inline="always", nogil=True, error_model="numpy")
 _LAUNCH = threading.Lock()  # numba's workqueue takes one launch at a time
 
 
 class Kernel:
-    """One kernel body over chunks (`function`, its loop over them a `numba.prange`), compiled twice:
-    `serial` runs the chunks in order on the calling thread, `parallel` spreads them over numba's
-    threads. Both give the same values (the chunks fix the draws and the sums' order), so a call takes
-    whichever is free."""
+    """One kernel body over chunks (`function`, its loop over them a `numba.prange`), compiled twice by
+    numba in nopython mode (releasing the GIL, numpy's error model: x / 0 is inf): `serial` runs the
+    chunks in order on the calling thread, `parallel` spreads them over numba's threads. Both give the
+    same values, so a call takes whichever is free. Each is cached on disk where a cache folder can be
+    written (see the module's docstring), else compiled in memory (with one warning per process)."""
 
     def __init__(self, function: Callable[..., Any]):
         self.__wrapped__ = function
-        self.serial = _compiled(function)
-        self.parallel = _compiled(function, "-threads", parallel=True)
+        self.serial, self.parallel = self._compiled(function), self._compiled(function, "-threads", parallel=True)
+
+    @staticmethod
+    def _compiled(function: Callable[..., Any], variant: str = "", **options: Any) -> Any:
+        options = {"nogil": True, "error_model": "numpy", "pipeline_class": _NoAliasCompiler, **options}
+        dispatcher = numba.njit(**options)(function)
+        try:
+            dispatcher._cache = _MendingCache(function, variant)  # what numba's cache=True sets, with the mending
+        except RuntimeError:  # numba found no writable cache folder ("cannot cache function ...")
+            _warn_once(
+                "mazelab's compiled kernels cannot be cached (no writable cache folder; set NUMBA_CACHE_DIR): "
+                "they are compiled again in each process"
+            )
+        return dispatcher
 
     def __call__(self, threads: int, particles: int, *args: Any) -> Any:
         """The kernel over `particles` particles on `threads` threads: in order here on one thread or below
