@@ -118,8 +118,14 @@ class NumpyKernels:
         for block, kernel in enumerate(kernels):
             part = slice(block * size, (block + 1) * size)
             moved[part] += kernel(moved[part], eps[part])
-        if len(rows) == len(x):
-            return moved.reshape(len(x), size, 2)
-        out = particles_array(x, x.dtype)
-        out[rows] = moved.reshape(len(rows), size, 2)
-        return out
+        return replaced(x, rows, moved.reshape(len(rows), size, 2))
+
+
+def replaced(x: np.ndarray, rows: np.ndarray, moved: np.ndarray) -> np.ndarray:
+    """x (R, N, 2) with the runs `rows` (D,) replaced by `moved` (D, M, 2) (M = N), or `moved` itself
+    when it holds every run's: the RPF's jittered particles."""
+    if len(rows) == len(x):
+        return moved
+    out = particles_array(x, x.dtype)
+    out[rows] = moved
+    return out

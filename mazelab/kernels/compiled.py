@@ -15,9 +15,9 @@ import numpy as np
 
 from mazelab.constants import CONFIDENCE_RADIUS, PARTICLE_DTYPE
 from mazelab.kernels import model, weights
-from mazelab.numpy_ops import NumpyKernels
+from mazelab.numpy_ops import NumpyKernels, replaced
 from mazelab.regularisation import GaussianKernel
-from mazelab.smc import UNSIGNED, new_particles, particles_array
+from mazelab.smc import UNSIGNED, new_particles
 from mazelab.weights import Weights, log_sum_exp, read_only
 
 EVERY_RUN = np.empty(0, dtype=bool)  # the move's `moving` when every run draws (model.move)
@@ -217,8 +217,4 @@ class CompiledKernels(NumpyKernels):
         moved = new_particles(len(rows), A.shape[1], PARTICLE_DTYPE)
         keys = keys_of([rngs[r] for r in rows])
         model.jitter(self.threads, moved[..., 0].size, planes(x), rows, unsigned(A[rows]), keys, scales, planes(moved))
-        if len(rows) == len(x):
-            return moved
-        out = particles_array(x, x.dtype)
-        out[rows] = moved
-        return out
+        return replaced(x, rows, moved)
