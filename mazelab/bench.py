@@ -25,7 +25,6 @@ from typing import Any
 import numpy as np
 
 from mazelab.backend import BACKENDS, chosen_backend, numba_available, use_backend
-from mazelab.grid_filter import GridBayesFilter
 from mazelab.maze import EMPTY, STATION_WALL, WALL, Maze
 from mazelab.model import OUTSIDE_PENALTY, ROBOT_SPEED
 from mazelab.registry import resolve_filter
@@ -83,11 +82,11 @@ def time_steps(step: Callable[[float, float], None], walk: list[tuple[float, flo
 
 
 def filter_stepper(
-    name: str, world: Maze, particles: int, seed: int = 2, backend: str | None = None
+    name: str, world: Maze, particles: int, backend: str | None = None
 ) -> Callable[[float, float], None]:
-    """A step of a fresh filter (on `backend`, default the chosen one), followed by the reads `simulate`
-    makes (estimate, ESS, confidence)."""
-    rng = np.random.default_rng(seed)
+    """A step of a fresh filter (on `backend`, default the chosen one; the grid filter at its default
+    resolution too), followed by the reads `simulate` makes (estimate, ESS, confidence)."""
+    rng = np.random.default_rng(2)
     with use_backend(backend or chosen_backend()):
         filt = resolve_filter(name)(world, BENCH_SIGMA, BENCH_DELTA, world.random_free_places(particles, rng), rng)
 
@@ -122,14 +121,15 @@ def reference_stepper(world: Maze, particles: int, seed: int = 2) -> Callable[[f
     return step
 
 
-def peak_memory(make_step: Callable[[], Callable[[float, float], None]], walk: list[tuple[float, float]]) -> int:
-    """Peak bytes allocated (tracemalloc) while creating the stepper and running two steps."""
+def traced(make_step: Callable[[], Callable[[float, float], None]], walk: list[tuple[float, float]]) -> tuple:
+    """(the stepper `make_step` makes, the peak bytes allocated (tracemalloc) while making it and running
+    the walk's first two steps with it)."""
     tracemalloc.start()
     try:
         step = make_step()
         for compass_angle, z in walk[:2]:
             step(compass_angle, z)
-        return tracemalloc.get_traced_memory()[1]
+        return step, tracemalloc.get_traced_memory()[1]
     finally:
         tracemalloc.stop()
 
@@ -143,31 +143,19 @@ def measure(
     backends: tuple[str, ...] | None = None,
 ) -> Iterator[BenchRow]:
     """The rows of one maze: every filter at every N on each backend (default: the chosen one), then
-    the reference step where it is affordable."""
-    walk = record_walk(world, warmup + steps)
+    the reference step where it is affordable; each timed on the walk after its two traced steps."""
+    walk = record_walk(world, 2 + warmup + steps)
     world.station_distances_and_free(np.zeros(1, np.float32), np.zeros(1, np.float32))  # build the float32 tables
     for n in counts:
         for name in BENCH_FILTERS:
             for backend in backends or (chosen_backend(),):
-                peak = peak_memory(lambda name=name, n=n, b=backend: filter_stepper(name, world, n, backend=b), walk)
-                seconds = time_steps(filter_stepper(name, world, n, backend=backend), walk, warmup)
+                step, peak = traced(lambda name=name, n=n, b=backend: filter_stepper(name, world, n, b), walk)
+                seconds = time_steps(step, walk[2:], warmup)
                 yield BenchRow(maze_name, resolve_filter(name).name, n, seconds, peak, backend)
         if n * len(world.stations) <= REFERENCE_LIMIT:
-            reference_walk = walk[: warmup + max(3, steps // 4)]
-            peak = peak_memory(lambda n=n: reference_stepper(world, n), walk)
-            yield BenchRow(maze_name, "reference", n, time_steps(reference_stepper(world, n), reference_walk, 1), peak)
-
-
-def grid_filter_ms(world: Maze, steps: int) -> float:
-    """Median milliseconds per step of GridBayesFilter at its default resolution (with its reads)."""
-    walk = record_walk(world, steps + 2)
-    grid = GridBayesFilter(world, BENCH_SIGMA, BENCH_DELTA)
-
-    def step(compass_angle: float, z: float) -> None:
-        grid.step(compass_angle, z)
-        _ = grid.estimate, grid.is_confident
-
-    return 1e3 * time_steps(step, walk, 2)
+            step, peak = traced(lambda n=n: reference_stepper(world, n), walk)
+            seconds = time_steps(step, walk[2 : 2 + warmup + max(3, steps // 4)], 1)
+            yield BenchRow(maze_name, "reference", n, seconds, peak)
 
 
 def sir_run(world: Maze, particles: int, steps: int, seed: int) -> tuple[float, Any]:
@@ -283,7 +271,7 @@ def run_benchmark(
     for name, world in ((f"small {small.height}x{small.width}", small), (f"large {large.height}x{large.width}", large)):
         rows += measure(name, world, counts, steps, warmup, backends=backends)
     echo(format_table(rows))
-    grid_ms = grid_filter_ms(small, 10 if quick else 30)
+    grid_ms = 1e3 * time_steps(filter_stepper("grid", small, 1), record_walk(small, 12 if quick else 32), 2)
     echo(f"GridBayesFilter on the small maze (resolution 0.02): {grid_ms:.1f} ms/step")
     reference = [r for r in rows if r.maze.startswith("small") and (r.filter_name, r.particles) == ("reference", 10**6)]
     for backend in backends:
