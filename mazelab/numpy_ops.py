@@ -47,12 +47,14 @@ def flat_ancestors(A: np.ndarray, count: int) -> np.ndarray:
 class NumpyKernels:
     """The hot parts in numpy: the lab's reference, each operation the same numpy calls as always.
 
-    `Weights` is the backend's weights value (mazelab.weights.Weights: float64 log W); `schemes` the
-    faster forms of resampling schemes by name (none: numpy runs mazelab.resampling's textbook ones).
+    `Weights` is the backend's weights value (mazelab.weights.Weights: float64 log W), `log_dtype` the
+    dtype of its log weights after resampling (float64; None: the likelihood's); `schemes` the faster
+    forms of resampling schemes by name (none: numpy runs mazelab.resampling's textbook ones).
     """
 
     name = "numpy"
     Weights: type = Weights
+    log_dtype: type | None = float
     schemes: Mapping[str, Callable[..., np.ndarray]] = MappingProxyType({})
 
     def move(
@@ -83,8 +85,8 @@ class NumpyKernels:
 
     def equal_weighted(self, log_lik: np.ndarray, log_weight: float) -> np.ndarray:
         """log W + log p(z_k | x_k) of resampled particles, whose weights are equal (log_weight = -log N):
-        float64 (R, N)."""
-        return np.add(log_lik, log_weight, dtype=float)
+        (R, N) of `log_dtype`."""
+        return np.add(log_lik, log_weight, dtype=self.log_dtype)
 
     def second_stage(self, log_lik: np.ndarray, log_mu: np.ndarray, A: np.ndarray) -> np.ndarray:
         """The APF's second-stage log weights log p(z_k | x^j) - log p(z_k | mu^{a^j}), (R, M): the first

@@ -132,7 +132,7 @@ class CompiledKernels(NumpyKernels):
     a call of mazelab.kernels.THREADED_FROM particles or more on `threads` threads (mazelab.backend.
     kernels_for passes shared_threads'); what the kernels do not cover is NumpyKernels' (its parent)."""
 
-    name = "compiled"
+    name, log_dtype = "compiled", None  # log weights after resampling in the likelihood's float32
 
     def __init__(self, world: Any, threads: int | None = None):
         self.tables = lookup_tables(world)
@@ -201,10 +201,6 @@ class CompiledKernels(NumpyKernels):
         if reads is not None and reads[0] is x and centres is W.mean and radius == CONFIDENCE_RADIUS:
             return reads[1][4]
         return super().mass_within(W, x, centres, radius)
-
-    def equal_weighted(self, log_lik: np.ndarray, log_weight: float) -> np.ndarray:
-        """log W + log p(z_k | x_k) of resampled particles, in the likelihood's dtype (float32)."""
-        return np.add(log_lik, log_lik.dtype.type(log_weight))
 
     def jitter(self, x: np.ndarray, A: np.ndarray, due: np.ndarray, rngs: Any, kernels: Any) -> np.ndarray:
         """The RPF's gather, draws and jitter in one pass for Gaussian kernels (h D eps, one D per due
