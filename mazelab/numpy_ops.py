@@ -45,12 +45,10 @@ def flat_ancestors(A: np.ndarray, count: int) -> np.ndarray:
 
 
 class NumpyKernels:
-    """The hot parts in numpy: the lab's reference, each operation the same numpy calls as always.
-
-    `Weights` is the backend's weights value (mazelab.weights.Weights: float64 log W), `log_dtype` the
-    dtype of its log weights after resampling (float64; None: the likelihood's); `schemes` the faster
-    forms of resampling schemes by name (none: numpy runs mazelab.resampling's textbook ones).
-    """
+    """The hot parts in numpy (see the module's docstring). `Weights` is the backend's weights value
+    (mazelab.weights.Weights: float64 log W), `log_dtype` the dtype of its log weights after resampling
+    (float64; None: the likelihood's); `schemes` the faster forms of resampling schemes by name (none:
+    numpy runs mazelab.resampling's textbook ones)."""
 
     name = "numpy"
     Weights: type = Weights

@@ -1,9 +1,7 @@
-"""The compiled backend's operations (mazelab.numpy_ops.NumpyKernels has the same methods, arguments and
-results): each calls one kernel for all R runs, and `CompiledWeights`, the weights value this backend
-builds, keeps W in float32 and the reads its normalisation makes in the same passes (the ESS, the
-posterior mean and the weight within the green circle around it). Anything the kernels do not cover
-(float64 points such as recovery's injected draws, the multimodal kernel) goes to the numpy operations.
-"""
+"""The compiled backend: `CompiledKernels`, mazelab.numpy_ops.NumpyKernels' methods (the same arguments and
+results) each calling one kernel for all R runs, and `CompiledWeights`, the weights value it builds.
+Anything the kernels do not cover (float64 points such as recovery's injected draws, the multimodal
+kernel) goes to the numpy operations."""
 
 from __future__ import annotations
 
@@ -180,9 +178,8 @@ class CompiledKernels(NumpyKernels):
 
     def systematic(self, W: np.ndarray, rng: Any, count: int | None = None) -> np.ndarray:
         """Systematic resampling of W (N,), or of D runs' (D, N) with a Generator each (a sequence), into
-        `count` (default N) int64 ancestors a run, in its counting form by blocks, all runs in one call
-        (mazelab.kernels.weights): mazelab.resampling.systematic_resample's ancestors for the same
-        cumulative weights and offsets u = rng.random() (a run's as alone)."""
+        `count` (default N) int64 ancestors a run, all runs in one call of mazelab.kernels.weights.
+        systematic, with offsets u = rng.random()."""
         rows, rngs = (W[None], [rng]) if W.ndim == 1 else (W, rng)
         out = np.empty((len(rows), rows.shape[1] if count is None else count), dtype=np.int64)
         offsets = np.array([generator.random() for generator in rngs])
