@@ -45,14 +45,10 @@ THREADED_FROM = 1 << 16
 
 
 def threading_layer() -> str:
-    """numba's threading layer for the kernels: "tbb" where Intel's TBB library loads, else "workqueue".
-
-    TBB's threads take the chunks of a call as they come (the calling thread too), wake within
-    microseconds and leave a paused thread at most the chunk it holds; numba's workqueue wakes its sleeping
-    threads for every call (some 130 us on a virtual machine: more than a pass over 10^5 particles
-    saves) and waits for the slowest. Both work after a fork. The `tbb` package (the fast extra) puts
-    the library in the environment's lib folder, which the loader does not search: it is loaded here by
-    its path first, so that numba finds it."""
+    """numba's threading layer for the kernels: "tbb" where Intel's TBB library loads, else "workqueue"
+    (which wakes its threads for every call and waits for the slowest: docs/speed.md, "Threads"); both
+    work after a fork. The `tbb` package (the fast extra) puts the library in the environment's lib
+    folder, which the loader does not search: it is loaded here by its path first, so that numba finds it."""
     for path in (Path(sys.prefix) / "lib" / "libtbb.so.12", "libtbb.so.12"):
         with contextlib.suppress(OSError, AttributeError):
             library = ctypes.CDLL(str(path), mode=ctypes.RTLD_GLOBAL)
