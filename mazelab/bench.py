@@ -252,7 +252,6 @@ def run_benchmark(
     machine; the full run, minutes)."""
     backends = backends or available_backends()
     counts, steps, warmup = (QUICK_COUNTS, 8, 4) if quick else (FULL_COUNTS, 30, 10)
-    large = large_maze()
     echo(
         f"CPU: {cpu_model()}, {os.cpu_count()} cores; numpy {np.__version__}; backends {', '.join(backends)}; "
         f"median of {steps} steps after {warmup} warm-up steps; peak memory by tracemalloc (filter + 2 steps)"
@@ -261,23 +260,22 @@ def run_benchmark(
         seconds, compiled = kernels_start_seconds(small)
         how = f"{compiled} kernels compiled (the first use on this machine)" if compiled else "loaded from the cache"
         echo(f"compiled backend: numba imported and the kernels {how} in {seconds:.1f} s, once per process")
-    for label, world in (("small", small), ("large", large)):
-        echo(f"{label}: {Path(world.source).name}, {world.height}x{world.width}, {len(world.stations)} stations")
     rows: list[BenchRow] = []
-    for name, world in ((f"small {small.height}x{small.width}", small), (f"large {large.height}x{large.width}", large)):
-        rows += measure(name, world, counts, steps, warmup, backends=backends)
+    for label, world in (("small", small), ("large", large_maze())):
+        echo(f"{label}: {Path(world.source).name}, {world.height}x{world.width}, {len(world.stations)} stations")
+        rows += measure(f"{label} {world.height}x{world.width}", world, counts, steps, warmup, backends=backends)
     echo(format_table(rows))
     grid_ms = 1e3 * time_steps(filter_stepper("grid", small, 1), record_walk(small, 12 if quick else 32), 2)
     echo(f"GridBayesFilter on the small maze (resolution 0.02): {grid_ms:.1f} ms/step")
-    reference = [r for r in rows if r.maze.startswith("small") and (r.filter_name, r.particles) == ("reference", 10**6)]
+    key = ("small", "reference", 10**6)  # the reference step at N = 10^6 on the small maze, if it ran
+    reference = next((r.seconds_per_step for r in rows if (r.maze[:5], r.filter_name, r.particles) == key), None)
     for backend in backends:
         with use_backend(backend):
             seconds, result = sir_run(small, 1500, 50 if quick else 200, 3)
             per_step, own = 1e3 * seconds / len(result.step_seconds), 1e3 * float(np.mean(result.step_seconds))
             echo(f"[{backend}] simulate(), SIR, N = 1,500 on the small maze: {per_step:.2f} ms/step, of which the "
                  f"filter {own:.2f}")  # fmt: skip
-            reference_seconds = reference[0].seconds_per_step if reference else None
-            echo(f"[{backend}] " + run_model_line(small, reference=reference_seconds))
+            echo(f"[{backend}] " + run_model_line(small, reference=reference))
             if not quick:
                 seconds, result = sir_run(small, 1_000_000, 200, 4)
                 echo(
