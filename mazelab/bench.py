@@ -4,8 +4,8 @@ numpy reference step measured in the same run, on a small and a large maze.
 
 A row times `steps` steps of one filter on a recorded walk, after a few warm-up steps (which also let
 the particles start to gather, as in a real run); each step includes reading the estimate, the ESS and
-the confidence, as `simulate` does. The time is the median step. Peak memory is measured separately
-with tracemalloc (every numpy array counts): the filter's creation and two of its steps.
+the confidence, as `simulate` does. The time is the median step. Peak memory is traced first, with
+tracemalloc (every numpy array counts): the filter's creation and its first two steps, left out of the time.
 """
 
 from __future__ import annotations
