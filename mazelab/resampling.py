@@ -58,7 +58,7 @@ def systematic_resample(weights: np.ndarray, rng: Any, count: int | None = None)
     offset u ~ U[0, 1) shared by the M points u_m = (u + m) / M, each taken to the particle whose
     cumulative weight first exceeds it (the inverse CDF; sorted ancestors).
 
-    The numpy backend runs this; the compiled one its counting form (mazelab.kernels.resampling), which
+    The numpy backend runs this; the compiled one its counting form (mazelab.kernels.weights), which
     gives the same ancestors in O(N).
     """
     count = weights.shape[-1] if count is None else count
