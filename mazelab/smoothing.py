@@ -96,10 +96,9 @@ class BackwardStep:
     """
 
     def __init__(self, grid: GridBayesFilter):
-        self.grid = grid
-        self.work = GridWorkspace(grid.shape, arc_kernel_shape(grid.speed, grid.resolution))
+        self.grid, self._kernel_shape = grid, arc_kernel_shape(grid.speed, grid.resolution)
+        self.work = GridWorkspace(grid.shape, self._kernel_shape)
         self._angle: float | None = None
-        self._kernel_shape = arc_kernel_shape(grid.speed, grid.resolution)
         self._spectrum: np.ndarray | None = None
 
     def adjoint(self, values: np.ndarray, compass_angle: float) -> np.ndarray:
