@@ -32,7 +32,7 @@ from __future__ import annotations
 import functools
 import math
 from collections import deque
-from collections.abc import Callable, Collection, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -45,7 +45,7 @@ from mazelab.model import DEFAULT_PARTICLE_COUNT, check_model_parameters
 from mazelab.registry import filter_entry
 from mazelab.robot import Robot
 
-BYTES_PER_DENSITY_CELL = 8  # a float64 grid: what each checkpoint, each refiltered step and each kept density takes
+BYTES_PER_DENSITY_CELL = 8  # a float64 grid: what each checkpoint and each refiltered step takes
 BYTES_PER_RECORDED_PARTICLE = 24  # Genealogy: a particle's float32 position, float64 weight and int64 ancestor
 
 
@@ -69,8 +69,6 @@ class SmoothedWalk:
         The grid's shape (rows along y).
     checkpoint_every : int
         B, the steps between two filtered densities kept by the forward pass.
-    densities : dict
-        Step k -> p(x_k | z_1:K) on the grid (an array of `shape`), for the steps asked to keep.
     """
 
     means: np.ndarray
@@ -80,7 +78,6 @@ class SmoothedWalk:
     positions: np.ndarray
     shape: tuple[int, int]
     checkpoint_every: int
-    densities: dict[int, np.ndarray] = field(default_factory=dict)
 
 
 class BackwardStep:
@@ -135,7 +132,7 @@ class BackwardStep:
 
 
 def smooth(world: Maze, sigma: float, delta: float, compass_angles: Sequence[float], measurements: Sequence[float],
-           *, keep: Collection[int] = (), visit: Callable[[int, np.ndarray], Any] | None = None,
+           *, visit: Callable[[int, np.ndarray], Any] | None = None,
            checkpoint_every: int | None = None, **grid_options: Any) -> SmoothedWalk:  # fmt: skip
     """p(x_k | z_1:K) for k = 1..K on the grid filter's grid, by forward-backward with checkpoints.
 
@@ -146,11 +143,10 @@ def smooth(world: Maze, sigma: float, delta: float, compass_angles: Sequence[flo
         The model's measurement noise (map units) and compass error's full width (radians).
     compass_angles, measurements : sequences of K floats
         th0_k and z_k of each step (a scenario's robot_compass_angles and robot_measurements).
-    keep : collection of int
-        The steps whose smoothed densities the answer keeps (each one grid of memory).
     visit : callable (k, density) -> None, optional
-        Called with every step's smoothed density (read-only, valid during the call only), from k = K
-        down to 1: what a caller measures per step without keeping K grids.
+        Called with every step's smoothed density p(x_k | z_1:K) (an array of the grid's shape, read-only,
+        valid during the call only: a copy keeps it), from k = K down to 1: what a caller measures per step
+        without keeping K grids.
     checkpoint_every : int, optional
         B, the steps between two kept filtered densities: ceil(sqrt(K)) by default; K keeps every
         filtered density of the walk (one block, no second pass).
@@ -165,24 +161,19 @@ def smooth(world: Maze, sigma: float, delta: float, compass_angles: Sequence[flo
     sigma, delta = check_model_parameters(sigma, delta, (world.width, world.height))
     grid = GridBayesFilter(world, sigma, delta, **grid_options)
     block = checkpoint_block(len(angles), checkpoint_every)
-    outside = [k for k in keep if not (isinstance(k, (int, np.integer)) and 1 <= k <= len(angles))]
-    if outside:
-        raise ValueError(f"keep names steps 1..{len(angles)} of the walk, got {outside[0]!r}")
-    check_smoother_memory(grid.shape, len(angles), block, len(set(keep)))
+    check_smoother_memory(grid.shape, len(angles), block)
     checkpoints, filtered_means = forward(grid, angles, zs, block)
     log_evidence = grid.log_evidence  # the refiltering below adds to it again
-    means, spreads, kept = backward(grid, checkpoints, angles, zs, block, keep, visit)
-    return SmoothedWalk(means, spreads, filtered_means, log_evidence, grid.positions, grid.shape, block, kept)
+    means, spreads = backward(grid, checkpoints, angles, zs, block, visit)
+    return SmoothedWalk(means, spreads, filtered_means, log_evidence, grid.positions, grid.shape, block)
 
 
 def backward(grid: GridBayesFilter, checkpoints: dict[int, np.ndarray], angles: np.ndarray, zs: np.ndarray,
-             block: int, keep: Collection[int], visit: Callable[[int, np.ndarray], Any] | None,
-             ) -> tuple[np.ndarray, np.ndarray, dict[int, np.ndarray]]:  # fmt: skip
+             block: int, visit: Callable[[int, np.ndarray], Any] | None) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """The backward pass from k = K down to 1, each block of B steps refiltered from its checkpoint (taken
-    from `checkpoints`): the smoothed means (K, 2), spreads (K,) and the densities of the steps in `keep`
-    (each handed to `visit` too: `smooth`)."""
+    from `checkpoints`): the smoothed means (K, 2) and spreads (K,), each step's density handed to `visit`."""
     steps = len(angles)
-    means, spreads, kept = np.empty((steps, 2)), np.empty(steps), {}
+    means, spreads = np.empty((steps, 2)), np.empty(steps)
     step_back, beta = BackwardStep(grid), np.ones(grid.shape)
     for start in reversed(range(0, steps, block)):  # the block of steps start+1 .. end
         end = min(start + block, steps)
@@ -190,14 +181,12 @@ def backward(grid: GridBayesFilter, checkpoints: dict[int, np.ndarray], angles: 
         for k in range(end, start, -1):
             smoothed = smoothed_density(filtered.pop(), beta, k)
             means[k - 1], spreads[k - 1] = moments(smoothed, grid.positions)
-            if k in keep:
-                kept[k] = smoothed.copy()
             if visit is not None:
                 smoothed.flags.writeable = False
                 visit(k, smoothed)
             if k > 1:
                 beta = step_back(beta, angles[k - 1], zs[k - 1], k)
-    return means, spreads, kept
+    return means, spreads
 
 
 def forward(
@@ -255,12 +244,12 @@ def checkpoint_block(steps: int, checkpoint_every: int | None) -> int:
     return step_number("checkpoint_every", checkpoint_every)
 
 
-def check_smoother_memory(shape: tuple[int, int], steps: int, block: int, kept: int) -> None:
+def check_smoother_memory(shape: tuple[int, int], steps: int, block: int) -> None:
     """Refuse a smoothing whose grids would not fit, in one line saying how much it needs: the
-    checkpoints, one block of refiltered densities, the kept densities, beta and its product, and the
+    checkpoints, one block of refiltered densities, beta and its product, and the
     backward pass's FFT buffers."""
     cells = shape[0] * shape[1]
-    grids = math.ceil(steps / block) + min(block, steps) + kept + 3
+    grids = math.ceil(steps / block) + min(block, steps) + 3
     check_memory(
         f"smoothing {steps} steps on the grid's {shape[0]}x{shape[1]} cells ({grids} grids)",
         grids * cells * BYTES_PER_DENSITY_CELL + cells * BYTES_PER_GRID_CELL,
