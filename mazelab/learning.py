@@ -87,16 +87,7 @@ class ParameterGrid:
         return sigmas.ravel().tolist(), deltas.ravel().tolist()
 
     def contains(self, sigma: float, delta: float) -> bool:
-        """Whether (sigma, delta) lies in the box, where the prior is positive.
-
-        Parameters
-        ----------
-        sigma, delta : float
-
-        Returns
-        -------
-        bool
-        """
+        """Whether (sigma, delta) lies in the box, where the prior is positive."""
         return (
             self.sigma_range[0] <= sigma <= self.sigma_range[1] and self.delta_range[0] <= delta <= self.delta_range[1]
         )
