@@ -18,13 +18,11 @@ told), and the backward pass refilters one block of B steps at a time from its c
 grids instead of K, for a second forward pass (docs/smoothing.md has the figures of a 200-step walk on
 maze_10x10: `uv run python benchmarks/smoothing_memory.py`).
 
-The particle smoothers (`Genealogy`, scored against the exact one by `score_smoothers`) read what the
-engine leaves after each step, `SMC.ancestry` (A (R, M), due (R,)), and keep it with the step's particles
-and weights: the path smoother follows every particle of the last step back to its ancestors; the
-fixed-lag smoother does so L steps back only, keeping L + 1 steps. Forward filtering backward sampling
-(FFBS) is not built: it needs the transition density p(x_k+1 | x_k), and the model's arc motion puts all
-of x_k+1's mass on an arc of radius L about x_k, a curve with no density in the plane, so FFBS's backward
-kernel is the genealogy itself, the path smoother (docs/smoothing.md says why in full).
+The particle smoothers, the path and the fixed-lag one (`Genealogy`, scored against the exact one by
+`score_smoothers`), follow the engine's `SMC.ancestry` back. Forward filtering backward sampling (FFBS) is not
+built: it needs the transition density p(x_k+1 | x_k), and the model's arc motion puts all of x_k+1's mass on
+an arc of radius L about x_k, a curve with no density in the plane, so FFBS's backward kernel is the genealogy
+itself, the path smoother (docs/smoothing.md says why in full).
 """
 
 from __future__ import annotations
