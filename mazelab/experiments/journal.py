@@ -528,7 +528,7 @@ def foreign_row(tasks: Sequence[RunTask], records: Sequence[RunRecord]) -> str |
         found = {**{column: getattr(record, column) for column in task.cells()}, **record.options}
         for column, value in {**task.cells(), **options}.items():  # seed and maze first, then the parameters
             if not _same(found.get(column), value):
-                return f"{where}: its {column} is {_shown(found)}, where this study has {_shown(value)}"
+                return f"{where}: its {column} is {_shown(found.get(column))}, where this study has {_shown(value)}"
     return None
 
 
