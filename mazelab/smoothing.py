@@ -483,10 +483,10 @@ def binned_smoother(world: Maze, sigma: float, delta: float, robot: Robot, bins:
                     ) -> tuple[SmoothedWalk, dict[int, np.ndarray]]:  # fmt: skip
     """The exact smoother of the robot's walk (`smooth`), and its mass in each of the `count` bins at every step
     (step -> (count,)): what a particle smoother's binned mass is compared with."""
-    positions, masses = GridBayesFilter(world, sigma, delta, **grid_options).positions, {}
+    cells, masses = bins(GridBayesFilter(world, sigma, delta, **grid_options).positions), {}  # each cell's bin
 
     def binned(k: int, density: np.ndarray) -> None:
-        masses[k] = np.bincount(bins(positions), density.ravel(), count)
+        masses[k] = np.bincount(cells, density.ravel(), count)
 
     exact = smooth(world, sigma, delta, robot.compass_angles, robot.measurements, visit=binned, **grid_options)
     return exact, masses
