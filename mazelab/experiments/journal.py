@@ -477,16 +477,8 @@ def earlier_sessions(lines: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     sessions: list[dict[str, Any]] = []
     for line in lines:
         if isinstance(line.get("session"), dict):
-            session = line["session"]
-            sessions.append(
-                {
-                    "command": session.get("command"),
-                    "started": session.get("started"),
-                    "ended": None,
-                    "status": "running",
-                    "runs_finished": None,
-                }
-            )
+            started = {k: line["session"].get(k) for k in ("command", "started")}
+            sessions.append({**started, "ended": None, "status": "running", "runs_finished": None})
         elif isinstance(line.get("closed"), dict) and sessions:
             sessions[-1].update({k: line["closed"].get(k) for k in ("ended", "status", "runs_finished")})
     return sessions
