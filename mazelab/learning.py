@@ -331,7 +331,7 @@ class Chain:
         return np.quantile(self.kept, [(1 - level) / 2, (1 + level) / 2], axis=0).T
 
     def interval_error(self, level: float = INTERVAL_LEVEL) -> np.ndarray:
-        """The Monte Carlo standard error of each end of `interval(level)` (`quantile_error`), as it: (2, 2)."""
+        """The Monte Carlo standard error of each end of `interval(level)` (`quantile_error`), (2, 2)."""
         tails = ((1 - level) / 2, (1 + level) / 2)
         return np.array([[quantile_error(column, p) for p in tails] for column in self.kept.T])
 
