@@ -30,6 +30,12 @@ os.environ.setdefault("MAZELAB_BACKEND", "numpy")
 settings.register_profile("derandomized", derandomize=True, print_blob=True)
 settings.load_profile("derandomized")
 
+# A shell's background job starts its children with SIGINT ignored, and Python then installs no Ctrl-C
+# handler: the tests of Ctrl-C (in this process and in the processes it starts, which inherit the
+# disposition) would fail for how the suite was started, not for the code. Python's own handler is restored.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+
 
 def _writes_anywhere() -> bool:
     """Whether this process may write into a folder whose mode forbids it (root with the capability
