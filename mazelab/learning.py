@@ -87,7 +87,16 @@ class ParameterGrid:
         return sigmas.ravel().tolist(), deltas.ravel().tolist()
 
     def contains(self, sigma: float, delta: float) -> bool:
-        """Whether (sigma, delta) lies in the box, where the prior is positive."""
+        """Whether (sigma, delta) lies in the box, where the prior is positive.
+
+        Parameters
+        ----------
+        sigma, delta : float
+
+        Returns
+        -------
+        bool
+        """
         return (
             self.sigma_range[0] <= sigma <= self.sigma_range[1] and self.delta_range[0] <= delta <= self.delta_range[1]
         )
@@ -331,7 +340,16 @@ class Chain:
         return np.quantile(self.kept, [(1 - level) / 2, (1 + level) / 2], axis=0).T
 
     def interval_error(self, level: float = INTERVAL_LEVEL) -> np.ndarray:
-        """The Monte Carlo standard error of each end of `interval(level)` (`quantile_error`), (2, 2)."""
+        """The Monte Carlo standard error of each end of `interval` (`quantile_error`).
+
+        Parameters
+        ----------
+        level : float
+
+        Returns
+        -------
+        array (2, 2)
+        """
         tails = ((1 - level) / 2, (1 + level) / 2)
         return np.array([[quantile_error(column, p) for p in tails] for column in self.kept.T])
 
