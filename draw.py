@@ -9,8 +9,8 @@ Rerun replaces the paper's turtle window. This file only gathers the names; wher
     the colours and the viewer's layouts                 mazelab/viz/style.py
 """
 
+from mazelab.contract import NullView
 from mazelab.maze import EMPTY, STATION_WALL, WALL, Maze, MazeError, parse_maze_text
-from mazelab.simulation import NullView
 from mazelab.viz.recording import Recording, heading_vectors
 from mazelab.viz.style import DEFAULT_MAX_DRAWN
 from mazelab.viz.targets import Visualization

@@ -27,8 +27,8 @@ only gathers the names; where each thing's lines are:
     the exact grid Bayes filter (the reference)        mazelab/grid_filter.py, GridBayesFilter.step
     the extended Kalman filter (the baseline)          mazelab/kalman.py, ExtendedKalmanFilter.step
     recovery from kidnapping, KLD-sampling             mazelab/recovery.py, mazelab/resampling.py
-    run_model and simulate                             mazelab/simulation.py (one run, and run_model over it),
-                                                         mazelab/collect.py (the loop that records each step)
+    run_model and simulate                             mazelab/simulation.py (one run, run_model over it,
+                                                         and record_steps, the loop that records each step)
     how a seed becomes a run's random draws            mazelab/seeding.py
     saving and loading scenarios                       mazelab/scenario.py
 

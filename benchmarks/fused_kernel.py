@@ -386,12 +386,12 @@ def kernels_stepper(world: Maze, particles: int, seed: int = 2):
     resampling, move (with its draws), likelihood and normalisation (with its reads) as the package's
     step, without the step, the model's calls and the hooks' checks (what they cost is the package's
     time less this)."""
-    from mazelab.backend import thread_count
+    from mazelab.backend import shared_threads
     from mazelab.kernels.compiled import CompiledKernels
     from mazelab.smc import particles_array
 
     rng = np.random.default_rng(seed)
-    kernels = CompiledKernels(world, threads=thread_count())
+    kernels = CompiledKernels(world, threads=shared_threads())
     state = {"x": particles_array(world.random_free_places(particles, rng)[None], F32)}
     state["W"] = kernels.Weights.uniform(1, particles)
 

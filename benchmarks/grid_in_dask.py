@@ -59,7 +59,7 @@ def grid_step_costs(maze: str = "paper_5x5", steps: int = 60, seed: int = 3) -> 
         angle, z = robot.step(world)
         c0, w0, f0 = time.thread_time(), time.perf_counter(), resource.getrusage(who).ru_minflt
         filt.step(angle, z)
-        _ = filt.estimate, filt.ess, filt.is_confident  # what a run reads every step (mazelab.collect)
+        _ = filt.estimate, filt.ess, filt.is_confident  # what a run reads every step (mazelab.simulation.record_steps)
         if k:  # the first step makes the buffers
             cpu.append(time.thread_time() - c0)
             wall.append(time.perf_counter() - w0)

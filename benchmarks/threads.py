@@ -66,14 +66,13 @@ def call_overhead(threads: int, calls: int = 400) -> float:
     `threads` threads, each call 0.2 ms after the last, as the passes of a step at N = 10^5 follow each
     other: what a call pays to start the threads and wait for them."""
     from mazelab.kernels import CHUNK, THREADED_FROM
-    from mazelab.kernels.weights import second_stage
+    from mazelab.kernels.weights import systematic
 
-    log_lik, log_mu = np.zeros((1, CHUNK), np.float32), np.zeros((1, CHUNK), np.float32)
-    ancestors, out = np.zeros((1, CHUNK), np.uint64), np.empty((1, CHUNK), np.float32)
+    weights, offsets, out = np.full((1, CHUNK), 1 / CHUNK), np.full(1, 0.5), np.empty((1, CHUNK), np.int64)
     times = []
     for _ in range(calls):
         started = time.perf_counter()
-        second_stage(threads, THREADED_FROM, log_lik, log_mu, ancestors, out)  # as large: on the threads
+        systematic(threads, THREADED_FROM, weights, offsets, out)  # as large: on the threads
         times.append(time.perf_counter() - started)
         while time.perf_counter() < started + 2e-4:
             pass

@@ -206,7 +206,10 @@ def move_into_place(temporary: Path, target: Path, replace: bool) -> None:
 def temporary_name(target: Path) -> str:
     """`.NAME.HOST.PID-RANDOM.tmp` for `target`, NAME cut so the whole fits the folder's name limit."""
     suffix = f".{host_tag()}.{os.getpid()}-{secrets.token_hex(4)}.tmp"
-    room = name_max(target.parent) - len(suffix.encode()) - 1
+    name_max = DEFAULT_NAME_MAX  # the longest file name (bytes) the folder's file system takes
+    with contextlib.suppress(OSError, ValueError, AttributeError):
+        name_max = int(os.pathconf(target.parent, "PC_NAME_MAX"))
+    room = name_max - len(suffix.encode()) - 1
     name = target.name.encode()[: max(room, 1)].decode(errors="ignore")
     return f".{name}{suffix}"
 
@@ -221,14 +224,6 @@ def host_tag(host: str | None = None) -> str:
         digest = hashlib.sha256(host.encode("utf-8", "surrogateescape")).hexdigest()[:8]
         tag = f"{tag[: HOST_TAG_LENGTH - 9]}_{digest}"
     return tag
-
-
-def name_max(folder: Path) -> int:
-    """The longest file name (bytes) the folder's file system takes."""
-    try:
-        return int(os.pathconf(folder, "PC_NAME_MAX"))
-    except (OSError, ValueError, AttributeError):
-        return DEFAULT_NAME_MAX
 
 
 def remove_stale_temporaries(folder: Path) -> list[Path]:

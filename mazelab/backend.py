@@ -6,7 +6,7 @@ the same arithmetic but for the sums' order, the last bit of cos and sin and its
 a seed repeats a run on each and the two agree statistically. Both offer the operations the model and
 the weights call, so the step (mazelab.smc) does not know which runs. A filter takes the backend chosen
 when it is made (`chosen_backend`, its `backend`); every result and record says which ran. The compiled
-backend's threads (`thread_count`) change how soon a run ends, never its numbers (mazelab.kernels).
+backend's threads (`shared_threads`) change how soon a run ends, never its numbers (mazelab.kernels).
 """
 
 from __future__ import annotations
@@ -167,45 +167,31 @@ def check_threads(value: Any, source: str = "threads") -> int:
     return count
 
 
-def thread_count(runs_at_once: int = 1) -> int:
-    """The threads a filter made now runs its large calls on (mazelab.kernels.THREADED_FROM particles and
-    more): MAZELAB_THREADS when set (--threads, `use_threads`; checked), else this machine's cores
-    shared by the runs at once on it (at least 1 each: runs x threads <= cores).
+def shared_threads(runs: int = 1, client: Any = None) -> int:
+    """The threads each run takes for its large calls (mazelab.kernels.THREADED_FROM particles and more)
+    where `runs` run at once on this machine (a filter made now: 1; a study: its local worker processes,
+    or with `client` the most task threads one host of its Dask cluster has): MAZELAB_THREADS when set
+    (--threads, `use_threads`; checked), else this machine's cores shared by them (at least 1 each: runs
+    x threads <= cores). A study's units run inside `use_threads` of it.
 
     Parameters
     ----------
-    runs_at_once : int
-
-    Returns
-    -------
-    int
-    """
-    value = os.environ.get(THREADS_VARIABLE, "")
-    return check_threads(value, THREADS_VARIABLE) if value.strip() else max(1, cores() // max(1, runs_at_once))
-
-
-def shared_threads(workers: int, client: Any = None) -> int:
-    """The threads each run of a study takes (its units run inside `use_threads` of it): `thread_count`
-    of the runs at once, its local worker processes or the most task threads one host of its Dask
-    cluster has.
-
-    Parameters
-    ----------
-    workers : int
-        The study's local worker processes.
+    runs : int
+        The runs at once on this machine.
     client : distributed.Client, optional
-        A Dask cluster's client.
+        A Dask cluster's client (then `runs` is read from its hosts).
 
     Returns
     -------
     int
     """
-    if client is None:
-        return thread_count(workers)
-    hosts: Counter[str] = Counter()
-    for worker in client.scheduler_info(n_workers=-1)["workers"].values():
-        hosts[worker["host"]] += worker["nthreads"]
-    return thread_count(max(hosts.values(), default=1))
+    if client is not None:
+        hosts: Counter[str] = Counter()
+        for worker in client.scheduler_info(n_workers=-1)["workers"].values():
+            hosts[worker["host"]] += worker["nthreads"]
+        runs = max(hosts.values(), default=1)
+    value = os.environ.get(THREADS_VARIABLE, "")
+    return check_threads(value, THREADS_VARIABLE) if value.strip() else max(1, cores() // max(1, runs))
 
 
 @contextmanager
@@ -287,26 +273,24 @@ def backend_of(filt: Any) -> str:
     return name if name in BACKENDS else "numpy"
 
 
-def kernels_for(world: Any, name: str | None = None) -> Any:
-    """The operations of a filter on `world`: the numpy ones, or a new CompiledKernels on `thread_count()`
-    threads.
+def kernels_for(world: Any) -> Any:
+    """The operations of a filter made now on `world`: the numpy ones, or a new CompiledKernels on
+    `shared_threads()` threads (`chosen_backend`'s choice).
 
     Parameters
     ----------
     world : Maze
         The filter's maze (the compiled likelihood reads its lookup tables).
-    name : str, optional
-        The backend (None: `chosen_backend()`).
 
     Returns
     -------
     NumpyKernels or mazelab.kernels.compiled.CompiledKernels
     """
-    if (name or chosen_backend()) == "numpy":
+    if chosen_backend() == "numpy":
         return NUMPY_KERNELS
     from mazelab.kernels.compiled import CompiledKernels  # imports numba: only when it runs
 
-    return CompiledKernels(world, threads=thread_count())
+    return CompiledKernels(world, threads=shared_threads())
 
 
 NUMPY_KERNELS = NumpyKernels()

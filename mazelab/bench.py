@@ -4,8 +4,8 @@ numpy reference step measured in the same run, on a small and a large maze.
 
 A row times `steps` steps of one filter on a recorded walk, after a few warm-up steps (which also let
 the particles start to gather, as in a real run); each step includes reading the estimate, the ESS and
-the confidence, as `simulate` does. The time is the median step. Peak memory is measured separately
-with tracemalloc (every numpy array counts): the filter's creation and two of its steps.
+the confidence, as `simulate` does. The time is the median step. Peak memory is traced first, with
+tracemalloc (every numpy array counts): the filter's creation and its first two steps, left out of the time.
 """
 
 from __future__ import annotations
@@ -25,7 +25,6 @@ from typing import Any
 import numpy as np
 
 from mazelab.backend import BACKENDS, chosen_backend, numba_available, use_backend
-from mazelab.grid_filter import GridBayesFilter
 from mazelab.maze import EMPTY, STATION_WALL, WALL, Maze
 from mazelab.model import OUTSIDE_PENALTY, ROBOT_SPEED
 from mazelab.registry import resolve_filter
@@ -49,7 +48,7 @@ class BenchRow:
     filter_name: str
     particles: int
     seconds_per_step: float
-    peak_bytes: int | None
+    peak_bytes: int
     backend: str = "numpy"
 
     @property
@@ -83,11 +82,11 @@ def time_steps(step: Callable[[float, float], None], walk: list[tuple[float, flo
 
 
 def filter_stepper(
-    name: str, world: Maze, particles: int, seed: int = 2, backend: str | None = None
+    name: str, world: Maze, particles: int, backend: str | None = None
 ) -> Callable[[float, float], None]:
-    """A step of a fresh filter (on `backend`, default the chosen one), followed by the reads `simulate`
-    makes (estimate, ESS, confidence)."""
-    rng = np.random.default_rng(seed)
+    """A step of a fresh filter (on `backend`, default the chosen one; the grid filter at its default
+    resolution too), followed by the reads `simulate` makes (estimate, ESS, confidence)."""
+    rng = np.random.default_rng(2)
     with use_backend(backend or chosen_backend()):
         filt = resolve_filter(name)(world, BENCH_SIGMA, BENCH_DELTA, world.random_free_places(particles, rng), rng)
 
@@ -122,14 +121,15 @@ def reference_stepper(world: Maze, particles: int, seed: int = 2) -> Callable[[f
     return step
 
 
-def peak_memory(make_step: Callable[[], Callable[[float, float], None]], walk: list[tuple[float, float]]) -> int:
-    """Peak bytes allocated (tracemalloc) while creating the stepper and running two steps."""
+def traced(make_step: Callable[[], Callable[[float, float], None]], walk: list[tuple[float, float]]) -> tuple:
+    """(the stepper `make_step` makes, the peak bytes allocated (tracemalloc) while making it and running
+    the walk's first two steps with it)."""
     tracemalloc.start()
     try:
         step = make_step()
         for compass_angle, z in walk[:2]:
             step(compass_angle, z)
-        return tracemalloc.get_traced_memory()[1]
+        return step, tracemalloc.get_traced_memory()[1]
     finally:
         tracemalloc.stop()
 
@@ -143,31 +143,19 @@ def measure(
     backends: tuple[str, ...] | None = None,
 ) -> Iterator[BenchRow]:
     """The rows of one maze: every filter at every N on each backend (default: the chosen one), then
-    the reference step where it is affordable."""
-    walk = record_walk(world, warmup + steps)
+    the reference step where it is affordable; each timed on the walk after its two traced steps."""
+    walk = record_walk(world, 2 + warmup + steps)
     world.station_distances_and_free(np.zeros(1, np.float32), np.zeros(1, np.float32))  # build the float32 tables
     for n in counts:
         for name in BENCH_FILTERS:
             for backend in backends or (chosen_backend(),):
-                peak = peak_memory(lambda name=name, n=n, b=backend: filter_stepper(name, world, n, backend=b), walk)
-                seconds = time_steps(filter_stepper(name, world, n, backend=backend), walk, warmup)
+                step, peak = traced(lambda name=name, n=n, b=backend: filter_stepper(name, world, n, b), walk)
+                seconds = time_steps(step, walk[2:], warmup)
                 yield BenchRow(maze_name, resolve_filter(name).name, n, seconds, peak, backend)
         if n * len(world.stations) <= REFERENCE_LIMIT:
-            reference_walk = walk[: warmup + max(3, steps // 4)]
-            peak = peak_memory(lambda n=n: reference_stepper(world, n), walk)
-            yield BenchRow(maze_name, "reference", n, time_steps(reference_stepper(world, n), reference_walk, 1), peak)
-
-
-def grid_filter_ms(world: Maze, steps: int) -> float:
-    """Median milliseconds per step of GridBayesFilter at its default resolution (with its reads)."""
-    walk = record_walk(world, steps + 2)
-    grid = GridBayesFilter(world, BENCH_SIGMA, BENCH_DELTA)
-
-    def step(compass_angle: float, z: float) -> None:
-        grid.step(compass_angle, z)
-        _ = grid.estimate, grid.is_confident
-
-    return 1e3 * time_steps(step, walk, 2)
+            step, peak = traced(lambda n=n: reference_stepper(world, n), walk)
+            seconds = time_steps(step, walk[2 : 2 + warmup + max(3, steps // 4)], 1)
+            yield BenchRow(maze_name, "reference", n, seconds, peak)
 
 
 def sir_run(world: Maze, particles: int, steps: int, seed: int) -> tuple[float, Any]:
@@ -222,18 +210,14 @@ def format_table(rows: list[BenchRow]) -> str:
         f"{'x numpy':>8} {'x reference':>12}",
     ]
     for r in rows:
-        base = reference.get((r.maze, r.particles))
-        ratio = f"{r.particle_steps_per_second / base:.1f}x" if base else "-"
-        ratio = "(itself)" if r.filter_name == "reference" else ratio
-        numpy_speed = on_numpy.get((r.maze, r.filter_name, r.particles))
-        versus = f"{r.particle_steps_per_second / numpy_speed:.2f}x" if numpy_speed and r.backend != "numpy" else "-"
-        peak = f"{r.peak_bytes / 2**20:8.1f}" if r.peak_bytes is not None else f"{'-':>8}"
-        speed = r.particle_steps_per_second / 1e6  # three significant figures: 0.0088, not 0.00; 25.6
-        millions = f"{speed:.3g}" if speed < 100 else f"{speed:.0f}"
+        speed, base = r.particle_steps_per_second, reference.get((r.maze, r.particles))
+        ratio = "(itself)" if r.filter_name == "reference" else f"{speed / base:.1f}x" if base else "-"
+        numpy_speed = on_numpy.get((r.maze, r.filter_name, r.particles)) if r.backend != "numpy" else None
+        versus = f"{speed / numpy_speed:.2f}x" if numpy_speed else "-"
+        millions = f"{speed / 1e6:.3g}" if speed < 1e8 else f"{speed / 1e6:.0f}"  # 0.0088 (not 0.00), 25.6, 102
         lines.append(
-            f"{r.maze:<22} {r.filter_name:<26} {r.backend:<9} {r.particles:>9,} "
-            f"{millions:>9} {1e3 * r.seconds_per_step:9.2f} {peak} {versus:>8} "
-            f"{ratio:>12}"
+            f"{r.maze:<22} {r.filter_name:<26} {r.backend:<9} {r.particles:>9,} {millions:>9} "
+            f"{1e3 * r.seconds_per_step:9.2f} {r.peak_bytes / 2**20:8.1f} {versus:>8} {ratio:>12}"
         )
     return "\n".join(lines)
 
@@ -248,14 +232,14 @@ def kernels_start_seconds(world: Maze) -> tuple[float, int]:
     two steps of each filter on `world`, how many kernels had to be compiled rather than loaded from
     the cache)."""
     started = time.perf_counter()
-    from mazelab.kernels import model, resampling, weights  # imports numba
+    from mazelab.kernels import model, weights  # imports numba
 
     walk = record_walk(world, 2)
     for name in BENCH_FILTERS:
         step = filter_stepper(name, world, 200, backend="compiled")
         for compass_angle, z in walk:
             step(compass_angle, z)
-    kernels = (model.move, model.log_likelihood, resampling.systematic, weights.normalise, weights.covariance)
+    kernels = (model.move, model.log_likelihood, weights.systematic, weights.normalise)
     return time.perf_counter() - started, sum(sum(k.serial.stats.cache_misses.values()) for k in kernels)
 
 
@@ -268,7 +252,6 @@ def run_benchmark(
     machine; the full run, minutes)."""
     backends = backends or available_backends()
     counts, steps, warmup = (QUICK_COUNTS, 8, 4) if quick else (FULL_COUNTS, 30, 10)
-    large = large_maze()
     echo(
         f"CPU: {cpu_model()}, {os.cpu_count()} cores; numpy {np.__version__}; backends {', '.join(backends)}; "
         f"median of {steps} steps after {warmup} warm-up steps; peak memory by tracemalloc (filter + 2 steps)"
@@ -277,23 +260,22 @@ def run_benchmark(
         seconds, compiled = kernels_start_seconds(small)
         how = f"{compiled} kernels compiled (the first use on this machine)" if compiled else "loaded from the cache"
         echo(f"compiled backend: numba imported and the kernels {how} in {seconds:.1f} s, once per process")
-    for label, world in (("small", small), ("large", large)):
-        echo(f"{label}: {Path(world.source).name}, {world.height}x{world.width}, {len(world.stations)} stations")
     rows: list[BenchRow] = []
-    for name, world in ((f"small {small.height}x{small.width}", small), (f"large {large.height}x{large.width}", large)):
-        rows += measure(name, world, counts, steps, warmup, backends=backends)
+    for label, world in (("small", small), ("large", large_maze())):
+        echo(f"{label}: {Path(world.source).name}, {world.height}x{world.width}, {len(world.stations)} stations")
+        rows += measure(f"{label} {world.height}x{world.width}", world, counts, steps, warmup, backends=backends)
     echo(format_table(rows))
-    grid_ms = grid_filter_ms(small, 10 if quick else 30)
+    grid_ms = 1e3 * time_steps(filter_stepper("grid", small, 1), record_walk(small, 12 if quick else 32), 2)
     echo(f"GridBayesFilter on the small maze (resolution 0.02): {grid_ms:.1f} ms/step")
-    reference = [r for r in rows if r.maze.startswith("small") and (r.filter_name, r.particles) == ("reference", 10**6)]
+    key = ("small", "reference", 10**6)  # the reference step at N = 10^6 on the small maze, if it ran
+    reference = next((r.seconds_per_step for r in rows if (r.maze[:5], r.filter_name, r.particles) == key), None)
     for backend in backends:
         with use_backend(backend):
             seconds, result = sir_run(small, 1500, 50 if quick else 200, 3)
             per_step, own = 1e3 * seconds / len(result.step_seconds), 1e3 * float(np.mean(result.step_seconds))
             echo(f"[{backend}] simulate(), SIR, N = 1,500 on the small maze: {per_step:.2f} ms/step, of which the "
                  f"filter {own:.2f}")  # fmt: skip
-            reference_seconds = reference[0].seconds_per_step if reference else None
-            echo(f"[{backend}] " + run_model_line(small, reference=reference_seconds))
+            echo(f"[{backend}] " + run_model_line(small, reference=reference))
             if not quick:
                 seconds, result = sir_run(small, 1_000_000, 200, 4)
                 echo(

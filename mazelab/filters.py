@@ -103,19 +103,17 @@ class ParticleFilter(SMC):
         keep_freed_memory()  # a step's freed arrays reused, not given back and faulted in again
         self.backend: str = self.ops.name
         model = LostRobot.of_settings(self.world, sigma, delta, self.ops, settings)
-        self.threshold, self.estimate_rule = settings["threshold"], settings["estimate"]
-        self.scheme_name = settings["resampling"]
+        self.threshold = settings["threshold"]
         self.kld = kld_options(settings["kld"], settings["kld_epsilon"], settings["kld_z"])
         # the scheme: mazelab.resampling's textbook function, or the backend's faster form of it
-        fast = self.ops.schemes.get(self.scheme_name)
-        scheme = fast or RESAMPLING_SCHEMES[self.scheme_name]
+        scheme = self.ops.schemes.get(settings["resampling"]) or RESAMPLING_SCHEMES[settings["resampling"]]
         if not hasattr(type(self), "resample"):  # a plug-in's own `resample` is its scheme
             self.resample = scheme if self.kld is None else functools.partial(self.kld_resample, scheme)
             if self.kld is None:  # mazelab.resampling's schemes and the backend's draw every due run in one call
                 self.resample_rows = scheme
         super().__init__(model, particles, rng, self.ops.Weights)
         recovering = recovery_options(settings["recovery"], settings["alpha_slow"], settings["alpha_fast"])
-        self.recovery = None if recovering is None else RecoveryTracker(recovering, world, sigma)
+        self.recovery = None if recovering is None else RecoveryTracker(recovering, world, model.sensor)
         self.max_count = self.count if self.kld is None or self.kld.max_count is None else self.kld.max_count
         if self.runs > 1 and not self.runs_together(settings):
             raise ValueError("recovery and KLD-sampling vary one run's particles: they run one run at a time")
@@ -143,7 +141,7 @@ class ParticleFilter(SMC):
         """
         super().step(compass_angle, z)
         if self.recovery is not None:
-            self.recovery.track(float(self.log_evidence_increment[0]), float(self.z[0]))
+            self.recovery.track(float(self.log_evidence_increment[0]), self.z[0])  # run 0's reading, as it came
 
     # -- the ancestors and the move: KLD-sampling and recovery (one run) ---------------------------------
     def kld_resample(self, scheme: Callable[..., np.ndarray], W: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -255,7 +253,7 @@ class ParticleFilter(SMC):
 
     def _estimates(self) -> np.ndarray:
         """The estimate of each run, (R, 2) float64."""
-        if self.estimate_rule == "mode":
+        if self.settings["estimate"] == "mode":
             return np.stack(
                 [m[0].mean if m else mean for m, mean in zip(self._run_modes(), self._means(), strict=True)]
             )
@@ -346,7 +344,8 @@ class RegularizedParticleFilter(ParticleFilter):
 
     `threshold`: N_T / N_S (the paper's 0.2). `bandwidth`: "optimal" (the paper's h_opt with the whole
     cloud's covariance), "multimodal" (one kernel per mode, beyond the paper) or a number h; see
-    mazelab.regularisation. The other options are ParticleFilter's."""
+    mazelab.regularisation. The other options are ParticleFilter's; `resampled_at` lists the steps after
+    which it regularised."""
 
     name = "RegularizedParticleFilter"
     options: ClassVar[Options] = ParticleFilter.options.extend(
@@ -358,22 +357,12 @@ class RegularizedParticleFilter(ParticleFilter):
     )  # fmt: skip
     moved_by_resampling = False  # the jittered particles take the transition with the rest
 
-    def __init__(self, *args: Any, **options: Any):
-        super().__init__(*args, **options)
-        self.bandwidth_rule = self.settings["bandwidth"]  # checked by its declaration (check_bandwidth)
-
     @property
     def bandwidth(self) -> float:
         """h of the whole-cloud kernel: h_opt = A N^(-1/(n+4)), A = (4/(n+2))^(1/(n+4)) in n = 2
         dimensions, or the number given (with "multimodal" each mode has its own h_opt(n_c))."""
-        if isinstance(self.bandwidth_rule, float):
-            return self.bandwidth_rule
-        return optimal_bandwidth(self.count)
-
-    @property
-    def regularised_at(self) -> list[int] | list[list[int]]:
-        """The steps after which the filter regularised (a list per run for R runs)."""
-        return self.resampled_at
+        rule = self.settings["bandwidth"]  # checked by its declaration (check_bandwidth)
+        return rule if isinstance(rule, float) else optimal_bandwidth(self.count)
 
     @property
     def diagnostics(self) -> dict[str, Any]:
@@ -412,7 +401,7 @@ class RegularizedParticleFilter(ParticleFilter):
         -------
         list of Kernel, one per run
         """
-        if self.bandwidth_rule == "multimodal":
+        if self.settings["bandwidth"] == "multimodal":
             return [mixture_kernel] * len(weights)
         covariance = self.ops.weighted_covariance(weights, clouds)  # S_k per run, the weighted covariance
         D = np.linalg.cholesky(covariance + 1e-12 * np.eye(2))  # D_k D_k^T = S_k (tiny ridge: S may be 0)

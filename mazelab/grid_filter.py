@@ -48,12 +48,10 @@ class GridBayesFilter(ModelFilter):
     def __init__(self, *args: Any, **options: Any):
         super().__init__(*args, **options)  # the exact filter starts from the exact prior, not from a sample
         world, resolution, margin = self.world, self.settings["resolution"], self.settings["margin"]
-        self.estimate_rule = self.settings["estimate"]
         self.resolution = resolution
-        self.origin = -margin
         ny, nx = check_grid_memory(world.width, world.height, resolution, margin)
-        centres_x = self.origin + (np.arange(nx) + 0.5) * resolution
-        centres_y = self.origin + (np.arange(ny) + 0.5) * resolution
+        centres_x = -margin + (np.arange(nx) + 0.5) * resolution  # the grid starts `margin` before the map
+        centres_y = -margin + (np.arange(ny) + 0.5) * resolution
         gx, gy = np.meshgrid(centres_x, centres_y)  # row j is y, column i is x
         self.positions = np.column_stack([gx.ravel(), gy.ravel()])  # (M, 2) cell centres
         self.shape = (ny, nx)
@@ -162,7 +160,7 @@ class GridBayesFilter(ModelFilter):
     @property
     def estimate(self) -> np.ndarray:
         """The posterior mean over the cell centres (or, with estimate="mode", the heaviest mode's), (2,)."""
-        if self.estimate_rule == "mode":
+        if self.settings["estimate"] == "mode":
             modes = self.modes
             return modes[0].mean.copy() if modes else self.mean
         return self.mean
@@ -270,16 +268,12 @@ def arc_kernel_shape(speed: float, resolution: float) -> tuple[int, int]:
 
 
 def fft_shape(image_shape: tuple[int, ...], kernel_shape: tuple[int, ...]) -> tuple[int, int]:
-    """The padded size of a linear (not circular) FFT convolution of image and kernel, fast lengths."""
-    return _fast_fft_length(image_shape[0] + kernel_shape[0] - 1), _fast_fft_length(
-        image_shape[1] + kernel_shape[1] - 1
-    )
-
-
-def _fast_fft_length(n: int) -> int:
-    """The smallest 2^a, 3 * 2^a or 5 * 2^a >= n: numpy's FFT is fastest on such lengths (640 takes a
-    third of the time of 625 = 5^4)."""
-    return min(odd * 2 ** max(0, math.ceil(math.log2(n / odd))) for odd in (1, 3, 5))
+    """The padded size of a linear (not circular) FFT convolution of image and kernel: along each axis the
+    smallest 2^a, 3 * 2^a or 5 * 2^a >= n, the full size n, as numpy's FFT is fastest on such lengths (640
+    takes a third of the time of 625 = 5^4)."""
+    full = [i + k - 1 for i, k in zip(image_shape, kernel_shape, strict=True)]
+    rows, columns = (min(odd * 2 ** max(0, math.ceil(math.log2(n / odd))) for odd in (1, 3, 5)) for n in full)
+    return rows, columns
 
 
 __all__ = [

@@ -46,7 +46,6 @@ class ExtendedKalmanFilter(ModelFilter):
     options: ClassVar[Options] = Options(
         Option("init", "prior", "prior (global localisation, the lab's problem) or start (tracking the start)",
                parse=str.strip, check=choice("init", EKF_INITS), flag="--init"),
-        # simulate hands a filter that declares `start` the robot's start (for init="start")
         Option("start", None, "the robot's start (x, y), handed in by the run", derived=True),
         Option("start_std", START_STD, "init=start: each coordinate's std, map units",
                check=number_in("start_std", 0.0, MAP_MARGIN, what=" map units")),
@@ -64,7 +63,6 @@ class ExtendedKalmanFilter(ModelFilter):
                 raise ValueError('init="start" needs the robot\'s start: give start=(x, y)')
             self.mean = np.array(start, dtype=float).reshape(2)
             self.covariance = start_std**2 * np.eye(2)
-        self.init = init
         self.station = np.full(2, np.nan)  # the station the last update measured to
         self.innovation = math.nan  # z_k - |m_k|k-1 - station|, map units
 

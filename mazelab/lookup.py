@@ -43,7 +43,8 @@ class NearestStationLookup:
         self.nx = (width + 2 * _LOOKUP_MARGIN) * self.scale
         self.ny = (height + 2 * _LOOKUP_MARGIN) * self.scale
         self.stations = stations
-        free = _lookup_cells_free(free_grid, self.scale, _LOOKUP_MARGIN).ravel()  # (C,) bool
+        free_up = np.pad(free_grid[::-1], _LOOKUP_MARGIN, constant_values=False)  # row 0: y in [-margin, ...)
+        free = np.repeat(np.repeat(free_up, self.scale, axis=0), self.scale, axis=1).ravel()  # (C,) bool
         candidates, counts = _candidate_stations(stations, self.nx, self.ny, self.offset, self.scale, progress)
         ambiguous = np.flatnonzero(counts > 1)
         self.kind = (free * _FREE + (counts > 1) * _AMBIGUOUS).astype(np.int8)  # (C,) each cell's bits
@@ -68,9 +69,12 @@ class NearestStationLookup:
         del first
         kinds = self.kind.take(cells)
         ambiguous = np.flatnonzero(kinds >= _AMBIGUOUS)
-        if len(ambiguous):
-            rows = self.row.take(cells.take(ambiguous))
-            d2[ambiguous] = _nearest_candidate(others, rows, x.take(ambiguous), y.take(ambiguous), d2.take(ambiguous))
+        if len(ambiguous):  # the nearest of the other candidates of each ambiguous cell (its row of `others`)
+            near, xs, ys = d2.take(ambiguous), x.take(ambiguous), y.take(ambiguous)
+            candidates = others.take(self.row.take(cells.take(ambiguous)), axis=0)  # (n, 2 (K - 1))
+            for k in range(0, candidates.shape[1], 2):
+                np.minimum(near, _squared_distances(candidates[:, k], candidates[:, k + 1], xs, ys), out=near)
+            d2[ambiguous] = near
         free = np.bitwise_and(kinds, _FREE, out=kinds).view(bool)
         if len(beyond):
             d2[beyond] = _brute_force_squared_distances(border, x[beyond], y[beyond])
@@ -150,23 +154,6 @@ def _lookup_subdivisions(width: int, height: int) -> int:
     while scale > 1 and area * scale**2 > _LOOKUP_MAX_CELLS:
         scale //= 2
     return scale
-
-
-def _lookup_cells_free(free_grid: np.ndarray, scale: int, margin: int) -> np.ndarray:
-    """Free flags of the lookup cells, shape (ny, nx), row j covering y in [j/scale - margin, ...)."""
-    free_up = np.pad(free_grid[::-1], margin, constant_values=False)  # row 0 is y in [-margin, ...)
-    return np.repeat(np.repeat(free_up, scale, axis=0), scale, axis=1)
-
-
-def _nearest_candidate(
-    others: np.ndarray, rows: np.ndarray, x: np.ndarray, y: np.ndarray, first: np.ndarray
-) -> np.ndarray:
-    """Squared distance from each point to the nearest candidate of its ambiguous cell (its row of
-    `others`), given `first`, its squared distance to the first candidate (written over)."""
-    others = others.take(rows, axis=0)  # (n, 2 (K - 1))
-    for k in range(0, others.shape[1], 2):
-        np.minimum(first, _squared_distances(others[:, k], others[:, k + 1], x, y), out=first)
-    return first
 
 
 def _squared_distances(sx: np.ndarray, sy: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:

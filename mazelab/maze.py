@@ -83,7 +83,7 @@ def mazes_fitting(start: Sequence[float], particles: np.ndarray) -> list[str]:
 
 
 EMPTY, WALL, STATION_WALL = 0, 1, 2
-# At most this many rows and columns: the nearest-station table's flat cell indices stay exact in
+# At most MAX_MAZE_SIDE rows and columns: the nearest-station table's flat cell indices stay exact in
 # float32 ((4000 + 4)**2 < 2**24) and float32 particle positions resolve 2**-11 map units.
 # A maze file larger than this is refused, not read: room for the largest maze written with ", "
 # between cells (3 bytes a cell, 48 MB), comments included.
@@ -92,16 +92,6 @@ MAZE_FILE_LIMIT_BYTES = 64 * 2**20
 
 BYTES_PER_DRAWN_POINT = 64  # random_free_places: the cell indices, the cells and the offsets per point
 MEMORY_CHECKED_POINTS = 1_000_000  # counts above this are checked against the memory budget (it reads /proc)
-
-
-def check_point_count(count: Any) -> None:
-    """`count` of random_free_places: a whole number >= 0 whose arrays fit in memory, or one line."""
-    if isinstance(count, bool) or not isinstance(count, (int, np.integer)):
-        raise TypeError(f"random_free_places: count must be a whole number, got {count!r}")
-    if count < 0:
-        raise ValueError(f"random_free_places: count must be >= 0, got {count}")
-    if count > MEMORY_CHECKED_POINTS:
-        check_memory(f"random_free_places({count})", int(count) * BYTES_PER_DRAWN_POINT)
 
 
 class Maze:
@@ -117,8 +107,17 @@ class Maze:
         state["grid"] = _validate_grid(maze_map, source)
         state["source"] = source
         state["height"], state["width"] = self.grid.shape
-        state["stations"] = _station_corners(self.grid)
-        state["free_cells"] = _free_cell_origins(self.grid)
+        # the stations: the four corners of every station block, in map coordinates, each point once (B, 2)
+        rows, columns = np.nonzero(self.grid == STATION_WALL)
+        corners = {
+            (int(c + dx), int(self.height - 1 - r + dy))
+            for r, c in zip(rows, columns, strict=True)
+            for dx in (0, 1)
+            for dy in (0, 1)
+        }
+        state["stations"] = np.array(sorted(corners), dtype=float)
+        rows, columns = np.nonzero(self.grid == EMPTY)  # the free cells' lower-left corners (x, y), (F, 2)
+        state["free_cells"] = np.column_stack([columns, self.height - 1 - rows]).astype(float)
         _read_only(self)
 
     def __setattr__(self, name: str, value: Any) -> None:
@@ -191,12 +190,6 @@ class Maze:
         return lookup
 
     # -- geometry --------------------------------------------------------------------------------
-    def cell_of(self, x: Any, y: Any) -> tuple[np.ndarray, np.ndarray]:
-        """(row, column) indices of the cells containing the points; may lie outside the grid."""
-        col = np.floor(np.asarray(x, dtype=float)).astype(np.int64)
-        row = self.height - 1 - np.floor(np.asarray(y, dtype=float)).astype(np.int64)
-        return row, col
-
     def is_free(self, x: Any, y: Any) -> bool | np.ndarray:
         """True where (x, y) lies in [0, W) x [0, H) in a cell of type 0; vectorised over arrays."""
         if is_scalar(x) and is_scalar(y):
@@ -204,7 +197,8 @@ class Maze:
         x = np.asarray(x, dtype=float)
         y = np.asarray(y, dtype=float)
         inside = (x >= 0) & (x < self.width) & (y >= 0) & (y < self.height)
-        row, col = self.cell_of(np.where(inside, x, 0.0), np.where(inside, y, 0.0))
+        col = np.floor(np.where(inside, x, 0.0)).astype(np.int64)  # the cell (row, col) of each point
+        row = self.height - 1 - np.floor(np.where(inside, y, 0.0)).astype(np.int64)
         free = inside & (self.grid[row, col] == EMPTY)
         return bool(free) if free.ndim == 0 else free
 
@@ -231,7 +225,12 @@ class Maze:
         A count that is not a whole number >= 0 (1.5, True, -1) is a TypeError or ValueError, and one
         whose arrays would not fit in memory (10**12) a MemoryLimitError (a ValueError): one line each.
         """
-        check_point_count(count)
+        if isinstance(count, bool) or not isinstance(count, (int, np.integer)):
+            raise TypeError(f"random_free_places: count must be a whole number, got {count!r}")
+        if count < 0:
+            raise ValueError(f"random_free_places: count must be >= 0, got {count}")
+        if count > MEMORY_CHECKED_POINTS:
+            check_memory(f"random_free_places({count})", int(count) * BYTES_PER_DRAWN_POINT)
         rng = np.random.default_rng() if rng is None else rng
         cells = self.free_cells[rng.integers(len(self.free_cells), size=count)]
         return cells + rng.random((count, 2))
@@ -339,25 +338,6 @@ def parse_maze_text(text: str, source: str = "maze text") -> list[list[int]]:
 
 
 # -- derived geometry ----------------------------------------------------------------------------
-def _station_corners(grid: np.ndarray) -> np.ndarray:
-    """The four corners of every type-2 cell in map coordinates, each point once, shape (B, 2)."""
-    height = grid.shape[0]
-    rows, cols = np.nonzero(grid == STATION_WALL)
-    corners = {
-        (int(c + dx), int(height - 1 - r + dy))
-        for r, c in zip(rows, cols, strict=True)
-        for dx in (0, 1)
-        for dy in (0, 1)
-    }
-    return np.array(sorted(corners), dtype=float)
-
-
-def _free_cell_origins(grid: np.ndarray) -> np.ndarray:
-    """Lower-left corners (x, y) of the free cells, shape (F, 2)."""
-    rows, cols = np.nonzero(grid == EMPTY)
-    return np.column_stack([cols, grid.shape[0] - 1 - rows]).astype(float)
-
-
 def _point_array(points: Any) -> np.ndarray:
     """Points of shape (..., 2) as floats, or one line saying what the Maze's methods take."""
     array = np.asarray(points, dtype=float)

@@ -198,6 +198,17 @@ class Sensor:
         (numpy's `log_likelihood`, or the compiled likelihood): z (R,), x (R, N, 2) -> (R, N)."""
         return ops.log_likelihood(z, x, world, self.sigma, self.outside_penalty)
 
+    def localised_likelihood(self) -> float:
+        """E[p(z | x)] at the robot's own place x, per map unit: E_v[N(v; 0, sigma^2)] for v ~ N(0, sigma^2)
+        is 1 / (2 sqrt(pi) sigma), the mean likelihood of a filter whose belief sits on the robot (the
+        level below which sensor resetting calls a filter lost, mazelab.recovery)."""
+        return 1.0 / (2.0 * math.sqrt(math.pi) * self.sigma)
+
+    def log_acceptance(self, z: Any, points: np.ndarray, world: Maze) -> np.ndarray:
+        """log p(z | x) / max_x p(z | x) at free `points` (M, 2), (M,): sensor resetting's rejection
+        sampling accepts x with this probability, exp(-(z - d(x))^2 / (2 sigma^2))."""
+        return log_likelihood(z, points, world, self.sigma) + math.log(self.sigma * math.sqrt(2 * math.pi))
+
 
 class LostRobot:
     """The lost robot's state-space model as a filter uses it (nchopin/particles' FeynmanKac: M0, M,

@@ -45,14 +45,14 @@ def flat_ancestors(A: np.ndarray, count: int) -> np.ndarray:
 
 
 class NumpyKernels:
-    """The hot parts in numpy: the lab's reference, each operation the same numpy calls as always.
-
-    `Weights` is the backend's weights value (mazelab.weights.Weights: float64 log W); `schemes` the
-    faster forms of resampling schemes by name (none: numpy runs mazelab.resampling's textbook ones).
-    """
+    """The hot parts in numpy (see the module's docstring). `Weights` is the backend's weights value
+    (mazelab.weights.Weights: float64 log W), `log_dtype` the dtype of its log weights after resampling
+    (float64; None: the likelihood's); `schemes` the faster forms of resampling schemes by name (none:
+    numpy runs mazelab.resampling's textbook ones)."""
 
     name = "numpy"
     Weights: type = Weights
+    log_dtype: type | None = float
     schemes: Mapping[str, Callable[..., np.ndarray]] = MappingProxyType({})
 
     def move(
@@ -83,8 +83,8 @@ class NumpyKernels:
 
     def equal_weighted(self, log_lik: np.ndarray, log_weight: float) -> np.ndarray:
         """log W + log p(z_k | x_k) of resampled particles, whose weights are equal (log_weight = -log N):
-        float64 (R, N)."""
-        return np.add(log_lik, log_weight, dtype=float)
+        (R, N) of `log_dtype`."""
+        return np.add(log_lik, log_weight, dtype=self.log_dtype)
 
     def second_stage(self, log_lik: np.ndarray, log_mu: np.ndarray, A: np.ndarray) -> np.ndarray:
         """The APF's second-stage log weights log p(z_k | x^j) - log p(z_k | mu^{a^j}), (R, M): the first
@@ -118,8 +118,14 @@ class NumpyKernels:
         for block, kernel in enumerate(kernels):
             part = slice(block * size, (block + 1) * size)
             moved[part] += kernel(moved[part], eps[part])
-        if len(rows) == len(x):
-            return moved.reshape(len(x), size, 2)
-        out = particles_array(x, x.dtype)
-        out[rows] = moved.reshape(len(rows), size, 2)
-        return out
+        return replaced(x, rows, moved.reshape(len(rows), size, 2))
+
+
+def replaced(x: np.ndarray, rows: np.ndarray, moved: np.ndarray) -> np.ndarray:
+    """x (R, N, 2) with the runs `rows` (D,) replaced by `moved` (D, M, 2) (M = N), or `moved` itself
+    when it holds every run's: the RPF's jittered particles."""
+    if len(rows) == len(x):
+        return moved
+    out = particles_array(x, x.dtype)
+    out[rows] = moved
+    return out

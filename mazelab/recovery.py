@@ -12,7 +12,7 @@ import numpy as np
 from mazelab.checks import finite_number
 from mazelab.declaration import Option, number_in, object_from_json
 from mazelab.maze import Maze
-from mazelab.model import log_likelihood
+from mazelab.model import Sensor
 from mazelab.resampling import Move
 
 ALPHA_SLOW, ALPHA_FAST = 0.001, 0.1  # decay rates of the likelihood averages (Thrun et al., Table 8.3)
@@ -21,24 +21,8 @@ RECOVERY_MODES = ("augmented", "sensor")
 
 SENSOR_RESET_BATCHES = 20  # rejection sampling gives up after this many batches (the rest are uniform)
 # Sensor resetting injects while w_fast is below this share of the likelihood expected when localised
-# (`localised_likelihood`): 0.5 lies over 5 standard deviations of w_fast below its localised level.
+# (`Sensor.localised_likelihood`): 0.5 lies over 5 standard deviations of w_fast below its localised level.
 SENSOR_RESET_LEVEL = 0.5
-
-
-def localised_likelihood(sigma: float) -> float:
-    """E[p(z | x)] at the robot's own place x: E_v[N(v; 0, sigma^2)] for v ~ N(0, sigma^2) is
-    1 / (2 sqrt(pi) sigma), the mean likelihood of a filter whose belief sits on the robot.
-
-    Parameters
-    ----------
-    sigma : float
-        The measurement noise's standard deviation (map units).
-
-    Returns
-    -------
-    float, per map unit
-    """
-    return 1.0 / (2.0 * math.sqrt(math.pi) * sigma)
 
 
 @dataclass(frozen=True)
@@ -50,7 +34,7 @@ class Recovery:
     its estimate of the predictive likelihood p(z_k | z_1:k-1), and replaces each particle, with an
     injection probability, by a draw from the free area:
     - "augmented": probability max(0, 1 - w_fast / w_slow), uniform draws;
-    - "sensor": probability max(0, 1 - w_fast / (reset_level * localised_likelihood(sigma))), as Lenser
+    - "sensor": probability max(0, 1 - w_fast / (reset_level * Sensor.localised_likelihood())), as Lenser
       and Veloso's N (1 - p_avg / p_threshold) with the model's own threshold and w_fast for p_avg, and
       draws matched to the last measurement (`measurement_matched_places`). The learned w_slow is no
       reference here: it starts at the lost filter's likelihood and, at alpha_slow = 0.001, takes
@@ -124,18 +108,19 @@ RECOVERY_OPTIONS = (
 )  # fmt: skip
 
 
-def measurement_matched_places(world: Maze, z: float, sigma: float, count: int, rng: np.random.Generator) -> np.ndarray:
+def measurement_matched_places(world: Maze, z: Any, sensor: Sensor, count: int, rng: np.random.Generator) -> np.ndarray:
     """Free points with density proportional to p(z | x) on the free area (sensor resetting): rejection
-    sampling from the uniform law, accepting x with probability p(z | x) / max p =
-    exp(-(z - d(x))^2 / (2 sigma^2)). Points still missing after SENSOR_RESET_BATCHES batches (when no
-    free point explains z) are drawn uniformly.
+    sampling from the uniform law, accepting x with probability p(z | x) / max p
+    (`Sensor.log_acceptance`). Points still missing after SENSOR_RESET_BATCHES batches (when no free
+    point explains z) are drawn uniformly.
 
     Parameters
     ----------
     world : Maze
-    z : float
+    z : float, or the model's reading
         The last measurement (map units).
-    sigma : float
+    sensor : Sensor
+        The filter's measurement model (mazelab.model).
     count : int
     rng : numpy.random.Generator
 
@@ -146,7 +131,7 @@ def measurement_matched_places(world: Maze, z: float, sigma: float, count: int, 
     found, missing = [], count
     for _ in range(SENSOR_RESET_BATCHES):
         candidates = world.random_free_places(max(4 * missing, 256), rng)
-        log_accept = log_likelihood(z, candidates, world, sigma) + math.log(sigma * math.sqrt(2 * math.pi))
+        log_accept = sensor.log_acceptance(z, candidates, world)
         accepted = candidates[np.log(rng.random(len(candidates))) < log_accept][:missing]
         found.append(accepted)
         missing -= len(accepted)
@@ -166,29 +151,29 @@ class RecoveryTracker:
     options : Recovery
     world : Maze
         Where injected points are drawn.
-    sigma : float
-        The measurement noise's standard deviation.
+    sensor : Sensor
+        The filter's measurement model (its localised likelihood, and the matched draws' acceptance).
     """
 
-    def __init__(self, options: Recovery, world: Maze, sigma: float):
-        self.options, self.world, self.sigma = options, world, sigma
+    def __init__(self, options: Recovery, world: Maze, sensor: Sensor):
+        self.options, self.world, self.sensor = options, world, sensor
         self.log_w_slow = self.log_w_fast = -math.inf  # log w_slow, log w_fast: set by the first w_avg
-        self.last_z: float | None = None
+        self.last_z: Any = None  # the last reading (a number; k numbers for a model of k sensors)
 
     @property
     def injection_probability(self) -> float:
         """max(0, 1 - w_fast / reference) (see Recovery), the reference the likelihood level below which
-        w_fast means "lost": w_slow ("augmented"), or the sensor's reset_level * localised_likelihood(sigma)
+        w_fast means "lost": w_slow ("augmented"), or reset_level * the sensor's localised likelihood
         ("sensor"); 0 before the first measurement."""
         if self.last_z is None or self.log_w_slow == -math.inf:
             return 0.0
         if self.options.mode == "sensor":
-            log_reference = math.log(self.options.reset_level * localised_likelihood(self.sigma))
+            log_reference = math.log(self.options.reset_level * self.sensor.localised_likelihood())
         else:
             log_reference = self.log_w_slow
         return max(0.0, 1.0 - math.exp(self.log_w_fast - log_reference))
 
-    def track(self, log_w_avg: float, z: float) -> None:
+    def track(self, log_w_avg: float, z: Any) -> None:
         """w_slow += alpha_slow (w_avg - w_slow), w_fast likewise; in logs, w <- (1 - a) w + a w_avg.
 
         Both start at the first w_avg (as ROS AMCL does; Table 8.3 leaves them open): from zero,
@@ -198,15 +183,16 @@ class RecoveryTracker:
         ----------
         log_w_avg : float
             log w_avg, this step's estimate of log p(z_k | z_1:k-1) (the filter's log evidence increment).
-        z : float
-            z_k.
+        z : float, or the model's reading
+            z_k, kept as it comes (k numbers for a model of k sensors).
         """
         slow, fast = self.options.alpha_slow, self.options.alpha_fast
         if self.last_z is None:
             self.log_w_slow = self.log_w_fast = float(log_w_avg)
         else:
             self.log_w_slow = float(np.logaddexp(math.log1p(-slow) + self.log_w_slow, math.log(slow) + log_w_avg))
-            self.log_w_fast = float(np.logaddexp(_log1m(fast) + self.log_w_fast, math.log(fast) + log_w_avg))
+            keep_fast = math.log1p(-fast) if fast < 1 else -math.inf  # log(1 - alpha_fast)
+            self.log_w_fast = float(np.logaddexp(keep_fast + self.log_w_fast, math.log(fast) + log_w_avg))
         self.last_z = z
 
     def inject(
@@ -235,17 +221,12 @@ class RecoveryTracker:
         injected = rng.random(len(positions)) < probability
         count = int(injected.sum())
         if count:
-            if self.options.mode == "sensor" and self.last_z is not None:
-                places = measurement_matched_places(self.world, self.last_z, self.sigma, count, rng)
+            if self.options.mode == "sensor":  # a probability above 0 has a last z
+                places = measurement_matched_places(self.world, self.last_z, self.sensor, count, rng)
             else:
                 places = self.world.random_free_places(count, rng)
             positions[injected], headings[injected] = move_injected(places)
         return injected
-
-
-def _log1m(a: float) -> float:
-    """log(1 - a), -inf for a = 1."""
-    return math.log1p(-a) if a < 1 else -math.inf
 
 
 __all__ = [
@@ -258,7 +239,6 @@ __all__ = [
     "Recovery",
     "RecoveryTracker",
     "check_recovery",
-    "localised_likelihood",
     "measurement_matched_places",
     "recovery_options",
 ]

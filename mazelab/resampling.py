@@ -58,7 +58,7 @@ def systematic_resample(weights: np.ndarray, rng: Any, count: int | None = None)
     offset u ~ U[0, 1) shared by the M points u_m = (u + m) / M, each taken to the particle whose
     cumulative weight first exceeds it (the inverse CDF; sorted ancestors).
 
-    The numpy backend runs this; the compiled one its counting form (mazelab.kernels.resampling), which
+    The numpy backend runs this; the compiled one its counting form (mazelab.kernels.weights), which
     gives the same ancestors in O(N).
     """
     count = weights.shape[-1] if count is None else count
@@ -287,17 +287,12 @@ def _enough(
     """Whether the sample reaches KLD-sampling's bound after each point of a batch (n >= least and n >=
     required_count(k), k the bins occupied by then, `occupied` before the batch), bool (batch,); and the
     sorted keys of the bins the batch occupies."""
-    keys, first = np.unique(_bin_keys(positions, options.bin_size), return_index=True)
+    cells = np.floor(positions / options.bin_size).astype(np.int64)  # each point's bin, the square holding it
+    keys, first = np.unique(cells[:, 0] * (1 << 32) + cells[:, 1], return_index=True)  # one int64 key a bin
     new = np.zeros(len(positions), dtype=bool)
     new[first[~np.isin(keys, occupied, assume_unique=True)]] = True
     bins = len(occupied) + np.cumsum(new)  # occupied bins after each point of the batch
     return drawn + np.arange(1, len(positions) + 1) >= np.maximum(least, options.required_count(bins)), keys
-
-
-def _bin_keys(positions: np.ndarray, size: float) -> np.ndarray:
-    """One int64 key per point for its bin, the size x size square containing it, shape (N,)."""
-    cells = np.floor(positions / size).astype(np.int64)
-    return cells[:, 0] * (1 << 32) + cells[:, 1]
 
 
 __all__ = [

@@ -10,6 +10,7 @@ import numpy as np
 from mazelab.checks import angle, as_point, coordinate, step_number
 from mazelab.maze import Maze
 from mazelab.model import MAX_STRAIGHT_STEPS, ROBOT_SPEED, Sensor, check_model_parameters, sample_heading
+from mazelab.seeding import start_place
 
 
 class Robot:
@@ -57,6 +58,13 @@ class Robot:
         self.kidnap_at = None if kidnap_at is None else step_number("kidnap_at", kidnap_at)
         self.kidnap_position = None if kidnap_position is None else as_point("kidnap position", kidnap_position)
         self.reset()
+
+    @classmethod
+    def of_seed(cls, world: Maze, sigma: float, delta: float, seed: int, *, sensor: Sensor | None = None) -> Robot:
+        """The lost robot of run `seed` (mazelab.seeding): it starts at a free place of `world` drawn from
+        default_rng(seed) (`start_place`) and reads `sensor` (default: the paper's, of noise `sigma`); every
+        command builds its fresh robot here, so a sensor chosen for a run reaches each of them."""
+        return cls(sigma, delta, start_place(world, seed), sensor=sensor)
 
     def kidnap(self, step: int, position: Sequence[float]) -> None:
         """Carry the robot to `position` at step `step` (1-based), before that step's move.

@@ -312,7 +312,14 @@ def load_scenario(path: str | Path = DEFAULT_PARAMETERS_PATH) -> Scenario:
     """Read and validate a scenario json file (a file with only the paper's four keys is fine), or a
     shipped scenario by its name (see find_scenario)."""
     path = find_scenario(path)
-    text = _read_scenario_file(path)
+    try:  # the file's text (mazelab.checks.read_text_file), or what to try when there is none
+        text = read_text_file(path, "scenario", "json", ScenarioError, per_byte=BYTES_PER_JSON_BYTE)
+    except FileNotFoundError:
+        older = LEGACY_PARAMETERS_PATH.is_file() and path.name == "model_parameters.json"
+        hint = f" (older versions saved to {LEGACY_PARAMETERS_PATH})" if older else ""
+        if not hint and path.parent == Path(".") and path.stem in shipped_mazes() and path.suffix in ("", ".txt"):
+            hint = f"; {path.stem} is a maze: --maze {path.stem} (a scenario is a .json saved by run --save-scenario)"
+        raise ScenarioError(f"{path}: no such scenario file{hint}") from None
     depth = json_depth(text)
     if depth > MAX_JSON_DEPTH:
         raise ScenarioError(f"{path}: json nested {depth} deep; a scenario nests at most {MAX_JSON_DEPTH} deep")
@@ -342,18 +349,6 @@ def _what_it_is(path: Path, text: str) -> str:
     if path.suffix.lower() == ".rrd":
         return f"; {path.name} is a recording: mazelab view {path}; {saved}"
     return ""
-
-
-def _read_scenario_file(path: Path) -> str:
-    """The text of a scenario file (mazelab.checks.read_text_file), or what to try when there is none."""
-    try:
-        return read_text_file(path, "scenario", "json", ScenarioError, per_byte=BYTES_PER_JSON_BYTE)
-    except FileNotFoundError:
-        older = LEGACY_PARAMETERS_PATH.is_file() and path.name == "model_parameters.json"
-        hint = f" (older versions saved to {LEGACY_PARAMETERS_PATH})" if older else ""
-        if not hint and path.parent == Path(".") and path.stem in shipped_mazes() and path.suffix in ("", ".txt"):
-            hint = f"; {path.stem} is a maze: --maze {path.stem} (a scenario is a .json saved by run --save-scenario)"
-        raise ScenarioError(f"{path}: no such scenario file{hint}") from None
 
 
 _JSON_STRING = re.compile(r'"(?:[^"\\]|\\.)*"')

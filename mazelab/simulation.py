@@ -1,6 +1,11 @@
 """One run: one filter on one robot walk, step by step, kept as arrays in a RunResult (`simulate`), and
 the paper's entry point over it (`run_model`, which can save the run's scenario).
 
+The one recording loop (`record_steps`) steps a filter along a walk and keeps each step's values, read
+where the contract says and checked, for one run and for R runs advanced together (a batched study)
+alike; a filter's own figures (`diagnostics`: the RPF's regularisation, recovery's injection
+probability) are kept the same way, so they reach RunResult and a study's traces with no code of their own.
+
 Step k: the robot moves with its actual angle k and measures z_k; the filter predicts with compass
 angle k and updates with z_k. The run draws where `visualize` says (mazelab.viz.views, imported only by
 a run that draws) or into a view its caller hands it (anything with log_step and close).
@@ -9,6 +14,7 @@ a run that draws) or into a view its caller hands it (anything with log_step and
 from __future__ import annotations
 
 import math
+import time
 import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -19,17 +25,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from mazelab.backend import backend_by_work, backend_of
-from mazelab.checks import (
-    as_points,
-    check_recording,
-    check_seed,
-    check_steps,
-    check_within_map,
-    step_number,
-)
+from mazelab.checks import as_points, check_recording, check_seed, check_steps, check_within_map, step_number
 from mazelab.checks import particle_count as checked_count
-from mazelab.collect import Recorded, record_steps
-from mazelab.contract import NullView, check_filter
+from mazelab.contract import ContractError, NullView, check_filter, check_step_values
 from mazelab.declaration import options_of
 from mazelab.maze import Maze, check_world
 from mazelab.model import CONVERGENCE_RADIUS, DEFAULT_STEPS, check_model_parameters
@@ -69,7 +67,7 @@ class RunResult:
         inputs: RunInputs,
         backend: str,
     ) -> RunResult:
-        """Run `r` of what the recording loop kept (mazelab.collect.Recorded), named by `inputs`' filter:
+        """Run `r` of what the recording loop kept (Recorded), named by `inputs`' filter:
         the robot's `true_positions` (steps, 2), the filter's restarts and the backend it ran on."""
         diagnostics = {name: values[r] for name, values in recorded.diagnostics.items()}
         extras = {"particle_count": recorded.counts[r], "diagnostics": diagnostics, "backend": backend}
@@ -265,8 +263,7 @@ def simulate(
     `seed` seeds the robot (unless it has its own rng), the initial particles and the filter (mazelab.seeding):
     the same seed gives the same result bit for bit. `kidnap_at=K`: at step K the robot is carried to a free
     place drawn from the seed (`plan_kidnapping`). `result.extras` holds the particle count per step
-    ("particle_count": KLD-sampling varies it) and the backend the filter ran on ("backend"). A filter
-    class that declares the option `start` is handed the robot's start too (`build_filter`).
+    ("particle_count": KLD-sampling varies it) and the backend the filter ran on ("backend").
     `visualize` says where the run is drawn (the values mazelab.viz.views lists), its memory checked up
     front; `view` (instead) is a view or a function `(world, filter_name) -> view` (`open_run_view`),
     called once the inputs are checked (a comparison's view of each filter).
@@ -317,7 +314,7 @@ def walk_and_record(
     filter_class: type, filt: Any, robot: Robot, world: Maze, steps: int, view: Any, on_step: Callable | None
 ) -> tuple[np.ndarray, Recorded]:
     """The run's steps: at step k the robot moves with its actual angle and measures z_k, the filter
-    steps on them (mazelab.collect.record_steps), then the view draws it and `on_step(k, robot, filt)`
+    steps on them (`record_steps`), then the view draws it and `on_step(k, robot, filt)`
     is called; the view is closed however the run ends. Returns the robot's positions (steps, 2) and
     what the filter's steps recorded."""
     true_positions = np.empty((steps, 2))
@@ -338,6 +335,116 @@ def walk_and_record(
     finally:
         view.close()
     return true_positions, recorded
+
+
+# -- the recording loop: a filter stepped along a walk, each step's reads kept ------------------------
+@dataclass
+class Recorded:
+    """Per step k = 1..steps, for R runs: the estimate (R, steps, 2), ESS, green circle, particle count
+    and log evidence log p(z_1:k) (R, steps; NaN for a filter that keeps none), the filter's own time
+    per step (steps,), and its diagnostics by name (R, steps)."""
+
+    estimates: np.ndarray
+    ess: np.ndarray
+    confident: np.ndarray
+    counts: np.ndarray
+    log_evidence: np.ndarray
+    seconds: np.ndarray
+    diagnostics: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+def record_steps(
+    filt: Any,
+    steps: int,
+    observe: Callable[[int], tuple[Any, Any]],
+    *,
+    runs: int | None = None,
+    after: Callable[[int, Any], None] | None = None,
+    at: Any = None,
+) -> Recorded:
+    """Step `filt` `steps` times and keep what each step reads.
+
+    Parameters
+    ----------
+    filt : a filter (mazelab.contract)
+    steps : int
+    observe : callable
+        k (0-based) -> (compass angle th0_k, measurement z_k): numbers for one run, arrays (R,) for R runs.
+    runs : int, optional
+        R for a filter advancing R runs together (None: one run, the paper's shapes).
+    after : callable, optional
+        (k, filt) after step k (1-based): the viewer, a progress line.
+    at : object with a `number` attribute, optional
+        Set to the step being run (for the error that names it, mazelab.stops.student_code).
+
+    Returns
+    -------
+    Recorded
+        Arrays with a run axis of length R (1 for one run). The time per step is the filter's step
+        and its reads (estimate, ESS, confidence), divided among the R runs.
+    """
+    count = 1 if runs is None else runs
+    recorded = _unfilled(count, steps)
+    diagnostics: dict[str, list[Any]] = {}
+    for k in range(steps):
+        if at is not None:
+            at.number = k + 1
+        compass_angle, z = observe(k)
+        started = time.perf_counter()
+        filt.step(compass_angle, z)
+        values = filt.estimate, filt.ess, filt.is_confident, filt.count
+        recorded.seconds[k] = (time.perf_counter() - started) / count
+        estimate, ess, confident, particles = check_step_values(type(filt), values, runs)  # into column k
+        recorded.estimates[:, k], recorded.ess[:, k], recorded.confident[:, k] = estimate, ess, confident
+        recorded.counts[:, k] = particles
+        recorded.log_evidence[:, k] = getattr(filt, "log_evidence", np.nan)  # optional in the contract
+        _keep_diagnostics(diagnostics, getattr(filt, "diagnostics", None), k, type(filt))
+        if after is not None:
+            after(k + 1, filt)
+    recorded.diagnostics = {name: _per_run(values, count) for name, values in diagnostics.items()}
+    return recorded
+
+
+def _unfilled(count: int, steps: int) -> Recorded:
+    """Recorded's arrays for `count` runs of `steps` steps, filled step by step by record_steps."""
+    shape = (count, steps)
+    return Recorded(
+        np.empty((*shape, 2)),
+        np.empty(shape),
+        np.empty(shape, dtype=bool),
+        np.empty(shape, dtype=np.int64),
+        np.empty(shape),
+        np.empty(steps),
+    )
+
+
+def _keep_diagnostics(kept: dict[str, list[Any]], now: Any, k: int, filter_class: type) -> None:
+    """Append this step's diagnostics; a name missing at a step is NaN there."""
+    if not now:
+        for values in kept.values():
+            values.append(np.nan)
+        return
+    if not isinstance(now, dict):
+        raise ContractError(f"{filter_class.name}.diagnostics must be a dict of this step's figures, got {now!r}")
+    for name in kept.keys() - now.keys():
+        kept[name].append(np.nan)
+    for name, value in now.items():
+        kept.setdefault(name, [np.nan] * k).append(value)
+
+
+def _per_run(values: list[Any], runs: int) -> np.ndarray:
+    """A diagnostic's steps as (R, steps): one value a step for one run, (R,) a step for R runs (a
+    number, or one per run, is spread over the runs as numpy broadcasts it)."""
+    array = np.empty((runs, len(values)))
+    try:
+        for k, value in enumerate(values):
+            value = np.asarray(value, dtype=float)
+            if value.ndim > 1:  # a column takes (1, R) too; a step's diagnostic is not a table
+                raise ValueError
+            array[:, k] = value
+    except (TypeError, ValueError):
+        raise ContractError("a diagnostic must be a number (or one per run) at every step") from None
+    return array
 
 
 def checked_walk(
@@ -431,13 +538,14 @@ def plan_kidnapping(robot: Robot, world: Maze, kidnap_at: int, steps: int, rng: 
 
 
 __all__ = [
-    "NullView",
+    "Recorded",
     "RunInputs",
     "RunResult",
     "check_walk",
     "convergence_step",
     "open_run_view",
     "plan_kidnapping",
+    "record_steps",
     "run_model",
     "simulate",
 ]

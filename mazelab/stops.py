@@ -141,49 +141,35 @@ def is_student_class(filter_class: type) -> bool:
         return True
 
 
-def _frame_lines(tb: TracebackType | None) -> list[str]:
-    """The student's frames of a traceback, one line each: file, line, function and code."""
-    lines = []
-    for frame in student_frames(tb):
-        code = f": {frame.line.strip()}" if frame.line else ""
-        lines.append(f"  {frame.filename}, line {frame.lineno}, in {frame.name}{code}")
-    return lines
-
-
 class _Step:
     """The step a run is at (0 while the filter is built), for `student_code`."""
 
     number = 0
 
 
-def raise_for_student(error: BaseException, filter_class: type, step: int) -> None:
-    """Raise `error` as it is for a shipped filter; for a user's, a StudentCodeError naming the step and
-    the user's frames, from `error` (a sys.exit or KeyboardInterrupt of its own too; the user's stop
-    passes as it is)."""
-    if not is_student_class(filter_class) or isinstance(error, StudentCodeError):
-        raise error
-    when = "while being built" if step == 0 else f"at step {step}"
-    frames = _frame_lines(error.__traceback__)
-    if isinstance(error, (SystemExit, KeyboardInterrupt)):
-        if is_users_stop(error):
-            raise error
-        what = f"{filter_class.name} {describe_exit(error)} {when} (a filter must not end the program)"
-        raise StudentCodeError("\n".join([what, *frames])) from None
-    what = f"{filter_class.name} raised {type(error).__name__} {when}: {error}"
-    raise StudentCodeError("\n".join([what, *frames])) from error
-
-
 @contextmanager
 def student_code(filter_class: type) -> Iterator[_Step]:
-    """Around the calls of a user's filter: an Exception inside (or its own sys.exit) becomes a
-    StudentCodeError naming the step (set `.number` on what this yields) and the user's frames; the
-    working folder it changes is put back; a shipped filter's errors pass as they are."""
+    """Around the calls of a user's filter: an Exception inside (or its own sys.exit or KeyboardInterrupt)
+    becomes a StudentCodeError naming the step (set `.number` on what this yields) and the user's frames,
+    from the error; the working folder it changes is put back; a shipped filter's errors and the user's
+    own stop pass as they are."""
     step = _Step()
     try:
         with working_folder_kept(filter_class.name if is_student_class(filter_class) else None):
             yield step
     except BaseException as error:  # the student's own sys.exit becomes their error too
-        raise_for_student(error, filter_class, step.number)
+        if not is_student_class(filter_class) or isinstance(error, StudentCodeError) or is_users_stop(error):
+            raise
+        when = "while being built" if step.number == 0 else f"at step {step.number}"
+        frames = [  # the student's frames, one line each: file, line, function and code
+            f"  {f.filename}, line {f.lineno}, in {f.name}" + (f": {f.line.strip()}" if f.line else "")
+            for f in student_frames(error.__traceback__)
+        ]
+        if isinstance(error, (SystemExit, KeyboardInterrupt)):
+            what = f"{filter_class.name} {describe_exit(error)} {when} (a filter must not end the program)"
+            raise StudentCodeError("\n".join([what, *frames])) from None
+        what = f"{filter_class.name} raised {type(error).__name__} {when}: {error}"
+        raise StudentCodeError("\n".join([what, *frames])) from error
 
 
 @contextmanager
@@ -197,17 +183,12 @@ def working_folder_kept(owner: str | None) -> Iterator[None]:
     try:
         yield
     finally:
-        after = _cwd_or_none()
+        after = None  # the folder it moved to may have been removed
+        with contextlib.suppress(OSError):
+            after = os.getcwd()
         if after != before:
             os.chdir(before)
             warnings.warn(f"{owner} changed the working folder to {after}; it was put back to {before}", stacklevel=3)
-
-
-def _cwd_or_none() -> str | None:
-    try:
-        return os.getcwd()
-    except OSError:  # the folder it moved to was removed
-        return None
 
 
 def student_line(tb: TracebackType | None, error: BaseException) -> str:

@@ -29,7 +29,6 @@ from mazelab.backend import (
     cores,
     kernels_for,
     shared_threads,
-    thread_count,
     use_backend,
     use_threads,
 )
@@ -252,19 +251,19 @@ def test_the_environment_variable_in_any_case_runs_and_the_repeat_line_names_the
 
 
 def test_a_filter_takes_the_machines_cores_its_share_of_them_or_the_threads_chosen(monkeypatch):
-    """thread_count: MAZELAB_THREADS (--threads) when set, else the machine's cores; a study's runs take
-    shared_threads: cores // the runs at once (workers x threads <= cores), at least 1, unless the user
-    chose; use_threads sets the count for a block."""
+    """shared_threads: MAZELAB_THREADS (--threads) when set, else the machine's cores for one run and, for
+    a study's, cores // the runs at once (workers x threads <= cores), at least 1, unless the user chose;
+    use_threads sets the count for a block."""
     monkeypatch.delenv(THREADS_VARIABLE, raising=False)
-    assert thread_count() == cores()
+    assert shared_threads() == cores()
     assert shared_threads(2) == max(1, cores() // 2) and shared_threads(10 * cores()) == 1
     with use_threads(1) as chosen:
-        assert chosen == os.environ[THREADS_VARIABLE] == "1" and thread_count() == 1
+        assert chosen == os.environ[THREADS_VARIABLE] == "1" and shared_threads() == 1
         assert shared_threads(1) == 1  # the user's choice stands
     assert THREADS_VARIABLE not in os.environ
     monkeypatch.setenv(THREADS_VARIABLE, str(cores() + 1))
     with pytest.raises(ValueError, match=rf"^MAZELAB_THREADS must be a whole number from 1 to {cores()}"):
-        thread_count()
+        shared_threads()
 
 
 @needs_numba
@@ -291,7 +290,7 @@ def test_a_studys_runs_share_the_cores_of_their_machine_locally_and_on_a_dask_cl
     ):
         assert shared_threads(1, client) == max(1, cores() // 2)  # two workers of one task thread each, on one host
     seen = []
-    monkeypatch.setattr(executor, "run_unit_safely", lambda tasks: seen.append(thread_count()) or [])
+    monkeypatch.setattr(executor, "run_unit_safely", lambda tasks: seen.append(shared_threads()) or [])
     monkeypatch.setattr(executor, "worker_report", lambda startup: None)
     executor.run_unit_timed([], "numpy", threads=cores() + 5)  # at most this machine's cores
     assert seen == [cores()] and THREADS_VARIABLE not in os.environ

@@ -1,4 +1,4 @@
-"""mazelab.collect: the one recording loop, for one run and for R runs together.
+"""mazelab.simulation.record_steps: the one recording loop, for one run and for R runs together.
 
 - a filter's own diagnostics reach RunResult (the RPF's `regularised` at exactly its regularisation
   steps, recovery's injection probability) and a study's traces, batched or not, with the same values;
@@ -11,18 +11,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mazelab.collect import record_steps
 from mazelab.contract import ContractError
 from mazelab.experiments import batch_runs
 from mazelab.experiments.study import MazeChoice, run_task, study_settings, study_tasks
 from mazelab.filters import RegularizedParticleFilter, SIRParticleFilter
 from mazelab.robot import Robot
-from mazelab.seeding import start_place
-from mazelab.simulation import simulate
+from mazelab.simulation import record_steps, simulate
 
 
 def test_the_rpfs_regularisation_steps_reach_the_run_result(paper_world):
-    robot = Robot(0.3, 0.5, start_place(paper_world, 3))
+    robot = Robot.of_seed(paper_world, 0.3, 0.5, 3)
     result = simulate(robot, paper_world, 0.3, 0.5, 300, 60, None, "rpf", seed=3, threshold=0.5)
     regularised = result.extras["diagnostics"]["regularised"]
     filt_steps = [k for k in range(60) if regularised[k]]  # step k+1 began by regularising
@@ -31,14 +29,14 @@ def test_the_rpfs_regularisation_steps_reach_the_run_result(paper_world):
     rpf_runs = []
 
     def keep(k, robot_, filt):
-        rpf_runs.append(list(filt.regularised_at))
+        rpf_runs.append(list(filt.resampled_at))
 
     simulate(robot, paper_world, 0.3, 0.5, 300, 60, None, "rpf", seed=3, threshold=0.5, on_step=keep)
-    assert filt_steps == rpf_runs[-1]  # regularised_at lists the steps done before it regularised
+    assert filt_steps == rpf_runs[-1]  # resampled_at lists the steps done before it regularised
 
 
 def test_recoverys_injection_probability_is_recorded_per_step(paper_world):
-    robot = Robot(0.3, 0.5, start_place(paper_world, 4))
+    robot = Robot.of_seed(paper_world, 0.3, 0.5, 4)
     result = simulate(robot, paper_world, 0.3, 0.5, 300, 60, None, "sir", seed=4, recovery="sensor", kidnap_at=30)
     probability = result.extras["diagnostics"]["injection_probability"]
     assert probability.shape == (60,) and ((probability >= 0) & (probability <= 1)).all() and probability.max() > 0

@@ -14,7 +14,7 @@ DOCUMENTED = [
     "mazelab.contract",
     "mazelab.registry",
     "mazelab.declaration",
-    "mazelab.collect",
+    "mazelab.simulation:record_steps",  # the recording loop a study calls too
     "mazelab.smc",
     "mazelab.smoothing",
     "mazelab.learning",
@@ -22,9 +22,11 @@ DOCUMENTED = [
 
 
 def public_callables(module_name: str):
-    """(qualified name, function) of the module's public functions and its public classes' methods."""
+    """(qualified name, function) of the module's public functions and its public classes' methods
+    ("module:name" for one of them)."""
+    module_name, _, only = module_name.partition(":")
     module = importlib.import_module(module_name)
-    for name in getattr(module, "__all__", []):
+    for name in [only] if only else getattr(module, "__all__", []):
         obj = getattr(module, name)
         if getattr(obj, "__module__", None) != module_name:
             continue

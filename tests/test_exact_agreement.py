@@ -151,7 +151,7 @@ def test_the_rpfs_jitter_is_h_d_eps_around_each_resampled_particle(paper_world):
     cloud, weights = np.asarray(rpf.positions, float), np.asarray(rpf.weights, float)
     assert rpf.ess < 0.9 * count, "the weights should have degenerated enough to regularise next step"
     rpf.step(1.1, 1.0)  # regularise (resample, jitter), then move by the shift of compass angle 1.1
-    assert rpf.regularised_at == [1] and rpf.reinitialised_at == []
+    assert rpf.resampled_at == [1] and rpf.reinitialised_at == []
     shift = ROBOT_SPEED * np.array([math.cos(1.1), math.sin(1.1)])
     landed = np.asarray(rpf.positions, float) - shift
     points = np.unique(cloud, axis=0)

@@ -36,11 +36,11 @@ def test_the_rpf_regularises_exactly_at_the_steps_whose_ess_fell_below_n_t(paper
     expected, ess_before = [], rpf.ess
     for k, (compass, z) in enumerate(recorded_walk(paper_world, 7, 80)):
         if ess_before < threshold * count:
-            expected.append(k)  # regularised_at holds the steps done before it
+            expected.append(k)  # resampled_at holds the steps done before it
         rpf.step(compass, z)
         ess_before = rpf.ess
     assert 3 <= len(expected) < 80  # both branches taken
-    assert rpf.regularised_at == expected
+    assert rpf.resampled_at == expected
 
 
 def test_the_rpf_regularises_each_of_r_runs_by_its_own_ess(paper_world):
@@ -57,8 +57,8 @@ def test_the_rpf_regularises_each_of_r_runs_by_its_own_ess(paper_world):
         together.step(np.array([w[k][0] for w in walks]), np.array([w[k][1] for w in walks]))
         for r, filt in enumerate(alone):
             filt.step(*walks[r][k])
-    assert together.regularised_at == [filt.regularised_at for filt in alone]
-    assert len({len(steps) for steps in together.regularised_at}) > 1 or together.regularised_at[0]
+    assert together.resampled_at == [filt.resampled_at for filt in alone]
+    assert len({len(steps) for steps in together.resampled_at}) > 1 or together.resampled_at[0]
 
 
 def test_rpf_regularises_when_ess_falls_below_the_threshold(paper_world):

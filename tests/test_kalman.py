@@ -108,7 +108,7 @@ def test_the_prior_is_the_free_areas_exact_mean_and_covariance():
     np.testing.assert_allclose(mean, [1.5, 1.5])
     np.testing.assert_allclose(covariance, np.diag([9 / 12, 1 / 12]), atol=1e-15)
     ekf = ExtendedKalmanFilter(world, 0.3, 0.5)
-    assert ekf.init == "prior" and np.array_equal(ekf.mean, mean)
+    assert ekf.settings["init"] == "prior" and np.array_equal(ekf.mean, mean)
 
 
 def test_the_prior_matches_a_uniform_sample_of_a_shipped_maze():

@@ -90,8 +90,8 @@ def test_distance_takes_scalars_pairs_and_arrays(paper_world):
 def test_random_free_places_are_free_and_uniform_over_free_cells(paper_world, rng):
     points = paper_world.random_free_places(40_000, rng)
     assert paper_world.is_free(points[:, 0], points[:, 1]).all()
-    rows, cols = paper_world.cell_of(points[:, 0], points[:, 1])
-    counts = np.unique(rows * 5 + cols, return_counts=True)[1]
+    cells = np.floor(points).astype(int)  # (column, y row) of each point's cell
+    counts = np.unique(cells[:, 1] * 5 + cells[:, 0], return_counts=True)[1]
     expected = len(points) / len(paper_world.free_cells)
     # each count is Binomial(n, 1/F): its standard deviation is below sqrt(expected)
     assert len(counts) == len(paper_world.free_cells)

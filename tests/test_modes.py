@@ -177,7 +177,7 @@ def test_the_multimodal_rpf_follows_the_exact_posterior_mean(paper_world):
 
 def test_rpf_bandwidth_option_reaches_the_filter(paper_world):
     rpf = RegularizedParticleFilter(paper_world, 0.3, 0.5, paper_world.random_free_places(100), bandwidth=0.1)
-    assert rpf.bandwidth == 0.1 and rpf.bandwidth_rule == 0.1
+    assert rpf.bandwidth == 0.1 and rpf.settings["bandwidth"] == 0.1
 
 
 # -- the command line and the study ------------------------------------------------------------------

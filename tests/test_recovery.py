@@ -5,7 +5,8 @@
 - sensor resetting injects with probability 1 - w_fast / (reset level x the localised likelihood);
 - recovery injects nothing once the filter is localised and before the kidnapping, and does after it;
 - a lost RPF injects without resampling and keeps its weights;
-- sensor resetting draws points with density proportional to the likelihood;
+- sensor resetting draws points with density proportional to the likelihood, the model's sensor's
+  (a reading of several numbers too);
 - with recovery the filter re-localises where the paper's does not.
 """
 
@@ -20,8 +21,8 @@ from conftest import ROOT
 from mazelab.experiments.kidnapping import recovery_records
 from mazelab.filters import RegularizedParticleFilter, SIRParticleFilter
 from mazelab.maze import Maze
-from mazelab.model import CONVERGENCE_RADIUS, log_likelihood
-from mazelab.recovery import SENSOR_RESET_LEVEL, Recovery, localised_likelihood, measurement_matched_places
+from mazelab.model import CONVERGENCE_RADIUS, Sensor, log_likelihood
+from mazelab.recovery import SENSOR_RESET_LEVEL, Recovery, measurement_matched_places
 from mazelab.robot import Robot
 from mazelab.simulation import simulate
 
@@ -112,7 +113,7 @@ def test_the_localised_likelihood_is_the_mean_likelihood_at_the_robot(rng):
     density = np.exp(-0.5 * (v / sigma) ** 2) / (sigma * math.sqrt(2 * math.pi))
     expected = 1 / (2 * math.sqrt(math.pi) * sigma)
     sd = math.sqrt(1 / (2 * math.sqrt(3) * math.pi * sigma**2) - expected**2)
-    assert localised_likelihood(sigma) == pytest.approx(expected, rel=1e-15)
+    assert Sensor(sigma).localised_likelihood() == pytest.approx(expected, rel=1e-15)
     assert abs(density.mean() - expected) < 5 * sd / math.sqrt(n)
 
 
@@ -122,7 +123,7 @@ def test_sensor_resetting_injects_by_how_far_w_fast_is_below_the_localised_level
     times the localised likelihood: w_fast at `share` of that threshold gives max(0, 1 - share)."""
     filt = SIRParticleFilter(paper_world, 0.3, 0.5, paper_world.random_free_places(10), recovery="sensor")
     filt.recovery.track(-50.0, 1.0)  # w_slow: a lost filter's level, which the sensor mode ignores
-    filt.recovery.log_w_fast = math.log(share * SENSOR_RESET_LEVEL * localised_likelihood(0.3))
+    filt.recovery.log_w_fast = math.log(share * SENSOR_RESET_LEVEL * Sensor(0.3).localised_likelihood())
     assert filt.injection_probability == pytest.approx(probability, abs=1e-12)
     with pytest.raises(ValueError, match="0 < reset_level <= 1"):
         Recovery("sensor", reset_level=1.5)
@@ -133,7 +134,7 @@ def test_a_lost_rpf_injects_without_resampling_and_keeps_the_weights(paper_world
     the replaced particles keep their weights, the others stay where they were."""
     particles = paper_world.random_free_places(400, np.random.default_rng(1))
     filt = RegularizedParticleFilter(paper_world, 0.3, 0.5, particles, np.random.default_rng(2), recovery="sensor")
-    filt.recovery.track(math.log(1e-3 * localised_likelihood(0.3)), 1.0)  # w_fast far below the level
+    filt.recovery.track(math.log(1e-3 * Sensor(0.3).localised_likelihood()), 1.0)  # w_fast far below the level
     before, weights = filt.positions.copy(), filt.log_weights
     filt._observe(0.0, 1.0)  # th0 and z of the step about to run
     filt.transition = lambda x, A=None: (x, np.zeros(x.shape[:2], x.dtype))  # the move shows the injection alone
@@ -142,7 +143,28 @@ def test_a_lost_rpf_injects_without_resampling_and_keeps_the_weights(paper_world
     assert injected is not None and 0.9 * 400 < injected.sum() <= 400  # probability 1 - 1e-3 / 0.5
     np.testing.assert_array_equal(moved[0][~injected], before[~injected])
     np.testing.assert_array_equal(filt.log_weights, weights)
-    assert filt.regularised_at == []
+    assert filt.resampled_at == []
+
+
+def test_sensor_resetting_keeps_a_reading_of_several_numbers_for_the_models_sensor(paper_world, rng):
+    """A model of two sensors reads z as two numbers a step: recovery keeps the reading whole and hands it
+    to the model's sensor, whose acceptance the matched draws use."""
+    read = []
+
+    class TwoReadings(Sensor):
+        def log_acceptance(self, z, points, world):
+            read.append(np.array(z))
+            return super().log_acceptance(z[0], points, world) + super().log_acceptance(z[1], points, world)
+
+    filt = SIRParticleFilter(paper_world, 0.3, 0.5, paper_world.random_free_places(300, rng), rng, recovery="sensor")
+    filt.recovery.sensor = filt.model.sensor = TwoReadings(0.3)
+    filt.model.logG = lambda x, z: filt.model.sensor.log_pdf(z[:, 0], x, filt.world, filt.ops)  # the first scores
+    filt.step(0.0, np.array([[1.0, 1.2]]))
+    np.testing.assert_array_equal(filt.recovery.last_z, [1.0, 1.2])
+    filt.recovery.log_w_fast = math.log(1e-3 * filt.recovery.sensor.localised_likelihood())  # lost: inject
+    filt.step(0.0, np.array([[1.0, 1.2]]))
+    assert filt.injected is not None and filt.injected.sum() > 250
+    np.testing.assert_array_equal(read[0], [1.0, 1.2])
 
 
 def test_sensor_resetting_draws_points_with_density_proportional_to_the_likelihood(paper_world, rng):
@@ -151,7 +173,7 @@ def test_sensor_resetting_draws_points_with_density_proportional_to_the_likeliho
     draws the sampling error of the mean is sd(d) / sqrt(4000) < 0.02 sd(d) (plus the reference's own,
     smaller, error), so 5 such standard errors bound the difference."""
     z, sigma = 1.2, 0.3
-    points = measurement_matched_places(paper_world, z, sigma, 4000, rng)
+    points = measurement_matched_places(paper_world, z, Sensor(sigma), 4000, rng)
     assert points.shape == (4000, 2) and paper_world.is_free(points[:, 0], points[:, 1]).all()
     d = paper_world.distance_to_nearest_station(points)
     uniform = paper_world.random_free_places(400_000, rng)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from mazelab.filters import SIRParticleFilter
+from mazelab.model import Sensor
 from mazelab.robot import Robot
 from mazelab.seeding import filter_rng, new_seed, run_streams, start_place, study_seeds
 from mazelab.simulation import simulate
@@ -25,6 +26,10 @@ def test_a_runs_seed_gives_its_start_and_four_streams(paper_world):
     in the order robot, particles, filter, kidnapping, each drawing its own numbers."""
     seed = 20
     assert start_place(paper_world, seed) == paper_world.random_free_place(np.random.default_rng(seed))
+    sensor = Sensor(0.4)
+    robot = Robot.of_seed(paper_world, 0.3, 0.5, seed, sensor=sensor)  # every command's fresh robot
+    assert robot.initial_position == start_place(paper_world, seed) and robot.sensor is sensor
+    assert Robot.of_seed(paper_world, 0.3, 0.5, seed).sensor.sigma == 0.3  # the paper's sensor by default
     streams, spawned = run_streams(seed), np.random.default_rng(seed).spawn(4)
     draws = [stream.random(4) for stream in streams]
     for drawn, child in zip(draws, spawned, strict=True):

@@ -14,14 +14,11 @@ from typing import Annotated, Any
 import typer
 
 from mazelab.atomic import write_bytes_atomically, write_text_atomically
-from mazelab.backend import use_threads
 from mazelab.cli.options import Force, UserError, check_output_path, opt, seed_option
 from mazelab.exercise.grading import (
     KEY_FILE,
     Gradebook,
     Submission,
-    check_outside,
-    claimed,
     discover,
     grade_folder,
     grade_one,
@@ -30,7 +27,7 @@ from mazelab.exercise.grading import (
     read_key,
     summary,
 )
-from mazelab.exercise.report import Report, format_report
+from mazelab.exercise.report import format_report
 from mazelab.exercise.sandbox import DEFAULT_BUDGET, MAX_TIMEOUT, SandboxError, sandbox
 from mazelab.exercise.template import Catalogue, bundle_bytes, catalogue_for, write_exercise
 from mazelab.invocation import python_prefix
@@ -167,8 +164,9 @@ def grade_command(
     _sandbox_or_refuse(require_sandbox)
     secret = read_key(keyfile) if keyfile else secrets.token_bytes(32)
     book, started = Gradebook(csv_path, gradescope, force, catalogue), time.perf_counter()
-    grade = functools.partial(grade_folder, submissions, key=secret, timeout=timeout, jobs=jobs)
-    stopped_by = _grade_into(book, grade, outputs, len(submissions), quiet)
+    grade = functools.partial(grade_folder, submissions, key=secret, timeout=timeout, jobs=jobs, on_done=book.add,
+                              claims=outputs, progress=not quiet)  # fmt: skip
+    graded, stopped_by = _until_stopped(grade, "grading stopped, nobody graded by it")  # a stop: book.graded so far
     typer.echo(summary(book.graded))
     typer.echo(f"graded in {time.perf_counter() - started:.1f} s")
     if not keyfile:
@@ -180,25 +178,7 @@ def grade_command(
         typer.echo(f"stopped: {len(book.graded)} of {len(submissions)} submissions graded{kept}", err=True)
         raise typer.Exit(128 + stopped_by)
     if csv_path is not None:
-        typer.echo(f"wrote {book.finish(submissions)}")
-
-
-def _grade_into(book: Gradebook, grade: Callable[..., None], outputs: list[tuple[Path, str]], count: int,
-                quiet: bool) -> int | None:  # fmt: skip
-    """`grade(on_done=...)` with the outputs claimed, each graded submission added to `book` as it comes,
-    under a progress bar; the number of the signal that stopped it (None: it went to the end)."""
-    from mazelab.experiments.executor import progress_bar
-
-    def work() -> None:  # use_threads(1): the submissions at once are a thread each
-        with claimed(outputs), use_threads(1), progress_bar(count, not quiet, what="submissions") as advance:
-
-            def done(one: Report) -> None:
-                book.add(one)
-                advance()
-
-            grade(on_done=done)
-
-    return _until_stopped(work, "grading stopped, nobody graded by it")[1]  # what was graded is in the book
+        typer.echo(f"wrote {book.finish(graded)}")
 
 
 def _check_outputs(folder: Path, submissions: list[Submission], csv_path: Path | None, gradescope: Path | None,
@@ -206,8 +186,9 @@ def _check_outputs(folder: Path, submissions: list[Submission], csv_path: Path |
     """Refuse, before any grading, an output or the key inside the class folder, an existing output
     without --force, and a --csv that a submission's results.json folder would take."""
     for path, option in ((csv_path, "--csv"), (gradescope, "--gradescope"), (keyfile, "--key")):
-        if path is not None:
-            check_outside(path, folder, option)
+        if path is not None and path.resolve().is_relative_to(folder.resolve()):  # or the folder itself
+            raise UserError(f"{option} {path}: inside the class folder {folder}; write the grader's outputs outside "
+                            "it (a submission must not see them, nor be replaced by them)")  # fmt: skip
     if gradescope is not None:
         _made_folder(gradescope)
         taken = [s.name for s in submissions if (gradescope / s.name / "results.json").exists()]

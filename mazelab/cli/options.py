@@ -36,7 +36,7 @@ from mazelab.invocation import command_prefix, repeat_command
 from mazelab.maze import DEFAULT_MAZE, Maze, load_maze
 from mazelab.registry import SHIPPED, FilterEntry, entries, filter_entry, is_plugin_spec, resolve_filter
 from mazelab.robot import Robot
-from mazelab.seeding import new_seed, start_place
+from mazelab.seeding import new_seed
 from mazelab.simulation import RunResult
 from mazelab.viz.style import DEFAULT_MAX_DRAWN
 from mazelab.viz.targets import Visualization
@@ -400,7 +400,7 @@ def fresh_setup(maze: str | None, sigma: float | None, delta: float | None, seed
     seed = new_seed() if seed is None else seed
     if start_seed is not None and start_seed != seed:
         warnings.warn(f"--start-seed {start_seed} differs from --seed {seed}: repeat with both", stacklevel=1)
-    robot = Robot(sigma, delta, start_place(world, seed if start_seed is None else start_seed))
+    robot = Robot.of_seed(world, sigma, delta, seed if start_seed is None else start_seed)
     return RunSetup(world, robot, sigma, delta, None, seed)
 
 

@@ -254,10 +254,7 @@ def whole_stage(cls: type, stage: str, inputs: Inputs, emit: Emit) -> tuple[dict
             filt = cls(inputs.world(f"whole.{i}"), *noise, filter_rng(given["seed"]))
             for step in range(1, len(z) + 1):
                 filt.step(float(compass[step - 1]), float(z[step - 1]))
-                point = np.asarray(filt.estimate, dtype=float)
-                if point.shape != (2,):
-                    raise ValueError(f"estimate has shape {point.shape}; expected (2,)")
-                estimates[step - 1] = point
+                estimates[step - 1] = answer_array("estimate", filt.estimate, (2,))  # a property of its own too
         except BaseException as error:
             when = " while being built" if step == 0 else f" at step {step}"
             exited = isinstance(error, (SystemExit, KeyboardInterrupt))

@@ -24,12 +24,14 @@ from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
-from mazelab.atomic import WriteError, lock, write_text_atomically
+from mazelab.atomic import WriteError, write_text_atomically
+from mazelab.backend import use_threads
 from mazelab.exercise.parts import FAIL, NOT_OWN, NOT_RUN, NOT_WRITTEN, PASS, clean
 from mazelab.exercise.report import ROWS, NotGradableError, References, Report, Submission, check_file, format_report
 from mazelab.exercise.sandbox import DEFAULT_BUDGET, SandboxError, allow_children, stop_children
 from mazelab.exercise.student import PARTS
 from mazelab.exercise.template import FILTER_FILE, Catalogue
+from mazelab.experiments.journal import JournalError, claim_outputs
 
 KEY_FILE = ".grading.key"  # hidden: no submission has its name (grading skips names that start with ".")
 KEY_BYTES = 32  # 256 bits; a given key needs at least 16 (128 bits)
@@ -118,11 +120,24 @@ def grade_folder(
     timeout: float = DEFAULT_BUDGET,
     jobs: int | None = None,
     on_done: Callable[[Report], None] | None = None,
+    claims: list[tuple[Path, str]] | None = None,
+    progress: bool = False,
 ) -> list[Report]:
     """Grade the submissions, `jobs` at a time (default: the cores), in their order, calling `on_done`
-    with each as soon as it is graded. Ctrl-C (a KeyboardInterrupt), SIGTERM and a sandbox that cannot
-    start end every child and the reference runs, and propagate: what `on_done` was given is kept."""
-    jobs = jobs or os.cpu_count() or 1
+    with each as soon as it is graded, the outputs `claims` ((path, option) each) held meanwhile
+    (`claimed`), under a progress bar on stderr where `progress`. Ctrl-C (a KeyboardInterrupt), SIGTERM
+    and a sandbox that cannot start end every child and the reference runs, and propagate: what
+    `on_done` was given is kept."""
+    from mazelab.experiments.executor import progress_bar
+
+    bar = progress_bar(len(submissions), progress, what="submissions")
+    with claimed(claims or []), use_threads(1), bar as advance:  # use_threads(1): a submission is a thread
+        return _in_threads(submissions, key, timeout, jobs or os.cpu_count() or 1, on_done, advance)
+
+
+def _in_threads(submissions: list[Submission], key: bytes, timeout: float, jobs: int,
+                on_done: Callable[[Report], None] | None, advance: Callable[[], None]) -> list[Report]:  # fmt: skip
+    """grade_folder's work: a thread per submission being graded, the reference runs in a process pool."""
     lock = threading.Lock()
     allow_children()
     methods = multiprocessing.get_all_start_methods()  # a fresh interpreter each, never a fork of threads
@@ -131,9 +146,10 @@ def grade_folder(
 
     def one(submission: Submission) -> Report:
         graded = grade_one(submission, timeout, references, key=key)
-        if on_done is not None:
-            with lock:
+        with lock:
+            if on_done is not None:
                 on_done(graded)
+            advance()
         return graded
 
     threads = ThreadPoolExecutor(jobs, "mazelab-grade", initializer=_quiet_thread if os.name == "posix" else None)
@@ -179,42 +195,22 @@ def read_key(path: Path, make: bool = True) -> bytes:
     return key
 
 
-def check_outside(output: Path, folder: Path, option: str) -> None:
-    """Refuse an output path inside the class folder (or the folder itself)."""
-    where, classes = output.resolve(), folder.resolve()
-    if where == classes or where.is_relative_to(classes):
-        raise ClaimError(
-            f"{option} {output}: inside the class folder {folder}; write the grader's outputs outside it "
-            "(a submission must not see them, nor be replaced by them)"
-        )
-
-
 @contextlib.contextmanager
 def claimed(outputs: list[tuple[Path, str]]) -> Iterator[None]:
-    """Hold the claims of `outputs` ((path, option) each) while grading; ClaimError at once when another
-    grader holds one."""
-    held: list[tuple[int, Path]] = []
+    """Hold the claims of `outputs` ((path, option) each: a study's locked NAME.lock beside each,
+    mazelab.experiments.journal.claim_outputs) while grading; ClaimError at once when another holds one."""
+    releases = []
     try:
         for output, option in outputs:
-            claim = output.parent / f".{output.name}.grading"
             try:
-                handle = os.open(claim, os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o644)
-                if not lock(handle):  # another grader holds it (Windows has no claim: writes are whole anyway)
-                    os.close(handle)
-                    raise ClaimError(
-                        f"{option} {output}: another grader is writing it now; wait for it or choose another name"
-                    )
-                held.append((handle, claim))
-                os.ftruncate(handle, 0)
-                os.write(handle, f"{os.getpid()}\n".encode())
-            except OSError as error:  # a full disk: named
-                raise WriteError(error.errno, error.strerror, str(claim)) from None
+                releases.append(claim_outputs([(option, output)]))
+            except JournalError as error:  # held by another grader (or a study), or not a file at its name
+                held = f"{option} {output}: another grader is writing it now; wait for it or choose another name"
+                raise ClaimError(held if str(error).startswith("another") else str(error)) from None
         yield
     finally:
-        for handle, claim in held:
-            with contextlib.suppress(OSError):
-                claim.unlink()
-            os.close(handle)
+        for release in releases:
+            release()
 
 
 def partial_name(path: Path) -> Path:
@@ -243,13 +239,11 @@ class Gradebook:
         if self.csv is not None:
             write_text_atomically(partial_name(self.csv), csv_text(self.graded), replace=True)
 
-    def finish(self, order: list[Submission]) -> Path | None:
-        """The complete CSV, in the submissions' order, in place of the partial one."""
+    def finish(self, graded: list[Report]) -> Path | None:
+        """The complete CSV of `graded` (grade_folder's, in the submissions' order) in place of the partial one."""
         if self.csv is None:
             return None
-        rank = {id(s): i for i, s in enumerate(order)}
-        self.graded.sort(key=lambda g: rank.get(id(g.submission), len(rank)))
-        written = write_text_atomically(self.csv, csv_text(self.graded), replace=self.force)
+        written = write_text_atomically(self.csv, csv_text(graded), replace=self.force)
         partial_name(self.csv).unlink(missing_ok=True)
         return written
 

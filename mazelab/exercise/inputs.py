@@ -129,19 +129,9 @@ def draw_part_inputs(seed: int) -> PartInputs:
     world = load_maze(maze)
     sigma, delta = float(rng.uniform(*PART_SIGMA)), float(rng.uniform(*PART_DELTA))
     prior = world.random_free_places(PRIOR_COUNT, rng)
-    return PartInputs(
-        maze,
-        world.grid.copy(),
-        sigma,
-        delta,
-        seed,
-        prior,
-        _seeds(rng, 1)[0],
-        _predict_inputs(seed, world, delta),
-        _weigh_inputs(seed, world, sigma),
-        _resample_inputs(seed),
-        _estimate_inputs(seed, world),
-    )
+    each = (_predict_inputs(seed, world, delta), _weigh_inputs(seed, world, sigma), _resample_inputs(seed),
+            _estimate_inputs(seed, world))  # fmt: skip
+    return PartInputs(maze, world.grid.copy(), sigma, delta, seed, prior, _seeds(rng, 1)[0], *each)
 
 
 def _predict_inputs(seed: int, world: Maze, delta: float) -> SimpleNamespace:
@@ -230,19 +220,9 @@ def walk_scenario(maze: str, sigma: float, delta: float, seed: int, particles: i
     for k in range(steps):
         robot.step(world)
         path[k] = robot.position
-    return ScenarioInputs(
-        maze,
-        world.grid.copy(),
-        sigma,
-        delta,
-        seed,
-        start,
-        world.random_free_places(particles, streams.particles),
-        tuple(robot.actual_angles),
-        tuple(robot.compass_angles),
-        tuple(robot.measurements),
-        path,
-    )
+    walk = (tuple(robot.actual_angles), tuple(robot.compass_angles), tuple(robot.measurements), path)
+    drawn = world.random_free_places(particles, streams.particles)
+    return ScenarioInputs(maze, world.grid.copy(), sigma, delta, seed, start, drawn, *walk)
 
 
 SENT = {  # what the student's process is sent of each: only what a filter is given

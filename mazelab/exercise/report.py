@@ -23,8 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from mazelab.exercise import child
-from mazelab.exercise.child import Message, encode, messages
+from mazelab.exercise.child import Message, encode, messages, serve
 from mazelab.exercise.inputs import (
     PartInputs,
     ScenarioInputs,
@@ -259,7 +258,7 @@ def collect_in_process(
         return next(messages(io.BytesIO(encode(meta, arrays))))
 
     run = ChildRun()
-    child.serve(wired(*request("", None, stages, parts, scenarios)), lambda *sent: run.take(wired(*sent)), filter_class)
+    serve(wired(*request("", None, stages, parts, scenarios)), lambda *sent: run.take(wired(*sent)), filter_class)
     return Answers(run.loaded, run.results)
 
 
@@ -285,23 +284,16 @@ def build_report(
         return report
     for stage in stages:  # the process ended in it, no answer came, an answer the grader cannot read, or judged
         label, message = ROWS[stage], answers.results.get(stage)
+        failed = functools.partial(Row, label, FAIL, expected[stage])  # (got, hint)
         try:
             if stage in answers.ended:
                 row = ended_row(label, expected[stage], answers.ended[stage], answers.output)
             elif message is None:  # it said "done" (or ended) without this stage's answer
-                row = Row(
-                    label,
-                    FAIL,
-                    expected[stage],
-                    "no answer came from the student's process",
-                    "a part returns its answer",
-                )
+                row = failed("no answer came from the student's process", "a part returns its answer")
             else:
                 row = judge(stage, parts, scenarios, message, report, references)
         except BadAnswerError as error:
-            row = Row(
-                label, FAIL, expected[stage], f"an answer the grader cannot read ({error})", "return plain arrays"
-            )
+            row = failed(f"an answer the grader cannot read ({error})", "return plain arrays")
         if (copies or {}).get(stage) and row.status != NOT_WRITTEN:
             row = Row(row.part, NOT_OWN, row.expected, copies[stage], COPY_HINT)
         report.rows.append(row)

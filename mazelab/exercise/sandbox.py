@@ -66,11 +66,6 @@ class SandboxError(RuntimeError):
     """The sandbox failed before the student's code ran: the grader's error, one line."""
 
 
-class GradingStoppedError(KeyboardInterrupt):
-    """The grading was stopped (Ctrl-C, SIGTERM): no new child is started, and the running ones are ended
-    (an interrupt, so no handler of the grader's own errors takes it)."""
-
-
 @dataclass(frozen=True)
 class Sandbox:
     """How children are started here: in bwrap (`bwrap` its path) or plain (`why` none can be made)."""
@@ -471,8 +466,8 @@ def run_child(
     """Start a child on `request` (meta, arrays) in its sandbox (the submission's copy in `run_folder`)
     with `seconds` of the budget left, less `reserve` for each stage after the one it is in (the time
     budget of docs/exercise.md); return what it gave, or SandboxError when it never ran the student's code."""
-    if _stopped.is_set():
-        raise GradingStoppedError("the grading was stopped")
+    if _stopped.is_set():  # an interrupt, which no handler of the grader's own errors takes
+        raise KeyboardInterrupt("the grading was stopped")
     stages, cgroup = request[0]["stages"], Cgroup()
     cpu = max(1, math.floor(seconds - reserve * (len(stages) - 1)) - 1)
     meta = {**request[0], "processes": None if cgroup.folders or not made.sandboxed else PROCESS_LIMIT}
@@ -500,7 +495,7 @@ def run_child(
         with _running_lock:
             _running.discard(process)
     if _stopped.is_set():
-        raise GradingStoppedError("the grading was stopped")
+        raise KeyboardInterrupt("the grading was stopped")
     run.seconds = time.perf_counter() - (run.hello or started)
     reader.join(5)
     printed.join(2)

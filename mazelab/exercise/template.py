@@ -11,7 +11,6 @@ simulated tree)."""
 from __future__ import annotations
 
 import ast
-import gettext
 import hashlib
 import io
 import os
@@ -91,11 +90,10 @@ def read_po(path: Path) -> dict[str, str]:
     return entries
 
 
-class Catalogue(gettext.NullTranslations):
+class Catalogue:
     """One language's messages: `gettext` for a whole text, `translate` for a report's composed texts."""
 
     def __init__(self, language: str = ENGLISH, entries: dict[str, str] | None = None):
-        super().__init__()
         self.language = language
         self.entries = entries or {}
         patterns = [(k, v) for k, v in self.entries.items() if FIELD.search(k)]

@@ -13,15 +13,14 @@ from itertools import groupby
 import numpy as np
 
 from mazelab.backend import backend_of
-from mazelab.collect import record_steps
 from mazelab.contract import check_filter
 from mazelab.experiments.runs import WARM_UP_SEED, WARM_UP_STEPS, warm_once
 from mazelab.experiments.study import RunFailure, RunRecord, RunTask, run_records, run_task_safely
 from mazelab.maze import Maze
 from mazelab.registry import filter_entry
 from mazelab.robot import Robot
-from mazelab.seeding import filter_rng, run_streams, start_place
-from mazelab.simulation import RunInputs, RunResult, maze_for, plan_kidnapping
+from mazelab.seeding import filter_rng, run_streams
+from mazelab.simulation import RunInputs, RunResult, maze_for, plan_kidnapping, record_steps
 
 MAX_BATCH = 32  # runs advanced together: beyond this the fixed cost per step is already small
 MAX_BATCH_PARTICLES = 1_000_000  # R x N at most: a batch needs no more memory than a run of 10^6 particles
@@ -78,7 +77,7 @@ def walk_of(task: RunTask, world: Maze) -> tuple[RunInputs, np.ndarray]:
     """The run's walk and particles from its seed, the draws simulate makes (robot, particles, kidnapping):
     the run's inputs, as run_task makes them, and the true positions (steps, 2)."""
     s = task.setting
-    robot = Robot(s.sigma, s.delta, start_place(world, task.seed))
+    robot = Robot.of_seed(world, s.sigma, s.delta, task.seed)
     streams = run_streams(task.seed)
     particles = world.random_free_places(s.particles, streams.particles)
     if task.kidnap_at is not None:

@@ -26,7 +26,6 @@ from mazelab.maze import Maze
 from mazelab.model import CONVERGENCE_RADIUS, DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
 from mazelab.registry import described, filter_entry, resolve_filter, rgb
 from mazelab.robot import Robot
-from mazelab.seeding import start_place
 from mazelab.simulation import RunResult, convergence_step, simulate
 from mazelab.viz.views import open_comparison
 
@@ -159,7 +158,7 @@ def warm_up_filters(
     for name in filter_names:
 
         def warm(warmed: dict[str, Any], name: str = name) -> None:
-            robot = Robot(sigma, delta, start_place(world, WARM_UP_SEED))
+            robot = Robot.of_seed(world, sigma, delta, WARM_UP_SEED)
             simulate(robot, world, sigma, delta, particle_count, WARM_UP_STEPS, None, name, seed=WARM_UP_SEED,
                      **warmed)  # fmt: skip
 

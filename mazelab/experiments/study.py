@@ -25,7 +25,7 @@ from mazelab.maze_generator import DEFAULT_WALL_SHARE, generate_maze
 from mazelab.model import check_model_parameters
 from mazelab.registry import PluginCode, entries, file_sha256, filter_entry, filters_here, resolve_filter
 from mazelab.robot import Robot
-from mazelab.seeding import start_place, study_seeds
+from mazelab.seeding import study_seeds
 from mazelab.simulation import RunResult
 
 
@@ -413,7 +413,7 @@ def run_task(task: RunTask, visualize: Any = False) -> list[RunRecord]:
     world = s.maze.world(task.maze_seed)
     with warnings.catch_warnings():  # the range warnings were shown once, by study_settings
         warnings.simplefilter("ignore", UserWarning)
-        robot = Robot(s.sigma, s.delta, start_place(world, task.seed))
+        robot = Robot.of_seed(world, s.sigma, s.delta, task.seed)
         options = {name: task.setting.filter_options(name) for name in task.filters}
         results = run_filters(world, robot, s.sigma, s.delta, task.filters, seed=task.seed, visualize=visualize,
                               particle_count=s.particles, steps=task.steps, kidnap_at=task.kidnap_at,

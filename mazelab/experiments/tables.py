@@ -213,8 +213,8 @@ def study_traces(records: Iterable[Any]) -> list[dict[str, Any]]:
 
 def trace_of(result: RunResult) -> dict[str, Any]:
     """A run's per-step arrays: true position, estimate, ESS, confidence, step time, particle count,
-    log evidence so far, and the filter's own diagnostics by name (mazelab.collect: the RPF's `regularised`, recovery's
-    `injection_probability`)."""
+    log evidence so far, and the filter's own diagnostics by name (mazelab.simulation.record_steps: the
+    RPF's `regularised`, recovery's `injection_probability`)."""
     return {
         "true": result.true_positions,
         "estimate": result.estimates,

@@ -1,9 +1,8 @@
 """Compiled kernels (numba, the `fast` extra) for the hot parts of the particle filters: the model's
-equations (mazelab.kernels.model), the resampler (mazelab.kernels.resampling) and the weights
-(mazelab.kernels.weights), which mazelab.kernels.compiled.CompiledKernels calls for a filter
-(mazelab.backend chooses it or numpy's). Each takes R runs in one call and works on float32 particles,
-in the numpy path's float32 arithmetic where it has some; cos, sin and exp are polynomials the
-compiler vectorises (mazelab.kernels.vector_math).
+equations (mazelab.kernels.model), the weights and the resampler (mazelab.kernels.weights), which
+mazelab.kernels.compiled.CompiledKernels calls for a filter (mazelab.backend chooses it or numpy's).
+Each takes R runs in one call and works on float32 particles, in the numpy path's float32 arithmetic
+where it has some; cos, sin and exp are polynomials the compiler vectorises (mazelab.kernels.vector_math).
 
 Threads: every kernel is one body over chunks of CHUNK particles (a run's particles split in order; a
 chunk never spans two runs), compiled to run them in order and over numba's threads (`Kernel`,
@@ -15,7 +14,7 @@ of threads, and R runs together are R single runs.
 Importing this package imports numba, and a process's first kernel call sets numba's runtime up (a
 kernel loaded from the cache: some 0.2 s of CPU in all, with the import); a command whose work does not
 pay that back runs on numpy (mazelab.backend.backend_for_work). Each kernel is compiled on its first
-call and cached on disk where a cache folder can be written (`_compiled`, `_MendingCache`).
+call and cached on disk where a cache folder can be written (`Kernel`, `_MendingCache`).
 """
 
 from __future__ import annotations
@@ -46,14 +45,10 @@ THREADED_FROM = 1 << 16
 
 
 def threading_layer() -> str:
-    """numba's threading layer for the kernels: "tbb" where Intel's TBB library loads, else "workqueue".
-
-    TBB's threads take the chunks of a call as they come (the calling thread too), wake within
-    microseconds and leave a paused thread at most the chunk it holds; numba's workqueue wakes its sleeping
-    threads for every call (some 130 us on a virtual machine: more than a pass over 10^5 particles
-    saves) and waits for the slowest. Both work after a fork. The `tbb` package (the fast extra) puts
-    the library in the environment's lib folder, which the loader does not search: it is loaded here by
-    its path first, so that numba finds it."""
+    """numba's threading layer for the kernels: "tbb" where Intel's TBB library loads, else "workqueue"
+    (which wakes its threads for every call and waits for the slowest: docs/speed.md, "Threads"); both
+    work after a fork. The `tbb` package (the fast extra) puts the library in the environment's lib
+    folder, which the loader does not search: it is loaded here by its path first, so that numba finds it."""
     for path in (Path(sys.prefix) / "lib" / "libtbb.so.12", "libtbb.so.12"):
         with contextlib.suppress(OSError, AttributeError):
             library = ctypes.CDLL(str(path), mode=ctypes.RTLD_GLOBAL)
@@ -144,41 +139,35 @@ class _NoAliasCompiler(Compiler):
         super().__init__(typingctx, targetctx, library, args, return_type, flags, locals)
 
 
-def _compiled(function: Callable[..., Any], variant: str = "", **options: Any) -> Any:
-    """`function` compiled by numba in nopython mode (releasing the GIL, numpy's error model: x / 0 is
-    inf), cached on disk where a cache folder can be written (see the module's docstring), else
-    compiled in memory (with one warning per process)."""
-    options = {"nogil": True, "error_model": "numpy", "pipeline_class": _NoAliasCompiler, **options}
-    dispatcher = numba.njit(**options)(function)
-    try:
-        dispatcher._cache = _MendingCache(function, variant)  # what numba's cache=True sets, with the mending
-    except RuntimeError:  # numba found no writable cache folder ("cannot cache function ...")
-        _warn_once(
-            "mazelab's compiled kernels cannot be cached (no writable cache folder; set NUMBA_CACHE_DIR): "
-            "they are compiled again in each process"
-        )
-    return dispatcher
-
-
-def inline(function: Callable[..., Any]) -> Any:
-    """A helper inlined into the kernels that call it (numba's inline="always"): a function called per
-    particle, whose call would otherwise count the references of every array it is passed."""
-    return numba.njit(inline="always", nogil=True, error_model="numpy")(function)
-
-
+# a helper inlined into the kernels that call it: a function called per particle, whose call would
+# otherwise count the references of every array it is passed
+inline = numba.njit(inline="always", nogil=True, error_model="numpy")
 _LAUNCH = threading.Lock()  # numba's workqueue takes one launch at a time
 
 
 class Kernel:
-    """One kernel body over chunks (`function`, its loop over them a `numba.prange`), compiled twice:
-    `serial` runs the chunks in order on the calling thread, `parallel` spreads them over numba's
-    threads. Both give the same values (the chunks fix the draws and the sums' order), so a call takes
-    whichever is free."""
+    """One kernel body over chunks (`function`, its loop over them a `numba.prange`), compiled twice by
+    numba in nopython mode (releasing the GIL, numpy's error model: x / 0 is inf): `serial` runs the
+    chunks in order on the calling thread, `parallel` spreads them over numba's threads. Both give the
+    same values, so a call takes whichever is free. Each is cached on disk where a cache folder can be
+    written (see the module's docstring), else compiled in memory (with one warning per process)."""
 
     def __init__(self, function: Callable[..., Any]):
         self.__wrapped__ = function
-        self.serial = _compiled(function)
-        self.parallel = _compiled(function, "-threads", parallel=True)
+        self.serial, self.parallel = self._compiled(function), self._compiled(function, "-threads", parallel=True)
+
+    @staticmethod
+    def _compiled(function: Callable[..., Any], variant: str = "", **options: Any) -> Any:
+        options = {"nogil": True, "error_model": "numpy", "pipeline_class": _NoAliasCompiler, **options}
+        dispatcher = numba.njit(**options)(function)
+        try:
+            dispatcher._cache = _MendingCache(function, variant)  # what numba's cache=True sets, with the mending
+        except RuntimeError:  # numba found no writable cache folder ("cannot cache function ...")
+            _warn_once(
+                "mazelab's compiled kernels cannot be cached (no writable cache folder; set NUMBA_CACHE_DIR): "
+                "they are compiled again in each process"
+            )
+        return dispatcher
 
     def __call__(self, threads: int, particles: int, *args: Any) -> Any:
         """The kernel over `particles` particles on `threads` threads: in order here on one thread or below

@@ -1,9 +1,7 @@
-"""The compiled backend's operations (mazelab.numpy_ops.NumpyKernels has the same methods, arguments and
-results): each calls one kernel for all R runs, and `CompiledWeights`, the weights value this backend
-builds, keeps W in float32 and the reads its normalisation makes in the same passes (the ESS, the
-posterior mean and the weight within the green circle around it). Anything the kernels do not cover
-(float64 points such as recovery's injected draws, the multimodal kernel) goes to the numpy operations.
-"""
+"""The compiled backend: `CompiledKernels`, mazelab.numpy_ops.NumpyKernels' methods (the same arguments and
+results) each calling one kernel for all R runs, and `CompiledWeights`, the weights value it builds.
+Anything the kernels do not cover (float64 points such as recovery's injected draws, the multimodal
+kernel) goes to the numpy operations."""
 
 from __future__ import annotations
 
@@ -14,10 +12,10 @@ from typing import Any
 import numpy as np
 
 from mazelab.constants import CONFIDENCE_RADIUS, PARTICLE_DTYPE
-from mazelab.kernels import model, resampling, weights
-from mazelab.numpy_ops import NumpyKernels
+from mazelab.kernels import model, weights
+from mazelab.numpy_ops import NumpyKernels, replaced
 from mazelab.regularisation import GaussianKernel
-from mazelab.smc import UNSIGNED, new_particles, particles_array
+from mazelab.smc import UNSIGNED, new_particles
 from mazelab.weights import Weights, log_sum_exp, read_only
 
 EVERY_RUN = np.empty(0, dtype=bool)  # the move's `moving` when every run draws (model.move)
@@ -129,10 +127,10 @@ class CompiledWeights(Weights):
 
 class CompiledKernels(NumpyKernels):
     """The hot parts of one filter on `world` (its lookup tables read once), compiled (mazelab.kernels),
-    a call of mazelab.kernels.THREADED_FROM particles or more on `threads` threads (mazelab.backend.kernels_for passes
-    thread_count's); what the kernels do not cover is NumpyKernels' (this class's parent)."""
+    a call of mazelab.kernels.THREADED_FROM particles or more on `threads` threads (mazelab.backend.
+    kernels_for passes shared_threads'); what the kernels do not cover is NumpyKernels' (its parent)."""
 
-    name = "compiled"
+    name, log_dtype = "compiled", None  # log weights after resampling in the likelihood's float32
 
     def __init__(self, world: Any, threads: int | None = None):
         self.tables = lookup_tables(world)
@@ -180,13 +178,12 @@ class CompiledKernels(NumpyKernels):
 
     def systematic(self, W: np.ndarray, rng: Any, count: int | None = None) -> np.ndarray:
         """Systematic resampling of W (N,), or of D runs' (D, N) with a Generator each (a sequence), into
-        `count` (default N) int64 ancestors a run, in its counting form by blocks, all runs in one call
-        (mazelab.kernels.resampling): mazelab.resampling.systematic_resample's ancestors for the same
-        cumulative weights and offsets u = rng.random() (a run's as alone)."""
+        `count` (default N) int64 ancestors a run, all runs in one call of mazelab.kernels.weights.
+        systematic, with offsets u = rng.random()."""
         rows, rngs = (W[None], [rng]) if W.ndim == 1 else (W, rng)
         out = np.empty((len(rows), rows.shape[1] if count is None else count), dtype=np.int64)
         offsets = np.array([generator.random() for generator in rngs])
-        resampling.systematic(self.threads, rows.size, rows, offsets, out)
+        weights.systematic(self.threads, rows.size, rows, offsets, out)
         return out[0] if W.ndim == 1 else out
 
     def weighted_mean(self, W: Weights, x: np.ndarray) -> np.ndarray:
@@ -202,26 +199,6 @@ class CompiledKernels(NumpyKernels):
             return reads[1][4]
         return super().mass_within(W, x, centres, radius)
 
-    def weighted_covariance(self, W: np.ndarray, x: np.ndarray) -> np.ndarray:
-        """Each run's weighted covariance, compiled (one pass), (R, 2, 2)."""
-        if x.dtype != PARTICLE_DTYPE:
-            return super().weighted_covariance(W, x)
-        out = np.empty((len(W), 2, 2))
-        weights.covariance(self.threads, W.size, W, planes(x), out)
-        return out
-
-    def second_stage(self, log_lik: np.ndarray, log_mu: np.ndarray, A: np.ndarray) -> np.ndarray:
-        """The APF's second-stage log weights (NumpyKernels.second_stage's) in one compiled pass."""
-        if not log_lik.dtype == log_mu.dtype == PARTICLE_DTYPE:
-            return super().second_stage(log_lik, log_mu, A)
-        out = np.empty_like(log_lik)
-        weights.second_stage(self.threads, out.size, log_lik, log_mu, unsigned(A), out)
-        return out
-
-    def equal_weighted(self, log_lik: np.ndarray, log_weight: float) -> np.ndarray:
-        """log W + log p(z_k | x_k) of resampled particles, in the likelihood's dtype (float32)."""
-        return np.add(log_lik, log_lik.dtype.type(log_weight))
-
     def jitter(self, x: np.ndarray, A: np.ndarray, due: np.ndarray, rngs: Any, kernels: Any) -> np.ndarray:
         """The RPF's gather, draws and jitter in one pass for Gaussian kernels (h D eps, one D per due
         run, eps ~ N(0, I_2) from a key each due run's Generator draws); the multimodal kernel goes to
@@ -233,8 +210,4 @@ class CompiledKernels(NumpyKernels):
         moved = new_particles(len(rows), A.shape[1], PARTICLE_DTYPE)
         keys = keys_of([rngs[r] for r in rows])
         model.jitter(self.threads, moved[..., 0].size, planes(x), rows, unsigned(A[rows]), keys, scales, planes(moved))
-        if len(rows) == len(x):
-            return moved
-        out = particles_array(x, x.dtype)
-        out[rows] = moved
-        return out
+        return replaced(x, rows, moved)

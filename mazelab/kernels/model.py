@@ -68,14 +68,6 @@ def move(xy, ancestors, keys, moving, angles, delta, speed, out):  # pragma: no 
 
 
 @inline
-def _typed(constants, codes, quads, rows, border):  # pragma: no cover - compiled
-    """The likelihood's tables in the kernels' types: (scale, offset, nx, ny) float32 from constants[3:7],
-    nx and the row width (constants[7]) uint64, and the arrays."""
-    scale, offset, nx, ny, width = constants[3], constants[4], constants[5], constants[6], constants[7]
-    return F32(scale), F32(offset), F32(nx), F32(ny), np.uint64(nx), codes, quads, rows, np.uint64(width), border
-
-
-@inline
 def _residual(best, zr, sigma, term):  # pragma: no cover - compiled
     """-((sqrt(best) - z) / sigma)^2 / 2 + term: numpy's float32 operations, in its order."""
     residual = (np.sqrt(best) - zr) / sigma
@@ -104,7 +96,7 @@ def _log_likelihood_of_four(px, py, zr, sigma, free_term, outside_term, tables):
     vectorises (its loads gathers). Left open: 0 when the value is the answer; 1 for a point beyond the
     table (which reads cell 0 instead, by a select); the cell's code for a cell with more than four
     candidates (one in fifty in a large maze; its code names them), whose value is then the squared
-    distance to the nearest four. `_close` works both out. `tables` is _typed's."""
+    distance to the nearest four. `_close` works both out. `tables` is log_likelihood's typed tables."""
     scale, offset, nxf, nyf, nx, codes, quads, _, _, _ = tables
     fx = np.floor(px * scale) + offset  # float32, exact: the scale is a power of two
     fy = np.floor(py * scale) + offset
@@ -151,7 +143,9 @@ def log_likelihood(xy, z, constants, codes, quads, rows, border, out):  # pragma
     them, then the tables' grid; codes, quads, rows and border the maze's tables
     (compiled.lookup_tables)."""
     sigma, free_term, outside_term = F32(constants[0]), F32(constants[1]), F32(constants[2])
-    typed = _typed(constants, codes, quads, rows, border)
+    nx, width = constants[5], constants[7]  # the tables in the kernels' types: the grid float32, indices uint64
+    typed = (F32(constants[3]), F32(constants[4]), F32(nx), F32(constants[6]), np.uint64(nx), codes, quads, rows,
+             np.uint64(width), border)  # fmt: skip
     runs, size = out.shape
     blocks, jobs = chunks(runs, size)
     left = scratch(runs * size, codes.dtype)  # what each point leaves open

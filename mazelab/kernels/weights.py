@@ -1,4 +1,5 @@
-"""The weights and the weighted reads, compiled (mazelab.weights is the numpy reference).
+"""The weights, the weighted reads and the resampler, compiled (mazelab.weights and mazelab.resampling are
+the numpy reference).
 
 `normalise` turns R runs' log weights into their log totals and normalised weights W, and reads what
 a step reports, in two passes over each chunk of CHUNK particles (mazelab.kernels): the chunk's top m_c
@@ -21,6 +22,20 @@ unrolls; numba leaves the SLP vectoriser off): the lanes are one vector of float
 
 A run whose log weights are all -inf (no particle explains z) or hold a NaN gets the total -inf or NaN
 and NaN weights, as in the numpy path; the filter then restarts it.
+
+`systematic` resamples by counting, in blocks: mazelab.resampling.systematic_resample's ancestors (the
+textbook inverse CDF) for the same cumulative weights and offset. The points u_m = (m + U) / M below the
+cumulative weight c_i = W_1 + ... + W_i number ceil(M c_i - U), so particle i is the ancestor of the
+points from ceil(M c_{i-1} - U) to ceil(M c_i - U) (its offspring count is their difference). In blocks
+of CHUNK particles (mazelab.kernels): each block's total (a pass over the weights); the blocks' starting
+sums b_k in order; then in each block, c_i = b_k plus the block's running sum (so a block's last c_i is
+b_{k+1}, to the bit), the end of each particle's points counted where it falls among the block's own
+points, and a running sum over those points turns the counts into the ancestors, with no search. Blocks
+write disjoint points, so they run on any thread. The cumulative weights are float64 (numpy's cumsum
+into a float64 array) summed in that order: the textbook's own, to the bit, for N <= CHUNK, and
+otherwise different from them by rounding, which moves an ancestor only where a point lies within that
+rounding of a boundary. A point exactly on a boundary (u_m = c_i) goes to the next particle, as
+searchsorted(..., side="right") sends it.
 """
 
 from __future__ import annotations
@@ -200,47 +215,51 @@ def _combine(row, reads, r, lanes, scales):  # pragma: no cover - compiled
         scales[c] /= total
 
 
-@Kernel
-def second_stage(log_lik, log_mu, ancestors, out):  # pragma: no cover - compiled
-    """The APF's second-stage log weights of R runs, float32 (R, M): out[r, m] = log p(z_k | x_m) - log
-    p(z_k | mu_{a_m}) from log_lik (R, M) and log_mu (R, N), the first stage's values gathered by run
-    r's ancestors (R, M) (uint64, into its own particles) in the same pass (numpy's take_along_axis and
-    subtract: the same float32 values)."""
-    runs, size = log_lik.shape
-    blocks, jobs = chunks(runs, size)
-    for job in prange(jobs):
-        r, start, stop = chunk_of(job, blocks, size)
-        values, gathered, sources, mu = out[r, start:stop], log_lik[r, start:stop], ancestors[r, start:stop], log_mu[r]
-        for m in range(stop - start):
-            values[m] = gathered[m] - mu[sources[m]]
+@inline
+def _ancestors_of_block(weights, u, count, base, start, offset, out):  # pragma: no cover - compiled
+    """`out`: the points offset.. of the particles start.. (their weights `weights`; the last particle
+    of all is left out: it takes the rest). out[e] counts the particles whose points end at point
+    offset + e, then their running sum, from `start`."""
+    out[:] = 0
+    cumulative = 0.0
+    for i in range(len(weights)):
+        cumulative += weights[i]
+        end = ((base + cumulative) * count - u) - offset  # particle i's points end at offset + ceil(end)
+        if end > -1 and end <= len(out) - 1:  # a NaN weight's end is neither: nothing is written outside
+            out[math.ceil(end)] += 1
+    ancestor = start
+    for m in range(len(out)):
+        ancestor += out[m]
+        out[m] = ancestor
 
 
 @Kernel
-def covariance(weights, xy, out):  # pragma: no cover - compiled
-    """sum_i W_i (x_i - m)(x_i - m)^T, m = sum_i W_i x_i, into out (R, 2, 2) float64 for R runs' weights
-    (R, N) and float32 coordinates xy (2, R, N) (mazelab.weights.weighted_covariance), in one pass: the
-    sums of W, W d and W d d^T, d = x - c around the run's first particle c (float64: the spread may be
-    tiny beside the position), each chunk's in order, then the chunks'; then with e = m - c, the
-    covariance S - s e^T - e s^T + (sum W) e e^T (s = sum W d)."""
+def systematic(weights, u, out):  # pragma: no cover - compiled
+    """Systematic resampling of R runs' normalised weights (R, N) with offsets u (R,) ~ U[0, 1): out[r, m]
+    is the ancestor of the point (m + u_r) / M in run r, M = out.shape[1], sorted
+    (mazelab.resampling.systematic_resample's, by counting in blocks; each run's as alone)."""
     runs, size = weights.shape
+    count = out.shape[1]
     blocks, jobs = chunks(runs, size)
-    parts = scratch((jobs, 6), np.float64)  # each chunk's sums of W, W dx, W dy, W dx dx, W dx dy, W dy dy
+    bases = scratch((runs, blocks + 1), np.float64)  # each value written first
+    stops = scratch((runs, blocks + 1), np.int64)
+    for job in prange(jobs if blocks > 1 else 0):  # each block's total, in order (a run of one block: none read)
+        r, start, stop = chunk_of(job, blocks, size)
+        total, part = 0.0, weights[r, start:stop]  # float64 whatever the weights' dtype
+        for i in range(len(part)):
+            total += part[i]
+        bases[r, job - r * blocks + 1] = total
+    for r in range(runs):  # each run's blocks' starting sums b_k, and where their points end
+        base, stop = bases[r], stops[r]
+        base[0], stop[0], stop[blocks] = 0.0, 0, count
+        for block in range(1, blocks + 1):
+            base[block] += base[block - 1]
+            if block < blocks:
+                end = base[block] * count - u[r]  # the points below b_k: ceil(end), within [the last, M]
+                stop[block] = stop[block - 1] if not end > stop[block - 1] - 1 else min(math.ceil(end), count)
     for job in prange(jobs):
         r, start, stop = chunk_of(job, blocks, size)
-        w, xs, ys, cx, cy = weights[r, start:stop], xy[0, r, start:stop], xy[1, r, start:stop], xy[0, r, 0], xy[1, r, 0]
-        total = sx = sy = sxx = sxy = syy = 0.0
-        for i in range(stop - start):
-            weight, dx, dy = np.float64(w[i]), np.float64(xs[i]) - cx, np.float64(ys[i]) - cy
-            total, sx, sy = total + weight, sx + weight * dx, sy + weight * dy
-            sxx, sxy, syy = sxx + weight * dx * dx, sxy + weight * dx * dy, syy + weight * dy * dy
-        for k, value in enumerate((total, sx, sy, sxx, sxy, syy)):
-            parts[job, k] = value
-    for r in range(runs):
-        total = sx = sy = sxx = sxy = syy = 0.0
-        for job in range(r * blocks, (r + 1) * blocks):
-            total, sx, sy = total + parts[job, 0], sx + parts[job, 1], sy + parts[job, 2]
-            sxx, sxy, syy = sxx + parts[job, 3], sxy + parts[job, 4], syy + parts[job, 5]
-        ex, ey = sx + xy[0, r, 0] * (total - 1.0), sy + xy[1, r, 0] * (total - 1.0)  # e = m - c
-        out[r, 0, 0] = sxx - 2 * sx * ex + total * ex * ex
-        out[r, 1, 1] = syy - 2 * sy * ey + total * ey * ey
-        out[r, 0, 1] = out[r, 1, 0] = sxy - sx * ey - ex * sy + total * ex * ey
+        block = job - r * blocks
+        points = out[r, stops[r, block] : stops[r, block + 1]]
+        _ancestors_of_block(weights[r, start : min(stop, size - 1)], u[r], count, bases[r, block], start,
+                            stops[r, block], points)  # fmt: skip

@@ -70,9 +70,11 @@ class Recording:
 
     @classmethod
     def open(cls, target: Any, world: Maze, blueprint: Any, *, label: str, replace: bool = True) -> Recording | None:
-        """A recording going where `target` says (see the `visualize` values), with the maze logged;
-        None, after a line saying so, when Rerun is switched off (RERUN=off). A named file replaces an
-        existing one only with `replace`."""
+        """A recording going where `target` says (see the `visualize` values), with the static map logged:
+        walls black and free cells white (an image, one pixel per cell), stations as cyan dots, all under
+        MAP, whose transform turns the map frame (y up) into the view's (y down). None, after a line
+        saying so, when Rerun is switched off (RERUN=off). A named file replaces an existing one only
+        with `replace`."""
         import rerun as rr
 
         if isinstance(target, rr.RecordingStream):
@@ -84,7 +86,13 @@ class Recording:
                 return None
             stream = rr.RecordingStream(APPLICATION_ID, recording_id=str(uuid.uuid4()))
             recording = cls._to(stream, target, blueprint, label, replace)
-        log_maze(recording.stream, world)
+        stream = recording.stream
+        stream.log(MAP, rr.Transform3D(translation=[0, world.height, 0], scale=[1, -1, 1]), static=True)
+        walls = world.grid[::-1] != EMPTY  # pixel (row j, column i): the cell over x in [i, i+1), y in [j, j+1)
+        image = np.where(walls[..., None], np.uint8(WALL_COLOR), np.uint8(FREE_COLOR)).astype(np.uint8)
+        stream.log(f"{MAP}/maze", rr.Image(image, draw_order=-10.0), static=True)
+        stations = rr.Points2D(world.stations, colors=STATION_COLOR, radii=STATION_RADIUS)
+        stream.log(f"{MAP}/stations", stations, static=True)
         return recording
 
     @classmethod
@@ -121,7 +129,8 @@ class Recording:
 
     def log_robot(self, step: int, position: Sequence[float], heading: float | None) -> None:
         """The robot (a green dot and its heading) and the step number, once per step of the recording:
-        every filter of a comparison replays the same robot."""
+        every filter of a comparison replays the same robot. At the step of its kidnapping, the jump: a
+        line from where it was to where it was put down (drawn from that step on) and a ring there."""
         import rerun as rr
 
         if step in self.robot_steps:
@@ -134,22 +143,17 @@ class Recording:
             self.stream.log(f"{MAP}/robot/heading", arrow)
         title = f"### Step {step}"
         if self.kidnapping is not None and self.kidnapping[0] == step:
-            self.log_kidnapping(step, self.kidnapping[1])
+            place, label = self.kidnapping[1], f"kidnapped at step {step}"
+            if self.last_robot_position is not None:
+                jump = rr.LineStrips2D(
+                    [[self.last_robot_position, place]], colors=KIDNAP_COLOR, radii=0.03, labels=label
+                )
+                self.stream.log(f"{MAP}/robot/kidnapping", jump)
+            ring = rr.Ellipses2D(centers=[place], half_sizes=[[0.25, 0.25]], colors=KIDNAP_COLOR, line_radii=0.03)
+            self.stream.log(f"{MAP}/robot/kidnapping/place", ring)
             title += ": the robot is kidnapped"
         self.stream.log("/title", rr.TextDocument(title, media_type=rr.MediaType.MARKDOWN))
         self.last_robot_position = (float(position[0]), float(position[1]))
-
-    def log_kidnapping(self, step: int, place: tuple[float, float]) -> None:
-        """The jump of step `step`: a line from where the robot was to `place`, where it was put down
-        (it stays drawn from that step on), and a ring at `place`."""
-        import rerun as rr
-
-        label = f"kidnapped at step {step}"
-        if self.last_robot_position is not None:
-            jump = rr.LineStrips2D([[self.last_robot_position, place]], colors=KIDNAP_COLOR, radii=0.03, labels=label)
-            self.stream.log(f"{MAP}/robot/kidnapping", jump)
-        ring = rr.Ellipses2D(centers=[place], half_sizes=[[0.25, 0.25]], colors=KIDNAP_COLOR, line_radii=0.03)
-        self.stream.log(f"{MAP}/robot/kidnapping/place", ring)
 
     def close(self) -> None:
         """Flush; a file is written whole and its path printed (a write error is raised, or deferred,
@@ -236,23 +240,6 @@ def deferred_to_the_end() -> Iterator[None]:
                 server.stop()
     if errors:
         raise errors[0]
-
-
-def log_maze(stream: Any, world: Maze) -> None:
-    """The static map: walls black and free cells white (an image, one pixel per cell), stations as
-    cyan dots, all under MAP, whose transform turns the map frame (y up) into the view's (y down)."""
-    import rerun as rr
-
-    stream.log(MAP, rr.Transform3D(translation=[0, world.height, 0], scale=[1, -1, 1]), static=True)
-    stream.log(f"{MAP}/maze", rr.Image(maze_image(world), draw_order=-10.0), static=True)
-    stream.log(f"{MAP}/stations", rr.Points2D(world.stations, colors=STATION_COLOR, radii=STATION_RADIUS), static=True)
-
-
-def maze_image(world: Maze) -> np.ndarray:
-    """RGB image of the maze, shape (H, W, 3): pixel (row j, column i) is the cell covering
-    x in [i, i+1), y in [j, j+1) of the map frame, so grid row H-1-j."""
-    walls = world.grid[::-1] != EMPTY
-    return np.where(walls[..., None], np.uint8(WALL_COLOR), np.uint8(FREE_COLOR)).astype(np.uint8)
 
 
 def heading_vectors(angles: np.ndarray, length: float) -> np.ndarray:

@@ -45,10 +45,14 @@ def resolve_target(target: Any) -> str | Path:
         raise ValueError("visualize='notebook' needs rerun's notebook viewer: pip install -e '.[notebook]'")
     if target in TARGET_WORDS:
         return target
-    if isinstance(target, str):
-        check_target_word(target)
     if isinstance(target, (str, Path)):
         path = Path(target)
+        # a file has a folder or a suffix (.rrd); any other string is a word: a mistyped "viwer" is no file
+        if isinstance(target, str) and not path.suffix and path.parent == Path(".") and target.strip():
+            close = difflib.get_close_matches(target, TARGET_WORDS, n=1)
+            hint = f"; did you mean {close[0]!r}?" if close else "; a file needs a suffix such as .rrd"
+            words = ", ".join(map(repr, TARGET_WORDS))
+            raise ValueError(f"visualize={target!r} is not one of {words} nor a file name{hint}")
         if path.is_dir():
             raise ValueError(f"{path} is a folder, not an .rrd file")
         if not path.parent.is_dir():
@@ -57,17 +61,6 @@ def resolve_target(target: Any) -> str | Path:
     raise ValueError(
         f"visualize must be True, False, 'viewer', 'web', 'notebook', an .rrd path or a view, got {target!r}"
     )
-
-
-def check_target_word(target: str) -> None:
-    """Refuse a `visualize` string that is neither a word nor looks like a file (a mistyped "viwer"
-    must not become a file named viwer); a path with a folder or a suffix (.rrd) is a file."""
-    path = Path(target)
-    if path.suffix or path.parent != Path(".") or not target.strip():
-        return
-    close = difflib.get_close_matches(target, TARGET_WORDS, n=1)
-    hint = f"; did you mean {close[0]!r}?" if close else "; a file needs a suffix such as .rrd"
-    raise ValueError(f"visualize={target!r} is not one of {', '.join(map(repr, TARGET_WORDS))} nor a file name{hint}")
 
 
 def default_recording_path(label: str) -> Path:

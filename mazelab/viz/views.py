@@ -164,8 +164,10 @@ class RunView:
         stream.set_time("step", sequence=step)
         self.recording.log_robot(step, robot_position, robot_heading)
         belief = state.belief()
-        if isinstance(belief, Gaussian):
-            self.log_gaussian(belief)
+        if isinstance(belief, Gaussian):  # the EKF's: a polygon (rerun's Ellipses2D cannot be rotated)
+            outline = covariance_ellipse(np.asarray(belief.mean), np.asarray(belief.covariance), COVARIANCE_SIGMAS)
+            strip = rr.LineStrips2D([outline], colors=self.color, radii=COVARIANCE_LINE_RADIUS)
+            stream.log(f"{self.path}/covariance", strip)
         else:
             self.log_particles(belief)
         estimate, confident = np.asarray(state.estimate, dtype=float), bool(state.is_confident)
@@ -184,8 +186,12 @@ class RunView:
         if not math.isnan(ess):  # the grid filter is not a sample: no ESS
             stream.log(f"/metrics/ess/{self.metric}", rr.Scalars(ess))
         stream.log(f"/metrics/confident/{self.metric}", rr.Scalars(float(confident)))
-        if isinstance(belief, Particles) and belief.count_varies:  # KLD-sampling: N beside the ESS
-            self.log_particle_count(int(state.count))
+        if isinstance(belief, Particles) and belief.count_varies:  # KLD-sampling: N in the ESS panel (ESS <= N)
+            path = f"/metrics/ess/{self.metric}/particle_count"
+            if not self.count_series_styled:
+                self.count_series_styled = True
+                stream.log(path, rr.SeriesLines(names=f"{self.name} N", colors=self.color, widths=1), static=True)
+            stream.log(path, rr.Scalars(float(state.count)))
 
     def log_particles(self, belief: Particles | Density) -> None:
         """The particles (or a grid's cells) coloured by weight, the injected ones apart."""
@@ -214,26 +220,6 @@ class RunView:
             show_labels=True,
         )
         self.recording.stream.log(f"{self.path}/modes", circles)
-
-    def log_gaussian(self, belief: Gaussian) -> None:
-        """A Gaussian belief (the EKF's): its COVARIANCE_SIGMAS ellipse, a polygon in the filter's colour
-        (rerun's Ellipses2D are axis-aligned: they cannot be rotated)."""
-        import rerun as rr
-
-        outline = covariance_ellipse(np.asarray(belief.mean), np.asarray(belief.covariance), COVARIANCE_SIGMAS)
-        strip = rr.LineStrips2D([outline], colors=self.color, radii=COVARIANCE_LINE_RADIUS)
-        self.recording.stream.log(f"{self.path}/covariance", strip)
-
-    def log_particle_count(self, count: int) -> None:
-        """The particle count N of this step (KLD-sampling varies it), in the ESS panel: ESS <= N."""
-        import rerun as rr
-
-        path = f"/metrics/ess/{self.metric}/particle_count"
-        if not self.count_series_styled:
-            self.count_series_styled = True
-            style = rr.SeriesLines(names=f"{self.name} N", colors=self.color, widths=1)
-            self.recording.stream.log(path, style, static=True)
-        self.recording.stream.log(path, rr.Scalars(float(count)))
 
     def close(self) -> None:
         """Finish the recording if this run owns it (a comparison's views leave it open)."""
