@@ -24,7 +24,8 @@ from typing import Any
 
 import numpy as np
 
-from mazelab.checks import check_particles, check_seed, finite_number, step_number
+from mazelab.checks import check_seed, finite_number, step_number
+from mazelab.checks import particle_count as checked_particle_count
 from mazelab.grid_filter import GridBayesFilter, check_grid_memory
 from mazelab.maze import Maze
 from mazelab.model import LAB_DELTA_RANGE, LAB_SIGMA_RANGE, check_model_parameters
@@ -409,9 +410,7 @@ def check_chain(prior: ParameterGrid, start: np.ndarray, iterations: int, partic
     """The proposal's scale (2,) once pmmh's settings are checked: a one-line ValueError for a start outside
     the prior's box, a count that is not a whole number >= 1, a burn-in outside [0, iterations)."""
     iterations = step_number("iterations", iterations)
-    if isinstance(particle_count, bool) or not isinstance(particle_count, (int, np.integer)) or particle_count < 1:
-        raise ValueError(f"particle_count must be a whole number >= 1, got {particle_count!r}")
-    check_particles(int(particle_count))
+    checked_particle_count(particle_count)
     if not 0 <= burn_in < iterations:
         raise ValueError(f"burn_in must lie in [0, iterations), got {burn_in!r}")
     if not prior.contains(*start):

@@ -18,13 +18,11 @@ told), and the backward pass refilters one block of B steps at a time from its c
 grids instead of K, for a second forward pass (docs/smoothing.md has the figures of a 200-step walk on
 maze_10x10: `uv run python benchmarks/smoothing_memory.py`).
 
-The particle smoothers (`Genealogy`, scored against the exact one by `score_smoothers`) read what the
-engine leaves after each step, `SMC.ancestry` (A (R, M), due (R,)), and keep it with the step's particles
-and weights: the path smoother follows every particle of the last step back to its ancestors; the
-fixed-lag smoother does so L steps back only, keeping L + 1 steps. Forward filtering backward sampling
-(FFBS) is not built: it needs the transition density p(x_k+1 | x_k), and the model's arc motion puts all
-of x_k+1's mass on an arc of radius L about x_k, a curve with no density in the plane, so FFBS's backward
-kernel is the genealogy itself, the path smoother (docs/smoothing.md says why in full).
+The particle smoothers, the path and the fixed-lag one (`Genealogy`, scored against the exact one by
+`score_smoothers`), follow the engine's `SMC.ancestry` back. Forward filtering backward sampling (FFBS) is not
+built: it needs the transition density p(x_k+1 | x_k), and the model's arc motion puts all of x_k+1's mass on
+an arc of radius L about x_k, a curve with no density in the plane, so FFBS's backward kernel is the genealogy
+itself, the path smoother (docs/smoothing.md says why in full).
 """
 
 from __future__ import annotations
@@ -32,7 +30,7 @@ from __future__ import annotations
 import functools
 import math
 from collections import deque
-from collections.abc import Callable, Collection, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -45,7 +43,7 @@ from mazelab.model import DEFAULT_PARTICLE_COUNT, check_model_parameters
 from mazelab.registry import filter_entry
 from mazelab.robot import Robot
 
-BYTES_PER_DENSITY_CELL = 8  # a float64 grid: what each checkpoint, each refiltered step and each kept density takes
+BYTES_PER_DENSITY_CELL = 8  # a float64 grid: what each checkpoint and each refiltered step takes
 BYTES_PER_RECORDED_PARTICLE = 24  # Genealogy: a particle's float32 position, float64 weight and int64 ancestor
 
 
@@ -69,8 +67,6 @@ class SmoothedWalk:
         The grid's shape (rows along y).
     checkpoint_every : int
         B, the steps between two filtered densities kept by the forward pass.
-    densities : dict
-        Step k -> p(x_k | z_1:K) on the grid (an array of `shape`), for the steps asked to keep.
     """
 
     means: np.ndarray
@@ -80,7 +76,6 @@ class SmoothedWalk:
     positions: np.ndarray
     shape: tuple[int, int]
     checkpoint_every: int
-    densities: dict[int, np.ndarray] = field(default_factory=dict)
 
 
 class BackwardStep:
@@ -96,10 +91,9 @@ class BackwardStep:
     """
 
     def __init__(self, grid: GridBayesFilter):
-        self.grid = grid
-        self.work = GridWorkspace(grid.shape, arc_kernel_shape(grid.speed, grid.resolution))
+        self.grid, self._kernel_shape = grid, arc_kernel_shape(grid.speed, grid.resolution)
+        self.work = GridWorkspace(grid.shape, self._kernel_shape)
         self._angle: float | None = None
-        self._kernel_shape = arc_kernel_shape(grid.speed, grid.resolution)
         self._spectrum: np.ndarray | None = None
 
     def adjoint(self, values: np.ndarray, compass_angle: float) -> np.ndarray:
@@ -136,7 +130,7 @@ class BackwardStep:
 
 
 def smooth(world: Maze, sigma: float, delta: float, compass_angles: Sequence[float], measurements: Sequence[float],
-           *, keep: Collection[int] = (), visit: Callable[[int, np.ndarray], Any] | None = None,
+           *, visit: Callable[[int, np.ndarray], Any] | None = None,
            checkpoint_every: int | None = None, **grid_options: Any) -> SmoothedWalk:  # fmt: skip
     """p(x_k | z_1:K) for k = 1..K on the grid filter's grid, by forward-backward with checkpoints.
 
@@ -147,11 +141,10 @@ def smooth(world: Maze, sigma: float, delta: float, compass_angles: Sequence[flo
         The model's measurement noise (map units) and compass error's full width (radians).
     compass_angles, measurements : sequences of K floats
         th0_k and z_k of each step (a scenario's robot_compass_angles and robot_measurements).
-    keep : collection of int
-        The steps whose smoothed densities the answer keeps (each one grid of memory).
     visit : callable (k, density) -> None, optional
-        Called with every step's smoothed density (read-only, valid during the call only), from k = K
-        down to 1: what a caller measures per step without keeping K grids.
+        Called with every step's smoothed density p(x_k | z_1:K) (an array of the grid's shape, read-only,
+        valid during the call only: a copy keeps it), from k = K down to 1: what a caller measures per step
+        without keeping K grids.
     checkpoint_every : int, optional
         B, the steps between two kept filtered densities: ceil(sqrt(K)) by default; K keeps every
         filtered density of the walk (one block, no second pass).
@@ -166,24 +159,19 @@ def smooth(world: Maze, sigma: float, delta: float, compass_angles: Sequence[flo
     sigma, delta = check_model_parameters(sigma, delta, (world.width, world.height))
     grid = GridBayesFilter(world, sigma, delta, **grid_options)
     block = checkpoint_block(len(angles), checkpoint_every)
-    outside = [k for k in keep if not (isinstance(k, (int, np.integer)) and 1 <= k <= len(angles))]
-    if outside:
-        raise ValueError(f"keep names steps 1..{len(angles)} of the walk, got {outside[0]!r}")
-    check_smoother_memory(grid.shape, len(angles), block, len(set(keep)))
+    check_smoother_memory(grid.shape, len(angles), block)
     checkpoints, filtered_means = forward(grid, angles, zs, block)
     log_evidence = grid.log_evidence  # the refiltering below adds to it again
-    means, spreads, kept = backward(grid, checkpoints, angles, zs, block, keep, visit)
-    return SmoothedWalk(means, spreads, filtered_means, log_evidence, grid.positions, grid.shape, block, kept)
+    means, spreads = backward(grid, checkpoints, angles, zs, block, visit)
+    return SmoothedWalk(means, spreads, filtered_means, log_evidence, grid.positions, grid.shape, block)
 
 
 def backward(grid: GridBayesFilter, checkpoints: dict[int, np.ndarray], angles: np.ndarray, zs: np.ndarray,
-             block: int, keep: Collection[int], visit: Callable[[int, np.ndarray], Any] | None,
-             ) -> tuple[np.ndarray, np.ndarray, dict[int, np.ndarray]]:  # fmt: skip
+             block: int, visit: Callable[[int, np.ndarray], Any] | None) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """The backward pass from k = K down to 1, each block of B steps refiltered from its checkpoint (taken
-    from `checkpoints`): the smoothed means (K, 2), spreads (K,) and the densities of the steps in `keep`
-    (each handed to `visit` too: `smooth`)."""
+    from `checkpoints`): the smoothed means (K, 2) and spreads (K,), each step's density handed to `visit`."""
     steps = len(angles)
-    means, spreads, kept = np.empty((steps, 2)), np.empty(steps), {}
+    means, spreads = np.empty((steps, 2)), np.empty(steps)
     step_back, beta = BackwardStep(grid), np.ones(grid.shape)
     for start in reversed(range(0, steps, block)):  # the block of steps start+1 .. end
         end = min(start + block, steps)
@@ -191,14 +179,12 @@ def backward(grid: GridBayesFilter, checkpoints: dict[int, np.ndarray], angles: 
         for k in range(end, start, -1):
             smoothed = smoothed_density(filtered.pop(), beta, k)
             means[k - 1], spreads[k - 1] = moments(smoothed, grid.positions)
-            if k in keep:
-                kept[k] = smoothed.copy()
             if visit is not None:
                 smoothed.flags.writeable = False
                 visit(k, smoothed)
             if k > 1:
                 beta = step_back(beta, angles[k - 1], zs[k - 1], k)
-    return means, spreads, kept
+    return means, spreads
 
 
 def forward(
@@ -256,12 +242,12 @@ def checkpoint_block(steps: int, checkpoint_every: int | None) -> int:
     return step_number("checkpoint_every", checkpoint_every)
 
 
-def check_smoother_memory(shape: tuple[int, int], steps: int, block: int, kept: int) -> None:
+def check_smoother_memory(shape: tuple[int, int], steps: int, block: int) -> None:
     """Refuse a smoothing whose grids would not fit, in one line saying how much it needs: the
-    checkpoints, one block of refiltered densities, the kept densities, beta and its product, and the
+    checkpoints, one block of refiltered densities, beta and its product, and the
     backward pass's FFT buffers."""
     cells = shape[0] * shape[1]
-    grids = math.ceil(steps / block) + min(block, steps) + kept + 3
+    grids = math.ceil(steps / block) + min(block, steps) + 3
     check_memory(
         f"smoothing {steps} steps on the grid's {shape[0]}x{shape[1]} cells ({grids} grids)",
         grids * cells * BYTES_PER_DENSITY_CELL + cells * BYTES_PER_GRID_CELL,
@@ -497,10 +483,10 @@ def binned_smoother(world: Maze, sigma: float, delta: float, robot: Robot, bins:
                     ) -> tuple[SmoothedWalk, dict[int, np.ndarray]]:  # fmt: skip
     """The exact smoother of the robot's walk (`smooth`), and its mass in each of the `count` bins at every step
     (step -> (count,)): what a particle smoother's binned mass is compared with."""
-    positions, masses = GridBayesFilter(world, sigma, delta, **grid_options).positions, {}
+    cells, masses = bins(GridBayesFilter(world, sigma, delta, **grid_options).positions), {}  # each cell's bin
 
     def binned(k: int, density: np.ndarray) -> None:
-        masses[k] = np.bincount(bins(positions), density.ravel(), count)
+        masses[k] = np.bincount(cells, density.ravel(), count)
 
     exact = smooth(world, sigma, delta, robot.compass_angles, robot.measurements, visit=binned, **grid_options)
     return exact, masses

@@ -140,7 +140,7 @@ def test_foreign_row_checks_every_planned_column(tmp_path):
         cell = {column: value} if column in changed else {"options": {**records[1].options, column: value}}
         edited = [RunRecord(**{**vars(r), **cell}) if i == 1 else r for i, r in enumerate(records)]
         why = foreign_row(plan.tasks, edited)
-        assert why.startswith(f"run 2 of setting 1: its {column} is "), (column, why)
+        assert why.startswith(f"run 2 of setting 1: its {column} is {value}, "), (column, why)  # the row's value
     moved = [RunRecord(**{**vars(records[0]), "run": 9})]
     assert foreign_row(plan.tasks, moved) == "run 9 of setting 1 is not in this study"
     renamed = [RunRecord(**{**vars(records[0]), "filter": "AuxiliaryParticleFilter"})]

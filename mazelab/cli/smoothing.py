@@ -29,7 +29,7 @@ from mazelab.cli.study import exit_stopped
 from mazelab.experiments import executor
 from mazelab.experiments.journal import Journal, Recorder, differences, journal_path, read_journal, record_path
 from mazelab.experiments.runs import parse_filters
-from mazelab.experiments.study import RunFailure, options_per_filter
+from mazelab.experiments.study import options_per_filter
 from mazelab.experiments.tables import format_table, pyplot, records_csv, save_figure
 from mazelab.invocation import command_line, resume_command
 from mazelab.learning import ParameterGrid, ParameterPosterior, evidence_filter, exact_parameter_posterior, pmmh
@@ -242,16 +242,12 @@ def run_cells(journal: tuple[Journal, dict] | None, workers: int | None, dask: s
     (log, done), workers = journal or (None, {}), executor.worker_count(workers)
     log_evidence = np.array([done.get(i, np.nan) for i in range(len(sigmas))])
     units = [((i, sigmas[i], deltas[i]),) for i in range(len(sigmas)) if i not in done]
-    failed: list[str] = []
 
-    def collect(results: list) -> None:
-        for result in results:
-            if isinstance(result, RunFailure):
-                failed.append(f"the cell sigma {result.task[1]:g}, delta {result.task[2]:g}: {result.message}")
-                continue
-            log_evidence[result[0]] = result[1]
+    def keep(cells: list[tuple[int, float]]) -> None:  # a finished cell, as the study's collector hands a run's rows
+        for index, value in cells:
+            log_evidence[index] = value
             if log is not None:
-                log.write({"cell": result[0], "log_evidence": result[1]})
+                log.write({"cell": index, "log_evidence": value})
 
     client = executor.open_cluster(dask, "numpy")  # a bad address, workers of other versions: one line
     where = f"the Dask cluster at {dask}" if client is not None else f"{min(workers, max(len(units), 1))} process(es)"
@@ -259,10 +255,11 @@ def run_cells(journal: tuple[Journal, dict] | None, workers: int | None, dask: s
     outcome = executor.StudyOutcome()
     try:
         work = executor.Units(units, functools.partial(cell_unit, cell), workers, client, executor.DASK_TIMEOUT)
-        executor.run_units(outcome, work, collect, len(units), True, "cells")
+        executor.run_units(outcome, work, outcome.collector(keep), len(units), True, "cells")
     finally:
         if client is not None:
             executor.close_client(client)
+    failed = [f"the cell sigma {f.task[1]:g}, delta {f.task[2]:g}: {f.message}" for f in outcome.failures]
     stopped = "lost" if outcome.lost is not None else "interrupted" if outcome.interrupted else None
     if log is not None:
         log.end_session(stopped or ("finished" if not failed else "failed"))
@@ -275,9 +272,9 @@ def run_cells(journal: tuple[Journal, dict] | None, workers: int | None, dask: s
     return log_evidence
 
 
-def cell_unit(cell: Any, unit: tuple[tuple[int, float, float], ...]) -> list[tuple[int, float]]:
-    """A unit of the executor: (index, log evidence) of each of its cells (index, sigma, delta)."""
-    return [(index, cell(sigma, delta)) for index, sigma, delta in unit]
+def cell_unit(cell: Any, unit: tuple[tuple[int, float, float], ...]) -> list[list[tuple[int, float]]]:
+    """A unit of the executor: [(index, log evidence)] of each of its cells (index, sigma, delta)."""
+    return [[(index, cell(sigma, delta))] for index, sigma, delta in unit]
 
 
 def learning_summary(posterior: ParameterPosterior, chain: Any, filter_name: str) -> dict[str, Any]:

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from mazelab import maze_generator
-from mazelab.checks import check_particles, check_seed, check_sigma_within, check_steps, check_study
+from mazelab.checks import check_seed, check_sigma_within, check_steps, check_study
 from mazelab.contract import missing_parts
 from mazelab.declaration import scoped, show_value, to_plain_json
 from mazelab.experiments.executor import StudyOutcome, open_cluster, run_study, study_backend
@@ -207,7 +207,6 @@ def plan_study(
     command line's flag), and one given only its default is left out (no filter runs it); every value,
     for every filter that takes it, is checked by its declaration up front."""
     names = parse_filters(filters) if isinstance(filters, str) else _filter_list(filters)
-    classes = [resolve_filter(name) for name in names]
     given = {name: list(values) for name, values in (options or {}).items()}
     if kld:
         given["kld"] = [True]
@@ -216,10 +215,9 @@ def plan_study(
             raise ValueError(f"option {name} has no values")
     checked = {name: None if all_default(name, values) else values for name, values in given.items()}
     options_per_filter(names, checked, spelled)
-    declared = set(option_columns(classes))
+    declared = set(option_columns(names))
     given = {name: values for name, values in given.items() if scoped(name)[1] in declared}
     check_steps(steps)  # each run's limits, up front rather than in every worker
-    check_particles(max(particles))
     settings = study_settings(mazes, sigma, delta, particles, given)
     check_study(len(settings) * runs, len(names))
     check_study_numbers(settings, reference)

@@ -26,6 +26,7 @@ from __future__ import annotations
 import contextlib
 import datetime as dt
 import errno
+import functools
 import json
 import os
 import platform
@@ -282,20 +283,14 @@ def package_version() -> str:
         return __version__
 
 
-def git_commit(folder: Path | None = None) -> str | None:
+def git_commit() -> str | None:
     """The commit of the source the package runs from (with '-dirty' if it has changes), or None
     without git, outside a repository, or when git does not answer: never an error."""
-    folder = folder or Path(__file__).resolve().parents[2]
+    git = ["git", "-C", str(Path(__file__).resolve().parents[2])]
+    run = functools.partial(subprocess.run, capture_output=True, text=True, timeout=GIT_SECONDS, check=True)
     try:
-
-        def git(*args: str) -> str:
-            done = subprocess.run(
-                ["git", "-C", str(folder), *args], capture_output=True, text=True, timeout=GIT_SECONDS, check=True
-            )
-            return done.stdout.strip()
-
-        commit = git("rev-parse", "HEAD")
-        dirty = bool(git("status", "--porcelain", "--untracked-files=no"))
+        commit = run([*git, "rev-parse", "HEAD"]).stdout.strip()
+        dirty = bool(run([*git, "status", "--porcelain", "--untracked-files=no"]).stdout.strip())
     except (OSError, subprocess.SubprocessError, ValueError):
         return None
     return f"{commit}-dirty" if dirty else commit
@@ -482,16 +477,8 @@ def earlier_sessions(lines: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     sessions: list[dict[str, Any]] = []
     for line in lines:
         if isinstance(line.get("session"), dict):
-            session = line["session"]
-            sessions.append(
-                {
-                    "command": session.get("command"),
-                    "started": session.get("started"),
-                    "ended": None,
-                    "status": "running",
-                    "runs_finished": None,
-                }
-            )
+            started = {k: line["session"].get(k) for k in ("command", "started")}
+            sessions.append({**started, "ended": None, "status": "running", "runs_finished": None})
         elif isinstance(line.get("closed"), dict) and sessions:
             sessions[-1].update({k: line["closed"].get(k) for k in ("ended", "status", "runs_finished")})
     return sessions
@@ -528,7 +515,7 @@ def foreign_row(tasks: Sequence[RunTask], records: Sequence[RunRecord]) -> str |
         found = {**{column: getattr(record, column) for column in task.cells()}, **record.options}
         for column, value in {**task.cells(), **options}.items():  # seed and maze first, then the parameters
             if not _same(found.get(column), value):
-                return f"{where}: its {column} is {_shown(found)}, where this study has {_shown(value)}"
+                return f"{where}: its {column} is {_shown(found.get(column))}, where this study has {_shown(value)}"
     return None
 
 

@@ -54,9 +54,6 @@ def localised_before(record: RunRecord) -> bool:
     return bool(k and k > 1 and np.hypot(*(trace["estimate"][k - 2] - trace["true"][k - 2])) < CONVERGENCE_RADIUS)
 
 
-RECOVERY_HEADERS = ["filter", "recovery", "runs", "localised before", "re-localised", "median steps to recover"]
-
-
 def recovery_table(world: Maze, filters: Sequence[str] = ("sir", "apf", "rpf"), **trials: object) -> str:
     """The recovery trials (`recovery_records`, with `trials` its other arguments) as a table, a row per
     filter (its registry label) and variant: the share of the runs localised before the kidnapping and
@@ -73,7 +70,8 @@ def recovery_table(world: Maze, filters: Sequence[str] = ("sir", "apf", "rpf"), 
         before, count = np.mean([localised_before(r) for r in group]), np.mean([r.mean_particle_count for r in group])
         rows.append([described(name).label, variant, str(len(group)), f"{before:.0%}", f"{relocalised:.0%}",
                      format_number(steps, "{:g}"), f"{count:.0f}"])  # fmt: skip
-    return format_table([*RECOVERY_HEADERS, "mean N"], rows)
+    headers = ["filter", "recovery", "runs", "localised before", "re-localised", "median steps to recover", "mean N"]
+    return format_table(headers, rows)
 
 
 if __name__ == "__main__":

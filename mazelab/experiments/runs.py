@@ -1,16 +1,8 @@
-"""Several filters on one robot walk, the figures of one run (a kidnapped run's too), and comparing the
-filters on one saved scenario (lab steps 12-13: every filter replays the same start, initial particles, angles and
-measurements; `compare_filters` returns their RunResults, `comparison_table`, `errors_csv` and
-`plot_errors` report them).
-
-Figures of one run:
-    last-20% error    `final_error` (its CSV column): the mean error over the last FINAL_SHARE (20%) of the
-                      steps, robust to one unlucky step (the last-step error is errors[-1]);
-    convergence step  `convergence_step`: the step from which the error stays below CONVERGENCE_RADIUS;
-    re-localised      `relocalised`, after a kidnapping: the mean error over the last DEFAULT_WINDOW steps
-                      is below CONVERGENCE_RADIUS;
-    steps to recover  `recovery_steps`: R - kidnap_at, R the first step from which the error stays below
-                      CONVERGENCE_RADIUS to the end (None when the last error is not below it).
+"""Several filters on one robot walk, the figures of one run (`FIGURES`: the last-20% error `final_error`,
+robust to one unlucky step, the convergence step, `relocalised` and `recovery_steps` after a kidnapping, ...),
+and comparing the filters on one saved scenario (lab steps 12-13: every filter replays the same start, initial
+particles, angles and measurements; `compare_filters` returns their RunResults, `comparison_table`,
+`errors_csv` and `plot_errors` report them).
 """
 
 from __future__ import annotations

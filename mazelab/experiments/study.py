@@ -16,6 +16,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from mazelab.checks import particle_count
 from mazelab.declaration import Option, not_taken, options_for, options_of, scoped, show_value
 from mazelab.experiments.runs import FIGURES, run_figures, run_filters
 from mazelab.experiments.tables import trace_of
@@ -209,8 +210,7 @@ def study_settings(
     filter options the study sets, each a list of values, each checked by the option's declaration
     (mazelab.declaration) as the filters' constructors check it."""
     for count in particle_counts:
-        if isinstance(count, bool) or not isinstance(count, int) or count < 1:
-            raise ValueError(f"particle counts must be whole numbers >= 1, got {count!r}")
+        particle_count(count, "particles")  # a whole number >= 1 whose arrays fit in memory
     for sigma, delta in itertools.product(dict.fromkeys(sigmas), dict.fromkeys(deltas)):
         check_model_parameters(sigma, delta)  # refuses impossible values, warns once outside the lab's ranges
     checked = {name: _checked(name, values) for name, values in (options or {}).items()}
@@ -360,7 +360,8 @@ class RunCells:
         as lists (numbers in full: the CSV and traces written from it are the same bit for bit)."""
         data = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
         if self.trace is not None:
-            data["trace"] = {k: _listed(v) for k, v in self.trace.items()}
+            data["trace"] = {k: {n: np.asarray(a).tolist() for n, a in v.items()} if k == "diagnostics" else
+                             np.asarray(v).tolist() for k, v in self.trace.items()}  # fmt: skip
         return data
 
     @classmethod
@@ -384,13 +385,6 @@ RunRecord = dataclasses.make_dataclass(
     bases=(RunCells,),
     namespace={"__module__": __name__, "__doc__": "One filter in one run of a study: a row of the study's CSV."},
 )
-
-
-def _listed(value: Any) -> Any:
-    """A trace's array (or a dict of them) as lists."""
-    if isinstance(value, dict):
-        return {k: _listed(v) for k, v in value.items()}
-    return np.asarray(value).tolist()
 
 
 def study_order(records: Sequence[RunRecord], tasks: Sequence[RunTask]) -> list[RunRecord]:

@@ -32,7 +32,6 @@ from mazelab.experiments.summary import CONFIDENCE_LEVEL, StudySummary
 from mazelab.experiments.tables import pyplot, save_figure
 from mazelab.registry import described, rgb
 
-NUMERIC_PARAMETERS = MODEL_PARAMETERS  # the x axis, first choice first (then a numeric option)
 PARAMETER_LABELS = {
     "sigma": "σ, noise std (map units)",  # noqa: RUF001
     "delta": "Δ, compass error width (rad)",
@@ -152,7 +151,7 @@ def choose_x(summaries: Sequence[StudySummary], varied: Sequence[str], x: str | 
     if x is not None:
         return x
     numeric = [p for p in varied if is_numeric(summaries, p)]
-    ordered = [p for p in NUMERIC_PARAMETERS if p in numeric] + [p for p in numeric if p not in NUMERIC_PARAMETERS]
+    ordered = [p for p in MODEL_PARAMETERS if p in numeric] + [p for p in numeric if p not in MODEL_PARAMETERS]
     if ordered:
         return ordered[0]
     return next((p for p in varied if p in BASE_PARAMETERS), None)
