@@ -19,7 +19,6 @@ import typer
 from mazelab.atomic import NameTakenError, NotRegularFileError, output_target
 from mazelab.backend import ENVIRONMENT_VARIABLE, THREADS_VARIABLE, check_backend, check_threads
 from mazelab.checks import check_seed
-from mazelab.constants import DEFAULT_DELTA, DEFAULT_SIGMA  # noqa: F401 (mazelab.cli.study reads them here)
 from mazelab.declaration import Option, decimal_comma, not_taken, parse_flag, scoped
 from mazelab.experiments.study import declared_option
 from mazelab.experiments.study import options_per_filter as reaching

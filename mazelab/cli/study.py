@@ -19,8 +19,6 @@ import typer
 from mazelab.atomic import WriteError, write_text_atomically
 from mazelab.backend import cores
 from mazelab.cli.options import (
-    DEFAULT_DELTA,
-    DEFAULT_SIGMA,
     DRAWING,
     BackendOption,
     Force,
@@ -40,6 +38,7 @@ from mazelab.cli.options import (
     with_option_flags,
     with_parameters,
 )
+from mazelab.constants import DEFAULT_DELTA, DEFAULT_SIGMA
 from mazelab.declaration import show_value
 from mazelab.experiments.accuracy import (
     AccuracyFilter,
