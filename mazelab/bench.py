@@ -273,8 +273,10 @@ def run_benchmark(
         with use_backend(backend):
             seconds, result = sir_run(small, 1500, 50 if quick else 200, 3)
             per_step, own = 1e3 * seconds / len(result.step_seconds), 1e3 * float(np.mean(result.step_seconds))
-            echo(f"[{backend}] simulate(), SIR, N = 1,500 on the small maze: {per_step:.2f} ms/step, of which the "
-                 f"filter {own:.2f}")  # fmt: skip
+            echo(
+                f"[{backend}] simulate(), SIR, N = 1,500 on the small maze: {per_step:.2f} ms/step, of which the "
+                f"filter {own:.2f}"
+            )
             echo(f"[{backend}] " + run_model_line(small, reference=reference))
             if not quick:
                 seconds, result = sir_run(small, 1_000_000, 200, 4)

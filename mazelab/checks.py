@@ -250,8 +250,10 @@ _UNLIMITED = 2**60  # cgroup v1 writes "no limit" as a huge number near 2**63
 
 CGROUP_ROOT = Path("/sys/fs/cgroup")
 # a memory cgroup's limit, usage and reclaimable cache (a key of memory.stat), v2 (True) and v1 (False)
-CGROUP_FILES = {True: ("memory.max", "memory.current", "inactive_file"),
-                False: ("memory.limit_in_bytes", "memory.usage_in_bytes", "total_inactive_file")}  # fmt: skip
+CGROUP_FILES = {
+    True: ("memory.max", "memory.current", "inactive_file"),
+    False: ("memory.limit_in_bytes", "memory.usage_in_bytes", "total_inactive_file"),
+}
 PROC_SELF = Path("/proc/self")
 
 

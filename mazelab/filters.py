@@ -40,9 +40,12 @@ from mazelab.smc import SMC, particles_array
 from mazelab.weights import Weights
 
 THRESHOLD_OPTION = Option(
-    "threshold", 1.0, "resample when ESS < threshold * N (adaptive resampling); 1: every step (the paper's)",
-    check=number_in("threshold", 0.0, 1.0, what=" (a share of N)"), flag="--threshold",
-)  # fmt: skip
+    "threshold",
+    1.0,
+    "resample when ESS < threshold * N (adaptive resampling); 1: every step (the paper's)",
+    check=number_in("threshold", 0.0, 1.0, what=" (a share of N)"),
+    flag="--threshold",
+)
 
 
 class ParticleFilter(SMC):
@@ -350,11 +353,14 @@ class RegularizedParticleFilter(ParticleFilter):
     name = "RegularizedParticleFilter"
     options: ClassVar[Options] = ParticleFilter.options.extend(
         Option(
-            "threshold", RPF_THRESHOLD, "N_T / N_S: regularise when the ESS falls below N_T (refinement 5: 0.2)",
-            check=number_in("the RPF threshold", 0.0, 1.0, what=" (N_T = threshold * N_S)"), flag="--threshold",
+            "threshold",
+            RPF_THRESHOLD,
+            "N_T / N_S: regularise when the ESS falls below N_T (refinement 5: 0.2)",
+            check=number_in("the RPF threshold", 0.0, 1.0, what=" (N_T = threshold * N_S)"),
+            flag="--threshold",
         ),
         BANDWIDTH_OPTION,
-    )  # fmt: skip
+    )
     moved_by_resampling = False  # the jittered particles take the transition with the rest
 
     @property

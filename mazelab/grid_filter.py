@@ -36,14 +36,22 @@ class GridBayesFilter(ModelFilter):
 
     name: ClassVar[str] = "GridBayesFilter"
     options: ClassVar[Options] = Options(
-        Option("resolution", GRID_RESOLUTION, "the cells' side, map units (memory grows as its inverse square)",
-               check=number_in("resolution", 0.0, MAX_GRID_RESOLUTION, what=" map units (at most a maze cell)")),
-        Option("margin", 1.0, "the grid's margin around the map, map units (mass leaving it is dropped)",
-               check=number_in("margin", 0.0, MAP_MARGIN, low_open=False, what=" map units")),
+        Option(
+            "resolution",
+            GRID_RESOLUTION,
+            "the cells' side, map units (memory grows as its inverse square)",
+            check=number_in("resolution", 0.0, MAX_GRID_RESOLUTION, what=" map units (at most a maze cell)"),
+        ),
+        Option(
+            "margin",
+            1.0,
+            "the grid's margin around the map, map units (mass leaving it is dropped)",
+            check=number_in("margin", 0.0, MAP_MARGIN, low_open=False, what=" map units"),
+        ),
         OUTSIDE_PENALTY_OPTION,
         SPEED_OPTION,
         ESTIMATE_OPTION,
-    )  # fmt: skip
+    )
 
     def __init__(self, *args: Any, **options: Any):
         super().__init__(*args, **options)  # the exact filter starts from the exact prior, not from a sample

@@ -44,14 +44,24 @@ class ExtendedKalmanFilter(ModelFilter):
 
     name: ClassVar[str] = "ExtendedKalmanFilter"
     options: ClassVar[Options] = Options(
-        Option("init", "prior", "prior (global localisation, the lab's problem) or start (tracking the start)",
-               parse=str.strip, check=choice("init", EKF_INITS), flag="--init"),
+        Option(
+            "init",
+            "prior",
+            "prior (global localisation, the lab's problem) or start (tracking the start)",
+            parse=str.strip,
+            check=choice("init", EKF_INITS),
+            flag="--init",
+        ),
         Option("start", None, "the robot's start (x, y), handed in by the run", derived=True),
-        Option("start_std", START_STD, "init=start: each coordinate's std, map units",
-               check=number_in("start_std", 0.0, MAP_MARGIN, what=" map units")),
+        Option(
+            "start_std",
+            START_STD,
+            "init=start: each coordinate's std, map units",
+            check=number_in("start_std", 0.0, MAP_MARGIN, what=" map units"),
+        ),
         SPEED_OPTION,
         ESTIMATE_OPTION,
-    )  # fmt: skip
+    )
 
     def __init__(self, *args: Any, **options: Any):
         super().__init__(*args, **options)

@@ -102,8 +102,14 @@ class ParameterGrid:
         )
 
 
-def grid_log_evidence(world: Maze, compass_angles: Sequence[float], measurements: Sequence[float], sigma: float,
-                      delta: float, **grid_options: Any) -> float:  # fmt: skip
+def grid_log_evidence(
+    world: Maze,
+    compass_angles: Sequence[float],
+    measurements: Sequence[float],
+    sigma: float,
+    delta: float,
+    **grid_options: Any,
+) -> float:
     """log p(z_1:K | sigma, delta): the grid filter's exact evidence of the walk (one cell of a
     ParameterGrid; plain values in and out, so that an executor can map it).
 
@@ -193,9 +199,14 @@ class ParameterPosterior:
         return np.array(rows)
 
 
-def exact_parameter_posterior(world: Maze, compass_angles: Sequence[float], measurements: Sequence[float],
-                              grid: ParameterGrid | None = None, mapper: Callable[..., Iterable[float]] = map,
-                              **grid_options: Any) -> ParameterPosterior:  # fmt: skip
+def exact_parameter_posterior(
+    world: Maze,
+    compass_angles: Sequence[float],
+    measurements: Sequence[float],
+    grid: ParameterGrid | None = None,
+    mapper: Callable[..., Iterable[float]] = map,
+    **grid_options: Any,
+) -> ParameterPosterior:
     """The exact parameter posterior of a walk on a ParameterGrid (the lab's ranges, 12 x 12 cells, by
     default): `grid_log_evidence` at every cell.
 
@@ -252,9 +263,17 @@ def evidence_filter(name: str | type, options: dict[str, Any] | None = None) -> 
     return entry
 
 
-def estimated_log_evidence(world: Maze, compass_angles: np.ndarray, measurements: np.ndarray, entry: FilterEntry,
-                           particle_count: int, options: dict[str, Any], sigma: float, delta: float,
-                           rng: np.random.Generator) -> float:  # fmt: skip
+def estimated_log_evidence(
+    world: Maze,
+    compass_angles: np.ndarray,
+    measurements: np.ndarray,
+    entry: FilterEntry,
+    particle_count: int,
+    options: dict[str, Any],
+    sigma: float,
+    delta: float,
+    rng: np.random.Generator,
+) -> float:
     """log p_hat(z_1:K | sigma, delta) by one fresh run of a filter (`evidence_filter`'s entry, with its
     options) over the walk: its particle_count particles drawn from the model's prior (uniform over the free
     area) and its own draws, both from Generators spawned from `rng`; -inf where it is not a number."""
@@ -354,10 +373,21 @@ class Chain:
         return np.array([[quantile_error(column, p) for p in tails] for column in self.kept.T])
 
 
-def pmmh(world: Maze, compass_angles: Sequence[float], measurements: Sequence[float], iterations: int, *,
-         filter_name: str | type = "sir", particle_count: int = 1000, prior: ParameterGrid | None = None,
-         start: tuple[float, float] | None = None, proposal_scale: tuple[float, float] = (0.08, 0.3),
-         burn_in: int = 0, seed: int = 0, **filter_options: Any) -> Chain:  # fmt: skip
+def pmmh(
+    world: Maze,
+    compass_angles: Sequence[float],
+    measurements: Sequence[float],
+    iterations: int,
+    *,
+    filter_name: str | type = "sir",
+    particle_count: int = 1000,
+    prior: ParameterGrid | None = None,
+    start: tuple[float, float] | None = None,
+    proposal_scale: tuple[float, float] = (0.08, 0.3),
+    burn_in: int = 0,
+    seed: int = 0,
+    **filter_options: Any,
+) -> Chain:
     """Particle marginal Metropolis-Hastings on (sigma, delta) under the uniform prior on `prior`'s box.
 
     Each iteration proposes (sigma', delta') = (sigma, delta) + proposal_scale * N(0, I); one inside the
@@ -405,8 +435,14 @@ def pmmh(world: Maze, compass_angles: Sequence[float], measurements: Sequence[fl
     return Chain(*random_walk(estimate, prior, state, scale, iterations, rng), burn_in)
 
 
-def check_chain(prior: ParameterGrid, start: np.ndarray, iterations: int, particle_count: int, burn_in: int,
-                proposal_scale: tuple[float, float]) -> np.ndarray:  # fmt: skip
+def check_chain(
+    prior: ParameterGrid,
+    start: np.ndarray,
+    iterations: int,
+    particle_count: int,
+    burn_in: int,
+    proposal_scale: tuple[float, float],
+) -> np.ndarray:
     """The proposal's scale (2,) once pmmh's settings are checked: a one-line ValueError for a start outside
     the prior's box, a count that is not a whole number >= 1, a burn-in outside [0, iterations)."""
     iterations = step_number("iterations", iterations)
@@ -418,9 +454,14 @@ def check_chain(prior: ParameterGrid, start: np.ndarray, iterations: int, partic
     return np.array([finite_number("proposal scale", s) for s in proposal_scale])
 
 
-def random_walk(estimate: Callable[[float, float, np.random.Generator], float], prior: ParameterGrid,
-                state: np.ndarray, scale: np.ndarray, iterations: int,
-                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, int]:  # fmt: skip
+def random_walk(
+    estimate: Callable[[float, float, np.random.Generator], float],
+    prior: ParameterGrid,
+    state: np.ndarray,
+    scale: np.ndarray,
+    iterations: int,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, np.ndarray, int]:
     """PMMH's iterations (`pmmh`): (the states (iterations, 2), the evidence estimate each held
     (iterations,), the proposals accepted), `estimate(sigma, delta, rng)` a run's log p_hat(z_1:K)."""
     log_z = estimate(*state, rng)

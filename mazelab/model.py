@@ -47,13 +47,17 @@ MAX_SPEED = 1.0  # a filter may assume another L (model mismatch), up to one maz
 
 # -- the model's constants as filter options (mazelab.declaration): every filter of the model takes them
 SPEED_OPTION = Option(
-    "speed", ROBOT_SPEED, "L, the step length the filter assumes (map units; the robot's is 0.2)",
+    "speed",
+    ROBOT_SPEED,
+    "L, the step length the filter assumes (map units; the robot's is 0.2)",
     check=number_in("speed", 0.0, MAX_SPEED, what=" map units (at most a maze cell a step)"),
-)  # fmt: skip
+)
 OUTSIDE_PENALTY_OPTION = Option(
-    "outside_penalty", OUTSIDE_PENALTY, "the likelihood factor outside the free area (refinement 1: 0.5)",
+    "outside_penalty",
+    OUTSIDE_PENALTY,
+    "the likelihood factor outside the free area (refinement 1: 0.5)",
     check=number_in("outside_penalty", 0.0, 1.0, what=" (a factor on a likelihood)"),
-)  # fmt: skip
+)
 MODEL_OPTIONS = (OUTSIDE_PENALTY_OPTION, SPEED_OPTION)  # what a filter of the model declares and LostRobot reads
 
 

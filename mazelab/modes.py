@@ -29,9 +29,13 @@ class Mode:
 
 
 ESTIMATE_OPTION = Option(
-    "estimate", "mean", "the point estimate: mean (the paper's posterior mean) or mode (the heaviest mode's mean)",
-    parse=str.strip, check=choice("estimate", ESTIMATES), flag="--estimate",
-)  # fmt: skip
+    "estimate",
+    "mean",
+    "the point estimate: mean (the paper's posterior mean) or mode (the heaviest mode's mean)",
+    parse=str.strip,
+    check=choice("estimate", ESTIMATES),
+    flag="--estimate",
+)
 
 
 def label_components(occupied: np.ndarray, diagonal: bool = True) -> np.ndarray:

@@ -97,15 +97,29 @@ def recovery_options(recovery: Any, alpha_slow: float = ALPHA_SLOW, alpha_fast: 
 _RATE = " (a rate of an exponential average)"
 RECOVERY_OPTIONS = (
     Option(
-        "recovery", None, "recovery from kidnapping (beyond the paper): none, augmented (MCL) or sensor (resetting)",
-        parse=str.strip, check=check_recovery, from_json=object_from_json(Recovery),
+        "recovery",
+        None,
+        "recovery from kidnapping (beyond the paper): none, augmented (MCL) or sensor (resetting)",
+        parse=str.strip,
+        check=check_recovery,
+        from_json=object_from_json(Recovery),
         flag="--recovery/--sensor-resetting",
     ),
-    Option("alpha_slow", ALPHA_SLOW, "recovery: the long-term likelihood average's rate",
-           check=number_in("alpha_slow", 0.0, 1.0, what=_RATE), flag="--alpha-slow"),
-    Option("alpha_fast", ALPHA_FAST, "recovery: the short-term likelihood average's rate",
-           check=number_in("alpha_fast", 0.0, 1.0, what=_RATE), flag="--alpha-fast"),
-)  # fmt: skip
+    Option(
+        "alpha_slow",
+        ALPHA_SLOW,
+        "recovery: the long-term likelihood average's rate",
+        check=number_in("alpha_slow", 0.0, 1.0, what=_RATE),
+        flag="--alpha-slow",
+    ),
+    Option(
+        "alpha_fast",
+        ALPHA_FAST,
+        "recovery: the short-term likelihood average's rate",
+        check=number_in("alpha_fast", 0.0, 1.0, what=_RATE),
+        flag="--alpha-fast",
+    ),
+)
 
 
 def measurement_matched_places(world: Maze, z: Any, sensor: Sensor, count: int, rng: np.random.Generator) -> np.ndarray:

@@ -333,17 +333,38 @@ RPF_EVIDENCE = (
     "a move its weights leave out"
 )
 SHIPPED: tuple[FilterEntry, ...] = (
-    FilterEntry(SIRParticleFilter, "sir", "SIR", PALETTE[0], "sampling importance resampling (Algorithm 4)",
-                batched=True),
-    FilterEntry(AuxiliaryParticleFilter, "apf", "APF", PALETTE[1], "the auxiliary particle filter (Algorithm 5)",
-                batched=True),
-    FilterEntry(RegularizedParticleFilter, "rpf", "RPF", PALETTE[2], "the regularised particle filter (Algorithm 6)",
-                batched=True, evidence=RPF_EVIDENCE),
-    FilterEntry(GridBayesFilter, "grid", "grid", PALETTE[3], "the exact Bayes filter on a fine grid (the reference)",
-                takes_particles=False),
-    FilterEntry(ExtendedKalmanFilter, "ekf", "EKF", PALETTE[4], "an extended Kalman filter (the baseline)",
-                takes_particles=False),
-)  # fmt: skip
+    FilterEntry(
+        SIRParticleFilter, "sir", "SIR", PALETTE[0], "sampling importance resampling (Algorithm 4)", batched=True
+    ),
+    FilterEntry(
+        AuxiliaryParticleFilter, "apf", "APF", PALETTE[1], "the auxiliary particle filter (Algorithm 5)", batched=True
+    ),
+    FilterEntry(
+        RegularizedParticleFilter,
+        "rpf",
+        "RPF",
+        PALETTE[2],
+        "the regularised particle filter (Algorithm 6)",
+        batched=True,
+        evidence=RPF_EVIDENCE,
+    ),
+    FilterEntry(
+        GridBayesFilter,
+        "grid",
+        "grid",
+        PALETTE[3],
+        "the exact Bayes filter on a fine grid (the reference)",
+        takes_particles=False,
+    ),
+    FilterEntry(
+        ExtendedKalmanFilter,
+        "ekf",
+        "EKF",
+        PALETTE[4],
+        "an extended Kalman filter (the baseline)",
+        takes_particles=False,
+    ),
+)
 _ENTRIES: list[FilterEntry] = list(SHIPPED)  # SHIPPED, then any registered by a package (`register`)
 
 

@@ -69,9 +69,13 @@ def check_bandwidth(bandwidth: str | float) -> str | float:
 
 
 BANDWIDTH_OPTION = Option(
-    "bandwidth", "optimal", "the RPF's kernel: optimal (the paper's h_opt), multimodal (one kernel per mode) or h",
-    parse=str.strip, check=check_bandwidth, flag="--bandwidth",
-)  # fmt: skip
+    "bandwidth",
+    "optimal",
+    "the RPF's kernel: optimal (the paper's h_opt), multimodal (one kernel per mode) or h",
+    parse=str.strip,
+    check=check_bandwidth,
+    flag="--bandwidth",
+)
 
 
 @dataclass(frozen=True, eq=False)

@@ -108,9 +108,13 @@ def check_scheme(name: Any) -> str:
 
 
 RESAMPLING_OPTION = Option(
-    "resampling", "systematic", f"the resampling scheme: {', '.join(RESAMPLING_SCHEMES)}",
-    parse=str.strip, check=check_scheme, flag="--resampling",
-)  # fmt: skip
+    "resampling",
+    "systematic",
+    f"the resampling scheme: {', '.join(RESAMPLING_SCHEMES)}",
+    parse=str.strip,
+    check=check_scheme,
+    flag="--resampling",
+)
 
 
 KLD_BIN_SIZE = 0.25  # KLD-sampling counts occupied squares of this side (map units)
@@ -219,14 +223,29 @@ def _kld_number(name: str) -> Any:
 
 KLD_OPTIONS = (
     Option(
-        "kld", None, "KLD-sampling (Fox 2003): the particle count adapts, the given count the most",
-        parse=parse_flag, check=check_kld, from_json=object_from_json(KLDSampling), flag="--kld",
+        "kld",
+        None,
+        "KLD-sampling (Fox 2003): the particle count adapts, the given count the most",
+        parse=parse_flag,
+        check=check_kld,
+        from_json=object_from_json(KLDSampling),
+        flag="--kld",
     ),
-    Option("kld_epsilon", KLD_EPSILON, "KLD-sampling's error bound epsilon", check=_kld_number("epsilon"),
-           flag="--kld-epsilon"),
-    Option("kld_z", KLD_QUANTILE, "KLD-sampling's normal quantile z_(1-delta) (2.326: delta 0.01)",
-           check=_kld_number("z"), flag="--kld-z"),
-)  # fmt: skip
+    Option(
+        "kld_epsilon",
+        KLD_EPSILON,
+        "KLD-sampling's error bound epsilon",
+        check=_kld_number("epsilon"),
+        flag="--kld-epsilon",
+    ),
+    Option(
+        "kld_z",
+        KLD_QUANTILE,
+        "KLD-sampling's normal quantile z_(1-delta) (2.326: delta 0.01)",
+        check=_kld_number("z"),
+        flag="--kld-z",
+    ),
+)
 
 
 Move = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]  # ancestors or points -> (positions, headings)

@@ -148,9 +148,13 @@ class Robot:
 
 
 def check_walk_lists(
-    actual: Sequence[float], compass: Sequence[float], measurements: Sequence[float] | None, kidnap_at: int | None,
-    kidnap_position: Sequence[float] | None, keys: str = "",
-) -> None:  # fmt: skip
+    actual: Sequence[float],
+    compass: Sequence[float],
+    measurements: Sequence[float] | None,
+    kidnap_at: int | None,
+    kidnap_position: Sequence[float] | None,
+    keys: str = "",
+) -> None:
     """A recorded walk's lists, one entry per step each (measurements may be None), and its kidnapping's
     step and place, both or neither: one line for the first wrong, naming the lists `keys` + name (a
     scenario's keys: "robot_")."""

@@ -145,8 +145,14 @@ class Scenario(BaseModel):
             if getattr(self, key) is not None and self.format_version < version:
                 raise ValueError(f"{key} needs format_version {version}, got {self.format_version}")
         steps = len(self.robot_actual_angles)
-        check_walk_lists(self.robot_actual_angles, self.robot_compass_angles, self.robot_measurements,
-                         self.kidnap_at, self.kidnap_position, keys="robot_")  # fmt: skip
+        check_walk_lists(
+            self.robot_actual_angles,
+            self.robot_compass_angles,
+            self.robot_measurements,
+            self.kidnap_at,
+            self.kidnap_position,
+            keys="robot_",
+        )
         if self.kidnap_at is not None and self.kidnap_at > steps:
             raise ValueError(f"kidnap_at {self.kidnap_at} is after the last step ({steps})")
         if self.steps is not None and self.steps != steps:
@@ -218,7 +224,9 @@ class Scenario(BaseModel):
         loaded = loaded_plugin(self.filtering_algorithm or "")
         reference = None if loaded is None else filter_entry(loaded).plugin
         same = reference is not None and (reference.sha256, reference.class_name) == (
-            self.filter_plugin.sha256, self.filter_plugin.class_name)  # fmt: skip
+            self.filter_plugin.sha256,
+            self.filter_plugin.class_name,
+        )
         return loaded if same else None
 
     def world(self) -> Maze | None:

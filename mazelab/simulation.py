@@ -71,9 +71,18 @@ class RunResult:
         the robot's `true_positions` (steps, 2), the filter's restarts and the backend it ran on."""
         diagnostics = {name: values[r] for name, values in recorded.diagnostics.items()}
         extras = {"particle_count": recorded.counts[r], "diagnostics": diagnostics, "backend": backend}
-        return cls(inputs.filtering_algorithm, true_positions, recorded.estimates[r], recorded.ess[r],
-                   recorded.confident[r], recorded.seconds, list(restarts), inputs, extras,
-                   recorded.log_evidence[r])  # fmt: skip
+        return cls(
+            inputs.filtering_algorithm,
+            true_positions,
+            recorded.estimates[r],
+            recorded.ess[r],
+            recorded.confident[r],
+            recorded.seconds,
+            list(restarts),
+            inputs,
+            extras,
+            recorded.log_evidence[r],
+        )
 
     @cached_property
     def scenario(self) -> Scenario:
@@ -180,8 +189,9 @@ class RunInputs:
         pydantic models are imported here."""
         from mazelab.scenario import Scenario
 
-        return Scenario(**{**vars(self), "init_particles_pos": self.init_particles_pos.tolist(),
-                           "maze": self.maze.as_lists()})  # fmt: skip
+        return Scenario(
+            **{**vars(self), "init_particles_pos": self.init_particles_pos.tolist(), "maze": self.maze.as_lists()}
+        )
 
 
 def convergence_step(errors: np.ndarray, radius: float = CONVERGENCE_RADIUS) -> int | None:
@@ -274,8 +284,9 @@ def simulate(
     settings = entry.options.resolve(filter_options, entry.name)  # declared, checked, defaults filled in
     seed = new_seed() if seed is None else check_seed("seed", seed)
     streams = run_streams(seed)
-    particles, steps = checked_walk(robot, world, particle_count, steps, init_particles_pos, visualize, streams,
-                                    kidnap_at)  # fmt: skip
+    particles, steps = checked_walk(
+        robot, world, particle_count, steps, init_particles_pos, visualize, streams, kidnap_at
+    )
     filt = build_filter(
         entry.filter_class, world, sigma, delta, particles, streams.filter, steps, robot, filter_options
     )
@@ -283,8 +294,9 @@ def simulate(
     true_positions, recorded = walk_and_record(entry.filter_class, filt, robot, world, steps, view, on_step)
     stored = entry.options.to_json(settings)  # every option, defaults filled in, as the declaration writes them
     reference = None if entry.plugin is None else entry.plugin.as_json()
-    inputs = RunInputs.of_run(robot, particles, world, sigma, delta, seed, steps, entry.name,
-                              dict(sorted(stored.items())), reference)  # fmt: skip
+    inputs = RunInputs.of_run(
+        robot, particles, world, sigma, delta, seed, steps, entry.name, dict(sorted(stored.items())), reference
+    )
     return RunResult.of_recorded(recorded, 0, true_positions, filt.reinitialised_at, inputs, backend_of(filt))
 
 
@@ -505,8 +517,18 @@ def run_model(
     The other keywords are `simulate`'s: `seed=`, `kidnap_at=K` (the robot kidnapped at step K), and
     filter options such as `resampling=`, `recovery=` and `kld=` (see ParticleFilter).
     """
-    result = simulate(robot, world, sigma, delta, particle_count, steps, init_particles_pos, filtering_algorithm,
-                      visualize=visualize, **options)  # fmt: skip
+    result = simulate(
+        robot,
+        world,
+        sigma,
+        delta,
+        particle_count,
+        steps,
+        init_particles_pos,
+        filtering_algorithm,
+        visualize=visualize,
+        **options,
+    )
     if save_parameters:
         from mazelab.scenario import DEFAULT_PARAMETERS_PATH, save_scenario  # pydantic: only a run that saves
 

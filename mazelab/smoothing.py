@@ -129,9 +129,17 @@ class BackwardStep:
         return previous
 
 
-def smooth(world: Maze, sigma: float, delta: float, compass_angles: Sequence[float], measurements: Sequence[float],
-           *, visit: Callable[[int, np.ndarray], Any] | None = None,
-           checkpoint_every: int | None = None, **grid_options: Any) -> SmoothedWalk:  # fmt: skip
+def smooth(
+    world: Maze,
+    sigma: float,
+    delta: float,
+    compass_angles: Sequence[float],
+    measurements: Sequence[float],
+    *,
+    visit: Callable[[int, np.ndarray], Any] | None = None,
+    checkpoint_every: int | None = None,
+    **grid_options: Any,
+) -> SmoothedWalk:
     """p(x_k | z_1:K) for k = 1..K on the grid filter's grid, by forward-backward with checkpoints.
 
     Parameters
@@ -166,8 +174,14 @@ def smooth(world: Maze, sigma: float, delta: float, compass_angles: Sequence[flo
     return SmoothedWalk(means, spreads, filtered_means, log_evidence, grid.positions, grid.shape, block)
 
 
-def backward(grid: GridBayesFilter, checkpoints: dict[int, np.ndarray], angles: np.ndarray, zs: np.ndarray,
-             block: int, visit: Callable[[int, np.ndarray], Any] | None) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+def backward(
+    grid: GridBayesFilter,
+    checkpoints: dict[int, np.ndarray],
+    angles: np.ndarray,
+    zs: np.ndarray,
+    block: int,
+    visit: Callable[[int, np.ndarray], Any] | None,
+) -> tuple[np.ndarray, np.ndarray]:
     """The backward pass from k = K down to 1, each block of B steps refiltered from its checkpoint (taken
     from `checkpoints`): the smoothed means (K, 2) and spreads (K,), each step's density handed to `visit`."""
     steps = len(angles)
@@ -425,15 +439,30 @@ class SmootherScores:
 
 SMOOTHERS = ("filter", "lag", "path")  # lag 0, the fixed lag L, the whole walk (Genealogy's lag)
 SCORE_COLUMNS = (
-    "filter", "step", "exact_filtered_to_truth", "exact_smoothed_to_truth", "filter_error_to_filtered",
+    "filter",
+    "step",
+    "exact_filtered_to_truth",
+    "exact_smoothed_to_truth",
+    "filter_error_to_filtered",
     *(f"{name}_{what}" for name in SMOOTHERS for what in ("error", "tv", "ancestors")),
-)  # fmt: skip
+)
 
 
-def score_smoothers(world: Maze, robot: Robot, sigma: float, delta: float, filters: Sequence[str], *, lag: int = 10,
-                    particle_count: int | None = None, initial_particles: Any = None, seed: int = 0,
-                    grid_options: dict[str, Any] | None = None, clouds: bool = False,
-                    options: Mapping[str, Mapping[str, Any]] | None = None) -> SmootherScores:  # fmt: skip
+def score_smoothers(
+    world: Maze,
+    robot: Robot,
+    sigma: float,
+    delta: float,
+    filters: Sequence[str],
+    *,
+    lag: int = 10,
+    particle_count: int | None = None,
+    initial_particles: Any = None,
+    seed: int = 0,
+    grid_options: dict[str, Any] | None = None,
+    clouds: bool = False,
+    options: Mapping[str, Mapping[str, Any]] | None = None,
+) -> SmootherScores:
     """Each particle filter's own estimate, fixed-lag and path smoothers on a recorded walk, beside the
     exact smoother (`smooth`), step by step (SmootherScores).
 
@@ -470,17 +499,33 @@ def score_smoothers(world: Maze, robot: Robot, sigma: float, delta: float, filte
     for name in filters:
         entry = filter_entry(name)
         recorders = [Genealogy(length, bins, count, clouds) for length in (0, lag, None)]  # SMOOTHERS' lags
-        run = simulate(robot, world, sigma, delta, particle_count, len(exact.means), initial_particles,
-                       entry.filter_class, seed=seed, on_step=functools.partial(record_step, recorders),
-                       **(options or {}).get(name, {}))  # fmt: skip
+        run = simulate(
+            robot,
+            world,
+            sigma,
+            delta,
+            particle_count,
+            len(exact.means),
+            initial_particles,
+            entry.filter_class,
+            seed=seed,
+            on_step=functools.partial(record_step, recorders),
+            **(options or {}).get(name, {}),
+        )
         recorded[entry.label] = [g.finish() for g in recorders]
         rows += score_rows(entry.label, exact, exact_masses, run.true_positions, recorded[entry.label])
     return SmootherScores(exact, rows, lag, recorded)
 
 
-def binned_smoother(world: Maze, sigma: float, delta: float, robot: Robot, bins: Callable[[np.ndarray], np.ndarray],
-                    count: int, grid_options: dict[str, Any]
-                    ) -> tuple[SmoothedWalk, dict[int, np.ndarray]]:  # fmt: skip
+def binned_smoother(
+    world: Maze,
+    sigma: float,
+    delta: float,
+    robot: Robot,
+    bins: Callable[[np.ndarray], np.ndarray],
+    count: int,
+    grid_options: dict[str, Any],
+) -> tuple[SmoothedWalk, dict[int, np.ndarray]]:
     """The exact smoother of the robot's walk (`smooth`), and its mass in each of the `count` bins at every step
     (step -> (count,)): what a particle smoother's binned mass is compared with."""
     cells, masses = bins(GridBayesFilter(world, sigma, delta, **grid_options).positions), {}  # each cell's bin
@@ -492,8 +537,9 @@ def binned_smoother(world: Maze, sigma: float, delta: float, robot: Robot, bins:
     return exact, masses
 
 
-def check_smoothers(robot: Robot, filters: Sequence[str], lag: int, particle_count: int | None,
-                    initial_particles: Any) -> int:  # fmt: skip
+def check_smoothers(
+    robot: Robot, filters: Sequence[str], lag: int, particle_count: int | None, initial_particles: Any
+) -> int:
     """The lag, once `score_smoothers`' inputs are checked: a one-line ValueError for a filter that keeps no
     particles, a walk without measurements, a genealogy that does not fit in memory."""
     lag = step_number("lag", lag)
@@ -503,8 +549,10 @@ def check_smoothers(robot: Robot, filters: Sequence[str], lag: int, particle_cou
     if not robot.measurements:
         raise ValueError("smoothing needs the walk's measurements: the scenario stores none (robot_measurements)")
     particles = len(initial_particles) if initial_particles is not None else particle_count or DEFAULT_PARTICLE_COUNT
-    check_memory(f"the genealogy of {len(robot.measurements)} steps of {particles} particles (the path smoother's)",
-                 (len(robot.measurements) + lag + 2) * particles * BYTES_PER_RECORDED_PARTICLE)  # fmt: skip
+    check_memory(
+        f"the genealogy of {len(robot.measurements)} steps of {particles} particles (the path smoother's)",
+        (len(robot.measurements) + lag + 2) * particles * BYTES_PER_RECORDED_PARTICLE,
+    )
     return lag
 
 

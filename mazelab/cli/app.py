@@ -117,11 +117,27 @@ Traces = opt(Path | None, help="per-step rows of every filter (.csv, or .parquet
 @app.command(short_help="One filter on a lost robot, or on a saved scenario.")
 @with_drawing
 @with_option_flags()
-def run(maze: Maze_ = None, filter_name: Filter = None, particles: Particles = None, steps: Steps = None,
-        sigma: Sigma = None, delta: Delta = None, seed: Seed = None, start_seed: StartSeed = None,
-        scenario: ScenarioFile = None, save_scenario_path: SaveScenario = None, force: Force = False,
-        quiet: Quiet = False, kidnap_at: KidnapAt = None, option: OptionFlag = None, backend: BackendOption = None,
-        threads: ThreadsOption = None, *, named: dict, drawing: dict) -> None:  # fmt: skip
+def run(
+    maze: Maze_ = None,
+    filter_name: Filter = None,
+    particles: Particles = None,
+    steps: Steps = None,
+    sigma: Sigma = None,
+    delta: Delta = None,
+    seed: Seed = None,
+    start_seed: StartSeed = None,
+    scenario: ScenarioFile = None,
+    save_scenario_path: SaveScenario = None,
+    force: Force = False,
+    quiet: Quiet = False,
+    kidnap_at: KidnapAt = None,
+    option: OptionFlag = None,
+    backend: BackendOption = None,
+    threads: ThreadsOption = None,
+    *,
+    named: dict,
+    drawing: dict,
+) -> None:
     """Run one filter on a lost robot, or replay a saved scenario (--scenario) with its filter and
     options. Every filter option: --option NAME=VALUE (`mazelab filters` lists them)."""
     from mazelab.cli.replay import run_one  # scenarios and drawing: imported by the commands that use them
@@ -132,10 +148,24 @@ def run(maze: Maze_ = None, filter_name: Filter = None, particles: Particles = N
 @app.command(short_help="Lab steps 12-13: every filter on one saved scenario.")
 @with_drawing
 @with_option_flags()
-def compare(scenario: SavedScenario, filters: Filters = "sir,apf,rpf", maze: StoredMaze = None, sigma: NewSigma = None,
-            delta: NewDelta = None, seed: ReplaySeed = None, csv_path: ErrorsCsv = None, plot: Plot = None,
-            traces: Traces = None, force: Force = False, kidnap_at: KidnapAt = None, option: OptionFlag = None,
-            backend: BackendOption = None, *, named: dict, drawing: dict) -> None:  # fmt: skip
+def compare(
+    scenario: SavedScenario,
+    filters: Filters = "sir,apf,rpf",
+    maze: StoredMaze = None,
+    sigma: NewSigma = None,
+    delta: NewDelta = None,
+    seed: ReplaySeed = None,
+    csv_path: ErrorsCsv = None,
+    plot: Plot = None,
+    traces: Traces = None,
+    force: Force = False,
+    kidnap_at: KidnapAt = None,
+    option: OptionFlag = None,
+    backend: BackendOption = None,
+    *,
+    named: dict,
+    drawing: dict,
+) -> None:
     """Lab steps 12-13: every filter on one saved scenario (the same start, particles, walk). Each
     filter takes the options it declares (--option NAME=VALUE; `mazelab filters` lists them), and
     those the scenario's run set away from their defaults unless given here (a line names them).

@@ -41,15 +41,22 @@ exercise_app = typer.Typer(
     rich_markup_mode=None,
     pretty_exceptions_enable=False,
 )
-TimeoutFlag = opt(float, min=1.0, max=MAX_TIMEOUT,
-                  help="seconds the student's processes of one submission may take in all")  # fmt: skip
+TimeoutFlag = opt(
+    float, min=1.0, max=MAX_TIMEOUT, help="seconds the student's processes of one submission may take in all"
+)
 GradescopeFlag = opt(Path | None, metavar="DIR", help="write Gradescope's results.json there", show_default=False)
-RequireSandboxFlag = opt(bool, "--require-sandbox",
-                         help="refuse to grade where no sandbox can be made (bubblewrap on Linux)")  # fmt: skip
-LangFlag = opt(str | None, metavar="LANG", show_default=False,
-               help="en or uk (default: the exercise file's, else the locale's)")  # fmt: skip
-KeyFlag = opt(Path | None, metavar="FILE", show_default=False,
-              help=f"the grader's secret key (default: {KEY_FILE} beside the outputs)")  # fmt: skip
+RequireSandboxFlag = opt(
+    bool, "--require-sandbox", help="refuse to grade where no sandbox can be made (bubblewrap on Linux)"
+)
+LangFlag = opt(
+    str | None, metavar="LANG", show_default=False, help="en or uk (default: the exercise file's, else the locale's)"
+)
+KeyFlag = opt(
+    Path | None,
+    metavar="FILE",
+    show_default=False,
+    help=f"the grader's secret key (default: {KEY_FILE} beside the outputs)",
+)
 
 
 @exercise_app.command(short_help="Write the exercise (my_filter.py, README.md) into DIR.")
@@ -164,8 +171,16 @@ def grade_command(
     _sandbox_or_refuse(require_sandbox)
     secret = read_key(keyfile) if keyfile else secrets.token_bytes(32)
     book, started = Gradebook(csv_path, gradescope, force, catalogue), time.perf_counter()
-    grade = functools.partial(grade_folder, submissions, key=secret, timeout=timeout, jobs=jobs, on_done=book.add,
-                              claims=outputs, progress=not quiet)  # fmt: skip
+    grade = functools.partial(
+        grade_folder,
+        submissions,
+        key=secret,
+        timeout=timeout,
+        jobs=jobs,
+        on_done=book.add,
+        claims=outputs,
+        progress=not quiet,
+    )
     graded, stopped_by = _until_stopped(grade, "grading stopped, nobody graded by it")  # a stop: book.graded so far
     typer.echo(summary(book.graded))
     typer.echo(f"graded in {time.perf_counter() - started:.1f} s")
@@ -181,14 +196,22 @@ def grade_command(
         typer.echo(f"wrote {book.finish(graded)}")
 
 
-def _check_outputs(folder: Path, submissions: list[Submission], csv_path: Path | None, gradescope: Path | None,
-                   keyfile: Path | None, force: bool) -> None:  # fmt: skip
+def _check_outputs(
+    folder: Path,
+    submissions: list[Submission],
+    csv_path: Path | None,
+    gradescope: Path | None,
+    keyfile: Path | None,
+    force: bool,
+) -> None:
     """Refuse, before any grading, an output or the key inside the class folder, an existing output
     without --force, and a --csv that a submission's results.json folder would take."""
     for path, option in ((csv_path, "--csv"), (gradescope, "--gradescope"), (keyfile, "--key")):
         if path is not None and path.resolve().is_relative_to(folder.resolve()):  # or the folder itself
-            raise UserError(f"{option} {path}: inside the class folder {folder}; write the grader's outputs outside "
-                            "it (a submission must not see them, nor be replaced by them)")  # fmt: skip
+            raise UserError(
+                f"{option} {path}: inside the class folder {folder}; write the grader's outputs outside "
+                "it (a submission must not see them, nor be replaced by them)"
+            )
     if gradescope is not None:
         _made_folder(gradescope)
         taken = [s.name for s in submissions if (gradescope / s.name / "results.json").exists()]

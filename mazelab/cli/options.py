@@ -87,8 +87,15 @@ DRAWING: dict[str, tuple[Any, Any]] = {
 with_drawing = with_parameters("drawing", DRAWING)
 
 
-def visualization(viewer: bool = False, rrd: Path | None = None, web: bool = False, no_viz: bool = False,
-                  max_drawn: int = DEFAULT_MAX_DRAWN, force: bool = True, unasked: Any = True) -> Any:  # fmt: skip
+def visualization(
+    viewer: bool = False,
+    rrd: Path | None = None,
+    web: bool = False,
+    no_viz: bool = False,
+    max_drawn: int = DEFAULT_MAX_DRAWN,
+    force: bool = True,
+    unasked: Any = True,
+) -> Any:
     """The `visualize` argument of run_model for the drawing options (see draw.py); an --rrd file
     replaces an existing one only with `force`. Given none of them: `unasked` (True: the viewer, or a
     file without a display; False for what draws only when asked, a study or a maze)."""
@@ -121,12 +128,22 @@ def environment_option(variable: str, check: Callable[[Any, str], Any], flag: st
     return callback
 
 
-BackendOption = opt(str | None, "--backend", metavar="NAME", show_default=False,
-                    callback=environment_option(ENVIRONMENT_VARIABLE, check_backend, "--backend"),
-                    help="numpy or compiled [default: by the work]")  # fmt: skip
-ThreadsOption = opt(int | None, "--threads", metavar="N", show_default=False,
-                    callback=environment_option(THREADS_VARIABLE, check_threads, "--threads"),
-                    help="compiled: threads for a large run [default: the cores]")  # fmt: skip
+BackendOption = opt(
+    str | None,
+    "--backend",
+    metavar="NAME",
+    show_default=False,
+    callback=environment_option(ENVIRONMENT_VARIABLE, check_backend, "--backend"),
+    help="numpy or compiled [default: by the work]",
+)
+ThreadsOption = opt(
+    int | None,
+    "--threads",
+    metavar="N",
+    show_default=False,
+    callback=environment_option(THREADS_VARIABLE, check_threads, "--threads"),
+    help="compiled: threads for a large run [default: the cores]",
+)
 
 
 # -- outputs --------------------------------------------------------------------------------------------
@@ -257,8 +274,13 @@ def with_option_flags(lists: bool = False) -> Callable[[Callable[..., Any]], Cal
     typed, its text, a list's text, or True for a switch; a pair's half: the value it sets)}, and both
     halves of a pair given is one line."""
     spellings = _flag_spellings(lists)
-    parameters = {flag.removeprefix("--").replace("-", "_"): (opt(bool if switch else str | None, flag, hidden=True,
-                  help=option.help), False if switch else None) for flag, option, switch in spellings}  # fmt: skip
+    parameters = {
+        flag.removeprefix("--").replace("-", "_"): (
+            opt(bool if switch else str | None, flag, hidden=True, help=option.help),
+            False if switch else None,
+        )
+        for flag, option, switch in spellings
+    }
 
     def named(given: Mapping[str, Any]) -> dict[str, tuple[str, Any]]:
         chosen: dict[str, tuple[str, Any]] = {}
@@ -274,8 +296,10 @@ def with_option_flags(lists: bool = False) -> Callable[[Callable[..., Any]], Cal
     def decorate(command: Callable[..., Any]) -> Callable[..., Any]:
         wrapper = with_parameters("named", parameters, named)(command)
         flags, values = ", ".join(flag for flag, _, _ in spellings), "V1,V2" if lists else "VALUE"
-        wrapper.__doc__ = (f"{inspect.cleandoc(command.__doc__ or '')} Filter options, each also --option "
-                           f"NAME={values} (mazelab filters NAME says what they do): {flags}.")  # fmt: skip
+        wrapper.__doc__ = (
+            f"{inspect.cleandoc(command.__doc__ or '')} Filter options, each also --option "
+            f"NAME={values} (mazelab filters NAME says what they do): {flags}."
+        )
         return wrapper
 
     return decorate
@@ -300,10 +324,20 @@ def read_value(option: Option, text: str, spelled: str) -> Any:
     raise UserError(f"{spelled}: {message}{hint}")
 
 
-OptionFlag = opt(list[str] | None, "--option", metavar="NAME=VALUE", show_default=False,
-                 help="a filter option, repeatable (FILTER.NAME=...: one filter's)")  # fmt: skip
-StudyOptionFlag = opt(list[str] | None, "--option", metavar="NAME=V1,V2", show_default=False,
-                      help="filter option values (FILTER.NAME: one's)")  # fmt: skip
+OptionFlag = opt(
+    list[str] | None,
+    "--option",
+    metavar="NAME=VALUE",
+    show_default=False,
+    help="a filter option, repeatable (FILTER.NAME=...: one filter's)",
+)
+StudyOptionFlag = opt(
+    list[str] | None,
+    "--option",
+    metavar="NAME=V1,V2",
+    show_default=False,
+    help="filter option values (FILTER.NAME: one's)",
+)
 
 
 class GivenOptions(dict):

@@ -53,19 +53,34 @@ from mazelab.seeding import new_seed
 from mazelab.simulation import RunResult, check_walk, simulate
 
 
-def run_one(drawing: dict, force: bool, maze: str | None = None, filter_name: str | None = None,
-            particles: int | None = None, steps: int | None = None, sigma: float | None = None,
-            delta: float | None = None, seed: int | None = None, start_seed: int | None = None,
-            scenario: Path | None = None, save_scenario_path: Path | None = None, quiet: bool = False,
-            kidnap_at: int | None = None, option: list[str] | None = None, named: dict | None = None,
-            demo: bool = False, **_: Any) -> None:  # fmt: skip
+def run_one(
+    drawing: dict,
+    force: bool,
+    maze: str | None = None,
+    filter_name: str | None = None,
+    particles: int | None = None,
+    steps: int | None = None,
+    sigma: float | None = None,
+    delta: float | None = None,
+    seed: int | None = None,
+    start_seed: int | None = None,
+    scenario: Path | None = None,
+    save_scenario_path: Path | None = None,
+    quiet: bool = False,
+    kidnap_at: int | None = None,
+    option: list[str] | None = None,
+    named: dict | None = None,
+    demo: bool = False,
+    **_: Any,
+) -> None:
     """`run`'s work (mazelab.cli.app): one filter on a fresh lost robot or a replayed scenario, its report;
     the `demo` is `run` with every default (the paper's example), said in a line first."""
     visualize = visualization(**drawing, force=force)
     stored = load_scenario(scenario) if scenario is not None else None
     filter_name = check_filter_name(replay_filter_name(stored, filter_name, scenario))
-    options = options_per_filter([filter_name], given_options(named or {}, option, [filter_name]),
-                                 check=stored is None)[resolve_filter(filter_name).name]  # fmt: skip
+    options = options_per_filter(
+        [filter_name], given_options(named or {}, option, [filter_name]), check=stored is None
+    )[resolve_filter(filter_name).name]
     check_outputs([("--save-scenario", save_scenario_path), ("--rrd", drawing.get("rrd"))], force)
     if stored is None:
         setup = fresh_setup(maze, sigma, delta, seed, start_seed)
@@ -77,13 +92,27 @@ def run_one(drawing: dict, force: bool, maze: str | None = None, filter_name: st
     prepare_world(setup.world)
     if demo:
         world, lab = setup.world, find_maze(DEFAULT_MAZE).name
-        typer.echo(f"A robot is lost in {lab} ({world.height}x{world.width}, {len(world.stations)} stations); SIR "
-                   f"with {DEFAULT_PARTICLE_COUNT} particles looks for it.")  # fmt: skip
+        typer.echo(
+            f"A robot is lost in {lab} ({world.height}x{world.width}, {len(world.stations)} stations); SIR "
+            f"with {DEFAULT_PARTICLE_COUNT} particles looks for it."
+        )
     progress = None if quiet else progress_printer(steps or setup.robot.recorded_steps or DEFAULT_STEPS)
     try:
-        result = simulate(setup.robot, setup.world, setup.sigma, setup.delta, particles, steps, setup.initial_particles,
-                          filter_name, seed=setup.seed, visualize=visualize, on_step=progress, kidnap_at=kidnap_at,
-                          **options)  # fmt: skip
+        result = simulate(
+            setup.robot,
+            setup.world,
+            setup.sigma,
+            setup.delta,
+            particles,
+            steps,
+            setup.initial_particles,
+            filter_name,
+            seed=setup.seed,
+            visualize=visualize,
+            on_step=progress,
+            kidnap_at=kidnap_at,
+            **options,
+        )
     except (KeyboardInterrupt, SystemExit):  # Ctrl-C; SIGTERM or SIGHUP with a recording exit through SystemExit
         if save_scenario_path is not None:
             typer.echo(f"the run did not finish: no scenario saved to {save_scenario_path}", err=True)
@@ -104,10 +133,22 @@ def run_one(drawing: dict, force: bool, maze: str | None = None, filter_name: st
 
 
 def compare_scenario(
-    scenario: Path, filters: str, maze: str | None, sigma: float | None, delta: float | None, seed: int | None,
-    csv_path: Path | None, plot: Path | None, traces: Path | None, force: bool, kidnap_at: int | None,
-    option: list[str] | None, named: dict, drawing: dict, **_: Any,
-) -> None:  # fmt: skip
+    scenario: Path,
+    filters: str,
+    maze: str | None,
+    sigma: float | None,
+    delta: float | None,
+    seed: int | None,
+    csv_path: Path | None,
+    plot: Path | None,
+    traces: Path | None,
+    force: bool,
+    kidnap_at: int | None,
+    option: list[str] | None,
+    named: dict,
+    drawing: dict,
+    **_: Any,
+) -> None:
     """`compare`'s work (mazelab.cli.app): every filter on the saved scenario, the table, files and record."""
     visualize = visualization(**drawing, force=force)
     check_filter_names(filters)
@@ -120,16 +161,32 @@ def compare_scenario(
     given = with_stored_options(stored, names, given_options(named, option, names), scenario)
     options_per_filter(names, given)  # an option that none of the filters takes, or a bad value: one line, first
     options = {k: to_plain_json(v) for k, v in given.items()}
-    parameters = {"filters": [resolve_filter(n).name for n in names], "sigma": setup.sigma, "delta": setup.delta,
-                  "seed": setup.seed, "kidnap_at": kidnap_at, "options": options,
-                  "scenario": str(scenario)}  # fmt: skip
+    parameters = {
+        "filters": [resolve_filter(n).name for n in names],
+        "sigma": setup.sigma,
+        "delta": setup.delta,
+        "seed": setup.seed,
+        "kidnap_at": kidnap_at,
+        "options": options,
+        "scenario": str(scenario),
+    }
     recorder = Recorder("compare", command_line(), parameters, scenario_sha256=file_sha256(scenario))
     prepare_world(setup.world)
     shown = f"sigma {setup.sigma:g}, delta {setup.delta:g}"
     count = len(setup.initial_particles)
     typer.echo(f"{scenario.name}: {count} particles, {setup.robot.recorded_steps} steps, {shown}, seed {setup.seed}")
-    results = compare_filters(setup.world, setup.robot, setup.sigma, setup.delta, setup.initial_particles, names,
-                              seed=setup.seed, visualize=visualize, kidnap_at=kidnap_at, **given)  # fmt: skip
+    results = compare_filters(
+        setup.world,
+        setup.robot,
+        setup.sigma,
+        setup.delta,
+        setup.initial_particles,
+        names,
+        seed=setup.seed,
+        visualize=visualize,
+        kidnap_at=kidnap_at,
+        **given,
+    )
     title = f"Localisation error: {scenario.name} ({shown}, {count} particles)"
     files = {"csv_path": csv_path, "plot": plot, "traces": traces, "record_file": record_file}
     report_compare(results, setup, recorder, title, kld=bool(given.get("kld")), force=force, **files)
@@ -176,8 +233,9 @@ class RunSetup:
     seed: int
 
 
-def fresh_setup(maze: str | None, sigma: float | None, delta: float | None, seed: int | None,
-                start_seed: int | None) -> RunSetup:  # fmt: skip
+def fresh_setup(
+    maze: str | None, sigma: float | None, delta: float | None, seed: int | None, start_seed: int | None
+) -> RunSetup:
     """A fresh lost robot: the maze (default the lab's), its start drawn from the seed (new if none)."""
     world = load_maze(maze or DEFAULT_MAZE)
     sigma = DEFAULT_SIGMA if sigma is None else sigma
@@ -189,22 +247,33 @@ def fresh_setup(maze: str | None, sigma: float | None, delta: float | None, seed
     return RunSetup(world, robot, sigma, delta, None, seed)
 
 
-def replay_setup(stored: Scenario, maze: str | None, sigma: float | None, delta: float | None,
-                 seed: int | None) -> RunSetup:  # fmt: skip
+def replay_setup(
+    stored: Scenario, maze: str | None, sigma: float | None, delta: float | None, seed: int | None
+) -> RunSetup:
     """A saved scenario replayed: its maze (or --maze), walk, measurements, particles and seed (--seed,
     else the scenario's own, else a new one); --sigma and --delta override the stored values, and a
     scenario without a maze (the paper's four keys) runs on --maze, or on the one shipped maze its start
     and particles fit; missing sigma and delta take the defaults, and a line says so."""
     kept = stored.world()
     if kept is not None and maze is not None and not np.array_equal(load_maze(maze).grid, kept.grid):
-        raise UserError(f"the scenario's maze differs from {load_maze(maze).source}; leave out --maze to use the "
-                        "stored one")  # fmt: skip
+        raise UserError(
+            f"the scenario's maze differs from {load_maze(maze).source}; leave out --maze to use the stored one"
+        )
     world = kept or (load_maze(maze) if maze is not None else fitting_maze(stored))
-    missing = [(name, value) for name, value, flag, had in (("sigma", DEFAULT_SIGMA, sigma, stored.sigma),
-               ("delta", DEFAULT_DELTA, delta, stored.delta)) if flag is None and had is None]  # fmt: skip
+    missing = [
+        (name, value)
+        for name, value, flag, had in (
+            ("sigma", DEFAULT_SIGMA, sigma, stored.sigma),
+            ("delta", DEFAULT_DELTA, delta, stored.delta),
+        )
+        if flag is None and had is None
+    ]
     if missing:
-        typer.echo(f"warning: the scenario stores no {' or '.join(n for n, _ in missing)}: using the default "
-                   f"{', '.join(f'{n} {v:g}' for n, v in missing)} (--sigma/--delta choose)", err=True)  # fmt: skip
+        typer.echo(
+            f"warning: the scenario stores no {' or '.join(n for n, _ in missing)}: using the default "
+            f"{', '.join(f'{n} {v:g}' for n, v in missing)} (--sigma/--delta choose)",
+            err=True,
+        )
     warn_overrides(stored, sigma, delta)
     sigma = sigma if sigma is not None else stored.sigma if stored.sigma is not None else DEFAULT_SIGMA
     delta = delta if delta is not None else stored.delta if stored.delta is not None else DEFAULT_DELTA
@@ -227,8 +296,11 @@ def warn_overrides(scenario: Scenario, sigma: float | None, delta: float | None)
     for name, given, stored in (("sigma", sigma, scenario.sigma), ("delta", delta, scenario.delta)):
         replayed = name == "delta" or scenario.robot_measurements is not None  # else z is drawn with --sigma
         if given is not None and stored is not None and given != stored and replayed:
-            typer.echo(f"warning: --{name} {given:g} overrides the scenario's {name} {stored:g}: the filters assume "
-                       f"{given:g}, the replayed {made_with[name]} were made with {stored:g}", err=True)  # fmt: skip
+            typer.echo(
+                f"warning: --{name} {given:g} overrides the scenario's {name} {stored:g}: the filters assume "
+                f"{given:g}, the replayed {made_with[name]} were made with {stored:g}",
+                err=True,
+            )
 
 
 def fitting_maze(scenario: Scenario) -> Maze:
@@ -237,8 +309,10 @@ def fitting_maze(scenario: Scenario) -> Maze:
     fitting = mazes_fitting(scenario.init_robot_pos, np.asarray(scenario.init_particles_pos))
     if len(fitting) != 1:
         which = "no shipped maze fits" if not fitting else f"several shipped mazes fit ({', '.join(fitting)})"
-        raise UserError(f"the scenario stores no maze and {which} its start and particles: pass --maze (and "
-                        "--sigma/--delta if they differ from the defaults)")  # fmt: skip
+        raise UserError(
+            f"the scenario stores no maze and {which} its start and particles: pass --maze (and "
+            "--sigma/--delta if they differ from the defaults)"
+        )
     typer.echo(f"warning: the scenario stores no maze: using {fitting[0]}, the one shipped maze it fits", err=True)
     return load_maze(fitting[0])
 
@@ -298,9 +372,12 @@ def check_plugin(stored: Scenario, chosen: FilterEntry, path: Path | None) -> No
             f"plug-in {plugin.spec} that filter_plugin names ({chosen.name!r}): one of the two was edited"
         )
     if same_filter(stored, chosen) and chosen.plugin.sha256 != plugin.sha256:
-        typer.echo(f"warning: {chosen.plugin.spec} has changed since the scenario was saved (sha256 "
-                   f"{chosen.plugin.sha256[:12]}..., saved {plugin.sha256[:12]}...): the replay may differ from the "
-                   "saved run", err=True)  # fmt: skip
+        typer.echo(
+            f"warning: {chosen.plugin.spec} has changed since the scenario was saved (sha256 "
+            f"{chosen.plugin.sha256[:12]}..., saved {plugin.sha256[:12]}...): the replay may differ from the "
+            "saved run",
+            err=True,
+        )
 
 
 def replay_options(stored: Scenario, filter_name: str, given: Mapping[str, Any], path: Path | None) -> dict[str, Any]:
@@ -315,8 +392,11 @@ def replay_options(stored: Scenario, filter_name: str, given: Mapping[str, Any],
         kept = stored.filter_kwargs(chosen.filter_class)
     except ValueError as error:
         raise UserError(f"the scenario's filter_options for {chosen.name}: {error}") from None
-    changes = [] if stored.filtering_algorithm is None or same_filter(stored, chosen) else [
-        f"filter {stored.filtering_algorithm} -> {chosen.name}"]  # fmt: skip
+    changes = (
+        []
+        if stored.filtering_algorithm is None or same_filter(stored, chosen)
+        else [f"filter {stored.filtering_algorithm} -> {chosen.name}"]
+    )
     for name, value in given.items():
         before = kept.get(name, chosen.options[name].default if name in chosen.options else None)
         if before != value:
@@ -345,8 +425,11 @@ def with_stored_options(stored: Scenario, filter_names: Sequence[str], given: Gi
     if used:
         shown = ", ".join(f"{name} {show_value(value)}" for name, value in used.items())
         them = "them" if len(used) > 1 else "it"
-        typer.echo(f"note: {path.name} was saved by a run with {shown}: each filter that takes {them} does so here "
-                   "(--option NAME=VALUE to change)", err=True)  # fmt: skip
+        typer.echo(
+            f"note: {path.name} was saved by a run with {shown}: each filter that takes {them} does so here "
+            "(--option NAME=VALUE to change)",
+            err=True,
+        )
     merged = GivenOptions({**used, **given})
     merged.spelled = {**{name: f"--option {name}" for name in used}, **getattr(given, "spelled", {})}
     return merged
@@ -367,9 +450,18 @@ def kidnap_report(result: RunResult, found: bool = True) -> str | None:
 
 # -- compare's outputs ------------------------------------------------------------------------------------
 def report_compare(
-    results: dict[str, RunResult], setup: RunSetup, recorder: Recorder, title: str, *, kld: bool, force: bool,
-    csv_path: Path | None, plot: Path | None, traces: Path | None, record_file: Path | None,
-) -> None:  # fmt: skip
+    results: dict[str, RunResult],
+    setup: RunSetup,
+    recorder: Recorder,
+    title: str,
+    *,
+    kld: bool,
+    force: bool,
+    csv_path: Path | None,
+    plot: Path | None,
+    traces: Path | None,
+    record_file: Path | None,
+) -> None:
     """The kidnapping (if any), the table, then the per-step errors, the figure, the traces (with the
     scenario's maze, sigma, delta and particle count) and the record (with each filter's figures)."""
     if (kidnapping := kidnap_report(next(iter(results.values())), found=False)) is not None:
@@ -385,8 +477,16 @@ def report_compare(
         write_traces(traces, compare_traces(results, setup.seed, setup.world.source))
         typer.echo(f"per-step traces written to {traces}")
     if record_file is not None:
-        kept = ("mean_error", "final_error", "converged_at", "mean_ess", "log_evidence", "log_evidence_caveat",
-                "ms_per_step", "backend")  # fmt: skip
+        kept = (
+            "mean_error",
+            "final_error",
+            "converged_at",
+            "mean_ess",
+            "log_evidence",
+            "log_evidence_caveat",
+            "ms_per_step",
+            "backend",
+        )
         summary = [
             {"filter": name, **{k: run_figures(name, result)[k] for k in kept}} for name, result in results.items()
         ]

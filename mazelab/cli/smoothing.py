@@ -64,10 +64,20 @@ ChainRrd = opt(Path | None, "--rrd", help="a Rerun recording: the PMMH chain ove
 
 
 @with_option_flags()
-def smooth(scenario: Scenario_, filters: ParticleFilters = "sir,apf,rpf", lag: Lag = 10,
-           resolution: Resolution = 0.05, seed: Seed = None, csv_path: Csv = None, plot: PlotFile = None,
-           record: Record = None, rrd: Rrd = None, force: Force = False, option: OptionFlag = None,
-           named: dict | None = None) -> None:  # fmt: skip
+def smooth(
+    scenario: Scenario_,
+    filters: ParticleFilters = "sir,apf,rpf",
+    lag: Lag = 10,
+    resolution: Resolution = 0.05,
+    seed: Seed = None,
+    csv_path: Csv = None,
+    plot: PlotFile = None,
+    record: Record = None,
+    rrd: Rrd = None,
+    force: Force = False,
+    option: OptionFlag = None,
+    named: dict | None = None,
+) -> None:
     """Where the robot was at each step given every measurement: the exact smoother on the grid, and each
     filter's own estimate, fixed-lag and path smoothers scored against it step by step (the distance of
     their means to the exact smoothed mean, the total variation over the maze's cells, the distinct
@@ -78,14 +88,34 @@ def smooth(scenario: Scenario_, filters: ParticleFilters = "sir,apf,rpf", lag: L
     per_filter = options_per_filter(names, given, given.spelled)  # an option none of them takes: one line
     options = {name: per_filter[filter_entry(name).name] for name in names}
     seed = seed if seed is not None else stored.seed if stored.seed is not None else 0
-    parameters = {"scenario": str(path), "filters": names, "lag": lag, "resolution": resolution, "seed": seed,
-                  "sigma": sigma, "delta": delta, "options": options}  # fmt: skip
+    parameters = {
+        "scenario": str(path),
+        "filters": names,
+        "lag": lag,
+        "resolution": resolution,
+        "seed": seed,
+        "sigma": sigma,
+        "delta": delta,
+        "options": options,
+    }
     recorder = Recorder("smooth", command_line(), parameters, scenario_sha256=file_sha256(path))
-    typer.echo(f"{path.name}: {len(stored.robot_compass_angles)} steps, {len(stored.init_particles_pos)} particles, "
-               f"sigma {sigma:g}, delta {delta:g}, lag {lag}, grid {resolution:g}, seed {seed}")  # fmt: skip
-    scores = score_smoothers(world, stored.robot(), sigma, delta, names, lag=lag, seed=seed, grid_options={
-        "resolution": resolution}, initial_particles=stored.init_particles_pos, clouds=rrd is not None,
-        options=options)  # fmt: skip
+    typer.echo(
+        f"{path.name}: {len(stored.robot_compass_angles)} steps, {len(stored.init_particles_pos)} particles, "
+        f"sigma {sigma:g}, delta {delta:g}, lag {lag}, grid {resolution:g}, seed {seed}"
+    )
+    scores = score_smoothers(
+        world,
+        stored.robot(),
+        sigma,
+        delta,
+        names,
+        lag=lag,
+        seed=seed,
+        grid_options={"resolution": resolution},
+        initial_particles=stored.init_particles_pos,
+        clouds=rrd is not None,
+        options=options,
+    )
     summary = smoothing_summary(scores)
     columns = list(summary[-1])
     typer.echo(format_table(columns, [[shown(row.get(k)) for k in columns] for row in summary]))
@@ -109,8 +139,11 @@ def smoothing_recording(scores: SmootherScores, world: Any, path: Path, force: b
     from mazelab.viz.recording import Recording
     from mazelab.viz.style import CELL_DOT_RADIUS, MAP, ROBOT_COLOR, entity_name, lab_blueprint, map_view
 
-    views = {(label, name): f"{label} {what}" for label in scores.recorded for name, what in
-             (("filter", "filtered"), ("path", "smoothed"))}  # fmt: skip
+    views = {
+        (label, name): f"{label} {what}"
+        for label in scores.recorded
+        for name, what in (("filter", "filtered"), ("path", "smoothed"))
+    }
     blueprint = lab_blueprint(rrb.Grid(*[map_view(world, title) for title in views.values()], grid_columns=2))
     recording = Recording.open(path, world, blueprint, label="smooth", replace=force)
     if recording is None:  # Rerun switched off: a line said so
@@ -167,12 +200,25 @@ def smoothing_figure(scores: SmootherScores, title: str) -> Any:
     return figure
 
 
-def learn(scenario: Scenario_, sigma_range: SigmaRange = SIGMA_RANGE, delta_range: DeltaRange = DELTA_RANGE,
-          cells: Cells = 12, resolution: Resolution = 0.1, pmmh_iterations: Iterations = 0,
-          filter_name: PmmhFilter = "sir", particles: Particles = 200,
-          seed: opt(int, callback=seed_option, help="PMMH's seed") = 1, workers: Workers = None, dask: Dask = None,
-          csv_path: Csv = None, plot: PlotFile = None, record: Record = None, rrd: ChainRrd = None,
-          resume: Resume = False, force: Force = False) -> None:  # fmt: skip
+def learn(
+    scenario: Scenario_,
+    sigma_range: SigmaRange = SIGMA_RANGE,
+    delta_range: DeltaRange = DELTA_RANGE,
+    cells: Cells = 12,
+    resolution: Resolution = 0.1,
+    pmmh_iterations: Iterations = 0,
+    filter_name: PmmhFilter = "sir",
+    particles: Particles = 200,
+    seed: opt(int, callback=seed_option, help="PMMH's seed") = 1,
+    workers: Workers = None,
+    dask: Dask = None,
+    csv_path: Csv = None,
+    plot: PlotFile = None,
+    record: Record = None,
+    rrd: ChainRrd = None,
+    resume: Resume = False,
+    force: Force = False,
+) -> None:
     """Which sigma and delta explain the scenario's measurements: the exact posterior on a grid of cells
     under the uniform prior on the ranges (the grid filter's exact evidence at each, spread over --workers
     processes or a --dask cluster, each finished cell kept in a journal beside --csv that --resume goes on
@@ -181,15 +227,35 @@ def learn(scenario: Scenario_, sigma_range: SigmaRange = SIGMA_RANGE, delta_rang
     grid = parameter_grid(sigma_range, delta_range, cells)
     if pmmh_iterations:
         evidence_filter(filter_name)  # a filter PMMH cannot use: one line before the exact posterior's runs
-    parameters = {"scenario": str(path), "sigma_range": grid.sigma_range, "delta_range": grid.delta_range,
-                  "cells": cells, "resolution": resolution, "pmmh": pmmh_iterations, "filter": filter_name,
-                  "particles": particles, "seed": seed}  # fmt: skip
+    parameters = {
+        "scenario": str(path),
+        "sigma_range": grid.sigma_range,
+        "delta_range": grid.delta_range,
+        "cells": cells,
+        "resolution": resolution,
+        "pmmh": pmmh_iterations,
+        "filter": filter_name,
+        "particles": particles,
+        "seed": seed,
+    }
     recorder = Recorder("learn", command_line(), parameters, scenario_sha256=file_sha256(path))
     walk = stored.robot_compass_angles, stored.robot_measurements
     cells_map = functools.partial(run_cells, cells_journal(csv_path, resume, force, recorder), workers, dask)
     posterior = exact_parameter_posterior(world, *walk, grid, mapper=cells_map, resolution=resolution)
-    chain = pmmh(world, *walk, pmmh_iterations, filter_name=filter_name, particle_count=particles, prior=grid,
-                 burn_in=pmmh_iterations // 10, seed=seed) if pmmh_iterations else None  # fmt: skip
+    chain = (
+        pmmh(
+            world,
+            *walk,
+            pmmh_iterations,
+            filter_name=filter_name,
+            particle_count=particles,
+            prior=grid,
+            burn_in=pmmh_iterations // 10,
+            seed=seed,
+        )
+        if pmmh_iterations
+        else None
+    )
     summary = learning_summary(posterior, chain, filter_name)
     if outputs["csv"] is not None:
         write_text_atomically(outputs["csv"], posterior_csv(posterior), replace=force or resume)
@@ -212,29 +278,40 @@ def cells_journal(csv_path: Path | None, resume: bool, force: bool, recorder: Re
     if file is None:
         return None
     parameters = recorder.data["parameters"]  # what the cells depend on, which --resume compares
-    compared = {"scenario_sha256": recorder.data["scenario_sha256"],
-                **{k: parameters[k] for k in ("sigma_range", "delta_range", "cells", "resolution")}}  # fmt: skip
+    compared = {
+        "scenario_sha256": recorder.data["scenario_sha256"],
+        **{k: parameters[k] for k in ("sigma_range", "delta_range", "cells", "resolution")},
+    }
     done: dict[int, float] = {}
     if resume:
         lines = read_journal(file)
         sessions = [line["session"]["parameters"] for line in lines if "session" in line]
         changed = differences(sessions[-1], compared) if sessions else ["no session line"]
         if changed:
-            raise UserError(f"--resume: the command differs from {file} ({changed[0]}); give the same parameters, "
-                            "or --force to start again")  # fmt: skip
+            raise UserError(
+                f"--resume: the command differs from {file} ({changed[0]}); give the same parameters, "
+                "or --force to start again"
+            )
         try:
             done = {int(line["cell"]): float(line["log_evidence"]) for line in lines if "cell" in line}
         except (KeyError, TypeError, ValueError) as error:
             raise UserError(f"--resume: {file} holds a line that is not a cell's ({error!r})") from None
         typer.echo(f"resuming: {len(done)} cell(s) kept from {file}")
     journal = Journal(file, adopt=resume, replace=force)
-    journal.write({"session": {"command": recorder.data["command"], "started": recorder.data["started"],
-                               "parameters": compared}})  # fmt: skip
+    journal.write(
+        {"session": {"command": recorder.data["command"], "started": recorder.data["started"], "parameters": compared}}
+    )
     return journal, done
 
 
-def run_cells(journal: tuple[Journal, dict] | None, workers: int | None, dask: str | None, cell: Any,
-              sigmas: list[float], deltas: list[float]) -> np.ndarray:  # fmt: skip
+def run_cells(
+    journal: tuple[Journal, dict] | None,
+    workers: int | None,
+    dask: str | None,
+    cell: Any,
+    sigmas: list[float],
+    deltas: list[float],
+) -> np.ndarray:
     """exact_parameter_posterior's map: `cell(sigma, delta)` of every cell (S D,) on the study's executor
     (mazelab.experiments.executor.run_units: --workers processes or the --dask cluster) unless the journal
     holds it; each one finished is appended to the journal. A stop keeps them there and says how to go on
@@ -284,13 +361,20 @@ def learning_summary(posterior: ParameterPosterior, chain: Any, filter_name: str
     summary: dict[str, Any] = {"exact": {"mean": posterior.mean(), "interval_90": posterior.interval()}}
     if chain is not None:
         rows.append([f"PMMH ({filter_entry(filter_name).label})", *posterior_cells(chain.mean(), chain.interval())])
-        summary["pmmh"] = {"mean": chain.mean(), "mean_error": chain.mean_error(), "interval_90": chain.interval(),
-                           "acceptance_rate": chain.acceptance_rate, "ess": chain.ess()}  # fmt: skip
+        summary["pmmh"] = {
+            "mean": chain.mean(),
+            "mean_error": chain.mean_error(),
+            "interval_90": chain.interval(),
+            "acceptance_rate": chain.acceptance_rate,
+            "ess": chain.ess(),
+        }
     typer.echo(format_table(["posterior", "sigma mean", "sigma 90%", "delta mean", "delta 90%"], rows))
     if chain is not None:
-        typer.echo(f"PMMH: acceptance rate {chain.acceptance_rate:.2f}, effective sample size "
-                   f"{chain.ess()[0]:.0f} (sigma), {chain.ess()[1]:.0f} (delta), mean's Monte Carlo error "
-                   f"{chain.mean_error()[0]:.3f}, {chain.mean_error()[1]:.3f}")  # fmt: skip
+        typer.echo(
+            f"PMMH: acceptance rate {chain.acceptance_rate:.2f}, effective sample size "
+            f"{chain.ess()[0]:.0f} (sigma), {chain.ess()[1]:.0f} (delta), mean's Monte Carlo error "
+            f"{chain.mean_error()[0]:.3f}, {chain.mean_error()[1]:.3f}"
+        )
     return summary
 
 
@@ -318,8 +402,9 @@ def chain_recording(posterior: ParameterPosterior, chain: Any, world: Any, path:
     from mazelab.viz.recording import Recording
     from mazelab.viz.style import ROBOT_COLOR, lab_blueprint
 
-    everything = rrb.VisibleTimeRange("iteration", start=rrb.TimeRangeBoundary.infinite(),
-                                      end=rrb.TimeRangeBoundary.cursor_relative())  # fmt: skip
+    everything = rrb.VisibleTimeRange(
+        "iteration", start=rrb.TimeRangeBoundary.infinite(), end=rrb.TimeRangeBoundary.cursor_relative()
+    )
     view = rrb.Spatial2DView(name="p(sigma, delta | z_1:K)", origin="/posterior", time_ranges=everything)
     recording = Recording.open(path, world, lab_blueprint(view), label="learn", replace=force)
     if recording is None:  # Rerun switched off: a line said so
@@ -344,8 +429,10 @@ def posterior_cells(mean: np.ndarray, interval: np.ndarray) -> list[str]:
 def posterior_csv(posterior: Any) -> str:
     """One row per cell: its sigma and delta (centres), log p(z_1:K | sigma, delta) and posterior mass."""
     sigmas, deltas = posterior.grid.values()
-    rows = [{"sigma": s, "delta": d, "log_evidence": float(e), "mass": float(m)} for s, d, e, m in
-            zip(sigmas, deltas, posterior.log_evidence.ravel(), posterior.mass.ravel(), strict=True)]  # fmt: skip
+    rows = [
+        {"sigma": s, "delta": d, "log_evidence": float(e), "mass": float(m)}
+        for s, d, e, m in zip(sigmas, deltas, posterior.log_evidence.ravel(), posterior.mass.ravel(), strict=True)
+    ]
     return records_csv(rows, ["sigma", "delta", "log_evidence", "mass"])
 
 
@@ -363,8 +450,9 @@ def posterior_figure(posterior: Any, chain: Any, title: str) -> Any:
     return figure
 
 
-def opened(scenario: Path, csv_path: Path | None, plot: Path | None, record: Path | None, force: bool,
-           rrd: Path | None) -> tuple[Path, Scenario, dict[str, Path | None], tuple[Any, float, float]]:  # fmt: skip
+def opened(
+    scenario: Path, csv_path: Path | None, plot: Path | None, record: Path | None, force: bool, rrd: Path | None
+) -> tuple[Path, Scenario, dict[str, Path | None], tuple[Any, float, float]]:
     """The scenario (a file or a shipped name) with its measurements, the outputs checked before any work
     (distinct files, none replaced without --force, the record beside --csv by default), and the scenario's
     maze (the shipped one it fits when it stores none), sigma and delta."""

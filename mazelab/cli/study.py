@@ -92,16 +92,23 @@ FILES = {
     "force": (Force, False),
 }
 FIGURE = {
-    "paired": (opt(str | None, "--paired", metavar="FILTER", help="each filter's difference to FILTER, run by run"),
-               None),
+    "paired": (
+        opt(str | None, "--paired", metavar="FILTER", help="each filter's difference to FILTER, run by run"),
+        None,
+    ),
     "plot_x": (opt(str | None, "--plot-x", metavar="PARAMETER", help="the figure's x axis, a varied parameter"), None),
-    "plot_y": (opt(str, "--plot-y", metavar="Y", show_default=False,
-                   help="mean, median, converged, exact, paired, evidence"), "mean"),
+    "plot_y": (
+        opt(str, "--plot-y", metavar="Y", show_default=False, help="mean, median, converged, exact, paired, evidence"),
+        "mean",
+    ),
     "title": (opt(str | None, "--title", help="the figure's title (no caption then)"), None),
-}  # fmt: skip
+}
 # a study draws nothing unless asked (--no-viz is its default) and one run when asked (--max-drawn rarely matters)
-DRAWN = {**DRAWING, "no_viz": (opt(bool, "--no-viz", hidden=True), False),
-         "max_drawn": (opt(int, "--max-drawn", min=1, hidden=True), DEFAULT_MAX_DRAWN)}  # fmt: skip
+DRAWN = {
+    **DRAWING,
+    "no_viz": (opt(bool, "--no-viz", hidden=True), False),
+    "max_drawn": (opt(int, "--max-drawn", min=1, hidden=True), DEFAULT_MAX_DRAWN),
+}
 
 
 def positive_seconds(value: float) -> float:
@@ -113,13 +120,21 @@ def positive_seconds(value: float) -> float:
 
 Workers = opt(int | None, min=1, help="processes (default: all cores)")
 StudyFilters = opt(str, metavar="NAMES", show_default=False, help="a list (mazelab filters) [default: sir,apf,rpf]")
-DaskTimeout = opt(float, metavar="<s>", callback=positive_seconds, show_default=False,
-                  help="give up after s idle seconds [default: 300]")  # fmt: skip
+DaskTimeout = opt(
+    float,
+    metavar="<s>",
+    callback=positive_seconds,
+    show_default=False,
+    help="give up after s idle seconds [default: 300]",
+)
 AccuracyMazes = opt(
     str | None, help=f"maze files or names, comma-separated (default: the shipped {', '.join(LAB_MAZES)})"
 )
-AccuracyFilters = opt(str | None, metavar="NAMES",
-              help="sir, apf, rpf, ekf or FILE.py:Class, comma-separated [default: SIR, APF, both RPFs]")  # fmt: skip
+AccuracyFilters = opt(
+    str | None,
+    metavar="NAMES",
+    help="sir, apf, rpf, ekf or FILE.py:Class, comma-separated [default: SIR, APF, both RPFs]",
+)
 
 
 @with_parameters("files", FILES)
@@ -159,9 +174,21 @@ def study(
     names = parse_filters(check_filter_names(filters))
     given = given_options(named, option, names, lists=True)  # the named flags and --option NAME=V1,V2
     mazes, sigmas = parse_mazes(maze, maze_size, stations, wall_share), parse_list(sigma, float, "--sigma")
-    plan = plan_study(mazes, names, sigma=sigmas, delta=parse_list(delta, float, "--delta"), runs=runs, steps=steps,
-                      particles=parse_list(particles, int, "--particles"), kidnap_at=kidnap_at, reference=reference,
-                      options=given, seed=seed, traces=chosen.traces is not None, spelled=given.spelled)  # fmt: skip
+    plan = plan_study(
+        mazes,
+        names,
+        sigma=sigmas,
+        delta=parse_list(delta, float, "--delta"),
+        runs=runs,
+        steps=steps,
+        particles=parse_list(particles, int, "--particles"),
+        kidnap_at=kidnap_at,
+        reference=reference,
+        options=given,
+        seed=seed,
+        traces=chosen.traces is not None,
+        spelled=given.spelled,
+    )
     figure = check_figure(plan, **figure)
     workers = workers or cores()
     backend = study_backend(plan.tasks, 1 if dask else workers)
@@ -170,16 +197,29 @@ def study(
     if chosen.resume:
         typer.echo(f"resuming: {len(session.kept)} rows kept from {chosen.journal}, {len(session.tasks)} run(s) to go")
     try:
-        outcome = run_study(session.tasks, workers, visualize=visualize, progress=True, on_records=session.append,
-                            dask=session.client, dask_timeout=dask_timeout, ignore_signals_after_stop=True,
-                            backend=session.backend)  # fmt: skip
+        outcome = run_study(
+            session.tasks,
+            workers,
+            visualize=visualize,
+            progress=True,
+            on_records=session.append,
+            dask=session.client,
+            dask_timeout=dask_timeout,
+            ignore_signals_after_stop=True,
+            backend=session.backend,
+        )
         report_study(session, outcome, figure)
     finally:
         session.close()
 
 
-def check_figure(plan: StudyPlan, paired: str | None = None, plot_x: str | None = None, plot_y: str = "mean",
-                 title: str | None = None) -> dict[str, Any]:  # fmt: skip
+def check_figure(
+    plan: StudyPlan,
+    paired: str | None = None,
+    plot_x: str | None = None,
+    plot_y: str = "mean",
+    title: str | None = None,
+) -> dict[str, Any]:
     """What the report adds to the table and the figure, checked before any run: --paired one of the
     study's filters (given by its name), --plot-x, --plot-y and --title as the figure takes them
     (study_plot.figure_axes)."""
@@ -193,8 +233,10 @@ def check_figure(plan: StudyPlan, paired: str | None = None, plot_x: str | None 
             shown = ", ".join(entry.reference for entry in entries)
             raise UserError(f"--paired {paired}: not one of the study's --filters ({shown})")
         if len(entries) == 1:
-            raise UserError(f"--paired {paired}: the study's only filter, paired with itself (every difference "
-                            "0); add the filters to compare with it to --filters")  # fmt: skip
+            raise UserError(
+                f"--paired {paired}: the study's only filter, paired with itself (every difference "
+                "0); add the filters to compare with it to --filters"
+            )
         paired = chosen
     return {"paired": paired, "plot_x": plot_x, "plot_y": plot_y, "title": title}
 
@@ -217,9 +259,17 @@ class StudyFiles:
     replaces: bool = False  # an interrupted run's journal that does not match is replaced (accuracy's), not refused
 
     @classmethod
-    def parse(cls, csv_path: Path | None = None, plot: Path | None = None, summary_csv: Path | None = None,
-              traces: Path | None = None, record: Path | None = None, resume: bool = False, force: bool = False,
-              rrd: Path | None = None) -> StudyFiles:  # fmt: skip
+    def parse(
+        cls,
+        csv_path: Path | None = None,
+        plot: Path | None = None,
+        summary_csv: Path | None = None,
+        traces: Path | None = None,
+        record: Path | None = None,
+        resume: bool = False,
+        force: bool = False,
+        rrd: Path | None = None,
+    ) -> StudyFiles:
         """One line for two outputs that are one file, a name that exists without --force, a folder, a
         device, a journal another study writes or an earlier one left (without --resume or --force);
         --resume replaces its own outputs."""
@@ -229,9 +279,15 @@ class StudyFiles:
         journal = journal_path(csv_path) if csv_path is not None else None
         files = cls(csv_path, plot, traces, record_file, summary_csv, journal, resume, force)
         files.check_journal()
-        outputs = [("--csv", csv_path), ("--csv's journal", journal), ("--plot", plot), ("--traces", traces),
-                   ("--record" if record else "the record", record_file), ("--rrd", rrd),
-                   (summary_named, summary_csv)]  # fmt: skip
+        outputs = [
+            ("--csv", csv_path),
+            ("--csv's journal", journal),
+            ("--plot", plot),
+            ("--traces", traces),
+            ("--record" if record else "the record", record_file),
+            ("--rrd", rrd),
+            (summary_named, summary_csv),
+        ]
         check_outputs(outputs, force or resume, apart="--csv's journal")
         return files
 
@@ -245,8 +301,9 @@ class StudyFiles:
         lines = [] if journal is None or journal_state(journal) != "left" else read_journal(journal)
         finished = any(line.get("closed", {}).get("status") == "finished" for line in lines)
         interrupted = any("session" in line for line in lines) and not finished
-        check_outputs([("--csv", csv_path), ("the record" if record is None else "--record", record_file)],
-                      force or interrupted)  # fmt: skip
+        check_outputs(
+            [("--csv", csv_path), ("the record" if record is None else "--record", record_file)], force or interrupted
+        )
         resume = interrupted and not force
         return cls(csv_path, None, None, record_file, None, journal, resume, force or bool(lines), lines, replaces=True)
 
@@ -309,9 +366,18 @@ class StudySession:
         self.release()
 
 
-def open_session(plan: StudyPlan, files: StudyFiles, backend: str, header: str, *, kind: str = "study",
-                 parameters: dict[str, Any] | None = None, visualize: Any = False, draw_run: int = 1,
-                 dask: str | None = None) -> StudySession:  # fmt: skip
+def open_session(
+    plan: StudyPlan,
+    files: StudyFiles,
+    backend: str,
+    header: str,
+    *,
+    kind: str = "study",
+    parameters: dict[str, Any] | None = None,
+    visualize: Any = False,
+    draw_run: int = 1,
+    dask: str | None = None,
+) -> StudySession:
     """The runs to go (a resumed study's checked against its journal), the claims, the journal, the
     cluster and the record (of `kind`, its `parameters` the plan's unless given); the `header` printed."""
     tasks, kept, earlier = plan.tasks, [], []
@@ -330,12 +396,25 @@ def open_session(plan: StudyPlan, files: StudyFiles, backend: str, header: str, 
         if chosen is None:
             raise UserError(f"--draw-run {draw_run}: the study has no such run to draw")
         tasks = [tasks[chosen], *tasks[:chosen], *tasks[chosen + 1 :]]
-    outputs = {k: None if v is None else str(v) for k, v in (("csv", files.csv_path), ("plot", files.plot),
-                                                              ("traces", files.traces))}  # fmt: skip
-    recorder = Recorder(kind, command_line(), parameters or plan.parameters(), outputs=outputs, sessions=earlier,
-                        csv_dtypes=CSV_DTYPES, backend=backend)  # fmt: skip
-    claimed = [("--summary-csv", files.summary_csv), ("--record", files.record_file), ("--plot", files.plot),
-               ("--traces", files.traces)]  # fmt: skip
+    outputs = {
+        k: None if v is None else str(v)
+        for k, v in (("csv", files.csv_path), ("plot", files.plot), ("traces", files.traces))
+    }
+    recorder = Recorder(
+        kind,
+        command_line(),
+        parameters or plan.parameters(),
+        outputs=outputs,
+        sessions=earlier,
+        csv_dtypes=CSV_DTYPES,
+        backend=backend,
+    )
+    claimed = [
+        ("--summary-csv", files.summary_csv),
+        ("--record", files.record_file),
+        ("--plot", files.plot),
+        ("--traces", files.traces),
+    ]
     session = StudySession(plan, files, tasks, kept, backend, None, None, recorder, claim_outputs(claimed))
     try:
         session.journal = Journal(files.journal, adopt=files.resume, replace=files.force) if files.journal else None
@@ -347,8 +426,12 @@ def open_session(plan: StudyPlan, files: StudyFiles, backend: str, header: str, 
     if visualize:
         typer.echo(f"drawing run {tasks[0].run} of setting {tasks[0].setting_index} (--draw-run chooses the run)")
     if session.journal is not None:  # the parameters --resume compares, before any run
-        line = {"command": recorder.data["command"], "started": recorder.data["started"],
-                "parameters": jsonable(plan.parameters()), "backend": backend}  # fmt: skip
+        line = {
+            "command": recorder.data["command"],
+            "started": recorder.data["started"],
+            "parameters": jsonable(plan.parameters()),
+            "backend": backend,
+        }
         session.journal.write({"session": line})
     return session
 
@@ -372,9 +455,11 @@ def report_study(session: StudySession, outcome: StudyOutcome, figure: dict[str,
     seconds = session.recorder.finish(status, **closing)["duration_seconds"]
     ran = len({(r.setting, r.run) for r in outcome.records})
     loaded = "numba's kernels loaded, first calls" if session.backend == "compiled" else "first calls"
-    typer.echo(f"{ran} runs in {seconds:.1f} s wall time on the {session.backend} backend; start-up "
-               f"{outcome.startup_seconds:.1f} s in {len(outcome.workers)} process(es) ({loaded}; not in "
-               "ms_per_step or run_seconds)")  # fmt: skip
+    typer.echo(
+        f"{ran} runs in {seconds:.1f} s wall time on the {session.backend} backend; start-up "
+        f"{outcome.startup_seconds:.1f} s in {len(outcome.workers)} process(es) ({loaded}; not in "
+        "ms_per_step or run_seconds)"
+    )
     repeat_line(
         "study", plan.seed, ("--csv", "--plot", "--traces", "--record", "--summary-csv", "--rrd"), session.backend
     )
@@ -403,8 +488,17 @@ def write_outputs(session: StudySession, records: list[RunRecord], summaries: li
         if files.plot is not None and summaries:  # as `mazelab.study(...).figure(...)` draws it
             from mazelab.experiments.study_plot import draw_study
 
-            draw_study(summaries, plan.varied, files.plot, plan.runs, plan.settings[0].maze.label, x=figure["plot_x"],
-                       y=figure["plot_y"], title=figure["title"], replace=replace)  # fmt: skip
+            draw_study(
+                summaries,
+                plan.varied,
+                files.plot,
+                plan.runs,
+                plan.settings[0].maze.label,
+                x=figure["plot_x"],
+                y=figure["plot_y"],
+                title=figure["title"],
+                replace=replace,
+            )
             typer.echo(f"figure written to {files.plot}")
         if files.record_file is not None:
             session.recorder.write(files.record_file)
@@ -469,24 +563,39 @@ def accuracy(
     Wilson interval)."""
     mazes = parse_mazes(maze, maze_size, stations, default=list(LAB_MAZES))
     rows = with_options(accuracy_filters(None if filters is None else parse_filters(filters)), option)
-    plan = accuracy_plan(mazes, rows, sigma=sigma, delta=delta, particles=particles, runs=runs, steps=steps,
-                         seed=seed)  # fmt: skip
+    plan = accuracy_plan(mazes, rows, sigma=sigma, delta=delta, particles=particles, runs=runs, steps=steps, seed=seed)
     labels = [label for label, _, _ in rows]
-    parameters = {"mazes": [maze_description(m) for m in mazes], "filters": labels, "sigma": sigma, "delta": delta,
-                  "particles": particles, "runs": runs, "steps": steps, "root_seed": seed}  # fmt: skip
+    parameters = {
+        "mazes": [maze_description(m) for m in mazes],
+        "filters": labels,
+        "sigma": sigma,
+        "delta": delta,
+        "particles": particles,
+        "runs": runs,
+        "steps": steps,
+        "root_seed": seed,
+    }
     workers = workers or cores()
     backend = study_backend(plan.tasks, workers)
     files = StudyFiles.left_by_accuracy(csv_path, record, force)
-    header = (f"Accuracy: {len(mazes)} maze(s) ({', '.join(m.label for m in mazes)}) x {runs} runs, sigma "
-              f"{sigma:g}, delta {delta:g}, {particles} particles, {steps} steps, seed {seed}; filters: "
-              f"{', '.join(labels)}")  # fmt: skip
+    header = (
+        f"Accuracy: {len(mazes)} maze(s) ({', '.join(m.label for m in mazes)}) x {runs} runs, sigma "
+        f"{sigma:g}, delta {delta:g}, {particles} particles, {steps} steps, seed {seed}; filters: "
+        f"{', '.join(labels)}"
+    )
     session = open_session(plan, files, backend, header, kind="accuracy", parameters=parameters)
     if files.resume:
         done = {(r["maze"], r["run"]) for r in accuracy_records(session.kept, rows)}
         typer.echo(f"resuming the interrupted run of {files.journal}: {len(done)} runs kept")
     try:
-        outcome = run_study(session.tasks, workers, progress=True, on_records=session.append,
-                            ignore_signals_after_stop=True, backend=backend)  # fmt: skip
+        outcome = run_study(
+            session.tasks,
+            workers,
+            progress=True,
+            on_records=session.append,
+            ignore_signals_after_stop=True,
+            backend=backend,
+        )
         report_accuracy(session, rows, outcome)
     finally:
         session.close()
@@ -536,8 +645,13 @@ def with_options(chosen: tuple[AccuracyFilter, ...], texts: list[str] | None) ->
     return tuple(result)
 
 
-def parse_mazes(maze: str | None, maze_size: str | None, stations: str | None, wall_share: str | None = None,
-                default: list[str] | None = None) -> list[MazeChoice]:  # fmt: skip
+def parse_mazes(
+    maze: str | None,
+    maze_size: str | None,
+    stations: str | None,
+    wall_share: str | None = None,
+    default: list[str] | None = None,
+) -> list[MazeChoice]:
     """The mazes of --maze, --maze-size, --stations and --wall-share (lists; plan.study_mazes), or the
     `default` names when none is given (accuracy's: the lab's shipped set, named, so that a maze a
     student adds to mazes/ does not join it; the study's: the default maze)."""

@@ -372,9 +372,25 @@ def _hook_with(roots: tuple[str, ...], names: frozenset, paths: frozenset, finde
     `named` is namedtuple's code, which compiles a text of identifiers only (checked with the real
     `type` and `str`: the standard library makes namedtuples as it is imported)."""
 
-    def hook(event, args, roots=roots, names=names, paths=paths, finders=finders, named=named,
-             frame=sys._getframe, read=open, type=type, str=str, bytes=bytes, tuple=tuple, map=map, id=id,
-             all=all, range=range):  # fmt: skip
+    def hook(
+        event,
+        args,
+        roots=roots,
+        names=names,
+        paths=paths,
+        finders=finders,
+        named=named,
+        frame=sys._getframe,
+        read=open,
+        type=type,
+        str=str,
+        bytes=bytes,
+        tuple=tuple,
+        map=map,
+        id=id,
+        all=all,
+        range=range,
+    ):
         def namedtuple(caller):  # namedtuple's own code, run with the real builtins (its checks hold)
             real = caller.f_builtins.get("type") is type and caller.f_builtins.get("str") is str
             return caller.f_code is named and real

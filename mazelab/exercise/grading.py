@@ -37,9 +37,18 @@ KEY_FILE = ".grading.key"  # hidden: no submission has its name (grading skips n
 KEY_BYTES = 32  # 256 bits; a given key needs at least 16 (128 bits)
 ROW_NAMES = tuple(ROWS.values())
 CSV_COLUMNS = (
-    "submission", "file", *PARTS, "whole_filter", "farther_on", "to_exact", "sir_to_exact",
-    "converged", "sir_converged", "seconds", "problem",
-)  # fmt: skip
+    "submission",
+    "file",
+    *PARTS,
+    "whole_filter",
+    "farther_on",
+    "to_exact",
+    "sir_to_exact",
+    "converged",
+    "sir_converged",
+    "seconds",
+    "problem",
+)
 SHORT = {PASS: "pass", FAIL: "FAIL", NOT_WRITTEN: "todo", NOT_RUN: "-", NOT_OWN: "REF", None: "-"}
 
 
@@ -135,8 +144,14 @@ def grade_folder(
         return _in_threads(submissions, key, timeout, jobs or os.cpu_count() or 1, on_done, advance)
 
 
-def _in_threads(submissions: list[Submission], key: bytes, timeout: float, jobs: int,
-                on_done: Callable[[Report], None] | None, advance: Callable[[], None]) -> list[Report]:  # fmt: skip
+def _in_threads(
+    submissions: list[Submission],
+    key: bytes,
+    timeout: float,
+    jobs: int,
+    on_done: Callable[[Report], None] | None,
+    advance: Callable[[], None],
+) -> list[Report]:
     """grade_folder's work: a thread per submission being graded, the reference runs in a process pool."""
     lock = threading.Lock()
     allow_children()

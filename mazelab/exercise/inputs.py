@@ -104,13 +104,27 @@ class ScenarioInputs(_OnAMaze):
     def replay(self, filter_name: str, **options: object) -> np.ndarray:
         """A shipped filter's estimates (steps, 2) on the scenario's walk, replayed: the exact grid filter's
         posterior means ("grid"), or the SIR's ("sir", resampling with the student's scheme)."""
-        robot = Robot(self.sigma, self.delta, self.start, actual_angles=self.actual_angles,
-                      compass_angles=self.compass_angles, measurements=self.measurements)  # fmt: skip
+        robot = Robot(
+            self.sigma,
+            self.delta,
+            self.start,
+            actual_angles=self.actual_angles,
+            compass_angles=self.compass_angles,
+            measurements=self.measurements,
+        )
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UserWarning)
-            result = simulate(robot, self.world, self.sigma, self.delta, steps=len(self.measurements),
-                              init_particles_pos=self.particles, filtering_algorithm=filter_name, seed=self.seed,
-                              **options)  # fmt: skip
+            result = simulate(
+                robot,
+                self.world,
+                self.sigma,
+                self.delta,
+                steps=len(self.measurements),
+                init_particles_pos=self.particles,
+                filtering_algorithm=filter_name,
+                seed=self.seed,
+                **options,
+            )
         return result.estimates
 
 
@@ -129,8 +143,12 @@ def draw_part_inputs(seed: int) -> PartInputs:
     world = load_maze(maze)
     sigma, delta = float(rng.uniform(*PART_SIGMA)), float(rng.uniform(*PART_DELTA))
     prior = world.random_free_places(PRIOR_COUNT, rng)
-    each = (_predict_inputs(seed, world, delta), _weigh_inputs(seed, world, sigma), _resample_inputs(seed),
-            _estimate_inputs(seed, world))  # fmt: skip
+    each = (
+        _predict_inputs(seed, world, delta),
+        _weigh_inputs(seed, world, sigma),
+        _resample_inputs(seed),
+        _estimate_inputs(seed, world),
+    )
     return PartInputs(maze, world.grid.copy(), sigma, delta, seed, prior, _seeds(rng, 1)[0], *each)
 
 

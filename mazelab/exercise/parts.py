@@ -463,8 +463,9 @@ def expectations(inputs: PartInputs) -> dict[str, str]:
     return {**EXPECTED, "resample": draws, "whole": whole_expected()}
 
 
-def judge(stage: str, inputs: PartInputs, scenarios: list[ScenarioInputs], answer: Message, report: Any,
-          references: Any) -> Row:  # fmt: skip
+def judge(
+    stage: str, inputs: PartInputs, scenarios: list[ScenarioInputs], answer: Message, report: Any, references: Any
+) -> Row:
     """A stage's row from its answer: the error the student's code reported, or its values judged; the
     scheme the resampler resembles and the whole filter's figures go into `report` (the whole filter's SIR
     resamples with that scheme, on the scenarios' reference runs from `references`)."""

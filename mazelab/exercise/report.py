@@ -340,8 +340,7 @@ def check_file(
     source = "given" if seed is not None else "key" if key else "files"
     seed = files_seed(files, key or None) if seed is None else seed
     report = Report(class_name or path.stem, None if source == "key" else seed, source, note=sandbox().note)
-    collect = functools.partial(collect_isolated, class_name, budget=timeout, stages=stages,
-                                shown=shown, files=files)  # fmt: skip
+    collect = functools.partial(collect_isolated, class_name, budget=timeout, stages=stages, shown=shown, files=files)
     sources = {name: data.decode(errors="replace") for name, data in files.items()}
     return _check(report, seed, stages, collect, sources, references)
 

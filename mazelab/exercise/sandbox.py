@@ -97,10 +97,26 @@ class Sandbox:
             return [*python, code]
         size = ["--size", str(TMP_LIMIT)] if self.bounded_tmp else []
         arguments = [
-            "--unshare-all", "--unshare-user", "--uid", str(SANDBOX_UID), "--gid", str(SANDBOX_UID),
-            "--die-with-parent", "--new-session", "--cap-drop", "ALL", "--hostname", "sandbox",
-            "--proc", "/proc", "--dev", "/dev", *size, "--tmpfs", "/tmp",
-        ]  # fmt: skip
+            "--unshare-all",
+            "--unshare-user",
+            "--uid",
+            str(SANDBOX_UID),
+            "--gid",
+            str(SANDBOX_UID),
+            "--die-with-parent",
+            "--new-session",
+            "--cap-drop",
+            "ALL",
+            "--hostname",
+            "sandbox",
+            "--proc",
+            "/proc",
+            "--dev",
+            "/dev",
+            *size,
+            "--tmpfs",
+            "/tmp",
+        ]
         for top in ("/usr/lib", "/usr/lib64", "/lib", "/lib64", "/lib32", "/usr/lib32"):  # as the host lays them out
             if Path(top).is_symlink():
                 arguments += ["--symlink", os.readlink(top), top]

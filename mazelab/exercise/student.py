@@ -67,9 +67,14 @@ class StudentFilter(SMC):
 
     name: ClassVar[str] = "StudentFilter"
     options: ClassVar[Options] = Options(
-        Option("estimate", "mean", "only mean: the point estimate is the student's own estimate()",
-               parse=str.strip, check=_own_estimate),
-    )  # fmt: skip
+        Option(
+            "estimate",
+            "mean",
+            "only mean: the point estimate is the student's own estimate()",
+            parse=str.strip,
+            check=_own_estimate,
+        ),
+    )
     ROBOT_SPEED: ClassVar[float] = ROBOT_SPEED
     OUTSIDE_PENALTY: ClassVar[float] = OUTSIDE_PENALTY
 

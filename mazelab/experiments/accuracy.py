@@ -46,9 +46,16 @@ def accuracy_filters(names: Sequence[Any] | None) -> tuple[AccuracyFilter, ...]:
 
 
 def accuracy_plan(
-    mazes: Sequence[MazeChoice], rows: Sequence[AccuracyFilter], *, sigma: float, delta: float, particles: int,
-    runs: int, steps: int, seed: int,
-) -> StudyPlan:  # fmt: skip
+    mazes: Sequence[MazeChoice],
+    rows: Sequence[AccuracyFilter],
+    *,
+    sigma: float,
+    delta: float,
+    particles: int,
+    runs: int,
+    steps: int,
+    seed: int,
+) -> StudyPlan:
     """The study that measures the rows: their filters on every maze, the exact grid filter the reference, and
     each option a row sets studied with every value the rows of its filters give it (their default where a
     row sets none), so that each row's filter runs once with its own options on every run."""
@@ -60,8 +67,18 @@ def accuracy_plan(
             value = given.get(key, declared[key].default if key in declared else None)
             if key in declared and value not in values:
                 values.append(value)
-    return plan_study(mazes, names, sigma=[sigma], delta=[delta], particles=[particles], options=options, runs=runs,
-                      steps=steps, seed=seed, reference=REFERENCE)  # fmt: skip
+    return plan_study(
+        mazes,
+        names,
+        sigma=[sigma],
+        delta=[delta],
+        particles=[particles],
+        options=options,
+        runs=runs,
+        steps=steps,
+        seed=seed,
+        reference=REFERENCE,
+    )
 
 
 # a row of the table's CSV, one filter in one run: its mean distance to the exact posterior mean over the
@@ -86,9 +103,16 @@ def accuracy_records(records: Sequence[RunRecord], rows: Sequence[AccuracyFilter
     for (maze, run), mine in runs.items():
         chosen = [next((r for r in mine if r.filter == name and r.options == cells), None) for _, name, cells in wanted]
         if all(chosen):
-            found += [dict(zip(ACCURACY_COLUMNS, (maze, r.seed, label, r.distance_to_exact, r.converged_at, run,
-                                                  r.maze_seed), strict=True))
-                      for (label, _, _), r in zip(wanted, chosen, strict=True)]  # fmt: skip
+            found += [
+                dict(
+                    zip(
+                        ACCURACY_COLUMNS,
+                        (maze, r.seed, label, r.distance_to_exact, r.converged_at, run, r.maze_seed),
+                        strict=True,
+                    )
+                )
+                for (label, _, _), r in zip(wanted, chosen, strict=True)
+            ]
     return found
 
 

@@ -164,9 +164,13 @@ class StudyPlan:
         note = f" ({skipped} setting(s) run no filter)" if skipped else ""
         on = f", {backend} backend" if backend else ""
         first, varied = self.settings[0], self.varied
-        parts = {"maze": f"maze {first.maze.label}", "sigma": f"sigma {first.sigma:g}",
-                 "delta": f"delta {first.delta:g}", "particles": f"{first.particles} particles",
-                 **{name: f"{name} {show_value(value)}" for name, value in first.options}}  # fmt: skip
+        parts = {
+            "maze": f"maze {first.maze.label}",
+            "sigma": f"sigma {first.sigma:g}",
+            "delta": f"delta {first.delta:g}",
+            "particles": f"{first.particles} particles",
+            **{name: f"{name} {show_value(value)}" for name, value in first.options},
+        }
         kidnapping = "" if self.kidnap_at is None else f", kidnapped at step {self.kidnap_at}"
         fixed = [text for parameter, text in parts.items() if parameter not in varied]
         lines = [
@@ -194,11 +198,22 @@ def plugin_description(code: PluginCode) -> dict[str, str]:
 
 
 def plan_study(
-    mazes: Sequence[MazeChoice], filters: str | Sequence[Any], *, sigma: Sequence[float], delta: Sequence[float],
-    particles: Sequence[int], options: Mapping[str, Sequence[Any]] | None = None, runs: int = 30, steps: int = 200,
-    seed: int | None = None, kidnap_at: int | None = None, kld: bool = False, traces: bool = False,
-    reference: str | None = None, spelled: Mapping[str, str] | None = None,
-) -> StudyPlan:  # fmt: skip
+    mazes: Sequence[MazeChoice],
+    filters: str | Sequence[Any],
+    *,
+    sigma: Sequence[float],
+    delta: Sequence[float],
+    particles: Sequence[int],
+    options: Mapping[str, Sequence[Any]] | None = None,
+    runs: int = 30,
+    steps: int = 200,
+    seed: int | None = None,
+    kidnap_at: int | None = None,
+    kld: bool = False,
+    traces: bool = False,
+    reference: str | None = None,
+    spelled: Mapping[str, str] | None = None,
+) -> StudyPlan:
     """Check and combine a study's values into its plan (a new root seed if none is given).
 
     `options` are the filter options the study sets, by name, each a list of values (a plug-in's
@@ -225,8 +240,9 @@ def plan_study(
     seed = new_seed() if seed is None else seed
     kld = given.get("kld") == [True]  # the table's mean N column
     plugins = plugin_codes(names)
-    tasks = study_tasks(settings, names, runs, steps, seed, kidnap_at=kidnap_at, traces=traces, reference=reference,
-                        plugins=plugins)  # fmt: skip
+    tasks = study_tasks(
+        settings, names, runs, steps, seed, kidnap_at=kidnap_at, traces=traces, reference=reference, plugins=plugins
+    )
     return StudyPlan(settings, names, runs, steps, seed, kidnap_at, kld, traces, reference, plugins, tasks=tasks)
 
 
@@ -307,8 +323,16 @@ class StudyResult:
         from mazelab.experiments.study_plot import draw_study
 
         parameters = self.record["parameters"]
-        draw_study(self.summaries, self.varied, Path(path), parameters["runs"], parameters["mazes"][0]["label"], x=x,
-                   y=y, title=title)  # fmt: skip
+        draw_study(
+            self.summaries,
+            self.varied,
+            Path(path),
+            parameters["runs"],
+            parameters["mazes"][0]["label"],
+            x=x,
+            y=y,
+            title=title,
+        )
         return Path(path)
 
 
@@ -397,13 +421,20 @@ def study_plan(
     given["maze"] = _listed("maze", maze, *PLAN_ARGUMENTS["maze"])
     seed = None if seed is None else check_seed("seed", _whole("seed", seed))
     plan = plan_study(
-        study_mazes(*(given[name] for name in ("maze", "maze_size", "stations", "wall_share"))), filters,
-        sigma=given["sigma"] or [0.3], delta=given["delta"] or [0.5],
-        particles=given["particles"] or [DEFAULT_PARTICLE_COUNT], options=_options(options, values),
-        runs=_whole("runs", runs), steps=_whole("steps", steps), seed=seed,
-        kidnap_at=_whole("kidnap_at", kidnap_at, optional=True), kld=_flag("kld", kld), traces=_flag("traces", traces),
+        study_mazes(*(given[name] for name in ("maze", "maze_size", "stations", "wall_share"))),
+        filters,
+        sigma=given["sigma"] or [0.3],
+        delta=given["delta"] or [0.5],
+        particles=given["particles"] or [DEFAULT_PARTICLE_COUNT],
+        options=_options(options, values),
+        runs=_whole("runs", runs),
+        steps=_whole("steps", steps),
+        seed=seed,
+        kidnap_at=_whole("kidnap_at", kidnap_at, optional=True),
+        kld=_flag("kld", kld),
+        traces=_flag("traces", traces),
         reference=reference,
-    )  # fmt: skip
+    )
     plan.call = call_arguments(call, plan.seed)
     return plan
 
@@ -431,8 +462,9 @@ def study(
     plan = plan or study_plan(maze, **values)
     if paired is not None and resolve_filter(paired).name not in [resolve_filter(f).name for f in plan.filters]:
         raise ValueError(f"paired={paired!r} is not one of the study's filters")
-    recorder = Recorder("study", [sys.argv[0] or "python", "mazelab.study(...)"], plan.parameters(),
-                        csv_dtypes=CSV_DTYPES)  # fmt: skip
+    recorder = Recorder(
+        "study", [sys.argv[0] or "python", "mazelab.study(...)"], plan.parameters(), csv_dtypes=CSV_DTYPES
+    )
     if dask is not None and not isinstance(dask, str):  # the caller's Client: run_study opens only an address
         open_cluster(dask, study_backend(plan.tasks, 1))  # its workers asked once, before any run
     outcome = run_study(plan.tasks, workers, dask=dask)
@@ -451,9 +483,12 @@ def study(
 
 
 def study_closing(
-    plan: StudyPlan, outcome: StudyOutcome, records: Sequence[RunRecord], summaries: Sequence[StudySummary],
+    plan: StudyPlan,
+    outcome: StudyOutcome,
+    records: Sequence[RunRecord],
+    summaries: Sequence[StudySummary],
     paired: str | None,
-) -> dict[str, Any]:  # fmt: skip
+) -> dict[str, Any]:
     """What a study's record says at its end, the same from `mazelab study` and `mazelab.study`: the runs
     finished (among `records`, a resumed study's kept ones too) and in the study, the failures, the summary
     (the summary CSV's rows, `summary_rows`), the filter paired with, the backend, each process's report

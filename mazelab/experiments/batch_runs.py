@@ -124,9 +124,14 @@ def run_batch(tasks: Sequence[RunTask]) -> list[list[RunRecord]]:
 
 
 def warm_batch(
-    filter_class: type, world: Maze, tasks: Sequence[RunTask], particles: np.ndarray, compass: np.ndarray,
-    z: np.ndarray, options: dict,
-) -> None:  # fmt: skip
+    filter_class: type,
+    world: Maze,
+    tasks: Sequence[RunTask],
+    particles: np.ndarray,
+    compass: np.ndarray,
+    z: np.ndarray,
+    options: dict,
+) -> None:
     """Before the batch's timed steps: the filter advancing one or two runs together (as the batch
     will) for a few untimed steps, once per process, options and shape (mazelab.experiments.runs.warm_once);
     its random draws come from a stream of its own, its numbers are discarded."""

@@ -207,8 +207,10 @@ def check_workers(client: Any, backend: str) -> list[WorkerReport]:
     reports = [reports[address] for address in sorted(reports)]
     for report in reports:
         if backend == "compiled" and report.packages.get("numba") is None:
-            raise ValueError(f"the Dask worker {report.describe()} cannot run the compiled backend: install numba "
-                             "there, or give --backend numpy")  # fmt: skip
+            raise ValueError(
+                f"the Dask worker {report.describe()} cannot run the compiled backend: install numba "
+                "there, or give --backend numpy"
+            )
         if report.packages != reports[0].packages:
             raise ValueError(
                 f"the Dask workers disagree ({reports[0].describe()}; {report.describe()}): start every worker "
@@ -338,8 +340,10 @@ def open_cluster(dask: Any, backend: str) -> Any:
     except ImportError:
         Client = None
     if not isinstance(dask, str) and (Client is None or not isinstance(dask, Client)):
-        raise TypeError(f"dask must be a scheduler address like 'tcp://HOST:8786' or a distributed.Client, got "
-                        f"{dask!r} ({type(dask).__name__})")  # fmt: skip
+        raise TypeError(
+            f"dask must be a scheduler address like 'tcp://HOST:8786' or a distributed.Client, got "
+            f"{dask!r} ({type(dask).__name__})"
+        )
     client = connect(dask) if isinstance(dask, str) else dask  # a bad address: one line, before anything runs
     try:
         check_workers(client, backend)  # workers that cannot run it, or of other versions: one line
@@ -350,9 +354,16 @@ def open_cluster(dask: Any, backend: str) -> Any:
     return client
 
 
-def run_units(outcome: StudyOutcome, units: Units, collect: Callable[[list], None], total: int, progress: bool,
-              what: str = "runs", here: Callable[..., None] = lambda advance: None,
-              ignore_after_stop: bool = False) -> None:  # fmt: skip
+def run_units(
+    outcome: StudyOutcome,
+    units: Units,
+    collect: Callable[[list], None],
+    total: int,
+    progress: bool,
+    what: str = "runs",
+    here: Callable[..., None] = lambda advance: None,
+    ignore_after_stop: bool = False,
+) -> None:
     """Run the units (`Units.run`, `here(advance)` in this process meanwhile) with a progress bar over
     `total` `what`; SIGTERM and SIGHUP stop them as Ctrl-C does (`stop_signals`), and a stop sets
     outcome.interrupted and outcome.stopped_by, a lost cluster or pool outcome.lost (the finished units

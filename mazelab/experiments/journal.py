@@ -298,9 +298,19 @@ def git_commit() -> str | None:
 
 # the distributions a result can depend on: the project's dependencies and extras (None: not installed)
 DEPENDENCIES = (
-    "numpy", "rerun-sdk", "pydantic", "typer", "rich", "matplotlib", "dask", "distributed", "numba", "llvmlite",
-    "pyarrow", "scipy",
-)  # fmt: skip
+    "numpy",
+    "rerun-sdk",
+    "pydantic",
+    "typer",
+    "rich",
+    "matplotlib",
+    "dask",
+    "distributed",
+    "numba",
+    "llvmlite",
+    "pyarrow",
+    "scipy",
+)
 
 
 def dependency_versions(names: Sequence[str] = DEPENDENCIES) -> dict[str, str | None]:

@@ -28,10 +28,19 @@ RECOVERY_VARIANTS = {"none": None, "augmented": "augmented", "sensor": "sensor"}
 
 
 def recovery_records(
-    world: Maze, filters: Sequence[str] = ("sir", "apf", "rpf"), variants: Iterable[str] = tuple(RECOVERY_VARIANTS),
-    runs: int = 40, *, first_seed: int = 0, workers: int = 1, particle_count: int = 2000, steps: int = 260,
-    kidnap_at: int = 100, sigma: float = 0.3, delta: float = 0.5,
-) -> list[RunRecord]:  # fmt: skip
+    world: Maze,
+    filters: Sequence[str] = ("sir", "apf", "rpf"),
+    variants: Iterable[str] = tuple(RECOVERY_VARIANTS),
+    runs: int = 40,
+    *,
+    first_seed: int = 0,
+    workers: int = 1,
+    particle_count: int = 2000,
+    steps: int = 260,
+    kidnap_at: int = 100,
+    sigma: float = 0.3,
+    delta: float = 0.5,
+) -> list[RunRecord]:
     """`runs` seeded kidnapping trials (seeds first_seed, first_seed + 1, ...) of every filter with each recovery
     variant (none, augmented, sensor), as a study's runs with their per-step traces, on `workers` processes (the
     results do not depend on it); one record per trial and filter, in (variant, trial, filter) order."""
@@ -68,8 +77,17 @@ def recovery_table(world: Maze, filters: Sequence[str] = ("sir", "apf", "rpf"), 
         group = groups[name, variant]
         relocalised, steps = recovery_summary(group)
         before, count = np.mean([localised_before(r) for r in group]), np.mean([r.mean_particle_count for r in group])
-        rows.append([described(name).label, variant, str(len(group)), f"{before:.0%}", f"{relocalised:.0%}",
-                     format_number(steps, "{:g}"), f"{count:.0f}"])  # fmt: skip
+        rows.append(
+            [
+                described(name).label,
+                variant,
+                str(len(group)),
+                f"{before:.0%}",
+                f"{relocalised:.0%}",
+                format_number(steps, "{:g}"),
+                f"{count:.0f}",
+            ]
+        )
     headers = ["filter", "recovery", "runs", "localised before", "re-localised", "median steps to recover", "mean N"]
     return format_table(headers, rows)
 

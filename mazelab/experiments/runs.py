@@ -159,8 +159,7 @@ def warm_up_filters(
 
         def warm(warmed: dict[str, Any], name: str = name) -> None:
             robot = Robot.of_seed(world, sigma, delta, WARM_UP_SEED)
-            simulate(robot, world, sigma, delta, particle_count, WARM_UP_STEPS, None, name, seed=WARM_UP_SEED,
-                     **warmed)  # fmt: skip
+            simulate(robot, world, sigma, delta, particle_count, WARM_UP_STEPS, None, name, seed=WARM_UP_SEED, **warmed)
 
         warm_once("single", resolve_filter(name), dict(options.get(name, {})), warm)
 
@@ -206,8 +205,20 @@ def run_filters(
         warm_up_filters(world, sigma, delta, filter_names, count, options or {})
         for name in filter_names:
             view = comparison.view_for(resolve_filter(name).name)
-            result = simulate(robot, world, sigma, delta, particle_count, steps, particles, name, seed=seed, view=view,
-                              kidnap_at=kidnap_at, **(options or {}).get(name, {}))  # fmt: skip
+            result = simulate(
+                robot,
+                world,
+                sigma,
+                delta,
+                particle_count,
+                steps,
+                particles,
+                name,
+                seed=seed,
+                view=view,
+                kidnap_at=kidnap_at,
+                **(options or {}).get(name, {}),
+            )
             if particles is None:
                 particles = result.initial_particles
             steps = len(result.errors)
@@ -293,8 +304,19 @@ def compare_filters(
     if kidnap_at is not None and robot.kidnap_at is None:
         robot = walk_until(robot, kidnap_at)
     options = {name: per_filter[resolve_filter(name).name] for name in filter_names}
-    return run_filters(world, robot, sigma, delta, filter_names, seed=seed, particles=particles, steps=steps,
-                       visualize=visualize, kidnap_at=kidnap_at, options=options)  # fmt: skip
+    return run_filters(
+        world,
+        robot,
+        sigma,
+        delta,
+        filter_names,
+        seed=seed,
+        particles=particles,
+        steps=steps,
+        visualize=visualize,
+        kidnap_at=kidnap_at,
+        options=options,
+    )
 
 
 def comparison_table(results: dict[str, RunResult], kld: bool = False, startup_seconds: float | None = None) -> str:
@@ -308,21 +330,26 @@ def comparison_table(results: dict[str, RunResult], kld: bool = False, startup_s
     backends = {f["backend"] for f in figures}
     one = len(backends) == 1
     columns = [
-        ("filter", lambda f: f["label"]), ("mean error", lambda f: f"{f['mean_error']:.3f}"),
+        ("filter", lambda f: f["label"]),
+        ("mean error", lambda f: f"{f['mean_error']:.3f}"),
         (f"last-{FINAL_SHARE:.0%} error", lambda f: f"{f['final_error']:.3f}"),
         ("converged at", lambda f: "never" if f["converged_at"] is None else f"step {f['converged_at']}"),
         ("mean ESS", lambda f: format_number(f["mean_ess"], "{:.0f}")),
         ("log p(z_1:K)", lambda f: format_number(f["log_evidence"], "{:.1f}") + "*" * bool(f["log_evidence_caveat"])),
-        (f"ms/step, {next(iter(backends))}" if one else "ms/step, backend",
-         lambda f: f"{f['ms_per_step']:.2f}" + ("" if one else f" {f['backend']}")),
-    ]  # fmt: skip
+        (
+            f"ms/step, {next(iter(backends))}" if one else "ms/step, backend",
+            lambda f: f"{f['ms_per_step']:.2f}" + ("" if one else f" {f['backend']}"),
+        ),
+    ]
     if any(result.kidnap_at is not None for result in results.values()):
-        columns += [("re-localised", lambda f: "yes" if f["relocalised"] else "no"),
-                    ("steps to recover", lambda f: "never" if f["steps_to_recover"] is None else
-                     str(f["steps_to_recover"]))]  # fmt: skip
+        columns += [
+            ("re-localised", lambda f: "yes" if f["relocalised"] else "no"),
+            ("steps to recover", lambda f: "never" if f["steps_to_recover"] is None else str(f["steps_to_recover"])),
+        ]
     if kld:
-        columns.append(("mean N", lambda f: f"{f['mean_particle_count']:.0f}" if filter_entry(f["name"]).takes_particles
-                        else "-"))  # fmt: skip
+        columns.append(
+            ("mean N", lambda f: f"{f['mean_particle_count']:.0f}" if filter_entry(f["name"]).takes_particles else "-")
+        )
     rows = [[cell(f) for _, cell in columns] for f in figures]
     caveats = {f["label"]: f["log_evidence_caveat"] for f in figures if f["log_evidence_caveat"]}
     notes = [f"[* {label}: the log evidence is {why}]" for label, why in caveats.items()]
@@ -351,9 +378,17 @@ def plot_errors(results: dict[str, RunResult], path: Path, title: str, *, replac
     for i, (name, result) in enumerate(results.items()):
         steps = np.arange(1, len(result.errors) + 1)
         entry = described(name)  # the registry's label and colour, as in the viewer
-        axes.plot(steps, result.errors, label=entry.label, color=rgb(entry.colour), linewidth=1.2,
-                  linestyle=LINE_STYLES[i % len(LINE_STYLES)], marker=MARKERS[i % len(MARKERS)],
-                  markevery=(i, max(1, len(steps) // 12)), markersize=4)  # fmt: skip
+        axes.plot(
+            steps,
+            result.errors,
+            label=entry.label,
+            color=rgb(entry.colour),
+            linewidth=1.2,
+            linestyle=LINE_STYLES[i % len(LINE_STYLES)],
+            marker=MARKERS[i % len(MARKERS)],
+            markevery=(i, max(1, len(steps) // 12)),
+            markersize=4,
+        )
     axes.axhline(CONVERGENCE_RADIUS, color="grey", linestyle="--", linewidth=0.8, label="convergence radius")
     axes.set(title=title, xlabel="step k", ylabel="error |estimate - true position| (map units)")
     axes.set_ylim(bottom=0)

@@ -172,8 +172,9 @@ def options_per_filter(
     """
     entries_ = [filter_entry(f) for f in filters]
     spelled = spelled or {}
-    per_filter = options_for([e.filter_class for e in entries_],
-                             {k: v for k, v in given.items() if scoped(k)[0] is None}, spelled=spelled)  # fmt: skip
+    per_filter = options_for(
+        [e.filter_class for e in entries_], {k: v for k, v in given.items() if scoped(k)[0] is None}, spelled=spelled
+    )
     for key, value in given.items():
         scope, name = scoped(key)
         if scope is None or value is None:
@@ -273,9 +274,18 @@ class RunTask:
         kept row is checked by, mazelab.experiments.journal.foreign_row); a generated maze's sha256 is left
         out (its run's own maze's, which maze_seed fixes)."""
         s = self.setting
-        cells = {"seed": self.seed, "maze_sha256": s.maze.sha256, "maze_seed": self.maze_seed, "maze": s.maze.label,
-                 "wall_share": s.maze.wall_share, "sigma": s.sigma, "delta": s.delta, "particles": s.particles,
-                 "steps": self.steps, "kidnap_at": self.kidnap_at}  # fmt: skip
+        cells = {
+            "seed": self.seed,
+            "maze_sha256": s.maze.sha256,
+            "maze_seed": self.maze_seed,
+            "maze": s.maze.label,
+            "wall_share": s.maze.wall_share,
+            "sigma": s.sigma,
+            "delta": s.delta,
+            "particles": s.particles,
+            "steps": self.steps,
+            "kidnap_at": self.kidnap_at,
+        }
         if s.maze.grid is None:
             del cells["maze_sha256"]
         return cells
@@ -328,12 +338,23 @@ def study_tasks(
     seeds = study_seeds(root_seed, runs)
     chosen = zip(settings, filters_per_setting(settings, filters), strict=True)
     return [
-        RunTask(i, setting, r, seed, None if setting.maze.grid else maze_seed, mine, steps, kidnap_at, traces,
-                reference, tuple(code for code in plugins if code.spec in mine))
+        RunTask(
+            i,
+            setting,
+            r,
+            seed,
+            None if setting.maze.grid else maze_seed,
+            mine,
+            steps,
+            kidnap_at,
+            traces,
+            reference,
+            tuple(code for code in plugins if code.spec in mine),
+        )
         for i, (setting, mine) in enumerate(chosen, start=1)
         if mine
         for r, (seed, maze_seed) in enumerate(seeds, start=1)
-    ]  # fmt: skip
+    ]
 
 
 @dataclass
@@ -360,8 +381,10 @@ class RunCells:
         as lists (numbers in full: the CSV and traces written from it are the same bit for bit)."""
         data = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
         if self.trace is not None:
-            data["trace"] = {k: {n: np.asarray(a).tolist() for n, a in v.items()} if k == "diagnostics" else
-                             np.asarray(v).tolist() for k, v in self.trace.items()}  # fmt: skip
+            data["trace"] = {
+                k: {n: np.asarray(a).tolist() for n, a in v.items()} if k == "diagnostics" else np.asarray(v).tolist()
+                for k, v in self.trace.items()
+            }
         return data
 
     @classmethod
@@ -371,8 +394,10 @@ class RunCells:
         trace = data.pop("trace", None)
         record = cls(**data)
         if trace is not None:
-            record.trace = {k: {n: np.asarray(a) for n, a in v.items()} if k == "diagnostics" else np.asarray(v)
-                            for k, v in trace.items()}  # fmt: skip
+            record.trace = {
+                k: {n: np.asarray(a) for n, a in v.items()} if k == "diagnostics" else np.asarray(v)
+                for k, v in trace.items()
+            }
         return record
 
 
@@ -415,9 +440,19 @@ def run_task(task: RunTask, visualize: Any = False) -> list[RunRecord]:
         warnings.simplefilter("ignore", UserWarning)
         robot = Robot.of_seed(world, s.sigma, s.delta, task.seed)
         options = {name: task.setting.filter_options(name) for name in task.filters}
-        results = run_filters(world, robot, s.sigma, s.delta, task.filters, seed=task.seed, visualize=visualize,
-                              particle_count=s.particles, steps=task.steps, kidnap_at=task.kidnap_at,
-                              options=options)  # fmt: skip
+        results = run_filters(
+            world,
+            robot,
+            s.sigma,
+            s.delta,
+            task.filters,
+            seed=task.seed,
+            visualize=visualize,
+            particle_count=s.particles,
+            steps=task.steps,
+            kidnap_at=task.kidnap_at,
+            options=options,
+        )
     records = run_records(task, world, results)
     return with_reference(task, world, robot, results, records) if task.reference else records
 

@@ -62,26 +62,51 @@ class YQuantity:
 
 
 Y_QUANTITIES = {
-    "mean": YQuantity(f"mean last-{FINAL_SHARE:.0%} error (map units)", lambda s: s.mean_final_error,
-                      lambda s: s.interval, "BCa bootstrap intervals for the mean"),
-    "median": YQuantity(f"median last-{FINAL_SHARE:.0%} error (map units)", lambda s: s.median_final_error,
-                        lambda s: s.median_interval, "percentile bootstrap intervals for the median"),
-    "converged": YQuantity("runs converged (%)", lambda s: s.converged_share, lambda s: s.converged_interval,
-                           "Wilson score intervals for the share", share=True),
-    "exact": YQuantity("distance to the exact posterior mean (map units)", lambda s: s.distance_to_exact,
-                       lambda s: s.distance_to_exact_interval, "BCa bootstrap intervals for the mean distance"),
-    "paired": YQuantity(f"paired difference in last-{FINAL_SHARE:.0%} error (map units)",
-                        lambda s: s.mean_difference, lambda s: s.difference_interval,
-                        "paired BCa bootstrap intervals for the mean difference", signed=True),
-    "evidence": YQuantity("mean log evidence log p(z_1:K)", lambda s: s.mean_log_evidence,
-                          lambda s: (s.mean_log_evidence - 1.96 * s.log_evidence_se,
-                                     s.mean_log_evidence + 1.96 * s.log_evidence_se),
-                          "intervals of the mean, 1.96 standard errors", from_zero=False),
-}  # fmt: skip
+    "mean": YQuantity(
+        f"mean last-{FINAL_SHARE:.0%} error (map units)",
+        lambda s: s.mean_final_error,
+        lambda s: s.interval,
+        "BCa bootstrap intervals for the mean",
+    ),
+    "median": YQuantity(
+        f"median last-{FINAL_SHARE:.0%} error (map units)",
+        lambda s: s.median_final_error,
+        lambda s: s.median_interval,
+        "percentile bootstrap intervals for the median",
+    ),
+    "converged": YQuantity(
+        "runs converged (%)",
+        lambda s: s.converged_share,
+        lambda s: s.converged_interval,
+        "Wilson score intervals for the share",
+        share=True,
+    ),
+    "exact": YQuantity(
+        "distance to the exact posterior mean (map units)",
+        lambda s: s.distance_to_exact,
+        lambda s: s.distance_to_exact_interval,
+        "BCa bootstrap intervals for the mean distance",
+    ),
+    "paired": YQuantity(
+        f"paired difference in last-{FINAL_SHARE:.0%} error (map units)",
+        lambda s: s.mean_difference,
+        lambda s: s.difference_interval,
+        "paired BCa bootstrap intervals for the mean difference",
+        signed=True,
+    ),
+    "evidence": YQuantity(
+        "mean log evidence log p(z_1:K)",
+        lambda s: s.mean_log_evidence,
+        lambda s: (s.mean_log_evidence - 1.96 * s.log_evidence_se, s.mean_log_evidence + 1.96 * s.log_evidence_se),
+        "intervals of the mean, 1.96 standard errors",
+        from_zero=False,
+    ),
+}
 
 
-def figure_axes(varied: Sequence[str], x: str | None, y: str, title: str | None, *, exact: bool,
-                paired: bool) -> YQuantity:  # fmt: skip
+def figure_axes(
+    varied: Sequence[str], x: str | None, y: str, title: str | None, *, exact: bool, paired: bool
+) -> YQuantity:
     """What the figure draws, checked in one place (`mazelab study` before any run, the figure when it is
     drawn): `x` a varied parameter (None: `choose_x`'s), `y` a key of Y_QUANTITIES (exact needs the
     distance to the exact posterior, `exact`; paired a filter to pair with, `paired`), `title` one line.
@@ -256,9 +281,17 @@ def _sort_key(value: Any) -> tuple[int, Any]:
 
 
 def draw_study(
-    summaries: Sequence[StudySummary], varied: Sequence[str], path: Path, runs: int, maze: str, *, x: str | None = None,
-    y: str = "mean", title: str | None = None, replace: bool = True,
-) -> FigureLayout:  # fmt: skip
+    summaries: Sequence[StudySummary],
+    varied: Sequence[str],
+    path: Path,
+    runs: int,
+    maze: str,
+    *,
+    x: str | None = None,
+    y: str = "mean",
+    title: str | None = None,
+    replace: bool = True,
+) -> FigureLayout:
     """Draw the study's small multiples to `path` (.png at PNG_DPI, .pdf or .svg), as `mazelab study --plot`
     and `mazelab.study(...).figure` draw them, and return their layout with each panel's y range and box
     (an existing file is replaced only with `replace`). `x` chooses the x axis among the varied parameters
@@ -282,8 +315,9 @@ def draw_study(
         )
         scale = XScale.of(summaries, layout.x)
         layout = draw_panels(axes, layout, list(panels.values()), scale, quantity)
-        caveats = {line_label(s, []): s.log_evidence_caveat for s in summaries if s.log_evidence_caveat and
-                   y == "evidence"}  # fmt: skip
+        caveats = {
+            line_label(s, []): s.log_evidence_caveat for s in summaries if s.log_evidence_caveat and y == "evidence"
+        }
         _legend(figure, axes.flat[: len(layout.panels)], layout.lines, set(caveats))
         marks = [f"* {label}: its log evidence is {why}" for label, why in caveats.items()]
         how = [describe(scale, len(layout.panels), quantity)] if title is None else []
@@ -320,8 +354,9 @@ def describe(scale: XScale, panels: int, quantity: YQuantity) -> str:
     if scale.kind == "category":
         notes.append("lines set side by side within a category")
     else:
-        notes.append(f"points at one x set {NUMERIC_DODGE:.0%} of the x spacing apart, so their bars do not hide "
-                     "each other")  # fmt: skip
+        notes.append(
+            f"points at one x set {NUMERIC_DODGE:.0%} of the x spacing apart, so their bars do not hide each other"
+        )
     return "\n".join(textwrap.wrap("(" + "; ".join(notes) + ")", CAPTION_WIDTH))
 
 
@@ -377,9 +412,13 @@ class XScale:
 
 
 def draw_panel(
-    ax: Any, lines: Sequence[_Line], scale: XScale, all_labels: Sequence[str], panel: int,
+    ax: Any,
+    lines: Sequence[_Line],
+    scale: XScale,
+    all_labels: Sequence[str],
+    panel: int,
     quantity: YQuantity = Y_QUANTITIES["mean"],
-) -> tuple[float, float]:  # fmt: skip
+) -> tuple[float, float]:
     """Draw a panel's lines (with error bars; points at one x set a little apart) and references (dashed,
     shaded interval); returns its y range (`y_range`)."""
     drawn = [line for line in lines if not line.reference]
@@ -397,18 +436,31 @@ def draw_panel(
         low, high = unit * np.array([quantity.interval(s) for s in line.points], dtype=float).T
         bars = np.clip(np.nan_to_num(np.vstack([value - low, high - value])), 0, None)  # BCa may miss the mean
         container = ax.errorbar(
-            scale.back(where), value, yerr=bars, fmt=line.marker, linestyle=line.style if len(where) > 1 else "none",
-            color=line.colour, label=line.label, elinewidth=0.8, markerfacecolor="white" if j % 2 else line.colour,
+            scale.back(where),
+            value,
+            yerr=bars,
+            fmt=line.marker,
+            linestyle=line.style if len(where) > 1 else "none",
+            color=line.colour,
+            label=line.label,
+            elinewidth=0.8,
+            markerfacecolor="white" if j % 2 else line.colour,
             capsize=2 + j % 3,
-        )  # fmt: skip
+        )
         container.lines[0].set_gid(f"panel-{panel}:line:{line.label}")
         shown += [*value, *low, *high]
     for line in (line for line in lines if line.reference):
         value = unit * quantity.value(line.points[0])
         low, high = (unit * v for v in quantity.interval(line.points[0]))
         dashes = line.style if line.style != "-" else "--"  # a reference is never a solid line
-        ax.axhline(value, color=line.colour, linestyle=dashes, linewidth=1.0, label=line.label,
-                   gid=f"panel-{panel}:reference:{line.label}")  # fmt: skip
+        ax.axhline(
+            value,
+            color=line.colour,
+            linestyle=dashes,
+            linewidth=1.0,
+            label=line.label,
+            gid=f"panel-{panel}:reference:{line.label}",
+        )
         if not math.isnan(low):
             ax.axhspan(low, high, color=line.colour, alpha=0.15, linewidth=0)
         shown += [value, low, high]
@@ -452,6 +504,8 @@ def _legend(figure: Any, axes: Sequence[Any], order: Sequence[str], marked: set[
         for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
             seen.setdefault(label, handle)
     names = sorted(seen, key=lambda label: order.index(label) if label in order else len(order))
-    shown = [name.replace(name.split(",")[0], name.split(",")[0] + "*", 1) if name.split(",")[0] in marked else name
-             for name in names]  # fmt: skip
+    shown = [
+        name.replace(name.split(",")[0], name.split(",")[0] + "*", 1) if name.split(",")[0] in marked else name
+        for name in names
+    ]
     figure.legend([seen[n] for n in names], shown, loc="outside lower center", ncols=min(4, len(names)), frameon=False)

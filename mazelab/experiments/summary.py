@@ -322,16 +322,30 @@ def summarise_group(index: int, setting: StudySetting, name: str, group: Sequenc
     converged = [converged_within(r.converged_at, r.steps) for r in group]
     median_step, step_interval = km_median([min(r.converged_at or last, last) for r in group], converged)
     relocalised, steps_to_recover = recovery_summary(group)
-    relocalised_interval = None if relocalised is None else wilson_interval(sum(bool(r.relocalised) for r in group),
-                                                                            runs)  # fmt: skip
+    relocalised_interval = (
+        None if relocalised is None else wilson_interval(sum(bool(r.relocalised) for r in group), runs)
+    )
     summary = StudySummary(
-        index, setting, name, runs, statistics.fmean(finals), bootstrap_interval(finals, "mean", method=MEAN_METHOD),
-        sum(converged) / runs, None if math.isnan(median_step) else median_step,
-        statistics.fmean(r.ms_per_step for r in group), relocalised, steps_to_recover,
-        statistics.fmean(r.mean_particle_count for r in group), statistics.median(finals),
-        bootstrap_interval(finals, "median", method=MEDIAN_METHOD), wilson_interval(sum(converged), runs),
-        relocalised_interval, statistics.fmean(r.run_seconds for r in group), step_interval, last,
-    )  # fmt: skip
+        index,
+        setting,
+        name,
+        runs,
+        statistics.fmean(finals),
+        bootstrap_interval(finals, "mean", method=MEAN_METHOD),
+        sum(converged) / runs,
+        None if math.isnan(median_step) else median_step,
+        statistics.fmean(r.ms_per_step for r in group),
+        relocalised,
+        steps_to_recover,
+        statistics.fmean(r.mean_particle_count for r in group),
+        statistics.median(finals),
+        bootstrap_interval(finals, "median", method=MEDIAN_METHOD),
+        wilson_interval(sum(converged), runs),
+        relocalised_interval,
+        statistics.fmean(r.run_seconds for r in group),
+        step_interval,
+        last,
+    )
     for figure in SUMMARISED:
         mean, summary.figures[f"{figure.name}_interval"] = _mean_and_interval([getattr(r, figure.name) for r in group])
         summary.figures[figure.name] = mean
@@ -451,24 +465,29 @@ def study_table(summaries: Sequence[StudySummary], varied: Sequence[str], kld: b
     backends = {s.backend for s in summaries}
     ci, nan = f"{CONFIDENCE_LEVEL:.0%} CI", (math.nan, math.nan)
     columns = [
-        *((p, lambda s, p=p: show_value(s.setting.value(p)) if takes_parameter(s.filter, p) else "-")
-          for p in varied),
-        ("filter", lambda s: described(s.filter).label), ("runs", lambda s: str(s.runs)),
-        ("mean last-20% error", lambda s: f"{s.mean_final_error:.3f}"), (ci, lambda s: format_interval(*s.interval)),
-        ("median", lambda s: f"{s.median_final_error:.3f}"), (ci, lambda s: format_interval(*s.median_interval)),
+        *((p, lambda s, p=p: show_value(s.setting.value(p)) if takes_parameter(s.filter, p) else "-") for p in varied),
+        ("filter", lambda s: described(s.filter).label),
+        ("runs", lambda s: str(s.runs)),
+        ("mean last-20% error", lambda s: f"{s.mean_final_error:.3f}"),
+        (ci, lambda s: format_interval(*s.interval)),
+        ("median", lambda s: f"{s.median_final_error:.3f}"),
+        (ci, lambda s: format_interval(*s.median_interval)),
         ("converged", lambda s: f"{s.converged_share:.0%}"),
         (ci, lambda s: format_interval(*s.converged_interval, spec="{:.0%}")),
         ("median conv. step", lambda s: _step(s.median_convergence_step, s.last_convergence_step)),
         (ci, lambda s: _step_interval(s.convergence_interval, s.last_convergence_step)),
         ("log p(z_1:K) (SE)", _evidence),
-        (f"ms/step, {next(iter(backends))}" if len(backends) == 1 else "ms/step, backend",
-         lambda s: f"{s.ms_per_step:.2f}" + ("" if len(backends) == 1 else f" {s.backend}")),
-    ]  # fmt: skip
+        (
+            f"ms/step, {next(iter(backends))}" if len(backends) == 1 else "ms/step, backend",
+            lambda s: f"{s.ms_per_step:.2f}" + ("" if len(backends) == 1 else f" {s.backend}"),
+        ),
+    ]
     if any(s.relocalised_share is not None for s in summaries):
-        columns += [("re-localised", lambda s: format_number(s.relocalised_share, "{:.0%}")),
-                    (ci, lambda s: format_interval(*(s.relocalised_interval or nan), spec="{:.0%}")),
-                    ("median steps to recover", lambda s: format_number(s.median_steps_to_recover, "{:g}")),
-                    ]  # fmt: skip
+        columns += [
+            ("re-localised", lambda s: format_number(s.relocalised_share, "{:.0%}")),
+            (ci, lambda s: format_interval(*(s.relocalised_interval or nan), spec="{:.0%}")),
+            ("median steps to recover", lambda s: format_number(s.median_steps_to_recover, "{:g}")),
+        ]
     if kld:
         columns.append(
             ("mean N", lambda s: f"{s.mean_particle_count:.0f}" if described(s.filter).takes_particles else "-")
@@ -478,9 +497,10 @@ def study_table(summaries: Sequence[StudySummary], varied: Sequence[str], kld: b
         if f.summary == "interval":
             columns.append((ci, lambda s, f=f: format_interval(*getattr(s, f"{f.name}_interval"), spec=f.spec)))
     if reference:
-        columns += [(f"diff. vs {described(reference).label}",
-                     lambda s: format_number(s.mean_difference, "{:+.3f}")),
-                    (ci, lambda s: format_interval(*s.difference_interval, spec="{:+.3f}"))]  # fmt: skip
+        columns += [
+            (f"diff. vs {described(reference).label}", lambda s: format_number(s.mean_difference, "{:+.3f}")),
+            (ci, lambda s: format_interval(*s.difference_interval, spec="{:+.3f}")),
+        ]
     rows = [[cell(s) for _, cell in columns] for s in summaries]
     return format_table([header for header, _ in columns], rows) + "\n" + interval_note(summaries)
 
@@ -507,14 +527,32 @@ CSV_DTYPES = {"seed": "int64", "maze_seed": "str (empty for a maze file; as floa
 # the summary CSV's statistics, after `setting`, the study's parameters and `filter`: a StudySummary field each,
 # an interval (FIELD, NAME) as two columns, NAME_low and NAME_high
 SUMMARY_FIELDS: tuple[str | tuple[str, str], ...] = (
-    "runs", "mean_final_error", ("interval", "mean_final_error"), "median_final_error",
-    ("median_interval", "median_final_error"), "converged_share", ("converged_interval", "converged"),
-    "last_convergence_step", "median_convergence_step", ("convergence_interval", "median_convergence_step"),
-    "mean_log_evidence", "log_evidence_se", "log_evidence_caveat", "ms_per_step", "backend", "run_seconds",
-    "mean_particle_count", "relocalised_share", ("relocalised_interval", "relocalised"), "median_steps_to_recover",
+    "runs",
+    "mean_final_error",
+    ("interval", "mean_final_error"),
+    "median_final_error",
+    ("median_interval", "median_final_error"),
+    "converged_share",
+    ("converged_interval", "converged"),
+    "last_convergence_step",
+    "median_convergence_step",
+    ("convergence_interval", "median_convergence_step"),
+    "mean_log_evidence",
+    "log_evidence_se",
+    "log_evidence_caveat",
+    "ms_per_step",
+    "backend",
+    "run_seconds",
+    "mean_particle_count",
+    "relocalised_share",
+    ("relocalised_interval", "relocalised"),
+    "median_steps_to_recover",
     *(name for f in SUMMARISED for name in [f.name, *[(f"{f.name}_interval", f.name)] * (f.summary == "interval")]),
-    "paired_with", "paired_runs", "mean_difference", ("difference_interval", "difference"),
-)  # fmt: skip
+    "paired_with",
+    "paired_runs",
+    "mean_difference",
+    ("difference_interval", "difference"),
+)
 SUMMARY_STATISTICS = tuple(
     name for f in SUMMARY_FIELDS for name in ((f"{f[1]}_low", f"{f[1]}_high") if isinstance(f, tuple) else (f,))
 )

@@ -203,12 +203,22 @@ def study_traces(records: Iterable[Any]) -> list[dict[str, Any]]:
     with the row's parameters: its label, why its log evidence is not of p(z_1:K) (if it is not),
     PARAMETER_COLUMNS, then the options its filter ran with (RunRecord.options)."""
     return [
-        trace_columns(r.setting, r.run, r.seed, r.filter, r.trace, {
-            "label": r.label, "log_evidence_caveat": r.log_evidence_caveat,
-            **{name: getattr(r, name) for name in PARAMETER_COLUMNS}, **r.options})
+        trace_columns(
+            r.setting,
+            r.run,
+            r.seed,
+            r.filter,
+            r.trace,
+            {
+                "label": r.label,
+                "log_evidence_caveat": r.log_evidence_caveat,
+                **{name: getattr(r, name) for name in PARAMETER_COLUMNS},
+                **r.options,
+            },
+        )
         for r in records
         if r.trace is not None
-    ]  # fmt: skip
+    ]
 
 
 def trace_of(result: RunResult) -> dict[str, Any]:
@@ -233,9 +243,14 @@ def compare_traces(results: dict[str, RunResult], seed: int, maze: str | None = 
     blocks = []
     for name, result in results.items():
         inputs = result.inputs
-        parameters = {"label": described(name).label, "log_evidence_caveat": described(name).evidence, "maze": maze,
-                      "sigma": inputs.sigma, "delta": inputs.delta,
-                      "particles": len(inputs.init_particles_pos)}  # fmt: skip
+        parameters = {
+            "label": described(name).label,
+            "log_evidence_caveat": described(name).evidence,
+            "maze": maze,
+            "sigma": inputs.sigma,
+            "delta": inputs.delta,
+            "particles": len(inputs.init_particles_pos),
+        }
         blocks.append(trace_columns(None, 1, seed, name, trace_of(result), parameters))
     return blocks
 

@@ -133,8 +133,9 @@ class _NoAliasCompiler(Compiler):
     """numba's compiler, with the arrays a kernel takes marked as not overlapping (LLVM's noalias): a
     loop that gathers (from the lookup table, by the ancestors) vectorises only then."""
 
-    def __init__(self, typingctx: Any, targetctx: Any, library: Any, args: Any, return_type: Any, flags: Any,
-                 locals: Any) -> None:  # fmt: skip
+    def __init__(
+        self, typingctx: Any, targetctx: Any, library: Any, args: Any, return_type: Any, flags: Any, locals: Any
+    ) -> None:
         flags.noalias = True
         super().__init__(typingctx, targetctx, library, args, return_type, flags, locals)
 

@@ -144,8 +144,18 @@ def log_likelihood(xy, z, constants, codes, quads, rows, border, out):  # pragma
     (compiled.lookup_tables)."""
     sigma, free_term, outside_term = F32(constants[0]), F32(constants[1]), F32(constants[2])
     nx, width = constants[5], constants[7]  # the tables in the kernels' types: the grid float32, indices uint64
-    typed = (F32(constants[3]), F32(constants[4]), F32(nx), F32(constants[6]), np.uint64(nx), codes, quads, rows,
-             np.uint64(width), border)  # fmt: skip
+    typed = (
+        F32(constants[3]),
+        F32(constants[4]),
+        F32(nx),
+        F32(constants[6]),
+        np.uint64(nx),
+        codes,
+        quads,
+        rows,
+        np.uint64(width),
+        border,
+    )
     runs, size = out.shape
     blocks, jobs = chunks(runs, size)
     left = scratch(runs * size, codes.dtype)  # what each point leaves open

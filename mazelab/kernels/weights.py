@@ -261,5 +261,6 @@ def systematic(weights, u, out):  # pragma: no cover - compiled
         r, start, stop = chunk_of(job, blocks, size)
         block = job - r * blocks
         points = out[r, stops[r, block] : stops[r, block + 1]]
-        _ancestors_of_block(weights[r, start : min(stop, size - 1)], u[r], count, bases[r, block], start,
-                            stops[r, block], points)  # fmt: skip
+        _ancestors_of_block(
+            weights[r, start : min(stop, size - 1)], u[r], count, bases[r, block], start, stops[r, block], points
+        )

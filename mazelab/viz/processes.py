@@ -86,8 +86,12 @@ def native_viewer() -> str:
     """The gRPC address of a native viewer on 127.0.0.1:VIEWER_PORT: the one already running there
     (as rerun's own spawn does, runs share its window), else a new detached one."""
     if not listening(VIEWER_PORT):
-        start_rerun(["--bind", "127.0.0.1", "--port", str(VIEWER_PORT), "--expect-data-soon"], [VIEWER_PORT],
-                    detached=True, settle=1.0)  # fmt: skip
+        start_rerun(
+            ["--bind", "127.0.0.1", "--port", str(VIEWER_PORT), "--expect-data-soon"],
+            [VIEWER_PORT],
+            detached=True,
+            settle=1.0,
+        )
     return f"rerun+http://127.0.0.1:{VIEWER_PORT}/proxy"
 
 
