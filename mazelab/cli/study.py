@@ -366,6 +366,33 @@ class StudySession:
         self.release()
 
 
+def resumed_tasks(plan: StudyPlan, files: StudyFiles, backend: str) -> tuple[list, list, list]:
+    """The runs to go, the rows kept and the earlier sessions: the plan's own, or with `--resume` what its
+    journal leaves to do (checked against the plan). A journal an interrupted run left unreadable is
+    replaced where `files.replaces` says so (`files.resume` is then off), and refused in one line otherwise."""
+    if not files.resume:
+        return plan.tasks, [], []
+    try:
+        return resume_study(files.journal, files.lines, plan, backend)
+    except JournalError as error:
+        if not files.replaces:
+            raise UserError(str(error) if str(error).startswith("--resume") else f"--resume: {error}") from None
+        why = str(error).removeprefix("--resume: ").removesuffix("; give the same parameters")
+        typer.echo(f"replacing what an interrupted run left ({files.journal} and its outputs): {why}")
+        files.resume = False
+        return plan.tasks, [], []
+    finally:
+        files.lines = []  # now the kept rows: the journal's text is not held twice
+
+
+def drawn_first(tasks: list, draw_run: int) -> list:
+    """The tasks with the drawn run (run `draw_run` of the first setting) first: the executor draws it."""
+    chosen = next((i for i, t in enumerate(tasks) if t.run == draw_run), None)
+    if chosen is None:
+        raise UserError(f"--draw-run {draw_run}: the study has no such run to draw")
+    return [tasks[chosen], *tasks[:chosen], *tasks[chosen + 1 :]]
+
+
 def open_session(
     plan: StudyPlan,
     files: StudyFiles,
@@ -380,22 +407,9 @@ def open_session(
 ) -> StudySession:
     """The runs to go (a resumed study's checked against its journal), the claims, the journal, the
     cluster and the record (of `kind`, its `parameters` the plan's unless given); the `header` printed."""
-    tasks, kept, earlier = plan.tasks, [], []
-    if files.resume:
-        try:
-            tasks, kept, earlier = resume_study(files.journal, files.lines, plan, backend)
-        except JournalError as error:
-            if not files.replaces:
-                raise UserError(str(error) if str(error).startswith("--resume") else f"--resume: {error}") from None
-            why = str(error).removeprefix("--resume: ").removesuffix("; give the same parameters")
-            typer.echo(f"replacing what an interrupted run left ({files.journal} and its outputs): {why}")
-            files.resume = False
-        files.lines = []  # now the kept rows: the journal's text is not held twice
-    if visualize:  # the drawn run (run `draw_run` of the first setting) first: the executor draws it
-        chosen = next((i for i, t in enumerate(tasks) if t.run == draw_run), None)
-        if chosen is None:
-            raise UserError(f"--draw-run {draw_run}: the study has no such run to draw")
-        tasks = [tasks[chosen], *tasks[:chosen], *tasks[chosen + 1 :]]
+    tasks, kept, earlier = resumed_tasks(plan, files, backend)
+    if visualize:
+        tasks = drawn_first(tasks, draw_run)
     outputs = {
         k: None if v is None else str(v)
         for k, v in (("csv", files.csv_path), ("plot", files.plot), ("traces", files.traces))
@@ -426,13 +440,8 @@ def open_session(
     if visualize:
         typer.echo(f"drawing run {tasks[0].run} of setting {tasks[0].setting_index} (--draw-run chooses the run)")
     if session.journal is not None:  # the parameters --resume compares, before any run
-        line = {
-            "command": recorder.data["command"],
-            "started": recorder.data["started"],
-            "parameters": jsonable(plan.parameters()),
-            "backend": backend,
-        }
-        session.journal.write({"session": line})
+        started = {k: recorder.data[k] for k in ("command", "started")}
+        session.journal.write({"session": {**started, "parameters": jsonable(plan.parameters()), "backend": backend}})
     return session
 
 
