@@ -65,8 +65,6 @@ class SmoothedWalk:
         The grid's cell centres, in the order of a density's `ravel()`.
     shape : (rows, columns)
         The grid's shape (rows along y).
-    checkpoint_every : int
-        B, the steps between two filtered densities kept by the forward pass.
     """
 
     means: np.ndarray
@@ -75,7 +73,6 @@ class SmoothedWalk:
     log_evidence: float
     positions: np.ndarray
     shape: tuple[int, int]
-    checkpoint_every: int
 
 
 class BackwardStep:
@@ -168,10 +165,11 @@ def smooth(
     grid = GridBayesFilter(world, sigma, delta, **grid_options)
     block = checkpoint_block(len(angles), checkpoint_every)
     check_smoother_memory(grid.shape, len(angles), block)
-    checkpoints, filtered_means = forward(grid, angles, zs, block)
-    log_evidence = grid.log_evidence  # the refiltering below adds to it again
+    prior = grid.density.copy()
+    checkpoints, filtered_means = forward(grid, angles, zs, lambda k: k % block == 0 and k < len(angles))
+    checkpoints[0], log_evidence = prior, grid.log_evidence  # the refiltering below adds to the evidence again
     means, spreads = backward(grid, checkpoints, angles, zs, block, visit)
-    return SmoothedWalk(means, spreads, filtered_means, log_evidence, grid.positions, grid.shape, block)
+    return SmoothedWalk(means, spreads, filtered_means, log_evidence, grid.positions, grid.shape)
 
 
 def backward(
@@ -189,9 +187,10 @@ def backward(
     step_back, beta = BackwardStep(grid), np.ones(grid.shape)
     for start in reversed(range(0, steps, block)):  # the block of steps start+1 .. end
         end = min(start + block, steps)
-        filtered = refilter(grid, checkpoints.pop(start), angles[start:end], zs[start:end])
+        grid.density = checkpoints.pop(start)
+        filtered, _ = forward(grid, angles[start:end], zs[start:end], lambda k: True)  # the same numbers, bit for bit
         for k in range(end, start, -1):
-            smoothed = smoothed_density(filtered.pop(), beta, k)
+            smoothed = smoothed_density(filtered[k - start], beta, k)
             means[k - 1], spreads[k - 1] = moments(smoothed, grid.positions)
             if visit is not None:
                 smoothed.flags.writeable = False
@@ -202,11 +201,13 @@ def backward(
 
 
 def forward(
-    grid: GridBayesFilter, angles: np.ndarray, zs: np.ndarray, block: int
+    grid: GridBayesFilter, angles: np.ndarray, zs: np.ndarray, keep: Callable[[int], bool]
 ) -> tuple[dict[int, np.ndarray], np.ndarray]:
-    """The grid filter over the walk: its prior and alpha_k at k = B, 2B, ... < K (the checkpoints,
-    step -> density) and its mean at every step (K, 2). `grid.log_evidence` is then log p(z_1:K)."""
-    checkpoints, means = {0: grid.density.copy()}, np.empty((len(angles), 2))
+    """The grid filter over steps 1..n (th0 `angles`, z `zs`) from its density: alpha_k of each step k that
+    `keep` asks for (step -> density; the forward pass's checkpoints, every B-th step, or a block's every
+    step from its checkpoint when the backward pass refilters it) and the mean at every step (n, 2);
+    `grid.log_evidence` then adds log p(z_1:n)."""
+    kept, means = {}, np.empty((len(angles), 2))
     for k in range(1, len(angles) + 1):
         grid.step(angles[k - 1], zs[k - 1])
         if grid.reinitialised_at:  # the filter restarted: the model gives this walk no posterior
@@ -215,20 +216,9 @@ def forward(
                 "the walk has no smoothed posterior under this model"
             )
         means[k - 1] = grid.mean
-        if k % block == 0 and k < len(angles):
-            checkpoints[k] = grid.density.copy()
-    return checkpoints, means
-
-
-def refilter(grid: GridBayesFilter, start: np.ndarray, angles: np.ndarray, zs: np.ndarray) -> list[np.ndarray]:
-    """The filtered densities of a block of steps again, from the one before it (a checkpoint): the
-    grid filter's same operations, so the same numbers bit for bit as the forward pass's."""
-    grid.density = start
-    densities = []
-    for compass_angle, z in zip(angles, zs, strict=True):
-        grid.step(compass_angle, z)
-        densities.append(grid.density.copy())
-    return densities
+        if keep(k):
+            kept[k] = grid.density.copy()
+    return kept, means
 
 
 def smoothed_density(alpha: np.ndarray, beta: np.ndarray, k: int) -> np.ndarray:
