@@ -415,7 +415,6 @@ class SmootherScores:
         weighted particles and the exact smoothed posterior over the maze's unit cells (`*_tv`) and the
         distinct ancestors its estimate rests on (`*_ancestors`); and the filter's distance to the exact
         filtered mean, its own target (`filter_error_to_filtered`).
-    lag : int
     recorded : dict
         Each filter's label -> its Genealogy of each of SMOOTHERS (their means, distinct ancestors and,
         when asked, clouds).
@@ -423,7 +422,6 @@ class SmootherScores:
 
     exact: SmoothedWalk
     rows: list[dict[str, Any]]
-    lag: int
     recorded: dict[str, list[Genealogy]] = field(default_factory=dict)
 
 
@@ -443,7 +441,7 @@ def score_smoothers(
     robot: Robot,
     sigma: float,
     delta: float,
-    filters: Sequence[str],
+    filters: Sequence[str] | Mapping[str, Mapping[str, Any]],
     *,
     lag: int = 10,
     particle_count: int | None = None,
@@ -451,10 +449,9 @@ def score_smoothers(
     seed: int = 0,
     grid_options: dict[str, Any] | None = None,
     clouds: bool = False,
-    options: Mapping[str, Mapping[str, Any]] | None = None,
 ) -> SmootherScores:
     """Each particle filter's own estimate, fixed-lag and path smoothers on a recorded walk, beside the
-    exact smoother (`smooth`), step by step (SmootherScores).
+    exact smoother (`smooth`), step by step: their SmootherScores.
 
     Parameters
     ----------
@@ -462,8 +459,9 @@ def score_smoothers(
     robot : Robot
         One that replays a walk with its measurements (Scenario.robot of a scenario that stores them).
     sigma, delta : float
-    filters : sequence of str
-        Registry names of filters that keep particles (sir, apf, rpf, a plug-in's).
+    filters : sequence of str, or mapping
+        Registry names of filters that keep particles (sir, apf, rpf, a plug-in's), or each one's name -> its
+        own options (e.g. {"sir": {}, "rpf": {"bandwidth": 0.05}}).
     lag : int
         L of the fixed-lag smoother (>= 1).
     particle_count, initial_particles, seed
@@ -472,8 +470,6 @@ def score_smoothers(
         GridBayesFilter's options for the exact smoother.
     clouds : bool
         Keep the traced particles of every step (Genealogy's `clouds`) for a viewer.
-    options : mapping, optional
-        Each filter's own options, by its name as in `filters` (e.g. {"rpf": {"bandwidth": 0.05}}).
 
     Returns
     -------
@@ -482,49 +478,33 @@ def score_smoothers(
     from mazelab.simulation import simulate  # the layer above the model's: imported by the caller that runs
 
     lag = check_smoothers(robot, filters, lag, particle_count, initial_particles)
-    grid_options = dict(grid_options or {})
-    bins, count = cell_bins(world, GridBayesFilter.options.resolve(grid_options, "GridBayesFilter")["margin"])
-    exact, exact_masses = binned_smoother(world, sigma, delta, robot, bins, count, grid_options)
+    exact, exact_masses, bins, count = binned_smoother(world, sigma, delta, robot, dict(grid_options or {}))
+    walk = (robot, world, sigma, delta, particle_count, len(exact.means), initial_particles)  # every filter's run
     rows, recorded = [], {}
-    for name in filters:
+    for name, options in (filters if isinstance(filters, Mapping) else {name: {} for name in filters}).items():
         entry = filter_entry(name)
         recorders = [Genealogy(length, bins, count, clouds) for length in (0, lag, None)]  # SMOOTHERS' lags
-        run = simulate(
-            robot,
-            world,
-            sigma,
-            delta,
-            particle_count,
-            len(exact.means),
-            initial_particles,
-            entry.filter_class,
-            seed=seed,
-            on_step=functools.partial(record_step, recorders),
-            **(options or {}).get(name, {}),
-        )
+        record = functools.partial(record_step, recorders)
+        run = simulate(*walk, entry.filter_class, seed=seed, on_step=record, **options)
         recorded[entry.label] = [g.finish() for g in recorders]
         rows += score_rows(entry.label, exact, exact_masses, run.true_positions, recorded[entry.label])
-    return SmootherScores(exact, rows, lag, recorded)
+    return SmootherScores(exact, rows, recorded)
 
 
 def binned_smoother(
-    world: Maze,
-    sigma: float,
-    delta: float,
-    robot: Robot,
-    bins: Callable[[np.ndarray], np.ndarray],
-    count: int,
-    grid_options: dict[str, Any],
-) -> tuple[SmoothedWalk, dict[int, np.ndarray]]:
-    """The exact smoother of the robot's walk (`smooth`), and its mass in each of the `count` bins at every step
-    (step -> (count,)): what a particle smoother's binned mass is compared with."""
+    world: Maze, sigma: float, delta: float, robot: Robot, grid_options: dict[str, Any]
+) -> tuple[SmoothedWalk, dict[int, np.ndarray], Callable[[np.ndarray], np.ndarray], int]:
+    """The exact smoother of the robot's walk (`smooth`), its mass in each bin of the maze's cells (`cell_bins`)
+    at every step (step -> (count,)): what a particle smoother's binned mass is compared with; the bins and
+    their count."""
+    bins, count = cell_bins(world, GridBayesFilter.options.resolve(grid_options, "GridBayesFilter")["margin"])
     cells, masses = bins(GridBayesFilter(world, sigma, delta, **grid_options).positions), {}  # each cell's bin
 
     def binned(k: int, density: np.ndarray) -> None:
         masses[k] = np.bincount(cells, density.ravel(), count)
 
     exact = smooth(world, sigma, delta, robot.compass_angles, robot.measurements, visit=binned, **grid_options)
-    return exact, masses
+    return exact, masses, bins, count
 
 
 def check_smoothers(

@@ -159,9 +159,10 @@ def test_smooth_gives_each_filter_the_options_it_declares(scenario, tmp_path):
     assert main([*argv, "--option", "rpf.bandwidth=0.05", "--csv", str(tmp_path / "narrow.csv")]) == 0
     plain, narrow = read_rows(tmp_path / "plain.csv"), read_rows(tmp_path / "narrow.csv")
     stored = load_scenario(scenario)
-    expected = score_smoothers(load_maze("paper_5x5"), stored.robot(), stored.sigma, stored.delta, ["sir", "rpf"],
-                               lag=5, seed=stored.seed, initial_particles=stored.init_particles_pos,
-                               grid_options={"resolution": 0.2}, options={"rpf": {"bandwidth": 0.05}})  # fmt: skip
+    filters = {"sir": {}, "rpf": {"bandwidth": 0.05}}  # each filter's own options
+    expected = score_smoothers(load_maze("paper_5x5"), stored.robot(), stored.sigma, stored.delta, filters, lag=5,
+                               seed=stored.seed, initial_particles=stored.init_particles_pos,
+                               grid_options={"resolution": 0.2})  # fmt: skip
     for row, want in zip(narrow, expected.rows, strict=True):
         assert {k: float(v) if k != "filter" else v for k, v in row.items()} == pytest.approx(want, abs=0)
     assert [r for r in narrow if r["filter"] == "SIR"] == [r for r in plain if r["filter"] == "SIR"]

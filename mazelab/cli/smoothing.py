@@ -108,13 +108,12 @@ def smooth(
         stored.robot(),
         sigma,
         delta,
-        names,
+        options,
         lag=lag,
         seed=seed,
         grid_options={"resolution": resolution},
         initial_particles=stored.init_particles_pos,
         clouds=rrd is not None,
-        options=options,
     )
     summary = smoothing_summary(scores)
     columns = list(summary[-1])
@@ -123,7 +122,7 @@ def smooth(
         write_text_atomically(outputs["csv"], records_csv(scores.rows, SCORE_COLUMNS), replace=force)
         typer.echo(f"one row per filter and step written to {outputs['csv']}")
     if plot is not None:
-        save_figure(smoothing_figure(scores, path.name), plot, replace=force)
+        save_figure(smoothing_figure(scores, f"{path.name}: smoothers (lag {lag})"), plot, replace=force)
         typer.echo(f"the figure written to {plot}")
     if rrd is not None:
         smoothing_recording(scores, world, rrd, force)
@@ -193,7 +192,7 @@ def smoothing_figure(scores: SmootherScores, title: str) -> Any:
         for name, style in zip(SMOOTHERS, (":", "--", "-"), strict=True):
             top.plot(steps, [r[f"{name}_error"] for r in mine], style, label=f"{label} {name}")
         bottom.semilogy(steps, [r["path_ancestors"] for r in mine], label=label)
-    top.set(yscale="log", ylabel="distance to the exact smoothed mean", title=f"{title}: smoothers (lag {scores.lag})")
+    top.set(yscale="log", ylabel="distance to the exact smoothed mean", title=title)
     bottom.set(xlabel="step k", ylabel="path smoother's distinct ancestors")
     top.legend(fontsize=7, ncol=3)
     bottom.legend(fontsize=7)
