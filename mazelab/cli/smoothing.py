@@ -24,6 +24,7 @@ from mazelab.cli.options import (
     parse_list,
     seed_option,
     with_option_flags,
+    with_parameters,
 )
 from mazelab.cli.study import exit_stopped
 from mazelab.experiments import executor
@@ -32,7 +33,8 @@ from mazelab.experiments.runs import parse_filters
 from mazelab.experiments.study import options_per_filter
 from mazelab.experiments.tables import format_table, pyplot, records_csv, save_figure
 from mazelab.invocation import command_line, resume_command
-from mazelab.learning import ParameterGrid, ParameterPosterior, evidence_filter, exact_parameter_posterior, pmmh
+from mazelab.learning import ParameterGrid, ParameterPosterior, evidence_filter, exact_parameter_posterior
+from mazelab.learning import pmmh as run_pmmh
 from mazelab.model import LAB_DELTA_RANGE, LAB_SIGMA_RANGE
 from mazelab.registry import file_sha256, filter_entry
 from mazelab.smoothing import SCORE_COLUMNS, SMOOTHERS, SmootherScores, score_smoothers
@@ -48,49 +50,60 @@ SIGMA_RANGE, DELTA_RANGE = (",".join(map(str, r)) for r in (LAB_SIGMA_RANGE, LAB
 SigmaRange = opt(str, metavar="LOW,HIGH", help="the uniform prior's sigma range (map units)")
 DeltaRange = opt(str, metavar="LOW,HIGH", help="the uniform prior's delta range (radians)")
 Cells = opt(int, min=1, help="the parameter grid's cells along sigma and along delta")
-Iterations = opt(int, "--pmmh", min=0, help="a PMMH chain of this many iterations (0: none)")
-PmmhFilter = opt(str, "--filter", help="PMMH's filter (its evidence must estimate p(z_1:K))")
-Particles = opt(int, min=1, help="PMMH's particles")
-Workers = opt(int | None, min=1, help="processes for the exact posterior's cells (default: all cores)")
-Dask = opt(str | None, help="a Dask scheduler for the exact posterior's cells, tcp://HOST:PORT")
-Resume = opt(bool, "--resume", help="compute only the cells missing from --csv's journal")
+CHAIN = {  # learn's PMMH options, named as its record names them
+    "pmmh": (opt(int, "--pmmh", min=0, help="a PMMH chain of this many iterations (0: none)"), 0),
+    "filter": (opt(str, "--filter", help="PMMH's filter (its evidence must estimate p(z_1:K))"), "sir"),
+    "particles": (opt(int, "--particles", min=1, help="PMMH's particles"), 200),
+    "seed": (opt(int, "--seed", callback=seed_option, help="PMMH's seed"), 1),
+}
+CLUSTER = {  # where learn's exact posterior runs (run_cells)
+    "workers": (
+        opt(int | None, "--workers", min=1, help="processes for the exact posterior's cells (default: all cores)"),
+        None,
+    ),
+    "dask": (opt(str | None, "--dask", help="a Dask scheduler for the exact posterior's cells, tcp://HOST:PORT"), None),
+}
+RESUME = (opt(bool, "--resume", help="compute only the cells missing from --csv's journal"), False)
 Resolution = opt(float, help="the exact grid's cells, map units (memory grows as its inverse square)")
 Seed = opt(int | None, callback=seed_option, help="the filters' seed [default: the scenario's]")
-Csv = opt(Path | None, "--csv", help="the rows (.csv)")
-PlotFile = opt(Path | None, "--plot", help="the figure (.png; plot extra)")
-Record = opt(Path | None, help="the JSON record [default: beside --csv]")
-Rrd = opt(Path | None, "--rrd", help="a Rerun recording: each filter's cloud beside its path smoother's")
-ChainRrd = opt(Path | None, "--rrd", help="a Rerun recording: the PMMH chain over the exact posterior")
+
+
+def output_options(rrd_help: str, **more: tuple[Any, Any]) -> dict[str, tuple[Any, Any]]:
+    """The output options of smooth and learn (a `with_parameters` group; `more` before --force)."""
+    return {
+        "csv_path": (opt(Path | None, "--csv", help="the rows (.csv)"), None),
+        "plot": (opt(Path | None, "--plot", help="the figure (.png; plot extra)"), None),
+        "record": (opt(Path | None, "--record", help="the JSON record [default: beside --csv]"), None),
+        "rrd": (opt(Path | None, "--rrd", help=f"a Rerun recording: {rrd_help}"), None),
+        **more,
+        "force": (Force, False),
+    }
 
 
 @with_option_flags()
+@with_parameters("option", {"option": (OptionFlag, None)}, lambda given: given["option"])  # after the files
+@with_parameters("files", output_options("each filter's cloud beside its path smoother's"))
 def smooth(
     scenario: Scenario_,
     filters: ParticleFilters = "sir,apf,rpf",
     lag: Lag = 10,
     resolution: Resolution = 0.05,
     seed: Seed = None,
-    csv_path: Csv = None,
-    plot: PlotFile = None,
-    record: Record = None,
-    rrd: Rrd = None,
-    force: Force = False,
-    option: OptionFlag = None,
-    named: dict | None = None,
+    *,
+    files: dict[str, Any],
+    option: list[str] | None,
+    named: dict[str, Any],
 ) -> None:
     """Where the robot was at each step given every measurement: the exact smoother on the grid, and each
     filter's own estimate, fixed-lag and path smoothers scored against it step by step (the distance of
     their means to the exact smoothed mean, the total variation over the maze's cells, the distinct
     ancestors each rests on: the path degeneracy). Each filter takes the options it declares."""
-    path, stored, outputs, (world, sigma, delta) = opened(scenario, csv_path, plot, record, force, rrd)
-    names = [filter_entry(name).short_name for name in parse_filters(filters)]
-    given = given_options(named or {}, option, names)
-    per_filter = options_per_filter(names, given, given.spelled)  # an option none of them takes: one line
-    options = {name: per_filter[filter_entry(name).name] for name in names}
+    path, stored, files, (world, sigma, delta) = opened(scenario, **files)
+    options = filter_options(filters, named, option)
     seed = seed if seed is not None else stored.seed if stored.seed is not None else 0
     parameters = {
         "scenario": str(path),
-        "filters": names,
+        "filters": list(options),
         "lag": lag,
         "resolution": resolution,
         "seed": seed,
@@ -113,20 +126,12 @@ def smooth(
         seed=seed,
         grid_options={"resolution": resolution},
         initial_particles=stored.init_particles_pos,
-        clouds=rrd is not None,
+        clouds=files["rrd"] is not None,
     )
     summary = smoothing_summary(scores)
-    columns = list(summary[-1])
-    typer.echo(format_table(columns, [[shown(row.get(k)) for k in columns] for row in summary]))
-    if outputs["csv"] is not None:
-        write_text_atomically(outputs["csv"], records_csv(scores.rows, SCORE_COLUMNS), replace=force)
-        typer.echo(f"one row per filter and step written to {outputs['csv']}")
-    if plot is not None:
-        save_figure(smoothing_figure(scores, f"{path.name}: smoothers (lag {lag})"), plot, replace=force)
-        typer.echo(f"the figure written to {plot}")
-    if rrd is not None:
-        smoothing_recording(scores, world, rrd, force)
-    finish(recorder, outputs["record"], summary=summary)
+    rows = ("filter and step", lambda: records_csv(scores.rows, SCORE_COLUMNS))
+    figure = functools.partial(smoothing_figure, scores, f"{path.name}: smoothers (lag {lag})")
+    write_outputs(files, recorder, summary, rows, figure, functools.partial(smoothing_recording, scores, world))
 
 
 def smoothing_recording(scores: SmootherScores, world: Any, path: Path, force: bool) -> None:
@@ -159,10 +164,19 @@ def smoothing_recording(scores: SmootherScores, world: Any, path: Path, force: b
     recording.close()
 
 
+def filter_options(filters: str, named: dict[str, Any], option: list[str] | None) -> dict[str, dict[str, Any]]:
+    """Each of --filters (its short name) -> the options it declares among the named flags and --option (one
+    that none of them takes: one line)."""
+    names = [filter_entry(name).short_name for name in parse_filters(filters)]
+    given = given_options(named, option, names)
+    per_filter = options_per_filter(names, given, given.spelled)
+    return {name: per_filter[filter_entry(name).name] for name in names}
+
+
 def smoothing_summary(scores: SmootherScores) -> list[dict[str, Any]]:
-    """Per filter, the means over the walk of each smoother's error and total variation, and the fewest
-    distinct ancestors the path smoother rests on (at its first step); the exact smoother's error to the
-    truth first."""
+    """Print, per filter, the means over the walk of each smoother's error and total variation, and the
+    fewest distinct ancestors the path smoother rests on (at its first step), the exact smoother's error
+    to the truth first; return them for the record."""
     exact = (("filter_error", "exact_filtered_to_truth"), ("path_error", "exact_smoothed_to_truth"))
     rows = [{"filter": "exact, to the truth", **{k: float(np.mean([r[c] for r in scores.rows])) for k, c in exact}}]
     for label in dict.fromkeys(r["filter"] for r in scores.rows):
@@ -173,6 +187,8 @@ def smoothing_summary(scores: SmootherScores) -> list[dict[str, Any]]:
             for k in ("error", "tv")
         }
         rows.append({"filter": label, **means, "path_ancestors_fewest": int(min(r["path_ancestors"] for r in mine))})
+    columns = list(rows[-1])
+    typer.echo(format_table(columns, [[shown(row.get(k)) for k in columns] for row in rows]))
     return rows
 
 
@@ -199,78 +215,60 @@ def smoothing_figure(scores: SmootherScores, title: str) -> Any:
     return figure
 
 
+@with_parameters("files", output_options("the PMMH chain over the exact posterior", resume=RESUME))
+@with_parameters("cluster", CLUSTER)
+@with_parameters("chain", CHAIN)
 def learn(
     scenario: Scenario_,
     sigma_range: SigmaRange = SIGMA_RANGE,
     delta_range: DeltaRange = DELTA_RANGE,
     cells: Cells = 12,
     resolution: Resolution = 0.1,
-    pmmh_iterations: Iterations = 0,
-    filter_name: PmmhFilter = "sir",
-    particles: Particles = 200,
-    seed: opt(int, callback=seed_option, help="PMMH's seed") = 1,
-    workers: Workers = None,
-    dask: Dask = None,
-    csv_path: Csv = None,
-    plot: PlotFile = None,
-    record: Record = None,
-    rrd: ChainRrd = None,
-    resume: Resume = False,
-    force: Force = False,
+    *,
+    chain: dict[str, Any],
+    cluster: dict[str, Any],
+    files: dict[str, Any],
 ) -> None:
     """Which sigma and delta explain the scenario's measurements: the exact posterior on a grid of cells
     under the uniform prior on the ranges (the grid filter's exact evidence at each, spread over --workers
     processes or a --dask cluster, each finished cell kept in a journal beside --csv that --resume goes on
     from), and a PMMH chain (--pmmh) with a particle filter's evidence beside it."""
-    path, stored, outputs, (world, _, _) = opened(scenario, csv_path, plot, record, force or resume, rrd)
+    path, stored, files, (world, _, _) = opened(scenario, **files)
     grid = parameter_grid(sigma_range, delta_range, cells)
-    if pmmh_iterations:
-        evidence_filter(filter_name)  # a filter PMMH cannot use: one line before the exact posterior's runs
+    if chain["pmmh"]:
+        evidence_filter(chain["filter"])  # a filter PMMH cannot use: one line before the exact posterior's runs
     parameters = {
         "scenario": str(path),
         "sigma_range": grid.sigma_range,
         "delta_range": grid.delta_range,
         "cells": cells,
         "resolution": resolution,
-        "pmmh": pmmh_iterations,
-        "filter": filter_name,
-        "particles": particles,
-        "seed": seed,
+        **chain,
     }
     recorder = Recorder("learn", command_line(), parameters, scenario_sha256=file_sha256(path))
     walk = stored.robot_compass_angles, stored.robot_measurements
-    cells_map = functools.partial(run_cells, cells_journal(csv_path, resume, force, recorder), workers, dask)
+    cells_map = functools.partial(run_cells, cells_journal(files, recorder), **cluster)
     posterior = exact_parameter_posterior(world, *walk, grid, mapper=cells_map, resolution=resolution)
-    chain = (
-        pmmh(
-            world,
-            *walk,
-            pmmh_iterations,
-            filter_name=filter_name,
-            particle_count=particles,
-            prior=grid,
-            burn_in=pmmh_iterations // 10,
-            seed=seed,
-        )
-        if pmmh_iterations
-        else None
-    )
-    summary = learning_summary(posterior, chain, filter_name)
-    if outputs["csv"] is not None:
-        write_text_atomically(outputs["csv"], posterior_csv(posterior), replace=force or resume)
-        typer.echo(f"one row per (sigma, delta) cell written to {outputs['csv']}")
-    if plot is not None:
-        save_figure(posterior_figure(posterior, chain, path.name), plot, replace=force or resume)
-        typer.echo(f"the figure written to {plot}")
-    if rrd is not None:
-        chain_recording(posterior, chain, world, rrd, force or resume)
-    finish(recorder, outputs["record"], summary=summary)
+    chained = learned_chain(world, walk, grid, **chain)
+    summary = learning_summary(posterior, chained, chain["filter"])
+    rows = ("(sigma, delta) cell", functools.partial(posterior_csv, posterior))
+    figure = functools.partial(posterior_figure, posterior, chained, path.name)
+    write_outputs(files, recorder, summary, rows, figure, functools.partial(chain_recording, posterior, chained, world))
 
 
-def cells_journal(csv_path: Path | None, resume: bool, force: bool, recorder: Recorder) -> tuple[Journal, dict] | None:
+def learned_chain(
+    world: Any, walk: tuple, grid: ParameterGrid, pmmh: int, filter: str, particles: int, seed: int
+) -> Any:
+    """learn's PMMH chain (`CHAIN`'s options: none for --pmmh 0), its first tenth the burn-in."""
+    settings = {"filter_name": filter, "particle_count": particles, "seed": seed}
+    return run_pmmh(world, *walk, pmmh, prior=grid, burn_in=pmmh // 10, **settings) if pmmh else None
+
+
+def cells_journal(files: dict[str, Any], recorder: Recorder) -> tuple[Journal, dict] | None:
     """The journal of the exact posterior's cells beside --csv (a study's: mazelab.experiments.journal, which
     refuses one another command writes, or one an earlier left without --resume or --force), and the cells
     an earlier session finished (--resume: what they depend on must be this command's, else one line)."""
+    csv_path, resume = files["csv_path"], files["resume"]
     file = journal_path(csv_path) if csv_path is not None else None
     if resume and (file is None or not file.exists()):
         raise UserError(f"--resume: no journal of the cells beside {csv_path} to go on from; leave out --resume")
@@ -296,7 +294,7 @@ def cells_journal(csv_path: Path | None, resume: bool, force: bool, recorder: Re
         except (KeyError, TypeError, ValueError) as error:
             raise UserError(f"--resume: {file} holds a line that is not a cell's ({error!r})") from None
         typer.echo(f"resuming: {len(done)} cell(s) kept from {file}")
-    journal = Journal(file, adopt=resume, replace=force)
+    journal = Journal(file, adopt=resume, replace=files["force"])
     journal.write(
         {"session": {"command": recorder.data["command"], "started": recorder.data["started"], "parameters": compared}}
     )
@@ -305,11 +303,12 @@ def cells_journal(csv_path: Path | None, resume: bool, force: bool, recorder: Re
 
 def run_cells(
     journal: tuple[Journal, dict] | None,
-    workers: int | None,
-    dask: str | None,
     cell: Any,
     sigmas: list[float],
     deltas: list[float],
+    *,
+    workers: int | None,
+    dask: str | None,
 ) -> np.ndarray:
     """exact_parameter_posterior's map: `cell(sigma, delta)` of every cell (S D,) on the study's executor
     (mazelab.experiments.executor.run_units: --workers processes or the --dask cluster) unless the journal
@@ -450,29 +449,44 @@ def posterior_figure(posterior: Any, chain: Any, title: str) -> Any:
 
 
 def opened(
-    scenario: Path, csv_path: Path | None, plot: Path | None, record: Path | None, force: bool, rrd: Path | None
-) -> tuple[Path, Scenario, dict[str, Path | None], tuple[Any, float, float]]:
-    """The scenario (a file or a shipped name) with its measurements, the outputs checked before any work
-    (distinct files, none replaced without --force, the record beside --csv by default), and the scenario's
-    maze (the shipped one it fits when it stores none), sigma and delta."""
+    scenario: Path, csv_path: Path | None, plot: Path | None, record: Path | None, rrd: Path | None, **flags: bool
+) -> tuple[Path, Scenario, dict[str, Any], tuple[Any, float, float]]:
+    """The scenario (a file or a shipped name) with its measurements, the outputs (`output_options`) checked
+    before any work (distinct files, none replaced without --force or learn's --resume, the record beside --csv
+    by default) and returned so, and the scenario's maze (the shipped one it fits when it stores none), sigma
+    and delta."""
     from mazelab.cli.replay import replay_setup
     from mazelab.scenario import find_scenario, load_scenario  # imported by the commands that read one (a study never)
 
-    record_file = record if record is not None else record_path(csv_path) if csv_path is not None else None
+    record = record if record is not None else record_path(csv_path) if csv_path is not None else None
     journal = journal_path(csv_path) if csv_path else None  # learn's, checked by its owner; smooth's too
-    named = [("--csv", csv_path), ("--csv's journal", journal), ("--plot", plot), ("the record", record_file)]
-    check_outputs([*named, ("--rrd", rrd)], force, apart="--csv's journal")
+    named = [("--csv", csv_path), ("--csv's journal", journal), ("--plot", plot), ("the record", record)]
+    check_outputs([*named, ("--rrd", rrd)], flags["force"] or flags.get("resume"), apart="--csv's journal")
     path = find_scenario(scenario)
     stored = load_scenario(path)
     if stored.robot_measurements is None:
         raise UserError(f"{path} stores no measurements (robot_measurements): save a run's scenario with them")
     setup = replay_setup(stored, None, None, None, 0)
-    return path, stored, {"csv": csv_path, "record": record_file}, (setup.world, setup.sigma, setup.delta)
+    files = {"csv_path": csv_path, "plot": plot, "record": record, "rrd": rrd, **flags}
+    return path, stored, files, (setup.world, setup.sigma, setup.delta)
 
 
-def finish(recorder: Recorder, record_file: Path | None, **extra: Any) -> None:
-    """Close the record and write it (when there is a file for it)."""
-    if record_file is not None:
-        recorder.finish("finished", **extra)
-        recorder.write(record_file)
-        typer.echo(f"the record (command, versions, the scenario's sha256, summary) written to {record_file}")
+def write_outputs(
+    files: dict[str, Any], recorder: Recorder, summary: Any, rows: tuple[str, Any], figure: Any, recording: Any
+) -> None:
+    """Each output `opened` checked: the rows (`rows`: what one row is, and a callable giving the CSV's text),
+    the figure (`figure()`), the recording (`recording(path, replace)`) and the record, finished with `summary`;
+    --force (or learn's --resume) replaces them."""
+    replace = files["force"] or files.get("resume", False)
+    if files["csv_path"] is not None:
+        write_text_atomically(files["csv_path"], rows[1](), replace=replace)
+        typer.echo(f"one row per {rows[0]} written to {files['csv_path']}")
+    if files["plot"] is not None:
+        save_figure(figure(), files["plot"], replace=replace)
+        typer.echo(f"the figure written to {files['plot']}")
+    if files["rrd"] is not None:
+        recording(files["rrd"], replace)
+    if files["record"] is not None:
+        recorder.finish("finished", summary=summary)
+        recorder.write(files["record"])
+        typer.echo(f"the record (command, versions, the scenario's sha256, summary) written to {files['record']}")
