@@ -246,7 +246,7 @@ def evidence_filter(name: str | type, options: dict[str, Any] | None = None) -> 
     name : str or class
         What mazelab.registry.filter_entry takes (sir, SIRParticleFilter, ...).
     options : dict, optional
-        The filter's options.
+        The filter's options, each checked by its declaration (a one-line ValueError).
 
     Returns
     -------
@@ -260,6 +260,7 @@ def evidence_filter(name: str | type, options: dict[str, Any] | None = None) -> 
             "PMMH needs a filter whose evidence estimates p(z_1:K): with recovery it does not (its injected "
             "particles come from no proposal the weights account for); leave recovery out"
         )
+    entry.options.resolve(options or {}, entry.name)  # each option checked once, before the first run
     return entry
 
 
@@ -388,7 +389,7 @@ def pmmh(
     seed: int = 0,
     **filter_options: Any,
 ) -> Chain:
-    """Particle marginal Metropolis-Hastings on (sigma, delta) under the uniform prior on `prior`'s box.
+    """Particle marginal Metropolis-Hastings on (sigma, delta) under the uniform prior on `prior`'s box: a Chain.
 
     Each iteration proposes (sigma', delta') = (sigma, delta) + proposal_scale * N(0, I); one inside the
     box is accepted with probability min(1, Z_hat' / Z_hat), Z_hat' a fresh run's estimate of p(z_1:K),
@@ -400,11 +401,11 @@ def pmmh(
     world : Maze
     compass_angles, measurements : sequences of K floats
         The walk's th0_k and z_k.
-    iterations : int
+    iterations, burn_in : int
+        The chain's iterations, and the first of them left out of its estimates.
     filter_name : str or class
-        A filter whose evidence estimates p(z_1:K) (`evidence_filter`: the RPF, or recovery, is
-        refused in one line).
-    particle_count : int
+        A filter whose evidence estimates p(z_1:K) (`evidence_filter`: the RPF, or recovery, is refused
+        in one line), run with `particle_count` particles and its `**filter_options`.
     prior : ParameterGrid, optional
         Its box is the uniform prior's support (the lab's ranges by default).
     start : (sigma, delta), optional
@@ -413,23 +414,17 @@ def pmmh(
         The random walk's standard deviations along sigma (map units) and delta (radians): the
         defaults suit walks of a few dozen steps, whose posterior of delta is nearly the prior's (about
         a quarter of the proposals are accepted).
-    burn_in : int
-        The first iterations left out of the chain's estimates.
     seed : int
         Seeds the proposals, the acceptances and every run's particles and draws.
-    **filter_options
-        The filter's options.
 
     Returns
     -------
     Chain
     """
     entry = evidence_filter(filter_name, filter_options)
-    entry.options.resolve(filter_options, entry.name)  # each option checked once, before the first run
     angles, zs = check_walk(compass_angles, measurements)
     prior = ParameterGrid() if prior is None else prior
-    state = np.array(start if start is not None else [np.mean(prior.sigma_range), np.mean(prior.delta_range)])
-    scale = check_chain(prior, state, iterations, particle_count, burn_in, proposal_scale)
+    state, scale = check_chain(prior, start, iterations, particle_count, burn_in, proposal_scale)
     estimate = functools.partial(estimated_log_evidence, world, angles, zs, entry, particle_count, filter_options)
     rng = np.random.default_rng(check_seed("seed", seed))
     return Chain(*random_walk(estimate, prior, state, scale, iterations, rng), burn_in)
@@ -437,21 +432,23 @@ def pmmh(
 
 def check_chain(
     prior: ParameterGrid,
-    start: np.ndarray,
+    start: tuple[float, float] | None,
     iterations: int,
     particle_count: int,
     burn_in: int,
     proposal_scale: tuple[float, float],
-) -> np.ndarray:
-    """The proposal's scale (2,) once pmmh's settings are checked: a one-line ValueError for a start outside
-    the prior's box, a count that is not a whole number >= 1, a burn-in outside [0, iterations)."""
+) -> tuple[np.ndarray, np.ndarray]:
+    """The chain's first state (`start`, else the box's centre) and the proposal's scale, each (2,), once
+    pmmh's settings are checked: a one-line ValueError for a start outside the prior's box, a count that is
+    not a whole number >= 1, a burn-in outside [0, iterations)."""
+    state = np.array(start if start is not None else [np.mean(prior.sigma_range), np.mean(prior.delta_range)])
     iterations = step_number("iterations", iterations)
     checked_particle_count(particle_count)
     if not 0 <= burn_in < iterations:
         raise ValueError(f"burn_in must lie in [0, iterations), got {burn_in!r}")
-    if not prior.contains(*start):
-        raise ValueError(f"the chain's start {tuple(start)} lies outside the prior's box")
-    return np.array([finite_number("proposal scale", s) for s in proposal_scale])
+    if not prior.contains(*state):
+        raise ValueError(f"the chain's start {tuple(state)} lies outside the prior's box")
+    return state, np.array([finite_number("proposal scale", s) for s in proposal_scale])
 
 
 def random_walk(
