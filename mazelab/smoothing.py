@@ -13,16 +13,12 @@ way, so that the mass the prediction drops beyond the grid's margin is dropped h
 are the discretised model's exact answer: a brute-force sum over every path of cells gives the same
 (tests/test_smoothing.py).
 
-Memory: the forward pass keeps alpha_k at every B-th step only (checkpoints, B = ceil(sqrt(K)) unless
-told), and the backward pass refilters one block of B steps at a time from its checkpoint: about 2 sqrt(K)
-grids instead of K, for a second forward pass (docs/smoothing.md has the figures of a 200-step walk on
-maze_10x10: `uv run python benchmarks/smoothing_memory.py`).
+Memory: alpha_k is kept at every B-th step only (checkpoints, B = ceil(sqrt(K)) unless told), each block
+refiltered from its checkpoint on the way back: about 2 sqrt(K) grids instead of K (docs/smoothing.md).
 
 The particle smoothers, the path and the fixed-lag one (`Genealogy`, scored against the exact one by
-`score_smoothers`), follow the engine's `SMC.ancestry` back. Forward filtering backward sampling (FFBS) is not
-built: it needs the transition density p(x_k+1 | x_k), and the model's arc motion puts all of x_k+1's mass on
-an arc of radius L about x_k, a curve with no density in the plane, so FFBS's backward kernel is the genealogy
-itself, the path smoother (docs/smoothing.md says why in full).
+`score_smoothers`), follow the engine's `SMC.ancestry` back. Forward filtering backward sampling is not built:
+the model's arc motion has no transition density, and its backward kernel is the genealogy (docs/smoothing.md).
 """
 
 from __future__ import annotations
@@ -409,12 +405,9 @@ class SmootherScores:
     exact : SmoothedWalk
         The exact smoother's answer (its means, the grid filter's means beside them).
     rows : list of dict
-        One per filter and step (SCORE_COLUMNS): the distance (map units) of the exact filtered and
-        smoothed means to the truth; for the filter (lag 0), the fixed-lag and the path smoother, the
-        distance of its mean to the exact smoothed mean (`*_error`), the total variation between its
-        weighted particles and the exact smoothed posterior over the maze's unit cells (`*_tv`) and the
-        distinct ancestors its estimate rests on (`*_ancestors`); and the filter's distance to the exact
-        filtered mean, its own target (`filter_error_to_filtered`).
+        One per filter and step, its SCORE_COLUMNS (docs/smoothing.md says what each measures): for the
+        filter (lag 0), the fixed-lag and the path smoother, the distance of its mean to the exact smoothed
+        mean (`*_error`), the total variation to it (`*_tv`) and the distinct ancestors it rests on.
     recorded : dict
         Each filter's label -> its Genealogy of each of SMOOTHERS (their means, distinct ancestors and,
         when asked, clouds).
