@@ -56,13 +56,9 @@ CHAIN = {  # learn's PMMH options, named as its record names them
     "particles": (opt(int, "--particles", min=1, help="PMMH's particles"), 200),
     "seed": (opt(int, "--seed", callback=seed_option, help="PMMH's seed"), 1),
 }
-CLUSTER = {  # where learn's exact posterior runs (run_cells)
-    "workers": (
-        opt(int | None, "--workers", min=1, help="processes for the exact posterior's cells (default: all cores)"),
-        None,
-    ),
-    "dask": (opt(str | None, "--dask", help="a Dask scheduler for the exact posterior's cells, tcp://HOST:PORT"), None),
-}
+Workers = opt(int | None, "--workers", min=1, help="processes for the exact posterior's cells (default: all cores)")
+Dask = opt(str | None, "--dask", help="a Dask scheduler for the exact posterior's cells, tcp://HOST:PORT")
+CLUSTER = {"workers": (Workers, None), "dask": (Dask, None)}  # where learn's exact posterior runs (run_cells)
 RESUME = (opt(bool, "--resume", help="compute only the cells missing from --csv's journal"), False)
 Resolution = opt(float, help="the exact grid's cells, map units (memory grows as its inverse square)")
 Seed = opt(int | None, callback=seed_option, help="the filters' seed [default: the scenario's]")
