@@ -8,10 +8,8 @@ delta in [0.05, 0.6]. Then
 
 The exact posterior (`exact_parameter_posterior`) takes the grid filter's exact evidence at each cell's
 centre of a ParameterGrid (`grid_log_evidence`, a function of one cell that an executor maps). PMMH
-(`pmmh`) is a random-walk Metropolis chain on (sigma, delta) whose acceptance ratio uses a particle
-filter's estimate of p(z_1:K) in place of the evidence: it targets the exact posterior whenever that
-estimate is unbiased, which SIR's and the APF's are (Del Moral 2004) and the regularised filter's is not
-(`evidence_filter` says which filters qualify, from the registry's declaration).
+(`pmmh`) uses a particle filter's estimate of p(z_1:K) in place of the evidence: it targets the exact
+posterior whenever that estimate is unbiased (Del Moral 2004; `evidence_filter`, docs/smoothing.md).
 """
 
 from __future__ import annotations
