@@ -387,7 +387,7 @@ def pmmh(
     seed: int = 0,
     **filter_options: Any,
 ) -> Chain:
-    """Particle marginal Metropolis-Hastings on (sigma, delta) under the uniform prior on `prior`'s box: a Chain.
+    """Particle marginal Metropolis-Hastings on (sigma, delta) under the uniform prior on `prior`'s box.
 
     Each iteration proposes (sigma', delta') = (sigma, delta) + proposal_scale * N(0, I); one inside the
     box is accepted with probability min(1, Z_hat' / Z_hat), Z_hat' a fresh run's estimate of p(z_1:K),
@@ -404,10 +404,8 @@ def pmmh(
     filter_name : str or class
         A filter whose evidence estimates p(z_1:K) (`evidence_filter`: the RPF, or recovery, is refused
         in one line), run with `particle_count` particles and its `**filter_options`.
-    prior : ParameterGrid, optional
-        Its box is the uniform prior's support (the lab's ranges by default).
-    start : (sigma, delta), optional
-        The chain's first state (the box's centre by default).
+    prior, start : ParameterGrid and (sigma, delta), optional
+        The uniform prior's box (the lab's ranges by default) and the chain's first state (its centre by default).
     proposal_scale : (float, float)
         The random walk's standard deviations along sigma (map units) and delta (radians): the
         defaults suit walks of a few dozen steps, whose posterior of delta is nearly the prior's (about
@@ -421,24 +419,23 @@ def pmmh(
     """
     entry = evidence_filter(filter_name, filter_options)
     angles, zs = check_walk(compass_angles, measurements)
-    prior = ParameterGrid() if prior is None else prior
-    state, scale = check_chain(prior, start, iterations, particle_count, burn_in, proposal_scale)
+    prior, state, scale = check_chain(prior, start, iterations, particle_count, burn_in, proposal_scale)
     estimate = functools.partial(estimated_log_evidence, world, angles, zs, entry, particle_count, filter_options)
-    rng = np.random.default_rng(check_seed("seed", seed))
-    return Chain(*random_walk(estimate, prior, state, scale, iterations, rng), burn_in)
+    return Chain(*random_walk(estimate, prior, state, scale, iterations, seed), burn_in)
 
 
 def check_chain(
-    prior: ParameterGrid,
+    prior: ParameterGrid | None,
     start: tuple[float, float] | None,
     iterations: int,
     particle_count: int,
     burn_in: int,
     proposal_scale: tuple[float, float],
-) -> tuple[np.ndarray, np.ndarray]:
-    """The chain's first state (`start`, else the box's centre) and the proposal's scale, each (2,), once
-    pmmh's settings are checked: a one-line ValueError for a start outside the prior's box, a count that is
-    not a whole number >= 1, a burn-in outside [0, iterations)."""
+) -> tuple[ParameterGrid, np.ndarray, np.ndarray]:
+    """The prior (the lab's box by default), the chain's first state (`start`, else the box's centre) and the
+    proposal's scale, each (2,), once pmmh's settings are checked: a one-line ValueError for a start outside
+    the prior's box, a count that is not a whole number >= 1, a burn-in outside [0, iterations)."""
+    prior = ParameterGrid() if prior is None else prior
     state = np.array(start if start is not None else [np.mean(prior.sigma_range), np.mean(prior.delta_range)])
     iterations = step_number("iterations", iterations)
     checked_particle_count(particle_count)
@@ -446,7 +443,7 @@ def check_chain(
         raise ValueError(f"burn_in must lie in [0, iterations), got {burn_in!r}")
     if not prior.contains(*state):
         raise ValueError(f"the chain's start {tuple(state)} lies outside the prior's box")
-    return state, np.array([finite_number("proposal scale", s) for s in proposal_scale])
+    return prior, state, np.array([finite_number("proposal scale", s) for s in proposal_scale])
 
 
 def random_walk(
@@ -455,10 +452,12 @@ def random_walk(
     state: np.ndarray,
     scale: np.ndarray,
     iterations: int,
-    rng: np.random.Generator,
+    seed: int,
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """PMMH's iterations (`pmmh`): (the states (iterations, 2), the evidence estimate each held
-    (iterations,), the proposals accepted), `estimate(sigma, delta, rng)` a run's log p_hat(z_1:K)."""
+    (iterations,), the proposals accepted), `estimate(sigma, delta, rng)` a run's log p_hat(z_1:K), `rng`
+    the Generator of `seed` (checked: a one-line ValueError)."""
+    rng = np.random.default_rng(check_seed("seed", seed))
     log_z = estimate(*state, rng)
     samples, log_evidence, accepted = np.empty((iterations, 2)), np.empty(iterations), 0
     for i in range(iterations):

@@ -36,7 +36,7 @@ from mazelab.checks import angle, check_memory, coordinate, step_number
 from mazelab.grid_filter import BYTES_PER_GRID_CELL, GridBayesFilter, GridWorkspace, arc_kernel, arc_kernel_shape
 from mazelab.maze import Maze
 from mazelab.model import DEFAULT_PARTICLE_COUNT, check_model_parameters
-from mazelab.registry import filter_entry
+from mazelab.registry import FilterEntry, filter_entry
 from mazelab.robot import Robot
 
 BYTES_PER_DENSITY_CELL = 8  # a float64 grid: what each checkpoint and each refiltered step takes
@@ -443,8 +443,7 @@ def score_smoothers(
     grid_options: dict[str, Any] | None = None,
     clouds: bool = False,
 ) -> SmootherScores:
-    """Each particle filter's own estimate, fixed-lag and path smoothers on a recorded walk, beside the
-    exact smoother (`smooth`), step by step: their SmootherScores.
+    """Each particle filter's own estimate, fixed-lag and path smoothers of a walk beside the exact smoother's.
 
     Parameters
     ----------
@@ -470,15 +469,13 @@ def score_smoothers(
     """
     from mazelab.simulation import simulate  # the layer above the model's: imported by the caller that runs
 
-    lag = check_smoothers(robot, filters, lag, particle_count, initial_particles)
+    lag, entries = check_smoothers(robot, filters, lag, particle_count, initial_particles)
     exact, exact_masses, bins, count = binned_smoother(world, sigma, delta, robot, dict(grid_options or {}))
     walk = (robot, world, sigma, delta, particle_count, len(exact.means), initial_particles)  # every filter's run
     rows, recorded = [], {}
-    for name, options in (filters if isinstance(filters, Mapping) else {name: {} for name in filters}).items():
-        entry = filter_entry(name)
+    for entry, options in entries:
         recorders = [Genealogy(length, bins, count, clouds) for length in (0, lag, None)]  # SMOOTHERS' lags
-        record = functools.partial(record_step, recorders)
-        run = simulate(*walk, entry.filter_class, seed=seed, on_step=record, **options)
+        run = simulate(*walk, entry.filter_class, seed=seed, on_step=functools.partial(keep_step, recorders), **options)
         recorded[entry.label] = [g.finish() for g in recorders]
         rows += score_rows(entry.label, exact, exact_masses, run.true_positions, recorded[entry.label])
     return SmootherScores(exact, rows, recorded)
@@ -501,12 +498,19 @@ def binned_smoother(
 
 
 def check_smoothers(
-    robot: Robot, filters: Sequence[str], lag: int, particle_count: int | None, initial_particles: Any
-) -> int:
-    """The lag, once `score_smoothers`' inputs are checked: a one-line ValueError for a filter that keeps no
-    particles, a walk without measurements, a genealogy that does not fit in memory."""
+    robot: Robot,
+    filters: Sequence[str] | Mapping[str, Any],
+    lag: int,
+    particle_count: int | None,
+    initial_particles: Any,
+) -> tuple[int, list[tuple[FilterEntry, Mapping[str, Any]]]]:
+    """The lag and each filter's entry with its options, once `score_smoothers`' inputs are checked: a
+    one-line ValueError for a filter that keeps no particles, a walk without measurements, a genealogy that
+    does not fit in memory."""
     lag = step_number("lag", lag)
-    for entry in map(filter_entry, filters):
+    chosen = filters if isinstance(filters, Mapping) else {name: {} for name in filters}
+    entries = [(filter_entry(name), options) for name, options in chosen.items()]
+    for entry, _ in entries:
         if not entry.takes_particles:
             raise ValueError(f"a particle smoother needs a filter's genealogy: {entry.label} keeps no particles")
     if not robot.measurements:
@@ -516,10 +520,10 @@ def check_smoothers(
         f"the genealogy of {len(robot.measurements)} steps of {particles} particles (the path smoother's)",
         (len(robot.measurements) + lag + 2) * particles * BYTES_PER_RECORDED_PARTICLE,
     )
-    return lag
+    return lag, entries
 
 
-def record_step(recorders: list[Genealogy], k: int, robot: Robot, filt: Any) -> None:
+def keep_step(recorders: list[Genealogy], k: int, robot: Robot, filt: Any) -> None:
     """simulate's on_step: each recorder keeps the filter's step k."""
     for recorder in recorders:
         recorder.record(filt)
