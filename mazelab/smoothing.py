@@ -299,10 +299,9 @@ class Genealogy:
     Parameters
     ----------
     lag : int or None
-    bins : callable, optional
-        points (R, M, 2) -> flat bin indices (R, M) of `bin_count` bins: each estimate's weighted mass
-        per bin is kept too (the total variation to the exact smoother's, `score_rows`).
-    bin_count : int
+    bins : (callable, int), optional
+        `cell_bins`' pair: points (R, M, 2) -> flat bin indices (R, M), and the bins' count. Each estimate's
+        weighted mass per bin is kept too (the total variation to the exact smoother's, `score_rows`).
     clouds : bool
         Keep each estimate's traced particles and weights of run 0 too (`clouds`, step -> (points (M, 2),
         weights (M,))): what a viewer draws.
@@ -311,12 +310,11 @@ class Genealogy:
     def __init__(
         self,
         lag: int | None = None,
-        bins: Callable[[np.ndarray], np.ndarray] | None = None,
-        bin_count: int = 0,
+        bins: tuple[Callable[[np.ndarray], np.ndarray], int] | None = None,
         clouds: bool = False,
     ):
         self.lag = lag
-        self.bins, self.bin_count = bins, bin_count
+        self.bins, self.bin_count = bins if bins is not None else (None, 0)
         self.kept: deque[tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = deque()
         self.means: dict[int, np.ndarray] = {}  # step -> (R, 2)
         self.masses: dict[int, np.ndarray] = {}  # step -> (R, bin_count)
@@ -470,11 +468,11 @@ def score_smoothers(
     from mazelab.simulation import simulate  # the layer above the model's: imported by the caller that runs
 
     lag, entries = check_smoothers(robot, filters, lag, particle_count, initial_particles)
-    exact, exact_masses, bins, count = binned_smoother(world, sigma, delta, robot, dict(grid_options or {}))
+    exact, exact_masses, bins = binned_smoother(world, sigma, delta, robot, dict(grid_options or {}))
     walk = (robot, world, sigma, delta, particle_count, len(exact.means), initial_particles)  # every filter's run
     rows, recorded = [], {}
     for entry, options in entries:
-        recorders = [Genealogy(length, bins, count, clouds) for length in (0, lag, None)]  # SMOOTHERS' lags
+        recorders = [Genealogy(length, bins, clouds) for length in (0, lag, None)]  # SMOOTHERS' lags
         run = simulate(*walk, entry.filter_class, seed=seed, on_step=functools.partial(keep_step, recorders), **options)
         recorded[entry.label] = [g.finish() for g in recorders]
         rows += score_rows(entry.label, exact, exact_masses, run.true_positions, recorded[entry.label])
@@ -483,10 +481,9 @@ def score_smoothers(
 
 def binned_smoother(
     world: Maze, sigma: float, delta: float, robot: Robot, grid_options: dict[str, Any]
-) -> tuple[SmoothedWalk, dict[int, np.ndarray], Callable[[np.ndarray], np.ndarray], int]:
-    """The exact smoother of the robot's walk (`smooth`), its mass in each bin of the maze's cells (`cell_bins`)
-    at every step (step -> (count,)): what a particle smoother's binned mass is compared with; the bins and
-    their count."""
+) -> tuple[SmoothedWalk, dict[int, np.ndarray], tuple[Callable[[np.ndarray], np.ndarray], int]]:
+    """The exact smoother of the robot's walk (`smooth`), its mass in each bin of the maze's cells at every
+    step (step -> (count,)): what a particle smoother's binned mass is compared with; the bins (`cell_bins`)."""
     bins, count = cell_bins(world, GridBayesFilter.options.resolve(grid_options, "GridBayesFilter")["margin"])
     cells, masses = bins(GridBayesFilter(world, sigma, delta, **grid_options).positions), {}  # each cell's bin
 
@@ -494,7 +491,7 @@ def binned_smoother(
         masses[k] = np.bincount(cells, density.ravel(), count)
 
     exact = smooth(world, sigma, delta, robot.compass_angles, robot.measurements, visit=binned, **grid_options)
-    return exact, masses, bins, count
+    return exact, masses, (bins, count)
 
 
 def check_smoothers(

@@ -162,7 +162,7 @@ PARTICLE_FILTERS = ("sir", "apf", "rpf")
 def recorded_run(world, walk, filter_name, lags, count=300, seed=5, bins=None):
     """One seeded filter over a walk ((compass angle, z) pairs), a Genealogy per lag, and its mean after
     each step: (recorders, means (K, 2))."""
-    recorders = [Genealogy(lag, bins, 1) for lag in lags]
+    recorders = [Genealogy(lag, None if bins is None else (bins, 1)) for lag in lags]
     rng = np.random.default_rng(seed)
     filt = filter_entry(filter_name).filter_class(world, 0.3, 0.5, world.random_free_places(count, rng), rng)
     means = []
