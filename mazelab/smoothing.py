@@ -57,8 +57,6 @@ class SmoothedWalk:
         E[x_k | z_1:k], the grid filter's means on the same grid (what the smoother improves on).
     log_evidence : float
         log p(z_1:K) of the discretised model (the grid filter's exact value).
-    positions : array (M, 2)
-        The grid's cell centres, in the order of a density's `ravel()`.
     shape : (rows, columns)
         The grid's shape (rows along y).
     """
@@ -67,7 +65,6 @@ class SmoothedWalk:
     spreads: np.ndarray
     filtered_means: np.ndarray
     log_evidence: float
-    positions: np.ndarray
     shape: tuple[int, int]
 
 
@@ -165,7 +162,7 @@ def smooth(
     checkpoints, filtered_means = forward(grid, angles, zs, lambda k: k % block == 0 and k < len(angles))
     checkpoints[0], log_evidence = prior, grid.log_evidence  # the refiltering below adds to the evidence again
     means, spreads = backward(grid, checkpoints, angles, zs, block, visit)
-    return SmoothedWalk(means, spreads, filtered_means, log_evidence, grid.positions, grid.shape)
+    return SmoothedWalk(means, spreads, filtered_means, log_evidence, grid.shape)
 
 
 def backward(
