@@ -457,7 +457,7 @@ def opened(
     record = record if record is not None else record_path(csv_path) if csv_path is not None else None
     journal = journal_path(csv_path) if csv_path else None  # learn's, checked by its owner; smooth's too
     named = [("--csv", csv_path), ("--csv's journal", journal), ("--plot", plot), ("the record", record)]
-    check_outputs([*named, ("--rrd", rrd)], flags["force"] or flags.get("resume"), apart="--csv's journal")
+    check_outputs([*named, ("--rrd", rrd)], flags["force"] or flags.get("resume", False), apart="--csv's journal")
     path = find_scenario(scenario)
     stored = load_scenario(path)
     if stored.robot_measurements is None:
