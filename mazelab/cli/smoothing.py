@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import functools
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import typer
@@ -18,6 +18,7 @@ from mazelab.cli.options import (
     Force,
     OptionFlag,
     UserError,
+    arg,
     check_outputs,
     given_options,
     opt,
@@ -42,8 +43,7 @@ from mazelab.smoothing import SCORE_COLUMNS, SMOOTHERS, SmootherScores, score_sm
 if TYPE_CHECKING:
     from mazelab.scenario import Scenario
 
-SCENARIO_HELP = "a saved scenario with measurements (.json) or a shipped name"
-Scenario_ = Annotated[Path, typer.Argument(metavar="SCENARIO", show_default=False, help=SCENARIO_HELP)]
+Scenario_ = arg(Path, "SCENARIO", "a saved scenario with measurements (.json) or a shipped name")
 ParticleFilters = opt(str, metavar="NAMES", help="particle filters, comma-separated")
 Lag = opt(int, min=1, help="L, the fixed-lag smoother's lag (steps)")
 SIGMA_RANGE, DELTA_RANGE = (",".join(map(str, r)) for r in (LAB_SIGMA_RANGE, LAB_DELTA_RANGE))
