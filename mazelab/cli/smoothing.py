@@ -44,12 +44,7 @@ if TYPE_CHECKING:
     from mazelab.scenario import Scenario
 
 Scenario_ = arg(Path, "SCENARIO", "a saved scenario with measurements (.json) or a shipped name")
-ParticleFilters = opt(str, metavar="NAMES", help="particle filters, comma-separated")
-Lag = opt(int, min=1, help="L, the fixed-lag smoother's lag (steps)")
 SIGMA_RANGE, DELTA_RANGE = (",".join(map(str, r)) for r in (LAB_SIGMA_RANGE, LAB_DELTA_RANGE))
-SigmaRange = opt(str, metavar="LOW,HIGH", help="the uniform prior's sigma range (map units)")
-DeltaRange = opt(str, metavar="LOW,HIGH", help="the uniform prior's delta range (radians)")
-Cells = opt(int, min=1, help="the parameter grid's cells along sigma and along delta")
 CHAIN = {  # learn's PMMH options, named as its record names them
     "pmmh": (opt(int, "--pmmh", min=0, help="a PMMH chain of this many iterations (0: none)"), 0),
     "filter": (opt(str, "--filter", help="PMMH's filter (its evidence must estimate p(z_1:K))"), "sir"),
@@ -61,7 +56,6 @@ Dask = opt(str | None, "--dask", help="a Dask scheduler for the exact posterior'
 CLUSTER = {"workers": (Workers, None), "dask": (Dask, None)}  # where learn's exact posterior runs (run_cells)
 RESUME = (opt(bool, "--resume", help="compute only the cells missing from --csv's journal"), False)
 Resolution = opt(float, help="the exact grid's cells, map units (memory grows as its inverse square)")
-Seed = opt(int | None, callback=seed_option, help="the filters' seed [default: the scenario's]")
 
 
 def output_options(rrd_help: str, **more: tuple[Any, Any]) -> dict[str, tuple[Any, Any]]:
@@ -81,10 +75,10 @@ def output_options(rrd_help: str, **more: tuple[Any, Any]) -> dict[str, tuple[An
 @with_parameters("files", output_options("each filter's cloud beside its path smoother's"))
 def smooth(
     scenario: Scenario_,
-    filters: ParticleFilters = "sir,apf,rpf",
-    lag: Lag = 10,
+    filters: opt(str, metavar="NAMES", help="particle filters, comma-separated") = "sir,apf,rpf",
+    lag: opt(int, min=1, help="L, the fixed-lag smoother's lag (steps)") = 10,
     resolution: Resolution = 0.05,
-    seed: Seed = None,
+    seed: opt(int | None, callback=seed_option, help="the filters' seed [default: the scenario's]") = None,
     *,
     files: dict[str, Any],
     option: list[str] | None,
@@ -216,9 +210,9 @@ def smoothing_figure(scores: SmootherScores, title: str) -> Any:
 @with_parameters("chain", CHAIN)
 def learn(
     scenario: Scenario_,
-    sigma_range: SigmaRange = SIGMA_RANGE,
-    delta_range: DeltaRange = DELTA_RANGE,
-    cells: Cells = 12,
+    sigma_range: opt(str, metavar="LOW,HIGH", help="the uniform prior's sigma range (map units)") = SIGMA_RANGE,
+    delta_range: opt(str, metavar="LOW,HIGH", help="the uniform prior's delta range (radians)") = DELTA_RANGE,
+    cells: opt(int, min=1, help="the parameter grid's cells along sigma and along delta") = 12,
     resolution: Resolution = 0.1,
     *,
     chain: dict[str, Any],
