@@ -97,6 +97,8 @@ def test_pmmh_refuses_a_filter_whose_evidence_does_not_estimate_p_z_and_bad_sett
         pmmh(paper_world, [0.1], [1.0], 10, filter_name="rpf")
     with pytest.raises(ValueError, match=needs + "with recovery it does not"):
         pmmh(paper_world, [0.1], [1.0], 10, filter_name="sir", recovery="augmented")
+    with pytest.raises(ValueError, match=r"^threshold must be in \(0, 1\] \(a share of N\), got 5$"):
+        pmmh(paper_world, [0.1], [1.0], 10, filter_name="sir", threshold=5)  # the filter's own check, one line
     with pytest.raises(ValueError, match=needs + "EKF keeps none$"):
         pmmh(paper_world, [0.1], [1.0], 10, filter_name="ekf")
     with pytest.raises(ValueError, match="outside the prior's box"):
