@@ -350,19 +350,20 @@ def walk_and_record(
 
 
 # -- the recording loop: a filter stepped along a walk, each step's reads kept ------------------------
-@dataclass
 class Recorded:
     """Per step k = 1..steps, for R runs: the estimate (R, steps, 2), ESS, green circle, particle count
     and log evidence log p(z_1:k) (R, steps; NaN for a filter that keeps none), the filter's own time
-    per step (steps,), and its diagnostics by name (R, steps)."""
+    per step (steps,), and its diagnostics by name (R, steps): made empty for `runs` runs of `steps`
+    steps, filled step by step by record_steps."""
 
-    estimates: np.ndarray
-    ess: np.ndarray
-    confident: np.ndarray
-    counts: np.ndarray
-    log_evidence: np.ndarray
-    seconds: np.ndarray
-    diagnostics: dict[str, np.ndarray] = field(default_factory=dict)
+    def __init__(self, runs: int, steps: int):
+        self.estimates = np.empty((runs, steps, 2))
+        self.ess = np.empty((runs, steps))
+        self.confident = np.empty((runs, steps), dtype=bool)
+        self.counts = np.empty((runs, steps), dtype=np.int64)
+        self.log_evidence = np.empty((runs, steps))
+        self.seconds = np.empty(steps)
+        self.diagnostics: dict[str, np.ndarray] = {}
 
 
 def record_steps(
@@ -396,7 +397,7 @@ def record_steps(
         and its reads (estimate, ESS, confidence), divided among the R runs.
     """
     count = 1 if runs is None else runs
-    recorded = _unfilled(count, steps)
+    recorded = Recorded(count, steps)
     diagnostics: dict[str, list[Any]] = {}
     for k in range(steps):
         if at is not None:
@@ -415,19 +416,6 @@ def record_steps(
             after(k + 1, filt)
     recorded.diagnostics = {name: _per_run(values, count) for name, values in diagnostics.items()}
     return recorded
-
-
-def _unfilled(count: int, steps: int) -> Recorded:
-    """Recorded's arrays for `count` runs of `steps` steps, filled step by step by record_steps."""
-    shape = (count, steps)
-    return Recorded(
-        np.empty((*shape, 2)),
-        np.empty(shape),
-        np.empty(shape, dtype=bool),
-        np.empty(shape, dtype=np.int64),
-        np.empty(shape),
-        np.empty(steps),
-    )
 
 
 def _keep_diagnostics(kept: dict[str, list[Any]], now: Any, k: int, filter_class: type) -> None:
