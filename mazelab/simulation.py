@@ -86,9 +86,14 @@ class RunResult:
 
     @cached_property
     def scenario(self) -> Scenario:
-        """The run as a Scenario (what save_scenario writes), built on first use: lists and validation
-        cost more than a large run's filter steps, so a run that is not saved never pays for them."""
-        return self.inputs.scenario()
+        """The run as a Scenario (what save_scenario writes), its inputs key for key (None keys stay out of
+        the file), built on first use: lists and validation cost more than a large run's filter steps, so a
+        run that is not saved never pays for them (nor imports the pydantic models)."""
+        from mazelab.scenario import Scenario
+
+        inputs = self.inputs
+        lists = {"init_particles_pos": inputs.init_particles_pos.tolist(), "maze": inputs.maze.as_lists()}
+        return Scenario(**{**vars(inputs), **lists})
 
     @property
     def seed(self) -> int:
@@ -131,7 +136,7 @@ class RunResult:
 class RunInputs:
     """What a run started from and walked, under its Scenario's keys (mazelab.scenario.Scenario says what
     each is) as arrays and plain values: the Scenario's content before it is turned into lists and
-    validated, which `scenario` does on demand (a study never builds one)."""
+    validated, which RunResult.scenario does on demand (a study never builds one)."""
 
     init_robot_pos: tuple[float, float]
     init_particles_pos: np.ndarray  # (N, 2) float64
@@ -182,15 +187,6 @@ class RunInputs:
             robot.kidnap_position if kidnapped else None,
             filter_options,
             filter_plugin,
-        )
-
-    def scenario(self) -> Scenario:
-        """The validated Scenario of these inputs, key for key (None keys stay out of the file); the
-        pydantic models are imported here."""
-        from mazelab.scenario import Scenario
-
-        return Scenario(
-            **{**vars(self), "init_particles_pos": self.init_particles_pos.tolist(), "maze": self.maze.as_lists()}
         )
 
 
