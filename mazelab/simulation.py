@@ -124,13 +124,6 @@ class RunResult:
         """The first step from which the error stays below CONVERGENCE_RADIUS, or None."""
         return convergence_step(self.errors)
 
-    def as_pairs(self) -> list[tuple[tuple[float, float], tuple[float, float]]]:
-        """The paper's result: one ((x_true, y_true), (x_est, y_est)) per step, plain floats."""
-        return [
-            ((float(t[0]), float(t[1])), (float(e[0]), float(e[1])))
-            for t, e in zip(self.true_positions, self.estimates, strict=True)
-        ]
-
 
 @dataclass(frozen=True)
 class RunInputs:
@@ -519,7 +512,8 @@ def run_model(
         saved = save_scenario(result.scenario, DEFAULT_PARAMETERS_PATH if parameters_path is None else parameters_path)
         if not in_jupyter():  # a notebook's cell says it in its own words (the Ukrainian one prints no English)
             print(f"scenario saved to {saved.resolve()}")  # where: a relative path is the working folder's
-    return result.as_pairs()
+    pairs = zip(result.true_positions.tolist(), result.estimates.tolist(), strict=True)  # plain floats
+    return [(tuple(true), tuple(estimate)) for true, estimate in pairs]
 
 
 def maze_for(filter_class: type, world: Maze) -> Maze:
