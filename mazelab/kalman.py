@@ -169,19 +169,15 @@ def gaussian_mass_within(covariance: np.ndarray, radius: float) -> float:
     periodic integrand: the midpoint rule on a quarter turn (the rest by symmetry) is exact to rounding
     unless the Gaussian is extremely thin.
     """
-    l1, l2 = symmetric_eigenvalues(covariance)
+    # l1, l2 in closed form, (a + d) / 2 +- sqrt(((a - d) / 2)^2 + b^2), clipped at 0, in plain floats: a few
+    # times quicker than numpy's eigvalsh on 2 x 2
+    (a, b), (_, d) = covariance.tolist()
+    centre, half_gap = (a + d) / 2, math.hypot((a - d) / 2, b)
+    l1, l2 = max(centre + half_gap, 0.0), max(centre - half_gap, 0.0)
     spread = l1 * _COS2 + l2 * _SIN2
     with np.errstate(divide="ignore"):
         inside = -np.expm1(-(radius**2) / (2 * spread))
     return float(inside.mean())
-
-
-def symmetric_eigenvalues(matrix: np.ndarray) -> tuple[float, float]:
-    """The eigenvalues of a symmetric 2 x 2 matrix, clipped at 0, in plain floats (closed form:
-    (a + d) / 2 +- sqrt(((a - d) / 2)^2 + b^2), a few times quicker than numpy's eigvalsh on 2 x 2)."""
-    (a, b), (_, d) = matrix.tolist()
-    centre, radius = (a + d) / 2, math.hypot((a - d) / 2, b)
-    return max(centre + radius, 0.0), max(centre - radius, 0.0)
 
 
 def covariance_ellipse(mean: np.ndarray, covariance: np.ndarray, scale: float = 2.0, points: int = 64) -> np.ndarray:
@@ -201,5 +197,4 @@ __all__ = [
     "free_area_moments",
     "gaussian_mass_within",
     "kalman_update",
-    "symmetric_eigenvalues",
 ]
