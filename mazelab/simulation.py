@@ -387,7 +387,6 @@ def record_steps(
     """
     count = 1 if runs is None else runs
     recorded = Recorded(count, steps)
-    diagnostics: dict[str, list[Any]] = {}
     for k in range(steps):
         if at is not None:
             at.number = k + 1
@@ -400,40 +399,28 @@ def record_steps(
         recorded.estimates[:, k], recorded.ess[:, k], recorded.confident[:, k] = estimate, ess, confident
         recorded.counts[:, k] = particles
         recorded.log_evidence[:, k] = getattr(filt, "log_evidence", np.nan)  # optional in the contract
-        _keep_diagnostics(diagnostics, getattr(filt, "diagnostics", None), k, type(filt))
+        _keep_diagnostics(recorded, getattr(filt, "diagnostics", None), k, type(filt))
         if after is not None:
             after(k + 1, filt)
-    recorded.diagnostics = {name: _per_run(values, count) for name, values in diagnostics.items()}
     return recorded
 
 
-def _keep_diagnostics(kept: dict[str, list[Any]], now: Any, k: int, filter_class: type) -> None:
-    """Append this step's diagnostics; a name missing at a step is NaN there."""
-    if not now:
-        for values in kept.values():
-            values.append(np.nan)
-        return
-    if not isinstance(now, dict):
+def _keep_diagnostics(recorded: Recorded, now: Any, k: int, filter_class: type) -> None:
+    """This step's diagnostics into column k of their (R, steps) arrays, made NaN at a name's first step
+    (a name missing at a step is NaN there): one number a step for one run, a number or one per run for
+    R runs (spread over the runs as numpy broadcasts it)."""
+    if now and not isinstance(now, dict):
         raise ContractError(f"{filter_class.name}.diagnostics must be a dict of this step's figures, got {now!r}")
-    for name in kept.keys() - now.keys():
-        kept[name].append(np.nan)
-    for name, value in now.items():
-        kept.setdefault(name, [np.nan] * k).append(value)
-
-
-def _per_run(values: list[Any], runs: int) -> np.ndarray:
-    """A diagnostic's steps as (R, steps): one value a step for one run, (R,) a step for R runs (a
-    number, or one per run, is spread over the runs as numpy broadcasts it)."""
-    array = np.empty((runs, len(values)))
-    try:
-        for k, value in enumerate(values):
+    for name, value in (now or {}).items():
+        if name not in recorded.diagnostics:
+            recorded.diagnostics[name] = np.full(recorded.ess.shape, np.nan)
+        try:
             value = np.asarray(value, dtype=float)
             if value.ndim > 1:  # a column takes (1, R) too; a step's diagnostic is not a table
                 raise ValueError
-            array[:, k] = value
-    except (TypeError, ValueError):
-        raise ContractError("a diagnostic must be a number (or one per run) at every step") from None
-    return array
+            recorded.diagnostics[name][:, k] = value
+        except (TypeError, ValueError):
+            raise ContractError("a diagnostic must be a number (or one per run) at every step") from None
 
 
 def checked_walk(
