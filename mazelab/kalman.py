@@ -41,6 +41,7 @@ class ExtendedKalmanFilter(ModelFilter):
     """
 
     name: ClassVar[str] = "ExtendedKalmanFilter"
+    count = 1  # one Gaussian
     options: ClassVar[Options] = Options(
         Option(
             "init",
@@ -96,11 +97,6 @@ class ExtendedKalmanFilter(ModelFilter):
     def estimate(self) -> np.ndarray:
         """The mean m, shape (2,)."""
         return self.mean.copy()
-
-    @property
-    def count(self) -> int:
-        """One Gaussian."""
-        return 1
 
     @property
     def is_confident(self) -> bool:
