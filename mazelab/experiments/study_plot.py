@@ -60,6 +60,13 @@ class YQuantity:
     signed: bool = False  # a difference: may be below 0 (a line at 0 drawn)
     from_zero: bool = True  # its axis starts at 0 (or below, for a difference); else it spans the values
 
+    def of(self, points: Sequence[StudySummary]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The value, low and high end of the interval of each point (summary), in percent for a share."""
+        unit = 100.0 if self.share else 1.0
+        value = unit * np.array([self.value(s) for s in points], dtype=float)
+        low, high = unit * np.array([self.interval(s) for s in points], dtype=float).T
+        return value, low, high
+
 
 Y_QUANTITIES = {
     "mean": YQuantity(
@@ -406,6 +413,15 @@ class XScale:
             return float(self.categories.index(show_value(value)))
         return math.log10(float(value)) if self.kind == "log" else float(value)
 
+    def places(self, line: _Line, slot: int, slots: int, all_labels: Sequence[str]) -> np.ndarray:
+        """Where a line's points go: their x values' places, the line in `slot` of `slots` set a share of
+        the x spacing apart from the others at one x; with nothing varied on x, a category per line."""
+        if self.kind == "category" and not self.categories:
+            return np.array([float(all_labels.index(line.label))])
+        spread = DODGE if self.kind == "category" else NUMERIC_DODGE * self.gap
+        offset = spread * (slot / (slots - 1) - 0.5) if slots > 1 else 0.0
+        return np.array([self.position(s.setting.value(self.parameter)) for s in line.points]) + offset
+
     def back(self, where: np.ndarray) -> np.ndarray:
         """Transformed coordinates back to data (what matplotlib plots on a log axis)."""
         return 10**where if self.kind == "log" else where
@@ -423,17 +439,11 @@ def draw_panel(
     shaded interval); returns its y range (`y_range`)."""
     drawn = [line for line in lines if not line.reference]
     slots = [label for label in all_labels if label in {line.label for line in drawn}]
-    unit, shown = 100.0 if quantity.share else 1.0, []
+    shown: list[float] = []
     for line in drawn:
         j = slots.index(line.label)  # the same slot in every panel: a line keeps its place
-        spread = DODGE if scale.kind == "category" else NUMERIC_DODGE * scale.gap  # a share of the x spacing
-        offset = spread * (j / (len(slots) - 1) - 0.5) if len(slots) > 1 else 0.0
-        if scale.kind == "category" and not scale.categories:  # nothing varied on x: a slot per line
-            where = np.array([float(all_labels.index(line.label))])
-        else:
-            where = np.array([scale.position(s.setting.value(scale.parameter)) for s in line.points]) + offset
-        value = unit * np.array([quantity.value(s) for s in line.points], dtype=float)
-        low, high = unit * np.array([quantity.interval(s) for s in line.points], dtype=float).T
+        where = scale.places(line, j, len(slots), all_labels)
+        value, low, high = quantity.of(line.points)
         bars = np.clip(np.nan_to_num(np.vstack([value - low, high - value])), 0, None)  # BCa may miss the mean
         container = ax.errorbar(
             scale.back(where),
@@ -450,8 +460,7 @@ def draw_panel(
         container.lines[0].set_gid(f"panel-{panel}:line:{line.label}")
         shown += [*value, *low, *high]
     for line in (line for line in lines if line.reference):
-        value = unit * quantity.value(line.points[0])
-        low, high = (unit * v for v in quantity.interval(line.points[0]))
+        value, low, high = (float(v[0]) for v in quantity.of(line.points[:1]))
         dashes = line.style if line.style != "-" else "--"  # a reference is never a solid line
         ax.axhline(
             value,
