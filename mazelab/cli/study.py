@@ -196,21 +196,7 @@ def study(
     session = open_session(plan, chosen, backend, header, visualize=visualize, draw_run=draw_run, dask=dask)
     if chosen.resume:
         typer.echo(f"resuming: {len(session.kept)} rows kept from {chosen.journal}, {len(session.tasks)} run(s) to go")
-    try:
-        outcome = run_study(
-            session.tasks,
-            workers,
-            visualize=visualize,
-            progress=True,
-            on_records=session.append,
-            dask=session.client,
-            dask_timeout=dask_timeout,
-            ignore_signals_after_stop=True,
-            backend=session.backend,
-        )
-        report_study(session, outcome, figure)
-    finally:
-        session.close()
+    session.run(workers, lambda outcome: report_study(session, outcome, figure), visualize, dask_timeout=dask_timeout)
 
 
 def check_figure(
@@ -348,6 +334,26 @@ class StudySession:
     client: Any
     recorder: Recorder
     release: Callable[[], None]
+
+    def run(self, workers: int, report: Callable[[StudyOutcome], None], visualize: Any = False, **extra: Any) -> None:
+        """Run the tasks on `workers` processes or the session's cluster (run_study: a progress bar, each finished
+        run appended to the journal, the stop signals ignored after a stop) and `report` the outcome; the
+        session closed however it ends."""
+        try:
+            outcome = run_study(
+                self.tasks,
+                workers,
+                visualize=visualize,
+                progress=True,
+                on_records=self.append,
+                dask=self.client,
+                ignore_signals_after_stop=True,
+                backend=self.backend,
+                **extra,
+            )
+            report(outcome)
+        finally:
+            self.close()
 
     def append(self, records: list[RunRecord]) -> None:
         """One finished run's rows (and traces), appended to the journal."""
@@ -572,18 +578,10 @@ def accuracy(
     Wilson interval)."""
     mazes = parse_mazes(maze, maze_size, stations, default=list(LAB_MAZES))
     rows = with_options(accuracy_filters(None if filters is None else parse_filters(filters)), option)
-    plan = accuracy_plan(mazes, rows, sigma=sigma, delta=delta, particles=particles, runs=runs, steps=steps, seed=seed)
+    values = {"sigma": sigma, "delta": delta, "particles": particles, "runs": runs, "steps": steps}
+    plan = accuracy_plan(mazes, rows, **values, seed=seed)
     labels = [label for label, _, _ in rows]
-    parameters = {
-        "mazes": [maze_description(m) for m in mazes],
-        "filters": labels,
-        "sigma": sigma,
-        "delta": delta,
-        "particles": particles,
-        "runs": runs,
-        "steps": steps,
-        "root_seed": seed,
-    }
+    parameters = {"mazes": [maze_description(m) for m in mazes], "filters": labels, **values, "root_seed": seed}
     workers = workers or cores()
     backend = study_backend(plan.tasks, workers)
     files = StudyFiles.left_by_accuracy(csv_path, record, force)
@@ -596,18 +594,7 @@ def accuracy(
     if files.resume:
         done = {(r["maze"], r["run"]) for r in accuracy_records(session.kept, rows)}
         typer.echo(f"resuming the interrupted run of {files.journal}: {len(done)} runs kept")
-    try:
-        outcome = run_study(
-            session.tasks,
-            workers,
-            progress=True,
-            on_records=session.append,
-            ignore_signals_after_stop=True,
-            backend=backend,
-        )
-        report_accuracy(session, rows, outcome)
-    finally:
-        session.close()
+    session.run(workers, lambda outcome: report_accuracy(session, rows, outcome))
 
 
 def report_accuracy(session: StudySession, rows: tuple[AccuracyFilter, ...], outcome: StudyOutcome) -> None:
