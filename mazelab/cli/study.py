@@ -7,6 +7,7 @@ interrupted study goes on (--resume; accuracy by itself), and the report writes 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import signal
 import time
 from collections.abc import Callable
@@ -137,9 +138,29 @@ AccuracyFilters = opt(
 )
 
 
+# what a study's plan takes as given (plan_study), and how it runs (in this order in --help, after the values)
+PLAN = {
+    "kidnap_at": (KidnapAt, None),
+    "option": (StudyOptionFlag, None),
+    "runs": (opt(int, min=1, help="seeded runs per setting"), 30),
+    "steps": (opt(int, min=1, help="steps per run"), DEFAULT_STEPS),
+    "seed": (opt(int | None, callback=seed_option, help="root seed (default: new, printed)"), None),
+    "reference": (opt(str | None, metavar="grid", help="the exact grid filter too: distance_to_exact"), None),
+}
+EXECUTION = {
+    "workers": (Workers, None),
+    "dask": (opt(str | None, help="a Dask scheduler, tcp://HOST:PORT"), None),
+    "dask_timeout": (DaskTimeout, DASK_TIMEOUT),
+    "draw_run": (opt(int, help="the run --viewer/--rrd/--web draw", show_default=False), 1),
+    "backend": (BackendOption, None),  # its callback sets the backend
+}
+
+
 @with_parameters("files", FILES)
 @with_parameters("figure", FIGURE)
 @with_parameters("drawing", DRAWN)
+@with_parameters("execution", EXECUTION)
+@with_parameters("values", PLAN)
 @with_option_flags(lists=True)
 def study(
     maze: opt(str | None, help=f"mazes (files or names) [default: {DEFAULT_MAZE}]") = None,
@@ -150,19 +171,10 @@ def study(
     delta: opt(str, help="compass error, a list") = str(DEFAULT_DELTA),
     particles: opt(str, help="particle counts, a list") = str(DEFAULT_PARTICLE_COUNT),
     filters: StudyFilters = "sir,apf,rpf",
-    kidnap_at: KidnapAt = None,
-    option: StudyOptionFlag = None,
-    runs: opt(int, min=1, help="seeded runs per setting") = 30,
-    steps: opt(int, min=1, help="steps per run") = DEFAULT_STEPS,
-    seed: opt(int | None, callback=seed_option, help="root seed (default: new, printed)") = None,
-    reference: opt(str | None, metavar="grid", help="the exact grid filter too: distance_to_exact") = None,
-    workers: Workers = None,
-    dask: opt(str | None, help="a Dask scheduler, tcp://HOST:PORT") = None,
-    dask_timeout: DaskTimeout = DASK_TIMEOUT,
-    draw_run: opt(int, help="the run --viewer/--rrd/--web draw", show_default=False) = 1,
-    backend: BackendOption = None,
     *,
     named: dict[str, Any],
+    values: dict[str, Any],
+    execution: dict[str, Any],
     drawing: dict[str, Any],
     figure: dict[str, Any],
     files: dict[str, Any],
@@ -170,33 +182,32 @@ def study(
     """Lab step 14: a study of every combination of the values (docs/studies.md)."""
     chosen = StudyFiles.parse(**files, rrd=drawing.get("rrd"))
     visualize = visualization(**drawing, force=chosen.force, unasked=False)
-    seed = chosen.seed if seed is None else seed  # a resumed study keeps its journal's root seed unless --seed
+    values["seed"] = chosen.seed if values["seed"] is None else values["seed"]  # a resumed study's: its journal's
     names = parse_filters(check_filter_names(filters))
-    given = given_options(named, option, names, lists=True)  # the named flags and --option NAME=V1,V2
+    given = given_options(named, values.pop("option"), names, lists=True)  # the named flags and --option NAME=V1,V2
     mazes, sigmas = parse_mazes(maze, maze_size, stations, wall_share), parse_list(sigma, float, "--sigma")
     plan = plan_study(
         mazes,
         names,
         sigma=sigmas,
         delta=parse_list(delta, float, "--delta"),
-        runs=runs,
-        steps=steps,
         particles=parse_list(particles, int, "--particles"),
-        kidnap_at=kidnap_at,
-        reference=reference,
         options=given,
-        seed=seed,
         traces=chosen.traces is not None,
         spelled=given.spelled,
+        **values,
     )
     figure = check_figure(plan, **figure)
-    workers = workers or cores()
+    workers, dask = execution["workers"] or cores(), execution["dask"]
     backend = study_backend(plan.tasks, 1 if dask else workers)
     header = plan.header(f"on the Dask cluster at {dask}" if dask is not None else f"{workers} worker(s)", backend)
-    session = open_session(plan, chosen, backend, header, visualize=visualize, draw_run=draw_run, dask=dask)
+    session = open_session(
+        plan, chosen, backend, header, visualize=visualize, draw_run=execution["draw_run"], dask=dask
+    )
     if chosen.resume:
         typer.echo(f"resuming: {len(session.kept)} rows kept from {chosen.journal}, {len(session.tasks)} run(s) to go")
-    session.run(workers, lambda outcome: report_study(session, outcome, figure), visualize, dask_timeout=dask_timeout)
+    report = functools.partial(report_study, session, figure=figure)
+    session.run(workers, report, visualize, dask_timeout=execution["dask_timeout"])
 
 
 def check_figure(
