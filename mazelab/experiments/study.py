@@ -32,7 +32,7 @@ from mazelab.model import check_model_parameters
 from mazelab.registry import PluginCode, entries, file_sha256, filter_entry, filters_here, resolve_filter
 from mazelab.robot import Robot
 from mazelab.seeding import filter_rng, run_streams, study_seeds
-from mazelab.simulation import RunInputs, RunResult, maze_for, plan_kidnapping, record_steps
+from mazelab.simulation import RunInputs, RunResult, checked_walk, maze_for, record_steps
 
 
 # -- a study: settings, runs and seeds -------------------------------------------------------------
@@ -621,12 +621,8 @@ def walk_of(task: RunTask, world: Maze) -> tuple[RunInputs, np.ndarray]:
     the run's inputs, as run_task makes them, and the true positions (steps, 2)."""
     s = task.setting
     robot = Robot.of_seed(world, s.sigma, s.delta, task.seed)
-    streams = run_streams(task.seed)
-    particles = world.random_free_places(s.particles, streams.particles)
-    if task.kidnap_at is not None:
-        plan_kidnapping(robot, world, task.kidnap_at, task.steps, streams.kidnap)
-    robot.reset()
-    robot.rng = streams.robot
+    streams = run_streams(task.seed)  # as simulate draws them: particles, kidnapping, walk
+    particles, _ = checked_walk(robot, world, s.particles, task.steps, None, False, streams, task.kidnap_at)
     positions = []
     for _ in range(task.steps):
         robot.step(world)
