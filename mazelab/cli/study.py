@@ -160,7 +160,7 @@ EXECUTION = {
 @with_parameters("figure", FIGURE)
 @with_parameters("drawing", DRAWN)
 @with_parameters("execution", EXECUTION)
-@with_parameters("values", PLAN)
+@with_parameters("planned", PLAN)
 @with_option_flags(lists=True)
 def study(
     maze: opt(str | None, help=f"mazes (files or names) [default: {DEFAULT_MAZE}]") = None,
@@ -173,7 +173,7 @@ def study(
     filters: StudyFilters = "sir,apf,rpf",
     *,
     named: dict[str, Any],
-    values: dict[str, Any],
+    planned: dict[str, Any],
     execution: dict[str, Any],
     drawing: dict[str, Any],
     figure: dict[str, Any],
@@ -182,21 +182,17 @@ def study(
     """Lab step 14: a study of every combination of the values (docs/studies.md)."""
     chosen = StudyFiles.parse(**files, rrd=drawing.get("rrd"))
     visualize = visualization(**drawing, force=chosen.force, unasked=False)
-    values["seed"] = chosen.seed if values["seed"] is None else values["seed"]  # a resumed study's: its journal's
+    planned["seed"] = chosen.seed if planned["seed"] is None else planned["seed"]  # resumed: its journal's
     names = parse_filters(check_filter_names(filters))
-    given = given_options(named, values.pop("option"), names, lists=True)  # the named flags and --option NAME=V1,V2
-    mazes, sigmas = parse_mazes(maze, maze_size, stations, wall_share), parse_list(sigma, float, "--sigma")
-    plan = plan_study(
-        mazes,
-        names,
-        sigma=sigmas,
-        delta=parse_list(delta, float, "--delta"),
-        particles=parse_list(particles, int, "--particles"),
-        options=given,
-        traces=chosen.traces is not None,
-        spelled=given.spelled,
-        **values,
-    )
+    given = given_options(named, planned.pop("option"), names, lists=True)  # the named flags and --option NAME=V1,V2
+    mazes = parse_mazes(maze, maze_size, stations, wall_share)
+    model = {
+        "sigma": parse_list(sigma, float, "--sigma"),
+        "delta": parse_list(delta, float, "--delta"),
+        "particles": parse_list(particles, int, "--particles"),
+    }
+    values = {**model, **given}  # the model's values and the options', each a list
+    plan = plan_study(mazes, names, values, traces=chosen.traces is not None, spelled=given.spelled, **planned)
     figure = check_figure(plan, **figure)
     workers, dask = execution["workers"] or cores(), execution["dask"]
     backend = study_backend(plan.tasks, 1 if dask else workers)
