@@ -215,7 +215,7 @@ def check_figure(
 ) -> dict[str, Any]:
     """What the report adds to the table and the figure, checked before any run: --paired one of the
     study's filters (given by its name), --plot-x, --plot-y and --title as the figure takes them
-    (study_plot.figure_axes)."""
+    (study_plot.figure_axes), by draw_study's names (x, y, title)."""
     from mazelab.experiments.study_plot import figure_axes
 
     figure_axes(plan.varied, plot_x, plot_y, title, exact=plan.reference is not None, paired=paired is not None)
@@ -231,7 +231,7 @@ def check_figure(
                 "0); add the filters to compare with it to --filters"
             )
         paired = chosen
-    return {"paired": paired, "plot_x": plot_x, "plot_y": plot_y, "title": title}
+    return {"paired": paired, "x": plot_x, "y": plot_y, "title": title}
 
 
 @dataclass
@@ -510,16 +510,9 @@ def write_outputs(session: StudySession, records: list[RunRecord], summaries: li
         if files.plot is not None and summaries:  # as `mazelab.study(...).figure(...)` draws it
             from mazelab.experiments.study_plot import draw_study
 
+            drawing = {k: v for k, v in figure.items() if k != "paired"}
             draw_study(
-                summaries,
-                plan.varied,
-                files.plot,
-                plan.runs,
-                plan.settings[0].maze.label,
-                x=figure["plot_x"],
-                y=figure["plot_y"],
-                title=figure["title"],
-                replace=replace,
+                summaries, plan.varied, files.plot, plan.runs, plan.settings[0].maze.label, **drawing, replace=replace
             )
             typer.echo(f"figure written to {files.plot}")
         if files.record_file is not None:
