@@ -423,10 +423,7 @@ def open_session(
     tasks, kept, earlier = resumed_tasks(plan, files, backend)
     if visualize:
         tasks = drawn_first(tasks, draw_run)
-    outputs = {
-        k: None if v is None else str(v)
-        for k, v in (("csv", files.csv_path), ("plot", files.plot), ("traces", files.traces))
-    }
+    outputs = {"csv": files.csv_path, "plot": files.plot, "traces": files.traces}  # as text (the record's jsonable)
     recorder = Recorder(
         kind,
         command_line(),
