@@ -1,15 +1,10 @@
-"""A study's figure as small multiples, sized for a paper: a statistic of the runs with its interval
-(`Y_QUANTITIES`: the mean or median last-20% error, the converged share, the distance to the exact
-posterior, the paired difference) against one varied parameter (the x axis), one line per filter and
-varied option (e.g. "RPF, bandwidth multimodal"), and one panel per combination of the other varied
-parameters, laid out as the design (maze x sigma: a row per maze, a column per sigma; `figure_layout`).
-
-Each panel has its own y range (`y_range`); a filter that does not take the x parameter (the grid filter
-against N) is a reference, a dashed line with its interval shaded (`draw_panel`); points at one x are set
-a little apart, so that their bars do not hide each other (`XScale`); every line has a marker and a line
-style of its own, so the lines stay apart in grey print, and its filter's colour in the registry
-(`panel_lines`). The figure is PAPER_WIDTH inches wide with FONT_POINTS type (a two-column paper's full
-width), PNG at PNG_DPI, or PDF / SVG with their text as text (the path's suffix chooses).
+"""A study's figure as small multiples, sized for a paper (docs/studies.md, `--plot`): a statistic of the
+runs with its interval (`Y_QUANTITIES`) against one varied parameter, one line per filter and varied option,
+one panel per combination of the other varied parameters, laid out as the design (`figure_layout`); each
+panel with its own y range (`y_range`), a filter that does not take the x parameter drawn as a reference
+(`draw_panel`), points at one x set apart so that their bars do not hide each other (`XScale.places`), each
+line in its filter's colour with a marker and a line style of its own, apart in grey print (`panel_lines`);
+PAPER_WIDTH inches wide with FONT_POINTS type, PNG at PNG_DPI, or PDF / SVG with their text as text.
 """
 
 from __future__ import annotations
