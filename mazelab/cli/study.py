@@ -423,12 +423,11 @@ def open_session(
     tasks, kept, earlier = resumed_tasks(plan, files, backend)
     if visualize:
         tasks = drawn_first(tasks, draw_run)
-    outputs = {"csv": files.csv_path, "plot": files.plot, "traces": files.traces}  # as text (the record's jsonable)
     recorder = Recorder(
         kind,
         command_line(),
         parameters or plan.parameters(),
-        outputs=outputs,
+        outputs={"csv": files.csv_path, "plot": files.plot, "traces": files.traces},  # as text (jsonable)
         sessions=earlier,
         csv_dtypes=CSV_DTYPES,
         backend=backend,
