@@ -11,10 +11,8 @@ chunk never spans two runs), compiled to run them in order and over numba's thre
 (partial sums per chunk, added in chunk order), so a seed gives the same run bit for bit on any number
 of threads, and R runs together are R single runs.
 
-Importing this package imports numba, and a process's first kernel call sets numba's runtime up (a
-kernel loaded from the cache: some 0.2 s of CPU in all, with the import); a command whose work does not
-pay that back runs on numpy (mazelab.backend.backend_for_work). Each kernel is compiled on its first
-call and cached on disk where a cache folder can be written (`Kernel`, `_MendingCache`).
+Importing this package imports numba (a process's start-up: mazelab.backend.STARTUP_SECONDS); each
+kernel is compiled on its first call and cached on disk (`Kernel`).
 """
 
 from __future__ import annotations

@@ -44,8 +44,8 @@ def keys_of(rngs: Any) -> np.ndarray:
 
 def lookup_tables(world: Any) -> tuple:
     """The maze's nearest-station tables (mazelab.lookup) in the layout the likelihood kernel reads:
-    (grid: scale, offset, nx, ny, width as float64 (5,), codes (C,) uint32, quads (C, 8), rows, border
-    (b, 2)), float32 coordinates. quads[c] is cell c's first four candidates (x0, y0, ..., x3, y3),
+    (grid: scale, offset, nx, ny; sizes: nx, width uint64 (2,); codes (C,) uint32, quads (C, 8), rows,
+    border (b, 2)), float32 coordinates. quads[c] is cell c's first four candidates (x0, y0, ..., x3, y3),
     padded by repeats of the first; `rows` holds, for each cell with more than four, its other K - 4
     (padded likewise), `width` = 2 (K - 4) values a row; a cell's code is its row's first index in `rows`
     times 4, plus 2 if it has a row, plus 1 if the cell is free."""
@@ -60,8 +60,8 @@ def lookup_tables(world: Any) -> tuple:
     codes = (lookup.kind & 1).astype(np.uint64)
     codes[more] += 2 + 4 * width * np.arange(len(more), dtype=np.uint64)
     codes = codes.astype(np.uint32 if codes.max(initial=0) < 2**32 else np.uint64)
-    grid = np.array([lookup.scale, lookup.offset, lookup.nx, lookup.ny, width], dtype=float)
-    return grid, codes, quads, rows, xy[lookup._border]
+    sizes = np.array([lookup.nx, width], dtype=np.uint64)
+    return (lookup.scale, lookup.offset, lookup.nx, lookup.ny), sizes, codes, quads, rows, xy[lookup._border]
 
 
 class CompiledWeights(Weights):
@@ -142,10 +142,8 @@ class CompiledKernels(NumpyKernels):
     def move(
         self, x: np.ndarray, A: np.ndarray | None, rngs: Any, angles: np.ndarray, delta: float, speed: float
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Equation (1) with its draws (NumpyKernels.move's arguments and results) in one compiled pass:
-        the uniforms (each run's from a key its Generator draws), the headings, their cos and sin (within
-        0.502 ulp of the exact values: mazelab.kernels.vector_math), the gather and the step. float64
-        points go to numpy."""
+        """Equation (1) with its draws in one compiled pass (mazelab.kernels.model.move; its uniforms from a
+        key each run's Generator draws); float64 points go to numpy."""
         if x.dtype != PARTICLE_DTYPE:
             return super().move(x, A, rngs, angles, delta, speed)
         out = np.empty((3, *(x.shape[:2] if A is None else A.shape)), dtype=PARTICLE_DTYPE)  # x, y, the headings
@@ -167,12 +165,12 @@ class CompiledKernels(NumpyKernels):
 
     def _terms(self, sigma: float, outside_penalty: float) -> tuple:
         """The likelihood kernel's constants, worked out once for a filter's sigma and penalty: (sigma,
-        -log(sigma sqrt(2 pi)), that plus log(the penalty), then the tables' grid: float64 (8,)) and the
+        -log(sigma sqrt(2 pi)), that plus log(the penalty), then the tables' grid: float32 (7,)) and the
         tables' arrays (one array of numbers: a kernel call types each argument it is passed)."""
         terms = self._likelihood_terms
         if terms[0] != sigma or terms[1] != outside_penalty:
             norm = math.log(sigma * math.sqrt(2 * math.pi))
-            constants = np.array([sigma, -norm, math.log(outside_penalty) - norm, *self.tables[0]])
+            constants = np.array([sigma, -norm, math.log(outside_penalty) - norm, *self.tables[0]], PARTICLE_DTYPE)
             terms = self._likelihood_terms = (sigma, outside_penalty, (constants, *self.tables[1:]))
         return terms[2]
 
@@ -200,9 +198,8 @@ class CompiledKernels(NumpyKernels):
         return super().mass_within(W, x, centres, radius)
 
     def jitter(self, x: np.ndarray, A: np.ndarray, due: np.ndarray, rngs: Any, kernels: Any) -> np.ndarray:
-        """The RPF's gather, draws and jitter in one pass for Gaussian kernels (h D eps, one D per due
-        run, eps ~ N(0, I_2) from a key each due run's Generator draws); the multimodal kernel goes to
-        numpy."""
+        """The RPF's gather, draws and jitter in one pass for Gaussian kernels (mazelab.kernels.model.jitter,
+        eps from a key each due run's Generator draws); the multimodal kernel goes to numpy."""
         if x.dtype != PARTICLE_DTYPE or not all(isinstance(k, GaussianKernel) for k in kernels):
             return super().jitter(x, A, due, rngs, kernels)
         rows = np.flatnonzero(due)
