@@ -112,12 +112,9 @@ class NumpyKernels:
         rows = np.flatnonzero(due)
         moved = take_particles(x.reshape(-1, 2), (A[rows] + (rows * x.shape[1])[:, None]).reshape(-1))
         size = A.shape[1]
-        eps = np.empty((len(rows) * size, 2), dtype=x.dtype)  # eps ~ N(0, I_2), each run's block its own
-        for block, r in enumerate(rows):
-            rngs[r].standard_normal(dtype=x.dtype, out=eps[block * size : (block + 1) * size])
-        for block, kernel in enumerate(kernels):
+        for block, (r, kernel) in enumerate(zip(rows, kernels, strict=True)):
             part = slice(block * size, (block + 1) * size)
-            moved[part] += kernel(moved[part], eps[part])
+            moved[part] += kernel(moved[part], rngs[r].standard_normal((size, 2), dtype=x.dtype))  # eps ~ N(0, I_2)
         return replaced(x, rows, moved.reshape(len(rows), size, 2))
 
 
