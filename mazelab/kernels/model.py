@@ -22,7 +22,7 @@ import numpy as np
 from numba import prange
 
 from mazelab.kernels import Kernel, chunk_of, chunks, inline, scratch
-from mazelab.kernels.vector_math import cos_sin, log64, random_bits, uniform32, uniform64
+from mazelab.kernels.vector_math import cos_sin, random_bits, uniform32, uniform64
 
 F32 = np.float32
 _FREE, _MORE = 1, 2  # the low bits of a lookup cell's code (mazelab.kernels.compiled.lookup_tables)
@@ -163,8 +163,8 @@ def jitter(xy, rows, ancestors, keys, scales, out):  # pragma: no cover - compil
     """The RPF's kernel K_h for D due runs, with its draws: out[:, d, m] = xy[:, rows[d], a_m] + h D_d
     eps_m (out (2, D, M); `rows` (D,) the due runs, `ancestors` (D, M) uint64), h D_d = [[a, 0], [c,
     d]] from scales[d] = (a, c, d) (D, 3), eps_m ~ N(0, I_2) by Box and Muller's transform of two
-    float64 uniforms, numbers 2m and 2m + 1 of the stream keys[d] (uint64 (D,)) (the log, and the cos
-    and sin of the angle rounded to float32, are vector_math's, so that the loop vectorises)."""
+    float64 uniforms, numbers 2m and 2m + 1 of the stream keys[d] (uint64 (D,)) (the cos and sin of the
+    angle rounded to float32 are vector_math's; the log the C library's: docs/speed.md)."""
     runs, size = ancestors.shape
     blocks, jobs = chunks(runs, size)
     for job in prange(jobs):
@@ -173,7 +173,7 @@ def jitter(xy, rows, ancestors, keys, scales, out):  # pragma: no cover - compil
         sources, moved_x, moved_y = ancestors[r, start:stop], out[0, r, start:stop], out[1, r, start:stop]
         for m in range(stop - start):
             counter = np.uint64(start + m) * _TWO
-            radius = math.sqrt(-2.0 * log64(1.0 - uniform64(random_bits(key, counter))))
+            radius = math.sqrt(-2.0 * math.log(1.0 - uniform64(random_bits(key, counter))))
             cos_a, sin_a = cos_sin(F32(2 * math.pi * uniform64(random_bits(key, counter + np.uint64(1)))))
             e0, e1 = F32(radius * cos_a), F32(radius * sin_a)
             moved_x[m] = x[sources[m]] + a * e0
