@@ -1,11 +1,8 @@
 """The speed benchmark (`python main.py bench`): particle-steps per second of the filters on each
 backend (numpy, and compiled where numba is installed: mazelab.backend) side by side, and of a plain
-numpy reference step measured in the same run, on a small and a large maze.
-
-A row times `steps` steps of one filter on a recorded walk, after a few warm-up steps (which also let
-the particles start to gather, as in a real run); each step includes reading the estimate, the ESS and
-the confidence, as `simulate` does. The time is the median step. Peak memory is traced first, with
-tracemalloc (every numpy array counts): the filter's creation and its first two steps, left out of the time.
+numpy reference step measured in the same run, on a small and a large maze. A row is one filter's
+median step on a recorded walk, its reads included (`measure`); the warm-up steps also let the
+particles start to gather, as in a real run.
 """
 
 from __future__ import annotations
@@ -143,7 +140,8 @@ def measure(
     backends: tuple[str, ...] | None = None,
 ) -> Iterator[BenchRow]:
     """The rows of one maze: every filter at every N on each backend (default: the chosen one), then
-    the reference step where it is affordable; each timed on the walk after its two traced steps."""
+    the reference step where it is affordable; each timed on the walk after its two traced steps
+    (`traced`: the peak memory of its creation and first two steps, left out of the time)."""
     walk = record_walk(world, 2 + warmup + steps)
     world.station_distances_and_free(np.zeros(1, np.float32), np.zeros(1, np.float32))  # build the float32 tables
     for n in counts:

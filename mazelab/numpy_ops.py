@@ -62,11 +62,8 @@ class NumpyKernels:
         (None: a run that draws nothing, u = 1/2), for R runs: mazelab.model.LostRobot.M, with th0 as
         `angles` (R,) in x's dtype, Delta (radians) and L (map units) given."""
         uniforms = np.empty(x.shape[:2] if A is None else A.shape, dtype=x.dtype)
-        for row, rng in zip(uniforms, rngs, strict=True):
-            if rng is None:
-                row[:] = 0.5  # it restarts from the prior after this step: no draw, no move off its heading
-            else:
-                rng.random(dtype=x.dtype, out=row)
+        for row, rng in zip(uniforms, rngs, strict=True):  # None: a run restarting after this step, no draw
+            row[:] = 0.5 if rng is None else rng.random(row.shape, dtype=x.dtype)
         points = x.reshape(-1, 2)
         if A is not None:
             points = take_particles(points, flat_ancestors(A, x.shape[1]))
