@@ -16,6 +16,7 @@ import time
 import tracemalloc
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -156,11 +157,11 @@ def measure(
             yield BenchRow(maze_name, "reference", n, seconds, peak)
 
 
-def sir_run(world: Maze, particles: int, steps: int, seed: int) -> tuple[float, Any]:
-    """A whole `simulate` run of SIR on the chosen backend: (wall-clock seconds, its RunResult)."""
+def sir_run(world: Maze, particles: int, steps: int, seed: int, run: Callable = simulate) -> tuple[float, Any]:
+    """A whole `simulate` (or `run`) run of SIR on the chosen backend: (wall-clock seconds, its result)."""
     robot = Robot(BENCH_SIGMA, BENCH_DELTA, world.random_free_place(np.random.default_rng(seed)))
     started = time.perf_counter()
-    result = simulate(robot, world, BENCH_SIGMA, BENCH_DELTA, particles, steps, seed=seed)
+    result = run(robot, world, BENCH_SIGMA, BENCH_DELTA, particles, steps, seed=seed)
     return time.perf_counter() - started, result
 
 
@@ -173,10 +174,7 @@ def run_model_line(
     from mazelab.simulation import run_model  # the paper's entry point, as a notebook calls it
 
     sir_run(world, particles, 2, seed)  # warm the lookup tables
-    robot = Robot(BENCH_SIGMA, BENCH_DELTA, world.random_free_place(np.random.default_rng(seed)))
-    started = time.perf_counter()
-    run_model(robot, world, BENCH_SIGMA, BENCH_DELTA, particles, steps, seed=seed, visualize=False)
-    total = time.perf_counter() - started
+    total = sir_run(world, particles, steps, seed, partial(run_model, visualize=False))[0]
     own = float(sir_run(world, particles, steps, seed)[1].step_seconds.sum())
     if reference is None:
         reference = time_steps(reference_stepper(world, particles), record_walk(world, 4), 1)
