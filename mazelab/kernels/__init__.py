@@ -55,9 +55,8 @@ def threading_layer() -> str:
     return "workqueue"
 
 
-_LAYER = threading_layer()  # TBB's library loaded where it is installed, for a user's choice of "tbb" too
-if "NUMBA_THREADING_LAYER" not in os.environ:  # the user's choice stands
-    numba.config.THREADING_LAYER = _LAYER
+# TBB's library loaded where it is installed (for a user's choice of "tbb" too); the user's choice stands
+numba.config.THREADING_LAYER = os.environ.get("NUMBA_THREADING_LAYER", threading_layer())
 
 
 @cache
@@ -131,11 +130,9 @@ class _NoAliasCompiler(Compiler):
     """numba's compiler, with the arrays a kernel takes marked as not overlapping (LLVM's noalias): a
     loop that gathers (from the lookup table, by the ancestors) vectorises only then."""
 
-    def __init__(
-        self, typingctx: Any, targetctx: Any, library: Any, args: Any, return_type: Any, flags: Any, locals: Any
-    ) -> None:
-        flags.noalias = True
-        super().__init__(typingctx, targetctx, library, args, return_type, flags, locals)
+    def define_pipelines(self) -> list:
+        self.state.flags.noalias = True
+        return super().define_pipelines()
 
 
 # a helper inlined into the kernels that call it: a function called per particle, whose call would
@@ -148,8 +145,8 @@ class Kernel:
     """One kernel body over chunks (`function`, its loop over them a `numba.prange`), compiled twice by
     numba in nopython mode (releasing the GIL, numpy's error model: x / 0 is inf): `serial` runs the
     chunks in order on the calling thread, `parallel` spreads them over numba's threads. Both give the
-    same values, so a call takes whichever is free. Each is cached on disk where a cache folder can be
-    written (see the module's docstring), else compiled in memory (with one warning per process)."""
+    same values, so a call takes whichever is free. Each is compiled on its first call and cached on disk
+    (`_MendingCache`) where a cache folder can be written, else kept in memory (one warning a process)."""
 
     def __init__(self, function: Callable[..., Any]):
         self.__wrapped__ = function

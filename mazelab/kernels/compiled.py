@@ -134,7 +134,7 @@ class CompiledKernels(NumpyKernels):
 
     def __init__(self, world: Any, threads: int | None = None):
         self.tables = lookup_tables(world)
-        self._tables_of, self._likelihood_terms = world, (None, None, ())
+        self._tables_of = world
         self.threads = max(1, threads or 1)
         self.Weights = type("CompiledWeights", (CompiledWeights,), {"threads": self.threads})  # its normalisations
         self.schemes = {"systematic": self.systematic}
@@ -156,23 +156,16 @@ class CompiledKernels(NumpyKernels):
         self, z: np.ndarray, x: np.ndarray, world: Any, sigma: float, outside_penalty: float
     ) -> np.ndarray:
         """Equation (3) in logs, compiled: the locate and the likelihood in one pass (float32, the numpy
-        path's values to the bit)."""
+        path's values to the bit). The kernel's constants: sigma, -log(sigma sqrt(2 pi)), that plus
+        log(the penalty), then the tables' grid, float32 (7,) (one array: a kernel call types each
+        argument it is passed)."""
         if x.dtype != PARTICLE_DTYPE or world is not self._tables_of:
             return super().log_likelihood(z, x, world, sigma, outside_penalty)
         out = np.empty(x.shape[:2], dtype=PARTICLE_DTYPE)
-        model.log_likelihood(self.threads, out.size, planes(x), z, *self._terms(sigma, outside_penalty), out)
+        norm = math.log(sigma * math.sqrt(2 * math.pi))
+        constants = np.array([sigma, -norm, math.log(outside_penalty) - norm, *self.tables[0]], PARTICLE_DTYPE)
+        model.log_likelihood(self.threads, out.size, planes(x), z, constants, *self.tables[1:], out)
         return out
-
-    def _terms(self, sigma: float, outside_penalty: float) -> tuple:
-        """The likelihood kernel's constants, worked out once for a filter's sigma and penalty: (sigma,
-        -log(sigma sqrt(2 pi)), that plus log(the penalty), then the tables' grid: float32 (7,)) and the
-        tables' arrays (one array of numbers: a kernel call types each argument it is passed)."""
-        terms = self._likelihood_terms
-        if terms[0] != sigma or terms[1] != outside_penalty:
-            norm = math.log(sigma * math.sqrt(2 * math.pi))
-            constants = np.array([sigma, -norm, math.log(outside_penalty) - norm, *self.tables[0]], PARTICLE_DTYPE)
-            terms = self._likelihood_terms = (sigma, outside_penalty, (constants, *self.tables[1:]))
-        return terms[2]
 
     def systematic(self, W: np.ndarray, rng: Any, count: int | None = None) -> np.ndarray:
         """Systematic resampling of W (N,), or of D runs' (D, N) with a Generator each (a sequence), into
