@@ -33,7 +33,6 @@ BENCH_SIGMA, BENCH_DELTA = 0.3, 0.5
 BENCH_FILTERS = ("sir", "apf", "rpf")
 FULL_COUNTS = (1_000, 10_000, 100_000, 1_000_000)
 QUICK_COUNTS = (1_000, 100_000, 1_000_000)
-LARGE_MAZE_SIZE = 100
 LARGE_MAZE_CELLS = {EMPTY: 0.75, WALL: 0.17, STATION_WALL: 0.08}  # about 2,700 stations at 100 x 100
 REFERENCE_LIMIT = 2.5e7  # the reference step is skipped when N x B exceeds this (its matrix needs N x B x 24 bytes)
 
@@ -54,7 +53,7 @@ class BenchRow:
         return self.particles / self.seconds_per_step
 
 
-def large_maze(size: int = LARGE_MAZE_SIZE, seed: int = 5) -> Maze:
+def large_maze(size: int = 100, seed: int = 5) -> Maze:
     """A seeded random size x size maze: each cell free, wall or station block with LARGE_MAZE_CELLS' odds."""
     rng = np.random.default_rng(seed)
     kinds, odds = zip(*LARGE_MAZE_CELLS.items(), strict=True)
@@ -195,7 +194,6 @@ def cpu_model() -> str:
 def format_table(rows: list[BenchRow]) -> str:
     """The rows as a text table, each filter's speed also as a multiple of the reference step's and, on
     the compiled backend, of the same filter's on numpy."""
-    reference = {(r.maze, r.particles): r.particle_steps_per_second for r in rows if r.filter_name == "reference"}
     on_numpy = {(r.maze, r.filter_name, r.particles): r.particle_steps_per_second for r in rows if r.backend == "numpy"}
     lines = [
         "Speed in millions of particle-steps per second (N particles x steps / time); x numpy: a compiled row's",
@@ -206,7 +204,7 @@ def format_table(rows: list[BenchRow]) -> str:
         f"{'x numpy':>8} {'x reference':>12}",
     ]
     for r in rows:
-        speed, base = r.particle_steps_per_second, reference.get((r.maze, r.particles))
+        speed, base = r.particle_steps_per_second, on_numpy.get((r.maze, "reference", r.particles))
         ratio = "(itself)" if r.filter_name == "reference" else f"{speed / base:.1f}x" if base else "-"
         numpy_speed = on_numpy.get((r.maze, r.filter_name, r.particles)) if r.backend != "numpy" else None
         versus = f"{speed / numpy_speed:.2f}x" if numpy_speed else "-"

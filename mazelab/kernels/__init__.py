@@ -149,7 +149,6 @@ class Kernel:
     (`_MendingCache`) where a cache folder can be written, else kept in memory (one warning a process)."""
 
     def __init__(self, function: Callable[..., Any]):
-        self.__wrapped__ = function
         self.serial, self.parallel = self._compiled(function), self._compiled(function, "-threads", parallel=True)
 
     @staticmethod

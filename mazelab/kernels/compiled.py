@@ -37,8 +37,6 @@ def planes(x: np.ndarray) -> np.ndarray:
 
 def keys_of(rngs: Any) -> np.ndarray:
     """One 64-bit key per run from each run's Generator (0 for None: a run that draws nothing), uint64 (R,)."""
-    if len(rngs) == 1 and rngs[0] is not None:  # one run: its key in one call, as an array
-        return rngs[0].bit_generator.random_raw(1)
     return np.array([0 if rng is None else rng.bit_generator.random_raw() for rng in rngs], dtype=np.uint64)
 
 

@@ -49,7 +49,6 @@ from mazelab.kernels import Kernel, chunk_of, chunks, inline, scratch
 from mazelab.kernels.vector_math import exp32
 
 LANES = 16  # partial sums each sum keeps in a chunk: their order is this code's, not the compiler's
-_F32 = np.float32
 
 
 @inline
@@ -113,7 +112,7 @@ def _exponentials_and_moments(log_w, top, xs, ys, w, lanes):  # pragma: no cover
         lanes[0, 0] = np.nan if _holds_nan(log_w) else 0.0
         return
     for i in range(len(log_w)):
-        w[i] = exp32(_F32(log_w[i] - top))
+        w[i] = exp32(np.float32(log_w[i] - top))
     full = len(w) // LANES * LANES
     for block in range(0, full, LANES):  # each loop from 0: numba checks no index of it for wrap-around
         for j in range(LANES):  # a loop of LANES: the compiler keeps one vector of each sum
@@ -157,7 +156,7 @@ def normalise(log_w, log_a, shifts, log_g, xy, radius, w, reads):  # pragma: no 
     runs, size = log_w.shape
     blocks, jobs = chunks(runs, size)
     lanes, scales = scratch((jobs, 5, LANES), np.float64), scratch(jobs, np.float64)  # each chunk's sums and top
-    r2 = _F32(radius * radius)
+    r2 = np.float32(radius * radius)
     for job in prange(jobs):  # each chunk's log w, top, exponentials and sums
         r, start, stop = chunk_of(job, blocks, size)
         row, xs, ys = log_w[r, start:stop], xy[0, r, start:stop], xy[1, r, start:stop]
@@ -172,7 +171,7 @@ def normalise(log_w, log_a, shifts, log_g, xy, radius, w, reads):  # pragma: no 
     for job in prange(jobs):  # each chunk's W and weight within the circle
         r, start, stop = chunk_of(job, blocks, size)
         if scales[job] == scales[job]:
-            centre_x, centre_y = _F32(reads[1, r]), _F32(reads[2, r])
+            centre_x, centre_y = np.float32(reads[1, r]), np.float32(reads[2, r])
             xs, ys = xy[0, r, start:stop], xy[1, r, start:stop]
             _scale_and_keep_within(w[r, start:stop], scales[job], xs, ys, centre_x, centre_y, r2, lanes[job])
         else:
