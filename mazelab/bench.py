@@ -101,9 +101,8 @@ def reference_stepper(world: Maze, particles: int, seed: int = 2) -> Callable[[f
         x, w = state["x"], state["w"]
         ancestors = np.searchsorted(np.cumsum(w), (np.arange(particles) + rng.random()) / particles)
         headings = compass_angle + BENCH_DELTA * (rng.random(particles) - 0.5)
-        x = x[np.minimum(ancestors, particles - 1)] + ROBOT_SPEED * np.column_stack(
-            [np.cos(headings), np.sin(headings)]
-        )
+        steps = ROBOT_SPEED * np.column_stack([np.cos(headings), np.sin(headings)])
+        x = x[np.minimum(ancestors, particles - 1)] + steps
         d = np.sqrt(((x[:, None, :] - world.stations[None, :, :]) ** 2).sum(axis=2)).min(axis=1)  # (N, B) matrix
         log_w = -0.5 * ((z - d) / BENCH_SIGMA) ** 2 + np.where(world.is_free(x[:, 0], x[:, 1]), 0.0, log_penalty)
         w = np.exp(log_w - log_w.max())

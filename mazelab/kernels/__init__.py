@@ -153,8 +153,7 @@ class Kernel:
 
     @staticmethod
     def _compiled(function: Callable[..., Any], variant: str = "", **options: Any) -> Any:
-        options = {"nogil": True, "error_model": "numpy", "pipeline_class": _NoAliasCompiler, **options}
-        dispatcher = numba.njit(**options)(function)
+        dispatcher = numba.njit(nogil=True, error_model="numpy", pipeline_class=_NoAliasCompiler, **options)(function)
         try:
             dispatcher._cache = _MendingCache(function, variant)  # what numba's cache=True sets, with the mending
         except RuntimeError:  # numba found no writable cache folder ("cannot cache function ...")

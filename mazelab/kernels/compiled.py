@@ -127,8 +127,7 @@ class CompiledWeights(Weights):
 
 class CompiledKernels(NumpyKernels):
     """The hot parts of one filter on `world` (its lookup tables read once), compiled (mazelab.kernels),
-    a call of mazelab.kernels.THREADED_FROM particles or more on `threads` threads (mazelab.backend.
-    kernels_for passes shared_threads'); what the kernels do not cover is NumpyKernels' (its parent)."""
+    a call of THREADED_FROM particles or more on `threads` threads (kernels_for passes shared_threads')."""
 
     name, log_dtype = "compiled", None  # log weights after resampling in the likelihood's float32
 
