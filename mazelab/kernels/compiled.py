@@ -91,8 +91,7 @@ class CompiledWeights(Weights):
             return cls(log_w, np.atleast_1d(log_sum_exp(log_w)))
         w, reads = np.empty(log_w.shape, dtype=np.float32), np.empty((5, len(log_w)))
         weights.normalise(cls.threads, log_w.size, log_w, *added, planes(x), CONFIDENCE_RADIUS, w, reads)
-        w.setflags(write=False)
-        reads.setflags(write=False)  # and its rows with it
+        reads.setflags(write=False)  # and its rows with it (W is made read-only by the constructor)
         return cls(log_w, reads[0], w, (x, reads))
 
     @classmethod
