@@ -117,7 +117,7 @@ def test_rlimit_as_in_a_real_process_lowers_the_budget_so_a_moderate_particle_co
     assert len(refused.stderr.splitlines()) == 1
     budget = checks.memory_budget()
     if budget is not None and budget.available > 2 * GIB:  # without the limit, this machine takes them
-        checks.check_particles(3_000_000)
+        checks.particle_count(3_000_000)
 
 
 def test_a_maze_too_large_is_refused_before_it_is_allocated():
