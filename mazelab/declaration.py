@@ -175,18 +175,6 @@ def _parse_whole(text: str) -> int:
         raise ValueError(f"expected a whole number, got {text!r}") from None
 
 
-def _parse_like(default: Any) -> Parse:
-    """The parser of an option declared without one: by its default's type (a flag, a whole number, a
-    number), or any literal for None and text."""
-    if isinstance(default, bool):
-        return parse_flag
-    if isinstance(default, int):
-        return _parse_whole
-    if isinstance(default, float):
-        return _parse_number
-    return _parse_literal
-
-
 # -- checks: value -> the value the filter uses, or a ValueError of one line -------------------------
 def choice(name: str, choices: tuple[str, ...]) -> Check:
     """A check that takes a word among `choices`.
@@ -296,7 +284,9 @@ class Option:
             One line naming the option: text it cannot read, or a control character (a newline
             would print as a line of its own wherever the value is shown).
         """
-        parse = self.parse or _parse_like(self.default)
+        # undeclared: by the default's type (a flag, a whole number, a number), else any literal (None, text)
+        by_type = ((bool, parse_flag), (int, _parse_whole), (float, _parse_number))
+        parse = self.parse or next((p for kind, p in by_type if isinstance(self.default, kind)), _parse_literal)
         try:
             if not text.isprintable():
                 raise ValueError(f"a value cannot hold a control character (a newline, a tab), got {text!r}")
