@@ -245,23 +245,7 @@ def replay_setup(
             f"the scenario's maze differs from {load_maze(maze).source}; leave out --maze to use the stored one"
         )
     world = kept or (load_maze(maze) if maze is not None else fitting_maze(stored))
-    missing = [
-        (name, value)
-        for name, value, flag, had in (
-            ("sigma", DEFAULT_SIGMA, sigma, stored.sigma),
-            ("delta", DEFAULT_DELTA, delta, stored.delta),
-        )
-        if flag is None and had is None
-    ]
-    if missing:
-        typer.echo(
-            f"warning: the scenario stores no {' or '.join(n for n, _ in missing)}: using the default "
-            f"{', '.join(f'{n} {v:g}' for n, v in missing)} (--sigma/--delta choose)",
-            err=True,
-        )
-    warn_overrides(stored, sigma, delta)
-    sigma = sigma if sigma is not None else stored.sigma if stored.sigma is not None else DEFAULT_SIGMA
-    delta = delta if delta is not None else stored.delta if stored.delta is not None else DEFAULT_DELTA
+    sigma, delta = replayed_model(stored, sigma, delta)
     robot = stored.robot(sigma, delta)
     if kept is None:  # a maze given or fitted: the scenario's start and walk must lie in its free area
         try:
@@ -273,19 +257,30 @@ def replay_setup(
     return RunSetup(world, robot, sigma, delta, stored.init_particles_pos, seed)
 
 
-def warn_overrides(scenario: Scenario, sigma: float | None, delta: float | None) -> None:
-    """Say when --sigma or --delta differs from what the scenario's walk and measurements were made
-    with: the filters then assume a model that the replayed data does not follow (a legitimate
+def replayed_model(stored: Scenario, sigma: float | None, delta: float | None) -> tuple[float, float]:
+    """A replay's sigma and delta: --sigma and --delta, else the scenario's, else the defaults (a line says
+    which it lacks); a line also says when a flag differs from what the scenario's walk and measurements
+    were made with: the filters then assume a model that the replayed data does not follow (a legitimate
     experiment, but never a silent one)."""
+    given = {"sigma": (sigma, stored.sigma, DEFAULT_SIGMA), "delta": (delta, stored.delta, DEFAULT_DELTA)}
+    missing = [(name, default) for name, (flag, had, default) in given.items() if flag is None and had is None]
+    if missing:
+        typer.echo(
+            f"warning: the scenario stores no {' or '.join(n for n, _ in missing)}: using the default "
+            f"{', '.join(f'{n} {v:g}' for n, v in missing)} (--sigma/--delta choose)",
+            err=True,
+        )
     made_with = {"sigma": "measurements", "delta": "compass angles"}
-    for name, given, stored in (("sigma", sigma, scenario.sigma), ("delta", delta, scenario.delta)):
-        replayed = name == "delta" or scenario.robot_measurements is not None  # else z is drawn with --sigma
-        if given is not None and stored is not None and given != stored and replayed:
+    for name, (flag, had, _) in given.items():
+        replayed = name == "delta" or stored.robot_measurements is not None  # else z is drawn with --sigma
+        if flag is not None and had is not None and flag != had and replayed:
             typer.echo(
-                f"warning: --{name} {given:g} overrides the scenario's {name} {stored:g}: the filters assume "
-                f"{given:g}, the replayed {made_with[name]} were made with {stored:g}",
+                f"warning: --{name} {flag:g} overrides the scenario's {name} {had:g}: the filters assume "
+                f"{flag:g}, the replayed {made_with[name]} were made with {had:g}",
                 err=True,
             )
+    sigma, delta = (next(value for value in values if value is not None) for values in given.values())
+    return sigma, delta
 
 
 def fitting_maze(scenario: Scenario) -> Maze:
