@@ -154,25 +154,18 @@ def decimal_comma(text: str) -> str | None:
     return None if match is None else f"{match[1]}.{match[2]}"
 
 
-def _parse_number(text: str) -> float:
-    """A finite number: "0.3", "1e-3"; NaN and infinities are refused, and "0,3" says to write 0.3."""
+def _parse_number(text: str, kind: type = float) -> Any:
+    """A finite number: "0.3", "1e-3" (NaN and infinities are refused, and "0,3" says to write 0.3); with
+    `kind` int, a whole number: "3"."""
     try:
-        number = float(text)
+        number = kind(text)
     except ValueError:
-        decimal = decimal_comma(text)
+        decimal = decimal_comma(text) if kind is float else None
         hint = f" (write {decimal})" if decimal is not None else ""
-        raise ValueError(f"expected a number, got {text!r}{hint}") from None
+        raise ValueError(f"expected a {'whole ' if kind is int else ''}number, got {text!r}{hint}") from None
     if not math.isfinite(number):
         raise ValueError(f"expected a finite number, got {text!r}")
     return number
-
-
-def _parse_whole(text: str) -> int:
-    """A whole number: "3"."""
-    try:
-        return int(text)
-    except ValueError:
-        raise ValueError(f"expected a whole number, got {text!r}") from None
 
 
 # -- checks: value -> the value the filter uses, or a ValueError of one line -------------------------
@@ -285,7 +278,7 @@ class Option:
             would print as a line of its own wherever the value is shown).
         """
         # undeclared: by the default's type (a flag, a whole number, a number), else any literal (None, text)
-        by_type = ((bool, parse_flag), (int, _parse_whole), (float, _parse_number))
+        by_type = ((bool, parse_flag), (int, lambda text: _parse_number(text, int)), (float, _parse_number))
         parse = self.parse or next((p for kind, p in by_type if isinstance(self.default, kind)), _parse_literal)
         try:
             if not text.isprintable():

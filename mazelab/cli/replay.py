@@ -144,7 +144,7 @@ def compare_scenario(flags: Mapping[str, Any], named: Mapping[str, Any], drawing
         **given,
     )
     title = f"Localisation error: {scenario.name} ({shown}, {count} particles)"
-    report_compare(results, setup, recorder, title, kld=bool(given.get("kld")), force=flags["force"], **files)
+    report_compare(results, setup, recorder, title, bool(given.get("kld")), flags["force"], files)
     backend = next(iter(results.values())).extras["backend"]
     repeat_line("comparison", setup.seed, ("--csv", "--plot", "--traces", "--rrd"), backend)
 
@@ -430,20 +430,12 @@ def kidnap_report(result: RunResult, found: bool = True) -> str | None:
 
 # -- compare's outputs ------------------------------------------------------------------------------------
 def report_compare(
-    results: dict[str, RunResult],
-    setup: RunSetup,
-    recorder: Recorder,
-    title: str,
-    *,
-    kld: bool,
-    force: bool,
-    csv_path: Path | None,
-    plot: Path | None,
-    traces: Path | None,
-    record_file: Path | None,
+    results: dict[str, RunResult], setup: RunSetup, recorder: Recorder, title: str, kld: bool, force: bool, files: dict
 ) -> None:
-    """The kidnapping (if any), the table, then the per-step errors, the figure, the traces (with the
-    scenario's maze, sigma, delta and particle count) and the record (with each filter's figures)."""
+    """The kidnapping (if any), the table, then the `files` asked for (by compare's parameter names, and
+    `record_file`): the per-step errors, the figure, the traces (with the scenario's maze, sigma, delta and
+    particle count) and the record (with each filter's figures)."""
+    csv_path, plot, traces, record_file = (files[name] for name in ("csv_path", "plot", "traces", "record_file"))
     if (kidnapping := kidnap_report(next(iter(results.values())), found=False)) is not None:
         typer.echo(kidnapping)  # where each filter found the robot again is in the table
     typer.echo(comparison_table(results, kld=kld, startup_seconds=take_startup_seconds()))
