@@ -237,22 +237,18 @@ def bench(
 
 
 # -- warnings in one line --------------------------------------------------------------------------------
-_warned: set[str] = set()  # this command's warnings so far
-
-
 def one_line_warnings() -> None:
-    """A command's warnings from here on as `warn_in_one_line` prints them, each once in the command: the
-    warnings printed start empty for each command, so an earlier `main(argv)` in the same process
-    (a test) does not silence them."""
-    _warned.clear()
+    """A command's warnings from here on (e.g. sigma outside the lab's range) as one line on stderr, each
+    once in the command, no source lines: the warnings printed start empty for each command, so an
+    earlier `main(argv)` in the same process (a test) does not silence them."""
+    warned: set[str] = set()
+
+    def warn_in_one_line(message: Warning | str, category: type[Warning], *_args: Any, **_kwargs: Any) -> None:
+        if str(message) not in warned:
+            warned.add(str(message))
+            typer.echo(f"warning: {message}", err=True)
+
     warnings.showwarning = warn_in_one_line
-
-
-def warn_in_one_line(message: Warning | str, category: type[Warning], *_args: Any, **_kwargs: Any) -> None:
-    """Warnings (e.g. sigma outside the lab's range) as one line on stderr, each once, no source lines."""
-    if str(message) not in _warned:
-        _warned.add(str(message))
-        typer.echo(f"warning: {message}", err=True)
 
 
 # -- errors that name the fix ----------------------------------------------------------------------------
