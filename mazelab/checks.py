@@ -331,8 +331,8 @@ def check_study(runs: int, filters: int) -> None:
 
 
 def memory_budget() -> MemoryBudget | None:
-    """The least of the available RAM, the process limits and the cgroup limit; None if none is known."""
-    known = [budget for budget in (available_ram(), process_limit(), cgroup_limit()) if budget is not None]
+    """The least of the available RAM, the process limits and the cgroup limits; None if none is known."""
+    known = [budget for budget in (available_ram(), *process_limits(), *cgroup_limits()) if budget is not None]
     return min(known, key=lambda budget: budget.available, default=None)
 
 
@@ -347,10 +347,11 @@ def available_ram(proc: Path = Path("/proc")) -> MemoryBudget | None:
         return None
 
 
-def process_limit(proc_self: Path = PROC_SELF) -> MemoryBudget | None:
-    """What RLIMIT_AS (ulimit -v) and RLIMIT_DATA (ulimit -d) leave beyond this process's current use."""
+def process_limits(proc_self: Path = PROC_SELF) -> list[MemoryBudget]:
+    """What RLIMIT_AS (ulimit -v) and RLIMIT_DATA (ulimit -d) leave beyond this process's current use,
+    each that is set."""
     if resource is None:
-        return None
+        return []
     sizes = _numbers_in(proc_self / "status")  # VmSize and VmData
     budgets = []
     for limit, used_key, source in (
@@ -360,7 +361,7 @@ def process_limit(proc_self: Path = PROC_SELF) -> MemoryBudget | None:
         soft, _ = resource.getrlimit(limit)
         if soft != resource.RLIM_INFINITY:
             budgets.append(MemoryBudget(max(0, soft - sizes.get(used_key, 0)), source))
-    return min(budgets, key=lambda budget: budget.available) if budgets else None
+    return budgets
 
 
 def _numbers_in(path: Path) -> dict[str, int]:
@@ -378,8 +379,8 @@ def _numbers_in(path: Path) -> dict[str, int]:
     return numbers
 
 
-def cgroup_limit(root: Path = CGROUP_ROOT, proc_self: Path = PROC_SELF) -> MemoryBudget | None:
-    """What the cgroup memory limit leaves: the least over this process's group and its ancestors of
+def cgroup_limits(root: Path = CGROUP_ROOT, proc_self: Path = PROC_SELF) -> list[MemoryBudget]:
+    """What the cgroup memory limits leave, for this process's group and each ancestor that sets one:
     limit less usage (usage less inactive file cache, which the kernel reclaims first)."""
     budgets = []
     for folder, v2 in _cgroup_folders(root, proc_self):
@@ -390,7 +391,7 @@ def cgroup_limit(root: Path = CGROUP_ROOT, proc_self: Path = PROC_SELF) -> Memor
         used = _numbers_in(folder / names[1]).get("", 0) - _numbers_in(folder / "memory.stat").get(names[2], 0)
         source = f"the cgroup memory limit, {folder / names[0]}"
         budgets.append(MemoryBudget(max(0, limit - max(used, 0)), source))
-    return min(budgets, key=lambda budget: budget.available) if budgets else None
+    return budgets
 
 
 def _cgroup_folders(root: Path, proc_self: Path) -> list[tuple[Path, bool]]:
