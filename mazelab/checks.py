@@ -348,8 +348,7 @@ def available_ram(proc: Path = Path("/proc")) -> MemoryBudget | None:
 
 
 def process_limits(proc_self: Path = PROC_SELF) -> list[MemoryBudget]:
-    """What RLIMIT_AS (ulimit -v) and RLIMIT_DATA (ulimit -d) leave beyond this process's current use,
-    each that is set."""
+    """What RLIMIT_AS (ulimit -v) and RLIMIT_DATA (ulimit -d), each one set, leave beyond this process's use."""
     if resource is None:
         return []
     sizes = _numbers_in(proc_self / "status")  # VmSize and VmData
