@@ -280,11 +280,6 @@ def check_memory(what: str, needed: int, budget: MemoryBudget | None = None) -> 
         )
 
 
-def check_particles(count: int) -> None:
-    """Refuse a particle count whose arrays would not fit."""
-    check_memory(f"particle_count {count}", count * BYTES_PER_PARTICLE)
-
-
 def particle_count(value: Any, source: str = "particle_count", given: int | None = None) -> int:
     """A run's particle count, checked once on its way to the filter: a whole number >= 1 (the count of
     the initial particles `given`, if any), whose arrays fit in memory; else one line naming `source`
@@ -302,7 +297,7 @@ def particle_count(value: Any, source: str = "particle_count", given: int | None
     value = step_number(source, value, "a whole number")
     if given is not None and value != given:
         raise ValueError(f"{source} is {value!r} but {given} initial particles are given")
-    check_particles(value)
+    check_memory(f"particle_count {value}", value * BYTES_PER_PARTICLE)  # its arrays fit
     return value
 
 
@@ -336,8 +331,8 @@ def check_study(runs: int, filters: int) -> None:
 
 
 def memory_budget() -> MemoryBudget | None:
-    """The least of the available RAM, the process limits and the cgroup limit; None if none is known."""
-    known = [budget for budget in (available_ram(), process_limit(), cgroup_limit()) if budget is not None]
+    """The least of the available RAM, the process limits and the cgroup limits; None if none is known."""
+    known = [budget for budget in (available_ram(), *process_limits(), *cgroup_limits()) if budget is not None]
     return min(known, key=lambda budget: budget.available, default=None)
 
 
@@ -352,10 +347,10 @@ def available_ram(proc: Path = Path("/proc")) -> MemoryBudget | None:
         return None
 
 
-def process_limit(proc_self: Path = PROC_SELF) -> MemoryBudget | None:
-    """What RLIMIT_AS (ulimit -v) and RLIMIT_DATA (ulimit -d) leave beyond this process's current use."""
+def process_limits(proc_self: Path = PROC_SELF) -> list[MemoryBudget]:
+    """What RLIMIT_AS (ulimit -v) and RLIMIT_DATA (ulimit -d), each one set, leave beyond this process's use."""
     if resource is None:
-        return None
+        return []
     sizes = _numbers_in(proc_self / "status")  # VmSize and VmData
     budgets = []
     for limit, used_key, source in (
@@ -365,16 +360,17 @@ def process_limit(proc_self: Path = PROC_SELF) -> MemoryBudget | None:
         soft, _ = resource.getrlimit(limit)
         if soft != resource.RLIM_INFINITY:
             budgets.append(MemoryBudget(max(0, soft - sizes.get(used_key, 0)), source))
-    return min(budgets, key=lambda budget: budget.available) if budgets else None
+    return budgets
 
 
 def _numbers_in(path: Path) -> dict[str, int]:
     """The numbers of a /proc or cgroup file of `key: value` or `key value` lines (meminfo, status,
-    memory.stat), in bytes where the line says kB; empty where the file cannot be read."""
+    memory.stat), in bytes where the line says kB, a one-value file's (memory.max) under the key "";
+    empty where the file cannot be read ("max", no limit, is no number)."""
     numbers = {}
     try:
         for line in path.read_text().splitlines():
-            words = line.replace(":", " ", 1).split()
+            words = ["", *line.split()] if line.strip().isdigit() else line.replace(":", " ", 1).split()
             if len(words) > 1 and words[1].isdigit():
                 numbers[words[0]] = int(words[1]) * (1024 if words[-1] == "kB" else 1)
     except OSError:
@@ -382,19 +378,19 @@ def _numbers_in(path: Path) -> dict[str, int]:
     return numbers
 
 
-def cgroup_limit(root: Path = CGROUP_ROOT, proc_self: Path = PROC_SELF) -> MemoryBudget | None:
-    """What the cgroup memory limit leaves: the least over this process's group and its ancestors of
+def cgroup_limits(root: Path = CGROUP_ROOT, proc_self: Path = PROC_SELF) -> list[MemoryBudget]:
+    """What the cgroup memory limits leave, for this process's group and each ancestor that sets one:
     limit less usage (usage less inactive file cache, which the kernel reclaims first)."""
     budgets = []
     for folder, v2 in _cgroup_folders(root, proc_self):
         names = CGROUP_FILES[v2]
-        limit = _read_number(folder / names[0])
+        limit = _numbers_in(folder / names[0]).get("")
         if limit is None or limit >= _UNLIMITED:
             continue
-        used = (_read_number(folder / names[1]) or 0) - _numbers_in(folder / "memory.stat").get(names[2], 0)
+        used = _numbers_in(folder / names[1]).get("", 0) - _numbers_in(folder / "memory.stat").get(names[2], 0)
         source = f"the cgroup memory limit, {folder / names[0]}"
         budgets.append(MemoryBudget(max(0, limit - max(used, 0)), source))
-    return min(budgets, key=lambda budget: budget.available) if budgets else None
+    return budgets
 
 
 def _cgroup_folders(root: Path, proc_self: Path) -> list[tuple[Path, bool]]:
@@ -422,14 +418,6 @@ def _cgroup_folders(root: Path, proc_self: Path) -> list[tuple[Path, bool]]:
             if (folder, v2) not in folders:
                 folders.append((folder, v2))
     return folders
-
-
-def _read_number(path: Path) -> int | None:
-    """The whole number in a one-value cgroup file; None for "max", a missing or unreadable file."""
-    try:
-        return int(path.read_text().strip())
-    except (OSError, ValueError):
-        return None
 
 
 def _gib(size: float) -> str:

@@ -154,37 +154,18 @@ def decimal_comma(text: str) -> str | None:
     return None if match is None else f"{match[1]}.{match[2]}"
 
 
-def _parse_number(text: str) -> float:
-    """A finite number: "0.3", "1e-3"; NaN and infinities are refused, and "0,3" says to write 0.3."""
+def _parse_number(text: str, kind: type = float) -> Any:
+    """A finite number: "0.3", "1e-3" (NaN and infinities are refused, and "0,3" says to write 0.3); with
+    `kind` int, a whole number: "3"."""
     try:
-        number = float(text)
+        number = kind(text)
     except ValueError:
-        decimal = decimal_comma(text)
+        decimal = decimal_comma(text) if kind is float else None
         hint = f" (write {decimal})" if decimal is not None else ""
-        raise ValueError(f"expected a number, got {text!r}{hint}") from None
+        raise ValueError(f"expected a {'whole ' if kind is int else ''}number, got {text!r}{hint}") from None
     if not math.isfinite(number):
         raise ValueError(f"expected a finite number, got {text!r}")
     return number
-
-
-def _parse_whole(text: str) -> int:
-    """A whole number: "3"."""
-    try:
-        return int(text)
-    except ValueError:
-        raise ValueError(f"expected a whole number, got {text!r}") from None
-
-
-def _parse_like(default: Any) -> Parse:
-    """The parser of an option declared without one: by its default's type (a flag, a whole number, a
-    number), or any literal for None and text."""
-    if isinstance(default, bool):
-        return parse_flag
-    if isinstance(default, int):
-        return _parse_whole
-    if isinstance(default, float):
-        return _parse_number
-    return _parse_literal
 
 
 # -- checks: value -> the value the filter uses, or a ValueError of one line -------------------------
@@ -296,7 +277,9 @@ class Option:
             One line naming the option: text it cannot read, or a control character (a newline
             would print as a line of its own wherever the value is shown).
         """
-        parse = self.parse or _parse_like(self.default)
+        # undeclared: by the default's type (a flag, a whole number, a number), else any literal (None, text)
+        by_type = ((bool, parse_flag), (int, lambda text: _parse_number(text, int)), (float, _parse_number))
+        parse = self.parse or next((p for kind, p in by_type if isinstance(self.default, kind)), _parse_literal)
         try:
             if not text.isprintable():
                 raise ValueError(f"a value cannot hold a control character (a newline, a tab), got {text!r}")

@@ -3,7 +3,7 @@ help, and what it can do. The command line's choices and hints, the figures' lab
 same in Rerun and in the PNGs), `mazelab --help` and a study's columns read it. A filter of the package
 is one entry in `SHIPPED`; a student's own, `path/to/file.py:ClassName` wherever a filter name goes,
 gets one when it is loaded (`load_plugin`), named in a saved run by its `PluginReference` and carried by
-a study as its `PluginCode`. The student's code failing during a run is mazelab.stops.StudentCodeError.
+a study with its code (`plugin_codes`). The student's code failing during a run is mazelab.stops.StudentCodeError.
 
     entry = filter_entry("rpf")          # also "RegularizedParticleFilter", "Regularized Particle Filter"
     entry.filter_class, entry.label      # RegularizedParticleFilter, "RPF"
@@ -52,14 +52,18 @@ def split_spec(spec: str) -> tuple[Path, str | None]:
 
 @dataclass(frozen=True)
 class PluginReference:
-    """How a saved run names a plug-in: the spec as the user wrote it, the file's sha256 and the class.
-    A scenario stores it (`as_json`, read back by `from_json`) and never imports it; a replay needs the
-    user to name the plug-in again."""
+    """One plug-in file: its spec (as the user wrote it; a study's runs name it by its absolute path,
+    `/abs/file.py:Class`), the sha256 of its bytes and its class; `path` the file's absolute path when it
+    was loaded, and `source` its bytes when a study carries them (`plugin_codes`), read once when the
+    study is planned so that a worker process, or a Dask worker on another machine, runs the very code
+    the study was planned with (only its file travels). A scenario stores the reference (`as_json`, read
+    back by `from_json`) and never imports it; a replay needs the user to name the plug-in again."""
 
     spec: str
     sha256: str
     class_name: str
-    path: str = ""  # the file's absolute path when it was loaded (for the worker processes of a study)
+    path: Path | None = None
+    source: bytes = b""
 
     def as_json(self) -> dict[str, str]:
         """What a scenario stores (the absolute path is the machine's, so it is left out)."""
@@ -68,6 +72,24 @@ class PluginReference:
     def describe(self) -> str:
         """'my_filter.py:MyFilter (sha256 1a2b3c4d...)'."""
         return f"{self.spec} (sha256 {self.sha256[:12]}...)"
+
+    def spec_here(self) -> str:
+        """The spec that imports a study's plug-in (`plugin_codes`) in this process: its file itself when
+        it holds the study's bytes, else a copy written beside the other shipped plug-ins. Raises
+        ValueError (one line) when the bytes do not have the recorded sha256."""
+        path = split_spec(self.spec)[0]
+        if hashlib.sha256(self.source).hexdigest() != self.sha256:
+            raise ValueError(f"{path.name}: the plug-in's code arrived damaged (its sha256 differs)")
+        try:
+            if file_sha256(path) == self.sha256:
+                return self.spec
+        except OSError:  # not on this machine
+            pass
+        copy = Path(tempfile.gettempdir()) / CODE_FOLDER / self.sha256 / path.name
+        if not copy.is_file():
+            copy.parent.mkdir(parents=True, exist_ok=True)
+            write_bytes_atomically(copy, self.source)
+        return f"{copy}:{self.class_name}"
 
     @classmethod
     def from_json(cls, stored: Any) -> PluginReference:
@@ -202,54 +224,23 @@ def _import_file(resolved: Path, shown: Path) -> ModuleType:
 
 # -- a plug-in's code, sent with a study's runs ------------------------------------------------------
 CODE_FOLDER = "mazelab-plugins"  # under the system's temporary folder: the shipped plug-ins, by sha256
+PluginCode = PluginReference  # the name the study's modules give a plug-in that carries its code
 
 
-@dataclass(frozen=True)
-class PluginCode:
-    """One plug-in of a study: the spec the runs name it by (`/absolute/path/file.py:Class`), the
-    file's bytes and their sha256, read once when the study is planned, so that a worker process or a
-    Dask worker on another machine runs the very code the study was planned with (only its file travels)."""
-
-    spec: str
-    source: bytes
-    sha256: str
-
-    @property
-    def path(self) -> Path:
-        return split_spec(self.spec)[0]
-
-    @property
-    def class_name(self) -> str:
-        return split_spec(self.spec)[1] or ""
-
-    def spec_here(self) -> str:
-        """The spec that imports this code in this process: the file itself when it holds these bytes,
-        else a copy written beside the other shipped plug-ins. Raises ValueError (one line) when the
-        bytes do not have the recorded sha256."""
-        if hashlib.sha256(self.source).hexdigest() != self.sha256:
-            raise ValueError(f"{self.path.name}: the plug-in's code arrived damaged (its sha256 differs)")
-        try:
-            if file_sha256(self.path) == self.sha256:
-                return self.spec
-        except OSError:  # not on this machine
-            pass
-        copy = Path(tempfile.gettempdir()) / CODE_FOLDER / self.sha256 / self.path.name
-        if not copy.is_file():
-            copy.parent.mkdir(parents=True, exist_ok=True)
-            write_bytes_atomically(copy, self.source)
-        return f"{copy}:{self.class_name}"
-
-
-def plugin_codes(filters: Sequence[object]) -> tuple[PluginCode, ...]:
-    """The code of every plug-in among a study's filters, read now (names and specs, each spec with an
+def plugin_codes(filters: Sequence[object]) -> tuple[PluginReference, ...]:
+    """Every plug-in among a study's filters with its code, read now (names and specs, each spec with an
     absolute path, runs.filter_key; classes from Python are sent as they are)."""
-    sources = {f: split_spec(f)[0].read_bytes() for f in filters if isinstance(f, str) and is_plugin_spec(f)}
-    return tuple(PluginCode(spec, source, hashlib.sha256(source).hexdigest()) for spec, source in sources.items())
+    codes = []
+    for spec in dict.fromkeys(f for f in filters if isinstance(f, str) and is_plugin_spec(f)):
+        path, class_name = split_spec(spec)
+        source = path.read_bytes()
+        codes.append(PluginReference(spec, hashlib.sha256(source).hexdigest(), class_name or "", path, source))
+    return tuple(codes)
 
 
-def filters_here(filters: Sequence[str], codes: Sequence[PluginCode]) -> tuple[str, ...]:
+def filters_here(filters: Sequence[str], codes: Sequence[PluginReference]) -> tuple[str, ...]:
     """A run's filter names with each plug-in's spec replaced by the one that imports its shipped code
-    in this process (`PluginCode.spec_here`)."""
+    in this process (`PluginReference.spec_here`)."""
     here = {code.spec: code.spec_here() for code in codes}
     return tuple(here.get(name, name) for name in filters)
 
@@ -469,7 +460,7 @@ def filter_entry(name: str | type) -> FilterEntry:
     if is_plugin_spec(text):  # loaded once per process; one line naming the file, the class and what is wrong
         filter_class = load_plugin(text)
         class_name, path = filter_class.__name__, Path(inspect.getfile(filter_class)).resolve()
-        plugin = PluginReference(f"{split_spec(text)[0]}:{class_name}", file_sha256(path), class_name, str(path))
+        plugin = PluginReference(f"{split_spec(text)[0]}:{class_name}", file_sha256(path), class_name, path)
         return _entry_of_class(filter_class, plugin)
     shipped = shipped_entry(text)
     if shipped is not None:

@@ -19,10 +19,10 @@ from mazelab.checks import (
     MemoryBudget,
     MemoryLimitError,
     angle,
-    cgroup_limit,
+    cgroup_limits,
     check_memory,
     check_within_map,
-    process_limit,
+    process_limits,
 )
 from mazelab.cli.maze import prepare_world
 from mazelab.grid_filter import GridBayesFilter
@@ -69,8 +69,8 @@ def test_a_cgroup_v2_limit_counts_its_ancestors_and_leaves_out_inactive_file_cac
             "sys/user.slice/memory.stat": f"anon 123\ninactive_file {GIB}\nactive_file 5\n",
         },
     )
-    budget = cgroup_limit(tmp_path / "sys", tmp_path / "proc")
-    assert budget == MemoryBudget(2 * GIB, f"the cgroup memory limit, {tmp_path / 'sys/user.slice/memory.max'}")
+    budgets = cgroup_limits(tmp_path / "sys", tmp_path / "proc")
+    assert budgets == [MemoryBudget(2 * GIB, f"the cgroup memory limit, {tmp_path / 'sys/user.slice/memory.max'}")]
 
 
 def test_a_cgroup_v1_limit_is_read_and_its_unlimited_value_ignored(tmp_path):
@@ -84,18 +84,18 @@ def test_a_cgroup_v1_limit_is_read_and_its_unlimited_value_ignored(tmp_path):
             "sys/memory/memory.limit_in_bytes": "9223372036854771712\n",
         },
     )
-    assert cgroup_limit(tmp_path / "sys", tmp_path / "proc").available == 2 * GIB - GIB // 2
+    assert [b.available for b in cgroup_limits(tmp_path / "sys", tmp_path / "proc")] == [2 * GIB - GIB // 2]
     (tmp_path / "sys/memory/docker/abc/memory.limit_in_bytes").write_text("9223372036854771712\n")
-    assert cgroup_limit(tmp_path / "sys", tmp_path / "proc") is None
+    assert cgroup_limits(tmp_path / "sys", tmp_path / "proc") == []
 
 
 def test_the_process_limits_are_read_as_set():
     soft, _ = resource.getrlimit(resource.RLIMIT_AS)
-    budget = process_limit()
+    budgets = process_limits()
     if soft == resource.RLIM_INFINITY and resource.getrlimit(resource.RLIMIT_DATA)[0] == resource.RLIM_INFINITY:
-        assert budget is None
+        assert budgets == []
     else:
-        assert budget is not None and budget.available < soft
+        assert budgets and min(budget.available for budget in budgets) < soft
 
 
 def test_rlimit_as_in_a_real_process_lowers_the_budget_so_a_moderate_particle_count_is_refused():
@@ -117,7 +117,7 @@ def test_rlimit_as_in_a_real_process_lowers_the_budget_so_a_moderate_particle_co
     assert len(refused.stderr.splitlines()) == 1
     budget = checks.memory_budget()
     if budget is not None and budget.available > 2 * GIB:  # without the limit, this machine takes them
-        checks.check_particles(3_000_000)
+        checks.particle_count(3_000_000)
 
 
 def test_a_maze_too_large_is_refused_before_it_is_allocated():

@@ -37,6 +37,7 @@ from mazelab.cli.options import (
     seed_option,
     with_drawing,
     with_option_flags,
+    with_parameters,
 )
 from mazelab.cli.recordings import recordings, view
 from mazelab.cli.smoothing import learn, smooth
@@ -89,83 +90,65 @@ def demo(
         return
     from mazelab.cli.replay import run_one  # scenarios and drawing: imported by the commands that use them
 
-    run_one(drawing or {}, force, demo=True)
+    run_one({"force": force}, {}, drawing or {}, demo=True)
 
 
-Maze_ = opt(str | None, "--maze", metavar="MAZE", help=f"a maze file or a name in mazes/ [default: {DEFAULT_MAZE}]")
-Filter = opt(str | None, "--filter", metavar="NAME", help=f"{filter_choices()} [default: sir]")
-Particles = opt(int | None, help=f"particle count N_S [default: {DEFAULT_PARTICLE_COUNT}]")
-Steps = opt(int | None, min=1, help=f"number of steps [default: {DEFAULT_STEPS}]")
-Sigma = opt(float | None, help=f"noise std, lab 0.2-0.8 [default: {DEFAULT_SIGMA}]")
-Delta = opt(float | None, help=f"compass error, rad, lab 0.05-0.6 [default: {DEFAULT_DELTA}]")
-Seed = opt(int | None, callback=seed_option, help="seed of the whole run (default: new, printed)")
-StartSeed = opt(int | None, callback=seed_option, hidden=True, help="seed of the start only")
-ScenarioFile = opt(Path | None, help="replay a saved scenario (.json), or a shipped one by name")
-SaveScenario = opt(Path | None, "--save-scenario", help="save the run (.json)")
-Quiet = opt(bool, "--quiet", help="no per-step progress")
-SavedScenario = arg(Path, "SCENARIO", "a saved scenario (.json) or a shipped name")
-Filters = opt(str, metavar="NAMES", help=filter_choices(many=True))
-StoredMaze = opt(str | None, metavar="MAZE", help="the maze, if the scenario stores none")
-NewSigma = opt(float | None, "--sigma", help="override the scenario's sigma")
-NewDelta = opt(float | None, "--delta", help="override the scenario's delta")
-ReplaySeed = opt(int | None, "--seed", callback=seed_option, help="the filters' seed (default: the scenario's)")
-ErrorsCsv = opt(Path | None, "--csv", help="per-step errors, a column per filter")
-Plot = opt(Path | None, help="the lab's error figure (.png; plot extra)")
-Traces = opt(Path | None, help="per-step rows of every filter (.csv, or .parquet)")
+# run's parameters (`run_one` reads them as one value, `flags`), then compare's (`compare_scenario`)
+RUN: dict[str, tuple[Any, Any]] = {
+    "maze": (
+        opt(str | None, "--maze", metavar="MAZE", help=f"a maze file or a name in mazes/ [default: {DEFAULT_MAZE}]"),
+        None,
+    ),
+    "filter_name": (opt(str | None, "--filter", metavar="NAME", help=f"{filter_choices()} [default: sir]"), None),
+    "particles": (opt(int | None, help=f"particle count N_S [default: {DEFAULT_PARTICLE_COUNT}]"), None),
+    "steps": (opt(int | None, min=1, help=f"number of steps [default: {DEFAULT_STEPS}]"), None),
+    "sigma": (opt(float | None, help=f"noise std, lab 0.2-0.8 [default: {DEFAULT_SIGMA}]"), None),
+    "delta": (opt(float | None, help=f"compass error, rad, lab 0.05-0.6 [default: {DEFAULT_DELTA}]"), None),
+    "seed": (opt(int | None, callback=seed_option, help="seed of the whole run (default: new, printed)"), None),
+    "start_seed": (opt(int | None, callback=seed_option, hidden=True, help="seed of the start only"), None),
+    "scenario": (opt(Path | None, help="replay a saved scenario (.json), or a shipped one by name"), None),
+    "save_scenario_path": (opt(Path | None, "--save-scenario", help="save the run (.json)"), None),
+    "force": (Force, False),
+    "quiet": (opt(bool, "--quiet", help="no per-step progress"), False),
+    "kidnap_at": (KidnapAt, None),
+    "option": (OptionFlag, None),
+    "backend": (BackendOption, None),
+    "threads": (ThreadsOption, None),
+}
+COMPARE: dict[str, tuple[Any, Any]] = {
+    "scenario": (arg(Path, "SCENARIO", "a saved scenario (.json) or a shipped name"), ...),
+    "filters": (opt(str, metavar="NAMES", help=filter_choices(many=True)), "sir,apf,rpf"),
+    "maze": (opt(str | None, metavar="MAZE", help="the maze, if the scenario stores none"), None),
+    "sigma": (opt(float | None, "--sigma", help="override the scenario's sigma"), None),
+    "delta": (opt(float | None, "--delta", help="override the scenario's delta"), None),
+    "seed": (opt(int | None, "--seed", callback=seed_option, help="the filters' seed (default: the scenario's)"), None),
+    "csv_path": (opt(Path | None, "--csv", help="per-step errors, a column per filter"), None),
+    "plot": (opt(Path | None, help="the lab's error figure (.png; plot extra)"), None),
+    "traces": (opt(Path | None, help="per-step rows of every filter (.csv, or .parquet)"), None),
+    "force": (Force, False),
+    "kidnap_at": (KidnapAt, None),
+    "option": (OptionFlag, None),
+    "backend": (BackendOption, None),
+}
 
 
 @app.command(short_help="One filter on a lost robot, or on a saved scenario.")
 @with_drawing
 @with_option_flags()
-def run(
-    maze: Maze_ = None,
-    filter_name: Filter = None,
-    particles: Particles = None,
-    steps: Steps = None,
-    sigma: Sigma = None,
-    delta: Delta = None,
-    seed: Seed = None,
-    start_seed: StartSeed = None,
-    scenario: ScenarioFile = None,
-    save_scenario_path: SaveScenario = None,
-    force: Force = False,
-    quiet: Quiet = False,
-    kidnap_at: KidnapAt = None,
-    option: OptionFlag = None,
-    backend: BackendOption = None,
-    threads: ThreadsOption = None,
-    *,
-    named: dict,
-    drawing: dict,
-) -> None:
+@with_parameters("flags", RUN)
+def run(*, flags: dict, named: dict, drawing: dict) -> None:
     """Run one filter on a lost robot, or replay a saved scenario (--scenario) with its filter and
     options. Every filter option: --option NAME=VALUE (`mazelab filters` lists them)."""
     from mazelab.cli.replay import run_one  # scenarios and drawing: imported by the commands that use them
 
-    run_one(**locals())
+    run_one(flags, named, drawing)
 
 
 @app.command(short_help="Lab steps 12-13: every filter on one saved scenario.")
 @with_drawing
 @with_option_flags()
-def compare(
-    scenario: SavedScenario,
-    filters: Filters = "sir,apf,rpf",
-    maze: StoredMaze = None,
-    sigma: NewSigma = None,
-    delta: NewDelta = None,
-    seed: ReplaySeed = None,
-    csv_path: ErrorsCsv = None,
-    plot: Plot = None,
-    traces: Traces = None,
-    force: Force = False,
-    kidnap_at: KidnapAt = None,
-    option: OptionFlag = None,
-    backend: BackendOption = None,
-    *,
-    named: dict,
-    drawing: dict,
-) -> None:
+@with_parameters("flags", COMPARE)
+def compare(*, flags: dict, named: dict, drawing: dict) -> None:
     """Lab steps 12-13: every filter on one saved scenario (the same start, particles, walk). Each
     filter takes the options it declares (--option NAME=VALUE; `mazelab filters` lists them), and
     those the scenario's run set away from their defaults unless given here (a line names them).
@@ -174,7 +157,7 @@ def compare(
     over the last 30 steps) and the steps it took."""
     from mazelab.cli.replay import compare_scenario  # scenarios and drawing: imported by the commands that use them
 
-    compare_scenario(**locals())
+    compare_scenario(flags, named, drawing)
 
 
 # -- `mazelab filters [NAME]` ----------------------------------------------------------------------------
@@ -254,22 +237,18 @@ def bench(
 
 
 # -- warnings in one line --------------------------------------------------------------------------------
-_warned: set[str] = set()  # this command's warnings so far
-
-
 def one_line_warnings() -> None:
-    """A command's warnings from here on as `warn_in_one_line` prints them, each once in the command: the
-    warnings printed start empty for each command, so an earlier `main(argv)` in the same process
-    (a test) does not silence them."""
-    _warned.clear()
+    """A command's warnings from here on (e.g. sigma outside the lab's range) as one line on stderr, each
+    once in the command, no source lines: the warnings printed start empty for each command, so an
+    earlier `main(argv)` in the same process (a test) does not silence them."""
+    warned: set[str] = set()
+
+    def warn_in_one_line(message: Warning | str, category: type[Warning], *_args: Any, **_kwargs: Any) -> None:
+        if str(message) not in warned:
+            warned.add(str(message))
+            typer.echo(f"warning: {message}", err=True)
+
     warnings.showwarning = warn_in_one_line
-
-
-def warn_in_one_line(message: Warning | str, category: type[Warning], *_args: Any, **_kwargs: Any) -> None:
-    """Warnings (e.g. sigma outside the lab's range) as one line on stderr, each once, no source lines."""
-    if str(message) not in _warned:
-        _warned.add(str(message))
-        typer.echo(f"warning: {message}", err=True)
 
 
 # -- errors that name the fix ----------------------------------------------------------------------------

@@ -242,22 +242,16 @@ def repeat_line(what: str, seed: int | None, files: tuple[str, ...], backend: st
 SWITCH_VALUES = {"--recovery": "augmented", "--sensor-resetting": "sensor"}
 
 
-def declared_flags() -> dict[str, Option]:
-    """The named flags of the lab's filters' options, by option name (the first declaration's)."""
-    flags: dict[str, Option] = {}
-    for entry in SHIPPED:
-        for option in entry.options.settable():
-            if option.flag:
-                flags.setdefault(option.name, option)
-    return flags
-
-
-def _flag_spellings(lists: bool) -> list[tuple[str, Option, bool]]:
-    """Each command-line spelling of the declared flags: (flag, its option, whether it is a switch). A flag
-    option (`--kld`) is a switch, and so is each half of a pair (`--recovery/--sensor-resetting`) on run
-    and compare; any other flag, and a pair's first half in a study (`lists`), takes a value (a list)."""
+def flag_spellings(lists: bool) -> list[tuple[str, Option, bool]]:
+    """Each command-line spelling of the named flags of the lab's filters' options (`Option.flag`, the first
+    declaration of each option): (flag, its option, whether it is a switch). A flag option (`--kld`) is a
+    switch, and so is each half of a pair (`--recovery/--sensor-resetting`) on run and compare; any other
+    flag, and a pair's first half in a study (`lists`), takes a value (a list)."""
+    declared: dict[str, Option] = {}
+    for option in (option for entry in SHIPPED for option in entry.options.settable() if option.flag):
+        declared.setdefault(option.name, option)
     spellings = []
-    for option in declared_flags().values():
+    for option in declared.values():
         flags = (option.flag or "").split("/")
         if option.parse is parse_flag:
             spellings.append((flags[0], option, True))
@@ -269,11 +263,11 @@ def _flag_spellings(lists: bool) -> list[tuple[str, Option, bool]]:
 
 
 def with_option_flags(lists: bool = False) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
-    """Add a hidden typer option per declared flag (`_flag_spellings`) to a command, named together in one
+    """Add a hidden typer option per declared flag (`flag_spellings`) to a command, named together in one
     paragraph of its help; the command receives the ones given as `named`: {option name: (the flag as
     typed, its text, a list's text, or True for a switch; a pair's half: the value it sets)}, and both
     halves of a pair given is one line."""
-    spellings = _flag_spellings(lists)
+    spellings = flag_spellings(lists)
     parameters = {
         flag.removeprefix("--").replace("-", "_"): (
             opt(bool if switch else str | None, flag, hidden=True, help=option.help),

@@ -53,42 +53,12 @@ from mazelab.seeding import new_seed
 from mazelab.simulation import RunResult, check_walk, simulate
 
 
-def run_one(
-    drawing: dict,
-    force: bool,
-    maze: str | None = None,
-    filter_name: str | None = None,
-    particles: int | None = None,
-    steps: int | None = None,
-    sigma: float | None = None,
-    delta: float | None = None,
-    seed: int | None = None,
-    start_seed: int | None = None,
-    scenario: Path | None = None,
-    save_scenario_path: Path | None = None,
-    quiet: bool = False,
-    kidnap_at: int | None = None,
-    option: list[str] | None = None,
-    named: dict | None = None,
-    demo: bool = False,
-    **_: Any,
-) -> None:
-    """`run`'s work (mazelab.cli.app): one filter on a fresh lost robot or a replayed scenario, its report;
-    the `demo` is `run` with every default (the paper's example), said in a line first."""
-    visualize = visualization(**drawing, force=force)
-    stored = load_scenario(scenario) if scenario is not None else None
-    filter_name = check_filter_name(replay_filter_name(stored, filter_name, scenario))
-    options = options_per_filter(
-        [filter_name], given_options(named or {}, option, [filter_name]), check=stored is None
-    )[resolve_filter(filter_name).name]
-    check_outputs([("--save-scenario", save_scenario_path), ("--rrd", drawing.get("rrd"))], force)
-    if stored is None:
-        setup = fresh_setup(maze, sigma, delta, seed, start_seed)
-    else:
-        refuse_counts_for_replay(stored, particles=particles, steps=steps, start_seed=start_seed)
-        options = replay_options(stored, filter_name, options, scenario)
-        options_per_filter([filter_name], options)  # the replay's options, checked as the filter will
-        setup = replay_setup(stored, maze, sigma, delta, seed)
+def run_one(flags: Mapping[str, Any], named: Mapping[str, Any], drawing: dict, demo: bool = False) -> None:
+    """`run`'s work (mazelab.cli.app; `flags`: its parameters by name, those left out at their defaults):
+    one filter on a fresh lost robot or a replayed scenario, its report; the `demo` is `run` with every
+    default (the paper's example), said in a line first."""
+    visualize = visualization(**drawing, force=flags.get("force", False))
+    setup, filter_name, options = run_plan(flags, named, drawing)
     prepare_world(setup.world)
     if demo:
         world, lab = setup.world, find_maze(DEFAULT_MAZE).name
@@ -96,81 +66,67 @@ def run_one(
             f"A robot is lost in {lab} ({world.height}x{world.width}, {len(world.stations)} stations); SIR "
             f"with {DEFAULT_PARTICLE_COUNT} particles looks for it."
         )
-    progress = None if quiet else progress_printer(steps or setup.robot.recorded_steps or DEFAULT_STEPS)
+    steps = flags.get("steps")
+    progress = None if flags.get("quiet") else progress_printer(steps or setup.robot.recorded_steps or DEFAULT_STEPS)
     try:
         result = simulate(
             setup.robot,
             setup.world,
             setup.sigma,
             setup.delta,
-            particles,
+            flags.get("particles"),
             steps,
             setup.initial_particles,
             filter_name,
             seed=setup.seed,
             visualize=visualize,
             on_step=progress,
-            kidnap_at=kidnap_at,
+            kidnap_at=flags.get("kidnap_at"),
             **options,
         )
     except (KeyboardInterrupt, SystemExit):  # Ctrl-C; SIGTERM or SIGHUP with a recording exit through SystemExit
-        if save_scenario_path is not None:
-            typer.echo(f"the run did not finish: no scenario saved to {save_scenario_path}", err=True)
+        if flags.get("save_scenario_path") is not None:
+            typer.echo(f"the run did not finish: no scenario saved to {flags['save_scenario_path']}", err=True)
         raise
-    report_run(result)
-    if (kidnapping := kidnap_report(result)) is not None:
-        typer.echo(kidnapping)
-    if options.get("kld"):  # KLD-sampling: the particle count per step
-        counts = result.extras["particle_count"]
-        typer.echo(f"particle count: mean {counts.mean():.0f}, least {counts.min()}, most {counts.max()}")
-    if save_scenario_path is not None:
-        typer.echo(f"scenario saved to {save_scenario(result.scenario, save_scenario_path, replace=force)}")
-    if demo:  # typed without a command: the command that repeats it is `run`
-        words = ["run", "--seed", str(result.seed), "--backend", result.extras["backend"]]
-        typer.echo(f"Repeat this run: {command_prefix()} {shlex.join(words)}")
-    else:
-        repeat_line("run", result.seed, ("--save-scenario", "--rrd"), result.extras["backend"])
+    report_run(result, flags, demo)
 
 
-def compare_scenario(
-    scenario: Path,
-    filters: str,
-    maze: str | None,
-    sigma: float | None,
-    delta: float | None,
-    seed: int | None,
-    csv_path: Path | None,
-    plot: Path | None,
-    traces: Path | None,
-    force: bool,
-    kidnap_at: int | None,
-    option: list[str] | None,
-    named: dict,
-    drawing: dict,
-    **_: Any,
-) -> None:
-    """`compare`'s work (mazelab.cli.app): every filter on the saved scenario, the table, files and record."""
-    visualize = visualization(**drawing, force=force)
-    check_filter_names(filters)
-    record_file = next((record_path(p) for p in (csv_path, plot, traces) if p is not None), None)  # beside them
-    outputs = [("--csv", csv_path), ("--plot", plot), ("--traces", traces), ("--rrd", drawing.get("rrd"))]
-    check_outputs([*outputs, ("the record", record_file)], force)
-    scenario = find_scenario(scenario)  # a shipped one by its name: its file's name in the table's title
+def run_plan(flags: Mapping[str, Any], named: Mapping[str, Any], drawing: dict) -> tuple[RunSetup, str, dict[str, Any]]:
+    """What `run` reads from its flags, checked once before the run: its setup (a fresh lost robot, or a
+    scenario replayed), its filter's name and that filter's options (a replay's: the scenario's, then
+    those given, `replay_options`)."""
+    scenario, start_seed = flags.get("scenario"), flags.get("start_seed")
+    stored = load_scenario(scenario) if scenario is not None else None
+    filter_name = check_filter_name(replay_filter_name(stored, flags.get("filter_name"), scenario))
+    given = given_options(named, flags.get("option"), [filter_name])
+    options = options_per_filter([filter_name], given, check=stored is None)[resolve_filter(filter_name).name]
+    outputs = [("--save-scenario", flags.get("save_scenario_path")), ("--rrd", drawing.get("rrd"))]
+    check_outputs(outputs, flags.get("force", False))
+    maze, sigma, delta, seed = (flags.get(name) for name in ("maze", "sigma", "delta", "seed"))
+    if stored is None:
+        return fresh_setup(maze, sigma, delta, seed, start_seed), filter_name, options
+    refuse_counts_for_replay(stored, particles=flags.get("particles"), steps=flags.get("steps"), start_seed=start_seed)
+    options = replay_options(stored, filter_name, options, scenario)
+    options_per_filter([filter_name], options)  # the replay's options, checked as the filter will
+    return replay_setup(stored, maze, sigma, delta, seed), filter_name, options
+
+
+def compare_scenario(flags: Mapping[str, Any], named: Mapping[str, Any], drawing: dict) -> None:
+    """`compare`'s work (mazelab.cli.app; `flags`: its parameters by name): every filter on the saved
+    scenario, the table, files and record."""
+    visualize = visualization(**drawing, force=flags["force"])
+    check_filter_names(flags["filters"])
+    files = {"csv_path": flags["csv_path"], "plot": flags["plot"], "traces": flags["traces"]}
+    files["record_file"] = next((record_path(p) for p in files.values() if p is not None), None)  # beside them
+    outputs = [*zip(("--csv", "--plot", "--traces"), files.values(), strict=False), ("--rrd", drawing.get("rrd"))]
+    check_outputs([*outputs, ("the record", files["record_file"])], flags["force"])
+    scenario = find_scenario(flags["scenario"])  # a shipped one by its name: its file's name in the table's title
     stored = load_scenario(scenario)
-    setup, names = replay_setup(stored, maze, sigma, delta, seed), parse_filters(filters)
-    given = with_stored_options(stored, names, given_options(named, option, names), scenario)
+    setup = replay_setup(stored, flags["maze"], flags["sigma"], flags["delta"], flags["seed"])
+    names = parse_filters(flags["filters"])
+    given = with_stored_options(stored, names, given_options(named, flags["option"], names), scenario)
     options_per_filter(names, given)  # an option that none of the filters takes, or a bad value: one line, first
-    options = {k: to_plain_json(v) for k, v in given.items()}
-    parameters = {
-        "filters": [resolve_filter(n).name for n in names],
-        "sigma": setup.sigma,
-        "delta": setup.delta,
-        "seed": setup.seed,
-        "kidnap_at": kidnap_at,
-        "options": options,
-        "scenario": str(scenario),
-    }
-    recorder = Recorder("compare", command_line(), parameters, scenario_sha256=file_sha256(scenario))
+    recorder = compare_recorder(scenario, setup, names, given, flags["kidnap_at"])
     prepare_world(setup.world)
     shown = f"sigma {setup.sigma:g}, delta {setup.delta:g}"
     count = len(setup.initial_particles)
@@ -184,21 +140,37 @@ def compare_scenario(
         names,
         seed=setup.seed,
         visualize=visualize,
-        kidnap_at=kidnap_at,
+        kidnap_at=flags["kidnap_at"],
         **given,
     )
     title = f"Localisation error: {scenario.name} ({shown}, {count} particles)"
-    files = {"csv_path": csv_path, "plot": plot, "traces": traces, "record_file": record_file}
-    report_compare(results, setup, recorder, title, kld=bool(given.get("kld")), force=force, **files)
+    report_compare(results, setup, recorder, title, bool(given.get("kld")), flags["force"], files)
     backend = next(iter(results.values())).extras["backend"]
     repeat_line("comparison", setup.seed, ("--csv", "--plot", "--traces", "--rrd"), backend)
 
 
+def compare_recorder(
+    scenario: Path, setup: RunSetup, names: Sequence[str], given: Mapping[str, Any], kidnap_at: int | None
+) -> Recorder:
+    """The record of a comparison, begun before its runs: the command, its parameters and the scenario's hash."""
+    parameters = {
+        "filters": [resolve_filter(n).name for n in names],
+        "sigma": setup.sigma,
+        "delta": setup.delta,
+        "seed": setup.seed,
+        "kidnap_at": kidnap_at,
+        "options": {k: to_plain_json(v) for k, v in given.items()},
+        "scenario": str(scenario),
+    }
+    return Recorder("compare", command_line(), parameters, scenario_sha256=file_sha256(scenario))
+
+
 # -- a run's inputs, summary and progress ---------------------------------------------------------------
-def report_run(result: RunResult) -> None:
-    """A short report of a run: the last step's error, the last-20% error (the mean error over the last
-    20% of the steps, what compare and study report), the convergence step and the seed; the same text for
-    the same seed (timings, which vary, are compare's and bench's)."""
+def report_run(result: RunResult, flags: Mapping[str, Any], demo: bool = False) -> None:
+    """A run's report: the last step's error, the last-20% error (the mean error over the last 20% of the
+    steps, what compare and study report), the convergence step and the seed, the same text for the same
+    seed (timings, which vary, are compare's and bench's); then where a kidnapped robot went, a KLD run's
+    particle counts, the saved scenario (--save-scenario) and the command that repeats the run."""
     errors = result.errors
     converged = result.converged_at
     when = f"converged at step {converged} (error < 0.5 from then on)" if converged else "not converged"
@@ -206,6 +178,19 @@ def report_run(result: RunResult) -> None:
         f"{result.filter_name}: last-step error {errors[-1]:.3f}, last-{FINAL_SHARE:.0%} error "
         f"{final_error(errors):.3f}; {when}; seed {result.seed}"
     )
+    if (kidnapping := kidnap_report(result)) is not None:
+        typer.echo(kidnapping)
+    if (result.inputs.filter_options or {}).get("kld"):  # KLD-sampling: the particle count per step
+        counts = result.extras["particle_count"]
+        typer.echo(f"particle count: mean {counts.mean():.0f}, least {counts.min()}, most {counts.max()}")
+    if flags.get("save_scenario_path") is not None:
+        saved = save_scenario(result.scenario, flags["save_scenario_path"], replace=flags.get("force", False))
+        typer.echo(f"scenario saved to {saved}")
+    if demo:  # typed without a command: the command that repeats it is `run`
+        words = ["run", "--seed", str(result.seed), "--backend", result.extras["backend"]]
+        typer.echo(f"Repeat this run: {command_prefix()} {shlex.join(words)}")
+    else:
+        repeat_line("run", result.seed, ("--save-scenario", "--rrd"), result.extras["backend"])
 
 
 def progress_printer(steps: int, every: int = 20) -> Any:
@@ -260,23 +245,7 @@ def replay_setup(
             f"the scenario's maze differs from {load_maze(maze).source}; leave out --maze to use the stored one"
         )
     world = kept or (load_maze(maze) if maze is not None else fitting_maze(stored))
-    missing = [
-        (name, value)
-        for name, value, flag, had in (
-            ("sigma", DEFAULT_SIGMA, sigma, stored.sigma),
-            ("delta", DEFAULT_DELTA, delta, stored.delta),
-        )
-        if flag is None and had is None
-    ]
-    if missing:
-        typer.echo(
-            f"warning: the scenario stores no {' or '.join(n for n, _ in missing)}: using the default "
-            f"{', '.join(f'{n} {v:g}' for n, v in missing)} (--sigma/--delta choose)",
-            err=True,
-        )
-    warn_overrides(stored, sigma, delta)
-    sigma = sigma if sigma is not None else stored.sigma if stored.sigma is not None else DEFAULT_SIGMA
-    delta = delta if delta is not None else stored.delta if stored.delta is not None else DEFAULT_DELTA
+    sigma, delta = replayed_model(stored, sigma, delta)
     robot = stored.robot(sigma, delta)
     if kept is None:  # a maze given or fitted: the scenario's start and walk must lie in its free area
         try:
@@ -288,19 +257,30 @@ def replay_setup(
     return RunSetup(world, robot, sigma, delta, stored.init_particles_pos, seed)
 
 
-def warn_overrides(scenario: Scenario, sigma: float | None, delta: float | None) -> None:
-    """Say when --sigma or --delta differs from what the scenario's walk and measurements were made
-    with: the filters then assume a model that the replayed data does not follow (a legitimate
+def replayed_model(stored: Scenario, sigma: float | None, delta: float | None) -> tuple[float, float]:
+    """A replay's sigma and delta: --sigma and --delta, else the scenario's, else the defaults (a line says
+    which it lacks); a line also says when a flag differs from what the scenario's walk and measurements
+    were made with: the filters then assume a model that the replayed data does not follow (a legitimate
     experiment, but never a silent one)."""
+    given = {"sigma": (sigma, stored.sigma, DEFAULT_SIGMA), "delta": (delta, stored.delta, DEFAULT_DELTA)}
+    missing = [(name, default) for name, (flag, had, default) in given.items() if flag is None and had is None]
+    if missing:
+        typer.echo(
+            f"warning: the scenario stores no {' or '.join(n for n, _ in missing)}: using the default "
+            f"{', '.join(f'{n} {v:g}' for n, v in missing)} (--sigma/--delta choose)",
+            err=True,
+        )
     made_with = {"sigma": "measurements", "delta": "compass angles"}
-    for name, given, stored in (("sigma", sigma, scenario.sigma), ("delta", delta, scenario.delta)):
-        replayed = name == "delta" or scenario.robot_measurements is not None  # else z is drawn with --sigma
-        if given is not None and stored is not None and given != stored and replayed:
+    for name, (flag, had, _) in given.items():
+        replayed = name == "delta" or stored.robot_measurements is not None  # else z is drawn with --sigma
+        if flag is not None and had is not None and flag != had and replayed:
             typer.echo(
-                f"warning: --{name} {given:g} overrides the scenario's {name} {stored:g}: the filters assume "
-                f"{given:g}, the replayed {made_with[name]} were made with {stored:g}",
+                f"warning: --{name} {flag:g} overrides the scenario's {name} {had:g}: the filters assume "
+                f"{flag:g}, the replayed {made_with[name]} were made with {had:g}",
                 err=True,
             )
+    sigma, delta = (next(value for value in values if value is not None) for values in given.values())
+    return sigma, delta
 
 
 def fitting_maze(scenario: Scenario) -> Maze:
@@ -450,20 +430,12 @@ def kidnap_report(result: RunResult, found: bool = True) -> str | None:
 
 # -- compare's outputs ------------------------------------------------------------------------------------
 def report_compare(
-    results: dict[str, RunResult],
-    setup: RunSetup,
-    recorder: Recorder,
-    title: str,
-    *,
-    kld: bool,
-    force: bool,
-    csv_path: Path | None,
-    plot: Path | None,
-    traces: Path | None,
-    record_file: Path | None,
+    results: dict[str, RunResult], setup: RunSetup, recorder: Recorder, title: str, kld: bool, force: bool, files: dict
 ) -> None:
-    """The kidnapping (if any), the table, then the per-step errors, the figure, the traces (with the
-    scenario's maze, sigma, delta and particle count) and the record (with each filter's figures)."""
+    """The kidnapping (if any), the table, then the `files` asked for (by compare's parameter names, and
+    `record_file`): the per-step errors, the figure, the traces (with the scenario's maze, sigma, delta and
+    particle count) and the record (with each filter's figures)."""
+    csv_path, plot, traces, record_file = (files[name] for name in ("csv_path", "plot", "traces", "record_file"))
     if (kidnapping := kidnap_report(next(iter(results.values())), found=False)) is not None:
         typer.echo(kidnapping)  # where each filter found the robot again is in the table
     typer.echo(comparison_table(results, kld=kld, startup_seconds=take_startup_seconds()))
