@@ -224,7 +224,6 @@ def _import_file(resolved: Path, shown: Path) -> ModuleType:
 
 # -- a plug-in's code, sent with a study's runs ------------------------------------------------------
 CODE_FOLDER = "mazelab-plugins"  # under the system's temporary folder: the shipped plug-ins, by sha256
-PluginCode = PluginReference  # the name the study's modules give a plug-in that carries its code
 
 
 def plugin_codes(filters: Sequence[object]) -> tuple[PluginReference, ...]:

@@ -54,7 +54,7 @@ from mazelab.grid_filter import check_grid_memory
 from mazelab.maze import DEFAULT_MAZE, MAZES_DIR, find_maze, load_maze
 from mazelab.maze_generator import DEFAULT_WALL_SHARE
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
-from mazelab.registry import PluginCode, filter_entry, is_lab_class, plugin_codes, resolve_filter
+from mazelab.registry import PluginReference, filter_entry, is_lab_class, plugin_codes, resolve_filter
 from mazelab.regularisation import check_bandwidth
 from mazelab.seeding import new_seed
 
@@ -117,7 +117,7 @@ class StudyPlan:
     kld: bool = False
     traces: bool = False
     reference: str | None = None  # "grid": every row gets distance_to_exact (`study --reference grid`)
-    plugins: tuple[PluginCode, ...] = ()  # the plug-ins' code, read once: every run carries it
+    plugins: tuple[PluginReference, ...] = ()  # the plug-ins' code, read once: every run carries it
     call: dict[str, Any] | None = None  # the Python values that made it (mazelab.study_plan), as data
     # every run of the study, each with the filters its setting runs (study.study_tasks), made once by plan_study
     tasks: list[RunTask] = field(default_factory=list, repr=False)
@@ -188,7 +188,7 @@ class StudyPlan:
         return "\n".join(lines)
 
 
-def plugin_description(code: PluginCode) -> dict[str, str]:
+def plugin_description(code: PluginReference) -> dict[str, str]:
     """A plug-in as the record lists it: its filter's name, its file (relative to the working folder
     when inside it), its class and the sha256 of the file's bytes the rows were made with."""
     try:

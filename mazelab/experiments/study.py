@@ -29,7 +29,7 @@ from mazelab.experiments.tables import trace_of
 from mazelab.maze import STATION_WALL, Maze
 from mazelab.maze_generator import DEFAULT_WALL_SHARE, generate_maze
 from mazelab.model import check_model_parameters
-from mazelab.registry import PluginCode, entries, file_sha256, filter_entry, filters_here, resolve_filter
+from mazelab.registry import PluginReference, entries, file_sha256, filter_entry, filters_here, resolve_filter
 from mazelab.robot import Robot
 from mazelab.seeding import filter_rng, run_streams, study_seeds
 from mazelab.simulation import RunInputs, RunResult, checked_walk, maze_for, record_steps
@@ -266,11 +266,11 @@ class RunTask:
     kidnap_at: int | None = None  # kidnap the robot at this step (its place drawn from `seed`)
     traces: bool = False  # keep each filter's per-step trace on its record (`RunRecord.trace`)
     reference: str | None = None  # "grid": the exact grid filter runs too, each record gets distance_to_exact
-    plugins: tuple[PluginCode, ...] = ()  # the code of the plug-ins among `filters`, sent with the run
+    plugins: tuple[PluginReference, ...] = ()  # the code of the plug-ins among `filters`, sent with the run
 
     def here(self) -> RunTask:
         """This run with each plug-in's spec the one that imports its shipped code in this process
-        (mazelab.registry.PluginCode): a worker runs the code the study was planned with."""
+        (mazelab.registry.PluginReference): a worker runs the code the study was planned with."""
         if not self.plugins:
             return self
         return dataclasses.replace(self, filters=filters_here(self.filters, self.plugins))
@@ -330,13 +330,13 @@ def study_tasks(
     kidnap_at: int | None = None,
     traces: bool = False,
     reference: str | None = None,
-    plugins: tuple[PluginCode, ...] = (),
+    plugins: tuple[PluginReference, ...] = (),
 ) -> list[RunTask]:
     """One task per setting and run, in order, each with the filters that setting runs
     (`filters_per_setting`; a setting that runs none has no tasks). `traces` keeps each run's per-step
     trace (mazelab.experiments.tables); `reference` ("grid") measures each filter against the exact
     posterior (`with_reference`); `plugins` the code of the plug-ins among the filters
-    (mazelab.registry.PluginCode), sent with every run."""
+    (mazelab.registry.PluginReference), sent with every run."""
     if runs < 1 or steps < 1:
         raise ValueError(f"runs and steps must be >= 1, got {runs} runs and {steps} steps")
     if kidnap_at is not None and not 1 <= kidnap_at <= steps:
