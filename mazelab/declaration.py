@@ -525,39 +525,6 @@ def _declared_by(name: str, value: Any, inherited: Options) -> Option:
     return Option(name, value, "(declared by its default)")
 
 
-def options_for(
-    filter_classes: Sequence[type], given: Mapping[str, Any], *, spelled: Mapping[str, str] | None = None
-) -> dict[str, dict[str, Any]]:
-    """Per filter (by `name`), the given options (None: not given) that it declares; several filters
-    share the options given, each taking its own.
-
-    Parameters
-    ----------
-    filter_classes : sequence of type
-    given : mapping
-        Option name -> value, None for an option not given.
-    spelled : mapping, optional
-        Option name -> how the user wrote it, for the message.
-
-    Returns
-    -------
-    dict
-        Filter name -> {option: value} of the options it declares.
-
-    Raises
-    ------
-    ValueError
-        One line for an option that none of them declares: the option as spelled, the filters and what
-        they take.
-    """
-    spelled = spelled or {}
-    chosen = {option: value for option, value in given.items() if value is not None}
-    for option in chosen:
-        if not any(option in options_of(cls) for cls in filter_classes):
-            raise ValueError(not_taken(filter_classes, spelled.get(option, option)))
-    return {cls.name: {o: v for o, v in chosen.items() if o in options_of(cls)} for cls in filter_classes}
-
-
 def not_taken(filter_classes: Sequence[type], spelled: str) -> str:
     """The line for an option that none of the filters declares: 'GridBayesFilter does not take
     --recovery (it takes: resolution, margin, ...)', each filter's options named for several.
@@ -587,7 +554,6 @@ __all__ = [
     "not_taken",
     "number_in",
     "object_from_json",
-    "options_for",
     "options_of",
     "parse_flag",
     "scoped",

@@ -24,7 +24,7 @@ from mazelab.contract import (
     check_step_values,
     missing_parts,
 )
-from mazelab.declaration import options_for
+from mazelab.experiments.runs import options_per_filter
 from mazelab.filters import RegularizedParticleFilter, SIRParticleFilter
 from mazelab.grid_filter import GridBayesFilter
 from mazelab.kalman import ExtendedKalmanFilter
@@ -149,9 +149,9 @@ def test_several_filters_each_get_the_options_they_declare():
     option neither declares is refused naming both and what each takes (`--spread` as the user wrote it)."""
     filters = [SIRParticleFilter, RegularizedParticleFilter]
     given = {"bandwidth": 0.1, "resampling": "residual", "threshold": None}
-    assert options_for(filters, given) == {
+    assert options_per_filter(filters, given) == {
         "SIRParticleFilter": {"resampling": "residual"},
         "RegularizedParticleFilter": {"bandwidth": 0.1, "resampling": "residual"},
     }
     with pytest.raises(ValueError, match=r"^SIRParticleFilter and RegularizedParticleFilter do not take --spread \("):
-        options_for(filters, {"spread": 1.0}, spelled={"spread": "--spread"})
+        options_per_filter(filters, {"spread": 1.0}, spelled={"spread": "--spread"})

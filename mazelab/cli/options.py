@@ -20,8 +20,8 @@ from mazelab.atomic import NameTakenError, NotRegularFileError, output_target
 from mazelab.backend import ENVIRONMENT_VARIABLE, THREADS_VARIABLE, check_backend, check_threads
 from mazelab.checks import check_seed
 from mazelab.declaration import Option, decimal_comma, not_taken, parse_flag, scoped
+from mazelab.experiments.runs import options_per_filter as reaching
 from mazelab.experiments.study import declared_option
-from mazelab.experiments.study import options_per_filter as reaching
 from mazelab.experiments.tables import check_trace_path, pyplot
 from mazelab.invocation import repeat_command
 from mazelab.registry import SHIPPED, filter_entry, is_plugin_spec, resolve_filter
@@ -392,7 +392,7 @@ def _parsed(filter_names: Sequence[str | type], name: str, value: Any, spelled: 
 def options_per_filter(
     filter_names: Sequence[str | type], given: Mapping[str, Any], *, check: bool = True
 ) -> dict[str, dict[str, Any]]:
-    """Per filter (by `name`), the given options that reach it (mazelab.experiments.study.options_per_filter:
+    """Per filter (by `name`), the given options that reach it (mazelab.experiments.runs.options_per_filter:
     a FILTER.NAME one its filter alone); an option that none of them declares is refused in one line naming
     how the user spelled it and what they take. With `check`, each filter's options are checked by its
     declaration as its constructor will check them, in one line."""

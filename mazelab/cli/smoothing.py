@@ -30,8 +30,7 @@ from mazelab.cli.options import (
 from mazelab.cli.study import exit_stopped
 from mazelab.experiments import executor
 from mazelab.experiments.journal import Journal, Recorder, differences, journal_path, read_journal, record_path
-from mazelab.experiments.runs import parse_filters
-from mazelab.experiments.study import options_per_filter
+from mazelab.experiments.runs import options_per_filter, parse_filters
 from mazelab.experiments.tables import format_table, pyplot, records_csv, save_figure
 from mazelab.invocation import command_line, resume_command
 from mazelab.learning import ParameterGrid, ParameterPosterior, evidence_filter, exact_parameter_posterior

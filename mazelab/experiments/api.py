@@ -30,7 +30,7 @@ from mazelab.contract import missing_parts
 from mazelab.declaration import scoped, show_value, to_plain_json
 from mazelab.experiments.executor import StudyOutcome, open_cluster, run_study, study_backend
 from mazelab.experiments.journal import Recorder
-from mazelab.experiments.runs import filter_key, parse_filters
+from mazelab.experiments.runs import filter_key, options_per_filter, parse_filters
 from mazelab.experiments.study import (
     BASE_PARAMETERS,
     MODEL_PARAMETERS,
@@ -42,7 +42,6 @@ from mazelab.experiments.study import (
     declared_option,
     file_mazes,
     option_columns,
-    options_per_filter,
     study_parameters,
     study_settings,
     study_tasks,

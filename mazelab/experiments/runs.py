@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from mazelab.backend import backend_by_work, chosen_backend
-from mazelab.declaration import options_for, options_of
+from mazelab.declaration import not_taken, options_of, scoped
 from mazelab.experiments.tables import format_number, format_table, pyplot, records_csv, save_figure
 from mazelab.maze import Maze
 from mazelab.model import CONVERGENCE_RADIUS, DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
@@ -277,6 +277,41 @@ def run_figures(name: str, result: RunResult) -> dict[str, Any]:
 
 
 # -- comparing the filters on one saved scenario (lab steps 12-13) ---------------------------------
+def options_per_filter(
+    filters: Sequence[str | type], given: Mapping[str, Any], spelled: Mapping[str, str] | None = None
+) -> dict[str, dict[str, Any]]:
+    """Per filter (by `name`), the given options (None: not given) that reach it: a plain
+    name every filter that declares it, FILTER.NAME its filter alone.
+
+    Raises
+    ------
+    ValueError
+        One line, the option as `spelled`: an option none of the filters takes (naming what they take),
+        FILTER.NAME of a filter not among them, or one option given both for every filter and for one.
+    """
+    entries_ = [filter_entry(f) for f in filters]
+    spelled = spelled or {}
+    every = {k: v for k, v in given.items() if scoped(k)[0] is None and v is not None}
+    for option in every:  # a plain name: every filter that declares it
+        if not any(option in e.options for e in entries_):
+            raise ValueError(not_taken([e.filter_class for e in entries_], spelled.get(option, option)))
+    per_filter = {e.name: {o: v for o, v in every.items() if o in e.options} for e in entries_}
+    for key, value in given.items():
+        scope, name = scoped(key)
+        if scope is None or value is None:
+            continue
+        target = filter_entry(scope)
+        if target.name not in per_filter:
+            shown = ", ".join(e.short_name for e in entries_)
+            raise ValueError(f"{spelled.get(key, key)}: {scope} is not one of the filters ({shown})")
+        if name not in target.options:
+            raise ValueError(not_taken([target.filter_class], spelled.get(key, key)))
+        if given.get(name) is not None:
+            raise ValueError(f"{name} is given for every filter and for {scope}: give one of them")
+        per_filter[target.name][name] = value
+    return per_filter
+
+
 def compare_filters(
     world: Maze,
     robot: Robot,
@@ -296,7 +331,7 @@ def compare_filters(
     the robot is carried to a free place drawn from `seed` and walks on, every filter seeing the same.
     `options` (e.g. recovery="sensor", bandwidth="multimodal") reach each filter that declares them; one
     that none of the filters declares is refused in one line."""
-    per_filter = options_for([resolve_filter(name) for name in filter_names], options)
+    per_filter = options_per_filter(filter_names, options)
     steps = robot.recorded_steps
     if kidnap_at is not None and robot.kidnap_at is None:
         robot = walk_until(robot, kidnap_at)

@@ -23,8 +23,15 @@ import numpy as np
 from mazelab.backend import backend_of
 from mazelab.checks import particle_count
 from mazelab.contract import check_filter
-from mazelab.declaration import Option, not_taken, options_for, options_of, scoped, show_value
-from mazelab.experiments.runs import FIGURES, WARM_UP_SEED, WARM_UP_STEPS, run_figures, run_filters, warm_once
+from mazelab.declaration import Option, options_of, scoped, show_value
+from mazelab.experiments.runs import (
+    FIGURES,
+    WARM_UP_SEED,
+    WARM_UP_STEPS,
+    run_figures,
+    run_filters,
+    warm_once,
+)
 from mazelab.experiments.tables import trace_of
 from mazelab.maze import STATION_WALL, Maze
 from mazelab.maze_generator import DEFAULT_WALL_SHARE, generate_maze
@@ -162,39 +169,6 @@ def takes_parameter(filter_name: str | type, parameter: str) -> bool:
     if parameter in ("maze", "sigma", "delta"):
         return True
     return reaches(parameter, entry) is not None
-
-
-def options_per_filter(
-    filters: Sequence[str | type], given: Mapping[str, Any], spelled: Mapping[str, str] | None = None
-) -> dict[str, dict[str, Any]]:
-    """Per filter (by `name`), the given options (None: not given) that reach it (`reaches`): a plain
-    name every filter that declares it, FILTER.NAME its filter alone.
-
-    Raises
-    ------
-    ValueError
-        One line, the option as `spelled`: an option none of the filters takes (naming what they take),
-        FILTER.NAME of a filter not among them, or one option given both for every filter and for one.
-    """
-    entries_ = [filter_entry(f) for f in filters]
-    spelled = spelled or {}
-    per_filter = options_for(
-        [e.filter_class for e in entries_], {k: v for k, v in given.items() if scoped(k)[0] is None}, spelled=spelled
-    )
-    for key, value in given.items():
-        scope, name = scoped(key)
-        if scope is None or value is None:
-            continue
-        target = filter_entry(scope)
-        if target.name not in per_filter:
-            shown = ", ".join(e.short_name for e in entries_)
-            raise ValueError(f"{spelled.get(key, key)}: {scope} is not one of the filters ({shown})")
-        if name not in target.options:
-            raise ValueError(not_taken([target.filter_class], spelled.get(key, key)))
-        if given.get(name) is not None:
-            raise ValueError(f"{name} is given for every filter and for {scope}: give one of them")
-        per_filter[target.name][name] = value
-    return per_filter
 
 
 def reaches(key: str, entry: Any) -> str | None:
