@@ -161,25 +161,23 @@ class Background(Executor):
                 future.set_exception(error)
 
 
-_background: Background | None = None
+_background = functools.cache(Background)  # the one made at the first call
 
 
 class References:
     """The exact and the SIR runs of scenarios, each computed once per process (a memo of futures
-    shared by every References), on `executor` (default: one background thread)."""
+    shared by every References), on `executor` (default: one background thread, made at its first use)."""
 
     def __init__(self, executor: Executor | None = None):
         self.executor = executor
 
     def _submit(self, key: tuple, scenario: ScenarioInputs, filter_name: str, **options: object) -> Future:
-        global _background
         with _memo_lock:
             future = _memo.get(key)
             if future is not None and not (future.done() and (future.cancelled() or future.exception())):
                 return future
-            if self.executor is None and _background is None:
-                _background = Background()
-            future = (self.executor or _background).submit(ScenarioInputs.replay, scenario, filter_name, **options)
+            executor = self.executor or _background()
+            future = executor.submit(ScenarioInputs.replay, scenario, filter_name, **options)
             _memo[key] = future
             return future
 
