@@ -56,6 +56,14 @@ CHILD_ENVIRONMENT = {  # the child's whole environment, and bwrap's: one thread 
     "LANG": "C.UTF-8",
     "PATH": "/usr/bin:/bin",
 }
+BWRAP_OPTIONS = (  # the namespaces, the uid, a session and no capabilities, its own /proc and /dev
+    "--unshare-all --unshare-user",
+    f"--uid {SANDBOX_UID} --gid {SANDBOX_UID}",
+    "--die-with-parent --new-session",
+    "--cap-drop ALL",
+    "--hostname sandbox",
+    "--proc /proc --dev /dev",
+)
 # python -P -S -s -B -u: no folder of the grader's on sys.path, no site, no bytecode, prints unbuffered
 PYTHON = ("-P", "-S", "-s", "-B", "-u")
 ENTRY = "import sys; sys.path[:0] = [{kit!r}, {site!r}]; from mazelab.exercise.child import main; main({fd})"
@@ -96,27 +104,7 @@ class Sandbox:
         if not self.sandboxed:
             return [*python, code]
         size = ["--size", str(TMP_LIMIT)] if self.bounded_tmp else []
-        arguments = [
-            "--unshare-all",
-            "--unshare-user",
-            "--uid",
-            str(SANDBOX_UID),
-            "--gid",
-            str(SANDBOX_UID),
-            "--die-with-parent",
-            "--new-session",
-            "--cap-drop",
-            "ALL",
-            "--hostname",
-            "sandbox",
-            "--proc",
-            "/proc",
-            "--dev",
-            "/dev",
-            *size,
-            "--tmpfs",
-            "/tmp",
-        ]
+        arguments = [word for option in BWRAP_OPTIONS for word in option.split()] + [*size, "--tmpfs", "/tmp"]
         for top in ("/usr/lib", "/usr/lib64", "/lib", "/lib64", "/lib32", "/usr/lib32"):  # as the host lays them out
             if Path(top).is_symlink():
                 arguments += ["--symlink", os.readlink(top), top]
