@@ -26,7 +26,7 @@ from typing import Any
 
 from mazelab.atomic import WriteError, write_text_atomically
 from mazelab.backend import use_threads
-from mazelab.exercise.parts import FAIL, NOT_OWN, NOT_RUN, NOT_WRITTEN, PASS, clean
+from mazelab.exercise.parts import FAIL, NOT_OWN, NOT_RUN, NOT_WRITTEN, PASS, SHOWN, clean
 from mazelab.exercise.report import ROWS, NotGradableError, References, Report, Submission, check_file, format_report
 from mazelab.exercise.sandbox import DEFAULT_BUDGET, SandboxError, allow_children, stop_children
 from mazelab.exercise.student import PARTS
@@ -318,7 +318,7 @@ def gradescope_json(report: Report, catalogue: Catalogue | None = None) -> str:
     else:
         tests = []
         for i, row in enumerate(report.rows, 1):
-            status = _(FAIL.upper() if row.status == FAIL else row.status)
+            status = _(SHOWN.get(row.status, row.status))
             lines = [f"{status}: {words.translate(row.got)}", _("expected: ") + words.translate(row.expected)]
             lines += [_("hint: ") + words.translate(row.hint)] if row.hint and not row.passed else []
             tests.append(_test(i, _(row.part), 1.0 if row.passed else 0.0, words.numbers("\n".join(lines))))

@@ -20,6 +20,7 @@ from mazelab.simulation import convergence_step
 from mazelab.weights import effective_sample_size
 
 PASS, FAIL, NOT_WRITTEN, NOT_RUN, NOT_OWN = "pass", "fail", "not written", "not run", "not own work"
+SHOWN = {FAIL: "FAIL"}  # how a status reads in a report and results.json (the others as they are)
 
 
 def clean(text: object, limit: int = 600) -> str:

@@ -41,6 +41,7 @@ from mazelab.exercise.parts import (
     NOT_RUN,
     NOT_WRITTEN,
     PASS,
+    SHOWN,
     BadAnswerError,
     Row,
     clean,
@@ -63,7 +64,6 @@ ENDED_HINT = "a part returns its answer: no exit, no endless loop, nothing that 
 TWICE = "answered twice (two processes answering, or a forged answer beside its own): no answer counts"
 WIDTH = 100
 PART_WIDTH, RESULT_WIDTH = 12, 12  # "whole filter", "not own work" (wider where a language's words are)
-SHOWN = {FAIL: "FAIL"}  # how a status reads in the table (the others as they are)
 GRID_RESOLUTION = 0.05  # the exact filter's cells: fine next to L = 0.2, coarse enough to be quick
 HEADINGS = {
     "given": "Checking {name}: inputs from seed {seed} (given)",
