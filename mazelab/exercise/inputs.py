@@ -15,9 +15,10 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from mazelab.experiments.batch_runs import walk_of
+from mazelab.experiments.study import MazeChoice, RunTask, StudySetting
 from mazelab.maze import Maze, load_maze
 from mazelab.robot import Robot
-from mazelab.seeding import run_streams
 from mazelab.simulation import simulate
 
 PART_MAZES = ("paper_5x5", "twin_rooms_6x12", "maze_10x10", "maze_20x20")
@@ -220,18 +221,13 @@ def draw_scenarios(seed: int, count: int = SCENARIO_COUNT, steps: int = SCENARIO
 
 
 def walk_scenario(maze: str, sigma: float, delta: float, seed: int, particles: int, steps: int) -> ScenarioInputs:
-    """One scenario: the robot of run `seed` (Robot.of_seed, drawing from the run's stream) walks `steps`
-    steps; `particles` drawn from the prior, from the run's stream of them (mazelab.seeding)."""
-    world, streams = load_maze(maze), run_streams(seed)
-    robot = Robot.of_seed(world, sigma, delta, seed)
-    robot.rng = streams.robot
-    path = np.empty((steps, 2))
-    for k in range(steps):
-        robot.step(world)
-        path[k] = robot.position
-    drawn = world.random_free_places(particles, streams.particles)
-    walk = (tuple(robot.compass_angles), tuple(robot.measurements), path)
-    return ScenarioInputs(maze, world.grid.copy(), sigma, delta, seed, drawn, *walk)
+    """One scenario: run `seed` of the setting (`maze`, sigma, delta, `particles`) walked `steps` steps as a
+    study walks it (mazelab.experiments.batch_runs.walk_of): the robot and particles of `run --seed`."""
+    world = load_maze(maze)
+    setting = StudySetting(MazeChoice.from_maze(maze, world), sigma, delta, particles)
+    inputs, path = walk_of(RunTask(1, setting, 1, seed, None, ("sir",), steps), world)
+    walk = (tuple(inputs.robot_compass_angles), tuple(inputs.robot_measurements), path)
+    return ScenarioInputs(maze, world.grid.copy(), sigma, delta, seed, inputs.init_particles_pos, *walk)
 
 
 SENT = {  # what the student's process is sent of each: only what a filter is given
