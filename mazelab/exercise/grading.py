@@ -214,18 +214,14 @@ def read_key(path: Path, make: bool = True) -> bytes:
 def claimed(outputs: list[tuple[Path, str]]) -> Iterator[None]:
     """Hold the claims of `outputs` ((path, option) each: a study's locked NAME.lock beside each,
     mazelab.experiments.journal.claim_outputs) while grading; ClaimError at once when another holds one."""
-    releases = []
-    try:
+    with contextlib.ExitStack() as releases:
         for output, option in outputs:
             try:
-                releases.append(claim_outputs([(option, output)]))
+                releases.callback(claim_outputs([(option, output)]))
             except JournalError as error:  # held by another grader (or a study), or not a file at its name
                 held = f"{option} {output}: another grader is writing it now; wait for it or choose another name"
                 raise ClaimError(held if str(error).startswith("another") else str(error)) from None
         yield
-    finally:
-        for release in releases:
-            release()
 
 
 def partial_name(path: Path) -> Path:
