@@ -48,7 +48,8 @@ _LIBRARIES = tuple(
 
 # -- the messages ---------------------------------------------------------------------------------
 class WireError(ValueError):
-    """A message that is not one of ours: what is wrong with it, in one line."""
+    """A message that is not one of ours, or an answer in it not of the form the grader asked for
+    (mazelab.exercise.parts.take): what is wrong with it, in one line."""
 
 
 @dataclass

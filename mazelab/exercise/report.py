@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from mazelab.exercise.child import Message, encode, messages, serve
+from mazelab.exercise.child import Message, WireError, encode, messages, serve
 from mazelab.exercise.inputs import (
     PartInputs,
     ScenarioInputs,
@@ -42,7 +42,6 @@ from mazelab.exercise.parts import (
     NOT_WRITTEN,
     PASS,
     SHOWN,
-    BadAnswerError,
     Row,
     clean,
     expectations,
@@ -290,7 +289,7 @@ def build_report(
                 row = failed("no answer came from the student's process", "a part returns its answer")
             else:
                 row = judge(stage, parts, scenarios, message, report, references)
-        except BadAnswerError as error:
+        except WireError as error:
             row = failed(f"an answer the grader cannot read ({error})", "return plain arrays")
         if (copies or {}).get(stage) and row.status != NOT_WRITTEN:
             row = Row(row.part, NOT_OWN, row.expected, copies[stage], COPY_HINT)
