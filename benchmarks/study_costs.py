@@ -53,8 +53,7 @@ def run_cost(world: Maze, runs: int, particles: int, steps: int, label: str = ""
     """(label, R, N, stations, microseconds per filter step of one run: the three filters' mean) with R =
     `runs` advancing together; R = 1 is the one-by-one path (run_task), its robot walk and bookkeeping
     included alike."""
-    from mazelab.experiments.batch_runs import run_batch
-    from mazelab.experiments.study import run_task
+    from mazelab.experiments.study import run_batch, run_task
 
     tasks = study_of(world, runs, steps, particles)
     started = time.perf_counter()

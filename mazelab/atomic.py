@@ -258,16 +258,11 @@ def process_alive(pid: int) -> bool:
         return False
     except PermissionError:
         return True
-    return not zombie(pid)
-
-
-def zombie(pid: int) -> bool:
-    """Whether the process has ended but not yet been reaped (Linux /proc; elsewhere False)."""
-    try:
+    try:  # a process that has ended but is not yet reaped is gone too (Linux /proc; elsewhere alive)
         state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
     except (OSError, IndexError):
-        return False
-    return state in ("Z", "X")
+        return True
+    return state not in ("Z", "X")
 
 
 def lock(handle: int) -> bool:

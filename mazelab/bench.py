@@ -1,11 +1,8 @@
 """The speed benchmark (`python main.py bench`): particle-steps per second of the filters on each
 backend (numpy, and compiled where numba is installed: mazelab.backend) side by side, and of a plain
-numpy reference step measured in the same run, on a small and a large maze.
-
-A row times `steps` steps of one filter on a recorded walk, after a few warm-up steps (which also let
-the particles start to gather, as in a real run); each step includes reading the estimate, the ESS and
-the confidence, as `simulate` does. The time is the median step. Peak memory is traced first, with
-tracemalloc (every numpy array counts): the filter's creation and its first two steps, left out of the time.
+numpy reference step measured in the same run, on a small and a large maze. A row is one filter's
+median step on a recorded walk, its reads included (`measure`); the warm-up steps also let the
+particles start to gather, as in a real run.
 """
 
 from __future__ import annotations
@@ -19,6 +16,7 @@ import time
 import tracemalloc
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -35,7 +33,6 @@ BENCH_SIGMA, BENCH_DELTA = 0.3, 0.5
 BENCH_FILTERS = ("sir", "apf", "rpf")
 FULL_COUNTS = (1_000, 10_000, 100_000, 1_000_000)
 QUICK_COUNTS = (1_000, 100_000, 1_000_000)
-LARGE_MAZE_SIZE = 100
 LARGE_MAZE_CELLS = {EMPTY: 0.75, WALL: 0.17, STATION_WALL: 0.08}  # about 2,700 stations at 100 x 100
 REFERENCE_LIMIT = 2.5e7  # the reference step is skipped when N x B exceeds this (its matrix needs N x B x 24 bytes)
 
@@ -51,12 +48,8 @@ class BenchRow:
     peak_bytes: int
     backend: str = "numpy"
 
-    @property
-    def particle_steps_per_second(self) -> float:
-        return self.particles / self.seconds_per_step
 
-
-def large_maze(size: int = LARGE_MAZE_SIZE, seed: int = 5) -> Maze:
+def large_maze(size: int = 100, seed: int = 5) -> Maze:
     """A seeded random size x size maze: each cell free, wall or station block with LARGE_MAZE_CELLS' odds."""
     rng = np.random.default_rng(seed)
     kinds, odds = zip(*LARGE_MAZE_CELLS.items(), strict=True)
@@ -108,9 +101,8 @@ def reference_stepper(world: Maze, particles: int, seed: int = 2) -> Callable[[f
         x, w = state["x"], state["w"]
         ancestors = np.searchsorted(np.cumsum(w), (np.arange(particles) + rng.random()) / particles)
         headings = compass_angle + BENCH_DELTA * (rng.random(particles) - 0.5)
-        x = x[np.minimum(ancestors, particles - 1)] + ROBOT_SPEED * np.column_stack(
-            [np.cos(headings), np.sin(headings)]
-        )
+        steps = ROBOT_SPEED * np.column_stack([np.cos(headings), np.sin(headings)])
+        x = x[np.minimum(ancestors, particles - 1)] + steps
         d = np.sqrt(((x[:, None, :] - world.stations[None, :, :]) ** 2).sum(axis=2)).min(axis=1)  # (N, B) matrix
         log_w = -0.5 * ((z - d) / BENCH_SIGMA) ** 2 + np.where(world.is_free(x[:, 0], x[:, 1]), 0.0, log_penalty)
         w = np.exp(log_w - log_w.max())
@@ -143,7 +135,8 @@ def measure(
     backends: tuple[str, ...] | None = None,
 ) -> Iterator[BenchRow]:
     """The rows of one maze: every filter at every N on each backend (default: the chosen one), then
-    the reference step where it is affordable; each timed on the walk after its two traced steps."""
+    the reference step where it is affordable; each timed on the walk after its two traced steps
+    (`traced`: the peak memory of its creation and first two steps, left out of the time)."""
     walk = record_walk(world, 2 + warmup + steps)
     world.station_distances_and_free(np.zeros(1, np.float32), np.zeros(1, np.float32))  # build the float32 tables
     for n in counts:
@@ -158,11 +151,11 @@ def measure(
             yield BenchRow(maze_name, "reference", n, seconds, peak)
 
 
-def sir_run(world: Maze, particles: int, steps: int, seed: int) -> tuple[float, Any]:
-    """A whole `simulate` run of SIR on the chosen backend: (wall-clock seconds, its RunResult)."""
+def sir_run(world: Maze, particles: int, steps: int, seed: int, run: Callable = simulate) -> tuple[float, Any]:
+    """A whole `simulate` (or `run`) run of SIR on the chosen backend: (wall-clock seconds, its result)."""
     robot = Robot(BENCH_SIGMA, BENCH_DELTA, world.random_free_place(np.random.default_rng(seed)))
     started = time.perf_counter()
-    result = simulate(robot, world, BENCH_SIGMA, BENCH_DELTA, particles, steps, seed=seed)
+    result = run(robot, world, BENCH_SIGMA, BENCH_DELTA, particles, steps, seed=seed)
     return time.perf_counter() - started, result
 
 
@@ -175,10 +168,7 @@ def run_model_line(
     from mazelab.simulation import run_model  # the paper's entry point, as a notebook calls it
 
     sir_run(world, particles, 2, seed)  # warm the lookup tables
-    robot = Robot(BENCH_SIGMA, BENCH_DELTA, world.random_free_place(np.random.default_rng(seed)))
-    started = time.perf_counter()
-    run_model(robot, world, BENCH_SIGMA, BENCH_DELTA, particles, steps, seed=seed, visualize=False)
-    total = time.perf_counter() - started
+    total = sir_run(world, particles, steps, seed, partial(run_model, visualize=False))[0]
     own = float(sir_run(world, particles, steps, seed)[1].step_seconds.sum())
     if reference is None:
         reference = time_steps(reference_stepper(world, particles), record_walk(world, 4), 1)
@@ -198,9 +188,8 @@ def cpu_model() -> str:
 
 def format_table(rows: list[BenchRow]) -> str:
     """The rows as a text table, each filter's speed also as a multiple of the reference step's and, on
-    the compiled backend, of the same filter's on numpy."""
-    reference = {(r.maze, r.particles): r.particle_steps_per_second for r in rows if r.filter_name == "reference"}
-    on_numpy = {(r.maze, r.filter_name, r.particles): r.particle_steps_per_second for r in rows if r.backend == "numpy"}
+    the compiled backend, of the same filter's on numpy (at the same N: the inverse ratio of the times)."""
+    on_numpy = {(r.maze, r.filter_name, r.particles): r.seconds_per_step for r in rows if r.backend == "numpy"}
     lines = [
         "Speed in millions of particle-steps per second (N particles x steps / time); x numpy: a compiled row's",
         "speed over the same filter's on the numpy backend; x reference: the filter's speed over the plain numpy",
@@ -210,10 +199,10 @@ def format_table(rows: list[BenchRow]) -> str:
         f"{'x numpy':>8} {'x reference':>12}",
     ]
     for r in rows:
-        speed, base = r.particle_steps_per_second, reference.get((r.maze, r.particles))
-        ratio = "(itself)" if r.filter_name == "reference" else f"{speed / base:.1f}x" if base else "-"
-        numpy_speed = on_numpy.get((r.maze, r.filter_name, r.particles)) if r.backend != "numpy" else None
-        versus = f"{speed / numpy_speed:.2f}x" if numpy_speed else "-"
+        speed, base = r.particles / r.seconds_per_step, on_numpy.get((r.maze, "reference", r.particles))
+        ratio = "(itself)" if r.filter_name == "reference" else f"{base / r.seconds_per_step:.1f}x" if base else "-"
+        on_numpy_seconds = on_numpy.get((r.maze, r.filter_name, r.particles)) if r.backend != "numpy" else None
+        versus = f"{on_numpy_seconds / r.seconds_per_step:.2f}x" if on_numpy_seconds else "-"
         millions = f"{speed / 1e6:.3g}" if speed < 1e8 else f"{speed / 1e6:.0f}"  # 0.0088 (not 0.00), 25.6, 102
         lines.append(
             f"{r.maze:<22} {r.filter_name:<26} {r.backend:<9} {r.particles:>9,} {millions:>9} "

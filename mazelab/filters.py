@@ -121,6 +121,7 @@ class ParticleFilter(SMC):
         if self.runs > 1 and not self.runs_together(settings):
             raise ValueError("recovery and KLD-sampling vary one run's particles: they run one run at a time")
         self._injected: tuple[int, np.ndarray | None] = (0, None)  # (the step, recovery's injected particles)
+        self._resampled: list[np.ndarray] = []  # each step's due mask (resampled_at)
         self._reads: tuple[Any, dict[str, Any]] = (None, {})  # (the x and W read, the reads)
 
     @classmethod
@@ -136,13 +137,15 @@ class ParticleFilter(SMC):
         return {} if self.recovery is None else {"injection_probability": self.injection_probability}
 
     def step(self, compass_angle: float | np.ndarray, z: float | np.ndarray) -> None:
-        """SMC.step; recovery then tracks w_avg, this step's estimate of p(z_k | z_1:k-1) (one run).
+        """SMC.step; its due mask kept (`resampled_at`); recovery then tracks w_avg, this step's estimate
+        of p(z_k | z_1:k-1) (one run).
 
         Parameters
         ----------
         compass_angle, z : float, or arrays (R,)
         """
         super().step(compass_angle, z)
+        self._resampled.append(self.resampled_now)
         if self.recovery is not None:
             self.recovery.track(float(self.log_evidence_increment[0]), self.z[0])  # run 0's reading, as it came
 
@@ -208,6 +211,12 @@ class ParticleFilter(SMC):
         """The particles a restarted run takes: N, or with KLD-sampling the most (the prior is as
         spread as a belief gets)."""
         return self.count if self.kld is None else self.max_count
+
+    @property
+    def resampled_at(self) -> list[int] | list[list[int]]:
+        """The steps after which the filter resampled (a list per run for R runs)."""
+        runs = np.array(self._resampled, dtype=bool).reshape(-1, self.runs).T  # (R, steps)
+        return self._one([np.flatnonzero(row).tolist() for row in runs])
 
     @property
     def injected(self) -> np.ndarray | None:

@@ -64,12 +64,11 @@ class GridBayesFilter(ModelFilter):
         self.positions = np.column_stack([gx.ravel(), gy.ravel()])  # (M, 2) cell centres
         self.shape = (ny, nx)
         self.free = world.is_free(gx, gy)
-        self._log_likelihood_constant = np.where(self.free, 0.0, math.log(self.settings["outside_penalty"]))
-        self._distance = world.distance_to_nearest_station(self.positions).reshape(self.shape)
+        # log p(z | x) on the cells less the Gaussian's constant (Sensor.log_pdf_at): (z, out=None) -> (ny, nx)
+        self.log_likelihood = self.sensor.log_pdf_at(world, self.positions, self.free)
         self.density = self._prior()
         self._work: GridWorkspace | None = None  # made at the first step (a filter only read never needs it)
         self.log_evidence = 0.0  # log p(z_1:k), exact on the grid
-        self._log_gaussian_constant = -math.log(self.sigma * math.sqrt(2 * math.pi))
 
     def _prior(self) -> np.ndarray:
         return self.free / self.free.sum()
@@ -97,29 +96,6 @@ class GridBayesFilter(ModelFilter):
         kernel, spectrum = self.per_angle(compass_angle, arc)
         return np.clip(self.workspace.convolve(density, kernel.shape, spectrum), 0.0, None, out=out)
 
-    def log_likelihood(self, z: float, out: np.ndarray | None = None) -> np.ndarray:
-        """log p(z | x) on the cells (equation (3) with the outside penalty) without the Gaussian's
-        constant -log(sigma sqrt(2 pi)), the same on every cell (the log evidence adds it once):
-        -0.5 ((z - d(x)) / sigma)^2, plus log(outside penalty) on the cells outside the free area.
-
-        Parameters
-        ----------
-        z : float
-            z_k, the measured distance (map units).
-        out : float array of the grid's shape, optional
-            Where to write it.
-
-        Returns
-        -------
-        float array (ny, nx)
-        """
-        log_lik = np.subtract(z, self._distance, out=out)
-        log_lik /= self.sigma
-        np.square(log_lik, out=log_lik)
-        np.multiply(-0.5, log_lik, out=log_lik)
-        log_lik += self._log_likelihood_constant
-        return log_lik
-
     def update(self, z: float) -> None:
         """Multiply the density by the likelihood of z (equation (3), the outside penalty), normalised:
         self.density becomes a new array."""
@@ -127,7 +103,7 @@ class GridBayesFilter(ModelFilter):
         log_lik = self.log_likelihood(z, out=work.log_likelihood)
         posterior, log_total = self._weighted(self.density, log_lik, work)
         # log p(z_k | z_1:k-1) = log sum_cells p(x_k | z_1:k-1) p(z_k | x_k), the Gaussian's constant included
-        self.log_evidence += log_total + self._log_gaussian_constant
+        self.log_evidence += log_total + self.sensor.log_norm
         if posterior is None:  # no cell explains z: restart from the prior, as the particle filters do
             self.reinitialised_at.append(self.steps_done + 1)
             posterior, _ = self._weighted(self._prior(), log_lik, work)

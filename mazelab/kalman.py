@@ -25,8 +25,6 @@ from mazelab.modes import ESTIMATE_OPTION
 
 START_STD = 0.05  # std of each coordinate of init="start"'s covariance, map units: the start is known
 EKF_INITS = ("prior", "start")
-# Below this distance (map units) to its station the range's gradient is undefined: skip the update.
-MIN_RANGE = 1e-9
 # `gaussian_mass_within`'s midpoint nodes psi on a quarter turn, as cos^2 psi and sin^2 psi: 256 reach
 # rounding level (64 already agree to 1e-9 for eigenvalues 5 and 1e-3; the integrand flattens where thin)
 _PSI = (np.arange(256) + 0.5) * (math.pi / 2 / 256)
@@ -43,6 +41,7 @@ class ExtendedKalmanFilter(ModelFilter):
     """
 
     name: ClassVar[str] = "ExtendedKalmanFilter"
+    count = 1  # one Gaussian
     options: ClassVar[Options] = Options(
         Option(
             "init",
@@ -73,8 +72,7 @@ class ExtendedKalmanFilter(ModelFilter):
                 raise ValueError('init="start" needs the robot\'s start: give start=(x, y)')
             self.mean = np.array(start, dtype=float).reshape(2)
             self.covariance = start_std**2 * np.eye(2)
-        self.station = np.full(2, np.nan)  # the station the last update measured to
-        self.innovation = math.nan  # z_k - |m_k|k-1 - station|, map units
+        self.innovation = math.nan  # z_k less the reading expected at the predicted mean, map units
 
     def advance(self, compass_angle: float) -> None:
         """The prediction, m <- m + E[displacement], P <- P + Q: the exact first two moments of equation (1)."""
@@ -83,11 +81,12 @@ class ExtendedKalmanFilter(ModelFilter):
         self.covariance = self.covariance + q
 
     def update(self, z: float) -> None:
-        """The EKF update with the range to the station nearest the predicted mean (Joseph form)."""
-        self.station = self.world.nearest_station(self.mean)
-        self.mean, self.covariance, self.innovation = range_update(
-            self.mean, self.covariance, self.station, z, self.sigma**2
-        )
+        """The EKF update with the model's sensor linearised at the predicted mean (`Sensor.linearised`:
+        the range to the nearest station), in Joseph form; none where its gradient is undefined."""
+        expected, h = self.sensor.linearised(self.world, self.mean)
+        self.innovation = math.nan if h is None else float(z) - expected
+        if h is not None:
+            self.mean, self.covariance = kalman_update(self.mean, self.covariance, h, self.innovation, self.sigma**2)
 
     def belief(self) -> Gaussian:
         """What the viewer draws: the Gaussian's mean and covariance."""
@@ -98,11 +97,6 @@ class ExtendedKalmanFilter(ModelFilter):
     def estimate(self) -> np.ndarray:
         """The mean m, shape (2,)."""
         return self.mean.copy()
-
-    @property
-    def count(self) -> int:
-        """One Gaussian."""
-        return 1
 
     @property
     def is_confident(self) -> bool:
@@ -134,26 +128,20 @@ def _sinc(x: float) -> float:
     return math.sin(x) / x if x != 0 else 1.0
 
 
-def range_update(
-    mean: np.ndarray, covariance: np.ndarray, station: np.ndarray, z: float, r: float
-) -> tuple[np.ndarray, np.ndarray, float]:
-    """One EKF update with a range z = |x - station| + v, v ~ N(0, r): (mean, covariance, innovation).
+def kalman_update(
+    mean: np.ndarray, covariance: np.ndarray, h: np.ndarray, innovation: float, r: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """One EKF update with a scalar reading of gradient H = `h` (2,), noise variance r and innovation
+    z - h(m): (mean, covariance).
 
-    h(m) = |m - station|, H = (m - station)^T / h(m) (the range's Jacobian), S = H P H^T + r,
-    K = P H^T / S, m <- m + K (z - h(m)), P <- (I - K H) P (I - K H)^T + K r K^T (Joseph form: symmetric
-    and positive semi-definite whatever the rounding). At the station itself H is undefined: no update.
+    S = H P H^T + r, K = P H^T / S, m <- m + K (z - h(m)), P <- (I - K H) P (I - K H)^T + K r K^T
+    (Joseph form: symmetric and positive semi-definite whatever the rounding).
     """
-    offset = mean - station
-    predicted = float(np.hypot(*offset))
-    if predicted < MIN_RANGE:
-        return mean, covariance, math.nan
-    h = offset / predicted  # (2,)
-    innovation = float(z) - predicted
     s = float(h @ covariance @ h) + r
     gain = covariance @ h / s  # (2,)
     i_kh = np.eye(2) - np.outer(gain, h)
     covariance = i_kh @ covariance @ i_kh.T + r * np.outer(gain, gain)
-    return mean + gain * innovation, covariance, innovation
+    return mean + gain * innovation, covariance
 
 
 def free_area_moments(world: Maze) -> tuple[np.ndarray, np.ndarray]:
@@ -177,19 +165,15 @@ def gaussian_mass_within(covariance: np.ndarray, radius: float) -> float:
     periodic integrand: the midpoint rule on a quarter turn (the rest by symmetry) is exact to rounding
     unless the Gaussian is extremely thin.
     """
-    l1, l2 = symmetric_eigenvalues(covariance)
+    # l1, l2 in closed form, (a + d) / 2 +- sqrt(((a - d) / 2)^2 + b^2), clipped at 0, in plain floats: a few
+    # times quicker than numpy's eigvalsh on 2 x 2
+    (a, b), (_, d) = covariance.tolist()
+    centre, half_gap = (a + d) / 2, math.hypot((a - d) / 2, b)
+    l1, l2 = max(centre + half_gap, 0.0), max(centre - half_gap, 0.0)
     spread = l1 * _COS2 + l2 * _SIN2
     with np.errstate(divide="ignore"):
         inside = -np.expm1(-(radius**2) / (2 * spread))
     return float(inside.mean())
-
-
-def symmetric_eigenvalues(matrix: np.ndarray) -> tuple[float, float]:
-    """The eigenvalues of a symmetric 2 x 2 matrix, clipped at 0, in plain floats (closed form:
-    (a + d) / 2 +- sqrt(((a - d) / 2)^2 + b^2), a few times quicker than numpy's eigvalsh on 2 x 2)."""
-    (a, b), (_, d) = matrix.tolist()
-    centre, radius = (a + d) / 2, math.hypot((a - d) / 2, b)
-    return max(centre + radius, 0.0), max(centre - radius, 0.0)
 
 
 def covariance_ellipse(mean: np.ndarray, covariance: np.ndarray, scale: float = 2.0, points: int = 64) -> np.ndarray:
@@ -202,13 +186,11 @@ def covariance_ellipse(mean: np.ndarray, covariance: np.ndarray, scale: float = 
 
 __all__ = [
     "EKF_INITS",
-    "MIN_RANGE",
     "START_STD",
     "ExtendedKalmanFilter",
     "arc_moments",
     "covariance_ellipse",
     "free_area_moments",
     "gaussian_mass_within",
-    "range_update",
-    "symmetric_eigenvalues",
+    "kalman_update",
 ]

@@ -76,9 +76,12 @@ class NearestStationLookup:
                 np.minimum(near, _squared_distances(candidates[:, k], candidates[:, k + 1], xs, ys), out=near)
             d2[ambiguous] = near
         free = np.bitwise_and(kinds, _FREE, out=kinds).view(bool)
-        if len(beyond):
-            d2[beyond] = _brute_force_squared_distances(border, x[beyond], y[beyond])
-            free[beyond] = False
+        # the rare points beyond the table: brute force over the border cells' candidates (b), in chunks that
+        # bound the (chunk, b) temporary
+        for start in range(0, len(beyond), 1024):
+            part = beyond[start : start + 1024]
+            d2[part] = _squared_distances(border[:, 0], border[:, 1], x[part, None], y[part, None]).min(axis=1)
+        free[beyond] = False
         return np.sqrt(d2, out=d2), free
 
     def station_at(self, x: float, y: float) -> tuple[int, float]:
@@ -168,15 +171,6 @@ def _squared_distances(sx: np.ndarray, sy: np.ndarray, x: np.ndarray, y: np.ndar
 
 def is_scalar(value: Any) -> bool:
     return isinstance(value, (float, int, np.floating, np.integer)) and not isinstance(value, bool)
-
-
-def _brute_force_squared_distances(stations: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Squared distance to the nearest of `stations` (b, 2), for the rare points beyond the table."""
-    out = np.empty(len(x), dtype=x.dtype)
-    for start in range(0, len(x), 1024):  # chunks bound the (chunk, B) temporary
-        part = slice(start, start + 1024)
-        out[part] = _squared_distances(stations[:, 0], stations[:, 1], x[part, None], y[part, None]).min(axis=1)
-    return out
 
 
 def _candidate_stations(

@@ -78,7 +78,14 @@ def generate_maze(
     walls = _add_walls(grid, wanted, rng, _can_become_wall, progress)
     if walls < stations:  # rare: only free cycles are left, which the local test cannot open
         walls += _add_walls(grid, stations - walls, rng, _keeps_free_area_connected)
-    _place_stations(grid, stations, rng)
+    free = np.pad(grid == EMPTY, 1)  # `stations` walls become station blocks, those beside the free area first
+    beside_free = free[:-2, 1:-1] | free[2:, 1:-1] | free[1:-1, :-2] | free[1:-1, 2:]
+    preferred = np.argwhere((grid == WALL) & beside_free)
+    others = np.argwhere((grid == WALL) & ~beside_free)
+    chosen = preferred[rng.permutation(len(preferred))[:stations]]
+    if len(chosen) < stations:
+        chosen = np.concatenate([chosen, others[rng.permutation(len(others))[: stations - len(chosen)]]])
+    grid[chosen[:, 0], chosen[:, 1]] = STATION_WALL
     if progress is not None:
         progress(wanted, wanted)
     return Maze(grid, source=f"generated {rows}x{columns} maze")
@@ -144,18 +151,6 @@ def _can_become_wall(grid: np.ndarray, r: int, c: int) -> bool:
         elif ring[(i - 1) % 8]:
             run += 1
     return len({run_of[i] for i in edge_free}) == 1
-
-
-def _place_stations(grid: np.ndarray, stations: int, rng: np.random.Generator) -> None:
-    """Turn `stations` walls into station blocks, preferring walls beside the free area."""
-    free = np.pad(grid == EMPTY, 1)
-    beside_free = free[:-2, 1:-1] | free[2:, 1:-1] | free[1:-1, :-2] | free[1:-1, 2:]
-    preferred = np.argwhere((grid == WALL) & beside_free)
-    others = np.argwhere((grid == WALL) & ~beside_free)
-    chosen = preferred[rng.permutation(len(preferred))[:stations]]
-    if len(chosen) < stations:
-        chosen = np.concatenate([chosen, others[rng.permutation(len(others))[: stations - len(chosen)]]])
-    grid[chosen[:, 0], chosen[:, 1]] = STATION_WALL
 
 
 def free_area_is_connected(grid: np.ndarray) -> bool:

@@ -43,6 +43,7 @@ if TYPE_CHECKING:
 # the model's constants (the paper's L, the outside penalty, N_T / N_S and the lab's radii) live in
 # mazelab.constants, a module of numbers only, so that the exercise's sandbox can take them too
 MAX_SPEED = 1.0  # a filter may assume another L (model mismatch), up to one maze cell per step
+MIN_RANGE = 1e-9  # map units: nearer its station, the range's gradient is undefined (the EKF skips the update)
 
 
 # -- the model's constants as filter options (mazelab.declaration): every filter of the model takes them
@@ -211,7 +212,45 @@ class Sensor:
     def log_acceptance(self, z: Any, points: np.ndarray, world: Maze) -> np.ndarray:
         """log p(z | x) / max_x p(z | x) at free `points` (M, 2), (M,): sensor resetting's rejection
         sampling accepts x with this probability, exp(-(z - d(x))^2 / (2 sigma^2))."""
-        return log_likelihood(z, points, world, self.sigma) + math.log(self.sigma * math.sqrt(2 * math.pi))
+        return log_likelihood(z, points, world, self.sigma) - self.log_norm
+
+    @property
+    def log_norm(self) -> float:
+        """-log(sigma sqrt(2 pi)), the Gaussian's constant in log p(z | x), the same at every x."""
+        return -math.log(self.sigma * math.sqrt(2 * math.pi))
+
+    def log_pdf_at(self, world: Maze, points: np.ndarray, free: np.ndarray) -> Callable[..., np.ndarray]:
+        """log p(z | x) less `log_norm` at points that never move (the exact grid filter's cells), as a
+        function (z, out=None) -> -0.5 ((z - d(x)) / sigma)^2, plus log(outside penalty) off the free
+        area, an array of `free`'s shape (written into `out` if given); d(x) is computed once, here.
+
+        Parameters
+        ----------
+        world : Maze
+        points : float64 array (M, 2)
+        free : bool array of M values, in the shape the function returns
+            Whether each point lies in the free area.
+        """
+        distance = world.distance_to_nearest_station(points).reshape(free.shape)
+        level = np.where(free, 0.0, math.log(self.outside_penalty))
+
+        def log_pdf(z: Any, out: np.ndarray | None = None) -> np.ndarray:
+            log_lik = np.subtract(z, distance, out=out)
+            log_lik /= self.sigma
+            np.square(log_lik, out=log_lik)
+            np.multiply(-0.5, log_lik, out=log_lik)
+            log_lik += level
+            return log_lik
+
+        return log_pdf
+
+    def linearised(self, world: Maze, at: np.ndarray) -> tuple[float, np.ndarray | None]:
+        """Equation (2) linearised at `at` (2,), for the EKF: the expected reading h = |at - s| to the
+        station s nearest `at` (the data association) and its gradient H = (at - s) / h, (2,), or None
+        within MIN_RANGE of the station, where it is undefined. The noise's variance is sigma^2."""
+        offset = at - world.nearest_station(at)
+        expected = float(np.hypot(*offset))
+        return expected, None if expected < MIN_RANGE else offset / expected
 
 
 class LostRobot:
@@ -310,8 +349,9 @@ class LostRobot:
 class ModelFilter:
     """What a filter of the model that holds no sample shares (the exact grid filter,
     mazelab.grid_filter, and the EKF, mazelab.kalman): made from the map, sigma, delta and its declared
-    options (`settings`, L among them), and stepped by `advance` with th0_k, then `update` with z_k.
-    Not a sample: no ESS (NaN), and no random draws (`particles` and `rng` are not used).
+    options (`settings`, L among them), and stepped by `advance` with th0_k, then `update` with z_k,
+    which reads the model's `sensor` (Sensor: a second sensor reaches them there). Not a sample: no ESS
+    (NaN), and no random draws (`particles` and `rng` are not used).
     """
 
     name: ClassVar[str]
@@ -322,6 +362,7 @@ class ModelFilter:
         self.settings = MappingProxyType(type(self).options.resolve(options, self.name))
         self.world, self.sigma, self.delta, self.speed = check_world(world), sigma, delta, self.settings["speed"]
         check_sigma_within(sigma, world.width, world.height)
+        self.sensor = Sensor(sigma, self.settings.get("outside_penalty", OUTSIDE_PENALTY))  # equations (2)-(3)
         self.steps_done = 0
         self.reinitialised_at: list[int] = []
         self._motion: tuple[float, Any] | None = None  # (th0, what `per_angle` computed for it)
@@ -382,6 +423,7 @@ __all__ = [
     "LOG_UNDERFLOW",
     "MAX_SPEED",
     "MAX_STRAIGHT_STEPS",
+    "MIN_RANGE",
     "MODEL_OPTIONS",
     "OUTSIDE_PENALTY",
     "OUTSIDE_PENALTY_OPTION",

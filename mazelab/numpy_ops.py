@@ -62,11 +62,8 @@ class NumpyKernels:
         (None: a run that draws nothing, u = 1/2), for R runs: mazelab.model.LostRobot.M, with th0 as
         `angles` (R,) in x's dtype, Delta (radians) and L (map units) given."""
         uniforms = np.empty(x.shape[:2] if A is None else A.shape, dtype=x.dtype)
-        for row, rng in zip(uniforms, rngs, strict=True):
-            if rng is None:
-                row[:] = 0.5  # it restarts from the prior after this step: no draw, no move off its heading
-            else:
-                rng.random(dtype=x.dtype, out=row)
+        for row, rng in zip(uniforms, rngs, strict=True):  # None: a run restarting after this step, no draw
+            row[:] = 0.5 if rng is None else rng.random(row.shape, dtype=x.dtype)
         points = x.reshape(-1, 2)
         if A is not None:
             points = take_particles(points, flat_ancestors(A, x.shape[1]))
@@ -112,12 +109,9 @@ class NumpyKernels:
         rows = np.flatnonzero(due)
         moved = take_particles(x.reshape(-1, 2), (A[rows] + (rows * x.shape[1])[:, None]).reshape(-1))
         size = A.shape[1]
-        eps = np.empty((len(rows) * size, 2), dtype=x.dtype)  # eps ~ N(0, I_2), each run's block its own
-        for block, r in enumerate(rows):
-            rngs[r].standard_normal(dtype=x.dtype, out=eps[block * size : (block + 1) * size])
-        for block, kernel in enumerate(kernels):
+        for block, (r, kernel) in enumerate(zip(rows, kernels, strict=True)):
             part = slice(block * size, (block + 1) * size)
-            moved[part] += kernel(moved[part], eps[part])
+            moved[part] += kernel(moved[part], rngs[r].standard_normal((size, 2), dtype=x.dtype))  # eps ~ N(0, I_2)
         return replaced(x, rows, moved.reshape(len(rows), size, 2))
 
 

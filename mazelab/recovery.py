@@ -82,15 +82,15 @@ def check_recovery(recovery: Any) -> str | Recovery | None:
 
 
 def recovery_options(recovery: Any, alpha_slow: float = ALPHA_SLOW, alpha_fast: float = ALPHA_FAST) -> Recovery | None:
-    """The Recovery the option asks for (`check_recovery`'s values), a mode's with these rates.
+    """The Recovery the option asks for, a mode's with these rates.
 
     Parameters
     ----------
-    recovery : object
+    recovery : str, Recovery or None
+        The option's value as its declaration checked it (`check_recovery`).
     alpha_slow, alpha_fast : float
         The averages' rates when `recovery` names a mode.
     """
-    recovery = check_recovery(recovery)
     return Recovery(recovery, alpha_slow, alpha_fast) if isinstance(recovery, str) else recovery
 
 

@@ -127,24 +127,10 @@ def mixture_kernel(points: np.ndarray, eps: np.ndarray) -> np.ndarray:
     covariance[:, 0, 0] = np.maximum(covariance[:, 0, 0], MIN_CLUSTER_VARIANCE)
     covariance[:, 1, 1] = np.maximum(covariance[:, 1, 1], MIN_CLUSTER_VARIANCE)
     h = MIXTURE_SHRINK * optimal_bandwidth(sizes)
-    return gaussian_jitter(eps, *((h * v).astype(eps.dtype)[labels] for v in cholesky_2x2(covariance)))
-
-
-def cholesky_2x2(covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The lower-triangular factors [[a, 0], [c, d]] of positive definite 2 x 2 matrices.
-
-    Parameters
-    ----------
-    covariance : array (K, 2, 2)
-
-    Returns
-    -------
-    (a, c, d), each an array (K,)
-    """
-    a = np.sqrt(covariance[:, 0, 0])
+    a = np.sqrt(covariance[:, 0, 0])  # D_c = [[a, 0], [c, d]], the Cholesky factor of each S_c, in closed form
     c = covariance[:, 1, 0] / a
     d = np.sqrt(np.clip(covariance[:, 1, 1] - c * c, 0.0, None))
-    return a, c, d
+    return gaussian_jitter(eps, *((h * v).astype(eps.dtype)[labels] for v in (a, c, d)))
 
 
 def gaussian_jitter(eps: np.ndarray, a: Any, c: Any, d: Any) -> np.ndarray:
@@ -175,7 +161,6 @@ __all__ = [
     "GaussianKernel",
     "Kernel",
     "check_bandwidth",
-    "cholesky_2x2",
     "gaussian_jitter",
     "mixture_kernel",
     "optimal_bandwidth",

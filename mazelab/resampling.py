@@ -192,12 +192,13 @@ class KLDSampling:
 def kld_options(
     kld: bool | KLDSampling | None, epsilon: float = KLD_EPSILON, z: float = KLD_QUANTILE
 ) -> KLDSampling | None:
-    """The KLDSampling a filter option asks for: None/False (off), True (with `epsilon` and `z`), or a
+    """The KLDSampling a filter option asks for: None (off), True (with `epsilon` and `z`), or a
     KLDSampling (its own numbers).
 
     Parameters
     ----------
     kld : bool, KLDSampling or None
+        The option's value as its declaration checked it (`check_kld`).
     epsilon, z : float
         KLD-sampling's numbers when `kld` is True.
 
@@ -205,7 +206,6 @@ def kld_options(
     -------
     KLDSampling or None
     """
-    kld = check_kld(kld)
     return KLDSampling(epsilon=epsilon, z=z) if kld is True else kld
 
 

@@ -86,9 +86,14 @@ class RunResult:
 
     @cached_property
     def scenario(self) -> Scenario:
-        """The run as a Scenario (what save_scenario writes), built on first use: lists and validation
-        cost more than a large run's filter steps, so a run that is not saved never pays for them."""
-        return self.inputs.scenario()
+        """The run as a Scenario (what save_scenario writes), its inputs key for key (None keys stay out of
+        the file), built on first use: lists and validation cost more than a large run's filter steps, so a
+        run that is not saved never pays for them (nor imports the pydantic models)."""
+        from mazelab.scenario import Scenario
+
+        inputs = self.inputs
+        lists = {"init_particles_pos": inputs.init_particles_pos.tolist(), "maze": inputs.maze.as_lists()}
+        return Scenario(**{**vars(inputs), **lists})
 
     @property
     def seed(self) -> int:
@@ -119,19 +124,12 @@ class RunResult:
         """The first step from which the error stays below CONVERGENCE_RADIUS, or None."""
         return convergence_step(self.errors)
 
-    def as_pairs(self) -> list[tuple[tuple[float, float], tuple[float, float]]]:
-        """The paper's result: one ((x_true, y_true), (x_est, y_est)) per step, plain floats."""
-        return [
-            ((float(t[0]), float(t[1])), (float(e[0]), float(e[1])))
-            for t, e in zip(self.true_positions, self.estimates, strict=True)
-        ]
-
 
 @dataclass(frozen=True)
 class RunInputs:
     """What a run started from and walked, under its Scenario's keys (mazelab.scenario.Scenario says what
     each is) as arrays and plain values: the Scenario's content before it is turned into lists and
-    validated, which `scenario` does on demand (a study never builds one)."""
+    validated, which RunResult.scenario does on demand (a study never builds one)."""
 
     init_robot_pos: tuple[float, float]
     init_particles_pos: np.ndarray  # (N, 2) float64
@@ -182,15 +180,6 @@ class RunInputs:
             robot.kidnap_position if kidnapped else None,
             filter_options,
             filter_plugin,
-        )
-
-    def scenario(self) -> Scenario:
-        """The validated Scenario of these inputs, key for key (None keys stay out of the file); the
-        pydantic models are imported here."""
-        from mazelab.scenario import Scenario
-
-        return Scenario(
-            **{**vars(self), "init_particles_pos": self.init_particles_pos.tolist(), "maze": self.maze.as_lists()}
         )
 
 
@@ -350,19 +339,20 @@ def walk_and_record(
 
 
 # -- the recording loop: a filter stepped along a walk, each step's reads kept ------------------------
-@dataclass
 class Recorded:
     """Per step k = 1..steps, for R runs: the estimate (R, steps, 2), ESS, green circle, particle count
     and log evidence log p(z_1:k) (R, steps; NaN for a filter that keeps none), the filter's own time
-    per step (steps,), and its diagnostics by name (R, steps)."""
+    per step (steps,), and its diagnostics by name (R, steps): made empty for `runs` runs of `steps`
+    steps, filled step by step by record_steps."""
 
-    estimates: np.ndarray
-    ess: np.ndarray
-    confident: np.ndarray
-    counts: np.ndarray
-    log_evidence: np.ndarray
-    seconds: np.ndarray
-    diagnostics: dict[str, np.ndarray] = field(default_factory=dict)
+    def __init__(self, runs: int, steps: int):
+        self.estimates = np.empty((runs, steps, 2))
+        self.ess = np.empty((runs, steps))
+        self.confident = np.empty((runs, steps), dtype=bool)
+        self.counts = np.empty((runs, steps), dtype=np.int64)
+        self.log_evidence = np.empty((runs, steps))
+        self.seconds = np.empty(steps)
+        self.diagnostics: dict[str, np.ndarray] = {}
 
 
 def record_steps(
@@ -396,8 +386,7 @@ def record_steps(
         and its reads (estimate, ESS, confidence), divided among the R runs.
     """
     count = 1 if runs is None else runs
-    recorded = _unfilled(count, steps)
-    diagnostics: dict[str, list[Any]] = {}
+    recorded = Recorded(count, steps)
     for k in range(steps):
         if at is not None:
             at.number = k + 1
@@ -410,53 +399,28 @@ def record_steps(
         recorded.estimates[:, k], recorded.ess[:, k], recorded.confident[:, k] = estimate, ess, confident
         recorded.counts[:, k] = particles
         recorded.log_evidence[:, k] = getattr(filt, "log_evidence", np.nan)  # optional in the contract
-        _keep_diagnostics(diagnostics, getattr(filt, "diagnostics", None), k, type(filt))
+        _keep_diagnostics(recorded, getattr(filt, "diagnostics", None), k, type(filt))
         if after is not None:
             after(k + 1, filt)
-    recorded.diagnostics = {name: _per_run(values, count) for name, values in diagnostics.items()}
     return recorded
 
 
-def _unfilled(count: int, steps: int) -> Recorded:
-    """Recorded's arrays for `count` runs of `steps` steps, filled step by step by record_steps."""
-    shape = (count, steps)
-    return Recorded(
-        np.empty((*shape, 2)),
-        np.empty(shape),
-        np.empty(shape, dtype=bool),
-        np.empty(shape, dtype=np.int64),
-        np.empty(shape),
-        np.empty(steps),
-    )
-
-
-def _keep_diagnostics(kept: dict[str, list[Any]], now: Any, k: int, filter_class: type) -> None:
-    """Append this step's diagnostics; a name missing at a step is NaN there."""
-    if not now:
-        for values in kept.values():
-            values.append(np.nan)
-        return
-    if not isinstance(now, dict):
+def _keep_diagnostics(recorded: Recorded, now: Any, k: int, filter_class: type) -> None:
+    """This step's diagnostics into column k of their (R, steps) arrays, made NaN at a name's first step
+    (a name missing at a step is NaN there): one number a step for one run, a number or one per run for
+    R runs (spread over the runs as numpy broadcasts it)."""
+    if now and not isinstance(now, dict):
         raise ContractError(f"{filter_class.name}.diagnostics must be a dict of this step's figures, got {now!r}")
-    for name in kept.keys() - now.keys():
-        kept[name].append(np.nan)
-    for name, value in now.items():
-        kept.setdefault(name, [np.nan] * k).append(value)
-
-
-def _per_run(values: list[Any], runs: int) -> np.ndarray:
-    """A diagnostic's steps as (R, steps): one value a step for one run, (R,) a step for R runs (a
-    number, or one per run, is spread over the runs as numpy broadcasts it)."""
-    array = np.empty((runs, len(values)))
-    try:
-        for k, value in enumerate(values):
+    for name, value in (now or {}).items():
+        if name not in recorded.diagnostics:
+            recorded.diagnostics[name] = np.full(recorded.ess.shape, np.nan)
+        try:
             value = np.asarray(value, dtype=float)
             if value.ndim > 1:  # a column takes (1, R) too; a step's diagnostic is not a table
                 raise ValueError
-            array[:, k] = value
-    except (TypeError, ValueError):
-        raise ContractError("a diagnostic must be a number (or one per run) at every step") from None
-    return array
+            recorded.diagnostics[name][:, k] = value
+        except (TypeError, ValueError):
+            raise ContractError("a diagnostic must be a number (or one per run) at every step") from None
 
 
 def checked_walk(
@@ -535,7 +499,8 @@ def run_model(
         saved = save_scenario(result.scenario, DEFAULT_PARAMETERS_PATH if parameters_path is None else parameters_path)
         if not in_jupyter():  # a notebook's cell says it in its own words (the Ukrainian one prints no English)
             print(f"scenario saved to {saved.resolve()}")  # where: a relative path is the working folder's
-    return result.as_pairs()
+    pairs = zip(result.true_positions.tolist(), result.estimates.tolist(), strict=True)  # plain floats
+    return [(tuple(true), tuple(estimate)) for true, estimate in pairs]
 
 
 def maze_for(filter_class: type, world: Maze) -> Maze:

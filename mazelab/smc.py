@@ -88,7 +88,6 @@ class SMC:
         self._ancestors: np.ndarray | None = None  # this step's A, None: no run resampled
         self.run_log_evidence = np.zeros(len(runs))
         self._reinitialised: list[list[int]] = [[] for _ in runs]
-        self._resampled: list[np.ndarray] = []  # each step's due mask
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         """A plug-in written for mazelab 0.2's hooks runs, or gets one line on how to port the hook that changed."""
@@ -136,7 +135,6 @@ class SMC:
             increment = self._restart(self.W.lost if lost is None else self.W.lost | lost, lost, increment, Wf)
         self.log_evidence_increment = increment  # log p(z_k | z_1:k-1) of each run
         self.run_log_evidence = self.run_log_evidence + increment
-        self._resampled.append(due)
         self.steps_done += 1
 
     # -- the hooks: what differs between the filters ---------------------------------------------------
@@ -414,12 +412,6 @@ class SMC:
     def reinitialised_at(self) -> list[int] | list[list[int]]:
         """The steps at which no particle explained z and the filter restarted (a list per run for R runs)."""
         return self._one(self._reinitialised)
-
-    @property
-    def resampled_at(self) -> list[int] | list[list[int]]:
-        """The steps after which the filter resampled (a list per run for R runs)."""
-        runs = np.array(self._resampled, dtype=bool).reshape(-1, self.runs).T  # (R, steps)
-        return self._one([np.flatnonzero(row).tolist() for row in runs])
 
     def _one(self, per_run: Any) -> Any:
         """Run 0's value for one run (the paper's shapes), all runs' otherwise."""

@@ -20,7 +20,7 @@ import warnings
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from types import TracebackType
+from types import SimpleNamespace, TracebackType
 from typing import Any
 
 PACKAGE_DIR = Path(__file__).resolve().parent  # mazelab/: frames here are the lab's, not the student's
@@ -141,19 +141,13 @@ def is_student_class(filter_class: type) -> bool:
         return True
 
 
-class _Step:
-    """The step a run is at (0 while the filter is built), for `student_code`."""
-
-    number = 0
-
-
 @contextmanager
-def student_code(filter_class: type) -> Iterator[_Step]:
+def student_code(filter_class: type) -> Iterator[SimpleNamespace]:
     """Around the calls of a user's filter: an Exception inside (or its own sys.exit or KeyboardInterrupt)
-    becomes a StudentCodeError naming the step (set `.number` on what this yields) and the user's frames,
-    from the error; the working folder it changes is put back; a shipped filter's errors and the user's
-    own stop pass as they are."""
-    step = _Step()
+    becomes a StudentCodeError naming the step (set `.number` on what this yields: 0 while the filter is
+    built) and the user's frames, from the error; the working folder it changes is put back; a shipped
+    filter's errors and the user's own stop pass as they are."""
+    step = SimpleNamespace(number=0)
     try:
         with working_folder_kept(filter_class.name if is_student_class(filter_class) else None):
             yield step

@@ -1,4 +1,4 @@
-"""A study's runs in units of work (mazelab.experiments.batch_runs): one filter object of R runs
+"""A study's runs in units of work (mazelab.experiments.study): one filter object of R runs
 (mazelab.smc) advances them together bit for bit as R single-run filters, restarts included; a study's
 units give the records run_task gives run by run, within the particle budget; runs go together by the
 declared rule (`batchable`), and an error in a batched unit is reported for its runs, not retried quietly."""
@@ -11,9 +11,17 @@ import numpy as np
 import pytest
 from conftest import recorded_walk
 
-from mazelab.experiments import batch_runs
-from mazelab.experiments.batch_runs import run_batch, run_unit_safely, study_units
-from mazelab.experiments.study import MazeChoice, run_task, study_settings, study_tasks
+from mazelab.experiments.study import (
+    MazeChoice,
+    RunFailure,
+    batchable,
+    run_batch,
+    run_task,
+    run_unit_safely,
+    study_settings,
+    study_tasks,
+    study_units,
+)
 from mazelab.filters import SIRParticleFilter
 from mazelab.registry import entries, resolve_filter
 
@@ -99,10 +107,10 @@ def test_units_respect_the_particle_budget(paper_world):
 def test_runs_go_together_by_the_declared_rule(paper_world):
     settings = study_settings([MazeChoice.from_maze("paper", paper_world)], [0.3], [0.5], [100])
     plain = study_tasks(settings, ["SIRParticleFilter", "RegularizedParticleFilter"], 3, 5, 1)
-    assert batch_runs.batchable(plain[0])
+    assert batchable(plain[0])
     kld = study_settings([MazeChoice.from_maze("paper", paper_world)], [0.3], [0.5], [100], {"kld": [True]})
-    assert not batch_runs.batchable(study_tasks(kld, ["SIRParticleFilter"], 3, 5, 1)[0])
-    assert not batch_runs.batchable(study_tasks(settings, ["SIRParticleFilter", "GridBayesFilter"], 3, 5, 1)[0])
+    assert not batchable(study_tasks(kld, ["SIRParticleFilter"], 3, 5, 1)[0])
+    assert not batchable(study_tasks(settings, ["SIRParticleFilter", "GridBayesFilter"], 3, 5, 1)[0])
     assert SIRParticleFilter.runs_together({"bandwidth": "multimodal", "estimate": "mode"})
     assert not SIRParticleFilter.runs_together({"recovery": "sensor"})
 
@@ -115,7 +123,7 @@ def test_an_error_in_a_batched_unit_is_reported_for_its_runs(paper_world, monkey
         raise RuntimeError("a bug in the step")
 
     monkeypatch.setattr(SIRParticleFilter, "step", broken)
-    outcomes = batch_runs.run_unit_safely(unit)
+    outcomes = run_unit_safely(unit)
     assert len(outcomes) == 3
-    assert all(isinstance(o, batch_runs.RunFailure) and "a bug in the step" in o.message for o in outcomes)
+    assert all(isinstance(o, RunFailure) and "a bug in the step" in o.message for o in outcomes)
     assert all("runs advanced together" in o.message for o in outcomes)

@@ -12,8 +12,7 @@ import numpy as np
 import pytest
 
 from mazelab.contract import ContractError
-from mazelab.experiments import batch_runs
-from mazelab.experiments.study import MazeChoice, run_task, study_settings, study_tasks
+from mazelab.experiments.study import MazeChoice, run_batch, run_task, study_settings, study_tasks
 from mazelab.filters import RegularizedParticleFilter, SIRParticleFilter
 from mazelab.robot import Robot
 from mazelab.simulation import record_steps, simulate
@@ -49,7 +48,7 @@ def test_recoverys_injection_probability_is_recorded_per_step(paper_world):
 def test_batched_and_single_runs_record_the_same_diagnostics(paper_world):
     settings = study_settings([MazeChoice.from_maze("paper", paper_world)], [0.3], [0.5], [150], {"threshold": [0.5]})
     tasks = study_tasks(settings, ["RegularizedParticleFilter"], 3, 40, 5, traces=True)
-    together = batch_runs.run_batch(tasks)
+    together = run_batch(tasks)
     for task, (batched,) in zip(tasks, together, strict=True):
         (alone,) = run_task(task)
         for name in ("regularised",):

@@ -83,7 +83,7 @@ def test_a_worker_dying_just_after_another_run_finished_restarts_the_pool(tmp_pa
             (tmp_path / "go").touch()
             wait_until_broken(pools[-1])
 
-    plan = plan_study(study_mazes(["paper_5x5"]), "sir", sigma=[0.3], delta=[0.5], particles=[30],
+    plan = plan_study(study_mazes(["paper_5x5"]), "sir", {"sigma": [0.3], "delta": [0.5], "particles": [30]},
                       runs=8, steps=4, seed=1)  # fmt: skip
     with pytest.warns(UserWarning, match="a worker process died"):
         outcome = executor.run_study(plan.tasks, 2, on_records=on_records)
@@ -146,8 +146,8 @@ def cut_short_once(unit, backend, **options):
     return real(unit, backend, **options)
 
 executor.run_unit_timed = cut_short_once
-plan = plan_study(study_mazes(["paper_5x5"]), ["sir"], sigma=[0.3], delta=[0.5], particles=[50], runs=4, steps=5,
-                  seed=1)
+plan = plan_study(study_mazes(["paper_5x5"]), ["sir"], {"sigma": [0.3], "delta": [0.5], "particles": [50]}, runs=4,
+                  steps=5, seed=1)
 outcome = executor.run_study(plan.tasks, 2)
 print(sorted({record.run for record in outcome.records}), len(outcome.failures), flush=True)
 """

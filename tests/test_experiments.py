@@ -17,7 +17,6 @@ from conftest import PAPER_MAZE, finished_rows
 from mazelab.backend import chosen_backend
 from mazelab.cli.app import main
 from mazelab.cli.replay import replay_setup
-from mazelab.experiments import batch_runs
 from mazelab.experiments import study as experiments
 from mazelab.experiments.executor import run_study
 from mazelab.experiments.runs import DEFAULT_WINDOW, compare_filters, final_error, recovery_steps, relocalised
@@ -251,7 +250,7 @@ def test_a_crashing_run_is_reported_with_its_seed_and_the_others_kept(tmp_path, 
         return real(task, visualize)
 
     monkeypatch.setattr(experiments, "run_task", crash_on_run_2)
-    monkeypatch.setattr(batch_runs, "batchable", lambda task: False)  # run by run, through run_task
+    monkeypatch.setattr(experiments, "batchable", lambda task: False)  # run by run, through run_task
     table = tmp_path / "s.csv"
     args = ["study", "--maze", "paper_5x5", "--runs", "3", "--steps", "10", "--particles", "50", "--filters", "sir"]
     assert main([*args, "--seed", "3", "--workers", "1", "--csv", str(table)]) == 1
@@ -270,7 +269,7 @@ def test_ctrl_c_keeps_the_finished_runs_and_exits_130(tmp_path, capsys, monkeypa
         return real(task, visualize)
 
     monkeypatch.setattr(experiments, "run_task", interrupt_on_run_3)
-    monkeypatch.setattr(batch_runs, "batchable", lambda task: False)  # run by run, through run_task
+    monkeypatch.setattr(experiments, "batchable", lambda task: False)  # run by run, through run_task
     table = tmp_path / "s.csv"
     table.write_text("old\n")
     args = ["study", "--maze", "paper_5x5", "--runs", "5", "--steps", "10", "--particles", "50", "--filters", "sir,apf"]

@@ -18,10 +18,18 @@ from mazelab.kalman import (
     covariance_ellipse,
     free_area_moments,
     gaussian_mass_within,
-    range_update,
+    kalman_update,
 )
 from mazelab.maze import Maze, load_maze
-from mazelab.model import CONFIDENCE_RADIUS, LAB_DELTA_RANGE, LAB_SIGMA_RANGE, ROBOT_SPEED, headings_from_uniforms, move
+from mazelab.model import (
+    CONFIDENCE_RADIUS,
+    LAB_DELTA_RANGE,
+    LAB_SIGMA_RANGE,
+    ROBOT_SPEED,
+    Sensor,
+    headings_from_uniforms,
+    move,
+)
 from mazelab.registry import resolve_filter
 from mazelab.robot import Robot
 from mazelab.simulation import simulate
@@ -75,8 +83,10 @@ def test_the_update_is_the_textbook_ekf_on_a_hand_computed_case():
     """m = (3, 4), station (0, 0): h = 5, H = (0.6, 0.8); P = diag(1, 2), r = 0.36: S = 0.36 + 1.28 + 0.36
     = 2, K = P H^T / S = (0.3, 0.8); z = 6: innovation 1, m = (3.3, 4.8); P - K H P = [[0.82, -0.48],
     [-0.48, 0.72]] (Joseph's form gives the same for this optimal gain)."""
-    mean, covariance, innovation = range_update(np.array([3.0, 4.0]), np.diag([1.0, 2.0]), np.zeros(2), 6.0, 0.36)
-    assert innovation == pytest.approx(1.0)
+    world = Maze([[2, 0, 0, 0, 0]] + [[0] * 5] * 4)  # one station block: its nearest corner to (4, 0) is (1, 4)
+    expected, h = Sensor(0.6).linearised(world, np.array([4.0, 0.0]))
+    assert expected == 5.0 and np.array_equal(h, [0.6, -0.8])
+    mean, covariance = kalman_update(np.array([3.0, 4.0]), np.diag([1.0, 2.0]), np.array([0.6, 0.8]), 1.0, 0.36)
     np.testing.assert_allclose(mean, [3.3, 4.8], atol=1e-14)
     np.testing.assert_allclose(covariance, [[0.82, -0.48], [-0.48, 0.72]], atol=1e-14)
 
@@ -87,17 +97,23 @@ def test_the_filter_predicts_and_updates_with_the_station_nearest_its_mean(paper
     step, q = arc_moments(1.0, 0.5, ROBOT_SPEED)
     predicted_mean, predicted_covariance = ekf.mean + step, ekf.covariance + q
     ekf.step(1.0, 1.2)
-    station = paper_world.nearest_station(predicted_mean)
-    expected = range_update(predicted_mean, predicted_covariance, station, 1.2, 0.3**2)
+    offset = predicted_mean - paper_world.nearest_station(predicted_mean)
+    h = np.hypot(*offset)
+    expected = kalman_update(predicted_mean, predicted_covariance, offset / h, 1.2 - h, 0.3**2)
     np.testing.assert_allclose(ekf.estimate, expected[0])
     np.testing.assert_allclose(ekf.covariance, expected[1])
-    assert np.array_equal(ekf.station, station)
+    assert ekf.innovation == pytest.approx(1.2 - h)
     assert math.isnan(ekf.ess) and ekf.count == 1 and ekf.reinitialised_at == []
 
 
-def test_at_the_station_itself_there_is_no_update():
-    mean, covariance = np.array([1.0, 1.0]), np.eye(2)
-    assert range_update(mean, covariance, mean.copy(), 0.5, 0.1)[:2] == (mean, covariance)
+def test_at_the_station_itself_there_is_no_update(paper_world):
+    station = paper_world.stations[0].astype(float)
+    assert Sensor(0.3).linearised(paper_world, station) == (0.0, None)
+    ekf = ExtendedKalmanFilter(paper_world, 0.3, 0.5)
+    ekf.mean, covariance = station.copy(), ekf.covariance.copy()
+    ekf.update(0.5)
+    assert np.array_equal(ekf.mean, station) and np.array_equal(ekf.covariance, covariance)
+    assert math.isnan(ekf.innovation)
 
 
 # -- the prior and the confidence ------------------------------------------------------------------

@@ -22,8 +22,7 @@ import pytest
 from mazelab import registry
 from mazelab.cli.app import main
 from mazelab.declaration import Option, number_in
-from mazelab.experiments import batch_runs
-from mazelab.experiments.study import MazeChoice, run_task, study_settings, study_tasks
+from mazelab.experiments.study import MazeChoice, batchable, run_batch, run_task, study_settings, study_tasks
 from mazelab.filters import AuxiliaryParticleFilter, ParticleFilter, RegularizedParticleFilter, SIRParticleFilter
 from mazelab.grid_filter import GridBayesFilter
 from mazelab.registry import (
@@ -134,8 +133,8 @@ def test_a_plug_in_gets_an_entry_of_its_own_not_batched_until_it_says_so(tmp_pat
 def test_every_filter_that_declares_batched_gives_r_runs_bit_for_bit(paper_world, entry):
     settings = study_settings([MazeChoice.from_maze("paper", paper_world)], [0.3], [0.5], [120])
     tasks = study_tasks(settings, [entry.name], 3, 25, 6)
-    assert batch_runs.batchable(tasks[0])
-    together = batch_runs.run_batch(tasks)
+    assert batchable(tasks[0])
+    together = run_batch(tasks)
     for task, records in zip(tasks, together, strict=True):
         (alone,) = run_task(task)
         (batched,) = records

@@ -124,7 +124,7 @@ def test_foreign_row_checks_every_planned_column(tmp_path):
     seeds, maze and model, and each option the row's filter ran with (or one it does not take, set)."""
     from mazelab.experiments.api import plan_study, study_mazes
 
-    plan = plan_study(study_mazes(["paper_5x5"]), "sir", sigma=[0.3], delta=[0.5], particles=[30],
+    plan = plan_study(study_mazes(["paper_5x5"]), "sir", {"sigma": [0.3], "delta": [0.5], "particles": [30]},
                       runs=2, steps=5, seed=1)  # fmt: skip
     table = tmp_path / "s.csv"
     assert main([*STUDY[:3], "--runs", "2", "--steps", "5", "--particles", "30", "--filters", "sir", "--seed", "1",

@@ -117,7 +117,7 @@ def test_the_warm_up_reaches_a_resampling_that_waits_for_n_eff(tmp_path, monkeyp
     monkeypatch.setattr(run_module, "_warmed", set())
     run_module.take_startup_seconds()
     batch = plugin(tmp_path, slow_resampling("SlowBatch"), "SlowBatch")
-    plan = plan_study(study_mazes(["paper_5x5"]), batch, sigma=[0.3], delta=[0.5], particles=[300], runs=3,
+    plan = plan_study(study_mazes(["paper_5x5"]), batch, {"sigma": [0.3], "delta": [0.5], "particles": [300]}, runs=3,
                       steps=30, seed=1)  # fmt: skip
     outcome = run_study(plan.tasks, 1)
     assert all(record.run_seconds < ONE_OFF_SECONDS for record in outcome.records)
@@ -130,7 +130,7 @@ def test_the_warm_up_reaches_a_resampling_that_waits_for_n_eff(tmp_path, monkeyp
 
 def test_a_study_reports_the_start_up_apart_from_ms_per_step(tmp_path):
     spec = plugin(tmp_path, SLOW_START, "SlowStart")
-    plan = plan_study(study_mazes(["paper_5x5"]), f"{spec},sir", sigma=[0.3], delta=[0.5], particles=[50],
+    plan = plan_study(study_mazes(["paper_5x5"]), f"{spec},sir", {"sigma": [0.3], "delta": [0.5], "particles": [50]},
                       runs=2, steps=10, seed=1)  # fmt: skip
     outcome = run_study(plan.tasks, 2)  # two fresh worker processes: each pays the one-off cost once
     assert all(record.ms_per_step < 1e3 * ONE_OFF_SECONDS / 10 for record in outcome.records)
@@ -171,7 +171,7 @@ def test_the_plugins_code_travels_with_the_runs(cluster, tmp_path):
     """The plug-in's file has changed by the time the runs start (its step now raises): the workers run
     the bytes the study was planned with (checked by their sha256), as the local study did."""
     spec = plugin(tmp_path, MY_SIR, "MySIR")
-    plan = plan_study(study_mazes(["paper_5x5"]), f"sir,{spec}", sigma=[0.3], delta=[0.5], particles=[60],
+    plan = plan_study(study_mazes(["paper_5x5"]), f"sir,{spec}", {"sigma": [0.3], "delta": [0.5], "particles": [60]},
                       runs=2, steps=10, seed=5)  # fmt: skip
     local = run_study(plan.tasks, 1)
     broken = MY_SIR + "\n    def step(self, compass_angle, z):\n        raise RuntimeError('not the planned code')\n"

@@ -36,7 +36,7 @@ def test_a_study_on_one_worker_without_figures_imports_only_what_it_runs(tmp_pat
     modules, _, stdout = study_process(tmp_path)
     loaded = sorted(m for m in modules if m.startswith(NOT_NEEDED))
     assert not loaded, f"the study imported {loaded}"
-    assert "mazelab.experiments.batch_runs" in modules  # it did run
+    assert "mazelab.experiments.executor" in modules  # it did run
     startup = next(line for line in stdout.splitlines() if " wall time on the numpy backend; start-up " in line)
     assert "(first calls; " in startup and "numba" not in startup  # nor does it say numba's kernels loaded
 

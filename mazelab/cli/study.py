@@ -7,6 +7,7 @@ interrupted study goes on (--resume; accuracy by itself), and the report writes 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import signal
 import time
 from collections.abc import Callable
@@ -137,9 +138,29 @@ AccuracyFilters = opt(
 )
 
 
+# what a study's plan takes as given (plan_study), and how it runs (in this order in --help, after the values)
+PLAN = {
+    "kidnap_at": (KidnapAt, None),
+    "option": (StudyOptionFlag, None),
+    "runs": (opt(int, min=1, help="seeded runs per setting"), 30),
+    "steps": (opt(int, min=1, help="steps per run"), DEFAULT_STEPS),
+    "seed": (opt(int | None, callback=seed_option, help="root seed (default: new, printed)"), None),
+    "reference": (opt(str | None, metavar="grid", help="the exact grid filter too: distance_to_exact"), None),
+}
+EXECUTION = {
+    "workers": (Workers, None),
+    "dask": (opt(str | None, help="a Dask scheduler, tcp://HOST:PORT"), None),
+    "dask_timeout": (DaskTimeout, DASK_TIMEOUT),
+    "draw_run": (opt(int, help="the run --viewer/--rrd/--web draw", show_default=False), 1),
+    "backend": (BackendOption, None),  # its callback sets the backend
+}
+
+
 @with_parameters("files", FILES)
 @with_parameters("figure", FIGURE)
 @with_parameters("drawing", DRAWN)
+@with_parameters("execution", EXECUTION)
+@with_parameters("planned", PLAN)
 @with_option_flags(lists=True)
 def study(
     maze: opt(str | None, help=f"mazes (files or names) [default: {DEFAULT_MAZE}]") = None,
@@ -150,19 +171,10 @@ def study(
     delta: opt(str, help="compass error, a list") = str(DEFAULT_DELTA),
     particles: opt(str, help="particle counts, a list") = str(DEFAULT_PARTICLE_COUNT),
     filters: StudyFilters = "sir,apf,rpf",
-    kidnap_at: KidnapAt = None,
-    option: StudyOptionFlag = None,
-    runs: opt(int, min=1, help="seeded runs per setting") = 30,
-    steps: opt(int, min=1, help="steps per run") = DEFAULT_STEPS,
-    seed: opt(int | None, callback=seed_option, help="root seed (default: new, printed)") = None,
-    reference: opt(str | None, metavar="grid", help="the exact grid filter too: distance_to_exact") = None,
-    workers: Workers = None,
-    dask: opt(str | None, help="a Dask scheduler, tcp://HOST:PORT") = None,
-    dask_timeout: DaskTimeout = DASK_TIMEOUT,
-    draw_run: opt(int, help="the run --viewer/--rrd/--web draw", show_default=False) = 1,
-    backend: BackendOption = None,
     *,
     named: dict[str, Any],
+    planned: dict[str, Any],
+    execution: dict[str, Any],
     drawing: dict[str, Any],
     figure: dict[str, Any],
     files: dict[str, Any],
@@ -170,47 +182,28 @@ def study(
     """Lab step 14: a study of every combination of the values (docs/studies.md)."""
     chosen = StudyFiles.parse(**files, rrd=drawing.get("rrd"))
     visualize = visualization(**drawing, force=chosen.force, unasked=False)
-    seed = chosen.seed if seed is None else seed  # a resumed study keeps its journal's root seed unless --seed
+    planned["seed"] = chosen.seed if planned["seed"] is None else planned["seed"]  # resumed: its journal's
     names = parse_filters(check_filter_names(filters))
-    given = given_options(named, option, names, lists=True)  # the named flags and --option NAME=V1,V2
-    mazes, sigmas = parse_mazes(maze, maze_size, stations, wall_share), parse_list(sigma, float, "--sigma")
-    plan = plan_study(
-        mazes,
-        names,
-        sigma=sigmas,
-        delta=parse_list(delta, float, "--delta"),
-        runs=runs,
-        steps=steps,
-        particles=parse_list(particles, int, "--particles"),
-        kidnap_at=kidnap_at,
-        reference=reference,
-        options=given,
-        seed=seed,
-        traces=chosen.traces is not None,
-        spelled=given.spelled,
-    )
+    given = given_options(named, planned.pop("option"), names, lists=True)  # the named flags and --option NAME=V1,V2
+    mazes = parse_mazes(maze, maze_size, stations, wall_share)
+    model = {
+        "sigma": parse_list(sigma, float, "--sigma"),
+        "delta": parse_list(delta, float, "--delta"),
+        "particles": parse_list(particles, int, "--particles"),
+    }
+    values = {**model, **given}  # the model's values and the options', each a list
+    plan = plan_study(mazes, names, values, traces=chosen.traces is not None, spelled=given.spelled, **planned)
     figure = check_figure(plan, **figure)
-    workers = workers or cores()
+    workers, dask = execution["workers"] or cores(), execution["dask"]
     backend = study_backend(plan.tasks, 1 if dask else workers)
     header = plan.header(f"on the Dask cluster at {dask}" if dask is not None else f"{workers} worker(s)", backend)
-    session = open_session(plan, chosen, backend, header, visualize=visualize, draw_run=draw_run, dask=dask)
+    session = open_session(
+        plan, chosen, backend, header, visualize=visualize, draw_run=execution["draw_run"], dask=dask
+    )
     if chosen.resume:
         typer.echo(f"resuming: {len(session.kept)} rows kept from {chosen.journal}, {len(session.tasks)} run(s) to go")
-    try:
-        outcome = run_study(
-            session.tasks,
-            workers,
-            visualize=visualize,
-            progress=True,
-            on_records=session.append,
-            dask=session.client,
-            dask_timeout=dask_timeout,
-            ignore_signals_after_stop=True,
-            backend=session.backend,
-        )
-        report_study(session, outcome, figure)
-    finally:
-        session.close()
+    report = functools.partial(report_study, session, figure=figure)
+    session.run(workers, report, visualize, dask_timeout=execution["dask_timeout"])
 
 
 def check_figure(
@@ -222,7 +215,7 @@ def check_figure(
 ) -> dict[str, Any]:
     """What the report adds to the table and the figure, checked before any run: --paired one of the
     study's filters (given by its name), --plot-x, --plot-y and --title as the figure takes them
-    (study_plot.figure_axes)."""
+    (study_plot.figure_axes), by draw_study's names (x, y, title)."""
     from mazelab.experiments.study_plot import figure_axes
 
     figure_axes(plan.varied, plot_x, plot_y, title, exact=plan.reference is not None, paired=paired is not None)
@@ -238,7 +231,7 @@ def check_figure(
                 "0); add the filters to compare with it to --filters"
             )
         paired = chosen
-    return {"paired": paired, "plot_x": plot_x, "plot_y": plot_y, "title": title}
+    return {"paired": paired, "x": plot_x, "y": plot_y, "title": title}
 
 
 @dataclass
@@ -349,6 +342,26 @@ class StudySession:
     recorder: Recorder
     release: Callable[[], None]
 
+    def run(self, workers: int, report: Callable[[StudyOutcome], None], visualize: Any = False, **extra: Any) -> None:
+        """Run the tasks on `workers` processes or the session's cluster (run_study: a progress bar, each finished
+        run appended to the journal, the stop signals ignored after a stop) and `report` the outcome; the
+        session closed however it ends."""
+        try:
+            outcome = run_study(
+                self.tasks,
+                workers,
+                visualize=visualize,
+                progress=True,
+                on_records=self.append,
+                dask=self.client,
+                ignore_signals_after_stop=True,
+                backend=self.backend,
+                **extra,
+            )
+            report(outcome)
+        finally:
+            self.close()
+
     def append(self, records: list[RunRecord]) -> None:
         """One finished run's rows (and traces), appended to the journal."""
         if self.journal is not None:
@@ -410,15 +423,11 @@ def open_session(
     tasks, kept, earlier = resumed_tasks(plan, files, backend)
     if visualize:
         tasks = drawn_first(tasks, draw_run)
-    outputs = {
-        k: None if v is None else str(v)
-        for k, v in (("csv", files.csv_path), ("plot", files.plot), ("traces", files.traces))
-    }
     recorder = Recorder(
         kind,
         command_line(),
         parameters or plan.parameters(),
-        outputs=outputs,
+        outputs={"csv": files.csv_path, "plot": files.plot, "traces": files.traces},  # as text (jsonable)
         sessions=earlier,
         csv_dtypes=CSV_DTYPES,
         backend=backend,
@@ -497,16 +506,9 @@ def write_outputs(session: StudySession, records: list[RunRecord], summaries: li
         if files.plot is not None and summaries:  # as `mazelab.study(...).figure(...)` draws it
             from mazelab.experiments.study_plot import draw_study
 
+            drawing = {k: v for k, v in figure.items() if k != "paired"}
             draw_study(
-                summaries,
-                plan.varied,
-                files.plot,
-                plan.runs,
-                plan.settings[0].maze.label,
-                x=figure["plot_x"],
-                y=figure["plot_y"],
-                title=figure["title"],
-                replace=replace,
+                summaries, plan.varied, files.plot, plan.runs, plan.settings[0].maze.label, **drawing, replace=replace
             )
             typer.echo(f"figure written to {files.plot}")
         if files.record_file is not None:
@@ -572,18 +574,10 @@ def accuracy(
     Wilson interval)."""
     mazes = parse_mazes(maze, maze_size, stations, default=list(LAB_MAZES))
     rows = with_options(accuracy_filters(None if filters is None else parse_filters(filters)), option)
-    plan = accuracy_plan(mazes, rows, sigma=sigma, delta=delta, particles=particles, runs=runs, steps=steps, seed=seed)
+    values = {"sigma": sigma, "delta": delta, "particles": particles, "runs": runs, "steps": steps}
+    plan = accuracy_plan(mazes, rows, **values, seed=seed)
     labels = [label for label, _, _ in rows]
-    parameters = {
-        "mazes": [maze_description(m) for m in mazes],
-        "filters": labels,
-        "sigma": sigma,
-        "delta": delta,
-        "particles": particles,
-        "runs": runs,
-        "steps": steps,
-        "root_seed": seed,
-    }
+    parameters = {"mazes": [maze_description(m) for m in mazes], "filters": labels, **values, "root_seed": seed}
     workers = workers or cores()
     backend = study_backend(plan.tasks, workers)
     files = StudyFiles.left_by_accuracy(csv_path, record, force)
@@ -596,18 +590,7 @@ def accuracy(
     if files.resume:
         done = {(r["maze"], r["run"]) for r in accuracy_records(session.kept, rows)}
         typer.echo(f"resuming the interrupted run of {files.journal}: {len(done)} runs kept")
-    try:
-        outcome = run_study(
-            session.tasks,
-            workers,
-            progress=True,
-            on_records=session.append,
-            ignore_signals_after_stop=True,
-            backend=backend,
-        )
-        report_accuracy(session, rows, outcome)
-    finally:
-        session.close()
+    session.run(workers, lambda outcome: report_accuracy(session, rows, outcome))
 
 
 def report_accuracy(session: StudySession, rows: tuple[AccuracyFilter, ...], outcome: StudyOutcome) -> None:

@@ -70,10 +70,7 @@ def accuracy_plan(
     return plan_study(
         mazes,
         names,
-        sigma=[sigma],
-        delta=[delta],
-        particles=[particles],
-        options=options,
+        {"sigma": [sigma], "delta": [delta], "particles": [particles], **options},
         runs=runs,
         steps=steps,
         seed=seed,

@@ -25,6 +25,7 @@ import numpy as np
 
 from mazelab import maze_generator
 from mazelab.checks import check_seed, check_sigma_within, check_steps, check_study
+from mazelab.constants import DEFAULT_DELTA, DEFAULT_SIGMA
 from mazelab.contract import missing_parts
 from mazelab.declaration import scoped, show_value, to_plain_json
 from mazelab.experiments.executor import StudyOutcome, open_cluster, run_study, study_backend
@@ -200,11 +201,8 @@ def plugin_description(code: PluginCode) -> dict[str, str]:
 def plan_study(
     mazes: Sequence[MazeChoice],
     filters: str | Sequence[Any],
+    values: Mapping[str, Sequence[Any]],
     *,
-    sigma: Sequence[float],
-    delta: Sequence[float],
-    particles: Sequence[int],
-    options: Mapping[str, Sequence[Any]] | None = None,
     runs: int = 30,
     steps: int = 200,
     seed: int | None = None,
@@ -216,24 +214,25 @@ def plan_study(
 ) -> StudyPlan:
     """Check and combine a study's values into its plan (a new root seed if none is given).
 
-    `options` are the filter options the study sets, by name, each a list of values (a plug-in's
-    included; `kld` is a spelling of {"kld": [True]}). An option that no filter of the study takes,
-    given a value other than its default, is refused in one line (naming it as `spelled` says: the
-    command line's flag), and one given only its default is left out (no filter runs it); every value,
-    for every filter that takes it, is checked by its declaration up front."""
+    `values` holds every value the study takes, a list for each: the model's (MODEL_PARAMETERS: sigma,
+    delta, particles), then the filter options it sets, by name (a plug-in's included; `kld` is a spelling
+    of {"kld": [True]}). An option that no filter of the study takes, given a value other than its
+    default, is refused in one line (naming it as `spelled` says: the command line's flag), and one given
+    only its default is left out (no filter runs it); every value, for every filter that takes it, is
+    checked by its declaration up front."""
     names = parse_filters(filters) if isinstance(filters, str) else _filter_list(filters)
-    given = {name: list(values) for name, values in (options or {}).items()}
+    given = {name: list(listed) for name, listed in values.items() if name not in MODEL_PARAMETERS}
     if kld:
         given["kld"] = [True]
-    for name, values in given.items():
-        if not values:
+    for name, listed in given.items():
+        if not listed:
             raise ValueError(f"option {name} has no values")
-    checked = {name: None if all_default(name, values) else values for name, values in given.items()}
+    checked = {name: None if all_default(name, listed) else listed for name, listed in given.items()}
     options_per_filter(names, checked, spelled)
     declared = set(option_columns(names))
-    given = {name: values for name, values in given.items() if scoped(name)[1] in declared}
+    given = {name: listed for name, listed in given.items() if scoped(name)[1] in declared}
     check_steps(steps)  # each run's limits, up front rather than in every worker
-    settings = study_settings(mazes, sigma, delta, particles, given)
+    settings = study_settings(mazes, *(values[p] for p in MODEL_PARAMETERS), given)
     check_study(len(settings) * runs, len(names))
     check_study_numbers(settings, reference)
     check_filter_options(settings, names)
@@ -338,6 +337,7 @@ class StudyResult:
 
 NUMBER = (numbers.Real,)  # int, float, numpy's numbers; bool is refused apart
 WHOLE = (numbers.Integral,)
+MODEL_DEFAULTS = {"sigma": DEFAULT_SIGMA, "delta": DEFAULT_DELTA, "particles": DEFAULT_PARTICLE_COUNT}  # as the CLI's
 PLAN_ARGUMENTS = {  # the plan's arguments that are not filter options: (kinds, what one value is); None: one value
     "maze": ((str, os.PathLike), "a maze file or shipped name"),
     "maze_size": ((str,), "a size like '20x20'"),
@@ -423,10 +423,7 @@ def study_plan(
     plan = plan_study(
         study_mazes(*(given[name] for name in ("maze", "maze_size", "stations", "wall_share"))),
         filters,
-        sigma=given["sigma"] or [0.3],
-        delta=given["delta"] or [0.5],
-        particles=given["particles"] or [DEFAULT_PARTICLE_COUNT],
-        options=_options(options, values),
+        {**{p: given[p] or [MODEL_DEFAULTS[p]] for p in MODEL_PARAMETERS}, **_options(options, values)},
         runs=_whole("runs", runs),
         steps=_whole("steps", steps),
         seed=seed,

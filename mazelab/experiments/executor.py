@@ -30,10 +30,18 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from mazelab.backend import backend_for_work, chosen_backend, cores, shared_threads, use_backend, use_threads
-from mazelab.experiments.batch_runs import MAX_BATCH, run_unit_safely, study_units
 from mazelab.experiments.journal import dependency_versions
 from mazelab.experiments.runs import take_startup_seconds
-from mazelab.experiments.study import RunFailure, RunRecord, RunTask, run_task_safely, study_order
+from mazelab.experiments.study import (
+    MAX_BATCH,
+    RunFailure,
+    RunRecord,
+    RunTask,
+    run_task_safely,
+    run_unit_safely,
+    study_order,
+    study_units,
+)
 from mazelab.stops import STOP_SIGNALS, signal_handlers
 
 REPORTED_PACKAGES = ("numpy", "numba", "llvmlite")  # the versions a worker reports with its backend

@@ -14,11 +14,8 @@ The journal is the program's own file, never followed through a link nor read fr
 (`check_own_file`), created exclusively and locked while its study runs (`Journal`), read back whole
 (`read_journal`); the other outputs of a study are claimed by a locked NAME.lock beside each (`claim_outputs`).
 
-The record of how a result was made: a JSON file beside a study's CSV (and beside compare's and
-accuracy's outputs) with the exact command, every parameter as parsed, the root seed, the program's
-version and commit, numpy's and Python's versions, the maze files with their sha256, when it ran and
-for how long, the peak memory, the summary table and the intervals' methods. (`study --resume` checks a
-study's parameters against its journal's.)
+The record of how a result was made (`Recorder`): NAME.record.json beside a study's CSV (and beside
+compare's and accuracy's outputs), what it holds in docs/studies.md (The record).
 """
 
 from __future__ import annotations

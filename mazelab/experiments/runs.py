@@ -196,15 +196,13 @@ def run_filters(
     warmed once per process (`warm_up_filters`): a filter's time per step is the same in any order.
     """
     count = particle_count if particles is None else len(particles)
-    total = steps or robot.recorded_steps or DEFAULT_STEPS
-    work = (count or DEFAULT_PARTICLE_COUNT) * total * len(filter_names), total * len(filter_names)
+    calls = (steps or robot.recorded_steps or DEFAULT_STEPS) * len(filter_names)  # the filters' steps
     results: dict[str, RunResult] = {}
     labels = [resolve_filter(name).name for name in filter_names]  # a plug-in's: its class name
     comparison = open_comparison(visualize, world, labels)  # without drawing: no recording
-    with backend_by_work(*work), contextlib.closing(comparison):  # the warm-up and the runs on one backend
-        warm_up_filters(world, sigma, delta, filter_names, count, options or {})
-        for name in filter_names:
-            view = comparison.view_for(resolve_filter(name).name)
+    with backend_by_work((count or DEFAULT_PARTICLE_COUNT) * calls, calls), contextlib.closing(comparison):
+        warm_up_filters(world, sigma, delta, filter_names, count, options or {})  # on the runs' backend
+        for name, label in zip(filter_names, labels, strict=True):
             result = simulate(
                 robot,
                 world,
@@ -215,12 +213,11 @@ def run_filters(
                 particles,
                 name,
                 seed=seed,
-                view=view,
+                view=comparison.view_for(label),
                 kidnap_at=kidnap_at,
                 **(options or {}).get(name, {}),
             )
-            if particles is None:
-                particles = result.initial_particles
+            particles = result.initial_particles if particles is None else particles
             steps = len(result.errors)
             results[result.filter_name] = result
     return results

@@ -1,15 +1,10 @@
-"""A study's figure as small multiples, sized for a paper: a statistic of the runs with its interval
-(`Y_QUANTITIES`: the mean or median last-20% error, the converged share, the distance to the exact
-posterior, the paired difference) against one varied parameter (the x axis), one line per filter and
-varied option (e.g. "RPF, bandwidth multimodal"), and one panel per combination of the other varied
-parameters, laid out as the design (maze x sigma: a row per maze, a column per sigma; `figure_layout`).
-
-Each panel has its own y range (`y_range`); a filter that does not take the x parameter (the grid filter
-against N) is a reference, a dashed line with its interval shaded (`draw_panel`); points at one x are set
-a little apart, so that their bars do not hide each other (`XScale`); every line has a marker and a line
-style of its own, so the lines stay apart in grey print, and its filter's colour in the registry
-(`panel_lines`). The figure is PAPER_WIDTH inches wide with FONT_POINTS type (a two-column paper's full
-width), PNG at PNG_DPI, or PDF / SVG with their text as text (the path's suffix chooses).
+"""A study's figure as small multiples, sized for a paper (docs/studies.md, `--plot`): a statistic of the
+runs with its interval (`Y_QUANTITIES`) against one varied parameter, one line per filter and varied option,
+one panel per combination of the other varied parameters, laid out as the design (`figure_layout`); each
+panel with its own y range (`y_range`), a filter that does not take the x parameter drawn as a reference
+(`draw_panel`), points at one x set apart so that their bars do not hide each other (`XScale.places`), each
+line in its filter's colour with a marker and a line style of its own, apart in grey print (`panel_lines`);
+PAPER_WIDTH inches wide with FONT_POINTS type, PNG at PNG_DPI, or PDF / SVG with their text as text.
 """
 
 from __future__ import annotations
@@ -59,6 +54,13 @@ class YQuantity:
     share: bool = False  # a share: drawn in percent, from 0% to 100%
     signed: bool = False  # a difference: may be below 0 (a line at 0 drawn)
     from_zero: bool = True  # its axis starts at 0 (or below, for a difference); else it spans the values
+
+    def of(self, points: Sequence[StudySummary]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The value, low and high end of the interval of each point (summary), in percent for a share."""
+        unit = 100.0 if self.share else 1.0
+        value = unit * np.array([self.value(s) for s in points], dtype=float)
+        low, high = unit * np.array([self.interval(s) for s in points], dtype=float).T
+        return value, low, high
 
 
 Y_QUANTITIES = {
@@ -406,6 +408,15 @@ class XScale:
             return float(self.categories.index(show_value(value)))
         return math.log10(float(value)) if self.kind == "log" else float(value)
 
+    def places(self, line: _Line, slot: int, slots: int, all_labels: Sequence[str]) -> np.ndarray:
+        """Where a line's points go: their x values' places, the line in `slot` of `slots` set a share of
+        the x spacing apart from the others at one x; with nothing varied on x, a category per line."""
+        if self.kind == "category" and not self.categories:
+            return np.array([float(all_labels.index(line.label))])
+        spread = DODGE if self.kind == "category" else NUMERIC_DODGE * self.gap
+        offset = spread * (slot / (slots - 1) - 0.5) if slots > 1 else 0.0
+        return np.array([self.position(s.setting.value(self.parameter)) for s in line.points]) + offset
+
     def back(self, where: np.ndarray) -> np.ndarray:
         """Transformed coordinates back to data (what matplotlib plots on a log axis)."""
         return 10**where if self.kind == "log" else where
@@ -423,17 +434,11 @@ def draw_panel(
     shaded interval); returns its y range (`y_range`)."""
     drawn = [line for line in lines if not line.reference]
     slots = [label for label in all_labels if label in {line.label for line in drawn}]
-    unit, shown = 100.0 if quantity.share else 1.0, []
+    shown: list[float] = []
     for line in drawn:
         j = slots.index(line.label)  # the same slot in every panel: a line keeps its place
-        spread = DODGE if scale.kind == "category" else NUMERIC_DODGE * scale.gap  # a share of the x spacing
-        offset = spread * (j / (len(slots) - 1) - 0.5) if len(slots) > 1 else 0.0
-        if scale.kind == "category" and not scale.categories:  # nothing varied on x: a slot per line
-            where = np.array([float(all_labels.index(line.label))])
-        else:
-            where = np.array([scale.position(s.setting.value(scale.parameter)) for s in line.points]) + offset
-        value = unit * np.array([quantity.value(s) for s in line.points], dtype=float)
-        low, high = unit * np.array([quantity.interval(s) for s in line.points], dtype=float).T
+        where = scale.places(line, j, len(slots), all_labels)
+        value, low, high = quantity.of(line.points)
         bars = np.clip(np.nan_to_num(np.vstack([value - low, high - value])), 0, None)  # BCa may miss the mean
         container = ax.errorbar(
             scale.back(where),
@@ -450,8 +455,7 @@ def draw_panel(
         container.lines[0].set_gid(f"panel-{panel}:line:{line.label}")
         shown += [*value, *low, *high]
     for line in (line for line in lines if line.reference):
-        value = unit * quantity.value(line.points[0])
-        low, high = (unit * v for v in quantity.interval(line.points[0]))
+        value, low, high = (float(v[0]) for v in quantity.of(line.points[:1]))
         dashes = line.style if line.style != "-" else "--"  # a reference is never a solid line
         ax.axhline(
             value,

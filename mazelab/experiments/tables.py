@@ -1,13 +1,8 @@
-"""Output helpers of the experiments: plain-text tables, CSV cells, and figures saved atomically.
-
-Per-step traces (`study --traces`, `compare --traces`): one row per run, filter and step, in long
-format, so that pandas reads them directly (`pandas.read_csv`, or `read_parquet` for a .parquet file,
-which needs pyarrow). Columns: TRACE_COLUMNS, then each filter's own diagnostics (`regularised`,
-`injection_probability`, ...: empty where a filter has none), then the filter's label (SIR), why its
-log evidence is not an estimate of p(z_1:k) under the model (the RPF's; empty for the others) and the
-row's parameters (the maze, sigma, delta, particles, then every option the filter ran with: empty where
-a filter does not declare one), so that a band plot of the error against the steps, by filter and
-parameter, is one `groupby`."""
+"""Output helpers of the experiments: plain-text tables, CSV cells, and figures saved atomically; and the
+per-step traces (`study --traces`, `compare --traces`): one row per run, filter and step in long format
+(TRACE_COLUMNS, the filter's own diagnostics, its label and the row's parameters: `trace_column_names`;
+docs/studies.md, Traces), CSV or Parquet, so that a band plot of the error against the steps is one
+pandas `groupby`."""
 
 from __future__ import annotations
 

@@ -11,10 +11,8 @@ chunk never spans two runs), compiled to run them in order and over numba's thre
 (partial sums per chunk, added in chunk order), so a seed gives the same run bit for bit on any number
 of threads, and R runs together are R single runs.
 
-Importing this package imports numba, and a process's first kernel call sets numba's runtime up (a
-kernel loaded from the cache: some 0.2 s of CPU in all, with the import); a command whose work does not
-pay that back runs on numpy (mazelab.backend.backend_for_work). Each kernel is compiled on its first
-call and cached on disk where a cache folder can be written (`Kernel`, `_MendingCache`).
+Importing this package imports numba (a process's start-up: mazelab.backend.STARTUP_SECONDS); each
+kernel is compiled on its first call and cached on disk (`Kernel`).
 """
 
 from __future__ import annotations
@@ -57,9 +55,8 @@ def threading_layer() -> str:
     return "workqueue"
 
 
-_LAYER = threading_layer()  # TBB's library loaded where it is installed, for a user's choice of "tbb" too
-if "NUMBA_THREADING_LAYER" not in os.environ:  # the user's choice stands
-    numba.config.THREADING_LAYER = _LAYER
+# TBB's library loaded where it is installed (for a user's choice of "tbb" too); the user's choice stands
+numba.config.THREADING_LAYER = os.environ.get("NUMBA_THREADING_LAYER", threading_layer())
 
 
 @cache
@@ -133,11 +130,9 @@ class _NoAliasCompiler(Compiler):
     """numba's compiler, with the arrays a kernel takes marked as not overlapping (LLVM's noalias): a
     loop that gathers (from the lookup table, by the ancestors) vectorises only then."""
 
-    def __init__(
-        self, typingctx: Any, targetctx: Any, library: Any, args: Any, return_type: Any, flags: Any, locals: Any
-    ) -> None:
-        flags.noalias = True
-        super().__init__(typingctx, targetctx, library, args, return_type, flags, locals)
+    def define_pipelines(self) -> list:
+        self.state.flags.noalias = True
+        return super().define_pipelines()
 
 
 # a helper inlined into the kernels that call it: a function called per particle, whose call would
@@ -150,17 +145,15 @@ class Kernel:
     """One kernel body over chunks (`function`, its loop over them a `numba.prange`), compiled twice by
     numba in nopython mode (releasing the GIL, numpy's error model: x / 0 is inf): `serial` runs the
     chunks in order on the calling thread, `parallel` spreads them over numba's threads. Both give the
-    same values, so a call takes whichever is free. Each is cached on disk where a cache folder can be
-    written (see the module's docstring), else compiled in memory (with one warning per process)."""
+    same values, so a call takes whichever is free. Each is compiled on its first call and cached on disk
+    (`_MendingCache`) where a cache folder can be written, else kept in memory (one warning a process)."""
 
     def __init__(self, function: Callable[..., Any]):
-        self.__wrapped__ = function
         self.serial, self.parallel = self._compiled(function), self._compiled(function, "-threads", parallel=True)
 
     @staticmethod
     def _compiled(function: Callable[..., Any], variant: str = "", **options: Any) -> Any:
-        options = {"nogil": True, "error_model": "numpy", "pipeline_class": _NoAliasCompiler, **options}
-        dispatcher = numba.njit(**options)(function)
+        dispatcher = numba.njit(nogil=True, error_model="numpy", pipeline_class=_NoAliasCompiler, **options)(function)
         try:
             dispatcher._cache = _MendingCache(function, variant)  # what numba's cache=True sets, with the mending
         except RuntimeError:  # numba found no writable cache folder ("cannot cache function ...")

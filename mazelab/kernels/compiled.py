@@ -37,15 +37,15 @@ def planes(x: np.ndarray) -> np.ndarray:
 
 def keys_of(rngs: Any) -> np.ndarray:
     """One 64-bit key per run from each run's Generator (0 for None: a run that draws nothing), uint64 (R,)."""
-    if len(rngs) == 1 and rngs[0] is not None:  # one run: its key in one call, as an array
+    if len(rngs) == 1 and rngs[0] is not None:  # one run: its key in one call, as an array (a step's 1 us)
         return rngs[0].bit_generator.random_raw(1)
     return np.array([0 if rng is None else rng.bit_generator.random_raw() for rng in rngs], dtype=np.uint64)
 
 
 def lookup_tables(world: Any) -> tuple:
     """The maze's nearest-station tables (mazelab.lookup) in the layout the likelihood kernel reads:
-    (grid: scale, offset, nx, ny, width as float64 (5,), codes (C,) uint32, quads (C, 8), rows, border
-    (b, 2)), float32 coordinates. quads[c] is cell c's first four candidates (x0, y0, ..., x3, y3),
+    (grid: scale, offset, nx, ny; sizes: nx, width uint64 (2,); codes (C,) uint32, quads (C, 8), rows,
+    border (b, 2)), float32 coordinates. quads[c] is cell c's first four candidates (x0, y0, ..., x3, y3),
     padded by repeats of the first; `rows` holds, for each cell with more than four, its other K - 4
     (padded likewise), `width` = 2 (K - 4) values a row; a cell's code is its row's first index in `rows`
     times 4, plus 2 if it has a row, plus 1 if the cell is free."""
@@ -60,8 +60,8 @@ def lookup_tables(world: Any) -> tuple:
     codes = (lookup.kind & 1).astype(np.uint64)
     codes[more] += 2 + 4 * width * np.arange(len(more), dtype=np.uint64)
     codes = codes.astype(np.uint32 if codes.max(initial=0) < 2**32 else np.uint64)
-    grid = np.array([lookup.scale, lookup.offset, lookup.nx, lookup.ny, width], dtype=float)
-    return grid, codes, quads, rows, xy[lookup._border]
+    sizes = np.array([lookup.nx, width], dtype=np.uint64)
+    return (lookup.scale, lookup.offset, lookup.nx, lookup.ny), sizes, codes, quads, rows, xy[lookup._border]
 
 
 class CompiledWeights(Weights):
@@ -91,8 +91,7 @@ class CompiledWeights(Weights):
             return cls(log_w, np.atleast_1d(log_sum_exp(log_w)))
         w, reads = np.empty(log_w.shape, dtype=np.float32), np.empty((5, len(log_w)))
         weights.normalise(cls.threads, log_w.size, log_w, *added, planes(x), CONFIDENCE_RADIUS, w, reads)
-        w.setflags(write=False)
-        reads.setflags(write=False)  # and its rows with it
+        reads.setflags(write=False)  # and its rows with it (W is made read-only by the constructor)
         return cls(log_w, reads[0], w, (x, reads))
 
     @classmethod
@@ -127,14 +126,13 @@ class CompiledWeights(Weights):
 
 class CompiledKernels(NumpyKernels):
     """The hot parts of one filter on `world` (its lookup tables read once), compiled (mazelab.kernels),
-    a call of mazelab.kernels.THREADED_FROM particles or more on `threads` threads (mazelab.backend.
-    kernels_for passes shared_threads'); what the kernels do not cover is NumpyKernels' (its parent)."""
+    a call of THREADED_FROM particles or more on `threads` threads (kernels_for passes shared_threads')."""
 
     name, log_dtype = "compiled", None  # log weights after resampling in the likelihood's float32
 
     def __init__(self, world: Any, threads: int | None = None):
         self.tables = lookup_tables(world)
-        self._tables_of, self._likelihood_terms = world, (None, None, ())
+        self._tables_of, self._constants = world, {}
         self.threads = max(1, threads or 1)
         self.Weights = type("CompiledWeights", (CompiledWeights,), {"threads": self.threads})  # its normalisations
         self.schemes = {"systematic": self.systematic}
@@ -142,10 +140,8 @@ class CompiledKernels(NumpyKernels):
     def move(
         self, x: np.ndarray, A: np.ndarray | None, rngs: Any, angles: np.ndarray, delta: float, speed: float
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Equation (1) with its draws (NumpyKernels.move's arguments and results) in one compiled pass:
-        the uniforms (each run's from a key its Generator draws), the headings, their cos and sin (within
-        0.502 ulp of the exact values: mazelab.kernels.vector_math), the gather and the step. float64
-        points go to numpy."""
+        """Equation (1) with its draws in one compiled pass (mazelab.kernels.model.move; its uniforms from a
+        key each run's Generator draws); float64 points go to numpy."""
         if x.dtype != PARTICLE_DTYPE:
             return super().move(x, A, rngs, angles, delta, speed)
         out = np.empty((3, *(x.shape[:2] if A is None else A.shape)), dtype=PARTICLE_DTYPE)  # x, y, the headings
@@ -158,23 +154,19 @@ class CompiledKernels(NumpyKernels):
         self, z: np.ndarray, x: np.ndarray, world: Any, sigma: float, outside_penalty: float
     ) -> np.ndarray:
         """Equation (3) in logs, compiled: the locate and the likelihood in one pass (float32, the numpy
-        path's values to the bit)."""
+        path's values to the bit). The kernel's constants: sigma, -log(sigma sqrt(2 pi)), that plus
+        log(the penalty), then the tables' grid, float32 (7,) (one array: a kernel call types each
+        argument it is passed)."""
         if x.dtype != PARTICLE_DTYPE or world is not self._tables_of:
             return super().log_likelihood(z, x, world, sigma, outside_penalty)
         out = np.empty(x.shape[:2], dtype=PARTICLE_DTYPE)
-        model.log_likelihood(self.threads, out.size, planes(x), z, *self._terms(sigma, outside_penalty), out)
-        return out
-
-    def _terms(self, sigma: float, outside_penalty: float) -> tuple:
-        """The likelihood kernel's constants, worked out once for a filter's sigma and penalty: (sigma,
-        -log(sigma sqrt(2 pi)), that plus log(the penalty), then the tables' grid: float64 (8,)) and the
-        tables' arrays (one array of numbers: a kernel call types each argument it is passed)."""
-        terms = self._likelihood_terms
-        if terms[0] != sigma or terms[1] != outside_penalty:
+        constants = self._constants.get((sigma, outside_penalty))
+        if constants is None:  # once per filter (1.6 us: a few % of an APF step at N = 1,000)
             norm = math.log(sigma * math.sqrt(2 * math.pi))
-            constants = np.array([sigma, -norm, math.log(outside_penalty) - norm, *self.tables[0]])
-            terms = self._likelihood_terms = (sigma, outside_penalty, (constants, *self.tables[1:]))
-        return terms[2]
+            constants = np.array([sigma, -norm, math.log(outside_penalty) - norm, *self.tables[0]], PARTICLE_DTYPE)
+            self._constants[sigma, outside_penalty] = constants
+        model.log_likelihood(self.threads, out.size, planes(x), z, constants, *self.tables[1:], out)
+        return out
 
     def systematic(self, W: np.ndarray, rng: Any, count: int | None = None) -> np.ndarray:
         """Systematic resampling of W (N,), or of D runs' (D, N) with a Generator each (a sequence), into
@@ -200,9 +192,8 @@ class CompiledKernels(NumpyKernels):
         return super().mass_within(W, x, centres, radius)
 
     def jitter(self, x: np.ndarray, A: np.ndarray, due: np.ndarray, rngs: Any, kernels: Any) -> np.ndarray:
-        """The RPF's gather, draws and jitter in one pass for Gaussian kernels (h D eps, one D per due
-        run, eps ~ N(0, I_2) from a key each due run's Generator draws); the multimodal kernel goes to
-        numpy."""
+        """The RPF's gather, draws and jitter in one pass for Gaussian kernels (mazelab.kernels.model.jitter,
+        eps from a key each due run's Generator draws); the multimodal kernel goes to numpy."""
         if x.dtype != PARTICLE_DTYPE or not all(isinstance(k, GaussianKernel) for k in kernels):
             return super().jitter(x, A, due, rngs, kernels)
         rows = np.flatnonzero(due)

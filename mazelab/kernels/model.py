@@ -6,10 +6,12 @@
         plus log 0.5 outside the free area, d the distance to the nearest station (mazelab.lookup's table)
     the RPF's jitter: x^{i*} + h D eps, eps ~ N(0, I_2) (mazelab.regularisation)
 
-R runs' float32 particles come as (2, R, N) planes (x's, then y's), written into new arrays. The
-draws are the kernels' own: particle m of run r takes number m of run r's stream. The arithmetic is
-the numpy path's float32, operation for operation: the likelihood of given points and the headings of
-given uniforms are numpy's to the bit; cos and sin (vector_math's) within two ulps of numpy's.
+R runs' float32 particles come as (2, R, N) planes (x's, then y's), written into new arrays; float
+constants are rounded to float32 in a kernel, as numpy's float32 arithmetic rounds them. The draws
+are the kernels' own: particle m of run r takes number m of run r's stream (vector_math.random_bits,
+its key from the run's Generator). The arithmetic is the numpy path's float32, operation for
+operation: the likelihood of given points and the headings of given uniforms are numpy's to the bit;
+cos and sin are vector_math's, within 0.502 ulp of the exact values (numpy's float32 ones within 1.5).
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ import numpy as np
 from numba import prange
 
 from mazelab.kernels import Kernel, chunk_of, chunks, inline, scratch
-from mazelab.kernels.vector_math import cos_sin, log64, random_bits, uniform32, uniform64
+from mazelab.kernels.vector_math import cos_sin, random_bits, uniform32, uniform64
 
 F32 = np.float32
 _FREE, _MORE = 1, 2  # the low bits of a lookup cell's code (mazelab.kernels.compiled.lookup_tables)
@@ -33,17 +35,14 @@ _NONE, _PAIR, _TWO = np.uint64(0), np.uint64(2), np.uint64(2)
 @Kernel
 def move(xy, ancestors, keys, moving, angles, delta, speed, out):  # pragma: no cover - compiled
     """Equation (1) for R runs in one call, with its draws: th_i = th0_r + Delta (u_i - 1/2), then
-    out[:2, r, m] = xy[:, r, a_m] + L (cos th_i, sin th_i), and out[2, r, m] = th_i (radians).
+    out[:2, r, m] = xy[:, r, a_m] + L (cos th_i, sin th_i), and out[2, r, m] = th_i (radians), out
+    (3, R, M); the headings are mazelab.model.headings_from_uniforms' float32 operations.
 
-    xy (2, R, N) and out (3, R, M) are float32 (x's plane, then y's; out's third the headings);
     `ancestors` (R, M) uint64 the particle of its own run each moves from ((1, 0): particle m moves
-    from particle m); u_m of run r is number m of the stream keys[r] (uint64 (R,):
-    vector_math.random_bits), or 1/2 in a run whose `moving` is False (it draws nothing: it restarts
-    after this step; an empty `moving`: every run draws); `angles` (R,) the th0 of each run (float32,
-    or rounded to it here); `delta` and `speed` (Delta in radians, L in map units) are rounded to
-    float32 here, as numpy's float32 arithmetic rounds them. The headings are
-    mazelab.model.headings_from_uniforms' float32 operations; cos and sin are vector_math's, within
-    0.502 ulp of the exact value (numpy's float32 ones within 1.5)."""
+    from particle m); u_m of run r is number m of the stream keys[r] (uint64 (R,)), or 1/2 in a run
+    whose `moving` is False (it draws nothing: it restarts after this step; an empty `moving`: every
+    run draws); `angles` (R,) the th0 of each run; `delta` and `speed` Delta (radians) and L (map
+    units)."""
     delta, speed = F32(delta), F32(speed)
     runs, size = out.shape[1:]
     blocks, jobs = chunks(runs, size)
@@ -131,31 +130,17 @@ def _close(px, py, value, left, zr, sigma, free_term, outside_term, tables):  # 
 
 
 @Kernel
-def log_likelihood(xy, z, constants, codes, quads, rows, border, out):  # pragma: no cover - compiled
+def log_likelihood(xy, z, constants, sizes, codes, quads, rows, border, out):  # pragma: no cover - compiled
     """Equation (3) with the outside penalty, in logs, for R runs: out[r, m] = log p(z_r | x_{r, m})
     float32 (R, N), numpy's values to the bit (the same float32 operations, and the nearest of the
     same candidates). Each chunk in two loops: every point from its cell's first four candidates
     (vectorised), then the few left open.
 
-    xy (2, R, N) holds the particles' float32 coordinates (x's plane, then y's), z (R,) each run's z_k (map
-    units); `constants` (8,) float64: the noise's standard deviation sigma, -log(sigma sqrt(2 pi)),
-    that plus log(the outside penalty), rounded to float32 here as numpy's float32 arithmetic rounds
-    them, then the tables' grid; codes, quads, rows and border the maze's tables
-    (compiled.lookup_tables)."""
-    sigma, free_term, outside_term = F32(constants[0]), F32(constants[1]), F32(constants[2])
-    nx, width = constants[5], constants[7]  # the tables in the kernels' types: the grid float32, indices uint64
-    typed = (
-        F32(constants[3]),
-        F32(constants[4]),
-        F32(nx),
-        F32(constants[6]),
-        np.uint64(nx),
-        codes,
-        quads,
-        rows,
-        np.uint64(width),
-        border,
-    )
+    z (R,) is each run's z_k (map units); `constants` (7,) float32: the noise's standard deviation
+    sigma, -log(sigma sqrt(2 pi)), that plus log(the outside penalty), then the tables' grid; sizes,
+    codes, quads, rows and border the maze's tables (compiled.lookup_tables)."""
+    sigma, free_term, outside_term = constants[0], constants[1], constants[2]
+    typed = (constants[3], constants[4], constants[5], constants[6], sizes[0], codes, quads, rows, sizes[1], border)
     runs, size = out.shape
     blocks, jobs = chunks(runs, size)
     left = scratch(runs * size, codes.dtype)  # what each point leaves open
@@ -176,11 +161,10 @@ def log_likelihood(xy, z, constants, codes, quads, rows, border, out):  # pragma
 @Kernel
 def jitter(xy, rows, ancestors, keys, scales, out):  # pragma: no cover - compiled
     """The RPF's kernel K_h for D due runs, with its draws: out[:, d, m] = xy[:, rows[d], a_m] + h D_d
-    eps_m (float32 coordinates (2, R, N) and (2, D, M), x's plane then y's; `rows` (D,) the due runs,
-    `ancestors` (D, M) uint64), h D_d = [[a, 0], [c, d]] from scales[d] = (a, c, d) (D, 3), eps_m ~
-    N(0, I_2) by Box and Muller's transform of two float64 uniforms, numbers 2m and 2m + 1 of the
-    stream keys[d] (uint64 (D,)), so the points do not depend on the threads (the log, and the cos and
-    sin of the angle rounded to float32, are vector_math's, so that the loop vectorises)."""
+    eps_m (out (2, D, M); `rows` (D,) the due runs, `ancestors` (D, M) uint64), h D_d = [[a, 0], [c,
+    d]] from scales[d] = (a, c, d) (D, 3), eps_m ~ N(0, I_2) by Box and Muller's transform of two
+    float64 uniforms, numbers 2m and 2m + 1 of the stream keys[d] (uint64 (D,)) (the cos and sin of the
+    angle rounded to float32 are vector_math's; the log the C library's: docs/speed.md)."""
     runs, size = ancestors.shape
     blocks, jobs = chunks(runs, size)
     for job in prange(jobs):
@@ -189,7 +173,7 @@ def jitter(xy, rows, ancestors, keys, scales, out):  # pragma: no cover - compil
         sources, moved_x, moved_y = ancestors[r, start:stop], out[0, r, start:stop], out[1, r, start:stop]
         for m in range(stop - start):
             counter = np.uint64(start + m) * _TWO
-            radius = math.sqrt(-2.0 * log64(1.0 - uniform64(random_bits(key, counter))))
+            radius = math.sqrt(-2.0 * math.log(1.0 - uniform64(random_bits(key, counter))))
             cos_a, sin_a = cos_sin(F32(2 * math.pi * uniform64(random_bits(key, counter + np.uint64(1)))))
             e0, e1 = F32(radius * cos_a), F32(radius * sin_a)
             moved_x[m] = x[sources[m]] + a * e0

@@ -28,8 +28,6 @@ _LOWEST = np.float32(-87.0)  # below it exp(x) is subnormal in float32: 0 here
 _GAMMA, _MIX1, _MIX2 = np.uint64(0x9E3779B97F4A7C15), np.uint64(0xBF58476D1CE4E5B9), np.uint64(0x94D049BB133111EB)
 _S30, _S27, _S31, _ONE = np.uint64(30), np.uint64(27), np.uint64(31), np.uint64(1)
 _TO_FLOAT32, _TO_FLOAT64 = np.uint64(40), np.uint64(11)  # the bits a float32 (24) and a float64 (53) take
-_MANTISSA, _ONE_BITS, _S52, _BIAS = np.int64(2**52 - 1), np.int64(1023 << 52), np.int64(52), np.int64(1023)
-_SQRT2, _LN2 = 1.4142135623730951, 0.6931471805599453
 
 
 @inline
@@ -53,40 +51,14 @@ def uniform64(bits):  # pragma: no cover - compiled
     return np.float64(bits >> _TO_FLOAT64) * 2.0**-53
 
 
-def _bitcast(source: Any, target: Any, llvm_type: Any) -> Any:
-    """A compiled function from `source` to `target` (numba types) that keeps the IEEE bits (a bitcast:
-    no instruction)."""
+@intrinsic
+def _float_from_bits(typingctx, bits):  # pragma: no cover - compiled
+    """The float32 of these int32 bits (a bitcast: no instruction)."""
 
-    @intrinsic
-    def cast(typingctx: Any, value: Any) -> Any:  # pragma: no cover - compiled
-        def codegen(context: Any, builder: Any, sig: Any, args: Any) -> Any:
-            return builder.bitcast(args[0], llvm_type)
+    def codegen(context: Any, builder: Any, sig: Any, args: Any) -> Any:
+        return builder.bitcast(args[0], ir.FloatType())
 
-        return target(source), codegen
-
-    return cast
-
-
-_float_from_bits = _bitcast(types.int32, types.float32, ir.FloatType())  # the float32 of these int32 bits
-_bits_of_double = _bitcast(types.float64, types.int64, ir.IntType(64))
-_double_from_bits = _bitcast(types.int64, types.float64, ir.DoubleType())
-
-
-@inline
-def log64(x):  # pragma: no cover - compiled
-    """log x of a normal float64 x > 0, branch-free: x = 2^e m with m in [sqrt(1/2), sqrt(2)) from its
-    IEEE bits, then log m = 2 atanh(s), s = (m - 1) / (m + 1), |s| < 0.172, by its series to s^15 (the
-    next term below 2e-14 of log 2): within about 1e-14 of log x, absolute."""
-    bits = _bits_of_double(x)
-    m = _double_from_bits((bits & _MANTISSA) | _ONE_BITS)  # in [1, 2)
-    big = m > _SQRT2
-    m = m * 0.5 if big else m
-    e = np.float64((bits >> _S52) - (_BIAS - 1 if big else _BIAS))
-    s = (m - 1.0) / (m + 1.0)
-    z = s * s
-    p = ((z * (1 / 15) + 1 / 13) * z + 1 / 11) * z + 1 / 9
-    p = ((p * z + 1 / 7) * z + 1 / 5) * z + 1 / 3
-    return e * _LN2 + 2.0 * s * (p * z + 1.0)
+    return types.float32(types.int32), codegen
 
 
 @inline

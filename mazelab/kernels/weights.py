@@ -49,7 +49,6 @@ from mazelab.kernels import Kernel, chunk_of, chunks, inline, scratch
 from mazelab.kernels.vector_math import exp32
 
 LANES = 16  # partial sums each sum keeps in a chunk: their order is this code's, not the compiler's
-_F32 = np.float32
 
 
 @inline
@@ -113,7 +112,7 @@ def _exponentials_and_moments(log_w, top, xs, ys, w, lanes):  # pragma: no cover
         lanes[0, 0] = np.nan if _holds_nan(log_w) else 0.0
         return
     for i in range(len(log_w)):
-        w[i] = exp32(_F32(log_w[i] - top))
+        w[i] = exp32(np.float32(log_w[i] - top))
     full = len(w) // LANES * LANES
     for block in range(0, full, LANES):  # each loop from 0: numba checks no index of it for wrap-around
         for j in range(LANES):  # a loop of LANES: the compiler keeps one vector of each sum
@@ -145,21 +144,19 @@ def _scale_and_keep_within(w, factor, xs, ys, centre_x, centre_y, r2, lanes):  #
 @Kernel
 def normalise(log_w, log_a, shifts, log_g, xy, radius, w, reads):  # pragma: no cover - compiled
     """Normalise R runs' log weights `log_w` (R, N) (float32 or float64) and read each run's mean, ESS
-    and confidence share, in two passes; with `log_a` (R, N), `shifts` (R,) and `log_g` (R, N) float32
-    (else None), first log w = log W_{k-1} + log p(z_k | x_k) of runs that do not resample, written into
-    `log_w` in the same pass: (log_a - shift) + log_g, the sum in float64, then rounded to float32 as
-    the likelihood (log W_{k-1} = log a - shift, the Weights value's derivation, never stored).
+    and confidence share, in the two passes of the module's docstring; with `log_a` (R, N), `shifts` (R,)
+    and `log_g` (R, N) float32 (else None), log w is first written as (log_a - shift) + log_g (log W_{k-1}
+    + log p(z_k | x_k), the sum in float64, then rounded to float32 as the likelihood).
 
     xy (2, R, N) holds the particles' float32 coordinates (x's plane, then y's); `radius` the green
     circle's (map units); W = w / sum(w) is written into `w` (R, N) float32, and into `reads` (5, R)
     float64, one row each: log sum_j w_j; the mean sum_i W_i x_i (x and y); the ESS 1 / sum_i W_i^2;
     the weight of the particles at most `radius` from the run's mean (float32 distances, as
-    mazelab.weights.mass_within). A run that cannot be normalised (top -inf or
-    NaN) gets its top as total and NaN reads."""
+    mazelab.weights.mass_within); NaN for a run that cannot be normalised."""
     runs, size = log_w.shape
     blocks, jobs = chunks(runs, size)
     lanes, scales = scratch((jobs, 5, LANES), np.float64), scratch(jobs, np.float64)  # each chunk's sums and top
-    r2 = _F32(radius * radius)
+    r2 = np.float32(radius * radius)
     for job in prange(jobs):  # each chunk's log w, top, exponentials and sums
         r, start, stop = chunk_of(job, blocks, size)
         row, xs, ys = log_w[r, start:stop], xy[0, r, start:stop], xy[1, r, start:stop]
@@ -174,7 +171,7 @@ def normalise(log_w, log_a, shifts, log_g, xy, radius, w, reads):  # pragma: no 
     for job in prange(jobs):  # each chunk's W and weight within the circle
         r, start, stop = chunk_of(job, blocks, size)
         if scales[job] == scales[job]:
-            centre_x, centre_y = _F32(reads[1, r]), _F32(reads[2, r])
+            centre_x, centre_y = np.float32(reads[1, r]), np.float32(reads[2, r])
             xs, ys = xy[0, r, start:stop], xy[1, r, start:stop]
             _scale_and_keep_within(w[r, start:stop], scales[job], xs, ys, centre_x, centre_y, r2, lanes[job])
         else:
