@@ -15,8 +15,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from mazelab.experiments.batch_runs import walk_of
-from mazelab.experiments.study import MazeChoice, RunTask, StudySetting
+from mazelab.experiments.study import MazeChoice, RunTask, StudySetting, walk_of
 from mazelab.maze import Maze, load_maze
 from mazelab.robot import Robot
 from mazelab.simulation import simulate
@@ -222,7 +221,7 @@ def draw_scenarios(seed: int, count: int = SCENARIO_COUNT, steps: int = SCENARIO
 
 def walk_scenario(maze: str, sigma: float, delta: float, seed: int, particles: int, steps: int) -> ScenarioInputs:
     """One scenario: run `seed` of the setting (`maze`, sigma, delta, `particles`) walked `steps` steps as a
-    study walks it (mazelab.experiments.batch_runs.walk_of): the robot and particles of `run --seed`."""
+    study walks it (mazelab.experiments.study.walk_of): the robot and particles of `run --seed`."""
     world = load_maze(maze)
     setting = StudySetting(MazeChoice.from_maze(maze, world), sigma, delta, particles)
     inputs, path = walk_of(RunTask(1, setting, 1, seed, None, ("sir",), steps), world)
