@@ -96,7 +96,7 @@ def check_command(
     catalogue = _catalogue(lang, split_spec(spec)[0])
     if seed is not None and key is not None:
         raise UserError("--seed and --key: give one (a seed repeats a report, the key draws secret inputs)")
-    secret = read_key(key, make=False) if key is not None else None  # a ClaimError is one line, exit 2
+    secret = read_key(key, make=False) if key is not None else None  # a ValueError of one line, exit 2
     results = None if gradescope is None else _made_folder(gradescope) / "results.json"
     if results is not None:
         check_output_path(results, force)

@@ -48,7 +48,8 @@ _LIBRARIES = tuple(
 
 # -- the messages ---------------------------------------------------------------------------------
 class WireError(ValueError):
-    """A message that is not one of ours: what is wrong with it, in one line."""
+    """A message that is not one of ours, or an answer in it not of the form the grader asked for
+    (mazelab.exercise.parts.take): what is wrong with it, in one line."""
 
 
 @dataclass
@@ -368,29 +369,15 @@ def guard(folder: str) -> None:
 
 
 def _hook_with(roots: tuple[str, ...], names: frozenset, paths: frozenset, finders: tuple, named: Any) -> Callable:
-    """The audit hook; its defaults hold all it reads (a patched builtin or module changes nothing in it).
-    `named` is namedtuple's code, which compiles a text of identifiers only (checked with the real
-    `type` and `str`: the standard library makes namedtuples as it is imported)."""
+    """The audit hook; its one default holds all it reads, the real builtins bound once (a patched builtin
+    or module changes nothing in it, and the default cannot be replaced: `object.__setattr__` on the hook
+    is refused). `named` is namedtuple's code, which compiles a text of identifiers only (checked with the
+    real `type` and `str`: the standard library makes namedtuples as it is imported)."""
+    held = (roots, names, paths, finders, named, sys._getframe, open, type, str, bytes, tuple, map, id, all, range)
 
-    def hook(
-        event,
-        args,
-        roots=roots,
-        names=names,
-        paths=paths,
-        finders=finders,
-        named=named,
-        frame=sys._getframe,
-        read=open,
-        type=type,
-        str=str,
-        bytes=bytes,
-        tuple=tuple,
-        map=map,
-        id=id,
-        all=all,
-        range=range,
-    ):
+    def hook(event, args, held=held):
+        roots, names, paths, finders, named, frame, read, type, str, bytes, tuple, map, id, all, range = held
+
         def namedtuple(caller):  # namedtuple's own code, run with the real builtins (its checks hold)
             real = caller.f_builtins.get("type") is type and caller.f_builtins.get("str") is str
             return caller.f_code is named and real

@@ -26,7 +26,7 @@ from typing import Any
 
 from mazelab.atomic import WriteError, write_text_atomically
 from mazelab.backend import use_threads
-from mazelab.exercise.parts import FAIL, NOT_OWN, NOT_RUN, NOT_WRITTEN, PASS, clean
+from mazelab.exercise.parts import FAIL, NOT_OWN, NOT_RUN, NOT_WRITTEN, PASS, SHOWN, clean
 from mazelab.exercise.report import ROWS, NotGradableError, References, Report, Submission, check_file, format_report
 from mazelab.exercise.sandbox import DEFAULT_BUDGET, SandboxError, allow_children, stop_children
 from mazelab.exercise.student import PARTS
@@ -50,10 +50,6 @@ CSV_COLUMNS = (
     "problem",
 )
 SHORT = {PASS: "pass", FAIL: "FAIL", NOT_WRITTEN: "todo", NOT_RUN: "-", NOT_OWN: "REF", None: "-"}
-
-
-class ClaimError(ValueError):
-    """An output or key that cannot be used: one line naming it and the way out."""
 
 
 def discover(folder: Path) -> list[Submission]:
@@ -186,46 +182,42 @@ def _in_threads(
 # -- the key and the outputs --------------------------------------------------------------------------
 def read_key(path: Path, make: bool = True) -> bytes:
     """The secret key in `path` (hexadecimal, at least 128 bits); made there (mode 0600) when missing and
-    `make`. ClaimError in one line otherwise."""
+    `make`. A ValueError of one line (naming it and the way out) otherwise."""
     try:
         text = path.read_text().strip()
     except FileNotFoundError:
         if not make:
-            raise ClaimError(f"--key {path}: no such file") from None
+            raise ValueError(f"--key {path}: no such file") from None
         try:
             descriptor = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0), 0o600)
             with os.fdopen(descriptor, "w") as file:
                 file.write(secrets.token_hex(KEY_BYTES) + "\n")
         except OSError as error:
-            raise ClaimError(f"cannot write the key {path}: {error.strerror or error}") from None
+            raise ValueError(f"cannot write the key {path}: {error.strerror or error}") from None
         return read_key(path, make=False)
     except (OSError, UnicodeDecodeError) as error:
-        raise ClaimError(f"--key {path}: cannot be read ({getattr(error, 'strerror', None) or error})") from None
+        raise ValueError(f"--key {path}: cannot be read ({getattr(error, 'strerror', None) or error})") from None
     try:
         key = bytes.fromhex(text)
     except ValueError:
         key = b""
     if len(key) < 16:
-        raise ClaimError(f"--key {path}: not a key of at least 128 bits (32 hexadecimal digits)")
+        raise ValueError(f"--key {path}: not a key of at least 128 bits (32 hexadecimal digits)")
     return key
 
 
 @contextlib.contextmanager
 def claimed(outputs: list[tuple[Path, str]]) -> Iterator[None]:
     """Hold the claims of `outputs` ((path, option) each: a study's locked NAME.lock beside each,
-    mazelab.experiments.journal.claim_outputs) while grading; ClaimError at once when another holds one."""
-    releases = []
-    try:
+    mazelab.experiments.journal.claim_outputs) while grading; a ValueError at once when another holds one."""
+    with contextlib.ExitStack() as releases:
         for output, option in outputs:
             try:
-                releases.append(claim_outputs([(option, output)]))
+                releases.callback(claim_outputs([(option, output)]))
             except JournalError as error:  # held by another grader (or a study), or not a file at its name
                 held = f"{option} {output}: another grader is writing it now; wait for it or choose another name"
-                raise ClaimError(held if str(error).startswith("another") else str(error)) from None
+                raise ValueError(held if str(error).startswith("another") else str(error)) from None
         yield
-    finally:
-        for release in releases:
-            release()
 
 
 def partial_name(path: Path) -> Path:
@@ -318,7 +310,7 @@ def gradescope_json(report: Report, catalogue: Catalogue | None = None) -> str:
     else:
         tests = []
         for i, row in enumerate(report.rows, 1):
-            status = _(FAIL.upper() if row.status == FAIL else row.status)
+            status = _(SHOWN.get(row.status, row.status))
             lines = [f"{status}: {words.translate(row.got)}", _("expected: ") + words.translate(row.expected)]
             lines += [_("hint: ") + words.translate(row.hint)] if row.hint and not row.passed else []
             tests.append(_test(i, _(row.part), 1.0 if row.passed else 0.0, words.numbers("\n".join(lines))))

@@ -15,9 +15,9 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from mazelab.experiments.study import MazeChoice, RunTask, StudySetting, walk_of
 from mazelab.maze import Maze, load_maze
 from mazelab.robot import Robot
-from mazelab.seeding import run_streams, start_place
 from mazelab.simulation import simulate
 
 PART_MAZES = ("paper_5x5", "twin_rooms_6x12", "maze_10x10", "maze_20x20")
@@ -85,13 +85,11 @@ class PartInputs(_OnAMaze):
 
 @dataclass(frozen=True)
 class ScenarioInputs(_OnAMaze):
-    """One scenario of the whole-filter check: a seeded walk (the filter is told the compass angles and
-    measurements, never the true path or the start) and the initial particles."""
+    """One scenario of the whole-filter check: run `seed`'s walk, as `run --seed` walks it (the filter is
+    told the compass angles and measurements, never the true path or the start), and its initial particles."""
 
     seed: int  # the run's seed: the robot's start and walk, the particles, the filters' draws
-    start: tuple[float, float]
     particles: np.ndarray
-    actual_angles: tuple[float, ...]
     compass_angles: tuple[float, ...]
     measurements: tuple[float, ...]
     true_positions: np.ndarray  # (steps, 2)
@@ -102,21 +100,14 @@ class ScenarioInputs(_OnAMaze):
         return (self.maze, self.sigma, self.delta, self.seed, len(self.particles), len(self.measurements))
 
     def replay(self, filter_name: str, **options: object) -> np.ndarray:
-        """A shipped filter's estimates (steps, 2) on the scenario's walk, replayed: the exact grid filter's
-        posterior means ("grid"), or the SIR's ("sir", resampling with the student's scheme)."""
-        robot = Robot(
-            self.sigma,
-            self.delta,
-            self.start,
-            actual_angles=self.actual_angles,
-            compass_angles=self.compass_angles,
-            measurements=self.measurements,
-        )
+        """A shipped filter's estimates (steps, 2) on the scenario's walk, run again from its seed: the
+        exact grid filter's posterior means ("grid"), or the SIR's ("sir", resampling with the student's scheme)."""
+        world = self.world
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UserWarning)
             result = simulate(
-                robot,
-                self.world,
+                Robot.of_seed(world, self.sigma, self.delta, self.seed),
+                world,
                 self.sigma,
                 self.delta,
                 steps=len(self.measurements),
@@ -229,18 +220,13 @@ def draw_scenarios(seed: int, count: int = SCENARIO_COUNT, steps: int = SCENARIO
 
 
 def walk_scenario(maze: str, sigma: float, delta: float, seed: int, particles: int, steps: int) -> ScenarioInputs:
-    """One scenario: the robot of run `seed` walks `steps` steps; `particles` drawn from the prior."""
+    """One scenario: run `seed` of the setting (`maze`, sigma, delta, `particles`) walked `steps` steps as a
+    study walks it (mazelab.experiments.study.walk_of): the robot and particles of `run --seed`."""
     world = load_maze(maze)
-    streams = run_streams(seed)
-    start = start_place(world, seed)
-    robot = Robot(sigma, delta, start, rng=streams.robot)
-    path = np.empty((steps, 2))
-    for k in range(steps):
-        robot.step(world)
-        path[k] = robot.position
-    walk = (tuple(robot.actual_angles), tuple(robot.compass_angles), tuple(robot.measurements), path)
-    drawn = world.random_free_places(particles, streams.particles)
-    return ScenarioInputs(maze, world.grid.copy(), sigma, delta, seed, start, drawn, *walk)
+    setting = StudySetting(MazeChoice.from_maze(maze, world), sigma, delta, particles)
+    inputs, path = walk_of(RunTask(1, setting, 1, seed, None, ("sir",), steps), world)
+    walk = (tuple(inputs.robot_compass_angles), tuple(inputs.robot_measurements), path)
+    return ScenarioInputs(maze, world.grid.copy(), sigma, delta, seed, inputs.init_particles_pos, *walk)
 
 
 SENT = {  # what the student's process is sent of each: only what a filter is given

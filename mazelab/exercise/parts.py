@@ -13,13 +13,14 @@ from typing import Any
 
 import numpy as np
 
-from mazelab.exercise.child import Message
+from mazelab.exercise.child import Message, WireError
 from mazelab.exercise.inputs import SCENARIO_COUNT, PartInputs, ScenarioInputs
 from mazelab.model import OUTSIDE_PENALTY, ROBOT_SPEED, log_likelihood
 from mazelab.simulation import convergence_step
 from mazelab.weights import effective_sample_size
 
 PASS, FAIL, NOT_WRITTEN, NOT_RUN, NOT_OWN = "pass", "fail", "not written", "not run", "not own work"
+SHOWN = {FAIL: "FAIL"}  # how a status reads in a report and results.json (the others as they are)
 
 
 def clean(text: object, limit: int = 600) -> str:
@@ -48,17 +49,13 @@ class Row:
         return self.status == PASS
 
 
-class BadAnswerError(ValueError):
-    """What the student's process sent is not of the form the grader asked for (one line)."""
-
-
 def take(message: Message, name: str, shape: tuple[int, ...] | None = None, dtype: str = "<f8") -> np.ndarray:
-    """The answer's array `name`, of `shape` (None: any) and dtype, or BadAnswerError."""
+    """The answer's array `name`, of `shape` (None: any) and dtype, or WireError."""
     array = message.arrays.get(name)
     if array is None:
-        raise BadAnswerError(f"no {name!r} in the answer")
+        raise WireError(f"no {name!r} in the answer")
     if array.dtype.str != dtype or (shape is not None and array.shape != shape):
-        raise BadAnswerError(f"{name!r} is {array.dtype.str} {array.shape}, not {dtype} {shape}")
+        raise WireError(f"{name!r} is {array.dtype.str} {array.shape}, not {dtype} {shape}")
     return array
 
 
@@ -68,7 +65,7 @@ def error_of(message: Message) -> dict[str, str] | None:
     if error is None:
         return None
     if not isinstance(error, dict) or not isinstance(error.get("text"), str) or not isinstance(error.get("kind"), str):
-        raise BadAnswerError("an error that is not a kind and a text")
+        raise WireError("an error that is not a kind and a text")
     return {"kind": error["kind"], "text": error["text"]}
 
 

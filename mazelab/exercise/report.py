@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from mazelab.exercise.child import Message, encode, messages, serve
+from mazelab.exercise.child import Message, WireError, encode, messages, serve
 from mazelab.exercise.inputs import (
     PartInputs,
     ScenarioInputs,
@@ -41,7 +41,7 @@ from mazelab.exercise.parts import (
     NOT_RUN,
     NOT_WRITTEN,
     PASS,
-    BadAnswerError,
+    SHOWN,
     Row,
     clean,
     expectations,
@@ -63,7 +63,6 @@ ENDED_HINT = "a part returns its answer: no exit, no endless loop, nothing that 
 TWICE = "answered twice (two processes answering, or a forged answer beside its own): no answer counts"
 WIDTH = 100
 PART_WIDTH, RESULT_WIDTH = 12, 12  # "whole filter", "not own work" (wider where a language's words are)
-SHOWN = {FAIL: "FAIL"}  # how a status reads in the table (the others as they are)
 GRID_RESOLUTION = 0.05  # the exact filter's cells: fine next to L = 0.2, coarse enough to be quick
 HEADINGS = {
     "given": "Checking {name}: inputs from seed {seed} (given)",
@@ -161,25 +160,23 @@ class Background(Executor):
                 future.set_exception(error)
 
 
-_background: Background | None = None
+_background = functools.cache(Background)  # the one made at the first call
 
 
 class References:
     """The exact and the SIR runs of scenarios, each computed once per process (a memo of futures
-    shared by every References), on `executor` (default: one background thread)."""
+    shared by every References), on `executor` (default: one background thread, made at its first use)."""
 
     def __init__(self, executor: Executor | None = None):
         self.executor = executor
 
     def _submit(self, key: tuple, scenario: ScenarioInputs, filter_name: str, **options: object) -> Future:
-        global _background
         with _memo_lock:
             future = _memo.get(key)
             if future is not None and not (future.done() and (future.cancelled() or future.exception())):
                 return future
-            if self.executor is None and _background is None:
-                _background = Background()
-            future = (self.executor or _background).submit(ScenarioInputs.replay, scenario, filter_name, **options)
+            executor = self.executor or _background()
+            future = executor.submit(ScenarioInputs.replay, scenario, filter_name, **options)
             _memo[key] = future
             return future
 
@@ -292,7 +289,7 @@ def build_report(
                 row = failed("no answer came from the student's process", "a part returns its answer")
             else:
                 row = judge(stage, parts, scenarios, message, report, references)
-        except BadAnswerError as error:
+        except WireError as error:
             row = failed(f"an answer the grader cannot read ({error})", "return plain arrays")
         if (copies or {}).get(stage) and row.status != NOT_WRITTEN:
             row = Row(row.part, NOT_OWN, row.expected, copies[stage], COPY_HINT)

@@ -56,6 +56,14 @@ CHILD_ENVIRONMENT = {  # the child's whole environment, and bwrap's: one thread 
     "LANG": "C.UTF-8",
     "PATH": "/usr/bin:/bin",
 }
+BWRAP_OPTIONS = (  # the namespaces, the uid, a session and no capabilities, its own /proc and /dev
+    "--unshare-all --unshare-user",
+    f"--uid {SANDBOX_UID} --gid {SANDBOX_UID}",
+    "--die-with-parent --new-session",
+    "--cap-drop ALL",
+    "--hostname sandbox",
+    "--proc /proc --dev /dev",
+)
 # python -P -S -s -B -u: no folder of the grader's on sys.path, no site, no bytecode, prints unbuffered
 PYTHON = ("-P", "-S", "-s", "-B", "-u")
 ENTRY = "import sys; sys.path[:0] = [{kit!r}, {site!r}]; from mazelab.exercise.child import main; main({fd})"
@@ -96,34 +104,13 @@ class Sandbox:
         if not self.sandboxed:
             return [*python, code]
         size = ["--size", str(TMP_LIMIT)] if self.bounded_tmp else []
-        arguments = [
-            "--unshare-all",
-            "--unshare-user",
-            "--uid",
-            str(SANDBOX_UID),
-            "--gid",
-            str(SANDBOX_UID),
-            "--die-with-parent",
-            "--new-session",
-            "--cap-drop",
-            "ALL",
-            "--hostname",
-            "sandbox",
-            "--proc",
-            "/proc",
-            "--dev",
-            "/dev",
-            *size,
-            "--tmpfs",
-            "/tmp",
-        ]
+        arguments = [word for option in BWRAP_OPTIONS for word in option.split()] + [*size, "--tmpfs", "/tmp"]
         for top in ("/usr/lib", "/usr/lib64", "/lib", "/lib64", "/lib32", "/usr/lib32"):  # as the host lays them out
             if Path(top).is_symlink():
                 arguments += ["--symlink", os.readlink(top), top]
             elif Path(top).is_dir():
                 arguments += ["--ro-bind", top, top]
-        binds = [(f, f) for f in interpreter_folders()] + [(str(f), f"{SITE_ROOT}/{f.name}") for f in numpy_folders()]
-        for source, target in [*binds, (str(kit), KIT_ROOT), (str(run / "submission"), SUBMISSION_ROOT)]:
+        for source, target in read_only_binds(kit, run):
             arguments += ["--ro-bind", (staged or {}).get(source, source), target]
             if target != KIT_ROOT and PACKAGE_DIR.is_relative_to(source):
                 arguments += ["--tmpfs", str(PACKAGE_DIR)]
@@ -135,6 +122,13 @@ class Sandbox:
     def inside(self, run: Path, name: str) -> str:
         """The submission's path as the child sees it."""
         return f"{SUBMISSION_ROOT}/{name}" if self.sandboxed else str(run / "submission" / name)
+
+
+def read_only_binds(kit: Path, run: Path) -> list[tuple[str, str]]:
+    """(source, target) of each folder a sandbox binds read-only: the interpreter's, numpy's (under
+    SITE_ROOT), the kit and the submission's copy (`run/submission/`)."""
+    binds = [(f, f) for f in interpreter_folders()] + [(str(f), f"{SITE_ROOT}/{f.name}") for f in numpy_folders()]
+    return [*binds, (str(kit), KIT_ROOT), (str(run / "submission"), SUBMISSION_ROOT)]
 
 
 def numpy_folders() -> list[Path]:
@@ -531,8 +525,7 @@ def _start(made: Sandbox, run: ChildRun, run_folder: Path, cgroup: Cgroup, cpu: 
     probe, no memory to fork)."""
     drop, staged = None, {}
     if made.sandboxed and not cgroup.folders:
-        binds = [*interpreter_folders(), *map(str, numpy_folders()), str(kit()), str(run_folder)]
-        drop, staged = _dropped(binds, run_folder / "stage")
+        drop, staged = _dropped([source for source, _ in read_only_binds(kit(), run_folder)], run_folder / "stage")
     answers_in, answers_out = os.pipe()
     try:
         with _running_lock, tempfile.TemporaryFile() as sent:
