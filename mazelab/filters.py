@@ -37,7 +37,7 @@ from mazelab.recovery import RECOVERY_OPTIONS, RecoveryTracker, recovery_options
 from mazelab.regularisation import BANDWIDTH_OPTION, GaussianKernel, Kernel, mixture_kernel, optimal_bandwidth
 from mazelab.resampling import KLD_OPTIONS, RESAMPLING_OPTION, RESAMPLING_SCHEMES, kld_options, kld_resample
 from mazelab.smc import SMC, particles_array
-from mazelab.weights import Weights
+from mazelab.weights import Weights, weighted_covariance
 
 THRESHOLD_OPTION = Option(
     "threshold",
@@ -418,7 +418,7 @@ class RegularizedParticleFilter(ParticleFilter):
         """
         if self.settings["bandwidth"] == "multimodal":
             return [mixture_kernel] * len(weights)
-        covariance = self.ops.weighted_covariance(weights, clouds)  # S_k per run, the weighted covariance
+        covariance = weighted_covariance(weights, clouds.reshape(-1, 2))  # S_k per run, the weighted covariance
         D = np.linalg.cholesky(covariance + 1e-12 * np.eye(2))  # D_k D_k^T = S_k (tiny ridge: S may be 0)
         return [GaussianKernel(scale) for scale in self.bandwidth * D]
 

@@ -19,7 +19,7 @@ import numpy as np
 
 from mazelab.model import headings_from_uniforms, log_likelihood, move, take_particles
 from mazelab.smc import particles_array
-from mazelab.weights import Weights, mass_within, weighted_covariance, weighted_mean
+from mazelab.weights import Weights, mass_within, weighted_mean
 
 MALLOC_KEEPS = 32 << 20  # bytes: glibc's malloc serves arrays up to this from its heap (keep_freed_memory)
 
@@ -97,10 +97,6 @@ class NumpyKernels:
     def mass_within(self, W: Weights, x: np.ndarray, centres: np.ndarray, radius: float) -> np.ndarray:
         """The weight within `radius` of each run's centre (R, 2) (mazelab.weights.mass_within), (R,)."""
         return mass_within(W.W, x.reshape(-1, 2), centres, radius)
-
-    def weighted_covariance(self, W: np.ndarray, x: np.ndarray) -> np.ndarray:
-        """Each run's weighted covariance of W (R, N) and x (R, N, 2), (R, 2, 2) float64."""
-        return weighted_covariance(W, x.reshape(-1, 2))
 
     def jitter(self, x: np.ndarray, A: np.ndarray, due: np.ndarray, rngs: Sequence, kernels: Sequence) -> np.ndarray:
         """The RPF's resampled particles (R, M, 2): each due run's x[r, A[r]] (x (R, N, 2), A (R, M), due
