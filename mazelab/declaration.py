@@ -62,32 +62,6 @@ def to_plain_json(value: Any) -> Any:
     raise ValueError(f"option value {value!r} ({type(value).__name__}) has no JSON form")
 
 
-def object_from_json(kind: type) -> Callable[[Any], Any]:
-    """The `from_json` of an option whose value may be an object given as its fields (Recovery,
-    KLDSampling): a dict becomes `kind(**fields)`, an unknown field is one line; anything else stays.
-
-    Parameters
-    ----------
-    kind : a dataclass
-
-    Returns
-    -------
-    callable
-        stored value -> the option's value.
-    """
-
-    def from_json(value: Any) -> Any:
-        if not isinstance(value, dict):
-            return value
-        known = {f.name for f in dataclasses.fields(kind)}
-        unknown = sorted(set(value) - known)
-        if unknown:
-            raise ValueError(f"has no field {unknown[0]!r} (it has: {', '.join(sorted(known))})")
-        return kind(**value)
-
-    return from_json
-
-
 def show_value(value: Any) -> str:
     """A value in a few words (tables, labels, messages): 0.05, multimodal, none.
 
@@ -244,8 +218,9 @@ class Option:
         any value): the one place the option is validated (`Options.resolve`).
     flag : str, optional
         The paper's named flag that spells this option too (e.g. "--bandwidth"), for the messages.
-    from_json : callable, optional
-        A stored JSON value -> the option's value (default: as stored); `to_plain_json` writes it.
+    stored_as : dataclass, optional
+        The class of an option whose value may be an object (Recovery, KLDSampling): `to_plain_json`
+        writes it as its fields and a stored dict of them becomes `stored_as(**fields)` (default: as stored).
     derived : bool
         Handed in by the run itself (the EKF's `start`): never on the command line, never stored.
     """
@@ -256,7 +231,7 @@ class Option:
     parse: Parse | None = None
     check: Check | None = None
     flag: str | None = None
-    from_json: Callable[[Any], Any] = lambda value: value
+    stored_as: type | None = None
     derived: bool = False
 
     def parse_text(self, text: str) -> Any:
@@ -299,6 +274,16 @@ class Option:
         Any
         """
         return value if self.check is None else self.check(value)
+
+    def from_fields(self, fields: dict[str, Any]) -> Any:
+        """The object a stored dict of fields spells (`stored_as(**fields)`); an unknown field is one line."""
+        if self.stored_as is None:
+            return fields
+        known = {f.name for f in dataclasses.fields(self.stored_as)}
+        unknown = sorted(set(fields) - known)
+        if unknown:
+            raise ValueError(f"has no field {unknown[0]!r} (it has: {', '.join(sorted(known))})")
+        return self.stored_as(**fields)
 
 
 class Options(Mapping[str, Option]):
@@ -449,7 +434,7 @@ class Options(Mapping[str, Option]):
             if option.derived:
                 raise ValueError(f"{owner} option {name} is handed in by the run itself, not stored")
             try:
-                values[name] = option.from_json(value)
+                values[name] = option.from_fields(value) if isinstance(value, dict) else value
             except (TypeError, ValueError) as error:
                 raise ValueError(f"{owner} option {name}: {error}") from None
         self.resolve(values, owner)  # names, values and their combination checked as the constructor checks them
@@ -553,7 +538,6 @@ __all__ = [
     "choice",
     "not_taken",
     "number_in",
-    "object_from_json",
     "options_of",
     "parse_flag",
     "scoped",

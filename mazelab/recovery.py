@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from mazelab.checks import finite_number
-from mazelab.declaration import Option, number_in, object_from_json
+from mazelab.declaration import Option, number_in
 from mazelab.maze import Maze
 from mazelab.model import Sensor
 from mazelab.resampling import Move
@@ -102,7 +102,7 @@ RECOVERY_OPTIONS = (
         "recovery from kidnapping (beyond the paper): none, augmented (MCL) or sensor (resetting)",
         parse=str.strip,
         check=check_recovery,
-        from_json=object_from_json(Recovery),
+        stored_as=Recovery,
         flag="--recovery/--sensor-resetting",
     ),
     Option(

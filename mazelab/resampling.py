@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from mazelab.checks import check_kld_numbers, finite_number, step_number
-from mazelab.declaration import Option, object_from_json, parse_flag
+from mazelab.declaration import Option, parse_flag
 
 
 # -- resampling: plain functions, normalised weights W (N,) -> ancestor indices (M,) ---------------
@@ -228,7 +228,7 @@ KLD_OPTIONS = (
         "KLD-sampling (Fox 2003): the particle count adapts, the given count the most",
         parse=parse_flag,
         check=check_kld,
-        from_json=object_from_json(KLDSampling),
+        stored_as=KLDSampling,
         flag="--kld",
     ),
     Option(
