@@ -399,21 +399,6 @@ def entries() -> list[FilterEntry]:
     return list(_ENTRIES)
 
 
-def is_shipped(filter_class: type) -> bool:
-    """Whether a class is one of the registry's filters (the lab's, or a package's), not a plug-in or
-    a user's own class.
-
-    Parameters
-    ----------
-    filter_class : type
-
-    Returns
-    -------
-    bool
-    """
-    return any(entry.filter_class is filter_class for entry in _ENTRIES)
-
-
 def shipped_entry(name: str) -> FilterEntry | None:
     """The registry's filter of a name (short, class or spaced name, as `filter_entry` reads them), or
     None; never a plug-in, and nothing is imported (what a scenario's loader may ask).
@@ -557,7 +542,6 @@ __all__ = [
     "described",
     "entries",
     "filter_entry",
-    "is_shipped",
     "register",
     "resolve_filter",
     "rgb",
