@@ -20,7 +20,6 @@ from mazelab.atomic import NameTakenError, NotRegularFileError, output_target
 from mazelab.backend import ENVIRONMENT_VARIABLE, THREADS_VARIABLE, check_backend, check_threads
 from mazelab.checks import check_seed
 from mazelab.declaration import Option, decimal_comma, not_taken, parse_flag, scoped
-from mazelab.experiments.runs import options_per_filter as reaching
 from mazelab.experiments.study import declared_option
 from mazelab.experiments.tables import check_trace_path, pyplot
 from mazelab.invocation import repeat_command
@@ -387,21 +386,6 @@ def _parsed(filter_names: Sequence[str | type], name: str, value: Any, spelled: 
     if not lists:
         return read_value(declared, value, spelled)
     return parse_list(value, lambda part: read_value(declared, part, spelled), spelled.split("=")[0])
-
-
-def options_per_filter(
-    filter_names: Sequence[str | type], given: Mapping[str, Any], *, check: bool = True
-) -> dict[str, dict[str, Any]]:
-    """Per filter (by `name`), the given options that reach it (mazelab.experiments.runs.options_per_filter:
-    a FILTER.NAME one its filter alone); an option that none of them declares is refused in one line naming
-    how the user spelled it and what they take. With `check`, each filter's options are checked by its
-    declaration as its constructor will check them, in one line."""
-    spelled = getattr(given, "spelled", {})
-    per_filter = reaching(filter_names, given, {k: spelled.get(k, f"--option {k}=...") for k in given})
-    if check:
-        for entry in map(filter_entry, filter_names):
-            entry.options.resolve(per_filter[entry.name], entry.name)
-    return per_filter
 
 
 # -- filter names ------------------------------------------------------------------------------------------

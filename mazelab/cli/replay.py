@@ -24,7 +24,6 @@ from mazelab.cli.options import (
     check_filter_names,
     check_outputs,
     given_options,
-    options_per_filter,
     repeat_line,
     visualization,
 )
@@ -37,6 +36,7 @@ from mazelab.experiments.runs import (
     comparison_table,
     errors_csv,
     final_error,
+    options_per_filter,
     parse_filters,
     plot_errors,
     recovery_steps,
@@ -99,7 +99,8 @@ def run_plan(flags: Mapping[str, Any], named: Mapping[str, Any], drawing: dict) 
     stored = load_scenario(scenario) if scenario is not None else None
     filter_name = check_filter_name(replay_filter_name(stored, flags.get("filter_name"), scenario))
     given = given_options(named, flags.get("option"), [filter_name])
-    options = options_per_filter([filter_name], given, check=stored is None)[resolve_filter(filter_name).name]
+    per_filter = options_per_filter([filter_name], given, given.spelled, check=stored is None)
+    options = per_filter[resolve_filter(filter_name).name]
     outputs = [("--save-scenario", flags.get("save_scenario_path")), ("--rrd", drawing.get("rrd"))]
     check_outputs(outputs, flags.get("force", False))
     maze, sigma, delta, seed = (flags.get(name) for name in ("maze", "sigma", "delta", "seed"))
@@ -107,7 +108,7 @@ def run_plan(flags: Mapping[str, Any], named: Mapping[str, Any], drawing: dict) 
         return fresh_setup(maze, sigma, delta, seed, start_seed), filter_name, options
     refuse_counts_for_replay(stored, particles=flags.get("particles"), steps=flags.get("steps"), start_seed=start_seed)
     options = replay_options(stored, filter_name, options, scenario)
-    options_per_filter([filter_name], options)  # the replay's options, checked as the filter will
+    options_per_filter([filter_name], options, check=True)  # the replay's options, checked as the filter will
     return replay_setup(stored, maze, sigma, delta, seed), filter_name, options
 
 
@@ -125,7 +126,8 @@ def compare_scenario(flags: Mapping[str, Any], named: Mapping[str, Any], drawing
     setup = replay_setup(stored, flags["maze"], flags["sigma"], flags["delta"], flags["seed"])
     names = parse_filters(flags["filters"])
     given = with_stored_options(stored, names, given_options(named, flags["option"], names), scenario)
-    options_per_filter(names, given)  # an option that none of the filters takes, or a bad value: one line, first
+    # an option that none of the filters takes, or a bad value: one line, first
+    options_per_filter(names, given, given.spelled, check=True)
     recorder = compare_recorder(scenario, setup, names, given, flags["kidnap_at"])
     prepare_world(setup.world)
     shown = f"sigma {setup.sigma:g}, delta {setup.delta:g}"

@@ -31,7 +31,6 @@ from mazelab.cli.options import (
     check_outputs,
     given_options,
     opt,
-    options_per_filter,
     parse_list,
     repeat_line,
     seed_option,
@@ -73,7 +72,7 @@ from mazelab.experiments.journal import (
     record_path,
     resume_study,
 )
-from mazelab.experiments.runs import parse_filters
+from mazelab.experiments.runs import options_per_filter, parse_filters
 from mazelab.experiments.study import MazeChoice, RunRecord, RunTask, study_order
 from mazelab.experiments.summary import CSV_DTYPES, study_table, summarise_study, summary_csv, summary_path
 from mazelab.experiments.tables import records_csv, study_traces, write_traces
@@ -628,7 +627,7 @@ def with_options(chosen: tuple[AccuracyFilter, ...], texts: list[str] | None) ->
         return chosen
     names = list(dict.fromkeys(name for _, name, _ in chosen))
     given = given_options({}, texts, names)
-    per_filter = options_per_filter(names, given)
+    per_filter = options_per_filter(names, given, given.spelled, check=True)
     shown = ", ".join(f"{k} {show_value(v)}" for k, v in given.items())
     result = []
     for label, name, options in chosen:

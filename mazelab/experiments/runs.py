@@ -278,16 +278,22 @@ def run_figures(name: str, result: RunResult) -> dict[str, Any]:
 
 # -- comparing the filters on one saved scenario (lab steps 12-13) ---------------------------------
 def options_per_filter(
-    filters: Sequence[str | type], given: Mapping[str, Any], spelled: Mapping[str, str] | None = None
+    filters: Sequence[str | type],
+    given: Mapping[str, Any],
+    spelled: Mapping[str, str] | None = None,
+    *,
+    check: bool = False,
 ) -> dict[str, dict[str, Any]]:
     """Per filter (by `name`), the given options (None: not given) that reach it: a plain
-    name every filter that declares it, FILTER.NAME its filter alone.
+    name every filter that declares it, FILTER.NAME its filter alone. With `check`, each filter's
+    options are checked by its declaration as its constructor will check them.
 
     Raises
     ------
     ValueError
         One line, the option as `spelled`: an option none of the filters takes (naming what they take),
-        FILTER.NAME of a filter not among them, or one option given both for every filter and for one.
+        FILTER.NAME of a filter not among them, one option given both for every filter and for one,
+        or (with `check`) a value or combination the filter refuses.
     """
     entries_ = [filter_entry(f) for f in filters]
     spelled = spelled or {}
@@ -309,6 +315,8 @@ def options_per_filter(
         if given.get(name) is not None:
             raise ValueError(f"{name} is given for every filter and for {scope}: give one of them")
         per_filter[target.name][name] = value
+    for entry in entries_ if check else ():
+        entry.options.resolve(per_filter[entry.name], entry.name)
     return per_filter
 
 
