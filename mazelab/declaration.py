@@ -275,16 +275,6 @@ class Option:
         """
         return value if self.check is None else self.check(value)
 
-    def from_fields(self, fields: dict[str, Any]) -> Any:
-        """The object a stored dict of fields spells (`stored_as(**fields)`); an unknown field is one line."""
-        if self.stored_as is None:
-            return fields
-        known = {f.name for f in dataclasses.fields(self.stored_as)}
-        unknown = sorted(set(fields) - known)
-        if unknown:
-            raise ValueError(f"has no field {unknown[0]!r} (it has: {', '.join(sorted(known))})")
-        return self.stored_as(**fields)
-
 
 class Options(Mapping[str, Option]):
     """A filter's options by name, in declaration order (`extend` makes a new declaration).
@@ -434,7 +424,13 @@ class Options(Mapping[str, Option]):
             if option.derived:
                 raise ValueError(f"{owner} option {name} is handed in by the run itself, not stored")
             try:
-                values[name] = option.from_fields(value) if isinstance(value, dict) else value
+                if isinstance(value, dict) and option.stored_as is not None:  # an object stored as its fields
+                    known = {f.name for f in dataclasses.fields(option.stored_as)}
+                    unknown = sorted(set(value) - known)
+                    if unknown:
+                        raise ValueError(f"has no field {unknown[0]!r} (it has: {', '.join(sorted(known))})")
+                    value = option.stored_as(**value)
+                values[name] = value
             except (TypeError, ValueError) as error:
                 raise ValueError(f"{owner} option {name}: {error}") from None
         self.resolve(values, owner)  # names, values and their combination checked as the constructor checks them
