@@ -144,7 +144,7 @@ def compare_scenario(flags: Mapping[str, Any], named: Mapping[str, Any], drawing
         **given,
     )
     title = f"Localisation error: {scenario.name} ({shown}, {count} particles)"
-    report_compare(results, setup, recorder, title, bool(given.get("kld")), flags["force"], files)
+    report_compare(results, recorder, title, bool(given.get("kld")), flags["force"], files)
     backend = next(iter(results.values())).extras["backend"]
     repeat_line("comparison", setup.seed, ("--csv", "--plot", "--traces", "--rrd"), backend)
 
@@ -431,7 +431,7 @@ def kidnap_report(result: RunResult, found: bool = True) -> str | None:
 
 # -- compare's outputs ------------------------------------------------------------------------------------
 def report_compare(
-    results: dict[str, RunResult], setup: RunSetup, recorder: Recorder, title: str, kld: bool, force: bool, files: dict
+    results: dict[str, RunResult], recorder: Recorder, title: str, kld: bool, force: bool, files: dict
 ) -> None:
     """The kidnapping (if any), the table, then the `files` asked for (by compare's parameter names, and
     `record_file`): the per-step errors, the figure, the traces (with the scenario's maze, sigma, delta and
@@ -447,7 +447,7 @@ def report_compare(
         plot_errors(results, plot, title, replace=force)
         typer.echo(f"figure written to {plot}")
     if traces is not None:
-        write_traces(traces, compare_traces(results, setup.seed, setup.world.source))
+        write_traces(traces, compare_traces(results))
         typer.echo(f"per-step traces written to {traces}")
     if record_file is not None:
         kept = (

@@ -232,21 +232,21 @@ def trace_of(result: RunResult) -> dict[str, Any]:
     }
 
 
-def compare_traces(results: dict[str, RunResult], seed: int, maze: str | None = None) -> list[dict[str, Any]]:
-    """compare's runs (one scenario, every filter) as trace columns, with each run's sigma, delta and
-    particle count (and `maze`, the scenario's, if given)."""
+def compare_traces(results: dict[str, RunResult]) -> list[dict[str, Any]]:
+    """compare's runs (one scenario, every filter) as trace columns, with each run's seed, maze (its
+    source), sigma, delta and particle count, read from the run's inputs."""
     blocks = []
     for name, result in results.items():
         inputs = result.inputs
         parameters = {
             "label": described(name).label,
             "log_evidence_caveat": described(name).evidence,
-            "maze": maze,
+            "maze": inputs.maze.source,
             "sigma": inputs.sigma,
             "delta": inputs.delta,
             "particles": len(inputs.init_particles_pos),
         }
-        blocks.append(trace_columns(None, 1, seed, name, trace_of(result), parameters))
+        blocks.append(trace_columns(None, 1, inputs.seed, name, trace_of(result), parameters))
     return blocks
 
 
