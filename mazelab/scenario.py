@@ -198,17 +198,13 @@ class Scenario(BaseModel):
         if entry is not None:
             entry.options.from_json(self.filter_options, entry.name)
 
-    def filter_kwargs(self, filter_class: type | None = None) -> dict[str, Any]:
-        """The stored filter options as keyword arguments of `filter_class` (default: the lab's filter the
-        scenario names), those it declares, checked by its declaration; empty when none are stored. The
-        options are the run's filter's: another filter takes only those that run chose away from its own
+    def filter_kwargs(self, filter_class: type) -> dict[str, Any]:
+        """The stored filter options as keyword arguments of `filter_class`, those it declares, checked by
+        its declaration; empty when none are stored. The options are the run's filter's (`maker`): every
+        one for that filter, and another filter takes only those that run chose away from its own
         defaults (SIR's `threshold` 1 is not the RPF's 0.2), and none when the filter that made the run is
         not known here (a plug-in not loaded in this process: its defaults cannot be told apart)."""
         maker = self.maker()
-        if filter_class is None:
-            if maker is None or self.filter_plugin is not None:
-                return {}
-            filter_class = maker
         declared = options_of(filter_class)
         stored = {k: v for k, v in (self.filter_options or {}).items() if k in declared and not declared[k].derived}
         if maker is not filter_class:
