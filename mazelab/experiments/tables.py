@@ -257,10 +257,9 @@ def trace_column_names(blocks: Sequence[dict[str, Any]]) -> list[str]:
     return [*TRACE_COLUMNS, *diagnostics, *(c for c in extra if c not in diagnostics)]
 
 
-def trace_csv_rows(blocks: Sequence[dict[str, Any]], columns: Sequence[str] | None = None) -> str:
-    """The rows of the blocks as CSV text, without the header, in `columns` (default: the blocks' own):
-    exact floats (%.17g), an empty cell for NaN, for compare's setting and for a column a block lacks."""
-    columns = trace_column_names(blocks) if columns is None else list(columns)
+def trace_csv_rows(blocks: Sequence[dict[str, Any]], columns: Sequence[str]) -> str:
+    """The rows of the blocks as CSV text, without the header, in `columns` (`trace_column_names`): exact
+    floats (%.17g), an empty cell for NaN, for compare's setting and for a column a block lacks."""
     buffer = io.StringIO()
     numeric = TRACE_COLUMNS[4:]  # step .. log_evidence
     for block in blocks:
