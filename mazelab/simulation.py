@@ -17,7 +17,7 @@ import math
 import time
 import warnings
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -54,8 +54,8 @@ class RunResult:
     step_seconds: np.ndarray  # (steps,), the filter's own time per step: its step and its estimate, ESS, confidence
     reinitialised_at: list[int]
     inputs: RunInputs
-    extras: dict[str, Any] = field(default_factory=dict)
-    log_evidence: np.ndarray | None = None  # (steps,), log p(z_1:k) as the filter estimates it (NaN: none kept)
+    extras: dict[str, Any]  # "particle_count" (steps,), "diagnostics" by name (steps,), "backend": of_recorded
+    log_evidence: np.ndarray  # (steps,), log p(z_1:k) as the filter estimates it (NaN: none kept)
 
     @classmethod
     def of_recorded(

@@ -262,10 +262,10 @@ FIGURES = (  # in the CSV's order; a new figure of a run is one more line here (
     Figure("run_seconds", default=math.nan),  # wall time of the run: its share of the unit of runs it ran in
     # with `study --reference grid`: the distance of the filter's estimates to the exact posterior means
     Figure("distance_to_exact", default=math.nan, summary="interval", header="dist. to exact"),
-    Figure("log_evidence", lambda r, e: math.nan if r.log_evidence is None else float(r.log_evidence[-1]), math.nan),
+    Figure("log_evidence", lambda r, e: float(r.log_evidence[-1]), math.nan),
     Figure("log_evidence_caveat", lambda r, e: e.evidence, ""),  # why it is not of p(z_1:K) (the registry's)
     Figure("label", lambda r, e: e.label, ""),  # the filter's label in the registry (SIR, APF, ...)
-    Figure("backend", lambda r, e: r.extras.get("backend", "numpy"), ""),  # as the process that ran it says
+    Figure("backend", lambda r, e: r.extras["backend"], ""),  # as the process that ran it says
 )
 
 

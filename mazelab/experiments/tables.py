@@ -226,9 +226,9 @@ def trace_of(result: RunResult) -> dict[str, Any]:
         "ess": result.ess,
         "confident": result.confident,
         "step_seconds": result.step_seconds,
-        "particle_count": result.extras.get("particle_count", np.full(len(result.ess), -1)),
-        "log_evidence": np.full(len(result.ess), np.nan) if result.log_evidence is None else result.log_evidence,
-        "diagnostics": result.extras.get("diagnostics", {}),
+        "particle_count": result.extras["particle_count"],
+        "log_evidence": result.log_evidence,
+        "diagnostics": result.extras["diagnostics"],
     }
 
 
