@@ -229,7 +229,7 @@ class Scenario(BaseModel):
         """The maze stored in the scenario, if any."""
         return None if self.maze is None else Maze(self.maze, source="the scenario's maze")
 
-    def robot(self, sigma: float | None = None, delta: float | None = None, **kwargs: Any) -> Robot:
+    def robot(self, sigma: float | None = None, delta: float | None = None) -> Robot:
         """A Robot that replays this scenario's path (and measurements, if stored)."""
         sigma = self.sigma if sigma is None else sigma
         delta = self.delta if delta is None else delta
@@ -244,7 +244,6 @@ class Scenario(BaseModel):
             measurements=self.robot_measurements,
             kidnap_at=self.kidnap_at,
             kidnap_position=self.kidnap_position,
-            **kwargs,
         )
 
     def to_json(self) -> str:
