@@ -198,17 +198,13 @@ class Scenario(BaseModel):
         if entry is not None:
             entry.options.from_json(self.filter_options, entry.name)
 
-    def filter_kwargs(self, filter_class: type | None = None) -> dict[str, Any]:
-        """The stored filter options as keyword arguments of `filter_class` (default: the lab's filter the
-        scenario names), those it declares, checked by its declaration; empty when none are stored. The
-        options are the run's filter's: another filter takes only those that run chose away from its own
+    def filter_kwargs(self, filter_class: type) -> dict[str, Any]:
+        """The stored filter options as keyword arguments of `filter_class`, those it declares, checked by
+        its declaration; empty when none are stored. The options are the run's filter's (`maker`): every
+        one for that filter, and another filter takes only those that run chose away from its own
         defaults (SIR's `threshold` 1 is not the RPF's 0.2), and none when the filter that made the run is
         not known here (a plug-in not loaded in this process: its defaults cannot be told apart)."""
         maker = self.maker()
-        if filter_class is None:
-            if maker is None or self.filter_plugin is not None:
-                return {}
-            filter_class = maker
         declared = options_of(filter_class)
         stored = {k: v for k, v in (self.filter_options or {}).items() if k in declared and not declared[k].derived}
         if maker is not filter_class:
@@ -233,7 +229,7 @@ class Scenario(BaseModel):
         """The maze stored in the scenario, if any."""
         return None if self.maze is None else Maze(self.maze, source="the scenario's maze")
 
-    def robot(self, sigma: float | None = None, delta: float | None = None, **kwargs: Any) -> Robot:
+    def robot(self, sigma: float | None = None, delta: float | None = None) -> Robot:
         """A Robot that replays this scenario's path (and measurements, if stored)."""
         sigma = self.sigma if sigma is None else sigma
         delta = self.delta if delta is None else delta
@@ -248,7 +244,6 @@ class Scenario(BaseModel):
             measurements=self.robot_measurements,
             kidnap_at=self.kidnap_at,
             kidnap_position=self.kidnap_position,
-            **kwargs,
         )
 
     def to_json(self) -> str:

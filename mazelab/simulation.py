@@ -17,7 +17,7 @@ import math
 import time
 import warnings
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -44,9 +44,9 @@ if TYPE_CHECKING:
 
 @dataclass
 class RunResult:
-    """Everything one run produced, per step k = 1..steps (arrays of length `steps`)."""
+    """Everything one run produced, per step k = 1..steps (arrays of length `steps`); what it started
+    from (its seed, filter, initial particles, kidnapping) is `inputs`, read there and nowhere else."""
 
-    filter_name: str
     true_positions: np.ndarray  # (steps, 2), after the robot's move of step k
     estimates: np.ndarray  # (steps, 2), the posterior mean after the update with z_k
     ess: np.ndarray  # (steps,), NaN for the grid filter
@@ -54,8 +54,8 @@ class RunResult:
     step_seconds: np.ndarray  # (steps,), the filter's own time per step: its step and its estimate, ESS, confidence
     reinitialised_at: list[int]
     inputs: RunInputs
-    extras: dict[str, Any] = field(default_factory=dict)
-    log_evidence: np.ndarray | None = None  # (steps,), log p(z_1:k) as the filter estimates it (NaN: none kept)
+    extras: dict[str, Any]  # "particle_count" (steps,), "diagnostics" by name (steps,), "backend": of_recorded
+    log_evidence: np.ndarray  # (steps,), log p(z_1:k) as the filter estimates it (NaN: none kept)
 
     @classmethod
     def of_recorded(
@@ -72,7 +72,6 @@ class RunResult:
         diagnostics = {name: values[r] for name, values in recorded.diagnostics.items()}
         extras = {"particle_count": recorded.counts[r], "diagnostics": diagnostics, "backend": backend}
         return cls(
-            inputs.filtering_algorithm,
             true_positions,
             recorded.estimates[r],
             recorded.ess[r],
@@ -94,25 +93,6 @@ class RunResult:
         inputs = self.inputs
         lists = {"init_particles_pos": inputs.init_particles_pos.tolist(), "maze": inputs.maze.as_lists()}
         return Scenario(**{**vars(inputs), **lists})
-
-    @property
-    def seed(self) -> int:
-        """The seed that repeats the run."""
-        return self.inputs.seed
-
-    @property
-    def kidnap_at(self) -> int | None:
-        """The step at which the robot was kidnapped, or None."""
-        return self.inputs.kidnap_at
-
-    @property
-    def kidnap_position(self) -> tuple[float, float] | None:
-        return self.inputs.kidnap_position
-
-    @property
-    def initial_particles(self) -> np.ndarray:
-        """The initial particles (N, 2), as given or drawn (float64)."""
-        return self.inputs.init_particles_pos
 
     @property
     def errors(self) -> np.ndarray:

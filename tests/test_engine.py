@@ -140,7 +140,7 @@ def test_a_scenario_of_sir_replays_with_the_rpf_at_the_rpfs_own_threshold(paper_
     assert by_default.filter_options["threshold"] == 1.0
     assert "threshold" not in by_default.filter_kwargs(RegularizedParticleFilter)
     assert chosen.filter_kwargs(RegularizedParticleFilter)["threshold"] == 0.5
-    assert by_default.filter_kwargs()["threshold"] == 1.0  # the filter that made it: every option
+    assert by_default.filter_kwargs(by_default.maker())["threshold"] == 1.0  # the filter that made it: every option
 
 
 def test_a_studys_threshold_that_none_of_its_filters_takes_is_refused_in_one_line(capsys):

@@ -334,7 +334,7 @@ def test_student_filter_meets_the_contract_and_runs(paper_world):
     assert filt.estimate.shape == (2,) and 1 <= filt.ess <= 300 and math.isclose(filt.belief().weights.sum(), 1)
     args = (paper_world, 0.3, 0.5, 300, 40)
     result = simulate(Robot(0.3, 0.5, (1.5, 0.5)), *args, filtering_algorithm=ReferenceFilter, seed=4)
-    assert result.filter_name == "ReferenceFilter"
+    assert result.inputs.filtering_algorithm == "ReferenceFilter"
     again = simulate(Robot(0.3, 0.5, (1.5, 0.5)), *args, filtering_algorithm=ReferenceFilter, seed=4)
     assert np.array_equal(result.estimates, again.estimates)  # every draw from the seeded rng
     # the student's weigh may leave out p(z | x)'s constant: no log evidence is claimed ('-' in compare)

@@ -76,11 +76,11 @@ def test_an_option_some_chosen_filters_take_goes_to_those(tmp_path, capsys):
         return simulate(robot, world, 0.3, 0.5, count, 4, particles, name, seed=seed, estimate=estimate)
 
     sir = errors("sir", "mode")
-    grid = errors("grid", "mode", sir.initial_particles)
+    grid = errors("grid", "mode", sir.inputs.init_particles_pos)
     for name, result in (("SIRParticleFilter", sir), ("GridBayesFilter", grid)):
         mean_error, last_fifth = float(rows[name]["mean_error"]), float(rows[name]["final_error"])
         assert (mean_error, last_fifth) == (result.errors.mean(), final_error(result.errors))
-        assert mean_error != errors(name, "mean", sir.initial_particles).errors.mean()
+        assert mean_error != errors(name, "mean", sir.inputs.init_particles_pos).errors.mean()
 
 
 QUICK = ["--steps", "3", "--particles", "20", "--seed", "1", "--no-viz"]

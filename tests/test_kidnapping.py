@@ -112,7 +112,7 @@ def test_bad_kidnappings_in_a_scenario_file_are_refused(tmp_path, extra, message
 
 # -- the kidnap study's windows ---------------------------------------------------------------------
 def kidnapped(errors, kidnap_at=5):
-    return SimpleNamespace(errors=np.asarray(errors, dtype=float), kidnap_at=kidnap_at)
+    return SimpleNamespace(errors=np.asarray(errors, dtype=float), inputs=SimpleNamespace(kidnap_at=kidnap_at))
 
 
 def test_relocalised_means_the_mean_error_of_the_last_window_steps_is_small():

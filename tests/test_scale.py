@@ -18,11 +18,12 @@ def test_a_run_builds_its_scenario_only_when_asked_and_it_round_trips(tmp_path, 
     robot = Robot(0.3, 0.5, paper_world.random_free_place(np.random.default_rng(1)))
     result = simulate(robot, paper_world, 0.3, 0.5, 200, 15, seed=7, kidnap_at=9)
     assert "scenario" not in result.__dict__  # nothing turned into lists or validated yet
-    assert (result.seed, result.kidnap_at) == (7, 9) and result.initial_particles.shape == (200, 2)
+    inputs = result.inputs
+    assert (inputs.seed, inputs.kidnap_at) == (7, 9) and inputs.init_particles_pos.shape == (200, 2)
     scenario = result.scenario
     assert result.scenario is scenario  # built once
-    assert scenario.init_particles_pos == [tuple(p) for p in result.initial_particles.tolist()]
-    assert (scenario.seed, scenario.kidnap_at, scenario.kidnap_position) == (7, 9, result.kidnap_position)
+    assert scenario.init_particles_pos == [tuple(p) for p in inputs.init_particles_pos.tolist()]
+    assert (scenario.seed, scenario.kidnap_at, scenario.kidnap_position) == (7, 9, inputs.kidnap_position)
     assert load_scenario(save_scenario(scenario, tmp_path / "s.json")) == scenario
 
 

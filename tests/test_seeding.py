@@ -47,7 +47,7 @@ def test_simulate_draws_the_walk_the_particles_and_the_filter_from_the_runs_stre
     result = simulate(Robot(0.3, 0.5, start), paper_world, 0.3, 0.5, count, steps, seed=seed)
     streams = run_streams(seed)
     particles = paper_world.random_free_places(count, streams.particles)
-    np.testing.assert_array_equal(result.initial_particles, particles)
+    np.testing.assert_array_equal(result.inputs.init_particles_pos, particles)
     robot = Robot(0.3, 0.5, start, rng=streams.robot)
     sir = SIRParticleFilter(paper_world, 0.3, 0.5, particles, streams.filter)
     estimates = []

@@ -146,7 +146,7 @@ def compare_scenario(flags: Mapping[str, Any], named: Mapping[str, Any], drawing
         **given,
     )
     title = f"Localisation error: {scenario.name} ({shown}, {count} particles)"
-    report_compare(results, setup, recorder, title, bool(given.get("kld")), flags["force"], files)
+    report_compare(results, recorder, title, bool(given.get("kld")), flags["force"], files)
     backend = next(iter(results.values())).extras["backend"]
     repeat_line("comparison", setup.seed, ("--csv", "--plot", "--traces", "--rrd"), backend)
 
@@ -177,8 +177,8 @@ def report_run(result: RunResult, flags: Mapping[str, Any], demo: bool = False) 
     converged = result.converged_at
     when = f"converged at step {converged} (error < 0.5 from then on)" if converged else "not converged"
     typer.echo(
-        f"{result.filter_name}: last-step error {errors[-1]:.3f}, last-{FINAL_SHARE:.0%} error "
-        f"{final_error(errors):.3f}; {when}; seed {result.seed}"
+        f"{result.inputs.filtering_algorithm}: last-step error {errors[-1]:.3f}, last-{FINAL_SHARE:.0%} error "
+        f"{final_error(errors):.3f}; {when}; seed {result.inputs.seed}"
     )
     if (kidnapping := kidnap_report(result)) is not None:
         typer.echo(kidnapping)
@@ -189,10 +189,10 @@ def report_run(result: RunResult, flags: Mapping[str, Any], demo: bool = False) 
         saved = save_scenario(result.scenario, flags["save_scenario_path"], replace=flags.get("force", False))
         typer.echo(f"scenario saved to {saved}")
     if demo:  # typed without a command: the command that repeats it is `run`
-        words = ["run", "--seed", str(result.seed), "--backend", result.extras["backend"]]
+        words = ["run", "--seed", str(result.inputs.seed), "--backend", result.extras["backend"]]
         typer.echo(f"Repeat this run: {command_prefix()} {shlex.join(words)}")
     else:
-        repeat_line("run", result.seed, ("--save-scenario", "--rrd"), result.extras["backend"])
+        repeat_line("run", result.inputs.seed, ("--save-scenario", "--rrd"), result.extras["backend"])
 
 
 def progress_printer(steps: int, every: int = 20) -> Any:
@@ -420,10 +420,11 @@ def with_stored_options(stored: Scenario, filter_names: Sequence[str], given: Gi
 # -- what run and compare print and write -----------------------------------------------------------
 def kidnap_report(result: RunResult, found: bool = True) -> str | None:
     """Where the robot was carried, and (`found`) when, if ever, the filter found it again."""
-    if result.kidnap_at is None or result.kidnap_position is None:
+    inputs = result.inputs  # kidnap_at and kidnap_position: both set, or both None (RunInputs.of_run)
+    if inputs.kidnap_at is None:
         return None
-    x, y = result.kidnap_position
-    line = f"kidnapped at step {result.kidnap_at} to ({x:.2f}, {y:.2f})"
+    x, y = inputs.kidnap_position
+    line = f"kidnapped at step {inputs.kidnap_at} to ({x:.2f}, {y:.2f})"
     if not found:
         return line
     steps = recovery_steps(result)
@@ -432,7 +433,7 @@ def kidnap_report(result: RunResult, found: bool = True) -> str | None:
 
 # -- compare's outputs ------------------------------------------------------------------------------------
 def report_compare(
-    results: dict[str, RunResult], setup: RunSetup, recorder: Recorder, title: str, kld: bool, force: bool, files: dict
+    results: dict[str, RunResult], recorder: Recorder, title: str, kld: bool, force: bool, files: dict
 ) -> None:
     """The kidnapping (if any), the table, then the `files` asked for (by compare's parameter names, and
     `record_file`): the per-step errors, the figure, the traces (with the scenario's maze, sigma, delta and
@@ -448,7 +449,7 @@ def report_compare(
         plot_errors(results, plot, title, replace=force)
         typer.echo(f"figure written to {plot}")
     if traces is not None:
-        write_traces(traces, compare_traces(results, setup.seed, setup.world.source))
+        write_traces(traces, compare_traces(results))
         typer.echo(f"per-step traces written to {traces}")
     if record_file is not None:
         kept = (

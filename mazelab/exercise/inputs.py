@@ -208,25 +208,22 @@ def _estimate_inputs(seed: int, world: Maze) -> SimpleNamespace:
 
 
 def draw_scenarios(seed: int, count: int = SCENARIO_COUNT, steps: int = SCENARIO_STEPS) -> list[ScenarioInputs]:
-    """The whole filter's scenarios for `seed`: a maze, sigma, delta, particle count and run seed
-    each, the robot's walk and the initial particles drawn from the run seed (mazelab.seeding)."""
+    """The whole filter's scenarios for `seed`: a maze, sigma, delta, particle count and run seed each,
+    then run seed's walk of `steps` steps as a study walks it (mazelab.experiments.study.walk_of): the
+    robot and the initial particles of `run --seed` (mazelab.seeding)."""
     rng = np.random.default_rng([seed, WHOLE_TAG])
     scenarios = []
     for run_seed in _seeds(rng, count):
         maze = str(rng.choice(WHOLE_MAZES))
         sigma, delta = float(rng.uniform(*WHOLE_SIGMA)), float(rng.uniform(*WHOLE_DELTA))
-        scenarios.append(walk_scenario(maze, sigma, delta, run_seed, _count(rng, SCENARIO_PARTICLES), steps))
+        world = load_maze(maze)
+        setting = StudySetting(MazeChoice.from_maze(maze, world), sigma, delta, _count(rng, SCENARIO_PARTICLES))
+        inputs, path = walk_of(RunTask(1, setting, 1, run_seed, None, ("sir",), steps), world)
+        walk = (tuple(inputs.robot_compass_angles), tuple(inputs.robot_measurements), path)
+        scenarios.append(
+            ScenarioInputs(maze, world.grid.copy(), sigma, delta, run_seed, inputs.init_particles_pos, *walk)
+        )
     return scenarios
-
-
-def walk_scenario(maze: str, sigma: float, delta: float, seed: int, particles: int, steps: int) -> ScenarioInputs:
-    """One scenario: run `seed` of the setting (`maze`, sigma, delta, `particles`) walked `steps` steps as a
-    study walks it (mazelab.experiments.study.walk_of): the robot and particles of `run --seed`."""
-    world = load_maze(maze)
-    setting = StudySetting(MazeChoice.from_maze(maze, world), sigma, delta, particles)
-    inputs, path = walk_of(RunTask(1, setting, 1, seed, None, ("sir",), steps), world)
-    walk = (tuple(inputs.robot_compass_angles), tuple(inputs.robot_measurements), path)
-    return ScenarioInputs(maze, world.grid.copy(), sigma, delta, seed, inputs.init_particles_pos, *walk)
 
 
 SENT = {  # what the student's process is sent of each: only what a filter is given

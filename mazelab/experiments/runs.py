@@ -54,7 +54,7 @@ def walk_until(robot: Robot, kidnap_at: int) -> Robot:
 
 def recovery_steps(result: RunResult) -> int | None:
     """R - K: R the first step from which the error stays below CONVERGENCE_RADIUS, K the kidnap step."""
-    kidnap_at = result.kidnap_at
+    kidnap_at = result.inputs.kidnap_at
     if kidnap_at is None:
         raise ValueError("the run has no kidnapping")
     since = convergence_step(result.errors[kidnap_at - 1 :])  # 1-based within the errors of steps K..end
@@ -217,9 +217,9 @@ def run_filters(
                 kidnap_at=kidnap_at,
                 **(options or {}).get(name, {}),
             )
-            particles = result.initial_particles if particles is None else particles
+            particles = result.inputs.init_particles_pos if particles is None else particles
             steps = len(result.errors)
-            results[result.filter_name] = result
+            results[result.inputs.filtering_algorithm] = result
     return results
 
 
@@ -251,9 +251,9 @@ FIGURES = (  # in the CSV's order; a new figure of a run is one more line here (
     Figure("converged_at", lambda r, e: r.converged_at, REQUIRED),  # convergence_step of the errors; None: never
     Figure("mean_ess", lambda r, e: mean_ess(r), REQUIRED),  # NaN for the grid filter
     Figure("ms_per_step", lambda r, e: 1e3 * float(r.step_seconds.mean()), REQUIRED),
-    Figure("kidnap_at"),  # the step the robot is kidnapped at
-    Figure("relocalised", lambda r, e: None if r.kidnap_at is None else relocalised(r), None),
-    Figure("steps_to_recover", lambda r, e: None if r.kidnap_at is None else recovery_steps(r), None),  # None: never
+    Figure("kidnap_at"),  # the step the robot is kidnapped at (steps_to_recover None: never re-localised)
+    Figure("relocalised", lambda r, e: None if r.inputs.kidnap_at is None else relocalised(r), None),
+    Figure("steps_to_recover", lambda r, e: None if r.inputs.kidnap_at is None else recovery_steps(r), None),
     Figure("mean_particle_count", lambda r, e: float(np.mean(r.extras["particle_count"])), math.nan),  # KLD varies it
     Figure("maze_sha256"),  # of the maze file's bytes; a generated maze's: of its grid as maze text
     Figure("maze_rows", default=0),  # the run's maze size
@@ -262,10 +262,10 @@ FIGURES = (  # in the CSV's order; a new figure of a run is one more line here (
     Figure("run_seconds", default=math.nan),  # wall time of the run: its share of the unit of runs it ran in
     # with `study --reference grid`: the distance of the filter's estimates to the exact posterior means
     Figure("distance_to_exact", default=math.nan, summary="interval", header="dist. to exact"),
-    Figure("log_evidence", lambda r, e: math.nan if r.log_evidence is None else float(r.log_evidence[-1]), math.nan),
+    Figure("log_evidence", lambda r, e: float(r.log_evidence[-1]), math.nan),
     Figure("log_evidence_caveat", lambda r, e: e.evidence, ""),  # why it is not of p(z_1:K) (the registry's)
     Figure("label", lambda r, e: e.label, ""),  # the filter's label in the registry (SIR, APF, ...)
-    Figure("backend", lambda r, e: r.extras.get("backend", "numpy"), ""),  # as the process that ran it says
+    Figure("backend", lambda r, e: r.extras["backend"], ""),  # as the process that ran it says
 )
 
 
@@ -381,7 +381,7 @@ def comparison_table(results: dict[str, RunResult], kld: bool = False, startup_s
             lambda f: f"{f['ms_per_step']:.2f}" + ("" if one else f" {f['backend']}"),
         ),
     ]
-    if any(result.kidnap_at is not None for result in results.values()):
+    if any(result.inputs.kidnap_at is not None for result in results.values()):
         columns += [
             ("re-localised", lambda f: "yes" if f["relocalised"] else "no"),
             ("steps to recover", lambda f: "never" if f["steps_to_recover"] is None else str(f["steps_to_recover"])),

@@ -629,7 +629,7 @@ def run_batch(tasks: Sequence[RunTask]) -> list[list[RunRecord]]:
         steps_of = record_steps(filt, steps, lambda k: (compass[:, k], z[:, k]), runs=runs)
         restarts = filt.reinitialised_at if len(tasks) > 1 else [filt.reinitialised_at]  # one run: one list
         for r, (walk, true_positions) in enumerate(walks):
-            inputs = RunInputs(**{**walk.__dict__, "filtering_algorithm": filter_class.name})
+            inputs = dataclasses.replace(walk, filtering_algorithm=filter_class.name)  # each filter: its own name
             results[r][filter_class.name] = RunResult.of_recorded(
                 steps_of, r, true_positions, restarts[r], inputs, backend_of(filt)
             )

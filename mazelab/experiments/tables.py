@@ -226,27 +226,27 @@ def trace_of(result: RunResult) -> dict[str, Any]:
         "ess": result.ess,
         "confident": result.confident,
         "step_seconds": result.step_seconds,
-        "particle_count": result.extras.get("particle_count", np.full(len(result.ess), -1)),
-        "log_evidence": np.full(len(result.ess), np.nan) if result.log_evidence is None else result.log_evidence,
-        "diagnostics": result.extras.get("diagnostics", {}),
+        "particle_count": result.extras["particle_count"],
+        "log_evidence": result.log_evidence,
+        "diagnostics": result.extras["diagnostics"],
     }
 
 
-def compare_traces(results: dict[str, RunResult], seed: int, maze: str | None = None) -> list[dict[str, Any]]:
-    """compare's runs (one scenario, every filter) as trace columns, with each run's sigma, delta and
-    particle count (and `maze`, the scenario's, if given)."""
+def compare_traces(results: dict[str, RunResult]) -> list[dict[str, Any]]:
+    """compare's runs (one scenario, every filter) as trace columns, with each run's seed, maze (its
+    source), sigma, delta and particle count, read from the run's inputs."""
     blocks = []
     for name, result in results.items():
         inputs = result.inputs
         parameters = {
             "label": described(name).label,
             "log_evidence_caveat": described(name).evidence,
-            "maze": maze,
+            "maze": inputs.maze.source,
             "sigma": inputs.sigma,
             "delta": inputs.delta,
             "particles": len(inputs.init_particles_pos),
         }
-        blocks.append(trace_columns(None, 1, seed, name, trace_of(result), parameters))
+        blocks.append(trace_columns(None, 1, inputs.seed, name, trace_of(result), parameters))
     return blocks
 
 
@@ -257,10 +257,9 @@ def trace_column_names(blocks: Sequence[dict[str, Any]]) -> list[str]:
     return [*TRACE_COLUMNS, *diagnostics, *(c for c in extra if c not in diagnostics)]
 
 
-def trace_csv_rows(blocks: Sequence[dict[str, Any]], columns: Sequence[str] | None = None) -> str:
-    """The rows of the blocks as CSV text, without the header, in `columns` (default: the blocks' own):
-    exact floats (%.17g), an empty cell for NaN, for compare's setting and for a column a block lacks."""
-    columns = trace_column_names(blocks) if columns is None else list(columns)
+def trace_csv_rows(blocks: Sequence[dict[str, Any]], columns: Sequence[str]) -> str:
+    """The rows of the blocks as CSV text, without the header, in `columns` (`trace_column_names`): exact
+    floats (%.17g), an empty cell for NaN, for compare's setting and for a column a block lacks."""
     buffer = io.StringIO()
     numeric = TRACE_COLUMNS[4:]  # step .. log_evidence
     for block in blocks:
