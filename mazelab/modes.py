@@ -85,21 +85,6 @@ def cluster_labels(positions: np.ndarray, cell: float = MODE_CELL) -> tuple[np.n
     return grid.ravel()[flat], int(grid.max()) + 1
 
 
-def cluster_covariance(positions: np.ndarray, labels: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
-    """Per cluster of an unweighted cloud (`labels` as cluster_labels gives them): its size (K,) and the
-    covariance of its points (K, 2, 2), float64."""
-    x, y = (np.asarray(positions, dtype=float)[:, i] for i in (0, 1))
-    sizes = np.bincount(labels, minlength=count)
-    safe = np.where(sizes > 0, sizes, 1)
-    dx = x - (np.bincount(labels, x, minlength=count) / safe)[labels]  # centred first: the spread may be tiny
-    dy = y - (np.bincount(labels, y, minlength=count) / safe)[labels]  # beside the position
-    covariance = np.empty((count, 2, 2))
-    covariance[:, 0, 0] = np.bincount(labels, dx * dx, minlength=count) / safe
-    covariance[:, 0, 1] = covariance[:, 1, 0] = np.bincount(labels, dx * dy, minlength=count) / safe
-    covariance[:, 1, 1] = np.bincount(labels, dy * dy, minlength=count) / safe
-    return sizes, covariance
-
-
 def find_modes(
     positions: np.ndarray, weights: np.ndarray, cell: float = MODE_CELL, min_mass: float = MIN_BIN_MASS
 ) -> list[Mode]:
@@ -140,7 +125,6 @@ __all__ = [
     "MIN_BIN_MASS",
     "MODE_CELL",
     "Mode",
-    "cluster_covariance",
     "cluster_labels",
     "find_modes",
     "label_components",

@@ -23,7 +23,7 @@ import numpy as np
 
 from mazelab.checks import MAX_BANDWIDTH, MIN_BANDWIDTH
 from mazelab.declaration import Option
-from mazelab.modes import MODE_CELL, cluster_covariance, cluster_labels
+from mazelab.modes import MODE_CELL, cluster_labels
 
 BANDWIDTHS = ("optimal", "multimodal")
 MIXTURE_SHRINK = 0.5  # h_c = MIXTURE_SHRINK * h_opt(n_c) in the multimodal kernel (measured, see docs/multimodal.md)
@@ -123,13 +123,19 @@ def mixture_kernel(points: np.ndarray, eps: np.ndarray) -> np.ndarray:
     array (N, 2), order F, in eps's dtype
     """
     labels, count = cluster_labels(points)  # every resampled point lies in an occupied bin: no -1
-    sizes, covariance = cluster_covariance(points, labels, count)
-    covariance[:, 0, 0] = np.maximum(covariance[:, 0, 0], MIN_CLUSTER_VARIANCE)
-    covariance[:, 1, 1] = np.maximum(covariance[:, 1, 1], MIN_CLUSTER_VARIANCE)
+    x, y = (np.asarray(points, dtype=float)[:, i] for i in (0, 1))
+    sizes = np.bincount(labels, minlength=count)
+    safe = np.where(sizes > 0, sizes, 1)
+    dx = x - (np.bincount(labels, x, minlength=count) / safe)[labels]  # centred first: the spread may be tiny
+    dy = y - (np.bincount(labels, y, minlength=count) / safe)[labels]  # beside the position
+    # S_c, each cluster's covariance, its variances at least MIN_CLUSTER_VARIANCE
+    s_xx = np.maximum(np.bincount(labels, dx * dx, minlength=count) / safe, MIN_CLUSTER_VARIANCE)
+    s_xy = np.bincount(labels, dx * dy, minlength=count) / safe
+    s_yy = np.maximum(np.bincount(labels, dy * dy, minlength=count) / safe, MIN_CLUSTER_VARIANCE)
     h = MIXTURE_SHRINK * optimal_bandwidth(sizes)
-    a = np.sqrt(covariance[:, 0, 0])  # D_c = [[a, 0], [c, d]], the Cholesky factor of each S_c, in closed form
-    c = covariance[:, 1, 0] / a
-    d = np.sqrt(np.clip(covariance[:, 1, 1] - c * c, 0.0, None))
+    a = np.sqrt(s_xx)  # D_c = [[a, 0], [c, d]], the Cholesky factor of each S_c, in closed form
+    c = s_xy / a
+    d = np.sqrt(np.clip(s_yy - c * c, 0.0, None))
     return gaussian_jitter(eps, *((h * v).astype(eps.dtype)[labels] for v in (a, c, d)))
 
 
