@@ -162,13 +162,17 @@ class Maze:
     @cached_property
     def _lookup(self) -> NearestStationLookup:
         """The nearest-station table, built on first use (a few ms; about a second for 100 x 100)."""
-        return self._new_lookup()
+        return self.prepare().__dict__["_lookup"]
 
     def prepare(self, progress: Progress | None = None) -> Maze:
         """Build the nearest-station table now rather than on first use, calling `progress(done, total)`
-        as it goes (a 1000 x 1000 maze takes tens of seconds). Returns the maze."""
+        as it goes (a 1000 x 1000 maze takes tens of seconds), refused up front if it would not fit in
+        memory. Returns the maze."""
         if not self.has_lookup:
-            self.__dict__["_lookup"] = self._new_lookup(progress)
+            what = f"the nearest-station table of the {self.height}x{self.width} maze ({self.source})"
+            check_memory(what, self.lookup_cells * BYTES_PER_LOOKUP_CELL)
+            self.__dict__["_lookup"] = NearestStationLookup(self.stations, self.grid == EMPTY, progress)
+            _read_only(self._lookup)
         return self
 
     @property
@@ -180,14 +184,6 @@ class Maze:
     def lookup_cells(self) -> int:
         """The size of the nearest-station table, in lookup cells (what its build time grows with)."""
         return lookup_cell_count(self.width, self.height)
-
-    def _new_lookup(self, progress: Progress | None = None) -> NearestStationLookup:
-        """The nearest-station table, refused up front if it would not fit in memory."""
-        what = f"the nearest-station table of the {self.height}x{self.width} maze ({self.source})"
-        check_memory(what, self.lookup_cells * BYTES_PER_LOOKUP_CELL)
-        lookup = NearestStationLookup(self.stations, self.grid == EMPTY, progress)
-        _read_only(lookup)
-        return lookup
 
     # -- geometry --------------------------------------------------------------------------------
     def is_free(self, x: Any, y: Any) -> bool | np.ndarray:
