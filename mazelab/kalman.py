@@ -24,7 +24,6 @@ from mazelab.model import CONFIDENCE_RADIUS, CONFIDENCE_SHARE, ROBOT_SPEED, SPEE
 from mazelab.modes import ESTIMATE_OPTION
 
 START_STD = 0.05  # std of each coordinate of init="start"'s covariance, map units: the start is known
-EKF_INITS = ("prior", "start")
 # `gaussian_mass_within`'s midpoint nodes psi on a quarter turn, as cos^2 psi and sin^2 psi: 256 reach
 # rounding level (64 already agree to 1e-9 for eigenvalues 5 and 1e-3; the integrand flattens where thin)
 _PSI = (np.arange(256) + 0.5) * (math.pi / 2 / 256)
@@ -48,7 +47,7 @@ class ExtendedKalmanFilter(ModelFilter):
             "prior",
             "prior (global localisation, the lab's problem) or start (tracking the start)",
             parse=str.strip,
-            check=choice("init", EKF_INITS),
+            check=choice("init", ("prior", "start")),
             flag="--init",
         ),
         Option("start", None, "the robot's start (x, y), handed in by the run", derived=True),
@@ -185,7 +184,6 @@ def covariance_ellipse(mean: np.ndarray, covariance: np.ndarray, scale: float = 
 
 
 __all__ = [
-    "EKF_INITS",
     "START_STD",
     "ExtendedKalmanFilter",
     "arc_moments",

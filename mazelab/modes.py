@@ -15,7 +15,6 @@ from mazelab.declaration import Option, choice
 
 MODE_CELL = 0.5  # bin size of the clustering, map units: half a maze cell, so a wall cell keeps modes apart
 MIN_BIN_MASS = 1e-4  # a bin holding less than this share of the weight counts as empty
-ESTIMATES = ("mean", "mode")  # the point estimates: the paper's posterior mean, the heaviest mode's mean
 
 
 @dataclass(frozen=True)
@@ -33,7 +32,7 @@ ESTIMATE_OPTION = Option(
     "mean",
     "the point estimate: mean (the paper's posterior mean) or mode (the heaviest mode's mean)",
     parse=str.strip,
-    check=choice("estimate", ESTIMATES),
+    check=choice("estimate", ("mean", "mode")),
     flag="--estimate",
 )
 
@@ -120,7 +119,6 @@ def modes_of_bins(sums: np.ndarray, min_mass: float = MIN_BIN_MASS) -> list[Mode
 
 
 __all__ = [
-    "ESTIMATES",
     "ESTIMATE_OPTION",
     "MIN_BIN_MASS",
     "MODE_CELL",
