@@ -2,9 +2,8 @@
 code that is not the lab's calling sys.exit, raising KeyboardInterrupt or failing. The lab's handlers
 raise the marked exceptions below, so that a filter's own `sys.exit(0)` or `raise KeyboardInterrupt`
 can be told apart from the user's stop and reported as the filter's error, not passed on as the
-program's exit. `StudentCodeError` is what a run raises when the student's code fails: the student's
-own frames (their file and line, none of the lab's) and the step at which it happened; a filter that
-calls sys.exit, raises KeyboardInterrupt or changes the working folder is reported the same way."""
+program's exit. The student's code failing during a run is reported by `student_code`, as a
+`StudentCodeError` (see both)."""
 
 from __future__ import annotations
 
