@@ -188,8 +188,12 @@ def _candidate_stations(
         i0, j0, ni, nj, near = boxes.pop()
         lo = (np.array([i0 - offset], dtype=float) / scale, np.array([j0 - offset], dtype=float) / scale)
         near = near[_possibly_nearest(stations[near], *lo, ni / scale, nj / scale)[0]]
-        if ni <= _LOOKUP_TILE and nj <= _LOOKUP_TILE:
-            tiles.append(_tile_candidates(stations, near, i0, j0, ni, nj, nx, offset, scale))
+        if ni <= _LOOKUP_TILE and nj <= _LOOKUP_TILE:  # a tile: its cells' flat indices, candidates and counts
+            ii, jj = np.meshgrid(np.arange(i0, i0 + ni), np.arange(j0, j0 + nj))
+            size = 1 / scale
+            lo_x, lo_y = (ii.ravel() - offset) * size, (jj.ravel() - offset) * size
+            order, counts = _cell_candidates(stations[near], lo_x, lo_y, size)
+            tiles.append(((jj * nx + ii).ravel(), near[order], counts))
             if progress is not None:
                 progress(len(tiles), total)
         else:
@@ -213,17 +217,6 @@ def _halves(i0: int, j0: int, ni: int, nj: int) -> list[tuple[int, int, int, int
         return [(i0, j0, cut, nj), (i0 + cut, j0, ni - cut, nj)]
     cut = max(1, nj // _LOOKUP_TILE // 2) * _LOOKUP_TILE
     return [(i0, j0, ni, cut), (i0, j0 + cut, ni, nj - cut)]
-
-
-def _tile_candidates(
-    stations: np.ndarray, near: np.ndarray, i0: int, j0: int, ni: int, nj: int, nx: int, offset: int, scale: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """One tile's flat cell indices, each cell's candidates (indices into `stations`) and counts."""
-    ii, jj = np.meshgrid(np.arange(i0, i0 + ni), np.arange(j0, j0 + nj))
-    size = 1 / scale
-    lo_x, lo_y = (ii.ravel() - offset) * size, (jj.ravel() - offset) * size
-    order, counts = _cell_candidates(stations[near], lo_x, lo_y, size)
-    return (jj * nx + ii).ravel(), near[order], counts
 
 
 def _cell_candidates(
