@@ -196,8 +196,12 @@ def _candidate_stations(
             tiles.append(((jj * nx + ii).ravel(), near[order], counts))
             if progress is not None:
                 progress(len(tiles), total)
+        elif ni >= nj:  # cut in two across the longer side, at a multiple of the tile side: the leaves are tiles
+            cut = max(1, ni // _LOOKUP_TILE // 2) * _LOOKUP_TILE
+            boxes += [(i0 + cut, j0, ni - cut, nj, near), (i0, j0, cut, nj, near)]  # the first half on top
         else:
-            boxes += [(a, b, m, n, near) for a, b, m, n in reversed(_halves(i0, j0, ni, nj))]
+            cut = max(1, nj // _LOOKUP_TILE // 2) * _LOOKUP_TILE
+            boxes += [(i0, j0 + cut, ni, nj - cut, near), (i0, j0, ni, cut, near)]
     width = max(int(counts.max()) for _, _, counts in tiles)
     table = np.empty((nx * ny, width), dtype=np.intp)
     all_counts = np.empty(nx * ny, dtype=np.intp)
@@ -207,16 +211,6 @@ def _candidate_stations(
         table[cells] = np.pad(candidates, ((0, 0), (0, width - candidates.shape[1])), mode="edge")
         all_counts[cells] = counts
     return table, all_counts
-
-
-def _halves(i0: int, j0: int, ni: int, nj: int) -> list[tuple[int, int, int, int]]:
-    """A box of lookup cells cut in two across its longer side, at a multiple of the tile side (so
-    the leaves are the tiles of the table)."""
-    if ni >= nj:
-        cut = max(1, ni // _LOOKUP_TILE // 2) * _LOOKUP_TILE
-        return [(i0, j0, cut, nj), (i0 + cut, j0, ni - cut, nj)]
-    cut = max(1, nj // _LOOKUP_TILE // 2) * _LOOKUP_TILE
-    return [(i0, j0, ni, cut), (i0, j0 + cut, ni, nj - cut)]
 
 
 def _cell_candidates(
