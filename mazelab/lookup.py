@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import Any
 
 import numpy as np
 
@@ -169,10 +168,6 @@ def _squared_distances(sx: np.ndarray, sy: np.ndarray, x: np.ndarray, y: np.ndar
     return dx
 
 
-def is_scalar(value: Any) -> bool:
-    return isinstance(value, (float, int, np.floating, np.integer)) and not isinstance(value, bool)
-
-
 def _candidate_stations(
     stations: np.ndarray, nx: int, ny: int, offset: int, scale: int, progress: Progress | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -263,6 +258,5 @@ def _possibly_nearest(
 __all__ = [
     "NearestStationLookup",
     "Progress",
-    "is_scalar",
     "lookup_cell_count",
 ]

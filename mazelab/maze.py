@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from mazelab.checks import BYTES_PER_LOOKUP_CELL, BYTES_PER_MAZE_CELL, MAX_MAZE_SIDE, check_memory, read_text_file
-from mazelab.lookup import NearestStationLookup, Progress, is_scalar, lookup_cell_count
+from mazelab.lookup import NearestStationLookup, Progress, lookup_cell_count
 
 
 class MazeError(ValueError):
@@ -188,7 +188,7 @@ class Maze:
     # -- geometry --------------------------------------------------------------------------------
     def is_free(self, x: Any, y: Any) -> bool | np.ndarray:
         """True where (x, y) lies in [0, W) x [0, H) in a cell of type 0; vectorised over arrays."""
-        if is_scalar(x) and is_scalar(y):
+        if _is_scalar(x) and _is_scalar(y):
             return self.free_at(float(x), float(y))
         x = np.asarray(x, dtype=float)
         y = np.asarray(y, dtype=float)
@@ -237,7 +237,7 @@ class Maze:
         Call as `distance_to_nearest_station(x, y)` with scalars or arrays of one shape, or with a
         single array of points of shape (..., 2).
         """
-        if y is not None and is_scalar(x) and is_scalar(y):
+        if y is not None and _is_scalar(x) and _is_scalar(y):
             return self.distance_at(float(x), float(y))
         points = _point_array(x) if y is None else np.stack(np.broadcast_arrays(x, y), -1).astype(float)
         flat = points.reshape(-1, 2)
@@ -342,6 +342,10 @@ def _point_array(points: Any) -> np.ndarray:
             f"points must have shape (N, 2), one (x, y) each, or give x and y apart; got shape {array.shape}"
         )
     return array
+
+
+def _is_scalar(value: Any) -> bool:
+    return isinstance(value, (float, int, np.floating, np.integer)) and not isinstance(value, bool)
 
 
 def _read_only(holder: Any) -> None:
