@@ -119,9 +119,7 @@ def _add_walls(
 
 
 def _keeps_free_area_connected(grid: np.ndarray, r: int, c: int) -> bool:
-    """The exact (global, slower) test: is the free area still connected with (r, c) a wall?"""
-    if int((grid == EMPTY).sum()) < 2:
-        return False
+    """The exact (global, slower) test: is the free area still connected (and not empty) with (r, c) a wall?"""
     grid[r, c] = WALL
     try:
         return free_area_is_connected(grid)
