@@ -354,16 +354,11 @@ def summarise_group(index: int, setting: StudySetting, name: str, group: Sequenc
     return summary
 
 
-def convergence_window(steps: int) -> int:
-    """K, the steps a run must stay below the radius to count as converged: the last-20% window
-    (`final_error` averages the same steps), at least one."""
-    return max(1, int(steps * FINAL_SHARE))
-
-
 def last_convergence_step(steps: int) -> int:
-    """The last step a run's convergence can count from: steps - K + 1 (K = `convergence_window`);
-    a run not converged by then is censored there (for the Kaplan-Meier median)."""
-    return steps - convergence_window(steps) + 1
+    """The last step a run's convergence can count from: steps - K + 1, K the steps a run must stay below
+    the radius to count as converged: the last-20% window (`final_error` averages the same steps), at least
+    one; a run not converged by then is censored there (for the Kaplan-Meier median)."""
+    return steps - max(1, int(steps * FINAL_SHARE)) + 1
 
 
 def converged_within(converged_at: int | None, steps: int) -> bool:
