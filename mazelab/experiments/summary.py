@@ -9,11 +9,11 @@ Converged: the error stays below CONVERGENCE_RADIUS for at least the last-20% wi
 
 from __future__ import annotations
 
+import functools
 import math
 import statistics
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, fields
-from pathlib import Path
 from statistics import NormalDist
 from typing import Any
 
@@ -30,7 +30,7 @@ from mazelab.experiments.study import (
     takes_parameter,
     varied_parameters,
 )
-from mazelab.experiments.tables import format_interval, format_number, format_table, records_csv
+from mazelab.experiments.tables import beside, format_interval, format_number, format_table, records_csv
 from mazelab.model import CONVERGENCE_RADIUS
 from mazelab.registry import described, resolve_filter
 
@@ -514,6 +514,7 @@ def _step_interval(bounds: Interval, last: int) -> str:
     return "-" if math.isnan(low) else f"[{low:g}, {_step(high, last)}]"
 
 
+summary_path = functools.partial(beside, suffix=".summary.csv")  # the summary CSV by default: NAME.summary.csv
 CSV_COLUMNS = [f.name for f in fields(RunRecord) if f.name != "options"]  # then a column per declared option
 # how to read the CSV's seeds back whole: maze_seed is empty for a maze file, so pandas would read the
 # column as float64 and round a seed above 2**53 (the record says so; pandas: dtype={"maze_seed": str})
@@ -592,8 +593,3 @@ def summary_csv(summaries: Sequence[StudySummary], columns: Sequence[str] = ()) 
     """The summary rows (`summary_rows`) as CSV: an empty cell for None, NaN and 'not reached'."""
     header = ["setting", *BASE_PARAMETERS, *columns, "filter", "label", *SUMMARY_STATISTICS]
     return records_csv(summary_rows(summaries, columns), header)
-
-
-def summary_path(csv_path: Path) -> Path:
-    """Where the summary CSV goes by default: NAME.summary.csv beside the rows' NAME.csv."""
-    return csv_path.with_name(f"{csv_path.stem}.summary.csv")
