@@ -305,9 +305,8 @@ def summarise_study(
     summaries = [summarise_group(index, settings[index - 1], name, group) for (index, name), group in groups.items()]
     reference = None if paired is None else resolve_filter(paired).name
     for s in summaries:
-        if reference is not None and s.filter != reference and pairs_exactly(s.filter, reference, settings):
-            group = groups[s.setting_index, s.filter]
-            pairs = paired_finals(group, records, settings, reference)
+        if reference is not None and s.filter != reference:
+            pairs = paired_finals(groups[s.setting_index, s.filter], records, settings, reference)
             if pairs:
                 mine, theirs = zip(*pairs, strict=True)
                 s.paired_with, s.paired_runs = reference, len(pairs)
@@ -384,19 +383,17 @@ def _mean_and_error(values: Sequence[float]) -> tuple[float, float]:
     return statistics.fmean(finite), error
 
 
-def pairs_exactly(name: str, reference: str, settings: Sequence[StudySetting]) -> bool:
-    """Whether a filter's setting fixes the reference's: not when the reference takes a varied parameter
-    the filter does not (the grid filter against SIR with several particle counts: which N?)."""
-    varied = varied_parameters(settings)
-    return not any(takes_parameter(reference, p) and not takes_parameter(name, p) for p in varied)
-
-
 def paired_finals(
     group: Sequence[RunRecord], records: Sequence[RunRecord], settings: Sequence[StudySetting], reference: str
 ) -> list[tuple[float, float]]:
     """(this filter's, the reference filter's) last-20% error per run both ran on the same scenario:
     the reference's record of the same run in a setting that agrees on every parameter the reference
-    takes (it runs once per such combination, `filters_per_setting`, so it may be another setting's)."""
+    takes (it runs once per such combination, `filters_per_setting`, so it may be another setting's); none
+    when the filter's setting does not fix the reference's: the reference takes a varied parameter the filter
+    does not (the grid filter against SIR with several particle counts: which N?)."""
+    name = group[0].filter
+    if any(takes_parameter(reference, p) and not takes_parameter(name, p) for p in varied_parameters(settings)):
+        return []
     parameters = study_parameters(settings)
 
     def key(setting: StudySetting) -> tuple[str, ...]:
