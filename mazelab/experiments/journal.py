@@ -260,15 +260,10 @@ GIT_SECONDS = 5  # a git that does not answer within this is left out
 
 
 def package_version() -> str:
-    """The installed package's version (the source's when it is not installed)."""
-    try:
-        from importlib.metadata import PackageNotFoundError, version
+    """The installed package's version (`dependency_versions`; the source's when it is not installed)."""
+    from mazelab import __version__
 
-        return version(PACKAGE)
-    except (ImportError, PackageNotFoundError):
-        from mazelab import __version__
-
-        return __version__
+    return dependency_versions([PACKAGE])[PACKAGE] or __version__
 
 
 def git_commit() -> str | None:
