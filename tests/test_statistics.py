@@ -25,9 +25,9 @@ from mazelab.experiments.summary import (
     bca_levels,
     bootstrap_interval,
     converged_within,
-    convergence_window,
     kaplan_meier,
     km_median,
+    last_convergence_step,
     leave_one_out,
     paired_difference,
     resampled,
@@ -113,7 +113,7 @@ def record(final: float, converged: int | None, run: int, steps: int = 10, name:
 def test_converged_means_below_the_radius_for_the_last_twenty_percent():
     """200 steps: K = 40 (the last-20% window), so a convergence counts from step 161 at the latest; a
     run converging at the last step, or at 162, does not."""
-    assert convergence_window(200) == 40 and convergence_window(3) == 1
+    assert last_convergence_step(200) == 161 and last_convergence_step(3) == 3
     assert converged_within(161, 200) and not converged_within(162, 200) and not converged_within(200, 200)
     assert not converged_within(None, 200) and converged_within(1, 200)
 

@@ -8,6 +8,7 @@ the paper's optimal bandwidth and the multimodal one, so the study runs the RPF 
 
 from __future__ import annotations
 
+import functools
 import statistics
 from collections.abc import Sequence
 from typing import Any
@@ -82,6 +83,7 @@ def accuracy_plan(
 # second half of the steps (map units; 0 for the grid itself) and its convergence step against the truth
 # (None: never); `filter` is the table's label of the row
 ACCURACY_COLUMNS = ["maze", "seed", "filter", "distance_to_exact", "converged_at", "run", "maze_seed"]
+accuracy_csv = functools.partial(records_csv, columns=ACCURACY_COLUMNS)  # accuracy_records' rows; "never": empty
 
 
 def accuracy_records(records: Sequence[RunRecord], rows: Sequence[AccuracyFilter]) -> list[dict[str, Any]]:
@@ -161,8 +163,3 @@ def accuracy_table(summary: Sequence[dict[str, Any]]) -> str:
     headers.append("median conv. step")
     note = "[95% intervals: the mean by percentile bootstrap (B = 2000, seeded), the share by Wilson score]"
     return format_table(headers, rows) + "\n" + note
-
-
-def accuracy_csv(records: Sequence[dict[str, Any]]) -> str:
-    """One row per maze, run and filter, columns ACCURACY_COLUMNS; an empty cell for "never"."""
-    return records_csv(records, ACCURACY_COLUMNS)

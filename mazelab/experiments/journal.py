@@ -42,8 +42,10 @@ from mazelab.backend import backend_versions
 from mazelab.checks import check_memory, check_seed
 from mazelab.experiments.study import RunRecord, RunTask, option_cells
 from mazelab.experiments.summary import CONFIDENCE_LEVEL, INTERVAL_METHODS
+from mazelab.experiments.tables import beside
 
 JOURNAL_SUFFIX = ".runs.jsonl"
+journal_path = functools.partial(beside, suffix=JOURNAL_SUFFIX)  # a study's journal: study.csv -> study.runs.jsonl
 CLAIM_SUFFIX = ".lock"
 MEMORY_PER_BYTE = 12  # what reading a journal takes per byte of it: the text, its lines, the records (generous)
 _NOFOLLOW = getattr(os, "O_NOFOLLOW", 0)  # a symlink at the name: ELOOP, never its target
@@ -52,12 +54,6 @@ _NONBLOCK = getattr(os, "O_NONBLOCK", 0)  # a pipe at the name: no wait for its 
 
 class JournalError(ValueError):
     """A journal (or a claimed output) that is in the way or cannot be used: one line naming it."""
-
-
-def journal_path(output: str | Path) -> Path:
-    """Where the journal of a study's CSV goes: study.csv -> study.runs.jsonl, beside it."""
-    output = Path(output)
-    return output.with_name(output.stem + JOURNAL_SUFFIX)
 
 
 def _not_ours(path: Path, what: str) -> str:
@@ -258,26 +254,16 @@ def claim_outputs(outputs: Sequence[tuple[str, Path | None]]) -> Callable[[], No
 # -- the record of how a result was made ------------------------------------------------------------
 RECORD_FORMAT = 1
 RECORD_SUFFIX = ".record.json"
+record_path = functools.partial(beside, suffix=RECORD_SUFFIX)  # an output's record: study.csv -> study.record.json
 PACKAGE = "maze-particle-filter-lab"
 GIT_SECONDS = 5  # a git that does not answer within this is left out
 
 
-def record_path(output: str | Path) -> Path:
-    """Where the record of an output goes: study.csv -> study.record.json, beside it."""
-    output = Path(output)
-    return output.with_name(output.stem + RECORD_SUFFIX)
-
-
 def package_version() -> str:
-    """The installed package's version (the source's when it is not installed)."""
-    try:
-        from importlib.metadata import PackageNotFoundError, version
+    """The installed package's version (`dependency_versions`; the source's when it is not installed)."""
+    from mazelab import __version__
 
-        return version(PACKAGE)
-    except (ImportError, PackageNotFoundError):
-        from mazelab import __version__
-
-        return __version__
+    return dependency_versions([PACKAGE])[PACKAGE] or __version__
 
 
 def git_commit() -> str | None:

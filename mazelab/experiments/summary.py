@@ -9,11 +9,11 @@ Converged: the error stays below CONVERGENCE_RADIUS for at least the last-20% wi
 
 from __future__ import annotations
 
+import functools
 import math
 import statistics
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, fields
-from pathlib import Path
 from statistics import NormalDist
 from typing import Any
 
@@ -30,7 +30,7 @@ from mazelab.experiments.study import (
     takes_parameter,
     varied_parameters,
 )
-from mazelab.experiments.tables import format_interval, format_number, format_table, records_csv
+from mazelab.experiments.tables import beside, format_interval, format_number, format_table, records_csv
 from mazelab.model import CONVERGENCE_RADIUS
 from mazelab.registry import described, resolve_filter
 
@@ -305,9 +305,8 @@ def summarise_study(
     summaries = [summarise_group(index, settings[index - 1], name, group) for (index, name), group in groups.items()]
     reference = None if paired is None else resolve_filter(paired).name
     for s in summaries:
-        if reference is not None and s.filter != reference and pairs_exactly(s.filter, reference, settings):
-            group = groups[s.setting_index, s.filter]
-            pairs = paired_finals(group, records, settings, reference)
+        if reference is not None and s.filter != reference:
+            pairs = paired_finals(groups[s.setting_index, s.filter], records, settings, reference)
             if pairs:
                 mine, theirs = zip(*pairs, strict=True)
                 s.paired_with, s.paired_runs = reference, len(pairs)
@@ -354,16 +353,11 @@ def summarise_group(index: int, setting: StudySetting, name: str, group: Sequenc
     return summary
 
 
-def convergence_window(steps: int) -> int:
-    """K, the steps a run must stay below the radius to count as converged: the last-20% window
-    (`final_error` averages the same steps), at least one."""
-    return max(1, int(steps * FINAL_SHARE))
-
-
 def last_convergence_step(steps: int) -> int:
-    """The last step a run's convergence can count from: steps - K + 1 (K = `convergence_window`);
-    a run not converged by then is censored there (for the Kaplan-Meier median)."""
-    return steps - convergence_window(steps) + 1
+    """The last step a run's convergence can count from: steps - K + 1, K the steps a run must stay below
+    the radius to count as converged: the last-20% window (`final_error` averages the same steps), at least
+    one; a run not converged by then is censored there (for the Kaplan-Meier median)."""
+    return steps - max(1, int(steps * FINAL_SHARE)) + 1
 
 
 def converged_within(converged_at: int | None, steps: int) -> bool:
@@ -389,19 +383,17 @@ def _mean_and_error(values: Sequence[float]) -> tuple[float, float]:
     return statistics.fmean(finite), error
 
 
-def pairs_exactly(name: str, reference: str, settings: Sequence[StudySetting]) -> bool:
-    """Whether a filter's setting fixes the reference's: not when the reference takes a varied parameter
-    the filter does not (the grid filter against SIR with several particle counts: which N?)."""
-    varied = varied_parameters(settings)
-    return not any(takes_parameter(reference, p) and not takes_parameter(name, p) for p in varied)
-
-
 def paired_finals(
     group: Sequence[RunRecord], records: Sequence[RunRecord], settings: Sequence[StudySetting], reference: str
 ) -> list[tuple[float, float]]:
     """(this filter's, the reference filter's) last-20% error per run both ran on the same scenario:
     the reference's record of the same run in a setting that agrees on every parameter the reference
-    takes (it runs once per such combination, `filters_per_setting`, so it may be another setting's)."""
+    takes (it runs once per such combination, `filters_per_setting`, so it may be another setting's); none
+    when the filter's setting does not fix the reference's: the reference takes a varied parameter the filter
+    does not (the grid filter against SIR with several particle counts: which N?)."""
+    name = group[0].filter
+    if any(takes_parameter(reference, p) and not takes_parameter(name, p) for p in varied_parameters(settings)):
+        return []
     parameters = study_parameters(settings)
 
     def key(setting: StudySetting) -> tuple[str, ...]:
@@ -519,6 +511,7 @@ def _step_interval(bounds: Interval, last: int) -> str:
     return "-" if math.isnan(low) else f"[{low:g}, {_step(high, last)}]"
 
 
+summary_path = functools.partial(beside, suffix=".summary.csv")  # the summary CSV by default: NAME.summary.csv
 CSV_COLUMNS = [f.name for f in fields(RunRecord) if f.name != "options"]  # then a column per declared option
 # how to read the CSV's seeds back whole: maze_seed is empty for a maze file, so pandas would read the
 # column as float64 and round a seed above 2**53 (the record says so; pandas: dtype={"maze_seed": str})
@@ -597,8 +590,3 @@ def summary_csv(summaries: Sequence[StudySummary], columns: Sequence[str] = ()) 
     """The summary rows (`summary_rows`) as CSV: an empty cell for None, NaN and 'not reached'."""
     header = ["setting", *BASE_PARAMETERS, *columns, "filter", "label", *SUMMARY_STATISTICS]
     return records_csv(summary_rows(summaries, columns), header)
-
-
-def summary_path(csv_path: Path) -> Path:
-    """Where the summary CSV goes by default: NAME.summary.csv beside the rows' NAME.csv."""
-    return csv_path.with_name(f"{csv_path.stem}.summary.csv")

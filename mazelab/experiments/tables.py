@@ -47,6 +47,13 @@ def save_figure(figure: Any, path: Path, *, replace: bool = True, dpi: int = 150
     write_bytes_atomically(path, buffer.getvalue(), replace=replace)
 
 
+def beside(output: str | Path, suffix: str) -> Path:
+    """The name of a file that goes with an output, beside it: study.csv -> study{suffix} (the journal,
+    the record, the summary CSV)."""
+    output = Path(output)
+    return output.with_name(output.stem + suffix)
+
+
 def format_table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
     """A plain-text table: the first column left-aligned, the others right-aligned."""
     widths = [max(len(str(cell)) for cell in column) for column in zip(headers, *rows, strict=True)]
