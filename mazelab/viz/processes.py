@@ -71,15 +71,14 @@ def start_rerun(
     if not detached:
         end_with_this_program(process)
     deadline = time.monotonic() + timeout
-    while not all(listening(port) for port in ports):
-        if process.poll() is not None or time.monotonic() > deadline:
-            stop_process(process)
-            raise RuntimeError(f"the Rerun viewer did not start (exit code {process.returncode})")
+    while process.poll() is None and time.monotonic() <= deadline:
+        if all(listening(port) for port in ports):
+            time.sleep(settle)
+            if process.poll() is None:
+                return process
         time.sleep(0.05)
-    time.sleep(settle)
-    if process.poll() is not None:
-        raise RuntimeError(f"the Rerun viewer did not start (exit code {process.returncode})")
-    return process
+    stop_process(process)
+    raise RuntimeError(f"the Rerun viewer did not start (exit code {process.returncode})")
 
 
 def native_viewer() -> str:
