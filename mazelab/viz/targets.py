@@ -64,14 +64,13 @@ def resolve_target(target: Any) -> str | Path:
 
 
 def default_recording_path(label: str) -> Path:
-    """recordings/<label>-<date>-<time>.rrd in the current folder, free now; the folder is created.
-    (The name is claimed when the file is written: a run started in the same second takes the next.)"""
+    """recordings/<label>-<date>-<time>.rrd in the current folder; the folder is created. The name is
+    claimed when the file is written (Recording.save): taken by then, the next free one is."""
     try:
         RECORDINGS_DIR.mkdir(parents=True, exist_ok=True)
     except OSError as error:
         raise WriteError(error.errno, error.strerror, str(RECORDINGS_DIR)) from None
-    path = RECORDINGS_DIR / f"{label}-{time.strftime('%Y%m%d-%H%M%S')}.rrd"
-    return next_free_name(path) if path.exists() else path
+    return RECORDINGS_DIR / f"{label}-{time.strftime('%Y%m%d-%H%M%S')}.rrd"
 
 
 def next_free_name(path: Path) -> Path:
