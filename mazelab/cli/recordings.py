@@ -8,13 +8,9 @@ you saved there under a name of your own, a link or a folder stays.
 `mazelab view FILE`: serve a saved recording in the web viewer on 127.0.0.1, with the lab's layout,
 for a machine without a display (over ssh: forward the two ports, then open the printed address).
 
-Why the layout is sent, not only the file (rerun-sdk 0.41): a file written with `default_blueprint=`
-marks its blueprint as the application's default only, and the SDK writes the recording's own store
-before the blueprint. The web viewer, fed such a file by `rerun --serve-web FILE`, activates the
-recording first, finds no active layout and builds its automatic grid; a default that arrives later
-stays a default. So the lab writes its recordings with their layout active (mazelab.viz.recording), and
-`view` sends a file's layout first and active, which also opens older files and a caller's own
-`rr.RecordingStream` with the lab's layout.
+`view` sends a file's layout ahead of its recording and makes it active: rerun-sdk 0.41's web viewer
+reads a recording before its layout and, with a default layout alone, builds its automatic grid (see
+docs/viewer.md). So older files and a caller's own `rr.RecordingStream` open with the lab's layout too.
 """
 
 from __future__ import annotations
