@@ -160,13 +160,12 @@ def view(recording: arg(Path, "FILE", "a saved recording (.rrd)")) -> None:
         signal.signal(number, signal.default_int_handler)  # serving as Ctrl-C does: the server ends, exit 0
     try:
         replay_with_layout(recording, lambda stream: stream.connect_grpc(server.grpc_url))
-    except RuntimeError as error:  # rerun could not read or send it after all
+    except BaseException as error:  # the server ends with the command, whatever stopped it
         server.stop()
+        if not isinstance(error, RuntimeError):  # a RuntimeError: rerun could not read or send it after all
+            raise
         typer.echo(f"error: {recording}: could not send it to the web viewer ({error})", err=True)
         raise typer.Exit(1) from None
-    except BaseException:
-        server.stop()
-        raise
     print(f"Serving {recording}")
     server.serve_until_interrupted()
 
