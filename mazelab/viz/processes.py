@@ -114,9 +114,8 @@ def end_with_this_program(process: Any) -> None:
 
 
 def hold_stop_signals(holder: object) -> None:
-    """While `holder` (a child process, an open recording) is held, SIGTERM and SIGHUP end this
-    program through its `finally` clauses, as Ctrl-C does: children stopped, the recording saved.
-    Ctrl-C is handled where it waits; a signal ignored (nohup) stays ignored."""
+    """While `holder` (a child process, an open recording) is held, SIGTERM and SIGHUP end this program
+    as the module docstring says; Ctrl-C is handled where it waits, a signal ignored (nohup) stays so."""
     _holders.add(holder)
     if not _previous_handlers and threading.current_thread() is threading.main_thread():
         ours = [n for n in STOP_SIGNALS if n != signal.SIGINT and signal.getsignal(n) != signal.SIG_IGN]
