@@ -160,12 +160,10 @@ class WebServer:
         self.url = f"http://127.0.0.1:{web_port}/?url={urllib.parse.quote(self.grpc_url, safe='')}"
 
     @classmethod
-    def start(cls, recordings: Sequence[Path] = ()) -> WebServer:
-        """Start `rerun --serve-web` bound to 127.0.0.1 on two free ports; return once it listens.
-        With `recordings` (saved .rrd files) it serves those instead of waiting for a run."""
+    def start(cls) -> WebServer:
+        """Start `rerun --serve-web` bound to 127.0.0.1 on two free ports; return once it listens."""
         grpc_port, web_port = free_port(), free_port()
         arguments = ["--serve-web", "--bind", "127.0.0.1", "--port", str(grpc_port), "--web-viewer-port", str(web_port)]
-        arguments += [str(path) for path in recordings]
         return cls(start_rerun(arguments, [grpc_port, web_port], detached=False), grpc_port, web_port)
 
     def serve_until_interrupted(self, already_interrupted: bool = False) -> None:
