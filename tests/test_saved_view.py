@@ -31,7 +31,7 @@ from mazelab.cli.recordings import recording_problem, replay_with_layout
 from mazelab.maze import Maze
 from mazelab.robot import Robot
 from mazelab.simulation import simulate
-from mazelab.viz.processes import WebServer, rerun_environment, viewer_executable
+from mazelab.viz.processes import WebServer, free_port, rerun_environment, start_rerun, viewer_executable
 from mazelab.viz.style import APPLICATION_ID, STATION_COLOR
 
 BROWSER = find_browser()
@@ -275,7 +275,9 @@ def test_a_saved_run_has_its_layout_in_the_web_viewer_whoever_serves_the_file(tm
     server, the file as it is on disk) shows it too."""
     path = tmp_path / "run.rrd"
     assert main([*SHORT_RUN, "--rrd", str(path)]) == 0
-    server = WebServer.start([path])
+    grpc_port, web_port = free_port(), free_port()
+    arguments = ["--serve-web", "--bind", "127.0.0.1", "--port", str(grpc_port), "--web-viewer-port", str(web_port)]
+    server = WebServer(start_rerun([*arguments, str(path)], [grpc_port, web_port], detached=False), grpc_port, web_port)
     try:
         assert looks_like(page, server.url, maps=1, shot=tmp_path / "served.png") == []
     finally:

@@ -8,13 +8,9 @@ you saved there under a name of your own, a link or a folder stays.
 `mazelab view FILE`: serve a saved recording in the web viewer on 127.0.0.1, with the lab's layout,
 for a machine without a display (over ssh: forward the two ports, then open the printed address).
 
-Why the layout is sent, not only the file (rerun-sdk 0.41): a file written with `default_blueprint=`
-marks its blueprint as the application's default only, and the SDK writes the recording's own store
-before the blueprint. The web viewer, fed such a file by `rerun --serve-web FILE`, activates the
-recording first, finds no active layout and builds its automatic grid; a default that arrives later
-stays a default. So the lab writes its recordings with their layout active (mazelab.viz.recording), and
-`view` sends a file's layout first and active, which also opens older files and a caller's own
-`rr.RecordingStream` with the lab's layout.
+`view` sends a file's layout ahead of its recording and makes it active: rerun-sdk 0.41's web viewer
+reads a recording before its layout and, with a default layout alone, builds its automatic grid (see
+docs/viewer.md). So older files and a caller's own `rr.RecordingStream` open with the lab's layout too.
 """
 
 from __future__ import annotations
@@ -164,13 +160,12 @@ def view(recording: arg(Path, "FILE", "a saved recording (.rrd)")) -> None:
         signal.signal(number, signal.default_int_handler)  # serving as Ctrl-C does: the server ends, exit 0
     try:
         replay_with_layout(recording, lambda stream: stream.connect_grpc(server.grpc_url))
-    except RuntimeError as error:  # rerun could not read or send it after all
+    except BaseException as error:  # the server ends with the command, whatever stopped it
         server.stop()
+        if not isinstance(error, RuntimeError):  # a RuntimeError: rerun could not read or send it after all
+            raise
         typer.echo(f"error: {recording}: could not send it to the web viewer ({error})", err=True)
         raise typer.Exit(1) from None
-    except BaseException:
-        server.stop()
-        raise
     print(f"Serving {recording}")
     server.serve_until_interrupted()
 

@@ -71,15 +71,14 @@ def start_rerun(
     if not detached:
         end_with_this_program(process)
     deadline = time.monotonic() + timeout
-    while not all(listening(port) for port in ports):
-        if process.poll() is not None or time.monotonic() > deadline:
-            stop_process(process)
-            raise RuntimeError(f"the Rerun viewer did not start (exit code {process.returncode})")
+    while process.poll() is None and time.monotonic() <= deadline:
+        if all(listening(port) for port in ports):
+            time.sleep(settle)
+            if process.poll() is None:
+                return process
         time.sleep(0.05)
-    time.sleep(settle)
-    if process.poll() is not None:
-        raise RuntimeError(f"the Rerun viewer did not start (exit code {process.returncode})")
-    return process
+    stop_process(process)
+    raise RuntimeError(f"the Rerun viewer did not start (exit code {process.returncode})")
 
 
 def native_viewer() -> str:
@@ -115,9 +114,8 @@ def end_with_this_program(process: Any) -> None:
 
 
 def hold_stop_signals(holder: object) -> None:
-    """While `holder` (a child process, an open recording) is held, SIGTERM and SIGHUP end this
-    program through its `finally` clauses, as Ctrl-C does: children stopped, the recording saved.
-    Ctrl-C is handled where it waits; a signal ignored (nohup) stays ignored."""
+    """While `holder` (a child process, an open recording) is held, SIGTERM and SIGHUP end this program
+    as the module docstring says; Ctrl-C is handled where it waits, a signal ignored (nohup) stays so."""
     _holders.add(holder)
     if not _previous_handlers and threading.current_thread() is threading.main_thread():
         ours = [n for n in STOP_SIGNALS if n != signal.SIGINT and signal.getsignal(n) != signal.SIG_IGN]
@@ -162,12 +160,10 @@ class WebServer:
         self.url = f"http://127.0.0.1:{web_port}/?url={urllib.parse.quote(self.grpc_url, safe='')}"
 
     @classmethod
-    def start(cls, recordings: Sequence[Path] = ()) -> WebServer:
-        """Start `rerun --serve-web` bound to 127.0.0.1 on two free ports; return once it listens.
-        With `recordings` (saved .rrd files) it serves those instead of waiting for a run."""
+    def start(cls) -> WebServer:
+        """Start `rerun --serve-web` bound to 127.0.0.1 on two free ports; return once it listens."""
         grpc_port, web_port = free_port(), free_port()
         arguments = ["--serve-web", "--bind", "127.0.0.1", "--port", str(grpc_port), "--web-viewer-port", str(web_port)]
-        arguments += [str(path) for path in recordings]
         return cls(start_rerun(arguments, [grpc_port, web_port], detached=False), grpc_port, web_port)
 
     def serve_until_interrupted(self, already_interrupted: bool = False) -> None:

@@ -190,28 +190,21 @@ class Recording:
             try:
                 write_bytes_atomically(self.path, data, replace=self.replace)
                 break
-            except FileExistsError as error:
-                if not self.claim_name:  # a name the user chose, taken by another run meanwhile
-                    self._defer_or_raise(error)
+            except WriteError as error:  # every error of write_bytes_atomically is one
+                deferred = _deferred.get()
+                if self.claim_name and isinstance(error, FileExistsError):  # a default name, taken meanwhile
+                    self.path = next_free_name(self.path)
+                elif deferred is None:
+                    raise
+                else:
+                    deferred[0].append(error)  # raised when the block of deferred_to_the_end ends
                     return
-                self.path = next_free_name(self.path)
-            except WriteError as error:
-                self._defer_or_raise(error)
-                return
         why = f"; {self.why}, so" if self.why else ";"
         hint = open_hint(self.path, targets.has_display())
         print(f"Recording saved to {self.path}; {human_size(len(data))}{why} open it with: {hint}")
         crowded = crowded_folder_hint(self.path.parent, command_prefix()) if self.claim_name else None
         if crowded is not None:  # default names: runs without a display pile them up in RECORDINGS_DIR
             print(crowded)
-
-    @staticmethod
-    def _defer_or_raise(error: OSError) -> None:
-        """Raise a write error now, or keep it for the end of deferred_to_the_end."""
-        deferred = _deferred.get()
-        if deferred is None:
-            raise error
-        deferred[0].append(error if isinstance(error, WriteError) else WriteError(error.errno, error.strerror))
 
 
 def rerun_switched_off() -> bool:

@@ -23,8 +23,7 @@ STATION_RADIUS, ROBOT_RADIUS, PARTICLE_ARROW_RADIUS, CELL_DOT_RADIUS = 0.08, 0.1
 COVARIANCE_SIGMAS, COVARIANCE_LINE_RADIUS = 2.0, 0.02  # the EKF's ellipse: 2-sigma (86% of a 2-D Gaussian)
 MODE_DRAWN_SHARE = 0.05  # modes holding more than this share of the weight are drawn, each a labelled circle
 MODE_MIN_RADIUS, MODE_LINE_RADIUS = 0.25, 0.02  # a mode's circle: its spread, at least this (map units)
-SERIES = ("error", "ess", "confident")  # the time series under /metrics/<series>/<filter>
-SERIES_TITLES = {
+SERIES = {  # the time series under /metrics/<series>/<filter>, and their panels' titles
     "error": "error |estimate - truth|",
     "ess": "effective sample size (and N with KLD-sampling)",
     "confident": "confident (95% within the circle)",
@@ -111,4 +110,4 @@ def series_view(series: str) -> Any:
     import rerun.blueprint as rrb
 
     legend = getattr(rrb.Corner2D, ERROR_LEGEND_CORNER) if series == "error" else None
-    return rrb.TimeSeriesView(name=SERIES_TITLES[series], origin=f"/metrics/{series}", plot_legend=legend)
+    return rrb.TimeSeriesView(name=SERIES[series], origin=f"/metrics/{series}", plot_legend=legend)

@@ -64,14 +64,13 @@ def resolve_target(target: Any) -> str | Path:
 
 
 def default_recording_path(label: str) -> Path:
-    """recordings/<label>-<date>-<time>.rrd in the current folder, free now; the folder is created.
-    (The name is claimed when the file is written: a run started in the same second takes the next.)"""
+    """recordings/<label>-<date>-<time>.rrd in the current folder; the folder is created. The name is
+    claimed when the file is written (Recording.save): taken by then, the next free one is."""
     try:
         RECORDINGS_DIR.mkdir(parents=True, exist_ok=True)
     except OSError as error:
         raise WriteError(error.errno, error.strerror, str(RECORDINGS_DIR)) from None
-    path = RECORDINGS_DIR / f"{label}-{time.strftime('%Y%m%d-%H%M%S')}.rrd"
-    return next_free_name(path) if path.exists() else path
+    return RECORDINGS_DIR / f"{label}-{time.strftime('%Y%m%d-%H%M%S')}.rrd"
 
 
 def next_free_name(path: Path) -> Path:
@@ -103,10 +102,9 @@ class SavedRecording:
         return LAB_NAME.fullmatch(self.path.name) is not None
 
 
-def saved_recordings(folder: Path | None = None) -> list[SavedRecording]:
-    """The .rrd files in `folder` (default RECORDINGS_DIR) that are regular files (a symbolic link or
-    a folder is not one of them), oldest first; none when the folder does not exist."""
-    folder = RECORDINGS_DIR if folder is None else folder
+def saved_recordings(folder: Path) -> list[SavedRecording]:
+    """The .rrd files in `folder` that are regular files (a symbolic link or a folder is not one of
+    them), oldest first; none when the folder does not exist."""
     found = []
     try:
         entries = list(os.scandir(folder))
@@ -134,9 +132,8 @@ def human_size(size: float) -> str:
     return f"{int(size)} B"
 
 
-def folder_summary(folder: Path | None = None) -> str:
+def folder_summary(folder: Path) -> str:
     """What a folder of recordings holds now, e.g. "recordings/ holds 7 recordings, 140 MB"."""
-    folder = RECORDINGS_DIR if folder is None else folder
     found = saved_recordings(folder)
     count = f"{len(found)} recording{'s' if len(found) != 1 else ''}"
     return f"{folder}{os.sep} holds {count}, {human_size(sum(saved.size for saved in found))}"

@@ -108,31 +108,6 @@ def weight_colors(weights: np.ndarray) -> np.ndarray:
     return np.column_stack([255 * t, np.zeros_like(t), 255 * (1 - t)]).astype(np.uint8)
 
 
-def drawn_particles(belief: Particles | Density, max_drawn: int) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
-    """What is drawn of a filter's belief: positions (M, 2), headings (M,) or None, and colours (M, 3)
-    by weight (`weight_colors`), INJECTED_COLOR for the particles that recovery injected this step.
-
-    Particles: all N when N <= max_drawn, else max_drawn of them at evenly spaced indices
-    (deterministic: drawing never draws from the filter's random stream). A Density (the grid
-    filter's cells, which are not a sample): the cells hit by a systematic pick of max_drawn points
-    of its mass, each cell once, so the dots show where the probability is.
-    """
-    weights, positions = np.asarray(belief.weights), np.asarray(belief.positions)
-    if isinstance(belief, Density):
-        cumulative = np.cumsum(weights)
-        targets = (np.arange(max_drawn) + 0.5) / max_drawn * cumulative[-1]
-        cells = np.unique(np.minimum(np.searchsorted(cumulative, targets), len(weights) - 1))
-        return positions[cells], None, weight_colors(weights[cells])
-    picked: slice | np.ndarray = slice(None)
-    if len(positions) > max_drawn:
-        picked = np.linspace(0, len(positions) - 1, max_drawn).round().astype(np.int64)
-    colors = weight_colors(weights[picked])
-    if belief.injected is not None:  # a mask over all N particles
-        colors[np.asarray(belief.injected)[picked]] = INJECTED_COLOR
-    headings = None if belief.headings is None else np.asarray(belief.headings)[picked]
-    return positions[picked], headings, colors
-
-
 class RunView:
     """One filter's run drawn into a Rerun recording: its particles, estimate and time series."""
 
@@ -194,15 +169,35 @@ class RunView:
             stream.log(path, rr.Scalars(float(state.count)))
 
     def log_particles(self, belief: Particles | Density) -> None:
-        """The particles (or a grid's cells) coloured by weight, the injected ones apart."""
+        """What is drawn of a filter's belief: arrows along the particles' headings (dots without), coloured
+        by weight (`weight_colors`), INJECTED_COLOR for the particles that recovery injected this step.
+
+        Particles: all N when N <= max_drawn, else max_drawn of them at evenly spaced indices
+        (deterministic: drawing never draws from the filter's random stream). A Density (the grid
+        filter's cells, which are not a sample): the cells hit by a systematic pick of max_drawn points
+        of its mass, each cell once, so the dots show where the probability is.
+        """
         import rerun as rr
 
-        positions, headings, colors = drawn_particles(belief, self.max_drawn)
-        if headings is None:
-            drawn = rr.Points2D(positions, colors=colors, radii=CELL_DOT_RADIUS)
+        weights, positions = np.asarray(belief.weights), np.asarray(belief.positions)
+        picked: slice | np.ndarray = slice(None)
+        headings = injected = None  # a Density has neither: its cells are drawn as dots
+        if isinstance(belief, Density):
+            cumulative = np.cumsum(weights)
+            targets = (np.arange(self.max_drawn) + 0.5) / self.max_drawn * cumulative[-1]
+            picked = np.unique(np.minimum(np.searchsorted(cumulative, targets), len(weights) - 1))
         else:
-            vectors = heading_vectors(headings, PARTICLE_ARROW_LENGTH)
-            drawn = rr.Arrows2D(origins=positions, vectors=vectors, colors=colors, radii=PARTICLE_ARROW_RADIUS)
+            headings, injected = belief.headings, belief.injected
+            if len(positions) > self.max_drawn:
+                picked = np.linspace(0, len(positions) - 1, self.max_drawn).round().astype(np.int64)
+        colors = weight_colors(weights[picked])
+        if injected is not None:  # a mask over all N particles
+            colors[np.asarray(injected)[picked]] = INJECTED_COLOR
+        if headings is None:
+            drawn = rr.Points2D(positions[picked], colors=colors, radii=CELL_DOT_RADIUS)
+        else:
+            vectors = heading_vectors(np.asarray(headings)[picked], PARTICLE_ARROW_LENGTH)
+            drawn = rr.Arrows2D(origins=positions[picked], vectors=vectors, colors=colors, radii=PARTICLE_ARROW_RADIUS)
         self.recording.stream.log(f"{self.path}/particles", drawn)
 
     def log_modes(self, modes: Sequence[Mode]) -> None:
