@@ -309,21 +309,19 @@ def _preexec(seconds: float, cgroup: Cgroup, drop: Any) -> Any:
 
 # -- the kit and the submission's copy --------------------------------------------------------------------
 _kit_lock = threading.Lock()
+_kit: list[Path] = []  # the one built (grading threads share it)
 
 
 def kit() -> Path:
     """The student kit of this process: built once, in a temporary folder removed at exit."""
     with _kit_lock:
-        return _built_kit()
-
-
-@functools.cache
-def _built_kit() -> Path:
-    folder = Path(tempfile.mkdtemp(prefix="mazelab-kit-"))
-    folder.chmod(0o755)  # the sandbox may run as nobody (as root without a cgroup)
-    atexit.register(_remove, folder)
-    build_kit(folder / "kit")
-    return folder / "kit"
+        if not _kit:
+            folder = Path(tempfile.mkdtemp(prefix="mazelab-kit-"))
+            folder.chmod(0o755)  # the sandbox may run as nobody (as root without a cgroup)
+            atexit.register(_remove, folder)
+            build_kit(folder / "kit")
+            _kit.append(folder / "kit")
+        return _kit[0]
 
 
 def _remove(folder: Path) -> None:

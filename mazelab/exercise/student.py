@@ -133,8 +133,9 @@ class StudentFilter(SMC):
         """x_k^i ~ p(x_k | x_{k-1}^i) by the student's `predict` on a copy of x[A] (after resampling),
         its answer checked: (1, N, 2), finite."""
         chosen = x[0] if A is None else x[0][A[0]]
-        moved = answer_array("predict", self.predict(chosen.copy(), float(th0[0]), rngs[0]), (len(chosen), 2))
-        return _finite("predict", moved)[None], np.zeros((1, len(moved)))
+        moved = self.predict(chosen.copy(), float(th0[0]), rngs[0])
+        moved = answer_array("predict", moved, (len(chosen), 2), finite=True)
+        return moved[None], np.zeros((1, len(moved)))
 
     def logG(self, x: np.ndarray, z: np.ndarray) -> np.ndarray:  # noqa: N802
         """log p(z_k | x_k^i) by the student's `weigh` on a copy of x, its answer checked: (1, N), no NaN
@@ -165,7 +166,7 @@ class StudentFilter(SMC):
         """The contract's point estimate: the student's estimate of the present posterior, (2,) (once per step)."""
         if self._estimate is None or self._estimate[0] is not self.W:
             point = self.estimate_part(self.positions.copy(), self.weights.copy())
-            self._estimate = (self.W, _finite("estimate", answer_array("estimate", point, (2,))))
+            self._estimate = (self.W, answer_array("estimate", point, (2,), finite=True))
         return self._estimate[1].copy()
 
     @property
@@ -179,10 +180,12 @@ class StudentFilter(SMC):
         return Particles(self.positions, self.weights)
 
 
-def answer_array(part: str, value: Any, shape: tuple[int, ...], indices: bool = False) -> np.ndarray:
-    """A part's answer as a float64 array of `shape` (int64 where it returns `indices`: whole numbers
-    only), else PartError in one line naming the part and what came. The one check of an answer's form:
-    the filter's own steps (`call_*`) and the grading's child (mazelab.exercise.child) both use it."""
+def answer_array(
+    part: str, value: Any, shape: tuple[int, ...], indices: bool = False, finite: bool = False
+) -> np.ndarray:
+    """A part's answer as a float64 array of `shape` (int64 for `indices`: whole numbers only; finite
+    where `finite`), else PartError in one line naming the part and what came. The one check of an
+    answer's form: the filter's own steps and the grading's child (mazelab.exercise.child) both use it."""
     try:
         array = np.asarray(value)
         if indices and not np.issubdtype(array.dtype, np.integer):
@@ -194,14 +197,9 @@ def answer_array(part: str, value: Any, shape: tuple[int, ...], indices: bool = 
         raise PartError(f"{part} returned {type(value).__name__}, not numbers ({error})") from None
     if array.shape != shape:
         raise PartError(f"{part} returned shape {array.shape}; expected {shape}")
-    return array
-
-
-def _finite(part: str, values: np.ndarray) -> np.ndarray:
-    """A part's array, refused in one line when it holds a value that is not finite."""
-    if not np.isfinite(values).all():
+    if finite and not np.isfinite(array).all():
         raise PartError(f"{part} returned a value that is not finite (NaN or inf)")
-    return values
+    return array
 
 
 __all__ = ["PARTS", "PartError", "StudentFilter", "answer_array"]
