@@ -40,11 +40,6 @@ def run_streams(seed: int) -> RunStreams:
     return RunStreams(*np.random.default_rng(seed).spawn(4))
 
 
-def filter_rng(seed: int) -> np.random.Generator:
-    """The filter's stream of run `seed` (what simulate hands the filter)."""
-    return run_streams(seed).filter
-
-
 def study_seeds(root_seed: int, runs: int) -> list[tuple[int, int]]:
     """(seed, maze seed) of runs 1..R, children of one root SeedSequence: run r's seeds do not change
     when R grows (SeedSequence.spawn numbers its children), so a larger study extends a smaller one."""
@@ -52,4 +47,4 @@ def study_seeds(root_seed: int, runs: int) -> list[tuple[int, int]]:
     return [tuple(int(v >> np.uint64(1)) for v in child.generate_state(2, np.uint64)) for child in children]
 
 
-__all__ = ["RunStreams", "filter_rng", "new_seed", "run_streams", "start_place", "study_seeds"]
+__all__ = ["RunStreams", "new_seed", "run_streams", "start_place", "study_seeds"]

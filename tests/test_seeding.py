@@ -11,7 +11,7 @@ import numpy as np
 from mazelab.filters import SIRParticleFilter
 from mazelab.model import Sensor
 from mazelab.robot import Robot
-from mazelab.seeding import filter_rng, new_seed, run_streams, start_place, study_seeds
+from mazelab.seeding import new_seed, run_streams, start_place, study_seeds
 from mazelab.simulation import simulate
 
 
@@ -35,7 +35,7 @@ def test_a_runs_seed_gives_its_start_and_four_streams(paper_world):
     for drawn, child in zip(draws, spawned, strict=True):
         np.testing.assert_array_equal(drawn, child.random(4))
     assert len({tuple(d) for d in draws}) == 4
-    np.testing.assert_array_equal(filter_rng(seed).random(4), draws[2])
+    np.testing.assert_array_equal(run_streams(seed).filter.random(4), draws[2])
     assert isinstance(new_seed(), int) and 0 <= new_seed() < 2**63
 
 

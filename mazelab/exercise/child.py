@@ -32,7 +32,7 @@ import numpy as np
 
 from mazelab.exercise.student import PARTS, PartError, StudentFilter, answer_array
 from mazelab.maze import Maze
-from mazelab.seeding import filter_rng
+from mazelab.seeding import run_streams
 from mazelab.stops import describe_exit
 
 MAGIC = b"MZL1"
@@ -252,7 +252,7 @@ def whole_stage(cls: type, stage: str, inputs: Inputs, emit: Emit) -> tuple[dict
         estimates, step = np.empty((len(z), 2)), 0
         try:
             noise = (given["sigma"], given["delta"], given["particles"].copy())
-            filt = cls(inputs.world(f"whole.{i}"), *noise, filter_rng(given["seed"]))
+            filt = cls(inputs.world(f"whole.{i}"), *noise, run_streams(given["seed"]).filter)
             for step in range(1, len(z) + 1):
                 filt.step(float(compass[step - 1]), float(z[step - 1]))
                 estimates[step - 1] = answer_array("estimate", filt.estimate, (2,))  # a property of its own too

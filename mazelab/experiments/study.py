@@ -38,7 +38,7 @@ from mazelab.maze_generator import DEFAULT_WALL_SHARE, generate_maze
 from mazelab.model import check_model_parameters
 from mazelab.registry import PluginReference, entries, file_sha256, filter_entry, filters_here, resolve_filter
 from mazelab.robot import Robot
-from mazelab.seeding import filter_rng, run_streams, study_seeds
+from mazelab.seeding import run_streams, study_seeds
 from mazelab.simulation import RunInputs, RunResult, checked_walk, maze_for, record_steps
 
 
@@ -621,7 +621,7 @@ def run_batch(tasks: Sequence[RunTask]) -> list[list[RunRecord]]:
         filter_class = filter_entry(name).filter_class
         options = tasks[0].setting.filter_options(name)
         warm_batch(filter_class, world, tasks, particles, compass, z, options)
-        rngs = [filter_rng(task.seed) for task in tasks]  # each run's filter stream, as simulate's
+        rngs = [run_streams(task.seed).filter for task in tasks]  # each run's filter stream, as simulate's
         filt = filter_class(maze_for(filter_class, world), s.sigma, s.delta, particles, rngs, **options)
         runs = None if len(tasks) == 1 else len(tasks)  # one run: the paper's shapes
         if runs is None:
@@ -652,7 +652,7 @@ def warm_batch(
     s = tasks[0].setting
 
     def warm(warmed: dict) -> None:
-        rngs = [filter_rng(WARM_UP_SEED) for _ in range(r)]
+        rngs = [run_streams(WARM_UP_SEED).filter for _ in range(r)]
         filt = filter_class(maze_for(filter_class, world), s.sigma, s.delta, particles[:r].copy(), rngs, **warmed)
         steps = min(WARM_UP_STEPS, tasks[0].steps)
         record_steps(filt, steps, lambda k: (compass[:r, k], z[:r, k]), runs=None if r == 1 else r)
