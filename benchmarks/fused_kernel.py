@@ -54,7 +54,7 @@ from mazelab.bench import BENCH_DELTA, BENCH_SIGMA, filter_stepper, record_walk
 from mazelab.maze import Maze
 from mazelab.maze_generator import default_station_count, generate_maze
 from mazelab.model import OUTSIDE_PENALTY, ROBOT_SPEED, RPF_THRESHOLD
-from mazelab.registry import resolve_filter
+from mazelab.registry import filter_entry
 
 F32 = np.float32
 FAST = {"reassoc", "contract", "nsz", "arcp", "afn"}  # numba's fastmath flags short of "no NaN, no inf"
@@ -445,7 +445,7 @@ def batched_stepper(name: str, world: Maze, particles: int, runs: int, backend: 
     rngs = [np.random.default_rng(seed + r) for r in range(runs)]
     start = np.stack([world.random_free_places(particles, rng) for rng in rngs])  # (R, N, 2)
     with use_backend(backend):
-        filt = resolve_filter(name)(world, BENCH_SIGMA, BENCH_DELTA, start, rngs)
+        filt = filter_entry(name).filter_class(world, BENCH_SIGMA, BENCH_DELTA, start, rngs)
 
     def step(compass_angle: float, z: float) -> None:
         filt.step(np.full(runs, compass_angle), np.full(runs, z))

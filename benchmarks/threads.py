@@ -29,7 +29,7 @@ import numpy as np
 from mazelab.backend import use_backend, use_threads
 from mazelab.bench import BENCH_DELTA, BENCH_SIGMA, filter_stepper, record_walk
 from mazelab.maze import Maze
-from mazelab.registry import resolve_filter
+from mazelab.registry import filter_entry
 
 
 def timed_round(name: str, world: Maze, particles: int, threads: int, walk: list, warmup: int) -> tuple:
@@ -53,7 +53,9 @@ def estimates(name: str, world: Maze, particles: int, threads: int, walk: list) 
     """The estimate after every step of a seeded run on `threads` threads."""
     rng = np.random.default_rng(2)
     with use_backend("compiled"), use_threads(threads):
-        filt = resolve_filter(name)(world, BENCH_SIGMA, BENCH_DELTA, world.random_free_places(particles, rng), rng)
+        filt = filter_entry(name).filter_class(
+            world, BENCH_SIGMA, BENCH_DELTA, world.random_free_places(particles, rng), rng
+        )
     out = []
     for compass_angle, z in walk:
         filt.step(compass_angle, z)

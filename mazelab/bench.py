@@ -25,7 +25,7 @@ import numpy as np
 from mazelab.backend import BACKENDS, chosen_backend, numba_available, use_backend
 from mazelab.maze import EMPTY, STATION_WALL, WALL, Maze
 from mazelab.model import OUTSIDE_PENALTY, ROBOT_SPEED
-from mazelab.registry import resolve_filter
+from mazelab.registry import filter_entry
 from mazelab.robot import Robot
 from mazelab.simulation import simulate
 
@@ -81,7 +81,9 @@ def filter_stepper(
     resolution too), followed by the reads `simulate` makes (estimate, ESS, confidence)."""
     rng = np.random.default_rng(2)
     with use_backend(backend or chosen_backend()):
-        filt = resolve_filter(name)(world, BENCH_SIGMA, BENCH_DELTA, world.random_free_places(particles, rng), rng)
+        filt = filter_entry(name).filter_class(
+            world, BENCH_SIGMA, BENCH_DELTA, world.random_free_places(particles, rng), rng
+        )
 
     def step(compass_angle: float, z: float) -> None:
         filt.step(compass_angle, z)
@@ -144,7 +146,7 @@ def measure(
             for backend in backends or (chosen_backend(),):
                 step, peak = traced(lambda name=name, n=n, b=backend: filter_stepper(name, world, n, b), walk)
                 seconds = time_steps(step, walk[2:], warmup)
-                yield BenchRow(maze_name, resolve_filter(name).name, n, seconds, peak, backend)
+                yield BenchRow(maze_name, filter_entry(name).name, n, seconds, peak, backend)
         if n * len(world.stations) <= REFERENCE_LIMIT:
             step, peak = traced(lambda n=n: reference_stepper(world, n), walk)
             seconds = time_steps(step, walk[2 : 2 + warmup + max(3, steps // 4)], 1)

@@ -458,20 +458,6 @@ def filter_entry(name: str | type) -> FilterEntry:
     raise ValueError(f"unknown filter {text!r}{hint} (choose from {', '.join(names)}, or FILE.py:Class)")
 
 
-def resolve_filter(name: str | type) -> type:
-    """The filter class of a name, a class or a plug-in spec (see `filter_entry`).
-
-    Parameters
-    ----------
-    name : str or type
-
-    Returns
-    -------
-    type
-    """
-    return filter_entry(name).filter_class
-
-
 _made: dict[type, FilterEntry] = {}
 
 
@@ -543,7 +529,6 @@ __all__ = [
     "entries",
     "filter_entry",
     "register",
-    "resolve_filter",
     "rgb",
     "shipped_entry",
 ]

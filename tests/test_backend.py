@@ -33,7 +33,7 @@ from mazelab.backend import (
     use_threads,
 )
 from mazelab.cli.app import main
-from mazelab.registry import resolve_filter
+from mazelab.registry import filter_entry
 from mazelab.robot import Robot
 from mazelab.simulation import simulate
 
@@ -60,10 +60,10 @@ def python(code: str, backend: str | None = None) -> str:
 MADE = (
     "import numpy as np\n"
     "from mazelab.maze import Maze\n"
-    "from mazelab.registry import resolve_filter\n"
+    "from mazelab.registry import filter_entry\n"
     "w = Maze.from_file('paper_5x5')\n"
     "points = w.random_free_places(50, np.random.default_rng(1))\n"
-    "f = resolve_filter('sir')(w, 0.3, 0.5, points, np.random.default_rng(2))\n"
+    "f = filter_entry('sir').filter_class(w, 0.3, 0.5, points, np.random.default_rng(2))\n"
     "print(f.backend)\n"
 )
 
@@ -97,7 +97,7 @@ def test_use_backend_chooses_for_the_filters_made_inside_and_puts_the_variable_b
     backend = "compiled" if HAS_NUMBA else "numpy"
     with use_backend(backend):
         assert chosen_backend() == backend
-        filt = resolve_filter("apf")(paper_world, 0.3, 0.5, paper_world.random_free_places(50, rng), rng)
+        filt = filter_entry("apf").filter_class(paper_world, 0.3, 0.5, paper_world.random_free_places(50, rng), rng)
     assert filt.backend == backend
     assert os.environ.get(ENVIRONMENT_VARIABLE) == before
     with pytest.raises(ValueError, match="must be one of"), use_backend("cuda"):

@@ -23,7 +23,7 @@ from mazelab.experiments.study import (
     study_units,
 )
 from mazelab.filters import SIRParticleFilter
-from mazelab.registry import entries, resolve_filter
+from mazelab.registry import entries, filter_entry
 
 SEEDS = (11, 12, 13, 14)
 IMPOSSIBLE_Z = 50.0  # no place of the 5x5 maze is this far from a station: every weight underflows
@@ -54,7 +54,7 @@ def test_batched_runs_equal_single_runs_bit_for_bit(name, options, paper_world):
     for r in (1, 3):  # two runs meet a measurement nothing explains: they restart from the prior
         walks[r][20] = (walks[r][20][0], IMPOSSIBLE_Z)
     particles = np.stack([paper_world.random_free_places(count, np.random.default_rng(s)) for s in SEEDS])
-    single_class = resolve_filter(name)
+    single_class = filter_entry(name).filter_class
     singles = [
         single_class(paper_world, 0.3, 0.5, particles[r], np.random.default_rng(s + 1000), **options)
         for r, s in enumerate(SEEDS)

@@ -30,7 +30,7 @@ from mazelab.model import (
     headings_from_uniforms,
     move,
 )
-from mazelab.registry import resolve_filter
+from mazelab.registry import filter_entry
 from mazelab.robot import Robot
 from mazelab.simulation import simulate
 from mazelab.viz.style import COVARIANCE_SIGMAS, entity_name
@@ -183,7 +183,7 @@ def test_from_the_prior_it_starts_lost_and_simulate_hands_it_the_start(paper_wor
 # -- its place among the filters -------------------------------------------------------------------
 def test_it_is_registered_and_gets_no_particle_filter_options():
     for name in ["ekf", "EKF", "ExtendedKalmanFilter", "Extended Kalman Filter"]:
-        assert resolve_filter(name) is ExtendedKalmanFilter
+        assert filter_entry(name).filter_class is ExtendedKalmanFilter
     assert not any(option in options_of(ExtendedKalmanFilter) for option in ("threshold", "recovery", "kld"))
 
 

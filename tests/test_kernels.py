@@ -36,7 +36,7 @@ from mazelab.kernels import CHUNK, THREADED_FROM, sources_digest
 from mazelab.kernels.compiled import CompiledKernels, CompiledWeights
 from mazelab.maze import Maze
 from mazelab.model import PARTICLE_DTYPE, ROBOT_SPEED, headings_from_uniforms, move
-from mazelab.registry import resolve_filter
+from mazelab.registry import filter_entry
 from mazelab.regularisation import GaussianKernel, mixture_kernel
 from mazelab.resampling import systematic_resample
 from mazelab.robot import Robot
@@ -342,7 +342,7 @@ def test_reading_the_log_weights_does_not_change_a_compiled_run(name, paper_worl
     walk = [robot.step(paper_world) for _ in range(25)]
     with use_backend("compiled"):
         read, unread = (
-            resolve_filter(name)(paper_world, 0.3, 0.5, paper_world.random_free_places(500, rng), rng)
+            filter_entry(name).filter_class(paper_world, 0.3, 0.5, paper_world.random_free_places(500, rng), rng)
             for rng in (np.random.default_rng(6), np.random.default_rng(6))
         )
     for compass_angle, z in walk:
@@ -364,7 +364,7 @@ def test_batched_runs_equal_single_runs_bit_for_bit_on_the_compiled_backend(name
         walks.append([robot.step(paper_world) for _ in range(steps)])
     walks[1][15] = (walks[1][15][0], 50.0)  # nothing explains this z: run 1 restarts from the prior
     particles = np.stack([paper_world.random_free_places(300, np.random.default_rng(s)) for s in seeds])
-    cls = resolve_filter(name)
+    cls = filter_entry(name).filter_class
     with use_backend("compiled"):
         batch = cls(paper_world, 0.3, 0.5, particles, [np.random.default_rng(s + 7) for s in seeds])
         singles = [cls(paper_world, 0.3, 0.5, particles[r], np.random.default_rng(s + 7)) for r, s in enumerate(seeds)]
@@ -385,7 +385,7 @@ def test_runs_together_equal_single_runs_wherever_their_arrays_lie_in_memory(pap
     for trial in range(40):
         spacers.append(np.empty(int(np.random.default_rng(trial).integers(1, 3000))))
         for name in ("sir", "apf", "rpf"):
-            cls = resolve_filter(name)
+            cls = filter_entry(name).filter_class
             with use_backend("compiled"):
                 batch = cls(paper_world, 0.3, 0.5, particles, [np.random.default_rng(s + 7) for s in seeds])
                 singles = [
@@ -398,7 +398,7 @@ def test_runs_together_equal_single_runs_wherever_their_arrays_lie_in_memory(pap
 def test_arrays_a_caller_keeps_are_never_written_over(name, paper_world):
     rng = np.random.default_rng(8)
     with use_backend("compiled"):
-        filt = resolve_filter(name)(paper_world, 0.3, 0.5, paper_world.random_free_places(400, rng), rng)
+        filt = filter_entry(name).filter_class(paper_world, 0.3, 0.5, paper_world.random_free_places(400, rng), rng)
     walk_rng = np.random.default_rng(9)
     robot = Robot(0.3, 0.5, paper_world.random_free_place(walk_rng), rng=walk_rng)
     kept = []
@@ -452,7 +452,9 @@ def test_the_backends_agree_on_the_distance_to_the_exact_posterior(paper_world):
     for backend in ("numpy", "compiled"):
         records = run_study(plan.tasks, 1, backend=backend).records
         tables[backend] = accuracy_summary(accuracy_records(records, filters))
-    for label in [label for label, name, _ in filters if resolve_filter(name) is not resolve_filter("grid")]:
+    for label in [
+        label for label, name, _ in filters if filter_entry(name).filter_class is not filter_entry("grid").filter_class
+    ]:
         mean_n, (low_n, high_n) = mean_and_interval(tables["numpy"], label)
         mean_c, (low_c, high_c) = mean_and_interval(tables["compiled"], label)
         # each backend's mean distance lies inside the other's 95% bootstrap interval

@@ -12,7 +12,7 @@ from conftest import recorded_walk
 
 from mazelab.grid_filter import GridBayesFilter
 from mazelab.maze import Maze
-from mazelab.registry import resolve_filter
+from mazelab.registry import filter_entry
 
 
 def gaussian(z: float, d: float, sigma: float) -> float:
@@ -56,7 +56,9 @@ def test_each_particle_filter_estimates_the_exact_log_evidence_within_its_monte_
     estimates = []
     for seed in range(seeds):
         particles = paper_world.random_free_places(count, np.random.default_rng(seed))
-        filt = resolve_filter(name)(paper_world, 0.3, 0.5, particles, np.random.default_rng(seed + 100), **options)
+        filt = filter_entry(name).filter_class(
+            paper_world, 0.3, 0.5, particles, np.random.default_rng(seed + 100), **options
+        )
         for compass_angle, z in walk:
             filt.step(compass_angle, z)
         estimates.append(filt.log_evidence)

@@ -10,7 +10,7 @@ import pytest
 from conftest import ROOT
 
 from mazelab.cli.app import main
-from mazelab.registry import load_plugin, resolve_filter
+from mazelab.registry import filter_entry, load_plugin
 from mazelab.simulation import simulate
 from mazelab.stops import StudentCodeError
 
@@ -19,12 +19,12 @@ REFERENCE = f"{ANSWERS}:ReferenceFilter"
 QUICK = ["--steps", "20", "--particles", "200", "--seed", "3"]
 
 
-def test_resolve_filter_takes_a_file_and_class():
-    cls = resolve_filter(REFERENCE)
+def test_filter_entry_takes_a_file_and_class():
+    cls = filter_entry(REFERENCE).filter_class
     assert cls.__name__ == "ReferenceFilter" and cls.name == "ReferenceFilter"
-    assert resolve_filter(REFERENCE) is cls  # imported once per process
-    assert resolve_filter("ReferenceFilter") is cls  # results carry the name; it resolves once loaded
-    assert resolve_filter(cls) is cls
+    assert filter_entry(REFERENCE).filter_class is cls  # imported once per process
+    assert filter_entry("ReferenceFilter").filter_class is cls  # results carry the name; it resolves once loaded
+    assert filter_entry(cls).filter_class is cls
 
 
 def test_two_files_with_one_class_name_do_not_clash(tmp_path):

@@ -32,7 +32,6 @@ from mazelab.registry import (
     entries,
     filter_entry,
     register,
-    resolve_filter,
 )
 from mazelab.scenario import load_scenario
 
@@ -82,7 +81,7 @@ def test_the_names_of_a_filter_resolve_to_its_entry(name):
     ],
 )
 def test_filter_names(name, cls):
-    assert resolve_filter(name) is cls
+    assert filter_entry(name).filter_class is cls
 
 
 @pytest.mark.parametrize("added", [False, True], ids=["shipped", "one-added"])
@@ -225,7 +224,7 @@ def test_the_help_lists_the_registrys_filters(capsys):
     assert all(entry.help in listing for entry in SHIPPED)
     assert main(["filters", "rpf"]) == 0
     options = capsys.readouterr().out
-    assert all(f"  {o.name} " in options for o in resolve_filter("rpf").options.settable())
+    assert all(f"  {o.name} " in options for o in filter_entry("rpf").filter_class.options.settable())
     assert main(["filters", "nope"]) == 2
 
 

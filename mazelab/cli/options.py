@@ -23,7 +23,7 @@ from mazelab.declaration import Option, decimal_comma, not_taken, parse_flag, sc
 from mazelab.experiments.study import declared_option
 from mazelab.experiments.tables import check_trace_path, pyplot
 from mazelab.invocation import repeat_command
-from mazelab.registry import SHIPPED, filter_entry, is_plugin_spec, resolve_filter
+from mazelab.registry import SHIPPED, filter_entry, is_plugin_spec
 from mazelab.viz.style import DEFAULT_MAX_DRAWN
 from mazelab.viz.targets import Visualization
 
@@ -394,7 +394,7 @@ def check_filter_name(name: str, option: str = "--filter") -> str:
     nearest short name, `sri`: did you mean sir?, and the choices)."""
     if not is_plugin_spec(name):  # FILE.py:Class: the registry's own errors say what is wrong with it
         try:
-            resolve_filter(name)
+            filter_entry(name)
         except ValueError as error:
             raise UserError(f"{option}: {error}") from None
     return name

@@ -46,7 +46,7 @@ from mazelab.experiments.runs import (
 from mazelab.experiments.tables import compare_traces, write_traces
 from mazelab.invocation import command_line, command_prefix
 from mazelab.maze import DEFAULT_MAZE, Maze, find_maze, load_maze, mazes_fitting
-from mazelab.registry import FilterEntry, file_sha256, filter_entry, resolve_filter
+from mazelab.registry import FilterEntry, file_sha256, filter_entry
 from mazelab.robot import Robot
 from mazelab.scenario import Scenario, check_measurements_within, find_scenario, load_scenario, save_scenario
 from mazelab.seeding import new_seed
@@ -100,7 +100,7 @@ def run_plan(flags: Mapping[str, Any], named: Mapping[str, Any], drawing: dict) 
     filter_name = check_filter_name(replay_filter_name(stored, flags.get("filter_name"), scenario))
     given = given_options(named, flags.get("option"), [filter_name])
     per_filter = options_per_filter([filter_name], given, given.spelled, check=stored is None)
-    options = per_filter[resolve_filter(filter_name).name]
+    options = per_filter[filter_entry(filter_name).name]
     outputs = [("--save-scenario", flags.get("save_scenario_path")), ("--rrd", drawing.get("rrd"))]
     check_outputs(outputs, flags.get("force", False))
     maze, sigma, delta, seed = (flags.get(name) for name in ("maze", "sigma", "delta", "seed"))
@@ -156,7 +156,7 @@ def compare_recorder(
 ) -> Recorder:
     """The record of a comparison, begun before its runs: the command, its parameters and the scenario's hash."""
     parameters = {
-        "filters": [resolve_filter(n).name for n in names],
+        "filters": [filter_entry(n).name for n in names],
         "sigma": setup.sigma,
         "delta": setup.delta,
         "seed": setup.seed,

@@ -79,7 +79,7 @@ from mazelab.experiments.tables import records_csv, study_traces, write_traces
 from mazelab.invocation import command_line, resume_command
 from mazelab.maze import DEFAULT_MAZE, LAB_MAZES
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
-from mazelab.registry import filter_entry, resolve_filter
+from mazelab.registry import filter_entry
 from mazelab.viz.style import DEFAULT_MAX_DRAWN
 
 FILES = {
@@ -220,7 +220,7 @@ def check_figure(
     figure_axes(plan.varied, plot_x, plot_y, title, exact=plan.reference is not None, paired=paired is not None)
     if paired is not None:
         entries = [filter_entry(f) for f in plan.filters]
-        chosen = resolve_filter(check_filter_names(paired, "--paired")).name
+        chosen = filter_entry(check_filter_names(paired, "--paired")).name
         if chosen not in [entry.name for entry in entries]:
             shown = ", ".join(entry.reference for entry in entries)
             raise UserError(f"--paired {paired}: not one of the study's --filters ({shown})")
@@ -631,7 +631,7 @@ def with_options(chosen: tuple[AccuracyFilter, ...], texts: list[str] | None) ->
     shown = ", ".join(f"{k} {show_value(v)}" for k, v in given.items())
     result = []
     for label, name, options in chosen:
-        mine = per_filter[resolve_filter(name).name]
+        mine = per_filter[filter_entry(name).name]
         result.append((f"{label} ({shown})" if mine else label, name, {**options, **mine}))
     return tuple(result)
 

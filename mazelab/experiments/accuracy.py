@@ -17,7 +17,7 @@ from mazelab.experiments.api import StudyPlan, plan_study
 from mazelab.experiments.study import REFERENCE, MazeChoice, RunRecord, option_cell
 from mazelab.experiments.summary import bootstrap_interval, wilson_interval
 from mazelab.experiments.tables import format_interval, format_number, format_table, records_csv
-from mazelab.registry import filter_entry, is_plugin_spec, resolve_filter
+from mazelab.registry import filter_entry, is_plugin_spec
 
 AccuracyFilter = tuple[str, Any, dict[str, Any]]  # (label, filter name or class, options)
 # the filters of the default table, each against the exact grid filter
@@ -38,8 +38,8 @@ def accuracy_filters(names: Sequence[Any] | None) -> tuple[AccuracyFilter, ...]:
         return ACCURACY_FILTERS
     chosen: dict[str, AccuracyFilter] = {}
     for name in names:
-        filter_class = resolve_filter(name)
-        if filter_class is not resolve_filter("grid"):
+        filter_class = filter_entry(name).filter_class
+        if filter_class is not filter_entry("grid").filter_class:
             label = filter_class.name
             key = name if isinstance(name, type) or is_plugin_spec(str(name)) else filter_class.name
             chosen.setdefault(label, (label, key, {}))  # a plug-in goes to the workers as its spec

@@ -53,7 +53,7 @@ from mazelab.grid_filter import check_grid_memory
 from mazelab.maze import DEFAULT_MAZE, MAZES_DIR, find_maze, load_maze
 from mazelab.maze_generator import DEFAULT_WALL_SHARE
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
-from mazelab.registry import PluginReference, filter_entry, is_lab_class, plugin_codes, resolve_filter
+from mazelab.registry import PluginReference, filter_entry, is_lab_class, plugin_codes
 from mazelab.regularisation import check_bandwidth
 from mazelab.seeding import new_seed
 
@@ -143,7 +143,7 @@ class StudyPlan:
 
         others = study_parameters(self.settings)[len(BASE_PARAMETERS) :]
         return {
-            "filters": [resolve_filter(f).name for f in self.filters],
+            "filters": [filter_entry(f).name for f in self.filters],
             "mazes": [maze_description(m) for m in dict.fromkeys(s.maze for s in self.settings)],
             **{p: values(p) for p in MODEL_PARAMETERS},
             "options": {p: [to_plain_json(v) for v in values(p)] for p in others},
@@ -194,7 +194,7 @@ def plugin_description(code: PluginReference) -> dict[str, str]:
         shown = str(code.path.relative_to(Path.cwd()))
     except ValueError:
         shown = str(code.path)
-    return {"filter": resolve_filter(code.spec).name, "file": shown, "class": code.class_name, "sha256": code.sha256}
+    return {"filter": filter_entry(code.spec).name, "file": shown, "class": code.class_name, "sha256": code.sha256}
 
 
 def plan_study(
@@ -456,7 +456,7 @@ def study(
         raise TypeError("give the study's plan or its values, not both")
     workers = _whole("workers", workers, optional=True)  # >= 1, checked by run_study
     plan = plan or study_plan(maze, **values)
-    if paired is not None and resolve_filter(paired).name not in [resolve_filter(f).name for f in plan.filters]:
+    if paired is not None and filter_entry(paired).name not in [filter_entry(f).name for f in plan.filters]:
         raise ValueError(f"paired={paired!r} is not one of the study's filters")
     recorder = Recorder(
         "study", [sys.argv[0] or "python", "mazelab.study(...)"], plan.parameters(), csv_dtypes=CSV_DTYPES
@@ -494,7 +494,7 @@ def study_closing(
         "runs_in_study": len(plan.tasks),
         "failures": [f.describe() for f in outcome.failures],
         "summary": summary_rows(summaries, plan.option_columns),
-        "paired": None if paired is None else resolve_filter(paired).name,
+        "paired": None if paired is None else filter_entry(paired).name,
         "backend": outcome.backend,
         "workers": [asdict(report) for report in outcome.workers.values()],
         "startup_seconds": round(outcome.startup_seconds, 3),
@@ -511,7 +511,7 @@ def call_arguments(call: Mapping[str, Any], seed: int) -> dict[str, Any]:
         arguments["filters"] = [
             f"{inspect.getfile(f)}:{f.__name__}"
             if isinstance(f, type) and not is_lab_class(f)
-            else resolve_filter(f).name
+            else filter_entry(f).name
             for f in filters
         ]
     return arguments

@@ -24,7 +24,7 @@ from mazelab.declaration import not_taken, options_of, scoped
 from mazelab.experiments.tables import format_number, format_table, pyplot, records_csv, save_figure
 from mazelab.maze import Maze
 from mazelab.model import CONVERGENCE_RADIUS, DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
-from mazelab.registry import described, filter_entry, resolve_filter, rgb
+from mazelab.registry import described, filter_entry, rgb
 from mazelab.robot import Robot
 from mazelab.simulation import RunResult, convergence_step, simulate
 from mazelab.viz.views import open_comparison
@@ -84,7 +84,7 @@ def parse_filters(text: str) -> list[str]:
     if not names:
         raise ValueError("--filters is empty; give e.g. sir,apf,rpf")
     names = list(dict.fromkeys(names))
-    labels = [resolve_filter(name).name for name in names]
+    labels = [filter_entry(name).name for name in names]
     for label in labels:
         if labels.count(label) > 1:
             raise ValueError(f"--filters has two filters named {label}: rename one class (or its `name`)")
@@ -161,7 +161,7 @@ def warm_up_filters(
             robot = Robot.of_seed(world, sigma, delta, WARM_UP_SEED)
             simulate(robot, world, sigma, delta, particle_count, WARM_UP_STEPS, None, name, seed=WARM_UP_SEED, **warmed)
 
-        warm_once("single", resolve_filter(name), dict(options.get(name, {})), warm)
+        warm_once("single", filter_entry(name).filter_class, dict(options.get(name, {})), warm)
 
 
 def take_startup_seconds() -> float:
@@ -198,7 +198,7 @@ def run_filters(
     count = particle_count if particles is None else len(particles)
     calls = (steps or robot.recorded_steps or DEFAULT_STEPS) * len(filter_names)  # the filters' steps
     results: dict[str, RunResult] = {}
-    labels = [resolve_filter(name).name for name in filter_names]  # a plug-in's: its class name
+    labels = [filter_entry(name).name for name in filter_names]  # a plug-in's: its class name
     comparison = open_comparison(visualize, world, labels)  # without drawing: no recording
     with backend_by_work((count or DEFAULT_PARTICLE_COUNT) * calls, calls), contextlib.closing(comparison):
         warm_up_filters(world, sigma, delta, filter_names, count, options or {})  # on the runs' backend
@@ -343,7 +343,7 @@ def compare_filters(
     steps = robot.recorded_steps
     if kidnap_at is not None and robot.kidnap_at is None:
         robot = walk_until(robot, kidnap_at)
-    options = {name: per_filter[resolve_filter(name).name] for name in filter_names}
+    options = {name: per_filter[filter_entry(name).name] for name in filter_names}
     return run_filters(
         world,
         robot,

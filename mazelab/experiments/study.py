@@ -36,7 +36,7 @@ from mazelab.experiments.tables import trace_of
 from mazelab.maze import STATION_WALL, Maze
 from mazelab.maze_generator import DEFAULT_WALL_SHARE, generate_maze
 from mazelab.model import check_model_parameters
-from mazelab.registry import PluginReference, entries, file_sha256, filter_entry, filters_here, resolve_filter
+from mazelab.registry import PluginReference, entries, file_sha256, filter_entry, filters_here
 from mazelab.robot import Robot
 from mazelab.seeding import run_streams, study_seeds
 from mazelab.simulation import RunInputs, RunResult, checked_walk, maze_for, record_steps
@@ -131,7 +131,7 @@ class StudySetting:
     def filter_values(self, filter_name: str | type) -> dict[str, Any]:
         """Every option the filter runs with in this setting, by name in declaration order: the setting's
         value where it sets one, the declared default otherwise (the derived ones left out)."""
-        filter_class = resolve_filter(filter_name)
+        filter_class = filter_entry(filter_name).filter_class
         declared = options_of(filter_class)
         given = self.filter_options(filter_class)
         return {o.name: given.get(o.name, o.default) for o in declared.settable()}
@@ -153,7 +153,7 @@ def option_columns(filters: Sequence[str | type]) -> tuple[str, ...]:
     column for an option only the RPF declares."""
     names: dict[str, None] = {}
     for name in filters:
-        names.update(dict.fromkeys(o.name for o in options_of(resolve_filter(name)).settable()))
+        names.update(dict.fromkeys(o.name for o in filter_entry(name).options.settable()))
     return tuple(names)
 
 
@@ -273,7 +273,7 @@ class RunTask:
     def row_filters(self) -> dict[str, str]:
         """The `filter` cells of this run's rows (each filter's name: a plug-in's is its class's), to
         the filters as this task names them (a plug-in by its spec, `file.py:Class`)."""
-        return {resolve_filter(name).name: name for name in self.filters}
+        return {filter_entry(name).name: name for name in self.filters}
 
 
 def filters_per_setting(settings: Sequence[StudySetting], filters: Sequence[str]) -> list[tuple[str, ...]]:
@@ -449,7 +449,7 @@ def with_reference(
     The exact means are the grid filter's with its default options, on the robot's recorded walk;
     they are the same in every setting that shares this run's scenario, so a process computes them
     once per scenario (`exact_means`) and a grid row of the study with default options is reused."""
-    grid = resolve_filter(REFERENCE).name
+    grid = filter_entry(REFERENCE).name
     s = task.setting
     key = (s.maze, task.maze_seed, s.sigma, s.delta, task.seed, task.steps, task.kidnap_at)
     declared = filter_entry(REFERENCE).options

@@ -32,7 +32,7 @@ from mazelab.experiments.study import (
 )
 from mazelab.experiments.tables import beside, format_interval, format_number, format_table, records_csv
 from mazelab.model import CONVERGENCE_RADIUS
-from mazelab.registry import described, resolve_filter
+from mazelab.registry import described, filter_entry
 
 CONFIDENCE_LEVEL = 0.95  # of every interval of a study's table
 BOOTSTRAP_SAMPLES = 2000  # B, the bootstrap's resamples
@@ -303,7 +303,7 @@ def summarise_study(
     for record in records:
         groups.setdefault((record.setting, record.filter), []).append(record)
     summaries = [summarise_group(index, settings[index - 1], name, group) for (index, name), group in groups.items()]
-    reference = None if paired is None else resolve_filter(paired).name
+    reference = None if paired is None else filter_entry(paired).name
     for s in summaries:
         if reference is not None and s.filter != reference:
             pairs = paired_finals(groups[s.setting_index, s.filter], records, settings, reference)
