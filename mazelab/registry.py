@@ -33,7 +33,6 @@ from mazelab.kalman import ExtendedKalmanFilter
 from mazelab.stops import describe_exit, is_users_stop, student_line, working_folder_kept
 
 # -- a student's own filter as a plug-in: `path/to/my_filter.py:MyFilter` wherever a filter name goes
-_by_name: dict[str, type] = {}  # the loaded plug-ins by their `name`, for the names results carry
 
 
 def is_plugin_spec(text: str) -> bool:
@@ -157,7 +156,6 @@ def load_plugin(spec: str) -> type:
             f"{shown}: class {class_name} does not meet the filter contract: it has no {', '.join(missing)}"
         )
     check_declared_defaults(cls, shown)
-    _by_name[cls.name] = cls
     return cls
 
 
@@ -182,11 +180,6 @@ def is_lab_class(cls: type) -> bool:
     """Whether a class is the lab's own (defined in mazelab/ or a face of the repo), not the student's."""
     module = getattr(cls, "__module__", "") or ""
     return module.split(".")[0] in ("mazelab", "particle_filter", "draw")
-
-
-def loaded_plugin(name: str) -> type | None:
-    """A plug-in already loaded in this process, by its `name` (what results and tables carry)."""
-    return _by_name.get(name)
 
 
 def _import_file(resolved: Path, shown: Path) -> ModuleType:
@@ -451,14 +444,20 @@ def filter_entry(name: str | type) -> FilterEntry:
         return shipped
     loaded = loaded_plugin(text)
     if loaded is not None:
-        return filter_entry(loaded)
+        return loaded
     names = [entry.short_name for entry in _ENTRIES]
     close = difflib.get_close_matches(text.lower(), names, n=1, cutoff=0.5)
     hint = f"; did you mean {close[0]}?" if close else ""
     raise ValueError(f"unknown filter {text!r}{hint} (choose from {', '.join(names)}, or FILE.py:Class)")
 
 
-_made: dict[type, FilterEntry] = {}
+_made: dict[type, FilterEntry] = {}  # the entries of classes not registered: plug-ins, a user's own classes
+
+
+def loaded_plugin(name: str) -> FilterEntry | None:
+    """The entry of a plug-in already loaded in this process, by its `name` (what results and tables
+    carry; the last loaded of that name), or None."""
+    return next((e for e in reversed(_made.values()) if e.plugin is not None and e.name == name), None)
 
 
 def _entry_of_class(filter_class: type, plugin: PluginReference | None) -> FilterEntry:
@@ -501,8 +500,7 @@ def described(name: str) -> FilterEntry:
     -------
     FilterEntry
     """
-    loaded = loaded_plugin(name)
-    entry = next((e for e in _ENTRIES if e.name == name), None) or (loaded and filter_entry(loaded))
+    entry = next((e for e in _ENTRIES if e.name == name), None) or loaded_plugin(name)
     return entry or FilterEntry(type(name, (), {"name": name}), name, name, PALETTE[7], "a filter unknown here")
 
 

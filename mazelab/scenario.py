@@ -46,7 +46,7 @@ from mazelab.checks import (
 )
 from mazelab.declaration import options_of
 from mazelab.maze import MAZES_DIR, Maze, find_shipped, shipped_mazes
-from mazelab.registry import FilterEntry, PluginReference, filter_entry, loaded_plugin, shipped_entry
+from mazelab.registry import FilterEntry, PluginReference, loaded_plugin, shipped_entry
 from mazelab.robot import Robot, check_walk_lists
 
 DEFAULT_PARAMETERS_PATH = Path("model_parameters.json")  # the paper's file (lab steps 9-10), in the working folder
@@ -217,13 +217,10 @@ class Scenario(BaseModel):
         or its plug-in once loaded here (the same class, file and sha256); else None."""
         if self.filter_plugin is None:
             return None if self.shipped_filter is None else self.shipped_filter.filter_class
-        loaded = loaded_plugin(self.filtering_algorithm or "")
-        reference = None if loaded is None else filter_entry(loaded).plugin
-        same = reference is not None and (reference.sha256, reference.class_name) == (
-            self.filter_plugin.sha256,
-            self.filter_plugin.class_name,
-        )
-        return loaded if same else None
+        loaded, stored = loaded_plugin(self.filtering_algorithm or ""), self.filter_plugin
+        if loaded is None or (loaded.plugin.sha256, loaded.plugin.class_name) != (stored.sha256, stored.class_name):
+            return None
+        return loaded.filter_class
 
     def world(self) -> Maze | None:
         """The maze stored in the scenario, if any."""
