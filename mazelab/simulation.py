@@ -31,7 +31,7 @@ from mazelab.contract import ContractError, NullView, check_filter, check_step_v
 from mazelab.declaration import options_of
 from mazelab.maze import Maze, check_world
 from mazelab.model import CONVERGENCE_RADIUS, DEFAULT_STEPS, check_model_parameters
-from mazelab.registry import entries, filter_entry
+from mazelab.registry import PluginReference, entries, filter_entry
 from mazelab.robot import Robot
 from mazelab.seeding import RunStreams, new_seed, run_streams
 from mazelab.stops import student_code
@@ -125,7 +125,7 @@ class RunInputs:
     kidnap_at: int | None = None
     kidnap_position: tuple[float, float] | None = None
     filter_options: dict[str, Any] | None = None  # every option of the filter, defaults filled in (JSON form)
-    filter_plugin: dict[str, str] | None = None  # a plug-in's reference (spec, sha256, class), or None
+    filter_plugin: PluginReference | None = None  # a plug-in's reference (spec, sha256, class), or None
 
     @classmethod
     def of_run(
@@ -139,7 +139,7 @@ class RunInputs:
         steps: int,
         name: str,
         filter_options: dict[str, Any] | None = None,
-        filter_plugin: dict[str, str] | None = None,
+        filter_plugin: PluginReference | None = None,
     ) -> RunInputs:
         """The inputs of a run of `steps` steps by `robot` (its recorded walk is copied); `filter_options`
         the filter's options in JSON form (its declaration's), or None; `filter_plugin` a plug-in's reference."""
@@ -262,9 +262,8 @@ def simulate(
     view = open_run_view(visualize if view is None else view, world, entry.name, robot)
     true_positions, recorded = walk_and_record(entry.filter_class, filt, robot, world, steps, view, on_step)
     stored = entry.options.to_json(settings)  # every option, defaults filled in, as the declaration writes them
-    reference = None if entry.plugin is None else entry.plugin.as_json()
     inputs = RunInputs.of_run(
-        robot, particles, world, sigma, delta, seed, steps, entry.name, dict(sorted(stored.items())), reference
+        robot, particles, world, sigma, delta, seed, steps, entry.name, dict(sorted(stored.items())), entry.plugin
     )
     return RunResult.of_recorded(recorded, 0, true_positions, filt.reinitialised_at, inputs, backend_of(filt))
 
