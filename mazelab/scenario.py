@@ -1,13 +1,6 @@
-"""Saved scenarios (lab step 9): the pydantic model of the json file, and saving and loading it.
-
-A file with only the paper's four keys (init_robot_pos, init_particles_pos, robot_actual_angles,
-robot_compass_angles) loads; the program writes the measurements and metadata too, and the filter's
-options (`filter_options`, in the JSON form its declaration gives them), so that a replay repeats the
-run that made the file.
-
-Loading a scenario never imports code: it names its filter, a shipped one by name, or a plug-in by
-reference (`filter_plugin`: the spec as written, the file's sha256, the class), which a replay runs
-only when the user names the plug-in again (`--filter file.py:Class`).
+"""Saved scenarios (lab step 9): the pydantic model of the json file (`Scenario`, whose docstring says
+what each version holds), and saving and loading it. Loading a scenario never imports code: a plug-in
+is named by its reference (mazelab.registry.PluginReference), run only when the user names it again.
 """
 
 from __future__ import annotations

@@ -5,10 +5,7 @@ The one recording loop (`record_steps`) steps a filter along a walk and keeps ea
 where the contract says and checked, for one run and for R runs advanced together (a batched study)
 alike; a filter's own figures (`diagnostics`: the RPF's regularisation, recovery's injection
 probability) are kept the same way, so they reach RunResult and a study's traces with no code of their own.
-
-Step k: the robot moves with its actual angle k and measures z_k; the filter predicts with compass
-angle k and updates with z_k. The run draws where `visualize` says (mazelab.viz.views, imported only by
-a run that draws) or into a view its caller hands it (anything with log_step and close).
+What a step is and where a run draws: `walk_and_record` and `simulate`.
 """
 
 from __future__ import annotations
@@ -294,9 +291,9 @@ def walk_and_record(
     filter_class: type, filt: Any, robot: Robot, world: Maze, steps: int, view: Any, on_step: Callable | None
 ) -> tuple[np.ndarray, Recorded]:
     """The run's steps: at step k the robot moves with its actual angle and measures z_k, the filter
-    steps on them (`record_steps`), then the view draws it and `on_step(k, robot, filt)`
-    is called; the view is closed however the run ends. Returns the robot's positions (steps, 2) and
-    what the filter's steps recorded."""
+    predicts with the compass angle and updates with z_k (`record_steps`), then the view draws it and
+    `on_step(k, robot, filt)` is called; the view is closed however the run ends. Returns the robot's
+    positions (steps, 2) and what the filter's steps recorded."""
     true_positions = np.empty((steps, 2))
 
     def observe(k: int) -> tuple[float, float]:
