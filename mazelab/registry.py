@@ -439,12 +439,9 @@ def filter_entry(name: str | type) -> FilterEntry:
         class_name, path = filter_class.__name__, Path(inspect.getfile(filter_class)).resolve()
         plugin = PluginReference(f"{split_spec(text)[0]}:{class_name}", file_sha256(path), class_name, path)
         return _entry_of_class(filter_class, plugin)
-    shipped = shipped_entry(text)
-    if shipped is not None:
-        return shipped
-    loaded = loaded_plugin(text)
-    if loaded is not None:
-        return loaded
+    entry = shipped_entry(text) or loaded_plugin(text)
+    if entry is not None:
+        return entry
     names = [entry.short_name for entry in _ENTRIES]
     close = difflib.get_close_matches(text.lower(), names, n=1, cutoff=0.5)
     hint = f"; did you mean {close[0]}?" if close else ""
@@ -500,8 +497,8 @@ def described(name: str) -> FilterEntry:
     -------
     FilterEntry
     """
-    entry = next((e for e in _ENTRIES if e.name == name), None) or loaded_plugin(name)
-    return entry or FilterEntry(type(name, (), {"name": name}), name, name, PALETTE[7], "a filter unknown here")
+    known = shipped_entry(name) or loaded_plugin(name)
+    return known or FilterEntry(type(name, (), {"name": name}), name, name, PALETTE[7], "a filter unknown here")
 
 
 def rgb(colour: Colour) -> tuple[float, float, float]:
