@@ -93,10 +93,6 @@ class NullView:
         """Finish drawing (flush and close the recording)."""
 
 
-REQUIRED_METHODS = ("step", "belief")
-REQUIRED_ATTRIBUTES = ("estimate", "ess", "is_confident", "count", "reinitialised_at")
-
-
 def missing_parts(filter_class: type) -> list[str]:
     """The parts of the contract a class lacks (empty when it meets it), by name.
 
@@ -118,7 +114,7 @@ def missing_parts(filter_class: type) -> list[str]:
             options_of(filter_class)
         except (TypeError, ValueError):
             missing.append("'options' as a mapping of option names to defaults (or mazelab.declaration.Options)")
-    missing += [f"method {m}()" for m in REQUIRED_METHODS if not callable(getattr(filter_class, m, None))]
+    missing += [f"method {m}()" for m in ("step", "belief") if not callable(getattr(filter_class, m, None))]
     return missing
 
 
@@ -143,7 +139,8 @@ def check_filter(filt: Any) -> None:
     """
     name = getattr(type(filt), "name", type(filt).__name__)
     missing = missing_parts(type(filt))
-    missing += [f"attribute {a!r}" for a in REQUIRED_ATTRIBUTES if not _has(filt, a)]
+    attributes = ("estimate", "ess", "is_confident", "count", "reinitialised_at")  # set by __init__ or properties
+    missing += [f"attribute {a!r}" for a in attributes if not _has(filt, a)]
     if missing:
         raise ContractError(f"{name} does not meet the filter contract: it has no {', '.join(missing)}")
     restarts = filt.reinitialised_at
