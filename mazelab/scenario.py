@@ -45,9 +45,9 @@ from mazelab.robot import Robot, check_walk_lists
 DEFAULT_PARAMETERS_PATH = Path("model_parameters.json")  # the paper's file (lab steps 9-10), in the working folder
 LEGACY_PARAMETERS_PATH = Path("model_parameters") / "model_parameters.json"  # where older versions saved it
 SCENARIOS_DIR = MAZES_DIR.parent / "model_parameters"  # the shipped scenarios, beside mazes/ (found by name)
-SCENARIO_FORMAT_VERSION = 4  # the newest scenario format this program reads and writes
 # the version that brought each key (a kidnapping, the filter's options, a plug-in's reference); without them, 1
 FORMAT_VERSIONS = {"kidnap_at": 2, "filter_options": 3, "filter_plugin": 4}
+SCENARIO_FORMAT_VERSION = max(FORMAT_VERSIONS.values())  # the newest scenario format this program reads and writes
 
 
 MAX_JSON_DEPTH = 16  # a scenario nests 3 deep; deeper files are refused before parsing (no RecursionError)
@@ -322,8 +322,6 @@ def load_scenario(path: str | Path = DEFAULT_PARAMETERS_PATH) -> Scenario:
         raise ScenarioError(f"{path}:{error.lineno}: not valid json ({error.msg}){_what_it_is(path, text)}") from None
     except ValueError as error:  # e.g. a number of more than 4300 digits
         raise ScenarioError(f"{path}: not a usable json file ({str(error).splitlines()[0]})") from None
-    except RecursionError:  # the depth scan keeps this from happening; a last guard
-        raise ScenarioError(f"{path}: json nested too deeply") from None
     try:
         return Scenario.model_validate(data)
     except ValidationError as error:

@@ -138,8 +138,7 @@ class RunInputs:
         filter_options: dict[str, Any] | None = None,
         filter_plugin: PluginReference | None = None,
     ) -> RunInputs:
-        """The inputs of a run of `steps` steps by `robot` (its recorded walk is copied); `filter_options`
-        the filter's options in JSON form (its declaration's), or None; `filter_plugin` a plug-in's reference."""
+        """The inputs of a run of `steps` steps by `robot` (its recorded walk is copied), the rest as given."""
         kidnapped = robot.kidnap_at is not None and robot.kidnap_at <= steps
         return cls(
             robot.initial_position,
