@@ -198,6 +198,11 @@ def number_in(name: str, low: float, high: float, *, low_open: bool = True, what
 
 
 # -- the declaration ------------------------------------------------------------------------------
+def _as_given(value: Any) -> Any:
+    """The check of an option declared without one: any value, as it is."""
+    return value
+
+
 @dataclass(frozen=True)
 class Option:
     """One keyword option of a filter.
@@ -215,7 +220,7 @@ class Option:
         number or a finite number, else any literal).
     check : callable, optional
         Value -> the value the filter uses, raising ValueError of one line for a bad one (default:
-        any value): the one place the option is validated (`Options.resolve`).
+        any value, as it is): the one place the option is validated (`Options.resolve`).
     flag : str, optional
         The paper's named flag that spells this option too (e.g. "--bandwidth"), for the messages.
     stored_as : dataclass, optional
@@ -229,13 +234,13 @@ class Option:
     default: Any
     help: str
     parse: Parse | None = None
-    check: Check | None = None
+    check: Check = _as_given
     flag: str | None = None
     stored_as: type | None = None
     derived: bool = False
 
     def parse_text(self, text: str) -> Any:
-        """The value that command-line `text` spells (not yet checked: `validate` does that).
+        """The value that command-line `text` spells (not yet checked: `check` does that).
 
         Parameters
         ----------
@@ -261,19 +266,6 @@ class Option:
             return parse(text)
         except ValueError as error:
             raise ValueError(f"option {self.name}: {error}") from None
-
-    def validate(self, value: Any) -> Any:
-        """The value the filter uses (the declared check applied), or a ValueError naming the option.
-
-        Parameters
-        ----------
-        value : Any
-
-        Returns
-        -------
-        Any
-        """
-        return value if self.check is None else self.check(value)
 
 
 class Options(Mapping[str, Option]):
@@ -365,7 +357,7 @@ class Options(Mapping[str, Option]):
         for name in given:
             if name not in self._by_name:
                 raise ValueError(f"{owner} does not take the option {name} (it takes: {_taken(self)})")
-        values = {o.name: o.validate(given[o.name]) if o.name in given else o.default for o in self.declared}
+        values = {o.name: o.check(given[o.name]) if o.name in given else o.default for o in self.declared}
         if self.check is not None:
             self.check(values)
         return values
@@ -502,7 +494,7 @@ def _declared_by(name: str, value: Any, inherited: Options) -> Option:
             raise ValueError(f"options: the name {name!r} holds the option {value.name!r}")
         return value
     if name in inherited:  # a new default, checked as a given value would be
-        return replace(inherited[name], default=inherited[name].validate(value))
+        return replace(inherited[name], default=inherited[name].check(value))
     return Option(name, value, "(declared by its default)")
 
 

@@ -163,7 +163,7 @@ def test_object_options_go_to_json_and_back_as_their_fields():
 )
 def test_command_line_text_is_read_and_checked_by_the_declaration(name, text, value):
     option = RegularizedParticleFilter.options[name]
-    assert option.validate(option.parse_text(text)) == value
+    assert option.check(option.parse_text(text)) == value
 
 
 def test_a_decimal_comma_names_what_to_write():

@@ -304,13 +304,13 @@ def read_value(option: Option, text: str, spelled: str) -> Any:
     try:
         value = option.parse_text(text)
         if "," in text:
-            option.validate(value)  # refused here, where the hint can say where lists go
+            option.check(value)  # refused here, where the hint can say where lists go
         return value
     except ValueError as error:
         message = str(error).removeprefix(f"option {option.name}: ")
     try:
         for part in text.split(","):
-            option.validate(option.parse_text(part))
+            option.check(option.parse_text(part))
         hint = f"; a list of values is for mazelab study (study --option {option.name}={text})" if "," in text else ""
     except ValueError:
         hint = ""

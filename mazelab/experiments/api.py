@@ -248,7 +248,7 @@ def all_default(name: str, values: Sequence[Any]) -> bool:
     """Whether every value given to an option is its declared default (then no filter needs to take it)."""
     option = declared_option(name)
     try:
-        return option is not None and all(option.validate(v) == option.default for v in values)
+        return option is not None and all(option.check(v) == option.default for v in values)
     except ValueError:  # a bad value: refused below, by the declaration of a filter that takes it
         return False
 

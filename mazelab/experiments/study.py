@@ -204,7 +204,7 @@ def _checked(key: str, values: Sequence[Any]) -> list[Any]:
     the lab's that declares it, or its own filter's for FILTER.NAME; a plug-in's own options are checked
     by its declaration in plan_study)."""
     option = declared_option(key)
-    checked = [value if option is None else option.validate(value) for value in values]
+    checked = [value if option is None else option.check(value) for value in values]
     return list(dict.fromkeys(checked))
 
 
