@@ -23,10 +23,9 @@ the model's arc motion has no transition density, and its backward kernel is the
 
 from __future__ import annotations
 
-import functools
 import math
 from collections import deque
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -277,49 +276,62 @@ def check_walk(compass_angles: Sequence[float], measurements: Sequence[float]) -
 
 
 # -- particle smoothers: the genealogy of a particle filter, scored against the exact smoother -----------
+SMOOTHERS = ("filter", "lag", "path")  # lag 0, the fixed lag L, the whole walk (Genealogy's estimates)
+
+
 class Genealogy:
-    """A particle filter's R runs recorded step by step (its particles, weights and `ancestry`), and the
-    path smoother's estimates traced back through them.
+    """A particle filter's R runs recorded step by step (its particles, weights and `ancestry`), and
+    SMOOTHERS' estimates traced back through them.
 
     The estimate of step k from step j >= k: the particles of step j with their weights W_j, each put
     where its ancestor stood at step k (the ancestors followed back through the recorded A's). j = K, the
-    walk's end, is the genealogy (path) smoother (`lag` None); j = k + L the fixed-lag smoother (`lag` L:
-    step k's estimate made once step k + L is filtered, the last L steps' at the end); j = k the filter
-    (lag 0). A run restarted from the prior at step j has no ancestors there: the steps before it take
-    the particles of step j - 1 and their own weights; recovery's injected particles have none either
-    and leave the weight of the trace (the others' renormalised).
+    walk's end, is the genealogy (path) smoother; j = k + L the fixed-lag smoother (step k's estimate
+    made once step k + L is filtered, the last L steps' at the end); j = k the filter (lag 0). A run
+    restarted from the prior at step j has no ancestors there: the steps before it take the particles of
+    step j - 1 and their own weights; recovery's injected particles have none either and leave the
+    weight of the trace (the others' renormalised).
 
     Memory: positions (2 float32), a weight (float64) and an ancestor (int64) of each particle of each
-    kept step, 24 R N bytes a step: every step (R N K) for the path smoother, the last L + 1 for the
-    fixed-lag one, whatever the walk's length.
+    kept step, 24 R N bytes a step: every step (R N K) for the path smoother, the last L + 1 without it,
+    whatever the walk's length.
 
     Parameters
     ----------
-    lag : int or None
+    lag : int
+        L >= 1, the fixed-lag smoother's.
     bins : (callable, int), optional
         `cell_bins`' pair: points (R, M, 2) -> flat bin indices (R, M), and the bins' count. Each estimate's
         weighted mass per bin is kept too (the total variation to the exact smoother's, `score_rows`).
     clouds : bool
-        Keep each estimate's traced particles and weights of run 0 too (`clouds`, step -> (points (M, 2),
-        weights (M,))): what a viewer draws.
+        Keep each estimate's traced particles and weights of run 0 too (`clouds`, smoother -> step ->
+        (points (M, 2), weights (M,))): what a viewer draws.
+    path : bool
+        Keep every step for the path smoother; False keeps the last L + 1 only (the filter's and the
+        fixed-lag estimates in bounded memory, no path smoother).
     """
 
     def __init__(
         self,
-        lag: int | None = None,
+        lag: int,
         bins: tuple[Callable[[np.ndarray], np.ndarray], int] | None = None,
         clouds: bool = False,
+        path: bool = True,
     ):
-        self.lag = lag
+        self.lag, self.path = lag, path
         self.bins, self.bin_count = bins if bins is not None else (None, 0)
-        self.kept: deque[tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = deque()
-        self.means: dict[int, np.ndarray] = {}  # step -> (R, 2)
-        self.masses: dict[int, np.ndarray] = {}  # step -> (R, bin_count)
-        self.distinct: dict[int, np.ndarray] = {}  # step -> (R,): the distinct ancestors at step k
-        self.clouds: dict[int, tuple[np.ndarray, np.ndarray]] | None = {} if clouds else None
+        self.kept: deque[tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = deque(
+            maxlen=None if path else lag + 1
+        )
+        self.means: dict[str, dict[int, np.ndarray]] = {name: {} for name in SMOOTHERS}  # step -> (R, 2)
+        self.masses: dict[str, dict[int, np.ndarray]] = {name: {} for name in SMOOTHERS}  # step -> (R, bin_count)
+        self.distinct: dict[str, dict[int, np.ndarray]] = {name: {} for name in SMOOTHERS}  # step -> (R,)
+        self.clouds: dict[str, dict[int, tuple[np.ndarray, np.ndarray]]] | None = (
+            {name: {} for name in SMOOTHERS} if clouds else None
+        )
 
     def record(self, filt: Any) -> None:
-        """Keep the filter's step just made (after its `step`), and estimate the step `lag` back.
+        """Keep the filter's step just made (after its `step`): the filter's estimate of it, and the
+        fixed-lag smoother's of the step `lag` back.
 
         Parameters
         ----------
@@ -336,38 +348,40 @@ class Genealogy:
         if injected is not None:
             cut[0] |= injected
         self.kept.append((k, filt.x.astype(np.float32), filt.W.W.copy(), A.astype(np.int64), cut))
-        if self.lag is not None and len(self.kept) > self.lag:
-            self.trace(1)
-            self.kept.popleft()
+        newest = len(self.kept) - 1
+        for position, traced in self.traced(newest - self.lag if newest >= self.lag else newest):
+            if position == newest:
+                self._estimate("filter", *traced)
+            if position == newest - self.lag:
+                self._estimate("lag", *traced)
 
     def finish(self) -> Genealogy:
-        """Estimate the steps not yet estimated from the last one (the path smoother's every step).
+        """Estimate from the last step the steps the fixed-lag smoother has not reached, and (`path`)
+        the path smoother's every step.
 
         Returns
         -------
         Genealogy
             Itself, its `means`, `masses` and `distinct` now holding every step.
         """
-        if self.kept:  # lag 0 keeps none: every step estimated as it came
-            self.trace(len(self.kept))
+        for position, traced in self.traced(0):
+            if self.path:
+                self._estimate("path", *traced)
+            if position >= len(self.kept) - self.lag:
+                self._estimate("lag", *traced)
         return self
 
-    def trace(self, count: int) -> None:
-        """The estimates of the oldest `count` kept steps from the newest one's weighted particles.
-
-        Parameters
-        ----------
-        count : int
-            How many of the kept steps, oldest first, to estimate.
-        """
-        _, x, W, _, _ = self.kept[-1]
+    def traced(self, oldest: int) -> Iterator[tuple[int, tuple[int, np.ndarray, np.ndarray, np.ndarray]]]:
+        """The newest kept step's weighted particles traced back to the kept step `oldest`, newest first:
+        (position, (k, the step's particles x (R, M, 2), the weights w (R, M), the index in x (R, M) of
+        each traced particle's ancestor))."""
+        _, _, W, _, _ = self.kept[-1]
         rows = np.arange(len(W))[:, None]
         index, w = np.broadcast_to(np.arange(W.shape[1]), W.shape), W
-        for position in range(len(self.kept) - 1, -1, -1):
+        for position in range(len(self.kept) - 1, oldest - 1, -1):
             k, x, _, A, cut = self.kept[position]
-            if position < count:
-                self._estimate(k, x[rows, index], w, index)
-            if position == 0:
+            yield position, (k, x, w, index)
+            if position == oldest:
                 break
             w = np.where(cut[rows, index], 0.0, w)
             total = w.sum(axis=1, keepdims=True)
@@ -380,15 +394,17 @@ class Genealogy:
                 index = every if restart.all() else np.where(restart[:, None], every, index)
                 w = previous if restart.all() else np.where(restart[:, None], previous, w)
 
-    def _estimate(self, k: int, points: np.ndarray, w: np.ndarray, index: np.ndarray) -> None:
-        """Step k's weighted mean (R, 2), its mass per bin and the distinct ancestors among `index`."""
-        self.means[k] = np.einsum("rn,rnd->rd", w, points)
-        self.distinct[k] = (np.diff(np.sort(index, axis=1), axis=1) != 0).sum(axis=1) + 1
+    def _estimate(self, name: str, k: int, x: np.ndarray, w: np.ndarray, index: np.ndarray) -> None:
+        """The smoother `name`'s estimate of step k: the weighted mean (R, 2) of the traced particles
+        x[index], their mass per bin and the distinct ancestors among `index`."""
+        points = x[np.arange(len(w))[:, None], index]
+        self.means[name][k] = np.einsum("rn,rnd->rd", w, points)
+        self.distinct[name][k] = (np.diff(np.sort(index, axis=1), axis=1) != 0).sum(axis=1) + 1
         if self.clouds is not None:
-            self.clouds[k] = (points[0].copy(), w[0].copy())
+            self.clouds[name][k] = (points[0].copy(), w[0].copy())
         if self.bins is not None:
             flat = self.bins(points) + np.arange(len(w))[:, None] * self.bin_count
-            self.masses[k] = np.bincount(flat.ravel(), w.ravel(), len(w) * self.bin_count).reshape(len(w), -1)
+            self.masses[name][k] = np.bincount(flat.ravel(), w.ravel(), len(w) * self.bin_count).reshape(len(w), -1)
 
 
 @dataclass(frozen=True)
@@ -404,16 +420,14 @@ class SmootherScores:
         filter (lag 0), the fixed-lag and the path smoother, the distance of its mean to the exact smoothed
         mean (`*_error`), the total variation to it (`*_tv`) and the distinct ancestors it rests on.
     recorded : dict
-        Each filter's label -> its Genealogy of each of SMOOTHERS (their means, distinct ancestors and,
-        when asked, clouds).
+        Each filter's label -> its Genealogy (SMOOTHERS' means, distinct ancestors and, when asked, clouds).
     """
 
     exact: SmoothedWalk
     rows: list[dict[str, Any]]
-    recorded: dict[str, list[Genealogy]] = field(default_factory=dict)
+    recorded: dict[str, Genealogy] = field(default_factory=dict)
 
 
-SMOOTHERS = ("filter", "lag", "path")  # lag 0, the fixed lag L, the whole walk (Genealogy's lag)
 SCORE_COLUMNS = (
     "filter",
     "step",
@@ -469,10 +483,9 @@ def score_smoothers(
     walk = (robot, world, sigma, delta, particle_count, len(exact.means), initial_particles)  # every filter's run
     rows, recorded = [], {}
     for entry, options in entries:
-        recorders = [Genealogy(length, bins, clouds) for length in (0, lag, None)]  # SMOOTHERS' lags
-        run = simulate(*walk, entry.filter_class, seed=seed, on_step=functools.partial(keep_step, recorders), **options)
-        recorded[entry.label] = [g.finish() for g in recorders]
-        rows += score_rows(entry.label, exact, exact_masses, run.true_positions, recorded[entry.label])
+        g = recorded[entry.label] = Genealogy(lag, bins, clouds)
+        run = simulate(*walk, entry.filter_class, seed=seed, on_step=lambda k, r, filt, g=g: g.record(filt), **options)
+        rows += score_rows(entry.label, exact, exact_masses, run.true_positions, g.finish())
     return SmootherScores(exact, rows, recorded)
 
 
@@ -512,21 +525,15 @@ def check_smoothers(
     particles = len(initial_particles) if initial_particles is not None else particle_count or DEFAULT_PARTICLE_COUNT
     check_memory(
         f"the genealogy of {len(robot.measurements)} steps of {particles} particles (the path smoother's)",
-        (len(robot.measurements) + lag + 2) * particles * BYTES_PER_RECORDED_PARTICLE,
+        (len(robot.measurements) + 1) * particles * BYTES_PER_RECORDED_PARTICLE,
     )
     return lag, entries
 
 
-def keep_step(recorders: list[Genealogy], k: int, robot: Robot, filt: Any) -> None:
-    """simulate's on_step: each recorder keeps the filter's step k."""
-    for recorder in recorders:
-        recorder.record(filt)
-
-
 def score_rows(
-    label: str, exact: SmoothedWalk, masses: dict[int, np.ndarray], truth: np.ndarray, recorded: list[Genealogy]
+    label: str, exact: SmoothedWalk, masses: dict[int, np.ndarray], truth: np.ndarray, recorded: Genealogy
 ) -> list[dict[str, Any]]:
-    """One filter's rows of SCORE_COLUMNS, step by step (one run: row 0 of each recorded estimate)."""
+    """One filter's rows of SCORE_COLUMNS, step by step (one run: row 0 of each estimate)."""
     rows = []
     for k in range(1, len(truth) + 1):
         row = {
@@ -534,12 +541,14 @@ def score_rows(
             "step": k,
             "exact_filtered_to_truth": float(np.hypot(*(exact.filtered_means[k - 1] - truth[k - 1]))),
             "exact_smoothed_to_truth": float(np.hypot(*(exact.means[k - 1] - truth[k - 1]))),
-            "filter_error_to_filtered": float(np.hypot(*(recorded[0].means[k][0] - exact.filtered_means[k - 1]))),
+            "filter_error_to_filtered": float(
+                np.hypot(*(recorded.means["filter"][k][0] - exact.filtered_means[k - 1]))
+            ),
         }
-        for name, g in zip(SMOOTHERS, recorded, strict=True):
-            row[f"{name}_error"] = float(np.hypot(*(g.means[k][0] - exact.means[k - 1])))
-            row[f"{name}_tv"] = 0.5 * float(np.abs(g.masses[k][0] - masses[k]).sum())  # the total variation
-            row[f"{name}_ancestors"] = int(g.distinct[k][0])
+        for name in SMOOTHERS:
+            row[f"{name}_error"] = float(np.hypot(*(recorded.means[name][k][0] - exact.means[k - 1])))
+            row[f"{name}_tv"] = 0.5 * float(np.abs(recorded.masses[name][k][0] - masses[k]).sum())  # total variation
+            row[f"{name}_ancestors"] = int(recorded.distinct[name][k][0])
         rows.append(row)
     return rows
 

@@ -143,7 +143,7 @@ def smoothing_recording(scores: SmootherScores, world: Any, path: Path, force: b
         return
     for (label, name), title in views.items():
         colour = filter_entry(label).colour
-        for k, (points, weights) in sorted(scores.recorded[label][SMOOTHERS.index(name)].clouds.items()):
+        for k, (points, weights) in sorted(scores.recorded[label].clouds[name].items()):
             recording.stream.set_time("step", sequence=k)
             radii = CELL_DOT_RADIUS * np.sqrt(weights * len(weights))  # a dot's area grows with its weight
             cloud = rr.Points2D(points, colors=colour, radii=radii)
