@@ -56,15 +56,12 @@ class SmoothedWalk:
         E[x_k | z_1:k], the grid filter's means on the same grid (what the smoother improves on).
     log_evidence : float
         log p(z_1:K) of the discretised model (the grid filter's exact value).
-    shape : (rows, columns)
-        The grid's shape (rows along y).
     """
 
     means: np.ndarray
     spreads: np.ndarray
     filtered_means: np.ndarray
     log_evidence: float
-    shape: tuple[int, int]
 
 
 class BackwardStep:
@@ -155,13 +152,12 @@ def smooth(
     angles, zs = check_walk(compass_angles, measurements)
     sigma, delta = check_model_parameters(sigma, delta, (world.width, world.height))
     grid = GridBayesFilter(world, sigma, delta, **grid_options)
-    block = checkpoint_block(len(angles), checkpoint_every)
-    check_smoother_memory(grid.shape, len(angles), block)
+    block = checkpoint_block(grid.shape, len(angles), checkpoint_every)
     prior = grid.density.copy()
     checkpoints, filtered_means = forward(grid, angles, zs, lambda k: k % block == 0 and k < len(angles))
     checkpoints[0], log_evidence = prior, grid.log_evidence  # the refiltering below adds to the evidence again
     means, spreads = backward(grid, checkpoints, angles, zs, block, visit)
-    return SmoothedWalk(means, spreads, filtered_means, log_evidence, grid.shape)
+    return SmoothedWalk(means, spreads, filtered_means, log_evidence)
 
 
 def backward(
@@ -182,8 +178,16 @@ def backward(
         grid.density = checkpoints.pop(start)
         filtered, _ = forward(grid, angles[start:end], zs[start:end], lambda k: True)  # the same numbers, bit for bit
         for k in range(end, start, -1):
-            smoothed = smoothed_density(filtered[k - start], beta, k)
-            means[k - 1], spreads[k - 1] = moments(smoothed, grid.positions)
+            smoothed = filtered[k - start]  # alpha_k beta_k normalised: p(x_k | z_1:K)
+            smoothed *= beta
+            total = smoothed.sum()
+            if not total > 0:
+                raise ValueError(f"the smoothed density of step {k} underflows on the grid (no cell explains the walk)")
+            smoothed /= total
+            means[k - 1] = smoothed.ravel() @ grid.positions  # the mean, and the root of the covariance's trace
+            spreads[k - 1] = math.sqrt(
+                max(0.0, float(smoothed.ravel() @ ((grid.positions - means[k - 1]) ** 2).sum(axis=1)))
+            )
             if visit is not None:
                 smoothed.flags.writeable = False
                 visit(k, smoothed)
@@ -213,41 +217,20 @@ def forward(
     return kept, means
 
 
-def smoothed_density(alpha: np.ndarray, beta: np.ndarray, k: int) -> np.ndarray:
-    """alpha_k beta_k normalised: p(x_k | z_1:K) (into alpha's array)."""
-    alpha *= beta
-    total = alpha.sum()
-    if not total > 0:
-        raise ValueError(f"the smoothed density of step {k} underflows on the grid (no cell explains the walk)")
-    alpha /= total
-    return alpha
-
-
-def moments(density: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, float]:
-    """The mean (2,) of a density on the cells and the root of its covariance's trace (map units)."""
-    weights = density.ravel()
-    mean = weights @ positions
-    return mean, math.sqrt(max(0.0, float(weights @ ((positions - mean) ** 2).sum(axis=1))))
-
-
-def checkpoint_block(steps: int, checkpoint_every: int | None) -> int:
-    """B: checkpoint_every (a whole number >= 1, else a one-line ValueError), or ceil(sqrt(steps)):
-    about 2 sqrt(K) grids at once."""
-    if checkpoint_every is None:
-        return max(1, math.isqrt(steps - 1) + 1)
-    return step_number("checkpoint_every", checkpoint_every)
-
-
-def check_smoother_memory(shape: tuple[int, int], steps: int, block: int) -> None:
-    """Refuse a smoothing whose grids would not fit, in one line saying how much it needs: the
-    checkpoints, one block of refiltered densities, beta and its product, and the
-    backward pass's FFT buffers."""
+def checkpoint_block(shape: tuple[int, int], steps: int, checkpoint_every: int | None) -> int:
+    """B: checkpoint_every (a whole number >= 1, else a one-line ValueError), or ceil(sqrt(steps)): about
+    2 sqrt(K) grids at once. A smoothing whose grids would not fit is refused in one line saying how much
+    it needs: the checkpoints, one block of refiltered densities, beta and its product, and the backward
+    pass's FFT buffers."""
+    every = checkpoint_every
+    block = max(1, math.isqrt(steps - 1) + 1) if every is None else step_number("checkpoint_every", every)
     cells = shape[0] * shape[1]
     grids = math.ceil(steps / block) + min(block, steps) + 3
     check_memory(
         f"smoothing {steps} steps on the grid's {shape[0]}x{shape[1]} cells ({grids} grids)",
         grids * cells * BYTES_PER_DENSITY_CELL + cells * BYTES_PER_GRID_CELL,
     )
+    return block
 
 
 def check_walk(compass_angles: Sequence[float], measurements: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
