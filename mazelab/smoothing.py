@@ -332,7 +332,7 @@ class Genealogy:
             cut[0] |= injected
         self.kept.append((k, filt.x.astype(np.float32), filt.W.W.copy(), A.astype(np.int64), cut))
         newest = len(self.kept) - 1
-        for position, traced in self.traced(newest - self.lag if newest >= self.lag else newest):
+        for position, traced in self._traced(newest - self.lag if newest >= self.lag else newest):
             if position == newest:
                 self._estimate("filter", *traced)
             if position == newest - self.lag:
@@ -347,14 +347,14 @@ class Genealogy:
         Genealogy
             Itself, its `means`, `masses` and `distinct` now holding every step.
         """
-        for position, traced in self.traced(0):
+        for position, traced in self._traced(0):
             if self.path:
                 self._estimate("path", *traced)
             if position >= len(self.kept) - self.lag:
                 self._estimate("lag", *traced)
         return self
 
-    def traced(self, oldest: int) -> Iterator[tuple[int, tuple[int, np.ndarray, np.ndarray, np.ndarray]]]:
+    def _traced(self, oldest: int) -> Iterator[tuple[int, tuple[int, np.ndarray, np.ndarray, np.ndarray]]]:
         """The newest kept step's weighted particles traced back to the kept step `oldest`, newest first:
         (position, (k, the step's particles x (R, M, 2), the weights w (R, M), the index in x (R, M) of
         each traced particle's ancestor))."""
