@@ -283,7 +283,7 @@ class Genealogy:
     lag : int
         L >= 1, the fixed-lag smoother's.
     bins : (callable, int), optional
-        `cell_bins`' pair: points (R, M, 2) -> flat bin indices (R, M), and the bins' count. Each estimate's
+        `binned_smoother`'s bins: points (R, M, 2) -> flat bin indices (R, M), and the bins' count. Each estimate's
         weighted mass per bin is kept too (the total variation to the exact smoother's, `score_rows`).
     clouds : bool
         Keep each estimate's traced particles and weights of run 0 too (`clouds`, smoother -> step ->
@@ -475,16 +475,25 @@ def score_smoothers(
 def binned_smoother(
     world: Maze, sigma: float, delta: float, robot: Robot, grid_options: dict[str, Any]
 ) -> tuple[SmoothedWalk, dict[int, np.ndarray], tuple[Callable[[np.ndarray], np.ndarray], int]]:
-    """The exact smoother of the robot's walk (`smooth`), its mass in each bin of the maze's cells at every
-    step (step -> (count,)): what a particle smoother's binned mass is compared with; the bins (`cell_bins`)."""
-    bins, count = cell_bins(world, GridBayesFilter.options.resolve(grid_options, "GridBayesFilter")["margin"])
+    """The exact smoother of the robot's walk (`smooth`), its mass in each bin at every step (step ->
+    (count,)): what a particle smoother's binned mass is compared with; and the bins, the maze's unit
+    cells and a ring of them over the grid's margin (a point beyond it falls in the nearest outer bin):
+    points (..., 2) -> flat bin indices (...), and the bins' count."""
+    ring = math.ceil(GridBayesFilter.options.resolve(grid_options, "GridBayesFilter")["margin"])
+    columns, rows = world.width + 2 * ring, world.height + 2 * ring
+
+    def bins(points: np.ndarray) -> np.ndarray:
+        i = np.clip(np.floor(points[..., 0]).astype(np.int64) + ring, 0, columns - 1)
+        j = np.clip(np.floor(points[..., 1]).astype(np.int64) + ring, 0, rows - 1)
+        return j * columns + i
+
     cells, masses = bins(GridBayesFilter(world, sigma, delta, **grid_options).positions), {}  # each cell's bin
 
     def binned(k: int, density: np.ndarray) -> None:
-        masses[k] = np.bincount(cells, density.ravel(), count)
+        masses[k] = np.bincount(cells, density.ravel(), rows * columns)
 
     exact = smooth(world, sigma, delta, robot.compass_angles, robot.measurements, visit=binned, **grid_options)
-    return exact, masses, (bins, count)
+    return exact, masses, (bins, rows * columns)
 
 
 def check_smoothers(
@@ -536,31 +545,6 @@ def score_rows(
     return rows
 
 
-def cell_bins(world: Maze, margin: float) -> tuple[Callable[[np.ndarray], np.ndarray], int]:
-    """The maze's unit cells, and a ring of them over the grid's margin, as bins. A point beyond the
-    margin falls in the nearest outer bin.
-
-    Parameters
-    ----------
-    world : Maze
-    margin : float
-        The exact grid's margin around the map (map units).
-
-    Returns
-    -------
-    (bins: points (..., 2) -> flat bin indices (...), the bin count)
-    """
-    ring = math.ceil(margin)
-    columns, rows = world.width + 2 * ring, world.height + 2 * ring
-
-    def bins(points: np.ndarray) -> np.ndarray:
-        i = np.clip(np.floor(points[..., 0]).astype(np.int64) + ring, 0, columns - 1)
-        j = np.clip(np.floor(points[..., 1]).astype(np.int64) + ring, 0, rows - 1)
-        return j * columns + i
-
-    return bins, rows * columns
-
-
 __all__ = [
     "SCORE_COLUMNS",
     "SMOOTHERS",
@@ -568,7 +552,6 @@ __all__ = [
     "Genealogy",
     "SmoothedWalk",
     "SmootherScores",
-    "cell_bins",
     "check_walk",
     "score_smoothers",
     "smooth",
