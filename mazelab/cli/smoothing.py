@@ -238,19 +238,14 @@ def learn(
     walk = stored.robot_compass_angles, stored.robot_measurements
     cells_map = functools.partial(run_cells, cells_journal(files, recorder), **cluster)
     posterior = exact_parameter_posterior(world, *walk, grid, mapper=cells_map, resolution=resolution)
-    chained = learned_chain(world, walk, grid, **chain)
+    chained = None  # the PMMH chain (none for --pmmh 0), its first tenth the burn-in
+    if chain["pmmh"]:
+        settings = {"filter_name": chain["filter"], "particle_count": chain["particles"], "seed": chain["seed"]}
+        chained = run_pmmh(world, *walk, chain["pmmh"], prior=grid, burn_in=chain["pmmh"] // 10, **settings)
     summary = learning_summary(posterior, chained, chain["filter"])
     rows = ("(sigma, delta) cell", functools.partial(posterior_csv, posterior))
     figure = functools.partial(posterior_figure, posterior, chained, path.name)
     write_outputs(files, recorder, summary, rows, figure, functools.partial(chain_recording, posterior, chained, world))
-
-
-def learned_chain(
-    world: Any, walk: tuple, grid: ParameterGrid, pmmh: int, filter: str, particles: int, seed: int
-) -> Any:
-    """learn's PMMH chain (`CHAIN`'s options: none for --pmmh 0), its first tenth the burn-in."""
-    settings = {"filter_name": filter, "particle_count": particles, "seed": seed}
-    return run_pmmh(world, *walk, pmmh, prior=grid, burn_in=pmmh // 10, **settings) if pmmh else None
 
 
 def cells_journal(files: dict[str, Any], recorder: Recorder) -> tuple[Journal, dict] | None:
