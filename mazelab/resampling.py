@@ -100,9 +100,7 @@ def check_scheme(name: Any) -> str:
     -------
     str
     """
-    if not isinstance(name, str):
-        raise ValueError(f"resampling must be one of {', '.join(RESAMPLING_SCHEMES)}, got {name!r}")
-    if name.lower() not in RESAMPLING_SCHEMES:
+    if not isinstance(name, str) or name.lower() not in RESAMPLING_SCHEMES:
         raise ValueError(f"unknown resampling scheme {name!r}; choose one of {', '.join(RESAMPLING_SCHEMES)}")
     return name.lower()
 
