@@ -156,24 +156,16 @@ class ParameterPosterior:
         mass = np.exp(self.log_evidence - finite.max())
         return mass / mass.sum()
 
+    @property
     def marginals(self) -> tuple[np.ndarray, np.ndarray]:
-        """The marginal posteriors.
-
-        Returns
-        -------
-        (sigma's masses (S,), delta's masses (D,))
-        """
+        """The marginal posteriors: sigma's masses (S,) and delta's (D,)."""
         mass = self.mass
         return mass.sum(axis=1), mass.sum(axis=0)
 
+    @property
     def mean(self) -> np.ndarray:
-        """E[(sigma, delta) | z_1:K]: exact for the density constant on each cell.
-
-        Returns
-        -------
-        array (2,)
-        """
-        return np.array([m @ c for m, c in zip(self.marginals(), self.grid.centres, strict=True)])
+        """E[(sigma, delta) | z_1:K], (2,): exact for the density constant on each cell."""
+        return np.array([m @ c for m, c in zip(self.marginals, self.grid.centres, strict=True)])
 
     def interval(self, level: float = INTERVAL_LEVEL) -> np.ndarray:
         """The equal-tailed credible interval of sigma and of delta: each marginal's CDF is linear
@@ -191,7 +183,7 @@ class ParameterPosterior:
         """
         tails = np.array([(1 - level) / 2, (1 + level) / 2])
         rows = []
-        for mass, edges in zip(self.marginals(), self.grid.edges, strict=True):
+        for mass, edges in zip(self.marginals, self.grid.edges, strict=True):
             cdf = np.concatenate([[0.0], np.cumsum(mass)])
             rows.append(np.interp(tails, cdf / cdf[-1], edges))
         return np.array(rows)
@@ -316,32 +308,20 @@ class Chain:
     def acceptance_rate(self) -> float:
         return self.accepted / len(self.samples)
 
+    @property
     def ess(self) -> np.ndarray:
-        """The effective sample size of sigma's and of delta's kept samples (`chain_ess`).
-
-        Returns
-        -------
-        array (2,)
-        """
+        """The effective sample size of sigma's and of delta's kept samples (`chain_ess`), (2,)."""
         return np.array([chain_ess(column) for column in self.kept.T])
 
+    @property
     def mean(self) -> np.ndarray:
-        """The chain's posterior mean of (sigma, delta).
-
-        Returns
-        -------
-        array (2,)
-        """
+        """The chain's posterior mean of (sigma, delta), (2,)."""
         return self.kept.mean(axis=0)
 
+    @property
     def mean_error(self) -> np.ndarray:
-        """The Monte Carlo standard error of `mean`, sd / sqrt(ESS).
-
-        Returns
-        -------
-        array (2,)
-        """
-        return self.kept.std(axis=0, ddof=1) / np.sqrt(self.ess())
+        """The Monte Carlo standard error of `mean`, sd / sqrt(ESS), (2,)."""
+        return self.kept.std(axis=0, ddof=1) / np.sqrt(self.ess)
 
     def interval(self, level: float = INTERVAL_LEVEL) -> np.ndarray:
         """The equal-tailed credible interval of sigma and of delta, from the kept samples' quantiles.

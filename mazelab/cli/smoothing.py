@@ -339,23 +339,23 @@ def cell_unit(cell: Any, unit: tuple[tuple[int, float, float], ...]) -> list[lis
 def learning_summary(posterior: ParameterPosterior, chain: Any, filter_name: str) -> dict[str, Any]:
     """Print the exact posterior's (and the chain's) mean and 90% interval of sigma and delta, the chain's
     acceptance rate, effective sample size and Monte Carlo error; return them for the record."""
-    rows = [["exact", *posterior_cells(posterior.mean(), posterior.interval())]]
-    summary: dict[str, Any] = {"exact": {"mean": posterior.mean(), "interval_90": posterior.interval()}}
+    rows = [["exact", *posterior_cells(posterior.mean, posterior.interval())]]
+    summary: dict[str, Any] = {"exact": {"mean": posterior.mean, "interval_90": posterior.interval()}}
     if chain is not None:
-        rows.append([f"PMMH ({filter_entry(filter_name).label})", *posterior_cells(chain.mean(), chain.interval())])
+        rows.append([f"PMMH ({filter_entry(filter_name).label})", *posterior_cells(chain.mean, chain.interval())])
         summary["pmmh"] = {
-            "mean": chain.mean(),
-            "mean_error": chain.mean_error(),
+            "mean": chain.mean,
+            "mean_error": chain.mean_error,
             "interval_90": chain.interval(),
             "acceptance_rate": chain.acceptance_rate,
-            "ess": chain.ess(),
+            "ess": chain.ess,
         }
     typer.echo(format_table(["posterior", "sigma mean", "sigma 90%", "delta mean", "delta 90%"], rows))
     if chain is not None:
         typer.echo(
             f"PMMH: acceptance rate {chain.acceptance_rate:.2f}, effective sample size "
-            f"{chain.ess()[0]:.0f} (sigma), {chain.ess()[1]:.0f} (delta), mean's Monte Carlo error "
-            f"{chain.mean_error()[0]:.3f}, {chain.mean_error()[1]:.3f}"
+            f"{chain.ess[0]:.0f} (sigma), {chain.ess[1]:.0f} (delta), mean's Monte Carlo error "
+            f"{chain.mean_error[0]:.3f}, {chain.mean_error[1]:.3f}"
         )
     return summary
 
