@@ -74,27 +74,15 @@ class ParameterGrid:
         """The cells' centres along sigma (S,) and along delta (D,)."""
         return tuple((e[1:] + e[:-1]) / 2 for e in self.edges)
 
+    @property
     def values(self) -> tuple[list[float], list[float]]:
-        """The sigma and the delta of every cell, row by row: what an executor maps.
-
-        Returns
-        -------
-        (sigmas, deltas), two lists of S D floats
-        """
+        """The sigma and the delta of every cell, row by row, two lists of S D floats: what an executor maps."""
         sigmas, deltas = np.meshgrid(*self.centres, indexing="ij")
         return sigmas.ravel().tolist(), deltas.ravel().tolist()
 
-    def contains(self, sigma: float, delta: float) -> bool:
-        """Whether (sigma, delta) lies in the box, where the prior is positive.
-
-        Parameters
-        ----------
-        sigma, delta : float
-
-        Returns
-        -------
-        bool
-        """
+    def __contains__(self, point: Sequence[float]) -> bool:
+        """Whether `point`, (sigma, delta), lies in the box, where the prior is positive."""
+        sigma, delta = point
         return (
             self.sigma_range[0] <= sigma <= self.sigma_range[1] and self.delta_range[0] <= delta <= self.delta_range[1]
         )
@@ -221,7 +209,7 @@ def exact_parameter_posterior(
     resolved = GridBayesFilter.options.resolve(grid_options, "GridBayesFilter")  # checked here, not in each cell
     check_grid_memory(world.width, world.height, resolved["resolution"], resolved["margin"])
     cell = functools.partial(grid_log_evidence, world, angles.tolist(), zs.tolist(), **grid_options)
-    log_evidence = np.array(list(mapper(cell, *grid.values())), dtype=float)
+    log_evidence = np.array(list(mapper(cell, *grid.values)), dtype=float)
     return ParameterPosterior(grid, log_evidence.reshape(grid.cells))
 
 
@@ -421,7 +409,7 @@ def check_chain(
     checked_particle_count(particle_count)
     if not 0 <= burn_in < iterations:
         raise ValueError(f"burn_in must lie in [0, iterations), got {burn_in!r}")
-    if not prior.contains(*state):
+    if state not in prior:
         raise ValueError(f"the chain's start {tuple(state)} lies outside the prior's box")
     return prior, state, np.array([finite_number("proposal scale", s) for s in proposal_scale])
 
@@ -442,7 +430,7 @@ def random_walk(
     samples, log_evidence, accepted = np.empty((iterations, 2)), np.empty(iterations), 0
     for i in range(iterations):
         proposal = state + scale * rng.standard_normal(2)
-        if prior.contains(*proposal):
+        if proposal in prior:
             proposed_log_z = estimate(*proposal, rng)
             if math.log(rng.random()) < proposed_log_z - log_z:  # the prior is flat on the box
                 state, log_z, accepted = proposal, proposed_log_z, accepted + 1

@@ -394,7 +394,7 @@ def chain_recording(posterior: ParameterPosterior, chain: Any, world: Any, path:
     recording.stream.set_time("iteration", sequence=0)
     half_width = min(e[1] - e[0] for e in posterior.grid.edges) / 2
     radii = half_width * np.sqrt(posterior.mass.ravel() / posterior.mass.max())
-    cells = rr.Points2D(np.column_stack(posterior.grid.values()), radii=radii, colors=(120, 120, 120))
+    cells = rr.Points2D(np.column_stack(posterior.grid.values), radii=radii, colors=(120, 120, 120))
     recording.stream.log("/posterior/cells", cells)
     for i, state in enumerate(chain.samples if chain is not None else (), start=1):
         recording.stream.set_time("iteration", sequence=i)
@@ -410,7 +410,7 @@ def posterior_cells(mean: np.ndarray, interval: np.ndarray) -> list[str]:
 
 def posterior_csv(posterior: Any) -> str:
     """One row per cell: its sigma and delta (centres), log p(z_1:K | sigma, delta) and posterior mass."""
-    sigmas, deltas = posterior.grid.values()
+    sigmas, deltas = posterior.grid.values
     rows = [
         {"sigma": s, "delta": d, "log_evidence": float(e), "mass": float(m)}
         for s, d, e, m in zip(sigmas, deltas, posterior.log_evidence.ravel(), posterior.mass.ravel(), strict=True)
