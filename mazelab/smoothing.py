@@ -24,7 +24,6 @@ the model's arc motion has no transition density, and its backward kernel is the
 from __future__ import annotations
 
 import math
-from collections import deque
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -275,8 +274,8 @@ class Genealogy:
     weight of the trace (the others' renormalised).
 
     Memory: positions (2 float32), a weight (float64) and an ancestor (int64) of each particle of each
-    kept step, 24 R N bytes a step: every step (R N K) for the path smoother, the last L + 1 without it,
-    whatever the walk's length.
+    kept step, 24 R N bytes a step: every step (R N K), which the path smoother needs (the fixed-lag
+    one alone would need the last L + 1 only).
 
     Parameters
     ----------
@@ -288,9 +287,6 @@ class Genealogy:
     clouds : bool
         Keep each estimate's traced particles and weights of run 0 too (`clouds`, smoother -> step ->
         (points (M, 2), weights (M,))): what a viewer draws.
-    path : bool
-        Keep every step for the path smoother; False keeps the last L + 1 only (the filter's and the
-        fixed-lag estimates in bounded memory, no path smoother).
     """
 
     def __init__(
@@ -298,13 +294,10 @@ class Genealogy:
         lag: int,
         bins: tuple[Callable[[np.ndarray], np.ndarray], int] | None = None,
         clouds: bool = False,
-        path: bool = True,
     ):
-        self.lag, self.path = lag, path
+        self.lag = lag
         self.bins, self.bin_count = bins if bins is not None else (None, 0)
-        self.kept: deque[tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = deque(
-            maxlen=None if path else lag + 1
-        )
+        self.kept: list[tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
         self.means: dict[str, dict[int, np.ndarray]] = {name: {} for name in SMOOTHERS}  # step -> (R, 2)
         self.masses: dict[str, dict[int, np.ndarray]] = {name: {} for name in SMOOTHERS}  # step -> (R, bin_count)
         self.distinct: dict[str, dict[int, np.ndarray]] = {name: {} for name in SMOOTHERS}  # step -> (R,)
@@ -339,8 +332,8 @@ class Genealogy:
                 self._estimate("lag", *traced)
 
     def finish(self) -> Genealogy:
-        """Estimate from the last step the steps the fixed-lag smoother has not reached, and (`path`)
-        the path smoother's every step.
+        """Estimate from the last step the path smoother's every step and the steps the fixed-lag
+        smoother has not reached.
 
         Returns
         -------
@@ -348,8 +341,7 @@ class Genealogy:
             Itself, its `means`, `masses` and `distinct` now holding every step.
         """
         for position, traced in self._traced(0):
-            if self.path:
-                self._estimate("path", *traced)
+            self._estimate("path", *traced)
             if position >= len(self.kept) - self.lag:
                 self._estimate("lag", *traced)
         return self

@@ -187,8 +187,7 @@ def test_the_path_smoother_follows_each_particles_lineage_back_through_the_engin
 @pytest.mark.parametrize("filter_name", PARTICLE_FILTERS)
 def test_the_fixed_lag_smoother_is_the_path_smoother_of_the_walk_cut_lag_steps_later(paper_world, filter_name):
     """Lag 0 is the filter's mean at every step; the path smoother at K is the filter's mean at K; the
-    fixed-lag estimate of step k is the path smoother's of the same seeded run stopped at step k + L, and
-    the same without the path smoother, which then keeps the last L + 1 steps only."""
+    fixed-lag estimate of step k is the path smoother's of the same seeded run stopped at step k + L."""
     walk, lag = recorded_walk(paper_world, 4, 20), 4
     genealogy, means = recorded_run(paper_world, walk, filter_name, lag)
     filtered, fixed, path = (genealogy.means[name] for name in ("filter", "lag", "path"))
@@ -198,10 +197,6 @@ def test_the_fixed_lag_smoother_is_the_path_smoother_of_the_walk_cut_lag_steps_l
     for k in (1, 9, 16):
         cut, _ = recorded_run(paper_world, walk[: k + lag], filter_name, lag)
         assert np.array_equal(fixed[k], cut.means["path"][k])
-    bounded, _ = recorded_run(paper_world, walk, filter_name, lag, path=False)
-    assert len(bounded.kept) == lag + 1 and not bounded.means["path"]
-    for name in ("filter", "lag"):
-        assert all(np.array_equal(bounded.means[name][k], genealogy.means[name][k]) for k in range(1, 21))
     distinct = genealogy.distinct["path"]
     assert distinct[1][0] < distinct[19][0] <= 300  # the path degeneracy: fewer ancestors further back
 
