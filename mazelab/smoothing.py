@@ -78,8 +78,7 @@ class BackwardStep:
     def __init__(self, grid: GridBayesFilter):
         self.grid, self._kernel_shape = grid, arc_kernel_shape(grid.speed, grid.resolution)
         self.work = GridWorkspace(grid.shape, self._kernel_shape)
-        self._angle: float | None = None
-        self._spectrum: np.ndarray | None = None
+        self._spectrum: tuple[float, np.ndarray] | None = None  # (th0, its flipped kernel's spectrum)
 
     def adjoint(self, values: np.ndarray, compass_angle: float) -> np.ndarray:
         """P^T values: the linear convolution with the flipped arc kernel of `compass_angle`, cropped to
@@ -95,12 +94,11 @@ class BackwardStep:
         -------
         array of the grid's shape: a view of the workspace, valid until the next call
         """
-        if self._angle != compass_angle or self._spectrum is None:
+        if self._spectrum is None or self._spectrum[0] != compass_angle:
             grid = self.grid
             flipped = arc_kernel(compass_angle, grid.delta, grid.speed, grid.resolution)[::-1, ::-1]
-            self._spectrum = self.work.kernel_spectrum(np.ascontiguousarray(flipped))  # the workspace's own buffer
-            self._angle = compass_angle
-        return self.work.convolve(values, self._kernel_shape, self._spectrum)
+            self._spectrum = (compass_angle, self.work.kernel_spectrum(np.ascontiguousarray(flipped)))  # its own buffer
+        return self.work.convolve(values, self._kernel_shape, self._spectrum[1])
 
     def __call__(self, beta: np.ndarray, compass_angle: float, z: float, k: int) -> np.ndarray:
         """beta_{k-1} from beta_k and step k's compass angle and measurement, scaled so that its largest
