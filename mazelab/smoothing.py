@@ -53,14 +53,11 @@ class SmoothedWalk:
         The root of the trace of Cov[x_k | z_1:K] (map units): how spread the smoothed belief is.
     filtered_means : array (K, 2)
         E[x_k | z_1:k], the grid filter's means on the same grid (what the smoother improves on).
-    log_evidence : float
-        log p(z_1:K) of the discretised model (the grid filter's exact value).
     """
 
     means: np.ndarray
     spreads: np.ndarray
     filtered_means: np.ndarray
-    log_evidence: float
 
 
 class BackwardStep:
@@ -152,9 +149,9 @@ def smooth(
     block = checkpoint_block(grid.shape, len(angles), checkpoint_every)
     prior = grid.density.copy()
     checkpoints, filtered_means = forward(grid, angles, zs, lambda k: k % block == 0 and k < len(angles))
-    checkpoints[0], log_evidence = prior, grid.log_evidence  # the refiltering below adds to the evidence again
+    checkpoints[0] = prior
     means, spreads = backward(grid, checkpoints, angles, zs, block, visit)
-    return SmoothedWalk(means, spreads, filtered_means, log_evidence)
+    return SmoothedWalk(means, spreads, filtered_means)
 
 
 def backward(
