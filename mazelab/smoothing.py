@@ -149,8 +149,7 @@ def smooth(
     block = checkpoint_block(grid.shape, len(angles), checkpoint_every)
     prior = grid.density.copy()
     checkpoints, filtered_means = forward(grid, angles, zs, lambda k: k % block == 0 and k < len(angles))
-    checkpoints[0] = prior
-    means, spreads = backward(grid, checkpoints, angles, zs, block, visit)
+    means, spreads = backward(grid, {0: prior, **checkpoints}, angles, zs, block, visit)
     return SmoothedWalk(means, spreads, filtered_means)
 
 
