@@ -15,7 +15,6 @@ from mazelab.checks import check_kld_numbers, finite_number, step_number
 from mazelab.declaration import Option, parse_flag
 
 
-# -- resampling: plain functions, normalised weights W (N,) -> ancestor indices (M,) ---------------
 # Every scheme is `scheme(weights, rng, count=None) -> ancestors`: weights (N,), normalised; rng a
 # numpy Generator; count M (default N); ancestors int (M,), indices into the particles. Each also takes
 # R runs' weights (R, N) with R Generators, one each, and returns (R, M): row r is what it returns for
