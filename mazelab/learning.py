@@ -386,45 +386,32 @@ def pmmh(
     Chain
     """
     entry = evidence_filter(filter_name, filter_options)
-    angles, zs = check_walk(compass_angles, measurements)
-    prior, state, scale = check_chain(prior, start, iterations, particle_count, burn_in, proposal_scale)
-    estimate = functools.partial(estimated_log_evidence, world, angles, zs, entry, particle_count, filter_options)
-    return Chain(*random_walk(estimate, prior, state, scale, iterations, seed), burn_in)
-
-
-def check_chain(
-    prior: ParameterGrid | None,
-    start: tuple[float, float] | None,
-    iterations: int,
-    particle_count: int,
-    burn_in: int,
-    proposal_scale: tuple[float, float],
-) -> tuple[ParameterGrid, np.ndarray, np.ndarray]:
-    """The prior (the lab's box by default), the chain's first state (`start`, else the box's centre) and the
-    proposal's scale, each (2,), once pmmh's settings are checked: a one-line ValueError for a start outside
-    the prior's box, a count that is not a whole number >= 1, a burn-in outside [0, iterations)."""
-    prior = ParameterGrid() if prior is None else prior
-    state = np.array(start if start is not None else [np.mean(prior.sigma_range), np.mean(prior.delta_range)])
-    iterations = step_number("iterations", iterations)
-    checked_particle_count(particle_count)
-    if not 0 <= burn_in < iterations:
-        raise ValueError(f"burn_in must lie in [0, iterations), got {burn_in!r}")
-    if state not in prior:
-        raise ValueError(f"the chain's start {tuple(state)} lies outside the prior's box")
-    return prior, state, np.array([finite_number("proposal scale", s) for s in proposal_scale])
+    walk = (world, *check_walk(compass_angles, measurements), entry, checked_particle_count(particle_count))
+    estimate = functools.partial(estimated_log_evidence, *walk, filter_options)
+    return random_walk(estimate, prior, start, proposal_scale, iterations, burn_in, seed)
 
 
 def random_walk(
     estimate: Callable[[float, float, np.random.Generator], float],
-    prior: ParameterGrid,
-    state: np.ndarray,
-    scale: np.ndarray,
+    prior: ParameterGrid | None,
+    start: tuple[float, float] | None,
+    proposal_scale: tuple[float, float],
     iterations: int,
+    burn_in: int,
     seed: int,
-) -> tuple[np.ndarray, np.ndarray, int]:
-    """PMMH's iterations (`pmmh`): (the states (iterations, 2), the evidence estimate each held
-    (iterations,), the proposals accepted), `estimate(sigma, delta, rng)` a run's log p_hat(z_1:K), `rng`
-    the Generator of `seed` (checked: a one-line ValueError)."""
+) -> Chain:
+    """PMMH's chain (`pmmh`), `estimate(sigma, delta, rng)` a run's log p_hat(z_1:K), `rng` the Generator
+    of `seed`, from `start` (else the prior's centre; the prior the lab's box by default), once its settings
+    are checked: a one-line ValueError for a start outside the prior's box, a count or seed that is not a
+    whole number, a burn-in outside [0, iterations)."""
+    prior = ParameterGrid() if prior is None else prior
+    state = np.array(start if start is not None else [np.mean(prior.sigma_range), np.mean(prior.delta_range)])
+    iterations = step_number("iterations", iterations)
+    if not 0 <= burn_in < iterations:
+        raise ValueError(f"burn_in must lie in [0, iterations), got {burn_in!r}")
+    if state not in prior:
+        raise ValueError(f"the chain's start {tuple(state)} lies outside the prior's box")
+    scale = np.array([finite_number("proposal scale", s) for s in proposal_scale])
     rng = np.random.default_rng(check_seed("seed", seed))
     log_z = estimate(*state, rng)
     samples, log_evidence, accepted = np.empty((iterations, 2)), np.empty(iterations), 0
@@ -435,7 +422,7 @@ def random_walk(
             if math.log(rng.random()) < proposed_log_z - log_z:  # the prior is flat on the box
                 state, log_z, accepted = proposal, proposed_log_z, accepted + 1
         samples[i], log_evidence[i] = state, log_z
-    return samples, log_evidence, accepted
+    return Chain(samples, log_evidence, accepted, burn_in)
 
 
 def chain_ess(x: np.ndarray) -> float:
