@@ -509,9 +509,9 @@ def check_smoothers(
 
 
 def score_rows(
-    label: str, exact: SmoothedWalk, masses: dict[int, np.ndarray], truth: np.ndarray, recorded: Genealogy
+    label: str, exact: SmoothedWalk, masses: dict[int, np.ndarray], truth: np.ndarray, g: Genealogy
 ) -> list[dict[str, Any]]:
-    """One filter's rows of SCORE_COLUMNS, step by step (one run: row 0 of each estimate)."""
+    """One filter's rows of SCORE_COLUMNS, step by step (one run: row 0 of each estimate of its genealogy g)."""
     rows = []
     for k in range(1, len(truth) + 1):
         row = {
@@ -519,14 +519,12 @@ def score_rows(
             "step": k,
             "exact_filtered_to_truth": float(np.hypot(*(exact.filtered_means[k - 1] - truth[k - 1]))),
             "exact_smoothed_to_truth": float(np.hypot(*(exact.means[k - 1] - truth[k - 1]))),
-            "filter_error_to_filtered": float(
-                np.hypot(*(recorded.means["filter"][k][0] - exact.filtered_means[k - 1]))
-            ),
+            "filter_error_to_filtered": float(np.hypot(*(g.means["filter"][k][0] - exact.filtered_means[k - 1]))),
         }
         for name in SMOOTHERS:
-            row[f"{name}_error"] = float(np.hypot(*(recorded.means[name][k][0] - exact.means[k - 1])))
-            row[f"{name}_tv"] = 0.5 * float(np.abs(recorded.masses[name][k][0] - masses[k]).sum())  # total variation
-            row[f"{name}_ancestors"] = int(recorded.distinct[name][k][0])
+            row[f"{name}_error"] = float(np.hypot(*(g.means[name][k][0] - exact.means[k - 1])))
+            row[f"{name}_tv"] = 0.5 * float(np.abs(g.masses[name][k][0] - masses[k]).sum())  # the total variation
+            row[f"{name}_ancestors"] = int(g.distinct[name][k][0])
         rows.append(row)
     return rows
 
