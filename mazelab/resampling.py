@@ -172,17 +172,8 @@ class KLDSampling:
             raise ValueError(f"KLD max_count {self.max_count} is below min_count {self.min_count}")
 
     def required_count(self, bins: Any) -> np.ndarray:
-        """max(min_count, ceil(n_chi(k))): Fox's stopping count for k occupied bins.
-
-        Parameters
-        ----------
-        bins : int or array of int
-            k, the occupied bins.
-
-        Returns
-        -------
-        int64 array, the shape of `bins`
-        """
+        """max(min_count, ceil(n_chi(k))): Fox's stopping count for k occupied bins (`kld_sample_size`'s
+        `bins`, with these epsilon and z), an int64 array of their shape."""
         return np.maximum(self.min_count, np.ceil(kld_sample_size(bins, self.epsilon, self.z))).astype(np.int64)
 
 
