@@ -284,7 +284,7 @@ def test_the_signal_handlers_are_ours_only_while_a_child_runs():
     numbers = [number for number in STOP_SIGNALS if number != signal.SIGINT]
     before = {number: signal.getsignal(number) for number in numbers if signal.getsignal(number) != signal.SIG_IGN}
     child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
-    processes.end_with_this_program(child)
+    processes.hold_stop_signals(child)
     assert all(signal.getsignal(number) is not before[number] for number in before)
     processes.stop_process(child)
     assert child.poll() is not None

@@ -10,7 +10,7 @@ import tomllib
 from conftest import ROOT
 from packaging.requirements import Requirement
 
-from mazelab.viz import targets
+from mazelab.viz import recording as targets
 
 FILTERS = ("SIRParticleFilter", "AuxiliaryParticleFilter", "RegularizedParticleFilter")  # the lab's three, in order
 README = (ROOT / "README.md").read_text(encoding="utf-8")

@@ -25,8 +25,9 @@ from mazelab.maze import Maze
 from mazelab.model import CONFIDENCE_RADIUS
 from mazelab.robot import Robot
 from mazelab.simulation import simulate
-from mazelab.viz import processes, targets
-from mazelab.viz.recording import NO_DISPLAY, heading_vectors
+from mazelab.viz import processes
+from mazelab.viz import recording as targets
+from mazelab.viz.recording import NO_DISPLAY, Visualization, heading_vectors
 from mazelab.viz.style import (
     CONFIDENT_COLOR,
     ESTIMATE_COLOR,
@@ -37,7 +38,6 @@ from mazelab.viz.style import (
     STATION_COLOR,
     entity_name,
 )
-from mazelab.viz.targets import Visualization
 from mazelab.viz.views import open_comparison
 
 FILTERS = ["SIRParticleFilter", "AuxiliaryParticleFilter", "RegularizedParticleFilter"]

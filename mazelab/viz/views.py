@@ -29,7 +29,7 @@ from mazelab.maze import Maze
 from mazelab.model import CONFIDENCE_RADIUS
 from mazelab.modes import Mode
 from mazelab.registry import described
-from mazelab.viz.recording import Recording, heading_vectors
+from mazelab.viz.recording import Recording, Visualization, heading_vectors
 from mazelab.viz.style import (
     CELL_DOT_RADIUS,
     CONFIDENT_COLOR,
@@ -48,7 +48,6 @@ from mazelab.viz.style import (
     entity_name,
     run_blueprint,
 )
-from mazelab.viz.targets import Visualization
 
 
 def open_recording(visualize: Any, world: Maze, blueprint: Callable[[], Any], label: str) -> tuple[Any, int]:
