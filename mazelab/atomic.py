@@ -108,18 +108,13 @@ def output_target(path: str | Path, replace: bool, follow_links: bool = True) ->
     return target
 
 
-def write_text_atomically(path: str | Path, text: str, *, replace: bool = True, follow_links: bool = True) -> Path:
-    """Write `text` to `path` whole or not at all: a temporary file in the same folder, then rename."""
-    return write_bytes_atomically(path, text.encode("utf-8"), replace=replace, follow_links=follow_links)
-
-
-def write_bytes_atomically(path: str | Path, data: bytes, *, replace: bool = True, follow_links: bool = True) -> Path:
-    """Write `data` to `path` whole or not at all (see the module docstring); returns the path.
+def write_atomically(path: str | Path, data: str | bytes, *, replace: bool = True, follow_links: bool = True) -> Path:
+    """Write `data` (text: UTF-8) to `path` whole or not at all (see the module docstring); returns the path.
     `replace=False` never replaces an existing file (NameTakenError, a FileExistsError): a name is claimed
     only once, across processes. `follow_links=False` (a program's own working file, such as a study's
     partial record) refuses a symlink at the name, and the rename replaces a link put there meanwhile
     rather than writing through it."""
-    path = Path(path)
+    path, data = Path(path), data.encode("utf-8") if isinstance(data, str) else data
     temporary = None
     try:
         target = output_target(path, replace, follow_links)  # --force onto a link: its target

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from mazelab.atomic import WriteError, write_bytes_atomically
+from mazelab.atomic import WriteError, write_atomically
 from mazelab.invocation import command_prefix
 from mazelab.maze import EMPTY, Maze
 from mazelab.viz.processes import WebServer, hold_stop_signals, native_viewer, release_stop_signals
@@ -198,9 +198,9 @@ class Recording:
         data = self.sink.read() or b""
         while True:
             try:
-                write_bytes_atomically(self.path, data, replace=self.replace)
+                write_atomically(self.path, data, replace=self.replace)
                 break
-            except WriteError as error:  # every error of write_bytes_atomically is one
+            except WriteError as error:  # every error of write_atomically is one
                 deferred = _deferred.get()
                 if self.claim_name and isinstance(error, FileExistsError):  # a default name, taken meanwhile
                     self.path = next_free_name(self.path)
