@@ -147,18 +147,11 @@ def write_atomically(path: str | Path, data: str | bytes, *, replace: bool = Tru
         if isinstance(error, OSError):
             raise WriteError(error.errno, error.strerror, str(path)) from None
         raise
-    if not same_file(target, written):
-        raise ReplacedMeanwhileError(errno.EEXIST, "replaced meanwhile", str(path))
-    return path
-
-
-def same_file(path: Path, status: os.stat_result) -> bool:
-    """Whether `path` is still the file of `status` (no other writer replaced it since)."""
-    try:
-        now = os.stat(path)
-    except OSError:
-        return False
-    return (now.st_ino, now.st_dev) == (status.st_ino, status.st_dev) or os.name == "nt"
+    with contextlib.suppress(OSError):  # still the file written: no other writer replaced it since
+        now = os.stat(target)
+        if (now.st_ino, now.st_dev) == (written.st_ino, written.st_dev) or os.name == "nt":
+            return path
+    raise ReplacedMeanwhileError(errno.EEXIST, "replaced meanwhile", str(path))
 
 
 def sync_folder(folder: Path) -> None:
