@@ -146,12 +146,12 @@ def student_code(filter_class: type) -> Iterator[SimpleNamespace]:
     becomes a StudentCodeError naming the step (set `.number` on what this yields: 0 while the filter is
     built) and the user's frames, from the error; the working folder it changes is put back; a shipped
     filter's errors and the user's own stop pass as they are."""
-    step = SimpleNamespace(number=0)
+    step, students = SimpleNamespace(number=0), is_student_class(filter_class)
     try:
-        with working_folder_kept(filter_class.name if is_student_class(filter_class) else None):
+        with working_folder_kept(filter_class.name) if students else contextlib.nullcontext():
             yield step
     except BaseException as error:  # the student's own sys.exit becomes their error too
-        if not is_student_class(filter_class) or isinstance(error, StudentCodeError) or is_users_stop(error):
+        if not students or isinstance(error, StudentCodeError) or is_users_stop(error):
             raise
         when = "while being built" if step.number == 0 else f"at step {step.number}"
         frames = [  # the student's frames, one line each: file, line, function and code
@@ -166,12 +166,9 @@ def student_code(filter_class: type) -> Iterator[SimpleNamespace]:
 
 
 @contextmanager
-def working_folder_kept(owner: str | None) -> Iterator[None]:
+def working_folder_kept(owner: str) -> Iterator[None]:
     """Put back the working folder if `owner`'s code changes it (outputs are written where the user
-    asked), with a one-line warning; None: nothing to watch (a shipped filter)."""
-    if owner is None:
-        yield
-        return
+    asked), with a one-line warning."""
     before = os.getcwd()
     try:
         yield
