@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import difflib
 import importlib.util
+import itertools
 import os
 import re
 import shlex
@@ -123,8 +124,13 @@ class Recording:
         if place == "notebook":
             stream.notebook_show(blueprint=blueprint, height=700)
             return cls(stream)
-        default = place in (None, "web")
-        path = default_recording_path(label) if default else place
+        default, path = place in (None, "web"), place
+        if default:  # recordings/<label>-<date>-<time>.rrd, claimed when written (save): if taken, the next free one
+            try:
+                RECORDINGS_DIR.mkdir(parents=True, exist_ok=True)
+            except OSError as error:
+                raise WriteError(error.errno, error.strerror, str(RECORDINGS_DIR)) from None
+            path = RECORDINGS_DIR / f"{label}-{time.strftime('%Y%m%d-%H%M%S')}.rrd"
         sink = stream.binary_stream()  # kept in memory: written whole at close (see mazelab.atomic)
         server = WebServer.start() if place == "web" else None
         sinks = [sink] if server is None else [rr.GrpcSink(server.grpc_url), sink]
@@ -214,9 +220,10 @@ class Recording:
         # without a display: the web viewer that `view` serves on 127.0.0.1 (`rerun --web-viewer` listens everywhere)
         hint = f"rerun {quoted}" if has_display() else f"{command} view {quoted} (the web viewer, on 127.0.0.1)"
         print(f"Recording saved to {self.path}; {human_size(len(data))}{why} open it with: {hint}")
-        crowded = crowded_folder_hint(self.path.parent, command) if self.claim_name else None
-        if crowded is not None:  # default names: runs without a display pile them up in RECORDINGS_DIR
-            print(crowded)
+        folder = self.path.parent  # default names: runs without a display pile them up in RECORDINGS_DIR
+        if self.claim_name and sum(saved.size for saved in saved_recordings(folder)) > CROWDED_BYTES:
+            cleanup = f"{command} recordings --keep {KEEP_HINT} --clean"
+            print(f"{folder_summary(folder)}; to keep only the {KEEP_HINT} newest: {cleanup}")
 
 
 def rerun_switched_off() -> bool:
@@ -293,35 +300,23 @@ def resolve_target(target: Any) -> str | Path:
     )
 
 
-def default_recording_path(label: str) -> Path:
-    """recordings/<label>-<date>-<time>.rrd in the current folder; the folder is created. The name is
-    claimed when the file is written (Recording.save): taken by then, the next free one is."""
-    try:
-        RECORDINGS_DIR.mkdir(parents=True, exist_ok=True)
-    except OSError as error:
-        raise WriteError(error.errno, error.strerror, str(RECORDINGS_DIR)) from None
-    return RECORDINGS_DIR / f"{label}-{time.strftime('%Y%m%d-%H%M%S')}.rrd"
+# -- the recordings folder -------------------------------------------------------------------------
+LAB_NAME = re.compile(r"([^.].*-\d{8}-\d{6})(?:-(\d+))?\.rrd")  # default names: <label>-<date>-<time>[-N].rrd
 
 
 def next_free_name(path: Path) -> Path:
-    """The first of NAME-2.rrd, NAME-3.rrd, ... that does not exist (NAME-2 follows NAME-1 or NAME)."""
-    match = re.fullmatch(r"(.*-\d{8}-\d{6})(?:-(\d+))?", path.stem) or re.fullmatch(r"(.*?)(?:-(\d+))?", path.stem)
-    base, n = match.group(1), int(match.group(2) or 1)
-    while True:
-        n += 1
-        candidate = path.with_name(f"{base}-{n}{path.suffix}")
+    """The first of NAME-2.rrd, NAME-3.rrd, ... that does not exist for a default name NAME[-N].rrd."""
+    base, number = LAB_NAME.fullmatch(path.name).groups()
+    for n in itertools.count(int(number or 1) + 1):
+        candidate = path.with_name(f"{base}-{n}.rrd")
         if not candidate.exists():
             return candidate
-
-
-# -- the recordings folder -------------------------------------------------------------------------
-LAB_NAME = re.compile(r"[^.].*-\d{8}-\d{6}(-\d+)?\.rrd")  # default names: <label>-<date>-<time>[-N].rrd
 
 
 @dataclass(frozen=True)
 class SavedRecording:
     """A recording file in a folder: its path, size (bytes), time last written (seconds since the
-    epoch), and whether the lab named it (a default name, see default_recording_path)."""
+    epoch), and whether the lab named it (a default name, LAB_NAME)."""
 
     path: Path
     size: int
@@ -367,15 +362,6 @@ def folder_summary(folder: Path) -> str:
     found = saved_recordings(folder)
     count = f"{len(found)} recording{'s' if len(found) != 1 else ''}"
     return f"{folder}{os.sep} holds {count}, {human_size(sum(saved.size for saved in found))}"
-
-
-def crowded_folder_hint(folder: Path, command: str) -> str | None:
-    """Once a folder of default recordings holds more than CROWDED_BYTES: what it holds and the
-    `command` prefix's cleanup that keeps the KEEP_HINT newest; else None."""
-    if sum(saved.size for saved in saved_recordings(folder)) <= CROWDED_BYTES:
-        return None
-    cleanup = f"{command} recordings --keep {KEEP_HINT} --clean"
-    return f"{folder_summary(folder)}; to keep only the {KEEP_HINT} newest: {cleanup}"
 
 
 def has_display() -> bool:
