@@ -132,21 +132,17 @@ def student_frames(tb: TracebackType | None) -> list[traceback.FrameSummary]:
     return [frame for frame in traceback.extract_tb(tb) if not is_lab_file(frame.filename)]
 
 
-def is_student_class(filter_class: type) -> bool:
-    """Whether a filter class is the user's (its file lies outside the lab), not a shipped one."""
-    try:
-        return not is_lab_file(inspect.getfile(filter_class))
-    except (TypeError, OSError):  # defined in a notebook cell or the interpreter: the user's
-        return True
-
-
 @contextmanager
 def student_code(filter_class: type) -> Iterator[SimpleNamespace]:
     """Around the calls of a user's filter: an Exception inside (or its own sys.exit or KeyboardInterrupt)
     becomes a StudentCodeError naming the step (set `.number` on what this yields: 0 while the filter is
     built) and the user's frames, from the error; the working folder it changes is put back; a shipped
     filter's errors and the user's own stop pass as they are."""
-    step, students = SimpleNamespace(number=0), is_student_class(filter_class)
+    step = SimpleNamespace(number=0)
+    try:  # the filter is the user's when its file lies outside the lab (not a shipped one)
+        students = not is_lab_file(inspect.getfile(filter_class))
+    except (TypeError, OSError):  # defined in a notebook cell or the interpreter: the user's
+        students = True
     try:
         with working_folder_kept(filter_class.name) if students else contextlib.nullcontext():
             yield step
