@@ -421,6 +421,7 @@ def test_after_a_web_run_the_viewer_is_served_until_ctrl_c(world, monkeypatch, c
     assert server.process.poll() is not None
     out = capsys.readouterr().out
     assert "press Ctrl-C to stop serving" in out and "Stopped serving" in out
+    assert out.count(server.url) == 1 and "Open the address above in a browser" in out  # printed as the run started
 
 
 def _ctrl_c_once(wait):

@@ -146,7 +146,6 @@ class WebServer:
 
     def __init__(self, process: Any, grpc_port: int, web_port: int):
         self.process, self.grpc_port, self.web_port = process, grpc_port, web_port
-        self.announced = False  # whether its address was printed already (a run prints it as it starts)
         self.grpc_url = f"rerun+http://127.0.0.1:{grpc_port}/proxy"
         self.url = f"http://127.0.0.1:{web_port}/?url={urllib.parse.quote(self.grpc_url, safe='')}"
 
@@ -157,13 +156,14 @@ class WebServer:
         arguments = ["--serve-web", "--bind", "127.0.0.1", "--port", str(grpc_port), "--web-viewer-port", str(web_port)]
         return cls(start_rerun(arguments, [grpc_port, web_port], detached=False), grpc_port, web_port)
 
-    def serve_until_interrupted(self, already_interrupted: bool = False) -> None:
-        """Keep serving (the server holds the recording) until Ctrl-C, then stop cleanly."""
+    def serve_until_interrupted(self, announced: bool = False, already_interrupted: bool = False) -> None:
+        """Keep serving (the server holds the recording) until Ctrl-C, then stop cleanly; `announced`:
+        its address was printed already (a run prints it as it starts)."""
         try:
             if not already_interrupted:  # the address alone on its line: copied whole, with nothing glued on
-                shown = "the address above" if self.announced else "this address"
+                shown = "the address above" if announced else "this address"
                 print(f"Open {shown} in a browser (press Ctrl-C to stop serving)", end="", flush=True)
-                print("." if self.announced else f":\n{self.url}", flush=True)
+                print("." if announced else f":\n{self.url}", flush=True)
                 self.process.wait()
         except KeyboardInterrupt:
             print("Stopped serving the web viewer.")

@@ -140,7 +140,6 @@ class Recording:
         stream.send_blueprint(blueprint, make_active=True, make_default=True)
         if server is not None:
             print(f"Serving the web viewer at {server.url}")
-            server.announced = True
         return cls(stream, path=path, server=server, sink=sink, claim_name=default, replace=replace, why=why)
 
     def log_robot(self, step: int, position: Sequence[float], heading: float | None) -> None:
@@ -196,7 +195,7 @@ class Recording:
                 deferred[1].append(self.server)  # served once the command has printed its results
             elif self.server is not None:
                 # close() runs in simulate's `finally`: a run being interrupted stops serving at once.
-                self.server.serve_until_interrupted(already_interrupted=interrupted)
+                self.server.serve_until_interrupted(announced=True, already_interrupted=interrupted)
 
     def save(self) -> None:
         """Write the recording to its file, whole or not at all, and say where; a default name that
@@ -247,7 +246,7 @@ def deferred_to_the_end() -> Iterator[None]:
         _deferred.reset(token)
         for index, server in enumerate(servers):
             if finished and index == 0:
-                server.serve_until_interrupted()
+                server.serve_until_interrupted(announced=True)
             else:
                 server.stop()
     if errors:
