@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from mazelab.atomic import WriteError, write_atomically
+from mazelab.checks import step_number
 from mazelab.invocation import command_prefix
 from mazelab.maze import EMPTY, Maze
 from mazelab.viz.processes import WebServer, hold_stop_signals, native_viewer, release_stop_signals
@@ -268,8 +269,7 @@ class Visualization:
     replace: bool = True  # a recording file may replace an existing one (False: its name is created exclusively)
 
     def __post_init__(self) -> None:
-        if isinstance(self.max_drawn, bool) or not isinstance(self.max_drawn, (int, np.integer)) or self.max_drawn < 1:
-            raise ValueError(f"max_drawn must be a whole number >= 1, got {self.max_drawn!r}")
+        step_number("max_drawn", self.max_drawn, "a whole number")
 
 
 def resolve_target(target: Any) -> str | Path:
