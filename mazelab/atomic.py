@@ -109,11 +109,10 @@ def output_target(path: str | Path, replace: bool, follow_links: bool = True) ->
 
 
 def write_atomically(path: str | Path, data: str | bytes, *, replace: bool = True, follow_links: bool = True) -> Path:
-    """Write `data` (text: UTF-8) to `path` whole or not at all (see the module docstring); returns the path.
-    `replace=False` never replaces an existing file (NameTakenError, a FileExistsError): a name is claimed
-    only once, across processes. `follow_links=False` (a program's own working file, such as a study's
-    partial record) refuses a symlink at the name, and the rename replaces a link put there meanwhile
-    rather than writing through it."""
+    """Write `data` (text: UTF-8) to `path` whole or not at all, claiming the name only once without
+    `replace` (see the module docstring); returns the path. `follow_links=False` (a program's own working
+    file, such as a study's partial record) refuses a symlink at the name, and the rename replaces a link
+    put there meanwhile rather than writing through it."""
     path, data = Path(path), data.encode("utf-8") if isinstance(data, str) else data
     temporary = None
     try:

@@ -273,8 +273,7 @@ class Visualization:
 
 
 def resolve_target(target: Any) -> str | Path:
-    """The place a `visualize` value means: "viewer" (True or "auto" outside Jupyter; a file instead when
-    the viewer cannot open, see Recording.open), "web", "notebook" or a file path."""
+    """The place a `visualize` value means (listed in mazelab.viz.views): "viewer", "web", "notebook" or a path."""
     if target is True or target == "auto":
         return "notebook" if in_jupyter() and notebook_viewer_installed() else "viewer"
     if target == "notebook" and not notebook_viewer_installed():
