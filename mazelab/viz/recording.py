@@ -262,7 +262,7 @@ def heading_vectors(angles: np.ndarray, length: float) -> np.ndarray:
 # -- where a recording goes ------------------------------------------------------------------------
 @dataclass(frozen=True)
 class Visualization:
-    """A `visualize` value with options: where to draw (`target`, see above) and how much."""
+    """A `visualize` value with options: where to draw (`target`, see mazelab.viz.views) and how much."""
 
     target: Any = True
     max_drawn: int = DEFAULT_MAX_DRAWN
