@@ -225,11 +225,9 @@ def remove_stale_temporaries(folder: Path) -> list[Path]:
     for entry in entries:
         match = TEMPORARY_PATTERN.match(entry.name)
         if match and match.group(1) == here and not process_alive(int(match.group(2))):
-            try:
+            with contextlib.suppress(OSError):  # removed meanwhile, or not ours to remove
                 os.unlink(entry.path)
                 removed.append(Path(entry.path))
-            except OSError:
-                pass
     return removed
 
 
