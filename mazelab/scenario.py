@@ -324,8 +324,14 @@ def load_scenario(path: str | Path = DEFAULT_PARAMETERS_PATH) -> Scenario:
         raise ScenarioError(f"{path}: not a usable json file ({str(error).splitlines()[0]})") from None
     try:
         return Scenario.model_validate(data)
-    except ValidationError as error:
-        raise ScenarioError(f"{path}: {describe_validation_error(error)}") from None
+    except ValidationError as error:  # its first problem on one line, 'where: what' (and how many more)
+        first = error.errors()[0]
+        parts = (str(part) for part in first["loc"])  # a key may hold a newline: quote those, to keep one line
+        where = ".".join(part if part.isprintable() else repr(part) for part in parts)
+        message = first["msg"].removeprefix("Value error, ")  # our own checks' messages, without pydantic's label
+        more = len(error.errors()) - 1
+        problem = (f"{where}: {message}" if where else message) + (f" (and {more} more problem(s))" if more else "")
+        raise ScenarioError(f"{path}: {problem}") from None
 
 
 def _what_it_is(path: Path, text: str) -> str:
@@ -354,16 +360,6 @@ def json_depth(text: str) -> int:
     return int(np.cumsum(np.where(brackets, 1, -1), dtype=np.int64).max(initial=0))
 
 
-def describe_validation_error(error: ValidationError) -> str:
-    """The first problem of a pydantic error, on one line: 'where: what' (and how many more)."""
-    first = error.errors()[0]
-    parts = (str(part) for part in first["loc"])  # a key may hold a newline: quote those, to keep one line
-    where = ".".join(part if part.isprintable() else repr(part) for part in parts)
-    message = first["msg"].removeprefix("Value error, ")  # our own checks' messages, without pydantic's label
-    more = len(error.errors()) - 1
-    return (f"{where}: {message}" if where else message) + (f" (and {more} more problem(s))" if more else "")
-
-
 __all__ = [
     "DEFAULT_PARAMETERS_PATH",
     "FORMAT_VERSIONS",
@@ -375,7 +371,6 @@ __all__ = [
     "Scenario",
     "ScenarioError",
     "check_measurements_within",
-    "describe_validation_error",
     "find_scenario",
     "json_depth",
     "load_scenario",
