@@ -5,6 +5,7 @@ and the "Repeat this ..." lines."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shlex
 import shutil
@@ -31,8 +32,9 @@ def command_prefix(argv0: str | None = None, environ: Mapping[str, str] | None =
     if uv:
         return f"uv run {project}mazelab"
     on_path = shutil.which("mazelab", path=environ.get("PATH"))
-    if on_path is not None and (Path(argv0).name != "mazelab" or _same_file(on_path, argv0)):
-        return "mazelab"
+    with contextlib.suppress(OSError):  # a path missing: not the same file
+        if on_path is not None and (Path(argv0).name != "mazelab" or os.path.samefile(on_path, argv0)):
+            return "mazelab"
     return f"{shlex.quote(sys.executable)} -m mazelab"
 
 
@@ -51,14 +53,6 @@ def _uv_project(environ: Mapping[str, str], cwd: Path | None) -> str | None:
     cwd = Path.cwd() if cwd is None else cwd
     outside = (PROJECT_DIR / "pyproject.toml").is_file() and not cwd.resolve().is_relative_to(PROJECT_DIR)
     return f"--project {shlex.quote(str(PROJECT_DIR))} " if outside else ""
-
-
-def _same_file(a: str, b: str) -> bool:
-    """Whether two paths name one file (False if either is missing)."""
-    try:
-        return os.path.samefile(a, b)
-    except OSError:
-        return False
 
 
 _ARGUMENTS: ContextVar[list[str] | None] = ContextVar("mazelab_arguments", default=None)
