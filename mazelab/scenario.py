@@ -152,7 +152,14 @@ class Scenario(BaseModel):
             raise ValueError(f"steps is {self.steps} but there are {steps} angles")
         world = self.world()
         check_measurements_within(self.robot_measurements, world, self.sigma)
-        self._check_filter_options()
+        # filter_options and filter_plugin need the filter they belong to; a filter of the lab's checks its
+        # options by its declaration as its constructor does (a plug-in's when the user names it to replay)
+        if self.filter_plugin is not None and self.filtering_algorithm is None:
+            raise ValueError("filter_plugin needs the filtering_algorithm (the plug-in's name) it belongs to")
+        if self.filter_options is not None and self.filtering_algorithm is None:
+            raise ValueError("filter_options need the filtering_algorithm they belong to")
+        if self.filter_options is not None and (entry := self.shipped_filter) is not None:
+            entry.options.from_json(self.filter_options, entry.name)
         if world is not None:  # the robot's start is checked where every run is, in simulation.check_walk
             check_within_map("init_particles_pos", particles, world.width, world.height)
             if self.kidnap_position is not None and not world.is_free(*self.kidnap_position):
@@ -176,20 +183,6 @@ class Scenario(BaseModel):
         ):
             check_all_within(name, values, bound, unit)
         return particles
-
-    def _check_filter_options(self) -> None:
-        """filter_options need format_version 3 and a filter; for a filter of the lab's they are checked
-        by its declaration as its constructor checks them (a plug-in's when the user names it to replay);
-        filter_plugin needs format_version 4 and the plug-in's name."""
-        if self.filter_plugin is not None and self.filtering_algorithm is None:
-            raise ValueError("filter_plugin needs the filtering_algorithm (the plug-in's name) it belongs to")
-        if self.filter_options is None:
-            return
-        if self.filtering_algorithm is None:
-            raise ValueError("filter_options need the filtering_algorithm they belong to")
-        entry = self.shipped_filter
-        if entry is not None:
-            entry.options.from_json(self.filter_options, entry.name)
 
     def filter_kwargs(self, filter_class: type) -> dict[str, Any]:
         """The stored filter options as keyword arguments of `filter_class`, those it declares, checked by
