@@ -139,8 +139,12 @@ def check_filter(filt: Any) -> None:
     """
     name = getattr(type(filt), "name", type(filt).__name__)
     missing = missing_parts(type(filt))
-    attributes = ("estimate", "ess", "is_confident", "count", "reinitialised_at")  # set by __init__ or properties
-    missing += [f"attribute {a!r}" for a in attributes if not _has(filt, a)]
+    for attribute in ("estimate", "ess", "is_confident", "count", "reinitialised_at"):  # set by __init__ or properties
+        try:  # a property's code is not run (a student's `estimate` is read after the first step: errors name it)
+            if not isinstance(getattr(type(filt), attribute, None), property):
+                getattr(filt, attribute)
+        except AttributeError:
+            missing.append(f"attribute {attribute!r}")
     if missing:
         raise ContractError(f"{name} does not meet the filter contract: it has no {', '.join(missing)}")
     restarts = filt.reinitialised_at
@@ -194,18 +198,6 @@ def check_step_values(
     if not is_whole(count) or count < 1:
         raise ContractError(f"{name}.count must be a whole number >= 1, got {_shown(count)}")
     return estimate, ess, confident, int(count)
-
-
-def _has(filt: Any, attribute: str) -> bool:
-    """Whether the object has the attribute, without running a property's code (a student's
-    `estimate` is read after the first step, where its errors name the step)."""
-    if isinstance(getattr(type(filt), attribute, None), property):
-        return True
-    try:
-        getattr(filt, attribute)
-    except AttributeError:
-        return False
-    return True
 
 
 def _shown(value: Any) -> str:
