@@ -134,7 +134,7 @@ class ParticleFilter(SMC):
     def diagnostics(self) -> dict[str, Any]:
         """This step's figures of the filter's own, by name (recorded per step in RunResult.extras and a
         study's traces): recovery's injection probability when recovery is on."""
-        return {} if self.recovery is None else {"injection_probability": self.injection_probability}
+        return {} if self.recovery is None else {"injection_probability": self.recovery.injection_probability}
 
     def step(self, compass_angle: float | np.ndarray, z: float | np.ndarray) -> None:
         """SMC.step; its due mask kept (`resampled_at`); recovery then tracks w_avg, this step's estimate
@@ -179,7 +179,7 @@ class ParticleFilter(SMC):
         recovery, each particle then replaced with the injection probability by an injected point;
         then the transition for those that have not taken it (the RPF's: every particle)."""
         if A is None:  # no run resamples: recovery injects before the move (one run, unless it is lost)
-            if self.recovery is not None and self.injection_probability > 0 and self.movers is self.rngs:
+            if self.recovery is not None and self.recovery.injection_probability > 0 and self.movers is self.rngs:
                 x, headings = particles_array(x, x.dtype), self.headings.copy()
                 self._inject(x, headings, moved=False)
             return self.transition(x)
@@ -223,11 +223,6 @@ class ParticleFilter(SMC):
         """Which particles this step's recovery replaced by injected draws (bool, (N,)), or None."""
         step, injected = self._injected
         return injected if step == self.steps_done else None
-
-    @property
-    def injection_probability(self) -> float:
-        """The recovery's injection probability now (0 without recovery)."""
-        return 0.0 if self.recovery is None else self.recovery.injection_probability
 
     # -- the weighted posterior: what the estimate and the drawing read ---------------------------------
     @property

@@ -124,7 +124,7 @@ def test_sensor_resetting_injects_by_how_far_w_fast_is_below_the_localised_level
     filt = SIRParticleFilter(paper_world, 0.3, 0.5, paper_world.random_free_places(10), recovery="sensor")
     filt.recovery.track(-50.0, 1.0)  # w_slow: a lost filter's level, which the sensor mode ignores
     filt.recovery.log_w_fast = math.log(share * SENSOR_RESET_LEVEL * Sensor(0.3).localised_likelihood())
-    assert filt.injection_probability == pytest.approx(probability, abs=1e-12)
+    assert filt.recovery.injection_probability == pytest.approx(probability, abs=1e-12)
     with pytest.raises(ValueError, match="0 < reset_level <= 1"):
         Recovery("sensor", reset_level=1.5)
 
