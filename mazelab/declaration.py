@@ -276,10 +276,10 @@ class Options(Mapping[str, Option]):
     *options : Option
     check : callable, optional
         Sees every resolved value together and refuses a combination (recovery's alpha_slow below its
-        alpha_fast) in one line; `extend` keeps it.
+        alpha_fast) in one line (default: any combination); `extend` keeps it.
     """
 
-    def __init__(self, *options: Option, check: Callable[[dict[str, Any]], None] | None = None):
+    def __init__(self, *options: Option, check: Callable[[dict[str, Any]], Any] = _as_given):
         names = [o.name for o in options]
         repeated = sorted({n for n in names if names.count(n) > 1})
         if repeated:
@@ -358,8 +358,7 @@ class Options(Mapping[str, Option]):
             if name not in self._by_name:
                 raise ValueError(f"{owner} does not take the option {name} (it takes: {_taken(self)})")
         values = {o.name: o.check(given[o.name]) if o.name in given else o.default for o in self.declared}
-        if self.check is not None:
-            self.check(values)
+        self.check(values)
         return values
 
     def to_json(self, values: Mapping[str, Any]) -> dict[str, Any]:
