@@ -232,6 +232,7 @@ def read_text_file(
 
 # -- memory ----------------------------------------------------------------------------------------
 MEMORY_SHARE = 0.8  # refuse a request that needs more than this share of the budget
+MEMORY_CHECKED_BYTES = 2**20  # a need up to this is never refused: no process runs on less (and /proc is not read)
 BYTES_PER_PARTICLE = 400  # arrays a particle needs during a step, temporaries included (generous)
 BYTES_PER_STEP = 1000  # a run's per-step arrays, the robot's path and the saved scenario (about 400 measured)
 BYTES_PER_MAZE_CELL = 100  # a maze's grid, its lists and the generator's index arrays (generous)
@@ -270,8 +271,10 @@ class MemoryBudget:
 
 
 def check_memory(what: str, needed: int, budget: MemoryBudget | None = None) -> None:
-    """Refuse `what` (e.g. "particle_count 10**11") when its `needed` bytes exceed MEMORY_SHARE of the
-    budget (the current one unless given); nothing happens where no limit is known."""
+    """Refuse `what` (e.g. "particle_count 10**11") when its `needed` bytes exceed MEMORY_SHARE of the budget
+    (the current one unless given); nothing happens where no limit is known or for MEMORY_CHECKED_BYTES or less."""
+    if needed <= MEMORY_CHECKED_BYTES:
+        return
     budget = memory_budget() if budget is None else budget
     if budget is not None and needed > MEMORY_SHARE * budget.available:
         raise MemoryLimitError(
