@@ -58,19 +58,11 @@ def threading_layer() -> str:
 
 # TBB's library loaded where it is installed (for a user's choice of "tbb" too); the user's choice stands
 numba.config.THREADING_LAYER = os.environ.get("NUMBA_THREADING_LAYER", threading_layer())
-
-
-def cpu_features() -> str:
-    """The host CPU's features (numba's) for the kernels' machine code, with 512-bit vectors where it has
-    AVX-512: LLVM's tuning for Intel's keeps loops at 256 bits, which leaves the likelihood's pass a
-    quarter slower, the move's and the weights' a tenth. Each lane's arithmetic is the same, the sums'
-    order the code's: the same values (benchmarks/pass_costs.py times the passes)."""
-    features = get_host_cpu_features()
-    return f"{features},-prefer-256-bit" if "+avx512f" in features.split(",") else features
-
-
-if numba.config.CPU_FEATURES is None:  # the user's choice (NUMBA_CPU_FEATURES, NUMBA_CPU_NAME) stands
-    numba.config.CPU_FEATURES = cpu_features()
+# 512-bit vectors where the CPU has AVX-512 (LLVM's tuning for Intel's keeps loops at 256 bits, leaving the
+# likelihood's pass a quarter slower, the move's and the weights' a tenth: benchmarks/pass_costs.py): each lane's
+# arithmetic and the sums' order are the code's, so the values are the same. The user's choice stands.
+if numba.config.CPU_FEATURES is None and "+avx512f" in get_host_cpu_features().split(","):
+    numba.config.CPU_FEATURES = get_host_cpu_features() + ",-prefer-256-bit"
 
 
 @cache
