@@ -58,9 +58,8 @@ def threading_layer() -> str:
 
 # TBB's library loaded where it is installed (for a user's choice of "tbb" too); the user's choice stands
 numba.config.THREADING_LAYER = os.environ.get("NUMBA_THREADING_LAYER", threading_layer())
-# 512-bit vectors where the CPU has AVX-512 (LLVM's tuning for Intel's keeps loops at 256 bits, leaving the
-# likelihood's pass a quarter slower, the move's and the weights' a tenth: benchmarks/pass_costs.py): each lane's
-# arithmetic and the sums' order are the code's, so the values are the same. The user's choice stands.
+# 512-bit vectors where the CPU has AVX-512 (LLVM's tuning for Intel's keeps loops at 256 bits: the likelihood's pass
+# 25% slower, the move's and the weights' 10%; benchmarks/pass_costs.py), the same values; the user's choice stands.
 if numba.config.CPU_FEATURES is None and "+avx512f" in get_host_cpu_features().split(","):
     numba.config.CPU_FEATURES = get_host_cpu_features() + ",-prefer-256-bit"
 
