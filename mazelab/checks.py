@@ -209,8 +209,7 @@ def read_text_file(
         size = status.st_size
         if limit is not None and size > limit:
             raise error(f"{path}: {size} bytes is too large for a {kind} file (limit {limit})")
-        if per_byte:
-            check_memory(f"{path}: a {kind} file of {size} bytes", size * per_byte)
+        check_memory(f"{path}: a {kind} file of {size} bytes", size * per_byte)  # 0 without `per_byte`: not checked
         with path.open("rb") as file:
             data = file.read(-1 if limit is None else limit + 1)  # at most one byte past the limit, whatever stat said
     except (FileNotFoundError, error):
