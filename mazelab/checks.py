@@ -2,8 +2,7 @@
 
 Numbers and points: finite, within the bounds below (angles, places, sigma, the RPF's bandwidth, the
 grid's cells, KLD-sampling's numbers, seeds). Memory: particle counts, step counts and maze sizes that
-would not fit are refused with one line before anything is allocated: a request that needs more than
-MEMORY_SHARE of the least of the available RAM, this process's limits and its cgroup's (`memory_budget`).
+would not fit (more than MEMORY_SHARE of `memory_budget`) are refused in one line before anything is allocated.
 """
 
 from __future__ import annotations
