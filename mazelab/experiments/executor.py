@@ -117,12 +117,6 @@ class StudyOutcome:
         """The start-up of every process that ran runs (numba's load, first-call warm-ups), summed."""
         return sum(report.startup_seconds for report in self.workers.values())
 
-    def sort(self, tasks: Sequence[RunTask]) -> None:
-        """Records in the study's order (`study_order`), failures by setting and run, whatever order the
-        workers finished in."""
-        self.records = study_order(self.records, tasks)
-        self.failures.sort(key=lambda f: (f.task.setting_index, f.task.run))
-
 
 UnitOutcome = list[RunRecord] | RunFailure | WorkerReport
 
@@ -326,7 +320,8 @@ def run_study(
     finally:
         if isinstance(dask, str):
             close_client(client)
-    outcome.sort(tasks)
+    outcome.records = study_order(outcome.records, tasks)  # whatever order the workers finished in
+    outcome.failures.sort(key=lambda f: (f.task.setting_index, f.task.run))
     return outcome
 
 
@@ -446,7 +441,11 @@ class Units:
                     stop = second
             with signal_handlers(STOP_SIGNALS, signal.SIG_IGN):  # a third Ctrl-C changes nothing
                 self._take(self._finished())
-                self._end()
+                if self.client is None:
+                    end_workers(self.pool)  # the unfinished runs are dropped
+                else:
+                    with suppress(Exception):  # on Dask: the rest cancelled
+                        self.pool.shutdown(wait=False)
             raise stop from None
         self.pool.shutdown(wait=True)
 
@@ -517,14 +516,6 @@ class Units:
         end_workers(self.pool)
         self.pool = self._executor()
         return finished
-
-    def _end(self) -> None:
-        """Kill the pool's workers now (their unfinished runs are dropped); on Dask, cancel the rest."""
-        if self.client is None:
-            end_workers(self.pool)
-            return
-        with suppress(Exception):
-            self.pool.shutdown(wait=False)
 
 
 def end_workers(pool: ProcessPoolExecutor) -> None:
