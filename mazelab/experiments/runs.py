@@ -21,7 +21,7 @@ import numpy as np
 
 from mazelab.backend import backend_by_work, chosen_backend
 from mazelab.declaration import not_taken, options_of, scoped
-from mazelab.experiments.tables import format_number, format_table, pyplot, records_csv, save_figure
+from mazelab.experiments.tables import column_table, format_number, pyplot, records_csv, save_figure
 from mazelab.maze import Maze
 from mazelab.model import CONVERGENCE_RADIUS, DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
 from mazelab.registry import described, filter_entry, resolve_filter, rgb
@@ -390,7 +390,6 @@ def comparison_table(results: dict[str, RunResult], kld: bool = False, startup_s
         columns.append(
             ("mean N", lambda f: f"{f['mean_particle_count']:.0f}" if filter_entry(f["name"]).takes_particles else "-")
         )
-    rows = [[cell(f) for _, cell in columns] for f in figures]
     caveats = {f["label"]: f["log_evidence_caveat"] for f in figures if f["log_evidence_caveat"]}
     notes = [f"[* {label}: the log evidence is {why}]" for label, why in caveats.items()]
     if startup_seconds is not None:
@@ -399,7 +398,7 @@ def comparison_table(results: dict[str, RunResult], kld: bool = False, startup_s
             f"(first calls, and numba's kernels loaded on the compiled backend) {startup_seconds:.2f} s, not in "
             "ms/step]"
         )
-    return "\n".join([format_table([header for header, _ in columns], rows), *notes])
+    return "\n".join([column_table(columns, figures), *notes])
 
 
 def errors_csv(results: dict[str, RunResult]) -> str:

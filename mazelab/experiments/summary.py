@@ -30,7 +30,7 @@ from mazelab.experiments.study import (
     takes_parameter,
     varied_parameters,
 )
-from mazelab.experiments.tables import beside, format_interval, format_number, format_table, records_csv
+from mazelab.experiments.tables import beside, column_table, format_interval, format_number, records_csv
 from mazelab.model import CONVERGENCE_RADIUS
 from mazelab.registry import described, resolve_filter
 
@@ -493,8 +493,7 @@ def study_table(summaries: Sequence[StudySummary], varied: Sequence[str], kld: b
             (f"diff. vs {described(reference).label}", lambda s: format_number(s.mean_difference, "{:+.3f}")),
             (ci, lambda s: format_interval(*s.difference_interval, spec="{:+.3f}")),
         ]
-    rows = [[cell(s) for _, cell in columns] for s in summaries]
-    return format_table([header for header, _ in columns], rows) + "\n" + interval_note(summaries)
+    return column_table(columns, summaries) + "\n" + interval_note(summaries)
 
 
 def _evidence(s: StudySummary) -> str:

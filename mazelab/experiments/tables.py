@@ -10,7 +10,7 @@ import csv
 import functools
 import io
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import fields
 from pathlib import Path
 from typing import Any
@@ -64,6 +64,11 @@ def format_table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
         ).rstrip()
 
     return "\n".join([line(headers), line(["-" * w for w in widths]), *map(line, rows)])
+
+
+def column_table(columns: Sequence[tuple[str, Callable[[Any], str]]], items: Iterable[Any]) -> str:
+    """A table (`format_table`) of a row per item: a column per (header, the function that makes its cell)."""
+    return format_table([header for header, _ in columns], [[cell(item) for _, cell in columns] for item in items])
 
 
 def format_number(value: float | None, spec: str) -> str:
