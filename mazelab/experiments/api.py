@@ -1,12 +1,7 @@
 """The Python entry point of studies, `mazelab.study(...)`: the same study as `mazelab study`, its rows as
-a list of dicts (`pandas.DataFrame(result.rows)`), its summary and its record.
-
-A study is a plan value (`StudyPlan`: its mazes, settings, filters, runs and seed, checked once, whether it
-comes from the command line, `plan_study`, or from Python) run on workers: `study_plan(**values)` makes
-one from Python values, each checked with one line naming the argument, and `mazelab.study(plan=...)` runs
-it; `mazelab.study(**values)` does both. Any declared filter option is a keyword of its own
-(`bandwidth=["optimal", "multimodal"]`, `threshold=0.5`, `**{"rpf.threshold": [0.1, 0.2]}`) or an entry
-of `options=`.
+a list of dicts (`pandas.DataFrame(result.rows)`), its summary and its record. A study is a plan value
+(`StudyPlan`), checked once whether it comes from the command line (`plan_study`) or from Python values
+(`study_plan`, which says what each argument takes), and run by `study`.
 """
 
 from __future__ import annotations
@@ -444,14 +439,11 @@ def study(
     dask: Any = None,
     **values: Any,
 ) -> StudyResult:
-    """A Monte Carlo study, as `mazelab study` runs it: the plan (`plan`, or the one `study_plan(maze,
-    **values)` makes: every combination of the values given, `runs` seeded runs per setting, every filter
-    once per value of the options it takes) run on `workers` processes (None: all cores) or a Dask
-    cluster (`dask`: a scheduler address or a distributed.Client); `paired` a filter of the study, each
-    other filter's summary then gets its paired difference to it. Returns the rows, the summary, the
-    record (the same JSON record `mazelab study` writes), the failures and the traces (StudyResult); an
-    argument of the wrong type is a TypeError (runs=True, filters=[object], dask=42), a value out of its
-    range or an empty list a ValueError, each one line naming it."""
+    """A Monte Carlo study, as `mazelab study` runs it: the plan (`plan`, or `study_plan(maze, **values)`'s)
+    run on `workers` processes (None: all cores) or a Dask cluster (`dask`: a scheduler address or a
+    distributed.Client); `paired` a filter of the study, each other filter's summary then gets its paired
+    difference to it. Returns the rows, the summary, the record (the one `mazelab study` writes), the
+    failures and the traces (StudyResult); a wrong argument is one line, as in `study_plan` (dask=42: a TypeError)."""
     if plan is not None and (maze is not None or values):
         raise TypeError("give the study's plan or its values, not both")
     workers = _whole("workers", workers, optional=True)  # >= 1, checked by run_study
