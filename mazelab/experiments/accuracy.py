@@ -102,16 +102,9 @@ def accuracy_records(records: Sequence[RunRecord], rows: Sequence[AccuracyFilter
     for (maze, run), mine in runs.items():
         chosen = [next((r for r in mine if r.filter == name and r.options == cells), None) for _, name, cells in wanted]
         if all(chosen):
-            found += [
-                dict(
-                    zip(
-                        ACCURACY_COLUMNS,
-                        (maze, r.seed, label, r.distance_to_exact, r.converged_at, run, r.maze_seed),
-                        strict=True,
-                    )
-                )
-                for (label, _, _), r in zip(wanted, chosen, strict=True)
-            ]
+            for (label, _, _), r in zip(wanted, chosen, strict=True):
+                cells = (maze, r.seed, label, r.distance_to_exact, r.converged_at, run, r.maze_seed)
+                found.append(dict(zip(ACCURACY_COLUMNS, cells, strict=True)))
     return found
 
 

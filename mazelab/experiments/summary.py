@@ -550,38 +550,29 @@ SUMMARY_STATISTICS = tuple(
 )
 
 
-def summary_statistics(s: StudySummary) -> dict[str, Any]:
-    """A summary's SUMMARY_FIELDS as cells (SUMMARY_STATISTICS): None for a missing interval, no caveat
-    and no pairs."""
-    cells: dict[str, Any] = {}
-    for spec in SUMMARY_FIELDS:
-        if isinstance(spec, tuple):
-            cells[f"{spec[1]}_low"], cells[f"{spec[1]}_high"] = getattr(s, spec[0]) or (None, None)
-        else:
-            value = getattr(s, spec)
-            cells[spec] = None if spec in ("log_evidence_caveat", "paired_runs") and not value else value
-    return cells
-
-
 def summary_rows(summaries: Sequence[StudySummary], columns: Sequence[str] = ()) -> list[dict[str, Any]]:
     """One dict per setting and filter, the summary CSV's columns: `setting`, the maze and the model's
     parameters (None where the filter does not take one, the table's '-'), then the option `columns`
     (the study's, `study.option_columns`: each the value the filter ran with, None where it does not
-    declare the option), `filter`, `label` (the registry's), then SUMMARY_STATISTICS, each interval as
-    _low and _high."""
+    declare the option), `filter`, `label` (the registry's), then SUMMARY_FIELDS as SUMMARY_STATISTICS, each
+    interval as _low and _high (None for a missing one), None for no caveat and no pairs."""
     rows = []
     for s in summaries:
         cells = option_cells(s.setting, s.filter)
-        rows.append(
-            {
-                "setting": s.setting_index,
-                **{p: s.setting.value(p) if takes_parameter(s.filter, p) else None for p in BASE_PARAMETERS},
-                **{name: cells.get(name) for name in columns},
-                "filter": s.filter,
-                "label": described(s.filter).label,
-                **summary_statistics(s),
-            }
-        )
+        row = {
+            "setting": s.setting_index,
+            **{p: s.setting.value(p) if takes_parameter(s.filter, p) else None for p in BASE_PARAMETERS},
+            **{name: cells.get(name) for name in columns},
+            "filter": s.filter,
+            "label": described(s.filter).label,
+        }
+        for spec in SUMMARY_FIELDS:
+            if isinstance(spec, tuple):
+                row[f"{spec[1]}_low"], row[f"{spec[1]}_high"] = getattr(s, spec[0]) or (None, None)
+            else:
+                value = getattr(s, spec)
+                row[spec] = None if spec in ("log_evidence_caveat", "paired_runs") and not value else value
+        rows.append(row)
     return rows
 
 
