@@ -368,19 +368,26 @@ def run_units(
     ignore_after_stop: bool = False,
 ) -> None:
     """Run the units (`Units.run`, `here(advance)` in this process meanwhile) with a progress bar over
-    `total` `what`; SIGTERM and SIGHUP stop them as Ctrl-C does (`stop_signals`), and a stop sets
-    outcome.interrupted and outcome.stopped_by, a lost cluster or pool outcome.lost (the finished units
-    collected either way); with `ignore_after_stop`, the stop signals are ignored after a stop."""
-    keep_ignoring = lambda: ignore_after_stop and outcome.interrupted  # noqa: E731
-    with progress_bar(total, progress, what) as advance, stop_signals(keep_ignoring):
-        try:
-            units.run(collect, advance, functools.partial(here, advance))
-        except StudyLost as lost:
-            outcome.lost = str(lost)
-        except KeyboardInterrupt as stop:
-            if ignore_after_stop:
-                _ignore(STOP_SIGNALS)
-            outcome.interrupted, outcome.stopped_by = True, getattr(stop, "signum", signal.SIGINT)
+    `total` `what`. Meanwhile SIGTERM and SIGHUP raise StudyStopped in the main thread, so that they stop the
+    study as Ctrl-C does: a stop sets outcome.interrupted and outcome.stopped_by, a lost cluster or pool
+    outcome.lost (the finished units collected either way). Afterwards the previous handlers come back; with
+    `ignore_after_stop`, the stop signals stay ignored after a stop."""
+
+    def stop(signum: int, _frame: Any) -> None:
+        raise StudyStopped(signum)
+
+    with progress_bar(total, progress, what) as advance:
+        with signal_handlers([sig for sig in STOP_SIGNALS if sig != signal.SIGINT], stop):
+            try:
+                units.run(collect, advance, functools.partial(here, advance))
+            except StudyLost as lost:
+                outcome.lost = str(lost)
+            except KeyboardInterrupt as stopped:
+                if ignore_after_stop:  # until signal_handlers puts the previous handlers back, then for good
+                    _ignore(STOP_SIGNALS)
+                outcome.interrupted, outcome.stopped_by = True, getattr(stopped, "signum", signal.SIGINT)
+        if ignore_after_stop and outcome.interrupted:
+            _ignore(STOP_SIGNALS)
 
 
 class Units:
@@ -561,23 +568,6 @@ def _watch_parent(parent: int) -> None:
     while os.getppid() == parent:
         time.sleep(WATCHDOG_SECONDS)
     os._exit(1)
-
-
-@contextmanager
-def stop_signals(keep_ignoring: Callable[[], bool] = lambda: False) -> Iterator[None]:
-    """While the study runs: SIGTERM and SIGHUP raise StudyStopped in the main thread (as Ctrl-C raises
-    KeyboardInterrupt), so that they too keep the finished runs and end the workers. Afterwards the
-    previous handlers come back, unless `keep_ignoring()` (the stop signals stay ignored then)."""
-
-    def stop(signum: int, _frame: Any) -> None:
-        raise StudyStopped(signum)
-
-    try:
-        with signal_handlers([sig for sig in STOP_SIGNALS if sig != signal.SIGINT], stop):
-            yield
-    finally:
-        if keep_ignoring():
-            _ignore(STOP_SIGNALS)
 
 
 def _ignore(signals: Sequence[int]) -> None:
