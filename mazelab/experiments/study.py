@@ -105,7 +105,7 @@ def _maze_of(grid: tuple[tuple[int, ...], ...], label: str) -> Maze:
 class StudySetting:
     """One combination of the studied parameters: the model's (maze, sigma, delta, particle count) and
     the filter options the study sets (`options`, by name, each checked by its declaration); a filter
-    runs with those it declares and its declared defaults for the rest (`filter_values`)."""
+    runs with those it declares and its declared defaults for the rest (`option_cells`)."""
 
     maze: MazeChoice
     sigma: float
@@ -127,14 +127,6 @@ class StudySetting:
         for it alone (FILTER.NAME; its declaration checks them)."""
         entry = filter_entry(filter_name)
         return {name: value for key, value in self.options if (name := reaches(key, entry)) is not None}
-
-    def filter_values(self, filter_name: str | type) -> dict[str, Any]:
-        """Every option the filter runs with in this setting, by name in declaration order: the setting's
-        value where it sets one, the declared default otherwise (the derived ones left out)."""
-        filter_class = resolve_filter(filter_name)
-        declared = options_of(filter_class)
-        given = self.filter_options(filter_class)
-        return {o.name: given.get(o.name, o.default) for o in declared.settable()}
 
 
 MODEL_PARAMETERS = ("sigma", "delta", "particles")
@@ -382,8 +374,8 @@ class RunCells:
 
 
 # One filter in one run of a study, a row of its CSV: RunCells, then a field per figure (FIGURES, in order), then
-# every option the filter ran with (`StudySetting.filter_values`) as cells (`option_cell`), by name: a column
-# each, after the figures; an option the filter does not declare has no key (an empty cell).
+# every option the filter ran with as cells (`option_cells`), by name: a column each, after the figures; an
+# option the filter does not declare has no key (an empty cell).
 RunRecord = dataclasses.make_dataclass(
     "RunRecord",
     [*((f.name, Any, field(default=f.default)) for f in FIGURES), ("options", dict, field(default_factory=dict))],
@@ -516,9 +508,11 @@ def maze_text_sha256(world: Maze) -> str:
 
 
 def option_cells(setting: StudySetting, filter_name: str | type) -> dict[str, Any]:
-    """Every option a filter runs with in a setting (`StudySetting.filter_values`) as a row's cells
-    (`option_cell`), by name."""
-    return {name: option_cell(value) for name, value in setting.filter_values(filter_name).items()}
+    """Every option a filter runs with in a setting, by name in declaration order, as a row's cells
+    (`option_cell`): the setting's value where it sets one, the declared default otherwise (the derived
+    ones left out)."""
+    given = setting.filter_options(filter_name)
+    return {o.name: option_cell(given.get(o.name, o.default)) for o in filter_entry(filter_name).options.settable()}
 
 
 def option_cell(value: Any) -> Any:
