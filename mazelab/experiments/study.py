@@ -487,7 +487,7 @@ def run_records(task: RunTask, world: Maze, results: dict[str, RunResult]) -> li
     s = task.setting
     shared = {  # the run's cells, the same for every filter
         **task.cells(),
-        "maze_sha256": s.maze.sha256 if s.maze.sha256 is not None else maze_text_sha256(world),
+        "maze_sha256": s.maze.sha256 or hashlib.sha256(world.to_text().encode()).hexdigest(),  # generated: of to_text()
         "station_blocks": int((world.grid == STATION_WALL).sum()),
         "maze_rows": int(world.grid.shape[0]),
         "maze_columns": int(world.grid.shape[1]),
@@ -500,11 +500,6 @@ def run_records(task: RunTask, world: Maze, results: dict[str, RunResult]) -> li
             record.trace = trace_of(result)
         records.append(record)
     return records
-
-
-def maze_text_sha256(world: Maze) -> str:
-    """The sha256 of a maze's grid as maze-file text (Maze.to_text()): a generated maze's identity."""
-    return hashlib.sha256(world.to_text().encode()).hexdigest()
 
 
 def option_cells(setting: StudySetting, filter_name: str | type) -> dict[str, Any]:
