@@ -315,17 +315,8 @@ class StudyResult:
         `title` instead of the program's title and caption, as --title); an existing file is replaced."""
         from mazelab.experiments.study_plot import draw_study
 
-        parameters = self.record["parameters"]
-        draw_study(
-            self.summaries,
-            self.varied,
-            Path(path),
-            parameters["runs"],
-            parameters["mazes"][0]["label"],
-            x=x,
-            y=y,
-            title=title,
-        )
+        runs, mazes = self.record["parameters"]["runs"], self.record["parameters"]["mazes"]
+        draw_study(self.summaries, self.varied, Path(path), runs, mazes[0]["label"], x=x, y=y, title=title)
         return Path(path)
 
 
