@@ -49,7 +49,6 @@ from mazelab.maze import DEFAULT_MAZE, MAZES_DIR, find_maze, load_maze
 from mazelab.maze_generator import DEFAULT_WALL_SHARE
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
 from mazelab.registry import PluginReference, filter_entry, is_lab_class, plugin_codes, resolve_filter
-from mazelab.regularisation import check_bandwidth
 from mazelab.seeding import new_seed
 
 
@@ -228,8 +227,7 @@ def plan_study(
     check_steps(steps)  # each run's limits, up front rather than in every worker
     settings = study_settings(mazes, *(values[p] for p in MODEL_PARAMETERS), given)
     check_study(len(settings) * runs, len(names))
-    check_study_numbers(settings, reference)
-    check_filter_options(settings, names)
+    check_settings(settings, names, reference)
     seed = new_seed() if seed is None else seed
     kld = given.get("kld") == [True]  # the table's mean N column
     plugins = plugin_codes(names)
@@ -248,34 +246,26 @@ def all_default(name: str, values: Sequence[Any]) -> bool:
         return False
 
 
-def check_filter_options(settings: Sequence[StudySetting], names: Sequence[Any]) -> None:
-    """Every filter's options in every setting, checked by its declaration as its constructor will
-    check them (values and combinations), before any run starts."""
-    seen: set[tuple[Any, ...]] = set()
-    for setting in settings:
-        for name in names:
-            given = setting.filter_options(name)
-            entry = filter_entry(name)
-            key = (entry.name, repr(sorted(given.items())))
-            if key not in seen:
-                seen.add(key)
-                entry.options.resolve(given, entry.name)
-
-
-def check_study_numbers(settings: Sequence[Any], reference: str | None = None) -> None:
-    """Each setting's sigma, and a numeric kernel bandwidth if it sets one, within the ranges of its maze
-    (mazelab.checks); with --reference, only "grid", whose cells must fit in memory on every maze (its
-    constructor's own check, for each maze's size); before any run starts."""
+def check_settings(settings: Sequence[StudySetting], names: Sequence[Any], reference: str | None = None) -> None:
+    """Before any run starts: each setting's sigma within the ranges of its maze (mazelab.checks), and every
+    filter's options in it, checked by its declaration as its constructor will check them (values and
+    combinations); with --reference, only "grid", whose cells must fit in memory on every maze (its
+    constructor's own check, for each maze's size)."""
     if reference is not None and reference != REFERENCE:
         raise ValueError(f"--reference {reference}: the reference is the exact grid filter, --reference {REFERENCE}")
+    seen: set[tuple[Any, ...]] = set()
     for setting in settings:
         maze = setting.maze
         rows, columns = maze.size if maze.grid is None else (len(maze.grid), len(maze.grid[0]))
         check_sigma_within(setting.sigma, columns, rows)
-        if setting.value("bandwidth") is not None:
-            check_bandwidth(setting.value("bandwidth"))
         if reference is not None:
             check_grid_memory(columns, rows)
+        for name in names:
+            given, entry = setting.filter_options(name), filter_entry(name)
+            key = (entry.name, repr(sorted(given.items())))
+            if key not in seen:
+                seen.add(key)
+                entry.options.resolve(given, entry.name)
 
 
 def _filter_list(filters: Any) -> list[Any]:
