@@ -72,11 +72,6 @@ def final_error(errors: np.ndarray, share: float = FINAL_SHARE) -> float:
     return float(errors[-max(1, int(len(errors) * share)) :].mean())
 
 
-def mean_ess(result: RunResult) -> float:
-    """Mean effective sample size over the steps; NaN for the grid filter, which has none."""
-    return math.nan if np.isnan(result.ess).all() else float(np.nanmean(result.ess))
-
-
 def parse_filters(text: str) -> list[str]:
     """'sir,apf,rpf' -> the filters' class names, in order, without repeats; a plug-in
     `file.py:Class` -> its spec with the file's absolute path (what worker processes import)."""
@@ -249,7 +244,8 @@ FIGURES = (  # in the CSV's order; a new figure of a run is one more line here (
     Figure("final_error", lambda r, e: final_error(r.errors), REQUIRED),  # the last-20% error, map units
     Figure("mean_error", lambda r, e: float(r.errors.mean()), REQUIRED),
     Figure("converged_at", lambda r, e: r.converged_at, REQUIRED),  # convergence_step of the errors; None: never
-    Figure("mean_ess", lambda r, e: mean_ess(r), REQUIRED),  # NaN for the grid filter
+    # the mean effective sample size over the steps; NaN for the grid filter, which has none
+    Figure("mean_ess", lambda r, e: math.nan if np.isnan(r.ess).all() else float(np.nanmean(r.ess)), REQUIRED),
     Figure("ms_per_step", lambda r, e: 1e3 * float(r.step_seconds.mean()), REQUIRED),
     Figure("kidnap_at"),  # the step the robot is kidnapped at (steps_to_recover None: never re-localised)
     Figure("relocalised", lambda r, e: None if r.inputs.kidnap_at is None else relocalised(r), None),
