@@ -110,33 +110,26 @@ _startup_seconds = [0.0]  # start-up spent in this process and not yet reported
 
 
 def warm_once(key: Hashable, filter_class: type, options: Mapping[str, Any], warm: Callable[[dict], Any]) -> None:
-    """Run `warm(options)` with each of `warm_up_options` the first time this process sees `key`, the filter,
-    the options that differ from their declared default (a filter given its defaults runs the same code as
-    one given nothing) and the chosen backend; its time kept as start-up, the warnings it raises dropped (the
-    study or compare shows its own)."""
+    """Run `warm(options)` the first time this process sees `key`, the filter, the options that differ from
+    their declared default (a filter given its defaults runs the same code as one given nothing) and the
+    chosen backend; its time kept as start-up, the warnings it raises dropped (the study or compare shows its
+    own). A filter that resamples only when N_eff falls below threshold N (the RPF's 0.2 N: a few steps may
+    not reach it) is warmed with threshold 1 too, so that its resampling's code (the RPF's covariance and
+    jitter) is loaded before the timed steps too."""
     declared = options_of(filter_class)
     changed = repr(sorted((k, v) for k, v in options.items() if k not in declared or declared[k].default != v))
     key = (key, filter_class, changed, chosen_backend())
     if key in _warmed:
         return
+    threshold = declared.get("threshold")
+    late = threshold is not None and options.get("threshold", threshold.default) < 1
     started = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        for warmed in warm_up_options(filter_class, options):
+        for warmed in [{**options}, {**options, "threshold": 1.0}] if late else [{**options}]:
             warm(warmed)
     _warmed.add(key)
     _startup_seconds[0] += time.perf_counter() - started
-
-
-def warm_up_options(filter_class: type, options: Mapping[str, Any]) -> list[dict[str, Any]]:
-    """The options to warm a filter with: its own, and, for one that resamples only when N_eff falls below
-    threshold N (the RPF's 0.2 N: a few steps may not reach it), the same with threshold 1, so that its
-    resampling's code (the RPF's covariance and jitter) is loaded before the timed steps too."""
-    declared = options_of(filter_class).get("threshold")
-    own = dict(options)
-    if declared is None or own.get("threshold", declared.default) >= 1:
-        return [own]
-    return [own, {**own, "threshold": 1.0}]
 
 
 def warm_up_filters(
