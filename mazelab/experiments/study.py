@@ -606,10 +606,22 @@ def run_batch(tasks: Sequence[RunTask]) -> list[list[RunRecord]]:
     z = np.array([inputs.robot_measurements for inputs, _ in walks])
     results: list[dict[str, RunResult]] = [{} for _ in tasks]
     world.prepare()
+    pair = min(2, len(tasks))  # the warm-up advances one or two runs together, as the batch will
+
+    def warm(filter_class: type, warmed: dict) -> None:  # a few untimed steps; their draws a stream of their own
+        rngs = [run_streams(WARM_UP_SEED).filter for _ in range(pair)]
+        filt = filter_class(maze_for(filter_class, world), s.sigma, s.delta, particles[:pair].copy(), rngs, **warmed)
+        record_steps(
+            filt,
+            min(WARM_UP_STEPS, steps),
+            lambda k: (compass[:pair, k], z[:pair, k]),
+            runs=None if pair == 1 else pair,
+        )
+
     for name in tasks[0].filters:
         filter_class = filter_entry(name).filter_class
         options = tasks[0].setting.filter_options(name)
-        warm_batch(filter_class, world, tasks, particles, compass, z, options)
+        warm_once(("batch", pair), filter_class, options, functools.partial(warm, filter_class))  # once per process
         rngs = [run_streams(task.seed).filter for task in tasks]  # each run's filter stream, as simulate's
         filt = filter_class(maze_for(filter_class, world), s.sigma, s.delta, particles, rngs, **options)
         runs = None if len(tasks) == 1 else len(tasks)  # one run: the paper's shapes
@@ -623,27 +635,3 @@ def run_batch(tasks: Sequence[RunTask]) -> list[list[RunRecord]]:
                 steps_of, r, true_positions, restarts[r], inputs, backend_of(filt)
             )
     return [run_records(task, world, result) for task, result in zip(tasks, results, strict=True)]
-
-
-def warm_batch(
-    filter_class: type,
-    world: Maze,
-    tasks: Sequence[RunTask],
-    particles: np.ndarray,
-    compass: np.ndarray,
-    z: np.ndarray,
-    options: dict,
-) -> None:
-    """Before the batch's timed steps: the filter advancing one or two runs together (as the batch
-    will) for a few untimed steps, once per process, options and shape (mazelab.experiments.runs.warm_once);
-    its random draws come from a stream of its own, its numbers are discarded."""
-    r = min(2, len(tasks))
-    s = tasks[0].setting
-
-    def warm(warmed: dict) -> None:
-        rngs = [run_streams(WARM_UP_SEED).filter for _ in range(r)]
-        filt = filter_class(maze_for(filter_class, world), s.sigma, s.delta, particles[:r].copy(), rngs, **warmed)
-        steps = min(WARM_UP_STEPS, tasks[0].steps)
-        record_steps(filt, steps, lambda k: (compass[:r, k], z[:r, k]), runs=None if r == 1 else r)
-
-    warm_once(("batch", r), filter_class, options, warm)
