@@ -45,7 +45,7 @@ from mazelab.experiments.study import (
 from mazelab.experiments.summary import CSV_COLUMNS, CSV_DTYPES, StudySummary, summarise_study, summary_rows
 from mazelab.experiments.tables import flat_row, study_traces, trace_table_columns
 from mazelab.grid_filter import check_grid_memory
-from mazelab.maze import DEFAULT_MAZE, MAZES_DIR, find_maze, load_maze
+from mazelab.maze import DEFAULT_MAZE, MAZES_DIR
 from mazelab.maze_generator import DEFAULT_WALL_SHARE
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
 from mazelab.registry import PluginReference, filter_entry, is_lab_class, plugin_codes, resolve_filter
@@ -61,14 +61,14 @@ def study_mazes(
 ) -> list[MazeChoice]:
     """The study's mazes: the files (or shipped names), then every generated size x station-block
     count x wall share; the default maze if none is given."""
-    mazes = file_mazes([str(find_maze(name)) for name in files], load_maze) if files else []
+    mazes = file_mazes(files) if files else []
     if sizes or stations or wall_shares:
         for rows, columns in (maze_generator.parse_size(s) for s in (sizes or ["10x10"])):
             counts = list(stations) if stations else [maze_generator.default_station_count(rows, columns)]
             for count, share in itertools.product(counts, wall_shares or [DEFAULT_WALL_SHARE]):
                 maze_generator.check_generation(rows, columns, count, share)  # --stations 0: refused up front
                 mazes.append(MazeChoice.generated(rows, columns, count, share))
-    return mazes or file_mazes([str(find_maze(DEFAULT_MAZE))], load_maze)
+    return mazes or file_mazes([DEFAULT_MAZE])
 
 
 def maze_description(choice: MazeChoice) -> dict[str, Any]:

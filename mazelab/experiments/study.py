@@ -33,7 +33,7 @@ from mazelab.experiments.runs import (
     warm_once,
 )
 from mazelab.experiments.tables import trace_of
-from mazelab.maze import STATION_WALL, Maze
+from mazelab.maze import STATION_WALL, Maze, find_maze, load_maze
 from mazelab.maze_generator import DEFAULT_WALL_SHARE, generate_maze
 from mazelab.model import check_model_parameters
 from mazelab.registry import PluginReference, entries, file_sha256, filter_entry, filters_here, resolve_filter
@@ -79,11 +79,11 @@ class MazeChoice:
         return generate_maze(*self.size, self.stations, np.random.default_rng(maze_seed), share)
 
 
-def file_mazes(paths: Sequence[str | Path], load: Any) -> list[MazeChoice]:
-    """The MazeChoices of maze files: labelled by file name without .txt, or, where two files share a
-    name, by as many of their last folders as tell them apart (a/m, b/m); `load(path)` reads a Maze.
-    The same file twice counts once."""
-    paths = list(dict.fromkeys(str(p) for p in paths))
+def file_mazes(names: Sequence[str | Path]) -> list[MazeChoice]:
+    """The MazeChoices of maze files (paths or shipped names, mazelab.maze.find_maze): labelled by file name
+    without .txt, or, where two files share a name, by as many of their last folders as tell them apart
+    (a/m, b/m). The same file twice counts once."""
+    paths = list(dict.fromkeys(str(find_maze(name)) for name in names))
     parts = [Path(p).with_suffix("").parts for p in paths]
     labels = [p[-1] for p in parts]
     for depth in range(2, max(map(len, parts), default=1) + 1):
@@ -91,7 +91,7 @@ def file_mazes(paths: Sequence[str | Path], load: Any) -> list[MazeChoice]:
         if not clashing:
             break
         labels = ["/".join(p[-depth:]) if label in clashing else label for p, label in zip(parts, labels, strict=True)]
-    return [MazeChoice.from_maze(label, load(p), p) for label, p in zip(labels, paths, strict=True)]
+    return [MazeChoice.from_maze(label, load_maze(p), p) for label, p in zip(labels, paths, strict=True)]
 
 
 @functools.lru_cache(maxsize=8)
