@@ -345,10 +345,17 @@ def summarise_group(index: int, setting: StudySetting, name: str, group: Sequenc
         step_interval,
         last,
     )
-    for figure in SUMMARISED:
-        mean, summary.figures[f"{figure.name}_interval"] = _mean_and_interval([getattr(r, figure.name) for r in group])
-        summary.figures[figure.name] = mean
-    summary.mean_log_evidence, summary.log_evidence_se = _mean_and_error([r.log_evidence for r in group])
+    for figure in SUMMARISED:  # the mean of the runs' finite values, with its BCa interval (NaN: none)
+        finite = [v for v in (getattr(r, figure.name) for r in group) if v is not None and not math.isnan(v)]
+        if finite:
+            summary.figures[figure.name] = statistics.fmean(finite)
+            summary.figures[f"{figure.name}_interval"] = bootstrap_interval(finite, "mean", method=MEAN_METHOD)
+    evidence = [r.log_evidence for r in group if math.isfinite(r.log_evidence)]
+    if evidence:  # the mean of the finite ones, and its standard error (NaN with fewer than two)
+        summary.mean_log_evidence = statistics.fmean(evidence)
+        summary.log_evidence_se = (
+            statistics.stdev(evidence) / math.sqrt(len(evidence)) if len(evidence) > 1 else math.nan
+        )
     summary.log_evidence_caveat, summary.backend = group[0].log_evidence_caveat, group[0].backend
     return summary
 
@@ -364,23 +371,6 @@ def converged_within(converged_at: int | None, steps: int) -> bool:
     """Converged: below the radius from `converged_at` on, for at least the last K steps (a run that gets
     below it only near its end is not counted: "converged" agrees with a small last-20% error)."""
     return converged_at is not None and converged_at <= last_convergence_step(steps)
-
-
-def _mean_and_interval(values: Sequence[float]) -> tuple[float, Interval]:
-    """The mean of the finite values with its BCa bootstrap interval; NaN when there are none."""
-    finite = [v for v in values if v is not None and not math.isnan(v)]
-    if not finite:
-        return math.nan, (math.nan, math.nan)
-    return statistics.fmean(finite), bootstrap_interval(finite, "mean", method=MEAN_METHOD)
-
-
-def _mean_and_error(values: Sequence[float]) -> tuple[float, float]:
-    """The mean of the finite values and its standard error (NaN with fewer than two)."""
-    finite = [v for v in values if math.isfinite(v)]
-    if not finite:
-        return math.nan, math.nan
-    error = statistics.stdev(finite) / math.sqrt(len(finite)) if len(finite) > 1 else math.nan
-    return statistics.fmean(finite), error
 
 
 def paired_finals(
