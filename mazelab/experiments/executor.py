@@ -338,11 +338,8 @@ def open_cluster(dask: Any, backend: str) -> Any:
     `dask`; anything else is a TypeError. A client connected here is closed again when its workers are refused."""
     if dask is None:
         return None
-    try:
-        from distributed import Client
-    except ImportError:
-        Client = None
-    if not isinstance(dask, str) and (Client is None or not isinstance(dask, Client)):
+    client_class = getattr(sys.modules.get("distributed"), "Client", None)  # none before distributed is imported
+    if not isinstance(dask, str) and (client_class is None or not isinstance(dask, client_class)):
         raise TypeError(
             f"dask must be a scheduler address like 'tcp://HOST:8786' or a distributed.Client, got "
             f"{dask!r} ({type(dask).__name__})"
