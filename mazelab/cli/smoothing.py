@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import typer
 
-from mazelab.atomic import write_text_atomically
+from mazelab.atomic import write_atomically
 from mazelab.cli.options import (
     Force,
     OptionFlag,
@@ -468,7 +468,7 @@ def write_outputs(
     --force (or learn's --resume) replaces them."""
     replace = files["force"] or files.get("resume", False)
     if files["csv_path"] is not None:
-        write_text_atomically(files["csv_path"], rows[1](), replace=replace)
+        write_atomically(files["csv_path"], rows[1](), replace=replace)
         typer.echo(f"one row per {rows[0]} written to {files['csv_path']}")
     if files["plot"] is not None:
         save_figure(figure(), files["plot"], replace=replace)
