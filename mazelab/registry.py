@@ -309,9 +309,7 @@ class FilterEntry:
         return self.short_name if self.plugin is None else f"{self.plugin.path}:{self.plugin.class_name}"
 
 
-# the RPF's log evidence: the kernel's jitter after resampling is a move of the particles that is not the
-# model's transition and that its weights leave out, so the product of its mean weights is not p(z_1:K)
-RPF_EVIDENCE = (
+RPF_EVIDENCE = (  # why the RPF's log evidence is not p(z_1:K): FilterEntry.evidence
     "not an estimate of p(z_1:K) under the model: its kernel jitters the particles after resampling, "
     "a move its weights leave out"
 )
