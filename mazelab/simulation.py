@@ -237,7 +237,7 @@ def simulate(
     Step k is the module's (`walk_and_record`); `on_step(k, robot, filter)` is called after each step.
     `seed` seeds the robot (unless it has its own rng), the initial particles and the filter (mazelab.seeding):
     the same seed gives the same result bit for bit. `kidnap_at=K`: at step K the robot is carried to a free
-    place drawn from the seed (`plan_kidnapping`). `result.extras` holds the particle count per step
+    place drawn from the seed (`checked_walk`). `result.extras` holds the particle count per step
     ("particle_count": KLD-sampling varies it) and the backend the filter ran on ("backend").
     `visualize` says where the run is drawn (the values mazelab.viz.views lists), its memory checked up
     front; `view` (instead) is a view or a function `(world, filter_name) -> view` (`open_run_view`),
@@ -411,8 +411,9 @@ def checked_walk(
     """A run's initial particles (N, 2) (given, or drawn from `streams.particles`) and its step count
     (given, else the robot's recorded steps, else DEFAULT_STEPS), each checked, with the robot's start,
     its kidnapping's place, its recorded walk and the recording's memory: one line for the first wrong.
-    The robot is then made ready to walk: kidnapped at `kidnap_at` (`plan_kidnapping`), back at its
-    start, and drawing from `streams.robot` unless it has its own rng."""
+    The robot is then made ready to walk: kidnapped at `kidnap_at` (a different recorded kidnapping, or
+    one after the last step, is refused), back at its start, and drawing from `streams.robot` unless it
+    has its own rng."""
     if init_particles_pos is not None:
         particles = as_points("init_particles_pos", init_particles_pos)
         checked_count(particle_count, given=len(particles))
@@ -424,8 +425,14 @@ def checked_walk(
     if visualize is not False and visualize is not None:  # what a drawn step records, at most
         drawn = visualize.max_drawn if isinstance(visualize, Visualization) else DEFAULT_MAX_DRAWN
         check_recording(len(particles), steps, drawn)
-    if kidnap_at is not None:
-        plan_kidnapping(robot, world, kidnap_at, steps, streams.kidnap)
+    if kidnap_at is not None:  # unless the robot replays that kidnapping, to a free place from streams.kidnap
+        kidnap_at = step_number("kidnap_at", kidnap_at)
+        if kidnap_at > steps:
+            raise ValueError(f"kidnap_at {kidnap_at} is after the last step ({steps})")
+        if robot.kidnap_at is None:
+            robot.kidnap(kidnap_at, world.random_free_place(streams.kidnap))
+        elif robot.kidnap_at != kidnap_at:
+            raise ValueError(f"the robot replays a kidnapping at step {robot.kidnap_at}, not at step {kidnap_at}")
     robot.reset()
     if not robot.rng_given:
         robot.rng = streams.robot
@@ -487,18 +494,6 @@ def maze_for(filter_class: type, world: Maze) -> Maze:
     return world if any(entry.filter_class is filter_class for entry in entries()) else world.prepare().copy()
 
 
-def plan_kidnapping(robot: Robot, world: Maze, kidnap_at: int, steps: int, rng: np.random.Generator) -> None:
-    """Kidnap `robot` at step `kidnap_at` to a free place drawn from `rng`, unless it already replays
-    that kidnapping; a different recorded kidnapping, or one after the last step, is refused."""
-    kidnap_at = step_number("kidnap_at", kidnap_at)
-    if kidnap_at > steps:
-        raise ValueError(f"kidnap_at {kidnap_at} is after the last step ({steps})")
-    if robot.kidnap_at is None:
-        robot.kidnap(kidnap_at, world.random_free_place(rng))
-    elif robot.kidnap_at != kidnap_at:
-        raise ValueError(f"the robot replays a kidnapping at step {robot.kidnap_at}, not at step {kidnap_at}")
-
-
 __all__ = [
     "Recorded",
     "RunInputs",
@@ -506,7 +501,6 @@ __all__ = [
     "check_walk",
     "convergence_step",
     "open_run_view",
-    "plan_kidnapping",
     "record_steps",
     "run_model",
     "simulate",
