@@ -311,8 +311,18 @@ def load_scenario(path: str | Path = DEFAULT_PARAMETERS_PATH) -> Scenario:
         raise ScenarioError(f"{path}: json nested {depth} deep; a scenario nests at most {MAX_JSON_DEPTH} deep")
     try:
         data = json.loads(text)
-    except json.JSONDecodeError as error:
-        raise ScenarioError(f"{path}:{error.lineno}: not valid json ({error.msg}){_what_it_is(path, text)}") from None
+    except json.JSONDecodeError as error:  # and what the file looks like, and what takes it instead
+        lines = [line.split("#")[0].strip() for line in text.splitlines()]
+        first = next((line for line in lines if line), "")
+        saved = "a scenario is the .json that run --save-scenario FILE.json writes"
+        hint = ""
+        if first and set(first.replace(",", " ").split()) <= {"0", "1", "2"}:
+            hint = f"; {path.name} looks like a maze file: --maze {path}; {saved}"
+        elif path.suffix.lower() == ".csv" or ("," in first and not first.startswith(("{", "["))):
+            hint = f"; {path.name} looks like a CSV (a study's or compare's table), not a scenario: {saved}"
+        elif path.suffix.lower() == ".rrd":
+            hint = f"; {path.name} is a recording: mazelab view {path}; {saved}"
+        raise ScenarioError(f"{path}:{error.lineno}: not valid json ({error.msg}){hint}") from None
     except ValueError as error:  # e.g. a number of more than 4300 digits
         raise ScenarioError(f"{path}: not a usable json file ({str(error).splitlines()[0]})") from None
     try:
@@ -325,20 +335,6 @@ def load_scenario(path: str | Path = DEFAULT_PARAMETERS_PATH) -> Scenario:
         more = len(error.errors()) - 1
         problem = (f"{where}: {message}" if where else message) + (f" (and {more} more problem(s))" if more else "")
         raise ScenarioError(f"{path}: {problem}") from None
-
-
-def _what_it_is(path: Path, text: str) -> str:
-    """For a file that is no json: what it looks like, and what takes it instead."""
-    lines = [line.split("#")[0].strip() for line in text.splitlines()]
-    first = next((line for line in lines if line), "")
-    saved = "a scenario is the .json that run --save-scenario FILE.json writes"
-    if first and set(first.replace(",", " ").split()) <= {"0", "1", "2"}:
-        return f"; {path.name} looks like a maze file: --maze {path}; {saved}"
-    if path.suffix.lower() == ".csv" or ("," in first and not first.startswith(("{", "["))):
-        return f"; {path.name} looks like a CSV (a study's or compare's table), not a scenario: {saved}"
-    if path.suffix.lower() == ".rrd":
-        return f"; {path.name} is a recording: mazelab view {path}; {saved}"
-    return ""
 
 
 _JSON_STRING = re.compile(r'"(?:[^"\\]|\\.)*"')
