@@ -2,7 +2,7 @@
 command, `demo`: the paper's example (a lost robot, SIR, 1500 particles, 200 steps); the commands are
 registered below, each with the one line `mazelab --help` shows, with `mazelab filters [NAME]` (the
 registry's filters, and the options each declares); `main` turns errors into one line that names the fix
-(`usage_hint`, `option_elsewhere`)."""
+(`usage_hint`)."""
 
 from __future__ import annotations
 
@@ -252,34 +252,14 @@ def one_line_warnings() -> None:
 
 
 # -- errors that name the fix ----------------------------------------------------------------------------
-def plain_usage_names() -> None:
+def usage_name(self: Any) -> str:
     """Usage lines name a required argument as `SCENARIO`, not typer's `{SCENARIO}` (which reads as
     a placeholder to type with its braces)."""
-    argument = typer.core.TyperArgument
-    if hasattr(argument, "_usage_display_name"):
-
-        def usage_name(self: Any) -> str:
-            name = self.display_name_raw if self.required else f"[{self.display_name_raw}]"
-            return name + ("..." if self.nargs != 1 else "")
-
-        argument._usage_display_name = usage_name
+    name = self.display_name_raw if self.required else f"[{self.display_name_raw}]"
+    return name + ("..." if self.nargs != 1 else "")
 
 
-def option_elsewhere(error: Exception, group: Any, argv: Sequence[str] = ()) -> str:
-    """For "No such option" at the top level: the commands that take that option, and the command to
-    type instead (`uv run main.py --seed 1` means `run --seed 1`); '' when there is nothing to add."""
-    name = getattr(error, "option_name", None)
-    ctx = getattr(error, "ctx", None)
-    if not name or ctx is None or ctx.command is not group:
-        return ""
-    commands = getattr(group, "commands", {}).items()
-    takers = [command for command, cmd in commands if any(name in p.opts for p in getattr(cmd, "params", []))]
-    if not takers:
-        return ""
-    first = "run" if "run" in takers else takers[0]
-    given = shlex.join(argv) if argv else f"{name} ..."
-    return f"; {name} is an option of {', '.join(takers)}: {command_prefix()} {first} {given}"
-
+typer.core.TyperArgument._usage_display_name = usage_name
 
 # what to type for a command's missing argument
 ARGUMENT_EXAMPLES = {
@@ -291,12 +271,20 @@ ARGUMENT_EXAMPLES = {
 }
 
 
-def usage_hint(error: Exception, argv: Sequence[str] = ()) -> str:
-    """What to add to typer's usage errors so that they name the fix: a decimal comma ("write 0.3"), a
-    list given as several arguments ("--sigma 0.2,0.4"), a missing argument (an example); '' else."""
-    format_message = getattr(error, "format_message", None)
-    message = format_message() if callable(format_message) else str(error)
-    args = list(argv)
+def usage_hint(error: typer.TyperException, group: Any, argv: Sequence[str] = ()) -> str:
+    """What to add to typer's usage errors so that they name the fix: for "No such option" at the top
+    level, the commands that take that option and the command to type instead (`uv run main.py --seed 1`
+    means `run --seed 1`); a decimal comma ("write 0.3"), a list given as several arguments ("--sigma
+    0.2,0.4"), a missing argument (an example); '' when there is nothing to add."""
+    message, args = error.format_message(), list(argv)
+    name, ctx = getattr(error, "option_name", None), getattr(error, "ctx", None)
+    if name and ctx is not None and ctx.command is group:
+        commands = getattr(group, "commands", {}).items()
+        takers = [command for command, cmd in commands if any(name in p.opts for p in getattr(cmd, "params", []))]
+        if takers:
+            first = "run" if "run" in takers else takers[0]
+            given = shlex.join(args) if args else f"{name} ..."
+            return f"; {name} is an option of {', '.join(takers)}: {command_prefix()} {first} {given}"
     name = getattr(getattr(error, "param", None), "opts", None)
     if name and "valid number" in message:  # the option's value as typed: --sigma 0,3 or --sigma=0,3
         values = [after for before, after in itertools.pairwise(args) if before in name]
@@ -311,7 +299,7 @@ def usage_hint(error: Exception, argv: Sequence[str] = ()) -> str:
         if at >= 2 and args[at - 2].startswith("--"):
             return f"; a list is one argument, comma-separated: {args[at - 2]} {args[at - 1]},{first}"
     if "Missing argument" in message or "Missing parameter" in message:
-        command = getattr(getattr(error, "ctx", None), "info_name", None)
+        command = getattr(ctx, "info_name", None)
         if command in ARGUMENT_EXAMPLES:
             return f"; e.g. {command_prefix()} {ARGUMENT_EXAMPLES[command]}"
     return ""
@@ -360,14 +348,13 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _main(argv: list[str] | None) -> int:
-    plain_usage_names()
     group, args = typer.main.get_command(app), sys.argv[1:] if argv is None else argv
     try:
         refuse_option_as_value(args, group)
         with deferred_to_the_end():
             code = group.main(args=argv, standalone_mode=False)
     except typer.TyperException as error:  # typer's usage errors: bad option, bad value, missing argument
-        hint = option_elsewhere(error, group, args) or usage_hint(error, args)
+        hint = usage_hint(error, group, args)
         message = error.format_message()
         typer.echo(f"error: {message.rstrip('.') if hint else message}{hint}", err=True)
         return 2
