@@ -46,7 +46,7 @@ from mazelab.experiments.runs import (
 from mazelab.experiments.tables import compare_traces, write_traces
 from mazelab.invocation import command_line, command_prefix
 from mazelab.maze import DEFAULT_MAZE, Maze, find_maze, load_maze, mazes_fitting
-from mazelab.registry import FilterEntry, file_sha256, filter_entry, resolve_filter
+from mazelab.registry import file_sha256, filter_entry, resolve_filter
 from mazelab.robot import Robot
 from mazelab.scenario import Scenario, check_measurements_within, find_scenario, load_scenario, save_scenario
 from mazelab.seeding import new_seed
@@ -333,41 +333,31 @@ def refuse_counts_for_replay(stored: Scenario, **given: Any) -> None:
         )
 
 
-def same_filter(stored: Scenario, chosen: FilterEntry) -> bool:
-    """Whether the chosen filter is the one that made the scenario (a plug-in: the same class name)."""
-    if stored.filter_plugin is not None:
-        return chosen.plugin is not None and chosen.plugin.class_name == stored.filter_plugin.class_name
-    return stored.shipped_filter is not None and stored.shipped_filter.filter_class is chosen.filter_class
-
-
-def check_plugin(stored: Scenario, chosen: FilterEntry, path: Path | None) -> None:
-    """The plug-in named to replay a scenario: refused in one line when it is the file and class the
-    scenario names (the same sha256) but carries another name than its filtering_algorithm (one of the two
-    was edited by hand); a line says when its file changed."""
-    plugin = stored.filter_plugin
-    if chosen.plugin is None or plugin is None:
-        return
-    same_file = (plugin.class_name, plugin.sha256) == (chosen.plugin.class_name, chosen.plugin.sha256)
-    if same_file and chosen.name != stored.filtering_algorithm:
-        raise UserError(
-            f"{path or 'the scenario'}: filtering_algorithm {stored.filtering_algorithm!r} is not the name of the "
-            f"plug-in {plugin.spec} that filter_plugin names ({chosen.name!r}): one of the two was edited"
-        )
-    if same_filter(stored, chosen) and chosen.plugin.sha256 != plugin.sha256:
-        typer.echo(
-            f"warning: {chosen.plugin.spec} has changed since the scenario was saved (sha256 "
-            f"{chosen.plugin.sha256[:12]}..., saved {plugin.sha256[:12]}...): the replay may differ from the "
-            "saved run",
-            err=True,
-        )
-
-
 def replay_options(stored: Scenario, filter_name: str, given: Mapping[str, Any], path: Path | None) -> dict[str, Any]:
     """The options of a replay: the scenario's (those the chosen filter declares), then every option
     the user gave on the command line (`given`, named flags and --option alike); one line on stderr
-    lists what differs from the stored run."""
-    chosen = filter_entry(filter_name)
-    check_plugin(stored, chosen, path)
+    lists what differs from the stored run. The plug-in named to replay a plug-in's run (the same class
+    name: the same filter) is refused in one line when it is the file the scenario names (the same
+    sha256) but carries another name than its filtering_algorithm (one of the two was edited by hand);
+    a line says when its file changed since."""
+    chosen, plugin = filter_entry(filter_name), stored.filter_plugin
+    if plugin is None:
+        same = stored.shipped_filter is not None and stored.shipped_filter.filter_class is chosen.filter_class
+    else:
+        same = chosen.plugin is not None and chosen.plugin.class_name == plugin.class_name
+    if same and plugin is not None:  # a plug-in's run replayed by that plug-in: its file's sha256 compared
+        if chosen.plugin.sha256 == plugin.sha256 and chosen.name != stored.filtering_algorithm:
+            raise UserError(
+                f"{path or 'the scenario'}: filtering_algorithm {stored.filtering_algorithm!r} is not the name of "
+                f"the plug-in {plugin.spec} that filter_plugin names ({chosen.name!r}): one of the two was edited"
+            )
+        if chosen.plugin.sha256 != plugin.sha256:
+            typer.echo(
+                f"warning: {chosen.plugin.spec} has changed since the scenario was saved (sha256 "
+                f"{chosen.plugin.sha256[:12]}..., saved {plugin.sha256[:12]}...): the replay may differ from the "
+                "saved run",
+                err=True,
+            )
     if stored.filter_options is None:  # an older file: the options given, as before
         return dict(given)
     try:
@@ -375,9 +365,7 @@ def replay_options(stored: Scenario, filter_name: str, given: Mapping[str, Any],
     except ValueError as error:
         raise UserError(f"the scenario's filter_options for {chosen.name}: {error}") from None
     changes = (
-        []
-        if stored.filtering_algorithm is None or same_filter(stored, chosen)
-        else [f"filter {stored.filtering_algorithm} -> {chosen.name}"]
+        [] if stored.filtering_algorithm is None or same else [f"filter {stored.filtering_algorithm} -> {chosen.name}"]
     )
     for name, value in given.items():
         before = kept.get(name, chosen.options[name].default if name in chosen.options else None)
