@@ -99,16 +99,22 @@ def run_plan(flags: Mapping[str, Any], named: Mapping[str, Any], drawing: dict) 
     stored = load_scenario(scenario) if scenario is not None else None
     filter_name = check_filter_name(replay_filter_name(stored, flags.get("filter_name"), scenario))
     given = given_options(named, flags.get("option"), [filter_name])
-    per_filter = options_per_filter([filter_name], given, given.spelled, check=stored is None)
-    options = per_filter[resolve_filter(filter_name).name]
+    options = options_per_filter([filter_name], given, given.spelled)[resolve_filter(filter_name).name]
+    if stored is not None:  # a replay takes its particles, steps and start from the scenario
+        counts = {"--particles": flags.get("particles"), "--steps": flags.get("steps"), "--start-seed": start_seed}
+        refused = [flag for flag, value in counts.items() if value is not None]
+        if refused:
+            raise UserError(
+                f"{' and '.join(refused)} cannot change a replayed scenario (it has {len(stored.init_particles_pos)} "
+                f"particles and {len(stored.robot_actual_angles)} steps); leave {'them' if refused[1:] else 'it'} out"
+            )
+        options = replay_options(stored, filter_name, options, scenario)
+    options_per_filter([filter_name], options, given.spelled, check=True)  # checked as the filter will check them
     outputs = [("--save-scenario", flags.get("save_scenario_path")), ("--rrd", drawing.get("rrd"))]
     check_outputs(outputs, flags.get("force", False))
     maze, sigma, delta, seed = (flags.get(name) for name in ("maze", "sigma", "delta", "seed"))
     if stored is None:
         return fresh_setup(maze, sigma, delta, seed, start_seed), filter_name, options
-    refuse_counts_for_replay(stored, particles=flags.get("particles"), steps=flags.get("steps"), start_seed=start_seed)
-    options = replay_options(stored, filter_name, options, scenario)
-    options_per_filter([filter_name], options, check=True)  # the replay's options, checked as the filter will
     return replay_setup(stored, maze, sigma, delta, seed), filter_name, options
 
 
@@ -321,16 +327,6 @@ def replay_filter_name(stored: Scenario | None, filter_name: str | None, path: P
         f"{where} was made by {stored.filtering_algorithm!r}, which is not one of the lab's filters; "
         f"name the filter to replay it with, --filter FILE.py:Class (or e.g. --filter sir)"
     )
-
-
-def refuse_counts_for_replay(stored: Scenario, **given: Any) -> None:
-    """A replay takes its particles, steps and start from the scenario: refuse flags that would be ignored."""
-    flags = [f"--{name.replace('_', '-')}" for name, value in given.items() if value is not None]
-    if flags:
-        raise UserError(
-            f"{' and '.join(flags)} cannot change a replayed scenario (it has {len(stored.init_particles_pos)} "
-            f"particles and {len(stored.robot_actual_angles)} steps); leave {'them' if len(flags) > 1 else 'it'} out"
-        )
 
 
 def replay_options(stored: Scenario, filter_name: str, given: Mapping[str, Any], path: Path | None) -> dict[str, Any]:
