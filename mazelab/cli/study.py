@@ -351,7 +351,7 @@ class StudySession:
                 workers,
                 visualize=visualize,
                 progress=True,
-                on_records=self.append,
+                on_records=None if self.journal is None else self.journal.append_run,  # each finished run's rows
                 dask=self.client,
                 ignore_signals_after_stop=True,
                 backend=self.backend,
@@ -361,17 +361,12 @@ class StudySession:
         finally:
             self.close()
 
-    def append(self, records: list[RunRecord]) -> None:
-        """One finished run's rows (and traces), appended to the journal."""
-        if self.journal is not None:
-            self.journal.append_run(records)
-
     def close(self, status: str | None = None, **closing: Any) -> None:
         """The session's last line in the journal (with `status`), the journal, the cluster and the claims
         released."""
         if self.journal is not None and status is not None:
-            self.journal.end_session(status, ended=self.recorder.data.get("ended"), **closing)
-        if self.journal is not None:
+            self.journal.end_session(status, ended=self.recorder.data.get("ended"), **closing)  # and closes it
+        elif self.journal is not None:
             self.journal.close()
         if self.client is not None:
             close_client(self.client)
@@ -397,14 +392,6 @@ def resumed_tasks(plan: StudyPlan, files: StudyFiles, backend: str) -> tuple[lis
         files.lines = []  # now the kept rows: the journal's text is not held twice
 
 
-def drawn_first(tasks: list, draw_run: int) -> list:
-    """The tasks with the drawn run (run `draw_run` of the first setting) first: the executor draws it."""
-    chosen = next((i for i, t in enumerate(tasks) if t.run == draw_run), None)
-    if chosen is None:
-        raise UserError(f"--draw-run {draw_run}: the study has no such run to draw")
-    return [tasks[chosen], *tasks[:chosen], *tasks[chosen + 1 :]]
-
-
 def open_session(
     plan: StudyPlan,
     files: StudyFiles,
@@ -420,8 +407,11 @@ def open_session(
     """The runs to go (a resumed study's checked against its journal), the claims, the journal, the
     cluster and the record (of `kind`, its `parameters` the plan's unless given); the `header` printed."""
     tasks, kept, earlier = resumed_tasks(plan, files, backend)
-    if visualize:
-        tasks = drawn_first(tasks, draw_run)
+    if visualize:  # the drawn run (run `draw_run` of the first setting) first: the executor draws it
+        chosen = next((i for i, t in enumerate(tasks) if t.run == draw_run), None)
+        if chosen is None:
+            raise UserError(f"--draw-run {draw_run}: the study has no such run to draw")
+        tasks = [tasks[chosen], *tasks[:chosen], *tasks[chosen + 1 :]]
     recorder = Recorder(
         kind,
         command_line(),
