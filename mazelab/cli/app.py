@@ -167,15 +167,10 @@ WIDTH = 100  # columns of the listing
 def filters(name: arg(str | None, "[NAME]", "one filter: sir, apf, rpf, grid, ekf or FILE.py:Class") = None) -> None:
     """The filters, or one filter's options: name, default, the flag that sets it, what it does.
     Every option is set with --option NAME=VALUE on run, compare and study."""
-    if name is None:
-        typer.echo(registry_listing())
-    else:
+    if name is not None:
         typer.echo(options_listing(filter_entry(check_filter_name(name, "filters"))))
-
-
-def registry_listing() -> str:
-    """One line per shipped filter: short name, label, help, what it can do."""
-    lines = ["filter  label  what it is"]
+        return
+    lines = ["filter  label  what it is"]  # one line per shipped filter: short name, label, help, what it can do
     for entry in entries():
         can = ["particles" if entry.takes_particles else "no particles", *(["runs batched"] if entry.batched else [])]
         lines.append(f"{entry.short_name:<6}  {entry.label:<5}  {entry.help} ({', '.join(can)})")
@@ -184,7 +179,7 @@ def registry_listing() -> str:
         "Your own: --filter FILE.py:Class (see `mazelab exercise new`); its options: mazelab filters FILE.py:Class",
         "One filter's options: mazelab filters rpf",
     ]
-    return "\n".join(lines)
+    typer.echo("\n".join(lines))
 
 
 def options_listing(entry: FilterEntry) -> str:
@@ -335,8 +330,27 @@ def main(argv: list[str] | None = None) -> int:
     remember_arguments(argv)
     handlers = {sig: signal.getsignal(sig) for sig in STOP_SIGNALS}
     unmark = mark_interrupts()  # Ctrl-C raises a marked KeyboardInterrupt: a filter's own is told apart
+    group, args = typer.main.get_command(app), sys.argv[1:] if argv is None else argv
     try:
-        code = _main(argv)
+        refuse_option_as_value(args, group)
+        with deferred_to_the_end():
+            code = group.main(args=argv, standalone_mode=False)
+        code = code if isinstance(code, int) else 0
+    except typer.TyperException as error:  # typer's usage errors: bad option, bad value, missing argument
+        hint = usage_hint(error, group, args)
+        message = error.format_message()
+        typer.echo(f"error: {message.rstrip('.') if hint else message}{hint}", err=True)
+        code = 2
+    except (UserError, MazeError, ValueError, StudentCodeError) as error:  # a ScenarioError is a ValueError
+        typer.echo(f"error: {error}", err=True)
+        code = 1 if isinstance(error, StudentCodeError) else 2  # the student's filter raised: not an input problem
+    except OSError as error:  # a full disk, a file size limit, a read-only folder, a name too long: its file, why
+        plain = isinstance(error, WriteError) or error.filename is None
+        typer.echo(f"error: {error if plain else f'{error.filename}: {error.strerror or error}'}", err=True)
+        code = 1
+    except (KeyboardInterrupt, typer.Abort):
+        typer.echo("interrupted", err=True)
+        code = 130
     finally:
         unmark()
         if argv is not None:
@@ -345,27 +359,3 @@ def main(argv: list[str] | None = None) -> int:
     if argv is None:  # a process of its own: a plug-in's forgotten thread must not keep it alive
         exit_without_strays(code, lambda line: typer.echo(line, err=True))
     return code
-
-
-def _main(argv: list[str] | None) -> int:
-    group, args = typer.main.get_command(app), sys.argv[1:] if argv is None else argv
-    try:
-        refuse_option_as_value(args, group)
-        with deferred_to_the_end():
-            code = group.main(args=argv, standalone_mode=False)
-    except typer.TyperException as error:  # typer's usage errors: bad option, bad value, missing argument
-        hint = usage_hint(error, group, args)
-        message = error.format_message()
-        typer.echo(f"error: {message.rstrip('.') if hint else message}{hint}", err=True)
-        return 2
-    except (UserError, MazeError, ValueError, StudentCodeError) as error:  # a ScenarioError is a ValueError
-        typer.echo(f"error: {error}", err=True)
-        return 1 if isinstance(error, StudentCodeError) else 2  # the student's filter raised: not an input problem
-    except OSError as error:  # a full disk, a file size limit, a read-only folder, a name too long: its file, why
-        plain = isinstance(error, WriteError) or error.filename is None
-        typer.echo(f"error: {error if plain else f'{error.filename}: {error.strerror or error}'}", err=True)
-        return 1
-    except (KeyboardInterrupt, typer.Abort):
-        typer.echo("interrupted", err=True)
-        return 130
-    return code if isinstance(code, int) else 0
