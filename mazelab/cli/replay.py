@@ -8,9 +8,8 @@ from __future__ import annotations
 import shlex
 import warnings
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import typer
@@ -213,8 +212,7 @@ def progress_printer(steps: int, every: int = 20) -> Any:
     return report
 
 
-@dataclass
-class RunSetup:
+class RunSetup(NamedTuple):
     """A run's inputs: the maze, the robot, sigma and delta, the initial particles (a replay's; None: drawn
     from the seed) and the seed."""
 

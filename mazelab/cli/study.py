@@ -343,8 +343,8 @@ class StudySession:
 
     def run(self, workers: int, report: Callable[[StudyOutcome], None], visualize: Any = False, **extra: Any) -> None:
         """Run the tasks on `workers` processes or the session's cluster (run_study: a progress bar, each finished
-        run appended to the journal, the stop signals ignored after a stop) and `report` the outcome; the
-        session closed however it ends."""
+        run appended to the journal, the stop signals ignored after a stop), the failures printed, then
+        `report` the outcome (exit 1 after it when a run failed); the session closed however it ends."""
         try:
             outcome = run_study(
                 self.tasks,
@@ -357,7 +357,11 @@ class StudySession:
                 backend=self.backend,
                 **extra,
             )
+            for failure in outcome.failures:  # first: a report that fails to write cannot lose them
+                typer.echo(f"error: {failure.describe()}", err=True)
             report(outcome)
+            if outcome.failures:
+                raise typer.Exit(1)
         finally:
             self.close()
 
@@ -444,12 +448,9 @@ def open_session(
 
 
 def report_study(session: StudySession, outcome: StudyOutcome, figure: dict[str, Any]) -> None:
-    """The failures, then the table (first: a write error cannot lose it), the CSV, the summary CSV, the
-    traces, the figure and the record; a stopped or lost study keeps its runs in the journal and exits
-    non-zero."""
+    """The table (first: a write error cannot lose it), the CSV, the summary CSV, the traces, the figure
+    and the record; a stopped or lost study keeps its runs in the journal and exits non-zero."""
     plan, files = session.plan, session.files
-    for failure in outcome.failures:
-        typer.echo(f"error: {failure.describe()}", err=True)
     records = study_order([*session.kept, *outcome.records], plan.tasks)
     summaries = summarise_study(records, plan.settings, paired=figure["paired"])
     closing = study_closing(plan, outcome, records, summaries, figure["paired"])
@@ -472,8 +473,6 @@ def report_study(session: StudySession, outcome: StudyOutcome, figure: dict[str,
     )
     write_outputs(session, records, summaries, figure)
     session.close(status, runs_finished=closing["runs_finished"])
-    if outcome.failures:
-        raise typer.Exit(1)
 
 
 def write_outputs(session: StudySession, records: list[RunRecord], summaries: list, figure: dict[str, Any]) -> None:
@@ -583,13 +582,11 @@ def accuracy(
 
 
 def report_accuracy(session: StudySession, rows: tuple[AccuracyFilter, ...], outcome: StudyOutcome) -> None:
-    """The failures, the table, the time, the CSV and the record (an interrupted run's too, its status
-    "interrupted"), the journal closed; a stopped or lost run, or one with failures, exits non-zero."""
+    """The table, the time, the CSV and the record (an interrupted run's too, its status "interrupted"),
+    the journal closed; a stopped or lost run exits non-zero."""
     files, recorder = session.files, session.recorder
     stopped = outcome.interrupted or outcome.lost is not None
     status = "interrupted" if stopped else "finished"
-    for failure in outcome.failures:
-        typer.echo(f"error: {failure.describe()}", err=True)
     records = accuracy_records(study_order([*session.kept, *outcome.records], session.plan.tasks), rows)
     runs = len({(r["maze"], r["run"]) for r in records})
     if records:
@@ -606,8 +603,6 @@ def report_accuracy(session: StudySession, rows: tuple[AccuracyFilter, ...], out
     session.close(status, runs_finished=runs)
     if stopped:
         exit_stopped(outcome, runs, len({s.maze for s in session.plan.settings}) * session.plan.runs)
-    if outcome.failures:
-        raise typer.Exit(1)
 
 
 def with_options(chosen: tuple[AccuracyFilter, ...], texts: list[str] | None) -> tuple[AccuracyFilter, ...]:
