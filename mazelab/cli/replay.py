@@ -91,9 +91,9 @@ def run_one(flags: Mapping[str, Any], named: Mapping[str, Any], drawing: dict, d
 
 
 def run_plan(flags: Mapping[str, Any], named: Mapping[str, Any], drawing: dict) -> tuple[RunSetup, str, dict[str, Any]]:
-    """What `run` reads from its flags, checked once before the run: its setup (a fresh lost robot, or a
-    scenario replayed), its filter's name and that filter's options (a replay's: the scenario's, then
-    those given, `replay_options`)."""
+    """What `run` reads from its flags, checked once before the run: its setup (a fresh lost robot, its
+    start drawn from the seed, or a scenario replayed: `replay_setup`), its filter's name and that
+    filter's options (a replay's: the scenario's, then those given, `replay_options`)."""
     scenario, start_seed = flags.get("scenario"), flags.get("start_seed")
     stored = load_scenario(scenario) if scenario is not None else None
     filter_name = check_filter_name(replay_filter_name(stored, flags.get("filter_name"), scenario))
@@ -112,9 +112,16 @@ def run_plan(flags: Mapping[str, Any], named: Mapping[str, Any], drawing: dict) 
     outputs = [("--save-scenario", flags.get("save_scenario_path")), ("--rrd", drawing.get("rrd"))]
     check_outputs(outputs, flags.get("force", False))
     maze, sigma, delta, seed = (flags.get(name) for name in ("maze", "sigma", "delta", "seed"))
-    if stored is None:
-        return fresh_setup(maze, sigma, delta, seed, start_seed), filter_name, options
-    return replay_setup(stored, maze, sigma, delta, seed), filter_name, options
+    if stored is not None:
+        return replay_setup(stored, maze, sigma, delta, seed), filter_name, options
+    world = load_maze(maze or DEFAULT_MAZE)  # a fresh lost robot: its start drawn from the seed (new if none)
+    sigma = DEFAULT_SIGMA if sigma is None else sigma
+    delta = DEFAULT_DELTA if delta is None else delta
+    seed = new_seed() if seed is None else seed
+    if start_seed is not None and start_seed != seed:
+        warnings.warn(f"--start-seed {start_seed} differs from --seed {seed}: repeat with both", stacklevel=1)
+    robot = Robot.of_seed(world, sigma, delta, seed if start_seed is None else start_seed)
+    return RunSetup(world, robot, sigma, delta, None, seed), filter_name, options
 
 
 def compare_scenario(flags: Mapping[str, Any], named: Mapping[str, Any], drawing: dict) -> None:
@@ -222,20 +229,6 @@ class RunSetup(NamedTuple):
     delta: float
     initial_particles: Any
     seed: int
-
-
-def fresh_setup(
-    maze: str | None, sigma: float | None, delta: float | None, seed: int | None, start_seed: int | None
-) -> RunSetup:
-    """A fresh lost robot: the maze (default the lab's), its start drawn from the seed (new if none)."""
-    world = load_maze(maze or DEFAULT_MAZE)
-    sigma = DEFAULT_SIGMA if sigma is None else sigma
-    delta = DEFAULT_DELTA if delta is None else delta
-    seed = new_seed() if seed is None else seed
-    if start_seed is not None and start_seed != seed:
-        warnings.warn(f"--start-seed {start_seed} differs from --seed {seed}: repeat with both", stacklevel=1)
-    robot = Robot.of_seed(world, sigma, delta, seed if start_seed is None else start_seed)
-    return RunSetup(world, robot, sigma, delta, None, seed)
 
 
 def replay_setup(
