@@ -449,7 +449,9 @@ def open_session(
 
 def report_study(session: StudySession, outcome: StudyOutcome, figure: dict[str, Any]) -> None:
     """The table (first: a write error cannot lose it), the CSV, the summary CSV, the traces, the figure
-    and the record; a stopped or lost study keeps its runs in the journal and exits non-zero."""
+    and the record. A stopped study (Ctrl-C, SIGTERM, SIGHUP) or a lost cluster leaves the CSV the old
+    file and its runs in the journal (the line gives the command with --resume; without a journal the
+    traces and the record are written), and exits non-zero (`exit_stopped`)."""
     plan, files = session.plan, session.files
     records = study_order([*session.kept, *outcome.records], plan.tasks)
     summaries = summarise_study(records, plan.settings, paired=figure["paired"])
@@ -457,7 +459,14 @@ def report_study(session: StudySession, outcome: StudyOutcome, figure: dict[str,
     if files.summary_csv is not None:
         closing["summary_csv"] = str(files.summary_csv)
     if outcome.interrupted or outcome.lost is not None:
-        report_stopped(session, outcome, records, closing)
+        session.recorder.finish("interrupted", **closing)
+        if session.journal is None and files.traces is not None:
+            write_traces(files.traces, study_traces(records))
+        if session.journal is None and files.record_file is not None:
+            session.recorder.write(files.record_file)
+        session.close("interrupted", runs_finished=closing["runs_finished"])
+        saved = f"; {session.journal.kept()}; go on with: {resume_command()}" if session.journal is not None else ""
+        exit_stopped(outcome, closing["runs_finished"], closing["runs_in_study"], saved)
     typer.echo(study_table(summaries, plan.varied, kld=plan.kld))
     status = outcome.status
     seconds = session.recorder.finish(status, **closing)["duration_seconds"]
@@ -508,22 +517,6 @@ def write_outputs(session: StudySession, records: list[RunRecord], summaries: li
         cause = str(error) if isinstance(error, WriteError) else f"cannot write {error.filename}: {error.strerror}"
         typer.echo(f"error: {cause}{kept}", err=True)
         raise typer.Exit(1) from None
-
-
-def report_stopped(session: StudySession, outcome: StudyOutcome, records: list[RunRecord], closing: dict) -> None:
-    """A stopped study (Ctrl-C, SIGTERM, SIGHUP) or a lost cluster: the CSV stays the old file, the runs
-    are in the journal (the line gives the command with --resume); without a journal the traces and the
-    record are written; exits."""
-    files, journal = session.files, session.journal
-    session.recorder.finish("interrupted", **closing)
-    if journal is None:
-        if files.traces is not None:
-            write_traces(files.traces, study_traces(records))
-        if files.record_file is not None:
-            session.recorder.write(files.record_file)
-    session.close("interrupted", runs_finished=closing["runs_finished"])
-    saved = f"; {journal.kept()}; go on with: {resume_command()}" if journal is not None else ""
-    exit_stopped(outcome, closing["runs_finished"], closing["runs_in_study"], saved)
 
 
 def exit_stopped(outcome: StudyOutcome, finished: int, total: int, saved: str = "", what: str = "runs") -> None:
