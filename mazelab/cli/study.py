@@ -554,7 +554,16 @@ def accuracy(
     bootstrap interval), and the share of runs that converged (error below 0.5 from some step on;
     Wilson interval)."""
     mazes = parse_mazes(maze, maze_size, stations, default=list(LAB_MAZES))
-    rows = with_options(accuracy_filters(None if filters is None else parse_filters(filters)), option)
+    rows = accuracy_filters(None if filters is None else parse_filters(filters))
+    names = list(dict.fromkeys(name for _, name, _ in rows))
+    given = given_options({}, option, names)  # --option: each filter takes those it declares (its label says so)
+    per_filter = options_per_filter(names, given, given.spelled, check=True)
+    shown = ", ".join(f"{k} {show_value(v)}" for k, v in given.items())
+    mine = [per_filter[resolve_filter(name).name] for _, name, _ in rows]
+    rows = tuple(
+        (f"{label} ({shown})" if own else label, name, {**options, **own})
+        for (label, name, options), own in zip(rows, mine, strict=True)
+    )
     values = {"sigma": sigma, "delta": delta, "particles": particles, "runs": runs, "steps": steps}
     plan = accuracy_plan(mazes, rows, **values, seed=seed)
     labels = [label for label, _, _ in rows]
@@ -596,22 +605,6 @@ def report_accuracy(session: StudySession, rows: tuple[AccuracyFilter, ...], out
     session.close(status, runs_finished=runs)
     if stopped:
         exit_stopped(outcome, runs, len({s.maze for s in session.plan.settings}) * session.plan.runs)
-
-
-def with_options(chosen: tuple[AccuracyFilter, ...], texts: list[str] | None) -> tuple[AccuracyFilter, ...]:
-    """The table's filters with the --option values each declares (its label then says so); an option
-    none of them declares, or a bad value, is one line."""
-    if not texts:
-        return chosen
-    names = list(dict.fromkeys(name for _, name, _ in chosen))
-    given = given_options({}, texts, names)
-    per_filter = options_per_filter(names, given, given.spelled, check=True)
-    shown = ", ".join(f"{k} {show_value(v)}" for k, v in given.items())
-    result = []
-    for label, name, options in chosen:
-        mine = per_filter[resolve_filter(name).name]
-        result.append((f"{label} ({shown})" if mine else label, name, {**options, **mine}))
-    return tuple(result)
 
 
 def parse_mazes(
