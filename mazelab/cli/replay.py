@@ -140,43 +140,27 @@ def compare_scenario(flags: Mapping[str, Any], named: Mapping[str, Any], drawing
     given = with_stored_options(stored, names, given_options(named, flags["option"], names), scenario)
     # an option that none of the filters takes, or a bad value: one line, first
     options_per_filter(names, given, given.spelled, check=True)
-    recorder = compare_recorder(scenario, setup, names, given, flags["kidnap_at"])
+    parameters = {  # the record, begun before the runs: the command, its parameters and the scenario's hash
+        "filters": [resolve_filter(n).name for n in names],
+        "sigma": setup.sigma,
+        "delta": setup.delta,
+        "seed": setup.seed,
+        "kidnap_at": flags["kidnap_at"],
+        "options": {k: to_plain_json(v) for k, v in given.items()},
+        "scenario": str(scenario),
+    }
+    recorder = Recorder("compare", command_line(), parameters, scenario_sha256=file_sha256(scenario))
     prepare_world(setup.world)
     shown = f"sigma {setup.sigma:g}, delta {setup.delta:g}"
     count = len(setup.initial_particles)
     typer.echo(f"{scenario.name}: {count} particles, {setup.robot.recorded_steps} steps, {shown}, seed {setup.seed}")
-    results = compare_filters(
-        setup.world,
-        setup.robot,
-        setup.sigma,
-        setup.delta,
-        setup.initial_particles,
-        names,
-        seed=setup.seed,
-        visualize=visualize,
-        kidnap_at=flags["kidnap_at"],
-        **given,
+    results = compare_filters(  # the scenario's maze, robot, sigma, delta and particles (RunSetup), the filters
+        *setup[:5], names, seed=setup.seed, visualize=visualize, kidnap_at=flags["kidnap_at"], **given
     )
     title = f"Localisation error: {scenario.name} ({shown}, {count} particles)"
     report_compare(results, recorder, title, bool(given.get("kld")), flags["force"], files)
     backend = next(iter(results.values())).extras["backend"]
     repeat_line("comparison", setup.seed, ("--csv", "--plot", "--traces", "--rrd"), backend)
-
-
-def compare_recorder(
-    scenario: Path, setup: RunSetup, names: Sequence[str], given: Mapping[str, Any], kidnap_at: int | None
-) -> Recorder:
-    """The record of a comparison, begun before its runs: the command, its parameters and the scenario's hash."""
-    parameters = {
-        "filters": [resolve_filter(n).name for n in names],
-        "sigma": setup.sigma,
-        "delta": setup.delta,
-        "seed": setup.seed,
-        "kidnap_at": kidnap_at,
-        "options": {k: to_plain_json(v) for k, v in given.items()},
-        "scenario": str(scenario),
-    }
-    return Recorder("compare", command_line(), parameters, scenario_sha256=file_sha256(scenario))
 
 
 # -- a run's inputs, summary and progress ---------------------------------------------------------------
