@@ -311,20 +311,13 @@ def read_value(option: Option, text: str, spelled: str) -> Any:
     raise UserError(f"{spelled}: {message}{hint}")
 
 
-OptionFlag = opt(
-    list[str] | None,
-    "--option",
-    metavar="NAME=VALUE",
-    show_default=False,
-    help="a filter option, repeatable (FILTER.NAME=...: one filter's)",
-)
-StudyOptionFlag = opt(
-    list[str] | None,
-    "--option",
-    metavar="NAME=V1,V2",
-    show_default=False,
-    help="filter option values (FILTER.NAME: one's)",
-)
+def option_flag(values: str, help: str) -> Any:
+    """The --option flag's annotated type: NAME=`values` of a filter's option, repeatable."""
+    return opt(list[str] | None, "--option", metavar=f"NAME={values}", show_default=False, help=help)
+
+
+OptionFlag = option_flag("VALUE", "a filter option, repeatable (FILTER.NAME=...: one filter's)")
+StudyOptionFlag = option_flag("V1,V2", "filter option values (FILTER.NAME: one's)")
 
 
 class GivenOptions(dict):
