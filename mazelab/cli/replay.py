@@ -227,7 +227,17 @@ def replay_setup(
         raise UserError(
             f"the scenario's maze differs from {load_maze(maze).source}; leave out --maze to use the stored one"
         )
-    world = kept or (load_maze(maze) if maze is not None else fitting_maze(stored))
+    world = kept or (load_maze(maze) if maze is not None else None)
+    if world is None:  # neither stored nor given: the only shipped maze whose free area holds the start and particles
+        fitting = mazes_fitting(stored.init_robot_pos, np.asarray(stored.init_particles_pos))
+        if len(fitting) != 1:
+            which = "no shipped maze fits" if not fitting else f"several shipped mazes fit ({', '.join(fitting)})"
+            raise UserError(
+                f"the scenario stores no maze and {which} its start and particles: pass --maze (and "
+                "--sigma/--delta if they differ from the defaults)"
+            )
+        typer.echo(f"warning: the scenario stores no maze: using {fitting[0]}, the one shipped maze it fits", err=True)
+        world = load_maze(fitting[0])
     sigma, delta = replayed_model(stored, sigma, delta)
     robot = stored.robot(sigma, delta)
     if kept is None:  # a maze given or fitted: the scenario's start and walk must lie in its free area
@@ -264,20 +274,6 @@ def replayed_model(stored: Scenario, sigma: float | None, delta: float | None) -
             )
     sigma, delta = (next(value for value in values if value is not None) for values in given.values())
     return sigma, delta
-
-
-def fitting_maze(scenario: Scenario) -> Maze:
-    """The shipped maze of a scenario that stores none: the only one whose free area holds its start
-    and every particle; with none or several, a one-line refusal asking for --maze."""
-    fitting = mazes_fitting(scenario.init_robot_pos, np.asarray(scenario.init_particles_pos))
-    if len(fitting) != 1:
-        which = "no shipped maze fits" if not fitting else f"several shipped mazes fit ({', '.join(fitting)})"
-        raise UserError(
-            f"the scenario stores no maze and {which} its start and particles: pass --maze (and "
-            "--sigma/--delta if they differ from the defaults)"
-        )
-    typer.echo(f"warning: the scenario stores no maze: using {fitting[0]}, the one shipped maze it fits", err=True)
-    return load_maze(fitting[0])
 
 
 # -- the filter and options of a replay ------------------------------------------------------------------
