@@ -231,21 +231,6 @@ def bench(
     )
 
 
-# -- warnings in one line --------------------------------------------------------------------------------
-def one_line_warnings() -> None:
-    """A command's warnings from here on (e.g. sigma outside the lab's range) as one line on stderr, each
-    once in the command, no source lines: the warnings printed start empty for each command, so an
-    earlier `main(argv)` in the same process (a test) does not silence them."""
-    warned: set[str] = set()
-
-    def warn_in_one_line(message: Warning | str, category: type[Warning], *_args: Any, **_kwargs: Any) -> None:
-        if str(message) not in warned:
-            warned.add(str(message))
-            typer.echo(f"warning: {message}", err=True)
-
-    warnings.showwarning = warn_in_one_line
-
-
 # -- errors that name the fix ----------------------------------------------------------------------------
 def usage_name(self: Any) -> str:
     """Usage lines name a required argument as `SCENARIO`, not typer's `{SCENARIO}` (which reads as
@@ -321,12 +306,20 @@ def refuse_option_as_value(argv: Sequence[str], group: Any) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; problems with the input end as one line on stderr and exit code 2, a file that
-    cannot be written as one line and exit code 1 (after the results are printed).
+    cannot be written as one line and exit code 1 (after the results are printed), each warning as
+    one line (once in the command).
 
     A stopped study leaves Ctrl-C, SIGTERM and SIGHUP ignored until the process exits (a further one
     can neither hang nor interrupt the exit); called with `argv` (in-process), main puts the signal
     handlers back as it found them."""
-    one_line_warnings()
+    warned: set[str] = set()  # each warning once in the command; an earlier main(argv) in this process silences none
+
+    def warn_in_one_line(message: Warning | str, category: type[Warning], *_args: Any, **_kwargs: Any) -> None:
+        if str(message) not in warned:  # one line on stderr (e.g. sigma outside the lab's range), no source lines
+            warned.add(str(message))
+            typer.echo(f"warning: {message}", err=True)
+
+    warnings.showwarning = warn_in_one_line
     remember_arguments(argv)
     handlers = {sig: signal.getsignal(sig) for sig in STOP_SIGNALS}
     unmark = mark_interrupts()  # Ctrl-C raises a marked KeyboardInterrupt: a filter's own is told apart
