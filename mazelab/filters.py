@@ -39,14 +39,6 @@ from mazelab.resampling import KLD_OPTIONS, RESAMPLING_OPTION, RESAMPLING_SCHEME
 from mazelab.smc import SMC, particles_array
 from mazelab.weights import Weights, weighted_covariance
 
-THRESHOLD_OPTION = Option(
-    "threshold",
-    1.0,
-    "resample when ESS < threshold * N (adaptive resampling); 1: every step (the paper's)",
-    check=number_in("threshold", 0.0, 1.0, what=" (a share of N)"),
-    flag="--threshold",
-)
-
 
 class ParticleFilter(SMC):
     """Weighted particles {x_i, W_i} approximating the posterior p(x_k | z_1:k), stepped by
@@ -78,7 +70,13 @@ class ParticleFilter(SMC):
 
     name: ClassVar[str] = "ParticleFilter"
     options: ClassVar[Options] = Options(
-        THRESHOLD_OPTION,
+        Option(
+            "threshold",
+            1.0,
+            "resample when ESS < threshold * N (adaptive resampling); 1: every step (the paper's)",
+            check=number_in("threshold", 0.0, 1.0, what=" (a share of N)"),
+            flag="--threshold",
+        ),
         RESAMPLING_OPTION,
         *MODEL_OPTIONS,
         *RECOVERY_OPTIONS,
@@ -419,7 +417,6 @@ class RegularizedParticleFilter(ParticleFilter):
 
 
 __all__ = [
-    "THRESHOLD_OPTION",
     "AuxiliaryParticleFilter",
     "ParticleFilter",
     "RegularizedParticleFilter",
