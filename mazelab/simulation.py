@@ -28,7 +28,7 @@ from mazelab.contract import ContractError, NullView, check_filter, check_step_v
 from mazelab.declaration import options_of
 from mazelab.maze import Maze, check_world
 from mazelab.model import CONVERGENCE_RADIUS, DEFAULT_STEPS, check_model_parameters
-from mazelab.registry import PluginReference, entries, filter_entry
+from mazelab.registry import FilterEntry, PluginReference, entries, filter_entry
 from mazelab.robot import Robot
 from mazelab.seeding import RunStreams, new_seed, run_streams
 from mazelab.stops import student_code
@@ -200,21 +200,6 @@ def check_walk(world: Maze, robot: Robot, particles: np.ndarray | None = None, s
             )
 
 
-def open_run_view(view: Any, world: Maze, filter_name: str, robot: Robot) -> Any:
-    """The view a run draws into, told of the robot's planned kidnapping: `view` itself (anything with
-    log_step and close), NullView for None or False, what a view-opening function `(world, filter_name)
-    -> view` returns, or the Rerun view a `visualize` value asks for (the viewer's code imported only then)."""
-    if view is None or view is False:
-        view = NullView()
-    elif not hasattr(view, "log_step"):
-        from mazelab.viz.views import open_view
-
-        view = view(world, filter_name) if callable(view) else open_view(view, world, filter_name)
-    if robot.kidnap_at is not None and hasattr(view, "expect_kidnapping"):
-        view.expect_kidnapping(robot.kidnap_at, robot.kidnap_position)
-    return view
-
-
 def simulate(
     robot: Robot,
     world: Maze,
@@ -240,7 +225,7 @@ def simulate(
     place drawn from the seed (`checked_walk`). `result.extras` holds the particle count per step
     ("particle_count": KLD-sampling varies it) and the backend the filter ran on ("backend").
     `visualize` says where the run is drawn (the values mazelab.viz.views lists), its memory checked up
-    front; `view` (instead) is a view or a function `(world, filter_name) -> view` (`open_run_view`),
+    front; `view` (instead) is a view or a function `(world, filter_name) -> view` (`walk_and_record`),
     called once the inputs are checked (a comparison's view of each filter).
     """
     check_world(world)
@@ -255,8 +240,8 @@ def simulate(
     filt = build_filter(
         entry.filter_class, world, sigma, delta, particles, streams.filter, steps, robot, filter_options
     )
-    view = open_run_view(visualize if view is None else view, world, entry.name, robot)
-    true_positions, recorded = walk_and_record(entry.filter_class, filt, robot, world, steps, view, on_step)
+    view = visualize if view is None else view
+    true_positions, recorded = walk_and_record(entry, filt, robot, world, steps, view, on_step)
     stored = entry.options.to_json(settings)  # every option, defaults filled in, as the declaration writes them
     inputs = RunInputs.of_run(
         robot, particles, world, sigma, delta, seed, steps, entry.name, dict(sorted(stored.items())), entry.plugin
@@ -287,12 +272,23 @@ def build_filter(
 
 
 def walk_and_record(
-    filter_class: type, filt: Any, robot: Robot, world: Maze, steps: int, view: Any, on_step: Callable | None
+    entry: FilterEntry, filt: Any, robot: Robot, world: Maze, steps: int, view: Any, on_step: Callable | None
 ) -> tuple[np.ndarray, Recorded]:
-    """The run's steps: at step k the robot moves with its actual angle and measures z_k, the filter
-    predicts with the compass angle and updates with z_k (`record_steps`), then the view draws it and
+    """The run's steps, drawn into `view`: itself (anything with log_step and close), NullView for None
+    or False, what a view-opening function `(world, filter_name) -> view` returns, or the Rerun view a
+    `visualize` value asks for (the viewer's code imported only then), told of the robot's planned
+    kidnapping. At step k the robot moves with its actual angle and measures z_k, the filter predicts
+    with the compass angle and updates with z_k (`record_steps`), then the view draws it and
     `on_step(k, robot, filt)` is called; the view is closed however the run ends. Returns the robot's
     positions (steps, 2) and what the filter's steps recorded."""
+    if view is None or view is False:
+        view = NullView()
+    elif not hasattr(view, "log_step"):
+        from mazelab.viz.views import open_view
+
+        view = view(world, entry.name) if callable(view) else open_view(view, world, entry.name)
+    if robot.kidnap_at is not None and hasattr(view, "expect_kidnapping"):
+        view.expect_kidnapping(robot.kidnap_at, robot.kidnap_position)
     true_positions = np.empty((steps, 2))
 
     def observe(k: int) -> tuple[float, float]:
@@ -306,7 +302,7 @@ def walk_and_record(
             on_step(k, robot, filt)
 
     try:
-        with student_code(filter_class) as at:  # a failing user's filter: its frames and the step
+        with student_code(entry.filter_class) as at:  # a failing user's filter: its frames and the step
             recorded = record_steps(filt, steps, observe, after=after, at=at)
     finally:
         view.close()
@@ -500,7 +496,6 @@ __all__ = [
     "RunResult",
     "check_walk",
     "convergence_step",
-    "open_run_view",
     "record_steps",
     "run_model",
     "simulate",
