@@ -32,9 +32,8 @@ from mazelab.grid_filter import GridBayesFilter
 from mazelab.kalman import ExtendedKalmanFilter
 from mazelab.stops import describe_exit, is_users_stop, student_line, working_folder_kept
 
+
 # -- a student's own filter as a plug-in: `path/to/my_filter.py:MyFilter` wherever a filter name goes
-
-
 def is_plugin_spec(text: str) -> bool:
     """Whether `text` names a file's class (`file.py:Class`) or a file (`file.py`), not a shipped filter."""
     return str(split_spec(text)[0]).strip().endswith(".py")
