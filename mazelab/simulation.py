@@ -105,8 +105,7 @@ class RunResult:
 @dataclass(frozen=True)
 class RunInputs:
     """What a run started from and walked, under its Scenario's keys (mazelab.scenario.Scenario says what
-    each is) as arrays and plain values: the Scenario's content before it is turned into lists and
-    validated, which RunResult.scenario does on demand (a study never builds one)."""
+    each is), as arrays and plain values: RunResult.scenario makes the Scenario on demand (and says why)."""
 
     init_robot_pos: tuple[float, float]
     init_particles_pos: np.ndarray  # (N, 2) float64
