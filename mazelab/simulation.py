@@ -25,7 +25,6 @@ from mazelab.backend import backend_by_work, backend_of
 from mazelab.checks import as_points, check_recording, check_seed, check_steps, check_within_map, step_number
 from mazelab.checks import particle_count as checked_count
 from mazelab.contract import ContractError, NullView, check_filter, check_step_values
-from mazelab.declaration import options_of
 from mazelab.maze import Maze, check_world
 from mazelab.model import CONVERGENCE_RADIUS, DEFAULT_STEPS, check_model_parameters
 from mazelab.registry import FilterEntry, PluginReference, entries, filter_entry
@@ -236,9 +235,7 @@ def simulate(
     particles, steps = checked_walk(
         robot, world, particle_count, steps, init_particles_pos, visualize, streams, kidnap_at
     )
-    filt = build_filter(
-        entry.filter_class, world, sigma, delta, particles, streams.filter, steps, robot, filter_options
-    )
+    filt = build_filter(entry, world, sigma, delta, particles, streams.filter, steps, robot, filter_options)
     view = visualize if view is None else view
     true_positions, recorded = walk_and_record(entry, filt, robot, world, steps, view, on_step)
     stored = entry.options.to_json(settings)  # every option, defaults filled in, as the declaration writes them
@@ -249,7 +246,7 @@ def simulate(
 
 
 def build_filter(
-    filter_class: type,
+    entry: FilterEntry,
     world: Maze,
     sigma: float,
     delta: float,
@@ -262,10 +259,10 @@ def build_filter(
     """The run's filter, built on the backend its work repays (numba where it does) and checked against
     the contract before its first step (a missing or mistyped part is one line naming it). A class that
     declares the option `start` is handed the robot's start too (the EKF's `init="start"` tracks from it)."""
-    if "start" in options_of(filter_class):
+    if "start" in entry.options:
         options = {"start": robot.initial_position, **options}
-    with backend_by_work(len(particles) * steps, steps), student_code(filter_class):
-        filt = filter_class(maze_for(filter_class, world), sigma, delta, particles, rng, **options)
+    with backend_by_work(len(particles) * steps, steps), student_code(entry.filter_class):
+        filt = entry.filter_class(maze_for(entry.filter_class, world), sigma, delta, particles, rng, **options)
         check_filter(filt)
     return filt
 
