@@ -15,6 +15,7 @@ import numpy as np
 
 from mazelab.exercise.child import Message, WireError
 from mazelab.exercise.inputs import SCENARIO_COUNT, PartInputs, ScenarioInputs
+from mazelab.experiments.study import distance_to_exact
 from mazelab.model import OUTSIDE_PENALTY, ROBOT_SPEED, log_likelihood
 from mazelab.simulation import convergence_step
 from mazelab.weights import effective_sample_size
@@ -538,12 +539,6 @@ FIGURE_COLUMNS = (  # the per-scenario table: each column's heading and its cell
     ("converged", lambda f: "yes" if f.converged else "no"),
     ("SIR's", lambda f: "yes" if f.sir_converged else "no"),
 )
-
-
-def distance_to_exact(estimates: np.ndarray, exact: np.ndarray) -> float:
-    """Mean distance between a run's estimates and the exact posterior means over the second half."""
-    window = slice(len(exact) // 2, None)
-    return float(np.hypot(*(estimates - exact)[window].T).mean())
 
 
 def converged(estimates: np.ndarray, truth: np.ndarray) -> bool:
