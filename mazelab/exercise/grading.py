@@ -20,14 +20,14 @@ import textwrap
 import threading
 import time
 from collections.abc import Callable, Iterator
-from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
+from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
 from mazelab.atomic import WriteError, write_text_atomically
 from mazelab.backend import use_threads
 from mazelab.exercise.parts import FAIL, NOT_OWN, NOT_RUN, NOT_WRITTEN, PASS, SHOWN, clean
-from mazelab.exercise.report import ROWS, NotGradableError, References, Report, Submission, check_file, format_report
+from mazelab.exercise.report import ROWS, NotGradableError, Report, Submission, check_file, format_report
 from mazelab.exercise.sandbox import DEFAULT_BUDGET, SandboxError, allow_children, stop_children
 from mazelab.exercise.student import PARTS
 from mazelab.exercise.template import FILTER_FILE, Catalogue
@@ -92,7 +92,7 @@ def _in_folder(folder: Path) -> Submission:
     return Submission(folder.name, None, f"{folder}: which file? {names} (call the one to grade {FILTER_FILE})")
 
 
-def grade_one(submission: Submission, timeout: float, references: References | None = None, **inputs: Any) -> Report:
+def grade_one(submission: Submission, timeout: float, references: Executor | None = None, **inputs: Any) -> Report:
     """Check one submission (`exercise check`'s, or one of a class's), its inputs from `inputs` (the
     key, or a seed: check_file): never raises for the submission, nor for the grader's own failure on
     it (its row says so); only a sandbox that cannot start (SandboxError) and a stop propagate."""
@@ -153,10 +153,9 @@ def _in_threads(
     allow_children()
     methods = multiprocessing.get_all_start_methods()  # a fresh interpreter each, never a fork of threads
     pool = ProcessPoolExecutor(jobs, multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn"))
-    references = References(pool)
 
     def one(submission: Submission) -> Report:
-        graded = grade_one(submission, timeout, references, key=key)
+        graded = grade_one(submission, timeout, pool, key=key)
         with lock:
             if on_done is not None:
                 on_done(graded)

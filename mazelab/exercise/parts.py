@@ -1,5 +1,5 @@
 """A row of the report, and the verdicts on the four parts and the whole filter (against the exact grid
-filter's posterior means, beside the shipped SIR's: mazelab.exercise.report.References), made by the
+filter's posterior means, beside the shipped SIR's: mazelab.exercise.report.reference_run), made by the
 grader from the values the student's process returned for the inputs of mazelab.exercise.inputs: what
 each check tests, its tolerance and its false-alarm rate are docs/exercise.md's "What each check promises".
 """
@@ -466,7 +466,7 @@ def judge(
 ) -> Row:
     """A stage's row from its answer: the error the student's code reported, or its values judged; the
     scheme the resampler resembles and the whole filter's figures go into `report` (the whole filter's SIR
-    resamples with that scheme, on the scenarios' reference runs from `references`)."""
+    resamples with that scheme, on the scenarios' reference runs: `references`, report.reference_run)."""
     error, scheme = error_of(answer), report.scheme
     if error and stage != "whole":  # not written, an exit of its own, the wrong form, or an error (its line)
         expected = expectations(inputs)[stage]
@@ -484,8 +484,8 @@ def judge(
     estimates = whole_answer(scenarios, answer, scheme)
     if isinstance(estimates, Row):
         return estimates
-    sir = [references.sir(s, scheme) for s in scenarios]
-    exact = [references.exact(s).result() for s in scenarios]
+    sir = [references(s, scheme) for s in scenarios]
+    exact = [references(s).result() for s in scenarios]
     row, report.figures = judge_whole(scenarios, estimates, exact, [f.result() for f in sir], scheme)
     return row
 
