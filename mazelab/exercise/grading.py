@@ -135,47 +135,36 @@ def grade_folder(
     `on_done` was given is kept."""
     from mazelab.experiments.executor import progress_bar
 
+    jobs, lock = jobs or os.cpu_count() or 1, threading.Lock()
+    methods = multiprocessing.get_all_start_methods()  # a fresh interpreter each, never a fork of threads
+    context = multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn")
     bar = progress_bar(len(submissions), progress, what="submissions")
     with claimed(claims or []), use_threads(1), bar as advance:  # use_threads(1): a submission is a thread
-        return _in_threads(submissions, key, timeout, jobs or os.cpu_count() or 1, on_done, advance)
-
-
-def _in_threads(
-    submissions: list[Submission],
-    key: bytes,
-    timeout: float,
-    jobs: int,
-    on_done: Callable[[Report], None] | None,
-    advance: Callable[[], None],
-) -> list[Report]:
-    """grade_folder's work: a thread per submission being graded, the reference runs in a process pool."""
-    lock = threading.Lock()
-    allow_children()
-    methods = multiprocessing.get_all_start_methods()  # a fresh interpreter each, never a fork of threads
-    pool = ProcessPoolExecutor(jobs, multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn"))
-
-    def one(submission: Submission) -> Report:
-        graded = grade_one(submission, timeout, pool, key=key)
-        with lock:
-            if on_done is not None:
-                on_done(graded)
-            advance()
-        return graded
-
-    threads = ThreadPoolExecutor(jobs, "mazelab-grade", initializer=_quiet_thread if os.name == "posix" else None)
-    futures = [threads.submit(one, submission) for submission in submissions]
-    try:
-        return [future.result() for future in futures]
-    except BaseException:  # the waiting ones are cancelled below
-        stop_children()
-        for process in list((getattr(pool, "_processes", None) or {}).values()):
-            with contextlib.suppress(OSError, AttributeError):
-                process.kill()  # a grid run in progress would hold shutdown for seconds
-        raise
-    finally:
-        threads.shutdown(wait=True, cancel_futures=True)
-        pool.shutdown(wait=True, cancel_futures=True)
         allow_children()
+        pool = ProcessPoolExecutor(jobs, context)
+
+        def one(submission: Submission) -> Report:
+            graded = grade_one(submission, timeout, pool, key=key)
+            with lock:
+                if on_done is not None:
+                    on_done(graded)
+                advance()
+            return graded
+
+        threads = ThreadPoolExecutor(jobs, "mazelab-grade", initializer=_quiet_thread if os.name == "posix" else None)
+        futures = [threads.submit(one, submission) for submission in submissions]
+        try:
+            return [future.result() for future in futures]
+        except BaseException:  # the waiting ones are cancelled below
+            stop_children()
+            for process in list((getattr(pool, "_processes", None) or {}).values()):
+                with contextlib.suppress(OSError, AttributeError):
+                    process.kill()  # a grid run in progress would hold shutdown for seconds
+            raise
+        finally:
+            threads.shutdown(wait=True, cancel_futures=True)
+            pool.shutdown(wait=True, cancel_futures=True)
+            allow_children()
 
 
 # -- the key and the outputs --------------------------------------------------------------------------
