@@ -412,21 +412,20 @@ class ChildRun:
 
     def take(self, message: Message) -> bool:
         """Record one message (False: it ends the conversation as unreadable). A second "loaded" (two
-        processes answering) voids every answer; a stage answered twice voids that stage."""
+        processes answering: "loaded" in `twice`) voids every answer; a stage answered twice voids that stage."""
         meta, kind = message.meta, message.meta.get("kind")
         stage, self.done = meta.get("stage"), kind == "done"
         if kind == "hello" and self.hello is None:
             self.hello = time.perf_counter()
         elif kind == "loaded":
-            if self.loaded is not None:
-                self.twice |= set(self.results) | {"loaded"}
+            self.twice |= set() if self.loaded is None else {"loaded"}
             self.loaded = meta
         elif kind == "stage" and isinstance(stage, str):
             self.started += [] if stage in self.started else [stage]
             scenario = meta.get("scenario")
             self.scenario = scenario if isinstance(scenario, int) and not isinstance(scenario, bool) else self.scenario
         elif kind == "result" and isinstance(stage, str):
-            if stage in self.results or "loaded" in self.twice:
+            if stage in self.results:
                 self.twice.add(stage)
             self.results[stage] = message
         elif kind != "done":
