@@ -1,7 +1,7 @@
 """The check of one submission (docs/exercise.md, "Grading one submission"): its inputs drawn, its
 stages run in child processes within one time budget (`check_file`, the grade) or in this process
 (`check`, the self-check, which nothing isolates), the grader's own runs of the exact and the SIR
-filters beside them (`References`), each row judged here from the values they returned, and the report
+filters beside them (`reference_run`), each row judged here from the values they returned, and the report
 as text of at most WIDTH columns. A submission that cannot be checked at all raises
 NotGradableError (one line). Every text that reaches a report is `clean` (parts.py).
 """
