@@ -541,10 +541,6 @@ FIGURE_COLUMNS = (  # the per-scenario table: each column's heading and its cell
 )
 
 
-def converged(estimates: np.ndarray, truth: np.ndarray) -> bool:
-    return convergence_step(np.hypot(*(estimates - truth).T)) is not None
-
-
 def whole_answer(scenarios: list[ScenarioInputs], answer: Message, scheme: str) -> Row | list[np.ndarray]:
     """The student's estimates per scenario, or the failing row when there are none to compare: an
     error (naming the scenario) or an estimate that is not a number (naming the step)."""
@@ -576,7 +572,7 @@ def judge_whole(
     figures = []
     for s, mine, exact_means, sir_means in zip(scenarios, estimates, exact, sir, strict=True):
         distances = (distance_to_exact(mine, exact_means), distance_to_exact(sir_means, exact_means))
-        convergence = (converged(mine, s.true_positions), converged(sir_means, s.true_positions))
+        convergence = (convergence_step(np.hypot(*(run - s.true_positions).T)) is not None for run in (mine, sir_means))
         figures.append(ScenarioFigures(s, *distances, *convergence))
     worse = sum(not f.distance <= f.sir_distance for f in figures)  # NaN counts as worse
     mean, sir_mean = np.mean([f.distance for f in figures]), np.mean([f.sir_distance for f in figures])
