@@ -464,9 +464,10 @@ def expectations(inputs: PartInputs) -> dict[str, str]:
 def judge(
     stage: str, inputs: PartInputs, scenarios: list[ScenarioInputs], answer: Message, report: Any, references: Any
 ) -> Row:
-    """A stage's row from its answer: the error the student's code reported, or its values judged; the
-    scheme the resampler resembles and the whole filter's figures go into `report` (the whole filter's SIR
-    resamples with that scheme, on the scenarios' reference runs: `references`, report.reference_run)."""
+    """A stage's row from its answer: the error the student's code reported (the whole filter's naming
+    its scenario), or its values judged (an estimate that is not a number names its step); the scheme the
+    resampler resembles and the whole filter's figures go into `report` (the whole filter's SIR resamples
+    with that scheme, on the scenarios' reference runs: `references`, report.reference_run)."""
     error, scheme = error_of(answer), report.scheme
     if error and stage != "whole":  # not written, an exit of its own, the wrong form, or an error (its line)
         expected = expectations(inputs)[stage]
@@ -479,11 +480,22 @@ def judge(
         return row
     if stage != "whole":
         return {"predict": judge_predict, "weigh": judge_weigh, "estimate": judge_estimate}[stage](inputs, answer)
+    expected = whole_expected(scheme)
     if any(row.status == NOT_WRITTEN for row in report.rows):  # the parts' rows come first
-        return Row("whole filter", NOT_RUN, whole_expected(scheme), "not run", "write every part first")
-    estimates = whole_answer(scenarios, answer, scheme)
-    if isinstance(estimates, Row):
-        return estimates
+        return Row("whole filter", NOT_RUN, expected, "not run", "write every part first")
+    if error:  # naming the scenario
+        where = answer.meta.get("scenario")
+        prefix = f"scenario {where + 1}: " if isinstance(where, int) and not isinstance(where, bool) else ""
+        hint = NAN_HINT if "not finite" in error["text"] else "fix the error first"
+        return Row("whole filter", FAIL, expected, prefix + error["text"], hint)
+    estimates = []
+    for i, scenario in enumerate(scenarios):  # the student's estimates, each a number at every step (or which is not)
+        mine = take(answer, f"estimates/{i}", (len(scenario.measurements), 2))
+        if not np.isfinite(mine).all():
+            step = int(np.argmin(np.isfinite(mine).all(axis=1))) + 1
+            got = f"scenario {i + 1}: the estimate is {mine[step - 1].tolist()} at step {step}"
+            return Row("whole filter", FAIL, expected, got, NAN_HINT)
+        estimates.append(mine)
     sir = [references(s, scheme) for s in scenarios]
     exact = [references(s).result() for s in scenarios]
     row, report.figures = judge_whole(scenarios, estimates, exact, [f.result() for f in sir], scheme)
@@ -539,26 +551,6 @@ FIGURE_COLUMNS = (  # the per-scenario table: each column's heading and its cell
     ("converged", lambda f: "yes" if f.converged else "no"),
     ("SIR's", lambda f: "yes" if f.sir_converged else "no"),
 )
-
-
-def whole_answer(scenarios: list[ScenarioInputs], answer: Message, scheme: str) -> Row | list[np.ndarray]:
-    """The student's estimates per scenario, or the failing row when there are none to compare: an
-    error (naming the scenario) or an estimate that is not a number (naming the step)."""
-    expected, error = whole_expected(scheme), error_of(answer)
-    if error:
-        where = answer.meta.get("scenario")
-        prefix = f"scenario {where + 1}: " if isinstance(where, int) and not isinstance(where, bool) else ""
-        hint = NAN_HINT if "not finite" in error["text"] else "fix the error first"
-        return Row("whole filter", FAIL, expected, prefix + error["text"], hint)
-    estimates = []
-    for i, scenario in enumerate(scenarios):
-        mine = take(answer, f"estimates/{i}", (len(scenario.measurements), 2))
-        if not np.isfinite(mine).all():
-            step = int(np.argmin(np.isfinite(mine).all(axis=1))) + 1
-            got = f"scenario {i + 1}: the estimate is {mine[step - 1].tolist()} at step {step}"
-            return Row("whole filter", FAIL, expected, got, NAN_HINT)
-        estimates.append(mine)
-    return estimates
 
 
 def judge_whole(
