@@ -29,7 +29,7 @@ TRUE_SIGMA, TRUE_DELTA = 0.4, 0.3
 
 def summary(posterior_or_chain) -> np.ndarray:
     """(2, 3): rows sigma, delta; columns the posterior mean, the 90% interval's low and high ends."""
-    return np.column_stack([posterior_or_chain.mean(), posterior_or_chain.interval()])
+    return np.column_stack([posterior_or_chain.mean, posterior_or_chain.interval()])
 
 
 def main() -> None:
@@ -65,7 +65,7 @@ def main() -> None:
     )  # fmt: skip
     chain_seconds = time.perf_counter() - started
     chained = summary(chain)
-    monte_carlo = np.column_stack([chain.mean_error(), chain.interval_error()])
+    monte_carlo = np.column_stack([chain.mean_error, chain.interval_error()])
 
     print(
         f"{args.maze}, {args.steps} steps (walked with sigma {TRUE_SIGMA}, delta {TRUE_DELTA}, seed {args.seed}); "
@@ -79,7 +79,7 @@ def main() -> None:
         for column, what in enumerate(("mean", "5%", "95%")):
             e, g, c, m = (a[row, column] for a in (exact, grid_error, chained, monte_carlo))
             print(f"{name + ' ' + what:14} {e:8.4f} {g:9.4f} {c:8.4f} {m:8.4f} {(c - e) / m:8.2f}")
-    ess = chain.ess()
+    ess = chain.ess
     print(f"acceptance rate {chain.acceptance_rate:.3f}; ESS sigma {ess[0]:.0f}, delta {ess[1]:.0f}")
     print(f"seconds: exact (three grids) {exact_seconds:.0f}, chain {chain_seconds:.0f}")
     within = abs(chained - exact) <= 3 * monte_carlo + grid_error

@@ -20,13 +20,13 @@ import tracemalloc
 import numpy as np
 
 from mazelab.bench import BENCH_DELTA, BENCH_SIGMA, record_walk
-from mazelab.grid_filter import GRID_RESOLUTION
+from mazelab.grid_filter import GRID_RESOLUTION, check_grid_memory
 from mazelab.maze import load_maze
 from mazelab.smoothing import checkpoint_block, smooth
 
 
-def measure(world, walk, resolution: float, every: int | None) -> tuple[float, float, np.ndarray, tuple[int, int]]:
-    """Peak MB allocated during one smoothing, its seconds, its smoothed means and the grid's shape."""
+def measure(world, walk, resolution: float, every: int | None) -> tuple[float, float, np.ndarray]:
+    """Peak MB allocated during one smoothing, its seconds and its smoothed means."""
     angles, zs = zip(*walk, strict=True)
     tracemalloc.start()
     before, _ = tracemalloc.get_traced_memory()
@@ -35,7 +35,7 @@ def measure(world, walk, resolution: float, every: int | None) -> tuple[float, f
     seconds = time.perf_counter() - started
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
-    return (peak - before) / 2**20, seconds, result.means, result.shape
+    return (peak - before) / 2**20, seconds, result.means
 
 
 def main() -> None:
@@ -50,10 +50,10 @@ def main() -> None:
     walk = record_walk(world, args.steps)
     print(f"{args.maze}, {args.steps} steps, resolution {args.resolution:g}, load average {os.getloadavg()[0]:.2f}")
     print(f"{'B':>5} {'grids':>6} {'peak MB':>9} {'seconds':>8}")
-    means = []
+    means, shape = [], check_grid_memory(world.width, world.height, args.resolution)  # the grid's (rows, columns)
     for every in (args.every, args.steps):
-        block = checkpoint_block(args.steps, every)
-        peak, seconds, smoothed, shape = measure(world, walk, args.resolution, every)
+        block = checkpoint_block(shape, args.steps, every)
+        peak, seconds, smoothed = measure(world, walk, args.resolution, every)
         grids = -(-args.steps // block) + min(block, args.steps) + 2
         print(f"{block:>5} {grids:>6} {peak:>9.0f} {seconds:>8.1f}")
         means.append(smoothed)

@@ -108,18 +108,12 @@ def output_target(path: str | Path, replace: bool, follow_links: bool = True) ->
     return target
 
 
-def write_text_atomically(path: str | Path, text: str, *, replace: bool = True, follow_links: bool = True) -> Path:
-    """Write `text` to `path` whole or not at all: a temporary file in the same folder, then rename."""
-    return write_bytes_atomically(path, text.encode("utf-8"), replace=replace, follow_links=follow_links)
-
-
-def write_bytes_atomically(path: str | Path, data: bytes, *, replace: bool = True, follow_links: bool = True) -> Path:
-    """Write `data` to `path` whole or not at all (see the module docstring); returns the path.
-    `replace=False` never replaces an existing file (NameTakenError, a FileExistsError): a name is claimed
-    only once, across processes. `follow_links=False` (a program's own working file, such as a study's
-    partial record) refuses a symlink at the name, and the rename replaces a link put there meanwhile
-    rather than writing through it."""
-    path = Path(path)
+def write_atomically(path: str | Path, data: str | bytes, *, replace: bool = True, follow_links: bool = True) -> Path:
+    """Write `data` (text: UTF-8) to `path` whole or not at all, claiming the name only once without
+    `replace` (see the module docstring); returns the path. `follow_links=False` (a program's own working
+    file, such as a study's partial record) refuses a symlink at the name, and the rename replaces a link
+    put there meanwhile rather than writing through it."""
+    path, data = Path(path), data.encode("utf-8") if isinstance(data, str) else data
     temporary = None
     try:
         target = output_target(path, replace, follow_links)  # --force onto a link: its target
@@ -152,18 +146,11 @@ def write_bytes_atomically(path: str | Path, data: bytes, *, replace: bool = Tru
         if isinstance(error, OSError):
             raise WriteError(error.errno, error.strerror, str(path)) from None
         raise
-    if not same_file(target, written):
-        raise ReplacedMeanwhileError(errno.EEXIST, "replaced meanwhile", str(path))
-    return path
-
-
-def same_file(path: Path, status: os.stat_result) -> bool:
-    """Whether `path` is still the file of `status` (no other writer replaced it since)."""
-    try:
-        now = os.stat(path)
-    except OSError:
-        return False
-    return (now.st_ino, now.st_dev) == (status.st_ino, status.st_dev) or os.name == "nt"
+    with contextlib.suppress(OSError):  # still the file written: no other writer replaced it since
+        now = os.stat(target)
+        if (now.st_ino, now.st_dev) == (written.st_ino, written.st_dev) or os.name == "nt":
+            return path
+    raise ReplacedMeanwhileError(errno.EEXIST, "replaced meanwhile", str(path))
 
 
 def sync_folder(folder: Path) -> None:
@@ -238,11 +225,9 @@ def remove_stale_temporaries(folder: Path) -> list[Path]:
     for entry in entries:
         match = TEMPORARY_PATTERN.match(entry.name)
         if match and match.group(1) == here and not process_alive(int(match.group(2))):
-            try:
+            with contextlib.suppress(OSError):  # removed meanwhile, or not ours to remove
                 os.unlink(entry.path)
                 removed.append(Path(entry.path))
-            except OSError:
-                pass
     return removed
 
 

@@ -62,6 +62,7 @@ class GridBayesFilter(ModelFilter):
         centres_y = -margin + (np.arange(ny) + 0.5) * resolution
         gx, gy = np.meshgrid(centres_x, centres_y)  # row j is y, column i is x
         self.positions = np.column_stack([gx.ravel(), gy.ravel()])  # (M, 2) cell centres
+        self.count = len(self.positions)  # each cell a point of the belief
         self.shape = (ny, nx)
         self.free = world.is_free(gx, gy)
         # log p(z | x) on the cells less the Gaussian's constant (Sensor.log_pdf_at): (z, out=None) -> (ny, nx)
@@ -136,10 +137,6 @@ class GridBayesFilter(ModelFilter):
     @property
     def weights(self) -> np.ndarray:
         return self.density.ravel()
-
-    @property
-    def count(self) -> int:
-        return len(self.positions)
 
     @property
     def estimate(self) -> np.ndarray:

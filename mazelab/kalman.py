@@ -112,7 +112,8 @@ def arc_moments(compass_angle: float, delta: float, speed: float = ROBOT_SPEED) 
     So the mean is L s (cos th0, sin th0), and Q, in the frame along and across th0, is diagonal:
     L^2 diag((1 + c) / 2 - s^2, (1 - c) / 2), rotated by th0.
     """
-    s, c = _sinc(delta / 2), _sinc(delta)
+    s = math.sin(delta / 2) / (delta / 2) if delta != 0 else 1.0  # sinc, 1 at 0
+    c = math.sin(delta) / delta if delta != 0 else 1.0
     along = max((1 + c) / 2 - s * s, 0.0)  # ~ Delta^4 / 720: tiny, and rounding must not make it negative
     across = (1 - c) / 2  # ~ Delta^2 / 12
     cos, sin = math.cos(compass_angle), math.sin(compass_angle)
@@ -120,11 +121,6 @@ def arc_moments(compass_angle: float, delta: float, speed: float = ROBOT_SPEED) 
     mean = speed * s * np.array([cos, sin])
     q = speed**2 * (rotation * [along, across]) @ rotation.T
     return mean, q
-
-
-def _sinc(x: float) -> float:
-    """sin(x) / x, 1 at 0."""
-    return math.sin(x) / x if x != 0 else 1.0
 
 
 def kalman_update(

@@ -74,27 +74,15 @@ class ParameterGrid:
         """The cells' centres along sigma (S,) and along delta (D,)."""
         return tuple((e[1:] + e[:-1]) / 2 for e in self.edges)
 
+    @property
     def values(self) -> tuple[list[float], list[float]]:
-        """The sigma and the delta of every cell, row by row: what an executor maps.
-
-        Returns
-        -------
-        (sigmas, deltas), two lists of S D floats
-        """
+        """The sigma and the delta of every cell, row by row, two lists of S D floats: what an executor maps."""
         sigmas, deltas = np.meshgrid(*self.centres, indexing="ij")
         return sigmas.ravel().tolist(), deltas.ravel().tolist()
 
-    def contains(self, sigma: float, delta: float) -> bool:
-        """Whether (sigma, delta) lies in the box, where the prior is positive.
-
-        Parameters
-        ----------
-        sigma, delta : float
-
-        Returns
-        -------
-        bool
-        """
+    def __contains__(self, point: Sequence[float]) -> bool:
+        """Whether `point`, (sigma, delta), lies in the box, where the prior is positive."""
+        sigma, delta = point
         return (
             self.sigma_range[0] <= sigma <= self.sigma_range[1] and self.delta_range[0] <= delta <= self.delta_range[1]
         )
@@ -156,24 +144,16 @@ class ParameterPosterior:
         mass = np.exp(self.log_evidence - finite.max())
         return mass / mass.sum()
 
+    @property
     def marginals(self) -> tuple[np.ndarray, np.ndarray]:
-        """The marginal posteriors.
-
-        Returns
-        -------
-        (sigma's masses (S,), delta's masses (D,))
-        """
+        """The marginal posteriors: sigma's masses (S,) and delta's (D,)."""
         mass = self.mass
         return mass.sum(axis=1), mass.sum(axis=0)
 
+    @property
     def mean(self) -> np.ndarray:
-        """E[(sigma, delta) | z_1:K]: exact for the density constant on each cell.
-
-        Returns
-        -------
-        array (2,)
-        """
-        return np.array([m @ c for m, c in zip(self.marginals(), self.grid.centres, strict=True)])
+        """E[(sigma, delta) | z_1:K], (2,): exact for the density constant on each cell."""
+        return np.array([m @ c for m, c in zip(self.marginals, self.grid.centres, strict=True)])
 
     def interval(self, level: float = INTERVAL_LEVEL) -> np.ndarray:
         """The equal-tailed credible interval of sigma and of delta: each marginal's CDF is linear
@@ -191,7 +171,7 @@ class ParameterPosterior:
         """
         tails = np.array([(1 - level) / 2, (1 + level) / 2])
         rows = []
-        for mass, edges in zip(self.marginals(), self.grid.edges, strict=True):
+        for mass, edges in zip(self.marginals, self.grid.edges, strict=True):
             cdf = np.concatenate([[0.0], np.cumsum(mass)])
             rows.append(np.interp(tails, cdf / cdf[-1], edges))
         return np.array(rows)
@@ -229,7 +209,7 @@ def exact_parameter_posterior(
     resolved = GridBayesFilter.options.resolve(grid_options, "GridBayesFilter")  # checked here, not in each cell
     check_grid_memory(world.width, world.height, resolved["resolution"], resolved["margin"])
     cell = functools.partial(grid_log_evidence, world, angles.tolist(), zs.tolist(), **grid_options)
-    log_evidence = np.array(list(mapper(cell, *grid.values())), dtype=float)
+    log_evidence = np.array(list(mapper(cell, *grid.values)), dtype=float)
     return ParameterPosterior(grid, log_evidence.reshape(grid.cells))
 
 
@@ -316,32 +296,20 @@ class Chain:
     def acceptance_rate(self) -> float:
         return self.accepted / len(self.samples)
 
+    @property
     def ess(self) -> np.ndarray:
-        """The effective sample size of sigma's and of delta's kept samples (`chain_ess`).
-
-        Returns
-        -------
-        array (2,)
-        """
+        """The effective sample size of sigma's and of delta's kept samples (`chain_ess`), (2,)."""
         return np.array([chain_ess(column) for column in self.kept.T])
 
+    @property
     def mean(self) -> np.ndarray:
-        """The chain's posterior mean of (sigma, delta).
-
-        Returns
-        -------
-        array (2,)
-        """
+        """The chain's posterior mean of (sigma, delta), (2,)."""
         return self.kept.mean(axis=0)
 
+    @property
     def mean_error(self) -> np.ndarray:
-        """The Monte Carlo standard error of `mean`, sd / sqrt(ESS).
-
-        Returns
-        -------
-        array (2,)
-        """
-        return self.kept.std(axis=0, ddof=1) / np.sqrt(self.ess())
+        """The Monte Carlo standard error of `mean`, sd / sqrt(ESS), (2,)."""
+        return self.kept.std(axis=0, ddof=1) / np.sqrt(self.ess)
 
     def interval(self, level: float = INTERVAL_LEVEL) -> np.ndarray:
         """The equal-tailed credible interval of sigma and of delta, from the kept samples' quantiles.
@@ -418,56 +386,43 @@ def pmmh(
     Chain
     """
     entry = evidence_filter(filter_name, filter_options)
-    angles, zs = check_walk(compass_angles, measurements)
-    prior, state, scale = check_chain(prior, start, iterations, particle_count, burn_in, proposal_scale)
-    estimate = functools.partial(estimated_log_evidence, world, angles, zs, entry, particle_count, filter_options)
-    return Chain(*random_walk(estimate, prior, state, scale, iterations, seed), burn_in)
-
-
-def check_chain(
-    prior: ParameterGrid | None,
-    start: tuple[float, float] | None,
-    iterations: int,
-    particle_count: int,
-    burn_in: int,
-    proposal_scale: tuple[float, float],
-) -> tuple[ParameterGrid, np.ndarray, np.ndarray]:
-    """The prior (the lab's box by default), the chain's first state (`start`, else the box's centre) and the
-    proposal's scale, each (2,), once pmmh's settings are checked: a one-line ValueError for a start outside
-    the prior's box, a count that is not a whole number >= 1, a burn-in outside [0, iterations)."""
-    prior = ParameterGrid() if prior is None else prior
-    state = np.array(start if start is not None else [np.mean(prior.sigma_range), np.mean(prior.delta_range)])
-    iterations = step_number("iterations", iterations)
-    checked_particle_count(particle_count)
-    if not 0 <= burn_in < iterations:
-        raise ValueError(f"burn_in must lie in [0, iterations), got {burn_in!r}")
-    if not prior.contains(*state):
-        raise ValueError(f"the chain's start {tuple(state)} lies outside the prior's box")
-    return prior, state, np.array([finite_number("proposal scale", s) for s in proposal_scale])
+    walk = (world, *check_walk(compass_angles, measurements), entry, checked_particle_count(particle_count))
+    estimate = functools.partial(estimated_log_evidence, *walk, filter_options)
+    return random_walk(estimate, prior, start, proposal_scale, iterations, burn_in, seed)
 
 
 def random_walk(
     estimate: Callable[[float, float, np.random.Generator], float],
-    prior: ParameterGrid,
-    state: np.ndarray,
-    scale: np.ndarray,
+    prior: ParameterGrid | None,
+    start: tuple[float, float] | None,
+    proposal_scale: tuple[float, float],
     iterations: int,
+    burn_in: int,
     seed: int,
-) -> tuple[np.ndarray, np.ndarray, int]:
-    """PMMH's iterations (`pmmh`): (the states (iterations, 2), the evidence estimate each held
-    (iterations,), the proposals accepted), `estimate(sigma, delta, rng)` a run's log p_hat(z_1:K), `rng`
-    the Generator of `seed` (checked: a one-line ValueError)."""
+) -> Chain:
+    """PMMH's chain (`pmmh`), `estimate(sigma, delta, rng)` a run's log p_hat(z_1:K), `rng` the Generator
+    of `seed`, from `start` (else the prior's centre; the prior the lab's box by default), once its settings
+    are checked: a one-line ValueError for a start outside the prior's box, a count or seed that is not a
+    whole number, a burn-in outside [0, iterations)."""
+    prior = ParameterGrid() if prior is None else prior
+    state = np.array(start if start is not None else [np.mean(prior.sigma_range), np.mean(prior.delta_range)])
+    iterations = step_number("iterations", iterations)
+    if not 0 <= burn_in < iterations:
+        raise ValueError(f"burn_in must lie in [0, iterations), got {burn_in!r}")
+    if state not in prior:
+        raise ValueError(f"the chain's start {tuple(state)} lies outside the prior's box")
+    scale = np.array([finite_number("proposal scale", s) for s in proposal_scale])
     rng = np.random.default_rng(check_seed("seed", seed))
     log_z = estimate(*state, rng)
     samples, log_evidence, accepted = np.empty((iterations, 2)), np.empty(iterations), 0
     for i in range(iterations):
         proposal = state + scale * rng.standard_normal(2)
-        if prior.contains(*proposal):
+        if proposal in prior:
             proposed_log_z = estimate(*proposal, rng)
             if math.log(rng.random()) < proposed_log_z - log_z:  # the prior is flat on the box
                 state, log_z, accepted = proposal, proposed_log_z, accepted + 1
         samples[i], log_evidence[i] = state, log_z
-    return samples, log_evidence, accepted
+    return Chain(samples, log_evidence, accepted, burn_in)
 
 
 def chain_ess(x: np.ndarray) -> float:

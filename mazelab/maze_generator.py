@@ -77,7 +77,7 @@ def generate_maze(
     wanted = max(stations, round(wall_share * rows * columns))
     walls = _add_walls(grid, wanted, rng, _can_become_wall, progress)
     if walls < stations:  # rare: only free cycles are left, which the local test cannot open
-        walls += _add_walls(grid, stations - walls, rng, _keeps_free_area_connected)
+        walls += _add_walls(grid, stations - walls, rng, free_area_is_connected)
     free = np.pad(grid == EMPTY, 1)  # `stations` walls become station blocks, those beside the free area first
     beside_free = free[:-2, 1:-1] | free[2:, 1:-1] | free[1:-1, :-2] | free[1:-1, 2:]
     preferred = np.argwhere((grid == WALL) & beside_free)
@@ -118,15 +118,6 @@ def _add_walls(
     return added
 
 
-def _keeps_free_area_connected(grid: np.ndarray, r: int, c: int) -> bool:
-    """The exact (global, slower) test: is the free area still connected (and not empty) with (r, c) a wall?"""
-    grid[r, c] = WALL
-    try:
-        return free_area_is_connected(grid)
-    finally:
-        grid[r, c] = EMPTY
-
-
 def _can_become_wall(grid: np.ndarray, r: int, c: int) -> bool:
     """Whether the free cell (r, c) can become a wall with the rest of the free area still connected.
 
@@ -151,9 +142,13 @@ def _can_become_wall(grid: np.ndarray, r: int, c: int) -> bool:
     return len({run_of[i] for i in edge_free}) == 1
 
 
-def free_area_is_connected(grid: np.ndarray) -> bool:
-    """Whether the free cells (0) of a grid form one 4-connected region."""
-    return bool(label_components(np.asarray(grid) == EMPTY, diagonal=False).max(initial=-1) == 0)
+def free_area_is_connected(grid: np.ndarray, r: int | None = None, c: int | None = None) -> bool:
+    """Whether the free cells (0) of a grid form one 4-connected region; with (r, c), whether they still
+    do with that cell a wall (the exact, global and slower test of `_can_become_wall`)."""
+    free = np.asarray(grid) == EMPTY
+    if r is not None:
+        free[r, c] = False
+    return bool(label_components(free, diagonal=False).max(initial=-1) == 0)
 
 
 def maze_file_text(world: Maze, command: str) -> str:

@@ -74,12 +74,9 @@ def _binned(points: np.ndarray, cell: float = MODE_CELL) -> tuple[np.ndarray, in
 
 
 def cluster_labels(positions: np.ndarray, cell: float = MODE_CELL) -> tuple[np.ndarray, int]:
-    """Each point's cluster (N,) of an unweighted cloud (a resampled one: every bin holding a point is
-    occupied) and the cluster count."""
-    points = np.asarray(positions, dtype=float)
-    if len(points) == 0:
-        return np.zeros(0, dtype=np.int64), 0
-    flat, rows, columns = _binned(points, cell)
+    """Each point's cluster (N,) of an unweighted cloud of N >= 1 points (a resampled one: every bin holding
+    a point is occupied) and the cluster count."""
+    flat, rows, columns = _binned(np.asarray(positions, dtype=float), cell)
     grid = label_components((np.bincount(flat, minlength=rows * columns) > 0).reshape(rows, columns))
     return grid.ravel()[flat], int(grid.max()) + 1
 

@@ -24,7 +24,7 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any
 
-from mazelab.atomic import write_bytes_atomically
+from mazelab.atomic import write_atomically
 from mazelab.contract import missing_parts
 from mazelab.declaration import Options, options_of
 from mazelab.filters import AuxiliaryParticleFilter, RegularizedParticleFilter, SIRParticleFilter
@@ -88,7 +88,7 @@ class PluginReference:
         copy = Path(tempfile.gettempdir()) / CODE_FOLDER / self.sha256 / path.name
         if not copy.is_file():
             copy.parent.mkdir(parents=True, exist_ok=True)
-            write_bytes_atomically(copy, self.source)
+            write_atomically(copy, self.source)
         return f"{copy}:{self.class_name}"
 
     @classmethod

@@ -89,19 +89,8 @@ class GaussianKernel:
     scale: np.ndarray
 
     def __call__(self, points: np.ndarray, eps: np.ndarray) -> np.ndarray:
-        """h D eps for each row of eps.
-
-        Parameters
-        ----------
-        points : array (N, 2)
-            The resampled points (unused: the kernel is the same everywhere).
-        eps : array (N, 2)
-            Standard normal draws.
-
-        Returns
-        -------
-        array (N, 2), order F, in eps's dtype
-        """
+        """h D eps for each row of eps (a Kernel, as `mixture_kernel` takes and returns; `points` unused: the
+        kernel is the same everywhere)."""
         return gaussian_jitter(
             eps, *(eps.dtype.type(v) for v in (self.scale[0, 0], self.scale[1, 0], self.scale[1, 1]))
         )

@@ -15,7 +15,6 @@ from mazelab.checks import check_kld_numbers, finite_number, step_number
 from mazelab.declaration import Option, parse_flag
 
 
-# -- resampling: plain functions, normalised weights W (N,) -> ancestor indices (M,) ---------------
 # Every scheme is `scheme(weights, rng, count=None) -> ancestors`: weights (N,), normalised; rng a
 # numpy Generator; count M (default N); ancestors int (M,), indices into the particles. Each also takes
 # R runs' weights (R, N) with R Generators, one each, and returns (R, M): row r is what it returns for
@@ -100,9 +99,7 @@ def check_scheme(name: Any) -> str:
     -------
     str
     """
-    if not isinstance(name, str):
-        raise ValueError(f"resampling must be one of {', '.join(RESAMPLING_SCHEMES)}, got {name!r}")
-    if name.lower() not in RESAMPLING_SCHEMES:
+    if not isinstance(name, str) or name.lower() not in RESAMPLING_SCHEMES:
         raise ValueError(f"unknown resampling scheme {name!r}; choose one of {', '.join(RESAMPLING_SCHEMES)}")
     return name.lower()
 
@@ -175,17 +172,8 @@ class KLDSampling:
             raise ValueError(f"KLD max_count {self.max_count} is below min_count {self.min_count}")
 
     def required_count(self, bins: Any) -> np.ndarray:
-        """max(min_count, ceil(n_chi(k))): Fox's stopping count for k occupied bins.
-
-        Parameters
-        ----------
-        bins : int or array of int
-            k, the occupied bins.
-
-        Returns
-        -------
-        int64 array, the shape of `bins`
-        """
+        """max(min_count, ceil(n_chi(k))): Fox's stopping count for k occupied bins (`kld_sample_size`'s
+        `bins`, with these epsilon and z), an int64 array of their shape."""
         return np.maximum(self.min_count, np.ceil(kld_sample_size(bins, self.epsilon, self.z))).astype(np.int64)
 
 

@@ -33,7 +33,7 @@ from pydantic import (
     model_validator,
 )
 
-from mazelab.atomic import write_text_atomically
+from mazelab.atomic import write_atomically
 from mazelab.checks import (
     MAX_ANGLE,
     MAX_COORDINATE,
@@ -301,7 +301,7 @@ def save_scenario(scenario: Scenario, path: str | Path = DEFAULT_PARAMETERS_PATH
     Without `replace` an existing file is never replaced (mazelab.atomic.NameTakenError)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    write_text_atomically(path, scenario.to_json(), replace=replace)
+    write_atomically(path, scenario.to_json(), replace=replace)
     return path
 
 

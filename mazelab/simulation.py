@@ -35,8 +35,8 @@ from mazelab.registry import entries, filter_entry
 from mazelab.robot import Robot
 from mazelab.seeding import RunStreams, new_seed, run_streams
 from mazelab.stops import student_code
+from mazelab.viz.recording import Visualization, in_jupyter
 from mazelab.viz.style import DEFAULT_MAX_DRAWN
-from mazelab.viz.targets import Visualization, in_jupyter
 
 if TYPE_CHECKING:
     from mazelab.scenario import Scenario

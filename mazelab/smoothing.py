@@ -23,10 +23,8 @@ the model's arc motion has no transition density, and its backward kernel is the
 
 from __future__ import annotations
 
-import functools
 import math
-from collections import deque
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -55,17 +53,11 @@ class SmoothedWalk:
         The root of the trace of Cov[x_k | z_1:K] (map units): how spread the smoothed belief is.
     filtered_means : array (K, 2)
         E[x_k | z_1:k], the grid filter's means on the same grid (what the smoother improves on).
-    log_evidence : float
-        log p(z_1:K) of the discretised model (the grid filter's exact value).
-    shape : (rows, columns)
-        The grid's shape (rows along y).
     """
 
     means: np.ndarray
     spreads: np.ndarray
     filtered_means: np.ndarray
-    log_evidence: float
-    shape: tuple[int, int]
 
 
 class BackwardStep:
@@ -83,8 +75,7 @@ class BackwardStep:
     def __init__(self, grid: GridBayesFilter):
         self.grid, self._kernel_shape = grid, arc_kernel_shape(grid.speed, grid.resolution)
         self.work = GridWorkspace(grid.shape, self._kernel_shape)
-        self._angle: float | None = None
-        self._spectrum: np.ndarray | None = None
+        self._spectrum: tuple[float, np.ndarray] | None = None  # (th0, its flipped kernel's spectrum)
 
     def adjoint(self, values: np.ndarray, compass_angle: float) -> np.ndarray:
         """P^T values: the linear convolution with the flipped arc kernel of `compass_angle`, cropped to
@@ -100,12 +91,11 @@ class BackwardStep:
         -------
         array of the grid's shape: a view of the workspace, valid until the next call
         """
-        if self._angle != compass_angle or self._spectrum is None:
+        if self._spectrum is None or self._spectrum[0] != compass_angle:
             grid = self.grid
             flipped = arc_kernel(compass_angle, grid.delta, grid.speed, grid.resolution)[::-1, ::-1]
-            self._spectrum = self.work.kernel_spectrum(np.ascontiguousarray(flipped))  # the workspace's own buffer
-            self._angle = compass_angle
-        return self.work.convolve(values, self._kernel_shape, self._spectrum)
+            self._spectrum = (compass_angle, self.work.kernel_spectrum(np.ascontiguousarray(flipped)))  # its own buffer
+        return self.work.convolve(values, self._kernel_shape, self._spectrum[1])
 
     def __call__(self, beta: np.ndarray, compass_angle: float, z: float, k: int) -> np.ndarray:
         """beta_{k-1} from beta_k and step k's compass angle and measurement, scaled so that its largest
@@ -156,13 +146,11 @@ def smooth(
     angles, zs = check_walk(compass_angles, measurements)
     sigma, delta = check_model_parameters(sigma, delta, (world.width, world.height))
     grid = GridBayesFilter(world, sigma, delta, **grid_options)
-    block = checkpoint_block(len(angles), checkpoint_every)
-    check_smoother_memory(grid.shape, len(angles), block)
+    block = checkpoint_block(grid.shape, len(angles), checkpoint_every)
     prior = grid.density.copy()
     checkpoints, filtered_means = forward(grid, angles, zs, lambda k: k % block == 0 and k < len(angles))
-    checkpoints[0], log_evidence = prior, grid.log_evidence  # the refiltering below adds to the evidence again
-    means, spreads = backward(grid, checkpoints, angles, zs, block, visit)
-    return SmoothedWalk(means, spreads, filtered_means, log_evidence, grid.shape)
+    means, spreads = backward(grid, {0: prior, **checkpoints}, angles, zs, block, visit)
+    return SmoothedWalk(means, spreads, filtered_means)
 
 
 def backward(
@@ -183,8 +171,16 @@ def backward(
         grid.density = checkpoints.pop(start)
         filtered, _ = forward(grid, angles[start:end], zs[start:end], lambda k: True)  # the same numbers, bit for bit
         for k in range(end, start, -1):
-            smoothed = smoothed_density(filtered[k - start], beta, k)
-            means[k - 1], spreads[k - 1] = moments(smoothed, grid.positions)
+            smoothed = filtered[k - start]  # alpha_k beta_k normalised: p(x_k | z_1:K)
+            smoothed *= beta
+            total = smoothed.sum()
+            if not total > 0:
+                raise ValueError(f"the smoothed density of step {k} underflows on the grid (no cell explains the walk)")
+            smoothed /= total
+            means[k - 1] = smoothed.ravel() @ grid.positions  # the mean, and the root of the covariance's trace
+            spreads[k - 1] = math.sqrt(
+                max(0.0, float(smoothed.ravel() @ ((grid.positions - means[k - 1]) ** 2).sum(axis=1)))
+            )
             if visit is not None:
                 smoothed.flags.writeable = False
                 visit(k, smoothed)
@@ -214,41 +210,20 @@ def forward(
     return kept, means
 
 
-def smoothed_density(alpha: np.ndarray, beta: np.ndarray, k: int) -> np.ndarray:
-    """alpha_k beta_k normalised: p(x_k | z_1:K) (into alpha's array)."""
-    alpha *= beta
-    total = alpha.sum()
-    if not total > 0:
-        raise ValueError(f"the smoothed density of step {k} underflows on the grid (no cell explains the walk)")
-    alpha /= total
-    return alpha
-
-
-def moments(density: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, float]:
-    """The mean (2,) of a density on the cells and the root of its covariance's trace (map units)."""
-    weights = density.ravel()
-    mean = weights @ positions
-    return mean, math.sqrt(max(0.0, float(weights @ ((positions - mean) ** 2).sum(axis=1))))
-
-
-def checkpoint_block(steps: int, checkpoint_every: int | None) -> int:
-    """B: checkpoint_every (a whole number >= 1, else a one-line ValueError), or ceil(sqrt(steps)):
-    about 2 sqrt(K) grids at once."""
-    if checkpoint_every is None:
-        return max(1, math.isqrt(steps - 1) + 1)
-    return step_number("checkpoint_every", checkpoint_every)
-
-
-def check_smoother_memory(shape: tuple[int, int], steps: int, block: int) -> None:
-    """Refuse a smoothing whose grids would not fit, in one line saying how much it needs: the
-    checkpoints, one block of refiltered densities, beta and its product, and the
-    backward pass's FFT buffers."""
+def checkpoint_block(shape: tuple[int, int], steps: int, checkpoint_every: int | None) -> int:
+    """B: checkpoint_every (a whole number >= 1, else a one-line ValueError), or ceil(sqrt(steps)): about
+    2 sqrt(K) grids at once. A smoothing whose grids would not fit is refused in one line saying how much
+    it needs: the checkpoints, one block of refiltered densities, beta and its product, and the backward
+    pass's FFT buffers."""
+    every = checkpoint_every
+    block = max(1, math.isqrt(steps - 1) + 1) if every is None else step_number("checkpoint_every", every)
     cells = shape[0] * shape[1]
     grids = math.ceil(steps / block) + min(block, steps) + 3
     check_memory(
         f"smoothing {steps} steps on the grid's {shape[0]}x{shape[1]} cells ({grids} grids)",
         grids * cells * BYTES_PER_DENSITY_CELL + cells * BYTES_PER_GRID_CELL,
     )
+    return block
 
 
 def check_walk(compass_angles: Sequence[float], measurements: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
@@ -277,49 +252,56 @@ def check_walk(compass_angles: Sequence[float], measurements: Sequence[float]) -
 
 
 # -- particle smoothers: the genealogy of a particle filter, scored against the exact smoother -----------
+SMOOTHERS = ("filter", "lag", "path")  # lag 0, the fixed lag L, the whole walk (Genealogy's estimates)
+
+
 class Genealogy:
-    """A particle filter's R runs recorded step by step (its particles, weights and `ancestry`), and the
-    path smoother's estimates traced back through them.
+    """A particle filter's R runs recorded step by step (its particles, weights and `ancestry`), and
+    SMOOTHERS' estimates traced back through them.
 
     The estimate of step k from step j >= k: the particles of step j with their weights W_j, each put
     where its ancestor stood at step k (the ancestors followed back through the recorded A's). j = K, the
-    walk's end, is the genealogy (path) smoother (`lag` None); j = k + L the fixed-lag smoother (`lag` L:
-    step k's estimate made once step k + L is filtered, the last L steps' at the end); j = k the filter
-    (lag 0). A run restarted from the prior at step j has no ancestors there: the steps before it take
-    the particles of step j - 1 and their own weights; recovery's injected particles have none either
-    and leave the weight of the trace (the others' renormalised).
+    walk's end, is the genealogy (path) smoother; j = k + L the fixed-lag smoother (step k's estimate
+    made once step k + L is filtered, the last L steps' at the end); j = k the filter (lag 0). A run
+    restarted from the prior at step j has no ancestors there: the steps before it take the particles of
+    step j - 1 and their own weights; recovery's injected particles have none either and leave the
+    weight of the trace (the others' renormalised).
 
     Memory: positions (2 float32), a weight (float64) and an ancestor (int64) of each particle of each
-    kept step, 24 R N bytes a step: every step (R N K) for the path smoother, the last L + 1 for the
-    fixed-lag one, whatever the walk's length.
+    kept step, 24 R N bytes a step: every step (R N K), which the path smoother needs (the fixed-lag
+    one alone would need the last L + 1 only).
 
     Parameters
     ----------
-    lag : int or None
+    lag : int
+        L >= 1, the fixed-lag smoother's.
     bins : (callable, int), optional
-        `cell_bins`' pair: points (R, M, 2) -> flat bin indices (R, M), and the bins' count. Each estimate's
+        `binned_smoother`'s bins: points (R, M, 2) -> flat bin indices (R, M), and the bins' count. Each estimate's
         weighted mass per bin is kept too (the total variation to the exact smoother's, `score_rows`).
     clouds : bool
-        Keep each estimate's traced particles and weights of run 0 too (`clouds`, step -> (points (M, 2),
-        weights (M,))): what a viewer draws.
+        Keep each estimate's traced particles and weights of run 0 too (`clouds`, smoother -> step ->
+        (points (M, 2), weights (M,))): what a viewer draws.
     """
 
     def __init__(
         self,
-        lag: int | None = None,
+        lag: int,
         bins: tuple[Callable[[np.ndarray], np.ndarray], int] | None = None,
         clouds: bool = False,
     ):
         self.lag = lag
         self.bins, self.bin_count = bins if bins is not None else (None, 0)
-        self.kept: deque[tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = deque()
-        self.means: dict[int, np.ndarray] = {}  # step -> (R, 2)
-        self.masses: dict[int, np.ndarray] = {}  # step -> (R, bin_count)
-        self.distinct: dict[int, np.ndarray] = {}  # step -> (R,): the distinct ancestors at step k
-        self.clouds: dict[int, tuple[np.ndarray, np.ndarray]] | None = {} if clouds else None
+        self.kept: list[tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+        self.means: dict[str, dict[int, np.ndarray]] = {name: {} for name in SMOOTHERS}  # step -> (R, 2)
+        self.masses: dict[str, dict[int, np.ndarray]] = {name: {} for name in SMOOTHERS}  # step -> (R, bin_count)
+        self.distinct: dict[str, dict[int, np.ndarray]] = {name: {} for name in SMOOTHERS}  # step -> (R,)
+        self.clouds: dict[str, dict[int, tuple[np.ndarray, np.ndarray]]] | None = (
+            {name: {} for name in SMOOTHERS} if clouds else None
+        )
 
     def record(self, filt: Any) -> None:
-        """Keep the filter's step just made (after its `step`), and estimate the step `lag` back.
+        """Keep the filter's step just made (after its `step`): the filter's estimate of it, and the
+        fixed-lag smoother's of the step `lag` back.
 
         Parameters
         ----------
@@ -336,38 +318,39 @@ class Genealogy:
         if injected is not None:
             cut[0] |= injected
         self.kept.append((k, filt.x.astype(np.float32), filt.W.W.copy(), A.astype(np.int64), cut))
-        if self.lag is not None and len(self.kept) > self.lag:
-            self.trace(1)
-            self.kept.popleft()
+        newest = len(self.kept) - 1
+        for position, traced in self._traced(newest - self.lag if newest >= self.lag else newest):
+            if position == newest:
+                self._estimate("filter", *traced)
+            if position == newest - self.lag:
+                self._estimate("lag", *traced)
 
     def finish(self) -> Genealogy:
-        """Estimate the steps not yet estimated from the last one (the path smoother's every step).
+        """Estimate from the last step the path smoother's every step and the steps the fixed-lag
+        smoother has not reached.
 
         Returns
         -------
         Genealogy
             Itself, its `means`, `masses` and `distinct` now holding every step.
         """
-        if self.kept:  # lag 0 keeps none: every step estimated as it came
-            self.trace(len(self.kept))
+        for position, traced in self._traced(0):
+            self._estimate("path", *traced)
+            if position >= len(self.kept) - self.lag:
+                self._estimate("lag", *traced)
         return self
 
-    def trace(self, count: int) -> None:
-        """The estimates of the oldest `count` kept steps from the newest one's weighted particles.
-
-        Parameters
-        ----------
-        count : int
-            How many of the kept steps, oldest first, to estimate.
-        """
-        _, x, W, _, _ = self.kept[-1]
+    def _traced(self, oldest: int) -> Iterator[tuple[int, tuple[int, np.ndarray, np.ndarray, np.ndarray]]]:
+        """The newest kept step's weighted particles traced back to the kept step `oldest`, newest first:
+        (position, (k, the step's particles x (R, M, 2), the weights w (R, M), the index in x (R, M) of
+        each traced particle's ancestor))."""
+        _, _, W, _, _ = self.kept[-1]
         rows = np.arange(len(W))[:, None]
         index, w = np.broadcast_to(np.arange(W.shape[1]), W.shape), W
-        for position in range(len(self.kept) - 1, -1, -1):
+        for position in range(len(self.kept) - 1, oldest - 1, -1):
             k, x, _, A, cut = self.kept[position]
-            if position < count:
-                self._estimate(k, x[rows, index], w, index)
-            if position == 0:
+            yield position, (k, x, w, index)
+            if position == oldest:
                 break
             w = np.where(cut[rows, index], 0.0, w)
             total = w.sum(axis=1, keepdims=True)
@@ -380,15 +363,17 @@ class Genealogy:
                 index = every if restart.all() else np.where(restart[:, None], every, index)
                 w = previous if restart.all() else np.where(restart[:, None], previous, w)
 
-    def _estimate(self, k: int, points: np.ndarray, w: np.ndarray, index: np.ndarray) -> None:
-        """Step k's weighted mean (R, 2), its mass per bin and the distinct ancestors among `index`."""
-        self.means[k] = np.einsum("rn,rnd->rd", w, points)
-        self.distinct[k] = (np.diff(np.sort(index, axis=1), axis=1) != 0).sum(axis=1) + 1
+    def _estimate(self, name: str, k: int, x: np.ndarray, w: np.ndarray, index: np.ndarray) -> None:
+        """The smoother `name`'s estimate of step k: the weighted mean (R, 2) of the traced particles
+        x[index], their mass per bin and the distinct ancestors among `index`."""
+        points = x[np.arange(len(w))[:, None], index]
+        self.means[name][k] = np.einsum("rn,rnd->rd", w, points)
+        self.distinct[name][k] = (np.diff(np.sort(index, axis=1), axis=1) != 0).sum(axis=1) + 1
         if self.clouds is not None:
-            self.clouds[k] = (points[0].copy(), w[0].copy())
+            self.clouds[name][k] = (points[0].copy(), w[0].copy())
         if self.bins is not None:
             flat = self.bins(points) + np.arange(len(w))[:, None] * self.bin_count
-            self.masses[k] = np.bincount(flat.ravel(), w.ravel(), len(w) * self.bin_count).reshape(len(w), -1)
+            self.masses[name][k] = np.bincount(flat.ravel(), w.ravel(), len(w) * self.bin_count).reshape(len(w), -1)
 
 
 @dataclass(frozen=True)
@@ -404,16 +389,14 @@ class SmootherScores:
         filter (lag 0), the fixed-lag and the path smoother, the distance of its mean to the exact smoothed
         mean (`*_error`), the total variation to it (`*_tv`) and the distinct ancestors it rests on.
     recorded : dict
-        Each filter's label -> its Genealogy of each of SMOOTHERS (their means, distinct ancestors and,
-        when asked, clouds).
+        Each filter's label -> its Genealogy (SMOOTHERS' means, distinct ancestors and, when asked, clouds).
     """
 
     exact: SmoothedWalk
     rows: list[dict[str, Any]]
-    recorded: dict[str, list[Genealogy]] = field(default_factory=dict)
+    recorded: dict[str, Genealogy] = field(default_factory=dict)
 
 
-SMOOTHERS = ("filter", "lag", "path")  # lag 0, the fixed lag L, the whole walk (Genealogy's lag)
 SCORE_COLUMNS = (
     "filter",
     "step",
@@ -469,26 +452,34 @@ def score_smoothers(
     walk = (robot, world, sigma, delta, particle_count, len(exact.means), initial_particles)  # every filter's run
     rows, recorded = [], {}
     for entry, options in entries:
-        recorders = [Genealogy(length, bins, clouds) for length in (0, lag, None)]  # SMOOTHERS' lags
-        run = simulate(*walk, entry.filter_class, seed=seed, on_step=functools.partial(keep_step, recorders), **options)
-        recorded[entry.label] = [g.finish() for g in recorders]
-        rows += score_rows(entry.label, exact, exact_masses, run.true_positions, recorded[entry.label])
+        g = recorded[entry.label] = Genealogy(lag, bins, clouds)
+        run = simulate(*walk, entry.filter_class, seed=seed, on_step=lambda k, r, filt, g=g: g.record(filt), **options)
+        rows += score_rows(entry.label, exact, exact_masses, run.true_positions, g.finish())
     return SmootherScores(exact, rows, recorded)
 
 
 def binned_smoother(
     world: Maze, sigma: float, delta: float, robot: Robot, grid_options: dict[str, Any]
 ) -> tuple[SmoothedWalk, dict[int, np.ndarray], tuple[Callable[[np.ndarray], np.ndarray], int]]:
-    """The exact smoother of the robot's walk (`smooth`), its mass in each bin of the maze's cells at every
-    step (step -> (count,)): what a particle smoother's binned mass is compared with; the bins (`cell_bins`)."""
-    bins, count = cell_bins(world, GridBayesFilter.options.resolve(grid_options, "GridBayesFilter")["margin"])
+    """The exact smoother of the robot's walk (`smooth`), its mass in each bin at every step (step ->
+    (count,)): what a particle smoother's binned mass is compared with; and the bins, the maze's unit
+    cells and a ring of them over the grid's margin (a point beyond it falls in the nearest outer bin):
+    points (..., 2) -> flat bin indices (...), and the bins' count."""
+    ring = math.ceil(GridBayesFilter.options.resolve(grid_options, "GridBayesFilter")["margin"])
+    columns, rows = world.width + 2 * ring, world.height + 2 * ring
+
+    def bins(points: np.ndarray) -> np.ndarray:
+        i = np.clip(np.floor(points[..., 0]).astype(np.int64) + ring, 0, columns - 1)
+        j = np.clip(np.floor(points[..., 1]).astype(np.int64) + ring, 0, rows - 1)
+        return j * columns + i
+
     cells, masses = bins(GridBayesFilter(world, sigma, delta, **grid_options).positions), {}  # each cell's bin
 
     def binned(k: int, density: np.ndarray) -> None:
-        masses[k] = np.bincount(cells, density.ravel(), count)
+        masses[k] = np.bincount(cells, density.ravel(), rows * columns)
 
     exact = smooth(world, sigma, delta, robot.compass_angles, robot.measurements, visit=binned, **grid_options)
-    return exact, masses, (bins, count)
+    return exact, masses, (bins, rows * columns)
 
 
 def check_smoothers(
@@ -512,21 +503,15 @@ def check_smoothers(
     particles = len(initial_particles) if initial_particles is not None else particle_count or DEFAULT_PARTICLE_COUNT
     check_memory(
         f"the genealogy of {len(robot.measurements)} steps of {particles} particles (the path smoother's)",
-        (len(robot.measurements) + lag + 2) * particles * BYTES_PER_RECORDED_PARTICLE,
+        (len(robot.measurements) + 1) * particles * BYTES_PER_RECORDED_PARTICLE,
     )
     return lag, entries
 
 
-def keep_step(recorders: list[Genealogy], k: int, robot: Robot, filt: Any) -> None:
-    """simulate's on_step: each recorder keeps the filter's step k."""
-    for recorder in recorders:
-        recorder.record(filt)
-
-
 def score_rows(
-    label: str, exact: SmoothedWalk, masses: dict[int, np.ndarray], truth: np.ndarray, recorded: list[Genealogy]
+    label: str, exact: SmoothedWalk, masses: dict[int, np.ndarray], truth: np.ndarray, g: Genealogy
 ) -> list[dict[str, Any]]:
-    """One filter's rows of SCORE_COLUMNS, step by step (one run: row 0 of each recorded estimate)."""
+    """One filter's rows of SCORE_COLUMNS, step by step (one run: row 0 of each estimate of its genealogy g)."""
     rows = []
     for k in range(1, len(truth) + 1):
         row = {
@@ -534,39 +519,14 @@ def score_rows(
             "step": k,
             "exact_filtered_to_truth": float(np.hypot(*(exact.filtered_means[k - 1] - truth[k - 1]))),
             "exact_smoothed_to_truth": float(np.hypot(*(exact.means[k - 1] - truth[k - 1]))),
-            "filter_error_to_filtered": float(np.hypot(*(recorded[0].means[k][0] - exact.filtered_means[k - 1]))),
+            "filter_error_to_filtered": float(np.hypot(*(g.means["filter"][k][0] - exact.filtered_means[k - 1]))),
         }
-        for name, g in zip(SMOOTHERS, recorded, strict=True):
-            row[f"{name}_error"] = float(np.hypot(*(g.means[k][0] - exact.means[k - 1])))
-            row[f"{name}_tv"] = 0.5 * float(np.abs(g.masses[k][0] - masses[k]).sum())  # the total variation
-            row[f"{name}_ancestors"] = int(g.distinct[k][0])
+        for name in SMOOTHERS:
+            row[f"{name}_error"] = float(np.hypot(*(g.means[name][k][0] - exact.means[k - 1])))
+            row[f"{name}_tv"] = 0.5 * float(np.abs(g.masses[name][k][0] - masses[k]).sum())  # the total variation
+            row[f"{name}_ancestors"] = int(g.distinct[name][k][0])
         rows.append(row)
     return rows
-
-
-def cell_bins(world: Maze, margin: float) -> tuple[Callable[[np.ndarray], np.ndarray], int]:
-    """The maze's unit cells, and a ring of them over the grid's margin, as bins. A point beyond the
-    margin falls in the nearest outer bin.
-
-    Parameters
-    ----------
-    world : Maze
-    margin : float
-        The exact grid's margin around the map (map units).
-
-    Returns
-    -------
-    (bins: points (..., 2) -> flat bin indices (...), the bin count)
-    """
-    ring = math.ceil(margin)
-    columns, rows = world.width + 2 * ring, world.height + 2 * ring
-
-    def bins(points: np.ndarray) -> np.ndarray:
-        i = np.clip(np.floor(points[..., 0]).astype(np.int64) + ring, 0, columns - 1)
-        j = np.clip(np.floor(points[..., 1]).astype(np.int64) + ring, 0, rows - 1)
-        return j * columns + i
-
-    return bins, rows * columns
 
 
 __all__ = [
@@ -576,7 +536,6 @@ __all__ = [
     "Genealogy",
     "SmoothedWalk",
     "SmootherScores",
-    "cell_bins",
     "check_walk",
     "score_smoothers",
     "smooth",

@@ -132,14 +132,6 @@ def student_frames(tb: TracebackType | None) -> list[traceback.FrameSummary]:
     return [frame for frame in traceback.extract_tb(tb) if not is_lab_file(frame.filename)]
 
 
-def is_student_class(filter_class: type) -> bool:
-    """Whether a filter class is the user's (its file lies outside the lab), not a shipped one."""
-    try:
-        return not is_lab_file(inspect.getfile(filter_class))
-    except (TypeError, OSError):  # defined in a notebook cell or the interpreter: the user's
-        return True
-
-
 @contextmanager
 def student_code(filter_class: type) -> Iterator[SimpleNamespace]:
     """Around the calls of a user's filter: an Exception inside (or its own sys.exit or KeyboardInterrupt)
@@ -147,11 +139,15 @@ def student_code(filter_class: type) -> Iterator[SimpleNamespace]:
     built) and the user's frames, from the error; the working folder it changes is put back; a shipped
     filter's errors and the user's own stop pass as they are."""
     step = SimpleNamespace(number=0)
+    try:  # the filter is the user's when its file lies outside the lab (not a shipped one)
+        students = not is_lab_file(inspect.getfile(filter_class))
+    except (TypeError, OSError):  # defined in a notebook cell or the interpreter: the user's
+        students = True
     try:
-        with working_folder_kept(filter_class.name if is_student_class(filter_class) else None):
+        with working_folder_kept(filter_class.name) if students else contextlib.nullcontext():
             yield step
     except BaseException as error:  # the student's own sys.exit becomes their error too
-        if not is_student_class(filter_class) or isinstance(error, StudentCodeError) or is_users_stop(error):
+        if not students or isinstance(error, StudentCodeError) or is_users_stop(error):
             raise
         when = "while being built" if step.number == 0 else f"at step {step.number}"
         frames = [  # the student's frames, one line each: file, line, function and code
@@ -166,12 +162,9 @@ def student_code(filter_class: type) -> Iterator[SimpleNamespace]:
 
 
 @contextmanager
-def working_folder_kept(owner: str | None) -> Iterator[None]:
+def working_folder_kept(owner: str) -> Iterator[None]:
     """Put back the working folder if `owner`'s code changes it (outputs are written where the user
-    asked), with a one-line warning; None: nothing to watch (a shipped filter)."""
-    if owner is None:
-        yield
-        return
+    asked), with a one-line warning."""
     before = os.getcwd()
     try:
         yield

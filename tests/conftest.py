@@ -118,10 +118,10 @@ def rng() -> np.random.Generator:
 def _no_viewer_and_recordings_in_tmp(tmp_path, monkeypatch):
     """Runs that draw by default (run_model, the CLI) never open a viewer during the tests, and
     their default recordings go to a temporary folder, not into the working tree."""
-    from mazelab.viz import targets
+    from mazelab.viz import recording as viz_recording
 
-    monkeypatch.setattr(targets, "has_display", lambda: False)
-    monkeypatch.setattr(targets, "RECORDINGS_DIR", tmp_path / "recordings")
+    monkeypatch.setattr(viz_recording, "has_display", lambda: False)
+    monkeypatch.setattr(viz_recording, "RECORDINGS_DIR", tmp_path / "recordings")
 
 
 def pytest_addoption(parser):

@@ -92,7 +92,7 @@ def test_a_replayed_walk_through_walls_is_refused_naming_the_step(tmp_path, caps
         ({"seed": -3}, "seed: Input should be greater than or equal to 0"),
         ({"sigma": "0.3"}, "sigma: Input should be a valid number"),
         ({"filtering_algorithm": 3}, "filtering_algorithm: Input should be a valid string"),
-        ({"filter_options": {"resampling": 3}}, "resampling must be one of systematic"),
+        ({"filter_options": {"resampling": 3}}, "unknown resampling scheme 3; choose one of systematic"),
         ({"filter_options": {"speed": 100}}, "speed must be in (0, 1]"),
         ({"filter_options": {"outside_penalty": 0}}, "outside_penalty must be in (0, 1]"),
         (

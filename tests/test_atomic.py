@@ -23,7 +23,7 @@ from mazelab.atomic import (
     output_target,
     remove_stale_temporaries,
     temporary_name,
-    write_text_atomically,
+    write_atomically,
 )
 
 UNSHARE = shutil.which("unshare")
@@ -31,7 +31,7 @@ SLOW_WRITER = """
 import os, sys, time
 from mazelab import atomic
 atomic.write_all = lambda handle, data: (os.write(handle, data[:10]), print("writing", flush=True), time.sleep(60))
-atomic.write_bytes_atomically(sys.argv[1], b"x" * 1000)
+atomic.write_atomically(sys.argv[1], b"x" * 1000)
 """
 
 
@@ -65,7 +65,7 @@ def test_only_this_hosts_dead_writers_temporaries_are_removed(tmp_path):
     for path in (mine, other_host, old_format, alive_here):
         path.write_text("x")
     assert remove_stale_temporaries(tmp_path) == [mine]
-    write_text_atomically(tmp_path / "t.csv", "new\n")
+    write_atomically(tmp_path / "t.csv", "new\n")
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
         [other_host.name, old_format.name, alive_here.name, "t.csv"]
     )
@@ -88,7 +88,7 @@ def test_a_killed_writer_of_another_host_keeps_its_temporary(tmp_path):
         assert TEMPORARY_PATTERN.match(temporary.name).group(1) == "other-host"
         os.kill(writer.pid, signal.SIGKILL)  # exec'd: the writer itself
         writer.wait(timeout=10)
-        write_text_atomically(tmp_path / "other.json", "{}")
+        write_atomically(tmp_path / "other.json", "{}")
         assert temporary.exists() and not target.exists()
     finally:
         writer.kill()
@@ -105,7 +105,7 @@ def test_a_symlink_loop_is_not_a_regular_file(tmp_path):
     a.symlink_to(b)
     b.symlink_to(a)
     with pytest.raises(NotRegularFileError, match="loop"):
-        write_text_atomically(a, "x")
+        write_atomically(a, "x")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.csv", "b.csv", "loop.csv"]
 
 

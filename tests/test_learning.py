@@ -54,12 +54,12 @@ def test_each_cell_is_the_grid_filters_evidence_and_an_executor_map_gives_the_sa
 def test_the_posteriors_mean_and_interval_are_those_of_its_density_constant_on_each_cell():
     grid = ParameterGrid((0.2, 0.8), (0.1, 0.5), cells=(6, 4))
     flat = ParameterPosterior(grid, np.zeros(grid.cells))  # the evidence says nothing: the uniform prior
-    np.testing.assert_allclose(flat.mean(), [0.5, 0.3])
+    np.testing.assert_allclose(flat.mean, [0.5, 0.3])
     np.testing.assert_allclose(flat.interval(0.9), [[0.23, 0.77], [0.12, 0.48]])
     one_cell = np.full(grid.cells, -np.inf)
     one_cell[2, 1] = -3.0  # all the mass in sigma's cell [0.4, 0.5), delta's [0.2, 0.3)
     peaked = ParameterPosterior(grid, one_cell)
-    np.testing.assert_allclose(peaked.mean(), [0.45, 0.25])
+    np.testing.assert_allclose(peaked.mean, [0.45, 0.25])
     np.testing.assert_allclose(peaked.interval(0.9), [[0.405, 0.495], [0.205, 0.295]])
 
 
@@ -139,13 +139,13 @@ def test_the_pmmh_chain_agrees_with_the_exact_posterior(paper_world):
     narrower = exact_parameter_posterior(paper_world, angles, zs, ParameterGrid(cells=(16, 16)), resolution=0.1)
 
     def summary(posterior):
-        return np.column_stack([posterior.mean(), posterior.interval()])  # rows sigma, delta: mean, low, high
+        return np.column_stack([posterior.mean, posterior.interval()])  # rows sigma, delta: mean, low, high
 
     grid_error = 2 * (abs(summary(finer) - summary(exact)) + abs(summary(narrower) - summary(exact)))
     chain = pmmh(paper_world, angles, zs, 3000, particle_count=200, burn_in=300, seed=1, proposal_scale=(0.08, 0.3))
-    monte_carlo = np.column_stack([chain.mean_error(), chain.interval_error()])
-    chained = np.column_stack([chain.mean(), chain.interval()])
-    assert (chain.ess() > 100).all()  # a Monte Carlo error from fewer effective draws is itself unreliable
+    monte_carlo = np.column_stack([chain.mean_error, chain.interval_error()])
+    chained = np.column_stack([chain.mean, chain.interval()])
+    assert (chain.ess > 100).all()  # a Monte Carlo error from fewer effective draws is itself unreliable
     assert (abs(chained - summary(exact)) <= STANDARD_ERRORS * monte_carlo + grid_error).all(), (
         chained,
         summary(exact),

@@ -25,7 +25,7 @@ from mazelab.cli.app import main
 from mazelab.invocation import PROJECT_DIR
 from mazelab.registry import described, rgb
 from mazelab.scenario import load_scenario
-from mazelab.viz.targets import notebook_viewer_installed
+from mazelab.viz.recording import notebook_viewer_installed
 
 NOTEBOOKS = {"en": ROOT / "notebooks" / "lab.ipynb", "uk": ROOT / "notebooks" / "lab_uk.ipynb"}
 # what step 12 prints when the three filters walked the same true path, in each notebook's language

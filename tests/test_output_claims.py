@@ -16,7 +16,7 @@ from conftest import ROOT
 from test_output_files import NO_DISPLAY, RUN, _wait_for_line
 
 from mazelab import atomic
-from mazelab.atomic import NameTakenError, NotRegularFileError, ReplacedMeanwhileError, write_bytes_atomically
+from mazelab.atomic import NameTakenError, NotRegularFileError, ReplacedMeanwhileError, write_atomically
 from mazelab.cli.app import main
 
 RUN_ARGS = ["run", "--maze", "paper_5x5", "--steps", "4", "--particles", "50", "--seed", "1", "--quiet"]
@@ -25,7 +25,7 @@ RUN_ARGS = ["run", "--maze", "paper_5x5", "--steps", "4", "--particles", "50", "
 def _claim(path: str, mark: bytes, start: multiprocessing.synchronize.Barrier, results: multiprocessing.Queue) -> None:
     start.wait()
     try:
-        write_bytes_atomically(path, mark, replace=False)
+        write_atomically(path, mark, replace=False)
         results.put(mark)
     except NameTakenError:
         results.put(b"refused")
@@ -60,7 +60,7 @@ def _created_meanwhile(original):
 def test_a_scenario_name_taken_meanwhile_is_refused_and_not_announced(tmp_path, monkeypatch, capsys):
     import mazelab.scenario
 
-    monkeypatch.setattr(mazelab.scenario, "write_text_atomically", _created_meanwhile(atomic.write_text_atomically))
+    monkeypatch.setattr(mazelab.scenario, "write_atomically", _created_meanwhile(atomic.write_atomically))
     target = tmp_path / "same.json"
     assert main([*RUN_ARGS, "--no-viz", "--save-scenario", str(target)]) == 1
     captured = capsys.readouterr()
@@ -73,7 +73,7 @@ def test_a_scenario_name_taken_meanwhile_is_refused_and_not_announced(tmp_path, 
 def test_a_recording_name_taken_meanwhile_is_refused_and_not_announced(tmp_path, monkeypatch, capsys):
     import mazelab.viz.recording
 
-    monkeypatch.setattr(mazelab.viz.recording, "write_bytes_atomically", _created_meanwhile(write_bytes_atomically))
+    monkeypatch.setattr(mazelab.viz.recording, "write_atomically", _created_meanwhile(write_atomically))
     target = tmp_path / "same.rrd"
     assert main([*RUN_ARGS, "--rrd", str(target)]) == 1
     captured = capsys.readouterr()
@@ -91,7 +91,7 @@ def test_a_forced_file_replaced_by_another_writer_right_after_is_not_claimed(tmp
 
     monkeypatch.setattr(atomic, "sync_folder", another_writer_wins)
     with pytest.raises(ReplacedMeanwhileError, match="replaced by another process meanwhile"):
-        write_bytes_atomically(target, b"mine")
+        write_atomically(target, b"mine")
     assert target.read_text() == "theirs"
 
 
@@ -128,7 +128,7 @@ def test_a_device_pipe_or_folder_is_never_an_output(tmp_path, kind, force, capsy
         assert len(err) == 1 and said in err[0] and str(target) in err[0], err
         assert os.lstat(target).st_mode == mode
     with pytest.raises(NotRegularFileError):
-        write_bytes_atomically(target, b"x", replace=True)
+        write_atomically(target, b"x", replace=True)
     assert os.lstat(target).st_mode == mode
 
 
@@ -136,7 +136,7 @@ def test_a_symlink_to_a_device_is_refused_too(tmp_path):
     link = tmp_path / "link"
     link.symlink_to(_device(tmp_path))
     with pytest.raises(NotRegularFileError):
-        write_bytes_atomically(link, b"x", replace=True)
+        write_atomically(link, b"x", replace=True)
     assert stat.S_ISCHR(os.stat(link).st_mode)
 
 

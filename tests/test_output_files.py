@@ -26,7 +26,7 @@ except ImportError:  # not on Windows
     resource = None
 from rerun.chunk import RrdReader
 
-from mazelab.atomic import WriteError, write_bytes_atomically, write_text_atomically
+from mazelab.atomic import WriteError, write_atomically
 from mazelab.cli.app import main
 from mazelab.experiments.tables import pyplot, save_figure
 
@@ -62,7 +62,7 @@ def umask_022():
 def test_new_files_follow_the_umask_and_replaced_files_keep_their_mode(tmp_path, umask_022):
     scenario, csv, png, rrd = (tmp_path / name for name in ("s.json", "e.csv", "f.png", "r.rrd"))
     assert main([*RUN[2:], "--quiet", "--seed", "1", "--save-scenario", str(scenario), "--rrd", str(rrd)]) == 0
-    write_text_atomically(csv, "step,error\n")
+    write_atomically(csv, "step,error\n")
     plt = pyplot()
     save_figure(plt.figure(), png)
     for path in (scenario, csv, png, rrd):
@@ -88,7 +88,7 @@ SLOW_WRITER = """
 import os, sys, time
 from mazelab import atomic
 atomic.write_all = lambda handle, data: (os.write(handle, data[:1000]), print("writing", flush=True), time.sleep(60))
-atomic.write_bytes_atomically(sys.argv[1], b"x" * 100_000)
+atomic.write_atomically(sys.argv[1], b"x" * 100_000)
 """
 
 
@@ -110,7 +110,7 @@ def test_a_save_killed_midway_leaves_a_temporary_that_the_next_write_removes(tmp
         foreign = tmp_path / ".notes.tmp"  # not ours: kept
         for path in (alive, foreign):
             path.write_bytes(b"x")
-        write_text_atomically(tmp_path / "other.json", "{}")
+        write_atomically(tmp_path / "other.json", "{}")
         assert not stale.exists() and alive.exists() and foreign.exists()
         assert target.read_text() == "old and whole"
     finally:
@@ -121,18 +121,18 @@ def test_a_save_killed_midway_leaves_a_temporary_that_the_next_write_removes(tmp
 def test_a_name_near_the_limit_gets_a_temporary_name_that_fits(tmp_path):
     for length in (242, 250, 255):
         path = tmp_path / ("n" * (length - 5) + ".json")
-        write_text_atomically(path, "{}")
+        write_atomically(path, "{}")
         assert path.read_text() == "{}"
     assert leftovers(tmp_path) == []
     with pytest.raises(WriteError, match=r"^cannot write .*n\.json: File name too long$"):
-        write_text_atomically(tmp_path / ("n" * 300 + ".json"), "{}")
+        write_atomically(tmp_path / ("n" * 300 + ".json"), "{}")
 
 
 def test_a_claimed_name_is_never_replaced(tmp_path):
     path = tmp_path / "r.rrd"
-    write_bytes_atomically(path, b"first", replace=False)
+    write_atomically(path, b"first", replace=False)
     with pytest.raises(FileExistsError):
-        write_bytes_atomically(path, b"second", replace=False)
+        write_atomically(path, b"second", replace=False)
     assert path.read_bytes() == b"first" and leftovers(tmp_path) == []
 
 
@@ -167,11 +167,11 @@ def _in_a_small_tmpfs(tmp_path: Path, options: str, code: str) -> subprocess.Com
 
 FULL_DISK = """
 from pathlib import Path
-from mazelab.atomic import write_bytes_atomically, WriteError
+from mazelab.atomic import write_atomically, WriteError
 Path("old.json").write_bytes(b"old and whole")
 for name in ("old.json", "new.rrd"):
     try:
-        write_bytes_atomically(name, b"x" * 200_000)
+        write_atomically(name, b"x" * 200_000)
     except WriteError as error:
         print(error)
 print(sorted(p.name for p in Path(".").iterdir()), Path("old.json").read_bytes().decode())
@@ -284,7 +284,7 @@ def test_the_signal_handlers_are_ours_only_while_a_child_runs():
     numbers = [number for number in STOP_SIGNALS if number != signal.SIGINT]
     before = {number: signal.getsignal(number) for number in numbers if signal.getsignal(number) != signal.SIG_IGN}
     child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
-    processes.end_with_this_program(child)
+    processes.hold_stop_signals(child)
     assert all(signal.getsignal(number) is not before[number] for number in before)
     processes.stop_process(child)
     assert child.poll() is not None

@@ -10,7 +10,7 @@ import tomllib
 from conftest import ROOT
 from packaging.requirements import Requirement
 
-from mazelab.viz import targets
+from mazelab.viz import recording as viz_recording
 
 FILTERS = ("SIRParticleFilter", "AuxiliaryParticleFilter", "RegularizedParticleFilter")  # the lab's three, in order
 README = (ROOT / "README.md").read_text(encoding="utf-8")
@@ -38,7 +38,7 @@ def test_the_lab_steps_run_as_written(tmp_path, monkeypatch, capsys):
     exec(shorter[0].replace("steps = 200", "steps = 20"), {})
     lines = capsys.readouterr().out.splitlines()
     assert len(lines) == 8 and lines[1].startswith("scenario saved to ")
-    assert all(lines[i].startswith(f"Recording saved to {targets.RECORDINGS_DIR}{os.sep}") for i in (0, 2, 4, 6))
+    assert all(lines[i].startswith(f"Recording saved to {viz_recording.RECORDINGS_DIR}{os.sep}") for i in (0, 2, 4, 6))
     for line, name in zip(lines[3::2], FILTERS, strict=True):
         assert re.fullmatch(rf"{name}: mean error \d+\.\d{{3}}, last-step error \d+\.\d{{3}}", line), line
     for block in shorter[1:]:

@@ -17,9 +17,8 @@ import pytest
 
 from mazelab.cli.app import main
 from mazelab.invocation import command_prefix
-from mazelab.viz import targets
-from mazelab.viz.recording import NO_DISPLAY
-from mazelab.viz.targets import CROWDED_BYTES, human_size
+from mazelab.viz import recording as viz_recording
+from mazelab.viz.recording import CROWDED_BYTES, NO_DISPLAY, human_size
 
 RUN = ["run", "--maze", "paper_5x5", "--steps", "3", "--particles", "50", "--quiet"]
 DAY = 86400.0
@@ -38,7 +37,7 @@ def lab_recording(folder: Path, label: str, days_old: float, size: int) -> Path:
 
 @pytest.fixture
 def folder() -> Path:
-    return targets.RECORDINGS_DIR
+    return viz_recording.RECORDINGS_DIR
 
 
 @pytest.fixture

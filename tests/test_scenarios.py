@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mazelab.atomic import write_text_atomically
+from mazelab.atomic import write_atomically
 from mazelab.cli.app import main
 from mazelab.scenario import Scenario, ScenarioError, load_scenario, save_scenario
 from mazelab.simulation import simulate
@@ -185,7 +185,7 @@ def test_an_interrupted_save_leaves_the_old_file_intact(tmp_path, monkeypatch):
 
     monkeypatch.setattr(os, "replace", crash)
     with pytest.raises(KeyboardInterrupt):
-        write_text_atomically(path, "new")
+        write_atomically(path, "new")
     assert path.read_text() == "old and whole"
     assert [p.name for p in tmp_path.iterdir()] == ["model_parameters.json"]  # no temporary left behind
 

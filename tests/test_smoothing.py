@@ -16,6 +16,7 @@ from mazelab import checks
 from mazelab.checks import MemoryBudget, MemoryLimitError
 from mazelab.constants import OUTSIDE_PENALTY
 from mazelab.grid_filter import GridBayesFilter, arc_kernel
+from mazelab.learning import grid_log_evidence
 from mazelab.maze import Maze, load_maze
 from mazelab.model import ROBOT_SPEED
 from mazelab.registry import filter_entry
@@ -72,7 +73,7 @@ def smoothed_densities(*walk, **options):
     return result, densities
 
 
-def test_the_smoother_equals_the_enumeration_of_every_path_of_the_discretised_model():
+def test_the_smoother_and_the_grid_evidence_equal_the_enumeration_of_every_path_of_the_discretised_model():
     angles, zs = TINY_WALK
     expected, log_evidence = enumerated_marginals(TINY, *TINY_MODEL.values(), angles, zs, **TINY_GRID)
     result, densities = smoothed_densities(TINY, *TINY_MODEL.values(), angles, zs, **TINY_GRID)
@@ -81,7 +82,8 @@ def test_the_smoother_equals_the_enumeration_of_every_path_of_the_discretised_mo
         # the same sums in another order: float64 round-off, far below any mass that matters
         np.testing.assert_allclose(densities[k].ravel(), expected[k - 1], rtol=0, atol=1e-12)
         assert result.means[k - 1] == pytest.approx(expected[k - 1] @ positions, abs=1e-12)
-    assert result.log_evidence == pytest.approx(log_evidence, abs=1e-12)
+    evidence = grid_log_evidence(TINY, angles, zs, *TINY_MODEL.values(), **TINY_GRID)  # the exact parameter posterior's
+    assert evidence == pytest.approx(log_evidence, abs=1e-12)
 
 
 def test_the_backward_step_is_the_adjoint_of_the_prediction(rng):
@@ -160,29 +162,27 @@ def test_bad_walks_are_refused_in_one_line(paper_world):
 PARTICLE_FILTERS = ("sir", "apf", "rpf")
 
 
-def recorded_run(world, walk, filter_name, lags, count=300, seed=5, bins=None):
-    """One seeded filter over a walk ((compass angle, z) pairs), a Genealogy per lag, and its mean after
-    each step: (recorders, means (K, 2))."""
-    recorders = [Genealogy(lag, None if bins is None else (bins, 1)) for lag in lags]
+def recorded_run(world, walk, filter_name, lag=4, count=300, seed=5, **options):
+    """One seeded filter over a walk ((compass angle, z) pairs), its Genealogy (lag, options), and its mean
+    after each step: (genealogy, means (K, 2))."""
+    genealogy = Genealogy(lag, **options)
     rng = np.random.default_rng(seed)
     filt = filter_entry(filter_name).filter_class(world, 0.3, 0.5, world.random_free_places(count, rng), rng)
     means = []
     for compass_angle, z in walk:
         filt.step(compass_angle, z)
         means.append(filt.mean)
-        for recorder in recorders:
-            recorder.record(filt)
-    return [recorder.finish() for recorder in recorders], np.array(means)
+        genealogy.record(filt)
+    return genealogy.finish(), np.array(means)
 
 
 @pytest.mark.parametrize("filter_name", ["sir", "apf"])
 def test_the_path_smoother_follows_each_particles_lineage_back_through_the_engines_ancestry(paper_world, filter_name):
     """Each traced path moves exactly L (ROBOT_SPEED) a step, as the arc motion moves a particle from its
     ancestor (float32 positions: 1e-5 map units); a wrong ancestor lies anywhere else in the cloud."""
-    traced = []
-    bins = lambda points: traced.append(points[0].astype(float)) or np.zeros(points.shape[:2], dtype=np.int64)  # noqa: E731
-    recorded_run(paper_world, recorded_walk(paper_world, 3, 25), filter_name, [None], bins=bins)
-    steps = np.hypot(*np.diff(np.array(traced), axis=0).transpose(2, 0, 1))  # from step k to step k - 1
+    genealogy, _ = recorded_run(paper_world, recorded_walk(paper_world, 3, 25), filter_name, clouds=True)
+    traced = np.array([genealogy.clouds["path"][k][0].astype(float) for k in range(1, 26)])
+    steps = np.hypot(*np.diff(traced, axis=0).transpose(2, 0, 1))  # from step k - 1 to step k
     np.testing.assert_allclose(steps, ROBOT_SPEED, atol=1e-5)
 
 
@@ -191,14 +191,16 @@ def test_the_fixed_lag_smoother_is_the_path_smoother_of_the_walk_cut_lag_steps_l
     """Lag 0 is the filter's mean at every step; the path smoother at K is the filter's mean at K; the
     fixed-lag estimate of step k is the path smoother's of the same seeded run stopped at step k + L."""
     walk, lag = recorded_walk(paper_world, 4, 20), 4
-    (filtered, fixed, path), means = recorded_run(paper_world, walk, filter_name, [0, lag, None])
-    filters_mean = np.array([filtered.means[k][0] for k in range(1, 21)])
+    genealogy, means = recorded_run(paper_world, walk, filter_name, lag)
+    filtered, fixed, path = (genealogy.means[name] for name in ("filter", "lag", "path"))
+    filters_mean = np.array([filtered[k][0] for k in range(1, 21)])
     np.testing.assert_allclose(filters_mean, means, atol=1e-6)  # the kernels sum float32 positions: 1e-6 map units
-    np.testing.assert_allclose(path.means[20][0], means[-1], atol=1e-6)
+    np.testing.assert_allclose(path[20][0], means[-1], atol=1e-6)
     for k in (1, 9, 16):
-        (cut,), _ = recorded_run(paper_world, walk[: k + lag], filter_name, [None])
-        assert np.array_equal(fixed.means[k], cut.means[k])
-    assert path.distinct[1][0] < path.distinct[19][0] <= 300  # the path degeneracy: fewer ancestors further back
+        cut, _ = recorded_run(paper_world, walk[: k + lag], filter_name, lag)
+        assert np.array_equal(fixed[k], cut.means["path"][k])
+    distinct = genealogy.distinct["path"]
+    assert distinct[1][0] < distinct[19][0] <= 300  # the path degeneracy: fewer ancestors further back
 
 
 def test_a_run_restarted_from_the_prior_is_traced_from_the_step_before_its_restart(paper_world):
@@ -206,10 +208,10 @@ def test_a_run_restarted_from_the_prior_is_traced_from_the_step_before_its_resta
     stopped the step before (its own particles and weights)."""
     walk = recorded_walk(paper_world, 6, 12)
     walk[7] = (walk[7][0], 40.0)  # nothing in the maze lies 40 from a station: the filter restarts at step 8
-    (path,), _ = recorded_run(paper_world, walk, "sir", [None])
-    (before,), _ = recorded_run(paper_world, walk[:7], "sir", [None])
+    path, _ = recorded_run(paper_world, walk, "sir")
+    before, _ = recorded_run(paper_world, walk[:7], "sir")
     for k in range(1, 8):
-        assert np.array_equal(path.means[k], before.means[k])
+        assert np.array_equal(path.means["path"][k], before.means["path"][k])
 
 
 @pytest.mark.parametrize("filter_name", ["sir", "apf"])
@@ -246,5 +248,5 @@ def test_a_genealogy_that_does_not_fit_in_memory_is_refused_saying_how_much_it_n
     robot = Robot(
         0.3, 0.5, (0.5, 0.5), actual_angles=[0.1] * 1000, compass_angles=[0.1] * 1000, measurements=[1.0] * 1000
     )
-    with pytest.raises(MemoryLimitError, match=r"^the genealogy of 1000 steps of 100000 particles .* needs about 2\.3"):
+    with pytest.raises(MemoryLimitError, match=r"^the genealogy of 1000 steps of 100000 particles .* needs about 2\.2"):
         score_smoothers(paper_world, robot, 0.3, 0.5, ["sir"], particle_count=100_000)

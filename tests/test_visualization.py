@@ -25,8 +25,9 @@ from mazelab.maze import Maze
 from mazelab.model import CONFIDENCE_RADIUS
 from mazelab.robot import Robot
 from mazelab.simulation import simulate
-from mazelab.viz import processes, targets
-from mazelab.viz.recording import NO_DISPLAY, heading_vectors
+from mazelab.viz import processes
+from mazelab.viz import recording as viz_recording
+from mazelab.viz.recording import NO_DISPLAY, Visualization, heading_vectors
 from mazelab.viz.style import (
     CONFIDENT_COLOR,
     ESTIMATE_COLOR,
@@ -37,7 +38,6 @@ from mazelab.viz.style import (
     STATION_COLOR,
     entity_name,
 )
-from mazelab.viz.targets import Visualization
 from mazelab.viz.views import open_comparison
 
 FILTERS = ["SIRParticleFilter", "AuxiliaryParticleFilter", "RegularizedParticleFilter"]
@@ -354,15 +354,15 @@ def test_the_comparison_shows_each_filter_side_by_side_and_every_error_below(tmp
 # -- where it goes ---------------------------------------------------------------------------------
 def test_without_a_display_a_run_is_saved_in_recordings_and_says_where(world, capsys):
     recorded_run(world, True, steps=2)
-    (path,) = targets.RECORDINGS_DIR.glob("*.rrd")
+    (path,) = viz_recording.RECORDINGS_DIR.glob("*.rrd")
     assert path.name.startswith("sir_particle_filter-")
     out = capsys.readouterr().out
     assert f"; {NO_DISPLAY}, so open it with: " in out and f"mazelab view {path}" in out
     assert steps_of(load(path)["/map/robot"]) == [1, 2]
     recorded_run(world, "viewer", steps=1)  # asked for the viewer: falls back to a file, saying so
-    assert len(list(targets.RECORDINGS_DIR.glob("*.rrd"))) == 2
+    assert len(list(viz_recording.RECORDINGS_DIR.glob("*.rrd"))) == 2
     assert f"; {NO_DISPLAY}, so open it with: " in capsys.readouterr().out
-    assert not list(targets.RECORDINGS_DIR.glob(".*partial"))  # complete files only
+    assert not list(viz_recording.RECORDINGS_DIR.glob(".*partial"))  # complete files only
 
 
 def test_a_callers_own_recording_gets_the_run_and_stays_open(tmp_path, world):
@@ -400,7 +400,7 @@ def test_the_web_viewer_binds_localhost_and_ctrl_c_ends_it_cleanly(world, monkey
     assert server.url.startswith(f"http://127.0.0.1:{server.web_port}/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A")
     assert server.process.poll() is not None  # interrupted mid-run: stopped at once, no waiting
     assert server.process.args[1:4] == ["--serve-web", "--bind", "127.0.0.1"]
-    (path,) = targets.RECORDINGS_DIR.glob("*.rrd")  # the copy on disk holds the steps done
+    (path,) = viz_recording.RECORDINGS_DIR.glob("*.rrd")  # the copy on disk holds the steps done
     assert steps_of(load(path)["/map/robot"]) == [1, 2, 3]
     assert "Serving the web viewer at http://127.0.0.1:" in capsys.readouterr().out
 
@@ -421,6 +421,7 @@ def test_after_a_web_run_the_viewer_is_served_until_ctrl_c(world, monkeypatch, c
     assert server.process.poll() is not None
     out = capsys.readouterr().out
     assert "press Ctrl-C to stop serving" in out and "Stopped serving" in out
+    assert out.count(server.url) == 1 and "Open the address above in a browser" in out  # printed as the run started
 
 
 def _ctrl_c_once(wait):
@@ -447,7 +448,7 @@ def test_a_viewer_that_cannot_open_falls_back_to_a_file_at_once(world, monkeypat
     """A display that is set but unusable: the viewer exits, and the run is saved instead (no waiting)."""
     import time
 
-    monkeypatch.setattr(targets, "has_display", lambda: True)
+    monkeypatch.setattr(viz_recording, "has_display", lambda: True)
     monkeypatch.setattr(processes, "VIEWER_PORT", processes.free_port())
     monkeypatch.setenv("DISPLAY", ":424242")  # no such X server
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
@@ -455,7 +456,7 @@ def test_a_viewer_that_cannot_open_falls_back_to_a_file_at_once(world, monkeypat
     recorded_run(world, "viewer", steps=2)
     assert time.monotonic() - started < 10
     assert "the Rerun viewer did not start" in capsys.readouterr().out
-    (path,) = targets.RECORDINGS_DIR.glob("*.rrd")
+    (path,) = viz_recording.RECORDINGS_DIR.glob("*.rrd")
     assert steps_of(load(path)["/map/robot"]) == [1, 2]
 
 

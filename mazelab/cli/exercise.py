@@ -13,7 +13,7 @@ from typing import Annotated, Any
 
 import typer
 
-from mazelab.atomic import write_bytes_atomically, write_text_atomically
+from mazelab.atomic import write_atomically
 from mazelab.cli.options import Force, UserError, check_output_path, opt, seed_option
 from mazelab.exercise.grading import (
     KEY_FILE,
@@ -113,7 +113,7 @@ def check_command(
         line = catalogue.gettext("checked in {seconds} s (the student's processes: {student} s)").format(**took)
         typer.echo(catalogue.numbers(line))
     if results is not None:  # score 0 and why for a file that cannot be checked
-        write_text_atomically(results, gradescope_json(report, catalogue), replace=force)
+        write_atomically(results, gradescope_json(report, catalogue), replace=force)
     if report.problem is not None:
         typer.echo(catalogue.numbers(catalogue.gettext("error: ") + catalogue.translate(report.problem)), err=True)
         raise typer.Exit(2)
@@ -249,7 +249,7 @@ def autograder_command(
     secret = read_key(key, make=False) if key is not None else secrets.token_bytes(32)
     check_output_path(bundle, force)
     data = bundle_bytes(secret, lang, timeout)  # a BundleError is one line, exit 2
-    typer.echo(f"wrote {write_bytes_atomically(bundle, data, replace=force)} (upload it as the autograder)")
+    typer.echo(f"wrote {write_atomically(bundle, data, replace=force)} (upload it as the autograder)")
 
 
 def _until_stopped(work: Callable[[], Any], graded: str) -> tuple[Any, int | None]:

@@ -11,7 +11,7 @@ import numpy as np
 import typer
 
 from mazelab import maze_generator
-from mazelab.atomic import write_text_atomically
+from mazelab.atomic import write_atomically
 from mazelab.cli.options import arg, check_outputs, opt, seed_option, visualization, with_drawing
 from mazelab.invocation import command_prefix
 from mazelab.maze import Maze, load_maze
@@ -49,7 +49,7 @@ def maze_generate(
     if out is None:
         typer.echo(text, nl=False)
     else:
-        write_text_atomically(out, text, replace=force)
+        write_atomically(out, text, replace=force)
         typer.echo(f"{maze_generator.describe_maze(world)}; written to {out}")
 
 

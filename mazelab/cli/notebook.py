@@ -17,7 +17,7 @@ from pathlib import Path
 
 import typer
 
-from mazelab.atomic import write_bytes_atomically
+from mazelab.atomic import write_atomically
 from mazelab.cli.options import UserError, arg, check_output_path, opt
 from mazelab.invocation import PROJECT_DIR, python_prefix
 
@@ -61,6 +61,6 @@ def notebook(
         )
     target = here / f"{stem}.ipynb"
     check_output_path(target, force)
-    write_bytes_atomically(target, (NOTEBOOKS_DIR / f"{stem}.ipynb").read_bytes(), replace=force)
+    write_atomically(target, (NOTEBOOKS_DIR / f"{stem}.ipynb").read_bytes(), replace=force)
     typer.echo(f"{target.name} copied here from the lab's notebooks; open it with:")
     typer.echo(jupyter_command(target))

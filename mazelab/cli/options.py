@@ -24,8 +24,8 @@ from mazelab.experiments.study import declared_option
 from mazelab.experiments.tables import check_trace_path, pyplot
 from mazelab.invocation import repeat_command
 from mazelab.registry import SHIPPED, filter_entry, is_plugin_spec, resolve_filter
+from mazelab.viz.recording import Visualization
 from mazelab.viz.style import DEFAULT_MAX_DRAWN
-from mazelab.viz.targets import Visualization
 
 
 class UserError(Exception):

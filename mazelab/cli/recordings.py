@@ -33,10 +33,9 @@ import typer
 from mazelab.cli.options import UserError, arg, opt
 from mazelab.invocation import command_prefix
 from mazelab.stops import STOP_SIGNALS
-from mazelab.viz import targets
+from mazelab.viz import recording as viz_recording
 from mazelab.viz.processes import WebServer
-from mazelab.viz.recording import rerun_switched_off
-from mazelab.viz.targets import SavedRecording, folder_summary, human_size, saved_recordings
+from mazelab.viz.recording import SavedRecording, folder_summary, human_size, rerun_switched_off, saved_recordings
 
 AGE_UNITS = {"m": 60.0, "h": 3600.0, "d": 86400.0, "w": 7 * 86400.0}  # --older-than: 30m, 12h, 7d, 2w
 # --max-size: 500kB, 100MB, 100M or 1.5GB (powers of 1000; bytes without a unit)
@@ -93,7 +92,7 @@ def recordings(
     clean: opt(bool, "--clean", help="remove the recordings chosen (without: only show them)") = False,
 ) -> None:
     """List the recordings of runs without a display, with their sizes; remove old ones with --clean."""
-    folder = targets.RECORDINGS_DIR if folder is None else folder
+    folder = viz_recording.RECORDINGS_DIR if folder is None else folder
     if folder.exists() and not folder.is_dir():
         raise UserError(f"{folder} is not a folder: name the folder of recordings (default: recordings/)")
     ages = None if older_than is None else parse_amount(older_than, "--older-than", AGE_UNITS, "30m, 12h, 7d or 2w")
@@ -126,12 +125,12 @@ def show(found: list[SavedRecording], doomed: list[SavedRecording], folder: Path
         when = datetime.fromtimestamp(saved.modified).strftime("%Y-%m-%d %H:%M")
         mark = "  (would be removed)" if saved in doomed else "" if saved.lab_named else "  (your name: kept)"
         typer.echo(f"  {when}  {human_size(saved.size):>8}  {saved.path}{mark}")
-    command = f"{command_prefix()} recordings" + ("" if folder == targets.RECORDINGS_DIR else f" {folder}")
+    command = f"{command_prefix()} recordings" + ("" if folder == viz_recording.RECORDINGS_DIR else f" {folder}")
     if rules:
         size = human_size(sum(saved.size for saved in doomed))
         typer.echo(f"{len(doomed)} would be removed ({size}): {command} {rules} --clean")
     else:
-        typer.echo(f"To remove old ones: {command} --keep {targets.KEEP_HINT} (shows them), then add --clean")
+        typer.echo(f"To remove old ones: {command} --keep {viz_recording.KEEP_HINT} (shows them), then add --clean")
 
 
 # -- `mazelab view FILE` ---------------------------------------------------------------------------------

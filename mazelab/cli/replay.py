@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import typer
 
-from mazelab.atomic import write_text_atomically
+from mazelab.atomic import write_atomically
 from mazelab.cli.maze import prepare_world
 from mazelab.cli.options import (
     GivenOptions,
@@ -443,7 +443,7 @@ def report_compare(
         typer.echo(kidnapping)  # where each filter found the robot again is in the table
     typer.echo(comparison_table(results, kld=kld, startup_seconds=take_startup_seconds()))
     if csv_path is not None:
-        write_text_atomically(csv_path, errors_csv(results), replace=force)
+        write_atomically(csv_path, errors_csv(results), replace=force)
         typer.echo(f"per-step errors written to {csv_path}")
     if plot is not None:
         plot_errors(results, plot, title, replace=force)

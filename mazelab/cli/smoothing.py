@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import typer
 
-from mazelab.atomic import write_text_atomically
+from mazelab.atomic import write_atomically
 from mazelab.cli.options import (
     Force,
     OptionFlag,
@@ -143,7 +143,7 @@ def smoothing_recording(scores: SmootherScores, world: Any, path: Path, force: b
         return
     for (label, name), title in views.items():
         colour = filter_entry(label).colour
-        for k, (points, weights) in sorted(scores.recorded[label][SMOOTHERS.index(name)].clouds.items()):
+        for k, (points, weights) in sorted(scores.recorded[label].clouds[name].items()):
             recording.stream.set_time("step", sequence=k)
             radii = CELL_DOT_RADIUS * np.sqrt(weights * len(weights))  # a dot's area grows with its weight
             cloud = rr.Points2D(points, colors=colour, radii=radii)
@@ -238,19 +238,14 @@ def learn(
     walk = stored.robot_compass_angles, stored.robot_measurements
     cells_map = functools.partial(run_cells, cells_journal(files, recorder), **cluster)
     posterior = exact_parameter_posterior(world, *walk, grid, mapper=cells_map, resolution=resolution)
-    chained = learned_chain(world, walk, grid, **chain)
+    chained = None  # the PMMH chain (none for --pmmh 0), its first tenth the burn-in
+    if chain["pmmh"]:
+        settings = {"filter_name": chain["filter"], "particle_count": chain["particles"], "seed": chain["seed"]}
+        chained = run_pmmh(world, *walk, chain["pmmh"], prior=grid, burn_in=chain["pmmh"] // 10, **settings)
     summary = learning_summary(posterior, chained, chain["filter"])
     rows = ("(sigma, delta) cell", functools.partial(posterior_csv, posterior))
     figure = functools.partial(posterior_figure, posterior, chained, path.name)
     write_outputs(files, recorder, summary, rows, figure, functools.partial(chain_recording, posterior, chained, world))
-
-
-def learned_chain(
-    world: Any, walk: tuple, grid: ParameterGrid, pmmh: int, filter: str, particles: int, seed: int
-) -> Any:
-    """learn's PMMH chain (`CHAIN`'s options: none for --pmmh 0), its first tenth the burn-in."""
-    settings = {"filter_name": filter, "particle_count": particles, "seed": seed}
-    return run_pmmh(world, *walk, pmmh, prior=grid, burn_in=pmmh // 10, **settings) if pmmh else None
 
 
 def cells_journal(files: dict[str, Any], recorder: Recorder) -> tuple[Journal, dict] | None:
@@ -344,23 +339,23 @@ def cell_unit(cell: Any, unit: tuple[tuple[int, float, float], ...]) -> list[lis
 def learning_summary(posterior: ParameterPosterior, chain: Any, filter_name: str) -> dict[str, Any]:
     """Print the exact posterior's (and the chain's) mean and 90% interval of sigma and delta, the chain's
     acceptance rate, effective sample size and Monte Carlo error; return them for the record."""
-    rows = [["exact", *posterior_cells(posterior.mean(), posterior.interval())]]
-    summary: dict[str, Any] = {"exact": {"mean": posterior.mean(), "interval_90": posterior.interval()}}
+    rows = [["exact", *posterior_cells(posterior.mean, posterior.interval())]]
+    summary: dict[str, Any] = {"exact": {"mean": posterior.mean, "interval_90": posterior.interval()}}
     if chain is not None:
-        rows.append([f"PMMH ({filter_entry(filter_name).label})", *posterior_cells(chain.mean(), chain.interval())])
+        rows.append([f"PMMH ({filter_entry(filter_name).label})", *posterior_cells(chain.mean, chain.interval())])
         summary["pmmh"] = {
-            "mean": chain.mean(),
-            "mean_error": chain.mean_error(),
+            "mean": chain.mean,
+            "mean_error": chain.mean_error,
             "interval_90": chain.interval(),
             "acceptance_rate": chain.acceptance_rate,
-            "ess": chain.ess(),
+            "ess": chain.ess,
         }
     typer.echo(format_table(["posterior", "sigma mean", "sigma 90%", "delta mean", "delta 90%"], rows))
     if chain is not None:
         typer.echo(
             f"PMMH: acceptance rate {chain.acceptance_rate:.2f}, effective sample size "
-            f"{chain.ess()[0]:.0f} (sigma), {chain.ess()[1]:.0f} (delta), mean's Monte Carlo error "
-            f"{chain.mean_error()[0]:.3f}, {chain.mean_error()[1]:.3f}"
+            f"{chain.ess[0]:.0f} (sigma), {chain.ess[1]:.0f} (delta), mean's Monte Carlo error "
+            f"{chain.mean_error[0]:.3f}, {chain.mean_error[1]:.3f}"
         )
     return summary
 
@@ -399,7 +394,7 @@ def chain_recording(posterior: ParameterPosterior, chain: Any, world: Any, path:
     recording.stream.set_time("iteration", sequence=0)
     half_width = min(e[1] - e[0] for e in posterior.grid.edges) / 2
     radii = half_width * np.sqrt(posterior.mass.ravel() / posterior.mass.max())
-    cells = rr.Points2D(np.column_stack(posterior.grid.values()), radii=radii, colors=(120, 120, 120))
+    cells = rr.Points2D(np.column_stack(posterior.grid.values), radii=radii, colors=(120, 120, 120))
     recording.stream.log("/posterior/cells", cells)
     for i, state in enumerate(chain.samples if chain is not None else (), start=1):
         recording.stream.set_time("iteration", sequence=i)
@@ -415,7 +410,7 @@ def posterior_cells(mean: np.ndarray, interval: np.ndarray) -> list[str]:
 
 def posterior_csv(posterior: Any) -> str:
     """One row per cell: its sigma and delta (centres), log p(z_1:K | sigma, delta) and posterior mass."""
-    sigmas, deltas = posterior.grid.values()
+    sigmas, deltas = posterior.grid.values
     rows = [
         {"sigma": s, "delta": d, "log_evidence": float(e), "mass": float(m)}
         for s, d, e, m in zip(sigmas, deltas, posterior.log_evidence.ravel(), posterior.mass.ravel(), strict=True)
@@ -468,7 +463,7 @@ def write_outputs(
     --force (or learn's --resume) replaces them."""
     replace = files["force"] or files.get("resume", False)
     if files["csv_path"] is not None:
-        write_text_atomically(files["csv_path"], rows[1](), replace=replace)
+        write_atomically(files["csv_path"], rows[1](), replace=replace)
         typer.echo(f"one row per {rows[0]} written to {files['csv_path']}")
     if files["plot"] is not None:
         save_figure(figure(), files["plot"], replace=replace)

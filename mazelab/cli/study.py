@@ -17,7 +17,7 @@ from typing import Any
 
 import typer
 
-from mazelab.atomic import WriteError, write_text_atomically
+from mazelab.atomic import WriteError, write_atomically
 from mazelab.backend import cores
 from mazelab.cli.options import (
     DRAWING,
@@ -494,10 +494,10 @@ def write_outputs(session: StudySession, records: list[RunRecord], summaries: li
     replace = files.force or files.resume
     try:
         if files.csv_path is not None:
-            write_text_atomically(files.csv_path, records_csv(records, plan.columns), replace=replace)
+            write_atomically(files.csv_path, records_csv(records, plan.columns), replace=replace)
             typer.echo(f"one row per run and filter written to {files.csv_path}")
         if files.summary_csv is not None and summaries:
-            write_text_atomically(files.summary_csv, summary_csv(summaries, plan.option_columns), replace=replace)
+            write_atomically(files.summary_csv, summary_csv(summaries, plan.option_columns), replace=replace)
             typer.echo(f"one row per setting and filter (the table, with its intervals) written to {files.summary_csv}")
         if files.traces is not None:
             write_traces(files.traces, study_traces(records))
@@ -607,7 +607,7 @@ def report_accuracy(session: StudySession, rows: tuple[AccuracyFilter, ...], out
         typer.echo(accuracy_table(summary))
         typer.echo(f"{runs} runs in {time.perf_counter() - recorder.started_clock:.1f} s wall time")
         if files.csv_path is not None:
-            write_text_atomically(files.csv_path, accuracy_csv(records), replace=files.force or files.resume)
+            write_atomically(files.csv_path, accuracy_csv(records), replace=files.force or files.resume)
             typer.echo(f"one row per maze, run and filter written to {files.csv_path}")
         if files.record_file is not None:
             recorder.finish(status, summary=summary)

@@ -24,7 +24,7 @@ from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
-from mazelab.atomic import WriteError, write_text_atomically
+from mazelab.atomic import WriteError, write_atomically
 from mazelab.backend import use_threads
 from mazelab.exercise.parts import FAIL, NOT_OWN, NOT_RUN, NOT_WRITTEN, PASS, SHOWN, clean
 from mazelab.exercise.report import ROWS, NotGradableError, Report, Submission, check_file, format_report
@@ -230,15 +230,15 @@ class Gradebook:
                 target.parent.mkdir(exist_ok=True)
             except OSError as error:
                 raise WriteError(error.errno, error.strerror, str(target.parent)) from None
-            write_text_atomically(target, gradescope_json(report, self.catalogue), replace=True)
+            write_atomically(target, gradescope_json(report, self.catalogue), replace=True)
         if self.csv is not None:
-            write_text_atomically(partial_name(self.csv), csv_text(self.graded), replace=True)
+            write_atomically(partial_name(self.csv), csv_text(self.graded), replace=True)
 
     def finish(self, graded: list[Report]) -> Path | None:
         """The complete CSV of `graded` (grade_folder's, in the submissions' order) in place of the partial one."""
         if self.csv is None:
             return None
-        written = write_text_atomically(self.csv, csv_text(graded), replace=self.force)
+        written = write_atomically(self.csv, csv_text(graded), replace=self.force)
         partial_name(self.csv).unlink(missing_ok=True)
         return written
 

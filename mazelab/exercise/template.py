@@ -23,7 +23,7 @@ from importlib import metadata
 from pathlib import Path
 
 from mazelab import __version__
-from mazelab.atomic import NameTakenError, NotRegularFileError, output_target, write_text_atomically
+from mazelab.atomic import NameTakenError, NotRegularFileError, output_target, write_atomically
 from mazelab.exercise.kit import PACKAGE_DIR
 from mazelab.exercise.sandbox import DEFAULT_BUDGET
 
@@ -221,7 +221,7 @@ def write_exercise(folder: Path, force: bool = False, language: str = "en") -> l
         raise ValueError(f"cannot make the folder {folder}: {error.strerror or error}") from None
     # The README first: should a write fail, the student's my_filter.py is the one left as it was.
     for path, text in reversed(list(zip(paths, texts, strict=True))):
-        write_text_atomically(path, text, replace=force)
+        write_atomically(path, text, replace=force)
     return paths
 
 

@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from mazelab.atomic import file_kind, lock, write_all, write_text_atomically
+from mazelab.atomic import file_kind, lock, write_all, write_atomically
 from mazelab.backend import backend_versions
 from mazelab.checks import check_memory, check_seed
 from mazelab.experiments.study import RunRecord, RunTask, option_cells
@@ -394,7 +394,7 @@ class Recorder:
 
     def write(self, path: str | Path) -> None:
         """Write the record, whole (mazelab.atomic)."""
-        write_text_atomically(path, json.dumps(self.data, indent=2, allow_nan=False) + "\n")
+        write_atomically(path, json.dumps(self.data, indent=2, allow_nan=False) + "\n")
 
 
 def differences(recorded: Mapping[str, Any], given: Mapping[str, Any], ignore: Sequence[str] = ()) -> list[str]:

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from mazelab.atomic import write_bytes_atomically, write_text_atomically
+from mazelab.atomic import write_atomically
 from mazelab.registry import described
 from mazelab.simulation import RunResult
 
@@ -44,7 +44,7 @@ def save_figure(figure: Any, path: Path, *, replace: bool = True, dpi: int = 150
         figure.savefig(buffer, format=path.suffix.lstrip(".").lower() or "png", dpi=dpi)
     finally:
         pyplot().close(figure)
-    write_bytes_atomically(path, buffer.getvalue(), replace=replace)
+    write_atomically(path, buffer.getvalue(), replace=replace)
 
 
 def beside(output: str | Path, suffix: str) -> Path:
@@ -305,10 +305,10 @@ def write_traces(path: Path, blocks: Sequence[dict[str, Any]]) -> None:
         table = pa.table({c: pa.array(list(v) if v.dtype == object else v) for c, v in columns.items()})
         buffer = io.BytesIO()
         pq.write_table(table, buffer)
-        write_bytes_atomically(path, buffer.getvalue())
+        write_atomically(path, buffer.getvalue())
         return
     columns = trace_column_names(blocks)
-    write_text_atomically(path, ",".join(columns) + "\n" + trace_csv_rows(blocks, columns))
+    write_atomically(path, ",".join(columns) + "\n" + trace_csv_rows(blocks, columns))
 
 
 def trace_table_columns(blocks: Sequence[dict[str, Any]]) -> dict[str, np.ndarray] | None:

@@ -12,7 +12,6 @@ import atexit
 import contextlib
 import importlib.util
 import os
-import shlex
 import shutil
 import signal
 import socket
@@ -24,13 +23,11 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from mazelab.invocation import command_prefix
 from mazelab.stops import STOP_SIGNALS, StoppedBySignal, signal_handlers
 
 VIEWER_PORT = 9876  # the native viewer's gRPC port, rerun's default: later runs reuse its window
 
-_children: set[Any] = set()  # the running processes that end with this program
-_holders: set[object] = set()  # while any: SIGTERM/SIGHUP handled by us (see hold_stop_signals)
+_holders: set[object] = set()  # while any: SIGTERM/SIGHUP handled by us; the processes among them end with us
 _handlers = contextlib.ExitStack()  # ours, while installed (stops.signal_handlers)
 _previous_handlers: dict[int, Any] = {}  # the handlers before ours
 
@@ -69,7 +66,7 @@ def start_rerun(
         start_new_session=detached,  # a detached viewer outlives this program (and its Ctrl-C)
     )
     if not detached:
-        end_with_this_program(process)
+        hold_stop_signals(process)  # it ends with this program
     deadline = time.monotonic() + timeout
     while process.poll() is None and time.monotonic() <= deadline:
         if all(listening(port) for port in ports):
@@ -103,19 +100,13 @@ def stop_process(process: Any) -> None:
         except subprocess.TimeoutExpired:
             process.kill()
             process.wait()
-    _children.discard(process)
     release_stop_signals(process)
 
 
-def end_with_this_program(process: Any) -> None:
-    """Stop `process` when SIGTERM or SIGHUP ends this program (Ctrl-C is handled where it waits)."""
-    _children.add(process)
-    hold_stop_signals(process)
-
-
 def hold_stop_signals(holder: object) -> None:
-    """While `holder` (a child process, an open recording) is held, SIGTERM and SIGHUP end this program
-    as the module docstring says; Ctrl-C is handled where it waits, a signal ignored (nohup) stays so."""
+    """While `holder` (a child process, which then ends with this program, or an open recording) is held,
+    SIGTERM and SIGHUP end this program as the module docstring says; Ctrl-C is handled where it waits,
+    a signal ignored (nohup) stays so."""
     _holders.add(holder)
     if not _previous_handlers and threading.current_thread() is threading.main_thread():
         ours = [n for n in STOP_SIGNALS if n != signal.SIGINT and signal.getsignal(n) != signal.SIG_IGN]
@@ -134,7 +125,7 @@ def _stop_children_then_go_on(number: int, frame: Any) -> None:
     """SIGTERM/SIGHUP: with no handler of its own before us, the program exits (code 128 + signal)
     through its `finally` clauses, which save the recording (an exit hook stops any child left);
     else the previous handler runs. Our children are sent SIGTERM first in either case."""
-    for process in list(_children):
+    for process in [holder for holder in _holders if isinstance(holder, subprocess.Popen)]:
         with contextlib.suppress(OSError):
             os.kill(process.pid, signal.SIGTERM)  # not Popen's methods: the interrupted code may hold its lock
     previous = _previous_handlers.get(number)
@@ -146,7 +137,7 @@ def _stop_children_then_go_on(number: int, frame: Any) -> None:
 @atexit.register
 def _stop_children_at_exit() -> None:
     """No child of this run outlives it."""
-    for process in list(_children):
+    for process in [holder for holder in _holders if isinstance(holder, subprocess.Popen)]:
         stop_process(process)
 
 
@@ -155,7 +146,6 @@ class WebServer:
 
     def __init__(self, process: Any, grpc_port: int, web_port: int):
         self.process, self.grpc_port, self.web_port = process, grpc_port, web_port
-        self.announced = False  # whether its address was printed already (a run prints it as it starts)
         self.grpc_url = f"rerun+http://127.0.0.1:{grpc_port}/proxy"
         self.url = f"http://127.0.0.1:{web_port}/?url={urllib.parse.quote(self.grpc_url, safe='')}"
 
@@ -166,13 +156,14 @@ class WebServer:
         arguments = ["--serve-web", "--bind", "127.0.0.1", "--port", str(grpc_port), "--web-viewer-port", str(web_port)]
         return cls(start_rerun(arguments, [grpc_port, web_port], detached=False), grpc_port, web_port)
 
-    def serve_until_interrupted(self, already_interrupted: bool = False) -> None:
-        """Keep serving (the server holds the recording) until Ctrl-C, then stop cleanly."""
+    def serve_until_interrupted(self, announced: bool = False, already_interrupted: bool = False) -> None:
+        """Keep serving (the server holds the recording) until Ctrl-C, then stop cleanly; `announced`:
+        its address was printed already (a run prints it as it starts)."""
         try:
             if not already_interrupted:  # the address alone on its line: copied whole, with nothing glued on
-                shown = "the address above" if self.announced else "this address"
+                shown = "the address above" if announced else "this address"
                 print(f"Open {shown} in a browser (press Ctrl-C to stop serving)", end="", flush=True)
-                print("." if self.announced else f":\n{self.url}", flush=True)
+                print("." if announced else f":\n{self.url}", flush=True)
                 self.process.wait()
         except KeyboardInterrupt:
             print("Stopped serving the web viewer.")
@@ -182,13 +173,6 @@ class WebServer:
     def stop(self) -> None:
         """End the server process."""
         stop_process(self.process)
-
-
-def open_hint(path: Path, display: bool) -> str:
-    """How to look at a saved recording: the native viewer with a display, else the web viewer that
-    `mazelab view` serves on 127.0.0.1 (plain `rerun --web-viewer` would listen on every interface)."""
-    quoted = shlex.quote(str(path))
-    return f"rerun {quoted}" if display else f"{command_prefix()} view {quoted} (the web viewer, on 127.0.0.1)"
 
 
 def free_port() -> int:

@@ -1,4 +1,5 @@
-"""A Rerun recording of the lab: its stream and sinks, the maze and the robot drawn once per recording.
+"""A Rerun recording of the lab: where it goes (the `visualize` values, the display check, recording
+file names and the recordings folder), its stream and sinks, the maze and the robot drawn once per recording.
 
 A file recording is kept in memory (Rerun's binary stream) and written at the end through
 mazelab.atomic: whole or not at all, under its own temporary name, every write error reported.
@@ -6,24 +7,32 @@ mazelab.atomic: whole or not at all, under its own temporary name, every write e
 
 from __future__ import annotations
 
+import difflib
+import importlib.util
+import itertools
 import os
+import re
+import shlex
 import sys
+import time
 import uuid
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from contextvars import ContextVar
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from mazelab.atomic import WriteError, write_bytes_atomically
+from mazelab.atomic import WriteError, write_atomically
+from mazelab.checks import step_number
 from mazelab.invocation import command_prefix
 from mazelab.maze import EMPTY, Maze
-from mazelab.viz import targets
-from mazelab.viz.processes import WebServer, hold_stop_signals, native_viewer, open_hint, release_stop_signals
+from mazelab.viz.processes import WebServer, hold_stop_signals, native_viewer, release_stop_signals
 from mazelab.viz.style import (
     APPLICATION_ID,
+    DEFAULT_MAX_DRAWN,
     FREE_COLOR,
     KIDNAP_COLOR,
     MAP,
@@ -34,8 +43,11 @@ from mazelab.viz.style import (
     STATION_RADIUS,
     WALL_COLOR,
 )
-from mazelab.viz.targets import crowded_folder_hint, default_recording_path, human_size, next_free_name
 
+TARGET_WORDS = ("viewer", "web", "notebook")  # the visualize strings that are not file names
+RECORDINGS_DIR = Path("recordings")  # where runs without a display are saved, relative to the cwd
+CROWDED_BYTES = 100e6  # a save line beyond this size of RECORDINGS_DIR adds how to thin it (the example's run: 6 MB)
+KEEP_HINT = 10  # the cleanup that line suggests: keep this many of the newest default recordings
 RERUN_OFF_NOTE = "Rerun is switched off (RERUN=off in the environment): nothing is recorded"
 NO_DISPLAY = "no display found (DISPLAY and WAYLAND_DISPLAY unset)"
 # within deferred_to_the_end: the write errors and the web servers kept for the end of the block
@@ -101,8 +113,8 @@ class Recording:
         without a display, or one that cannot open, becomes a file of the lab's own name."""
         import rerun as rr
 
-        place, why = targets.resolve_target(target), ""
-        if place == "viewer" and not targets.has_display():
+        place, why = resolve_target(target), ""
+        if place == "viewer" and not has_display():
             place, why = None, NO_DISPLAY
         elif place == "viewer":
             try:
@@ -113,8 +125,13 @@ class Recording:
         if place == "notebook":
             stream.notebook_show(blueprint=blueprint, height=700)
             return cls(stream)
-        default = place in (None, "web")
-        path = default_recording_path(label) if default else place
+        default, path = place in (None, "web"), place
+        if default:  # recordings/<label>-<date>-<time>.rrd, claimed when written (save): if taken, the next free one
+            try:
+                RECORDINGS_DIR.mkdir(parents=True, exist_ok=True)
+            except OSError as error:
+                raise WriteError(error.errno, error.strerror, str(RECORDINGS_DIR)) from None
+            path = RECORDINGS_DIR / f"{label}-{time.strftime('%Y%m%d-%H%M%S')}.rrd"
         sink = stream.binary_stream()  # kept in memory: written whole at close (see mazelab.atomic)
         server = WebServer.start() if place == "web" else None
         sinks = [sink] if server is None else [rr.GrpcSink(server.grpc_url), sink]
@@ -124,7 +141,6 @@ class Recording:
         stream.send_blueprint(blueprint, make_active=True, make_default=True)
         if server is not None:
             print(f"Serving the web viewer at {server.url}")
-            server.announced = True
         return cls(stream, path=path, server=server, sink=sink, claim_name=default, replace=replace, why=why)
 
     def log_robot(self, step: int, position: Sequence[float], heading: float | None) -> None:
@@ -180,7 +196,7 @@ class Recording:
                 deferred[1].append(self.server)  # served once the command has printed its results
             elif self.server is not None:
                 # close() runs in simulate's `finally`: a run being interrupted stops serving at once.
-                self.server.serve_until_interrupted(already_interrupted=interrupted)
+                self.server.serve_until_interrupted(announced=True, already_interrupted=interrupted)
 
     def save(self) -> None:
         """Write the recording to its file, whole or not at all, and say where; a default name that
@@ -188,9 +204,9 @@ class Recording:
         data = self.sink.read() or b""
         while True:
             try:
-                write_bytes_atomically(self.path, data, replace=self.replace)
+                write_atomically(self.path, data, replace=self.replace)
                 break
-            except WriteError as error:  # every error of write_bytes_atomically is one
+            except WriteError as error:  # every error of write_atomically is one
                 deferred = _deferred.get()
                 if self.claim_name and isinstance(error, FileExistsError):  # a default name, taken meanwhile
                     self.path = next_free_name(self.path)
@@ -200,11 +216,14 @@ class Recording:
                     deferred[0].append(error)  # raised when the block of deferred_to_the_end ends
                     return
         why = f"; {self.why}, so" if self.why else ";"
-        hint = open_hint(self.path, targets.has_display())
+        command, quoted = command_prefix(), shlex.quote(str(self.path))
+        # without a display: the web viewer that `view` serves on 127.0.0.1 (`rerun --web-viewer` listens everywhere)
+        hint = f"rerun {quoted}" if has_display() else f"{command} view {quoted} (the web viewer, on 127.0.0.1)"
         print(f"Recording saved to {self.path}; {human_size(len(data))}{why} open it with: {hint}")
-        crowded = crowded_folder_hint(self.path.parent, command_prefix()) if self.claim_name else None
-        if crowded is not None:  # default names: runs without a display pile them up in RECORDINGS_DIR
-            print(crowded)
+        folder = self.path.parent  # default names: runs without a display pile them up in RECORDINGS_DIR
+        if self.claim_name and sum(saved.size for saved in saved_recordings(folder)) > CROWDED_BYTES:
+            cleanup = f"{command} recordings --keep {KEEP_HINT} --clean"
+            print(f"{folder_summary(folder)}; to keep only the {KEEP_HINT} newest: {cleanup}")
 
 
 def rerun_switched_off() -> bool:
@@ -228,7 +247,7 @@ def deferred_to_the_end() -> Iterator[None]:
         _deferred.reset(token)
         for index, server in enumerate(servers):
             if finished and index == 0:
-                server.serve_until_interrupted()
+                server.serve_until_interrupted(announced=True)
             else:
                 server.stop()
     if errors:
@@ -238,3 +257,123 @@ def deferred_to_the_end() -> Iterator[None]:
 def heading_vectors(angles: np.ndarray, length: float) -> np.ndarray:
     """Arrows of `length` along `angles` (radians, counter-clockwise from +x), shape (N, 2)."""
     return length * np.column_stack([np.cos(angles), np.sin(angles)])
+
+
+# -- where a recording goes ------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Visualization:
+    """A `visualize` value with options: where to draw (`target`, see mazelab.viz.views) and how much."""
+
+    target: Any = True
+    max_drawn: int = DEFAULT_MAX_DRAWN
+    replace: bool = True  # a recording file may replace an existing one (False: its name is created exclusively)
+
+    def __post_init__(self) -> None:
+        step_number("max_drawn", self.max_drawn, "a whole number")
+
+
+def resolve_target(target: Any) -> str | Path:
+    """The place a `visualize` value means (listed in mazelab.viz.views): "viewer", "web", "notebook" or a path."""
+    if target is True or target == "auto":
+        return "notebook" if in_jupyter() and notebook_viewer_installed() else "viewer"
+    if target == "notebook" and not notebook_viewer_installed():
+        raise ValueError("visualize='notebook' needs rerun's notebook viewer: pip install -e '.[notebook]'")
+    if target in TARGET_WORDS:
+        return target
+    if isinstance(target, (str, Path)):
+        path = Path(target)
+        # a file has a folder or a suffix (.rrd); any other string is a word: a mistyped "viwer" is no file
+        if isinstance(target, str) and not path.suffix and path.parent == Path(".") and target.strip():
+            close = difflib.get_close_matches(target, TARGET_WORDS, n=1)
+            hint = f"; did you mean {close[0]!r}?" if close else "; a file needs a suffix such as .rrd"
+            words = ", ".join(map(repr, TARGET_WORDS))
+            raise ValueError(f"visualize={target!r} is not one of {words} nor a file name{hint}")
+        if path.is_dir():
+            raise ValueError(f"{path} is a folder, not an .rrd file")
+        if not path.parent.is_dir():
+            raise ValueError(f"{path.parent} does not exist: cannot write {path.name} there")
+        return path
+    raise ValueError(
+        f"visualize must be True, False, 'viewer', 'web', 'notebook', an .rrd path or a view, got {target!r}"
+    )
+
+
+# -- the recordings folder -------------------------------------------------------------------------
+LAB_NAME = re.compile(r"([^.].*-\d{8}-\d{6})(?:-(\d+))?\.rrd")  # default names: <label>-<date>-<time>[-N].rrd
+
+
+def next_free_name(path: Path) -> Path:
+    """The first of NAME-2.rrd, NAME-3.rrd, ... that does not exist for a default name NAME[-N].rrd."""
+    base, number = LAB_NAME.fullmatch(path.name).groups()
+    for n in itertools.count(int(number or 1) + 1):
+        candidate = path.with_name(f"{base}-{n}.rrd")
+        if not candidate.exists():
+            return candidate
+
+
+@dataclass(frozen=True)
+class SavedRecording:
+    """A recording file in a folder: its path, size (bytes), time last written (seconds since the
+    epoch), and whether the lab named it (a default name, LAB_NAME)."""
+
+    path: Path
+    size: int
+    modified: float
+
+    @property
+    def lab_named(self) -> bool:
+        return LAB_NAME.fullmatch(self.path.name) is not None
+
+
+def saved_recordings(folder: Path) -> list[SavedRecording]:
+    """The .rrd files in `folder` that are regular files (a symbolic link or a folder is not one of
+    them), oldest first; none when the folder does not exist."""
+    found = []
+    try:
+        entries = list(os.scandir(folder))
+    except (FileNotFoundError, NotADirectoryError):
+        return []
+    for entry in entries:
+        if entry.name.startswith(".") or not entry.name.endswith(".rrd"):
+            continue
+        try:
+            if not entry.is_file(follow_symlinks=False):
+                continue
+            info = entry.stat(follow_symlinks=False)
+        except FileNotFoundError:  # removed meanwhile (another cleanup, a run's rename)
+            continue
+        found.append(SavedRecording(Path(folder) / entry.name, info.st_size, info.st_mtime))
+    return sorted(found, key=lambda saved: (saved.modified, saved.path.name))
+
+
+def human_size(size: float) -> str:
+    """A size in bytes as people write it, in powers of 1000: 532 B, 12.4 kB, 3.1 MB, 1.25 GB."""
+    for unit, scale in (("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
+        if size >= scale:
+            value = size / scale
+            return f"{value:.3g} {unit}" if value < 100 else f"{value:.0f} {unit}"
+    return f"{int(size)} B"
+
+
+def folder_summary(folder: Path) -> str:
+    """What a folder of recordings holds now, e.g. "recordings/ holds 7 recordings, 140 MB"."""
+    found = saved_recordings(folder)
+    count = f"{len(found)} recording{'s' if len(found) != 1 else ''}"
+    return f"{folder}{os.sep} holds {count}, {human_size(sum(saved.size for saved in found))}"
+
+
+def has_display() -> bool:
+    """Whether a native viewer window can open: always on macOS and Windows, else DISPLAY or WAYLAND_DISPLAY."""
+    return sys.platform in ("darwin", "win32") or bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+def in_jupyter() -> bool:
+    """Whether this runs in a Jupyter kernel (where the viewer can be shown inline)."""
+    ipython = sys.modules.get("IPython")
+    shell = ipython.get_ipython() if ipython is not None else None
+    return type(shell).__name__ == "ZMQInteractiveShell"
+
+
+def notebook_viewer_installed() -> bool:
+    """Whether rerun's notebook viewer (the `notebook` extra) is installed."""
+    return importlib.util.find_spec("rerun_notebook") is not None

@@ -29,7 +29,7 @@ from mazelab.maze import Maze
 from mazelab.model import CONFIDENCE_RADIUS
 from mazelab.modes import Mode
 from mazelab.registry import described
-from mazelab.viz.recording import Recording, heading_vectors
+from mazelab.viz.recording import Recording, Visualization, heading_vectors
 from mazelab.viz.style import (
     CELL_DOT_RADIUS,
     CONFIDENT_COLOR,
@@ -48,7 +48,6 @@ from mazelab.viz.style import (
     entity_name,
     run_blueprint,
 )
-from mazelab.viz.targets import Visualization
 
 
 def open_recording(visualize: Any, world: Maze, blueprint: Callable[[], Any], label: str) -> tuple[Any, int]:
@@ -101,13 +100,6 @@ class Comparison:
 
 
 # -- what one run draws ----------------------------------------------------------------------------
-def weight_colors(weights: np.ndarray) -> np.ndarray:
-    """RGB colours from blue (weight 0) to red (the largest weight), linear in w / max w, shape (N, 3)."""
-    top = weights.max() if len(weights) else 0.0
-    t = weights / top if top > 0 else np.zeros_like(weights)
-    return np.column_stack([255 * t, np.zeros_like(t), 255 * (1 - t)]).astype(np.uint8)
-
-
 class RunView:
     """One filter's run drawn into a Rerun recording: its particles, estimate and time series."""
 
@@ -170,7 +162,7 @@ class RunView:
 
     def log_particles(self, belief: Particles | Density) -> None:
         """What is drawn of a filter's belief: arrows along the particles' headings (dots without), coloured
-        by weight (`weight_colors`), INJECTED_COLOR for the particles that recovery injected this step.
+        by weight (blue to red), INJECTED_COLOR for the particles that recovery injected this step.
 
         Particles: all N when N <= max_drawn, else max_drawn of them at evenly spaced indices
         (deterministic: drawing never draws from the filter's random stream). A Density (the grid
@@ -190,7 +182,10 @@ class RunView:
             headings, injected = belief.headings, belief.injected
             if len(positions) > self.max_drawn:
                 picked = np.linspace(0, len(positions) - 1, self.max_drawn).round().astype(np.int64)
-        colors = weight_colors(weights[picked])
+        shown = weights[picked]  # coloured from blue (weight 0) to red (the largest weight), linear in w / max w
+        top = shown.max() if len(shown) else 0.0
+        t = shown / top if top > 0 else np.zeros_like(shown)
+        colors = np.column_stack([255 * t, np.zeros_like(t), 255 * (1 - t)]).astype(np.uint8)
         if injected is not None:  # a mask over all N particles
             colors[np.asarray(injected)[picked]] = INJECTED_COLOR
         if headings is None:
