@@ -2,8 +2,7 @@
 
 Numbers and points: finite, within the bounds below (angles, places, sigma, the RPF's bandwidth, the
 grid's cells, KLD-sampling's numbers, seeds). Memory: particle counts, step counts and maze sizes that
-would not fit are refused with one line before anything is allocated: a request that needs more than
-MEMORY_SHARE of the least of the available RAM, this process's limits and its cgroup's (`memory_budget`).
+would not fit (more than MEMORY_SHARE of `memory_budget`) are refused in one line before anything is allocated.
 """
 
 from __future__ import annotations
@@ -209,8 +208,7 @@ def read_text_file(
         size = status.st_size
         if limit is not None and size > limit:
             raise error(f"{path}: {size} bytes is too large for a {kind} file (limit {limit})")
-        if per_byte:
-            check_memory(f"{path}: a {kind} file of {size} bytes", size * per_byte)
+        check_memory(f"{path}: a {kind} file of {size} bytes", size * per_byte)  # 0 without `per_byte`: not checked
         with path.open("rb") as file:
             data = file.read(-1 if limit is None else limit + 1)  # at most one byte past the limit, whatever stat said
     except (FileNotFoundError, error):
@@ -232,6 +230,7 @@ def read_text_file(
 
 # -- memory ----------------------------------------------------------------------------------------
 MEMORY_SHARE = 0.8  # refuse a request that needs more than this share of the budget
+MEMORY_CHECKED_BYTES = 2**20  # a need up to this is never refused: no process runs on less (and /proc is not read)
 BYTES_PER_PARTICLE = 400  # arrays a particle needs during a step, temporaries included (generous)
 BYTES_PER_STEP = 1000  # a run's per-step arrays, the robot's path and the saved scenario (about 400 measured)
 BYTES_PER_MAZE_CELL = 100  # a maze's grid, its lists and the generator's index arrays (generous)
@@ -270,8 +269,10 @@ class MemoryBudget:
 
 
 def check_memory(what: str, needed: int, budget: MemoryBudget | None = None) -> None:
-    """Refuse `what` (e.g. "particle_count 10**11") when its `needed` bytes exceed MEMORY_SHARE of the
-    budget (the current one unless given); nothing happens where no limit is known."""
+    """Refuse `what` (e.g. "particle_count 10**11") when its `needed` bytes exceed MEMORY_SHARE of the budget
+    (the current one unless given); nothing happens where no limit is known or for MEMORY_CHECKED_BYTES or less."""
+    if needed <= MEMORY_CHECKED_BYTES:
+        return
     budget = memory_budget() if budget is None else budget
     if budget is not None and needed > MEMORY_SHARE * budget.available:
         raise MemoryLimitError(

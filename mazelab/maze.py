@@ -91,7 +91,6 @@ MAZE_FILE_LIMIT_BYTES = 64 * 2**20
 
 
 BYTES_PER_DRAWN_POINT = 64  # random_free_places: the cell indices, the cells and the offsets per point
-MEMORY_CHECKED_POINTS = 1_000_000  # counts above this are checked against the memory budget (it reads /proc)
 
 
 class Maze:
@@ -225,8 +224,7 @@ class Maze:
             raise TypeError(f"random_free_places: count must be a whole number, got {count!r}")
         if count < 0:
             raise ValueError(f"random_free_places: count must be >= 0, got {count}")
-        if count > MEMORY_CHECKED_POINTS:
-            check_memory(f"random_free_places({count})", int(count) * BYTES_PER_DRAWN_POINT)
+        check_memory(f"random_free_places({count})", int(count) * BYTES_PER_DRAWN_POINT)
         rng = np.random.default_rng() if rng is None else rng
         cells = self.free_cells[rng.integers(len(self.free_cells), size=count)]
         return cells + rng.random((count, 2))

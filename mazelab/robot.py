@@ -48,9 +48,7 @@ class Robot:
         self.compass_angles = [angle("compass angle", a) for a in compass_angles or []]
         self.measurements = [coordinate("measurement", z) for z in measurements or []]
         check_walk_lists(self.actual_angles, self.compass_angles, measurements, kidnap_at, kidnap_position)
-        if max_straight_steps < 1:
-            raise ValueError(f"max_straight_steps must be >= 1, got {max_straight_steps}")
-        self.max_straight_steps = max_straight_steps
+        self.max_straight_steps = step_number("max_straight_steps", max_straight_steps, "a whole number")
         self.speed = speed
         self.rng_given = rng is not None
         self.rng = rng if rng is not None else np.random.default_rng()

@@ -48,6 +48,17 @@ def test_a_request_beyond_the_share_of_the_budget_is_refused_naming_the_limit():
     )
 
 
+def test_a_need_of_a_mib_or_less_reads_no_budget_and_is_never_refused(monkeypatch):
+    """A run's particles and steps are checked several times a run: below the floor the budget (read from
+    /proc and the cgroup files) is not read at all; above it, the same budget refuses."""
+    tiny = MemoryBudget(1, "a test's budget")
+    monkeypatch.setattr(checks, "memory_budget", lambda: pytest.fail("the budget was read"))
+    check_memory("a small need", checks.MEMORY_CHECKED_BYTES)
+    check_memory("a small need", checks.MEMORY_CHECKED_BYTES, tiny)
+    with pytest.raises(MemoryLimitError, match=r"^a larger need needs about 0\.00 GiB"):
+        check_memory("a larger need", checks.MEMORY_CHECKED_BYTES + 1, tiny)
+
+
 def write_files(folder, files):
     for name, text in files.items():
         path = folder / name

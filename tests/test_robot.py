@@ -40,6 +40,9 @@ def test_max_straight_steps_is_an_argument(paper_world):
     compass = robot.compass_angles
     runs = [len(list(g)) for _, g in itertools.groupby(compass)]
     assert max(runs) <= 3
+    for wrong in (0, 2.5, True):
+        with pytest.raises(ValueError, match=f"^max_straight_steps must be a whole number >= 1, got {wrong}$"):
+            Robot(0.3, 0.1, (3.5, 1.5), max_straight_steps=wrong)
 
 
 def test_replaying_the_angles_retraces_the_path_exactly(paper_world):

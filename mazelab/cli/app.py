@@ -2,7 +2,7 @@
 command, `demo`: the paper's example (a lost robot, SIR, 1500 particles, 200 steps); the commands are
 registered below, each with the one line `mazelab --help` shows, with `mazelab filters [NAME]` (the
 registry's filters, and the options each declares); `main` turns errors into one line that names the fix
-(`usage_hint`, `option_elsewhere`)."""
+(`usage_hint`)."""
 
 from __future__ import annotations
 
@@ -167,15 +167,10 @@ WIDTH = 100  # columns of the listing
 def filters(name: arg(str | None, "[NAME]", "one filter: sir, apf, rpf, grid, ekf or FILE.py:Class") = None) -> None:
     """The filters, or one filter's options: name, default, the flag that sets it, what it does.
     Every option is set with --option NAME=VALUE on run, compare and study."""
-    if name is None:
-        typer.echo(registry_listing())
-    else:
+    if name is not None:
         typer.echo(options_listing(filter_entry(check_filter_name(name, "filters"))))
-
-
-def registry_listing() -> str:
-    """One line per shipped filter: short name, label, help, what it can do."""
-    lines = ["filter  label  what it is"]
+        return
+    lines = ["filter  label  what it is"]  # one line per shipped filter: short name, label, help, what it can do
     for entry in entries():
         can = ["particles" if entry.takes_particles else "no particles", *(["runs batched"] if entry.batched else [])]
         lines.append(f"{entry.short_name:<6}  {entry.label:<5}  {entry.help} ({', '.join(can)})")
@@ -184,7 +179,7 @@ def registry_listing() -> str:
         "Your own: --filter FILE.py:Class (see `mazelab exercise new`); its options: mazelab filters FILE.py:Class",
         "One filter's options: mazelab filters rpf",
     ]
-    return "\n".join(lines)
+    typer.echo("\n".join(lines))
 
 
 def options_listing(entry: FilterEntry) -> str:
@@ -236,50 +231,15 @@ def bench(
     )
 
 
-# -- warnings in one line --------------------------------------------------------------------------------
-def one_line_warnings() -> None:
-    """A command's warnings from here on (e.g. sigma outside the lab's range) as one line on stderr, each
-    once in the command, no source lines: the warnings printed start empty for each command, so an
-    earlier `main(argv)` in the same process (a test) does not silence them."""
-    warned: set[str] = set()
-
-    def warn_in_one_line(message: Warning | str, category: type[Warning], *_args: Any, **_kwargs: Any) -> None:
-        if str(message) not in warned:
-            warned.add(str(message))
-            typer.echo(f"warning: {message}", err=True)
-
-    warnings.showwarning = warn_in_one_line
-
-
 # -- errors that name the fix ----------------------------------------------------------------------------
-def plain_usage_names() -> None:
+def usage_name(self: Any) -> str:
     """Usage lines name a required argument as `SCENARIO`, not typer's `{SCENARIO}` (which reads as
     a placeholder to type with its braces)."""
-    argument = typer.core.TyperArgument
-    if hasattr(argument, "_usage_display_name"):
-
-        def usage_name(self: Any) -> str:
-            name = self.display_name_raw if self.required else f"[{self.display_name_raw}]"
-            return name + ("..." if self.nargs != 1 else "")
-
-        argument._usage_display_name = usage_name
+    name = self.display_name_raw if self.required else f"[{self.display_name_raw}]"
+    return name + ("..." if self.nargs != 1 else "")
 
 
-def option_elsewhere(error: Exception, group: Any, argv: Sequence[str] = ()) -> str:
-    """For "No such option" at the top level: the commands that take that option, and the command to
-    type instead (`uv run main.py --seed 1` means `run --seed 1`); '' when there is nothing to add."""
-    name = getattr(error, "option_name", None)
-    ctx = getattr(error, "ctx", None)
-    if not name or ctx is None or ctx.command is not group:
-        return ""
-    commands = getattr(group, "commands", {}).items()
-    takers = [command for command, cmd in commands if any(name in p.opts for p in getattr(cmd, "params", []))]
-    if not takers:
-        return ""
-    first = "run" if "run" in takers else takers[0]
-    given = shlex.join(argv) if argv else f"{name} ..."
-    return f"; {name} is an option of {', '.join(takers)}: {command_prefix()} {first} {given}"
-
+typer.core.TyperArgument._usage_display_name = usage_name
 
 # what to type for a command's missing argument
 ARGUMENT_EXAMPLES = {
@@ -291,12 +251,20 @@ ARGUMENT_EXAMPLES = {
 }
 
 
-def usage_hint(error: Exception, argv: Sequence[str] = ()) -> str:
-    """What to add to typer's usage errors so that they name the fix: a decimal comma ("write 0.3"), a
-    list given as several arguments ("--sigma 0.2,0.4"), a missing argument (an example); '' else."""
-    format_message = getattr(error, "format_message", None)
-    message = format_message() if callable(format_message) else str(error)
-    args = list(argv)
+def usage_hint(error: typer.TyperException, group: Any, argv: Sequence[str] = ()) -> str:
+    """What to add to typer's usage errors so that they name the fix: for "No such option" at the top
+    level, the commands that take that option and the command to type instead (`uv run main.py --seed 1`
+    means `run --seed 1`); a decimal comma ("write 0.3"), a list given as several arguments ("--sigma
+    0.2,0.4"), a missing argument (an example); '' when there is nothing to add."""
+    message, args = error.format_message(), list(argv)
+    name, ctx = getattr(error, "option_name", None), getattr(error, "ctx", None)
+    if name and ctx is not None and ctx.command is group:
+        commands = getattr(group, "commands", {}).items()
+        takers = [command for command, cmd in commands if any(name in p.opts for p in getattr(cmd, "params", []))]
+        if takers:
+            first = "run" if "run" in takers else takers[0]
+            given = shlex.join(args) if args else f"{name} ..."
+            return f"; {name} is an option of {', '.join(takers)}: {command_prefix()} {first} {given}"
     name = getattr(getattr(error, "param", None), "opts", None)
     if name and "valid number" in message:  # the option's value as typed: --sigma 0,3 or --sigma=0,3
         values = [after for before, after in itertools.pairwise(args) if before in name]
@@ -311,7 +279,7 @@ def usage_hint(error: Exception, argv: Sequence[str] = ()) -> str:
         if at >= 2 and args[at - 2].startswith("--"):
             return f"; a list is one argument, comma-separated: {args[at - 2]} {args[at - 1]},{first}"
     if "Missing argument" in message or "Missing parameter" in message:
-        command = getattr(getattr(error, "ctx", None), "info_name", None)
+        command = getattr(ctx, "info_name", None)
         if command in ARGUMENT_EXAMPLES:
             return f"; e.g. {command_prefix()} {ARGUMENT_EXAMPLES[command]}"
     return ""
@@ -338,17 +306,44 @@ def refuse_option_as_value(argv: Sequence[str], group: Any) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; problems with the input end as one line on stderr and exit code 2, a file that
-    cannot be written as one line and exit code 1 (after the results are printed).
+    cannot be written as one line and exit code 1 (after the results are printed), each warning as
+    one line (once in the command).
 
     A stopped study leaves Ctrl-C, SIGTERM and SIGHUP ignored until the process exits (a further one
     can neither hang nor interrupt the exit); called with `argv` (in-process), main puts the signal
     handlers back as it found them."""
-    one_line_warnings()
+    warned: set[str] = set()  # each warning once in the command; an earlier main(argv) in this process silences none
+
+    def warn_in_one_line(message: Warning | str, category: type[Warning], *_args: Any, **_kwargs: Any) -> None:
+        if str(message) not in warned:  # one line on stderr (e.g. sigma outside the lab's range), no source lines
+            warned.add(str(message))
+            typer.echo(f"warning: {message}", err=True)
+
+    warnings.showwarning = warn_in_one_line
     remember_arguments(argv)
     handlers = {sig: signal.getsignal(sig) for sig in STOP_SIGNALS}
     unmark = mark_interrupts()  # Ctrl-C raises a marked KeyboardInterrupt: a filter's own is told apart
+    group, args = typer.main.get_command(app), sys.argv[1:] if argv is None else argv
     try:
-        code = _main(argv)
+        refuse_option_as_value(args, group)
+        with deferred_to_the_end():
+            code = group.main(args=argv, standalone_mode=False)
+        code = code if isinstance(code, int) else 0
+    except typer.TyperException as error:  # typer's usage errors: bad option, bad value, missing argument
+        hint = usage_hint(error, group, args)
+        message = error.format_message()
+        typer.echo(f"error: {message.rstrip('.') if hint else message}{hint}", err=True)
+        code = 2
+    except (UserError, MazeError, ValueError, StudentCodeError) as error:  # a ScenarioError is a ValueError
+        typer.echo(f"error: {error}", err=True)
+        code = 1 if isinstance(error, StudentCodeError) else 2  # the student's filter raised: not an input problem
+    except OSError as error:  # a full disk, a file size limit, a read-only folder, a name too long: its file, why
+        plain = isinstance(error, WriteError) or error.filename is None
+        typer.echo(f"error: {error if plain else f'{error.filename}: {error.strerror or error}'}", err=True)
+        code = 1
+    except (KeyboardInterrupt, typer.Abort):
+        typer.echo("interrupted", err=True)
+        code = 130
     finally:
         unmark()
         if argv is not None:
@@ -357,28 +352,3 @@ def main(argv: list[str] | None = None) -> int:
     if argv is None:  # a process of its own: a plug-in's forgotten thread must not keep it alive
         exit_without_strays(code, lambda line: typer.echo(line, err=True))
     return code
-
-
-def _main(argv: list[str] | None) -> int:
-    plain_usage_names()
-    group, args = typer.main.get_command(app), sys.argv[1:] if argv is None else argv
-    try:
-        refuse_option_as_value(args, group)
-        with deferred_to_the_end():
-            code = group.main(args=argv, standalone_mode=False)
-    except typer.TyperException as error:  # typer's usage errors: bad option, bad value, missing argument
-        hint = option_elsewhere(error, group, args) or usage_hint(error, args)
-        message = error.format_message()
-        typer.echo(f"error: {message.rstrip('.') if hint else message}{hint}", err=True)
-        return 2
-    except (UserError, MazeError, ValueError, StudentCodeError) as error:  # a ScenarioError is a ValueError
-        typer.echo(f"error: {error}", err=True)
-        return 1 if isinstance(error, StudentCodeError) else 2  # the student's filter raised: not an input problem
-    except OSError as error:  # a full disk, a file size limit, a read-only folder, a name too long: its file, why
-        plain = isinstance(error, WriteError) or error.filename is None
-        typer.echo(f"error: {error if plain else f'{error.filename}: {error.strerror or error}'}", err=True)
-        return 1
-    except (KeyboardInterrupt, typer.Abort):
-        typer.echo("interrupted", err=True)
-        return 130
-    return code if isinstance(code, int) else 0

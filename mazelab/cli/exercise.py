@@ -14,7 +14,7 @@ from typing import Annotated, Any
 import typer
 
 from mazelab.atomic import write_atomically
-from mazelab.cli.options import Force, UserError, check_output_path, opt, seed_option
+from mazelab.cli.options import Force, UserError, check_outputs, opt, seed_option
 from mazelab.exercise.grading import (
     KEY_FILE,
     Gradebook,
@@ -99,7 +99,7 @@ def check_command(
     secret = read_key(key, make=False) if key is not None else None  # a ValueError of one line, exit 2
     results = None if gradescope is None else _made_folder(gradescope) / "results.json"
     if results is not None:
-        check_output_path(results, force)
+        check_outputs([("--gradescope", results)], force)
     _sandbox_or_refuse(require_sandbox)
     submission = Submission(Path(spec).name, Path(spec), own_folder=True)  # the files beside it are its own
     graded = functools.partial(grade_one, submission, timeout, seed=seed, key=secret)
@@ -218,8 +218,8 @@ def _check_outputs(
         if taken and not force:
             raise UserError(f"{gradescope / taken[0] / 'results.json'} exists; use --force to replace it")
     if csv_path is not None:
-        check_output_path(csv_path, force)
-        check_output_path(partial_name(csv_path), True)
+        check_outputs([("--csv", csv_path)], force)
+        check_outputs([("--csv", partial_name(csv_path))], True)
         mine = (csv_path.name, partial_name(csv_path).name)
         clash = [s.name for s in submissions if gradescope == csv_path.parent and s.name in mine]
         if clash:
@@ -247,7 +247,7 @@ def autograder_command(
     if lang is not None:
         _catalogue(lang)
     secret = read_key(key, make=False) if key is not None else secrets.token_bytes(32)
-    check_output_path(bundle, force)
+    check_outputs([("OUT.zip", bundle)], force)
     data = bundle_bytes(secret, lang, timeout)  # a BundleError is one line, exit 2
     typer.echo(f"wrote {write_atomically(bundle, data, replace=force)} (upload it as the autograder)")
 

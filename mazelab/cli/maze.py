@@ -39,7 +39,7 @@ def maze_generate(
     rows, columns = maze_generator.parse_size(size)
     stations = maze_generator.default_station_count(rows, columns) if stations is None else stations
     seed = new_seed() if seed is None else seed
-    big = rows * columns >= GENERATE_PROGRESS_CELLS  # a small maze is made in a blink
+    big = rows * columns >= PROGRESS_CELLS  # a small maze is made in a blink
     progress = ProgressLine(f"generating a {rows}x{columns} maze") if big else None
     world = maze_generator.generate_maze(rows, columns, stations, np.random.default_rng(seed), walls, progress)
     command = f"{command_prefix()} maze generate --size {rows}x{columns} --stations {stations} --seed {seed}"
@@ -66,11 +66,10 @@ def maze_show(path: arg(str, "MAZE", "a maze file, or a name in mazes/"), *, dra
 
 
 # -- progress lines for a large maze ---------------------------------------------------------------------
-LOOKUP_PROGRESS_CELLS = 2**18  # a nearest-station table this large takes seconds: say so while building it
-GENERATE_PROGRESS_CELLS = 2**18  # generating a maze this large takes seconds (512 x 512)
+PROGRESS_CELLS = 2**18  # generating a maze this large (512 x 512), or its nearest-station table, takes seconds
 
 
-def prepare_world(world: Maze, min_cells: int = LOOKUP_PROGRESS_CELLS) -> Maze:
+def prepare_world(world: Maze, min_cells: int = PROGRESS_CELLS) -> Maze:
     """Build a large maze's nearest-station table up front, with a progress line on stderr (a 1000 x
     1000 maze takes tens of seconds); a small maze's table is built on first use, silently."""
     if world.lookup_cells >= min_cells and not world.has_lookup:

@@ -18,7 +18,7 @@ from pathlib import Path
 import typer
 
 from mazelab.atomic import write_atomically
-from mazelab.cli.options import UserError, arg, check_output_path, opt
+from mazelab.cli.options import UserError, arg, check_outputs, opt
 from mazelab.invocation import PROJECT_DIR, python_prefix
 
 NOTEBOOKS_DIR = PROJECT_DIR / "notebooks"  # the lab's notebooks, in the clone (an editable install)
@@ -60,7 +60,7 @@ def notebook(
             f"own (e.g. mkdir ~/maze-work && cd ~/maze-work, then the same command)"
         )
     target = here / f"{stem}.ipynb"
-    check_output_path(target, force)
+    check_outputs([("NAME", target)], force)
     write_atomically(target, (NOTEBOOKS_DIR / f"{stem}.ipynb").read_bytes(), replace=force)
     typer.echo(f"{target.name} copied here from the lab's notebooks; open it with:")
     typer.echo(jupyter_command(target))

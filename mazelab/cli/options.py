@@ -146,30 +146,14 @@ ThreadsOption = opt(
 
 
 # -- outputs --------------------------------------------------------------------------------------------
-def check_output_path(path: Path, force: bool) -> None:
-    """Refuse to overwrite an existing file (or a symlink, dangling or not) without --force, anything
-    but a regular file with or without it, or to write into a missing folder. (The write itself checks
-    again: without --force it creates the name exclusively, see mazelab.atomic.)"""
-    if path.is_dir() and not path.is_symlink():
-        raise UserError(f"{path} is a folder: name a file in it (e.g. {path}/NAME)")
-    try:
-        output_target(path, force)
-    except NameTakenError as error:
-        raise UserError(f"{path} exists; use --force to replace it" if path.exists() else str(error)) from None
-    except NotRegularFileError as error:
-        raise UserError(str(error).removeprefix("cannot write ")) from None
-    if not path.parent.exists():
-        raise UserError(f"{path.parent} does not exist: cannot write {path.name} there")
-    if not os.access(path.parent, os.W_OK):
-        raise UserError(f"{path.parent} is not writable: cannot write {path.name} there")
-
-
 def check_outputs(outputs: Sequence[tuple[str, Path | None]], force: bool, apart: str = "") -> None:
     """Check a command's outputs, (what the user calls each, its path or None), before any run: first that
     no two are one file (the same path once links are resolved, `./s.csv` and `s.csv` or a symlink to
-    another output, or two names of one existing file, a hard link), then each as check_output_path does
-    (but the one named `apart`, a journal, checked by its owner), a --plot in a format matplotlib draws
-    (matplotlib there) and --traces in one this program writes (.csv, .parquet)."""
+    another output, or two names of one existing file, a hard link); then each (but the one named `apart`,
+    a journal, checked by its owner) refused when it exists (or is a symlink, dangling or not) without
+    --force, when it is anything but a regular file with or without it, or when its folder is missing (the
+    write itself checks again: without --force it creates the name exclusively, see mazelab.atomic); a
+    --plot in a format matplotlib draws (matplotlib there) and --traces in one this program writes."""
     seen: list[tuple[str, Path, str, tuple[int, int] | None]] = []
     for name, path in ((name, Path(path)) for name, path in outputs if path is not None):
         real, inode = os.path.realpath(path), None
@@ -181,9 +165,19 @@ def check_outputs(outputs: Sequence[tuple[str, Path | None]], force: bool, apart
                 same = f"{path_a}" if str(path_a) == str(path) else f"{path_a} and {path}"
                 raise UserError(f"{name_a} and {name} are one file ({same}): give each output a name of its own")
         seen.append((name, path, real, inode))
-    for name, path in outputs:
-        if path is not None and name != apart:
-            check_output_path(path, force)
+    for path in (Path(path) for name, path in outputs if path is not None and name != apart):
+        if path.is_dir() and not path.is_symlink():
+            raise UserError(f"{path} is a folder: name a file in it (e.g. {path}/NAME)")
+        try:
+            output_target(path, force)
+        except NameTakenError as error:
+            raise UserError(f"{path} exists; use --force to replace it" if path.exists() else str(error)) from None
+        except NotRegularFileError as error:
+            raise UserError(str(error).removeprefix("cannot write ")) from None
+        if not path.parent.exists():
+            raise UserError(f"{path.parent} does not exist: cannot write {path.name} there")
+        if not os.access(path.parent, os.W_OK):
+            raise UserError(f"{path.parent} is not writable: cannot write {path.name} there")
     plot = dict(outputs).get("--plot")
     if plot is not None:
         pyplot()
@@ -317,20 +311,13 @@ def read_value(option: Option, text: str, spelled: str) -> Any:
     raise UserError(f"{spelled}: {message}{hint}")
 
 
-OptionFlag = opt(
-    list[str] | None,
-    "--option",
-    metavar="NAME=VALUE",
-    show_default=False,
-    help="a filter option, repeatable (FILTER.NAME=...: one filter's)",
-)
-StudyOptionFlag = opt(
-    list[str] | None,
-    "--option",
-    metavar="NAME=V1,V2",
-    show_default=False,
-    help="filter option values (FILTER.NAME: one's)",
-)
+def option_flag(values: str, help: str) -> Any:
+    """The --option flag's annotated type: NAME=`values` of a filter's option, repeatable."""
+    return opt(list[str] | None, "--option", metavar=f"NAME={values}", show_default=False, help=help)
+
+
+OptionFlag = option_flag("VALUE", "a filter option, repeatable (FILTER.NAME=...: one filter's)")
+StudyOptionFlag = option_flag("V1,V2", "filter option values (FILTER.NAME: one's)")
 
 
 class GivenOptions(dict):

@@ -114,13 +114,7 @@ def recordings(
         plural = "s" if len(removed) != 1 else ""
         typer.echo(f"Removed {len(removed)} recording{plural} ({freed}); {folder_summary(folder)}")
         return
-    show(found, doomed, folder, rules)
-
-
-def show(found: list[SavedRecording], doomed: list[SavedRecording], folder: Path, rules: str) -> None:
-    """The listing: each recording (when written, its size, its path), marked when the `rules` remove
-    it or when it is kept as one of your own names; then the command that removes what they chose."""
-    typer.echo(f"{folder_summary(folder)}:")
+    typer.echo(f"{folder_summary(folder)}:")  # each one, marked when the rules remove it or when it is your name
     for saved in found:
         when = datetime.fromtimestamp(saved.modified).strftime("%Y-%m-%d %H:%M")
         mark = "  (would be removed)" if saved in doomed else "" if saved.lab_named else "  (your name: kept)"

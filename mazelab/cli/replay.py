@@ -8,9 +8,8 @@ from __future__ import annotations
 import shlex
 import warnings
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import typer
@@ -46,7 +45,7 @@ from mazelab.experiments.runs import (
 from mazelab.experiments.tables import compare_traces, write_traces
 from mazelab.invocation import command_line, command_prefix
 from mazelab.maze import DEFAULT_MAZE, Maze, find_maze, load_maze, mazes_fitting
-from mazelab.registry import FilterEntry, file_sha256, filter_entry, resolve_filter
+from mazelab.registry import file_sha256, filter_entry, resolve_filter
 from mazelab.robot import Robot
 from mazelab.scenario import Scenario, check_measurements_within, find_scenario, load_scenario, save_scenario
 from mazelab.seeding import new_seed
@@ -92,24 +91,37 @@ def run_one(flags: Mapping[str, Any], named: Mapping[str, Any], drawing: dict, d
 
 
 def run_plan(flags: Mapping[str, Any], named: Mapping[str, Any], drawing: dict) -> tuple[RunSetup, str, dict[str, Any]]:
-    """What `run` reads from its flags, checked once before the run: its setup (a fresh lost robot, or a
-    scenario replayed), its filter's name and that filter's options (a replay's: the scenario's, then
-    those given, `replay_options`)."""
+    """What `run` reads from its flags, checked once before the run: its setup (a fresh lost robot, its
+    start drawn from the seed, or a scenario replayed: `replay_setup`), its filter's name and that
+    filter's options (a replay's: the scenario's, then those given, `replay_options`)."""
     scenario, start_seed = flags.get("scenario"), flags.get("start_seed")
     stored = load_scenario(scenario) if scenario is not None else None
     filter_name = check_filter_name(replay_filter_name(stored, flags.get("filter_name"), scenario))
     given = given_options(named, flags.get("option"), [filter_name])
-    per_filter = options_per_filter([filter_name], given, given.spelled, check=stored is None)
-    options = per_filter[resolve_filter(filter_name).name]
+    options = options_per_filter([filter_name], given, given.spelled)[resolve_filter(filter_name).name]
+    if stored is not None:  # a replay takes its particles, steps and start from the scenario
+        counts = {"--particles": flags.get("particles"), "--steps": flags.get("steps"), "--start-seed": start_seed}
+        refused = [flag for flag, value in counts.items() if value is not None]
+        if refused:
+            raise UserError(
+                f"{' and '.join(refused)} cannot change a replayed scenario (it has {len(stored.init_particles_pos)} "
+                f"particles and {len(stored.robot_actual_angles)} steps); leave {'them' if refused[1:] else 'it'} out"
+            )
+        options = replay_options(stored, filter_name, options, scenario)
+    options_per_filter([filter_name], options, given.spelled, check=True)  # checked as the filter will check them
     outputs = [("--save-scenario", flags.get("save_scenario_path")), ("--rrd", drawing.get("rrd"))]
     check_outputs(outputs, flags.get("force", False))
     maze, sigma, delta, seed = (flags.get(name) for name in ("maze", "sigma", "delta", "seed"))
-    if stored is None:
-        return fresh_setup(maze, sigma, delta, seed, start_seed), filter_name, options
-    refuse_counts_for_replay(stored, particles=flags.get("particles"), steps=flags.get("steps"), start_seed=start_seed)
-    options = replay_options(stored, filter_name, options, scenario)
-    options_per_filter([filter_name], options, check=True)  # the replay's options, checked as the filter will
-    return replay_setup(stored, maze, sigma, delta, seed), filter_name, options
+    if stored is not None:
+        return replay_setup(stored, maze, sigma, delta, seed), filter_name, options
+    world = load_maze(maze or DEFAULT_MAZE)  # a fresh lost robot: its start drawn from the seed (new if none)
+    sigma = DEFAULT_SIGMA if sigma is None else sigma
+    delta = DEFAULT_DELTA if delta is None else delta
+    seed = new_seed() if seed is None else seed
+    if start_seed is not None and start_seed != seed:
+        warnings.warn(f"--start-seed {start_seed} differs from --seed {seed}: repeat with both", stacklevel=1)
+    robot = Robot.of_seed(world, sigma, delta, seed if start_seed is None else start_seed)
+    return RunSetup(world, robot, sigma, delta, None, seed), filter_name, options
 
 
 def compare_scenario(flags: Mapping[str, Any], named: Mapping[str, Any], drawing: dict) -> None:
@@ -128,43 +140,27 @@ def compare_scenario(flags: Mapping[str, Any], named: Mapping[str, Any], drawing
     given = with_stored_options(stored, names, given_options(named, flags["option"], names), scenario)
     # an option that none of the filters takes, or a bad value: one line, first
     options_per_filter(names, given, given.spelled, check=True)
-    recorder = compare_recorder(scenario, setup, names, given, flags["kidnap_at"])
+    parameters = {  # the record, begun before the runs: the command, its parameters and the scenario's hash
+        "filters": [resolve_filter(n).name for n in names],
+        "sigma": setup.sigma,
+        "delta": setup.delta,
+        "seed": setup.seed,
+        "kidnap_at": flags["kidnap_at"],
+        "options": {k: to_plain_json(v) for k, v in given.items()},
+        "scenario": str(scenario),
+    }
+    recorder = Recorder("compare", command_line(), parameters, scenario_sha256=file_sha256(scenario))
     prepare_world(setup.world)
     shown = f"sigma {setup.sigma:g}, delta {setup.delta:g}"
     count = len(setup.initial_particles)
     typer.echo(f"{scenario.name}: {count} particles, {setup.robot.recorded_steps} steps, {shown}, seed {setup.seed}")
-    results = compare_filters(
-        setup.world,
-        setup.robot,
-        setup.sigma,
-        setup.delta,
-        setup.initial_particles,
-        names,
-        seed=setup.seed,
-        visualize=visualize,
-        kidnap_at=flags["kidnap_at"],
-        **given,
+    results = compare_filters(  # the scenario's maze, robot, sigma, delta and particles (RunSetup), the filters
+        *setup[:5], names, seed=setup.seed, visualize=visualize, kidnap_at=flags["kidnap_at"], **given
     )
     title = f"Localisation error: {scenario.name} ({shown}, {count} particles)"
     report_compare(results, recorder, title, bool(given.get("kld")), flags["force"], files)
     backend = next(iter(results.values())).extras["backend"]
     repeat_line("comparison", setup.seed, ("--csv", "--plot", "--traces", "--rrd"), backend)
-
-
-def compare_recorder(
-    scenario: Path, setup: RunSetup, names: Sequence[str], given: Mapping[str, Any], kidnap_at: int | None
-) -> Recorder:
-    """The record of a comparison, begun before its runs: the command, its parameters and the scenario's hash."""
-    parameters = {
-        "filters": [resolve_filter(n).name for n in names],
-        "sigma": setup.sigma,
-        "delta": setup.delta,
-        "seed": setup.seed,
-        "kidnap_at": kidnap_at,
-        "options": {k: to_plain_json(v) for k, v in given.items()},
-        "scenario": str(scenario),
-    }
-    return Recorder("compare", command_line(), parameters, scenario_sha256=file_sha256(scenario))
 
 
 # -- a run's inputs, summary and progress ---------------------------------------------------------------
@@ -207,8 +203,7 @@ def progress_printer(steps: int, every: int = 20) -> Any:
     return report
 
 
-@dataclass
-class RunSetup:
+class RunSetup(NamedTuple):
     """A run's inputs: the maze, the robot, sigma and delta, the initial particles (a replay's; None: drawn
     from the seed) and the seed."""
 
@@ -218,20 +213,6 @@ class RunSetup:
     delta: float
     initial_particles: Any
     seed: int
-
-
-def fresh_setup(
-    maze: str | None, sigma: float | None, delta: float | None, seed: int | None, start_seed: int | None
-) -> RunSetup:
-    """A fresh lost robot: the maze (default the lab's), its start drawn from the seed (new if none)."""
-    world = load_maze(maze or DEFAULT_MAZE)
-    sigma = DEFAULT_SIGMA if sigma is None else sigma
-    delta = DEFAULT_DELTA if delta is None else delta
-    seed = new_seed() if seed is None else seed
-    if start_seed is not None and start_seed != seed:
-        warnings.warn(f"--start-seed {start_seed} differs from --seed {seed}: repeat with both", stacklevel=1)
-    robot = Robot.of_seed(world, sigma, delta, seed if start_seed is None else start_seed)
-    return RunSetup(world, robot, sigma, delta, None, seed)
 
 
 def replay_setup(
@@ -246,7 +227,17 @@ def replay_setup(
         raise UserError(
             f"the scenario's maze differs from {load_maze(maze).source}; leave out --maze to use the stored one"
         )
-    world = kept or (load_maze(maze) if maze is not None else fitting_maze(stored))
+    world = kept or (load_maze(maze) if maze is not None else None)
+    if world is None:  # neither stored nor given: the only shipped maze whose free area holds the start and particles
+        fitting = mazes_fitting(stored.init_robot_pos, np.asarray(stored.init_particles_pos))
+        if len(fitting) != 1:
+            which = "no shipped maze fits" if not fitting else f"several shipped mazes fit ({', '.join(fitting)})"
+            raise UserError(
+                f"the scenario stores no maze and {which} its start and particles: pass --maze (and "
+                "--sigma/--delta if they differ from the defaults)"
+            )
+        typer.echo(f"warning: the scenario stores no maze: using {fitting[0]}, the one shipped maze it fits", err=True)
+        world = load_maze(fitting[0])
     sigma, delta = replayed_model(stored, sigma, delta)
     robot = stored.robot(sigma, delta)
     if kept is None:  # a maze given or fitted: the scenario's start and walk must lie in its free area
@@ -285,20 +276,6 @@ def replayed_model(stored: Scenario, sigma: float | None, delta: float | None) -
     return sigma, delta
 
 
-def fitting_maze(scenario: Scenario) -> Maze:
-    """The shipped maze of a scenario that stores none: the only one whose free area holds its start
-    and every particle; with none or several, a one-line refusal asking for --maze."""
-    fitting = mazes_fitting(scenario.init_robot_pos, np.asarray(scenario.init_particles_pos))
-    if len(fitting) != 1:
-        which = "no shipped maze fits" if not fitting else f"several shipped mazes fit ({', '.join(fitting)})"
-        raise UserError(
-            f"the scenario stores no maze and {which} its start and particles: pass --maze (and "
-            "--sigma/--delta if they differ from the defaults)"
-        )
-    typer.echo(f"warning: the scenario stores no maze: using {fitting[0]}, the one shipped maze it fits", err=True)
-    return load_maze(fitting[0])
-
-
 # -- the filter and options of a replay ------------------------------------------------------------------
 def replay_filter_name(stored: Scenario | None, filter_name: str | None, path: Path | None = None) -> str:
     """The filter of a run: --filter when given (`filter_name`), else the scenario's own when it is the
@@ -323,51 +300,31 @@ def replay_filter_name(stored: Scenario | None, filter_name: str | None, path: P
     )
 
 
-def refuse_counts_for_replay(stored: Scenario, **given: Any) -> None:
-    """A replay takes its particles, steps and start from the scenario: refuse flags that would be ignored."""
-    flags = [f"--{name.replace('_', '-')}" for name, value in given.items() if value is not None]
-    if flags:
-        raise UserError(
-            f"{' and '.join(flags)} cannot change a replayed scenario (it has {len(stored.init_particles_pos)} "
-            f"particles and {len(stored.robot_actual_angles)} steps); leave {'them' if len(flags) > 1 else 'it'} out"
-        )
-
-
-def same_filter(stored: Scenario, chosen: FilterEntry) -> bool:
-    """Whether the chosen filter is the one that made the scenario (a plug-in: the same class name)."""
-    if stored.filter_plugin is not None:
-        return chosen.plugin is not None and chosen.plugin.class_name == stored.filter_plugin.class_name
-    return stored.shipped_filter is not None and stored.shipped_filter.filter_class is chosen.filter_class
-
-
-def check_plugin(stored: Scenario, chosen: FilterEntry, path: Path | None) -> None:
-    """The plug-in named to replay a scenario: refused in one line when it is the file and class the
-    scenario names (the same sha256) but carries another name than its filtering_algorithm (one of the two
-    was edited by hand); a line says when its file changed."""
-    plugin = stored.filter_plugin
-    if chosen.plugin is None or plugin is None:
-        return
-    same_file = (plugin.class_name, plugin.sha256) == (chosen.plugin.class_name, chosen.plugin.sha256)
-    if same_file and chosen.name != stored.filtering_algorithm:
-        raise UserError(
-            f"{path or 'the scenario'}: filtering_algorithm {stored.filtering_algorithm!r} is not the name of the "
-            f"plug-in {plugin.spec} that filter_plugin names ({chosen.name!r}): one of the two was edited"
-        )
-    if same_filter(stored, chosen) and chosen.plugin.sha256 != plugin.sha256:
-        typer.echo(
-            f"warning: {chosen.plugin.spec} has changed since the scenario was saved (sha256 "
-            f"{chosen.plugin.sha256[:12]}..., saved {plugin.sha256[:12]}...): the replay may differ from the "
-            "saved run",
-            err=True,
-        )
-
-
 def replay_options(stored: Scenario, filter_name: str, given: Mapping[str, Any], path: Path | None) -> dict[str, Any]:
     """The options of a replay: the scenario's (those the chosen filter declares), then every option
     the user gave on the command line (`given`, named flags and --option alike); one line on stderr
-    lists what differs from the stored run."""
-    chosen = filter_entry(filter_name)
-    check_plugin(stored, chosen, path)
+    lists what differs from the stored run. The plug-in named to replay a plug-in's run (the same class
+    name: the same filter) is refused in one line when it is the file the scenario names (the same
+    sha256) but carries another name than its filtering_algorithm (one of the two was edited by hand);
+    a line says when its file changed since."""
+    chosen, plugin = filter_entry(filter_name), stored.filter_plugin
+    if plugin is None:
+        same = stored.shipped_filter is not None and stored.shipped_filter.filter_class is chosen.filter_class
+    else:
+        same = chosen.plugin is not None and chosen.plugin.class_name == plugin.class_name
+    if same and plugin is not None:  # a plug-in's run replayed by that plug-in: its file's sha256 compared
+        if chosen.plugin.sha256 == plugin.sha256 and chosen.name != stored.filtering_algorithm:
+            raise UserError(
+                f"{path or 'the scenario'}: filtering_algorithm {stored.filtering_algorithm!r} is not the name of "
+                f"the plug-in {plugin.spec} that filter_plugin names ({chosen.name!r}): one of the two was edited"
+            )
+        if chosen.plugin.sha256 != plugin.sha256:
+            typer.echo(
+                f"warning: {chosen.plugin.spec} has changed since the scenario was saved (sha256 "
+                f"{chosen.plugin.sha256[:12]}..., saved {plugin.sha256[:12]}...): the replay may differ from the "
+                "saved run",
+                err=True,
+            )
     if stored.filter_options is None:  # an older file: the options given, as before
         return dict(given)
     try:
@@ -375,9 +332,7 @@ def replay_options(stored: Scenario, filter_name: str, given: Mapping[str, Any],
     except ValueError as error:
         raise UserError(f"the scenario's filter_options for {chosen.name}: {error}") from None
     changes = (
-        []
-        if stored.filtering_algorithm is None or same_filter(stored, chosen)
-        else [f"filter {stored.filtering_algorithm} -> {chosen.name}"]
+        [] if stored.filtering_algorithm is None or same else [f"filter {stored.filtering_algorithm} -> {chosen.name}"]
     )
     for name, value in given.items():
         before = kept.get(name, chosen.options[name].default if name in chosen.options else None)

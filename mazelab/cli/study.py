@@ -343,35 +343,34 @@ class StudySession:
 
     def run(self, workers: int, report: Callable[[StudyOutcome], None], visualize: Any = False, **extra: Any) -> None:
         """Run the tasks on `workers` processes or the session's cluster (run_study: a progress bar, each finished
-        run appended to the journal, the stop signals ignored after a stop) and `report` the outcome; the
-        session closed however it ends."""
+        run appended to the journal, the stop signals ignored after a stop), the failures printed, then
+        `report` the outcome (exit 1 after it when a run failed); the session closed however it ends."""
         try:
             outcome = run_study(
                 self.tasks,
                 workers,
                 visualize=visualize,
                 progress=True,
-                on_records=self.append,
+                on_records=None if self.journal is None else self.journal.append_run,  # each finished run's rows
                 dask=self.client,
                 ignore_signals_after_stop=True,
                 backend=self.backend,
                 **extra,
             )
+            for failure in outcome.failures:  # first: a report that fails to write cannot lose them
+                typer.echo(f"error: {failure.describe()}", err=True)
             report(outcome)
+            if outcome.failures:
+                raise typer.Exit(1)
         finally:
             self.close()
-
-    def append(self, records: list[RunRecord]) -> None:
-        """One finished run's rows (and traces), appended to the journal."""
-        if self.journal is not None:
-            self.journal.append_run(records)
 
     def close(self, status: str | None = None, **closing: Any) -> None:
         """The session's last line in the journal (with `status`), the journal, the cluster and the claims
         released."""
         if self.journal is not None and status is not None:
-            self.journal.end_session(status, ended=self.recorder.data.get("ended"), **closing)
-        if self.journal is not None:
+            self.journal.end_session(status, ended=self.recorder.data.get("ended"), **closing)  # and closes it
+        elif self.journal is not None:
             self.journal.close()
         if self.client is not None:
             close_client(self.client)
@@ -397,14 +396,6 @@ def resumed_tasks(plan: StudyPlan, files: StudyFiles, backend: str) -> tuple[lis
         files.lines = []  # now the kept rows: the journal's text is not held twice
 
 
-def drawn_first(tasks: list, draw_run: int) -> list:
-    """The tasks with the drawn run (run `draw_run` of the first setting) first: the executor draws it."""
-    chosen = next((i for i, t in enumerate(tasks) if t.run == draw_run), None)
-    if chosen is None:
-        raise UserError(f"--draw-run {draw_run}: the study has no such run to draw")
-    return [tasks[chosen], *tasks[:chosen], *tasks[chosen + 1 :]]
-
-
 def open_session(
     plan: StudyPlan,
     files: StudyFiles,
@@ -420,8 +411,11 @@ def open_session(
     """The runs to go (a resumed study's checked against its journal), the claims, the journal, the
     cluster and the record (of `kind`, its `parameters` the plan's unless given); the `header` printed."""
     tasks, kept, earlier = resumed_tasks(plan, files, backend)
-    if visualize:
-        tasks = drawn_first(tasks, draw_run)
+    if visualize:  # the drawn run (run `draw_run` of the first setting) first: the executor draws it
+        chosen = next((i for i, t in enumerate(tasks) if t.run == draw_run), None)
+        if chosen is None:
+            raise UserError(f"--draw-run {draw_run}: the study has no such run to draw")
+        tasks = [tasks[chosen], *tasks[:chosen], *tasks[chosen + 1 :]]
     recorder = Recorder(
         kind,
         command_line(),
@@ -454,19 +448,25 @@ def open_session(
 
 
 def report_study(session: StudySession, outcome: StudyOutcome, figure: dict[str, Any]) -> None:
-    """The failures, then the table (first: a write error cannot lose it), the CSV, the summary CSV, the
-    traces, the figure and the record; a stopped or lost study keeps its runs in the journal and exits
-    non-zero."""
+    """The table (first: a write error cannot lose it), the CSV, the summary CSV, the traces, the figure
+    and the record. A stopped study (Ctrl-C, SIGTERM, SIGHUP) or a lost cluster leaves the CSV the old
+    file and its runs in the journal (the line gives the command with --resume; without a journal the
+    traces and the record are written), and exits non-zero (`exit_stopped`)."""
     plan, files = session.plan, session.files
-    for failure in outcome.failures:
-        typer.echo(f"error: {failure.describe()}", err=True)
     records = study_order([*session.kept, *outcome.records], plan.tasks)
     summaries = summarise_study(records, plan.settings, paired=figure["paired"])
     closing = study_closing(plan, outcome, records, summaries, figure["paired"])
     if files.summary_csv is not None:
         closing["summary_csv"] = str(files.summary_csv)
     if outcome.interrupted or outcome.lost is not None:
-        report_stopped(session, outcome, records, closing)
+        session.recorder.finish("interrupted", **closing)
+        if session.journal is None and files.traces is not None:
+            write_traces(files.traces, study_traces(records))
+        if session.journal is None and files.record_file is not None:
+            session.recorder.write(files.record_file)
+        session.close("interrupted", runs_finished=closing["runs_finished"])
+        saved = f"; {session.journal.kept()}; go on with: {resume_command()}" if session.journal is not None else ""
+        exit_stopped(outcome, closing["runs_finished"], closing["runs_in_study"], saved)
     typer.echo(study_table(summaries, plan.varied, kld=plan.kld))
     status = outcome.status
     seconds = session.recorder.finish(status, **closing)["duration_seconds"]
@@ -482,8 +482,6 @@ def report_study(session: StudySession, outcome: StudyOutcome, figure: dict[str,
     )
     write_outputs(session, records, summaries, figure)
     session.close(status, runs_finished=closing["runs_finished"])
-    if outcome.failures:
-        raise typer.Exit(1)
 
 
 def write_outputs(session: StudySession, records: list[RunRecord], summaries: list, figure: dict[str, Any]) -> None:
@@ -521,22 +519,6 @@ def write_outputs(session: StudySession, records: list[RunRecord], summaries: li
         raise typer.Exit(1) from None
 
 
-def report_stopped(session: StudySession, outcome: StudyOutcome, records: list[RunRecord], closing: dict) -> None:
-    """A stopped study (Ctrl-C, SIGTERM, SIGHUP) or a lost cluster: the CSV stays the old file, the runs
-    are in the journal (the line gives the command with --resume); without a journal the traces and the
-    record are written; exits."""
-    files, journal = session.files, session.journal
-    session.recorder.finish("interrupted", **closing)
-    if journal is None:
-        if files.traces is not None:
-            write_traces(files.traces, study_traces(records))
-        if files.record_file is not None:
-            session.recorder.write(files.record_file)
-    session.close("interrupted", runs_finished=closing["runs_finished"])
-    saved = f"; {journal.kept()}; go on with: {resume_command()}" if journal is not None else ""
-    exit_stopped(outcome, closing["runs_finished"], closing["runs_in_study"], saved)
-
-
 def exit_stopped(outcome: StudyOutcome, finished: int, total: int, saved: str = "", what: str = "runs") -> None:
     """The line and the exit of a study, an accuracy or learn's cells (`what`) that did not run to its end: a
     lost cluster or pool, exit 1; a stop, exit 128 + its signal (130 Ctrl-C, 143 SIGTERM, 129 SIGHUP; further
@@ -572,7 +554,16 @@ def accuracy(
     bootstrap interval), and the share of runs that converged (error below 0.5 from some step on;
     Wilson interval)."""
     mazes = parse_mazes(maze, maze_size, stations, default=list(LAB_MAZES))
-    rows = with_options(accuracy_filters(None if filters is None else parse_filters(filters)), option)
+    rows = accuracy_filters(None if filters is None else parse_filters(filters))
+    names = list(dict.fromkeys(name for _, name, _ in rows))
+    given = given_options({}, option, names)  # --option: each filter takes those it declares (its label says so)
+    per_filter = options_per_filter(names, given, given.spelled, check=True)
+    shown = ", ".join(f"{k} {show_value(v)}" for k, v in given.items())
+    mine = [per_filter[resolve_filter(name).name] for _, name, _ in rows]
+    rows = tuple(
+        (f"{label} ({shown})" if own else label, name, {**options, **own})
+        for (label, name, options), own in zip(rows, mine, strict=True)
+    )
     values = {"sigma": sigma, "delta": delta, "particles": particles, "runs": runs, "steps": steps}
     plan = accuracy_plan(mazes, rows, **values, seed=seed)
     labels = [label for label, _, _ in rows]
@@ -593,13 +584,11 @@ def accuracy(
 
 
 def report_accuracy(session: StudySession, rows: tuple[AccuracyFilter, ...], outcome: StudyOutcome) -> None:
-    """The failures, the table, the time, the CSV and the record (an interrupted run's too, its status
-    "interrupted"), the journal closed; a stopped or lost run, or one with failures, exits non-zero."""
+    """The table, the time, the CSV and the record (an interrupted run's too, its status "interrupted"),
+    the journal closed; a stopped or lost run exits non-zero."""
     files, recorder = session.files, session.recorder
     stopped = outcome.interrupted or outcome.lost is not None
     status = "interrupted" if stopped else "finished"
-    for failure in outcome.failures:
-        typer.echo(f"error: {failure.describe()}", err=True)
     records = accuracy_records(study_order([*session.kept, *outcome.records], session.plan.tasks), rows)
     runs = len({(r["maze"], r["run"]) for r in records})
     if records:
@@ -616,24 +605,6 @@ def report_accuracy(session: StudySession, rows: tuple[AccuracyFilter, ...], out
     session.close(status, runs_finished=runs)
     if stopped:
         exit_stopped(outcome, runs, len({s.maze for s in session.plan.settings}) * session.plan.runs)
-    if outcome.failures:
-        raise typer.Exit(1)
-
-
-def with_options(chosen: tuple[AccuracyFilter, ...], texts: list[str] | None) -> tuple[AccuracyFilter, ...]:
-    """The table's filters with the --option values each declares (its label then says so); an option
-    none of them declares, or a bad value, is one line."""
-    if not texts:
-        return chosen
-    names = list(dict.fromkeys(name for _, name, _ in chosen))
-    given = given_options({}, texts, names)
-    per_filter = options_per_filter(names, given, given.spelled, check=True)
-    shown = ", ".join(f"{k} {show_value(v)}" for k, v in given.items())
-    result = []
-    for label, name, options in chosen:
-        mine = per_filter[resolve_filter(name).name]
-        result.append((f"{label} ({shown})" if mine else label, name, {**options, **mine}))
-    return tuple(result)
 
 
 def parse_mazes(

@@ -16,7 +16,7 @@ from typing import Any
 from mazelab.experiments.api import StudyPlan, plan_study
 from mazelab.experiments.study import REFERENCE, MazeChoice, RunRecord, option_cell
 from mazelab.experiments.summary import bootstrap_interval, wilson_interval
-from mazelab.experiments.tables import format_interval, format_number, format_table, records_csv
+from mazelab.experiments.tables import column_table, format_interval, format_number, records_csv
 from mazelab.registry import filter_entry, is_plugin_spec, resolve_filter
 
 AccuracyFilter = tuple[str, Any, dict[str, Any]]  # (label, filter name or class, options)
@@ -102,16 +102,9 @@ def accuracy_records(records: Sequence[RunRecord], rows: Sequence[AccuracyFilter
     for (maze, run), mine in runs.items():
         chosen = [next((r for r in mine if r.filter == name and r.options == cells), None) for _, name, cells in wanted]
         if all(chosen):
-            found += [
-                dict(
-                    zip(
-                        ACCURACY_COLUMNS,
-                        (maze, r.seed, label, r.distance_to_exact, r.converged_at, run, r.maze_seed),
-                        strict=True,
-                    )
-                )
-                for (label, _, _), r in zip(wanted, chosen, strict=True)
-            ]
+            for (label, _, _), r in zip(wanted, chosen, strict=True):
+                cells = (maze, r.seed, label, r.distance_to_exact, r.converged_at, run, r.maze_seed)
+                found.append(dict(zip(ACCURACY_COLUMNS, cells, strict=True)))
     return found
 
 
@@ -145,21 +138,16 @@ def accuracy_table(summary: Sequence[dict[str, Any]]) -> str:
     """The summary (`accuracy_summary`) as a table, per maze and filter: the mean (and worst) distance to the
     exact posterior mean over the second half of the steps with its 95% bootstrap interval, the converged
     share with its Wilson interval and the median convergence step."""
-    rows = [
-        [
-            s["maze"],
-            s["filter"],
-            str(s["runs"]),
-            f"{s['mean_distance_to_exact']:.3f}",
-            f"{s['worst_distance']:.3f}",
-            format_interval(*s["interval"]),
-            f"{s['converged_share']:.0%}",
-            format_interval(*s["converged_interval"], "{:.0%}"),
-            format_number(s["median_convergence_step"], "{:g}"),
-        ]
-        for s in summary
+    columns = [
+        ("maze", lambda s: s["maze"]),
+        ("filter", lambda s: s["filter"]),
+        ("runs", lambda s: str(s["runs"])),
+        ("distance to exact mean", lambda s: f"{s['mean_distance_to_exact']:.3f}"),
+        ("worst run", lambda s: f"{s['worst_distance']:.3f}"),
+        ("95% CI", lambda s: format_interval(*s["interval"])),
+        ("converged", lambda s: f"{s['converged_share']:.0%}"),
+        ("95% CI", lambda s: format_interval(*s["converged_interval"], "{:.0%}")),
+        ("median conv. step", lambda s: format_number(s["median_convergence_step"], "{:g}")),
     ]
-    headers = ["maze", "filter", "runs", "distance to exact mean", "worst run", "95% CI", "converged", "95% CI"]
-    headers.append("median conv. step")
     note = "[95% intervals: the mean by percentile bootstrap (B = 2000, seeded), the share by Wilson score]"
-    return format_table(headers, rows) + "\n" + note
+    return column_table(columns, summary) + "\n" + note

@@ -1,12 +1,7 @@
 """The Python entry point of studies, `mazelab.study(...)`: the same study as `mazelab study`, its rows as
-a list of dicts (`pandas.DataFrame(result.rows)`), its summary and its record.
-
-A study is a plan value (`StudyPlan`: its mazes, settings, filters, runs and seed, checked once, whether it
-comes from the command line, `plan_study`, or from Python) run on workers: `study_plan(**values)` makes
-one from Python values, each checked with one line naming the argument, and `mazelab.study(plan=...)` runs
-it; `mazelab.study(**values)` does both. Any declared filter option is a keyword of its own
-(`bandwidth=["optimal", "multimodal"]`, `threshold=0.5`, `**{"rpf.threshold": [0.1, 0.2]}`) or an entry
-of `options=`.
+a list of dicts (`pandas.DataFrame(result.rows)`), its summary and its record. A study is a plan value
+(`StudyPlan`), checked once whether it comes from the command line (`plan_study`) or from Python values
+(`study_plan`, which says what each argument takes), and run by `study`.
 """
 
 from __future__ import annotations
@@ -50,11 +45,10 @@ from mazelab.experiments.study import (
 from mazelab.experiments.summary import CSV_COLUMNS, CSV_DTYPES, StudySummary, summarise_study, summary_rows
 from mazelab.experiments.tables import flat_row, study_traces, trace_table_columns
 from mazelab.grid_filter import check_grid_memory
-from mazelab.maze import DEFAULT_MAZE, MAZES_DIR, find_maze, load_maze
+from mazelab.maze import DEFAULT_MAZE, MAZES_DIR
 from mazelab.maze_generator import DEFAULT_WALL_SHARE
 from mazelab.model import DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
 from mazelab.registry import PluginReference, filter_entry, is_lab_class, plugin_codes, resolve_filter
-from mazelab.regularisation import check_bandwidth
 from mazelab.seeding import new_seed
 
 
@@ -67,14 +61,14 @@ def study_mazes(
 ) -> list[MazeChoice]:
     """The study's mazes: the files (or shipped names), then every generated size x station-block
     count x wall share; the default maze if none is given."""
-    mazes = file_mazes([str(find_maze(name)) for name in files], load_maze) if files else []
+    mazes = file_mazes(files) if files else []
     if sizes or stations or wall_shares:
         for rows, columns in (maze_generator.parse_size(s) for s in (sizes or ["10x10"])):
             counts = list(stations) if stations else [maze_generator.default_station_count(rows, columns)]
             for count, share in itertools.product(counts, wall_shares or [DEFAULT_WALL_SHARE]):
                 maze_generator.check_generation(rows, columns, count, share)  # --stations 0: refused up front
                 mazes.append(MazeChoice.generated(rows, columns, count, share))
-    return mazes or file_mazes([str(find_maze(DEFAULT_MAZE))], load_maze)
+    return mazes or file_mazes([DEFAULT_MAZE])
 
 
 def maze_description(choice: MazeChoice) -> dict[str, Any]:
@@ -233,8 +227,7 @@ def plan_study(
     check_steps(steps)  # each run's limits, up front rather than in every worker
     settings = study_settings(mazes, *(values[p] for p in MODEL_PARAMETERS), given)
     check_study(len(settings) * runs, len(names))
-    check_study_numbers(settings, reference)
-    check_filter_options(settings, names)
+    check_settings(settings, names, reference)
     seed = new_seed() if seed is None else seed
     kld = given.get("kld") == [True]  # the table's mean N column
     plugins = plugin_codes(names)
@@ -253,34 +246,26 @@ def all_default(name: str, values: Sequence[Any]) -> bool:
         return False
 
 
-def check_filter_options(settings: Sequence[StudySetting], names: Sequence[Any]) -> None:
-    """Every filter's options in every setting, checked by its declaration as its constructor will
-    check them (values and combinations), before any run starts."""
-    seen: set[tuple[Any, ...]] = set()
-    for setting in settings:
-        for name in names:
-            given = setting.filter_options(name)
-            entry = filter_entry(name)
-            key = (entry.name, repr(sorted(given.items())))
-            if key not in seen:
-                seen.add(key)
-                entry.options.resolve(given, entry.name)
-
-
-def check_study_numbers(settings: Sequence[Any], reference: str | None = None) -> None:
-    """Each setting's sigma, and a numeric kernel bandwidth if it sets one, within the ranges of its maze
-    (mazelab.checks); with --reference, only "grid", whose cells must fit in memory on every maze (its
-    constructor's own check, for each maze's size); before any run starts."""
+def check_settings(settings: Sequence[StudySetting], names: Sequence[Any], reference: str | None = None) -> None:
+    """Before any run starts: each setting's sigma within the ranges of its maze (mazelab.checks), and every
+    filter's options in it, checked by its declaration as its constructor will check them (values and
+    combinations); with --reference, only "grid", whose cells must fit in memory on every maze (its
+    constructor's own check, for each maze's size)."""
     if reference is not None and reference != REFERENCE:
         raise ValueError(f"--reference {reference}: the reference is the exact grid filter, --reference {REFERENCE}")
+    seen: set[tuple[Any, ...]] = set()
     for setting in settings:
         maze = setting.maze
         rows, columns = maze.size if maze.grid is None else (len(maze.grid), len(maze.grid[0]))
         check_sigma_within(setting.sigma, columns, rows)
-        if setting.value("bandwidth") is not None:
-            check_bandwidth(setting.value("bandwidth"))
         if reference is not None:
             check_grid_memory(columns, rows)
+        for name in names:
+            given, entry = setting.filter_options(name), filter_entry(name)
+            key = (entry.name, repr(sorted(given.items())))
+            if key not in seen:
+                seen.add(key)
+                entry.options.resolve(given, entry.name)
 
 
 def _filter_list(filters: Any) -> list[Any]:
@@ -320,17 +305,8 @@ class StudyResult:
         `title` instead of the program's title and caption, as --title); an existing file is replaced."""
         from mazelab.experiments.study_plot import draw_study
 
-        parameters = self.record["parameters"]
-        draw_study(
-            self.summaries,
-            self.varied,
-            Path(path),
-            parameters["runs"],
-            parameters["mazes"][0]["label"],
-            x=x,
-            y=y,
-            title=title,
-        )
+        runs, mazes = self.record["parameters"]["runs"], self.record["parameters"]["mazes"]
+        draw_study(self.summaries, self.varied, Path(path), runs, mazes[0]["label"], x=x, y=y, title=title)
         return Path(path)
 
 
@@ -444,14 +420,11 @@ def study(
     dask: Any = None,
     **values: Any,
 ) -> StudyResult:
-    """A Monte Carlo study, as `mazelab study` runs it: the plan (`plan`, or the one `study_plan(maze,
-    **values)` makes: every combination of the values given, `runs` seeded runs per setting, every filter
-    once per value of the options it takes) run on `workers` processes (None: all cores) or a Dask
-    cluster (`dask`: a scheduler address or a distributed.Client); `paired` a filter of the study, each
-    other filter's summary then gets its paired difference to it. Returns the rows, the summary, the
-    record (the same JSON record `mazelab study` writes), the failures and the traces (StudyResult); an
-    argument of the wrong type is a TypeError (runs=True, filters=[object], dask=42), a value out of its
-    range or an empty list a ValueError, each one line naming it."""
+    """A Monte Carlo study, as `mazelab study` runs it: the plan (`plan`, or `study_plan(maze, **values)`'s)
+    run on `workers` processes (None: all cores) or a Dask cluster (`dask`: a scheduler address or a
+    distributed.Client); `paired` a filter of the study, each other filter's summary then gets its paired
+    difference to it. Returns the rows, the summary, the record (the one `mazelab study` writes), the
+    failures and the traces (StudyResult); a wrong argument is one line, as in `study_plan` (dask=42: a TypeError)."""
     if plan is not None and (maze is not None or values):
         raise TypeError("give the study's plan or its values, not both")
     workers = _whole("workers", workers, optional=True)  # >= 1, checked by run_study

@@ -117,12 +117,6 @@ class StudyOutcome:
         """The start-up of every process that ran runs (numba's load, first-call warm-ups), summed."""
         return sum(report.startup_seconds for report in self.workers.values())
 
-    def sort(self, tasks: Sequence[RunTask]) -> None:
-        """Records in the study's order (`study_order`), failures by setting and run, whatever order the
-        workers finished in."""
-        self.records = study_order(self.records, tasks)
-        self.failures.sort(key=lambda f: (f.task.setting_index, f.task.run))
-
 
 UnitOutcome = list[RunRecord] | RunFailure | WorkerReport
 
@@ -326,7 +320,8 @@ def run_study(
     finally:
         if isinstance(dask, str):
             close_client(client)
-    outcome.sort(tasks)
+    outcome.records = study_order(outcome.records, tasks)  # whatever order the workers finished in
+    outcome.failures.sort(key=lambda f: (f.task.setting_index, f.task.run))
     return outcome
 
 
@@ -343,11 +338,8 @@ def open_cluster(dask: Any, backend: str) -> Any:
     `dask`; anything else is a TypeError. A client connected here is closed again when its workers are refused."""
     if dask is None:
         return None
-    try:
-        from distributed import Client
-    except ImportError:
-        Client = None
-    if not isinstance(dask, str) and (Client is None or not isinstance(dask, Client)):
+    client_class = getattr(sys.modules.get("distributed"), "Client", None)  # none before distributed is imported
+    if not isinstance(dask, str) and (client_class is None or not isinstance(dask, client_class)):
         raise TypeError(
             f"dask must be a scheduler address like 'tcp://HOST:8786' or a distributed.Client, got "
             f"{dask!r} ({type(dask).__name__})"
@@ -373,19 +365,26 @@ def run_units(
     ignore_after_stop: bool = False,
 ) -> None:
     """Run the units (`Units.run`, `here(advance)` in this process meanwhile) with a progress bar over
-    `total` `what`; SIGTERM and SIGHUP stop them as Ctrl-C does (`stop_signals`), and a stop sets
-    outcome.interrupted and outcome.stopped_by, a lost cluster or pool outcome.lost (the finished units
-    collected either way); with `ignore_after_stop`, the stop signals are ignored after a stop."""
-    keep_ignoring = lambda: ignore_after_stop and outcome.interrupted  # noqa: E731
-    with progress_bar(total, progress, what) as advance, stop_signals(keep_ignoring):
-        try:
-            units.run(collect, advance, functools.partial(here, advance))
-        except StudyLost as lost:
-            outcome.lost = str(lost)
-        except KeyboardInterrupt as stop:
-            if ignore_after_stop:
-                _ignore(STOP_SIGNALS)
-            outcome.interrupted, outcome.stopped_by = True, getattr(stop, "signum", signal.SIGINT)
+    `total` `what`. Meanwhile SIGTERM and SIGHUP raise StudyStopped in the main thread, so that they stop the
+    study as Ctrl-C does: a stop sets outcome.interrupted and outcome.stopped_by, a lost cluster or pool
+    outcome.lost (the finished units collected either way). Afterwards the previous handlers come back; with
+    `ignore_after_stop`, the stop signals stay ignored after a stop."""
+
+    def stop(signum: int, _frame: Any) -> None:
+        raise StudyStopped(signum)
+
+    with progress_bar(total, progress, what) as advance:
+        with signal_handlers([sig for sig in STOP_SIGNALS if sig != signal.SIGINT], stop):
+            try:
+                units.run(collect, advance, functools.partial(here, advance))
+            except StudyLost as lost:
+                outcome.lost = str(lost)
+            except KeyboardInterrupt as stopped:
+                if ignore_after_stop:  # until signal_handlers puts the previous handlers back, then for good
+                    _ignore(STOP_SIGNALS)
+                outcome.interrupted, outcome.stopped_by = True, getattr(stopped, "signum", signal.SIGINT)
+        if ignore_after_stop and outcome.interrupted:
+            _ignore(STOP_SIGNALS)
 
 
 class Units:
@@ -446,7 +445,11 @@ class Units:
                     stop = second
             with signal_handlers(STOP_SIGNALS, signal.SIG_IGN):  # a third Ctrl-C changes nothing
                 self._take(self._finished())
-                self._end()
+                if self.client is None:
+                    end_workers(self.pool)  # the unfinished runs are dropped
+                else:
+                    with suppress(Exception):  # on Dask: the rest cancelled
+                        self.pool.shutdown(wait=False)
             raise stop from None
         self.pool.shutdown(wait=True)
 
@@ -518,14 +521,6 @@ class Units:
         self.pool = self._executor()
         return finished
 
-    def _end(self) -> None:
-        """Kill the pool's workers now (their unfinished runs are dropped); on Dask, cancel the rest."""
-        if self.client is None:
-            end_workers(self.pool)
-            return
-        with suppress(Exception):
-            self.pool.shutdown(wait=False)
-
 
 def end_workers(pool: ProcessPoolExecutor) -> None:
     """Kill the pool's worker processes now and reap them (their unfinished runs are dropped).
@@ -570,23 +565,6 @@ def _watch_parent(parent: int) -> None:
     while os.getppid() == parent:
         time.sleep(WATCHDOG_SECONDS)
     os._exit(1)
-
-
-@contextmanager
-def stop_signals(keep_ignoring: Callable[[], bool] = lambda: False) -> Iterator[None]:
-    """While the study runs: SIGTERM and SIGHUP raise StudyStopped in the main thread (as Ctrl-C raises
-    KeyboardInterrupt), so that they too keep the finished runs and end the workers. Afterwards the
-    previous handlers come back, unless `keep_ignoring()` (the stop signals stay ignored then)."""
-
-    def stop(signum: int, _frame: Any) -> None:
-        raise StudyStopped(signum)
-
-    try:
-        with signal_handlers([sig for sig in STOP_SIGNALS if sig != signal.SIGINT], stop):
-            yield
-    finally:
-        if keep_ignoring():
-            _ignore(STOP_SIGNALS)
 
 
 def _ignore(signals: Sequence[int]) -> None:

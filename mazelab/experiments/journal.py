@@ -4,11 +4,8 @@ the traces and `--resume` are derived (NAME.runs.jsonl beside NAME.csv; `accurac
 Its lines: {"session": {...}} when a session starts (its command, its start, the parameters that
 --resume compares), {"run": [setting, run], "records": [...]} per finished run (each filter's row, with
 its per-step trace when the study keeps traces), {"closed": {...}} when a session ends (its status, its
-end, the runs finished). A study stopped any way (Ctrl-C, SIGTERM, kill -9, a lost cluster, a full
-disk) keeps every finished run there; the CSV beside it is the old file or the new whole one, written
-from the journal's runs at the end, in order. The journal stays beside the CSV: `--resume` goes on
-from it (a larger --runs extends the study), and a study that finds one without --resume or --force
-is refused, as it is when another study is writing it.
+end, the runs finished). What a stopped study keeps there and how `--resume` goes on from it (a larger
+--runs extends the study): docs/studies.md.
 
 The journal is the program's own file, never followed through a link nor read from a pipe or a device
 (`check_own_file`), created exclusively and locked while its study runs (`Journal`), read back whole
@@ -44,8 +41,7 @@ from mazelab.experiments.study import RunRecord, RunTask, option_cells
 from mazelab.experiments.summary import CONFIDENCE_LEVEL, INTERVAL_METHODS
 from mazelab.experiments.tables import beside
 
-JOURNAL_SUFFIX = ".runs.jsonl"
-journal_path = functools.partial(beside, suffix=JOURNAL_SUFFIX)  # a study's journal: study.csv -> study.runs.jsonl
+journal_path = functools.partial(beside, suffix=".runs.jsonl")  # a study's journal: study.csv -> study.runs.jsonl
 CLAIM_SUFFIX = ".lock"
 MEMORY_PER_BYTE = 12  # what reading a journal takes per byte of it: the text, its lines, the records (generous)
 _NOFOLLOW = getattr(os, "O_NOFOLLOW", 0)  # a symlink at the name: ELOOP, never its target
@@ -253,8 +249,7 @@ def claim_outputs(outputs: Sequence[tuple[str, Path | None]]) -> Callable[[], No
 
 # -- the record of how a result was made ------------------------------------------------------------
 RECORD_FORMAT = 1
-RECORD_SUFFIX = ".record.json"
-record_path = functools.partial(beside, suffix=RECORD_SUFFIX)  # an output's record: study.csv -> study.record.json
+record_path = functools.partial(beside, suffix=".record.json")  # an output's record: study.csv -> study.record.json
 PACKAGE = "maze-particle-filter-lab"
 GIT_SECONDS = 5  # a git that does not answer within this is left out
 
@@ -361,8 +356,8 @@ def jsonable(value: Any) -> Any:
 
 
 class Recorder:
-    """A record being made: started when the work starts, written at the start (so that an interrupted
-    study has its parameters for --resume) and again at the end."""
+    """A record being made: started when the work starts, written at its end (an interrupted study's
+    parameters, for --resume, are in its journal's session line)."""
 
     def __init__(self, kind: str, command: Sequence[str], parameters: Mapping[str, Any], **extra: Any):
         self.started_clock = time.perf_counter()

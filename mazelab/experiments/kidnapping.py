@@ -19,7 +19,7 @@ import numpy as np
 from mazelab.experiments.executor import run_study
 from mazelab.experiments.study import MazeChoice, RunRecord, RunTask, StudySetting
 from mazelab.experiments.summary import recovery_summary
-from mazelab.experiments.tables import format_number, format_table
+from mazelab.experiments.tables import column_table, format_number
 from mazelab.maze import Maze
 from mazelab.model import CONVERGENCE_RADIUS
 from mazelab.registry import described
@@ -72,24 +72,17 @@ def recovery_table(world: Maze, filters: Sequence[str] = ("sir", "apf", "rpf"), 
     for record in recovery_records(world, filters, **trials):  # type: ignore[arg-type]
         groups.setdefault((record.filter, record.options["recovery"]), []).append(record)
     names, variants = list(dict.fromkeys(k[0] for k in groups)), list(dict.fromkeys(k[1] for k in groups))
-    rows = []
-    for name, variant in sorted(groups, key=lambda key: (names.index(key[0]), variants.index(key[1]))):
-        group = groups[name, variant]
-        relocalised, steps = recovery_summary(group)
-        before, count = np.mean([localised_before(r) for r in group]), np.mean([r.mean_particle_count for r in group])
-        rows.append(
-            [
-                described(name).label,
-                variant,
-                str(len(group)),
-                f"{before:.0%}",
-                f"{relocalised:.0%}",
-                format_number(steps, "{:g}"),
-                f"{count:.0f}",
-            ]
-        )
-    headers = ["filter", "recovery", "runs", "localised before", "re-localised", "median steps to recover", "mean N"]
-    return format_table(headers, rows)
+    ordered = sorted(groups, key=lambda key: (names.index(key[0]), variants.index(key[1])))
+    columns = [
+        ("filter", lambda g: described(g[0].filter).label),
+        ("recovery", lambda g: g[0].options["recovery"]),
+        ("runs", lambda g: str(len(g))),
+        ("localised before", lambda g: f"{np.mean([localised_before(r) for r in g]):.0%}"),
+        ("re-localised", lambda g: f"{recovery_summary(g)[0]:.0%}"),
+        ("median steps to recover", lambda g: format_number(recovery_summary(g)[1], "{:g}")),
+        ("mean N", lambda g: f"{np.mean([r.mean_particle_count for r in g]):.0f}"),
+    ]
+    return column_table(columns, [groups[key] for key in ordered])
 
 
 if __name__ == "__main__":

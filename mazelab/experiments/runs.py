@@ -21,7 +21,7 @@ import numpy as np
 
 from mazelab.backend import backend_by_work, chosen_backend
 from mazelab.declaration import not_taken, options_of, scoped
-from mazelab.experiments.tables import format_number, format_table, pyplot, records_csv, save_figure
+from mazelab.experiments.tables import column_table, format_number, pyplot, records_csv, save_figure
 from mazelab.maze import Maze
 from mazelab.model import CONVERGENCE_RADIUS, DEFAULT_PARTICLE_COUNT, DEFAULT_STEPS
 from mazelab.registry import described, filter_entry, resolve_filter, rgb
@@ -72,11 +72,6 @@ def final_error(errors: np.ndarray, share: float = FINAL_SHARE) -> float:
     return float(errors[-max(1, int(len(errors) * share)) :].mean())
 
 
-def mean_ess(result: RunResult) -> float:
-    """Mean effective sample size over the steps; NaN for the grid filter, which has none."""
-    return math.nan if np.isnan(result.ess).all() else float(np.nanmean(result.ess))
-
-
 def parse_filters(text: str) -> list[str]:
     """'sir,apf,rpf' -> the filters' class names, in order, without repeats; a plug-in
     `file.py:Class` -> its spec with the file's absolute path (what worker processes import)."""
@@ -115,33 +110,26 @@ _startup_seconds = [0.0]  # start-up spent in this process and not yet reported
 
 
 def warm_once(key: Hashable, filter_class: type, options: Mapping[str, Any], warm: Callable[[dict], Any]) -> None:
-    """Run `warm(options)` with each of `warm_up_options` the first time this process sees `key`, the filter,
-    the options that differ from their declared default (a filter given its defaults runs the same code as
-    one given nothing) and the chosen backend; its time kept as start-up, the warnings it raises dropped (the
-    study or compare shows its own)."""
+    """Run `warm(options)` the first time this process sees `key`, the filter, the options that differ from
+    their declared default (a filter given its defaults runs the same code as one given nothing) and the
+    chosen backend; its time kept as start-up, the warnings it raises dropped (the study or compare shows its
+    own). A filter that resamples only when N_eff falls below threshold N (the RPF's 0.2 N: a few steps may
+    not reach it) is warmed with threshold 1 too, so that its resampling's code (the RPF's covariance and
+    jitter) is loaded before the timed steps too."""
     declared = options_of(filter_class)
     changed = repr(sorted((k, v) for k, v in options.items() if k not in declared or declared[k].default != v))
     key = (key, filter_class, changed, chosen_backend())
     if key in _warmed:
         return
+    threshold = declared.get("threshold")
+    late = threshold is not None and options.get("threshold", threshold.default) < 1
     started = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        for warmed in warm_up_options(filter_class, options):
+        for warmed in [{**options}, {**options, "threshold": 1.0}] if late else [{**options}]:
             warm(warmed)
     _warmed.add(key)
     _startup_seconds[0] += time.perf_counter() - started
-
-
-def warm_up_options(filter_class: type, options: Mapping[str, Any]) -> list[dict[str, Any]]:
-    """The options to warm a filter with: its own, and, for one that resamples only when N_eff falls below
-    threshold N (the RPF's 0.2 N: a few steps may not reach it), the same with threshold 1, so that its
-    resampling's code (the RPF's covariance and jitter) is loaded before the timed steps too."""
-    declared = options_of(filter_class).get("threshold")
-    own = dict(options)
-    if declared is None or own.get("threshold", declared.default) >= 1:
-        return [own]
-    return [own, {**own, "threshold": 1.0}]
 
 
 def warm_up_filters(
@@ -249,7 +237,8 @@ FIGURES = (  # in the CSV's order; a new figure of a run is one more line here (
     Figure("final_error", lambda r, e: final_error(r.errors), REQUIRED),  # the last-20% error, map units
     Figure("mean_error", lambda r, e: float(r.errors.mean()), REQUIRED),
     Figure("converged_at", lambda r, e: r.converged_at, REQUIRED),  # convergence_step of the errors; None: never
-    Figure("mean_ess", lambda r, e: mean_ess(r), REQUIRED),  # NaN for the grid filter
+    # the mean effective sample size over the steps; NaN for the grid filter, which has none
+    Figure("mean_ess", lambda r, e: math.nan if np.isnan(r.ess).all() else float(np.nanmean(r.ess)), REQUIRED),
     Figure("ms_per_step", lambda r, e: 1e3 * float(r.step_seconds.mean()), REQUIRED),
     Figure("kidnap_at"),  # the step the robot is kidnapped at (steps_to_recover None: never re-localised)
     Figure("relocalised", lambda r, e: None if r.inputs.kidnap_at is None else relocalised(r), None),
@@ -390,7 +379,6 @@ def comparison_table(results: dict[str, RunResult], kld: bool = False, startup_s
         columns.append(
             ("mean N", lambda f: f"{f['mean_particle_count']:.0f}" if filter_entry(f["name"]).takes_particles else "-")
         )
-    rows = [[cell(f) for _, cell in columns] for f in figures]
     caveats = {f["label"]: f["log_evidence_caveat"] for f in figures if f["log_evidence_caveat"]}
     notes = [f"[* {label}: the log evidence is {why}]" for label, why in caveats.items()]
     if startup_seconds is not None:
@@ -399,7 +387,7 @@ def comparison_table(results: dict[str, RunResult], kld: bool = False, startup_s
             f"(first calls, and numba's kernels loaded on the compiled backend) {startup_seconds:.2f} s, not in "
             "ms/step]"
         )
-    return "\n".join([format_table([header for header, _ in columns], rows), *notes])
+    return "\n".join([column_table(columns, figures), *notes])
 
 
 def errors_csv(results: dict[str, RunResult]) -> str:

@@ -33,7 +33,7 @@ from mazelab.experiments.runs import (
     warm_once,
 )
 from mazelab.experiments.tables import trace_of
-from mazelab.maze import STATION_WALL, Maze
+from mazelab.maze import STATION_WALL, Maze, find_maze, load_maze
 from mazelab.maze_generator import DEFAULT_WALL_SHARE, generate_maze
 from mazelab.model import check_model_parameters
 from mazelab.registry import PluginReference, entries, file_sha256, filter_entry, filters_here, resolve_filter
@@ -79,11 +79,11 @@ class MazeChoice:
         return generate_maze(*self.size, self.stations, np.random.default_rng(maze_seed), share)
 
 
-def file_mazes(paths: Sequence[str | Path], load: Any) -> list[MazeChoice]:
-    """The MazeChoices of maze files: labelled by file name without .txt, or, where two files share a
-    name, by as many of their last folders as tell them apart (a/m, b/m); `load(path)` reads a Maze.
-    The same file twice counts once."""
-    paths = list(dict.fromkeys(str(p) for p in paths))
+def file_mazes(names: Sequence[str | Path]) -> list[MazeChoice]:
+    """The MazeChoices of maze files (paths or shipped names, mazelab.maze.find_maze): labelled by file name
+    without .txt, or, where two files share a name, by as many of their last folders as tell them apart
+    (a/m, b/m). The same file twice counts once."""
+    paths = list(dict.fromkeys(str(find_maze(name)) for name in names))
     parts = [Path(p).with_suffix("").parts for p in paths]
     labels = [p[-1] for p in parts]
     for depth in range(2, max(map(len, parts), default=1) + 1):
@@ -91,7 +91,7 @@ def file_mazes(paths: Sequence[str | Path], load: Any) -> list[MazeChoice]:
         if not clashing:
             break
         labels = ["/".join(p[-depth:]) if label in clashing else label for p, label in zip(parts, labels, strict=True)]
-    return [MazeChoice.from_maze(label, load(p), p) for label, p in zip(labels, paths, strict=True)]
+    return [MazeChoice.from_maze(label, load_maze(p), p) for label, p in zip(labels, paths, strict=True)]
 
 
 @functools.lru_cache(maxsize=8)
@@ -105,7 +105,7 @@ def _maze_of(grid: tuple[tuple[int, ...], ...], label: str) -> Maze:
 class StudySetting:
     """One combination of the studied parameters: the model's (maze, sigma, delta, particle count) and
     the filter options the study sets (`options`, by name, each checked by its declaration); a filter
-    runs with those it declares and its declared defaults for the rest (`filter_values`)."""
+    runs with those it declares and its declared defaults for the rest (`option_cells`)."""
 
     maze: MazeChoice
     sigma: float
@@ -127,14 +127,6 @@ class StudySetting:
         for it alone (FILTER.NAME; its declaration checks them)."""
         entry = filter_entry(filter_name)
         return {name: value for key, value in self.options if (name := reaches(key, entry)) is not None}
-
-    def filter_values(self, filter_name: str | type) -> dict[str, Any]:
-        """Every option the filter runs with in this setting, by name in declaration order: the setting's
-        value where it sets one, the declared default otherwise (the derived ones left out)."""
-        filter_class = resolve_filter(filter_name)
-        declared = options_of(filter_class)
-        given = self.filter_options(filter_class)
-        return {o.name: given.get(o.name, o.default) for o in declared.settable()}
 
 
 MODEL_PARAMETERS = ("sigma", "delta", "particles")
@@ -382,8 +374,8 @@ class RunCells:
 
 
 # One filter in one run of a study, a row of its CSV: RunCells, then a field per figure (FIGURES, in order), then
-# every option the filter ran with (`StudySetting.filter_values`) as cells (`option_cell`), by name: a column
-# each, after the figures; an option the filter does not declare has no key (an empty cell).
+# every option the filter ran with as cells (`option_cells`), by name: a column each, after the figures; an
+# option the filter does not declare has no key (an empty cell).
 RunRecord = dataclasses.make_dataclass(
     "RunRecord",
     [*((f.name, Any, field(default=f.default)) for f in FIGURES), ("options", dict, field(default_factory=dict))],
@@ -495,7 +487,7 @@ def run_records(task: RunTask, world: Maze, results: dict[str, RunResult]) -> li
     s = task.setting
     shared = {  # the run's cells, the same for every filter
         **task.cells(),
-        "maze_sha256": s.maze.sha256 if s.maze.sha256 is not None else maze_text_sha256(world),
+        "maze_sha256": s.maze.sha256 or hashlib.sha256(world.to_text().encode()).hexdigest(),  # generated: of to_text()
         "station_blocks": int((world.grid == STATION_WALL).sum()),
         "maze_rows": int(world.grid.shape[0]),
         "maze_columns": int(world.grid.shape[1]),
@@ -510,15 +502,12 @@ def run_records(task: RunTask, world: Maze, results: dict[str, RunResult]) -> li
     return records
 
 
-def maze_text_sha256(world: Maze) -> str:
-    """The sha256 of a maze's grid as maze-file text (Maze.to_text()): a generated maze's identity."""
-    return hashlib.sha256(world.to_text().encode()).hexdigest()
-
-
 def option_cells(setting: StudySetting, filter_name: str | type) -> dict[str, Any]:
-    """Every option a filter runs with in a setting (`StudySetting.filter_values`) as a row's cells
-    (`option_cell`), by name."""
-    return {name: option_cell(value) for name, value in setting.filter_values(filter_name).items()}
+    """Every option a filter runs with in a setting, by name in declaration order, as a row's cells
+    (`option_cell`): the setting's value where it sets one, the declared default otherwise (the derived
+    ones left out)."""
+    given = setting.filter_options(filter_name)
+    return {o.name: option_cell(given.get(o.name, o.default)) for o in filter_entry(filter_name).options.settable()}
 
 
 def option_cell(value: Any) -> Any:
@@ -617,10 +606,22 @@ def run_batch(tasks: Sequence[RunTask]) -> list[list[RunRecord]]:
     z = np.array([inputs.robot_measurements for inputs, _ in walks])
     results: list[dict[str, RunResult]] = [{} for _ in tasks]
     world.prepare()
+    pair = min(2, len(tasks))  # the warm-up advances one or two runs together, as the batch will
+
+    def warm(filter_class: type, warmed: dict) -> None:  # a few untimed steps; their draws a stream of their own
+        rngs = [run_streams(WARM_UP_SEED).filter for _ in range(pair)]
+        filt = filter_class(maze_for(filter_class, world), s.sigma, s.delta, particles[:pair].copy(), rngs, **warmed)
+        record_steps(
+            filt,
+            min(WARM_UP_STEPS, steps),
+            lambda k: (compass[:pair, k], z[:pair, k]),
+            runs=None if pair == 1 else pair,
+        )
+
     for name in tasks[0].filters:
         filter_class = filter_entry(name).filter_class
         options = tasks[0].setting.filter_options(name)
-        warm_batch(filter_class, world, tasks, particles, compass, z, options)
+        warm_once(("batch", pair), filter_class, options, functools.partial(warm, filter_class))  # once per process
         rngs = [run_streams(task.seed).filter for task in tasks]  # each run's filter stream, as simulate's
         filt = filter_class(maze_for(filter_class, world), s.sigma, s.delta, particles, rngs, **options)
         runs = None if len(tasks) == 1 else len(tasks)  # one run: the paper's shapes
@@ -634,27 +635,3 @@ def run_batch(tasks: Sequence[RunTask]) -> list[list[RunRecord]]:
                 steps_of, r, true_positions, restarts[r], inputs, backend_of(filt)
             )
     return [run_records(task, world, result) for task, result in zip(tasks, results, strict=True)]
-
-
-def warm_batch(
-    filter_class: type,
-    world: Maze,
-    tasks: Sequence[RunTask],
-    particles: np.ndarray,
-    compass: np.ndarray,
-    z: np.ndarray,
-    options: dict,
-) -> None:
-    """Before the batch's timed steps: the filter advancing one or two runs together (as the batch
-    will) for a few untimed steps, once per process, options and shape (mazelab.experiments.runs.warm_once);
-    its random draws come from a stream of its own, its numbers are discarded."""
-    r = min(2, len(tasks))
-    s = tasks[0].setting
-
-    def warm(warmed: dict) -> None:
-        rngs = [run_streams(WARM_UP_SEED).filter for _ in range(r)]
-        filt = filter_class(maze_for(filter_class, world), s.sigma, s.delta, particles[:r].copy(), rngs, **warmed)
-        steps = min(WARM_UP_STEPS, tasks[0].steps)
-        record_steps(filt, steps, lambda k: (compass[:r, k], z[:r, k]), runs=None if r == 1 else r)
-
-    warm_once(("batch", r), filter_class, options, warm)

@@ -195,7 +195,8 @@ def figure_layout(
     facets = [p for p in varied if p != x and p not in options]
     panel_values: dict[str, dict[str, Any]] = {}
     for s in summaries:
-        panel_values.setdefault(_panel_title(s, facets), {p: s.setting.value(p) for p in facets})
+        title = ", ".join(_named(p, s.setting.value(p)) for p in facets)
+        panel_values.setdefault(title, {p: s.setting.value(p) for p in facets})
     panels: dict[str, list[StudySummary]] = {title: [] for title in panel_values}
     for s in summaries:
         for title, values in panel_values.items():
@@ -218,10 +219,6 @@ def panel_grid(summaries: Sequence[StudySummary], facets: Sequence[str], count: 
             return count // columns, columns
     columns = min(MAX_COLUMNS, count) if count != 4 else 2
     return math.ceil(count / columns), columns
-
-
-def _panel_title(summary: StudySummary, facets: Sequence[str]) -> str:
-    return ", ".join(_named(p, summary.setting.value(p)) for p in facets)
 
 
 def line_label(summary: StudySummary, options: Sequence[str]) -> str:

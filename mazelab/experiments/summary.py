@@ -30,7 +30,7 @@ from mazelab.experiments.study import (
     takes_parameter,
     varied_parameters,
 )
-from mazelab.experiments.tables import beside, format_interval, format_number, format_table, records_csv
+from mazelab.experiments.tables import beside, column_table, format_interval, format_number, records_csv
 from mazelab.model import CONVERGENCE_RADIUS
 from mazelab.registry import described, resolve_filter
 
@@ -345,10 +345,17 @@ def summarise_group(index: int, setting: StudySetting, name: str, group: Sequenc
         step_interval,
         last,
     )
-    for figure in SUMMARISED:
-        mean, summary.figures[f"{figure.name}_interval"] = _mean_and_interval([getattr(r, figure.name) for r in group])
-        summary.figures[figure.name] = mean
-    summary.mean_log_evidence, summary.log_evidence_se = _mean_and_error([r.log_evidence for r in group])
+    for figure in SUMMARISED:  # the mean of the runs' finite values, with its BCa interval (NaN: none)
+        finite = [v for v in (getattr(r, figure.name) for r in group) if v is not None and not math.isnan(v)]
+        if finite:
+            summary.figures[figure.name] = statistics.fmean(finite)
+            summary.figures[f"{figure.name}_interval"] = bootstrap_interval(finite, "mean", method=MEAN_METHOD)
+    evidence = [r.log_evidence for r in group if math.isfinite(r.log_evidence)]
+    if evidence:  # the mean of the finite ones, and its standard error (NaN with fewer than two)
+        summary.mean_log_evidence = statistics.fmean(evidence)
+        summary.log_evidence_se = (
+            statistics.stdev(evidence) / math.sqrt(len(evidence)) if len(evidence) > 1 else math.nan
+        )
     summary.log_evidence_caveat, summary.backend = group[0].log_evidence_caveat, group[0].backend
     return summary
 
@@ -364,23 +371,6 @@ def converged_within(converged_at: int | None, steps: int) -> bool:
     """Converged: below the radius from `converged_at` on, for at least the last K steps (a run that gets
     below it only near its end is not counted: "converged" agrees with a small last-20% error)."""
     return converged_at is not None and converged_at <= last_convergence_step(steps)
-
-
-def _mean_and_interval(values: Sequence[float]) -> tuple[float, Interval]:
-    """The mean of the finite values with its BCa bootstrap interval; NaN when there are none."""
-    finite = [v for v in values if v is not None and not math.isnan(v)]
-    if not finite:
-        return math.nan, (math.nan, math.nan)
-    return statistics.fmean(finite), bootstrap_interval(finite, "mean", method=MEAN_METHOD)
-
-
-def _mean_and_error(values: Sequence[float]) -> tuple[float, float]:
-    """The mean of the finite values and its standard error (NaN with fewer than two)."""
-    finite = [v for v in values if math.isfinite(v)]
-    if not finite:
-        return math.nan, math.nan
-    error = statistics.stdev(finite) / math.sqrt(len(finite)) if len(finite) > 1 else math.nan
-    return statistics.fmean(finite), error
 
 
 def paired_finals(
@@ -493,8 +483,7 @@ def study_table(summaries: Sequence[StudySummary], varied: Sequence[str], kld: b
             (f"diff. vs {described(reference).label}", lambda s: format_number(s.mean_difference, "{:+.3f}")),
             (ci, lambda s: format_interval(*s.difference_interval, spec="{:+.3f}")),
         ]
-    rows = [[cell(s) for _, cell in columns] for s in summaries]
-    return format_table([header for header, _ in columns], rows) + "\n" + interval_note(summaries)
+    return column_table(columns, summaries) + "\n" + interval_note(summaries)
 
 
 def _evidence(s: StudySummary) -> str:
@@ -551,38 +540,29 @@ SUMMARY_STATISTICS = tuple(
 )
 
 
-def summary_statistics(s: StudySummary) -> dict[str, Any]:
-    """A summary's SUMMARY_FIELDS as cells (SUMMARY_STATISTICS): None for a missing interval, no caveat
-    and no pairs."""
-    cells: dict[str, Any] = {}
-    for spec in SUMMARY_FIELDS:
-        if isinstance(spec, tuple):
-            cells[f"{spec[1]}_low"], cells[f"{spec[1]}_high"] = getattr(s, spec[0]) or (None, None)
-        else:
-            value = getattr(s, spec)
-            cells[spec] = None if spec in ("log_evidence_caveat", "paired_runs") and not value else value
-    return cells
-
-
 def summary_rows(summaries: Sequence[StudySummary], columns: Sequence[str] = ()) -> list[dict[str, Any]]:
     """One dict per setting and filter, the summary CSV's columns: `setting`, the maze and the model's
     parameters (None where the filter does not take one, the table's '-'), then the option `columns`
     (the study's, `study.option_columns`: each the value the filter ran with, None where it does not
-    declare the option), `filter`, `label` (the registry's), then SUMMARY_STATISTICS, each interval as
-    _low and _high."""
+    declare the option), `filter`, `label` (the registry's), then SUMMARY_FIELDS as SUMMARY_STATISTICS, each
+    interval as _low and _high (None for a missing one), None for no caveat and no pairs."""
     rows = []
     for s in summaries:
         cells = option_cells(s.setting, s.filter)
-        rows.append(
-            {
-                "setting": s.setting_index,
-                **{p: s.setting.value(p) if takes_parameter(s.filter, p) else None for p in BASE_PARAMETERS},
-                **{name: cells.get(name) for name in columns},
-                "filter": s.filter,
-                "label": described(s.filter).label,
-                **summary_statistics(s),
-            }
-        )
+        row = {
+            "setting": s.setting_index,
+            **{p: s.setting.value(p) if takes_parameter(s.filter, p) else None for p in BASE_PARAMETERS},
+            **{name: cells.get(name) for name in columns},
+            "filter": s.filter,
+            "label": described(s.filter).label,
+        }
+        for spec in SUMMARY_FIELDS:
+            if isinstance(spec, tuple):
+                row[f"{spec[1]}_low"], row[f"{spec[1]}_high"] = getattr(s, spec[0]) or (None, None)
+            else:
+                value = getattr(s, spec)
+                row[spec] = None if spec in ("log_evidence_caveat", "paired_runs") and not value else value
+        rows.append(row)
     return rows
 
 

@@ -10,7 +10,7 @@ import csv
 import functools
 import io
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import fields
 from pathlib import Path
 from typing import Any
@@ -64,6 +64,11 @@ def format_table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
         ).rstrip()
 
     return "\n".join([line(headers), line(["-" * w for w in widths]), *map(line, rows)])
+
+
+def column_table(columns: Sequence[tuple[str, Callable[[Any], str]]], items: Iterable[Any]) -> str:
+    """A table (`format_table`) of a row per item: a column per (header, the function that makes its cell)."""
+    return format_table([header for header, _ in columns], [[cell(item) for _, cell in columns] for item in items])
 
 
 def format_number(value: float | None, spec: str) -> str:
@@ -158,7 +163,7 @@ def trace_columns(
     true, estimate = np.asarray(trace["true"], dtype=float), np.asarray(trace["estimate"], dtype=float)
     diagnostics = {name_: np.asarray(v, dtype=float) for name_, v in (trace.get("diagnostics") or {}).items()}
     constant = {name_: np.full(steps, value, dtype=object) for name_, value in (parameters or {}).items()}
-    return {
+    columns = {
         "setting": np.full(steps, -1 if setting is None else setting),
         "run": np.full(steps, run),
         "seed": np.full(steps, seed, dtype=np.int64),
@@ -175,9 +180,12 @@ def trace_columns(
         "particle_count": np.asarray(trace["particle_count"], dtype=np.int64),
         "log_evidence": np.asarray(trace.get("log_evidence", np.full(steps, np.nan)), dtype=float),
         **{f"{DIAGNOSTIC_PREFIX}{name_}": values for name_, values in diagnostics.items()},
-        **exact_columns(trace.get("exact"), estimate),
         **constant,
     }
+    if trace.get("exact") is not None:  # the exact posterior mean per step, and the estimate's distance to it
+        exact = np.asarray(trace["exact"], dtype=float)
+        columns.update(exact_x=exact[:, 0], exact_y=exact[:, 1], distance_to_exact=np.hypot(*(estimate - exact).T))
+    return columns
 
 
 DIAGNOSTIC_PREFIX = "diagnostic_"  # a filter's own per-step figure, e.g. diagnostic_regularised
@@ -190,14 +198,6 @@ def per_step(column: str) -> bool:
     """Whether a column beyond TRACE_COLUMNS holds a number per step (a diagnostic, the exact posterior)
     rather than a parameter of the run."""
     return column.startswith(DIAGNOSTIC_PREFIX) or column in EXACT_COLUMNS
-
-
-def exact_columns(exact: Any, estimate: np.ndarray) -> dict[str, np.ndarray]:
-    """The exact posterior mean per step and the estimate's distance to it (none without a reference)."""
-    if exact is None:
-        return {}
-    exact = np.asarray(exact, dtype=float)
-    return {"exact_x": exact[:, 0], "exact_y": exact[:, 1], "distance_to_exact": np.hypot(*(estimate - exact).T)}
 
 
 def study_traces(records: Iterable[Any]) -> list[dict[str, Any]]:

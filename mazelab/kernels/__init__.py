@@ -32,6 +32,7 @@ from typing import Any
 import numba
 from numba import types
 from numba.core.caching import FunctionCache, IndexDataCacheFile
+from numba.core.codegen import get_host_cpu_features
 from numba.core.compiler import Compiler
 from numba.core.runtime import rtsys
 from numba.extending import intrinsic
@@ -57,6 +58,10 @@ def threading_layer() -> str:
 
 # TBB's library loaded where it is installed (for a user's choice of "tbb" too); the user's choice stands
 numba.config.THREADING_LAYER = os.environ.get("NUMBA_THREADING_LAYER", threading_layer())
+# 512-bit vectors where the CPU has AVX-512 (LLVM's tuning for Intel's keeps loops at 256 bits: the likelihood's pass
+# 25% slower, the move's and the weights' 10%; benchmarks/pass_costs.py), the same values; the user's choice stands.
+if numba.config.CPU_FEATURES is None and "+avx512f" in get_host_cpu_features().split(","):
+    numba.config.CPU_FEATURES = get_host_cpu_features() + ",-prefer-256-bit"
 
 
 @cache

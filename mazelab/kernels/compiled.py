@@ -154,9 +154,8 @@ class CompiledKernels(NumpyKernels):
         self, z: np.ndarray, x: np.ndarray, world: Any, sigma: float, outside_penalty: float
     ) -> np.ndarray:
         """Equation (3) in logs, compiled: the locate and the likelihood in one pass (float32, the numpy
-        path's values to the bit). The kernel's constants: sigma, -log(sigma sqrt(2 pi)), that plus
-        log(the penalty), then the tables' grid, float32 (7,) (one array: a kernel call types each
-        argument it is passed)."""
+        path's values to the bit), the kernel's constants (mazelab.kernels.model.log_likelihood) in one
+        array (a kernel call types each argument it is passed)."""
         if x.dtype != PARTICLE_DTYPE or world is not self._tables_of:
             return super().log_likelihood(z, x, world, sigma, outside_penalty)
         out = np.empty(x.shape[:2], dtype=PARTICLE_DTYPE)
