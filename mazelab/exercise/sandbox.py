@@ -125,9 +125,12 @@ class Sandbox:
 
 
 def read_only_binds(kit: Path, run: Path) -> list[tuple[str, str]]:
-    """(source, target) of each folder a sandbox binds read-only: the interpreter's, numpy's (under
-    SITE_ROOT), the kit and the submission's copy (`run/submission/`)."""
-    binds = [(f, f) for f in interpreter_folders()] + [(str(f), f"{SITE_ROOT}/{f.name}") for f in numpy_folders()]
+    """(source, target) of each folder a sandbox binds read-only: the interpreter's (its installation, the
+    standard library, and its binary's folder, unless one holds the other), numpy's (under SITE_ROOT), the
+    kit and the submission's copy (`run/submission/`)."""
+    folders = {os.path.realpath(sys.base_prefix), os.path.dirname(os.path.realpath(sys.executable))}
+    python = sorted(f for f in folders if not any(f != g and f.startswith(g + os.sep) for g in folders))
+    binds = [(f, f) for f in python] + [(str(f), f"{SITE_ROOT}/{f.name}") for f in numpy_folders()]
     return [*binds, (str(kit), KIT_ROOT), (str(run / "submission"), SUBMISSION_ROOT)]
 
 
@@ -135,12 +138,6 @@ def numpy_folders() -> list[Path]:
     """numpy's package folder and, for a wheel, its bundled libraries (numpy.libs) beside it."""
     package = Path(np.__file__).resolve().parent
     return [p for p in (package, package.parent / "numpy.libs") if p.is_dir()]
-
-
-def interpreter_folders() -> list[str]:
-    """The folders the interpreter needs: its installation (the standard library) and its binary's."""
-    folders = {os.path.realpath(sys.base_prefix), os.path.dirname(os.path.realpath(sys.executable))}
-    return sorted(f for f in folders if not any(f != g and f.startswith(g + os.sep) for g in folders))
 
 
 @functools.cache
