@@ -64,18 +64,6 @@ def kit_file(module: str) -> Path:
     return source_file(module).relative_to(PACKAGE_DIR.parent)
 
 
-def constants_text(module: str) -> str:
-    """A module of `module`'s upper-case constants as literals (their values now: one source of truth)."""
-    loaded = importlib.import_module(module)
-    lines = [f'"""The constants of {module}, as the student kit carries them."""', ""]
-    for name, value in vars(loaded).items():
-        upper = name.isupper() and not name.startswith("_") and name != "TYPE_CHECKING"
-        literal = isinstance(value, PLAIN) or (isinstance(value, tuple) and all(isinstance(v, PLAIN) for v in value))
-        if (name == "__version__" or upper) and literal:  # a repr that reads back as the same value
-            lines.append(f"{name} = {value!r}")
-    return "\n".join(lines) + "\n"
-
-
 def selected_text(module: str, names: tuple[str, ...]) -> str:
     """`module`'s source with only its imports, its constants and the named functions and classes
     (and the private top-level helpers they use), in their order."""
@@ -104,13 +92,20 @@ def selected_text(module: str, names: tuple[str, ...]) -> str:
 
 
 def module_text(module: str) -> str:
-    """The text the kit holds for `module`."""
+    """The text the kit holds for `module`: its source (WHOLE), its selected functions and classes, or
+    (CONSTANTS) a module of its upper-case constants as literals (their values now: one source of truth)."""
     how = KIT[module]
     if how == WHOLE:
         return source_file(module).read_text()
-    if how == CONSTANTS:
-        return constants_text(module)
-    return selected_text(module, tuple(how))
+    if how != CONSTANTS:
+        return selected_text(module, tuple(how))
+    lines = [f'"""The constants of {module}, as the student kit carries them."""', ""]
+    for name, value in vars(importlib.import_module(module)).items():
+        upper = name.isupper() and not name.startswith("_") and name != "TYPE_CHECKING"
+        literal = isinstance(value, PLAIN) or (isinstance(value, tuple) and all(isinstance(v, PLAIN) for v in value))
+        if (name == "__version__" or upper) and literal:  # a repr that reads back as the same value
+            lines.append(f"{name} = {value!r}")
+    return "\n".join(lines) + "\n"
 
 
 def build_kit(folder: Path) -> None:
