@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from mazelab.exercise.student import PARTS, PartError, StudentFilter, answer_array
+from mazelab.exercise.student import PartError, StudentFilter, answer_array
 from mazelab.maze import Maze
 from mazelab.seeding import run_streams
 from mazelab.stops import describe_exit
@@ -221,7 +221,7 @@ def part_calls(stage: str, inputs: Inputs) -> list[Call]:
     return calls
 
 
-def part_stage(cls: type, stage: str, inputs: Inputs, emit: Emit) -> tuple[dict, dict]:
+def part_stage(cls: type, stage: str, inputs: Inputs) -> tuple[dict, dict]:
     """One part's answers: a fresh filter (the parts' maze, sigma, delta, prior and Generator), then
     each call on copies of its inputs; the first error ends the stage."""
     given = inputs.of("parts")
@@ -241,7 +241,7 @@ def part_stage(cls: type, stage: str, inputs: Inputs, emit: Emit) -> tuple[dict,
     return ({"error": error} if error else {}), out
 
 
-def whole_stage(cls: type, stage: str, inputs: Inputs, emit: Emit) -> tuple[dict, dict]:
+def whole_stage(cls: type, inputs: Inputs, emit: Emit) -> tuple[dict, dict]:
     """estimates/i (steps, 2): the filter stepped along scenario i's compass angles and measurements,
     its estimate read after each step; the first error ends the stage (naming scenario and step)."""
     out: dict[str, np.ndarray] = {}
@@ -265,9 +265,6 @@ def whole_stage(cls: type, stage: str, inputs: Inputs, emit: Emit) -> tuple[dict
             return {"error": {"kind": "exit" if exited else "error", "text": text}, "scenario": i, "step": step}, out
         out[f"estimates/{i}"] = estimates
     return {}, out
-
-
-STAGE_RUNNERS = {**dict.fromkeys(PARTS, part_stage), "whole": whole_stage}
 
 
 # -- loading and serving ----------------------------------------------------------------------
@@ -337,7 +334,7 @@ def serve(request: Message, emit: Emit, filter_class: type | None = None) -> Non
         for stage in request.meta["stages"]:
             emit({"kind": "stage", "stage": stage})
             started = time.perf_counter()
-            meta, arrays = STAGE_RUNNERS[stage](cls, stage, inputs, emit)
+            meta, arrays = whole_stage(cls, inputs, emit) if stage == "whole" else part_stage(cls, stage, inputs)
             _flush()
             emit({**meta, "kind": "result", "stage": stage, "seconds": time.perf_counter() - started}, arrays)
     emit({"kind": "done"})

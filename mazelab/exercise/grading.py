@@ -20,14 +20,14 @@ import textwrap
 import threading
 import time
 from collections.abc import Callable, Iterator
-from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
+from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
 from mazelab.atomic import WriteError, write_atomically
 from mazelab.backend import use_threads
 from mazelab.exercise.parts import FAIL, NOT_OWN, NOT_RUN, NOT_WRITTEN, PASS, SHOWN, clean
-from mazelab.exercise.report import ROWS, NotGradableError, References, Report, Submission, check_file, format_report
+from mazelab.exercise.report import ROWS, NotGradableError, Report, Submission, check_file, format_report
 from mazelab.exercise.sandbox import DEFAULT_BUDGET, SandboxError, allow_children, stop_children
 from mazelab.exercise.student import PARTS
 from mazelab.exercise.template import FILTER_FILE, Catalogue
@@ -92,7 +92,7 @@ def _in_folder(folder: Path) -> Submission:
     return Submission(folder.name, None, f"{folder}: which file? {names} (call the one to grade {FILTER_FILE})")
 
 
-def grade_one(submission: Submission, timeout: float, references: References | None = None, **inputs: Any) -> Report:
+def grade_one(submission: Submission, timeout: float, references: Executor | None = None, **inputs: Any) -> Report:
     """Check one submission (`exercise check`'s, or one of a class's), its inputs from `inputs` (the
     key, or a seed: check_file): never raises for the submission, nor for the grader's own failure on
     it (its row says so); only a sandbox that cannot start (SandboxError) and a stop propagate."""
@@ -135,48 +135,36 @@ def grade_folder(
     `on_done` was given is kept."""
     from mazelab.experiments.executor import progress_bar
 
+    jobs, lock = jobs or os.cpu_count() or 1, threading.Lock()
+    methods = multiprocessing.get_all_start_methods()  # a fresh interpreter each, never a fork of threads
+    context = multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn")
     bar = progress_bar(len(submissions), progress, what="submissions")
     with claimed(claims or []), use_threads(1), bar as advance:  # use_threads(1): a submission is a thread
-        return _in_threads(submissions, key, timeout, jobs or os.cpu_count() or 1, on_done, advance)
-
-
-def _in_threads(
-    submissions: list[Submission],
-    key: bytes,
-    timeout: float,
-    jobs: int,
-    on_done: Callable[[Report], None] | None,
-    advance: Callable[[], None],
-) -> list[Report]:
-    """grade_folder's work: a thread per submission being graded, the reference runs in a process pool."""
-    lock = threading.Lock()
-    allow_children()
-    methods = multiprocessing.get_all_start_methods()  # a fresh interpreter each, never a fork of threads
-    pool = ProcessPoolExecutor(jobs, multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn"))
-    references = References(pool)
-
-    def one(submission: Submission) -> Report:
-        graded = grade_one(submission, timeout, references, key=key)
-        with lock:
-            if on_done is not None:
-                on_done(graded)
-            advance()
-        return graded
-
-    threads = ThreadPoolExecutor(jobs, "mazelab-grade", initializer=_quiet_thread if os.name == "posix" else None)
-    futures = [threads.submit(one, submission) for submission in submissions]
-    try:
-        return [future.result() for future in futures]
-    except BaseException:  # the waiting ones are cancelled below
-        stop_children()
-        for process in list((getattr(pool, "_processes", None) or {}).values()):
-            with contextlib.suppress(OSError, AttributeError):
-                process.kill()  # a grid run in progress would hold shutdown for seconds
-        raise
-    finally:
-        threads.shutdown(wait=True, cancel_futures=True)
-        pool.shutdown(wait=True, cancel_futures=True)
         allow_children()
+        pool = ProcessPoolExecutor(jobs, context)
+
+        def one(submission: Submission) -> Report:
+            graded = grade_one(submission, timeout, pool, key=key)
+            with lock:
+                if on_done is not None:
+                    on_done(graded)
+                advance()
+            return graded
+
+        threads = ThreadPoolExecutor(jobs, "mazelab-grade", initializer=_quiet_thread if os.name == "posix" else None)
+        futures = [threads.submit(one, submission) for submission in submissions]
+        try:
+            return [future.result() for future in futures]
+        except BaseException:  # the waiting ones are cancelled below
+            stop_children()
+            for process in list((getattr(pool, "_processes", None) or {}).values()):
+                with contextlib.suppress(OSError, AttributeError):
+                    process.kill()  # a grid run in progress would hold shutdown for seconds
+            raise
+        finally:
+            threads.shutdown(wait=True, cancel_futures=True)
+            pool.shutdown(wait=True, cancel_futures=True)
+            allow_children()
 
 
 # -- the key and the outputs --------------------------------------------------------------------------

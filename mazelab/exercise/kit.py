@@ -25,7 +25,6 @@ import textwrap
 import tokenize
 from functools import cache
 from pathlib import Path
-from typing import NamedTuple
 
 from mazelab.exercise.student import PARTS
 
@@ -65,18 +64,6 @@ def kit_file(module: str) -> Path:
     return source_file(module).relative_to(PACKAGE_DIR.parent)
 
 
-def constants_text(module: str) -> str:
-    """A module of `module`'s upper-case constants as literals (their values now: one source of truth)."""
-    loaded = importlib.import_module(module)
-    lines = [f'"""The constants of {module}, as the student kit carries them."""', ""]
-    for name, value in vars(loaded).items():
-        upper = name.isupper() and not name.startswith("_") and name != "TYPE_CHECKING"
-        literal = isinstance(value, PLAIN) or (isinstance(value, tuple) and all(isinstance(v, PLAIN) for v in value))
-        if (name == "__version__" or upper) and literal:  # a repr that reads back as the same value
-            lines.append(f"{name} = {value!r}")
-    return "\n".join(lines) + "\n"
-
-
 def selected_text(module: str, names: tuple[str, ...]) -> str:
     """`module`'s source with only its imports, its constants and the named functions and classes
     (and the private top-level helpers they use), in their order."""
@@ -105,13 +92,20 @@ def selected_text(module: str, names: tuple[str, ...]) -> str:
 
 
 def module_text(module: str) -> str:
-    """The text the kit holds for `module`."""
+    """The text the kit holds for `module`: its source (WHOLE), its selected functions and classes, or
+    (CONSTANTS) a module of its upper-case constants as literals (their values now: one source of truth)."""
     how = KIT[module]
     if how == WHOLE:
         return source_file(module).read_text()
-    if how == CONSTANTS:
-        return constants_text(module)
-    return selected_text(module, tuple(how))
+    if how != CONSTANTS:
+        return selected_text(module, tuple(how))
+    lines = [f'"""The constants of {module}, as the student kit carries them."""', ""]
+    for name, value in vars(importlib.import_module(module)).items():
+        upper = name.isupper() and not name.startswith("_") and name != "TYPE_CHECKING"
+        literal = isinstance(value, PLAIN) or (isinstance(value, tuple) and all(isinstance(v, PLAIN) for v in value))
+        if (name == "__version__" or upper) and literal:  # a repr that reads back as the same value
+            lines.append(f"{name} = {value!r}")
+    return "\n".join(lines) + "\n"
 
 
 def build_kit(folder: Path) -> None:
@@ -138,13 +132,6 @@ REFERENCE_SOURCES = (  # where the lab's implementations of the four parts live
     "mazelab.regularisation",
 )
 FUNCTIONS = (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)
-
-
-class Likeness(NamedTuple):
-    """A part's nearest reference function: its qualified name and the share of its fingerprint in the part."""
-
-    reference: str
-    share: float
 
 
 def _plain(tree: ast.AST) -> ast.AST:
@@ -249,18 +236,19 @@ def part_functions(sources: dict[str, str]) -> tuple[dict[str, list[ast.AST]], l
     return found, [n for tree in trees for n in ast.walk(tree) if isinstance(n, FUNCTIONS)]
 
 
-def _nearest(nodes: list[ast.AST]) -> Likeness:
-    """The reference function most contained in `nodes`."""
+def _nearest(nodes: list[ast.AST]) -> tuple[float, str]:
+    """(the share of its fingerprint in `nodes`, the qualified name) of the reference function most
+    contained in `nodes`."""
     mine: set[tuple[str, ...]] = set()
     for node in nodes:
         mine |= fingerprint(tokens(node))
     references = reference_prints()
     shares = {name: len(prints & mine) / len(prints) for name, prints in references.items() if prints}
     nearest = max(shares, key=lambda name: (round(shares[name], 2), len(references[name])))  # the largest of ties
-    return Likeness(nearest, shares[nearest])
+    return shares[nearest], nearest
 
 
-def likeness(sources: dict[str, str]) -> dict[str, Likeness]:
+def likeness(sources: dict[str, str]) -> dict[str, tuple[float, str]]:
     """Each part's nearest reference function in a submission's files, by containment; "whole" for the
     nearest of the functions no part reaches."""
     try:
@@ -271,16 +259,16 @@ def likeness(sources: dict[str, str]) -> dict[str, Likeness]:
     reached = {id(n) for nodes in parts.values() for top in nodes for n in ast.walk(top)}
     alone = [_nearest([node]) for node in every if id(node) not in reached]
     if alone:
-        found["whole"] = max(alone, key=lambda one: one.share)
+        found["whole"] = max(alone, key=lambda one: one[0])
     return found
 
 
 def copied_parts(sources: dict[str, str]) -> dict[str, str]:
     """The parts (and "whole") of a submission's files that are the lab's code, each with the line saying whose."""
     return {
-        part: f"{one.share:.0%} of the lab's {one.reference} is in it (its code with the names changed)"
-        for part, one in likeness(sources).items()
-        if one.share >= LIKENESS_LIMIT
+        part: f"{share:.0%} of the lab's {reference} is in it (its code with the names changed)"
+        for part, (share, reference) in likeness(sources).items()
+        if share >= LIKENESS_LIMIT
     }
 
 

@@ -1,5 +1,5 @@
 """A row of the report, and the verdicts on the four parts and the whole filter (against the exact grid
-filter's posterior means, beside the shipped SIR's: mazelab.exercise.report.References), made by the
+filter's posterior means, beside the shipped SIR's: mazelab.exercise.report.reference_run), made by the
 grader from the values the student's process returned for the inputs of mazelab.exercise.inputs: what
 each check tests, its tolerance and its false-alarm rate are docs/exercise.md's "What each check promises".
 """
@@ -15,6 +15,7 @@ import numpy as np
 
 from mazelab.exercise.child import Message, WireError
 from mazelab.exercise.inputs import SCENARIO_COUNT, PartInputs, ScenarioInputs
+from mazelab.experiments.study import distance_to_exact
 from mazelab.model import OUTSIDE_PENALTY, ROBOT_SPEED, log_likelihood
 from mazelab.simulation import convergence_step
 from mazelab.weights import effective_sample_size
@@ -463,9 +464,10 @@ def expectations(inputs: PartInputs) -> dict[str, str]:
 def judge(
     stage: str, inputs: PartInputs, scenarios: list[ScenarioInputs], answer: Message, report: Any, references: Any
 ) -> Row:
-    """A stage's row from its answer: the error the student's code reported, or its values judged; the
-    scheme the resampler resembles and the whole filter's figures go into `report` (the whole filter's SIR
-    resamples with that scheme, on the scenarios' reference runs from `references`)."""
+    """A stage's row from its answer: the error the student's code reported (the whole filter's naming
+    its scenario), or its values judged (an estimate that is not a number names its step); the scheme the
+    resampler resembles and the whole filter's figures go into `report` (the whole filter's SIR resamples
+    with that scheme, on the scenarios' reference runs: `references`, report.reference_run)."""
     error, scheme = error_of(answer), report.scheme
     if error and stage != "whole":  # not written, an exit of its own, the wrong form, or an error (its line)
         expected = expectations(inputs)[stage]
@@ -478,13 +480,24 @@ def judge(
         return row
     if stage != "whole":
         return {"predict": judge_predict, "weigh": judge_weigh, "estimate": judge_estimate}[stage](inputs, answer)
+    expected = whole_expected(scheme)
     if any(row.status == NOT_WRITTEN for row in report.rows):  # the parts' rows come first
-        return Row("whole filter", NOT_RUN, whole_expected(scheme), "not run", "write every part first")
-    estimates = whole_answer(scenarios, answer, scheme)
-    if isinstance(estimates, Row):
-        return estimates
-    sir = [references.sir(s, scheme) for s in scenarios]
-    exact = [references.exact(s).result() for s in scenarios]
+        return Row("whole filter", NOT_RUN, expected, "not run", "write every part first")
+    if error:  # naming the scenario
+        where = answer.meta.get("scenario")
+        prefix = f"scenario {where + 1}: " if isinstance(where, int) and not isinstance(where, bool) else ""
+        hint = NAN_HINT if "not finite" in error["text"] else "fix the error first"
+        return Row("whole filter", FAIL, expected, prefix + error["text"], hint)
+    estimates = []
+    for i, scenario in enumerate(scenarios):  # the student's estimates, each a number at every step (or which is not)
+        mine = take(answer, f"estimates/{i}", (len(scenario.measurements), 2))
+        if not np.isfinite(mine).all():
+            step = int(np.argmin(np.isfinite(mine).all(axis=1))) + 1
+            got = f"scenario {i + 1}: the estimate is {mine[step - 1].tolist()} at step {step}"
+            return Row("whole filter", FAIL, expected, got, NAN_HINT)
+        estimates.append(mine)
+    sir = [references(s, scheme) for s in scenarios]
+    exact = [references(s).result() for s in scenarios]
     row, report.figures = judge_whole(scenarios, estimates, exact, [f.result() for f in sir], scheme)
     return row
 
@@ -540,36 +553,6 @@ FIGURE_COLUMNS = (  # the per-scenario table: each column's heading and its cell
 )
 
 
-def distance_to_exact(estimates: np.ndarray, exact: np.ndarray) -> float:
-    """Mean distance between a run's estimates and the exact posterior means over the second half."""
-    window = slice(len(exact) // 2, None)
-    return float(np.hypot(*(estimates - exact)[window].T).mean())
-
-
-def converged(estimates: np.ndarray, truth: np.ndarray) -> bool:
-    return convergence_step(np.hypot(*(estimates - truth).T)) is not None
-
-
-def whole_answer(scenarios: list[ScenarioInputs], answer: Message, scheme: str) -> Row | list[np.ndarray]:
-    """The student's estimates per scenario, or the failing row when there are none to compare: an
-    error (naming the scenario) or an estimate that is not a number (naming the step)."""
-    expected, error = whole_expected(scheme), error_of(answer)
-    if error:
-        where = answer.meta.get("scenario")
-        prefix = f"scenario {where + 1}: " if isinstance(where, int) and not isinstance(where, bool) else ""
-        hint = NAN_HINT if "not finite" in error["text"] else "fix the error first"
-        return Row("whole filter", FAIL, expected, prefix + error["text"], hint)
-    estimates = []
-    for i, scenario in enumerate(scenarios):
-        mine = take(answer, f"estimates/{i}", (len(scenario.measurements), 2))
-        if not np.isfinite(mine).all():
-            step = int(np.argmin(np.isfinite(mine).all(axis=1))) + 1
-            got = f"scenario {i + 1}: the estimate is {mine[step - 1].tolist()} at step {step}"
-            return Row("whole filter", FAIL, expected, got, NAN_HINT)
-        estimates.append(mine)
-    return estimates
-
-
 def judge_whole(
     scenarios: list[ScenarioInputs],
     estimates: list[np.ndarray],
@@ -581,7 +564,7 @@ def judge_whole(
     figures = []
     for s, mine, exact_means, sir_means in zip(scenarios, estimates, exact, sir, strict=True):
         distances = (distance_to_exact(mine, exact_means), distance_to_exact(sir_means, exact_means))
-        convergence = (converged(mine, s.true_positions), converged(sir_means, s.true_positions))
+        convergence = (convergence_step(np.hypot(*(run - s.true_positions).T)) is not None for run in (mine, sir_means))
         figures.append(ScenarioFigures(s, *distances, *convergence))
     worse = sum(not f.distance <= f.sir_distance for f in figures)  # NaN counts as worse
     mean, sir_mean = np.mean([f.distance for f in figures]), np.mean([f.sir_distance for f in figures])

@@ -1,7 +1,7 @@
 """The check of one submission (docs/exercise.md, "Grading one submission"): its inputs drawn, its
 stages run in child processes within one time budget (`check_file`, the grade) or in this process
 (`check`, the self-check, which nothing isolates), the grader's own runs of the exact and the SIR
-filters beside them (`References`), each row judged here from the values they returned, and the report
+filters beside them (`reference_run`), each row judged here from the values they returned, and the report
 as text of at most WIDTH columns. A submission that cannot be checked at all raises
 NotGradableError (one line). Every text that reaches a report is `clean` (parts.py).
 """
@@ -163,28 +163,17 @@ class Background(Executor):
 _background = functools.cache(Background)  # the one made at the first call
 
 
-class References:
-    """The exact and the SIR runs of scenarios, each computed once per process (a memo of futures
-    shared by every References), on `executor` (default: one background thread, made at its first use)."""
-
-    def __init__(self, executor: Executor | None = None):
-        self.executor = executor
-
-    def _submit(self, key: tuple, scenario: ScenarioInputs, filter_name: str, **options: object) -> Future:
-        with _memo_lock:
-            future = _memo.get(key)
-            if future is not None and not (future.done() and (future.cancelled() or future.exception())):
-                return future
-            executor = self.executor or _background()
-            future = executor.submit(ScenarioInputs.replay, scenario, filter_name, **options)
-            _memo[key] = future
-            return future
-
-    def exact(self, scenario: ScenarioInputs) -> Future:
-        return self._submit(("exact", scenario.key), scenario, "grid", resolution=GRID_RESOLUTION)
-
-    def sir(self, scenario: ScenarioInputs, scheme: str) -> Future:
-        return self._submit(("sir", scheme, scenario.key), scenario, "sir", resampling=scheme)
+def reference_run(scenario: ScenarioInputs, scheme: str | None = None, executor: Executor | None = None) -> Future:
+    """The exact grid filter's run of `scenario` (its posterior means), or with a `scheme` the SIR's
+    resampling with it: each computed once per process (a memo of futures), on `executor` (default:
+    one background thread, made at its first use)."""
+    name, options = ("grid", {"resolution": GRID_RESOLUTION}) if scheme is None else ("sir", {"resampling": scheme})
+    with _memo_lock:
+        future = _memo.get((name, scheme, scenario.key))
+        if future is None or (future.done() and (future.cancelled() or future.exception())):
+            future = (executor or _background()).submit(ScenarioInputs.replay, scenario, name, **options)
+            _memo[(name, scheme, scenario.key)] = future
+        return future
 
 
 # -- collecting the answers ---------------------------------------------------------------------------
@@ -265,7 +254,7 @@ def build_report(
     parts: PartInputs,
     scenarios: list[ScenarioInputs],
     answers: Answers,
-    references: Any,
+    references: Callable[..., Future],
     stages: tuple[str, ...] = STAGES,
     copies: dict | None = None,
 ) -> Report:
@@ -318,7 +307,7 @@ def check_file(
     seed: int | None = None,
     key: bytes | None = None,
     timeout: float = DEFAULT_BUDGET,
-    references: Any = None,
+    references: Executor | None = None,
     stages: tuple[str, ...] = STAGES,
     companions: bool = True,
 ) -> Report:
@@ -357,22 +346,22 @@ def _check(
     stages: tuple[str, ...],
     collect: Callable[[PartInputs, list[ScenarioInputs]], Answers],
     sources: dict[str, str],
-    references: Any = None,
+    references: Executor | None = None,
 ) -> Report:
     """The check both ways: the seed's inputs, the exact runs started while the student's code works,
     its answers collected, the report built (the class named as the student's process says)."""
     started = time.perf_counter()
     parts = draw_part_inputs(seed)
     scenarios = draw_scenarios(seed) if "whole" in stages else []
-    references = references or References()
+    runs = functools.partial(reference_run, executor=references)
     for scenario in scenarios:
-        references.exact(scenario)
+        runs(scenario)
     answers = collect(parts, scenarios)
     loaded = answers.loaded or {}
     if loaded.get("error"):  # it does not import, has no such class, or the class is not a StudentFilter
         raise NotGradableError(loaded["error"])
     report.filter_name = clean(loaded.get("name") or report.filter_name, 80)
-    build_report(report, parts, scenarios, answers, references, stages, copied_parts(sources))
+    build_report(report, parts, scenarios, answers, runs, stages, copied_parts(sources))
     report.seconds = time.perf_counter() - started
     return report
 

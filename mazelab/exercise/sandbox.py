@@ -125,9 +125,12 @@ class Sandbox:
 
 
 def read_only_binds(kit: Path, run: Path) -> list[tuple[str, str]]:
-    """(source, target) of each folder a sandbox binds read-only: the interpreter's, numpy's (under
-    SITE_ROOT), the kit and the submission's copy (`run/submission/`)."""
-    binds = [(f, f) for f in interpreter_folders()] + [(str(f), f"{SITE_ROOT}/{f.name}") for f in numpy_folders()]
+    """(source, target) of each folder a sandbox binds read-only: the interpreter's (its installation, the
+    standard library, and its binary's folder, unless one holds the other), numpy's (under SITE_ROOT), the
+    kit and the submission's copy (`run/submission/`)."""
+    folders = {os.path.realpath(sys.base_prefix), os.path.dirname(os.path.realpath(sys.executable))}
+    python = sorted(f for f in folders if not any(f != g and f.startswith(g + os.sep) for g in folders))
+    binds = [(f, f) for f in python] + [(str(f), f"{SITE_ROOT}/{f.name}") for f in numpy_folders()]
     return [*binds, (str(kit), KIT_ROOT), (str(run / "submission"), SUBMISSION_ROOT)]
 
 
@@ -135,12 +138,6 @@ def numpy_folders() -> list[Path]:
     """numpy's package folder and, for a wheel, its bundled libraries (numpy.libs) beside it."""
     package = Path(np.__file__).resolve().parent
     return [p for p in (package, package.parent / "numpy.libs") if p.is_dir()]
-
-
-def interpreter_folders() -> list[str]:
-    """The folders the interpreter needs: its installation (the standard library) and its binary's."""
-    folders = {os.path.realpath(sys.base_prefix), os.path.dirname(os.path.realpath(sys.executable))}
-    return sorted(f for f in folders if not any(f != g and f.startswith(g + os.sep) for g in folders))
 
 
 @functools.cache
@@ -412,21 +409,20 @@ class ChildRun:
 
     def take(self, message: Message) -> bool:
         """Record one message (False: it ends the conversation as unreadable). A second "loaded" (two
-        processes answering) voids every answer; a stage answered twice voids that stage."""
+        processes answering: "loaded" in `twice`) voids every answer; a stage answered twice voids that stage."""
         meta, kind = message.meta, message.meta.get("kind")
         stage, self.done = meta.get("stage"), kind == "done"
         if kind == "hello" and self.hello is None:
             self.hello = time.perf_counter()
         elif kind == "loaded":
-            if self.loaded is not None:
-                self.twice |= set(self.results) | {"loaded"}
+            self.twice |= set() if self.loaded is None else {"loaded"}
             self.loaded = meta
         elif kind == "stage" and isinstance(stage, str):
             self.started += [] if stage in self.started else [stage]
             scenario = meta.get("scenario")
             self.scenario = scenario if isinstance(scenario, int) and not isinstance(scenario, bool) else self.scenario
         elif kind == "result" and isinstance(stage, str):
-            if stage in self.results or "loaded" in self.twice:
+            if stage in self.results:
                 self.twice.add(stage)
             self.results[stage] = message
         elif kind != "done":

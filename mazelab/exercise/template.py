@@ -243,14 +243,6 @@ def lab_files() -> list[Path]:
     return sorted(set(found))
 
 
-def source_digest(files: list[Path]) -> str:
-    """sha256 of the lab's files (names and contents): which source a bundle holds."""
-    digest = hashlib.sha256()
-    for name in files:
-        digest.update(f"{name.as_posix()}\0".encode() + (ROOT / name).read_bytes() + b"\0")
-    return digest.hexdigest()
-
-
 def pinned_requirements() -> str:
     """The lab's dependencies at the versions installed here (requirements.txt, where there is no uv.lock)."""
     lines = []
@@ -263,14 +255,16 @@ def pinned_requirements() -> str:
 
 def bundle_bytes(key: bytes, lang: str | None = None, timeout: float = DEFAULT_BUDGET) -> bytes:
     """The zip: setup.sh and run_autograder (executable, the instructor's language and time budget baked
-    in) and the key at its top, the lab's source under lab/."""
-    files, options = lab_files(), shlex.join(["--lang", lang] if lang else [])
+    in) and the key at its top, the lab's source under lab/ (setup.sh names its sha256: names and contents)."""
+    sources = {name.as_posix(): (ROOT / name).read_bytes() for name in lab_files()}  # read once: digested, zipped
+    digest = hashlib.sha256(b"".join(f"{name}\0".encode() + data + b"\0" for name, data in sources.items()))
+    options = shlex.join(["--lang", lang] if lang else [])
     texts = {
-        "setup.sh": SETUP.format(version=__version__, digest=source_digest(files)),
+        "setup.sh": SETUP.format(version=__version__, digest=digest.hexdigest()),
         "run_autograder": RUN.format(version=__version__, timeout=f"{timeout:g}", options=options).replace(" \n", "\n"),
         "grading.key": key.hex() + "\n",
     }
-    texts |= {f"lab/{n.as_posix()}": (ROOT / n).read_bytes() for n in files}
+    texts |= {f"lab/{name}": data for name, data in sources.items()}
     if not (ROOT / "uv.lock").is_file():
         texts["lab/requirements.txt"] = pinned_requirements()
     buffer = io.BytesIO()
