@@ -299,36 +299,35 @@ def run_cells(
     holds it; each one finished is appended to the journal. A stop keeps them there and says how to go on
     (exit 130, 143 or 129); a lost cluster or a cell that failed: one line, exit 1."""
     (log, done), workers = journal or (None, {}), executor.worker_count(workers)
-    log_evidence = np.array([done.get(i, np.nan) for i in range(len(sigmas))])
     units = [((i, sigmas[i], deltas[i]),) for i in range(len(sigmas)) if i not in done]
 
-    def keep(cells: list[tuple[int, float]]) -> None:  # a finished cell, as the study's collector hands a run's rows
+    def keep(cells: list[tuple[int, float]]) -> None:  # finished cells, as the study's collector hands a run's rows
         for index, value in cells:
-            log_evidence[index] = value
-            if log is not None:
-                log.write({"cell": index, "log_evidence": value})
+            log.write({"cell": index, "log_evidence": value})
 
     client = executor.open_cluster(dask, "numpy")  # a bad address, workers of other versions: one line
     where = f"the Dask cluster at {dask}" if client is not None else f"{min(workers, max(len(units), 1))} process(es)"
     typer.echo(f"the exact posterior's cells: {len(units)} of {len(sigmas)} to go on {where}")
     outcome = executor.StudyOutcome()
+    collect = outcome.collector(keep if log is not None else None)  # the cells in outcome.records, and the journal
     try:
         work = executor.Units(units, functools.partial(cell_unit, cell), workers, client, executor.DASK_TIMEOUT)
-        executor.run_units(outcome, work, outcome.collector(keep), len(units), True, "cells")
+        executor.run_units(outcome, work, collect, len(units), True, "cells")
     finally:
         if client is not None:
             executor.close_client(client)
+    done.update(outcome.records)  # the cells finished now, (index, log evidence) each
     failed = [f"the cell sigma {f.task[1]:g}, delta {f.task[2]:g}: {f.message}" for f in outcome.failures]
     stopped = "lost" if outcome.lost is not None else "interrupted" if outcome.interrupted else None
     if log is not None:
         log.end_session(stopped or ("finished" if not failed else "failed"))
     if stopped:
         kept = f"; {log.kept()}; go on with: {resume_command()}" if log is not None else ""
-        exit_stopped(outcome, int((~np.isnan(log_evidence)).sum()), len(sigmas), kept, what="cells")
+        exit_stopped(outcome, len(done), len(sigmas), kept, what="cells")
     if failed:
         typer.echo(f"error: {failed[0]} ({len(failed)} cell(s) failed)", err=True)
         raise typer.Exit(1)
-    return log_evidence
+    return np.array([done[i] for i in range(len(sigmas))])
 
 
 def cell_unit(cell: Any, unit: tuple[tuple[int, float, float], ...]) -> list[list[tuple[int, float]]]:
