@@ -1,8 +1,6 @@
-"""`mazelab smooth` and `mazelab learn`: where the robot was at each step of a saved scenario given all its
-measurements (the exact smoother beside each particle filter's path and fixed-lag smoothers,
-mazelab.smoothing), and which sigma and delta explain them (the exact parameter posterior and PMMH,
-mazelab.learning). Each prints a table and writes, when asked, rows (--csv), a figure (--plot) and a JSON
-record beside the rows like a study's (the command, versions, the scenario's sha256, a summary)."""
+"""`mazelab smooth` (mazelab.smoothing) and `mazelab learn` (mazelab.learning), each command's docstring saying
+what it computes: each prints a table and writes, when asked, rows (--csv), a figure (--plot) and a JSON record
+beside the rows like a study's (the command, versions, the scenario's sha256, a summary)."""
 
 from __future__ import annotations
 
