@@ -250,8 +250,7 @@ def cells_journal(files: dict[str, Any], recorder: Recorder) -> tuple[Journal, d
     """The journal of the exact posterior's cells beside --csv (a study's: mazelab.experiments.journal, which
     refuses one another command writes, or one an earlier left without --resume or --force), and the cells
     an earlier session finished (--resume: what they depend on must be this command's, else one line)."""
-    csv_path, resume = files["csv_path"], files["resume"]
-    file = journal_path(csv_path) if csv_path is not None else None
+    csv_path, file, resume = files["csv_path"], files["journal"], files["resume"]  # the journal `opened` named
     if resume and (file is None or not file.exists()):
         raise UserError(f"--resume: no journal of the cells beside {csv_path} to go on from; leave out --resume")
     if file is None:
@@ -432,10 +431,10 @@ def posterior_figure(posterior: Any, chain: Any, title: str) -> Any:
 def opened(
     scenario: Path, csv_path: Path | None, plot: Path | None, record: Path | None, rrd: Path | None, **flags: bool
 ) -> tuple[Path, Scenario, dict[str, Any], tuple[Any, float, float]]:
-    """The scenario (a file or a shipped name) with its measurements, the outputs (`output_options`) checked
-    before any work (distinct files, none replaced without --force or learn's --resume, the record beside --csv
-    by default) and returned so, and the scenario's maze (the shipped one it fits when it stores none), sigma
-    and delta."""
+    """The scenario (a file or a shipped name) with its measurements, the outputs (`output_options`, and --csv's
+    journal) checked before any work (distinct files, none replaced without --force or learn's --resume, the
+    record beside --csv by default) and returned so, and the scenario's maze (the shipped one it fits when it
+    stores none), sigma and delta."""
     from mazelab.cli.replay import replay_setup
     from mazelab.scenario import find_scenario, load_scenario  # imported by the commands that read one (a study never)
 
@@ -448,7 +447,7 @@ def opened(
     if stored.robot_measurements is None:
         raise UserError(f"{path} stores no measurements (robot_measurements): save a run's scenario with them")
     setup = replay_setup(stored, None, None, None, 0)
-    files = {"csv_path": csv_path, "plot": plot, "record": record, "rrd": rrd, **flags}
+    files = {"csv_path": csv_path, "journal": journal, "plot": plot, "record": record, "rrd": rrd, **flags}
     return path, stored, files, (setup.world, setup.sigma, setup.delta)
 
 
