@@ -221,7 +221,16 @@ def learn(
     processes or a --dask cluster, each finished cell kept in a journal beside --csv that --resume goes on
     from), and a PMMH chain (--pmmh) with a particle filter's evidence beside it."""
     path, stored, files, (world, _, _) = opened(scenario, **files)
-    grid = parameter_grid(sigma_range, delta_range, cells)
+    ranges = []  # --sigma-range and --delta-range, LOW,HIGH each
+    for text, option in ((sigma_range, "--sigma-range"), (delta_range, "--delta-range")):
+        values = parse_list(text, float, option)
+        if len(values) != 2:
+            raise UserError(f"{option} takes LOW,HIGH (two numbers), got {text!r}")
+        ranges.append(tuple(values))
+    try:
+        grid = ParameterGrid(*ranges, (cells, cells))
+    except ValueError as error:
+        raise UserError(f"{error} (--sigma-range, --delta-range)") from None
     if chain["pmmh"]:
         evidence_filter(chain["filter"])  # a filter PMMH cannot use: one line before the exact posterior's runs
     parameters = {
@@ -354,20 +363,6 @@ def learning_summary(posterior: ParameterPosterior, chain: Any, filter_name: str
             f"{chain.mean_error[0]:.3f}, {chain.mean_error[1]:.3f}"
         )
     return summary
-
-
-def parameter_grid(sigma_range: str, delta_range: str, cells: int) -> ParameterGrid:
-    """The ParameterGrid of --sigma-range, --delta-range ('0.2,0.8': LOW,HIGH) and --cells, or one line."""
-    ranges = []
-    for text, option in ((sigma_range, "--sigma-range"), (delta_range, "--delta-range")):
-        values = parse_list(text, float, option)
-        if values is None or len(values) != 2:
-            raise UserError(f"{option} takes LOW,HIGH (two numbers), got {text!r}")
-        ranges.append(tuple(values))
-    try:
-        return ParameterGrid(*ranges, (cells, cells))
-    except ValueError as error:
-        raise UserError(f"{error} (--sigma-range, --delta-range)") from None
 
 
 def chain_recording(posterior: ParameterPosterior, chain: Any, world: Any, path: Path, force: bool) -> None:
