@@ -256,9 +256,8 @@ def learn(
 
 
 def cells_journal(files: dict[str, Any], recorder: Recorder) -> tuple[Journal, dict] | None:
-    """The journal of the exact posterior's cells beside --csv (a study's: mazelab.experiments.journal, which
-    refuses one another command writes, or one an earlier left without --resume or --force), and the cells
-    an earlier session finished (--resume: what they depend on must be this command's, else one line)."""
+    """The journal of the exact posterior's cells beside --csv (a study's Journal, refused as a study's is) and
+    the cells an earlier session finished (--resume: what they depend on must be this command's, else one line)."""
     csv_path, file, resume = files["csv_path"], files["journal"], files["resume"]  # the journal `opened` named
     if resume and (file is None or not file.exists()):
         raise UserError(f"--resume: no journal of the cells beside {csv_path} to go on from; leave out --resume")
@@ -285,9 +284,8 @@ def cells_journal(files: dict[str, Any], recorder: Recorder) -> tuple[Journal, d
             raise UserError(f"--resume: {file} holds a line that is not a cell's ({error!r})") from None
         typer.echo(f"resuming: {len(done)} cell(s) kept from {file}")
     journal = Journal(file, adopt=resume, replace=files["force"])
-    journal.write(
-        {"session": {"command": recorder.data["command"], "started": recorder.data["started"], "parameters": compared}}
-    )
+    started = {k: recorder.data[k] for k in ("command", "started")}  # as a study's session line
+    journal.write({"session": {**started, "parameters": compared}})
     return journal, done
 
 
