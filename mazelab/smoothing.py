@@ -267,9 +267,8 @@ class Genealogy:
     step j - 1 and their own weights; recovery's injected particles have none either and leave the
     weight of the trace (the others' renormalised).
 
-    Memory: positions (2 float32), a weight (float64) and an ancestor (int64) of each particle of each
-    kept step, 24 R N bytes a step: every step (R N K), which the path smoother needs (the fixed-lag
-    one alone would need the last L + 1 only).
+    Memory: BYTES_PER_RECORDED_PARTICLE of each particle of every step (R N K), which the path smoother
+    needs (the fixed-lag one alone would need the last L + 1 steps only).
 
     Parameters
     ----------

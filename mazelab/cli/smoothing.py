@@ -298,10 +298,9 @@ def run_cells(
     workers: int | None,
     dask: str | None,
 ) -> np.ndarray:
-    """exact_parameter_posterior's map: `cell(sigma, delta)` of every cell (S D,) on the study's executor
-    (mazelab.experiments.executor.run_units: --workers processes or the --dask cluster) unless the journal
-    holds it; each one finished is appended to the journal. A stop keeps them there and says how to go on
-    (exit 130, 143 or 129); a lost cluster or a cell that failed: one line, exit 1."""
+    """exact_parameter_posterior's map: `cell(sigma, delta)` of every cell (S D,) the journal lacks, on the
+    study's executor (--workers processes or the --dask cluster), each finished one appended to the journal;
+    a stop or a lost cluster ends as a study's (`exit_stopped`), a cell that failed in one line, exit 1."""
     (log, done), workers = journal or (None, {}), executor.worker_count(workers)
     units = [((i, sigmas[i], deltas[i]),) for i in range(len(sigmas)) if i not in done]
 
