@@ -85,7 +85,7 @@ def smooth(
     filter's own estimate, fixed-lag and path smoothers scored against it step by step (the distance of
     their means to the exact smoothed mean, the total variation over the maze's cells, the distinct
     ancestors each rests on: the path degeneracy). Each filter takes the options it declares."""
-    path, stored, files, (world, sigma, delta) = opened(scenario, **files)
+    path, stored, files, (world, sigma, delta) = opened(scenario, files)
     options = filter_options(filters, named, option)
     seed = seed if seed is not None else stored.seed if stored.seed is not None else 0
     parameters = {
@@ -220,7 +220,7 @@ def learn(
     under the uniform prior on the ranges (the grid filter's exact evidence at each, spread over --workers
     processes or a --dask cluster, each finished cell kept in a journal beside --csv that --resume goes on
     from), and a PMMH chain (--pmmh) with a particle filter's evidence beside it."""
-    path, stored, files, (world, _, _) = opened(scenario, **files)
+    path, stored, files, (world, _, _) = opened(scenario, files)
     ranges = []  # --sigma-range and --delta-range, LOW,HIGH each
     for text, option in ((sigma_range, "--sigma-range"), (delta_range, "--delta-range")):
         values = parse_list(text, float, option)
@@ -420,9 +420,7 @@ def posterior_figure(posterior: Any, chain: Any, title: str) -> Any:
     return figure
 
 
-def opened(
-    scenario: Path, csv_path: Path | None, plot: Path | None, record: Path | None, rrd: Path | None, **flags: bool
-) -> tuple[Path, Scenario, dict[str, Any], tuple[Any, float, float]]:
+def opened(scenario: Path, files: dict[str, Any]) -> tuple[Path, Scenario, dict[str, Any], tuple[Any, float, float]]:
     """The scenario (a file or a shipped name) with its measurements, the outputs (`output_options`, and --csv's
     journal) checked before any work (distinct files, none replaced without --force or learn's --resume, the
     record beside --csv by default) and returned so, and the scenario's maze (the shipped one it fits when it
@@ -430,16 +428,18 @@ def opened(
     from mazelab.cli.replay import replay_setup
     from mazelab.scenario import find_scenario, load_scenario  # imported by the commands that read one (a study never)
 
-    record = record if record is not None else record_path(csv_path) if csv_path is not None else None
+    csv_path = files["csv_path"]
+    replace = files["force"] or files.get("resume", False)  # what may replace an output, kept for write_outputs
+    record = files["record"] or (record_path(csv_path) if csv_path is not None else None)
     journal = journal_path(csv_path) if csv_path else None  # learn's, checked by its owner; smooth's too
-    named = [("--csv", csv_path), ("--csv's journal", journal), ("--plot", plot), ("the record", record)]
-    check_outputs([*named, ("--rrd", rrd)], flags["force"] or flags.get("resume", False), apart="--csv's journal")
+    named = [("--csv", csv_path), ("--csv's journal", journal), ("--plot", files["plot"]), ("the record", record)]
+    check_outputs([*named, ("--rrd", files["rrd"])], replace, apart="--csv's journal")
     path = find_scenario(scenario)
     stored = load_scenario(path)
     if stored.robot_measurements is None:
         raise UserError(f"{path} stores no measurements (robot_measurements): save a run's scenario with them")
     setup = replay_setup(stored, None, None, None, 0)
-    files = {"csv_path": csv_path, "journal": journal, "plot": plot, "record": record, "rrd": rrd, **flags}
+    files = {**files, "journal": journal, "record": record, "replace": replace}
     return path, stored, files, (setup.world, setup.sigma, setup.delta)
 
 
@@ -449,15 +449,14 @@ def write_outputs(
     """Each output `opened` checked: the rows (`rows`: what one row is, and a callable giving the CSV's text),
     the figure (`figure()`), the recording (`recording(path, replace)`) and the record, finished with `summary`;
     --force (or learn's --resume) replaces them."""
-    replace = files["force"] or files.get("resume", False)
     if files["csv_path"] is not None:
-        write_atomically(files["csv_path"], rows[1](), replace=replace)
+        write_atomically(files["csv_path"], rows[1](), replace=files["replace"])
         typer.echo(f"one row per {rows[0]} written to {files['csv_path']}")
     if files["plot"] is not None:
-        save_figure(figure(), files["plot"], replace=replace)
+        save_figure(figure(), files["plot"], replace=files["replace"])
         typer.echo(f"the figure written to {files['plot']}")
     if files["rrd"] is not None:
-        recording(files["rrd"], replace)
+        recording(files["rrd"], files["replace"])
     if files["record"] is not None:
         recorder.finish("finished", summary=summary)
         recorder.write(files["record"])
