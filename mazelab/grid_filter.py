@@ -15,8 +15,7 @@ from mazelab.model import (
     CONFIDENCE_RADIUS,
     CONFIDENCE_SHARE,
     LOG_UNDERFLOW,
-    OUTSIDE_PENALTY_OPTION,
-    SPEED_OPTION,
+    MODEL_OPTIONS,
     ModelFilter,
 )
 from mazelab.modes import ESTIMATE_OPTION, MODE_CELL, Mode, find_modes, modes_of_bins
@@ -48,8 +47,7 @@ class GridBayesFilter(ModelFilter):
             "the grid's margin around the map, map units (mass leaving it is dropped)",
             check=number_in("margin", 0.0, MAP_MARGIN, low_open=False, what=" map units"),
         ),
-        OUTSIDE_PENALTY_OPTION,
-        SPEED_OPTION,
+        *MODEL_OPTIONS,  # the model's options, read by ModelFilter as a particle filter's LostRobot reads them
         ESTIMATE_OPTION,
     )
 
